@@ -1,0 +1,44 @@
+# pcreg: `make demo` and `make test` set themselves up on a fresh Debian machine.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.pcreg-installed
+# Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU).
+APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1
+# OPEN3D=cuda installs the CUDA build of Open3D (907 MB) instead of the CPU build (312 MB).
+OPEN3D ?= cpu
+PYTEST_ARGS ?=
+
+.PHONY: setup sysdeps demo test bench clean
+
+setup: sysdeps $(STAMP)
+
+sysdeps:
+	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing system packages:$$missing"; \
+	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
+	  export DEBIAN_FRONTEND=noninteractive; \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	fi
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test]"
+	@touch $(STAMP)
+
+demo: setup
+	$(BIN)/pcreg demo --out out/demo --force
+
+test: setup
+	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+
+bench: setup
+	$(BIN)/python tools/bench_registration.py --out out/bench
+	$(BIN)/python tools/bench_classifier.py --out out/bench
+	$(BIN)/python tools/bench_pipeline.py --out out/bench
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

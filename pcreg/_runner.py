@@ -1,0 +1,75 @@
+"""Running many independent evaluation units: executors and progress bars.
+
+Units are pure functions of their config. ``--workers N`` uses a local
+``ProcessPoolExecutor``; ``--scheduler ADDRESS`` uses a ``dask.distributed``
+client's executor, so the same code scales to a cluster (dask is optional and
+imported only then). Results come back to the parent, which merges and writes them.
+"""
+
+from __future__ import annotations
+
+import sys
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+
+class _InlineExecutor(Executor):
+    """Runs each call at submit time, in this process (``--workers 1``): easiest to debug and profile."""
+
+    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+
+@contextmanager
+def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator[Executor]:
+    """An executor for ``workers`` local processes, or for a dask.distributed scheduler address."""
+    if scheduler:
+        try:
+            from dask.distributed import Client  # type: ignore[import-not-found]
+        except ImportError:
+            from .errors import PcregError
+
+            raise PcregError("--scheduler needs dask.distributed (pip install 'dask[distributed]')") from None
+        client = Client(scheduler)
+        try:
+            yield client.get_executor()
+        finally:
+            client.close()
+    elif workers <= 1:
+        yield _InlineExecutor()
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            yield pool
+
+
+def progress(iterable: Iterable | None = None, *, total: int | None = None, desc: str = "", disable: bool | None = None):
+    """A tqdm progress bar on stderr (hidden when stderr is not a terminal unless forced)."""
+    from tqdm.auto import tqdm
+
+    if disable is None:
+        disable = not sys.stderr.isatty()
+    return tqdm(iterable, total=total, desc=desc, disable=disable, dynamic_ncols=True, leave=False)
+
+
+def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Executor, desc: str = "",
+              on_result: Callable[[Any, Any], None] | None = None, show_progress: bool | None = None) -> list:
+    """Submit ``fn(unit)`` for every unit; call ``on_result(unit, result)`` as each finishes (in the parent).
+
+    Returns the results in the order of ``units``.
+    """
+    futures = {executor.submit(fn, u): i for i, u in enumerate(units)}
+    results: list = [None] * len(units)
+    with progress(total=len(units), desc=desc, disable=None if show_progress is None else not show_progress) as bar:
+        for fut in as_completed(futures):
+            i = futures[fut]
+            results[i] = fut.result()
+            if on_result is not None:
+                on_result(units[i], results[i])
+            bar.update(1)
+    return results

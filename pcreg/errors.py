@@ -1,0 +1,26 @@
+"""pcreg's exceptions. Every one is a ``ValueError`` so callers can catch bad input in one place.
+
+The command line turns any :class:`PcregError` into a one-line message and exit code 2.
+"""
+
+from __future__ import annotations
+
+
+class PcregError(ValueError):
+    """Base class of every error pcreg raises on purpose."""
+
+
+class InputError(PcregError):
+    """A file or array that pcreg cannot use: missing, unreadable, empty, wrong shape or dtype."""
+
+
+class RegistrationError(PcregError):
+    """Registration impossible with the given inputs (too few points, degenerate geometry, no overlap)."""
+
+
+class DatasetError(PcregError):
+    """A dataset folder or file that does not follow its format."""
+
+
+class OutputError(PcregError):
+    """An output path that cannot be written, or that exists and would be overwritten."""

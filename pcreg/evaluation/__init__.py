@@ -1,0 +1,1 @@
+"""Evaluations: the thesis experiments and the demo (one module each: add_arguments, run)."""

@@ -1,0 +1,490 @@
+"""Rerun recordings (.rrd) of every stage; the only module of pcreg that imports rerun.
+
+A :class:`Recorder` writes to its file as it goes, so a run that is interrupted leaves a recording
+that reads back up to where it stopped. Entity paths and timelines are named in
+:mod:`viz.entities`; the blueprint embedded in the file comes from :mod:`viz.blueprint`.
+
+Usage::
+
+    with Recorder("out/run.rrd", force=True) as rec:
+        rec.log_config({"backend": "reference"})
+        for i, (reference, moving) in enumerate(pairs):
+            rec.set_frame(i)
+            result = register(reference, moving, callback=rec.icp_callback("reference"))
+            rec.log_images(reference=reference, moving=moving)
+            rec.log_transform(result.matrix)
+
+Cost: images are JPEG-encoded (quality 75 by default) and clouds are subsampled for display, so a
+100-frame 640x480 sequence stays under 15 MB and recording adds a few milliseconds per frame
+(``tools/bench_recording.py`` measures both).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import traceback
+import uuid
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import cv2
+import numpy as np
+import rerun as rr
+
+from viz import entities as E
+
+from ._io import check_output, to_json
+from .errors import InputError, OutputError
+from .result import IcpIteration
+
+__all__ = ["Recorder", "DEFAULT_JPEG_QUALITY"]
+
+#: JPEG quality of logged images. On 640x480 camera frames quality 75 (libjpeg's own default) gives
+#: about 37 kB a frame against 42 kB at 80, 50 kB at 85 and 63 kB at 90, with no artefact visible at
+#: the viewer's zoom; it is what keeps three images, two label maps and the clouds of a 100-frame
+#: sequence under 15 MB. ``raw_images=True`` logs the pixels losslessly instead.
+DEFAULT_JPEG_QUALITY = 75
+
+_LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}
+
+
+def _as_image(image: Any, name: str) -> np.ndarray:
+    a = np.asarray(image)
+    if a.dtype != np.uint8 or not (a.ndim == 3 and a.shape[2] == 3 or a.ndim == 2) or a.size == 0:
+        raise InputError(f"{name} must be an (H, W, 3) RGB or (H, W) uint8 image, got {a.dtype} {a.shape}")
+    return a
+
+
+def _as_points(points: Any, name: str) -> np.ndarray:
+    a = np.asarray(points, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 2:
+        raise InputError(f"{name} must be (N, 2) pixel coordinates, got shape {a.shape}")
+    return a
+
+
+def _as_colors(colors: Any, n: int, name: str) -> np.ndarray | None:
+    """(N, 3) float in 0..1 or uint8 -> (N, 3) uint8."""
+    if colors is None:
+        return None
+    c = np.asarray(colors)
+    if c.ndim != 2 or c.shape[0] != n or c.shape[1] not in (3, 4):
+        raise InputError(f"{name} must be (N, 3) with N = {n}, got shape {c.shape}")
+    if c.dtype == np.uint8:
+        return c[:, :3]
+    return np.clip(np.rint(c[:, :3].astype(np.float32) * 255.0), 0, 255).astype(np.uint8)
+
+
+def _display_indices(n: int, limit: int) -> np.ndarray | slice:
+    """Evenly spaced indices of at most ``limit`` of ``n`` items (deterministic, order kept)."""
+    if n <= limit:
+        return slice(None)
+    return np.linspace(0, n - 1, limit).astype(np.intp)
+
+
+def _apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Map (N, 2) points by a (3, 3) homogeneous matrix."""
+    h = points @ matrix[:2, :2].T + matrix[:2, 2]
+    w = points @ matrix[2, :2] + matrix[2, 2]
+    return h / w[:, None]
+
+
+def _plain(obj: Any) -> Any:
+    """JSON-ready copy of a report or config: dataclasses and results become dicts."""
+    if hasattr(obj, "to_dict") and callable(obj.to_dict):
+        return _plain(obj.to_dict())
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return _plain(dataclasses.asdict(obj))
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return obj
+
+
+def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
+    """Every int/float leaf of a nested dict, keyed by the path of keys joined with '/'."""
+    out: dict[str, float] = {}
+    if isinstance(obj, Mapping):
+        for k, v in obj.items():
+            key = f"{prefix}/{k}" if prefix else str(k)
+            out.update(_numbers(v, key))
+    elif isinstance(obj, (int, float, np.integer, np.floating)) and not isinstance(obj, (bool, np.bool_)):
+        out[prefix] = float(obj)
+    return out
+
+
+class Recorder:
+    """Writes one rerun recording (.rrd) of a pcreg run; a context manager.
+
+    Parameters
+    ----------
+    path : str or Path
+        The .rrd file, written as the run goes.
+    application_id : str
+        Rerun application id (groups recordings in the viewer).
+    recording_name : str, optional
+        Human-readable name shown by the viewer.
+    recording_id : str, optional
+        Rerun recording id; a fresh UUID4 when omitted.
+    raw_images : bool
+        Log images (and label maps) losslessly instead of JPEG (and display-subsampled labels).
+    force : bool
+        Overwrite an existing file.
+    blueprint : bool or str
+        Embed the blueprint from :mod:`viz.blueprint` (``True`` or a layout name: ``"default"``,
+        ``"crosscheck"``); ``False`` lets the viewer choose.
+    jpeg_quality : int
+        JPEG quality of logged images (1..100).
+    max_display_points : int
+        At most this many points of each cloud are logged per frame (evenly spaced subsample).
+    label_stride : int, optional
+        Label maps are logged as ``labels[::s, ::s]`` for display; default 2 (1 with ``raw_images``).
+
+    Raises
+    ------
+    OutputError
+        ``path`` exists and not ``force``, or it cannot be written.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        application_id: str = "pcreg",
+        recording_name: str | None = None,
+        recording_id: str | None = None,
+        raw_images: bool = False,
+        force: bool = False,
+        blueprint: bool | str = True,
+        jpeg_quality: int = DEFAULT_JPEG_QUALITY,
+        max_display_points: int = 500,
+        label_stride: int | None = None,
+    ) -> None:
+        self.path = Path(path)
+        if self.path.suffix.lower() != ".rrd":
+            raise OutputError(f"{self.path}: a recording's name must end in .rrd")
+        if self.path.is_dir():
+            raise OutputError(f"cannot write {self.path}: it is a folder")
+        check_output(self.path, force=force)
+        if not 1 <= int(jpeg_quality) <= 100:
+            raise ValueError(f"jpeg_quality must be in 1..100, got {jpeg_quality}")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with open(self.path, "wb"):  # fail here, with our message, rather than in rerun's sink thread
+                pass
+        except OSError as exc:
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        self.raw_images = bool(raw_images)
+        self.jpeg_quality = int(jpeg_quality)
+        self.max_display_points = int(max_display_points)
+        self.label_stride = int(label_stride if label_stride is not None else (1 if raw_images else 2))
+        self.application_id = application_id
+        self.recording_id = recording_id or str(uuid.uuid4())
+        self._rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
+        bp = None
+        if blueprint:
+            from viz.blueprint import blueprint as make_blueprint
+
+            bp = make_blueprint(layout=blueprint if isinstance(blueprint, str) else "default")
+        try:
+            self._rec.save(self.path, default_blueprint=bp)
+        except Exception as exc:  # rerun raises its own types for sink errors
+            raise OutputError(f"cannot write {self.path}: {exc}") from None
+        if recording_name:
+            self._rec.send_recording_name(recording_name)
+        self._closed = False
+        self._frame: int | None = None
+        self._icp_step: dict[str, int] = {}
+        self._icp_target_key: dict[str, tuple] = {}
+        self._moving_display: tuple[np.ndarray, np.ndarray | None] | None = None
+        self._matrix: np.ndarray | None = None
+        self._moving_shape: tuple[int, int] | None = None
+        self._series_named: set[str] = set()
+        self._rec.log("/", rr.AnnotationContext(
+            [rr.AnnotationInfo(id=k, label=name, color=color) for k, (name, color) in E.CLASSES.items()]
+        ), static=True)
+
+    # -- life cycle ---------------------------------------------------------------------------
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc is not None and not self._closed:
+            text = "".join(traceback.format_exception_only(exc_type, exc)).strip()
+            self.log_failure(text)
+        self.close()
+        return False
+
+    def close(self) -> None:
+        """Flush everything to the file and finish it (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._rec.flush()
+        self._rec.disconnect()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _log(self, path: str, *archetypes: Any, static: bool = False) -> None:
+        if self._closed:
+            raise OutputError(f"{self.path}: the recording is closed")
+        self._rec.log(path, *archetypes, static=static)
+
+    # -- time ---------------------------------------------------------------------------------
+
+    def set_frame(self, index: int) -> None:
+        """Put what follows on the ``frame`` timeline at ``index``; earlier frames are flushed to disk."""
+        if self._frame is not None:
+            self._rec.flush(timeout_sec=5.0)
+        self._frame = int(index)
+        self._rec.set_time(E.FRAME_TIMELINE, sequence=self._frame)
+        self._rec.disable_timeline(E.ICP_TIMELINE)
+        self._icp_step.clear()
+        self._icp_target_key.clear()
+        self._moving_display = None
+        self._matrix = None
+
+    # -- text ---------------------------------------------------------------------------------
+
+    def log_config(self, config: Any) -> None:
+        """Log the run's configuration (a dict or a dataclass) as text: a TextLog line and the ``config`` document."""
+        text = to_json(_plain(config))
+        self._log(E.CONFIG, rr.TextDocument(text, media_type=rr.MediaType.TEXT), static=True)
+        self._log(E.LOG, rr.TextLog("config: " + json.dumps(_plain(config), default=str), level="INFO"))
+
+    def log_text(self, text: str, level: str = "INFO") -> None:
+        """One line (or more) on the text log; ``level`` is TRACE, DEBUG, INFO, WARN, ERROR or CRITICAL."""
+        level = str(level).upper()
+        if level == "WARNING":
+            level = "WARN"
+        if level not in _LEVELS:
+            raise ValueError(f"unknown log level {level!r}")
+        self._log(E.LOG, rr.TextLog(str(text), level=level))
+
+    def log_failure(self, text: str) -> None:
+        """A failure, as an ERROR line on the text log."""
+        self._log(E.LOG, rr.TextLog(str(text), level="ERROR"))
+
+    # -- images -------------------------------------------------------------------------------
+
+    def _image(self, a: np.ndarray, **kw: Any) -> Any:
+        if self.raw_images:
+            return rr.Image(a, color_model="L" if a.ndim == 2 else "RGB", **kw)
+        bgr = a if a.ndim == 2 else cv2.cvtColor(a, cv2.COLOR_RGB2BGR)
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        if not ok:  # pragma: no cover - OpenCV's JPEG encoder does not fail on uint8 images
+            raise OutputError("JPEG encoding failed")
+        return rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg", **kw)
+
+    def log_images(
+        self,
+        *,
+        reference: np.ndarray | None = None,
+        moving: np.ndarray | None = None,
+        warped: np.ndarray | None = None,
+        valid_mask: np.ndarray | None = None,
+    ) -> None:
+        """Log the frame's images.
+
+        reference, moving, warped : (H, W, 3) uint8 RGB (or (H, W) uint8 grey), optional
+            JPEG-compressed unless ``raw_images``. ``warped`` is the moving image on the reference's
+            pixel grid and is drawn over the reference at half opacity.
+        valid_mask : (H, W) bool, optional
+            Where ``warped`` has data; logged losslessly (PNG, or raw).
+        """
+        if reference is not None:
+            self._log(E.REFERENCE_IMAGE, self._image(_as_image(reference, "reference"), draw_order=-10.0))
+        if moving is not None:
+            m = _as_image(moving, "moving")
+            self._moving_shape = (int(m.shape[0]), int(m.shape[1]))
+            self._log(E.MOVING_IMAGE, self._image(m, draw_order=-10.0))
+        if warped is not None:
+            self._log(E.WARPED_IMAGE, self._image(_as_image(warped, "warped"), opacity=0.5, draw_order=-5.0))
+        if valid_mask is not None:
+            mask = np.asarray(valid_mask)
+            if mask.ndim != 2:
+                raise InputError(f"valid_mask must be (H, W), got shape {mask.shape}")
+            m8 = np.where(mask.astype(bool), np.uint8(255), np.uint8(0))
+            if self.raw_images:
+                self._log(E.VALID_MASK, rr.Image(m8, color_model="L"))
+            else:
+                ok, buf = cv2.imencode(".png", m8)
+                self._log(E.VALID_MASK, rr.EncodedImage(contents=buf.tobytes(), media_type="image/png"))
+
+    # -- clouds -------------------------------------------------------------------------------
+
+    def _points(self, points: np.ndarray, colors: np.ndarray | None, *, radius: float = 1.5) -> Any:
+        return rr.Points2D(points, colors=colors, radii=radius)
+
+    def log_clouds(
+        self,
+        *,
+        reference_points: np.ndarray | None = None,
+        reference_colors: np.ndarray | None = None,
+        moving_points: np.ndarray | None = None,
+        moving_colors: np.ndarray | None = None,
+    ) -> None:
+        """Log both clouds as Points2D coloured by their pixels' colour (at most ``max_display_points`` each).
+
+        *_points : (N, 2) float64 pixel coordinates (x right, y down) in their own image.
+        *_colors : (N, 3) float32 in 0..1 or uint8, optional.
+        The moving cloud is also drawn in the registration view, mapped by the frame's transform.
+        """
+        if reference_points is not None:
+            p = _as_points(reference_points, "reference_points")
+            c = _as_colors(reference_colors, len(p), "reference_colors")
+            idx = _display_indices(len(p), self.max_display_points)
+            self._log(E.REFERENCE_CLOUD, self._points(p[idx], None if c is None else c[idx]))
+        if moving_points is not None:
+            p = _as_points(moving_points, "moving_points")
+            c = _as_colors(moving_colors, len(p), "moving_colors")
+            idx = _display_indices(len(p), self.max_display_points)
+            shown = (p[idx], None if c is None else c[idx])
+            self._log(E.MOVING_CLOUD, self._points(*shown))
+            self._moving_display = shown
+            if self._matrix is not None:
+                self._log_moved_cloud()
+
+    def _log_moved_cloud(self) -> None:
+        assert self._moving_display is not None and self._matrix is not None
+        points, colors = self._moving_display
+        if self._matrix.shape == (3, 3):
+            self._log(E.MOVED_CLOUD, self._points(_apply(self._matrix, points), colors))
+
+    # -- transform ----------------------------------------------------------------------------
+
+    def log_transform(
+        self,
+        matrix: np.ndarray,
+        *,
+        name: str = "T_ref_mov",
+        moving_shape: tuple[int, int] | None = None,
+    ) -> None:
+        """Log a transform exactly (Tensor at ``transforms/{name}``) and draw it.
+
+        matrix : (3, 3) float64 homogeneous ``T_ref_mov`` (or (4, 4) for 3-D clouds, logged but not drawn).
+        moving_shape : (H, W), optional
+            Size of the moving image whose border is drawn mapped into the reference; defaults to the
+            last moving image logged.
+        """
+        m = np.asarray(matrix, dtype=np.float64)
+        if m.shape not in ((3, 3), (4, 4)) or not np.all(np.isfinite(m)):
+            raise InputError(f"matrix must be a finite (3, 3) or (4, 4) array, got shape {m.shape}")
+        self._log(E.transform_path(name), rr.Tensor(m, dim_names=["row", "col"]))
+        if m.shape != (3, 3):
+            return
+        if name == "T_ref_mov":
+            self._matrix = m
+            if self._moving_display is not None:
+                self._log_moved_cloud()
+        shape = moving_shape or self._moving_shape
+        if shape is not None:
+            h, w = shape
+            corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5], [-0.5, -0.5]])
+            self._log(E.outline_path(name), rr.LineStrips2D([_apply(m, corners)], colors=[255, 220, 0], radii=1.0))
+
+    # -- labels -------------------------------------------------------------------------------
+
+    def log_labels(
+        self,
+        *,
+        truth: np.ndarray | None = None,
+        predicted: np.ndarray | None = None,
+        prefix: str = "",
+    ) -> None:
+        """Log label maps as SegmentationImage (0 ground, 1 obstacle, 2 unknown; the classes are named
+        and coloured by the recording's static AnnotationContext).
+
+        truth, predicted : (H, W) integer class ids; logged as ``labels[::s, ::s]`` uint8 with
+        ``s = label_stride``. ``prefix`` separates several predictions (``labels/predicted/{prefix}``).
+        """
+        s = self.label_stride
+        for kind, labels in (("truth", truth), ("predicted", predicted)):
+            if labels is None:
+                continue
+            a = np.asarray(labels)
+            if a.ndim != 2 or not np.issubdtype(a.dtype, np.integer):
+                raise InputError(f"{kind} labels must be (H, W) integers, got {a.dtype} {a.shape}")
+            if a.size and (a.min() < 0 or a.max() > 255):
+                raise InputError(f"{kind} labels must be class ids in 0..255")
+            self._log(E.labels_path(kind, prefix), rr.SegmentationImage(np.ascontiguousarray(a[::s, ::s], dtype=np.uint8)))
+
+    # -- series -------------------------------------------------------------------------------
+
+    def _scalar(self, path: str, value: float, name: str | None = None) -> None:
+        if path not in self._series_named:
+            self._series_named.add(path)
+            self._log(path, rr.SeriesLines(names=name or path.rsplit("/", 1)[-1]), static=True)
+        self._log(path, rr.Scalars(float(value)))
+
+    def log_errors(self, errors: Mapping[str, float]) -> None:
+        """Log error rates (fractions) per method as Scalars at ``errors/{method}``; NaN is skipped."""
+        for method, value in errors.items():
+            v = float(value)
+            if math.isfinite(v):
+                self._scalar(E.error_path(str(method)), v, str(method))
+
+    # -- ICP ----------------------------------------------------------------------------------
+
+    def icp_callback(
+        self, backend: str, *, max_points: int = 300, max_correspondences: int = 200
+    ) -> Callable[[IcpIteration], None]:
+        """A per-iteration callback for either ICP; logs under ``icp/{backend}/`` on the ``icp_iteration``
+        timeline (a counter that restarts at every :meth:`set_frame` and runs on over pyramid levels).
+
+        Per iteration: the moving (source) cloud as it moves (<= ``max_points``), <= ``max_correspondences``
+        source -> target pairs as LineStrips2D, fitness and inlier RMSE as Scalars. The target cloud is
+        logged once per frame and pyramid level. Only 2-D iterations are drawn; series are logged for any.
+        """
+        backend = str(backend)
+
+        def callback(it: IcpIteration) -> None:
+            step = self._icp_step.get(backend, 0)
+            self._icp_step[backend] = step + 1
+            self._rec.set_time(E.ICP_TIMELINE, sequence=step)
+            try:
+                self._scalar(E.icp_path(backend, "fitness"), it.fitness, f"{backend} fitness")
+                self._scalar(E.icp_path(backend, "inlier_rmse"), it.inlier_rmse, f"{backend} inlier RMSE")
+                src = np.asarray(it.source_points)
+                tgt = np.asarray(it.target_points)
+                if src.ndim == 2 and src.shape[1] == 2 and tgt.ndim == 2 and tgt.shape[1] == 2:
+                    key = (it.level, len(tgt))
+                    if self._icp_target_key.get(backend) != key:
+                        self._icp_target_key[backend] = key
+                        t_idx = _display_indices(len(tgt), max_points)
+                        self._log(E.icp_path(backend, "target"), rr.Points2D(tgt[t_idx], colors=[80, 160, 255], radii=1.5))
+                    s_idx = _display_indices(len(src), max_points)
+                    self._log(E.icp_path(backend, "moving"), rr.Points2D(src[s_idx], colors=[255, 120, 0], radii=1.5))
+                    ti = np.asarray(it.target_indices)
+                    matched = np.flatnonzero(ti >= 0)
+                    pick = matched[_display_indices(len(matched), max_correspondences)]
+                    strips = np.stack([src[pick], tgt[ti[pick]]], axis=1) if len(pick) else np.zeros((0, 2, 2))
+                    self._log(E.icp_path(backend, "correspondences"),
+                              rr.LineStrips2D(strips, colors=[255, 255, 255], radii=0.5))
+            finally:
+                self._rec.disable_timeline(E.ICP_TIMELINE)
+
+        return callback
+
+    # -- crosscheck ---------------------------------------------------------------------------
+
+    def log_crosscheck(self, report: Mapping[str, Any]) -> None:
+        """Log a crosscheck report: the whole report as JSON text (``crosscheck/report``), a one-line
+        summary on the text log, and every number in it as Scalars (``crosscheck/{key}``, nested keys
+        joined by '/'). Results (objects with ``to_dict``) and dataclasses are converted."""
+        plain = _plain(report)
+        self._log(E.CROSSCHECK_REPORT, rr.TextDocument(to_json(plain), media_type=rr.MediaType.TEXT))
+        numbers = _numbers(plain)
+        for key, value in numbers.items():
+            if math.isfinite(value):
+                self._scalar(f"{E.CROSSCHECK}/{key}", value, key)
+        summary = ", ".join(f"{k}={v:.6g}" for k, v in numbers.items() if "/" not in k)
+        self._log(E.LOG, rr.TextLog(f"crosscheck: {summary}" if summary else "crosscheck logged", level="INFO"))

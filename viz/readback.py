@@ -1,0 +1,146 @@
+"""Read a pcreg recording back into arrays (for tests, tools and figures), with ``rerun.chunk.RrdReader``.
+
+Example::
+
+    rec = read_recording("out/run.rrd")
+    rec.application_id, rec.recording_id
+    T = tensor(rec.latest("transforms/T_ref_mov", frame=0))          # (3, 3) float64, exact
+    errors = rec.series("errors/plain")                              # {frame: value}
+    labels = segmentation(rec.latest("labels/predicted", frame=3))   # (h, w) uint8
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Row", "Recording", "read_recording", "tensor", "image", "segmentation", "scalar", "text", "points"]
+
+_SKIP_TIMELINES = {"log_time", "log_tick"}
+
+
+@dataclass(frozen=True)
+class Row:
+    """One logged row: its entity, static or not, its times (``frame``, ``icp_iteration``) and components.
+
+    ``components`` maps ``Archetype:field`` (e.g. ``Scalars:scalars``) to the row's pyarrow array.
+    """
+
+    entity: str
+    static: bool
+    times: dict[str, int]
+    components: dict[str, Any]
+
+    def __getitem__(self, component: str) -> Any:
+        return self.components[component]
+
+
+@dataclass
+class Recording:
+    """Everything in the first recording store of an .rrd file, as rows grouped by entity path."""
+
+    path: Path
+    application_id: str
+    recording_id: str
+    blueprints: int
+    rows: dict[str, list[Row]] = field(default_factory=dict)
+
+    def entities(self) -> list[str]:
+        return sorted(self.rows)
+
+    def get(self, entity: str, component: str | None = None) -> list[Row]:
+        """Rows of ``entity`` (leading '/' optional), optionally only those holding ``component``."""
+        rows = self.rows.get("/" + entity.lstrip("/"), [])
+        if component is not None:
+            rows = [r for r in rows if component in r.components]
+        return rows
+
+    def latest(self, entity: str, *, frame: int | None = None, component: str | None = None) -> Row:
+        """The last temporal row of ``entity`` at ``frame`` (or at any frame when None); static rows otherwise."""
+        rows = self.get(entity, component)
+        temporal = [r for r in rows if not r.static and (frame is None or r.times.get("frame") == frame)]
+        pick = temporal or [r for r in rows if r.static]
+        if not pick:
+            raise KeyError(f"{entity}: nothing logged" + (f" at frame {frame}" if frame is not None else ""))
+        return pick[-1]
+
+    def series(self, entity: str, *, timeline: str = "frame") -> dict[int, float]:
+        """``{time: value}`` of a Scalars entity on ``timeline``."""
+        return {r.times[timeline]: scalar(r) for r in self.get(entity, "Scalars:scalars")
+                if not r.static and timeline in r.times}
+
+
+def read_recording(path: str | os.PathLike) -> Recording:
+    """Read every chunk of the first recording in ``path``; raises ``ValueError`` if it is not a recording."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    stores = reader.recordings()
+    if not stores:
+        raise ValueError(f"{path}: no recording in this file")
+    store = stores[0]
+    out = Recording(Path(path), store.application_id, store.recording_id, len(reader.blueprints()))
+    for chunk in reader.stream(store=store):
+        batch = chunk.to_record_batch()
+        names = [n for n in batch.schema.names if not n.startswith("rerun.")]
+        timelines = [n for n in chunk.timeline_names if n not in _SKIP_TIMELINES]
+        comps = [n for n in names if n not in chunk.timeline_names]
+        for i in range(batch.num_rows):
+            times = {}
+            for t in timelines:
+                v = batch.column(t)[i]
+                if v.is_valid:
+                    times[t] = int(v.value) if hasattr(v, "value") else int(v.as_py())
+            values = {c: batch.column(c)[i].values for c in comps if batch.column(c)[i].is_valid}
+            out.rows.setdefault(chunk.entity_path, []).append(Row(chunk.entity_path, chunk.is_static, times, values))
+    return out
+
+
+def scalar(row: Row) -> float:
+    return float(row["Scalars:scalars"].to_pylist()[0])
+
+
+def text(row: Row) -> str:
+    for key in ("TextLog:text", "TextDocument:text"):
+        if key in row.components:
+            return str(row[key].to_pylist()[0])
+    raise KeyError(f"{row.entity}: no text")
+
+
+def tensor(row: Row) -> np.ndarray:
+    """A Tensor row as an array of its logged dtype and shape (exact)."""
+    data = row["Tensor:data"].to_pylist()[0]
+    return np.asarray(data["buffer"]).reshape([int(s) for s in data["shape"]])
+
+
+def points(row: Row) -> np.ndarray:
+    """(N, 2) float32 positions of a Points2D row."""
+    return np.asarray(row["Points2D:positions"].to_pylist(), dtype=np.float32).reshape(-1, 2)
+
+
+def segmentation(row: Row) -> np.ndarray:
+    """A SegmentationImage row as (H, W) uint8 class ids."""
+    fmt = row["SegmentationImage:format"].to_pylist()[0]
+    buf = row["SegmentationImage:buffer"][0].values.to_numpy(zero_copy_only=False)
+    return np.asarray(buf, dtype=np.uint8).reshape(fmt["height"], fmt["width"])
+
+
+def image(row: Row) -> np.ndarray:
+    """An Image or EncodedImage row as (H, W, 3) RGB or (H, W) grey uint8 (JPEG/PNG decoded)."""
+    import cv2
+
+    if "EncodedImage:blob" in row.components:
+        blob = row["EncodedImage:blob"][0].values.to_numpy(zero_copy_only=False)
+        a = cv2.imdecode(np.asarray(blob, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        if a is None:
+            raise ValueError(f"{row.entity}: cannot decode the encoded image")
+        return a if a.ndim == 2 else cv2.cvtColor(a, cv2.COLOR_BGR2RGB)
+    fmt = row["Image:format"].to_pylist()[0]
+    buf = np.asarray(row["Image:buffer"][0].values.to_numpy(zero_copy_only=False), dtype=np.uint8)
+    h, w = fmt["height"], fmt["width"]
+    channels = buf.size // (h * w)
+    return buf.reshape(h, w) if channels == 1 else buf.reshape(h, w, channels)

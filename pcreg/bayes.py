@@ -1,0 +1,408 @@
+"""Per-pixel Gaussian naive Bayes terrain classifier (ground / obstacle / unknown).
+
+The model is scikit-learn's :class:`~sklearn.naive_bayes.GaussianNB` (same parameters, same
+``var_smoothing`` rule, same log-posteriors), fitted and evaluated through the fact that every feature
+of :mod:`pcreg.features` is an 8-bit plane:
+
+- *fit* accumulates, per class and feature, a 256-bin histogram of the training pixels; the class means
+  and variances follow exactly from the histograms (no (N, F) matrix of millions of pixels is built);
+- *predict* looks every plane up in a 256-entry table of per-class Gaussian log-likelihoods
+  (``cv2.LUT``) and sums them, which is Eq. (log p(c) + sum_f log N(x_f; mu_cf, var_cf)) of
+  Gaussian naive Bayes evaluated without a single exp or division per pixel.
+
+The thesis's weight search (30 random (w_r, w_g, w_b), lowest training error wins, its Table 4.1) is
+:func:`thesis_weight_search`; it scores each trial from per-class counts of distinct colours.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from .errors import InputError
+from .features import (
+    check_image,
+    feature_groups,
+    feature_names,
+    normalise_weights,
+    parse_features,
+)
+from .metrics import LABEL_NAMES, N_LABELS, confusion_matrix, error_from_confusion, error_rate  # noqa: F401
+
+__all__ = [
+    "NaiveBayesPixelClassifier",
+    "WeightSearch",
+    "thesis_weight_search",
+    "class_histograms",
+    "error_rate",
+    "confusion_matrix",
+    "error_from_confusion",
+]
+
+_LEVELS = np.arange(256, dtype=np.float64)
+
+
+def _as_lists(images, labels) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Accept one image/label pair or sequences of them; check shapes, dtypes and label values."""
+    if isinstance(images, np.ndarray) and images.ndim == 3:
+        images = [images]
+    if isinstance(labels, np.ndarray) and labels.ndim == 2:
+        labels = [labels]
+    images = list(images)
+    labels = list(labels)
+    if len(images) != len(labels):
+        raise InputError(f"{len(images)} images but {len(labels)} label arrays")
+    if not images:
+        raise InputError("no training images")
+    out_i, out_l = [], []
+    for k, (im, lab) in enumerate(zip(images, labels)):
+        im = check_image(im)
+        if lab is None:
+            raise InputError(f"training image {k} has no labels")
+        lab = np.asarray(lab)
+        if lab.shape != im.shape[:2]:
+            raise InputError(f"labels {lab.shape} do not match image {im.shape[:2]} (training pair {k})")
+        if lab.dtype != np.uint8:
+            if not np.issubdtype(lab.dtype, np.integer):
+                raise InputError(f"labels must be integers, got {lab.dtype} (training pair {k})")
+            if lab.size and (lab.min() < 0 or lab.max() > 255):
+                raise InputError(f"label values outside 0..2 in training pair {k}")
+            lab = lab.astype(np.uint8)
+        if lab.size and lab.max() >= N_LABELS:
+            raise InputError(f"label values must be 0 ground, 1 obstacle, 2 unknown; got {int(lab.max())} "
+                             f"in training pair {k}")
+        out_i.append(im)
+        out_l.append(lab)
+    return out_i, out_l
+
+
+def class_histograms(images, labels, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
+                     weights: Sequence[float] | None = None, exclude_unknown: bool = True) -> np.ndarray:
+    """Per-class, per-feature histograms of the training pixels.
+
+    images : (H, W, 3) uint8 or a sequence of them; labels : (H, W) uint8 in {0, 1, 2} or a sequence.
+    Returns (3, F, 256) int64: ``counts[c, f, v]`` = number of pixels of label c whose feature f is v
+    (row 2, unknown, stays zero when ``exclude_unknown``).
+    """
+    images, labels = _as_lists(images, labels)
+    names = parse_features(features)
+    n_feat = len(feature_names(names))
+    counts = np.zeros((N_LABELS, n_feat, 256), dtype=np.int64)
+    top = 2 if exclude_unknown else N_LABELS
+    for im, lab in zip(images, labels):
+        lab_flat = lab.reshape(-1)
+        keep = lab_flat < top
+        all_kept = bool(keep.all())
+        lab_k = (lab_flat if all_kept else lab_flat[keep]).astype(np.intp) * 256
+        f = 0
+        for name, planes in feature_groups(im, names, weights=weights):
+            if name == "row":
+                # one value per row: count labels per row, then add the rows' counts to their levels
+                h, w = lab.shape
+                per_row = np.zeros((N_LABELS, h), dtype=np.int64)
+                for c in range(top):
+                    per_row[c] = np.count_nonzero(lab == c, axis=1)
+                for c in range(top):
+                    counts[c, f] += np.bincount(planes, weights=per_row[c], minlength=256).astype(np.int64)
+                f += 1
+                continue
+            flat = planes.reshape(-1, planes.shape[-1])
+            for j in range(flat.shape[1]):
+                col = flat[:, j] if all_kept else flat[keep, j]
+                counts[:, f] += np.bincount(lab_k + col, minlength=N_LABELS * 256).reshape(N_LABELS, 256)
+                f += 1
+    return counts
+
+
+def _gaussian_params(counts: np.ndarray, classes: np.ndarray, *, var_smoothing: float,
+                     priors: Sequence[float] | None) -> dict:
+    """GaussianNB's fitted parameters from (3, F, 256) histograms (scikit-learn's definitions)."""
+    h = counts[classes].astype(np.float64)  # (n, F, 256)
+    n_c = h[:, 0, :].sum(axis=1)  # (n,)
+    theta = (h * _LEVELS).sum(axis=2) / n_c[:, None]
+    var = (h * (_LEVELS[None, None, :] - theta[:, :, None]) ** 2).sum(axis=2) / n_c[:, None]
+    total = h.sum(axis=0)  # (F, 256) over the trained classes = the training matrix X
+    n = total[0].sum()
+    mu_all = (total * _LEVELS).sum(axis=1) / n
+    var_all = (total * (_LEVELS[None, :] - mu_all[:, None]) ** 2).sum(axis=1) / n
+    epsilon = var_smoothing * float(var_all.max())
+    var = var + epsilon
+    if priors is None:
+        prior = n_c / n_c.sum()
+    else:
+        prior = np.asarray(priors, dtype=np.float64).reshape(-1)
+        if prior.shape != n_c.shape or np.any(prior < 0) or not np.isclose(prior.sum(), 1.0):
+            raise InputError(f"priors must be {len(n_c)} non-negative numbers summing to 1")
+    return {"class_count": n_c, "theta": theta, "var": var, "epsilon": epsilon, "prior": prior}
+
+
+def _tables(theta: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """(n, F, 256) float64: log N(v; theta, var) for every class, feature and 8-bit value v."""
+    return -0.5 * np.log(2.0 * np.pi * var)[:, :, None] - 0.5 * (
+        (_LEVELS[None, None, :] - theta[:, :, None]) ** 2 / var[:, :, None])
+
+
+class NaiveBayesPixelClassifier:
+    """Gaussian naive Bayes over per-pixel features, with scikit-learn's conventions.
+
+    Parameters
+    ----------
+    features : names from :data:`pcreg.features.FEATURES` (``"thesis"``, ``"rgb"``, ``"hsv"``,
+        ``"lab"``, ``"texture"``, ``"row"``), a tuple or a ``"rgb+hsv+row"`` string.
+    weights : (w_r, w_g, w_b) of the ``"thesis"`` feature (normalised to sum 1; default equal).
+    exclude_unknown : leave unknown (label 2) pixels out of training (the default, as in the thesis);
+        with False, unknown is a third class.
+    var_smoothing : as scikit-learn's GaussianNB: ``var_smoothing * max feature variance`` is added to
+        every variance.
+    priors : class priors in the order of ``classes_``; default: training frequencies.
+
+    Fitted attributes (scikit-learn's names): ``classes_`` (n,) uint8, ``class_count_`` (n,),
+    ``class_prior_`` (n,), ``theta_`` (n, F), ``var_`` (n, F), ``epsilon_``, ``counts_`` (3, F, 256)
+    histograms, ``feature_names_`` (F,).
+    """
+
+    def __init__(self, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
+                 weights: Sequence[float] | None = None, exclude_unknown: bool = True,
+                 var_smoothing: float = 1e-9, priors: Sequence[float] | None = None) -> None:
+        self.features = parse_features(features)
+        self.weights = normalise_weights(weights)
+        self.exclude_unknown = bool(exclude_unknown)
+        self.var_smoothing = float(var_smoothing)
+        self.priors = None if priors is None else tuple(float(p) for p in priors)
+        self.feature_names_ = feature_names(self.features)
+
+    def __repr__(self) -> str:
+        w = "" if "thesis" not in self.features else f", weights=({', '.join(f'{v:.3f}' for v in self.weights)})"
+        fitted = "" if not hasattr(self, "classes_") else f", classes={[LABEL_NAMES[c] for c in self.classes_]}"
+        return (f"NaiveBayesPixelClassifier(features={'+'.join(self.features)}{w}, "
+                f"exclude_unknown={self.exclude_unknown}{fitted})")
+
+    # -- fitting -------------------------------------------------------------------------------
+    def fit(self, images, labels) -> "NaiveBayesPixelClassifier":
+        """Fit on one (H, W, 3) uint8 image and (H, W) uint8 labels, or on sequences of them.
+
+        Raises :class:`~pcreg.errors.InputError` when fewer than two classes have training pixels.
+        """
+        counts = class_histograms(images, labels, self.features, weights=self.weights,
+                                  exclude_unknown=self.exclude_unknown)
+        return self.fit_histograms(counts)
+
+    def fit_histograms(self, counts: np.ndarray) -> "NaiveBayesPixelClassifier":
+        """Fit from :func:`class_histograms` output, (3, F, 256) int (histograms of several training
+        sets can be summed first)."""
+        counts = np.asarray(counts)
+        n_feat = len(self.feature_names_)
+        if counts.shape != (N_LABELS, n_feat, 256):
+            raise InputError(f"histograms must be (3, {n_feat}, 256), got {counts.shape}")
+        if self.exclude_unknown and counts[2].any():
+            raise InputError("histograms count unknown pixels but exclude_unknown is set")
+        present = counts[:, 0, :].sum(axis=1) > 0
+        classes = np.flatnonzero(present).astype(np.uint8)
+        if len(classes) < 2:
+            only = ", ".join(LABEL_NAMES[c] for c in classes) or "none"
+            raise InputError(f"training labels hold only one class ({only}); need both ground and obstacle pixels")
+        p = _gaussian_params(counts, classes, var_smoothing=self.var_smoothing, priors=self.priors)
+        self.counts_ = counts.astype(np.int64, copy=True)
+        self.classes_ = classes
+        self.class_count_ = p["class_count"]
+        self.class_prior_ = p["prior"]
+        self.theta_ = p["theta"]
+        self.var_ = p["var"]
+        self.epsilon_ = p["epsilon"]
+        tables = _tables(self.theta_, self.var_)  # (n, F, 256)
+        self._tables64 = tables
+        self._log_prior = np.log(self.class_prior_)
+        # Fast path: for two classes, the decision is sign(sum_f D_f[x_f] + log p1 - log p0).
+        self._diff32 = (tables[1] - tables[0]).astype(np.float32) if len(classes) == 2 else None
+        self._tables32 = tables.astype(np.float32)
+        return self
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "classes_"):
+            raise InputError("classifier is not fitted; call fit(images, labels) first")
+
+    # -- evaluation ----------------------------------------------------------------------------
+    def _sum_tables(self, image: np.ndarray, tables: np.ndarray) -> np.ndarray:
+        """(H, W) sum over features of ``tables[f][x_f]``; tables (F, 256) float32/float64."""
+        import cv2
+
+        h, w = image.shape[:2]
+        acc = None
+        row_term = None
+        f = 0
+        for name, planes in feature_groups(image, self.features, weights=self.weights):
+            if name == "row":
+                row_term = tables[f][planes]
+                f += 1
+                continue
+            c = planes.shape[-1]
+            lut = np.ascontiguousarray(tables[f:f + c].T.reshape(1, 256, c))
+            looked = cv2.LUT(planes, lut)
+            if c > 1:
+                looked = cv2.transform(looked, np.ones((1, c), dtype=np.float64))
+            elif looked.ndim == 3:
+                looked = looked[:, :, 0]
+            acc = looked if acc is None else cv2.add(acc, looked)
+            f += c
+        if acc is None:
+            acc = np.zeros((h, w), dtype=tables.dtype)
+        if row_term is not None:
+            acc = acc + row_term[:, None].astype(acc.dtype)
+        return acc
+
+    def joint_log_likelihood(self, image: np.ndarray) -> np.ndarray:
+        """(H, W, n) float64: log p(c) + sum_f log N(x_f; theta_cf, var_cf) for each trained class."""
+        self._check_fitted()
+        image = check_image(image)
+        return np.stack([self._sum_tables(image, self._tables64[i]) + self._log_prior[i]
+                         for i in range(len(self.classes_))], axis=-1)
+
+    def predict_log_proba(self, image: np.ndarray) -> np.ndarray:
+        """(H, W, 3) float64 log-posteriors over (ground, obstacle, unknown); a class the model was not
+        trained on (unknown, by default) gets -inf."""
+        jll = self.joint_log_likelihood(image)
+        m = jll.max(axis=-1, keepdims=True)
+        log_norm = m + np.log(np.exp(jll - m).sum(axis=-1, keepdims=True))
+        out = np.full(jll.shape[:2] + (N_LABELS,), -np.inf, dtype=np.float64)
+        out[:, :, self.classes_] = jll - log_norm
+        return out
+
+    def predict_proba(self, image: np.ndarray) -> np.ndarray:
+        """(H, W, 3) float64 posteriors over (ground, obstacle, unknown)."""
+        return np.exp(self.predict_log_proba(image))
+
+    def predict(self, image: np.ndarray) -> np.ndarray:
+        """(H, W) uint8 labels, each one of ``classes_`` (the most probable trained class)."""
+        self._check_fitted()
+        image = check_image(image)
+        if self._diff32 is not None:
+            d = self._sum_tables(image, self._diff32)
+            out = np.greater(d, np.float32(self._log_prior[0] - self._log_prior[1])).view(np.uint8)
+            if self.classes_[0] == 0 and self.classes_[1] == 1:
+                return out
+            return self.classes_[out]
+        scores = np.stack([self._sum_tables(image, self._tables32[i]) + np.float32(self._log_prior[i])
+                           for i in range(len(self.classes_))], axis=-1)
+        return self.classes_[np.argmax(scores, axis=-1)]
+
+    def score_error(self, images, labels, *, exclude_unknown: bool = True) -> float:
+        """Error rate in percent over all pixels of the given frames (pooled), unknown truth left out."""
+        images, labels = _as_lists(images, labels)
+        conf = np.zeros((N_LABELS, N_LABELS), dtype=np.int64)
+        for im, lab in zip(images, labels):
+            conf += confusion_matrix(self.predict(im), lab, exclude_unknown=exclude_unknown)
+        return error_from_confusion(conf)
+
+    def to_sklearn(self):
+        """An equivalent fitted :class:`sklearn.naive_bayes.GaussianNB` (for cross-checks); classes are
+        the label values, features the columns of :func:`pcreg.features.feature_matrix`."""
+        from sklearn.naive_bayes import GaussianNB
+
+        self._check_fitted()
+        nb = GaussianNB(var_smoothing=self.var_smoothing, priors=None if self.priors is None else list(self.priors))
+        nb.classes_ = self.classes_.astype(np.int64)
+        nb.class_count_ = self.class_count_.copy()
+        nb.class_prior_ = self.class_prior_.copy()
+        nb.theta_ = self.theta_.copy()
+        nb.var_ = self.var_.copy()
+        nb.epsilon_ = self.epsilon_
+        nb.n_features_in_ = len(self.feature_names_)
+        return nb
+
+
+@dataclass(frozen=True)
+class WeightSearch:
+    """The thesis's random search for the weights of its single feature (its Table 4.1).
+
+    weights : (w_r, w_g, w_b) with the lowest training error (sum 1).
+    error : that training error, percent of training pixels (unknown excluded).
+    trial_weights : (n_trials, 3) float64; trial_errors : (n_trials,) float64 percent.
+    seed : the seed of the trial weights.
+    """
+
+    weights: tuple[float, float, float]
+    error: float
+    trial_weights: np.ndarray
+    trial_errors: np.ndarray
+    seed: int
+
+    def __repr__(self) -> str:
+        w = ", ".join(f"{v:.3f}" for v in self.weights)
+        return f"WeightSearch(weights=({w}), error={self.error:.2f}%, trials={len(self.trial_errors)}, seed={self.seed})"
+
+    def to_dict(self) -> dict:
+        return {"weights": list(self.weights), "error": float(self.error),
+                "trial_weights": self.trial_weights.tolist(), "trial_errors": self.trial_errors.tolist(),
+                "seed": int(self.seed)}
+
+
+def colour_counts(images, labels, *, exclude_unknown: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each label 0, 1, 2: the distinct colours of its pixels and how often each occurs.
+
+    Returns a list of 3 pairs ``(colours (K, 3) uint8, counts (K,) int64)``; unknown's pair is empty
+    when ``exclude_unknown``.
+    """
+    images, labels = _as_lists(images, labels)
+    out = []
+    for c in range(N_LABELS):
+        if exclude_unknown and c == 2:
+            out.append((np.zeros((0, 3), np.uint8), np.zeros(0, np.int64)))
+            continue
+        packed = []
+        for im, lab in zip(images, labels):
+            sel = im[lab == c].astype(np.int32)
+            packed.append((sel[:, 0] << 16) | (sel[:, 1] << 8) | sel[:, 2])
+        keys = np.concatenate(packed) if packed else np.zeros(0, np.int32)
+        if keys.size == 0:
+            out.append((np.zeros((0, 3), np.uint8), np.zeros(0, np.int64)))
+            continue
+        binc = np.bincount(keys, minlength=1 << 24)
+        nz = np.flatnonzero(binc)
+        colours = np.stack([(nz >> 16) & 255, (nz >> 8) & 255, nz & 255], axis=1).astype(np.uint8)
+        out.append((colours, binc[nz].astype(np.int64)))
+    return out
+
+
+def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, exclude_unknown: bool = True,
+                         var_smoothing: float = 1e-9) -> WeightSearch:
+    """Pick (w_r, w_g, w_b) for the thesis feature by random search (thesis Sec. 4, Table 4.1).
+
+    Draws ``n_trials`` weight triples uniformly from [0, 1)^3 (normalised to sum 1) with
+    ``numpy.random.default_rng(seed)``, fits the single-feature classifier to the training frames for
+    each, and keeps the triple with the lowest training error. Exact: each trial is scored from the
+    per-class counts of distinct colours, which give the same histograms as the pixels themselves.
+
+    images : (H, W, 3) uint8 or a sequence; labels : (H, W) uint8 or a sequence.
+    """
+    import cv2
+
+    if n_trials < 1:
+        raise InputError("n_trials must be at least 1")
+    counts = colour_counts(images, labels, exclude_unknown=exclude_unknown)
+    present = [c for c in range(N_LABELS) if counts[c][1].size]
+    if len(present) < 2:
+        only = ", ".join(LABEL_NAMES[c] for c in present) or "none"
+        raise InputError(f"training labels hold only one class ({only}); need both ground and obstacle pixels")
+    rng = np.random.default_rng(seed)
+    raw = rng.random((n_trials, 3))
+    trial_weights = np.array([normalise_weights(w if w.sum() > 0 else np.ones(3)) for w in raw])
+    errors = np.empty(n_trials)
+    classes = np.array(present)
+    for t, w in enumerate(trial_weights):
+        hist = np.zeros((N_LABELS, 1, 256), dtype=np.int64)
+        for c in present:
+            colours, cnt = counts[c]
+            v = cv2.transform(colours.reshape(-1, 1, 3), w.reshape(1, 3)).reshape(-1)
+            hist[c, 0] = np.bincount(v, weights=cnt, minlength=256).astype(np.int64)
+        p = _gaussian_params(hist, classes, var_smoothing=var_smoothing, priors=None)
+        jll = _tables(p["theta"], p["var"])[:, 0, :] + np.log(p["prior"])[:, None]  # (n, 256)
+        winner = np.argmax(jll, axis=0)  # index into classes for each value
+        h = hist[classes, 0, :]  # (n, 256)
+        correct = h[winner, np.arange(256)].sum()
+        errors[t] = 100.0 * (1.0 - correct / h.sum())
+    best = int(np.argmin(errors))
+    wb = trial_weights[best]
+    return WeightSearch(weights=(float(wb[0]), float(wb[1]), float(wb[2])), error=float(errors[best]),
+                        trial_weights=trial_weights, trial_errors=errors, seed=int(seed))

@@ -1,0 +1,72 @@
+"""Per-pixel classification metrics: confusion matrices and error rates.
+
+Labels follow pcreg's convention: 0 ground, 1 obstacle, 2 unknown. By default pixels whose *truth* is
+unknown are left out of the score (the thesis scores only hand-labelled ground and obstacle pixels).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import InputError
+
+N_LABELS = 3
+LABEL_NAMES = ("ground", "obstacle", "unknown")
+
+
+def _check_pair(predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray | None) -> tuple:
+    predicted = np.asarray(predicted)
+    truth = np.asarray(truth)
+    if predicted.shape != truth.shape:
+        raise InputError(f"predicted labels {predicted.shape} and truth {truth.shape} differ in shape")
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != truth.shape:
+            raise InputError(f"mask {mask.shape} and truth {truth.shape} differ in shape")
+    return predicted, truth, mask
+
+
+def confusion_matrix(predicted: np.ndarray, truth: np.ndarray, *, mask: np.ndarray | None = None,
+                     exclude_unknown: bool = True) -> np.ndarray:
+    """Pixel counts of (true label, predicted label).
+
+    predicted, truth : (H, W) integer arrays with values in {0, 1, 2} (any equal shape works).
+    mask : (H, W) bool, optional — only pixels where it is True are counted (e.g. the valid part of a
+        warped image).
+    exclude_unknown : leave out pixels whose truth is 2 (unknown).
+
+    Returns (3, 3) int64, rows = truth, columns = prediction.
+    """
+    predicted, truth, mask = _check_pair(predicted, truth, mask)
+    t = truth.reshape(-1)
+    p = predicted.reshape(-1)
+    keep = t < (2 if exclude_unknown else N_LABELS)
+    if mask is not None:
+        keep &= mask.reshape(-1)
+    if keep.all():
+        t_k, p_k = t, p
+    else:
+        t_k, p_k = t[keep], p[keep]
+    if p_k.size and (int(p_k.max()) >= N_LABELS or int(p_k.min()) < 0):
+        raise InputError(f"predicted labels must be in 0..{N_LABELS - 1}")
+    counts = np.bincount(t_k.astype(np.intp) * N_LABELS + p_k.astype(np.intp), minlength=N_LABELS * N_LABELS)
+    return counts.reshape(N_LABELS, N_LABELS).astype(np.int64)
+
+
+def error_from_confusion(confusion: np.ndarray) -> float:
+    """Error rate in percent from a (3, 3) confusion matrix; NaN when it counts no pixel."""
+    confusion = np.asarray(confusion)
+    total = int(confusion.sum())
+    if total == 0:
+        return float("nan")
+    return 100.0 * (total - int(np.trace(confusion))) / total
+
+
+def error_rate(predicted: np.ndarray, truth: np.ndarray, *, mask: np.ndarray | None = None,
+               exclude_unknown: bool = True) -> float:
+    """Percentage of scored pixels whose predicted label differs from the truth.
+
+    predicted, truth : (H, W) integer arrays in {0, 1, 2}; mask : (H, W) bool, optional.
+    Returns a float in [0, 100]; NaN when no pixel is scored (all unknown or all masked out).
+    """
+    return error_from_confusion(confusion_matrix(predicted, truth, mask=mask, exclude_unknown=exclude_unknown))

@@ -1,0 +1,309 @@
+"""pcreg.recorder: recordings are read back with rerun.chunk.RrdReader (through viz.readback) and checked by value."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.errors import InputError, OutputError
+from pcreg.recorder import Recorder
+from pcreg.result import IcpIteration
+from viz import entities as E
+from viz.readback import image, points, read_recording, scalar, segmentation, tensor, text
+
+RERUN = Path(sys.executable).parent / "rerun"
+H, W = 48, 64
+
+
+def _image(seed: int) -> np.ndarray:
+    """A smooth RGB test image (JPEG-friendly) with a feature that moves with ``seed``."""
+    y, x = np.mgrid[0:H, 0:W]
+    img = np.stack([x * 4, y * 5, np.full_like(x, 40 * (seed % 5))], axis=-1).astype(np.uint8)
+    cv2.circle(img, (10 + 3 * seed, 20), 6, (255, 255, 255), -1)
+    return img
+
+
+def _matrix(rng: np.random.Generator) -> np.ndarray:
+    a = rng.uniform(-np.pi, np.pi)
+    m = np.array([[np.cos(a), -np.sin(a), rng.normal() * 7.123456789],
+                  [np.sin(a), np.cos(a), rng.normal() * 3.3e-7],
+                  [0.0, 0.0, 1.0]])
+    m[0, 1] += 1e-13  # digits beyond float32 must survive
+    return m
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """A 3-frame recording of every kind of log call, and what was logged."""
+    rng = np.random.default_rng(0)
+    path = tmp_path_factory.mktemp("rec") / "run.rrd"
+    logged = {"matrices": [], "errors": [], "truth": [], "predicted": [], "images": []}
+    with Recorder(path, recording_name="test run", recording_id="test-recording-1", label_stride=1) as rec:
+        rec.log_config({"backend": "reference", "max_iteration": 14})
+        for f in range(3):
+            rec.set_frame(f)
+            ref, mov = _image(f), _image(f + 1)
+            logged["images"].append(ref)
+            rec.log_images(reference=ref, moving=mov, warped=mov, valid_mask=np.ones((H, W), bool))
+            pts = rng.uniform(0, [W, H], size=(2000, 2))
+            cols = rng.random((2000, 3)).astype(np.float32)
+            rec.log_clouds(reference_points=pts, reference_colors=cols, moving_points=pts, moving_colors=cols)
+            m = _matrix(rng)
+            logged["matrices"].append(m)
+            rec.log_transform(m)
+            truth = rng.integers(0, 3, (H, W)).astype(np.uint8)
+            predicted = rng.integers(0, 2, (H, W)).astype(np.int64)
+            logged["truth"].append(truth)
+            logged["predicted"].append(predicted)
+            rec.log_labels(truth=truth, predicted=predicted)
+            rec.log_labels(predicted=1 - predicted, prefix="fused")
+            errs = {"plain": float(rng.random()), "registered": float(rng.random())}
+            logged["errors"].append(errs)
+            rec.log_errors(errs)
+            for backend in ("reference", "open3d"):
+                cb = rec.icp_callback(backend)
+                for k in range(4):
+                    ti = np.where(rng.random(2000) < 0.8, rng.integers(0, 2000, 2000), -1)
+                    cb(IcpIteration(backend, k // 2, k, m, 0.5 + 0.1 * k, 2.0 / (k + 1), pts + k, pts, ti))
+        rec.log_crosscheck({"rotation_deg": 0.0125, "translation_px": {"max": 0.25}, "agree": True,
+                            "reference": {"fitness": 0.9}, "open3d": {"fitness": 0.875}})
+        rec.log_text("finished", level="warning")
+    return path, logged, read_recording(path)
+
+
+def test_ids_name_and_embedded_blueprint(recorded):
+    _, _, rec = recorded
+    assert rec.application_id == "pcreg"
+    assert rec.recording_id == "test-recording-1"
+    assert rec.blueprints == 1
+    names = [r["RecordingInfo:name"].to_pylist()[0] for r in rec.get("__properties", "RecordingInfo:name")]
+    assert names == ["test run"]
+
+
+def test_fresh_recording_id_when_not_given(tmp_path):
+    ids = set()
+    for i in range(2):
+        with Recorder(tmp_path / f"{i}.rrd") as rec:
+            rec.log_text("x")
+        ids.add(read_recording(tmp_path / f"{i}.rrd").recording_id)
+    assert len(ids) == 2 and all(len(i) >= 32 for i in ids)
+
+
+def test_transform_reads_back_exactly(recorded):
+    _, logged, rec = recorded
+    for f, m in enumerate(logged["matrices"]):
+        back = tensor(rec.latest(E.transform_path("T_ref_mov"), frame=f))
+        assert back.dtype == np.float64 and back.shape == (3, 3)
+        assert np.array_equal(back, m)
+
+
+def test_outline_is_the_moving_border_mapped(recorded):
+    _, logged, rec = recorded
+    m = logged["matrices"][1]
+    strip = np.asarray(rec.latest(E.outline_path("T_ref_mov"), frame=1)["LineStrips2D:strips"].to_pylist()[0])
+    corners = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5], [-0.5, -0.5]])
+    expected = corners @ m[:2, :2].T + m[:2, 2]
+    np.testing.assert_allclose(strip, expected, atol=1e-3)
+
+
+def test_error_series_equal_the_logged_values(recorded):
+    _, logged, rec = recorded
+    for method in ("plain", "registered"):
+        series = rec.series(E.error_path(method))
+        assert series == {f: e[method] for f, e in enumerate(logged["errors"])}
+
+
+def test_segmentation_classes_and_annotation_context(recorded):
+    _, logged, rec = recorded
+    for f in range(3):
+        assert np.array_equal(segmentation(rec.latest(E.labels_path("truth"), frame=f)), logged["truth"][f])
+        assert np.array_equal(segmentation(rec.latest(E.labels_path("predicted"), frame=f)), logged["predicted"][f])
+        fused = segmentation(rec.latest(E.labels_path("predicted", "fused"), frame=f))
+        assert np.array_equal(fused, 1 - logged["predicted"][f])
+    ctx = rec.latest("/", component="AnnotationContext:context")
+    assert ctx.static
+    infos = {c["class_id"]: c["class_description"]["info"] for c in ctx["AnnotationContext:context"].to_pylist()[0]}
+    assert {k: v["label"] for k, v in infos.items()} == {0: "ground", 1: "obstacle", 2: "unknown"}
+    assert all(v["color"] is not None for v in infos.values())
+
+
+def test_label_stride_subsamples_for_display(tmp_path):
+    labels = np.arange(H * W).reshape(H, W) % 3
+    with Recorder(tmp_path / "s.rrd") as rec:  # default stride 2 with JPEG images
+        rec.set_frame(0)
+        rec.log_labels(predicted=labels)
+    back = segmentation(read_recording(tmp_path / "s.rrd").latest(E.PREDICTED, frame=0))
+    assert np.array_equal(back, labels[::2, ::2])
+
+
+def test_images_jpeg_by_default_and_raw_on_request(recorded, tmp_path):
+    _, logged, rec = recorded
+    row = rec.latest(E.REFERENCE_IMAGE, frame=2)
+    assert row["EncodedImage:media_type"].to_pylist() == ["image/jpeg"]
+    back = image(row)
+    assert back.shape == (H, W, 3)
+    assert np.abs(back.astype(int) - logged["images"][2]).mean() < 4.0
+    assert np.array_equal(image(rec.latest(E.VALID_MASK, frame=0)), np.full((H, W), 255, np.uint8))
+    assert image(rec.latest(E.WARPED_IMAGE, frame=0)).shape == (H, W, 3)
+
+    img = _image(3)
+    with Recorder(tmp_path / "raw.rrd", raw_images=True) as raw:
+        raw.set_frame(0)
+        raw.log_images(reference=img, valid_mask=np.eye(H, W, dtype=bool))
+    back = read_recording(tmp_path / "raw.rrd")
+    assert np.array_equal(image(back.latest(E.REFERENCE_IMAGE, frame=0)), img)
+    assert np.array_equal(image(back.latest(E.VALID_MASK, frame=0)), np.eye(H, W, dtype=np.uint8) * 255)
+
+
+def test_clouds_subsampled_coloured_and_mapped(recorded):
+    _, logged, rec = recorded
+    ref = rec.latest(E.REFERENCE_CLOUD, frame=0)
+    assert len(points(ref)) == 500
+    assert len(ref["Points2D:colors"]) == 500
+    moving = points(rec.latest(E.MOVING_CLOUD, frame=1)).astype(np.float64)
+    moved = points(rec.latest(E.MOVED_CLOUD, frame=1)).astype(np.float64)
+    m = logged["matrices"][1]
+    np.testing.assert_allclose(moved, moving @ m[:2, :2].T + m[:2, 2], atol=1e-3)
+
+
+def test_icp_iterations_on_their_timeline_per_backend(recorded):
+    _, _, rec = recorded
+    for backend in ("reference", "open3d"):
+        fit = [r for r in rec.get(E.icp_path(backend, "fitness"), "Scalars:scalars") if not r.static]
+        assert [(r.times["frame"], r.times["icp_iteration"]) for r in fit] == [(f, k) for f in range(3) for k in range(4)]
+        assert [scalar(r) for r in fit[:4]] == pytest.approx([0.5, 0.6, 0.7, 0.8])
+        rmse = rec.series(E.icp_path(backend, "inlier_rmse"), timeline="icp_iteration")
+        assert rmse == pytest.approx({0: 2.0, 1: 1.0, 2: 2 / 3, 3: 0.5})
+        corr = rec.get(E.icp_path(backend, "correspondences"))
+        assert len(corr) == 12
+        assert all(len(r["LineStrips2D:strips"]) <= 200 for r in corr)
+        assert len(points(rec.get(E.icp_path(backend, "moving"))[0])) == 300
+        targets = rec.get(E.icp_path(backend, "target"))
+        assert len(targets) == 6  # once per frame and pyramid level
+    # frame-level entities carry no icp_iteration time
+    assert "icp_iteration" not in rec.latest(E.transform_path("T_ref_mov"), frame=2).times
+
+
+def test_text_config_and_crosscheck(recorded):
+    _, _, rec = recorded
+    import json
+
+    assert json.loads(text(rec.latest(E.CONFIG))) == {"backend": "reference", "max_iteration": 14}
+    lines = [(r["TextLog:level"].to_pylist()[0], text(r)) for r in rec.get(E.LOG)]
+    assert lines[0][0] == "INFO" and lines[0][1].startswith("config: ")
+    assert ("WARN", "finished") in lines
+    report = json.loads(text(rec.latest(E.CROSSCHECK_REPORT)))
+    assert report["translation_px"] == {"max": 0.25} and report["agree"] is True
+    assert rec.series(f"{E.CROSSCHECK}/rotation_deg") == {2: 0.0125}
+    assert rec.series(f"{E.CROSSCHECK}/open3d/fitness") == {2: 0.875}
+    assert not rec.get(f"{E.CROSSCHECK}/agree")  # booleans are not series
+
+
+def test_rrd_verify_passes(recorded):
+    path, _, _ = recorded
+    res = subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+
+
+def test_exception_in_with_block_is_logged_as_failure(tmp_path):
+    path = tmp_path / "fail.rrd"
+    with pytest.raises(ZeroDivisionError):
+        with Recorder(path) as rec:
+            rec.set_frame(0)
+            rec.log_text("before")
+            1 / 0
+    rec_back = read_recording(path)
+    lines = [(r["TextLog:level"].to_pylist()[0], text(r)) for r in rec_back.get(E.LOG)]
+    assert lines[-1][0] == "ERROR" and "ZeroDivisionError" in lines[-1][1]
+    assert rec.closed
+
+
+def test_interrupted_recording_is_readable_up_to_where_it_stopped(tmp_path):
+    path = tmp_path / "killed.rrd"
+    child = textwrap.dedent(f"""
+        import sys, time
+        import numpy as np
+        from pcreg.recorder import Recorder
+        rec = Recorder({str(path)!r})
+        for f in range(1000):
+            rec.set_frame(f)
+            rec.log_transform(np.eye(3) * (f + 1))
+            rec.log_errors({{"plain": f / 1000}})
+            if f == 5:
+                rec.set_frame(6)  # flushes frames 0..5 to the file
+                print("ready", flush=True)
+                time.sleep(120)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "no footer": expected for a file whose writer was killed
+        rec = read_recording(path)
+    frames = {r.times["frame"]: tensor(r) for r in rec.get(E.transform_path("T_ref_mov"))}
+    assert set(range(6)) <= set(frames)
+    assert all(np.array_equal(frames[f], np.eye(3) * (f + 1)) for f in range(6))
+    assert rec.series(E.error_path("plain"))[5] == 0.005
+
+
+def test_existing_file_refused_unless_force(tmp_path):
+    path = tmp_path / "x.rrd"
+    path.write_bytes(b"old")
+    with pytest.raises(OutputError, match="exists"):
+        Recorder(path)
+    assert path.read_bytes() == b"old"
+    with Recorder(path, force=True) as rec:
+        rec.log_text("new")
+    assert read_recording(path).get(E.LOG)
+
+
+def test_unwritable_paths_refused(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    with pytest.raises(OutputError) as err:
+        Recorder(blocker / "x.rrd")
+    assert "\n" not in str(err.value)
+    with pytest.raises(OutputError):
+        Recorder(tmp_path)  # a folder
+    with pytest.raises(OutputError, match=r"\.rrd"):
+        Recorder(tmp_path / "x.txt")
+
+
+def test_bad_arrays_are_input_errors(tmp_path):
+    with Recorder(tmp_path / "bad.rrd") as rec:
+        rec.set_frame(0)
+        with pytest.raises(InputError):
+            rec.log_images(reference=np.zeros((4, 4, 3), np.float32))
+        with pytest.raises(InputError):
+            rec.log_transform(np.eye(2))
+        with pytest.raises(InputError):
+            rec.log_transform(np.full((3, 3), np.nan))
+        with pytest.raises(InputError):
+            rec.log_clouds(reference_points=np.zeros((5, 3)))
+        with pytest.raises(InputError):
+            rec.log_clouds(moving_points=np.zeros((5, 2)), moving_colors=np.zeros((4, 3)))
+        with pytest.raises(InputError):
+            rec.log_labels(truth=np.zeros((4, 4), np.float32))
+        with pytest.raises(ValueError):
+            rec.log_text("x", level="LOUD")
+
+
+def test_closed_recorder_refuses_more(tmp_path):
+    rec = Recorder(tmp_path / "c.rrd")
+    rec.close()
+    rec.close()  # idempotent
+    with pytest.raises(OutputError, match="closed"):
+        rec.log_text("late")

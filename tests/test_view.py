@@ -1,0 +1,105 @@
+"""``pcreg view``: bad input gives one line and exit 2; a headless screenshot shows the recording's images."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.commands import view
+from pcreg.errors import PcregError
+from pcreg.recorder import Recorder
+
+
+def pcreg_view(argv: list[str]) -> int:
+    """``pcreg view ARGV`` in-process: the command line's own entry point where every command is importable,
+    else the same parse / run / one-line-error path for ``view`` alone."""
+    from pcreg import cli
+
+    try:
+        cli.build_parser()
+    except ModuleNotFoundError:
+        parser = cli._Parser(prog="pcreg view")
+        view.add_arguments(parser)
+        args = parser.parse_args(argv)
+        try:
+            return int(view.run(args) or 0)
+        except PcregError as exc:
+            sys.stderr.write(f"pcreg: error: {exc}\n")
+            return 2
+    return cli.main(["view", *argv])
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pcreg: error: "), err
+    return err
+
+
+def test_missing_file(tmp_path, capsys):
+    assert pcreg_view([str(tmp_path / "nope.rrd")]) == 2
+    assert "no such file" in _one_line_error(capsys)
+
+
+def test_file_that_is_not_a_recording(tmp_path, capsys):
+    bad = tmp_path / "bad.rrd"
+    bad.write_bytes(b"this is not a rerun recording\n" * 10)
+    assert pcreg_view([str(bad), "--screenshot", str(tmp_path / "x.png")]) == 2
+    assert "not a rerun recording" in _one_line_error(capsys)
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.fixture(scope="module")
+def small_recording(tmp_path_factory):
+    """Two frames whose reference image is half saturated red, half saturated green."""
+    path = tmp_path_factory.mktemp("view") / "small.rrd"
+    img = np.zeros((120, 160, 3), np.uint8)
+    img[:, :80] = (230, 20, 20)
+    img[:, 80:] = (20, 210, 20)
+    with Recorder(path, recording_id="view-test") as rec:
+        for f in range(2):
+            rec.set_frame(f)
+            rec.log_images(reference=img, moving=img, warped=np.roll(img, 5 * f, axis=1))
+            rec.log_transform(np.array([[1.0, 0.0, 5.0 * f], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+            rec.log_labels(truth=np.zeros((120, 160), np.uint8), predicted=np.ones((120, 160), np.uint8))
+            rec.log_errors({"plain": 0.1 + f})
+    return path
+
+
+def test_missing_viewer_binary(small_recording, tmp_path, capsys):
+    code = pcreg_view([str(small_recording), "--viewer", str(tmp_path / "no-rerun")])
+    assert code == 2
+    assert "rerun viewer not found" in _one_line_error(capsys)
+
+
+def test_existing_screenshot_refused(small_recording, tmp_path, capsys):
+    out = tmp_path / "shot.png"
+    out.write_bytes(b"old")
+    assert pcreg_view([str(small_recording), "--screenshot", str(out)]) == 2
+    assert "exists" in _one_line_error(capsys)
+    assert out.read_bytes() == b"old"
+
+
+def test_bad_time_argument(small_recording, tmp_path, capsys):
+    assert pcreg_view([str(small_recording), "--screenshot", str(tmp_path / "s.png"), "--time", "frame"]) == 2
+    assert "TIMELINE=N" in _one_line_error(capsys)
+
+
+def test_headless_screenshot_shows_the_images(small_recording, tmp_path, capsys):
+    if sys.platform.startswith("linux") and not view.vulkan_icds():
+        pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
+    out = tmp_path / "shot.png"
+    code = pcreg_view([str(small_recording), "--screenshot", str(out), "--time", "frame=1",
+                       "--view", "Registration", "--size", "1280x720"])
+    assert code == 0, capsys.readouterr().err
+    shot = cv2.imread(str(out), cv2.IMREAD_COLOR)
+    assert shot is not None and shot.shape[0] > 100 and shot.shape[1] > 100
+    b, g, r = (shot[..., i].astype(int) for i in range(3))
+    red = (r > 150) & (g < 90) & (b < 90)
+    green = (g > 140) & (r < 90) & (b < 90)
+    # the reference image fills a good part of the view: both halves visible, not a blank canvas
+    assert red.mean() > 0.05 and green.mean() > 0.05, (red.mean(), green.mean())
+    assert shot.std() > 20

@@ -38,6 +38,8 @@ _EXPORTS = {
     "OutputError": "pcreg.errors",
 }
 
+_MODULES = {"transforms"}  # exported as modules; every other name is an attribute of its module
+
 __all__ = sorted(_EXPORTS)
 
 
@@ -46,7 +48,7 @@ def __getattr__(name: str) -> Any:
     if module is None:
         raise AttributeError(f"module 'pcreg' has no attribute {name!r}")
     mod = importlib.import_module(module)
-    value = mod if module.endswith("." + name) else getattr(mod, name)
+    value = mod if name in _MODULES else getattr(mod, name)
     globals()[name] = value
     return value
 

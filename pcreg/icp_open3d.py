@@ -1,0 +1,129 @@
+"""Open3D's point-to-point ICP behind pcreg's interface.
+
+2-D clouds are lifted to the plane z = 0 and the 4x4 result is projected back, checking that its
+out-of-plane part is negligible. The legacy API (``registration_icp``) reports neither iterations nor
+convergence; when a per-iteration callback is asked for (recordings, cross-checks), pcreg runs it one
+iteration at a time and applies Open3D's own stopping rule between steps, which gives the same
+transforms at about four times the cost. Without a callback it runs in one call, reports
+``iterations = -1`` and decides ``converged`` by one more step (the rule holds at the returned transform).
+The tensor API's ``multi_scale_icp`` (Float64) serves voxel-pyramid registration of 3-D scans.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .errors import RegistrationError
+from .result import IcpIteration
+from .transforms import lift_to_3d, project_to_2d
+
+SUPPORTED = ("rigid", "similarity")
+
+
+def _o3d():
+    import open3d as o3d
+
+    return o3d
+
+
+def to_pointcloud(points: np.ndarray):
+    """(N, 2|3) float64 -> ``open3d.geometry.PointCloud`` (2-D lifted to z = 0)."""
+    o3d = _o3d()
+    p = np.asarray(points, dtype=np.float64)
+    if p.shape[1] == 2:
+        p = np.column_stack([p, np.zeros(len(p))])
+    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
+
+
+def _check_model(model: str) -> None:
+    if model not in SUPPORTED:
+        raise RegistrationError(
+            f"the open3d backend (point-to-point) supports the {' and '.join(SUPPORTED)} models, not {model!r}; "
+            "use backend='reference'"
+        )
+
+
+def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", max_correspondence_distance: float,
+               init: np.ndarray | None = None, max_iteration: int = 30, relative_fitness: float = 1e-6,
+               relative_rmse: float = 1e-6, callback: Callable[[IcpIteration], None] | None = None,
+               stepwise: bool | None = None, level: int = 0, source_pcd=None, target_pcd=None,
+               ) -> tuple[np.ndarray, float, float, int, bool]:
+    """One Open3D ICP run at one scale. Returns (matrix, fitness, inlier_rmse, iterations, converged)."""
+    _check_model(model)
+    o3d = _o3d()
+    reg = o3d.pipelines.registration
+    d = source.shape[1]
+    T = np.eye(d + 1) if init is None else np.asarray(init, dtype=np.float64)
+    T4 = lift_to_3d(T) if d == 2 else T.copy()
+    src = source_pcd if source_pcd is not None else to_pointcloud(source)
+    tgt = target_pcd if target_pcd is not None else to_pointcloud(target)
+    est = reg.TransformationEstimationPointToPoint(with_scaling=(model == "similarity"))
+    back = (lambda m: project_to_2d(m)) if d == 2 else (lambda m: m)
+    if stepwise is None:
+        stepwise = callback is not None
+
+    def step(T4, n_iter):
+        crit = reg.ICPConvergenceCriteria(relative_fitness=relative_fitness, relative_rmse=relative_rmse,
+                                          max_iteration=n_iter)
+        return reg.registration_icp(src, tgt, max_correspondence_distance, T4, est, crit)
+
+    def report(i, r, T4):
+        if callback is None:
+            return
+        corr = np.asarray(r.correspondence_set)
+        idx = np.full(source.shape[0], -1, dtype=np.intp)
+        if corr.size:
+            idx[corr[:, 0]] = corr[:, 1]
+        from .transforms import apply
+
+        M = back(T4)
+        callback(IcpIteration(backend="open3d", level=level, iteration=i, matrix=M, fitness=float(r.fitness),
+                              inlier_rmse=float(r.inlier_rmse), source_points=apply(M, source),
+                              target_points=target, target_indices=idx))
+
+    if not stepwise:
+        r = step(T4, max_iteration)
+        r_next = step(np.asarray(r.transformation), 1)
+        converged = (abs(r_next.fitness - r.fitness) < relative_fitness
+                     and abs(r_next.inlier_rmse - r.inlier_rmse) < relative_rmse)
+        return back(np.asarray(r.transformation)), float(r.fitness), float(r.inlier_rmse), -1, converged
+
+    r = reg.evaluate_registration(src, tgt, max_correspondence_distance, T4)
+    report(0, r, T4)
+    iterations, converged = 0, False
+    for i in range(max_iteration):
+        prev = r
+        r = step(T4, 1)
+        T4 = np.asarray(r.transformation)
+        iterations = i + 1
+        report(iterations, r, T4)
+        if abs(prev.fitness - r.fitness) < relative_fitness and abs(prev.inlier_rmse - r.inlier_rmse) < relative_rmse:
+            converged = True
+            break
+    return back(T4), float(r.fitness), float(r.inlier_rmse), iterations, converged
+
+
+def multi_scale_icp_open3d(source: np.ndarray, target: np.ndarray, *, voxel_sizes: Sequence[float],
+                           max_correspondence_distances: Sequence[float], max_iterations: Sequence[int],
+                           init: np.ndarray | None = None, relative_fitness: float = 1e-6,
+                           relative_rmse: float = 1e-6, model: str = "rigid",
+                           ) -> tuple[np.ndarray, float, float, int, bool]:
+    """Open3D tensor ``multi_scale_icp`` (Float64, CPU) for 3-D clouds; coarse to fine over voxel sizes."""
+    _check_model(model)
+    o3d = _o3d()
+    treg = o3d.t.pipelines.registration
+    if source.shape[1] != 3:
+        raise RegistrationError("multi-scale Open3D ICP is for 3-D clouds")
+    dev = o3d.core.Device("CPU:0")
+    src = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.asarray(source, np.float64), device=dev))
+    tgt = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.asarray(target, np.float64), device=dev))
+    crit = [treg.ICPConvergenceCriteria(relative_fitness=relative_fitness, relative_rmse=relative_rmse,
+                                        max_iteration=int(n)) for n in max_iterations]
+    init_t = o3d.core.Tensor(np.eye(4) if init is None else np.asarray(init, np.float64), o3d.core.float64)
+    est = treg.TransformationEstimationPointToPoint(with_scaling=(model == "similarity"))
+    r = treg.multi_scale_icp(src, tgt, o3d.utility.DoubleVector(list(map(float, voxel_sizes))), crit,
+                             o3d.utility.DoubleVector(list(map(float, max_correspondence_distances))), init_t, est)
+    return (r.transformation.numpy(), float(r.fitness), float(r.inlier_rmse), int(r.num_iterations),
+            bool(r.converged))

@@ -1,0 +1,326 @@
+"""pcreg's reference ICP: numpy + scipy's cKDTree, any dimension, every motion model.
+
+Iterative closest point after Besl & McKay (1992, "A method for registration of 3-D shapes"), with
+closed-form steps from Umeyama (1991, "Least-squares estimation of transformation parameters between
+two point patterns") and Horn (1987, "Closed-form solution of absolute orientation using unit
+quaternions"). The loop, the stopping rule and the definitions of fitness and inlier RMSE follow
+Open3D's legacy ``registration_icp`` so the two can be checked against each other:
+
+- correspondences: each source point's nearest target point closer than ``max_correspondence_distance``;
+- fitness = correspondences / source points; inlier_rmse = sqrt(mean squared correspondence distance);
+- after each update, stop when |Δfitness| < relative_fitness and |Δinlier_rmse| < relative_rmse
+  (absolute changes, as Open3D compares them), or after ``max_iteration`` updates.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .errors import RegistrationError
+from .result import IcpIteration
+from .transforms import apply
+
+WEIGHTS = ("none", "trimmed", "huber", "tukey")
+METRICS = ("point_to_point", "point_to_line")
+MIN_POINTS = {"translation": 1, "rigid": 2, "similarity": 2, "affine": 3, "projective": 4}
+
+
+# ---------------------------------------------------------------------------------------------------
+# Closed-form estimators: weighted least squares of sum_i w_i |T(p_i) - q_i|^2
+# ---------------------------------------------------------------------------------------------------
+
+def _weighted_means(p: np.ndarray, q: np.ndarray, w: np.ndarray):
+    ws = w.sum()
+    mp = (w @ p) / ws
+    mq = (w @ q) / ws
+    return ws, mp, mq
+
+
+def estimate_translation(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted mean displacement."""
+    d = p.shape[1]
+    _, mp, mq = _weighted_means(p, q, w)
+    T = np.eye(d + 1)
+    T[:d, d] = mq - mp
+    return T
+
+
+def estimate_umeyama(p: np.ndarray, q: np.ndarray, w: np.ndarray, *, with_scale: bool) -> np.ndarray:
+    """Rigid or similarity transform by SVD (Umeyama 1991).
+
+    Σ = Σ_i w_i (q_i - μ_q)(p_i - μ_p)^T / Σ w  (Eq. 38), Σ = U D V^T;
+    S = diag(1, …, 1, det(U) det(V)) (Eq. 43, the reflection guard);
+    R = U S V^T (Eq. 40); c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41).
+    """
+    d = p.shape[1]
+    ws, mp, mq = _weighted_means(p, q, w)
+    pc = p - mp
+    qc = q - mq
+    cov = (qc * w[:, None]).T @ pc / ws
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.ones(d)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[-1] = -1.0
+    R = (U * S) @ Vt
+    c = 1.0
+    if with_scale:
+        var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws)
+        if var_p <= 0:
+            raise RegistrationError("degenerate correspondences: all source points coincide")
+        c = float((D * S).sum() / var_p)
+    T = np.eye(d + 1)
+    T[:d, :d] = c * R
+    T[:d, d] = mq - c * R @ mp
+    return T
+
+
+def estimate_horn_quaternion(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """3-D rigid transform by the unit quaternion of Horn (1987), as used by Besl & McKay (1992).
+
+    N (Horn's Eq. 26 / Besl-McKay's Q(Σ)) is the symmetric 4x4 matrix built from the cross-covariance
+    M = Σ w (p - μ_p)(q - μ_q)^T; the eigenvector of its largest eigenvalue is the rotation quaternion.
+    """
+    if p.shape[1] != 3:
+        raise RegistrationError("the quaternion closed form is for 3-D clouds")
+    ws, mp, mq = _weighted_means(p, q, w)
+    M = ((p - mp) * w[:, None]).T @ (q - mq) / ws
+    Sxx, Sxy, Sxz = M[0]
+    Syx, Syy, Syz = M[1]
+    Szx, Szy, Szz = M[2]
+    N = np.array([
+        [Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
+        [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
+        [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
+        [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz],
+    ])
+    vals, vecs = np.linalg.eigh(N)
+    q0, qx, qy, qz = vecs[:, np.argmax(vals)]
+    R = np.array([
+        [q0 * q0 + qx * qx - qy * qy - qz * qz, 2 * (qx * qy - q0 * qz), 2 * (qx * qz + q0 * qy)],
+        [2 * (qy * qx + q0 * qz), q0 * q0 - qx * qx + qy * qy - qz * qz, 2 * (qy * qz - q0 * qx)],
+        [2 * (qz * qx - q0 * qy), 2 * (qz * qy + q0 * qx), q0 * q0 - qx * qx - qy * qy + qz * qz],
+    ])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = mq - R @ mp
+    return T
+
+
+def estimate_affine(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted linear least squares of [A | t] (p - μ_p centred for conditioning)."""
+    d = p.shape[1]
+    _, mp, mq = _weighted_means(p, q, w)
+    pc, qc = p - mp, q - mq
+    sw = np.sqrt(w)[:, None]
+    X, *_ = np.linalg.lstsq(pc * sw, qc * sw, rcond=None)
+    A = X.T
+    T = np.eye(d + 1)
+    T[:d, :d] = A
+    T[:d, d] = mq - A @ mp
+    return T
+
+
+def _normalising(p: np.ndarray) -> np.ndarray:
+    m = p.mean(axis=0)
+    s = np.sqrt(2.0) / max(np.mean(np.linalg.norm(p - m, axis=1)), 1e-12)
+    return np.array([[s, 0, -s * m[0]], [0, s, -s * m[1]], [0, 0, 1.0]])
+
+
+def estimate_projective(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Homography by the normalised weighted DLT (Hartley & Zisserman 2003, Alg. 4.2)."""
+    Np, Nq = _normalising(p), _normalising(q)
+    pn, qn = apply(Np, p), apply(Nq, q)
+    x, y = pn[:, 0], pn[:, 1]
+    u, v = qn[:, 0], qn[:, 1]
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    A1 = np.column_stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u])
+    A2 = np.column_stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v])
+    sw = np.sqrt(w)[:, None]
+    A = np.vstack([A1 * sw, A2 * sw])
+    _, _, Vt = np.linalg.svd(A, full_matrices=False)
+    H = Vt[-1].reshape(3, 3)
+    H = np.linalg.inv(Nq) @ H @ Np
+    if abs(H[2, 2]) < 1e-12:
+        raise RegistrationError("degenerate homography")
+    return H / H[2, 2]
+
+
+def estimate_point_to_line(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray, model: str) -> np.ndarray:
+    """2-D point-to-line step (the planar case of Chen & Medioni 1992's point-to-plane).
+
+    Minimises Σ w ((T(p) - q) · n)^2 linearised about the identity; rigid rotations are re-orthonormalised.
+    """
+    mp = (w @ p) / w.sum()
+    pc = p - mp  # centre for conditioning; the rotation is about μ_p
+    r0 = np.einsum("ij,ij->i", p - q, n)
+    perp = n[:, 1] * pc[:, 0] - n[:, 0] * pc[:, 1]  # d/dθ of (R p)·n at θ=0
+    cols = {"translation": [n[:, 0], n[:, 1]],
+            "rigid": [perp, n[:, 0], n[:, 1]],
+            "similarity": [perp, np.einsum("ij,ij->i", pc, n), n[:, 0], n[:, 1]],
+            "affine": [pc[:, 0] * n[:, 0], pc[:, 1] * n[:, 0], pc[:, 0] * n[:, 1], pc[:, 1] * n[:, 1], n[:, 0], n[:, 1]]}
+    if model not in cols:
+        raise RegistrationError(f"point-to-line supports translation, rigid, similarity, affine (not {model})")
+    J = np.column_stack(cols[model])
+    sw = np.sqrt(w)
+    JTJ = (J * w[:, None]).T @ J
+    JTJ += np.eye(J.shape[1]) * 1e-9 * max(np.trace(JTJ), 1.0)
+    x = np.linalg.solve(JTJ, -(J * w[:, None]).T @ r0)
+    del sw
+    L = np.eye(2)
+    if model == "translation":
+        t = x[0:2]
+    elif model in ("rigid", "similarity"):
+        th = x[0]
+        s = 1.0 + x[1] if model == "similarity" else 1.0
+        L = s * np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+        t = x[-2:]
+    else:
+        L = np.eye(2) + x[:4].reshape(2, 2)
+        t = x[4:6]
+    T = np.eye(3)
+    T[:2, :2] = L
+    T[:2, 2] = mp + t - L @ mp
+    return T
+
+
+def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotation: str = "svd") -> np.ndarray:
+    """Closed-form update for one motion model from weighted correspondences p_i -> q_i."""
+    if model == "translation":
+        return estimate_translation(p, q, w)
+    if model == "rigid":
+        if rotation == "quaternion" and p.shape[1] == 3:
+            return estimate_horn_quaternion(p, q, w)
+        return estimate_umeyama(p, q, w, with_scale=False)
+    if model == "similarity":
+        return estimate_umeyama(p, q, w, with_scale=True)
+    if model == "affine":
+        return estimate_affine(p, q, w)
+    if model == "projective":
+        return estimate_projective(p, q, w)
+    raise RegistrationError(f"unknown model {model!r}")
+
+
+def robust_weights(dist: np.ndarray, kind: str, *, scale: float | None = None, trim_fraction: float = 0.9) -> np.ndarray:
+    """Weights of correspondences from their distances.
+
+    ``trimmed`` keeps the closest ``trim_fraction`` (Chetverikov et al. 2002, trimmed ICP); ``huber``
+    (k = 1.345 σ) and ``tukey`` (c = 4.685 σ) are the M-estimators with the usual 95%-efficiency
+    constants, σ = 1.4826 MAD of the distances unless ``scale`` is given.
+    """
+    if kind == "none" or dist.size == 0:
+        return np.ones_like(dist)
+    if kind == "trimmed":
+        if not 0 < trim_fraction <= 1:
+            raise RegistrationError(f"trim_fraction must be in (0, 1], got {trim_fraction}")
+        k = max(1, int(np.ceil(trim_fraction * dist.size)))
+        w = np.zeros_like(dist)
+        w[np.argsort(dist, kind="stable")[:k]] = 1.0
+        return w
+    sigma = scale if scale is not None else 1.4826 * float(np.median(np.abs(dist)))
+    sigma = max(sigma, 1e-12)
+    if kind == "huber":
+        k = 1.345 * sigma
+        return np.where(dist <= k, 1.0, k / np.maximum(dist, 1e-300))
+    if kind == "tukey":
+        c = 4.685 * sigma
+        return np.where(dist < c, (1.0 - (dist / c) ** 2) ** 2, 0.0)
+    raise RegistrationError(f"unknown robust weight {kind!r}; choose one of {', '.join(WEIGHTS)}")
+
+
+def check_rank(points: np.ndarray, model: str) -> None:
+    """Raise when the points cannot determine the model (too few, coincident or collinear)."""
+    n, d = points.shape
+    need = MIN_POINTS[model] if d == 2 else {"translation": 1, "rigid": 3, "similarity": 3, "affine": 4}.get(model, 4)
+    if n < need:
+        raise RegistrationError(f"{n} point(s) are too few for the {model} model (needs at least {need})")
+    if model == "translation":
+        return
+    c = points - points.mean(axis=0)
+    sv = np.linalg.svd(c, compute_uv=False)
+    extent = sv[0] if sv.size else 0.0
+    rank = int(np.sum(sv > 1e-9 * max(extent, 1e-300))) if extent > 0 else 0
+    needed_rank = {"rigid": d - 1, "similarity": d - 1, "affine": d, "projective": 2}[model]
+    if rank < needed_rank:
+        what = "coincident" if rank == 0 else ("collinear" if rank == 1 else "coplanar")
+        raise RegistrationError(f"the points are {what}: they cannot determine a {model} transform")
+
+
+# ---------------------------------------------------------------------------------------------------
+# The ICP loop
+# ---------------------------------------------------------------------------------------------------
+
+def build_tree(target: np.ndarray) -> cKDTree:
+    return cKDTree(target, balanced_tree=False, compact_nodes=False)
+
+
+def _correspond(tree: cKDTree, pts: np.ndarray, max_dist: float):
+    workers = -1 if pts.shape[0] > 20000 else 1
+    dist, idx = tree.query(pts, k=1, distance_upper_bound=max_dist, workers=workers)
+    ok = np.isfinite(dist)
+    return dist, idx, ok
+
+
+def _score(dist: np.ndarray, ok: np.ndarray, n: int) -> tuple[float, float]:
+    k = int(ok.sum())
+    if k == 0:
+        return 0.0, 0.0
+    return k / n, float(np.sqrt(np.mean(dist[ok] ** 2)))
+
+
+def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid",
+                  max_correspondence_distance: float, init: np.ndarray | None = None,
+                  max_iteration: int = 30, relative_fitness: float = 1e-6, relative_rmse: float = 1e-6,
+                  weights: str = "none", robust_scale: float | None = None, trim_fraction: float = 0.9,
+                  metric: str = "point_to_point", target_normals: np.ndarray | None = None,
+                  rotation: str = "svd", tree: cKDTree | None = None,
+                  callback: Callable[[IcpIteration], None] | None = None, level: int = 0,
+                  ) -> tuple[np.ndarray, float, float, int, bool]:
+    """One ICP run at one scale. Returns (matrix, fitness, inlier_rmse, iterations, converged).
+
+    source : (N, d), target : (M, d) float64, finite; d = 2 or 3.
+    """
+    d = source.shape[1]
+    T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
+    if tree is None:
+        tree = build_tree(target)
+    if metric == "point_to_line" and (d != 2 or target_normals is None or model == "projective"):
+        metric = "point_to_point"
+    pts = apply(T, source)
+    n = source.shape[0]
+    dist, idx, ok = _correspond(tree, pts, max_correspondence_distance)
+    fitness, rmse = _score(dist, ok, n)
+    iterations, converged = 0, False
+
+    def report(i: int) -> None:
+        if callback is not None:
+            callback(IcpIteration(backend="reference", level=level, iteration=i, matrix=T.copy(), fitness=fitness,
+                                  inlier_rmse=rmse, source_points=pts, target_points=target,
+                                  target_indices=np.where(ok, idx, -1)))
+
+    report(0)
+    for i in range(max_iteration):
+        need = MIN_POINTS[model] if d == 2 else 3
+        p, q = pts[ok], target[idx[ok]]
+        w = robust_weights(dist[ok], weights, scale=robust_scale, trim_fraction=trim_fraction)
+        if int(np.count_nonzero(w)) < need:
+            update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
+        elif metric == "point_to_line":
+            update = estimate_point_to_line(p, q, target_normals[idx[ok]], w, model)
+        else:
+            update = estimate(p, q, w, model, rotation=rotation)
+        if not np.all(np.isfinite(update)):
+            raise RegistrationError("ICP update is not finite (degenerate correspondences)")
+        T = update @ T
+        pts = apply(update, pts)
+        iterations = i + 1
+        prev_fitness, prev_rmse = fitness, rmse
+        dist, idx, ok = _correspond(tree, pts, max_correspondence_distance)
+        fitness, rmse = _score(dist, ok, n)
+        report(iterations)
+        if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
+            converged = True
+            break
+    return T, fitness, rmse, iterations, converged

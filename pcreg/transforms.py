@@ -1,0 +1,138 @@
+"""Homogeneous transforms in pcreg's conventions.
+
+Pixel coordinates: x to the right, y down, (0, 0) is the centre of the top-left pixel. A transform
+``T_ref_mov`` maps a point in the moving frame into the reference frame; 2-D transforms are 3x3,
+3-D transforms 4x4.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import InputError, RegistrationError
+
+MODELS = ("translation", "rigid", "similarity", "affine", "projective")
+
+
+def check_model(model: str, dim: int = 2) -> str:
+    if model not in MODELS:
+        raise InputError(f"unknown motion model {model!r}; choose one of {', '.join(MODELS)}")
+    if model == "projective" and dim != 2:
+        raise InputError("the projective model exists for 2-D clouds only")
+    return model
+
+
+def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a (d+1, d+1) homogeneous transform to (N, d) points; projective rows divide through."""
+    matrix = np.asarray(matrix, dtype=np.float64)
+    points = np.asarray(points, dtype=np.float64)
+    d = points.shape[1]
+    out = points @ matrix[:d, :d].T + matrix[:d, d]
+    last = matrix[d, :d]
+    if np.any(last != 0) or matrix[d, d] != 1:
+        w = points @ last + matrix[d, d]
+        out = out / w[:, None]
+    return out
+
+
+def rigid2d(angle_deg: float = 0.0, tx: float = 0.0, ty: float = 0.0, *, scale: float = 1.0) -> np.ndarray:
+    """3x3 matrix of a rotation by ``angle_deg`` (counter-clockwise on screen is negative with y down;
+    here the rotation is the plain mathematical one in (x, y)), uniform ``scale``, then translation."""
+    a = np.deg2rad(angle_deg)
+    c, s = np.cos(a) * scale, np.sin(a) * scale
+    return np.array([[c, -s, tx], [s, c, ty], [0.0, 0.0, 1.0]])
+
+
+def about_point(matrix: np.ndarray, center_from: tuple[float, float], center_to: tuple[float, float] | None = None) -> np.ndarray:
+    """``T(center_to) @ matrix @ T(-center_from)``: apply ``matrix`` about a point (e.g. the image centre)."""
+    center_to = center_from if center_to is None else center_to
+    a = np.eye(3)
+    a[:2, 2] = -np.asarray(center_from, dtype=np.float64)
+    b = np.eye(3)
+    b[:2, 2] = np.asarray(center_to, dtype=np.float64)
+    return b @ np.asarray(matrix, dtype=np.float64) @ a
+
+
+def image_center(shape: tuple[int, ...]) -> tuple[float, float]:
+    """Centre (x, y) of an image of shape (H, W, ...) in pixel coordinates."""
+    h, w = shape[:2]
+    return ((w - 1) / 2.0, (h - 1) / 2.0)
+
+
+def corners(shape: tuple[int, ...]) -> np.ndarray:
+    """(4, 2) outer corners of an image of shape (H, W, ...): pixel edges, not pixel centres."""
+    h, w = shape[:2]
+    return np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
+
+
+def max_corner_error(estimate: np.ndarray, truth: np.ndarray, shape: tuple[int, ...]) -> float:
+    """Largest distance (px) between the moving image's corners mapped by ``estimate`` and by ``truth``."""
+    c = corners(shape)
+    return float(np.max(np.linalg.norm(apply(estimate, c) - apply(truth, c), axis=1)))
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle (degrees, >= 0) of a 2x2 or 3x3 rotation matrix."""
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape == (2, 2):
+        return float(abs(np.degrees(np.arctan2(R[1, 0], R[0, 0]))))
+    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(c)))
+
+
+def rotation_disagreement_deg(A: np.ndarray, B: np.ndarray) -> float:
+    """Angle (degrees) of the rotation between two homogeneous transforms' linear parts (polar-decomposed)."""
+    d = np.asarray(A).shape[0] - 1
+    RA, RB = _rotation_part(np.asarray(A)[:d, :d]), _rotation_part(np.asarray(B)[:d, :d])
+    return rotation_angle_deg(RA.T @ RB)
+
+
+def _rotation_part(M: np.ndarray) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    return R
+
+
+def lift_to_3d(matrix: np.ndarray) -> np.ndarray:
+    """A 3x3 2-D affine transform as the 4x4 transform acting on the plane z = 0."""
+    m = np.asarray(matrix, dtype=np.float64)
+    if m.shape == (4, 4):
+        return m.copy()
+    if np.any(m[2, :2] != 0) or m[2, 2] != 1:
+        raise InputError("a projective 2-D transform cannot be lifted to a 3-D rigid transform")
+    out = np.eye(4)
+    out[:2, :2] = m[:2, :2]
+    out[:2, 3] = m[:2, 2]
+    return out
+
+
+def project_to_2d(matrix: np.ndarray, *, tol: float = 1e-6) -> np.ndarray:
+    """A 4x4 transform that should keep the plane z = 0 as the 3x3 2-D transform; raises when it tilts.
+
+    The out-of-plane part (R[2, :2], R[:2, 2], t_z and R[2, 2] - 1) must be below ``tol`` (relative to
+    the scale of the linear part), else the 3-D solution does not describe a motion in the image plane.
+    """
+    m = np.asarray(matrix, dtype=np.float64)
+    scale = max(1.0, float(np.abs(m[:3, :3]).max()))
+    out_of_plane = max(abs(m[2, 0]), abs(m[2, 1]), abs(m[0, 2]), abs(m[1, 2]), abs(m[2, 2] - np.sqrt(abs(np.linalg.det(m[:2, :2])))))
+    if out_of_plane > tol * scale or abs(m[2, 3]) > tol * max(1.0, float(np.abs(m[:2, 3]).max())):
+        raise RegistrationError(
+            f"the 3-D ICP result leaves the image plane (out-of-plane part {out_of_plane:.2e}, t_z {m[2, 3]:.2e})"
+        )
+    out = np.eye(3)
+    out[:2, :2] = m[:2, :2]
+    out[:2, 2] = m[:2, 3]
+    return out
+
+
+def scale_transform(matrix: np.ndarray, factor: float) -> np.ndarray:
+    """The same motion expressed in coordinates scaled by ``factor`` (x' = factor * x)."""
+    d = np.asarray(matrix).shape[0]
+    S = np.eye(d)
+    S[: d - 1, : d - 1] *= factor
+    Si = np.eye(d)
+    Si[: d - 1, : d - 1] /= factor
+    return S @ np.asarray(matrix, dtype=np.float64) @ Si

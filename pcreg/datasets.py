@@ -602,6 +602,8 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
                 for n in names}
     if not arg:
         raise InputError(f"--data {spec!r}: expected synthetic, synthetic:NAMES, camvid:PATH, folder:PATH or lagr:PATH")
+    if kind not in ("camvid", "folder", "lagr"):
+        raise InputError(f"--data {spec!r}: unknown kind {kind!r} (synthetic, camvid, folder or lagr)")
     path = Path(arg).expanduser()
     if not path.is_dir():
         raise DatasetError(f"{path}: no such folder")
@@ -613,7 +615,7 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
             raise DatasetError(f"{path}: no frames (no images/ folder in it or in its sub-folders)")
         for clip in clips:
             out[clip.name] = load_folder(clip, mapping=mapping)
-    elif kind == "lagr":
+    else:  # lagr
         if any(path.glob("*.mat")):
             sets = [path]
         else:
@@ -623,8 +625,6 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         for s in sets:
             m = re.search(r"(DS\w+?)$", s.name)
             out[m.group(1) if m else s.name] = load_lagr(s)
-    else:
-        raise InputError(f"--data {spec!r}: unknown kind {kind!r} (synthetic, camvid, folder or lagr)")
     if n_frames is not None:
         out = {k: v[: int(n_frames)] for k, v in out.items()}
     return out

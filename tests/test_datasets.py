@@ -1,0 +1,290 @@
+"""pcreg.datasets: synthetic sequences, LAGR .mat folders, image folders (CamVid)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import scipy.io
+
+from pcreg.datasets import (
+    CAMVID_MAPPING,
+    SYNTHETIC_PRESETS,
+    Frame,
+    load_dataset,
+    load_folder,
+    load_lagr,
+    relative_transform,
+    synthetic,
+)
+from pcreg.errors import DatasetError, InputError, PcregError
+
+W, H = 96, 72
+
+
+# -- Frame ----------------------------------------------------------------------------------------
+
+def test_frame_is_read_only_view_and_leaves_inputs_alone():
+    img = np.zeros((4, 5, 3), np.uint8)
+    lab = np.ones((4, 5), np.uint8)
+    f = Frame(image=img, labels=lab, name="a")
+    assert f.shape == (4, 5) and f.labelled
+    with pytest.raises(ValueError):
+        f.image[0, 0, 0] = 1
+    img[0, 0, 0] = 7  # the caller's array stays writable and shared
+    assert f.image[0, 0, 0] == 7
+    assert "Frame(name='a'" in repr(f)
+
+
+@pytest.mark.parametrize("image, labels", [
+    (np.zeros((4, 5), np.uint8), None),
+    (np.zeros((4, 5, 3), np.float32), None),
+    (np.zeros((4, 5, 3), np.uint8), np.zeros((4, 6), np.uint8)),
+    (np.zeros((4, 5, 3), np.uint8), np.full((4, 5), 3, np.uint8)),
+])
+def test_frame_rejects_bad_arrays(image, labels):
+    with pytest.raises(InputError):
+        Frame(image=image, labels=labels, name="bad")
+
+
+def test_relative_transform_needs_poses():
+    a = Frame(np.zeros((2, 2, 3), np.uint8), None, "a")
+    assert relative_transform(a, a) is None
+    b = Frame(np.zeros((2, 2, 3), np.uint8), None, "b", pose=np.diag([2.0, 2.0, 1.0]))
+    np.testing.assert_allclose(relative_transform(b, b), np.eye(3), atol=1e-12)
+
+
+# -- synthetic ------------------------------------------------------------------------------------
+
+def test_presets_mirror_the_six_lagr_sets():
+    assert len(SYNTHETIC_PRESETS) == 6 and len(set(SYNTHETIC_PRESETS)) == 6
+    with pytest.raises(InputError, match="unknown synthetic preset"):
+        synthetic("ds9z", 2)
+
+
+@pytest.mark.parametrize("name", SYNTHETIC_PRESETS)
+def test_synthetic_frames_are_well_formed(name):
+    frames = synthetic(name, 6, 0, width=W, height=H)
+    assert len(frames) == 6 and len({f.name for f in frames}) == 6
+    for f in frames:
+        assert f.image.shape == (H, W, 3) and f.image.dtype == np.uint8
+        assert f.labels.shape == (H, W) and set(np.unique(f.labels)) <= {0, 1, 2}
+        assert f.pose.shape == (3, 3)
+        # no black border: every edge row/column has real content
+        for edge in (f.image[0], f.image[-1], f.image[:, 0], f.image[:, -1]):
+            assert edge.max() > 20
+    lab = np.stack([f.labels for f in frames])
+    for c in (0, 1, 2):
+        assert (lab == c).mean() > 0.03, f"label {c} nearly absent"
+
+
+def test_synthetic_is_deterministic_and_seeded():
+    a = synthetic("syn2a", 4, 3, width=W, height=H)
+    b = synthetic("syn2a", 4, 3, width=W, height=H)
+    c = synthetic("syn2a", 4, 4, width=W, height=H)
+    for fa, fb in zip(a, b):
+        np.testing.assert_array_equal(fa.image, fb.image)
+        np.testing.assert_array_equal(fa.pose, fb.pose)
+    assert any(not np.array_equal(fa.image, fc.image) for fa, fc in zip(a, c))
+
+
+def test_two_lightings_share_the_scene_but_not_the_colours():
+    easy = synthetic("syn1a", 3, 0, width=W, height=H)
+    hard = synthetic("syn1b", 3, 0, width=W, height=H)
+    for e, h in zip(easy, hard):
+        np.testing.assert_array_equal(e.labels, h.labels)
+        np.testing.assert_array_equal(e.pose, h.pose)
+        assert np.abs(e.image.astype(int) - h.image.astype(int)).mean() > 10
+
+
+@pytest.mark.parametrize("name", ["syn1a", "syn2a"])
+def test_synthetic_poses_are_the_ground_truth(name):
+    """Warping frame k into frame 0 with T_ref_mov lines up the labels (and colours) exactly."""
+    frames = synthetic(name, 12, 0, width=160, height=120)
+    ref, mov = frames[0], frames[11]
+    t_ref_mov = relative_transform(ref, mov)
+    assert not np.allclose(t_ref_mov, np.eye(3), atol=1e-3)  # the camera moved
+    # dst(x_ref) = mov(T_mov_ref x_ref): warpAffine with the inverse map
+    t_mov_ref = np.linalg.inv(t_ref_mov)
+    lab = cv2.warpAffine(mov.labels, t_mov_ref[:2], (160, 120), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                         borderValue=255)
+    valid = lab != 255
+    assert valid.mean() > 0.7
+    agree = (lab[valid] == ref.labels[valid]).mean()
+    unwarped = (mov.labels == ref.labels).mean()
+    assert agree > 0.97 and agree > unwarped
+
+
+def test_synthetic_full_size_is_fast_enough():
+    import time
+
+    t0 = time.perf_counter()
+    frames = synthetic("syn3b", 20, 11)
+    assert frames[0].image.shape == (480, 640, 3)
+    assert time.perf_counter() - t0 < 5.0
+
+
+# -- LAGR -----------------------------------------------------------------------------------------
+
+def _write_lagr(folder: Path, n: int, *, rng, masks: bool = True, names=None) -> list[tuple]:
+    folder.mkdir(parents=True)
+    out = []
+    for i in range(n):
+        img = rng.integers(0, 256, (6, 8, 3), dtype=np.uint8)  # (H, W, 3)
+        lab = rng.integers(0, 3, (6, 8)).astype(np.uint8)
+        data = {"im_rgb": np.moveaxis(img, 0, 1)}  # stored transposed: W x H x 3
+        if masks:
+            data["manual_human_labeling_mask"] = np.moveaxis(lab, 0, 1).astype(np.float64)
+        name = names[i] if names else f"frame{i + 1:03d}.mat"
+        scipy.io.savemat(folder / name, data)
+        out.append((img, lab if masks else None))
+    return out
+
+
+def test_load_lagr_reads_the_transposed_layout(tmp_path):
+    rng = np.random.default_rng(0)
+    truth = _write_lagr(tmp_path / "labeled_lagr_data_640x480_DS1A", 3, rng=rng)
+    frames = load_lagr(tmp_path / "labeled_lagr_data_640x480_DS1A")
+    assert [f.name for f in frames] == ["frame001", "frame002", "frame003"]
+    for f, (img, lab) in zip(frames, truth):
+        np.testing.assert_array_equal(f.image, img)
+        np.testing.assert_array_equal(f.labels, lab)
+        assert f.pose is None
+
+
+def test_load_lagr_orders_frames_by_number(tmp_path):
+    rng = np.random.default_rng(1)
+    _write_lagr(tmp_path / "s", 3, rng=rng, names=["frame10.mat", "frame2.mat", "frame1.mat"])
+    assert [f.name for f in load_lagr(tmp_path / "s")] == ["frame1", "frame2", "frame10"]
+
+
+def test_supplemental_frames_load_unlabelled(tmp_path):
+    rng = np.random.default_rng(2)
+    folder = tmp_path / "labeled_lagr_data_640x480_DS1A_SupplementalFrames_101-303"
+    truth = _write_lagr(folder, 2, rng=rng, masks=False)
+    frames = load_lagr(folder)
+    assert all(f.labels is None for f in frames)
+    np.testing.assert_array_equal(frames[1].image, truth[1][0])
+
+
+def test_load_dataset_finds_every_lagr_set(tmp_path):
+    rng = np.random.default_rng(3)
+    _write_lagr(tmp_path / "labeled_lagr_data_640x480_DS1A", 2, rng=rng)
+    _write_lagr(tmp_path / "labeled_lagr_data_640x480_DS2B", 3, rng=rng)
+    data = load_dataset(f"lagr:{tmp_path}")
+    assert {k: len(v) for k, v in data.items()} == {"DS1A": 2, "DS2B": 3}
+
+
+def test_lagr_errors(tmp_path):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DatasetError, match="no .mat frames"):
+        load_lagr(tmp_path / "empty")
+    (tmp_path / "novars").mkdir()
+    scipy.io.savemat(tmp_path / "novars" / "frame001.mat", {"something": np.zeros(3)})
+    with pytest.raises(DatasetError, match="im_rgb"):
+        load_lagr(tmp_path / "novars")
+    rng = np.random.default_rng(4)
+    _write_lagr(tmp_path / "mixed", 2, rng=rng)
+    scipy.io.savemat(tmp_path / "mixed" / "frame003.mat", {"im_rgb": np.zeros((8, 6, 3), np.uint8)})
+    with pytest.raises(DatasetError, match="manual_human_labeling_mask"):
+        load_lagr(tmp_path / "mixed")
+    (tmp_path / "badmask").mkdir()
+    scipy.io.savemat(tmp_path / "badmask" / "frame001.mat",
+                     {"im_rgb": np.zeros((8, 6, 3), np.uint8), "manual_human_labeling_mask": np.full((8, 6), 5.0)})
+    with pytest.raises(DatasetError, match="outside"):
+        load_lagr(tmp_path / "badmask")
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "frame001.mat").write_bytes(b"not a mat file at all")
+    with pytest.raises(DatasetError, match="cannot read"):
+        load_lagr(tmp_path / "broken")
+
+
+# -- image folders --------------------------------------------------------------------------------
+
+def _write_clip(folder: Path, n: int, *, rng, ids=tuple(range(12)), size=(10, 8)) -> list[tuple]:
+    (folder / "images").mkdir(parents=True)
+    (folder / "labels").mkdir()
+    out = []
+    for i in range(n):
+        img = rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)
+        raw = rng.choice(np.array(ids, np.uint8), (size[1], size[0]))
+        cv2.imwrite(str(folder / "images" / f"f{i:02d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(folder / "labels" / f"f{i:02d}.png"), raw)
+        out.append((img, raw))
+    return out
+
+
+def test_load_folder_maps_camvid_ids(tmp_path):
+    truth = _write_clip(tmp_path / "clip", 3, rng=np.random.default_rng(5))
+    frames = load_folder(tmp_path / "clip", mapping="camvid")
+    lut = np.array([CAMVID_MAPPING[i] for i in range(12)], np.uint8)
+    for f, (img, raw) in zip(frames, truth):
+        np.testing.assert_array_equal(f.image, img)
+        np.testing.assert_array_equal(f.labels, lut[raw])
+
+
+def test_load_folder_with_dict_mapping_and_without_labels(tmp_path):
+    truth = _write_clip(tmp_path / "c", 2, rng=np.random.default_rng(6), ids=(7, 9))
+    frames = load_folder(tmp_path / "c", mapping={7: 0, 9: 1})
+    np.testing.assert_array_equal(frames[0].labels, (truth[0][1] == 9).astype(np.uint8))
+    for p in (tmp_path / "c" / "labels").iterdir():
+        p.unlink()
+    (tmp_path / "c" / "labels").rmdir()
+    assert all(f.labels is None for f in load_folder(tmp_path / "c"))
+
+
+@pytest.mark.parametrize("damage, message", [
+    ("no_images", "no .png or .jpg frames"),
+    ("image_without_label", "no label file"),
+    ("label_without_image", "label file without an image"),
+    ("size_mismatch", "but the image is"),
+    ("ids_outside_mapping", "outside the mapping"),
+    ("corrupt_png", "cannot decode"),
+])
+def test_load_folder_errors(tmp_path, damage, message):
+    clip = tmp_path / "clip"
+    _write_clip(clip, 2, rng=np.random.default_rng(7))
+    if damage == "no_images":
+        for p in (clip / "images").iterdir():
+            p.unlink()
+    elif damage == "image_without_label":
+        (clip / "labels" / "f01.png").unlink()
+    elif damage == "label_without_image":
+        (clip / "images" / "f01.png").unlink()
+    elif damage == "size_mismatch":
+        cv2.imwrite(str(clip / "labels" / "f01.png"), np.zeros((5, 5), np.uint8))
+    elif damage == "ids_outside_mapping":
+        cv2.imwrite(str(clip / "labels" / "f01.png"), np.full((8, 10), 40, np.uint8))
+    elif damage == "corrupt_png":
+        (clip / "images" / "f01.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    with pytest.raises(DatasetError, match=message) as err:
+        load_folder(clip)
+    assert "\n" not in str(err.value)
+
+
+def test_load_dataset_specs(tmp_path):
+    with pytest.raises(InputError):
+        load_dataset("nonsense:/x")
+    with pytest.raises(PcregError):
+        load_dataset(f"camvid:{tmp_path / 'missing'}")
+    data = load_dataset("synthetic:syn1a,syn3b", n_frames=2, size=(48, 36))
+    assert list(data) == ["syn1a", "syn3b"] and data["syn3b"][0].image.shape == (36, 48, 3)
+    assert list(load_dataset("synthetic", n_frames=1, size=(32, 24))) == list(SYNTHETIC_PRESETS)
+
+
+@pytest.mark.data
+def test_camvid_clips_load(shared_data):
+    camvid = shared_data / "camvid"
+    if not camvid.is_dir():
+        pytest.skip(f"{camvid} is absent")
+    data = load_dataset(f"camvid:{camvid}")
+    assert {"0001TP", "0006R0", "0016E5", "Seq05VD"} <= set(data)
+    assert len(data["0016E5"]) == 60 and len(data["0001TP"]) == 30
+    f = data["0016E5"][0]
+    assert f.image.shape == (360, 480, 3) and f.labels.shape == (360, 480)
+    lab = np.concatenate([fr.labels.ravel() for fr in data["0001TP"]])
+    assert set(np.unique(lab)) == {0, 1, 2}
+    one = load_dataset(f"camvid:{camvid / '0006R0'}")
+    assert list(one) == ["0006R0"]

@@ -14,9 +14,10 @@ Usage::
             rec.log_images(reference=reference, moving=moving)
             rec.log_transform(result.matrix)
 
-Cost: images are JPEG-encoded (quality 75 by default) and clouds are subsampled for display, so a
-100-frame 640x480 sequence stays under 15 MB and recording adds a few milliseconds per frame
-(``tools/bench_recording.py`` measures both).
+Cost: images are JPEG-encoded (quality 70 by default) on a background thread, and clouds and label
+maps are subsampled for display, so a 100-frame 640x480 sequence stays under 15 MB and recording
+adds a few milliseconds per frame (``tools/bench_recording.py`` measures both). The file is written
+by rerun's own thread as data arrives (every ~0.2 s); :meth:`Recorder.flush` forces it.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import math
 import os
 import traceback
 import uuid
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -42,11 +44,13 @@ from .result import IcpIteration
 
 __all__ = ["Recorder", "DEFAULT_JPEG_QUALITY"]
 
-#: JPEG quality of logged images. On 640x480 camera frames quality 75 (libjpeg's own default) gives
-#: about 37 kB a frame against 42 kB at 80, 50 kB at 85 and 63 kB at 90, with no artefact visible at
-#: the viewer's zoom; it is what keeps three images, two label maps and the clouds of a 100-frame
-#: sequence under 15 MB. ``raw_images=True`` logs the pixels losslessly instead.
-DEFAULT_JPEG_QUALITY = 75
+#: JPEG quality of logged images (with optimised Huffman tables). On 640x480 camera frames (CamVid,
+#: resized) quality 70 gives about 33 kB a frame against 36 kB at 75, 42 kB at 80, 50 kB at 85 and
+#: 63 kB at 90, with blocking visible only when zoomed in past 1:1. A sequence frame carries three
+#: images (reference, moving, warped), so the images alone are ~10 MB per 100 frames at 70 and
+#: ~15 MB at 85: 70 is the highest quality that keeps a 100-frame sequence with labels and clouds
+#: under 15 MB. ``raw_images=True`` logs the pixels losslessly instead.
+DEFAULT_JPEG_QUALITY = 70
 
 _LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}
 
@@ -198,6 +202,8 @@ class Recorder:
         if recording_name:
             self._rec.send_recording_name(recording_name)
         self._closed = False
+        self._encoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-recorder")
+        self._pending: list[Future] = []
         self._frame: int | None = None
         self._icp_step: dict[str, int] = {}
         self._icp_target_key: dict[str, tuple] = {}
@@ -226,8 +232,22 @@ class Recorder:
         if self._closed:
             return
         self._closed = True
+        try:
+            self._wait_pending()
+        finally:
+            self._encoder.shutdown(wait=True)
+            self._rec.flush()
+            self._rec.disconnect()
+
+    def flush(self) -> None:
+        """Block until everything logged so far is in the file."""
+        self._wait_pending()
         self._rec.flush()
-        self._rec.disconnect()
+
+    def _wait_pending(self) -> None:
+        pending, self._pending = self._pending, []
+        for f in pending:
+            f.result()  # re-raises an encoding error here, on the caller's thread
 
     @property
     def closed(self) -> bool:
@@ -241,9 +261,14 @@ class Recorder:
     # -- time ---------------------------------------------------------------------------------
 
     def set_frame(self, index: int) -> None:
-        """Put what follows on the ``frame`` timeline at ``index``; earlier frames are flushed to disk."""
+        """Put what follows on the ``frame`` timeline at ``index``.
+
+        Waits for the previous frame's images to be encoded (they are done by then in practice) and
+        starts, without waiting, a flush of everything before to the file.
+        """
         if self._frame is not None:
-            self._rec.flush(timeout_sec=5.0)
+            self._wait_pending()
+            self._rec.flush(timeout_sec=0)
         self._frame = int(index)
         self._rec.set_time(E.FRAME_TIMELINE, sequence=self._frame)
         self._rec.disable_timeline(E.ICP_TIMELINE)
@@ -279,10 +304,33 @@ class Recorder:
         if self.raw_images:
             return rr.Image(a, color_model="L" if a.ndim == 2 else "RGB", **kw)
         bgr = a if a.ndim == 2 else cv2.cvtColor(a, cv2.COLOR_RGB2BGR)
-        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        params = [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality, cv2.IMWRITE_JPEG_OPTIMIZE, 1]
+        ok, buf = cv2.imencode(".jpg", bgr, params)
         if not ok:  # pragma: no cover - OpenCV's JPEG encoder does not fail on uint8 images
             raise OutputError("JPEG encoding failed")
         return rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg", **kw)
+
+    def _mask(self, m8: np.ndarray) -> Any:
+        if self.raw_images:
+            return rr.Image(m8, color_model="L")
+        ok, buf = cv2.imencode(".png", m8, [cv2.IMWRITE_PNG_BILEVEL, 1, cv2.IMWRITE_PNG_COMPRESSION, 1])
+        return rr.EncodedImage(contents=buf.tobytes(), media_type="image/png")
+
+    def _log_later(self, path: str, make: Callable[[], Any]) -> None:
+        """Build an archetype (encode an image) on the background thread and log it at the current frame.
+
+        Rerun's time cursor is per thread, so the job sets the frame on its own thread.
+        """
+        if self._closed:
+            raise OutputError(f"{self.path}: the recording is closed")
+        frame = self._frame
+
+        def job() -> None:
+            if frame is not None:
+                self._rec.set_time(E.FRAME_TIMELINE, sequence=frame)
+            self._rec.log(path, make())
+
+        self._pending.append(self._encoder.submit(job))
 
     def log_images(
         self,
@@ -300,24 +348,26 @@ class Recorder:
         valid_mask : (H, W) bool, optional
             Where ``warped`` has data; logged losslessly (PNG, or raw).
         """
+        # validate here, on the caller's thread; copy, since the caller may reuse its buffers
+        jobs = []
         if reference is not None:
-            self._log(E.REFERENCE_IMAGE, self._image(_as_image(reference, "reference"), draw_order=-10.0))
+            a = _as_image(reference, "reference").copy()
+            jobs.append((E.REFERENCE_IMAGE, lambda a=a: self._image(a, draw_order=-10.0)))
         if moving is not None:
-            m = _as_image(moving, "moving")
+            m = _as_image(moving, "moving").copy()
             self._moving_shape = (int(m.shape[0]), int(m.shape[1]))
-            self._log(E.MOVING_IMAGE, self._image(m, draw_order=-10.0))
+            jobs.append((E.MOVING_IMAGE, lambda m=m: self._image(m, draw_order=-10.0)))
         if warped is not None:
-            self._log(E.WARPED_IMAGE, self._image(_as_image(warped, "warped"), opacity=0.5, draw_order=-5.0))
+            w = _as_image(warped, "warped").copy()
+            jobs.append((E.WARPED_IMAGE, lambda w=w: self._image(w, opacity=0.5, draw_order=-5.0)))
         if valid_mask is not None:
             mask = np.asarray(valid_mask)
             if mask.ndim != 2:
                 raise InputError(f"valid_mask must be (H, W), got shape {mask.shape}")
             m8 = np.where(mask.astype(bool), np.uint8(255), np.uint8(0))
-            if self.raw_images:
-                self._log(E.VALID_MASK, rr.Image(m8, color_model="L"))
-            else:
-                ok, buf = cv2.imencode(".png", m8)
-                self._log(E.VALID_MASK, rr.EncodedImage(contents=buf.tobytes(), media_type="image/png"))
+            jobs.append((E.VALID_MASK, lambda m8=m8: self._mask(m8)))
+        for path, make in jobs:
+            self._log_later(path, make)
 
     # -- clouds -------------------------------------------------------------------------------
 

@@ -238,7 +238,7 @@ def test_interrupted_recording_is_readable_up_to_where_it_stopped(tmp_path):
             rec.log_transform(np.eye(3) * (f + 1))
             rec.log_errors({{"plain": f / 1000}})
             if f == 5:
-                rec.set_frame(6)  # flushes frames 0..5 to the file
+                rec.flush()  # frames 0..5 are in the file
                 print("ready", flush=True)
                 time.sleep(120)
     """)

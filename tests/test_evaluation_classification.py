@@ -1,0 +1,179 @@
+"""`pcreg evaluate classification` end to end on tiny synthetic data, and every bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import scipy.io
+
+from pcreg.bayes import NaiveBayesPixelClassifier, thesis_weight_search
+from pcreg.datasets import synthetic
+from pcreg.errors import PcregError
+from pcreg.evaluation import classification
+from pcreg.metrics import confusion_matrix, error_from_confusion
+
+SMALL = ["--frames", "6", "--size", "48x36", "--trials", "4"]
+
+
+def run_cli(argv: list[str]) -> int:
+    """``pcreg evaluate classification ARGV`` through pcreg.cli (or the same parse/error path while
+    sibling commands are not importable)."""
+    from pcreg import cli
+
+    try:
+        cli.build_parser()
+    except ImportError:
+        parser = cli._Parser(prog="pcreg evaluate classification")
+        classification.add_arguments(parser)
+        args = parser.parse_args(argv)
+        try:
+            return classification.run(args)
+        except PcregError as exc:
+            sys.stderr.write(f"pcreg: error: {exc}\n")
+            return 2
+    return cli.main(["evaluate", "classification", *argv])
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cls")
+    rc = run_cli(["--data", "synthetic:syn1a,syn2b", *SMALL, "--out", str(out)])
+    assert rc == 0
+    return out
+
+
+def test_outputs_are_complete(small_run):
+    for name in classification.OUTPUT_FILES:
+        assert (small_run / name).is_file(), name
+    results = json.loads((small_run / "results.json").read_text())
+    config = json.loads((small_run / "config.json").read_text())
+    assert config == results["config"] and config["data"] == "synthetic:syn1a,syn2b"
+    assert results["k"]["I"] == {"syn1a": [1, 2, 3, 4, 5], "syn2b": [1, 2, 3, 4, 5]}
+    assert results["k"]["III"] == {"syn1a": [1], "syn2b": [1]}  # 10% and 20% of 6 frames both round to 1
+    n_units = 2 * (2 * 5 + 2 + 1)  # features x (case I + case II + case III)
+    assert len(results["units"]) == n_units
+    assert all(0.0 <= u["error"] <= 100.0 for u in results["units"])
+    rows = list(csv.reader((small_run / "case1.csv").open()))
+    assert rows[0][:3] == ["dataset", "features", "k=1"] and len(rows) == 1 + 2 * 2
+    md = (small_run / "case2.md").read_text()
+    assert md.startswith("### Table 4.3") and "| syn1a (DS1A) | thesis |" in md
+    assert "10%..90%" in (small_run / "case1.md").read_text()
+    assert (small_run / "case1.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_case_i_numbers_are_recomputed_exactly(small_run):
+    """One Case I unit redone by hand: weight search on the training frames, fit, pooled error."""
+    results = json.loads((small_run / "results.json").read_text())
+    frames = synthetic("syn2b", 6, 0, width=48, height=36)
+    train, test = frames[:3], frames[3:]
+    search = thesis_weight_search([f.image for f in train], [f.labels for f in train], n_trials=4, seed=0)
+    clf = NaiveBayesPixelClassifier("thesis", weights=search.weights).fit([f.image for f in train],
+                                                                          [f.labels for f in train])
+    conf = sum(confusion_matrix(clf.predict(f.image), f.labels) for f in test)
+    unit = next(u for u in results["units"] if u["case"] == "I" and u["key"] == ["thesis", "syn2b", 3])
+    assert unit["error"] == pytest.approx(error_from_confusion(conf), abs=1e-9)
+    assert unit["weights"] == pytest.approx(list(search.weights))
+    case2 = next(u for u in results["units"] if u["case"] == "II" and u["key"] == ["rgb+hsv+row", "syn1a"])
+    assert [t["dataset"] for t in case2["tests"]] == ["syn1a", "syn2b"]
+    total = np.sum([t["confusion"] for t in case2["tests"]], axis=0)
+    assert case2["error"] == pytest.approx(error_from_confusion(total))
+
+
+def test_workers_give_the_same_numbers(small_run, tmp_path):
+    rc = run_cli(["--data", "synthetic:syn1a,syn2b", *SMALL, "--cases", "II", "--workers", "2",
+                  "--out", str(tmp_path)])
+    assert rc == 0
+    par = json.loads((tmp_path / "results.json").read_text())["units"]
+    ser = {tuple(u["key"]): u["error"] for u in json.loads((small_run / "results.json").read_text())["units"]
+           if u["case"] == "II"}
+    assert {tuple(u["key"]): u["error"] for u in par} == ser
+
+
+def test_refuses_to_overwrite_without_force(small_run, capsys):
+    rc = run_cli(["--data", "synthetic:syn1a", *SMALL, "--out", str(small_run)])
+    assert rc == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pcreg: error:") and "--force" in err and "\n" not in err
+
+
+def _clip(folder: Path, n: int = 3, *, rng=None, ids=(0, 3, 5), size=(12, 10)) -> None:
+    rng = rng or np.random.default_rng(0)
+    (folder / "images").mkdir(parents=True)
+    (folder / "labels").mkdir()
+    for i in range(n):
+        cv2.imwrite(str(folder / "images" / f"f{i}.png"), rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8))
+        cv2.imwrite(str(folder / "labels" / f"f{i}.png"), rng.choice(np.array(ids, np.uint8), (size[1], size[0])))
+
+
+def _damage(root: Path, case: str) -> str:
+    """Make a bad dataset under root; return the --data value."""
+    clip = root / "camvid" / "clip"
+    if case == "lagr_without_variables":
+        (root / "lagr" / "labeled_lagr_data_640x480_DS1A").mkdir(parents=True)
+        scipy.io.savemat(root / "lagr" / "labeled_lagr_data_640x480_DS1A" / "frame001.mat", {"x": np.zeros(2)})
+        return f"lagr:{root / 'lagr'}"
+    if case == "no_frames":
+        (clip / "images").mkdir(parents=True)
+        return f"camvid:{root / 'camvid'}"
+    _clip(clip)
+    if case == "image_without_label":
+        (clip / "labels" / "f1.png").unlink()
+    elif case == "label_without_image":
+        (clip / "images" / "f2.png").unlink()
+    elif case == "size_mismatch":
+        cv2.imwrite(str(clip / "labels" / "f0.png"), np.zeros((3, 3), np.uint8))
+    elif case == "ids_outside_mapping":
+        cv2.imwrite(str(clip / "labels" / "f0.png"), np.full((10, 12), 77, np.uint8))
+    elif case == "corrupt_png":
+        (clip / "images" / "f0.png").write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    elif case == "one_class_only":
+        for i in range(3):
+            cv2.imwrite(str(clip / "labels" / f"f{i}.png"), np.full((10, 12), 3, np.uint8))
+    elif case == "k_larger_than_dataset":
+        return f"camvid:{root / 'camvid'} --k 5"
+    return f"camvid:{root / 'camvid'}"
+
+
+BAD = {
+    "no_frames": "no .png or .jpg frames",
+    "image_without_label": "no label file",
+    "label_without_image": "label file without an image",
+    "size_mismatch": "but the image is",
+    "ids_outside_mapping": "outside the mapping",
+    "lagr_without_variables": "im_rgb",
+    "corrupt_png": "cannot decode",
+    "one_class_only": "one class only",
+    "k_larger_than_dataset": "larger than dataset",
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_input_is_one_line_exit_2_and_no_results(tmp_path, capsys, case):
+    spec = _damage(tmp_path, case).split()
+    out = tmp_path / "out"
+    rc = run_cli(["--data", spec[0], *spec[1:], "--trials", "2", "--out", str(out)])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pcreg: error:") and err.count("\n") == 1, err
+    assert BAD[case] in err
+    assert not (out / "results.json").exists()
+
+
+def test_k_larger_than_a_synthetic_sequence(tmp_path, capsys):
+    rc = run_cli(["--data", "synthetic:syn1a", *SMALL, "--cases", "III", "--k3", "7", "--out", str(tmp_path)])
+    assert rc == 2 and "k=7 is larger than dataset syn1a" in capsys.readouterr().err
+    assert not (tmp_path / "results.json").exists()
+
+
+def test_unknown_feature_and_case_are_rejected(tmp_path, capsys):
+    assert run_cli(["--features", "rgb+nope", "--out", str(tmp_path)]) == 2
+    assert "unknown feature" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        run_cli(["--cases", "IV", "--out", str(tmp_path)])
+    assert exc.value.code == 2

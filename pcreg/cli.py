@@ -32,8 +32,11 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add(sub, name: str, module: str, help_: str) -> None:
-    mod = importlib.import_module(module)
-    if not hasattr(mod, "add_arguments"):
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        if exc.name != module:  # a missing dependency inside the module is a real error
+            raise
         return
     p = sub.add_parser(name, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
     mod.add_arguments(p)

@@ -59,7 +59,7 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
 def _run_backend(backend: str, source: np.ndarray, target: np.ndarray, *, model: str, dist: float,
                  init: np.ndarray, max_iteration: int, relative_fitness: float, relative_rmse: float,
                  weights: str, metric: str, target_normals: np.ndarray | None, callback, level: int,
-                 rotation: str = "svd", tree=None, trim_fraction: float = 0.9):
+                 rotation: str = "svd", tree=None, trim_fraction: float = 0.9, count_iterations: bool = False):
     if backend == "reference":
         return icp_reference(source, target, model=model, max_correspondence_distance=dist, init=init,
                              max_iteration=max_iteration, relative_fitness=relative_fitness,
@@ -70,7 +70,7 @@ def _run_backend(backend: str, source: np.ndarray, target: np.ndarray, *, model:
         raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
     return icp_open3d(source, target, model=model, max_correspondence_distance=dist, init=init,
                       max_iteration=max_iteration, relative_fitness=relative_fitness, relative_rmse=relative_rmse,
-                      callback=callback, level=level)
+                      callback=callback, level=level, stepwise=count_iterations or callback is not None)
 
 
 def _check_options(backend: str, model: str, dim: int, weights: str, metric: str) -> None:
@@ -88,7 +88,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
         relative_fitness: float = 1e-6, relative_rmse: float = 1e-6, voxel_sizes: Sequence[float] | None = None,
         max_correspondence_distances: Sequence[float] | None = None, max_iterations: Sequence[int] | None = None,
         weights: str = "none", trim_fraction: float = 0.9, metric: str = "point_to_point",
-        target_normals: np.ndarray | None = None, rotation: str = "svd",
+        target_normals: np.ndarray | None = None, rotation: str = "svd", count_iterations: bool = True,
         callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
     """Register two point clouds: the transform that maps ``source_points`` onto ``target_points``.
 
@@ -102,6 +102,9 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
     metric : ``point_to_point`` or (2-D, reference backend, with ``target_normals``) ``point_to_line``.
     rotation : 3-D rigid closed form of the reference backend: ``svd`` (Umeyama) or ``quaternion`` (Horn).
     callback : called with an :class:`~pcreg.result.IcpIteration` after every iteration.
+    count_iterations : Open3D backend only: run Open3D one iteration at a time (its stopping rule
+        applied between steps) so that ``iterations`` and ``converged`` are exact; False runs it in one
+        call (faster) and reports ``iterations = -1``.
 
     Returns a :class:`RegistrationResult` whose ``matrix`` is (d+1, d+1) ``T_target_source``.
     """
@@ -144,7 +147,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
                                               weights=weights, metric=metric,
                                               target_normals=target_normals if not voxel_sizes else None,
                                               callback=callback, level=n_levels - 1 - i, rotation=rotation,
-                                              trim_fraction=trim_fraction)
+                                              trim_fraction=trim_fraction, count_iterations=count_iterations)
         total_iter = -1 if (it < 0 or total_iter < 0) else total_iter + it
     seconds = time.perf_counter() - start
     return RegistrationResult(matrix=T, fitness=fit, inlier_rmse=rmse, iterations=total_iter, converged=conv,

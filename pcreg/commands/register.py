@@ -1,0 +1,71 @@
+"""Register a moving image to a reference image and print the transform T_ref_mov."""
+
+from __future__ import annotations
+
+import argparse
+
+from ._common import add_record_arguments, open_recorder, positive_int, print_json, positive_float
+
+MODELS = ("translation", "rigid", "similarity", "affine", "projective")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("reference", help="reference image (png, jpg, ...)")
+    p.add_argument("moving", help="moving image, registered onto the reference")
+    p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
+    p.add_argument("--model", choices=MODELS, default="rigid")
+    p.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
+    p.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
+    p.add_argument("--init", choices=("auto", "identity", "center"), default="auto",
+                   help="auto: global rotation search; identity: start from no motion")
+    p.add_argument("--max-distance", type=positive_float, default=2.5,
+                   help="correspondence distance in px at full resolution (x 2^level)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", metavar="WARPED.png", help="write the moving image warped onto the reference grid")
+    add_record_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    import cv2
+
+    from .._io import atomic_write_bytes, check_output
+    from ..errors import OutputError
+    from ..image_cloud import cloud_pyramid, load_image
+    from ..registration import register
+    from ..warp import warp
+
+    if args.out:
+        check_output(args.out, force=args.force)
+    ref = load_image(args.reference)
+    mov = load_image(args.moving)
+    with open_recorder(args, name=f"register {args.moving} -> {args.reference}") as rec:
+        if rec is not None:
+            rec.set_frame(0)
+            rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
+            rec.log_images(reference=ref, moving=mov)
+            rc, mc = cloud_pyramid(ref, levels=1)[0], cloud_pyramid(mov, levels=1)[0]
+            rec.log_clouds(reference_points=rc.points, reference_colors=rc.colors, moving_points=mc.points,
+                           moving_colors=mc.colors)
+        result = register(ref, mov, backend=args.backend, model=args.model, levels=args.levels,
+                          iterations=args.iterations, init=args.init, max_correspondence_distance=args.max_distance,
+                          callback=rec.icp_callback(args.backend) if rec is not None else None)
+        warped = valid = None
+        if args.out or rec is not None:
+            warped, valid = warp(mov, result.matrix, shape=ref.shape)
+        if rec is not None:
+            rec.log_transform(result.matrix)
+            rec.log_images(warped=warped, valid_mask=valid)
+            rec.log_text(repr(result))
+    if args.out:
+        ok, buf = cv2.imencode(".png" if not args.out.lower().endswith((".jpg", ".jpeg")) else ".jpg",
+                               warped[:, :, ::-1])
+        if not ok:
+            raise OutputError(f"cannot encode {args.out}")
+        atomic_write_bytes(args.out, buf.tobytes())
+    if args.json:
+        print_json(result.to_dict())
+    else:
+        print(result)
+    return 0

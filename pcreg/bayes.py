@@ -252,21 +252,27 @@ class NaiveBayesPixelClassifier:
             acc = acc + row_term[:, None].astype(acc.dtype)
         return acc
 
-    def joint_log_likelihood(self, image: np.ndarray) -> np.ndarray:
-        """(H, W, n) float64: log p(c) + sum_f log N(x_f; theta_cf, var_cf) for each trained class."""
+    def _jll_planes(self, image: np.ndarray) -> list[np.ndarray]:
         self._check_fitted()
         image = check_image(image)
-        return np.stack([self._sum_tables(image, self._tables64[i]) + self._log_prior[i]
-                         for i in range(len(self.classes_))], axis=-1)
+        return [self._sum_tables(image, self._tables64[i]) + self._log_prior[i] for i in range(len(self.classes_))]
+
+    def joint_log_likelihood(self, image: np.ndarray) -> np.ndarray:
+        """(H, W, n) float64: log p(c) + sum_f log N(x_f; theta_cf, var_cf) for each trained class."""
+        return np.stack(self._jll_planes(image), axis=-1)
 
     def predict_log_proba(self, image: np.ndarray) -> np.ndarray:
         """(H, W, 3) float64 log-posteriors over (ground, obstacle, unknown); a class the model was not
         trained on (unknown, by default) gets -inf."""
-        jll = self.joint_log_likelihood(image)
-        m = jll.max(axis=-1, keepdims=True)
-        log_norm = m + np.log(np.exp(jll - m).sum(axis=-1, keepdims=True))
-        out = np.full(jll.shape[:2] + (N_LABELS,), -np.inf, dtype=np.float64)
-        out[:, :, self.classes_] = jll - log_norm
+        jll = self._jll_planes(image)
+        m = np.maximum.reduce(jll) if len(jll) > 1 else jll[0]
+        total = np.zeros_like(m)
+        for j in jll:
+            total += np.exp(j - m)
+        log_norm = m + np.log(total)
+        out = np.full(m.shape + (N_LABELS,), -np.inf, dtype=np.float64)
+        for c, j in zip(self.classes_, jll):
+            out[:, :, c] = j - log_norm
         return out
 
     def predict_proba(self, image: np.ndarray) -> np.ndarray:

@@ -110,12 +110,13 @@ def feature_groups(image: np.ndarray, features: str | Iterable[str] = ("rgb", "h
             planes = planes.reshape(image.shape[0], image.shape[1], 1)
         elif name == "texture":
             if gray is None:
-                gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
+                gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
             k = (TEXTURE_WINDOW, TEXTURE_WINDOW)
-            mean = cv2.boxFilter(gray, -1, k)
-            mean_sq = cv2.boxFilter(gray * gray, -1, k)
-            std = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
-            planes = np.clip(np.rint(2.0 * std), 0, 255).astype(np.uint8)[:, :, None]
+            mean = cv2.boxFilter(gray, cv2.CV_32F, k)
+            mean_sq = cv2.sqrBoxFilter(gray, cv2.CV_32F, k)
+            var = cv2.max(cv2.subtract(mean_sq, cv2.multiply(mean, mean)), 0.0)
+            # 2 x std, rounded and saturated to 8 bits (values are non-negative, so abs is a no-op)
+            planes = cv2.convertScaleAbs(cv2.sqrt(var), alpha=2.0).reshape(image.shape[0], image.shape[1], 1)
         else:  # row
             planes = row_levels(image.shape[0])
         out.append((name, planes))

@@ -14,7 +14,7 @@ Usage::
             rec.log_images(reference=reference, moving=moving)
             rec.log_transform(result.matrix)
 
-Cost: images are JPEG-encoded (quality 70 by default) on a background thread, and clouds and label
+Cost: images are JPEG-encoded (quality 60 by default) on a background thread, and clouds and label
 maps are subsampled for display, so a 100-frame 640x480 sequence stays under 15 MB and recording
 adds a few milliseconds per frame (``tools/bench_recording.py`` measures both). The file is written
 by rerun's own thread as data arrives (every ~0.2 s); :meth:`Recorder.flush` forces it.
@@ -45,12 +45,12 @@ from .result import IcpIteration
 __all__ = ["Recorder", "DEFAULT_JPEG_QUALITY"]
 
 #: JPEG quality of logged images (with optimised Huffman tables). On 640x480 camera frames (CamVid,
-#: resized) quality 70 gives about 33 kB a frame against 36 kB at 75, 42 kB at 80, 50 kB at 85 and
-#: 63 kB at 90, with blocking visible only when zoomed in past 1:1. A sequence frame carries three
-#: images (reference, moving, warped), so the images alone are ~10 MB per 100 frames at 70 and
-#: ~15 MB at 85: 70 is the highest quality that keeps a 100-frame sequence with labels and clouds
-#: under 15 MB. ``raw_images=True`` logs the pixels losslessly instead.
-DEFAULT_JPEG_QUALITY = 70
+#: resized) a frame is about 28 kB at quality 60, 33 kB at 65-70, 36 kB at 75, 42 kB at 80 and 50 kB
+#: at 85; blocking shows only when zoomed in past 1:1. A sequence frame carries three images
+#: (reference, moving, warped): measured with tools/bench_recording.py, a 100-frame sequence with
+#: labels, mask and clouds is 14.4 MB at 60, 15.2 MB at 65 and 16.1 MB at 70, so 60 is the highest
+#: quality that keeps it under 15 MB. ``raw_images=True`` logs the pixels losslessly instead.
+DEFAULT_JPEG_QUALITY = 60
 
 _LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}
 

@@ -151,39 +151,43 @@ def estimate_projective(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarr
 def estimate_point_to_line(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray, model: str) -> np.ndarray:
     """2-D point-to-line step (the planar case of Chen & Medioni 1992's point-to-plane).
 
-    Minimises Σ w ((T(p) - q) · n)^2 linearised about the identity; rigid rotations are re-orthonormalised.
+    Minimises Σ w ((U(p) - q) · n)^2 over a small update U linearised about the identity, in
+    coordinates centred on the weighted mean of p and scaled to unit RMS radius (for conditioning).
+    The projective update is U = I + dH with h33 = 1, linearised as
+    Δx = a x + b y + c - x (g x + h y), Δy = d x + e y + f - y (g x + h y).
+    Rigid and similarity rotations are rebuilt exactly from the solved angle.
     """
     mp = (w @ p) / w.sum()
-    pc = p - mp  # centre for conditioning; the rotation is about μ_p
-    r0 = np.einsum("ij,ij->i", p - q, n)
-    perp = n[:, 1] * pc[:, 0] - n[:, 0] * pc[:, 1]  # d/dθ of (R p)·n at θ=0
-    cols = {"translation": [n[:, 0], n[:, 1]],
-            "rigid": [perp, n[:, 0], n[:, 1]],
-            "similarity": [perp, np.einsum("ij,ij->i", pc, n), n[:, 0], n[:, 1]],
-            "affine": [pc[:, 0] * n[:, 0], pc[:, 1] * n[:, 0], pc[:, 0] * n[:, 1], pc[:, 1] * n[:, 1], n[:, 0], n[:, 1]]}
-    if model not in cols:
-        raise RegistrationError(f"point-to-line supports translation, rigid, similarity, affine (not {model})")
+    scale = float(np.sqrt((w @ np.sum((p - mp) ** 2, axis=1)) / w.sum())) or 1.0
+    N = np.array([[1 / scale, 0, -mp[0] / scale], [0, 1 / scale, -mp[1] / scale], [0, 0, 1.0]])
+    pn, qn = (p - mp) / scale, (q - mp) / scale
+    x, y = pn[:, 0], pn[:, 1]
+    nx, ny = n[:, 0], n[:, 1]
+    r0 = np.einsum("ij,ij->i", pn - qn, n)
+    perp = ny * x - nx * y  # d/dθ of (R p)·n at θ = 0
+    radial = x * nx + y * ny
+    cols = {"translation": [nx, ny],
+            "rigid": [perp, nx, ny],
+            "similarity": [perp, radial, nx, ny],
+            "affine": [x * nx, y * nx, nx, x * ny, y * ny, ny],
+            "projective": [x * nx, y * nx, nx, x * ny, y * ny, ny, -x * radial, -y * radial]}
     J = np.column_stack(cols[model])
-    sw = np.sqrt(w)
     JTJ = (J * w[:, None]).T @ J
     JTJ += np.eye(J.shape[1]) * 1e-9 * max(np.trace(JTJ), 1.0)
-    x = np.linalg.solve(JTJ, -(J * w[:, None]).T @ r0)
-    del sw
-    L = np.eye(2)
+    v = np.linalg.solve(JTJ, -(J * w[:, None]).T @ r0)
+    U = np.eye(3)
     if model == "translation":
-        t = x[0:2]
+        U[:2, 2] = v
     elif model in ("rigid", "similarity"):
-        th = x[0]
-        s = 1.0 + x[1] if model == "similarity" else 1.0
-        L = s * np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
-        t = x[-2:]
+        k = 1.0 + v[1] if model == "similarity" else 1.0
+        U[:2, :2] = k * np.array([[np.cos(v[0]), -np.sin(v[0])], [np.sin(v[0]), np.cos(v[0])]])
+        U[:2, 2] = v[-2:]
     else:
-        L = np.eye(2) + x[:4].reshape(2, 2)
-        t = x[4:6]
-    T = np.eye(3)
-    T[:2, :2] = L
-    T[:2, 2] = mp + t - L @ mp
-    return T
+        U[0, :] += v[0:3]
+        U[1, :] += v[3:6]
+        if model == "projective":
+            U[2, :2] = v[6:8]
+    return np.linalg.inv(N) @ U @ N
 
 
 def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotation: str = "svd") -> np.ndarray:
@@ -286,7 +290,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
     T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
     if tree is None:
         tree = build_tree(target)
-    if metric == "point_to_line" and (d != 2 or target_normals is None or model == "projective"):
+    if metric == "point_to_line" and (d != 2 or target_normals is None):
         metric = "point_to_point"
     pts = apply(T, source)
     n = source.shape[0]

@@ -17,7 +17,7 @@ from .errors import InputError, RegistrationError
 from .icp_open3d import icp_open3d
 from .icp_reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
 from ._grid import GridNearest
-from .image_cloud import ImageCloud, as_rgb_uint8, cloud_pyramid
+from .clouds import ImageCloud, as_rgb_uint8, cloud_pyramid
 from .result import IcpIteration, RegistrationResult
 from .transforms import about_point, apply, check_model, image_center, rigid2d
 
@@ -301,7 +301,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         if T.shape != (3, 3) or not np.all(np.isfinite(T)):
             raise InputError("init must be a finite 3x3 matrix")
     total, conv, fit, rmse = 0, False, 0.0, 0.0
-    p2l = refine == "point_to_line" and backend == "reference" and model != "projective"
+    p2l = refine == "point_to_line" and backend == "reference"
     for level in range(levels - 1, 0 if p2l else -1, -1):
         s, t = mov_levels[level], ref_levels[level]
         if len(s) < 3 or len(t) < 3:

@@ -22,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..crosscheck import CLOUD_SUFFIXES, CrosscheckConfig, crosscheck
+    from ..crosschecks import CLOUD_SUFFIXES, CrosscheckConfig, crosscheck
 
     config = CrosscheckConfig(model=args.model, iterations=args.iterations, levels=args.levels,
                               voxel_sizes=args.voxel_sizes, max_correspondence_distance=args.max_distance)

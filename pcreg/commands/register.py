@@ -32,9 +32,9 @@ def run(args: argparse.Namespace) -> int:
 
     from .._io import atomic_write_bytes, check_output
     from ..errors import OutputError
-    from ..image_cloud import cloud_pyramid, load_image
+    from ..clouds import cloud_pyramid, load_image
     from ..registration import register
-    from ..warp import warp
+    from ..warping import warp
 
     if args.out:
         check_output(args.out, force=args.force)

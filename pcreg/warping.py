@@ -51,7 +51,9 @@ def warp(moving: np.ndarray, T_ref_mov: np.ndarray, *, shape: tuple[int, ...] | 
         warped = one(src, flags, border)
     if src.ndim == 3 and warped.ndim == 2:
         warped = warped[:, :, None]
-    valid = one(np.ones(moving.shape[:2], np.uint8), cv2.INTER_NEAREST, 0).astype(bool)
+    # Valid: every interpolation weight fell inside the moving image (no blend with ``fill``).
+    ones = np.ones(moving.shape[:2], np.float32)
+    valid = one(ones, cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR, 0) > 0.999
     if moving.dtype == np.bool_:
         warped = warped.astype(bool)
     return warped, valid

@@ -142,7 +142,8 @@ def _level_points(image: np.ndarray, *, sampler: str = "canny", valid: np.ndarra
         if nz.size == 0:
             return np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2), np.intp)
         k = min(nz.size - 1, int(canny_percentile / 100.0 * nz.size))
-        high = float(np.partition(nz, k)[k])
+        # Capped below the maximum so an image whose edges all have one strength still has edges.
+        high = min(float(np.partition(nz, k)[k]), 0.8 * float(nz.max()))
         high = max(high, 8.0)  # Sobel magnitude of a faint (2 grey levels) step: no edges in flat noise
         edges = cv2.Canny(dx, dy, 0.5 * high, high, L2gradient=True)
         keep = edges > 0

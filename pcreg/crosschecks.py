@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import InputError
-from .image_cloud import as_rgb_uint8, cloud_pyramid, load_image
+from .clouds import as_rgb_uint8, cloud_pyramid, load_image
 from .registration import _global_search, check_cloud, icp
 from .result import IcpIteration, RegistrationResult
 from .transforms import apply, corners, rotation_disagreement_deg

@@ -1,0 +1,102 @@
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg import transforms as tf
+from pcreg.crosschecks import CrosscheckConfig, crosscheck_clouds, load_cloud
+from pcreg.errors import InputError
+
+from _images import moved, rigid_about_centre, shapes_image
+
+
+def relative(a, b):
+    return np.max(np.abs(a - b)) / max(1.0, np.max(np.abs(a)))
+
+
+@pytest.mark.parametrize("dim, model", [(2, "rigid"), (2, "similarity"), (3, "rigid"), (3, "similarity")])
+def test_backends_agree_on_synthetic_clouds(dim, model):
+    rng = np.random.default_rng(dim)
+    target = rng.uniform(-10, 10, (3000, dim))
+    T = np.eye(dim + 1)
+    a = np.deg2rad(4.0)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[:dim, dim] = 0.3
+    if model == "similarity":
+        T[:dim, :dim] *= 1.02
+    source = tf.apply(np.linalg.inv(T), target) + rng.normal(scale=0.02, size=target.shape)
+    kw = dict(model=model, max_correspondence_distance=1.0, max_iteration=50)
+    ref = pcreg.icp(source, target, backend="reference", **kw)
+    o3d = pcreg.icp(source, target, backend="open3d", **kw)
+    assert relative(ref.matrix, o3d.matrix) < 1e-6
+    assert ref.iterations == o3d.iterations
+    assert ref.converged == o3d.converged
+    assert ref.fitness == pytest.approx(o3d.fitness, abs=1e-12)
+    assert ref.inlier_rmse == pytest.approx(o3d.inlier_rmse, rel=1e-6)
+
+
+def test_backends_agree_iteration_by_iteration():
+    rng = np.random.default_rng(7)
+    target = rng.uniform(-10, 10, (1000, 2))
+    source = tf.apply(np.linalg.inv(tf.rigid2d(6, 0.5, -0.4)), target)
+    seen = {"reference": [], "open3d": []}
+    for backend in seen:
+        pcreg.icp(source, target, backend=backend, max_correspondence_distance=2.0, max_iteration=20,
+                  callback=lambda it: seen[it.backend].append(it))
+    assert len(seen["reference"]) == len(seen["open3d"]) > 3
+    for a, b in zip(seen["reference"], seen["open3d"]):
+        assert relative(a.matrix, b.matrix) < 1e-9
+        assert a.fitness == pytest.approx(b.fitness, abs=1e-12)
+        np.testing.assert_array_equal(a.target_indices, b.target_indices)
+
+
+def test_crosscheck_images_agree():
+    ref = shapes_image()
+    mov = moved(ref, rigid_about_centre(ref.shape, 35.0, 10.0, -6.0))
+    report = pcreg.crosscheck(ref, mov)
+    d = report.to_dict()
+    assert d["kind"] == "images"
+    assert d["max_corner_disagreement_px"] < 1e-6
+    assert report.reference.iterations == report.open3d.iterations > 0
+    assert d["reference_seconds"] > 0 and d["open3d_seconds"] > 0
+
+
+@pytest.mark.data
+def test_real_scan_pair_both_backends_land_on_the_ground_truth(shared_data):
+    scans = shared_data / "scans"
+    source, target = load_cloud(scans / "source.ply"), load_cloud(scans / "target.ply")
+    truth = np.loadtxt(scans / "T_target_source.txt")
+    report = crosscheck_clouds(source, target, config=CrosscheckConfig(voxel_sizes=(1.0, 0.5, 0.25)))
+    assert report.matrix_relative_disagreement < 1e-6
+    for r in (report.reference, report.open3d):
+        assert np.linalg.norm(r.matrix[:3, 3] - truth[:3, 3]) < 0.05
+        assert tf.rotation_disagreement_deg(r.matrix, truth) < 0.25
+
+
+def test_load_cloud_formats_and_errors(tmp_path):
+    pts = np.random.default_rng(0).normal(size=(50, 3))
+    np.save(tmp_path / "a.npy", pts)
+    np.savetxt(tmp_path / "a.xyz", pts)
+    np.testing.assert_allclose(load_cloud(tmp_path / "a.npy"), pts)
+    np.testing.assert_allclose(load_cloud(tmp_path / "a.xyz"), pts, atol=1e-6)
+    with pytest.raises(InputError, match="no such file"):
+        load_cloud(tmp_path / "missing.ply")
+    (tmp_path / "bad.ply").write_text("not a ply")
+    with pytest.raises(InputError, match="no points"):
+        load_cloud(tmp_path / "bad.ply")
+    (tmp_path / "a.txt").write_text("1 2 3\n")
+    with pytest.raises(InputError, match="unknown point-cloud format"):
+        load_cloud(tmp_path / "a.txt")
+    bad = pts.copy()
+    bad[3, 1] = np.nan
+    np.save(tmp_path / "nan.npy", bad)
+    with pytest.raises(InputError, match="NaN"):
+        load_cloud(tmp_path / "nan.npy")
+
+
+def test_crosscheck_refuses_an_image_against_a_cloud(tmp_path):
+    np.save(tmp_path / "a.npy", np.random.default_rng(0).normal(size=(50, 3)))
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "b.png"), shapes_image())
+    with pytest.raises(InputError, match="two images or two clouds"):
+        pcreg.crosscheck(tmp_path / "b.png", tmp_path / "a.npy")

@@ -1,0 +1,140 @@
+import numpy as np
+import pytest
+
+from pcreg import transforms as tf
+from pcreg.errors import RegistrationError
+from pcreg.icp_reference import (
+    check_rank,
+    estimate,
+    estimate_horn_quaternion,
+    estimate_umeyama,
+    icp_reference,
+    robust_weights,
+)
+
+
+def random_rotation_3d(rng):
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+@pytest.mark.parametrize("model", ["translation", "rigid", "similarity", "affine", "projective"])
+def test_closed_forms_recover_exact_2d_transforms(model):
+    rng = np.random.default_rng(0)
+    p = rng.uniform(-50, 50, (40, 2))
+    T = {"translation": tf.rigid2d(0, 3, -2), "rigid": tf.rigid2d(37, 3, -2),
+         "similarity": tf.rigid2d(-20, 1, 5, scale=1.3),
+         "affine": np.array([[1.1, 0.2, 3], [-0.1, 0.9, 1], [0, 0, 1.0]]),
+         "projective": np.array([[1.0, 0.1, 3], [0.05, 1.1, 2], [1e-3, -2e-3, 1.0]])}[model]
+    q = tf.apply(T, p)
+    np.testing.assert_allclose(estimate(p, q, np.ones(len(p)), model), T, atol=1e-9)
+
+
+@pytest.mark.parametrize("model", ["rigid", "similarity", "affine"])
+def test_closed_forms_recover_exact_3d_transforms(model):
+    rng = np.random.default_rng(1)
+    p = rng.normal(size=(30, 3))
+    T = np.eye(4)
+    T[:3, :3] = random_rotation_3d(rng) * (1.5 if model == "similarity" else 1.0)
+    if model == "affine":
+        T[:3, :3] += rng.normal(scale=0.1, size=(3, 3))
+    T[:3, 3] = [1, -2, 3]
+    np.testing.assert_allclose(estimate(p, tf.apply(T, p), np.ones(30), model), T, atol=1e-9)
+
+
+def test_horn_quaternion_matches_umeyama_svd_on_noisy_data():
+    rng = np.random.default_rng(2)
+    p = rng.normal(size=(100, 3))
+    T = np.eye(4)
+    T[:3, :3] = random_rotation_3d(rng)
+    T[:3, 3] = [0.5, 0.1, -0.3]
+    q = tf.apply(T, p) + rng.normal(scale=0.05, size=p.shape)
+    w = rng.uniform(0.5, 1.5, 100)
+    np.testing.assert_allclose(estimate_horn_quaternion(p, q, w), estimate_umeyama(p, q, w, with_scale=False),
+                               atol=1e-10)
+
+
+def test_umeyama_never_returns_a_reflection():
+    # Points mirrored in x: the best orthogonal map is a reflection; the det(U)det(V) rule forbids it.
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(20, 2)) * [5, 1]
+    q = p * [-1, 1]
+    T = estimate_umeyama(p, q, np.ones(20), with_scale=False)
+    assert np.linalg.det(T[:2, :2]) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("model", ["translation", "rigid", "similarity", "affine", "projective"])
+def test_point_to_line_converges_on_lines(model):
+    # Points on a closed curve with normals: point-to-line steps recover a small motion.
+    t = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    target = np.column_stack([60 * np.cos(t) + 10 * np.cos(3 * t), 40 * np.sin(t)])
+    tangent = np.gradient(target, axis=0)
+    normals = np.column_stack([tangent[:, 1], -tangent[:, 0]])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    T = {"translation": tf.rigid2d(0, 1.5, -1), "rigid": tf.rigid2d(2, 1.5, -1),
+         "similarity": tf.rigid2d(2, 1.5, -1, scale=1.02),
+         "affine": np.array([[1.02, 0.01, 1.5], [-0.01, 0.99, -1], [0, 0, 1.0]]),
+         "projective": np.array([[1.02, 0.01, 1.5], [-0.01, 0.99, -1], [2e-4, -1e-4, 1.0]])}[model]
+    source = tf.apply(np.linalg.inv(T), target[::3])
+    M, fit, rmse, it, conv = icp_reference(source, target, model=model, max_correspondence_distance=10,
+                                           metric="point_to_line", target_normals=normals, max_iteration=50)
+    assert tf.max_corner_error(M, T, (100, 140)) < 0.05
+
+
+def test_robust_weights():
+    d = np.array([0.1, 0.2, 0.3, 10.0])
+    np.testing.assert_array_equal(robust_weights(d, "trimmed", trim_fraction=0.75), [1, 1, 1, 0])
+    hub = robust_weights(d, "huber")
+    assert hub[0] == 1.0 and hub[-1] < 0.1
+    assert robust_weights(d, "tukey")[-1] == 0.0
+    assert np.all(robust_weights(d, "none") == 1.0)
+
+
+def test_outliers_need_robust_weights():
+    rng = np.random.default_rng(4)
+    target = rng.uniform(0, 100, (300, 2))
+    T = tf.rigid2d(3, 1.0, -0.5)
+    source = tf.apply(np.linalg.inv(T), target)
+    source[:60] = rng.uniform(0, 100, (60, 2))  # 20% gross outliers with correspondences of their own
+    plain = icp_reference(source, target, max_correspondence_distance=5, max_iteration=60)[0]
+    robust = icp_reference(source, target, max_correspondence_distance=5, max_iteration=60, weights="tukey")[0]
+    assert tf.max_corner_error(robust, T, (100, 100)) < tf.max_corner_error(plain, T, (100, 100))
+    assert tf.max_corner_error(robust, T, (100, 100)) < 0.05
+
+
+def test_stopping_rule_and_callback():
+    rng = np.random.default_rng(5)
+    target = rng.uniform(0, 100, (500, 2))
+    source = tf.apply(np.linalg.inv(tf.rigid2d(2, 1, 1)), target)
+    seen = []
+    M, fit, rmse, it, conv = icp_reference(source, target, max_correspondence_distance=10, max_iteration=100,
+                                           callback=seen.append)
+    assert conv and it < 100
+    assert [s.iteration for s in seen] == list(range(it + 1))
+    assert seen[-1].fitness == fit and seen[-1].inlier_rmse == rmse
+    np.testing.assert_array_equal(seen[-1].matrix, M)
+    # Disabled thresholds: exactly max_iteration updates.
+    assert icp_reference(source, target, max_correspondence_distance=10, max_iteration=7, relative_fitness=0,
+                         relative_rmse=0)[3] == 7
+
+
+def test_no_correspondences_means_no_motion():
+    a = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    M, fit, rmse, it, conv = icp_reference(a, a + 100, max_correspondence_distance=1.0)
+    np.testing.assert_array_equal(M, np.eye(3))
+    assert fit == 0.0 and rmse == 0.0 and conv
+
+
+@pytest.mark.parametrize("pts, model, message", [
+    (np.array([[0.0, 0.0]]), "rigid", "too few"),
+    (np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [3.0, 3.0]]), "affine", "collinear"),
+    (np.array([[1.0, 1.0], [1.0, 1.0], [1.0, 1.0]]), "rigid", "coincident"),
+    (np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [4.0, 0]]), "projective", "collinear"),
+])
+def test_degenerate_points(pts, model, message):
+    with pytest.raises(RegistrationError, match=message):
+        check_rank(pts, model)

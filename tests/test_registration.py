@@ -1,0 +1,187 @@
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import pcreg
+from pcreg import transforms as tf
+from pcreg.errors import InputError, RegistrationError
+
+from _images import moved, rigid_about_centre, shapes_image
+
+REF = shapes_image()
+
+
+def structured_cloud(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    t = rng.uniform(0, 2 * np.pi, n)
+    r = 30 + 10 * np.sin(3 * t)
+    return np.column_stack([r * np.cos(t) + 0.3 * t ** 2, r * np.sin(t)]) + rng.normal(scale=0.01, size=(n, 2))
+
+
+# --- icp on clouds --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_icp_no_motion_is_identity(backend):
+    a = structured_cloud()
+    r = pcreg.icp(a, a, backend=backend, max_correspondence_distance=1.0)
+    np.testing.assert_allclose(r.matrix, np.eye(3), atol=1e-12)
+    assert r.fitness == 1.0 and r.inlier_rmse == pytest.approx(0.0, abs=1e-9) and r.converged
+    assert r.iterations == 1 and r.backend == backend and r.seconds > 0
+
+
+@settings(max_examples=25, deadline=None)
+@given(angle=st.floats(-20, 20), tx=st.floats(-3, 3), ty=st.floats(-3, 3))
+def test_icp_recovers_any_small_rigid_motion(angle, tx, ty):
+    target = structured_cloud()
+    T = tf.rigid2d(angle, tx, ty)
+    source = tf.apply(np.linalg.inv(T), target)
+    r = pcreg.icp(source, target, max_iteration=200, max_correspondence_distance=30)
+    np.testing.assert_allclose(r.matrix, T, atol=1e-6)
+
+
+@pytest.mark.parametrize("model", ["translation", "rigid", "similarity", "affine"])
+def test_icp_3d_models(model):
+    rng = np.random.default_rng(1)
+    target = rng.normal(size=(500, 3)) * [3, 2, 1]
+    T = np.eye(4)
+    if model != "translation":
+        c, s = np.cos(0.1), np.sin(0.1)
+        T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    if model == "similarity":
+        T[:3, :3] *= 1.05
+    if model == "affine":
+        T[0, 1] = 0.05
+    T[:3, 3] = [0.1, -0.05, 0.02]
+    r = pcreg.icp(tf.apply(np.linalg.inv(T), target), target, model=model, max_iteration=100)
+    np.testing.assert_allclose(r.matrix, T, atol=1e-6)
+
+
+def test_icp_does_not_modify_inputs():
+    a = structured_cloud()
+    b = tf.apply(tf.rigid2d(3, 1, 1), a)
+    a0, b0 = a.copy(), b.copy()
+    pcreg.icp(a, b)
+    np.testing.assert_array_equal(a, a0)
+    np.testing.assert_array_equal(b, b0)
+
+
+def test_result_is_frozen_and_readable():
+    r = pcreg.icp(structured_cloud(), structured_cloud())
+    with pytest.raises(Exception):
+        r.fitness = 0.5
+    with pytest.raises(ValueError):
+        r.matrix[0, 0] = 2.0
+    assert "RegistrationResult(backend='reference'" in repr(r)
+    assert set(r.to_dict()) == {"matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds"}
+
+
+@pytest.mark.parametrize("source, target, error, message", [
+    (np.zeros((0, 2)), np.zeros((5, 2)), InputError, "empty"),
+    (np.array([[0.0, np.nan], [1, 1], [2, 0]]), np.ones((3, 2)), InputError, "NaN or inf"),
+    (np.array([[0.0, np.inf], [1, 1], [2, 0]]), np.ones((3, 2)), InputError, "NaN or inf"),
+    (np.ones((5, 2)), np.ones((5, 3)), InputError, "2-D but target is 3-D"),
+    (np.ones((5, 4)), np.ones((5, 4)), InputError, "expected an"),
+    (np.array([[0.0, 0.0]]), np.array([[0.0, 0.0], [1.0, 0.0]]), RegistrationError, "too few"),
+    (np.array([[0.0, 0.0], [1, 1], [2, 2], [3, 3]]), structured_cloud(), RegistrationError, "collinear"),
+    ("text", np.ones((5, 2)), InputError, "not a numeric array"),
+])
+def test_icp_bad_input(source, target, error, message):
+    model = "affine" if message == "collinear" else "rigid"
+    with pytest.raises(error, match=message):
+        pcreg.icp(source, target, model=model)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"backend": "fast"}, "unknown backend"),
+    ({"model": "warp"}, "unknown motion model"),
+    ({"weights": "cauchy"}, "unknown robust weights"),
+    ({"backend": "open3d", "model": "affine"}, "supports the rigid and similarity"),
+    ({"backend": "open3d", "weights": "huber"}, "reference-backend feature"),
+    ({"init": np.eye(4)}, "init must be"),
+    ({"max_correspondence_distance": -1.0}, "must be > 0"),
+])
+def test_icp_bad_options(kwargs, message):
+    a = structured_cloud()
+    with pytest.raises(ValueError, match=message):
+        pcreg.icp(a, a, **kwargs)
+
+
+def test_open3d_counts_iterations_only_when_asked():
+    target = structured_cloud()
+    source = tf.apply(np.linalg.inv(tf.rigid2d(4, 1, -1)), target)
+    exact = pcreg.icp(source, target, backend="open3d", max_correspondence_distance=10)
+    fast = pcreg.icp(source, target, backend="open3d", max_correspondence_distance=10, count_iterations=False)
+    assert exact.iterations > 0 and fast.iterations == -1
+    assert exact.converged and fast.converged
+    np.testing.assert_allclose(exact.matrix, fast.matrix, atol=1e-9)
+
+
+# --- register on images ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_register_no_motion(backend):
+    r = pcreg.register(REF, REF, backend=backend)
+    assert tf.max_corner_error(r.matrix, np.eye(3), REF.shape) < 0.05
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(angle=st.floats(-180, 180), fx=st.floats(-0.1, 0.1), fy=st.floats(-0.1, 0.1))
+def test_register_recovers_any_rotation_and_shift(angle, fx, fy):
+    h, w = REF.shape[:2]
+    T = rigid_about_centre(REF.shape, angle, fx * w, fy * h)
+    r = pcreg.register(REF, moved(REF, T))
+    assert tf.max_corner_error(r.matrix, T, REF.shape) < 0.5
+
+
+@pytest.mark.parametrize("model, T", [
+    ("translation", tf.rigid2d(0, 7.3, -4.2)),
+    ("similarity", tf.about_point(tf.rigid2d(25, 5, 3, scale=1.08), tf.image_center((240, 320)))),
+    ("affine", tf.about_point(np.array([[1.05, 0.04, 4], [-0.03, 0.97, -3], [0, 0, 1.0]]), tf.image_center((240, 320)))),
+    ("projective", np.array([[1.0, 0.01, 3], [0.0, 1.0, -2], [2e-5, 1e-5, 1.0]])),
+])
+def test_register_motion_models(model, T):
+    r = pcreg.register(REF, moved(REF, T), model=model)
+    assert tf.max_corner_error(r.matrix, T, REF.shape) < 0.5
+
+
+def test_register_open3d_backend_large_rotation():
+    T = rigid_about_centre(REF.shape, 120.0, 12.0, -9.0)
+    r = pcreg.register(REF, moved(REF, T), backend="open3d")
+    assert r.backend == "open3d"
+    assert tf.max_corner_error(r.matrix, T, REF.shape) < 1.0
+
+
+def test_register_images_of_different_sizes():
+    crop = REF[20:200, 30:290]  # a crop: T_ref_mov is the crop's offset
+    r = pcreg.register(REF, crop)
+    assert tf.max_corner_error(r.matrix, tf.rigid2d(0, 30, 20), crop.shape) < 0.3
+
+
+def test_register_callback_sees_every_level():
+    levels = set()
+    pcreg.register(REF, moved(REF, rigid_about_centre(REF.shape, 10, 3, 2)), callback=lambda it: levels.add(it.level))
+    assert levels == {0, 1, 2, 3}
+
+
+@pytest.mark.data
+def test_register_real_camvid_pair(shared_data):
+    paths = sorted((shared_data / "camvid" / "0001TP" / "images").glob("*.png"))[:1]
+    ref = pcreg.load_image(paths[0])
+    T = rigid_about_centre(ref.shape, -75.0, 30.0, -20.0)
+    r = pcreg.register(ref, moved(ref, T))
+    assert tf.max_corner_error(r.matrix, T, ref.shape) < 0.2
+
+
+@pytest.mark.parametrize("moving, kwargs, error, message", [
+    (np.full((240, 320, 3), 90, np.uint8), {}, RegistrationError, "no usable edges"),
+    (np.zeros((0, 0, 3), np.uint8), {}, InputError, "empty image"),
+    (REF, {"levels": 0}, InputError, "levels must be"),
+    (REF, {"iterations": 0}, InputError, "iterations must be"),
+    (REF, {"init": "magic"}, InputError, "init must be"),
+    (REF, {"backend": "open3d", "model": "affine"}, RegistrationError, "supports the rigid and similarity"),
+    (REF[:20, :20], {"levels": 4}, InputError, "too small"),
+])
+def test_register_bad_input(moving, kwargs, error, message):
+    with pytest.raises(error, match=message):
+        pcreg.register(REF, moving, **kwargs)

@@ -1,0 +1,76 @@
+"""Smoke runs of the benchmark programs in tools/: tiny settings, outputs exist and parse."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+TOOLS = Path(__file__).resolve().parent.parent / "tools"
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_bench_registration_without_data_uses_synthetic_clouds(tmp_path):
+    bench = _load("bench_registration")
+    out = tmp_path / "bench"
+    rc = bench.main(["--out", str(out), "--data", str(tmp_path / "absent"), "--sizes", "200,400",
+                     "--repeats", "1", "--icp-iterations", "3"])
+    assert rc == 0
+    report = json.loads((out / "registration.json").read_text())
+    assert report["images"] is None
+    rows = report["scaling"]["kinds"]["2-D"]["rows"]
+    assert [r["source_points"] for r in rows] == [200, 400]
+    assert all(r["max_abs_matrix_difference"] < 1e-6 for r in rows)  # same clouds, same iterations
+    assert "skipped" in (out / "registration.md").read_text()
+    assert (out / "registration_scaling.png").stat().st_size > 0
+    assert not (out / "registration_accuracy.png").exists()
+
+
+@pytest.mark.data
+def test_bench_registration_two_cases(tmp_path, shared_data):
+    bench = _load("bench_registration")
+    out = tmp_path / "bench"
+    rc = bench.main(["--out", str(out), "--data", str(shared_data), "--cases", "2", "--sweep-cases", "2",
+                     "--sizes", "300,600", "--repeats", "1", "--icp-iterations", "3"])
+    assert rc == 0
+    report = json.loads((out / "registration.json").read_text())
+    m = report["machine"]
+    assert m["cpu_count"] >= 1 and m["opencv"] and m["open3d"]
+    for name in ("pm90", "pm180"):
+        st = report["images"]["sets"][name]
+        assert len(st["rows"]) == 2
+        for method in bench.METHODS:
+            s = st["summary"][method]
+            assert 0.0 <= s["success"] <= 1.0 and s["median_seconds"] > 0
+            assert all(r[method]["seconds"] > 0 for r in st["rows"])
+    assert set(report["scaling"]["kinds"]) == {"2-D", "3-D"}
+    md = (out / "registration.md").read_text()
+    assert "## Floors" in md and "| method |" in md
+    for png in ("registration_accuracy.png", "registration_scaling.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_ecc_warp_direction_on_a_pure_translation():
+    """ECC's warp maps reference -> moving pixels; the tool inverts it into T_ref_mov."""
+    import numpy as np
+
+    from pcreg.transforms import max_corner_error, rigid2d
+
+    bench = _load("bench_registration")
+    rng = np.random.default_rng(0)
+    import cv2
+
+    base = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 3)
+    ref = np.repeat(cv2.normalize(base, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)[..., None], 3, axis=2)
+    T = rigid2d(0.0, 3.0, -2.0)
+    mov = bench.make_moving(ref, T)
+    est = bench.ecc_register(ref, mov, masked=True)
+    assert max_corner_error(est, T, ref.shape) < 0.5

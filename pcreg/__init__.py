@@ -30,6 +30,12 @@ _EXPORTS = {
     "load_folder": "pcreg.datasets",
     "synthetic": "pcreg.datasets",
     "NaiveBayesPixelClassifier": "pcreg.bayes",
+    "relative_transform": "pcreg.datasets",
+    "load_dataset": "pcreg.datasets",
+    "SYNTHETIC_PRESETS": "pcreg.datasets",
+    "thesis_weight_search": "pcreg.bayes",
+    "error_rate": "pcreg.metrics",
+    "confusion_matrix": "pcreg.metrics",
     # errors
     "PcregError": "pcreg.errors",
     "InputError": "pcreg.errors",

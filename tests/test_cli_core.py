@@ -1,0 +1,121 @@
+"""The `pcreg register` and `pcreg crosscheck` commands, end to end, through the console script."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg import transforms as tf
+
+from _images import moved, rigid_about_centre, shapes_image
+
+PCREG = [sys.executable, "-m", "pcreg.cli"]
+
+
+def run(*args, cwd=None):
+    return subprocess.run([*PCREG, *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    d = tmp_path_factory.mktemp("pair")
+    ref = shapes_image()
+    T = rigid_about_centre(ref.shape, 60.0, 15.0, -10.0)
+    cv2.imwrite(str(d / "ref.png"), ref[:, :, ::-1])
+    cv2.imwrite(str(d / "mov.png"), moved(ref, T)[:, :, ::-1])
+    return d, T
+
+
+def test_register_json_and_warped_output(pair, tmp_path):
+    d, T = pair
+    out = tmp_path / "warped.png"
+    p = run("register", d / "ref.png", d / "mov.png", "--json", "--out", out)
+    assert p.returncode == 0, p.stderr
+    result = json.loads(p.stdout)
+    assert set(result) == {"matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds"}
+    assert tf.max_corner_error(np.array(result["matrix"]), T, (240, 320)) < 0.5
+    assert 0 < result["seconds"] < 10 and result["backend"] == "reference"
+    assert cv2.imread(str(out)).shape == (240, 320, 3)
+
+
+def test_register_open3d_backend(pair):
+    d, T = pair
+    p = run("register", d / "ref.png", d / "mov.png", "--json", "--backend", "open3d", "--levels", "3")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["backend"] == "open3d"
+
+
+def test_register_records(pair, tmp_path):
+    d, T = pair
+    rrd = tmp_path / "reg.rrd"
+    p = run("register", d / "ref.png", d / "mov.png", "--json", "--record", rrd)
+    assert p.returncode == 0, p.stderr
+    from viz.readback import read_recording, tensor
+
+    logged = tensor(read_recording(rrd).latest("transforms/T_ref_mov", frame=0))
+    np.testing.assert_array_equal(logged, np.array(json.loads(p.stdout)["matrix"]))
+
+
+def test_crosscheck_images_json(pair):
+    d, _ = pair
+    p = run("crosscheck", d / "ref.png", d / "mov.png", "--json")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["max_corner_disagreement_px"] < 1e-6
+    assert out["reference"]["backend"] == "reference" and out["open3d"]["backend"] == "open3d"
+    assert out["reference_seconds"] > 0 and out["open3d_seconds"] > 0
+
+
+def test_crosscheck_clouds_json(tmp_path):
+    rng = np.random.default_rng(0)
+    target = rng.uniform(-5, 5, (2000, 3))
+    source = tf.apply(np.linalg.inv(np.array([[1, 0, 0, 0.2], [0, 1, 0, -0.1], [0, 0, 1, 0.05], [0, 0, 0, 1.0]])), target)
+    np.save(tmp_path / "t.npy", target)
+    np.save(tmp_path / "s.npy", source)
+    p = run("crosscheck", tmp_path / "t.npy", tmp_path / "s.npy", "--json", "--voxel-sizes", "1,0.5")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["rotation_disagreement_deg"] < 1e-6 and out["translation_disagreement"] < 1e-6
+
+
+@pytest.mark.parametrize("make_args, message", [
+    (lambda d, t: ["register", t / "missing.png", d / "mov.png"], "no such file"),
+    (lambda d, t: ["register", t / "text.png", d / "mov.png"], "not an image"),
+    (lambda d, t: ["register", t / "empty.png", d / "mov.png"], "empty file"),
+    (lambda d, t: ["register", d / "ref.png", t / "flat.png"], "no usable edges"),
+    (lambda d, t: ["register", d / "ref.png", t / "tiny.png"], "too small"),
+    (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--levels", "0"], "positive integer"),
+    (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--model", "warp"], "invalid choice"),
+    (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--model", "affine"],
+     "supports the rigid and similarity"),
+    (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--out", t / "exists.png"], "exists"),
+    (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--record", t / "nodir" / "x" / "r.txt"], ".rrd"),
+    (lambda d, t: ["crosscheck", t / "c.npy", d / "mov.png"], "two images or two clouds"),
+    (lambda d, t: ["crosscheck", t / "c.npy", t / "nan.npy"], "NaN"),
+    (lambda d, t: ["crosscheck", t / "c.npy", t / "c2d.npy"], "source is 2-D but target is 3-D"),
+    (lambda d, t: ["crosscheck", t / "c.npy", t / "c.txt"], "unknown file type"),
+])
+def test_bad_input_is_one_line_and_exit_2(pair, tmp_path, make_args, message):
+    d, _ = pair
+    (tmp_path / "text.png").write_text("hello")
+    (tmp_path / "empty.png").write_bytes(b"")
+    (tmp_path / "exists.png").write_bytes(b"keep")
+    (tmp_path / "c.txt").write_text("1 2 3")
+    cv2.imwrite(str(tmp_path / "flat.png"), np.full((240, 320, 3), 77, np.uint8))
+    cv2.imwrite(str(tmp_path / "tiny.png"), np.full((12, 12, 3), 77, np.uint8))
+    pts = np.random.default_rng(0).normal(size=(100, 3))
+    np.save(tmp_path / "c.npy", pts)
+    np.save(tmp_path / "c2d.npy", pts[:, :2])
+    bad = pts.copy()
+    bad[0, 0] = np.nan
+    np.save(tmp_path / "nan.npy", bad)
+    p = run(*make_args(d, tmp_path))
+    assert p.returncode == 2, (p.stdout, p.stderr)
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert message in lines[0]
+    assert (tmp_path / "exists.png").read_bytes() == b"keep"

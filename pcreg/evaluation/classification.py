@@ -396,8 +396,13 @@ def tables(results: dict) -> dict[str, tuple[list, list]]:
         ks = results["k"]["I"]
         cols = max(len(v) for v in ks.values())
         same = len({tuple(v) for v in ks.values()}) == 1
-        header = ["dataset", "features"] + ([f"k={k}" for k in ks[names[0]]] if same
-                                            else [f"k{i + 1}" for i in range(cols)])
+        if same:
+            top = [f"k={k}" for k in ks[names[0]]]
+        elif not config["case1_k"] and len(config["case1_fractions"]) == cols:
+            top = [f"k={100 * f:g}%" for f in config["case1_fractions"]]
+        else:
+            top = [f"k{i + 1}" for i in range(cols)]
+        header = ["dataset", "features"] + top
         rows = []
         for fs in config["features"]:
             for d in names:

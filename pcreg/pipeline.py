@@ -1,0 +1,598 @@
+"""Registration-augmented classification: one pair, and a sequence walked with increment k.
+
+Per pair (a labelled *reference* frame i and a *moving* frame i + k)::
+
+    register (clouds + ICP)  ->  T_ref_mov (3, 3)
+    warp      moving image onto the reference grid (the thesis's "after")
+    classify  naive Bayes log-odds of the moving frame (and of the warped image)
+    fuse      reference labels -> smoothed prior -> warped into the moving frame -> + w * prior
+    score     every method against ground truth, unknown left out
+
+The methods (keys of :data:`METHODS`), each an error rate in percent:
+
+- ``plain``: naive Bayes on the moving frame, scored against the moving frame's labels.
+- ``thesis_before``: the same prediction scored against the *reference* frame's labels (the thesis's
+  "before registration").
+- ``thesis_after``: naive Bayes on the moving image warped into the reference frame, black border
+  included, against the reference labels (the thesis's "after").
+- ``thesis_after_masked``: as ``thesis_after``, but pixels outside the valid mask are classified from
+  the unwarped moving frame (every pixel scored).
+- ``thesis_after_cropped``: as ``thesis_after``, scored on the valid mask only (the border left out).
+- ``augmented``: naive Bayes on the moving frame fused with the reference labels warped into it as a
+  prior (:mod:`pcreg.fusion`), against the moving labels.
+- ``augmented_unregistered``: the same fusion with the prior not warped (identity): the ablation that
+  shows what registration adds.
+- ``augmented_temporal``: recursive fusion along the sequence: the fused posterior of frame t - k,
+  warped, is the prior of frame t; labels are used only at the start of each chain (frames 0..k-1).
+- ``propagated``: the warped reference labels alone where they are known, naive Bayes elsewhere
+  (label propagation without the classifier; for reference).
+
+A registration that fails (no edges, no overlap) is recorded with its reason; that pair then does
+what a running system would do without a transform: ``thesis_after*`` use the unwarped frame and the
+fused methods get no prior (they equal ``plain``), so every method is still scored on every pair.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .errors import InputError, RegistrationError
+from .fusion import (FusionConfig, WeightChoice, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
+                     prior_from_log_odds, prior_log_odds, smooth_prior, warp_prior)
+
+__all__ = [
+    "METHODS",
+    "BACKEND_MODELS",
+    "PipelineConfig",
+    "log_odds",
+    "register_pair",
+    "PairResult",
+    "process_pair",
+    "TemporalFusion",
+    "SequenceResult",
+    "run_sequence",
+    "pair_indices",
+    "resolve_fusion_frames",
+]
+
+METHODS: tuple[str, ...] = (
+    "plain", "thesis_before", "thesis_after", "thesis_after_masked", "thesis_after_cropped",
+    "augmented", "augmented_unregistered", "augmented_temporal", "propagated",
+)
+STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse")
+
+#: ``model="auto"``: the motion model each backend is run with. The reference ICP estimates a
+#: similarity (rotation, shift and the forward motion's zoom); pcreg's Open3D path is rigid only
+#: (its 3-D scaled solution does not project back to the image plane), so it runs the rigid model.
+BACKEND_MODELS = {"reference": "similarity", "open3d": "rigid"}
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Options of the per-pair pipeline (written to config.json by the evaluations).
+
+    backend : ``"reference"`` or ``"open3d"``. model : motion model, or ``"auto"`` (:data:`BACKEND_MODELS`).
+    levels, iterations : pyramid levels and ICP iterations per level (the thesis: 4 and 14).
+    init : ``"identity"`` (the default: pairs of a sequence are close) or ``"auto"`` (global rotation
+        search, any angle; needed for large rotations, but on sequences it sometimes locks onto a
+        half-turn when the frames are far apart).
+    features : naive Bayes features (:mod:`pcreg.features`).
+    fusion : :class:`pcreg.fusion.FusionConfig`.
+    """
+
+    backend: str = "reference"
+    model: str = "auto"
+    levels: int = 4
+    iterations: int = 14
+    init: str = "identity"
+    features: tuple[str, ...] = ("rgb", "hsv", "row")
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+
+    def __post_init__(self) -> None:
+        if self.backend not in BACKEND_MODELS:
+            raise InputError(f"unknown backend {self.backend!r}; choose one of {', '.join(BACKEND_MODELS)}")
+        if self.init not in ("auto", "identity", "center", "global"):
+            raise InputError(f"init must be auto, identity or center, got {self.init!r}")
+        if self.levels < 1 or self.iterations < 1:
+            raise InputError("levels and iterations must be at least 1")
+
+    @property
+    def registration_model(self) -> str:
+        return BACKEND_MODELS[self.backend] if self.model == "auto" else self.model
+
+
+# ---------------------------------------------------------------------------------------------------
+# classifier log-odds
+# ---------------------------------------------------------------------------------------------------
+
+def _diff_tables(classifier) -> tuple[np.ndarray, float]:
+    """(F, 256) float32 ``log N(v; obstacle) - log N(v; ground)`` per feature and value, and the
+    log prior ratio, from a fitted :class:`~pcreg.bayes.NaiveBayesPixelClassifier`'s parameters."""
+    classes = list(np.asarray(classifier.classes_).tolist())
+    if classes[:2] != [0, 1] or len(classes) != 2:
+        raise InputError(f"fusion needs a ground/obstacle classifier (classes [0, 1]), got {classes}")
+    theta = np.asarray(classifier.theta_, dtype=np.float64)
+    var = np.asarray(classifier.var_, dtype=np.float64)
+    v = np.arange(256, dtype=np.float64)[None, :]
+    tab = [-0.5 * np.log(2 * np.pi * var[c])[:, None] - 0.5 * (v - theta[c][:, None]) ** 2 / var[c][:, None]
+           for c in (0, 1)]
+    prior = np.asarray(classifier.class_prior_, dtype=np.float64)
+    return (tab[1] - tab[0]).astype(np.float32), float(np.log(prior[1]) - np.log(prior[0]))
+
+
+def log_odds(classifier, image: np.ndarray) -> np.ndarray:
+    """Naive Bayes log-odds ``log p(obstacle | x) - log p(ground | x)`` per pixel, (H, W) float32.
+
+    classifier : a fitted :class:`~pcreg.bayes.NaiveBayesPixelClassifier` over ground and obstacle.
+    image : (H, W, 3) uint8 RGB. Uses the classifier's ``decision_function`` where it has one; otherwise
+    evaluates its Gaussians through 256-entry float32 tables (``> 0`` gives ``classifier.predict``).
+    """
+    if hasattr(classifier, "decision_function"):
+        return np.asarray(classifier.decision_function(image), dtype=np.float32)
+    import cv2
+
+    from .features import check_image, feature_groups
+
+    image = check_image(image)
+    tables, bias = _diff_tables(classifier)
+    h, w = image.shape[:2]
+    acc = np.full((h, w), np.float32(bias), dtype=np.float32)
+    f = 0
+    for name, planes in feature_groups(image, classifier.features, weights=classifier.weights):
+        if name == "row":
+            acc += tables[f][planes][:, None]
+            f += 1
+            continue
+        c = planes.shape[-1]
+        looked = cv2.LUT(planes, np.ascontiguousarray(tables[f:f + c].T.reshape(1, 256, c)))
+        if c > 1:
+            looked = cv2.transform(looked, np.ones((1, c), dtype=np.float64))
+        elif looked.ndim == 3:
+            looked = looked[:, :, 0]
+        acc = cv2.add(acc, looked)
+        f += c
+    return acc
+
+
+def _fit(frames: Sequence, features: tuple[str, ...]):
+    from .bayes import NaiveBayesPixelClassifier
+
+    return NaiveBayesPixelClassifier(features).fit([f.image for f in frames], [f.labels for f in frames])
+
+
+# ---------------------------------------------------------------------------------------------------
+# one pair
+# ---------------------------------------------------------------------------------------------------
+
+def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, config: PipelineConfig = PipelineConfig(),
+                  callback: Callable | None = None):
+    """``(RegistrationResult | None, reason | None, seconds)``: :func:`pcreg.register` with the
+    configured options; a :class:`~pcreg.errors.RegistrationError` becomes ``(None, message, s)``."""
+    from . import register
+
+    t0 = time.perf_counter()
+    try:
+        res = register(reference_image, moving_image, backend=config.backend, model=config.registration_model,
+                       levels=config.levels, iterations=config.iterations, init=config.init, callback=callback)
+    except RegistrationError as exc:
+        return None, str(exc), time.perf_counter() - t0
+    if not np.all(np.isfinite(res.matrix)) or abs(np.linalg.det(res.matrix[:2, :2])) < 1e-6:
+        return None, "registration returned a degenerate transform", time.perf_counter() - t0
+    return res, None, time.perf_counter() - t0
+
+
+def _err(pred: np.ndarray, truth: np.ndarray | None, mask: np.ndarray | None = None) -> float:
+    from .metrics import error_rate
+
+    if truth is None:
+        return float("nan")
+    return error_rate(pred, truth, mask=mask)
+
+
+@dataclass(frozen=True)
+class PairResult:
+    """One scored pair.
+
+    reference, moving : frame indices in the sequence; names : (reference name, moving name).
+    registered : the registration succeeded; reason : why not (None when it did).
+    registration : ``RegistrationResult.to_dict()`` or None. corner_error : largest corner distance
+        (px) from the ground-truth transform, where poses are known (synthetic data), else None.
+    errors : {method: error %} for :data:`METHODS`. times : {stage: seconds} for :data:`STAGES`.
+    valid_fraction : share of the reference grid covered by the warped moving image.
+    """
+
+    reference: int
+    moving: int
+    names: tuple[str, str]
+    registered: bool
+    reason: str | None
+    registration: dict | None
+    corner_error: float | None
+    errors: dict
+    times: dict
+    valid_fraction: float
+
+    def to_dict(self) -> dict:
+        return {"reference": self.reference, "moving": self.moving, "names": list(self.names),
+                "registered": self.registered, "reason": self.reason, "registration": self.registration,
+                "corner_error": self.corner_error, "errors": dict(self.errors), "times": dict(self.times),
+                "valid_fraction": self.valid_fraction}
+
+
+def _prior_q(source: np.ndarray, *, kind: str, pi: float, fusion: FusionConfig) -> np.ndarray:
+    """Smoothed prior (H, W) float32 from labels (blurred by ``fusion.sigma``) or from a fused
+    posterior's log-odds (not blurred)."""
+    if kind == "labels":
+        return smooth_prior(prior_from_labels(source, pi=pi), pi=pi, eps=fusion.eps, sigma=fusion.sigma)
+    return smooth_prior(prior_from_log_odds(source), pi=pi, eps=fusion.eps, sigma=0.0)
+
+
+def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T_ref_mov: np.ndarray | None, *,
+                    pi: float, weight: float, fusion: FusionConfig = FusionConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """One step of the temporal filter.
+
+    log_odds_moving : (H, W) float32 naive Bayes log-odds of the new frame. labels_reference : (H, W)
+    uint8 labels the chain holds for the previous frame (true labels at the chain's start, then its
+    own fused labels; 2 where it knows nothing). T_ref_mov : previous -> new registration (None: no
+    prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``: the new frame's fused
+    labels where the previous frame's labels reached it, 2 elsewhere, so that what naive Bayes alone
+    says about content new to the view is never passed on as if it were a label.
+    """
+    d = np.asarray(log_odds_moving, dtype=np.float32)
+    if T_ref_mov is None:
+        return d.copy(), np.full(d.shape, 2, np.uint8)
+    from . import warp
+
+    q_mov, _ = warp_prior(_prior_q(labels_reference, kind="labels", pi=pi, fusion=fusion), T_ref_mov,
+                          shape=d.shape, pi=pi)
+    fused = fuse(d, prior_log_odds(q_mov, pi=pi), weight=weight)
+    reached, _ = warp(np.asarray(labels_reference, dtype=np.uint8), np.linalg.inv(np.asarray(T_ref_mov)),
+                      shape=d.shape, interpolation="nearest", fill=2)
+    labels = np.where(reached < 2, labels_from_log_odds(fused), np.uint8(2)).astype(np.uint8)
+    return fused, labels
+
+
+def process_pair(reference, moving, classifier, *, weight: float, config: PipelineConfig = PipelineConfig(),
+                 registration=None, temporal_source: tuple[str, np.ndarray] | None = None,
+                 temporal_weight: float | None = None, indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
+                 callback: Callable | None = None):
+    """Run and score every method on one pair.
+
+    reference, moving : :class:`~pcreg.datasets.Frame` (labelled; same size). classifier : fitted naive
+    Bayes (ground/obstacle). weight : fusion weight.
+    registration : a precomputed ``register_pair`` tuple, or None to register here.
+    temporal_source : (H, W) uint8 labels the temporal filter holds for the reference frame
+        (:func:`temporal_update`); None leaves ``augmented_temporal`` NaN.
+    temporal_weight : fusion weight of the temporal filter (default ``weight``).
+    Returns ``(PairResult, extras)``: ``extras["temporal_labels"]`` is the temporal filter's new state
+    (None without ``temporal_source``) and, with ``keep_arrays``, the arrays a
+    recording shows (``warped``, ``valid``, ``predicted`` {method: labels}).
+    """
+    from .datasets import relative_transform
+    from .transforms import max_corner_error
+    from . import warp
+
+    if reference.shape != moving.shape:
+        raise InputError(f"reference {reference.shape} and moving {moving.shape} frames differ in size")
+    shape = moving.shape
+    times = dict.fromkeys(STAGES, 0.0)
+    res, reason, t_reg = registration if registration is not None else register_pair(
+        reference.image, moving.image, config=config, callback=callback)
+    times["register"] = t_reg
+    T = None if res is None else np.asarray(res.matrix)
+
+    t0 = time.perf_counter()
+    if T is not None:
+        warped, valid = warp(moving.image, T, shape=reference.shape)
+    else:
+        warped, valid = moving.image, np.ones(shape, dtype=bool)
+    times["warp"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    d_mov = log_odds(classifier, moving.image)
+    d_warped = log_odds(classifier, warped) if T is not None else d_mov
+    times["classify"] = time.perf_counter() - t0
+    pred_mov = labels_from_log_odds(d_mov)
+    pred_warped = labels_from_log_odds(d_warped)
+
+    t0 = time.perf_counter()
+    pi = float(np.asarray(classifier.class_prior_)[1])
+    fusion = config.fusion
+    q_ref = _prior_q(reference.labels, kind="labels", pi=pi, fusion=fusion)
+    if T is not None:
+        q_mov, prior_valid = warp_prior(q_ref, T, shape=shape, pi=pi)
+        l_reg = prior_log_odds(q_mov, pi=pi)
+    else:
+        l_reg = np.zeros(shape, np.float32)
+    fused = fuse(d_mov, l_reg, weight=weight)
+    times["fuse"] = time.perf_counter() - t0
+    l_id = prior_log_odds(q_ref, pi=pi)
+    fused_id = fuse(d_mov, l_id, weight=weight)
+    temporal = temporal_labels = None
+    if temporal_source is not None:
+        temporal, temporal_labels = temporal_update(d_mov, temporal_source, T, pi=pi, fusion=fusion,
+                                                    weight=weight if temporal_weight is None else temporal_weight)
+
+    pred_masked = np.where(valid, pred_warped, pred_mov)
+    if T is not None:
+        ref_lab_mov, lab_valid = warp(reference.labels, np.linalg.inv(T), shape=shape, interpolation="nearest", fill=2)
+        propagated = np.where(lab_valid & (ref_lab_mov < 2), ref_lab_mov, pred_mov)
+    else:
+        propagated = pred_mov
+    preds = {
+        "plain": pred_mov, "augmented": labels_from_log_odds(fused),
+        "augmented_unregistered": labels_from_log_odds(fused_id), "propagated": propagated,
+    }
+    if temporal is not None:
+        preds["augmented_temporal"] = labels_from_log_odds(temporal)
+    errors = {
+        "plain": _err(pred_mov, moving.labels),
+        "thesis_before": _err(pred_mov, reference.labels),
+        "thesis_after": _err(pred_warped, reference.labels),
+        "thesis_after_masked": _err(pred_masked, reference.labels),
+        "thesis_after_cropped": _err(pred_warped, reference.labels, valid),
+        "augmented": _err(preds["augmented"], moving.labels),
+        "augmented_unregistered": _err(preds["augmented_unregistered"], moving.labels),
+        "augmented_temporal": _err(preds["augmented_temporal"], moving.labels) if temporal is not None else float("nan"),
+        "propagated": _err(propagated, moving.labels),
+    }
+    truth_T = relative_transform(reference, moving)
+    corner = None
+    if truth_T is not None and T is not None:
+        corner = max_corner_error(T, truth_T, shape)
+    result = PairResult(reference=int(indices[0]), moving=int(indices[1]), names=(reference.name, moving.name),
+                        registered=T is not None, reason=reason, registration=None if res is None else res.to_dict(),
+                        corner_error=corner, errors=errors, times=times, valid_fraction=float(valid.mean()))
+    extras: dict = {"temporal_labels": temporal_labels}
+    if keep_arrays:
+        extras.update(warped=warped, valid=valid, predicted=preds, thesis_after=pred_warped,
+                      thesis_after_masked=pred_masked)
+    return result, extras
+
+
+# ---------------------------------------------------------------------------------------------------
+# the temporal filter
+# ---------------------------------------------------------------------------------------------------
+
+class TemporalFusion:
+    """Recursive label propagation along one chain of frames t0, t0 + k, t0 + 2k, ...
+
+    The state is a label map of the last frame: its true labels at the start of the chain, then its
+    fused labels where labels reached it (:func:`temporal_update`). :meth:`step` fuses a new frame's
+    naive Bayes log-odds with the state warped into it and keeps the result.
+    """
+
+    def __init__(self, labels: np.ndarray, *, pi: float, weight: float, fusion: FusionConfig = FusionConfig()) -> None:
+        self.pi = float(pi)
+        self.weight = float(weight)
+        self.fusion = fusion
+        self.labels = np.asarray(labels, dtype=np.uint8)
+
+    def step(self, log_odds_moving: np.ndarray, T_ref_mov: np.ndarray | None) -> np.ndarray:
+        """Fuse the moving frame's log-odds (H, W) with the state warped by ``T_ref_mov`` (None: no
+        prior); returns the fused log-odds (H, W) float32 and keeps the new label state."""
+        fused, self.labels = temporal_update(log_odds_moving, self.labels, T_ref_mov, pi=self.pi,
+                                             weight=self.weight, fusion=self.fusion)
+        return fused
+
+
+# ---------------------------------------------------------------------------------------------------
+# a sequence
+# ---------------------------------------------------------------------------------------------------
+
+def pair_indices(n: int, k: int) -> list[tuple[int, int]]:
+    """Pairs (i, i + k) of a sequence of ``n`` frames."""
+    return [(i, i + k) for i in range(max(0, n - k))]
+
+
+def resolve_fusion_frames(n: int, *, fusion_frames: int | None, train: str) -> int:
+    """How many frames at the start of a sequence choose the fusion weight (and are never scored).
+
+    Default: the training frames for ``train="first:K"``, else 10% of the sequence, at least 2.
+    """
+    if fusion_frames is not None:
+        return int(fusion_frames)
+    if train.startswith("first:"):
+        return int(train.split(":", 1)[1])
+    return max(2, int(math.ceil(0.1 * n)))
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """One sequence at one increment with one backend.
+
+    k : increment. backend : ICP backend. fusion_frames : frames 0..C-1 that chose the weight.
+    weight : :class:`~pcreg.fusion.WeightChoice` (``pairs == 0`` when fixed or not choosable).
+    temporal_weight : the same for the recursive (temporal) fusion, chosen on the same frames.
+    pairs : scored :class:`PairResult` (moving frame >= C). means : {method: mean error % over pairs}.
+    failures : [{"reference", "moving", "reason"}] of the scored pairs. notes : why pairs are missing.
+    seconds : wall time.
+    """
+
+    k: int
+    backend: str
+    fusion_frames: int
+    weight: WeightChoice
+    pairs: tuple[PairResult, ...]
+    means: dict
+    failures: tuple[dict, ...]
+    notes: tuple[str, ...]
+    seconds: float
+    temporal_weight: WeightChoice | None = None
+
+    def to_dict(self) -> dict:
+        return {"k": self.k, "backend": self.backend, "fusion_frames": self.fusion_frames,
+                "weight": self.weight.to_dict(),
+                "temporal_weight": None if self.temporal_weight is None else self.temporal_weight.to_dict(), "means": dict(self.means),
+                "failures": [dict(f) for f in self.failures], "notes": list(self.notes),
+                "pairs": [p.to_dict() for p in self.pairs], "seconds": self.seconds}
+
+
+def _means(pairs: Sequence[PairResult]) -> dict:
+    out = {}
+    for m in METHODS:
+        vals = np.array([p.errors[m] for p in pairs], dtype=np.float64)
+        out[m] = float(np.nanmean(vals)) if np.isfinite(vals).any() else float("nan")
+    return out
+
+
+def _choose_temporal_weight(calib: list, frames: Sequence, *, kc: int, fusion: FusionConfig) -> WeightChoice:
+    """The temporal filter's weight: run the chains through the calibration pairs (in order) with each
+    candidate weight, pool the errors of every fused frame, keep the best (ties: the smaller weight)."""
+    grid = tuple(float(g) for g in fusion.grid)
+    if not calib:
+        return choose_weight([], grid=grid)
+    wrong = np.zeros(len(grid), dtype=np.int64)
+    total = 0
+    for gi, w in enumerate(grid):
+        state: dict[int, np.ndarray] = {}
+        for i, j, T, d, pi in calib:
+            fused, state[j] = temporal_update(d, state.get(i, frames[i].labels), T, pi=pi, weight=w, fusion=fusion)
+            state.pop(i, None)
+            truth = frames[j].labels
+            keep = truth < 2
+            wrong[gi] += int(np.count_nonzero((fused[keep] > 0) != (truth[keep] == 1)))
+            if gi == 0:
+                total += int(keep.sum())
+    if total == 0:
+        return choose_weight([], grid=grid)
+    errors = 100.0 * wrong / total
+    best = int(np.argmin(errors))
+    return WeightChoice(grid[best], grid, tuple(float(e) for e in errors), len(calib), total)
+
+
+def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineConfig(), train: str = "reference",
+                 fusion_frames: int | None = None, on_pair: Callable | None = None,
+                 icp_callback: Callable | None = None) -> SequenceResult:
+    """Walk a labelled sequence with increment ``k``: every method on the pairs (i, i + k).
+
+    frames : labelled :class:`~pcreg.datasets.Frame` of one size, in order.
+    train : ``"reference"`` (naive Bayes trained on each pair's reference frame, as the thesis) or
+        ``"first:K"`` (trained once on frames 0..K-1).
+    fusion_frames : frames 0..C-1 choose the fusion weight (pairs among them, at increment
+        min(k, C - 1), scored against their moving frame's labels); only pairs whose moving frame is
+        >= C are scored (default: :func:`resolve_fusion_frames`). A fixed ``config.fusion.weight``
+        skips the choice.
+    on_pair : called as ``on_pair(pair_result, frames, extras)`` for each scored pair, with the arrays
+        of :func:`process_pair` (for recordings); None keeps them off the hot path.
+    icp_callback : passed to :func:`pcreg.register` (per-iteration hook) for the scored pairs.
+
+    Bad input (``k < 1``, unlabelled frames, a bad ``train``) raises :class:`~pcreg.errors.InputError`;
+    a sequence too short for ``k`` gives no pairs and a note.
+    """
+    t_start = time.perf_counter()
+    if int(k) < 1:
+        raise InputError(f"increment k must be at least 1, got {k}")
+    k = int(k)
+    n = len(frames)
+    if any(f.labels is None for f in frames):
+        raise InputError("every frame needs labels to be scored")
+    if train != "reference":
+        if not train.startswith("first:") or not train.split(":", 1)[1].isdigit() or int(train.split(":", 1)[1]) < 1:
+            raise InputError(f"train must be 'reference' or 'first:K' with K >= 1, got {train!r}")
+    C = resolve_fusion_frames(n, fusion_frames=fusion_frames, train=train)
+    if C < 0:
+        raise InputError("fusion_frames must be >= 0")
+    notes: list[str] = []
+    fixed = config.fusion.weight
+    empty_choice = WeightChoice(float(fixed if fixed is not None else 1.0), config.fusion.grid,
+                                tuple(float("nan") for _ in config.fusion.grid), 0, 0)
+    if n < 2:
+        notes.append(f"{n} frame(s): no pairs")
+        return SequenceResult(k, config.backend, C, empty_choice, (), _means([]), (), tuple(notes),
+                              time.perf_counter() - t_start, temporal_weight=empty_choice)
+    if k >= n:
+        notes.append(f"increment k={k} is not shorter than the sequence ({n} frames): no pairs")
+        return SequenceResult(k, config.backend, C, empty_choice, (), _means([]), (), tuple(notes),
+                              time.perf_counter() - t_start, temporal_weight=empty_choice)
+
+    shared_clf = None
+    if train.startswith("first:"):
+        K = int(train.split(":", 1)[1])
+        if K >= n:
+            raise InputError(f"train first:{K} leaves no test frame in a sequence of {n} frames")
+        shared_clf = _fit(frames[:K], config.features)
+    clf_cache: dict[int, object] = {}
+
+    def classifier(i: int):
+        if shared_clf is not None:
+            return shared_clf
+        if i not in clf_cache:
+            clf_cache.clear()
+            clf_cache[i] = _fit([frames[i]], config.features)
+        return clf_cache[i]
+
+    reg_cache: dict[tuple[int, int], tuple] = {}
+
+    def registration(i: int, j: int, callback=None):
+        if (i, j) not in reg_cache:
+            reg_cache[(i, j)] = register_pair(frames[i].image, frames[j].image, config=config, callback=callback)
+        return reg_cache[(i, j)]
+
+    # 1. the fusion weights (one-step and temporal), on pairs among the first C frames
+    kc = min(k, C - 1)
+    calib = []  # (i, j, T, d_j, pi) of the registered pairs among the first C frames, in order
+    if fixed is None and kc >= 1:
+        for i, j in pair_indices(C, kc):
+            res, _, _ = registration(i, j)
+            clf = classifier(i)
+            calib.append((i, j, None if res is None else res.matrix, log_odds(clf, frames[j].image),
+                          float(np.asarray(clf.class_prior_)[1])))
+    if fixed is not None:
+        choice = temporal_choice = empty_choice
+    else:
+        samples = []
+        for i, j, T, d, pi in calib:
+            if T is None:
+                continue
+            q_mov, _ = warp_prior(_prior_q(frames[i].labels, kind="labels", pi=pi, fusion=config.fusion), T,
+                                  shape=frames[j].shape, pi=pi)
+            samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
+        choice = choose_weight(samples, grid=config.fusion.grid)
+        temporal_choice = _choose_temporal_weight(calib, frames, kc=kc, fusion=config.fusion)
+        if choice.pairs == 0:
+            notes.append(f"no registered pair among the first {C} frames to choose the fusion weight: "
+                         f"w = {choice.weight} used")
+        elif kc != k:
+            notes.append(f"fusion weight chosen at increment {kc} (the first {C} frames hold no pair {k} apart)")
+        reg_cache = {key: v for key, v in reg_cache.items() if key[1] - key[0] == k}
+    weight = choice.weight
+    weight_t = temporal_choice.weight
+
+    # 2. every pair (i, i + k) in order; the temporal chains need all of them, the scores those with j >= C
+    chains: deque = deque()
+    scored: list[PairResult] = []
+    failures: list[dict] = []
+    for i, j in pair_indices(n, k):
+        if i < k:
+            chain = TemporalFusion(frames[i].labels, pi=0.5, weight=weight_t, fusion=config.fusion)
+        else:
+            chain = chains.popleft()
+        score = j >= C
+        reg = registration(i, j, icp_callback if score else None)
+        reg_cache.pop((i, j), None)
+        clf = classifier(i)
+        chain.pi = float(np.asarray(clf.class_prior_)[1])
+        if score:
+            result, extras = process_pair(frames[i], frames[j], clf, weight=weight, config=config, registration=reg,
+                                          temporal_source=chain.labels, temporal_weight=weight_t, indices=(i, j), keep_arrays=on_pair is not None)
+            chain.labels = extras["temporal_labels"]
+            scored.append(result)
+            if not result.registered:
+                failures.append({"reference": i, "moving": j, "reason": result.reason})
+            if on_pair is not None:
+                on_pair(result, (frames[i], frames[j]), extras)
+        else:
+            res = reg[0]
+            chain.step(log_odds(clf, frames[j].image), None if res is None else res.matrix)
+        chains.append(chain)
+    if not scored:
+        notes.append(f"no pair with its moving frame after the {C} fusion frames")
+    return SequenceResult(k, config.backend, C, choice, tuple(scored), _means(scored), tuple(failures),
+                          tuple(notes), time.perf_counter() - t_start, temporal_weight=temporal_choice)

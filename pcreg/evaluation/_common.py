@@ -1,0 +1,176 @@
+"""Helpers shared by the registration evaluations (rotation, sequence, demo).
+
+- a per-process cache of loaded datasets (units of work run in worker processes);
+- option parsers (``--increments``, ``--angles``, ``--size``, ``--backend``, ``--train``);
+- :class:`UnitStore`: finished units kept as JSON files in the output folder, so that a rerun with the
+  same configuration skips them (an interrupted run resumes) and a different configuration is refused
+  unless ``--force``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+BACKEND_CHOICES = ("reference", "open3d", "both")
+
+_DATA_CACHE: dict = {}
+
+
+def load_cached(data: str, *, frames: int | None, size: tuple[int, int] | None, seed: int) -> dict:
+    """:func:`pcreg.datasets.load_dataset`, cached per process (one data set at a time)."""
+    key = (data, frames, tuple(size) if size else None, seed)
+    if key not in _DATA_CACHE:
+        from ..datasets import load_dataset
+
+        _DATA_CACHE.clear()
+        _DATA_CACHE[key] = load_dataset(data, n_frames=frames, size=tuple(size) if size else None, seed=seed)
+    return _DATA_CACHE[key]
+
+
+def backends(value: str) -> tuple[str, ...]:
+    """``--backend`` value -> backends to run, in order (``both``: reference, then open3d)."""
+    return ("reference", "open3d") if value == "both" else (value,)
+
+
+def int_list(text: str) -> tuple[int, ...]:
+    """``"1,4,7,10"`` -> (1, 4, 7, 10); every value >= 1."""
+    try:
+        vals = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+    if not vals or any(v < 1 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers >= 1, got {text!r}")
+    return vals
+
+
+def angle_list(text: str) -> tuple[float, ...]:
+    """``"0,5,90"`` or ``"0:180:5"`` (start:stop:step, stop included) -> angles in degrees."""
+    import numpy as np
+
+    try:
+        if ":" in text:
+            a, b, s = (float(v) for v in text.split(":"))
+            if s <= 0:
+                raise ValueError
+            vals = tuple(float(v) for v in np.round(np.arange(a, b + s / 2, s), 6))
+        else:
+            vals = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected angles as A,B,C or START:STOP:STEP, got {text!r}") from None
+    if not vals or any(abs(v) > 360 for v in vals):
+        raise argparse.ArgumentTypeError(f"angles must be within +-360 degrees, got {text!r}")
+    return vals
+
+
+def size(text: str) -> tuple[int, int]:
+    """``"640x480"`` -> (640, 480)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if w < 16 or h < 12:
+        raise argparse.ArgumentTypeError(f"frames must be at least 16x12, got {text!r}")
+    return (w, h)
+
+
+def train(text: str) -> str:
+    """``reference`` or ``first:K``."""
+    t = text.strip().lower()
+    if t == "reference":
+        return t
+    if t.startswith("first:") and t[6:].isdigit() and int(t[6:]) >= 1:
+        return f"first:{int(t[6:])}"
+    raise argparse.ArgumentTypeError(f"--train must be 'reference' or 'first:K' with K >= 1, got {text!r}")
+
+
+def angle_key(angle: float) -> str:
+    """JSON key of an angle: ``"90"``, ``"2.5"``."""
+    return f"{angle:g}"
+
+
+def plain_config(config: Any) -> dict:
+    """A frozen dataclass config as JSON-ready dict (tuples as lists)."""
+    return json.loads(json.dumps(asdict(config), default=str))
+
+
+class UnitStore:
+    """Finished units of one evaluation, one JSON file each under ``out/units/``.
+
+    Opening the store compares ``config`` with ``out/config.json``: the same configuration resumes
+    (finished units are loaded, not rerun); a different one raises :class:`~pcreg.errors.OutputError`
+    unless ``force``, which clears the old units. ``force`` with the same configuration reruns all.
+    """
+
+    def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
+        from .._io import atomic_write_json
+        from ..errors import OutputError
+
+        self.out = Path(out)
+        self.dir = self.out / "units"
+        cfg_path = self.out / "config.json"
+        if self.out.exists() and not self.out.is_dir():
+            raise OutputError(f"{self.out} exists and is not a folder")
+        old = None
+        if cfg_path.is_file():
+            try:
+                old = json.loads(cfg_path.read_text())
+            except (OSError, ValueError):
+                old = None
+        if force:
+            if self.dir.is_dir():
+                shutil.rmtree(self.dir)
+        elif old is not None and old != config:
+            raise OutputError(f"{self.out} holds results of a different configuration "
+                              "(use --force to replace them, or another --out)")
+        elif old is None and (self.out / "results.json").exists():
+            raise OutputError(f"{self.out}/results.json exists without a readable config.json (use --force)")
+        atomic_write_json(cfg_path, config)
+
+    def path(self, key: str) -> Path:
+        return self.dir / f"{key}.json"
+
+    def load(self, key: str) -> dict | None:
+        """The finished unit ``key``, or None (a damaged file counts as not finished)."""
+        p = self.path(key)
+        if not p.is_file():
+            return None
+        try:
+            return json.loads(p.read_text())
+        except (OSError, ValueError):
+            return None
+
+    def save(self, key: str, result: dict) -> None:
+        from .._io import atomic_write_json
+
+        atomic_write_json(self.path(key), result)
+
+
+def nan_to_none(obj: Any) -> Any:
+    """Replace float NaN/inf with None (strict JSON for results.json)."""
+    import math
+
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: nan_to_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [nan_to_none(v) for v in obj]
+    return obj
+
+
+METHOD_STYLE = {
+    "plain": ("naive Bayes (plain)", "#444444", "-"),
+    "thesis_before": ("thesis: before registration", "#d62728", ":"),
+    "thesis_after": ("thesis: after registration", "#ff7f0e", "--"),
+    "thesis_after_masked": ("after, border from unwarped frame", "#bcbd22", "-."),
+    "thesis_after_cropped": ("after, border left out", "#8c564b", "-."),
+    "augmented": ("augmented (registered label prior)", "#1f77b4", "-"),
+    "augmented_unregistered": ("augmented, prior not registered", "#17becf", "--"),
+    "augmented_temporal": ("augmented, temporal", "#9467bd", "-"),
+    "propagated": ("warped labels alone", "#2ca02c", ":"),
+}

@@ -1,0 +1,39 @@
+"""pcreg demo: the whole story in small form writes a report, figures and a recording."""
+
+from __future__ import annotations
+
+import json
+
+from pcreg.cli import main
+from pcreg.evaluation.demo import DemoConfig, run_demo
+
+
+def test_demo_writes_report_figures_and_recording(tmp_path):
+    from viz.readback import read_recording
+
+    out = tmp_path / "demo"
+    config = DemoConfig(presets=("syn1a",), frames=8, size=(160, 120), increments=(1, 4), angles=(0.0, 90.0))
+    report = run_demo(config, out=out, workers=1, record=out / "demo.rrd")
+    text = report.read_text()
+    for heading in ("Naive Bayes alone", "Rotated frames", "ICP backends", "Sequences", "stage times"):
+        assert heading in text
+    for png in ("pair.png", "rotation/rotation.png", "sequence/sequence_syn1a.png", "classification/case1.png"):
+        assert (out / png).is_file(), png
+        assert f"({png})" in text
+    seq = json.loads((out / "sequence" / "results.json").read_text())
+    assert set(seq["backends"]) == {"reference", "open3d"}
+    cc = json.loads((out / "crosscheck.json").read_text())
+    assert {"reference", "open3d", "max_corner_disagreement_px"} <= set(cc)
+    rec = read_recording(out / "demo.rrd")
+    series = rec.series("errors/syn1a/k1/reference/augmented")
+    unit = next(u for u in seq["units"] if u["k"] == 1 and u["backend"] == "reference")
+    assert len(series) == len(unit["pairs"])
+
+
+def test_demo_refuses_to_overwrite_without_force(tmp_path, capsys):
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "report.md").write_text("old")
+    assert main(["demo", "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert main(["demo", "--out", str(out), "--frames", "3", "--force"]) == 2

@@ -1,0 +1,79 @@
+"""pcreg evaluate rotation: rotated frames before/after registration (small synthetic frames)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from pcreg.datasets import synthetic
+from pcreg.evaluation.rotation import KEYS, rotate_frame, sample_indices
+from pcreg.transforms import apply
+
+SMALL = ["--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120", "--samples", "1"]
+
+
+@pytest.fixture(scope="module")
+def done(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rotation") / "rot"
+    assert main(["evaluate", "rotation", *SMALL, "--angles", "0,30,90,180", "--backend", "both",
+                 "--out", str(out)]) == 0
+    return out
+
+
+def test_outputs_and_layout(done):
+    for name in ("results.json", "config.json", "rotation_reference.md", "rotation_open3d.csv", "floors.md",
+                 "rotation.png"):
+        assert (done / name).is_file(), name
+    res = json.loads((done / "results.json").read_text())
+    angles = res["datasets"]["syn1a"]["angles"]
+    assert set(angles) == {"0", "30", "90", "180"}
+    for cell in angles.values():
+        assert set(KEYS) <= set(cell)
+    # no rotation: before and after are the same classification of the same frame
+    assert angles["0"]["before"] == pytest.approx(angles["0"]["after"])
+    # registering back recovers the classification of the original frame at a quarter and a half turn
+    for a in ("90", "180"):
+        assert angles[a]["after"] < angles[a]["before"]
+        assert abs(angles[a]["after"] - angles["0"]["after"]) <= 2.0
+    assert "backend open3d" in (done / "floors.md").read_text()
+
+
+def test_rerun_resumes(done):
+    assert main(["evaluate", "rotation", *SMALL, "--angles", "0,30,90,180", "--backend", "both",
+                 "--out", str(done)]) == 0
+    assert json.loads((done / "results.json").read_text())["resumed_units"] == 2
+
+
+def test_rotate_frame_geometry():
+    f = synthetic("syn1a", 1, 0, width=160, height=120)[0]
+    img, lab, content, T = rotate_frame(f.image, f.labels, 90.0, canvas="loose")
+    assert img.shape[:2] == (160, 120) and lab.shape == (160, 120) and content.all()
+    # the centre maps to the centre; the corners stay inside the canvas
+    assert np.allclose(apply(T, np.array([[79.5, 59.5]])), [[59.5, 79.5]])
+    img_c, _, content_c, _ = rotate_frame(f.image, f.labels, 45.0, canvas="crop")
+    assert img_c.shape[:2] == (120, 160) and not content_c.all()
+    same, lab0, _, T0 = rotate_frame(f.image, f.labels, 0.0)
+    assert np.array_equal(same, f.image) and np.array_equal(lab0, f.labels) and np.allclose(T0, np.eye(3))
+
+
+def test_sample_indices():
+    assert sample_indices(100, 3) == [0, 50, 99]
+    assert sample_indices(2, 3) == [0, 1]
+    assert sample_indices(0, 3) == []
+
+
+@pytest.mark.parametrize("bad", [["--angles", "x"], ["--angles", "0:90:0"], ["--canvas", "big"]])
+def test_bad_options_exit_2(tmp_path, capsys, bad):
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "rotation", *SMALL, "--out", str(tmp_path / "r"), *bad])
+    assert exc.value.code == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_bad_values_exit_2_with_one_line(tmp_path, capsys):
+    assert main(["evaluate", "rotation", *SMALL, "--samples", "0", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--samples" in err[0]

@@ -1,0 +1,113 @@
+"""pcreg evaluate sequence: outputs, resume, recording, bad input (small synthetic frames)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from pcreg.pipeline import METHODS
+
+SMALL = ["--data", "synthetic:syn1a,syn2b", "--frames", "8", "--size", "160x120"]
+
+
+def _run(tmp_path, *extra, out="seq"):
+    return main(["evaluate", "sequence", *SMALL, "--out", str(tmp_path / out), *extra])
+
+
+@pytest.fixture(scope="module")
+def done(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("sequence")
+    assert main(["evaluate", "sequence", *SMALL, "--increments", "1,3", "--backend", "both", "--workers", "2",
+                 "--out", str(tmp / "seq")]) == 0
+    return tmp / "seq"
+
+
+def test_outputs_and_layout(done):
+    for name in ("results.json", "config.json", "sequence_reference.md", "sequence_reference.csv",
+                 "sequence_open3d.md", "floors.md", "sequence_syn1a.png", "sequence_summary.png"):
+        assert (done / name).is_file(), name
+    res = json.loads((done / "results.json").read_text())
+    assert set(res["datasets"]) == {"syn1a", "syn2b"}
+    for name, d in res["datasets"].items():
+        assert set(d["increments"]) == {"1", "3"}
+        for k, means in d["increments"].items():
+            assert set(means) == set(METHODS)
+            assert means["augmented"] < means["plain"]
+            # the top-level means are the first backend's, recomputed from its per-pair errors
+            unit = next(u for u in res["units"] if u["dataset"] == name and str(u["k"]) == k
+                        and u["backend"] == "reference")
+            for m in METHODS:
+                assert means[m] == pytest.approx(np.mean([p["errors"][m] for p in unit["pairs"]]))
+    assert set(res["backends"]) == {"reference", "open3d"}
+    cfg = json.loads((done / "config.json").read_text())
+    assert cfg["increments"] == [1, 3] and cfg["backends"] == ["reference", "open3d"]
+    assert "augmented < plain" in (done / "floors.md").read_text()
+
+
+def test_rerun_with_the_same_config_resumes(done, tmp_path):
+    before = json.loads((done / "results.json").read_text())
+    # an interrupted run: one unit's file is lost
+    (done / "units" / "syn2b" / "k3_open3d.json").unlink()
+    assert main(["evaluate", "sequence", *SMALL, "--increments", "1,3", "--backend", "both",
+                 "--out", str(done)]) == 0
+    after = json.loads((done / "results.json").read_text())
+    assert after["resumed_units"] == 7
+    assert after["datasets"] == before["datasets"]
+
+
+def test_a_different_config_needs_force(done, capsys):
+    assert main(["evaluate", "sequence", *SMALL, "--increments", "2", "--out", str(done)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "different configuration" in err[0]
+
+
+def test_increment_longer_than_the_sequence_is_a_note(tmp_path):
+    assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "3", "--size", "160x120",
+                 "--increments", "1,5", "--out", str(tmp_path / "s")]) == 0
+    res = json.loads((tmp_path / "s" / "results.json").read_text())
+    assert res["datasets"]["syn1a"]["pairs"]["5"]["pairs"] == 0
+    assert any("not shorter" in n for n in res["notes"])
+    assert res["datasets"]["syn1a"]["increments"]["5"]["plain"] is None  # NaN written as null
+
+
+def test_one_frame_dataset(tmp_path):
+    assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "1", "--size", "160x120",
+                 "--increments", "1", "--out", str(tmp_path / "s")]) == 0
+    res = json.loads((tmp_path / "s" / "results.json").read_text())
+    assert res["datasets"]["syn1a"]["pairs"]["1"]["pairs"] == 0
+
+
+def test_recording_holds_the_error_series_of_results_json(tmp_path):
+    from viz.readback import read_recording
+
+    rrd = tmp_path / "seq.rrd"
+    assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "6", "--size", "160x120",
+                 "--increments", "2", "--out", str(tmp_path / "s"), "--record", str(rrd)]) == 0
+    res = json.loads((tmp_path / "s" / "results.json").read_text())
+    rec = read_recording(rrd)
+    unit = res["units"][0]
+    for m in ("plain", "augmented", "thesis_after"):
+        series = rec.series(f"errors/syn1a/k2/reference/{m}")
+        assert [series[f] for f in sorted(series)] == pytest.approx([p["errors"][m] / 100.0 for p in unit["pairs"]])
+    assert rec.get("transforms/T_ref_mov") and rec.get("warped/valid_mask")
+    assert rec.get("labels/predicted/augmented") and rec.get("labels/truth")
+
+
+@pytest.mark.parametrize("bad", [["--increments", "0"], ["--increments", "a"], ["--backend", "x"],
+                                 ["--train", "first:0"], ["--size", "10x10"], ["--frames", "0"],
+                                 ["--fusion-weight", "-1"], ["--model", "warp"], ["--workers", "0"],
+                                 ["--data", "nothing:here"]])
+def test_bad_options_exit_2_with_one_line(tmp_path, capsys, bad):
+    assert _run(tmp_path, *bad) == 2 if bad[0] not in ("--increments", "--backend", "--train", "--size") \
+        else _expect_parser_error(tmp_path, bad)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "error" in err[0]
+
+
+def _expect_parser_error(tmp_path, bad):
+    with pytest.raises(SystemExit) as exc:
+        _run(tmp_path, *bad)
+    return exc.value.code

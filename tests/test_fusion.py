@@ -1,0 +1,101 @@
+"""pcreg.fusion: priors from labels, their warp into the moving frame, fusion and the weight choice."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pcreg.errors import InputError
+from pcreg.fusion import (FusionConfig, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
+                          prior_from_log_odds, prior_log_odds, smooth_prior, warp_prior)
+from pcreg.transforms import rigid2d
+
+
+def _labels(h=40, w=60):
+    lab = np.zeros((h, w), np.uint8)
+    lab[10:30, 20:35] = 1
+    lab[:5] = 2
+    return lab
+
+
+def test_prior_from_labels_values():
+    lab = _labels()
+    q = prior_from_labels(lab, pi=0.3)
+    assert q.dtype == np.float32 and q.shape == lab.shape
+    assert np.all(q[lab == 1] == 1.0) and np.all(q[lab == 0] == 0.0)
+    assert np.allclose(q[lab == 2], 0.3)
+    with pytest.raises(InputError):
+        prior_from_labels(lab, pi=1.0)
+
+
+def test_smooth_prior_is_bounded_and_keeps_inputs():
+    lab = _labels()
+    q = prior_from_labels(lab, pi=0.3)
+    before = q.copy()
+    s = smooth_prior(q, pi=0.3, eps=0.1, sigma=0.0)
+    assert np.array_equal(q, before)
+    assert s.min() >= 0.1 * 0.3 - 1e-6 and s.max() <= 0.9 + 0.1 * 0.3 + 1e-6
+    blurred = smooth_prior(q, pi=0.3, eps=0.1, sigma=8.0)
+    # the blur softens the edge of the obstacle block but not its centre
+    assert 0.1 < blurred[20, 20] < s[20, 20] and blurred[20, 27] > 0.8
+
+
+def test_prior_log_odds_is_zero_at_the_class_prior():
+    q = np.full((4, 5), 0.3, np.float32)
+    assert np.allclose(prior_log_odds(q, pi=0.3), 0.0, atol=1e-6)
+    assert np.all(prior_log_odds(np.full((2, 2), 0.9, np.float32), pi=0.3) > 0)
+
+
+def test_warp_prior_moves_the_reference_into_the_moving_frame():
+    # moving pixel x sees the reference at T_ref_mov x: a shift of +5 px in x.
+    lab = _labels()
+    q = prior_from_labels(lab, pi=0.3)
+    T = rigid2d(0.0, 5.0, 0.0)
+    q_mov, valid = warp_prior(q, T, shape=lab.shape, pi=0.3)
+    assert np.allclose(q_mov[10:30, 15:30], 1.0)  # the block, 5 px to the left in the moving frame
+    assert np.allclose(q_mov[10:30, 30:35], 0.0)
+    assert not valid[:, -5:].any() and valid[:, :-5].all()
+    assert np.allclose(q_mov[:, -5:], 0.3)  # outside the reference: the class prior
+    q_id, valid_id = warp_prior(q, None, shape=lab.shape, pi=0.3)
+    assert np.array_equal(q_id, q) and valid_id.all()
+
+
+def test_fuse_and_labels():
+    d = np.array([[-1.0, 2.0]], np.float32)
+    l = np.array([[3.0, -3.0]], np.float32)
+    assert np.array_equal(fuse(d, l, weight=0.0), d)
+    f = fuse(d, l, weight=1.0)
+    assert np.allclose(f, [[2.0, -1.0]])
+    assert labels_from_log_odds(f).tolist() == [[1, 0]]
+    with pytest.raises(InputError):
+        fuse(d, l[:, :1], weight=1.0)
+    assert prior_from_log_odds(np.array([[0.0, 60.0]])).tolist()[0][0] == pytest.approx(0.5)
+
+
+def test_choose_weight_trusts_a_good_prior_and_ignores_a_bad_one():
+    rng = np.random.default_rng(0)
+    truth = (rng.random((50, 50)) < 0.4).astype(np.uint8)
+    noisy = np.where(rng.random(truth.shape) < 0.7, truth, 1 - truth)  # classifier right 70% of the time
+    d = np.where(noisy == 1, 1.0, -1.0).astype(np.float32)
+    good = prior_log_odds(smooth_prior(prior_from_labels(truth, pi=0.4), pi=0.4, sigma=0.0), pi=0.4)
+    bad = prior_log_odds(smooth_prior(prior_from_labels(1 - truth, pi=0.4), pi=0.4, sigma=0.0), pi=0.4)
+    c_good = choose_weight([(d, good, truth)])
+    c_bad = choose_weight([(d, bad, truth)])
+    assert c_good.weight > 0 and min(c_good.errors) < 1.0
+    assert c_bad.weight == 0.0 and c_bad.errors[0] == pytest.approx(min(c_bad.errors))
+    assert c_good.pairs == 1 and c_good.pixels == truth.size
+    empty = choose_weight([], default=1.5)
+    assert empty.weight == 1.5 and empty.pairs == 0
+
+
+def test_unknown_truth_is_left_out_of_the_choice():
+    truth = np.full((4, 4), 2, np.uint8)
+    c = choose_weight([(np.zeros((4, 4), np.float32), np.zeros((4, 4), np.float32), truth)])
+    assert c.pairs == 0
+
+
+@pytest.mark.parametrize("kwargs", [{"eps": 0.0}, {"eps": 1.0}, {"sigma": -1.0}, {"weight": -1.0},
+                                    {"weight": float("nan")}, {"grid": ()}])
+def test_fusion_config_rejects_bad_values(kwargs):
+    with pytest.raises(InputError):
+        FusionConfig(**kwargs)

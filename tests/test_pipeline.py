@@ -1,0 +1,135 @@
+"""pcreg.pipeline: one pair and a sequence, on small synthetic frames with exact poses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pcreg.bayes import NaiveBayesPixelClassifier
+from pcreg.datasets import Frame, synthetic
+from pcreg.errors import InputError
+from pcreg.fusion import FusionConfig
+from pcreg.pipeline import (METHODS, STAGES, PipelineConfig, TemporalFusion, log_odds, pair_indices, process_pair,
+                            register_pair, resolve_fusion_frames, run_sequence, temporal_update)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return synthetic("syn2a", 10, 0, width=160, height=120)
+
+
+@pytest.fixture(scope="module")
+def clf(frames):
+    return NaiveBayesPixelClassifier(("rgb", "hsv", "row")).fit(frames[0].image, frames[0].labels)
+
+
+def test_log_odds_agrees_with_predict(frames, clf):
+    d = log_odds(clf, frames[3].image)
+    assert d.shape == frames[3].shape and d.dtype == np.float32
+    assert np.array_equal((d > 0).astype(np.uint8), clf.predict(frames[3].image))
+    jll = clf.joint_log_likelihood(frames[3].image)
+    assert np.allclose(d, jll[..., 1] - jll[..., 0], atol=1e-3)
+
+
+def test_log_odds_needs_ground_and_obstacle(frames):
+    three = NaiveBayesPixelClassifier(("rgb",), exclude_unknown=False).fit(frames[0].image, frames[0].labels)
+    with pytest.raises(InputError):
+        log_odds(three, frames[0].image)
+
+
+def test_process_pair_scores_every_method(frames, clf):
+    res, extras = process_pair(frames[0], frames[3], clf, weight=3.0, indices=(0, 3), keep_arrays=True,
+                               temporal_source=frames[0].labels)
+    assert set(res.errors) == set(METHODS) and set(res.times) == set(STAGES)
+    assert res.registered and res.reason is None and res.corner_error < 1.0
+    assert all(0 <= v <= 100 for v in res.errors.values())
+    assert res.errors["augmented"] < res.errors["plain"]
+    assert extras["warped"].shape == frames[0].image.shape and extras["valid"].dtype == bool
+    assert extras["temporal_labels"].dtype == np.uint8
+    # the first step of a chain is the one-step fusion
+    assert res.errors["augmented_temporal"] == pytest.approx(res.errors["augmented"])
+    # the inputs are never modified (frames are read-only views)
+    assert not frames[0].image.flags.writeable
+
+
+def test_weight_zero_is_plain_naive_bayes(frames, clf):
+    res, _ = process_pair(frames[0], frames[2], clf, weight=0.0)
+    assert res.errors["augmented"] == res.errors["plain"] == res.errors["augmented_unregistered"]
+
+
+def test_failed_registration_is_recorded_and_the_pair_still_scored(frames, clf):
+    flat = Frame(np.full_like(frames[2].image, 90), frames[2].labels, "flat")
+    res, _ = process_pair(frames[0], flat, clf, weight=3.0)
+    assert not res.registered and "edges" in res.reason
+    assert res.registration is None and res.corner_error is None
+    assert res.errors["augmented"] == res.errors["plain"]
+    assert res.errors["thesis_after"] == res.errors["thesis_before"]
+    got, reason, seconds = register_pair(frames[0].image, flat.image)
+    assert got is None and reason and seconds >= 0
+
+
+def test_temporal_update_passes_on_only_what_labels_reached(frames):
+    d = np.zeros(frames[0].shape, np.float32)
+    T = np.array([[1.0, 0, 20.0], [0, 1.0, 0], [0, 0, 1.0]])  # the reference lies 20 px to the right
+    fused, labels = temporal_update(d, frames[0].labels, T, pi=0.3, weight=4.0)
+    assert np.all(labels[:, -20:] == 2)  # content new to the view carries no label
+    known = labels < 2
+    assert known.any()
+    fused_none, labels_none = temporal_update(d, frames[0].labels, None, pi=0.3, weight=4.0)
+    assert np.all(labels_none == 2) and np.array_equal(fused_none, d)
+    chain = TemporalFusion(frames[0].labels, pi=0.3, weight=4.0)
+    out = chain.step(d, T)
+    assert np.array_equal(out, fused) and np.array_equal(chain.labels, labels)
+
+
+def test_run_sequence_walks_pairs_and_chooses_the_weight_on_the_first_frames(frames):
+    res = run_sequence(frames, k=2, config=PipelineConfig(), fusion_frames=4)
+    assert res.fusion_frames == 4
+    assert [(p.reference, p.moving) for p in res.pairs] == [(i, i + 2) for i in range(2, 8)]
+    assert res.weight.pairs == 2 and res.weight.weight in res.weight.grid  # pairs (0, 2), (1, 3)
+    assert res.temporal_weight is not None
+    assert set(res.means) == set(METHODS)
+    assert res.means["augmented"] < res.means["plain"]
+    assert res.to_dict()["pairs"][0]["moving"] == 4
+    assert not res.failures
+
+
+def test_run_sequence_with_a_fixed_weight_and_first_k_training(frames):
+    cfg = PipelineConfig(fusion=FusionConfig(weight=2.0))
+    res = run_sequence(frames, k=1, config=cfg, train="first:3")
+    assert res.fusion_frames == 3 and res.weight.weight == 2.0 and res.weight.pairs == 0
+    assert [p.moving for p in res.pairs] == list(range(3, 10))
+
+
+def test_short_sequences_give_notes_not_errors(frames):
+    one = run_sequence(frames[:1], k=1)
+    assert not one.pairs and "no pairs" in one.notes[0]
+    long = run_sequence(frames[:4], k=4)
+    assert not long.pairs and "not shorter" in long.notes[0]
+    assert np.isnan(long.means["plain"])
+
+
+@pytest.mark.parametrize("kwargs", [{"k": 0}, {"k": 1, "train": "first:x"}, {"k": 1, "train": "first:10"},
+                                    {"k": 1, "train": "everything"}])
+def test_run_sequence_rejects_bad_options(frames, kwargs):
+    with pytest.raises(InputError):
+        run_sequence(frames, **kwargs)
+
+
+def test_unlabelled_frames_are_rejected(frames):
+    bare = [Frame(f.image, None, f.name) for f in frames[:3]]
+    with pytest.raises(InputError):
+        run_sequence(bare, k=1)
+
+
+def test_helpers():
+    assert pair_indices(5, 2) == [(0, 2), (1, 3), (2, 4)]
+    assert pair_indices(2, 3) == []
+    assert resolve_fusion_frames(100, fusion_frames=None, train="reference") == 10
+    assert resolve_fusion_frames(5, fusion_frames=None, train="reference") == 2
+    assert resolve_fusion_frames(100, fusion_frames=None, train="first:7") == 7
+    assert resolve_fusion_frames(100, fusion_frames=3, train="first:7") == 3
+    with pytest.raises(InputError):
+        PipelineConfig(backend="nope")
+    assert PipelineConfig(backend="open3d").registration_model == "rigid"
+    assert PipelineConfig().registration_model == "similarity"

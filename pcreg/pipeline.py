@@ -240,9 +240,12 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
     log_odds_moving : (H, W) float32 naive Bayes log-odds of the new frame. labels_reference : (H, W)
     uint8 labels the chain holds for the previous frame (true labels at the chain's start, then its
     own fused labels; 2 where it knows nothing). T_ref_mov : previous -> new registration (None: no
-    prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``: the new frame's fused
-    labels where the previous frame's labels reached it, 2 elsewhere, so that what naive Bayes alone
-    says about content new to the view is never passed on as if it were a label.
+    prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``: the label carried over
+    from the previous frame where it reached the new frame and the fused result agrees with it, 2
+    (unknown) elsewhere. So a label survives while the classifier does not overrule it, and neither
+    what naive Bayes alone says about content new to the view nor a pixel it flipped is passed on as
+    if it were a label (a chain that kept its own flips would lock its classifier's mistakes in and
+    drift further from the truth with every frame).
     """
     d = np.asarray(log_odds_moving, dtype=np.float32)
     if T_ref_mov is None:
@@ -254,7 +257,8 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
     fused = fuse(d, prior_log_odds(q_mov, pi=pi), weight=weight)
     reached, _ = warp(np.asarray(labels_reference, dtype=np.uint8), np.linalg.inv(np.asarray(T_ref_mov)),
                       shape=d.shape, interpolation="nearest", fill=2)
-    labels = np.where(reached < 2, labels_from_log_odds(fused), np.uint8(2)).astype(np.uint8)
+    fused_labels = labels_from_log_odds(fused)
+    labels = np.where((reached < 2) & (fused_labels == reached), fused_labels, np.uint8(2)).astype(np.uint8)
     return fused, labels
 
 

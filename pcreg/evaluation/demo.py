@@ -134,7 +134,10 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     # 5. the story figure and the report
     _say("5/5 report")
     name = next(iter(datasets))
-    _pair_figure(datasets[name], k=4, out=out / "pair.png", title=name)
+    k_fig = config.increments[min(1, len(config.increments) - 1)]
+    unit = next(u for u in sres["units"] if u["dataset"] == name and u["k"] == k_fig and u["backend"] == "reference")
+    w_fig = unit["weight"]["weight"] if unit.get("weight") else 1.0
+    _pair_figure(datasets[name], k=k_fig, weight=w_fig, out=out / "pair.png", title=name)
     stage_rows = []
     for b in scfg.backends:
         pairs = [p for u in sres["units"] if u["backend"] == b for p in u["pairs"]]
@@ -145,8 +148,9 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     return out / "report.md"
 
 
-def _pair_figure(frames, *, k: int, out: Path, title: str) -> None:
-    """Reference, moving, warped, truth and the predictions of one pair (a figure to look at)."""
+def _pair_figure(frames, *, k: int, weight: float, out: Path, title: str) -> None:
+    """Reference, moving, warped, truth and the predictions of one pair (a figure to look at); the
+    pixels that are not scored (unknown truth) are grey in the predictions too."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -159,23 +163,29 @@ def _pair_figure(frames, *, k: int, out: Path, title: str) -> None:
     i = 0
     j = min(i + k, len(frames) - 1)
     clf = _fit([frames[i]], PipelineConfig().features)
-    res, ex = process_pair(frames[i], frames[j], clf, weight=3.0, indices=(i, j), keep_arrays=True,
+    res, ex = process_pair(frames[i], frames[j], clf, weight=weight, indices=(i, j), keep_arrays=True,
                            temporal_source=frames[i].labels)
+    unknown = frames[j].labels == 2
+
+    def shown(pred):
+        return colours[np.where(unknown, 2, pred)]
+
     colours = np.array([[64, 160, 64], [200, 48, 48], [128, 128, 128]], dtype=np.uint8)
     panels = [
         (frames[i].image, f"reference frame {i}"),
         (frames[j].image, f"moving frame {j}"),
         (np.where(ex["valid"][..., None], ex["warped"], 0), "moving warped onto the reference"),
         (colours[frames[j].labels], f"truth of frame {j}"),
-        (colours[ex["predicted"]["plain"]], f"naive Bayes: {res.errors['plain']:.1f}% error"),
-        (colours[ex["predicted"]["augmented"]], f"augmented (w = 3): {res.errors['augmented']:.1f}% error"),
+        (shown(ex["predicted"]["plain"]), f"naive Bayes: {res.errors['plain']:.1f}% error"),
+        (shown(ex["predicted"]["augmented"]), f"augmented (w = {weight:g}): {res.errors['augmented']:.1f}% error"),
     ]
     fig, axes = plt.subplots(2, 3, figsize=(12, 6.4))
     for ax, (img, label) in zip(axes.flat, panels):
         ax.imshow(img)
         ax.set_title(label, fontsize=10)
         ax.axis("off")
-    fig.suptitle(f"{title}: frame {j} registered to frame {i}; green ground, red obstacle, grey unknown", fontsize=11)
+    fig.suptitle(f"{title}: frame {j} registered to frame {i}; green ground, red obstacle, grey unknown (not scored)",
+                 fontsize=11)
     fig.tight_layout()
     atomic_save_figure(fig, out)
     plt.close(fig)

@@ -26,6 +26,8 @@ from pathlib import Path
 from ._common import BACKEND_CHOICES
 
 DEFAULT_INCREMENTS = (1, 4, 7, 10)
+#: Label maps logged per pair with ``--record`` (all methods' error rates are logged).
+RECORDED_PREDICTIONS = ("plain", "augmented", "augmented_temporal")
 TABLE_METHODS = ("plain", "thesis_before", "thesis_after", "thesis_after_masked", "thesis_after_cropped",
                  "augmented", "augmented_unregistered", "augmented_temporal", "propagated")
 
@@ -209,11 +211,12 @@ def _recording_hooks(rec, unit: Unit):
         else:
             rec.log_failure(f"{prefix}: frames {result.reference} -> {result.moving}: {result.reason}")
         rec.log_labels(truth=mov.labels)
-        for method, labels in extras["predicted"].items():
-            rec.log_labels(predicted=labels, prefix=method)
+        for method in RECORDED_PREDICTIONS:
+            if method in extras["predicted"]:
+                rec.log_labels(predicted=extras["predicted"][method], prefix=method)
         rec.log_errors({f"{prefix}/{m}": v / 100.0 for m, v in result.errors.items()})
 
-    return on_pair, rec.icp_callback(unit.backend)
+    return on_pair, rec.icp_callback(unit.backend, max_points=200, max_correspondences=80)
 
 
 # ---------------------------------------------------------------------------------------------

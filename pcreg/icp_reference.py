@@ -60,6 +60,8 @@ def estimate_umeyama(p: np.ndarray, q: np.ndarray, w: np.ndarray, *, with_scale:
     pc = p - mp
     qc = q - mq
     cov = (qc * w[:, None]).T @ pc / ws
+    if d == 2:
+        return _umeyama_2d(cov, pc, w, ws, mp, mq, with_scale=with_scale)
     U, D, Vt = np.linalg.svd(cov)
     S = np.ones(d)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
@@ -74,6 +76,27 @@ def estimate_umeyama(p: np.ndarray, q: np.ndarray, w: np.ndarray, *, with_scale:
     T = np.eye(d + 1)
     T[:d, :d] = c * R
     T[:d, d] = mq - c * R @ mp
+    return T
+
+
+def _umeyama_2d(cov, pc, w, ws, mp, mq, *, with_scale: bool) -> np.ndarray:
+    """Umeyama's solution in 2-D without the SVD (same result, no per-call LAPACK overhead).
+
+    For Σ = [[a, b], [c, d]] the rotation that maximises tr(R^T Σ) is θ = atan2(c - b, a + d), which is
+    U S V^T of Eq. 40 with the reflection guard of Eq. 43 built in; tr(D S) = hypot(a + d, c - b).
+    """
+    a, b, c, d = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
+    th = np.arctan2(c - b, a + d)
+    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    k = 1.0
+    if with_scale:
+        var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws)
+        if var_p <= 0:
+            raise RegistrationError("degenerate correspondences: all source points coincide")
+        k = float(np.hypot(a + d, c - b) / var_p)
+    T = np.eye(3)
+    T[:2, :2] = k * R
+    T[:2, 2] = mq - k * R @ mp
     return T
 
 

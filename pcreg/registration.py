@@ -16,7 +16,6 @@ import numpy as np
 from .errors import InputError, RegistrationError
 from .icp_open3d import icp_open3d
 from .icp_reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
-from ._grid import GridNearest
 from .clouds import ImageCloud, as_rgb_uint8, cloud_pyramid
 from .result import IcpIteration, RegistrationResult
 from .transforms import about_point, apply, check_model, image_center, rigid2d
@@ -219,10 +218,10 @@ def _global_search(ref: ImageCloud, mov: ImageCloud, *, angles: np.ndarray, sigm
 
 def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: str = "reference",
              model: str = "rigid", levels: int = 4, iterations: int = 14, init: str | np.ndarray = "auto",
-             sampler: str = "canny", max_points: Sequence[int | None] | int | None = (1500, 1200, 800, 600),
+             sampler: str = "canny", max_points: Sequence[int | None] | int | None = (1000, 800, 600, 400),
              reference_max_points: int | None = None, max_correspondence_distance: float = 2.5,
              refine: str | None = "point_to_line", weights: str = "none",
-             relative_fitness: float = 1e-4, relative_rmse: float = 1e-3, angle_step: float = 10.0, n_candidates: int = 3,
+             relative_fitness: float = 1e-4, relative_rmse: float = 1e-3, angle_step: float = 15.0, n_candidates: int = 2,
              reference_mask: np.ndarray | str | None = "auto", moving_mask: np.ndarray | str | None = "auto",
              canny_percentile: float = 85.0, seed: int = 0,
              callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
@@ -265,14 +264,16 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     for name, lv in (("reference", ref_levels), ("moving", mov_levels)):
         if len(lv[0]) < 3:
             raise RegistrationError(f"the {name} image has no usable edges (a flat or empty image?)")
-    grids: dict[int, GridNearest] = {}
+    trees: dict[int, object] = {}
 
-    def grid(level: int) -> GridNearest:
-        if level not in grids:
-            grids[level] = GridNearest(ref_levels[level].points, cell=2**level, shape=ref_img.shape[:2])
-        return grids[level]
+    def tree(level: int):
+        """The reference points' KD-tree at one level, built once (global search and ICP share it)."""
+        if level not in trees:
+            trees[level] = build_tree(ref_levels[level].points)
+        return trees[level]
 
     T: np.ndarray
+    searched, g_level = False, levels - 1
     if isinstance(init, str):
         if init not in ("auto", "global", "identity", "center"):
             raise InputError(f"init must be 'auto', 'global', 'identity', 'center' or a 3x3 matrix, got {init!r}")
@@ -282,16 +283,22 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 g_level -= 1
             angles = np.array([0.0]) if model == "translation" else np.arange(0.0, 360.0, angle_step)
             Ts, score = _global_search(ref_levels[g_level], mov_levels[g_level], angles=angles)
-            # The best few hypotheses each get a short ICP at the search level; the best fitness wins.
-            best = (-1.0, np.inf, None)
+            # The best few hypotheses each get a short ICP at the search level. They are ranked by the
+            # share of points that end within one cell of a reference point: ICP's own fitness, under
+            # its wide gate, is near 1 for wrong hypotheses too.
+            best = (-1.0, None)
+            g_tree = tree(g_level)
             for k in np.argsort(-score)[:n_candidates]:
-                Tk, fk, rk, _, _ = icp_reference(mov_levels[g_level].points, ref_levels[g_level].points,
-                                                 model="rigid" if model != "translation" else "translation",
-                                                 max_correspondence_distance=3.0 * 2**g_level, init=Ts[k],
-                                                 max_iteration=iterations, tree=grid(g_level), level=g_level)
-                if (fk, -rk) > (best[0], -best[1]):
-                    best = (fk, rk, Tk)
-            T = best[2]
+                Tk = icp_reference(mov_levels[g_level].points, ref_levels[g_level].points,
+                                   model="rigid" if model != "translation" else "translation",
+                                   max_correspondence_distance=3.0 * 2**g_level, init=Ts[k],
+                                   max_iteration=iterations, relative_fitness=relative_fitness,
+                                   relative_rmse=relative_rmse * 2**g_level, tree=g_tree, level=g_level)[0]
+                d, _ = g_tree.query(apply(Tk, mov_levels[g_level].points), k=1)
+                tight = float(np.mean(d < 2**g_level))
+                if tight > best[0]:
+                    best = (tight, Tk)
+            T, searched = best[1], True
         elif init == "center":
             T = about_point(np.eye(3), image_center(mov_img.shape), image_center(ref_img.shape))
         else:
@@ -302,7 +309,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
             raise InputError("init must be a finite 3x3 matrix")
     total, conv, fit, rmse = 0, False, 0.0, 0.0
     p2l = refine == "point_to_line" and backend == "reference"
-    for level in range(levels - 1, 0 if p2l else -1, -1):
+    # After a global search the chosen hypothesis has already converged at its level (reference ICP).
+    first = g_level - 1 if (backend == "reference" and searched) else levels - 1
+    for level in range(first, 0 if p2l else -1, -1):
         s, t = mov_levels[level], ref_levels[level]
         if len(s) < 3 or len(t) < 3:
             continue
@@ -313,7 +322,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                                               relative_rmse=relative_rmse * 2**level, weights=weights,
                                               metric="point_to_point", target_normals=None, callback=callback,
                                               level=level,
-                                              tree=grid(level) if (backend == "reference" and level > 0) else None)
+                                              tree=tree(level) if backend == "reference" else None)
         total = -1 if (it < 0 or total < 0) else total + it
     if p2l:
         s, t = mov_levels[0], ref_levels[0]

@@ -159,9 +159,14 @@ def test_register_images_of_different_sizes():
 
 
 def test_register_callback_sees_every_level():
+    mov = moved(REF, rigid_about_centre(REF.shape, 5, 3, 2))
     levels = set()
-    pcreg.register(REF, moved(REF, rigid_about_centre(REF.shape, 10, 3, 2)), callback=lambda it: levels.add(it.level))
+    pcreg.register(REF, mov, init="identity", callback=lambda it: levels.add(it.level))
     assert levels == {0, 1, 2, 3}
+    # After the global search the coarsest level's ICP is the search's own: ICP goes on from level 2.
+    levels.clear()
+    pcreg.register(REF, mov, callback=lambda it: levels.add(it.level))
+    assert levels == {0, 1, 2}
 
 
 @pytest.mark.data

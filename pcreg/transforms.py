@@ -112,12 +112,15 @@ def lift_to_3d(matrix: np.ndarray) -> np.ndarray:
 def project_to_2d(matrix: np.ndarray, *, tol: float = 1e-6) -> np.ndarray:
     """A 4x4 transform that should keep the plane z = 0 as the 3x3 2-D transform; raises when it tilts.
 
-    The out-of-plane part (R[2, :2], R[:2, 2], t_z and R[2, 2] - 1) must be below ``tol`` (relative to
-    the scale of the linear part), else the 3-D solution does not describe a motion in the image plane.
+    The out-of-plane part (M[2, :2], M[:2, 2] and t_z) must be below ``tol`` (relative to the scale of the
+    linear part), else the 3-D solution does not describe a motion in the image plane; M[2, 2] (the
+    z-scale) does not act on points with z = 0 and is not checked. A mirrored plane (det < 0) is refused.
     """
     m = np.asarray(matrix, dtype=np.float64)
     scale = max(1.0, float(np.abs(m[:3, :3]).max()))
-    out_of_plane = max(abs(m[2, 0]), abs(m[2, 1]), abs(m[0, 2]), abs(m[1, 2]), abs(m[2, 2] - np.sqrt(abs(np.linalg.det(m[:2, :2])))))
+    out_of_plane = max(abs(m[2, 0]), abs(m[2, 1]), abs(m[0, 2]), abs(m[1, 2]))
+    if np.linalg.det(m[:2, :2]) <= 0:
+        raise RegistrationError("the 3-D ICP result mirrors the image plane")
     if out_of_plane > tol * scale or abs(m[2, 3]) > tol * max(1.0, float(np.abs(m[:2, 3]).max())):
         raise RegistrationError(
             f"the 3-D ICP result leaves the image plane (out-of-plane part {out_of_plane:.2e}, t_z {m[2, 3]:.2e})"

@@ -145,9 +145,12 @@ def test_register_motion_models(model, T):
     assert tf.max_corner_error(r.matrix, T, REF.shape) < 0.5
 
 
-def test_register_open3d_backend_large_rotation():
+@pytest.mark.parametrize("model", ["rigid", "similarity"])
+def test_register_open3d_backend_large_rotation(model):
     T = rigid_about_centre(REF.shape, 120.0, 12.0, -9.0)
-    r = pcreg.register(REF, moved(REF, T), backend="open3d")
+    if model == "similarity":
+        T = T @ tf.about_point(tf.rigid2d(0, scale=0.95), tf.image_center(REF.shape))
+    r = pcreg.register(REF, moved(REF, T), backend="open3d", model=model)
     assert r.backend == "open3d"
     assert tf.max_corner_error(r.matrix, T, REF.shape) < 1.0
 

@@ -50,10 +50,13 @@ __all__ = [
     "METHODS",
     "BACKEND_MODELS",
     "PipelineConfig",
+    "STAGES",
     "log_odds",
+    "fit_classifier",
     "register_pair",
     "PairResult",
     "process_pair",
+    "temporal_update",
     "TemporalFusion",
     "SequenceResult",
     "run_sequence",
@@ -160,10 +163,11 @@ def log_odds(classifier, image: np.ndarray) -> np.ndarray:
     return acc
 
 
-def _fit(frames: Sequence, features: tuple[str, ...]):
+def fit_classifier(frames: Sequence, *, features: Sequence[str] = ("rgb", "hsv", "row")):
+    """A :class:`~pcreg.bayes.NaiveBayesPixelClassifier` fitted on labelled frames (unknown left out)."""
     from .bayes import NaiveBayesPixelClassifier
 
-    return NaiveBayesPixelClassifier(features).fit([f.image for f in frames], [f.labels for f in frames])
+    return NaiveBayesPixelClassifier(tuple(features)).fit([f.image for f in frames], [f.labels for f in frames])
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -523,7 +527,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
         K = int(train.split(":", 1)[1])
         if K >= n:
             raise InputError(f"train first:{K} leaves no test frame in a sequence of {n} frames")
-        shared_clf = _fit(frames[:K], config.features)
+        shared_clf = fit_classifier(frames[:K], features=config.features)
     clf_cache: dict[int, object] = {}
 
     def classifier(i: int):
@@ -531,7 +535,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
             return shared_clf
         if i not in clf_cache:
             clf_cache.clear()
-            clf_cache[i] = _fit([frames[i]], config.features)
+            clf_cache[i] = fit_classifier([frames[i]], features=config.features)
         return clf_cache[i]
 
     reg_cache: dict[tuple[int, int], tuple] = {}

@@ -46,9 +46,9 @@ def bench(frames, *, backend: str, init: str, repeats: int = 1) -> dict:
     """Stage times (ms) per frame pair (t - 1, t) of ``frames``, and their medians."""
     from pcreg import cloud_pyramid, register
     from pcreg.fusion import FusionConfig, fuse, labels_from_log_odds, prior_from_labels, prior_log_odds, smooth_prior, warp_prior
-    from pcreg.pipeline import BACKEND_MODELS, _fit, log_odds
+    from pcreg.pipeline import BACKEND_MODELS, fit_classifier, log_odds
 
-    clf = _fit([frames[0]], ("rgb", "hsv", "row"))
+    clf = fit_classifier([frames[0]])
     pi = float(clf.class_prior_[1])
     fusion = FusionConfig()
     model = BACKEND_MODELS[backend]

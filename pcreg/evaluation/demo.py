@@ -158,11 +158,11 @@ def _pair_figure(frames, *, k: int, weight: float, out: Path, title: str) -> Non
     import numpy as np
 
     from .._io import atomic_save_figure
-    from ..pipeline import PipelineConfig, _fit, process_pair
+    from ..pipeline import PipelineConfig, fit_classifier, process_pair
 
     i = 0
     j = min(i + k, len(frames) - 1)
-    clf = _fit([frames[i]], PipelineConfig().features)
+    clf = fit_classifier([frames[i]], features=PipelineConfig().features)
     res, ex = process_pair(frames[i], frames[j], clf, weight=weight, indices=(i, j), keep_arrays=True,
                            temporal_source=frames[i].labels)
     unknown = frames[j].labels == 2

@@ -167,14 +167,14 @@ def run_unit(unit: Unit, *, recorder=None) -> dict:
     from .. import register, warp
     from ..errors import RegistrationError
     from ..metrics import error_rate
-    from ..pipeline import _fit
+    from ..pipeline import fit_classifier
     from ..transforms import about_point, image_center, max_corner_error
     from ._common import angle_key, load_cached
 
     cfg = unit.config
     t0 = time.perf_counter()
     frame = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset][unit.index]
-    clf = _fit([frame], tuple(cfg.features))
+    clf = fit_classifier([frame], features=cfg.features)
     shape = frame.shape
     out = {"dataset": unit.dataset, "index": unit.index, "name": frame.name, "backend": unit.backend, "angles": {}}
     for angle in cfg.angles:

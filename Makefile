@@ -39,6 +39,7 @@ bench: setup
 	$(BIN)/python tools/bench_registration.py --out out/bench
 	$(BIN)/python tools/bench_classifier.py --out out/bench
 	$(BIN)/python tools/bench_pipeline.py --out out/bench
+	$(BIN)/python tools/bench_recording.py --out out/bench
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -45,7 +45,7 @@ def test_process_pair_scores_every_method(frames, clf):
     assert all(0 <= v <= 100 for v in res.errors.values())
     assert res.errors["augmented"] < res.errors["plain"]
     assert extras["warped"].shape == frames[0].image.shape and extras["valid"].dtype == bool
-    assert extras["temporal_state"].dtype == np.float32
+    assert extras["temporal_labels"].dtype == np.uint8
     # the first step of a chain is the one-step fusion
     assert res.errors["augmented_temporal"] == pytest.approx(res.errors["augmented"])
     # the inputs are never modified (frames are read-only views)
@@ -69,29 +69,17 @@ def test_failed_registration_is_recorded_and_the_pair_still_scored(frames, clf):
 
 
 def test_temporal_update_passes_on_only_what_labels_reached(frames):
-    pi = 0.3
     d = np.zeros(frames[0].shape, np.float32)
     T = np.array([[1.0, 0, 20.0], [0, 1.0, 0], [0, 0, 1.0]])  # the reference lies 20 px to the right
-    fused, state = temporal_update(d, frames[0].labels, T, pi=pi, weight=4.0)
-    assert state.dtype == np.float32
-    assert np.allclose(state[:, -20:], pi)  # content new to the view carries no label
-    obstacle = frames[0].labels[:, 20:] == 1
-    inner = np.zeros_like(obstacle)
-    inner[5:-5, 5:-5] = True
-    assert np.all(state[:, :-20][obstacle & inner] > 0.5) or not (obstacle & inner).any()
-    # the classifier overrules the prior where it is sure: that pixel forgets its label
-    d_sure = np.full(frames[0].shape, -100.0, np.float32)
-    _, forgot = temporal_update(d_sure, frames[0].labels, T, pi=pi, weight=4.0)
-    assert np.all(forgot <= 0.5)
-    # every step forgets a little: a label carried twice counts less than a label carried once
-    _, twice = temporal_update(d, state, np.eye(3), pi=pi, weight=4.0)
-    sure = state > 0.9
-    assert sure.any() and np.all(twice[sure] < state[sure])
-    fused_none, state_none = temporal_update(d, frames[0].labels, None, pi=pi, weight=4.0)
-    assert np.allclose(state_none, pi) and np.array_equal(fused_none, d)
-    chain = TemporalFusion(frames[0].labels, pi=pi, weight=4.0)
+    fused, labels = temporal_update(d, frames[0].labels, T, pi=0.3, weight=4.0)
+    assert np.all(labels[:, -20:] == 2)  # content new to the view carries no label
+    known = labels < 2
+    assert known.any()
+    fused_none, labels_none = temporal_update(d, frames[0].labels, None, pi=0.3, weight=4.0)
+    assert np.all(labels_none == 2) and np.array_equal(fused_none, d)
+    chain = TemporalFusion(frames[0].labels, pi=0.3, weight=4.0)
     out = chain.step(d, T)
-    assert np.array_equal(out, fused) and np.array_equal(chain.state, state)
+    assert np.array_equal(out, fused) and np.array_equal(chain.labels, labels)
 
 
 def test_run_sequence_walks_pairs_and_chooses_the_weight_on_the_first_frames(frames):

@@ -191,6 +191,21 @@ def _pair_figure(frames, *, k: int, weight: float, out: Path, title: str) -> Non
     plt.close(fig)
 
 
+_METHODS_TEXT = """Frame i + k is registered to frame i; naive Bayes is trained on frame i. Error rates in percent,
+unknown truth left out; the fusion weight w is chosen on the first frames of each sequence, which are
+not scored.
+
+- `plain`: naive Bayes on frame i + k, against its labels.
+- `thesis_before` / `thesis_after`: naive Bayes on frame i + k unregistered / warped onto frame i
+  (black border included), against frame i's labels (the thesis's before and after).
+- `thesis_after_masked` / `thesis_after_cropped`: the border classified from the unwarped frame / left out.
+- `augmented`: naive Bayes fused with frame i's labels warped into frame i + k as a prior.
+- `augmented_unregistered`: the same prior without the warp (what registration adds).
+- `augmented_temporal`: labels used only at the start of each chain, then carried frame to frame.
+- `propagated`: frame i's warped labels alone (naive Bayes where they say nothing).
+"""
+
+
 def _report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path) -> str:
     from .._io import markdown_table
     from . import classification, rotation, sequence
@@ -219,6 +234,7 @@ def _report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path) 
                  f"{cc['rotation_disagreement_deg']:.4f} degrees (full report: crosscheck.json).\n")
     parts.append("## 4. Sequences: registration and label propagation (thesis Ch. 6-7)\n")
     parts.append("![pair](pair.png)\n")
+    parts.append(_METHODS_TEXT)
     for b in sres["backends"]:
         header, rows = sequence.table(sres, b)
         parts.append(f"Backend {b}, mean error % over pairs (i, i+k):\n\n" + markdown_table(header, rows) + "\n")

@@ -77,3 +77,19 @@ def test_bad_values_exit_2_with_one_line(tmp_path, capsys):
     assert main(["evaluate", "rotation", *SMALL, "--samples", "0", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--samples" in err[0]
+
+
+def test_recording_holds_the_error_series_of_results_json(tmp_path):
+    from viz.readback import read_recording
+
+    rrd = tmp_path / "rot.rrd"
+    assert main(["evaluate", "rotation", *SMALL, "--angles", "0,90", "--out", str(tmp_path / "r"),
+                 "--record", str(rrd)]) == 0
+    res = json.loads((tmp_path / "r" / "results.json").read_text())
+    rec = read_recording(rrd)
+    for key in KEYS:
+        series = rec.series(f"errors/syn1a/frame0/reference/{key}")
+        assert sorted(series) == [0, 1]
+        assert [series[0], series[1]] == pytest.approx(
+            [res["datasets"]["syn1a"]["angles"][a][key] / 100.0 for a in ("0", "90")])
+    assert len(rec.get("transforms/T_ref_mov")) == 2

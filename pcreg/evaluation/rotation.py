@@ -160,8 +160,9 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
     return image_r, labels_r, content, T_rot
 
 
-def run_unit(unit: Unit, *, recorder=None) -> dict:
-    """Every angle for one sampled frame with one backend: a pure function of ``unit``."""
+def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
+    """Every angle for one sampled frame with one backend: a pure function of ``unit``. With a
+    recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``)."""
     import numpy as np
 
     from .. import register, warp
@@ -177,6 +178,7 @@ def run_unit(unit: Unit, *, recorder=None) -> dict:
     clf = fit_classifier([frame], features=cfg.features)
     shape = frame.shape
     out = {"dataset": unit.dataset, "index": unit.index, "name": frame.name, "backend": unit.backend, "angles": {}}
+    counter = frame_counter if frame_counter is not None else [0]
     for angle in cfg.angles:
         image_r, labels_r, content, T_rot = rotate_frame(frame.image, frame.labels, angle, canvas=cfg.canvas)
         T_centre = about_point(np.eye(3), image_center(image_r.shape), image_center(shape))
@@ -212,9 +214,8 @@ def run_unit(unit: Unit, *, recorder=None) -> dict:
         row["reason"] = reason
         out["angles"][angle_key(angle)] = row
         if recorder is not None:
-            step = getattr(recorder, "_pcreg_pairs", 0)
-            recorder._pcreg_pairs = step + 1
-            recorder.set_frame(step)
+            recorder.set_frame(counter[0])
+            counter[0] += 1
             prefix = f"{unit.dataset}/frame{unit.index}/{unit.backend}"
             recorder.log_text(f"{prefix}: rotated by {angle:g} degrees")
             recorder.log_images(reference=frame.image, moving=image_r, warped=warped, valid_mask=valid)
@@ -279,8 +280,9 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
 
     if recorder is not None:
         recorder.log_config(cfg_dict)
+        counter = [0]
         for u in todo:
-            keep(u, run_unit(u, recorder=recorder))
+            keep(u, run_unit(u, recorder=recorder, frame_counter=counter))
     else:
         run_units(run_unit, todo, executor=executor or _InlineExecutor(), desc="rotation", on_result=keep,
                   show_progress=show_progress)

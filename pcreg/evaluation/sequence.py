@@ -168,9 +168,10 @@ def run(args: argparse.Namespace) -> int:
 # units
 # ---------------------------------------------------------------------------------------------
 
-def run_unit(unit: Unit, *, recorder=None) -> dict:
+def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
     """One (dataset, k, backend): a pure function of ``unit`` (data from the per-process cache).
-    With a recorder, every scored pair is logged (images, transform, warp, labels, error rates)."""
+    With a recorder, every scored pair is logged (images, transform, warp, labels, error rates) at the
+    next index of the recording's ``frame`` timeline (``frame_counter[0]``, advanced per pair)."""
     from ..errors import InputError
     from ..pipeline import run_sequence
     from ._common import load_cached
@@ -180,7 +181,7 @@ def run_unit(unit: Unit, *, recorder=None) -> dict:
     frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
     on_pair = icp = None
     if recorder is not None:
-        on_pair, icp = _recording_hooks(recorder, unit)
+        on_pair, icp = _recording_hooks(recorder, unit, frame_counter if frame_counter is not None else [0])
     try:
         res = run_sequence(frames, k=unit.k, config=cfg.pipeline(unit.backend), train=cfg.train,
                            fusion_frames=cfg.fusion_frames, on_pair=on_pair, icp_callback=icp)
@@ -194,8 +195,7 @@ def run_unit(unit: Unit, *, recorder=None) -> dict:
     return out
 
 
-def _recording_hooks(rec, unit: Unit):
-    counter = [getattr(rec, "_pcreg_pairs", 0)]
+def _recording_hooks(rec, unit: Unit, counter: list[int]):
     prefix = f"{unit.dataset}/k{unit.k}/{unit.backend}"
     rec.log_text(f"sequence {prefix}: start")
 
@@ -203,7 +203,6 @@ def _recording_hooks(rec, unit: Unit):
         ref, mov = frames
         rec.set_frame(counter[0])
         counter[0] += 1
-        rec._pcreg_pairs = counter[0]
         rec.log_text(f"{prefix}: frame {result.moving} registered to frame {result.reference}")
         rec.log_images(reference=ref.image, moving=mov.image, warped=extras["warped"], valid_mask=extras["valid"])
         if result.registered:
@@ -259,8 +258,9 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
 
     if recorder is not None:
         recorder.log_config(cfg_dict)
+        counter = [0]
         for u in todo:
-            keep(u, run_unit(u, recorder=recorder))
+            keep(u, run_unit(u, recorder=recorder, frame_counter=counter))
     else:
         run_units(run_unit, todo, executor=executor or _InlineExecutor(), desc="sequence", on_result=keep,
                   show_progress=show_progress)

@@ -131,5 +131,6 @@ def test_helpers():
     assert resolve_fusion_frames(100, fusion_frames=3, train="first:7") == 3
     with pytest.raises(InputError):
         PipelineConfig(backend="nope")
-    assert PipelineConfig(backend="open3d").registration_model == "rigid"
+    assert PipelineConfig(backend="open3d").registration_model == "similarity"
+    assert PipelineConfig(backend="open3d", model="rigid").registration_model == "rigid"
     assert PipelineConfig().registration_model == "similarity"

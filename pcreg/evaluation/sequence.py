@@ -115,7 +115,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", choices=("identity", "auto"), default="identity",
                         help="registration start: identity (default) or auto (global rotation search)")
     parser.add_argument("--model", default="auto",
-                        help="motion model: auto (similarity for reference, rigid for open3d), rigid, similarity, affine")
+                        help="motion model: auto (similarity for both backends), rigid, similarity, affine")
     parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
     parser.add_argument("--out", default="out/sequence", help="output folder (default out/sequence)")

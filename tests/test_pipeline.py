@@ -134,3 +134,17 @@ def test_helpers():
     assert PipelineConfig(backend="open3d").registration_model == "similarity"
     assert PipelineConfig(backend="open3d", model="rigid").registration_model == "rigid"
     assert PipelineConfig().registration_model == "similarity"
+
+
+def test_a_sequence_goes_on_past_a_failed_registration(frames):
+    seq = list(frames[:6])
+    seq[3] = Frame(np.full_like(frames[3].image, 90), frames[3].labels, "flat")
+    res = run_sequence(seq, k=1, fusion_frames=2)
+    failed = {(f["reference"], f["moving"]) for f in res.failures}
+    assert failed == {(2, 3), (3, 4)}
+    assert all(f["reason"] for f in res.failures)
+    assert [p.moving for p in res.pairs] == [2, 3, 4, 5]
+    for p in res.pairs:
+        assert np.isfinite(p.errors["plain"])
+        if not p.registered:
+            assert p.errors["augmented"] == p.errors["plain"]

@@ -149,7 +149,7 @@ def main(argv=None) -> int:
     ax.axvline(FLOOR_MS, color="red", ls="--", lw=1, label=f"floor {FLOOR_MS:g} ms")
     ax.set_xlabel("median ms per 640x480 frame")
     ax.set_title(f"Pipeline stages, {desc}", fontsize=10)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax.grid(alpha=0.3, axis="x")
     ax.invert_yaxis()
     fig.tight_layout()

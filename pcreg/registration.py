@@ -279,7 +279,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
             raise InputError(f"init must be 'auto', 'global', 'identity', 'center' or a 3x3 matrix, got {init!r}")
         if init in ("auto", "global"):
             g_level = min(3, levels - 1)
-            while g_level > 0 and (len(mov_levels[g_level]) < 30 or len(ref_levels[g_level]) < 30):
+            # The search needs enough points to tell hypotheses apart: go finer until it has them.
+            while g_level > 0 and (len(mov_levels[g_level]) < 100 or len(ref_levels[g_level]) < 100):
                 g_level -= 1
             angles = np.array([0.0]) if model == "translation" else np.arange(0.0, 360.0, angle_step)
             Ts, score = _global_search(ref_levels[g_level], mov_levels[g_level], angles=angles)

@@ -193,3 +193,20 @@ def test_register_real_camvid_pair(shared_data):
 def test_register_bad_input(moving, kwargs, error, message):
     with pytest.raises(error, match=message):
         pcreg.register(REF, moving, **kwargs)
+
+
+@pytest.mark.parametrize("angle", [15.0, 60.0, 200.0])
+def test_register_noisy_texture_onto_a_larger_canvas(angle):
+    # A synthetic frame with hard lighting and sensor noise, rotated onto a canvas that holds all of it:
+    # few coarse edges, so the global search has to pick a finer level.
+    import cv2
+
+    frame = pcreg.synthetic("syn2b", 1, 0, width=320, height=240)[0].image
+    M = cv2.getRotationMatrix2D((159.5, 119.5), angle, 1.0)
+    c, s = abs(M[0, 0]), abs(M[0, 1])
+    w, h = int(np.ceil(320 * c + 240 * s)), int(np.ceil(320 * s + 240 * c))
+    M[:, 2] += [(w - 1) / 2 - 159.5, (h - 1) / 2 - 119.5]
+    rotated = cv2.warpAffine(frame, M, (w, h))
+    T_rot = np.vstack([M, [0, 0, 1]])  # frame -> canvas; registering the canvas to the frame gives its inverse
+    r = pcreg.register(frame, rotated)
+    assert tf.max_corner_error(r.matrix, np.linalg.inv(T_rot), rotated.shape) < 0.5

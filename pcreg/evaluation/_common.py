@@ -150,6 +150,40 @@ class UnitStore:
         atomic_write_json(self.path(key), result)
 
 
+def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=None,
+                  executor=None, desc: str = "", show_progress: bool | None = None) -> tuple[dict, int]:
+    """Run the units not finished yet (``store`` keeps each result as it lands), in this process when
+    recording (one recorder, frames in order), else through ``executor``.
+
+    Returns the results by unit key (finished and new) and how many came from an earlier run.
+    """
+    from .._runner import _InlineExecutor, run_units
+
+    done: dict[str, dict] = {}
+    todo = []
+    for u in units:
+        prev = store.load(u.key) if store is not None else None
+        if prev is not None:
+            done[u.key] = prev
+        else:
+            todo.append(u)
+
+    def keep(unit, result: dict) -> None:
+        done[unit.key] = result
+        if store is not None:
+            store.save(unit.key, result)
+
+    if recorder is not None:
+        recorder.log_config(cfg_dict)
+        counter = [0]
+        for u in todo:
+            keep(u, run_unit(u, recorder=recorder, frame_counter=counter))
+    else:
+        run_units(run_unit, todo, executor=executor or _InlineExecutor(), desc=desc, on_result=keep,
+                  show_progress=show_progress)
+    return done, len(units) - len(todo)
+
+
 def nan_to_none(obj: Any) -> Any:
     """Replace float NaN/inf with None (strict JSON for results.json)."""
     import math

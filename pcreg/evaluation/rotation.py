@@ -248,10 +248,9 @@ def sample_indices(n: int, samples: int) -> list[int]:
 def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=None, show_progress: bool | None = None) -> dict:
     """Run every unit (resuming from ``out/units``); returns what results.json holds."""
-    from .._runner import _InlineExecutor, run_units
     from ..datasets import PRESETS
     from ..errors import DatasetError
-    from ._common import UnitStore, load_cached, plain_config
+    from ._common import UnitStore, load_cached, plain_config, run_resumable
 
     t0 = time.perf_counter()
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
@@ -264,33 +263,13 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
                 units.append(Unit(name, i, b, config))
     cfg_dict = plain_config(config)
     store = UnitStore(out, cfg_dict, force=force) if out is not None else None
-    done: dict[str, dict] = {}
-    todo = []
-    for u in units:
-        prev = store.load(u.key) if store is not None else None
-        if prev is not None:
-            done[u.key] = prev
-        else:
-            todo.append(u)
-
-    def keep(unit: Unit, result: dict) -> None:
-        done[unit.key] = result
-        if store is not None:
-            store.save(unit.key, result)
-
-    if recorder is not None:
-        recorder.log_config(cfg_dict)
-        counter = [0]
-        for u in todo:
-            keep(u, run_unit(u, recorder=recorder, frame_counter=counter))
-    else:
-        run_units(run_unit, todo, executor=executor or _InlineExecutor(), desc="rotation", on_result=keep,
-                  show_progress=show_progress)
+    done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
+                                  executor=executor, desc="rotation", show_progress=show_progress)
     results = summarise(config, [done[u.key] for u in units])
     for name in results["datasets"]:
         if name in PRESETS:
             results["datasets"][name]["mirrors"] = PRESETS[name].mirrors
-    results["resumed_units"] = len(units) - len(todo)
+    results["resumed_units"] = resumed
     results["seconds"] = time.perf_counter() - t0
     return results
 

@@ -221,17 +221,20 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
              sampler: str = "canny", max_points: Sequence[int | None] | int | None = (1000, 800, 600, 400),
              reference_max_points: int | None = None, max_correspondence_distance: float = 2.5,
              refine: str | None = "point_to_line", weights: str = "none",
-             relative_fitness: float = 1e-4, relative_rmse: float = 1e-3, angle_step: float = 15.0, n_candidates: int = 2,
+             relative_fitness: float = 1e-4, relative_rmse: float = 1e-3, angle_step: float = 15.0,
+             n_candidates: int = 2,
              reference_mask: np.ndarray | str | None = "auto", moving_mask: np.ndarray | str | None = "auto",
              canny_percentile: float = 85.0, seed: int = 0,
              callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
     """Register ``moving_image`` to ``reference_image``: the returned ``matrix`` is ``T_ref_mov``.
 
     Both images become edge clouds (:func:`pcreg.image_cloud`) at pyramid levels 0..levels-1. With
-    ``init="auto"`` (or ``"global"``) a global search first tries rigid hypotheses every ``angle_step``
-    degrees over the full circle at the coarsest level (centres aligned, a few ICP iterations each) and
-    keeps the one with the best fitness, so any rotation in ±180° with shifts of ~10% of the image is
-    found; ``init="identity"`` or a 3x3 matrix skips it. ICP (``backend``) then refines from the
+    ``init="auto"`` (or ``"global"``) a global search (:func:`_global_search`) first rotates the moving
+    cloud every ``angle_step`` degrees over the full circle at the coarsest level with at least 100
+    points a side, finds each rotation's translation by FFT cross-correlation, gives the
+    ``n_candidates`` best a short rigid ICP and keeps the one that puts most points within one cell of
+    the reference, so any rotation in ±180° with shifts of ~10% of the image is found;
+    ``init="identity"``, ``"center"`` (image centres aligned) or a 3x3 matrix skips it. ICP (``backend``) then refines from the
     coarsest level to the finest with ``iterations`` iterations per level and a correspondence distance
     of ``max_correspondence_distance`` px x 2^level. ``refine="point_to_line"`` (reference backend)
     finishes with point-to-line iterations at full resolution, which removes the bias of matching
@@ -240,6 +243,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     reference_image, moving_image : (H, W, 3) uint8 RGB (also gray, uint16, float in [0, 1]); the
         sizes may differ.
     max_points : moving points kept per level (finest first), at random with ``seed``.
+    relative_fitness, relative_rmse : Open3D's stopping rule per level (absolute changes; the RMSE
+        threshold is in full-resolution px, scaled by 2^level); the point-to-line finish uses at most 1e-6.
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
     """
     ref_img = as_rgb_uint8(reference_image, name="reference image")
@@ -273,7 +278,6 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         return trees[level]
 
     T: np.ndarray
-    searched, g_level = False, levels - 1
     if isinstance(init, str):
         if init not in ("auto", "global", "identity", "center"):
             raise InputError(f"init must be 'auto', 'global', 'identity', 'center' or a 3x3 matrix, got {init!r}")
@@ -299,7 +303,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 tight = float(np.mean(d < 2**g_level))
                 if tight > best[0]:
                     best = (tight, Tk)
-            T, searched = best[1], True
+            T = best[1]
         elif init == "center":
             T = about_point(np.eye(3), image_center(mov_img.shape), image_center(ref_img.shape))
         else:
@@ -310,9 +314,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
             raise InputError("init must be a finite 3x3 matrix")
     total, conv, fit, rmse = 0, False, 0.0, 0.0
     p2l = refine == "point_to_line" and backend == "reference"
-    # After a global search the chosen hypothesis has already converged at its level (reference ICP).
-    first = g_level - 1 if (backend == "reference" and searched) else levels - 1
-    for level in range(first, 0 if p2l else -1, -1):
+    for level in range(levels - 1, 0 if p2l else -1, -1):
         s, t = mov_levels[level], ref_levels[level]
         if len(s) < 3 or len(t) < 3:
             continue

@@ -3,7 +3,7 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.pcreg-installed
+STAMP = $(VENV)/.pcreg-installed-$(OPEN3D)
 # Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU).
 APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1
 # OPEN3D=cuda installs the CUDA build of Open3D (907 MB) instead of the CPU build (312 MB).

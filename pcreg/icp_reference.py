@@ -279,8 +279,11 @@ def check_rank(points: np.ndarray, model: str) -> None:
 # The ICP loop
 # ---------------------------------------------------------------------------------------------------
 
-def build_tree(target: np.ndarray) -> cKDTree:
-    return cKDTree(target)  # balanced (median splits): slower to build, faster to query, and ICP queries often
+def build_tree(target: np.ndarray, *, queries: int | None = None) -> cKDTree:
+    """KD-tree of the target. Median splits (balanced) make queries faster and the build slower: worth it
+    when the tree will answer at least as many queries as it holds points (``queries``; None = yes)."""
+    balanced = queries is None or queries >= len(target)
+    return cKDTree(target, balanced_tree=balanced, compact_nodes=balanced)
 
 
 def _correspond(tree: cKDTree, pts: np.ndarray, max_dist: float):
@@ -312,7 +315,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
     d = source.shape[1]
     T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
     if tree is None:
-        tree = build_tree(target)
+        tree = build_tree(target, queries=source.shape[0] * (max_iteration + 1))
     if metric == "point_to_line" and (d != 2 or target_normals is None):
         metric = "point_to_point"
     pts = apply(T, source)

@@ -150,6 +150,30 @@ class UnitStore:
         atomic_write_json(self.path(key), result)
 
 
+def add_data_arguments(parser: argparse.ArgumentParser) -> None:
+    """--data, --frames, --size, --seed: which sequences an evaluation runs on."""
+    parser.add_argument("--data", default="synthetic",
+                        help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
+    parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic data (default 0)")
+
+
+def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
+    """--backend, --levels, --iterations, --workers, --scheduler, --out and the recording options."""
+    from ..commands._common import add_record_arguments, positive_int
+
+    parser.add_argument("--backend", choices=BACKEND_CHOICES, default="reference",
+                        help="ICP backend(s) (default reference)")
+    parser.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
+    parser.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
+    parser.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
+    parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
+    parser.add_argument("--out", default=out, help=f"output folder (default {out})")
+    add_record_arguments(parser)
+
+
 def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=None,
                   executor=None, desc: str = "", show_progress: bool | None = None) -> tuple[dict, int]:
     """Run the units not finished yet (``store`` keeps each result as it lands), in this process when

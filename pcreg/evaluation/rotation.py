@@ -26,7 +26,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ._common import BACKEND_CHOICES
 
 DEFAULT_ANGLES = tuple(float(a) for a in range(0, 181, 5))
 KEYS = ("before", "after", "after_masked", "after_cropped")
@@ -69,27 +68,15 @@ class Unit:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..commands._common import add_record_arguments
     from . import _common as c
 
-    parser.add_argument("--data", default="synthetic",
-                        help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
+    c.add_data_arguments(parser)
     parser.add_argument("--angles", type=c.angle_list, default=DEFAULT_ANGLES, metavar="A,B,...|START:STOP:STEP",
                         help="rotation angles in degrees (default 0:180:5)")
     parser.add_argument("--samples", type=int, default=3, help="frames per dataset, evenly spaced (default 3)")
     parser.add_argument("--canvas", choices=("loose", "crop"), default="loose",
                         help="loose: the rotated frame is kept whole (default); crop: original size")
-    parser.add_argument("--backend", choices=BACKEND_CHOICES, default="reference", help="ICP backend(s) (default reference)")
-    parser.add_argument("--frames", type=int, default=None,
-                        help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
-    parser.add_argument("--size", type=c.size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic data (default 0)")
-    parser.add_argument("--levels", type=int, default=4, help="pyramid levels (default 4)")
-    parser.add_argument("--iterations", type=int, default=14, help="ICP iterations per level (default 14)")
-    parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
-    parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
-    parser.add_argument("--out", default="out/rotation", help="output folder (default out/rotation)")
-    add_record_arguments(parser)
+    c.add_run_arguments(parser, out="out/rotation")
 
 
 def config_from_args(args: argparse.Namespace) -> RotationConfig:

@@ -23,7 +23,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ._common import BACKEND_CHOICES
 
 DEFAULT_INCREMENTS = (1, 4, 7, 10)
 #: Label maps logged per pair with ``--record`` (all methods' error rates are logged).
@@ -90,15 +89,11 @@ class Unit:
 # ---------------------------------------------------------------------------------------------
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..commands._common import add_record_arguments
     from . import _common as c
 
-    parser.add_argument("--data", default="synthetic",
-                        help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
+    c.add_data_arguments(parser)
     parser.add_argument("--increments", "-k", type=c.int_list, default=DEFAULT_INCREMENTS, metavar="K,K,...",
                         help="frame increments k (default 1,4,7,10)")
-    parser.add_argument("--backend", choices=BACKEND_CHOICES, default="reference",
-                        help="ICP backend(s) (default reference)")
     parser.add_argument("--train", type=c.train, default="reference",
                         help="reference (train on each pair's reference frame, default) or first:K")
     parser.add_argument("--fusion-frames", type=int, default=None, metavar="C",
@@ -106,20 +101,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "scored (default: the training frames for first:K, else 10%% of the sequence, >= 2)")
     parser.add_argument("--fusion-weight", type=float, default=None, metavar="W",
                         help="fixed fusion weight instead of choosing it on the fusion frames")
-    parser.add_argument("--frames", type=int, default=None,
-                        help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
-    parser.add_argument("--size", type=c.size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic data (default 0)")
-    parser.add_argument("--levels", type=int, default=4, help="pyramid levels (default 4)")
-    parser.add_argument("--iterations", type=int, default=14, help="ICP iterations per level (default 14)")
     parser.add_argument("--init", choices=("identity", "auto"), default="identity",
                         help="registration start: identity (default) or auto (global rotation search)")
     parser.add_argument("--model", default="auto",
                         help="motion model: auto (similarity for both backends), rigid, similarity, affine")
-    parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
-    parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
-    parser.add_argument("--out", default="out/sequence", help="output folder (default out/sequence)")
-    add_record_arguments(parser)
+    c.add_run_arguments(parser, out="out/sequence")
 
 
 def config_from_args(args: argparse.Namespace) -> SequenceConfig:

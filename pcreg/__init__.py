@@ -36,6 +36,11 @@ _EXPORTS = {
     "thesis_weight_search": "pcreg.bayes",
     "error_rate": "pcreg.metrics",
     "confusion_matrix": "pcreg.metrics",
+    # the registration-augmented pipeline
+    "PipelineConfig": "pcreg.pipeline",
+    "process_pair": "pcreg.pipeline",
+    "run_sequence": "pcreg.pipeline",
+    "FusionConfig": "pcreg.fusion",
     # errors
     "PcregError": "pcreg.errors",
     "InputError": "pcreg.errors",

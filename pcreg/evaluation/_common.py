@@ -174,6 +174,26 @@ def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
     add_record_arguments(parser)
 
 
+def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, write_outputs) -> int:
+    """The shared body of ``pcreg evaluate rotation|sequence``: run (recording in this process, else with
+    ``--workers``/``--scheduler``), write the outputs, print the first backend's table and the floors."""
+    from ..commands._common import open_recorder
+    from .._runner import make_executor
+
+    out = Path(args.out)
+    recording = bool(getattr(args, "record", None))
+    if recording and args.workers > 1:
+        print("note: --record runs every unit in this process (--workers ignored)")
+    with open_recorder(args, name=f"pcreg evaluate {name}") as rec:
+        with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
+            results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
+    written = write_outputs(results, out)
+    print(f"wrote {len(written)} files to {out}")
+    print((out / f"{name}_{config.backends[0]}.md").read_text(), end="")
+    print((out / "floors.md").read_text(), end="")
+    return 0
+
+
 def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=None,
                   executor=None, desc: str = "", show_progress: bool | None = None) -> tuple[dict, int]:
     """Run the units not finished yet (``store`` keeps each result as it lands), in this process when

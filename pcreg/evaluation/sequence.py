@@ -132,22 +132,9 @@ def config_from_args(args: argparse.Namespace) -> SequenceConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..commands._common import open_recorder
-    from .._runner import make_executor
+    from ._common import run_command
 
-    config = config_from_args(args)
-    out = Path(args.out)
-    recording = bool(getattr(args, "record", None))
-    if recording and args.workers > 1:
-        print("note: --record runs every unit in this process (--workers ignored)")
-    with open_recorder(args, name="pcreg evaluate sequence") as rec:
-        with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
-            results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
-    written = write_outputs(results, out)
-    print(f"wrote {len(written)} files to {out}")
-    print((out / f"sequence_{config.backends[0]}.md").read_text(), end="")
-    print((out / "floors.md").read_text(), end="")
-    return 0
+    return run_command(args, config_from_args(args), name="sequence", evaluate=evaluate, write_outputs=write_outputs)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -17,10 +17,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import InputError
-from .clouds import as_rgb_uint8, cloud_pyramid, load_image
-from .registration import _global_search, check_cloud, icp
-from .result import IcpIteration, RegistrationResult
-from .transforms import apply, corners, rotation_disagreement_deg
+from .registration.clouds import as_rgb_uint8, cloud_pyramid, load_image
+from .registration.api import _global_search, check_cloud, icp
+from .registration.result import IcpIteration, RegistrationResult
+from .registration.transforms import apply, corners, rotation_disagreement_deg
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")

@@ -19,7 +19,7 @@ The methods (keys of :data:`METHODS`), each an error rate in percent:
   the unwarped moving frame (every pixel scored).
 - ``thesis_after_cropped``: as ``thesis_after``, scored on the valid mask only (the border left out).
 - ``augmented``: naive Bayes on the moving frame fused with the reference labels warped into it as a
-  prior (:mod:`pcreg.fusion`), against the moving labels.
+  prior (:mod:`pcreg.classification.fusion`), against the moving labels.
 - ``augmented_unregistered``: the same fusion with the prior not warped (identity): the ablation that
   shows what registration adds.
 - ``augmented_temporal``: recursive fusion along the sequence: the fused posterior of frame t - k,
@@ -43,7 +43,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import InputError, RegistrationError
-from .fusion import (FusionConfig, WeightChoice, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
+from .classification.fusion import (FusionConfig, WeightChoice, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
                      prior_from_log_odds, prior_log_odds, smooth_prior, warp_prior)
 
 __all__ = [
@@ -86,8 +86,8 @@ class PipelineConfig:
     init : ``"identity"`` (the default: pairs of a sequence are close) or ``"auto"`` (global rotation
         search, any angle; needed for large rotations, but on sequences it sometimes locks onto a
         half-turn when the frames are far apart).
-    features : naive Bayes features (:mod:`pcreg.features`).
-    fusion : :class:`pcreg.fusion.FusionConfig`.
+    features : naive Bayes features (:mod:`pcreg.classification.features`).
+    fusion : :class:`pcreg.classification.fusion.FusionConfig`.
     """
 
     backend: str = "reference"
@@ -117,7 +117,7 @@ class PipelineConfig:
 
 def _diff_tables(classifier) -> tuple[np.ndarray, float]:
     """(F, 256) float32 ``log N(v; obstacle) - log N(v; ground)`` per feature and value, and the
-    log prior ratio, from a fitted :class:`~pcreg.bayes.NaiveBayesPixelClassifier`'s parameters."""
+    log prior ratio, from a fitted :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier`'s parameters."""
     classes = list(np.asarray(classifier.classes_).tolist())
     if classes[:2] != [0, 1] or len(classes) != 2:
         raise InputError(f"fusion needs a ground/obstacle classifier (classes [0, 1]), got {classes}")
@@ -133,7 +133,7 @@ def _diff_tables(classifier) -> tuple[np.ndarray, float]:
 def log_odds(classifier, image: np.ndarray) -> np.ndarray:
     """Naive Bayes log-odds ``log p(obstacle | x) - log p(ground | x)`` per pixel, (H, W) float32.
 
-    classifier : a fitted :class:`~pcreg.bayes.NaiveBayesPixelClassifier` over ground and obstacle.
+    classifier : a fitted :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier` over ground and obstacle.
     image : (H, W, 3) uint8 RGB. Uses the classifier's ``decision_function`` where it has one; otherwise
     evaluates its Gaussians through 256-entry float32 tables (``> 0`` gives ``classifier.predict``).
     """
@@ -141,7 +141,7 @@ def log_odds(classifier, image: np.ndarray) -> np.ndarray:
         return np.asarray(classifier.decision_function(image), dtype=np.float32)
     import cv2
 
-    from .features import check_image, feature_groups
+    from .classification.features import check_image, feature_groups
 
     image = check_image(image)
     tables, bias = _diff_tables(classifier)
@@ -165,8 +165,8 @@ def log_odds(classifier, image: np.ndarray) -> np.ndarray:
 
 
 def fit_classifier(frames: Sequence, *, features: Sequence[str] = ("rgb", "hsv", "row")):
-    """A :class:`~pcreg.bayes.NaiveBayesPixelClassifier` fitted on labelled frames (unknown left out)."""
-    from .bayes import NaiveBayesPixelClassifier
+    """A :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier` fitted on labelled frames (unknown left out)."""
+    from .classification.bayes import NaiveBayesPixelClassifier
 
     return NaiveBayesPixelClassifier(tuple(features)).fit([f.image for f in frames], [f.labels for f in frames])
 
@@ -193,7 +193,7 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
 
 
 def _err(pred: np.ndarray, truth: np.ndarray | None, mask: np.ndarray | None = None) -> float:
-    from .metrics import error_rate
+    from .classification.metrics import error_rate
 
     if truth is None:
         return float("nan")
@@ -290,7 +290,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     recording shows (``warped``, ``valid``, ``predicted`` {method: labels}).
     """
     from .datasets import relative_transform
-    from .transforms import max_corner_error
+    from .registration.transforms import max_corner_error
     from . import warp
 
     if reference.shape != moving.shape:
@@ -423,7 +423,7 @@ class SequenceResult:
     """One sequence at one increment with one backend.
 
     k : increment. backend : ICP backend. fusion_frames : frames 0..C-1 that chose the weight.
-    weight : :class:`~pcreg.fusion.WeightChoice` (``pairs == 0`` when fixed or not choosable).
+    weight : :class:`~pcreg.classification.fusion.WeightChoice` (``pairs == 0`` when fixed or not choosable).
     temporal_weight : the same for the recursive (temporal) fusion, chosen on the same frames.
     pairs : scored :class:`PairResult` (moving frame >= C). means : {method: mean error % over pairs}.
     failures : [{"reference", "moving", "reason"}] of the scored pairs. notes : why pairs are missing.

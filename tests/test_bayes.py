@@ -1,4 +1,4 @@
-"""pcreg.bayes, pcreg.features, pcreg.metrics: the lookup-table Gaussian NB against scikit-learn's."""
+"""pcreg.classification.bayes, pcreg.classification.features, pcreg.classification.metrics: the lookup-table Gaussian NB against scikit-learn's."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.naive_bayes import GaussianNB
 
-from pcreg.bayes import NaiveBayesPixelClassifier, class_histograms, thesis_weight_search
+from pcreg.classification.bayes import NaiveBayesPixelClassifier, class_histograms, thesis_weight_search
 from pcreg.datasets import synthetic
 from pcreg.errors import InputError
-from pcreg.features import FEATURES, feature_groups, feature_matrix, feature_names, feature_planes, parse_features
-from pcreg.metrics import confusion_matrix, error_from_confusion, error_rate
+from pcreg.classification.features import FEATURES, feature_groups, feature_matrix, feature_names, feature_planes, parse_features
+from pcreg.classification.metrics import confusion_matrix, error_from_confusion, error_rate
 
 W, H = 80, 60
 WEIGHTS = (0.2, 0.5, 0.3)

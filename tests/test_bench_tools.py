@@ -62,7 +62,7 @@ def test_ecc_warp_direction_on_a_pure_translation():
     """ECC's warp maps reference -> moving pixels; the tool inverts it into T_ref_mov."""
     import numpy as np
 
-    from pcreg.transforms import max_corner_error, rigid2d
+    from pcreg.registration.transforms import max_corner_error, rigid2d
 
     bench = _load("bench_registration")
     rng = np.random.default_rng(0)

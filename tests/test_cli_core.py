@@ -54,7 +54,7 @@ def test_register_records(pair, tmp_path):
     rrd = tmp_path / "reg.rrd"
     p = run("register", d / "ref.png", d / "mov.png", "--json", "--record", rrd)
     assert p.returncode == 0, p.stderr
-    from viz.readback import read_recording, tensor
+    from pcreg.recording.readback import read_recording, tensor
 
     logged = tensor(read_recording(rrd).latest("transforms/T_ref_mov", frame=0))
     np.testing.assert_array_equal(logged, np.array(json.loads(p.stdout)["matrix"]))

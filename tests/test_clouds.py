@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from pcreg import InputError, cloud_pyramid, image_cloud, load_image
-from pcreg.clouds import as_rgb_uint8, valid_region
+from pcreg.registration.clouds import as_rgb_uint8, valid_region
 
 
 def square(h=120, w=160, *, angle=0.0):

@@ -5,11 +5,11 @@ from __future__ import annotations
 import json
 
 from pcreg.cli import main
-from pcreg.evaluation.demo import DemoConfig, run_demo
+from pcreg.experiments.demo import DemoConfig, run_demo
 
 
 def test_demo_writes_report_figures_and_recording(tmp_path):
-    from viz.readback import read_recording
+    from pcreg.recording.readback import read_recording
 
     out = tmp_path / "demo"
     config = DemoConfig(presets=("syn1a",), frames=8, size=(160, 120), increments=(1, 4), angles=(0.0, 90.0))

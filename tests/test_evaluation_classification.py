@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import scipy.io
 
-from pcreg.bayes import NaiveBayesPixelClassifier, thesis_weight_search
+from pcreg.classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
 from pcreg.datasets import synthetic
 from pcreg.errors import PcregError
-from pcreg.evaluation import classification
-from pcreg.metrics import confusion_matrix, error_from_confusion
+from pcreg.experiments import classification
+from pcreg.classification.metrics import confusion_matrix, error_from_confusion
 
 SMALL = ["--frames", "6", "--size", "48x36", "--trials", "4"]
 

@@ -9,8 +9,8 @@ import pytest
 
 from pcreg.cli import main
 from pcreg.datasets import synthetic
-from pcreg.evaluation.rotation import KEYS, rotate_frame, sample_indices
-from pcreg.transforms import apply
+from pcreg.experiments.rotation import KEYS, rotate_frame, sample_indices
+from pcreg.registration.transforms import apply
 
 SMALL = ["--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120", "--samples", "1"]
 
@@ -80,7 +80,7 @@ def test_bad_values_exit_2_with_one_line(tmp_path, capsys):
 
 
 def test_recording_holds_the_error_series_of_results_json(tmp_path):
-    from viz.readback import read_recording
+    from pcreg.recording.readback import read_recording
 
     rrd = tmp_path / "rot.rrd"
     assert main(["evaluate", "rotation", *SMALL, "--angles", "0,90", "--out", str(tmp_path / "r"),

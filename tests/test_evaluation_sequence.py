@@ -81,7 +81,7 @@ def test_one_frame_dataset(tmp_path):
 
 
 def test_recording_holds_the_error_series_of_results_json(tmp_path):
-    from viz.readback import read_recording
+    from pcreg.recording.readback import read_recording
 
     rrd = tmp_path / "seq.rrd"
     assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "6", "--size", "160x120",

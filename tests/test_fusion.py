@@ -1,4 +1,4 @@
-"""pcreg.fusion: priors from labels, their warp into the moving frame, fusion and the weight choice."""
+"""pcreg.classification.fusion: priors from labels, their warp into the moving frame, fusion and the weight choice."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from pcreg.errors import InputError
-from pcreg.fusion import (FusionConfig, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
+from pcreg.classification.fusion import (FusionConfig, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
                           prior_from_log_odds, prior_log_odds, smooth_prior, warp_prior)
-from pcreg.transforms import rigid2d
+from pcreg.registration.transforms import rigid2d
 
 
 def _labels(h=40, w=60):

@@ -3,7 +3,7 @@ import pytest
 
 from pcreg import transforms as tf
 from pcreg.errors import RegistrationError
-from pcreg.icp_reference import (
+from pcreg.registration.reference import (
     check_rank,
     estimate,
     estimate_horn_quaternion,

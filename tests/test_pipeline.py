@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pcreg.bayes import NaiveBayesPixelClassifier
+from pcreg.classification.bayes import NaiveBayesPixelClassifier
 from pcreg.datasets import Frame, synthetic
 from pcreg.errors import InputError
-from pcreg.fusion import FusionConfig
+from pcreg.classification.fusion import FusionConfig
 from pcreg.pipeline import (METHODS, STAGES, PipelineConfig, TemporalFusion, log_odds, pair_indices, process_pair,
                             register_pair, resolve_fusion_frames, run_sequence, temporal_update)
 

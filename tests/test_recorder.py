@@ -1,4 +1,4 @@
-"""pcreg.recorder: recordings are read back with rerun.chunk.RrdReader (through viz.readback) and checked by value."""
+"""pcreg.recording.recorder: recordings are read back with rerun.chunk.RrdReader (through pcreg.recording.readback) and checked by value."""
 
 from __future__ import annotations
 
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from pcreg.errors import InputError, OutputError
-from pcreg.recorder import Recorder
-from pcreg.result import IcpIteration
-from viz import entities as E
-from viz.readback import image, points, read_recording, scalar, segmentation, tensor, text
+from pcreg.recording.recorder import Recorder
+from pcreg.registration.result import IcpIteration
+from pcreg.recording import entities as E
+from pcreg.recording.readback import image, points, read_recording, scalar, segmentation, tensor, text
 
 RERUN = Path(sys.executable).parent / "rerun"
 H, W = 48, 64
@@ -231,7 +231,7 @@ def test_interrupted_recording_is_readable_up_to_where_it_stopped(tmp_path):
     child = textwrap.dedent(f"""
         import sys, time
         import numpy as np
-        from pcreg.recorder import Recorder
+        from pcreg.recording.recorder import Recorder
         rec = Recorder({str(path)!r})
         for f in range(1000):
             rec.set_frame(f)

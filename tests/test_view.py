@@ -11,7 +11,7 @@ import pytest
 
 from pcreg.commands import view
 from pcreg.errors import PcregError
-from pcreg.recorder import Recorder
+from pcreg.recording.recorder import Recorder
 
 
 def pcreg_view(argv: list[str]) -> int:

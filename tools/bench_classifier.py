@@ -41,9 +41,9 @@ def bench(*, repeats: int = 30, sklearn_repeats: int = 5, width: int = 640, heig
     """Timings per feature set (milliseconds, medians) and the agreement of the two predictions."""
     import cv2
 
-    from pcreg.bayes import NaiveBayesPixelClassifier, thesis_weight_search
+    from pcreg.classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
     from pcreg.datasets import synthetic
-    from pcreg.features import feature_matrix
+    from pcreg.classification.features import feature_matrix
 
     frames = synthetic("syn1b", 12, seed, width=width, height=height)
     train, test = frames[:10], frames[10:]

@@ -45,7 +45,7 @@ def _frames(data: str, n: int, seed: int):
 def bench(frames, *, backend: str, init: str, repeats: int = 1) -> dict:
     """Stage times (ms) per frame pair (t - 1, t) of ``frames``, and their medians."""
     from pcreg import cloud_pyramid, register
-    from pcreg.fusion import FusionConfig, fuse, labels_from_log_odds, prior_from_labels, prior_log_odds, smooth_prior, warp_prior
+    from pcreg.classification.fusion import FusionConfig, fuse, labels_from_log_odds, prior_from_labels, prior_log_odds, smooth_prior, warp_prior
     from pcreg.pipeline import BACKEND_MODELS, fit_classifier, log_odds
 
     clf = fit_classifier([frames[0]])

@@ -3,7 +3,7 @@ of a 100-frame 640x480 recording with JPEG frames.
 
 Each frame runs a realistic pipeline on a pair of 640x480 frames (i, i+1) -- edge cloud, registration,
 warp, valid mask, per-pixel Gaussian naive Bayes, error rates -- once without and once with a
-:class:`pcreg.recorder.Recorder` logging everything a sequence evaluation logs per frame (reference,
+:class:`pcreg.recording.recorder.Recorder` logging everything a sequence evaluation logs per frame (reference,
 moving and warped images as JPEG, valid mask, both clouds, the transform, truth and predicted labels,
 errors). Runs alternate off/on ``--repeats`` times; the ratio is median(on) / median(off).
 
@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pcreg._io import atomic_write_json, atomic_write_text, markdown_table  # noqa: E402
-from pcreg.recorder import DEFAULT_JPEG_QUALITY, Recorder  # noqa: E402
+from pcreg.recording.recorder import DEFAULT_JPEG_QUALITY, Recorder  # noqa: E402
 
 CAMVID = ROOT.parent / "shared" / "data" / "camvid" / "0016E5"
 CAMVID_TO_LAGR = np.array([2, 1, 1, 0, 0, 1, 1, 1, 1, 1, 1, 2] + [2] * 244, np.uint8)

@@ -14,7 +14,7 @@ Each case is registered by
   failure (error = inf).
 
 The error is the largest distance (px) between the moving image's four corners mapped by the estimate
-and by the truth (``pcreg.transforms.max_corner_error``); success is error <= 1 px. Times are wall
+and by the truth (``pcreg.registration.transforms.max_corner_error``); success is error <= 1 px. Times are wall
 clock around each call (ECC's includes the grayscale conversion); the methods run in a shuffled order
 per case and the time ratio pcreg / ECC is taken per case, in the same run, and summarised by its
 median. A second sweep with angles uniform in [-180, 180] gives the success rate over angle.
@@ -22,7 +22,7 @@ median. A second sweep with angles uniform in [-180, 180] gives the success rate
 Part 2 (scaling). Identical clouds of 1k..100k points -- 2-D: the strongest-gradient pixels (sub-pixel)
 of a CamVid frame upscaled 3x and of its copy rotated by 3 deg and shifted; 3-D: random subsets of the
 LiDAR pair ``../shared/data/scans`` -- registered by pcreg's reference ICP
-(``pcreg.icp_reference.icp_reference``) and by Open3D's legacy ``registration_icp`` called directly in
+(``pcreg.registration.reference.icp_reference``) and by Open3D's legacy ``registration_icp`` called directly in
 one call, with the same correspondence distance and exactly ``--icp-iterations`` iterations
 (thresholds 0, so neither stops early). Both timings include building the KD-tree (Open3D builds it
 inside the call; the numpy -> PointCloud conversion is timed apart and not counted). The two
@@ -132,7 +132,7 @@ def make_cases(images: list[Path], n: int, *, max_angle: float, seed: int, shape
 
 
 def truth_matrix(case: dict, shape: tuple[int, ...]) -> np.ndarray:
-    from pcreg.transforms import about_point, image_center, rigid2d
+    from pcreg.registration.transforms import about_point, image_center, rigid2d
 
     c = image_center(shape)
     return about_point(rigid2d(case["angle_deg"], case["tx"], case["ty"]), c, c)
@@ -180,7 +180,7 @@ def run_case(case: dict, methods: tuple[str, ...], cache: dict) -> dict:
     """Register one synthetic pair with every method; errors in px, wall-clock seconds."""
     import cv2
 
-    from pcreg.transforms import max_corner_error
+    from pcreg.registration.transforms import max_corner_error
 
     path = case["image"]
     if path not in cache:
@@ -270,7 +270,7 @@ def clouds_2d(data: Path, sizes: list[int], seed: int) -> tuple[str, dict[int, t
     import cv2
 
     import pcreg
-    from pcreg.transforms import about_point, image_center, rigid2d
+    from pcreg.registration.transforms import about_point, image_center, rigid2d
 
     images = find_images(data)
     out = {}
@@ -343,8 +343,8 @@ def time_icp_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: 
     """Reference vs Open3D legacy ICP on identical clouds, exactly ``iterations`` iterations each."""
     import open3d as o3d
 
-    from pcreg.icp_open3d import to_pointcloud
-    from pcreg.icp_reference import icp_reference
+    from pcreg.registration.open3d_icp import to_pointcloud
+    from pcreg.registration.reference import icp_reference
 
     reg = o3d.pipelines.registration
     d = src.shape[1]

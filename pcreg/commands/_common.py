@@ -46,10 +46,10 @@ def add_record_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = True):
-    """A :class:`pcreg.recorder.Recorder` for ``--record``, or a null context."""
+    """A :class:`pcreg.recording.recorder.Recorder` for ``--record``, or a null context."""
     if not getattr(args, "record", None):
         return contextlib.nullcontext(None)
-    from ..recorder import Recorder
+    from ..recording.recorder import Recorder
 
     return Recorder(args.record, recording_name=name, raw_images=args.record_raw, force=args.force,
                     blueprint=layout)

@@ -32,9 +32,9 @@ def run(args: argparse.Namespace) -> int:
 
     from .._io import atomic_write_bytes, check_output
     from ..errors import OutputError
-    from ..clouds import cloud_pyramid, load_image
-    from ..registration import register
-    from ..warping import warp
+    from ..registration.clouds import cloud_pyramid, load_image
+    from ..registration.api import register
+    from ..registration.warp import warp
 
     if args.out:
         check_output(args.out, force=args.force)

@@ -22,7 +22,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .errors import DatasetError, InputError
+from ..errors import DatasetError, InputError
 
 __all__ = [
     "Frame",

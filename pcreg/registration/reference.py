@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import RegistrationError
+from ..errors import RegistrationError
 from .result import IcpIteration
 from .transforms import apply
 

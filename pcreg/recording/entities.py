@@ -1,6 +1,6 @@
 """Entity paths and timelines of a pcreg recording: the one place that names them.
 
-The recorder (``pcreg.recorder``) writes to these paths, the blueprint (``viz.blueprint``) lays out
+The recorder (``pcreg.recording.recorder``) writes to these paths, the blueprint (``pcreg.recording.blueprint``) lays out
 views over them, and tests read them back. Plain strings, no imports.
 
 Layout (``{x}`` is filled in at log time)::

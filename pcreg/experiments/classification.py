@@ -39,7 +39,7 @@ class ClassificationConfig:
 
     data : a ``--data`` value (see :func:`pcreg.datasets.load_dataset`).
     cases : subset of ("I", "II", "III").
-    features : feature sets, each ``"+"``-joined names of :mod:`pcreg.features`; ``"thesis"`` uses the
+    features : feature sets, each ``"+"``-joined names of :mod:`pcreg.classification.features`; ``"thesis"`` uses the
         weights found by the 30-trial search on each training set.
     case1_k, case3_k : explicit training-frame counts (per dataset); empty = fractions of its length.
     case1_fractions, case3_fractions : the default k as fractions of each sequence's length.
@@ -137,7 +137,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace) -> ClassificationConfig:
     from ..errors import InputError
-    from ..features import parse_features
+    from ..classification.features import parse_features
 
     feats = tuple("+".join(parse_features(f)) for f in args.features)
     if len(set(feats)) != len(feats):
@@ -273,9 +273,9 @@ def run_unit(unit: Unit) -> dict:
     per-process cache). Returns JSON-ready numbers."""
     import numpy as np
 
-    from ..bayes import NaiveBayesPixelClassifier, thesis_weight_search
-    from ..features import parse_features
-    from ..metrics import confusion_matrix, error_from_confusion
+    from ..classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
+    from ..classification.features import parse_features
+    from ..classification.metrics import confusion_matrix, error_from_confusion
 
     t0 = time.perf_counter()
     datasets = _load(unit.data, unit.frames, unit.size, unit.seed)
@@ -319,7 +319,7 @@ def run_unit(unit: Unit) -> dict:
 
 def run_weight_search(args: tuple) -> dict:
     """Table 4.1 row: the 30-trial weight search on all frames of one dataset."""
-    from ..bayes import thesis_weight_search
+    from ..classification.bayes import thesis_weight_search
 
     data, frames, size, seed, n_trials, exclude_unknown, name = args
     datasets = _load(data, frames, size, seed)

@@ -1,7 +1,7 @@
 """Per-pixel features for the naive Bayes terrain classifier, chosen by name.
 
 Every feature is an 8-bit plane (values 0..255), so a Gaussian naive Bayes model over them can be
-evaluated exactly through 256-entry lookup tables (see :mod:`pcreg.bayes`).
+evaluated exactly through 256-entry lookup tables (see :mod:`pcreg.classification.bayes`).
 
 | name      | planes | what |
 |-----------|--------|------|
@@ -19,7 +19,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 FEATURES: dict[str, tuple[str, ...]] = {
     "thesis": ("wRGB",),

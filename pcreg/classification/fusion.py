@@ -27,7 +27,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = [
     "FusionConfig",
@@ -122,7 +122,7 @@ def warp_prior(q: np.ndarray, T_ref_mov: np.ndarray | None, *, shape: tuple[int,
     shape : (H, W) of the moving frame.
     Returns ``(q_mov (H, W) float32, valid (H, W) bool)``; ``q_mov`` is ``pi`` where not valid.
     """
-    from . import warp
+    from .. import warp
 
     pi = _check_pi(pi)
     if T_ref_mov is None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputError, RegistrationError
+from ..errors import InputError, RegistrationError
 
 MODELS = ("translation", "rigid", "similarity", "affine", "projective")
 

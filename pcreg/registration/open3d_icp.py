@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .errors import RegistrationError
+from ..errors import RegistrationError
 from .result import IcpIteration
 from .transforms import lift_to_3d, project_to_2d
 

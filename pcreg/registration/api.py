@@ -1,8 +1,8 @@
 """Registration: ``icp`` for point clouds, ``register`` for images.
 
-Both dispatch to the reference ICP (``backend="reference"``, :mod:`pcreg.icp_reference`) or to
-Open3D's (``backend="open3d"``, :mod:`pcreg.icp_open3d`) and return the same
-:class:`~pcreg.result.RegistrationResult`.
+Both dispatch to the reference ICP (``backend="reference"``, :mod:`pcreg.registration.reference`) or to
+Open3D's (``backend="open3d"``, :mod:`pcreg.registration.open3d_icp`) and return the same
+:class:`~pcreg.registration.result.RegistrationResult`.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
-from .errors import InputError, RegistrationError
-from .icp_open3d import icp_open3d
-from .icp_reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
+from ..errors import InputError, RegistrationError
+from .open3d_icp import icp_open3d
+from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
 from .clouds import ImageCloud, as_rgb_uint8, cloud_pyramid
 from .result import IcpIteration, RegistrationResult
 from .transforms import about_point, apply, check_model, image_center, rigid2d
@@ -100,7 +100,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
     weights : robust weights (reference backend): ``none``, ``trimmed``, ``huber``, ``tukey``.
     metric : ``point_to_point`` or (2-D, reference backend, with ``target_normals``) ``point_to_line``.
     rotation : 3-D rigid closed form of the reference backend: ``svd`` (Umeyama) or ``quaternion`` (Horn).
-    callback : called with an :class:`~pcreg.result.IcpIteration` after every iteration.
+    callback : called with an :class:`~pcreg.registration.result.IcpIteration` after every iteration.
     count_iterations : Open3D backend only: run Open3D one iteration at a time (its stopping rule
         applied between steps) so that ``iterations`` and ``converged`` are exact; False runs it in one
         call (faster) and reports ``iterations = -1``.

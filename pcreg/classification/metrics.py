@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 N_LABELS = 3
 LABEL_NAMES = ("ground", "obstacle", "unknown")

@@ -2,7 +2,7 @@
 
 A :class:`Recorder` writes to its file as it goes, so a run that is interrupted leaves a recording
 that reads back up to where it stopped. Entity paths and timelines are named in
-:mod:`viz.entities`; the blueprint embedded in the file comes from :mod:`viz.blueprint`.
+:mod:`pcreg.recording.entities`; the blueprint embedded in the file comes from :mod:`pcreg.recording.blueprint`.
 
 Usage::
 
@@ -36,11 +36,11 @@ import cv2
 import numpy as np
 import rerun as rr
 
-from viz import entities as E
+from pcreg.recording import entities as E
 
-from ._io import check_output, to_json
-from .errors import InputError, OutputError
-from .result import IcpIteration
+from .._io import check_output, to_json
+from ..errors import InputError, OutputError
+from ..registration.result import IcpIteration
 
 __all__ = ["Recorder", "DEFAULT_JPEG_QUALITY"]
 
@@ -140,7 +140,7 @@ class Recorder:
     force : bool
         Overwrite an existing file.
     blueprint : bool or str
-        Embed the blueprint from :mod:`viz.blueprint` (``True`` or a layout name: ``"default"``,
+        Embed the blueprint from :mod:`pcreg.recording.blueprint` (``True`` or a layout name: ``"default"``,
         ``"crosscheck"``); ``False`` lets the viewer choose.
     jpeg_quality : int
         JPEG quality of logged images (1..100).
@@ -192,7 +192,7 @@ class Recorder:
         self._rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
         bp = None
         if blueprint:
-            from viz.blueprint import blueprint as make_blueprint
+            from pcreg.recording.blueprint import blueprint as make_blueprint
 
             bp = make_blueprint(layout=blueprint if isinstance(blueprint, str) else "default")
         try:

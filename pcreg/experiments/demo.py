@@ -77,7 +77,9 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     from .._io import atomic_write_json, atomic_write_text, markdown_table
     from .._runner import make_executor
     from ..datasets import load_dataset
-    from . import classification, rotation, sequence
+    from . import classification
+    from . import rotation
+    from . import sequence
     from ._common import plain_config
 
     out = Path(out)
@@ -121,7 +123,7 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     scfg = sequence.SequenceConfig(data=config.data, increments=config.increments, backends=("reference", "open3d"),
                                    frames=config.frames, size=config.size, seed=config.seed)
     if record is not None:
-        from ..recorder import Recorder
+        from ..recording.recorder import Recorder
 
         with Recorder(record, recording_name="pcreg demo", raw_images=raw_images, force=True) as rec:
             sres = sequence.evaluate(scfg, out=out / "sequence", force=True, recorder=rec, show_progress=False)
@@ -208,7 +210,9 @@ not scored.
 
 def _report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path) -> str:
     from .._io import markdown_table
-    from . import classification, rotation, sequence
+    from . import classification
+    from . import rotation
+    from . import sequence
 
     parts = ["# pcreg demo\n",
              f"Synthetic presets {', '.join(config.presets)} ({config.frames} frames of "

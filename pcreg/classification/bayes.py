@@ -2,7 +2,7 @@
 
 The model is scikit-learn's :class:`~sklearn.naive_bayes.GaussianNB` (same parameters, same
 ``var_smoothing`` rule, same log-posteriors), fitted and evaluated through the fact that every feature
-of :mod:`pcreg.features` is an 8-bit plane:
+of :mod:`pcreg.classification.features` is an 8-bit plane:
 
 - *fit* accumulates, per class and feature, a 256-bin histogram of the training pixels; the class means
   and variances follow exactly from the histograms (no (N, F) matrix of millions of pixels is built);
@@ -21,7 +21,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .features import (
     check_image,
     feature_groups,
@@ -149,7 +149,7 @@ class NaiveBayesPixelClassifier:
 
     Parameters
     ----------
-    features : names from :data:`pcreg.features.FEATURES` (``"thesis"``, ``"rgb"``, ``"hsv"``,
+    features : names from :data:`pcreg.classification.features.FEATURES` (``"thesis"``, ``"rgb"``, ``"hsv"``,
         ``"lab"``, ``"texture"``, ``"row"``), a tuple or a ``"rgb+hsv+row"`` string.
     weights : (w_r, w_g, w_b) of the ``"thesis"`` feature (normalised to sum 1; default equal).
     exclude_unknown : leave unknown (label 2) pixels out of training (the default, as in the thesis);
@@ -303,7 +303,7 @@ class NaiveBayesPixelClassifier:
 
     def to_sklearn(self):
         """An equivalent fitted :class:`sklearn.naive_bayes.GaussianNB` (for cross-checks); classes are
-        the label values, features the columns of :func:`pcreg.features.feature_matrix`."""
+        the label values, features the columns of :func:`pcreg.classification.features.feature_matrix`."""
         from sklearn.naive_bayes import GaussianNB
 
         self._check_fitted()

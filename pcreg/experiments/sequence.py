@@ -40,7 +40,7 @@ class SequenceConfig:
     sequence (default 100) or first frames of real ones (default all). size : synthetic (width, height).
     seed : synthetic data. train : ``reference`` or ``first:K``. fusion_frames : C (None: default).
     fusion_weight : fixed weight (None: chosen on the first C frames). eps, sigma : the prior's mixing
-    and blur (:class:`pcreg.fusion.FusionConfig`). levels, iterations, init, model, features: the
+    and blur (:class:`pcreg.classification.fusion.FusionConfig`). levels, iterations, init, model, features: the
     pipeline (:class:`pcreg.pipeline.PipelineConfig`).
     """
 
@@ -62,7 +62,7 @@ class SequenceConfig:
     features: tuple[str, ...] = ("rgb", "hsv", "row")
 
     def pipeline(self, backend: str):
-        from ..fusion import FusionConfig
+        from ..classification.fusion import FusionConfig
         from ..pipeline import PipelineConfig
 
         return PipelineConfig(backend=backend, model=self.model, levels=self.levels, iterations=self.iterations,
@@ -110,7 +110,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace) -> SequenceConfig:
     from ..errors import InputError
-    from ..transforms import MODELS
+    from ..registration.transforms import MODELS
     from . import _common as c
 
     if args.frames is not None and args.frames < 1:

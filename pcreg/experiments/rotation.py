@@ -118,7 +118,7 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
     import numpy as np
 
     from .. import warp
-    from ..transforms import about_point, image_center, rigid2d
+    from ..registration.transforms import about_point, image_center, rigid2d
 
     h, w = image.shape[:2]
     if canvas == "loose":
@@ -139,11 +139,12 @@ def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = Non
     recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``)."""
     import numpy as np
 
-    from .. import register, warp
+    from .. import register
+    from .. import warp
     from ..errors import RegistrationError
-    from ..metrics import error_rate
+    from ..classification.metrics import error_rate
     from ..pipeline import fit_classifier
-    from ..transforms import about_point, image_center, max_corner_error
+    from ..registration.transforms import about_point, image_center, max_corner_error
     from ._common import angle_key, load_cached
 
     cfg = unit.config

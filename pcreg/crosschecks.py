@@ -67,26 +67,43 @@ class CrosscheckReport:
         return out
 
 
-def load_cloud(path: str | os.PathLike) -> np.ndarray:
-    """Points (N, 3) (or (N, 2) from a .npy) from .ply/.pcd/.xyz/.pts via Open3D, or .npy via numpy."""
+def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.ndarray:
+    """Points (N, 3) (or (N, 2) from a .npy) from .ply/.pcd/.xyz/.pts via Open3D, or .npy via numpy.
+
+    Regular files only; the point count a PLY/PCD/NPY header declares must be within ``max_points``
+    (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
+    (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
+    """
+    from .validation import check_cloud_file, check_npy_file, max_pixels, stdout_to_stderr
+
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
     suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
+    limit = max_pixels(max_points)
+    check_cloud_file(path, limit=limit)
     if suffix == ".npy":
+        shape, _ = check_npy_file(path, limit)
+        if len(shape) != 2 or shape[1] not in (2, 3):
+            raise InputError(f"{path}: expected an (N, 2) or (N, 3) array of points, got shape {shape}")
         try:
             pts = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise InputError(f"{path}: not a numpy array file ({exc})") from None
-    elif suffix in CLOUD_SUFFIXES:
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(f"{path}: not a numpy array file ({str(exc)[:120]})") from None
+    else:
         import open3d as o3d
 
-        pcd = o3d.io.read_point_cloud(str(path))
+        with stdout_to_stderr():
+            try:
+                pcd = o3d.io.read_point_cloud(str(path), format="auto", remove_nan_points=False,
+                                              remove_infinite_points=False)
+            except (RuntimeError, ValueError, MemoryError) as exc:
+                raise InputError(f"{path}: cannot read point cloud ({str(exc)[:120]})") from None
         pts = np.asarray(pcd.points)
         if pts.size == 0:
             raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
-    else:
-        raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
+        if len(pts) > limit:
+            raise InputError(f"{path}: {len(pts)} points exceed the limit of {limit} (raise --max-pixels)")
     return check_cloud(pts, str(path))
 
 

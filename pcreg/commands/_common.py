@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import sys
 
 
@@ -23,8 +24,8 @@ def positive_float(text: str) -> float:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {v}")
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
     return v
 
 
@@ -33,7 +34,7 @@ def float_list(text: str) -> tuple[float, ...]:
         vals = tuple(float(t) for t in text.split(",") if t.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if not vals or any(not v > 0 for v in vals):
+    if not vals or any(not (v > 0 and math.isfinite(v)) for v in vals):
         raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {text!r}")
     return vals
 
@@ -58,4 +59,4 @@ def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = T
 def print_json(obj) -> None:
     from .._io import to_json
 
-    sys.stdout.write(to_json(obj) + "\n")
+    sys.stdout.write(to_json(obj, strict=True) + "\n")

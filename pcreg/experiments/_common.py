@@ -17,6 +17,8 @@ from pathlib import Path
 from typing import Any
 
 BACKEND_CHOICES = ("reference", "open3d", "both")
+MAX_SIDE = 8192  # synthetic frames: 8192x8192 RGB is 200 MB a frame
+MAX_FRAMES = 100_000
 
 _DATA_CACHE: dict = {}
 
@@ -43,8 +45,8 @@ def int_list(text: str) -> tuple[int, ...]:
         vals = tuple(int(v) for v in text.split(",") if v.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
-    if not vals or any(v < 1 for v in vals):
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers >= 1, got {text!r}")
+    if not vals or any(v < 1 or v > MAX_FRAMES for v in vals):
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers in 1..{MAX_FRAMES}, got {text!r}")
     return vals
 
 
@@ -52,17 +54,26 @@ def angle_list(text: str) -> tuple[float, ...]:
     """``"0,5,90"`` or ``"0:180:5"`` (start:stop:step, stop included) -> angles in degrees."""
     import numpy as np
 
+    from ..validation import MAX_UNITS
+
     try:
         if ":" in text:
             a, b, s = (float(v) for v in text.split(":"))
-            if s <= 0:
+            if not (np.isfinite(a) and np.isfinite(b) and np.isfinite(s)) or s <= 0:
                 raise ValueError
+            if abs(a) > 360 or abs(b) > 360:
+                raise argparse.ArgumentTypeError(f"angles must be within +-360 degrees, got {text!r}")
+            count = int(np.floor((b - a) / s + 0.5)) + 1 if b >= a else 0
+            if count > MAX_UNITS:
+                raise argparse.ArgumentTypeError(f"{text!r} gives {count} angles; the limit is {MAX_UNITS}")
             vals = tuple(float(v) for v in np.round(np.arange(a, b + s / 2, s), 6))
         else:
             vals = tuple(float(v) for v in text.split(",") if v.strip())
+            if len(vals) > MAX_UNITS:
+                raise argparse.ArgumentTypeError(f"{len(vals)} angles; the limit is {MAX_UNITS}")
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected angles as A,B,C or START:STOP:STEP, got {text!r}") from None
-    if not vals or any(abs(v) > 360 for v in vals):
+    if not vals or any(not np.isfinite(v) or abs(v) > 360 for v in vals):
         raise argparse.ArgumentTypeError(f"angles must be within +-360 degrees, got {text!r}")
     return vals
 
@@ -75,6 +86,8 @@ def size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
     if w < 16 or h < 12:
         raise argparse.ArgumentTypeError(f"frames must be at least 16x12, got {text!r}")
+    if w > MAX_SIDE or h > MAX_SIDE:
+        raise argparse.ArgumentTypeError(f"synthetic frames are at most {MAX_SIDE}x{MAX_SIDE}, got {text!r}")
     return (w, h)
 
 
@@ -154,10 +167,12 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     """--data, --frames, --size, --seed: which sequences an evaluation runs on."""
     parser.add_argument("--data", default="synthetic",
                         help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
-    parser.add_argument("--frames", type=int, default=None,
+    from ..validation import arg_int
+
+    parser.add_argument("--frames", type=arg_int(1, MAX_FRAMES), default=None,
                         help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
     parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic data (default 0)")
+    parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the synthetic data (default 0)")
 
 
 def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
@@ -166,9 +181,11 @@ def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
 
     parser.add_argument("--backend", choices=BACKEND_CHOICES, default="reference",
                         help="ICP backend(s) (default reference)")
-    parser.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
-    parser.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
-    parser.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
+    from ..validation import arg_int
+
+    parser.add_argument("--levels", type=arg_int(1, 8), default=4, help="pyramid levels, 1..8 (default 4)")
+    parser.add_argument("--iterations", type=arg_int(1, 10_000), default=14, help="ICP iterations per level (default 14)")
+    parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")
     parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
     parser.add_argument("--out", default=out, help=f"output folder (default {out})")
     add_record_arguments(parser)
@@ -184,10 +201,13 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
     recording = bool(getattr(args, "record", None))
     if recording and args.workers > 1:
         print("note: --record runs every unit in this process (--workers ignored)")
-    with open_recorder(args, name=f"pcreg evaluate {name}") as rec:
-        with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
-            results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
-    written = write_outputs(results, out)
+    from .._io import OutputLock
+
+    with OutputLock(out):  # a second run on the same --out is refused, not raced
+        with open_recorder(args, name=f"pcreg evaluate {name}") as rec:
+            with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
+                results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
+        written = write_outputs(results, out)
     print(f"wrote {len(written)} files to {out}")
     print((out / f"{name}_{config.backends[0]}.md").read_text(), end="")
     print((out / "floors.md").read_text(), end="")

@@ -92,17 +92,15 @@ def _int_list(text: str) -> tuple[int, ...]:
         vals = tuple(int(v) for v in text.split(",") if v.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
-    if any(v < 1 for v in vals):
+    if any(v < 1 or v > 100_000 for v in vals):
         raise argparse.ArgumentTypeError(f"frame counts must be at least 1, got {text!r}")
     return vals
 
 
 def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
-    return (w, h)
+    from ._common import size
+
+    return size(text)
 
 
 def _cases(text: str) -> tuple[str, ...]:
@@ -124,12 +122,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Case I training frame counts (default 10%%..90%% of each sequence: 10..90 of 100)")
     parser.add_argument("--k3", dest="case3_k", type=_int_list, default=(), metavar="K,K,...",
                         help="Case III frames per dataset (default 10%% and 20%% of each sequence)")
-    parser.add_argument("--frames", type=int, default=None, help="frames per synthetic sequence (default 100); "
+    from ..validation import arg_int
+
+    parser.add_argument("--frames", type=arg_int(1, 100_000), default=None, help="frames per synthetic sequence (default 100); "
                         "first frames of real sequences (default all)")
     parser.add_argument("--size", type=_size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
-    parser.add_argument("--trials", type=int, default=30, help="weight-search trials for the thesis feature (default 30)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the weight search and synthetic data (default 0)")
-    parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    parser.add_argument("--trials", type=arg_int(1, 100_000), default=30, help="weight-search trials for the thesis feature (default 30)")
+    parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the weight search and synthetic data (default 0)")
+    parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")
     parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
     parser.add_argument("--out", default="out/classification", help="output folder (default out/classification)")
     parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -152,16 +152,17 @@ def config_from_args(args: argparse.Namespace) -> ClassificationConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .._io import check_output
+    from .._io import OutputLock
     from .._runner import make_executor
+    from ._common import UnitStore, plain_config
 
     config = config_from_args(args)
     out = Path(args.out)
-    for name in OUTPUT_FILES:
-        check_output(out / name, force=args.force)
-    with make_executor(args.workers, scheduler=args.scheduler) as executor:
-        results = evaluate(config, executor=executor)
-    written = write_outputs(results, out)
+    with OutputLock(out):  # one run per folder; finished units resume like the other evaluations
+        store = UnitStore(out, plain_config(config), force=args.force)
+        with make_executor(args.workers, scheduler=args.scheduler) as executor:
+            results = evaluate(config, executor=executor, store=store)
+        written = write_outputs(results, out)
     print(f"wrote {len(written)} files to {out}")
     print((out / "case1.md").read_text() if "I" in config.cases else "", end="")
     return 0
@@ -333,8 +334,42 @@ def run_weight_search(args: tuple) -> dict:
 # the evaluation
 # ---------------------------------------------------------------------------------------------
 
-def evaluate(config: ClassificationConfig, *, executor=None, show_progress: bool | None = None) -> dict:
-    """Run the configured cases; returns every number (what results.json holds). Writes nothing."""
+def _run_kept(fn, jobs: list, keys: list[str], *, store, executor, desc: str, show_progress) -> list:
+    """``run_units`` with the finished ones taken from ``store`` (a :class:`UnitStore`, or None) and each
+    new result saved there as it lands, so an interrupted run resumes."""
+    from .._runner import run_units
+
+    results: list = [None] * len(jobs)
+    todo = []
+    for i, k in enumerate(keys):
+        prev = store.load(k) if store is not None else None
+        if prev is not None:
+            results[i] = prev
+        else:
+            todo.append(i)
+    index = {id(jobs[i]): i for i in todo}
+
+    def keep(job, result) -> None:
+        i = index[id(job)]
+        results[i] = result
+        if store is not None:
+            store.save(keys[i], result)
+
+    run_units(fn, [jobs[i] for i in todo], executor=executor, desc=desc, on_result=keep,
+              show_progress=show_progress)
+    return results
+
+
+def _unit_key(key) -> str:
+    import re
+
+    return re.sub(r"[^A-Za-z0-9_.+-]", "_", "_".join(str(k) for k in key))
+
+
+def evaluate(config: ClassificationConfig, *, executor=None, show_progress: bool | None = None,
+             store=None) -> dict:
+    """Run the configured cases; returns every number (what results.json holds). Writes nothing but
+    the finished units into ``store`` (a :class:`~pcreg.experiments._common.UnitStore`), when given."""
     from .._runner import _InlineExecutor, run_units
     from ..datasets import PRESETS
 
@@ -351,9 +386,10 @@ def evaluate(config: ClassificationConfig, *, executor=None, show_progress: bool
     if any("thesis" in fs.split("+") for fs in config.features):
         jobs = [(config.data, config.frames, config.size, config.seed, config.n_trials, config.exclude_unknown, d)
                 for d in datasets]
-        searches = run_units(run_weight_search, jobs, executor=executor, desc="weight search",
-                             show_progress=show_progress)
-    results = run_units(run_unit, units, executor=executor, desc="classification", show_progress=show_progress)
+        searches = _run_kept(run_weight_search, jobs, [f"weights_{_unit_key([d])}" for d in datasets],
+                             store=store, executor=executor, desc="weight search", show_progress=show_progress)
+    results = _run_kept(run_unit, units, [f"{u.case}_{_unit_key(u.key)}" for u in units], store=store,
+                        executor=executor, desc="classification", show_progress=show_progress)
     notes = []
     scaled = [d for d, n in lengths.items() if n != 100]
     if scaled and not config.case1_k and "I" in config.cases:
@@ -498,6 +534,7 @@ def write_outputs(results: dict, out: str | Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     from .._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
+    from ._common import nan_to_none
 
     out = Path(out)
     written = []
@@ -513,5 +550,5 @@ def write_outputs(results: dict, out: str | Path) -> list[Path]:
         written.append(atomic_save_figure(fig, out / f"{name}.png"))
         plt.close(fig)
     written.append(atomic_write_json(out / "config.json", results["config"]))
-    written.append(atomic_write_json(out / "results.json", results))
+    written.append(atomic_write_json(out / "results.json", nan_to_none(results)))  # strict JSON: NaN -> null
     return written

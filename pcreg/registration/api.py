@@ -21,6 +21,7 @@ from .result import IcpIteration, RegistrationResult
 from .transforms import about_point, apply, check_model, image_center, rigid2d
 
 BACKENDS = ("reference", "open3d")
+MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 keeps sub-mm steps at 1e6 m
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -40,6 +41,10 @@ def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
     if not np.all(np.isfinite(p)):
         bad = int((~np.isfinite(p)).any(axis=1).sum())
         raise InputError(f"{name}: {bad} point(s) have NaN or inf coordinates")
+    big = float(np.max(np.abs(p)))
+    if big > MAX_COORDINATE:
+        raise InputError(f"{name}: coordinates up to {big:.3g} are out of range (|x| <= {MAX_COORDINATE:g}; "
+                         "shift the cloud towards the origin)")
     return p
 
 

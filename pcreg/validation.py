@@ -72,6 +72,26 @@ def check_float(value, name: str, *, lo: float | None = None, hi: float | None =
     return v
 
 
+def check_matrix(value, name: str, dim: int) -> np.ndarray:
+    """A finite, invertible, well-conditioned (dim x dim) float64 copy of ``value`` (a homogeneous
+    transform such as an initial guess)."""
+    try:
+        M = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a {dim}x{dim} matrix of numbers") from None
+    if M.shape != (dim, dim) or not np.all(np.isfinite(M)):
+        raise InputError(f"{name} must be a finite {dim}x{dim} matrix, got shape {M.shape}")
+    if np.max(np.abs(M)) > 1e12:
+        raise InputError(f"{name} has entries up to {np.max(np.abs(M)):.3g} (|m| <= 1e12)")
+    try:
+        cond = np.linalg.cond(M)
+    except np.linalg.LinAlgError:
+        cond = np.inf
+    if not np.isfinite(cond) or cond > 1e12:
+        raise InputError(f"{name} is singular or nearly so (condition number {cond:.3g})")
+    return M
+
+
 def _range(lo, hi) -> str:
     if hi is None:
         return f">= {lo}" if lo is not None else "any integer"
@@ -350,7 +370,7 @@ def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tu
         raise InputError(f"{name}: not an image pcreg reads (PNG, JPEG, BMP, TIFF, WebP, PNM)")
     fmt, size = found
     if size is None or size[0] <= 0 or size[1] <= 0:
-        raise InputError(f"{name}: damaged {fmt} header")
+        raise InputError(f"{name}: cannot decode image (damaged {fmt} header)")
     lim = max_pixels(limit)
     w, h = size
     if w * h > lim:
@@ -401,7 +421,7 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
     with open(path, "rb") as fh:
         head = fh.read(1 << 16)
     if not head.startswith(b"ply"):
-        raise InputError(f"{path}: not a PLY file (no 'ply' magic)")
+        raise InputError(f"{path}: no points could be read (not a PLY file: no 'ply' magic)")
     i = head.find(b"end_header")
     if i < 0:
         raise InputError(f"{path}: PLY header without end_header")

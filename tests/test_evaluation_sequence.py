@@ -101,7 +101,8 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
                                  ["--fusion-weight", "-1"], ["--model", "warp"], ["--workers", "0"],
                                  ["--data", "nothing:here"]])
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, bad):
-    assert _run(tmp_path, *bad) == 2 if bad[0] not in ("--increments", "--backend", "--train", "--size", "--workers") \
+    parse_time = ("--increments", "--backend", "--train", "--size", "--workers", "--frames", "--fusion-weight")
+    assert _run(tmp_path, *bad) == 2 if bad[0] not in parse_time \
         else _expect_parser_error(tmp_path, bad)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "error" in err[0]

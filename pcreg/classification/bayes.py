@@ -169,8 +169,17 @@ class NaiveBayesPixelClassifier:
         self.features = parse_features(features)
         self.weights = normalise_weights(weights)
         self.exclude_unknown = bool(exclude_unknown)
-        self.var_smoothing = float(var_smoothing)
-        self.priors = None if priors is None else tuple(float(p) for p in priors)
+        from ..validation import check_float
+
+        self.var_smoothing = check_float(var_smoothing, "var_smoothing", lo=0)
+        if priors is not None:
+            try:
+                priors = tuple(float(p) for p in priors)
+            except (TypeError, ValueError):
+                raise InputError(f"priors must be numbers, got {priors!r}") from None
+            if not all(np.isfinite(p) and p >= 0 for p in priors) or abs(sum(priors) - 1) > 1e-6:
+                raise InputError(f"priors must be finite, >= 0 and sum to 1, got {priors}")
+        self.priors = priors
         self.feature_names_ = feature_names(self.features)
 
     def __repr__(self) -> str:
@@ -384,8 +393,11 @@ def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, e
     """
     import cv2
 
-    if n_trials < 1:
-        raise InputError("n_trials must be at least 1")
+    from ..validation import check_float, check_int
+
+    n_trials = check_int(n_trials, "n_trials", lo=1, hi=1_000_000)
+    seed = check_int(seed, "seed", lo=0)
+    var_smoothing = check_float(var_smoothing, "var_smoothing", lo=0)
     counts = colour_counts(images, labels, exclude_unknown=exclude_unknown)
     present = [c for c in range(N_LABELS) if counts[c][1].size]
     if len(present) < 2:

@@ -73,9 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     c.add_data_arguments(parser)
     parser.add_argument("--angles", type=c.angle_list, default=DEFAULT_ANGLES, metavar="A,B,...|START:STOP:STEP",
                         help="rotation angles in degrees (default 0:180:5)")
-    from ..validation import arg_int
-
-    parser.add_argument("--samples", type=arg_int(1, c.MAX_FRAMES), default=3, help="frames per dataset, evenly spaced (default 3)")
+    parser.add_argument("--samples", type=int, default=3, help="frames per dataset, evenly spaced (default 3)")
     parser.add_argument("--canvas", choices=("loose", "crop"), default="loose",
                         help="loose: the rotated frame is kept whole (default); crop: original size")
     c.add_run_arguments(parser, out="out/rotation")

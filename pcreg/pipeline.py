@@ -43,6 +43,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import InputError, RegistrationError
+from .classification.bayes import fit_classifier
 from .classification.fusion import (FusionConfig, WeightChoice, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
                      prior_from_log_odds, prior_log_odds, smooth_prior, warp_prior)
 
@@ -52,7 +53,6 @@ __all__ = [
     "PipelineConfig",
     "STAGES",
     "log_odds",
-    "fit_classifier",
     "register_pair",
     "PairResult",
     "process_pair",
@@ -115,60 +115,16 @@ class PipelineConfig:
 # classifier log-odds
 # ---------------------------------------------------------------------------------------------------
 
-def _diff_tables(classifier) -> tuple[np.ndarray, float]:
-    """(F, 256) float32 ``log N(v; obstacle) - log N(v; ground)`` per feature and value, and the
-    log prior ratio, from a fitted :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier`'s parameters."""
-    classes = list(np.asarray(classifier.classes_).tolist())
-    if classes[:2] != [0, 1] or len(classes) != 2:
-        raise InputError(f"fusion needs a ground/obstacle classifier (classes [0, 1]), got {classes}")
-    theta = np.asarray(classifier.theta_, dtype=np.float64)
-    var = np.asarray(classifier.var_, dtype=np.float64)
-    v = np.arange(256, dtype=np.float64)[None, :]
-    tab = [-0.5 * np.log(2 * np.pi * var[c])[:, None] - 0.5 * (v - theta[c][:, None]) ** 2 / var[c][:, None]
-           for c in (0, 1)]
-    prior = np.asarray(classifier.class_prior_, dtype=np.float64)
-    return (tab[1] - tab[0]).astype(np.float32), float(np.log(prior[1]) - np.log(prior[0]))
-
-
 def log_odds(classifier, image: np.ndarray) -> np.ndarray:
     """Naive Bayes log-odds ``log p(obstacle | x) - log p(ground | x)`` per pixel, (H, W) float32.
 
-    classifier : a fitted :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier` over ground and obstacle.
-    image : (H, W, 3) uint8 RGB. Uses the classifier's ``decision_function`` where it has one; otherwise
-    evaluates its Gaussians through 256-entry float32 tables (``> 0`` gives ``classifier.predict``).
+    classifier : a fitted ground/obstacle model with a ``decision_function`` (as
+    :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier`); ``> 0`` gives ``predict``.
     """
-    if hasattr(classifier, "decision_function"):
-        return np.asarray(classifier.decision_function(image), dtype=np.float32)
-    import cv2
-
-    from .classification.features import check_image, feature_groups
-
-    image = check_image(image)
-    tables, bias = _diff_tables(classifier)
-    h, w = image.shape[:2]
-    acc = np.full((h, w), np.float32(bias), dtype=np.float32)
-    f = 0
-    for name, planes in feature_groups(image, classifier.features, weights=classifier.weights):
-        if name == "row":
-            acc += tables[f][planes][:, None]
-            f += 1
-            continue
-        c = planes.shape[-1]
-        looked = cv2.LUT(planes, np.ascontiguousarray(tables[f:f + c].T.reshape(1, 256, c)))
-        if c > 1:
-            looked = cv2.transform(looked, np.ones((1, c), dtype=np.float64))
-        elif looked.ndim == 3:
-            looked = looked[:, :, 0]
-        acc = cv2.add(acc, looked)
-        f += c
-    return acc
-
-
-def fit_classifier(frames: Sequence, *, features: Sequence[str] = ("rgb", "hsv", "row")):
-    """A :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier` fitted on labelled frames (unknown left out)."""
-    from .classification.bayes import NaiveBayesPixelClassifier
-
-    return NaiveBayesPixelClassifier(tuple(features)).fit([f.image for f in frames], [f.labels for f in frames])
+    classes = list(np.asarray(getattr(classifier, "classes_", [])).tolist())
+    if classes != [0, 1]:
+        raise InputError(f"fusion needs a ground/obstacle classifier (classes [0, 1]), got {classes}")
+    return np.asarray(classifier.decision_function(image), dtype=np.float32)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -46,7 +46,8 @@ def bench(frames, *, backend: str, init: str, repeats: int = 1) -> dict:
     """Stage times (ms) per frame pair (t - 1, t) of ``frames``, and their medians."""
     from pcreg import cloud_pyramid, register
     from pcreg.classification.fusion import FusionConfig, fuse, labels_from_log_odds, prior_from_labels, prior_log_odds, smooth_prior, warp_prior
-    from pcreg.pipeline import BACKEND_MODELS, fit_classifier, log_odds
+    from pcreg.classification.bayes import fit_classifier
+    from pcreg.pipeline import BACKEND_MODELS, log_odds
 
     clf = fit_classifier([frames[0]])
     pi = float(clf.class_prior_[1])

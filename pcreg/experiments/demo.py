@@ -160,7 +160,8 @@ def _pair_figure(frames, *, k: int, weight: float, out: Path, title: str) -> Non
     import numpy as np
 
     from .._io import atomic_save_figure
-    from ..pipeline import PipelineConfig, fit_classifier, process_pair
+    from ..classification.bayes import fit_classifier
+    from ..pipeline import PipelineConfig, process_pair
 
     i = 0
     j = min(i + k, len(frames) - 1)

@@ -143,7 +143,7 @@ def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = Non
     from .. import warp
     from ..errors import RegistrationError
     from ..classification.metrics import error_rate
-    from ..pipeline import fit_classifier
+    from ..classification.bayes import fit_classifier
     from ..registration.transforms import about_point, image_center, max_corner_error
     from ._common import angle_key, load_cached
 

@@ -38,6 +38,7 @@ _EXPORTS = {
     "error_rate": "pcreg.classification.metrics",
     "confusion_matrix": "pcreg.classification.metrics",
     # the registration-augmented pipeline
+    "RegisterConfig": "pcreg.registration.config",
     "PipelineConfig": "pcreg.pipeline",
     "process_pair": "pcreg.pipeline",
     "run_sequence": "pcreg.pipeline",

@@ -44,12 +44,13 @@ import numpy as np
 
 from .errors import InputError, RegistrationError
 from .classification.bayes import fit_classifier
+from .registration.config import RegisterConfig
 from .classification.fusion import (FusionConfig, WeightChoice, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
                      prior_from_log_odds, prior_log_odds, smooth_prior, warp_prior)
 
 __all__ = [
     "METHODS",
-    "BACKEND_MODELS",
+    "PIPELINE_REGISTRATION",
     "PipelineConfig",
     "STAGES",
     "log_odds",
@@ -70,45 +71,33 @@ METHODS: tuple[str, ...] = (
 )
 STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse")
 
-#: ``model="auto"``: the motion model each backend is run with. Both estimate a similarity
-#: (rotation, shift and the zoom of forward motion); a rigid model leaves the zoom as a residual of
-#: several pixels at k = 10 (measured on syn1b/syn2a, 640x480: 5.7 and 15.6 px median corner error
-#: against 0.1 px with the similarity).
-BACKEND_MODELS = {"reference": "similarity", "open3d": "similarity"}
+#: The registration a pipeline runs unless told otherwise: a similarity (rotation, shift and the zoom of
+#: forward motion; a rigid model leaves the zoom as a residual of several pixels at k = 10) from the
+#: identity (pairs of a sequence are close; the global search sometimes locks onto a half-turn when
+#: frames are far apart).
+PIPELINE_REGISTRATION = RegisterConfig(model="similarity", init="identity")
 
 
 @dataclass(frozen=True)
 class PipelineConfig:
     """Options of the per-pair pipeline (written to config.json by the evaluations).
 
-    backend : ``"reference"`` or ``"open3d"``. model : motion model, or ``"auto"`` (:data:`BACKEND_MODELS`).
-    levels, iterations : pyramid levels and ICP iterations per level (the thesis: 4 and 14).
-    init : ``"identity"`` (the default: pairs of a sequence are close) or ``"auto"`` (global rotation
-        search, any angle; needed for large rotations, but on sequences it sometimes locks onto a
-        half-turn when the frames are far apart).
+    registration : :class:`~pcreg.registration.config.RegisterConfig` (:data:`PIPELINE_REGISTRATION`).
     features : naive Bayes features (:mod:`pcreg.classification.features`).
     fusion : :class:`pcreg.classification.fusion.FusionConfig`.
     """
 
-    backend: str = "reference"
-    model: str = "auto"
-    levels: int = 4
-    iterations: int = 14
-    init: str = "identity"
+    registration: RegisterConfig = PIPELINE_REGISTRATION
     features: tuple[str, ...] = ("rgb", "hsv", "row")
     fusion: FusionConfig = field(default_factory=FusionConfig)
 
     def __post_init__(self) -> None:
-        if self.backend not in BACKEND_MODELS:
-            raise InputError(f"unknown backend {self.backend!r}; choose one of {', '.join(BACKEND_MODELS)}")
-        if self.init not in ("auto", "identity", "center", "global"):
-            raise InputError(f"init must be auto, identity or center, got {self.init!r}")
-        if self.levels < 1 or self.iterations < 1:
-            raise InputError("levels and iterations must be at least 1")
+        if not isinstance(self.registration, RegisterConfig):
+            raise InputError("registration must be a RegisterConfig")
 
     @property
-    def registration_model(self) -> str:
-        return BACKEND_MODELS[self.backend] if self.model == "auto" else self.model
+    def backend(self) -> str:
+        return self.registration.backend
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -139,8 +128,7 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
 
     t0 = time.perf_counter()
     try:
-        res = register(reference_image, moving_image, backend=config.backend, model=config.registration_model,
-                       levels=config.levels, iterations=config.iterations, init=config.init, callback=callback)
+        res = register(reference_image, moving_image, **config.registration.kwargs(), callback=callback)
     except RegistrationError as exc:
         return None, str(exc), time.perf_counter() - t0
     if not np.all(np.isfinite(res.matrix)) or abs(np.linalg.det(res.matrix[:2, :2])) < 1e-6:

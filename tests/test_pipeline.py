@@ -9,7 +9,8 @@ from pcreg.classification.bayes import NaiveBayesPixelClassifier
 from pcreg.datasets import Frame, synthetic
 from pcreg.errors import InputError
 from pcreg.classification.fusion import FusionConfig
-from pcreg.pipeline import (METHODS, STAGES, PipelineConfig, TemporalFusion, log_odds, pair_indices, process_pair,
+from pcreg.registration.config import RegisterConfig
+from pcreg.pipeline import (METHODS, PIPELINE_REGISTRATION, STAGES, PipelineConfig, TemporalFusion, log_odds, pair_indices, process_pair,
                             register_pair, resolve_fusion_frames, run_sequence, temporal_update)
 
 
@@ -130,10 +131,10 @@ def test_helpers():
     assert resolve_fusion_frames(100, fusion_frames=None, train="first:7") == 7
     assert resolve_fusion_frames(100, fusion_frames=3, train="first:7") == 3
     with pytest.raises(InputError):
-        PipelineConfig(backend="nope")
-    assert PipelineConfig(backend="open3d").registration_model == "similarity"
-    assert PipelineConfig(backend="open3d", model="rigid").registration_model == "rigid"
-    assert PipelineConfig().registration_model == "similarity"
+        RegisterConfig(backend="nope")
+    open3d = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(backend="open3d"))
+    assert open3d.backend == "open3d" and open3d.registration.model == "similarity"
+    assert PipelineConfig().registration.model == "similarity" and PipelineConfig().registration.init == "identity"
 
 
 def test_a_sequence_goes_on_past_a_failed_registration(frames):

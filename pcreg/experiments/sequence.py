@@ -172,20 +172,20 @@ def _recording_hooks(rec, unit: Unit, counter: list[int]):
     prefix = f"{unit.dataset}/k{unit.k}/{unit.backend}"
     rec.log_text(f"sequence {prefix}: start")
 
-    def on_pair(result, frames, extras) -> None:
+    def on_pair(result, frames, arrays) -> None:
         ref, mov = frames
         rec.set_frame(counter[0])
         counter[0] += 1
         rec.log_text(f"{prefix}: frame {result.moving} registered to frame {result.reference}")
-        rec.log_images(reference=ref.image, moving=mov.image, warped=extras["warped"], valid_mask=extras["valid"])
+        rec.log_images(reference=ref.image, moving=mov.image, warped=arrays.warped, valid_mask=arrays.valid)
         if result.registered:
             rec.log_transform(result.registration["matrix"])
         else:
             rec.log_failure(f"{prefix}: frames {result.reference} -> {result.moving}: {result.reason}")
         rec.log_labels(truth=mov.labels)
         for method in RECORDED_PREDICTIONS:
-            if method in extras["predicted"]:
-                rec.log_labels(predicted=extras["predicted"][method], prefix=method)
+            if method in arrays.predicted:
+                rec.log_labels(predicted=arrays.predicted[method], prefix=method)
         rec.log_errors({f"{prefix}/{m}": v / 100.0 for m, v in result.errors.items()})
 
     return on_pair, rec.icp_callback(unit.backend, max_points=200, max_correspondences=80)

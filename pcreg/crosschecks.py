@@ -74,7 +74,7 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
     (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
     """
-    from .validation import check_cloud_file, check_npy_file, max_pixels, stdout_to_stderr
+    from .validation import capture_output_fds, check_cloud_file, check_npy_file, max_pixels
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -93,18 +93,31 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     else:
         import open3d as o3d
 
-        with stdout_to_stderr():
+        with capture_output_fds() as said:  # Open3D prints its warnings on stdout (fd 1)
             try:
                 pcd = o3d.io.read_point_cloud(str(path), format="auto", remove_nan_points=False,
                                               remove_infinite_points=False)
             except (RuntimeError, ValueError, MemoryError) as exc:
                 raise InputError(f"{path}: cannot read point cloud ({str(exc)[:120]})") from None
+        warning = _open3d_warning(said[0] if said else "")
+        if warning:  # Open3D fills what it could not read with zeros and only prints a warning
+            raise InputError(f"{path}: cannot read point cloud (Open3D: {warning})")
         pts = np.asarray(pcd.points)
         if pts.size == 0:
             raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
         if len(pts) > limit:
             raise InputError(f"{path}: {len(pts)} points exceed the limit of {limit} (raise --max-pixels)")
     return check_cloud(pts, str(path))
+
+
+def _open3d_warning(text: str) -> str:
+    """The first warning or error line Open3D printed (ANSI colours removed), or ''."""
+    import re
+
+    for line in re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines():
+        if "[Open3D WARNING]" in line or "[Open3D ERROR]" in line or "RPly: " in line:
+            return line.split("]", 1)[1].strip()[:200] if "[Open3D" in line else line.strip()[:200]
+    return ""
 
 
 def _relative(A: np.ndarray, B: np.ndarray) -> float:

@@ -608,6 +608,43 @@ def check_cloud_file(path: str | os.PathLike, *, limit: int | None = None) -> Pa
 # --------------------------------------------------------------------------------------------------
 
 @contextlib.contextmanager
+def capture_output_fds() -> Iterator[list[str]]:
+    """Capture what C/C++ code writes to file descriptors 1 and 2 for the duration (Open3D reports a
+    failed read only as a printed warning, on stdout; RPly prints on stderr). Yields a list that holds
+    the captured text after the block; nothing of it reaches the terminal or ``--json`` output."""
+    import tempfile
+
+    captured: list[str] = []
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    try:
+        saved = (os.dup(1), os.dup(2))
+    except OSError:
+        yield captured
+        return
+    with tempfile.TemporaryFile() as tmp:
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            yield captured
+        finally:
+            for stream in (sys.stdout, sys.stderr):
+                try:
+                    stream.flush()
+                except (OSError, ValueError, AttributeError):
+                    pass
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+            tmp.seek(0)
+            captured.append(tmp.read(1 << 16).decode("utf-8", "replace"))
+
+
+@contextlib.contextmanager
 def stdout_to_stderr() -> Iterator[None]:
     """Send file descriptor 1 to stderr for the duration (C++ libraries such as Open3D print warnings on
     stdout, which would corrupt ``--json`` output)."""

@@ -607,6 +607,15 @@ def check_cloud_file(path: str | os.PathLike, *, limit: int | None = None) -> Pa
 # library chatter
 # --------------------------------------------------------------------------------------------------
 
+def _flush_c_stdio() -> None:
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):
+        pass
+
+
 @contextlib.contextmanager
 def capture_output_fds() -> Iterator[list[str]]:
     """Capture what C/C++ code writes to file descriptors 1 and 2 for the duration (Open3D reports a
@@ -625,12 +634,19 @@ def capture_output_fds() -> Iterator[list[str]]:
     except OSError:
         yield captured
         return
+    import io
+
+    py_out, py_err = sys.stdout, sys.stderr
+    text = io.StringIO()  # Open3D's Python module prints its log through Python's sys.stdout
     with tempfile.TemporaryFile() as tmp:
         try:
             os.dup2(tmp.fileno(), 1)
             os.dup2(tmp.fileno(), 2)
+            sys.stdout = sys.stderr = text
             yield captured
         finally:
+            sys.stdout, sys.stderr = py_out, py_err
+            _flush_c_stdio()  # C++ code writes through libc's buffers: empty them into the capture
             for stream in (sys.stdout, sys.stderr):
                 try:
                     stream.flush()
@@ -641,29 +657,4 @@ def capture_output_fds() -> Iterator[list[str]]:
             os.close(saved[0])
             os.close(saved[1])
             tmp.seek(0)
-            captured.append(tmp.read(1 << 16).decode("utf-8", "replace"))
-
-
-@contextlib.contextmanager
-def stdout_to_stderr() -> Iterator[None]:
-    """Send file descriptor 1 to stderr for the duration (C++ libraries such as Open3D print warnings on
-    stdout, which would corrupt ``--json`` output)."""
-    try:
-        sys.stdout.flush()
-    except (OSError, ValueError, AttributeError):
-        pass
-    try:
-        saved = os.dup(1)
-    except OSError:
-        yield
-        return
-    try:
-        os.dup2(2, 1)
-        yield
-    finally:
-        try:
-            sys.stdout.flush()
-        except (OSError, ValueError, AttributeError):
-            pass
-        os.dup2(saved, 1)
-        os.close(saved)
+            captured.append(text.getvalue()[: 1 << 16] + tmp.read(1 << 16).decode("utf-8", "replace"))

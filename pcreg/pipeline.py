@@ -456,7 +456,7 @@ def _means(pairs: Sequence[PairResult]) -> dict:
     return out
 
 
-def _choose_temporal_weight(calib: list, frames: Sequence, *, kc: int, fusion: FusionConfig) -> WeightChoice:
+def _choose_temporal_weight(calib: list, frames: Sequence, *, fusion: FusionConfig) -> WeightChoice:
     """The temporal filter's weight: run the chains through the calibration pairs (in order) with each
     candidate weight, pool the errors of every fused frame, keep the best (ties: the smaller weight)."""
     grid = tuple(float(g) for g in fusion.grid)
@@ -568,7 +568,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
                                   shape=frames[j].shape, pi=pi)
             samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
         choice = choose_weight(samples, grid=config.fusion.grid)
-        temporal_choice = _choose_temporal_weight(calib, frames, kc=kc, fusion=config.fusion)
+        temporal_choice = _choose_temporal_weight(calib, frames, fusion=config.fusion)
         if choice.pairs == 0:
             notes.append(f"no registered pair among the first {C} frames to choose the fusion weight: "
                          f"w = {choice.weight} used")

@@ -58,7 +58,7 @@ def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = T
 
 
 def print_json(obj) -> None:
-    from .._io import to_json
+    from ..outputs import to_json
 
     sys.stdout.write(to_json(obj) + "\n")
 

@@ -43,7 +43,7 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     import numpy as np
 
     from .. import crosscheck
-    from .._io import atomic_write_json, atomic_write_text
+    from ..outputs import atomic_write_json, atomic_write_text
     from .._runner import make_executor
     from ..datasets import load_dataset
     from . import classification, rotation, sequence

@@ -74,7 +74,7 @@ class UnitStore:
     """
 
     def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
-        from .._io import atomic_write_json
+        from ..outputs import atomic_write_json
         from ..errors import OutputError
 
         self.out = Path(out)
@@ -112,7 +112,7 @@ class UnitStore:
             return None
 
     def save(self, key: str, result: dict) -> None:
-        from .._io import atomic_write_json
+        from ..outputs import atomic_write_json
 
         atomic_write_json(self.path(key), result)
 

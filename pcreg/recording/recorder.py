@@ -38,7 +38,7 @@ import rerun as rr
 
 from pcreg.recording import entities as E
 
-from .._io import check_output, to_json
+from ..outputs import check_output, to_json
 from ..errors import InputError, OutputError
 from ..registration.result import IcpIteration
 

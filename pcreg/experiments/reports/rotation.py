@@ -94,7 +94,7 @@ def _figure(results: dict):
 def write_outputs(results: dict, out: str | Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
-    from ..._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
+    from ...outputs import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
     from ..units import nan_to_none
 
     out = Path(out)

@@ -137,7 +137,7 @@ def write_outputs(results: dict, out: str | Path) -> list[Path]:
     """Tables, checks, figures, config.json and (last) results.json, each written atomically."""
     import matplotlib.pyplot as plt
 
-    from ..._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
+    from ...outputs import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
     from ..units import nan_to_none
 
     out = Path(out)

@@ -176,11 +176,9 @@ def sample_indices(n: int, samples: int) -> list[int]:
 def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=None, show_progress: bool | None = None) -> dict:
     """Run every unit (resuming from ``out/units``); returns what results.json holds."""
-    from ..datasets import PRESETS
     from ..errors import DatasetError
-    from .units import Unit, UnitStore, load_cached, plain_config, run_resumable
+    from .units import Unit, evaluate_units, load_cached
 
-    t0 = time.perf_counter()
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     units = []
     for name, frames in datasets.items():
@@ -189,17 +187,8 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
                 raise DatasetError(f"dataset {name}: frame {frames[i].name} has no labels")
             for b in config.backends:
                 units.append(Unit(f"{name}/frame{i}_{b}", name, (("index", i), ("backend", b)), config))
-    cfg_dict = plain_config(config)
-    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
-    done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
-                                  executor=executor, desc="rotation", show_progress=show_progress)
-    results = summarise(config, [done[u.key] for u in units])
-    for name in results["datasets"]:
-        if name in PRESETS:
-            results["datasets"][name]["mirrors"] = PRESETS[name].mirrors
-    results["resumed_units"] = resumed
-    results["seconds"] = time.perf_counter() - t0
-    return results
+    return evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
+                          recorder=recorder, desc="rotation", show_progress=show_progress)
 
 
 def summarise(config: RotationConfig, unit_results: list[dict]) -> dict:

@@ -217,9 +217,8 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
 
     The classifier's evidence is not accumulated along the chain (as an HMM filter would): naive
     Bayes errs on the same colours in every frame, so its errors are correlated in time and adding
-    them up frame after frame wears correct labels away (measured on syn1b, 100 frames of 320x240,
-    k = 1: 9.8% error against 3.0% without it); neither does a label fade with age (13.2% there:
-    fading costs the long chains of accurate registrations more than it saves).
+    them up frame after frame wears correct labels away; neither does a label fade with age (both
+    measured worse: README, design notes).
     """
     d = np.asarray(log_odds_moving, dtype=np.float32)
     if T_ref_mov is None:

@@ -155,7 +155,7 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
             recorder.log_labels(predicted=pred_after, prefix="after")
             recorder.log_labels(predicted=pred_masked, prefix="after_masked")
             recorder.log_labels(predicted=pred_before, prefix="before")
-            recorder.log_errors({f"{prefix}/{k}": row[k] / 100.0 for k in KEYS})
+            recorder.log_errors({f"{prefix}/{k}": row[k] for k in KEYS})
     out["seconds"] = time.perf_counter() - t0
     return out
 

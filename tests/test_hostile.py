@@ -460,14 +460,15 @@ def test_classification_resumes_and_writes_strict_json(tmp_path, capsys):
             "--trials", "2", "--cases", "I", "--features", "rgb", "--out", str(tmp_path)]
     rc, err = cli(argv, capsys)
     assert rc == 0, err
-    units = sorted(p.name for p in (tmp_path / "units").iterdir())
+    units = sorted((tmp_path / "units").rglob("*.json"))
     assert units
     first = json.loads((tmp_path / "results.json").read_text())
-    (tmp_path / "units" / units[0]).unlink()  # as if interrupted before this one finished
+    units[0].unlink()  # as if interrupted before this one finished
     rc, err = cli(argv, capsys)
     assert rc == 0, err
     again = json.loads((tmp_path / "results.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
     assert [u["error"] for u in again["units"]] == [u["error"] for u in first["units"]]
+    assert again["resumed_units"] == len(first["units"]) - 1
 
 
 # ------------------------------------------------------------------------------------------------
@@ -537,7 +538,7 @@ def test_interrupt_with_workers_stops_at_once_and_keeps_finished_units(tmp_path,
     assert not [c for c in children if Path(f"/proc/{c}").exists()], "worker processes left behind"
     kept = _units(out)
     assert kept and all(json.loads(u.read_text()) for u in kept)  # whole files, reused by the next run
-    from pcreg.experiments._common import UnitStore
+    from pcreg.experiments.units import UnitStore
 
     cfg = json.loads((out / "config.json").read_text())
     store = UnitStore(out, cfg, force=False)
@@ -561,7 +562,7 @@ def test_second_run_on_the_same_out_is_refused(tmp_path):
         first.send_signal(signal.SIGINT)
         first.communicate(timeout=30)
     # released on exit (also on interruption): the folder can be used again
-    from pcreg._io import OutputLock
+    from pcreg.outputs import OutputLock
 
     with OutputLock(out):
         pass

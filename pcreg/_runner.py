@@ -72,7 +72,7 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         from .errors import PcregError
 
         try:
-            client = Client(scheduler, timeout=30, set_as_default=False)
+            client = Client(scheduler, set_as_default=False)  # timeout: distributed.comm.timeouts.connect
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
             raise PcregError(f"cannot connect to the dask scheduler {scheduler!r}: {exc}") from None
         executor = client.get_executor()

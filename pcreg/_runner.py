@@ -21,8 +21,9 @@ class _InlineExecutor(Executor):
         fut: Future = Future()
         try:
             fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+        except Exception as exc:  # noqa: BLE001 - handed to the caller through the future
             fut.set_exception(exc)
+        # KeyboardInterrupt (Ctrl-C, SIGTERM) propagates at once: the units not started are not run
         return fut
 
 
@@ -86,6 +87,13 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
     elif workers <= 1:
         yield _InlineExecutor()
     else:
+        import os
+
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        if workers > 4 * cpus:  # each worker holds its own copy of the data and libraries
+            from .errors import PcregError
+
+            raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here")
         pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init)
         try:
             yield pool

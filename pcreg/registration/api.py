@@ -53,6 +53,9 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     """Mean of the points in each occupied cube of side ``voxel`` (as Open3D's ``voxel_down_sample``)."""
     if voxel <= 0:
         return points
+    extent = float(np.max(points.max(axis=0) - points.min(axis=0))) if len(points) else 0.0
+    if extent / voxel > 2.0**40:  # integer voxel keys would overflow (or be meaningless)
+        raise InputError(f"voxel size {voxel:g} is too small for a cloud {extent:g} across")
     keys = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
     _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.ravel()

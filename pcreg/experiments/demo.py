@@ -160,13 +160,15 @@ def _pair_figure(frames, *, k: int, weight: float, out: Path, title: str) -> Non
     import numpy as np
 
     from .._io import atomic_save_figure
-    from ..pipeline import PipelineConfig, fit_classifier, process_pair
+    from ..classification.bayes import fit_classifier
+    from ..pipeline import PipelineConfig, TemporalFusion, process_pair
 
     i = 0
     j = min(i + k, len(frames) - 1)
     clf = fit_classifier([frames[i]], features=PipelineConfig().features)
-    res, ex = process_pair(frames[i], frames[j], clf, weight=weight, indices=(i, j), keep_arrays=True,
-                           temporal_source=frames[i].labels)
+    done = process_pair(frames[i], frames[j], clf, weight=weight, indices=(i, j), keep_arrays=True,
+                        temporal=TemporalFusion(frames[i].labels, weight=weight))
+    res, ex = done.result, done.arrays
     unknown = frames[j].labels == 2
 
     def shown(pred):
@@ -176,10 +178,10 @@ def _pair_figure(frames, *, k: int, weight: float, out: Path, title: str) -> Non
     panels = [
         (frames[i].image, f"reference frame {i}"),
         (frames[j].image, f"moving frame {j}"),
-        (np.where(ex["valid"][..., None], ex["warped"], 0), "moving warped onto the reference"),
+        (np.where(ex.valid[..., None], ex.warped, 0), "moving warped onto the reference"),
         (colours[frames[j].labels], f"truth of frame {j}"),
-        (shown(ex["predicted"]["plain"]), f"naive Bayes: {res.errors['plain']:.1f}% error"),
-        (shown(ex["predicted"]["augmented"]), f"augmented (w = {weight:g}): {res.errors['augmented']:.1f}% error"),
+        (shown(ex.predicted["plain"]), f"naive Bayes: {res.errors['plain']:.1f}% error"),
+        (shown(ex.predicted["augmented"]), f"augmented (w = {weight:g}): {res.errors['augmented']:.1f}% error"),
     ]
     fig, axes = plt.subplots(2, 3, figsize=(12, 6.4))
     for ax, (img, label) in zip(axes.flat, panels):

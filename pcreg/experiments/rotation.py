@@ -26,6 +26,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..registration.config import RegisterConfig
+
 
 DEFAULT_ANGLES = tuple(float(a) for a in range(0, 181, 5))
 KEYS = ("before", "after", "after_masked", "after_cropped")
@@ -49,9 +51,7 @@ class RotationConfig:
     frames: int | None = None
     size: tuple[int, int] | None = None
     seed: int = 0
-    levels: int = 4
-    iterations: int = 14
-    model: str = "rigid"
+    registration: RegisterConfig = RegisterConfig()
     features: tuple[str, ...] = ("rgb", "hsv", "row")
 
 
@@ -93,7 +93,7 @@ def config_from_args(args: argparse.Namespace) -> RotationConfig:
         raise InputError("--workers must be at least 1")
     return RotationConfig(data=args.data, angles=tuple(args.angles), samples=args.samples, canvas=args.canvas,
                           backends=c.backends(args.backend), frames=args.frames, size=args.size, seed=args.seed,
-                          levels=args.levels, iterations=args.iterations)
+                          registration=RegisterConfig(levels=args.levels, iterations=args.iterations))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -143,7 +143,7 @@ def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = Non
     from .. import warp
     from ..errors import RegistrationError
     from ..classification.metrics import error_rate
-    from ..pipeline import fit_classifier
+    from ..classification.bayes import fit_classifier
     from ..registration.transforms import about_point, image_center, max_corner_error
     from ._common import angle_key, load_cached
 
@@ -162,8 +162,7 @@ def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = Non
         row = {"before": error_rate(pred_before, frame.labels)}
         t_reg = time.perf_counter()
         try:
-            res = register(frame.image, image_r, backend=unit.backend, model=cfg.model, levels=cfg.levels,
-                           iterations=cfg.iterations, init="auto",
+            res = register(frame.image, image_r, **cfg.registration.replace(backend=unit.backend).kwargs(),
                            callback=None if recorder is None else recorder.icp_callback(unit.backend))
             T, reason = res.matrix, None
         except RegistrationError as exc:

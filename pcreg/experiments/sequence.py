@@ -23,6 +23,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..pipeline import PIPELINE_REGISTRATION
+from ..registration.config import RegisterConfig
+
 
 DEFAULT_INCREMENTS = (1, 4, 7, 10)
 #: Label maps logged per pair with ``--record`` (all methods' error rates are logged).
@@ -40,8 +43,8 @@ class SequenceConfig:
     sequence (default 100) or first frames of real ones (default all). size : synthetic (width, height).
     seed : synthetic data. train : ``reference`` or ``first:K``. fusion_frames : C (None: default).
     fusion_weight : fixed weight (None: chosen on the first C frames). eps, sigma : the prior's mixing
-    and blur (:class:`pcreg.classification.fusion.FusionConfig`). levels, iterations, init, model, features: the
-    pipeline (:class:`pcreg.pipeline.PipelineConfig`).
+    and blur (:class:`pcreg.classification.fusion.FusionConfig`). registration (its backend is set per
+    unit from ``backends``), features: the pipeline (:class:`pcreg.pipeline.PipelineConfig`).
     """
 
     data: str = "synthetic"
@@ -55,18 +58,14 @@ class SequenceConfig:
     fusion_weight: float | None = None
     eps: float = 0.05
     sigma: float = 2.0
-    levels: int = 4
-    iterations: int = 14
-    init: str = "identity"
-    model: str = "auto"
+    registration: RegisterConfig = PIPELINE_REGISTRATION
     features: tuple[str, ...] = ("rgb", "hsv", "row")
 
     def pipeline(self, backend: str):
         from ..classification.fusion import FusionConfig
         from ..pipeline import PipelineConfig
 
-        return PipelineConfig(backend=backend, model=self.model, levels=self.levels, iterations=self.iterations,
-                              init=self.init, features=tuple(self.features),
+        return PipelineConfig(registration=self.registration.replace(backend=backend), features=tuple(self.features),
                               fusion=FusionConfig(weight=self.fusion_weight, eps=self.eps, sigma=self.sigma))
 
 
@@ -103,8 +102,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="fixed fusion weight instead of choosing it on the fusion frames")
     parser.add_argument("--init", choices=("identity", "auto"), default="identity",
                         help="registration start: identity (default) or auto (global rotation search)")
-    parser.add_argument("--model", default="auto",
-                        help="motion model: auto (similarity for both backends), rigid, similarity, affine")
+    parser.add_argument("--model", default="similarity",
+                        help="motion model: similarity (default), translation, rigid, affine, projective")
     c.add_run_arguments(parser, out="out/sequence")
 
 
@@ -121,14 +120,15 @@ def config_from_args(args: argparse.Namespace) -> SequenceConfig:
         raise InputError("--fusion-weight must be >= 0")
     if args.levels < 1 or args.levels > 8 or args.iterations < 1:
         raise InputError("--levels must be in 1..8 and --iterations at least 1")
-    if args.model != "auto" and args.model not in MODELS:
-        raise InputError(f"--model must be auto or one of {', '.join(MODELS)}")
+    if args.model not in MODELS:
+        raise InputError(f"--model must be one of {', '.join(MODELS)}")
     if args.workers < 1:
         raise InputError("--workers must be at least 1")
     return SequenceConfig(data=args.data, increments=tuple(sorted(set(args.increments))),
                           backends=c.backends(args.backend), frames=args.frames, size=args.size, seed=args.seed,
                           train=args.train, fusion_frames=args.fusion_frames, fusion_weight=args.fusion_weight,
-                          levels=args.levels, iterations=args.iterations, init=args.init, model=args.model)
+                          registration=PIPELINE_REGISTRATION.replace(levels=args.levels, iterations=args.iterations,
+                                                                     init=args.init, model=args.model))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -172,20 +172,20 @@ def _recording_hooks(rec, unit: Unit, counter: list[int]):
     prefix = f"{unit.dataset}/k{unit.k}/{unit.backend}"
     rec.log_text(f"sequence {prefix}: start")
 
-    def on_pair(result, frames, extras) -> None:
+    def on_pair(result, frames, arrays) -> None:
         ref, mov = frames
         rec.set_frame(counter[0])
         counter[0] += 1
         rec.log_text(f"{prefix}: frame {result.moving} registered to frame {result.reference}")
-        rec.log_images(reference=ref.image, moving=mov.image, warped=extras["warped"], valid_mask=extras["valid"])
+        rec.log_images(reference=ref.image, moving=mov.image, warped=arrays.warped, valid_mask=arrays.valid)
         if result.registered:
             rec.log_transform(result.registration["matrix"])
         else:
             rec.log_failure(f"{prefix}: frames {result.reference} -> {result.moving}: {result.reason}")
         rec.log_labels(truth=mov.labels)
         for method in RECORDED_PREDICTIONS:
-            if method in extras["predicted"]:
-                rec.log_labels(predicted=extras["predicted"][method], prefix=method)
+            if method in arrays.predicted:
+                rec.log_labels(predicted=arrays.predicted[method], prefix=method)
         rec.log_errors({f"{prefix}/{m}": v / 100.0 for m, v in result.errors.items()})
 
     return on_pair, rec.icp_callback(unit.backend, max_points=200, max_correspondences=80)

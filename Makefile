@@ -26,7 +26,7 @@ sysdeps:
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test]"
+	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test,crosscheck]"
 	@touch $(STAMP)
 
 demo: setup

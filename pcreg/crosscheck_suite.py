@@ -363,10 +363,12 @@ def _figure(path: Path, rows: list[dict]) -> None:
     for r in rows:
         i, j = cases.index(r["case"]), impls.index(r["implementation"])
         status = r.get("status")
-        if status == "ok":
+        if status == "ok" and r.get("matrix_relative_disagreement") is None:
+            text[i][j] = "no ref."  # the reference refused the case: nothing to compare with
+        elif status == "ok":
             code[i, j] = 0 if r.get("agrees") else 1
             v = r.get("matrix_relative_disagreement")
-            text[i][j] = "" if v is None else f"{v:.0e}"
+            text[i][j] = f"{v:.0e}"
         elif status == "failed":
             code[i, j] = 2
             text[i][j] = "fail"

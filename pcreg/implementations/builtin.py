@@ -239,6 +239,11 @@ class KissIcp(Implementation):
         from kiss_icp.mapping import VoxelHashMap
         from kiss_icp.registration import Registration
 
+        R = lift_matrix(pinned.init)[:3, :3]
+        if np.linalg.norm(R @ R.T - np.eye(3)) >= 1e-11 or np.linalg.det(R) <= 0:
+            # Sophus (inside KISS-ICP) aborts the whole process on a rotation that is not orthonormal to 1e-10.
+            raise ImplementationError("the initial guess's rotation is not orthonormal to 1e-11; KISS-ICP (Sophus) "
+                                      "would abort the process")
         s = self.settings(pinned)
         vmap = VoxelHashMap(voxel_size=s["voxel_size"], max_distance=np.inf,
                             max_points_per_voxel=s["max_points_per_voxel"])

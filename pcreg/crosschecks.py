@@ -243,11 +243,25 @@ def _bbox_corners(points: np.ndarray) -> np.ndarray:
     return np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
 
 
+def _orthonormal(M: np.ndarray) -> np.ndarray:
+    """The rotation closest to M (polar decomposition; removes a similarity's scale)."""
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    return R
+
+
 def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
     """Disagreement of B with A: rotation (degrees), translation, relative matrix difference and, in 2-D,
     the largest displacement of the source's bounding-box corners (px for image edge clouds)."""
     d = A.shape[0] - 1
-    out = {"rotation_disagreement_deg": rotation_disagreement_deg(A, B),
+    RA, RB = _orthonormal(A[:d, :d]), _orthonormal(B[:d, :d])
+    # The angle of RA^T RB from its chord, ||RA - RB||_F = 2 sqrt(2) sin(angle / 2) (2 sin(angle / 2) in
+    # 2-D): unlike the arccos of the trace it keeps full precision for tiny angles.
+    chord = float(np.linalg.norm(RA - RB)) / (2.0 * np.sqrt(2.0) if d == 3 else 2.0)
+    out = {"rotation_disagreement_deg": float(np.degrees(2.0 * np.arcsin(min(1.0, chord)))),
            "translation_disagreement": float(np.linalg.norm(A[:d, d] - B[:d, d])),
            "matrix_relative_disagreement": _relative(A, B)}
     if d == 2:

@@ -284,4 +284,14 @@ def test_command_json_is_the_only_thing_on_stdout(tmp_path):
     out = json.loads(p.stdout)
     assert set(out["implementations"]) == {"reference", "open3d", "open3d-tensor", "small_gicp", "kiss-icp"}
     assert all(r["agrees"] for r in out["implementations"].values())
-    assert (tmp_path / "cc.rrd").stat().st_size > 0
+    from pcreg.recording.readback import read_recording
+
+    rec = read_recording(tmp_path / "cc.rrd")
+    assert "/crosscheck/target" in rec.entities()
+    for name, row in out["implementations"].items():
+        err = rec.series(f"crosscheck/{name}/error", timeline="crosscheck_iteration")
+        clouds = [r for r in rec.get(f"crosscheck/{name}/cloud") if not r.static]
+        assert err and clouds, name
+        if name != "small_gicp":  # small_gicp reports its final pose only
+            assert sorted(err) == list(range(row["iterations"] + 1)), name
+        assert err[max(err)] < 1e-6  # every one ends where the reference ends

@@ -258,6 +258,11 @@ class KissIcp(Implementation):
                                     kernel=s["kernel"])
         seconds = time.perf_counter() - start
         m = np.asarray(m)
+        steps, iterations = (), None
+        if trace:
+            steps, iterations = self._trace(reg1=Registration(max_num_iterations=1, convergence_criterion=0.0,
+                                                              max_num_threads=1),
+                                            vmap=vmap, pinned=pinned, settings=s)
         info = {"map_points": kept, "target_points": len(tgt)}
         if kept != len(tgt):
             info["map_dropped_points"] = len(tgt) - kept
@@ -266,8 +271,45 @@ class KissIcp(Implementation):
             m = project(m)
         fit, rmse, _ = score(pinned, m)
         info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
-        return Outcome(matrix=m, iterations=None, fitness=fit, inlier_rmse=rmse, converged=None, seconds=seconds,
-                       info=info)
+        if steps:
+            gap = float(np.max(np.abs(steps[-1].matrix - m)))
+            if gap > 0:
+                info["stepwise_gap"] = gap
+        if iterations is not None:
+            info["iterations_from"] = "a second run, one Gauss-Newton step per call (each step is stateless)"
+        return Outcome(matrix=m, iterations=iterations, fitness=fit, inlier_rmse=rmse,
+                       converged=None if iterations is None else iterations < s["max_num_iterations"],
+                       seconds=seconds, trace=steps, info=info)
+
+    @staticmethod
+    def _trace(*, reg1, vmap, pinned, settings):
+        """Its iterations one call at a time: each KISS-ICP step is a Gauss-Newton step from the current
+        pose with fresh correspondences, so chaining one-iteration calls replays its loop; it stops, as
+        KISS-ICP does, once the step's norm (rotation vector, translation) is below the criterion."""
+        from scipy.spatial.transform import Rotation
+
+        src = lift(pinned.source)
+        T = lift_matrix(pinned.init)
+        back = project if pinned.dim == 2 else (lambda x: x)
+        fit, rmse, idx = score(pinned, pinned.init)
+        steps = [TraceStep(0, np.array(pinned.init), fit, rmse, idx)]
+        for k in range(1, settings["max_num_iterations"] + 1):
+            T_new = np.asarray(reg1.align_points_to_map(src, vmap, T, max_correspondance_distance=settings["voxel_size"],
+                                                        kernel=settings["kernel"]))
+            D = T_new @ np.linalg.inv(T)
+            dx = np.concatenate([D[:3, 3], Rotation.from_matrix(_orthonormalise(D[:3, :3])).as_rotvec()])
+            T = T_new
+            M = back(T)
+            fit, rmse, idx = score(pinned, M)
+            steps.append(TraceStep(k, M, fit, rmse, idx))
+            if np.linalg.norm(dx) < settings["convergence_criterion"]:
+                break
+        return tuple(steps), len(steps) - 1
+
+
+def _orthonormalise(R):
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
 
 
 def _subsample(points: np.ndarray, n: int, seed: int) -> np.ndarray:

@@ -217,9 +217,8 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
 
     The classifier's evidence is not accumulated along the chain (as an HMM filter would): naive
     Bayes errs on the same colours in every frame, so its errors are correlated in time and adding
-    them up frame after frame wears correct labels away (measured on syn1b, 100 frames of 320x240,
-    k = 1: 9.8% error against 3.0% without it); neither does a label fade with age (13.2% there:
-    fading costs the long chains of accurate registrations more than it saves).
+    them up frame after frame wears correct labels away; neither does a label fade with age (both
+    measured worse: README, design notes).
     """
     d = np.asarray(log_odds_moving, dtype=np.float32)
     if T_ref_mov is None:
@@ -456,7 +455,7 @@ def _means(pairs: Sequence[PairResult]) -> dict:
     return out
 
 
-def _choose_temporal_weight(calib: list, frames: Sequence, *, kc: int, fusion: FusionConfig) -> WeightChoice:
+def _choose_temporal_weight(calib: list, frames: Sequence, *, fusion: FusionConfig) -> WeightChoice:
     """The temporal filter's weight: run the chains through the calibration pairs (in order) with each
     candidate weight, pool the errors of every fused frame, keep the best (ties: the smaller weight)."""
     grid = tuple(float(g) for g in fusion.grid)
@@ -568,7 +567,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
                                   shape=frames[j].shape, pi=pi)
             samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
         choice = choose_weight(samples, grid=config.fusion.grid)
-        temporal_choice = _choose_temporal_weight(calib, frames, kc=kc, fusion=config.fusion)
+        temporal_choice = _choose_temporal_weight(calib, frames, fusion=config.fusion)
         if choice.pairs == 0:
             notes.append(f"no registered pair among the first {C} frames to choose the fusion weight: "
                          f"w = {choice.weight} used")

@@ -68,7 +68,7 @@ def _as_lists(images, labels) -> tuple[list[np.ndarray], list[np.ndarray]]:
             if not np.issubdtype(lab.dtype, np.integer):
                 raise InputError(f"labels must be integers, got {lab.dtype} (training pair {k})")
             if lab.size and (lab.min() < 0 or lab.max() > 255):
-                raise InputError(f"label values outside 0..2 in training pair {k}")
+                raise InputError(f"label values outside 0..255 in training pair {k}")
             lab = lab.astype(np.uint8)
         if lab.size and lab.max() >= N_LABELS:
             raise InputError(f"label values must be 0 ground, 1 obstacle, 2 unknown; got {int(lab.max())} "

@@ -260,13 +260,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         raise InputError(f"refine must be 'point_to_line' or None, got {refine!r}")
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
         raise InputError(f"images too small for {levels} pyramid levels")
-    if not isinstance(max_points, (list, tuple)):
-        max_points = (max_points,) * levels
-    max_points = tuple(max_points) + (max_points[-1],) * max(0, levels - len(max_points))
     start = time.perf_counter()
     ref_levels = cloud_pyramid(ref_img, levels=levels, mask=reference_mask, max_points=reference_max_points,
                                sampler=sampler, seed=seed, canny_percentile=canny_percentile)
-    mov_levels = cloud_pyramid(mov_img, levels=levels, mask=moving_mask, max_points=tuple(max_points[:levels]),
+    mov_levels = cloud_pyramid(mov_img, levels=levels, mask=moving_mask, max_points=max_points,
                                sampler=sampler, seed=seed + 1, canny_percentile=canny_percentile)
     for name, lv in (("reference", ref_levels), ("moving", mov_levels)):
         if len(lv[0]) < 3:

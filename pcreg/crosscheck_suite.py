@@ -38,7 +38,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ._io import atomic_write_bytes, atomic_write_text, to_json
+from .outputs import atomic_write_bytes, atomic_write_text, to_json
 from .errors import InputError
 from .registration.transforms import apply, rigid2d
 

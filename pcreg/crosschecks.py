@@ -318,14 +318,31 @@ class CloudCrosscheck:
     target: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict:
-        return {"kind": "clouds", "implementations": self.rows, "settings": self.settings,
+        """JSON-ready (non-finite numbers become None, so the JSON stays valid)."""
+        return _finite({"kind": "clouds", "implementations": self.rows, "settings": self.settings,
                 "reference_at_convergence": self.reference_at_convergence,
                 "tolerances": {"step": f"relative matrix difference <= {STEP_TOLERANCE:g} against the reference",
                                "fixed-point": f"relative matrix difference <= {FIXED_POINT_TOLERANCE:g} against the "
                                               "reference run to convergence",
                                "objective": f"rotation <= {OBJECTIVE_ROTATION_DEG:g} deg and translation <= "
                                             f"{OBJECTIVE_TRANSLATION:.1%} of the target's bounding-box diagonal "
-                                            "against the reference run to convergence"}}
+                                            "against the reference run to convergence"}})
+
+
+def _finite(obj):
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    return obj
 
 
 def _agrees(comparability: str, cmp: dict, diag: float) -> bool:

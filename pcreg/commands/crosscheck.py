@@ -21,7 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--with", dest="implementations", action="append", metavar="LIST",
                    help="clouds: comma-separated implementations (default reference,open3d; 'all' = every built-in "
                         "one); built in: reference, open3d, open3d-tensor, small_gicp, small_gicp-plane, "
-                        "small_gicp-gicp, kiss-icp, pycpd, probreg-cpd; or py:MODULE:FUNCTION, "
+                        "small_gicp-gicp, kiss-icp, pycpd, probreg-cpd, probreg-filterreg; or py:MODULE:FUNCTION, "
                         "cmd:\"PROGRAM {source} {target} {init} {out} {params}\"; may be repeated")
     p.add_argument("--model", choices=("rigid", "similarity"), default="rigid", help="images: motion model")
     p.add_argument("--iterations", "--max-iterations", dest="iterations", type=positive_int, default=30,

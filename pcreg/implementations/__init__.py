@@ -13,7 +13,7 @@ from .builtin import BUILTIN
 from .user import Command, PythonCallable
 
 DEFAULT = ("reference", "open3d", "open3d-tensor", "small_gicp", "small_gicp-plane", "small_gicp-gicp", "kiss-icp",
-           "pycpd", "probreg-cpd")
+           "pycpd", "probreg-cpd", "probreg-filterreg")
 
 
 def get(spec: str, *, timeout: float | None = None) -> Implementation:

@@ -71,7 +71,7 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
 
     import numpy as np
 
-    from .. import warp
+    from ..registration.warp import warp
     from ..registration.transforms import about_point, image_center, rigid2d
 
     h, w = image.shape[:2]
@@ -93,8 +93,8 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
     recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``)."""
     import numpy as np
 
-    from .. import register
-    from .. import warp
+    from ..registration.api import register
+    from ..registration.warp import warp
     from ..errors import RegistrationError
     from ..classification.metrics import error_rate
     from ..classification.bayes import fit_classifier
@@ -155,7 +155,7 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
             recorder.log_labels(predicted=pred_after, prefix="after")
             recorder.log_labels(predicted=pred_masked, prefix="after_masked")
             recorder.log_labels(predicted=pred_before, prefix="before")
-            recorder.log_errors({f"{prefix}/{k}": row[k] / 100.0 for k in KEYS})
+            recorder.log_errors({f"{prefix}/{k}": row[k] for k in KEYS})
     out["seconds"] = time.perf_counter() - t0
     return out
 

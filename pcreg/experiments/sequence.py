@@ -115,7 +115,7 @@ def _recording_hooks(rec, unit, counter: list[int]):
         for method in RECORDED_PREDICTIONS:
             if method in arrays.predicted:
                 rec.log_labels(predicted=arrays.predicted[method], prefix=method)
-        rec.log_errors({f"{prefix}/{m}": v / 100.0 for m, v in result.errors.items()})
+        rec.log_errors({f"{prefix}/{m}": v for m, v in result.errors.items()})
 
     return on_pair, rec.icp_callback(unit.backend, max_points=200, max_correspondences=80)
 

@@ -476,7 +476,8 @@ class Recorder:
         self._log(path, rr.Scalars(float(value)))
 
     def log_errors(self, errors: Mapping[str, float]) -> None:
-        """Log error rates (fractions) per method as Scalars at ``errors/{method}``; NaN is skipped."""
+        """Log error rates in percent (as everywhere in pcreg) per method as Scalars at ``errors/{method}``;
+        NaN is skipped."""
         for method, value in errors.items():
             v = float(value)
             if math.isfinite(v):

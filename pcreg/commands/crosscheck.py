@@ -9,7 +9,6 @@ a suite and writes a table and a figure.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from ._common import add_record_arguments, float_list, open_recorder, positive_float, positive_int, print_json

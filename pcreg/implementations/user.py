@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .base import COMPARABILITY, STEP, ImplementationError, Implementation, Outcome, Pinned
+from .base import COMPARABILITY, STEP, ImplementationError, Implementation, Outcome
 
 PLACEHOLDERS = ("source", "target", "init", "out", "params")
 DEFAULT_TIMEOUT = 60.0

@@ -249,6 +249,21 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
         os.close(fd)
 
 
+def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:
+    """A small whitespace-separated text matrix (an initial guess, a ground truth) from a regular file of
+    at most 64 kB, as a finite 2-D float64 array."""
+    import io
+
+    data = read_regular_file(path, max_bytes=1 << 16, what=what)
+    try:
+        m = np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2)
+    except (ValueError, IndexError, TypeError) as exc:
+        raise InputError(f"{path}: not a text matrix ({' '.join(str(exc).split())[:160]})") from None
+    if m.size == 0 or not np.all(np.isfinite(m)):
+        raise InputError(f"{path}: the {what} must hold finite numbers")
+    return m
+
+
 # --------------------------------------------------------------------------------------------------
 # image headers
 # --------------------------------------------------------------------------------------------------

@@ -446,6 +446,11 @@ CLI = {
                                           "G pixels"),
     "workers_over_4x_cpus": (["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "2", "--size",
                               "48x36", "--workers", "1000", "--out", "{t}/o"], "CPUs"),
+    "crosscheck_init_fifo": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/fifo.npy"], "not a regular file"),
+    "crosscheck_init_nan": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/nan.txt"], "finite"),
+    "crosscheck_relative_fitness_nan": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--relative-fitness", "nan"],
+                                        "--relative-fitness"),
+    "crosscheck_suite_bad_params": (["crosscheck", "--suite", "{t}/suite"], "unreadable case"),
     "sequence_lagr_nan": (["evaluate", "sequence", "--data", "lagr:{t}/lagr_nan", "--out", "{t}/o"], "NaN"),
 }
 
@@ -456,6 +461,14 @@ def test_cli_one_line_exit_2(files, capsys, kind):
     if kind == "sequence_lagr_nan":
         mat_file((files / "lagr_nan").mkdir() or files / "lagr_nan" / "frame001.mat", np.full((20, 16, 3), np.nan),
                  np.zeros((20, 16)))
+    (files / "nan.txt").write_text("1 0 0 0\n0 nan 0 0\n0 0 1 0\n0 0 0 1\n")
+    if kind == "crosscheck_suite_bad_params":
+        (files / "suite" / "c1").mkdir(parents=True)
+        (files / "suite" / "index.json").write_text(json.dumps({"format": 1, "cases": ["c1"]}))
+        (files / "suite" / "c1" / "params.json").write_text(json.dumps({"max_correspondence_distance": "far"}))
+        (files / "suite" / "c1" / "init.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+        np.save(files / "suite" / "c1" / "source.npy", CLOUD)
+        np.save(files / "suite" / "c1" / "target.npy", CLOUD)
     rc, err = cli([a.replace("{t}", str(files)) for a in argv], capsys)
     assert rc == 2, err
     assert len(err) == 1 and "Traceback" not in err[0], err

@@ -36,7 +36,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, PcregError
 
 DEFAULT_MAX_PIXELS = 50_000_000
 MAX_UNITS = 100_000  # evaluation units one command may plan
@@ -151,6 +151,35 @@ def check_units(n: int, what: str = "units") -> int:
     if n > MAX_UNITS:
         raise InputError(f"{n} {what} requested; the limit is {MAX_UNITS} (use a coarser step or fewer values)")
     return n
+
+
+def api_boundary(obj):
+    """``obj`` itself, or for a plain function a wrapper that turns the errors Python, NumPy or OpenCV
+    raise on arguments of the wrong type or value (TypeError, ValueError, IndexError, AttributeError, OverflowError,
+    ZeroDivisionError, ``numpy.linalg.LinAlgError``, ``cv2.error``) into :class:`InputError`, the
+    original chained as its cause. The public names of :mod:`pcreg` are wrapped so."""
+    import functools
+    import inspect
+
+    if not inspect.isfunction(obj) or getattr(obj, "__wrapped__", None) is not None:
+        return obj
+
+    @functools.wraps(obj)
+    def wrapper(*args, **kwargs):
+        try:
+            return obj(*args, **kwargs)
+        except PcregError:  # already one of ours
+            raise
+        except (TypeError, ValueError, IndexError, AttributeError, OverflowError, ZeroDivisionError,
+                np.linalg.LinAlgError) as exc:
+            raise InputError(f"{obj.__name__}: invalid input ({type(exc).__name__}: "
+                             f"{' '.join(str(exc).split())[:200]})") from exc
+        except Exception as exc:  # noqa: BLE001 - cv2.error and its kin, without importing cv2 here
+            if type(exc).__module__.split(".")[0] != "cv2":
+                raise
+            raise InputError(f"{obj.__name__}: OpenCV refused the input ({' '.join(str(exc).split())[-200:]})") from exc
+
+    return wrapper
 
 
 # --------------------------------------------------------------------------------------------------

@@ -356,6 +356,41 @@ def test_library_raises_pcreg_errors_only(files, kind):
     assert time.perf_counter() - t0 < 20
 
 
+BAD_VALUES = [None, "x", -1, 2.5, float("nan"), float("inf"), 1e300, [], {}, np.zeros((3, 3)), True, object()]
+PUBLIC_CALLS = {
+    "register": (lambda **kw: __import__("pcreg").register(GOOD, GOOD, **kw),
+                 ["backend", "model", "levels", "iterations", "init", "sampler", "max_points", "refine", "weights",
+                  "angle_step", "n_candidates", "reference_mask", "canny_percentile", "seed"]),
+    "icp": (lambda **kw: __import__("pcreg").icp(CLOUD, CLOUD, **kw),
+            ["backend", "model", "max_correspondence_distance", "init", "max_iteration", "voxel_sizes",
+             "max_iterations", "weights", "trim_fraction", "metric", "rotation"]),
+    "image_cloud": (lambda **kw: __import__("pcreg").image_cloud(GOOD, **kw),
+                    ["sampler", "max_points", "level", "canny_percentile"]),
+    "cloud_pyramid": (lambda **kw: __import__("pcreg").cloud_pyramid(GOOD, **kw), ["levels", "max_points"]),
+    "warp": (lambda **kw: __import__("pcreg").warp(GOOD, np.eye(3), **kw), ["shape", "interpolation", "fill"]),
+    "synthetic": (lambda **kw: __import__("pcreg").synthetic("syn1a", **{"n_frames": 2, "width": 32, "height": 24, **kw}), ["n_frames", "seed", "width", "height"]),
+    "load_dataset": (lambda **kw: __import__("pcreg").load_dataset("synthetic:syn1a", **{"n_frames": 2, "size": (32, 24), **kw}),
+                     ["n_frames", "size", "seed"]),
+    "NaiveBayesPixelClassifier": (lambda **kw: __import__("pcreg").NaiveBayesPixelClassifier(**kw),
+                                  ["features", "weights", "var_smoothing", "priors"]),
+}
+
+
+@pytest.mark.parametrize("function", sorted(PUBLIC_CALLS))
+def test_public_api_wrong_types_raise_pcreg_errors(function):
+    """Every keyword of the public functions, given values of the wrong type or range: a PcregError or a
+    result, never TypeError/ValueError/OverflowError/... from deep inside."""
+    call, keywords = PUBLIC_CALLS[function]
+    for kw in keywords:
+        for value in BAD_VALUES:
+            try:
+                call(**{kw: value})
+            except PcregError:
+                pass
+            except Exception as exc:  # noqa: BLE001 - the assertion names it
+                pytest.fail(f"{function}({kw}={value!r}) raised {type(exc).__name__}: {exc}")
+
+
 def test_png_bomb_is_refused_before_decoding(files):
     from pcreg.registration.clouds import load_image
 

@@ -50,8 +50,11 @@ def _as_lists(images, labels) -> tuple[list[np.ndarray], list[np.ndarray]]:
         images = [images]
     if isinstance(labels, np.ndarray) and labels.ndim == 2:
         labels = [labels]
-    images = list(images)
-    labels = list(labels)
+    try:
+        images = list(images)
+        labels = list(labels)
+    except TypeError:
+        raise InputError("images and labels must be arrays or sequences of arrays") from None
     if len(images) != len(labels):
         raise InputError(f"{len(images)} images but {len(labels)} label arrays")
     if not images:
@@ -172,9 +175,14 @@ class NaiveBayesPixelClassifier:
     def __init__(self, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
                  weights: Sequence[float] | None = None, exclude_unknown: bool = True,
                  var_smoothing: float = 1e-9, priors: Sequence[float] | None = None) -> None:
-        self.features = parse_features(features)
-        self.weights = normalise_weights(weights)
-        self.exclude_unknown = bool(exclude_unknown)
+        try:
+            self.features = parse_features(features)
+            self.weights = normalise_weights(weights)
+            self.exclude_unknown = bool(exclude_unknown)
+        except InputError:
+            raise
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"NaiveBayesPixelClassifier: invalid option ({' '.join(str(exc).split())[:160]})") from exc
         from ..validation import check_float
 
         self.var_smoothing = check_float(var_smoothing, "var_smoothing", lo=0)

@@ -107,7 +107,27 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
             raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
         if len(pts) > limit:
             raise InputError(f"{path}: {len(pts)} points exceed the limit of {limit} (raise --max-pixels)")
+        if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
+            _check_text_cloud(path, suffix, len(pts))
     return check_cloud(pts, str(path))
+
+
+def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
+    """Open3D skips the lines of a text cloud it cannot parse, silently: refuse a file where it did.
+    Every non-empty line is a point (``.pts``: after a first line with the point count)."""
+    first, count = None, 0
+    with open(path, "rb") as fh:
+        for line in fh:  # streamed: the file may be large
+            if line.strip():
+                first = line.strip() if first is None else first
+                count += 1
+    expected = count
+    if suffix == ".pts" and first is not None and first.isdigit():
+        expected = count - 1
+        if int(first) != expected:
+            raise InputError(f"{path}: the first line declares {int(first)} points, the file holds {expected} lines")
+    if n_read != expected:
+        raise InputError(f"{path}: {expected - n_read} of {expected} lines are not points (damaged {suffix} file)")
 
 
 def _open3d_warning(text: str) -> str:

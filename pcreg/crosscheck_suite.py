@@ -261,7 +261,7 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     cases = []
     for name in meta["cases"]:
         d = path / str(name)
-        from .validation import read_regular_file, read_text_matrix
+        from .validation import read_text_matrix
 
         try:  # regular files only, bounded reads; a damaged case is one line, never a traceback
             params = json.loads(read_regular_file(d / "params.json", max_bytes=1 << 20, what="params.json"))

@@ -480,7 +480,7 @@ def _choose_temporal_weight(calib: list, frames: Sequence, *, fusion: FusionConf
     return WeightChoice(grid[best], grid, tuple(float(e) for e in errors), len(calib), total)
 
 
-def _odd_sized(frames: Sequence[Frame]) -> dict[int, str]:
+def _odd_sized(frames: Sequence) -> dict[int, str]:
     """{index: reason} of the frames whose size differs from the sequence's most common size."""
     from collections import Counter
 

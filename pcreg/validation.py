@@ -452,15 +452,6 @@ _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort"
               "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
 
 
-def _header(path: Path, end: bytes, max_len: int = 1 << 16) -> tuple[bytes, int]:
-    with open(path, "rb") as fh:
-        head = fh.read(max_len)
-    i = head.find(end)
-    if i < 0:
-        raise InputError(f"{path}: no complete header in the first {max_len} bytes")
-    return head[:i], i + len(end)
-
-
 def _ply_check(path: Path, size: int, limit: int) -> int:
     with open(path, "rb") as fh:
         head = fh.read(1 << 16)

@@ -121,10 +121,7 @@ def _suite(args) -> dict:
 
 
 def _clouds(args) -> int:
-    import numpy as np
-
     from ..crosschecks import crosscheck
-    from ..errors import InputError
     from ..implementations import stdout_to_stderr
 
     init = None

@@ -91,6 +91,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")
         return 130
+    except BrokenPipeError:  # stdout closed early (`pcreg ... | head`): no message, as other tools
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # Python's flush at exit must not fail again
+        except (OSError, ValueError):
+            pass
+        return 141
     except MemoryError:
         sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels)\n")
         return 2

@@ -123,3 +123,36 @@ def test_unreachable_scheduler_is_one_line(capsys, tmp_path):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "scheduler" in err[0], err
     assert time.time() - t0 < 60
+
+
+def test_sigterm_cancels_the_cluster_units_and_keeps_the_finished(cluster, tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "rot"
+    argv = [sys.executable, "-m", "pcreg.cli", *ARGS[:-4], "--angles", "0:180:5", "--samples", "4",
+            "--scheduler", cluster.scheduler_address, "--out", str(out)]
+    p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 120
+        while not _units(out) and time.time() < deadline and p.poll() is None:
+            time.sleep(0.05)
+        assert p.poll() is None, p.communicate()
+        t0 = time.time()
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=30)
+        assert time.time() - t0 < 10
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130 and "interrupted" in err, err
+    kept = _units(out)
+    assert 1 <= len(kept) < 4
+    client = distributed.Client(cluster.scheduler_address, set_as_default=False)
+    try:
+        deadline = time.time() + 10  # the units not finished were cancelled on the scheduler
+        while client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) and time.time() < deadline:
+            time.sleep(0.2)
+        assert client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0
+    finally:
+        client.close()

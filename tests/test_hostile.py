@@ -98,10 +98,10 @@ def mat_file(path: Path, image, mask=None) -> Path:
     return path
 
 
-@pytest.fixture()
-def files(tmp_path):
-    """A folder of hostile files by name."""
-    t = tmp_path
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A folder of hostile files by name (shared by the tests of this module; they only add files)."""
+    t = tmp_path_factory.mktemp("hostile")
     fifo = t / "fifo.png"
     os.mkfifo(fifo)
     os.mkfifo(t / "fifo.ply")
@@ -561,8 +561,8 @@ def test_crosscheck_json_stays_parseable(files):
     assert json.loads(p.stdout)["kind"] == "clouds"
 
 
-ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "3", "--size", "160x120",
-            "--angles", "0:180:5", "--samples", "3"]
+ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
+            "--angles", "0:180:10", "--samples", "4"]  # 4 units of 19 registrations each
 
 
 def _units(out: Path) -> list[Path]:

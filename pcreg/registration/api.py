@@ -18,7 +18,10 @@ from .open3d_icp import icp_open3d
 from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
 from .clouds import ImageCloud, as_rgb_uint8, cloud_pyramid
 from .result import IcpIteration, RegistrationResult
-from .transforms import about_point, apply, check_model, image_center, rigid2d
+from .global_search import (GENERATORS, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
+                            orb_hypotheses)
+from .open3d_icp import check_model as check_open3d_model
+from .transforms import about_point, apply, check_model, corners, image_center
 
 BACKENDS = ("reference", "open3d")
 
@@ -65,11 +68,28 @@ def _run_backend(backend: str, source: np.ndarray, target: np.ndarray, *, model:
                              relative_rmse=relative_rmse, weights=weights, metric=metric,
                              target_normals=target_normals, callback=callback, level=level, rotation=rotation,
                              tree=tree, trim_fraction=trim_fraction)
-    if weights != "none":
-        raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
+    _refuse_for_open3d(weights=weights, metric=metric, target_normals=target_normals, rotation=rotation,
+                       trim_fraction=trim_fraction)
     return icp_open3d(source, target, model=model, max_correspondence_distance=dist, init=init,
                       max_iteration=max_iteration, relative_fitness=relative_fitness, relative_rmse=relative_rmse,
                       callback=callback, level=level, stepwise=count_iterations or callback is not None)
+
+
+def _refuse_for_open3d(*, weights: str = "none", metric: str = "point_to_point", target_normals=None,
+                       rotation: str = "svd", trim_fraction: float = 0.9) -> None:
+    """:class:`InputError` for every option Open3D's point-to-point ICP cannot honour (none is ignored)."""
+    if weights != "none":
+        raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
+    if metric != "point_to_point":
+        raise InputError(f"metric {metric!r} is a reference-backend feature; the open3d backend is point-to-point")
+    if target_normals is not None:
+        raise InputError("target_normals serve the reference backend's point-to-line metric; "
+                         "the open3d backend (point-to-point) would ignore them")
+    if rotation != "svd":
+        raise InputError(f"rotation={rotation!r} chooses the reference backend's closed form; "
+                         "Open3D's point-to-point estimation has its own (SVD)")
+    if trim_fraction != 0.9:
+        raise InputError("trim_fraction belongs to the reference backend's trimmed weights")
 
 
 def _check_options(backend: str, model: str, dim: int, weights: str, metric: str) -> None:
@@ -113,6 +133,19 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
         raise InputError(f"source is {src.shape[1]}-D but target is {tgt.shape[1]}-D")
     dim = src.shape[1]
     _check_options(backend, model, dim, weights, metric)
+    if backend == "open3d":
+        check_open3d_model(model)
+        _refuse_for_open3d(weights=weights, metric=metric, target_normals=target_normals, rotation=rotation,
+                           trim_fraction=trim_fraction)
+    if rotation not in ("svd", "quaternion"):
+        raise InputError(f"rotation must be 'svd' or 'quaternion', got {rotation!r}")
+    if rotation == "quaternion" and (dim != 3 or model != "rigid"):
+        raise InputError("rotation='quaternion' (Horn's closed form) is for the rigid model of 3-D clouds")
+    if metric == "point_to_line" and (dim != 2 or target_normals is None or voxel_sizes):
+        raise InputError("metric='point_to_line' needs 2-D clouds, target_normals and no voxel_sizes "
+                         "(normals cannot follow a voxel downsampling)")
+    if target_normals is not None and metric != "point_to_line":
+        raise InputError("target_normals are used only by metric='point_to_line'")
     check_rank(src, model)
     check_rank(tgt, model if model != "translation" else "translation")
     if target_normals is not None:
@@ -164,82 +197,93 @@ def _pyramid_images(img: np.ndarray, levels: int) -> list[np.ndarray]:
     return out
 
 
-def _rasterise(points: np.ndarray, size: int, sigma: float) -> np.ndarray:
-    """Points (N, 2) in cell units around the canvas centre -> blurred (size, size) float32 density."""
-    ij = np.rint(points + size / 2.0).astype(np.intp)
-    keep = (ij[:, 0] >= 0) & (ij[:, 0] < size) & (ij[:, 1] >= 0) & (ij[:, 1] < size)
-    flat = ij[keep, 1] * size + ij[keep, 0]
-    img = np.bincount(flat, minlength=size * size).astype(np.float32).reshape(size, size)
-    return cv2.GaussianBlur(img, (0, 0), sigma)
+DEFAULT_MIN_INLIER_RATIO = 0.25
+"""Default plausibility threshold of :func:`register` (share of tight, direction-consistent inliers).
+
+Chosen from what each kind of alignment produces (measured on procedural textures and synthetic
+scenes, ``tools/bench_registration.py`` reports the distributions): an unrelated pair, noise or a
+mirror image reaches only the chance level of the test, roughly the share of the reference covered by
+the 1-px band around its edges times the chance that two random edge directions agree within 30°
+(1/6), i.e. a few percent and below 0.15 even on the densest textures; a true alignment of the same
+scene puts most edge points there (0.5-0.95), and a genuine pair with real appearance changes
+(consecutive video frames, motion blur, resampling) stays above 0.3. The threshold sits between.
+"""
+
+REFINES = ("none", "point_to_line")
 
 
-def _global_search(ref: ImageCloud, mov: ImageCloud, *, angles: np.ndarray, sigma: float = 1.0
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid hypotheses over the full circle: for each angle, the best translation by FFT cross-correlation.
+def _ensure_backend_options(backend: str, refine: str, weights: str) -> None:
+    if refine == "point_to_line" and backend != "reference":
+        raise InputError("refine='point_to_line' is a reference-backend finish (Open3D's ICP here is point-to-point); "
+                         "use refine='none' with backend='open3d'")
+    if weights != "none" and backend != "reference":
+        raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
 
-    Both clouds are rasterised at their (coarse) pyramid level and blurred; the moving cloud is rotated
-    by each angle about its image centre, put on the reference centre, and the peak of its cross-
-    correlation with the reference (``cv2.dft``) gives the translation and a score. Returns (K, 3, 3)
-    matrices ``T_ref_mov`` and (K,) scores (correlation peaks, comparable across angles because the same
-    moving points are rasterised every time).
-    """
-    g = float(2 ** ref.level)
-    c_ref = np.array(image_center(ref.shape))
-    c_mov = np.array(image_center(mov.shape))
-    # The canvas holds the reference plus a margin for shifts up to a quarter of its size; moving points
-    # rotated beyond it (the far corners) are dropped, which costs little correlation and halves the FFT.
-    extent = 1.5 * max(ref.shape) / g
-    size = cv2.getOptimalDFTSize(int(np.ceil(max(extent, 16.0))))
-    R = _rasterise((ref.points - c_ref) / g, size, sigma)
-    FR = cv2.dft(R)  # real input: packed (CCS) spectrum, half the work of a complex one
-    pm = (mov.points - c_mov) / g
-    Ts, scores = [], []
-    for a in angles:
-        Rot = rigid2d(a)[:2, :2]
-        M = _rasterise(pm @ Rot.T, size, sigma)
-        FM = cv2.dft(M)
-        C = cv2.idft(cv2.mulSpectrums(FR, FM, 0, conjB=True), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
-        iy, ix = np.unravel_index(int(np.argmax(C)), C.shape)
-        peak = float(C[iy, ix])
-        # Sub-cell peak by a parabola through the neighbours, per axis.
-        def sub(c_m, c_0, c_p):
-            den = c_m - 2 * c_0 + c_p
-            return 0.5 * (c_m - c_p) / den if den < 0 else 0.0
-        dx = ix + sub(C[iy, ix - 1], peak, C[iy, (ix + 1) % size])
-        dy = iy + sub(C[iy - 1, ix], peak, C[(iy + 1) % size, ix])
-        dx = dx - size if dx > size / 2 else dx
-        dy = dy - size if dy > size / 2 else dy
-        T = about_point(rigid2d(a), tuple(c_mov), tuple(c_ref))
-        T[:2, 2] += np.array([dx, dy]) * g
-        Ts.append(T)
-        scores.append(peak)
-    return np.stack(Ts), np.array(scores)
+
+def _mirror_cloud(c: ImageCloud) -> ImageCloud:
+    """The cloud of the image mirrored left-right (x -> W - 1 - x, normals' x negated)."""
+    pts = c.points.copy()
+    pts[:, 0] = (c.shape[1] - 1) - pts[:, 0]
+    nrm = c.normals.copy()
+    nrm[:, 0] = -nrm[:, 0]
+    return ImageCloud(points=pts, colors=c.colors, normals=nrm, shape=c.shape, level=c.level)
+
+
+def _unseen(hyps: list[np.ndarray], seen: list[np.ndarray], shape, *, min_px: float) -> list[np.ndarray]:
+    """The hypotheses whose corners are more than ``min_px`` from those of every one in ``seen`` and
+    of every earlier one in ``hyps``."""
+    c = corners(shape)
+    out: list[np.ndarray] = []
+    for h in hyps:
+        pc = apply(h, c)
+        if all(np.max(np.linalg.norm(pc - apply(q, c), axis=1)) > min_px for q in list(seen) + out):
+            out.append(h)
+    return out
 
 
 def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: str = "reference",
              model: str = "rigid", levels: int = 4, iterations: int = 14, init: str | np.ndarray = "auto",
              sampler: str = "canny", max_points: Sequence[int | None] | int | None = (1000, 800, 600, 400),
              reference_max_points: int | None = 20000, max_correspondence_distance: float = 2.5,
-             refine: str | None = "point_to_line", weights: str = "none",
+             refine: str | None = "none", weights: str = "none",
              relative_fitness: float = 1e-4, relative_rmse: float = 1e-3, angle_step: float = 15.0,
-             n_candidates: int = 2,
+             n_candidates: int = 2, generators: Sequence[str] = ("edges", "fourier_mellin", "orb"),
+             min_inlier_ratio: float | None = DEFAULT_MIN_INLIER_RATIO, inlier_tolerance: float = 1.0,
              reference_mask: np.ndarray | str | None = "auto", moving_mask: np.ndarray | str | None = "auto",
              canny_percentile: float = 85.0, seed: int = 0,
              callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
     """Register ``moving_image`` to ``reference_image``: the returned ``matrix`` is ``T_ref_mov``.
 
-    Both images become edge clouds (:func:`pcreg.image_cloud`) at pyramid levels 0..levels-1. With
-    ``init="auto"`` (or ``"global"``) a global search (:func:`_global_search`) first rotates the moving
-    cloud every ``angle_step`` degrees over the full circle at the coarsest level with at least 100
-    points a side, finds each rotation's translation by FFT cross-correlation, gives the
-    ``n_candidates`` best a short rigid ICP and keeps the one that puts most points within one cell of
-    the reference, so any rotation in ±180° with shifts of ~10% of the image is found;
-    ``init="identity"``, ``"center"`` (image centres aligned) or a 3x3 matrix skips it. ICP (``backend``) then refines from the
-    coarsest level to the finest with ``iterations`` iterations per level and a correspondence distance
-    of ``max_correspondence_distance`` px x 2^level. ``refine="point_to_line"`` (reference backend)
-    finishes with point-to-line iterations at full resolution, which removes the bias of matching
-    edge points sampled at different places along the same edge.
+    Both images become edge clouds (:func:`pcreg.image_cloud`) at pyramid levels 0..levels-1.
 
+    With ``init="auto"`` (or ``"global"``) hypotheses come from the ``generators``, tried in order
+    (:mod:`pcreg.registration.global_search`): ``"edges"`` rotates the moving edge cloud every
+    ``angle_step`` degrees over the full circle and finds each rotation's translation by FFT
+    cross-correlation (the ``n_candidates`` best are kept); ``"fourier_mellin"`` takes the rotation from
+    the log-polar magnitude spectra and the translation from a phase correlation of the intensity
+    images; ``"orb"`` matches ORB features at pyramid level 1 and fits a similarity by RANSAC. Every
+    hypothesis gets a short ICP with the selected ``backend`` at the search level (the coarsest with at
+    least 100 points a side) and is scored by its share of tight, direction-consistent inliers there;
+    the best of a generator is refined coarse to fine (``backend``, ``iterations`` per level, a
+    correspondence distance of ``max_correspondence_distance`` px x 2^level) and its evidence measured
+    at full resolution. The next generator runs only while no refined hypothesis is convincing (an
+    inlier ratio of at least twice ``min_inlier_ratio``, or 0.6), so easy pairs pay for one. The
+    refined hypothesis with the most evidence wins. ``init="identity"``, ``"center"`` (image centres
+    aligned) or a 3x3 matrix replaces the search by that one hypothesis.
+
+    Failure signal: the winner's ``inlier_ratio`` is the share of moving edge points, among those that
+    land on the reference image, with a reference edge point within ``inlier_tolerance`` px whose edge
+    direction agrees within 30°. Below ``min_inlier_ratio`` (see :data:`DEFAULT_MIN_INLIER_RATIO`; None
+    turns the test off) :class:`~pcreg.errors.RegistrationError` is raised with a one-line reason, as
+    when no moving point lands on the reference (no overlap). Unrelated images, noise and mirror images
+    are refused this way.
+
+    backend : ``"reference"`` or ``"open3d"``: the ICP of every step (candidates, levels, finish).
+    refine : ``"none"`` (default) or ``"point_to_line"``: point-to-line iterations (Tukey weights) at
+        full resolution after the point-to-point levels, which removes the bias of matching edge points
+        sampled at different places along the same edge (reference backend only; Open3D's backend
+        refuses it with :class:`~pcreg.errors.InputError`). The default is the same algorithm for both
+        backends, so that their results can be compared.
     reference_image, moving_image : (H, W, 3) uint8 RGB (also gray, uint16, float in [0, 1]); the
         sizes may differ.
     max_points : moving points kept per level (finest first), at random with ``seed``.
@@ -248,16 +292,36 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     relative_fitness, relative_rmse : Open3D's stopping rule per level (absolute changes; the RMSE
         threshold is in full-resolution px, scaled by 2^level); the point-to-line finish uses at most 1e-6.
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
+
+    Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
+    generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
     """
     ref_img = as_rgb_uint8(reference_image, name="reference image")
     mov_img = as_rgb_uint8(moving_image, name="moving image")
     _check_options(backend, model, 2, weights, "point_to_point")
+    if refine is None:
+        refine = "none"
+    if refine not in REFINES:
+        raise InputError(f"refine must be one of {', '.join(REFINES)}, got {refine!r}")
+    _ensure_backend_options(backend, refine, weights)
+    if backend == "open3d":
+        check_open3d_model(model)
     if not 1 <= levels <= 8:
         raise InputError(f"levels must be in 1..8, got {levels}")
     if iterations < 1:
         raise InputError(f"iterations must be >= 1, got {iterations}")
-    if refine not in (None, "none", "point_to_line"):
-        raise InputError(f"refine must be 'point_to_line' or None, got {refine!r}")
+    if min_inlier_ratio is not None and not 0.0 <= min_inlier_ratio <= 1.0:
+        raise InputError(f"min_inlier_ratio must be in [0, 1] or None, got {min_inlier_ratio!r}")
+    if not inlier_tolerance > 0:
+        raise InputError(f"inlier_tolerance must be > 0 px, got {inlier_tolerance!r}")
+    if isinstance(generators, str):
+        generators = (generators,)
+    generators = tuple(generators)
+    bad = [g for g in generators if g not in GENERATORS]
+    if bad or not generators:
+        raise InputError(f"generators must be a non-empty selection of {', '.join(GENERATORS)}, got {generators!r}")
+    if n_candidates < 1:
+        raise InputError(f"n_candidates must be >= 1, got {n_candidates}")
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
         raise InputError(f"images too small for {levels} pyramid levels")
     if not isinstance(max_points, (list, tuple)):
@@ -274,76 +338,145 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     trees: dict[int, object] = {}
 
     def tree(level: int):
-        """The reference points' KD-tree at one level, built once (global search and ICP share it)."""
+        """The reference points' KD-tree at one level, built once (search, ICP and evidence share it)."""
         if level not in trees:
             trees[level] = build_tree(ref_levels[level].points,
                                       queries=len(mov_levels[level]) * (iterations + 1) * 2)
         return trees[level]
 
-    T: np.ndarray
+    icp_model = model
+    p2l = refine == "point_to_line"
+    search_model = "translation" if model == "translation" else "rigid"
+
+    def run_icp(ML, T, level, *, dist, n_iter, model_, cb=None):
+        s, t = ML[level], ref_levels[level]
+        return _run_backend(backend, s.points, t.points, model=model_, dist=dist, init=T, max_iteration=n_iter,
+                            relative_fitness=relative_fitness, relative_rmse=relative_rmse * 2**level,
+                            weights=weights, metric="point_to_point", target_normals=None, callback=cb,
+                            level=level, tree=tree(level) if backend == "reference" else None)
+
+    def refine_all(ML, T, cb=None):
+        """Coarse-to-fine ICP from ``T``; returns (T, fitness, rmse, iterations, converged)."""
+        total, conv, fit, rmse = 0, False, 0.0, 0.0
+        for level in range(levels - 1, 0 if p2l else -1, -1):
+            s, t = ML[level], ref_levels[level]
+            if len(s) < 3 or len(t) < 3:
+                continue
+            check_rank(s.points, icp_model)
+            T, fit, rmse, it, conv = run_icp(ML, T, level, dist=max_correspondence_distance * 2**level,
+                                             n_iter=iterations, model_=icp_model, cb=cb)
+            total = -1 if (it < 0 or total < 0) else total + it
+        if p2l:
+            s, t = ML[0], ref_levels[0]
+            T, fit, rmse, it, conv = icp_reference(s.points, t.points, model=icp_model,
+                                                   max_correspondence_distance=max_correspondence_distance,
+                                                   init=T, max_iteration=iterations,
+                                                   relative_fitness=min(relative_fitness, 1e-6),
+                                                   relative_rmse=min(relative_rmse, 1e-6),
+                                                   weights="tukey" if weights == "none" else weights,
+                                                   metric="point_to_line", target_normals=t.normals,
+                                                   callback=cb, level=0, tree=tree(0))
+            total = -1 if total < 0 else total + it
+        return T, fit, rmse, total, conv
+
+    def evidence(ML, T):
+        return alignment_evidence(T, ML[0], ref_levels[0], tree(0), tolerance=inlier_tolerance)
+
+    convincing = 0.6 if min_inlier_ratio is None else max(0.6, 2.0 * min_inlier_ratio)
+
+    def search(ML, MI) -> list[tuple]:
+        """Every generator in turn until one is convincing: [(inlier ratio, generator, init, refined, evidence)]."""
+        g_level = min(3, levels - 1)
+        # The search needs enough points to tell hypotheses apart: go finer until it has them.
+        while g_level > 0 and (len(ML[g_level]) < 100 or len(ref_levels[g_level]) < 100):
+            g_level -= 1
+        g_tree = tree(g_level)
+        seen: list[np.ndarray] = []
+        out: list[tuple] = []
+        for gen in generators:
+            if gen == "edges":
+                angles = np.array([0.0]) if model == "translation" else np.arange(0.0, 360.0, angle_step)
+                Ts, score = edge_fft_hypotheses(ref_levels[g_level], ML[g_level], angles=angles)
+                hyps = [Ts[k] for k in np.argsort(-score)[:n_candidates]]
+            elif gen == "fourier_mellin":
+                hyps = fourier_mellin_hypotheses(ref_img, MI, level=min(1, levels - 1),
+                                                 model=model if model in ("translation", "rigid") else "similarity")
+            else:
+                hyps = orb_hypotheses(ref_img, MI, level=min(1, levels - 1), model=search_model, seed=seed)
+            # A hypothesis within a few coarse cells of one already tried would end there again.
+            hyps = _unseen(hyps, seen, MI.shape, min_px=2.0 * 2**g_level)
+            if not hyps:
+                continue
+            best = (-1.0, None)
+            for h in hyps:
+                seen.append(h)
+                Tk = run_icp(ML, h, g_level, dist=3.0 * 2**g_level, n_iter=iterations, model_=search_model)[0]
+                sc = alignment_evidence(Tk, ML[g_level], ref_levels[g_level], g_tree,
+                                        tolerance=2.0**g_level).inlier_ratio
+                if sc > best[0]:
+                    best = (sc, Tk)
+            refined = refine_all(ML, best[1])
+            ev = evidence(ML, refined[0])
+            out.append((ev.inlier_ratio, gen, best[1], refined, ev))
+            if ev.inlier_ratio >= convincing:
+                break
+        return out
+
+    mirror_ratio = None
     if isinstance(init, str):
         if init not in ("auto", "global", "identity", "center"):
             raise InputError(f"init must be 'auto', 'global', 'identity', 'center' or a 3x3 matrix, got {init!r}")
         if init in ("auto", "global"):
-            g_level = min(3, levels - 1)
-            # The search needs enough points to tell hypotheses apart: go finer until it has them.
-            while g_level > 0 and (len(mov_levels[g_level]) < 100 or len(ref_levels[g_level]) < 100):
-                g_level -= 1
-            angles = np.array([0.0]) if model == "translation" else np.arange(0.0, 360.0, angle_step)
-            Ts, score = _global_search(ref_levels[g_level], mov_levels[g_level], angles=angles)
-            # The best few hypotheses each get a short ICP at the search level. They are ranked by the
-            # share of points that end within one cell of a reference point: ICP's own fitness, under
-            # its wide gate, is near 1 for wrong hypotheses too.
-            best = (-1.0, None)
-            g_tree = tree(g_level)
-            for k in np.argsort(-score)[:n_candidates]:
-                Tk = icp_reference(mov_levels[g_level].points, ref_levels[g_level].points,
-                                   model="rigid" if model != "translation" else "translation",
-                                   max_correspondence_distance=3.0 * 2**g_level, init=Ts[k],
-                                   max_iteration=iterations, relative_fitness=relative_fitness,
-                                   relative_rmse=relative_rmse * 2**g_level, tree=g_tree, level=g_level)[0]
-                d, _ = g_tree.query(apply(Tk, mov_levels[g_level].points), k=1)
-                tight = float(np.mean(d < 2**g_level))
-                if tight > best[0]:
-                    best = (tight, Tk)
-            T = best[1]
-        elif init == "center":
-            T = about_point(np.eye(3), image_center(mov_img.shape), image_center(ref_img.shape))
+            tried = search(mov_levels, mov_img)
+            best_ratio = max((t[0] for t in tried), default=0.0)
+            if (min_inlier_ratio is not None and model in ("translation", "rigid", "similarity")
+                    and min_inlier_ratio <= best_ratio < convincing):
+                # Not convincing: is the moving image a mirror image of the reference? Its mirror, if so,
+                # aligns better than it does (a rigid or similarity motion cannot mirror).
+                mirrored = [_mirror_cloud(c) for c in mov_levels]
+                m_tried = search(mirrored, np.ascontiguousarray(mov_img[:, ::-1]))
+                mirror_ratio = max((t[0] for t in m_tried), default=0.0)
         else:
-            T = np.eye(3)
+            T0 = (about_point(np.eye(3), image_center(mov_img.shape), image_center(ref_img.shape))
+                  if init == "center" else np.eye(3))
+            refined = refine_all(mov_levels, T0)
+            ev = evidence(mov_levels, refined[0])
+            tried = [(ev.inlier_ratio, "init", T0, refined, ev)]
     else:
-        T = np.array(init, dtype=np.float64)
-        if T.shape != (3, 3) or not np.all(np.isfinite(T)):
+        T0 = np.array(init, dtype=np.float64)
+        if T0.shape != (3, 3) or not np.all(np.isfinite(T0)):
             raise InputError("init must be a finite 3x3 matrix")
-    total, conv, fit, rmse = 0, False, 0.0, 0.0
-    p2l = refine == "point_to_line" and backend == "reference"
-    for level in range(levels - 1, 0 if p2l else -1, -1):
-        s, t = mov_levels[level], ref_levels[level]
-        if len(s) < 3 or len(t) < 3:
-            continue
-        check_rank(s.points, model)
-        dist = max_correspondence_distance * 2**level
-        T, fit, rmse, it, conv = _run_backend(backend, s.points, t.points, model=model, dist=dist, init=T,
-                                              max_iteration=iterations, relative_fitness=relative_fitness,
-                                              relative_rmse=relative_rmse * 2**level, weights=weights,
-                                              metric="point_to_point", target_normals=None, callback=callback,
-                                              level=level,
-                                              tree=tree(level) if backend == "reference" else None)
-        total = -1 if (it < 0 or total < 0) else total + it
-    if p2l:
-        s, t = mov_levels[0], ref_levels[0]
-        T, fit, rmse, it, conv = icp_reference(s.points, t.points, model=model,
-                                               max_correspondence_distance=max_correspondence_distance,
-                                               init=T, max_iteration=iterations,
-                                               relative_fitness=min(relative_fitness, 1e-6),
-                                               relative_rmse=min(relative_rmse, 1e-6),
-                                               weights="tukey" if weights == "none" else weights,
-                                               metric="point_to_line", target_normals=t.normals,
-                                               callback=callback, level=0)
-        total = -1 if total < 0 else total + it
+        refined = refine_all(mov_levels, T0)
+        ev = evidence(mov_levels, refined[0])
+        tried = [(ev.inlier_ratio, "init", T0, refined, ev)]
+    if not tried:
+        raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
+    ratio, gen, T0, refined, ev = max(tried, key=lambda x: x[0])
+    if callback is not None:  # replay the winner's refinement for the callback (the same steps)
+        refined = refine_all(mov_levels, T0, cb=callback)
+    T, fit, rmse, total, conv = refined
     seconds = time.perf_counter() - start
-    if fit == 0.0:
-        raise RegistrationError("registration found no overlap between the images")
+    overlap = ev.overlap_points / max(ev.moving_points, 1)
+    if fit == 0.0 or ev.overlap_points < max(10, 0.02 * ev.moving_points):
+        raise RegistrationError(f"registration found no overlap between the images "
+                                f"({ev.overlap_points} of {ev.moving_points} moving edge points land on the reference)")
+    if mirror_ratio is not None and mirror_ratio > ratio + 0.1:
+        raise RegistrationError(
+            f"registration refused: the moving image is a mirror image of the reference (its mirror aligns "
+            f"{100 * mirror_ratio:.1f}% of the edge points within {inlier_tolerance:g} px, the image itself "
+            f"{100 * ratio:.1f}%)")
+    if min_inlier_ratio is not None and ratio < min_inlier_ratio:
+        raise RegistrationError(
+            f"registration refused: the best alignment puts only {100 * ratio:.1f}% of the overlapping edge points "
+            f"within {inlier_tolerance:g} px of a reference edge of the same direction (min_inlier_ratio "
+            f"{min_inlier_ratio:g}); the images do not show the same scene under a {model} motion")
     return RegistrationResult(matrix=T, fitness=fit, inlier_rmse=rmse, iterations=total, converged=conv,
-                              backend=backend, seconds=seconds,
-                              info={"moving_points": len(mov_levels[0]), "reference_points": len(ref_levels[0])})
+                              backend=backend, seconds=seconds, inlier_ratio=ratio, overlap=overlap, generator=gen,
+                              info={"moving_points": len(mov_levels[0]), "reference_points": len(ref_levels[0]),
+                                    "hypotheses": [{"generator": g, "inlier_ratio": r} for r, g, *_ in tried],
+                                    "mirror_inlier_ratio": mirror_ratio})
+
+
+def _global_search(ref: ImageCloud, mov: ImageCloud, *, angles: np.ndarray, sigma: float = 1.0):
+    """Kept for callers of the earlier name: :func:`pcreg.registration.global_search.edge_fft_hypotheses`."""
+    return edge_fft_hypotheses(ref, mov, angles=angles, sigma=sigma)

@@ -106,7 +106,15 @@ def valid_region(image: np.ndarray) -> np.ndarray:
         return np.ones(image.shape[:2], dtype=bool)
     black = cv2.inRange(image, (0, 0, 0), (0, 0, 0))
     black = cv2.morphologyEx(black, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    return black == 0
+    # Padding lies outside the picture, which a warp keeps convex (the image of a rectangle under an
+    # affine or projective map): black areas inside the convex hull of the non-black pixels (a black
+    # object, a shadow) are content and stay usable.
+    content = cv2.findNonZero(255 - black)
+    if content is None:
+        return black == 0
+    inside = np.zeros(black.shape, np.uint8)
+    cv2.fillConvexPoly(inside, cv2.convexHull(content), 255)
+    return (black == 0) | (inside > 0)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..errors import RegistrationError
+from ..errors import InputError, RegistrationError
 from .result import IcpIteration
 from .transforms import lift_to_3d, project_to_2d
 
@@ -37,9 +37,10 @@ def to_pointcloud(points: np.ndarray):
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
 
 
-def _check_model(model: str) -> None:
+def check_model(model: str) -> None:
+    """Raise :class:`InputError` for a motion model Open3D's point-to-point estimation cannot fit."""
     if model not in SUPPORTED:
-        raise RegistrationError(
+        raise InputError(
             f"the open3d backend (point-to-point) supports the {' and '.join(SUPPORTED)} models, not {model!r}; "
             "use backend='reference'"
         )
@@ -51,7 +52,7 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", 
                stepwise: bool | None = None, level: int = 0, source_pcd=None, target_pcd=None,
                ) -> tuple[np.ndarray, float, float, int, bool]:
     """One Open3D ICP run at one scale. Returns (matrix, fitness, inlier_rmse, iterations, converged)."""
-    _check_model(model)
+    check_model(model)
     o3d = _o3d()
     reg = o3d.pipelines.registration
     d = source.shape[1]
@@ -111,7 +112,7 @@ def multi_scale_icp_open3d(source: np.ndarray, target: np.ndarray, *, voxel_size
                            relative_rmse: float = 1e-6, model: str = "rigid",
                            ) -> tuple[np.ndarray, float, float, int, bool]:
     """Open3D tensor ``multi_scale_icp`` (Float64, CPU) for 3-D clouds; coarse to fine over voxel sizes."""
-    _check_model(model)
+    check_model(model)
     o3d = _o3d()
     treg = o3d.t.pipelines.registration
     if source.shape[1] != 3:

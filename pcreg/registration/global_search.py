@@ -236,11 +236,15 @@ class Evidence:
         px whose edge normal agrees within ``max_angle_deg`` (0 when nothing overlaps).
     overlap_points : moving points that land inside the reference image.
     moving_points : moving points at that level.
+    chance_ratio : the inlier ratio that content unrelated in direction would reach at the same distances:
+        the share of points within ``tolerance`` times the share of direction agreements between each
+        such point's normal and the normal matched to another such point (a fixed permutation).
     """
 
     inlier_ratio: float
     overlap_points: int
     moving_points: int
+    chance_ratio: float = 0.0
 
 
 def alignment_evidence(T: np.ndarray, mov: ImageCloud, ref: ImageCloud, tree, *, tolerance: float,
@@ -259,8 +263,15 @@ def alignment_evidence(T: np.ndarray, mov: ImageCloud, ref: ImageCloud, tree, *,
     n_mov = mov.normals[inside][ok] @ np.linalg.inv(L)
     n_mov /= np.maximum(np.linalg.norm(n_mov, axis=1, keepdims=True), 1e-12)
     cos = np.einsum("ij,ij->i", n_mov, ref.normals[idx[ok]])
-    agree = int(np.count_nonzero(cos >= np.cos(np.deg2rad(max_angle_deg))))
-    return Evidence(agree / n_in, n_in, len(mov))
+    c_min = np.cos(np.deg2rad(max_angle_deg))
+    agree = int(np.count_nonzero(cos >= c_min))
+    k = int(ok.sum())
+    chance = 0.0
+    if k > 1:
+        perm = np.random.default_rng(0).permutation(k)
+        cos_null = np.einsum("ij,ij->i", n_mov, ref.normals[idx[ok]][perm])
+        chance = (k / n_in) * float(np.mean(cos_null >= c_min))
+    return Evidence(agree / n_in, n_in, len(mov), chance)
 
 
 def distinct(Ts: list[np.ndarray], shape: tuple[int, ...], *, min_px: float) -> list[np.ndarray]:

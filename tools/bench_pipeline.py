@@ -46,12 +46,13 @@ def bench(frames, *, backend: str, init: str, repeats: int = 1) -> dict:
     """Stage times (ms) per frame pair (t - 1, t) of ``frames``, and their medians."""
     from pcreg import cloud_pyramid, register
     from pcreg.classification.fusion import FusionConfig, fuse, labels_from_log_odds, prior_from_labels, prior_log_odds, smooth_prior, warp_prior
-    from pcreg.pipeline import BACKEND_MODELS, fit_classifier, log_odds
+    from pcreg.classification.bayes import fit_classifier
+    from pcreg.pipeline import PIPELINE_REGISTRATION, log_odds
 
     clf = fit_classifier([frames[0]])
     pi = float(clf.class_prior_[1])
     fusion = FusionConfig()
-    model = BACKEND_MODELS[backend]
+    model = PIPELINE_REGISTRATION.model
     register(frames[0].image, frames[1].image, backend=backend, model=model, init=init)  # warm-up (imports, JIT)
     rows = []
     for _ in range(repeats):

@@ -353,10 +353,9 @@ def time_icp_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: 
 
     def ref_run():
         t0 = time.perf_counter()
-        T, fit, rmse, it, _ = icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist,
-                                            init=np.eye(d + 1), max_iteration=iterations,
-                                            relative_fitness=0.0, relative_rmse=0.0)
-        return time.perf_counter() - t0, T, fit, rmse, it
+        r = icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist, init=np.eye(d + 1),
+                          max_iteration=iterations, relative_fitness=0.0, relative_rmse=0.0)
+        return time.perf_counter() - t0, r.matrix, r.fitness, r.inlier_rmse, r.iterations
 
     def o3d_run():
         t0 = time.perf_counter()

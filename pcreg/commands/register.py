@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import add_record_arguments, open_recorder, positive_int, print_json, positive_float
-
-MODELS = ("translation", "rigid", "similarity", "affine", "projective")
+from ..registration.transforms import MODELS
+from ._common import add_record_arguments, open_recorder, positive_float, positive_int, print_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -19,7 +19,7 @@ from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
 from .clouds import ImageCloud, as_rgb_uint8, cloud_pyramid
 from .result import IcpIteration, RegistrationResult
 from .global_search import (GENERATORS, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
-                            orb_hypotheses)
+                            gray_level, orb_hypotheses, photometric_agreement)
 from .open3d_icp import check_model as check_open3d_model
 from .transforms import about_point, apply, check_model, corners, image_center
 
@@ -213,6 +213,10 @@ second test, ``inlier_ratio >= CHANCE_FACTOR x chance_ratio``, covers textures w
 comes near it. Mirror images are refused by comparison with their mirror (see :func:`register`).
 """
 
+CONVINCING_NCC = 0.6
+"""The search stops early only at an alignment whose intensities also agree (normalised cross-correlation at
+pyramid level 2 at least this); otherwise every generator runs and the best one wins."""
+
 CHANCE_FACTOR = 2.0
 """A plausible alignment has at least this multiple of its chance level of inliers (true alignments
 measured at >= 2.8x, unrelated content at about 1x)."""
@@ -361,10 +365,12 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                          level=level, tree=tree(level) if backend == "reference" else None)
         return r.matrix, r.fitness, r.inlier_rmse, r.iterations, r.converged
 
-    def refine_all(ML, T, cb=None):
-        """Coarse-to-fine ICP from ``T``; returns (T, fitness, rmse, iterations, converged)."""
+    def refine_all(ML, T, cb=None, top=None):
+        """Coarse-to-fine ICP from ``T`` (from level ``top``, default the coarsest); returns
+        (T, fitness, rmse, iterations, converged)."""
         total, conv, fit, rmse = 0, False, 0.0, 0.0
-        for level in range(levels - 1, 0 if p2l else -1, -1):
+        top = levels - 1 if top is None else top
+        for level in range(top, 0 if p2l else -1, -1):
             s, t = ML[level], ref_levels[level]
             if len(s) < 3 or len(t) < 3:
                 continue
@@ -390,43 +396,61 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         return alignment_evidence(T, ML[0], ref_levels[0], tree(0), tolerance=inlier_tolerance)
 
     convincing = 0.6 if min_inlier_ratio is None else max(0.6, 2.0 * min_inlier_ratio)
+    p_level = min(2, levels - 1)
+    ref_gray, _ = gray_level(ref_img, p_level)
 
     def search(ML, MI) -> list[tuple]:
-        """Every generator in turn until one is convincing: [(inlier ratio, generator, init, refined, evidence)]."""
+        """Every generator in turn until one is convincing: [(inlier ratio, generator, init, refined, evidence,
+        photometric agreement)]."""
+        mov_gray, mov_valid = gray_level(MI, p_level)
         g_level = min(3, levels - 1)
         # The search needs enough points to tell hypotheses apart: go finer until it has them.
         while g_level > 0 and (len(ML[g_level]) < 100 or len(ref_levels[g_level]) < 100):
             g_level -= 1
         g_tree = tree(g_level)
-        seen: list[np.ndarray] = []
         out: list[tuple] = []
+
+        def attempt(gen, T_start, top):
+            refined = refine_all(ML, T_start, top=top)
+            ev = evidence(ML, refined[0])
+            ncc = photometric_agreement(refined[0], ref_gray, mov_gray, level=p_level, moving_valid=mov_valid)
+            out.append((ev.inlier_ratio, gen, T_start, refined, ev, ncc, top))
+            return ev.inlier_ratio >= convincing and ncc >= CONVINCING_NCC
+
         for gen in generators:
             if gen == "edges":
+                # Rotation samples every angle_step degrees: the best few get a short ICP at the search
+                # level and are ranked by their tight inliers there (ICP's fitness under its wide gate is
+                # near 1 for wrong hypotheses too); the best is refined from the coarsest level.
                 angles = np.array([0.0]) if model == "translation" else np.arange(0.0, 360.0, angle_step)
                 Ts, score = edge_fft_hypotheses(ref_levels[g_level], ML[g_level], angles=angles)
-                hyps = [Ts[k] for k in np.argsort(-score)[:n_candidates]]
-            elif gen == "fourier_mellin":
+                best = (-1.0, None)
+                for k in np.argsort(-score)[:n_candidates]:
+                    Tk = run_icp(ML, Ts[k], g_level, dist=3.0 * 2**g_level, n_iter=iterations,
+                                 model_=search_model)[0]
+                    sc = alignment_evidence(Tk, ML[g_level], ref_levels[g_level], g_tree,
+                                            tolerance=2.0**g_level).inlier_ratio
+                    if sc > best[0]:
+                        best = (sc, Tk)
+                if attempt(gen, best[1], None):
+                    return out
+                continue
+            if gen == "fourier_mellin":
                 hyps = fourier_mellin_hypotheses(ref_img, MI, level=min(1, levels - 1),
                                                  model=model if model in ("translation", "rigid") else "similarity")
             else:
                 hyps = orb_hypotheses(ref_img, MI, level=min(1, levels - 1), model=search_model, seed=seed)
-            # A hypothesis within a few coarse cells of one already tried would end there again.
-            hyps = _unseen(hyps, seen, MI.shape, min_px=2.0 * 2**g_level)
+            # Intensity hypotheses are ranked by intensity (the 180° twin of Fourier-Mellin included) and are
+            # usually within a few pixels: refined from level 1, where the coarse levels of fine repetitive
+            # patterns (bricks) cannot pull them away; one that would land on an earlier result is skipped.
+            done = [t[3][0] for t in out]
+            hyps = _unseen(hyps, done, MI.shape, min_px=2.0)
             if not hyps:
                 continue
-            best = (-1.0, None)
-            for h in hyps:
-                seen.append(h)
-                Tk = run_icp(ML, h, g_level, dist=3.0 * 2**g_level, n_iter=iterations, model_=search_model)[0]
-                sc = alignment_evidence(Tk, ML[g_level], ref_levels[g_level], g_tree,
-                                        tolerance=2.0**g_level).inlier_ratio
-                if sc > best[0]:
-                    best = (sc, Tk)
-            refined = refine_all(ML, best[1])
-            ev = evidence(ML, refined[0])
-            out.append((ev.inlier_ratio, gen, best[1], refined, ev))
-            if ev.inlier_ratio >= convincing:
-                break
+            h = max(hyps, key=lambda H: photometric_agreement(H, ref_gray, mov_gray, level=p_level,
+                                                             moving_valid=mov_valid))
+            if attempt(gen, h, min(1, levels - 1)):
+                return out
         return out
 
     mirror_ratio = None
@@ -448,19 +472,20 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                   if init == "center" else np.eye(3))
             refined = refine_all(mov_levels, T0)
             ev = evidence(mov_levels, refined[0])
-            tried = [(ev.inlier_ratio, "init", T0, refined, ev)]
+            tried = [(ev.inlier_ratio, "init", T0, refined, ev, float("nan"), None)]
     else:
         T0 = np.array(init, dtype=np.float64)
         if T0.shape != (3, 3) or not np.all(np.isfinite(T0)):
             raise InputError("init must be a finite 3x3 matrix")
         refined = refine_all(mov_levels, T0)
         ev = evidence(mov_levels, refined[0])
-        tried = [(ev.inlier_ratio, "init", T0, refined, ev)]
+        tried = [(ev.inlier_ratio, "init", T0, refined, ev, float("nan"), None)]
     if not tried:
         raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
-    ratio, gen, T0, refined, ev = max(tried, key=lambda x: x[0])
+    # Edges rank the hypotheses; the intensities between them break the ties of repetitive patterns.
+    ratio, gen, T0, refined, ev, ncc, top = max(tried, key=lambda x: x[0] * (0.25 + max(x[5], 0.0) if x[5] == x[5] else 1.0))
     if callback is not None:  # replay the winner's refinement for the callback (the same steps)
-        refined = refine_all(mov_levels, T0, cb=callback)
+        refined = refine_all(mov_levels, T0, cb=callback, top=top)
     T, fit, rmse, total, conv = refined
     seconds = time.perf_counter() - start
     overlap = ev.overlap_points / max(ev.moving_points, 1)
@@ -487,7 +512,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                               backend=backend, seconds=seconds, inlier_ratio=ratio, chance_ratio=ev.chance_ratio,
                               overlap=overlap, generator=gen,
                               info={"moving_points": len(mov_levels[0]), "reference_points": len(ref_levels[0]),
-                                    "hypotheses": [{"generator": g, "inlier_ratio": r} for r, g, *_ in tried],
+                                    "hypotheses": [{"generator": t[1], "inlier_ratio": t[0], "photometric_ncc": t[5]} for t in tried],
                                     "mirror_inlier_ratio": mirror_ratio})
 
 

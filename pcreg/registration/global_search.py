@@ -92,7 +92,7 @@ def edge_fft_hypotheses(ref: ImageCloud, mov: ImageCloud, *, angles: np.ndarray,
 # Intensity: ORB + RANSAC, Fourier-Mellin
 # ---------------------------------------------------------------------------------------------------
 
-def _gray_level(image: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray | None]:
+def gray_level(image: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray | None]:
     """Grey image at pyramid ``level`` and its usable-pixel mask (uint8 255/0, None when all usable)."""
     gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
     valid = valid_region(image)
@@ -131,8 +131,8 @@ def orb_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, lev
 
     Black padding is masked out of the detection. Returns [] when fewer than 6 matches survive.
     """
-    g1, m1 = _gray_level(reference_image, level)
-    g2, m2 = _gray_level(moving_image, level)
+    g1, m1 = gray_level(reference_image, level)
+    g2, m2 = gray_level(moving_image, level)
     orb = cv2.ORB_create(nfeatures=int(n_features))
     k1, d1 = orb.detectAndCompute(g1, m1)
     k2, d2 = orb.detectAndCompute(g2, m2)
@@ -176,8 +176,8 @@ def fourier_mellin_hypotheses(reference_image: np.ndarray, moving_image: np.ndar
     (and, for ``model="similarity"``, the scale). The moving image is de-rotated onto the reference's
     canvas and a phase correlation (``cv2.phaseCorrelate``) gives the translation.
     """
-    g1, m1 = _gray_level(reference_image, level)
-    g2, m2 = _gray_level(moving_image, level)
+    g1, m1 = gray_level(reference_image, level)
+    g2, m2 = gray_level(moving_image, level)
     size = cv2.getOptimalDFTSize(max(g1.shape + g2.shape))
     win = cv2.createHanningWindow((size, size), cv2.CV_32F)
     A = _canvas(g1, m1, size)
@@ -286,3 +286,28 @@ def distinct(Ts: list[np.ndarray], shape: tuple[int, ...], *, min_px: float) -> 
             kept.append(T)
             kept_c.append(pc)
     return kept
+
+
+def photometric_agreement(T: np.ndarray, reference_gray: np.ndarray, moving_gray: np.ndarray, *, level: int,
+                          moving_valid: np.ndarray | None = None) -> float:
+    """Zero-mean normalised cross-correlation of the reference and the moving image warped by ``T``
+    (``T_ref_mov``, full-resolution pixels) over their overlap, both given at pyramid ``level``.
+
+    Edges alone cannot tell a repetitive pattern (bricks, tiles) from its copy shifted by one period or
+    turned by 180°; the intensities between the edges can. Returns -1..1 (0 when the overlap is tiny).
+    """
+    f = 2.0 ** level
+    S = np.array([[f, 0.0, (f - 1.0) / 2.0], [0.0, f, (f - 1.0) / 2.0], [0.0, 0.0, 1.0]])
+    Tl = np.linalg.inv(S) @ T @ S
+    h, w = reference_gray.shape
+    warped = cv2.warpAffine(moving_gray, Tl[:2], (w, h), flags=cv2.INTER_LINEAR)
+    valid = np.full(moving_gray.shape, 255, np.uint8) if moving_valid is None else moving_valid
+    wv = cv2.warpAffine(valid, Tl[:2], (w, h), flags=cv2.INTER_NEAREST) > 0
+    if wv.sum() < 64:
+        return 0.0
+    a = reference_gray[wv].astype(np.float64)
+    b = warped[wv].astype(np.float64)
+    a -= a.mean()
+    b -= b.mean()
+    den = np.sqrt((a * a).sum() * (b * b).sum())
+    return float((a * b).sum() / den) if den > 0 else 0.0

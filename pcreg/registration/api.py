@@ -255,11 +255,11 @@ def _unseen(hyps: list[np.ndarray], seen: list[np.ndarray], shape, *, min_px: fl
 
 def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: str = "reference",
              model: str = "rigid", levels: int = 4, iterations: int = 14, init: str | np.ndarray = "auto",
-             sampler: str = "canny", max_points: Sequence[int | None] | int | None = (1000, 800, 600, 400),
-             reference_max_points: int | None = 20000, max_correspondence_distance: float = 2.5,
+             sampler: str = "canny", max_points: Sequence[int | None] | int | None = (2000, 800, 600, 400),
+             reference_max_points: int | None = 60000, max_correspondence_distance: float = 2.5,
              refine: str | None = "none", weights: str = "none",
              relative_fitness: float = 1e-4, relative_rmse: float = 1e-3, angle_step: float = 15.0,
-             n_candidates: int = 2, generators: Sequence[str] = ("edges", "fourier_mellin", "orb"),
+             n_candidates: int = 2, generators: Sequence[str] = ("fourier_mellin", "edges", "orb"),
              min_inlier_ratio: float | None = DEFAULT_MIN_INLIER_RATIO, inlier_tolerance: float = 1.0,
              reference_mask: np.ndarray | str | None = "auto", moving_mask: np.ndarray | str | None = "auto",
              canny_percentile: float = 85.0, seed: int = 0,
@@ -269,19 +269,21 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     Both images become edge clouds (:func:`pcreg.image_cloud`) at pyramid levels 0..levels-1.
 
     With ``init="auto"`` (or ``"global"``) hypotheses come from the ``generators``, tried in order
-    (:mod:`pcreg.registration.global_search`): ``"edges"`` rotates the moving edge cloud every
-    ``angle_step`` degrees over the full circle and finds each rotation's translation by FFT
-    cross-correlation (the ``n_candidates`` best are kept); ``"fourier_mellin"`` takes the rotation from
-    the log-polar magnitude spectra and the translation from a phase correlation of the intensity
-    images; ``"orb"`` matches ORB features at pyramid level 1 and fits a similarity by RANSAC. Every
-    hypothesis gets a short ICP with the selected ``backend`` at the search level (the coarsest with at
-    least 100 points a side) and is scored by its share of tight, direction-consistent inliers there;
-    the best of a generator is refined coarse to fine (``backend``, ``iterations`` per level, a
-    correspondence distance of ``max_correspondence_distance`` px x 2^level) and its evidence measured
-    at full resolution. The next generator runs only while no refined hypothesis is convincing (an
-    inlier ratio of at least twice ``min_inlier_ratio``, or 0.6), so easy pairs pay for one. The
-    refined hypothesis with the most evidence wins. ``init="identity"``, ``"center"`` (image centres
-    aligned) or a 3x3 matrix replaces the search by that one hypothesis.
+    (:mod:`pcreg.registration.global_search`) until one is convincing: ``"fourier_mellin"`` takes the
+    rotation from the log-polar magnitude spectra and the translation from a phase correlation of the
+    intensity images; ``"edges"`` rotates the moving edge cloud every ``angle_step`` degrees over the
+    full circle and finds each rotation's translation by FFT cross-correlation (the ``n_candidates`` best
+    get a short ICP at the search level, the coarsest with at least 100 points a side, and are ranked by
+    their tight inliers there); ``"orb"`` matches ORB features at pyramid level 1 and fits a similarity
+    by RANSAC. Intensity hypotheses (the 180° twin of Fourier-Mellin's included) are ranked by the
+    normalised cross-correlation of the images they align and refined from level 1; the edge hypothesis
+    from the coarsest level. Every ICP step uses the selected ``backend``; the refined hypothesis is
+    measured at full resolution (``inlier_ratio``, below). A generator is convincing when its refined
+    hypothesis reaches an inlier ratio of max(0.6, 2 x ``min_inlier_ratio``) and its intensities agree
+    (:data:`CONVINCING_NCC`); otherwise the next one runs, so easy pairs pay for one. The winner has the
+    most inliers, weighted by the intensities' agreement (edges alone cannot tell a brick wall from its
+    copy shifted by a brick). ``init="identity"``, ``"center"`` (image centres aligned) or a 3x3 matrix
+    replaces the search by that one hypothesis.
 
     Failure signal: the winner's ``inlier_ratio`` is the share of moving edge points, among those that
     land on the reference image, with a reference edge point within ``inlier_tolerance`` px whose edge
@@ -299,8 +301,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     reference_image, moving_image : (H, W, 3) uint8 RGB (also gray, uint16, float in [0, 1]); the
         sizes may differ.
     max_points : moving points kept per level (finest first), at random with ``seed``.
-    reference_max_points : reference points kept per level; edges of a 480x360 street scene number
-        15-20k, a noisy 640x480 texture can give 60k that cost time without adding accuracy.
+    reference_max_points : reference points kept per level: edges of a 480x360 street scene number
+        15-20k, a 512x512 texture 30-60k; a random subset of them biases nearest-neighbour matches, so
+        the cap is high (it bounds the time on very large images).
     relative_fitness, relative_rmse : Open3D's stopping rule per level (absolute changes; the RMSE
         threshold is in full-resolution px, scaled by 2^level); the point-to-line finish uses at most 1e-6.
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
@@ -449,7 +452,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 continue
             h = max(hyps, key=lambda H: photometric_agreement(H, ref_gray, mov_gray, level=p_level,
                                                              moving_valid=mov_valid))
-            if attempt(gen, h, min(1, levels - 1)):
+            # (A scale, or more, is estimated coarse to fine: a level-1 start leaves its bias.)
+            if attempt(gen, h, min(1, levels - 1) if model in ("translation", "rigid") else None):
                 return out
         return out
 

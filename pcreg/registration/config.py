@@ -29,8 +29,8 @@ class RegisterConfig:
     iterations: int = 14
     init: str = "auto"
     sampler: str = "canny"
-    max_points: tuple[int, ...] = (1000, 800, 600, 400)
-    reference_max_points: int | None = 20000
+    max_points: tuple[int, ...] = (2000, 800, 600, 400)
+    reference_max_points: int | None = 60000
     max_correspondence_distance: float = 2.5
     refine: str | None = "none"
     weights: str = "none"
@@ -38,7 +38,7 @@ class RegisterConfig:
     relative_rmse: float = 1e-3
     angle_step: float = 15.0
     n_candidates: int = 2
-    generators: tuple[str, ...] = ("edges", "fourier_mellin", "orb")
+    generators: tuple[str, ...] = ("fourier_mellin", "edges", "orb")
     min_inlier_ratio: float | None = 0.15
     inlier_tolerance: float = 1.0
     canny_percentile: float = 85.0

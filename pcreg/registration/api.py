@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError, RegistrationError
 from .open3d_icp import icp_open3d
 from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
-from .clouds import ImageCloud, as_rgb_uint8, cloud_pyramid
+from .clouds import ImageCloud, _cloud_at, as_rgb_uint8, valid_region
 from .result import IcpIteration, RegistrationResult
 from .global_search import (GENERATORS, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
                             gray_level, orb_hypotheses, photometric_agreement)
@@ -232,6 +232,57 @@ def _ensure_backend_options(backend: str, refine: str, weights: str) -> None:
         raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
 
 
+class _LazyPyramid:
+    """:func:`cloud_pyramid`'s levels, each built on first access (same clouds, same seeds)."""
+
+    def __init__(self, image: np.ndarray, *, levels: int, mask, max_points, seed: int, **kwargs):
+        if not isinstance(max_points, (tuple, list)):
+            max_points = (max_points,) * levels
+        max_points = tuple(max_points) + (max_points[-1],) * max(0, levels - len(max_points))
+        if isinstance(mask, str):
+            if mask != "auto":
+                raise InputError(f"mask must be an array, 'auto' or None, got {mask!r}")
+            mask = valid_region(image)
+        if mask is not None:
+            mask = np.asarray(mask, dtype=bool)
+            if mask.shape != image.shape[:2]:
+                raise InputError(f"mask shape {mask.shape} does not match image shape {image.shape[:2]}")
+            if mask.all():
+                mask = None
+        self._images = [image]
+        self._clouds: dict[int, ImageCloud] = {}
+        self._levels, self._mask, self._max_points, self._seed, self._kwargs = levels, mask, max_points, seed, kwargs
+
+    def __len__(self) -> int:
+        return self._levels
+
+    def __getitem__(self, level: int) -> ImageCloud:
+        if not 0 <= level < self._levels:
+            raise IndexError(level)
+        if level not in self._clouds:
+            while len(self._images) <= level:
+                self._images.append(cv2.pyrDown(self._images[-1]))
+            self._clouds[level] = _cloud_at(self._images[level], level=level, shape=self._images[0].shape[:2],
+                                            mask=self._mask, max_points=self._max_points[level], seed=self._seed,
+                                            **self._kwargs)
+        return self._clouds[level]
+
+
+class _MirroredPyramid:
+    """The clouds of a pyramid mirrored left-right, level by level on access."""
+
+    def __init__(self, base):
+        self._base, self._clouds = base, {}
+
+    def __len__(self) -> int:
+        return len(self._base)
+
+    def __getitem__(self, level: int) -> ImageCloud:
+        if level not in self._clouds:
+            self._clouds[level] = _mirror_cloud(self._base[level])
+        return self._clouds[level]
+
+
 def _mirror_cloud(c: ImageCloud) -> ImageCloud:
     """The cloud of the image mirrored left-right (x -> W - 1 - x, normals' x negated)."""
     pts = c.points.copy()
@@ -340,10 +391,11 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
         raise InputError(f"images too small for {levels} pyramid levels")
     start = time.perf_counter()
-    ref_levels = cloud_pyramid(ref_img, levels=levels, mask=reference_mask, max_points=reference_max_points,
-                               sampler=sampler, seed=seed, canny_percentile=canny_percentile)
-    mov_levels = cloud_pyramid(mov_img, levels=levels, mask=moving_mask, max_points=max_points,
-                               sampler=sampler, seed=seed + 1, canny_percentile=canny_percentile)
+    # Each level's cloud is built when first used: a search that ends at level 1 never builds levels 2-3.
+    ref_levels = _LazyPyramid(ref_img, levels=levels, mask=reference_mask, max_points=reference_max_points,
+                              sampler=sampler, seed=seed, canny_percentile=canny_percentile)
+    mov_levels = _LazyPyramid(mov_img, levels=levels, mask=moving_mask, max_points=max_points,
+                              sampler=sampler, seed=seed + 1, canny_percentile=canny_percentile)
     for name, lv in (("reference", ref_levels), ("moving", mov_levels)):
         if len(lv[0]) < 3:
             raise RegistrationError(f"the {name} image has no usable edges (a flat or empty image?)")
@@ -406,11 +458,6 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         """Every generator in turn until one is convincing: [(inlier ratio, generator, init, refined, evidence,
         photometric agreement)]."""
         mov_gray, mov_valid = gray_level(MI, p_level)
-        g_level = min(3, levels - 1)
-        # The search needs enough points to tell hypotheses apart: go finer until it has them.
-        while g_level > 0 and (len(ML[g_level]) < 100 or len(ref_levels[g_level]) < 100):
-            g_level -= 1
-        g_tree = tree(g_level)
         out: list[tuple] = []
 
         def attempt(gen, T_start, top):
@@ -425,6 +472,11 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 # Rotation samples every angle_step degrees: the best few get a short ICP at the search
                 # level and are ranked by their tight inliers there (ICP's fitness under its wide gate is
                 # near 1 for wrong hypotheses too); the best is refined from the coarsest level.
+                g_level = min(3, levels - 1)
+                # The search needs enough points to tell hypotheses apart: go finer until it has them.
+                while g_level > 0 and (len(ML[g_level]) < 100 or len(ref_levels[g_level]) < 100):
+                    g_level -= 1
+                g_tree = tree(g_level)
                 angles = np.array([0.0]) if model == "translation" else np.arange(0.0, 360.0, angle_step)
                 Ts, score = edge_fft_hypotheses(ref_levels[g_level], ML[g_level], angles=angles)
                 best = (-1.0, None)
@@ -468,7 +520,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                     and min_inlier_ratio <= best_ratio < convincing):
                 # Not convincing: is the moving image a mirror image of the reference? Its mirror, if so,
                 # aligns better than it does (a rigid or similarity motion cannot mirror).
-                mirrored = [_mirror_cloud(c) for c in mov_levels]
+                mirrored = _MirroredPyramid(mov_levels)
                 m_tried = search(mirrored, np.ascontiguousarray(mov_img[:, ::-1]))
                 mirror_ratio = max((t[0] for t in m_tried), default=0.0)
         else:

@@ -298,7 +298,8 @@ def test_register_too_few_inliers_and_the_user_threshold():
     with pytest.raises(RegistrationError, match="too few|only"):
         pcreg.register(REF, mov, min_inlier_ratio=min(1.0, r.inlier_ratio + 0.01))
     ok = pcreg.register(REF, mov, min_inlier_ratio=max(0.0, r.inlier_ratio - 0.01))
-    assert ok.inlier_ratio == pytest.approx(r.inlier_ratio)
+    assert ok.inlier_ratio >= r.inlier_ratio - 0.01
+    assert tf.max_corner_error(ok.matrix, T, REF.shape) < 1.0
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

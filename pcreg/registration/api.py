@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError, RegistrationError
-from .open3d_icp import icp_open3d
+from .open3d_icp import icp_open3d, to_pointcloud
 from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
 from .clouds import ImageCloud, _cloud_at, as_rgb_uint8, valid_region
 from .result import IcpIteration, RegistrationResult
@@ -213,6 +213,7 @@ second test, ``inlier_ratio >= CHANCE_FACTOR x chance_ratio``, covers textures w
 comes near it. Mirror images are refused by comparison with their mirror (see :func:`register`).
 """
 
+START_LEVEL = 1
 CONVINCING_NCC = 0.6
 """The search stops early only at an alignment whose intensities also agree (normalised cross-correlation at
 pyramid level 2 at least this); otherwise every generator runs and the best one wins."""
@@ -405,19 +406,34 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         """The reference points' KD-tree at one level, built once (search, ICP and evidence share it)."""
         if level not in trees:
             trees[level] = build_tree(ref_levels[level].points,
-                                      queries=len(mov_levels[level]) * (iterations + 1) * 2)
+                                      queries=len(mov_levels[level]) * (iterations + 1))
         return trees[level]
 
     icp_model = model
     p2l = refine == "point_to_line"
     search_model = "translation" if model == "translation" else "rigid"
 
-    def run_icp(ML, T, level, *, dist, n_iter, model_, cb=None):
+    pcds: dict = {}
+
+    def pcd(cloud: ImageCloud):
+        """Open3D's copy of a cloud, made once per cloud (the candidates and levels share it)."""
+        if id(cloud) not in pcds:
+            pcds[id(cloud)] = (cloud, to_pointcloud(cloud.points))
+        return pcds[id(cloud)][1]
+
+    def run_icp(ML, T, level, *, dist, n_iter, model_, cb=None, final=True):
         s, t = ML[level], ref_levels[level]
-        r = _run_backend(backend, s.points, t.points, model=model_, dist=dist, init=T, max_iteration=n_iter,
-                         relative_fitness=relative_fitness, relative_rmse=relative_rmse * 2**level,
-                         weights=weights, metric="point_to_point", target_normals=None, callback=cb,
-                         level=level, tree=tree(level) if backend == "reference" else None)
+        if backend == "open3d":
+            r = icp_open3d(s.points, t.points, model=model_, max_correspondence_distance=dist, init=T,
+                           max_iteration=n_iter, relative_fitness=relative_fitness,
+                           relative_rmse=relative_rmse * 2**level, callback=cb, level=level,
+                           stepwise=cb is not None, source_pcd=pcd(s), target_pcd=pcd(t),
+                           check_convergence=final or cb is not None)
+        else:
+            r = _run_backend(backend, s.points, t.points, model=model_, dist=dist, init=T, max_iteration=n_iter,
+                             relative_fitness=relative_fitness, relative_rmse=relative_rmse * 2**level,
+                             weights=weights, metric="point_to_point", target_normals=None, callback=cb,
+                             level=level, tree=tree(level))
         return r.matrix, r.fitness, r.inlier_rmse, r.iterations, r.converged
 
     def refine_all(ML, T, cb=None, top=None):
@@ -431,7 +447,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 continue
             check_rank(s.points, icp_model)
             T, fit, rmse, it, conv = run_icp(ML, T, level, dist=max_correspondence_distance * 2**level,
-                                             n_iter=iterations, model_=icp_model, cb=cb)
+                                             n_iter=iterations, model_=icp_model, cb=cb, final=level == 0)
             total = -1 if (it < 0 or total < 0) else total + it
         if p2l:
             s, t = ML[0], ref_levels[0]
@@ -453,6 +469,11 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     convincing = 0.6 if min_inlier_ratio is None else max(0.6, 2.0 * min_inlier_ratio)
     p_level = min(2, levels - 1)
     ref_gray, _ = gray_level(ref_img, p_level)
+
+    # Fourier-Mellin on a canvas of about 256-320 px: level 1 for 512-640 px images, finer or coarser
+    # for smaller or larger ones (its cost grows with the canvas area, its precision with the resolution).
+    big = max(ref_img.shape[:2] + mov_img.shape[:2])
+    fm_level = int(min(levels - 1, max(0, np.ceil(np.log2(big / 320.0)))))
 
     def search(ML, MI) -> list[tuple]:
         """Every generator in turn until one is convincing: [(inlier ratio, generator, init, refined, evidence,
@@ -482,7 +503,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 best = (-1.0, None)
                 for k in np.argsort(-score)[:n_candidates]:
                     Tk = run_icp(ML, Ts[k], g_level, dist=3.0 * 2**g_level, n_iter=iterations,
-                                 model_=search_model)[0]
+                                 model_=search_model, final=False)[0]
                     sc = alignment_evidence(Tk, ML[g_level], ref_levels[g_level], g_tree,
                                             tolerance=2.0**g_level).inlier_ratio
                     if sc > best[0]:
@@ -491,7 +512,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                     return out
                 continue
             if gen == "fourier_mellin":
-                hyps = fourier_mellin_hypotheses(ref_img, MI, level=min(1, levels - 1),
+                hyps = fourier_mellin_hypotheses(ref_img, MI, level=fm_level,
                                                  model=model if model in ("translation", "rigid") else "similarity")
             else:
                 hyps = orb_hypotheses(ref_img, MI, level=min(1, levels - 1), model=search_model, seed=seed)
@@ -505,7 +526,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
             h = max(hyps, key=lambda H: photometric_agreement(H, ref_gray, mov_gray, level=p_level,
                                                              moving_valid=mov_valid))
             # (A scale, or more, is estimated coarse to fine: a level-1 start leaves its bias.)
-            if attempt(gen, h, min(1, levels - 1) if model in ("translation", "rigid") else None):
+            if attempt(gen, h, min(START_LEVEL, levels - 1) if model in ("translation", "rigid") else None):
                 return out
         return out
 

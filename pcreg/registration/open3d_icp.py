@@ -57,8 +57,12 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", 
                init: np.ndarray | None = None, max_iteration: int = 30, relative_fitness: float = 1e-6,
                relative_rmse: float = 1e-6, callback: Callable[[IcpIteration], None] | None = None,
                stepwise: bool | None = None, level: int = 0, source_pcd=None, target_pcd=None,
-               ) -> RegistrationResult:
-    """One Open3D ICP run at one scale: a :class:`RegistrationResult` (``matrix`` is ``T_target_source``)."""
+               check_convergence: bool = True) -> RegistrationResult:
+    """One Open3D ICP run at one scale: a :class:`RegistrationResult` (``matrix`` is ``T_target_source``).
+
+    ``check_convergence=False`` (one call, no callback) skips the extra step that decides ``converged``
+    (reported False): for intermediate pyramid levels, whose convergence nobody reads.
+    """
     start = time.perf_counter()
     check_model(model)
     o3d = _o3d()
@@ -94,6 +98,8 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", 
 
     if not stepwise:
         r = step(T4, max_iteration)
+        if not check_convergence:
+            return _result(back(np.asarray(r.transformation)), r, -1, False, start)
         r_next = step(np.asarray(r.transformation), 1)
         converged = (abs(r_next.fitness - r.fitness) < relative_fitness
                      and abs(r_next.inlier_rmse - r.inlier_rmse) < relative_rmse)

@@ -143,7 +143,7 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
                   callback: Callable | None = None) -> PairRegistration:
     """:func:`pcreg.register` with the configured options; a :class:`~pcreg.errors.RegistrationError`
     (or a degenerate transform) becomes a :class:`PairRegistration` with ``result=None`` and its reason."""
-    from . import register
+    from .registration.api import register
 
     t0 = time.perf_counter()
     try:
@@ -217,14 +217,13 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
 
     The classifier's evidence is not accumulated along the chain (as an HMM filter would): naive
     Bayes errs on the same colours in every frame, so its errors are correlated in time and adding
-    them up frame after frame wears correct labels away (measured on syn1b, 100 frames of 320x240,
-    k = 1: 9.8% error against 3.0% without it); neither does a label fade with age (13.2% there:
-    fading costs the long chains of accurate registrations more than it saves).
+    them up frame after frame wears correct labels away; neither does a label fade with age (both
+    measured worse: README, design notes).
     """
     d = np.asarray(log_odds_moving, dtype=np.float32)
     if T_ref_mov is None:
         return d.copy(), np.full(d.shape, 2, np.uint8)
-    from . import warp
+    from .registration.warp import warp
 
     q_mov, _ = warp_prior(_prior_q(labels_reference, kind="labels", pi=pi, fusion=fusion), T_ref_mov,
                           shape=d.shape, pi=pi)
@@ -275,7 +274,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     """
     from .datasets import relative_transform
     from .registration.transforms import max_corner_error
-    from . import warp
+    from .registration.warp import warp
 
     if reference.shape != moving.shape:
         raise InputError(f"reference {reference.shape} and moving {moving.shape} frames differ in size")

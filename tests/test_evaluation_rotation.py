@@ -91,5 +91,5 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
         series = rec.series(f"errors/syn1a/frame0/reference/{key}")
         assert sorted(series) == [0, 1]
         assert [series[0], series[1]] == pytest.approx(
-            [res["datasets"]["syn1a"]["angles"][a][key] / 100.0 for a in ("0", "90")])
+            [res["datasets"]["syn1a"]["angles"][a][key] for a in ("0", "90")])
     assert len(rec.get("transforms/T_ref_mov")) == 2

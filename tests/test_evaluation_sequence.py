@@ -91,7 +91,7 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
     unit = res["units"][0]
     for m in ("plain", "augmented", "thesis_after"):
         series = rec.series(f"errors/syn1a/k2/reference/{m}")
-        assert [series[f] for f in sorted(series)] == pytest.approx([p["errors"][m] / 100.0 for p in unit["pairs"]])
+        assert [series[f] for f in sorted(series)] == pytest.approx([p["errors"][m] for p in unit["pairs"]])
     assert rec.get("transforms/T_ref_mov") and rec.get("warped/valid_mask")
     assert rec.get("labels/predicted/augmented") and rec.get("labels/truth")
 

@@ -114,7 +114,7 @@ def main(argv=None) -> int:
                "cpus_used": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
                "cpus_total": os.cpu_count(), "loadavg_at_end": load, "python": platform.python_version()}
 
-    from pcreg._io import atomic_save_figure, atomic_write_json, atomic_write_text, markdown_table
+    from pcreg.outputs import atomic_save_figure, atomic_write_json, atomic_write_text, markdown_table
 
     out = Path(args.out)
     summary = [{k: v for k, v in r.items() if k != "per_pair_ms"} for r in results]

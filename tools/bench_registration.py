@@ -606,7 +606,7 @@ def _image_floors(img: dict) -> list[list]:
 
 
 def render_markdown(report: dict) -> str:
-    from pcreg._io import markdown_table
+    from pcreg.outputs import markdown_table
 
     m = report["machine"]
     lines = [f"# Registration benchmark\n",
@@ -792,7 +792,7 @@ def write_outputs(report: dict, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pcreg._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text
+    from pcreg.outputs import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text
 
     paths = [atomic_write_json(out / "registration.json", report),
              atomic_write_text(out / "registration.md", render_markdown(report))]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -58,7 +57,7 @@ def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = T
 
 
 def print_json(obj) -> None:
-    from .._io import to_json
+    from ..outputs import to_json
 
     sys.stdout.write(to_json(obj) + "\n")
 

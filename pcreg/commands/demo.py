@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .._io import check_output
+    from ..outputs import check_output
     from ..errors import InputError
     from ..experiments.demo import DemoConfig, run_demo
 

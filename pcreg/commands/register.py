@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
 
     import cv2
 
-    from .._io import atomic_write_bytes, check_output
+    from ..outputs import atomic_write_bytes, check_output
     from ..errors import OutputError
     from ..registration.clouds import cloud_pyramid, load_image
     from ..registration.api import register

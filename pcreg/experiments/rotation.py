@@ -71,7 +71,7 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
 
     import numpy as np
 
-    from .. import warp
+    from ..registration.warp import warp
     from ..registration.transforms import about_point, image_center, rigid2d
 
     h, w = image.shape[:2]
@@ -93,8 +93,8 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
     recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``)."""
     import numpy as np
 
-    from .. import register
-    from .. import warp
+    from ..registration.api import register
+    from ..registration.warp import warp
     from ..errors import RegistrationError
     from ..classification.metrics import error_rate
     from ..classification.bayes import fit_classifier
@@ -155,7 +155,7 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
             recorder.log_labels(predicted=pred_after, prefix="after")
             recorder.log_labels(predicted=pred_masked, prefix="after_masked")
             recorder.log_labels(predicted=pred_before, prefix="before")
-            recorder.log_errors({f"{prefix}/{k}": row[k] / 100.0 for k in KEYS})
+            recorder.log_errors({f"{prefix}/{k}": row[k] for k in KEYS})
     out["seconds"] = time.perf_counter() - t0
     return out
 
@@ -176,11 +176,9 @@ def sample_indices(n: int, samples: int) -> list[int]:
 def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=None, show_progress: bool | None = None) -> dict:
     """Run every unit (resuming from ``out/units``); returns what results.json holds."""
-    from ..datasets import PRESETS
     from ..errors import DatasetError
-    from .units import Unit, UnitStore, load_cached, plain_config, run_resumable
+    from .units import Unit, evaluate_units, load_cached
 
-    t0 = time.perf_counter()
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     units = []
     for name, frames in datasets.items():
@@ -189,17 +187,8 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
                 raise DatasetError(f"dataset {name}: frame {frames[i].name} has no labels")
             for b in config.backends:
                 units.append(Unit(f"{name}/frame{i}_{b}", name, (("index", i), ("backend", b)), config))
-    cfg_dict = plain_config(config)
-    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
-    done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
-                                  executor=executor, desc="rotation", show_progress=show_progress)
-    results = summarise(config, [done[u.key] for u in units])
-    for name in results["datasets"]:
-        if name in PRESETS:
-            results["datasets"][name]["mirrors"] = PRESETS[name].mirrors
-    results["resumed_units"] = resumed
-    results["seconds"] = time.perf_counter() - t0
-    return results
+    return evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
+                          recorder=recorder, desc="rotation", show_progress=show_progress)
 
 
 def summarise(config: RotationConfig, unit_results: list[dict]) -> dict:

@@ -115,7 +115,7 @@ def _recording_hooks(rec, unit, counter: list[int]):
         for method in RECORDED_PREDICTIONS:
             if method in arrays.predicted:
                 rec.log_labels(predicted=arrays.predicted[method], prefix=method)
-        rec.log_errors({f"{prefix}/{m}": v / 100.0 for m, v in result.errors.items()})
+        rec.log_errors({f"{prefix}/{m}": v for m, v in result.errors.items()})
 
     return on_pair, rec.icp_callback(unit.backend, max_points=200, max_correspondences=80)
 
@@ -134,27 +134,16 @@ def plan_units(config: SequenceConfig, names: list[str]) -> list:
 def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=None, show_progress: bool | None = None) -> dict:
     """Run every unit (resuming from ``out/units`` when ``out`` is given); returns what results.json holds."""
-    from ..datasets import PRESETS
     from ..errors import DatasetError
-    from .units import UnitStore, load_cached, plain_config, run_resumable
+    from .units import evaluate_units, load_cached
 
-    t0 = time.perf_counter()
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     for name, frames in datasets.items():
         if frames and any(f.labels is None for f in frames):
             raise DatasetError(f"dataset {name} has unlabelled frames; the sequence evaluation scores every frame")
-    cfg_dict = plain_config(config)
-    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
-    units = plan_units(config, list(datasets))
-    done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
-                                  executor=executor, desc="sequence", show_progress=show_progress)
-    results = summarise(config, [done[u.key] for u in units])
-    for name in results["datasets"]:
-        if name in PRESETS:
-            results["datasets"][name]["mirrors"] = PRESETS[name].mirrors
-    results["resumed_units"] = resumed
-    results["seconds"] = time.perf_counter() - t0
-    return results
+    return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
+                          force=force, executor=executor, recorder=recorder, desc="sequence",
+                          show_progress=show_progress)
 
 
 def summarise(config: SequenceConfig, unit_results: list[dict]) -> dict:

@@ -74,7 +74,7 @@ class UnitStore:
     """
 
     def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
-        from .._io import atomic_write_json
+        from ..outputs import atomic_write_json
         from ..errors import OutputError
 
         self.out = Path(out)
@@ -112,7 +112,7 @@ class UnitStore:
             return None
 
     def save(self, key: str, result: dict) -> None:
-        from .._io import atomic_write_json
+        from ..outputs import atomic_write_json
 
         atomic_write_json(self.path(key), result)
 
@@ -160,3 +160,27 @@ def nan_to_none(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [nan_to_none(v) for v in obj]
     return obj
+
+
+def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
+                   force: bool = False, executor=None, recorder=None, desc: str = "",
+                   show_progress: bool | None = None) -> dict:
+    """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
+    them without ``out``), summarise their results in order (``summarise(config, results)``), and add
+    the presets' real counterparts, the number of resumed units and the wall time."""
+    import time
+
+    from ..datasets import PRESETS
+
+    t0 = time.perf_counter()
+    cfg_dict = plain_config(config)
+    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
+    done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
+                                  executor=executor, desc=desc, show_progress=show_progress)
+    results = summarise(config, [done[u.key] for u in units])
+    for name in results["datasets"]:
+        if name in PRESETS:
+            results["datasets"][name]["mirrors"] = PRESETS[name].mirrors
+    results["resumed_units"] = resumed
+    results["seconds"] = time.perf_counter() - t0
+    return results

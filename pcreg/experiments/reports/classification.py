@@ -123,25 +123,13 @@ def _figures(results: dict) -> dict:
 
 
 def write_outputs(results: dict, out: str | Path) -> list[Path]:
-    """Write the tables, figures, config.json and (last) results.json atomically; returns the paths."""
-    import matplotlib.pyplot as plt
+    """The tables (.csv, .md), figures, config.json and (last) results.json, atomically; returns the paths."""
+    from .files import write_files
 
-    from ..units import nan_to_none
-    from ..._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
-
-    out = Path(out)
-    written = []
+    specs = {}
     for name, (header, rows) in tables(results).items():
-        written.append(atomic_write_csv(out / f"{name}.csv", header, rows))
-        text = f"### {_TITLES[name]}\n\n" + markdown_table(header, rows)
         notes = [n for n in results["notes"] if (name == "case1" and n.startswith("Case I:"))
                  or (name == "case3" and n.startswith("Case III:"))]
-        if notes:
-            text += "\n" + "\n".join(f"Note: {n}." for n in notes) + "\n"
-        written.append(atomic_write_text(out / f"{name}.md", text))
-    for name, fig in _figures(results).items():
-        written.append(atomic_save_figure(fig, out / f"{name}.png"))
-        plt.close(fig)
-    written.append(atomic_write_json(out / "config.json", results["config"]))
-    written.append(atomic_write_json(out / "results.json", nan_to_none(results)))
-    return written
+        footer = "\n" + "\n".join(f"Note: {n}." for n in notes) + "\n" if notes else ""
+        specs[name] = (_TITLES[name], header, rows, footer)
+    return write_files(out, results, tables=specs, figures=_figures(results))

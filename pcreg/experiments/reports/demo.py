@@ -13,7 +13,7 @@ def pair_figure(frames, *, k: int, weight: float, out: Path, title: str) -> None
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ..._io import atomic_save_figure
+    from ...outputs import atomic_save_figure
     from ...classification.bayes import fit_classifier
     from ...pipeline import PipelineConfig, TemporalFusion, process_pair
     from ...recording.entities import CLASSES
@@ -66,7 +66,7 @@ not scored.
 
 
 def report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path) -> str:
-    from ..._io import markdown_table
+    from ...outputs import markdown_table
     from . import classification, rotation, sequence
 
     parts = ["# pcreg demo\n",

@@ -92,24 +92,10 @@ def _figure(results: dict):
 
 
 def write_outputs(results: dict, out: str | Path) -> list[Path]:
-    import matplotlib.pyplot as plt
+    """rotation_BACKEND.csv/.md, checks.md, rotation.png, config.json and results.json."""
+    from .files import write_files
 
-    from ..._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
-    from ..units import nan_to_none
-
-    out = Path(out)
-    written = []
-    for b in results["backends"]:
-        header, rows = table(results, b)
-        written.append(atomic_write_csv(out / f"rotation_{b}.csv", header, rows))
-        written.append(atomic_write_text(out / f"rotation_{b}.md",
-                                         f"### Rotation (thesis Ch. 5), backend {b}: error % (mean over sampled frames)\n\n"
-                                         + markdown_table(header, rows)))
-    written.append(atomic_write_text(out / "checks.md", checks(results)))
-    fig = _figure(results)
-    if fig is not None:
-        written.append(atomic_save_figure(fig, out / "rotation.png"))
-        plt.close(fig)
-    written.append(atomic_write_json(out / "config.json", results["config"]))
-    written.append(atomic_write_json(out / "results.json", nan_to_none(results)))
-    return written
+    tables = {f"rotation_{b}": (f"Rotation (thesis Ch. 5), backend {b}: error % (mean over sampled frames)",
+                                *table(results, b)) for b in results["backends"]}
+    return write_files(out, results, tables=tables, texts={"checks.md": checks(results)},
+                       figures={"rotation": _figure(results)})

@@ -134,24 +134,9 @@ def _figures(results: dict) -> dict:
 
 
 def write_outputs(results: dict, out: str | Path) -> list[Path]:
-    """Tables, checks, figures, config.json and (last) results.json, each written atomically."""
-    import matplotlib.pyplot as plt
+    """sequence_BACKEND.csv/.md, checks.md, the figures, config.json and results.json."""
+    from .files import write_files
 
-    from ..._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
-    from ..units import nan_to_none
-
-    out = Path(out)
-    written = []
-    for b in results["backends"]:
-        header, rows = table(results, b)
-        written.append(atomic_write_csv(out / f"sequence_{b}.csv", header, rows))
-        text = (f"### Sequence (thesis Ch. 6-7), backend {b}: mean error % over pairs (i, i+k)\n\n"
-                + markdown_table(header, rows))
-        written.append(atomic_write_text(out / f"sequence_{b}.md", text))
-    written.append(atomic_write_text(out / "checks.md", checks(results)))
-    for name, fig in _figures(results).items():
-        written.append(atomic_save_figure(fig, out / f"{name}.png"))
-        plt.close(fig)
-    written.append(atomic_write_json(out / "config.json", results["config"]))
-    written.append(atomic_write_json(out / "results.json", nan_to_none(results)))
-    return written
+    tables = {f"sequence_{b}": (f"Sequence (thesis Ch. 6-7), backend {b}: mean error % over pairs (i, i+k)",
+                                *table(results, b)) for b in results["backends"]}
+    return write_files(out, results, tables=tables, texts={"checks.md": checks(results)}, figures=_figures(results))

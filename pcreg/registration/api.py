@@ -537,8 +537,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         if init in ("auto", "global"):
             tried = search(mov_levels, mov_img)
             best_ratio = max((t[0] for t in tried), default=0.0)
+            sure = any(t[0] >= convincing and t[5] >= CONVINCING_NCC for t in tried)
             if (min_inlier_ratio is not None and model in ("translation", "rigid", "similarity")
-                    and min_inlier_ratio <= best_ratio < convincing):
+                    and best_ratio >= min_inlier_ratio and not sure):
                 # Not convincing: is the moving image a mirror image of the reference? Its mirror, if so,
                 # aligns better than it does (a rigid or similarity motion cannot mirror).
                 mirrored = _MirroredPyramid(mov_levels)
@@ -560,7 +561,11 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     if not tried:
         raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
     # Edges rank the hypotheses; the intensities between them break the ties of repetitive patterns.
-    ratio, gen, T0, refined, ev, ncc, top = max(tried, key=lambda x: x[0] * (0.25 + max(x[5], 0.0) if x[5] == x[5] else 1.0))
+    def rank(t):
+        ratio_, ncc_ = t[0], t[5]
+        return ratio_ * (0.25 + max(ncc_, 0.0)) if np.isfinite(ncc_) else ratio_
+
+    ratio, gen, T0, refined, ev, ncc, top = max(tried, key=rank)
     if callback is not None:  # replay the winner's refinement for the callback (the same steps)
         refined = refine_all(mov_levels, T0, cb=callback, top=top)
     T, fit, rmse, total, conv = refined
@@ -589,7 +594,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                               backend=backend, seconds=seconds, inlier_ratio=ratio, chance_ratio=ev.chance_ratio,
                               overlap=overlap, generator=gen,
                               info={"moving_points": len(mov_levels[0]), "reference_points": len(ref_levels[0]),
-                                    "hypotheses": [{"generator": t[1], "inlier_ratio": t[0], "photometric_ncc": t[5]} for t in tried],
+                                    "hypotheses": [{"generator": t[1], "inlier_ratio": t[0], "photometric_ncc": t[5]}
+                                                   for t in tried],
                                     "mirror_inlier_ratio": mirror_ratio})
 
 

@@ -254,6 +254,8 @@ class _LazyPyramid:
                 mask = None
         self._images = [image]
         self._clouds: dict[int, ImageCloud] = {}
+        # Usable pixels at full resolution (for the intensity generators): all where no mask applies.
+        self.valid = np.ones(image.shape[:2], bool) if mask is None else mask
         self._levels, self._mask, self._max_points, self._seed, self._kwargs = levels, mask, max_points, seed, kwargs
 
     def __len__(self) -> int:
@@ -276,6 +278,7 @@ class _MirroredPyramid:
 
     def __init__(self, base):
         self._base, self._clouds = base, {}
+        self.valid = np.ascontiguousarray(base.valid[:, ::-1])
 
     def __len__(self) -> int:
         return len(self._base)
@@ -476,7 +479,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
 
     convincing = 0.6 if min_inlier_ratio is None else max(0.6, 2.0 * min_inlier_ratio)
     p_level = min(2, levels - 1)
-    ref_gray, _ = gray_level(ref_img, p_level)
+    ref_valid = ref_levels.valid
+    ref_gray, _ = gray_level(ref_img, p_level, valid=ref_valid)
 
     # Fourier-Mellin on a canvas of about 256-320 px: level 1 for 512-640 px images, finer or coarser
     # for smaller or larger ones (its cost grows with the canvas area, its precision with the resolution).
@@ -486,7 +490,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     def search(ML, MI) -> list[tuple]:
         """Every generator in turn until one is convincing: [(inlier ratio, generator, init, refined, evidence,
         photometric agreement)]."""
-        mov_gray, mov_valid = gray_level(MI, p_level)
+        MV = ML.valid
+        mov_gray, mov_valid = gray_level(MI, p_level, valid=MV)
         out: list[tuple] = []
 
         def attempt(gen, T_start, top):
@@ -521,9 +526,11 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 continue
             if gen == "fourier_mellin":
                 hyps = fourier_mellin_hypotheses(ref_img, MI, level=fm_level,
-                                                 model=model if model in ("translation", "rigid") else "similarity")
+                                                 model=model if model in ("translation", "rigid") else "similarity",
+                                                 reference_valid=ref_valid, moving_valid=MV)
             else:
-                hyps = orb_hypotheses(ref_img, MI, level=min(1, levels - 1), model=search_model, seed=seed)
+                hyps = orb_hypotheses(ref_img, MI, level=min(1, levels - 1), model=search_model, seed=seed,
+                                      reference_valid=ref_valid, moving_valid=MV)
             # Intensity hypotheses are ranked by intensity (the 180° twin of Fourier-Mellin included) and are
             # usually within a few pixels: refined at full resolution alone (a first pass with twice the
             # correspondence distance), where the coarse levels of fine repetitive patterns (bricks) cannot

@@ -92,10 +92,15 @@ def edge_fft_hypotheses(ref: ImageCloud, mov: ImageCloud, *, angles: np.ndarray,
 # Intensity: ORB + RANSAC, Fourier-Mellin
 # ---------------------------------------------------------------------------------------------------
 
-def gray_level(image: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """Grey image at pyramid ``level`` and its usable-pixel mask (uint8 255/0, None when all usable)."""
+def gray_level(image: np.ndarray, level: int, *, valid: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Grey image at pyramid ``level`` and its usable-pixel mask (uint8 255/0, None when all usable).
+
+    valid : (H, W) bool usable pixels at full resolution, if already known (default :func:`valid_region`).
+    """
     gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    valid = valid_region(image)
+    if valid is None:
+        valid = valid_region(image)
     mask = None if valid.all() else valid.astype(np.uint8) * 255
     for _ in range(level):
         gray = cv2.pyrDown(gray)
@@ -125,14 +130,15 @@ def _fix_model(T: np.ndarray, model: str) -> np.ndarray:
 
 def orb_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, level: int = 1,
                    n_features: int = 1000, model: str = "rigid", ransac_px: float = 2.0,
-                   seed: int = 0) -> list[np.ndarray]:
+                   seed: int = 0, reference_valid: np.ndarray | None = None,
+                   moving_valid: np.ndarray | None = None) -> list[np.ndarray]:
     """At most one hypothesis: ORB features at pyramid ``level``, cross-checked Hamming matches, a
     similarity by RANSAC (``cv2.estimateAffinePartial2D``, threshold ``ransac_px`` at that level).
 
     Black padding is masked out of the detection. Returns [] when fewer than 6 matches survive.
     """
-    g1, m1 = gray_level(reference_image, level)
-    g2, m2 = gray_level(moving_image, level)
+    g1, m1 = gray_level(reference_image, level, valid=reference_valid)
+    g2, m2 = gray_level(moving_image, level, valid=moving_valid)
     orb = cv2.ORB_create(nfeatures=int(n_features))
     k1, d1 = orb.detectAndCompute(g1, m1)
     k2, d2 = orb.detectAndCompute(g2, m2)
@@ -168,7 +174,8 @@ def _canvas(gray: np.ndarray, mask: np.ndarray | None, size: int) -> np.ndarray:
 
 
 def fourier_mellin_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, level: int = 2,
-                              model: str = "rigid") -> list[np.ndarray]:
+                              model: str = "rigid", reference_valid: np.ndarray | None = None,
+                              moving_valid: np.ndarray | None = None) -> list[np.ndarray]:
     """Two hypotheses (the rotation and its 180° twin) by the Fourier-Mellin transform at ``level``.
 
     The magnitude spectra of both (windowed, mean-free) images are high-pass weighted and resampled to
@@ -176,19 +183,20 @@ def fourier_mellin_hypotheses(reference_image: np.ndarray, moving_image: np.ndar
     (and, for ``model="similarity"``, the scale). The moving image is de-rotated onto the reference's
     canvas and a phase correlation (``cv2.phaseCorrelate``) gives the translation.
     """
-    g1, m1 = gray_level(reference_image, level)
-    g2, m2 = gray_level(moving_image, level)
+    g1, m1 = gray_level(reference_image, level, valid=reference_valid)
+    g2, m2 = gray_level(moving_image, level, valid=moving_valid)
     size = cv2.getOptimalDFTSize(max(g1.shape + g2.shape))
     win = cv2.createHanningWindow((size, size), cv2.CV_32F)
     A = _canvas(g1, m1, size)
     B = _canvas(g2, m2, size)
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    # High-pass weight: the low frequencies carry the window, not the content.
+    highpass = np.clip(np.hypot(xx - size / 2, yy - size / 2) / (size / 2), 0, 1) ** 2
 
     def logpolar_magnitude(img):
-        F = np.fft.fftshift(np.abs(np.fft.fft2(img * win))).astype(np.float32)
-        yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
-        r = np.hypot(xx - size / 2, yy - size / 2) / (size / 2)
-        F *= np.clip(r, 0, 1) ** 2  # high-pass: the low frequencies carry the window, not the content
-        F = np.log1p(F)
+        F = cv2.dft(img * win, flags=cv2.DFT_COMPLEX_OUTPUT)
+        F = np.fft.fftshift(cv2.magnitude(F[..., 0], F[..., 1]))
+        F = np.log1p(F * highpass)
         return cv2.warpPolar(F, (size, size), (size / 2, size / 2), size / 2,
                              cv2.WARP_POLAR_LOG | cv2.INTER_LINEAR)
 

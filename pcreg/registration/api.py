@@ -220,6 +220,9 @@ CONVINCING_NCC = 0.6
 """The search stops early only at an alignment whose intensities also agree (normalised cross-correlation at
 pyramid level 2 at least this); otherwise every generator runs and the best one wins."""
 
+MIRROR_FACTOR = 1.2
+"""A moving image whose mirror scores (:func:`_rank`) this much better than itself is refused as a mirror image."""
+
 CHANCE_FACTOR = 2.0
 """A plausible alignment has at least this multiple of its chance level of inliers (true alignments
 measured at >= 2.8x, unrelated content at about 1x)."""
@@ -233,6 +236,13 @@ def _ensure_backend_options(backend: str, refine: str, weights: str) -> None:
                          "use refine='none' with backend='open3d'")
     if weights != "none" and backend != "reference":
         raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
+
+
+def _rank(t) -> float:
+    """A refined hypothesis's score: its inlier ratio weighted by the agreement of the intensities
+    (normalised cross-correlation), when measured: edges rank, intensities break the ties of patterns."""
+    ratio, ncc = t[0], t[5]
+    return ratio * (0.25 + max(ncc, 0.0)) if np.isfinite(ncc) else ratio
 
 
 class _LazyPyramid:
@@ -546,7 +556,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 return out
         return out
 
-    mirror_ratio = None
+    mirror_ratio = mirror_score = None
     if isinstance(init, str):
         if init not in ("auto", "global", "identity", "center"):
             raise InputError(f"init must be 'auto', 'global', 'identity', 'center' or a 3x3 matrix, got {init!r}")
@@ -560,7 +570,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                 # aligns better than it does (a rigid or similarity motion cannot mirror).
                 mirrored = _MirroredPyramid(mov_levels)
                 m_tried = search(mirrored, np.ascontiguousarray(mov_img[:, ::-1]))
-                mirror_ratio = max((t[0] for t in m_tried), default=0.0)
+                if m_tried:
+                    m_best = max(m_tried, key=_rank)
+                    mirror_ratio, mirror_score = m_best[0], _rank(m_best)
         else:
             T0 = (about_point(np.eye(3), image_center(mov_img.shape), image_center(ref_img.shape))
                   if init == "center" else np.eye(3))
@@ -577,11 +589,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     if not tried:
         raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
     # Edges rank the hypotheses; the intensities between them break the ties of repetitive patterns.
-    def rank(t):
-        ratio_, ncc_ = t[0], t[5]
-        return ratio_ * (0.25 + max(ncc_, 0.0)) if np.isfinite(ncc_) else ratio_
-
-    ratio, gen, T0, refined, ev, ncc, top = max(tried, key=rank)
+    ratio, gen, T0, refined, ev, ncc, top = max(tried, key=_rank)
     if callback is not None:  # replay the winner's refinement for the callback (the same steps)
         refined = refine_all(mov_levels, T0, cb=callback, top=top)
     T, fit, rmse, total, conv = refined
@@ -590,11 +598,11 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     if fit == 0.0 or ev.overlap_points < max(10, 0.02 * ev.moving_points):
         raise RegistrationError(f"registration found no overlap between the images "
                                 f"({ev.overlap_points} of {ev.moving_points} moving edge points land on the reference)")
-    if mirror_ratio is not None and mirror_ratio > ratio + 0.1:
+    if mirror_score is not None and mirror_score > MIRROR_FACTOR * _rank((ratio, gen, T0, refined, ev, ncc, top)):
         raise RegistrationError(
             f"registration refused: the moving image is a mirror image of the reference (its mirror aligns "
             f"{100 * mirror_ratio:.1f}% of the edge points within {inlier_tolerance:g} px, the image itself "
-            f"{100 * ratio:.1f}%)")
+            f"{100 * ratio:.1f}%, with intensities agreeing less)")
     chance = ev.chance_ratio
     if min_inlier_ratio is not None and min_inlier_ratio > 0 and ratio < CHANCE_FACTOR * chance:
         raise RegistrationError(

@@ -595,9 +595,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     T, fit, rmse, total, conv = refined
     seconds = time.perf_counter() - start
     overlap = ev.overlap_points / max(ev.moving_points, 1)
-    if fit == 0.0 or ev.overlap_points < max(10, 0.02 * ev.moving_points):
-        raise RegistrationError(f"registration found no overlap between the images "
-                                f"({ev.overlap_points} of {ev.moving_points} moving edge points land on the reference)")
+    need = max(10, int(np.ceil(0.02 * ev.moving_points)))
+    if fit == 0.0 or ev.overlap_points < need:
+        raise RegistrationError(f"registration found no overlap between the images: {ev.overlap_points} of "
+                                f"{ev.moving_points} moving edge points land on the reference (at least {need} needed)")
     if mirror_score is not None and mirror_score > MIRROR_FACTOR * _rank((ratio, gen, T0, refined, ev, ncc, top)):
         raise RegistrationError(
             f"registration refused: the moving image is a mirror image of the reference (its mirror aligns "

@@ -206,7 +206,7 @@ def fourier_mellin_hypotheses(reference_image: np.ndarray, moving_image: np.ndar
     angle = -360.0 * sy / size
     scale = 1.0
     if model == "similarity":
-        scale = float(np.exp(-sx * np.log(size / 2) / size))
+        scale = float(np.exp(sx * np.log(size / 2) / size))
         if not 0.5 < scale < 2.0:
             scale = 1.0
     c_ref = image_center(reference_image.shape)

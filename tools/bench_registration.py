@@ -668,8 +668,6 @@ def render_markdown(report: dict) -> str:
                                                         for k in IMPOSSIBLE]
                                          + [f"{s['refused']}/{s['cases']}", f"{1e3 * s['median_seconds']:.0f}"]
                                          for x, s in imp["summary"].items()]))
-            ratios = [r["pcreg_reference"].get("inlier_ratio") for r in imp["rows"]
-                      if r["pcreg_reference"].get("inlier_ratio") is not None]
             lines.append("")
         floors += _image_floors(img)
     else:

@@ -28,7 +28,7 @@ import numpy as np
 from .clouds import ImageCloud, valid_region
 from .transforms import about_point, apply, image_center, rigid2d
 
-GENERATORS = ("edges", "orb", "fourier_mellin")
+GENERATORS = ("fourier_mellin", "edges", "orb")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -280,20 +280,6 @@ def alignment_evidence(T: np.ndarray, mov: ImageCloud, ref: ImageCloud, tree, *,
         cos_null = np.einsum("ij,ij->i", n_mov, ref.normals[idx[ok]][perm])
         chance = (k / n_in) * float(np.mean(cos_null >= c_min))
     return Evidence(agree / n_in, n_in, len(mov), chance)
-
-
-def distinct(Ts: list[np.ndarray], shape: tuple[int, ...], *, min_px: float) -> list[np.ndarray]:
-    """``Ts`` without those whose corners all lie within ``min_px`` of an earlier one's (order kept)."""
-    from .transforms import corners
-
-    c = corners(shape)
-    kept, kept_c = [], []
-    for T in Ts:
-        pc = apply(T, c)
-        if all(np.max(np.linalg.norm(pc - q, axis=1)) > min_px for q in kept_c):
-            kept.append(T)
-            kept_c.append(pc)
-    return kept
 
 
 def photometric_agreement(T: np.ndarray, reference_gray: np.ndarray, moving_gray: np.ndarray, *, level: int,

@@ -27,6 +27,17 @@ Layout (``{x}`` is filled in at log time)::
     icp/{backend}/inlier_rmse           Scalars on the icp_iteration timeline
     crosscheck/report                   TextDocument: both results and their disagreement as JSON
     crosscheck/{key}                    Scalars: every number of the report, nested keys joined by '/'
+    crosscheck/{implementation}/...     per implementation of a cross-check: Points2D/LineStrips2D of its
+                                        iterations (e.g. moving, target, correspondences) and Scalars per
+                                        iteration on the icp_iteration timeline (e.g. fitness, inlier_rmse,
+                                        error); each implementation gets a 2-D view, each series name one
+                                        plot with every implementation on it
+    dense/{what}                        dense registration: images (e.g. dense/magnitude, the displacement
+                                        magnitude; dense/warped_prior, the prior warped by the field),
+                                        Arrows2D (dense/field), each a 2-D view; Scalars under dense/ in one plot
+    __properties/pcreg                  recording property ``kind``: which command made the recording
+                                        (register, crosscheck, sequence, rotation, demo, dense), so that
+                                        the viewer gets that command's blueprint
 """
 
 from __future__ import annotations
@@ -60,6 +71,11 @@ ERRORS = "errors"
 ICP = "icp"
 CROSSCHECK = "crosscheck"
 CROSSCHECK_REPORT = "crosscheck/report"
+DENSE = "dense"
+
+#: The recording property (``/__properties/pcreg``) that holds the kind of recording.
+PROPERTY = "pcreg"
+KIND_FIELD = "kind"
 
 #: Backends that get a view of their own in the blueprint (others still appear in the ICP series).
 ICP_BACKENDS = ("reference", "open3d")

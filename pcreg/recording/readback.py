@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Row", "Recording", "read_recording", "tensor", "image", "segmentation", "scalar", "text", "points"]
+__all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "tensor", "image", "segmentation", "scalar", "text", "points"]
 
 _SKIP_TIMELINES = {"log_time", "log_tick"}
 
@@ -98,6 +98,49 @@ def read_recording(path: str | os.PathLike) -> Recording:
             values = {c: batch.column(c)[i].values for c in comps if batch.column(c)[i].is_valid}
             out.rows.setdefault(chunk.entity_path, []).append(Row(chunk.entity_path, chunk.is_static, times, values))
     return out
+
+
+def read_entities(path: str | os.PathLike) -> dict[str, frozenset[str]]:
+    """``{entity path: archetype names with data there}`` of the first recording in ``path``, read from the
+    chunks' columns only (fast: no row is converted). rerun's ``/__properties`` are left out."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    stores = reader.recordings()
+    if not stores:
+        raise ValueError(f"{path}: no recording in this file")
+    out: dict[str, set[str]] = {}
+    for chunk in reader.stream(store=stores[0]):
+        if chunk.entity_path.startswith("/__"):
+            continue
+        batch = chunk.to_record_batch()
+        names = set(chunk.timeline_names)
+        arch = {n.split(":", 1)[0] for n in batch.schema.names
+                if ":" in n and not n.startswith("rerun.") and n not in names and batch.column(n).null_count < batch.num_rows}
+        out.setdefault(chunk.entity_path, set()).update(arch)
+    return {p: frozenset(a) for p, a in out.items()}
+
+
+def read_kind(path: str | os.PathLike) -> str | None:
+    """The kind of recording stored by the recorder (property ``pcreg.kind``), or None."""
+    from rerun.chunk import RrdReader
+
+    from . import entities as E
+
+    reader = RrdReader(str(path))
+    stores = reader.recordings()
+    if not stores:
+        raise ValueError(f"{path}: no recording in this file")
+    kind = None
+    for chunk in reader.stream(store=stores[0]).filter(content=f"/__properties/{E.PROPERTY}"):
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if name == E.KIND_FIELD or name.endswith(":" + E.KIND_FIELD):
+                values = [v for v in batch.column(name).to_pylist() if v is not None]
+                if values:
+                    v = values[-1]
+                    kind = str(v[0] if isinstance(v, list) else v)
+    return kind
 
 
 def scalar(row: Row) -> float:

@@ -103,3 +103,70 @@ def test_headless_screenshot_shows_the_images(small_recording, tmp_path, capsys)
     # the reference image fills a good part of the view: both halves visible, not a blank canvas
     assert red.mean() > 0.05 and green.mean() > 0.05, (red.mean(), green.mean())
     assert shot.std() > 20
+
+
+def _colours(shot: np.ndarray) -> tuple[float, float]:
+    """Fractions of the picture that are the recording's saturated red and green (BGR input)."""
+    b, g, r = (shot[..., i].astype(int) for i in range(3))
+    red = (r > 150) & (g < 90) & (b < 90)
+    green = (g > 140) & (r < 90) & (b < 90)
+    return float(red.mean()), float(green.mean())
+
+
+def _listening(port: int) -> list[str]:
+    """Local addresses (hex, as /proc/net/tcp writes them) listening on ``port``."""
+    out = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            lines = open(table).read().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            addr, hexport = fields[1].split(":")
+            if fields[3] == "0A" and int(hexport, 16) == port:
+                out.append(addr)
+    return out
+
+
+def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
+    """``pcreg view --web`` in a real browser: headless Chromium, software GL, no display, no GPU."""
+    import os
+    import re
+    import signal
+    import subprocess
+
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(small_recording), "--web",
+                             "--web-port", "0", "--grpc-port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+    try:
+        url = None
+        for line in proc.stdout:
+            if line.startswith("http://"):
+                url = line.strip()
+                break
+        assert url, proc.stderr.read()
+        m = re.match(r"http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1%3A(\d+)%2Fproxy$", url)
+        assert m, url
+        for port in map(int, m.groups()):  # bound to the loopback address only, not to every interface
+            assert _listening(port) == ["0100007F"], (port, _listening(port))
+        with Browser(width=1280, height=720) as browser:
+            browser.open(url)
+            ok, shot = browser.wait_for(lambda s: min(_colours(s)) > 0.03, timeout=120)
+            cv2.imwrite(str(tmp_path / "web.png"), shot)
+        red, green = _colours(shot)
+        assert ok, f"the recording's colours are not on the page: red {red:.3f}, green {green:.3f}"
+        assert shot.std() > 20
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(timeout=30)
+        proc.stdout.close()
+        proc.stderr.close()
+    assert code == 130
+    assert not _listening(int(m.group(1))) and not _listening(int(m.group(2)))

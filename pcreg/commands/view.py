@@ -17,6 +17,7 @@ on 127.0.0.1 (Vulkan; on a machine without a GPU, Mesa's lavapipe from Debian's
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import socket
@@ -26,6 +27,7 @@ import tempfile
 import time
 import urllib.parse
 from pathlib import Path
+from typing import Any, Iterator
 
 from ..errors import InputError, OutputError, PcregError
 
@@ -133,21 +135,19 @@ def vulkan_icds() -> list[Path]:
     return found
 
 
-def screenshot(
-    recording: str | os.PathLike,
-    out: str | os.PathLike,
-    *,
-    time_cursor: tuple[str, int] | None = None,
-    view: str | None = None,
-    size: str = "1600x900",
-    viewer: str | None = None,
-    timeout: float = 60.0,
-) -> Path:
-    """Render ``recording`` headless to the PNG ``out`` and return its path.
+#: Seconds after the headless viewer starts before a picture of the whole window is taken: its start-up
+#: notices (server address, renderer) fade out by then.
+NOTICES_FADE_S = 7.0
+
+
+@contextlib.contextmanager
+def headless(recording: str | os.PathLike, *, size: str = "1600x900", viewer: str | None = None,
+             timeout: float = 60.0) -> Iterator[tuple[Any, Any, float]]:
+    """The headless viewer with ``recording`` loaded: yields ``(ViewerClient, ViewerState, started)``.
 
     Starts ``rerun --headless`` bound to 127.0.0.1 on a free port in a process group of its own, opens
-    the file, waits for it to load, sets the time cursor, saves the screenshot (of the whole viewer or
-    of the view named ``view``) and stops the viewer.
+    the file, waits for it to load (its views laid out), and stops the viewer on exit. ``started`` is
+    the ``time.monotonic()`` at which the viewer started.
     """
     from rerun.experimental import ViewerClient
 
@@ -155,13 +155,13 @@ def screenshot(
     if sys.platform.startswith("linux") and not vulkan_icds():
         raise ViewerError("no Vulkan driver for a headless screenshot: install Debian's mesa-vulkan-drivers (lavapipe)")
     rec_path = Path(recording).resolve()
-    out_path = Path(out).resolve()
     port = _free_port()
     env = dict(os.environ)
     env.setdefault("WGPU_BACKEND", "vulkan")
     env.setdefault("XDG_RUNTIME_DIR", str(Path(os.environ.get("TMPDIR", "/tmp"))))
     cmd = [binary, "--headless", "--bind", "127.0.0.1", "--port", str(port), "--hide-welcome-screen",
            "--window-size", size, "--renderer", "vulkan"]
+    started = time.monotonic()
     proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.monotonic() + timeout
@@ -188,6 +188,30 @@ def screenshot(
             if time.monotonic() > deadline:
                 raise ViewerError(f"the viewer did not finish loading {rec_path} within {timeout:.0f} s")
             time.sleep(0.2)
+        yield client, state, started
+    except RuntimeError as exc:  # ViewerClient's errors
+        raise ViewerError(f"the viewer failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else exc}") from None
+    finally:
+        _stop(proc)
+
+
+def screenshot(
+    recording: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    time_cursor: tuple[str, int] | None = None,
+    view: str | None = None,
+    size: str = "1600x900",
+    viewer: str | None = None,
+    timeout: float = 60.0,
+) -> Path:
+    """Render ``recording`` headless to the PNG ``out`` and return its path.
+
+    Loads it in the :func:`headless` viewer, sets the time cursor, saves the screenshot (of the whole
+    viewer, once its start-up notices have faded, or of the view named ``view``) and stops the viewer.
+    """
+    out_path = Path(out).resolve()
+    with headless(recording, size=size, viewer=viewer, timeout=timeout) as (client, state, started):
         if time_cursor is not None:
             name, value = time_cursor
             timelines = {t.name for r in state.recordings for t in r.timelines}
@@ -201,6 +225,8 @@ def screenshot(
                 raise InputError(f"--view: no view named {view!r} (views: {', '.join(sorted(names))})")
             view_id = names[view]
         time.sleep(0.5)  # let a few frames paint after the cursor moved
+        if view_id is None:
+            time.sleep(max(0.0, started + NOTICES_FADE_S - time.monotonic()))
         out_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.png")
         try:
@@ -211,11 +237,7 @@ def screenshot(
         finally:
             if tmp.exists():
                 tmp.unlink()
-        return out_path
-    except RuntimeError as exc:  # ViewerClient's errors
-        raise ViewerError(f"the viewer failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else exc}") from None
-    finally:
-        _stop(proc)
+    return out_path
 
 
 def _stop(proc: subprocess.Popen) -> None:

@@ -25,12 +25,13 @@ KINDS = ("register", "crosscheck", "sequence", "rotation", "demo", "dense")
 #: Archetypes drawn by a 2-D view, by a time-series view and by the two text views.
 SPATIAL = frozenset({"Image", "EncodedImage", "SegmentationImage", "DepthImage", "Points2D", "LineStrips2D",
                      "Arrows2D", "Boxes2D"})
+SPATIAL_3D = frozenset({"Points3D", "LineStrips3D", "Arrows3D", "Boxes3D", "Mesh3D"})
 SERIES = frozenset({"Scalars"})
 TEXT_LOG = frozenset({"TextLog"})
 DOCUMENT = frozenset({"TextDocument"})
 
 #: Pane classes and the archetypes that give each data.
-VIEW_DATA = {"2D": SPATIAL, "TimeSeries": SERIES, "TextLog": TEXT_LOG, "TextDocument": DOCUMENT}
+VIEW_DATA = {"2D": SPATIAL, "3D": SPATIAL_3D, "TimeSeries": SERIES, "TextLog": TEXT_LOG, "TextDocument": DOCUMENT}
 
 #: Names of the views (``pcreg view --screenshot --view NAME`` screenshots one of them).
 REGISTRATION_VIEW = "Registration"
@@ -118,14 +119,19 @@ def _labels(entities) -> list[Pane]:
 
 
 def _icp(entities, prefix: str = E.ICP) -> tuple[list[Pane], list[Pane]]:
-    """Per implementation a 2-D pane of its iterations; per series (fitness, inlier RMSE, error, ...)
-    one plot with every implementation on it."""
-    spatial = [Pane(f"ICP {b}" if prefix == E.ICP else _title(b), "2D", f"/{prefix}/{b}", (f"/{prefix}/{b}/**",))
-               for b in _children(entities, prefix, SPATIAL)]
+    """Per implementation (a child of ``prefix`` with clouds of its iterations) a 2-D or 3-D pane; per
+    series of the implementations (fitness, inlier RMSE, error, ...) one plot with all of them on it."""
+    spatial = []
+    impls = []
+    for view, kinds in (("2D", SPATIAL), ("3D", SPATIAL_3D)):
+        for b in _children(entities, prefix, kinds):
+            spatial.append(Pane(f"ICP {b}" if prefix == E.ICP else _title(b), view, f"/{prefix}/{b}",
+                                (f"/{prefix}/{b}/**",)))
+            impls.append(b)
     leaves: dict[str, list[str]] = {}
     for p in _with(entities, prefix, SERIES):
         parts = p.strip("/").split("/")
-        if len(parts) >= 3:  # {prefix}/{implementation}/{series...}
+        if len(parts) >= 3 and (prefix == E.ICP or parts[1] in impls):  # {prefix}/{implementation}/{series...}
             leaves.setdefault("/".join(parts[2:]), []).append(p)
     series = [Pane(("ICP " if prefix == E.ICP else "") + _title(leaf).replace("inlier rmse", "inlier RMSE"),
                    "TimeSeries", f"/{prefix}", tuple(paths)) for leaf, paths in leaves.items()]
@@ -183,7 +189,7 @@ def panes(kind: str, entities: Entities) -> list[Pane]:
 def infer_kind(entities: Entities) -> str:
     """The kind of a recording whose kind was not stored, from its entity paths."""
     ent = normalise(entities)
-    cc = [c for c in _children(ent, E.CROSSCHECK, SPATIAL | SERIES) if _with(ent, f"{E.CROSSCHECK}/{c}", SPATIAL)]
+    cc = _children(ent, E.CROSSCHECK, SPATIAL | SPATIAL_3D)
     if cc or "/" + E.CROSSCHECK_REPORT in ent:
         return "crosscheck"
     if _with(ent, E.DENSE, SPATIAL | SERIES):
@@ -195,49 +201,68 @@ def infer_kind(entities: Entities) -> str:
 
 def timeline(kind: str) -> str:
     """The timeline a kind of recording opens on: ICP iterations for a cross-check, frames otherwise."""
-    return E.ICP_TIMELINE if kind == "crosscheck" else E.FRAME_TIMELINE
+    return E.ICP_TIMELINE if kind in ("crosscheck", "register") else E.FRAME_TIMELINE
 
 
 def _view(pane: Pane):
     import rerun.blueprint as rrb
 
-    cls = {"2D": rrb.Spatial2DView, "TimeSeries": rrb.TimeSeriesView, "TextLog": rrb.TextLogView,
+    cls = {"2D": rrb.Spatial2DView, "3D": rrb.Spatial3DView, "TimeSeries": rrb.TimeSeriesView, "TextLog": rrb.TextLogView,
            "TextDocument": rrb.TextDocumentView}[pane.view]
     return cls(origin=pane.origin, contents=[f"+ {p}" for p in pane.include], name=pane.name)
 
 
-def _layout(spatial: list, series: list, texts: list, *, main_first: bool):
-    """Images and clouds on top (the first one larger when ``main_first``), series and text below."""
+def _layout(main: list, side: list, labels: list, series: list, texts: list):
+    """``main`` views side by side with ``side`` in a grid beside them; ``labels`` in a row below; then the
+    series and the text (each group in tabs)."""
     import rerun.blueprint as rrb
 
     def group(items, container=rrb.Tabs):
         return items[0] if len(items) == 1 else container(*items)
 
-    rows = []
-    if spatial:
-        if main_first and len(spatial) > 1:
-            rows.append(rrb.Horizontal(spatial[0], group(spatial[1:], rrb.Grid), column_shares=[3, 2]))
-        else:
-            rows.append(group(spatial, rrb.Grid))
-    bottom = [c for c in (group(series) if series else None, group(texts) if texts else None) if c is not None]
+    rows, shares = [], []
+    top = list(main)
+    if side:
+        top.append(group(side, rrb.Grid))
+    if top:
+        rows.append(group(top, rrb.Horizontal))
+        shares.append(3)
+    if labels:
+        rows.append(group(labels, rrb.Horizontal))
+        shares.append(2)
+    bottom = [group(x) for x in (series, texts) if x]
     if bottom:
         rows.append(group(bottom, rrb.Horizontal))
+        shares.append(2)
     if not rows:
         return rrb.Vertical()
-    if len(rows) == 1:
-        return rows[0]
-    return rrb.Vertical(*rows, row_shares=[3, 2])
+    return rows[0] if len(rows) == 1 else rrb.Vertical(*rows, row_shares=shares)
+
+
+def _arrange(ps: list[Pane], kind: str, view=None):
+    """Split panes into the groups of :func:`_layout`: the main views (the registration, the dense
+    field, or every implementation of a cross-check), the others, the label maps, series and text."""
+    view = view or _view
+    spatial = [p for p in ps if p.view in ("2D", "3D")]
+    labels = [p for p in spatial if p.origin.startswith("/" + E.LABELS)]
+    rest = [p for p in spatial if p not in labels]
+    if kind == "crosscheck":
+        main = [p for p in rest if p.origin.startswith("/" + E.CROSSCHECK)] or [p for p in rest if p.origin.startswith("/" + E.ICP)]
+    elif kind == "dense":
+        main = [p for p in rest if p.origin.startswith("/" + E.DENSE)][:2] or rest[:1]
+    else:
+        main = rest[:1]
+    side = [p for p in rest if p not in main]
+    series = [p for p in ps if p.view == "TimeSeries"]
+    texts = [p for p in ps if p.view in ("TextLog", "TextDocument")]
+    return tuple([view(p) for p in g] for g in (main, side, labels, series, texts))
 
 
 def blueprint(kind: str, entities: Entities):
     """The ``rerun.blueprint.Blueprint`` of a ``kind`` recording holding ``entities`` (see :func:`panes`)."""
     import rerun.blueprint as rrb
 
-    ps = panes(kind, entities)
-    spatial = [_view(p) for p in ps if p.view == "2D"]
-    series = [_view(p) for p in ps if p.view == "TimeSeries"]
-    texts = [_view(p) for p in ps if p.view in ("TextLog", "TextDocument")]
-    root = _layout(spatial, series, texts, main_first=kind != "crosscheck")
+    root = _layout(*_arrange(panes(kind, entities), kind))
     return rrb.Blueprint(root, rrb.TimePanel(timeline=timeline(kind), state="collapsed"), collapse_panels=True)
 
 
@@ -274,10 +299,10 @@ def compare_blueprint(recordings: list[tuple[str, str, Entities]]):
 
     groups = compare_panes(recordings)
     spatial = [rrb.Horizontal(*[_view(p) for p in g], name=g[0].name.split(": ", 1)[-1])
-               if len(g) > 1 else _view(g[0]) for g in groups if g[0].view == "2D"]
+               if len(g) > 1 else _view(g[0]) for g in groups if g[0].view in ("2D", "3D")]
     series = [_view(g[0]) for g in groups if g[0].view == "TimeSeries"]
     texts = [_view(p) for g in groups if g[0].view in ("TextLog", "TextDocument") for p in g]
-    root = _layout([rrb.Tabs(*spatial)] if len(spatial) > 1 else spatial, series, texts, main_first=False)
+    root = _layout([rrb.Tabs(*spatial)] if len(spatial) > 1 else spatial, [], [], series, texts)
     kinds = {k for _, k, _ in recordings}
     tl = timeline(kinds.pop()) if len(kinds) == 1 else E.FRAME_TIMELINE
     return rrb.Blueprint(root, rrb.TimePanel(timeline=tl, state="collapsed"), collapse_panels=True)

@@ -3,6 +3,10 @@
 The recorder (``pcreg.recording.recorder``) writes to these paths, the blueprint (``pcreg.recording.blueprint``) lays out
 views over them, and tests read them back. Plain strings, no imports.
 
+Timelines: ``frame`` (the frame or unit being processed) and ``icp_iteration`` (ICP steps, restarting at
+every frame); what is logged outside the ICP iterations sits at ``icp_iteration`` 0, so a view on either
+timeline shows it.
+
 Layout (``{x}`` is filled in at log time)::
 
     /                                   AnnotationContext (static): 0 ground, 1 obstacle, 2 unknown

@@ -313,7 +313,9 @@ class Recorder:
             self._rec.flush(timeout_sec=0)
         self._frame = int(index)
         self._rec.set_time(E.FRAME_TIMELINE, sequence=self._frame)
-        self._rec.disable_timeline(E.ICP_TIMELINE)
+        # frame-level data sits at the start of the ICP timeline too, so a view on that timeline (a
+        # registration's or a cross-check's iterations) shows the images, clouds and log with them
+        self._rec.set_time(E.ICP_TIMELINE, sequence=0)
         self._icp_step.clear()
         self._icp_target_key.clear()
         self._moving_display = None
@@ -370,6 +372,7 @@ class Recorder:
         def job() -> None:
             if frame is not None:
                 self._rec.set_time(E.FRAME_TIMELINE, sequence=frame)
+                self._rec.set_time(E.ICP_TIMELINE, sequence=0)
             self._send(path, make())
 
         self._pending.append(self._encoder.submit(job))
@@ -562,7 +565,7 @@ class Recorder:
                     self._log(E.icp_path(backend, "correspondences"),
                               rr.LineStrips2D(strips, colors=[255, 255, 255], radii=0.5))
             finally:
-                self._rec.disable_timeline(E.ICP_TIMELINE)
+                self._rec.set_time(E.ICP_TIMELINE, sequence=0)
 
         return callback
 

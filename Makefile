@@ -4,8 +4,9 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP = $(VENV)/.pcreg-installed-$(OPEN3D)
-# Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU).
-APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1
+# Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU);
+# `pcreg view --web` is tested in headless Chromium.
+APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1 chromium
 # OPEN3D=cuda installs the CUDA build of Open3D (907 MB) instead of the CPU build (312 MB).
 OPEN3D ?= cpu
 PYTEST_ARGS ?=

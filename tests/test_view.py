@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
 import cv2
 import numpy as np
@@ -141,7 +142,9 @@ def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(small_recording), "--web",
+    second = tmp_path / "again.rrd"  # two recordings, shown side by side
+    second.write_bytes(small_recording.read_bytes())
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(small_recording), str(second), "--web",
                              "--web-port", "0", "--grpc-port", "0"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
     try:
@@ -157,10 +160,16 @@ def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
             assert _listening(port) == ["0100007F"], (port, _listening(port))
         with Browser(width=1280, height=720) as browser:
             browser.open(url)
-            ok, shot = browser.wait_for(lambda s: min(_colours(s)) > 0.03, timeout=120)
+            # both recordings drawn: their red and green in the left and in the right half of the page
+            def both(s):
+                half = s.shape[1] // 2
+                return min(*_colours(s[:, :half]), *_colours(s[:, half:])) > 0.02
+
+            ok, shot = browser.wait_for(both, timeout=120)
             cv2.imwrite(str(tmp_path / "web.png"), shot)
+            print("web viewer screenshot:", tmp_path / "web.png")
         red, green = _colours(shot)
-        assert ok, f"the recording's colours are not on the page: red {red:.3f}, green {green:.3f}"
+        assert ok, f"the recordings' colours are not on both halves of the page: red {red:.3f}, green {green:.3f}"
         assert shot.std() > 20
     finally:
         if proc.poll() is None:
@@ -170,3 +179,216 @@ def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
         proc.stderr.close()
     assert code == 130
     assert not _listening(int(m.group(1))) and not _listening(int(m.group(2)))
+
+
+# -- one blueprint per kind of recording ------------------------------------------------------------
+
+KIND_NAMES = ("register", "crosscheck", "sequence", "rotation", "demo", "dense", "crosscheck-implementations")
+
+
+@pytest.fixture(scope="module")
+def kind_recordings(tmp_path_factory):
+    """A small recording of every kind, each made the way its command makes it."""
+    import contextlib
+    import io
+
+    import rerun as rr
+
+    from _images import moved, rigid_about_centre, shapes_image
+    from pcreg import cli
+    from pcreg.experiments import sequence
+
+    d = tmp_path_factory.mktemp("kinds")
+    ref = shapes_image(120, 160, 0)
+    mov = moved(ref, rigid_about_centre(ref.shape, 0.15, 3.0, -2.0))
+    cv2.imwrite(str(d / "ref.png"), ref[..., ::-1])
+    cv2.imwrite(str(d / "mov.png"), mov[..., ::-1])
+    small = ["--data", "synthetic:syn1a", "--size", "160x120", "--backend", "reference", "--levels", "2",
+             "--iterations", "5", "--force"]
+    runs = {
+        "register": ["register", str(d / "ref.png"), str(d / "mov.png")],
+        "crosscheck": ["crosscheck", str(d / "ref.png"), str(d / "mov.png")],
+        "sequence": ["evaluate", "sequence", "--frames", "5", "-k", "1", "--out", str(d / "seq"), *small],
+        "rotation": ["evaluate", "rotation", "--frames", "2", "--angles", "0,20", "--samples", "1",
+                     "--out", str(d / "rot"), *small],
+    }
+    paths = {}
+    for kind, argv in runs.items():
+        paths[kind] = d / f"{kind}.rrd"
+        with contextlib.redirect_stdout(io.StringIO()):
+            assert cli.main([*argv, "--record", str(paths[kind])]) == 0, kind
+    # the demo records its sequence evaluation with kind "demo"
+    parser = cli._Parser(prog="pcreg evaluate sequence")
+    sequence.add_arguments(parser)
+    args = parser.parse_args(["--frames", "5", "-k", "1", *small])
+    paths["demo"] = d / "demo.rrd"
+    with Recorder(paths["demo"], recording_name="pcreg demo", kind="demo") as rec:
+        sequence.evaluate(sequence.config_from_args(args), out=d / "demo", force=True, recorder=rec,
+                          show_progress=False)
+    # dense registration and per-implementation cross-checks, written to their entity paths
+    # (pcreg.recording.entities): the blueprint must adapt to what is there
+    paths["dense"] = d / "dense.rrd"
+    with Recorder(paths["dense"], kind="dense") as rec:
+        rec.set_frame(0)
+        rec.log_images(reference=ref, moving=mov, warped=mov)
+        mag = np.hypot(*np.mgrid[0:120, 0:160] - 60.0).astype(np.float32)
+        rec._log("dense/magnitude", rr.Image(cv2.applyColorMap(np.uint8(255 * mag / mag.max()), cv2.COLORMAP_VIRIDIS)[..., ::-1]))
+        rec._log("dense/warped_prior", rr.SegmentationImage((mag > 40).astype(np.uint8)))
+    paths["crosscheck-implementations"] = d / "impl.rrd"
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 100, (200, 2))
+    with Recorder(paths["crosscheck-implementations"], kind="crosscheck") as rec:
+        rec.set_frame(0)
+        rec.log_text("crosscheck of three implementations")
+        for impl in ("reference", "open3d_legacy", "small_gicp"):
+            for k in range(5):
+                rec._rec.set_time("icp_iteration", sequence=k)
+                rec._log(f"crosscheck/{impl}/moving", rr.Points2D(pts + (5 - k), colors=[255, 120, 0]))
+                rec._log(f"crosscheck/{impl}/error", rr.Scalars(0.5 ** k))
+    return paths
+
+
+def _data_kinds(view_class: str) -> frozenset[str]:
+    from pcreg.recording import blueprint as B
+
+    return B.VIEW_DATA[view_class]
+
+
+def _query_matches(query: str, path: str) -> bool:
+    pattern = query.removeprefix("+ ").strip()
+    if pattern.endswith("/**"):
+        base = pattern[:-3]
+        return path == base or path.startswith(base + "/")
+    return path == pattern
+
+
+@pytest.mark.parametrize("kind", KIND_NAMES)
+def test_every_view_of_the_embedded_blueprint_has_data(kind_recordings, kind):
+    """The blueprint the recorder embeds, read back from the file, against the entities logged: every
+    view's contents hold data of its class on the timeline the blueprint opens on."""
+    from pcreg.recording.readback import read_blueprint, read_entities, read_kind
+
+    path = kind_recordings[kind]
+    assert read_kind(path) == kind.split("-")[0]
+    views, timeline = read_blueprint(path)
+    assert views and timeline
+    shown = read_entities(path, timeline=timeline)
+    for v in views:
+        wanted = _data_kinds(v.view_class)
+        with_data = [p for p, arch in shown.items() if wanted & arch and any(_query_matches(q, p) for q in v.query)]
+        assert with_data, f"{kind}: view {v.name!r} ({v.view_class}, {v.query}) has no data on {timeline}"
+    names = {v.name for v in views}
+    expected = {
+        "register": {"Registration", "Moving", "ICP reference", "ICP fitness", "Log"},
+        "crosscheck": {"ICP reference", "ICP open3d", "ICP fitness", "Crosscheck report"},
+        "sequence": {"Registration", "Truth", "Predicted plain", "Predicted augmented", "Errors"},
+        "rotation": {"Registration", "Truth", "Predicted before", "Predicted after", "Errors"},
+        "demo": {"Registration", "Truth", "Predicted plain", "Errors"},
+        "dense": {"Magnitude", "Warped prior", "Registration"},
+        "crosscheck-implementations": {"reference", "open3d legacy", "small gicp", "error", "Log"},
+    }[kind]
+    assert expected <= names, (kind, sorted(names))
+    if kind != "sequence":
+        assert not any(n.startswith("Predicted") or n == "Truth" for n in names if kind in ("register", "crosscheck"))
+
+
+def _colourful(img: np.ndarray) -> float:
+    """Fraction of saturated, not dark pixels (recorded images, label maps, clouds and plot lines; the
+    viewer's own chrome and its "no data" text are grey)."""
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    return float(((hsv[..., 1] > 90) & (hsv[..., 2] > 70)).mean())
+
+
+@pytest.mark.parametrize("kind", KIND_NAMES)
+def test_headless_viewer_draws_every_view_of_each_kind(kind_recordings, kind, tmp_path):
+    """``pcreg view`` of each kind in the headless viewer: the views it lays out are the blueprint's,
+    none reports a problem, and every image, cloud and plot view draws something in colour."""
+    if sys.platform.startswith("linux") and not view.vulkan_icds():
+        pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
+    from pcreg.recording import blueprint as B
+    from pcreg.recording.staging import stage
+
+    staged = stage([kind_recordings[kind]], tmp_path / "staged.rrd")
+    with view.headless(staged.path, size="1200x700") as (client, state, _):
+        names = sorted(v.name for v in state.views)
+        from pcreg.recording.readback import read_entities
+
+        expected = B.panes(staged.kinds[0], read_entities(staged.path, timeline=B.timeline(staged.kinds[0])))
+        assert names == sorted(p.name for p in expected)
+        drawn, hidden = [], []
+        for v in state.views:
+            assert not [r for r in v.reports if r.severity == "error"], (v.name, v.reports)
+            if v.view_class not in ("2D", "TimeSeries"):
+                continue
+            out = tmp_path / f"{v.view_id}.png"
+            for attempt in range(4):  # images are decoded a few frames after the recording loads
+                try:
+                    client.save_screenshot(str(out), view_id=v.view_id)
+                except ConnectionError as exc:  # a view in a tab that is not in front is not drawn
+                    assert "not found" in str(exc), exc
+                    hidden.append(v.name)
+                    break
+                shot = cv2.imread(str(out), cv2.IMREAD_COLOR)
+                assert shot is not None
+                # colour (images, label maps, clouds, plot lines), or a large bright area (a valid
+                # mask); an empty view is dark grey with one line of grey "no data" text
+                bright = float((shot.max(axis=2) > 150).mean())
+                if _colourful(shot) > 0.002 or bright > 0.05:
+                    break
+                time.sleep(1.0)
+            else:
+                pytest.fail(f"{kind}: view {v.name!r} draws nothing (colour {_colourful(shot):.4f}, bright {bright:.4f})")
+            if v.name in hidden:
+                continue
+            drawn.append(v.name)
+        print(kind, "drawn:", drawn, "in tabs behind:", hidden)
+        assert len(drawn) >= 2 and len(drawn) > len(hidden), (drawn, hidden)
+
+
+# -- several recordings together ------------------------------------------------------------------
+
+
+def test_two_backends_side_by_side(kind_recordings, tmp_path, capsys):
+    """``pcreg view A.rrd B.rrd``: one recording per backend of the same registration, merged under
+    their file names; each 2-D view has one pane per recording, each series plot both recordings."""
+    import contextlib
+    import io
+
+    from pcreg import cli
+    from pcreg.recording import blueprint as B
+    from pcreg.recording.readback import read_blueprint, read_entities
+    from pcreg.recording.staging import stage
+
+    d = kind_recordings["register"].parent
+    runs = {}
+    for backend in ("reference", "open3d"):
+        runs[backend] = tmp_path / f"{backend}.rrd"
+        with contextlib.redirect_stdout(io.StringIO()):
+            assert cli.main(["register", str(d / "ref.png"), str(d / "mov.png"), "--backend", backend,
+                             "--record", str(runs[backend])]) == 0
+    staged = stage([runs["reference"], runs["open3d"]], tmp_path / "both.rrd")
+    assert staged.labels == ("reference", "open3d") and staged.kinds == ("register", "register")
+    views, timeline = read_blueprint(staged.path)
+    shown = read_entities(staged.path, timeline=timeline)
+    names = {v.name for v in views}
+    assert {"reference: Registration", "open3d: Registration", "reference: ICP reference", "open3d: ICP open3d",
+            "ICP fitness"} <= names, sorted(names)
+    for v in views:
+        hits = [p for p, a in shown.items() if B.VIEW_DATA[v.view_class] & a and any(_query_matches(q, p) for q in v.query)]
+        assert hits, (v.name, v.query)
+        if v.name == "ICP fitness":  # one plot, both recordings
+            assert {h.split("/")[1] for h in hits} == {"reference", "open3d"}, hits
+    # the legends tell the recordings apart
+    from pcreg.recording.readback import read_recording
+
+    rec = read_recording(staged.path)
+    legend = rec.latest("/open3d/icp/open3d/fitness", component="SeriesLines:names")["SeriesLines:names"].to_pylist()
+    assert legend == ["open3d open3d fitness"]
+    # and natively, headless
+    if sys.platform.startswith("linux") and not view.vulkan_icds():
+        pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
+    out = tmp_path / "both.png"
+    assert pcreg_view([str(runs["reference"]), str(runs["open3d"]), "--screenshot", str(out),
+                       "--size", "1200x700"]) == 0, capsys.readouterr().err
+    shot = cv2.imread(str(out), cv2.IMREAD_COLOR)
+    assert shot is not None and _colourful(shot) > 0.05

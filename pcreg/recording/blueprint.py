@@ -304,5 +304,5 @@ def compare_blueprint(recordings: list[tuple[str, str, Entities]]):
     texts = [_view(p) for g in groups if g[0].view in ("TextLog", "TextDocument") for p in g]
     root = _layout([rrb.Tabs(*spatial)] if len(spatial) > 1 else spatial, [], [], series, texts)
     kinds = {k for _, k, _ in recordings}
-    tl = timeline(kinds.pop()) if len(kinds) == 1 else E.FRAME_TIMELINE
+    tl = timeline(kinds.pop()) if len(kinds) == 1 else timeline("sequence")
     return rrb.Blueprint(root, rrb.TimePanel(timeline=tl, state="collapsed"), collapse_panels=True)

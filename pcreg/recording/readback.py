@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "tensor", "image", "segmentation", "scalar", "text", "points"]
+__all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "BlueprintView", "read_blueprint", "tensor", "image", "segmentation", "scalar", "text", "points"]
 
 _SKIP_TIMELINES = {"log_time", "log_tick"}
 
@@ -100,9 +100,12 @@ def read_recording(path: str | os.PathLike) -> Recording:
     return out
 
 
-def read_entities(path: str | os.PathLike) -> dict[str, frozenset[str]]:
+def read_entities(path: str | os.PathLike, *, timeline: str | None = None) -> dict[str, frozenset[str]]:
     """``{entity path: archetype names with data there}`` of the first recording in ``path``, read from the
-    chunks' columns only (fast: no row is converted). rerun's ``/__properties`` are left out."""
+    chunks' columns only (fast: no row is converted). rerun's ``/__properties`` are left out.
+
+    With ``timeline``, only what a viewer shows on that timeline: static data and rows that have a time
+    on it."""
     from rerun.chunk import RrdReader
 
     reader = RrdReader(str(path))
@@ -115,10 +118,72 @@ def read_entities(path: str | os.PathLike) -> dict[str, frozenset[str]]:
             continue
         batch = chunk.to_record_batch()
         names = set(chunk.timeline_names)
-        arch = {n.split(":", 1)[0] for n in batch.schema.names
-                if ":" in n and not n.startswith("rerun.") and n not in names and batch.column(n).null_count < batch.num_rows}
+        rows = None
+        if timeline is not None and not chunk.is_static:
+            if timeline not in names:
+                continue
+            rows = batch.column(timeline).is_valid()
+        arch = set()
+        for n in batch.schema.names:
+            if ":" not in n or n.startswith("rerun.") or n in names:
+                continue
+            col = batch.column(n)
+            valid = col.is_valid()
+            if rows is not None:
+                import pyarrow.compute as pc
+
+                valid = pc.and_(valid, rows)
+            if valid.true_count if hasattr(valid, "true_count") else any(valid.to_pylist()):
+                arch.add(n.split(":", 1)[0])
         out.setdefault(chunk.entity_path, set()).update(arch)
     return {p: frozenset(a) for p, a in out.items()}
+
+
+@dataclass(frozen=True)
+class BlueprintView:
+    """One view of a blueprint stored in a recording file: its class (``2D``, ``TimeSeries``,
+    ``TextLog``, ``TextDocument``, ...), name, origin and content queries (``+ /path/**``)."""
+
+    view_class: str
+    name: str
+    origin: str
+    query: tuple[str, ...]
+
+
+def read_blueprint(path: str | os.PathLike) -> tuple[list[BlueprintView], str | None]:
+    """The views of the last blueprint stored in ``path`` and the timeline its time panel opens on."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    stores = reader.blueprints()
+    if not stores:
+        return [], None
+    fields: dict[str, dict[str, Any]] = {}
+    timeline = None
+    for chunk in reader.stream(store=stores[-1]):
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if ":" not in name or name.startswith("rerun."):
+                continue
+            values = [v for v in batch.column(name).to_pylist() if v is not None]
+            if not values:
+                continue
+            if name == "TimePanelBlueprint:timeline":
+                timeline = str(values[-1][0] if isinstance(values[-1], list) else values[-1])
+            fields.setdefault(chunk.entity_path, {})[name] = values[-1]
+    views = []
+    for entity, f in fields.items():
+        if "ViewBlueprint:class_identifier" not in f:
+            continue
+
+        def one(key: str, f=f) -> str:
+            v = f.get(key)
+            return str(v[0] if isinstance(v, list) else v) if v is not None else ""
+
+        query = fields.get(entity + "/ViewContents", {}).get("ViewContents:query") or []
+        views.append(BlueprintView(one("ViewBlueprint:class_identifier"), one("ViewBlueprint:display_name"),
+                                   one("ViewBlueprint:space_origin"), tuple(str(q) for q in query)))
+    return views, timeline
 
 
 def read_kind(path: str | os.PathLike) -> str | None:

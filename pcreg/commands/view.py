@@ -357,7 +357,7 @@ def stop(proc: subprocess.Popen) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .._io import check_output
+    from ..outputs import check_output
     from ..recording.staging import stage
 
     for r in args.recordings:

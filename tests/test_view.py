@@ -196,6 +196,7 @@ def kind_recordings(tmp_path_factory):
 
     from _images import moved, rigid_about_centre, shapes_image
     from pcreg import cli
+    from pcreg.commands import evaluate_sequence
     from pcreg.experiments import sequence
 
     d = tmp_path_factory.mktemp("kinds")
@@ -219,11 +220,11 @@ def kind_recordings(tmp_path_factory):
             assert cli.main([*argv, "--record", str(paths[kind])]) == 0, kind
     # the demo records its sequence evaluation with kind "demo"
     parser = cli._Parser(prog="pcreg evaluate sequence")
-    sequence.add_arguments(parser)
+    evaluate_sequence.add_arguments(parser)
     args = parser.parse_args(["--frames", "5", "-k", "1", *small])
     paths["demo"] = d / "demo.rrd"
     with Recorder(paths["demo"], recording_name="pcreg demo", kind="demo") as rec:
-        sequence.evaluate(sequence.config_from_args(args), out=d / "demo", force=True, recorder=rec,
+        sequence.evaluate(evaluate_sequence.config_from_args(args), out=d / "demo", force=True, recorder=rec,
                           show_progress=False)
     # dense registration and per-implementation cross-checks, written to their entity paths
     # (pcreg.recording.entities): the blueprint must adapt to what is there

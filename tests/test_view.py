@@ -393,3 +393,23 @@ def test_two_backends_side_by_side(kind_recordings, tmp_path, capsys):
                        "--size", "1200x700"]) == 0, capsys.readouterr().err
     shot = cv2.imread(str(out), cv2.IMREAD_COLOR)
     assert shot is not None and _colourful(shot) > 0.05
+
+
+def test_staging_an_empty_recording_and_bad_files(tmp_path, capsys):
+    """A recording with nothing logged stages without a layout (the viewer chooses); a bad second file
+    is one line and exit 2."""
+    from pcreg.recording.readback import read_blueprint
+    from pcreg.recording.staging import labels_for, stage
+
+    empty = tmp_path / "empty.rrd"
+    with Recorder(empty):
+        pass
+    staged = stage([empty], tmp_path / "staged.rrd")
+    assert read_blueprint(staged.path)[0] == []
+    assert labels_for(["a/run.rrd", "b/run.rrd", "x y.rrd"]) == ["run", "run_2", "x_y"]
+    bad = tmp_path / "bad.rrd"
+    bad.write_bytes(b"not a recording")
+    assert pcreg_view([str(empty), str(bad), "--screenshot", str(tmp_path / "x.png")]) == 2
+    assert "not a rerun recording" in _one_line_error(capsys)
+    assert pcreg_view([str(empty), "--web", "--screenshot", str(tmp_path / "x.png")]) == 2
+    assert "choose one" in _one_line_error(capsys)

@@ -290,14 +290,14 @@ class Recorder:
 
     def _finish_blueprint(self) -> None:
         """Store the inferred kind if none was given, and embed the blueprint of what was logged."""
-        from pcreg.recording.blueprint import blueprint as make_blueprint, infer_kind
+        from pcreg.recording.blueprint import blueprint as make_blueprint, infer_kind, panes
 
         entities = self.entities()
         kind = self.kind
         if kind is None:
             kind = infer_kind(entities)
             self._rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: kind}))
-        if self._embed_blueprint:
+        if self._embed_blueprint and panes(kind, entities):  # nothing logged: the viewer chooses
             self._rec.send_blueprint(make_blueprint(kind, entities), make_active=True, make_default=True)
 
     # -- time ---------------------------------------------------------------------------------

@@ -63,7 +63,8 @@ def stage(paths: list[str | os.PathLike], out: str | os.PathLike) -> Staged:
     out = Path(out)
     if len(paths) == 1:
         stream = rr.RecordingStream(stores[0].application_id, recording_id=stores[0].recording_id)
-        stream.save(out, default_blueprint=B.blueprint(kinds[0], entities[0]))
+        has_views = bool(B.panes(kinds[0], entities[0]))  # else (nothing to show) the viewer chooses
+        stream.save(out, default_blueprint=B.blueprint(kinds[0], entities[0]) if has_views else None)
         stream.send_chunks(readers[0].stream(store=stores[0]))
         stream.flush()
         stream.disconnect()

@@ -4,7 +4,7 @@ renders the recording headless, and the PNG is stored palette-quantised (small) 
     python tools/view_figures.py --data ../shared/data --out out/view_figures [--kinds register,sequence]
 
 Kinds: register, crosscheck (CamVid 0016E5 frames 07959 -> 07969), sequence (its first 8 frames, k = 1),
-rotation (its first frame rotated by 30 degrees), demo (``pcreg demo --frames 6``), compare (the register
+rotation (its first frame rotated by 10-40 degrees), demo (``pcreg demo --frames 8``), compare (the register
 run with each backend, ``pcreg view A.rrd B.rrd``); dense once ``pcreg register --model dense`` records.
 """
 
@@ -56,9 +56,9 @@ def main() -> int:
         "crosscheck": [["crosscheck", str(ref), str(mov), "--record", str(out / "crosscheck.rrd"), "--force"]],
         "sequence": [["evaluate", "sequence", *camvid, "--frames", "8", "-k", "1", "--out", str(out / "sequence"),
                       "--record", str(out / "sequence.rrd"), "--force"]],
-        "rotation": [["evaluate", "rotation", *camvid, "--frames", "1", "--angles", "30", "--samples", "1",
+        "rotation": [["evaluate", "rotation", *camvid, "--frames", "1", "--angles", "10,20,30,40", "--samples", "1",
                       "--out", str(out / "rotation"), "--record", str(out / "rotation.rrd"), "--force"]],
-        "demo": [["demo", "--frames", "6", "--out", str(out / "demo"), "--record", str(out / "demo.rrd"), "--force"]],
+        "demo": [["demo", "--frames", "8", "--out", str(out / "demo"), "--record", str(out / "demo.rrd"), "--force"]],
         "compare": [["register", str(ref), str(mov), "--backend", b, "--record", str(out / f"{b}.rrd"), "--force"]
                     for b in ("reference", "open3d")],
     }

@@ -413,3 +413,22 @@ def test_staging_an_empty_recording_and_bad_files(tmp_path, capsys):
     assert "not a rerun recording" in _one_line_error(capsys)
     assert pcreg_view([str(empty), "--web", "--screenshot", str(tmp_path / "x.png")]) == 2
     assert "choose one" in _one_line_error(capsys)
+
+
+def test_native_viewer_without_a_display_points_to_web(small_recording, monkeypatch, capsys):
+    if not sys.platform.startswith("linux"):
+        pytest.skip("DISPLAY/WAYLAND_DISPLAY decide only on Linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert pcreg_view([str(small_recording)]) == 2
+    assert "--web" in _one_line_error(capsys)
+
+
+def test_web_arguments(small_recording, capsys):
+    with pytest.raises(SystemExit):
+        pcreg_view([str(small_recording), "--web", "--web-port", "70000"])
+    assert "0..65535" in capsys.readouterr().err
+    assert view.web_url("127.0.0.1", 9090, 9876) == \
+        "http://127.0.0.1:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy"
+    assert pcreg_view([str(small_recording), "--web", "--web-port", "9999", "--grpc-port", "9999"]) == 2
+    assert "must differ" in _one_line_error(capsys)

@@ -367,6 +367,10 @@ def run(args: argparse.Namespace) -> int:
     if args.screenshot is None and (args.time or args.view):
         raise InputError("--time and --view go with --screenshot")
     binary = find_viewer(args.viewer)
+    native = args.screenshot is None and not args.web
+    if native and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise ViewerError("no display for the native viewer (DISPLAY and WAYLAND_DISPLAY are unset): "
+                          "use --web to view it in a browser, or --screenshot OUT.png")
     out = None
     if args.screenshot is not None:
         out = check_output(args.screenshot, force=args.force)
@@ -385,6 +389,9 @@ def run(args: argparse.Namespace) -> int:
         if args.web:
             proc, url = serve_web(staged.path, bind=args.bind, web_port=args.web_port, grpc_port=args.grpc_port,
                                   viewer=binary, timeout=args.timeout)
+            if args.bind not in ("127.0.0.1", "::1", "localhost"):
+                sys.stderr.write(f"pcreg: note: serving on {args.bind}: whoever can reach this machine there can "
+                                 "read the recording\n")
             try:
                 print(f"serving {', '.join(map(str, args.recordings))} on {args.bind} (Ctrl-C stops)")
                 print(url, flush=True)

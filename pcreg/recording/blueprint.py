@@ -282,7 +282,9 @@ def compare_panes(recordings: list[tuple[str, str, Entities]]) -> list[list[Pane
     groups: dict[tuple[str, str], list[Pane]] = {}
     for label, kind, ent in recordings:
         for p in panes(kind, ent):
-            groups.setdefault((p.view, p.name), []).append(prefixed(p, label))
+            # one ICP backend per recording (a run per backend): their ICP views side by side
+            key = "ICP" if p.view == "2D" and p.origin.startswith(f"/{E.ICP}/") else p.name
+            groups.setdefault((p.view, key), []).append(prefixed(p, label))
     out = []
     for (view, name), ps in groups.items():
         if view == "TimeSeries":
@@ -292,13 +294,18 @@ def compare_panes(recordings: list[tuple[str, str, Entities]]) -> list[list[Pane
     return out
 
 
+def _group_name(group: list[Pane]) -> str:
+    names = {p.name.split(": ", 1)[-1] for p in group}
+    return names.pop() if len(names) == 1 else "ICP"
+
+
 def compare_blueprint(recordings: list[tuple[str, str, Entities]]):
     """The blueprint of several recordings merged under ``/{label}`` (see :func:`compare_panes`): a tab
     per 2-D pane with the recordings side by side, the series overlaid, the logs in tabs."""
     import rerun.blueprint as rrb
 
     groups = compare_panes(recordings)
-    spatial = [rrb.Horizontal(*[_view(p) for p in g], name=g[0].name.split(": ", 1)[-1])
+    spatial = [rrb.Horizontal(*[_view(p) for p in g], name=_group_name(g))
                if len(g) > 1 else _view(g[0]) for g in groups if g[0].view in ("2D", "3D")]
     series = [_view(g[0]) for g in groups if g[0].view == "TimeSeries"]
     texts = [_view(p) for g in groups if g[0].view in ("TextLog", "TextDocument") for p in g]

@@ -2,7 +2,8 @@
 
 The others that import rerun: :mod:`pcreg.recording.blueprint` builds layouts (``rerun.blueprint``);
 :mod:`pcreg.recording.readback` and :mod:`pcreg.commands.view` read recordings (``rerun.chunk.RrdReader``)
-and drive the viewer.
+and drive the viewer; :mod:`pcreg.recording.staging` copies recordings (their chunks, unchanged, or
+moved under a label) into the file a viewer opens.
 
 A :class:`Recorder` writes to its file as it goes, so a run that is interrupted leaves a recording
 that reads back up to where it stopped. Entity paths and timelines are named in

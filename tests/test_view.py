@@ -432,3 +432,7 @@ def test_web_arguments(small_recording, capsys):
         "http://127.0.0.1:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy"
     assert pcreg_view([str(small_recording), "--web", "--web-port", "9999", "--grpc-port", "9999"]) == 2
     assert "must differ" in _one_line_error(capsys)
+    assert pcreg_view([str(small_recording), "--web", "--bind", "not-an-address"]) == 2
+    assert "IP address" in _one_line_error(capsys)
+    assert pcreg_view([str(small_recording), "--web", "--bind", "192.0.2.1"]) == 2  # not this machine's
+    assert "cannot listen there" in _one_line_error(capsys)

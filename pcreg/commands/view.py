@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import ipaddress
 import os
 import shutil
 import socket
@@ -307,7 +308,17 @@ def serve_web(
     installed rerun-sdk (they are built into its ``rerun`` program).
     """
     binary = find_viewer(viewer)
+    if bind != "localhost":
+        try:
+            ipaddress.ip_address(bind)
+        except ValueError:
+            raise InputError(f"--bind must be an IP address of this machine (e.g. 127.0.0.1, 0.0.0.0), got {bind!r}") from None
     probe = "127.0.0.1" if bind in ("0.0.0.0", "localhost") else ("::1" if bind == "::" else bind)
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in probe else socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.bind((probe, 0))
+    except OSError as exc:
+        raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
     try:
         web_port = web_port or _free_port_on(probe)
         grpc_port = grpc_port or _free_port_on(probe)

@@ -314,7 +314,8 @@ def test_headless_viewer_draws_every_view_of_each_kind(kind_recordings, kind, tm
         names = sorted(v.name for v in state.views)
         from pcreg.recording.readback import read_entities
 
-        expected = B.panes(staged.kinds[0], read_entities(staged.path, timeline=B.timeline(staged.kinds[0])))
+        tl = B.timeline(staged.kinds[0], read_entities(staged.path))
+        expected = B.panes(staged.kinds[0], read_entities(staged.path, timeline=tl))
         assert names == sorted(p.name for p in expected)
         drawn, hidden = [], []
         for v in state.views:

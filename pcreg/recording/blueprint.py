@@ -199,8 +199,13 @@ def infer_kind(entities: Entities) -> str:
     return "register"
 
 
-def timeline(kind: str) -> str:
-    """The timeline a kind of recording opens on: ICP iterations for a cross-check, frames otherwise."""
+def timeline(kind: str, entities: Entities | None = None) -> str:
+    """The timeline a kind of recording opens on: a cloud cross-check's iterations (when ``entities`` hold
+    an implementation's cloud under ``crosscheck/``), the ICP iterations for a registration or an image
+    cross-check, frames otherwise."""
+    if kind == "crosscheck" and entities is not None:
+        if _children(normalise(entities), E.CROSSCHECK, SPATIAL | SPATIAL_3D):
+            return E.CROSSCHECK_TIMELINE
     return E.ICP_TIMELINE if kind in ("crosscheck", "register") else E.FRAME_TIMELINE
 
 
@@ -263,7 +268,8 @@ def blueprint(kind: str, entities: Entities):
     import rerun.blueprint as rrb
 
     root = _layout(*_arrange(panes(kind, entities), kind))
-    return rrb.Blueprint(root, rrb.TimePanel(timeline=timeline(kind), state="collapsed"), collapse_panels=True)
+    return rrb.Blueprint(root, rrb.TimePanel(timeline=timeline(kind, entities), state="collapsed"),
+                         collapse_panels=True)
 
 
 def prefixed(pane: Pane, label: str) -> Pane:
@@ -310,6 +316,6 @@ def compare_blueprint(recordings: list[tuple[str, str, Entities]]):
     series = [_view(g[0]) for g in groups if g[0].view == "TimeSeries"]
     texts = [_view(p) for g in groups if g[0].view in ("TextLog", "TextDocument") for p in g]
     root = _layout([rrb.Tabs(*spatial)] if len(spatial) > 1 else spatial, [], [], series, texts)
-    kinds = {k for _, k, _ in recordings}
-    tl = timeline(kinds.pop()) if len(kinds) == 1 else timeline("sequence")
+    tls = {timeline(k, e) for _, k, e in recordings}
+    tl = tls.pop() if len(tls) == 1 else timeline("sequence")
     return rrb.Blueprint(root, rrb.TimePanel(timeline=tl, state="collapsed"), collapse_panels=True)

@@ -3,9 +3,10 @@
 The recorder (``pcreg.recording.recorder``) writes to these paths, the blueprint (``pcreg.recording.blueprint``) lays out
 views over them, and tests read them back. Plain strings, no imports.
 
-Timelines: ``frame`` (the frame or unit being processed) and ``icp_iteration`` (ICP steps, restarting at
-every frame); what is logged outside the ICP iterations sits at ``icp_iteration`` 0, so a view on either
-timeline shows it.
+Timelines: ``frame`` (the frame or unit being processed), ``icp_iteration`` (ICP steps, restarting at
+every frame) and ``crosscheck_iteration`` (a cloud cross-check's iterations, shared by every
+implementation); what is logged outside the iterations sits at 0 on both iteration timelines, so a view
+on any timeline shows it.
 
 Layout (``{x}`` is filled in at log time)::
 
@@ -31,11 +32,14 @@ Layout (``{x}`` is filled in at log time)::
     icp/{backend}/inlier_rmse           Scalars on the icp_iteration timeline
     crosscheck/report                   TextDocument: both results and their disagreement as JSON
     crosscheck/{key}                    Scalars: every number of the report, nested keys joined by '/'
-    crosscheck/{implementation}/...     per implementation of a cross-check: Points2D/LineStrips2D of its
-                                        iterations (e.g. moving, target, correspondences) and Scalars per
-                                        iteration on the icp_iteration timeline (e.g. fitness, inlier_rmse,
-                                        error); each implementation gets a 2-D view, each series name one
-                                        plot with every implementation on it
+    crosscheck/target                   Points2D/3D: the target cloud of a cloud cross-check (static)
+    crosscheck/{implementation}/cloud   Points2D/3D per iteration: the source cloud at that implementation's pose
+    crosscheck/{implementation}/error   Scalars: RMS distance of those points from where the reference's
+                                        final pose puts them, on the crosscheck_iteration timeline
+    crosscheck/{implementation}/fitness, .../inlier_rmse   Scalars on the crosscheck_iteration timeline
+    crosscheck/{implementation}/...     anything else an implementation logs: each implementation with a cloud
+                                        gets a 2-D (or 3-D) view, each series name one plot with every
+                                        implementation on it (on crosscheck_iteration, else icp_iteration)
     dense/{what}                        dense registration: images (e.g. dense/magnitude, the displacement
                                         magnitude; dense/warped_prior, the prior warped by the field),
                                         Arrows2D (dense/field), each a 2-D view; Scalars under dense/ in one plot
@@ -48,6 +52,7 @@ from __future__ import annotations
 
 FRAME_TIMELINE = "frame"
 ICP_TIMELINE = "icp_iteration"
+CROSSCHECK_TIMELINE = "crosscheck_iteration"
 
 CONFIG = "config"
 LOG = "log"
@@ -109,6 +114,14 @@ def labels_path(kind: str, prefix: str = "") -> str:
 
 def error_path(method: str) -> str:
     return f"{ERRORS}/{method}"
+
+
+def crosscheck_path(implementation: str, what: str) -> str:
+    """``crosscheck/{implementation}/{what}``; characters other than letters, digits, '-', '_' and '.'
+    in the implementation's name (a ``cmd:`` spec) become '_'."""
+    import re
+
+    return f"{CROSSCHECK}/{re.sub(r'[^A-Za-z0-9_.-]', '_', implementation)}/{what}"
 
 
 def icp_path(backend: str, what: str) -> str:

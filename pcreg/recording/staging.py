@@ -56,10 +56,12 @@ def stage(paths: list[str | os.PathLike], out: str | os.PathLike) -> Staged:
         if not recs:
             raise ValueError(f"{p}: no recording in this file")
         stores.append(recs[0])
-    kinds = [read_kind(p) or B.infer_kind(read_entities(p)) for p in paths]
-    # only what the viewer shows on the timeline each kind opens on (no view without data there)
-    shown_on = [B.timeline(k) for k in kinds] if len(set(kinds)) == 1 else [B.timeline("sequence")] * len(kinds)
-    entities = [read_entities(p, timeline=t) for p, t in zip(paths, shown_on)]
+    everything = [read_entities(p) for p in paths]
+    kinds = [read_kind(p) or B.infer_kind(e) for p, e in zip(paths, everything)]
+    # only what the viewer shows on the timeline the layout opens on (no view without data there)
+    timelines = {B.timeline(k, e) for k, e in zip(kinds, everything)}
+    shown_on = timelines.pop() if len(timelines) == 1 else B.timeline("sequence")
+    entities = [read_entities(p, timeline=shown_on) for p in paths]
     out = Path(out)
     if len(paths) == 1:
         stream = rr.RecordingStream(stores[0].application_id, recording_id=stores[0].recording_id)

@@ -235,17 +235,17 @@ def kind_recordings(tmp_path_factory):
         mag = np.hypot(*np.mgrid[0:120, 0:160] - 60.0).astype(np.float32)
         rec._log("dense/magnitude", rr.Image(cv2.applyColorMap(np.uint8(255 * mag / mag.max()), cv2.COLORMAP_VIRIDIS)[..., ::-1]))
         rec._log("dense/warped_prior", rr.SegmentationImage((mag > 40).astype(np.uint8)))
-    paths["crosscheck-implementations"] = d / "impl.rrd"
+    # a cloud cross-check: every implementation on the crosscheck_iteration timeline
     rng = np.random.default_rng(0)
-    pts = rng.uniform(0, 100, (200, 2))
-    with Recorder(paths["crosscheck-implementations"], kind="crosscheck") as rec:
-        rec.set_frame(0)
-        rec.log_text("crosscheck of three implementations")
-        for impl in ("reference", "open3d_legacy", "small_gicp"):
-            for k in range(5):
-                rec._rec.set_time("icp_iteration", sequence=k)
-                rec._log(f"crosscheck/{impl}/moving", rr.Points2D(pts + (5 - k), colors=[255, 120, 0]))
-                rec._log(f"crosscheck/{impl}/error", rr.Scalars(0.5 ** k))
+    target = rng.uniform(0, 10, (300, 3)) * [1.0, 1.0, 0.3]
+    a = 0.1
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    np.save(d / "target.npy", target)
+    np.save(d / "source.npy", (target - [0.2, -0.1, 0.05]) @ R)
+    paths["crosscheck-implementations"] = d / "clouds.rrd"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert cli.main(["crosscheck", str(d / "target.npy"), str(d / "source.npy"), "--with", "reference,open3d",
+                         "--json", "--record", str(paths["crosscheck-implementations"])]) == 0
     return paths
 
 
@@ -286,7 +286,7 @@ def test_every_view_of_the_embedded_blueprint_has_data(kind_recordings, kind):
         "rotation": {"Registration", "Truth", "Predicted before", "Predicted after", "Errors"},
         "demo": {"Registration", "Truth", "Predicted plain", "Errors"},
         "dense": {"Magnitude", "Warped prior", "Registration"},
-        "crosscheck-implementations": {"reference", "open3d legacy", "small gicp", "error", "Log"},
+        "crosscheck-implementations": {"reference", "open3d", "error", "fitness", "Crosscheck report"},
     }[kind]
     assert expected <= names, (kind, sorted(names))
     if kind in ("register", "crosscheck"):  # a sequence's views do not belong to a registration
@@ -320,7 +320,7 @@ def test_headless_viewer_draws_every_view_of_each_kind(kind_recordings, kind, tm
         drawn, hidden = [], []
         for v in state.views:
             assert not [r for r in v.reports if r.severity == "error"], (v.name, v.reports)
-            if v.view_class not in ("2D", "TimeSeries"):
+            if v.view_class not in ("2D", "3D", "TimeSeries"):
                 continue
             out = tmp_path / f"{v.view_id}.png"
             for attempt in range(4):  # images are decoded a few frames after the recording loads

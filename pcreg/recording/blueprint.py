@@ -123,10 +123,15 @@ def _icp(entities, prefix: str = E.ICP) -> tuple[list[Pane], list[Pane]]:
     series of the implementations (fitness, inlier RMSE, error, ...) one plot with all of them on it."""
     spatial = []
     impls = []
+    target = f"/{E.CROSSCHECK_TARGET}"
     for view, kinds in (("2D", SPATIAL), ("3D", SPATIAL_3D)):
+        shared = (target,) if prefix == E.CROSSCHECK and kinds & entities.get(target, frozenset()) else ()
         for b in _children(entities, prefix, kinds):
-            spatial.append(Pane(f"ICP {b}" if prefix == E.ICP else _title(b), view, f"/{prefix}/{b}",
-                                (f"/{prefix}/{b}/**",)))
+            if f"/{prefix}/{b}" == target:  # the cross-check's target cloud: drawn in every implementation's view
+                continue
+            origin = f"/{prefix}" if shared else f"/{prefix}/{b}"  # one space holding both clouds
+            spatial.append(Pane(f"ICP {b}" if prefix == E.ICP else _title(b), view, origin,
+                                (f"/{prefix}/{b}/**", *shared)))
             impls.append(b)
     leaves: dict[str, list[str]] = {}
     for p in _with(entities, prefix, SERIES):

@@ -80,6 +80,7 @@ ERRORS = "errors"
 ICP = "icp"
 CROSSCHECK = "crosscheck"
 CROSSCHECK_REPORT = "crosscheck/report"
+CROSSCHECK_TARGET = "crosscheck/target"
 DENSE = "dense"
 
 #: The recording property (``/__properties/pcreg``) that holds the kind of recording.

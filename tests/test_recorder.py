@@ -188,9 +188,10 @@ def test_icp_iterations_on_their_timeline_per_backend(recorded):
         assert len(points(rec.get(E.icp_path(backend, "moving"))[0])) == 300
         targets = rec.get(E.icp_path(backend, "target"))
         assert len(targets) == 6  # once per frame and pyramid level
-    # frame-level entities sit at the start of the icp_iteration timeline (shown with the iterations)
-    assert rec.latest(E.transform_path("T_ref_mov"), frame=2).times == {"frame": 2, "icp_iteration": 0}
-    assert rec.latest(E.REFERENCE_IMAGE, frame=2).times == {"frame": 2, "icp_iteration": 0}
+    # frame-level entities sit at the start of the iteration timelines (shown with the iterations)
+    at_start = {"frame": 2, "icp_iteration": 0, "crosscheck_iteration": 0}
+    assert rec.latest(E.transform_path("T_ref_mov"), frame=2).times == at_start
+    assert rec.latest(E.REFERENCE_IMAGE, frame=2).times == at_start
 
 
 def test_text_config_and_crosscheck(recorded):

@@ -3,7 +3,8 @@ renders the recording headless, and the PNG is stored palette-quantised (small) 
 
     python tools/view_figures.py --data ../shared/data --out out/view_figures [--kinds register,sequence]
 
-Kinds: register, crosscheck (CamVid 0016E5 frames 07959 -> 07969), sequence (its first 8 frames, k = 1),
+Kinds: register, crosscheck (CamVid 0016E5 frames 07959 -> 07969), crosscheck_clouds (the LiDAR scan
+pair, four implementations), sequence (its first 8 frames, k = 1),
 rotation (its first frame rotated by 10-40 degrees), demo (``pcreg demo --frames 8``), compare (the register
 run with each backend, ``pcreg view A.rrd B.rrd``); dense once ``pcreg register --model dense`` records.
 """
@@ -17,7 +18,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-KINDS = ("register", "crosscheck", "sequence", "rotation", "demo", "compare")
+KINDS = ("register", "crosscheck", "crosscheck_clouds", "sequence", "rotation", "demo", "compare")
 
 
 def pcreg(*argv: str) -> None:
@@ -54,6 +55,10 @@ def main() -> int:
     runs = {
         "register": [["register", str(ref), str(mov), "--record", str(out / "register.rrd"), "--force"]],
         "crosscheck": [["crosscheck", str(ref), str(mov), "--record", str(out / "crosscheck.rrd"), "--force"]],
+        "crosscheck_clouds": [["crosscheck", str(Path(args.data) / "scans" / "target.ply"),
+                               str(Path(args.data) / "scans" / "source.ply"), "--with", "reference,open3d,small_gicp,kiss-icp",
+                               "--voxel-size", "0.25", "--max-distance", "0.5", "--json",
+                               "--record", str(out / "crosscheck_clouds.rrd"), "--force"]],
         "sequence": [["evaluate", "sequence", *camvid, "--frames", "8", "-k", "1", "--out", str(out / "sequence"),
                       "--record", str(out / "sequence.rrd"), "--force"]],
         "rotation": [["evaluate", "rotation", *camvid, "--frames", "1", "--angles", "10,20,30,40", "--samples", "1",

@@ -324,12 +324,15 @@ def test_kind_is_stored_and_picks_the_blueprint(tmp_path):
     assert {v.name for v in views} == {"Registration", "Moving"} and timeline == "icp_iteration"
 
     with Recorder(tmp_path / "s.rrd") as rec:  # inferred: label maps and errors are a sequence's
-        rec.set_frame(0)
-        rec.log_labels(truth=np.zeros((H, W), np.uint8), predicted=np.ones((H, W), np.uint8), prefix="plain")
-        rec.log_errors({"plain": 0.25})
+        for f in range(2):
+            rec.set_frame(f)
+            rec.log_labels(truth=np.zeros((H, W), np.uint8), predicted=np.ones((H, W), np.uint8), prefix="plain")
+            rec.log_errors({"plain": 0.25 + f, "alone": 1.0} if f == 0 else {"plain": 0.25 + f})
     assert read_kind(tmp_path / "s.rrd") == "sequence"
     views, timeline = read_blueprint(tmp_path / "s.rrd")
     assert {v.name for v in views} == {"Truth plain", "Predicted plain", "Errors"} and timeline == "frame"
+    errors = next(v for v in views if v.name == "Errors")
+    assert errors.query == ("+ /errors/**",)
 
     with Recorder(tmp_path / "c.rrd", blueprint="crosscheck") as rec:  # a kind given as the blueprint
         rec.set_frame(0)

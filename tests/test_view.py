@@ -226,15 +226,18 @@ def kind_recordings(tmp_path_factory):
     with Recorder(paths["demo"], recording_name="pcreg demo", kind="demo") as rec:
         sequence.evaluate(evaluate_sequence.config_from_args(args), out=d / "demo", force=True, recorder=rec,
                           show_progress=False)
-    # dense registration and per-implementation cross-checks, written to their entity paths
-    # (pcreg.recording.entities): the blueprint must adapt to what is there
+    # a dense registration's field, written to the entity paths of pcreg.recording.entities (what
+    # Recorder.log_dense writes): the blueprint adapts to what is there
     paths["dense"] = d / "dense.rrd"
     with Recorder(paths["dense"], kind="dense") as rec:
         rec.set_frame(0)
         rec.log_images(reference=ref, moving=mov, warped=mov)
         mag = np.hypot(*np.mgrid[0:120, 0:160] - 60.0).astype(np.float32)
-        rec._log("dense/magnitude", rr.Image(cv2.applyColorMap(np.uint8(255 * mag / mag.max()), cv2.COLORMAP_VIRIDIS)[..., ::-1]))
-        rec._log("dense/warped_prior", rr.SegmentationImage((mag > 40).astype(np.uint8)))
+        rec._log("dense/displacement", rr.Image(cv2.applyColorMap(np.uint8(255 * mag / mag.max()), cv2.COLORMAP_TURBO)[..., ::-1]))
+        rec._log("dense/quiver", rr.Arrows2D(origins=[[20, 20], [100, 60]], vectors=[[5, 3], [-4, 2]], colors=[255, 220, 0]))
+        rec._log("dense/confidence", rr.Image(np.uint8(255 * (mag < 50))))
+        rec._log("dense/warped_prior", rr.Image(np.uint8(255 * (mag > 40))))
+        rec._scalar("dense/max_displacement", float(mag.max()))
     # a cloud cross-check: every implementation on the crosscheck_iteration timeline
     rng = np.random.default_rng(0)
     target = rng.uniform(0, 10, (300, 3)) * [1.0, 1.0, 0.3]
@@ -285,10 +288,12 @@ def test_every_view_of_the_embedded_blueprint_has_data(kind_recordings, kind):
         "sequence": {"Registration", "Truth", "Predicted plain", "Predicted augmented", "Errors"},
         "rotation": {"Registration", "Truth", "Predicted before", "Predicted after", "Errors"},
         "demo": {"Registration", "Truth", "Predicted plain", "Errors"},
-        "dense": {"Magnitude", "Warped prior", "Registration"},
+        "dense": {"Displacement", "Confidence", "Warped prior", "Registration"},
         "crosscheck-implementations": {"reference", "open3d", "error", "fitness", "Crosscheck report"},
     }[kind]
     assert expected <= names, (kind, sorted(names))
+    if kind == "dense":  # one value is a dot, not a plot
+        assert "Max displacement" not in names
     if kind in ("register", "crosscheck"):  # a sequence's views do not belong to a registration
         assert not [n for n in names if n.startswith(("Truth", "Predicted", "Errors"))], sorted(names)
 

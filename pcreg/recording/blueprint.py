@@ -26,7 +26,9 @@ KINDS = ("register", "crosscheck", "sequence", "rotation", "demo", "dense")
 SPATIAL = frozenset({"Image", "EncodedImage", "SegmentationImage", "DepthImage", "Points2D", "LineStrips2D",
                      "Arrows2D", "Boxes2D"})
 SPATIAL_3D = frozenset({"Points3D", "LineStrips3D", "Arrows3D", "Boxes3D", "Mesh3D"})
-SERIES = frozenset({"Scalars"})
+#: A plot needs a line: "Scalars+" marks an entity with Scalars at two times or more (a single value is
+#: one dot, an empty-looking plot); :func:`pcreg.recording.readback.read_entities` and the recorder add it.
+SERIES = frozenset({"Scalars+"})
 TEXT_LOG = frozenset({"TextLog"})
 DOCUMENT = frozenset({"TextDocument"})
 
@@ -159,6 +161,27 @@ def _registration(entities) -> list[Pane]:
             + _exact_spatial(entities, "Valid mask", E.VALID_MASK))
 
 
+def _dense(entities) -> tuple[list[Pane], list[Pane]]:
+    """A dense registration's images (displacement, refinement, confidence, warped prior, ...) one view
+    each, the quiver (``dense/quiver``) drawn over the displacement; its series one plot each."""
+    base = "/" + E.DENSE
+    quiver, displacement = f"{base}/quiver", f"{base}/displacement"
+    over = SPATIAL & entities.get(quiver, frozenset()) and SPATIAL & entities.get(displacement, frozenset())
+    spatial = []
+    for child in _children(entities, E.DENSE, SPATIAL):
+        if over and child == "quiver":
+            continue
+        path = f"{base}/{child}"
+        if over and path == displacement:
+            spatial.append(Pane("Displacement", "2D", base, (displacement + "/**", quiver + "/**")))
+        else:
+            spatial.append(Pane(_title(child).capitalize(), "2D", path, (path + "/**",)))
+    spatial += _exact_spatial(entities, "Dense", E.DENSE)
+    series = [Pane(_title(p[len(base) + 1:]).capitalize(), "TimeSeries", base, (p,)) for p in _with(entities, E.DENSE, SERIES)
+              if p != base]
+    return spatial, series
+
+
 def panes(kind: str, entities: Entities) -> list[Pane]:
     """The panes of a ``kind`` recording holding ``entities`` (entity path -> archetype names logged there).
 
@@ -174,16 +197,13 @@ def panes(kind: str, entities: Entities) -> list[Pane]:
         spatial = cc_spatial + _registration(ent) + icp_spatial
         series = cc_series + icp_series
     elif kind == "dense":
-        dense = [p for child in _children(ent, E.DENSE, SPATIAL) for p in _spatial(ent, _title(child).capitalize(),
-                                                                                   f"{E.DENSE}/{child}")]
-        dense += _exact_spatial(ent, "Dense", E.DENSE)
+        dense, dense_series = _dense(ent)
         spatial = dense + _registration(ent) + _labels(ent) + icp_spatial
-        if _with(ent, E.DENSE, SERIES):
-            series.append(Pane("Dense", "TimeSeries", "/" + E.DENSE, ("/" + E.DENSE + "/**",)))
-        series += icp_series
-    else:  # register, sequence, rotation, demo
-        spatial = _registration(ent) + _labels(ent) + icp_spatial
-        series = icp_series
+        series = dense_series + icp_series
+    else:  # register, sequence, rotation, demo; a dense registration's field beside the registration
+        dense, dense_series = _dense(ent)
+        spatial = _registration(ent) + dense + _labels(ent) + icp_spatial
+        series = icp_series + dense_series
     if _with(ent, E.ERRORS, SERIES):
         series.insert(0, Pane("Errors", "TimeSeries", "/" + E.ERRORS, ("/" + E.ERRORS + "/**",)))
     out = spatial + series + _texts(ent)

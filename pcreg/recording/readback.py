@@ -102,7 +102,8 @@ def read_recording(path: str | os.PathLike) -> Recording:
 
 def read_entities(path: str | os.PathLike, *, timeline: str | None = None) -> dict[str, frozenset[str]]:
     """``{entity path: archetype names with data there}`` of the first recording in ``path``, read from the
-    chunks' columns only (fast: no row is converted). rerun's ``/__properties`` are left out.
+    chunks' columns only (fast: no row is converted). rerun's ``/__properties`` are left out; an entity
+    with Scalars at two times or more also has ``"Scalars+"``.
 
     With ``timeline``, only what a viewer shows on that timeline: static data and rows that have a time
     on it."""
@@ -113,6 +114,7 @@ def read_entities(path: str | os.PathLike, *, timeline: str | None = None) -> di
     if not stores:
         raise ValueError(f"{path}: no recording in this file")
     out: dict[str, set[str]] = {}
+    scalars: dict[str, int] = {}
     for chunk in reader.stream(store=stores[0]):
         if chunk.entity_path.startswith("/__"):
             continue
@@ -133,9 +135,15 @@ def read_entities(path: str | os.PathLike, *, timeline: str | None = None) -> di
                 import pyarrow.compute as pc
 
                 valid = pc.and_(valid, rows)
-            if valid.true_count if hasattr(valid, "true_count") else any(valid.to_pylist()):
+            count = valid.true_count if hasattr(valid, "true_count") else sum(bool(v) for v in valid.to_pylist())
+            if count:
                 arch.add(n.split(":", 1)[0])
+            if n == "Scalars:scalars":
+                scalars[chunk.entity_path] = scalars.get(chunk.entity_path, 0) + count
         out.setdefault(chunk.entity_path, set()).update(arch)
+    for path, n in scalars.items():
+        if n >= 2:  # a line, not a lone dot (see pcreg.recording.blueprint.SERIES)
+            out[path].add("Scalars+")
     return {p: frozenset(a) for p, a in out.items()}
 
 

@@ -210,6 +210,7 @@ class Recorder:
         self.kind = kind
         self._embed_blueprint = bool(blueprint)
         self._entities: dict[str, set[str]] = {}
+        self._scalar_counts: dict[str, int] = {}
         self._entities_lock = threading.Lock()
         try:
             self._rec.save(self.path)
@@ -281,8 +282,13 @@ class Recorder:
         """Log to rerun and note which archetypes each entity has (for the blueprint)."""
         self._rec.log(path, *archetypes, static=static)
         names = {type(a).__name__ for a in archetypes}
+        key = "/" + path.strip("/")
         with self._entities_lock:
-            self._entities.setdefault("/" + path.strip("/"), set()).update(names)
+            if "Scalars" in names:  # two values make a line (pcreg.recording.blueprint.SERIES)
+                self._scalar_counts[key] = self._scalar_counts.get(key, 0) + 1
+                if self._scalar_counts[key] >= 2:
+                    names.add("Scalars+")
+            self._entities.setdefault(key, set()).update(names)
 
     def entities(self) -> dict[str, frozenset[str]]:
         """Entity paths logged so far and the archetypes logged at each."""

@@ -87,9 +87,6 @@ DENSE = "dense"
 PROPERTY = "pcreg"
 KIND_FIELD = "kind"
 
-#: Backends that get a view of their own in the blueprint (others still appear in the ICP series).
-ICP_BACKENDS = ("reference", "open3d")
-
 #: Terrain classes: id -> (name, RGB colour).
 CLASSES = {
     0: ("ground", (64, 160, 64)),

@@ -442,3 +442,26 @@ def test_web_arguments(small_recording, capsys):
     assert "IP address" in _one_line_error(capsys)
     assert pcreg_view([str(small_recording), "--web", "--bind", "192.0.2.1"]) == 2  # not this machine's
     assert "cannot listen there" in _one_line_error(capsys)
+
+
+def test_web_viewer_on_another_address(small_recording):
+    """``--bind`` opts in to another address; the page, reached by that address, still gets the data
+    (127.0.0.2: another address on this machine's loopback, so nothing is exposed by the test)."""
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    try:
+        proc, url = view.serve_web(small_recording, bind="127.0.0.2", web_port=0, grpc_port=0)
+    except PcregError as exc:
+        pytest.skip(f"127.0.0.2 is not usable here: {exc}")
+    try:
+        assert url.startswith("http://127.0.0.2:") and "127.0.0.2%3A" in url
+        ports = [int(p) for p in __import__("re").findall(r"127\.0\.0\.2(?::|%3A)(\d+)", url)]
+        assert all(_listening(p) == ["0200007F"] for p in ports), ports
+        with Browser(width=1280, height=720) as browser:
+            browser.open(url)
+            ok, shot = browser.wait_for(lambda s: min(_colours(s)) > 0.03, timeout=120)
+        assert ok, _colours(shot)
+    finally:
+        view.stop(proc)

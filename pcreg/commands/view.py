@@ -331,6 +331,10 @@ def serve_web(
             raise InputError(f"{name} {port}: the port is in use on {bind} (choose another, or 0 for any free port)")
     cmd = [binary, str(Path(recording).resolve()), "--serve-web", "--bind", bind, "--port", str(grpc_port),
            "--web-viewer-port", str(web_port)]
+    if bind not in ("127.0.0.1", "::1", "localhost"):
+        # the data server answers only pages from localhost unless told otherwise: allow our web viewer's
+        # page under whatever name the machine is reached by
+        cmd += ["--cors-allow-origin", f"http://*:{web_port}"]
     env = dict(os.environ)
     env.setdefault("RUST_LOG", "warn")
     with tempfile.TemporaryFile() as log:  # a file, not a pipe: a server that runs for hours must never block on it

@@ -387,6 +387,7 @@ def run(args: argparse.Namespace) -> int:
         raise ViewerError("no display for the native viewer (DISPLAY and WAYLAND_DISPLAY are unset): "
                           "use --web to view it in a browser, or --screenshot OUT.png")
     out = None
+    time_cursor = _parse_time(args.time)
     if args.screenshot is not None:
         out = check_output(args.screenshot, force=args.force)
         if out.suffix.lower() != ".png":
@@ -397,7 +398,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise InputError(str(exc)) from None
         if out is not None:
-            path = screenshot(staged.path, out, time_cursor=_parse_time(args.time), view=args.view, size=args.size,
+            path = screenshot(staged.path, out, time_cursor=time_cursor, view=args.view, size=args.size,
                               viewer=binary, timeout=args.timeout)
             print(path)
             return 0

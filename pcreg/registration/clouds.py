@@ -109,7 +109,21 @@ def valid_region(image: np.ndarray) -> np.ndarray:
         return np.ones(image.shape[:2], dtype=bool)
     black = cv2.inRange(image, (0, 0, 0), (0, 0, 0))
     black = cv2.morphologyEx(black, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    return black == 0
+    # Padding lies outside the picture, which a warp keeps convex (the image of a rectangle under an
+    # affine or projective map): black areas inside the convex hull of the non-black pixels (a black
+    # object, a shadow) are content and stay usable.
+    nonblack = black == 0
+    rows = np.flatnonzero(nonblack.any(axis=1))
+    if rows.size == 0:
+        return nonblack
+    # The hull of the non-black pixels is the hull of each row's leftmost and rightmost ones.
+    sub = nonblack[rows]
+    left = np.argmax(sub, axis=1)
+    right = sub.shape[1] - 1 - np.argmax(sub[:, ::-1], axis=1)
+    ends = np.concatenate([np.column_stack([left, rows]), np.column_stack([right, rows])]).astype(np.int32)
+    inside = np.zeros(black.shape, np.uint8)
+    cv2.fillConvexPoly(inside, cv2.convexHull(ends), 255)
+    return nonblack | (inside > 0)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:

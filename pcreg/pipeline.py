@@ -22,6 +22,9 @@ The methods (keys of :data:`METHODS`), each an error rate in percent:
   prior (:mod:`pcreg.classification.fusion`), against the moving labels.
 - ``augmented_unregistered``: the same fusion with the prior not warped (identity): the ablation that
   shows what registration adds.
+- ``augmented_flow``: the same fusion with the prior warped by OpenCV's DIS optical flow (medium
+  preset, :mod:`pcreg.registration.flow`), its weight chosen the same way: the baseline a user would
+  otherwise pick.
 - ``augmented_temporal``: recursive fusion along the sequence: the fused posterior of frame t - k,
   warped, is the prior of frame t; labels are used only at the start of each chain (frames 0..k-1).
 - ``propagated``: the warped reference labels alone where they are known, naive Bayes elsewhere
@@ -66,9 +69,9 @@ __all__ = [
 
 METHODS: tuple[str, ...] = (
     "plain", "thesis_before", "thesis_after", "thesis_after_masked", "thesis_after_cropped",
-    "augmented", "augmented_unregistered", "augmented_temporal", "propagated",
+    "augmented", "augmented_unregistered", "augmented_temporal", "propagated", "augmented_flow",
 )
-STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse")
+STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse", "flow")
 
 #: ``model="auto"``: the motion model each backend is run with. Both estimate a similarity
 #: (rotation, shift and the zoom of forward motion); a rigid model leaves the zoom as a residual of
@@ -81,7 +84,8 @@ BACKEND_MODELS = {"reference": "similarity", "open3d": "similarity"}
 class PipelineConfig:
     """Options of the per-pair pipeline (written to config.json by the evaluations).
 
-    backend : ``"reference"`` or ``"open3d"``. model : motion model, or ``"auto"`` (:data:`BACKEND_MODELS`).
+    backend : ``"reference"`` or ``"open3d"``. model : motion model, or ``"auto"`` (:data:`BACKEND_MODELS`),
+        or ``"dense"``: the backend's global model refined by :func:`pcreg.register_dense` (a field).
     levels, iterations : pyramid levels and ICP iterations per level (the thesis: 4 and 14).
     init : ``"identity"`` (the default: pairs of a sequence are close) or ``"auto"`` (global rotation
         search, any angle; needed for large rotations, but on sequences it sometimes locks onto a
@@ -108,7 +112,12 @@ class PipelineConfig:
 
     @property
     def registration_model(self) -> str:
-        return BACKEND_MODELS[self.backend] if self.model == "auto" else self.model
+        """The global motion model (for ``model="dense"``: the one its global step uses)."""
+        return BACKEND_MODELS[self.backend] if self.model in ("auto", "dense") else self.model
+
+    @property
+    def dense(self) -> bool:
+        return self.model == "dense"
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -183,13 +192,27 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
 
     t0 = time.perf_counter()
     try:
-        res = register(reference_image, moving_image, backend=config.backend, model=config.registration_model,
-                       levels=config.levels, iterations=config.iterations, init=config.init, callback=callback)
+        if config.dense:
+            from .registration.dense import register_dense
+
+            res = register_dense(reference_image, moving_image, model=config.registration_model,
+                                 backend=config.backend, global_levels=config.levels,
+                                 global_iterations=config.iterations, init=config.init)
+        else:
+            res = register(reference_image, moving_image, backend=config.backend, model=config.registration_model,
+                           levels=config.levels, iterations=config.iterations, init=config.init, callback=callback)
     except RegistrationError as exc:
         return None, str(exc), time.perf_counter() - t0
     if not np.all(np.isfinite(res.matrix)) or abs(np.linalg.det(res.matrix[:2, :2])) < 1e-6:
         return None, "registration returned a degenerate transform", time.perf_counter() - t0
     return res, None, time.perf_counter() - t0
+
+
+def flow_field(reference_image: np.ndarray, moving_image: np.ndarray) -> np.ndarray:
+    """The ``augmented_flow`` baseline's field: OpenCV DIS optical flow, medium preset."""
+    from .registration.flow import dis_field
+
+    return dis_field(reference_image, moving_image, preset="medium")[0]
 
 
 def _err(pred: np.ndarray, truth: np.ndarray | None, mask: np.ndarray | None = None) -> float:
@@ -238,14 +261,22 @@ def _prior_q(source: np.ndarray, *, kind: str, pi: float, fusion: FusionConfig) 
     return smooth_prior(prior_from_log_odds(source), pi=pi, eps=fusion.eps, sigma=0.0)
 
 
+def motion_of(res) -> np.ndarray | None:
+    """What warps a pair: the dense field of a dense result, else the 3x3 matrix (None: no result)."""
+    if res is None:
+        return None
+    fld = getattr(res, "field", None)
+    return np.asarray(fld) if fld is not None else np.asarray(res.matrix)
+
+
 def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T_ref_mov: np.ndarray | None, *,
                     pi: float, weight: float, fusion: FusionConfig = FusionConfig()) -> tuple[np.ndarray, np.ndarray]:
     """One step of the temporal filter.
 
     log_odds_moving : (H, W) float32 naive Bayes log-odds of the new frame. labels_reference : (H, W)
     uint8 labels the chain holds for the previous frame (true labels at the chain's start, then its
-    own fused labels; 2 where it knows nothing). T_ref_mov : previous -> new registration (None: no
-    prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``: the label carried over
+    own fused labels; 2 where it knows nothing). T_ref_mov : previous -> new registration, a 3x3 matrix
+    or a dense field (None: no prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``: the label carried over
     from the previous frame where it reached the new frame and the fused result agrees with it, 2
     (unknown) elsewhere. So a label survives while the classifier does not overrule it, and neither
     what naive Bayes alone says about content new to the view nor a pixel it flipped is passed on as
@@ -261,13 +292,13 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
     d = np.asarray(log_odds_moving, dtype=np.float32)
     if T_ref_mov is None:
         return d.copy(), np.full(d.shape, 2, np.uint8)
-    from . import warp
+    from .registration.warp import warp_to_moving
 
     q_mov, _ = warp_prior(_prior_q(labels_reference, kind="labels", pi=pi, fusion=fusion), T_ref_mov,
                           shape=d.shape, pi=pi)
     fused = fuse(d, prior_log_odds(q_mov, pi=pi), weight=weight)
-    reached, _ = warp(np.asarray(labels_reference, dtype=np.uint8), np.linalg.inv(np.asarray(T_ref_mov)),
-                      shape=d.shape, interpolation="nearest", fill=2)
+    reached, _ = warp_to_moving(np.asarray(labels_reference, dtype=np.uint8), T_ref_mov, shape=d.shape,
+                                interpolation="nearest", fill=2)
     fused_labels = labels_from_log_odds(fused)
     labels = np.where((reached < 2) & (fused_labels == reached), fused_labels, np.uint8(2)).astype(np.uint8)
     return fused, labels
@@ -276,7 +307,7 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
 def process_pair(reference, moving, classifier, *, weight: float, config: PipelineConfig = PipelineConfig(),
                  registration=None, temporal_source: tuple[str, np.ndarray] | None = None,
                  temporal_weight: float | None = None, indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
-                 callback: Callable | None = None):
+                 callback: Callable | None = None, flow: np.ndarray | None = None, flow_weight: float | None = None):
     """Run and score every method on one pair.
 
     reference, moving : :class:`~pcreg.datasets.Frame` (labelled; same size). classifier : fitted naive
@@ -285,12 +316,15 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     temporal_source : (H, W) uint8 labels the temporal filter holds for the reference frame
         (:func:`temporal_update`); None leaves ``augmented_temporal`` NaN.
     temporal_weight : fusion weight of the temporal filter (default ``weight``).
+    flow : the DIS field of the pair (:func:`flow_field`; None: computed here). flow_weight : fusion
+        weight of ``augmented_flow`` (default ``weight``).
     Returns ``(PairResult, extras)``: ``extras["temporal_labels"]`` is the temporal filter's new state
     (None without ``temporal_source``) and, with ``keep_arrays``, the arrays a
     recording shows (``warped``, ``valid``, ``predicted`` {method: labels}).
     """
     from .datasets import relative_transform
     from .registration.transforms import max_corner_error
+    from .registration.warp import warp_to_moving
     from . import warp
 
     if reference.shape != moving.shape:
@@ -301,10 +335,11 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
         reference.image, moving.image, config=config, callback=callback)
     times["register"] = t_reg
     T = None if res is None else np.asarray(res.matrix)
+    motion = motion_of(res)  # the field of a dense registration, else T
 
     t0 = time.perf_counter()
     if T is not None:
-        warped, valid = warp(moving.image, T, shape=reference.shape)
+        warped, valid = warp(moving.image, motion, shape=reference.shape)
     else:
         warped, valid = moving.image, np.ones(shape, dtype=bool)
     times["warp"] = time.perf_counter() - t0
@@ -321,7 +356,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     fusion = config.fusion
     q_ref = _prior_q(reference.labels, kind="labels", pi=pi, fusion=fusion)
     if T is not None:
-        q_mov, prior_valid = warp_prior(q_ref, T, shape=shape, pi=pi)
+        q_mov, prior_valid = warp_prior(q_ref, motion, shape=shape, pi=pi)
         l_reg = prior_log_odds(q_mov, pi=pi)
     else:
         l_reg = np.zeros(shape, np.float32)
@@ -329,20 +364,27 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     times["fuse"] = time.perf_counter() - t0
     l_id = prior_log_odds(q_ref, pi=pi)
     fused_id = fuse(d_mov, l_id, weight=weight)
+    t0 = time.perf_counter()
+    flow = flow_field(reference.image, moving.image) if flow is None else flow
+    q_flow, _ = warp_prior(q_ref, flow, shape=shape, pi=pi)
+    fused_flow = fuse(d_mov, prior_log_odds(q_flow, pi=pi), weight=weight if flow_weight is None else flow_weight)
+    times["flow"] = time.perf_counter() - t0
     temporal = temporal_labels = None
     if temporal_source is not None:
-        temporal, temporal_labels = temporal_update(d_mov, temporal_source, T, pi=pi, fusion=fusion,
+        temporal, temporal_labels = temporal_update(d_mov, temporal_source, motion, pi=pi, fusion=fusion,
                                                     weight=weight if temporal_weight is None else temporal_weight)
 
     pred_masked = np.where(valid, pred_warped, pred_mov)
     if T is not None:
-        ref_lab_mov, lab_valid = warp(reference.labels, np.linalg.inv(T), shape=shape, interpolation="nearest", fill=2)
+        ref_lab_mov, lab_valid = warp_to_moving(reference.labels, motion, shape=shape, interpolation="nearest",
+                                                fill=2)
         propagated = np.where(lab_valid & (ref_lab_mov < 2), ref_lab_mov, pred_mov)
     else:
         propagated = pred_mov
     preds = {
         "plain": pred_mov, "augmented": labels_from_log_odds(fused),
         "augmented_unregistered": labels_from_log_odds(fused_id), "propagated": propagated,
+        "augmented_flow": labels_from_log_odds(fused_flow),
     }
     if temporal is not None:
         preds["augmented_temporal"] = labels_from_log_odds(temporal)
@@ -356,6 +398,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
         "augmented_unregistered": _err(preds["augmented_unregistered"], moving.labels),
         "augmented_temporal": _err(preds["augmented_temporal"], moving.labels) if temporal is not None else float("nan"),
         "propagated": _err(propagated, moving.labels),
+        "augmented_flow": _err(preds["augmented_flow"], moving.labels),
     }
     truth_T = relative_transform(reference, moving)
     corner = None
@@ -366,6 +409,8 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
                         corner_error=corner, errors=errors, times=times, valid_fraction=float(valid.mean()))
     extras: dict = {"temporal_labels": temporal_labels}
     if keep_arrays:
+        extras.update(motion=motion, warped_prior=q_mov if T is not None else None, flow=flow,
+                      confidence=getattr(res, "confidence", None))
         extras.update(warped=warped, valid=valid, predicted=preds, thesis_after=pred_warped,
                       thesis_after_masked=pred_masked)
     return result, extras
@@ -425,6 +470,7 @@ class SequenceResult:
     k : increment. backend : ICP backend. fusion_frames : frames 0..C-1 that chose the weight.
     weight : :class:`~pcreg.classification.fusion.WeightChoice` (``pairs == 0`` when fixed or not choosable).
     temporal_weight : the same for the recursive (temporal) fusion, chosen on the same frames.
+    flow_weight : the same for ``augmented_flow``.
     pairs : scored :class:`PairResult` (moving frame >= C). means : {method: mean error % over pairs}.
     failures : [{"reference", "moving", "reason"}] of the scored pairs. notes : why pairs are missing.
     seconds : wall time.
@@ -440,11 +486,13 @@ class SequenceResult:
     notes: tuple[str, ...]
     seconds: float
     temporal_weight: WeightChoice | None = None
+    flow_weight: WeightChoice | None = None
 
     def to_dict(self) -> dict:
         return {"k": self.k, "backend": self.backend, "fusion_frames": self.fusion_frames,
                 "weight": self.weight.to_dict(),
-                "temporal_weight": None if self.temporal_weight is None else self.temporal_weight.to_dict(), "means": dict(self.means),
+                "temporal_weight": None if self.temporal_weight is None else self.temporal_weight.to_dict(),
+                "flow_weight": None if self.flow_weight is None else self.flow_weight.to_dict(), "means": dict(self.means),
                 "failures": [dict(f) for f in self.failures], "notes": list(self.notes),
                 "pairs": [p.to_dict() for p in self.pairs], "seconds": self.seconds}
 
@@ -557,10 +605,10 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
         for i, j in pair_indices(C, kc):
             res, _, _ = registration(i, j)
             clf = classifier(i)
-            calib.append((i, j, None if res is None else res.matrix, log_odds(clf, frames[j].image),
+            calib.append((i, j, motion_of(res), log_odds(clf, frames[j].image),
                           float(np.asarray(clf.class_prior_)[1])))
     if fixed is not None:
-        choice = temporal_choice = empty_choice
+        choice = temporal_choice = flow_choice = empty_choice
     else:
         samples = []
         for i, j, T, d, pi in calib:
@@ -570,6 +618,12 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
                                   shape=frames[j].shape, pi=pi)
             samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
         choice = choose_weight(samples, grid=config.fusion.grid)
+        flow_samples = []
+        for i, j, _, d, pi in calib:
+            q_mov, _ = warp_prior(_prior_q(frames[i].labels, kind="labels", pi=pi, fusion=config.fusion),
+                                  flow_field(frames[i].image, frames[j].image), shape=frames[j].shape, pi=pi)
+            flow_samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
+        flow_choice = choose_weight(flow_samples, grid=config.fusion.grid)
         temporal_choice = _choose_temporal_weight(calib, frames, kc=kc, fusion=config.fusion)
         if choice.pairs == 0:
             notes.append(f"no registered pair among the first {C} frames to choose the fusion weight: "
@@ -579,6 +633,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
         reg_cache = {key: v for key, v in reg_cache.items() if key[1] - key[0] == k}
     weight = choice.weight
     weight_t = temporal_choice.weight
+    weight_f = flow_choice.weight
 
     # 2. every pair (i, i + k) in order; the temporal chains need all of them, the scores those with j >= C
     chains: deque = deque()
@@ -596,7 +651,8 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
         chain.pi = float(np.asarray(clf.class_prior_)[1])
         if score:
             result, extras = process_pair(frames[i], frames[j], clf, weight=weight, config=config, registration=reg,
-                                          temporal_source=chain.labels, temporal_weight=weight_t, indices=(i, j), keep_arrays=on_pair is not None)
+                                          temporal_source=chain.labels, temporal_weight=weight_t, indices=(i, j),
+                                          keep_arrays=on_pair is not None, flow_weight=weight_f)
             chain.labels = extras["temporal_labels"]
             scored.append(result)
             if not result.registered:
@@ -605,9 +661,10 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
                 on_pair(result, (frames[i], frames[j]), extras)
         else:
             res = reg[0]
-            chain.step(log_odds(clf, frames[j].image), None if res is None else res.matrix)
+            chain.step(log_odds(clf, frames[j].image), motion_of(res))
         chains.append(chain)
     if not scored:
         notes.append(f"no pair with its moving frame after the {C} fusion frames")
     return SequenceResult(k, config.backend, C, choice, tuple(scored), _means(scored), tuple(failures),
-                          tuple(notes), time.perf_counter() - t_start, temporal_weight=temporal_choice)
+                          tuple(notes), time.perf_counter() - t_start, temporal_weight=temporal_choice,
+                          flow_weight=flow_choice)

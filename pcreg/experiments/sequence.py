@@ -28,7 +28,7 @@ DEFAULT_INCREMENTS = (1, 4, 7, 10)
 #: Label maps logged per pair with ``--record`` (all methods' error rates are logged).
 RECORDED_PREDICTIONS = ("plain", "augmented", "augmented_temporal")
 TABLE_METHODS = ("plain", "thesis_before", "thesis_after", "thesis_after_masked", "thesis_after_cropped",
-                 "augmented", "augmented_unregistered", "augmented_temporal", "propagated")
+                 "augmented", "augmented_unregistered", "augmented_temporal", "propagated", "augmented_flow")
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", choices=("identity", "auto"), default="identity",
                         help="registration start: identity (default) or auto (global rotation search)")
     parser.add_argument("--model", default="auto",
-                        help="motion model: auto (similarity for both backends), rigid, similarity, affine")
+                        help="motion model: auto (similarity for both backends), rigid, similarity, affine, "
+                             "projective, or dense (the global similarity refined by a dense field)")
     c.add_run_arguments(parser, out="out/sequence")
 
 
@@ -121,8 +122,8 @@ def config_from_args(args: argparse.Namespace) -> SequenceConfig:
         raise InputError("--fusion-weight must be >= 0")
     if args.levels < 1 or args.levels > 8 or args.iterations < 1:
         raise InputError("--levels must be in 1..8 and --iterations at least 1")
-    if args.model != "auto" and args.model not in MODELS:
-        raise InputError(f"--model must be auto or one of {', '.join(MODELS)}")
+    if args.model not in ("auto", "dense") and args.model not in MODELS:
+        raise InputError(f"--model must be auto, dense or one of {', '.join(MODELS)}")
     if args.workers < 1:
         raise InputError("--workers must be at least 1")
     return SequenceConfig(data=args.data, increments=tuple(sorted(set(args.increments))),

@@ -348,6 +348,63 @@ def _bilinear_matrix(pts: np.ndarray, gshape: tuple[int, int], s: float) -> sp.c
     return sp.csr_matrix((vals, (rows, cols)), shape=(n, gh * gw))
 
 
+class _NormalEquations:
+    """The grid's normal equations ``(B^T W B + alpha L + eps I) U = B^T W t`` for fixed samples.
+
+    ``B`` has four bilinear weights per sample (the corners of its grid cell), so ``B^T W B`` couples
+    a node with its 8 neighbours only: the matrix has 9 diagonals (offsets 0, +-1, +-gw, +-(gw +- 1))
+    and each iteration scatters the samples' weights into them with ``np.bincount`` before the
+    sparse LU solve (the membrane L uses 5 of the same diagonals).
+    """
+
+    def __init__(self, pts: np.ndarray, gshape: tuple[int, int], s: float) -> None:
+        B = _bilinear_matrix(pts, gshape, s)
+        n, m = B.shape
+        gh, gw = gshape
+        self.m = m
+        self.cols = B.indices.reshape(n, 4)
+        self.vals = B.data.reshape(n, 4)
+        self.offsets = np.array([0, 1, -1, gw, -gw, gw + 1, -(gw + 1), gw - 1, -(gw - 1)])
+        where = {int(o): k for k, o in enumerate(self.offsets)}
+        # (corner p, corner q) -> diagonal of offset idx(q) - idx(p); corners (i,j), (i,j+1), (i+1,j), (i+1,j+1)
+        corner = np.array([0, 1, gw, gw + 1])
+        self.pairs = [(p, q, where[int(corner[q] - corner[p])]) for p in range(4) for q in range(4)]
+        # membrane: node degree on the main diagonal, -1 on the 4-neighbour edges that exist
+        idx = np.arange(m).reshape(gh, gw)
+        lap = np.zeros((len(self.offsets), m))
+        right = np.zeros((gh, gw))
+        right[:, :-1] = 1.0
+        down = np.zeros((gh, gw))
+        down[:-1, :] = 1.0
+        deg = right + down
+        deg[:, 1:] += right[:, :-1]
+        deg[1:, :] += down[:-1, :]
+        lap[0] = deg.ravel()
+        # dia storage: data[k, c] holds A[c - offset, c]
+        lap[where[1], idx[:, 1:].ravel()] = -1.0
+        lap[where[-1], idx[:, :-1].ravel()] = -1.0
+        lap[where[gw], idx[1:, :].ravel()] = -1.0
+        lap[where[-gw], idx[:-1, :].ravel()] = -1.0
+        self.lap = lap
+
+    def interpolate(self, U: np.ndarray) -> np.ndarray:
+        """(N, 2) ``B U``."""
+        return np.einsum("nk,nkc->nc", self.vals, U[self.cols])
+
+    def solve(self, w: np.ndarray, target: np.ndarray, alpha: float, eps: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(U (M, 2), node data weights (M,))``."""
+        data = alpha * self.lap
+        data[0] += eps
+        wv = w[:, None] * self.vals
+        for p, q, k in self.pairs:
+            data[k] += np.bincount(self.cols[:, q], weights=wv[:, p] * self.vals[:, q], minlength=self.m)
+        A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc()
+        rhs = np.column_stack([np.bincount(self.cols.ravel(), weights=(wv * target[:, c, None]).ravel(),
+                                           minlength=self.m) for c in range(2)])
+        node_w = np.bincount(self.cols.ravel(), weights=wv.ravel(), minlength=self.m)
+        return spla.splu(A).solve(rhs), node_w
+
+
 def _membrane(gshape: tuple[int, int]) -> sp.csr_matrix:
     """Graph Laplacian of the grid's 4-neighbour edges: ``U^T L U = sum_(a,b) |U_a - U_b|^2``."""
     gh, gw = gshape
@@ -419,9 +476,9 @@ def _tukey(r: np.ndarray, c: float) -> np.ndarray:
 
 def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, model: str = "similarity",
                    global_result: RegistrationResult | np.ndarray | None = None, levels: int = 5,
-                   finest_level: int = 1, iterations: int = 5, grid_spacing: float = 8.0, radius: int = 3,
+                   finest_level: int = 1, iterations: int = 4, grid_spacing: float = 8.0, radius: int = 3,
                    fine_radius: int = 2,
-                   max_points: int = 12000, stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE, strain: float = 0.25,
+                   max_points: int = 10000, stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE, strain: float = 0.25,
                    global_levels: int = 4, global_iterations: int = 14, init: str | np.ndarray = "identity",
                    backend: str = "reference", seed: int = 0,
                    callback: Callable[[DenseIteration], None] | None = None) -> DenseRegistrationResult:
@@ -509,15 +566,13 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         if len(P) < 16:
             continue
         R_match = R if val_r[level].all() else np.where(val_r[level][:, :, None], R, np.float32(10.0))
-        B = _bilinear_matrix(P, gshape, s)
-        BT = B.T.tocsr()
-        L = _membrane(gshape)
+        NE = _NormalEquations(P, gshape, s)
         Gl = _level_matrix(T, level)
         GP = _apply(Gl, P)
         f = float(2 ** level)
         base_alpha = 1.0 / (s * strain) ** 2
         for it in range(iterations):
-            X = GP + B @ U
+            X = GP + NE.interpolate(U)
             m = match_window(R_match, Mv, P, X, C, radius=radius if level == coarsest else fine_radius, lam=lam)
             found = np.isfinite(m[:, 0])
             cd = np.where(found, m[:, 2], np.inf)
@@ -532,17 +587,11 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
             Q = np.where(found[:, None], m[:, :2], X)
             target = Q - GP
             res = Q - X
-            A_data = (BT @ B.multiply(wts[:, None]).tocsr()).tocsr()
-            node_w = np.asarray(A_data.sum(axis=1)).ravel()
-            has = node_w > 1e-9
-            if not has.any():
+            if not wts.any():
                 break
             k = stiffness[min(it, len(stiffness) - 1)]
             alpha = k * base_alpha
-            A = (A_data + alpha * L + sp.identity(len(U), format="csr") * (1e-4 * alpha)).tocsc()
-            rhs = BT @ (wts[:, None] * target)
-            U = spla.splu(A).solve(rhs)
-            weights_node = node_w
+            U, weights_node = NE.solve(wts, target, alpha, 1e-4 * alpha)
             total_it += 1
             sw = float(wts.sum())
             rms = f * math.sqrt(float((wts * (res ** 2).sum(axis=1)).sum()) / sw) if sw > 0 else 0.0

@@ -269,6 +269,28 @@ def motion_of(res) -> np.ndarray | None:
     return np.asarray(fld) if fld is not None else np.asarray(res.matrix)
 
 
+def registration_supported(warped_labels: np.ndarray, labels: np.ndarray, log_odds_moving: np.ndarray) -> bool:
+    """The new frame's own evidence for a registration that carries labels: the labels warped by it
+    agree with naive Bayes on the new frame at least as often as the same labels not warped at all.
+
+    warped_labels : (H, W) uint8 labels moved into the new frame (2 where none arrived); labels :
+    (H, W) uint8 the same labels in the previous frame; log_odds_moving : (H, W) naive Bayes log-odds of
+    the new frame. A wrong registration (a shifted or turned field) moves the labels off the objects
+    and loses this test against the no-motion hypothesis; a right one wins or ties it, since motion
+    between neighbouring frames only moves labels onto the objects they belong to.
+    """
+    nb = np.asarray(log_odds_moving) > 0
+    w_known = warped_labels < 2
+    i_known = labels < 2
+    if not w_known.any():
+        return False
+    if not i_known.any():
+        return True
+    agree_w = float(np.mean((warped_labels[w_known] == 1) == nb[w_known]))
+    agree_i = float(np.mean((labels[i_known] == 1) == nb[i_known]))
+    return agree_w >= agree_i
+
+
 def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T_ref_mov: np.ndarray | None, *,
                     pi: float, weight: float, fusion: FusionConfig = FusionConfig()) -> tuple[np.ndarray, np.ndarray]:
     """One step of the temporal filter.
@@ -299,18 +321,22 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
     overrule a label it contradicts strongly; the same chain gives 5.7%, and the state no longer
     depends on a weight chosen on too few frames. A failed registration (``T_ref_mov`` None) ends
     the chain's labels: the frame falls back to plain naive Bayes and so does the rest of the chain.
+    So does a registration that the new frame's evidence does not support
+    (:func:`registration_supported`): a poor registration is not propagated onward.
     """
     d = np.asarray(log_odds_moving, dtype=np.float32)
     if T_ref_mov is None:
         return d.copy(), np.full(d.shape, 2, np.uint8)
     from .registration.warp import warp_to_moving
 
+    labels_reference = np.asarray(labels_reference, dtype=np.uint8)
+    reached, _ = warp_to_moving(labels_reference, T_ref_mov, shape=d.shape, interpolation="nearest", fill=2)
+    if not registration_supported(reached, labels_reference, d):
+        return d.copy(), np.full(d.shape, 2, np.uint8)
     q_mov, _ = warp_prior(_prior_q(labels_reference, kind="labels", pi=pi, fusion=fusion), T_ref_mov,
                           shape=d.shape, pi=pi)
     l_prior = prior_log_odds(q_mov, pi=pi)
     fused = fuse(d, l_prior, weight=weight)
-    reached, _ = warp_to_moving(np.asarray(labels_reference, dtype=np.uint8), T_ref_mov, shape=d.shape,
-                                interpolation="nearest", fill=2)
     judged = labels_from_log_odds(fuse(d, l_prior, weight=1.0))
     labels = np.where((reached < 2) & (judged == reached), reached, np.uint8(2)).astype(np.uint8)
     return fused, labels

@@ -15,8 +15,8 @@ displacement field by a non-rigid ICP, coarse to fine:
   as the images do.
 - **Correspondences.** Each moving point's nearest neighbour in ``(x, y, lam * colour)`` among the
   reference pixels within a gate of ``radius`` pixels of the level around where the field puts it
-  (an exact search over the window, compiled with numba), refined to sub-pixel by a parabola
-  through the costs of the neighbouring pixels. The gate is ``radius * 2^level`` full-resolution
+  (an exact search over the window, compiled with numba), refined to sub-pixel by a Gauss-Newton
+  step on the same cost with the reference colour linearised (Park, Zhou & Koltun 2017). The gate is ``radius * 2^level`` full-resolution
   pixels: wide at the coarsest level, narrow at the finest.
 - **Robust weights.** A match gets weight 0 when it has no partner: its best candidate lies on the
   window's rim (the true partner may be outside the gate: occlusion or a motion beyond the gate) or it
@@ -219,39 +219,31 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
         # the best candidate on the gate's rim (not the image's): its partner may lie outside the gate
         rim = ((bx == cx - radius and bx > 0) or (bx == cx + radius and bx < w - 1)
                or (by == cy - radius and by > 0) or (by == cy + radius and by < h - 1))
-        # sub-pixel: a parabola through the costs at -1, 0, +1 along each axis
+        # sub-pixel: one Gauss-Newton step on the same cost with the reference colour linearised at
+        # the best pixel (central differences), ``(lam2 J^T J + I) d = -lam2 J^T r - (q - x)``: the
+        # colour term of Park, Zhou & Koltun (2017, "Colored point cloud registration revisited"),
+        # free of the pull to whole pixels that a parabola through the costs has
         ox = 0.0
         oy = 0.0
-        if x0 < bx < x1:
-            cm = (bx - 1 - xi) ** 2 + (by - yi) ** 2
-            cp = (bx + 1 - xi) ** 2 + (by - yi) ** 2
-            sm = 0.0
-            sp_ = 0.0
+        if 0 < bx < w - 1 and 0 < by < h - 1:
+            a11 = 1.0
+            a12 = 0.0
+            a22 = 1.0
+            b1 = -(bx - xi)
+            b2 = -(by - yi)
             for k in range(nc):
-                d = ref[by, bx - 1, k] - cols[i, k]
-                sm += d * d
-                d = ref[by, bx + 1, k] - cols[i, k]
-                sp_ += d * d
-            cm += lam2 * sm
-            cp += lam2 * sp_
-            den = cm - 2.0 * best + cp
-            if den > 1e-12:
-                ox = min(max(0.5 * (cm - cp) / den, -0.5), 0.5)
-        if y0 < by < y1:
-            cm = (bx - xi) ** 2 + (by - 1 - yi) ** 2
-            cp = (bx - xi) ** 2 + (by + 1 - yi) ** 2
-            sm = 0.0
-            sp_ = 0.0
-            for k in range(nc):
-                d = ref[by - 1, bx, k] - cols[i, k]
-                sm += d * d
-                d = ref[by + 1, bx, k] - cols[i, k]
-                sp_ += d * d
-            cm += lam2 * sm
-            cp += lam2 * sp_
-            den = cm - 2.0 * best + cp
-            if den > 1e-12:
-                oy = min(max(0.5 * (cm - cp) / den, -0.5), 0.5)
+                jx = 0.5 * (ref[by, bx + 1, k] - ref[by, bx - 1, k])
+                jy = 0.5 * (ref[by + 1, bx, k] - ref[by - 1, bx, k])
+                r = ref[by, bx, k] - cols[i, k]
+                a11 += lam2 * jx * jx
+                a12 += lam2 * jx * jy
+                a22 += lam2 * jy * jy
+                b1 -= lam2 * jx * r
+                b2 -= lam2 * jy * r
+            det = a11 * a22 - a12 * a12
+            if det > 1e-12:
+                ox = min(max((a22 * b1 - a12 * b2) / det, -0.5), 0.5)
+                oy = min(max((a11 * b2 - a12 * b1) / det, -0.5), 0.5)
         out[i, 0] = bx + ox
         out[i, 1] = by + oy
         s = 0.0

@@ -171,9 +171,10 @@ def frames():
 
 
 def test_dense_pipeline_on_a_short_sequence(frames):
-    from pcreg.pipeline import METHODS, PipelineConfig, run_sequence
+    from pcreg.pipeline import METHODS, PIPELINE_REGISTRATION, PipelineConfig, run_sequence
 
-    res = run_sequence(frames, k=2, config=PipelineConfig(model="dense"), fusion_frames=3)
+    cfg = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(model="dense"))
+    res = run_sequence(frames, k=2, config=cfg, fusion_frames=3)
     assert res.pairs and all(p.registered for p in res.pairs)
     assert set(res.means) == set(METHODS) and "augmented_flow" in METHODS
     assert all(np.isfinite(res.means[m]) for m in ("augmented", "augmented_flow", "augmented_temporal"))
@@ -184,15 +185,16 @@ def test_dense_pipeline_on_a_short_sequence(frames):
 
 
 def test_process_pair_keeps_the_field_for_recordings(frames):
-    from pcreg.pipeline import PipelineConfig, fit_classifier, process_pair
+    from pcreg.pipeline import PIPELINE_REGISTRATION, PipelineConfig, fit_classifier, process_pair
 
     clf = fit_classifier([frames[0]])
-    res, extras = process_pair(frames[0], frames[2], clf, weight=2.0, config=PipelineConfig(model="dense"),
-                               keep_arrays=True)
-    assert extras["motion"].shape == frames[0].shape + (2,)
-    assert extras["confidence"].shape == frames[0].shape
-    assert extras["warped_prior"].shape == frames[0].shape and extras["flow"].shape == frames[0].shape + (2,)
-    assert res.errors["augmented_flow"] == res.errors["augmented_flow"]  # finite
+    cfg = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(model="dense"))
+    done = process_pair(frames[0], frames[2], clf, weight=2.0, config=cfg, keep_arrays=True)
+    arrays = done.arrays
+    assert arrays.motion.shape == frames[0].shape + (2,)
+    assert arrays.confidence.shape == frames[0].shape
+    assert arrays.warped_prior.shape == frames[0].shape and arrays.flow.shape == frames[0].shape + (2,)
+    assert np.isfinite(done.result.errors["augmented_flow"])
 
 
 def test_temporal_chain_never_worse_than_plain_through_failed_and_poor_registrations(frames, monkeypatch):
@@ -207,11 +209,11 @@ def test_temporal_chain_never_worse_than_plain_through_failed_and_poor_registrat
 
     def flaky(reference_image, moving_image, *, config, callback=None):
         if np.array_equal(moving_image, frames[8].image):
-            return None, "forced failure", 0.0
+            return pl.PairRegistration(None, "forced failure", 0.0)
         if np.array_equal(moving_image, frames[4].image):  # 30 px off and turned: a poor registration
             wrong = rigid_about_centre(frames[4].shape, 12.0, 30.0, 10.0)
-            return RegistrationResult(matrix=wrong, fitness=0.5, inlier_rmse=3.0, iterations=1, converged=True,
-                                      backend="reference"), None, 0.0
+            return pl.PairRegistration(RegistrationResult(matrix=wrong, fitness=0.5, inlier_rmse=3.0, iterations=1,
+                                                          converged=True, backend="reference"), None, 0.0)
         return real(reference_image, moving_image, config=config, callback=callback)
 
     monkeypatch.setattr(pl, "register_pair", flaky)

@@ -113,7 +113,8 @@ class DenseRegistrationResult:
     global_result : the :class:`~pcreg.registration.result.RegistrationResult` of the global step.
     fitness : share of the finest level's samples matched with a non-zero weight.
     inlier_rmse : weighted RMS of their residuals after the last step (full-resolution px).
-    iterations : dense iterations run (all levels). seconds : wall time, global step included.
+    iterations : dense iterations run (all levels). seconds : wall time, global step included (a given
+        global result's own ``seconds`` added).
     """
 
     matrix: np.ndarray
@@ -511,6 +512,7 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     while coarsest > finest_level and min(h, w) >> coarsest < 16:
         coarsest -= 1
 
+    given = global_result is not None
     if global_result is None:
         from .api import register
 
@@ -523,6 +525,7 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         global_result = RegistrationResult(matrix=M, fitness=float("nan"), inlier_rmse=float("nan"), iterations=0,
                                            converged=True, backend="given")
     T = np.asarray(global_result.matrix, dtype=np.float64)
+    given_seconds = float(global_result.seconds) if given else 0.0
 
     from .clouds import valid_region
 
@@ -615,5 +618,6 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     conf = np.where(inside, conf, 0.0).astype(np.float32)
     return DenseRegistrationResult(matrix=T, field=field_full.astype(np.float32), confidence=conf,
                                    global_result=global_result, fitness=fitness, inlier_rmse=rms,
-                                   iterations=total_it, seconds=time.perf_counter() - t_start, backend=backend,
+                                   iterations=total_it, seconds=time.perf_counter() - t_start + given_seconds,
+                                   backend=backend,
                                    info={"levels": (coarsest, finest_level), "grid": grid.shape[:2]})

@@ -14,13 +14,14 @@ Open3D's legacy ``registration_icp`` so the two can be checked against each othe
 
 from __future__ import annotations
 
+import time
 from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import RegistrationError
-from .result import IcpIteration
+from .result import IcpIteration, RegistrationResult
 from .transforms import apply
 
 WEIGHTS = ("none", "trimmed", "huber", "tukey")
@@ -307,11 +308,12 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
                   metric: str = "point_to_point", target_normals: np.ndarray | None = None,
                   rotation: str = "svd", tree: cKDTree | None = None,
                   callback: Callable[[IcpIteration], None] | None = None, level: int = 0,
-                  ) -> tuple[np.ndarray, float, float, int, bool]:
-    """One ICP run at one scale. Returns (matrix, fitness, inlier_rmse, iterations, converged).
+                  ) -> RegistrationResult:
+    """One ICP run at one scale: a :class:`RegistrationResult` whose ``matrix`` is ``T_target_source``.
 
     source : (N, d), target : (M, d) float64, finite; d = 2 or 3.
     """
+    start = time.perf_counter()
     d = source.shape[1]
     T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
     if tree is None:
@@ -353,4 +355,5 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
         if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
             converged = True
             break
-    return T, fitness, rmse, iterations, converged
+    return RegistrationResult(matrix=T, fitness=fitness, inlier_rmse=rmse, iterations=iterations,
+                              converged=converged, backend="reference", seconds=time.perf_counter() - start)

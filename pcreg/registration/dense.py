@@ -26,7 +26,8 @@ displacement field by a non-rigid ICP, coarse to fine:
 - **Step.** The grid minimises ``sum_i w_i |B_i U - t_i|^2 + alpha * sum_(a,b) |U_a - U_b|^2`` over
   the grid's 4-neighbour edges (a membrane, as the smoothness term of Horn & Schunck 1981), with
   ``t_i`` the matched reference point minus ``G(p_i)``: a sparse symmetric positive definite system
-  ``(B^T W B + alpha L + eps I) U = B^T W t`` solved with ``scipy.sparse``. ``eps`` is a tiny pull
+  ``(B^T W B + alpha L + eps I) U = B^T W t`` solved with ``scipy.sparse`` (conjugate gradients
+  warm-started from the last field, an inexact step inside the ICP loop, or an exact LU). ``eps`` is a tiny pull
   towards the global transform, so that a grid region without any evidence keeps it.
 - **Stiffness.** ``alpha`` is a ratio of variances, as in a Gaussian prior on the field (the
   Bayesian reading of the membrane): a match is good to about ``sigma_m = 1`` pixel of its level (the
@@ -175,11 +176,17 @@ def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarr
     """(H, W, 2) float32 reference coordinates of every moving pixel under a 3x3 transform."""
     h, w = int(shape[0]), int(shape[1])
     M = np.asarray(T_ref_mov, dtype=np.float64)
-    xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    den = M[2, 0] * xs + M[2, 1] * ys + M[2, 2]
-    fx = (M[0, 0] * xs + M[0, 1] * ys + M[0, 2]) / den
-    fy = (M[1, 0] * xs + M[1, 1] * ys + M[1, 2]) / den
-    return np.dstack([fx, fy]).astype(np.float32)
+    x = np.arange(w, dtype=np.float64)[None, :]
+    y = np.arange(h, dtype=np.float64)[:, None]
+    out = np.empty((h, w, 2), np.float32)
+    if M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1:
+        out[:, :, 0] = M[0, 0] * x + (M[0, 1] * y + M[0, 2])
+        out[:, :, 1] = M[1, 0] * x + (M[1, 1] * y + M[1, 2])
+        return out
+    den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
+    out[:, :, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den
+    out[:, :, 1] = (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -350,7 +357,8 @@ class _NormalEquations:
     sparse LU solve (the membrane L uses 5 of the same diagonals).
     """
 
-    def __init__(self, pts: np.ndarray, gshape: tuple[int, int], s: float) -> None:
+    def __init__(self, pts: np.ndarray, gshape: tuple[int, int], s: float,
+                 edge_weights: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         B = _bilinear_matrix(pts, gshape, s)
         n, m = B.shape
         gh, gw = gshape
@@ -362,40 +370,68 @@ class _NormalEquations:
         # (corner p, corner q) -> diagonal of offset idx(q) - idx(p); corners (i,j), (i,j+1), (i+1,j), (i+1,j+1)
         corner = np.array([0, 1, gw, gw + 1])
         self.pairs = [(p, q, where[int(corner[q] - corner[p])]) for p in range(4) for q in range(4)]
-        # membrane: node degree on the main diagonal, -1 on the 4-neighbour edges that exist
+        # membrane: weighted node degree on the main diagonal, -weight on the 4-neighbour edges
+        wh = np.ones((gh, gw - 1)) if edge_weights is None else edge_weights[0]
+        wv = np.ones((gh - 1, gw)) if edge_weights is None else edge_weights[1]
         idx = np.arange(m).reshape(gh, gw)
         lap = np.zeros((len(self.offsets), m))
-        right = np.zeros((gh, gw))
-        right[:, :-1] = 1.0
-        down = np.zeros((gh, gw))
-        down[:-1, :] = 1.0
-        deg = right + down
-        deg[:, 1:] += right[:, :-1]
-        deg[1:, :] += down[:-1, :]
+        deg = np.zeros((gh, gw))
+        deg[:, :-1] += wh
+        deg[:, 1:] += wh
+        deg[:-1, :] += wv
+        deg[1:, :] += wv
         lap[0] = deg.ravel()
         # dia storage: data[k, c] holds A[c - offset, c]
-        lap[where[1], idx[:, 1:].ravel()] = -1.0
-        lap[where[-1], idx[:, :-1].ravel()] = -1.0
-        lap[where[gw], idx[1:, :].ravel()] = -1.0
-        lap[where[-gw], idx[:-1, :].ravel()] = -1.0
+        lap[where[1], idx[:, 1:].ravel()] = -wh.ravel()
+        lap[where[-1], idx[:, :-1].ravel()] = -wh.ravel()
+        lap[where[gw], idx[1:, :].ravel()] = -wv.ravel()
+        lap[where[-gw], idx[:-1, :].ravel()] = -wv.ravel()
         self.lap = lap
 
     def interpolate(self, U: np.ndarray) -> np.ndarray:
         """(N, 2) ``B U``."""
         return np.einsum("nk,nkc->nc", self.vals, U[self.cols])
 
-    def solve(self, w: np.ndarray, target: np.ndarray, alpha: float, eps: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(U (M, 2), node data weights (M,))``."""
+    def solve(self, w: np.ndarray, target: np.ndarray, alpha: float, eps: float, x0: np.ndarray | None = None,
+              *, maxiter: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``(U (M, 2), node data weights (M,))``: sparse LU, or with ``maxiter`` > 0 at most that many
+        Jacobi-preconditioned conjugate-gradient steps from ``x0`` (an inexact step of the ICP)."""
         data = alpha * self.lap
         data[0] += eps
         wv = w[:, None] * self.vals
         for p, q, k in self.pairs:
             data[k] += np.bincount(self.cols[:, q], weights=wv[:, p] * self.vals[:, q], minlength=self.m)
-        A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc()
+        A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc() if maxiter <= 0 or x0 is None \
+            else sp.dia_matrix((data, self.offsets), shape=(self.m, self.m))
         rhs = np.column_stack([np.bincount(self.cols.ravel(), weights=(wv * target[:, c, None]).ravel(),
                                            minlength=self.m) for c in range(2)])
         node_w = np.bincount(self.cols.ravel(), weights=wv.ravel(), minlength=self.m)
-        return spla.splu(A).solve(rhs), node_w
+        if maxiter <= 0 or x0 is None:
+            return spla.splu(A).solve(rhs), node_w
+        A = A.tocsr()
+        Minv = sp.diags(1.0 / data[0])
+        out = np.empty_like(rhs)
+        for c in range(2):
+            out[:, c], _ = spla.cg(A, rhs[:, c], x0=x0[:, c], rtol=1e-4, maxiter=maxiter, M=Minv)
+        return out, node_w
+
+
+def _edge_weights(img: np.ndarray, gshape: tuple[int, int], s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Image-driven membrane weights: ``1 / (1 + (d / 2 tau)^2)`` per grid edge (Perona & Malik 1990's
+    diffusivity), ``d`` the colour difference between the two nodes in the moving image blurred to the
+    grid's scale and ``tau`` its robust spread over all edges (1.4826 x median). Motion is smooth within
+    a surface and jumps at its outline, which is where colour changes: the field may bend there."""
+    gh, gw = gshape
+    blur = cv2.GaussianBlur(img, (0, 0), 0.5 * s)
+    h, w = img.shape[:2]
+    ys = np.clip(np.rint(np.arange(gh) * s), 0, h - 1).astype(np.intp)
+    xs = np.clip(np.rint(np.arange(gw) * s), 0, w - 1).astype(np.intp)
+    c = blur[ys][:, xs].astype(np.float64)
+    dh = np.linalg.norm(c[:, 1:] - c[:, :-1], axis=2)
+    dv = np.linalg.norm(c[1:, :] - c[:-1, :], axis=2)
+    tau = 1.4826 * float(np.median(np.concatenate([dh.ravel(), dv.ravel()])))
+    tau = max(tau, 1e-3)
+    return 1.0 / (1.0 + (dh / (2 * tau)) ** 2), 1.0 / (1.0 + (dv / (2 * tau)) ** 2)
 
 
 def _membrane(gshape: tuple[int, int]) -> sp.csr_matrix:
@@ -472,6 +508,7 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
                    finest_level: int = 1, iterations: int = 4, grid_spacing: float = 8.0, radius: int = 3,
                    fine_radius: int = 2,
                    max_points: int = 10000, stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE, strain: float = 0.25,
+                   edge_aware: bool = False, cg_iterations: int = 30,
                    global_levels: int = 4, global_iterations: int = 14, init: str | np.ndarray = "identity",
                    backend: str = "reference", seed: int = 0,
                    callback: Callable[[DenseIteration], None] | None = None) -> DenseRegistrationResult:
@@ -491,6 +528,11 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     max_points : moving samples per level at most (at random with ``seed``).
     stiffness : the schedule multiplying the membrane weight (the last value repeats).
     strain : the largest plausible motion gradient (px per px), which sets the membrane weight.
+    edge_aware : weight each membrane edge by the moving image's colour change across it
+        (:func:`_edge_weights`), so the field can bend at object outlines; False: a uniform membrane.
+    cg_iterations : each step solves the grid's equations inexactly, with at most this many
+        Jacobi-preconditioned conjugate-gradient iterations warm-started from the last field (the
+        ICP iterates anyway); 0: an exact sparse LU solve each step.
     callback : called with a :class:`DenseIteration` after every iteration.
     Returns a :class:`DenseRegistrationResult`.
     """
@@ -503,8 +545,9 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         raise InputError(f"unknown global motion model {model!r}; choose one of {', '.join(MODELS)}")
     if not 1 <= levels <= 8 or not 0 <= finest_level < levels:
         raise InputError(f"need 1 <= levels <= 8 and 0 <= finest_level < levels, got {levels}, {finest_level}")
-    if iterations < 1 or radius < 1 or fine_radius < 1 or max_points < 16 or not grid_spacing >= 2:
-        raise InputError("iterations and radius must be >= 1, max_points >= 16 and grid_spacing >= 2")
+    if iterations < 1 or radius < 1 or fine_radius < 1 or max_points < 16 or not grid_spacing >= 2 or cg_iterations < 0:
+        raise InputError("iterations and radius must be >= 1, max_points >= 16, grid_spacing >= 2 and "
+                         "cg_iterations >= 0")
     if not stiffness or any(not (np.isfinite(s) and s > 0) for s in stiffness):
         raise InputError("stiffness must be a non-empty sequence of positive numbers")
     h, w = ref.shape[:2]
@@ -561,7 +604,7 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         if len(P) < 16:
             continue
         R_match = R if val_r[level].all() else np.where(val_r[level][:, :, None], R, np.float32(10.0))
-        NE = _NormalEquations(P, gshape, s)
+        NE = _NormalEquations(P, gshape, s, _edge_weights(Mv, gshape, s) if edge_aware else None)
         Gl = _level_matrix(T, level)
         GP = _apply(Gl, P)
         f = float(2 ** level)
@@ -586,7 +629,7 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
                 break
             k = stiffness[min(it, len(stiffness) - 1)]
             alpha = k * base_alpha
-            U, weights_node = NE.solve(wts, target, alpha, 1e-4 * alpha)
+            U, weights_node = NE.solve(wts, target, alpha, 1e-4 * alpha, U, maxiter=cg_iterations)
             total_it += 1
             sw = float(wts.sum())
             rms = f * math.sqrt(float((wts * (res ** 2).sum(axis=1)).sum()) / sw) if sw > 0 else 0.0

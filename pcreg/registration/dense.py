@@ -13,6 +13,9 @@ displacement field by a non-rigid ICP, coarse to fine:
   (bilinear) instead of cubic B-splines. From one level to the next the grid is interpolated and its
   displacements doubled; every level keeps the same spacing in its own pixels, so the field gets finer
   as the images do.
+- **Colour.** Matching uses each level's texture part (the image minus its 1-pixel Gaussian blur, with
+  a twentieth of the blur kept; Wedel et al. 2009's structure-texture split), so brightness, colour
+  temperature, shadows and haze that change between frames are not read as motion.
 - **Correspondences.** Each moving point's nearest neighbour in ``(x, y, lam * colour)`` among the
   reference pixels within a gate of ``radius`` pixels of the level around where the field puts it
   (an exact search over the window, compiled with numba), refined to sub-pixel by a Gauss-Newton
@@ -494,6 +497,17 @@ def _samples(img: np.ndarray, sigma: float, *, max_points: int, seed: int, valid
     return np.column_stack([xs, ys]).astype(np.float64), img[ys, xs].astype(np.float32), rate
 
 
+def _texture(img: np.ndarray, sigma: float, structure: float = 0.05) -> np.ndarray:
+    """The texture part of an image, ``I - (1 - structure) G_sigma * I`` (the structure-texture split of
+    Wedel et al. 2009, "An improved algorithm for TV-L1 optical flow", keeping a twentieth of the
+    structure). It removes what varies slowly across the image: brightness and colour-temperature
+    changes, drifting shadows, haze, which colour matching would otherwise read as motion. With
+    ``sigma`` of about one pixel of the level, each pyramid level matches its own octave of detail
+    (the band of a Laplacian pyramid, Burt & Adelson 1983) and the coarser octaves are matched at the
+    coarser levels, so nothing is lost to the split."""
+    return (img - (1.0 - structure) * cv2.GaussianBlur(img, (0, 0), sigma)).astype(np.float32)
+
+
 def _tukey(r: np.ndarray, c: float) -> np.ndarray:
     u = r / c
     return np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
@@ -508,7 +522,7 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
                    finest_level: int = 1, iterations: int = 4, grid_spacing: float = 8.0, radius: int = 3,
                    fine_radius: int = 2,
                    max_points: int = 10000, stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE, strain: float = 0.25,
-                   edge_aware: bool = False, cg_iterations: int = 30,
+                   edge_aware: bool = False, cg_iterations: int = 30, texture: float | None = 1.0,
                    global_levels: int = 4, global_iterations: int = 14, init: str | np.ndarray = "identity",
                    backend: str = "reference", seed: int = 0,
                    callback: Callable[[DenseIteration], None] | None = None) -> DenseRegistrationResult:
@@ -530,6 +544,8 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     strain : the largest plausible motion gradient (px per px), which sets the membrane weight.
     edge_aware : weight each membrane edge by the moving image's colour change across it
         (:func:`_edge_weights`), so the field can bend at object outlines; False: a uniform membrane.
+    texture : match on each level's texture part (:func:`_texture`), the image minus its Gaussian blur
+        of ``texture`` pixels of the level; None matches the plain colours.
     cg_iterations : each step solves the grid's equations inexactly, with at most this many
         Jacobi-preconditioned conjugate-gradient iterations warm-started from the last field (the
         ICP iterates anyway); 0: an exact sparse LU solve each step.
@@ -600,9 +616,12 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         lam = 1.0 / (math.sqrt(6.0) * sigma)
         # pixels near black padding are not scene content
         valid = cv2.erode(val_m[level].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0 if not val_m[level].all() else None
-        P, C, rate = _samples(Mv, sigma, max_points=max_points, seed=seed + level, valid=valid)
+        P, _, rate = _samples(Mv, sigma, max_points=max_points, seed=seed + level, valid=valid)
         if len(P) < 16:
             continue
+        if texture is not None:
+            R, Mv = _texture(R, texture), _texture(Mv, texture)
+        C = Mv[P[:, 1].astype(np.intp), P[:, 0].astype(np.intp)]
         R_match = R if val_r[level].all() else np.where(val_r[level][:, :, None], R, np.float32(10.0))
         NE = _NormalEquations(P, gshape, s, _edge_weights(Mv, gshape, s) if edge_aware else None)
         Gl = _level_matrix(T, level)

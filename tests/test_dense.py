@@ -226,3 +226,15 @@ def test_temporal_chain_never_worse_than_plain_through_failed_and_poor_registrat
     after = [p for p in res.pairs if 4 <= p.moving < 8]
     assert np.mean([p.errors["augmented_temporal"] for p in after]) <= np.mean([p.errors["plain"] for p in after])
     assert res.means["augmented_temporal"] <= res.means["plain"]
+
+
+def test_a_change_of_brightness_and_colour_is_not_read_as_motion(warped_pair):
+    ref, mov, F = warped_pair
+    # the camera's exposure and white balance change between the frames
+    lit = np.clip(mov.astype(np.float32) * np.array([1.2, 1.1, 0.9], np.float32) + 12.0, 0, 255).astype(np.uint8)
+    res = register_dense(ref, lit, levels=4)
+    inner = (slice(16, -16), slice(16, -16))
+    err = np.linalg.norm(res.field - F, axis=2)[inner]
+    assert np.median(err) < 0.8, np.median(err)
+    plain = register_dense(ref, lit, levels=4, texture=None)
+    assert np.median(err) < np.median(np.linalg.norm(plain.field - F, axis=2)[inner])

@@ -98,7 +98,7 @@ def main(argv=None) -> int:
                "cpus_used": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
                "cpus_total": os.cpu_count(), "loadavg_at_end": load, "python": platform.python_version()}
 
-    from pcreg._io import atomic_write_json, atomic_write_text, markdown_table
+    from pcreg.outputs import atomic_write_json, atomic_write_text, markdown_table
 
     out = Path(args.out)
     atomic_write_json(out / "bench_dense.json", {"data": desc, "machine": machine,

@@ -49,12 +49,12 @@ from pcreg.registration.clouds import (
     image_cloud as image_cloud,
     load_image as load_image,
 )
+from pcreg.registration.config import (
+    RegisterConfig as RegisterConfig,
+)
 from pcreg.registration.dense import (
     DenseRegistrationResult as DenseRegistrationResult,
     register_dense as register_dense,
-)
-from pcreg.registration.config import (
-    RegisterConfig as RegisterConfig,
 )
 from pcreg.registration.result import (
     IcpIteration as IcpIteration,

@@ -238,3 +238,30 @@ def test_a_change_of_brightness_and_colour_is_not_read_as_motion(warped_pair):
     assert np.median(err) < 0.8, np.median(err)
     plain = register_dense(ref, lit, levels=4, texture=None)
     assert np.median(err) < np.median(np.linalg.norm(plain.field - F, axis=2)[inner])
+
+
+def test_compiled_normal_equations_match_scipy():
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from pcreg.registration.dense import _NormalEquations
+
+    rng = np.random.default_rng(0)
+    ne = _NormalEquations(rng.uniform(0, [160, 120], (3000, 2)), (16, 21), 8.0)
+    w = rng.random(3000)
+    w[::5] = 0.0
+    t = rng.normal(size=(3000, 2))
+    x0 = rng.normal(size=(ne.m, 2))
+    U_cg, node_w = ne.solve(w, t, 0.25, 1e-5, x0, maxiter=40)
+    U_lu, _ = ne.solve(w, t, 0.25, 1e-5)
+    # the same system assembled with scipy.sparse from the bilinear matrix
+    from pcreg.registration.dense import _bilinear_matrix, _membrane
+
+    B = sp.csr_matrix((ne.vals.ravel(), ne.cols.ravel(), np.arange(0, 4 * 3000 + 1, 4)), shape=(3000, ne.m))
+    A = (B.T @ sp.diags(w) @ B + 0.25 * _membrane((16, 21)) + 1e-5 * sp.identity(ne.m)).tocsc()
+    np.testing.assert_allclose(U_lu, spla.spsolve(A, B.T @ (w[:, None] * t)), atol=1e-8)
+    np.testing.assert_allclose(node_w, B.T @ w, atol=1e-10)
+    x_ref, _ = spla.cg(A, (B.T @ (w[:, None] * t))[:, 0], x0=x0[:, 0].copy(), rtol=1e-4, maxiter=40,
+                       M=sp.diags(1.0 / A.diagonal()))
+    np.testing.assert_allclose(U_cg[:, 0], x_ref, atol=1e-9)
+    assert _bilinear_matrix(np.array([[3.0, 4.0]]), (16, 21), 8.0).sum() == pytest.approx(1.0)

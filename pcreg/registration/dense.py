@@ -373,6 +373,8 @@ class _NormalEquations:
         # (corner p, corner q) -> diagonal of offset idx(q) - idx(p); corners (i,j), (i,j+1), (i+1,j), (i+1,j+1)
         corner = np.array([0, 1, gw, gw + 1])
         self.pairs = [(p, q, where[int(corner[q] - corner[p])]) for p in range(4) for q in range(4)]
+        self.pair_k = np.array([[where[int(corner[q] - corner[p])] for q in range(4)] for p in range(4)], np.int64)
+        self.offsets = self.offsets.astype(np.int64)
         # membrane: weighted node degree on the main diagonal, -weight on the 4-neighbour edges
         wh = np.ones((gh, gw - 1)) if edge_weights is None else edge_weights[0]
         wv = np.ones((gh - 1, gw)) if edge_weights is None else edge_weights[1]
@@ -398,25 +400,91 @@ class _NormalEquations:
     def solve(self, w: np.ndarray, target: np.ndarray, alpha: float, eps: float, x0: np.ndarray | None = None,
               *, maxiter: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """``(U (M, 2), node data weights (M,))``: sparse LU, or with ``maxiter`` > 0 at most that many
-        Jacobi-preconditioned conjugate-gradient steps from ``x0`` (an inexact step of the ICP)."""
+        Jacobi-preconditioned conjugate-gradient steps from ``x0`` (an inexact step of the ICP), both
+        compiled with numba where it is installed (the same arithmetic as scipy's ``cg``)."""
         data = alpha * self.lap
         data[0] += eps
-        wv = w[:, None] * self.vals
-        for p, q, k in self.pairs:
-            data[k] += np.bincount(self.cols[:, q], weights=wv[:, p] * self.vals[:, q], minlength=self.m)
-        A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc() if maxiter <= 0 or x0 is None \
-            else sp.dia_matrix((data, self.offsets), shape=(self.m, self.m))
-        rhs = np.column_stack([np.bincount(self.cols.ravel(), weights=(wv * target[:, c, None]).ravel(),
-                                           minlength=self.m) for c in range(2)])
-        node_w = np.bincount(self.cols.ravel(), weights=wv.ravel(), minlength=self.m)
+        rhs = np.zeros((self.m, 2))
+        node_w = np.zeros(self.m)
+        _assemble(self.cols, self.vals, np.ascontiguousarray(w, dtype=np.float64),
+                  np.ascontiguousarray(target, dtype=np.float64), self.pair_k, data, rhs, node_w)
         if maxiter <= 0 or x0 is None:
+            A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc()
             return spla.splu(A).solve(rhs), node_w
-        A = A.tocsr()
-        Minv = sp.diags(1.0 / data[0])
         out = np.empty_like(rhs)
         for c in range(2):
-            out[:, c], _ = spla.cg(A, rhs[:, c], x0=x0[:, c], rtol=1e-4, maxiter=maxiter, M=Minv)
+            out[:, c] = _cg_dia(data, self.offsets, np.ascontiguousarray(rhs[:, c]),
+                                np.array(x0[:, c], dtype=np.float64), int(maxiter), 1e-4)
         return out, node_w
+
+
+def _assemble_py(cols, vals, w, target, pair_k, data, rhs, node_w):
+    """Scatter the samples into the 9 diagonals of ``B^T W B`` (``data[k, c] += w v_p v_q`` at column
+    ``c = cols[q]``), into ``B^T W t`` and into the nodes' data weights."""
+    n = cols.shape[0]
+    for i in range(n):
+        wi = w[i]
+        if wi == 0.0:
+            continue
+        for p in range(4):
+            a = cols[i, p]
+            wv = wi * vals[i, p]
+            node_w[a] += wv
+            rhs[a, 0] += wv * target[i, 0]
+            rhs[a, 1] += wv * target[i, 1]
+            for q in range(4):
+                data[pair_k[p, q], cols[i, q]] += wv * vals[i, q]
+
+
+def _cg_dia_py(data, offsets, b, x, maxiter, rtol):
+    """Jacobi-preconditioned conjugate gradients on a matrix in DIA storage (``A[c - offsets[k], c] =
+    data[k, c]``), from ``x``, until ``|r| <= rtol |b|`` or ``maxiter`` steps (scipy's ``cg`` rule)."""
+    m = b.shape[0]
+    nd = offsets.shape[0]
+
+    def matvec(v, out):
+        for r in range(m):
+            out[r] = 0.0
+        for k in range(nd):
+            off = offsets[k]
+            lo = max(0, -off)
+            hi = min(m, m - off)
+            for r in range(lo, hi):
+                c = r + off
+                out[r] += data[k, c] * v[c]
+
+    Ax = np.empty(m)
+    matvec(x, Ax)
+    r = b - Ax
+    bnorm = math.sqrt(float(np.dot(b, b)))
+    tol = rtol * bnorm
+    if bnorm == 0.0:
+        return np.zeros(m)
+    z = r / data[0]
+    pvec = z.copy()
+    rz = float(np.dot(r, z))
+    Ap = np.empty(m)
+    for _ in range(maxiter):
+        if math.sqrt(float(np.dot(r, r))) <= tol:
+            break
+        matvec(pvec, Ap)
+        alpha = rz / float(np.dot(pvec, Ap))
+        x += alpha * pvec
+        r -= alpha * Ap
+        z = r / data[0]
+        rz_new = float(np.dot(r, z))
+        pvec = z + (rz_new / rz) * pvec
+        rz = rz_new
+    return x
+
+
+try:
+    from numba import njit as _njit
+
+    _assemble = _njit(cache=True, nogil=True)(_assemble_py)
+    _cg_dia = _njit(cache=True, nogil=True)(_cg_dia_py)
+except ImportError:  # pragma: no cover - numba is a declared dependency
+    _assemble, _cg_dia = _assemble_py, _cg_dia_py
 
 
 def _edge_weights(img: np.ndarray, gshape: tuple[int, int], s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -52,12 +52,17 @@ from pcreg.registration.clouds import (
 from pcreg.registration.config import (
     RegisterConfig as RegisterConfig,
 )
+from pcreg.registration.dense import (
+    DenseRegistrationResult as DenseRegistrationResult,
+    register_dense as register_dense,
+)
 from pcreg.registration.result import (
     IcpIteration as IcpIteration,
     RegistrationResult as RegistrationResult,
 )
 from pcreg.registration.warp import (
     warp as warp,
+    warp_to_moving as warp_to_moving,
 )
 
 __version__: str

@@ -4,5 +4,7 @@
 - :mod:`.reference`: pcreg's reference ICP (Besl & McKay; Umeyama/Horn closed forms);
 - :mod:`.open3d_icp`: Open3D's point-to-point ICP on clouds lifted to z = 0;
 - :mod:`.api`: ``icp`` (clouds) and ``register`` (images, with the global search);
+- :mod:`.dense`: ``register_dense``, the global result refined into a dense field by a non-rigid ICP;
+- :mod:`.flow`: OpenCV's DIS optical flow as a field (the baseline of the evaluations);
 - :mod:`.warp`, :mod:`.transforms`, :mod:`.result`: warping, homogeneous transforms, result types.
 """

@@ -177,7 +177,7 @@ def _load_image(name, **kw):
 
 def _load_cloud(name):
     def f(t):
-        from pcreg.crosschecks import load_cloud
+        from pcreg.implementations.crosscheck import load_cloud
 
         return load_cloud(t / name)
     return f
@@ -418,7 +418,7 @@ def test_pixel_limit_can_be_raised(files, monkeypatch):
 
 
 def test_a_complete_ply_still_loads(files):
-    from pcreg.crosschecks import load_cloud
+    from pcreg.implementations.crosscheck import load_cloud
 
     assert load_cloud(files / "ok.ply").shape == (400, 3)
 

@@ -354,10 +354,14 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
 
     Failure signal: the winner's ``inlier_ratio`` is the share of moving edge points, among those that
     land on the reference image, with a reference edge point within ``inlier_tolerance`` px whose edge
-    direction agrees within 30°. Below ``min_inlier_ratio`` (see :data:`DEFAULT_MIN_INLIER_RATIO`; None
-    turns the test off) :class:`~pcreg.errors.RegistrationError` is raised with a one-line reason, as
-    when no moving point lands on the reference (no overlap). Unrelated images, noise and mirror images
-    are refused this way.
+    direction agrees within 30° (measured at full resolution; on images whose full-resolution reference
+    cloud hits ``reference_max_points``, at the finest level where it does not, with the tolerance scaled
+    to it). ``chance_ratio`` is what unrelated content reaches at the same distances. Below
+    ``min_inlier_ratio`` (see :data:`DEFAULT_MIN_INLIER_RATIO`; None turns the test off), below
+    :data:`CHANCE_FACTOR` x ``chance_ratio``, with fewer than 2% of the points on the reference (no
+    overlap), or when the moving image's mirror aligns clearly better (:data:`MIRROR_FACTOR`),
+    :class:`~pcreg.errors.RegistrationError` is raised with a one-line reason. Unrelated images, noise
+    and mirror images are refused this way.
 
     backend : ``"reference"`` or ``"open3d"``: the ICP of every step (candidates, levels, finish).
     refine : ``"none"`` (default) or ``"point_to_line"``: point-to-line iterations (Tukey weights) at

@@ -15,8 +15,8 @@ def positive_int(text: str) -> int:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    if v < 1 or v > 1_000_000:
+        raise argparse.ArgumentTypeError(f"expected a positive integer (at most 1000000), got {v}")
     return v
 
 

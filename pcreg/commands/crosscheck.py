@@ -25,7 +25,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", choices=("rigid", "similarity"), default="rigid", help="images: motion model")
     p.add_argument("--iterations", "--max-iterations", dest="iterations", type=positive_int, default=30,
                    help="max ICP iterations (per level for images)")
-    p.add_argument("--levels", type=positive_int, default=4, help="images: pyramid levels")
+    from ..validation import arg_int
+
+    p.add_argument("--levels", type=arg_int(1, 8), default=4, help="images: pyramid levels")
     p.add_argument("--max-distance", type=positive_float, default=None,
                    help="correspondence distance: images, px at full resolution (x 2^level; default 2.5); "
                         "clouds, in their units (default 1%% of the target's bounding-box diagonal)")

@@ -651,7 +651,7 @@ def _all_subcommands():
     return parser, found
 
 
-def test_every_option_with_hostile_values(tmp_path, capsys):
+def test_every_option_with_hostile_values(tmp_path, capsys, monkeypatch):
     """Every option of every command, given each hostile value: refused with one line and exit 2, or
     accepted and run (register, crosscheck on two small images) to exit 0 or 2 — never a traceback or
     an unexpected error. Evaluations are parsed and their config built, not run."""
@@ -659,6 +659,7 @@ def test_every_option_with_hostile_values(tmp_path, capsys):
 
     from pcreg.cli import main
 
+    monkeypatch.chdir(tmp_path)  # an accepted value such as `--out nan` writes its file here
     cv2.imwrite(str(tmp_path / "a.png"), GOOD[:, :, ::-1])
     cv2.imwrite(str(tmp_path / "b.png"), np.roll(GOOD, 3, axis=1)[:, :, ::-1])
     parser, commands = _all_subcommands()

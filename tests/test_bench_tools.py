@@ -98,3 +98,13 @@ def test_bench_recording_measures_the_real_sequence_pipeline(tmp_path, monkeypat
     assert report["pairs"] == 3 and report["overhead_ratio"] > 0 and report["recording_mb"] > 0
     assert report["command"].startswith("python ") and report["machine"]["cpu_count"] >= 1
     assert "### Checks" in (out / "recording.md").read_text()
+
+
+def test_bench_dense_runs_and_reports_the_ratio_to_dis(tmp_path):
+    bench = _load("bench_dense")
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--pairs", "1", "--repeats", "1"]) == 0
+    report = json.loads((out / "bench_dense.json").read_text())
+    assert report["pairs"] == 1 and report["ratio_to_dis"]["dis_medium"] == 1.0
+    assert set(report["median_ms"]) == {"dis_medium", "dense_step", "global", "dense_total"}
+    assert "ratio to DIS medium" in (out / "bench_dense.md").read_text()

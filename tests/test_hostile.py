@@ -177,7 +177,7 @@ def _load_image(name, **kw):
 
 def _load_cloud(name):
     def f(t):
-        from pcreg.crosschecks import load_cloud
+        from pcreg.implementations.crosscheck import load_cloud
 
         return load_cloud(t / name)
     return f
@@ -418,7 +418,7 @@ def test_pixel_limit_can_be_raised(files, monkeypatch):
 
 
 def test_a_complete_ply_still_loads(files):
-    from pcreg.crosschecks import load_cloud
+    from pcreg.implementations.crosscheck import load_cloud
 
     assert load_cloud(files / "ok.ply").shape == (400, 3)
 
@@ -651,7 +651,7 @@ def _all_subcommands():
     return parser, found
 
 
-def test_every_option_with_hostile_values(tmp_path, capsys):
+def test_every_option_with_hostile_values(tmp_path, capsys, monkeypatch):
     """Every option of every command, given each hostile value: refused with one line and exit 2, or
     accepted and run (register, crosscheck on two small images) to exit 0 or 2 — never a traceback or
     an unexpected error. Evaluations are parsed and their config built, not run."""
@@ -659,6 +659,7 @@ def test_every_option_with_hostile_values(tmp_path, capsys):
 
     from pcreg.cli import main
 
+    monkeypatch.chdir(tmp_path)  # an accepted value such as `--out nan` writes its file here
     cv2.imwrite(str(tmp_path / "a.png"), GOOD[:, :, ::-1])
     cv2.imwrite(str(tmp_path / "b.png"), np.roll(GOOD, 3, axis=1)[:, :, ::-1])
     parser, commands = _all_subcommands()

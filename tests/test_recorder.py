@@ -359,3 +359,34 @@ def test_entities_tracked_match_the_file(recorded):
     assert "/registration/reference" in on_file and "EncodedImage" in on_file["/registration/reference"]
     assert "Scalars" in on_file["/icp/open3d/fitness"] and "Points2D" in on_file["/icp/reference/moving"]
     assert not any(p.startswith("/__") for p in on_file)
+
+
+def test_dense_field_is_logged_under_dense(tmp_path):
+    path = tmp_path / "dense.rrd"
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float32)
+    field = np.dstack([xs + 3.0 + 0.05 * ys, ys - 4.0]).astype(np.float32)
+    T = np.array([[1.0, 0, 3.0], [0, 1.0, -4.0], [0, 0, 1.0]])
+    conf = np.linspace(0, 1, H * W, dtype=np.float32).reshape(H, W)
+    with Recorder(path, recording_id="dense-1", raw_images=True) as rec:
+        rec.set_frame(0)
+        rec.log_dense(field, matrix=T, confidence=conf, warped_prior=1.0 - conf, quiver_step=16)
+        with pytest.raises(InputError):
+            rec.log_dense(field[..., :1])
+        with pytest.raises(InputError):
+            rec.log_dense(field, confidence=conf[:10])
+    r = read_recording(path)
+    top = float(np.hypot(3.0 + 0.05 * ys, -4.0).max())
+    assert r.series(E.DENSE_MAX_DISPLACEMENT)[0] == pytest.approx(top, rel=1e-5)
+    mag = image(r.latest(E.DENSE_DISPLACEMENT, frame=0))
+    assert mag.shape == (H, W, 3)
+    refine = image(r.latest(E.DENSE_REFINEMENT, frame=0))
+    assert refine.shape == (H, W, 3)
+    # refinement 0.05 y grows down the image: the colour map changes between top and bottom rows
+    assert not np.array_equal(refine[0], refine[-1])
+    c = image(r.latest(E.DENSE_CONFIDENCE, frame=0))
+    assert c.shape == (H, W) and c[0, 0] == 0 and c[-1, -1] == 255
+    assert image(r.latest(E.DENSE_WARPED_PRIOR, frame=0))[0, 0] == 255
+    row = r.latest(E.DENSE_QUIVER, frame=0)
+    vectors = np.asarray(row["Arrows2D:vectors"].to_pylist(), dtype=np.float32).reshape(-1, 2)
+    assert len(vectors) == (H // 16) * (W // 16)
+    np.testing.assert_allclose(vectors[:, 1], -4.0, atol=1e-5)

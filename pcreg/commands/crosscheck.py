@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not (args.a and args.b):
         raise InputError("give two images or two clouds A B (or --export DIR / --suite DIR)")
-    from ..crosschecks import CLOUD_SUFFIXES
+    from ..implementations.crosscheck import CLOUD_SUFFIXES
 
     if args.a.lower().endswith(CLOUD_SUFFIXES) or args.b.lower().endswith(CLOUD_SUFFIXES):
         return _clouds(args)
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _suite(args) -> dict:
-    from ..crosscheck_suite import builtin_cases, export_suite, load_suite, run_suite, write_results
+    from ..implementations.suite import builtin_cases, export_suite, load_suite, run_suite, write_results
 
     out: dict = {}
     if args.export:
@@ -123,7 +123,7 @@ def _suite(args) -> dict:
 
 
 def _clouds(args) -> int:
-    from ..crosschecks import crosscheck
+    from ..implementations.crosscheck import crosscheck
     from ..implementations import stdout_to_stderr
 
     init = None
@@ -208,7 +208,7 @@ def format_table(out: dict) -> str:
 
 
 def _images(args) -> int:
-    from ..crosschecks import CrosscheckConfig, crosscheck
+    from ..implementations.crosscheck import CrosscheckConfig, crosscheck
 
     if args.implementations:
         from ..errors import InputError

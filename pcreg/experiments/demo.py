@@ -42,7 +42,7 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     """Run every part and write ``out/report.md``; returns its path. Overwrites earlier demo output."""
     import numpy as np
 
-    from ..crosschecks import crosscheck
+    from ..implementations.crosscheck import crosscheck
     from ..outputs import atomic_write_json, atomic_write_text
     from .._runner import make_executor
     from ..datasets import load_dataset

@@ -30,6 +30,12 @@ Layout (``{x}`` is filled in at log time)::
     icp/{backend}/correspondences       LineStrips2D: a subsample of source -> target pairs
     icp/{backend}/fitness               Scalars on the icp_iteration timeline
     icp/{backend}/inlier_rmse           Scalars on the icp_iteration timeline
+    dense/displacement                  Image RGB: |field(p) - p| of a dense registration, colour-mapped (moving frame)
+    dense/refinement                    Image RGB: |field(p) - T_ref_mov p|, what the dense step adds to the global one
+    dense/quiver                        Arrows2D: field(p) - p on a coarse grid of moving pixels
+    dense/confidence                    Image L: the field's per-pixel confidence, 0..255
+    dense/warped_prior                  Image L: reference labels' obstacle probability warped into the moving frame
+    dense/max_displacement              Scalars: the largest |field(p) - p| (px), the colour scale's top
     crosscheck/report                   TextDocument: both results and their disagreement as JSON
     crosscheck/{key}                    Scalars: every number of the report, nested keys joined by '/'
     crosscheck/target                   Points2D/3D: the target cloud of a cloud cross-check (static)
@@ -77,11 +83,19 @@ TRUTH = "labels/truth"
 PREDICTED = "labels/predicted"
 
 ERRORS = "errors"
+
+DENSE = "dense"
+DENSE_DISPLACEMENT = "dense/displacement"
+DENSE_REFINEMENT = "dense/refinement"
+DENSE_QUIVER = "dense/quiver"
+DENSE_CONFIDENCE = "dense/confidence"
+DENSE_WARPED_PRIOR = "dense/warped_prior"
+DENSE_MAX_DISPLACEMENT = "dense/max_displacement"
+
 ICP = "icp"
 CROSSCHECK = "crosscheck"
 CROSSCHECK_REPORT = "crosscheck/report"
 CROSSCHECK_TARGET = "crosscheck/target"
-DENSE = "dense"
 
 #: The recording property (``/__properties/pcreg``) that holds the kind of recording.
 PROPERTY = "pcreg"

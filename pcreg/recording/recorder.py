@@ -495,6 +495,67 @@ class Recorder:
             corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5], [-0.5, -0.5]])
             self._log(E.outline_path(name), rr.LineStrips2D([_apply(m, corners)], colors=[255, 220, 0], radii=1.0))
 
+    # -- dense fields ---------------------------------------------------------------------------
+
+    def log_dense(
+        self,
+        field: np.ndarray,
+        *,
+        matrix: np.ndarray | None = None,
+        confidence: np.ndarray | None = None,
+        warped_prior: np.ndarray | None = None,
+        quiver_step: int = 24,
+    ) -> None:
+        """Log a dense registration's field under ``dense/``, in the moving image's pixel frame.
+
+        field : (H, W, 2) float reference coordinates of every moving pixel.
+        matrix : (3, 3) the global ``T_ref_mov`` the field refines: ``dense/refinement`` shows
+            ``|field(p) - T p|``. confidence : (H, W) float in [0, 1]. warped_prior : (H, W) float
+            obstacle probability of the reference labels warped into the moving frame.
+        Displacements (``|field(p) - p|``) are colour-mapped (TURBO, 0 to their maximum, which is
+        logged as ``dense/max_displacement``); ``dense/quiver`` draws ``field(p) - p`` every
+        ``quiver_step`` pixels.
+        """
+        f = np.asarray(field, dtype=np.float32)
+        if f.ndim != 3 or f.shape[2] != 2 or not np.all(np.isfinite(f)):
+            raise InputError(f"field must be a finite (H, W, 2) array, got shape {f.shape}")
+        h, w = f.shape[:2]
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        disp = f - np.dstack([xs, ys])
+        mag = np.hypot(disp[..., 0], disp[..., 1])
+        top = float(mag.max()) if mag.size else 0.0
+
+        def colour(m: np.ndarray, scale: float) -> np.ndarray:
+            u8 = np.clip(255.0 * m / max(scale, 1e-6), 0, 255).astype(np.uint8)
+            return cv2.cvtColor(cv2.applyColorMap(u8, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
+
+        jobs = [(E.DENSE_DISPLACEMENT, colour(mag, top))]
+        if matrix is not None:
+            M = np.asarray(matrix, dtype=np.float64)
+            if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+                raise InputError("matrix must be a finite (3, 3) array")
+            den = M[2, 0] * xs + M[2, 1] * ys + M[2, 2]
+            gx = (M[0, 0] * xs + M[0, 1] * ys + M[0, 2]) / den
+            gy = (M[1, 0] * xs + M[1, 1] * ys + M[1, 2]) / den
+            ref = np.hypot(f[..., 0] - gx, f[..., 1] - gy)
+            jobs.append((E.DENSE_REFINEMENT, colour(ref, float(ref.max()) if ref.size else 0.0)))
+        for path, img in jobs:
+            self._log_later(path, lambda img=img: self._image(img))
+        for path, a in ((E.DENSE_CONFIDENCE, confidence), (E.DENSE_WARPED_PRIOR, warped_prior)):
+            if a is None:
+                continue
+            a = np.asarray(a, dtype=np.float32)
+            if a.shape != (h, w):
+                raise InputError(f"{path.rsplit('/', 1)[-1]} must be (H, W) = {(h, w)}, got {a.shape}")
+            u8 = np.clip(255.0 * np.nan_to_num(a), 0, 255).astype(np.uint8)
+            self._log_later(path, lambda u8=u8: self._image(u8))
+        step = max(1, int(quiver_step))
+        sy, sx = slice(step // 2, h, step), slice(step // 2, w, step)
+        origins = np.column_stack([xs[sy, sx].ravel(), ys[sy, sx].ravel()])
+        vectors = disp[sy, sx].reshape(-1, 2)
+        self._log(E.DENSE_QUIVER, rr.Arrows2D(origins=origins, vectors=vectors, colors=[255, 220, 0], radii=0.8))
+        self._scalar(E.DENSE_MAX_DISPLACEMENT, top)
+
     # -- labels -------------------------------------------------------------------------------
 
     def log_labels(

@@ -27,7 +27,7 @@ sysdeps:
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test,crosscheck]"
+	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test,crosscheck,distributed]"
 	$(BIN)/python -m pip install -q --no-deps "probreg>=0.3.6"   # it declares the full open3d wheel; open3d-cpu serves
 	@touch $(STAMP)
 

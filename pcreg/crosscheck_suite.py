@@ -248,10 +248,12 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     """The cases of a suite written by :func:`export_suite` (or by hand in its format)."""
     path = Path(path)
     index = path / "index.json"
+    from .validation import read_regular_file
+
     try:
-        meta = json.loads(index.read_text())
+        meta = json.loads(read_regular_file(index, max_bytes=1 << 20, what="suite index"))
     except (OSError, ValueError) as exc:
-        raise InputError(f"{index}: not a cross-check suite index ({exc})") from None
+        raise InputError(f"{index}: not a cross-check suite index ({' '.join(str(exc).split())[:160]})") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("cases"), list):
         raise InputError(f"{index}: expected {{\"format\": ..., \"cases\": [...]}}")
     from .crosschecks import load_cloud
@@ -259,17 +261,23 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     cases = []
     for name in meta["cases"]:
         d = path / str(name)
-        try:
-            params = json.loads((d / "params.json").read_text())
-            info = json.loads((d / "case.json").read_text()) if (d / "case.json").exists() else {}
-            init = np.loadtxt(d / "init.txt", ndmin=2)
-            truth = np.loadtxt(d / "truth.txt", ndmin=2) if (d / "truth.txt").exists() else None
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{d}: unreadable case ({' '.join(str(exc).split())})") from None
-        cases.append(Case(str(name), str(info.get("description", "")), load_cloud(d / "source.npy"),
-                          load_cloud(d / "target.npy"), init, float(params["max_correspondence_distance"]),
-                          int(params.get("max_iterations", 30)), float(params.get("relative_fitness", 1e-6)),
-                          float(params.get("relative_rmse", 1e-6)), truth))
+        from .validation import read_text_matrix
+
+        try:  # regular files only, bounded reads; a damaged case is one line, never a traceback
+            params = json.loads(read_regular_file(d / "params.json", max_bytes=1 << 20, what="params.json"))
+            info = (json.loads(read_regular_file(d / "case.json", max_bytes=1 << 20, what="case.json"))
+                    if (d / "case.json").exists() else {})
+            init = read_text_matrix(d / "init.txt", what="initial guess")
+            truth = read_text_matrix(d / "truth.txt", what="ground truth") if (d / "truth.txt").exists() else None
+            case = Case(str(name), str(info.get("description", "")), load_cloud(d / "source.npy"),
+                        load_cloud(d / "target.npy"), init, float(params["max_correspondence_distance"]),
+                        int(params.get("max_iterations", 30)), float(params.get("relative_fitness", 1e-6)),
+                        float(params.get("relative_rmse", 1e-6)), truth)
+        except InputError:
+            raise
+        except (OSError, ValueError, KeyError, TypeError, AttributeError, OverflowError) as exc:
+            raise InputError(f"{d}: unreadable case ({type(exc).__name__}: {' '.join(str(exc).split())[:160]})") from None
+        cases.append(case)
     return cases
 
 

@@ -17,8 +17,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import InputError
-from .registration.clouds import as_rgb_uint8, cloud_pyramid, load_image
-from .registration.api import _global_search, check_cloud, icp
+from .registration.clouds import as_rgb_uint8, load_image
+from .registration.api import check_cloud, icp, register
 from .registration.result import IcpIteration, RegistrationResult
 from .registration.transforms import apply, corners, rotation_disagreement_deg
 
@@ -67,27 +67,77 @@ class CrosscheckReport:
         return out
 
 
-def load_cloud(path: str | os.PathLike) -> np.ndarray:
-    """Points (N, 3) (or (N, 2) from a .npy) from .ply/.pcd/.xyz/.pts via Open3D, or .npy via numpy."""
+def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.ndarray:
+    """Points (N, 3) (or (N, 2) from a .npy) from .ply/.pcd/.xyz/.pts via Open3D, or .npy via numpy.
+
+    Regular files only; the point count a PLY/PCD/NPY header declares must be within ``max_points``
+    (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
+    (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
+    """
+    from .validation import capture_output_fds, check_cloud_file, check_npy_file, max_pixels
+
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
     suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
+    limit = max_pixels(max_points)
+    check_cloud_file(path, limit=limit)
     if suffix == ".npy":
+        shape, _ = check_npy_file(path, limit)
+        if len(shape) != 2 or shape[1] not in (2, 3):
+            raise InputError(f"{path}: expected an (N, 2) or (N, 3) array of points, got shape {shape}")
         try:
             pts = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise InputError(f"{path}: not a numpy array file ({exc})") from None
-    elif suffix in CLOUD_SUFFIXES:
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(f"{path}: not a numpy array file ({str(exc)[:120]})") from None
+    else:
         import open3d as o3d
 
-        pcd = o3d.io.read_point_cloud(str(path))
+        with capture_output_fds() as said:  # Open3D prints its warnings on stdout (fd 1)
+            try:
+                pcd = o3d.io.read_point_cloud(str(path), format="auto", remove_nan_points=False,
+                                              remove_infinite_points=False)
+            except (RuntimeError, ValueError, MemoryError) as exc:
+                raise InputError(f"{path}: cannot read point cloud ({str(exc)[:120]})") from None
+        warning = _open3d_warning(said[0] if said else "")
+        if warning:  # Open3D fills what it could not read with zeros and only prints a warning
+            raise InputError(f"{path}: cannot read point cloud (Open3D: {warning})")
         pts = np.asarray(pcd.points)
         if pts.size == 0:
             raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
-    else:
-        raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
+        if len(pts) > limit:
+            raise InputError(f"{path}: {len(pts)} points exceed the limit of {limit} (raise --max-pixels)")
+        if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
+            _check_text_cloud(path, suffix, len(pts))
     return check_cloud(pts, str(path))
+
+
+def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
+    """Open3D skips the lines of a text cloud it cannot parse, silently: refuse a file where it did.
+    Every non-empty line is a point (``.pts``: after a first line with the point count)."""
+    first, count = None, 0
+    with open(path, "rb") as fh:
+        for line in fh:  # streamed: the file may be large
+            if line.strip():
+                first = line.strip() if first is None else first
+                count += 1
+    expected = count
+    if suffix == ".pts" and first is not None and first.isdigit():
+        expected = count - 1
+        if int(first) != expected:
+            raise InputError(f"{path}: the first line declares {int(first)} points, the file holds {expected} lines")
+    if n_read != expected:
+        raise InputError(f"{path}: {expected - n_read} of {expected} lines are not points (damaged {suffix} file)")
+
+
+def _open3d_warning(text: str) -> str:
+    """The first warning or error line Open3D printed (ANSI colours removed), or ''."""
+    import re
+
+    for line in re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines():
+        if "[Open3D WARNING]" in line or "[Open3D ERROR]" in line or "RPly: " in line:
+            return line.split("]", 1)[1].strip()[:200] if "[Open3D" in line else line.strip()[:200]
+    return ""
 
 
 def _relative(A: np.ndarray, B: np.ndarray) -> float:
@@ -129,37 +179,24 @@ def crosscheck_clouds(source: np.ndarray, target: np.ndarray, *, config: Crossch
 def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
                       config: CrosscheckConfig = CrosscheckConfig(),
                       callback: Callable[[IcpIteration], None] | None = None) -> CrosscheckReport:
-    """Both backends coarse to fine on the same image clouds from the same (global-search) initial guess."""
+    """:func:`pcreg.register`, the function users call, once with each backend and the same options.
+
+    Both runs build the same clouds (same seeds), search the same hypotheses and refine each with their
+    own ICP at every step; the plausibility test is off (a cross-check reports, it does not refuse), and
+    the point-to-line finish, which only the reference backend has, is not used. Open3D is run one
+    iteration at a time so that both iteration counts are exact.
+    """
     ref = as_rgb_uint8(reference_image, name="reference image")
     mov = as_rgb_uint8(moving_image, name="moving image")
-    ref_levels = cloud_pyramid(ref, levels=config.levels, seed=config.seed)
-    mov_levels = cloud_pyramid(mov, levels=config.levels, max_points=config.max_points, seed=config.seed + 1)
-    from .errors import RegistrationError
-
-    if len(ref_levels[0]) < 3 or len(mov_levels[0]) < 3:
-        raise RegistrationError("an image has no usable edges (a flat or empty image?)")
-    T0 = np.eye(3)
-    if config.init in ("auto", "global"):
-        g = min(3, config.levels - 1)
-        Ts, score = _global_search(ref_levels[g], mov_levels[g], angles=np.arange(0.0, 360.0, 10.0))
-        T0 = Ts[int(np.argmax(score))]
+    init = config.init if config.init in ("auto", "global", "identity", "center") else "auto"
+    kw = dict(model=config.model, levels=config.levels, iterations=config.iterations, init=init,
+              max_points=config.max_points, max_correspondence_distance=config.max_correspondence_distance,
+              relative_fitness=config.relative_fitness, relative_rmse=config.relative_rmse, seed=config.seed,
+              refine="none", min_inlier_ratio=None)
     results = {}
     for backend in ("reference", "open3d"):
-        T, total, seconds = T0, 0, 0.0
-        res = None
-        for level in range(config.levels - 1, -1, -1):
-            s, t = mov_levels[level].points, ref_levels[level].points
-            if len(s) < 3 or len(t) < 3:
-                continue
-            res = icp(s, t, backend=backend, model=config.model, init=T,
-                      max_correspondence_distance=config.max_correspondence_distance * 2**level,
-                      max_iteration=config.iterations, relative_fitness=config.relative_fitness,
-                      relative_rmse=config.relative_rmse, count_iterations=True,
-                      callback=callback)
-            T, total, seconds = res.matrix, total + max(res.iterations, 0), seconds + res.seconds
-        results[backend] = RegistrationResult(matrix=T, fitness=res.fitness, inlier_rmse=res.inlier_rmse,
-                                              iterations=total, converged=res.converged, backend=backend,
-                                              seconds=seconds)
+        # A callback makes both backends report every iteration (Open3D then runs stepwise: exact counts).
+        results[backend] = register(ref, mov, backend=backend, callback=callback or (lambda it: None), **kw)
     a, b = results["reference"], results["open3d"]
     c = corners(mov.shape)
     return CrosscheckReport(
@@ -168,7 +205,8 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
         rotation_disagreement_deg=rotation_disagreement_deg(a.matrix, b.matrix),
         translation_disagreement=float(np.linalg.norm(a.matrix[:2, 2] - b.matrix[:2, 2])),
         matrix_relative_disagreement=_relative(a.matrix, b.matrix),
-        extra={"initial_matrix": T0.tolist()})
+        extra={"generators": [a.generator, b.generator],
+               "inlier_ratios": [a.inlier_ratio, b.inlier_ratio]})
 
 
 def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig(), callback=None,

@@ -147,6 +147,13 @@ def test_helpers():
     assert PipelineConfig().registration.model == "similarity" and PipelineConfig().registration.init == "identity"
 
 
+def test_a_refused_pair_is_recorded_with_its_reason(frames, clf):
+    noise = np.random.default_rng(3).integers(0, 256, frames[2].image.shape, dtype=np.uint8)
+    res = process_pair(frames[0], Frame(noise, frames[2].labels, "noise"), clf, weight=3.0).result
+    assert not res.registered and "refused" in res.reason
+    assert res.registration is None and res.errors["augmented"] == res.errors["plain"]
+
+
 def test_a_sequence_goes_on_past_a_failed_registration(frames):
     seq = list(frames[:6])
     seq[3] = Frame(np.full_like(frames[3].image, 90), frames[3].labels, "flat")

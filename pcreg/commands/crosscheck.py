@@ -32,8 +32,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--voxel-size", type=positive_float, default=None,
                    help="clouds: voxel-downsample both clouds once, before every implementation")
     p.add_argument("--init", metavar="FILE", help="clouds: initial guess, a (d+1)x(d+1) text matrix (default identity)")
-    p.add_argument("--relative-fitness", type=float, default=1e-6, help="stopping rule: |Δfitness| threshold")
-    p.add_argument("--relative-rmse", type=float, default=1e-6, help="stopping rule: |Δinlier RMSE| threshold")
+    from ..validation import arg_float
+
+    p.add_argument("--relative-fitness", type=arg_float(0, 1), default=1e-6, help="stopping rule: |Δfitness| threshold")
+    p.add_argument("--relative-rmse", type=arg_float(0), default=1e-6, help="stopping rule: |Δinlier RMSE| threshold")
     p.add_argument("--timeout", type=positive_float, default=60.0, help="time limit of a cmd: program, s")
     p.add_argument("--export", metavar="DIR", help="write the built-in suite as test vectors with the reference's traces")
     p.add_argument("--suite", metavar="DIR", help="run every implementation on the suite in DIR (written by --export; "
@@ -119,18 +121,14 @@ def _suite(args) -> dict:
 
 
 def _clouds(args) -> int:
-    import numpy as np
-
     from ..crosschecks import crosscheck
-    from ..errors import InputError
     from ..implementations import stdout_to_stderr
 
     init = None
     if args.init:
-        try:
-            init = np.loadtxt(args.init, ndmin=2)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{args.init}: not a text matrix ({' '.join(str(exc).split())})") from None
+        from ..validation import read_text_matrix
+
+        init = read_text_matrix(args.init, what="initial guess")  # regular file, bounded, finite
     voxel = args.voxel_size or (args.voxel_sizes[-1] if args.voxel_sizes else None)
     names = _implementations(args)
     with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:

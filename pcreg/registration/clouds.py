@@ -43,19 +43,18 @@ class ImageCloud:
         return f"ImageCloud(n={len(self)}, shape={self.shape}, level={self.level})"
 
 
-def load_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image file as (H, W, 3) uint8 RGB (grayscale is replicated, 16-bit scaled, alpha dropped)."""
+def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.ndarray:
+    """Read an image file as (H, W, 3) uint8 RGB (grayscale is replicated, 16-bit scaled, alpha dropped).
+
+    Only regular files are read (a FIFO or device is refused, never waited on); the size in the header
+    is checked against ``max_pixels`` (default :func:`pcreg.validation.max_pixels`) before decoding.
+    """
+    from ..validation import decode_image, max_file_bytes, max_pixels as limit_of, read_regular_file
+
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, not an image")
-    data = np.fromfile(path, dtype=np.uint8)
-    if data.size == 0:
-        raise InputError(f"{path}: empty file")
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"{path}: not an image (or unreadable)")
+    limit = limit_of(max_pixels)
+    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image")
+    img = decode_image(data, str(path), limit=limit)
     if img.ndim == 3 and img.shape[2] == 4:
         img = img[:, :, :3]
     if img.ndim == 3:
@@ -89,6 +88,10 @@ def as_rgb_uint8(image: np.ndarray, *, name: str = "image") -> np.ndarray:
     if np.issubdtype(img.dtype, np.floating):
         if not np.all(np.isfinite(img)):
             raise InputError(f"{name}: image has NaN or inf values")
+        lo, hi = float(img.min()), float(img.max())
+        if lo < 0.0 or hi > 1.0:
+            raise InputError(f"{name}: a float image must hold values in [0, 1], got {lo:g}..{hi:g} "
+                             "(divide by 255 for 8-bit values)")
         return np.ascontiguousarray(np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
     if img.dtype == np.bool_:
         return np.ascontiguousarray(img.astype(np.uint8) * 255)
@@ -106,7 +109,21 @@ def valid_region(image: np.ndarray) -> np.ndarray:
         return np.ones(image.shape[:2], dtype=bool)
     black = cv2.inRange(image, (0, 0, 0), (0, 0, 0))
     black = cv2.morphologyEx(black, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    return black == 0
+    # Padding lies outside the picture, which a warp keeps convex (the image of a rectangle under an
+    # affine or projective map): black areas inside the convex hull of the non-black pixels (a black
+    # object, a shadow) are content and stay usable.
+    nonblack = black == 0
+    rows = np.flatnonzero(nonblack.any(axis=1))
+    if rows.size == 0:
+        return nonblack
+    # The hull of the non-black pixels is the hull of each row's leftmost and rightmost ones.
+    sub = nonblack[rows]
+    left = np.argmax(sub, axis=1)
+    right = sub.shape[1] - 1 - np.argmax(sub[:, ::-1], axis=1)
+    ends = np.concatenate([np.column_stack([left, rows]), np.column_stack([right, rows])]).astype(np.int32)
+    inside = np.zeros(black.shape, np.uint8)
+    cv2.fillConvexPoly(inside, cv2.convexHull(ends), 255)
+    return nonblack | (inside > 0)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:

@@ -12,6 +12,10 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..validation import check_float
+
+# OpenCV's remap supports these (float16 is warped as float32; bool as uint8).
+_DTYPES = tuple(np.dtype(d) for d in (np.bool_, np.uint8, np.uint16, np.int16, np.float16, np.float32, np.float64))
 
 _INTERP = {"linear": cv2.INTER_LINEAR, "nearest": cv2.INTER_NEAREST, "cubic": cv2.INTER_CUBIC}
 
@@ -36,7 +40,8 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {moving.shape}")
     if _is_field(T_ref_mov):
         fld = _check_field(T_ref_mov, moving.shape[:2])
-        h, w = (shape[:2] if shape is not None else moving.shape[:2])
+        fill = _check_remap_input(moving, interpolation, fill)
+        h, w = _check_shape(shape if shape is not None else moving.shape[:2])
         inverse, ok = invert_field(fld, (h, w))
         warped, valid = _remap(moving, inverse, interpolation=interpolation, fill=fill)
         return warped, valid & ok
@@ -47,12 +52,20 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
         raise InputError("warp: T_ref_mov is singular")
     if interpolation not in _INTERP:
         raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
-    h, w = (shape[:2] if shape is not None else moving.shape[:2])
+    if moving.dtype not in _DTYPES:
+        raise InputError(f"warp: unsupported dtype {moving.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
+    h, w = _check_shape(shape if shape is not None else moving.shape[:2])
+    try:
+        fill = check_float(fill, "warp: fill")
+    except InputError:
+        raise InputError(f"warp: fill must be a finite number, got {fill!r}") from None
     flags = _INTERP[interpolation]
     projective = np.any(M[2, :2] != 0) or M[2, 2] != 1
     src = moving
     if moving.dtype == np.bool_:
         src = moving.astype(np.uint8)
+    elif moving.dtype == np.float16:
+        src = moving.astype(np.float32)
     channels = 1 if src.ndim == 2 else src.shape[2]
     border = (fill,) * min(channels, 4) if channels > 1 else fill
 
@@ -61,10 +74,13 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
             return cv2.warpPerspective(img, M, (w, h), flags=fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
         return cv2.warpAffine(img, M[:2], (w, h), flags=fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
 
-    if channels > 4:  # OpenCV warps up to 4 channels at once
-        warped = np.stack([one(np.ascontiguousarray(src[:, :, c]), flags, fill) for c in range(channels)], axis=2)
-    else:
-        warped = one(src, flags, border)
+    try:
+        if channels > 4:  # OpenCV warps up to 4 channels at once
+            warped = np.stack([one(np.ascontiguousarray(src[:, :, c]), flags, fill) for c in range(channels)], axis=2)
+        else:
+            warped = one(src, flags, border)
+    except cv2.error as exc:
+        raise InputError(f"warp: OpenCV refused the input ({str(exc).strip().splitlines()[-1][:160]})") from None
     if src.ndim == 3 and warped.ndim == 2:
         warped = warped[:, :, None]
     # Valid: every interpolation weight fell inside the moving image (no blend with ``fill``).
@@ -72,7 +88,25 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     valid = one(ones, cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR, 0) > 0.999
     if moving.dtype == np.bool_:
         warped = warped.astype(bool)
+    elif moving.dtype == np.float16:
+        warped = warped.astype(np.float16)
     return warped, valid
+
+
+def _check_shape(shape) -> tuple[int, int]:
+    """(H, W) of the output grid: two positive integers whose product is within the pixel limit."""
+    from ..validation import max_pixels
+
+    try:
+        h, w = (int(v) for v in tuple(shape)[:2])
+        ok = len(tuple(shape)) >= 2 and all(float(v) == int(v) for v in tuple(shape)[:2])
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"warp: shape must be (H, W) integers, got {shape!r}") from None
+    if not ok or h < 1 or w < 1 or h > 32767 or w > 32767:
+        raise InputError(f"warp: shape must be (H, W) with 1 <= H, W <= 32767, got {tuple(shape)!r}")
+    if h * w > max_pixels():
+        raise InputError(f"warp: a {w}x{h} grid exceeds the pixel limit {max_pixels()} (PCREG_MAX_PIXELS)")
+    return h, w
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -98,13 +132,25 @@ def _check_field(motion, shape: tuple[int, int] | None) -> np.ndarray:
     return fld
 
 
+def _check_remap_input(src: np.ndarray, interpolation: str, fill) -> float:
+    """The checks :func:`warp` makes on its input, for the field paths; returns ``fill`` as a float."""
+    if interpolation not in _INTERP:
+        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
+    if src.dtype not in _DTYPES:
+        raise InputError(f"warp: unsupported dtype {src.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
+    try:
+        return check_float(fill, "warp: fill")
+    except InputError:
+        raise InputError(f"warp: fill must be a finite number, got {fill!r}") from None
+
+
 def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
     """``out(p) = src(fld(p))`` with cv2.remap, and the mask of pixels whose every interpolation weight
     fell inside ``src``."""
     if interpolation not in _INTERP:
         raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
     flags = _INTERP[interpolation]
-    img = src.astype(np.uint8) if src.dtype == np.bool_ else src
+    img = src.astype(np.uint8) if src.dtype == np.bool_ else src.astype(np.float32) if src.dtype == np.float16 else src
     channels = 1 if img.ndim == 2 else img.shape[2]
     mx = np.ascontiguousarray(fld[:, :, 0])
     my = np.ascontiguousarray(fld[:, :, 1])
@@ -122,6 +168,8 @@ def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float)
     valid = one(ones, cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR, 0) > 0.999
     if src.dtype == np.bool_:
         out = out.astype(bool)
+    elif src.dtype == np.float16:
+        out = out.astype(np.float16)
     return out, valid
 
 
@@ -139,6 +187,7 @@ def warp_to_moving(reference: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] |
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {reference.shape}")
     if _is_field(T_ref_mov):
         fld = _check_field(T_ref_mov, shape[:2] if shape is not None else None)
+        fill = _check_remap_input(reference, interpolation, fill)
         return _remap(reference, fld, interpolation=interpolation, fill=fill)
     M = np.asarray(T_ref_mov, dtype=np.float64)
     if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:

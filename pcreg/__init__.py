@@ -23,7 +23,7 @@ _EXPORTS = {
     "register": "pcreg.registration.api",
     "register_dense": "pcreg.registration.dense",
     "DenseRegistrationResult": "pcreg.registration.dense",
-    "crosscheck": "pcreg.crosschecks",
+    "crosscheck": "pcreg.implementations.crosscheck",
     "warp": "pcreg.registration.warp",
     "warp_to_moving": "pcreg.registration.warp",
     "transforms": "pcreg.registration.transforms",

@@ -15,9 +15,6 @@ from pcreg.classification.metrics import (
     confusion_matrix as confusion_matrix,
     error_rate as error_rate,
 )
-from pcreg.crosschecks import (
-    crosscheck as crosscheck,
-)
 from pcreg.datasets import (
     Frame as Frame,
     SYNTHETIC_PRESETS as SYNTHETIC_PRESETS,
@@ -33,6 +30,9 @@ from pcreg.errors import (
     OutputError as OutputError,
     PcregError as PcregError,
     RegistrationError as RegistrationError,
+)
+from pcreg.implementations.crosscheck import (
+    crosscheck as crosscheck,
 )
 from pcreg.pipeline import (
     PipelineConfig as PipelineConfig,

@@ -373,10 +373,14 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
 
     Failure signal: the winner's ``inlier_ratio`` is the share of moving edge points, among those that
     land on the reference image, with a reference edge point within ``inlier_tolerance`` px whose edge
-    direction agrees within 30°. Below ``min_inlier_ratio`` (see :data:`DEFAULT_MIN_INLIER_RATIO`; None
-    turns the test off) :class:`~pcreg.errors.RegistrationError` is raised with a one-line reason, as
-    when no moving point lands on the reference (no overlap). Unrelated images, noise and mirror images
-    are refused this way.
+    direction agrees within 30° (measured at full resolution; on images whose full-resolution reference
+    cloud hits ``reference_max_points``, at the finest level where it does not, with the tolerance scaled
+    to it). ``chance_ratio`` is what unrelated content reaches at the same distances. Below
+    ``min_inlier_ratio`` (see :data:`DEFAULT_MIN_INLIER_RATIO`; None turns the test off), below
+    :data:`CHANCE_FACTOR` x ``chance_ratio``, with fewer than 2% of the points on the reference (no
+    overlap), or when the moving image's mirror aligns clearly better (:data:`MIRROR_FACTOR`),
+    :class:`~pcreg.errors.RegistrationError` is raised with a one-line reason. Unrelated images, noise
+    and mirror images are refused this way.
 
     backend : ``"reference"`` or ``"open3d"``: the ICP of every step (candidates, levels, finish).
     refine : ``"none"`` (default) or ``"point_to_line"``: point-to-line iterations (Tukey weights) at
@@ -480,13 +484,13 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         """Coarse-to-fine ICP from ``T`` (from level ``top``, default the coarsest); returns
         (T, fitness, rmse, iterations, converged)."""
         total, conv, fit, rmse = 0, False, 0.0, 0.0
-        top = levels - 1 if top is None else top
-        if top == 0:
-            # A start already within a few pixels, refined at full resolution alone: one pass with twice the
+        if top is not None:
+            # A start already within a few cells of level ``top``: one pass there with twice the
             # correspondence distance brings it into the usual gate.
-            T, fit, rmse, it, conv = run_icp(ML, T, 0, dist=2.0 * max_correspondence_distance, n_iter=iterations,
-                                             model_=icp_model, cb=cb, final=False)
+            T, fit, rmse, it, conv = run_icp(ML, T, top, dist=2.0 * max_correspondence_distance * 2**top,
+                                             n_iter=iterations, model_=icp_model, cb=cb, final=False)
             total = -1 if it < 0 else it
+        top = levels - 1 if top is None else top
         for level in range(top, 0 if p2l else -1, -1):
             s, t = ML[level], ref_levels[level]
             if len(s) < 3 or len(t) < 3:
@@ -509,8 +513,17 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
             total = -1 if total < 0 else total + it
         return T, fit, rmse, total, conv
 
+    # The evidence is measured at full resolution, unless the reference cloud had to be capped there (a
+    # random subset of the edges leaves gaps that true matches fall into): then at the finest level with
+    # every edge, with the tolerance scaled to that level (1 px at level 1 = 2 px).
+    e_level = 0
+    if reference_max_points is not None:
+        while e_level < levels - 1 and len(ref_levels[e_level]) >= reference_max_points:
+            e_level += 1
+
     def evidence(ML, T):
-        return alignment_evidence(T, ML[0], ref_levels[0], tree(0), tolerance=inlier_tolerance)
+        return alignment_evidence(T, ML[e_level], ref_levels[e_level], tree(e_level),
+                                  tolerance=inlier_tolerance * 2**e_level)
 
     convincing = 0.6 if min_inlier_ratio is None else max(0.6, 2.0 * min_inlier_ratio)
     p_level = min(2, levels - 1)
@@ -577,7 +590,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
             h = max(hyps, key=lambda H: photometric_agreement(H, ref_gray, mov_gray, level=p_level,
                                                              moving_valid=mov_valid))
             # (A scale, or more, is estimated coarse to fine: a level-1 start leaves its bias.)
-            if attempt(gen, h, min(START_LEVEL, levels - 1) if model in ("translation", "rigid") else None):
+            # The start level follows the hypothesis's precision: Fourier-Mellin's is about a cell of the
+            # level it ran at (its rotation step is one row of its log-polar image).
+            start = max(START_LEVEL, fm_level - 1) if gen == "fourier_mellin" else START_LEVEL
+            if attempt(gen, h, min(start, levels - 1) if model in ("translation", "rigid") else None):
                 return out
         return out
 

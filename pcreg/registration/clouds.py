@@ -269,8 +269,9 @@ def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple
 
     ``max_points`` may be one number for every level or one per level; other options as :func:`image_cloud`.
     """
-    if levels < 1:
-        raise InputError(f"levels must be >= 1, got {levels}")
+    from ..validation import check_int
+
+    levels = check_int(levels, "levels", lo=1, hi=16)
     if not isinstance(max_points, (tuple, list)):
         max_points = (max_points,) * levels
     if len(max_points) < levels:

@@ -38,9 +38,9 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     moving = np.asarray(moving)
     if moving.ndim not in (2, 3) or moving.shape[0] == 0 or moving.shape[1] == 0:
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {moving.shape}")
+    fill = _check_remap_input(moving, interpolation, fill)
     if _is_field(T_ref_mov):
         fld = _check_field(T_ref_mov, moving.shape[:2])
-        fill = _check_remap_input(moving, interpolation, fill)
         h, w = _check_shape(shape if shape is not None else moving.shape[:2])
         inverse, ok = invert_field(fld, (h, w))
         warped, valid = _remap(moving, inverse, interpolation=interpolation, fill=fill)
@@ -50,15 +50,7 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
         raise InputError("warp: T_ref_mov must be a finite 3x3 matrix")
     if abs(np.linalg.det(M)) < 1e-12:
         raise InputError("warp: T_ref_mov is singular")
-    if interpolation not in _INTERP:
-        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
-    if moving.dtype not in _DTYPES:
-        raise InputError(f"warp: unsupported dtype {moving.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
     h, w = _check_shape(shape if shape is not None else moving.shape[:2])
-    try:
-        fill = check_float(fill, "warp: fill")
-    except InputError:
-        raise InputError(f"warp: fill must be a finite number, got {fill!r}") from None
     flags = _INTERP[interpolation]
     projective = np.any(M[2, :2] != 0) or M[2, 2] != 1
     src = moving

@@ -16,11 +16,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .errors import InputError
-from .registration.clouds import as_rgb_uint8, load_image
-from .registration.api import check_cloud, icp, register
-from .registration.result import IcpIteration, RegistrationResult
-from .registration.transforms import apply, corners, rotation_disagreement_deg
+from ..errors import InputError
+from ..registration.clouds import as_rgb_uint8, load_image
+from ..registration.api import check_cloud, icp, register
+from ..registration.result import IcpIteration, RegistrationResult
+from ..registration.transforms import apply, corners, rotation_disagreement_deg
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
@@ -74,7 +74,7 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
     (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
     """
-    from .validation import capture_output_fds, check_cloud_file, check_npy_file, max_pixels
+    from ..validation import capture_output_fds, check_cloud_file, check_npy_file, max_pixels
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -413,8 +413,8 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
 
     A failing or missing implementation becomes its row's one-line ``error``; the others still run.
     """
-    from . import implementations as impls
-    from .registration.api import voxel_downsample
+    from .. import implementations as impls
+    from ..registration.api import voxel_downsample
 
     src = check_cloud(source, "source")
     tgt = check_cloud(target, "target")

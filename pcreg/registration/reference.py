@@ -1,4 +1,4 @@
-"""pcreg's reference ICP: numpy + scipy's cKDTree, any dimension, every motion model.
+"""pcreg's reference ICP: numpy + a compiled exact nearest-neighbour grid, any dimension, every motion model.
 
 Iterative closest point after Besl & McKay (1992, "A method for registration of 3-D shapes"), with
 closed-form steps from Umeyama (1991, "Least-squares estimation of transformation parameters between
@@ -6,7 +6,8 @@ two point patterns") and Horn (1987, "Closed-form solution of absolute orientati
 quaternions"). The loop, the stopping rule and the definitions of fitness and inlier RMSE follow
 Open3D's legacy ``registration_icp`` so the two can be checked against each other:
 
-- correspondences: each source point's nearest target point closer than ``max_correspondence_distance``;
+- correspondences: each source point's nearest target point closer than ``max_correspondence_distance``
+  (:class:`pcreg.registration.nn.GridIndex`, exact; equidistant targets: the lowest index);
 - fitness = correspondences / source points; inlier_rmse = sqrt(mean squared correspondence distance);
 - after each update, stop when |Δfitness| < relative_fitness and |Δinlier_rmse| < relative_rmse
   (absolute changes, as Open3D compares them), or after ``max_iteration`` updates.
@@ -17,9 +18,8 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
-
 from ..errors import RegistrationError
+from .nn import GridIndex
 from .result import IcpIteration
 from .transforms import apply
 
@@ -279,25 +279,33 @@ def check_rank(points: np.ndarray, model: str) -> None:
 # The ICP loop
 # ---------------------------------------------------------------------------------------------------
 
-def build_tree(target: np.ndarray, *, queries: int | None = None) -> cKDTree:
-    """KD-tree of the target. Median splits (balanced) make queries faster and the build slower: worth it
-    when the tree will answer at least as many queries as it holds points (``queries``; None = yes)."""
-    balanced = queries is None or queries >= len(target)
-    return cKDTree(target, balanced_tree=balanced, compact_nodes=balanced)
+def build_tree(target: np.ndarray, *, queries: int | None = None, max_distance: float | None = None) -> GridIndex:
+    """Exact nearest-neighbour index of the target (:class:`~pcreg.registration.nn.GridIndex`).
+
+    max_distance : the correspondence distance the queries will use (sizes the cells; optional).
+    queries : accepted for compatibility (a grid costs the same to build whatever the queries).
+    """
+    return GridIndex(target, max_distance=max_distance)
 
 
-def _correspond(tree: cKDTree, pts: np.ndarray, max_dist: float):
+def _correspond(tree, pts: np.ndarray, max_dist: float):
+    """(squared distances, indices, found) of each point's nearest target within ``max_dist``.
+
+    ``tree`` is a :class:`GridIndex` or anything with ``cKDTree.query``'s interface."""
+    if isinstance(tree, GridIndex):
+        d2, idx = tree.nearest(pts, max_dist)
+        return d2, idx, idx >= 0
     workers = -1 if pts.shape[0] > 20000 else 1
     dist, idx = tree.query(pts, k=1, distance_upper_bound=max_dist, workers=workers)
     ok = np.isfinite(dist)
-    return dist, idx, ok
+    return np.where(ok, dist * dist, np.inf), idx, ok
 
 
-def _score(dist: np.ndarray, ok: np.ndarray, n: int) -> tuple[float, float]:
+def _score(d2: np.ndarray, ok: np.ndarray, n: int) -> tuple[float, float]:
     k = int(ok.sum())
     if k == 0:
         return 0.0, 0.0
-    return k / n, float(np.sqrt(np.mean(dist[ok] ** 2)))
+    return k / n, float(np.sqrt(np.sum(d2[ok]) / k))
 
 
 def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid",
@@ -305,23 +313,25 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
                   max_iteration: int = 30, relative_fitness: float = 1e-6, relative_rmse: float = 1e-6,
                   weights: str = "none", robust_scale: float | None = None, trim_fraction: float = 0.9,
                   metric: str = "point_to_point", target_normals: np.ndarray | None = None,
-                  rotation: str = "svd", tree: cKDTree | None = None,
+                  rotation: str = "svd", tree: GridIndex | None = None,
                   callback: Callable[[IcpIteration], None] | None = None, level: int = 0,
                   ) -> tuple[np.ndarray, float, float, int, bool]:
     """One ICP run at one scale. Returns (matrix, fitness, inlier_rmse, iterations, converged).
 
     source : (N, d), target : (M, d) float64, finite; d = 2 or 3.
+    tree : a prebuilt index of ``target`` (:func:`build_tree`, or a ``scipy.spatial.cKDTree``), reused
+        across calls on the same target.
     """
     d = source.shape[1]
     T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
     if tree is None:
-        tree = build_tree(target, queries=source.shape[0] * (max_iteration + 1))
+        tree = build_tree(target, max_distance=max_correspondence_distance)
     if metric == "point_to_line" and (d != 2 or target_normals is None):
         metric = "point_to_point"
     pts = apply(T, source)
     n = source.shape[0]
-    dist, idx, ok = _correspond(tree, pts, max_correspondence_distance)
-    fitness, rmse = _score(dist, ok, n)
+    d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
+    fitness, rmse = _score(d2, ok, n)
     iterations, converged = 0, False
 
     def report(i: int) -> None:
@@ -334,7 +344,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
     for i in range(max_iteration):
         need = MIN_POINTS[model] if d == 2 else 3
         p, q = pts[ok], target[idx[ok]]
-        w = robust_weights(dist[ok], weights, scale=robust_scale, trim_fraction=trim_fraction)
+        w = robust_weights(np.sqrt(d2[ok]), weights, scale=robust_scale, trim_fraction=trim_fraction)
         if int(np.count_nonzero(w)) < need:
             update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
         elif metric == "point_to_line":
@@ -347,10 +357,18 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
         pts = apply(update, pts)
         iterations = i + 1
         prev_fitness, prev_rmse = fitness, rmse
-        dist, idx, ok = _correspond(tree, pts, max_correspondence_distance)
-        fitness, rmse = _score(dist, ok, n)
+        d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
+        fitness, rmse = _score(d2, ok, n)
         report(iterations)
         if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
             converged = True
             break
     return T, fitness, rmse, iterations, converged
+
+
+def warm_up() -> None:
+    """Run the ICP once in 2-D and 3-D so that every compiled kernel it uses is loaded (or compiled)."""
+    rng = np.random.default_rng(0)
+    for d in (2, 3):
+        target = rng.uniform(0, 10, (50, d))
+        icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2)

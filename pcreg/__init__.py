@@ -34,9 +34,11 @@ _EXPORTS = {
     "load_dataset": "pcreg.datasets",
     "SYNTHETIC_PRESETS": "pcreg.datasets",
     "thesis_weight_search": "pcreg.classification.bayes",
+    "fit_classifier": "pcreg.classification.bayes",
     "error_rate": "pcreg.classification.metrics",
     "confusion_matrix": "pcreg.classification.metrics",
     # the registration-augmented pipeline
+    "RegisterConfig": "pcreg.registration.config",
     "PipelineConfig": "pcreg.pipeline",
     "process_pair": "pcreg.pipeline",
     "run_sequence": "pcreg.pipeline",

@@ -1,7 +1,7 @@
 """The ``pcreg`` command line: parse, build a config, call the library.
 
 Known errors (:class:`pcreg.errors.PcregError`, bad options) become one line on stderr and exit code 2.
-Each command lives in its own module under ``pcreg.commands`` or ``pcreg.experiments`` and exposes
+Each command lives in its own module under ``pcreg.commands`` and exposes
 ``add_arguments(parser)`` and ``run(args) -> int``; heavy imports happen inside ``run``.
 """
 
@@ -15,13 +15,13 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "register": ("pcreg.commands.register", "register a moving image to a reference image"),
     "crosscheck": ("pcreg.commands.crosscheck", "run both ICP backends on the same input and compare them"),
-    "demo": ("pcreg.experiments.demo", "the whole story on the built-in synthetic data (what `make demo` runs)"),
+    "demo": ("pcreg.commands.demo", "the whole story on the built-in synthetic data (what `make demo` runs)"),
     "view": ("pcreg.commands.view", "open a rerun recording, or render a screenshot of it"),
 }
 EVALUATIONS: dict[str, tuple[str, str]] = {
-    "classification": ("pcreg.experiments.classification", "thesis Ch. 4: naive Bayes cases I-III"),
-    "rotation": ("pcreg.experiments.rotation", "thesis Ch. 5: classify rotated frames before/after registration"),
-    "sequence": ("pcreg.experiments.sequence", "thesis Ch. 6-7: register frame i+k to i, classify, fuse labels"),
+    "classification": ("pcreg.commands.evaluate_classification", "thesis Ch. 4: naive Bayes cases I-III"),
+    "rotation": ("pcreg.commands.evaluate_rotation", "thesis Ch. 5: classify rotated frames before/after registration"),
+    "sequence": ("pcreg.commands.evaluate_sequence", "thesis Ch. 6-7: register frame i+k to i, classify, fuse labels"),
 }
 
 

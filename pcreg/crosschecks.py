@@ -155,7 +155,7 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
                       max_correspondence_distance=config.max_correspondence_distance * 2**level,
                       max_iteration=config.iterations, relative_fitness=config.relative_fitness,
                       relative_rmse=config.relative_rmse, count_iterations=True,
-                      callback=(lambda it, lv=level: callback(it)) if callback else None)
+                      callback=callback)
             T, total, seconds = res.matrix, total + max(res.iterations, 0), seconds + res.seconds
         results[backend] = RegistrationResult(matrix=T, fitness=res.fitness, inlier_rmse=res.inlier_rmse,
                                               iterations=total, converged=res.converged, backend=backend,

@@ -43,17 +43,22 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import InputError, RegistrationError
+from .classification.bayes import fit_classifier
+from .registration.config import RegisterConfig
+from .registration.result import RegistrationResult
 from .classification.fusion import (FusionConfig, WeightChoice, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
                      prior_from_log_odds, prior_log_odds, smooth_prior, warp_prior)
 
 __all__ = [
     "METHODS",
-    "BACKEND_MODELS",
+    "PIPELINE_REGISTRATION",
     "PipelineConfig",
     "STAGES",
     "log_odds",
-    "fit_classifier",
     "register_pair",
+    "PairRegistration",
+    "PairArrays",
+    "ProcessedPair",
     "PairResult",
     "process_pair",
     "temporal_update",
@@ -70,126 +75,84 @@ METHODS: tuple[str, ...] = (
 )
 STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse")
 
-#: ``model="auto"``: the motion model each backend is run with. Both estimate a similarity
-#: (rotation, shift and the zoom of forward motion); a rigid model leaves the zoom as a residual of
-#: several pixels at k = 10 (measured on syn1b/syn2a, 640x480: 5.7 and 15.6 px median corner error
-#: against 0.1 px with the similarity).
-BACKEND_MODELS = {"reference": "similarity", "open3d": "similarity"}
+#: The registration a pipeline runs unless told otherwise: a similarity (rotation, shift and the zoom of
+#: forward motion; a rigid model leaves the zoom as a residual of several pixels at k = 10) from the
+#: identity (pairs of a sequence are close; the global search sometimes locks onto a half-turn when
+#: frames are far apart).
+PIPELINE_REGISTRATION = RegisterConfig(model="similarity", init="identity")
 
 
 @dataclass(frozen=True)
 class PipelineConfig:
     """Options of the per-pair pipeline (written to config.json by the evaluations).
 
-    backend : ``"reference"`` or ``"open3d"``. model : motion model, or ``"auto"`` (:data:`BACKEND_MODELS`).
-    levels, iterations : pyramid levels and ICP iterations per level (the thesis: 4 and 14).
-    init : ``"identity"`` (the default: pairs of a sequence are close) or ``"auto"`` (global rotation
-        search, any angle; needed for large rotations, but on sequences it sometimes locks onto a
-        half-turn when the frames are far apart).
+    registration : :class:`~pcreg.registration.config.RegisterConfig` (:data:`PIPELINE_REGISTRATION`).
     features : naive Bayes features (:mod:`pcreg.classification.features`).
     fusion : :class:`pcreg.classification.fusion.FusionConfig`.
     """
 
-    backend: str = "reference"
-    model: str = "auto"
-    levels: int = 4
-    iterations: int = 14
-    init: str = "identity"
+    registration: RegisterConfig = PIPELINE_REGISTRATION
     features: tuple[str, ...] = ("rgb", "hsv", "row")
     fusion: FusionConfig = field(default_factory=FusionConfig)
 
     def __post_init__(self) -> None:
-        if self.backend not in BACKEND_MODELS:
-            raise InputError(f"unknown backend {self.backend!r}; choose one of {', '.join(BACKEND_MODELS)}")
-        if self.init not in ("auto", "identity", "center", "global"):
-            raise InputError(f"init must be auto, identity or center, got {self.init!r}")
-        if self.levels < 1 or self.iterations < 1:
-            raise InputError("levels and iterations must be at least 1")
+        if not isinstance(self.registration, RegisterConfig):
+            raise InputError("registration must be a RegisterConfig")
 
     @property
-    def registration_model(self) -> str:
-        return BACKEND_MODELS[self.backend] if self.model == "auto" else self.model
+    def backend(self) -> str:
+        return self.registration.backend
 
 
 # ---------------------------------------------------------------------------------------------------
 # classifier log-odds
 # ---------------------------------------------------------------------------------------------------
 
-def _diff_tables(classifier) -> tuple[np.ndarray, float]:
-    """(F, 256) float32 ``log N(v; obstacle) - log N(v; ground)`` per feature and value, and the
-    log prior ratio, from a fitted :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier`'s parameters."""
-    classes = list(np.asarray(classifier.classes_).tolist())
-    if classes[:2] != [0, 1] or len(classes) != 2:
-        raise InputError(f"fusion needs a ground/obstacle classifier (classes [0, 1]), got {classes}")
-    theta = np.asarray(classifier.theta_, dtype=np.float64)
-    var = np.asarray(classifier.var_, dtype=np.float64)
-    v = np.arange(256, dtype=np.float64)[None, :]
-    tab = [-0.5 * np.log(2 * np.pi * var[c])[:, None] - 0.5 * (v - theta[c][:, None]) ** 2 / var[c][:, None]
-           for c in (0, 1)]
-    prior = np.asarray(classifier.class_prior_, dtype=np.float64)
-    return (tab[1] - tab[0]).astype(np.float32), float(np.log(prior[1]) - np.log(prior[0]))
-
-
 def log_odds(classifier, image: np.ndarray) -> np.ndarray:
     """Naive Bayes log-odds ``log p(obstacle | x) - log p(ground | x)`` per pixel, (H, W) float32.
 
-    classifier : a fitted :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier` over ground and obstacle.
-    image : (H, W, 3) uint8 RGB. Uses the classifier's ``decision_function`` where it has one; otherwise
-    evaluates its Gaussians through 256-entry float32 tables (``> 0`` gives ``classifier.predict``).
+    classifier : a fitted ground/obstacle model with a ``decision_function`` (as
+    :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier`); ``> 0`` gives ``predict``.
     """
-    if hasattr(classifier, "decision_function"):
-        return np.asarray(classifier.decision_function(image), dtype=np.float32)
-    import cv2
-
-    from .classification.features import check_image, feature_groups
-
-    image = check_image(image)
-    tables, bias = _diff_tables(classifier)
-    h, w = image.shape[:2]
-    acc = np.full((h, w), np.float32(bias), dtype=np.float32)
-    f = 0
-    for name, planes in feature_groups(image, classifier.features, weights=classifier.weights):
-        if name == "row":
-            acc += tables[f][planes][:, None]
-            f += 1
-            continue
-        c = planes.shape[-1]
-        looked = cv2.LUT(planes, np.ascontiguousarray(tables[f:f + c].T.reshape(1, 256, c)))
-        if c > 1:
-            looked = cv2.transform(looked, np.ones((1, c), dtype=np.float64))
-        elif looked.ndim == 3:
-            looked = looked[:, :, 0]
-        acc = cv2.add(acc, looked)
-        f += c
-    return acc
-
-
-def fit_classifier(frames: Sequence, *, features: Sequence[str] = ("rgb", "hsv", "row")):
-    """A :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier` fitted on labelled frames (unknown left out)."""
-    from .classification.bayes import NaiveBayesPixelClassifier
-
-    return NaiveBayesPixelClassifier(tuple(features)).fit([f.image for f in frames], [f.labels for f in frames])
+    classes = list(np.asarray(getattr(classifier, "classes_", [])).tolist())
+    if classes != [0, 1]:
+        raise InputError(f"fusion needs a ground/obstacle classifier (classes [0, 1]), got {classes}")
+    return np.asarray(classifier.decision_function(image), dtype=np.float32)
 
 
 # ---------------------------------------------------------------------------------------------------
 # one pair
 # ---------------------------------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class PairRegistration:
+    """What :func:`register_pair` found: ``result`` (None when the registration was refused, with the
+    one-line ``reason``) and the wall time in seconds."""
+
+    result: RegistrationResult | None
+    reason: str | None
+    seconds: float
+
+    @property
+    def matrix(self) -> np.ndarray | None:
+        """``T_ref_mov`` (3, 3), or None when refused."""
+        return None if self.result is None else self.result.matrix
+
+
 def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, config: PipelineConfig = PipelineConfig(),
-                  callback: Callable | None = None):
-    """``(RegistrationResult | None, reason | None, seconds)``: :func:`pcreg.register` with the
-    configured options; a :class:`~pcreg.errors.RegistrationError` becomes ``(None, message, s)``."""
-    from . import register
+                  callback: Callable | None = None) -> PairRegistration:
+    """:func:`pcreg.register` with the configured options; a :class:`~pcreg.errors.RegistrationError`
+    (or a degenerate transform) becomes a :class:`PairRegistration` with ``result=None`` and its reason."""
+    from .registration.api import register
 
     t0 = time.perf_counter()
     try:
-        res = register(reference_image, moving_image, backend=config.backend, model=config.registration_model,
-                       levels=config.levels, iterations=config.iterations, init=config.init, callback=callback)
+        res = register(reference_image, moving_image, **config.registration.kwargs(), callback=callback)
     except RegistrationError as exc:
-        return None, str(exc), time.perf_counter() - t0
+        return PairRegistration(None, str(exc), time.perf_counter() - t0)
     if not np.all(np.isfinite(res.matrix)) or abs(np.linalg.det(res.matrix[:2, :2])) < 1e-6:
-        return None, "registration returned a degenerate transform", time.perf_counter() - t0
-    return res, None, time.perf_counter() - t0
+        return PairRegistration(None, "registration returned a degenerate transform", time.perf_counter() - t0)
+    return PairRegistration(res, None, time.perf_counter() - t0)
 
 
 def _err(pred: np.ndarray, truth: np.ndarray | None, mask: np.ndarray | None = None) -> float:
@@ -254,14 +217,13 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
 
     The classifier's evidence is not accumulated along the chain (as an HMM filter would): naive
     Bayes errs on the same colours in every frame, so its errors are correlated in time and adding
-    them up frame after frame wears correct labels away (measured on syn1b, 100 frames of 320x240,
-    k = 1: 9.8% error against 3.0% without it); neither does a label fade with age (13.2% there:
-    fading costs the long chains of accurate registrations more than it saves).
+    them up frame after frame wears correct labels away; neither does a label fade with age (both
+    measured worse: README, design notes).
     """
     d = np.asarray(log_odds_moving, dtype=np.float32)
     if T_ref_mov is None:
         return d.copy(), np.full(d.shape, 2, np.uint8)
-    from . import warp
+    from .registration.warp import warp
 
     q_mov, _ = warp_prior(_prior_q(labels_reference, kind="labels", pi=pi, fusion=fusion), T_ref_mov,
                           shape=d.shape, pi=pi)
@@ -273,33 +235,55 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
     return fused, labels
 
 
+@dataclass(frozen=True)
+class PairArrays:
+    """The arrays of one processed pair that a recording or a figure shows.
+
+    warped : the moving image warped onto the reference grid (H, W, 3) uint8; valid : (H, W) bool, where
+    it came from inside the moving image; predicted : {method: (H, W) uint8 labels} of the moving frame;
+    thesis_after, thesis_after_masked : labels on the reference grid.
+    """
+
+    warped: np.ndarray
+    valid: np.ndarray
+    predicted: dict
+    thesis_after: np.ndarray
+    thesis_after_masked: np.ndarray
+
+
+@dataclass(frozen=True)
+class ProcessedPair:
+    """:func:`process_pair`'s outcome: the scores (``result``) and, when asked for, the arrays."""
+
+    result: "PairResult"
+    arrays: PairArrays | None = None
+
+
 def process_pair(reference, moving, classifier, *, weight: float, config: PipelineConfig = PipelineConfig(),
-                 registration=None, temporal_source: tuple[str, np.ndarray] | None = None,
-                 temporal_weight: float | None = None, indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
-                 callback: Callable | None = None):
+                 registration: PairRegistration | None = None, temporal: "TemporalFusion | None" = None,
+                 indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
+                 callback: Callable | None = None) -> ProcessedPair:
     """Run and score every method on one pair.
 
     reference, moving : :class:`~pcreg.datasets.Frame` (labelled; same size). classifier : fitted naive
     Bayes (ground/obstacle). weight : fusion weight.
-    registration : a precomputed ``register_pair`` tuple, or None to register here.
-    temporal_source : (H, W) uint8 labels the temporal filter holds for the reference frame
-        (:func:`temporal_update`); None leaves ``augmented_temporal`` NaN.
-    temporal_weight : fusion weight of the temporal filter (default ``weight``).
-    Returns ``(PairResult, extras)``: ``extras["temporal_labels"]`` is the temporal filter's new state
-    (None without ``temporal_source``) and, with ``keep_arrays``, the arrays a
-    recording shows (``warped``, ``valid``, ``predicted`` {method: labels}).
+    registration : a precomputed :func:`register_pair`, or None to register here.
+    temporal : the temporal filter of the chain that holds the reference frame; it is stepped to the
+        moving frame (:meth:`TemporalFusion.step`). None leaves ``augmented_temporal`` NaN.
+    keep_arrays : also return the arrays a recording shows (:class:`PairArrays`).
     """
     from .datasets import relative_transform
     from .registration.transforms import max_corner_error
-    from . import warp
+    from .registration.warp import warp
 
     if reference.shape != moving.shape:
         raise InputError(f"reference {reference.shape} and moving {moving.shape} frames differ in size")
     shape = moving.shape
     times = dict.fromkeys(STAGES, 0.0)
-    res, reason, t_reg = registration if registration is not None else register_pair(
+    reg = registration if registration is not None else register_pair(
         reference.image, moving.image, config=config, callback=callback)
-    times["register"] = t_reg
+    res, reason = reg.result, reg.reason
+    times["register"] = reg.seconds
     T = None if res is None else np.asarray(res.matrix)
 
     t0 = time.perf_counter()
@@ -329,10 +313,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     times["fuse"] = time.perf_counter() - t0
     l_id = prior_log_odds(q_ref, pi=pi)
     fused_id = fuse(d_mov, l_id, weight=weight)
-    temporal = temporal_labels = None
-    if temporal_source is not None:
-        temporal, temporal_labels = temporal_update(d_mov, temporal_source, T, pi=pi, fusion=fusion,
-                                                    weight=weight if temporal_weight is None else temporal_weight)
+    fused_t = None if temporal is None else temporal.step(d_mov, T, pi=pi)
 
     pred_masked = np.where(valid, pred_warped, pred_mov)
     if T is not None:
@@ -344,8 +325,8 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
         "plain": pred_mov, "augmented": labels_from_log_odds(fused),
         "augmented_unregistered": labels_from_log_odds(fused_id), "propagated": propagated,
     }
-    if temporal is not None:
-        preds["augmented_temporal"] = labels_from_log_odds(temporal)
+    if fused_t is not None:
+        preds["augmented_temporal"] = labels_from_log_odds(fused_t)
     errors = {
         "plain": _err(pred_mov, moving.labels),
         "thesis_before": _err(pred_mov, reference.labels),
@@ -354,7 +335,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
         "thesis_after_cropped": _err(pred_warped, reference.labels, valid),
         "augmented": _err(preds["augmented"], moving.labels),
         "augmented_unregistered": _err(preds["augmented_unregistered"], moving.labels),
-        "augmented_temporal": _err(preds["augmented_temporal"], moving.labels) if temporal is not None else float("nan"),
+        "augmented_temporal": _err(preds["augmented_temporal"], moving.labels) if fused_t is not None else float("nan"),
         "propagated": _err(propagated, moving.labels),
     }
     truth_T = relative_transform(reference, moving)
@@ -364,11 +345,9 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     result = PairResult(reference=int(indices[0]), moving=int(indices[1]), names=(reference.name, moving.name),
                         registered=T is not None, reason=reason, registration=None if res is None else res.to_dict(),
                         corner_error=corner, errors=errors, times=times, valid_fraction=float(valid.mean()))
-    extras: dict = {"temporal_labels": temporal_labels}
-    if keep_arrays:
-        extras.update(warped=warped, valid=valid, predicted=preds, thesis_after=pred_warped,
-                      thesis_after_masked=pred_masked)
-    return result, extras
+    arrays = PairArrays(warped=warped, valid=valid, predicted=preds, thesis_after=pred_warped,
+                        thesis_after_masked=pred_masked) if keep_arrays else None
+    return ProcessedPair(result, arrays)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -383,17 +362,36 @@ class TemporalFusion:
     naive Bayes log-odds with the state warped into it and keeps the result.
     """
 
-    def __init__(self, labels: np.ndarray, *, pi: float, weight: float, fusion: FusionConfig = FusionConfig()) -> None:
-        self.pi = float(pi)
-        self.weight = float(weight)
-        self.fusion = fusion
-        self.labels = np.asarray(labels, dtype=np.uint8)
+    def __init__(self, labels: np.ndarray, *, weight: float, pi: float = 0.5,
+                 fusion: FusionConfig = FusionConfig()) -> None:
+        self._pi = float(pi)
+        self._weight = float(weight)
+        self._fusion = fusion
+        self._labels = np.array(labels, dtype=np.uint8)
+        self._labels.setflags(write=False)
 
-    def step(self, log_odds_moving: np.ndarray, T_ref_mov: np.ndarray | None) -> np.ndarray:
+    @property
+    def labels(self) -> np.ndarray:
+        """(H, W) uint8 label state of the chain's last frame (read-only)."""
+        return self._labels
+
+    @property
+    def weight(self) -> float:
+        return self._weight
+
+    def step(self, log_odds_moving: np.ndarray, T_ref_mov: np.ndarray | None, *, pi: float | None = None) -> np.ndarray:
         """Fuse the moving frame's log-odds (H, W) with the state warped by ``T_ref_mov`` (None: no
-        prior); returns the fused log-odds (H, W) float32 and keeps the new label state."""
-        fused, self.labels = temporal_update(log_odds_moving, self.labels, T_ref_mov, pi=self.pi,
-                                             weight=self.weight, fusion=self.fusion)
+        prior); returns the fused log-odds (H, W) float32 and keeps the new label state.
+
+        pi : the obstacle prior of the classifier that made the log-odds (kept for later steps); None
+        keeps the last one.
+        """
+        if pi is not None:
+            self._pi = float(pi)
+        fused, labels = temporal_update(log_odds_moving, self._labels, T_ref_mov, pi=self._pi,
+                                        weight=self._weight, fusion=self._fusion)
+        labels.setflags(write=False)
+        self._labels = labels
         return fused
 
 
@@ -457,7 +455,7 @@ def _means(pairs: Sequence[PairResult]) -> dict:
     return out
 
 
-def _choose_temporal_weight(calib: list, frames: Sequence, *, kc: int, fusion: FusionConfig) -> WeightChoice:
+def _choose_temporal_weight(calib: list, frames: Sequence, *, fusion: FusionConfig) -> WeightChoice:
     """The temporal filter's weight: run the chains through the calibration pairs (in order) with each
     candidate weight, pool the errors of every fused frame, keep the best (ties: the smaller weight)."""
     grid = tuple(float(g) for g in fusion.grid)
@@ -494,7 +492,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
         min(k, C - 1), scored against their moving frame's labels); only pairs whose moving frame is
         >= C are scored (default: :func:`resolve_fusion_frames`). A fixed ``config.fusion.weight``
         skips the choice.
-    on_pair : called as ``on_pair(pair_result, frames, extras)`` for each scored pair, with the arrays
+    on_pair : called as ``on_pair(pair_result, frames, arrays)`` for each scored pair, with the arrays
         of :func:`process_pair` (for recordings); None keeps them off the hot path.
     icp_callback : passed to :func:`pcreg.register` (per-iteration hook) for the scored pairs.
 
@@ -543,7 +541,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
             clf_cache[i] = fit_classifier([frames[i]], features=config.features)
         return clf_cache[i]
 
-    reg_cache: dict[tuple[int, int], tuple] = {}
+    reg_cache: dict[tuple[int, int], PairRegistration] = {}
 
     def registration(i: int, j: int, callback=None):
         if (i, j) not in reg_cache:
@@ -555,9 +553,8 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
     calib = []  # (i, j, T, d_j, pi) of the registered pairs among the first C frames, in order
     if fixed is None and kc >= 1:
         for i, j in pair_indices(C, kc):
-            res, _, _ = registration(i, j)
             clf = classifier(i)
-            calib.append((i, j, None if res is None else res.matrix, log_odds(clf, frames[j].image),
+            calib.append((i, j, registration(i, j).matrix, log_odds(clf, frames[j].image),
                           float(np.asarray(clf.class_prior_)[1])))
     if fixed is not None:
         choice = temporal_choice = empty_choice
@@ -570,7 +567,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
                                   shape=frames[j].shape, pi=pi)
             samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
         choice = choose_weight(samples, grid=config.fusion.grid)
-        temporal_choice = _choose_temporal_weight(calib, frames, kc=kc, fusion=config.fusion)
+        temporal_choice = _choose_temporal_weight(calib, frames, fusion=config.fusion)
         if choice.pairs == 0:
             notes.append(f"no registered pair among the first {C} frames to choose the fusion weight: "
                          f"w = {choice.weight} used")
@@ -586,26 +583,24 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
     failures: list[dict] = []
     for i, j in pair_indices(n, k):
         if i < k:
-            chain = TemporalFusion(frames[i].labels, pi=0.5, weight=weight_t, fusion=config.fusion)
+            chain = TemporalFusion(frames[i].labels, weight=weight_t, fusion=config.fusion)
         else:
             chain = chains.popleft()
         score = j >= C
         reg = registration(i, j, icp_callback if score else None)
         reg_cache.pop((i, j), None)
         clf = classifier(i)
-        chain.pi = float(np.asarray(clf.class_prior_)[1])
         if score:
-            result, extras = process_pair(frames[i], frames[j], clf, weight=weight, config=config, registration=reg,
-                                          temporal_source=chain.labels, temporal_weight=weight_t, indices=(i, j), keep_arrays=on_pair is not None)
-            chain.labels = extras["temporal_labels"]
+            done = process_pair(frames[i], frames[j], clf, weight=weight, config=config, registration=reg,
+                                temporal=chain, indices=(i, j), keep_arrays=on_pair is not None)
+            result = done.result
             scored.append(result)
             if not result.registered:
                 failures.append({"reference": i, "moving": j, "reason": result.reason})
             if on_pair is not None:
-                on_pair(result, (frames[i], frames[j]), extras)
+                on_pair(result, (frames[i], frames[j]), done.arrays)
         else:
-            res = reg[0]
-            chain.step(log_odds(clf, frames[j].image), None if res is None else res.matrix)
+            chain.step(log_odds(clf, frames[j].image), reg.matrix, pi=float(np.asarray(clf.class_prior_)[1]))
         chains.append(chain)
     if not scored:
         notes.append(f"no pair with its moving frame after the {C} fusion frames")

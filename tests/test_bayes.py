@@ -197,3 +197,20 @@ def test_confusion_counts_every_scored_pixel(h, w, seed):
     e = error_from_confusion(conf)
     if conf.sum():
         assert e == pytest.approx(100 * np.mean(pred[truth < 2] != truth[truth < 2]))
+
+
+def test_decision_function_is_the_log_odds_of_predict_proba():
+    frames = synthetic("syn1a", 2, 3, width=96, height=72)
+    clf = NaiveBayesPixelClassifier("rgb+hsv+row").fit(frames[0].image, frames[0].labels)
+    d = clf.decision_function(frames[1].image)
+    assert d.dtype == np.float32 and d.shape == frames[1].labels.shape
+    logp = clf.predict_log_proba(frames[1].image)
+    np.testing.assert_allclose(d, logp[:, :, 1] - logp[:, :, 0], atol=1e-3)
+    np.testing.assert_array_equal((d > 0).astype(np.uint8), clf.predict(frames[1].image))
+
+
+def test_decision_function_needs_two_classes():
+    frames = synthetic("syn1a", 1, 1, width=64, height=48)
+    three = NaiveBayesPixelClassifier("rgb", exclude_unknown=False).fit(frames[0].image, frames[0].labels)
+    with pytest.raises(InputError, match="two-class"):
+        three.decision_function(frames[0].image)

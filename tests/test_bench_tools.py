@@ -74,3 +74,14 @@ def test_ecc_warp_direction_on_a_pure_translation():
     mov = bench.make_moving(ref, T)
     est = bench.ecc_register(ref, mov)
     assert max_corner_error(est, T, ref.shape) < 0.5
+
+
+def test_bench_recording_measures_the_real_sequence_pipeline(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(TOOLS))
+    bench = _load("bench_recording")
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--pairs", "3", "--repeats", "1"]) == 0
+    report = json.loads((out / "recording.json").read_text())
+    assert report["pairs"] == 3 and report["overhead_ratio"] > 0 and report["recording_mb"] > 0
+    assert report["command"].startswith("python ") and report["machine"]["cpu_count"] >= 1
+    assert "### Checks" in (out / "recording.md").read_text()

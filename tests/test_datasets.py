@@ -117,13 +117,9 @@ def test_synthetic_poses_are_the_ground_truth(name):
     assert agree > 0.97 and agree > unwarped
 
 
-def test_synthetic_full_size_is_fast_enough():
-    import time
-
-    t0 = time.perf_counter()
-    frames = synthetic("syn3b", 20, 11)
-    assert frames[0].image.shape == (480, 640, 3)
-    assert time.perf_counter() - t0 < 5.0
+def test_synthetic_default_size_is_640x480():
+    frames = synthetic("syn3b", 2, 11)
+    assert frames[0].image.shape == (480, 640, 3) and frames[0].labels.shape == (480, 640)
 
 
 # -- LAGR -----------------------------------------------------------------------------------------

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
 from pathlib import Path
 
 import cv2
@@ -14,7 +13,6 @@ import scipy.io
 
 from pcreg.classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
 from pcreg.datasets import synthetic
-from pcreg.errors import PcregError
 from pcreg.experiments import classification
 from pcreg.classification.metrics import confusion_matrix, error_from_confusion
 
@@ -22,21 +20,9 @@ SMALL = ["--frames", "6", "--size", "48x36", "--trials", "4"]
 
 
 def run_cli(argv: list[str]) -> int:
-    """``pcreg evaluate classification ARGV`` through pcreg.cli (or the same parse/error path while
-    sibling commands are not importable)."""
+    """``pcreg evaluate classification ARGV`` through the real command line."""
     from pcreg import cli
 
-    try:
-        cli.build_parser()
-    except ImportError:
-        parser = cli._Parser(prog="pcreg evaluate classification")
-        classification.add_arguments(parser)
-        args = parser.parse_args(argv)
-        try:
-            return classification.run(args)
-        except PcregError as exc:
-            sys.stderr.write(f"pcreg: error: {exc}\n")
-            return 2
     return cli.main(["evaluate", "classification", *argv])
 
 
@@ -93,6 +79,20 @@ def test_workers_give_the_same_numbers(small_run, tmp_path):
     ser = {tuple(u["key"]): u["error"] for u in json.loads((small_run / "results.json").read_text())["units"]
            if u["case"] == "II"}
     assert {tuple(u["key"]): u["error"] for u in par} == ser
+
+
+def test_a_rerun_resumes_from_the_finished_units(small_run, capsys):
+    before = json.loads((small_run / "results.json").read_text())
+    rc = run_cli(["--data", "synthetic:syn1a,syn2b", *SMALL, "--out", str(small_run)])
+    assert rc == 0
+    after = json.loads((small_run / "results.json").read_text())
+    assert after["resumed_units"] == len(after["units"]) == len(before["units"])
+    assert [u["error"] for u in after["units"]] == [u["error"] for u in before["units"]]
+
+
+def test_results_json_is_strict_json(small_run):
+    text = (small_run / "results.json").read_text()
+    json.loads(text, parse_constant=lambda c: pytest.fail(f"results.json holds {c}"))
 
 
 def test_refuses_to_overwrite_without_force(small_run, capsys):

@@ -24,7 +24,7 @@ def done(tmp_path_factory):
 
 
 def test_outputs_and_layout(done):
-    for name in ("results.json", "config.json", "rotation_reference.md", "rotation_open3d.csv", "floors.md",
+    for name in ("results.json", "config.json", "rotation_reference.md", "rotation_open3d.csv", "checks.md",
                  "rotation.png"):
         assert (done / name).is_file(), name
     res = json.loads((done / "results.json").read_text())
@@ -38,7 +38,7 @@ def test_outputs_and_layout(done):
     for a in ("90", "180"):
         assert angles[a]["after"] < angles[a]["before"]
         assert abs(angles[a]["after"] - angles["0"]["after"]) <= 2.0
-    assert "backend open3d" in (done / "floors.md").read_text()
+    assert "backend open3d" in (done / "checks.md").read_text()
 
 
 def test_rerun_resumes(done):
@@ -91,5 +91,5 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
         series = rec.series(f"errors/syn1a/frame0/reference/{key}")
         assert sorted(series) == [0, 1]
         assert [series[0], series[1]] == pytest.approx(
-            [res["datasets"]["syn1a"]["angles"][a][key] / 100.0 for a in ("0", "90")])
+            [res["datasets"]["syn1a"]["angles"][a][key] for a in ("0", "90")])
     assert len(rec.get("transforms/T_ref_mov")) == 2

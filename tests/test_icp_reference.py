@@ -80,8 +80,8 @@ def test_point_to_line_converges_on_lines(model):
          "affine": np.array([[1.02, 0.01, 1.5], [-0.01, 0.99, -1], [0, 0, 1.0]]),
          "projective": np.array([[1.02, 0.01, 1.5], [-0.01, 0.99, -1], [2e-4, -1e-4, 1.0]])}[model]
     source = tf.apply(np.linalg.inv(T), target[::3])
-    M, fit, rmse, it, conv = icp_reference(source, target, model=model, max_correspondence_distance=10,
-                                           metric="point_to_line", target_normals=normals, max_iteration=50)
+    M = icp_reference(source, target, model=model, max_correspondence_distance=10,
+                      metric="point_to_line", target_normals=normals, max_iteration=50).matrix
     assert tf.max_corner_error(M, T, (100, 140)) < 0.05
 
 
@@ -100,8 +100,8 @@ def test_outliers_need_robust_weights():
     T = tf.rigid2d(3, 1.0, -0.5)
     source = tf.apply(np.linalg.inv(T), target)
     source[:60] = rng.uniform(0, 100, (60, 2))  # 20% gross outliers with correspondences of their own
-    plain = icp_reference(source, target, max_correspondence_distance=5, max_iteration=60)[0]
-    robust = icp_reference(source, target, max_correspondence_distance=5, max_iteration=60, weights="tukey")[0]
+    plain = icp_reference(source, target, max_correspondence_distance=5, max_iteration=60).matrix
+    robust = icp_reference(source, target, max_correspondence_distance=5, max_iteration=60, weights="tukey").matrix
     assert tf.max_corner_error(robust, T, (100, 100)) < tf.max_corner_error(plain, T, (100, 100))
     assert tf.max_corner_error(robust, T, (100, 100)) < 0.05
 
@@ -111,22 +111,21 @@ def test_stopping_rule_and_callback():
     target = rng.uniform(0, 100, (500, 2))
     source = tf.apply(np.linalg.inv(tf.rigid2d(2, 1, 1)), target)
     seen = []
-    M, fit, rmse, it, conv = icp_reference(source, target, max_correspondence_distance=10, max_iteration=100,
-                                           callback=seen.append)
-    assert conv and it < 100
-    assert [s.iteration for s in seen] == list(range(it + 1))
-    assert seen[-1].fitness == fit and seen[-1].inlier_rmse == rmse
-    np.testing.assert_array_equal(seen[-1].matrix, M)
+    r = icp_reference(source, target, max_correspondence_distance=10, max_iteration=100, callback=seen.append)
+    assert r.converged and r.iterations < 100 and r.backend == "reference"
+    assert [s.iteration for s in seen] == list(range(r.iterations + 1))
+    assert seen[-1].fitness == r.fitness and seen[-1].inlier_rmse == r.inlier_rmse
+    np.testing.assert_array_equal(seen[-1].matrix, r.matrix)
     # Disabled thresholds: exactly max_iteration updates.
     assert icp_reference(source, target, max_correspondence_distance=10, max_iteration=7, relative_fitness=0,
-                         relative_rmse=0)[3] == 7
+                         relative_rmse=0).iterations == 7
 
 
 def test_no_correspondences_means_no_motion():
     a = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    M, fit, rmse, it, conv = icp_reference(a, a + 100, max_correspondence_distance=1.0)
-    np.testing.assert_array_equal(M, np.eye(3))
-    assert fit == 0.0 and rmse == 0.0 and conv
+    r = icp_reference(a, a + 100, max_correspondence_distance=1.0)
+    np.testing.assert_array_equal(r.matrix, np.eye(3))
+    assert r.fitness == 0.0 and r.inlier_rmse == 0.0 and r.converged
 
 
 @pytest.mark.parametrize("pts, model, message", [

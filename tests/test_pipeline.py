@@ -9,7 +9,8 @@ from pcreg.classification.bayes import NaiveBayesPixelClassifier
 from pcreg.datasets import Frame, synthetic
 from pcreg.errors import InputError
 from pcreg.classification.fusion import FusionConfig
-from pcreg.pipeline import (METHODS, STAGES, PipelineConfig, TemporalFusion, log_odds, pair_indices, process_pair,
+from pcreg.registration.config import RegisterConfig
+from pcreg.pipeline import (METHODS, PIPELINE_REGISTRATION, STAGES, PipelineConfig, TemporalFusion, log_odds, pair_indices, process_pair,
                             register_pair, resolve_fusion_frames, run_sequence, temporal_update)
 
 
@@ -38,14 +39,15 @@ def test_log_odds_needs_ground_and_obstacle(frames):
 
 
 def test_process_pair_scores_every_method(frames, clf):
-    res, extras = process_pair(frames[0], frames[3], clf, weight=3.0, indices=(0, 3), keep_arrays=True,
-                               temporal_source=frames[0].labels)
+    chain = TemporalFusion(frames[0].labels, weight=3.0)
+    done = process_pair(frames[0], frames[3], clf, weight=3.0, indices=(0, 3), keep_arrays=True, temporal=chain)
+    res, arrays = done.result, done.arrays
     assert set(res.errors) == set(METHODS) and set(res.times) == set(STAGES)
     assert res.registered and res.reason is None and res.corner_error < 1.0
     assert all(0 <= v <= 100 for v in res.errors.values())
     assert res.errors["augmented"] < res.errors["plain"]
-    assert extras["warped"].shape == frames[0].image.shape and extras["valid"].dtype == bool
-    assert extras["temporal_labels"].dtype == np.uint8
+    assert arrays.warped.shape == frames[0].image.shape and arrays.valid.dtype == bool
+    assert chain.labels.dtype == np.uint8 and not chain.labels.flags.writeable
     # the first step of a chain is the one-step fusion
     assert res.errors["augmented_temporal"] == pytest.approx(res.errors["augmented"])
     # the inputs are never modified (frames are read-only views)
@@ -53,19 +55,19 @@ def test_process_pair_scores_every_method(frames, clf):
 
 
 def test_weight_zero_is_plain_naive_bayes(frames, clf):
-    res, _ = process_pair(frames[0], frames[2], clf, weight=0.0)
+    res = process_pair(frames[0], frames[2], clf, weight=0.0).result
     assert res.errors["augmented"] == res.errors["plain"] == res.errors["augmented_unregistered"]
 
 
 def test_failed_registration_is_recorded_and_the_pair_still_scored(frames, clf):
     flat = Frame(np.full_like(frames[2].image, 90), frames[2].labels, "flat")
-    res, _ = process_pair(frames[0], flat, clf, weight=3.0)
+    res = process_pair(frames[0], flat, clf, weight=3.0).result
     assert not res.registered and "edges" in res.reason
     assert res.registration is None and res.corner_error is None
     assert res.errors["augmented"] == res.errors["plain"]
     assert res.errors["thesis_after"] == res.errors["thesis_before"]
-    got, reason, seconds = register_pair(frames[0].image, flat.image)
-    assert got is None and reason and seconds >= 0
+    got = register_pair(frames[0].image, flat.image)
+    assert got.result is None and got.matrix is None and got.reason and got.seconds >= 0
 
 
 def test_temporal_update_passes_on_only_what_labels_reached(frames):
@@ -79,6 +81,8 @@ def test_temporal_update_passes_on_only_what_labels_reached(frames):
     assert np.all(labels_none == 2) and np.array_equal(fused_none, d)
     chain = TemporalFusion(frames[0].labels, pi=0.3, weight=4.0)
     out = chain.step(d, T)
+    with pytest.raises(AttributeError):
+        chain.labels = labels  # the state changes only through step
     assert np.array_equal(out, fused) and np.array_equal(chain.labels, labels)
 
 
@@ -130,10 +134,10 @@ def test_helpers():
     assert resolve_fusion_frames(100, fusion_frames=None, train="first:7") == 7
     assert resolve_fusion_frames(100, fusion_frames=3, train="first:7") == 3
     with pytest.raises(InputError):
-        PipelineConfig(backend="nope")
-    assert PipelineConfig(backend="open3d").registration_model == "similarity"
-    assert PipelineConfig(backend="open3d", model="rigid").registration_model == "rigid"
-    assert PipelineConfig().registration_model == "similarity"
+        RegisterConfig(backend="nope")
+    open3d = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(backend="open3d"))
+    assert open3d.backend == "open3d" and open3d.registration.model == "similarity"
+    assert PipelineConfig().registration.model == "similarity" and PipelineConfig().registration.init == "identity"
 
 
 def test_a_sequence_goes_on_past_a_failed_registration(frames):

@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -68,7 +70,7 @@ def test_icp_does_not_modify_inputs():
 
 def test_result_is_frozen_and_readable():
     r = pcreg.icp(structured_cloud(), structured_cloud())
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         r.fitness = 0.5
     with pytest.raises(ValueError):
         r.matrix[0, 0] = 2.0

@@ -14,13 +14,12 @@ Writes bench_classifier.json, bench_classifier.md and bench_classifier.png to --
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from benchlib import machine_info, median_ms, write_report
 
 FEATURE_SETS = ("thesis", "rgb+hsv+row", "rgb+hsv+lab+texture+row")
 BUDGET_MS = 10.0
@@ -28,19 +27,12 @@ BUDGET_MS = 10.0
 
 def _median_ms(fn, repeats: int) -> tuple[float, list[float]]:
     fn()  # warm-up (first-call allocations, lazy imports)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(times)), times
+    return median_ms(fn, repeats)
 
 
 def bench(*, repeats: int = 30, sklearn_repeats: int = 5, width: int = 640, height: int = 480,
           seed: int = 0) -> dict:
     """Timings per feature set (milliseconds, medians) and the agreement of the two predictions."""
-    import cv2
-
     from pcreg.classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
     from pcreg.datasets import synthetic
     from pcreg.classification.features import feature_matrix
@@ -66,9 +58,7 @@ def bench(*, repeats: int = 30, sklearn_repeats: int = 5, width: int = 640, heig
                      "predict_ms_all": ours_all, "sklearn_predict_ms_all": sk_all})
     return {
         "frame": [width, height], "repeats": repeats, "sklearn_repeats": sklearn_repeats, "budget_ms": BUDGET_MS,
-        "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                    "cpu_count": os.cpu_count(), "opencv_threads": cv2.getNumThreads(),
-                    "python": sys.version.split()[0], "numpy": np.__version__, "opencv": cv2.__version__},
+        "machine": machine_info(),
         "results": rows,
     }
 
@@ -79,18 +69,15 @@ def write(report: dict, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pcreg._io import atomic_save_figure, atomic_write_json, atomic_write_text, markdown_table
+    from pcreg.outputs import markdown_table
 
     header = ["features", "pcreg predict (ms)", "pcreg predict_log_proba (ms)", "sklearn GaussianNB.predict (ms)",
               "speed-up", "same labels", f"<= {BUDGET_MS:g} ms"]
     rows = [[r["features"], r["predict_ms"], r["predict_log_proba_ms"], r["sklearn_predict_ms"],
              f"{r['speedup']:.1f}x", f"{100 * r['agreement']:.3f}%", "yes" if r["within_budget"] else "NO"]
             for r in report["results"]]
-    m = report["machine"]
     text = (f"### Naive Bayes prediction, one {report['frame'][0]}x{report['frame'][1]} frame (medians)\n\n"
-            + markdown_table(header, rows)
-            + f"\nMachine: {m['processor']}, {m['cpu_count']} CPUs, OpenCV {m['opencv']} ({m['opencv_threads']} threads), "
-              f"numpy {m['numpy']}, Python {m['python']}. Command: `python tools/bench_classifier.py --out DIR`.\n")
+            + markdown_table(header, rows))
     fig, ax = plt.subplots(figsize=(7, 3.2))
     y = np.arange(len(rows))
     ax.barh(y - 0.2, [r["predict_ms"] for r in report["results"]], 0.4, label="pcreg (lookup tables)")
@@ -100,12 +87,7 @@ def write(report: dict, out: Path) -> list[Path]:
     ax.set_xscale("log")
     ax.set_xlabel("ms per frame (median)")
     ax.legend(fontsize=8)
-    out = Path(out)
-    paths = [atomic_write_json(out / "bench_classifier.json", report),
-             atomic_write_text(out / "bench_classifier.md", text),
-             atomic_save_figure(fig, out / "bench_classifier.png")]
-    plt.close(fig)
-    return paths
+    return write_report(out, "bench_classifier", report, text, fig)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -46,12 +46,13 @@ def bench(frames, *, backend: str, init: str, repeats: int = 1) -> dict:
     """Stage times (ms) per frame pair (t - 1, t) of ``frames``, and their medians."""
     from pcreg import cloud_pyramid, register
     from pcreg.classification.fusion import FusionConfig, fuse, labels_from_log_odds, prior_from_labels, prior_log_odds, smooth_prior, warp_prior
-    from pcreg.pipeline import BACKEND_MODELS, fit_classifier, log_odds
+    from pcreg.classification.bayes import fit_classifier
+    from pcreg.pipeline import PIPELINE_REGISTRATION, log_odds
 
     clf = fit_classifier([frames[0]])
     pi = float(clf.class_prior_[1])
     fusion = FusionConfig()
-    model = BACKEND_MODELS[backend]
+    model = PIPELINE_REGISTRATION.model
     register(frames[0].image, frames[1].image, backend=backend, model=model, init=init)  # warm-up (imports, JIT)
     rows = []
     for _ in range(repeats):
@@ -113,7 +114,7 @@ def main(argv=None) -> int:
                "cpus_used": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
                "cpus_total": os.cpu_count(), "loadavg_at_end": load, "python": platform.python_version()}
 
-    from pcreg._io import atomic_save_figure, atomic_write_json, atomic_write_text, markdown_table
+    from pcreg.outputs import atomic_save_figure, atomic_write_json, atomic_write_text, markdown_table
 
     out = Path(args.out)
     summary = [{k: v for k, v in r.items() if k != "per_pair_ms"} for r in results]

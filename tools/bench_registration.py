@@ -353,10 +353,9 @@ def time_icp_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: 
 
     def ref_run():
         t0 = time.perf_counter()
-        T, fit, rmse, it, _ = icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist,
-                                            init=np.eye(d + 1), max_iteration=iterations,
-                                            relative_fitness=0.0, relative_rmse=0.0)
-        return time.perf_counter() - t0, T, fit, rmse, it
+        r = icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist, init=np.eye(d + 1),
+                          max_iteration=iterations, relative_fitness=0.0, relative_rmse=0.0)
+        return time.perf_counter() - t0, r.matrix, r.fitness, r.inlier_rmse, r.iterations
 
     def o3d_run():
         t0 = time.perf_counter()
@@ -434,7 +433,7 @@ def _met(ok: bool) -> str:
 
 
 def render_markdown(report: dict) -> str:
-    from pcreg._io import markdown_table
+    from pcreg.outputs import markdown_table
 
     m = report["machine"]
     lines = [f"# Registration benchmark\n",
@@ -634,7 +633,7 @@ def write_outputs(report: dict, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pcreg._io import atomic_save_figure, atomic_write_json, atomic_write_text
+    from pcreg.outputs import atomic_save_figure, atomic_write_json, atomic_write_text
 
     paths = [atomic_write_json(out / "registration.json", report),
              atomic_write_text(out / "registration.md", render_markdown(report))]

@@ -68,7 +68,7 @@ def _as_lists(images, labels) -> tuple[list[np.ndarray], list[np.ndarray]]:
             if not np.issubdtype(lab.dtype, np.integer):
                 raise InputError(f"labels must be integers, got {lab.dtype} (training pair {k})")
             if lab.size and (lab.min() < 0 or lab.max() > 255):
-                raise InputError(f"label values outside 0..2 in training pair {k}")
+                raise InputError(f"label values outside 0..255 in training pair {k}")
             lab = lab.astype(np.uint8)
         if lab.size and lab.max() >= N_LABELS:
             raise InputError(f"label values must be 0 ground, 1 obstacle, 2 unknown; got {int(lab.max())} "
@@ -136,6 +136,12 @@ def _gaussian_params(counts: np.ndarray, classes: np.ndarray, *, var_smoothing: 
         if prior.shape != n_c.shape or np.any(prior < 0) or not np.isclose(prior.sum(), 1.0):
             raise InputError(f"priors must be {len(n_c)} non-negative numbers summing to 1")
     return {"class_count": n_c, "theta": theta, "var": var, "epsilon": epsilon, "prior": prior}
+
+
+def fit_classifier(frames: Sequence, *, features: Sequence[str] = ("rgb", "hsv", "row")) -> "NaiveBayesPixelClassifier":
+    """A :class:`NaiveBayesPixelClassifier` fitted on labelled frames (objects with ``image`` and
+    ``labels``, such as :class:`pcreg.datasets.Frame`); unknown pixels are left out."""
+    return NaiveBayesPixelClassifier(tuple(features)).fit([f.image for f in frames], [f.labels for f in frames])
 
 
 def _tables(theta: np.ndarray, var: np.ndarray) -> np.ndarray:
@@ -278,6 +284,22 @@ class NaiveBayesPixelClassifier:
     def predict_proba(self, image: np.ndarray) -> np.ndarray:
         """(H, W, 3) float64 posteriors over (ground, obstacle, unknown)."""
         return np.exp(self.predict_log_proba(image))
+
+    def decision_function(self, image: np.ndarray) -> np.ndarray:
+        """(H, W) float32 log-odds ``log p(c1 | x) - log p(c0 | x)`` of a two-class model (``classes_``
+        (c0, c1), ground and obstacle by default): positive where ``predict`` says c1.
+
+        Evaluated through the fitted 256-entry float32 tables (``D_f[v] = log N(v; c1) - log N(v; c0)``
+        per feature, summed, plus the log prior ratio): about one table look-up per feature and pixel.
+        """
+        self._check_fitted()
+        if self._diff32 is None:
+            raise InputError(f"decision_function needs a two-class model, this one has {len(self.classes_)} classes")
+        image = check_image(image)
+        bias = np.float32(self._log_prior[1] - self._log_prior[0])
+        d = self._sum_tables(image, self._diff32).astype(np.float32, copy=False)
+        d += bias
+        return d
 
     def predict(self, image: np.ndarray) -> np.ndarray:
         """(H, W) uint8 labels, each one of ``classes_`` (the most probable trained class)."""

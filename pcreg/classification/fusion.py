@@ -122,7 +122,7 @@ def warp_prior(q: np.ndarray, T_ref_mov: np.ndarray | None, *, shape: tuple[int,
     shape : (H, W) of the moving frame.
     Returns ``(q_mov (H, W) float32, valid (H, W) bool)``; ``q_mov`` is ``pi`` where not valid.
     """
-    from .. import warp
+    from ..registration.warp import warp
 
     pi = _check_pi(pi)
     if T_ref_mov is None:

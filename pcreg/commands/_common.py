@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import sys
+from pathlib import Path
+from typing import Any
 
 
 def positive_int(text: str) -> int:
@@ -56,6 +57,110 @@ def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = T
 
 
 def print_json(obj) -> None:
-    from .._io import to_json
+    from ..outputs import to_json
 
     sys.stdout.write(to_json(obj) + "\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# options of the evaluations
+# ---------------------------------------------------------------------------------------------
+
+BACKEND_CHOICES = ("reference", "open3d", "both")
+
+
+def backends(value: str) -> tuple[str, ...]:
+    """``--backend`` value -> backends to run, in order (``both``: reference, then open3d)."""
+    return ("reference", "open3d") if value == "both" else (value,)
+
+
+def int_list(text: str) -> tuple[int, ...]:
+    """``"1,4,7,10"`` -> (1, 4, 7, 10); every value >= 1."""
+    try:
+        vals = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+    if not vals or any(v < 1 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers >= 1, got {text!r}")
+    return vals
+
+
+def angle_list(text: str) -> tuple[float, ...]:
+    """``"0,5,90"`` or ``"0:180:5"`` (start:stop:step, stop included) -> angles in degrees."""
+    import numpy as np
+
+    try:
+        if ":" in text:
+            a, b, s = (float(v) for v in text.split(":"))
+            if s <= 0:
+                raise ValueError
+            vals = tuple(float(v) for v in np.round(np.arange(a, b + s / 2, s), 6))
+        else:
+            vals = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected angles as A,B,C or START:STOP:STEP, got {text!r}") from None
+    if not vals or any(abs(v) > 360 for v in vals):
+        raise argparse.ArgumentTypeError(f"angles must be within +-360 degrees, got {text!r}")
+    return vals
+
+
+def size(text: str) -> tuple[int, int]:
+    """``"640x480"`` -> (640, 480)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if w < 16 or h < 12:
+        raise argparse.ArgumentTypeError(f"frames must be at least 16x12, got {text!r}")
+    return (w, h)
+
+
+def train(text: str) -> str:
+    """``reference`` or ``first:K``."""
+    t = text.strip().lower()
+    if t == "reference":
+        return t
+    if t.startswith("first:") and t[6:].isdigit() and int(t[6:]) >= 1:
+        return f"first:{int(t[6:])}"
+    raise argparse.ArgumentTypeError(f"--train must be 'reference' or 'first:K' with K >= 1, got {text!r}")
+
+
+def add_data_arguments(parser: argparse.ArgumentParser) -> None:
+    """--data, --frames, --size, --seed: which sequences an evaluation runs on."""
+    parser.add_argument("--data", default="synthetic",
+                        help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
+    parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic data (default 0)")
+
+
+def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
+    """--backend, --levels, --iterations, --workers, --scheduler, --out and the recording options."""
+    parser.add_argument("--backend", choices=BACKEND_CHOICES, default="reference",
+                        help="ICP backend(s) (default reference)")
+    parser.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
+    parser.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
+    parser.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
+    parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
+    parser.add_argument("--out", default=out, help=f"output folder (default {out})")
+    add_record_arguments(parser)
+
+
+def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, write_outputs) -> int:
+    """The shared body of ``pcreg evaluate rotation|sequence``: run (recording in this process, else with
+    ``--workers``/``--scheduler``), write the outputs, print the first backend's table and the checks."""
+    from .._runner import make_executor
+
+    out = Path(args.out)
+    recording = bool(getattr(args, "record", None))
+    if recording and args.workers > 1:
+        print("note: --record runs every unit in this process (--workers ignored)")
+    with open_recorder(args, name=f"pcreg evaluate {name}") as rec:
+        with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
+            results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
+    written = write_outputs(results, out)
+    print(f"wrote {len(written)} files to {out}")
+    print((out / f"{name}_{config.backends[0]}.md").read_text(), end="")
+    print((out / "checks.md").read_text(), end="")
+    return 0

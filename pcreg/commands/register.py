@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import add_record_arguments, open_recorder, positive_int, print_json, positive_float
-
-MODELS = ("translation", "rigid", "similarity", "affine", "projective")
+from ..registration.transforms import MODELS
+from ._common import add_record_arguments, open_recorder, positive_float, positive_int, print_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -30,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
 
     import cv2
 
-    from .._io import atomic_write_bytes, check_output
+    from ..outputs import atomic_write_bytes, check_output
     from ..errors import OutputError
     from ..registration.clouds import cloud_pyramid, load_image
     from ..registration.api import register

@@ -212,7 +212,7 @@ def _stop(proc: subprocess.Popen) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .._io import check_output
+    from ..outputs import check_output
 
     check_recording(args.recording)
     if args.screenshot is None:

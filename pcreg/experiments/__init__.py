@@ -1,1 +1,3 @@
-"""Evaluations: the thesis experiments and the demo (one module each: add_arguments, run)."""
+"""The evaluations as pure functions of their configs: the thesis's experiments (classification, rotation,
+sequence) and the demo. Each returns its results (what results.json holds); :mod:`.reports` turns them
+into tables, checks and figures, and :mod:`pcreg.commands` parses the command line that runs them."""

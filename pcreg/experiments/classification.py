@@ -9,15 +9,15 @@
 
 Each (case, feature set, training set) is one unit of work, run through an executor (``--workers``).
 Error rates are pooled over the test pixels (unknown truth left out) and given in percent.
+Finished units are kept in ``OUT/units/`` and skipped when the same command is run again.
 Outputs in ``--out``: results.json, config.json, table41_weights / case1 / case2 / case3 as .csv and
 .md, and case1.png, case2.png, case3.png.
 """
 
 from __future__ import annotations
 
-import argparse
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 CASES = ("I", "II", "III")
@@ -63,126 +63,9 @@ class ClassificationConfig:
     exclude_unknown: bool = True
 
 
-@dataclass(frozen=True)
-class Unit:
-    """One unit of work: fit on ``train`` and score on each entry of ``test``.
-
-    train, test : ((dataset, start, stop), ...) frame ranges. key : identifies the result.
-    """
-
-    case: str
-    features: str
-    train: tuple[tuple[str, int, int], ...]
-    test: tuple[tuple[str, int, int], ...]
-    key: tuple
-    data: str
-    frames: int | None
-    size: tuple[int, int] | None
-    seed: int
-    n_trials: int
-    exclude_unknown: bool
-
-
-# ---------------------------------------------------------------------------------------------
-# command line
-# ---------------------------------------------------------------------------------------------
-
-def _int_list(text: str) -> tuple[int, ...]:
-    try:
-        vals = tuple(int(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
-    if any(v < 1 for v in vals):
-        raise argparse.ArgumentTypeError(f"frame counts must be at least 1, got {text!r}")
-    return vals
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
-    return (w, h)
-
-
-def _cases(text: str) -> tuple[str, ...]:
-    vals = tuple(v.strip().upper() for v in text.split(",") if v.strip())
-    bad = [v for v in vals if v not in CASES]
-    if bad or not vals:
-        raise argparse.ArgumentTypeError(f"cases are I, II, III (comma-separated), got {text!r}")
-    return tuple(c for c in CASES if c in vals)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", default="synthetic",
-                        help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
-    parser.add_argument("--cases", type=_cases, default=CASES, help="cases to run, e.g. I,III (default I,II,III)")
-    parser.add_argument("--features", nargs="+", default=list(DEFAULT_FEATURES), metavar="SET",
-                        help="feature sets, each names joined by + from thesis, rgb, hsv, lab, texture, row "
-                             "(default: thesis rgb+hsv+row)")
-    parser.add_argument("--k", dest="case1_k", type=_int_list, default=(), metavar="K,K,...",
-                        help="Case I training frame counts (default 10%%..90%% of each sequence: 10..90 of 100)")
-    parser.add_argument("--k3", dest="case3_k", type=_int_list, default=(), metavar="K,K,...",
-                        help="Case III frames per dataset (default 10%% and 20%% of each sequence)")
-    parser.add_argument("--frames", type=int, default=None, help="frames per synthetic sequence (default 100); "
-                        "first frames of real sequences (default all)")
-    parser.add_argument("--size", type=_size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
-    parser.add_argument("--trials", type=int, default=30, help="weight-search trials for the thesis feature (default 30)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the weight search and synthetic data (default 0)")
-    parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
-    parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
-    parser.add_argument("--out", default="out/classification", help="output folder (default out/classification)")
-    parser.add_argument("--force", action="store_true", help="overwrite existing outputs")
-
-
-def config_from_args(args: argparse.Namespace) -> ClassificationConfig:
-    from ..errors import InputError
-    from ..classification.features import parse_features
-
-    feats = tuple("+".join(parse_features(f)) for f in args.features)
-    if len(set(feats)) != len(feats):
-        raise InputError("a feature set is listed twice in --features")
-    if args.trials < 1:
-        raise InputError("--trials must be at least 1")
-    if args.frames is not None and args.frames < 1:
-        raise InputError("--frames must be at least 1")
-    return ClassificationConfig(data=args.data, cases=tuple(args.cases), features=feats,
-                                case1_k=tuple(args.case1_k), case3_k=tuple(args.case3_k), n_trials=args.trials,
-                                seed=args.seed, frames=args.frames, size=args.size)
-
-
-def run(args: argparse.Namespace) -> int:
-    from .._io import check_output
-    from .._runner import make_executor
-
-    config = config_from_args(args)
-    out = Path(args.out)
-    for name in OUTPUT_FILES:
-        check_output(out / name, force=args.force)
-    with make_executor(args.workers, scheduler=args.scheduler) as executor:
-        results = evaluate(config, executor=executor)
-    written = write_outputs(results, out)
-    print(f"wrote {len(written)} files to {out}")
-    print((out / "case1.md").read_text() if "I" in config.cases else "", end="")
-    return 0
-
-
 # ---------------------------------------------------------------------------------------------
 # data
 # ---------------------------------------------------------------------------------------------
-
-_DATA_CACHE: dict = {}
-
-
-def _load(data: str, frames: int | None, size: tuple[int, int] | None, seed: int) -> dict:
-    key = (data, frames, size, seed)
-    if key not in _DATA_CACHE:
-        from ..datasets import load_dataset
-
-        _DATA_CACHE.clear()
-        _DATA_CACHE[key] = load_dataset(data, n_frames=frames, size=size, seed=seed)
-    return _DATA_CACHE[key]
-
 
 def check_datasets(datasets: dict, *, exclude_unknown: bool = True) -> dict:
     """Per dataset: frames, size, class fractions; DatasetError for unlabelled or one-class data."""
@@ -229,12 +112,19 @@ def resolve_k(n: int, explicit: tuple[int, ...], fractions: tuple[float, ...], *
     return ks
 
 
-def plan_units(config: ClassificationConfig, lengths: dict[str, int]) -> tuple[list[Unit], dict]:
-    """All units of the configured cases, and the k values chosen per dataset."""
-    common = dict(data=config.data, frames=config.frames, size=config.size, seed=config.seed,
-                  n_trials=config.n_trials, exclude_unknown=config.exclude_unknown)
+def _unit(key: str, case: str, features: str, train: tuple, test: tuple, result_key: tuple,
+          config: ClassificationConfig):
+    from .units import Unit
+
+    return Unit(key, train[0][0] if len(train) == 1 else "", (("case", case), ("features", features), ("train", train),
+                                                              ("test", test), ("result_key", result_key)), config)
+
+
+def plan_units(config: ClassificationConfig, lengths: dict[str, int]) -> tuple[list, dict]:
+    """All units of the configured cases, and the k values chosen per dataset. A unit fits on its
+    ``train`` frame ranges ((dataset, start, stop), ...) and scores on each of its ``test`` ranges."""
     names = list(lengths)
-    units: list[Unit] = []
+    units: list = []
     ks: dict = {}
     if "I" in config.cases:
         ks["I"] = {d: resolve_k(n, config.case1_k, config.case1_fractions, dataset=d, case="I", need_test=True)
@@ -249,14 +139,15 @@ def plan_units(config: ClassificationConfig, lengths: dict[str, int]) -> tuple[l
         if "I" in config.cases:
             for d in names:
                 for k in ks["I"][d]:
-                    units.append(Unit("I", fs, ((d, 0, k),), ((d, k, lengths[d]),), (fs, d, k), **common))
+                    units.append(_unit(f"I/{fs}/{d}_k{k}", "I", fs, ((d, 0, k),), ((d, k, lengths[d]),), (fs, d, k),
+                                       config))
         if "II" in config.cases:
             for d in names:
-                units.append(Unit("II", fs, ((d, 0, lengths[d]),), everything, (fs, d), **common))
+                units.append(_unit(f"II/{fs}/{d}", "II", fs, ((d, 0, lengths[d]),), everything, (fs, d), config))
         if "III" in config.cases:
             for i in range(len(next(iter(ks["III"].values())))):
                 train = tuple((d, 0, ks["III"][d][i]) for d in names)
-                units.append(Unit("III", fs, train, everything, (fs, i), **common))
+                units.append(_unit(f"III/{fs}/split{i}", "III", fs, train, everything, (fs, i), config))
     return units, ks
 
 
@@ -268,7 +159,7 @@ def _frames(datasets: dict, ranges) -> list:
     return [f for d, a, b in ranges for f in datasets[d][a:b]]
 
 
-def run_unit(unit: Unit) -> dict:
+def run_unit(unit) -> dict:
     """Fit one classifier and score it: a pure function of ``unit`` (data loaded or taken from the
     per-process cache). Returns JSON-ready numbers."""
     import numpy as np
@@ -277,8 +168,11 @@ def run_unit(unit: Unit) -> dict:
     from ..classification.features import parse_features
     from ..classification.metrics import confusion_matrix, error_from_confusion
 
+    from .units import load_cached
+
+    cfg = unit.config
     t0 = time.perf_counter()
-    datasets = _load(unit.data, unit.frames, unit.size, unit.seed)
+    datasets = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)
     train = _frames(datasets, unit.train)
     images = [f.image for f in train]
     labels = [f.labels for f in train]
@@ -286,10 +180,10 @@ def run_unit(unit: Unit) -> dict:
     weights = None
     search = None
     if "thesis" in feats:
-        search = thesis_weight_search(images, labels, n_trials=unit.n_trials, seed=unit.seed,
-                                      exclude_unknown=unit.exclude_unknown)
+        search = thesis_weight_search(images, labels, n_trials=cfg.n_trials, seed=cfg.seed,
+                                      exclude_unknown=cfg.exclude_unknown)
         weights = search.weights
-    clf = NaiveBayesPixelClassifier(feats, weights=weights, exclude_unknown=unit.exclude_unknown).fit(images, labels)
+    clf = NaiveBayesPixelClassifier(feats, weights=weights, exclude_unknown=cfg.exclude_unknown).fit(images, labels)
     t_fit = time.perf_counter() - t0
     per_test = []
     total = np.zeros((3, 3), dtype=np.int64)
@@ -297,7 +191,7 @@ def run_unit(unit: Unit) -> dict:
         conf = np.zeros((3, 3), dtype=np.int64)
         frame_errors = []
         for f in datasets[d][a:b]:
-            c = confusion_matrix(clf.predict(f.image), f.labels, exclude_unknown=unit.exclude_unknown)
+            c = confusion_matrix(clf.predict(f.image), f.labels, exclude_unknown=cfg.exclude_unknown)
             conf += c
             frame_errors.append(error_from_confusion(c))
         total += conf
@@ -305,7 +199,7 @@ def run_unit(unit: Unit) -> dict:
                          "mean_frame_error": float(np.nanmean(frame_errors)) if frame_errors else float("nan"),
                          "frame_errors": frame_errors, "confusion": conf.tolist()})
     return {
-        "case": unit.case, "features": unit.features, "key": list(unit.key),
+        "case": unit.case, "features": unit.features, "key": list(unit.result_key),
         "train": [list(r) for r in unit.train], "train_frames": len(train),
         "weights": None if weights is None else list(weights),
         "weight_search": None if search is None else search.to_dict(),
@@ -317,43 +211,48 @@ def run_unit(unit: Unit) -> dict:
     }
 
 
-def run_weight_search(args: tuple) -> dict:
-    """Table 4.1 row: the 30-trial weight search on all frames of one dataset."""
+def run_weight_search(unit) -> dict:
+    """Table 4.1 row: the 30-trial weight search on all frames of one dataset (``unit.dataset``)."""
     from ..classification.bayes import thesis_weight_search
+    from .units import load_cached
 
-    data, frames, size, seed, n_trials, exclude_unknown, name = args
-    datasets = _load(data, frames, size, seed)
-    fr = datasets[name]
-    s = thesis_weight_search([f.image for f in fr], [f.labels for f in fr], n_trials=n_trials, seed=seed,
-                             exclude_unknown=exclude_unknown)
-    return {"dataset": name, **s.to_dict()}
+    cfg = unit.config
+    fr = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
+    s = thesis_weight_search([f.image for f in fr], [f.labels for f in fr], n_trials=cfg.n_trials, seed=cfg.seed,
+                             exclude_unknown=cfg.exclude_unknown)
+    return {"dataset": unit.dataset, **s.to_dict()}
 
 
 # ---------------------------------------------------------------------------------------------
 # the evaluation
 # ---------------------------------------------------------------------------------------------
 
-def evaluate(config: ClassificationConfig, *, executor=None, show_progress: bool | None = None) -> dict:
-    """Run the configured cases; returns every number (what results.json holds). Writes nothing."""
-    from .._runner import _InlineExecutor, run_units
+def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
+             show_progress: bool | None = None) -> dict:
+    """Run the configured cases (resuming from ``out/units`` when ``out`` is given: finished units are
+    kept there as they land); returns every number (what results.json holds)."""
     from ..datasets import PRESETS
+    from .units import Unit, UnitStore, load_cached, plain_config, run_resumable
 
     t0 = time.perf_counter()
-    executor = executor or _InlineExecutor()
-    datasets = _load(config.data, config.frames, config.size, config.seed)
+    datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     info = check_datasets(datasets, exclude_unknown=config.exclude_unknown)
     for name in info:
         if name in PRESETS:
             info[name]["mirrors"] = PRESETS[name].mirrors
     lengths = {d: len(v) for d, v in datasets.items()}
     units, ks = plan_units(config, lengths)
+    cfg_dict = plain_config(config)
+    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
     searches = []
     if any("thesis" in fs.split("+") for fs in config.features):
-        jobs = [(config.data, config.frames, config.size, config.seed, config.n_trials, config.exclude_unknown, d)
-                for d in datasets]
-        searches = run_units(run_weight_search, jobs, executor=executor, desc="weight search",
-                             show_progress=show_progress)
-    results = run_units(run_unit, units, executor=executor, desc="classification", show_progress=show_progress)
+        jobs = [Unit(f"weights/{d}", d, (), config) for d in datasets]
+        done, _ = run_resumable(jobs, run_weight_search, store=store, cfg_dict=cfg_dict, executor=executor,
+                                desc="weight search", show_progress=show_progress)
+        searches = [done[u.key] for u in jobs]
+    done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, executor=executor,
+                                  desc="classification", show_progress=show_progress)
+    results = [done[u.key] for u in units]
     notes = []
     scaled = [d for d, n in lengths.items() if n != 100]
     if scaled and not config.case1_k and "I" in config.cases:
@@ -362,156 +261,13 @@ def evaluate(config: ClassificationConfig, *, executor=None, show_progress: bool
     if scaled and not config.case3_k and "III" in config.cases:
         notes.append("Case III: k per dataset is 10% and 20% of its length (the thesis: 10 and 20 of 100)")
     return {
-        "config": asdict(config),
+        "config": cfg_dict,
         "datasets": info,
         "k": ks,
         "notes": notes,
         "weight_search": searches,
         "units": results,
+        "resumed_units": resumed,
         "seconds": time.perf_counter() - t0,
     }
 
-
-# ---------------------------------------------------------------------------------------------
-# tables and figures
-# ---------------------------------------------------------------------------------------------
-
-def _label(name: str, info: dict) -> str:
-    m = info.get(name, {}).get("mirrors")
-    return f"{name} ({m})" if m else name
-
-
-def tables(results: dict) -> dict[str, tuple[list, list]]:
-    """The thesis-style tables: {name: (header, rows)} for table41_weights, case1, case2, case3."""
-    info = results["datasets"]
-    names = list(info)
-    config = results["config"]
-    out: dict[str, tuple[list, list]] = {}
-    if results["weight_search"]:
-        rows = [[_label(s["dataset"], info), *[f"{w:.3f}" for w in s["weights"]], s["error"]]
-                for s in results["weight_search"]]
-        out["table41_weights"] = (["dataset", "w_r", "w_g", "w_b", "training error %"], rows)
-    units = results["units"]
-    if "I" in config["cases"]:
-        ks = results["k"]["I"]
-        cols = max(len(v) for v in ks.values())
-        same = len({tuple(v) for v in ks.values()}) == 1
-        if same:
-            top = [f"k={k}" for k in ks[names[0]]]
-        elif not config["case1_k"] and len(config["case1_fractions"]) == cols:
-            top = [f"k={100 * f:g}%" for f in config["case1_fractions"]]
-        else:
-            top = [f"k{i + 1}" for i in range(cols)]
-        header = ["dataset", "features"] + top
-        rows = []
-        for fs in config["features"]:
-            for d in names:
-                by_k = {u["key"][2]: u for u in units if u["case"] == "I" and u["features"] == fs and u["key"][1] == d}
-                cells = []
-                for k in ks[d]:
-                    e = by_k[k]["error"]
-                    cells.append(e if same else f"{e:.2f} (k={k})")
-                rows.append([_label(d, info), fs, *cells])
-        out["case1"] = (header, rows)
-    if "II" in config["cases"]:
-        header = ["trained on", "features", *[f"test {d}" for d in names], "test all"]
-        rows = []
-        for fs in config["features"]:
-            for d in names:
-                u = next(u for u in units if u["case"] == "II" and u["features"] == fs and u["key"][1] == d)
-                rows.append([_label(d, info), fs, *[t["error"] for t in u["tests"]], u["error"]])
-        out["case2"] = (header, rows)
-    if "III" in config["cases"]:
-        ks = results["k"]["III"]
-        header = ["k per dataset", "features", "training frames", *[f"test {d}" for d in names], "test all"]
-        rows = []
-        for fs in config["features"]:
-            for u in (u for u in units if u["case"] == "III" and u["features"] == fs):
-                i = u["key"][1]
-                kdesc = sorted({ks[d][i] for d in names})
-                rows.append([",".join(map(str, kdesc)), fs, u["train_frames"], *[t["error"] for t in u["tests"]],
-                             u["error"]])
-        out["case3"] = (header, rows)
-    return out
-
-
-_TITLES = {
-    "table41_weights": "Table 4.1: thesis feature weights, 30 random trials (lowest training error)",
-    "case1": "Table 4.2 (Case I): error % when training on the first k frames, testing on the rest",
-    "case2": "Table 4.3 (Case II): error % when training on all of one dataset, testing on each",
-    "case3": "Table 4.4 (Case III): error % when training on k frames of every dataset, testing on all",
-}
-
-
-def _figures(results: dict) -> dict:
-    """matplotlib figures for case1/case2/case3 (like the thesis's Figures 4.1-4.2)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    info = results["datasets"]
-    names = list(info)
-    config = results["config"]
-    feats = config["features"]
-    units = results["units"]
-    figs = {}
-    if "I" in config["cases"]:
-        fig, axes = plt.subplots(1, len(feats), figsize=(5.2 * len(feats), 4), squeeze=False, sharey=True)
-        for ax, fs in zip(axes[0], feats):
-            for d in names:
-                us = sorted((u for u in units if u["case"] == "I" and u["features"] == fs and u["key"][1] == d),
-                            key=lambda u: u["key"][2])
-                ax.plot([100.0 * u["key"][2] / info[d]["frames"] for u in us], [u["error"] for u in us],
-                        marker="o", label=_label(d, info))
-            ax.set_title(f"Case I, features {fs}")
-            ax.set_xlabel("training frames (% of the sequence)")
-            ax.grid(alpha=0.3)
-        axes[0][0].set_ylabel("error (%)")
-        axes[0][-1].legend(fontsize=8)
-        figs["case1"] = fig
-    for case, fname in (("II", "case2"), ("III", "case3")):
-        if case not in config["cases"]:
-            continue
-        fig, axes = plt.subplots(1, len(feats), figsize=(5.2 * len(feats), 4), squeeze=False, sharey=True)
-        for ax, fs in zip(axes[0], feats):
-            us = [u for u in units if u["case"] == case and u["features"] == fs]
-            x = np.arange(len(names) + 1)
-            width = 0.8 / max(len(us), 1)
-            for j, u in enumerate(us):
-                errs = [t["error"] for t in u["tests"]] + [u["error"]]
-                lab = (f"trained on {_label(u['key'][1], info)}" if case == "II"
-                       else f"{u['train_frames']} training frames")
-                ax.bar(x + (j - (len(us) - 1) / 2) * width, errs, width, label=lab)
-            ax.set_xticks(x, [*names, "all"], rotation=30, fontsize=8)
-            ax.set_title(f"Case {case}, features {fs}")
-            ax.grid(alpha=0.3, axis="y")
-        axes[0][0].set_ylabel("error on test set (%)")
-        axes[0][-1].legend(fontsize=7)
-        figs[fname] = fig
-    return figs
-
-
-def write_outputs(results: dict, out: str | Path) -> list[Path]:
-    """Write the tables, figures, config.json and (last) results.json atomically; returns the paths."""
-    import matplotlib.pyplot as plt
-
-    from .._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
-
-    out = Path(out)
-    written = []
-    for name, (header, rows) in tables(results).items():
-        written.append(atomic_write_csv(out / f"{name}.csv", header, rows))
-        text = f"### {_TITLES[name]}\n\n" + markdown_table(header, rows)
-        notes = [n for n in results["notes"] if (name == "case1" and n.startswith("Case I:"))
-                 or (name == "case3" and n.startswith("Case III:"))]
-        if notes:
-            text += "\n" + "\n".join(f"Note: {n}." for n in notes) + "\n"
-        written.append(atomic_write_text(out / f"{name}.md", text))
-    for name, fig in _figures(results).items():
-        written.append(atomic_save_figure(fig, out / f"{name}.png"))
-        plt.close(fig)
-    written.append(atomic_write_json(out / "config.json", results["config"]))
-    written.append(atomic_write_json(out / "results.json", results))
-    return written

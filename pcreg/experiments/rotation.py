@@ -16,15 +16,16 @@ the original size and loses the corners), then
 
 Each (dataset, sampled frame, backend) is one unit of work (``--workers``); finished units are kept in
 ``OUT/units/`` and skipped when the same command is run again. Outputs: results.json, config.json,
-rotation_<backend>.csv/.md, floors.md and rotation.png (curves like the thesis's Figures 5.1-5.6).
+rotation_<backend>.csv/.md, checks.md and rotation.png (curves like the thesis's Figures 5.1-5.6).
 """
 
 from __future__ import annotations
 
-import argparse
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
+
+from ..registration.config import RegisterConfig
 
 
 DEFAULT_ANGLES = tuple(float(a) for a in range(0, 181, 5))
@@ -38,7 +39,8 @@ class RotationConfig:
     angles : degrees. samples : frames per dataset, evenly spaced (first, ..., last).
     canvas : ``loose`` (holds the whole rotated frame) or ``crop`` (original size).
     backends, data, frames, size, seed : as in ``pcreg evaluate sequence``.
-    levels, iterations, model, features : registration and classifier options.
+    registration : :func:`pcreg.register`'s options (its backend is set per unit from ``backends``).
+    features : the classifier's features.
     """
 
     data: str = "synthetic"
@@ -49,57 +51,9 @@ class RotationConfig:
     frames: int | None = None
     size: tuple[int, int] | None = None
     seed: int = 0
-    levels: int = 4
-    iterations: int = 14
-    model: str = "rigid"
+    registration: RegisterConfig = RegisterConfig()
     features: tuple[str, ...] = ("rgb", "hsv", "row")
 
-
-@dataclass(frozen=True)
-class Unit:
-    dataset: str
-    index: int
-    backend: str
-    config: RotationConfig = field(repr=False)
-
-    @property
-    def key(self) -> str:
-        return f"{self.dataset}/frame{self.index}_{self.backend}"
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from . import _common as c
-
-    c.add_data_arguments(parser)
-    parser.add_argument("--angles", type=c.angle_list, default=DEFAULT_ANGLES, metavar="A,B,...|START:STOP:STEP",
-                        help="rotation angles in degrees (default 0:180:5)")
-    parser.add_argument("--samples", type=int, default=3, help="frames per dataset, evenly spaced (default 3)")
-    parser.add_argument("--canvas", choices=("loose", "crop"), default="loose",
-                        help="loose: the rotated frame is kept whole (default); crop: original size")
-    c.add_run_arguments(parser, out="out/rotation")
-
-
-def config_from_args(args: argparse.Namespace) -> RotationConfig:
-    from ..errors import InputError
-    from . import _common as c
-
-    if args.samples < 1:
-        raise InputError("--samples must be at least 1")
-    if args.frames is not None and args.frames < 1:
-        raise InputError("--frames must be at least 1")
-    if args.levels < 1 or args.levels > 8 or args.iterations < 1:
-        raise InputError("--levels must be in 1..8 and --iterations at least 1")
-    if args.workers < 1:
-        raise InputError("--workers must be at least 1")
-    return RotationConfig(data=args.data, angles=tuple(args.angles), samples=args.samples, canvas=args.canvas,
-                          backends=c.backends(args.backend), frames=args.frames, size=args.size, seed=args.seed,
-                          levels=args.levels, iterations=args.iterations)
-
-
-def run(args: argparse.Namespace) -> int:
-    from ._common import run_command
-
-    return run_command(args, config_from_args(args), name="rotation", evaluate=evaluate, write_outputs=write_outputs)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -117,7 +71,7 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
 
     import numpy as np
 
-    from .. import warp
+    from ..registration.warp import warp
     from ..registration.transforms import about_point, image_center, rigid2d
 
     h, w = image.shape[:2]
@@ -134,18 +88,18 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
     return image_r, labels_r, content, T_rot
 
 
-def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
+def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
     """Every angle for one sampled frame with one backend: a pure function of ``unit``. With a
     recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``)."""
     import numpy as np
 
-    from .. import register
-    from .. import warp
+    from ..registration.api import register
+    from ..registration.warp import warp
     from ..errors import RegistrationError
     from ..classification.metrics import error_rate
-    from ..pipeline import fit_classifier
+    from ..classification.bayes import fit_classifier
     from ..registration.transforms import about_point, image_center, max_corner_error
-    from ._common import angle_key, load_cached
+    from .units import angle_key, load_cached
 
     cfg = unit.config
     t0 = time.perf_counter()
@@ -162,8 +116,7 @@ def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = Non
         row = {"before": error_rate(pred_before, frame.labels)}
         t_reg = time.perf_counter()
         try:
-            res = register(frame.image, image_r, backend=unit.backend, model=cfg.model, levels=cfg.levels,
-                           iterations=cfg.iterations, init="auto",
+            res = register(frame.image, image_r, **cfg.registration.replace(backend=unit.backend).kwargs(),
                            callback=None if recorder is None else recorder.icp_callback(unit.backend))
             T, reason = res.matrix, None
         except RegistrationError as exc:
@@ -202,7 +155,7 @@ def run_unit(unit: Unit, *, recorder=None, frame_counter: list[int] | None = Non
             recorder.log_labels(predicted=pred_after, prefix="after")
             recorder.log_labels(predicted=pred_masked, prefix="after_masked")
             recorder.log_labels(predicted=pred_before, prefix="before")
-            recorder.log_errors({f"{prefix}/{k}": row[k] / 100.0 for k in KEYS})
+            recorder.log_errors({f"{prefix}/{k}": row[k] for k in KEYS})
     out["seconds"] = time.perf_counter() - t0
     return out
 
@@ -223,11 +176,9 @@ def sample_indices(n: int, samples: int) -> list[int]:
 def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=None, show_progress: bool | None = None) -> dict:
     """Run every unit (resuming from ``out/units``); returns what results.json holds."""
-    from ..datasets import PRESETS
     from ..errors import DatasetError
-    from ._common import UnitStore, load_cached, plain_config, run_resumable
+    from .units import Unit, evaluate_units, load_cached
 
-    t0 = time.perf_counter()
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     units = []
     for name, frames in datasets.items():
@@ -235,25 +186,16 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
             if frames[i].labels is None:
                 raise DatasetError(f"dataset {name}: frame {frames[i].name} has no labels")
             for b in config.backends:
-                units.append(Unit(name, i, b, config))
-    cfg_dict = plain_config(config)
-    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
-    done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
-                                  executor=executor, desc="rotation", show_progress=show_progress)
-    results = summarise(config, [done[u.key] for u in units])
-    for name in results["datasets"]:
-        if name in PRESETS:
-            results["datasets"][name]["mirrors"] = PRESETS[name].mirrors
-    results["resumed_units"] = resumed
-    results["seconds"] = time.perf_counter() - t0
-    return results
+                units.append(Unit(f"{name}/frame{i}_{b}", name, (("index", i), ("backend", b)), config))
+    return evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
+                          recorder=recorder, desc="rotation", show_progress=show_progress)
 
 
 def summarise(config: RotationConfig, unit_results: list[dict]) -> dict:
     """results.json: per dataset and angle the mean over sampled frames (first backend at top level)."""
     import numpy as np
 
-    from ._common import angle_key, plain_config
+    from .units import angle_key, plain_config
 
     primary = config.backends[0]
     by_backend: dict = {b: {"datasets": {}} for b in config.backends}
@@ -276,115 +218,3 @@ def summarise(config: RotationConfig, unit_results: list[dict]) -> dict:
             "datasets": {n: dict(d) for n, d in by_backend[primary]["datasets"].items()},
             "backends": by_backend, "units": unit_results}
 
-
-# ---------------------------------------------------------------------------------------------
-# tables, floors and figures
-# ---------------------------------------------------------------------------------------------
-
-def table(results: dict, backend: str) -> tuple[list, list]:
-    """One row per dataset and angle: before, after, after_masked, after_cropped, registration."""
-    header = ["dataset", "angle", *KEYS, "failed", "corner error px (median)"]
-    rows = []
-    for name, d in results["backends"][backend]["datasets"].items():
-        m = results["datasets"].get(name, {}).get("mirrors")
-        label = f"{name} ({m})" if m else name
-        for a, c in d["angles"].items():
-            ce = c["corner_error_median"]
-            rows.append([label, a, *[c[k] for k in KEYS], f"{c['failed']}/{c['frames']}",
-                         "n/a" if ce is None else f"{ce:.2f}"])
-    return header, rows
-
-
-def floors(results: dict) -> str:
-    """With registration, the error at 90 and 180 degrees within 2 points of the error at 0."""
-    from ._common import angle_key
-
-    lines = ["### Floors\n"]
-    for b, bd in results["backends"].items():
-        lines.append(f"**backend {b}**\n")
-        for name, d in bd["datasets"].items():
-            a0 = d["angles"].get(angle_key(0.0))
-            if a0 is None:
-                lines.append(f"- {name}: 0 degrees not in the angle set")
-                continue
-            parts = []
-            for a in (90.0, 180.0):
-                c = d["angles"].get(angle_key(a))
-                if c is None:
-                    continue
-                for key in ("after", "after_masked"):
-                    diff = c[key] - a0[key]
-                    parts.append(f"{key} {a:g}: {c[key]:.2f} ({diff:+.2f}, {'met' if abs(diff) <= 2 else 'NOT met'})")
-            lines.append(f"- {name}: 0 degrees {a0['after']:.2f}; " + "; ".join(parts))
-        lines.append("")
-    return "\n".join(lines) + "\n"
-
-
-def _figure(results: dict):
-    import math
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = list(results["datasets"])
-    if not names:
-        return None
-    cols = min(3, len(names))
-    rows_n = math.ceil(len(names) / cols)
-    fig, axes = plt.subplots(rows_n, cols, figsize=(4.8 * cols, 3.6 * rows_n), squeeze=False, sharey=True)
-    styles = {"before": ("#d62728", ":"), "after": ("#ff7f0e", "-"), "after_masked": ("#1f77b4", "-"),
-              "after_cropped": ("#8c564b", "--")}
-    for ax, name in zip(axes.flat, names):
-        for b, bd in results["backends"].items():
-            d = bd["datasets"][name]
-            xs = [float(a) for a in d["angles"]]
-            for key in KEYS:
-                if key == "before" and b != results["primary_backend"]:
-                    continue
-                colour, ls = styles[key]
-                lab = key if key == "before" else f"{key} ({b})"
-                ax.plot(xs, [d["angles"][a][key] for a in d["angles"]], ls if b == results["primary_backend"] else "-.",
-                        color=colour, marker="o" if b == results["primary_backend"] else "x", ms=3, lw=1.2,
-                        alpha=1.0 if b == results["primary_backend"] else 0.6, label=lab)
-        m = results["datasets"][name].get("mirrors")
-        ax.set_title(f"{name} ({m})" if m else name, fontsize=10)
-        ax.set_xlabel("rotation (degrees)")
-        ax.grid(alpha=0.3)
-        ax.set_xticks(range(0, 181, 30))
-    for ax in axes.flat[len(names):]:
-        ax.axis("off")
-    for r in range(rows_n):
-        axes[r][0].set_ylabel("error (%)")
-    axes[0][0].set_ylim(bottom=0)
-    handles, labels = axes.flat[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), fontsize=8, frameon=False,
-               bbox_to_anchor=(0.5, -0.06 if rows_n > 1 else -0.12))
-    fig.suptitle("Rotated frames classified before and after registering them back", fontsize=11)
-    fig.tight_layout()
-    return fig
-
-
-def write_outputs(results: dict, out: str | Path) -> list[Path]:
-    import matplotlib.pyplot as plt
-
-    from .._io import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
-    from ._common import nan_to_none
-
-    out = Path(out)
-    written = []
-    for b in results["backends"]:
-        header, rows = table(results, b)
-        written.append(atomic_write_csv(out / f"rotation_{b}.csv", header, rows))
-        written.append(atomic_write_text(out / f"rotation_{b}.md",
-                                         f"### Rotation (thesis Ch. 5), backend {b}: error % (mean over sampled frames)\n\n"
-                                         + markdown_table(header, rows)))
-    written.append(atomic_write_text(out / "floors.md", floors(results)))
-    fig = _figure(results)
-    if fig is not None:
-        written.append(atomic_save_figure(fig, out / "rotation.png"))
-        plt.close(fig)
-    written.append(atomic_write_json(out / "config.json", results["config"]))
-    written.append(atomic_write_json(out / "results.json", nan_to_none(results)))
-    return written

@@ -1,4 +1,8 @@
-"""Rerun recordings (.rrd) of every stage; the only module of pcreg that imports rerun.
+"""Rerun recordings (.rrd) of every stage; the only module of pcreg that logs to rerun (writes).
+
+The others that import rerun: :mod:`pcreg.recording.blueprint` builds layouts (``rerun.blueprint``);
+:mod:`pcreg.recording.readback` and :mod:`pcreg.commands.view` read recordings (``rerun.chunk.RrdReader``)
+and drive the viewer.
 
 A :class:`Recorder` writes to its file as it goes, so a run that is interrupted leaves a recording
 that reads back up to where it stopped. Entity paths and timelines are named in
@@ -38,18 +42,14 @@ import rerun as rr
 
 from pcreg.recording import entities as E
 
-from .._io import check_output, to_json
+from ..outputs import check_output, to_json
 from ..errors import InputError, OutputError
 from ..registration.result import IcpIteration
 
 __all__ = ["Recorder", "DEFAULT_JPEG_QUALITY"]
 
-#: JPEG quality of logged images (with optimised Huffman tables). On 640x480 camera frames (CamVid,
-#: resized) a frame is about 28 kB at quality 60, 33 kB at 65-70, 36 kB at 75, 42 kB at 80 and 50 kB
-#: at 85; blocking shows only when zoomed in past 1:1. A sequence frame carries three images
-#: (reference, moving, warped): measured with tools/bench_recording.py, a 100-frame sequence with
-#: labels, mask and clouds is 14.4 MB at 60, 15.2 MB at 65 and 16.1 MB at 70, so 60 is the highest
-#: quality that keeps it under 15 MB. ``raw_images=True`` logs the pixels losslessly instead.
+#: JPEG quality of logged images (with optimised Huffman tables): the highest that keeps a 100-frame
+#: 640x480 sequence recording under 15 MB (README, design notes). ``raw_images=True`` logs losslessly.
 DEFAULT_JPEG_QUALITY = 60
 
 _LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}
@@ -476,7 +476,8 @@ class Recorder:
         self._log(path, rr.Scalars(float(value)))
 
     def log_errors(self, errors: Mapping[str, float]) -> None:
-        """Log error rates (fractions) per method as Scalars at ``errors/{method}``; NaN is skipped."""
+        """Log error rates in percent (as everywhere in pcreg) per method as Scalars at ``errors/{method}``;
+        NaN is skipped."""
         for method, value in errors.items():
             v = float(value)
             if math.isfinite(v):

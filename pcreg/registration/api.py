@@ -141,16 +141,16 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
     total_iter = 0
     n_levels = len(schedule)
     for i, (s, t, d, n) in enumerate(schedule):
-        T, fit, rmse, it, conv = _run_backend(backend, s, t, model=model, dist=d, init=T, max_iteration=n,
-                                              relative_fitness=relative_fitness, relative_rmse=relative_rmse,
-                                              weights=weights, metric=metric,
-                                              target_normals=target_normals if not voxel_sizes else None,
-                                              callback=callback, level=n_levels - 1 - i, rotation=rotation,
-                                              trim_fraction=trim_fraction, count_iterations=count_iterations)
-        total_iter = -1 if (it < 0 or total_iter < 0) else total_iter + it
+        r = _run_backend(backend, s, t, model=model, dist=d, init=T, max_iteration=n,
+                         relative_fitness=relative_fitness, relative_rmse=relative_rmse, weights=weights,
+                         metric=metric, target_normals=target_normals if not voxel_sizes else None,
+                         callback=callback, level=n_levels - 1 - i, rotation=rotation,
+                         trim_fraction=trim_fraction, count_iterations=count_iterations)
+        T = r.matrix
+        total_iter = -1 if (r.iterations < 0 or total_iter < 0) else total_iter + r.iterations
     seconds = time.perf_counter() - start
-    return RegistrationResult(matrix=T, fitness=fit, inlier_rmse=rmse, iterations=total_iter, converged=conv,
-                              backend=backend, seconds=seconds)
+    return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
+                              converged=r.converged, backend=backend, seconds=seconds)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -260,13 +260,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         raise InputError(f"refine must be 'point_to_line' or None, got {refine!r}")
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
         raise InputError(f"images too small for {levels} pyramid levels")
-    if not isinstance(max_points, (list, tuple)):
-        max_points = (max_points,) * levels
-    max_points = tuple(max_points) + (max_points[-1],) * max(0, levels - len(max_points))
     start = time.perf_counter()
     ref_levels = cloud_pyramid(ref_img, levels=levels, mask=reference_mask, max_points=reference_max_points,
                                sampler=sampler, seed=seed, canny_percentile=canny_percentile)
-    mov_levels = cloud_pyramid(mov_img, levels=levels, mask=moving_mask, max_points=tuple(max_points[:levels]),
+    mov_levels = cloud_pyramid(mov_img, levels=levels, mask=moving_mask, max_points=max_points,
                                sampler=sampler, seed=seed + 1, canny_percentile=canny_percentile)
     for name, lv in (("reference", ref_levels), ("moving", mov_levels)):
         if len(lv[0]) < 3:
@@ -301,7 +298,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                                    model="rigid" if model != "translation" else "translation",
                                    max_correspondence_distance=3.0 * 2**g_level, init=Ts[k],
                                    max_iteration=iterations, relative_fitness=relative_fitness,
-                                   relative_rmse=relative_rmse * 2**g_level, tree=g_tree, level=g_level)[0]
+                                   relative_rmse=relative_rmse * 2**g_level, tree=g_tree, level=g_level).matrix
                 d, _ = g_tree.query(apply(Tk, mov_levels[g_level].points), k=1)
                 tight = float(np.mean(d < 2**g_level))
                 if tight > best[0]:
@@ -323,24 +320,20 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
             continue
         check_rank(s.points, model)
         dist = max_correspondence_distance * 2**level
-        T, fit, rmse, it, conv = _run_backend(backend, s.points, t.points, model=model, dist=dist, init=T,
-                                              max_iteration=iterations, relative_fitness=relative_fitness,
-                                              relative_rmse=relative_rmse * 2**level, weights=weights,
-                                              metric="point_to_point", target_normals=None, callback=callback,
-                                              level=level,
-                                              tree=tree(level) if backend == "reference" else None)
-        total = -1 if (it < 0 or total < 0) else total + it
+        r = _run_backend(backend, s.points, t.points, model=model, dist=dist, init=T, max_iteration=iterations,
+                         relative_fitness=relative_fitness, relative_rmse=relative_rmse * 2**level,
+                         weights=weights, metric="point_to_point", target_normals=None, callback=callback,
+                         level=level, tree=tree(level) if backend == "reference" else None)
+        T, fit, rmse, conv = r.matrix, r.fitness, r.inlier_rmse, r.converged
+        total = -1 if (r.iterations < 0 or total < 0) else total + r.iterations
     if p2l:
         s, t = mov_levels[0], ref_levels[0]
-        T, fit, rmse, it, conv = icp_reference(s.points, t.points, model=model,
-                                               max_correspondence_distance=max_correspondence_distance,
-                                               init=T, max_iteration=iterations,
-                                               relative_fitness=min(relative_fitness, 1e-6),
-                                               relative_rmse=min(relative_rmse, 1e-6),
-                                               weights="tukey" if weights == "none" else weights,
-                                               metric="point_to_line", target_normals=t.normals,
-                                               callback=callback, level=0)
-        total = -1 if total < 0 else total + it
+        r = icp_reference(s.points, t.points, model=model, max_correspondence_distance=max_correspondence_distance,
+                          init=T, max_iteration=iterations, relative_fitness=min(relative_fitness, 1e-6),
+                          relative_rmse=min(relative_rmse, 1e-6), weights="tukey" if weights == "none" else weights,
+                          metric="point_to_line", target_normals=t.normals, callback=callback, level=0)
+        T, fit, rmse, conv = r.matrix, r.fitness, r.inlier_rmse, r.converged
+        total = -1 if total < 0 else total + r.iterations
     seconds = time.perf_counter() - start
     if fit == 0.0:
         raise RegistrationError("registration found no overlap between the images")

@@ -11,12 +11,13 @@ The tensor API's ``multi_scale_icp`` (Float64) serves voxel-pyramid registration
 
 from __future__ import annotations
 
+import time
 from typing import Callable, Sequence
 
 import numpy as np
 
 from ..errors import RegistrationError
-from .result import IcpIteration
+from .result import IcpIteration, RegistrationResult
 from .transforms import lift_to_3d, project_to_2d
 
 SUPPORTED = ("rigid", "similarity")
@@ -45,12 +46,19 @@ def _check_model(model: str) -> None:
         )
 
 
+def _result(matrix: np.ndarray, r, iterations: int, converged: bool, start: float) -> RegistrationResult:
+    return RegistrationResult(matrix=matrix, fitness=float(r.fitness), inlier_rmse=float(r.inlier_rmse),
+                              iterations=iterations, converged=converged, backend="open3d",
+                              seconds=time.perf_counter() - start)
+
+
 def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", max_correspondence_distance: float,
                init: np.ndarray | None = None, max_iteration: int = 30, relative_fitness: float = 1e-6,
                relative_rmse: float = 1e-6, callback: Callable[[IcpIteration], None] | None = None,
                stepwise: bool | None = None, level: int = 0, source_pcd=None, target_pcd=None,
-               ) -> tuple[np.ndarray, float, float, int, bool]:
-    """One Open3D ICP run at one scale. Returns (matrix, fitness, inlier_rmse, iterations, converged)."""
+               ) -> RegistrationResult:
+    """One Open3D ICP run at one scale: a :class:`RegistrationResult` (``matrix`` is ``T_target_source``)."""
+    start = time.perf_counter()
     _check_model(model)
     o3d = _o3d()
     reg = o3d.pipelines.registration
@@ -88,7 +96,7 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", 
         r_next = step(np.asarray(r.transformation), 1)
         converged = (abs(r_next.fitness - r.fitness) < relative_fitness
                      and abs(r_next.inlier_rmse - r.inlier_rmse) < relative_rmse)
-        return back(np.asarray(r.transformation)), float(r.fitness), float(r.inlier_rmse), -1, converged
+        return _result(back(np.asarray(r.transformation)), r, -1, converged, start)
 
     r = reg.evaluate_registration(src, tgt, max_correspondence_distance, T4)
     report(0, r, T4)
@@ -102,15 +110,16 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", 
         if abs(prev.fitness - r.fitness) < relative_fitness and abs(prev.inlier_rmse - r.inlier_rmse) < relative_rmse:
             converged = True
             break
-    return back(T4), float(r.fitness), float(r.inlier_rmse), iterations, converged
+    return _result(back(T4), r, iterations, converged, start)
 
 
 def multi_scale_icp_open3d(source: np.ndarray, target: np.ndarray, *, voxel_sizes: Sequence[float],
                            max_correspondence_distances: Sequence[float], max_iterations: Sequence[int],
                            init: np.ndarray | None = None, relative_fitness: float = 1e-6,
                            relative_rmse: float = 1e-6, model: str = "rigid",
-                           ) -> tuple[np.ndarray, float, float, int, bool]:
+                           ) -> RegistrationResult:
     """Open3D tensor ``multi_scale_icp`` (Float64, CPU) for 3-D clouds; coarse to fine over voxel sizes."""
+    start = time.perf_counter()
     _check_model(model)
     o3d = _o3d()
     treg = o3d.t.pipelines.registration
@@ -125,5 +134,7 @@ def multi_scale_icp_open3d(source: np.ndarray, target: np.ndarray, *, voxel_size
     est = treg.TransformationEstimationPointToPoint(with_scaling=(model == "similarity"))
     r = treg.multi_scale_icp(src, tgt, o3d.utility.DoubleVector(list(map(float, voxel_sizes))), crit,
                              o3d.utility.DoubleVector(list(map(float, max_correspondence_distances))), init_t, est)
-    return (r.transformation.numpy(), float(r.fitness), float(r.inlier_rmse), int(r.num_iterations),
-            bool(r.converged))
+    return RegistrationResult(matrix=r.transformation.numpy(), fitness=float(r.fitness),
+                              inlier_rmse=float(r.inlier_rmse), iterations=int(r.num_iterations),
+                              converged=bool(r.converged), backend="open3d",
+                              seconds=time.perf_counter() - start)

@@ -15,12 +15,13 @@ Open3D's legacy ``registration_icp`` so the two can be checked against each othe
 
 from __future__ import annotations
 
+import time
 from typing import Callable
 
 import numpy as np
 from ..errors import RegistrationError
 from .nn import GridIndex
-from .result import IcpIteration
+from .result import IcpIteration, RegistrationResult
 from .transforms import apply
 
 WEIGHTS = ("none", "trimmed", "huber", "tukey")
@@ -315,13 +316,14 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
                   metric: str = "point_to_point", target_normals: np.ndarray | None = None,
                   rotation: str = "svd", tree: GridIndex | None = None,
                   callback: Callable[[IcpIteration], None] | None = None, level: int = 0,
-                  ) -> tuple[np.ndarray, float, float, int, bool]:
-    """One ICP run at one scale. Returns (matrix, fitness, inlier_rmse, iterations, converged).
+                  ) -> RegistrationResult:
+    """One ICP run at one scale: a :class:`RegistrationResult` whose ``matrix`` is ``T_target_source``.
 
     source : (N, d), target : (M, d) float64, finite; d = 2 or 3.
     tree : a prebuilt index of ``target`` (:func:`build_tree`, or a ``scipy.spatial.cKDTree``), reused
         across calls on the same target.
     """
+    start = time.perf_counter()
     d = source.shape[1]
     T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
     if tree is None:
@@ -363,7 +365,8 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
         if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
             converged = True
             break
-    return T, fitness, rmse, iterations, converged
+    return RegistrationResult(matrix=T, fitness=fitness, inlier_rmse=rmse, iterations=iterations,
+                              converged=converged, backend="reference", seconds=time.perf_counter() - start)
 
 
 def warm_up() -> None:

@@ -27,7 +27,7 @@ class RegistrationResult:
     converged : bool
         The stopping rule fired before ``max_iteration`` at the finest level.
     backend : str
-        ``"reference"``, ``"open3d"`` or ``"ecc"``.
+        ``"reference"`` or ``"open3d"``.
     seconds : float
         Wall time of the registration alone (no I/O, no imports).
     """

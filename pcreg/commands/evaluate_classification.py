@@ -1,0 +1,77 @@
+"""``pcreg evaluate classification``: thesis Ch. 4, naive Bayes alone (cases I-III and the weight search).
+
+Parses the options, builds a :class:`~pcreg.experiments.classification.ClassificationConfig`, runs
+:func:`~pcreg.experiments.classification.evaluate` (resumable: finished units are kept in OUT/units/)
+and writes :mod:`~pcreg.experiments.reports.classification`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..experiments.classification import CASES, DEFAULT_FEATURES, ClassificationConfig
+
+
+
+def _cases(text: str) -> tuple[str, ...]:
+    vals = tuple(v.strip().upper() for v in text.split(",") if v.strip())
+    bad = [v for v in vals if v not in CASES]
+    if bad or not vals:
+        raise argparse.ArgumentTypeError(f"cases are I, II, III (comma-separated), got {text!r}")
+    return tuple(c for c in CASES if c in vals)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from . import _common as c
+
+    parser.add_argument("--data", default="synthetic",
+                        help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
+    parser.add_argument("--cases", type=_cases, default=CASES, help="cases to run, e.g. I,III (default I,II,III)")
+    parser.add_argument("--features", nargs="+", default=list(DEFAULT_FEATURES), metavar="SET",
+                        help="feature sets, each names joined by + from thesis, rgb, hsv, lab, texture, row "
+                             "(default: thesis rgb+hsv+row)")
+    parser.add_argument("--k", dest="case1_k", type=c.int_list, default=(), metavar="K,K,...",
+                        help="Case I training frame counts (default 10%%..90%% of each sequence: 10..90 of 100)")
+    parser.add_argument("--k3", dest="case3_k", type=c.int_list, default=(), metavar="K,K,...",
+                        help="Case III frames per dataset (default 10%% and 20%% of each sequence)")
+    parser.add_argument("--frames", type=int, default=None, help="frames per synthetic sequence (default 100); "
+                        "first frames of real sequences (default all)")
+    parser.add_argument("--size", type=c.size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
+    parser.add_argument("--trials", type=int, default=30, help="weight-search trials for the thesis feature (default 30)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the weight search and synthetic data (default 0)")
+    parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
+    parser.add_argument("--out", default="out/classification", help="output folder (default out/classification)")
+    parser.add_argument("--force", action="store_true", help="discard finished units and outputs of an earlier run")
+
+
+def config_from_args(args: argparse.Namespace) -> ClassificationConfig:
+    from ..errors import InputError
+    from ..classification.features import parse_features
+
+    feats = tuple("+".join(parse_features(f)) for f in args.features)
+    if len(set(feats)) != len(feats):
+        raise InputError("a feature set is listed twice in --features")
+    if args.trials < 1:
+        raise InputError("--trials must be at least 1")
+    if args.frames is not None and args.frames < 1:
+        raise InputError("--frames must be at least 1")
+    return ClassificationConfig(data=args.data, cases=tuple(args.cases), features=feats,
+                                case1_k=tuple(args.case1_k), case3_k=tuple(args.case3_k), n_trials=args.trials,
+                                seed=args.seed, frames=args.frames, size=args.size)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .._runner import make_executor
+    from ..experiments.classification import evaluate
+    from ..experiments.reports.classification import write_outputs
+
+    config = config_from_args(args)
+    out = Path(args.out)
+    with make_executor(args.workers, scheduler=args.scheduler) as executor:
+        results = evaluate(config, out=out, force=args.force, executor=executor)
+    written = write_outputs(results, out)
+    print(f"wrote {len(written)} files to {out}")
+    print((out / "case1.md").read_text() if "I" in config.cases else "", end="")
+    return 0

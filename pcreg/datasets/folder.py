@@ -1,0 +1,106 @@
+"""Image folders (CamVid and the like): ``images/*.png|jpg`` with ``labels/*.png`` raw ids mapped to
+{0 ground, 1 obstacle, 2 unknown}."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import DatasetError, InputError
+from .frame import Frame
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+# CamVid's 12 class ids -> LAGR labels (0 ground, 1 obstacle, 2 unknown); ../shared/data/README.md.
+CAMVID_MAPPING: dict[int, int] = {
+    0: 2,  # sky
+    1: 1,  # building
+    2: 1,  # pole
+    3: 0,  # road
+    4: 0,  # pavement
+    5: 1,  # tree
+    6: 1,  # sign symbol
+    7: 1,  # fence
+    8: 1,  # car
+    9: 1,  # pedestrian
+    10: 1,  # bicyclist
+    11: 2,  # void
+}
+
+
+def _mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
+    """256-entry table raw id -> label, 255 for ids outside the mapping; None for identity on {0,1,2}."""
+    if mapping is None:
+        lut = np.full(256, 255, dtype=np.uint8)
+        lut[:3] = (0, 1, 2)
+        return lut
+    if isinstance(mapping, str):
+        if mapping.lower() != "camvid":
+            raise InputError(f"unknown label mapping {mapping!r} (use 'camvid', a dict or None)")
+        mapping = CAMVID_MAPPING
+    lut = np.full(256, 255, dtype=np.uint8)
+    for raw, lab in dict(mapping).items():
+        if not (0 <= int(raw) <= 255) or int(lab) not in (0, 1, 2):
+            raise InputError(f"label mapping entry {raw} -> {lab}: raw ids are 0..255, labels 0, 1 or 2")
+        lut[int(raw)] = int(lab)
+    return lut
+
+
+def _read_png(path: Path, *, color: bool) -> np.ndarray:
+    import cv2
+
+    data = np.fromfile(str(path), dtype=np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED) if data.size else None
+    if img is None:
+        raise DatasetError(f"{path}: cannot decode image (corrupt or not an image)")
+    if color:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return img
+
+
+def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None = "camvid") -> list[Frame]:
+    """Load ``folder/images/NAME.png|jpg`` with ``folder/labels/NAME.png`` in name order.
+
+    mapping : ``"camvid"`` (CamVid's 12 ids, the default), a dict raw id -> label in {0, 1, 2}, or
+        None (label files already hold 0, 1, 2). A label id outside the mapping is an error.
+
+    Without a ``labels/`` folder the frames load unlabelled. With one, every image needs its label
+    file and every label file its image, of the same size.
+    Returns frames with image (H, W, 3) uint8 RGB and labels (H, W) uint8.
+    """
+    folder = Path(folder)
+    img_dir, lab_dir = folder / "images", folder / "labels"
+    if not img_dir.is_dir():
+        raise DatasetError(f"{folder}: no images/ folder")
+    images = {p.stem: p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()}
+    if not images:
+        raise DatasetError(f"{img_dir}: no .png or .jpg frames")
+    lut = _mapping_lut(mapping)
+    labels: dict[str, Path] | None = None
+    if lab_dir.is_dir():
+        labels = {p.stem: p for p in sorted(lab_dir.iterdir()) if p.suffix.lower() == ".png" and p.is_file()}
+        no_label = sorted(set(images) - set(labels))
+        if no_label:
+            raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')}")
+        no_image = sorted(set(labels) - set(images))
+        if no_image:
+            raise DatasetError(f"{labels[no_image[0]]}: label file without an image in {img_dir}")
+    frames = []
+    for name in sorted(images):
+        image = _read_png(images[name], color=True)
+        lab = None
+        if labels is not None:
+            raw = _read_png(labels[name], color=False)
+            if raw.ndim != 2 or raw.dtype != np.uint8:
+                raise DatasetError(f"{labels[name]}: label file must be a single-channel 8-bit PNG, got {raw.shape} {raw.dtype}")
+            if raw.shape != image.shape[:2]:
+                raise DatasetError(f"{labels[name]}: labels are {raw.shape[1]}x{raw.shape[0]} but the image is "
+                                   f"{image.shape[1]}x{image.shape[0]}")
+            lab = lut[raw]
+            if lab.max() == 255:
+                bad = np.unique(raw[lab == 255])[:8].tolist()
+                raise DatasetError(f"{labels[name]}: label ids {bad} are outside the mapping")
+        frames.append(Frame(image=image, labels=lab, name=name))
+    return frames

@@ -1,0 +1,79 @@
+"""A labelled frame: the unit every loader returns, and the ground-truth motion between two."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Frame:
+    """One frame of a sequence.
+
+    image : (H, W, 3) uint8 RGB.
+    labels : (H, W) uint8 in {0 ground, 1 obstacle, 2 unknown}, or None for an unlabelled frame.
+    name : str, unique within its sequence (e.g. the file stem).
+    pose : (3, 3) float64 ``T_canvas_frame`` or None: maps this frame's pixel coordinates (x right,
+        y down, (0, 0) the centre of the top-left pixel) into one coordinate frame common to the whole
+        sequence, so the ground truth between two frames is ``inv(reference.pose) @ moving.pose``
+        (see :func:`relative_transform`). Known for synthetic sequences only.
+
+    The arrays are read-only views; the caller's arrays are not copied or modified.
+    """
+
+    image: np.ndarray
+    labels: np.ndarray | None
+    name: str
+    pose: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        image = np.asarray(self.image)
+        if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+            raise InputError(f"frame {self.name!r}: image must be (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
+        object.__setattr__(self, "image", _readonly(image))
+        if self.labels is not None:
+            labels = np.asarray(self.labels)
+            if labels.dtype != np.uint8 or labels.shape != image.shape[:2]:
+                raise InputError(f"frame {self.name!r}: labels must be (H, W) uint8 matching the image "
+                                 f"{image.shape[:2]}, got {labels.shape} {labels.dtype}")
+            if labels.size and labels.max() > 2:
+                raise InputError(f"frame {self.name!r}: label values must be 0, 1 or 2, got {int(labels.max())}")
+            object.__setattr__(self, "labels", _readonly(labels))
+        if self.pose is not None:
+            pose = np.array(self.pose, dtype=np.float64)
+            if pose.shape != (3, 3):
+                raise InputError(f"frame {self.name!r}: pose must be 3x3, got {pose.shape}")
+            pose.flags.writeable = False
+            object.__setattr__(self, "pose", pose)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W)."""
+        return (int(self.image.shape[0]), int(self.image.shape[1]))
+
+    @property
+    def labelled(self) -> bool:
+        return self.labels is not None
+
+    def __repr__(self) -> str:
+        h, w = self.shape
+        lab = "None" if self.labels is None else f"({h}, {w}) uint8"
+        pose = "None" if self.pose is None else "(3, 3)"
+        return f"Frame(name={self.name!r}, image=({h}, {w}, 3) uint8, labels={lab}, pose={pose})"
+
+
+def relative_transform(reference: Frame, moving: Frame) -> np.ndarray | None:
+    """Ground-truth ``T_ref_mov`` (3, 3) float64, mapping the moving frame's pixel coordinates into the
+    reference frame's: ``inv(reference.pose) @ moving.pose``; None when either pose is unknown."""
+    if reference.pose is None or moving.pose is None:
+        return None
+    return np.linalg.solve(reference.pose, moving.pose)

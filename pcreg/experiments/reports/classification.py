@@ -1,0 +1,135 @@
+"""Report of the classification evaluation (thesis Ch. 4): Table 4.1, cases I-III as tables and figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def _label(name: str, info: dict) -> str:
+    m = info.get(name, {}).get("mirrors")
+    return f"{name} ({m})" if m else name
+
+
+def tables(results: dict) -> dict[str, tuple[list, list]]:
+    """The thesis-style tables: {name: (header, rows)} for table41_weights, case1, case2, case3."""
+    info = results["datasets"]
+    names = list(info)
+    config = results["config"]
+    out: dict[str, tuple[list, list]] = {}
+    if results["weight_search"]:
+        rows = [[_label(s["dataset"], info), *[f"{w:.3f}" for w in s["weights"]], s["error"]]
+                for s in results["weight_search"]]
+        out["table41_weights"] = (["dataset", "w_r", "w_g", "w_b", "training error %"], rows)
+    units = results["units"]
+    if "I" in config["cases"]:
+        ks = results["k"]["I"]
+        cols = max(len(v) for v in ks.values())
+        same = len({tuple(v) for v in ks.values()}) == 1
+        if same:
+            top = [f"k={k}" for k in ks[names[0]]]
+        elif not config["case1_k"] and len(config["case1_fractions"]) == cols:
+            top = [f"k={100 * f:g}%" for f in config["case1_fractions"]]
+        else:
+            top = [f"k{i + 1}" for i in range(cols)]
+        header = ["dataset", "features"] + top
+        rows = []
+        for fs in config["features"]:
+            for d in names:
+                by_k = {u["key"][2]: u for u in units if u["case"] == "I" and u["features"] == fs and u["key"][1] == d}
+                cells = []
+                for k in ks[d]:
+                    e = by_k[k]["error"]
+                    cells.append(e if same else f"{e:.2f} (k={k})")
+                rows.append([_label(d, info), fs, *cells])
+        out["case1"] = (header, rows)
+    if "II" in config["cases"]:
+        header = ["trained on", "features", *[f"test {d}" for d in names], "test all"]
+        rows = []
+        for fs in config["features"]:
+            for d in names:
+                u = next(u for u in units if u["case"] == "II" and u["features"] == fs and u["key"][1] == d)
+                rows.append([_label(d, info), fs, *[t["error"] for t in u["tests"]], u["error"]])
+        out["case2"] = (header, rows)
+    if "III" in config["cases"]:
+        ks = results["k"]["III"]
+        header = ["k per dataset", "features", "training frames", *[f"test {d}" for d in names], "test all"]
+        rows = []
+        for fs in config["features"]:
+            for u in (u for u in units if u["case"] == "III" and u["features"] == fs):
+                i = u["key"][1]
+                kdesc = sorted({ks[d][i] for d in names})
+                rows.append([",".join(map(str, kdesc)), fs, u["train_frames"], *[t["error"] for t in u["tests"]],
+                             u["error"]])
+        out["case3"] = (header, rows)
+    return out
+
+
+_TITLES = {
+    "table41_weights": "Table 4.1: thesis feature weights, 30 random trials (lowest training error)",
+    "case1": "Table 4.2 (Case I): error % when training on the first k frames, testing on the rest",
+    "case2": "Table 4.3 (Case II): error % when training on all of one dataset, testing on each",
+    "case3": "Table 4.4 (Case III): error % when training on k frames of every dataset, testing on all",
+}
+
+
+def _figures(results: dict) -> dict:
+    """matplotlib figures for case1/case2/case3 (like the thesis's Figures 4.1-4.2)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    info = results["datasets"]
+    names = list(info)
+    config = results["config"]
+    feats = config["features"]
+    units = results["units"]
+    figs = {}
+    if "I" in config["cases"]:
+        fig, axes = plt.subplots(1, len(feats), figsize=(5.2 * len(feats), 4), squeeze=False, sharey=True)
+        for ax, fs in zip(axes[0], feats):
+            for d in names:
+                us = sorted((u for u in units if u["case"] == "I" and u["features"] == fs and u["key"][1] == d),
+                            key=lambda u: u["key"][2])
+                ax.plot([100.0 * u["key"][2] / info[d]["frames"] for u in us], [u["error"] for u in us],
+                        marker="o", label=_label(d, info))
+            ax.set_title(f"Case I, features {fs}")
+            ax.set_xlabel("training frames (% of the sequence)")
+            ax.grid(alpha=0.3)
+        axes[0][0].set_ylabel("error (%)")
+        axes[0][-1].legend(fontsize=8)
+        figs["case1"] = fig
+    for case, fname in (("II", "case2"), ("III", "case3")):
+        if case not in config["cases"]:
+            continue
+        fig, axes = plt.subplots(1, len(feats), figsize=(5.2 * len(feats), 4), squeeze=False, sharey=True)
+        for ax, fs in zip(axes[0], feats):
+            us = [u for u in units if u["case"] == case and u["features"] == fs]
+            x = np.arange(len(names) + 1)
+            width = 0.8 / max(len(us), 1)
+            for j, u in enumerate(us):
+                errs = [t["error"] for t in u["tests"]] + [u["error"]]
+                lab = (f"trained on {_label(u['key'][1], info)}" if case == "II"
+                       else f"{u['train_frames']} training frames")
+                ax.bar(x + (j - (len(us) - 1) / 2) * width, errs, width, label=lab)
+            ax.set_xticks(x, [*names, "all"], rotation=30, fontsize=8)
+            ax.set_title(f"Case {case}, features {fs}")
+            ax.grid(alpha=0.3, axis="y")
+        axes[0][0].set_ylabel("error on test set (%)")
+        axes[0][-1].legend(fontsize=7)
+        figs[fname] = fig
+    return figs
+
+
+def write_outputs(results: dict, out: str | Path) -> list[Path]:
+    """The tables (.csv, .md), figures, config.json and (last) results.json, atomically; returns the paths."""
+    from .files import write_files
+
+    specs = {}
+    for name, (header, rows) in tables(results).items():
+        notes = [n for n in results["notes"] if (name == "case1" and n.startswith("Case I:"))
+                 or (name == "case3" and n.startswith("Case III:"))]
+        footer = "\n" + "\n".join(f"Note: {n}." for n in notes) + "\n" if notes else ""
+        specs[name] = (_TITLES[name], header, rows, footer)
+    return write_files(out, results, tables=specs, figures=_figures(results))

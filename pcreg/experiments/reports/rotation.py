@@ -1,0 +1,101 @@
+"""Report of the rotation evaluation (thesis Ch. 5): tables, checks and the figure, from results."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..rotation import KEYS
+
+def table(results: dict, backend: str) -> tuple[list, list]:
+    """One row per dataset and angle: before, after, after_masked, after_cropped, registration."""
+    header = ["dataset", "angle", *KEYS, "failed", "corner error px (median)"]
+    rows = []
+    for name, d in results["backends"][backend]["datasets"].items():
+        m = results["datasets"].get(name, {}).get("mirrors")
+        label = f"{name} ({m})" if m else name
+        for a, c in d["angles"].items():
+            ce = c["corner_error_median"]
+            rows.append([label, a, *[c[k] for k in KEYS], f"{c['failed']}/{c['frames']}",
+                         "n/a" if ce is None else f"{ce:.2f}"])
+    return header, rows
+
+
+def checks(results: dict) -> str:
+    """With registration, the error at 90 and 180 degrees within 2 points of the error at 0."""
+    from ..units import angle_key
+
+    lines = ["### Checks: after registration, 90 and 180 degrees within 2 points of 0 degrees\n"]
+    for b, bd in results["backends"].items():
+        lines.append(f"**backend {b}**\n")
+        for name, d in bd["datasets"].items():
+            a0 = d["angles"].get(angle_key(0.0))
+            if a0 is None:
+                lines.append(f"- {name}: 0 degrees not in the angle set")
+                continue
+            parts = []
+            for a in (90.0, 180.0):
+                c = d["angles"].get(angle_key(a))
+                if c is None:
+                    continue
+                for key in ("after", "after_masked"):
+                    diff = c[key] - a0[key]
+                    parts.append(f"{key} {a:g}: {c[key]:.2f} ({diff:+.2f}, {'met' if abs(diff) <= 2 else 'NOT met'})")
+            lines.append(f"- {name}: 0 degrees {a0['after']:.2f}; " + "; ".join(parts))
+        lines.append("")
+    return "\n".join(lines) + "\n"
+
+
+def _figure(results: dict):
+    import math
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(results["datasets"])
+    if not names:
+        return None
+    cols = min(3, len(names))
+    rows_n = math.ceil(len(names) / cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(4.8 * cols, 3.6 * rows_n), squeeze=False, sharey=True)
+    styles = {"before": ("#d62728", ":"), "after": ("#ff7f0e", "-"), "after_masked": ("#1f77b4", "-"),
+              "after_cropped": ("#8c564b", "--")}
+    for ax, name in zip(axes.flat, names):
+        for b, bd in results["backends"].items():
+            d = bd["datasets"][name]
+            xs = [float(a) for a in d["angles"]]
+            for key in KEYS:
+                if key == "before" and b != results["primary_backend"]:
+                    continue
+                colour, ls = styles[key]
+                lab = key if key == "before" else f"{key} ({b})"
+                ax.plot(xs, [d["angles"][a][key] for a in d["angles"]], ls if b == results["primary_backend"] else "-.",
+                        color=colour, marker="o" if b == results["primary_backend"] else "x", ms=3, lw=1.2,
+                        alpha=1.0 if b == results["primary_backend"] else 0.6, label=lab)
+        m = results["datasets"][name].get("mirrors")
+        ax.set_title(f"{name} ({m})" if m else name, fontsize=10)
+        ax.set_xlabel("rotation (degrees)")
+        ax.grid(alpha=0.3)
+        ax.set_xticks(range(0, 181, 30))
+    for ax in axes.flat[len(names):]:
+        ax.axis("off")
+    for r in range(rows_n):
+        axes[r][0].set_ylabel("error (%)")
+    axes[0][0].set_ylim(bottom=0)
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), fontsize=8, frameon=False,
+               bbox_to_anchor=(0.5, -0.06 if rows_n > 1 else -0.12))
+    fig.suptitle("Rotated frames classified before and after registering them back", fontsize=11)
+    fig.tight_layout()
+    return fig
+
+
+def write_outputs(results: dict, out: str | Path) -> list[Path]:
+    """rotation_BACKEND.csv/.md, checks.md, rotation.png, config.json and results.json."""
+    from .files import write_files
+
+    tables = {f"rotation_{b}": (f"Rotation (thesis Ch. 5), backend {b}: error % (mean over sampled frames)",
+                                *table(results, b)) for b in results["backends"]}
+    return write_files(out, results, tables=tables, texts={"checks.md": checks(results)},
+                       figures={"rotation": _figure(results)})

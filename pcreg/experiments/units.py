@@ -1,0 +1,186 @@
+"""What the evaluations share: units of work, a per-process data cache, and resumable runs.
+
+- :class:`Unit`: one independent piece of an evaluation (a dataset x increment x backend, a rotated
+  frame, a training split), a pure function of its parameters and the evaluation's config;
+- :func:`load_cached`: a per-process cache of loaded datasets (units run in worker processes);
+- :class:`UnitStore`: finished units kept as JSON files in the output folder, so that a rerun with the
+  same configuration skips them (an interrupted run resumes) and a different configuration is refused
+  unless ``force``;
+- :func:`run_resumable`: run the units not finished yet, in this process or through an executor.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+_DATA_CACHE: dict = {}
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One unit of work of an evaluation.
+
+    key : identifies the result (its file under ``OUT/units/`` is ``KEY.json``).
+    dataset : the data set it reads. params : its own parameters as (name, value) pairs, read as
+    attributes (``unit.k``, ``unit.backend``). config : the evaluation's frozen config.
+    """
+
+    key: str
+    dataset: str
+    params: tuple[tuple[str, Any], ...] = ()
+    config: Any = field(default=None, repr=False, compare=False)
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_") or name in ("key", "dataset", "params", "config"):
+            raise AttributeError(name)
+        for k, v in self.params:
+            if k == name:
+                return v
+        raise AttributeError(f"unit {self.key!r} has no parameter {name!r}")
+
+
+def load_cached(data: str, *, frames: int | None, size: tuple[int, int] | None, seed: int) -> dict:
+    """:func:`pcreg.datasets.load_dataset`, cached per process (one data set at a time)."""
+    key = (data, frames, tuple(size) if size else None, seed)
+    if key not in _DATA_CACHE:
+        from ..datasets import load_dataset
+
+        _DATA_CACHE.clear()
+        _DATA_CACHE[key] = load_dataset(data, n_frames=frames, size=tuple(size) if size else None, seed=seed)
+    return _DATA_CACHE[key]
+
+
+def angle_key(angle: float) -> str:
+    """JSON key of an angle: ``"90"``, ``"2.5"``."""
+    return f"{angle:g}"
+
+
+def plain_config(config: Any) -> dict:
+    """A frozen dataclass config as JSON-ready dict (tuples as lists)."""
+    return json.loads(json.dumps(asdict(config), default=str))
+
+
+class UnitStore:
+    """Finished units of one evaluation, one JSON file each under ``out/units/``.
+
+    Opening the store compares ``config`` with ``out/config.json``: the same configuration resumes
+    (finished units are loaded, not rerun); a different one raises :class:`~pcreg.errors.OutputError`
+    unless ``force``, which clears the old units. ``force`` with the same configuration reruns all.
+    """
+
+    def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
+        from ..outputs import atomic_write_json
+        from ..errors import OutputError
+
+        self.out = Path(out)
+        self.dir = self.out / "units"
+        cfg_path = self.out / "config.json"
+        if self.out.exists() and not self.out.is_dir():
+            raise OutputError(f"{self.out} exists and is not a folder")
+        old = None
+        if cfg_path.is_file():
+            try:
+                old = json.loads(cfg_path.read_text())
+            except (OSError, ValueError):
+                old = None
+        if force:
+            if self.dir.is_dir():
+                shutil.rmtree(self.dir)
+        elif old is not None and old != config:
+            raise OutputError(f"{self.out} holds results of a different configuration "
+                              "(use --force to replace them, or another --out)")
+        elif old is None and (self.out / "results.json").exists():
+            raise OutputError(f"{self.out}/results.json exists without a readable config.json (use --force)")
+        atomic_write_json(cfg_path, config)
+
+    def path(self, key: str) -> Path:
+        return self.dir / f"{key}.json"
+
+    def load(self, key: str) -> dict | None:
+        """The finished unit ``key``, or None (a damaged file counts as not finished)."""
+        p = self.path(key)
+        if not p.is_file():
+            return None
+        try:
+            return json.loads(p.read_text())
+        except (OSError, ValueError):
+            return None
+
+    def save(self, key: str, result: dict) -> None:
+        from ..outputs import atomic_write_json
+
+        atomic_write_json(self.path(key), result)
+
+
+def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=None,
+                  executor=None, desc: str = "", show_progress: bool | None = None) -> tuple[dict, int]:
+    """Run the units not finished yet (``store`` keeps each result as it lands), in this process when
+    recording (one recorder, frames in order), else through ``executor``.
+
+    Returns the results by unit key (finished and new) and how many came from an earlier run.
+    """
+    from .._runner import _InlineExecutor, run_units
+
+    done: dict[str, dict] = {}
+    todo = []
+    for u in units:
+        prev = store.load(u.key) if store is not None else None
+        if prev is not None:
+            done[u.key] = prev
+        else:
+            todo.append(u)
+
+    def keep(unit, result: dict) -> None:
+        done[unit.key] = result
+        if store is not None:
+            store.save(unit.key, result)
+
+    if recorder is not None:
+        recorder.log_config(cfg_dict)
+        counter = [0]
+        for u in todo:
+            keep(u, run_unit(u, recorder=recorder, frame_counter=counter))
+    else:
+        run_units(run_unit, todo, executor=executor or _InlineExecutor(), desc=desc, on_result=keep,
+                  show_progress=show_progress)
+    return done, len(units) - len(todo)
+
+
+def nan_to_none(obj: Any) -> Any:
+    """Replace float NaN/inf with None (strict JSON for results.json)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: nan_to_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [nan_to_none(v) for v in obj]
+    return obj
+
+
+def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
+                   force: bool = False, executor=None, recorder=None, desc: str = "",
+                   show_progress: bool | None = None) -> dict:
+    """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
+    them without ``out``), summarise their results in order (``summarise(config, results)``), and add
+    the presets' real counterparts, the number of resumed units and the wall time."""
+    import time
+
+    from ..datasets import PRESETS
+
+    t0 = time.perf_counter()
+    cfg_dict = plain_config(config)
+    store = UnitStore(out, cfg_dict, force=force) if out is not None else None
+    done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
+                                  executor=executor, desc=desc, show_progress=show_progress)
+    results = summarise(config, [done[u.key] for u in units])
+    for name in results["datasets"]:
+        if name in PRESETS:
+            results["datasets"][name]["mirrors"] = PRESETS[name].mirrors
+    results["resumed_units"] = resumed
+    results["seconds"] = time.perf_counter() - t0
+    return results

@@ -273,8 +273,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     def tree(level: int):
         """The reference points' KD-tree at one level, built once (global search and ICP share it)."""
         if level not in trees:
-            trees[level] = build_tree(ref_levels[level].points,
-                                      queries=len(mov_levels[level]) * (iterations + 1) * 2)
+            trees[level] = build_tree(ref_levels[level].points, max_distance=max_correspondence_distance * 2**level)
         return trees[level]
 
     T: np.ndarray

@@ -36,8 +36,9 @@ import os
 import numpy as np
 from numba import njit, prange
 
-#: Queries at or above this count use the multi-threaded kernel (threads cost ~20 µs to start).
-PARALLEL_MIN_QUERIES = 4000
+#: Queries at or above this count use the multi-threaded kernel: below it, starting the threads (and,
+#: on a loaded machine, waiting for a core) costs more than it saves.
+PARALLEL_MIN_QUERIES = 20000
 #: Target points per cell when the cell size is chosen from the point density.
 POINTS_PER_CELL = 2.0
 #: A dense cell table is used while it holds at most this many cells per point (else a hash).

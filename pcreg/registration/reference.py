@@ -19,6 +19,7 @@ import time
 from typing import Callable
 
 import numpy as np
+
 from ..errors import RegistrationError
 from .nn import GridIndex
 from .result import IcpIteration, RegistrationResult

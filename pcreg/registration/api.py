@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError, RegistrationError
 from .open3d_icp import icp_open3d
 from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
-from .clouds import ImageCloud, as_rgb_uint8, cloud_pyramid
+from .clouds import ImageCloud, ImagePyramid, as_rgb_uint8, cloud_pyramid, pyramid_clouds
 from .result import IcpIteration, RegistrationResult
 from .transforms import about_point, apply, check_model, image_center, rigid2d
 
@@ -225,7 +225,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
              n_candidates: int = 2,
              reference_mask: np.ndarray | str | None = "auto", moving_mask: np.ndarray | str | None = "auto",
              canny_percentile: float = 85.0, seed: int = 0,
-             callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
+             callback: Callable[[IcpIteration], None] | None = None,
+             reference_pyramid: ImagePyramid | None = None, moving_pyramid: ImagePyramid | None = None,
+             ) -> RegistrationResult:
     """Register ``moving_image`` to ``reference_image``: the returned ``matrix`` is ``T_ref_mov``.
 
     Both images become edge clouds (:func:`pcreg.image_cloud`) at pyramid levels 0..levels-1. With
@@ -248,6 +250,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     relative_fitness, relative_rmse : Open3D's stopping rule per level (absolute changes; the RMSE
         threshold is in full-resolution px, scaled by 2^level); the point-to-line finish uses at most 1e-6.
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
+    reference_pyramid, moving_pyramid : the images' :func:`pcreg.image_pyramid` (same ``levels``,
+        ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
+        stream is the moving image once and the reference once); None builds them here. Same result.
     """
     ref_img = as_rgb_uint8(reference_image, name="reference image")
     mov_img = as_rgb_uint8(moving_image, name="moving image")
@@ -261,10 +266,12 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
         raise InputError(f"images too small for {levels} pyramid levels")
     start = time.perf_counter()
-    ref_levels = cloud_pyramid(ref_img, levels=levels, mask=reference_mask, max_points=reference_max_points,
-                               sampler=sampler, seed=seed, canny_percentile=canny_percentile)
-    mov_levels = cloud_pyramid(mov_img, levels=levels, mask=moving_mask, max_points=max_points,
-                               sampler=sampler, seed=seed + 1, canny_percentile=canny_percentile)
+    # Pyramids built by the caller (a stream builds each frame's once: moving first, then reference).
+    ref_levels = pyramid_clouds(ref_img, reference_pyramid, levels=levels, mask=reference_mask,
+                                max_points=reference_max_points, sampler=sampler, seed=seed,
+                                canny_percentile=canny_percentile, name="reference")
+    mov_levels = pyramid_clouds(mov_img, moving_pyramid, levels=levels, mask=moving_mask, max_points=max_points,
+                                sampler=sampler, seed=seed + 1, canny_percentile=canny_percentile, name="moving")
     for name, lv in (("reference", ref_levels), ("moving", mov_levels)):
         if len(lv[0]) < 3:
             raise RegistrationError(f"the {name} image has no usable edges (a flat or empty image?)")

@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
                 old = None
             step = info.to_dict()
             step["name"] = paths[t].name
-            step["reference_name"] = ref_name
+            step["reference_name"] = paths[names.index(ref_name)].name
             state["steps"].append(step)
             state["done"] = t + 1
             atomic_write_json(state_path, state)  # the commit point: a frame counts once this is written

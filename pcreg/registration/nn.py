@@ -357,8 +357,12 @@ def warm_up() -> None:
                 idx.nearest(pts[:8] + 0.01, 0.5, workers=workers)
                 idx.nearest(pts[:8] + 100.0, workers=workers)
     from . import reference
+    from .clouds import image_pyramid
 
     reference.warm_up()
+    img = np.zeros((64, 64, 3), np.uint8)
+    img[16:48, 20:40] = 200
+    image_pyramid(img, levels=2).clouds(max_points=100)
 
 
 def _bench(n: int = 20000, repeats: int = 7) -> None:  # pragma: no cover - a measurement, not a test

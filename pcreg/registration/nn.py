@@ -244,6 +244,69 @@ def _query_parallel(queries, r2, spts, sidx, start, tkeys, tcell, origin, h, dim
 
 
 # ---------------------------------------------------------------------------------------------------
+# one ICP iteration's correspondences and their moments
+# ---------------------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _move(pts, t, M, d):
+    if d == 2:
+        x, y = pts[t, 0], pts[t, 1]
+        pts[t, 0] = M[0, 0] * x + M[0, 1] * y + M[0, 2]
+        pts[t, 1] = M[1, 0] * x + M[1, 1] * y + M[1, 2]
+    else:
+        x, y, z = pts[t, 0], pts[t, 1], pts[t, 2]
+        pts[t, 0] = M[0, 0] * x + M[0, 1] * y + M[0, 2] * z + M[0, 3]
+        pts[t, 1] = M[1, 0] * x + M[1, 1] * y + M[1, 2] * z + M[1, 3]
+        pts[t, 2] = M[2, 0] * x + M[2, 1] * y + M[2, 2] * z + M[2, 3]
+
+
+@njit(cache=True)
+def _move_query_serial(pts, M, move, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i):
+    d = pts.shape[1]
+    for t in range(pts.shape[0]):
+        if move:
+            _move(pts, t, M, d)
+        out_d2[t], out_i[t] = _nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+
+
+@njit(cache=True, parallel=True)
+def _move_query_parallel(pts, M, move, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i):
+    d = pts.shape[1]
+    for t in prange(pts.shape[0]):
+        if move:
+            _move(pts, t, M, d)
+        out_d2[t], out_i[t] = _nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+
+
+@njit(cache=True)
+def _moments(pts, target, out_d2, out_i, center):
+    """Over the matched pairs (p = moved source point, q = its target), relative to ``center``:
+    count, sum of d^2, sum p, sum q, sum |p|^2, sum q p^T."""
+    d = pts.shape[1]
+    k = 0
+    sd2 = 0.0
+    sp = np.zeros(d)
+    sq = np.zeros(d)
+    spp = 0.0
+    sqp = np.zeros((d, d))
+    for t in range(pts.shape[0]):
+        j = out_i[t]
+        if j < 0:
+            continue
+        k += 1
+        sd2 += out_d2[t]
+        for a in range(d):
+            pa = pts[t, a] - center[a]
+            sp[a] += pa
+            spp += pa * pa
+            qa = target[j, a] - center[a]
+            sq[a] += qa
+            for b in range(d):
+                sqp[a, b] += qa * (pts[t, b] - center[b])
+    return k, sd2, sp, sq, spp, sqp
+
+
+# ---------------------------------------------------------------------------------------------------
 # the index
 # ---------------------------------------------------------------------------------------------------
 
@@ -296,6 +359,7 @@ class GridIndex:
         self.dims = dims
         self.hashed = hashed
         self.data = pts
+        self.center = (lo + hi) / 2.0
         self._spts, self._sidx, self._start, self._tkeys, self._tcell = _build(pts, self.origin, cell, dims, hashed)
 
     def __len__(self) -> int:
@@ -327,6 +391,25 @@ class GridIndex:
         else:
             _query_serial(*args)
         return out_d2, out_i
+
+    def move_and_match(self, points: np.ndarray, update: np.ndarray | None, max_distance: float):
+        """One point-to-point ICP iteration's correspondence step, compiled: move ``points`` (N, d),
+        C-contiguous float64, **in place** by the affine ``update`` ((d+1, d+1); None: do not move),
+        find each one's nearest point within ``max_distance``, and sum the moments of the matched pairs
+        (relative to the centre of the points' bounding box, for precision).
+
+        Returns (squared distances (N,), indices (N,) with -1 for none, (count, sum d^2, sum p,
+        sum q, sum |p|^2, sum q p^T, centre))."""
+        n = points.shape[0]
+        r = float(max_distance)
+        r2 = r * r if np.isfinite(r) else np.inf
+        out_d2 = np.empty(n, np.float64)
+        out_i = np.empty(n, np.int64)
+        M = np.eye(self.dim + 1) if update is None else np.ascontiguousarray(update, dtype=np.float64)
+        kernel = _move_query_parallel if n >= PARALLEL_MIN_QUERIES else _move_query_serial
+        kernel(points, M, update is not None, r2, self._spts, self._sidx, self._start, self._tkeys, self._tcell,
+               self.origin, self.cell, self.dims, self.hashed, out_d2, out_i)
+        return out_d2, out_i, (*_moments(points, self.data, out_d2, out_i, self.center), self.center)
 
     def query(self, x: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf, workers: int = 1, **_ignored
               ) -> tuple[np.ndarray, np.ndarray]:

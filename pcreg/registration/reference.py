@@ -53,52 +53,44 @@ def estimate_translation(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndar
 def estimate_umeyama(p: np.ndarray, q: np.ndarray, w: np.ndarray, *, with_scale: bool) -> np.ndarray:
     """Rigid or similarity transform by SVD (Umeyama 1991).
 
-    Σ = Σ_i w_i (q_i - μ_q)(p_i - μ_p)^T / Σ w  (Eq. 38), Σ = U D V^T;
-    S = diag(1, …, 1, det(U) det(V)) (Eq. 43, the reflection guard);
-    R = U S V^T (Eq. 40); c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41).
+    Σ = Σ_i w_i (q_i - μ_q)(p_i - μ_p)^T / Σ w  (Eq. 38); σ_p² = Σ_i w_i |p_i - μ_p|² / Σ w (Eq. 36);
+    the rest in :func:`umeyama_from_moments`.
     """
-    d = p.shape[1]
     ws, mp, mq = _weighted_means(p, q, w)
     pc = p - mp
     qc = q - mq
     cov = (qc * w[:, None]).T @ pc / ws
-    if d == 2:
-        return _umeyama_2d(cov, pc, w, ws, mp, mq, with_scale=with_scale)
-    U, D, Vt = np.linalg.svd(cov)
-    S = np.ones(d)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[-1] = -1.0
-    R = (U * S) @ Vt
-    c = 1.0
-    if with_scale:
-        var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws)
-        if var_p <= 0:
-            raise RegistrationError("degenerate correspondences: all source points coincide")
-        c = float((D * S).sum() / var_p)
-    T = np.eye(d + 1)
-    T[:d, :d] = c * R
-    T[:d, d] = mq - c * R @ mp
-    return T
+    var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws) if with_scale else 1.0
+    return umeyama_from_moments(cov, var_p, mp, mq, with_scale=with_scale)
 
 
-def _umeyama_2d(cov, pc, w, ws, mp, mq, *, with_scale: bool) -> np.ndarray:
-    """Umeyama's solution in 2-D without the SVD (same result, no per-call LAPACK overhead).
+def umeyama_from_moments(cov: np.ndarray, var_p: float, mp: np.ndarray, mq: np.ndarray, *,
+                         with_scale: bool) -> np.ndarray:
+    """Umeyama's closed form from the cross-covariance Σ (d, d), the source variance σ_p² and the means.
 
-    For Σ = [[a, b], [c, d]] the rotation that maximises tr(R^T Σ) is θ = atan2(c - b, a + d), which is
-    U S V^T of Eq. 40 with the reflection guard of Eq. 43 built in; tr(D S) = hypot(a + d, c - b).
+    Σ = U D V^T; S = diag(1, …, 1, det(U) det(V)) (Eq. 43, the reflection guard); R = U S V^T (Eq. 40);
+    c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41). In 2-D without the SVD (same result, no
+    LAPACK call): for Σ = [[a, b], [c, d]] the rotation maximising tr(R^T Σ) is θ = atan2(c - b, a + d)
+    and tr(D S) = hypot(a + d, c - b).
     """
-    a, b, c, d = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
-    th = np.arctan2(c - b, a + d)
-    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
-    k = 1.0
-    if with_scale:
-        var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws)
-        if var_p <= 0:
-            raise RegistrationError("degenerate correspondences: all source points coincide")
-        k = float(np.hypot(a + d, c - b) / var_p)
-    T = np.eye(3)
-    T[:2, :2] = k * R
-    T[:2, 2] = mq - k * R @ mp
+    d = cov.shape[0]
+    if with_scale and not var_p > 0:
+        raise RegistrationError("degenerate correspondences: all source points coincide")
+    if d == 2:
+        a, b, c, e = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
+        th = np.arctan2(c - b, a + e)
+        R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+        k = float(np.hypot(a + e, c - b) / var_p) if with_scale else 1.0
+    else:
+        U, D, Vt = np.linalg.svd(cov)
+        S = np.ones(d)
+        if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+            S[-1] = -1.0
+        R = (U * S) @ Vt
+        k = float((D * S).sum() / var_p) if with_scale else 1.0
+    T = np.eye(d + 1)
+    T[:d, :d] = k * R
+    T[:d, d] = mq - k * R @ mp
     return T
 
 
@@ -331,6 +323,11 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
         tree = build_tree(target, max_distance=max_correspondence_distance)
     if metric == "point_to_line" and (d != 2 or target_normals is None):
         metric = "point_to_point"
+    if (metric == "point_to_point" and weights == "none" and model in _MOMENT_MODELS and isinstance(tree, GridIndex)
+            and not (rotation == "quaternion" and d == 3 and model == "rigid")):
+        return _icp_moments(source, target, T, tree, model=model, max_distance=max_correspondence_distance,
+                            max_iteration=max_iteration, relative_fitness=relative_fitness,
+                            relative_rmse=relative_rmse, callback=callback, level=level, start=start)
     pts = apply(T, source)
     n = source.shape[0]
     d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
@@ -362,6 +359,66 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
         prev_fitness, prev_rmse = fitness, rmse
         d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
         fitness, rmse = _score(d2, ok, n)
+        report(iterations)
+        if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
+            converged = True
+            break
+    return RegistrationResult(matrix=T, fitness=fitness, inlier_rmse=rmse, iterations=iterations,
+                              converged=converged, backend="reference", seconds=time.perf_counter() - start)
+
+
+_MOMENT_MODELS = ("translation", "rigid", "similarity")
+
+
+def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: GridIndex, *, model: str,
+                 max_distance: float, max_iteration: int, relative_fitness: float, relative_rmse: float,
+                 callback, level: int, start: float) -> RegistrationResult:
+    """The same loop as :func:`icp_reference` for point-to-point steps without weights of the models
+    whose closed form needs only the pairs' moments (translation, rigid, similarity): each iteration's
+    move, correspondence search and sums run in one compiled pass
+    (:meth:`~pcreg.registration.nn.GridIndex.move_and_match`); the closed form runs on the sums."""
+    d = source.shape[1]
+    n = source.shape[0]
+    pts = np.ascontiguousarray(apply(T, source))
+    need = MIN_POINTS[model] if d == 2 else 3
+    d2, idx, mom = tree.move_and_match(pts, None, max_distance)
+
+    def score(mom):
+        k, sd2 = mom[0], mom[1]
+        return (0.0, 0.0) if k == 0 else (k / n, float(np.sqrt(sd2 / k)))
+
+    fitness, rmse = score(mom)
+    iterations, converged = 0, False
+
+    def report(i: int) -> None:
+        if callback is not None:
+            callback(IcpIteration(backend="reference", level=level, iteration=i, matrix=T.copy(), fitness=fitness,
+                                  inlier_rmse=rmse, source_points=pts.copy(), target_points=target,
+                                  target_indices=idx.copy()))
+
+    report(0)
+    for i in range(max_iteration):
+        k, _, sp, sq, spp, sqp, c = mom
+        if k < need:
+            update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
+        else:
+            mp, mq = sp / k, sq / k  # relative to the centre c
+            if model == "translation":
+                update = np.eye(d + 1)
+                update[:d, d] = mq - mp
+            else:
+                cov = sqp / k - np.outer(mq, mp)  # Umeyama's Eq. 38
+                var_p = spp / k - float(mp @ mp)  # Eq. 36
+                update = umeyama_from_moments(cov, var_p, mp, mq, with_scale=model == "similarity")
+            # back from centred coordinates: x -> A (x - c) + t + c
+            update[:d, d] += c - update[:d, :d] @ c
+        if not np.all(np.isfinite(update)):
+            raise RegistrationError("ICP update is not finite (degenerate correspondences)")
+        T = update @ T
+        iterations = i + 1
+        prev_fitness, prev_rmse = fitness, rmse
+        d2, idx, mom = tree.move_and_match(pts, update, max_distance)
+        fitness, rmse = score(mom)
         report(iterations)
         if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
             converged = True

@@ -41,8 +41,10 @@ from numba import njit, prange
 PARALLEL_MIN_QUERIES = 20000
 #: Target points per cell when the cell size is chosen from the point density.
 POINTS_PER_CELL = 2.0
-#: A dense cell table is used while it holds at most this many cells per point (else a hash).
-DENSE_CELLS_PER_POINT = 4
+#: A dense cell table (8 bytes a cell) is used while it holds at most this many cells per point, or
+#: at most :data:`DENSE_MIN_CELLS`; beyond, a hash of the occupied cells (slower lookups, memory ~ points).
+DENSE_CELLS_PER_POINT = 16
+DENSE_MIN_CELLS = 1 << 18
 _EPS_CELLS = 1e-7  # slack (in cell units) on every geometric lower bound: floor() rounding is never trusted
 
 
@@ -351,7 +353,7 @@ class GridIndex:
         while np.prod(dims.astype(np.float64)) > 2.0**62 / 8:  # linear keys must fit in int64
             cell *= 2.0
             dims = np.floor(extent / cell).astype(np.int64) + 1
-        hashed = bool(np.prod(dims.astype(np.float64)) > DENSE_CELLS_PER_POINT * m + 1024)
+        hashed = bool(np.prod(dims.astype(np.float64)) > max(DENSE_CELLS_PER_POINT * m, DENSE_MIN_CELLS))
         self.dim = d
         self.n = m
         self.cell = cell

@@ -4,8 +4,9 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP = $(VENV)/.pcreg-installed-$(OPEN3D)
-# Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU).
-APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1
+# Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU);
+# the cross-check tests compile tools/icp_min.c with gcc.
+APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1 gcc libc6-dev
 # OPEN3D=cuda installs the CUDA build of Open3D (907 MB) instead of the CPU build (312 MB).
 OPEN3D ?= cpu
 PYTEST_ARGS ?=
@@ -31,7 +32,8 @@ sysdeps:
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test]"
+	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test,crosscheck,distributed]"
+	$(BIN)/python -m pip install -q --no-deps "probreg>=0.3.6"   # it declares the full open3d wheel; open3d-cpu serves
 	@touch $(STAMP)
 
 demo: setup

@@ -21,31 +21,86 @@ class _InlineExecutor(Executor):
         fut: Future = Future()
         try:
             fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+        except Exception as exc:  # noqa: BLE001 - handed to the caller through the future
             fut.set_exception(exc)
+        # KeyboardInterrupt (Ctrl-C, SIGTERM) propagates at once: the units not started are not run
         return fut
+
+
+def _worker_init() -> None:
+    """In a local worker process: the parent handles Ctrl-C (the terminal sends SIGINT to the whole
+    process group) and stops the workers itself; SIGTERM ends a worker at once."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel pending units and end the worker processes now (``shutdown(wait=True)`` would wait for
+    the running units to finish, which can take minutes)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        try:
+            proc.terminate()
+        except (OSError, ValueError, AttributeError):
+            pass
+    for proc in processes:
+        try:
+            proc.join(timeout=3)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(timeout=2)
+        except (OSError, ValueError, AssertionError, AttributeError):
+            pass
 
 
 @contextmanager
 def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator[Executor]:
-    """An executor for ``workers`` local processes, or for a dask.distributed scheduler address."""
+    """An executor for ``workers`` local processes, or for a dask.distributed scheduler address.
+
+    On an exception (Ctrl-C, SIGTERM turned into KeyboardInterrupt by the command line, an error) the
+    pending units are cancelled and local worker processes are terminated before it propagates.
+    """
     if scheduler:
         try:
             from dask.distributed import Client  # type: ignore[import-not-found]
         except ImportError:
             from .errors import PcregError
 
-            raise PcregError("--scheduler needs dask.distributed (pip install 'dask[distributed]')") from None
-        client = Client(scheduler)
+            raise PcregError("--scheduler needs dask.distributed (pip install 'pcreg[distributed]')") from None
+        from .errors import PcregError
+
         try:
-            yield client.get_executor()
+            client = Client(scheduler, set_as_default=False)  # timeout: distributed.comm.timeouts.connect
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise PcregError(f"cannot connect to the dask scheduler {scheduler!r}: {exc}") from None
+        executor = client.get_executor()
+        try:
+            yield executor
+        except BaseException:
+            executor.shutdown(wait=False)  # cancels the units not finished
+            raise
         finally:
             client.close()
     elif workers <= 1:
         yield _InlineExecutor()
     else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        import os
+
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        if workers > 4 * cpus:  # each worker holds its own copy of the data and libraries
+            from .errors import PcregError
+
+            raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here")
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init)
+        try:
             yield pool
+        except BaseException:
+            _stop_pool(pool)
+            raise
+        pool.shutdown(wait=True)
 
 
 def progress(iterable: Iterable | None = None, *, total: int | None = None, desc: str = "", disable: bool | None = None):
@@ -65,11 +120,16 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
     """
     futures = {executor.submit(fn, u): i for i, u in enumerate(units)}
     results: list = [None] * len(units)
-    with progress(total=len(units), desc=desc, disable=None if show_progress is None else not show_progress) as bar:
-        for fut in as_completed(futures):
-            i = futures[fut]
-            results[i] = fut.result()
-            if on_result is not None:
-                on_result(units[i], results[i])
-            bar.update(1)
+    try:
+        with progress(total=len(units), desc=desc, disable=None if show_progress is None else not show_progress) as bar:
+            for fut in as_completed(futures):
+                i = futures[fut]
+                results[i] = fut.result()
+                if on_result is not None:
+                    on_result(units[i], results[i])
+                bar.update(1)
+    except BaseException:
+        for fut in futures:  # nothing more starts; what finished was handed to on_result already
+            fut.cancel()
+        raise
     return results

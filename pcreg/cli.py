@@ -41,7 +41,18 @@ def _add(sub, name: str, module: str, help_: str) -> None:
         return
     p = sub.add_parser(name, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
     mod.add_arguments(p)
+    _add_limits(p)
     p.set_defaults(_module=module)
+
+
+def _add_limits(p: argparse.ArgumentParser) -> None:
+    """--max-pixels on every command (images and clouds larger than this are refused before decoding)."""
+    from .validation import DEFAULT_MAX_PIXELS, arg_int
+
+    if not any("--max-pixels" in a.option_strings for a in p._actions):
+        p.add_argument("--max-pixels", type=arg_int(1), default=None, metavar="N",
+                       help=f"largest image (pixels) or cloud (points) accepted (default {DEFAULT_MAX_PIXELS}, "
+                            "or $PCREG_MAX_PIXELS)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -65,14 +76,76 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return 2
     module = importlib.import_module(args._module)
+    import os
+
+    previous = _terminate_as_interrupt()
+    saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
+        if getattr(args, "max_pixels", None):
+            from .validation import set_max_pixels
+
+            set_max_pixels(args.max_pixels)  # also seen by worker processes
         return int(module.run(args) or 0)
     except PcregError as exc:
-        sys.stderr.write(f"pcreg: error: {exc}\n")
+        sys.stderr.write(f"pcreg: error: {_one_line(exc)}\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")
         return 130
+    except BrokenPipeError:  # stdout closed early (`pcreg ... | head`): no message, as other tools
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # Python's flush at exit must not fail again
+        except (OSError, ValueError):
+            pass
+        return 141
+    except MemoryError:
+        sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels)\n")
+        return 2
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: one line, never a traceback
+        if os.environ.get("PCREG_TRACEBACK"):
+            raise
+        sys.stderr.write(f"pcreg: error: {type(exc).__name__}: {_one_line(exc)} "
+                         "(unexpected; PCREG_TRACEBACK=1 shows where)\n")
+        return 2
+    finally:
+        _restore_terminate(previous)
+        if saved_limit is None:
+            os.environ.pop("PCREG_MAX_PIXELS", None)
+        else:
+            os.environ["PCREG_MAX_PIXELS"] = saved_limit
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text[:500] if text else type(exc).__name__
+
+
+def _terminate_as_interrupt():
+    """SIGTERM is handled like Ctrl-C: finished units are kept, workers stopped, exit code 130."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except (ValueError, OSError):
+        return None
+
+
+def _restore_terminate(previous) -> None:
+    import signal
+
+    if previous is not None:
+        try:
+            signal.signal(signal.SIGTERM, previous)
+        except (ValueError, OSError):
+            pass
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -9,7 +9,7 @@ correspondences, point-to-point, no robust weights — the configuration that mu
 from __future__ import annotations
 
 import os
-import time
+import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -67,27 +67,77 @@ class CrosscheckReport:
         return out
 
 
-def load_cloud(path: str | os.PathLike) -> np.ndarray:
-    """Points (N, 3) (or (N, 2) from a .npy) from .ply/.pcd/.xyz/.pts via Open3D, or .npy via numpy."""
+def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.ndarray:
+    """Points (N, 3) (or (N, 2) from a .npy) from .ply/.pcd/.xyz/.pts via Open3D, or .npy via numpy.
+
+    Regular files only; the point count a PLY/PCD/NPY header declares must be within ``max_points``
+    (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
+    (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
+    """
+    from .validation import capture_output_fds, check_cloud_file, check_npy_file, max_pixels
+
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
     suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
+    limit = max_pixels(max_points)
+    check_cloud_file(path, limit=limit)
     if suffix == ".npy":
+        shape, _ = check_npy_file(path, limit)
+        if len(shape) != 2 or shape[1] not in (2, 3):
+            raise InputError(f"{path}: expected an (N, 2) or (N, 3) array of points, got shape {shape}")
         try:
             pts = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise InputError(f"{path}: not a numpy array file ({exc})") from None
-    elif suffix in CLOUD_SUFFIXES:
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(f"{path}: not a numpy array file ({str(exc)[:120]})") from None
+    else:
         import open3d as o3d
 
-        pcd = o3d.io.read_point_cloud(str(path))
+        with capture_output_fds() as said:  # Open3D prints its warnings on stdout (fd 1)
+            try:
+                pcd = o3d.io.read_point_cloud(str(path), format="auto", remove_nan_points=False,
+                                              remove_infinite_points=False)
+            except (RuntimeError, ValueError, MemoryError) as exc:
+                raise InputError(f"{path}: cannot read point cloud ({str(exc)[:120]})") from None
+        warning = _open3d_warning(said[0] if said else "")
+        if warning:  # Open3D fills what it could not read with zeros and only prints a warning
+            raise InputError(f"{path}: cannot read point cloud (Open3D: {warning})")
         pts = np.asarray(pcd.points)
         if pts.size == 0:
             raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
-    else:
-        raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
+        if len(pts) > limit:
+            raise InputError(f"{path}: {len(pts)} points exceed the limit of {limit} (raise --max-pixels)")
+        if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
+            _check_text_cloud(path, suffix, len(pts))
     return check_cloud(pts, str(path))
+
+
+def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
+    """Open3D skips the lines of a text cloud it cannot parse, silently: refuse a file where it did.
+    Every non-empty line is a point (``.pts``: after a first line with the point count)."""
+    first, count = None, 0
+    with open(path, "rb") as fh:
+        for line in fh:  # streamed: the file may be large
+            if line.strip():
+                first = line.strip() if first is None else first
+                count += 1
+    expected = count
+    if suffix == ".pts" and first is not None and first.isdigit():
+        expected = count - 1
+        if int(first) != expected:
+            raise InputError(f"{path}: the first line declares {int(first)} points, the file holds {expected} lines")
+    if n_read != expected:
+        raise InputError(f"{path}: {expected - n_read} of {expected} lines are not points (damaged {suffix} file)")
+
+
+def _open3d_warning(text: str) -> str:
+    """The first warning or error line Open3D printed (ANSI colours removed), or ''."""
+    import re
+
+    for line in re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines():
+        if "[Open3D WARNING]" in line or "[Open3D ERROR]" in line or "RPly: " in line:
+            return line.split("]", 1)[1].strip()[:200] if "[Open3D" in line else line.strip()[:200]
+    return ""
 
 
 def _relative(A: np.ndarray, B: np.ndarray) -> float:
@@ -171,9 +221,15 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
         extra={"initial_matrix": T0.tolist()})
 
 
-def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig(), callback=None) -> CrosscheckReport:
+def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig(), callback=None,
+               implementations: Sequence[str] | None = None, **cloud_options):
     """Cross-check the backends: register ``moving`` onto ``reference`` (two images or two point clouds,
     arrays or file paths); for clouds the reference is the ICP target and the moving cloud the source.
+
+    Images: both backends through the image pipeline, a :class:`CrosscheckReport`. Clouds: every name in
+    ``implementations`` (default reference and open3d) through :func:`crosscheck_implementations` with
+    ``cloud_options`` (its keyword arguments; ``max_iterations`` defaults to ``config.iterations``), a
+    :class:`CloudCrosscheck`.
 
     Image arrays are (H, W, 3)/(H, W); cloud arrays (N, 2|3). Paths are read by suffix: images through
     OpenCV, clouds (.ply/.pcd/.xyz/.pts) through Open3D, .npy through numpy.
@@ -196,5 +252,284 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
     if ka != kb:
         raise InputError(f"cannot cross-check {ka[:-1]} against {kb[:-1]}: give two images or two clouds")
     if ka == "clouds":
-        return crosscheck_clouds(B, A, config=config, callback=callback)
+        cloud_options.setdefault("max_iterations", config.iterations)
+        cloud_options.setdefault("relative_fitness", config.relative_fitness)
+        cloud_options.setdefault("relative_rmse", config.relative_rmse)
+        return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
+                                          **cloud_options)
     return crosscheck_images(A, B, config=config, callback=callback)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Clouds: every implementation of the registry on the same pinned inputs
+# ---------------------------------------------------------------------------------------------------
+
+STEP_TOLERANCE = 1e-9  # relative, on the matrix, against the reference run with the same settings
+FIXED_POINT_TOLERANCE = 1e-6  # relative, on the matrix, against the reference run to convergence
+OBJECTIVE_ROTATION_DEG = 0.5  # objective rows: rotation within 0.5 degrees ...
+OBJECTIVE_TRANSLATION = 0.005  # ... and translation within 0.5% of the target's bounding-box diagonal
+REFERENCE = "reference"
+
+
+def default_max_distance(target: np.ndarray) -> float:
+    """1% of the target's bounding-box diagonal: a scan pair taken a step apart is misaligned by about
+    that much, and a gate this tight keeps points without a counterpart out of the fit."""
+    diag = float(np.linalg.norm(target.max(axis=0) - target.min(axis=0)))
+    if not diag > 0:
+        raise InputError("cannot derive a correspondence distance: the target's points coincide")
+    return diag / 100.0
+
+
+def converged_settings(pinned):
+    """The reference's settings "to convergence": at least 200 iterations and thresholds that only an
+    unchanged correspondence set meets (then the closed form returns the same pose exactly)."""
+    return pinned.replace(max_iterations=max(int(pinned.max_iterations), 200), relative_fitness=1e-12,
+                          relative_rmse=1e-12 * max(1.0, float(pinned.max_correspondence_distance)))
+
+
+def _bbox_corners(points: np.ndarray) -> np.ndarray:
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+
+
+def _orthonormal(M: np.ndarray) -> np.ndarray:
+    """The rotation closest to M (polar decomposition; removes a similarity's scale)."""
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    return R
+
+
+def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
+    """Disagreement of B with A: rotation (degrees), translation, relative matrix difference and, in 2-D,
+    the largest displacement of the source's bounding-box corners (px for image edge clouds)."""
+    d = A.shape[0] - 1
+    RA, RB = _orthonormal(A[:d, :d]), _orthonormal(B[:d, :d])
+    # The angle of RA^T RB from its chord, ||RA - RB||_F = 2 sqrt(2) sin(angle / 2) (2 sin(angle / 2) in
+    # 2-D): unlike the arccos of the trace it keeps full precision for tiny angles.
+    chord = float(np.linalg.norm(RA - RB)) / (2.0 * np.sqrt(2.0) if d == 3 else 2.0)
+    out = {"rotation_disagreement_deg": float(np.degrees(2.0 * np.arcsin(min(1.0, chord)))),
+           "translation_disagreement": float(np.linalg.norm(A[:d, d] - B[:d, d])),
+           "matrix_relative_disagreement": _relative(A, B)}
+    if d == 2:
+        c = _bbox_corners(source)
+        out["corner_disagreement"] = float(np.max(np.linalg.norm(apply(A, c) - apply(B, c), axis=1)))
+    return out
+
+
+def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE) -> dict | None:
+    """First iteration at which ``trace`` leaves ``ref_trace`` and the likely cause; None when they agree.
+
+    The pose after iteration k comes from the correspondences at the pose after k-1: when poses k-1
+    agree and poses k do not, the correspondences at k-1 decide the cause (different ones: the
+    neighbour search or gate; the same ones, or exact nearest neighbours of agreeing poses: the step).
+    """
+    n = min(len(ref_trace), len(trace))
+    if n == 0:
+        return None
+    for k in range(n):
+        a, b = ref_trace[k], trace[k]
+        if _relative(a.matrix, b.matrix) > tolerance:
+            if k == 0:
+                return {"iteration": 0, "cause": "different initial pose"}
+            pa, pb = ref_trace[k - 1], trace[k - 1]
+            if pb.target_indices is not None and pa.target_indices is not None and \
+                    not np.array_equal(pa.target_indices, pb.target_indices):
+                diff = int(np.count_nonzero(pa.target_indices != pb.target_indices))
+                return {"iteration": k, "cause": f"different correspondences at iteration {k - 1} "
+                                                 f"({diff} source points matched differently)"}
+            known = pb.target_indices is not None
+            return {"iteration": k, "cause": "different step from the same correspondences"
+                    + ("" if known else " (the poses before agree, so exact nearest neighbours are the same)")
+                    + f": relative matrix difference {_relative(a.matrix, b.matrix):.1e}"}
+        if b.target_indices is not None and a.target_indices is not None and \
+                not np.array_equal(a.target_indices, b.target_indices):
+            diff = int(np.count_nonzero(a.target_indices != b.target_indices))
+            return {"iteration": k, "cause": f"different correspondences at the same pose ({diff} source points; "
+                                             "ties or another neighbour search)"}
+    if len(ref_trace) != len(trace):
+        return {"iteration": n, "cause": f"different stopping rule: the same poses, but {len(trace) - 1} iterations "
+                                         f"against the reference's {len(ref_trace) - 1}"}
+    return None
+
+
+@dataclass(frozen=True)
+class CloudCrosscheck:
+    """Every requested implementation on the same pinned clouds; ``rows`` keyed by name or spec string."""
+
+    rows: dict
+    settings: dict
+    reference_at_convergence: dict | None
+    traces: dict = field(default_factory=dict, compare=False, repr=False)
+    source: np.ndarray | None = field(default=None, compare=False, repr=False)
+    target: np.ndarray | None = field(default=None, compare=False, repr=False)
+
+    def to_dict(self) -> dict:
+        """JSON-ready (non-finite numbers become None, so the JSON stays valid)."""
+        return _finite({"kind": "clouds", "implementations": self.rows, "settings": self.settings,
+                "reference_at_convergence": self.reference_at_convergence,
+                "tolerances": {"step": f"relative matrix difference <= {STEP_TOLERANCE:g} against the reference",
+                               "fixed-point": f"relative matrix difference <= {FIXED_POINT_TOLERANCE:g} against the "
+                                              "reference run to convergence",
+                               "objective": f"rotation <= {OBJECTIVE_ROTATION_DEG:g} deg and translation <= "
+                                            f"{OBJECTIVE_TRANSLATION:.1%} of the target's bounding-box diagonal "
+                                            "against the reference run to convergence"}})
+
+
+def _finite(obj):
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    return obj
+
+
+def _agrees(comparability: str, cmp: dict, diag: float) -> bool:
+    if comparability == "step":
+        return cmp["matrix_relative_disagreement"] <= STEP_TOLERANCE
+    if comparability == "fixed-point":
+        return cmp["matrix_relative_disagreement"] <= FIXED_POINT_TOLERANCE
+    return (cmp["rotation_disagreement_deg"] <= OBJECTIVE_ROTATION_DEG
+            and cmp["translation_disagreement"] <= OBJECTIVE_TRANSLATION * diag)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text[:300]
+
+
+def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implementations: Sequence[str] = ("reference", "open3d"),
+                               init: np.ndarray | None = None, max_correspondence_distance: float | None = None,
+                               max_iterations: int = 30, relative_fitness: float = 1e-6, relative_rmse: float = 1e-6,
+                               voxel_size: float | None = None, truth: np.ndarray | None = None,
+                               timeout: float | None = None, progress: bool = False,
+                               on_result: Callable[[str, object], None] | None = None) -> CloudCrosscheck:
+    """Run each implementation (names, ``py:`` or ``cmd:`` specs) on the same pinned inputs and compare it
+    with pcreg's reference ICP.
+
+    source, target : (N, d), (M, d), d = 2 or 3; ``target`` is fixed, the result maps ``source`` onto it.
+    voxel_size : both clouds are voxel-downsampled once (:func:`pcreg.registration.api.voxel_downsample`)
+        before any implementation sees them.
+    truth : optional (d+1, d+1) ground truth; rows then also report their error against it.
+    on_result : called with (name, Outcome or exception) as each implementation finishes.
+
+    A failing or missing implementation becomes its row's one-line ``error``; the others still run.
+    """
+    from . import implementations as impls
+    from .registration.api import voxel_downsample
+
+    src = check_cloud(source, "source")
+    tgt = check_cloud(target, "target")
+    if src.shape[1] != tgt.shape[1]:
+        raise InputError(f"source is {src.shape[1]}-D but target is {tgt.shape[1]}-D")
+    d = src.shape[1]
+    if voxel_size:
+        if not voxel_size > 0:
+            raise InputError("voxel_size must be > 0")
+        src, tgt = voxel_downsample(src, voxel_size), voxel_downsample(tgt, voxel_size)
+    T0 = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
+    if T0.shape != (d + 1, d + 1) or not np.all(np.isfinite(T0)):
+        raise InputError(f"init must be a finite {d + 1}x{d + 1} matrix")
+    if max_correspondence_distance is None:
+        max_correspondence_distance = default_max_distance(tgt)
+    if not max_correspondence_distance > 0 or max_iterations < 1:
+        raise InputError("max_correspondence_distance must be > 0 and max_iterations >= 1")
+    names = list(dict.fromkeys([REFERENCE, *implementations]))
+    adapters, errors = {}, {}
+    for name in names:
+        try:
+            adapters[name] = impls.get(name, timeout=timeout)
+        except impls.ImplementationError as exc:
+            if name == REFERENCE or not (name.startswith("py:") or name.startswith("cmd:")):
+                raise InputError(_one_line(exc)) from None
+            errors[name] = _one_line(exc)
+    pinned = impls.Pinned(src, tgt, T0, float(max_correspondence_distance), int(max_iterations),
+                          float(relative_fitness), float(relative_rmse))
+    diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
+    outcomes: dict = {}
+    it = names
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(names, desc="implementations", unit="impl", file=sys.stderr, leave=False)
+    for name in it:
+        if name in errors:
+            continue
+        try:
+            outcomes[name] = adapters[name].run(pinned, trace=True)
+        except impls.MissingLibrary as exc:
+            errors[name] = _one_line(exc)
+            outcomes[name] = "missing"
+        except Exception as exc:  # noqa: BLE001 - any failure is that implementation's, the others still run
+            errors[name] = _one_line(exc)
+        if on_result is not None:
+            on_result(name, outcomes.get(name, errors.get(name)))
+    ref = outcomes.get(REFERENCE)
+    conv = None
+    conv_info = None
+    if ref is not None and any(isinstance(outcomes.get(n), impls.Outcome) and adapters[n].comparability != "step"
+                               for n in outcomes if n != REFERENCE):
+        try:
+            conv = adapters[REFERENCE].run(converged_settings(pinned))
+            conv_info = {"matrix": conv.matrix.tolist(), "iterations": conv.iterations, "converged": conv.converged,
+                         "fitness": conv.fitness, "inlier_rmse": conv.inlier_rmse,
+                         "settings": converged_settings(pinned).params()}
+        except Exception as exc:  # noqa: BLE001
+            conv_info = {"error": _one_line(exc)}
+    rows, traces = {}, {}
+    for name in names:
+        o = outcomes.get(name)
+        a = adapters.get(name)
+        comp = a.comparability if a is not None else "step"
+        row = {"matrix": None, "iterations": None, "fitness": None, "inlier_rmse": None, "converged": None,
+               "seconds": 0.0, "comparability": comp, "rotation_disagreement_deg": None,
+               "translation_disagreement": None, "matrix_relative_disagreement": None, "agrees": False,
+               "error": errors.get(name), "status": "missing" if o == "missing" else ("failed" if name in errors else "ok"),
+               "compared_with": None, "divergence": None, "trace": False,
+               "description": getattr(a, "description", ""), "settings": None}
+        if a is not None:
+            try:
+                row["settings"] = a.settings(pinned)
+            except Exception:  # noqa: BLE001 - settings are informative only
+                row["settings"] = None
+        if isinstance(o, impls.Outcome):
+            row.update({"matrix": o.matrix.tolist(), "iterations": o.iterations, "fitness": o.fitness,
+                        "inlier_rmse": o.inlier_rmse, "converged": o.converged, "seconds": float(o.seconds),
+                        "trace": bool(o.trace)})
+            if o.info:
+                row["info"] = o.info
+            traces[name] = o.trace
+            base, base_name = (ref, "reference") if comp == "step" else (conv, "reference at convergence")
+            if name == REFERENCE:
+                base, base_name = o, "reference"
+            if base is not None:
+                cmp = compare_matrices(base.matrix, o.matrix, src)
+                row.update(cmp)
+                row["compared_with"] = base_name
+                row["agrees"] = bool(_agrees(comp, cmp, diag))
+                if ref is not None and name != REFERENCE and o.trace and ref.trace:
+                    row["divergence"] = trace_divergence(ref.trace, o.trace)
+            elif name != REFERENCE:
+                row["error"] = row["error"] or None
+                row["compared_with"] = None
+            if truth is not None:
+                t = compare_matrices(np.asarray(truth, dtype=np.float64), o.matrix, src)
+                row["truth_rotation_deg"] = t["rotation_disagreement_deg"]
+                row["truth_translation"] = t["translation_disagreement"]
+        rows[name] = row
+    settings = {**pinned.params(), "init": T0.tolist(), "voxel_size": voxel_size, "dimension": d,
+                "source_points": len(src), "target_points": len(tgt), "target_diagonal": diag}
+    if ref is None:
+        settings["reference_error"] = errors.get(REFERENCE)
+    return CloudCrosscheck(rows=rows, settings=settings, reference_at_convergence=conv_info, traces=traces,
+                           source=src, target=tgt)

@@ -35,9 +35,25 @@ def _jsonable(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
-def to_json(obj: Any) -> str:
-    """JSON text with numpy values converted; NaN is written as null-safe ``NaN`` (Python's json)."""
+def to_json(obj: Any, *, strict: bool = False) -> str:
+    """JSON text with numpy values converted. NaN/inf are written as Python's ``NaN`` (read back by
+    :func:`json.loads`), or as ``null`` with ``strict`` (valid JSON for any reader)."""
+    if strict:
+        return json.dumps(_finite(obj), indent=2, default=_jsonable, sort_keys=False, allow_nan=False)
     return json.dumps(obj, indent=2, default=_jsonable, sort_keys=False)
+
+
+def _finite(obj: Any) -> Any:
+    """``obj`` with float NaN/inf (Python or numpy) replaced by None, containers rebuilt."""
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, np.ndarray) and obj.dtype.kind == "f":
+        return _finite(obj.tolist())
+    return obj
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
@@ -55,11 +71,13 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the file the usual permissions
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(exc, OSError):  # a folder in the way, disk full, ...: one line, not a traceback
+            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
     return path
 
@@ -110,6 +128,10 @@ def atomic_save_figure(fig: Any, path: str | os.PathLike, *, dpi: int = 110) -> 
 def check_output(path: str | os.PathLike, *, force: bool) -> Path:
     """Refuse to overwrite an existing file unless ``force``; check that its folder is writable."""
     path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{path} is a folder; give a file name")
+    if path.exists() and not path.is_file():
+        raise OutputError(f"{path} is not a regular file")
     if path.exists() and not force:
         raise OutputError(f"{path} exists (use --force to overwrite)")
     parent = path.parent if str(path.parent) else Path(".")
@@ -118,3 +140,49 @@ def check_output(path: str | os.PathLike, *, force: bool) -> Path:
     if parent.exists() and not parent.is_dir():
         raise OutputError(f"cannot write {path}: {parent} is not a folder")
     return path
+
+
+class OutputLock:
+    """An exclusive lock on an output folder (``fcntl.flock`` on ``FOLDER/.pcreg.lock``), held while a
+    command writes there and released on exit (also when the process dies). A second run on the same
+    folder gets an :class:`OutputError` at once instead of racing the first."""
+
+    NAME = ".pcreg.lock"
+
+    def __init__(self, folder: str | os.PathLike) -> None:
+        self.folder = Path(folder)
+        self._fd: int | None = None
+
+    def __enter__(self) -> "OutputLock":
+        import fcntl
+
+        if self.folder.exists() and not self.folder.is_dir():
+            raise OutputError(f"{self.folder} exists and is not a folder")
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.folder / self.NAME, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
+        except OSError as exc:
+            raise OutputError(f"cannot write to {self.folder}: {exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            try:
+                other = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
+            except OSError:
+                other = ""
+            os.close(fd)
+            who = f" (pid {other})" if other.isdigit() else ""
+            raise OutputError(f"{self.folder} is in use by another pcreg run{who}; wait for it or use another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        self._fd = fd
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._fd is not None:
+            try:
+                os.ftruncate(self._fd, 0)
+            except OSError:
+                pass
+            os.close(self._fd)  # closing releases the flock
+            self._fd = None

@@ -480,6 +480,17 @@ def _choose_temporal_weight(calib: list, frames: Sequence, *, fusion: FusionConf
     return WeightChoice(grid[best], grid, tuple(float(e) for e in errors), len(calib), total)
 
 
+def _odd_sized(frames: Sequence) -> dict[int, str]:
+    """{index: reason} of the frames whose size differs from the sequence's most common size."""
+    from collections import Counter
+
+    if not frames:
+        return {}
+    (h, w), _ = Counter(f.shape for f in frames).most_common(1)[0]
+    return {i: f"frame {f.name} is {f.shape[1]}x{f.shape[0]} px, the sequence's frames are {w}x{h}"
+            for i, f in enumerate(frames) if f.shape != (h, w)}
+
+
 def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineConfig(), train: str = "reference",
                  fusion_frames: int | None = None, on_pair: Callable | None = None,
                  icp_callback: Callable | None = None) -> SequenceResult:
@@ -542,6 +553,8 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
         return clf_cache[i]
 
     reg_cache: dict[tuple[int, int], PairRegistration] = {}
+    odd = _odd_sized(frames)  # a frame of another size fails its own pairs only, with the reason
+
 
     def registration(i: int, j: int, callback=None):
         if (i, j) not in reg_cache:
@@ -553,6 +566,8 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
     calib = []  # (i, j, T, d_j, pi) of the registered pairs among the first C frames, in order
     if fixed is None and kc >= 1:
         for i, j in pair_indices(C, kc):
+            if i in odd or j in odd:
+                continue
             clf = classifier(i)
             calib.append((i, j, registration(i, j).matrix, log_odds(clf, frames[j].image),
                           float(np.asarray(clf.class_prior_)[1])))
@@ -582,10 +597,14 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
     scored: list[PairResult] = []
     failures: list[dict] = []
     for i, j in pair_indices(n, k):
-        if i < k:
+        chain = chains.popleft() if i >= k else None
+        if i in odd or j in odd:
+            if j >= C:
+                failures.append({"reference": i, "moving": j, "reason": odd[i if i in odd else j]})
+            chains.append(None)  # the chain restarts after the odd frame
+            continue
+        if chain is None:
             chain = TemporalFusion(frames[i].labels, weight=weight_t, fusion=config.fusion)
-        else:
-            chain = chains.popleft()
         score = j >= C
         reg = registration(i, j, icp_callback if score else None)
         reg_cache.pop((i, j), None)

@@ -76,10 +76,11 @@ def test_crosscheck_clouds_json(tmp_path):
     source = tf.apply(np.linalg.inv(np.array([[1, 0, 0, 0.2], [0, 1, 0, -0.1], [0, 0, 1, 0.05], [0, 0, 0, 1.0]])), target)
     np.save(tmp_path / "t.npy", target)
     np.save(tmp_path / "s.npy", source)
-    p = run("crosscheck", tmp_path / "t.npy", tmp_path / "s.npy", "--json", "--voxel-sizes", "1,0.5")
+    p = run("crosscheck", tmp_path / "t.npy", tmp_path / "s.npy", "--json", "--voxel-size", "0.5", "--max-distance", "1")
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
-    assert out["rotation_disagreement_deg"] < 1e-6 and out["translation_disagreement"] < 1e-6
+    o3d = out["implementations"]["open3d"]
+    assert o3d["rotation_disagreement_deg"] < 1e-6 and o3d["translation_disagreement"] < 1e-6 and o3d["agrees"]
 
 
 @pytest.mark.parametrize("make_args, message", [

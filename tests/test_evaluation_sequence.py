@@ -101,7 +101,8 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
                                  ["--fusion-weight", "-1"], ["--model", "warp"], ["--workers", "0"],
                                  ["--data", "nothing:here"]])
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, bad):
-    if bad[0] in ("--increments", "--backend", "--train", "--size", "--workers"):  # refused by the parser
+    if bad[0] in ("--increments", "--backend", "--train", "--size", "--workers", "--frames",
+                  "--fusion-weight"):  # refused by the parser
         with pytest.raises(SystemExit) as exc:
             _run(tmp_path, *bad)
         code = exc.value.code

@@ -50,8 +50,11 @@ def _as_lists(images, labels) -> tuple[list[np.ndarray], list[np.ndarray]]:
         images = [images]
     if isinstance(labels, np.ndarray) and labels.ndim == 2:
         labels = [labels]
-    images = list(images)
-    labels = list(labels)
+    try:
+        images = list(images)
+        labels = list(labels)
+    except TypeError:
+        raise InputError("images and labels must be arrays or sequences of arrays") from None
     if len(images) != len(labels):
         raise InputError(f"{len(images)} images but {len(labels)} label arrays")
     if not images:
@@ -172,11 +175,25 @@ class NaiveBayesPixelClassifier:
     def __init__(self, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
                  weights: Sequence[float] | None = None, exclude_unknown: bool = True,
                  var_smoothing: float = 1e-9, priors: Sequence[float] | None = None) -> None:
-        self.features = parse_features(features)
-        self.weights = normalise_weights(weights)
-        self.exclude_unknown = bool(exclude_unknown)
-        self.var_smoothing = float(var_smoothing)
-        self.priors = None if priors is None else tuple(float(p) for p in priors)
+        try:
+            self.features = parse_features(features)
+            self.weights = normalise_weights(weights)
+            self.exclude_unknown = bool(exclude_unknown)
+        except InputError:
+            raise
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"NaiveBayesPixelClassifier: invalid option ({' '.join(str(exc).split())[:160]})") from exc
+        from ..validation import check_float
+
+        self.var_smoothing = check_float(var_smoothing, "var_smoothing", lo=0)
+        if priors is not None:
+            try:
+                priors = tuple(float(p) for p in priors)
+            except (TypeError, ValueError):
+                raise InputError(f"priors must be numbers, got {priors!r}") from None
+            if not all(np.isfinite(p) and p >= 0 for p in priors) or abs(sum(priors) - 1) > 1e-6:
+                raise InputError(f"priors must be finite, >= 0 and sum to 1, got {priors}")
+        self.priors = priors
         self.feature_names_ = feature_names(self.features)
 
     def __repr__(self) -> str:
@@ -406,8 +423,11 @@ def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, e
     """
     import cv2
 
-    if n_trials < 1:
-        raise InputError("n_trials must be at least 1")
+    from ..validation import check_float, check_int
+
+    n_trials = check_int(n_trials, "n_trials", lo=1, hi=1_000_000)
+    seed = check_int(seed, "seed", lo=0)
+    var_smoothing = check_float(var_smoothing, "var_smoothing", lo=0)
     counts = colour_counts(images, labels, exclude_unknown=exclude_unknown)
     present = [c for c in range(N_LABELS) if counts[c][1].size]
     if len(present) < 2:

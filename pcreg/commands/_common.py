@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -24,8 +25,8 @@ def positive_float(text: str) -> float:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {v}")
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
     return v
 
 
@@ -34,7 +35,7 @@ def float_list(text: str) -> tuple[float, ...]:
         vals = tuple(float(t) for t in text.split(",") if t.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if not vals or any(not v > 0 for v in vals):
+    if not vals or any(not (v > 0 and math.isfinite(v)) for v in vals):
         raise argparse.ArgumentTypeError(f"expected comma-separated positive numbers, got {text!r}")
     return vals
 
@@ -59,7 +60,7 @@ def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = T
 def print_json(obj) -> None:
     from ..outputs import to_json
 
-    sys.stdout.write(to_json(obj) + "\n")
+    sys.stdout.write(to_json(obj, strict=True) + "\n")  # NaN -> null: valid JSON for any reader
 
 
 # ---------------------------------------------------------------------------------------------
@@ -67,6 +68,8 @@ def print_json(obj) -> None:
 # ---------------------------------------------------------------------------------------------
 
 BACKEND_CHOICES = ("reference", "open3d", "both")
+MAX_SIDE = 8192  # synthetic frames: 8192x8192 RGB is 200 MB a frame
+MAX_FRAMES = 100_000
 
 
 def backends(value: str) -> tuple[str, ...]:
@@ -80,8 +83,8 @@ def int_list(text: str) -> tuple[int, ...]:
         vals = tuple(int(v) for v in text.split(",") if v.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
-    if not vals or any(v < 1 for v in vals):
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers >= 1, got {text!r}")
+    if not vals or any(v < 1 or v > MAX_FRAMES for v in vals):
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers in 1..{MAX_FRAMES}, got {text!r}")
     return vals
 
 
@@ -89,17 +92,26 @@ def angle_list(text: str) -> tuple[float, ...]:
     """``"0,5,90"`` or ``"0:180:5"`` (start:stop:step, stop included) -> angles in degrees."""
     import numpy as np
 
+    from ..validation import MAX_UNITS
+
     try:
         if ":" in text:
             a, b, s = (float(v) for v in text.split(":"))
-            if s <= 0:
+            if not (np.isfinite(a) and np.isfinite(b) and np.isfinite(s)) or s <= 0:
                 raise ValueError
+            if abs(a) > 360 or abs(b) > 360:
+                raise argparse.ArgumentTypeError(f"angles must be within +-360 degrees, got {text!r}")
+            count = int(np.floor((b - a) / s + 0.5)) + 1 if b >= a else 0
+            if count > MAX_UNITS:  # counted before anything is allocated
+                raise argparse.ArgumentTypeError(f"{text!r} gives {count} angles; the limit is {MAX_UNITS}")
             vals = tuple(float(v) for v in np.round(np.arange(a, b + s / 2, s), 6))
         else:
             vals = tuple(float(v) for v in text.split(",") if v.strip())
+            if len(vals) > MAX_UNITS:
+                raise argparse.ArgumentTypeError(f"{len(vals)} angles; the limit is {MAX_UNITS}")
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected angles as A,B,C or START:STOP:STEP, got {text!r}") from None
-    if not vals or any(abs(v) > 360 for v in vals):
+    if not vals or any(not np.isfinite(v) or abs(v) > 360 for v in vals):
         raise argparse.ArgumentTypeError(f"angles must be within +-360 degrees, got {text!r}")
     return vals
 
@@ -112,6 +124,8 @@ def size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
     if w < 16 or h < 12:
         raise argparse.ArgumentTypeError(f"frames must be at least 16x12, got {text!r}")
+    if w > MAX_SIDE or h > MAX_SIDE:
+        raise argparse.ArgumentTypeError(f"synthetic frames are at most {MAX_SIDE}x{MAX_SIDE}, got {text!r}")
     return (w, h)
 
 
@@ -129,19 +143,23 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     """--data, --frames, --size, --seed: which sequences an evaluation runs on."""
     parser.add_argument("--data", default="synthetic",
                         help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
-    parser.add_argument("--frames", type=int, default=None,
+    from ..validation import arg_int
+
+    parser.add_argument("--frames", type=arg_int(1, MAX_FRAMES), default=None,
                         help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
     parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic data (default 0)")
+    parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the synthetic data (default 0)")
 
 
 def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
     """--backend, --levels, --iterations, --workers, --scheduler, --out and the recording options."""
     parser.add_argument("--backend", choices=BACKEND_CHOICES, default="reference",
                         help="ICP backend(s) (default reference)")
-    parser.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
-    parser.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
-    parser.add_argument("--workers", type=positive_int, default=1, help="processes (default 1)")
+    from ..validation import arg_int
+
+    parser.add_argument("--levels", type=arg_int(1, 8), default=4, help="pyramid levels, 1..8 (default 4)")
+    parser.add_argument("--iterations", type=arg_int(1, 10_000), default=14, help="ICP iterations per level (default 14)")
+    parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")
     parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
     parser.add_argument("--out", default=out, help=f"output folder (default {out})")
     add_record_arguments(parser)
@@ -151,15 +169,17 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
     """The shared body of ``pcreg evaluate rotation|sequence``: run (recording in this process, else with
     ``--workers``/``--scheduler``), write the outputs, print the first backend's table and the checks."""
     from .._runner import make_executor
+    from ..outputs import OutputLock
 
     out = Path(args.out)
     recording = bool(getattr(args, "record", None))
     if recording and args.workers > 1:
         print("note: --record runs every unit in this process (--workers ignored)")
-    with open_recorder(args, name=f"pcreg evaluate {name}") as rec:
-        with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
-            results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
-    written = write_outputs(results, out)
+    with OutputLock(out):  # a second run on the same --out is refused, not raced
+        with open_recorder(args, name=f"pcreg evaluate {name}") as rec:
+            with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
+                results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
+        written = write_outputs(results, out)
     print(f"wrote {len(written)} files to {out}")
     print((out / f"{name}_{config.backends[0]}.md").read_text(), end="")
     print((out / "checks.md").read_text(), end="")

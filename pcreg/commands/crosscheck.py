@@ -1,32 +1,220 @@
-"""Run the reference ICP and Open3D's ICP on identical inputs and report their disagreement."""
+"""Cross-check ICP implementations on identical inputs and report where and why they differ.
+
+Two images: the reference ICP and Open3D's through the image pipeline. Two point clouds: every
+implementation named with ``--with`` (built in, ``py:MODULE:FUNCTION``, ``cmd:"PROGRAM {source} ..."``).
+``--export DIR`` writes the built-in suite as test vectors; ``--suite DIR`` runs every implementation on
+a suite and writes a table and a figure.
+"""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ._common import add_record_arguments, float_list, open_recorder, positive_float, positive_int, print_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("a", metavar="A", help="reference image, or target point cloud (.ply/.pcd/.xyz/.npy)")
-    p.add_argument("b", metavar="B", help="moving image, or source point cloud")
-    p.add_argument("--model", choices=("rigid", "similarity"), default="rigid")
-    p.add_argument("--iterations", type=positive_int, default=30, help="max ICP iterations per level")
-    p.add_argument("--levels", type=positive_int, default=4, help="image pyramid levels")
-    p.add_argument("--voxel-sizes", type=float_list, default=None,
-                   help="clouds: coarse-to-fine voxel sizes, e.g. 1.0,0.5,0.25 (default: from the extent)")
-    p.add_argument("--max-distance", type=positive_float, default=2.5,
-                   help="images: correspondence distance in px at full resolution (x 2^level)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("a", metavar="A", nargs="?", help="reference image, or target point cloud (.ply/.pcd/.xyz/.npy)")
+    p.add_argument("b", metavar="B", nargs="?", help="moving image, or source point cloud")
+    p.add_argument("--with", dest="implementations", action="append", metavar="LIST",
+                   help="clouds: comma-separated implementations (default reference,open3d; 'all' = every built-in "
+                        "one); built in: reference, open3d, open3d-tensor, small_gicp, small_gicp-plane, "
+                        "small_gicp-gicp, kiss-icp, pycpd, probreg-cpd, probreg-filterreg; or py:MODULE:FUNCTION, "
+                        "cmd:\"PROGRAM {source} {target} {init} {out} {params}\"; may be repeated")
+    p.add_argument("--model", choices=("rigid", "similarity"), default="rigid", help="images: motion model")
+    p.add_argument("--iterations", "--max-iterations", dest="iterations", type=positive_int, default=30,
+                   help="max ICP iterations (per level for images)")
+    p.add_argument("--levels", type=positive_int, default=4, help="images: pyramid levels")
+    p.add_argument("--max-distance", type=positive_float, default=None,
+                   help="correspondence distance: images, px at full resolution (x 2^level; default 2.5); "
+                        "clouds, in their units (default 1%% of the target's bounding-box diagonal)")
+    p.add_argument("--voxel-size", type=positive_float, default=None,
+                   help="clouds: voxel-downsample both clouds once, before every implementation")
+    p.add_argument("--init", metavar="FILE", help="clouds: initial guess, a (d+1)x(d+1) text matrix (default identity)")
+    from ..validation import arg_float
+
+    p.add_argument("--relative-fitness", type=arg_float(0, 1), default=1e-6, help="stopping rule: |Δfitness| threshold")
+    p.add_argument("--relative-rmse", type=arg_float(0), default=1e-6, help="stopping rule: |Δinlier RMSE| threshold")
+    p.add_argument("--timeout", type=positive_float, default=60.0, help="time limit of a cmd: program, s")
+    p.add_argument("--export", metavar="DIR", help="write the built-in suite as test vectors with the reference's traces")
+    p.add_argument("--suite", metavar="DIR", help="run every implementation on the suite in DIR (written by --export; "
+                                                  "the built-in suite when DIR holds none) and write a table + figure")
+    p.add_argument("--out", metavar="DIR", help="--suite: where results go (default: the suite's DIR)")
+    p.add_argument("--scans", metavar="DIR", default=None,
+                   help="the LiDAR pair for the built-in suite (default ../shared/data/scans if present)")
+    p.add_argument("--voxel-sizes", type=float_list, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
     add_record_arguments(p)
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..crosschecks import CLOUD_SUFFIXES, CrosscheckConfig, crosscheck
+def _implementations(args) -> list[str]:
+    from ..implementations import parse_list
 
+    items: list[str] = []
+    for text in args.implementations or ["reference,open3d"]:
+        items.extend(parse_list(text))
+    return list(dict.fromkeys(items))
+
+
+def _scans(args):
+    if args.scans:
+        return Path(args.scans)
+    for base in (Path.cwd(), Path(__file__).resolve().parents[2]):
+        cand = base.parent / "shared" / "data" / "scans"
+        if cand.is_dir():
+            return cand
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import InputError
+    from ..implementations import stdout_to_stderr
+
+    if args.export or args.suite:
+        if args.a or args.b:
+            raise InputError("--export and --suite take no A B clouds")
+        with stdout_to_stderr():
+            out = _suite(args)
+        if args.json:
+            print_json(out)
+        else:
+            for k, v in out.items():
+                print(f"{k}: {v}")
+        return 0
+    if not (args.a and args.b):
+        raise InputError("give two images or two clouds A B (or --export DIR / --suite DIR)")
+    from ..crosschecks import CLOUD_SUFFIXES
+
+    if args.a.lower().endswith(CLOUD_SUFFIXES) or args.b.lower().endswith(CLOUD_SUFFIXES):
+        return _clouds(args)
+    return _images(args)
+
+
+def _suite(args) -> dict:
+    from ..crosscheck_suite import builtin_cases, export_suite, load_suite, run_suite, write_results
+
+    out: dict = {}
+    if args.export:
+        cases, skipped = builtin_cases(scans=_scans(args))
+        export_suite(args.export, cases, progress=True)
+        out["exported"] = args.export
+        out["cases"] = [c.name for c in cases]
+        out["skipped"] = skipped
+    if args.suite:
+        suite = Path(args.suite)
+        skipped = {}
+        if (suite / "index.json").exists():
+            cases = load_suite(suite)
+        else:
+            cases, skipped = builtin_cases(scans=_scans(args))
+        names = _implementations(args) if args.implementations else ["all"]
+        from ..implementations import parse_list
+
+        names = [n for t in names for n in parse_list(t)]
+        rows = run_suite(cases, names, timeout=args.timeout, progress=True)
+        out["results"] = write_results(Path(args.out or suite), rows, skipped=skipped)
+        out["agreeing"] = sum(1 for r in rows if r.get("agrees"))
+        out["rows"] = len(rows)
+        out["skipped"] = skipped
+    return out
+
+
+def _clouds(args) -> int:
+    from ..crosschecks import crosscheck
+    from ..implementations import stdout_to_stderr
+
+    init = None
+    if args.init:
+        from ..validation import read_text_matrix
+
+        init = read_text_matrix(args.init, what="initial guess")  # regular file, bounded, finite
+    voxel = args.voxel_size or (args.voxel_sizes[-1] if args.voxel_sizes else None)
+    names = _implementations(args)
+    with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
+        if rec is not None:
+            rec.set_frame(0)
+            rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
+        # Libraries print from C++ straight to file descriptor 1: keep stdout for the report alone.
+        with stdout_to_stderr():
+            report = crosscheck(args.a, args.b, implementations=names, init=init,
+                                max_correspondence_distance=args.max_distance, max_iterations=args.iterations,
+                                relative_fitness=args.relative_fitness, relative_rmse=args.relative_rmse,
+                                voxel_size=voxel, timeout=args.timeout, progress=not args.json)
+        out = report.to_dict()
+        if rec is not None:
+            log_cloud_crosscheck(rec, report)
+    if args.json:
+        print_json(out)
+    else:
+        print(format_table(out))
+    return 0 if out["implementations"]["reference"]["error"] is None else 3
+
+
+def log_cloud_crosscheck(rec, report) -> None:
+    """Every implementation's moved cloud and error per iteration on the crosscheck_iteration timeline."""
+    import numpy as np
+
+    from ..registration.transforms import apply
+
+    rec.log_crosscheck_target(report.target)
+    ref = report.rows["reference"]
+    final = np.asarray(ref["matrix"]) if ref["matrix"] is not None else None
+    src = report.source
+    goal = apply(final, src) if final is not None else None
+    for name, row in report.rows.items():
+        if row["matrix"] is None:
+            rec.log_text(f"crosscheck {name}: {row['error']}", level="WARN")
+            continue
+        steps = report.traces.get(name) or ()
+        poses = [(s.iteration, s.matrix, s.fitness, s.inlier_rmse) for s in steps] or \
+                [(row["iterations"] or 0, np.asarray(row["matrix"]), row["fitness"], row["inlier_rmse"])]
+        for k, m, fit, rmse in poses:
+            moved = apply(np.asarray(m), src)
+            err = float(np.sqrt(np.mean(np.sum((moved - goal) ** 2, axis=1)))) if goal is not None else None
+            rec.log_crosscheck_iteration(name, k, moved, error=err, fitness=fit, inlier_rmse=rmse)
+    slim = {"implementations": {n: {k: v for k, v in r.items() if k in (
+        "iterations", "fitness", "inlier_rmse", "seconds", "rotation_disagreement_deg", "translation_disagreement",
+        "matrix_relative_disagreement", "agrees")} for n, r in report.rows.items()}}
+    rec.log_crosscheck(slim)
+
+
+def format_table(out: dict) -> str:
+    def f(v, spec=".3g"):
+        return "-" if v is None else (("yes" if v else "no") if isinstance(v, bool) else format(v, spec))
+
+    lines = [f"{'implementation':24s} {'comparability':12s} {'iter':>5s} {'fitness':>8s} {'rmse':>9s} "
+             f"{'rot deg':>9s} {'transl':>9s} {'rel':>9s} {'agrees':>6s} {'s':>6s}"]
+    for name, r in out["implementations"].items():
+        label = name if len(name) <= 24 else name[:21] + "..."
+        if r["error"]:
+            lines.append(f"{label:24s} {r['comparability']:12s} {r['status']}: {r['error']}")
+            continue
+        lines.append(f"{label:24s} {r['comparability']:12s} {f(r['iterations'], 'd'):>5s} {f(r['fitness'], '.4f'):>8s} "
+                     f"{f(r['inlier_rmse']):>9s} {f(r['rotation_disagreement_deg']):>9s} "
+                     f"{f(r['translation_disagreement']):>9s} {f(r['matrix_relative_disagreement']):>9s} "
+                     f"{f(r['agrees']):>6s} {r['seconds']:6.2f}")
+        if r.get("divergence"):
+            lines.append(f"{'':24s} first divergence at iteration {r['divergence']['iteration']}: "
+                         f"{r['divergence']['cause']}")
+    s = out["settings"]
+    lines.append(f"settings: gate {s['max_correspondence_distance']:.4g}, max {s['max_iterations']} iterations, "
+                 f"{s['source_points']} source / {s['target_points']} target points; rotation/translation/rel "
+                 "are disagreements with the reference (fixed-point and objective rows: with the reference run "
+                 "to convergence)")
+    return "\n".join(lines)
+
+
+def _images(args) -> int:
+    from ..crosschecks import CrosscheckConfig, crosscheck
+
+    if args.implementations:
+        from ..errors import InputError
+
+        raise InputError("--with applies to point clouds; images are cross-checked with both register backends")
     config = CrosscheckConfig(model=args.model, iterations=args.iterations, levels=args.levels,
-                              voxel_sizes=args.voxel_sizes, max_correspondence_distance=args.max_distance)
-    clouds = args.a.lower().endswith(CLOUD_SUFFIXES)
+                              voxel_sizes=args.voxel_sizes,
+                              max_correspondence_distance=args.max_distance if args.max_distance else 2.5)
     with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
         if rec is not None:
             rec.set_frame(0)
@@ -34,8 +222,7 @@ def run(args: argparse.Namespace) -> int:
         callbacks = {}
         if rec is not None:
             callbacks = {b: rec.icp_callback(b) for b in ("reference", "open3d")}
-        # Per-iteration logging of 70k-point scans would dwarf the run; clouds log the results only.
-        cb = (lambda it: callbacks[it.backend](it)) if rec is not None and not clouds else None
+        cb = (lambda it: callbacks[it.backend](it)) if rec is not None else None
         report = crosscheck(args.a, args.b, config=config, callback=cb)  # B registered onto A
         out = report.to_dict()
         if rec is not None:

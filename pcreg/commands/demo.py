@@ -14,7 +14,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ._common import add_record_arguments
 
     parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    parser.add_argument("--workers", type=int, default=2, help="processes for Ch. 4 and 5 (default 2)")
+    from ..validation import arg_int
+
+    parser.add_argument("--workers", type=arg_int(1, 1024), default=2, help="processes for Ch. 4 and 5 (default 2)")
     parser.add_argument("--frames", type=int, default=16, help="frames per synthetic sequence (default 16)")
     parser.add_argument("--no-record", action="store_true", help="do not write OUT/demo.rrd")
     add_record_arguments(parser)
@@ -29,14 +31,19 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--workers must be at least 1")
     if args.frames < 8:
         raise InputError("--frames must be at least 8 (the demo's increments go up to 7)")
+    if args.frames > 10_000:
+        raise InputError(f"--frames must be at most 10000, got {args.frames}")
     out = Path(args.out)
     config = DemoConfig(frames=args.frames)
     check_output(out / "report.md", force=args.force)
     record = None if args.no_record else Path(args.record or out / "demo.rrd")
     if record is not None:
         check_output(record, force=args.force)
+    from ..outputs import OutputLock
+
     t0 = time.perf_counter()
-    report = run_demo(config, out=out, workers=args.workers, record=record, raw_images=args.record_raw)
+    with OutputLock(out):  # a second demo on the same --out is refused, not raced
+        report = run_demo(config, out=out, workers=args.workers, record=record, raw_images=args.record_raw)
     print(f"demo finished in {time.perf_counter() - t0:.0f} s: {report}")
     return 0
 

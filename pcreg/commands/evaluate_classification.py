@@ -35,12 +35,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Case I training frame counts (default 10%%..90%% of each sequence: 10..90 of 100)")
     parser.add_argument("--k3", dest="case3_k", type=c.int_list, default=(), metavar="K,K,...",
                         help="Case III frames per dataset (default 10%% and 20%% of each sequence)")
-    parser.add_argument("--frames", type=int, default=None, help="frames per synthetic sequence (default 100); "
+    from ..validation import arg_int
+
+    parser.add_argument("--frames", type=arg_int(1, c.MAX_FRAMES), default=None, help="frames per synthetic sequence (default 100); "
                         "first frames of real sequences (default all)")
     parser.add_argument("--size", type=c.size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
-    parser.add_argument("--trials", type=int, default=30, help="weight-search trials for the thesis feature (default 30)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the weight search and synthetic data (default 0)")
-    parser.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    parser.add_argument("--trials", type=arg_int(1, 100_000), default=30, help="weight-search trials for the thesis feature (default 30)")
+    parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the weight search and synthetic data (default 0)")
+    parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")
     parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
     parser.add_argument("--out", default="out/classification", help="output folder (default out/classification)")
     parser.add_argument("--force", action="store_true", help="discard finished units and outputs of an earlier run")
@@ -67,11 +69,14 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.classification import evaluate
     from ..experiments.reports.classification import write_outputs
 
+    from ..outputs import OutputLock
+
     config = config_from_args(args)
     out = Path(args.out)
-    with make_executor(args.workers, scheduler=args.scheduler) as executor:
-        results = evaluate(config, out=out, force=args.force, executor=executor)
-    written = write_outputs(results, out)
+    with OutputLock(out):  # a second run on the same --out is refused, not raced
+        with make_executor(args.workers, scheduler=args.scheduler) as executor:
+            results = evaluate(config, out=out, force=args.force, executor=executor)
+        written = write_outputs(results, out)
     print(f"wrote {len(written)} files to {out}")
     print((out / "case1.md").read_text() if "I" in config.cases else "", end="")
     return 0

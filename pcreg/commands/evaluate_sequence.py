@@ -19,10 +19,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="frame increments k (default 1,4,7,10)")
     parser.add_argument("--train", type=c.train, default="reference",
                         help="reference (train on each pair's reference frame, default) or first:K")
-    parser.add_argument("--fusion-frames", type=int, default=None, metavar="C",
+    from ..validation import arg_float, arg_int
+
+    parser.add_argument("--fusion-frames", type=arg_int(0, c.MAX_FRAMES), default=None, metavar="C",
                         help="frames at the start of each sequence that choose the fusion weight and are not "
                              "scored (default: the training frames for first:K, else 10%% of the sequence, >= 2)")
-    parser.add_argument("--fusion-weight", type=float, default=None, metavar="W",
+    parser.add_argument("--fusion-weight", type=arg_float(0, 1e6), default=None, metavar="W",
                         help="fixed fusion weight instead of choosing it on the fusion frames")
     parser.add_argument("--init", choices=("identity", "auto"), default="identity",
                         help="registration start: identity (default) or auto (global rotation search)")

@@ -51,10 +51,15 @@ def _mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
 def _read_png(path: Path, *, color: bool) -> np.ndarray:
     import cv2
 
-    data = np.fromfile(str(path), dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise DatasetError(f"{path}: cannot decode image (corrupt or not an image)")
+    from ..errors import InputError
+    from ..validation import decode_image, max_file_bytes, max_pixels, read_regular_file
+
+    limit = max_pixels()
+    try:  # regular files only, size checked in the header before decoding
+        data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image")
+        img = decode_image(data, str(path), flags=cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED, limit=limit)
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
     if color:
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     return img

@@ -23,16 +23,39 @@ def _numbered(path: Path) -> tuple:
 def _mat_frame(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     import scipy.io
 
+    from ..errors import InputError
+    from ..validation import check_regular_file, max_file_bytes, max_pixels
+
     try:
+        check_regular_file(path, what=".mat file")
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
+    limit = max_pixels()
+    if path.stat().st_size > max_file_bytes(limit):
+        raise DatasetError(f"{path}: file too large for the pixel limit {limit} (raise --max-pixels)")
+    try:
+        # Shapes first, from the headers: a small compressed file can declare a huge array.
+        for name, shape, _ in scipy.io.whosmat(str(path)):
+            if name in (LAGR_IMAGE, LAGR_MASK) and int(np.prod(shape, dtype=np.float64)) > 3 * limit:
+                raise DatasetError(f"{path}: {name} is {'x'.join(map(str, shape))}, over the pixel limit {limit} "
+                                   "(raise --max-pixels)")
         mat = scipy.io.loadmat(str(path), variable_names=[LAGR_IMAGE, LAGR_MASK])
-    except Exception as exc:  # scipy raises several types on a damaged file
-        raise DatasetError(f"{path}: cannot read .mat file ({type(exc).__name__}: {exc})") from None
+    except DatasetError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - scipy raises several types on a damaged file
+        raise DatasetError(f"{path}: cannot read .mat file ({type(exc).__name__}: {str(exc)[:200]})") from None
     if LAGR_IMAGE not in mat:
         raise DatasetError(f"{path}: no variable {LAGR_IMAGE!r} (has: {', '.join(sorted(k for k in mat if not k.startswith('__'))) or 'none'})")
     raw = np.asarray(mat[LAGR_IMAGE])
     if raw.ndim != 3 or raw.shape[2] != 3:
         raise DatasetError(f"{path}: {LAGR_IMAGE} must be W x H x 3, got {raw.shape}")
     image = np.ascontiguousarray(np.moveaxis(raw, 0, 1))
+    if image.dtype.kind not in "biuf":
+        raise DatasetError(f"{path}: {LAGR_IMAGE} must be numeric, got {image.dtype}")
+    if image.dtype != np.uint8 and image.size and not np.all(np.isfinite(image)):
+        raise DatasetError(f"{path}: {LAGR_IMAGE} has NaN or inf values")
+    if image.dtype != np.uint8 and image.size and (image.min() < 0 or image.max() > 255):
+        raise DatasetError(f"{path}: {LAGR_IMAGE} values {image.min():g}..{image.max():g} are outside 0..255")
     if image.dtype != np.uint8:
         if np.issubdtype(image.dtype, np.floating) and image.size and image.max() <= 1.0:
             image = image * 255.0
@@ -40,6 +63,8 @@ def _mat_frame(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     mask = None
     if LAGR_MASK in mat:
         m = np.asarray(mat[LAGR_MASK])
+        if m.dtype.kind not in "biuf":
+            raise DatasetError(f"{path}: {LAGR_MASK} must be numeric, got {m.dtype}")
         if m.ndim != 2 or m.shape != raw.shape[:2]:
             raise DatasetError(f"{path}: {LAGR_MASK} is {m.shape}, expected {raw.shape[:2]} like {LAGR_IMAGE}")
         m = np.ascontiguousarray(np.moveaxis(m, 0, 1))

@@ -125,7 +125,9 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
     Returns the results by unit key (finished and new) and how many came from an earlier run.
     """
     from .._runner import _InlineExecutor, run_units
+    from ..validation import check_units
 
+    check_units(len(units), "evaluation units")
     done: dict[str, dict] = {}
     todo = []
     for u in units:

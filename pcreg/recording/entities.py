@@ -27,12 +27,18 @@ Layout (``{x}`` is filled in at log time)::
     icp/{backend}/inlier_rmse           Scalars on the icp_iteration timeline
     crosscheck/report                   TextDocument: both results and their disagreement as JSON
     crosscheck/{key}                    Scalars: every number of the report, nested keys joined by '/'
+    crosscheck/target                   Points2D/3D: the target cloud of a cloud cross-check (static)
+    crosscheck/{implementation}/cloud   Points2D/3D per iteration: the source cloud at that implementation's pose
+    crosscheck/{implementation}/error   Scalars: RMS distance of those points from where the reference's
+                                        final pose puts them, on the crosscheck_iteration timeline
+    crosscheck/{implementation}/fitness, .../inlier_rmse   Scalars on the crosscheck_iteration timeline
 """
 
 from __future__ import annotations
 
 FRAME_TIMELINE = "frame"
 ICP_TIMELINE = "icp_iteration"
+CROSSCHECK_TIMELINE = "crosscheck_iteration"
 
 CONFIG = "config"
 LOG = "log"
@@ -89,6 +95,14 @@ def labels_path(kind: str, prefix: str = "") -> str:
 
 def error_path(method: str) -> str:
     return f"{ERRORS}/{method}"
+
+
+def crosscheck_path(implementation: str, what: str) -> str:
+    """``crosscheck/{implementation}/{what}``; characters other than letters, digits, '-', '_' and '.'
+    in the implementation's name (a ``cmd:`` spec) become '_'."""
+    import re
+
+    return f"{CROSSCHECK}/{re.sub(r'[^A-Za-z0-9_.-]', '_', implementation)}/{what}"
 
 
 def icp_path(backend: str, what: str) -> str:

@@ -539,3 +539,29 @@ class Recorder:
                 self._scalar(f"{E.CROSSCHECK}/{key}", value, key)
         summary = ", ".join(f"{k}={v:.6g}" for k, v in numbers.items() if "/" not in k)
         self._log(E.LOG, rr.TextLog(f"crosscheck: {summary}" if summary else "crosscheck logged", level="INFO"))
+
+    def _cloud(self, points: np.ndarray, color: list[int]) -> Any:
+        p = np.asarray(points, dtype=np.float64)
+        p = p[_display_indices(len(p), self.max_display_points)]
+        if p.shape[1] == 2:
+            return rr.Points2D(p, colors=color, radii=1.5)
+        return rr.Points3D(p, colors=color, radii=0.05)
+
+    def log_crosscheck_target(self, points: np.ndarray) -> None:
+        """The target cloud of a cloud cross-check, static at ``crosscheck/target`` (<= max_display_points)."""
+        self._log(f"{E.CROSSCHECK}/target", self._cloud(points, [80, 160, 255]), static=True)
+
+    def log_crosscheck_iteration(self, implementation: str, iteration: int, points: np.ndarray, *,
+                                 error: float | None = None, fitness: float | None = None,
+                                 inlier_rmse: float | None = None) -> None:
+        """One implementation's iteration of a cloud cross-check on the ``crosscheck_iteration`` timeline:
+        its moved source cloud (``crosscheck/{implementation}/cloud``) and its error, fitness and inlier
+        RMSE as Scalars. Every implementation shares the timeline, so their iterations line up."""
+        self._rec.set_time(E.CROSSCHECK_TIMELINE, sequence=int(iteration))
+        try:
+            self._log(E.crosscheck_path(implementation, "cloud"), self._cloud(points, [255, 120, 0]))
+            for what, value in (("error", error), ("fitness", fitness), ("inlier_rmse", inlier_rmse)):
+                if value is not None and math.isfinite(float(value)):
+                    self._scalar(E.crosscheck_path(implementation, what), float(value), f"{implementation} {what}")
+        finally:
+            self._rec.disable_timeline(E.CROSSCHECK_TIMELINE)

@@ -19,8 +19,10 @@ from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
 from .clouds import ImageCloud, ImagePyramid, as_rgb_uint8, cloud_pyramid, pyramid_clouds
 from .result import IcpIteration, RegistrationResult
 from .transforms import about_point, apply, check_model, image_center, rigid2d
+from ..validation import check_float, check_int, check_matrix
 
 BACKENDS = ("reference", "open3d")
+MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 keeps sub-mm steps at 1e6 m
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -40,6 +42,10 @@ def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
     if not np.all(np.isfinite(p)):
         bad = int((~np.isfinite(p)).any(axis=1).sum())
         raise InputError(f"{name}: {bad} point(s) have NaN or inf coordinates")
+    big = float(np.max(np.abs(p)))
+    if big > MAX_COORDINATE:
+        raise InputError(f"{name}: coordinates up to {big:.3g} are out of range (|x| <= {MAX_COORDINATE:g}; "
+                         "shift the cloud towards the origin)")
     return p
 
 
@@ -47,6 +53,9 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     """Mean of the points in each occupied cube of side ``voxel`` (as Open3D's ``voxel_down_sample``)."""
     if voxel <= 0:
         return points
+    extent = float(np.max(points.max(axis=0) - points.min(axis=0))) if len(points) else 0.0
+    if extent / voxel > 2.0**40:  # integer voxel keys would overflow (or be meaningless)
+        raise InputError(f"voxel size {voxel:g} is too small for a cloud {extent:g} across")
     keys = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
     _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.ravel()
@@ -119,9 +128,19 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
         target_normals = check_cloud(target_normals, "target_normals")
         if target_normals.shape != tgt.shape:
             raise InputError("target_normals must have the target's shape")
-    T = np.eye(dim + 1) if init is None else np.array(init, dtype=np.float64)
-    if T.shape != (dim + 1, dim + 1) or not np.all(np.isfinite(T)):
-        raise InputError(f"init must be a finite {dim + 1}x{dim + 1} matrix")
+    T = np.eye(dim + 1) if init is None else check_matrix(init, "init", dim + 1)
+    max_iteration = check_int(max_iteration, "max_iteration", lo=0, hi=100_000)
+    relative_fitness = check_float(relative_fitness, "relative_fitness", lo=0)
+    relative_rmse = check_float(relative_rmse, "relative_rmse", lo=0)
+    trim_fraction = check_float(trim_fraction, "trim_fraction", lo=0, lo_open=True, hi=1)
+    if max_correspondence_distance is not None:
+        max_correspondence_distance = check_float(max_correspondence_distance, "max_correspondence_distance",
+                                                  lo=0, lo_open=True)
+    for name, seq in (("voxel_sizes", voxel_sizes), ("max_correspondence_distances", max_correspondence_distances)):
+        for v in seq or ():
+            check_float(v, name, lo=0, lo_open=True)
+    for v in max_iterations or ():
+        check_int(v, "max_iterations", lo=0, hi=100_000)
     if max_correspondence_distance is None:
         both = np.vstack([apply(T, src), tgt])
         max_correspondence_distance = float(np.linalg.norm(both.max(axis=0) - both.min(axis=0))) + 1.0
@@ -257,10 +276,18 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     ref_img = as_rgb_uint8(reference_image, name="reference image")
     mov_img = as_rgb_uint8(moving_image, name="moving image")
     _check_options(backend, model, 2, weights, "point_to_point")
-    if not 1 <= levels <= 8:
-        raise InputError(f"levels must be in 1..8, got {levels}")
-    if iterations < 1:
-        raise InputError(f"iterations must be >= 1, got {iterations}")
+    levels = check_int(levels, "levels", lo=1, hi=8)
+    iterations = check_int(iterations, "iterations", lo=1, hi=100_000)
+    n_candidates = check_int(n_candidates, "n_candidates", lo=1, hi=360)
+    seed = check_int(seed, "seed", lo=0)
+    angle_step = check_float(angle_step, "angle_step", lo=0.01, hi=360)
+    max_correspondence_distance = check_float(max_correspondence_distance, "max_correspondence_distance",
+                                              lo=0, lo_open=True, hi=1e6)
+    relative_fitness = check_float(relative_fitness, "relative_fitness", lo=0)
+    relative_rmse = check_float(relative_rmse, "relative_rmse", lo=0)
+    canny_percentile = check_float(canny_percentile, "canny_percentile", lo=0, hi=100)
+    if not isinstance(init, str):
+        init = check_matrix(init, "init", 3)
     if refine not in (None, "none", "point_to_line"):
         raise InputError(f"refine must be 'point_to_line' or None, got {refine!r}")
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
@@ -315,9 +342,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         else:
             T = np.eye(3)
     else:
-        T = np.array(init, dtype=np.float64)
-        if T.shape != (3, 3) or not np.all(np.isfinite(T)):
-            raise InputError("init must be a finite 3x3 matrix")
+        T = init
     total, conv, fit, rmse = 0, False, 0.0, 0.0
     p2l = refine == "point_to_line" and backend == "reference"
     for level in range(levels - 1, 0 if p2l else -1, -1):

@@ -44,19 +44,18 @@ class ImageCloud:
         return f"ImageCloud(n={len(self)}, shape={self.shape}, level={self.level})"
 
 
-def load_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image file as (H, W, 3) uint8 RGB (grayscale is replicated, 16-bit scaled, alpha dropped)."""
+def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.ndarray:
+    """Read an image file as (H, W, 3) uint8 RGB (grayscale is replicated, 16-bit scaled, alpha dropped).
+
+    Only regular files are read (a FIFO or device is refused, never waited on); the size in the header
+    is checked against ``max_pixels`` (default :func:`pcreg.validation.max_pixels`) before decoding.
+    """
+    from ..validation import decode_image, max_file_bytes, max_pixels as limit_of, read_regular_file
+
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, not an image")
-    data = np.fromfile(path, dtype=np.uint8)
-    if data.size == 0:
-        raise InputError(f"{path}: empty file")
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"{path}: not an image (or unreadable)")
+    limit = limit_of(max_pixels)
+    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image")
+    img = decode_image(data, str(path), limit=limit)
     if img.ndim == 3 and img.shape[2] == 4:
         img = img[:, :, :3]
     if img.ndim == 3:
@@ -90,6 +89,10 @@ def as_rgb_uint8(image: np.ndarray, *, name: str = "image") -> np.ndarray:
     if np.issubdtype(img.dtype, np.floating):
         if not np.all(np.isfinite(img)):
             raise InputError(f"{name}: image has NaN or inf values")
+        lo, hi = float(img.min()), float(img.max())
+        if lo < 0.0 or hi > 1.0:
+            raise InputError(f"{name}: a float image must hold values in [0, 1], got {lo:g}..{hi:g} "
+                             "(divide by 255 for 8-bit values)")
         return np.ascontiguousarray(np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
     if img.dtype == np.bool_:
         return np.ascontiguousarray(img.astype(np.uint8) * 255)

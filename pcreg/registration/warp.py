@@ -6,6 +6,10 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..validation import check_float
+
+# OpenCV's remap supports these (float16 is warped as float32; bool as uint8).
+_DTYPES = tuple(np.dtype(d) for d in (np.bool_, np.uint8, np.uint16, np.int16, np.float16, np.float32, np.float64))
 
 _INTERP = {"linear": cv2.INTER_LINEAR, "nearest": cv2.INTER_NEAREST, "cubic": cv2.INTER_CUBIC}
 
@@ -31,12 +35,20 @@ def warp(moving: np.ndarray, T_ref_mov: np.ndarray, *, shape: tuple[int, ...] | 
         raise InputError("warp: T_ref_mov is singular")
     if interpolation not in _INTERP:
         raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
-    h, w = (shape[:2] if shape is not None else moving.shape[:2])
+    if moving.dtype not in _DTYPES:
+        raise InputError(f"warp: unsupported dtype {moving.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
+    h, w = _check_shape(shape if shape is not None else moving.shape[:2])
+    try:
+        fill = check_float(fill, "warp: fill")
+    except InputError:
+        raise InputError(f"warp: fill must be a finite number, got {fill!r}") from None
     flags = _INTERP[interpolation]
     projective = np.any(M[2, :2] != 0) or M[2, 2] != 1
     src = moving
     if moving.dtype == np.bool_:
         src = moving.astype(np.uint8)
+    elif moving.dtype == np.float16:
+        src = moving.astype(np.float32)
     channels = 1 if src.ndim == 2 else src.shape[2]
     border = (fill,) * min(channels, 4) if channels > 1 else fill
 
@@ -45,10 +57,13 @@ def warp(moving: np.ndarray, T_ref_mov: np.ndarray, *, shape: tuple[int, ...] | 
             return cv2.warpPerspective(img, M, (w, h), flags=fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
         return cv2.warpAffine(img, M[:2], (w, h), flags=fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
 
-    if channels > 4:  # OpenCV warps up to 4 channels at once
-        warped = np.stack([one(np.ascontiguousarray(src[:, :, c]), flags, fill) for c in range(channels)], axis=2)
-    else:
-        warped = one(src, flags, border)
+    try:
+        if channels > 4:  # OpenCV warps up to 4 channels at once
+            warped = np.stack([one(np.ascontiguousarray(src[:, :, c]), flags, fill) for c in range(channels)], axis=2)
+        else:
+            warped = one(src, flags, border)
+    except cv2.error as exc:
+        raise InputError(f"warp: OpenCV refused the input ({str(exc).strip().splitlines()[-1][:160]})") from None
     if src.ndim == 3 and warped.ndim == 2:
         warped = warped[:, :, None]
     # Valid: every interpolation weight fell inside the moving image (no blend with ``fill``).
@@ -56,4 +71,22 @@ def warp(moving: np.ndarray, T_ref_mov: np.ndarray, *, shape: tuple[int, ...] | 
     valid = one(ones, cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR, 0) > 0.999
     if moving.dtype == np.bool_:
         warped = warped.astype(bool)
+    elif moving.dtype == np.float16:
+        warped = warped.astype(np.float16)
     return warped, valid
+
+
+def _check_shape(shape) -> tuple[int, int]:
+    """(H, W) of the output grid: two positive integers whose product is within the pixel limit."""
+    from ..validation import max_pixels
+
+    try:
+        h, w = (int(v) for v in tuple(shape)[:2])
+        ok = len(tuple(shape)) >= 2 and all(float(v) == int(v) for v in tuple(shape)[:2])
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"warp: shape must be (H, W) integers, got {shape!r}") from None
+    if not ok or h < 1 or w < 1 or h > 32767 or w > 32767:
+        raise InputError(f"warp: shape must be (H, W) with 1 <= H, W <= 32767, got {tuple(shape)!r}")
+    if h * w > max_pixels():
+        raise InputError(f"warp: a {w}x{h} grid exceeds the pixel limit {max_pixels()} (PCREG_MAX_PIXELS)")
+    return h, w

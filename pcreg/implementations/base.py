@@ -1,0 +1,229 @@
+"""What every ICP implementation takes and returns, and how comparable it claims to be.
+
+An implementation receives :class:`Pinned` inputs — the same clouds, initial guess, correspondence
+distance, iteration limit and stopping thresholds for all — and returns an :class:`Outcome`. It declares
+its ``comparability`` with pcreg's reference ICP:
+
+- ``step``: same correspondences, same closed-form step, same stopping rule: every iteration must match;
+- ``fixed-point``: same objective (point-to-point least squares over nearest neighbours within the
+  distance) reached by other steps or another stopping rule: the converged poses must match;
+- ``objective``: a different objective (point-to-plane, GICP, a Gaussian mixture): results are compared
+  with a stated tolerance only.
+
+It also declares the settings it pins to get there (:meth:`Implementation.settings`), which the report
+records next to its result.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import PcregError
+
+STEP, FIXED_POINT, OBJECTIVE = "step", "fixed-point", "objective"
+COMPARABILITY = (STEP, FIXED_POINT, OBJECTIVE)
+
+
+class ImplementationError(PcregError):
+    """An implementation failed on these inputs (reported as that implementation's error, in one line)."""
+
+
+class MissingLibrary(ImplementationError):
+    """An optional library an implementation needs is not installed."""
+
+
+@dataclass(frozen=True)
+class Pinned:
+    """The inputs every implementation gets.
+
+    source, target : (N, d), (M, d) float64, d = 2 or 3; init : (d+1, d+1) ``T_target_source`` guess.
+    The stopping rule is Open3D's: stop after an iteration whose |Δfitness| < relative_fitness and
+    |Δinlier_rmse| < relative_rmse, or after max_iterations iterations.
+    """
+
+    source: np.ndarray
+    target: np.ndarray
+    init: np.ndarray
+    max_correspondence_distance: float
+    max_iterations: int = 30
+    relative_fitness: float = 1e-6
+    relative_rmse: float = 1e-6
+
+    @property
+    def dim(self) -> int:
+        return int(self.source.shape[1])
+
+    def params(self) -> dict:
+        """The scalar settings, as written to the ``{params}`` JSON file of ``cmd:`` implementations."""
+        return {"max_correspondence_distance": float(self.max_correspondence_distance),
+                "max_iterations": int(self.max_iterations),
+                "relative_fitness": float(self.relative_fitness),
+                "relative_rmse": float(self.relative_rmse)}
+
+    def replace(self, **changes) -> "Pinned":
+        kw = dict(source=self.source, target=self.target, init=self.init, **self.params())
+        kw.update(changes)
+        return Pinned(**kw)
+
+
+@dataclass(frozen=True)
+class TraceStep:
+    """One iteration of a trace: the pose after ``iteration`` updates (0 = the initial guess), the
+    fitness and inlier RMSE there, and each source point's target index (-1 = none) where known."""
+
+    iteration: int
+    matrix: np.ndarray
+    fitness: float | None = None
+    inlier_rmse: float | None = None
+    target_indices: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One implementation's result. Fields it cannot report are None."""
+
+    matrix: np.ndarray
+    iterations: int | None = None
+    fitness: float | None = None
+    inlier_rmse: float | None = None
+    converged: bool | None = None
+    seconds: float = 0.0
+    trace: tuple[TraceStep, ...] = ()
+    info: dict = field(default_factory=dict)
+
+
+class Implementation:
+    """Base class of the adapters. Subclasses set the class attributes and implement :meth:`_run`."""
+
+    name: str = ""
+    comparability: str = STEP
+    description: str = ""
+    requires: tuple[str, ...] = ()  # importable modules
+    dims: tuple[int, ...] = (2, 3)
+
+    def missing(self) -> str | None:
+        """None when usable, else why not (the missing library)."""
+        import importlib.util
+
+        for mod in self.requires:
+            if importlib.util.find_spec(mod) is None:
+                return f"missing optional library {mod!r} (pip install 'pcreg[crosscheck]')"
+        return None
+
+    def settings(self, pinned: Pinned) -> dict:
+        """The settings this implementation pins (recorded in the report)."""
+        return {}
+
+    def run(self, pinned: Pinned, *, trace: bool = False) -> Outcome:
+        why = self.missing()
+        if why:
+            raise MissingLibrary(why)
+        if pinned.dim not in self.dims:
+            raise ImplementationError(f"{self.name} handles {' and '.join(f'{d}-D' for d in self.dims)} clouds only")
+        start = time.perf_counter()
+        out = self._run(pinned, trace=trace)
+        seconds = time.perf_counter() - start
+        m = np.asarray(out.matrix, dtype=np.float64)
+        d = pinned.dim
+        if m.shape == (4, 4) and d == 2:
+            m = project(m)
+        if m.shape != (d + 1, d + 1):
+            raise ImplementationError(f"returned a {m.shape} matrix, expected {d + 1}x{d + 1}")
+        if not np.all(np.isfinite(m)):
+            raise ImplementationError("returned a matrix with NaN or inf")
+        return Outcome(matrix=m, iterations=out.iterations, fitness=out.fitness, inlier_rmse=out.inlier_rmse,
+                       converged=out.converged, seconds=out.seconds or seconds, trace=out.trace, info=out.info)
+
+    def _run(self, pinned: Pinned, *, trace: bool) -> Outcome:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+# ---------------------------------------------------------------------------------------------------
+# Helpers shared by adapters
+# ---------------------------------------------------------------------------------------------------
+
+def lift(points: np.ndarray) -> np.ndarray:
+    """(N, 2) -> (N, 3) on z = 0; (N, 3) unchanged."""
+    p = np.asarray(points, dtype=np.float64)
+    return np.column_stack([p, np.zeros(len(p))]) if p.shape[1] == 2 else p
+
+
+def lift_matrix(m: np.ndarray) -> np.ndarray:
+    m = np.asarray(m, dtype=np.float64)
+    if m.shape == (4, 4):
+        return m.copy()
+    out = np.eye(4)
+    out[:2, :2] = m[:2, :2]
+    out[:2, 3] = m[:2, 2]
+    return out
+
+
+def project(m: np.ndarray) -> np.ndarray:
+    """4x4 acting on z = 0 -> 3x3 (its in-plane part; what leaves the plane is reported, not hidden)."""
+    m = np.asarray(m, dtype=np.float64)
+    out = np.eye(3)
+    out[:2, :2] = m[:2, :2]
+    out[:2, 2] = m[:2, 3]
+    return out
+
+
+def out_of_plane(m: np.ndarray) -> float:
+    """How far a 4x4 leaves the plane z = 0: the largest of its z-row and z-column entries off the identity."""
+    m = np.asarray(m, dtype=np.float64)
+    return float(max(np.abs(m[2, :2]).max(), np.abs(m[:2, 2]).max(), abs(m[2, 2] - 1.0), abs(m[2, 3])))
+
+
+def nearest(target: np.ndarray, points: np.ndarray, max_distance: float):
+    """Exact nearest target point of each point within ``max_distance``: (distances, indices, ok)."""
+    from scipy.spatial import cKDTree
+
+    dist, idx = cKDTree(target).query(points, k=1, distance_upper_bound=max_distance)
+    ok = np.isfinite(dist)
+    return dist, np.where(ok, idx, -1), ok
+
+
+def score(pinned: Pinned, matrix: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """Open3D's fitness and inlier RMSE of ``matrix`` on the pinned clouds, and the correspondences."""
+    from ..registration.transforms import apply
+
+    dist, idx, ok = nearest(pinned.target, apply(matrix, pinned.source), pinned.max_correspondence_distance)
+    k = int(ok.sum())
+    if k == 0:
+        return 0.0, 0.0, idx
+    return k / len(ok), float(np.sqrt(np.mean(dist[ok] ** 2))), idx
+
+
+@contextlib.contextmanager
+def stdout_to_stderr():
+    """Send everything written to file descriptor 1 (C++ libraries' prints included) to stderr."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError, AttributeError):
+        yield
+        return
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        try:
+            sys.stdout.flush()
+        except (OSError, ValueError):
+            pass
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def unpack(result: Any) -> tuple[np.ndarray, float, float, int, bool]:
+    """(matrix, fitness, inlier_rmse, iterations, converged) from a backend's tuple or RegistrationResult."""
+    if isinstance(result, tuple):
+        return result
+    return (np.asarray(result.matrix), float(result.fitness), float(result.inlier_rmse), int(result.iterations),
+            bool(result.converged))

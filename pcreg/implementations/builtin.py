@@ -1,0 +1,442 @@
+"""The built-in implementations: pcreg's reference ICP, Open3D (legacy and tensor), small_gicp,
+KISS-ICP, and coherent point drift (pycpd, probreg).
+
+Settings each adapter pins, and why:
+
+- fixed-point adapters run "to convergence": at least ``CONVERGED_ITERATIONS`` iterations and
+  tolerances near machine precision, since their own defaults (small_gicp: 20 iterations, 0.1° / 1 mm;
+  KISS-ICP: 1e-4 on the step) stop early;
+- no library downsamples, rejects or re-weights: every adapter sees exactly the pinned clouds
+  (small_gicp's numpy overload voxel-downsamples by 0.25 by default; pcreg uses its PointCloud overload);
+- one thread wherever a library offers the choice, for deterministic results.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .base import (FIXED_POINT, OBJECTIVE, STEP, ImplementationError, Implementation, Outcome, Pinned, TraceStep,
+                   lift, lift_matrix, out_of_plane, project, score, unpack)
+
+CONVERGED_ITERATIONS = 200
+
+
+def _converged_iterations(pinned: Pinned) -> int:
+    return max(int(pinned.max_iterations), CONVERGED_ITERATIONS)
+
+
+class Reference(Implementation):
+    name = "reference"
+    comparability = STEP
+    description = "pcreg's reference ICP (numpy + scipy KD-tree, Umeyama closed form, Open3D's stopping rule)"
+
+    def settings(self, pinned):
+        return {"model": "rigid", "weights": "none", "metric": "point_to_point", "rotation": "svd",
+                **pinned.params()}
+
+    def _run(self, pinned, *, trace):
+        from ..registration.api import icp
+
+        steps: list[TraceStep] = []
+
+        def cb(it):
+            steps.append(TraceStep(it.iteration, np.array(it.matrix), it.fitness, it.inlier_rmse,
+                                   np.asarray(it.target_indices).copy()))
+
+        r = icp(pinned.source, pinned.target, backend="reference", model="rigid",
+                max_correspondence_distance=pinned.max_correspondence_distance, init=pinned.init,
+                max_iteration=pinned.max_iterations, relative_fitness=pinned.relative_fitness,
+                relative_rmse=pinned.relative_rmse, callback=cb if trace else None)
+        m, fit, rmse, it, conv = unpack(r)
+        return Outcome(matrix=m, iterations=it, fitness=fit, inlier_rmse=rmse, converged=conv,
+                       seconds=float(getattr(r, "seconds", 0.0)), trace=tuple(steps))
+
+
+class Open3DLegacy(Implementation):
+    name = "open3d"
+    comparability = STEP
+    description = "Open3D legacy registration_icp, TransformationEstimationPointToPoint"
+    requires = ("open3d",)
+
+    def settings(self, pinned):
+        return {"estimation": "TransformationEstimationPointToPoint(with_scaling=False)",
+                "criteria": "ICPConvergenceCriteria(relative_fitness, relative_rmse, max_iteration)",
+                "2-D": "lifted to z = 0", **pinned.params(),
+                "iterations": "counted by a second run, one iteration per call with Open3D's rule between "
+                              "calls (registration_icp reports none); the matrix is the single call's"}
+
+    def _run(self, pinned, *, trace):
+        from ..registration.open3d_icp import icp_open3d
+
+        kw = dict(model="rigid", max_correspondence_distance=pinned.max_correspondence_distance, init=pinned.init,
+                  max_iteration=pinned.max_iterations, relative_fitness=pinned.relative_fitness,
+                  relative_rmse=pinned.relative_rmse)
+        start = time.perf_counter()
+        m, fit, rmse, _, conv = unpack(icp_open3d(pinned.source, pinned.target, stepwise=False, **kw))
+        seconds = time.perf_counter() - start
+        steps: list[TraceStep] = []
+
+        def cb(it):
+            steps.append(TraceStep(it.iteration, np.array(it.matrix), it.fitness, it.inlier_rmse,
+                                   np.asarray(it.target_indices).copy()))
+
+        m2, _, _, iterations, conv2 = unpack(icp_open3d(pinned.source, pinned.target, stepwise=True, callback=cb, **kw))
+        info = {}
+        gap = float(np.max(np.abs(m - m2)))
+        if gap > 0:
+            info["stepwise_gap"] = gap
+        return Outcome(matrix=m, iterations=iterations, fitness=fit, inlier_rmse=rmse, converged=conv2,
+                       seconds=seconds, trace=tuple(steps) if trace else (), info=info)
+
+
+class Open3DTensor(Implementation):
+    name = "open3d-tensor"
+    comparability = STEP
+    description = "Open3D tensor pipelines.registration.icp in Float64 on the CPU"
+    requires = ("open3d",)
+
+    def settings(self, pinned):
+        return {"dtype": "Float64", "device": "CPU:0", "voxel_size": -1,
+                "estimation": "TransformationEstimationPointToPoint", "2-D": "lifted to z = 0", **pinned.params()}
+
+    def _run(self, pinned, *, trace):
+        import open3d as o3d
+
+        treg = o3d.t.pipelines.registration
+        dev = o3d.core.Device("CPU:0")
+        src = o3d.t.geometry.PointCloud(o3d.core.Tensor(lift(pinned.source), o3d.core.float64, dev))
+        tgt = o3d.t.geometry.PointCloud(o3d.core.Tensor(lift(pinned.target), o3d.core.float64, dev))
+        crit = treg.ICPConvergenceCriteria(relative_fitness=pinned.relative_fitness,
+                                           relative_rmse=pinned.relative_rmse, max_iteration=int(pinned.max_iterations))
+        init = o3d.core.Tensor(lift_matrix(pinned.init), o3d.core.float64, dev)
+        d = pinned.dim
+        back = project if d == 2 else (lambda x: x)
+        steps = [TraceStep(0, np.array(pinned.init))]
+
+        def cb(info):
+            steps.append(TraceStep(len(steps), back(info["transformation"].numpy().copy()),
+                                   float(info["fitness"].item()), float(info["inlier_rmse"].item())))
+
+        start = time.perf_counter()
+        r = treg.icp(src, tgt, float(pinned.max_correspondence_distance), init,
+                     treg.TransformationEstimationPointToPoint(), crit, -1.0, cb if trace else None)
+        seconds = time.perf_counter() - start
+        m = r.transformation.numpy()
+        info = {}
+        if d == 2:
+            info["out_of_plane"] = out_of_plane(m)
+        return Outcome(matrix=back(m), iterations=int(r.num_iterations), fitness=float(r.fitness),
+                       inlier_rmse=float(r.inlier_rmse), converged=bool(r.converged), seconds=seconds,
+                       trace=tuple(steps) if trace else (), info=info)
+
+
+class SmallGicp(Implementation):
+    name = "small_gicp"
+    comparability = FIXED_POINT
+    kind = "ICP"
+    description = "small_gicp align(), registration_type='ICP' (Gauss-Newton/Levenberg-Marquardt on SE(3))"
+    requires = ("small_gicp",)
+    num_neighbors = 20
+
+    def settings(self, pinned):
+        s = {"registration_type": self.kind, "downsampling": "none (PointCloud overload)",
+             "max_correspondence_distance": pinned.max_correspondence_distance,
+             "max_iterations": _converged_iterations(pinned), "rotation_epsilon": 1e-12,
+             "translation_epsilon": 1e-12 * self._scale(pinned), "num_threads": 1, "2-D": "lifted to z = 0"}
+        if self.kind != "ICP":
+            s["normals_covariances"] = f"estimate_normals_covariances, num_neighbors={self.num_neighbors}"
+        return s
+
+    @staticmethod
+    def _scale(pinned):
+        return max(1.0, float(np.abs(pinned.target).max()))
+
+    def _run(self, pinned, *, trace):
+        import small_gicp
+
+        if self.kind != "ICP" and pinned.dim == 2:
+            raise ImplementationError(f"{self.kind} needs surfaces: a 2-D cloud lifted to z = 0 has every "
+                                      "normal along z")
+        s = self.settings(pinned)
+        src = small_gicp.PointCloud(lift(pinned.source))
+        tgt = small_gicp.PointCloud(lift(pinned.target))
+        tree = small_gicp.KdTree(tgt)
+        if self.kind != "ICP":
+            small_gicp.estimate_normals_covariances(tgt, tree, num_neighbors=self.num_neighbors)
+            small_gicp.estimate_normals_covariances(src, small_gicp.KdTree(src), num_neighbors=self.num_neighbors)
+        start = time.perf_counter()
+        r = small_gicp.align(tgt, src, tree, init_T_target_source=lift_matrix(pinned.init),
+                             registration_type=self.kind, max_correspondence_distance=pinned.max_correspondence_distance,
+                             num_threads=1, max_iterations=s["max_iterations"], rotation_epsilon=s["rotation_epsilon"],
+                             translation_epsilon=s["translation_epsilon"])
+        seconds = time.perf_counter() - start
+        m = np.asarray(r.T_target_source)
+        info = {"num_inliers": int(r.num_inliers), "error": float(r.error)}
+        if pinned.dim == 2:
+            info["out_of_plane"] = out_of_plane(m)
+            m = project(m)
+        fit, rmse, _ = score(pinned, m)
+        info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
+        return Outcome(matrix=m, iterations=int(r.iterations), fitness=fit, inlier_rmse=rmse,
+                       converged=bool(r.converged), seconds=seconds, info=info)
+
+
+class SmallGicpPlane(SmallGicp):
+    name = "small_gicp-plane"
+    comparability = OBJECTIVE
+    kind = "PLANE_ICP"
+    description = "small_gicp align(), registration_type='PLANE_ICP' (point-to-plane)"
+    dims = (3,)
+
+
+class SmallGicpGicp(SmallGicp):
+    name = "small_gicp-gicp"
+    comparability = OBJECTIVE
+    kind = "GICP"
+    description = "small_gicp align(), registration_type='GICP' (generalized ICP, plane-to-plane)"
+    dims = (3,)
+
+
+class KissIcp(Implementation):
+    name = "kiss-icp"
+    comparability = FIXED_POINT
+    description = ("KISS-ICP's registration step (Registration.align_points_to_map) on a voxel hash map of the "
+                   "target, for a single pair")
+    requires = ("kiss_icp",)
+    max_points_per_voxel_cap = 10**6
+
+    def _points_per_voxel(self, pinned) -> int:
+        """Enough points per voxel that the map's minimum spacing, voxel / sqrt(max_points_per_voxel), is
+        half the target's closest pair: then the map keeps every target point (capped: memory)."""
+        from scipy.spatial import cKDTree
+
+        t = pinned.target
+        d, _ = cKDTree(t).query(t, k=2)
+        dmin = float(d[:, 1].min()) if len(t) > 1 else 1.0
+        v = float(pinned.max_correspondence_distance)
+        need = (v / (0.5 * dmin)) ** 2 + 1 if dmin > 0 else float("inf")
+        return int(min(np.ceil(need), self.max_points_per_voxel_cap))
+
+    def settings(self, pinned):
+        v = float(pinned.max_correspondence_distance)
+        n = self._points_per_voxel(pinned)
+        return {"voxel_size": v, "max_points_per_voxel": n, "map_resolution": v / np.sqrt(n),
+                "kernel": self._kernel(pinned), "max_num_iterations": _converged_iterations(pinned),
+                "convergence_criterion": 1e-12, "max_num_threads": 1,
+                "max_correspondance_distance": v, "map": "target added once with add_points (no range cropping)",
+                "why": "voxel = gate so the 27 neighbouring voxels hold every point within the gate; "
+                       "a huge max_points_per_voxel keeps every target point (the map drops points closer "
+                       "than voxel/sqrt(max_points_per_voxel) to one already in the voxel); a huge "
+                       "Geman-McClure kernel makes every weight 1 (plain least squares)"}
+
+    @staticmethod
+    def _kernel(pinned):
+        return 1e10 * max(1.0, float(pinned.max_correspondence_distance) ** 2)
+
+    def _run(self, pinned, *, trace):
+        from kiss_icp.mapping import VoxelHashMap
+        from kiss_icp.registration import Registration
+
+        R = lift_matrix(pinned.init)[:3, :3]
+        if np.linalg.norm(R @ R.T - np.eye(3)) >= 1e-11 or np.linalg.det(R) <= 0:
+            # Sophus (inside KISS-ICP) aborts the whole process on a rotation that is not orthonormal to 1e-10.
+            raise ImplementationError("the initial guess's rotation is not orthonormal to 1e-11; KISS-ICP (Sophus) "
+                                      "would abort the process")
+        s = self.settings(pinned)
+        vmap = VoxelHashMap(voxel_size=s["voxel_size"], max_distance=np.inf,
+                            max_points_per_voxel=s["max_points_per_voxel"])
+        tgt = lift(pinned.target)
+        vmap.add_points(tgt)
+        kept = len(vmap.point_cloud())
+        reg = Registration(max_num_iterations=s["max_num_iterations"], convergence_criterion=s["convergence_criterion"],
+                           max_num_threads=1)
+        start = time.perf_counter()
+        m = reg.align_points_to_map(lift(pinned.source), vmap, lift_matrix(pinned.init),
+                                    max_correspondance_distance=float(pinned.max_correspondence_distance),
+                                    kernel=s["kernel"])
+        seconds = time.perf_counter() - start
+        m = np.asarray(m)
+        steps, iterations = (), None
+        if trace:
+            steps, iterations = self._trace(reg1=Registration(max_num_iterations=1, convergence_criterion=0.0,
+                                                              max_num_threads=1),
+                                            vmap=vmap, pinned=pinned, settings=s)
+        info = {"map_points": kept, "target_points": len(tgt)}
+        if kept != len(tgt):
+            info["map_dropped_points"] = len(tgt) - kept
+        if pinned.dim == 2:
+            info["out_of_plane"] = out_of_plane(m)
+            m = project(m)
+        fit, rmse, _ = score(pinned, m)
+        info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
+        if steps:
+            gap = float(np.max(np.abs(steps[-1].matrix - m)))
+            if gap > 0:
+                info["stepwise_gap"] = gap
+        if iterations is not None:
+            info["iterations_from"] = "a second run, one Gauss-Newton step per call (each step is stateless)"
+        return Outcome(matrix=m, iterations=iterations, fitness=fit, inlier_rmse=rmse,
+                       converged=None if iterations is None else iterations < s["max_num_iterations"],
+                       seconds=seconds, trace=steps, info=info)
+
+    @staticmethod
+    def _trace(*, reg1, vmap, pinned, settings):
+        """Its iterations one call at a time: each KISS-ICP step is a Gauss-Newton step from the current
+        pose with fresh correspondences, so chaining one-iteration calls replays its loop; it stops, as
+        KISS-ICP does, once the step's norm (rotation vector, translation) is below the criterion."""
+        from scipy.spatial.transform import Rotation
+
+        src = lift(pinned.source)
+        T = lift_matrix(pinned.init)
+        back = project if pinned.dim == 2 else (lambda x: x)
+        fit, rmse, idx = score(pinned, pinned.init)
+        steps = [TraceStep(0, np.array(pinned.init), fit, rmse, idx)]
+        for k in range(1, settings["max_num_iterations"] + 1):
+            T_new = np.asarray(reg1.align_points_to_map(src, vmap, T, max_correspondance_distance=settings["voxel_size"],
+                                                        kernel=settings["kernel"]))
+            D = T_new @ np.linalg.inv(T)
+            dx = np.concatenate([D[:3, 3], Rotation.from_matrix(_orthonormalise(D[:3, :3])).as_rotvec()])
+            T = T_new
+            M = back(T)
+            fit, rmse, idx = score(pinned, M)
+            steps.append(TraceStep(k, M, fit, rmse, idx))
+            if np.linalg.norm(dx) < settings["convergence_criterion"]:
+                break
+        return tuple(steps), len(steps) - 1
+
+
+def _orthonormalise(R):
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
+
+
+def _subsample(points: np.ndarray, n: int, seed: int) -> np.ndarray:
+    if len(points) <= n:
+        return points
+    idx = np.sort(np.random.default_rng(seed).choice(len(points), n, replace=False))
+    return points[idx]
+
+
+class _Probabilistic(Implementation):
+    comparability = OBJECTIVE
+    max_points = 500
+    max_em_iterations = 200
+    tolerance = 1e-8
+
+    def settings(self, pinned):
+        return {"max_points": self.max_points, "subsample": "seeded random (seed 0 source, 1 target) when larger",
+                "w": 0.0, "max_iterations": self.max_em_iterations, "tolerance": self.tolerance,
+                "init": "source moved by the initial guess first"}
+
+
+class PyCpd(_Probabilistic):
+    name = "pycpd"
+    description = ("pycpd RigidRegistration: coherent point drift (Myronenko & Song 2010), a Gaussian mixture "
+                   "fitted by EM; its rigid model also estimates a scale")
+    requires = ("pycpd",)
+
+    def _run(self, pinned, *, trace):
+        from pycpd import RigidRegistration
+
+        from ..registration.transforms import apply
+
+        d = pinned.dim
+        src = _subsample(apply(pinned.init, pinned.source), self.max_points, 0)
+        tgt = _subsample(pinned.target, self.max_points, 1)
+        start = time.perf_counter()
+        reg = RigidRegistration(X=tgt, Y=src, max_iterations=self.max_em_iterations, tolerance=self.tolerance, w=0.0)
+        reg.register()
+        seconds = time.perf_counter() - start
+        s, R, t = reg.get_registration_parameters()
+        M = np.eye(d + 1)
+        M[:d, :d] = s * np.asarray(R).T  # pycpd maps row vectors: y -> s y R + t
+        M[:d, d] = np.ravel(t)
+        m = M @ pinned.init
+        fit, rmse, _ = score(pinned, m)
+        return Outcome(matrix=m, iterations=int(reg.iteration), fitness=fit, inlier_rmse=rmse,
+                       converged=bool(reg.iteration < self.max_em_iterations), seconds=seconds,
+                       info={"scale": float(s), "sigma2": float(reg.sigma2),
+                             "fitness_from": "pcreg (Open3D's definition at the returned pose)"})
+
+
+class ProbregCpd(_Probabilistic):
+    name = "probreg-cpd"
+    description = "probreg registration_cpd, rigid, update_scale=False (coherent point drift without scale)"
+    requires = ("probreg",)
+
+    def settings(self, pinned):
+        return {**super().settings(pinned), "update_scale": False, "2-D": "lifted to z = 0"}
+
+    def _run(self, pinned, *, trace):
+        import logging
+
+        from probreg import cpd
+
+        from ..registration.transforms import apply
+
+        logging.getLogger("probreg").setLevel(logging.ERROR)
+        d = pinned.dim
+        src = lift(_subsample(apply(pinned.init, pinned.source), self.max_points, 0))
+        tgt = lift(_subsample(pinned.target, self.max_points, 1))
+        start = time.perf_counter()
+        res = cpd.registration_cpd(src, tgt, "rigid", w=0.0, maxiter=self.max_em_iterations, tol=self.tolerance,
+                                   update_scale=False)
+        seconds = time.perf_counter() - start
+        tf = res.transformation
+        M = np.eye(4)
+        M[:3, :3] = float(tf.scale) * np.asarray(tf.rot)
+        M[:3, 3] = np.asarray(tf.t)
+        info = {"sigma2": float(res.sigma2)}
+        if d == 2:
+            info["out_of_plane"] = out_of_plane(M)
+            M = project(M)
+        m = M @ pinned.init
+        fit, rmse, _ = score(pinned, m)
+        info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
+        return Outcome(matrix=m, iterations=None, fitness=fit, inlier_rmse=rmse, converged=None, seconds=seconds,
+                       info=info)
+
+
+class ProbregFilterReg(_Probabilistic):
+    name = "probreg-filterreg"
+    description = ("probreg registration_filterreg, point-to-point (FilterReg, Gao & Tedrake 2019: a Gaussian mixture "
+                   "on the target evaluated by a permutohedral-lattice filter), sigma^2 updated")
+    requires = ("probreg",)
+
+    def settings(self, pinned):
+        return {**super().settings(pinned), "objective_type": "pt2pt", "update_sigma2": True, "2-D": "lifted to z = 0"}
+
+    def _run(self, pinned, *, trace):
+        import logging
+
+        from probreg import filterreg
+
+        from ..registration.transforms import apply
+
+        logging.getLogger("probreg").setLevel(logging.ERROR)
+        d = pinned.dim
+        src = lift(_subsample(apply(pinned.init, pinned.source), self.max_points, 0))
+        tgt = lift(_subsample(pinned.target, self.max_points, 1))
+        start = time.perf_counter()
+        res = filterreg.registration_filterreg(src, tgt, update_sigma2=True, w=0.0, objective_type="pt2pt",
+                                               maxiter=self.max_em_iterations, tol=self.tolerance)
+        seconds = time.perf_counter() - start
+        tf = res.transformation
+        M = np.eye(4)
+        M[:3, :3] = float(getattr(tf, "scale", 1.0)) * np.asarray(tf.rot)
+        M[:3, 3] = np.asarray(tf.t)
+        info = {"sigma2": float(res.sigma2)}
+        if d == 2:
+            info["out_of_plane"] = out_of_plane(M)
+            M = project(M)
+        m = M @ pinned.init
+        fit, rmse, _ = score(pinned, m)
+        info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
+        return Outcome(matrix=m, iterations=None, fitness=fit, inlier_rmse=rmse, converged=None, seconds=seconds,
+                       info=info)
+
+
+BUILTIN = {cls.name: cls for cls in (Reference, Open3DLegacy, Open3DTensor, SmallGicp, SmallGicpPlane, SmallGicpGicp,
+                                     KissIcp, PyCpd, ProbregCpd, ProbregFilterReg)}

@@ -1,0 +1,222 @@
+"""A user's own ICP: ``py:MODULE:FUNCTION`` (a Python callable) or ``cmd:"PROGRAM {source} ..."``
+(an external program of any language).
+
+Python callables are called as::
+
+    FUNCTION(source, target, *, init, max_correspondence_distance, max_iterations, relative_fitness,
+             relative_rmse)
+
+with ``source`` (N, d), ``target`` (M, d) float64 arrays, ``init`` the (d+1, d+1) guess, and return the
+(d+1, d+1) matrix ``T_target_source``, or a dict / object with ``matrix`` and optionally ``iterations``,
+``fitness``, ``inlier_rmse``, ``converged``. A function attribute ``comparability`` ("step",
+"fixed-point", "objective"; default "step") says which floor applies.
+
+The file protocol of ``cmd:`` programs (fixed; other tools are written against it):
+
+- ``{source}``, ``{target}``: ``.npy`` files, each an (N, d) float64 array, d = 2 or 3;
+- ``{init}``: a text file with the (d+1)x(d+1) initial guess, one row per line, numbers separated by
+  whitespace (what ``numpy.savetxt`` writes);
+- ``{params}``: a JSON file with ``max_correspondence_distance``, ``max_iterations``, ``relative_fitness``
+  and ``relative_rmse``;
+- ``{out}``: the program writes the (d+1)x(d+1) matrix mapping source points onto the target there, in
+  the format of ``{init}``; it may also write ``{out}.json`` with ``iterations``, ``fitness`` and
+  ``inlier_rmse`` (and ``comparability``).
+
+Placeholders the template does not use are not written. The program runs in the current directory
+with a time limit; a non-zero exit, a timeout, an unreadable output or a NaN is that implementation's
+failure.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import os
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .base import COMPARABILITY, STEP, ImplementationError, Implementation, Outcome
+
+PLACEHOLDERS = ("source", "target", "init", "out", "params")
+DEFAULT_TIMEOUT = 60.0
+
+
+def _comparability(value, where: str) -> str:
+    if value is None:
+        return STEP
+    if value not in COMPARABILITY:
+        raise ImplementationError(f"{where}: comparability must be one of {', '.join(COMPARABILITY)}, got {value!r}")
+    return value
+
+
+def _number(value, key: str, kind=float):
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ImplementationError(f"{key} must be a finite number, got {value!r}")
+    return kind(value)
+
+
+class PythonCallable(Implementation):
+    """``py:MODULE:FUNCTION``."""
+
+    def __init__(self, spec: str):
+        self.name = spec
+        body = spec[3:]
+        module, sep, func = body.rpartition(":")
+        if not sep or not module or not func:
+            raise ImplementationError(f"{spec}: expected py:MODULE:FUNCTION")
+        self.module, self.function = module, func
+        self.description = f"Python callable {module}.{func}"
+        self._func = None
+
+    def _load(self):
+        if self._func is None:
+            added = False
+            if os.getcwd() not in sys.path:
+                sys.path.insert(0, os.getcwd())
+                added = True
+            try:
+                mod = importlib.import_module(self.module)
+            except Exception as exc:  # noqa: BLE001 - any import failure is this implementation's
+                raise ImplementationError(f"cannot import {self.module}: {type(exc).__name__}: {exc}") from None
+            finally:
+                if added:
+                    sys.path.remove(os.getcwd())
+            func = getattr(mod, self.function, None)
+            if not callable(func):
+                raise ImplementationError(f"{self.module} has no callable {self.function!r}")
+            self._func = func
+        return self._func
+
+    @property
+    def comparability(self) -> str:  # type: ignore[override]
+        try:
+            return _comparability(getattr(self._load(), "comparability", None), self.name)
+        except ImplementationError:
+            return STEP
+
+    def settings(self, pinned):
+        return pinned.params()
+
+    def _run(self, pinned, *, trace):
+        func = self._load()
+        start = time.perf_counter()
+        try:
+            r = func(pinned.source.copy(), pinned.target.copy(), init=pinned.init.copy(), **pinned.params())
+        except Exception as exc:  # noqa: BLE001 - a user function's failure is its row's error
+            raise ImplementationError(f"raised {type(exc).__name__}: {exc}") from None
+        seconds = time.perf_counter() - start
+        get = (lambda k: r.get(k)) if isinstance(r, dict) else (lambda k: getattr(r, k, None))
+        matrix = r if isinstance(r, (np.ndarray, list, tuple)) else get("matrix")
+        if matrix is None:
+            raise ImplementationError("returned neither a matrix nor an object with 'matrix'")
+        try:
+            matrix = np.array(matrix, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ImplementationError("returned a matrix that is not numeric") from None
+        isarr = isinstance(r, (np.ndarray, list, tuple))
+        conv = None if isarr else get("converged")
+        return Outcome(matrix=matrix, iterations=None if isarr else _number(get("iterations"), "iterations", int),
+                       fitness=None if isarr else _number(get("fitness"), "fitness"),
+                       inlier_rmse=None if isarr else _number(get("inlier_rmse"), "inlier_rmse"),
+                       converged=None if conv is None else bool(conv), seconds=seconds)
+
+
+class Command(Implementation):
+    """``cmd:"PROGRAM {source} {target} {init} {out} {params}"``."""
+
+    def __init__(self, spec: str, *, timeout: float = DEFAULT_TIMEOUT):
+        self.name = spec
+        template = spec[4:].strip()
+        if len(template) >= 2 and template[0] == template[-1] and template[0] in "\"'":
+            template = template[1:-1]
+        try:
+            self.argv = shlex.split(template)
+        except ValueError as exc:
+            raise ImplementationError(f"cannot parse the command: {exc}") from None
+        if not self.argv:
+            raise ImplementationError("empty command")
+        import string
+
+        used = set()
+        for tok in self.argv:
+            for _, field, _, _ in string.Formatter().parse(tok):
+                if field is None:
+                    continue
+                if field not in PLACEHOLDERS:
+                    raise ImplementationError(f"unknown placeholder {{{field}}} (use {', '.join('{'+p+'}' for p in PLACEHOLDERS)})")
+                used.add(field)
+        if "out" not in used:
+            raise ImplementationError("the command has no {out}: it cannot return a matrix")
+        self.used = used
+        self.timeout = float(timeout)
+        self.description = f"external program {self.argv[0]}"
+        self._declared = STEP
+
+    @property
+    def comparability(self) -> str:  # type: ignore[override]
+        return self._declared
+
+    def settings(self, pinned):
+        return {**pinned.params(), "timeout_s": self.timeout}
+
+    def _run(self, pinned, *, trace):
+        d = pinned.dim
+        with tempfile.TemporaryDirectory(prefix="pcreg-cmd-") as tmp:
+            paths = {"source": Path(tmp) / "source.npy", "target": Path(tmp) / "target.npy",
+                     "init": Path(tmp) / "init.txt", "out": Path(tmp) / "out.txt", "params": Path(tmp) / "params.json"}
+            if "source" in self.used:
+                np.save(paths["source"], np.ascontiguousarray(pinned.source, dtype=np.float64))
+            if "target" in self.used:
+                np.save(paths["target"], np.ascontiguousarray(pinned.target, dtype=np.float64))
+            if "init" in self.used:
+                np.savetxt(paths["init"], pinned.init)
+            if "params" in self.used:
+                paths["params"].write_text(json.dumps(pinned.params(), indent=2))
+            argv = [tok.format(**{k: str(v) for k, v in paths.items()}) for tok in self.argv]
+            start = time.perf_counter()
+            try:
+                proc = subprocess.run(argv, capture_output=True, timeout=self.timeout, stdin=subprocess.DEVNULL)
+            except subprocess.TimeoutExpired:
+                raise ImplementationError(f"timed out after {self.timeout:g} s") from None
+            except OSError as exc:
+                raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
+            seconds = time.perf_counter() - start
+            if proc.returncode != 0:
+                last = proc.stderr.decode("utf-8", "replace").strip().splitlines()
+                tail = f": {last[-1][:200]}" if last else ""
+                raise ImplementationError(f"exit status {proc.returncode}{tail}")
+            out = paths["out"]
+            if not out.exists():
+                raise ImplementationError("wrote no output matrix")
+            try:
+                m = np.loadtxt(out, dtype=np.float64, ndmin=2)
+            except ValueError as exc:
+                raise ImplementationError(f"unreadable output matrix ({str(exc).splitlines()[0][:120]})") from None
+            if m.shape != (d + 1, d + 1):
+                raise ImplementationError(f"output matrix is {m.shape[0]}x{m.shape[1]}, expected {d + 1}x{d + 1}")
+            if not np.all(np.isfinite(m)):
+                raise ImplementationError("output matrix holds NaN or inf")
+            extra = {}
+            side = Path(str(out) + ".json")
+            if side.exists():
+                try:
+                    extra = json.loads(side.read_text())
+                except (ValueError, UnicodeDecodeError):
+                    raise ImplementationError(f"unreadable {side.name}") from None
+                if not isinstance(extra, dict):
+                    raise ImplementationError(f"{side.name} is not a JSON object")
+            self._declared = _comparability(extra.get("comparability"), self.name)
+            conv = extra.get("converged")
+            return Outcome(matrix=m, iterations=_number(extra.get("iterations"), "iterations", int),
+                           fitness=_number(extra.get("fitness"), "fitness"),
+                           inlier_rmse=_number(extra.get("inlier_rmse"), "inlier_rmse"),
+                           converged=None if conv is None else bool(conv), seconds=seconds)

@@ -1,0 +1,695 @@
+"""Checks applied to everything that enters pcreg: files, numbers, arrays.
+
+Files
+    :func:`read_regular_file` opens without blocking (a FIFO never hangs), accepts regular files only
+    and reads at most a bounded number of bytes. :func:`image_size` reads the width and height from an
+    image's header (PNG, JPEG, BMP, TIFF, WebP, PNM) so :func:`check_image_file` can refuse an image
+    larger than the pixel limit *before* OpenCV decodes it. :func:`check_cloud_file` compares the point
+    count a PLY/PCD/NPY header declares with what the file holds (a truncated binary PLY otherwise loads
+    as made-up zeros).
+
+Limits
+    ``max_pixels`` bounds the pixels of an image and the points of a cloud. The default,
+    :data:`DEFAULT_MAX_PIXELS` (50 million: a 48-megapixel photo fits, a decoded RGB image of that size
+    is 150 MB), can be raised per call, for a whole process (and its worker processes) with the
+    environment variable ``PCREG_MAX_PIXELS``, or on the command line with ``--max-pixels``.
+
+Numbers
+    :func:`check_int`, :func:`check_float` and their argparse twins :func:`arg_int` / :func:`arg_float`
+    refuse non-finite values and values out of range with one readable line.
+
+Everything raises :class:`~pcreg.errors.InputError` (a :class:`~pcreg.errors.PcregError`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import numbers
+import os
+import stat
+import struct
+import sys
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .errors import InputError, PcregError
+
+DEFAULT_MAX_PIXELS = 50_000_000
+MAX_UNITS = 100_000  # evaluation units one command may plan
+_ENV = "PCREG_MAX_PIXELS"
+
+
+# --------------------------------------------------------------------------------------------------
+# numbers
+# --------------------------------------------------------------------------------------------------
+
+def check_int(value, name: str, *, lo: int | None = None, hi: int | None = None) -> int:
+    """``value`` as an int (a Python or numpy integer, not a float or bool) within [lo, hi]."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise InputError(f"{name} must be an integer, got {value!r}")
+    v = int(value)
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise InputError(f"{name} must be in {_range(lo, hi)}, got {v}")
+    return v
+
+
+def check_float(value, name: str, *, lo: float | None = None, hi: float | None = None,
+                lo_open: bool = False, hi_open: bool = False) -> float:
+    """``value`` as a finite float within the range (``lo_open``: value > lo, else value >= lo)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise InputError(f"{name} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(f"{name} must be a finite number, got {v}")
+    if lo is not None and (v <= lo if lo_open else v < lo):
+        raise InputError(f"{name} must be {'>' if lo_open else '>='} {lo:g}, got {v:g}")
+    if hi is not None and (v >= hi if hi_open else v > hi):
+        raise InputError(f"{name} must be {'<' if hi_open else '<='} {hi:g}, got {v:g}")
+    return v
+
+
+def check_matrix(value, name: str, dim: int) -> np.ndarray:
+    """A finite, invertible, well-conditioned (dim x dim) float64 copy of ``value`` (a homogeneous
+    transform such as an initial guess)."""
+    try:
+        M = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a {dim}x{dim} matrix of numbers") from None
+    if M.shape != (dim, dim) or not np.all(np.isfinite(M)):
+        raise InputError(f"{name} must be a finite {dim}x{dim} matrix, got shape {M.shape}")
+    if np.max(np.abs(M)) > 1e12:
+        raise InputError(f"{name} has entries up to {np.max(np.abs(M)):.3g} (|m| <= 1e12)")
+    try:
+        cond = np.linalg.cond(M)
+    except np.linalg.LinAlgError:
+        cond = np.inf
+    if not np.isfinite(cond) or cond > 1e12:
+        raise InputError(f"{name} is singular or nearly so (condition number {cond:.3g})")
+    return M
+
+
+def _range(lo, hi) -> str:
+    if hi is None:
+        return f">= {lo}" if lo is not None else "any integer"
+    return f"{'-inf' if lo is None else lo}..{hi}"
+
+
+def arg_int(lo: int | None = None, hi: int | None = None):
+    """An argparse ``type=`` for an integer in [lo, hi]."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"expected an integer {'' if hi is None else 'in '}{_range(lo, hi)}, got {v}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def arg_float(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, hi_open: bool = False):
+    """An argparse ``type=`` for a finite number in the range (``lo_open``: > lo)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        if (lo is not None and (v <= lo if lo_open else v < lo)) or (hi is not None and (v >= hi if hi_open else v > hi)):
+            lo_s = "-inf" if lo is None else f"{lo:g}"
+            hi_s = "inf" if hi is None else f"{hi:g}"
+            raise argparse.ArgumentTypeError(f"expected a number in {'(' if lo_open else '['}{lo_s}, {hi_s}"
+                                             f"{')' if hi_open else ']'}, got {text!r}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+def arg_window_size(text: str) -> str:
+    """``"1600x900"``: a window size in points, each side 16..16384; returned as the same text."""
+    try:
+        w, h = (int(v) for v in text.strip().lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if not (16 <= w <= 16384 and 16 <= h <= 16384):
+        raise argparse.ArgumentTypeError(f"each side must be in 16..16384, got {text!r}")
+    return f"{w}x{h}"
+
+
+def check_units(n: int, what: str = "units") -> int:
+    """Refuse a plan of more than :data:`MAX_UNITS` evaluation units (``--angles 0:360:1e-9``)."""
+    if n > MAX_UNITS:
+        raise InputError(f"{n} {what} requested; the limit is {MAX_UNITS} (use a coarser step or fewer values)")
+    return n
+
+
+def api_boundary(obj):
+    """``obj`` itself, or for a plain function a wrapper that turns the errors Python, NumPy or OpenCV
+    raise on arguments of the wrong type or value (TypeError, ValueError, IndexError, AttributeError, OverflowError,
+    ZeroDivisionError, ``numpy.linalg.LinAlgError``, ``cv2.error``) into :class:`InputError`, the
+    original chained as its cause. The public names of :mod:`pcreg` are wrapped so."""
+    import functools
+    import inspect
+
+    if not inspect.isfunction(obj) or getattr(obj, "__wrapped__", None) is not None:
+        return obj
+
+    @functools.wraps(obj)
+    def wrapper(*args, **kwargs):
+        try:
+            return obj(*args, **kwargs)
+        except PcregError:  # already one of ours
+            raise
+        except (TypeError, ValueError, IndexError, AttributeError, OverflowError, ZeroDivisionError,
+                np.linalg.LinAlgError) as exc:
+            raise InputError(f"{obj.__name__}: invalid input ({type(exc).__name__}: "
+                             f"{' '.join(str(exc).split())[:200]})") from exc
+        except Exception as exc:  # noqa: BLE001 - cv2.error and its kin, without importing cv2 here
+            if type(exc).__module__.split(".")[0] != "cv2":
+                raise
+            raise InputError(f"{obj.__name__}: OpenCV refused the input ({' '.join(str(exc).split())[-200:]})") from exc
+
+    return wrapper
+
+
+# --------------------------------------------------------------------------------------------------
+# limits
+# --------------------------------------------------------------------------------------------------
+
+def max_pixels(value: int | None = None) -> int:
+    """The pixel (and point) limit in force: ``value``, else ``$PCREG_MAX_PIXELS``, else the default."""
+    if value is not None:
+        return check_int(value, "max_pixels", lo=1)
+    env = os.environ.get(_ENV)
+    if env:
+        try:
+            v = int(env)
+        except ValueError:
+            raise InputError(f"{_ENV} must be a positive integer, got {env!r}") from None
+        if v >= 1:
+            return v
+        raise InputError(f"{_ENV} must be a positive integer, got {env!r}")
+    return DEFAULT_MAX_PIXELS
+
+
+def set_max_pixels(value: int) -> None:
+    """Set the limit for this process and the worker processes it starts (through ``PCREG_MAX_PIXELS``)."""
+    os.environ[_ENV] = str(check_int(value, "max_pixels", lo=1))
+
+
+def max_file_bytes(limit: int) -> int:
+    """Largest file accepted for a pixel limit: 8 bytes a pixel (RGBA, 16 bits) plus 16 MiB of headers."""
+    return int(limit) * 8 + (16 << 20)
+
+
+# --------------------------------------------------------------------------------------------------
+# files
+# --------------------------------------------------------------------------------------------------
+
+def check_regular_file(path: str | os.PathLike, *, what: str = "file") -> Path:
+    """``path`` if it names a regular file (symbolic links followed); an :class:`InputError` otherwise.
+
+    Never opens the file, so a FIFO cannot block.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except (OSError, ValueError) as exc:  # ValueError: embedded NUL
+        raise InputError(f"{p}: cannot read {what} ({getattr(exc, 'strerror', None) or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{p}: is a folder, not a {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{p}: not a regular file (a FIFO, device or socket cannot be a {what})")
+    if not os.access(p, os.R_OK):
+        raise InputError(f"{p}: permission denied")
+    return p
+
+
+def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "file") -> bytes:
+    """The bytes of a regular file of at most ``max_bytes`` (opened non-blocking; FIFOs, devices and
+    folders refused; a file that grows while read is cut at the bound and refused)."""
+    p = Path(path)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(p, flags)
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a folder, not a {what}") from None
+    except PermissionError:
+        raise InputError(f"{p}: permission denied") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{p}: cannot read {what} ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise InputError(f"{p}: is a folder, not a {what}")
+        if not stat.S_ISREG(st.st_mode):
+            raise InputError(f"{p}: not a regular file (a FIFO, device or socket cannot be a {what})")
+        if st.st_size > max_bytes:
+            raise InputError(f"{p}: {what} of {st.st_size / 2**20:.0f} MiB exceeds the limit of "
+                             f"{max_bytes / 2**20:.0f} MiB (raise --max-pixels / PCREG_MAX_PIXELS)")
+        chunks, total = [], 0
+        while True:
+            try:
+                b = os.read(fd, min(1 << 24, max_bytes + 1 - total))
+            except OSError as exc:
+                raise InputError(f"{p}: cannot read {what} ({exc.strerror or exc})") from None
+            if not b:
+                break
+            chunks.append(b)
+            total += len(b)
+            if total > max_bytes:
+                raise InputError(f"{p}: {what} exceeds the limit of {max_bytes / 2**20:.0f} MiB")
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:
+    """A small whitespace-separated text matrix (an initial guess, a ground truth) from a regular file of
+    at most 64 kB, as a finite 2-D float64 array."""
+    import io
+
+    data = read_regular_file(path, max_bytes=1 << 16, what=what)
+    try:
+        m = np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2)
+    except (ValueError, IndexError, TypeError) as exc:
+        raise InputError(f"{path}: not a text matrix ({' '.join(str(exc).split())[:160]})") from None
+    if m.size == 0 or not np.all(np.isfinite(m)):
+        raise InputError(f"{path}: the {what} must hold finite numbers")
+    return m
+
+
+# --------------------------------------------------------------------------------------------------
+# image headers
+# --------------------------------------------------------------------------------------------------
+
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    i, n = 2, len(data)
+    while i + 4 <= n:
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            i += 2
+            continue
+        if marker == 0xD9:
+            return None
+        (seg,) = struct.unpack(">H", data[i + 2:i + 4])
+        if seg < 2:
+            return None
+        if marker in _JPEG_SOF:
+            if i + 9 > n:
+                return None
+            h, w = struct.unpack(">HH", data[i + 5:i + 9])
+            return w, h
+        i += 2 + seg
+    return None
+
+
+def _tiff_size(data: bytes) -> tuple[int, int] | None:
+    end = "<" if data[:2] == b"II" else ">"
+    try:
+        (off,) = struct.unpack(end + "I", data[4:8])
+        (count,) = struct.unpack(end + "H", data[off:off + 2])
+        w = h = None
+        for k in range(min(count, 4096)):
+            e = off + 2 + 12 * k
+            tag, typ = struct.unpack(end + "HH", data[e:e + 4])
+            if tag in (256, 257):
+                val = struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + (10 if typ == 3 else 12)])[0]
+                if tag == 256:
+                    w = val
+                else:
+                    h = val
+        return (w, h) if w is not None and h is not None else None
+    except struct.error:
+        return None
+
+
+def _pnm_size(data: bytes) -> tuple[int, int] | None:
+    tokens: list[bytes] = []
+    i = 2
+    head = data[:4096]
+    while len(tokens) < 2 and i < len(head):
+        c = head[i:i + 1]
+        if c == b"#":
+            j = head.find(b"\n", i)
+            i = len(head) if j < 0 else j + 1
+        elif c.isspace():
+            i += 1
+        else:
+            j = i
+            while j < len(head) and not head[j:j + 1].isspace() and head[j:j + 1] != b"#":
+                j += 1
+            tokens.append(head[i:j])
+            i = j
+    try:
+        return int(tokens[0]), int(tokens[1])
+    except (IndexError, ValueError):
+        return None
+
+
+def image_size(data: bytes) -> tuple[str, tuple[int, int] | None] | None:
+    """(format, (width, height)) from an image file's header, (format, None) for a known format whose
+    header is damaged, or None for a format pcreg does not read."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n":
+        if len(data) >= 24 and data[12:16] == b"IHDR":
+            return "PNG", struct.unpack(">II", data[16:24])
+        return "PNG", None
+    if data[:3] == b"\xff\xd8\xff":
+        return "JPEG", _jpeg_size(data)
+    if data[:2] == b"BM":
+        if len(data) >= 26:
+            w, h = struct.unpack("<ii", data[18:26])
+            return "BMP", (abs(w), abs(h))
+        return "BMP", None
+    if data[:4] in (b"II*\x00", b"MM\x00*"):
+        return "TIFF", _tiff_size(data)
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        kind = data[12:16]
+        try:
+            if kind == b"VP8 ":
+                w, h = struct.unpack("<HH", data[26:30])
+                return "WebP", (w & 0x3FFF, h & 0x3FFF)
+            if kind == b"VP8L":
+                b = int.from_bytes(data[21:25], "little")
+                return "WebP", ((b & 0x3FFF) + 1, ((b >> 14) & 0x3FFF) + 1)
+            if kind == b"VP8X":
+                return "WebP", (int.from_bytes(data[24:27], "little") + 1, int.from_bytes(data[27:30], "little") + 1)
+        except struct.error:
+            pass
+        return "WebP", None
+    if len(data) >= 2 and data[0:1] == b"P" and data[1:2] in b"123456":
+        return "PNM", _pnm_size(data)
+    return None
+
+
+def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tuple[int, int]:
+    """(width, height) declared by an encoded image, refused when empty, of an unknown format, damaged
+    or larger than the pixel limit."""
+    if not data:
+        raise InputError(f"{name}: empty file")
+    found = image_size(data)
+    if found is None:
+        raise InputError(f"{name}: not an image pcreg reads (PNG, JPEG, BMP, TIFF, WebP, PNM)")
+    fmt, size = found
+    if size is None or size[0] <= 0 or size[1] <= 0:
+        raise InputError(f"{name}: cannot decode image (damaged {fmt} header)")
+    lim = max_pixels(limit)
+    w, h = size
+    if w * h > lim:
+        raise InputError(f"{name}: {w}x{h} px exceeds the limit of {lim} pixels "
+                         "(raise it with --max-pixels or PCREG_MAX_PIXELS)")
+    return w, h
+
+
+def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int | None = None) -> np.ndarray:
+    """``cv2.imdecode`` of checked bytes; OpenCV's errors become :class:`InputError`."""
+    import cv2
+
+    w, h = check_image_bytes(data, name, limit=limit)
+    try:
+        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED if flags is None else flags)
+    except cv2.error as exc:
+        raise InputError(f"{name}: cannot decode image ({_cv2_message(exc)})") from None
+    if img is None or img.size == 0:
+        raise InputError(f"{name}: cannot decode image (corrupt or truncated)")
+    if img.shape[0] != h or img.shape[1] != w:
+        raise InputError(f"{name}: decoded {img.shape[1]}x{img.shape[0]} px but the header says {w}x{h}")
+    return img
+
+
+def _cv2_message(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()
+    return (text[-1] if text else type(exc).__name__).strip()[:200]
+
+
+# --------------------------------------------------------------------------------------------------
+# point-cloud files
+# --------------------------------------------------------------------------------------------------
+
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _ply_check(path: Path, size: int, limit: int) -> int:
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    if not head.startswith(b"ply"):
+        raise InputError(f"{path}: no points could be read (not a PLY file: no 'ply' magic)")
+    i = head.find(b"end_header")
+    if i < 0:
+        raise InputError(f"{path}: PLY header without end_header")
+    j = head.find(b"\n", i)
+    if j < 0:
+        raise InputError(f"{path}: truncated PLY header")
+    body_start = j + 1
+    fmt = None
+    elements: list[list] = []  # [name, count, [sizes], has_list]
+    for raw in head[:i].decode("ascii", "replace").splitlines():
+        t = raw.split()
+        if not t:
+            continue
+        if t[0] == "format" and len(t) >= 2:
+            fmt = t[1]
+        elif t[0] == "element" and len(t) == 3:
+            try:
+                elements.append([t[1], int(t[2]), [], False])
+            except ValueError:
+                raise InputError(f"{path}: bad PLY element line {raw.strip()!r}") from None
+            if elements[-1][1] < 0:
+                raise InputError(f"{path}: negative PLY element count")
+        elif t[0] == "property" and elements:
+            if len(t) >= 2 and t[1] == "list":
+                elements[-1][3] = True
+            elif len(t) >= 3 and t[1] in _PLY_SIZES:
+                elements[-1][2].append(_PLY_SIZES[t[1]])
+            else:
+                raise InputError(f"{path}: bad PLY property line {raw.strip()!r}")
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise InputError(f"{path}: unknown PLY format {fmt!r}")
+    vertex = next((e for e in elements if e[0] == "vertex"), None)
+    if vertex is None or vertex[1] == 0:
+        raise InputError(f"{path}: no vertices in the PLY header")
+    n = vertex[1]
+    if n > limit:
+        raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if fmt == "ascii":
+        lines = _count_data_lines(path, body_start, n + sum(e[1] for e in elements if e is not vertex))
+        before = 0
+        for e in elements:
+            if e is vertex:
+                break
+            before += e[1]
+        if lines < before + n:
+            raise InputError(f"{path}: truncated PLY: the header declares {n} vertices, the file holds "
+                             f"{max(0, lines - before)}")
+        return n
+    need = 0
+    for e in elements:
+        rec = sum(e[2]) + (1 if e[3] else 0)  # a list property takes at least its count byte
+        need += e[1] * rec
+        if e is vertex:
+            break
+    have = size - body_start
+    if have < need:
+        got = max(0, have) // max(1, sum(vertex[2]))
+        raise InputError(f"{path}: truncated PLY: the header declares {n} vertices "
+                         f"({need} bytes), the file holds {have} bytes (about {min(got, n)} vertices)")
+    return n
+
+
+def _count_data_lines(path: Path, start: int, stop_after: int) -> int:
+    count = 0
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        for line in fh:
+            if line.strip():
+                count += 1
+                if count >= stop_after:
+                    break
+    return count
+
+
+def _pcd_check(path: Path, size: int, limit: int) -> int:
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    fields: dict[str, list[str]] = {}
+    pos = 0
+    data_kind = None
+    for line in head.split(b"\n"):
+        pos += len(line) + 1
+        text = line.decode("ascii", "replace").strip()
+        if not text or text.startswith("#"):
+            continue
+        t = text.split()
+        fields[t[0].upper()] = t[1:]
+        if t[0].upper() == "DATA":
+            data_kind = t[1].lower() if len(t) > 1 else None
+            break
+    if data_kind is None:
+        raise InputError(f"{path}: PCD header without a DATA line")
+    try:
+        n = int(fields.get("POINTS", [None])[0]) if "POINTS" in fields else \
+            int(fields["WIDTH"][0]) * int(fields["HEIGHT"][0])
+        sizes = [int(s) for s in fields["SIZE"]]
+        counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
+    except (KeyError, ValueError, IndexError, TypeError):
+        raise InputError(f"{path}: damaged PCD header (POINTS, SIZE, COUNT)") from None
+    if n <= 0:
+        raise InputError(f"{path}: no points in the PCD header")
+    if n > limit:
+        raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if len(counts) != len(sizes) or any(s <= 0 for s in sizes) or any(c <= 0 for c in counts):
+        raise InputError(f"{path}: damaged PCD header (SIZE and COUNT disagree)")
+    point_bytes = sum(s * c for s, c in zip(sizes, counts))
+    have = size - pos
+    if data_kind == "ascii":
+        lines = _count_data_lines(path, pos, n)
+        if lines < n:
+            raise InputError(f"{path}: truncated PCD: the header declares {n} points, the file holds {lines}")
+    elif data_kind == "binary":
+        if have < n * point_bytes:
+            raise InputError(f"{path}: truncated PCD: the header declares {n} points ({n * point_bytes} bytes), "
+                             f"the file holds {have} bytes")
+    elif data_kind == "binary_compressed":
+        with open(path, "rb") as fh:
+            fh.seek(pos)
+            sz = fh.read(8)
+        if len(sz) < 8:
+            raise InputError(f"{path}: truncated PCD (no compressed block)")
+        comp, raw = struct.unpack("<II", sz)
+        if raw != n * point_bytes or have - 8 < comp:
+            raise InputError(f"{path}: truncated or damaged compressed PCD (block of {comp} bytes, "
+                             f"{have - 8} present; {raw} bytes unpacked for {n * point_bytes} expected)")
+    else:
+        raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r}")
+    return n
+
+
+def check_npy_file(path: Path, limit: int) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype from a .npy header, with the file's size checked against them."""
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh, max_header_size=10000)
+            elif version in ((2, 0), (3, 0)):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh, max_header_size=10000)
+            else:
+                raise ValueError(f"unsupported .npy version {version}")
+            start = fh.tell()
+    except (ValueError, OSError, SyntaxError, TypeError, struct.error, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a numpy array file ({str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__})") from None
+    if dtype.hasobject or dtype.kind not in "biuf" or dtype.fields is not None or dtype.subdtype is not None:
+        raise InputError(f"{path}: points must be a numeric array, got dtype {dtype}")
+    if any(int(s) < 0 for s in shape):
+        raise InputError(f"{path}: bad shape {shape}")
+    count = math.prod(int(s) for s in shape)
+    if len(shape) == 2 and shape[0] > limit:
+        raise InputError(f"{path}: {shape[0]} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if count > 3 * limit:
+        raise InputError(f"{path}: {count} values exceed the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
+    size = path.stat().st_size
+    if size - start < count * dtype.itemsize:
+        raise InputError(f"{path}: truncated .npy: the header declares {shape} {dtype} "
+                         f"({count * dtype.itemsize} bytes), the file holds {size - start}")
+    return tuple(int(s) for s in shape), dtype
+
+
+def check_cloud_file(path: str | os.PathLike, *, limit: int | None = None) -> Path:
+    """A regular point-cloud file whose header's point count is within the limit and whose data is
+    all there (PLY and PCD, ASCII and binary). Other text formats (.xyz, .pts) are only size-bounded."""
+    p = check_regular_file(path, what="point cloud")
+    lim = max_pixels(limit)
+    size = p.stat().st_size
+    if size == 0:
+        raise InputError(f"{p}: empty file")
+    if size > max_file_bytes(lim) * 4:  # ASCII formats spend up to ~100 bytes a point
+        raise InputError(f"{p}: {size / 2**20:.0f} MiB exceeds the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".ply":
+            _ply_check(p, size, lim)
+        elif suffix == ".pcd":
+            _pcd_check(p, size, lim)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read point cloud ({exc.strerror or exc})") from None
+    return p
+
+
+# --------------------------------------------------------------------------------------------------
+# library chatter
+# --------------------------------------------------------------------------------------------------
+
+def _flush_c_stdio() -> None:
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):
+        pass
+
+
+@contextlib.contextmanager
+def capture_output_fds() -> Iterator[list[str]]:
+    """Capture what C/C++ code writes to file descriptors 1 and 2 for the duration (Open3D reports a
+    failed read only as a printed warning, on stdout; RPly prints on stderr). Yields a list that holds
+    the captured text after the block; nothing of it reaches the terminal or ``--json`` output."""
+    import tempfile
+
+    captured: list[str] = []
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    try:
+        saved = (os.dup(1), os.dup(2))
+    except OSError:
+        yield captured
+        return
+    import io
+
+    py_out, py_err = sys.stdout, sys.stderr
+    text = io.StringIO()  # Open3D's Python module prints its log through Python's sys.stdout
+    with tempfile.TemporaryFile() as tmp:
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            sys.stdout = sys.stderr = text
+            yield captured
+        finally:
+            sys.stdout, sys.stderr = py_out, py_err
+            _flush_c_stdio()  # C++ code writes through libc's buffers: empty them into the capture
+            for stream in (sys.stdout, sys.stderr):
+                try:
+                    stream.flush()
+                except (OSError, ValueError, AttributeError):
+                    pass
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+            tmp.seek(0)
+            captured.append(text.getvalue()[: 1 << 16] + tmp.read(1 << 16).decode("utf-8", "replace"))

@@ -1,0 +1,628 @@
+"""Hostile input, by kind: every case ends in a PcregError (library) or one stderr line and exit 2 (CLI),
+quickly and in bounded memory. The signal, lock and special-file cases run as real subprocesses."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import signal
+import struct
+import subprocess
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.errors import PcregError
+
+PCREG = [sys.executable, "-m", "pcreg.cli"]
+GOOD = np.random.default_rng(0).integers(0, 256, (64, 80, 3), dtype=np.uint8)
+
+
+# ------------------------------------------------------------------------------------------------
+# hostile files
+# ------------------------------------------------------------------------------------------------
+
+def _chunk(tag: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+
+
+def png_declaring(w: int, h: int, rows: int = 8) -> bytes:
+    """A small PNG whose header declares w x h pixels (a decompression bomb's shape)."""
+    row = b"\x00" + b"\x00" * min(w * 3, 1 << 20)
+    body = zlib.compress(row * min(rows, h), 9)
+    return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+            + _chunk(b"IDAT", body) + _chunk(b"IEND", b""))
+
+
+def jpeg_declaring(w: int, h: int) -> bytes:
+    sof = struct.pack(">BHHB", 8, h, w, 3) + b"\x01\x11\x00\x02\x11\x00\x03\x11\x00"
+    return b"\xff\xd8" + b"\xff\xc0" + struct.pack(">H", len(sof) + 2) + sof + b"\xff\xd9"
+
+
+def bmp_declaring(w: int, h: int) -> bytes:
+    return b"BM" + struct.pack("<IHHI", 54, 0, 0, 54) + struct.pack("<IiiHHIIiiII", 40, w, h, 1, 24, 0, 0, 0, 0, 0, 0)
+
+
+def tiff_declaring(w: int, h: int) -> bytes:
+    entries = [(256, 4, 1, w), (257, 4, 1, h), (258, 3, 1, 8), (259, 3, 1, 1), (262, 3, 1, 1)]
+    ifd = struct.pack("<H", len(entries)) + b"".join(struct.pack("<HHII", *e) for e in entries) + b"\0\0\0\0"
+    return b"II*\x00" + struct.pack("<I", 8) + ifd
+
+
+def webp_declaring(w: int, h: int) -> bytes:
+    body = b"VP8X" + struct.pack("<I", 10) + b"\0\0\0\0" + (w - 1).to_bytes(3, "little") + (h - 1).to_bytes(3, "little")
+    return b"RIFF" + struct.pack("<I", len(body) + 4) + b"WEBP" + body
+
+
+def ply_binary(n: int) -> bytes:
+    pts = np.random.default_rng(1).normal(size=(n, 3)).astype("<f4")
+    head = f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    return head.encode() + pts.tobytes()
+
+
+def ply_ascii(n: int) -> bytes:
+    pts = np.random.default_rng(1).normal(size=(n, 3))
+    head = f"ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    return (head + "".join(f"{a:.5f} {b:.5f} {c:.5f}\n" for a, b, c in pts)).encode()
+
+
+def pcd(n: int, kind: str = "binary") -> bytes:
+    pts = np.random.default_rng(2).normal(size=(n, 3)).astype("<f4")
+    head = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\n"
+            f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {kind}\n")
+    body = pts.tobytes() if kind == "binary" else "".join(f"{a} {b} {c}\n" for a, b, c in pts).encode()
+    return head.encode() + body
+
+
+def npy_bytes(arr: np.ndarray) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=True)
+    return buf.getvalue()
+
+
+def mat_file(path: Path, image, mask=None) -> Path:
+    import scipy.io
+
+    d = {"im_rgb": image}
+    if mask is not None:
+        d["manual_human_labeling_mask"] = mask
+    scipy.io.savemat(str(path), d)
+    return path
+
+
+@pytest.fixture()
+def files(tmp_path):
+    """A folder of hostile files by name."""
+    t = tmp_path
+    fifo = t / "fifo.png"
+    os.mkfifo(fifo)
+    os.mkfifo(t / "fifo.ply")
+    os.mkfifo(t / "fifo.npy")
+    (t / "folder.png").mkdir()
+    (t / "folder.ply").mkdir()
+    (t / "empty.png").write_bytes(b"")
+    (t / "text.png").write_text("hello, not a png")
+    (t / "gif.png").write_bytes(b"GIF89a" + b"\0" * 40)
+    (t / "big30k.png").write_bytes(png_declaring(30000, 30000))
+    (t / "big100k.png").write_bytes(png_declaring(100000, 100000))
+    (t / "zero.png").write_bytes(png_declaring(0, 10))
+    (t / "big.jpg").write_bytes(jpeg_declaring(65000, 65000))
+    (t / "big.bmp").write_bytes(bmp_declaring(60000, -60000))
+    (t / "big.tif").write_bytes(tiff_declaring(70000, 70000))
+    (t / "big.webp").write_bytes(webp_declaring(16000, 16000))
+    (t / "big.ppm").write_bytes(b"P6\n# comment\n60000 60000\n255\n" + b"\0" * 64)
+    ok, enc = cv2.imencode(".png", GOOD)
+    (t / "good.png").write_bytes(enc.tobytes())
+    (t / "truncated.png").write_bytes(enc.tobytes()[: len(enc) // 2])
+    ok, enc = cv2.imencode(".jpg", GOOD)
+    (t / "truncated.jpg").write_bytes(enc.tobytes()[:200])
+    full = ply_binary(500)
+    (t / "trunc_bin.ply").write_bytes(full[: len(full) - 1000])
+    full = ply_ascii(300)
+    (t / "trunc_ascii.ply").write_bytes(full[: full.index(b"end_header") + 11 + 40 * 100])
+    (t / "huge_count.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\n"
+                                       b"property float x\nproperty float y\nproperty float z\nend_header\n" + b"\0" * 120)
+    (t / "no_end.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n")
+    (t / "negative.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex -3\nproperty float x\nend_header\n1\n")
+    (t / "bad_format.ply").write_bytes(b"ply\nformat weird 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n")
+    (t / "ok.ply").write_bytes(ply_binary(400))
+    full = pcd(400)
+    (t / "trunc_bin.pcd").write_bytes(full[:-800])
+    full = pcd(200, "ascii")
+    (t / "trunc_ascii.pcd").write_bytes(full[: len(full) // 2])
+    (t / "bad_header.pcd").write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE four\nPOINTS 10\nDATA binary\n" + b"\0" * 120)
+    (t / "no_data.pcd").write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\n")
+    full = npy_bytes(np.random.default_rng(3).normal(size=(300, 3)))
+    (t / "trunc.npy").write_bytes(full[:-500])
+    (t / "object.npy").write_bytes(npy_bytes(np.array([{"a": 1}, None], dtype=object)))
+    (t / "four_cols.npy").write_bytes(npy_bytes(np.zeros((50, 4))))
+    (t / "strings.npy").write_bytes(npy_bytes(np.array(["a", "b"])))
+    (t / "huge_shape.npy").write_bytes(npy_bytes(np.zeros((2, 3)))
+                                       .replace(b"(2, 3)", b"(10**12, 3)".replace(b"10**12", b"999999999999")))
+    (t / "random.npy").write_bytes(os.urandom(300))
+    (t / "garbage.xyz").write_text("1 2 3\nfoo bar\n4 5 6\n7 8\n" + "".join(f"{i} 1 2\n" for i in range(30)))
+    (t / "short.pts").write_text("4\n1 2 3\n4 5 6\n")
+    (t / "far.xyz").write_text("\n".join("1e300 0 0" if i == 0 else f"{i} {i % 7} {i % 3}" for i in range(50)))
+    lagr = t / "lagr"
+    lagr.mkdir()
+    return t
+
+
+def _lagr(tmp_path: Path, image, mask=None) -> Path:
+    d = tmp_path / "lagr_set"
+    d.mkdir(exist_ok=True)
+    mat_file(d / "frame001.mat", image, mask)
+    return d
+
+
+# ------------------------------------------------------------------------------------------------
+# library: every kind raises a PcregError subclass, nothing else
+# ------------------------------------------------------------------------------------------------
+
+def _load_image(name, **kw):
+    def f(t):
+        from pcreg.registration.clouds import load_image
+
+        return load_image(t / name, **kw)
+    return f
+
+
+def _load_cloud(name):
+    def f(t):
+        from pcreg.crosschecks import load_cloud
+
+        return load_cloud(t / name)
+    return f
+
+
+def _register(ref=GOOD, mov=GOOD, **kw):
+    def f(t):
+        from pcreg.registration.api import register
+
+        return register(ref, mov, **kw)
+    return f
+
+
+def _warp(img, T=np.eye(3), **kw):
+    def f(t):
+        from pcreg.registration.warp import warp
+
+        return warp(img, T, **kw)
+    return f
+
+
+CLOUD = np.random.default_rng(4).normal(size=(60, 3))
+
+
+def _icp(src=CLOUD, tgt=CLOUD, **kw):
+    def f(t):
+        from pcreg.registration.api import icp
+
+        return icp(src, tgt, **kw)
+    return f
+
+
+def _nb(**kw):
+    def f(t):
+        from pcreg.classification.bayes import NaiveBayesPixelClassifier
+
+        return NaiveBayesPixelClassifier(("rgb",), **kw)
+    return f
+
+
+def _weight_search(**kw):
+    def f(t):
+        from pcreg.classification.bayes import thesis_weight_search
+
+        return thesis_weight_search(GOOD, np.zeros(GOOD.shape[:2], np.uint8), **kw)
+    return f
+
+
+def _lagr_load(image, mask=None):
+    def f(t):
+        from pcreg.datasets import load_lagr
+
+        return load_lagr(_lagr(t, image, mask))
+    return f
+
+
+def _lagr_bytes(data: bytes):
+    def f(t):
+        from pcreg.datasets import load_lagr
+
+        d = t / "lagr_bytes"
+        d.mkdir()
+        (d / "frame001.mat").write_bytes(data)
+        return load_lagr(d)
+    return f
+
+
+LIBRARY = {
+    # image files
+    "image_missing": (_load_image("missing.png"), "no such file"),
+    "image_is_folder": (_load_image("folder.png"), "folder"),
+    "image_is_fifo": (_load_image("fifo.png"), "not a regular file"),
+    "image_is_char_device": (lambda t: __import__("pcreg.registration.clouds", fromlist=["x"]).load_image("/dev/zero"),
+                             "not a regular file"),
+    "image_empty": (_load_image("empty.png"), "empty"),
+    "image_text": (_load_image("text.png"), "not an image"),
+    "image_gif": (_load_image("gif.png"), "not an image"),
+    "png_30000x30000": (_load_image("big30k.png"), "exceeds the limit"),
+    "png_100000x100000": (_load_image("big100k.png"), "exceeds the limit"),
+    "png_zero_width": (_load_image("zero.png"), "damaged PNG header"),
+    "jpeg_65000x65000": (_load_image("big.jpg"), "exceeds the limit"),
+    "bmp_60000x60000": (_load_image("big.bmp"), "exceeds the limit"),
+    "tiff_70000x70000": (_load_image("big.tif"), "exceeds the limit"),
+    "webp_16000x16000": (_load_image("big.webp"), "exceeds the limit"),
+    "ppm_60000x60000": (_load_image("big.ppm"), "exceeds the limit"),
+    "png_truncated": (_load_image("truncated.png"), "cannot decode"),
+    "jpeg_truncated": (_load_image("truncated.jpg"), "decode"),
+    "max_pixels_below_image": (_load_image("good.png", max_pixels=100), "exceeds the limit of 100"),
+    "max_pixels_zero": (_load_image("good.png", max_pixels=0), "max_pixels"),
+    # image arrays
+    "float_image_above_1": (_register(ref=GOOD.astype(np.float32)), "[0, 1]"),
+    "float_image_negative": (_register(mov=-GOOD.astype(np.float64) / 255), "[0, 1]"),
+    "image_nan": (_register(ref=np.full((64, 80, 3), np.nan)), "NaN"),
+    "image_int64": (_register(ref=GOOD.astype(np.int64)), "dtype"),
+    "image_complex": (_register(ref=GOOD.astype(np.complex64)), "dtype"),
+    "image_object": (_register(ref=np.empty((64, 80, 3), dtype=object)), "dtype"),
+    "image_1d": (_register(ref=np.zeros(100, np.uint8)), "shape"),
+    "image_4d": (_register(ref=np.zeros((2, 64, 80, 3), np.uint8)), "shape"),
+    "image_zero_size": (_register(ref=np.zeros((0, 80, 3), np.uint8)), "empty"),
+    "image_list": (_register(ref=[[1, 2], [3, 4]]), "numpy array"),
+    # register keywords
+    "levels_2_5": (_register(levels=2.5), "levels must be an integer"),
+    "levels_0": (_register(levels=0), "levels"),
+    "levels_9": (_register(levels=9), "levels"),
+    "levels_true": (_register(levels=True), "levels"),
+    "angle_step_0": (_register(angle_step=0), "angle_step"),
+    "angle_step_nan": (_register(angle_step=float("nan")), "angle_step"),
+    "n_candidates_0": (_register(n_candidates=0), "n_candidates"),
+    "iterations_negative": (_register(iterations=-1), "iterations"),
+    "max_distance_inf": (_register(max_correspondence_distance=float("inf")), "finite"),
+    "init_singular": (_register(init=np.zeros((3, 3))), "singular"),
+    "init_nan": (_register(init=np.full((3, 3), np.nan)), "finite"),
+    "init_wrong_shape": (_register(init=np.eye(4)), "3x3"),
+    "init_text": (_register(init="sideways"), "init"),
+    "backend_unknown": (_register(backend="magic"), "backend"),
+    "model_unknown": (_register(model="warp"), "model"),
+    "seed_negative": (_register(seed=-1), "seed"),
+    # warp
+    "warp_int64": (_warp(np.zeros((10, 10), np.int64)), "dtype"),
+    "warp_shape_0x0": (_warp(GOOD, shape=(0, 0)), "shape"),
+    "warp_shape_float": (_warp(GOOD, shape=(2.5, 3)), "shape"),
+    "warp_shape_huge": (_warp(GOOD, shape=(30000, 30000)), "limit"),
+    "warp_singular": (_warp(GOOD, T=np.zeros((3, 3))), "singular"),
+    "warp_nan_matrix": (_warp(GOOD, T=np.full((3, 3), np.nan)), "finite"),
+    "warp_fill_nan": (_warp(GOOD, fill=float("nan")), "fill"),
+    # point clouds (arrays)
+    "cloud_coordinates_1e300": (_icp(src=CLOUD * 1e300), "out of range"),
+    "cloud_nan": (_icp(src=np.vstack([CLOUD, [[np.nan, 0, 0]]])), "NaN"),
+    "cloud_empty": (_icp(src=np.zeros((0, 3))), "empty"),
+    "cloud_strings": (_icp(src=np.array([["a", "b", "c"]])), "numeric"),
+    "icp_max_iteration_2_5": (_icp(max_iteration=2.5), "max_iteration"),
+    "icp_voxel_size_zero": (_icp(voxel_sizes=(1.0, 0.0)), "voxel_sizes"),
+    "icp_init_singular": (_icp(init=np.zeros((4, 4))), "singular"),
+    "icp_trim_fraction_2": (_icp(trim_fraction=2.0), "trim_fraction"),
+    # naive Bayes
+    "var_smoothing_negative": (_nb(var_smoothing=-1), "var_smoothing"),
+    "var_smoothing_nan": (_nb(var_smoothing=float("nan")), "var_smoothing"),
+    "priors_bad_sum": (_nb(priors=(0.9, 0.9)), "priors"),
+    "n_trials_0": (_weight_search(n_trials=0), "n_trials"),
+    # point-cloud files
+    "ply_truncated_binary": (_load_cloud("trunc_bin.ply"), "truncated PLY"),
+    "ply_truncated_ascii": (_load_cloud("trunc_ascii.ply"), "truncated PLY"),
+    "ply_huge_vertex_count": (_load_cloud("huge_count.ply"), "exceed the limit"),
+    "ply_no_end_header": (_load_cloud("no_end.ply"), "end_header"),
+    "ply_negative_count": (_load_cloud("negative.ply"), "negative"),
+    "ply_unknown_format": (_load_cloud("bad_format.ply"), "format"),
+    "ply_is_fifo": (_load_cloud("fifo.ply"), "not a regular file"),
+    "ply_is_folder": (_load_cloud("folder.ply"), "folder"),
+    "pcd_truncated_binary": (_load_cloud("trunc_bin.pcd"), "truncated PCD"),
+    "pcd_truncated_ascii": (_load_cloud("trunc_ascii.pcd"), "truncated PCD"),
+    "pcd_damaged_header": (_load_cloud("bad_header.pcd"), "damaged PCD header"),
+    "pcd_no_data_line": (_load_cloud("no_data.pcd"), "DATA"),
+    "npy_truncated": (_load_cloud("trunc.npy"), "truncated .npy"),
+    "npy_pickled_objects": (_load_cloud("object.npy"), "numeric"),
+    "npy_four_columns": (_load_cloud("four_cols.npy"), "(N, 2) or (N, 3)"),
+    "npy_strings": (_load_cloud("strings.npy"), "numeric"),
+    "npy_huge_shape": (_load_cloud("huge_shape.npy"), "limit"),
+    "npy_random_bytes": (_load_cloud("random.npy"), "not a numpy array"),
+    "npy_is_fifo": (_load_cloud("fifo.npy"), "not a regular file"),
+    "xyz_coordinates_1e300": (_load_cloud("far.xyz"), "out of range"),
+    "xyz_lines_that_are_not_points": (_load_cloud("garbage.xyz"), "not points"),
+    "pts_count_mismatch": (_load_cloud("short.pts"), "declares 4 points"),
+    # LAGR .mat
+    "mat_full_of_nan": (_lagr_load(np.full((20, 16, 3), np.nan)), "NaN"),
+    "mat_values_above_255": (_lagr_load(np.full((20, 16, 3), 1e6)), "outside 0..255"),
+    "mat_text_image": (_lagr_load(np.array(["abc", "def"])), "im_rgb"),
+    "mat_random_bytes": (_lagr_bytes(os.urandom(2000)), "cannot read .mat"),
+    "mat_mask_out_of_range": (_lagr_load(np.zeros((20, 16, 3), np.uint8), np.full((20, 16), 7.0)), "outside"),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(LIBRARY))
+def test_library_raises_pcreg_errors_only(files, kind):
+    call, message = LIBRARY[kind]
+    t0 = time.perf_counter()
+    with pytest.raises(PcregError) as err:
+        call(files)
+    assert message in str(err.value), str(err.value)
+    assert "\n" not in str(err.value)
+    assert time.perf_counter() - t0 < 20
+
+
+BAD_VALUES = [None, "x", -1, 2.5, float("nan"), float("inf"), 1e300, [], {}, np.zeros((3, 3)), True, object()]
+PUBLIC_CALLS = {
+    "register": (lambda **kw: __import__("pcreg").register(GOOD, GOOD, **kw),
+                 ["backend", "model", "levels", "iterations", "init", "sampler", "max_points", "refine", "weights",
+                  "angle_step", "n_candidates", "reference_mask", "canny_percentile", "seed"]),
+    "icp": (lambda **kw: __import__("pcreg").icp(CLOUD, CLOUD, **kw),
+            ["backend", "model", "max_correspondence_distance", "init", "max_iteration", "voxel_sizes",
+             "max_iterations", "weights", "trim_fraction", "metric", "rotation"]),
+    "image_cloud": (lambda **kw: __import__("pcreg").image_cloud(GOOD, **kw),
+                    ["sampler", "max_points", "level", "canny_percentile"]),
+    "cloud_pyramid": (lambda **kw: __import__("pcreg").cloud_pyramid(GOOD, **kw), ["levels", "max_points"]),
+    "warp": (lambda **kw: __import__("pcreg").warp(GOOD, np.eye(3), **kw), ["shape", "interpolation", "fill"]),
+    "synthetic": (lambda **kw: __import__("pcreg").synthetic("syn1a", **{"n_frames": 2, "width": 32, "height": 24, **kw}), ["n_frames", "seed", "width", "height"]),
+    "load_dataset": (lambda **kw: __import__("pcreg").load_dataset("synthetic:syn1a", **{"n_frames": 2, "size": (32, 24), **kw}),
+                     ["n_frames", "size", "seed"]),
+    "NaiveBayesPixelClassifier": (lambda **kw: __import__("pcreg").NaiveBayesPixelClassifier(**kw),
+                                  ["features", "weights", "var_smoothing", "priors"]),
+}
+
+
+@pytest.mark.parametrize("function", sorted(PUBLIC_CALLS))
+def test_public_api_wrong_types_raise_pcreg_errors(function):
+    """Every keyword of the public functions, given values of the wrong type or range: a PcregError or a
+    result, never TypeError/ValueError/OverflowError/... from deep inside."""
+    call, keywords = PUBLIC_CALLS[function]
+    for kw in keywords:
+        for value in BAD_VALUES:
+            try:
+                call(**{kw: value})
+            except PcregError:
+                pass
+            except Exception as exc:  # noqa: BLE001 - the assertion names it
+                pytest.fail(f"{function}({kw}={value!r}) raised {type(exc).__name__}: {exc}")
+
+
+def test_png_bomb_is_refused_before_decoding(files):
+    from pcreg.registration.clouds import load_image
+
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    with pytest.raises(PcregError):
+        load_image(files / "big30k.png")
+    assert time.perf_counter() - t0 < 0.5
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 50_000  # KiB
+
+
+def test_pixel_limit_can_be_raised(files, monkeypatch):
+    from pcreg.registration.clouds import load_image
+
+    with pytest.raises(PcregError):
+        load_image(files / "good.png", max_pixels=64 * 80 - 1)
+    assert load_image(files / "good.png", max_pixels=64 * 80).shape == (64, 80, 3)
+    monkeypatch.setenv("PCREG_MAX_PIXELS", "100")
+    with pytest.raises(PcregError, match="limit of 100"):
+        load_image(files / "good.png")
+
+
+def test_a_complete_ply_still_loads(files):
+    from pcreg.crosschecks import load_cloud
+
+    assert load_cloud(files / "ok.ply").shape == (400, 3)
+
+
+def test_warp_keeps_float16(files):
+    from pcreg.registration.warp import warp
+
+    out, valid = warp(np.ones((10, 12), np.float16), np.eye(3))
+    assert out.dtype == np.float16 and valid.all()
+
+
+# ------------------------------------------------------------------------------------------------
+# command line: one stderr line, exit 2, no traceback
+# ------------------------------------------------------------------------------------------------
+
+def cli(argv: list[str], capsys) -> tuple[int, list[str]]:
+    from pcreg.cli import main
+
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse
+        rc = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    return rc, err
+
+
+CLI = {
+    "view_size_negative": (["view", "{t}/x.rrd", "--size", "0x-5"], "--size"),
+    "view_timeout_nan": (["view", "{t}/x.rrd", "--timeout", "nan"], "--timeout"),
+    "angles_nan": (["evaluate", "rotation", "--angles", "nan"], "--angles"),
+    "angles_inf": (["evaluate", "rotation", "--angles", "0,inf"], "--angles"),
+    "angles_step_tiny": (["evaluate", "rotation", "--angles", "0:360:1e-9"], "limit"),
+    "angles_range_nan": (["evaluate", "rotation", "--angles", "0:nan:1"], "--angles"),
+    "fusion_weight_inf": (["evaluate", "sequence", "--fusion-weight", "inf"], "--fusion-weight"),
+    "fusion_weight_nan": (["evaluate", "sequence", "--fusion-weight", "nan"], "--fusion-weight"),
+    "register_max_distance_inf": (["register", "{t}/good.png", "{t}/good.png", "--max-distance", "inf"], "--max-distance"),
+    "crosscheck_max_distance_nan": (["crosscheck", "{t}/good.png", "{t}/good.png", "--max-distance", "nan"], "--max-distance"),
+    "crosscheck_voxel_inf": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--voxel-sizes", "1,inf"], "--voxel-sizes"),
+    "max_pixels_zero": (["register", "{t}/good.png", "{t}/good.png", "--max-pixels", "0"], "--max-pixels"),
+    "max_pixels_text": (["register", "{t}/good.png", "{t}/good.png", "--max-pixels", "lots"], "--max-pixels"),
+    "classification_size_negative": (["evaluate", "classification", "--size", "0x-5"], "--size"),
+    "sequence_size_huge": (["evaluate", "sequence", "--size", "100000x100000"], "--size"),
+    "sequence_frames_huge": (["evaluate", "sequence", "--frames", "10000000000"], "--frames"),
+    "sequence_increment_huge": (["evaluate", "sequence", "--increments", "1,99999999999"], "--increments"),
+    "workers_zero": (["evaluate", "rotation", "--workers", "0"], "--workers"),
+    "workers_huge": (["evaluate", "classification", "--workers", "100000"], "--workers"),
+    "seed_negative": (["evaluate", "classification", "--seed", "-4"], "--seed"),
+    "levels_nine": (["evaluate", "rotation", "--levels", "9"], "--levels"),
+    "trials_zero": (["evaluate", "classification", "--trials", "0"], "--trials"),
+    "register_out_is_folder_with_force": (["register", "{t}/good.png", "{t}/good.png", "--out", "{t}/folder.png",
+                                           "--force"], "folder"),
+    "register_png_30000x30000": (["register", "{t}/big30k.png", "{t}/good.png"], "exceeds the limit"),
+    "register_fifo": (["register", "{t}/fifo.png", "{t}/good.png"], "not a regular file"),
+    "register_dev_zero": (["register", "/dev/zero", "{t}/good.png"], "not a regular file"),
+    "register_float_tiff_text": (["register", "{t}/text.png", "{t}/good.png"], "not an image"),
+    "crosscheck_truncated_ply": (["crosscheck", "{t}/ok.ply", "{t}/trunc_bin.ply", "--json"], "truncated PLY"),
+    "crosscheck_coordinates_1e300": (["crosscheck", "{t}/ok.ply", "{t}/far.xyz"], "out of range"),
+    "classification_data_missing": (["evaluate", "classification", "--data", "camvid:{t}/nothing", "--out", "{t}/o"],
+                                    "no such folder"),
+    "crosscheck_voxel_1e-300": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--voxel-sizes", "1e-300"], "too small"),
+    "synthetic_frames_over_the_pixel_limit": (["evaluate", "sequence", "--size", "8192x8192", "--out", "{t}/o"],
+                                              "pixel limit"),
+    "synthetic_data_too_big_for_memory": (["evaluate", "rotation", "--frames", "100000", "--out", "{t}/o"],
+                                          "G pixels"),
+    "workers_over_4x_cpus": (["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "2", "--size",
+                              "48x36", "--workers", "1000", "--out", "{t}/o"], "CPUs"),
+    "crosscheck_init_fifo": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/fifo.npy"], "not a regular file"),
+    "crosscheck_init_nan": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/nan.txt"], "finite"),
+    "crosscheck_relative_fitness_nan": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--relative-fitness", "nan"],
+                                        "--relative-fitness"),
+    "crosscheck_suite_bad_params": (["crosscheck", "--suite", "{t}/suite"], "unreadable case"),
+    "sequence_lagr_nan": (["evaluate", "sequence", "--data", "lagr:{t}/lagr_nan", "--out", "{t}/o"], "NaN"),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(CLI))
+def test_cli_one_line_exit_2(files, capsys, kind):
+    argv, message = CLI[kind]
+    if kind == "sequence_lagr_nan":
+        mat_file((files / "lagr_nan").mkdir() or files / "lagr_nan" / "frame001.mat", np.full((20, 16, 3), np.nan),
+                 np.zeros((20, 16)))
+    (files / "nan.txt").write_text("1 0 0 0\n0 nan 0 0\n0 0 1 0\n0 0 0 1\n")
+    if kind == "crosscheck_suite_bad_params":
+        (files / "suite" / "c1").mkdir(parents=True)
+        (files / "suite" / "index.json").write_text(json.dumps({"format": 1, "cases": ["c1"]}))
+        (files / "suite" / "c1" / "params.json").write_text(json.dumps({"max_correspondence_distance": "far"}))
+        (files / "suite" / "c1" / "init.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+        np.save(files / "suite" / "c1" / "source.npy", CLOUD)
+        np.save(files / "suite" / "c1" / "target.npy", CLOUD)
+    rc, err = cli([a.replace("{t}", str(files)) for a in argv], capsys)
+    assert rc == 2, err
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    assert message in err[0], err
+
+
+def test_classification_resumes_and_writes_strict_json(tmp_path, capsys):
+    argv = ["evaluate", "classification", "--data", "synthetic:syn1a", "--frames", "4", "--size", "48x36",
+            "--trials", "2", "--cases", "I", "--features", "rgb", "--out", str(tmp_path)]
+    rc, err = cli(argv, capsys)
+    assert rc == 0, err
+    units = sorted((tmp_path / "units").rglob("*.json"))
+    assert units
+    first = json.loads((tmp_path / "results.json").read_text())
+    units[0].unlink()  # as if interrupted before this one finished
+    rc, err = cli(argv, capsys)
+    assert rc == 0, err
+    again = json.loads((tmp_path / "results.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+    assert [u["error"] for u in again["units"]] == [u["error"] for u in first["units"]]
+    assert again["resumed_units"] == len(first["units"]) - 1
+
+
+# ------------------------------------------------------------------------------------------------
+# real subprocesses: special files, limits, stdout hygiene, signals, locks
+# ------------------------------------------------------------------------------------------------
+
+def run(args, timeout=60, **kw):
+    return subprocess.run([*PCREG, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def test_subprocess_fifo_and_bomb_end_quickly_in_bounded_memory(files):
+    t0 = time.perf_counter()
+    for bad in ("fifo.png", "big30k.png", "big100k.png"):
+        p = run(["register", files / bad, files / "good.png"], timeout=30)
+        assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, p.stderr
+        assert "Traceback" not in p.stderr
+    assert time.perf_counter() - t0 < 60
+    assert resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss < 1_000_000  # KiB: far below a decoded bomb
+
+
+def test_crosscheck_json_stays_parseable(files):
+    """Open3D reports a damaged file only by printing (on stdout); it is refused with one line and
+    stdout stays clean, and a good file gives JSON alone on stdout."""
+    (files / "bad_token.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                                          b"property float y\nproperty float z\nend_header\n1 2 3\n4 5 x\n4 5 6\n")
+    p = run(["crosscheck", files / "bad_token.ply", files / "ok.ply", "--json"], timeout=60)
+    assert p.returncode == 2 and p.stdout == "", (p.stdout, p.stderr)
+    assert len(p.stderr.strip().splitlines()) == 1 and "cannot read point cloud" in p.stderr
+    p = run(["crosscheck", files / "ok.ply", files / "ok.ply", "--json", "--iterations", "3"], timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["kind"] == "clouds"
+
+
+ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "3", "--size", "160x120",
+            "--angles", "0:180:5", "--samples", "3"]
+
+
+def _units(out: Path) -> list[Path]:
+    return list(out.glob("units/**/*.json"))
+
+
+@pytest.mark.parametrize("signame, workers", [("SIGINT", 2), ("SIGTERM", 2), ("SIGINT", 1)])
+def test_interrupt_with_workers_stops_at_once_and_keeps_finished_units(tmp_path, signame, workers):
+    out = tmp_path / "rot"
+    p = subprocess.Popen([*PCREG, *ROTATION, "--workers", str(workers), "--out", str(out)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.time() + 120
+        while len(_units(out)) < 1 and time.time() < deadline and p.poll() is None:
+            time.sleep(0.1)
+        assert p.poll() is None, p.communicate()
+        children = subprocess.run(["pgrep", "-P", str(p.pid)], capture_output=True, text=True).stdout.split()
+        if workers > 1:
+            assert len(children) >= workers  # the pool's processes
+        t0 = time.time()
+        if signame == "SIGINT":
+            os.killpg(p.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
+        else:
+            p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=30)
+        assert time.time() - t0 < 10
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 130, err
+    assert "Traceback" not in err and "interrupted" in err
+    time.sleep(0.5)
+    assert not [c for c in children if Path(f"/proc/{c}").exists()], "worker processes left behind"
+    kept = _units(out)
+    assert kept and all(json.loads(u.read_text()) for u in kept)  # whole files, reused by the next run
+    from pcreg.experiments.units import UnitStore
+
+    cfg = json.loads((out / "config.json").read_text())
+    store = UnitStore(out, cfg, force=False)
+    assert all(store.load(str(u.relative_to(out / "units").with_suffix(""))) for u in kept)
+
+
+def test_second_run_on_the_same_out_is_refused(tmp_path):
+    out = tmp_path / "busy"
+    first = subprocess.Popen([*PCREG, *ROTATION, "--out", str(out)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 60
+        while not (out / ".pcreg.lock").exists() and time.time() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.3)
+        p = run([*ROTATION, "--out", out], timeout=60)
+        assert p.returncode == 2, p.stderr
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and "in use by another pcreg run" in lines[0]
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=30)
+    # released on exit (also on interruption): the folder can be used again
+    from pcreg.outputs import OutputLock
+
+    with OutputLock(out):
+        pass

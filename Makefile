@@ -46,6 +46,7 @@ bench: setup
 	$(BIN)/python tools/bench_registration.py --out out/bench
 	$(BIN)/python tools/bench_classifier.py --out out/bench
 	$(BIN)/python tools/bench_pipeline.py --out out/bench
+	$(BIN)/python tools/bench_icp.py --out out/bench
 	$(BIN)/python tools/bench_recording.py --out out/bench
 
 clean:

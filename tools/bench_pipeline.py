@@ -198,7 +198,7 @@ def main(argv=None) -> int:
     p.add_argument("--data", default="synthetic,camvid", help="streams: synthetic and/or camvid (default both)")
     p.add_argument("--shared-data", type=Path, default=SHARED_DATA, help="../shared/data")
     p.add_argument("--backends", default="reference,open3d", help="Propagator backends (default reference,open3d)")
-    p.add_argument("--cores", type=int, default=2, help="pin the process to this many CPUs (default 2)")
+    p.add_argument("--cores", type=int, default=2, help="pin the process to this many CPUs (default 2; 0: leave as is)")
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
 
@@ -207,7 +207,8 @@ def main(argv=None) -> int:
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     if args.cores and cpus and len(cpus) > args.cores:
         os.sched_setaffinity(0, set(cpus[: args.cores]))
-    cv2.setNumThreads(args.cores)
+    if args.cores:
+        cv2.setNumThreads(args.cores)
     report = {"machine": machine_info(), "floors": {"ms": FLOOR_MS, "step_over_dis": FLOOR_VS_DIS,
                                                     "register_over_ecc": FLOOR_REGISTER_VS_ECC}, "streams": {}}
     backends = tuple(b.strip() for b in args.backends.split(",") if b.strip())

@@ -2,8 +2,8 @@
 the reference ICP.
 
 The target points are bucketed into cubic cells of side ``h`` (a counting sort: a dense cell table when
-the bounding box holds at most a few cells per point, else an open-addressing hash of the occupied
-cells). A query visits the cells in rings of growing Chebyshev distance around its own cell and stops
+the bounding box holds at most 16 cells a point or 2^18 cells, else an open-addressing hash of the
+occupied cells). A query visits the cells in rings of growing Chebyshev distance around its own cell and stops
 as soon as the nearest face of the rings already searched is farther than the best point found (or than
 the distance bound), so the answer is exact for any cell size; the cell size only sets the speed.
 Cells whose box lies farther than the best distance so far are skipped without reading their points.
@@ -13,19 +13,20 @@ Agreement with KD-trees (Open3D's nanoflann, scipy's cKDTree):
 - distances are compared squared, ``dx*dx + dy*dy (+ dz*dz)`` summed in that order (as nanoflann's L2
   adaptor), and a neighbour counts when ``d^2 < r^2`` (strictly, as Open3D's hybrid search and
   cKDTree's ``distance_upper_bound``);
-- among points at exactly the same squared distance the lowest index wins. A KD-tree returns whichever
-  of them its traversal meets first, which depends on how the tree was split; with real-valued
-  coordinates such ties have probability zero, and this rule makes the result independent of the
-  structure (a grid and a tree give the same answer).
+- among points at exactly the same squared distance the lowest index wins, whatever the cell size. A
+  KD-tree returns whichever of them its traversal meets first, which depends on how it was split
+  (Open3D's often returns a higher index). Generic coordinates never tie; clouds on a common lattice
+  can (pixel clouds compared at the identity), and there the two may pick different, equally near points.
 
 Why a grid rather than a compiled KD-tree: the ICP's queries are bounded (``max_correspondence_distance``)
 and arrive in spatially coherent order, so a query touches 3^d cells of about the correspondence
 distance, with no tree descent; building it is one counting sort (linear), against a KD-tree's
-O(M log M). Measured per query on 20k 2-D edge points (``python -m pcreg.registration.nn --bench``):
-see the README's speed section.
+O(M log M). Per query against scipy's cKDTree: ``python -m pcreg.registration.nn --bench``; the ICP
+against Open3D's and small_gicp's: ``tools/bench_icp.py`` (README, Benchmarks).
 
 Compilation is cached on disk (``cache=True``); ``python -m pcreg.registration.nn --warm`` compiles every
-kernel once (the Makefile's ``setup`` runs it), so no command pays the JIT pause after installation.
+kernel once (the Makefile's ``setup`` runs it), so no command compiles after installation; a new
+process only loads numba and the cached machine code, on its first registration.
 """
 
 from __future__ import annotations

@@ -5,8 +5,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP = $(VENV)/.pcreg-installed-$(OPEN3D)
 # Open3D's wheel needs libusb at import; the headless viewer screenshots need lavapipe (Vulkan on the CPU);
-# the cross-check tests compile tools/icp_min.c with gcc.
-APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1 gcc libc6-dev
+# the cross-check tests compile tools/icp_min.c with gcc; `pcreg view --web` is tested in headless Chromium.
+APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1 gcc libc6-dev chromium
 # OPEN3D=cuda installs the CUDA build of Open3D (907 MB) instead of the CPU build (312 MB).
 OPEN3D ?= cpu
 PYTEST_ARGS ?=

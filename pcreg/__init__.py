@@ -23,8 +23,11 @@ _EXPORTS = {
     "load_image": "pcreg.registration.clouds",
     "icp": "pcreg.registration.api",
     "register": "pcreg.registration.api",
-    "crosscheck": "pcreg.crosschecks",
+    "register_dense": "pcreg.registration.dense",
+    "DenseRegistrationResult": "pcreg.registration.dense",
+    "crosscheck": "pcreg.implementations.crosscheck",
     "warp": "pcreg.registration.warp",
+    "warp_to_moving": "pcreg.registration.warp",
     "transforms": "pcreg.registration.transforms",
     # datasets and classification
     "Frame": "pcreg.datasets",

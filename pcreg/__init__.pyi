@@ -15,9 +15,6 @@ from pcreg.classification.metrics import (
     confusion_matrix as confusion_matrix,
     error_rate as error_rate,
 )
-from pcreg.crosschecks import (
-    crosscheck as crosscheck,
-)
 from pcreg.datasets import (
     Frame as Frame,
     SYNTHETIC_PRESETS as SYNTHETIC_PRESETS,
@@ -33,6 +30,9 @@ from pcreg.errors import (
     OutputError as OutputError,
     PcregError as PcregError,
     RegistrationError as RegistrationError,
+)
+from pcreg.implementations.crosscheck import (
+    crosscheck as crosscheck,
 )
 from pcreg.pipeline import (
     PipelineConfig as PipelineConfig,
@@ -57,12 +57,17 @@ from pcreg.registration.clouds import (
 from pcreg.registration.config import (
     RegisterConfig as RegisterConfig,
 )
+from pcreg.registration.dense import (
+    DenseRegistrationResult as DenseRegistrationResult,
+    register_dense as register_dense,
+)
 from pcreg.registration.result import (
     IcpIteration as IcpIteration,
     RegistrationResult as RegistrationResult,
 )
 from pcreg.registration.warp import (
     warp as warp,
+    warp_to_moving as warp_to_moving,
 )
 
 __version__: str

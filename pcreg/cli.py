@@ -1,6 +1,8 @@
 """The ``pcreg`` command line: parse, build a config, call the library.
 
-Known errors (:class:`pcreg.errors.PcregError`, bad options) become one line on stderr and exit code 2.
+Known errors (:class:`pcreg.errors.PcregError`, bad options) become one line on stderr and exit code 2;
+a refused registration (:class:`pcreg.errors.RegistrationError`) exits with 3 (with ``--json``, the
+object ``{"ok": false, "reason": ...}`` is printed on stdout as well).
 Each command lives in its own module under ``pcreg.commands`` and exposes
 ``add_arguments(parser)`` and ``run(args) -> int``; heavy imports happen inside ``run``.
 """
@@ -78,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     module = importlib.import_module(args._module)
     import os
 
+    from .errors import RegistrationError
+
     previous = _terminate_as_interrupt()
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
@@ -86,6 +90,14 @@ def main(argv: list[str] | None = None) -> int:
 
             set_max_pixels(args.max_pixels)  # also seen by worker processes
         return int(module.run(args) or 0)
+    except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)
+        reason = _one_line(exc)
+        if getattr(args, "json", False):
+            from .commands._common import print_json
+
+            print_json({"ok": False, "reason": reason})
+        sys.stderr.write(f"pcreg: registration refused: {reason}\n")
+        return 3
     except PcregError as exc:
         sys.stderr.write(f"pcreg: error: {_one_line(exc)}\n")
         return 2

@@ -22,6 +22,9 @@ The methods (keys of :data:`METHODS`), each an error rate in percent:
   prior (:mod:`pcreg.classification.fusion`), against the moving labels.
 - ``augmented_unregistered``: the same fusion with the prior not warped (identity): the ablation that
   shows what registration adds.
+- ``augmented_flow``: the same fusion with the prior warped by OpenCV's DIS optical flow (medium
+  preset, :mod:`pcreg.registration.flow`), its weight chosen the same way: the baseline a user would
+  otherwise pick.
 - ``augmented_temporal``: recursive fusion along the sequence: the fused posterior of frame t - k,
   warped, is the prior of frame t; labels are used only at the start of each chain (frames 0..k-1).
 - ``propagated``: the warped reference labels alone where they are known, naive Bayes elsewhere
@@ -71,22 +74,26 @@ __all__ = [
 
 METHODS: tuple[str, ...] = (
     "plain", "thesis_before", "thesis_after", "thesis_after_masked", "thesis_after_cropped",
-    "augmented", "augmented_unregistered", "augmented_temporal", "propagated",
+    "augmented", "augmented_unregistered", "augmented_temporal", "propagated", "augmented_flow",
 )
-STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse")
+STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse", "flow")
 
 #: The registration a pipeline runs unless told otherwise: a similarity (rotation, shift and the zoom of
 #: forward motion; a rigid model leaves the zoom as a residual of several pixels at k = 10) from the
 #: identity (pairs of a sequence are close; the global search sometimes locks onto a half-turn when
 #: frames are far apart).
 PIPELINE_REGISTRATION = RegisterConfig(model="similarity", init="identity")
+#: The global step of ``model="dense"``.
+DENSE_GLOBAL_MODEL = "similarity"
 
 
 @dataclass(frozen=True)
 class PipelineConfig:
     """Options of the per-pair pipeline (written to config.json by the evaluations).
 
-    registration : :class:`~pcreg.registration.config.RegisterConfig` (:data:`PIPELINE_REGISTRATION`).
+    registration : :class:`~pcreg.registration.config.RegisterConfig` (:data:`PIPELINE_REGISTRATION`);
+        its ``model="dense"`` runs :func:`pcreg.register_dense`: the global step with
+        :data:`DENSE_GLOBAL_MODEL` (the rest of the config as given), refined by a dense field.
     features : naive Bayes features (:mod:`pcreg.classification.features`).
     fusion : :class:`pcreg.classification.fusion.FusionConfig`.
     """
@@ -138,6 +145,19 @@ class PairRegistration:
         """``T_ref_mov`` (3, 3), or None when refused."""
         return None if self.result is None else self.result.matrix
 
+    @property
+    def motion(self) -> np.ndarray | None:
+        """What warps the pair: a dense result's field (H, W, 2), else ``matrix``."""
+        return motion_of(self.result)
+
+
+def motion_of(res) -> np.ndarray | None:
+    """The dense field of a dense result, else the 3x3 matrix (None: no result)."""
+    if res is None:
+        return None
+    fld = getattr(res, "field", None)
+    return np.asarray(fld) if fld is not None else np.asarray(res.matrix)
+
 
 def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, config: PipelineConfig = PipelineConfig(),
                   callback: Callable | None = None) -> PairRegistration:
@@ -147,12 +167,27 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
 
     t0 = time.perf_counter()
     try:
-        res = register(reference_image, moving_image, **config.registration.kwargs(), callback=callback)
+        if config.registration.model == "dense":
+            from .registration.dense import register_dense
+
+            glob = register(reference_image, moving_image, **config.registration.replace(model=DENSE_GLOBAL_MODEL).kwargs(),
+                            callback=callback)
+            res = register_dense(reference_image, moving_image, global_result=glob,
+                                 backend=config.registration.backend, seed=config.registration.seed)
+        else:
+            res = register(reference_image, moving_image, **config.registration.kwargs(), callback=callback)
     except RegistrationError as exc:
         return PairRegistration(None, str(exc), time.perf_counter() - t0)
     if not np.all(np.isfinite(res.matrix)) or abs(np.linalg.det(res.matrix[:2, :2])) < 1e-6:
         return PairRegistration(None, "registration returned a degenerate transform", time.perf_counter() - t0)
     return PairRegistration(res, None, time.perf_counter() - t0)
+
+
+def flow_field(reference_image: np.ndarray, moving_image: np.ndarray) -> np.ndarray:
+    """The ``augmented_flow`` baseline's field: OpenCV DIS optical flow, medium preset."""
+    from .registration.flow import dis_field
+
+    return dis_field(reference_image, moving_image, preset="medium")[0]
 
 
 def _err(pred: np.ndarray, truth: np.ndarray | None, mask: np.ndarray | None = None) -> float:
@@ -201,16 +236,38 @@ def _prior_q(source: np.ndarray, *, kind: str, pi: float, fusion: FusionConfig) 
     return smooth_prior(prior_from_log_odds(source), pi=pi, eps=fusion.eps, sigma=0.0)
 
 
+def registration_supported(warped_labels: np.ndarray, labels: np.ndarray, log_odds_moving: np.ndarray) -> bool:
+    """The new frame's own evidence for a registration that carries labels: the labels warped by it
+    agree with naive Bayes on the new frame at least as often as the same labels not warped at all.
+
+    warped_labels : (H, W) uint8 labels moved into the new frame (2 where none arrived); labels :
+    (H, W) uint8 the same labels in the previous frame; log_odds_moving : (H, W) naive Bayes log-odds of
+    the new frame. A wrong registration (a shifted or turned field) moves the labels off the objects
+    and loses this test against the no-motion hypothesis; a right one wins or ties it.
+    """
+    nb = np.asarray(log_odds_moving) > 0
+    w_known = warped_labels < 2
+    i_known = labels < 2
+    if not w_known.any():
+        return False
+    if not i_known.any():
+        return True
+    agree_w = float(np.mean((warped_labels[w_known] == 1) == nb[w_known]))
+    agree_i = float(np.mean((labels[i_known] == 1) == nb[i_known]))
+    return agree_w >= agree_i
+
+
 def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T_ref_mov: np.ndarray | None, *,
                     pi: float, weight: float, fusion: FusionConfig = FusionConfig()) -> tuple[np.ndarray, np.ndarray]:
     """One step of the temporal filter.
 
     log_odds_moving : (H, W) float32 naive Bayes log-odds of the new frame. labels_reference : (H, W)
     uint8 labels the chain holds for the previous frame (true labels at the chain's start, then its
-    own fused labels; 2 where it knows nothing). T_ref_mov : previous -> new registration (None: no
-    prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``: the label carried over
-    from the previous frame where it reached the new frame and the fused result agrees with it, 2
-    (unknown) elsewhere. So a label survives while the classifier does not overrule it, and neither
+    own fused labels; 2 where it knows nothing). T_ref_mov : previous -> new registration, a 3x3 matrix
+    or a dense field (None: no prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``:
+    the fused log-odds at ``weight``, and the label carried over from the previous frame where it
+    reached the new frame and Bayes' rule at weight 1 agrees with it, 2 (unknown) elsewhere. So a
+    label survives while the classifier does not overrule it, and neither
     what naive Bayes alone says about content new to the view nor a pixel it flipped is passed on as
     if it were a label (a chain that kept its own flips would lock its classifier's mistakes in and
     drift further from the truth with every frame).
@@ -219,19 +276,33 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
     Bayes errs on the same colours in every frame, so its errors are correlated in time and adding
     them up frame after frame wears correct labels away; neither does a label fade with age (both
     measured worse: README, design notes).
+
+    What the chain keeps is decided at weight 1, not at ``weight``: with a weight chosen on the few
+    frames at a sequence's start (up to 12 on CamVid's 30-frame clips at k = 1), the prior's log-odds
+    outweigh any classifier evidence, no carried label is ever overruled, and every registration error
+    and disocclusion is passed on and compounds (the chain diverged to 25.4% error on CamVid 0006R0 at
+    k = 1 with the dense registration, plain naive Bayes 6.0%). At weight 1 the prior is the calibrated
+    probability it was built as, so the classifier can still overrule a label it contradicts strongly
+    (5.7% there), and the chain's state no longer depends on a weight chosen on too few frames.
+    A failed registration (``T_ref_mov`` None) ends the chain's labels: the frame falls back to plain
+    naive Bayes, and so does the rest of the chain; so does a registration that the new frame's
+    evidence does not support (:func:`registration_supported`): a poor registration is not carried on.
     """
     d = np.asarray(log_odds_moving, dtype=np.float32)
     if T_ref_mov is None:
         return d.copy(), np.full(d.shape, 2, np.uint8)
-    from .registration.warp import warp
+    from .registration.warp import warp_to_moving
 
+    labels_reference = np.asarray(labels_reference, dtype=np.uint8)
+    reached, _ = warp_to_moving(labels_reference, T_ref_mov, shape=d.shape, interpolation="nearest", fill=2)
+    if not registration_supported(reached, labels_reference, d):
+        return d.copy(), np.full(d.shape, 2, np.uint8)
     q_mov, _ = warp_prior(_prior_q(labels_reference, kind="labels", pi=pi, fusion=fusion), T_ref_mov,
                           shape=d.shape, pi=pi)
-    fused = fuse(d, prior_log_odds(q_mov, pi=pi), weight=weight)
-    reached, _ = warp(np.asarray(labels_reference, dtype=np.uint8), np.linalg.inv(np.asarray(T_ref_mov)),
-                      shape=d.shape, interpolation="nearest", fill=2)
-    fused_labels = labels_from_log_odds(fused)
-    labels = np.where((reached < 2) & (fused_labels == reached), fused_labels, np.uint8(2)).astype(np.uint8)
+    l_prior = prior_log_odds(q_mov, pi=pi)
+    fused = fuse(d, l_prior, weight=weight)
+    judged = labels_from_log_odds(fuse(d, l_prior, weight=1.0))
+    labels = np.where((reached < 2) & (judged == reached), reached, np.uint8(2)).astype(np.uint8)
     return fused, labels
 
 
@@ -242,6 +313,10 @@ class PairArrays:
     warped : the moving image warped onto the reference grid (H, W, 3) uint8; valid : (H, W) bool, where
     it came from inside the moving image; predicted : {method: (H, W) uint8 labels} of the moving frame;
     thesis_after, thesis_after_masked : labels on the reference grid.
+    motion : the registration's (3, 3) matrix or dense field (H, W, 2) (None when refused);
+    warped_prior : (H, W) float32 obstacle probability of the reference labels warped into the moving
+    frame; flow : the DIS field (H, W, 2) of ``augmented_flow``; confidence : a dense registration's
+    per-pixel confidence (H, W) (None for a matrix).
     """
 
     warped: np.ndarray
@@ -249,6 +324,10 @@ class PairArrays:
     predicted: dict
     thesis_after: np.ndarray
     thesis_after_masked: np.ndarray
+    motion: np.ndarray | None = None
+    warped_prior: np.ndarray | None = None
+    flow: np.ndarray | None = None
+    confidence: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -262,7 +341,8 @@ class ProcessedPair:
 def process_pair(reference, moving, classifier, *, weight: float, config: PipelineConfig = PipelineConfig(),
                  registration: PairRegistration | None = None, temporal: "TemporalFusion | None" = None,
                  indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
-                 callback: Callable | None = None) -> ProcessedPair:
+                 callback: Callable | None = None, flow: np.ndarray | None = None,
+                 flow_weight: float | None = None) -> ProcessedPair:
     """Run and score every method on one pair.
 
     reference, moving : :class:`~pcreg.datasets.Frame` (labelled; same size). classifier : fitted naive
@@ -271,10 +351,12 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     temporal : the temporal filter of the chain that holds the reference frame; it is stepped to the
         moving frame (:meth:`TemporalFusion.step`). None leaves ``augmented_temporal`` NaN.
     keep_arrays : also return the arrays a recording shows (:class:`PairArrays`).
+    flow : the pair's DIS field (:func:`flow_field`; None: computed here). flow_weight : the fusion
+        weight of ``augmented_flow`` (default ``weight``).
     """
     from .datasets import relative_transform
     from .registration.transforms import max_corner_error
-    from .registration.warp import warp
+    from .registration.warp import warp, warp_to_moving
 
     if reference.shape != moving.shape:
         raise InputError(f"reference {reference.shape} and moving {moving.shape} frames differ in size")
@@ -285,10 +367,11 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     res, reason = reg.result, reg.reason
     times["register"] = reg.seconds
     T = None if res is None else np.asarray(res.matrix)
+    motion = reg.motion  # a dense registration's field, else T
 
     t0 = time.perf_counter()
     if T is not None:
-        warped, valid = warp(moving.image, T, shape=reference.shape)
+        warped, valid = warp(moving.image, motion, shape=reference.shape)
     else:
         warped, valid = moving.image, np.ones(shape, dtype=bool)
     times["warp"] = time.perf_counter() - t0
@@ -305,7 +388,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     fusion = config.fusion
     q_ref = _prior_q(reference.labels, kind="labels", pi=pi, fusion=fusion)
     if T is not None:
-        q_mov, prior_valid = warp_prior(q_ref, T, shape=shape, pi=pi)
+        q_mov, prior_valid = warp_prior(q_ref, motion, shape=shape, pi=pi)
         l_reg = prior_log_odds(q_mov, pi=pi)
     else:
         l_reg = np.zeros(shape, np.float32)
@@ -313,17 +396,24 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     times["fuse"] = time.perf_counter() - t0
     l_id = prior_log_odds(q_ref, pi=pi)
     fused_id = fuse(d_mov, l_id, weight=weight)
-    fused_t = None if temporal is None else temporal.step(d_mov, T, pi=pi)
+    fused_t = None if temporal is None else temporal.step(d_mov, motion, pi=pi)
+    t0 = time.perf_counter()
+    flow = flow_field(reference.image, moving.image) if flow is None else flow
+    q_flow, _ = warp_prior(q_ref, flow, shape=shape, pi=pi)
+    fused_flow = fuse(d_mov, prior_log_odds(q_flow, pi=pi), weight=weight if flow_weight is None else flow_weight)
+    times["flow"] = time.perf_counter() - t0
 
     pred_masked = np.where(valid, pred_warped, pred_mov)
     if T is not None:
-        ref_lab_mov, lab_valid = warp(reference.labels, np.linalg.inv(T), shape=shape, interpolation="nearest", fill=2)
+        ref_lab_mov, lab_valid = warp_to_moving(reference.labels, motion, shape=shape, interpolation="nearest",
+                                                fill=2)
         propagated = np.where(lab_valid & (ref_lab_mov < 2), ref_lab_mov, pred_mov)
     else:
         propagated = pred_mov
     preds = {
         "plain": pred_mov, "augmented": labels_from_log_odds(fused),
         "augmented_unregistered": labels_from_log_odds(fused_id), "propagated": propagated,
+        "augmented_flow": labels_from_log_odds(fused_flow),
     }
     if fused_t is not None:
         preds["augmented_temporal"] = labels_from_log_odds(fused_t)
@@ -337,6 +427,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
         "augmented_unregistered": _err(preds["augmented_unregistered"], moving.labels),
         "augmented_temporal": _err(preds["augmented_temporal"], moving.labels) if fused_t is not None else float("nan"),
         "propagated": _err(propagated, moving.labels),
+        "augmented_flow": _err(preds["augmented_flow"], moving.labels),
     }
     truth_T = relative_transform(reference, moving)
     corner = None
@@ -346,7 +437,9 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
                         registered=T is not None, reason=reason, registration=None if res is None else res.to_dict(),
                         corner_error=corner, errors=errors, times=times, valid_fraction=float(valid.mean()))
     arrays = PairArrays(warped=warped, valid=valid, predicted=preds, thesis_after=pred_warped,
-                        thesis_after_masked=pred_masked) if keep_arrays else None
+                        thesis_after_masked=pred_masked, motion=motion,
+                        warped_prior=q_mov if T is not None else None, flow=flow,
+                        confidence=getattr(res, "confidence", None)) if keep_arrays else None
     return ProcessedPair(result, arrays)
 
 
@@ -423,6 +516,7 @@ class SequenceResult:
     k : increment. backend : ICP backend. fusion_frames : frames 0..C-1 that chose the weight.
     weight : :class:`~pcreg.classification.fusion.WeightChoice` (``pairs == 0`` when fixed or not choosable).
     temporal_weight : the same for the recursive (temporal) fusion, chosen on the same frames.
+    flow_weight : the same for ``augmented_flow``.
     pairs : scored :class:`PairResult` (moving frame >= C). means : {method: mean error % over pairs}.
     failures : [{"reference", "moving", "reason"}] of the scored pairs. notes : why pairs are missing.
     seconds : wall time.
@@ -438,11 +532,13 @@ class SequenceResult:
     notes: tuple[str, ...]
     seconds: float
     temporal_weight: WeightChoice | None = None
+    flow_weight: WeightChoice | None = None
 
     def to_dict(self) -> dict:
         return {"k": self.k, "backend": self.backend, "fusion_frames": self.fusion_frames,
                 "weight": self.weight.to_dict(),
-                "temporal_weight": None if self.temporal_weight is None else self.temporal_weight.to_dict(), "means": dict(self.means),
+                "temporal_weight": None if self.temporal_weight is None else self.temporal_weight.to_dict(),
+                "flow_weight": None if self.flow_weight is None else self.flow_weight.to_dict(), "means": dict(self.means),
                 "failures": [dict(f) for f in self.failures], "notes": list(self.notes),
                 "pairs": [p.to_dict() for p in self.pairs], "seconds": self.seconds}
 
@@ -569,10 +665,10 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
             if i in odd or j in odd:
                 continue
             clf = classifier(i)
-            calib.append((i, j, registration(i, j).matrix, log_odds(clf, frames[j].image),
+            calib.append((i, j, registration(i, j).motion, log_odds(clf, frames[j].image),
                           float(np.asarray(clf.class_prior_)[1])))
     if fixed is not None:
-        choice = temporal_choice = empty_choice
+        choice = temporal_choice = flow_choice = empty_choice
     else:
         samples = []
         for i, j, T, d, pi in calib:
@@ -582,6 +678,12 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
                                   shape=frames[j].shape, pi=pi)
             samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
         choice = choose_weight(samples, grid=config.fusion.grid)
+        flow_samples = []
+        for i, j, _, d, pi in calib:
+            q_mov, _ = warp_prior(_prior_q(frames[i].labels, kind="labels", pi=pi, fusion=config.fusion),
+                                  flow_field(frames[i].image, frames[j].image), shape=frames[j].shape, pi=pi)
+            flow_samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
+        flow_choice = choose_weight(flow_samples, grid=config.fusion.grid)
         temporal_choice = _choose_temporal_weight(calib, frames, fusion=config.fusion)
         if choice.pairs == 0:
             notes.append(f"no registered pair among the first {C} frames to choose the fusion weight: "
@@ -591,6 +693,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
         reg_cache = {key: v for key, v in reg_cache.items() if key[1] - key[0] == k}
     weight = choice.weight
     weight_t = temporal_choice.weight
+    weight_f = flow_choice.weight
 
     # 2. every pair (i, i + k) in order; the temporal chains need all of them, the scores those with j >= C
     chains: deque = deque()
@@ -611,7 +714,7 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
         clf = classifier(i)
         if score:
             done = process_pair(frames[i], frames[j], clf, weight=weight, config=config, registration=reg,
-                                temporal=chain, indices=(i, j), keep_arrays=on_pair is not None)
+                                temporal=chain, indices=(i, j), keep_arrays=on_pair is not None, flow_weight=weight_f)
             result = done.result
             scored.append(result)
             if not result.registered:
@@ -619,9 +722,10 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
             if on_pair is not None:
                 on_pair(result, (frames[i], frames[j]), done.arrays)
         else:
-            chain.step(log_odds(clf, frames[j].image), reg.matrix, pi=float(np.asarray(clf.class_prior_)[1]))
+            chain.step(log_odds(clf, frames[j].image), reg.motion, pi=float(np.asarray(clf.class_prior_)[1]))
         chains.append(chain)
     if not scored:
         notes.append(f"no pair with its moving frame after the {C} fusion frames")
     return SequenceResult(k, config.backend, C, choice, tuple(scored), _means(scored), tuple(failures),
-                          tuple(notes), time.perf_counter() - t_start, temporal_weight=temporal_choice)
+                          tuple(notes), time.perf_counter() - t_start, temporal_weight=temporal_choice,
+                          flow_weight=flow_choice)

@@ -18,44 +18,57 @@ def _load(name: str):
     return mod
 
 
-def test_bench_registration_without_data_uses_synthetic_clouds(tmp_path):
+def test_bench_registration_without_data_uses_textures_and_synthetic_clouds(tmp_path):
     bench = _load("bench_registration")
     out = tmp_path / "bench"
     rc = bench.main(["--out", str(out), "--data", str(tmp_path / "absent"), "--sizes", "200,400",
-                     "--repeats", "1", "--icp-iterations", "3"])
+                     "--repeats", "1", "--icp-iterations", "3", "--cases", "2", "--camvid-cases", "1",
+                     "--impossible", "1", "--texture-seeds", "1", "--max-side", "160"])
     assert rc == 0
     report = json.loads((out / "registration.json").read_text())
-    assert report["images"] is None
+    img = report["images"]
+    assert set(img["sets"]) == {"terrain"}  # no CamVid frames without the data
+    rows = img["sets"]["terrain"]["rows"]
+    assert len(rows) == 2 and all(r["image"].startswith("texture:") for r in rows)
+    for method in bench.METHODS:
+        s = img["sets"]["terrain"]["summary"][method]
+        assert 0.0 <= s["success"] <= 1.0 and s["median_seconds"] > 0
+    imp = img["impossible"]
+    assert {r["kind"] for r in imp["rows"]} == set(bench.IMPOSSIBLE)
+    for method in imp["methods"]:
+        assert imp["summary"][method]["cases"] == 3
     rows = report["scaling"]["kinds"]["2-D"]["rows"]
     assert [r["source_points"] for r in rows] == [200, 400]
     assert all(r["max_abs_matrix_difference"] < 1e-6 for r in rows)  # same clouds, same iterations
-    assert "skipped" in (out / "registration.md").read_text()
-    assert (out / "registration_scaling.png").stat().st_size > 0
-    assert not (out / "registration_accuracy.png").exists()
+    md = (out / "registration.md").read_text()
+    assert "## Floors" in md and "Impossible pairs" in md
+    assert (out / "registration.csv").read_text().startswith("set,case,kind")
+    for png in ("registration_accuracy.png", "registration_scaling.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.mark.data
-def test_bench_registration_two_cases(tmp_path, shared_data):
+def test_bench_registration_on_the_shared_data(tmp_path, shared_data):
     bench = _load("bench_registration")
     out = tmp_path / "bench"
-    rc = bench.main(["--out", str(out), "--data", str(shared_data), "--cases", "2", "--sweep-cases", "2",
-                     "--sizes", "300,600", "--repeats", "1", "--icp-iterations", "3"])
+    rc = bench.main(["--out", str(out), "--data", str(shared_data), "--cases", "2", "--camvid-cases", "2",
+                     "--impossible", "1", "--sizes", "300,600", "--repeats", "1", "--icp-iterations", "3"])
     assert rc == 0
     report = json.loads((out / "registration.json").read_text())
     m = report["machine"]
     assert m["cpu_count"] >= 1 and m["opencv"] and m["open3d"]
-    for name in ("pm90", "pm180"):
-        st = report["images"]["sets"][name]
+    assert set(report["images"]["sets"]) == {"terrain", "camvid"}
+    for st in report["images"]["sets"].values():
         assert len(st["rows"]) == 2
         for method in bench.METHODS:
-            s = st["summary"][method]
-            assert 0.0 <= s["success"] <= 1.0 and s["median_seconds"] > 0
             assert all(r[method]["seconds"] > 0 for r in st["rows"])
     assert set(report["scaling"]["kinds"]) == {"2-D", "3-D"}
-    md = (out / "registration.md").read_text()
-    assert "## Floors" in md and "| method |" in md
-    for png in ("registration_accuracy.png", "registration_scaling.png"):
-        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_registration_rejects_bad_options(tmp_path):
+    bench = _load("bench_registration")
+    assert bench.main(["--out", str(tmp_path), "--methods", "sift"]) == 2
+    assert bench.main(["--out", str(tmp_path), "--cases", "0"]) == 2
 
 
 def test_ecc_warp_direction_on_a_pure_translation():
@@ -110,3 +123,13 @@ def test_bench_pipeline_times_the_real_propagator(tmp_path):
     assert s["pairs"] == 2 and set(s["median_ms"]) == {"step_reference", "register", "dis_medium", "ecc_affine"}
     assert s["stages_median_ms"]["reference"]["total"] > 0 and s["refused"]["reference"] == 0
     assert "DIS medium" in (out / "bench_pipeline.md").read_text()
+
+
+def test_bench_dense_runs_and_reports_the_ratio_to_dis(tmp_path):
+    bench = _load("bench_dense")
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--pairs", "1", "--repeats", "1"]) == 0
+    report = json.loads((out / "bench_dense.json").read_text())
+    assert report["pairs"] == 1 and report["ratio_to_dis"]["dis_medium"] == 1.0
+    assert set(report["median_ms"]) == {"dis_medium", "dense_step", "global", "dense_total"}
+    assert "ratio to DIS medium" in (out / "bench_dense.md").read_text()

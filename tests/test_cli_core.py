@@ -36,10 +36,36 @@ def test_register_json_and_warped_output(pair, tmp_path):
     p = run("register", d / "ref.png", d / "mov.png", "--json", "--out", out)
     assert p.returncode == 0, p.stderr
     result = json.loads(p.stdout)
-    assert set(result) == {"matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds"}
+    assert set(result) == {"ok", "matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds",
+                           "inlier_ratio", "chance_ratio", "overlap", "generator"}
+    assert result["ok"] is True and result["inlier_ratio"] > 0.5
     assert tf.max_corner_error(np.array(result["matrix"]), T, (240, 320)) < 0.5
     assert 0 < result["seconds"] < 10 and result["backend"] == "reference"
     assert cv2.imread(str(out)).shape == (240, 320, 3)
+
+
+def test_refused_registration_exits_3_with_one_line(pair, tmp_path):
+    d, _ = pair
+    noise = np.random.default_rng(0).integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "noise.png"), noise)
+    p = run("register", d / "ref.png", tmp_path / "noise.png")
+    assert p.returncode == 3, p.stderr
+    assert p.stdout == "" and len(p.stderr.strip().splitlines()) == 1
+    assert p.stderr.startswith("pcreg: registration refused: ")
+    p = run("register", d / "ref.png", tmp_path / "noise.png", "--json")
+    assert p.returncode == 3 and len(p.stderr.strip().splitlines()) == 1
+    out = json.loads(p.stdout)
+    assert out["ok"] is False and "refused" in out["reason"] and "\n" not in out["reason"]
+    # The user's own threshold: 0 turns the test off.
+    p = run("register", d / "ref.png", tmp_path / "noise.png", "--json", "--min-inlier-ratio", "0")
+    assert p.returncode == 0 and json.loads(p.stdout)["ok"] is True
+
+
+def test_open3d_refuses_the_point_to_line_finish_with_exit_2(pair):
+    d, _ = pair
+    p = run("register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--refine", "point_to_line")
+    assert p.returncode == 2 and "reference-backend finish" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1
 
 
 def test_register_open3d_backend(pair):
@@ -115,7 +141,8 @@ def test_bad_input_is_one_line_and_exit_2(pair, tmp_path, make_args, message):
     bad[0, 0] = np.nan
     np.save(tmp_path / "nan.npy", bad)
     p = run(*make_args(d, tmp_path))
-    assert p.returncode == 2, (p.stdout, p.stderr)
+    # A flat image is a valid image that cannot be registered: refused (3), not bad input (2).
+    assert p.returncode == (3 if message == "no usable edges" else 2), (p.stdout, p.stderr)
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
     assert message in lines[0]

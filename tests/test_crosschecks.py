@@ -3,7 +3,7 @@ import pytest
 
 import pcreg
 from pcreg import transforms as tf
-from pcreg.crosschecks import CrosscheckConfig, crosscheck_clouds, load_cloud
+from pcreg.implementations.crosscheck import CrosscheckConfig, crosscheck_clouds, load_cloud
 from pcreg.errors import InputError
 
 from _images import moved, rigid_about_centre, shapes_image

@@ -68,7 +68,7 @@ def _load(kind: str, path: Path):
         assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
         return img
     if kind.startswith(("ply", "pcd", "npy")):
-        from pcreg.crosschecks import load_cloud
+        from pcreg.implementations.crosscheck import load_cloud
 
         pts = load_cloud(path)
         assert pts.ndim == 2 and np.all(np.isfinite(pts))

@@ -98,10 +98,10 @@ def mat_file(path: Path, image, mask=None) -> Path:
     return path
 
 
-@pytest.fixture()
-def files(tmp_path):
-    """A folder of hostile files by name."""
-    t = tmp_path
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A folder of hostile files by name (shared by the tests of this module; they only add files)."""
+    t = tmp_path_factory.mktemp("hostile")
     fifo = t / "fifo.png"
     os.mkfifo(fifo)
     os.mkfifo(t / "fifo.ply")
@@ -177,7 +177,7 @@ def _load_image(name, **kw):
 
 def _load_cloud(name):
     def f(t):
-        from pcreg.crosschecks import load_cloud
+        from pcreg.implementations.crosscheck import load_cloud
 
         return load_cloud(t / name)
     return f
@@ -418,7 +418,7 @@ def test_pixel_limit_can_be_raised(files, monkeypatch):
 
 
 def test_a_complete_ply_still_loads(files):
-    from pcreg.crosschecks import load_cloud
+    from pcreg.implementations.crosscheck import load_cloud
 
     assert load_cloud(files / "ok.ply").shape == (400, 3)
 
@@ -561,8 +561,8 @@ def test_crosscheck_json_stays_parseable(files):
     assert json.loads(p.stdout)["kind"] == "clouds"
 
 
-ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "3", "--size", "160x120",
-            "--angles", "0:180:5", "--samples", "3"]
+ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
+            "--angles", "0:180:10", "--samples", "4"]  # 4 units of 19 registrations each
 
 
 def _units(out: Path) -> list[Path]:
@@ -626,3 +626,71 @@ def test_second_run_on_the_same_out_is_refused(tmp_path):
 
     with OutputLock(out):
         pass
+
+
+HOSTILE_VALUES = ["nan", "inf", "-inf", "-1", "0", "1e309", "abc", "", "99999999999999999999", "0x0", "1,nan",
+                  "-5x-5", "::", "1:2", " "]
+
+
+def _all_subcommands():
+    import argparse
+
+    from pcreg.cli import build_parser
+
+    parser = build_parser()
+    found = {}
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            for name, p in a.choices.items():
+                if name != "evaluate":
+                    found[(name,)] = p
+                    continue
+                for b in p._actions:
+                    if isinstance(b, argparse._SubParsersAction):
+                        found.update({("evaluate", n2): p2 for n2, p2 in b.choices.items()})
+    return parser, found
+
+
+def test_every_option_with_hostile_values(tmp_path, capsys, monkeypatch):
+    """Every option of every command, given each hostile value: refused with one line and exit 2, or
+    accepted and run (register, crosscheck on two small images) to exit 0 or 2 — never a traceback or
+    an unexpected error. Evaluations are parsed and their config built, not run."""
+    import importlib
+
+    from pcreg.cli import main
+
+    monkeypatch.chdir(tmp_path)  # an accepted value such as `--out nan` writes its file here
+    cv2.imwrite(str(tmp_path / "a.png"), GOOD[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "b.png"), np.roll(GOOD, 3, axis=1)[:, :, ::-1])
+    parser, commands = _all_subcommands()
+    positional = {"register": [tmp_path / "a.png", tmp_path / "b.png"],
+                  "crosscheck": [tmp_path / "a.png", tmp_path / "b.png"], "view": [tmp_path / "none.rrd"]}
+    bad = []
+    for key, sub in sorted(commands.items()):
+        for action in sub._actions:
+            if not action.option_strings or action.nargs == 0 or action.dest == "help":
+                continue
+            for value in HOSTILE_VALUES:
+                fast = ["--iterations", "3"] if key[0] in ("register", "crosscheck") else []  # the tested option comes last
+                argv = [*key, *map(str, positional.get(key[0], [])), *fast, action.option_strings[0], value]
+                if key[0] in ("evaluate", "demo", "run"):
+                    try:
+                        args = parser.parse_args(argv)
+                    except SystemExit as exc:
+                        err = capsys.readouterr().err.strip().splitlines()
+                        if exc.code != 2 or len(err) != 1:
+                            bad.append((argv, exc.code, err))
+                        continue
+                    module = importlib.import_module(args._module)
+                    try:
+                        if hasattr(module, "config_from_args"):
+                            module.config_from_args(args)
+                    except PcregError:
+                        pass
+                    except Exception as exc:  # noqa: BLE001 - reported below
+                        bad.append((argv, type(exc).__name__, str(exc)[:80]))
+                    continue
+                rc, err = cli(argv, capsys)
+                if rc not in (0, 2, 3) or (rc != 0 and len(err) != 1) or any("unexpected" in e for e in err):
+                    bad.append((argv, rc, err[-2:]))
+    assert not bad, bad[:5]

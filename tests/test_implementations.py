@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from pcreg import transforms as tf
-from pcreg.crosscheck_suite import builtin_cases, edge_cloud_pair, export_suite, load_suite, run_suite, write_results
-from pcreg.crosschecks import (FIXED_POINT_TOLERANCE, STEP_TOLERANCE, crosscheck_implementations, load_cloud,
+from pcreg.implementations.suite import builtin_cases, edge_cloud_pair, export_suite, load_suite, run_suite, write_results
+from pcreg.implementations.crosscheck import (FIXED_POINT_TOLERANCE, STEP_TOLERANCE, crosscheck_implementations, load_cloud,
                                trace_divergence)
 from pcreg.implementations import BUILTIN, DEFAULT, Pinned, get, parse_list
 from pcreg.implementations.builtin import Reference

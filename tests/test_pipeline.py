@@ -71,14 +71,21 @@ def test_failed_registration_is_recorded_and_the_pair_still_scored(frames, clf):
 
 
 def test_temporal_update_passes_on_only_what_labels_reached(frames):
-    d = np.zeros(frames[0].shape, np.float32)
+    from pcreg import warp_to_moving
+
     T = np.array([[1.0, 0, 20.0], [0, 1.0, 0], [0, 0, 1.0]])  # the reference lies 20 px to the right
+    # a classifier that sees the moving frame's true content (so the registration is supported)
+    moved_labels, _ = warp_to_moving(frames[0].labels, T, shape=frames[0].shape, interpolation="nearest", fill=0)
+    d = np.where(moved_labels == 1, 0.1, -0.1).astype(np.float32)
     fused, labels = temporal_update(d, frames[0].labels, T, pi=0.3, weight=4.0)
     assert np.all(labels[:, -20:] == 2)  # content new to the view carries no label
     known = labels < 2
     assert known.any()
     fused_none, labels_none = temporal_update(d, frames[0].labels, None, pi=0.3, weight=4.0)
     assert np.all(labels_none == 2) and np.array_equal(fused_none, d)
+    # a registration the new frame contradicts (the labels moved the wrong way) carries nothing
+    fused_bad, labels_bad = temporal_update(d, frames[0].labels, np.linalg.inv(T), pi=0.3, weight=4.0)
+    assert np.all(labels_bad == 2) and np.array_equal(fused_bad, d)
     chain = TemporalFusion(frames[0].labels, pi=0.3, weight=4.0)
     out = chain.step(d, T)
     with pytest.raises(AttributeError):
@@ -138,6 +145,13 @@ def test_helpers():
     open3d = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(backend="open3d"))
     assert open3d.backend == "open3d" and open3d.registration.model == "similarity"
     assert PipelineConfig().registration.model == "similarity" and PipelineConfig().registration.init == "identity"
+
+
+def test_a_refused_pair_is_recorded_with_its_reason(frames, clf):
+    noise = np.random.default_rng(3).integers(0, 256, frames[2].image.shape, dtype=np.uint8)
+    res = process_pair(frames[0], Frame(noise, frames[2].labels, "noise"), clf, weight=3.0).result
+    assert not res.registered and "refused" in res.reason
+    assert res.registration is None and res.errors["augmented"] == res.errors["plain"]
 
 
 def test_a_sequence_goes_on_past_a_failed_registration(frames):

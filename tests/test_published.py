@@ -30,7 +30,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import pcreg
-from pcreg.crosschecks import load_cloud
+from pcreg.implementations.crosscheck import load_cloud
 from pcreg.registration.api import voxel_downsample
 
 # Open3D's test clouds (test_registration.py get_pcds) and correspondences (test_transformation_estimation.py).
@@ -86,7 +86,7 @@ def test_open3d_transformation_estimation_point_to_point(rotation):
 def test_open3d_icp_point_to_point_on_its_grid(iterations):
     import open3d as o3d
 
-    from pcreg.crosschecks import STEP_TOLERANCE, crosscheck_implementations
+    from pcreg.implementations.crosscheck import STEP_TOLERANCE, crosscheck_implementations
 
     reg = o3d.pipelines.registration
     src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(GRID_SOURCE))

@@ -188,8 +188,10 @@ def test_icp_iterations_on_their_timeline_per_backend(recorded):
         assert len(points(rec.get(E.icp_path(backend, "moving"))[0])) == 300
         targets = rec.get(E.icp_path(backend, "target"))
         assert len(targets) == 6  # once per frame and pyramid level
-    # frame-level entities carry no icp_iteration time
-    assert "icp_iteration" not in rec.latest(E.transform_path("T_ref_mov"), frame=2).times
+    # frame-level entities sit at the start of the iteration timelines (shown with the iterations)
+    at_start = {"frame": 2, "icp_iteration": 0, "crosscheck_iteration": 0}
+    assert rec.latest(E.transform_path("T_ref_mov"), frame=2).times == at_start
+    assert rec.latest(E.REFERENCE_IMAGE, frame=2).times == at_start
 
 
 def test_text_config_and_crosscheck(recorded):
@@ -307,3 +309,84 @@ def test_closed_recorder_refuses_more(tmp_path):
     rec.close()  # idempotent
     with pytest.raises(OutputError, match="closed"):
         rec.log_text("late")
+
+
+def test_kind_is_stored_and_picks_the_blueprint(tmp_path):
+    """The kind (given, or inferred from what was logged) is a recording property, and the blueprint
+    embedded on close has a view only where something was logged."""
+    from pcreg.recording.readback import read_blueprint, read_kind
+
+    with Recorder(tmp_path / "r.rrd", kind="register") as rec:
+        rec.set_frame(0)
+        rec.log_images(reference=_image(0), moving=_image(1))
+    assert read_kind(tmp_path / "r.rrd") == "register"
+    views, timeline = read_blueprint(tmp_path / "r.rrd")
+    assert {v.name for v in views} == {"Registration", "Moving"} and timeline == "icp_iteration"
+
+    with Recorder(tmp_path / "s.rrd") as rec:  # inferred: label maps and errors are a sequence's
+        for f in range(2):
+            rec.set_frame(f)
+            rec.log_labels(truth=np.zeros((H, W), np.uint8), predicted=np.ones((H, W), np.uint8), prefix="plain")
+            rec.log_errors({"plain": 0.25 + f, "alone": 1.0} if f == 0 else {"plain": 0.25 + f})
+    assert read_kind(tmp_path / "s.rrd") == "sequence"
+    views, timeline = read_blueprint(tmp_path / "s.rrd")
+    assert {v.name for v in views} == {"Truth plain", "Predicted plain", "Errors"} and timeline == "frame"
+    errors = next(v for v in views if v.name == "Errors")
+    assert errors.query == ("+ /errors/**",)
+
+    with Recorder(tmp_path / "c.rrd", blueprint="crosscheck") as rec:  # a kind given as the blueprint
+        rec.set_frame(0)
+        rec.log_text("x")
+    assert read_kind(tmp_path / "c.rrd") == "crosscheck"
+
+    with Recorder(tmp_path / "n.rrd", blueprint=False) as rec:
+        rec.set_frame(0)
+        rec.log_text("x")
+    assert read_blueprint(tmp_path / "n.rrd") == ([], None)
+
+    with pytest.raises(ValueError, match="unknown kind"):
+        Recorder(tmp_path / "bad.rrd", kind="nonsense")
+    with pytest.raises(ValueError, match="disagree"):
+        Recorder(tmp_path / "bad2.rrd", kind="register", blueprint="sequence")
+
+
+def test_entities_tracked_match_the_file(recorded):
+    """What the recorder notes it logged (for the blueprint) is what the file holds."""
+    from pcreg.recording.readback import read_entities
+
+    path, _, rec = recorded
+    on_file = read_entities(path)
+    assert "/registration/reference" in on_file and "EncodedImage" in on_file["/registration/reference"]
+    assert "Scalars" in on_file["/icp/open3d/fitness"] and "Points2D" in on_file["/icp/reference/moving"]
+    assert not any(p.startswith("/__") for p in on_file)
+
+
+def test_dense_field_is_logged_under_dense(tmp_path):
+    path = tmp_path / "dense.rrd"
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float32)
+    field = np.dstack([xs + 3.0 + 0.05 * ys, ys - 4.0]).astype(np.float32)
+    T = np.array([[1.0, 0, 3.0], [0, 1.0, -4.0], [0, 0, 1.0]])
+    conf = np.linspace(0, 1, H * W, dtype=np.float32).reshape(H, W)
+    with Recorder(path, recording_id="dense-1", raw_images=True) as rec:
+        rec.set_frame(0)
+        rec.log_dense(field, matrix=T, confidence=conf, warped_prior=1.0 - conf, quiver_step=16)
+        with pytest.raises(InputError):
+            rec.log_dense(field[..., :1])
+        with pytest.raises(InputError):
+            rec.log_dense(field, confidence=conf[:10])
+    r = read_recording(path)
+    top = float(np.hypot(3.0 + 0.05 * ys, -4.0).max())
+    assert r.series(E.DENSE_MAX_DISPLACEMENT)[0] == pytest.approx(top, rel=1e-5)
+    mag = image(r.latest(E.DENSE_DISPLACEMENT, frame=0))
+    assert mag.shape == (H, W, 3)
+    refine = image(r.latest(E.DENSE_REFINEMENT, frame=0))
+    assert refine.shape == (H, W, 3)
+    # refinement 0.05 y grows down the image: the colour map changes between top and bottom rows
+    assert not np.array_equal(refine[0], refine[-1])
+    c = image(r.latest(E.DENSE_CONFIDENCE, frame=0))
+    assert c.shape == (H, W) and c[0, 0] == 0 and c[-1, -1] == 255
+    assert image(r.latest(E.DENSE_WARPED_PRIOR, frame=0))[0, 0] == 255
+    row = r.latest(E.DENSE_QUIVER, frame=0)
+    vectors = np.asarray(row["Arrows2D:vectors"].to_pylist(), dtype=np.float32).reshape(-1, 2)
+    assert len(vectors) == (H // 16) * (W // 16)
+    np.testing.assert_allclose(vectors[:, 1], -4.0, atol=1e-5)

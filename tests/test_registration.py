@@ -75,7 +75,9 @@ def test_result_is_frozen_and_readable():
     with pytest.raises(ValueError):
         r.matrix[0, 0] = 2.0
     assert "RegistrationResult(backend='reference'" in repr(r)
-    assert set(r.to_dict()) == {"matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds"}
+    assert set(r.to_dict()) == {"matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds",
+                                "inlier_ratio", "chance_ratio", "overlap", "generator"}
+    assert r.to_dict()["inlier_ratio"] is None  # clouds carry no image evidence
 
 
 @pytest.mark.parametrize("source, target, error, message", [
@@ -132,7 +134,11 @@ def test_register_no_motion(backend):
 def test_register_recovers_any_rotation_and_shift(angle, fx, fy):
     h, w = REF.shape[:2]
     T = rigid_about_centre(REF.shape, angle, fx * w, fy * h)
-    r = pcreg.register(REF, moved(REF, T))
+    mov = moved(REF, T)
+    # Point-to-point ICP slides a little along the long straight edges of this drawing; the point-to-line
+    # finish removes that.
+    assert tf.max_corner_error(pcreg.register(REF, mov).matrix, T, REF.shape) < 1.0
+    r = pcreg.register(REF, mov, refine="point_to_line")
     assert tf.max_corner_error(r.matrix, T, REF.shape) < 0.5
 
 
@@ -143,7 +149,9 @@ def test_register_recovers_any_rotation_and_shift(angle, fx, fy):
     ("projective", np.array([[1.0, 0.01, 3], [0.0, 1.0, -2], [2e-5, 1e-5, 1.0]])),
 ])
 def test_register_motion_models(model, T):
-    r = pcreg.register(REF, moved(REF, T), model=model)
+    # Affine and projective are reference-backend models: the point-to-line finish sharpens their fit.
+    refine = "point_to_line" if model in ("affine", "projective") else "none"
+    r = pcreg.register(REF, moved(REF, T), model=model, refine=refine)
     assert tf.max_corner_error(r.matrix, T, REF.shape) < 0.5
 
 
@@ -168,10 +176,14 @@ def test_register_callback_sees_every_level():
     levels = set()
     pcreg.register(REF, mov, init="identity", callback=lambda it: levels.add(it.level))
     assert levels == {0, 1, 2, 3}
-    # After the global search, ICP still refines from the coarsest level.
+    # After the edge search, ICP still refines from the coarsest level; an intensity hypothesis (rigid)
+    # at full resolution.
     levels.clear()
-    pcreg.register(REF, mov, callback=lambda it: levels.add(it.level))
+    pcreg.register(REF, mov, generators=("edges",), callback=lambda it: levels.add(it.level))
     assert levels == {0, 1, 2, 3}
+    levels.clear()
+    r = pcreg.register(REF, mov, generators=("fourier_mellin",), callback=lambda it: levels.add(it.level))
+    assert levels == {0} and r.generator == "fourier_mellin"
 
 
 @pytest.mark.data
@@ -189,7 +201,7 @@ def test_register_real_camvid_pair(shared_data):
     (REF, {"levels": 0}, InputError, "levels must be"),
     (REF, {"iterations": 0}, InputError, "iterations must be"),
     (REF, {"init": "magic"}, InputError, "init must be"),
-    (REF, {"backend": "open3d", "model": "affine"}, RegistrationError, "supports the rigid and similarity"),
+    (REF, {"backend": "open3d", "model": "affine"}, InputError, "supports the rigid and similarity"),
     (REF[:20, :20], {"levels": 4}, InputError, "too small"),
 ])
 def test_register_bad_input(moving, kwargs, error, message):
@@ -212,3 +224,146 @@ def test_register_noisy_texture_onto_a_larger_canvas(angle):
     T_rot = np.vstack([M, [0, 0, 1]])  # frame -> canvas; registering the canvas to the frame gives its inverse
     r = pcreg.register(frame, rotated)
     assert tf.max_corner_error(r.matrix, np.linalg.inv(T_rot), rotated.shape) < 0.5
+
+
+# --- evidence, refusals, honest backends ---------------------------------------------------------
+
+from pcreg.datasets.textures import KINDS, texture  # noqa: E402
+
+
+def test_register_reports_its_evidence():
+    T = rigid_about_centre(REF.shape, 50.0, 8.0, -5.0)
+    r = pcreg.register(REF, moved(REF, T))
+    assert r.inlier_ratio > 0.5 and r.chance_ratio < r.inlier_ratio / 2
+    assert 0.5 < r.overlap <= 1.0 and r.generator in ("edges", "fourier_mellin", "orb")
+    d = r.to_dict()
+    assert d["inlier_ratio"] == pytest.approx(r.inlier_ratio) and d["generator"] == r.generator
+    assert "inlier_ratio=" in repr(r)
+
+
+@pytest.mark.parametrize("kind", ["grass", "brick"])
+@pytest.mark.parametrize("angle", [-150.0, 100.0])
+def test_register_textures_under_large_rotations(kind, angle):
+    ref = texture(kind, height=240, width=320, seed=1)
+    T = rigid_about_centre(ref.shape, angle, 15.0, -10.0)
+    r = pcreg.register(ref, moved(ref, T))
+    assert tf.max_corner_error(r.matrix, T, ref.shape) < 1.0
+
+
+@pytest.mark.parametrize("generator", ["edges", "fourier_mellin", "orb"])
+def test_each_generator_alone_finds_a_large_rotation(generator):
+    ref = texture("gravel", height=240, width=320, seed=2)
+    T = rigid_about_centre(ref.shape, 135.0, -12.0, 9.0)
+    r = pcreg.register(ref, moved(ref, T), generators=(generator,))
+    assert r.generator == generator
+    assert tf.max_corner_error(r.matrix, T, ref.shape) < 1.0
+
+
+def _unrelated():
+    return moved(texture("leaves", height=240, width=320, seed=9), rigid_about_centre(REF.shape, 30.0, 0, 0))
+
+
+@pytest.mark.parametrize("name, moving, message", [
+    ("unrelated", lambda: _unrelated(), "refused"),
+    ("noise", lambda: np.random.default_rng(0).integers(0, 256, REF.shape, dtype=np.uint8), "refused"),
+    ("mirror", lambda: moved(np.ascontiguousarray(REF[:, ::-1]), rigid_about_centre(REF.shape, 70.0, 0, 0)),
+     "refused"),
+    ("no overlap", lambda: None, "no overlap"),
+])
+def test_register_refuses_impossible_pairs(name, moving, message):
+    if name == "no overlap":  # a plausible guess that puts the moving image beside the reference
+        with pytest.raises(RegistrationError, match=message):
+            pcreg.register(REF, REF, init=tf.rigid2d(0, 2000.0, 0))
+        return
+    with pytest.raises(RegistrationError, match=message) as info:
+        pcreg.register(REF, moving())
+    assert "\n" not in str(info.value)
+
+
+def test_register_refuses_a_mirror_of_a_symmetric_texture_as_a_mirror():
+    # Bricks are nearly mirror-symmetric: the mirror aligns a good share of edges, but its own mirror more.
+    ref = texture("brick", height=240, width=320, seed=4)
+    with pytest.raises(RegistrationError, match="mirror image"):
+        pcreg.register(ref, np.ascontiguousarray(ref[:, ::-1]))
+
+
+def test_register_too_few_inliers_and_the_user_threshold():
+    # A genuine pair blurred hard: the evidence drops; the user's threshold decides.
+    import cv2
+
+    T = rigid_about_centre(REF.shape, 20.0, 5.0, 3.0)
+    mov = cv2.GaussianBlur(moved(REF, T), (0, 0), 2.5)
+    r = pcreg.register(REF, mov, min_inlier_ratio=None)
+    assert 0 < r.inlier_ratio < 0.99
+    with pytest.raises(RegistrationError, match="too few|only"):
+        pcreg.register(REF, mov, min_inlier_ratio=min(1.0, r.inlier_ratio + 0.01))
+    ok = pcreg.register(REF, mov, min_inlier_ratio=max(0.0, r.inlier_ratio - 0.01))
+    assert ok.inlier_ratio >= r.inlier_ratio - 0.01
+    assert tf.max_corner_error(ok.matrix, T, REF.shape) < 1.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_genuine_rotated_pairs_are_never_refused(seed):
+    rng = np.random.default_rng(seed)
+    kind = KINDS[seed % len(KINDS)]
+    ref = texture(kind, height=240, width=320, seed=seed)
+    h, w = ref.shape[:2]
+    T = rigid_about_centre(ref.shape, rng.uniform(-180, 180), rng.uniform(-0.1, 0.1) * w, rng.uniform(-0.1, 0.1) * h)
+    r = pcreg.register(ref, moved(ref, T))  # raises if refused
+    assert tf.max_corner_error(r.matrix, T, ref.shape) < 1.0
+
+
+def test_synthetic_sequence_pairs_are_not_refused():
+    frames = pcreg.synthetic("syn1a", 4, 0, width=320, height=240)
+    for a, b in zip(frames[:-1], frames[1:]):
+        pcreg.register(a.image, b.image, model="similarity")
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"backend": "open3d", "refine": "point_to_line"}, "reference-backend finish"),
+    ({"backend": "open3d", "weights": "huber"}, "reference-backend feature"),
+    ({"refine": "point_to_plane"}, "refine must be"),
+    ({"generators": ("sift",)}, "generators must be"),
+    ({"min_inlier_ratio": 1.5}, "min_inlier_ratio must be"),
+])
+def test_register_refuses_options_a_backend_cannot_honour(kwargs, message):
+    with pytest.raises(InputError, match=message):
+        pcreg.register(REF, REF, **kwargs)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"metric": "point_to_line", "target_normals": np.ones((400, 2)) / np.sqrt(2)}, "metric 'point_to_line'"),
+    ({"target_normals": np.ones((400, 2))}, "target_normals"),
+    ({"rotation": "quaternion"}, "rotation='quaternion'"),
+    ({"weights": "tukey"}, "robust weights"),
+    ({"trim_fraction": 0.5}, "trim_fraction"),
+])
+def test_icp_open3d_refuses_what_it_cannot_honour(kwargs, message):
+    a = structured_cloud()
+    with pytest.raises(InputError, match=message):
+        pcreg.icp(a, a, backend="open3d", **kwargs)
+
+
+def test_icp_reference_point_to_line_needs_normals():
+    a = structured_cloud()
+    with pytest.raises(InputError, match="needs 2-D clouds, target_normals"):
+        pcreg.icp(a, a, metric="point_to_line")
+
+
+def test_open3d_backend_runs_open3d_for_every_step():
+    seen = []
+    T = rigid_about_centre(REF.shape, 120.0, 12.0, -9.0)
+    r = pcreg.register(REF, moved(REF, T), backend="open3d", callback=lambda it: seen.append(it.backend))
+    assert r.backend == "open3d" and set(seen) == {"open3d"}
+    ref_r = pcreg.register(REF, moved(REF, T), backend="reference")
+    # Same algorithm by default (no point-to-line finish on either side): the two agree closely.
+    assert tf.max_corner_error(r.matrix, ref_r.matrix, REF.shape) < 1e-6
+
+
+def test_point_to_line_finish_is_explicit_and_tighter():
+    T = rigid_about_centre(REF.shape, 33.0, 6.0, 4.0)
+    mov = moved(REF, T)
+    plain = pcreg.register(REF, mov)
+    p2l = pcreg.register(REF, mov, refine="point_to_line")
+    assert tf.max_corner_error(p2l.matrix, T, REF.shape) < 0.2
+    assert not np.allclose(plain.matrix, p2l.matrix)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
 import cv2
 import numpy as np
@@ -103,3 +104,364 @@ def test_headless_screenshot_shows_the_images(small_recording, tmp_path, capsys)
     # the reference image fills a good part of the view: both halves visible, not a blank canvas
     assert red.mean() > 0.05 and green.mean() > 0.05, (red.mean(), green.mean())
     assert shot.std() > 20
+
+
+def _colours(shot: np.ndarray) -> tuple[float, float]:
+    """Fractions of the picture that are the recording's saturated red and green (BGR input)."""
+    b, g, r = (shot[..., i].astype(int) for i in range(3))
+    red = (r > 150) & (g < 90) & (b < 90)
+    green = (g > 140) & (r < 90) & (b < 90)
+    return float(red.mean()), float(green.mean())
+
+
+def _listening(port: int) -> list[str]:
+    """Local addresses (hex, as /proc/net/tcp writes them) listening on ``port``."""
+    out = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            lines = open(table).read().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            addr, hexport = fields[1].split(":")
+            if fields[3] == "0A" and int(hexport, 16) == port:
+                out.append(addr)
+    return out
+
+
+def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
+    """``pcreg view --web`` in a real browser: headless Chromium, software GL, no display, no GPU."""
+    import os
+    import re
+    import signal
+    import subprocess
+
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    second = tmp_path / "again.rrd"  # two recordings, shown side by side
+    second.write_bytes(small_recording.read_bytes())
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(small_recording), str(second), "--web",
+                             "--web-port", "0", "--grpc-port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+    try:
+        url = None
+        for line in proc.stdout:
+            if line.startswith("http://"):
+                url = line.strip()
+                break
+        assert url, proc.stderr.read()
+        m = re.match(r"http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1%3A(\d+)%2Fproxy$", url)
+        assert m, url
+        for port in map(int, m.groups()):  # bound to the loopback address only, not to every interface
+            assert _listening(port) == ["0100007F"], (port, _listening(port))
+        with Browser(width=1280, height=720) as browser:
+            browser.open(url)
+            # both recordings drawn: their red and green in the left and in the right half of the page
+            def both(s):
+                half = s.shape[1] // 2
+                return min(*_colours(s[:, :half]), *_colours(s[:, half:])) > 0.02
+
+            ok, shot = browser.wait_for(both, timeout=120)
+            cv2.imwrite(str(tmp_path / "web.png"), shot)
+            print("web viewer screenshot:", tmp_path / "web.png")
+        red, green = _colours(shot)
+        assert ok, f"the recordings' colours are not on both halves of the page: red {red:.3f}, green {green:.3f}"
+        assert shot.std() > 20
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(timeout=30)
+        proc.stdout.close()
+        proc.stderr.close()
+    assert code == 130
+    assert not _listening(int(m.group(1))) and not _listening(int(m.group(2)))
+
+
+# -- one blueprint per kind of recording ------------------------------------------------------------
+
+KIND_NAMES = ("register", "crosscheck", "sequence", "rotation", "demo", "dense", "crosscheck-implementations")
+
+
+@pytest.fixture(scope="module")
+def kind_recordings(tmp_path_factory):
+    """A small recording of every kind, each made the way its command makes it."""
+    import contextlib
+    import io
+
+    import rerun as rr
+
+    from _images import moved, rigid_about_centre, shapes_image
+    from pcreg import cli
+    from pcreg.commands import evaluate_sequence
+    from pcreg.experiments import sequence
+
+    d = tmp_path_factory.mktemp("kinds")
+    ref = shapes_image(120, 160, 0)
+    mov = moved(ref, rigid_about_centre(ref.shape, 0.15, 3.0, -2.0))
+    cv2.imwrite(str(d / "ref.png"), ref[..., ::-1])
+    cv2.imwrite(str(d / "mov.png"), mov[..., ::-1])
+    small = ["--data", "synthetic:syn1a", "--size", "160x120", "--backend", "reference", "--levels", "2",
+             "--iterations", "5", "--force"]
+    runs = {
+        "register": ["register", str(d / "ref.png"), str(d / "mov.png")],
+        "crosscheck": ["crosscheck", str(d / "ref.png"), str(d / "mov.png")],
+        "sequence": ["evaluate", "sequence", "--frames", "5", "-k", "1", "--out", str(d / "seq"), *small],
+        "rotation": ["evaluate", "rotation", "--frames", "2", "--angles", "0,20", "--samples", "1",
+                     "--out", str(d / "rot"), *small],
+    }
+    paths = {}
+    for kind, argv in runs.items():
+        paths[kind] = d / f"{kind}.rrd"
+        with contextlib.redirect_stdout(io.StringIO()):
+            assert cli.main([*argv, "--record", str(paths[kind])]) == 0, kind
+    # the demo records its sequence evaluation with kind "demo"
+    parser = cli._Parser(prog="pcreg evaluate sequence")
+    evaluate_sequence.add_arguments(parser)
+    args = parser.parse_args(["--frames", "5", "-k", "1", *small])
+    paths["demo"] = d / "demo.rrd"
+    with Recorder(paths["demo"], recording_name="pcreg demo", kind="demo") as rec:
+        sequence.evaluate(evaluate_sequence.config_from_args(args), out=d / "demo", force=True, recorder=rec,
+                          show_progress=False)
+    # a dense registration's field, written to the entity paths of pcreg.recording.entities (what
+    # Recorder.log_dense writes): the blueprint adapts to what is there
+    paths["dense"] = d / "dense.rrd"
+    with Recorder(paths["dense"], kind="dense") as rec:
+        rec.set_frame(0)
+        rec.log_images(reference=ref, moving=mov, warped=mov)
+        mag = np.hypot(*np.mgrid[0:120, 0:160] - 60.0).astype(np.float32)
+        rec._log("dense/displacement", rr.Image(cv2.applyColorMap(np.uint8(255 * mag / mag.max()), cv2.COLORMAP_TURBO)[..., ::-1]))
+        rec._log("dense/quiver", rr.Arrows2D(origins=[[20, 20], [100, 60]], vectors=[[5, 3], [-4, 2]], colors=[255, 220, 0]))
+        rec._log("dense/confidence", rr.Image(np.uint8(255 * (mag < 50))))
+        rec._log("dense/warped_prior", rr.Image(np.uint8(255 * (mag > 40))))
+        rec._scalar("dense/max_displacement", float(mag.max()))
+    # a cloud cross-check: every implementation on the crosscheck_iteration timeline
+    rng = np.random.default_rng(0)
+    target = rng.uniform(0, 10, (300, 3)) * [1.0, 1.0, 0.3]
+    a = 0.1
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    np.save(d / "target.npy", target)
+    np.save(d / "source.npy", (target - [0.2, -0.1, 0.05]) @ R)
+    paths["crosscheck-implementations"] = d / "clouds.rrd"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert cli.main(["crosscheck", str(d / "target.npy"), str(d / "source.npy"), "--with", "reference,open3d",
+                         "--json", "--record", str(paths["crosscheck-implementations"])]) == 0
+    return paths
+
+
+def _data_kinds(view_class: str) -> frozenset[str]:
+    from pcreg.recording import blueprint as B
+
+    return B.VIEW_DATA[view_class]
+
+
+def _query_matches(query: str, path: str) -> bool:
+    pattern = query.removeprefix("+ ").strip()
+    if pattern.endswith("/**"):
+        base = pattern[:-3]
+        return path == base or path.startswith(base + "/")
+    return path == pattern
+
+
+@pytest.mark.parametrize("kind", KIND_NAMES)
+def test_every_view_of_the_embedded_blueprint_has_data(kind_recordings, kind):
+    """The blueprint the recorder embeds, read back from the file, against the entities logged: every
+    view's contents hold data of its class on the timeline the blueprint opens on."""
+    from pcreg.recording.readback import read_blueprint, read_entities, read_kind
+
+    path = kind_recordings[kind]
+    assert read_kind(path) == kind.split("-")[0]
+    views, timeline = read_blueprint(path)
+    assert views and timeline
+    shown = read_entities(path, timeline=timeline)
+    for v in views:
+        wanted = _data_kinds(v.view_class)
+        with_data = [p for p, arch in shown.items() if wanted & arch and any(_query_matches(q, p) for q in v.query)]
+        assert with_data, f"{kind}: view {v.name!r} ({v.view_class}, {v.query}) has no data on {timeline}"
+    names = {v.name for v in views}
+    expected = {
+        "register": {"Registration", "Moving", "ICP reference", "ICP fitness", "Log"},
+        "crosscheck": {"ICP reference", "ICP open3d", "ICP fitness", "Crosscheck report"},
+        "sequence": {"Registration", "Truth", "Predicted plain", "Predicted augmented", "Errors"},
+        "rotation": {"Registration", "Truth", "Predicted before", "Predicted after", "Errors"},
+        "demo": {"Registration", "Truth", "Predicted plain", "Errors"},
+        "dense": {"Displacement", "Confidence", "Warped prior", "Registration"},
+        "crosscheck-implementations": {"reference", "open3d", "error", "fitness", "Crosscheck report"},
+    }[kind]
+    assert expected <= names, (kind, sorted(names))
+    if kind == "dense":  # one value is a dot, not a plot
+        assert "Max displacement" not in names
+    if kind in ("register", "crosscheck"):  # a sequence's views do not belong to a registration
+        assert not [n for n in names if n.startswith(("Truth", "Predicted", "Errors"))], sorted(names)
+
+
+def _colourful(img: np.ndarray) -> float:
+    """Fraction of saturated, not dark pixels (recorded images, label maps, clouds and plot lines; the
+    viewer's own chrome and its "no data" text are grey)."""
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    return float(((hsv[..., 1] > 90) & (hsv[..., 2] > 70)).mean())
+
+
+@pytest.mark.parametrize("kind", KIND_NAMES)
+def test_headless_viewer_draws_every_view_of_each_kind(kind_recordings, kind, tmp_path):
+    """``pcreg view`` of each kind in the headless viewer: the views it lays out are the blueprint's,
+    none reports a problem, and every image, cloud and plot view draws something in colour."""
+    if sys.platform.startswith("linux") and not view.vulkan_icds():
+        pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
+    from pcreg.recording import blueprint as B
+    from pcreg.recording.staging import stage
+
+    staged = stage([kind_recordings[kind]], tmp_path / "staged.rrd")
+    with view.headless(staged.path, size="1200x700") as (client, state, _):
+        names = sorted(v.name for v in state.views)
+        from pcreg.recording.readback import read_entities
+
+        tl = B.timeline(staged.kinds[0], read_entities(staged.path))
+        expected = B.panes(staged.kinds[0], read_entities(staged.path, timeline=tl))
+        assert names == sorted(p.name for p in expected)
+        drawn, hidden = [], []
+        for v in state.views:
+            assert not [r for r in v.reports if r.severity == "error"], (v.name, v.reports)
+            if v.view_class not in ("2D", "3D", "TimeSeries"):
+                continue
+            out = tmp_path / f"{v.view_id}.png"
+            for attempt in range(4):  # images are decoded a few frames after the recording loads
+                try:
+                    client.save_screenshot(str(out), view_id=v.view_id)
+                except ConnectionError as exc:  # a view in a tab that is not in front is not drawn
+                    assert "not found" in str(exc), exc
+                    hidden.append(v.name)
+                    break
+                shot = cv2.imread(str(out), cv2.IMREAD_COLOR)
+                assert shot is not None
+                # colour (images, label maps, clouds, plot lines), or a large bright area (a valid
+                # mask); an empty view is dark grey with one line of grey "no data" text
+                bright = float((shot.max(axis=2) > 150).mean())
+                if _colourful(shot) > 0.002 or bright > 0.05:
+                    break
+                time.sleep(1.0)
+            else:
+                pytest.fail(f"{kind}: view {v.name!r} draws nothing (colour {_colourful(shot):.4f}, bright {bright:.4f})")
+            if v.name in hidden:
+                continue
+            drawn.append(v.name)
+        print(kind, "drawn:", drawn, "in tabs behind:", hidden)
+        assert len(drawn) >= 2 and len(drawn) > len(hidden), (drawn, hidden)
+
+
+# -- several recordings together ------------------------------------------------------------------
+
+
+def test_two_backends_side_by_side(kind_recordings, tmp_path, capsys):
+    """``pcreg view A.rrd B.rrd``: one recording per backend of the same registration, merged under
+    their file names; each 2-D view has one pane per recording, each series plot both recordings."""
+    import contextlib
+    import io
+
+    from pcreg import cli
+    from pcreg.recording import blueprint as B
+    from pcreg.recording.readback import read_blueprint, read_entities
+    from pcreg.recording.staging import stage
+
+    d = kind_recordings["register"].parent
+    runs = {}
+    for backend in ("reference", "open3d"):
+        runs[backend] = tmp_path / f"{backend}.rrd"
+        with contextlib.redirect_stdout(io.StringIO()):
+            assert cli.main(["register", str(d / "ref.png"), str(d / "mov.png"), "--backend", backend,
+                             "--record", str(runs[backend])]) == 0
+    staged = stage([runs["reference"], runs["open3d"]], tmp_path / "both.rrd")
+    assert staged.labels == ("reference", "open3d") and staged.kinds == ("register", "register")
+    views, timeline = read_blueprint(staged.path)
+    shown = read_entities(staged.path, timeline=timeline)
+    names = {v.name for v in views}
+    assert {"reference: Registration", "open3d: Registration", "reference: ICP reference", "open3d: ICP open3d",
+            "ICP fitness"} <= names, sorted(names)
+    for v in views:
+        hits = [p for p, a in shown.items() if B.VIEW_DATA[v.view_class] & a and any(_query_matches(q, p) for q in v.query)]
+        assert hits, (v.name, v.query)
+        if v.name == "ICP fitness":  # one plot, both recordings
+            assert {h.split("/")[1] for h in hits} == {"reference", "open3d"}, hits
+    # the legends tell the recordings apart
+    from pcreg.recording.readback import read_recording
+
+    rec = read_recording(staged.path)
+    legend = rec.latest("/open3d/icp/open3d/fitness", component="SeriesLines:names")["SeriesLines:names"].to_pylist()
+    assert legend == ["open3d open3d fitness"]
+    # and natively, headless
+    if sys.platform.startswith("linux") and not view.vulkan_icds():
+        pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
+    out = tmp_path / "both.png"
+    assert pcreg_view([str(runs["reference"]), str(runs["open3d"]), "--screenshot", str(out),
+                       "--size", "1200x700"]) == 0, capsys.readouterr().err
+    shot = cv2.imread(str(out), cv2.IMREAD_COLOR)
+    assert shot is not None and _colourful(shot) > 0.05
+
+
+def test_staging_an_empty_recording_and_bad_files(tmp_path, capsys):
+    """A recording with nothing logged stages without a layout (the viewer chooses); a bad second file
+    is one line and exit 2."""
+    from pcreg.recording.readback import read_blueprint
+    from pcreg.recording.staging import labels_for, stage
+
+    empty = tmp_path / "empty.rrd"
+    with Recorder(empty):
+        pass
+    staged = stage([empty], tmp_path / "staged.rrd")
+    assert read_blueprint(staged.path)[0] == []
+    assert labels_for(["a/run.rrd", "b/run.rrd", "x y.rrd"]) == ["run", "run_2", "x_y"]
+    bad = tmp_path / "bad.rrd"
+    bad.write_bytes(b"not a recording")
+    assert pcreg_view([str(empty), str(bad), "--screenshot", str(tmp_path / "x.png")]) == 2
+    assert "not a rerun recording" in _one_line_error(capsys)
+    assert pcreg_view([str(empty), "--web", "--screenshot", str(tmp_path / "x.png")]) == 2
+    assert "choose one" in _one_line_error(capsys)
+
+
+def test_native_viewer_without_a_display_points_to_web(small_recording, monkeypatch, capsys):
+    if not sys.platform.startswith("linux"):
+        pytest.skip("DISPLAY/WAYLAND_DISPLAY decide only on Linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert pcreg_view([str(small_recording)]) == 2
+    assert "--web" in _one_line_error(capsys)
+
+
+def test_web_arguments(small_recording, capsys):
+    with pytest.raises(SystemExit):
+        pcreg_view([str(small_recording), "--web", "--web-port", "70000"])
+    assert "0..65535" in capsys.readouterr().err
+    assert view.web_url("127.0.0.1", 9090, 9876) == \
+        "http://127.0.0.1:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy"
+    assert pcreg_view([str(small_recording), "--web", "--web-port", "9999", "--grpc-port", "9999"]) == 2
+    assert "must differ" in _one_line_error(capsys)
+    assert pcreg_view([str(small_recording), "--web", "--bind", "not-an-address"]) == 2
+    assert "IP address" in _one_line_error(capsys)
+    assert pcreg_view([str(small_recording), "--web", "--bind", "192.0.2.1"]) == 2  # not this machine's
+    assert "cannot listen there" in _one_line_error(capsys)
+
+
+def test_web_viewer_on_another_address(small_recording):
+    """``--bind`` opts in to another address; the page, reached by that address, still gets the data
+    (127.0.0.2: another address on this machine's loopback, so nothing is exposed by the test)."""
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    try:
+        proc, url = view.serve_web(small_recording, bind="127.0.0.2", web_port=0, grpc_port=0)
+    except PcregError as exc:
+        pytest.skip(f"127.0.0.2 is not usable here: {exc}")
+    try:
+        assert url.startswith("http://127.0.0.2:") and "127.0.0.2%3A" in url
+        ports = [int(p) for p in __import__("re").findall(r"127\.0\.0\.2(?::|%3A)(\d+)", url)]
+        assert all(_listening(p) == ["0200007F"] for p in ports), ports
+        with Browser(width=1280, height=720) as browser:
+            browser.open(url)
+            ok, shot = browser.wait_for(lambda s: min(_colours(s)) > 0.03, timeout=120)
+        assert ok, _colours(shot)
+    finally:
+        view.stop(proc)

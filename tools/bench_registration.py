@@ -1,37 +1,39 @@
-"""Benchmark: accuracy and time of image registration, and the cost of ICP against the number of points.
+"""Benchmark: image registration on real photographs, procedural textures and CamVid; refusals; ICP cost.
 
-Part 1 (accuracy and time, real images). CamVid frames (480x360) from ``../shared/data/camvid`` get a
-known rigid motion about the image centre: angle uniform in [-90, 90] deg, translation uniform within
-+-10% of the width/height. The moving image is ``cv2.warpAffine(ref, T[:2], (w, h),
-flags=INTER_LINEAR | WARP_INVERSE_MAP)``, so ``T`` is exactly ``T_ref_mov`` (black borders included).
-Each case is registered by
+Part 1 (accuracy, refusals and time). Images get a known rigid motion about their centre: angle uniform
+in [-180, 180] deg, shift uniform within +-10% of the width/height. The moving image is
+``cv2.warpAffine(ref, T[:2], (w, h), flags=INTER_LINEAR | WARP_INVERSE_MAP)``, so ``T`` is exactly
+``T_ref_mov`` (black borders included). Two sets:
 
-- ``pcreg.register`` with ``backend="reference"`` (pcreg's ICP) and with ``backend="open3d"``;
-- OpenCV's ``findTransformECCMultiScale`` (4 levels, MOTION_EUCLIDEAN, grayscale float32, from the
-  identity, as the thesis's aligner would be; no masks: OpenCV 5.0.0's multi-scale ECC gives the same
-  result with and without a ``sampleMask``). ECC's warp maps reference pixels to moving pixels, so
-  ``T_ref_mov = inv(W)``; when ECC throws (it does when it does not converge) the case counts as a
-  failure (error = inf).
+- ``terrain``: the real photographs of ``../shared/data/photos`` (several texture-dominated) and
+  procedural textures (:mod:`pcreg.datasets.textures`: multi-scale noise, grass, gravel, brick, leaves;
+  seeded), each scaled so that its longer side is at most ``--max-side`` px;
+- ``camvid``: CamVid frames (480x360) from ``../shared/data/camvid``.
 
-The error is the largest distance (px) between the moving image's four corners mapped by the estimate
-and by the truth (``pcreg.registration.transforms.max_corner_error``); success is error <= 1 px. Times are wall
-clock around each call (ECC's includes the grayscale conversion); the methods run in a shuffled order
-per case and the time ratio pcreg / ECC is taken per case, in the same run, and summarised by its
-median. A second sweep with angles uniform in [-180, 180] gives the success rate over angle.
+Each case is registered by ``pcreg.register`` with ``backend="reference"`` and ``backend="open3d"``
+(default options: the same algorithm on both sides), by ORB+RANSAC (OpenCV, 2000 features at full
+resolution, cross-checked Hamming matches, ``estimateAffinePartial2D`` with RANSAC at 3 px) and by
+``findTransformECCMultiScale`` (4 levels, MOTION_EUCLIDEAN, from the identity; ECC's warp maps
+reference to moving pixels, so ``T_ref_mov = inv(W)``; an exception counts as a failure). The error is
+the largest distance (px) between the moving image's four corners mapped by the estimate and by the
+truth; success is error <= 1 px; a refused genuine pair is a failure. The methods run in a shuffled
+order per case; time ratios are the median of pcreg's times over the median of the other method's on
+the same cases (for ECC: on the cases where ECC succeeds).
+
+Impossible pairs (``--impossible`` of each kind, from the terrain pool): an unrelated image of the pool
+moved by a random rigid motion, uniform noise, and the image mirrored left-right and moved. pcreg
+must refuse them (``RegistrationError``).
 
 Part 2 (scaling). Identical clouds of 1k..100k points -- 2-D: the strongest-gradient pixels (sub-pixel)
 of a CamVid frame upscaled 3x and of its copy rotated by 3 deg and shifted; 3-D: random subsets of the
-LiDAR pair ``../shared/data/scans`` -- registered by pcreg's reference ICP
-(``pcreg.registration.reference.icp_reference``) and by Open3D's legacy ``registration_icp`` called directly in
-one call, with the same correspondence distance and exactly ``--icp-iterations`` iterations
-(thresholds 0, so neither stops early). Both timings include building the KD-tree (Open3D builds it
-inside the call; the numpy -> PointCloud conversion is timed apart and not counted). The two
-backends alternate within each repeat; the ratio reference / Open3D is taken per repeat.
+LiDAR pair ``../shared/data/scans`` -- registered by pcreg's reference ICP and by Open3D's legacy
+``registration_icp`` with the same correspondence distance and exactly ``--icp-iterations`` iterations.
 
-    python tools/bench_registration.py --out out/bench [--cases 200] [--sweep-cases 120] [--seed 0] [--quick]
+    python tools/bench_registration.py --out out/bench [--cases 60] [--camvid-cases 40] [--impossible 8] [--quick]
 
-Writes ``registration.json`` (every raw number, the machine, the command line), ``registration.md``
-(tables), ``registration_accuracy.png`` and ``registration_scaling.png`` to ``--out``.
+Writes ``registration.json`` (every raw number, the machine, the command line), ``registration.csv``
+(one row per case and method), ``registration.md`` (tables and floors), ``registration_accuracy.png`` and
+``registration_scaling.png`` to ``--out``.
 """
 
 from __future__ import annotations
@@ -49,16 +51,19 @@ import numpy as np
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_DATA = REPO_ROOT.parent / "shared" / "data"
 
-METHODS = ("pcreg_reference", "pcreg_open3d", "ecc")
+METHODS = ("pcreg_reference", "pcreg_open3d", "orb", "ecc")
+IMPOSSIBLE = ("unrelated", "noise", "mirror")
 LABELS = {
     "pcreg_reference": "pcreg.register (reference ICP)",
     "pcreg_open3d": "pcreg.register (Open3D ICP)",
+    "pcreg_reference_p2l": "pcreg.register (reference ICP, point-to-line finish)",
+    "orb": "ORB+RANSAC (2000 features)",
     "ecc": "OpenCV ECC multi-scale",
 }
-COLORS = {"pcreg_reference": "tab:blue", "pcreg_open3d": "tab:orange", "ecc": "tab:green"}
-STYLES = {"pcreg_reference": ("-", "o"), "pcreg_open3d": ("-", "s"), "ecc": ("-", "^")}
+COLORS = {"pcreg_reference": "tab:blue", "pcreg_open3d": "tab:orange", "pcreg_reference_p2l": "tab:purple",
+          "orb": "tab:red", "ecc": "tab:green"}
 SUCCESS_PX = 1.0
-FLOORS = {"median_px": 0.1, "p95_px": 0.5, "success": 0.99, "time_ratio_vs_ecc": 1.0, "icp_ratio_vs_open3d": 1.0}
+FLOORS = {"median_px": 0.1, "p95_px": 0.5, "success": 0.99, "icp_ratio_vs_open3d": 1.0}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -107,27 +112,61 @@ def machine_info() -> dict:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Part 1: images with known rigid motions
+# Part 1: images with known rigid motions, impossible pairs
 # ---------------------------------------------------------------------------------------------------
 
 def find_images(data: Path) -> list[Path]:
     return sorted((data / "camvid").glob("*/images/*.png"))
 
 
-def make_cases(images: list[Path], n: int, *, max_angle: float, seed: int, shape: tuple[int, int]) -> list[dict]:
-    """``n`` cases: an image, an angle uniform in [-max_angle, max_angle], a shift within +-10% of the size."""
+def find_photos(data: Path) -> list[Path]:
+    return sorted(p for p in (data / "photos").glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+
+
+def load_source(source: str, *, max_side: int) -> np.ndarray:
+    """An image by name: ``texture:KIND:SEED`` (procedural, 384x512) or a file path, scaled down so its
+    longer side is at most ``max_side`` (INTER_AREA)."""
+    import cv2
+
+    import pcreg
+
+    if source.startswith("texture:"):
+        from pcreg.datasets.textures import texture
+
+        _, kind, seed = source.split(":")
+        img = texture(kind, height=384, width=512, seed=int(seed))
+    else:
+        img = pcreg.load_image(source)
+    s = max_side / max(img.shape[:2])
+    if s < 1:
+        img = cv2.resize(img, (max(16, round(img.shape[1] * s)), max(16, round(img.shape[0] * s))),
+                         interpolation=cv2.INTER_AREA)
+    return img
+
+
+def terrain_sources(data: Path, *, texture_seeds: int = 3) -> list[str]:
+    """The real photographs (if present) and procedural textures of every kind, ``texture_seeds`` each."""
+    from pcreg.datasets.textures import KINDS
+
+    return [str(p) for p in find_photos(data)] + [f"texture:{k}:{s}" for s in range(texture_seeds) for k in KINDS]
+
+
+def make_cases(sources: list[str], n: int, *, max_angle: float, seed: int, kind: str = "genuine") -> list[dict]:
+    """``n`` cases: an image (cycling through ``sources`` in a shuffled order), an angle uniform in
+    [-max_angle, max_angle] and a shift within +-10% of the size (as fractions, applied per image)."""
     rng = np.random.default_rng(seed)
-    h, w = shape
+    order = rng.permutation(len(sources))
     cases = []
     for i in range(n):
-        cases.append({
-            "case": i,
-            "image": str(images[int(rng.integers(len(images)))]),
-            "angle_deg": float(rng.uniform(-max_angle, max_angle)),
-            "tx": float(rng.uniform(-0.1 * w, 0.1 * w)),
-            "ty": float(rng.uniform(-0.1 * h, 0.1 * h)),
-            "order_seed": int(rng.integers(2**31)),
-        })
+        src = sources[int(order[i % len(sources)])]
+        case = {"case": i, "kind": kind, "image": src,
+                "angle_deg": float(rng.uniform(-max_angle, max_angle)),
+                "fx": float(rng.uniform(-0.1, 0.1)), "fy": float(rng.uniform(-0.1, 0.1)),
+                "order_seed": int(rng.integers(2**31))}
+        if kind == "unrelated":
+            others = [s for s in sources if s != src]
+            case["other"] = others[int(rng.integers(len(others)))]
+        cases.append(case)
     return cases
 
 
@@ -135,7 +174,8 @@ def truth_matrix(case: dict, shape: tuple[int, ...]) -> np.ndarray:
     from pcreg.registration.transforms import about_point, image_center, rigid2d
 
     c = image_center(shape)
-    return about_point(rigid2d(case["angle_deg"], case["tx"], case["ty"]), c, c)
+    h, w = shape[:2]
+    return about_point(rigid2d(case["angle_deg"], case.get("fx", 0.0) * w, case.get("fy", 0.0) * h), c, c)
 
 
 def make_moving(reference: np.ndarray, T_ref_mov: np.ndarray) -> np.ndarray:
@@ -160,69 +200,146 @@ def ecc_register(reference: np.ndarray, moving: np.ndarray, *, levels: int = 4) 
     return np.linalg.inv(W3)  # ECC's W maps reference -> moving pixels
 
 
+def orb_register(reference: np.ndarray, moving: np.ndarray, *, n_features: int = 2000) -> np.ndarray:
+    """``T_ref_mov`` by ORB (``n_features``, full resolution), cross-checked Hamming matches and a
+    similarity by RANSAC (``cv2.estimateAffinePartial2D``, 3 px); raises ValueError when it finds none."""
+    import cv2
+
+    g1 = cv2.cvtColor(reference, cv2.COLOR_RGB2GRAY)
+    g2 = cv2.cvtColor(moving, cv2.COLOR_RGB2GRAY)
+    orb = cv2.ORB_create(nfeatures=n_features)
+    k1, d1 = orb.detectAndCompute(g1, None)
+    k2, d2 = orb.detectAndCompute(g2, None)
+    if d1 is None or d2 is None:
+        raise ValueError("ORB: no features")
+    m = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d2, d1)
+    if len(m) < 3:
+        raise ValueError("ORB: fewer than 3 matches")
+    p2 = np.float32([k2[x.queryIdx].pt for x in m])
+    p1 = np.float32([k1[x.trainIdx].pt for x in m])
+    M, _ = cv2.estimateAffinePartial2D(p2, p1, method=cv2.RANSAC, ransacReprojThreshold=3.0)
+    if M is None:
+        raise ValueError("ORB: RANSAC found no model")
+    return np.vstack([M, [0.0, 0.0, 1.0]])
+
+
 def _run_method(method: str, reference: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray | None, dict]:
     import pcreg
 
-    if method == "pcreg_reference":
-        r = pcreg.register(reference, moving, backend="reference")
-        return r.matrix, {"fitness": r.fitness, "inlier_rmse": r.inlier_rmse, "iterations": r.iterations,
+    if method in ("pcreg_reference", "pcreg_open3d"):
+        r = pcreg.register(reference, moving, backend=method.split("_", 1)[1])
+        return r.matrix, {"inlier_ratio": r.inlier_ratio, "chance_ratio": r.chance_ratio, "generator": r.generator,
                           "inner_seconds": r.seconds}
-    if method == "pcreg_open3d":
-        r = pcreg.register(reference, moving, backend="open3d")
-        return r.matrix, {"fitness": r.fitness, "inlier_rmse": r.inlier_rmse, "iterations": r.iterations,
-                          "inner_seconds": r.seconds}
+    if method == "pcreg_reference_p2l":
+        r = pcreg.register(reference, moving, backend="reference", refine="point_to_line")
+        return r.matrix, {"inlier_ratio": r.inlier_ratio, "generator": r.generator, "inner_seconds": r.seconds}
+    if method == "orb":
+        return orb_register(reference, moving), {}
     if method == "ecc":
         return ecc_register(reference, moving), {}
     raise ValueError(method)
 
 
-def run_case(case: dict, methods: tuple[str, ...], cache: dict) -> dict:
-    """Register one synthetic pair with every method; errors in px, wall-clock seconds."""
+def _moving_for(case: dict, reference: np.ndarray, cache: dict, max_side: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """(moving image, truth or None) for a case of any kind."""
     import cv2
 
+    T = truth_matrix(case, reference.shape)
+    kind = case["kind"]
+    if kind == "genuine":
+        return make_moving(reference, T), T
+    if kind == "unrelated":
+        other = cache_get(cache, case["other"], max_side)
+        other = cv2.resize(other, (reference.shape[1], reference.shape[0]), interpolation=cv2.INTER_AREA)
+        return make_moving(other, T), None
+    if kind == "noise":
+        return np.random.default_rng(case["order_seed"]).integers(0, 256, reference.shape, dtype=np.uint8), None
+    if kind == "mirror":
+        return make_moving(np.ascontiguousarray(reference[:, ::-1]), T), None
+    raise ValueError(kind)
+
+
+def cache_get(cache: dict, source: str, max_side: int) -> np.ndarray:
+    if source not in cache:
+        cache[source] = load_source(source, max_side=max_side)
+    return cache[source]
+
+
+def run_case(case: dict, methods: tuple[str, ...], cache: dict, *, max_side: int = 512) -> dict:
+    """Register one pair with every method; errors in px (genuine pairs), refusals, wall-clock seconds."""
+    import cv2
+
+    from pcreg.errors import RegistrationError
     from pcreg.registration.transforms import max_corner_error
 
-    path = case["image"]
-    if path not in cache:
-        cache[path] = cv2.cvtColor(cv2.imread(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-    reference = cache[path]
-    T = truth_matrix(case, reference.shape)
-    moving = make_moving(reference, T)
+    reference = cache_get(cache, case["image"], max_side)
+    moving, T = _moving_for(case, reference, cache, max_side)
     out = dict(case)
+    out["shape"] = list(reference.shape[:2])
     order = list(methods)
     np.random.default_rng(case["order_seed"]).shuffle(order)
     out["order"] = order
     for m in order:
         t0 = time.perf_counter()
+        refused = False
         try:
             M, extra = _run_method(m, reference, moving)
             failure = None
+        except RegistrationError as exc:
+            M, extra, failure, refused = None, {}, f"refused: {str(exc)[:200]}", True
         except (cv2.error, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # pcreg errors are ValueErrors
             M, extra, failure = None, {}, f"{type(exc).__name__}: {str(exc).strip().splitlines()[-1][:200]}"
         seconds = time.perf_counter() - t0
-        err = float("inf") if M is None or not np.all(np.isfinite(M)) else max_corner_error(M, T, reference.shape)
-        out[m] = {"error_px": err, "seconds": seconds, "failure": failure, **extra,
+        err = None
+        if T is not None:
+            err = float("inf") if M is None or not np.all(np.isfinite(M)) else max_corner_error(M, T, reference.shape)
+        out[m] = {"error_px": err, "seconds": seconds, "failure": failure, "refused": refused, **extra,
                   "matrix": None if M is None else np.asarray(M).tolist()}
     return out
 
 
+def _p(x, q):
+    return float(np.percentile(x, q, method="inverted_cdf")) if len(x) else float("nan")
+
+
 def summarise(rows: list[dict], methods: tuple[str, ...]) -> dict:
-    """Per method: median / p95 error, success rate, median seconds, median per-case time ratio vs ECC."""
+    """Per method on genuine rows: median / p95 error, success, refusals, median seconds and time ratios."""
     summary = {}
     for m in methods:
         err = np.array([r[m]["error_px"] for r in rows])
         sec = np.array([r[m]["seconds"] for r in rows])
-        s = {"cases": len(rows), "median_px": float(np.median(err)),
-             "p95_px": float(np.percentile(err, 95, method="inverted_cdf")) if len(err) else float("nan"),
-             "success": float(np.mean(err <= SUCCESS_PX)), "exceptions": int(sum(r[m]["failure"] is not None for r in rows)),
+        s = {"cases": len(rows), "median_px": float(np.median(err)), "p95_px": _p(err, 95),
+             "success": float(np.mean(err <= SUCCESS_PX)), "refused": int(sum(r[m]["refused"] for r in rows)),
+             "exceptions": int(sum(r[m]["failure"] is not None and not r[m]["refused"] for r in rows)),
              "median_seconds": float(np.median(sec))}
-        if "ecc" in methods:
-            s["time_ratio_vs_ecc"] = float(np.median(sec / np.array([r["ecc"]["seconds"] for r in rows])))
+        for base in ("orb", "ecc"):
+            if base in methods and base != m:
+                bs = np.array([r[base]["seconds"] for r in rows])
+                s[f"time_ratio_vs_{base}"] = float(np.median(sec) / np.median(bs))
+                s[f"per_case_time_ratio_vs_{base}"] = float(np.median(sec / bs))
+        if "ecc" in methods and m != "ecc":
+            ok = np.array([r["ecc"]["error_px"] <= SUCCESS_PX for r in rows])
+            if ok.any():
+                bs = np.array([r["ecc"]["seconds"] for r in rows])[ok]
+                s["ecc_success_cases"] = int(ok.sum())
+                s["time_ratio_vs_ecc_where_ecc_succeeds"] = float(np.median(sec[ok]) / np.median(bs))
         summary[m] = s
     return summary
 
 
-def success_by_angle(rows: list[dict], methods: tuple[str, ...], *, bin_deg: float = 20.0,
+def summarise_impossible(rows: list[dict], methods: tuple[str, ...]) -> dict:
+    out = {}
+    for m in methods:
+        by_kind = {}
+        for kind in IMPOSSIBLE:
+            kr = [r for r in rows if r["kind"] == kind]
+            by_kind[kind] = {"cases": len(kr), "refused": int(sum(r[m]["refused"] for r in kr))}
+        out[m] = {"cases": len(rows), "refused": int(sum(r[m]["refused"] for r in rows)), "by_kind": by_kind,
+                  "median_seconds": float(np.median([r[m]["seconds"] for r in rows])) if rows else float("nan")}
+    return out
+
+
+def success_by_angle(rows: list[dict], methods: tuple[str, ...], *, bin_deg: float = 30.0,
                      max_angle: float = 180.0) -> dict:
     edges = np.arange(-max_angle, max_angle + bin_deg / 2, bin_deg)
     ang = np.array([r["angle_deg"] for r in rows])
@@ -234,31 +351,52 @@ def success_by_angle(rows: list[dict], methods: tuple[str, ...], *, bin_deg: flo
     return out
 
 
-def run_images(data: Path, *, cases: int, sweep_cases: int, seed: int, methods: tuple[str, ...]) -> dict | None:
-    import cv2
+def per_source(rows: list[dict], methods: tuple[str, ...]) -> dict:
+    """Success and median error per source image (texture kinds pooled over seeds)."""
+    def name(src):
+        return src.split(":")[1] if src.startswith("texture:") else Path(src).name
 
+    out: dict = {}
+    for r in rows:
+        out.setdefault(name(r["image"]), []).append(r)
+    return {k: {"cases": len(v), **{m: {"success": float(np.mean([x[m]["error_px"] <= SUCCESS_PX for x in v])),
+                                        "median_px": float(np.median([x[m]["error_px"] for x in v]))}
+                                    for m in methods}} for k, v in sorted(out.items())}
+
+
+def run_images(data: Path, *, cases: int, camvid_cases: int, impossible: int, seed: int, max_side: int,
+               methods: tuple[str, ...], texture_seeds: int = 3) -> dict:
     from pcreg._runner import progress
 
-    images = find_images(data)
-    if not images:
-        print(f"skipping the image benchmark: no CamVid frames under {data / 'camvid'}/*/images/", file=sys.stderr)
-        return None
-    first = cv2.imread(str(images[0]), cv2.IMREAD_COLOR)
-    shape = first.shape[:2]
     cache: dict = {}
-    # Warm-up: imports, Open3D's first call, OpenCV's thread pool; not recorded.
-    for c in make_cases(images, 2, max_angle=30.0, seed=seed + 999, shape=shape):
-        run_case(c, methods, cache)
     sets = {}
-    for name, n, max_angle, s in (("pm90", cases, 90.0, seed), ("pm180", sweep_cases, 180.0, seed + 1)):
-        rows = []
-        for c in progress(make_cases(images, n, max_angle=max_angle, seed=s, shape=shape),
-                          desc=f"images ±{max_angle:g}°", total=n):
-            rows.append(run_case(c, methods, cache))
-        sets[name] = {"max_angle_deg": max_angle, "seed": s, "rows": rows, "summary": summarise(rows, methods),
-                      "success_by_angle": success_by_angle(rows, methods, bin_deg=30.0 if max_angle > 90 else 15.0,
-                                                           max_angle=max_angle)}
-    return {"image_shape": list(shape), "n_images": len(images), "methods": list(methods), "sets": sets}
+    terrain = terrain_sources(data, texture_seeds=texture_seeds)
+    # Warm-up: imports, Open3D's first call, OpenCV's thread pool; not recorded.
+    for c in make_cases(terrain, 2, max_angle=30.0, seed=seed + 999):
+        run_case(c, methods, cache, max_side=max_side)
+    plan = [("terrain", terrain, cases, seed, "photographs (../shared/data/photos) and procedural textures")]
+    camvid = [str(p) for p in find_images(data)]
+    if camvid and camvid_cases:
+        plan.append(("camvid", camvid, camvid_cases, seed + 1, "CamVid frames (../shared/data/camvid)"))
+    elif camvid_cases:
+        print(f"skipping CamVid cases: no frames under {data / 'camvid'}/*/images/", file=sys.stderr)
+    for name, sources, n, s, desc in plan:
+        rows = [run_case(c, methods, cache, max_side=max_side)
+                for c in progress(make_cases(sources, n, max_angle=180.0, seed=s), desc=f"{name} ±180°", total=n)]
+        sets[name] = {"description": desc, "sources": len(sources), "seed": s, "rows": rows,
+                      "summary": summarise(rows, methods), "success_by_angle": success_by_angle(rows, methods),
+                      "per_source": per_source(rows, methods)}
+    imp_methods = tuple(m for m in methods if m.startswith("pcreg"))
+    imp_rows = []
+    if impossible:
+        cases_i = []
+        for k, kind in enumerate(IMPOSSIBLE):
+            cases_i += make_cases(terrain, impossible, max_angle=180.0, seed=seed + 10 + k, kind=kind)
+        imp_rows = [run_case(c, imp_methods, cache, max_side=max_side)
+                    for c in progress(cases_i, desc="impossible pairs", total=len(cases_i))]
+    return {"methods": list(methods), "max_side": max_side, "sets": sets,
+            "impossible": {"methods": list(imp_methods), "rows": imp_rows,
+                           "summary": summarise_impossible(imp_rows, imp_methods)}}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -432,6 +570,41 @@ def _met(ok: bool) -> str:
     return "met" if ok else "NOT met"
 
 
+def _image_floors(img: dict) -> list[list]:
+    floors = []
+    for set_name in ("terrain", "camvid"):
+        st = img["sets"].get(set_name)
+        if not st:
+            continue
+        for meth in ("pcreg_reference", "pcreg_open3d"):
+            s = st["summary"].get(meth)
+            if not s:
+                continue
+            who = f"{set_name}, {LABELS[meth]}"
+            floors += [
+                [f"{who}: success >= {100 * FLOORS['success']:.0f}%", f"{100 * s['success']:.1f}%",
+                 _met(s["success"] >= FLOORS["success"])],
+                [f"{who}: median error <= {FLOORS['median_px']} px", f"{s['median_px']:.3f} px",
+                 _met(s["median_px"] <= FLOORS["median_px"])],
+                [f"{who}: p95 error <= {FLOORS['p95_px']} px", f"{s['p95_px']:.3f} px",
+                 _met(s["p95_px"] <= FLOORS["p95_px"])],
+                [f"{who}: genuine pairs refused = 0", str(s["refused"]), _met(s["refused"] == 0)],
+            ]
+            if "time_ratio_vs_orb" in s:
+                floors.append([f"{who}: median time / ORB+RANSAC's < 1", f"{s['time_ratio_vs_orb']:.2f}",
+                               _met(s["time_ratio_vs_orb"] < 1.0)])
+            if "time_ratio_vs_ecc_where_ecc_succeeds" in s:
+                floors.append([f"{who}: median time / ECC's where ECC succeeds < 1 ({s['ecc_success_cases']} cases)",
+                               f"{s['time_ratio_vs_ecc_where_ecc_succeeds']:.2f}",
+                               _met(s["time_ratio_vs_ecc_where_ecc_succeeds"] < 1.0)])
+    imp = img["impossible"]
+    for meth, s in imp["summary"].items():
+        if s["cases"]:
+            floors.append([f"impossible pairs, {LABELS[meth]}: 100% refused", f"{s['refused']}/{s['cases']}",
+                           _met(s["refused"] == s["cases"])])
+    return floors
+
+
 def render_markdown(report: dict) -> str:
     from pcreg.outputs import markdown_table
 
@@ -443,58 +616,62 @@ def render_markdown(report: dict) -> str:
              f"numpy {m['numpy']}, scipy {m['scipy']}, OpenCV {m['opencv']}, Open3D {m['open3d']}; "
              f"pcreg at {str(m['git_commit'])[:12]}{' (pcreg/ modified)' if m['pcreg_dirty'] else ''}.  \n"
              f"Started {report['started']}, took {report['wall_seconds'] / 60:.1f} min. Times are wall clock on a shared "
-             "machine; compare the ratios (taken per case / per repeat in the same run), not the absolute times.\n"]
+             "machine; compare the ratios (same cases, same run), not the absolute times.\n"]
     img = report.get("images")
     floors = []
     if img:
-        for name, title in (("pm90", "±90°"), ("pm180", "±180°")):
-            st = img["sets"][name]
-            lines.append(f"## Real images, {img['image_shape'][1]}x{img['image_shape'][0]} CamVid, rigid motion, "
-                         f"angle in {title}, shift within ±10% ({len(st['rows'])} cases, seed {st['seed']})\n")
-            header = ["method", "median error (px)", "p95 error (px)", "success (<= 1 px)", "ECC exceptions",
-                      "median time (ms)", "median of per-case time ratios vs ECC"]
+        for set_name, st in img["sets"].items():
+            lines.append(f"## {st['description']}: rigid motion, angle uniform in ±180°, shift within ±10% "
+                         f"({len(st['rows'])} cases over {st['sources']} images, longer side <= {img['max_side']} px, "
+                         f"seed {st['seed']})\n")
+            header = ["method", "success (<= 1 px)", "median error (px)", "p95 error (px)", "refused", "exceptions",
+                      "median time (ms)", "time / ORB's", "time / ECC's where ECC succeeds"]
             rows = []
             for meth in img["methods"]:
                 s = st["summary"][meth]
-                rows.append([LABELS[meth], f"{s['median_px']:.3f}", f"{s['p95_px']:.3f}", f"{100 * s['success']:.1f}%",
-                             s["exceptions"] if meth.startswith("ecc") else "-", f"{1e3 * s['median_seconds']:.0f}",
-                             f"{s.get('time_ratio_vs_ecc', float('nan')):.2f}"])
+                rows.append([LABELS[meth], f"{100 * s['success']:.1f}%", f"{s['median_px']:.3f}", f"{s['p95_px']:.3f}",
+                             s["refused"], s["exceptions"], f"{1e3 * s['median_seconds']:.0f}",
+                             f"{s.get('time_ratio_vs_orb', float('nan')):.2f}" if meth != "orb" else "1",
+                             f"{s.get('time_ratio_vs_ecc_where_ecc_succeeds', float('nan')):.2f}" if meth != "ecc" else "1"])
             lines.append(markdown_table(header, rows))
+            ps = st["per_source"]
+            lines.append("\nSuccess per image (texture kinds pooled over seeds):\n")
+            lines.append(markdown_table(["image", "cases"] + [LABELS[x] for x in img["methods"]],
+                                        [[k, v["cases"]] + [f"{100 * v[x]['success']:.0f}% ({v[x]['median_px']:.2f} px)"
+                                                            for x in img["methods"]] for k, v in ps.items()]))
             sba = st["success_by_angle"]
             e = sba["edges"]
-            header = ["angle bin (deg)", "cases"] + [LABELS[x] for x in img["methods"]]
-            rows = [[f"[{e[b]:.0f}, {e[b + 1]:.0f})", sba["counts"][b]]
-                    + [f"{100 * sba[x][b]:.0f}%" if np.isfinite(sba[x][b]) else "-" for x in img["methods"]]
-                    for b in range(len(e) - 1)]
-            lines.append(f"\nSuccess rate (error <= 1 px) by angle, {title}:\n")
-            lines.append(markdown_table(header, rows))
+            lines.append("\nSuccess rate (error <= 1 px) by angle:\n")
+            lines.append(markdown_table(["angle bin (deg)", "cases"] + [LABELS[x] for x in img["methods"]],
+                                        [[f"[{e[b]:.0f}, {e[b + 1]:.0f})", sba["counts"][b]]
+                                         + [f"{100 * sba[x][b]:.0f}%" if np.isfinite(sba[x][b]) else "-"
+                                            for x in img["methods"]] for b in range(len(e) - 1)]))
+            fails = [r for r in st["rows"] if any(r[x]["error_px"] > SUCCESS_PX for x in img["methods"]
+                                                  if x.startswith("pcreg"))]
+            if fails:
+                lines.append("\nCases where pcreg.register missed 1 px:\n")
+                lines.append(markdown_table(
+                    ["case", "image", "angle (deg)"] + [LABELS[x] for x in img["methods"] if x.startswith("pcreg")],
+                    [[r["case"], r["image"].split("/")[-1], f"{r['angle_deg']:.1f}"]
+                     + [f"{r[x]['error_px']:.3g}" + (f" ({r[x]['failure'][:60]})" if r[x]["failure"] else "")
+                        for x in img["methods"] if x.startswith("pcreg")] for r in fails]))
             lines.append("")
-        s = img["sets"]["pm90"]["summary"]
-        for meth in ("pcreg_reference", "pcreg_open3d"):
-            if meth not in s:
-                continue
-            floors += [
-                [f"{LABELS[meth]}: median error <= {FLOORS['median_px']} px (±90°)", f"{s[meth]['median_px']:.3f} px",
-                 _met(s[meth]["median_px"] <= FLOORS["median_px"])],
-                [f"{LABELS[meth]}: p95 error <= {FLOORS['p95_px']} px", f"{s[meth]['p95_px']:.3f} px",
-                 _met(s[meth]["p95_px"] <= FLOORS["p95_px"])],
-                [f"{LABELS[meth]}: success >= {100 * FLOORS['success']:.0f}%", f"{100 * s[meth]['success']:.1f}%",
-                 _met(s[meth]["success"] >= FLOORS["success"])],
-                [f"{LABELS[meth]}: median time ratio vs ECC < 1", f"{s[meth]['time_ratio_vs_ecc']:.2f}",
-                 _met(s[meth]["time_ratio_vs_ecc"] < FLOORS["time_ratio_vs_ecc"])],
-            ]
-        fails = [r for r in img["sets"]["pm90"]["rows"] if r["pcreg_reference"]["error_px"] > SUCCESS_PX]
-        if fails:
-            lines.append("Cases (±90°) where pcreg.register (reference) missed 1 px:\n")
-            lines.append(markdown_table(
-                ["case", "image", "angle (deg)", "tx, ty (px)", "reference error (px)", "open3d error (px)", "ECC error (px)",
-                 "failure"],
-                [[r["case"], Path(r["image"]).name, f"{r['angle_deg']:.1f}", f"{r['tx']:.1f}, {r['ty']:.1f}",
-                  f"{r['pcreg_reference']['error_px']:.3g}", f"{r['pcreg_open3d']['error_px']:.3g}",
-                  f"{r['ecc']['error_px']:.3g}", r["pcreg_reference"]["failure"] or ""] for r in fails]))
+        imp = img["impossible"]
+        if imp["rows"]:
+            n_kind = {k: sum(r["kind"] == k for r in imp["rows"]) for k in IMPOSSIBLE}
+            lines.append(f"## Impossible pairs ({', '.join(f'{n} {k}' for k, n in n_kind.items())}): refused?\n")
+            lines.append("Unrelated: a different image of the same pool, moved; noise: uniform noise; mirror: the "
+                         "image mirrored left-right, moved. ORB+RANSAC and ECC have no refusal: they return a "
+                         "transform for every pair.\n")
+            lines.append(markdown_table(["method"] + list(IMPOSSIBLE) + ["all", "median time (ms)"],
+                                        [[LABELS[x]] + [f"{s['by_kind'][k]['refused']}/{s['by_kind'][k]['cases']}"
+                                                        for k in IMPOSSIBLE]
+                                         + [f"{s['refused']}/{s['cases']}", f"{1e3 * s['median_seconds']:.0f}"]
+                                         for x, s in imp["summary"].items()]))
             lines.append("")
+        floors += _image_floors(img)
     else:
-        lines.append("Real-image benchmark skipped: no CamVid frames found.\n")
+        lines.append("Image benchmark skipped.\n")
     sc = report.get("scaling")
     if sc:
         lines.append(f"## ICP cost against the number of points: reference ICP vs Open3D legacy ICP "
@@ -515,12 +692,8 @@ def render_markdown(report: dict) -> str:
             ratios = [r["median_ratio"] for r in k["rows"]]
             floors.append([f"{kind} clouds: reference ICP no slower than Open3D (median ratio <= 1), per size",
                            ", ".join(f"{x:.2f}" for x in ratios), _met(max(ratios) <= FLOORS["icp_ratio_vs_open3d"])])
-            floors.append([f"{kind} clouds: reference ICP cost grows no worse than N log N "
-                           "(log-log slope within 0.05 of N log N's)",
-                           f"slope {k['fit']['reference']['loglog_slope']:.2f} vs {k['nlogn_loglog_slope']:.2f}",
-                           _met(k["fit"]["reference"]["loglog_slope"] <= k["nlogn_loglog_slope"] + 0.05)])
     if floors:
-        lines.insert(1, "## Floors (issue 2)\n\n" + markdown_table(["floor", "measured", ""], floors))
+        lines.insert(1, "## Floors\n\n" + markdown_table(["floor", "measured", ""], floors) + "\n")
     return "\n".join(lines) + "\n"
 
 
@@ -532,51 +705,35 @@ def plot_accuracy(report: dict):
 
     img = report["images"]
     methods = img["methods"]
-    fig, axes = plt.subplots(1, 3, figsize=(17, 5.0))
-    rows90 = img["sets"]["pm90"]["rows"]
+    sets = list(img["sets"].items())
+    fig, axes = plt.subplots(1, len(sets) + 1, figsize=(6 * (len(sets) + 1), 4.8))
+    axes = np.atleast_1d(axes)
     cap = 1e3
-    ax = axes[0]
-    for m in methods:
-        err = np.sort(np.clip([r[m]["error_px"] for r in rows90], 1e-4, cap))
-        ax.step(err, np.arange(1, len(err) + 1) / len(err), where="post", color=COLORS[m], ls=STYLES[m][0], lw=2,
-                label=LABELS[m])
-    ax.axvline(SUCCESS_PX, color="k", ls="--", lw=1)
-    ax.text(SUCCESS_PX * 1.1, 0.02, "1 px", fontsize=9)
-    ax.set_xscale("log")
-    ax.set_xlim(1e-3, cap)
-    ax.set_ylim(0, 1.01)
-    ax.set_xlabel("max corner error (px, log; failures at the right edge)")
-    ax.set_ylabel("fraction of cases with error <= x")
-    ax.set_title(f"Error distribution, |angle| <= 90° ({len(rows90)} cases)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
-
-    ax = axes[1]
-    for m in methods:
-        ang = [r["angle_deg"] for r in rows90]
-        err = np.clip([r[m]["error_px"] for r in rows90], 1e-4, cap)
-        ax.scatter(ang, err, s=14, color=COLORS[m], marker=STYLES[m][1], alpha=0.6, label=LABELS[m])
-    ax.axhline(SUCCESS_PX, color="k", ls="--", lw=1)
-    ax.set_yscale("log")
-    ax.set_ylim(1e-3, cap * 1.5)
-    ax.set_xlabel("rotation angle (deg)")
-    ax.set_ylabel("max corner error (px, log; failures at the top)")
-    ax.set_title("Error against angle, |angle| <= 90°")
-    ax.grid(True, which="both", alpha=0.3)
-
-    ax = axes[2]
-    sba = img["sets"]["pm180"]["success_by_angle"]
-    e = np.array(sba["edges"])
-    mid = (e[:-1] + e[1:]) / 2
-    for m in methods:
-        ax.plot(mid, 100 * np.array(sba[m]), color=COLORS[m], ls=STYLES[m][0], marker=STYLES[m][1], lw=2,
-                label=LABELS[m])
-    ax.set_xticks(np.arange(-180, 181, 45))
-    ax.set_ylim(-3, 103)
-    ax.set_xlabel(f"rotation angle (deg), {e[1] - e[0]:.0f}° bins")
-    ax.set_ylabel("success rate (error <= 1 px), %")
-    ax.set_title(f"Success over angle, ±180° sweep ({len(img['sets']['pm180']['rows'])} cases)")
-    ax.grid(True, alpha=0.3)
+    for ax, (name, st) in zip(axes, sets):
+        for m in methods:
+            err = np.sort(np.clip([r[m]["error_px"] for r in st["rows"]], 1e-4, cap))
+            ax.step(err, np.arange(1, len(err) + 1) / len(err), where="post", color=COLORS[m], lw=2, label=LABELS[m])
+        ax.axvline(SUCCESS_PX, color="k", ls="--", lw=1)
+        ax.set_xscale("log")
+        ax.set_xlim(1e-3, cap)
+        ax.set_ylim(0, 1.01)
+        ax.set_xlabel("max corner error (px, log; failures at the right edge)")
+        ax.set_ylabel("fraction of cases with error <= x")
+        ax.set_title(f"{name}: ±180°, {len(st['rows'])} cases")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8, loc="upper left")
+    ax = axes[-1]
+    x = np.arange(len(sets))
+    wbar = 0.8 / len(methods)
+    for i, m in enumerate(methods):
+        ax.bar(x + i * wbar, [1e3 * st["summary"][m]["median_seconds"] for _, st in sets], wbar, color=COLORS[m],
+               label=LABELS[m])
+    ax.set_xticks(x + 0.4 - wbar / 2)
+    ax.set_xticklabels([n for n, _ in sets])
+    ax.set_ylabel("median time per pair (ms)")
+    ax.set_title("Time, same cases, same run")
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
 
@@ -633,14 +790,31 @@ def write_outputs(report: dict, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pcreg.outputs import atomic_save_figure, atomic_write_json, atomic_write_text
+    from pcreg.outputs import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text
 
     paths = [atomic_write_json(out / "registration.json", report),
              atomic_write_text(out / "registration.md", render_markdown(report))]
-    if report.get("images"):
-        fig = plot_accuracy(report)
-        paths.append(atomic_save_figure(fig, out / "registration_accuracy.png"))
-        plt.close(fig)
+    img = report.get("images")
+    if img:
+        rows = []
+        for set_name, st in list(img["sets"].items()) + [("impossible", img["impossible"])]:
+            meths = img["methods"] if set_name != "impossible" else img["impossible"]["methods"]
+            for r in st["rows"]:
+                for m in meths:
+                    x = r[m]
+                    rows.append([set_name, r["case"], r["kind"], r["image"], r.get("other", ""), f"{r['angle_deg']:.3f}",
+                                 f"{r['fx']:.4f}", f"{r['fy']:.4f}", m,
+                                 "" if x["error_px"] is None else f"{x['error_px']:.5g}", int(x["refused"]),
+                                 f"{x['seconds']:.5f}", "" if x.get("inlier_ratio") is None else f"{x['inlier_ratio']:.4f}",
+                                 x.get("generator") or "", x["failure"] or ""])
+        paths.append(atomic_write_csv(out / "registration.csv",
+                                      ["set", "case", "kind", "image", "other", "angle_deg", "shift_x_frac",
+                                       "shift_y_frac", "method", "error_px", "refused", "seconds", "inlier_ratio",
+                                       "generator", "failure"], rows))
+        if img["sets"]:
+            fig = plot_accuracy(report)
+            paths.append(atomic_save_figure(fig, out / "registration_accuracy.png"))
+            plt.close(fig)
     if report.get("scaling"):
         fig = plot_scaling(report)
         paths.append(atomic_save_figure(fig, out / "registration_scaling.png"))
@@ -655,38 +829,60 @@ def write_outputs(report: dict, out: Path) -> list[Path]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="out/bench", help="output folder (default out/bench)")
-    parser.add_argument("--cases", type=int, default=None, help="cases with |angle| <= 90 deg (default 200, --quick 30)")
-    parser.add_argument("--sweep-cases", type=int, default=None, help="cases with |angle| <= 180 deg (default 120, --quick 24)")
+    parser.add_argument("--cases", type=int, default=None,
+                        help="genuine cases on photographs and textures (default 60, --quick 20)")
+    parser.add_argument("--camvid-cases", type=int, default=None, help="genuine cases on CamVid (default 40, --quick 10)")
+    parser.add_argument("--impossible", type=int, default=None,
+                        help="impossible pairs of each kind: unrelated, noise, mirror (default 8, --quick 3)")
+    parser.add_argument("--texture-seeds", type=int, default=3, help="procedural textures of each kind (default 3)")
+    parser.add_argument("--max-side", type=int, default=512, help="longer side of photographs and textures (px)")
+    parser.add_argument("--methods", default=",".join(METHODS),
+                        help=f"comma-separated, of {', '.join(LABELS)} (default {','.join(METHODS)})")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--sizes", type=str, default=None, help="cloud sizes, comma-separated (default 1000,3000,10000,30000,100000)")
+    parser.add_argument("--sizes", type=str, default=None, help="cloud sizes, comma-separated (default 1000,10000,100000)")
     parser.add_argument("--icp-iterations", type=int, default=10)
-    parser.add_argument("--repeats", type=int, default=None, help="repeats per cloud size (default 7, --quick 3)")
+    parser.add_argument("--repeats", type=int, default=None, help="repeats per cloud size (default 5, --quick 3)")
     parser.add_argument("--quick", action="store_true", help="fewer cases, sizes and repeats")
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="shared data folder (default ../shared/data)")
     parser.add_argument("--skip-images", action="store_true")
     parser.add_argument("--skip-scaling", action="store_true")
     args = parser.parse_args(argv)
-    cases = args.cases if args.cases is not None else (30 if args.quick else 200)
-    sweep = args.sweep_cases if args.sweep_cases is not None else (24 if args.quick else 120)
-    repeats = args.repeats if args.repeats is not None else (3 if args.quick else 7)
+    cases = args.cases if args.cases is not None else (20 if args.quick else 60)
+    camvid = args.camvid_cases if args.camvid_cases is not None else (10 if args.quick else 40)
+    impossible = args.impossible if args.impossible is not None else (3 if args.quick else 8)
+    repeats = args.repeats if args.repeats is not None else (3 if args.quick else 5)
     sizes = ([int(s) for s in args.sizes.split(",")] if args.sizes
-             else ([1000, 10000, 100000] if args.quick else [1000, 3000, 10000, 30000, 100000]))
-    if cases < 1 or sweep < 1 or repeats < 1 or args.icp_iterations < 1 or min(sizes) < 10:
-        print("error: --cases, --sweep-cases, --repeats and --icp-iterations must be >= 1, sizes >= 10", file=sys.stderr)
+             else ([1000, 10000] if args.quick else [1000, 10000, 100000]))
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    bad = [m for m in methods if m not in LABELS]
+    if bad or not methods:
+        print(f"error: unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(LABELS)}", file=sys.stderr)
+        return 2
+    if (cases < 1 or camvid < 0 or impossible < 0 or repeats < 1 or args.icp_iterations < 1 or min(sizes) < 10
+            or args.max_side < 32 or args.texture_seeds < 1):
+        print("error: --cases, --repeats, --icp-iterations, --texture-seeds must be >= 1, --camvid-cases and "
+              "--impossible >= 0, --max-side >= 32, sizes >= 10", file=sys.stderr)
         return 2
     out = Path(args.out)
     started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
     t0 = time.perf_counter()
     report: dict = {"command": " ".join(["python", "tools/bench_registration.py"] + (sys.argv[1:] if argv is None else list(argv))),
                     "started": started, "machine": machine_info(),
-                    "settings": {"cases": cases, "sweep_cases": sweep, "seed": args.seed, "sizes": sizes,
-                                 "icp_iterations": args.icp_iterations, "repeats": repeats, "success_px": SUCCESS_PX,
-                                 "register_options": "defaults (levels=4, iterations=14, init='auto', model='rigid')",
+                    "settings": {"cases": cases, "camvid_cases": camvid, "impossible_per_kind": impossible,
+                                 "texture_seeds": args.texture_seeds, "max_side": args.max_side, "seed": args.seed,
+                                 "sizes": sizes, "icp_iterations": args.icp_iterations, "repeats": repeats,
+                                 "success_px": SUCCESS_PX, "methods": list(methods),
+                                 "register_options": "defaults (levels=4, iterations=14, init='auto', model='rigid', "
+                                                     "refine='none', min_inlier_ratio=0.15)",
+                                 "orb_options": "2000 features, full resolution, BFMatcher Hamming crossCheck, "
+                                                "estimateAffinePartial2D RANSAC 3 px",
                                  "ecc_options": "nlevels=4, MOTION_EUCLIDEAN, default criteria, identity start"},
                     "floors": FLOORS}
     try:
         if not args.skip_images:
-            report["images"] = run_images(args.data, cases=cases, sweep_cases=sweep, seed=args.seed, methods=METHODS)
+            report["images"] = run_images(args.data, cases=cases, camvid_cases=camvid, impossible=impossible,
+                                          seed=args.seed, max_side=args.max_side, methods=methods,
+                                          texture_seeds=args.texture_seeds)
         if not args.skip_scaling:
             report["scaling"] = run_scaling(args.data, sizes=sizes, iterations=args.icp_iterations, repeats=repeats,
                                             seed=args.seed)

@@ -112,25 +112,23 @@ def smooth_prior(q: np.ndarray, *, pi: float, eps: float = 0.05, sigma: float = 
     return cv2.addWeighted(q, 1.0 - float(eps), q, 0.0, float(eps) * _check_pi(pi))
 
 
-def warp_prior(q: np.ndarray, T_ref_mov: np.ndarray | None, *, shape: tuple[int, int], pi: float
+def warp_prior(q: np.ndarray, T_ref_mov, *, shape: tuple[int, int], pi: float
                ) -> tuple[np.ndarray, np.ndarray]:
     """Move a reference-frame prior onto the moving frame's pixel grid.
 
     q : (H, W) float32 probability of obstacle in the reference frame.
-    T_ref_mov : (3, 3) moving -> reference (as :func:`pcreg.register` returns); None = identity (the
-        unregistered ablation; sizes must then match, or the prior is cropped/padded at the origin).
+    T_ref_mov : (3, 3) moving -> reference (as :func:`pcreg.register` returns), or a dense field
+        (H, W, 2) of reference coordinates of every moving pixel (:func:`pcreg.register_dense`);
+        None = identity (the unregistered ablation; sizes must then match, or the prior is
+        cropped/padded at the origin).
     shape : (H, W) of the moving frame.
     Returns ``(q_mov (H, W) float32, valid (H, W) bool)``; ``q_mov`` is ``pi`` where not valid.
     """
-    from ..registration.warp import warp
+    from ..registration.warp import warp_to_moving
 
     pi = _check_pi(pi)
-    if T_ref_mov is None:
-        T_mov_ref = np.eye(3)
-    else:
-        T_mov_ref = np.linalg.inv(np.asarray(T_ref_mov, dtype=np.float64))
-    q_mov, valid = warp(np.asarray(q, dtype=np.float32), T_mov_ref, shape=shape, interpolation="linear", fill=pi)
-    return q_mov, valid
+    motion = np.eye(3) if T_ref_mov is None else T_ref_mov
+    return warp_to_moving(np.asarray(q, dtype=np.float32), motion, shape=shape, interpolation="linear", fill=pi)
 
 
 def prior_log_odds(q: np.ndarray, *, pi: float) -> np.ndarray:

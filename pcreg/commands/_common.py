@@ -15,8 +15,8 @@ def positive_int(text: str) -> int:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    if v < 1 or v > 1_000_000:
+        raise argparse.ArgumentTypeError(f"expected a positive integer (at most 1000000), got {v}")
     return v
 
 
@@ -176,7 +176,7 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
     if recording and args.workers > 1:
         print("note: --record runs every unit in this process (--workers ignored)")
     with OutputLock(out):  # a second run on the same --out is refused, not raced
-        with open_recorder(args, name=f"pcreg evaluate {name}") as rec:
+        with open_recorder(args, name=f"pcreg evaluate {name}", layout=name) as rec:
             with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:
                 results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
         written = write_outputs(results, out)

@@ -25,7 +25,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", choices=("rigid", "similarity"), default="rigid", help="images: motion model")
     p.add_argument("--iterations", "--max-iterations", dest="iterations", type=positive_int, default=30,
                    help="max ICP iterations (per level for images)")
-    p.add_argument("--levels", type=positive_int, default=4, help="images: pyramid levels")
+    from ..validation import arg_int
+
+    p.add_argument("--levels", type=arg_int(1, 8), default=4, help="images: pyramid levels")
     p.add_argument("--max-distance", type=positive_float, default=None,
                    help="correspondence distance: images, px at full resolution (x 2^level; default 2.5); "
                         "clouds, in their units (default 1%% of the target's bounding-box diagonal)")
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not (args.a and args.b):
         raise InputError("give two images or two clouds A B (or --export DIR / --suite DIR)")
-    from ..crosschecks import CLOUD_SUFFIXES
+    from ..implementations.crosscheck import CLOUD_SUFFIXES
 
     if args.a.lower().endswith(CLOUD_SUFFIXES) or args.b.lower().endswith(CLOUD_SUFFIXES):
         return _clouds(args)
@@ -92,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _suite(args) -> dict:
-    from ..crosscheck_suite import builtin_cases, export_suite, load_suite, run_suite, write_results
+    from ..implementations.suite import builtin_cases, export_suite, load_suite, run_suite, write_results
 
     out: dict = {}
     if args.export:
@@ -121,7 +123,7 @@ def _suite(args) -> dict:
 
 
 def _clouds(args) -> int:
-    from ..crosschecks import crosscheck
+    from ..implementations.crosscheck import crosscheck
     from ..implementations import stdout_to_stderr
 
     init = None
@@ -206,7 +208,7 @@ def format_table(out: dict) -> str:
 
 
 def _images(args) -> int:
-    from ..crosschecks import CrosscheckConfig, crosscheck
+    from ..implementations.crosscheck import CrosscheckConfig, crosscheck
 
     if args.implementations:
         from ..errors import InputError

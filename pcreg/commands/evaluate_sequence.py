@@ -29,7 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", choices=("identity", "auto"), default="identity",
                         help="registration start: identity (default) or auto (global rotation search)")
     parser.add_argument("--model", default="similarity",
-                        help="motion model: similarity (default), translation, rigid, affine, projective")
+                        help="motion model: similarity (default), translation, rigid, affine, projective, or "
+                             "dense (the similarity refined by a dense field, pcreg.register_dense)")
     c.add_run_arguments(parser, out="out/sequence")
 
 
@@ -46,8 +47,8 @@ def config_from_args(args: argparse.Namespace) -> SequenceConfig:
         raise InputError("--fusion-weight must be >= 0")
     if args.levels < 1 or args.levels > 8 or args.iterations < 1:
         raise InputError("--levels must be in 1..8 and --iterations at least 1")
-    if args.model not in MODELS:
-        raise InputError(f"--model must be one of {', '.join(MODELS)}")
+    if args.model not in MODELS + ("dense",):
+        raise InputError(f"--model must be one of {', '.join(MODELS + ('dense',))}")
     if args.workers < 1:
         raise InputError("--workers must be at least 1")
     return SequenceConfig(data=args.data, increments=tuple(sorted(set(args.increments))),

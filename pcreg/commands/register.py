@@ -19,14 +19,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="auto: global rotation search; identity: start from no motion")
     p.add_argument("--max-distance", type=positive_float, default=2.5,
                    help="correspondence distance in px at full resolution (x 2^level)")
+    p.add_argument("--refine", choices=("none", "point_to_line"), default="none",
+                   help="finish: point_to_line (reference backend only) removes edge-sampling bias")
+    p.add_argument("--min-inlier-ratio", type=float, default=None, metavar="R",
+                   help="refuse (exit 3) below this share of tight inliers (default: the library's, 0.15); "
+                        "0 turns the test off")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="WARPED.png", help="write the moving image warped onto the reference grid")
     add_record_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
-    import time
-
     import cv2
 
     from ..outputs import atomic_write_bytes, check_output
@@ -47,8 +50,12 @@ def run(args: argparse.Namespace) -> int:
             rc, mc = cloud_pyramid(ref, levels=1)[0], cloud_pyramid(mov, levels=1)[0]
             rec.log_clouds(reference_points=rc.points, reference_colors=rc.colors, moving_points=mc.points,
                            moving_colors=mc.colors)
+        from ..registration.api import DEFAULT_MIN_INLIER_RATIO
+
+        mir = DEFAULT_MIN_INLIER_RATIO if args.min_inlier_ratio is None else args.min_inlier_ratio
         result = register(ref, mov, backend=args.backend, model=args.model, levels=args.levels,
                           iterations=args.iterations, init=args.init, max_correspondence_distance=args.max_distance,
+                          refine=args.refine, min_inlier_ratio=None if mir == 0 else mir,
                           callback=rec.icp_callback(args.backend) if rec is not None else None)
         warped = valid = None
         if args.out or rec is not None:
@@ -64,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
             raise OutputError(f"cannot encode {args.out}")
         atomic_write_bytes(args.out, buf.tobytes())
     if args.json:
-        print_json(result.to_dict())
+        print_json({"ok": True, **result.to_dict()})
     else:
         print(result)
     return 0

@@ -1,6 +1,14 @@
-"""Open a rerun recording (.rrd) in the viewer, or render a screenshot of it without a display.
+"""Open rerun recordings (.rrd) in the viewer, in a browser, or render a screenshot without a display.
+
+Every recording is shown with the blueprint of its kind built from what it holds (no empty view);
+several recordings (``pcreg view A.rrd B.rrd``) are merged into one comparison, each under its file
+name, the same view of each side by side and their series in one plot (:mod:`pcreg.recording.staging`).
 
 ``pcreg view FILE.rrd`` starts the native viewer (the ``rerun`` program that comes with rerun-sdk).
+``pcreg view FILE.rrd --web`` serves rerun's web viewer (its assets are inside rerun-sdk; nothing is
+downloaded) and the recording over gRPC, both on 127.0.0.1 unless ``--bind`` says otherwise, prints the
+URL to open and serves until Ctrl-C: no display and no GPU needed on the machine (over SSH, forward
+both ports, e.g. ``ssh -L 9090:localhost:9090 -L 9876:localhost:9876 HOST``).
 ``pcreg view FILE.rrd --screenshot OUT.png [--time frame=N] [--view NAME]`` starts the viewer headless
 on 127.0.0.1 (Vulkan; on a machine without a GPU, Mesa's lavapipe from Debian's
 ``mesa-vulkan-drivers``), drives it with ``rerun.experimental.ViewerClient`` and saves the picture.
@@ -9,13 +17,18 @@ on 127.0.0.1 (Vulkan; on a machine without a GPU, Mesa's lavapipe from Debian's
 from __future__ import annotations
 
 import argparse
+import contextlib
+import ipaddress
 import os
 import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import time
+import urllib.parse
 from pathlib import Path
+from typing import Any, Iterator
 
 from ..errors import InputError, OutputError, PcregError
 
@@ -25,7 +38,13 @@ class ViewerError(PcregError):
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("recording", metavar="FILE.rrd", help="the recording to show")
+    parser.add_argument("recordings", metavar="FILE.rrd", nargs="+",
+                        help="the recording to show; several are shown side by side (a comparison)")
+    parser.add_argument("--web", action="store_true", help="serve the web viewer and print its URL instead of opening a window")
+    parser.add_argument("--bind", metavar="ADDRESS", default="127.0.0.1",
+                        help="address the web viewer and its data server listen on (default 127.0.0.1: this machine only)")
+    parser.add_argument("--web-port", type=_port, default=9090, help="web viewer's HTTP port (default 9090; 0: any free port)")
+    parser.add_argument("--grpc-port", type=_port, default=9876, help="recording server's port (default 9876; 0: any free port)")
     parser.add_argument("--screenshot", metavar="OUT.png", help="render to this PNG headless instead of opening a window")
     parser.add_argument("--time", metavar="TIMELINE=N", help="put the time cursor here before the screenshot, e.g. frame=3")
     parser.add_argument("--view", metavar="NAME", help="screenshot only the view with this name (e.g. Registration)")
@@ -35,6 +54,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--viewer", metavar="PATH", help="the rerun program (default: the one installed with rerun-sdk)")
     parser.add_argument("--timeout", type=arg_float(0, 86400, lo_open=True), default=60.0, help="seconds to wait for the viewer (default 60)")
     parser.add_argument("--force", action="store_true", help="overwrite OUT.png")
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0..65535, got {value}")
+    return value
 
 
 def find_viewer(explicit: str | None = None) -> str:
@@ -109,21 +138,19 @@ def vulkan_icds() -> list[Path]:
     return found
 
 
-def screenshot(
-    recording: str | os.PathLike,
-    out: str | os.PathLike,
-    *,
-    time_cursor: tuple[str, int] | None = None,
-    view: str | None = None,
-    size: str = "1600x900",
-    viewer: str | None = None,
-    timeout: float = 60.0,
-) -> Path:
-    """Render ``recording`` headless to the PNG ``out`` and return its path.
+#: Seconds after the headless viewer starts before a picture of the whole window is taken: its start-up
+#: notices (server address, renderer) fade out by then.
+NOTICES_FADE_S = 7.0
+
+
+@contextlib.contextmanager
+def headless(recording: str | os.PathLike, *, size: str = "1600x900", viewer: str | None = None,
+             timeout: float = 60.0) -> Iterator[tuple[Any, Any, float]]:
+    """The headless viewer with ``recording`` loaded: yields ``(ViewerClient, ViewerState, started)``.
 
     Starts ``rerun --headless`` bound to 127.0.0.1 on a free port in a process group of its own, opens
-    the file, waits for it to load, sets the time cursor, saves the screenshot (of the whole viewer or
-    of the view named ``view``) and stops the viewer.
+    the file, waits for it to load (its views laid out), and stops the viewer on exit. ``started`` is
+    the ``time.monotonic()`` at which the viewer started.
     """
     from rerun.experimental import ViewerClient
 
@@ -131,13 +158,13 @@ def screenshot(
     if sys.platform.startswith("linux") and not vulkan_icds():
         raise ViewerError("no Vulkan driver for a headless screenshot: install Debian's mesa-vulkan-drivers (lavapipe)")
     rec_path = Path(recording).resolve()
-    out_path = Path(out).resolve()
     port = _free_port()
     env = dict(os.environ)
     env.setdefault("WGPU_BACKEND", "vulkan")
     env.setdefault("XDG_RUNTIME_DIR", str(Path(os.environ.get("TMPDIR", "/tmp"))))
     cmd = [binary, "--headless", "--bind", "127.0.0.1", "--port", str(port), "--hide-welcome-screen",
            "--window-size", size, "--renderer", "vulkan"]
+    started = time.monotonic()
     proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.monotonic() + timeout
@@ -164,6 +191,30 @@ def screenshot(
             if time.monotonic() > deadline:
                 raise ViewerError(f"the viewer did not finish loading {rec_path} within {timeout:.0f} s")
             time.sleep(0.2)
+        yield client, state, started
+    except RuntimeError as exc:  # ViewerClient's errors
+        raise ViewerError(f"the viewer failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else exc}") from None
+    finally:
+        _stop(proc)
+
+
+def screenshot(
+    recording: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    time_cursor: tuple[str, int] | None = None,
+    view: str | None = None,
+    size: str = "1600x900",
+    viewer: str | None = None,
+    timeout: float = 60.0,
+) -> Path:
+    """Render ``recording`` headless to the PNG ``out`` and return its path.
+
+    Loads it in the :func:`headless` viewer, sets the time cursor, saves the screenshot (of the whole
+    viewer, once its start-up notices have faded, or of the view named ``view``) and stops the viewer.
+    """
+    out_path = Path(out).resolve()
+    with headless(recording, size=size, viewer=viewer, timeout=timeout) as (client, state, started):
         if time_cursor is not None:
             name, value = time_cursor
             timelines = {t.name for r in state.recordings for t in r.timelines}
@@ -177,6 +228,8 @@ def screenshot(
                 raise InputError(f"--view: no view named {view!r} (views: {', '.join(sorted(names))})")
             view_id = names[view]
         time.sleep(0.5)  # let a few frames paint after the cursor moved
+        if view_id is None:
+            time.sleep(max(0.0, started + NOTICES_FADE_S - time.monotonic()))
         out_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.png")
         try:
@@ -187,11 +240,7 @@ def screenshot(
         finally:
             if tmp.exists():
                 tmp.unlink()
-        return out_path
-    except RuntimeError as exc:  # ViewerClient's errors
-        raise ViewerError(f"the viewer failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else exc}") from None
-    finally:
-        _stop(proc)
+    return out_path
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -213,19 +262,163 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.stderr.close()
 
 
+def _free_port_on(host: str) -> int:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def _port_free(host: str, port: int) -> bool:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def _url_host(bind: str) -> str:
+    """The host name a browser uses for a server bound to ``bind``."""
+    if bind == "::1":
+        return "[::1]"
+    if bind in ("0.0.0.0", "::"):
+        return socket.gethostname()
+    return f"[{bind}]" if ":" in bind else bind
+
+
+def web_url(host: str, web_port: int, grpc_port: int) -> str:
+    """The web viewer's URL, with the recording server to connect to."""
+    data = f"rerun+http://{host}:{grpc_port}/proxy"
+    return f"http://{host}:{web_port}/?url={urllib.parse.quote(data, safe='')}"
+
+
+def serve_web(
+    recording: str | os.PathLike,
+    *,
+    bind: str = "127.0.0.1",
+    web_port: int = 9090,
+    grpc_port: int = 9876,
+    viewer: str | None = None,
+    timeout: float = 60.0,
+) -> tuple[subprocess.Popen, str]:
+    """Start rerun's web viewer and a gRPC server holding ``recording``, both bound to ``bind``.
+
+    Returns the server process (in a process group of its own; stop it with :func:`stop`) and the URL
+    to open, once both ports answer. Port 0 picks a free port. The web viewer's files come from the
+    installed rerun-sdk (they are built into its ``rerun`` program).
+    """
+    binary = find_viewer(viewer)
+    if bind != "localhost":
+        try:
+            ipaddress.ip_address(bind)
+        except ValueError:
+            raise InputError(f"--bind must be an IP address of this machine (e.g. 127.0.0.1, 0.0.0.0), got {bind!r}") from None
+    probe = "127.0.0.1" if bind in ("0.0.0.0", "localhost") else ("::1" if bind == "::" else bind)
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in probe else socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.bind((probe, 0))
+    except OSError as exc:
+        raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
+    try:
+        web_port = web_port or _free_port_on(probe)
+        grpc_port = grpc_port or _free_port_on(probe)
+    except OSError as exc:
+        raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
+    if web_port == grpc_port:
+        raise InputError(f"--web-port and --grpc-port must differ (both {web_port})")
+    for name, port in (("--web-port", web_port), ("--grpc-port", grpc_port)):
+        if not _port_free(probe, port):
+            raise InputError(f"{name} {port}: the port is in use on {bind} (choose another, or 0 for any free port)")
+    cmd = [binary, str(Path(recording).resolve()), "--serve-web", "--bind", bind, "--port", str(grpc_port),
+           "--web-viewer-port", str(web_port)]
+    if bind not in ("127.0.0.1", "::1", "localhost"):
+        # the data server answers only pages from localhost unless told otherwise: allow our web viewer's
+        # page under whatever name the machine is reached by
+        cmd += ["--cors-allow-origin", f"http://*:{web_port}"]
+    env = dict(os.environ)
+    env.setdefault("RUST_LOG", "warn")
+    with tempfile.TemporaryFile() as log:  # a file, not a pipe: a server that runs for hours must never block on it
+        proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=log, start_new_session=True)
+        try:
+            _wait_listening(proc, log, probe, (web_port, grpc_port), timeout)
+        except BaseException:
+            stop(proc)
+            raise
+    return proc, web_url(_url_host(bind), web_port, grpc_port)
+
+
+def _wait_listening(proc: subprocess.Popen, log, host: str, ports: tuple[int, ...], timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    for port in ports:
+        while True:
+            if proc.poll() is not None:
+                log.seek(0)
+                err = log.read().decode(errors="replace").strip().splitlines()
+                last = next((line for line in reversed(err) if line.strip()), f"exit code {proc.returncode}")
+                raise ViewerError(f"the web viewer stopped: {last[-300:]}")
+            try:
+                with socket.create_connection((host, port), timeout=1.0):
+                    break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise ViewerError(f"the web viewer did not listen on port {port} within {timeout:.0f} s") from None
+                time.sleep(0.1)
+
+
+def stop(proc: subprocess.Popen) -> None:
+    """Stop a viewer or server started here (its own process group), then reap it."""
+    _stop(proc)
+
+
 def run(args: argparse.Namespace) -> int:
     from ..outputs import check_output
+    from ..recording.staging import stage
 
-    check_recording(args.recording)
-    if args.screenshot is None:
-        if args.time or args.view:
-            raise InputError("--time and --view go with --screenshot")
-        binary = find_viewer(args.viewer)
-        return subprocess.call([binary, str(args.recording)])
-    out = check_output(args.screenshot, force=args.force)
-    if out.suffix.lower() != ".png":
-        raise OutputError(f"{out}: the screenshot is written as PNG; name it .png")
-    path = screenshot(args.recording, out, time_cursor=_parse_time(args.time), view=args.view, size=args.size,
-                      viewer=args.viewer, timeout=args.timeout)
-    print(path)
-    return 0
+    for r in args.recordings:
+        check_recording(r)
+    if args.web and args.screenshot:
+        raise InputError("--web serves the viewer to a browser; --screenshot renders without one: choose one")
+    if args.screenshot is None and (args.time or args.view):
+        raise InputError("--time and --view go with --screenshot")
+    binary = find_viewer(args.viewer)
+    native = args.screenshot is None and not args.web
+    if native and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise ViewerError("no display for the native viewer (DISPLAY and WAYLAND_DISPLAY are unset): "
+                          "use --web to view it in a browser, or --screenshot OUT.png")
+    out = None
+    time_cursor = _parse_time(args.time)
+    if args.screenshot is not None:
+        out = check_output(args.screenshot, force=args.force)
+        if out.suffix.lower() != ".png":
+            raise OutputError(f"{out}: the screenshot is written as PNG; name it .png")
+    with tempfile.TemporaryDirectory(prefix="pcreg-view-") as tmp:
+        try:
+            staged = stage(args.recordings, Path(tmp) / "view.rrd")
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+        if out is not None:
+            path = screenshot(staged.path, out, time_cursor=time_cursor, view=args.view, size=args.size,
+                              viewer=binary, timeout=args.timeout)
+            print(path)
+            return 0
+        if args.web:
+            proc, url = serve_web(staged.path, bind=args.bind, web_port=args.web_port, grpc_port=args.grpc_port,
+                                  viewer=binary, timeout=args.timeout)
+            if args.bind not in ("127.0.0.1", "::1", "localhost"):
+                sys.stderr.write(f"pcreg: note: serving on {args.bind}: whoever can reach this machine there can "
+                                 "read the recording\n")
+            try:
+                print(f"serving {', '.join(map(str, args.recordings))} on {args.bind} (Ctrl-C stops)")
+                print(url, flush=True)
+                proc.wait()
+            except KeyboardInterrupt:
+                return 130
+            finally:
+                stop(proc)
+            if proc.returncode not in (0, -15):
+                raise ViewerError(f"the web viewer stopped (exit code {proc.returncode})")
+            return 0
+        return subprocess.call([binary, str(staged.path)])

@@ -42,7 +42,7 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     """Run every part and write ``out/report.md``; returns its path. Overwrites earlier demo output."""
     import numpy as np
 
-    from ..crosschecks import crosscheck
+    from ..implementations.crosscheck import crosscheck
     from ..outputs import atomic_write_json, atomic_write_text
     from .._runner import make_executor
     from ..datasets import load_dataset
@@ -96,7 +96,7 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     if record is not None:
         from ..recording.recorder import Recorder
 
-        with Recorder(record, recording_name="pcreg demo", raw_images=raw_images, force=True) as rec:
+        with Recorder(record, recording_name="pcreg demo", kind="demo", raw_images=raw_images, force=True) as rec:
             sres = sequence.evaluate(scfg, out=out / "sequence", force=True, recorder=rec, show_progress=False)
     else:
         with make_executor(workers) as ex:

@@ -1,4 +1,4 @@
-"""ICP implementations behind one interface, for cross-checks (:mod:`pcreg.crosschecks`).
+"""ICP implementations behind one interface, for cross-checks (:mod:`pcreg.implementations.crosscheck`).
 
 ``get(spec)`` returns an :class:`~pcreg.implementations.base.Implementation` for a built-in name
 (:data:`BUILTIN`), ``py:MODULE:FUNCTION`` or ``cmd:"PROGRAM {source} {target} {init} {out} {params}"``;

@@ -1,8 +1,9 @@
-"""Offline viewing of pcreg's rerun recordings: entity paths and the blueprint embedded in every recording.
+"""Recordings of pcreg's runs and how they are viewed: entity paths, the recorder, one blueprint per kind
+of recording, reading recordings back, and staging them (one, or several side by side) for a viewer.
 
-``pcreg.recording.entities`` has no dependencies; ``pcreg.recording.blueprint`` imports ``rerun.blueprint``.
+``pcreg.recording.entities`` has no dependencies; the other modules import rerun.
 """
 
 from __future__ import annotations
 
-__all__ = ["blueprint", "entities"]
+__all__ = ["blueprint", "entities", "readback", "recorder", "staging"]

@@ -3,6 +3,11 @@
 The recorder (``pcreg.recording.recorder``) writes to these paths, the blueprint (``pcreg.recording.blueprint``) lays out
 views over them, and tests read them back. Plain strings, no imports.
 
+Timelines: ``frame`` (the frame or unit being processed), ``icp_iteration`` (ICP steps, restarting at
+every frame) and ``crosscheck_iteration`` (a cloud cross-check's iterations, shared by every
+implementation); what is logged outside the iterations sits at 0 on both iteration timelines, so a view
+on any timeline shows it.
+
 Layout (``{x}`` is filled in at log time)::
 
     /                                   AnnotationContext (static): 0 ground, 1 obstacle, 2 unknown
@@ -25,6 +30,12 @@ Layout (``{x}`` is filled in at log time)::
     icp/{backend}/correspondences       LineStrips2D: a subsample of source -> target pairs
     icp/{backend}/fitness               Scalars on the icp_iteration timeline
     icp/{backend}/inlier_rmse           Scalars on the icp_iteration timeline
+    dense/displacement                  Image RGB: |field(p) - p| of a dense registration, colour-mapped (moving frame)
+    dense/refinement                    Image RGB: |field(p) - T_ref_mov p|, what the dense step adds to the global one
+    dense/quiver                        Arrows2D: field(p) - p on a coarse grid of moving pixels
+    dense/confidence                    Image L: the field's per-pixel confidence, 0..255
+    dense/warped_prior                  Image L: reference labels' obstacle probability warped into the moving frame
+    dense/max_displacement              Scalars: the largest |field(p) - p| (px), the colour scale's top
     crosscheck/report                   TextDocument: both results and their disagreement as JSON
     crosscheck/{key}                    Scalars: every number of the report, nested keys joined by '/'
     crosscheck/target                   Points2D/3D: the target cloud of a cloud cross-check (static)
@@ -32,6 +43,15 @@ Layout (``{x}`` is filled in at log time)::
     crosscheck/{implementation}/error   Scalars: RMS distance of those points from where the reference's
                                         final pose puts them, on the crosscheck_iteration timeline
     crosscheck/{implementation}/fitness, .../inlier_rmse   Scalars on the crosscheck_iteration timeline
+    crosscheck/{implementation}/...     anything else an implementation logs: each implementation with a cloud
+                                        gets a 2-D (or 3-D) view, each series name one plot with every
+                                        implementation on it (on crosscheck_iteration, else icp_iteration)
+    dense/{what}                        dense registration: images (e.g. dense/magnitude, the displacement
+                                        magnitude; dense/warped_prior, the prior warped by the field),
+                                        Arrows2D (dense/field), each a 2-D view; Scalars under dense/ in one plot
+    __properties/pcreg                  recording property ``kind``: which command made the recording
+                                        (register, crosscheck, sequence, rotation, demo, dense), so that
+                                        the viewer gets that command's blueprint
 """
 
 from __future__ import annotations
@@ -63,12 +83,23 @@ TRUTH = "labels/truth"
 PREDICTED = "labels/predicted"
 
 ERRORS = "errors"
+
+DENSE = "dense"
+DENSE_DISPLACEMENT = "dense/displacement"
+DENSE_REFINEMENT = "dense/refinement"
+DENSE_QUIVER = "dense/quiver"
+DENSE_CONFIDENCE = "dense/confidence"
+DENSE_WARPED_PRIOR = "dense/warped_prior"
+DENSE_MAX_DISPLACEMENT = "dense/max_displacement"
+
 ICP = "icp"
 CROSSCHECK = "crosscheck"
 CROSSCHECK_REPORT = "crosscheck/report"
+CROSSCHECK_TARGET = "crosscheck/target"
 
-#: Backends that get a view of their own in the blueprint (others still appear in the ICP series).
-ICP_BACKENDS = ("reference", "open3d")
+#: The recording property (``/__properties/pcreg``) that holds the kind of recording.
+PROPERTY = "pcreg"
+KIND_FIELD = "kind"
 
 #: Terrain classes: id -> (name, RGB colour).
 CLASSES = {

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Row", "Recording", "read_recording", "tensor", "image", "segmentation", "scalar", "text", "points"]
+__all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "BlueprintView", "read_blueprint", "tensor", "image", "segmentation", "scalar", "text", "points"]
 
 _SKIP_TIMELINES = {"log_time", "log_tick"}
 
@@ -98,6 +98,122 @@ def read_recording(path: str | os.PathLike) -> Recording:
             values = {c: batch.column(c)[i].values for c in comps if batch.column(c)[i].is_valid}
             out.rows.setdefault(chunk.entity_path, []).append(Row(chunk.entity_path, chunk.is_static, times, values))
     return out
+
+
+def read_entities(path: str | os.PathLike, *, timeline: str | None = None) -> dict[str, frozenset[str]]:
+    """``{entity path: archetype names with data there}`` of the first recording in ``path``, read from the
+    chunks' columns only (fast: no row is converted). rerun's ``/__properties`` are left out; an entity
+    with Scalars at two times or more also has ``"Scalars+"``.
+
+    With ``timeline``, only what a viewer shows on that timeline: static data and rows that have a time
+    on it."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    stores = reader.recordings()
+    if not stores:
+        raise ValueError(f"{path}: no recording in this file")
+    out: dict[str, set[str]] = {}
+    scalars: dict[str, int] = {}
+    for chunk in reader.stream(store=stores[0]):
+        if chunk.entity_path.startswith("/__"):
+            continue
+        batch = chunk.to_record_batch()
+        names = set(chunk.timeline_names)
+        rows = None
+        if timeline is not None and not chunk.is_static:
+            if timeline not in names:
+                continue
+            rows = batch.column(timeline).is_valid()
+        arch = set()
+        for n in batch.schema.names:
+            if ":" not in n or n.startswith("rerun.") or n in names:
+                continue
+            col = batch.column(n)
+            valid = col.is_valid()
+            if rows is not None:
+                import pyarrow.compute as pc
+
+                valid = pc.and_(valid, rows)
+            count = valid.true_count if hasattr(valid, "true_count") else sum(bool(v) for v in valid.to_pylist())
+            if count:
+                arch.add(n.split(":", 1)[0])
+            if n == "Scalars:scalars":
+                scalars[chunk.entity_path] = scalars.get(chunk.entity_path, 0) + count
+        out.setdefault(chunk.entity_path, set()).update(arch)
+    for path, n in scalars.items():
+        if n >= 2:  # a line, not a lone dot (see pcreg.recording.blueprint.SERIES)
+            out[path].add("Scalars+")
+    return {p: frozenset(a) for p, a in out.items()}
+
+
+@dataclass(frozen=True)
+class BlueprintView:
+    """One view of a blueprint stored in a recording file: its class (``2D``, ``TimeSeries``,
+    ``TextLog``, ``TextDocument``, ...), name, origin and content queries (``+ /path/**``)."""
+
+    view_class: str
+    name: str
+    origin: str
+    query: tuple[str, ...]
+
+
+def read_blueprint(path: str | os.PathLike) -> tuple[list[BlueprintView], str | None]:
+    """The views of the last blueprint stored in ``path`` and the timeline its time panel opens on."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    stores = reader.blueprints()
+    if not stores:
+        return [], None
+    fields: dict[str, dict[str, Any]] = {}
+    timeline = None
+    for chunk in reader.stream(store=stores[-1]):
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if ":" not in name or name.startswith("rerun."):
+                continue
+            values = [v for v in batch.column(name).to_pylist() if v is not None]
+            if not values:
+                continue
+            if name == "TimePanelBlueprint:timeline":
+                timeline = str(values[-1][0] if isinstance(values[-1], list) else values[-1])
+            fields.setdefault(chunk.entity_path, {})[name] = values[-1]
+    views = []
+    for entity, f in fields.items():
+        if "ViewBlueprint:class_identifier" not in f:
+            continue
+
+        def one(key: str, f=f) -> str:
+            v = f.get(key)
+            return str(v[0] if isinstance(v, list) else v) if v is not None else ""
+
+        query = fields.get(entity + "/ViewContents", {}).get("ViewContents:query") or []
+        views.append(BlueprintView(one("ViewBlueprint:class_identifier"), one("ViewBlueprint:display_name"),
+                                   one("ViewBlueprint:space_origin"), tuple(str(q) for q in query)))
+    return views, timeline
+
+
+def read_kind(path: str | os.PathLike) -> str | None:
+    """The kind of recording stored by the recorder (property ``pcreg.kind``), or None."""
+    from rerun.chunk import RrdReader
+
+    from . import entities as E
+
+    reader = RrdReader(str(path))
+    stores = reader.recordings()
+    if not stores:
+        raise ValueError(f"{path}: no recording in this file")
+    kind = None
+    for chunk in reader.stream(store=stores[0]).filter(content=f"/__properties/{E.PROPERTY}"):
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if name == E.KIND_FIELD or name.endswith(":" + E.KIND_FIELD):
+                values = [v for v in batch.column(name).to_pylist() if v is not None]
+                if values:
+                    v = values[-1]
+                    kind = str(v[0] if isinstance(v, list) else v)
+    return kind
 
 
 def scalar(row: Row) -> float:

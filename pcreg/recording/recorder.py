@@ -2,11 +2,14 @@
 
 The others that import rerun: :mod:`pcreg.recording.blueprint` builds layouts (``rerun.blueprint``);
 :mod:`pcreg.recording.readback` and :mod:`pcreg.commands.view` read recordings (``rerun.chunk.RrdReader``)
-and drive the viewer.
+and drive the viewer; :mod:`pcreg.recording.staging` copies recordings (their chunks, unchanged, or
+moved under a label) into the file a viewer opens.
 
 A :class:`Recorder` writes to its file as it goes, so a run that is interrupted leaves a recording
 that reads back up to where it stopped. Entity paths and timelines are named in
-:mod:`pcreg.recording.entities`; the blueprint embedded in the file comes from :mod:`pcreg.recording.blueprint`.
+:mod:`pcreg.recording.entities`. The recording holds its kind (which command made it) as a property, and
+when it closes, the blueprint of that kind built from what was logged (:mod:`pcreg.recording.blueprint`),
+so that every view it opens with has data.
 
 Usage::
 
@@ -30,6 +33,7 @@ import dataclasses
 import json
 import math
 import os
+import threading
 import traceback
 import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -139,9 +143,13 @@ class Recorder:
         Log images (and label maps) losslessly instead of JPEG (and display-subsampled labels).
     force : bool
         Overwrite an existing file.
+    kind : str, optional
+        Which command records: ``register``, ``crosscheck``, ``sequence``, ``rotation``, ``demo`` or
+        ``dense`` (:data:`pcreg.recording.blueprint.KINDS`). Stored in the recording (property
+        ``pcreg.kind``) and picks the blueprint; inferred from what was logged when omitted.
     blueprint : bool or str
-        Embed the blueprint from :mod:`pcreg.recording.blueprint` (``True`` or a layout name: ``"default"``,
-        ``"crosscheck"``); ``False`` lets the viewer choose.
+        Embed, on :meth:`close`, the blueprint of ``kind`` built from the entities logged (a kind name
+        here sets ``kind``; ``"default"`` is the same as ``True``)        ; ``False`` lets the viewer choose.
     jpeg_quality : int
         JPEG quality of logged images (1..100).
     max_display_points : int
@@ -164,6 +172,7 @@ class Recorder:
         recording_id: str | None = None,
         raw_images: bool = False,
         force: bool = False,
+        kind: str | None = None,
         blueprint: bool | str = True,
         jpeg_quality: int = DEFAULT_JPEG_QUALITY,
         max_display_points: int = 500,
@@ -190,17 +199,27 @@ class Recorder:
         self.application_id = application_id
         self.recording_id = recording_id or str(uuid.uuid4())
         self._rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
-        bp = None
-        if blueprint:
-            from pcreg.recording.blueprint import blueprint as make_blueprint
+        from pcreg.recording.blueprint import KINDS
 
-            bp = make_blueprint(layout=blueprint if isinstance(blueprint, str) else "default")
+        if isinstance(blueprint, str) and blueprint != "default":
+            if kind is not None and kind != blueprint:
+                raise ValueError(f"kind={kind!r} and blueprint={blueprint!r} disagree")
+            kind = blueprint
+        if kind is not None and kind not in KINDS:
+            raise ValueError(f"unknown kind of recording {kind!r} (choose from {', '.join(KINDS)})")
+        self.kind = kind
+        self._embed_blueprint = bool(blueprint)
+        self._entities: dict[str, set[str]] = {}
+        self._scalar_counts: dict[str, int] = {}
+        self._entities_lock = threading.Lock()
         try:
-            self._rec.save(self.path, default_blueprint=bp)
+            self._rec.save(self.path)
         except Exception as exc:  # rerun raises its own types for sink errors
             raise OutputError(f"cannot write {self.path}: {exc}") from None
         if recording_name:
             self._rec.send_recording_name(recording_name)
+        if kind is not None:
+            self._rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: kind}))
         self._closed = False
         self._encoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-recorder")
         self._pending: list[Future] = []
@@ -211,7 +230,7 @@ class Recorder:
         self._matrix: np.ndarray | None = None
         self._moving_shape: tuple[int, int] | None = None
         self._series_named: set[str] = set()
-        self._rec.log("/", rr.AnnotationContext(
+        self._send("/", rr.AnnotationContext(
             [rr.AnnotationInfo(id=k, label=name, color=color) for k, (name, color) in E.CLASSES.items()]
         ), static=True)
 
@@ -236,6 +255,7 @@ class Recorder:
             self._wait_pending()
         finally:
             self._encoder.shutdown(wait=True)
+            self._finish_blueprint()
             self._rec.flush()
             self._rec.disconnect()
 
@@ -256,7 +276,36 @@ class Recorder:
     def _log(self, path: str, *archetypes: Any, static: bool = False) -> None:
         if self._closed:
             raise OutputError(f"{self.path}: the recording is closed")
+        self._send(path, *archetypes, static=static)
+
+    def _send(self, path: str, *archetypes: Any, static: bool = False) -> None:
+        """Log to rerun and note which archetypes each entity has (for the blueprint)."""
         self._rec.log(path, *archetypes, static=static)
+        names = {type(a).__name__ for a in archetypes}
+        key = "/" + path.strip("/")
+        with self._entities_lock:
+            if "Scalars" in names:  # two values make a line (pcreg.recording.blueprint.SERIES)
+                self._scalar_counts[key] = self._scalar_counts.get(key, 0) + 1
+                if self._scalar_counts[key] >= 2:
+                    names.add("Scalars+")
+            self._entities.setdefault(key, set()).update(names)
+
+    def entities(self) -> dict[str, frozenset[str]]:
+        """Entity paths logged so far and the archetypes logged at each."""
+        with self._entities_lock:
+            return {p: frozenset(a) for p, a in self._entities.items()}
+
+    def _finish_blueprint(self) -> None:
+        """Store the inferred kind if none was given, and embed the blueprint of what was logged."""
+        from pcreg.recording.blueprint import blueprint as make_blueprint, infer_kind, panes
+
+        entities = self.entities()
+        kind = self.kind
+        if kind is None:
+            kind = infer_kind(entities)
+            self._rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: kind}))
+        if self._embed_blueprint and panes(kind, entities):  # nothing logged: the viewer chooses
+            self._rec.send_blueprint(make_blueprint(kind, entities), make_active=True, make_default=True)
 
     # -- time ---------------------------------------------------------------------------------
 
@@ -271,7 +320,10 @@ class Recorder:
             self._rec.flush(timeout_sec=0)
         self._frame = int(index)
         self._rec.set_time(E.FRAME_TIMELINE, sequence=self._frame)
-        self._rec.disable_timeline(E.ICP_TIMELINE)
+        # frame-level data sits at the start of the iteration timelines too, so a view on one of them (a
+        # registration's or a cross-check's iterations) shows the images, clouds and log with them
+        self._rec.set_time(E.ICP_TIMELINE, sequence=0)
+        self._rec.set_time(E.CROSSCHECK_TIMELINE, sequence=0)
         self._icp_step.clear()
         self._icp_target_key.clear()
         self._moving_display = None
@@ -328,7 +380,9 @@ class Recorder:
         def job() -> None:
             if frame is not None:
                 self._rec.set_time(E.FRAME_TIMELINE, sequence=frame)
-            self._rec.log(path, make())
+                self._rec.set_time(E.ICP_TIMELINE, sequence=0)
+                self._rec.set_time(E.CROSSCHECK_TIMELINE, sequence=0)
+            self._send(path, make())
 
         self._pending.append(self._encoder.submit(job))
 
@@ -441,6 +495,67 @@ class Recorder:
             corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5], [-0.5, -0.5]])
             self._log(E.outline_path(name), rr.LineStrips2D([_apply(m, corners)], colors=[255, 220, 0], radii=1.0))
 
+    # -- dense fields ---------------------------------------------------------------------------
+
+    def log_dense(
+        self,
+        field: np.ndarray,
+        *,
+        matrix: np.ndarray | None = None,
+        confidence: np.ndarray | None = None,
+        warped_prior: np.ndarray | None = None,
+        quiver_step: int = 24,
+    ) -> None:
+        """Log a dense registration's field under ``dense/``, in the moving image's pixel frame.
+
+        field : (H, W, 2) float reference coordinates of every moving pixel.
+        matrix : (3, 3) the global ``T_ref_mov`` the field refines: ``dense/refinement`` shows
+            ``|field(p) - T p|``. confidence : (H, W) float in [0, 1]. warped_prior : (H, W) float
+            obstacle probability of the reference labels warped into the moving frame.
+        Displacements (``|field(p) - p|``) are colour-mapped (TURBO, 0 to their maximum, which is
+        logged as ``dense/max_displacement``); ``dense/quiver`` draws ``field(p) - p`` every
+        ``quiver_step`` pixels.
+        """
+        f = np.asarray(field, dtype=np.float32)
+        if f.ndim != 3 or f.shape[2] != 2 or not np.all(np.isfinite(f)):
+            raise InputError(f"field must be a finite (H, W, 2) array, got shape {f.shape}")
+        h, w = f.shape[:2]
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        disp = f - np.dstack([xs, ys])
+        mag = np.hypot(disp[..., 0], disp[..., 1])
+        top = float(mag.max()) if mag.size else 0.0
+
+        def colour(m: np.ndarray, scale: float) -> np.ndarray:
+            u8 = np.clip(255.0 * m / max(scale, 1e-6), 0, 255).astype(np.uint8)
+            return cv2.cvtColor(cv2.applyColorMap(u8, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
+
+        jobs = [(E.DENSE_DISPLACEMENT, colour(mag, top))]
+        if matrix is not None:
+            M = np.asarray(matrix, dtype=np.float64)
+            if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+                raise InputError("matrix must be a finite (3, 3) array")
+            den = M[2, 0] * xs + M[2, 1] * ys + M[2, 2]
+            gx = (M[0, 0] * xs + M[0, 1] * ys + M[0, 2]) / den
+            gy = (M[1, 0] * xs + M[1, 1] * ys + M[1, 2]) / den
+            ref = np.hypot(f[..., 0] - gx, f[..., 1] - gy)
+            jobs.append((E.DENSE_REFINEMENT, colour(ref, float(ref.max()) if ref.size else 0.0)))
+        for path, img in jobs:
+            self._log_later(path, lambda img=img: self._image(img))
+        for path, a in ((E.DENSE_CONFIDENCE, confidence), (E.DENSE_WARPED_PRIOR, warped_prior)):
+            if a is None:
+                continue
+            a = np.asarray(a, dtype=np.float32)
+            if a.shape != (h, w):
+                raise InputError(f"{path.rsplit('/', 1)[-1]} must be (H, W) = {(h, w)}, got {a.shape}")
+            u8 = np.clip(255.0 * np.nan_to_num(a), 0, 255).astype(np.uint8)
+            self._log_later(path, lambda u8=u8: self._image(u8))
+        step = max(1, int(quiver_step))
+        sy, sx = slice(step // 2, h, step), slice(step // 2, w, step)
+        origins = np.column_stack([xs[sy, sx].ravel(), ys[sy, sx].ravel()])
+        vectors = disp[sy, sx].reshape(-1, 2)
+        self._log(E.DENSE_QUIVER, rr.Arrows2D(origins=origins, vectors=vectors, colors=[255, 220, 0], radii=0.8))
+        self._scalar(E.DENSE_MAX_DISPLACEMENT, top)
+
     # -- labels -------------------------------------------------------------------------------
 
     def log_labels(
@@ -521,7 +636,7 @@ class Recorder:
                     self._log(E.icp_path(backend, "correspondences"),
                               rr.LineStrips2D(strips, colors=[255, 255, 255], radii=0.5))
             finally:
-                self._rec.disable_timeline(E.ICP_TIMELINE)
+                self._rec.set_time(E.ICP_TIMELINE, sequence=0)
 
         return callback
 
@@ -564,4 +679,7 @@ class Recorder:
                 if value is not None and math.isfinite(float(value)):
                     self._scalar(E.crosscheck_path(implementation, what), float(value), f"{implementation} {what}")
         finally:
-            self._rec.disable_timeline(E.CROSSCHECK_TIMELINE)
+            if self._frame is None:
+                self._rec.disable_timeline(E.CROSSCHECK_TIMELINE)
+            else:  # back to where frame-level data sits (see set_frame)
+                self._rec.set_time(E.CROSSCHECK_TIMELINE, sequence=0)

@@ -3,6 +3,11 @@
 - :mod:`.clouds`: images to 2-D/colour point clouds and pyramids of them;
 - :mod:`.reference`: pcreg's reference ICP (Besl & McKay; Umeyama/Horn closed forms);
 - :mod:`.open3d_icp`: Open3D's point-to-point ICP on clouds lifted to z = 0;
-- :mod:`.api`: ``icp`` (clouds) and ``register`` (images, with the global search);
+- :mod:`.global_search`: hypotheses for images (edge FFT search, Fourier-Mellin, ORB + RANSAC) and the
+  evidence that tells a true alignment from chance;
+- :mod:`.api`: ``icp`` (clouds) and ``register`` (images: hypotheses, ICP, plausibility test);
+- :mod:`.dense`: ``register_dense``, the global result refined into a dense field by a non-rigid ICP;
+- :mod:`.flow`: OpenCV's DIS optical flow as a field (the baseline of the evaluations);
+- :mod:`.config`: :class:`~.config.RegisterConfig`, ``register``'s options as one frozen config;
 - :mod:`.warp`, :mod:`.transforms`, :mod:`.result`: warping, homogeneous transforms, result types.
 """

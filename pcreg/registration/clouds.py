@@ -110,7 +110,21 @@ def valid_region(image: np.ndarray) -> np.ndarray:
         return np.ones(image.shape[:2], dtype=bool)
     black = cv2.inRange(image, (0, 0, 0), (0, 0, 0))
     black = cv2.morphologyEx(black, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    return black == 0
+    # Padding lies outside the picture, which a warp keeps convex (the image of a rectangle under an
+    # affine or projective map): black areas inside the convex hull of the non-black pixels (a black
+    # object, a shadow) are content and stay usable.
+    nonblack = black == 0
+    rows = np.flatnonzero(nonblack.any(axis=1))
+    if rows.size == 0:
+        return nonblack
+    # The hull of the non-black pixels is the hull of each row's leftmost and rightmost ones.
+    sub = nonblack[rows]
+    left = np.argmax(sub, axis=1)
+    right = sub.shape[1] - 1 - np.argmax(sub[:, ::-1], axis=1)
+    ends = np.concatenate([np.column_stack([left, rows]), np.column_stack([right, rows])]).astype(np.int32)
+    inside = np.zeros(black.shape, np.uint8)
+    cv2.fillConvexPoly(inside, cv2.convexHull(ends), 255)
+    return nonblack | (inside > 0)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:
@@ -293,8 +307,9 @@ def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple
 
     ``max_points`` may be one number for every level or one per level; other options as :func:`image_cloud`.
     """
-    if levels < 1:
-        raise InputError(f"levels must be >= 1, got {levels}")
+    from ..validation import check_int
+
+    levels = check_int(levels, "levels", lo=1, hi=16)
     if not isinstance(max_points, (tuple, list)):
         max_points = (max_points,) * levels
     if len(max_points) < levels:
@@ -341,6 +356,7 @@ class ImagePyramid:
     detections: tuple
     shape: tuple[int, int]
     options: tuple = ()
+    valid: np.ndarray | None = None  # (H, W) bool usable pixels at full resolution; None: all
 
     def __len__(self) -> int:
         return len(self.detections)
@@ -358,14 +374,15 @@ class ImagePyramid:
         if not isinstance(max_points, (tuple, list)):
             max_points = (max_points,) * n
         max_points = tuple(max_points) + (max_points[-1],) * max(0, n - len(max_points))
+        return [self.cloud(level, max_points=max_points[level], seed=seed) for level in range(n)]
+
+    def cloud(self, level: int, *, max_points: int | None = None, seed: int = 0) -> ImageCloud:
+        """The cloud of one level with at most ``max_points`` points drawn with ``seed``."""
         opts = dict(self.options)
-        out = []
-        for level in range(n):
-            det = self.detections[level]
-            pts, normals, pix = _finish(det, _subsample(len(det), max_points[level], seed),
-                                        subpixel=opts.get("subpixel", True), sampler=opts.get("sampler", "canny"))
-            out.append(_as_cloud(det.image, pts, normals, pix, level=level, shape=self.shape))
-        return out
+        det = self.detections[level]
+        pts, normals, pix = _finish(det, _subsample(len(det), max_points, seed),
+                                    subpixel=opts.get("subpixel", True), sampler=opts.get("sampler", "canny"))
+        return _as_cloud(det.image, pts, normals, pix, level=level, shape=self.shape)
 
 
 def image_pyramid(image: np.ndarray, *, levels: int = 4, mask: np.ndarray | str | None = "auto",
@@ -402,24 +419,22 @@ def image_pyramid(image: np.ndarray, *, levels: int = 4, mask: np.ndarray | str 
                             top_k=top_k, canny_percentile=canny_percentile))
     options = (("sampler", sampler), ("grid_step", grid_step), ("top_k", top_k), ("subpixel", subpixel),
                ("canny_percentile", float(canny_percentile)))
-    return ImagePyramid(detections=tuple(dets), shape=(int(img.shape[0]), int(img.shape[1])), options=options)
+    return ImagePyramid(detections=tuple(dets), shape=(int(img.shape[0]), int(img.shape[1])), options=options,
+                        valid=mask)
 
 
-def pyramid_clouds(image: np.ndarray, pyramid: ImagePyramid | None, *, levels: int, max_points, seed: int,
-                   mask, sampler: str, canny_percentile: float, name: str = "image") -> list[ImageCloud]:
-    """The clouds :func:`pcreg.register` uses for one image: drawn from ``pyramid`` when one is given
-    (checked against the image and the options), else from a pyramid built here."""
-    if pyramid is None:
-        pyramid = image_pyramid(image, levels=levels, mask=mask, sampler=sampler, canny_percentile=canny_percentile)
-    else:
-        if not isinstance(pyramid, ImagePyramid):
-            raise InputError(f"{name} pyramid: expected an ImagePyramid (pcreg.image_pyramid), got {type(pyramid).__name__}")
-        if tuple(pyramid.shape) != tuple(image.shape[:2]):
-            raise InputError(f"{name} pyramid was built for a {pyramid.shape} image, not {tuple(image.shape[:2])}")
-        if len(pyramid) < levels:
-            raise InputError(f"{name} pyramid has {len(pyramid)} levels, {levels} needed")
-        opts = dict(pyramid.options)
-        if opts.get("sampler") != sampler or opts.get("canny_percentile") != float(canny_percentile):
-            raise InputError(f"{name} pyramid was built with other options ({opts}) than this registration's "
-                             f"(sampler={sampler!r}, canny_percentile={canny_percentile})")
-    return pyramid.clouds(max_points=max_points, seed=seed, levels=levels)
+def check_pyramid(image: np.ndarray, pyramid: ImagePyramid, *, levels: int, sampler: str,
+                  canny_percentile: float, name: str = "image") -> ImagePyramid:
+    """``pyramid`` when it was built for ``image`` with enough levels and these options, else an
+    :class:`~pcreg.errors.InputError`."""
+    if not isinstance(pyramid, ImagePyramid):
+        raise InputError(f"{name} pyramid: expected an ImagePyramid (pcreg.image_pyramid), got {type(pyramid).__name__}")
+    if tuple(pyramid.shape) != tuple(image.shape[:2]):
+        raise InputError(f"{name} pyramid was built for a {pyramid.shape} image, not {tuple(image.shape[:2])}")
+    if len(pyramid) < levels:
+        raise InputError(f"{name} pyramid has {len(pyramid)} levels, {levels} needed")
+    opts = dict(pyramid.options)
+    if opts.get("sampler") != sampler or opts.get("canny_percentile") != float(canny_percentile):
+        raise InputError(f"{name} pyramid was built with other options ({opts}) than this registration's "
+                         f"(sampler={sampler!r}, canny_percentile={canny_percentile})")
+    return pyramid

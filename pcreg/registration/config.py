@@ -29,15 +29,18 @@ class RegisterConfig:
     iterations: int = 14
     init: str = "auto"
     sampler: str = "canny"
-    max_points: tuple[int, ...] = (1000, 800, 600, 400)
-    reference_max_points: int | None = 20000
+    max_points: tuple[int, ...] = (2000, 800, 600, 400)
+    reference_max_points: int | None = 60000
     max_correspondence_distance: float = 2.5
-    refine: str | None = "point_to_line"
+    refine: str | None = "none"
     weights: str = "none"
     relative_fitness: float = 1e-4
     relative_rmse: float = 1e-3
     angle_step: float = 15.0
     n_candidates: int = 2
+    generators: tuple[str, ...] = ("fourier_mellin", "edges", "orb")
+    min_inlier_ratio: float | None = 0.15
+    inlier_tolerance: float = 1.0
     canny_percentile: float = 85.0
     seed: int = 0
 
@@ -51,6 +54,8 @@ class RegisterConfig:
         if not isinstance(self.iterations, int) or self.iterations < 1:
             raise InputError(f"iterations must be an integer >= 1, got {self.iterations!r}")
         object.__setattr__(self, "max_points", tuple(self.max_points))
+        object.__setattr__(self, "generators",
+                           (self.generators,) if isinstance(self.generators, str) else tuple(self.generators))
 
     def kwargs(self) -> dict:
         """``register``'s keyword arguments (every field)."""

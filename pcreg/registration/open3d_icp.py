@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..errors import RegistrationError
+from ..errors import InputError, RegistrationError
 from .result import IcpIteration, RegistrationResult
 from .transforms import lift_to_3d, project_to_2d
 
@@ -38,9 +38,10 @@ def to_pointcloud(points: np.ndarray):
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
 
 
-def _check_model(model: str) -> None:
+def check_model(model: str) -> None:
+    """Raise :class:`InputError` for a motion model Open3D's point-to-point estimation cannot fit."""
     if model not in SUPPORTED:
-        raise RegistrationError(
+        raise InputError(
             f"the open3d backend (point-to-point) supports the {' and '.join(SUPPORTED)} models, not {model!r}; "
             "use backend='reference'"
         )
@@ -56,10 +57,14 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", 
                init: np.ndarray | None = None, max_iteration: int = 30, relative_fitness: float = 1e-6,
                relative_rmse: float = 1e-6, callback: Callable[[IcpIteration], None] | None = None,
                stepwise: bool | None = None, level: int = 0, source_pcd=None, target_pcd=None,
-               ) -> RegistrationResult:
-    """One Open3D ICP run at one scale: a :class:`RegistrationResult` (``matrix`` is ``T_target_source``)."""
+               check_convergence: bool = True) -> RegistrationResult:
+    """One Open3D ICP run at one scale: a :class:`RegistrationResult` (``matrix`` is ``T_target_source``).
+
+    ``check_convergence=False`` (one call, no callback) skips the extra step that decides ``converged``
+    (reported False): for intermediate pyramid levels, whose convergence nobody reads.
+    """
     start = time.perf_counter()
-    _check_model(model)
+    check_model(model)
     o3d = _o3d()
     reg = o3d.pipelines.registration
     d = source.shape[1]
@@ -93,6 +98,8 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", 
 
     if not stepwise:
         r = step(T4, max_iteration)
+        if not check_convergence:
+            return _result(back(np.asarray(r.transformation)), r, -1, False, start)
         r_next = step(np.asarray(r.transformation), 1)
         converged = (abs(r_next.fitness - r.fitness) < relative_fitness
                      and abs(r_next.inlier_rmse - r.inlier_rmse) < relative_rmse)
@@ -120,7 +127,7 @@ def multi_scale_icp_open3d(source: np.ndarray, target: np.ndarray, *, voxel_size
                            ) -> RegistrationResult:
     """Open3D tensor ``multi_scale_icp`` (Float64, CPU) for 3-D clouds; coarse to fine over voxel sizes."""
     start = time.perf_counter()
-    _check_model(model)
+    check_model(model)
     o3d = _o3d()
     treg = o3d.t.pipelines.registration
     if source.shape[1] != 3:

@@ -30,6 +30,17 @@ class RegistrationResult:
         ``"reference"`` or ``"open3d"``.
     seconds : float
         Wall time of the registration alone (no I/O, no imports).
+    inlier_ratio : float
+        Image registration's evidence: share of the moving edge points that land on the reference with a
+        reference edge point within 1 px (``inlier_tolerance``) and the same edge direction (NaN for clouds).
+    chance_ratio : float
+        The inlier ratio that content unrelated in edge direction would reach at the same distances (NaN
+        for clouds); a true alignment is well above it.
+    overlap : float
+        Share of the moving edge points that land on the reference image (NaN for clouds).
+    generator : str or None
+        Which hypothesis generator's candidate won (``"edges"``, ``"fourier_mellin"``, ``"orb"``, or
+        ``"init"`` for a given initial guess); None for clouds.
     """
 
     matrix: np.ndarray
@@ -39,6 +50,10 @@ class RegistrationResult:
     converged: bool
     backend: str
     seconds: float = 0.0
+    inlier_ratio: float = float("nan")
+    chance_ratio: float = float("nan")
+    overlap: float = float("nan")
+    generator: str | None = None
     info: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
@@ -50,7 +65,9 @@ class RegistrationResult:
         return (
             f"RegistrationResult(backend={self.backend!r}, fitness={self.fitness:.4f}, "
             f"inlier_rmse={self.inlier_rmse:.4g}, iterations={self.iterations}, converged={self.converged}, "
-            f"seconds={self.seconds:.4f}, matrix={_fmt_matrix(self.matrix)})"
+            + (f"inlier_ratio={self.inlier_ratio:.3f}, chance_ratio={self.chance_ratio:.3f}, overlap={self.overlap:.3f}, generator={self.generator!r}, "
+               if self.generator is not None else "")
+            + f"seconds={self.seconds:.4f}, matrix={_fmt_matrix(self.matrix)})"
         )
 
     def to_dict(self) -> dict:
@@ -63,6 +80,10 @@ class RegistrationResult:
             "converged": bool(self.converged),
             "backend": self.backend,
             "seconds": float(self.seconds),
+            "inlier_ratio": None if np.isnan(self.inlier_ratio) else float(self.inlier_ratio),
+            "chance_ratio": None if np.isnan(self.chance_ratio) else float(self.chance_ratio),
+            "overlap": None if np.isnan(self.overlap) else float(self.overlap),
+            "generator": self.generator,
         }
 
 

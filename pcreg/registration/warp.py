@@ -1,4 +1,10 @@
-"""Warping a moving image onto the reference image's pixel grid."""
+"""Warping between the moving and the reference image's pixel grids, by a 3x3 transform or a dense field.
+
+A motion is either a (3, 3) ``T_ref_mov`` or an (H, W, 2) field (:mod:`pcreg.registration.dense`):
+the reference coordinates of every moving pixel (a :class:`~pcreg.registration.dense.DenseRegistrationResult`
+stands for its field). :func:`warp` brings a moving-frame array onto the reference grid;
+:func:`warp_to_moving` brings a reference-frame array onto the moving grid (labels, priors).
+"""
 
 from __future__ import annotations
 
@@ -14,9 +20,13 @@ _DTYPES = tuple(np.dtype(d) for d in (np.bool_, np.uint8, np.uint16, np.int16, n
 _INTERP = {"linear": cv2.INTER_LINEAR, "nearest": cv2.INTER_NEAREST, "cubic": cv2.INTER_CUBIC}
 
 
-def warp(moving: np.ndarray, T_ref_mov: np.ndarray, *, shape: tuple[int, ...] | None = None,
+def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
          interpolation: str = "linear", fill: float = 0) -> tuple[np.ndarray, np.ndarray]:
     """Resample ``moving`` on the reference grid: ``warped(x) = moving(inv(T_ref_mov) x)``.
+
+    ``T_ref_mov`` may also be a dense field (H, W, 2) of the moving image's size (or a dense result):
+    it is inverted numerically (:func:`invert_field`) and the image resampled with ``cv2.remap``;
+    ``valid`` then also requires the inversion to have converged there (folds and occlusions do not).
 
     moving : (H, W) or (H, W, C) array (uint8 images, uint8 labels with ``interpolation="nearest"``,
         float32 posteriors, ...).
@@ -28,15 +38,21 @@ def warp(moving: np.ndarray, T_ref_mov: np.ndarray, *, shape: tuple[int, ...] | 
     moving = np.asarray(moving)
     if moving.ndim not in (2, 3) or moving.shape[0] == 0 or moving.shape[1] == 0:
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {moving.shape}")
+    if interpolation not in _INTERP:
+        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
+    if moving.dtype not in _DTYPES:
+        raise InputError(f"warp: unsupported dtype {moving.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
+    if _is_field(T_ref_mov):
+        fld = _check_field(T_ref_mov, moving.shape[:2])
+        h, w = _check_shape(shape if shape is not None else moving.shape[:2])
+        inverse, ok = invert_field(fld, (h, w))
+        warped, valid = _remap(moving, inverse, interpolation=interpolation, fill=fill)
+        return warped, valid & ok
     M = np.asarray(T_ref_mov, dtype=np.float64)
     if M.shape != (3, 3) or not np.all(np.isfinite(M)):
         raise InputError("warp: T_ref_mov must be a finite 3x3 matrix")
     if abs(np.linalg.det(M)) < 1e-12:
         raise InputError("warp: T_ref_mov is singular")
-    if interpolation not in _INTERP:
-        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
-    if moving.dtype not in _DTYPES:
-        raise InputError(f"warp: unsupported dtype {moving.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
     h, w = _check_shape(shape if shape is not None else moving.shape[:2])
     try:
         fill = check_float(fill, "warp: fill")
@@ -90,3 +106,111 @@ def _check_shape(shape) -> tuple[int, int]:
     if h * w > max_pixels():
         raise InputError(f"warp: a {w}x{h} grid exceeds the pixel limit {max_pixels()} (PCREG_MAX_PIXELS)")
     return h, w
+
+
+# ---------------------------------------------------------------------------------------------------
+# dense fields
+# ---------------------------------------------------------------------------------------------------
+
+def _is_field(motion) -> bool:
+    if hasattr(motion, "field") and hasattr(motion, "matrix"):
+        return True
+    a = np.asarray(motion)
+    return a.ndim == 3 and a.shape[2] == 2
+
+
+def _check_field(motion, shape: tuple[int, int] | None) -> np.ndarray:
+    fld = np.asarray(getattr(motion, "field", motion), dtype=np.float32)
+    if fld.ndim != 3 or fld.shape[2] != 2 or fld.shape[0] == 0 or fld.shape[1] == 0:
+        raise InputError(f"warp: a field must be (H, W, 2), got shape {fld.shape}")
+    if shape is not None and fld.shape[:2] != tuple(shape[:2]):
+        raise InputError(f"warp: the field is {fld.shape[1]}x{fld.shape[0]} but the moving grid is "
+                         f"{shape[1]}x{shape[0]}")
+    if not np.all(np.isfinite(fld)):
+        raise InputError("warp: the field has NaN or inf values")
+    return fld
+
+
+def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
+    """``out(p) = src(fld(p))`` with cv2.remap, and the mask of pixels whose every interpolation weight
+    fell inside ``src``."""
+    if interpolation not in _INTERP:
+        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
+    flags = _INTERP[interpolation]
+    img = src.astype(np.uint8) if src.dtype == np.bool_ else src
+    channels = 1 if img.ndim == 2 else img.shape[2]
+    mx = np.ascontiguousarray(fld[:, :, 0])
+    my = np.ascontiguousarray(fld[:, :, 1])
+
+    def one(a, fl, bval):
+        return cv2.remap(a, mx, my, fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
+
+    if channels > 4:
+        out = np.stack([one(np.ascontiguousarray(img[:, :, c]), flags, fill) for c in range(channels)], axis=2)
+    else:
+        out = one(img, flags, (fill,) * min(channels, 4) if channels > 1 else fill)
+    if img.ndim == 3 and out.ndim == 2:
+        out = out[:, :, None]
+    ones = np.ones(src.shape[:2], np.float32)
+    valid = one(ones, cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR, 0) > 0.999
+    if src.dtype == np.bool_:
+        out = out.astype(bool)
+    return out, valid
+
+
+def warp_to_moving(reference: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
+                   interpolation: str = "linear", fill: float = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Resample a reference-frame array on the moving grid: ``out(p) = reference(T_ref_mov p)``.
+
+    T_ref_mov : (3, 3) transform, or an (H, W, 2) field (or a dense result) of the moving grid's size,
+        used directly with ``cv2.remap`` (a field is already the map from moving pixels to the reference).
+    shape : (H, W) of the moving grid (a field's own size; default the reference's).
+    Returns ``(out, valid)`` with the semantics of :func:`warp`.
+    """
+    reference = np.asarray(reference)
+    if reference.ndim not in (2, 3) or reference.shape[0] == 0 or reference.shape[1] == 0:
+        raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {reference.shape}")
+    if _is_field(T_ref_mov):
+        fld = _check_field(T_ref_mov, shape[:2] if shape is not None else None)
+        return _remap(reference, fld, interpolation=interpolation, fill=fill)
+    M = np.asarray(T_ref_mov, dtype=np.float64)
+    if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
+        raise InputError("warp: T_ref_mov must be a finite invertible 3x3 matrix")
+    return warp(reference, np.linalg.inv(M), shape=shape, interpolation=interpolation, fill=fill)
+
+
+def invert_field(fld: np.ndarray, shape: tuple[int, int], *, iterations: int = 12, tol: float = 0.05
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of a field: for every reference pixel x (grid ``shape``), the moving p with fld(p) = x.
+
+    An affine ``A`` is fitted to the field by least squares and the rest solved by the fixed point
+    ``p <- A^-1 (x - r(p))``, ``r = fld - A`` sampled bilinearly (it converges where the field's
+    non-affine part bends less than the affine part stretches). Returns ``(inverse (H, W, 2) float32,
+    ok (H, W) bool)``: ``ok`` where ``|fld(p) - x| < tol`` px at the end and p is inside the field.
+    """
+    fld = np.asarray(fld, dtype=np.float32)
+    hm, wm = fld.shape[:2]
+    h, w = int(shape[0]), int(shape[1])
+    step = max(1, int(np.sqrt(hm * wm / 4000)))
+    ys, xs = np.mgrid[0:hm:step, 0:wm:step]
+    P = np.column_stack([xs.ravel(), ys.ravel(), np.ones(xs.size)]).astype(np.float64)
+    Y = fld[::step, ::step].reshape(-1, 2).astype(np.float64)
+    coef, *_ = np.linalg.lstsq(P, Y, rcond=None)  # (3, 2): [x y 1] @ coef
+    A = np.vstack([coef.T, [0.0, 0.0, 1.0]])
+    if abs(np.linalg.det(A[:2, :2])) < 1e-9:
+        return np.full((h, w, 2), -1e4, np.float32), np.zeros((h, w), bool)
+    Ai = np.linalg.inv(A)
+    gx, gy = np.meshgrid(np.arange(wm, dtype=np.float32), np.arange(hm, dtype=np.float32))
+    resid = fld - np.dstack([A[0, 0] * gx + A[0, 1] * gy + A[0, 2], A[1, 0] * gx + A[1, 1] * gy + A[1, 2]]).astype(np.float32)
+    X, Yr = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    p = np.zeros((h, w, 2), np.float32)
+    r = np.zeros((h, w, 2), np.float32)
+    for _ in range(iterations):
+        tx, ty = X - r[:, :, 0], Yr - r[:, :, 1]
+        p[:, :, 0] = Ai[0, 0] * tx + Ai[0, 1] * ty + Ai[0, 2]
+        p[:, :, 1] = Ai[1, 0] * tx + Ai[1, 1] * ty + Ai[1, 2]
+        r = cv2.remap(resid, p[:, :, 0], p[:, :, 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    back = cv2.remap(fld, p[:, :, 0], p[:, :, 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    err = np.hypot(back[:, :, 0] - X, back[:, :, 1] - Yr)
+    inside = (p[:, :, 0] >= 0) & (p[:, :, 0] <= wm - 1) & (p[:, :, 1] >= 0) & (p[:, :, 1] <= hm - 1)
+    return p, (err < tol) & inside

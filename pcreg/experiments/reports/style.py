@@ -9,5 +9,6 @@ METHOD_STYLE = {
     "augmented": ("augmented (registered label prior)", "#1f77b4", "-"),
     "augmented_unregistered": ("augmented, prior not registered", "#17becf", "--"),
     "augmented_temporal": ("augmented, temporal", "#9467bd", "-"),
+    "augmented_flow": ("augmented, prior warped by DIS flow", "#e377c2", "--"),
     "propagated": ("warped labels alone", "#2ca02c", ":"),
 }

@@ -16,11 +16,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .errors import InputError
-from .registration.clouds import as_rgb_uint8, cloud_pyramid, load_image
-from .registration.api import _global_search, check_cloud, icp
-from .registration.result import IcpIteration, RegistrationResult
-from .registration.transforms import apply, corners, rotation_disagreement_deg
+from ..errors import InputError
+from ..registration.clouds import as_rgb_uint8, load_image
+from ..registration.api import check_cloud, icp, register
+from ..registration.result import IcpIteration, RegistrationResult
+from ..registration.transforms import apply, corners, rotation_disagreement_deg
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
@@ -74,7 +74,7 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
     (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
     """
-    from .validation import capture_output_fds, check_cloud_file, check_npy_file, max_pixels
+    from ..validation import capture_output_fds, check_cloud_file, check_npy_file, max_pixels
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -179,37 +179,24 @@ def crosscheck_clouds(source: np.ndarray, target: np.ndarray, *, config: Crossch
 def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
                       config: CrosscheckConfig = CrosscheckConfig(),
                       callback: Callable[[IcpIteration], None] | None = None) -> CrosscheckReport:
-    """Both backends coarse to fine on the same image clouds from the same (global-search) initial guess."""
+    """:func:`pcreg.register`, the function users call, once with each backend and the same options.
+
+    Both runs build the same clouds (same seeds), search the same hypotheses and refine each with their
+    own ICP at every step; the plausibility test is off (a cross-check reports, it does not refuse), and
+    the point-to-line finish, which only the reference backend has, is not used. Open3D is run one
+    iteration at a time so that both iteration counts are exact.
+    """
     ref = as_rgb_uint8(reference_image, name="reference image")
     mov = as_rgb_uint8(moving_image, name="moving image")
-    ref_levels = cloud_pyramid(ref, levels=config.levels, seed=config.seed)
-    mov_levels = cloud_pyramid(mov, levels=config.levels, max_points=config.max_points, seed=config.seed + 1)
-    from .errors import RegistrationError
-
-    if len(ref_levels[0]) < 3 or len(mov_levels[0]) < 3:
-        raise RegistrationError("an image has no usable edges (a flat or empty image?)")
-    T0 = np.eye(3)
-    if config.init in ("auto", "global"):
-        g = min(3, config.levels - 1)
-        Ts, score = _global_search(ref_levels[g], mov_levels[g], angles=np.arange(0.0, 360.0, 10.0))
-        T0 = Ts[int(np.argmax(score))]
+    init = config.init if config.init in ("auto", "global", "identity", "center") else "auto"
+    kw = dict(model=config.model, levels=config.levels, iterations=config.iterations, init=init,
+              max_points=config.max_points, max_correspondence_distance=config.max_correspondence_distance,
+              relative_fitness=config.relative_fitness, relative_rmse=config.relative_rmse, seed=config.seed,
+              refine="none", min_inlier_ratio=None)
     results = {}
     for backend in ("reference", "open3d"):
-        T, total, seconds = T0, 0, 0.0
-        res = None
-        for level in range(config.levels - 1, -1, -1):
-            s, t = mov_levels[level].points, ref_levels[level].points
-            if len(s) < 3 or len(t) < 3:
-                continue
-            res = icp(s, t, backend=backend, model=config.model, init=T,
-                      max_correspondence_distance=config.max_correspondence_distance * 2**level,
-                      max_iteration=config.iterations, relative_fitness=config.relative_fitness,
-                      relative_rmse=config.relative_rmse, count_iterations=True,
-                      callback=callback)
-            T, total, seconds = res.matrix, total + max(res.iterations, 0), seconds + res.seconds
-        results[backend] = RegistrationResult(matrix=T, fitness=res.fitness, inlier_rmse=res.inlier_rmse,
-                                              iterations=total, converged=res.converged, backend=backend,
-                                              seconds=seconds)
+        # A callback makes both backends report every iteration (Open3D then runs stepwise: exact counts).
+        results[backend] = register(ref, mov, backend=backend, callback=callback or (lambda it: None), **kw)
     a, b = results["reference"], results["open3d"]
     c = corners(mov.shape)
     return CrosscheckReport(
@@ -218,7 +205,8 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
         rotation_disagreement_deg=rotation_disagreement_deg(a.matrix, b.matrix),
         translation_disagreement=float(np.linalg.norm(a.matrix[:2, 2] - b.matrix[:2, 2])),
         matrix_relative_disagreement=_relative(a.matrix, b.matrix),
-        extra={"initial_matrix": T0.tolist()})
+        extra={"generators": [a.generator, b.generator],
+               "inlier_ratios": [a.inlier_ratio, b.inlier_ratio]})
 
 
 def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig(), callback=None,
@@ -425,8 +413,8 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
 
     A failing or missing implementation becomes its row's one-line ``error``; the others still run.
     """
-    from . import implementations as impls
-    from .registration.api import voxel_downsample
+    from .. import implementations as impls
+    from ..registration.api import voxel_downsample
 
     src = check_cloud(source, "source")
     tgt = check_cloud(target, "target")

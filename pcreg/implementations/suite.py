@@ -38,9 +38,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .outputs import atomic_write_bytes, atomic_write_text, to_json
-from .errors import InputError
-from .registration.transforms import apply, rigid2d
+from ..outputs import atomic_write_bytes, atomic_write_text, to_json
+from ..errors import InputError
+from ..registration.transforms import apply, rigid2d
 
 FORMAT = "pcreg-crosscheck-suite/1"
 
@@ -80,7 +80,7 @@ def _synthetic(name: str, description: str, target: np.ndarray, truth: np.ndarra
 def _edge_images(seed: int = 3):
     import cv2
 
-    from .registration.transforms import about_point, image_center
+    from ..registration.transforms import about_point, image_center
 
     h, w = 240, 320
     rng = np.random.default_rng(seed)
@@ -105,7 +105,7 @@ def _edge_images(seed: int = 3):
 def edge_cloud_pair(max_points: int = 1500, seed: int = 3):
     """A 2-D edge-cloud pair: sub-pixel Canny edges of a synthetic image (target) and of the image
     warped by a known rigid motion (source), and that motion ``T_target_source`` (px)."""
-    from .registration.clouds import image_cloud
+    from ..registration.clouds import image_cloud
 
     ref, mov, T = _edge_images(seed)
     tgt = image_cloud(ref, max_points=max_points * 2, seed=seed).points
@@ -163,8 +163,8 @@ def builtin_cases(*, scans: str | os.PathLike | None = None, seed: int = 0) -> t
     skipped: dict[str, str] = {}
     scans_dir = Path(scans) if scans is not None else None
     if scans_dir is not None and all((scans_dir / f).exists() for f in ("source.ply", "target.ply", "T_target_source.txt")):
-        from .crosschecks import load_cloud
-        from .registration.api import voxel_downsample
+        from .crosscheck import load_cloud
+        from ..registration.api import voxel_downsample
 
         s = voxel_downsample(load_cloud(scans_dir / "source.ply"), 0.5)
         t = voxel_downsample(load_cloud(scans_dir / "target.ply"), 0.5)
@@ -199,7 +199,7 @@ def _params(case: Case) -> dict:
 
 def export_suite(out: str | os.PathLike, cases: Sequence[Case], *, progress: bool = False) -> Path:
     """Write every case and the reference ICP's per-iteration trace (format in the module docstring)."""
-    from .implementations import Pinned, get
+    from . import Pinned, get
 
     out = Path(out)
     ref = get("reference")
@@ -248,7 +248,7 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     """The cases of a suite written by :func:`export_suite` (or by hand in its format)."""
     path = Path(path)
     index = path / "index.json"
-    from .validation import read_regular_file
+    from ..validation import read_regular_file
 
     try:
         meta = json.loads(read_regular_file(index, max_bytes=1 << 20, what="suite index"))
@@ -256,12 +256,12 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
         raise InputError(f"{index}: not a cross-check suite index ({' '.join(str(exc).split())[:160]})") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("cases"), list):
         raise InputError(f"{index}: expected {{\"format\": ..., \"cases\": [...]}}")
-    from .crosschecks import load_cloud
+    from .crosscheck import load_cloud
 
     cases = []
     for name in meta["cases"]:
         d = path / str(name)
-        from .validation import read_text_matrix
+        from ..validation import read_text_matrix
 
         try:  # regular files only, bounded reads; a damaged case is one line, never a traceback
             params = json.loads(read_regular_file(d / "params.json", max_bytes=1 << 20, what="params.json"))
@@ -293,7 +293,7 @@ COLUMNS = ("case", "implementation", "comparability", "status", "agrees", "matri
 def run_suite(cases: Sequence[Case], implementations: Sequence[str], *, timeout: float | None = None,
               progress: bool = False) -> list[dict]:
     """One row per (case, implementation): the cross-check row plus the case's name."""
-    from .crosschecks import crosscheck_implementations
+    from .crosscheck import crosscheck_implementations
 
     rows = []
     it = cases

@@ -1,0 +1,102 @@
+"""Recordings made ready for a viewer: the blueprint of what each holds, several merged into one comparison.
+
+:func:`stage` copies one recording's chunks into a new .rrd (same application and recording id) with
+the blueprint of its kind built from the entities it holds, or merges several recordings into one, each
+under ``/{label}/...``, with the comparison blueprint (:func:`pcreg.recording.blueprint.compare_blueprint`):
+the same pane of every recording side by side, their series in one plot with the label in each legend.
+The inputs are only read.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import blueprint as B
+from .readback import read_entities, read_kind
+
+__all__ = ["Staged", "stage", "labels_for"]
+
+
+@dataclass(frozen=True)
+class Staged:
+    """A staged file: its path, and per input recording its label (``""`` for one input) and kind."""
+
+    path: Path
+    labels: tuple[str, ...]
+    kinds: tuple[str, ...]
+
+
+def labels_for(paths: list[str | os.PathLike]) -> list[str]:
+    """Entity-path-safe labels of recordings from their file names (``run.rrd`` -> ``run``), made unique."""
+    out: list[str] = []
+    for p in paths:
+        base = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(p).stem).strip("_.") or "recording"
+        label, n = base, 2
+        while label in out:
+            label, n = f"{base}_{n}", n + 1
+        out.append(label)
+    return out
+
+
+def stage(paths: list[str | os.PathLike], out: str | os.PathLike) -> Staged:
+    """Write ``out`` (.rrd) holding ``paths``' recordings with the blueprint that shows them (see module)."""
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    if not paths:
+        raise ValueError("no recording to stage")
+    readers = [RrdReader(str(p)) for p in paths]
+    stores = []
+    for p, r in zip(paths, readers):
+        recs = r.recordings()
+        if not recs:
+            raise ValueError(f"{p}: no recording in this file")
+        stores.append(recs[0])
+    everything = [read_entities(p) for p in paths]
+    kinds = [read_kind(p) or B.infer_kind(e) for p, e in zip(paths, everything)]
+    # only what the viewer shows on the timeline the layout opens on (no view without data there)
+    timelines = {B.timeline(k, e) for k, e in zip(kinds, everything)}
+    shown_on = timelines.pop() if len(timelines) == 1 else B.timeline("sequence")
+    entities = [read_entities(p, timeline=shown_on) for p in paths]
+    out = Path(out)
+    if len(paths) == 1:
+        stream = rr.RecordingStream(stores[0].application_id, recording_id=stores[0].recording_id)
+        has_views = bool(B.panes(kinds[0], entities[0]))  # else (nothing to show) the viewer chooses
+        stream.save(out, default_blueprint=B.blueprint(kinds[0], entities[0]) if has_views else None)
+        stream.send_chunks(readers[0].stream(store=stores[0]))
+        stream.flush()
+        stream.disconnect()
+        return Staged(out, ("",), (kinds[0],))
+
+    labels = labels_for(paths)
+    bp = B.compare_blueprint(list(zip(labels, kinds, entities)))
+    stream = rr.RecordingStream(stores[0].application_id, recording_id=f"compare-{uuid.uuid4()}")
+    stream.save(out, default_blueprint=bp)
+    stream.send_recording_name("compare " + ", ".join(labels))
+    series_names: list[tuple[str, list[str]]] = []
+    for label, reader, store in zip(labels, readers, stores):
+        root = "/" + label
+
+        def move(chunk, root=root):
+            path = chunk.entity_path
+            if path.startswith("/__"):
+                return []
+            new = root if path == "/" else root + path
+            batch = chunk.to_record_batch()
+            if "SeriesLines:names" in batch.schema.names:
+                names = [n for v in batch.column("SeriesLines:names").to_pylist() if v for n in v]
+                series_names.append((new, names))
+            return [chunk.with_entity_path(new)]
+
+        stream.send_chunks(reader.stream(store=store).flat_map(move))
+    # the legend tells the recordings apart: "run_a fitness", "run_b fitness"
+    for path, names in series_names:
+        label = path.strip("/").split("/", 1)[0]
+        stream.log(path, rr.SeriesLines(names=[f"{label} {n}" for n in names]), static=True)
+    stream.flush()
+    stream.disconnect()
+    return Staged(out, tuple(labels), tuple(kinds))

@@ -1,0 +1,753 @@
+"""Dense (non-rigid) registration of two images as 2-D colour clouds.
+
+A global registration (:func:`pcreg.register`, similarity or projective) is refined into a smooth
+displacement field by a non-rigid ICP, coarse to fine:
+
+- **Clouds.** At each pyramid level the reference cloud is every pixel of the reference image, each a
+  point ``(x, y, lam * colour)``; the moving cloud is every moving pixel with texture (gradient above
+  the image's noise), so flat areas and edges alike carry samples, not edges alone.
+- **Field.** Displacements ``U`` (M, 2) on a control grid of spacing ``grid_spacing`` pixels of the
+  level, interpolated bilinearly: a moving point ``p`` lands at ``G(p) + B(p) U`` (``G`` the global
+  transform, ``B`` (N, M) sparse bilinear weights). This is the free-form deformation of Rueckert et
+  al. (1999, "Nonrigid registration using free-form deformations", IEEE TMI 18(8)) with first-order
+  (bilinear) instead of cubic B-splines. From one level to the next the grid is interpolated and its
+  displacements doubled; every level keeps the same spacing in its own pixels, so the field gets finer
+  as the images do.
+- **Colour.** Matching uses each level's texture part (the image minus its 1-pixel Gaussian blur, with
+  a twentieth of the blur kept; Wedel et al. 2009's structure-texture split), so brightness, colour
+  temperature, shadows and haze that change between frames are not read as motion.
+- **Correspondences.** Each moving point's nearest neighbour in ``(x, y, lam * colour)`` among the
+  reference pixels within a gate of ``radius`` pixels of the level around where the field puts it
+  (an exact search over the window, compiled with numba), refined to sub-pixel by a Gauss-Newton
+  step on the same cost with the reference colour linearised (Park, Zhou & Koltun 2017). The gate is ``radius * 2^level`` full-resolution
+  pixels: wide at the coarsest level, narrow at the finest.
+- **Robust weights.** A match gets weight 0 when it has no partner: its best candidate lies on the
+  window's rim (the true partner may be outside the gate: occlusion or a motion beyond the gate) or it
+  is not mutual (the reference point's own nearest moving pixel, searched back, is more than a pixel
+  from the point; Zhang 1994's consistency test). The others get Tukey's biweight of their colour
+  distance with a scale from its median absolute deviation (Huber and Tukey robust ICP weights).
+- **Step.** The grid minimises ``sum_i w_i |B_i U - t_i|^2 + alpha * sum_(a,b) |U_a - U_b|^2`` over
+  the grid's 4-neighbour edges (a membrane, as the smoothness term of Horn & Schunck 1981), with
+  ``t_i`` the matched reference point minus ``G(p_i)``: a sparse symmetric positive definite system
+  ``(B^T W B + alpha L + eps I) U = B^T W t`` solved with ``scipy.sparse`` (conjugate gradients
+  warm-started from the last field, an inexact step inside the ICP loop, or an exact LU). ``eps`` is a tiny pull
+  towards the global transform, so that a grid region without any evidence keeps it.
+- **Stiffness.** ``alpha`` is a ratio of variances, as in a Gaussian prior on the field (the
+  Bayesian reading of the membrane): a match is good to about ``sigma_m = 1`` pixel of its level (the
+  reference cloud is the pixel grid), and neighbouring nodes, ``s`` pixels apart, may differ by
+  ``sigma_s = strain * s`` pixels, ``strain`` the largest plausible motion gradient (default 0.25: a
+  quarter of a pixel per pixel, the parallax of a ground plane next to a facade when a car drives a
+  metre forward). So ``alpha = sigma_m^2 / sigma_s^2 = 1 / (strain * s)^2`` per unit sample weight,
+  independent of the image and of its content. It is multiplied by the schedule of Amberg, Romdhani
+  & Vetter (2007, "Optimal Step Nonrigid ICP Algorithms for Surface Registration", CVPR): stiff
+  first (8, 4, 2, then 1 for the remaining iterations of each level), so the first steps move the
+  field as a whole and the last ones let it bend.
+- **Colour weight.** ``lam = 1 / (sqrt(6) sigma)`` with ``sigma`` the image noise of each level
+  (Immerkaer 1996, "Fast noise variance estimation", from the Laplacian): a colour difference that
+  two noisy pixels of the same point show (3 channels, two noisy pixels: ``6 sigma^2``) costs as much
+  as one pixel of distance.
+
+The field is returned at full resolution as (H, W, 2) float32 reference coordinates of every moving
+pixel, with a per-pixel confidence in [0, 1]: the samples' weight near each pixel (1 where a grid cell
+holds as many inlier samples as a quarter of its pixels), 0 where the field leaves the reference
+image. Where there is no texture the field is the smooth interpolation of its surroundings, or the
+global transform, and its confidence is low.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+try:
+    from numba import prange
+except ImportError:  # pragma: no cover
+    prange = range
+import scipy.sparse.linalg as spla
+
+from ..errors import InputError, RegistrationError
+from .clouds import as_rgb_uint8
+from .result import RegistrationResult
+from .transforms import MODELS
+
+__all__ = ["DenseRegistrationResult", "DenseIteration", "register_dense", "field_from_matrix", "is_field",
+           "match_window", "STIFFNESS_SCHEDULE"]
+
+#: Stiffness per iteration of a level (Amberg et al. 2007: stiff to relaxed); the last value repeats.
+STIFFNESS_SCHEDULE: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
+#: Tukey's biweight constant (95% efficiency under Gaussian noise).
+TUKEY_C = 4.685
+
+
+@dataclass(frozen=True, repr=False)
+class DenseIteration:
+    """One iteration of the dense ICP, handed to the optional callback.
+
+    level : pyramid level; iteration : index within the level; stiffness : the schedule's value;
+    points : (N,) moving samples; inliers : how many got a non-zero weight; rms : weighted RMS of the
+    match residuals (full-resolution px); grid : (gh, gw, 2) displacements (full-resolution px) of the
+    control grid from the global transform.
+    """
+
+    level: int
+    iteration: int
+    stiffness: float
+    points: int
+    inliers: int
+    rms: float
+    grid: np.ndarray
+
+    def __repr__(self) -> str:
+        return (f"DenseIteration(level={self.level}, iteration={self.iteration}, stiffness={self.stiffness:g}, "
+                f"points={self.points}, inliers={self.inliers}, rms={self.rms:.3g})")
+
+
+@dataclass(frozen=True, repr=False)
+class DenseRegistrationResult:
+    """A dense registration: the global transform and the field that refines it.
+
+    matrix : (3, 3) float64 global ``T_ref_mov`` (the start of the dense step).
+    field : (H, W, 2) float32 reference coordinates (x, y) of every moving pixel.
+    confidence : (H, W) float32 in [0, 1]: evidence behind the field at each pixel.
+    global_result : the :class:`~pcreg.registration.result.RegistrationResult` of the global step.
+    fitness : share of the finest level's samples matched with a non-zero weight.
+    inlier_rmse : weighted RMS of their residuals after the last step (full-resolution px).
+    iterations : dense iterations run (all levels). seconds : wall time, global step included (a given
+        global result's own ``seconds`` added).
+    """
+
+    matrix: np.ndarray
+    field: np.ndarray
+    confidence: np.ndarray
+    global_result: RegistrationResult
+    fitness: float
+    inlier_rmse: float
+    iterations: int
+    seconds: float
+    backend: str = "reference"
+    converged: bool = True
+    info: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        for name in ("matrix", "field", "confidence"):
+            a = np.array(getattr(self, name), copy=True)
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    @property
+    def displacement(self) -> np.ndarray:
+        """(H, W, 2) float32: the field minus the global transform (full-resolution px)."""
+        return self.field - field_from_matrix(self.matrix, self.field.shape[:2])
+
+    def __repr__(self) -> str:
+        h, w = self.field.shape[:2]
+        return (f"DenseRegistrationResult(field={w}x{h}, fitness={self.fitness:.4f}, "
+                f"inlier_rmse={self.inlier_rmse:.4g}, iterations={self.iterations}, "
+                f"mean_confidence={float(self.confidence.mean()):.3f}, seconds={self.seconds:.4f}, "
+                f"global={self.global_result!r})")
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (the arrays are left out; ``matrix`` is the global transform)."""
+        d = self.global_result.to_dict()
+        disp = np.linalg.norm(self.displacement, axis=2)
+        d.update(model="dense", dense_fitness=float(self.fitness), dense_inlier_rmse=float(self.inlier_rmse),
+                 dense_iterations=int(self.iterations), seconds=float(self.seconds),
+                 global_seconds=float(self.global_result.seconds),
+                 mean_confidence=float(self.confidence.mean()),
+                 median_displacement=float(np.median(disp)), max_displacement=float(disp.max()))
+        return d
+
+
+# ---------------------------------------------------------------------------------------------------
+# fields
+# ---------------------------------------------------------------------------------------------------
+
+def is_field(motion) -> bool:
+    """True for an (H, W, 2) field (or a result that holds one), False for a 3x3 matrix."""
+    if isinstance(motion, DenseRegistrationResult):
+        return True
+    a = np.asarray(motion)
+    return a.ndim == 3 and a.shape[2] == 2
+
+
+def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W, 2) float32 reference coordinates of every moving pixel under a 3x3 transform."""
+    h, w = int(shape[0]), int(shape[1])
+    M = np.asarray(T_ref_mov, dtype=np.float64)
+    x = np.arange(w, dtype=np.float64)[None, :]
+    y = np.arange(h, dtype=np.float64)[:, None]
+    out = np.empty((h, w, 2), np.float32)
+    if M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1:
+        out[:, :, 0] = M[0, 0] * x + (M[0, 1] * y + M[0, 2])
+        out[:, :, 1] = M[1, 0] * x + (M[1, 1] * y + M[1, 2])
+        return out
+    den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
+    out[:, :, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den
+    out[:, :, 1] = (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# the compiled windowed nearest-neighbour search
+# ---------------------------------------------------------------------------------------------------
+
+def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
+    """Pure-Python body of :func:`match_window` (compiled with numba when it is installed)."""
+    h, w, nc = ref.shape
+    hm, wm = mov.shape[0], mov.shape[1]
+    n = x.shape[0]
+    for i in prange(n):
+        out[i, 0] = np.nan
+        out[i, 1] = np.nan
+        out[i, 2] = np.inf
+        out[i, 3] = 0.0
+        xi, yi = x[i], y[i]
+        if not (xi > -radius and yi > -radius and xi < w - 1 + radius and yi < h - 1 + radius):
+            continue
+        cx = int(np.floor(xi + 0.5))
+        cy = int(np.floor(yi + 0.5))
+        x0, x1 = max(cx - radius, 0), min(cx + radius, w - 1)
+        y0, y1 = max(cy - radius, 0), min(cy + radius, h - 1)
+        if x0 > x1 or y0 > y1:
+            continue
+        best, bx, by = np.inf, -1, -1
+        for qy in range(y0, y1 + 1):
+            dy2 = (qy - yi) * (qy - yi)
+            for qx in range(x0, x1 + 1):
+                c = (qx - xi) * (qx - xi) + dy2
+                s = 0.0
+                for k in range(nc):
+                    d = ref[qy, qx, k] - cols[i, k]
+                    s += d * d
+                c += lam2 * s
+                if c < best:
+                    best, bx, by = c, qx, qy
+        # the best candidate on the gate's rim (not the image's): its partner may lie outside the gate
+        rim = ((bx == cx - radius and bx > 0) or (bx == cx + radius and bx < w - 1)
+               or (by == cy - radius and by > 0) or (by == cy + radius and by < h - 1))
+        # sub-pixel: one Gauss-Newton step on the same cost with the reference colour linearised at
+        # the best pixel (central differences), ``(lam2 J^T J + I) d = -lam2 J^T r - (q - x)``: the
+        # colour term of Park, Zhou & Koltun (2017, "Colored point cloud registration revisited"),
+        # free of the pull to whole pixels that a parabola through the costs has
+        ox = 0.0
+        oy = 0.0
+        if 0 < bx < w - 1 and 0 < by < h - 1:
+            a11 = 1.0
+            a12 = 0.0
+            a22 = 1.0
+            b1 = -(bx - xi)
+            b2 = -(by - yi)
+            for k in range(nc):
+                jx = 0.5 * (ref[by, bx + 1, k] - ref[by, bx - 1, k])
+                jy = 0.5 * (ref[by + 1, bx, k] - ref[by - 1, bx, k])
+                r = ref[by, bx, k] - cols[i, k]
+                a11 += lam2 * jx * jx
+                a12 += lam2 * jx * jy
+                a22 += lam2 * jy * jy
+                b1 -= lam2 * jx * r
+                b2 -= lam2 * jy * r
+            det = a11 * a22 - a12 * a12
+            if det > 1e-12:
+                ox = min(max((a22 * b1 - a12 * b2) / det, -0.5), 0.5)
+                oy = min(max((a11 * b2 - a12 * b1) / det, -0.5), 0.5)
+        out[i, 0] = bx + ox
+        out[i, 1] = by + oy
+        s = 0.0
+        for k in range(nc):
+            d = ref[by, bx, k] - cols[i, k]
+            s += d * d
+        out[i, 2] = math.sqrt(s)
+        if rim:
+            continue
+        # mutual test: the reference point's nearest moving pixel, searched back around where the
+        # point's own displacement says it came from, must be the point (within a pixel)
+        ex = px[i] + (bx - xi)
+        ey = py[i] + (by - yi)
+        ecx = int(np.floor(ex + 0.5))
+        ecy = int(np.floor(ey + 0.5))
+        mx0, mx1 = max(ecx - radius, 0), min(ecx + radius, wm - 1)
+        my0, my1 = max(ecy - radius, 0), min(ecy + radius, hm - 1)
+        best2, b2x, b2y = np.inf, -1, -1
+        for qy in range(my0, my1 + 1):
+            dy2 = (qy - ey) * (qy - ey)
+            for qx in range(mx0, mx1 + 1):
+                c = (qx - ex) * (qx - ex) + dy2
+                s = 0.0
+                for k in range(nc):
+                    d = mov[qy, qx, k] - ref[by, bx, k]
+                    s += d * d
+                c += lam2 * s
+                if c < best2:
+                    best2, b2x, b2y = c, qx, qy
+        if b2x >= 0 and abs(b2x - px[i]) <= 1.0 and abs(b2y - py[i]) <= 1.0:
+            out[i, 3] = 1.0
+    return out
+
+
+try:  # the compiled search; the pure-Python body is the same code and the fallback
+    from numba import njit
+
+    _match_window_jit = njit(cache=True, nogil=True)(_match_window_py)
+except ImportError:  # pragma: no cover - numba is a declared dependency
+    _match_window_jit = None
+
+
+def match_window(reference: np.ndarray, moving: np.ndarray, sources: np.ndarray, positions: np.ndarray,
+                 colours: np.ndarray, *, radius: int, lam: float, compiled: bool = True) -> np.ndarray:
+    """Exact nearest neighbours in ``(x, y, lam * colour)`` within a square gate.
+
+    reference, moving : (h, w, C) float32 images of one pyramid level (the reference cloud is every
+        reference pixel; ``moving`` is searched back for the mutual test).
+    sources : (N, 2) moving pixel coordinates of the samples; positions : (N, 2) where the current
+        field puts them in the reference; colours : (N, C) float32 their colours.
+    radius : the gate, in pixels of this level (the window is (2 radius + 1)^2 pixels).
+    Returns (N, 4) float64: matched reference x, y (sub-pixel; NaN where the gate holds no pixel),
+    colour distance, and 1.0 where the match is mutual and not on the gate's rim (else 0.0).
+    """
+    ref = np.ascontiguousarray(reference, dtype=np.float32)
+    mov = np.ascontiguousarray(moving, dtype=np.float32)
+    src = np.asarray(sources, dtype=np.float64)
+    pos = np.asarray(positions, dtype=np.float64)
+    cols = np.ascontiguousarray(colours, dtype=np.float32)
+    out = np.empty((len(pos), 4), dtype=np.float64)
+    fn = _match_window_jit if (compiled and _match_window_jit is not None) else _match_window_py
+    return fn(ref, mov, np.ascontiguousarray(src[:, 0]), np.ascontiguousarray(src[:, 1]),
+              np.ascontiguousarray(pos[:, 0]), np.ascontiguousarray(pos[:, 1]), cols, int(radius),
+              float(lam) ** 2, out)
+
+
+# ---------------------------------------------------------------------------------------------------
+# the grid
+# ---------------------------------------------------------------------------------------------------
+
+def _noise_sigma(gray: np.ndarray) -> float:
+    """Immerkaer (1996) noise standard deviation of a [0, 1] float image from its Laplacian-difference filter."""
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = cv2.filter2D(gray, cv2.CV_32F, k, borderType=cv2.BORDER_REFLECT)[1:-1, 1:-1]
+    h, w = gray.shape
+    return float(np.sqrt(np.pi / 2.0) * np.abs(r).sum() / (6.0 * max(w - 2, 1) * max(h - 2, 1)))
+
+
+def _grid_shape(h: int, w: int, s: float) -> tuple[int, int]:
+    return int(math.ceil((h - 1) / s)) + 1, int(math.ceil((w - 1) / s)) + 1
+
+
+def _bilinear_matrix(pts: np.ndarray, gshape: tuple[int, int], s: float) -> sp.csr_matrix:
+    """(N, gh*gw) sparse bilinear weights of points (level px) on a grid of spacing ``s``."""
+    gh, gw = gshape
+    gx = np.clip(pts[:, 0] / s, 0.0, gw - 1.000001)
+    gy = np.clip(pts[:, 1] / s, 0.0, gh - 1.000001)
+    ix, iy = np.floor(gx).astype(np.int64), np.floor(gy).astype(np.int64)
+    fx, fy = gx - ix, gy - iy
+    n = len(pts)
+    rows = np.repeat(np.arange(n), 4)
+    cols = np.stack([iy * gw + ix, iy * gw + ix + 1, (iy + 1) * gw + ix, (iy + 1) * gw + ix + 1], axis=1).ravel()
+    vals = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1).ravel()
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, gh * gw))
+
+
+class _NormalEquations:
+    """The grid's normal equations ``(B^T W B + alpha L + eps I) U = B^T W t`` for fixed samples.
+
+    ``B`` has four bilinear weights per sample (the corners of its grid cell), so ``B^T W B`` couples
+    a node with its 8 neighbours only: the matrix has 9 diagonals (offsets 0, +-1, +-gw, +-(gw +- 1))
+    and each iteration scatters the samples' weights into them with ``np.bincount`` before the
+    sparse LU solve (the membrane L uses 5 of the same diagonals).
+    """
+
+    def __init__(self, pts: np.ndarray, gshape: tuple[int, int], s: float,
+                 edge_weights: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        B = _bilinear_matrix(pts, gshape, s)
+        n, m = B.shape
+        gh, gw = gshape
+        self.m = m
+        self.cols = B.indices.reshape(n, 4)
+        self.vals = B.data.reshape(n, 4)
+        self.offsets = np.array([0, 1, -1, gw, -gw, gw + 1, -(gw + 1), gw - 1, -(gw - 1)])
+        where = {int(o): k for k, o in enumerate(self.offsets)}
+        # (corner p, corner q) -> diagonal of offset idx(q) - idx(p); corners (i,j), (i,j+1), (i+1,j), (i+1,j+1)
+        corner = np.array([0, 1, gw, gw + 1])
+        self.pairs = [(p, q, where[int(corner[q] - corner[p])]) for p in range(4) for q in range(4)]
+        self.pair_k = np.array([[where[int(corner[q] - corner[p])] for q in range(4)] for p in range(4)], np.int64)
+        self.offsets = self.offsets.astype(np.int64)
+        # membrane: weighted node degree on the main diagonal, -weight on the 4-neighbour edges
+        wh = np.ones((gh, gw - 1)) if edge_weights is None else edge_weights[0]
+        wv = np.ones((gh - 1, gw)) if edge_weights is None else edge_weights[1]
+        idx = np.arange(m).reshape(gh, gw)
+        lap = np.zeros((len(self.offsets), m))
+        deg = np.zeros((gh, gw))
+        deg[:, :-1] += wh
+        deg[:, 1:] += wh
+        deg[:-1, :] += wv
+        deg[1:, :] += wv
+        lap[0] = deg.ravel()
+        # dia storage: data[k, c] holds A[c - offset, c]
+        lap[where[1], idx[:, 1:].ravel()] = -wh.ravel()
+        lap[where[-1], idx[:, :-1].ravel()] = -wh.ravel()
+        lap[where[gw], idx[1:, :].ravel()] = -wv.ravel()
+        lap[where[-gw], idx[:-1, :].ravel()] = -wv.ravel()
+        self.lap = lap
+
+    def interpolate(self, U: np.ndarray) -> np.ndarray:
+        """(N, 2) ``B U``."""
+        return np.einsum("nk,nkc->nc", self.vals, U[self.cols])
+
+    def solve(self, w: np.ndarray, target: np.ndarray, alpha: float, eps: float, x0: np.ndarray | None = None,
+              *, maxiter: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``(U (M, 2), node data weights (M,))``: sparse LU, or with ``maxiter`` > 0 at most that many
+        Jacobi-preconditioned conjugate-gradient steps from ``x0`` (an inexact step of the ICP), both
+        compiled with numba where it is installed (the same arithmetic as scipy's ``cg``)."""
+        data = alpha * self.lap
+        data[0] += eps
+        rhs = np.zeros((self.m, 2))
+        node_w = np.zeros(self.m)
+        _assemble(self.cols, self.vals, np.ascontiguousarray(w, dtype=np.float64),
+                  np.ascontiguousarray(target, dtype=np.float64), self.pair_k, data, rhs, node_w)
+        if maxiter <= 0 or x0 is None:
+            A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc()
+            return spla.splu(A).solve(rhs), node_w
+        out = np.empty_like(rhs)
+        for c in range(2):
+            out[:, c] = _cg_dia(data, self.offsets, np.ascontiguousarray(rhs[:, c]),
+                                np.array(x0[:, c], dtype=np.float64), int(maxiter), 1e-4)
+        return out, node_w
+
+
+def _assemble_py(cols, vals, w, target, pair_k, data, rhs, node_w):
+    """Scatter the samples into the 9 diagonals of ``B^T W B`` (``data[k, c] += w v_p v_q`` at column
+    ``c = cols[q]``), into ``B^T W t`` and into the nodes' data weights."""
+    n = cols.shape[0]
+    for i in range(n):
+        wi = w[i]
+        if wi == 0.0:
+            continue
+        for p in range(4):
+            a = cols[i, p]
+            wv = wi * vals[i, p]
+            node_w[a] += wv
+            rhs[a, 0] += wv * target[i, 0]
+            rhs[a, 1] += wv * target[i, 1]
+            for q in range(4):
+                data[pair_k[p, q], cols[i, q]] += wv * vals[i, q]
+
+
+def _cg_dia_py(data, offsets, b, x, maxiter, rtol):
+    """Jacobi-preconditioned conjugate gradients on a matrix in DIA storage (``A[c - offsets[k], c] =
+    data[k, c]``), from ``x``, until ``|r| <= rtol |b|`` or ``maxiter`` steps (scipy's ``cg`` rule)."""
+    m = b.shape[0]
+    nd = offsets.shape[0]
+
+    def matvec(v, out):
+        for r in range(m):
+            out[r] = 0.0
+        for k in range(nd):
+            off = offsets[k]
+            lo = max(0, -off)
+            hi = min(m, m - off)
+            for r in range(lo, hi):
+                c = r + off
+                out[r] += data[k, c] * v[c]
+
+    Ax = np.empty(m)
+    matvec(x, Ax)
+    r = b - Ax
+    bnorm = math.sqrt(float(np.dot(b, b)))
+    tol = rtol * bnorm
+    if bnorm == 0.0:
+        return np.zeros(m)
+    z = r / data[0]
+    pvec = z.copy()
+    rz = float(np.dot(r, z))
+    Ap = np.empty(m)
+    for _ in range(maxiter):
+        if math.sqrt(float(np.dot(r, r))) <= tol:
+            break
+        matvec(pvec, Ap)
+        alpha = rz / float(np.dot(pvec, Ap))
+        x += alpha * pvec
+        r -= alpha * Ap
+        z = r / data[0]
+        rz_new = float(np.dot(r, z))
+        pvec = z + (rz_new / rz) * pvec
+        rz = rz_new
+    return x
+
+
+try:
+    from numba import njit as _njit
+
+    _assemble = _njit(cache=True, nogil=True)(_assemble_py)
+    _cg_dia = _njit(cache=True, nogil=True)(_cg_dia_py)
+except ImportError:  # pragma: no cover - numba is a declared dependency
+    _assemble, _cg_dia = _assemble_py, _cg_dia_py
+
+
+def _edge_weights(img: np.ndarray, gshape: tuple[int, int], s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Image-driven membrane weights: ``1 / (1 + (d / 2 tau)^2)`` per grid edge (Perona & Malik 1990's
+    diffusivity), ``d`` the colour difference between the two nodes in the moving image blurred to the
+    grid's scale and ``tau`` its robust spread over all edges (1.4826 x median). Motion is smooth within
+    a surface and jumps at its outline, which is where colour changes: the field may bend there."""
+    gh, gw = gshape
+    blur = cv2.GaussianBlur(img, (0, 0), 0.5 * s)
+    h, w = img.shape[:2]
+    ys = np.clip(np.rint(np.arange(gh) * s), 0, h - 1).astype(np.intp)
+    xs = np.clip(np.rint(np.arange(gw) * s), 0, w - 1).astype(np.intp)
+    c = blur[ys][:, xs].astype(np.float64)
+    dh = np.linalg.norm(c[:, 1:] - c[:, :-1], axis=2)
+    dv = np.linalg.norm(c[1:, :] - c[:-1, :], axis=2)
+    tau = 1.4826 * float(np.median(np.concatenate([dh.ravel(), dv.ravel()])))
+    tau = max(tau, 1e-3)
+    return 1.0 / (1.0 + (dh / (2 * tau)) ** 2), 1.0 / (1.0 + (dv / (2 * tau)) ** 2)
+
+
+def _membrane(gshape: tuple[int, int]) -> sp.csr_matrix:
+    """Graph Laplacian of the grid's 4-neighbour edges: ``U^T L U = sum_(a,b) |U_a - U_b|^2``."""
+    gh, gw = gshape
+    idx = np.arange(gh * gw).reshape(gh, gw)
+    a = np.concatenate([idx[:, :-1].ravel(), idx[:-1, :].ravel()])
+    b = np.concatenate([idx[:, 1:].ravel(), idx[1:, :].ravel()])
+    m = len(a)
+    D = sp.csr_matrix((np.concatenate([np.ones(m), -np.ones(m)]), (np.tile(np.arange(m), 2), np.concatenate([a, b]))),
+                      shape=(m, gh * gw))
+    return (D.T @ D).tocsr()
+
+
+def _upsample_grid(U: np.ndarray, old_shape: tuple[int, int], old_s: float, new_shape: tuple[int, int],
+                   new_s: float, factor: float) -> np.ndarray:
+    """Grid displacements on a finer level: the old grid interpolated at the new nodes, times ``factor``.
+    Node positions are in their own level's pixels; ``factor`` is the level scale (2)."""
+    gh, gw = new_shape
+    ys, xs = np.mgrid[0:gh, 0:gw].astype(np.float64)
+    # new node (level l) at x_l = j s_new; in level l + 1 pixels: (x_l - 0.5) / 2
+    pts = np.column_stack([((xs * new_s - 0.5) / factor).ravel(), ((ys * new_s - 0.5) / factor).ravel()])
+    B = _bilinear_matrix(pts, old_shape, old_s)
+    return factor * (B @ U)
+
+
+def _level_matrix(T: np.ndarray, level: int) -> np.ndarray:
+    """A full-resolution 3x3 transform expressed in the coordinates of pyramid level ``level``
+    (x_l = (x_0 - (2^l - 1) / 2) / 2^l)."""
+    f = float(2 ** level)
+    S = np.array([[1 / f, 0, -(f - 1) / (2 * f)], [0, 1 / f, -(f - 1) / (2 * f)], [0, 0, 1]])
+    return S @ np.asarray(T, dtype=np.float64) @ np.linalg.inv(S)
+
+
+def _apply(M: np.ndarray, p: np.ndarray) -> np.ndarray:
+    den = p[:, 0] * M[2, 0] + p[:, 1] * M[2, 1] + M[2, 2]
+    return np.column_stack([(p @ M[0, :2] + M[0, 2]) / den, (p @ M[1, :2] + M[1, 2]) / den])
+
+
+def _samples(img: np.ndarray, sigma: float, *, max_points: int, seed: int, valid: np.ndarray | None
+             ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Textured moving pixels of one level: gradient magnitude above 3 noise standard deviations of
+    the Sobel response (and above a 2-grey-level step), a one-pixel frame dropped."""
+    gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    mag = cv2.magnitude(gx, gy)
+    thr = max(3.0 * math.sqrt(12.0) * sigma, 8.0 / 255.0)
+    keep = mag > thr
+    keep[[0, -1], :] = False
+    keep[:, [0, -1]] = False
+    if valid is not None:
+        keep &= valid
+    ys, xs = np.nonzero(keep)
+    rate = 1.0
+    if xs.size > max_points:
+        rate = max_points / xs.size
+        sel = np.sort(np.random.default_rng(seed).choice(xs.size, size=max_points, replace=False))
+        ys, xs = ys[sel], xs[sel]
+    return np.column_stack([xs, ys]).astype(np.float64), img[ys, xs].astype(np.float32), rate
+
+
+def _texture(img: np.ndarray, sigma: float, structure: float = 0.05) -> np.ndarray:
+    """The texture part of an image, ``I - (1 - structure) G_sigma * I`` (the structure-texture split of
+    Wedel et al. 2009, "An improved algorithm for TV-L1 optical flow", keeping a twentieth of the
+    structure). It removes what varies slowly across the image: brightness and colour-temperature
+    changes, drifting shadows, haze, which colour matching would otherwise read as motion. With
+    ``sigma`` of about one pixel of the level, each pyramid level matches its own octave of detail
+    (the band of a Laplacian pyramid, Burt & Adelson 1983) and the coarser octaves are matched at the
+    coarser levels, so nothing is lost to the split."""
+    return (img - (1.0 - structure) * cv2.GaussianBlur(img, (0, 0), sigma)).astype(np.float32)
+
+
+def _tukey(r: np.ndarray, c: float) -> np.ndarray:
+    u = r / c
+    return np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+
+
+# ---------------------------------------------------------------------------------------------------
+# the dense registration
+# ---------------------------------------------------------------------------------------------------
+
+def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, model: str = "similarity",
+                   global_result: RegistrationResult | np.ndarray | None = None, levels: int = 5,
+                   finest_level: int = 1, iterations: int = 4, grid_spacing: float = 8.0, radius: int = 3,
+                   fine_radius: int = 2,
+                   max_points: int = 10000, stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE, strain: float = 0.25,
+                   edge_aware: bool = False, cg_iterations: int = 30, texture: float | None = 1.0,
+                   global_levels: int = 4, global_iterations: int = 14, init: str | np.ndarray = "identity",
+                   backend: str = "reference", seed: int = 0,
+                   callback: Callable[[DenseIteration], None] | None = None) -> DenseRegistrationResult:
+    """Register ``moving_image`` to ``reference_image`` with a smooth dense field (see the module text).
+
+    reference_image, moving_image : (H, W, 3) uint8 RGB of the same size (also gray, uint16, float).
+    model : the global step's motion model (``similarity``, ``projective``, ...), run by
+        :func:`pcreg.register` with ``global_levels``, ``global_iterations``, ``init`` and ``backend``
+        unless ``global_result`` (a result or a 3x3 ``T_ref_mov``) is given. Its
+        :class:`~pcreg.errors.RegistrationError` propagates.
+    levels : pyramid levels of the dense step (the coarsest is ``levels - 1``); finest_level : the
+        finest level it works at (1: half resolution, as DIS's medium preset; 0: full resolution).
+    iterations : ICP iterations per level (the stiffness schedule runs within each level).
+    grid_spacing : control-grid spacing in pixels of each level.
+    radius : gate at the coarsest level, fine_radius : at the others (pixels of the level): a finer
+        level starts from the coarser level's field, within about a pixel of it there (two here).
+    max_points : moving samples per level at most (at random with ``seed``).
+    stiffness : the schedule multiplying the membrane weight (the last value repeats).
+    strain : the largest plausible motion gradient (px per px), which sets the membrane weight.
+    edge_aware : weight each membrane edge by the moving image's colour change across it
+        (:func:`_edge_weights`), so the field can bend at object outlines; False: a uniform membrane.
+    texture : match on each level's texture part (:func:`_texture`), the image minus its Gaussian blur
+        of ``texture`` pixels of the level; None matches the plain colours.
+    cg_iterations : each step solves the grid's equations inexactly, with at most this many
+        Jacobi-preconditioned conjugate-gradient iterations warm-started from the last field (the
+        ICP iterates anyway); 0: an exact sparse LU solve each step.
+    callback : called with a :class:`DenseIteration` after every iteration.
+    Returns a :class:`DenseRegistrationResult`.
+    """
+    t_start = time.perf_counter()
+    ref = as_rgb_uint8(reference_image, name="reference image")
+    mov = as_rgb_uint8(moving_image, name="moving image")
+    if ref.shape != mov.shape:
+        raise InputError(f"dense registration needs images of one size, got {ref.shape[:2]} and {mov.shape[:2]}")
+    if model not in MODELS:
+        raise InputError(f"unknown global motion model {model!r}; choose one of {', '.join(MODELS)}")
+    if not 1 <= levels <= 8 or not 0 <= finest_level < levels:
+        raise InputError(f"need 1 <= levels <= 8 and 0 <= finest_level < levels, got {levels}, {finest_level}")
+    if iterations < 1 or radius < 1 or fine_radius < 1 or max_points < 16 or not grid_spacing >= 2 or cg_iterations < 0:
+        raise InputError("iterations and radius must be >= 1, max_points >= 16, grid_spacing >= 2 and "
+                         "cg_iterations >= 0")
+    if not stiffness or any(not (np.isfinite(s) and s > 0) for s in stiffness):
+        raise InputError("stiffness must be a non-empty sequence of positive numbers")
+    h, w = ref.shape[:2]
+    coarsest = levels - 1
+    while coarsest > finest_level and min(h, w) >> coarsest < 16:
+        coarsest -= 1
+
+    given = global_result is not None
+    if global_result is None:
+        from .api import register
+
+        global_result = register(ref, mov, backend=backend, model=model, levels=global_levels,
+                                 iterations=global_iterations, init=init, seed=seed)
+    elif not isinstance(global_result, RegistrationResult):
+        M = np.asarray(global_result, dtype=np.float64)
+        if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
+            raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix")
+        global_result = RegistrationResult(matrix=M, fitness=float("nan"), inlier_rmse=float("nan"), iterations=0,
+                                           converged=True, backend="given")
+    T = np.asarray(global_result.matrix, dtype=np.float64)
+    given_seconds = float(global_result.seconds) if given else 0.0
+
+    from .clouds import valid_region
+
+    ref_valid, mov_valid = valid_region(ref), valid_region(mov)
+    pyr_r, pyr_m = [ref.astype(np.float32) / 255.0], [mov.astype(np.float32) / 255.0]
+    val_r, val_m = [ref_valid], [mov_valid]
+    for _ in range(coarsest):
+        pyr_r.append(cv2.pyrDown(pyr_r[-1]))
+        pyr_m.append(cv2.pyrDown(pyr_m[-1]))
+        val_m.append(cv2.resize(val_m[-1].astype(np.uint8), pyr_m[-1].shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0)
+        val_r.append(cv2.resize(val_r[-1].astype(np.uint8), pyr_r[-1].shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0)
+
+    U = None
+    prev = None  # (grid shape, spacing) of the level above
+    total_it = 0
+    fitness, rms = 0.0, 0.0
+    weights_node = None
+    for level in range(coarsest, finest_level - 1, -1):
+        R, Mv = pyr_r[level], pyr_m[level]
+        lh, lw = R.shape[:2]
+        s = float(grid_spacing)
+        gshape = _grid_shape(lh, lw, s)
+        if U is None:
+            U = np.zeros((gshape[0] * gshape[1], 2))
+        else:
+            U = _upsample_grid(U, prev[0], prev[1], gshape, s, 2.0)
+        prev = (gshape, s)
+        sigma = max(_noise_sigma(cv2.cvtColor(Mv, cv2.COLOR_RGB2GRAY)), 0.5 / 255.0)
+        lam = 1.0 / (math.sqrt(6.0) * sigma)
+        # pixels near black padding are not scene content
+        valid = cv2.erode(val_m[level].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0 if not val_m[level].all() else None
+        P, _, rate = _samples(Mv, sigma, max_points=max_points, seed=seed + level, valid=valid)
+        if len(P) < 16:
+            continue
+        if texture is not None:
+            R, Mv = _texture(R, texture), _texture(Mv, texture)
+        C = Mv[P[:, 1].astype(np.intp), P[:, 0].astype(np.intp)]
+        R_match = R if val_r[level].all() else np.where(val_r[level][:, :, None], R, np.float32(10.0))
+        NE = _NormalEquations(P, gshape, s, _edge_weights(Mv, gshape, s) if edge_aware else None)
+        Gl = _level_matrix(T, level)
+        GP = _apply(Gl, P)
+        f = float(2 ** level)
+        base_alpha = 1.0 / (s * strain) ** 2
+        for it in range(iterations):
+            X = GP + NE.interpolate(U)
+            m = match_window(R_match, Mv, P, X, C, radius=radius if level == coarsest else fine_radius, lam=lam)
+            found = np.isfinite(m[:, 0])
+            cd = np.where(found, m[:, 2], np.inf)
+            good = found & (m[:, 3] > 0)
+            wts = np.zeros(len(P))
+            if good.sum() >= 8:
+                med = float(np.median(cd[good]))
+                mad = float(np.median(np.abs(cd[good] - med))) * 1.4826
+                scale = max(med + TUKEY_C * max(mad, 1e-6), 2.0 * math.sqrt(6.0) * sigma)
+                wts[good] = _tukey(cd[good], scale)
+            inl = wts > 0
+            Q = np.where(found[:, None], m[:, :2], X)
+            target = Q - GP
+            res = Q - X
+            if not wts.any():
+                break
+            k = stiffness[min(it, len(stiffness) - 1)]
+            alpha = k * base_alpha
+            U, weights_node = NE.solve(wts, target, alpha, 1e-4 * alpha, U, maxiter=cg_iterations)
+            total_it += 1
+            sw = float(wts.sum())
+            rms = f * math.sqrt(float((wts * (res ** 2).sum(axis=1)).sum()) / sw) if sw > 0 else 0.0
+            fitness = float(inl.mean())
+            if callback is not None:
+                callback(DenseIteration(level=level, iteration=it, stiffness=float(k), points=len(P),
+                                        inliers=int(inl.sum()), rms=rms,
+                                        grid=(f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)))
+    if U is None or weights_node is None:
+        raise RegistrationError("dense registration found no textured samples to match")
+
+    # the field at full resolution: the global transform plus the grid's displacements, interpolated
+    lvl = finest_level
+    f = float(2 ** lvl)
+    gshape = prev[0]
+    s = prev[1]
+    grid = (f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)
+    xs = (np.arange(w, dtype=np.float32) - (f - 1) / 2.0) / f / s
+    ys = (np.arange(h, dtype=np.float32) - (f - 1) / 2.0) / f / s
+    mx, my = np.meshgrid(xs, ys)
+    disp = cv2.remap(grid, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    field_full = field_from_matrix(T, (h, w)) + disp
+    # confidence: the nodes' data weight against a quarter of a cell's pixels (at the sampling rate)
+    cell = 0.25 * s * s * rate
+    conf_nodes = np.clip(weights_node / cell, 0.0, 1.0).reshape(gshape).astype(np.float32)
+    conf = cv2.remap(conf_nodes, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    inside = ((field_full[:, :, 0] >= -0.5) & (field_full[:, :, 0] <= w - 0.5)
+              & (field_full[:, :, 1] >= -0.5) & (field_full[:, :, 1] <= h - 0.5))
+    conf = np.where(inside, conf, 0.0).astype(np.float32)
+    return DenseRegistrationResult(matrix=T, field=field_full.astype(np.float32), confidence=conf,
+                                   global_result=global_result, fitness=fitness, inlier_rmse=rms,
+                                   iterations=total_it, seconds=time.perf_counter() - t_start + given_seconds,
+                                   backend=backend,
+                                   info={"levels": (coarsest, finest_level), "grid": grid.shape[:2]})

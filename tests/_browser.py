@@ -1,0 +1,138 @@
+"""Headless Chromium driven over the DevTools protocol on a pipe (no debugging port, no extra package).
+
+``Browser`` starts ``chromium --headless --remote-debugging-pipe`` with software rendering (SwiftShader:
+no GPU, no display), opens a page and takes screenshots of it, so a test can wait until a web page has
+drawn what it should.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+FLAGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--disable-dev-shm-usage", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+]
+
+
+def find_chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+class Browser:
+    """One headless Chromium with one page; a context manager."""
+
+    def __init__(self, *, width: int = 1280, height: int = 720, binary: str | None = None) -> None:
+        binary = binary or find_chromium()
+        if binary is None:
+            raise FileNotFoundError("chromium not found")
+        self._profile = tempfile.TemporaryDirectory(prefix="pcreg-chromium-")
+        to_child_r, to_child_w = os.pipe()
+        from_child_r, from_child_w = os.pipe()
+
+        def pipes_on_3_and_4() -> None:  # the DevTools pipe is fd 3 (commands in) and fd 4 (answers out)
+            a, b = os.dup(to_child_r), os.dup(from_child_w)
+            os.dup2(a, 3)
+            os.dup2(b, 4)
+            os.set_inheritable(3, True)
+            os.set_inheritable(4, True)
+
+        self._log = open(Path(self._profile.name) / "chromium.log", "wb")
+        self.proc = subprocess.Popen(
+            [binary, *FLAGS, f"--user-data-dir={self._profile.name}", f"--window-size={width},{height}",
+             "--remote-debugging-pipe", "about:blank"],
+            preexec_fn=pipes_on_3_and_4, close_fds=False, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+            stderr=self._log, start_new_session=True)
+        os.close(to_child_r)
+        os.close(from_child_w)
+        self._out = os.fdopen(to_child_w, "wb", buffering=0)
+        self._in = os.fdopen(from_child_r, "rb", buffering=0)
+        self._buf = b""
+        self._id = 0
+        self.console: list[str] = []
+        targets = self.call("Target.getTargets")["targetInfos"]
+        page = next(t for t in targets if t["type"] == "page")
+        self._session = self.call("Target.attachToTarget", targetId=page["targetId"], flatten=True)["sessionId"]
+        self.call("Page.enable", session=True)
+        self.call("Emulation.setDeviceMetricsOverride", session=True, width=width, height=height,
+                  deviceScaleFactor=1, mobile=False)
+
+    def call(self, method: str, *, session: bool = False, **params) -> dict:
+        self._id += 1
+        msg = {"id": self._id, "method": method, "params": params}
+        if session:
+            msg["sessionId"] = self._session
+        self._out.write(json.dumps(msg).encode() + b"\0")
+        while True:
+            while b"\0" in self._buf:
+                raw, self._buf = self._buf.split(b"\0", 1)
+                answer = json.loads(raw)
+                if answer.get("id") == self._id:
+                    if "error" in answer:
+                        raise RuntimeError(f"{method}: {answer['error']}")
+                    return answer.get("result", {})
+            chunk = self._in.read(1 << 16)
+            if not chunk:
+                raise RuntimeError("chromium closed its DevTools pipe")
+            self._buf += chunk
+
+    def open(self, url: str) -> None:
+        self.call("Page.navigate", session=True, url=url)
+
+    def screenshot(self) -> np.ndarray:
+        """The page as a (H, W, 3) BGR image."""
+        data = self.call("Page.captureScreenshot", session=True, format="png")["data"]
+        img = cv2.imdecode(np.frombuffer(base64.b64decode(data), np.uint8), cv2.IMREAD_COLOR)
+        if img is None:
+            raise RuntimeError("chromium's screenshot does not decode")
+        return img
+
+    def wait_for(self, check, *, timeout: float, every: float = 1.0) -> tuple[bool, np.ndarray]:
+        """Screenshot every ``every`` s until ``check(image)`` is true or ``timeout`` s have passed."""
+        deadline = time.monotonic() + timeout
+        shot = np.zeros((1, 1, 3), np.uint8)
+        while True:
+            time.sleep(every)
+            try:
+                shot = self.screenshot()
+            except RuntimeError:  # the page is still being replaced by the one navigated to
+                if time.monotonic() > deadline:
+                    raise
+                continue
+            if check(shot) or time.monotonic() > deadline:
+                return bool(check(shot)), shot
+
+    def close(self) -> None:
+        try:
+            self._out.write(json.dumps({"id": self._id + 1, "method": "Browser.close"}).encode() + b"\0")
+        except OSError:
+            pass
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, 9)
+            self.proc.wait(timeout=5)
+        for f in (self._out, self._in, self._log):
+            f.close()
+        self._profile.cleanup()
+
+    def __enter__(self) -> "Browser":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

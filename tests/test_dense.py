@@ -1,0 +1,267 @@
+"""pcreg.registration.dense: non-rigid ICP of colour clouds, fields in warp, the dense pipeline."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg import register_dense, warp, warp_to_moving
+from pcreg import transforms as tf
+from pcreg.errors import InputError
+from pcreg.registration.dense import DenseRegistrationResult, field_from_matrix, match_window
+from pcreg.registration.warp import invert_field
+
+from _images import rigid_about_centre, shapes_image
+
+
+def _textured(h=240, w=320, seed=0):
+    """Shapes on a gradient plus fine random texture (texture everywhere, as the dense step wants)."""
+    img = shapes_image(h, w, seed).astype(np.float32)
+    noise = cv2.GaussianBlur(np.random.default_rng(seed).normal(0, 30, (h, w, 3)).astype(np.float32), (0, 0), 1.5)
+    return np.clip(img + noise, 0, 255).astype(np.uint8)
+
+
+def _smooth_field(h, w):
+    """A known smooth non-rigid field: shift, zoom and two sinusoidal bends (reference coordinates)."""
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    dx = 3.0 + 0.02 * (xs - w / 2) + 4.0 * np.sin(2 * np.pi * ys / 180.0)
+    dy = -2.0 + 0.02 * (ys - h / 2) + 3.0 * np.cos(2 * np.pi * xs / 220.0)
+    return np.dstack([xs + dx, ys + dy]).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def warped_pair():
+    ref = _textured()
+    F = _smooth_field(*ref.shape[:2])
+    mov = cv2.remap(ref, F[..., 0], F[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return ref, mov, F
+
+
+def test_recovers_a_known_smooth_field(warped_pair):
+    ref, mov, F = warped_pair
+    res = register_dense(ref, mov, levels=4)
+    assert isinstance(res, DenseRegistrationResult)
+    assert res.field.shape == ref.shape[:2] + (2,) and res.field.dtype == np.float32
+    assert res.confidence.shape == ref.shape[:2] and 0 <= res.confidence.min() <= res.confidence.max() <= 1
+    inner = (slice(16, -16), slice(16, -16))
+    err = np.linalg.norm(res.field - F, axis=2)[inner]
+    global_err = np.linalg.norm(field_from_matrix(res.matrix, ref.shape[:2]) - F, axis=2)[inner]
+    assert np.median(err) < 0.6, np.median(err)
+    assert np.median(err) < 0.3 * np.median(global_err)
+    assert np.percentile(err, 90) < 1.5
+    d = res.to_dict()
+    json.dumps(d)
+    assert d["model"] == "dense" and len(d["matrix"]) == 3
+    assert not res.field.flags.writeable
+    assert "DenseRegistrationResult(field=320x240" in repr(res)
+
+
+def test_no_motion_gives_the_identity_field():
+    img = _textured(seed=3)
+    res = register_dense(img, img, global_result=np.eye(3), levels=3)
+    ident = field_from_matrix(np.eye(3), img.shape[:2])
+    assert np.median(np.linalg.norm(res.field - ident, axis=2)) < 0.15
+
+
+def test_flat_areas_get_lower_confidence_and_the_global_motion():
+    img = _textured(seed=5)
+    img[:, 160:] = (120, 140, 90)  # right half flat
+    T = rigid_about_centre(img.shape, 0.0, 4.0, -3.0)
+    mov = cv2.warpAffine(img, T[:2], (320, 240), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_REFLECT)
+    res = register_dense(img, mov, global_result=T, levels=3)
+    assert res.confidence[20:-20, 20:140].mean() > 2 * res.confidence[20:-20, 200:-20].mean()
+    # where there is nothing to match, the field stays with the global transform
+    flat = np.linalg.norm(res.field - field_from_matrix(T, img.shape[:2]), axis=2)[20:-20, 220:-20]
+    assert np.median(flat) < 0.5
+
+
+def test_window_search_is_the_exact_nearest_neighbour_in_position_and_colour():
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(1)
+    ref = rng.random((30, 40, 3)).astype(np.float32)
+    mov = rng.random((30, 40, 3)).astype(np.float32)
+    n, radius, lam = 300, 3, 4.0
+    src = np.column_stack([rng.integers(5, 35, n), rng.integers(5, 25, n)]).astype(np.float64)
+    pos = src + rng.uniform(-2, 2, (n, 2))
+    cols = rng.random((n, 3)).astype(np.float32)
+    fast = match_window(ref, mov, src, pos, cols, radius=radius, lam=lam)
+    slow = match_window(ref, mov, src, pos, cols, radius=radius, lam=lam, compiled=False)
+    np.testing.assert_allclose(fast, slow, rtol=1e-6, atol=1e-6)
+    ys, xs = np.mgrid[0:30, 0:40]
+    feats = np.column_stack([xs.ravel(), ys.ravel(), lam * ref.reshape(-1, 3)])
+    tree = cKDTree(feats)
+    for i in range(n):
+        cx, cy = np.floor(pos[i] + 0.5).astype(int)
+        inside = (np.abs(xs.ravel() - cx) <= radius) & (np.abs(ys.ravel() - cy) <= radius)
+        q = np.concatenate([pos[i], lam * cols[i]])
+        d = np.linalg.norm(feats[inside] - q, axis=1)
+        best = feats[inside][np.argmin(d)]
+        # the search answers the windowed nearest neighbour (sub-pixel refined by at most half a pixel)
+        assert abs(fast[i, 0] - best[0]) <= 0.5 + 1e-9 and abs(fast[i, 1] - best[1]) <= 0.5 + 1e-9
+        dd, _ = tree.query(q)
+        assert dd <= d.min() + 1e-9  # the global nearest neighbour is never farther than the gated one
+
+
+def test_bad_inputs_are_refused():
+    img = _textured()
+    with pytest.raises(InputError):
+        register_dense(img, img[:200])
+    with pytest.raises(InputError):
+        register_dense(img, img, model="warp")
+    with pytest.raises(InputError):
+        register_dense(img, img, global_result=np.zeros((3, 3)))
+    with pytest.raises(InputError):
+        register_dense(img, img, radius=0)
+
+
+# ---------------------------------------------------------------------------------------------------
+# warping with a field
+# ---------------------------------------------------------------------------------------------------
+
+def test_warp_with_a_field_matches_the_matrix():
+    img = shapes_image()
+    T = rigid_about_centre(img.shape, 8.0, 6.0, -4.0)
+    fld = field_from_matrix(T, img.shape[:2])
+    by_matrix, valid_m = warp(img, T)
+    by_field, valid_f = warp(img, fld)
+    both = valid_m & valid_f
+    assert np.median(np.abs(by_matrix.astype(int) - by_field.astype(int))[both]) <= 1
+    assert (valid_m ^ valid_f).mean() < 0.01
+    to_mov_m, vm = warp_to_moving(img, T, shape=img.shape[:2])
+    to_mov_f, vf = warp_to_moving(img, fld, shape=img.shape[:2])
+    assert np.abs(to_mov_m.astype(int) - to_mov_f.astype(int))[vm & vf].max() <= 2
+    assert (vm ^ vf).mean() < 0.01
+    # labels with nearest neighbour keep their values; fill outside
+    labels = (img[:, :, 0] > 128).astype(np.uint8)
+    lab, v = warp_to_moving(labels, fld, interpolation="nearest", fill=2)
+    assert set(np.unique(lab)) <= {0, 1, 2} and np.all(lab[~v] == 2)
+
+
+def test_field_inverse_round_trips():
+    F = _smooth_field(120, 160)
+    inv, ok = invert_field(F, (120, 160))
+    back = cv2.remap(F, inv[..., 0], inv[..., 1], cv2.INTER_LINEAR)
+    X, Y = np.meshgrid(np.arange(160, dtype=np.float32), np.arange(120, dtype=np.float32))
+    err = np.hypot(back[..., 0] - X, back[..., 1] - Y)
+    assert ok.mean() > 0.8 and err[ok].max() < 0.05
+
+
+def test_warp_refuses_a_field_of_the_wrong_size():
+    img = shapes_image()
+    with pytest.raises(InputError):
+        warp(img, np.zeros((10, 10, 2), np.float32))
+    with pytest.raises(InputError):
+        warp_to_moving(img, np.full((240, 320, 2), np.nan, np.float32), shape=(240, 320))
+
+
+# ---------------------------------------------------------------------------------------------------
+# the pipeline
+# ---------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def frames():
+    from pcreg.datasets import synthetic
+
+    return synthetic("syn2a", 10, 0, width=160, height=120)
+
+
+def test_dense_pipeline_on_a_short_sequence(frames):
+    from pcreg.pipeline import METHODS, PIPELINE_REGISTRATION, PipelineConfig, run_sequence
+
+    cfg = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(model="dense"))
+    res = run_sequence(frames, k=2, config=cfg, fusion_frames=3)
+    assert res.pairs and all(p.registered for p in res.pairs)
+    assert set(res.means) == set(METHODS) and "augmented_flow" in METHODS
+    assert all(np.isfinite(res.means[m]) for m in ("augmented", "augmented_flow", "augmented_temporal"))
+    assert res.means["augmented"] < res.means["plain"]
+    assert res.flow_weight is not None and res.flow_weight.pairs > 0
+    reg = res.pairs[0].registration
+    assert reg["model"] == "dense" and 0 < reg["mean_confidence"] <= 1
+
+
+def test_process_pair_keeps_the_field_for_recordings(frames):
+    from pcreg.pipeline import PIPELINE_REGISTRATION, PipelineConfig, fit_classifier, process_pair
+
+    clf = fit_classifier([frames[0]])
+    cfg = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(model="dense"))
+    done = process_pair(frames[0], frames[2], clf, weight=2.0, config=cfg, keep_arrays=True)
+    arrays = done.arrays
+    assert arrays.motion.shape == frames[0].shape + (2,)
+    assert arrays.confidence.shape == frames[0].shape
+    assert arrays.warped_prior.shape == frames[0].shape and arrays.flow.shape == frames[0].shape + (2,)
+    assert np.isfinite(done.result.errors["augmented_flow"])
+
+
+def test_temporal_chain_never_worse_than_plain_through_failed_and_poor_registrations(frames, monkeypatch):
+    """A failed and a badly wrong registration mid-chain, with a weight chosen too large (the causes
+    of the divergence): the chain falls back to plain where the registration failed, lets the
+    classifier overrule the labels a wrong registration carried, and never does worse than plain."""
+    import pcreg.pipeline as pl
+    from pcreg.classification.fusion import FusionConfig
+    from pcreg.registration.result import RegistrationResult
+
+    real = pl.register_pair
+
+    def flaky(reference_image, moving_image, *, config, callback=None):
+        if np.array_equal(moving_image, frames[8].image):
+            return pl.PairRegistration(None, "forced failure", 0.0)
+        if np.array_equal(moving_image, frames[4].image):  # 30 px off and turned: a poor registration
+            wrong = rigid_about_centre(frames[4].shape, 12.0, 30.0, 10.0)
+            return pl.PairRegistration(RegistrationResult(matrix=wrong, fitness=0.5, inlier_rmse=3.0, iterations=1,
+                                                          converged=True, backend="reference"), None, 0.0)
+        return real(reference_image, moving_image, config=config, callback=callback)
+
+    monkeypatch.setattr(pl, "register_pair", flaky)
+    cfg = pl.PipelineConfig(fusion=FusionConfig(weight=12.0))
+    res = pl.run_sequence(frames, k=1, config=cfg, fusion_frames=2)
+    assert any(not p.registered for p in res.pairs)
+    for p in res.pairs:
+        if not p.registered:
+            assert p.errors["augmented_temporal"] == pytest.approx(p.errors["plain"])
+    after = [p for p in res.pairs if 4 <= p.moving < 8]
+    assert np.mean([p.errors["augmented_temporal"] for p in after]) <= np.mean([p.errors["plain"] for p in after])
+    assert res.means["augmented_temporal"] <= res.means["plain"]
+
+
+def test_a_change_of_brightness_and_colour_is_not_read_as_motion(warped_pair):
+    ref, mov, F = warped_pair
+    # the camera's exposure and white balance change between the frames
+    lit = np.clip(mov.astype(np.float32) * np.array([1.2, 1.1, 0.9], np.float32) + 12.0, 0, 255).astype(np.uint8)
+    res = register_dense(ref, lit, levels=4)
+    inner = (slice(16, -16), slice(16, -16))
+    err = np.linalg.norm(res.field - F, axis=2)[inner]
+    assert np.median(err) < 0.8, np.median(err)
+    plain = register_dense(ref, lit, levels=4, texture=None)
+    assert np.median(err) < np.median(np.linalg.norm(plain.field - F, axis=2)[inner])
+
+
+def test_compiled_normal_equations_match_scipy():
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from pcreg.registration.dense import _NormalEquations
+
+    rng = np.random.default_rng(0)
+    ne = _NormalEquations(rng.uniform(0, [160, 120], (3000, 2)), (16, 21), 8.0)
+    w = rng.random(3000)
+    w[::5] = 0.0
+    t = rng.normal(size=(3000, 2))
+    x0 = rng.normal(size=(ne.m, 2))
+    U_cg, node_w = ne.solve(w, t, 0.25, 1e-5, x0, maxiter=40)
+    U_lu, _ = ne.solve(w, t, 0.25, 1e-5)
+    # the same system assembled with scipy.sparse from the bilinear matrix
+    from pcreg.registration.dense import _bilinear_matrix, _membrane
+
+    B = sp.csr_matrix((ne.vals.ravel(), ne.cols.ravel(), np.arange(0, 4 * 3000 + 1, 4)), shape=(3000, ne.m))
+    A = (B.T @ sp.diags(w) @ B + 0.25 * _membrane((16, 21)) + 1e-5 * sp.identity(ne.m)).tocsc()
+    np.testing.assert_allclose(U_lu, spla.spsolve(A, B.T @ (w[:, None] * t)), atol=1e-8)
+    np.testing.assert_allclose(node_w, B.T @ w, atol=1e-10)
+    x_ref, _ = spla.cg(A, (B.T @ (w[:, None] * t))[:, 0], x0=x0[:, 0].copy(), rtol=1e-4, maxiter=40,
+                       M=sp.diags(1.0 / A.diagonal()))
+    np.testing.assert_allclose(U_cg[:, 0], x_ref, atol=1e-9)
+    assert _bilinear_matrix(np.array([[3.0, 4.0]]), (16, 21), 8.0).sum() == pytest.approx(1.0)

@@ -1,0 +1,90 @@
+"""pcreg.registration.global_search: the hypothesis generators and the evidence; pcreg.datasets.textures."""
+
+import numpy as np
+import pytest
+
+from pcreg import transforms as tf
+from pcreg.datasets.textures import KINDS, texture
+from pcreg.errors import InputError
+from pcreg.registration.clouds import cloud_pyramid
+from pcreg.registration.global_search import (alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
+                                              orb_hypotheses, photometric_agreement)
+from pcreg.registration.reference import build_tree
+
+from _images import moved, rigid_about_centre
+
+TEX = texture("gravel", height=240, width=320, seed=3)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_textures_are_seeded_rgb_images(kind):
+    a = texture(kind, height=64, width=80, seed=1)
+    assert a.shape == (64, 80, 3) and a.dtype == np.uint8 and a.std() > 5
+    np.testing.assert_array_equal(a, texture(kind, height=64, width=80, seed=1))
+    assert not np.array_equal(a, texture(kind, height=64, width=80, seed=2))
+
+
+def test_texture_bad_input():
+    with pytest.raises(InputError, match="unknown texture"):
+        texture("marble")
+    with pytest.raises(InputError, match="at least 16x16"):
+        texture("noise", height=8, width=8)
+
+
+@pytest.mark.parametrize("angle", [-170.0, -60.0, 5.0, 95.0])
+def test_fourier_mellin_finds_the_rotation_within_a_few_pixels(angle):
+    T = rigid_about_centre(TEX.shape, angle, 12.0, -7.0)
+    hyps = fourier_mellin_hypotheses(TEX, moved(TEX, T), level=0)
+    assert len(hyps) == 2  # the rotation and its 180° twin
+    assert min(tf.max_corner_error(H, T, TEX.shape) for H in hyps) < 4.0
+
+
+def test_fourier_mellin_similarity_estimates_the_scale():
+    T = rigid_about_centre(TEX.shape, 30.0, 4.0, 3.0) @ tf.about_point(tf.rigid2d(0, scale=1.1), tf.image_center(TEX.shape))
+    hyps = fourier_mellin_hypotheses(TEX, moved(TEX, T), level=0, model="similarity")
+    scales = [np.sqrt(abs(np.linalg.det(H[:2, :2]))) for H in hyps]
+    assert all(abs(s - 1.1) < 0.03 for s in scales)
+
+
+def test_orb_hypothesis_and_its_absence():
+    T = rigid_about_centre(TEX.shape, 140.0, -9.0, 6.0)
+    (H,) = orb_hypotheses(TEX, moved(TEX, T), level=0, seed=0)
+    assert tf.max_corner_error(H, T, TEX.shape) < 4.0
+    assert abs(np.linalg.det(H[:2, :2]) - 1.0) < 1e-9  # rigid: the similarity's scale removed
+    flat = np.full_like(TEX, 128)
+    assert orb_hypotheses(TEX, flat, level=0) == []
+
+
+def test_edge_fft_hypotheses_cover_the_circle():
+    T = rigid_about_centre(TEX.shape, 75.0, 10.0, 5.0)
+    ref = cloud_pyramid(TEX, levels=3)[2]
+    mov = cloud_pyramid(moved(TEX, T), levels=3)[2]
+    Ts, scores = edge_fft_hypotheses(ref, mov, angles=np.arange(0.0, 360.0, 15.0))
+    assert Ts.shape == (24, 3, 3) and scores.shape == (24,)
+    best = Ts[int(np.argmax(scores))]
+    assert abs(((tf.rotation_angle_deg(best) - 75.0) + 180) % 360 - 180) <= 7.5
+
+
+def test_evidence_tells_a_true_alignment_from_chance():
+    T = rigid_about_centre(TEX.shape, 40.0, 6.0, -4.0)
+    ref = cloud_pyramid(TEX, levels=1, max_points=60000)[0]
+    mov = cloud_pyramid(moved(TEX, T), levels=1, max_points=2000, seed=1)[0]
+    tree = build_tree(ref.points)
+    good = alignment_evidence(T, mov, ref, tree, tolerance=1.0)
+    off = alignment_evidence(T @ tf.rigid2d(0, 7.0, -5.0), mov, ref, tree, tolerance=1.0)
+    assert good.inlier_ratio > 0.5 and good.overlap_points > 0.8 * good.moving_points
+    assert good.inlier_ratio > 2 * good.chance_ratio
+    assert off.inlier_ratio < 0.2 and off.inlier_ratio < 2 * off.chance_ratio + 0.05
+    nowhere = alignment_evidence(tf.rigid2d(0, 5000.0, 0), mov, ref, tree, tolerance=1.0)
+    assert nowhere.inlier_ratio == 0.0 and nowhere.overlap_points == 0
+
+
+def test_photometric_agreement():
+    import cv2
+
+    gray = cv2.cvtColor(TEX, cv2.COLOR_RGB2GRAY)
+    assert photometric_agreement(np.eye(3), gray, gray, level=0) == pytest.approx(1.0)
+    T = rigid_about_centre(TEX.shape, 180.0, 0.0, 0.0)
+    assert photometric_agreement(T, gray, gray, level=0) < 0.3
+    noise = np.random.default_rng(0).integers(0, 256, gray.shape, dtype=np.uint8)
+    assert abs(photometric_agreement(np.eye(3), gray, noise, level=0)) < 0.1

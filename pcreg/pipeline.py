@@ -93,7 +93,9 @@ class PipelineConfig:
 
     registration : :class:`~pcreg.registration.config.RegisterConfig` (:data:`PIPELINE_REGISTRATION`);
         its ``model="dense"`` runs :func:`pcreg.register_dense`: the global step with
-        :data:`DENSE_GLOBAL_MODEL` (the rest of the config as given), refined by a dense field.
+        :data:`DENSE_GLOBAL_MODEL` (the rest of the config as given, its plausibility test off: a
+        street scene seen from a moving car fails a global model's test by design), refined by a
+        dense field.
     features : naive Bayes features (:mod:`pcreg.classification.features`).
     fusion : :class:`pcreg.classification.fusion.FusionConfig`.
     """
@@ -170,8 +172,10 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
         if config.registration.model == "dense":
             from .registration.dense import register_dense
 
-            glob = register(reference_image, moving_image, **config.registration.replace(model=DENSE_GLOBAL_MODEL).kwargs(),
-                            callback=callback)
+            # the global step is the dense step's start, not its answer: a 3-D scene fails a global
+            # model's plausibility test by design, so the test is the dense step's own (on its field)
+            start = config.registration.replace(model=DENSE_GLOBAL_MODEL, min_inlier_ratio=None)
+            glob = register(reference_image, moving_image, **start.kwargs(), callback=callback)
             res = register_dense(reference_image, moving_image, global_result=glob,
                                  backend=config.registration.backend, seed=config.registration.seed)
         else:

@@ -265,3 +265,16 @@ def test_compiled_normal_equations_match_scipy():
                        M=sp.diags(1.0 / A.diagonal()))
     np.testing.assert_allclose(U_cg[:, 0], x_ref, atol=1e-9)
     assert _bilinear_matrix(np.array([[3.0, 4.0]]), (16, 21), 8.0).sum() == pytest.approx(1.0)
+
+
+def test_evidence_against_chance_and_the_optional_refusal(warped_pair):
+    from pcreg.errors import RegistrationError
+
+    ref, mov, F = warped_pair
+    res = register_dense(ref, mov, levels=4)
+    assert res.info["evidence"] > 1.5 and res.to_dict()["evidence"] == pytest.approx(res.info["evidence"])
+    noise = np.random.default_rng(3).integers(0, 256, ref.shape).astype(np.uint8)
+    unrelated = register_dense(ref, noise, global_result=np.eye(3), levels=4)
+    assert unrelated.info["evidence"] < 1.3
+    with pytest.raises(RegistrationError):
+        register_dense(ref, noise, global_result=np.eye(3), levels=4, chance_factor=1.5)

@@ -21,7 +21,7 @@ ARGS = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4", "-
 @pytest.fixture(scope="module")
 def cluster():
     with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, host="127.0.0.1",
-                                  dashboard_address=None, silence_logs=50) as c:
+                                  dashboard_address=":0", silence_logs=50) as c:
         yield c
 
 

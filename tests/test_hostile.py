@@ -694,3 +694,21 @@ def test_every_option_with_hostile_values(tmp_path, capsys, monkeypatch):
                 if rc not in (0, 2, 3) or (rc != 0 and len(err) != 1) or any("unexpected" in e for e in err):
                     bad.append((argv, rc, err[-2:]))
     assert not bad, bad[:5]
+
+
+def test_one_odd_sized_frame_fails_only_its_own_pairs():
+    """A clip with one frame of another size: the pairs that involve it fail with the reason; every other
+    pair is scored (the clip is not dropped)."""
+    from pcreg.datasets import Frame, synthetic
+    from pcreg.pipeline import run_sequence
+
+    frames = synthetic("syn1a", 8, 0, width=96, height=72)
+    odd = frames[4]
+    frames[4] = Frame(image=cv2.resize(np.asarray(odd.image), (90, 72)),
+                      labels=cv2.resize(np.asarray(odd.labels), (90, 72), interpolation=cv2.INTER_NEAREST), name=odd.name)
+    res = run_sequence(frames, k=1, fusion_frames=2)
+    failed = {(f["reference"], f["moving"]): f["reason"] for f in res.failures}
+    assert set(failed) == {(3, 4), (4, 5)}
+    assert all(f"frame {odd.name} is 90x72 px" in r for r in failed.values())
+    scored = {(p.reference, p.moving) for p in res.pairs}
+    assert scored == {(1, 2), (2, 3), (5, 6), (6, 7)}

@@ -21,7 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="correspondence distance in px at full resolution (x 2^level)")
     p.add_argument("--refine", choices=("none", "point_to_line"), default="none",
                    help="finish: point_to_line (reference backend only) removes edge-sampling bias")
-    p.add_argument("--min-inlier-ratio", type=float, default=None, metavar="R",
+    from ..validation import arg_float
+
+    p.add_argument("--min-inlier-ratio", type=arg_float(0, 1), default=None, metavar="R",
                    help="refuse (exit 3) below this share of tight inliers (default: the library's, 0.15); "
                         "0 turns the test off")
     p.add_argument("--json", action="store_true", help="print one JSON object")

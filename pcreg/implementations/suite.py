@@ -39,6 +39,7 @@ from typing import Sequence
 import numpy as np
 
 from ..outputs import atomic_write_bytes, atomic_write_text, to_json
+from ..validation import read_text_matrix
 from ..errors import InputError
 from ..registration.transforms import apply, rigid2d
 
@@ -170,7 +171,7 @@ def builtin_cases(*, scans: str | os.PathLike | None = None, seed: int = 0) -> t
         t = voxel_downsample(load_cloud(scans_dir / "target.ply"), 0.5)
         cases.append(Case("lidar", "real LiDAR pair (small_gicp's test data), voxel 0.5 m, gate 1 m, from identity; "
                           "truth = T_target_source.txt", s, t, np.eye(4), 1.0,
-                          truth=np.loadtxt(scans_dir / "T_target_source.txt")))
+                          truth=read_text_matrix(scans_dir / "T_target_source.txt", what="ground truth")))
     else:
         skipped["lidar"] = f"the LiDAR pair is not at {scans_dir}/{{source,target}}.ply + T_target_source.txt"
     return cases, skipped
@@ -261,8 +262,6 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     cases = []
     for name in meta["cases"]:
         d = path / str(name)
-        from ..validation import read_text_matrix
-
         try:  # regular files only, bounded reads; a damaged case is one line, never a traceback
             params = json.loads(read_regular_file(d / "params.json", max_bytes=1 << 20, what="params.json"))
             info = (json.loads(read_regular_file(d / "case.json", max_bytes=1 << 20, what="case.json"))

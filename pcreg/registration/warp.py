@@ -38,10 +38,7 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     moving = np.asarray(moving)
     if moving.ndim not in (2, 3) or moving.shape[0] == 0 or moving.shape[1] == 0:
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {moving.shape}")
-    if interpolation not in _INTERP:
-        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
-    if moving.dtype not in _DTYPES:
-        raise InputError(f"warp: unsupported dtype {moving.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
+    fill = _check_remap_input(moving, interpolation, fill)
     if _is_field(T_ref_mov):
         fld = _check_field(T_ref_mov, moving.shape[:2])
         h, w = _check_shape(shape if shape is not None else moving.shape[:2])
@@ -54,10 +51,6 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     if abs(np.linalg.det(M)) < 1e-12:
         raise InputError("warp: T_ref_mov is singular")
     h, w = _check_shape(shape if shape is not None else moving.shape[:2])
-    try:
-        fill = check_float(fill, "warp: fill")
-    except InputError:
-        raise InputError(f"warp: fill must be a finite number, got {fill!r}") from None
     flags = _INTERP[interpolation]
     projective = np.any(M[2, :2] != 0) or M[2, 2] != 1
     src = moving
@@ -131,13 +124,25 @@ def _check_field(motion, shape: tuple[int, int] | None) -> np.ndarray:
     return fld
 
 
+def _check_remap_input(src: np.ndarray, interpolation: str, fill) -> float:
+    """The checks :func:`warp` makes on its input, for the field paths; returns ``fill`` as a float."""
+    if interpolation not in _INTERP:
+        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
+    if src.dtype not in _DTYPES:
+        raise InputError(f"warp: unsupported dtype {src.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
+    try:
+        return check_float(fill, "warp: fill")
+    except InputError:
+        raise InputError(f"warp: fill must be a finite number, got {fill!r}") from None
+
+
 def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
     """``out(p) = src(fld(p))`` with cv2.remap, and the mask of pixels whose every interpolation weight
     fell inside ``src``."""
     if interpolation not in _INTERP:
         raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
     flags = _INTERP[interpolation]
-    img = src.astype(np.uint8) if src.dtype == np.bool_ else src
+    img = src.astype(np.uint8) if src.dtype == np.bool_ else src.astype(np.float32) if src.dtype == np.float16 else src
     channels = 1 if img.ndim == 2 else img.shape[2]
     mx = np.ascontiguousarray(fld[:, :, 0])
     my = np.ascontiguousarray(fld[:, :, 1])
@@ -155,6 +160,8 @@ def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float)
     valid = one(ones, cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR, 0) > 0.999
     if src.dtype == np.bool_:
         out = out.astype(bool)
+    elif src.dtype == np.float16:
+        out = out.astype(np.float16)
     return out, valid
 
 
@@ -172,6 +179,7 @@ def warp_to_moving(reference: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] |
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {reference.shape}")
     if _is_field(T_ref_mov):
         fld = _check_field(T_ref_mov, shape[:2] if shape is not None else None)
+        fill = _check_remap_input(reference, interpolation, fill)
         return _remap(reference, fld, interpolation=interpolation, fill=fill)
     M = np.asarray(T_ref_mov, dtype=np.float64)
     if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:

@@ -18,6 +18,8 @@ _EXPORTS = {
     "ImageCloud": "pcreg.registration.clouds",
     "image_cloud": "pcreg.registration.clouds",
     "cloud_pyramid": "pcreg.registration.clouds",
+    "image_pyramid": "pcreg.registration.clouds",
+    "ImagePyramid": "pcreg.registration.clouds",
     "load_image": "pcreg.registration.clouds",
     "icp": "pcreg.registration.api",
     "register": "pcreg.registration.api",
@@ -45,6 +47,7 @@ _EXPORTS = {
     "PipelineConfig": "pcreg.pipeline",
     "process_pair": "pcreg.pipeline",
     "run_sequence": "pcreg.pipeline",
+    "Propagator": "pcreg.propagator",
     "FusionConfig": "pcreg.classification.fusion",
     # errors
     "PcregError": "pcreg.errors",

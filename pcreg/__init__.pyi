@@ -39,14 +39,19 @@ from pcreg.pipeline import (
     process_pair as process_pair,
     run_sequence as run_sequence,
 )
+from pcreg.propagator import (
+    Propagator as Propagator,
+)
 from pcreg.registration.api import (
     icp as icp,
     register as register,
 )
 from pcreg.registration.clouds import (
     ImageCloud as ImageCloud,
+    ImagePyramid as ImagePyramid,
     cloud_pyramid as cloud_pyramid,
     image_cloud as image_cloud,
+    image_pyramid as image_pyramid,
     load_image as load_image,
 )
 from pcreg.registration.config import (

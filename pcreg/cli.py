@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "register": ("pcreg.commands.register", "register a moving image to a reference image"),
     "crosscheck": ("pcreg.commands.crosscheck", "run both ICP backends on the same input and compare them"),
     "demo": ("pcreg.commands.demo", "the whole story on the built-in synthetic data (what `make demo` runs)"),
+    "run": ("pcreg.commands.run", "label a folder of frames from a labelled key frame (streaming propagation)"),
     "view": ("pcreg.commands.view", "open a rerun recording, or render a screenshot of it"),
 }
 EVALUATIONS: dict[str, tuple[str, str]] = {

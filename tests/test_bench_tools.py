@@ -100,6 +100,31 @@ def test_bench_recording_measures_the_real_sequence_pipeline(tmp_path, monkeypat
     assert "### Checks" in (out / "recording.md").read_text()
 
 
+def test_bench_icp_without_data_compares_three_implementations(tmp_path):
+    bench = _load("bench_icp")
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--data", str(tmp_path / "absent"), "--sizes", "300,600",
+                       "--repeats", "1", "--iterations", "3"]) == 0
+    report = json.loads((out / "bench_icp.json").read_text())
+    rows = report["kinds"]["2-D"]["rows"]
+    assert [r["source_points"] for r in rows] == [300, 600]
+    assert all(set(r["median_seconds"]) == {"reference", "open3d", "small_gicp"} for r in rows)
+    assert all(r["max_abs_matrix_difference"] < 1e-9 for r in rows)  # same clouds, no ties: the same steps
+    assert "### Checks" in (out / "bench_icp.md").read_text()
+    assert (out / "bench_icp.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_pipeline_times_the_real_propagator(tmp_path):
+    bench = _load("bench_pipeline")
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--data", "synthetic", "--frames", "3", "--backends", "reference",
+                       "--cores", "0"]) == 0
+    s = json.loads((out / "bench_pipeline.json").read_text())["streams"]["synthetic"]
+    assert s["pairs"] == 2 and set(s["median_ms"]) == {"step_reference", "register", "dis_medium", "ecc_affine"}
+    assert s["stages_median_ms"]["reference"]["total"] > 0 and s["refused"]["reference"] == 0
+    assert "DIS medium" in (out / "bench_pipeline.md").read_text()
+
+
 def test_bench_dense_runs_and_reports_the_ratio_to_dis(tmp_path):
     bench = _load("bench_dense")
     out = tmp_path / "bench"

@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError, RegistrationError
 from .open3d_icp import icp_open3d, to_pointcloud
 from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
-from .clouds import ImageCloud, _cloud_at, as_rgb_uint8, valid_region
+from .clouds import ImageCloud, ImagePyramid, _cloud_at, as_rgb_uint8, check_pyramid, valid_region
 from .result import IcpIteration, RegistrationResult
 from .global_search import (GENERATORS, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
                             gray_level, orb_hypotheses, photometric_agreement)
@@ -302,6 +302,29 @@ class _LazyPyramid:
         return self._clouds[level]
 
 
+class _KeptPyramid:
+    """The levels of an :class:`~pcreg.registration.clouds.ImagePyramid` built by the caller, drawn on
+    first access with ``_LazyPyramid``'s sizes and seeds."""
+
+    def __init__(self, pyramid: ImagePyramid, *, levels: int, max_points, seed: int):
+        if not isinstance(max_points, (tuple, list)):
+            max_points = (max_points,) * levels
+        self._max_points = tuple(max_points) + (max_points[-1],) * max(0, levels - len(max_points))
+        self._pyramid, self._levels, self._seed = pyramid, levels, seed
+        self._clouds: dict[int, ImageCloud] = {}
+        self.valid = pyramid.valid if pyramid.valid is not None else np.ones(pyramid.shape, bool)
+
+    def __len__(self) -> int:
+        return self._levels
+
+    def __getitem__(self, level: int) -> ImageCloud:
+        if not 0 <= level < self._levels:
+            raise IndexError(level)
+        if level not in self._clouds:
+            self._clouds[level] = self._pyramid.cloud(level, max_points=self._max_points[level], seed=self._seed)
+        return self._clouds[level]
+
+
 class _MirroredPyramid:
     """The clouds of a pyramid mirrored left-right, level by level on access."""
 
@@ -349,7 +372,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
              min_inlier_ratio: float | None = DEFAULT_MIN_INLIER_RATIO, inlier_tolerance: float = 1.0,
              reference_mask: np.ndarray | str | None = "auto", moving_mask: np.ndarray | str | None = "auto",
              canny_percentile: float = 85.0, seed: int = 0,
-             callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
+             callback: Callable[[IcpIteration], None] | None = None,
+             reference_pyramid: ImagePyramid | None = None, moving_pyramid: ImagePyramid | None = None,
+             ) -> RegistrationResult:
     """Register ``moving_image`` to ``reference_image``: the returned ``matrix`` is ``T_ref_mov``.
 
     Both images become edge clouds (:func:`pcreg.image_cloud`) at pyramid levels 0..levels-1.
@@ -397,6 +422,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     relative_fitness, relative_rmse : Open3D's stopping rule per level (absolute changes; the RMSE
         threshold is in full-resolution px, scaled by 2^level); the point-to-line finish uses at most 1e-6.
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
+    reference_pyramid, moving_pyramid : the images' :func:`pcreg.image_pyramid` (same ``levels``,
+        ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
+        stream is the moving image once and the reference once); None builds the clouds here. The
+        clouds are the same (to OpenCV's float32 rounding of the gradient magnitude).
 
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
@@ -437,10 +466,19 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         raise InputError(f"images too small for {levels} pyramid levels")
     start = time.perf_counter()
     # Each level's cloud is built when first used: a search that ends at level 1 never builds levels 2-3.
-    ref_levels = _LazyPyramid(ref_img, levels=levels, mask=reference_mask, max_points=reference_max_points,
-                              sampler=sampler, seed=seed, canny_percentile=canny_percentile)
-    mov_levels = _LazyPyramid(mov_img, levels=levels, mask=moving_mask, max_points=max_points,
-                              sampler=sampler, seed=seed + 1, canny_percentile=canny_percentile)
+    # A pyramid built by the caller is drawn from instead (a stream builds each frame's once).
+    ref_levels = (_LazyPyramid(ref_img, levels=levels, mask=reference_mask, max_points=reference_max_points,
+                               sampler=sampler, seed=seed, canny_percentile=canny_percentile)
+                  if reference_pyramid is None else
+                  _KeptPyramid(check_pyramid(ref_img, reference_pyramid, levels=levels, sampler=sampler,
+                                             canny_percentile=canny_percentile, name="reference"),
+                               levels=levels, max_points=reference_max_points, seed=seed))
+    mov_levels = (_LazyPyramid(mov_img, levels=levels, mask=moving_mask, max_points=max_points,
+                               sampler=sampler, seed=seed + 1, canny_percentile=canny_percentile)
+                  if moving_pyramid is None else
+                  _KeptPyramid(check_pyramid(mov_img, moving_pyramid, levels=levels, sampler=sampler,
+                                             canny_percentile=canny_percentile, name="moving"),
+                               levels=levels, max_points=max_points, seed=seed + 1))
     for name, lv in (("reference", ref_levels), ("moving", mov_levels)):
         if len(lv[0]) < 3:
             raise RegistrationError(f"the {name} image has no usable edges (a flat or empty image?)")
@@ -449,8 +487,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     def tree(level: int):
         """The reference points' KD-tree at one level, built once (search, ICP and evidence share it)."""
         if level not in trees:
-            trees[level] = build_tree(ref_levels[level].points,
-                                      queries=len(mov_levels[level]) * (iterations + 1))
+            trees[level] = build_tree(ref_levels[level].points, max_distance=max_correspondence_distance * 2**level)
         return trees[level]
 
     icp_model = model

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -143,21 +144,38 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return a * (1 - fy) + b * fy
 
 
-def _level_points(image: np.ndarray, *, sampler: str = "canny", valid: np.ndarray | None = None,
-                  max_points: int | None = None, grid_step: int = 8, top_k: int | None = None,
-                  subpixel: bool = True, seed: int = 0, canny_percentile: float = 85.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points (N,2), unit normals (N,2), and pixel indices (N,2 int) at one pyramid level."""
+@dataclass(frozen=True, repr=False)
+class _Detection:
+    """One pyramid level's detection: the level image, its gradients and the sampled pixels (all of
+    them, before any subsampling), in the order ``np.nonzero`` gives."""
+
+    image: np.ndarray
+    gx: np.ndarray
+    gy: np.ndarray
+    mag: np.ndarray
+    xs: np.ndarray
+    ys: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.xs.size)
+
+
+def _detect(image: np.ndarray, *, sampler: str = "canny", valid: np.ndarray | None = None,
+            max_points: int | None = None, grid_step: int = 8, top_k: int | None = None,
+            canny_percentile: float = 85.0) -> _Detection:
+    """Gradients (Sobel) and the sampled pixels of one pyramid level (Canny edges, strongest gradients or a grid)."""
     gray = _gray(image)
     dx = cv2.Sobel(gray, cv2.CV_16S, 1, 0, ksize=3)
     dy = cv2.Sobel(gray, cv2.CV_16S, 0, 1, ksize=3)
     gx, gy = dx.astype(np.float32), dy.astype(np.float32)
     mag = cv2.magnitude(gx, gy)
     h, w = gray.shape
+    none = np.empty(0, np.intp)
     if sampler == "canny":
         sample = mag[::2, ::2]
         nz = sample[sample > 0]
         if nz.size == 0:
-            return np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2), np.intp)
+            return _Detection(image, gx, gy, mag, none, none)
         k = min(nz.size - 1, int(canny_percentile / 100.0 * nz.size))
         # Capped below the maximum so an image whose edges all have one strength still has edges.
         high = min(float(np.partition(nz, k)[k]), 0.8 * float(nz.max()))
@@ -184,27 +202,38 @@ def _level_points(image: np.ndarray, *, sampler: str = "canny", valid: np.ndarra
     if valid is not None:
         keep &= valid
     ys, xs = np.nonzero(keep)
-    if max_points is not None and xs.size > max_points:
-        rng = np.random.default_rng(seed)
-        sel = np.sort(rng.choice(xs.size, size=max_points, replace=False))
-        ys, xs = ys[sel], xs[sel]
-    gxs, gys, m = gx[ys, xs].astype(np.float64), gy[ys, xs].astype(np.float64), mag[ys, xs].astype(np.float64)
-    safe = np.where(m > 0, m, 1.0)
-    nx, ny = np.where(m > 0, gxs / safe, 1.0), np.where(m > 0, gys / safe, 0.0)
-    px, py = xs.astype(np.float64), ys.astype(np.float64)
-    if subpixel and sampler != "grid" and xs.size:
-        # Parabola through the gradient magnitude at -1, 0, +1 px along the gradient direction:
-        # the edge lies at the vertex (Devernay 1995, "A non-maxima suppression method for edge detection
-        # with sub-pixel accuracy").
-        mf = mag.astype(np.float64)
-        m_minus = _bilinear(mf, px - nx, py - ny)
-        m_plus = _bilinear(mf, px + nx, py + ny)
-        denom = m_minus - 2.0 * m + m_plus
-        off = np.where(denom < -1e-9, 0.5 * (m_minus - m_plus) / np.where(denom < -1e-9, denom, -1.0), 0.0)
-        off = np.clip(off, -0.5, 0.5)
-        px = px + off * nx
-        py = py + off * ny
-    return np.column_stack([px, py]), np.column_stack([nx, ny]), np.column_stack([xs, ys])
+    return _Detection(image, gx, gy, mag, xs, ys)
+
+
+def _subsample(n: int, max_points: int | None, seed: int) -> np.ndarray | None:
+    """Sorted indices of ``max_points`` of ``n`` items drawn with ``seed``, or None to keep all."""
+    if max_points is None or n <= max_points:
+        return None
+    return np.sort(np.random.default_rng(seed).choice(n, size=max_points, replace=False))
+
+
+def _finish(det: _Detection, sel: np.ndarray | None, *, subpixel: bool = True, sampler: str = "canny"
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (N,2), unit normals (N,2), and pixel indices (N,2 int) of the selected detected pixels."""
+    xs, ys = (det.xs, det.ys) if sel is None else (det.xs[sel], det.ys[sel])
+    if xs.size == 0:
+        return np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2), np.intp)
+    from ._subpixel import points_and_normals
+
+    # Normals: the unit gradient. Sub-pixel: the parabola through the gradient magnitude at -1, 0, +1 px
+    # along the gradient direction; the edge lies at its vertex (Devernay 1995, "A non-maxima
+    # suppression method for edge detection with sub-pixel accuracy"). Compiled: one pass per point.
+    pts, normals = points_and_normals(det.gx, det.gy, det.mag, xs, ys, bool(subpixel and sampler != "grid"))
+    return pts, normals, np.column_stack([xs, ys])
+
+
+def _level_points(image: np.ndarray, *, sampler: str = "canny", valid: np.ndarray | None = None,
+                  max_points: int | None = None, grid_step: int = 8, top_k: int | None = None,
+                  subpixel: bool = True, seed: int = 0, canny_percentile: float = 85.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (N,2), unit normals (N,2), and pixel indices (N,2 int) at one pyramid level."""
+    det = _detect(image, sampler=sampler, valid=valid, max_points=max_points, grid_step=grid_step, top_k=top_k,
+                  canny_percentile=canny_percentile)
+    return _finish(det, _subsample(len(det), max_points, seed), subpixel=subpixel, sampler=sampler)
 
 
 def image_cloud(image: np.ndarray, *, sampler: str = "canny", max_points: int | None = None, level: int = 0,
@@ -249,13 +278,22 @@ def image_cloud(image: np.ndarray, *, sampler: str = "canny", max_points: int | 
 def _cloud_at(lvl_img: np.ndarray, *, level: int, shape: tuple[int, int], mask: np.ndarray | None,
               **kwargs) -> ImageCloud:
     """The cloud of an image already reduced to pyramid level ``level`` (full-resolution ``shape``)."""
-    valid = None
-    if mask is not None:
-        m = mask.astype(np.uint8) * 255
-        if level:
-            m = cv2.resize(m, (lvl_img.shape[1], lvl_img.shape[0]), interpolation=cv2.INTER_AREA)
-        valid = cv2.erode((m == 255).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    pts, normals, pix = _level_points(lvl_img, valid=valid, **kwargs)
+    pts, normals, pix = _level_points(lvl_img, valid=_level_valid(mask, lvl_img, level), **kwargs)
+    return _as_cloud(lvl_img, pts, normals, pix, level=level, shape=shape)
+
+
+def _level_valid(mask: np.ndarray | None, lvl_img: np.ndarray, level: int) -> np.ndarray | None:
+    """Usable pixels at one level: the mask reduced to the level and eroded by 2 px (None: all)."""
+    if mask is None:
+        return None
+    m = mask.astype(np.uint8) * 255
+    if level:
+        m = cv2.resize(m, (lvl_img.shape[1], lvl_img.shape[0]), interpolation=cv2.INTER_AREA)
+    return cv2.erode((m == 255).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+
+
+def _as_cloud(lvl_img: np.ndarray, pts: np.ndarray, normals: np.ndarray, pix: np.ndarray, *, level: int,
+              shape: tuple[int, int]) -> ImageCloud:
     colors = lvl_img[pix[:, 1], pix[:, 0]].astype(np.float32) / 255.0 if len(pix) else np.empty((0, 3), np.float32)
     f = float(2**level)
     # Level-l pixel centre x_l sits at x_0 = 2^l x_l + (2^l - 1) / 2 in full-resolution coordinates.
@@ -296,3 +334,107 @@ def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple
         out.append(_cloud_at(lvl_img, level=level, shape=img.shape[:2], mask=mask, max_points=max_points[level],
                              seed=seed, **kwargs))
     return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# A frame's pyramid, extracted once
+# ---------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, repr=False)
+class ImagePyramid:
+    """One image's detections at every pyramid level, made once (image pyramid, Sobel gradients, Canny
+    edges); clouds of any size are drawn from them by :meth:`clouds` (the sub-pixel fit runs on the
+    drawn points only).
+
+    In a stream every frame is registered twice, first as the moving image and then as the reference
+    of the next frame: building its pyramid once serves both (:class:`pcreg.Propagator` does this).
+
+    shape : (H, W) of the full-resolution image. options : the extraction options (sampler,
+    canny_percentile, ...), checked when a pyramid is handed to :func:`pcreg.register`.
+    """
+
+    detections: tuple
+    shape: tuple[int, int]
+    options: tuple = ()
+    valid: np.ndarray | None = None  # (H, W) bool usable pixels at full resolution; None: all
+
+    def __len__(self) -> int:
+        return len(self.detections)
+
+    def __repr__(self) -> str:
+        return f"ImagePyramid(shape={self.shape}, points per level={[len(d) for d in self.detections]})"
+
+    def clouds(self, *, max_points: int | Sequence[int | None] | None = None, seed: int = 0,
+               levels: int | None = None) -> list[ImageCloud]:
+        """Clouds at levels 0..levels-1 with at most ``max_points`` (one, or one per level) points each,
+        drawn at random with ``seed``: the same clouds as :func:`cloud_pyramid` with these options."""
+        n = len(self.detections) if levels is None else int(levels)
+        if not 1 <= n <= len(self.detections):
+            raise InputError(f"the pyramid has {len(self.detections)} levels, {n} asked for")
+        if not isinstance(max_points, (tuple, list)):
+            max_points = (max_points,) * n
+        max_points = tuple(max_points) + (max_points[-1],) * max(0, n - len(max_points))
+        return [self.cloud(level, max_points=max_points[level], seed=seed) for level in range(n)]
+
+    def cloud(self, level: int, *, max_points: int | None = None, seed: int = 0) -> ImageCloud:
+        """The cloud of one level with at most ``max_points`` points drawn with ``seed``."""
+        opts = dict(self.options)
+        det = self.detections[level]
+        pts, normals, pix = _finish(det, _subsample(len(det), max_points, seed),
+                                    subpixel=opts.get("subpixel", True), sampler=opts.get("sampler", "canny"))
+        return _as_cloud(det.image, pts, normals, pix, level=level, shape=self.shape)
+
+
+def image_pyramid(image: np.ndarray, *, levels: int = 4, mask: np.ndarray | str | None = "auto",
+                  sampler: str = "canny", grid_step: int = 8, top_k: int | None = None, subpixel: bool = True,
+                  canny_percentile: float = 85.0) -> ImagePyramid:
+    """Detect ``image``'s sample points at pyramid levels 0..levels-1, once (see :class:`ImagePyramid`).
+
+    Options as :func:`cloud_pyramid`; ``image_pyramid(img, ...).clouds(max_points=m, seed=s)`` equals
+    ``cloud_pyramid(img, ..., max_points=m, seed=s)``, except that the ``gradient`` sampler keeps the
+    ``top_k`` (default 5000) strongest gradients per level before drawing rather than ``max_points``.
+    """
+    if levels < 1:
+        raise InputError(f"levels must be >= 1, got {levels}")
+    img = as_rgb_uint8(image)
+    if isinstance(mask, str):
+        if mask != "auto":
+            raise InputError(f"mask must be an array, 'auto' or None, got {mask!r}")
+        mask = valid_region(img)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != img.shape[:2]:
+            raise InputError(f"mask shape {mask.shape} does not match image shape {img.shape[:2]}")
+        if mask.all():
+            mask = None
+    if sampler == "gradient" and top_k is None:
+        top_k = 5000
+    dets, lvl_img = [], img
+    for level in range(levels):
+        if level:
+            if min(lvl_img.shape[:2]) < 16:
+                raise InputError(f"image {img.shape[1]}x{img.shape[0]} is too small for {levels} pyramid levels")
+            lvl_img = cv2.pyrDown(lvl_img)
+        dets.append(_detect(lvl_img, sampler=sampler, valid=_level_valid(mask, lvl_img, level), grid_step=grid_step,
+                            top_k=top_k, canny_percentile=canny_percentile))
+    options = (("sampler", sampler), ("grid_step", grid_step), ("top_k", top_k), ("subpixel", subpixel),
+               ("canny_percentile", float(canny_percentile)))
+    return ImagePyramid(detections=tuple(dets), shape=(int(img.shape[0]), int(img.shape[1])), options=options,
+                        valid=mask)
+
+
+def check_pyramid(image: np.ndarray, pyramid: ImagePyramid, *, levels: int, sampler: str,
+                  canny_percentile: float, name: str = "image") -> ImagePyramid:
+    """``pyramid`` when it was built for ``image`` with enough levels and these options, else an
+    :class:`~pcreg.errors.InputError`."""
+    if not isinstance(pyramid, ImagePyramid):
+        raise InputError(f"{name} pyramid: expected an ImagePyramid (pcreg.image_pyramid), got {type(pyramid).__name__}")
+    if tuple(pyramid.shape) != tuple(image.shape[:2]):
+        raise InputError(f"{name} pyramid was built for a {pyramid.shape} image, not {tuple(image.shape[:2])}")
+    if len(pyramid) < levels:
+        raise InputError(f"{name} pyramid has {len(pyramid)} levels, {levels} needed")
+    opts = dict(pyramid.options)
+    if opts.get("sampler") != sampler or opts.get("canny_percentile") != float(canny_percentile):
+        raise InputError(f"{name} pyramid was built with other options ({opts}) than this registration's "
+                         f"(sampler={sampler!r}, canny_percentile={canny_percentile})")
+    return pyramid

@@ -1,4 +1,4 @@
-"""pcreg's reference ICP: numpy + scipy's cKDTree, any dimension, every motion model.
+"""pcreg's reference ICP: numpy + a compiled exact nearest-neighbour grid, any dimension, every motion model.
 
 Iterative closest point after Besl & McKay (1992, "A method for registration of 3-D shapes"), with
 closed-form steps from Umeyama (1991, "Least-squares estimation of transformation parameters between
@@ -6,7 +6,8 @@ two point patterns") and Horn (1987, "Closed-form solution of absolute orientati
 quaternions"). The loop, the stopping rule and the definitions of fitness and inlier RMSE follow
 Open3D's legacy ``registration_icp`` so the two can be checked against each other:
 
-- correspondences: each source point's nearest target point closer than ``max_correspondence_distance``;
+- correspondences: each source point's nearest target point closer than ``max_correspondence_distance``
+  (:class:`pcreg.registration.nn.GridIndex`, exact; equidistant targets: the lowest index);
 - fitness = correspondences / source points; inlier_rmse = sqrt(mean squared correspondence distance);
 - after each update, stop when |Δfitness| < relative_fitness and |Δinlier_rmse| < relative_rmse
   (absolute changes, as Open3D compares them), or after ``max_iteration`` updates.
@@ -18,9 +19,9 @@ import time
 from typing import Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..errors import RegistrationError
+from .nn import GridIndex
 from .result import IcpIteration, RegistrationResult
 from .transforms import apply
 
@@ -52,52 +53,44 @@ def estimate_translation(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndar
 def estimate_umeyama(p: np.ndarray, q: np.ndarray, w: np.ndarray, *, with_scale: bool) -> np.ndarray:
     """Rigid or similarity transform by SVD (Umeyama 1991).
 
-    Σ = Σ_i w_i (q_i - μ_q)(p_i - μ_p)^T / Σ w  (Eq. 38), Σ = U D V^T;
-    S = diag(1, …, 1, det(U) det(V)) (Eq. 43, the reflection guard);
-    R = U S V^T (Eq. 40); c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41).
+    Σ = Σ_i w_i (q_i - μ_q)(p_i - μ_p)^T / Σ w  (Eq. 38); σ_p² = Σ_i w_i |p_i - μ_p|² / Σ w (Eq. 36);
+    the rest in :func:`umeyama_from_moments`.
     """
-    d = p.shape[1]
     ws, mp, mq = _weighted_means(p, q, w)
     pc = p - mp
     qc = q - mq
     cov = (qc * w[:, None]).T @ pc / ws
-    if d == 2:
-        return _umeyama_2d(cov, pc, w, ws, mp, mq, with_scale=with_scale)
-    U, D, Vt = np.linalg.svd(cov)
-    S = np.ones(d)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[-1] = -1.0
-    R = (U * S) @ Vt
-    c = 1.0
-    if with_scale:
-        var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws)
-        if var_p <= 0:
-            raise RegistrationError("degenerate correspondences: all source points coincide")
-        c = float((D * S).sum() / var_p)
-    T = np.eye(d + 1)
-    T[:d, :d] = c * R
-    T[:d, d] = mq - c * R @ mp
-    return T
+    var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws) if with_scale else 1.0
+    return umeyama_from_moments(cov, var_p, mp, mq, with_scale=with_scale)
 
 
-def _umeyama_2d(cov, pc, w, ws, mp, mq, *, with_scale: bool) -> np.ndarray:
-    """Umeyama's solution in 2-D without the SVD (same result, no per-call LAPACK overhead).
+def umeyama_from_moments(cov: np.ndarray, var_p: float, mp: np.ndarray, mq: np.ndarray, *,
+                         with_scale: bool) -> np.ndarray:
+    """Umeyama's closed form from the cross-covariance Σ (d, d), the source variance σ_p² and the means.
 
-    For Σ = [[a, b], [c, d]] the rotation that maximises tr(R^T Σ) is θ = atan2(c - b, a + d), which is
-    U S V^T of Eq. 40 with the reflection guard of Eq. 43 built in; tr(D S) = hypot(a + d, c - b).
+    Σ = U D V^T; S = diag(1, …, 1, det(U) det(V)) (Eq. 43, the reflection guard); R = U S V^T (Eq. 40);
+    c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41). In 2-D without the SVD (same result, no
+    LAPACK call): for Σ = [[a, b], [c, d]] the rotation maximising tr(R^T Σ) is θ = atan2(c - b, a + d)
+    and tr(D S) = hypot(a + d, c - b).
     """
-    a, b, c, d = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
-    th = np.arctan2(c - b, a + d)
-    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
-    k = 1.0
-    if with_scale:
-        var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws)
-        if var_p <= 0:
-            raise RegistrationError("degenerate correspondences: all source points coincide")
-        k = float(np.hypot(a + d, c - b) / var_p)
-    T = np.eye(3)
-    T[:2, :2] = k * R
-    T[:2, 2] = mq - k * R @ mp
+    d = cov.shape[0]
+    if with_scale and not var_p > 0:
+        raise RegistrationError("degenerate correspondences: all source points coincide")
+    if d == 2:
+        a, b, c, e = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
+        th = np.arctan2(c - b, a + e)
+        R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+        k = float(np.hypot(a + e, c - b) / var_p) if with_scale else 1.0
+    else:
+        U, D, Vt = np.linalg.svd(cov)
+        S = np.ones(d)
+        if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+            S[-1] = -1.0
+        R = (U * S) @ Vt
+        k = float((D * S).sum() / var_p) if with_scale else 1.0
+    T = np.eye(d + 1)
+    T[:d, :d] = k * R
+    T[:d, d] = mq - k * R @ mp
     return T
 
 
@@ -280,25 +273,33 @@ def check_rank(points: np.ndarray, model: str) -> None:
 # The ICP loop
 # ---------------------------------------------------------------------------------------------------
 
-def build_tree(target: np.ndarray, *, queries: int | None = None) -> cKDTree:
-    """KD-tree of the target. Median splits (balanced) make queries faster and the build slower: worth it
-    when the tree will answer at least as many queries as it holds points (``queries``; None = yes)."""
-    balanced = queries is None or queries >= len(target)
-    return cKDTree(target, balanced_tree=balanced, compact_nodes=balanced)
+def build_tree(target: np.ndarray, *, queries: int | None = None, max_distance: float | None = None) -> GridIndex:
+    """Exact nearest-neighbour index of the target (:class:`~pcreg.registration.nn.GridIndex`).
+
+    max_distance : the correspondence distance the queries will use (sizes the cells; optional).
+    queries : accepted for compatibility (a grid costs the same to build whatever the queries).
+    """
+    return GridIndex(target, max_distance=max_distance)
 
 
-def _correspond(tree: cKDTree, pts: np.ndarray, max_dist: float):
+def _correspond(tree, pts: np.ndarray, max_dist: float):
+    """(squared distances, indices, found) of each point's nearest target within ``max_dist``.
+
+    ``tree`` is a :class:`GridIndex` or anything with ``cKDTree.query``'s interface."""
+    if isinstance(tree, GridIndex):
+        d2, idx = tree.nearest(pts, max_dist)
+        return d2, idx, idx >= 0
     workers = -1 if pts.shape[0] > 20000 else 1
     dist, idx = tree.query(pts, k=1, distance_upper_bound=max_dist, workers=workers)
     ok = np.isfinite(dist)
-    return dist, idx, ok
+    return np.where(ok, dist * dist, np.inf), idx, ok
 
 
-def _score(dist: np.ndarray, ok: np.ndarray, n: int) -> tuple[float, float]:
+def _score(d2: np.ndarray, ok: np.ndarray, n: int) -> tuple[float, float]:
     k = int(ok.sum())
     if k == 0:
         return 0.0, 0.0
-    return k / n, float(np.sqrt(np.mean(dist[ok] ** 2)))
+    return k / n, float(np.sqrt(np.sum(d2[ok]) / k))
 
 
 def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid",
@@ -306,24 +307,31 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
                   max_iteration: int = 30, relative_fitness: float = 1e-6, relative_rmse: float = 1e-6,
                   weights: str = "none", robust_scale: float | None = None, trim_fraction: float = 0.9,
                   metric: str = "point_to_point", target_normals: np.ndarray | None = None,
-                  rotation: str = "svd", tree: cKDTree | None = None,
+                  rotation: str = "svd", tree: GridIndex | None = None,
                   callback: Callable[[IcpIteration], None] | None = None, level: int = 0,
                   ) -> RegistrationResult:
     """One ICP run at one scale: a :class:`RegistrationResult` whose ``matrix`` is ``T_target_source``.
 
     source : (N, d), target : (M, d) float64, finite; d = 2 or 3.
+    tree : a prebuilt index of ``target`` (:func:`build_tree`, or a ``scipy.spatial.cKDTree``), reused
+        across calls on the same target.
     """
     start = time.perf_counter()
     d = source.shape[1]
     T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
     if tree is None:
-        tree = build_tree(target, queries=source.shape[0] * (max_iteration + 1))
+        tree = build_tree(target, max_distance=max_correspondence_distance)
     if metric == "point_to_line" and (d != 2 or target_normals is None):
         metric = "point_to_point"
+    if (metric == "point_to_point" and weights == "none" and model in _MOMENT_MODELS and isinstance(tree, GridIndex)
+            and not (rotation == "quaternion" and d == 3 and model == "rigid")):
+        return _icp_moments(source, target, T, tree, model=model, max_distance=max_correspondence_distance,
+                            max_iteration=max_iteration, relative_fitness=relative_fitness,
+                            relative_rmse=relative_rmse, callback=callback, level=level, start=start)
     pts = apply(T, source)
     n = source.shape[0]
-    dist, idx, ok = _correspond(tree, pts, max_correspondence_distance)
-    fitness, rmse = _score(dist, ok, n)
+    d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
+    fitness, rmse = _score(d2, ok, n)
     iterations, converged = 0, False
 
     def report(i: int) -> None:
@@ -336,7 +344,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
     for i in range(max_iteration):
         need = MIN_POINTS[model] if d == 2 else 3
         p, q = pts[ok], target[idx[ok]]
-        w = robust_weights(dist[ok], weights, scale=robust_scale, trim_fraction=trim_fraction)
+        w = robust_weights(np.sqrt(d2[ok]), weights, scale=robust_scale, trim_fraction=trim_fraction)
         if int(np.count_nonzero(w)) < need:
             update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
         elif metric == "point_to_line":
@@ -349,11 +357,79 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
         pts = apply(update, pts)
         iterations = i + 1
         prev_fitness, prev_rmse = fitness, rmse
-        dist, idx, ok = _correspond(tree, pts, max_correspondence_distance)
-        fitness, rmse = _score(dist, ok, n)
+        d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
+        fitness, rmse = _score(d2, ok, n)
         report(iterations)
         if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
             converged = True
             break
     return RegistrationResult(matrix=T, fitness=fitness, inlier_rmse=rmse, iterations=iterations,
                               converged=converged, backend="reference", seconds=time.perf_counter() - start)
+
+
+_MOMENT_MODELS = ("translation", "rigid", "similarity")
+
+
+def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: GridIndex, *, model: str,
+                 max_distance: float, max_iteration: int, relative_fitness: float, relative_rmse: float,
+                 callback, level: int, start: float) -> RegistrationResult:
+    """The same loop as :func:`icp_reference` for point-to-point steps without weights of the models
+    whose closed form needs only the pairs' moments (translation, rigid, similarity): each iteration's
+    move, correspondence search and sums run in one compiled pass
+    (:meth:`~pcreg.registration.nn.GridIndex.move_and_match`); the closed form runs on the sums."""
+    d = source.shape[1]
+    n = source.shape[0]
+    pts = np.ascontiguousarray(apply(T, source))
+    need = MIN_POINTS[model] if d == 2 else 3
+    d2, idx, mom = tree.move_and_match(pts, None, max_distance)
+
+    def score(mom):
+        k, sd2 = mom[0], mom[1]
+        return (0.0, 0.0) if k == 0 else (k / n, float(np.sqrt(sd2 / k)))
+
+    fitness, rmse = score(mom)
+    iterations, converged = 0, False
+
+    def report(i: int) -> None:
+        if callback is not None:
+            callback(IcpIteration(backend="reference", level=level, iteration=i, matrix=T.copy(), fitness=fitness,
+                                  inlier_rmse=rmse, source_points=pts.copy(), target_points=target,
+                                  target_indices=idx.copy()))
+
+    report(0)
+    for i in range(max_iteration):
+        k, _, sp, sq, spp, sqp, c = mom
+        if k < need:
+            update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
+        else:
+            mp, mq = sp / k, sq / k  # relative to the centre c
+            if model == "translation":
+                update = np.eye(d + 1)
+                update[:d, d] = mq - mp
+            else:
+                cov = sqp / k - np.outer(mq, mp)  # Umeyama's Eq. 38
+                var_p = spp / k - float(mp @ mp)  # Eq. 36
+                update = umeyama_from_moments(cov, var_p, mp, mq, with_scale=model == "similarity")
+            # back from centred coordinates: x -> A (x - c) + t + c
+            update[:d, d] += c - update[:d, :d] @ c
+        if not np.all(np.isfinite(update)):
+            raise RegistrationError("ICP update is not finite (degenerate correspondences)")
+        T = update @ T
+        iterations = i + 1
+        prev_fitness, prev_rmse = fitness, rmse
+        d2, idx, mom = tree.move_and_match(pts, update, max_distance)
+        fitness, rmse = score(mom)
+        report(iterations)
+        if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
+            converged = True
+            break
+    return RegistrationResult(matrix=T, fitness=fitness, inlier_rmse=rmse, iterations=iterations,
+                              converged=converged, backend="reference", seconds=time.perf_counter() - start)
+
+
+def warm_up() -> None:
+    """Run the ICP once in 2-D and 3-D so that every compiled kernel it uses is loaded (or compiled)."""
+    rng = np.random.default_rng(0)
+    for d in (2, 3):
+        target = rng.uniform(0, 10, (50, d))
+        icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2)

@@ -1,0 +1,508 @@
+"""Exact nearest-neighbour search on a uniform grid, compiled with numba: the correspondence search of
+the reference ICP.
+
+The target points are bucketed into cubic cells of side ``h`` (a counting sort: a dense cell table when
+the bounding box holds at most 16 cells a point or 2^18 cells, else an open-addressing hash of the
+occupied cells). A query visits the cells in rings of growing Chebyshev distance around its own cell and stops
+as soon as the nearest face of the rings already searched is farther than the best point found (or than
+the distance bound), so the answer is exact for any cell size; the cell size only sets the speed.
+Cells whose box lies farther than the best distance so far are skipped without reading their points.
+
+Agreement with KD-trees (Open3D's nanoflann, scipy's cKDTree):
+
+- distances are compared squared, ``dx*dx + dy*dy (+ dz*dz)`` summed in that order (as nanoflann's L2
+  adaptor), and a neighbour counts when ``d^2 < r^2`` (strictly, as Open3D's hybrid search and
+  cKDTree's ``distance_upper_bound``);
+- among points at exactly the same squared distance the lowest index wins, whatever the cell size. A
+  KD-tree returns whichever of them its traversal meets first, which depends on how it was split
+  (Open3D's often returns a higher index). Generic coordinates never tie; clouds on a common lattice
+  can (pixel clouds compared at the identity), and there the two may pick different, equally near points.
+
+Why a grid rather than a compiled KD-tree: the ICP's queries are bounded (``max_correspondence_distance``)
+and arrive in spatially coherent order, so a query touches 3^d cells of about the correspondence
+distance, with no tree descent; building it is one counting sort (linear), against a KD-tree's
+O(M log M). Per query against scipy's cKDTree: ``python -m pcreg.registration.nn --bench``; the ICP
+against Open3D's and small_gicp's: ``tools/bench_icp.py`` (README, Benchmarks).
+
+Compilation is cached on disk (``cache=True``); ``python -m pcreg.registration.nn --warm`` compiles every
+kernel once (the Makefile's ``setup`` runs it), so no command compiles after installation; a new
+process only loads numba and the cached machine code, on its first registration.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+from numba import njit, prange
+
+#: Queries at or above this count use the multi-threaded kernel: below it, starting the threads (and,
+#: on a loaded machine, waiting for a core) costs more than it saves.
+PARALLEL_MIN_QUERIES = 20000
+#: Target points per cell when the cell size is chosen from the point density.
+POINTS_PER_CELL = 2.0
+#: A dense cell table (8 bytes a cell) is used while it holds at most this many cells per point, or
+#: at most :data:`DENSE_MIN_CELLS`; beyond, a hash of the occupied cells (slower lookups, memory ~ points).
+DENSE_CELLS_PER_POINT = 16
+DENSE_MIN_CELLS = 1 << 18
+_EPS_CELLS = 1e-7  # slack (in cell units) on every geometric lower bound: floor() rounding is never trusted
+
+
+# ---------------------------------------------------------------------------------------------------
+# build
+# ---------------------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _hash_slot(key, mask):
+    # Fibonacci hashing of a non-negative int64 key
+    return ((key * np.int64(-7046029254386353131)) >> np.int64(17)) & mask
+
+
+@njit(cache=True)
+def _build(points, origin, h, dims, hashed):
+    """Counting sort of the points into cells. Returns (sorted points, their original indices,
+    cell start offsets (n_cells + 1), hash keys, hash cell ids)."""
+    m, d = points.shape
+    keys = np.empty(m, np.int64)
+    for i in range(m):
+        key = np.int64(0)
+        stride = np.int64(1)
+        for a in range(d):
+            c = np.int64(math.floor((points[i, a] - origin[a]) / h))
+            if c < 0:
+                c = 0
+            elif c >= dims[a]:
+                c = dims[a] - 1
+            key += c * stride
+            stride *= dims[a]
+        keys[i] = key
+    if hashed:
+        size = 1
+        while size < 2 * m:
+            size *= 2
+        mask = np.int64(size - 1)
+        tkeys = np.full(size, -1, np.int64)
+        tcell = np.full(size, -1, np.int64)
+        n_cells = 0
+        cell_of = np.empty(m, np.int64)
+        for i in range(m):
+            s = _hash_slot(keys[i], mask)
+            while True:
+                if tkeys[s] == keys[i]:
+                    break
+                if tkeys[s] == -1:
+                    tkeys[s] = keys[i]
+                    tcell[s] = n_cells
+                    n_cells += 1
+                    break
+                s = (s + 1) & mask
+            cell_of[i] = tcell[s]
+    else:
+        n_cells = 1
+        for a in range(d):
+            n_cells *= dims[a]
+        tkeys = np.empty(0, np.int64)
+        tcell = np.empty(0, np.int64)
+        cell_of = keys
+    start = np.zeros(n_cells + 1, np.int64)
+    for i in range(m):
+        start[cell_of[i] + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    spts = np.empty((m, d), np.float64)
+    sidx = np.empty(m, np.int64)
+    for i in range(m):  # in index order: within a cell, points keep ascending indices
+        j = fill[cell_of[i]]
+        fill[cell_of[i]] += 1
+        for a in range(d):
+            spts[j, a] = points[i, a]
+        sidx[j] = i
+    return spts, sidx, start, tkeys, tcell
+
+
+# ---------------------------------------------------------------------------------------------------
+# one query
+# ---------------------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _cell_range(key, hashed, start, tkeys, tcell):
+    if hashed:
+        mask = np.int64(tkeys.shape[0] - 1)
+        s = _hash_slot(key, mask)
+        while True:
+            k = tkeys[s]
+            if k == key:
+                c = tcell[s]
+                return start[c], start[c + 1]
+            if k == -1:
+                return 0, 0
+            s = (s + 1) & mask
+    return start[key], start[key + 1]
+
+
+@njit(cache=True, inline="always")
+def _gap2(i, u):
+    """Squared lower bound (cell units) on the distance from coordinate ``u`` to cell ``i``."""
+    g = max(0.0, i - u, u - (i + 1))
+    g = max(g - _EPS_CELLS, 0.0)
+    return g * g
+
+
+@njit(cache=True)
+def _scan_all(q, best_d2, best_i, spts, sidx):
+    d = q.shape[0]
+    for j in range(spts.shape[0]):
+        d2 = 0.0
+        for a in range(d):
+            diff = q[a] - spts[j, a]
+            d2 += diff * diff
+        i = sidx[j]
+        if d2 < best_d2 or (d2 == best_d2 and best_i >= 0 and i < best_i):
+            best_d2 = d2
+            best_i = i
+    return best_d2, best_i
+
+
+@njit(cache=True)
+def _nearest(q, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed):
+    """(squared distance, index) of the nearest point with d^2 < r2, or (r2, -1)."""
+    d = q.shape[0]
+    best_d2 = r2
+    best_i = np.int64(-1)
+    n0 = dims[0]
+    n1 = dims[1]
+    n2 = dims[2] if d == 3 else np.int64(1)
+    u0 = (q[0] - origin[0]) / h
+    u1 = (q[1] - origin[1]) / h
+    u2 = (q[2] - origin[2]) / h if d == 3 else 0.5
+    # Far outside the grid (by more than its size) or NaN: the rings would be mostly empty; scan every point.
+    if not (-2.0 * n0 - 2.0 < u0 < 3.0 * n0 + 2.0 and -2.0 * n1 - 2.0 < u1 < 3.0 * n1 + 2.0
+            and -2.0 * n2 - 2.0 < u2 < 3.0 * n2 + 2.0):
+        return _scan_all(q, best_d2, best_i, spts, sidx)
+    c0 = np.int64(math.floor(u0))
+    c1 = np.int64(math.floor(u1))
+    c2 = np.int64(math.floor(u2))
+    # rings closer than the grid are empty; beyond kmax they are outside it
+    k0 = max(np.int64(0), -c0, c0 - (n0 - 1), -c1, c1 - (n1 - 1), -c2, c2 - (n2 - 1))
+    kmax = max(c0, n0 - 1 - c0, c1, n1 - 1 - c1, c2, n2 - 1 - c2)
+    h2 = h * h
+    k = k0
+    while k <= kmax:
+        if k > 0:
+            # every point of ring k (and beyond) lies outside the block of rings 0..k-1
+            lb = min(u0 - (c0 - k + 1), (c0 + k) - u0, u1 - (c1 - k + 1), (c1 + k) - u1)
+            if d == 3:
+                lb = min(lb, u2 - (c2 - k + 1), (c2 + k) - u2)
+            lb = max(lb - _EPS_CELLS, 0.0)
+            lb2 = lb * lb * h2
+            if lb2 > best_d2 or (best_i < 0 and lb2 >= best_d2):
+                break
+        zlo = c2 - k if d == 3 else np.int64(0)
+        zhi = c2 + k if d == 3 else np.int64(0)
+        for iz in range(max(zlo, 0), min(zhi, n2 - 1) + 1):
+            zface = d == 3 and (iz == zlo or iz == zhi)
+            bz = _gap2(iz, u2) if d == 3 else 0.0
+            for iy in range(max(c1 - k, 0), min(c1 + k, n1 - 1) + 1):
+                yface = zface or iy == c1 - k or iy == c1 + k
+                by = bz + _gap2(iy, u1)
+                if by * h2 > best_d2:
+                    continue
+                step = 1 if (yface or k == 0) else 2 * k
+                for ix in range(c0 - k, c0 + k + 1, step):
+                    if ix < 0 or ix >= n0:
+                        continue
+                    if (by + _gap2(ix, u0)) * h2 > best_d2:
+                        continue
+                    key = ix + n0 * (iy + n1 * iz)
+                    s0, s1 = _cell_range(key, hashed, start, tkeys, tcell)
+                    for j in range(s0, s1):
+                        diff = q[0] - spts[j, 0]
+                        d2 = diff * diff
+                        diff = q[1] - spts[j, 1]
+                        d2 += diff * diff
+                        if d == 3:
+                            diff = q[2] - spts[j, 2]
+                            d2 += diff * diff
+                        if d2 <= best_d2:
+                            i = sidx[j]
+                            if d2 < best_d2 or (best_i >= 0 and i < best_i):
+                                best_d2 = d2
+                                best_i = i
+        k += 1
+    return best_d2, best_i
+
+
+@njit(cache=True)
+def _query_serial(queries, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i):
+    for t in range(queries.shape[0]):
+        out_d2[t], out_i[t] = _nearest(queries[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+
+
+@njit(cache=True, parallel=True)
+def _query_parallel(queries, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i):
+    for t in prange(queries.shape[0]):
+        out_d2[t], out_i[t] = _nearest(queries[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+
+
+# ---------------------------------------------------------------------------------------------------
+# one ICP iteration's correspondences and their moments
+# ---------------------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _move(pts, t, M, d):
+    if d == 2:
+        x, y = pts[t, 0], pts[t, 1]
+        pts[t, 0] = M[0, 0] * x + M[0, 1] * y + M[0, 2]
+        pts[t, 1] = M[1, 0] * x + M[1, 1] * y + M[1, 2]
+    else:
+        x, y, z = pts[t, 0], pts[t, 1], pts[t, 2]
+        pts[t, 0] = M[0, 0] * x + M[0, 1] * y + M[0, 2] * z + M[0, 3]
+        pts[t, 1] = M[1, 0] * x + M[1, 1] * y + M[1, 2] * z + M[1, 3]
+        pts[t, 2] = M[2, 0] * x + M[2, 1] * y + M[2, 2] * z + M[2, 3]
+
+
+@njit(cache=True)
+def _move_query_serial(pts, M, move, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i):
+    d = pts.shape[1]
+    for t in range(pts.shape[0]):
+        if move:
+            _move(pts, t, M, d)
+        out_d2[t], out_i[t] = _nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+
+
+@njit(cache=True, parallel=True)
+def _move_query_parallel(pts, M, move, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i):
+    d = pts.shape[1]
+    for t in prange(pts.shape[0]):
+        if move:
+            _move(pts, t, M, d)
+        out_d2[t], out_i[t] = _nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+
+
+@njit(cache=True)
+def _moments(pts, target, out_d2, out_i, center):
+    """Over the matched pairs (p = moved source point, q = its target), relative to ``center``:
+    count, sum of d^2, sum p, sum q, sum |p|^2, sum q p^T."""
+    d = pts.shape[1]
+    k = 0
+    sd2 = 0.0
+    sp = np.zeros(d)
+    sq = np.zeros(d)
+    spp = 0.0
+    sqp = np.zeros((d, d))
+    for t in range(pts.shape[0]):
+        j = out_i[t]
+        if j < 0:
+            continue
+        k += 1
+        sd2 += out_d2[t]
+        for a in range(d):
+            pa = pts[t, a] - center[a]
+            sp[a] += pa
+            spp += pa * pa
+            qa = target[j, a] - center[a]
+            sq[a] += qa
+            for b in range(d):
+                sqp[a, b] += qa * (pts[t, b] - center[b])
+    return k, sd2, sp, sq, spp, sqp
+
+
+# ---------------------------------------------------------------------------------------------------
+# the index
+# ---------------------------------------------------------------------------------------------------
+
+class GridIndex:
+    """Exact nearest-neighbour index of (M, 2|3) points on a uniform grid.
+
+    points : (M, d) finite float64, d = 2 or 3, M >= 1.
+    cell : cell side in the points' units. None: from the density, about :data:`POINTS_PER_CELL`
+        points per cell of the bounding box, but at most ``max_distance`` when that is given (queries
+        bounded by it then visit at most 3^d cells).
+    max_distance : the distance bound the queries will mostly use (a hint for ``cell``).
+
+    :meth:`query` answers like ``scipy.spatial.cKDTree.query`` with ``k=1``.
+    """
+
+    def __init__(self, points: np.ndarray, *, cell: float | None = None, max_distance: float | None = None) -> None:
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] not in (2, 3) or pts.shape[0] < 1:
+            raise ValueError(f"GridIndex needs an (M, 2|3) array with M >= 1, got shape {pts.shape}")
+        m, d = pts.shape
+        lo = pts.min(axis=0)
+        hi = pts.max(axis=0)
+        extent = hi - lo
+        if cell is None:
+            span = np.maximum(extent, 0.0)
+            pos = span[span > 0]
+            if pos.size == 0:
+                cell = 1.0
+            else:
+                # cells of the occupied dimensions' volume shared among the points
+                cell = float((np.prod(pos) * POINTS_PER_CELL / m) ** (1.0 / pos.size))
+                cell = max(cell, float(pos.max()) / 2**20)
+            if max_distance is not None and np.isfinite(max_distance) and max_distance > 0:
+                # no smaller than a quarter of the density's cell: unbounded queries stay cheap
+                cell = max(min(cell, float(max_distance)), cell / 4.0)
+        cell = float(cell)
+        if not (cell > 0 and np.isfinite(cell)):
+            raise ValueError(f"cell size must be a positive number, got {cell}")
+        scale = max(float(np.abs(lo).max()), float(extent.max()), 1.0)
+        cell = max(cell, scale * 1e-9)  # keeps cell coordinates well inside float precision
+        dims = np.floor(extent / cell).astype(np.int64) + 1
+        while np.prod(dims.astype(np.float64)) > 2.0**62 / 8:  # linear keys must fit in int64
+            cell *= 2.0
+            dims = np.floor(extent / cell).astype(np.int64) + 1
+        hashed = bool(np.prod(dims.astype(np.float64)) > max(DENSE_CELLS_PER_POINT * m, DENSE_MIN_CELLS))
+        self.dim = d
+        self.n = m
+        self.cell = cell
+        self.origin = lo.astype(np.float64)
+        self.dims = dims
+        self.hashed = hashed
+        self.data = pts
+        self.center = (lo + hi) / 2.0
+        self._spts, self._sidx, self._start, self._tkeys, self._tcell = _build(pts, self.origin, cell, dims, hashed)
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __repr__(self) -> str:
+        return (f"GridIndex(n={self.n}, dim={self.dim}, cell={self.cell:.4g}, cells={'x'.join(map(str, self.dims))}, "
+                f"{'hashed' if self.hashed else 'dense'})")
+
+    def nearest(self, queries: np.ndarray, max_distance: float = np.inf, *, workers: int | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Squared distance (K,) float64 and index (K,) int64 of each query's nearest point with
+        ``d^2 < max_distance^2``; ``(max_distance^2, -1)`` where there is none.
+
+        workers : threads (None: all of numba's for large batches, 1 below :data:`PARALLEL_MIN_QUERIES`).
+        """
+        q = np.ascontiguousarray(queries, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != self.dim:
+            raise ValueError(f"queries must be (K, {self.dim}), got shape {q.shape}")
+        r = float(max_distance)
+        r2 = r * r if np.isfinite(r) else np.inf
+        out_d2 = np.empty(q.shape[0], np.float64)
+        out_i = np.empty(q.shape[0], np.int64)
+        args = (q, r2, self._spts, self._sidx, self._start, self._tkeys, self._tcell, self.origin, self.cell,
+                self.dims, self.hashed, out_d2, out_i)
+        parallel = (workers is None and q.shape[0] >= PARALLEL_MIN_QUERIES) or (workers is not None and workers != 1)
+        if parallel:
+            _query_parallel(*args)
+        else:
+            _query_serial(*args)
+        return out_d2, out_i
+
+    def move_and_match(self, points: np.ndarray, update: np.ndarray | None, max_distance: float):
+        """One point-to-point ICP iteration's correspondence step, compiled: move ``points`` (N, d),
+        C-contiguous float64, **in place** by the affine ``update`` ((d+1, d+1); None: do not move),
+        find each one's nearest point within ``max_distance``, and sum the moments of the matched pairs
+        (relative to the centre of the points' bounding box, for precision).
+
+        Returns (squared distances (N,), indices (N,) with -1 for none, (count, sum d^2, sum p,
+        sum q, sum |p|^2, sum q p^T, centre))."""
+        n = points.shape[0]
+        r = float(max_distance)
+        r2 = r * r if np.isfinite(r) else np.inf
+        out_d2 = np.empty(n, np.float64)
+        out_i = np.empty(n, np.int64)
+        M = np.eye(self.dim + 1) if update is None else np.ascontiguousarray(update, dtype=np.float64)
+        kernel = _move_query_parallel if n >= PARALLEL_MIN_QUERIES else _move_query_serial
+        kernel(points, M, update is not None, r2, self._spts, self._sidx, self._start, self._tkeys, self._tcell,
+               self.origin, self.cell, self.dims, self.hashed, out_d2, out_i)
+        return out_d2, out_i, (*_moments(points, self.data, out_d2, out_i, self.center), self.center)
+
+    def query(self, x: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf, workers: int = 1, **_ignored
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """As ``cKDTree.query(x, k=1, distance_upper_bound=...)``: (distances, indices), ``inf`` and ``n``
+        where no point is closer than the bound."""
+        if k != 1:
+            raise ValueError("GridIndex answers k=1 queries only")
+        x = np.asarray(x, dtype=np.float64)
+        single = x.ndim == 1
+        d2, idx = self.nearest(x[None] if single else x, distance_upper_bound,
+                               workers=None if workers in (-1, None) else workers)
+        miss = idx < 0
+        dist = np.sqrt(d2)
+        dist[miss] = np.inf
+        idx[miss] = self.n
+        return (dist[0], idx[0]) if single else (dist, idx)
+
+
+def warm_up() -> None:
+    """Compile (or load from the on-disk cache) every kernel: 2-D and 3-D, dense and hashed, serial and
+    parallel, bounded and unbounded queries."""
+    rng = np.random.default_rng(0)
+    for d in (2, 3):
+        pts = rng.uniform(0, 10, (64, d))
+        for hashed_cell in (None, 1e-3):
+            idx = GridIndex(pts, cell=hashed_cell)
+            for workers in (1, 2):
+                idx.nearest(pts[:8] + 0.01, 0.5, workers=workers)
+                idx.nearest(pts[:8] + 100.0, workers=workers)
+    from . import reference
+    from .clouds import image_pyramid
+
+    reference.warm_up()
+    img = np.zeros((64, 64, 3), np.uint8)
+    img[16:48, 20:40] = 200
+    image_pyramid(img, levels=2).clouds(max_points=100)
+
+
+def _bench(n: int = 20000, repeats: int = 7) -> None:  # pragma: no cover - a measurement, not a test
+    import time
+
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    tgt = np.column_stack([320 + 250 * np.cos(3 * t) * np.cos(t), 240 + 200 * np.sin(5 * t)]) + rng.normal(0, 2, (n, 2))
+    src = tgt + rng.normal(0, 1.0, tgt.shape)
+    rows = {}
+    for name, build, run in (
+        ("cKDTree", lambda: cKDTree(tgt), lambda s: s.query(src, k=1, distance_upper_bound=2.5)),
+        ("grid 1 thread", lambda: GridIndex(tgt, max_distance=2.5), lambda s: s.nearest(src, 2.5, workers=1)),
+        ("grid 2 threads", lambda: GridIndex(tgt, max_distance=2.5), lambda s: s.nearest(src, 2.5, workers=2)),
+    ):
+        s = build()
+        run(s)
+        tb, tq = [], []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            s = build()
+            t1 = time.perf_counter()
+            run(s)
+            t2 = time.perf_counter()
+            tb.append(t1 - t0)
+            tq.append(t2 - t1)
+        rows[name] = (np.median(tb) * 1e3, np.median(tq) / n * 1e6)
+    for name, (b, q) in rows.items():
+        print(f"{name:16s} build {b:7.2f} ms   query {q:6.3f} us/point")
+
+
+def main(argv: list[str] | None = None) -> int:  # pragma: no cover - exercised by the Makefile
+    import argparse
+    import time
+
+    p = argparse.ArgumentParser(prog="python -m pcreg.registration.nn",
+                                description="compile the correspondence search (cached on disk), or time it")
+    p.add_argument("--warm", action="store_true", help="compile every kernel now (done once after installation)")
+    p.add_argument("--bench", action="store_true", help="time queries against scipy's cKDTree")
+    args = p.parse_args(argv)
+    if not (args.warm or args.bench):
+        p.print_help()
+        return 2
+    if args.warm:
+        t0 = time.perf_counter()
+        warm_up()
+        print(f"pcreg: compiled kernels ready in {time.perf_counter() - t0:.1f} s "
+              f"(cache: {os.path.dirname(__file__)}/__pycache__ or NUMBA_CACHE_DIR)")
+    if args.bench:
+        _bench()
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

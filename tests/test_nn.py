@@ -1,0 +1,85 @@
+"""The compiled grid search answers exactly as a KD-tree (scipy's cKDTree), ties by the lowest index."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from pcreg.registration.nn import GridIndex
+from pcreg.registration.reference import build_tree, icp_reference
+
+
+def clouds(kind: str, d: int, rng):
+    if kind == "uniform":
+        tgt = rng.uniform(0, 10, (3000, d))
+    elif kind == "clustered":  # dense blobs and empty space, as edges and a LiDAR's near field
+        centres = rng.uniform(0, 100, (20, d))
+        tgt = centres[rng.integers(20, size=3000)] + rng.normal(0, 0.3, (3000, d))
+    else:  # a thin curve (or surface strip) far from the origin, as georeferenced scans
+        t = rng.uniform(0, 2 * np.pi, 3000)
+        tgt = np.column_stack([np.cos(t), np.sin(t)] + ([rng.uniform(0, 0.01, 3000)] if d == 3 else [])) * 50 + 1e5
+    q = np.concatenate([tgt[:1500] + rng.normal(0, 0.5, (1500, d)),
+                        rng.uniform(tgt.min(0) - 5, tgt.max(0) + 5, (1500, d))])
+    return tgt, q
+
+
+@pytest.mark.parametrize("d", [2, 3])
+@pytest.mark.parametrize("kind", ["uniform", "clustered", "curve"])
+@pytest.mark.parametrize("cell", [None, "small", "large"])
+def test_same_answers_as_a_kd_tree(d, kind, cell):
+    rng = np.random.default_rng(d * 10 + len(kind))
+    tgt, q = clouds(kind, d, rng)
+    q[:3] = q[:3] * 1e6  # far outside the grid
+    spacing = float(np.ptp(tgt, axis=0).max())
+    size = {None: None, "small": spacing / 100, "large": spacing / 3}[cell]
+    index = GridIndex(tgt, cell=size)
+    tree = cKDTree(tgt)
+    for bound in (0.2, 1.0, np.inf):
+        want_d, want_i = tree.query(q, k=1, distance_upper_bound=bound)
+        got_d, got_i = index.query(q, k=1, distance_upper_bound=bound)
+        np.testing.assert_array_equal(got_i, want_i)
+        np.testing.assert_allclose(got_d, want_d, rtol=1e-12)
+        for workers in (1, 2):
+            d2, idx = index.nearest(q, bound, workers=workers)
+            np.testing.assert_array_equal(np.where(idx < 0, len(tgt), idx), want_i)
+
+
+def test_ties_go_to_the_lowest_index_and_the_bound_is_strict():
+    lattice = np.array([[x, y] for y in range(6) for x in range(6)], dtype=float)
+    order = np.random.default_rng(0).permutation(len(lattice))
+    tgt = lattice[order]
+    index = GridIndex(tgt)
+    q = np.array([[2.5, 2.5], [2.0, 2.5], [0.5, 0.0]])
+    d2, idx = index.nearest(q)
+    for p, i, dd in zip(q, idx, d2):
+        dist = ((tgt - p) ** 2).sum(axis=1)
+        assert dd == dist.min() and i == np.flatnonzero(dist == dist.min()).min()
+    # d^2 < r^2, strictly (as Open3D and cKDTree): a point exactly at the bound is no neighbour
+    d2, idx = index.nearest(np.array([[0.0, 0.5]]), 0.5)
+    assert idx[0] == -1 and d2[0] == 0.25
+
+
+def test_nan_queries_and_a_single_point():
+    index = GridIndex(np.array([[1.0, 2.0]]))
+    d2, idx = index.nearest(np.array([[np.nan, 0.0], [1.0, 2.5], [1e300, 0.0]]), 1.0)
+    assert idx.tolist() == [-1, 0, -1]
+    with pytest.raises(ValueError):
+        GridIndex(np.empty((0, 2)))
+
+
+def test_icp_with_the_grid_equals_icp_with_a_kd_tree():
+    """Same correspondences at every iteration; the compiled moments path sums in another order."""
+    rng = np.random.default_rng(3)
+    target = rng.uniform(-10, 10, (2000, 3))
+    c, s = np.cos(0.05), np.sin(0.05)
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    source = (target - 0.2) @ R + rng.normal(0, 0.01, target.shape)
+    seen = {}
+    for name, tree in (("grid", build_tree(target, max_distance=1.0)), ("kdtree", cKDTree(target))):
+        seen[name] = []
+        icp_reference(source, target, max_correspondence_distance=1.0, max_iteration=20, tree=tree,
+                      callback=seen[name].append)
+    assert len(seen["grid"]) == len(seen["kdtree"]) > 3
+    for a, b in zip(seen["grid"], seen["kdtree"]):
+        np.testing.assert_array_equal(a.target_indices, b.target_indices)
+        np.testing.assert_allclose(a.matrix, b.matrix, rtol=0, atol=1e-12)
+        assert a.fitness == b.fitness and a.inlier_rmse == pytest.approx(b.inlier_rmse, rel=1e-12)

@@ -1,0 +1,130 @@
+"""The streaming propagator, cached pyramids, and the `pcreg run` command."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.errors import InputError
+from pcreg.registration.clouds import cloud_pyramid, image_pyramid
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return pcreg.synthetic("syn1a", 8, 0, width=320, height=240)
+
+
+def test_pyramid_clouds_equal_cloud_pyramid(frames):
+    img = frames[0].image
+    pyr = image_pyramid(img, levels=4)
+    for max_points, seed in (((600, 400, 300, 200), 1), (5000, 0), (None, 0)):
+        a = cloud_pyramid(img, levels=4, max_points=max_points, seed=seed)
+        b = pyr.clouds(max_points=max_points, seed=seed)
+        for x, y in zip(a, b):  # the same points; OpenCV's float32 gradient magnitude may differ by an ulp
+            np.testing.assert_array_equal(x.colors, y.colors)
+            np.testing.assert_allclose(x.normals, y.normals, atol=1e-6)
+            np.testing.assert_allclose(x.points, y.points, atol=1e-6)
+
+
+def test_register_with_prebuilt_pyramids_gives_the_same_result(frames):
+    a, b = frames[0].image, frames[2].image
+    kw = dict(model="similarity", init="identity")
+    plain = pcreg.register(a, b, **kw)
+    cached = pcreg.register(a, b, reference_pyramid=image_pyramid(a), moving_pyramid=image_pyramid(b), **kw)
+    np.testing.assert_allclose(plain.matrix, cached.matrix, atol=1e-6)
+    with pytest.raises(InputError, match="built for"):
+        pcreg.register(a, b, reference_pyramid=image_pyramid(a[:120, :160]), **kw)
+    with pytest.raises(InputError, match="other options"):
+        pcreg.register(a, b, moving_pyramid=image_pyramid(b, canny_percentile=70.0), **kw)
+
+
+def test_propagator_streams_labels_better_than_naive_bayes(frames):
+    prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    clf = prop.classifier
+    fused_err, plain_err = [], []
+    for f in frames[1:]:
+        labels = prop.step(f.image)
+        assert labels.shape == f.labels.shape and labels.dtype == np.uint8 and labels.max() <= 1
+        last = prop.last
+        assert last.registered and not last.fallback and last.reason is None
+        assert last.reference == last.frame - 1
+        assert set(last.times) == set(pcreg.propagator.STEP_STAGES) and last.times["total"] > 0
+        fused_err.append(pcreg.error_rate(labels, f.labels))
+        plain_err.append(pcreg.error_rate(clf.predict(f.image), f.labels))
+    assert np.mean(fused_err) < np.mean(plain_err)
+
+
+def test_a_refused_frame_falls_back_and_keeps_the_reference(frames):
+    prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    prop.step(frames[1].image)
+    flat = np.full_like(frames[2].image, 128)
+    labels = prop.step(flat)
+    assert prop.last.fallback and not prop.last.registered and "edges" in prop.last.reason
+    np.testing.assert_array_equal(labels, (prop.classifier.decision_function(flat) > 0).astype(np.uint8))
+    prop.step(frames[3].image)  # registered to frame 1, the last one that registered
+    assert prop.last.registered and prop.last.reference == 1
+
+
+def test_propagator_input_errors(frames):
+    clf = pcreg.fit_classifier([frames[0]])
+    prop = pcreg.Propagator(clf)
+    with pytest.raises(InputError, match="before reset"):
+        prop.step(frames[1].image)
+    with pytest.raises(InputError, match="0 \\(ground\\)"):
+        prop.reset(frames[0].image, np.full(frames[0].labels.shape, 7, np.uint8))
+    with pytest.raises(InputError, match="shape"):
+        prop.reset(frames[0].image, frames[0].labels[:10])
+    prop.reset(frames[0].image, frames[0].labels)
+    with pytest.raises(InputError, match="stream of"):
+        prop.step(frames[1].image[:100])
+    with pytest.raises(InputError, match="no decision_function"):
+        pcreg.Propagator(object())
+
+
+def _write_frames(folder, frames):
+    folder.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"f{i:03d}.png"), f.image[:, :, ::-1])
+
+
+def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
+    src = tmp_path / "frames"
+    _write_frames(src, frames[:4])
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    out = tmp_path / "out"
+    args = ["run", str(src), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
+    assert main(args) == 0
+    state = json.loads((out / "run.json").read_text())
+    assert state["done"] == 4 and [s["name"] for s in state["steps"]] == ["f001.png", "f002.png", "f003.png"]
+    assert all(s["registered"] for s in state["steps"])
+    first = cv2.imread(str(out / "f003.png"), cv2.IMREAD_UNCHANGED)
+    assert first.shape == frames[3].labels.shape and first.max() <= 1
+    # two more frames arrive: the run resumes from the state it kept, as an uninterrupted run would
+    for i in (4, 5):
+        cv2.imwrite(str(src / f"f{i:03d}.png"), frames[i].image[:, :, ::-1])
+    assert main(args) == 0
+    state = json.loads((out / "run.json").read_text())
+    assert state["done"] == 6 and state["steps"][-1]["reference_name"] == "f004.png"
+    whole = tmp_path / "whole"
+    assert main(["run", str(src), "--labels", str(tmp_path / "key.png"), "--out", str(whole)]) == 0
+    for i in range(6):
+        np.testing.assert_array_equal(cv2.imread(str(out / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED),
+                                      cv2.imread(str(whole / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED))
+    assert main(args) == 0 and "already done" in capsys.readouterr().out
+    # other options over the same folder: refused, unless --force
+    assert main(args + ["--weight", "2"]) == 2
+    assert "other options" in capsys.readouterr().err
+
+
+def test_run_command_bad_input(tmp_path, frames, capsys):
+    src = tmp_path / "frames"
+    _write_frames(src, frames[:2])
+    cv2.imwrite(str(tmp_path / "key.png"), np.full(frames[0].labels.shape, 9, np.uint8))
+    assert main(["run", str(src), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "o")]) == 2
+    assert "label value 9" in capsys.readouterr().err
+    cv2.imwrite(str(tmp_path / "small.png"), frames[0].labels[:50])
+    assert main(["run", str(src), "--labels", str(tmp_path / "small.png"), "--out", str(tmp_path / "o")]) == 2
+    assert main(["run", str(tmp_path / "nowhere"), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "o")]) == 2

@@ -1,0 +1,233 @@
+"""Benchmark: the reference ICP against Open3D's legacy ICP and small_gicp's ICP, 1k..100k points, 2-D and 3-D.
+
+Identical clouds (the builders of ``tools/bench_registration.py``): 2-D, the strongest-gradient pixels
+(sub-pixel) of a CamVid frame upscaled 3x and of its copy rotated by 3 deg and shifted; 3-D, random
+subsets of the LiDAR pair ``../shared/data/scans``. Each implementation runs point-to-point rigid ICP
+from the identity with the same correspondence distance for exactly ``--iterations`` iterations:
+
+- ``reference``: ``pcreg.registration.reference.icp_reference`` (thresholds 0), building its grid;
+- ``open3d``: ``open3d.pipelines.registration.registration_icp`` in one call (thresholds 0), building
+  its KD-tree inside the call;
+- ``small_gicp``: ``small_gicp.align(..., registration_type="ICP")`` with its KD-tree built in the
+  timing and its epsilons 0 (Gauss-Newton steps: its transform is not Open3D's, only its time is compared).
+
+Conversions numpy -> PointCloud are not timed. The order of the three rotates per repeat; ratios are
+taken per repeat and summarised by their median. ``transform difference`` is the largest absolute
+difference between the reference's and Open3D's matrices; where it exceeds 1e-9, ``tied queries`` says
+how many source points had two target points at exactly the same distance at the start (both clouds
+lie on the pixel lattice there): the reference breaks ties by the lowest index, Open3D's KD-tree by
+its traversal order. The cost curve (PNG) shows seconds / (N log2 N), relative to its value at the
+smallest N: flat or falling means the cost grows no faster than N log N.
+
+    python tools/bench_icp.py --out out/bench [--sizes 1000,3000,10000,30000,100000] [--iterations 15] [--repeats 5]
+
+Writes bench_icp.json, bench_icp.md and bench_icp.png to --out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchlib import SHARED_DATA, checks_markdown, machine_info, write_report
+
+IMPLEMENTATIONS = ("reference", "open3d", "small_gicp")
+TOOLS = Path(__file__).resolve().parent
+
+
+def _cloud_builders():
+    spec = importlib.util.spec_from_file_location("bench_registration", TOOLS / "bench_registration.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.clouds_2d, mod.clouds_3d
+
+
+def tied_queries(src: np.ndarray, tgt: np.ndarray, dist: float) -> int:
+    """Source points whose two nearest target points (within ``dist``) are exactly equidistant."""
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(tgt).query(src, k=2, distance_upper_bound=dist)
+    return int(np.count_nonzero(np.isfinite(d[:, 1]) & (d[:, 0] == d[:, 1])))
+
+
+def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int, repeats: int,
+              implementations=IMPLEMENTATIONS) -> dict:
+    import open3d as o3d
+
+    from pcreg.registration.open3d_icp import to_pointcloud
+    from pcreg.registration.reference import icp_reference
+    from pcreg.registration.transforms import lift_to_3d
+
+    d = src.shape[1]
+    reg = o3d.pipelines.registration
+    est = reg.TransformationEstimationPointToPoint()
+    crit = reg.ICPConvergenceCriteria(relative_fitness=0.0, relative_rmse=0.0, max_iteration=iterations)
+    s3 = np.column_stack([src, np.zeros(len(src))]) if d == 2 else src
+    t3 = np.column_stack([tgt, np.zeros(len(tgt))]) if d == 2 else tgt
+
+    def reference():
+        t0 = time.perf_counter()
+        r = icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist, init=np.eye(d + 1),
+                          max_iteration=iterations, relative_fitness=0.0, relative_rmse=0.0)
+        return time.perf_counter() - t0, lift_to_3d(r.matrix) if d == 2 else r.matrix
+
+    def open3d():
+        s, t = to_pointcloud(src), to_pointcloud(tgt)
+        t0 = time.perf_counter()
+        r = reg.registration_icp(s, t, dist, np.eye(4), est, crit)
+        return time.perf_counter() - t0, np.asarray(r.transformation)
+
+    def small_gicp():
+        import small_gicp as sg
+
+        s, t = sg.PointCloud(s3), sg.PointCloud(t3)
+        t0 = time.perf_counter()
+        tree = sg.KdTree(t, num_threads=2)
+        r = sg.align(t, s, tree, np.eye(4), registration_type="ICP", max_correspondence_distance=dist,
+                     num_threads=2, max_iterations=iterations, rotation_epsilon=0.0, translation_epsilon=0.0)
+        return time.perf_counter() - t0, np.asarray(r.T_target_source)
+
+    fns = {"reference": reference, "open3d": open3d, "small_gicp": small_gicp}
+    names = [n for n in IMPLEMENTATIONS if n in implementations]
+    for n in names:  # warm-up: imports, compiled kernels, page faults
+        fns[n]()
+    secs = {n: [] for n in names}
+    mats = {}
+    for k in range(repeats):
+        order = names[k % len(names):] + names[:k % len(names)]
+        for n in order:
+            s, M = fns[n]()
+            secs[n].append(s)
+            mats[n] = M
+    row = {"source_points": len(src), "target_points": len(tgt), "seconds": secs,
+           "median_seconds": {n: float(np.median(v)) for n, v in secs.items()}}
+    if "open3d" in secs:
+        for n in names:
+            if n != "open3d":
+                row[f"ratio_{n}_over_open3d"] = float(np.median(np.array(secs[n]) / np.array(secs["open3d"])))
+        if "reference" in mats:
+            row["max_abs_matrix_difference"] = float(np.abs(mats["reference"] - mats["open3d"]).max())
+            if row["max_abs_matrix_difference"] > 1e-9:
+                row["tied_queries_at_start"] = tied_queries(src, tgt, dist)
+    return row
+
+
+def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: int,
+        implementations=IMPLEMENTATIONS) -> dict:
+    from pcreg._runner import progress
+
+    clouds_2d, clouds_3d = _cloud_builders()
+    jobs = [("2-D", clouds_2d(data, sizes, seed))]
+    c3 = clouds_3d(data, sizes, seed)
+    if c3 is not None:
+        jobs.append(("3-D", c3))
+    kinds = {}
+    with progress(total=sum(len(c[1]) for _, c in jobs), desc="ICP sizes") as bar:
+        for kind, (desc, clouds, dist) in jobs:
+            rows = []
+            for n, (src, tgt) in clouds.items():
+                row = time_pair(src, tgt, dist=dist, iterations=iterations, repeats=repeats,
+                                implementations=implementations)
+                rows.append(row)
+                bar.update(1)
+            ns = np.array([r["source_points"] for r in rows], dtype=np.float64)
+            curve = {}
+            for n in rows[0]["median_seconds"]:
+                t = np.array([r["median_seconds"][n] for r in rows])
+                per = t / (ns * np.log2(ns))
+                curve[n] = {"loglog_slope": float(np.polyfit(np.log(ns), np.log(t), 1)[0]) if len(ns) > 1 else None,
+                            "cost_per_nlogn_relative": (per / per[0]).tolist()}
+            kinds[kind] = {"description": desc, "max_correspondence_distance": dist, "rows": rows, "curve": curve}
+    return {"iterations": iterations, "repeats": repeats, "kinds": kinds}
+
+
+def render(report: dict) -> str:
+    from pcreg.outputs import markdown_table
+
+    lines = [f"## ICP: reference vs Open3D legacy vs small_gicp ({report['iterations']} iterations, "
+             f"median of {report['repeats']} repeats)\n"]
+    checks = []
+    for kind, k in report["kinds"].items():
+        lines.append(f"{kind}: {k['description']}; correspondence distance {k['max_correspondence_distance']:g}.\n")
+        impls = list(k["rows"][0]["median_seconds"])
+        header = ["N"] + [f"{n} (ms)" for n in impls] + [f"{n} / open3d" for n in impls if n != "open3d"] + [
+            "transform difference", "tied queries"]
+        body = []
+        for r in k["rows"]:
+            body.append([r["source_points"]] + [1e3 * r["median_seconds"][n] for n in impls]
+                        + [r.get(f"ratio_{n}_over_open3d", float("nan")) for n in impls if n != "open3d"]
+                        + [f"{r.get('max_abs_matrix_difference', float('nan')):.1e}", r.get("tied_queries_at_start", 0)])
+        lines.append(markdown_table(header, body, digits=2))
+        slopes = ", ".join(f"{n} {c['loglog_slope']:.2f}" for n, c in k["curve"].items() if c["loglog_slope"] is not None)
+        lines.append(f"Log-log slope of time against N: {slopes} (N log N over this range is about 1.1).\n")
+        if "reference" in impls and "open3d" in impls:
+            ratios = [r["ratio_reference_over_open3d"] for r in k["rows"]]
+            checks.append((f"reference ICP <= 1.0x Open3D legacy, {kind}, every size",
+                           "max " + f"{max(ratios):.2f}x (" + ", ".join(f"{x:.2f}" for x in ratios) + ")",
+                           max(ratios) <= 1.0))
+            diffs = [r["max_abs_matrix_difference"] for r in k["rows"]]
+            ties = sum(r.get("tied_queries_at_start", 0) for r in k["rows"])
+            checks.append((f"transforms equal to 1e-9, {kind}", f"max {max(diffs):.1e}"
+                           + (f" ({ties} tied queries in all)" if ties else ""), max(diffs) <= 1e-9))
+            rel = k["curve"]["reference"]["cost_per_nlogn_relative"]
+            checks.append((f"reference cost no worse than N log N, {kind}",
+                           f"time/(N log N) at the largest N = {rel[-1]:.2f}x the smallest's", rel[-1] <= 1.0))
+    lines.append(checks_markdown(checks))
+    return "\n".join(lines)
+
+
+def figure(report: dict):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kinds = report["kinds"]
+    fig, axes = plt.subplots(1, len(kinds), figsize=(5.2 * len(kinds), 4.0), squeeze=False)
+    colours = {"reference": "tab:blue", "open3d": "tab:orange", "small_gicp": "tab:green"}
+    for ax, (kind, k) in zip(axes[0], kinds.items()):
+        ns = np.array([r["source_points"] for r in k["rows"]], dtype=np.float64)
+        for n in k["rows"][0]["median_seconds"]:
+            t = np.array([r["median_seconds"][n] for r in k["rows"]])
+            ax.loglog(ns, 1e3 * t, "o-", color=colours.get(n), label=n)
+        ref = np.array([r["median_seconds"]["reference"] for r in k["rows"]]) if "reference" in k["curve"] else None
+        if ref is not None:
+            nlogn = ns * np.log2(ns)
+            ax.loglog(ns, 1e3 * ref[0] * nlogn / nlogn[0], "k--", lw=1, label="N log N (from the reference's first)")
+        ax.set_xlabel("points N")
+        ax.set_ylabel(f"ms for {report['iterations']} iterations")
+        ax.set_title(f"{kind}", fontsize=10)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", default="out/bench")
+    p.add_argument("--data", type=Path, default=SHARED_DATA, help="../shared/data (synthetic 2-D clouds without it)")
+    p.add_argument("--sizes", default="1000,3000,10000,30000,100000")
+    p.add_argument("--iterations", type=int, default=15)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--implementations", default=",".join(IMPLEMENTATIONS))
+    args = p.parse_args(argv)
+    sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    impls = tuple(s.strip() for s in args.implementations.split(",") if s.strip())
+    report = {"machine": machine_info(), **run(args.data, sizes=sizes, iterations=args.iterations,
+                                               repeats=args.repeats, seed=args.seed, implementations=impls)}
+    report["machine"]["load_average_at_end"] = machine_info()["load_average"]
+    md = render(report)
+    write_report(args.out, "bench_icp", report, md, figure(report))
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

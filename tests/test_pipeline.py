@@ -148,8 +148,10 @@ def test_helpers():
 
 
 def test_a_refused_pair_is_recorded_with_its_reason(frames, clf):
+    """With the plausibility test on (the pipeline's default has it off), a noise frame is refused."""
     noise = np.random.default_rng(3).integers(0, 256, frames[2].image.shape, dtype=np.uint8)
-    res = process_pair(frames[0], Frame(noise, frames[2].labels, "noise"), clf, weight=3.0).result
+    strict = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(min_inlier_ratio=0.15))
+    res = process_pair(frames[0], Frame(noise, frames[2].labels, "noise"), clf, weight=3.0, config=strict).result
     assert not res.registered and "refused" in res.reason
     assert res.registration is None and res.errors["augmented"] == res.errors["plain"]
 

@@ -432,8 +432,8 @@ class GridIndex:
 
 
 def warm_up() -> None:
-    """Compile (or load from the on-disk cache) every kernel: 2-D and 3-D, dense and hashed, serial and
-    parallel, bounded and unbounded queries."""
+    """Compile (or load from the on-disk cache) every kernel: the search in 2-D and 3-D, dense and hashed,
+    serial and parallel, bounded and unbounded; the ICP and edge kernels; the dense registration's."""
     rng = np.random.default_rng(0)
     for d in (2, 3):
         pts = rng.uniform(0, 10, (64, d))
@@ -449,6 +449,12 @@ def warm_up() -> None:
     img = np.zeros((64, 64, 3), np.uint8)
     img[16:48, 20:40] = 200
     image_pyramid(img, levels=2).clouds(max_points=100)
+    # The dense registration's kernels (window search, assembly, conjugate gradients) on a small pair.
+    from ..datasets.synthetic import synthetic
+    from .dense import register_dense
+
+    a, b = synthetic("syn1a", 2, 0, width=160, height=120)
+    register_dense(a.image, b.image)
 
 
 def _bench(n: int = 20000, repeats: int = 7) -> None:  # pragma: no cover - a measurement, not a test

@@ -39,17 +39,15 @@ Writes ``registration.json`` (every raw number, the machine, the command line), 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_DATA = REPO_ROOT.parent / "shared" / "data"
+from benchlib import SHARED_DATA, ecc, machine_info
+
+DEFAULT_DATA = SHARED_DATA
 
 METHODS = ("pcreg_reference", "pcreg_open3d", "orb", "ecc")
 IMPOSSIBLE = ("unrelated", "noise", "mirror")
@@ -64,51 +62,6 @@ COLORS = {"pcreg_reference": "tab:blue", "pcreg_open3d": "tab:orange", "pcreg_re
           "orb": "tab:red", "ecc": "tab:green"}
 SUCCESS_PX = 1.0
 FLOORS = {"median_px": 0.1, "p95_px": 0.5, "success": 0.99, "icp_ratio_vs_open3d": 1.0}
-
-
-# ---------------------------------------------------------------------------------------------------
-# Machine
-# ---------------------------------------------------------------------------------------------------
-
-def machine_info() -> dict:
-    import cv2
-    import scipy
-
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        import open3d
-
-        o3d_version = open3d.__version__
-    except ImportError:
-        o3d_version = None
-    try:
-        commit = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"], capture_output=True,
-                                text=True, timeout=10).stdout.strip() or None
-        dirty = bool(subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "--", "pcreg"],
-                                    capture_output=True, text=True, timeout=10).stdout.strip())
-    except (OSError, subprocess.SubprocessError):
-        commit, dirty = None, None
-    try:
-        load = os.getloadavg()
-    except OSError:
-        load = None
-    return {
-        "cpu_model": cpu, "cpu_count": os.cpu_count(),
-        "affinity_cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-        "platform": platform.platform(), "python": sys.version.split()[0],
-        "numpy": np.__version__, "scipy": scipy.__version__, "opencv": cv2.__version__, "open3d": o3d_version,
-        "opencv_threads": cv2.getNumThreads(),
-        "env": {k: os.environ[k] for k in ("OPENBLAS_CORETYPE", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
-                if k in os.environ},
-        "git_commit": commit, "pcreg_dirty": dirty, "load_average_at_start": load,
-    }
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -187,17 +140,12 @@ def make_moving(reference: np.ndarray, T_ref_mov: np.ndarray) -> np.ndarray:
 
 
 def ecc_register(reference: np.ndarray, moving: np.ndarray, *, levels: int = 4) -> np.ndarray:
-    """``T_ref_mov`` by OpenCV's multi-scale ECC (Euclidean) from the identity; raises cv2.error on failure."""
-    import cv2
-
-    ref = cv2.cvtColor(reference, cv2.COLOR_RGB2GRAY).astype(np.float32)
-    mov = cv2.cvtColor(moving, cv2.COLOR_RGB2GRAY).astype(np.float32)
-    params = cv2.ECCParameters()
-    params.motionType = cv2.MOTION_EUCLIDEAN
-    params.nlevels = levels
-    _, W = cv2.findTransformECCMultiScale(ref, mov, np.eye(2, 3, dtype=np.float32), params)
-    W3 = np.vstack([np.asarray(W, np.float64), [0.0, 0.0, 1.0]])
-    return np.linalg.inv(W3)  # ECC's W maps reference -> moving pixels
+    """``T_ref_mov`` by OpenCV's multi-scale ECC (Euclidean, :func:`benchlib.ecc`) from the identity;
+    raises ValueError when ECC does not converge."""
+    T = ecc(reference, moving, motion="euclidean", levels=levels)
+    if T is None:
+        raise ValueError("ECC did not converge")
+    return T
 
 
 def orb_register(reference: np.ndarray, moving: np.ndarray, *, n_features: int = 2000) -> np.ndarray:
@@ -612,7 +560,7 @@ def render_markdown(report: dict) -> str:
     lines = [f"# Registration benchmark\n",
              f"Command: `{report['command']}`  \n"
              f"Machine: {m['cpu_model']}, {m['cpu_count']} CPUs (load average at start "
-             f"{', '.join(f'{x:.1f}' for x in m['load_average_at_start'] or [])}), {m['platform']}; Python {m['python']}, "
+             f"{', '.join(f'{x:.1f}' for x in m['load_average'] or [])}), {m['platform']}; Python {m['python']}, "
              f"numpy {m['numpy']}, scipy {m['scipy']}, OpenCV {m['opencv']}, Open3D {m['open3d']}; "
              f"pcreg at {str(m['git_commit'])[:12]}{' (pcreg/ modified)' if m['pcreg_dirty'] else ''}.  \n"
              f"Started {report['started']}, took {report['wall_seconds'] / 60:.1f} min. Times are wall clock on a shared "

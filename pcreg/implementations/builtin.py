@@ -361,74 +361,34 @@ class PyCpd(_Probabilistic):
                              "fitness_from": "pcreg (Open3D's definition at the returned pose)"})
 
 
-class ProbregCpd(_Probabilistic):
-    name = "probreg-cpd"
-    description = "probreg registration_cpd, rigid, update_scale=False (coherent point drift without scale)"
+class _Probreg(_Probabilistic):
+    """probreg's registrations on clouds lifted to 3-D (2-D clouds at z = 0): subsample, register, score."""
+
     requires = ("probreg",)
 
     def settings(self, pinned):
-        return {**super().settings(pinned), "update_scale": False, "2-D": "lifted to z = 0"}
+        return {**super().settings(pinned), **self.options, "2-D": "lifted to z = 0"}
+
+    def _register(self, source: np.ndarray, target: np.ndarray):
+        raise NotImplementedError
 
     def _run(self, pinned, *, trace):
         import logging
 
-        from probreg import cpd
-
         from ..registration.transforms import apply
 
         logging.getLogger("probreg").setLevel(logging.ERROR)
-        d = pinned.dim
         src = lift(_subsample(apply(pinned.init, pinned.source), self.max_points, 0))
         tgt = lift(_subsample(pinned.target, self.max_points, 1))
         start = time.perf_counter()
-        res = cpd.registration_cpd(src, tgt, "rigid", w=0.0, maxiter=self.max_em_iterations, tol=self.tolerance,
-                                   update_scale=False)
-        seconds = time.perf_counter() - start
-        tf = res.transformation
-        M = np.eye(4)
-        M[:3, :3] = float(tf.scale) * np.asarray(tf.rot)
-        M[:3, 3] = np.asarray(tf.t)
-        info = {"sigma2": float(res.sigma2)}
-        if d == 2:
-            info["out_of_plane"] = out_of_plane(M)
-            M = project(M)
-        m = M @ pinned.init
-        fit, rmse, _ = score(pinned, m)
-        info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
-        return Outcome(matrix=m, iterations=None, fitness=fit, inlier_rmse=rmse, converged=None, seconds=seconds,
-                       info=info)
-
-
-class ProbregFilterReg(_Probabilistic):
-    name = "probreg-filterreg"
-    description = ("probreg registration_filterreg, point-to-point (FilterReg, Gao & Tedrake 2019: a Gaussian mixture "
-                   "on the target evaluated by a permutohedral-lattice filter), sigma^2 updated")
-    requires = ("probreg",)
-
-    def settings(self, pinned):
-        return {**super().settings(pinned), "objective_type": "pt2pt", "update_sigma2": True, "2-D": "lifted to z = 0"}
-
-    def _run(self, pinned, *, trace):
-        import logging
-
-        from probreg import filterreg
-
-        from ..registration.transforms import apply
-
-        logging.getLogger("probreg").setLevel(logging.ERROR)
-        d = pinned.dim
-        src = lift(_subsample(apply(pinned.init, pinned.source), self.max_points, 0))
-        tgt = lift(_subsample(pinned.target, self.max_points, 1))
-        start = time.perf_counter()
-        res = filterreg.registration_filterreg(src, tgt, update_sigma2=True, w=0.0, objective_type="pt2pt",
-                                               maxiter=self.max_em_iterations, tol=self.tolerance)
+        res = self._register(src, tgt)
         seconds = time.perf_counter() - start
         tf = res.transformation
         M = np.eye(4)
         M[:3, :3] = float(getattr(tf, "scale", 1.0)) * np.asarray(tf.rot)
         M[:3, 3] = np.asarray(tf.t)
         info = {"sigma2": float(res.sigma2)}
-        if d == 2:
+        if pinned.dim == 2:
             info["out_of_plane"] = out_of_plane(M)
             M = project(M)
         m = M @ pinned.init
@@ -436,6 +396,31 @@ class ProbregFilterReg(_Probabilistic):
         info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
         return Outcome(matrix=m, iterations=None, fitness=fit, inlier_rmse=rmse, converged=None, seconds=seconds,
                        info=info)
+
+
+class ProbregCpd(_Probreg):
+    name = "probreg-cpd"
+    description = "probreg registration_cpd, rigid, update_scale=False (coherent point drift without scale)"
+    options = {"update_scale": False}
+
+    def _register(self, source, target):
+        from probreg import cpd
+
+        return cpd.registration_cpd(source, target, "rigid", w=0.0, maxiter=self.max_em_iterations,
+                                    tol=self.tolerance, update_scale=False)
+
+
+class ProbregFilterReg(_Probreg):
+    name = "probreg-filterreg"
+    description = ("probreg registration_filterreg, point-to-point (FilterReg, Gao & Tedrake 2019: a Gaussian mixture "
+                   "on the target evaluated by a permutohedral-lattice filter), sigma^2 updated")
+    options = {"objective_type": "pt2pt", "update_sigma2": True}
+
+    def _register(self, source, target):
+        from probreg import filterreg
+
+        return filterreg.registration_filterreg(source, target, update_sigma2=True, w=0.0, objective_type="pt2pt",
+                                                maxiter=self.max_em_iterations, tol=self.tolerance)
 
 
 BUILTIN = {cls.name: cls for cls in (Reference, Open3DLegacy, Open3DTensor, SmallGicp, SmallGicpPlane, SmallGicpGicp,

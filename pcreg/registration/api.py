@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError, RegistrationError
 from .open3d_icp import icp_open3d, to_pointcloud
 from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
-from .clouds import ImageCloud, ImagePyramid, _cloud_at, as_rgb_uint8, check_pyramid, valid_region
+from .clouds import ImageCloud, ImagePyramid, _cloud_at, as_rgb_uint8, check_pyramid, per_level, usable_mask
 from .result import IcpIteration, RegistrationResult
 from .global_search import (GENERATORS, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
                             gray_level, orb_hypotheses, photometric_agreement)
@@ -268,19 +268,8 @@ class _LazyPyramid:
     """:func:`cloud_pyramid`'s levels, each built on first access (same clouds, same seeds)."""
 
     def __init__(self, image: np.ndarray, *, levels: int, mask, max_points, seed: int, **kwargs):
-        if not isinstance(max_points, (tuple, list)):
-            max_points = (max_points,) * levels
-        max_points = tuple(max_points) + (max_points[-1],) * max(0, levels - len(max_points))
-        if isinstance(mask, str):
-            if mask != "auto":
-                raise InputError(f"mask must be an array, 'auto' or None, got {mask!r}")
-            mask = valid_region(image)
-        if mask is not None:
-            mask = np.asarray(mask, dtype=bool)
-            if mask.shape != image.shape[:2]:
-                raise InputError(f"mask shape {mask.shape} does not match image shape {image.shape[:2]}")
-            if mask.all():
-                mask = None
+        max_points = per_level(max_points, levels)
+        mask = usable_mask(mask, image)
         self._images = [image]
         self._clouds: dict[int, ImageCloud] = {}
         # Usable pixels at full resolution (for the intensity generators): all where no mask applies.

@@ -255,16 +255,7 @@ def image_cloud(image: np.ndarray, *, sampler: str = "canny", max_points: int | 
     img = as_rgb_uint8(image)
     if level < 0:
         raise InputError(f"pyramid level must be >= 0, got {level}")
-    if isinstance(mask, str):
-        if mask != "auto":
-            raise InputError(f"mask must be an array, 'auto' or None, got {mask!r}")
-        mask = valid_region(img)
-        if mask.all():
-            mask = None
-    elif mask is not None:
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape != img.shape[:2]:
-            raise InputError(f"mask shape {mask.shape} does not match image shape {img.shape[:2]}")
+    mask = usable_mask(mask, img)
     lvl_img = img
     for _ in range(level):
         if min(lvl_img.shape[:2]) < 16:
@@ -301,6 +292,31 @@ def _as_cloud(lvl_img: np.ndarray, pts: np.ndarray, normals: np.ndarray, pix: np
     return ImageCloud(points=pts, colors=colors, normals=normals, shape=(int(shape[0]), int(shape[1])), level=level)
 
 
+def per_level(max_points, levels: int) -> tuple:
+    """``max_points`` (one value, or one per level, finest first; the last repeats) as one per level."""
+    if not isinstance(max_points, (tuple, list)):
+        return (max_points,) * levels
+    if not max_points:
+        raise InputError("max_points must name at least one level")
+    return tuple(max_points) + (max_points[-1],) * max(0, levels - len(max_points))
+
+
+def usable_mask(mask, image: np.ndarray) -> np.ndarray | None:
+    """The usable pixels of ``image``: ``"auto"`` (no black padding, :func:`valid_region`), an (H, W)
+    array, or None; None also where every pixel is usable."""
+    if isinstance(mask, str):
+        if mask != "auto":
+            raise InputError(f"mask must be an array, 'auto' or None, got {mask!r}")
+        mask = valid_region(image)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != image.shape[:2]:
+            raise InputError(f"mask shape {mask.shape} does not match image shape {image.shape[:2]}")
+        if mask.all():
+            mask = None
+    return mask
+
+
 def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple[int | None, ...] | None = None,
                   mask: np.ndarray | str | None = "auto", seed: int = 0, **kwargs) -> list[ImageCloud]:
     """The same cloud at pyramid levels 0..levels-1 (index = level; each level halves the image).
@@ -310,21 +326,9 @@ def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple
     from ..validation import check_int
 
     levels = check_int(levels, "levels", lo=1, hi=16)
-    if not isinstance(max_points, (tuple, list)):
-        max_points = (max_points,) * levels
-    if len(max_points) < levels:
-        max_points = tuple(max_points) + (max_points[-1],) * (levels - len(max_points))
+    max_points = per_level(max_points, levels)
     img = as_rgb_uint8(image)
-    if isinstance(mask, str):
-        if mask != "auto":
-            raise InputError(f"mask must be an array, 'auto' or None, got {mask!r}")
-        mask = valid_region(img)
-    if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape != img.shape[:2]:
-            raise InputError(f"mask shape {mask.shape} does not match image shape {img.shape[:2]}")
-        if mask.all():
-            mask = None
+    mask = usable_mask(mask, img)
     out, lvl_img = [], img
     for level in range(levels):
         if level:
@@ -397,16 +401,7 @@ def image_pyramid(image: np.ndarray, *, levels: int = 4, mask: np.ndarray | str 
     if levels < 1:
         raise InputError(f"levels must be >= 1, got {levels}")
     img = as_rgb_uint8(image)
-    if isinstance(mask, str):
-        if mask != "auto":
-            raise InputError(f"mask must be an array, 'auto' or None, got {mask!r}")
-        mask = valid_region(img)
-    if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape != img.shape[:2]:
-            raise InputError(f"mask shape {mask.shape} does not match image shape {img.shape[:2]}")
-        if mask.all():
-            mask = None
+    mask = usable_mask(mask, img)
     if sampler == "gradient" and top_k is None:
         top_k = 5000
     dets, lvl_img = [], img

@@ -19,6 +19,7 @@ import numpy as np
 
 from .base import (FIXED_POINT, OBJECTIVE, STEP, ImplementationError, Implementation, Outcome, Pinned, TraceStep,
                    lift, lift_matrix, out_of_plane, project, score, unpack)
+from ..registration.transforms import rotation_part
 
 CONVERGED_ITERATIONS = 200
 
@@ -297,7 +298,7 @@ class KissIcp(Implementation):
             T_new = np.asarray(reg1.align_points_to_map(src, vmap, T, max_correspondance_distance=settings["voxel_size"],
                                                         kernel=settings["kernel"]))
             D = T_new @ np.linalg.inv(T)
-            dx = np.concatenate([D[:3, 3], Rotation.from_matrix(_orthonormalise(D[:3, :3])).as_rotvec()])
+            dx = np.concatenate([D[:3, 3], Rotation.from_matrix(rotation_part(D[:3, :3])).as_rotvec()])
             T = T_new
             M = back(T)
             fit, rmse, idx = score(pinned, M)
@@ -305,11 +306,6 @@ class KissIcp(Implementation):
             if np.linalg.norm(dx) < settings["convergence_criterion"]:
                 break
         return tuple(steps), len(steps) - 1
-
-
-def _orthonormalise(R):
-    U, _, Vt = np.linalg.svd(R)
-    return U @ Vt
 
 
 def _subsample(points: np.ndarray, n: int, seed: int) -> np.ndarray:

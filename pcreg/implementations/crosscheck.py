@@ -20,7 +20,7 @@ from ..errors import InputError
 from ..registration.clouds import as_rgb_uint8, load_image
 from ..registration.api import check_cloud, icp, register
 from ..registration.result import IcpIteration, RegistrationResult
-from ..registration.transforms import apply, corners, rotation_disagreement_deg
+from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
@@ -280,21 +280,11 @@ def _bbox_corners(points: np.ndarray) -> np.ndarray:
     return np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
 
 
-def _orthonormal(M: np.ndarray) -> np.ndarray:
-    """The rotation closest to M (polar decomposition; removes a similarity's scale)."""
-    U, _, Vt = np.linalg.svd(M)
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        U[:, -1] *= -1
-        R = U @ Vt
-    return R
-
-
 def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
     """Disagreement of B with A: rotation (degrees), translation, relative matrix difference and, in 2-D,
     the largest displacement of the source's bounding-box corners (px for image edge clouds)."""
     d = A.shape[0] - 1
-    RA, RB = _orthonormal(A[:d, :d]), _orthonormal(B[:d, :d])
+    RA, RB = rotation_part(A[:d, :d]), rotation_part(B[:d, :d])
     # The angle of RA^T RB from its chord, ||RA - RB||_F = 2 sqrt(2) sin(angle / 2) (2 sin(angle / 2) in
     # 2-D): unlike the arccos of the trace it keeps full precision for tiny angles.
     chord = float(np.linalg.norm(RA - RB)) / (2.0 * np.sqrt(2.0) if d == 3 else 2.0)

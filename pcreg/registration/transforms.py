@@ -83,11 +83,12 @@ def rotation_angle_deg(R: np.ndarray) -> float:
 def rotation_disagreement_deg(A: np.ndarray, B: np.ndarray) -> float:
     """Angle (degrees) of the rotation between two homogeneous transforms' linear parts (polar-decomposed)."""
     d = np.asarray(A).shape[0] - 1
-    RA, RB = _rotation_part(np.asarray(A)[:d, :d]), _rotation_part(np.asarray(B)[:d, :d])
+    RA, RB = rotation_part(np.asarray(A)[:d, :d]), rotation_part(np.asarray(B)[:d, :d])
     return rotation_angle_deg(RA.T @ RB)
 
 
-def _rotation_part(M: np.ndarray) -> np.ndarray:
+def rotation_part(M: np.ndarray) -> np.ndarray:
+    """The rotation closest to the (d, d) matrix ``M`` (polar decomposition, det +1): removes a scale."""
     U, _, Vt = np.linalg.svd(M)
     R = U @ Vt
     if np.linalg.det(R) < 0:

@@ -45,7 +45,7 @@ def test_bench_registration_without_data_uses_textures_and_synthetic_clouds(tmp_
     assert [r["source_points"] for r in rows] == [200, 400]
     assert all(r["max_abs_matrix_difference"] < 1e-6 for r in rows)  # same clouds, same iterations
     md = (out / "registration.md").read_text()
-    assert "## Floors" in md and "Impossible pairs" in md
+    assert "## Targets" in md and "Impossible pairs" in md
     assert (out / "registration.csv").read_text().startswith("set,case,kind")
     for png in ("registration_accuracy.png", "registration_scaling.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -209,7 +209,7 @@ def main(argv=None) -> int:
         os.sched_setaffinity(0, set(cpus[: args.cores]))
     if args.cores:
         cv2.setNumThreads(args.cores)
-    report = {"machine": machine_info(), "floors": {"ms": FLOOR_MS, "step_over_dis": FLOOR_VS_DIS,
+    report = {"machine": machine_info(), "targets": {"ms": FLOOR_MS, "step_over_dis": FLOOR_VS_DIS,
                                                     "register_over_ecc": FLOOR_REGISTER_VS_ECC}, "streams": {}}
     backends = tuple(b.strip() for b in args.backends.split(",") if b.strip())
     for which in [s.strip() for s in args.data.split(",") if s.strip()]:

@@ -32,7 +32,7 @@ LiDAR pair ``../shared/data/scans`` -- registered by pcreg's reference ICP and b
     python tools/bench_registration.py --out out/bench [--cases 60] [--camvid-cases 40] [--impossible 8] [--quick]
 
 Writes ``registration.json`` (every raw number, the machine, the command line), ``registration.csv``
-(one row per case and method), ``registration.md`` (tables and floors), ``registration_accuracy.png`` and
+(one row per case and method), ``registration.md`` (tables and targets), ``registration_accuracy.png`` and
 ``registration_scaling.png`` to ``--out``.
 """
 
@@ -641,7 +641,7 @@ def render_markdown(report: dict) -> str:
             floors.append([f"{kind} clouds: reference ICP no slower than Open3D (median ratio <= 1), per size",
                            ", ".join(f"{x:.2f}" for x in ratios), _met(max(ratios) <= FLOORS["icp_ratio_vs_open3d"])])
     if floors:
-        lines.insert(1, "## Floors\n\n" + markdown_table(["floor", "measured", ""], floors) + "\n")
+        lines.insert(1, "## Targets\n\n" + markdown_table(["target", "measured", ""], floors) + "\n")
     return "\n".join(lines) + "\n"
 
 
@@ -825,7 +825,7 @@ def main(argv: list[str] | None = None) -> int:
                                  "orb_options": "2000 features, full resolution, BFMatcher Hamming crossCheck, "
                                                 "estimateAffinePartial2D RANSAC 3 px",
                                  "ecc_options": "nlevels=4, MOTION_EUCLIDEAN, default criteria, identity start"},
-                    "floors": FLOORS}
+                    "targets": FLOORS}
     try:
         if not args.skip_images:
             report["images"] = run_images(args.data, cases=cases, camvid_cases=camvid, impossible=impossible,

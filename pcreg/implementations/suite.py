@@ -390,7 +390,7 @@ def _figure(path: Path, rows: list[dict]) -> None:
     ax.set_xticks(range(len(impls)), [n if len(n) < 24 else n[:21] + "..." for n in impls], rotation=35, ha="right",
                   fontsize=8)
     ax.set_yticks(range(len(cases)), cases, fontsize=8)
-    ax.set_title("agreement with the reference ICP (green: within its floor; orange: outside; red: failed; "
+    ax.set_title("agreement with the reference ICP (green: within its tolerance; orange: outside; red: failed; "
                  "grey: not run)\ncell: relative matrix disagreement", fontsize=8)
     fig.tight_layout()
     buf = io.BytesIO()

@@ -9,7 +9,7 @@ Python callables are called as::
 with ``source`` (N, d), ``target`` (M, d) float64 arrays, ``init`` the (d+1, d+1) guess, and return the
 (d+1, d+1) matrix ``T_target_source``, or a dict / object with ``matrix`` and optionally ``iterations``,
 ``fitness``, ``inlier_rmse``, ``converged``. A function attribute ``comparability`` ("step",
-"fixed-point", "objective"; default "step") says which floor applies.
+"fixed-point", "objective"; default "step") says which tolerance applies.
 
 The file protocol of ``cmd:`` programs (fixed; other tools are written against it):
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
@@ -16,21 +15,9 @@ from pcreg.recording.recorder import Recorder
 
 
 def pcreg_view(argv: list[str]) -> int:
-    """``pcreg view ARGV`` in-process: the command line's own entry point where every command is importable,
-    else the same parse / run / one-line-error path for ``view`` alone."""
+    """``pcreg view ARGV`` in-process, through the command line's own entry point."""
     from pcreg import cli
 
-    try:
-        cli.build_parser()
-    except ModuleNotFoundError:
-        parser = cli._Parser(prog="pcreg view")
-        view.add_arguments(parser)
-        args = parser.parse_args(argv)
-        try:
-            return int(view.run(args) or 0)
-        except PcregError as exc:
-            sys.stderr.write(f"pcreg: error: {exc}\n")
-            return 2
     return cli.main(["view", *argv])
 
 
@@ -192,7 +179,6 @@ def kind_recordings(tmp_path_factory):
     import contextlib
     import io
 
-    import rerun as rr
 
     from _images import moved, rigid_about_centre, shapes_image
     from pcreg import cli
@@ -226,18 +212,16 @@ def kind_recordings(tmp_path_factory):
     with Recorder(paths["demo"], recording_name="pcreg demo", kind="demo") as rec:
         sequence.evaluate(evaluate_sequence.config_from_args(args), out=d / "demo", force=True, recorder=rec,
                           show_progress=False)
-    # a dense registration's field, written to the entity paths of pcreg.recording.entities (what
-    # Recorder.log_dense writes): the blueprint adapts to what is there
+    # a dense registration of the pair, logged by the recorder
+    from pcreg import register_dense
+
     paths["dense"] = d / "dense.rrd"
+    dense = register_dense(ref, mov)
     with Recorder(paths["dense"], kind="dense") as rec:
         rec.set_frame(0)
         rec.log_images(reference=ref, moving=mov, warped=mov)
-        mag = np.hypot(*np.mgrid[0:120, 0:160] - 60.0).astype(np.float32)
-        rec._log("dense/displacement", rr.Image(cv2.applyColorMap(np.uint8(255 * mag / mag.max()), cv2.COLORMAP_TURBO)[..., ::-1]))
-        rec._log("dense/quiver", rr.Arrows2D(origins=[[20, 20], [100, 60]], vectors=[[5, 3], [-4, 2]], colors=[255, 220, 0]))
-        rec._log("dense/confidence", rr.Image(np.uint8(255 * (mag < 50))))
-        rec._log("dense/warped_prior", rr.Image(np.uint8(255 * (mag > 40))))
-        rec._scalar("dense/max_displacement", float(mag.max()))
+        rec.log_dense(dense.field, matrix=dense.matrix, confidence=dense.confidence,
+                      warped_prior=dense.confidence)
     # a cloud cross-check: every implementation on the crosscheck_iteration timeline
     rng = np.random.default_rng(0)
     target = rng.uniform(0, 10, (300, 3)) * [1.0, 1.0, 0.3]

@@ -62,6 +62,7 @@ not scored.
 - `augmented_unregistered`: the same prior without the warp (what registration adds).
 - `augmented_temporal`: labels used only at the start of each chain, then carried frame to frame.
 - `propagated`: frame i's warped labels alone (naive Bayes where they say nothing).
+- `augmented_flow`: the same fusion, the prior warped by OpenCV's DIS optical flow (a baseline).
 """
 
 

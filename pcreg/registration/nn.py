@@ -24,7 +24,7 @@ distance, with no tree descent; building it is one counting sort (linear), again
 O(M log M). Per query against scipy's cKDTree: ``python -m pcreg.registration.nn --bench``; the ICP
 against Open3D's and small_gicp's: ``tools/bench_icp.py`` (README, Benchmarks).
 
-Compilation is cached on disk (``cache=True``); ``python -m pcreg.registration.nn --warm`` compiles every
+Compilation is cached on disk (``cache=True``); ``python -m pcreg.registration.kernels`` compiles every
 kernel once (the Makefile's ``setup`` runs it), so no command compiles after installation; a new
 process only loads numba and the cached machine code, on its first registration.
 """
@@ -432,8 +432,8 @@ class GridIndex:
 
 
 def warm_up() -> None:
-    """Compile (or load from the on-disk cache) every kernel: the search in 2-D and 3-D, dense and hashed,
-    serial and parallel, bounded and unbounded; the ICP and edge kernels; the dense registration's."""
+    """Compile (or load from the on-disk cache) the search's kernels: 2-D and 3-D, dense and hashed, serial
+    and parallel, bounded and unbounded (:mod:`pcreg.registration.kernels` warms every kernel of pcreg)."""
     rng = np.random.default_rng(0)
     for d in (2, 3):
         pts = rng.uniform(0, 10, (64, d))
@@ -442,19 +442,6 @@ def warm_up() -> None:
             for workers in (1, 2):
                 idx.nearest(pts[:8] + 0.01, 0.5, workers=workers)
                 idx.nearest(pts[:8] + 100.0, workers=workers)
-    from . import reference
-    from .clouds import image_pyramid
-
-    reference.warm_up()
-    img = np.zeros((64, 64, 3), np.uint8)
-    img[16:48, 20:40] = 200
-    image_pyramid(img, levels=2).clouds(max_points=100)
-    # The dense registration's kernels (window search, assembly, conjugate gradients) on a small pair.
-    from ..datasets.synthetic import synthetic
-    from .dense import register_dense
-
-    a, b = synthetic("syn1a", 2, 0, width=160, height=120)
-    register_dense(a.image, b.image)
 
 
 def _bench(n: int = 20000, repeats: int = 7) -> None:  # pragma: no cover - a measurement, not a test
@@ -494,7 +481,7 @@ def main(argv: list[str] | None = None) -> int:  # pragma: no cover - exercised 
 
     p = argparse.ArgumentParser(prog="python -m pcreg.registration.nn",
                                 description="compile the correspondence search (cached on disk), or time it")
-    p.add_argument("--warm", action="store_true", help="compile every kernel now (done once after installation)")
+    p.add_argument("--warm", action="store_true", help="compile the search's kernels now")
     p.add_argument("--bench", action="store_true", help="time queries against scipy's cKDTree")
     args = p.parse_args(argv)
     if not (args.warm or args.bench):

@@ -6,7 +6,7 @@ renders the recording headless, and the PNG is stored palette-quantised (small) 
 Kinds: register, crosscheck (CamVid 0016E5 frames 07959 -> 07969), crosscheck_clouds (the LiDAR scan
 pair, four implementations), sequence (its first 8 frames, k = 1),
 rotation (its first frame rotated by 10-40 degrees), demo (``pcreg demo --frames 8``), compare (the register
-run with each backend, ``pcreg view A.rrd B.rrd``); dense once ``pcreg register --model dense`` records.
+run with each backend, ``pcreg view A.rrd B.rrd``), dense (the sequence run with ``--model dense``).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-KINDS = ("register", "crosscheck", "crosscheck_clouds", "sequence", "rotation", "demo", "compare")
+KINDS = ("register", "crosscheck", "crosscheck_clouds", "sequence", "rotation", "demo", "compare", "dense")
 
 
 def pcreg(*argv: str) -> None:
@@ -64,6 +64,8 @@ def main() -> int:
         "rotation": [["evaluate", "rotation", *camvid, "--frames", "1", "--angles", "10,20,30,40", "--samples", "1",
                       "--out", str(out / "rotation"), "--record", str(out / "rotation.rrd"), "--force"]],
         "demo": [["demo", "--frames", "8", "--out", str(out / "demo"), "--record", str(out / "demo.rrd"), "--force"]],
+        "dense": [["evaluate", "sequence", *camvid, "--frames", "8", "-k", "1", "--model", "dense",
+                   "--out", str(out / "dense"), "--record", str(out / "dense.rrd"), "--force"]],
         "compare": [["register", str(ref), str(mov), "--backend", b, "--record", str(out / f"{b}.rrd"), "--force"]
                     for b in ("reference", "open3d")],
     }

@@ -61,7 +61,7 @@ LABELS = {
 COLORS = {"pcreg_reference": "tab:blue", "pcreg_open3d": "tab:orange", "pcreg_reference_p2l": "tab:purple",
           "orb": "tab:red", "ecc": "tab:green"}
 SUCCESS_PX = 1.0
-FLOORS = {"median_px": 0.1, "p95_px": 0.5, "success": 0.99, "icp_ratio_vs_open3d": 1.0}
+TARGETS = {"median_px": 0.1, "p95_px": 0.5, "success": 0.99, "icp_ratio_vs_open3d": 1.0}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -518,8 +518,8 @@ def _met(ok: bool) -> str:
     return "met" if ok else "NOT met"
 
 
-def _image_floors(img: dict) -> list[list]:
-    floors = []
+def _image_targets(img: dict) -> list[list]:
+    targets = []
     for set_name in ("terrain", "camvid"):
         st = img["sets"].get(set_name)
         if not st:
@@ -529,35 +529,35 @@ def _image_floors(img: dict) -> list[list]:
             if not s:
                 continue
             who = f"{set_name}, {LABELS[meth]}"
-            floors += [
-                [f"{who}: success >= {100 * FLOORS['success']:.0f}%", f"{100 * s['success']:.1f}%",
-                 _met(s["success"] >= FLOORS["success"])],
-                [f"{who}: median error <= {FLOORS['median_px']} px", f"{s['median_px']:.3f} px",
-                 _met(s["median_px"] <= FLOORS["median_px"])],
-                [f"{who}: p95 error <= {FLOORS['p95_px']} px", f"{s['p95_px']:.3f} px",
-                 _met(s["p95_px"] <= FLOORS["p95_px"])],
+            targets += [
+                [f"{who}: success >= {100 * TARGETS['success']:.0f}%", f"{100 * s['success']:.1f}%",
+                 _met(s["success"] >= TARGETS["success"])],
+                [f"{who}: median error <= {TARGETS['median_px']} px", f"{s['median_px']:.3f} px",
+                 _met(s["median_px"] <= TARGETS["median_px"])],
+                [f"{who}: p95 error <= {TARGETS['p95_px']} px", f"{s['p95_px']:.3f} px",
+                 _met(s["p95_px"] <= TARGETS["p95_px"])],
                 [f"{who}: genuine pairs refused = 0", str(s["refused"]), _met(s["refused"] == 0)],
             ]
             if "time_ratio_vs_orb" in s:
-                floors.append([f"{who}: median time / ORB+RANSAC's < 1", f"{s['time_ratio_vs_orb']:.2f}",
+                targets.append([f"{who}: median time / ORB+RANSAC's < 1", f"{s['time_ratio_vs_orb']:.2f}",
                                _met(s["time_ratio_vs_orb"] < 1.0)])
             if "time_ratio_vs_ecc_where_ecc_succeeds" in s:
-                floors.append([f"{who}: median time / ECC's where ECC succeeds < 1 ({s['ecc_success_cases']} cases)",
+                targets.append([f"{who}: median time / ECC's where ECC succeeds < 1 ({s['ecc_success_cases']} cases)",
                                f"{s['time_ratio_vs_ecc_where_ecc_succeeds']:.2f}",
                                _met(s["time_ratio_vs_ecc_where_ecc_succeeds"] < 1.0)])
     imp = img["impossible"]
     for meth, s in imp["summary"].items():
         if s["cases"]:
-            floors.append([f"impossible pairs, {LABELS[meth]}: 100% refused", f"{s['refused']}/{s['cases']}",
+            targets.append([f"impossible pairs, {LABELS[meth]}: 100% refused", f"{s['refused']}/{s['cases']}",
                            _met(s["refused"] == s["cases"])])
-    return floors
+    return targets
 
 
 def render_markdown(report: dict) -> str:
     from pcreg.outputs import markdown_table
 
     m = report["machine"]
-    lines = [f"# Registration benchmark\n",
+    lines = ["# Registration benchmark\n",
              f"Command: `{report['command']}`  \n"
              f"Machine: {m['cpu_model']}, {m['cpu_count']} CPUs (load average at start "
              f"{', '.join(f'{x:.1f}' for x in m['load_average'] or [])}), {m['platform']}; Python {m['python']}, "
@@ -566,7 +566,7 @@ def render_markdown(report: dict) -> str:
              f"Started {report['started']}, took {report['wall_seconds'] / 60:.1f} min. Times are wall clock on a shared "
              "machine; compare the ratios (same cases, same run), not the absolute times.\n"]
     img = report.get("images")
-    floors = []
+    targets = []
     if img:
         for set_name, st in img["sets"].items():
             lines.append(f"## {st['description']}: rigid motion, angle uniform in ±180°, shift within ±10% "
@@ -617,7 +617,7 @@ def render_markdown(report: dict) -> str:
                                          + [f"{s['refused']}/{s['cases']}", f"{1e3 * s['median_seconds']:.0f}"]
                                          for x, s in imp["summary"].items()]))
             lines.append("")
-        floors += _image_floors(img)
+        targets += _image_targets(img)
     else:
         lines.append("Image benchmark skipped.\n")
     sc = report.get("scaling")
@@ -638,10 +638,10 @@ def render_markdown(report: dict) -> str:
                          f"Open3D {k['fit']['open3d']['loglog_slope']:.2f} (N log N over this range: "
                          f"{k['nlogn_loglog_slope']:.2f}).\n")
             ratios = [r["median_ratio"] for r in k["rows"]]
-            floors.append([f"{kind} clouds: reference ICP no slower than Open3D (median ratio <= 1), per size",
-                           ", ".join(f"{x:.2f}" for x in ratios), _met(max(ratios) <= FLOORS["icp_ratio_vs_open3d"])])
-    if floors:
-        lines.insert(1, "## Targets\n\n" + markdown_table(["target", "measured", ""], floors) + "\n")
+            targets.append([f"{kind} clouds: reference ICP no slower than Open3D (median ratio <= 1), per size",
+                           ", ".join(f"{x:.2f}" for x in ratios), _met(max(ratios) <= TARGETS["icp_ratio_vs_open3d"])])
+    if targets:
+        lines.insert(1, "## Targets\n\n" + markdown_table(["target", "measured", ""], targets) + "\n")
     return "\n".join(lines) + "\n"
 
 
@@ -825,7 +825,7 @@ def main(argv: list[str] | None = None) -> int:
                                  "orb_options": "2000 features, full resolution, BFMatcher Hamming crossCheck, "
                                                 "estimateAffinePartial2D RANSAC 3 px",
                                  "ecc_options": "nlevels=4, MOTION_EUCLIDEAN, default criteria, identity start"},
-                    "targets": FLOORS}
+                    "targets": TARGETS}
     try:
         if not args.skip_images:
             report["images"] = run_images(args.data, cases=cases, camvid_cases=camvid, impossible=impossible,

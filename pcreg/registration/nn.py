@@ -46,7 +46,7 @@ POINTS_PER_CELL = 2.0
 #: at most :data:`DENSE_MIN_CELLS`; beyond, a hash of the occupied cells (slower lookups, memory ~ points).
 DENSE_CELLS_PER_POINT = 16
 DENSE_MIN_CELLS = 1 << 18
-_EPS_CELLS = 1e-7  # slack (in cell units) on every geometric lower bound: floor() rounding is never trusted
+_EPS_CELLS = 1e-7  # slack (in cell units) on every geometric lower bound: rounding down is never trusted
 
 
 # ---------------------------------------------------------------------------------------------------

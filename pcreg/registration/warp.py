@@ -51,38 +51,14 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     if abs(np.linalg.det(M)) < 1e-12:
         raise InputError("warp: T_ref_mov is singular")
     h, w = _check_shape(shape if shape is not None else moving.shape[:2])
-    flags = _INTERP[interpolation]
     projective = np.any(M[2, :2] != 0) or M[2, 2] != 1
-    src = moving
-    if moving.dtype == np.bool_:
-        src = moving.astype(np.uint8)
-    elif moving.dtype == np.float16:
-        src = moving.astype(np.float32)
-    channels = 1 if src.ndim == 2 else src.shape[2]
-    border = (fill,) * min(channels, 4) if channels > 1 else fill
 
     def one(img, fl, bval):
         if projective:
             return cv2.warpPerspective(img, M, (w, h), flags=fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
         return cv2.warpAffine(img, M[:2], (w, h), flags=fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
 
-    try:
-        if channels > 4:  # OpenCV warps up to 4 channels at once
-            warped = np.stack([one(np.ascontiguousarray(src[:, :, c]), flags, fill) for c in range(channels)], axis=2)
-        else:
-            warped = one(src, flags, border)
-    except cv2.error as exc:
-        raise InputError(f"warp: OpenCV refused the input ({str(exc).strip().splitlines()[-1][:160]})") from None
-    if src.ndim == 3 and warped.ndim == 2:
-        warped = warped[:, :, None]
-    # Valid: every interpolation weight fell inside the moving image (no blend with ``fill``).
-    ones = np.ones(moving.shape[:2], np.float32)
-    valid = one(ones, cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR, 0) > 0.999
-    if moving.dtype == np.bool_:
-        warped = warped.astype(bool)
-    elif moving.dtype == np.float16:
-        warped = warped.astype(np.float16)
-    return warped, valid
+    return _resample(moving, one, interpolation=interpolation, fill=fill)
 
 
 def _check_shape(shape) -> tuple[int, int]:
@@ -136,24 +112,21 @@ def _check_remap_input(src: np.ndarray, interpolation: str, fill) -> float:
         raise InputError(f"warp: fill must be a finite number, got {fill!r}") from None
 
 
-def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
-    """``out(p) = src(fld(p))`` with cv2.remap, and the mask of pixels whose every interpolation weight
-    fell inside ``src``."""
-    if interpolation not in _INTERP:
-        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
+def _resample(src: np.ndarray, one, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
+    """``src`` resampled by ``one(array, flags, border_value)`` (an OpenCV warp or remap), channel groups of
+    at most 4 at a time, with ``src``'s dtype and channels; and the mask of output pixels whose every
+    interpolation weight fell inside ``src`` (no blend with ``fill``)."""
     flags = _INTERP[interpolation]
+    # OpenCV resamples neither bool nor float16: they go through uint8 and float32.
     img = src.astype(np.uint8) if src.dtype == np.bool_ else src.astype(np.float32) if src.dtype == np.float16 else src
     channels = 1 if img.ndim == 2 else img.shape[2]
-    mx = np.ascontiguousarray(fld[:, :, 0])
-    my = np.ascontiguousarray(fld[:, :, 1])
-
-    def one(a, fl, bval):
-        return cv2.remap(a, mx, my, fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
-
-    if channels > 4:
-        out = np.stack([one(np.ascontiguousarray(img[:, :, c]), flags, fill) for c in range(channels)], axis=2)
-    else:
-        out = one(img, flags, (fill,) * min(channels, 4) if channels > 1 else fill)
+    try:
+        if channels > 4:  # OpenCV warps up to 4 channels at once
+            out = np.stack([one(np.ascontiguousarray(img[:, :, c]), flags, fill) for c in range(channels)], axis=2)
+        else:
+            out = one(img, flags, (fill,) * min(channels, 4) if channels > 1 else fill)
+    except cv2.error as exc:
+        raise InputError(f"warp: OpenCV refused the input ({str(exc).strip().splitlines()[-1][:160]})") from None
     if img.ndim == 3 and out.ndim == 2:
         out = out[:, :, None]
     ones = np.ones(src.shape[:2], np.float32)
@@ -163,6 +136,20 @@ def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float)
     elif src.dtype == np.float16:
         out = out.astype(np.float16)
     return out, valid
+
+
+def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
+    """``out(p) = src(fld(p))`` with cv2.remap, and the mask of pixels whose every interpolation weight
+    fell inside ``src``."""
+    if interpolation not in _INTERP:
+        raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
+    mx = np.ascontiguousarray(fld[:, :, 0])
+    my = np.ascontiguousarray(fld[:, :, 1])
+
+    def one(a, fl, bval):
+        return cv2.remap(a, mx, my, fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
+
+    return _resample(src, one, interpolation=interpolation, fill=fill)
 
 
 def warp_to_moving(reference: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,

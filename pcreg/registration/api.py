@@ -296,9 +296,7 @@ class _KeptPyramid:
     first access with ``_LazyPyramid``'s sizes and seeds."""
 
     def __init__(self, pyramid: ImagePyramid, *, levels: int, max_points, seed: int):
-        if not isinstance(max_points, (tuple, list)):
-            max_points = (max_points,) * levels
-        self._max_points = tuple(max_points) + (max_points[-1],) * max(0, levels - len(max_points))
+        self._max_points = per_level(max_points, levels)
         self._pyramid, self._levels, self._seed = pyramid, levels, seed
         self._clouds: dict[int, ImageCloud] = {}
         self.valid = pyramid.valid if pyramid.valid is not None else np.ones(pyramid.shape, bool)

@@ -375,9 +375,7 @@ class ImagePyramid:
         n = len(self.detections) if levels is None else int(levels)
         if not 1 <= n <= len(self.detections):
             raise InputError(f"the pyramid has {len(self.detections)} levels, {n} asked for")
-        if not isinstance(max_points, (tuple, list)):
-            max_points = (max_points,) * n
-        max_points = tuple(max_points) + (max_points[-1],) * max(0, n - len(max_points))
+        max_points = per_level(max_points, n)
         return [self.cloud(level, max_points=max_points[level], seed=seed) for level in range(n)]
 
     def cloud(self, level: int, *, max_points: int | None = None, seed: int = 0) -> ImageCloud:

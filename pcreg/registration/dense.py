@@ -198,10 +198,33 @@ def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarr
 # the compiled windowed nearest-neighbour search
 # ---------------------------------------------------------------------------------------------------
 
+def _best_in_window_py(img, x, y, col, radius, lam2):
+    """The pixel of ``img`` (H, W, C) within ``radius`` (per axis) of the pixel nearest (x, y) with the least
+    ``|q - (x, y)|^2 + lam2 |img[q] - col|^2``: ``(qx, qy, cx, cy)``, (cx, cy) the window's centre;
+    qx = qy = -1 when the window holds no pixel of the image (ties: the first in row order)."""
+    h, w, nc = img.shape
+    cx = int(np.floor(x + 0.5))
+    cy = int(np.floor(y + 0.5))
+    x0, x1 = max(cx - radius, 0), min(cx + radius, w - 1)
+    y0, y1 = max(cy - radius, 0), min(cy + radius, h - 1)
+    best, bx, by = np.inf, -1, -1
+    for qy in range(y0, y1 + 1):
+        dy2 = (qy - y) * (qy - y)
+        for qx in range(x0, x1 + 1):
+            c = (qx - x) * (qx - x) + dy2
+            s = 0.0
+            for k in range(nc):
+                d = img[qy, qx, k] - col[k]
+                s += d * d
+            c += lam2 * s
+            if c < best:
+                best, bx, by = c, qx, qy
+    return bx, by, cx, cy
+
+
 def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
     """Pure-Python body of :func:`match_window` (compiled with numba when it is installed)."""
     h, w, nc = ref.shape
-    hm, wm = mov.shape[0], mov.shape[1]
     n = x.shape[0]
     for i in prange(n):
         out[i, 0] = np.nan
@@ -211,24 +234,9 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
         xi, yi = x[i], y[i]
         if not (xi > -radius and yi > -radius and xi < w - 1 + radius and yi < h - 1 + radius):
             continue
-        cx = int(np.floor(xi + 0.5))
-        cy = int(np.floor(yi + 0.5))
-        x0, x1 = max(cx - radius, 0), min(cx + radius, w - 1)
-        y0, y1 = max(cy - radius, 0), min(cy + radius, h - 1)
-        if x0 > x1 or y0 > y1:
+        bx, by, cx, cy = _best_in_window(ref, xi, yi, cols[i], radius, lam2)
+        if bx < 0:
             continue
-        best, bx, by = np.inf, -1, -1
-        for qy in range(y0, y1 + 1):
-            dy2 = (qy - yi) * (qy - yi)
-            for qx in range(x0, x1 + 1):
-                c = (qx - xi) * (qx - xi) + dy2
-                s = 0.0
-                for k in range(nc):
-                    d = ref[qy, qx, k] - cols[i, k]
-                    s += d * d
-                c += lam2 * s
-                if c < best:
-                    best, bx, by = c, qx, qy
         # the best candidate on the gate's rim (not the image's): its partner may lie outside the gate
         rim = ((bx == cx - radius and bx > 0) or (bx == cx + radius and bx < w - 1)
                or (by == cy - radius and by > 0) or (by == cy + radius and by < h - 1))
@@ -270,22 +278,7 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
         # point's own displacement says it came from, must be the point (within a pixel)
         ex = px[i] + (bx - xi)
         ey = py[i] + (by - yi)
-        ecx = int(np.floor(ex + 0.5))
-        ecy = int(np.floor(ey + 0.5))
-        mx0, mx1 = max(ecx - radius, 0), min(ecx + radius, wm - 1)
-        my0, my1 = max(ecy - radius, 0), min(ecy + radius, hm - 1)
-        best2, b2x, b2y = np.inf, -1, -1
-        for qy in range(my0, my1 + 1):
-            dy2 = (qy - ey) * (qy - ey)
-            for qx in range(mx0, mx1 + 1):
-                c = (qx - ex) * (qx - ex) + dy2
-                s = 0.0
-                for k in range(nc):
-                    d = mov[qy, qx, k] - ref[by, bx, k]
-                    s += d * d
-                c += lam2 * s
-                if c < best2:
-                    best2, b2x, b2y = c, qx, qy
+        b2x, b2y, _, _ = _best_in_window(mov, ex, ey, ref[by, bx], radius, lam2)
         if b2x >= 0 and abs(b2x - px[i]) <= 1.0 and abs(b2y - py[i]) <= 1.0:
             out[i, 3] = 1.0
     return out
@@ -294,8 +287,10 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
 try:  # the compiled search; the pure-Python body is the same code and the fallback
     from numba import njit
 
+    _best_in_window = njit(cache=True, nogil=True)(_best_in_window_py)
     _match_window_jit = njit(cache=True, nogil=True)(_match_window_py)
 except ImportError:  # pragma: no cover - numba is a declared dependency
+    _best_in_window = _best_in_window_py
     _match_window_jit = None
 
 

@@ -42,21 +42,18 @@ from ..outputs import atomic_write_bytes, atomic_write_text, to_json
 from ..validation import read_text_matrix
 from ..errors import InputError
 from ..registration.transforms import apply, rigid2d
+from .base import Pinned
 
 FORMAT = "pcreg-crosscheck-suite/1"
 
 
 @dataclass(frozen=True)
-class Case:
-    name: str
-    description: str
-    source: np.ndarray
-    target: np.ndarray
-    init: np.ndarray
-    max_correspondence_distance: float
-    max_iterations: int = 30
-    relative_fitness: float = 1e-6
-    relative_rmse: float = 1e-6
+class Case(Pinned):
+    """A pinned cross-check input (:class:`~pcreg.implementations.base.Pinned`) with its name, a
+    description and, where known, the true ``T_target_source``."""
+
+    name: str = ""
+    description: str = ""
     truth: np.ndarray | None = None
 
 
@@ -75,7 +72,7 @@ def _synthetic(name: str, description: str, target: np.ndarray, truth: np.ndarra
     """Source = truth^-1 applied to the target (or the given source): the exact answer is ``truth``."""
     src = apply(np.linalg.inv(truth), target) if source is None else source
     d = target.shape[1]
-    return Case(name, description, src, target, np.eye(d + 1), gate, truth=truth)
+    return Case(src, target, np.eye(d + 1), gate, name=name, description=description, truth=truth)
 
 
 def _edge_images(seed: int = 3):
@@ -128,8 +125,9 @@ def builtin_cases(*, scans: str | os.PathLike | None = None, seed: int = 0) -> t
     box3 = rng.uniform(-10, 10, (800, 3))
     cases.append(_synthetic("2d-random", "2-D uniform random points, exact", box2, T2, gate=2.0))
     src, tgt, Te = edge_cloud_pair()
-    cases.append(Case("2d-edges", "2-D sub-pixel Canny edge clouds of an image and of its rigidly warped copy "
-                      "(different samples of the same edges; truth = the warp)", src, tgt, np.eye(3), 5.0, truth=Te))
+    cases.append(Case(src, tgt, np.eye(3), 5.0, name="2d-edges", truth=Te,
+                      description="2-D sub-pixel Canny edge clouds of an image and of its rigidly warped copy "
+                                  "(different samples of the same edges; truth = the warp)"))
     line = np.column_stack([np.linspace(-10, 10, 300), np.zeros(300)]) @ rigid2d(30)[:2, :2].T
     cases.append(_synthetic("2d-collinear", "2-D points on one segment: the slide along it is fixed only by the "
                             "ends", line, rigid2d(2.0, 0.2, 0.1), gate=2.0))
@@ -169,8 +167,9 @@ def builtin_cases(*, scans: str | os.PathLike | None = None, seed: int = 0) -> t
 
         s = voxel_downsample(load_cloud(scans_dir / "source.ply"), 0.5)
         t = voxel_downsample(load_cloud(scans_dir / "target.ply"), 0.5)
-        cases.append(Case("lidar", "real LiDAR pair (small_gicp's test data), voxel 0.5 m, gate 1 m, from identity; "
-                          "truth = T_target_source.txt", s, t, np.eye(4), 1.0,
+        cases.append(Case(s, t, np.eye(4), 1.0, name="lidar",
+                          description="real LiDAR pair (small_gicp's test data), voxel 0.5 m, gate 1 m, from "
+                                      "identity; truth = T_target_source.txt",
                           truth=read_text_matrix(scans_dir / "T_target_source.txt", what="ground truth")))
     else:
         skipped["lidar"] = f"the LiDAR pair is not at {scans_dir}/{{source,target}}.ply + T_target_source.txt"
@@ -200,7 +199,7 @@ def _params(case: Case) -> dict:
 
 def export_suite(out: str | os.PathLike, cases: Sequence[Case], *, progress: bool = False) -> Path:
     """Write every case and the reference ICP's per-iteration trace (format in the module docstring)."""
-    from . import Pinned, get
+    from . import get
 
     out = Path(out)
     ref = get("reference")
@@ -221,10 +220,8 @@ def export_suite(out: str | os.PathLike, cases: Sequence[Case], *, progress: boo
             atomic_write_text(d / "truth.txt", _txt(c.truth))
         meta = {"name": c.name, "description": c.description, "dimension": int(c.source.shape[1]),
                 "source_points": len(c.source), "target_points": len(c.target), "truth": c.truth is not None}
-        pinned = Pinned(c.source, c.target, c.init, c.max_correspondence_distance, c.max_iterations,
-                        c.relative_fitness, c.relative_rmse)
         try:
-            r = ref.run(pinned, trace=True)
+            r = ref.run(c, trace=True)  # a case is a pinned input
         except Exception as exc:  # noqa: BLE001 - a refused case is exported with the refusal
             meta["reference_error"] = " ".join(str(exc).split())
             atomic_write_text(d / "case.json", to_json(meta) + "\n")
@@ -268,10 +265,10 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
                     if (d / "case.json").exists() else {})
             init = read_text_matrix(d / "init.txt", what="initial guess")
             truth = read_text_matrix(d / "truth.txt", what="ground truth") if (d / "truth.txt").exists() else None
-            case = Case(str(name), str(info.get("description", "")), load_cloud(d / "source.npy"),
-                        load_cloud(d / "target.npy"), init, float(params["max_correspondence_distance"]),
-                        int(params.get("max_iterations", 30)), float(params.get("relative_fitness", 1e-6)),
-                        float(params.get("relative_rmse", 1e-6)), truth)
+            case = Case(load_cloud(d / "source.npy"), load_cloud(d / "target.npy"), init,
+                        float(params["max_correspondence_distance"]), int(params.get("max_iterations", 30)),
+                        float(params.get("relative_fitness", 1e-6)), float(params.get("relative_rmse", 1e-6)),
+                        name=str(name), description=str(info.get("description", "")), truth=truth)
         except InputError:
             raise
         except (OSError, ValueError, KeyError, TypeError, AttributeError, OverflowError) as exc:

@@ -367,3 +367,20 @@ def test_point_to_line_finish_is_explicit_and_tighter():
     p2l = pcreg.register(REF, mov, refine="point_to_line")
     assert tf.max_corner_error(p2l.matrix, T, REF.shape) < 0.2
     assert not np.allclose(plain.matrix, p2l.matrix)
+
+
+def test_register_config_mirrors_the_keyword_arguments_of_register():
+    """Every RegisterConfig field is a keyword argument of register with the same default, and every
+    option of register that is not data (images, masks, pyramids, a callback) is a field."""
+    import inspect
+
+    from pcreg.registration.config import RegisterConfig
+
+    params = inspect.signature(pcreg.register).parameters
+    fields = RegisterConfig().kwargs()
+    data = {"reference_image", "moving_image", "reference_mask", "moving_mask", "callback", "reference_pyramid",
+            "moving_pyramid"}
+    assert set(params) - data == set(fields)
+    for name, value in fields.items():
+        default = params[name].default
+        assert (tuple(default) if isinstance(default, list) else default) == value, name

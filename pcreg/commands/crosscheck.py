@@ -208,15 +208,15 @@ def format_table(out: dict) -> str:
 
 
 def _images(args) -> int:
-    from ..implementations.crosscheck import CrosscheckConfig, crosscheck
+    from ..implementations.crosscheck import CROSSCHECK_REGISTRATION, CrosscheckConfig, crosscheck
 
     if args.implementations:
         from ..errors import InputError
 
         raise InputError("--with applies to point clouds; images are cross-checked with both register backends")
-    config = CrosscheckConfig(model=args.model, iterations=args.iterations, levels=args.levels,
-                              voxel_sizes=args.voxel_sizes,
-                              max_correspondence_distance=args.max_distance if args.max_distance else 2.5)
+    config = CrosscheckConfig(registration=CROSSCHECK_REGISTRATION.replace(
+        model=args.model, iterations=args.iterations, levels=args.levels,
+        max_correspondence_distance=args.max_distance if args.max_distance else 2.5))
     with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
         if rec is not None:
             rec.set_frame(0)

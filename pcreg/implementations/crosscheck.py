@@ -18,7 +18,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..registration.clouds import as_rgb_uint8, load_image
-from ..registration.api import check_cloud, icp, register
+from ..registration.api import check_cloud, register
+from ..registration.config import RegisterConfig
 from ..registration.result import IcpIteration, RegistrationResult
 from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
 
@@ -26,20 +27,21 @@ CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
 
 
+#: The registration both backends run in a cross-check of two images: 30 ICP iterations a level and
+#: Open3D's default stopping thresholds (1e-6), more moving points than ``register``'s default, no
+#: point-to-line finish (only the reference backend has it) and no plausibility test (a cross-check
+#: reports, it does not refuse).
+CROSSCHECK_REGISTRATION = RegisterConfig(iterations=30, relative_fitness=1e-6, relative_rmse=1e-6,
+                                         max_points=(3000, 1500, 800, 400), refine="none", min_inlier_ratio=None)
+
+
 @dataclass(frozen=True)
 class CrosscheckConfig:
-    """Settings shared by both backends."""
+    """Settings of a cross-check: the registration of images (:data:`CROSSCHECK_REGISTRATION`; its
+    backend is set per run), whose iteration limit and stopping thresholds are also the defaults of a
+    cloud cross-check."""
 
-    model: str = "rigid"
-    levels: int = 4
-    iterations: int = 30
-    relative_fitness: float = 1e-6
-    relative_rmse: float = 1e-6
-    max_correspondence_distance: float = 2.5  # px at level 0 for images (x 2^level); cloud units otherwise
-    max_points: tuple[int, ...] = (3000, 1500, 800, 400)
-    voxel_sizes: tuple[float, ...] | None = None  # clouds: None = derived from the source's point spacing
-    init: str = "auto"
-    seed: int = 0
+    registration: RegisterConfig = CROSSCHECK_REGISTRATION
 
 
 @dataclass(frozen=True)
@@ -144,38 +146,6 @@ def _relative(A: np.ndarray, B: np.ndarray) -> float:
     return float(np.max(np.abs(A - B)) / max(1.0, float(np.max(np.abs(A)))))
 
 
-def default_voxel_sizes(points: np.ndarray) -> tuple[float, ...]:
-    """A coarse-to-fine voxel schedule from the cloud's bounding-box diagonal D: (D/75, D/150, D/300).
-
-    With correspondence distances of twice the voxel size, the coarsest level reaches misalignments of
-    a scan pair taken a step apart (misaligned by ~1% of the scene); the finest refines on a dense cloud.
-    """
-    diag = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
-    if not diag > 0:
-        raise InputError("cannot derive a voxel size: the cloud's points coincide")
-    return (diag / 75, diag / 150, diag / 300)
-
-
-def crosscheck_clouds(source: np.ndarray, target: np.ndarray, *, config: CrosscheckConfig = CrosscheckConfig(),
-                      init: np.ndarray | None = None,
-                      callback: Callable[[IcpIteration], None] | None = None) -> CrosscheckReport:
-    """Both backends on two clouds with the same voxel schedule and initial guess (identity by default)."""
-    src = check_cloud(source, "source")
-    tgt = check_cloud(target, "target")
-    voxels = config.voxel_sizes or default_voxel_sizes(src)
-    kw = dict(model=config.model, init=init, voxel_sizes=voxels, max_iteration=config.iterations,
-              relative_fitness=config.relative_fitness, relative_rmse=config.relative_rmse, count_iterations=True)
-    a = icp(src, tgt, backend="reference", callback=callback, **kw)
-    b = icp(src, tgt, backend="open3d", callback=callback, **kw)
-    d = src.shape[1]
-    return CrosscheckReport(
-        kind="clouds", reference=a, open3d=b, config=config,
-        rotation_disagreement_deg=rotation_disagreement_deg(a.matrix, b.matrix),
-        translation_disagreement=float(np.linalg.norm(a.matrix[:d, d] - b.matrix[:d, d])),
-        matrix_relative_disagreement=_relative(a.matrix, b.matrix),
-        extra={"voxel_sizes": list(voxels), "source_points": len(src), "target_points": len(tgt)})
-
-
 def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
                       config: CrosscheckConfig = CrosscheckConfig(),
                       callback: Callable[[IcpIteration], None] | None = None) -> CrosscheckReport:
@@ -188,15 +158,11 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
     """
     ref = as_rgb_uint8(reference_image, name="reference image")
     mov = as_rgb_uint8(moving_image, name="moving image")
-    init = config.init if config.init in ("auto", "global", "identity", "center") else "auto"
-    kw = dict(model=config.model, levels=config.levels, iterations=config.iterations, init=init,
-              max_points=config.max_points, max_correspondence_distance=config.max_correspondence_distance,
-              relative_fitness=config.relative_fitness, relative_rmse=config.relative_rmse, seed=config.seed,
-              refine="none", min_inlier_ratio=None)
     results = {}
     for backend in ("reference", "open3d"):
         # A callback makes both backends report every iteration (Open3D then runs stepwise: exact counts).
-        results[backend] = register(ref, mov, backend=backend, callback=callback or (lambda it: None), **kw)
+        results[backend] = register(ref, mov, **config.registration.replace(backend=backend).kwargs(),
+                                    callback=callback or (lambda it: None))
     a, b = results["reference"], results["open3d"]
     c = corners(mov.shape)
     return CrosscheckReport(
@@ -216,7 +182,7 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
 
     Images: both backends through the image pipeline, a :class:`CrosscheckReport`. Clouds: every name in
     ``implementations`` (default reference and open3d) through :func:`crosscheck_implementations` with
-    ``cloud_options`` (its keyword arguments; ``max_iterations`` defaults to ``config.iterations``), a
+    ``cloud_options`` (its keyword arguments; ``max_iterations`` defaults to the registration's iterations), a
     :class:`CloudCrosscheck`.
 
     Image arrays are (H, W, 3)/(H, W); cloud arrays (N, 2|3). Paths are read by suffix: images through
@@ -240,9 +206,9 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
     if ka != kb:
         raise InputError(f"cannot cross-check {ka[:-1]} against {kb[:-1]}: give two images or two clouds")
     if ka == "clouds":
-        cloud_options.setdefault("max_iterations", config.iterations)
-        cloud_options.setdefault("relative_fitness", config.relative_fitness)
-        cloud_options.setdefault("relative_rmse", config.relative_rmse)
+        cloud_options.setdefault("max_iterations", config.registration.iterations)
+        cloud_options.setdefault("relative_fitness", config.registration.relative_fitness)
+        cloud_options.setdefault("relative_rmse", config.registration.relative_rmse)
         return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
                                           **cloud_options)
     return crosscheck_images(A, B, config=config, callback=callback)

@@ -209,13 +209,6 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
 # Images
 # ---------------------------------------------------------------------------------------------------
 
-def _pyramid_images(img: np.ndarray, levels: int) -> list[np.ndarray]:
-    out = [img]
-    for _ in range(levels - 1):
-        out.append(cv2.pyrDown(out[-1]))
-    return out
-
-
 DEFAULT_MIN_INLIER_RATIO = 0.15
 """Default plausibility threshold of :func:`register`: the share of tight (<= 1 px), direction-consistent
 inliers an alignment must reach.
@@ -685,8 +678,3 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                                     "hypotheses": [{"generator": t[1], "inlier_ratio": t[0], "photometric_ncc": t[5]}
                                                    for t in tried],
                                     "mirror_inlier_ratio": mirror_ratio})
-
-
-def _global_search(ref: ImageCloud, mov: ImageCloud, *, angles: np.ndarray, sigma: float = 1.0):
-    """Kept for callers of the earlier name: :func:`pcreg.registration.global_search.edge_fft_hypotheses`."""
-    return edge_fft_hypotheses(ref, mov, angles=angles, sigma=sigma)

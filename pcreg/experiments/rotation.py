@@ -69,8 +69,6 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
     """
     import math
 
-    import numpy as np
-
     from ..registration.warp import warp
     from ..registration.transforms import about_point, image_center, rigid2d
 

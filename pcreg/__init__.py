@@ -47,7 +47,7 @@ _EXPORTS = {
     "PipelineConfig": "pcreg.pipeline",
     "process_pair": "pcreg.pipeline",
     "run_sequence": "pcreg.pipeline",
-    "Propagator": "pcreg.propagator",
+    "Propagator": "pcreg.pipeline.stream",
     "FusionConfig": "pcreg.classification.fusion",
     # errors
     "PcregError": "pcreg.errors",

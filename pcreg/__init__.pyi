@@ -39,7 +39,7 @@ from pcreg.pipeline import (
     process_pair as process_pair,
     run_sequence as run_sequence,
 )
-from pcreg.propagator import (
+from pcreg.pipeline.stream import (
     Propagator as Propagator,
 )
 from pcreg.registration.api import (

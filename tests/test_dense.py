@@ -185,7 +185,8 @@ def test_dense_pipeline_on_a_short_sequence(frames):
 
 
 def test_process_pair_keeps_the_field_for_recordings(frames):
-    from pcreg.pipeline import PIPELINE_REGISTRATION, PipelineConfig, fit_classifier, process_pair
+    from pcreg.classification.bayes import fit_classifier
+    from pcreg.pipeline import PIPELINE_REGISTRATION, PipelineConfig, process_pair
 
     clf = fit_classifier([frames[0]])
     cfg = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(model="dense"))
@@ -216,7 +217,9 @@ def test_temporal_chain_never_worse_than_plain_through_failed_and_poor_registrat
                                                           converged=True, backend="reference"), None, 0.0)
         return real(reference_image, moving_image, config=config, callback=callback)
 
-    monkeypatch.setattr(pl, "register_pair", flaky)
+    import pcreg.pipeline.sequence
+
+    monkeypatch.setattr(pcreg.pipeline.sequence, "register_pair", flaky)
     cfg = pl.PipelineConfig(fusion=FusionConfig(weight=12.0))
     res = pl.run_sequence(frames, k=1, config=cfg, fusion_frames=2)
     assert any(not p.registered for p in res.pairs)

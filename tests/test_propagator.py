@@ -51,7 +51,7 @@ def test_propagator_streams_labels_better_than_naive_bayes(frames):
         last = prop.last
         assert last.registered and not last.fallback and last.reason is None
         assert last.reference == last.frame - 1
-        assert set(last.times) == set(pcreg.propagator.STEP_STAGES) and last.times["total"] > 0
+        assert set(last.times) == set(pcreg.pipeline.stream.STEP_STAGES) and last.times["total"] > 0
         fused_err.append(pcreg.error_rate(labels, f.labels))
         plain_err.append(pcreg.error_rate(clf.predict(f.image), f.labels))
     assert np.mean(fused_err) < np.mean(plain_err)

@@ -35,6 +35,7 @@ __all__ = [
     "prior_from_labels",
     "prior_from_log_odds",
     "smooth_prior",
+    "label_prior",
     "warp_prior",
     "prior_log_odds",
     "fuse",
@@ -110,6 +111,12 @@ def smooth_prior(q: np.ndarray, *, pi: float, eps: float = 0.05, sigma: float = 
     if s > 0:
         q = cv2.GaussianBlur(q, (0, 0), s, borderType=cv2.BORDER_REPLICATE)
     return cv2.addWeighted(q, 1.0 - float(eps), q, 0.0, float(eps) * _check_pi(pi))
+
+
+def label_prior(labels: np.ndarray, *, pi: float, fusion: FusionConfig = FusionConfig()) -> np.ndarray:
+    """The smoothed prior (H, W) float32 of a label map: :func:`prior_from_labels` blurred and mixed with
+    the class prior by :func:`smooth_prior` with ``fusion``'s ``eps`` and ``sigma``."""
+    return smooth_prior(prior_from_labels(labels, pi=pi), pi=pi, eps=fusion.eps, sigma=fusion.sigma)
 
 
 def warp_prior(q: np.ndarray, T_ref_mov, *, shape: tuple[int, int], pi: float

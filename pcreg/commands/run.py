@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from .._runner import progress
     from ..errors import InputError, OutputError
     from ..outputs import atomic_write_json
-    from ..propagator import Propagator
+    from ..pipeline.stream import Propagator
     from ..registration.clouds import load_image
 
     folder, out = Path(args.folder), Path(args.out)

@@ -25,10 +25,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .classification.fusion import FusionConfig, labels_from_log_odds
-from .errors import InputError, RegistrationError
-from .registration.config import RegisterConfig
-from .registration.result import RegistrationResult
+from ..classification.fusion import FusionConfig, labels_from_log_odds
+from ..errors import InputError, RegistrationError
+from ..registration.config import RegisterConfig
+from ..registration.result import RegistrationResult
 
 __all__ = ["Propagator", "StepReport", "STEP_STAGES"]
 
@@ -110,8 +110,8 @@ class Propagator:
     def from_key_frame(cls, image: np.ndarray, labels: np.ndarray, *, features=("rgb", "hsv", "row"),
                        **options) -> "Propagator":
         """A propagator whose classifier is fitted on the key frame (unknown pixels left out), reset to it."""
-        from .classification.bayes import fit_classifier
-        from .datasets import Frame
+        from ..classification.bayes import fit_classifier
+        from ..datasets import Frame
 
         img, lab = _check_image(image), _check_labels(labels, None)
         clf = fit_classifier([Frame(img, lab, "key")], features=features)
@@ -121,7 +121,7 @@ class Propagator:
 
     # -------------------------------------------------------------------------------------------
     def _pyramid(self, image: np.ndarray):
-        from .registration.clouds import image_pyramid
+        from ..registration.clouds import image_pyramid
 
         c = self.config
         return image_pyramid(image, levels=c.levels, mask="auto", sampler=c.sampler,
@@ -141,8 +141,9 @@ class Propagator:
 
     def step(self, image: np.ndarray) -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame; see :attr:`last` for what happened."""
-        from .pipeline import log_odds, temporal_update
-        from .registration.api import register
+        from .pair import log_odds
+        from .temporal import temporal_update
+        from ..registration.api import register
 
         if self._ref_image is None:
             raise InputError("Propagator.step before reset: give the key frame and its labels first")
@@ -195,7 +196,7 @@ class Propagator:
 
 
 def _check_image(image) -> np.ndarray:
-    from .registration.clouds import as_rgb_uint8
+    from ..registration.clouds import as_rgb_uint8
 
     return as_rgb_uint8(image, name="frame")
 

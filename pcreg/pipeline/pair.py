@@ -1,0 +1,358 @@
+"""Registration-augmented classification of one pair of frames.
+
+Per pair (a labelled *reference* frame i and a *moving* frame i + k)::
+
+    register (clouds + ICP)  ->  T_ref_mov (3, 3)
+    warp      moving image onto the reference grid (the thesis's "after")
+    classify  naive Bayes log-odds of the moving frame (and of the warped image)
+    fuse      reference labels -> smoothed prior -> warped into the moving frame -> + w * prior
+    score     every method against ground truth, unknown left out
+
+The methods (keys of :data:`METHODS`), each an error rate in percent:
+
+- ``plain``: naive Bayes on the moving frame, scored against the moving frame's labels.
+- ``thesis_before``: the same prediction scored against the *reference* frame's labels (the thesis's
+  "before registration").
+- ``thesis_after``: naive Bayes on the moving image warped into the reference frame, black border
+  included, against the reference labels (the thesis's "after").
+- ``thesis_after_masked``: as ``thesis_after``, but pixels outside the valid mask are classified from
+  the unwarped moving frame (every pixel scored).
+- ``thesis_after_cropped``: as ``thesis_after``, scored on the valid mask only (the border left out).
+- ``augmented``: naive Bayes on the moving frame fused with the reference labels warped into it as a
+  prior (:mod:`pcreg.classification.fusion`), against the moving labels.
+- ``augmented_unregistered``: the same fusion with the prior not warped (identity): the ablation that
+  shows what registration adds.
+- ``augmented_flow``: the same fusion with the prior warped by OpenCV's DIS optical flow (medium
+  preset, :mod:`pcreg.registration.flow`), its weight chosen the same way: the baseline a user would
+  otherwise pick.
+- ``augmented_temporal``: recursive fusion along the sequence: the fused posterior of frame t - k,
+  warped, is the prior of frame t; labels are used only at the start of each chain (frames 0..k-1).
+- ``propagated``: the warped reference labels alone where they are known, naive Bayes elsewhere
+  (label propagation without the classifier; for reference).
+
+A registration that fails (no edges, no overlap) is recorded with its reason; that pair then does
+what a running system would do without a transform: ``thesis_after*`` use the unwarped frame and the
+fused methods get no prior (they equal ``plain``), so every method is still scored on every pair.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..errors import InputError, RegistrationError
+from ..registration.config import RegisterConfig
+from ..registration.result import RegistrationResult
+from ..classification.fusion import (FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds,
+                                     warp_prior)
+
+__all__ = ["METHODS", "STAGES", "PIPELINE_REGISTRATION", "DENSE_GLOBAL_MODEL", "PipelineConfig", "log_odds",
+           "PairRegistration", "motion_of", "register_pair", "flow_field", "PairResult", "PairArrays",
+           "ProcessedPair", "process_pair"]
+
+
+METHODS: tuple[str, ...] = (
+    "plain", "thesis_before", "thesis_after", "thesis_after_masked", "thesis_after_cropped",
+    "augmented", "augmented_unregistered", "augmented_temporal", "propagated", "augmented_flow",
+)
+STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse", "flow")
+
+#: The registration a pipeline runs unless told otherwise: a similarity (rotation, shift and the zoom of
+#: forward motion; a rigid model leaves the zoom as a residual of several pixels at k = 10) from the
+#: identity (pairs of a sequence are close; the global search sometimes locks onto a half-turn when
+#: frames are far apart). Its plausibility test is off (``min_inlier_ratio=None``): the frames of one
+#: sequence are related by construction, and a camera moving through a 3-D scene fails a global
+#: model's 1 px inlier test by design (on CamVid clips sampled at 1 frame/s it refuses most pairs)
+#: although the transform still carries labels usefully; the fusion weight, chosen on the first frames,
+#: sets how much it is trusted, and every pair records its evidence (``inlier_ratio``). A
+#: :class:`pcreg.Propagator` keeps the test on and falls back to plain naive Bayes on a refusal.
+PIPELINE_REGISTRATION = RegisterConfig(model="similarity", init="identity", min_inlier_ratio=None)
+#: The global step of ``model="dense"``.
+DENSE_GLOBAL_MODEL = "similarity"
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Options of the per-pair pipeline (written to config.json by the evaluations).
+
+    registration : :class:`~pcreg.registration.config.RegisterConfig` (:data:`PIPELINE_REGISTRATION`);
+        its ``model="dense"`` runs :func:`pcreg.register_dense`: the global step with
+        :data:`DENSE_GLOBAL_MODEL` (the rest of the config as given, its plausibility test off: a
+        street scene seen from a moving car fails a global model's test by design), refined by a
+        dense field.
+    features : naive Bayes features (:mod:`pcreg.classification.features`).
+    fusion : :class:`pcreg.classification.fusion.FusionConfig`.
+    """
+
+    registration: RegisterConfig = PIPELINE_REGISTRATION
+    features: tuple[str, ...] = ("rgb", "hsv", "row")
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.registration, RegisterConfig):
+            raise InputError("registration must be a RegisterConfig")
+
+    @property
+    def backend(self) -> str:
+        return self.registration.backend
+
+
+# ---------------------------------------------------------------------------------------------------
+# classifier log-odds
+# ---------------------------------------------------------------------------------------------------
+
+def log_odds(classifier, image: np.ndarray) -> np.ndarray:
+    """Naive Bayes log-odds ``log p(obstacle | x) - log p(ground | x)`` per pixel, (H, W) float32.
+
+    classifier : a fitted ground/obstacle model with a ``decision_function`` (as
+    :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier`); ``> 0`` gives ``predict``.
+    """
+    classes = list(np.asarray(getattr(classifier, "classes_", [])).tolist())
+    if classes != [0, 1]:
+        raise InputError(f"fusion needs a ground/obstacle classifier (classes [0, 1]), got {classes}")
+    return np.asarray(classifier.decision_function(image), dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------------------
+# one pair
+# ---------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PairRegistration:
+    """What :func:`register_pair` found: ``result`` (None when the registration was refused, with the
+    one-line ``reason``) and the wall time in seconds."""
+
+    result: RegistrationResult | None
+    reason: str | None
+    seconds: float
+
+    @property
+    def matrix(self) -> np.ndarray | None:
+        """``T_ref_mov`` (3, 3), or None when refused."""
+        return None if self.result is None else self.result.matrix
+
+    @property
+    def motion(self) -> np.ndarray | None:
+        """What warps the pair: a dense result's field (H, W, 2), else ``matrix``."""
+        return motion_of(self.result)
+
+
+def motion_of(res) -> np.ndarray | None:
+    """The dense field of a dense result, else the 3x3 matrix (None: no result)."""
+    if res is None:
+        return None
+    fld = getattr(res, "field", None)
+    return np.asarray(fld) if fld is not None else np.asarray(res.matrix)
+
+
+def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, config: PipelineConfig = PipelineConfig(),
+                  callback: Callable | None = None) -> PairRegistration:
+    """:func:`pcreg.register` with the configured options; a :class:`~pcreg.errors.RegistrationError`
+    (or a degenerate transform) becomes a :class:`PairRegistration` with ``result=None`` and its reason."""
+    from ..registration.api import register
+
+    t0 = time.perf_counter()
+    try:
+        if config.registration.model == "dense":
+            from ..registration.dense import register_dense
+
+            # the global step is the dense step's start, not its answer: a 3-D scene fails a global
+            # model's plausibility test by design, so the test is the dense step's own (on its field)
+            start = config.registration.replace(model=DENSE_GLOBAL_MODEL, min_inlier_ratio=None)
+            glob = register(reference_image, moving_image, **start.kwargs(), callback=callback)
+            res = register_dense(reference_image, moving_image, global_result=glob,
+                                 backend=config.registration.backend, seed=config.registration.seed)
+        else:
+            res = register(reference_image, moving_image, **config.registration.kwargs(), callback=callback)
+    except RegistrationError as exc:
+        return PairRegistration(None, str(exc), time.perf_counter() - t0)
+    if not np.all(np.isfinite(res.matrix)) or abs(np.linalg.det(res.matrix[:2, :2])) < 1e-6:
+        return PairRegistration(None, "registration returned a degenerate transform", time.perf_counter() - t0)
+    return PairRegistration(res, None, time.perf_counter() - t0)
+
+
+def flow_field(reference_image: np.ndarray, moving_image: np.ndarray) -> np.ndarray:
+    """The ``augmented_flow`` baseline's field: OpenCV DIS optical flow, medium preset."""
+    from ..registration.flow import dis_field
+
+    return dis_field(reference_image, moving_image, preset="medium")[0]
+
+
+def _err(pred: np.ndarray, truth: np.ndarray | None, mask: np.ndarray | None = None) -> float:
+    from ..classification.metrics import error_rate
+
+    if truth is None:
+        return float("nan")
+    return error_rate(pred, truth, mask=mask)
+
+
+@dataclass(frozen=True)
+class PairResult:
+    """One scored pair.
+
+    reference, moving : frame indices in the sequence; names : (reference name, moving name).
+    registered : the registration succeeded; reason : why not (None when it did).
+    registration : ``RegistrationResult.to_dict()`` or None. corner_error : largest corner distance
+        (px) from the ground-truth transform, where poses are known (synthetic data), else None.
+    errors : {method: error %} for :data:`METHODS`. times : {stage: seconds} for :data:`STAGES`.
+    valid_fraction : share of the reference grid covered by the warped moving image.
+    """
+
+    reference: int
+    moving: int
+    names: tuple[str, str]
+    registered: bool
+    reason: str | None
+    registration: dict | None
+    corner_error: float | None
+    errors: dict
+    times: dict
+    valid_fraction: float
+
+    def to_dict(self) -> dict:
+        return {"reference": self.reference, "moving": self.moving, "names": list(self.names),
+                "registered": self.registered, "reason": self.reason, "registration": self.registration,
+                "corner_error": self.corner_error, "errors": dict(self.errors), "times": dict(self.times),
+                "valid_fraction": self.valid_fraction}
+
+
+@dataclass(frozen=True)
+class PairArrays:
+    """The arrays of one processed pair that a recording or a figure shows.
+
+    warped : the moving image warped onto the reference grid (H, W, 3) uint8; valid : (H, W) bool, where
+    it came from inside the moving image; predicted : {method: (H, W) uint8 labels} of the moving frame;
+    thesis_after, thesis_after_masked : labels on the reference grid.
+    motion : the registration's (3, 3) matrix or dense field (H, W, 2) (None when refused);
+    warped_prior : (H, W) float32 obstacle probability of the reference labels warped into the moving
+    frame; flow : the DIS field (H, W, 2) of ``augmented_flow``; confidence : a dense registration's
+    per-pixel confidence (H, W) (None for a matrix).
+    """
+
+    warped: np.ndarray
+    valid: np.ndarray
+    predicted: dict
+    thesis_after: np.ndarray
+    thesis_after_masked: np.ndarray
+    motion: np.ndarray | None = None
+    warped_prior: np.ndarray | None = None
+    flow: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ProcessedPair:
+    """:func:`process_pair`'s outcome: the scores (``result``) and, when asked for, the arrays."""
+
+    result: "PairResult"
+    arrays: PairArrays | None = None
+
+
+def process_pair(reference, moving, classifier, *, weight: float, config: PipelineConfig = PipelineConfig(),
+                 registration: PairRegistration | None = None, temporal: "TemporalFusion | None" = None,
+                 indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
+                 callback: Callable | None = None, flow: np.ndarray | None = None,
+                 flow_weight: float | None = None) -> ProcessedPair:
+    """Run and score every method on one pair.
+
+    reference, moving : :class:`~pcreg.datasets.Frame` (labelled; same size). classifier : fitted naive
+    Bayes (ground/obstacle). weight : fusion weight.
+    registration : a precomputed :func:`register_pair`, or None to register here.
+    temporal : the temporal filter of the chain that holds the reference frame; it is stepped to the
+        moving frame (:meth:`TemporalFusion.step`). None leaves ``augmented_temporal`` NaN.
+    keep_arrays : also return the arrays a recording shows (:class:`PairArrays`).
+    flow : the pair's DIS field (:func:`flow_field`; None: computed here). flow_weight : the fusion
+        weight of ``augmented_flow`` (default ``weight``).
+    """
+    from ..datasets import relative_transform
+    from ..registration.transforms import max_corner_error
+    from ..registration.warp import warp, warp_to_moving
+
+    if reference.shape != moving.shape:
+        raise InputError(f"reference {reference.shape} and moving {moving.shape} frames differ in size")
+    shape = moving.shape
+    times = dict.fromkeys(STAGES, 0.0)
+    reg = registration if registration is not None else register_pair(
+        reference.image, moving.image, config=config, callback=callback)
+    res, reason = reg.result, reg.reason
+    times["register"] = reg.seconds
+    T = None if res is None else np.asarray(res.matrix)
+    motion = reg.motion  # a dense registration's field, else T
+
+    t0 = time.perf_counter()
+    if T is not None:
+        warped, valid = warp(moving.image, motion, shape=reference.shape)
+    else:
+        warped, valid = moving.image, np.ones(shape, dtype=bool)
+    times["warp"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    d_mov = log_odds(classifier, moving.image)
+    d_warped = log_odds(classifier, warped) if T is not None else d_mov
+    times["classify"] = time.perf_counter() - t0
+    pred_mov = labels_from_log_odds(d_mov)
+    pred_warped = labels_from_log_odds(d_warped)
+
+    t0 = time.perf_counter()
+    pi = float(np.asarray(classifier.class_prior_)[1])
+    fusion = config.fusion
+    q_ref = label_prior(reference.labels, pi=pi, fusion=fusion)
+    if T is not None:
+        q_mov, prior_valid = warp_prior(q_ref, motion, shape=shape, pi=pi)
+        l_reg = prior_log_odds(q_mov, pi=pi)
+    else:
+        l_reg = np.zeros(shape, np.float32)
+    fused = fuse(d_mov, l_reg, weight=weight)
+    times["fuse"] = time.perf_counter() - t0
+    l_id = prior_log_odds(q_ref, pi=pi)
+    fused_id = fuse(d_mov, l_id, weight=weight)
+    fused_t = None if temporal is None else temporal.step(d_mov, motion, pi=pi)
+    t0 = time.perf_counter()
+    flow = flow_field(reference.image, moving.image) if flow is None else flow
+    q_flow, _ = warp_prior(q_ref, flow, shape=shape, pi=pi)
+    fused_flow = fuse(d_mov, prior_log_odds(q_flow, pi=pi), weight=weight if flow_weight is None else flow_weight)
+    times["flow"] = time.perf_counter() - t0
+
+    pred_masked = np.where(valid, pred_warped, pred_mov)
+    if T is not None:
+        ref_lab_mov, lab_valid = warp_to_moving(reference.labels, motion, shape=shape, interpolation="nearest",
+                                                fill=2)
+        propagated = np.where(lab_valid & (ref_lab_mov < 2), ref_lab_mov, pred_mov)
+    else:
+        propagated = pred_mov
+    preds = {
+        "plain": pred_mov, "augmented": labels_from_log_odds(fused),
+        "augmented_unregistered": labels_from_log_odds(fused_id), "propagated": propagated,
+        "augmented_flow": labels_from_log_odds(fused_flow),
+    }
+    if fused_t is not None:
+        preds["augmented_temporal"] = labels_from_log_odds(fused_t)
+    errors = {
+        "plain": _err(pred_mov, moving.labels),
+        "thesis_before": _err(pred_mov, reference.labels),
+        "thesis_after": _err(pred_warped, reference.labels),
+        "thesis_after_masked": _err(pred_masked, reference.labels),
+        "thesis_after_cropped": _err(pred_warped, reference.labels, valid),
+        "augmented": _err(preds["augmented"], moving.labels),
+        "augmented_unregistered": _err(preds["augmented_unregistered"], moving.labels),
+        "augmented_temporal": _err(preds["augmented_temporal"], moving.labels) if fused_t is not None else float("nan"),
+        "propagated": _err(propagated, moving.labels),
+        "augmented_flow": _err(preds["augmented_flow"], moving.labels),
+    }
+    truth_T = relative_transform(reference, moving)
+    corner = None
+    if truth_T is not None and T is not None:
+        corner = max_corner_error(T, truth_T, shape)
+    result = PairResult(reference=int(indices[0]), moving=int(indices[1]), names=(reference.name, moving.name),
+                        registered=T is not None, reason=reason, registration=None if res is None else res.to_dict(),
+                        corner_error=corner, errors=errors, times=times, valid_fraction=float(valid.mean()))
+    arrays = PairArrays(warped=warped, valid=valid, predicted=preds, thesis_after=pred_warped,
+                        thesis_after_masked=pred_masked, motion=motion,
+                        warped_prior=q_mov if T is not None else None, flow=flow,
+                        confidence=getattr(res, "confidence", None)) if keep_arrays else None
+    return ProcessedPair(result, arrays)
+
+

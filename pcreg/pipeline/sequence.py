@@ -1,0 +1,259 @@
+"""A sequence walked with increment k: every pair (i, i + k) registered, fused and scored."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..classification.bayes import fit_classifier
+from ..classification.fusion import (FusionConfig, WeightChoice, choose_weight, label_prior, prior_log_odds,
+                                     warp_prior)
+from ..errors import InputError
+from .pair import METHODS, PairResult, PipelineConfig, flow_field, log_odds, process_pair, register_pair
+from .temporal import TemporalFusion, temporal_update
+
+__all__ = ["SequenceResult", "run_sequence", "pair_indices", "resolve_fusion_frames"]
+
+
+def pair_indices(n: int, k: int) -> list[tuple[int, int]]:
+    """Pairs (i, i + k) of a sequence of ``n`` frames."""
+    return [(i, i + k) for i in range(max(0, n - k))]
+
+
+def resolve_fusion_frames(n: int, *, fusion_frames: int | None, train: str) -> int:
+    """How many frames at the start of a sequence choose the fusion weight (and are never scored).
+
+    Default: the training frames for ``train="first:K"``, else 10% of the sequence, at least 2.
+    """
+    if fusion_frames is not None:
+        return int(fusion_frames)
+    if train.startswith("first:"):
+        return int(train.split(":", 1)[1])
+    return max(2, int(math.ceil(0.1 * n)))
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """One sequence at one increment with one backend.
+
+    k : increment. backend : ICP backend. fusion_frames : frames 0..C-1 that chose the weight.
+    weight : :class:`~pcreg.classification.fusion.WeightChoice` (``pairs == 0`` when fixed or not choosable).
+    temporal_weight : the same for the recursive (temporal) fusion, chosen on the same frames.
+    flow_weight : the same for ``augmented_flow``.
+    pairs : scored :class:`PairResult` (moving frame >= C). means : {method: mean error % over pairs}.
+    failures : [{"reference", "moving", "reason"}] of the scored pairs. notes : why pairs are missing.
+    seconds : wall time.
+    """
+
+    k: int
+    backend: str
+    fusion_frames: int
+    weight: WeightChoice
+    pairs: tuple[PairResult, ...]
+    means: dict
+    failures: tuple[dict, ...]
+    notes: tuple[str, ...]
+    seconds: float
+    temporal_weight: WeightChoice | None = None
+    flow_weight: WeightChoice | None = None
+
+    def to_dict(self) -> dict:
+        return {"k": self.k, "backend": self.backend, "fusion_frames": self.fusion_frames,
+                "weight": self.weight.to_dict(),
+                "temporal_weight": None if self.temporal_weight is None else self.temporal_weight.to_dict(),
+                "flow_weight": None if self.flow_weight is None else self.flow_weight.to_dict(), "means": dict(self.means),
+                "failures": [dict(f) for f in self.failures], "notes": list(self.notes),
+                "pairs": [p.to_dict() for p in self.pairs], "seconds": self.seconds}
+
+
+def _means(pairs: Sequence[PairResult]) -> dict:
+    out = {}
+    for m in METHODS:
+        vals = np.array([p.errors[m] for p in pairs], dtype=np.float64)
+        out[m] = float(np.nanmean(vals)) if np.isfinite(vals).any() else float("nan")
+    return out
+
+
+def _choose_temporal_weight(calib: list, frames: Sequence, *, fusion: FusionConfig) -> WeightChoice:
+    """The temporal filter's weight: run the chains through the calibration pairs (in order) with each
+    candidate weight, pool the errors of every fused frame, keep the best (ties: the smaller weight)."""
+    grid = tuple(float(g) for g in fusion.grid)
+    if not calib:
+        return choose_weight([], grid=grid)
+    wrong = np.zeros(len(grid), dtype=np.int64)
+    total = 0
+    for gi, w in enumerate(grid):
+        state: dict[int, np.ndarray] = {}
+        for i, j, T, d, pi in calib:
+            fused, state[j] = temporal_update(d, state.get(i, frames[i].labels), T, pi=pi, weight=w, fusion=fusion)
+            state.pop(i, None)
+            truth = frames[j].labels
+            keep = truth < 2
+            wrong[gi] += int(np.count_nonzero((fused[keep] > 0) != (truth[keep] == 1)))
+            if gi == 0:
+                total += int(keep.sum())
+    if total == 0:
+        return choose_weight([], grid=grid)
+    errors = 100.0 * wrong / total
+    best = int(np.argmin(errors))
+    return WeightChoice(grid[best], grid, tuple(float(e) for e in errors), len(calib), total)
+
+
+def _odd_sized(frames: Sequence) -> dict[int, str]:
+    """{index: reason} of the frames whose size differs from the sequence's most common size."""
+    from collections import Counter
+
+    if not frames:
+        return {}
+    (h, w), _ = Counter(f.shape for f in frames).most_common(1)[0]
+    return {i: f"frame {f.name} is {f.shape[1]}x{f.shape[0]} px, the sequence's frames are {w}x{h}"
+            for i, f in enumerate(frames) if f.shape != (h, w)}
+
+
+def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineConfig(), train: str = "reference",
+                 fusion_frames: int | None = None, on_pair: Callable | None = None,
+                 icp_callback: Callable | None = None) -> SequenceResult:
+    """Walk a labelled sequence with increment ``k``: every method on the pairs (i, i + k).
+
+    frames : labelled :class:`~pcreg.datasets.Frame` of one size, in order.
+    train : ``"reference"`` (naive Bayes trained on each pair's reference frame, as the thesis) or
+        ``"first:K"`` (trained once on frames 0..K-1).
+    fusion_frames : frames 0..C-1 choose the fusion weight (pairs among them, at increment
+        min(k, C - 1), scored against their moving frame's labels); only pairs whose moving frame is
+        >= C are scored (default: :func:`resolve_fusion_frames`). A fixed ``config.fusion.weight``
+        skips the choice.
+    on_pair : called as ``on_pair(pair_result, frames, arrays)`` for each scored pair, with the arrays
+        of :func:`process_pair` (for recordings); None keeps them off the hot path.
+    icp_callback : passed to :func:`pcreg.register` (per-iteration hook) for the scored pairs.
+
+    Bad input (``k < 1``, unlabelled frames, a bad ``train``) raises :class:`~pcreg.errors.InputError`;
+    a sequence too short for ``k`` gives no pairs and a note.
+    """
+    t_start = time.perf_counter()
+    if int(k) < 1:
+        raise InputError(f"increment k must be at least 1, got {k}")
+    k = int(k)
+    n = len(frames)
+    if any(f.labels is None for f in frames):
+        raise InputError("every frame needs labels to be scored")
+    if train != "reference":
+        if not train.startswith("first:") or not train.split(":", 1)[1].isdigit() or int(train.split(":", 1)[1]) < 1:
+            raise InputError(f"train must be 'reference' or 'first:K' with K >= 1, got {train!r}")
+    C = resolve_fusion_frames(n, fusion_frames=fusion_frames, train=train)
+    if C < 0:
+        raise InputError("fusion_frames must be >= 0")
+    notes: list[str] = []
+    fixed = config.fusion.weight
+    empty_choice = WeightChoice(float(fixed if fixed is not None else 1.0), config.fusion.grid,
+                                tuple(float("nan") for _ in config.fusion.grid), 0, 0)
+    if n < 2:
+        notes.append(f"{n} frame(s): no pairs")
+        return SequenceResult(k, config.backend, C, empty_choice, (), _means([]), (), tuple(notes),
+                              time.perf_counter() - t_start, temporal_weight=empty_choice)
+    if k >= n:
+        notes.append(f"increment k={k} is not shorter than the sequence ({n} frames): no pairs")
+        return SequenceResult(k, config.backend, C, empty_choice, (), _means([]), (), tuple(notes),
+                              time.perf_counter() - t_start, temporal_weight=empty_choice)
+
+    shared_clf = None
+    if train.startswith("first:"):
+        K = int(train.split(":", 1)[1])
+        if K >= n:
+            raise InputError(f"train first:{K} leaves no test frame in a sequence of {n} frames")
+        shared_clf = fit_classifier(frames[:K], features=config.features)
+    clf_cache: dict[int, object] = {}
+
+    def classifier(i: int):
+        if shared_clf is not None:
+            return shared_clf
+        if i not in clf_cache:
+            clf_cache.clear()
+            clf_cache[i] = fit_classifier([frames[i]], features=config.features)
+        return clf_cache[i]
+
+    reg_cache: dict[tuple[int, int], PairRegistration] = {}
+    odd = _odd_sized(frames)  # a frame of another size fails its own pairs only, with the reason
+
+
+    def registration(i: int, j: int, callback=None):
+        if (i, j) not in reg_cache:
+            reg_cache[(i, j)] = register_pair(frames[i].image, frames[j].image, config=config, callback=callback)
+        return reg_cache[(i, j)]
+
+    # 1. the fusion weights (one-step and temporal), on pairs among the first C frames
+    kc = min(k, C - 1)
+    calib = []  # (i, j, T, d_j, pi) of the registered pairs among the first C frames, in order
+    if fixed is None and kc >= 1:
+        for i, j in pair_indices(C, kc):
+            if i in odd or j in odd:
+                continue
+            clf = classifier(i)
+            calib.append((i, j, registration(i, j).motion, log_odds(clf, frames[j].image),
+                          float(np.asarray(clf.class_prior_)[1])))
+    if fixed is not None:
+        choice = temporal_choice = flow_choice = empty_choice
+    else:
+        samples = []
+        for i, j, T, d, pi in calib:
+            if T is None:
+                continue
+            q_mov, _ = warp_prior(label_prior(frames[i].labels, pi=pi, fusion=config.fusion), T,
+                                  shape=frames[j].shape, pi=pi)
+            samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
+        choice = choose_weight(samples, grid=config.fusion.grid)
+        flow_samples = []
+        for i, j, _, d, pi in calib:
+            q_mov, _ = warp_prior(label_prior(frames[i].labels, pi=pi, fusion=config.fusion),
+                                  flow_field(frames[i].image, frames[j].image), shape=frames[j].shape, pi=pi)
+            flow_samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
+        flow_choice = choose_weight(flow_samples, grid=config.fusion.grid)
+        temporal_choice = _choose_temporal_weight(calib, frames, fusion=config.fusion)
+        if choice.pairs == 0:
+            notes.append(f"no registered pair among the first {C} frames to choose the fusion weight: "
+                         f"w = {choice.weight} used")
+        elif kc != k:
+            notes.append(f"fusion weight chosen at increment {kc} (the first {C} frames hold no pair {k} apart)")
+        reg_cache = {key: v for key, v in reg_cache.items() if key[1] - key[0] == k}
+    weight = choice.weight
+    weight_t = temporal_choice.weight
+    weight_f = flow_choice.weight
+
+    # 2. every pair (i, i + k) in order; the temporal chains need all of them, the scores those with j >= C
+    chains: deque = deque()
+    scored: list[PairResult] = []
+    failures: list[dict] = []
+    for i, j in pair_indices(n, k):
+        chain = chains.popleft() if i >= k else None
+        if i in odd or j in odd:
+            if j >= C:
+                failures.append({"reference": i, "moving": j, "reason": odd[i if i in odd else j]})
+            chains.append(None)  # the chain restarts after the odd frame
+            continue
+        if chain is None:
+            chain = TemporalFusion(frames[i].labels, weight=weight_t, fusion=config.fusion)
+        score = j >= C
+        reg = registration(i, j, icp_callback if score else None)
+        reg_cache.pop((i, j), None)
+        clf = classifier(i)
+        if score:
+            done = process_pair(frames[i], frames[j], clf, weight=weight, config=config, registration=reg,
+                                temporal=chain, indices=(i, j), keep_arrays=on_pair is not None, flow_weight=weight_f)
+            result = done.result
+            scored.append(result)
+            if not result.registered:
+                failures.append({"reference": i, "moving": j, "reason": result.reason})
+            if on_pair is not None:
+                on_pair(result, (frames[i], frames[j]), done.arrays)
+        else:
+            chain.step(log_odds(clf, frames[j].image), reg.motion, pi=float(np.asarray(clf.class_prior_)[1]))
+        chains.append(chain)
+    if not scored:
+        notes.append(f"no pair with its moving frame after the {C} fusion frames")
+    return SequenceResult(k, config.backend, C, choice, tuple(scored), _means(scored), tuple(failures),
+                          tuple(notes), time.perf_counter() - t_start, temporal_weight=temporal_choice,
+                          flow_weight=flow_choice)

@@ -25,6 +25,7 @@ EVALUATIONS: dict[str, tuple[str, str]] = {
     "classification": ("pcreg.commands.evaluate_classification", "thesis Ch. 4: naive Bayes cases I-III"),
     "rotation": ("pcreg.commands.evaluate_rotation", "thesis Ch. 5: classify rotated frames before/after registration"),
     "sequence": ("pcreg.commands.evaluate_sequence", "thesis Ch. 6-7: register frame i+k to i, classify, fuse labels"),
+    "stream": ("pcreg.commands.evaluate_stream", "label every frame of a clip from its key frame, methods side by side"),
 }
 
 

@@ -50,22 +50,42 @@ def test_propagator_streams_labels_better_than_naive_bayes(frames):
         assert labels.shape == f.labels.shape and labels.dtype == np.uint8 and labels.max() <= 1
         last = prop.last
         assert last.registered and not last.fallback and last.reason is None
-        assert last.reference == last.frame - 1
+        assert last.reference == 0  # anchored to the key frame
+        assert last.registration.field.shape == f.labels.shape + (2,)  # the dense model by default
         assert set(last.times) == set(pcreg.pipeline.stream.STEP_STAGES) and last.times["total"] > 0
         fused_err.append(pcreg.error_rate(labels, f.labels))
         plain_err.append(pcreg.error_rate(clf.predict(f.image), f.labels))
     assert np.mean(fused_err) < np.mean(plain_err)
 
 
-def test_a_refused_frame_falls_back_and_keeps_the_reference(frames):
-    prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
-    prop.step(frames[1].image)
-    flat = np.full_like(frames[2].image, 128)
-    labels = prop.step(flat)
-    assert prop.last.fallback and not prop.last.registered and "edges" in prop.last.reason
-    np.testing.assert_array_equal(labels, (prop.classifier.decision_function(flat) > 0).astype(np.uint8))
-    prop.step(frames[3].image)  # registered to frame 1, the last one that registered
-    assert prop.last.registered and prop.last.reference == 1
+def test_chained_propagation_registers_to_the_previous_frame(frames):
+    prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, model="similarity", anchor="previous")
+    for i, f in enumerate(frames[1:4], start=1):
+        prop.step(f.image)
+        assert prop.last.registered and prop.last.reference == i - 1
+        assert prop.last.registration.matrix.shape == (3, 3)
+
+
+def _unwarped(prop, image):
+    """What the fallback must give: the key frame's prior fused unwarped at the propagator's weight."""
+    from pcreg.classification.fusion import fuse, label_prior, prior_log_odds
+
+    pi = float(prop.classifier.class_prior_[1])
+    prior = prior_log_odds(label_prior(prop.key_labels, pi=pi, fusion=prop.fusion), pi=pi)
+    return (fuse(prop.classifier.decision_function(image), prior, weight=prop.weight) > 0).astype(np.uint8)
+
+
+def test_a_failed_registration_falls_back_to_the_key_frames_labels(frames):
+    for options in ({}, {"model": "similarity", "anchor": "previous"}):
+        prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, **options)
+        prop.step(frames[1].image)
+        flat = np.full_like(frames[2].image, 128)
+        labels = prop.step(flat)
+        assert prop.last.fallback and not prop.last.registered and prop.last.reason
+        np.testing.assert_array_equal(labels, _unwarped(prop, flat))
+        assert not np.array_equal(labels, (prop.classifier.decision_function(flat) > 0).astype(np.uint8))
+        prop.step(frames[3].image)  # registered again, to the key frame or to frame 1, the last that registered
+        assert prop.last.registered and prop.last.reference == (0 if not options else 1)
 
 
 def test_propagator_input_errors(frames):
@@ -82,6 +102,12 @@ def test_propagator_input_errors(frames):
         prop.step(frames[1].image[:100])
     with pytest.raises(InputError, match="no decision_function"):
         pcreg.Propagator(object())
+    with pytest.raises(InputError, match="unknown anchor"):
+        pcreg.Propagator(clf, anchor="both")
+    with pytest.raises(InputError, match="unknown model"):
+        pcreg.Propagator(clf, model="warp")
+    with pytest.raises(InputError, match="all unknown"):
+        pcreg.Propagator.from_key_frame(frames[0].image, np.full(frames[0].labels.shape, 2, np.uint8))
 
 
 def _write_frames(folder, frames):
@@ -98,8 +124,9 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
     args = ["run", str(src), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
     assert main(args) == 0
     state = json.loads((out / "run.json").read_text())
-    assert state["done"] == 4 and [s["name"] for s in state["steps"]] == ["f001.png", "f002.png", "f003.png"]
-    assert all(s["registered"] for s in state["steps"])
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    assert state["done"] == 4 and [s["name"] for s in steps] == ["f001.png", "f002.png", "f003.png"]
+    assert all(s["registered"] for s in steps) and state["fallbacks"] == 0
     first = cv2.imread(str(out / "f003.png"), cv2.IMREAD_UNCHANGED)
     assert first.shape == frames[3].labels.shape and first.max() <= 1
     # two more frames arrive: the run resumes from the state it kept, as an uninterrupted run would
@@ -107,7 +134,7 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
         cv2.imwrite(str(src / f"f{i:03d}.png"), frames[i].image[:, :, ::-1])
     assert main(args) == 0
     state = json.loads((out / "run.json").read_text())
-    assert state["done"] == 6 and state["steps"][-1]["reference_name"] == "f004.png"
+    assert state["done"] == 6 and len((out / "steps.jsonl").read_text().splitlines()) == 5
     whole = tmp_path / "whole"
     assert main(["run", str(src), "--labels", str(tmp_path / "key.png"), "--out", str(whole)]) == 0
     for i in range(6):
@@ -115,7 +142,7 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
                                       cv2.imread(str(whole / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED))
     assert main(args) == 0 and "already done" in capsys.readouterr().out
     # other options over the same folder: refused, unless --force
-    assert main(args + ["--weight", "2"]) == 2
+    assert main(args + ["--weight", "3"]) == 2
     assert "other options" in capsys.readouterr().err
 
 
@@ -128,3 +155,69 @@ def test_run_command_bad_input(tmp_path, frames, capsys):
     cv2.imwrite(str(tmp_path / "small.png"), frames[0].labels[:50])
     assert main(["run", str(src), "--labels", str(tmp_path / "small.png"), "--out", str(tmp_path / "o")]) == 2
     assert main(["run", str(tmp_path / "nowhere"), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_run_scores_against_truth_and_resumes_exactly_after_a_crash(tmp_path, frames, capsys, monkeypatch):
+    from pcreg.pipeline import stream_run
+
+    src, truth = tmp_path / "frames", tmp_path / "truth"
+    _write_frames(src, frames[:6])
+    truth.mkdir()
+    for i, f in enumerate(frames[:6]):
+        cv2.imwrite(str(truth / f"f{i:03d}.png"), f.labels)
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    base = ["run", str(src), "--labels", str(tmp_path / "key.png"), "--truth", str(truth)]
+    assert main(base + ["--out", str(tmp_path / "whole")]) == 0
+    state = json.loads((tmp_path / "whole" / "run.json").read_text())
+    assert state["truth"]["frames"] == 5 and state["truth"]["error"] < state["truth"]["plain_error"]
+    assert "error against the truth" in capsys.readouterr().out
+
+    # a crash after frame 3's PNG and step line were written, before run.json counted it
+    real = stream_run.StreamRun.record
+
+    def crash(self, t, labels, report, plain=None):
+        if t == 3:
+            import pcreg.outputs
+
+            monkeypatch.setattr(pcreg.outputs, "atomic_write_json", _raise_kill)
+        return real(self, t, labels, report, plain)
+
+    monkeypatch.setattr(stream_run.StreamRun, "record", crash)
+    assert main(base + ["--out", str(tmp_path / "cut")]) == 130
+    monkeypatch.undo()
+    assert json.loads((tmp_path / "cut" / "run.json").read_text())["done"] == 3
+    assert len((tmp_path / "cut" / "steps.jsonl").read_text().splitlines()) == 3  # frame 3's line, uncommitted
+    assert main(base + ["--out", str(tmp_path / "cut")]) == 0
+    for name in ["run.json", "steps.jsonl"] + [f"f{i:03d}.png" for i in range(6)]:
+        a, b = (tmp_path / "whole" / name).read_bytes(), (tmp_path / "cut" / name).read_bytes()
+        if name == "steps.jsonl":  # times differ from run to run; everything else is the same
+            a, b = ([_timeless(json.loads(line)) for line in x.splitlines()] for x in (a, b))
+        if name == "run.json":
+            a, b = (json.loads(x)["truth"] for x in (a, b))
+        assert a == b, name
+
+
+def _timeless(step: dict) -> dict:
+    step.pop("times")
+    step["registration"].pop("seconds")
+    return step
+
+
+def _raise_kill(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def test_run_truth_bad_input(tmp_path, frames, capsys):
+    src, truth = tmp_path / "frames", tmp_path / "truth"
+    _write_frames(src, frames[:3])
+    truth.mkdir()
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    cv2.imwrite(str(truth / "f000.png"), frames[0].labels)
+    cv2.imwrite(str(truth / "f001.png"), frames[1].labels)
+    args = ["run", str(src), "--labels", str(tmp_path / "key.png"), "--truth", str(truth), "--out", str(tmp_path / "o")]
+    assert main(args) == 2
+    assert "no truth labels for frame f002.png" in capsys.readouterr().err
+    cv2.imwrite(str(truth / "f002.png"), frames[2].labels[:100])
+    assert main(args) == 2
+    assert "truth labels of f002.png are" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # nothing written before the input was checked

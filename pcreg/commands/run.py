@@ -2,10 +2,10 @@
 
 The first frame (in name order) is the key frame and ``--labels`` its label image. A naive Bayes
 classifier is fitted on the key frame and those labels (unknown pixels left out); every following
-frame is registered to the previous one, the previous labels are warped in as a prior and fused with
-the classifier (:class:`pcreg.Propagator`). Each frame's labels are written to ``OUT/NAME.png``
-(0 ground, 1 obstacle; the key frame's own labels as given), atomically; ``OUT/run.json`` records what
-every step did. An interrupted run resumes where it stopped when started again with the same options.
+frame is registered to the key frame (a dense field by default), the key frame's labels are warped in
+as a prior and fused with the classifier (:class:`pcreg.Propagator`). Outputs and resuming:
+:mod:`pcreg.pipeline.stream_run`. ``--truth LABELS_DIR`` scores every frame against its labels there
+(``NAME.png`` for frame ``NAME``) and keeps the running error in ``run.json``.
 """
 
 from __future__ import annotations
@@ -16,22 +16,25 @@ from pathlib import Path
 from ._common import add_record_arguments, open_recorder
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
-STATE = "run.json"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..registration.transforms import MODELS
+
     p.add_argument("folder", help="folder of frames (image files, or an images/ sub-folder), read in name order")
     p.add_argument("--labels", required=True, metavar="KEYFRAME.png",
                    help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid)")
-    p.add_argument("--out", required=True, metavar="DIR", help="folder for the label PNGs and run.json")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for the label PNGs, run.json and steps.jsonl")
     p.add_argument("--mapping", choices=("none", "camvid"), default="none",
-                   help="how --labels is coded: none (0/1/2, the default) or camvid (CamVid class ids)")
+                   help="how --labels and --truth are coded: none (0/1/2, the default) or camvid (CamVid class ids)")
+    p.add_argument("--truth", metavar="LABELS_DIR", default=None,
+                   help="score every frame against LABELS_DIR/NAME.png and keep the error in run.json")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
-    p.add_argument("--model", choices=("translation", "rigid", "similarity", "affine", "projective"),
-                   default="similarity")
+    p.add_argument("--model", choices=("dense",) + MODELS, default="dense",
+                   help="dense (default: a dense field) or a global motion model")
     p.add_argument("--init", choices=("identity", "auto"), default="identity",
-                   help="identity: consecutive frames are close (default); auto: global rotation search too")
-    p.add_argument("--weight", type=float, default=1.0, help="fusion weight of the prior (default 1; 0 = naive Bayes)")
+                   help="the global registration's start: identity (default) or auto (global search too)")
+    p.add_argument("--weight", type=float, default=2.0, help="fusion weight of the prior (default 2; 0 = naive Bayes)")
     add_record_arguments(p)
 
 
@@ -44,6 +47,9 @@ def _frames(folder: Path) -> list[Path]:
     paths = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
     if len(paths) < 2:
         raise InputError(f"{src}: needs at least two frames (the key frame and one more), found {len(paths)}")
+    names = [p.stem for p in paths]
+    if len(set(names)) != len(names):
+        raise InputError(f"{folder}: two frames share a name ({len(names) - len(set(names))} duplicates)")
     return paths
 
 
@@ -51,7 +57,7 @@ def _read_labels(path: Path, mapping: str):
     import cv2
     import numpy as np
 
-    from ..datasets.folder import _mapping_lut
+    from ..datasets.folder import mapping_lut
     from ..errors import InputError
 
     if not path.is_file():
@@ -63,7 +69,7 @@ def _read_labels(path: Path, mapping: str):
         raw = raw[:, :, 0]
     if raw.dtype != np.uint8:
         raise InputError(f"{path}: labels must be an 8-bit image, got {raw.dtype}")
-    lut = _mapping_lut(None if mapping == "none" else mapping)
+    lut = mapping_lut(None if mapping == "none" else mapping)
     lab = lut[raw]
     if (lab == 255).any():
         bad = int(raw[lab == 255][0])
@@ -71,112 +77,81 @@ def _read_labels(path: Path, mapping: str):
     return lab
 
 
-def _write_png(path: Path, labels) -> None:
-    import cv2
+def _truth(folder: str | None, paths: list[Path], shape, mapping: str):
+    from ..errors import InputError
+    from ..pipeline.stream_run import check_truth
 
-    from ..errors import OutputError
-    from ..outputs import atomic_write_bytes
-
-    ok, buf = cv2.imencode(".png", labels)
-    if not ok:
-        raise OutputError(f"cannot encode {path}")
-    atomic_write_bytes(path, buf.tobytes())
+    if folder is None:
+        return None
+    root = Path(folder)
+    if not root.is_dir():
+        raise InputError(f"--truth {root}: not a folder")
+    truth = [(_read_labels(root / f"{p.stem}.png", mapping) if (root / f"{p.stem}.png").is_file() else None)
+             for p in paths]
+    check_truth(truth, shape, [p.name for p in paths])
+    return truth
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
     import sys
 
     import numpy as np
 
     from .._runner import progress
-    from ..errors import InputError, OutputError
-    from ..outputs import atomic_write_json
+    from ..errors import InputError
     from ..pipeline.stream import Propagator
+    from ..pipeline.stream_run import STATE, StreamRun
     from ..registration.clouds import load_image
 
     folder, out = Path(args.folder), Path(args.out)
     paths = _frames(folder)
     if not np.isfinite(args.weight) or args.weight < 0:
         raise InputError(f"--weight must be a finite number >= 0, got {args.weight}")
-    options = {"folder": str(folder.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
-               "backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
+    options = {"backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
     key_labels = _read_labels(Path(args.labels), args.mapping)
     key_image = load_image(paths[0])
     if key_labels.shape != key_image.shape[:2]:
         raise InputError(f"{args.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
                          f"{paths[0].name} is {key_image.shape[1]}x{key_image.shape[0]}")
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    state_path = out / STATE
-    state = None
-    if state_path.is_file() and not args.force:
-        try:
-            state = json.loads(state_path.read_text())
-        except (OSError, ValueError):
-            raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
-        if state.get("options") != options:
-            raise OutputError(f"{out} holds a run with other options; use --force to start over or another --out")
-    names = [p.stem for p in paths]
-    if len(set(names)) != len(names):
-        raise InputError(f"{folder}: two frames share a name ({len(names) - len(set(names))} duplicates)")
-
-    prop = Propagator.from_key_frame(key_image, key_labels, backend=args.backend, model=args.model, init=args.init,
-                                     weight=args.weight)
-    if state is None:
-        _write_png(out / f"{names[0]}.png", key_labels)
-        state = {"options": options, "key_frame": paths[0].name, "done": 1, "reference": names[0],
-                 "state_labels": None, "steps": []}
-        atomic_write_json(state_path, state)
-    else:
-        ref = state["reference"]
-        if ref not in names[: state["done"]]:
-            raise OutputError(f"{state_path}: reference frame {ref!r} is not among the finished frames; use --force")
-        if state.get("state_labels"):
-            ref_labels = _read_labels(out / state["state_labels"], "none")
-            prop.reset(load_image(paths[names.index(ref)]), ref_labels)
-    start = int(state["done"])
+    truth = _truth(args.truth, paths, key_image.shape[:2], args.mapping)
+    prop = Propagator.from_key_frame(key_image, key_labels, **options)
+    identity = {"folder": str(folder.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
+                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
+    stream = StreamRun(paths, key_labels, out, options, truth=truth, identity=identity)
+    start = stream.start(force=args.force)
     if start >= len(paths):
         print(f"{out}: all {len(paths)} frames already done")
         return 0
-    refused = 0
     with open_recorder(args, name=f"run {folder}") as rec, \
             progress(total=len(paths) - start, desc="frames", disable=None) as bar:
         for t in range(start, len(paths)):
             image = load_image(paths[t])
-            ref_name = state["reference"]
             labels = prop.step(image)
-            info = prop.last
-            refused += int(info.fallback)
-            _write_png(out / f"{names[t]}.png", labels)
-            if not info.fallback:  # the state travels with the reference frame
-                state_name = f".state-{names[t]}.png"
-                _write_png(out / state_name, prop.labels_state)
-                old = state.get("state_labels")
-                state.update(reference=names[t], state_labels=state_name)
-            else:
-                old = None
-            step = info.to_dict()
-            step["name"] = paths[t].name
-            step["reference_name"] = paths[names.index(ref_name)].name
-            state["steps"].append(step)
-            state["done"] = t + 1
-            atomic_write_json(state_path, state)  # the commit point: a frame counts once this is written
-            if old and old != state.get("state_labels"):
-                (out / old).unlink(missing_ok=True)
+            plain = prop.classifier.predict(image) if truth is not None else None
+            stream.record(t, labels, prop.last.to_dict(), plain)
             if rec is not None:
-                rec.set_frame(t)
-                rec.log_images(moving=image)
-                rec.log_labels(predicted=labels)
-                if info.registration is not None:
-                    rec.log_transform(info.registration.matrix)
-                else:
-                    rec.log_failure(f"{paths[t].name}: {info.reason} (plain naive Bayes)")
+                _log(rec, t, image, labels, prop.last, paths[t].name)
             bar.update(1)
-    n = len(paths) - start
-    msg = f"{n} frame(s) labelled into {out}"
-    if refused:
-        msg += f"; {refused} registration(s) refused (those frames use plain naive Bayes; see {STATE})"
+    s = stream.state
+    msg = f"{len(paths) - start} frame(s) labelled into {out}"
+    if s["fallbacks"]:
+        msg += (f"; {s['fallbacks']} registration(s) failed (those frames fuse the key frame's labels unwarped; "
+                f"see {out / 'steps.jsonl'})")
+    if s.get("truth") and s["truth"].get("error") is not None:
+        msg += (f"\nerror against the truth: {s['truth']['error']:.2f}% over {s['truth']['frames']} frames "
+                f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
     print(msg, file=sys.stdout)
     return 0
+
+
+def _log(rec, t: int, image, labels, report, name: str) -> None:
+    rec.set_frame(t)
+    rec.log_images(moving=image)
+    rec.log_labels(predicted=labels)
+    reg = report.registration
+    if reg is None:
+        rec.log_failure(f"{name}: {report.reason} (the key frame's labels, unwarped)")
+    elif getattr(reg, "field", None) is not None:
+        rec.log_dense(reg.field, matrix=reg.matrix, confidence=reg.confidence)
+    else:
+        rec.log_transform(reg.matrix)

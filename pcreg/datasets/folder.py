@@ -30,7 +30,7 @@ CAMVID_MAPPING: dict[int, int] = {
 }
 
 
-def _mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
+def mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
     """256-entry table raw id -> label, 255 for ids outside the mapping; None for identity on {0,1,2}."""
     if mapping is None:
         lut = np.full(256, 255, dtype=np.uint8)
@@ -82,7 +82,7 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
     images = {p.stem: p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()}
     if not images:
         raise DatasetError(f"{img_dir}: no .png or .jpg frames")
-    lut = _mapping_lut(mapping)
+    lut = mapping_lut(mapping)
     labels: dict[str, Path] | None = None
     if lab_dir.is_dir():
         labels = {p.stem: p for p in sorted(lab_dir.iterdir()) if p.suffix.lower() == ".png" and p.is_file()}

@@ -20,7 +20,7 @@ from typing import Iterable, Mapping
 from . import entities as E
 
 #: Kinds of recording, one per command that records.
-KINDS = ("register", "crosscheck", "sequence", "rotation", "demo", "dense")
+KINDS = ("register", "crosscheck", "sequence", "rotation", "demo", "dense", "stream")
 
 #: Archetypes drawn by a 2-D view, by a time-series view and by the two text views.
 SPATIAL = frozenset({"Image", "EncodedImage", "SegmentationImage", "DepthImage", "Points2D", "LineStrips2D",
@@ -200,7 +200,7 @@ def panes(kind: str, entities: Entities) -> list[Pane]:
         dense, dense_series = _dense(ent)
         spatial = dense + _registration(ent) + _labels(ent) + icp_spatial
         series = dense_series + icp_series
-    else:  # register, sequence, rotation, demo; a dense registration's field beside the registration
+    else:  # register, sequence, rotation, demo, stream; a dense registration's field beside the registration
         dense, dense_series = _dense(ent)
         spatial = _registration(ent) + dense + _labels(ent) + icp_spatial
         series = icp_series + dense_series

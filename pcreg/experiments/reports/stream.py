@@ -1,0 +1,96 @@
+"""Report of the stream evaluation: tables, checks and the figure, from results."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def table(results: dict) -> tuple[list, list, str]:
+    """One row per clip: mean error % of every method, and the average reduction against plain."""
+    methods = results["methods"]
+    header = ["clip", "frames", *methods]
+    rows = [[name, c["scored"], *[c["means"][m] for m in methods]] for name, c in results["datasets"].items()]
+    avg = results["average_reduction"]
+    rows.append(["reduction vs plain, mean over clips (%)", "", *[avg[m] for m in methods]])
+    footer = ("\n(error %, unknown truth left out; the last row: how much lower than plain, in percent of "
+              "plain, averaged over the clips)\n")
+    return header, rows, footer
+
+
+def per_frame(results: dict) -> tuple[list, list]:
+    """One row per scored frame of every clip: its index, key frame, frames since the key, each method's error."""
+    methods = results["methods"]
+    header = ["clip", "frame", "name", "key_frame", "since_key", *methods]
+    rows = [[u["dataset"], r["index"], r["name"], r["key"], r["since_key"], *[r["errors"][m] for m in methods]]
+            for u in results["units"] for r in u["frames"]]
+    return header, rows
+
+
+def checks(results: dict) -> str:
+    """pcreg against the DIS baselines, plain and the unregistered key frame (Markdown)."""
+    avg, clips = results["average_reduction"], results["datasets"]
+    lines = ["### Checks\n"]
+    if "pcreg" not in avg:
+        return "\n".join(lines + ["- pcreg was not run\n"])
+    base = [m for m in ("flow_key", "flow_previous") if m in avg]
+    if base:
+        best = max(base, key=lambda m: avg[m])
+        ok = avg["pcreg"] >= avg[best]
+        lines.append(f"- pcreg lowers plain's error at least as much as the better DIS baseline on average over "
+                     f"the clips: {'met' if ok else 'NOT met'} ({avg['pcreg']:.1f}% vs {best} {avg[best]:.1f}%)")
+    for other in ("plain", "unregistered"):
+        worse = [f"{n} ({c['means']['pcreg']:.2f} vs {c['means'][other]:.2f})" for n, c in clips.items()
+                 if other in c["means"] and c["means"]["pcreg"] > c["means"][other]]
+        lines.append(f"- pcreg never worse than {other} on any clip ({len(clips)} clips): "
+                     + ("met" if not worse else "NOT met: " + "; ".join(worse)))
+    for name, c in clips.items():
+        ms = c.get("ms_per_frame", {})
+        if "pcreg" in ms and "flow_key" in ms and ms["flow_key"] > 0:
+            lines.append(f"- {name}: pcreg {ms['pcreg']:.0f} ms a frame, DIS key-anchored {ms['flow_key']:.0f} ms "
+                         f"({ms['pcreg'] / ms['flow_key']:.2f}x; classification and fusion included in both)")
+    return "\n".join(lines) + "\n"
+
+
+def _figure(results: dict):
+    """Error against frames since the key frame, one panel per clip, one line per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    units = results["units"]
+    if not units:
+        return None
+    fig, axes = plt.subplots(1, len(units), figsize=(4.2 * len(units), 3.6), squeeze=False)
+    style = {"plain": ("0.4", ":"), "unregistered": ("0.6", "--"), "pcreg": ("C3", "-"),
+             "flow_key": ("C0", "-"), "flow_previous": ("C0", "--")}
+    for ax, u in zip(axes[0], units):
+        since = np.array([r["since_key"] for r in u["frames"]])
+        for m in results["methods"]:
+            if m not in style:
+                continue
+            err = np.array([r["errors"][m] for r in u["frames"]], dtype=float)
+            order = np.argsort(since, kind="stable")
+            ax.plot(since[order], err[order], color=style[m][0], ls=style[m][1], lw=1.4, label=m)
+        ax.set_title(u["dataset"])
+        ax.set_xlabel("frames since the key frame")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("error %")
+    axes[0][-1].legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def write_outputs(results: dict, out: str | Path) -> list[Path]:
+    """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results."""
+    from .files import write_files
+
+    b = results["primary_backend"]
+    h, rows, footer = table(results)
+    ph, prows = per_frame(results)
+    tables = {f"stream_{b}": ("Labelling a stream from its key frame: mean error % per clip", h, rows, footer),
+              "stream_frames": ("Error % per frame", ph, prows)}
+    return write_files(out, results, tables=tables, texts={"checks.md": checks(results)},
+                       figures={"stream": _figure(results)})

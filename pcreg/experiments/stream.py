@@ -1,0 +1,262 @@
+"""Label a stream from one labelled key frame: ``pcreg evaluate stream``.
+
+Protocol, per clip: the first frame is the key frame (``key_every=N`` adds one every N frames). Naive
+Bayes (RGB + HSV + row) is fitted on the current key frame only, and every later frame up to the next
+key frame is labelled by each method, in the same run, and scored against its ground truth (error %,
+unknown truth left out). No label of a non-key frame is used for anything but scoring: the fusion
+weight is the fixed :data:`pcreg.pipeline.stream.STREAM_WEIGHT`.
+
+The methods (:data:`METHODS`):
+
+- ``plain``: naive Bayes alone.
+- ``unregistered``: the key frame's labels fused as they are (no motion).
+- ``pcreg``: exactly what ``pcreg run`` does (:class:`pcreg.Propagator` with its defaults).
+- ``dense_key`` / ``dense_previous``, ``similarity_key`` / ``similarity_previous``: the propagator with
+  that registration model, each frame registered to the key frame, or to the previous frame with the
+  motions composed back to the key frame (chained).
+- ``flow_key`` / ``flow_previous``: the baselines, the same fusion with OpenCV's DIS optical flow
+  (medium preset) as the motion, anchored or chained the same way.
+
+Each clip is one unit of work (``--workers``, ``--scheduler``); finished units are kept in
+``OUT/units/`` and skipped when the same command runs again.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Methods scored per frame, in table order.
+METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "dense_key", "dense_previous", "similarity_key",
+                            "similarity_previous", "flow_key", "flow_previous")
+#: The DIS baselines.
+BASELINES: tuple[str, ...] = ("flow_key", "flow_previous")
+
+
+@dataclass(frozen=True)
+class StreamConfig:
+    """Everything that determines ``pcreg evaluate stream``'s numbers (written as config.json).
+
+    data : a ``--data`` value. frames : first frames of each clip (default all; synthetic default 40).
+    size, seed : synthetic data. key_every : a new key frame every N frames (None: the first only).
+    backends : the ICP backend (one). methods : which of :data:`METHODS` to run.
+    """
+
+    data: str = "synthetic"
+    frames: int | None = None
+    size: tuple[int, int] | None = None
+    seed: int = 0
+    key_every: int | None = None
+    backends: tuple[str, ...] = ("reference",)
+    methods: tuple[str, ...] = METHODS
+
+
+def _propagator(method: str, classifier, backend: str):
+    from ..pipeline.stream import Propagator
+
+    if method == "pcreg":
+        return Propagator(classifier, backend=backend)
+    model, anchor = method.split("_")
+    return Propagator(classifier, model=model, anchor=anchor, backend=backend)
+
+
+class _Flow:
+    """The DIS baseline with a propagator's interface: the key frame's prior warped by the flow."""
+
+    def __init__(self, classifier, anchor: str) -> None:
+        from ..classification.fusion import FusionConfig
+        from ..pipeline.stream import STREAM_WEIGHT
+
+        self.classifier, self.anchor = classifier, anchor
+        self.weight, self.fusion = STREAM_WEIGHT, FusionConfig()
+        self._pi = float(np.asarray(classifier.class_prior_)[1])
+
+    def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
+        from ..classification.fusion import label_prior
+
+        self._key, self._prev, self._motion = image, image, None
+        self._prior = label_prior(labels, pi=self._pi, fusion=self.fusion)
+
+    def step(self, image: np.ndarray) -> np.ndarray:
+        from ..classification.fusion import fuse, labels_from_log_odds, prior_log_odds, warp_prior
+        from ..pipeline.pair import flow_field, log_odds
+        from ..pipeline.stream import compose_motions
+
+        fld = flow_field(self._key if self.anchor == "key" else self._prev, image)
+        if self.anchor == "previous" and self._motion is not None:
+            fld = compose_motions(self._motion, fld, image.shape[:2])
+        self._prev, self._motion = image, fld
+        d = log_odds(self.classifier, image)
+        q, _ = warp_prior(self._prior, fld, shape=d.shape, pi=self._pi)
+        return labels_from_log_odds(fuse(d, prior_log_odds(q, pi=self._pi), weight=self.weight))
+
+
+class _Fixed:
+    """``plain`` (weight 0) and ``unregistered`` (the key frame's prior, no motion)."""
+
+    def __init__(self, classifier, *, weight: float) -> None:
+        from ..classification.fusion import FusionConfig
+
+        self.classifier, self.weight, self.fusion = classifier, weight, FusionConfig()
+        self._pi = float(np.asarray(classifier.class_prior_)[1])
+
+    def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
+        from ..classification.fusion import label_prior, prior_log_odds
+
+        self._l = prior_log_odds(label_prior(labels, pi=self._pi, fusion=self.fusion), pi=self._pi)
+
+    def step(self, image: np.ndarray) -> np.ndarray:
+        from ..classification.fusion import fuse, labels_from_log_odds
+        from ..pipeline.pair import log_odds
+
+        return labels_from_log_odds(fuse(log_odds(self.classifier, image), self._l, weight=self.weight))
+
+
+def make_method(method: str, classifier, backend: str):
+    """A fresh labeller of ``method`` (:data:`METHODS`) with ``reset(image, labels)`` and ``step(image)``."""
+    from ..pipeline.stream import STREAM_WEIGHT
+
+    if method == "plain":
+        return _Fixed(classifier, weight=0.0)
+    if method == "unregistered":
+        return _Fixed(classifier, weight=STREAM_WEIGHT)
+    if method in BASELINES:
+        return _Flow(classifier, method.split("_")[1])
+    return _propagator(method, classifier, backend)
+
+
+def key_frames(n: int, key_every: int | None) -> list[int]:
+    """Indices of the key frames of a clip of ``n`` frames."""
+    return list(range(0, n, key_every)) if key_every else [0]
+
+
+def check_clip(name: str, frames) -> None:
+    """Refuse a clip the protocol cannot score, with one line: fewer than two frames, a frame without
+    labels, labels of another size than their image, or a key frame with no known label."""
+    from ..errors import DatasetError
+
+    if len(frames) < 2:
+        raise DatasetError(f"clip {name} has {len(frames)} frame(s); a stream needs a key frame and one more")
+    for f in frames:
+        if f.labels is None:
+            raise DatasetError(f"clip {name}: frame {f.name} has no labels; the stream evaluation scores every frame")
+        if f.labels.shape != f.image.shape[:2]:
+            raise DatasetError(f"clip {name}: the labels of frame {f.name} are {f.labels.shape[1]}x"
+                               f"{f.labels.shape[0]}, its image {f.image.shape[1]}x{f.image.shape[0]}")
+        if f.image.shape != frames[0].image.shape:
+            raise DatasetError(f"clip {name}: frame {f.name} is {f.image.shape[1]}x{f.image.shape[0]}, the clip's "
+                               f"first frame {frames[0].image.shape[1]}x{frames[0].image.shape[0]}")
+    if not (frames[0].labels < 2).any():
+        raise DatasetError(f"clip {name}: the key frame {frames[0].name} has no known label (all unknown)")
+
+
+def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: str = "reference",
+             on_frame=None) -> dict:
+    """Every method on one clip: ``{"frames": [{index, name, key, since_key, errors}], "means", "seconds"}``.
+    ``on_frame(index, frame, predictions)`` is called after every scored frame (a recording hook)."""
+    from ..classification.bayes import fit_classifier
+    from ..classification.metrics import error_rate
+
+    keys = set(key_frames(len(frames), key_every))
+    seconds = dict.fromkeys(methods, 0.0)
+    rows, labellers, key = [], {}, 0
+    for t, f in enumerate(frames):
+        if t in keys:
+            if not (f.labels < 2).any():  # a later key frame with nothing known keeps the current one
+                keys.discard(t)
+            else:
+                key = t
+                clf = fit_classifier([f])
+                labellers = {m: make_method(m, clf, backend) for m in methods}
+                for lab in labellers.values():
+                    lab.reset(f.image, f.labels)
+                continue
+        preds, errors = {}, {}
+        for m, lab in labellers.items():
+            t0 = time.perf_counter()
+            preds[m] = lab.step(f.image)
+            seconds[m] += time.perf_counter() - t0
+            errors[m] = error_rate(preds[m], f.labels)
+        rows.append({"index": t, "name": f.name, "key": key, "since_key": t - key, "errors": errors})
+        if on_frame is not None:
+            on_frame(t, f, preds)
+    means = {m: float(np.nanmean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods}
+    per_frame_ms = {m: 1000.0 * s / max(1, len(rows)) for m, s in seconds.items()}
+    return {"frames": rows, "means": means, "ms_per_frame": per_frame_ms, "key_frames": sorted(keys)}
+
+
+# ---------------------------------------------------------------------------------------------
+# units
+# ---------------------------------------------------------------------------------------------
+
+def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
+    """One clip: a pure function of ``unit`` (data from the per-process cache)."""
+    from .units import load_cached
+
+    cfg = unit.config
+    t0 = time.perf_counter()
+    frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
+    hook = None if recorder is None else _recording_hook(recorder, unit.dataset,
+                                                         frame_counter if frame_counter is not None else [0])
+    out = run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=unit.backend, on_frame=hook)
+    out.update(dataset=unit.dataset, backend=unit.backend, n_frames=len(frames), seconds=time.perf_counter() - t0,
+               width=frames[0].shape[1], height=frames[0].shape[0])
+    return out
+
+
+def _recording_hook(rec, clip: str, counter: list[int]):
+    rec.log_text(f"stream {clip}: start")
+
+    def on_frame(t, frame, preds) -> None:
+        rec.set_frame(counter[0])
+        counter[0] += 1
+        rec.log_images(moving=frame.image)
+        rec.log_labels(truth=frame.labels)
+        for m in ("plain", "pcreg", "flow_key"):
+            if m in preds:
+                rec.log_labels(predicted=preds[m], prefix=m)
+
+    return on_frame
+
+
+def plan_units(config: StreamConfig, names: list[str]) -> list:
+    from .units import Unit
+
+    return [Unit(f"{d}_{b}", d, (("backend", b),), config) for d in names for b in config.backends]
+
+
+def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=None, recorder=None,
+             show_progress: bool | None = None) -> dict:
+    """Run every clip (resuming from ``out/units`` when ``out`` is given); returns what results.json holds."""
+    from .units import evaluate_units, load_cached
+
+    datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
+    for name, frames in datasets.items():
+        check_clip(name, frames)
+    return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
+                          force=force, executor=executor, recorder=recorder, desc="stream",
+                          show_progress=show_progress)
+
+
+def reduction(plain: float, value: float) -> float:
+    """How much lower than ``plain`` ``value`` is, in percent of ``plain``."""
+    return 100.0 * (plain - value) / plain if plain else float("nan")
+
+
+def summarise(config: StreamConfig, unit_results: list[dict]) -> dict:
+    """results.json: per clip the mean error of every method and its reduction against plain; the
+    average reduction over clips; the units (per-frame errors) themselves."""
+    from .units import plain_config
+
+    clips = {}
+    for r in unit_results:
+        means = r["means"]
+        clips[r["dataset"]] = {"frames": r["n_frames"], "scored": len(r["frames"]), "width": r["width"],
+                               "height": r["height"], "key_frames": r["key_frames"], "means": means,
+                               "reduction": {m: reduction(means["plain"], v) for m, v in means.items()},
+                               "ms_per_frame": r["ms_per_frame"]}
+    average = {m: float(np.mean([c["reduction"][m] for c in clips.values()])) for m in config.methods} if clips else {}
+    return {"config": plain_config(config), "primary_backend": config.backends[0], "methods": list(config.methods),
+            "datasets": clips, "average_reduction": average, "units": unit_results}

@@ -1,0 +1,127 @@
+"""A stream over a folder of frames, resumable: what ``pcreg run`` does.
+
+Outputs in ``out``, each written atomically:
+
+- ``NAME.png`` per frame: its labels (0 ground, 1 obstacle; the key frame's own labels as given);
+- ``steps.jsonl``: one line per step (:meth:`pcreg.Propagator.step`'s report, and the frame's error
+  against the truth when there is one), appended;
+- ``run.json``: the options, how many frames are done, how many fell back, and the running error
+  against the truth: rewritten after every frame, and always the same small size.
+
+``run.json`` is the commit point: a frame counts once it is written. A run that stops anywhere (a
+kill, Ctrl-C) resumes at the first frame not counted, and ``steps.jsonl`` is cut back to the frames
+counted. Every frame is registered to the key frame, so a step depends on the key frame and itself only:
+the resumed run writes exactly what an uninterrupted run writes.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, OutputError
+
+__all__ = ["StreamRun", "STATE", "STEPS"]
+
+STATE = "run.json"
+STEPS = "steps.jsonl"
+
+
+@dataclass
+class StreamRun:
+    """One run: ``frames`` (paths, the first is the key frame), the key frame's ``labels``, ``out``, the
+    propagator's ``options`` (:class:`pcreg.Propagator` keywords), and optional ``truth`` label maps
+    (one per frame, or None) to score against."""
+
+    frames: list[Path]
+    labels: np.ndarray
+    out: Path
+    options: dict
+    truth: list[np.ndarray | None] | None = None
+    identity: dict | None = None  # what a resumed run must match (paths and options), written in run.json
+
+    def start(self, *, force: bool = False) -> int:
+        """Open (or resume) the run; returns the index of the first frame still to do."""
+        from ..outputs import atomic_write_json
+
+        if self.out.exists() and not self.out.is_dir():
+            raise OutputError(f"{self.out}: exists and is not a folder")
+        self.out.mkdir(parents=True, exist_ok=True)
+        state_path = self.out / STATE
+        if state_path.is_file() and not force:
+            try:
+                state = json.loads(state_path.read_text())
+            except (OSError, ValueError):
+                raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
+            if state.get("run") != self.identity:
+                raise OutputError(f"{self.out} holds a run with other options; use --force to start over or "
+                                  "another --out")
+            self.state = state
+            self._cut_steps(int(state["done"]) - 1)
+            return int(state["done"])
+        self.state = {"run": self.identity, "key_frame": self.frames[0].name, "done": 1, "fallbacks": 0,
+                      "truth": {"frames": 0, "wrong": 0, "known": 0, "plain_wrong": 0} if self.truth else None}
+        _write_png(self.out / f"{self.frames[0].stem}.png", self.labels)
+        (self.out / STEPS).write_bytes(b"")
+        atomic_write_json(state_path, self.state)
+        return 1
+
+    def _cut_steps(self, n: int) -> None:
+        """Keep the first ``n`` lines of steps.jsonl (a step appended after the last commit is dropped)."""
+        path = self.out / STEPS
+        lines = path.read_bytes().splitlines(keepends=True) if path.is_file() else []
+        if len(lines) < n:
+            raise OutputError(f"{path}: {len(lines)} steps for {n} finished frames; use --force to start over")
+        if len(lines) != n:
+            path.write_bytes(b"".join(lines[:n]))
+
+    def record(self, t: int, labels: np.ndarray, report: dict, plain: np.ndarray | None = None) -> None:
+        """Write frame ``t``'s labels and step, then commit it in run.json."""
+        from ..classification.metrics import error_rate
+        from ..outputs import atomic_write_json, to_json
+
+        _write_png(self.out / f"{self.frames[t].stem}.png", labels)
+        step = dict(report, frame=t, name=self.frames[t].name)
+        truth = None if self.truth is None else self.truth[t]
+        if truth is not None:
+            known = truth < 2
+            wrong = int(np.count_nonzero((labels[known] == 1) != (truth[known] == 1)))
+            step["error"] = error_rate(labels, truth)
+            s = self.state["truth"]
+            s["frames"] += 1
+            s["wrong"] += wrong
+            s["known"] += int(known.sum())
+            if plain is not None:
+                s["plain_wrong"] += int(np.count_nonzero((plain[known] == 1) != (truth[known] == 1)))
+                step["plain_error"] = error_rate(plain, truth)
+            s["error"] = 100.0 * s["wrong"] / s["known"] if s["known"] else None
+            s["plain_error"] = 100.0 * s["plain_wrong"] / s["known"] if s["known"] else None
+        with open(self.out / STEPS, "ab") as fh:
+            fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
+        self.state["done"] = t + 1
+        self.state["fallbacks"] += int(report.get("fallback", False))
+        atomic_write_json(self.out / STATE, self.state)  # the commit point
+
+
+def _write_png(path: Path, labels: np.ndarray) -> None:
+    import cv2
+
+    from ..outputs import atomic_write_bytes
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(labels, dtype=np.uint8))
+    if not ok:
+        raise OutputError(f"cannot encode {path}")
+    atomic_write_bytes(path, buf.tobytes())
+
+
+def check_truth(truth: list[np.ndarray | None], shape: tuple[int, int], names: list[str]) -> None:
+    """Every truth map present and of the frames' size, or one line naming the first that is not."""
+    for t, (lab, name) in enumerate(zip(truth, names)):
+        if lab is None:
+            raise InputError(f"no truth labels for frame {name}")
+        if lab.shape != shape:
+            raise InputError(f"truth labels of {name} are {lab.shape[1]}x{lab.shape[0]}, the frames "
+                             f"{shape[1]}x{shape[0]}")

@@ -370,6 +370,37 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     A failing or missing implementation becomes its row's one-line ``error``; the others still run.
     """
     from .. import implementations as impls
+
+    src, tgt, T0, max_correspondence_distance = _pinned_clouds(source, target, init=init, voxel_size=voxel_size,
+                                                               max_correspondence_distance=max_correspondence_distance,
+                                                               max_iterations=max_iterations)
+    d = src.shape[1]
+    names = list(dict.fromkeys([REFERENCE, *implementations]))
+    adapters, errors = _adapters(names, timeout)
+    pinned = impls.Pinned(src, tgt, T0, float(max_correspondence_distance), int(max_iterations),
+                          float(relative_fitness), float(relative_rmse))
+    diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
+    outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
+    ref = outcomes.get(REFERENCE)
+    conv, conv_info = _reference_at_convergence(adapters, outcomes, pinned)
+    rows, traces = {}, {}
+    for name in names:
+        o = outcomes.get(name)
+        rows[name] = _row(name, o, adapters.get(name), errors, pinned, ref=ref, conv=conv, src=src, diag=diag,
+                          truth=truth)
+        if isinstance(o, impls.Outcome):
+            traces[name] = o.trace
+    settings = {**pinned.params(), "init": T0.tolist(), "voxel_size": voxel_size, "dimension": d,
+                "source_points": len(src), "target_points": len(tgt), "target_diagonal": diag}
+    if ref is None:
+        settings["reference_error"] = errors.get(REFERENCE)
+    return CloudCrosscheck(rows=rows, settings=settings, reference_at_convergence=conv_info, traces=traces,
+                           source=src, target=tgt)
+
+
+def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_distance, max_iterations):
+    """The checked (and voxel-downsampled) clouds, the initial pose and the correspondence distance
+    every implementation gets."""
     from ..registration.api import voxel_downsample
 
     src = check_cloud(source, "source")
@@ -388,7 +419,14 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
         max_correspondence_distance = default_max_distance(tgt)
     if not max_correspondence_distance > 0 or max_iterations < 1:
         raise InputError("max_correspondence_distance must be > 0 and max_iterations >= 1")
-    names = list(dict.fromkeys([REFERENCE, *implementations]))
+    return src, tgt, T0, max_correspondence_distance
+
+
+def _adapters(names: list[str], timeout: float | None) -> tuple[dict, dict]:
+    """{name: adapter} and {name: one-line error} for the user implementations that cannot be loaded
+    (an unknown built-in name, or the reference, is an :class:`InputError`)."""
+    from .. import implementations as impls
+
     adapters, errors = {}, {}
     for name in names:
         try:
@@ -397,9 +435,13 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
             if name == REFERENCE or not (name.startswith("py:") or name.startswith("cmd:")):
                 raise InputError(_one_line(exc)) from None
             errors[name] = _one_line(exc)
-    pinned = impls.Pinned(src, tgt, T0, float(max_correspondence_distance), int(max_iterations),
-                          float(relative_fitness), float(relative_rmse))
-    diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
+    return adapters, errors
+
+
+def _run_each(names: list[str], adapters: dict, errors: dict, pinned, *, progress: bool, on_result) -> dict:
+    """{name: Outcome, or "missing" for a library not installed}; each failure's one line goes to ``errors``."""
+    from .. import implementations as impls
+
     outcomes: dict = {}
     it = names
     if progress:
@@ -418,62 +460,66 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
             errors[name] = _one_line(exc)
         if on_result is not None:
             on_result(name, outcomes.get(name, errors.get(name)))
-    ref = outcomes.get(REFERENCE)
-    conv = None
-    conv_info = None
-    if ref is not None and any(isinstance(outcomes.get(n), impls.Outcome) and adapters[n].comparability != "step"
-                               for n in outcomes if n != REFERENCE):
+    return outcomes
+
+
+def _reference_at_convergence(adapters: dict, outcomes: dict, pinned) -> tuple:
+    """The reference run to convergence and its summary, when an implementation compares at the fixed
+    point or by objective (else (None, None))."""
+    from .. import implementations as impls
+
+    if outcomes.get(REFERENCE) is None or not any(
+            isinstance(outcomes.get(n), impls.Outcome) and adapters[n].comparability != "step"
+            for n in outcomes if n != REFERENCE):
+        return None, None
+    try:
+        conv = adapters[REFERENCE].run(converged_settings(pinned))
+    except Exception as exc:  # noqa: BLE001
+        return None, {"error": _one_line(exc)}
+    return conv, {"matrix": conv.matrix.tolist(), "iterations": conv.iterations, "converged": conv.converged,
+                  "fitness": conv.fitness, "inlier_rmse": conv.inlier_rmse,
+                  "settings": converged_settings(pinned).params()}
+
+
+def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float, truth) -> dict:
+    """One implementation's row: its outcome, compared with the reference (step for step, or at
+    convergence) and with ``truth``."""
+    from .. import implementations as impls
+
+    comp = a.comparability if a is not None else "step"
+    row = {"matrix": None, "iterations": None, "fitness": None, "inlier_rmse": None, "converged": None,
+           "seconds": 0.0, "comparability": comp, "rotation_disagreement_deg": None,
+           "translation_disagreement": None, "matrix_relative_disagreement": None, "agrees": False,
+           "error": errors.get(name), "status": "missing" if o == "missing" else ("failed" if name in errors else "ok"),
+           "compared_with": None, "divergence": None, "trace": False,
+           "description": getattr(a, "description", ""), "settings": None}
+    if a is not None:
         try:
-            conv = adapters[REFERENCE].run(converged_settings(pinned))
-            conv_info = {"matrix": conv.matrix.tolist(), "iterations": conv.iterations, "converged": conv.converged,
-                         "fitness": conv.fitness, "inlier_rmse": conv.inlier_rmse,
-                         "settings": converged_settings(pinned).params()}
-        except Exception as exc:  # noqa: BLE001
-            conv_info = {"error": _one_line(exc)}
-    rows, traces = {}, {}
-    for name in names:
-        o = outcomes.get(name)
-        a = adapters.get(name)
-        comp = a.comparability if a is not None else "step"
-        row = {"matrix": None, "iterations": None, "fitness": None, "inlier_rmse": None, "converged": None,
-               "seconds": 0.0, "comparability": comp, "rotation_disagreement_deg": None,
-               "translation_disagreement": None, "matrix_relative_disagreement": None, "agrees": False,
-               "error": errors.get(name), "status": "missing" if o == "missing" else ("failed" if name in errors else "ok"),
-               "compared_with": None, "divergence": None, "trace": False,
-               "description": getattr(a, "description", ""), "settings": None}
-        if a is not None:
-            try:
-                row["settings"] = a.settings(pinned)
-            except Exception:  # noqa: BLE001 - settings are informative only
-                row["settings"] = None
-        if isinstance(o, impls.Outcome):
-            row.update({"matrix": o.matrix.tolist(), "iterations": o.iterations, "fitness": o.fitness,
-                        "inlier_rmse": o.inlier_rmse, "converged": o.converged, "seconds": float(o.seconds),
-                        "trace": bool(o.trace)})
-            if o.info:
-                row["info"] = o.info
-            traces[name] = o.trace
-            base, base_name = (ref, "reference") if comp == "step" else (conv, "reference at convergence")
-            if name == REFERENCE:
-                base, base_name = o, "reference"
-            if base is not None:
-                cmp = compare_matrices(base.matrix, o.matrix, src)
-                row.update(cmp)
-                row["compared_with"] = base_name
-                row["agrees"] = bool(_agrees(comp, cmp, diag))
-                if ref is not None and name != REFERENCE and o.trace and ref.trace:
-                    row["divergence"] = trace_divergence(ref.trace, o.trace)
-            elif name != REFERENCE:
-                row["error"] = row["error"] or None
-                row["compared_with"] = None
-            if truth is not None:
-                t = compare_matrices(np.asarray(truth, dtype=np.float64), o.matrix, src)
-                row["truth_rotation_deg"] = t["rotation_disagreement_deg"]
-                row["truth_translation"] = t["translation_disagreement"]
-        rows[name] = row
-    settings = {**pinned.params(), "init": T0.tolist(), "voxel_size": voxel_size, "dimension": d,
-                "source_points": len(src), "target_points": len(tgt), "target_diagonal": diag}
-    if ref is None:
-        settings["reference_error"] = errors.get(REFERENCE)
-    return CloudCrosscheck(rows=rows, settings=settings, reference_at_convergence=conv_info, traces=traces,
-                           source=src, target=tgt)
+            row["settings"] = a.settings(pinned)
+        except Exception:  # noqa: BLE001 - settings are informative only
+            row["settings"] = None
+    if not isinstance(o, impls.Outcome):
+        return row
+    row.update({"matrix": o.matrix.tolist(), "iterations": o.iterations, "fitness": o.fitness,
+                "inlier_rmse": o.inlier_rmse, "converged": o.converged, "seconds": float(o.seconds),
+                "trace": bool(o.trace)})
+    if o.info:
+        row["info"] = o.info
+    base, base_name = (ref, "reference") if comp == "step" else (conv, "reference at convergence")
+    if name == REFERENCE:
+        base, base_name = o, "reference"
+    if base is not None:
+        cmp = compare_matrices(base.matrix, o.matrix, src)
+        row.update(cmp)
+        row["compared_with"] = base_name
+        row["agrees"] = bool(_agrees(comp, cmp, diag))
+        if ref is not None and name != REFERENCE and o.trace and ref.trace:
+            row["divergence"] = trace_divergence(ref.trace, o.trace)
+    elif name != REFERENCE:
+        row["error"] = row["error"] or None
+        row["compared_with"] = None
+    if truth is not None:
+        t = compare_matrices(np.asarray(truth, dtype=np.float64), o.matrix, src)
+        row["truth_rotation_deg"] = t["rotation_disagreement_deg"]
+        row["truth_translation"] = t["translation_disagreement"]
+    return row

@@ -5,7 +5,9 @@
 - :mod:`.open3d_icp`: Open3D's point-to-point ICP on clouds lifted to z = 0;
 - :mod:`.global_search`: hypotheses for images (edge FFT search, Fourier-Mellin, ORB + RANSAC) and the
   evidence that tells a true alignment from chance;
-- :mod:`.api`: ``icp`` (clouds) and ``register`` (images: hypotheses, ICP, plausibility test);
+- :mod:`.api`: ``icp`` (clouds) and ``register`` (images: hypotheses, ICP, plausibility test), made of
+  :mod:`.steps` (each backend's ICP step), :mod:`.pyramid` (lazy cloud pyramids), :mod:`.refine`
+  (coarse-to-fine ICP), :mod:`.search` (hypotheses, refined and measured) and :mod:`.plausibility`;
 - :mod:`.dense`: ``register_dense``, the global result refined into a dense field by a non-rigid ICP;
 - :mod:`.flow`: OpenCV's DIS optical flow as a field (the baseline of the evaluations);
 - :mod:`.config`: :class:`~.config.RegisterConfig`, ``register``'s options as one frozen config;

@@ -261,13 +261,13 @@ def image_cloud(image: np.ndarray, *, sampler: str = "canny", max_points: int | 
         if min(lvl_img.shape[:2]) < 16:
             raise InputError(f"image {img.shape[1]}x{img.shape[0]} is too small for pyramid level {level}")
         lvl_img = cv2.pyrDown(lvl_img)
-    return _cloud_at(lvl_img, level=level, shape=img.shape[:2], mask=mask, sampler=sampler, max_points=max_points,
-                     grid_step=grid_step, top_k=top_k, subpixel=subpixel, seed=seed,
-                     canny_percentile=canny_percentile)
+    return level_cloud(lvl_img, level=level, shape=img.shape[:2], mask=mask, sampler=sampler, max_points=max_points,
+                       grid_step=grid_step, top_k=top_k, subpixel=subpixel, seed=seed,
+                       canny_percentile=canny_percentile)
 
 
-def _cloud_at(lvl_img: np.ndarray, *, level: int, shape: tuple[int, int], mask: np.ndarray | None,
-              **kwargs) -> ImageCloud:
+def level_cloud(lvl_img: np.ndarray, *, level: int, shape: tuple[int, int], mask: np.ndarray | None,
+                **kwargs) -> ImageCloud:
     """The cloud of an image already reduced to pyramid level ``level`` (full-resolution ``shape``)."""
     pts, normals, pix = _level_points(lvl_img, valid=_level_valid(mask, lvl_img, level), **kwargs)
     return _as_cloud(lvl_img, pts, normals, pix, level=level, shape=shape)
@@ -335,8 +335,8 @@ def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple
             if min(lvl_img.shape[:2]) < 16:
                 raise InputError(f"image {img.shape[1]}x{img.shape[0]} is too small for {levels} pyramid levels")
             lvl_img = cv2.pyrDown(lvl_img)
-        out.append(_cloud_at(lvl_img, level=level, shape=img.shape[:2], mask=mask, max_points=max_points[level],
-                             seed=seed, **kwargs))
+        out.append(level_cloud(lvl_img, level=level, shape=img.shape[:2], mask=mask, max_points=max_points[level],
+                               seed=seed, **kwargs))
     return out
 
 

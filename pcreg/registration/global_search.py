@@ -15,7 +15,7 @@ Generators (each returns candidate ``T_ref_mov`` matrices in full-resolution pix
 among those that land on the reference image, that have a reference edge point within ``tolerance``
 px whose edge direction agrees within ``max_angle_deg``. A true alignment of the same scene puts most
 points there; an alignment of unrelated content only as many as chance allows (see
-:data:`DEFAULT_MIN_INLIER_RATIO` in :mod:`pcreg.registration.api`).
+:data:`DEFAULT_MIN_INLIER_RATIO` in :mod:`pcreg.registration.plausibility`).
 """
 
 from __future__ import annotations
@@ -253,6 +253,11 @@ class Evidence:
     overlap_points: int
     moving_points: int
     chance_ratio: float = 0.0
+
+    @property
+    def overlap(self) -> float:
+        """The share of the moving points that land inside the reference image."""
+        return self.overlap_points / max(self.moving_points, 1)
 
 
 def alignment_evidence(T: np.ndarray, mov: ImageCloud, ref: ImageCloud, tree, *, tolerance: float,

@@ -1,0 +1,108 @@
+"""The plausibility test of :func:`~pcreg.registration.api.register`: the evidence that tells a true
+alignment from chance, and the refusal of the rest.
+
+Failure signal: the winner's ``inlier_ratio`` is the share of moving edge points, among those that land
+on the reference image, with a reference edge point within ``inlier_tolerance`` px whose edge direction
+agrees within 30° (measured at full resolution; on images whose full-resolution reference cloud hits
+``reference_max_points``, at the finest level where it does not, with the tolerance scaled to it).
+``chance_ratio`` is what unrelated content reaches at the same distances. Below ``min_inlier_ratio``
+(see :data:`DEFAULT_MIN_INLIER_RATIO`; None turns the test off), below :data:`CHANCE_FACTOR` x
+``chance_ratio``, with fewer than 2% of the points on the reference (no overlap), or when the moving
+image's mirror aligns clearly better (:data:`MIRROR_FACTOR`), :class:`~pcreg.errors.RegistrationError`
+is raised with a one-line reason. Unrelated images, noise and mirror images are refused this way.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import RegistrationError
+from .global_search import Evidence, alignment_evidence
+from .pyramid import CloudPyramid
+from .search import Candidate
+
+DEFAULT_MIN_INLIER_RATIO = 0.15
+"""Default plausibility threshold of :func:`register`: the share of tight (<= 1 px), direction-consistent
+inliers an alignment must reach.
+
+The argument: content unrelated to the reference reaches only the test's chance level, the share of
+points that fall within 1 px of some reference edge times the chance that two unrelated edge directions
+agree within 30° (about 1/6 for uniform directions). Measured after the full search and ICP (which
+optimise the alignment, so this is the worst case), unrelated photographs, noise and procedural
+textures against each other reach 0.01-0.09, and the permutation estimate of chance
+(``chance_ratio``) is at most 0.20 even on dense, oriented textures (grass). True alignments of the
+same content reach 0.5-0.95 on photographs and textures; consecutive street-scene frames 15 per second
+apart 0.43-0.62. 0.15 lies above every unrelated alignment measured, with room below true ones; the
+second test, ``inlier_ratio >= CHANCE_FACTOR x chance_ratio``, covers textures whose own chance level
+comes near it. Mirror images are refused by comparison with their mirror (see :func:`register`).
+"""
+
+MIRROR_FACTOR = 1.2
+"""A moving image whose mirror scores (:attr:`~pcreg.registration.search.Candidate.score`) this much better
+than itself is refused as a mirror image."""
+
+CHANCE_FACTOR = 2.0
+"""A plausible alignment has at least this multiple of its chance level of inliers (true alignments
+measured at >= 2.8x, unrelated content at about 1x)."""
+
+
+class Plausibility:
+    """Measures alignments onto ``reference`` and tests the winner (see the module's description).
+
+    tree : the reference cloud's index per level (:meth:`~pcreg.registration.refine.CoarseToFine.tree`).
+    """
+
+    def __init__(self, reference: CloudPyramid, tree, *, model: str, min_inlier_ratio: float | None,
+                 inlier_tolerance: float, reference_max_points: int | None):
+        self.reference, self.tree, self.model = reference, tree, model
+        self.min_inlier_ratio, self.inlier_tolerance = min_inlier_ratio, inlier_tolerance
+        # The evidence is measured at full resolution, unless the reference cloud had to be capped there (a
+        # random subset of the edges leaves gaps that true matches fall into): then at the finest level with
+        # every edge, with the tolerance scaled to that level (1 px at level 1 = 2 px).
+        self.level = 0
+        if reference_max_points is not None:
+            while self.level < len(reference) - 1 and len(reference[self.level]) >= reference_max_points:
+                self.level += 1
+
+    @property
+    def convincing(self) -> float:
+        """The inlier ratio at which the search stops early: max(0.6, 2 x ``min_inlier_ratio``)."""
+        return 0.6 if self.min_inlier_ratio is None else max(0.6, 2.0 * self.min_inlier_ratio)
+
+    def measure(self, moving: CloudPyramid, T: np.ndarray) -> Evidence:
+        """The evidence of ``T`` (``T_ref_mov``) aligning ``moving``'s cloud with the reference's."""
+        return alignment_evidence(T, moving[self.level], self.reference[self.level], self.tree(self.level),
+                                  tolerance=self.inlier_tolerance * 2**self.level)
+
+    def worth_a_mirror(self, tried: list[Candidate], convincing: bool) -> bool:
+        """Whether the search ended unconvinced though above the threshold: then the moving image may be a
+        mirror image of the reference (its mirror, if so, aligns better; a rigid or similarity motion
+        cannot mirror)."""
+        best_ratio = max((c.inlier_ratio for c in tried), default=0.0)
+        return (self.min_inlier_ratio is not None and self.model in ("translation", "rigid", "similarity")
+                and best_ratio >= self.min_inlier_ratio and not convincing)
+
+    def check(self, best: Candidate, *, mirror: Candidate | None = None) -> Evidence:
+        """``best``'s evidence, or a :class:`RegistrationError` saying why it is refused."""
+        ev, ratio = best.evidence, best.inlier_ratio
+        need = max(10, int(np.ceil(0.02 * ev.moving_points)))
+        if best.refined.fitness == 0.0 or ev.overlap_points < need:
+            raise RegistrationError(f"registration found no overlap between the images: {ev.overlap_points} of "
+                                    f"{ev.moving_points} moving edge points land on the reference (at least {need} needed)")
+        if mirror is not None and mirror.score > MIRROR_FACTOR * best.score:
+            raise RegistrationError(
+                f"registration refused: the moving image is a mirror image of the reference (its mirror aligns "
+                f"{100 * mirror.inlier_ratio:.1f}% of the edge points within {self.inlier_tolerance:g} px, the image "
+                f"itself {100 * ratio:.1f}%, with intensities agreeing less)")
+        mir, chance = self.min_inlier_ratio, ev.chance_ratio
+        if mir is not None and mir > 0 and ratio < CHANCE_FACTOR * chance:
+            raise RegistrationError(
+                f"registration refused: the best alignment's {100 * ratio:.1f}% of tight, direction-consistent edge "
+                f"points is no better than chance ({100 * chance:.1f}% expected from unrelated content at the same "
+                f"distances); the images do not show the same scene under a {self.model} motion")
+        if mir is not None and ratio < mir:
+            raise RegistrationError(
+                f"registration refused: the best alignment puts only {100 * ratio:.1f}% of the overlapping edge "
+                f"points within {self.inlier_tolerance:g} px of a reference edge of the same direction "
+                f"(min_inlier_ratio {mir:g}); the images do not show the same scene under a {self.model} motion")
+        return ev

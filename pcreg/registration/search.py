@@ -1,0 +1,188 @@
+"""The global search of :func:`~pcreg.registration.api.register`: hypotheses from the generators, each
+refined coarse to fine and measured, in turn until one is convincing.
+
+Generators (:mod:`pcreg.registration.global_search`): ``"fourier_mellin"`` takes the rotation from the
+log-polar magnitude spectra and the translation from a phase correlation of the intensity images;
+``"edges"`` rotates the moving edge cloud every ``angle_step`` degrees over the full circle and finds
+each rotation's translation by FFT cross-correlation (the ``n_candidates`` best get a short ICP at the
+search level, the coarsest with at least 100 points a side, and are ranked by their tight inliers
+there); ``"orb"`` matches ORB features at pyramid level 1 and fits a similarity by RANSAC. Intensity
+hypotheses (the 180° twin of Fourier-Mellin's included) are ranked by the normalised cross-correlation
+of the images they align and refined at full resolution (a first pass with twice the correspondence
+distance); the edge hypothesis from the coarsest level. Every ICP step uses the registration's backend;
+the refined hypothesis is measured at full resolution (:class:`~pcreg.registration.global_search.Evidence`).
+
+A generator is convincing when its refined hypothesis reaches an inlier ratio of max(0.6, 2 x
+``min_inlier_ratio``) and its intensities agree (:data:`CONVINCING_NCC`); otherwise the next one runs,
+so easy pairs pay for one. The winner has the most inliers, weighted by the intensities' agreement
+(:attr:`Candidate.score`: edges alone cannot tell a brick wall from its copy shifted by a brick).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .global_search import (Evidence, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
+                            gray_level, orb_hypotheses, photometric_agreement)
+from .pyramid import CloudPyramid
+from .refine import CoarseToFine, Refinement
+from .transforms import apply, corners
+
+START_LEVEL = 0
+"""Pyramid level at which rigid intensity hypotheses (within a few pixels) are refined first: full
+resolution, measured 6-10% faster than level 1 and as accurate."""
+CONVINCING_NCC = 0.6
+"""The search stops early only at an alignment whose intensities also agree (normalised cross-correlation at
+pyramid level 2 at least this); otherwise every generator runs and the best one wins."""
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """A generator's starting point: ``matrix`` (``T_ref_mov``), refined coarse to fine from level ``top``
+    (None: the coarsest)."""
+
+    generator: str
+    matrix: np.ndarray
+    top: int | None = None
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A hypothesis refined and measured: its refinement, the refined alignment's evidence and, where
+    measured, the normalised cross-correlation of the intensities it aligns (NaN otherwise)."""
+
+    hypothesis: Hypothesis
+    refined: Refinement
+    evidence: Evidence
+    photometric_ncc: float = float("nan")
+
+    @property
+    def generator(self) -> str:
+        return self.hypothesis.generator
+
+    @property
+    def inlier_ratio(self) -> float:
+        return self.evidence.inlier_ratio
+
+    @property
+    def score(self) -> float:
+        """The inlier ratio weighted by the agreement of the intensities, when measured: edges rank,
+        intensities break the ties of patterns."""
+        ratio, ncc = self.inlier_ratio, self.photometric_ncc
+        return ratio * (0.25 + max(ncc, 0.0)) if np.isfinite(ncc) else ratio
+
+
+def unseen(hyps: list[np.ndarray], seen: list[np.ndarray], shape, *, min_px: float) -> list[np.ndarray]:
+    """The hypotheses whose corners are more than ``min_px`` from those of every one in ``seen`` and
+    of every earlier one in ``hyps``."""
+    c = corners(shape)
+    out: list[np.ndarray] = []
+    for h in hyps:
+        pc = apply(h, c)
+        if all(np.max(np.linalg.norm(pc - apply(q, c), axis=1)) > min_px for q in list(seen) + out):
+            out.append(h)
+    return out
+
+
+class GlobalSearch:
+    """The generators in turn on one reference (see the module's description).
+
+    refiner : the registration's coarse-to-fine ICP (its reference pyramid is the search's).
+    measure : the evidence of an alignment of a moving pyramid (the plausibility test's measure).
+    convincing : the inlier ratio at which a generator's refined hypothesis ends the search.
+    """
+
+    def __init__(self, refiner: CoarseToFine, measure: Callable[[CloudPyramid, np.ndarray], Evidence], *,
+                 model: str, generators: Sequence[str], angle_step: float, n_candidates: int, seed: int,
+                 convincing: float):
+        self.refiner, self.reference, self.measure = refiner, refiner.reference, measure
+        self.model, self.generators, self.seed, self.convincing = model, tuple(generators), seed, convincing
+        self.angle_step, self.n_candidates = angle_step, n_candidates
+        self.search_model = "translation" if model == "translation" else "rigid"
+        self.levels = len(self.reference)
+        self.p_level = min(2, self.levels - 1)
+        self.reference_gray, _ = gray_level(self.reference.image, self.p_level, valid=self.reference.valid)
+
+    def run(self, moving: CloudPyramid) -> list[Candidate]:
+        """Every generator in turn until one is convincing: the refined hypotheses, in the order tried."""
+        gray = gray_level(moving.image, self.p_level, valid=moving.valid)
+        tried: list[Candidate] = []
+        for generator in self.generators:
+            if generator == "edges":
+                h = self.edge_hypothesis(moving)
+            else:
+                h = self.intensity_hypothesis(generator, moving, gray, seen=[c.refined.matrix for c in tried])
+            if h is None:
+                continue
+            tried.append(self.evaluate(h, moving, gray))
+            if self.is_convincing(tried[-1]):
+                break
+        return tried
+
+    def is_convincing(self, c: Candidate) -> bool:
+        return c.inlier_ratio >= self.convincing and c.photometric_ncc >= CONVINCING_NCC
+
+    def evaluate(self, h: Hypothesis, moving: CloudPyramid, gray) -> Candidate:
+        """``h`` refined coarse to fine and measured (edges and intensities)."""
+        refined = self.refiner.refine(moving, h.matrix, top=h.top)
+        ncc = self.agreement(refined.matrix, gray)
+        return Candidate(h, refined, self.measure(moving, refined.matrix), ncc)
+
+    def agreement(self, T: np.ndarray, gray) -> float:
+        mov_gray, mov_valid = gray
+        return photometric_agreement(T, self.reference_gray, mov_gray, level=self.p_level, moving_valid=mov_valid)
+
+    def edge_hypothesis(self, moving: CloudPyramid) -> Hypothesis:
+        """Rotation samples every ``angle_step`` degrees: the best few get a short ICP at the search level
+        and are ranked by their tight inliers there (ICP's fitness under its wide gate is near 1 for wrong
+        hypotheses too); the best is refined from the coarsest level."""
+        ref = self.reference
+        g_level = min(3, self.levels - 1)
+        # The search needs enough points to tell hypotheses apart: go finer until it has them.
+        while g_level > 0 and (len(moving[g_level]) < 100 or len(ref[g_level]) < 100):
+            g_level -= 1
+        g_tree = self.refiner.tree(g_level)
+        angles = np.array([0.0]) if self.model == "translation" else np.arange(0.0, 360.0, self.angle_step)
+        Ts, score = edge_fft_hypotheses(ref[g_level], moving[g_level], angles=angles)
+        best = (-1.0, None)
+        for k in np.argsort(-score)[:self.n_candidates]:
+            Tk = self.refiner.at_level(moving, Ts[k], g_level, dist=3.0 * 2**g_level, model=self.search_model,
+                                       final=False).matrix
+            sc = alignment_evidence(Tk, moving[g_level], ref[g_level], g_tree, tolerance=2.0**g_level).inlier_ratio
+            if sc > best[0]:
+                best = (sc, Tk)
+        return Hypothesis("edges", best[1])
+
+    def intensity_hypothesis(self, generator: str, moving: CloudPyramid, gray, *,
+                             seen: list[np.ndarray]) -> Hypothesis | None:
+        """The best of Fourier-Mellin's or ORB's hypotheses by intensity; None when every one would land
+        within 2 px of an alignment in ``seen``.
+
+        They are usually within a few pixels: refined at full resolution alone (a first pass with twice
+        the correspondence distance), where the coarse levels of fine repetitive patterns (bricks) cannot
+        pull them away. (A scale, or more, is estimated coarse to fine: a level-1 start leaves its bias.)
+        """
+        ref, mov = self.reference, moving
+        # Fourier-Mellin on a canvas of about 256-320 px: level 1 for 512-640 px images, finer or coarser
+        # for smaller or larger ones (its cost grows with the canvas area, its precision with the resolution).
+        big = max(ref.image.shape[:2] + mov.image.shape[:2])
+        fm_level = int(min(self.levels - 1, max(0, np.ceil(np.log2(big / 320.0)))))
+        if generator == "fourier_mellin":
+            hyps = fourier_mellin_hypotheses(ref.image, mov.image, level=fm_level,
+                                             model=self.model if self.model in ("translation", "rigid") else "similarity",
+                                             reference_valid=ref.valid, moving_valid=mov.valid)
+        else:
+            hyps = orb_hypotheses(ref.image, mov.image, level=min(1, self.levels - 1), model=self.search_model,
+                                  seed=self.seed, reference_valid=ref.valid, moving_valid=mov.valid)
+        hyps = unseen(hyps, seen, mov.image.shape, min_px=2.0)
+        if not hyps:
+            return None
+        h = max(hyps, key=lambda H: self.agreement(H, gray))
+        # The start level follows the hypothesis's precision: Fourier-Mellin's is about a cell of the
+        # level it ran at (its rotation step is one row of its log-polar image).
+        start = max(START_LEVEL, fm_level - 1) if generator == "fourier_mellin" else START_LEVEL
+        top = min(start, self.levels - 1) if self.model in ("translation", "rigid") else None
+        return Hypothesis(generator, h, top)

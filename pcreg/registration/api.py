@@ -16,13 +16,14 @@ import numpy as np
 from ..errors import InputError, RegistrationError
 from .open3d_icp import icp_open3d, to_pointcloud
 from .reference import WEIGHTS, METRICS, build_tree, check_rank, icp_reference
-from .clouds import ImageCloud, ImagePyramid, _cloud_at, as_rgb_uint8, check_pyramid, per_level, usable_mask
+from .clouds import (SAMPLERS, ImageCloud, ImagePyramid, _cloud_at, as_rgb_uint8, check_mask, check_pyramid, per_level,
+                     usable_mask)
 from .result import IcpIteration, RegistrationResult
 from .global_search import (GENERATORS, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
                             gray_level, orb_hypotheses, photometric_agreement)
 from .open3d_icp import check_model as check_open3d_model
 from .transforms import about_point, apply, check_model, corners, image_center
-from ..validation import check_float, check_int, check_matrix
+from ..validation import short_repr, check_bool, check_choice, check_counts, check_float, check_floats, check_int, check_ints, check_matrix
 
 BACKENDS = ("reference", "open3d")
 MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 keeps sub-mm steps at 1e6 m
@@ -102,13 +103,13 @@ def _refuse_for_open3d(*, weights: str = "none", metric: str = "point_to_point",
 
 
 def _check_options(backend: str, model: str, dim: int, weights: str, metric: str) -> None:
-    if backend not in BACKENDS:
-        raise InputError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    if not isinstance(backend, str) or backend not in BACKENDS:
+        raise InputError(f"unknown backend {short_repr(backend)}; choose one of {', '.join(BACKENDS)}")
     check_model(model, dim)
-    if weights not in WEIGHTS:
-        raise InputError(f"unknown robust weights {weights!r}; choose one of {', '.join(WEIGHTS)}")
-    if metric not in METRICS:
-        raise InputError(f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
+    if not isinstance(weights, str) or weights not in WEIGHTS:
+        raise InputError(f"unknown robust weights {short_repr(weights)}; choose one of {', '.join(WEIGHTS)}")
+    if not isinstance(metric, str) or metric not in METRICS:
+        raise InputError(f"unknown metric {short_repr(metric)}; choose one of {', '.join(METRICS)}")
 
 
 def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = "reference", model: str = "rigid",
@@ -146,8 +147,15 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
         check_open3d_model(model)
         _refuse_for_open3d(weights=weights, metric=metric, target_normals=target_normals, rotation=rotation,
                            trim_fraction=trim_fraction)
-    if rotation not in ("svd", "quaternion"):
-        raise InputError(f"rotation must be 'svd' or 'quaternion', got {rotation!r}")
+    voxel_sizes = check_floats(voxel_sizes, "voxel_sizes", lo=0, lo_open=True)
+    max_correspondence_distances = check_floats(max_correspondence_distances, "max_correspondence_distances",
+                                                lo=0, lo_open=True)
+    max_iterations = check_ints(max_iterations, "max_iterations", lo=0, hi=100_000)
+    count_iterations = check_bool(count_iterations, "count_iterations")
+    if callback is not None and not callable(callback):
+        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
+    if not isinstance(rotation, str) or rotation not in ("svd", "quaternion"):
+        raise InputError(f"rotation must be 'svd' or 'quaternion', got {short_repr(rotation)}")
     if rotation == "quaternion" and (dim != 3 or model != "rigid"):
         raise InputError("rotation='quaternion' (Horn's closed form) is for the rigid model of 3-D clouds")
     if metric == "point_to_line" and (dim != 2 or target_normals is None or voxel_sizes):
@@ -169,11 +177,6 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
     if max_correspondence_distance is not None:
         max_correspondence_distance = check_float(max_correspondence_distance, "max_correspondence_distance",
                                                   lo=0, lo_open=True)
-    for name, seq in (("voxel_sizes", voxel_sizes), ("max_correspondence_distances", max_correspondence_distances)):
-        for v in seq or ():
-            check_float(v, name, lo=0, lo_open=True)
-    for v in max_iterations or ():
-        check_int(v, "max_iterations", lo=0, hi=100_000)
     if max_correspondence_distance is None:
         both = np.vstack([apply(T, src), tgt])
         max_correspondence_distance = float(np.linalg.norm(both.max(axis=0) - both.min(axis=0))) + 1.0
@@ -423,25 +426,33 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     relative_fitness = check_float(relative_fitness, "relative_fitness", lo=0)
     relative_rmse = check_float(relative_rmse, "relative_rmse", lo=0)
     canny_percentile = check_float(canny_percentile, "canny_percentile", lo=0, hi=100)
+    sampler = check_choice(sampler, "sampler", SAMPLERS)
+    max_points = check_counts(max_points, "max_points")
+    reference_max_points = check_counts(reference_max_points, "reference_max_points")
+    check_mask(reference_mask, ref_img.shape, name="reference_mask")
+    check_mask(moving_mask, mov_img.shape, name="moving_mask")
+    if callback is not None and not callable(callback):
+        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
     if not isinstance(init, str):
         init = check_matrix(init, "init", 3)
     if refine is None:
         refine = "none"
-    if refine not in REFINES:
-        raise InputError(f"refine must be one of {', '.join(REFINES)}, got {refine!r}")
+    refine = check_choice(refine, "refine", REFINES)
     _ensure_backend_options(backend, refine, weights)
     if backend == "open3d":
         check_open3d_model(model)
-    if min_inlier_ratio is not None and not 0.0 <= min_inlier_ratio <= 1.0:
-        raise InputError(f"min_inlier_ratio must be in [0, 1] or None, got {min_inlier_ratio!r}")
-    if not inlier_tolerance > 0:
-        raise InputError(f"inlier_tolerance must be > 0 px, got {inlier_tolerance!r}")
+    if min_inlier_ratio is not None:
+        min_inlier_ratio = check_float(min_inlier_ratio, "min_inlier_ratio", lo=0, hi=1)
+    inlier_tolerance = check_float(inlier_tolerance, "inlier_tolerance", lo=0, lo_open=True)
     if isinstance(generators, str):
         generators = (generators,)
-    generators = tuple(generators)
-    bad = [g for g in generators if g not in GENERATORS]
+    try:
+        generators = tuple(generators)
+    except TypeError:
+        raise InputError(f"generators must be a selection of {', '.join(GENERATORS)}, got {short_repr(generators)}") from None
+    bad = [g for g in generators if not isinstance(g, str) or g not in GENERATORS]
     if bad or not generators:
-        raise InputError(f"generators must be a non-empty selection of {', '.join(GENERATORS)}, got {generators!r}")
+        raise InputError(f"generators must be a non-empty selection of {', '.join(GENERATORS)}, got {short_repr(generators)}")
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
         raise InputError(f"images too small for {levels} pyramid levels")
     start = time.perf_counter()

@@ -68,10 +68,6 @@ def __getattr__(name: str) -> Any:
         raise AttributeError(f"module 'pcreg' has no attribute {name!r}")
     mod = importlib.import_module(module)
     value = mod if name in _MODULES else getattr(mod, name)
-    if name not in _MODULES:
-        from .validation import api_boundary
-
-        value = api_boundary(value)  # functions raise PcregError subclasses only
     globals()[name] = value
     return value
 

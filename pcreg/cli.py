@@ -1,8 +1,10 @@
 """The ``pcreg`` command line: parse, build a config, call the library.
 
-Known errors (:class:`pcreg.errors.PcregError`, bad options) become one line on stderr and exit code 2;
-a refused registration (:class:`pcreg.errors.RegistrationError`) exits with 3 (with ``--json``, the
-object ``{"ok": false, "reason": ...}`` is printed on stdout as well).
+Exit codes: 0 ok; 1 a bug in pcreg (any exception pcreg did not raise on purpose: one line on stderr
+that says so, or the whole traceback with ``PCREG_TRACEBACK=1``); 2 bad input (a
+:class:`pcreg.errors.PcregError` other than a refused registration, or bad options: one line on stderr);
+3 a refused registration (:class:`pcreg.errors.RegistrationError`; with ``--json``, the object
+``{"ok": false, "reason": ...}`` is printed on stdout as well); 130 interrupted (Ctrl-C or SIGTERM).
 Each command lives in its own module under ``pcreg.commands`` and exposes
 ``add_arguments(parser)`` and ``run(args) -> int``; heavy imports happen inside ``run``.
 """
@@ -78,7 +80,6 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_module", None):
         parser.print_help(sys.stderr)
         return 2
-    module = importlib.import_module(args._module)
     import os
 
     from .errors import RegistrationError
@@ -86,6 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     previous = _terminate_as_interrupt()
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
+        module = importlib.import_module(args._module)
         if getattr(args, "max_pixels", None):
             from .validation import set_max_pixels
 
@@ -115,12 +117,15 @@ def main(argv: list[str] | None = None) -> int:
     except MemoryError:
         sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels)\n")
         return 2
-    except Exception as exc:  # noqa: BLE001 - the last line of defence: one line, never a traceback
-        if os.environ.get("PCREG_TRACEBACK"):
-            raise
-        sys.stderr.write(f"pcreg: error: {type(exc).__name__}: {_one_line(exc)} "
-                         "(unexpected; PCREG_TRACEBACK=1 shows where)\n")
-        return 2
+    except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
+        if os.environ.get("PCREG_TRACEBACK", "") not in ("", "0"):
+            import traceback
+
+            traceback.print_exc(file=sys.stderr)
+        else:
+            sys.stderr.write(f"pcreg: internal error, a bug in pcreg: {type(exc).__name__}: {_one_line(exc)} "
+                             "(PCREG_TRACEBACK=1 shows the traceback)\n")
+        return 1
     finally:
         _restore_terminate(previous)
         if saved_limit is None:

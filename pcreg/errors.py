@@ -1,6 +1,7 @@
 """pcreg's exceptions. Every one is a ``ValueError`` so callers can catch bad input in one place.
 
-The command line turns any :class:`PcregError` into a one-line message and exit code 2.
+The command line turns a :class:`PcregError` into a one-line message and exit code 2 (3 for a
+:class:`RegistrationError`); any other exception is a bug in pcreg (exit code 1).
 """
 
 from __future__ import annotations

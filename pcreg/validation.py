@@ -36,7 +36,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .errors import InputError, PcregError
+from .errors import InputError
 
 DEFAULT_MAX_PIXELS = 50_000_000
 MAX_UNITS = 100_000  # evaluation units one command may plan
@@ -50,7 +50,7 @@ _ENV = "PCREG_MAX_PIXELS"
 def check_int(value, name: str, *, lo: int | None = None, hi: int | None = None) -> int:
     """``value`` as an int (a Python or numpy integer, not a float or bool) within [lo, hi]."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise InputError(f"{name} must be an integer, got {value!r}")
+        raise InputError(f"{name} must be an integer, got {short_repr(value)}")
     v = int(value)
     if (lo is not None and v < lo) or (hi is not None and v > hi):
         raise InputError(f"{name} must be in {_range(lo, hi)}, got {v}")
@@ -61,7 +61,7 @@ def check_float(value, name: str, *, lo: float | None = None, hi: float | None =
                 lo_open: bool = False, hi_open: bool = False) -> float:
     """``value`` as a finite float within the range (``lo_open``: value > lo, else value >= lo)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise InputError(f"{name} must be a number, got {value!r}")
+        raise InputError(f"{name} must be a number, got {short_repr(value)}")
     v = float(value)
     if not math.isfinite(v):
         raise InputError(f"{name} must be a finite number, got {v}")
@@ -70,6 +70,92 @@ def check_float(value, name: str, *, lo: float | None = None, hi: float | None =
     if hi is not None and (v >= hi if hi_open else v > hi):
         raise InputError(f"{name} must be {'<' if hi_open else '<='} {hi:g}, got {v:g}")
     return v
+
+
+def check_choice(value, name: str, choices) -> str:
+    """``value`` when it is one of the strings ``choices``."""
+    if not isinstance(value, str) or value not in choices:
+        raise InputError(f"{name} must be one of {', '.join(choices)}, got {short_repr(value)}")
+    return value
+
+
+def check_count(value, name: str) -> int | None:
+    """None (no cap) or an integer >= 1: a number of points to keep."""
+    return None if value is None else check_int(value, name, lo=1)
+
+
+def check_counts(value, name: str) -> int | tuple[int | None, ...] | None:
+    """A point cap (:func:`check_count`) or a non-empty tuple/list of them, one per pyramid level."""
+    if isinstance(value, (tuple, list)):
+        if not value:
+            raise InputError(f"{name} must name at least one level")
+        return tuple(check_count(v, name) for v in value)
+    return check_count(value, name)
+
+
+def check_floats(value, name: str, *, lo: float | None = None, lo_open: bool = False) -> tuple[float, ...] | None:
+    """None, or a sequence (tuple, list or 1-D array) of finite numbers in the range, as a tuple."""
+    if value is None:
+        return None
+    if isinstance(value, (str, bytes, dict, set)) or not hasattr(value, "__len__") or np.ndim(value) != 1:
+        raise InputError(f"{name} must be a sequence of numbers, got {short_repr(value)}")
+    return tuple(check_float(v, name, lo=lo, lo_open=lo_open) for v in value)
+
+
+def check_ints(value, name: str, *, lo: int | None = None, hi: int | None = None) -> tuple[int, ...] | None:
+    """None, or a sequence (tuple, list or 1-D array) of integers in [lo, hi], as a tuple."""
+    if value is None:
+        return None
+    if isinstance(value, (str, bytes, dict, set)) or not hasattr(value, "__len__") or np.ndim(value) != 1:
+        raise InputError(f"{name} must be a sequence of integers, got {short_repr(value)}")
+    return tuple(check_int(v, name, lo=lo, hi=hi) for v in value)
+
+
+def check_bool(value, name: str) -> bool:
+    """``value`` when it is True or False (a Python or numpy bool)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InputError(f"{name} must be True or False, got {short_repr(value)}")
+    return bool(value)
+
+
+def check_path(value, name: str) -> Path:
+    """``value`` (a str or path-like object) as a :class:`~pathlib.Path`."""
+    if not isinstance(value, (str, os.PathLike)):
+        raise InputError(f"{name} must be a path (str or os.PathLike), got {type(value).__name__}")
+    return Path(value)
+
+
+def check_callable(value, name: str):
+    """``value`` when it is None or callable."""
+    if value is not None and not callable(value):
+        raise InputError(f"{name} must be callable or None, got {type(value).__name__}")
+    return value
+
+
+def check_frame(value, name: str, *, labelled: bool = False):
+    """``value`` when it has a frame's ``image`` and ``labels`` (a :class:`pcreg.Frame`), labelled if asked."""
+    if not (hasattr(value, "image") and hasattr(value, "labels")):
+        raise InputError(f"{name} must be a Frame (image and labels), got {type(value).__name__}")
+    if labelled and value.labels is None:
+        raise InputError(f"{name} has no labels")
+    return value
+
+
+def check_frames(value, name: str = "frames", *, labelled: bool = False):
+    """``value`` when it is a list or tuple of frames (:func:`check_frame`)."""
+    if not isinstance(value, (list, tuple)):
+        raise InputError(f"{name} must be a list of Frame, got {type(value).__name__}")
+    for i, f in enumerate(value):
+        check_frame(f, f"{name}[{i}]", labelled=labelled)
+    return value
+
+
+def short_repr(value) -> str:
+    """A one-line repr of an argument for an error message (arrays by shape)."""
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape}"
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def check_matrix(value, name: str, dim: int) -> np.ndarray:
@@ -151,35 +237,6 @@ def check_units(n: int, what: str = "units") -> int:
     if n > MAX_UNITS:
         raise InputError(f"{n} {what} requested; the limit is {MAX_UNITS} (use a coarser step or fewer values)")
     return n
-
-
-def api_boundary(obj):
-    """``obj`` itself, or for a plain function a wrapper that turns the errors Python, NumPy or OpenCV
-    raise on arguments of the wrong type or value (TypeError, ValueError, IndexError, AttributeError, OverflowError,
-    ZeroDivisionError, ``numpy.linalg.LinAlgError``, ``cv2.error``) into :class:`InputError`, the
-    original chained as its cause. The public names of :mod:`pcreg` are wrapped so."""
-    import functools
-    import inspect
-
-    if not inspect.isfunction(obj) or getattr(obj, "__wrapped__", None) is not None:
-        return obj
-
-    @functools.wraps(obj)
-    def wrapper(*args, **kwargs):
-        try:
-            return obj(*args, **kwargs)
-        except PcregError:  # already one of ours
-            raise
-        except (TypeError, ValueError, IndexError, AttributeError, OverflowError, ZeroDivisionError,
-                np.linalg.LinAlgError) as exc:
-            raise InputError(f"{obj.__name__}: invalid input ({type(exc).__name__}: "
-                             f"{' '.join(str(exc).split())[:200]})") from exc
-        except Exception as exc:  # noqa: BLE001 - cv2.error and its kin, without importing cv2 here
-            if type(exc).__module__.split(".")[0] != "cv2":
-                raise
-            raise InputError(f"{obj.__name__}: OpenCV refused the input ({' '.join(str(exc).split())[-200:]})") from exc
-
-    return wrapper
 
 
 # --------------------------------------------------------------------------------------------------

@@ -147,3 +147,80 @@ def test_bad_input_is_one_line_and_exit_2(pair, tmp_path, make_args, message):
     assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
     assert message in lines[0]
     assert (tmp_path / "exists.png").read_bytes() == b"keep"
+
+
+# ------------------------------------------------------------------------------------------------
+# exit codes: 1 a bug in pcreg, 2 bad input, 3 refused, 130 interrupted
+# ------------------------------------------------------------------------------------------------
+
+def _main(argv, capsys):
+    from pcreg.cli import main
+
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse
+        rc = exc.code
+    captured = capsys.readouterr()
+    return rc, captured.out, captured.err.strip().splitlines()
+
+
+def _broken_tree(*args, **kwargs):
+    raise AttributeError("'NoneType' object has no attribute 'query'")
+
+
+def test_an_internal_error_is_reported_as_a_bug_with_exit_1(pair, capsys, monkeypatch):
+    """An exception pcreg does not raise on purpose, deep inside `pcreg register`, is a bug: exit 1 and one
+    line that says so and names it; never a bad-input exit 2 or an InputError."""
+    import pcreg.registration.api as api
+
+    d, _ = pair
+    monkeypatch.delenv("PCREG_TRACEBACK", raising=False)
+    monkeypatch.setattr(api, "build_tree", _broken_tree)
+    rc, out, err = _main(["register", d / "ref.png", d / "mov.png", "--json"], capsys)
+    assert rc == 1 and out == "", (rc, out, err)
+    assert len(err) == 1, err
+    assert "a bug in pcreg" in err[0] and "AttributeError: 'NoneType' object has no attribute 'query'" in err[0]
+    assert "PCREG_TRACEBACK=1" in err[0]
+
+    monkeypatch.setenv("PCREG_TRACEBACK", "1")
+    rc, out, err = _main(["register", d / "ref.png", d / "mov.png"], capsys)
+    assert rc == 1 and err[0] == "Traceback (most recent call last):", err
+    assert "in _broken_tree" in "\n".join(err) and err[-1] == "AttributeError: 'NoneType' object has no attribute 'query'"
+
+
+def test_a_bug_in_a_real_process_exits_1_with_one_line(pair):
+    """The same through a real interpreter, with a ZeroDivisionError in the ICP step of every level."""
+    d, _ = pair
+    code = ("import sys, pcreg.registration.api as api\n"
+            "def broken(*a, **k):\n    return 1 / 0\n"
+            "api._run_backend = broken\n"
+            "from pcreg.cli import main\n"
+            f"sys.exit(main(['register', {str(d / 'ref.png')!r}, {str(d / 'mov.png')!r}]))\n")
+    env = {k: v for k, v in __import__("os").environ.items() if k != "PCREG_TRACEBACK"}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 1 and len(lines) == 1, p.stderr
+    assert "a bug in pcreg" in lines[0] and "ZeroDivisionError: division by zero" in lines[0]
+
+
+def test_bad_input_still_exits_2_with_one_line(pair, tmp_path, capsys):
+    d, _ = pair
+    rc, out, err = _main(["register", tmp_path / "missing.png", d / "mov.png"], capsys)
+    assert rc == 2 and len(err) == 1 and err[0] == f"pcreg: error: {tmp_path / 'missing.png'}: no such file", err
+    rc, out, err = _main(["register", d / "ref.png", d / "mov.png", "--levels", "0"], capsys)  # argparse
+    assert rc == 2 and len(err) == 1 and "--levels" in err[0], err
+    rc, out, err = _main(["register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--refine", "point_to_line"],
+                         capsys)  # refused by the library (InputError)
+    assert rc == 2 and len(err) == 1 and "reference-backend finish" in err[0], err
+
+
+def test_an_interrupt_exits_130(pair, capsys, monkeypatch):
+    import pcreg.registration.api as api
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    d, _ = pair
+    monkeypatch.setattr(api, "build_tree", interrupted)
+    rc, out, err = _main(["register", d / "ref.png", d / "mov.png"], capsys)
+    assert rc == 130 and len(err) == 1 and "interrupted" in err[0], err

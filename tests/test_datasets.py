@@ -31,7 +31,7 @@ def test_frame_is_read_only_view_and_leaves_inputs_alone():
     lab = np.ones((4, 5), np.uint8)
     f = Frame(image=img, labels=lab, name="a")
     assert f.shape == (4, 5) and f.labelled
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         f.image[0, 0, 0] = 1
     img[0, 0, 0] = 7  # the caller's array stays writable and shared
     assert f.image[0, 0, 0] == 7
@@ -261,9 +261,13 @@ def test_load_folder_errors(tmp_path, damage, message):
 
 
 def test_load_dataset_specs(tmp_path):
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match="unknown kind 'nonsense'"):
         load_dataset("nonsense:/x")
-    with pytest.raises(PcregError):
+    with pytest.raises(InputError, match="size must be"):
+        load_dataset("synthetic:syn1a", n_frames=1, size=(48, 36, 3))
+    with pytest.raises(InputError, match="n_frames must be an integer"):
+        load_dataset("synthetic:syn1a", n_frames=2.5, size=(48, 36))
+    with pytest.raises(DatasetError, match="no such folder"):
         load_dataset(f"camvid:{tmp_path / 'missing'}")
     data = load_dataset("synthetic:syn1a,syn3b", n_frames=2, size=(48, 36))
     assert list(data) == ["syn1a", "syn3b"] and data["syn3b"][0].image.shape == (36, 48, 3)

@@ -62,7 +62,7 @@ def test_nan_queries_and_a_single_point():
     index = GridIndex(np.array([[1.0, 2.0]]))
     d2, idx = index.nearest(np.array([[np.nan, 0.0], [1.0, 2.5], [1e300, 0.0]]), 1.0)
     assert idx.tolist() == [-1, 0, -1]
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="M >= 1"):
         GridIndex(np.empty((0, 2)))
 
 

@@ -299,7 +299,7 @@ def test_bad_arrays_are_input_errors(tmp_path):
             rec.log_clouds(moving_points=np.zeros((5, 2)), moving_colors=np.zeros((4, 3)))
         with pytest.raises(InputError):
             rec.log_labels(truth=np.zeros((4, 4), np.float32))
-        with pytest.raises(ValueError):
+        with pytest.raises(ValueError, match="unknown log level 'LOUD'"):
             rec.log_text("x", level="LOUD")
 
 

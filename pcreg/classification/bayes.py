@@ -144,7 +144,10 @@ def _gaussian_params(counts: np.ndarray, classes: np.ndarray, *, var_smoothing: 
 def fit_classifier(frames: Sequence, *, features: Sequence[str] = ("rgb", "hsv", "row")) -> "NaiveBayesPixelClassifier":
     """A :class:`NaiveBayesPixelClassifier` fitted on labelled frames (objects with ``image`` and
     ``labels``, such as :class:`pcreg.datasets.Frame`); unknown pixels are left out."""
-    return NaiveBayesPixelClassifier(tuple(features)).fit([f.image for f in frames], [f.labels for f in frames])
+    from ..validation import check_frames
+
+    check_frames(frames, "frames", labelled=True)
+    return NaiveBayesPixelClassifier(features).fit([f.image for f in frames], [f.labels for f in frames])
 
 
 def _tables(theta: np.ndarray, var: np.ndarray) -> np.ndarray:
@@ -175,22 +178,18 @@ class NaiveBayesPixelClassifier:
     def __init__(self, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
                  weights: Sequence[float] | None = None, exclude_unknown: bool = True,
                  var_smoothing: float = 1e-9, priors: Sequence[float] | None = None) -> None:
-        try:
-            self.features = parse_features(features)
-            self.weights = normalise_weights(weights)
-            self.exclude_unknown = bool(exclude_unknown)
-        except InputError:
-            raise
-        except (TypeError, ValueError) as exc:
-            raise InputError(f"NaiveBayesPixelClassifier: invalid option ({' '.join(str(exc).split())[:160]})") from exc
-        from ..validation import check_float
+        from ..validation import check_bool, check_float, short_repr
+
+        self.features = parse_features(features)
+        self.weights = normalise_weights(weights)
+        self.exclude_unknown = check_bool(exclude_unknown, "exclude_unknown")
 
         self.var_smoothing = check_float(var_smoothing, "var_smoothing", lo=0)
         if priors is not None:
             try:
                 priors = tuple(float(p) for p in priors)
             except (TypeError, ValueError):
-                raise InputError(f"priors must be numbers, got {priors!r}") from None
+                raise InputError(f"priors must be numbers, got {short_repr(priors)}") from None
             if not all(np.isfinite(p) and p >= 0 for p in priors) or abs(sum(priors) - 1) > 1e-6:
                 raise InputError(f"priors must be finite, >= 0 and sum to 1, got {priors}")
         self.priors = priors

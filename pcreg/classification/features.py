@@ -20,6 +20,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..validation import short_repr
 
 FEATURES: dict[str, tuple[str, ...]] = {
     "thesis": ("wRGB",),
@@ -38,8 +39,13 @@ def parse_features(features: str | Iterable[str]) -> tuple[str, ...]:
     if isinstance(features, str):
         names = [f for f in features.replace(",", "+").split("+")]
     else:
-        names = list(features)
-    names = [str(n).strip().lower() for n in names if str(n).strip()]
+        try:
+            names = list(features)
+        except TypeError:
+            names = None
+        if names is None or not all(isinstance(n, str) for n in names):
+            raise InputError(f"features must be a string or a sequence of feature names, got {short_repr(features)}")
+    names = [n.strip().lower() for n in names if n.strip()]
     if not names:
         raise InputError("no features given (choose from " + ", ".join(FEATURES) + ")")
     bad = [n for n in names if n not in FEATURES]
@@ -54,7 +60,10 @@ def normalise_weights(weights: Sequence[float] | None) -> tuple[float, float, fl
     """The thesis feature's (w_r, w_g, w_b), non-negative and scaled to sum to 1."""
     if weights is None:
         return DEFAULT_WEIGHTS
-    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    try:
+        w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"thesis weights must be 3 non-negative numbers, got {weights!r:.60}") from None
     if w.shape != (3,) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
         raise InputError(f"thesis weights must be 3 non-negative numbers, not all zero (got {list(np.ravel(weights))})")
     w = w / w.sum()

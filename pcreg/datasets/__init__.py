@@ -14,6 +14,7 @@ pcreg's convention: 0 ground (traversable), 1 obstacle, 2 unknown.
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -71,15 +72,24 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     ``n_frames`` also truncates real sequences to their first frames. Returns {name: frames} in a
     stable order.
     """
+    from ..validation import check_int, check_ints
+
+    if not isinstance(spec, (str, os.PathLike)):
+        raise InputError(f"spec must be a string such as 'synthetic' or 'camvid:PATH', got {type(spec).__name__}")
     kind, _, arg = str(spec).partition(":")
     kind = kind.strip().lower()
-    if n_frames is not None and int(n_frames) < 1:
-        raise InputError(f"n_frames must be at least 1, got {n_frames}")
+    if n_frames is not None:
+        n_frames = check_int(n_frames, "n_frames", lo=1)
+    seed = check_int(seed, "seed", lo=0)
     if kind == "synthetic":
         names = [n.strip().lower() for n in arg.split(",") if n.strip()] if arg else list(SYNTHETIC_PRESETS)
+        if size is not None:
+            size = check_ints(size, "size", lo=1)
+            if len(size) != 2:
+                raise InputError(f"size must be (width, height), got {size!r}")
         width, height = size if size is not None else (640, 480)
-        _check_synthetic_size(len(names), 100 if n_frames is None else int(n_frames), int(width), int(height))
-        return {n: synthetic(n, 100 if n_frames is None else int(n_frames), seed, width=width, height=height)
+        _check_synthetic_size(len(names), 100 if n_frames is None else n_frames, width, height)
+        return {n: synthetic(n, 100 if n_frames is None else n_frames, seed, width=width, height=height)
                 for n in names}
     if not arg:
         raise InputError(f"--data {spec!r}: expected synthetic, synthetic:NAMES, camvid:PATH, folder:PATH or lagr:PATH")

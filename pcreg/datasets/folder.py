@@ -40,11 +40,17 @@ def mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
         if mapping.lower() != "camvid":
             raise InputError(f"unknown label mapping {mapping!r} (use 'camvid', a dict or None)")
         mapping = CAMVID_MAPPING
+    if not isinstance(mapping, Mapping):
+        raise InputError(f"mapping must be 'camvid', a dict raw id -> label or None, got {type(mapping).__name__}")
     lut = np.full(256, 255, dtype=np.uint8)
-    for raw, lab in dict(mapping).items():
-        if not (0 <= int(raw) <= 255) or int(lab) not in (0, 1, 2):
-            raise InputError(f"label mapping entry {raw} -> {lab}: raw ids are 0..255, labels 0, 1 or 2")
-        lut[int(raw)] = int(lab)
+    for raw, lab in mapping.items():
+        try:
+            r, c = int(raw), int(lab)
+        except (TypeError, ValueError, OverflowError):
+            r, c = -1, -1
+        if not (0 <= r <= 255) or c not in (0, 1, 2):
+            raise InputError(f"mapping entry {raw!r} -> {lab!r}: raw ids are 0..255, labels 0, 1 or 2")
+        lut[r] = c
     return lut
 
 
@@ -75,14 +81,16 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
     file and every label file its image, of the same size.
     Returns frames with image (H, W, 3) uint8 RGB and labels (H, W) uint8.
     """
-    folder = Path(folder)
+    from ..validation import check_path
+
+    folder = check_path(folder, "folder")
+    lut = mapping_lut(mapping)
     img_dir, lab_dir = folder / "images", folder / "labels"
     if not img_dir.is_dir():
         raise DatasetError(f"{folder}: no images/ folder")
     images = {p.stem: p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()}
     if not images:
         raise DatasetError(f"{img_dir}: no .png or .jpg frames")
-    lut = mapping_lut(mapping)
     labels: dict[str, Path] | None = None
     if lab_dir.is_dir():
         labels = {p.stem: p for p in sorted(lab_dir.iterdir()) if p.suffix.lower() == ".png" and p.is_file()}

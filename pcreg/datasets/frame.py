@@ -74,6 +74,9 @@ class Frame:
 def relative_transform(reference: Frame, moving: Frame) -> np.ndarray | None:
     """Ground-truth ``T_ref_mov`` (3, 3) float64, mapping the moving frame's pixel coordinates into the
     reference frame's: ``inv(reference.pose) @ moving.pose``; None when either pose is unknown."""
+    for name, f in (("reference", reference), ("moving", moving)):
+        if not hasattr(f, "pose"):
+            raise InputError(f"{name} must be a Frame, got {type(f).__name__}")
     if reference.pose is None or moving.pose is None:
         return None
     return np.linalg.solve(reference.pose, moving.pose)

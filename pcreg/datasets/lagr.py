@@ -85,7 +85,9 @@ def load_lagr(folder: str | Path) -> list[Frame]:
 
     Returns the frames in frame-number order (image (H, W, 3) uint8, labels (H, W) uint8 or None).
     """
-    folder = Path(folder)
+    from ..validation import check_path
+
+    folder = check_path(folder, "folder")
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder")
     files = sorted(folder.glob("*.mat"), key=_numbered)

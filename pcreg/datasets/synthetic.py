@@ -297,11 +297,13 @@ def synthetic(name: str, n_frames: int = 100, seed: int = 0, *, width: int = 640
     Returns ``n_frames`` :class:`Frame` (image (height, width, 3) uint8, labels (height, width) uint8,
     pose (3, 3) ``T_canvas_frame``).
     """
-    key = str(name).lower()
+    from ..validation import check_int, short_repr
+
+    key = name.lower() if isinstance(name, str) else None
     if key not in PRESETS:
-        raise InputError(f"unknown synthetic preset {name!r} (choose from {', '.join(SYNTHETIC_PRESETS)})")
-    if int(n_frames) < 1:
-        raise InputError(f"n_frames must be at least 1, got {n_frames}")
-    if int(width) < 16 or int(height) < 12:
-        raise InputError(f"synthetic frames must be at least 16x12 pixels, got {width}x{height}")
-    return list(_synthetic_cached(key, int(n_frames), int(seed), int(width), int(height)))
+        raise InputError(f"unknown synthetic preset {short_repr(name)} (choose from {', '.join(SYNTHETIC_PRESETS)})")
+    n_frames = check_int(n_frames, "n_frames", lo=1)
+    seed = check_int(seed, "seed", lo=0)
+    width = check_int(width, "width", lo=16, hi=32767)
+    height = check_int(height, "height", lo=12, hi=32767)
+    return list(_synthetic_cached(key, n_frames, seed, width, height))

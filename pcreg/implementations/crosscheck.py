@@ -201,6 +201,17 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
             return "clouds", arr
         return "images", arr
 
+    from ..validation import short_repr
+
+    if not isinstance(config, CrosscheckConfig):
+        raise InputError(f"config must be a CrosscheckConfig, got {type(config).__name__}")
+    if callback is not None and not callable(callback):
+        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
+    if implementations is not None:
+        if isinstance(implementations, str):
+            implementations = (implementations,)
+        if not isinstance(implementations, (tuple, list)) or not all(isinstance(n, str) for n in implementations):
+            raise InputError(f"implementations must be a sequence of names, got {short_repr(implementations)}")
     ka, A = kind_of(reference)
     kb, B = kind_of(moving)
     if ka != kb:

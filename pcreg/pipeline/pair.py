@@ -44,6 +44,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import InputError, RegistrationError
+from ..validation import check_bool, check_callable, check_float, check_frame, check_ints
 from ..registration.config import RegisterConfig
 from ..registration.result import RegistrationResult
 from ..classification.fusion import (FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds,
@@ -251,6 +252,33 @@ class ProcessedPair:
     arrays: PairArrays | None = None
 
 
+def _check_pair_args(reference, moving, classifier, *, weight, config, registration, temporal, indices,
+                     keep_arrays, callback, flow, flow_weight) -> None:
+    """An :class:`InputError` naming the first argument of :func:`process_pair` of the wrong type or value."""
+    from .temporal import TemporalFusion
+
+    check_frame(reference, "reference", labelled=True)
+    check_frame(moving, "moving", labelled=True)
+    if not hasattr(classifier, "class_prior_"):
+        raise InputError(f"classifier must be a fitted NaiveBayesPixelClassifier, got {type(classifier).__name__}")
+    check_float(weight, "weight", lo=0)
+    if not isinstance(config, PipelineConfig):
+        raise InputError(f"config must be a PipelineConfig, got {type(config).__name__}")
+    if registration is not None and not isinstance(registration, PairRegistration):
+        raise InputError(f"registration must be a PairRegistration or None, got {type(registration).__name__}")
+    if temporal is not None and not isinstance(temporal, TemporalFusion):
+        raise InputError(f"temporal must be a TemporalFusion or None, got {type(temporal).__name__}")
+    if len(check_ints(indices, "indices", lo=0) or ()) != 2:
+        raise InputError(f"indices must be two frame numbers, got {indices!r}")
+    check_bool(keep_arrays, "keep_arrays")
+    check_callable(callback, "callback")
+    if flow is not None and (not isinstance(flow, np.ndarray) or flow.shape != (*moving.image.shape[:2], 2)):
+        raise InputError(f"flow must be an (H, W, 2) array of the moving frame's size or None, "
+                         f"got {getattr(flow, 'shape', type(flow).__name__)}")
+    if flow_weight is not None:
+        check_float(flow_weight, "flow_weight", lo=0)
+
+
 def process_pair(reference, moving, classifier, *, weight: float, config: PipelineConfig = PipelineConfig(),
                  registration: PairRegistration | None = None, temporal: "TemporalFusion | None" = None,
                  indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
@@ -271,6 +299,9 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     from ..registration.transforms import max_corner_error
     from ..registration.warp import warp, warp_to_moving
 
+    _check_pair_args(reference, moving, classifier, weight=weight, config=config, registration=registration,
+                     temporal=temporal, indices=indices, keep_arrays=keep_arrays, callback=callback, flow=flow,
+                     flow_weight=flow_weight)
     if reference.shape != moving.shape:
         raise InputError(f"reference {reference.shape} and moving {moving.shape} frames differ in size")
     shape = moving.shape

@@ -14,6 +14,7 @@ from ..classification.bayes import fit_classifier
 from ..classification.fusion import (FusionConfig, WeightChoice, choose_weight, label_prior, prior_log_odds,
                                      warp_prior)
 from ..errors import InputError
+from ..validation import check_callable, check_frames, check_int, short_repr
 from .pair import METHODS, PairResult, PipelineConfig, flow_field, log_odds, process_pair, register_pair
 from .temporal import TemporalFusion, temporal_update
 
@@ -135,12 +136,19 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
     a sequence too short for ``k`` gives no pairs and a note.
     """
     t_start = time.perf_counter()
-    if int(k) < 1:
-        raise InputError(f"increment k must be at least 1, got {k}")
-    k = int(k)
+    check_frames(frames, "frames")
+    k = check_int(k, "k", lo=1)
     n = len(frames)
     if any(f.labels is None for f in frames):
         raise InputError("every frame needs labels to be scored")
+    if not isinstance(config, PipelineConfig):
+        raise InputError(f"config must be a PipelineConfig, got {type(config).__name__}")
+    if not isinstance(train, str):
+        raise InputError(f"train must be 'reference' or 'first:K', got {short_repr(train)}")
+    if fusion_frames is not None:
+        fusion_frames = check_int(fusion_frames, "fusion_frames", lo=0)
+    check_callable(on_pair, "on_pair")
+    check_callable(icp_callback, "icp_callback")
     if train != "reference":
         if not train.startswith("first:") or not train.split(":", 1)[1].isdigit() or int(train.split(":", 1)[1]) < 1:
             raise InputError(f"train must be 'reference' or 'first:K' with K >= 1, got {train!r}")

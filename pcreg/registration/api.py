@@ -16,7 +16,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import InputError, RegistrationError
-from ..validation import check_float, check_int, check_matrix
+from ..validation import (check_bool, check_choice, check_counts, check_float, check_floats, check_int, check_ints,
+                          check_matrix, short_repr)
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .global_search import GENERATORS
 from .open3d_icp import check_model as check_open3d_model
@@ -75,13 +76,13 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
 
 
 def _check_options(backend: str, model: str, dim: int, weights: str, metric: str) -> None:
-    if backend not in BACKENDS:
-        raise InputError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    if not isinstance(backend, str) or backend not in BACKENDS:
+        raise InputError(f"unknown backend {short_repr(backend)}; choose one of {', '.join(BACKENDS)}")
     check_model(model, dim)
-    if weights not in WEIGHTS:
-        raise InputError(f"unknown robust weights {weights!r}; choose one of {', '.join(WEIGHTS)}")
-    if metric not in METRICS:
-        raise InputError(f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
+    if not isinstance(weights, str) or weights not in WEIGHTS:
+        raise InputError(f"unknown robust weights {short_repr(weights)}; choose one of {', '.join(WEIGHTS)}")
+    if not isinstance(metric, str) or metric not in METRICS:
+        raise InputError(f"unknown metric {short_repr(metric)}; choose one of {', '.join(METRICS)}")
 
 
 def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = "reference", model: str = "rigid",
@@ -116,6 +117,22 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
     dim = src.shape[1]
     _check_icp_options(backend, model, dim, weights=weights, metric=metric, target_normals=target_normals,
                        rotation=rotation, trim_fraction=trim_fraction, voxel_sizes=voxel_sizes)
+    voxel_sizes = check_floats(voxel_sizes, "voxel_sizes", lo=0, lo_open=True)
+    max_correspondence_distances = check_floats(max_correspondence_distances, "max_correspondence_distances",
+                                                lo=0, lo_open=True)
+    max_iterations = check_ints(max_iterations, "max_iterations", lo=0, hi=100_000)
+    count_iterations = check_bool(count_iterations, "count_iterations")
+    if callback is not None and not callable(callback):
+        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
+    if not isinstance(rotation, str) or rotation not in ("svd", "quaternion"):
+        raise InputError(f"rotation must be 'svd' or 'quaternion', got {short_repr(rotation)}")
+    if rotation == "quaternion" and (dim != 3 or model != "rigid"):
+        raise InputError("rotation='quaternion' (Horn's closed form) is for the rigid model of 3-D clouds")
+    if metric == "point_to_line" and (dim != 2 or target_normals is None or voxel_sizes):
+        raise InputError("metric='point_to_line' needs 2-D clouds, target_normals and no voxel_sizes "
+                         "(normals cannot follow a voxel downsampling)")
+    if target_normals is not None and metric != "point_to_line":
+        raise InputError("target_normals are used only by metric='point_to_line'")
     check_rank(src, model)
     check_rank(tgt, model)
     if target_normals is not None:
@@ -173,11 +190,6 @@ def _check_distances(src: np.ndarray, tgt: np.ndarray, T: np.ndarray, max_corres
     if max_correspondence_distance is not None:
         max_correspondence_distance = check_float(max_correspondence_distance, "max_correspondence_distance",
                                                   lo=0, lo_open=True)
-    for name, seq in (("voxel_sizes", voxel_sizes), ("max_correspondence_distances", max_correspondence_distances)):
-        for v in seq or ():
-            check_float(v, name, lo=0, lo_open=True)
-    for v in max_iterations or ():
-        check_int(v, "max_iterations", lo=0, hi=100_000)
     if max_correspondence_distance is None:
         both = np.vstack([apply(T, src), tgt])
         max_correspondence_distance = float(np.linalg.norm(both.max(axis=0) - both.min(axis=0))) + 1.0
@@ -260,6 +272,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                                   relative_rmse=relative_rmse, angle_step=angle_step, n_candidates=n_candidates,
                                   generators=generators, min_inlier_ratio=min_inlier_ratio,
                                   inlier_tolerance=inlier_tolerance, canny_percentile=canny_percentile, seed=seed)
+    sampler, max_points, reference_max_points = _checked_sampling(ref_img, mov_img, sampler, max_points,
+                                                                  reference_max_points, reference_mask, moving_mask,
+                                                                  callback)
     start = time.perf_counter()
     reference, moving = _pyramids(ref_img, mov_img, reference_pyramid, moving_pyramid, levels=o.levels,
                                   sampler=sampler, canny_percentile=o.canny_percentile, seed=o.seed,
@@ -318,6 +333,21 @@ class _RegisterOptions:
     generators: tuple[str, ...]
 
 
+def _checked_sampling(ref_img, mov_img, sampler, max_points, reference_max_points, reference_mask, moving_mask,
+                      callback):
+    """The sampling options of :func:`register` checked (an :class:`InputError` for the first bad one)."""
+    from .clouds import SAMPLERS, check_mask
+
+    sampler = check_choice(sampler, "sampler", SAMPLERS)
+    max_points = check_counts(max_points, "max_points")
+    reference_max_points = check_counts(reference_max_points, "reference_max_points")
+    check_mask(reference_mask, ref_img.shape, name="reference_mask")
+    check_mask(moving_mask, mov_img.shape, name="moving_mask")
+    if callback is not None and not callable(callback):
+        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
+    return sampler, max_points, reference_max_points
+
+
 def _checked_register_options(ref_img: np.ndarray, mov_img: np.ndarray, *, backend: str, model: str, levels: int,
                               iterations: int, init, max_correspondence_distance: float, refine: str | None,
                               weights: str, relative_fitness: float, relative_rmse: float, angle_step: float,
@@ -338,14 +368,18 @@ def _checked_register_options(ref_img: np.ndarray, mov_img: np.ndarray, *, backe
     if not isinstance(init, str):
         init = check_matrix(init, "init", 3)
     refine = _check_refine(backend, model, refine, weights)
-    if min_inlier_ratio is not None and not 0.0 <= min_inlier_ratio <= 1.0:
-        raise InputError(f"min_inlier_ratio must be in [0, 1] or None, got {min_inlier_ratio!r}")
-    if not inlier_tolerance > 0:
-        raise InputError(f"inlier_tolerance must be > 0 px, got {inlier_tolerance!r}")
-    generators = (generators,) if isinstance(generators, str) else tuple(generators)
-    bad = [g for g in generators if g not in GENERATORS]
+    if min_inlier_ratio is not None:
+        min_inlier_ratio = check_float(min_inlier_ratio, "min_inlier_ratio", lo=0, hi=1)
+    inlier_tolerance = check_float(inlier_tolerance, "inlier_tolerance", lo=0, lo_open=True)
+    if isinstance(generators, str):
+        generators = (generators,)
+    try:
+        generators = tuple(generators)
+    except TypeError:
+        raise InputError(f"generators must be a selection of {', '.join(GENERATORS)}, got {short_repr(generators)}") from None
+    bad = [g for g in generators if not isinstance(g, str) or g not in GENERATORS]
     if bad or not generators:
-        raise InputError(f"generators must be a non-empty selection of {', '.join(GENERATORS)}, got {generators!r}")
+        raise InputError(f"generators must be a non-empty selection of {', '.join(GENERATORS)}, got {short_repr(generators)}")
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
         raise InputError(f"images too small for {levels} pyramid levels")
     return _RegisterOptions(levels, iterations, n_candidates, seed, angle_step, max_correspondence_distance,

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..validation import check_bool, check_choice, check_count, check_counts, check_float, check_int, check_path
 
 SAMPLERS = ("canny", "gradient", "grid")
 
@@ -52,7 +53,7 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
     """
     from ..validation import decode_image, max_file_bytes, max_pixels as limit_of, read_regular_file
 
-    path = Path(path)
+    path = check_path(path, "path")
     limit = limit_of(max_pixels)
     data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image")
     img = decode_image(data, str(path), limit=limit)
@@ -253,8 +254,11 @@ def image_cloud(image: np.ndarray, *, sampler: str = "canny", max_points: int | 
         (low = half of it), so the detector adapts to the image's contrast.
     """
     img = as_rgb_uint8(image)
-    if level < 0:
-        raise InputError(f"pyramid level must be >= 0, got {level}")
+    level = check_int(level, "level", lo=0, hi=16)
+    max_points = check_count(max_points, "max_points")
+    seed = check_int(seed, "seed", lo=0)
+    _check_options(sampler=sampler, grid_step=grid_step, top_k=top_k, subpixel=subpixel,
+                   canny_percentile=canny_percentile)
     mask = usable_mask(mask, img)
     lvl_img = img
     for _ in range(level):
@@ -301,20 +305,43 @@ def per_level(max_points, levels: int) -> tuple:
     return tuple(max_points) + (max_points[-1],) * max(0, levels - len(max_points))
 
 
-def usable_mask(mask, image: np.ndarray) -> np.ndarray | None:
+def usable_mask(mask, image: np.ndarray, *, name: str = "mask") -> np.ndarray | None:
     """The usable pixels of ``image``: ``"auto"`` (no black padding, :func:`valid_region`), an (H, W)
     array, or None; None also where every pixel is usable."""
+    check_mask(mask, image.shape[:2], name=name)
     if isinstance(mask, str):
-        if mask != "auto":
-            raise InputError(f"mask must be an array, 'auto' or None, got {mask!r}")
         mask = valid_region(image)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
-        if mask.shape != image.shape[:2]:
-            raise InputError(f"mask shape {mask.shape} does not match image shape {image.shape[:2]}")
         if mask.all():
             mask = None
     return mask
+
+
+def check_mask(mask, shape: tuple[int, int], *, name: str = "mask") -> None:
+    """An :class:`InputError` unless ``mask`` is ``"auto"``, None or an array of ``shape`` (H, W)."""
+    if isinstance(mask, str) or mask is None:
+        if mask not in ("auto", None):
+            raise InputError(f"{name} must be an array, 'auto' or None, got {mask!r}")
+        return
+    arr = np.asarray(mask) if not isinstance(mask, np.ndarray) else mask
+    if arr.dtype.kind not in "biuf":
+        raise InputError(f"{name} must be an array of booleans, 'auto' or None, got {type(mask).__name__}")
+    if arr.shape != tuple(shape[:2]):
+        raise InputError(f"{name} shape {arr.shape} does not match image shape {tuple(shape[:2])}")
+
+
+_OPTIONS = ("sampler", "grid_step", "top_k", "subpixel", "canny_percentile")
+
+
+def _check_options(*, sampler: str = "canny", grid_step: int = 8, top_k: int | None = None, subpixel: bool = True,
+                   canny_percentile: float = 85.0) -> None:
+    """An :class:`InputError` naming the first sampling option of the wrong type or value."""
+    check_choice(sampler, "sampler", SAMPLERS)
+    check_int(grid_step, "grid_step", lo=1)
+    check_count(top_k, "top_k")
+    check_bool(subpixel, "subpixel")
+    check_float(canny_percentile, "canny_percentile", lo=0, hi=100)
 
 
 def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple[int | None, ...] | None = None,
@@ -323,10 +350,10 @@ def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple
 
     ``max_points`` may be one number for every level or one per level; other options as :func:`image_cloud`.
     """
-    from ..validation import check_int
-
     levels = check_int(levels, "levels", lo=1, hi=16)
-    max_points = per_level(max_points, levels)
+    max_points = per_level(check_counts(max_points, "max_points"), levels)
+    seed = check_int(seed, "seed", lo=0)
+    _check_options(**{k: v for k, v in kwargs.items() if k in _OPTIONS})
     img = as_rgb_uint8(image)
     mask = usable_mask(mask, img)
     out, lvl_img = [], img
@@ -396,8 +423,9 @@ def image_pyramid(image: np.ndarray, *, levels: int = 4, mask: np.ndarray | str 
     ``cloud_pyramid(img, ..., max_points=m, seed=s)``, except that the ``gradient`` sampler keeps the
     ``top_k`` (default 5000) strongest gradients per level before drawing rather than ``max_points``.
     """
-    if levels < 1:
-        raise InputError(f"levels must be >= 1, got {levels}")
+    levels = check_int(levels, "levels", lo=1, hi=16)
+    _check_options(sampler=sampler, grid_step=grid_step, top_k=top_k, subpixel=subpixel,
+                   canny_percentile=canny_percentile)
     img = as_rgb_uint8(image)
     mask = usable_mask(mask, img)
     if sampler == "gradient" and top_k is None:

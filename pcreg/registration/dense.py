@@ -74,6 +74,7 @@ from ..errors import InputError, RegistrationError
 from .clouds import as_rgb_uint8
 from .result import RegistrationResult
 from .transforms import MODELS
+from ..validation import short_repr, check_bool, check_choice, check_float, check_floats, check_int
 
 
 __all__ = ["DenseRegistrationResult", "DenseIteration", "register_dense", "field_from_matrix", "is_field",
@@ -641,15 +642,31 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     mov = as_rgb_uint8(moving_image, name="moving image")
     if ref.shape != mov.shape:
         raise InputError(f"dense registration needs images of one size, got {ref.shape[:2]} and {mov.shape[:2]}")
-    if model not in MODELS:
-        raise InputError(f"unknown global motion model {model!r}; choose one of {', '.join(MODELS)}")
-    if not 1 <= levels <= 8 or not 0 <= finest_level < levels:
-        raise InputError(f"need 1 <= levels <= 8 and 0 <= finest_level < levels, got {levels}, {finest_level}")
-    if iterations < 1 or radius < 1 or fine_radius < 1 or max_points < 16 or not grid_spacing >= 2 or cg_iterations < 0:
-        raise InputError("iterations and radius must be >= 1, max_points >= 16, grid_spacing >= 2 and "
-                         "cg_iterations >= 0")
-    if not stiffness or any(not (np.isfinite(s) and s > 0) for s in stiffness):
+    if not isinstance(model, str) or model not in MODELS:
+        raise InputError(f"unknown global motion model {short_repr(model)}; choose one of {', '.join(MODELS)}")
+    levels = check_int(levels, "levels", lo=1, hi=8)
+    finest_level = check_int(finest_level, "finest_level", lo=0, hi=levels - 1)
+    iterations = check_int(iterations, "iterations", lo=1, hi=100_000)
+    radius = check_int(radius, "radius", lo=1, hi=64)
+    fine_radius = check_int(fine_radius, "fine_radius", lo=1, hi=64)
+    max_points = check_int(max_points, "max_points", lo=16)
+    grid_spacing = check_float(grid_spacing, "grid_spacing", lo=2, hi=max(ref.shape[:2]))
+    cg_iterations = check_int(cg_iterations, "cg_iterations", lo=0, hi=100_000)
+    stiffness = check_floats(stiffness, "stiffness", lo=0, lo_open=True)
+    if not stiffness:
         raise InputError("stiffness must be a non-empty sequence of positive numbers")
+    strain = check_float(strain, "strain", lo=0, lo_open=True, hi=100)
+    edge_aware = check_bool(edge_aware, "edge_aware")
+    if texture is not None:
+        texture = check_float(texture, "texture", lo=0, lo_open=True, hi=max(ref.shape[:2]))
+    if chance_factor is not None:
+        chance_factor = check_float(chance_factor, "chance_factor", lo=0)
+    seed = check_int(seed, "seed", lo=0)
+    global_levels = check_int(global_levels, "global_levels", lo=1, hi=8)
+    global_iterations = check_int(global_iterations, "global_iterations", lo=1, hi=100_000)
+    backend = check_choice(backend, "backend", ("reference", "open3d"))
+    if callback is not None and not callable(callback):
+        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
     h, w = ref.shape[:2]
     coarsest = levels - 1
     while coarsest > finest_level and min(h, w) >> coarsest < 16:
@@ -662,7 +679,10 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         global_result = register(ref, mov, backend=backend, model=model, levels=global_levels,
                                  iterations=global_iterations, init=init, seed=seed)
     elif not isinstance(global_result, RegistrationResult):
-        M = np.asarray(global_result, dtype=np.float64)
+        try:
+            M = np.asarray(global_result, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix") from None
         if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
             raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix")
         global_result = RegistrationResult(matrix=M, fitness=float("nan"), inlier_rmse=float("nan"), iterations=0,

@@ -10,13 +10,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError, RegistrationError
+from ..validation import short_repr
 
 MODELS = ("translation", "rigid", "similarity", "affine", "projective")
 
 
 def check_model(model: str, dim: int = 2) -> str:
-    if model not in MODELS:
-        raise InputError(f"unknown motion model {model!r}; choose one of {', '.join(MODELS)}")
+    if not isinstance(model, str) or model not in MODELS:
+        raise InputError(f"unknown motion model {short_repr(model)}; choose one of {', '.join(MODELS)}")
     if model == "projective" and dim != 2:
         raise InputError("the projective model exists for 2-D clouds only")
     return model

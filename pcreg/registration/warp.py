@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..validation import check_float
+from ..validation import check_float, short_repr
 
 # OpenCV's remap supports these (float16 is warped as float32; bool as uint8).
 _DTYPES = tuple(np.dtype(d) for d in (np.bool_, np.uint8, np.uint16, np.int16, np.float16, np.float32, np.float64))
@@ -45,7 +45,7 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
         inverse, ok = invert_field(fld, (h, w))
         warped, valid = _remap(moving, inverse, interpolation=interpolation, fill=fill)
         return warped, valid & ok
-    M = np.asarray(T_ref_mov, dtype=np.float64)
+    M = _as_matrix(T_ref_mov)
     if M.shape != (3, 3) or not np.all(np.isfinite(M)):
         raise InputError("warp: T_ref_mov must be a finite 3x3 matrix")
     if abs(np.linalg.det(M)) < 1e-12:
@@ -61,6 +61,14 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     return _resample(moving, one, interpolation=interpolation, fill=fill)
 
 
+def _as_matrix(T_ref_mov) -> np.ndarray:
+    """``T_ref_mov`` as a float64 array (its shape and values are checked by the caller)."""
+    try:
+        return np.asarray(T_ref_mov, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"warp: T_ref_mov must be a 3x3 matrix or a dense field, got {type(T_ref_mov).__name__}") from None
+
+
 def _check_shape(shape) -> tuple[int, int]:
     """(H, W) of the output grid: two positive integers whose product is within the pixel limit."""
     from ..validation import max_pixels
@@ -69,7 +77,7 @@ def _check_shape(shape) -> tuple[int, int]:
         h, w = (int(v) for v in tuple(shape)[:2])
         ok = len(tuple(shape)) >= 2 and all(float(v) == int(v) for v in tuple(shape)[:2])
     except (TypeError, ValueError, OverflowError):
-        raise InputError(f"warp: shape must be (H, W) integers, got {shape!r}") from None
+        raise InputError(f"warp: shape must be (H, W) integers, got {short_repr(shape)}") from None
     if not ok or h < 1 or w < 1 or h > 32767 or w > 32767:
         raise InputError(f"warp: shape must be (H, W) with 1 <= H, W <= 32767, got {tuple(shape)!r}")
     if h * w > max_pixels():
@@ -102,14 +110,14 @@ def _check_field(motion, shape: tuple[int, int] | None) -> np.ndarray:
 
 def _check_remap_input(src: np.ndarray, interpolation: str, fill) -> float:
     """The checks :func:`warp` makes on its input, for the field paths; returns ``fill`` as a float."""
-    if interpolation not in _INTERP:
+    if not isinstance(interpolation, str) or interpolation not in _INTERP:
         raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
     if src.dtype not in _DTYPES:
         raise InputError(f"warp: unsupported dtype {src.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
     try:
         return check_float(fill, "warp: fill")
     except InputError:
-        raise InputError(f"warp: fill must be a finite number, got {fill!r}") from None
+        raise InputError(f"warp: fill must be a finite number, got {short_repr(fill)}") from None
 
 
 def _resample(src: np.ndarray, one, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
@@ -141,7 +149,7 @@ def _resample(src: np.ndarray, one, *, interpolation: str, fill: float) -> tuple
 def _remap(src: np.ndarray, fld: np.ndarray, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
     """``out(p) = src(fld(p))`` with cv2.remap, and the mask of pixels whose every interpolation weight
     fell inside ``src``."""
-    if interpolation not in _INTERP:
+    if not isinstance(interpolation, str) or interpolation not in _INTERP:
         raise InputError(f"warp: interpolation must be one of {', '.join(_INTERP)}")
     mx = np.ascontiguousarray(fld[:, :, 0])
     my = np.ascontiguousarray(fld[:, :, 1])
@@ -168,7 +176,7 @@ def warp_to_moving(reference: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] |
         fld = _check_field(T_ref_mov, shape[:2] if shape is not None else None)
         fill = _check_remap_input(reference, interpolation, fill)
         return _remap(reference, fld, interpolation=interpolation, fill=fill)
-    M = np.asarray(T_ref_mov, dtype=np.float64)
+    M = _as_matrix(T_ref_mov)
     if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
         raise InputError("warp: T_ref_mov must be a finite invertible 3x3 matrix")
     return warp(reference, np.linalg.inv(M), shape=shape, interpolation=interpolation, fill=fill)

@@ -171,11 +171,11 @@ def _broken_tree(*args, **kwargs):
 def test_an_internal_error_is_reported_as_a_bug_with_exit_1(pair, capsys, monkeypatch):
     """An exception pcreg does not raise on purpose, deep inside `pcreg register`, is a bug: exit 1 and one
     line that says so and names it; never a bad-input exit 2 or an InputError."""
-    import pcreg.registration.api as api
+    import pcreg.registration.refine as refine
 
     d, _ = pair
     monkeypatch.delenv("PCREG_TRACEBACK", raising=False)
-    monkeypatch.setattr(api, "build_tree", _broken_tree)
+    monkeypatch.setattr(refine, "build_tree", _broken_tree)
     rc, out, err = _main(["register", d / "ref.png", d / "mov.png", "--json"], capsys)
     assert rc == 1 and out == "", (rc, out, err)
     assert len(err) == 1, err
@@ -191,9 +191,9 @@ def test_an_internal_error_is_reported_as_a_bug_with_exit_1(pair, capsys, monkey
 def test_a_bug_in_a_real_process_exits_1_with_one_line(pair):
     """The same through a real interpreter, with a ZeroDivisionError in the ICP step of every level."""
     d, _ = pair
-    code = ("import sys, pcreg.registration.api as api\n"
+    code = ("import sys, pcreg.registration.steps as steps\n"
             "def broken(*a, **k):\n    return 1 / 0\n"
-            "api._run_backend = broken\n"
+            "steps.ICP_STEPS = {b: broken for b in steps.ICP_STEPS}\n"
             "from pcreg.cli import main\n"
             f"sys.exit(main(['register', {str(d / 'ref.png')!r}, {str(d / 'mov.png')!r}]))\n")
     env = {k: v for k, v in __import__("os").environ.items() if k != "PCREG_TRACEBACK"}
@@ -215,12 +215,12 @@ def test_bad_input_still_exits_2_with_one_line(pair, tmp_path, capsys):
 
 
 def test_an_interrupt_exits_130(pair, capsys, monkeypatch):
-    import pcreg.registration.api as api
+    import pcreg.registration.refine as refine
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
     d, _ = pair
-    monkeypatch.setattr(api, "build_tree", interrupted)
+    monkeypatch.setattr(refine, "build_tree", interrupted)
     rc, out, err = _main(["register", d / "ref.png", d / "mov.png"], capsys)
     assert rc == 130 and len(err) == 1 and "interrupted" in err[0], err

@@ -172,8 +172,8 @@ def _check_icp_options(backend: str, model: str, dim: int, *, weights: str, metr
         check_open3d_model(model)
         refuse_for_open3d(weights=weights, metric=metric, target_normals=target_normals, rotation=rotation,
                           trim_fraction=trim_fraction)
-    if rotation not in ("svd", "quaternion"):
-        raise InputError(f"rotation must be 'svd' or 'quaternion', got {rotation!r}")
+    if not isinstance(rotation, str) or rotation not in ("svd", "quaternion"):
+        raise InputError(f"rotation must be 'svd' or 'quaternion', got {short_repr(rotation)}")
     if rotation == "quaternion" and (dim != 3 or model != "rigid"):
         raise InputError("rotation='quaternion' (Horn's closed form) is for the rigid model of 3-D clouds")
     if metric == "point_to_line" and (dim != 2 or target_normals is None or voxel_sizes):
@@ -272,9 +272,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                                   relative_rmse=relative_rmse, angle_step=angle_step, n_candidates=n_candidates,
                                   generators=generators, min_inlier_ratio=min_inlier_ratio,
                                   inlier_tolerance=inlier_tolerance, canny_percentile=canny_percentile, seed=seed)
-    sampler, max_points, reference_max_points = _checked_sampling(ref_img, mov_img, sampler, max_points,
-                                                                  reference_max_points, reference_mask, moving_mask,
-                                                                  callback)
+    sampler, max_points, reference_max_points = _checked_sampling(
+        ref_img, mov_img, sampler, max_points, reference_max_points, reference_mask, moving_mask, callback)
     start = time.perf_counter()
     reference, moving = _pyramids(ref_img, mov_img, reference_pyramid, moving_pyramid, levels=o.levels,
                                   sampler=sampler, canny_percentile=o.canny_percentile, seed=o.seed,
@@ -391,8 +390,7 @@ def _check_refine(backend: str, model: str, refine: str | None, weights: str) ->
     weights are the reference backend's; Open3D's has two motion models."""
     if refine is None:
         refine = "none"
-    if refine not in REFINES:
-        raise InputError(f"refine must be one of {', '.join(REFINES)}, got {refine!r}")
+    refine = check_choice(refine, "refine", REFINES)
     if refine == "point_to_line" and backend != "reference":
         raise InputError("refine='point_to_line' is a reference-backend finish (Open3D's ICP here is point-to-point); "
                          "use refine='none' with backend='open3d'")

@@ -83,3 +83,59 @@ def test_icp_with_the_grid_equals_icp_with_a_kd_tree():
         np.testing.assert_array_equal(a.target_indices, b.target_indices)
         np.testing.assert_allclose(a.matrix, b.matrix, rtol=0, atol=1e-12)
         assert a.fitness == b.fitness and a.inlier_rmse == pytest.approx(b.inlier_rmse, rel=1e-12)
+
+
+PARALLEL_AFTER_OPEN3D = """
+import open3d  # loads Open3D's own libtbb, which numba's TBB probe used to warn about
+import numpy as np
+import numba
+from pcreg.registration.nn import PARALLEL_MIN_QUERIES, GridIndex
+rng = np.random.default_rng(0)
+index = GridIndex(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))
+index.nearest(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))
+print(numba.threading_layer())
+"""
+
+
+def test_the_parallel_kernels_choose_their_threading_layer_quietly():
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_THREADING_LAYER"}
+    p = subprocess.run([sys.executable, "-c", PARALLEL_AFTER_OPEN3D], capture_output=True, text=True, timeout=300,
+                       env=env)
+    assert p.returncode == 0, p.stderr
+    assert p.stderr == "" and p.stdout.strip() == "workqueue", (p.stdout, p.stderr)
+
+
+FORK_AFTER_PARALLEL = """
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+import numpy as np
+from pcreg.registration.nn import PARALLEL_MIN_QUERIES, GridIndex
+
+def query(seed):
+    rng = np.random.default_rng(seed)
+    index = GridIndex(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))
+    return index.nearest(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))[1]
+
+here = query(0)  # the parent starts the threading layer's threads before the pool forks
+with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as pool:
+    there = list(pool.map(query, [0, 0]))
+print(all(np.array_equal(here, t) for t in there))
+"""
+
+
+def test_a_forked_worker_runs_the_parallel_kernels_after_its_parent():
+    """``--workers`` pools fork a parent that may have run a parallel kernel already: the threading
+    layer must survive it (GNU OpenMP's does not: numba ends such a child)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_THREADING_LAYER"}
+    p = subprocess.run([sys.executable, "-c", FORK_AFTER_PARALLEL], capture_output=True, text=True, timeout=300,
+                       env=env)
+    assert p.returncode == 0 and p.stdout.strip() == "True", (p.stdout, p.stderr)
+    assert p.stderr == "", p.stderr

@@ -34,8 +34,29 @@ from __future__ import annotations
 import math
 import os
 
+import numba
 import numpy as np
 from numba import njit, prange
+
+
+def _choose_threading_layer() -> None:
+    """Name numba's threading layer instead of letting it probe: this module holds pcreg's only
+    ``parallel=True`` kernels, and the layer is picked when the first of them runs (after this).
+
+    - TBB (fork- and thread-safe) cannot be used: Open3D ships its own ``libtbb.so.12``, older than
+      numba accepts, and once Open3D is imported numba's probe finds it and prints a ``NumbaWarning``.
+    - OpenMP here is GNU libgomp, which is not fork-safe: a ``--workers`` pool forks the parent, and a
+      child that runs a parallel kernel after its parent did is ended by numba.
+    - ``workqueue`` is fork-safe. It is not thread-safe, but these kernels hold the GIL while they run
+      (no ``nogil``), so two Python threads never enter it at once.
+
+    ``NUMBA_THREADING_LAYER`` set in the environment still wins.
+    """
+    if "NUMBA_THREADING_LAYER" not in os.environ:
+        numba.config.THREADING_LAYER = "workqueue"
+
+
+_choose_threading_layer()
 
 #: Queries at or above this count use the multi-threaded kernel: below it, starting the threads (and,
 #: on a loaded machine, waiting for a core) costs more than it saves.

@@ -485,15 +485,29 @@ def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int
     import cv2
 
     w, h = check_image_bytes(data, name, limit=limit)
-    try:
-        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED if flags is None else flags)
-    except cv2.error as exc:
-        raise InputError(f"{name}: cannot decode image ({_cv2_message(exc)})") from None
+    img, said = imdecode_quietly(data, cv2.IMREAD_UNCHANGED if flags is None else flags)
+    if isinstance(img, Exception):
+        raise InputError(f"{name}: cannot decode image ({_cv2_message(img)})") from None
     if img is None or img.size == 0:
-        raise InputError(f"{name}: cannot decode image (corrupt or truncated)")
+        raise InputError(f"{name}: cannot decode image ({said or 'corrupt or truncated'})")
     if img.shape[0] != h or img.shape[1] != w:
         raise InputError(f"{name}: decoded {img.shape[1]}x{img.shape[0]} px but the header says {w}x{h}")
     return img
+
+
+def imdecode_quietly(data: bytes, flags: int) -> tuple:
+    """``cv2.imdecode`` with what the codec libraries print (libpng's ``libpng error: ...`` on a damaged
+    chunk) kept off the terminal. Returns (image, or None, or the ``cv2.error`` raised; the last line
+    the codec printed, or "")."""
+    import cv2
+
+    with capture_output_fds() as said:
+        try:
+            img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+        except cv2.error as exc:
+            img = exc
+    lines = [line.strip() for line in "".join(said).splitlines() if line.strip()]
+    return img, (lines[-1][:200] if lines else "")
 
 
 def _cv2_message(exc: Exception) -> str:

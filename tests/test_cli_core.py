@@ -224,3 +224,36 @@ def test_an_interrupt_exits_130(pair, capsys, monkeypatch):
     monkeypatch.setattr(refine, "build_tree", interrupted)
     rc, out, err = _main(["register", d / "ref.png", d / "mov.png"], capsys)
     assert rc == 130 and len(err) == 1 and "interrupted" in err[0], err
+
+
+def _not_progress(stderr: str) -> list[str]:
+    """The stderr lines that are not a tqdm bar's redraws (``\\r``-separated, ``NN%|``)."""
+    parts = [p.strip() for line in stderr.splitlines() for p in line.split("\r")]
+    return [p for p in parts if p and "%|" not in p]
+
+
+def test_register_and_crosscheck_say_nothing_on_stderr(pair):
+    d, _ = pair
+    for args in (("register", d / "ref.png", d / "mov.png", "--json"),
+                 ("crosscheck", d / "ref.png", d / "mov.png", "--json"),
+                 ("register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--levels", "2")):
+        p = run(*args)
+        assert p.returncode == 0, p.stderr
+        assert _not_progress(p.stderr) == [], (args, p.stderr)
+
+
+def test_a_png_with_a_damaged_data_chunk_is_one_stderr_line(pair, tmp_path):
+    """libpng prints its own complaint on fd 2; it is kept off the terminal (its text goes into
+    pcreg's one line)."""
+    d, _ = pair
+    data = bytearray((d / "ref.png").read_bytes())
+    at = data.find(b"IDAT") + 24
+    data[at:at + 64] = bytes(b ^ 0x5A for b in data[at:at + 64])
+    (tmp_path / "damaged.png").write_bytes(bytes(data))
+    for args in (("register", tmp_path / "damaged.png", d / "mov.png"),
+                 ("crosscheck", d / "ref.png", tmp_path / "damaged.png")):
+        p = run(*args)
+        assert p.returncode == 2, p.stderr
+        lines = p.stderr.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("pcreg: error: "), p.stderr
+        assert "damaged.png" in lines[0]

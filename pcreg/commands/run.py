@@ -60,11 +60,13 @@ def _read_labels(path: Path, mapping: str):
     from ..datasets.folder import mapping_lut
     from ..errors import InputError
 
+    from ..validation import imdecode_quietly
+
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    raw = cv2.imdecode(np.fromfile(str(path), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise InputError(f"{path}: not an image")
+    raw, said = imdecode_quietly(np.fromfile(str(path), dtype=np.uint8).tobytes(), cv2.IMREAD_UNCHANGED)
+    if raw is None or isinstance(raw, Exception):
+        raise InputError(f"{path}: not an image" + (f" ({said})" if said else ""))
     if raw.ndim == 3:
         raw = raw[:, :, 0]
     if raw.dtype != np.uint8:

@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from .errors import RegistrationError
 
-    previous = _terminate_as_interrupt()
+    previous, signalled = _interrupt_on_signals()
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
         module = importlib.import_module(args._module)
@@ -118,6 +118,9 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels)\n")
         return 2
     except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
+        if signalled:  # e.g. the workers died of the same SIGTERM before the parent's handler ran
+            sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")
+            return 130
         if os.environ.get("PCREG_TRACEBACK", "") not in ("", "0"):
             import traceback
 
@@ -127,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
                              "(PCREG_TRACEBACK=1 shows the traceback)\n")
         return 1
     finally:
-        _restore_terminate(previous)
+        _restore_signals(previous)
         if saved_limit is None:
             os.environ.pop("PCREG_MAX_PIXELS", None)
         else:
@@ -139,30 +142,44 @@ def _one_line(exc: BaseException) -> str:
     return text[:500] if text else type(exc).__name__
 
 
-def _terminate_as_interrupt():
-    """SIGTERM is handled like Ctrl-C: finished units are kept, workers stopped, exit code 130."""
+def _interrupt_on_signals() -> tuple[dict, list[int]]:
+    """Ctrl-C (SIGINT) and SIGTERM raise KeyboardInterrupt in the main thread: pending units are cancelled,
+    workers stopped, finished units kept, the output lock released, exit code 130.
+
+    SIGINT is handled even when this process started with it ignored: a shell without job control (a
+    script's ``pcreg ... &``) starts its background commands so, and Python then leaves it ignored, which
+    made Ctrl-C and ``kill -INT`` do nothing. Only the first signal interrupts; later ones (a second
+    Ctrl-C, the SIGTERM a supervisor sends to the whole group) are noted and ignored, so that they do not
+    cut the clean-up short. Returns the previous handlers and the list of signals received.
+    """
     import signal
     import threading
 
+    received: list[int] = []
+    previous: dict = {}
     if threading.current_thread() is not threading.main_thread():
-        return None
+        return previous, received
 
     def handler(signum, frame):
-        raise KeyboardInterrupt
+        received.append(signum)
+        if len(received) == 1:
+            raise KeyboardInterrupt
 
-    try:
-        return signal.signal(signal.SIGTERM, handler)
-    except (ValueError, OSError):
-        return None
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        try:
+            previous[signum] = signal.signal(signum, handler)
+        except (ValueError, OSError):
+            pass
+    return previous, received
 
 
-def _restore_terminate(previous) -> None:
+def _restore_signals(previous: dict) -> None:
     import signal
 
-    if previous is not None:
+    for signum, handler in previous.items():
         try:
-            signal.signal(signal.SIGTERM, previous)
-        except (ValueError, OSError):
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+        except (ValueError, OSError, TypeError):
             pass
 
 

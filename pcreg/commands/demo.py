@@ -38,7 +38,9 @@ def run(args: argparse.Namespace) -> int:
     check_output(out / "report.md", force=args.force)
     record = None if args.no_record else Path(args.record or out / "demo.rrd")
     if record is not None:
-        check_output(record, force=args.force)
+        # OUT/demo.rrd without OUT/report.md (refused above unless --force) is what an interrupted demo
+        # left: the rerun replaces it
+        check_output(record, force=args.force or args.record is None)
     from ..outputs import OutputLock
 
     t0 = time.perf_counter()

@@ -95,14 +95,11 @@ def _truth(folder: str | None, paths: list[Path], shape, mapping: str):
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-
     import numpy as np
 
-    from .._runner import progress
     from ..errors import InputError
+    from ..outputs import OutputLock
     from ..pipeline.stream import Propagator
-    from ..pipeline.stream_run import STATE, StreamRun
     from ..registration.clouds import load_image
 
     folder, out = Path(args.folder), Path(args.out)
@@ -119,6 +116,20 @@ def run(args: argparse.Namespace) -> int:
     prop = Propagator.from_key_frame(key_image, key_labels, **options)
     identity = {"folder": str(folder.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
                 "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
+    with OutputLock(out):  # a second run on the same --out is refused, not raced
+        return _label_frames(args, paths, prop, truth, options, identity, key_labels)
+
+
+def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, options: dict, identity: dict,
+                  key_labels) -> int:
+    """The frames not labelled yet, in order; ``OUT/run.json`` is the commit point of each."""
+    import sys
+
+    from .._runner import progress
+    from ..pipeline.stream_run import STATE, StreamRun
+    from ..registration.clouds import load_image
+
+    folder, out = Path(args.folder), Path(args.out)
     stream = StreamRun(paths, key_labels, out, options, truth=truth, identity=identity)
     start = stream.start(force=args.force)
     if start >= len(paths):

@@ -103,19 +103,22 @@ class Browser:
         return img
 
     def wait_for(self, check, *, timeout: float, every: float = 1.0) -> tuple[bool, np.ndarray]:
-        """Screenshot every ``every`` s until ``check(image)`` is true or ``timeout`` s have passed."""
+        """Screenshot until ``check(image)`` is true (looking every ``every`` s), or ``timeout`` s have
+        passed (a bound for a page that never draws, not a measurement)."""
         deadline = time.monotonic() + timeout
         shot = np.zeros((1, 1, 3), np.uint8)
         while True:
-            time.sleep(every)
             try:
                 shot = self.screenshot()
             except RuntimeError:  # the page is still being replaced by the one navigated to
                 if time.monotonic() > deadline:
                     raise
-                continue
-            if check(shot) or time.monotonic() > deadline:
-                return bool(check(shot)), shot
+            else:
+                if check(shot):
+                    return True, shot
+                if time.monotonic() > deadline:
+                    return False, shot
+            time.sleep(every)  # then look again
 
     def close(self) -> None:
         try:

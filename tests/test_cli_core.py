@@ -40,7 +40,7 @@ def test_register_json_and_warped_output(pair, tmp_path):
                            "inlier_ratio", "chance_ratio", "overlap", "generator"}
     assert result["ok"] is True and result["inlier_ratio"] > 0.5
     assert tf.max_corner_error(np.array(result["matrix"]), T, (240, 320)) < 0.5
-    assert 0 < result["seconds"] < 10 and result["backend"] == "reference"
+    assert result["seconds"] > 0 and result["backend"] == "reference"
     assert cv2.imread(str(out)).shape == (240, 320, 3)
 
 

@@ -1,16 +1,14 @@
 """Hostile input, by kind: every case ends in a PcregError (library) or one stderr line and exit 2 (CLI),
-quickly and in bounded memory. The signal, lock and special-file cases run as real subprocesses."""
+in bounded memory. The lock and special-file cases run as real subprocesses (signals: test_interrupts.py)."""
 
 from __future__ import annotations
 
 import json
 import os
 import resource
-import signal
 import struct
 import subprocess
 import sys
-import time
 import zlib
 from pathlib import Path
 
@@ -19,6 +17,8 @@ import numpy as np
 import pytest
 
 from pcreg.errors import DatasetError, InputError, PcregError
+
+from _events import HANG
 
 PCREG = [sys.executable, "-m", "pcreg.cli"]
 GOOD = np.random.default_rng(0).integers(0, 256, (64, 80, 3), dtype=np.uint8)
@@ -353,13 +353,11 @@ LIBRARY = {
 def test_library_raises_pcreg_errors_only(files, kind):
     call, message = LIBRARY[kind]
     expected = DatasetError if kind.startswith("mat_") else InputError  # a .mat file is a dataset's
-    t0 = time.perf_counter()
     with pytest.raises(PcregError) as err:
         call(files)
     assert type(err.value) is expected, repr(err.value)
     assert message in str(err.value), str(err.value)
     assert "\n" not in str(err.value)
-    assert time.perf_counter() - t0 < 20
 
 
 BAD_VALUES = [None, "x", -1, 2.5, float("nan"), float("inf"), 1e300, [], {}, np.zeros((3, 3)), True, object()]
@@ -432,14 +430,16 @@ def test_public_api_wrong_types_raise_input_errors_naming_the_parameter(function
             assert name in message and "\n" not in message, f"{label}: {message}"
 
 
-def test_png_bomb_is_refused_before_decoding(files):
+def test_png_bomb_is_refused_before_decoding(files, monkeypatch):
     from pcreg.registration.clouds import load_image
 
+    def decoded(*args, **kwargs):
+        raise AssertionError("the bomb reached the decoder")
+
+    monkeypatch.setattr(cv2, "imdecode", decoded)
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    t0 = time.perf_counter()
     with pytest.raises(InputError, match="exceeds the limit"):
         load_image(files / "big30k.png")
-    assert time.perf_counter() - t0 < 0.5
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 50_000  # KiB
 
 
@@ -568,20 +568,18 @@ def test_classification_resumes_and_writes_strict_json(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------------------------
-# real subprocesses: special files, limits, stdout hygiene, signals, locks
+# real subprocesses: special files, limits, stdout hygiene, locks
 # ------------------------------------------------------------------------------------------------
 
 def run(args, timeout=60, **kw):
     return subprocess.run([*PCREG, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
 
 
-def test_subprocess_fifo_and_bomb_end_quickly_in_bounded_memory(files):
-    t0 = time.perf_counter()
-    for bad in ("fifo.png", "big30k.png", "big100k.png"):
-        p = run(["register", files / bad, files / "good.png"], timeout=30)
+def test_subprocess_fifo_and_bomb_end_in_bounded_memory(files):
+    for bad in ("fifo.png", "big30k.png", "big100k.png"):  # a FIFO with no writer must not block the read
+        p = run(["register", files / bad, files / "good.png"], timeout=HANG)
         assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, p.stderr
         assert "Traceback" not in p.stderr
-    assert time.perf_counter() - t0 < 60
     assert resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss < 1_000_000  # KiB: far below a decoded bomb
 
 
@@ -602,67 +600,26 @@ ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4"
             "--angles", "0:180:10", "--samples", "4"]  # 4 units of 19 registrations each
 
 
-def _units(out: Path) -> list[Path]:
-    return list(out.glob("units/**/*.json"))
-
-
-@pytest.mark.parametrize("signame, workers", [("SIGINT", 2), ("SIGTERM", 2), ("SIGINT", 1)])
-def test_interrupt_with_workers_stops_at_once_and_keeps_finished_units(tmp_path, signame, workers):
-    out = tmp_path / "rot"
-    p = subprocess.Popen([*PCREG, *ROTATION, "--workers", str(workers), "--out", str(out)], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True, start_new_session=True)
-    try:
-        deadline = time.time() + 120
-        while len(_units(out)) < 1 and time.time() < deadline and p.poll() is None:
-            time.sleep(0.1)
-        assert p.poll() is None, p.communicate()
-        children = subprocess.run(["pgrep", "-P", str(p.pid)], capture_output=True, text=True).stdout.split()
-        if workers > 1:
-            assert len(children) >= workers  # the pool's processes
-        t0 = time.time()
-        if signame == "SIGINT":
-            os.killpg(p.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
-        else:
-            p.send_signal(signal.SIGTERM)
-        _, err = p.communicate(timeout=30)
-        assert time.time() - t0 < 10
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
-    assert p.returncode == 130, err
-    assert "Traceback" not in err and "interrupted" in err
-    time.sleep(0.5)
-    assert not [c for c in children if Path(f"/proc/{c}").exists()], "worker processes left behind"
-    kept = _units(out)
-    assert kept and all(json.loads(u.read_text()) for u in kept)  # whole files, reused by the next run
-    from pcreg.experiments.units import UnitStore
-
-    cfg = json.loads((out / "config.json").read_text())
-    store = UnitStore(out, cfg, force=False)
-    assert all(store.load(str(u.relative_to(out / "units").with_suffix(""))) for u in kept)
-
-
 def test_second_run_on_the_same_out_is_refused(tmp_path):
+    """While another pcreg holds the folder's lock (here a process that holds it until told to stop),
+    a run on it is refused at once with one line; once released, the run goes ahead."""
     out = tmp_path / "busy"
-    first = subprocess.Popen([*PCREG, *ROTATION, "--out", str(out)], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+    holder = subprocess.Popen([sys.executable, "-c", "import sys\nfrom pcreg.outputs import OutputLock\n"
+                               f"with OutputLock({str(out)!r}):\n    print('held', flush=True)\n    sys.stdin.read()\n"],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
-        deadline = time.time() + 60
-        while not (out / ".pcreg.lock").exists() and time.time() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.3)
-        p = run([*ROTATION, "--out", out], timeout=60)
+        assert holder.stdout.readline().strip() == "held"
+        p = run([*ROTATION, "--out", out], timeout=HANG)
         assert p.returncode == 2, p.stderr
         lines = p.stderr.strip().splitlines()
         assert len(lines) == 1 and "in use by another pcreg run" in lines[0]
+        assert f"pid {holder.pid}" in lines[0]
     finally:
-        first.send_signal(signal.SIGINT)
-        first.communicate(timeout=30)
-    # released on exit (also on interruption): the folder can be used again
-    from pcreg.outputs import OutputLock
-
-    with OutputLock(out):
-        pass
+        holder.stdin.close()
+        holder.wait(timeout=HANG)
+    assert holder.returncode == 0
+    p = run([*ROTATION, "--out", out], timeout=HANG)  # released on exit: the folder can be used again
+    assert p.returncode == 0, p.stderr
 
 
 HOSTILE_VALUES = ["nan", "inf", "-inf", "-1", "0", "1e309", "abc", "", "99999999999999999999", "0x0", "1,nan",

@@ -20,9 +20,9 @@ from typing import Callable
 import cv2
 import pytest
 
+from _events import HANG, Ended, until
+
 PCREG = [sys.executable, "-m", "pcreg.cli"]
-HANG = 300  # s: a bound that only a hung command reaches
-POLL = 0.05  # s: how often a polling loop looks again (it waits on the process, so an early exit ends it)
 
 SEQUENCE = ["evaluate", "sequence", "--data", "synthetic:syn1a,syn2b", "--frames", "24", "--size", "160x120",
             "-k", "1,2,3,4,5,6"]  # 12 units of about a second
@@ -38,18 +38,13 @@ def start(args: list, **kwargs) -> subprocess.Popen:
                             start_new_session=True, **kwargs)
 
 
-def wait_for(p: subprocess.Popen, event: Callable[[], bool], what: str) -> None:
-    """Poll ``event`` until it holds; fail if the command ends first or hangs."""
-    for _ in range(int(HANG / POLL)):
-        if event():
-            return
-        try:
-            p.wait(timeout=POLL)
-        except subprocess.TimeoutExpired:
-            continue
+def wait_for(p: subprocess.Popen, event: Callable[[], object], what: str) -> None:
+    """Poll ``event`` until it holds; fail with the command's output if it ends first."""
+    try:
+        until(event, what=what, alive=p)
+    except Ended as exc:
         out, err = p.communicate()
-        pytest.fail(f"the command ended (exit {p.returncode}) before {what}:\n{out[-2000:]}\n{err[-2000:]}")
-    pytest.fail(f"no {what} after {HANG} s")
+        pytest.fail(f"{exc}:\n{out[-2000:]}\n{err[-2000:]}")
 
 
 def wait_for_line(p: subprocess.Popen, text: str) -> None:

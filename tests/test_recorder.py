@@ -231,7 +231,7 @@ def test_exception_in_with_block_is_logged_as_failure(tmp_path):
 def test_interrupted_recording_is_readable_up_to_where_it_stopped(tmp_path):
     path = tmp_path / "killed.rrd"
     child = textwrap.dedent(f"""
-        import sys, time
+        import sys
         import numpy as np
         from pcreg.recording.recorder import Recorder
         rec = Recorder({str(path)!r})
@@ -242,15 +242,16 @@ def test_interrupted_recording_is_readable_up_to_where_it_stopped(tmp_path):
             if f == 5:
                 rec.flush()  # frames 0..5 are in the file
                 print("ready", flush=True)
-                time.sleep(120)
+                sys.stdin.read()  # hold still until killed
     """)
-    proc = subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", child], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline().strip() == "ready"
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=30)
         proc.stdout.close()
+        proc.stdin.close()
     assert proc.returncode == -signal.SIGKILL
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "no footer": expected for a file whose writer was killed

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-import time
 
 import cv2
 import numpy as np
@@ -12,6 +11,8 @@ import pytest
 from pcreg.commands import view
 from pcreg.errors import PcregError
 from pcreg.recording.recorder import Recorder
+
+from _events import until
 
 
 def pcreg_view(argv: list[str]) -> int:
@@ -312,24 +313,29 @@ def test_headless_viewer_draws_every_view_of_each_kind(kind_recordings, kind, tm
             if v.view_class not in ("2D", "3D", "TimeSeries"):
                 continue
             out = tmp_path / f"{v.view_id}.png"
-            for attempt in range(4):  # images are decoded a few frames after the recording loads
+            seen = {}
+
+            def look(v=v, out=out, seen=seen):
+                """"hidden", "drawn", or None (looked again: images are decoded a few frames after the
+                recording loads)."""
                 try:
                     client.save_screenshot(str(out), view_id=v.view_id)
                 except ConnectionError as exc:  # a view in a tab that is not in front is not drawn
                     assert "not found" in str(exc), exc
-                    hidden.append(v.name)
-                    break
+                    return "hidden"
                 shot = cv2.imread(str(out), cv2.IMREAD_COLOR)
                 assert shot is not None
                 # colour (images, label maps, clouds, plot lines), or a large bright area (a valid
                 # mask); an empty view is dark grey with one line of grey "no data" text
-                bright = float((shot.max(axis=2) > 150).mean())
-                if _colourful(shot) > 0.002 or bright > 0.05:
-                    break
-                time.sleep(1.0)
-            else:
-                pytest.fail(f"{kind}: view {v.name!r} draws nothing (colour {_colourful(shot):.4f}, bright {bright:.4f})")
-            if v.name in hidden:
+                seen.update(colour=_colourful(shot), bright=float((shot.max(axis=2) > 150).mean()))
+                return "drawn" if seen["colour"] > 0.002 or seen["bright"] > 0.05 else None
+
+            try:
+                found = until(look, what=f"{kind}: view {v.name!r} drawing", bound=120)
+            except AssertionError:
+                pytest.fail(f"{kind}: view {v.name!r} draws nothing ({seen})")
+            if found == "hidden":
+                hidden.append(v.name)
                 continue
             drawn.append(v.name)
         print(kind, "drawn:", drawn, "in tabs behind:", hidden)

@@ -9,15 +9,88 @@ imported only then). Results come back to the parent, which merges and writes th
 from __future__ import annotations
 
 import sys
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager, nullcontext
 from typing import Any, Callable, Iterable, Iterator, Sequence
+
+# ---------------------------------------------------------------------------------------------
+# Ctrl-C and SIGTERM
+# ---------------------------------------------------------------------------------------------
+
+#: Termination signals received since :func:`interrupt_on_signals` (cleared by each call).
+_RECEIVED: list[int] = []
+#: > 0 while workers are being stopped: a signal then is noted, not raised, so the clean-up completes.
+_SHIELDED = [0]
+
+
+def _on_signal(signum, frame) -> None:
+    _RECEIVED.append(signum)
+    if not _SHIELDED[0]:
+        raise KeyboardInterrupt
+
+
+def interrupt_on_signals() -> dict:
+    """SIGINT (Ctrl-C) and SIGTERM raise KeyboardInterrupt in the main thread; returns the handlers they
+    replace (for :func:`restore_signals`). Call it from the main thread.
+
+    SIGINT is handled even when this process started with it ignored: a shell without job control (a
+    script's ``pcreg ... &``) starts its background commands so, and Python then leaves it ignored.
+    The KeyboardInterrupt is raised wherever the main thread is, and a few places swallow it (an
+    ``os.fork`` hook, run while the pool starts a worker, only prints it): :func:`check_interrupted`,
+    called between units and while waiting for them, raises it again.
+    """
+    import signal
+
+    _RECEIVED.clear()
+    _SHIELDED[0] = 0
+    previous: dict = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        try:
+            previous[signum] = signal.signal(signum, _on_signal)
+        except (ValueError, OSError):  # not the main thread
+            pass
+    return previous
+
+
+def restore_signals(previous: dict) -> None:
+    """Put back the handlers :func:`interrupt_on_signals` replaced, and forget the signals received."""
+    import signal
+
+    _RECEIVED.clear()
+
+    for signum, handler in previous.items():
+        try:
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+        except (ValueError, OSError, TypeError):
+            pass
+
+
+def interrupted() -> bool:
+    """Whether a SIGINT or SIGTERM arrived since :func:`interrupt_on_signals`."""
+    return bool(_RECEIVED)
+
+
+def check_interrupted() -> None:
+    """Raise KeyboardInterrupt if a termination signal arrived (its first KeyboardInterrupt may have been
+    swallowed); a no-op outside the command line, where no handler is installed."""
+    if _RECEIVED and not _SHIELDED[0]:
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def _shielded() -> Iterator[None]:
+    _SHIELDED[0] += 1
+    try:
+        yield
+    finally:
+        _SHIELDED[0] -= 1
 
 
 class _InlineExecutor(Executor):
     """Runs each call at submit time, in this process (``--workers 1``): easiest to debug and profile."""
 
     def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Future:
+        check_interrupted()
         fut: Future = Future()
         try:
             fut.set_result(fn(*args, **kwargs))
@@ -38,7 +111,12 @@ def _worker_init() -> None:
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """Cancel pending units and end the worker processes now (``shutdown(wait=True)`` would wait for
-    the running units to finish, which can take minutes)."""
+    the running units to finish, which can take minutes). A second Ctrl-C meanwhile does not cut it short."""
+    with _shielded():
+        _terminate_workers(pool)
+
+
+def _terminate_workers(pool: ProcessPoolExecutor) -> None:
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
@@ -118,16 +196,26 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
 
     Returns the results in the order of ``units``.
     """
-    futures = {executor.submit(fn, u): i for i, u in enumerate(units)}
+    futures: dict = {}
     results: list = [None] * len(units)
     try:
+        # A pool forks its workers inside submit; a KeyboardInterrupt raised in an os.fork hook would be
+        # printed and lost, so a signal there is only noted, and raised once the units are submitted.
+        with _shielded() if not isinstance(executor, _InlineExecutor) else nullcontext():
+            for i, u in enumerate(units):
+                futures[executor.submit(fn, u)] = i
+        check_interrupted()
         with progress(total=len(units), desc=desc, disable=None if show_progress is None else not show_progress) as bar:
-            for fut in as_completed(futures):
-                i = futures[fut]
-                results[i] = fut.result()
-                if on_result is not None:
-                    on_result(units[i], results[i])
-                bar.update(1)
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
+                check_interrupted()  # also when no unit finished: the wait itself is where Ctrl-C lands
+                for fut in done:
+                    i = futures[fut]
+                    results[i] = fut.result()
+                    if on_result is not None:
+                        on_result(units[i], results[i])
+                    bar.update(1)
     except BaseException:
         for fut in futures:  # nothing more starts; what finished was handed to on_result already
             fut.cancel()

@@ -84,7 +84,9 @@ def main(argv: list[str] | None = None) -> int:
 
     from .errors import RegistrationError
 
-    previous, signalled = _interrupt_on_signals()
+    from ._runner import interrupt_on_signals, interrupted, restore_signals
+
+    previous = interrupt_on_signals()  # Ctrl-C and SIGTERM: exit 130, finished units kept
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
         module = importlib.import_module(args._module)
@@ -118,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels)\n")
         return 2
     except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
-        if signalled:  # e.g. the workers died of the same SIGTERM before the parent's handler ran
+        if interrupted():  # e.g. the workers died of the same SIGTERM before the parent's handler ran
             sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")
             return 130
         if os.environ.get("PCREG_TRACEBACK", "") not in ("", "0"):
@@ -130,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
                              "(PCREG_TRACEBACK=1 shows the traceback)\n")
         return 1
     finally:
-        _restore_signals(previous)
+        restore_signals(previous)
         if saved_limit is None:
             os.environ.pop("PCREG_MAX_PIXELS", None)
         else:
@@ -140,47 +142,6 @@ def main(argv: list[str] | None = None) -> int:
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     return text[:500] if text else type(exc).__name__
-
-
-def _interrupt_on_signals() -> tuple[dict, list[int]]:
-    """Ctrl-C (SIGINT) and SIGTERM raise KeyboardInterrupt in the main thread: pending units are cancelled,
-    workers stopped, finished units kept, the output lock released, exit code 130.
-
-    SIGINT is handled even when this process started with it ignored: a shell without job control (a
-    script's ``pcreg ... &``) starts its background commands so, and Python then leaves it ignored, which
-    made Ctrl-C and ``kill -INT`` do nothing. Only the first signal interrupts; later ones (a second
-    Ctrl-C, the SIGTERM a supervisor sends to the whole group) are noted and ignored, so that they do not
-    cut the clean-up short. Returns the previous handlers and the list of signals received.
-    """
-    import signal
-    import threading
-
-    received: list[int] = []
-    previous: dict = {}
-    if threading.current_thread() is not threading.main_thread():
-        return previous, received
-
-    def handler(signum, frame):
-        received.append(signum)
-        if len(received) == 1:
-            raise KeyboardInterrupt
-
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        try:
-            previous[signum] = signal.signal(signum, handler)
-        except (ValueError, OSError):
-            pass
-    return previous, received
-
-
-def _restore_signals(previous: dict) -> None:
-    import signal
-
-    for signum, handler in previous.items():
-        try:
-            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
-        except (ValueError, OSError, TypeError):
-            pass
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -125,7 +125,7 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
     """The frames not labelled yet, in order; ``OUT/run.json`` is the commit point of each."""
     import sys
 
-    from .._runner import progress
+    from .._runner import check_interrupted, progress
     from ..pipeline.stream_run import STATE, StreamRun
     from ..registration.clouds import load_image
 
@@ -138,6 +138,7 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
     with open_recorder(args, name=f"run {folder}") as rec, \
             progress(total=len(paths) - start, desc="frames", disable=None) as bar:
         for t in range(start, len(paths)):
+            check_interrupted()
             image = load_image(paths[t])
             labels = prop.step(image)
             plain = prop.classifier.predict(image) if truth is not None else None

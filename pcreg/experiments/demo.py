@@ -34,6 +34,9 @@ class DemoConfig:
 
 
 def _say(text: str) -> None:
+    from .._runner import check_interrupted
+
+    check_interrupted()  # between the parts
     print(text, flush=True)
 
 

@@ -124,7 +124,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
 
     Returns the results by unit key (finished and new) and how many came from an earlier run.
     """
-    from .._runner import _InlineExecutor, run_units
+    from .._runner import _InlineExecutor, check_interrupted, run_units
     from ..validation import check_units
 
     check_units(len(units), "evaluation units")
@@ -146,6 +146,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
         recorder.log_config(cfg_dict)
         counter = [0]
         for u in todo:
+            check_interrupted()
             keep(u, run_unit(u, recorder=recorder, frame_counter=counter))
     else:
         run_units(run_unit, todo, executor=executor or _InlineExecutor(), desc=desc, on_result=keep,

@@ -299,7 +299,10 @@ def run_suite(cases: Sequence[Case], implementations: Sequence[str], *, timeout:
         from tqdm import tqdm
 
         it = tqdm(cases, desc="suite", unit="case", file=sys.stderr)
+    from .._runner import check_interrupted
+
     for c in it:
+        check_interrupted()
         try:
             r = crosscheck_implementations(c.source, c.target, implementations=implementations, init=c.init,
                                            max_correspondence_distance=c.max_correspondence_distance,

@@ -46,3 +46,43 @@ def test_unknown_model():
         tf.check_model("warp")
     with pytest.raises(InputError, match="2-D clouds only"):
         tf.check_model("projective", 3)
+
+
+def test_degeneracy_names_what_cannot_be_a_view():
+    from pcreg.registration.transforms import degeneracy, rigid2d
+
+    shape = (240, 320)
+    assert degeneracy(np.eye(3), shape) is None
+    assert degeneracy(rigid2d(170.0, 5.0, -8.0, scale=3.0), shape) is None
+    H = np.eye(3)
+    H[2, 0] = 1e-3  # a mild perspective, its horizon far outside the image
+    assert degeneracy(H, shape) is None
+    assert "finite" in degeneracy(np.full((3, 3), np.nan), shape)
+    assert "infinity" in degeneracy(np.zeros((3, 3)), shape)
+    H[2, 0] = -0.01  # the horizon line x = 100 crosses the image
+    assert "infinity" in degeneracy(H, shape)
+    assert "mirrors" in degeneracy(np.diag([1.0, -1.0, 1.0]), shape)
+    assert "area" in degeneracy(np.diag([0.05, 0.05, 1.0]), shape)
+
+
+def test_register_never_returns_a_degenerate_homography_with_the_test_off():
+    """Projective registrations from small reference regions: each is refused or a proper view."""
+    import pcreg
+    from pcreg.errors import RegistrationError
+    from pcreg.registration.transforms import degeneracy
+
+    frames = pcreg.synthetic("syn2a", 3, 0, width=160, height=120)
+    returned = refused = 0
+    for y0, x0 in ((0, 0), (40, 60), (80, 110), (10, 100)):
+        mask = np.zeros(frames[0].labels.shape, bool)
+        mask[y0:y0 + 30, x0:x0 + 40] = True
+        try:
+            res = pcreg.register(frames[0].image, frames[2].image, model="projective", reference_mask=mask,
+                                 min_inlier_ratio=None, init="identity")
+        except RegistrationError as exc:
+            refused += 1
+            assert str(exc).startswith(("registration", "the reference image")), exc
+            continue
+        returned += 1
+        assert degeneracy(res.matrix, frames[2].shape) is None
+    assert returned + refused == 4

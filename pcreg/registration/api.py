@@ -295,7 +295,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         best = replace(best, refined=refiner.refine(moving, best.hypothesis.matrix, top=best.hypothesis.top,
                                                     callback=callback))
     seconds = time.perf_counter() - start
-    evidence = test.check(best, mirror=mirror)
+    evidence = test.check(best, mirror=mirror, shape=mov_img.shape)
     return _result(best, evidence, tried, mirror, backend=backend, seconds=seconds,
                    points=(len(moving[0]), len(reference[0])))
 

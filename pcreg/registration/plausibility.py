@@ -82,8 +82,16 @@ class Plausibility:
         return (self.min_inlier_ratio is not None and self.model in ("translation", "rigid", "similarity")
                 and best_ratio >= self.min_inlier_ratio and not convincing)
 
-    def check(self, best: Candidate, *, mirror: Candidate | None = None) -> Evidence:
-        """``best``'s evidence, or a :class:`RegistrationError` saying why it is refused."""
+    def check(self, best: Candidate, *, mirror: Candidate | None = None, shape: tuple[int, ...] | None = None
+              ) -> Evidence:
+        """``best``'s evidence, or a :class:`RegistrationError` saying why it is refused. A transform that
+        cannot be a view of a moving image of ``shape`` (:func:`~pcreg.registration.transforms.degeneracy`)
+        is refused whether the test is on or off (``min_inlier_ratio=None``)."""
+        from .transforms import degeneracy
+
+        why = None if shape is None else degeneracy(best.refined.matrix, shape)
+        if why is not None:
+            raise RegistrationError(f"registration refused: {why}")
         ev, ratio = best.evidence, best.inlier_ratio
         need = max(10, int(np.ceil(0.02 * ev.moving_points)))
         if best.refined.fitness == 0.0 or ev.overlap_points < need:

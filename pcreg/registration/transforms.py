@@ -141,3 +141,35 @@ def scale_transform(matrix: np.ndarray, factor: float) -> np.ndarray:
     Si = np.eye(d)
     Si[: d - 1, : d - 1] /= factor
     return S @ np.asarray(matrix, dtype=np.float64) @ Si
+
+
+#: The largest change of area a 2-D transform may make to an image: a tenfold zoom either way. Beyond it
+#: the two images share too few pixels at a common scale for their edges to register.
+MAX_AREA_CHANGE = 100.0
+
+
+def degeneracy(T_ref_mov: np.ndarray, shape: tuple[int, ...]) -> str | None:
+    """Why a 3x3 ``T_ref_mov`` cannot be a view of an image of ``shape`` (H, W, ...), or None when it can.
+
+    Degenerate: a non-finite entry; a corner sent through infinity (the homography's horizon line
+    crosses the image, its homogeneous w <= 0 there); the corners' quadrilateral folded or mirrored
+    (not convex with the image's orientation); an area changed by more than :data:`MAX_AREA_CHANGE`.
+    """
+    M = np.asarray(T_ref_mov, dtype=np.float64)
+    if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+        return "the transform is not a finite 3x3 matrix"
+    c = np.concatenate([corners(shape), np.ones((4, 1))], axis=1) @ M.T
+    w = c[:, 2] * np.sign(M[2, 2] if M[2, 2] != 0 else 1.0)
+    if np.any(w <= 1e-12 * np.abs(c[:, :2]).max(initial=1.0)):
+        return "the transform sends part of the image through infinity (a singular or folded homography)"
+    q = c[:, :2] / c[:, 2:3]
+    edges = np.roll(q, -1, axis=0) - q
+    turns = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+    h, w_img = float(shape[0]), float(shape[1])
+    if not np.all(turns > 0):  # the image's own corners turn one way (y down): a fold or a mirror turns otherwise
+        return "the transform folds or mirrors the image (its corners no longer form a convex quadrilateral of the same orientation)"
+    area = 0.5 * abs(float(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1])))
+    ratio = area / max(h * w_img, 1.0)
+    if not 1.0 / MAX_AREA_CHANGE <= ratio <= MAX_AREA_CHANGE:
+        return f"the transform changes the image's area by a factor of {ratio:.3g} (at most {MAX_AREA_CHANGE:g} either way)"
+    return None

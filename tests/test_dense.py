@@ -281,3 +281,20 @@ def test_evidence_against_chance_and_the_optional_refusal(warped_pair):
     assert unrelated.info["evidence"] < 1.3
     with pytest.raises(RegistrationError):
         register_dense(ref, noise, global_result=np.eye(3), levels=4, chance_factor=1.5)
+
+
+def test_dense_is_a_model_of_register_and_of_the_command(frames, tmp_path, capsys):
+    """``register(model="dense")`` is the global similarity refined by a field, as in the pipeline."""
+    import pcreg
+    import cv2
+
+    from pcreg.cli import main
+
+    res = pcreg.register(frames[0].image, frames[2].image, model="dense", init="identity")
+    assert res.field.shape == frames[2].shape + (2,) and res.global_result.matrix.shape == (3, 3)
+    for i in (0, 2):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), frames[i].image[:, :, ::-1])
+    assert main(["register", str(tmp_path / "0.png"), str(tmp_path / "2.png"), "--model", "dense", "--init",
+                 "identity", "--out", str(tmp_path / "w.png")]) == 0
+    assert "DenseRegistrationResult" in capsys.readouterr().out
+    assert cv2.imread(str(tmp_path / "w.png")).shape == frames[0].image.shape

@@ -12,7 +12,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("reference", help="reference image (png, jpg, ...)")
     p.add_argument("moving", help="moving image, registered onto the reference")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
-    p.add_argument("--model", choices=MODELS, default="rigid")
+    p.add_argument("--model", choices=MODELS + ("dense",), default="rigid",
+                   help="motion model (default rigid); dense: the similarity refined by a dense field")
     p.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
     p.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
     p.add_argument("--init", choices=("auto", "identity", "center"), default="auto",
@@ -61,9 +62,11 @@ def run(args: argparse.Namespace) -> int:
                           callback=rec.icp_callback(args.backend) if rec is not None else None)
         warped = valid = None
         if args.out or rec is not None:
-            warped, valid = warp(mov, result.matrix, shape=ref.shape)
+            warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)
         if rec is not None:
             rec.log_transform(result.matrix)
+            if getattr(result, "field", None) is not None:
+                rec.log_dense(result.field, matrix=result.matrix, confidence=result.confidence)
             rec.log_images(warped=warped, valid_mask=valid)
             rec.log_text(repr(result))
     if args.out:

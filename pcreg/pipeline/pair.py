@@ -46,6 +46,7 @@ import numpy as np
 from ..errors import InputError, RegistrationError
 from ..validation import check_bool, check_callable, check_float, check_frame, check_ints
 from ..registration.config import RegisterConfig
+from ..registration.dense import DENSE_GLOBAL_MODEL
 from ..registration.result import RegistrationResult
 from ..classification.fusion import (FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds,
                                      warp_prior)
@@ -71,8 +72,6 @@ STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse", "flow")
 #: sets how much it is trusted, and every pair records its evidence (``inlier_ratio``). A
 #: :class:`pcreg.Propagator` keeps the test on and falls back to plain naive Bayes on a refusal.
 PIPELINE_REGISTRATION = RegisterConfig(model="similarity", init="identity", min_inlier_ratio=None)
-#: The global step of ``model="dense"``.
-DENSE_GLOBAL_MODEL = "similarity"
 
 
 @dataclass(frozen=True)

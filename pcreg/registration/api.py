@@ -264,8 +264,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
     """
-    ref_img = as_rgb_uint8(reference_image, name="reference image")
-    mov_img = as_rgb_uint8(moving_image, name="moving image")
+    if model == "dense":
+        return _register_dense_model(reference_image, moving_image, backend=backend, levels=levels, iterations=iterations,
+                                     init=init, min_inlier_ratio=min_inlier_ratio, seed=seed)
+    ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")
     o = _checked_register_options(ref_img, mov_img, backend=backend, model=model, levels=levels,
                                   iterations=iterations, init=init, max_correspondence_distance=max_correspondence_distance,
                                   refine=refine, weights=weights, relative_fitness=relative_fitness,
@@ -289,15 +291,24 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     tried, mirror = _candidates(o.init, moving, refiner, test, search)
     if not tried:
         raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
-    # Edges rank the hypotheses; the intensities between them break the ties of repetitive patterns.
-    best = max(tried, key=lambda c: c.score)
+    best = max(tried, key=lambda c: c.score)  # edges rank the hypotheses; intensities break repetitive ties
     if callback is not None:  # replay the winner's refinement for the callback (the same steps)
         best = replace(best, refined=refiner.refine(moving, best.hypothesis.matrix, top=best.hypothesis.top,
                                                     callback=callback))
-    seconds = time.perf_counter() - start
     evidence = test.check(best, mirror=mirror, shape=mov_img.shape)
-    return _result(best, evidence, tried, mirror, backend=backend, seconds=seconds,
+    return _result(best, evidence, tried, mirror, backend=backend, seconds=time.perf_counter() - start,
                    points=(len(moving[0]), len(reference[0])))
+
+
+def _register_dense_model(reference_image, moving_image, *, backend: str, levels: int, iterations: int, init,
+                          min_inlier_ratio: float | None, seed: int):
+    """``model="dense"``: the global similarity (this function, its test as given), refined by a dense field
+    (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult`."""
+    from .dense import DENSE_GLOBAL_MODEL, register_dense
+
+    start = register(reference_image, moving_image, backend=backend, model=DENSE_GLOBAL_MODEL, levels=levels,
+                     iterations=iterations, init=init, min_inlier_ratio=min_inlier_ratio, seed=seed)
+    return register_dense(reference_image, moving_image, global_result=start, backend=backend, seed=seed)
 
 
 def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate | None, *, backend: str,

@@ -82,6 +82,8 @@ __all__ = ["DenseRegistrationResult", "DenseIteration", "register_dense", "field
 
 #: Stiffness per iteration of a level (Amberg et al. 2007: stiff to relaxed); the last value repeats.
 STIFFNESS_SCHEDULE: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
+#: The global step of the dense model: a similarity (rotation, shift and the zoom of forward motion).
+DENSE_GLOBAL_MODEL = "similarity"
 #: Tukey's biweight constant (95% efficiency under Gaussian noise).
 TUKEY_C = 4.685
 

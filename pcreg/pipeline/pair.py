@@ -169,8 +169,11 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
             res = register(reference_image, moving_image, **config.registration.kwargs(), callback=callback)
     except RegistrationError as exc:
         return PairRegistration(None, str(exc), time.perf_counter() - t0)
-    if not np.all(np.isfinite(res.matrix)) or abs(np.linalg.det(res.matrix[:2, :2])) < 1e-6:
-        return PairRegistration(None, "registration returned a degenerate transform", time.perf_counter() - t0)
+    from ..registration.transforms import degeneracy
+
+    why = degeneracy(res.matrix, np.shape(moving_image))
+    if why is not None:
+        return PairRegistration(None, f"registration refused: {why}", time.perf_counter() - t0)
     return PairRegistration(res, None, time.perf_counter() - t0)
 
 

@@ -247,10 +247,10 @@ class Propagator:
                                         seed=self.config.seed, **self.dense.kwargs())
         except RegistrationError as exc:
             return None, str(exc)
-        M = np.asarray(result.matrix)
-        if not np.all(np.isfinite(M)) or abs(np.linalg.det(M[:2, :2])) < 1e-6:
-            return None, "registration returned a degenerate transform"
-        return result, None
+        from ..registration.transforms import degeneracy
+
+        why = degeneracy(result.matrix, image.shape)
+        return (result, None) if why is None else (None, f"registration refused: {why}")
 
     def _to_key(self, motion, shape: tuple[int, int]):
         """The new frame's motion to the key frame: itself when anchored to it, else composed with the

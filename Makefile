@@ -11,7 +11,7 @@ APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1 gcc libc6-dev chromium
 OPEN3D ?= cpu
 PYTEST_ARGS ?=
 
-.PHONY: setup sysdeps warm demo test bench clean
+.PHONY: setup sysdeps warm demo test lint docs bench clean
 
 setup: sysdeps $(STAMP) warm
 
@@ -32,15 +32,24 @@ sysdeps:
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test,crosscheck,distributed]"
+	$(BIN)/python -m pip install -q -e ".[$(OPEN3D),test,crosscheck,distributed,lint,docs]"
 	$(BIN)/python -m pip install -q --no-deps "probreg>=0.3.6"   # it declares the full open3d wheel; open3d-cpu serves
 	@touch $(STAMP)
 
 demo: setup
 	$(BIN)/pcreg demo --out out/demo --force
 
-test: setup
+test: setup lint docs
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+
+# ruff (pyflakes, syntax and statement errors, line length) and mypy, configured in pyproject.toml.
+lint: setup
+	$(BIN)/ruff check pcreg tools
+	$(BIN)/mypy
+
+# The documentation site (mkdocs.yml) into build/site; strict: a broken link or a stale API name fails.
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
 bench: setup
 	$(BIN)/python tools/bench_registration.py --out out/bench
@@ -50,4 +59,4 @@ bench: setup
 	$(BIN)/python tools/bench_recording.py --out out/bench
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out build .pytest_cache .mypy_cache .ruff_cache

@@ -143,7 +143,7 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
     """
     if scheduler:
         try:
-            from dask.distributed import Client  # type: ignore[import-not-found]
+            from dask.distributed import Client
         except ImportError:
             from .errors import PcregError
 

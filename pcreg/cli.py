@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from typing import NoReturn
 
 # name -> (module, one-line help). "evaluate" has sub-commands of its own.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -32,7 +33,7 @@ EVALUATIONS: dict[str, tuple[str, str]] = {
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, exit 2 (argparse's default prints usage too)
+    def error(self, message: str) -> NoReturn:  # one line, exit 2 (argparse's default prints usage too)
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
 

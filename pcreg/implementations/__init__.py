@@ -45,7 +45,7 @@ def parse_list(text: str) -> list[str]:
         else:
             cur.append(ch)
     items.append("".join(cur).strip())
-    out = []
+    out: list[str] = []
     for it in items:
         if not it:
             continue

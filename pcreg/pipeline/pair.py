@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -50,6 +50,9 @@ from ..registration.dense import DENSE_GLOBAL_MODEL
 from ..registration.result import RegistrationResult
 from ..classification.fusion import (FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds,
                                      warp_prior)
+
+if TYPE_CHECKING:  # for the annotation only
+    from .temporal import TemporalFusion
 
 __all__ = ["METHODS", "STAGES", "PIPELINE_REGISTRATION", "DENSE_GLOBAL_MODEL", "PipelineConfig", "log_odds",
            "PairRegistration", "motion_of", "register_pair", "flow_field", "PairResult", "PairArrays",
@@ -282,7 +285,7 @@ def _check_pair_args(reference, moving, classifier, *, weight, config, registrat
 
 
 def process_pair(reference, moving, classifier, *, weight: float, config: PipelineConfig = PipelineConfig(),
-                 registration: PairRegistration | None = None, temporal: "TemporalFusion | None" = None,
+                 registration: PairRegistration | None = None, temporal: TemporalFusion | None = None,
                  indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
                  callback: Callable | None = None, flow: np.ndarray | None = None,
                  flow_weight: float | None = None) -> ProcessedPair:

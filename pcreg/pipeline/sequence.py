@@ -15,7 +15,7 @@ from ..classification.fusion import (FusionConfig, WeightChoice, choose_weight, 
                                      warp_prior)
 from ..errors import InputError
 from ..validation import check_callable, check_frames, check_int, short_repr
-from .pair import METHODS, PairResult, PipelineConfig, flow_field, log_odds, process_pair, register_pair
+from .pair import METHODS, PairRegistration, PairResult, PipelineConfig, flow_field, log_odds, process_pair, register_pair
 from .temporal import TemporalFusion, temporal_update
 
 __all__ = ["SequenceResult", "run_sequence", "pair_indices", "resolve_fusion_frames"]

@@ -38,7 +38,7 @@ import traceback
 import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Literal, Mapping
 
 import cv2
 import numpy as np
@@ -239,7 +239,7 @@ class Recorder:
     def __enter__(self) -> "Recorder":
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> bool:
+    def __exit__(self, exc_type, exc, tb) -> Literal[False]:
         if exc is not None and not self._closed:
             text = "".join(traceback.format_exception_only(exc_type, exc)).strip()
             self.log_failure(text)

@@ -264,7 +264,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
     """
-    if model == "dense":
+    if isinstance(model, str) and model == "dense":
         return _register_dense_model(reference_image, moving_image, backend=backend, levels=levels, iterations=iterations,
                                      init=init, min_inlier_ratio=min_inlier_ratio, seed=seed)
     ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")

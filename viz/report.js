@@ -280,6 +280,21 @@ function render(r) {
   document.body.dataset.loaded = "1";
 }
 
+// the splitter between report and recording: drag to share the width, double-click to reset
+$("splitter").addEventListener("pointerdown", (e) => {
+  const split = $("split");
+  const move = (m) => {
+    const right = split.getBoundingClientRect().right - m.clientX;
+    document.documentElement.style.setProperty("--rec-width", `${Math.max(320, Math.min(right, innerWidth - 360))}px`);
+  };
+  const up = () => { document.body.classList.remove("dragging"); removeEventListener("pointermove", move); removeEventListener("pointerup", up); };
+  document.body.classList.add("dragging");
+  addEventListener("pointermove", move);
+  addEventListener("pointerup", up);
+  e.preventDefault();
+});
+$("splitter").addEventListener("dblclick", () => document.documentElement.style.removeProperty("--rec-width"));
+
 $("lightbox").addEventListener("click", () => { $("lightbox").hidden = true; });
 
 fetch("/report.json")

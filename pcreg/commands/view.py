@@ -12,8 +12,8 @@ URL to open and serves until Ctrl-C: no display and no GPU needed on the machine
 both ports, e.g. ``ssh -L 9090:localhost:9090 -L 9876:localhost:9876 HOST``).
 ``pcreg view OUT_DIR --web`` serves the report page of an evaluation's output folder (``evaluate
 sequence|rotation|stream|classification --out OUT_DIR``) on the same ports: its tables (from
-results.json), figures and checks, with the run's recording (the .rrd files in OUT_DIR, or those named
-after it) embedded beside them; choosing a row of a table moves the recording to that row's frame.
+results.json), figures and checks, with the run's recording (the .rrd files in OUT_DIR, or the
+recordings given after it) embedded beside them; choosing a row of a table moves the recording to that row's frame.
 ``pcreg view FILE.rrd --screenshot OUT.png [--time frame=N] [--view NAME]`` renders the recording
 headless (:func:`pcreg.recording.viewer.screenshot`) and saves the picture.
 
@@ -32,12 +32,13 @@ from pathlib import Path
 
 from ..errors import InputError, OutputError
 
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recordings", metavar="FILE.rrd|OUT_DIR", nargs="+",
                         help="the recording to show; several are shown side by side (a comparison); or an "
                              "evaluation's output folder, shown with --web (its recording: the .rrd files in it, "
-                             "or those named after it)")
-    parser.add_argument("--web", action="store_true", help="serve the web viewer and print its URL instead of opening a window")
+                             "or the recordings given after it)")
+    parser.add_argument("--web", action="store_true", help="serve the web viewer (for OUT_DIR: the report page) and print its URL instead of opening a window")
     parser.add_argument("--bind", metavar="ADDRESS", default="127.0.0.1",
                         help="address the web viewer and its data server listen on (default 127.0.0.1: this machine only)")
     parser.add_argument("--web-port", type=_port, default=9090, help="web page's HTTP port (default 9090; 0: any free port)")

@@ -93,3 +93,4 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
         assert [series[0], series[1]] == pytest.approx(
             [res["datasets"]["syn1a"]["angles"][a][key] for a in ("0", "90")])
     assert len(rec.get("transforms/T_ref_mov")) == 2
+    assert res["units"][0]["recording_frames"] == {"0": 0, "90": 1}  # each angle's frame, for the report page

@@ -94,6 +94,13 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
         assert [series[f] for f in sorted(series)] == pytest.approx([p["errors"][m] for p in unit["pairs"]])
     assert rec.get("transforms/T_ref_mov") and rec.get("warped/valid_mask")
     assert rec.get("labels/predicted/augmented") and rec.get("labels/truth")
+    # each pair's frame on the recording, for the report page; a resumed run's units carry none
+    series = rec.series("errors/syn1a/k2/reference/plain")
+    assert unit["recording_frames"] == {str(p["moving"]): f for p, f in zip(unit["pairs"], sorted(series))}
+    assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "6", "--size", "160x120",
+                 "--increments", "2", "--out", str(tmp_path / "s")]) == 0
+    again = json.loads((tmp_path / "s" / "results.json").read_text())
+    assert again["resumed_units"] == 1 and "recording_frames" not in again["units"][0]
 
 
 @pytest.mark.parametrize("bad", [["--increments", "0"], ["--increments", "a"], ["--backend", "x"],

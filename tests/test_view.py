@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pcreg.commands import view
+from pcreg.recording import viewer as view
 from pcreg.errors import PcregError
 from pcreg.recording.recorder import Recorder
 

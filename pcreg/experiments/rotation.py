@@ -88,7 +88,8 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
 
 def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
     """Every angle for one sampled frame with one backend: a pure function of ``unit``. With a
-    recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``)."""
+    recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``), and
+    the result's ``recording_frames`` maps each angle to that index."""
     import numpy as np
 
     from ..registration.api import register
@@ -141,6 +142,7 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
         out["angles"][angle_key(angle)] = row
         if recorder is not None:
             recorder.set_frame(counter[0])
+            out.setdefault("recording_frames", {})[angle_key(angle)] = counter[0]
             counter[0] += 1
             prefix = f"{unit.dataset}/frame{unit.index}/{unit.backend}"
             recorder.log_text(f"{prefix}: rotated by {angle:g} degrees")

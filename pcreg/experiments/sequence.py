@@ -73,7 +73,8 @@ class SequenceConfig:
 def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
     """One (dataset, k, backend): a pure function of ``unit`` (data from the per-process cache).
     With a recorder, every scored pair is logged (images, transform, warp, labels, error rates) at the
-    next index of the recording's ``frame`` timeline (``frame_counter[0]``, advanced per pair)."""
+    next index of the recording's ``frame`` timeline (``frame_counter[0]``, advanced per pair), and the
+    result's ``recording_frames`` maps each pair's moving frame to that index."""
     from ..errors import InputError
     from ..pipeline import run_sequence
     from .units import load_cached
@@ -82,8 +83,10 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
     t0 = time.perf_counter()
     frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
     on_pair = icp = None
+    recorded: dict[str, int] = {}
     if recorder is not None:
-        on_pair, icp = _recording_hooks(recorder, unit, frame_counter if frame_counter is not None else [0])
+        on_pair, icp = _recording_hooks(recorder, unit, frame_counter if frame_counter is not None else [0],
+                                        recorded)
     try:
         res = run_sequence(frames, k=unit.k, config=cfg.pipeline(unit.backend), train=cfg.train,
                            fusion_frames=cfg.fusion_frames, on_pair=on_pair, icp_callback=icp)
@@ -94,16 +97,19 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
                "error": str(exc)}
     out.update(dataset=unit.dataset, frames=len(frames), seconds=time.perf_counter() - t0,
                width=frames[0].shape[1] if frames else None, height=frames[0].shape[0] if frames else None)
+    if recorder is not None:
+        out["recording_frames"] = recorded
     return out
 
 
-def _recording_hooks(rec, unit, counter: list[int]):
+def _recording_hooks(rec, unit, counter: list[int], recorded: dict[str, int]):
     prefix = f"{unit.dataset}/k{unit.k}/{unit.backend}"
     rec.log_text(f"sequence {prefix}: start")
 
     def on_pair(result, frames, arrays) -> None:
         ref, mov = frames
         rec.set_frame(counter[0])
+        recorded[str(result.moving)] = counter[0]
         counter[0] += 1
         rec.log_text(f"{prefix}: frame {result.moving} registered to frame {result.reference}")
         rec.log_images(reference=ref.image, moving=mov.image, warped=arrays.warped, valid_mask=arrays.valid)

@@ -192,25 +192,31 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
 # ---------------------------------------------------------------------------------------------
 
 def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
-    """One clip: a pure function of ``unit`` (data from the per-process cache)."""
+    """One clip: a pure function of ``unit`` (data from the per-process cache). With a recorder, each
+    scored frame is logged at the next index of the ``frame`` timeline (``frame_counter[0]``), and the
+    result's ``recording_frames`` maps each frame's index in the clip to that index."""
     from .units import load_cached
 
     cfg = unit.config
     t0 = time.perf_counter()
     frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
+    recorded: dict[str, int] = {}
     hook = None if recorder is None else _recording_hook(recorder, unit.dataset,
-                                                         frame_counter if frame_counter is not None else [0])
+                                                         frame_counter if frame_counter is not None else [0], recorded)
     out = run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=unit.backend, on_frame=hook)
     out.update(dataset=unit.dataset, backend=unit.backend, n_frames=len(frames), seconds=time.perf_counter() - t0,
                width=frames[0].shape[1], height=frames[0].shape[0])
+    if recorder is not None:
+        out["recording_frames"] = recorded
     return out
 
 
-def _recording_hook(rec, clip: str, counter: list[int]):
+def _recording_hook(rec, clip: str, counter: list[int], recorded: dict[str, int]):
     rec.log_text(f"stream {clip}: start")
 
     def on_frame(t, frame, preds) -> None:
         rec.set_frame(counter[0])
+        recorded[str(t)] = counter[0]
         counter[0] += 1
         rec.log_images(moving=frame.image)
         rec.log_labels(truth=frame.labels)

@@ -122,7 +122,9 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
     """Run the units not finished yet (``store`` keeps each result as it lands), in this process when
     recording (one recorder, frames in order), else through ``executor``.
 
-    Returns the results by unit key (finished and new) and how many came from an earlier run.
+    Returns the results by unit key (finished and new) and how many came from an earlier run. A finished
+    unit's ``recording_frames`` (where it lies on an earlier run's recording) is dropped: this run's
+    recording, if any, holds only the units it runs.
     """
     from .._runner import _InlineExecutor, check_interrupted, run_units
     from ..validation import check_units
@@ -133,6 +135,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
     for u in units:
         prev = store.load(u.key) if store is not None else None
         if prev is not None:
+            prev.pop("recording_frames", None)
             done[u.key] = prev
         else:
             todo.append(u)

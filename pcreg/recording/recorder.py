@@ -1,7 +1,7 @@
 """Rerun recordings (.rrd) of every stage; the only module of pcreg that logs to rerun (writes).
 
 The others that import rerun: :mod:`pcreg.recording.blueprint` builds layouts (``rerun.blueprint``);
-:mod:`pcreg.recording.readback` and :mod:`pcreg.commands.view` read recordings (``rerun.chunk.RrdReader``)
+:mod:`pcreg.recording.readback` and :mod:`pcreg.recording.viewer` read recordings (``rerun.chunk.RrdReader``)
 and drive the viewer; :mod:`pcreg.recording.staging` copies recordings (their chunks, unchanged, or
 moved under a label) into the file a viewer opens.
 

@@ -1,0 +1,232 @@
+"""An evaluation's output folder as data for the report page (``pcreg view OUT_DIR --web``).
+
+:func:`load_report` reads the folder (results.json, config.json, checks.md, the figures); :func:`page_data`
+turns it into what the page shows: the tables, built from results.json by the same functions that write
+the Markdown and CSV tables, each row with the frame of the run's recording it corresponds to (from the
+units' ``recording_frames``; ``None`` where the recording does not hold it), the checks and the figures.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ...errors import InputError
+
+__all__ = ["Report", "load_report", "page_data", "EXPERIMENTS"]
+
+#: What each experiment's page is called.
+EXPERIMENTS = {
+    "sequence": "Sequence: register frame i+k to i, classify, fuse labels",
+    "rotation": "Rotation: classify rotated frames before and after registration",
+    "stream": "Stream: label every frame of a clip from its key frame",
+    "classification": "Classification: naive Bayes cases I-III",
+}
+
+#: Files of the folder the page may fetch besides the figures.
+TEXT_SUFFIXES = (".md", ".csv", ".json")
+
+
+@dataclass(frozen=True)
+class Report:
+    """An output folder, read: which experiment, its results and config, checks.md, its figures' and
+    other files' names, and the recordings (.rrd) in it."""
+
+    folder: Path
+    experiment: str
+    results: dict
+    config: dict
+    checks: str | None
+    figures: tuple[str, ...]
+    files: tuple[str, ...]
+    recordings: tuple[Path, ...]
+
+
+def _experiment(results: dict) -> str | None:
+    if "average_reduction" in results and "units" in results:
+        return "stream"
+    if "weight_search" in results:
+        return "classification"
+    backends = results.get("backends")
+    if isinstance(backends, dict) and backends:
+        datasets = next(iter(backends.values())).get("datasets") if isinstance(next(iter(backends.values())), dict) else None
+        if isinstance(datasets, dict) and datasets:
+            first = next(iter(datasets.values()))
+            if isinstance(first, dict) and "angles" in first:
+                return "rotation"
+            if isinstance(first, dict) and "increments" in first:
+                return "sequence"
+    return None
+
+
+def load_report(folder: str | Path) -> Report:
+    """Read an evaluation's output folder; a missing folder, a folder without results.json, or a
+    results.json that is not one evaluation's results is one line (:class:`InputError`)."""
+    p = Path(folder)
+    if not p.exists():
+        raise InputError(f"{p}: no such file or folder")
+    if not p.is_dir():
+        raise InputError(f"{p}: not a folder")
+    rp = p / "results.json"
+    if not rp.is_file():
+        raise InputError(f"{p}: no results.json here (an evaluation's output folder: pcreg evaluate ... --out {p})")
+    try:
+        results = json.loads(rp.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise InputError(f"{rp}: not valid JSON (not UTF-8 text)") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{rp}: not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+    except OSError as exc:
+        raise InputError(f"{rp}: cannot read it ({exc.strerror or exc})") from None
+    experiment = _experiment(results) if isinstance(results, dict) else None
+    if experiment is None:
+        raise InputError(f"{rp}: not the results of pcreg evaluate sequence, rotation, stream or classification")
+    config = results.get("config") if isinstance(results.get("config"), dict) else {}
+    try:
+        on_disk = json.loads((p / "config.json").read_text(encoding="utf-8"))
+        if isinstance(on_disk, dict):
+            config = on_disk
+    except (OSError, ValueError):
+        pass
+    try:
+        checks = (p / "checks.md").read_text(encoding="utf-8")
+    except (OSError, ValueError):
+        checks = None
+    names = sorted(f.name for f in p.iterdir() if f.is_file() and not f.name.startswith("."))
+    return Report(folder=p, experiment=experiment, results=results, config=config, checks=checks,
+                  figures=tuple(n for n in names if n.lower().endswith(".png")),
+                  files=tuple(n for n in names if n.lower().endswith(TEXT_SUFFIXES)),
+                  recordings=tuple(p / n for n in names if n.lower().endswith(".rrd")))
+
+
+# -- tables --------------------------------------------------------------------------------------
+
+
+def _first_frame(frames: dict | None) -> int | None:
+    return min(frames.values()) if frames else None
+
+
+def _units(results: dict) -> list[dict]:
+    return [u for u in results.get("units", []) if isinstance(u, dict)]
+
+
+def _sequence_tables(results: dict) -> list[dict]:
+    from . import sequence as R
+
+    units = _units(results)
+    out = []
+    for b, bd in results["backends"].items():
+        header, rows = R.table(results, b)
+        frames = []
+        for name, d in bd["datasets"].items():
+            for k in d["increments"]:
+                u = next((u for u in units if u.get("dataset") == name and str(u.get("k")) == str(k)
+                          and u.get("backend") == b), None)
+                frames.append(_first_frame(u.get("recording_frames")) if u else None)
+        out.append(_table(f"sequence_{b}", f"Mean error % over pairs (i, i+k), backend {b}", header, rows, frames,
+                          select="a clip and increment", errors=results.get("methods", ())))
+    return out
+
+
+def _rotation_tables(results: dict) -> list[dict]:
+    from ..rotation import KEYS
+    from . import rotation as R
+
+    units = sorted(_units(results), key=lambda u: u.get("index", 0))
+    out = []
+    for b, bd in results["backends"].items():
+        header, rows = R.table(results, b)
+        frames = []
+        for name, d in bd["datasets"].items():
+            for a in d["angles"]:
+                hits = [u["recording_frames"][a] for u in units if u.get("dataset") == name and u.get("backend") == b
+                        and a in (u.get("recording_frames") or {})]
+                frames.append(hits[0] if hits else None)
+        out.append(_table(f"rotation_{b}", f"Error % of rotated frames (mean over sampled frames), backend {b}",
+                          header, rows, frames, select="an angle (the first sampled frame)", errors=KEYS))
+    return out
+
+
+def _stream_tables(results: dict) -> list[dict]:
+    from . import stream as R
+
+    primary = results.get("primary_backend")
+    units = [u for u in _units(results) if primary is None or u.get("backend") == primary]
+    header, rows, _ = R.table(results)
+    by_clip = {u.get("dataset"): u for u in units}
+    frames = [_first_frame(by_clip[name].get("recording_frames")) if name in by_clip else None
+              for name in results["datasets"]] + [None]
+    reference = _table("stream_reference", "Mean error % per clip (last row: reduction against plain, %)",
+                       header, rows[:-1], frames[:-1], select="a clip", errors=results["methods"])
+    reduction = _table("stream_reduction", "Reduction against plain, mean over clips (%)", header[2:],
+                       [rows[-1][2:]], [None], errors=results["methods"], better="higher")
+    header, rows = R.per_frame(results)
+    frames = [(u.get("recording_frames") or {}).get(str(r["index"])) for u in _units(results) for r in u["frames"]]
+    if primary is not None:  # one row per frame of the primary backend's units, as the recording holds them
+        keep = [u.get("backend") == primary for u in _units(results) for _ in u["frames"]]
+        rows = [r for r, k in zip(rows, keep) if k]
+        frames = [f for f, k in zip(frames, keep) if k]
+    per_frame = _table("stream_frames", "Error % per frame", header, rows, frames, select="a frame of a clip",
+                       errors=results["methods"])
+    return [reference, reduction, per_frame]
+
+
+def _classification_tables(results: dict) -> list[dict]:
+    from . import classification as R
+
+    return [_table(name, R._TITLES.get(name, name), header, rows, [None] * len(rows))
+            for name, (header, rows) in R.tables(results).items()]
+
+
+def _cell(v: Any) -> Any:
+    import math
+
+    import numpy as np
+
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    return v if v is None else str(v)
+
+
+def _table(name: str, title: str, header: list, rows: list, frames: list, *, select: str | None = None,
+           errors: tuple | list = (), better: str = "lower") -> dict:
+    """One table: ``columns``, ``rows`` (``cells``, the recording ``frame``, which cells are ``floats``:
+    JSON does not tell 2.0 from 2), which columns compare the
+    methods (``errors``: their indices; ``better``: whether lower or higher is better), what choosing a
+    row selects."""
+    columns = [str(h) for h in header]
+    return {"name": name, "title": title, "columns": columns, "select": select, "better": better,
+            "errors": [i for i, c in enumerate(columns) if c in errors],
+            "rows": [{"cells": [_cell(c) for c in row], "frame": f, "floats": [i for i, c in enumerate(row) if _is_float(c)]}
+                     for row, f in zip(rows, frames)]}
+
+
+def _is_float(v: Any) -> bool:
+    """A value written with two decimals (as the Markdown tables write it), whole or not."""
+    import numpy as np
+
+    return isinstance(v, (float, np.floating))
+
+
+_TABLES = {"sequence": _sequence_tables, "rotation": _rotation_tables, "stream": _stream_tables,
+           "classification": _classification_tables}
+
+
+def page_data(report: Report) -> dict:
+    """What the report page shows (JSON-ready): the experiment, its config, tables, checks and figures."""
+    try:
+        tables = _TABLES[report.experiment](report.results)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise InputError(f"{report.folder / 'results.json'}: not the results of pcreg evaluate {report.experiment} "
+                         f"as this version writes them ({type(exc).__name__}: {exc})") from None
+    return {"experiment": report.experiment, "title": EXPERIMENTS[report.experiment], "folder": report.folder.name,
+            "path": str(report.folder.resolve()), "config": report.config,
+            "seconds": report.results.get("seconds"), "tables": tables, "checks": report.checks,
+            "figures": list(report.figures), "files": list(report.files),
+            "notes": [str(n) for n in report.results.get("notes", []) if n] if isinstance(report.results.get("notes"), list) else []}

@@ -1,0 +1,201 @@
+"""The report page's server: an evaluation's output folder beside its recording, in a browser.
+
+:class:`ReportServer` serves, on one address and port (127.0.0.1 unless told otherwise):
+
+- ``/``: the page (``viz/index.html`` with its CSS and JavaScript under ``/viz/``; no build step);
+- ``/report.json``: what the page shows (:func:`pcreg.experiments.reports.page.page_data`) and where the
+  recording is served;
+- ``/files/NAME``: the folder's figures and text files (those named in the report, nothing else);
+- ``/rerun/``: rerun's web viewer, its files fetched from the ``rerun --serve-web`` process
+  (:func:`pcreg.recording.viewer.serve_web`) that also serves the recording over gRPC. Served from the
+  page's own origin, the embedded viewer's JavaScript handle is reachable from the page, which moves its
+  time cursor through the viewer's control API (``WebHandle.viewer_control``) when a row is chosen.
+"""
+
+from __future__ import annotations
+
+import json
+import mimetypes
+import socket
+import subprocess
+import threading
+import urllib.error
+import urllib.request
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+from ..errors import InputError, PcregError
+from .entities import FRAME_TIMELINE
+from .viewer import ViewerError, check_bind, free_port, port_free, serve_web, stop, url_host
+
+__all__ = ["ReportServer", "viz_dir"]
+
+
+def viz_dir() -> Path:
+    """The report page's static files: ``pcreg/_viz`` in an installed wheel, ``viz/`` in a source checkout."""
+    here = Path(__file__).resolve().parent.parent
+    for candidate in (here / "_viz", here.parent / "viz"):
+        if (candidate / "index.html").is_file():
+            return candidate
+    raise PcregError("the report page's files (viz/) are missing from this installation of pcreg")
+
+
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+    allow_reuse_address = False
+
+
+class _Server6(_Server):
+    address_family = socket.AF_INET6
+
+
+class ReportServer:
+    """The report page of ``data`` (files from ``folder``) and, with ``recording``, rerun's web viewer and
+    the recording's data server; a context manager. ``url`` is the page to open."""
+
+    def __init__(self, folder: str | Path, data: dict, *, recording: str | Path | None = None,
+                 bind: str = "127.0.0.1", web_port: int = 9090, grpc_port: int = 9876, viewer: str | None = None,
+                 timeout: float = 60.0) -> None:
+        self.folder = Path(folder)
+        self.data = data
+        self.proc: subprocess.Popen | None = None
+        self._static = viz_dir()
+        self._cache: dict[str, tuple[int, str, bytes, dict]] = {}
+        self._lock = threading.Lock()
+        probe = check_bind(bind)
+        self._probe = probe
+        try:
+            web_port = web_port or free_port(probe)
+        except OSError as exc:
+            raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
+        if recording is not None and web_port == grpc_port:
+            raise InputError(f"--web-port and --grpc-port must differ (both {web_port})")
+        if not port_free(probe, web_port):
+            raise InputError(f"--web-port {web_port}: the port is in use on {bind} (choose another, or 0 for any free port)")
+        self._viewer_port = None
+        if recording is not None:
+            try:
+                grpc_port = grpc_port or free_port(probe)
+            except OSError as exc:
+                raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
+            # rerun's own web server, on a port of its own; the page's server fetches the viewer's files from it
+            self._viewer_port = free_port(probe)
+            while self._viewer_port in (web_port, grpc_port):
+                self._viewer_port = free_port(probe)
+            self.proc, _ = serve_web(recording, bind=bind, web_port=self._viewer_port, grpc_port=grpc_port,
+                                     viewer=viewer, timeout=timeout, page_port=web_port)
+        self.grpc_port = grpc_port if recording is not None else None
+        host = "127.0.0.1" if bind == "localhost" else bind
+        try:
+            self._httpd = (_Server6 if ":" in host else _Server)((host, web_port), self._handler())
+        except OSError as exc:
+            self.close()
+            raise InputError(f"--web-port {web_port}: cannot listen on {bind} ({exc.strerror or exc})") from None
+        self.port = int(self._httpd.server_address[1])
+        self.url = f"http://{url_host(bind)}:{self.port}/"
+        self._thread = threading.Thread(target=self._httpd.serve_forever, name="pcreg-report", daemon=True)
+        self._thread.start()
+
+    # -- what the page asks for -------------------------------------------------------------------
+
+    def report_json(self) -> bytes:
+        recording = None
+        if self.grpc_port is not None:
+            recording = {"grpc_port": self.grpc_port, "timeline": FRAME_TIMELINE, "viewer": "/rerun/"}
+        return json.dumps({**self.data, "recording": recording}, allow_nan=False).encode()
+
+    def _viewer_file(self, path: str) -> tuple[int, str, bytes, dict]:
+        """A file of rerun's web viewer, fetched once from its server (the viewer's .wasm is large)."""
+        with self._lock:
+            if path in self._cache:
+                return self._cache[path]
+            try:
+                with urllib.request.urlopen(f"http://{url_host(self._probe)}:{self._viewer_port}{path}",
+                                            timeout=60) as r:
+                    body = r.read()
+                    answer = (r.status, r.headers.get("Content-Type", "application/octet-stream"), body,
+                              {k: v for k, v in r.headers.items() if k.lower() == "rerun-final-length"})
+            except urllib.error.HTTPError as exc:
+                return exc.code, "text/plain", b"not found\n", {}
+            except OSError:
+                return 502, "text/plain", b"the web viewer does not answer\n", {}
+            if answer[0] == 200:
+                self._cache[path] = answer
+            return answer
+
+    def _handler(self):
+        server = self
+        static = {f.name: f for f in self._static.iterdir() if f.is_file()}
+        files = {n: server.folder / n for n in (*server.data.get("figures", []), *server.data.get("files", []))}
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *args) -> None:  # no line per request on the terminal
+                pass
+
+            def _send(self, status: int, ctype: str, body: bytes, headers: dict | None = None) -> None:
+                self.send_response(status)
+                self.send_header("Content-Type", ctype)
+                self.send_header("Content-Length", str(len(body)))
+                self.send_header("Cache-Control", "no-store")
+                for k, v in (headers or {}).items():
+                    self.send_header(k, v)
+                self.end_headers()
+                if self.command != "HEAD":
+                    self.wfile.write(body)
+
+            def do_HEAD(self) -> None:
+                self.do_GET()
+
+            def do_GET(self) -> None:
+                path = self.path.split("?", 1)[0].split("#", 1)[0]
+                try:
+                    if path in ("/", "/index.html"):
+                        return self._file(static["index.html"])
+                    if path.startswith("/viz/") and path[5:] in static:
+                        return self._file(static[path[5:]])
+                    if path == "/report.json":
+                        return self._send(200, "application/json", server.report_json())
+                    if path.startswith("/files/") and path[7:] in files:
+                        return self._file(files[path[7:]])
+                    if path.startswith("/rerun/") and server._viewer_port is not None:
+                        return self._send(*server._viewer_file("/" + path[7:]))
+                    self._send(404, "text/plain", b"not found\n")
+                except (BrokenPipeError, ConnectionResetError):  # the browser went away
+                    pass
+
+            def _file(self, p: Path) -> None:
+                try:
+                    body = p.read_bytes()
+                except OSError:
+                    return self._send(404, "text/plain", b"not found\n")
+                ctype = mimetypes.guess_type(p.name)[0] or "application/octet-stream"
+                if ctype.startswith("text/") or ctype in ("application/javascript", "application/json"):
+                    ctype += "; charset=utf-8"
+                self._send(200, ctype, body)
+
+        return Handler
+
+    # -- life -------------------------------------------------------------------------------------
+
+    def wait(self) -> None:
+        """Serve until interrupted (KeyboardInterrupt), or until the recording's server stops (ViewerError)."""
+        if self.proc is None:
+            self._thread.join()
+            return
+        self.proc.wait()
+        if self.proc.returncode not in (0, -15):
+            raise ViewerError(f"the web viewer stopped (exit code {self.proc.returncode})")
+
+    def close(self) -> None:
+        httpd = getattr(self, "_httpd", None)
+        if httpd is not None:
+            httpd.shutdown()
+            httpd.server_close()
+        if self.proc is not None:
+            stop(self.proc)
+
+    def __enter__(self) -> "ReportServer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,334 @@
+"""The rerun viewer as a process: found, started and stopped here, for the command line and the tests.
+
+:func:`find_viewer` locates the ``rerun`` program that comes with rerun-sdk; :func:`check_recording`
+tells a recording from any other file in one line; :func:`headless` starts the viewer without a display
+on 127.0.0.1 (Vulkan; on a machine without a GPU, Mesa's lavapipe from Debian's ``mesa-vulkan-drivers``)
+and drives it with ``rerun.experimental.ViewerClient``, which :func:`screenshot` uses to save a picture;
+:func:`serve_web` serves rerun's web viewer (its assets are built into the ``rerun`` program; nothing is
+downloaded) and a recording over gRPC, on 127.0.0.1 unless told otherwise. Every process started here
+runs in a process group of its own and is stopped with :func:`stop`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ipaddress
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.parse
+from pathlib import Path
+from typing import Any, Iterator
+
+from ..errors import InputError, PcregError
+
+__all__ = ["ViewerError", "find_viewer", "check_recording", "vulkan_icds", "headless", "screenshot", "serve_web",
+           "web_url", "stop", "free_port", "port_free", "check_bind", "url_host"]
+
+
+class ViewerError(PcregError):
+    """The rerun viewer is missing, or failed to start or to render."""
+
+
+def find_viewer(explicit: str | None = None) -> str:
+    """Path of the ``rerun`` program: ``explicit``, else rerun-sdk's own binary, else ``rerun`` on PATH."""
+    if explicit:
+        p = Path(explicit)
+        if not (p.is_file() and os.access(p, os.X_OK)):
+            raise ViewerError(f"rerun viewer not found at {explicit}")
+        return str(p)
+    try:
+        import importlib.util
+
+        spec = importlib.util.find_spec("rerun_cli")
+        if spec and spec.origin:
+            binary = Path(spec.origin).parent / ("rerun.exe" if sys.platform.startswith("win") else "rerun")
+            if binary.is_file() and os.access(binary, os.X_OK):
+                return str(binary)
+    except (ImportError, ValueError):
+        pass
+    for candidate in (Path(sys.executable).parent / "rerun", shutil.which("rerun")):
+        if candidate and Path(candidate).is_file():
+            return str(candidate)
+    raise ViewerError("rerun viewer not found: install rerun-sdk (it ships the `rerun` program)")
+
+
+def check_recording(path: str | os.PathLike) -> tuple[str, str]:
+    """(application id, recording id) of the first recording in ``path``; one-line errors otherwise."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such file")
+    if not p.is_file():
+        raise InputError(f"{p}: not a file")
+    from rerun.chunk import RrdReader
+
+    try:
+        stores = RrdReader(str(p)).recordings()
+    except Exception as exc:  # rerun's reader raises its own types for a bad file
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{p}: not a rerun recording ({first})") from None
+    if not stores:
+        raise InputError(f"{p}: not a rerun recording (no recording store in it)")
+    return stores[0].application_id, stores[0].recording_id
+
+
+def vulkan_icds() -> list[Path]:
+    """The Vulkan drivers (ICD files) the loader would find."""
+    if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
+        names = (os.environ.get("VK_DRIVER_FILES") or os.environ["VK_ICD_FILENAMES"]).split(os.pathsep)
+        return [Path(n) for n in names if Path(n).is_file()]
+    found: list[Path] = []
+    for d in ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d"):
+        if Path(d).is_dir():
+            found += sorted(Path(d).glob("*.json"))
+    return found
+
+
+#: Seconds after the headless viewer starts before a picture of the whole window is taken: its start-up
+#: notices (server address, renderer) fade out by then.
+NOTICES_FADE_S = 7.0
+
+
+@contextlib.contextmanager
+def headless(recording: str | os.PathLike, *, size: str = "1600x900", viewer: str | None = None,
+             timeout: float = 60.0) -> Iterator[tuple[Any, Any, float]]:
+    """The headless viewer with ``recording`` loaded: yields ``(ViewerClient, ViewerState, started)``.
+
+    Starts ``rerun --headless`` bound to 127.0.0.1 on a free port in a process group of its own, opens
+    the file, waits for it to load (its views laid out), and stops the viewer on exit. ``started`` is
+    the ``time.monotonic()`` at which the viewer started.
+    """
+    from rerun.experimental import ViewerClient
+
+    binary = find_viewer(viewer)
+    if sys.platform.startswith("linux") and not vulkan_icds():
+        raise ViewerError("no Vulkan driver for a headless screenshot: install Debian's mesa-vulkan-drivers (lavapipe)")
+    rec_path = Path(recording).resolve()
+    port = free_port("127.0.0.1")
+    env = dict(os.environ)
+    env.setdefault("WGPU_BACKEND", "vulkan")
+    env.setdefault("XDG_RUNTIME_DIR", str(Path(os.environ.get("TMPDIR", "/tmp"))))
+    cmd = [binary, "--headless", "--bind", "127.0.0.1", "--port", str(port), "--hide-welcome-screen",
+           "--window-size", size, "--renderer", "vulkan"]
+    started = time.monotonic()
+    proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.monotonic() + timeout
+    try:
+        client = None
+        while client is None:
+            if proc.poll() is not None:
+                err = (proc.stderr.read() or b"").decode(errors="replace").strip().splitlines() if proc.stderr else []
+                last = next((line for line in reversed(err) if line.strip()), f"exit code {proc.returncode}")
+                raise ViewerError(f"the headless viewer stopped: {last[-300:]}")
+            try:
+                c = ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
+                c.get_state()
+                client = c
+            except Exception:
+                if time.monotonic() > deadline:
+                    raise ViewerError(f"the headless viewer did not answer within {timeout:.0f} s") from None
+                time.sleep(0.2)
+        client.open(str(rec_path))
+        while True:
+            state = client.get_state()
+            if not state.loading and state.recordings and state.views:
+                break
+            if time.monotonic() > deadline:
+                raise ViewerError(f"the viewer did not finish loading {rec_path} within {timeout:.0f} s")
+            time.sleep(0.2)
+        yield client, state, started
+    except RuntimeError as exc:  # ViewerClient's errors
+        raise ViewerError(f"the viewer failed: {str(exc).strip().splitlines()[0] if str(exc).strip() else exc}") from None
+    finally:
+        _stop(proc)
+
+
+def screenshot(
+    recording: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    time_cursor: tuple[str, int] | None = None,
+    view: str | None = None,
+    size: str = "1600x900",
+    viewer: str | None = None,
+    timeout: float = 60.0,
+) -> Path:
+    """Render ``recording`` headless to the PNG ``out`` and return its path.
+
+    Loads it in the :func:`headless` viewer, sets the time cursor, saves the screenshot (of the whole
+    viewer, once its start-up notices have faded, or of the view named ``view``) and stops the viewer.
+    """
+    out_path = Path(out).resolve()
+    with headless(recording, size=size, viewer=viewer, timeout=timeout) as (client, state, started):
+        if time_cursor is not None:
+            name, value = time_cursor
+            timelines = {t.name for r in state.recordings for t in r.timelines}
+            if name not in timelines:
+                raise InputError(f"--time: the recording has no timeline {name!r} (it has {', '.join(sorted(timelines))})")
+            client.set_time(name, sequence=value, play_state="paused")
+        view_id = None
+        if view is not None:
+            names = {v.name: v.view_id for v in state.views}
+            if view not in names:
+                raise InputError(f"--view: no view named {view!r} (views: {', '.join(sorted(names))})")
+            view_id = names[view]
+        time.sleep(0.5)  # let a few frames paint after the cursor moved
+        if view_id is None:
+            time.sleep(max(0.0, started + NOTICES_FADE_S - time.monotonic()))
+        out_path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.png")
+        try:
+            client.save_screenshot(str(tmp), view_id=view_id)
+            if not tmp.is_file() or tmp.stat().st_size == 0:
+                raise ViewerError("the viewer saved no screenshot")
+            os.replace(tmp, out_path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+    return out_path
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """Stop the viewer we started (its own process group), then reap it."""
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, 15)
+        except ProcessLookupError:
+            pass
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            try:
+                os.killpg(proc.pid, 9)
+            except ProcessLookupError:
+                pass
+            proc.wait(timeout=5)
+    if proc.stderr:
+        proc.stderr.close()
+
+
+def check_bind(bind: str) -> str:
+    """The address to probe for a server bound to ``bind`` (an IP address of this machine, or
+    ``localhost``); one-line errors otherwise."""
+    if bind != "localhost":
+        try:
+            ipaddress.ip_address(bind)
+        except ValueError:
+            raise InputError(f"--bind must be an IP address of this machine (e.g. 127.0.0.1, 0.0.0.0), got {bind!r}") from None
+    probe = "127.0.0.1" if bind in ("0.0.0.0", "localhost") else ("::1" if bind == "::" else bind)
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in probe else socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.bind((probe, 0))
+    except OSError as exc:
+        raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
+    return probe
+
+
+def free_port(host: str) -> int:
+    """A port free on ``host`` now."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def port_free(host: str, port: int) -> bool:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def url_host(bind: str) -> str:
+    """The host name a browser uses for a server bound to ``bind``."""
+    if bind == "::1":
+        return "[::1]"
+    if bind in ("0.0.0.0", "::"):
+        return socket.gethostname()
+    return f"[{bind}]" if ":" in bind else bind
+
+
+def web_url(host: str, web_port: int, grpc_port: int) -> str:
+    """The web viewer's URL, with the recording server to connect to."""
+    data = f"rerun+http://{host}:{grpc_port}/proxy"
+    return f"http://{host}:{web_port}/?url={urllib.parse.quote(data, safe='')}"
+
+
+def serve_web(
+    recording: str | os.PathLike,
+    *,
+    bind: str = "127.0.0.1",
+    web_port: int = 9090,
+    grpc_port: int = 9876,
+    viewer: str | None = None,
+    timeout: float = 60.0,
+    page_port: int | None = None,
+) -> tuple[subprocess.Popen, str]:
+    """Start rerun's web viewer and a gRPC server holding ``recording``, both bound to ``bind``.
+
+    Returns the server process (in a process group of its own; stop it with :func:`stop`) and the URL
+    to open, once both ports answer. Port 0 picks a free port. The web viewer's files come from the
+    installed rerun-sdk (they are built into its ``rerun`` program). ``page_port``: the port of the page
+    that embeds the web viewer, when that is not the web viewer's own (the report viewer's), so that on
+    an address other than loopback the data server answers it.
+    """
+    binary = find_viewer(viewer)
+    probe = check_bind(bind)
+    try:
+        web_port = web_port or free_port(probe)
+        grpc_port = grpc_port or free_port(probe)
+    except OSError as exc:
+        raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
+    if web_port == grpc_port:
+        raise InputError(f"--web-port and --grpc-port must differ (both {web_port})")
+    for name, port in (("--web-port", web_port), ("--grpc-port", grpc_port)):
+        if not port_free(probe, port):
+            raise InputError(f"{name} {port}: the port is in use on {bind} (choose another, or 0 for any free port)")
+    cmd = [binary, str(Path(recording).resolve()), "--serve-web", "--bind", bind, "--port", str(grpc_port),
+           "--web-viewer-port", str(web_port)]
+    if bind not in ("127.0.0.1", "::1", "localhost"):
+        # the data server answers only pages from localhost unless told otherwise: allow our web viewer's
+        # page under whatever name the machine is reached by
+        cmd += ["--cors-allow-origin", f"http://*:{page_port or web_port}"]
+    env = dict(os.environ)
+    env.setdefault("RUST_LOG", "warn")
+    with tempfile.TemporaryFile() as log:  # a file, not a pipe: a server that runs for hours must never block on it
+        proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=log, start_new_session=True)
+        try:
+            _wait_listening(proc, log, probe, (web_port, grpc_port), timeout)
+        except BaseException:
+            stop(proc)
+            raise
+    return proc, web_url(url_host(bind), web_port, grpc_port)
+
+
+def _wait_listening(proc: subprocess.Popen, log, host: str, ports: tuple[int, ...], timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    for port in ports:
+        while True:
+            if proc.poll() is not None:
+                log.seek(0)
+                err = log.read().decode(errors="replace").strip().splitlines()
+                last = next((line for line in reversed(err) if line.strip()), f"exit code {proc.returncode}")
+                raise ViewerError(f"the web viewer stopped: {last[-300:]}")
+            try:
+                with socket.create_connection((host, port), timeout=1.0):
+                    break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise ViewerError(f"the web viewer did not listen on port {port} within {timeout:.0f} s") from None
+                time.sleep(0.1)
+
+
+def stop(proc: subprocess.Popen) -> None:
+    """Stop a viewer or server started here (its own process group), then reap it."""
+    _stop(proc)

@@ -1,0 +1,308 @@
+"""``pcreg view OUT_DIR --web``: an evaluation's report page beside its recording, in headless Chromium.
+
+For a small sequence, rotation and stream evaluation, each recorded into its output folder: the page
+loads, its tables hold results.json's numbers, its figures load, the embedded recording draws, choosing a
+row moves the recording to that row's frame, and page and data server listen on loopback only. A bad
+OUT_DIR is one line and exit 2; the page's files ship in the wheel's package list.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import cv2
+import pytest
+
+from _events import until
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def pcreg_view(argv: list[str]) -> int:
+    from pcreg import cli
+
+    return cli.main(["view", *argv])
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pcreg: error: "), err
+    return err
+
+
+def _listening(port: int) -> list[str]:
+    """Local addresses (hex, as /proc/net/tcp writes them) listening on ``port``."""
+    out = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            lines = open(table).read().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            addr, hexport = fields[1].split(":")
+            if fields[3] == "0A" and int(hexport, 16) == port:
+                out.append(addr)
+    return out
+
+
+# -- bad input ----------------------------------------------------------------------------------------
+
+
+def test_bad_out_dir_is_one_line(tmp_path, capsys):
+    assert pcreg_view([str(tmp_path / "missing"), "--web"]) == 2
+    assert "no such file or folder" in _one_line_error(capsys)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert pcreg_view([str(empty), "--web"]) == 2
+    assert "no results.json" in _one_line_error(capsys)
+    corrupt = tmp_path / "corrupt"
+    corrupt.mkdir()
+    (corrupt / "results.json").write_text('{"datasets": {"syn1a": ')
+    assert pcreg_view([str(corrupt), "--web"]) == 2
+    assert "not valid JSON" in _one_line_error(capsys)
+    (corrupt / "results.json").write_bytes(b"\xff\xfe\x00garbage")
+    assert pcreg_view([str(corrupt), "--web"]) == 2
+    assert "not valid JSON" in _one_line_error(capsys)
+    (corrupt / "results.json").write_text('{"something": "else"}')
+    assert pcreg_view([str(corrupt), "--web"]) == 2
+    assert "not the results of pcreg evaluate" in _one_line_error(capsys)
+    # a sequence's shape with the wrong insides
+    (corrupt / "results.json").write_text('{"backends": {"reference": {"datasets": {"a": {"increments": {"1": 3}}}}}}')
+    assert pcreg_view([str(corrupt), "--web"]) == 2
+    assert "not the results of pcreg evaluate sequence" in _one_line_error(capsys)
+
+
+# -- three small recorded evaluations -----------------------------------------------------------------
+
+SMALL = ["--data", "synthetic:syn1a", "--size", "160x120", "--force"]
+RUNS = {
+    "sequence": ["evaluate", "sequence", "--frames", "4", "-k", "1,2", "--backend", "reference", "--levels", "2",
+                 "--iterations", "5", *SMALL],
+    "rotation": ["evaluate", "rotation", "--frames", "2", "--angles", "0,20,40", "--samples", "1", "--backend",
+                 "reference", "--levels", "2", "--iterations", "5", *SMALL],
+    "stream": ["evaluate", "stream", "--frames", "4", "--methods", "plain,unregistered,pcreg,flow_key", *SMALL],
+}
+
+
+@pytest.fixture(scope="module")
+def evaluations(tmp_path_factory):
+    """Each evaluation's output folder, with its recording in it (``--record OUT_DIR/run.rrd``)."""
+    from pcreg import cli
+
+    d = tmp_path_factory.mktemp("reports")
+    out = {}
+    for kind, argv in RUNS.items():
+        folder = d / kind
+        with contextlib.redirect_stdout(io.StringIO()):
+            assert cli.main([*argv, "--out", str(folder), "--record", str(folder / "run.rrd")]) == 0, kind
+        out[kind] = folder
+    return out
+
+
+def _expected(kind: str, results: dict) -> dict:
+    """From results.json, independently of the page's code: {(row key): {column: value}}."""
+    out = {}
+    if kind == "sequence":
+        for b, bd in results["backends"].items():
+            for name, d in bd["datasets"].items():
+                for k, means in d["increments"].items():
+                    out[(f"sequence_{b}", name, k)] = {m.replace("_", " "): v for m, v in means.items()}
+    elif kind == "rotation":
+        for b, bd in results["backends"].items():
+            for name, d in bd["datasets"].items():
+                for a, c in d["angles"].items():
+                    out[(f"rotation_{b}", name, a)] = {k: c[k] for k in ("before", "after", "after_masked", "after_cropped")}
+    else:
+        for u in results["units"]:
+            for r in u["frames"]:
+                out[("stream_frames", u["dataset"], str(r["index"]))] = {m.replace("_", " "): v for m, v in r["errors"].items()}
+        for name, c in results["datasets"].items():
+            out[("stream_reference", name, None)] = {m.replace("_", " "): v for m, v in c["means"].items()}
+        out[("stream_reduction", None, None)] = {m.replace("_", " "): v for m, v in results["average_reduction"].items()}
+    return out
+
+
+def _row_key(table: str, cells: dict) -> tuple:
+    if table.startswith("sequence"):
+        return (table, cells["dataset"].split(" (")[0], cells["k"])
+    if table.startswith("rotation"):
+        return (table, cells["dataset"].split(" (")[0], cells["angle"])
+    if table == "stream_frames":
+        return (table, cells["clip"], cells["frame"])
+    return (table, cells.get("clip"), None)
+
+
+TABLES_JS = """Array.from(document.querySelectorAll('table')).map(t => ({
+  name: t.dataset.name,
+  head: Array.from(t.querySelectorAll('thead th')).map(th => th.textContent),
+  rows: Array.from(t.querySelectorAll('tbody tr')).map(tr => ({
+    frame: tr.dataset.frame === undefined ? null : Number(tr.dataset.frame),
+    cells: Array.from(tr.querySelectorAll('td')).map(td => [td.textContent, td.dataset.value === undefined ? null : td.dataset.value])
+  }))
+}))"""
+
+FIGURES_JS = "Array.from(document.querySelectorAll('#figures img')).map(i => [i.alt, i.complete && i.naturalWidth])"
+IFRAME_JS = "(() => { const r = document.getElementById('viewer').getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()"
+
+
+def _colourful(img) -> float:
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    return float(((hsv[..., 1] > 90) & (hsv[..., 2] > 70)).mean())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", list(RUNS))
+def test_report_page_in_a_browser(evaluations, kind, tmp_path):
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    folder = evaluations[kind]
+    results = json.loads((folder / "results.json").read_text())
+    recorded = {f for u in results["units"] for f in (u.get("recording_frames") or {}).values()}
+    assert recorded, "the recorded run notes no recording frame"
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(folder), "--web", "--web-port", "0",
+                             "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    ports = []
+    try:
+        url = None
+        for line in proc.stdout:
+            if line.startswith("http://"):
+                url = line.strip()
+                break
+        assert url and url.startswith("http://127.0.0.1:"), (url, proc.stderr.read() if proc.poll() is not None else "")
+        page_port = int(url.rsplit(":", 1)[1].strip("/"))
+        with urllib.request.urlopen(url + "report.json", timeout=30) as r:
+            report = json.loads(r.read())
+        grpc_port = report["recording"]["grpc_port"]
+        ports = [page_port, grpc_port]
+        for port in ports:  # loopback only, not every interface
+            assert _listening(port) == ["0100007F"], (port, _listening(port))
+        for bad in ("/files/..%2Fresults.json", "/files/../config.json", "/files/units", "/viz/../pcreg"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(url.rstrip("/") + bad, timeout=30)
+            assert e.value.code == 404, bad
+
+        with Browser(width=1600, height=900) as browser:
+            browser.open(url)
+
+            def ev(expr):
+                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+
+            assert until(lambda: ev("document.body && document.body.dataset.loaded"), what="the page loading",
+                         alive=proc, bound=120) == "1"
+            # the tables hold results.json's numbers
+            expected = _expected(kind, results)
+            seen = set()
+            for t in ev(TABLES_JS):
+                head = [h if h != "rec." else "_rec" for h in t["head"]]
+                for row in t["rows"]:
+                    cells = {h: (v if v is not None else text) for h, (text, v) in zip(head, row["cells"])}
+                    texts = {h: text for h, (text, _) in zip(head, row["cells"])}
+                    key = _row_key(t["name"], cells)
+                    if key not in expected:
+                        continue
+                    seen.add(key)
+                    for col, want in expected[key].items():
+                        if col not in cells:
+                            continue
+                        if want is None:
+                            assert texts[col] == "n/a", (key, col)
+                        else:
+                            assert float(cells[col]) == want, (key, col, cells[col], want)
+                            assert texts[col] == f"{want:.2f}", (key, col, texts[col])
+                    if row["frame"] is not None:
+                        assert row["frame"] in recorded, (key, row["frame"])
+            missing = set(expected) - seen
+            assert not missing, f"rows of results.json not in the page: {sorted(missing)}"
+            # the figures load
+            figures = until(lambda: (lambda f: f if f and all(w for _, w in f) else None)(ev(FIGURES_JS)),
+                            what="the figures loading", alive=proc, bound=60)
+            assert {a for a, _ in figures} == {p.name for p in folder.glob("*.png")}
+            # the recording draws in its frame of the page
+            x, y, w, h = (int(v) for v in until(lambda: ev("document.getElementById('viewer') && " + IFRAME_JS),
+                                                  what="the viewer's frame", alive=proc, bound=60))
+
+            def drawn(shot):
+                return _colourful(shot[y:y + h, x:x + w]) > 0.03
+
+            ok, shot = browser.wait_for(drawn, timeout=180)
+            cv2.imwrite(str(tmp_path / f"{kind}.png"), shot)
+            print(f"{kind} report screenshot:", tmp_path / f"{kind}.png")
+            assert ok, f"the recording does not draw (colourful {_colourful(shot[y:y + h, x:x + w]):.3f})"
+            # choosing a row moves the recording to its frame; the viewer answers with its new time
+            rows = ev("Array.from(document.querySelectorAll('tr.seekable')).map(r => Number(r.dataset.frame))")
+            assert rows, "no row leads to the recording"
+            for i in sorted({len(rows) - 1, len(rows) // 2}):
+                ev(f"document.querySelectorAll('tr.seekable')[{i}].click()")
+                until(lambda i=i: ev("document.body.dataset.recordingFrame") == str(rows[i]),
+                      what=f"the recording at frame {rows[i]}", alive=proc, bound=60)
+                assert ev("document.getElementById('rec-status').textContent") == f"frame {rows[i]}"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(timeout=30)
+        proc.stdout.close()
+        proc.stderr.close()
+    assert code == 130
+    assert not [p for p in ports if _listening(p)]
+
+
+def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
+    """A folder without .rrd: the page's data says so; only the report's own files are served."""
+    from pcreg.experiments.reports.page import load_report, page_data
+    from pcreg.recording.report import ReportServer
+
+    folder = tmp_path / "rot"
+    folder.mkdir()
+    for f in evaluations["rotation"].iterdir():
+        if f.is_file() and f.suffix != ".rrd":
+            (folder / f.name).write_bytes(f.read_bytes())
+    (folder / "secret.txt").write_text("not part of the report")
+    report = load_report(folder)
+    assert report.recordings == () and report.experiment == "rotation"
+    with ReportServer(folder, page_data(report), web_port=0) as server:
+        assert _listening(server.port) == ["0100007F"]
+        with urllib.request.urlopen(server.url + "report.json", timeout=30) as r:
+            data = json.loads(r.read())
+        assert data["recording"] is None and data["experiment"] == "rotation"
+        with urllib.request.urlopen(server.url + "files/rotation.png", timeout=30) as r:
+            assert r.read()[:4] == b"\x89PNG"
+        for bad in ("files/secret.txt", "rerun/", "files/", "viz/nope.js"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(server.url + bad, timeout=30)
+            assert e.value.code == 404, bad
+        with urllib.request.urlopen(server.url, timeout=30) as r:
+            assert b"report.js" in r.read()
+
+
+def test_out_dir_needs_web(evaluations, capsys):
+    assert pcreg_view([str(evaluations["rotation"])]) == 2
+    assert "--web" in _one_line_error(capsys)
+    assert pcreg_view([str(evaluations["rotation"]), "--web", "--screenshot", "x.png"]) == 2
+    assert "--screenshot" in _one_line_error(capsys)
+
+
+def test_the_wheel_lists_every_package_and_the_page():
+    """pyproject.toml names its packages (viz/ ships as pcreg._viz): every package under pcreg/ is listed."""
+    tomllib = pytest.importorskip("tomllib")
+    cfg = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    on_disk = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / "pcreg").rglob("__init__.py")}
+    assert set(cfg["packages"]) == on_disk | {"pcreg._viz"}
+    assert cfg["package-dir"]["pcreg._viz"] == "viz"
+    from fnmatch import fnmatch
+
+    shipped = [p.name for p in (REPO / "viz").iterdir() if any(fnmatch(p.name, g) for g in cfg["package-data"]["pcreg._viz"])]
+    assert {"index.html", "report.css", "report.js"} <= set(shipped)

@@ -451,20 +451,50 @@ class _NormalEquations:
         """``(U (M, 2), node data weights (M,))``: sparse LU, or with ``maxiter`` > 0 at most that many
         Jacobi-preconditioned conjugate-gradient steps from ``x0`` (an inexact step of the ICP), both
         compiled with numba where it is installed (the same arithmetic as scipy's ``cg``)."""
-        data = alpha * self.lap
-        data[0] += eps
-        rhs = np.zeros((self.m, 2))
-        node_w = np.zeros(self.m)
+        data, rhs, node_w = self._blank(alpha, eps)
         _assemble(self.cols, self.vals, np.ascontiguousarray(w, dtype=np.float64),
                   np.ascontiguousarray(target, dtype=np.float64), self.pair_k, data, rhs, node_w)
+        return self._solve(data, rhs, x0, maxiter), node_w
+
+    def robust_step(self, matches: np.ndarray, positions: np.ndarray, start: np.ndarray, sigma: float,
+                    alpha: float, eps: float, x0: np.ndarray, *, maxiter: int = 0
+                    ) -> tuple[np.ndarray, np.ndarray, float, float, int] | None:
+        """One step of the dense ICP from :func:`match_window`'s ``matches`` (N, 4) found at
+        ``positions`` (N, 2), the samples' global positions ``start`` (N, 2) and the level's noise
+        ``sigma``: the mutual matches weighted by Tukey's biweight (:func:`_robust_scale`), each weighted
+        match's target ``match - start`` scattered into the equations in the same compiled pass as its
+        weight (:func:`_weigh_assemble_py`; the same sums as :meth:`solve` with those weights), then
+        solved as :meth:`solve` does.
+
+        Returns ``(U, node data weights, sum of weights, sum of weight x squared residual (level px^2),
+        samples with a weight)``, or None when no sample got a weight (the field stays as it is)."""
+        m = np.ascontiguousarray(matches, dtype=np.float64)
+        data, rhs, node_w = self._blank(alpha, eps)
+        wts, wres = np.zeros(len(m)), np.zeros(len(m))
+        inliers = _weigh_assemble(m, np.ascontiguousarray(positions, dtype=np.float64),
+                                  np.ascontiguousarray(start, dtype=np.float64), _robust_scale(m, float(sigma)),
+                                  self.cols, self.vals, self.pair_k, data, rhs, node_w, wts, wres)
+        if inliers == 0:
+            return None
+        # summed by numpy (pairwise), as the weights and residuals were before they were compiled
+        return self._solve(data, rhs, x0, maxiter), node_w, float(wts.sum()), float(wres.sum()), inliers
+
+    def _blank(self, alpha: float, eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The membrane's diagonals times ``alpha``, ``eps`` added to the main one, and a zero right-hand
+        side and node weights: what the samples are scattered into."""
+        data = alpha * self.lap
+        data[0] += eps
+        return data, np.zeros((self.m, 2)), np.zeros(self.m)
+
+    def _solve(self, data: np.ndarray, rhs: np.ndarray, x0: np.ndarray | None, maxiter: int) -> np.ndarray:
         if maxiter <= 0 or x0 is None:
             A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc()
-            return spla.splu(A).solve(rhs), node_w
+            return spla.splu(A).solve(rhs)
         out = np.empty_like(rhs)
         for c in range(2):
             out[:, c] = _cg_dia(data, self.offsets, np.ascontiguousarray(rhs[:, c]),
                                 np.array(x0[:, c], dtype=np.float64), int(maxiter), 1e-4)
-        return out, node_w
+        return out
 
 
 def _assemble_py(cols, vals, w, target, pair_k, data, rhs, node_w):
@@ -638,32 +668,67 @@ def _texture(img: np.ndarray, sigma: float, structure: float = 0.05) -> np.ndarr
     return (img - (1.0 - structure) * cv2.GaussianBlur(img, (0, 0), sigma)).astype(np.float32)
 
 
-def _robust_weights_py(cd, good, sigma):
-    """(N,) Tukey weights of the colour distances ``cd`` of the ``good`` matches (0 elsewhere, and
-    everywhere when fewer than 8 are good), with the scale ``median + TUKEY_C * 1.4826 MAD`` of the
-    good distances, at least twice the distance of two noisy pixels of one point (``2 sqrt(6) sigma``)."""
-    n = cd.shape[0]
-    wts = np.zeros(n)
-    g = cd[good]
-    if g.shape[0] < 8:
-        return wts
-    med = np.median(g)
-    mad = np.median(np.abs(g - med)) * 1.4826
-    scale = max(med + TUKEY_C * max(mad, 1e-6), 2.0 * math.sqrt(6.0) * sigma)
+def _robust_scale_py(m, sigma):
+    """Tukey's scale for the colour distances ``m[:, 2]`` of the mutual matches of
+    :func:`match_window`'s rows ``m`` (``m[:, 3] > 0``, a partner found): ``median + TUKEY_C * 1.4826
+    MAD`` of those distances, at least twice the distance of two noisy pixels of one point
+    (``2 sqrt(6) sigma``); 0.0 (no weights) when fewer than 8 matches are mutual."""
+    n = m.shape[0]
+    g = np.empty(n)
+    k = 0
     for i in range(n):
-        if good[i]:
-            u = cd[i] / scale
-            if abs(u) < 1.0:
-                wts[i] = (1.0 - u * u) ** 2
-    return wts
+        if m[i, 3] > 0.0 and np.isfinite(m[i, 0]):
+            g[k] = m[i, 2]
+            k += 1
+    if k < 8:
+        return 0.0
+    med = np.median(g[:k])
+    mad = np.median(np.abs(g[:k] - med)) * 1.4826
+    return max(med + TUKEY_C * max(mad, 1e-6), 2.0 * math.sqrt(6.0) * sigma)
+
+
+def _weigh_assemble_py(m, x, start, scale, cols, vals, pair_k, data, rhs, node_w, wts, wres):
+    """Tukey's biweight at ``scale`` of the colour distance of each mutual match in ``m``
+    (:func:`match_window`'s rows; no weight without a mutual partner, nor for any match when ``scale``
+    <= 0) into ``wts`` (N,), weight x ``|m[:, :2] - x|^2`` into ``wres`` (N,) (both left 0 where there
+    is no weight), and each weighted match's target ``m[:, :2] - start`` scattered into the equations as
+    :func:`_assemble_py` does. Returns how many samples got a non-zero weight."""
+    n = m.shape[0]
+    inliers = 0
+    for i in range(n):
+        if not (scale > 0.0 and m[i, 3] > 0.0 and np.isfinite(m[i, 0])):
+            continue
+        u = m[i, 2] / scale
+        if not abs(u) < 1.0:
+            continue
+        wi = (1.0 - u * u) ** 2
+        if wi == 0.0:
+            continue
+        inliers += 1
+        wts[i] = wi
+        rx = m[i, 0] - x[i, 0]
+        ry = m[i, 1] - x[i, 1]
+        wres[i] = wi * (rx * rx + ry * ry)
+        tx = m[i, 0] - start[i, 0]
+        ty = m[i, 1] - start[i, 1]
+        for p in range(4):
+            a = cols[i, p]
+            wv = wi * vals[i, p]
+            node_w[a] += wv
+            rhs[a, 0] += wv * tx
+            rhs[a, 1] += wv * ty
+            for q in range(4):
+                data[pair_k[p, q], cols[i, q]] += wv * vals[i, q]
+    return inliers
 
 
 try:
     from numba import njit as _njit
 
-    _robust_weights = _njit(cache=True, nogil=True)(_robust_weights_py)
+    _robust_scale = _njit(cache=True, nogil=True)(_robust_scale_py)
+    _weigh_assemble = _njit(cache=True, nogil=True)(_weigh_assemble_py)
 except ImportError:  # pragma: no cover - numba is a declared dependency
-    _robust_weights = _robust_weights_py
+    _robust_scale, _weigh_assemble = _robust_scale_py, _weigh_assemble_py
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -848,27 +913,19 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
             X = GP + NE.interpolate(U)
             m = match_window(R_match, Mv, P, X, C, radius=radius if level == coarsest else fine_radius, lam=lam)
             clock.lap("search")
-            found = np.isfinite(m[:, 0])
-            cd = np.where(found, m[:, 2], np.inf)
-            good = found & (m[:, 3] > 0)
-            wts = _robust_weights(cd, good, sigma)
-            inl = wts > 0
-            Q = np.where(found[:, None], m[:, :2], X)
-            target = Q - GP
-            res = Q - X
-            if not wts.any():
-                break
             k = stiffness[min(it, len(stiffness) - 1)]
             alpha = k * base_alpha
-            U, weights_node = NE.solve(wts, target, alpha, 1e-4 * alpha, U, maxiter=cg_iterations)
+            step = NE.robust_step(m, X, GP, sigma, alpha, 1e-4 * alpha, U, maxiter=cg_iterations)
+            if step is None:  # no sample got a weight: the field stays
+                break
+            U, weights_node, sw, swr, n_inliers = step
             total_it += 1
-            sw = float(wts.sum())
-            rms = f * math.sqrt(float((wts * (res ** 2).sum(axis=1)).sum()) / sw) if sw > 0 else 0.0
-            fitness = float(inl.mean())
+            rms = f * math.sqrt(swr / sw) if sw > 0 else 0.0
+            fitness = n_inliers / len(P)
             last = (R_match, Mv, P, C, GP, NE, lam, radius if level == coarsest else fine_radius)
             if callback is not None:
                 callback(DenseIteration(level=level, iteration=it, stiffness=float(k), points=len(P),
-                                        inliers=int(inl.sum()), rms=rms,
+                                        inliers=int(n_inliers), rms=rms,
                                         grid=(f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)))
     clock.lap("solve")
     if U is None or weights_node is None:

@@ -229,8 +229,8 @@ def _best_in_window3_py(img, x, y, c0, c1, c2, radius, lam2):
     """:func:`_best_in_window_py` for three channels, the colour given as scalars: the same costs in the
     same order (the float32 differences squared, summed in float64), without an array view per call."""
     h, w, _ = img.shape
-    cx = int(np.floor(x + 0.5))
-    cy = int(np.floor(y + 0.5))
+    cx = int((x + 0.5) // 1.0)  # the nearest pixel, halves up (as the general search's rounding)
+    cy = int((y + 0.5) // 1.0)
     x0, x1 = max(cx - radius, 0), min(cx + radius, w - 1)
     y0, y1 = max(cy - radius, 0), min(cy + radius, h - 1)
     best, bx, by = np.inf, -1, -1

@@ -114,19 +114,28 @@ def test_bench_icp_without_data_compares_three_implementations(tmp_path):
     assert [r["source_points"] for r in rows] == [300, 600]
     assert all(set(r["median_seconds"]) == {"reference", "open3d", "small_gicp"} for r in rows)
     assert all(r["max_abs_matrix_difference"] < 1e-9 for r in rows)  # same clouds, no ties: the same steps
-    assert "### Checks" in (out / "bench_icp.md").read_text()
+    prof = report["kinds"]["2-D"]["profile"]
+    assert prof["source_points"] == 300 and prof["total_ms"] > 0
+    assert prof["parts_ms"]["search kernels (compiled)"] > 0 and all(v >= 0 for v in prof["parts_ms"].values())
+    assert sum(prof["parts_ms"].values()) == pytest.approx(prof["total_ms"])
+    md = (out / "bench_icp.md").read_text()
+    assert "### Checks" in md and "### Profile" in md
     assert (out / "bench_icp.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_bench_pipeline_times_the_real_propagator(tmp_path):
+def test_bench_pipeline_times_the_default_step_and_its_stages(tmp_path):
     bench = _load("bench_pipeline")
     out = tmp_path / "bench"
-    assert bench.main(["--out", str(out), "--data", "synthetic", "--frames", "3", "--backends", "reference",
-                       "--cores", "0"]) == 0
+    assert bench.main(["--out", str(out), "--data", "synthetic", "--frames", "3", "--cores", "0"]) == 0
     s = json.loads((out / "bench_pipeline.json").read_text())["streams"]["synthetic"]
-    assert s["pairs"] == 2 and set(s["median_ms"]) == {"step_reference", "register", "dis_medium", "ecc_affine"}
-    assert s["stages_median_ms"]["reference"]["total"] > 0 and s["refused"]["reference"] == 0
-    assert "DIS medium" in (out / "bench_pipeline.md").read_text()
+    assert s["pairs"] == 2 and set(s["median_ms"]) == {"step", "dis_medium"} and s["refused"] == 0
+    st = s["stages_median_ms"]
+    assert st["total"] > 0 and st["register.search"] > 0 and st["register.field"] > 0 and st["fuse.warp"] > 0
+    assert all(0 <= e <= 100 for e in s["mean_error"].values())
+    md = (out / "bench_pipeline.md").read_text()
+    assert "Propagator.step (default) / DIS medium <= 1" in md and "Propagator.step (default) / DIS medium <= 3" in md
+    assert (out / "bench_pipeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert bench.main(["--out", str(out), "--frames", "2"]) == 2
 
 
 def test_bench_dense_runs_and_reports_the_ratio_to_dis(tmp_path):

@@ -298,3 +298,37 @@ def test_dense_is_a_model_of_register_and_of_the_command(frames, tmp_path, capsy
                  "identity", "--out", str(tmp_path / "w.png")]) == 0
     assert "DenseRegistrationResult" in capsys.readouterr().out
     assert cv2.imread(str(tmp_path / "w.png")).shape == frames[0].image.shape
+
+
+def test_compiled_robust_step_matches_the_array_formulation():
+    import math
+
+    from pcreg.registration.dense import TUKEY_C, _NormalEquations
+
+    rng = np.random.default_rng(1)
+    n, sigma = 3000, 0.004
+    ne = _NormalEquations(rng.uniform(0, [160, 120], (n, 2)), (16, 21), 8.0)
+    start = rng.uniform(0, [160, 120], (n, 2))
+    X = start + rng.normal(0, 0.5, (n, 2))
+    m = np.column_stack([X + rng.normal(0, 0.3, (n, 2)), rng.exponential(0.05, n), (rng.random(n) < 0.8) * 1.0])
+    m[::7, :2] = np.nan  # no pixel in the gate
+    m[::7, 2] = np.inf
+    m[::7, 3] = 0.0
+    # Tukey weights of the mutual matches, their targets and residuals, as arrays
+    found = np.isfinite(m[:, 0])
+    good = found & (m[:, 3] > 0)
+    med = np.median(m[good, 2])
+    scale = max(med + TUKEY_C * max(1.4826 * np.median(np.abs(m[good, 2] - med)), 1e-6), 2 * math.sqrt(6) * sigma)
+    u = m[good, 2] / scale
+    w = np.zeros(n)
+    w[good] = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+    Q = np.where(found[:, None], m[:, :2], X)
+    x0 = rng.normal(size=(ne.m, 2))
+    U, node_w = ne.solve(w, Q - start, 0.25, 1e-5, x0, maxiter=30)
+    U2, node_w2, sw, swr, inliers = ne.robust_step(m, X, start, sigma, 0.25, 1e-5, x0, maxiter=30)
+    np.testing.assert_array_equal(U2, U)
+    np.testing.assert_array_equal(node_w2, node_w)
+    assert inliers == (w > 0).sum() and sw == w.sum() and swr == (w * ((Q - X) ** 2).sum(axis=1)).sum()
+    few = m.copy()
+    few[8:, 3] = 0.0  # at most 6 mutual matches left (rows 1-6): too few for a scale, no step
+    assert ne.robust_step(few, X, start, sigma, 0.25, 1e-5, x0, maxiter=30) is None

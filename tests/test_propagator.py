@@ -52,7 +52,15 @@ def test_propagator_streams_labels_better_than_naive_bayes(frames):
         assert last.registered and not last.fallback and last.reason is None
         assert last.reference == 0  # anchored to the key frame
         assert last.registration.field.shape == f.labels.shape + (2,)  # the dense model by default
-        assert set(last.times) == set(pcreg.pipeline.stream.STEP_STAGES) and last.times["total"] > 0
+        stream = pcreg.pipeline.stream
+        assert stream.STEP_PARTS["register"] == ("global",) + pcreg.registration.dense.DENSE_STAGES
+        parts = {f"{stage}.{part}" for stage, names in stream.STEP_PARTS.items() for part in names}
+        assert set(last.times) == set(stream.STEP_STAGES) | parts and last.times["total"] > 0
+        for stage in ("classify", "fuse"):  # the parts add up to their stage
+            assert sum(last.times[f"{stage}.{p}"] for p in stream.STEP_PARTS[stage]) == pytest.approx(
+                last.times[stage], rel=1e-6, abs=1e-9)
+        assert last.times["register.search"] > 0 and last.times["register.field"] > 0
+        assert sum(last.times[f"register.{p}"] for p in stream.STEP_PARTS["register"]) <= last.times["register"]
         fused_err.append(pcreg.error_rate(labels, f.labels))
         plain_err.append(pcreg.error_rate(clf.predict(f.image), f.labels))
     assert np.mean(fused_err) < np.mean(plain_err)

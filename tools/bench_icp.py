@@ -19,6 +19,11 @@ lie on the pixel lattice there): the reference breaks ties by the lowest index, 
 its traversal order. The cost curve (PNG) shows seconds / (N log2 N), relative to its value at the
 smallest N: flat or falling means the cost grows no faster than N log N.
 
+The profile section splits the reference's time at the smallest N (where a fixed cost per call weighs
+most) with ``cProfile``: the index build, the compiled search kernels, the Python around them (their
+wrapper: output arrays, dispatch), the closed form, and the rest of the loop (the stopping rule,
+conversions, checks). cProfile adds a little to every Python call, so the Python parts read high.
+
     python tools/bench_icp.py --out out/bench [--sizes 1000,3000,10000,30000,100000] [--iterations 15] [--repeats 5]
 
 Writes bench_icp.json, bench_icp.md and bench_icp.png to --out.
@@ -117,8 +122,52 @@ def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int,
     return row
 
 
+#: (part, functions whose cumulative time it is), by ``(file name, function name)``; the parts are
+#: disjoint and "the rest of the loop" is the call's total minus them.
+PROFILE_PARTS = (
+    ("index build (GridIndex)", (("nn.py", "__init__"),)),
+    ("search kernels (compiled)", (("nn.py", "_move_match_moments_serial"), ("nn.py", "_move_query_serial"),
+                                   ("nn.py", "_move_query_parallel"), ("nn.py", "_moments"))),
+    ("closed form (umeyama_from_moments)", (("reference.py", "umeyama_from_moments"),)),
+)
+
+
+def profile_reference(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int, calls: int) -> dict:
+    """Where one reference ICP call's time goes (ms per call, by :data:`PROFILE_PARTS`), from cProfile
+    over ``calls`` calls; ``search wrapper`` is ``GridIndex.move_and_match`` minus its kernels."""
+    import cProfile
+    import pstats
+
+    from pcreg.registration.reference import icp_reference
+
+    d = src.shape[1]
+
+    def call():
+        icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist, init=np.eye(d + 1),
+                      max_iteration=iterations, relative_fitness=0.0, relative_rmse=0.0)
+
+    call()
+    prof = cProfile.Profile()
+    prof.enable()
+    for _ in range(calls):
+        call()
+    prof.disable()
+    stats = pstats.Stats(prof).stats  # (file, line, name) -> (calls, primitive calls, tottime, cumtime, callers)
+
+    def cum(keys) -> float:
+        return sum(v[3] for (f, _, name), v in stats.items() if any(f.endswith(kf) and name == kn for kf, kn in keys))
+
+    total = cum((("reference.py", "icp_reference"),))
+    parts = {name: cum(keys) for name, keys in PROFILE_PARTS}
+    kernels = parts["search kernels (compiled)"]
+    parts["search wrapper (move_and_match minus kernels)"] = max(cum((("nn.py", "move_and_match"),)) - kernels, 0.0)
+    parts["the rest of the loop (stopping rule, conversions, checks)"] = max(total - sum(parts.values()), 0.0)
+    return {"source_points": len(src), "calls": calls, "total_ms": 1e3 * total / calls,
+            "parts_ms": {k: 1e3 * v / calls for k, v in parts.items()}}
+
+
 def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: int,
-        implementations=IMPLEMENTATIONS) -> dict:
+        implementations=IMPLEMENTATIONS, profile_calls: int = 20) -> dict:
     from pcreg._runner import progress
 
     clouds_2d, clouds_3d = _cloud_builders()
@@ -130,7 +179,10 @@ def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: in
     with progress(total=sum(len(c[1]) for _, c in jobs), desc="ICP sizes") as bar:
         for kind, (desc, clouds, dist) in jobs:
             rows = []
+            profile = None
             for n, (src, tgt) in clouds.items():
+                if profile is None and "reference" in implementations and profile_calls > 0:
+                    profile = profile_reference(src, tgt, dist=dist, iterations=iterations, calls=profile_calls)
                 row = time_pair(src, tgt, dist=dist, iterations=iterations, repeats=repeats,
                                 implementations=implementations)
                 rows.append(row)
@@ -142,7 +194,8 @@ def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: in
                 per = t / (ns * np.log2(ns))
                 curve[n] = {"loglog_slope": float(np.polyfit(np.log(ns), np.log(t), 1)[0]) if len(ns) > 1 else None,
                             "cost_per_nlogn_relative": (per / per[0]).tolist()}
-            kinds[kind] = {"description": desc, "max_correspondence_distance": dist, "rows": rows, "curve": curve}
+            kinds[kind] = {"description": desc, "max_correspondence_distance": dist, "rows": rows, "curve": curve,
+                           "profile": profile}
     return {"iterations": iterations, "repeats": repeats, "kinds": kinds}
 
 
@@ -177,6 +230,15 @@ def render(report: dict) -> str:
             rel = k["curve"]["reference"]["cost_per_nlogn_relative"]
             checks.append((f"reference cost no worse than N log N, {kind}",
                            f"time/(N log N) at the largest N = {rel[-1]:.2f}x the smallest's", rel[-1] <= 1.0))
+    profiles = {kind: k["profile"] for kind, k in report["kinds"].items() if k.get("profile")}
+    if profiles:
+        lines.append("### Profile: where the reference's time goes at the smallest N (cProfile, ms per call)\n")
+        names = list(next(iter(profiles.values()))["parts_ms"])
+        body = [[name] + [p["parts_ms"][name] for p in profiles.values()] for name in names]
+        body.append(["total (under cProfile)"] + [p["total_ms"] for p in profiles.values()])
+        lines.append(markdown_table(["part"] + [f"{kind}, N = {p['source_points']}" for kind, p in profiles.items()],
+                                    body, digits=3))
+        lines.append("")
     lines.append(checks_markdown(checks))
     return "\n".join(lines)
 
@@ -217,11 +279,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--implementations", default=",".join(IMPLEMENTATIONS))
+    p.add_argument("--profile-calls", type=int, default=20,
+                   help="reference calls profiled at the smallest size (default 20; 0: no profile)")
     args = p.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
     impls = tuple(s.strip() for s in args.implementations.split(",") if s.strip())
     report = {"machine": machine_info(), **run(args.data, sizes=sizes, iterations=args.iterations,
-                                               repeats=args.repeats, seed=args.seed, implementations=impls)}
+                                               repeats=args.repeats, seed=args.seed, implementations=impls,
+                                               profile_calls=args.profile_calls)}
     report["machine"]["load_average_at_end"] = machine_info()["load_average"]
     md = render(report)
     write_report(args.out, "bench_icp", report, md, figure(report))

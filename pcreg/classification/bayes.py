@@ -246,15 +246,24 @@ class NaiveBayesPixelClassifier:
             raise InputError("classifier is not fitted; call fit(images, labels) first")
 
     # -- evaluation ----------------------------------------------------------------------------
-    def _sum_tables(self, image: np.ndarray, tables: np.ndarray) -> np.ndarray:
-        """(H, W) sum over features of ``tables[f][x_f]``; tables (F, 256) float32/float64."""
+    def feature_groups(self, image: np.ndarray) -> list[tuple[str, np.ndarray]]:
+        """The model's features of an (H, W, 3) uint8 image
+        (:func:`pcreg.classification.features.feature_groups`), to hand to :meth:`decision_function`
+        when they are computed (and timed) apart."""
+        return feature_groups(check_image(image), self.features, weights=self.weights)
+
+    def _sum_tables(self, image: np.ndarray, tables: np.ndarray, groups=None) -> np.ndarray:
+        """(H, W) sum over features of ``tables[f][x_f]``; tables (F, 256) float32/float64; groups: the
+        image's :meth:`feature_groups` when already computed."""
         import cv2
 
         h, w = image.shape[:2]
         acc = None
         row_term = None
         f = 0
-        for name, planes in feature_groups(image, self.features, weights=self.weights):
+        if groups is None:
+            groups = feature_groups(image, self.features, weights=self.weights)
+        for name, planes in groups:
             if name == "row":
                 row_term = tables[f][planes]
                 f += 1
@@ -301,19 +310,20 @@ class NaiveBayesPixelClassifier:
         """(H, W, 3) float64 posteriors over (ground, obstacle, unknown)."""
         return np.exp(self.predict_log_proba(image))
 
-    def decision_function(self, image: np.ndarray) -> np.ndarray:
+    def decision_function(self, image: np.ndarray, *, groups=None) -> np.ndarray:
         """(H, W) float32 log-odds ``log p(c1 | x) - log p(c0 | x)`` of a two-class model (``classes_``
         (c0, c1), ground and obstacle by default): positive where ``predict`` says c1.
 
         Evaluated through the fitted 256-entry float32 tables (``D_f[v] = log N(v; c1) - log N(v; c0)``
         per feature, summed, plus the log prior ratio): about one table look-up per feature and pixel.
+        groups : the image's :meth:`feature_groups`, when already computed (the same result).
         """
         self._check_fitted()
         if self._diff32 is None:
             raise InputError(f"decision_function needs a two-class model, this one has {len(self.classes_)} classes")
         image = check_image(image)
         bias = np.float32(self._log_prior[1] - self._log_prior[0])
-        d = self._sum_tables(image, self._diff32).astype(np.float32, copy=False)
+        d = self._sum_tables(image, self._diff32, groups).astype(np.float32, copy=False)
         d += bias
         return d
 

@@ -51,11 +51,20 @@ from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
 
-__all__ = ["Propagator", "StepReport", "STEP_STAGES", "DenseStep", "STREAM_DENSE", "STREAM_REGISTRATION",
+__all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep", "STREAM_DENSE", "STREAM_REGISTRATION",
            "STREAM_WEIGHT", "ANCHORS"]
 
 #: Stages timed by every step (seconds in :attr:`StepReport.times`).
 STEP_STAGES: tuple[str, ...] = ("register", "classify", "fuse", "total")
+#: Their parts, timed as ``"stage.part"`` in :attr:`StepReport.times`: a dense registration's own
+#: stages (:data:`pcreg.registration.dense.DENSE_STAGES`, its global step as ``global``; present when
+#: the dense registration ran), the classifier's features and its naive Bayes log-odds (``features``
+#: is 0 for a classifier that cannot compute them apart), the prior's warp and the fusion itself.
+STEP_PARTS: dict[str, tuple[str, ...]] = {
+    "register": ("global", "pyramid", "search", "solve", "evidence", "field"),
+    "classify": ("features", "bayes"),
+    "fuse": ("warp", "fusion"),
+}
 #: Where a frame is registered to: the key frame, or the previous frame (motions composed).
 ANCHORS: tuple[str, ...] = ("key", "previous")
 #: Fusion weight of the key frame's prior (see the module's docstring).
@@ -99,7 +108,8 @@ class StepReport:
         when it failed. reason : why it failed (None when it did not).
     fallback : True when the key frame's labels were fused unwarped (the registration failed).
     reference : the frame (counted like ``frame``, 0 = the key frame) the new frame was registered to.
-    times : seconds per stage (:data:`STEP_STAGES`); ``fuse`` includes warping the prior.
+    times : seconds per stage (:data:`STEP_STAGES`), and per part of a stage (:data:`STEP_PARTS`, keys
+        such as ``"register.search"``); ``fuse`` includes warping the prior.
     """
 
     frame: int
@@ -200,6 +210,7 @@ class Propagator:
 
     def step(self, image: np.ndarray) -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame; see :attr:`last` for what happened."""
+        from ..classification.bayes import NaiveBayesPixelClassifier
         from .pair import log_odds
 
         if self._key_image is None:
@@ -217,16 +228,26 @@ class Propagator:
         motion = None if result is None else self._to_key(_motion(result), img.shape[:2])
         times["register"] = time.perf_counter() - t0
 
-        t0 = time.perf_counter()
-        d = log_odds(self.classifier, img)
-        times["classify"] = time.perf_counter() - t0
+        dense_times = getattr(result, "info", {}).get("times") if result is not None else None
+        if dense_times is not None:
+            times["register.global"] = float(result.global_result.seconds)
+            times.update({f"register.{k}": float(v) for k, v in dense_times.items()})
 
         t0 = time.perf_counter()
+        groups = self.classifier.feature_groups(img) if isinstance(self.classifier, NaiveBayesPixelClassifier) else None
+        t1 = time.perf_counter()
+        d = log_odds(self.classifier, img) if groups is None else np.asarray(
+            self.classifier.decision_function(img, groups=groups), dtype=np.float32)
+        t2 = time.perf_counter()
+        times.update({"classify": t2 - t0, "classify.features": t1 - t0, "classify.bayes": t2 - t1})
+
         q, _ = warp_prior(self._key_prior, motion, shape=d.shape, pi=self._pi)
+        t3 = time.perf_counter()
         labels = labels_from_log_odds(fuse(d, prior_log_odds(q, pi=self._pi), weight=self.weight))
         if motion is not None and self.anchor == "previous":
             self._chain = (img, motion, self._frame)
-        times["fuse"] = time.perf_counter() - t0
+        t4 = time.perf_counter()
+        times.update({"fuse": t4 - t2, "fuse.warp": t3 - t2, "fuse.fusion": t4 - t3})
         times["total"] = time.perf_counter() - t_start
         self.last = StepReport(frame=self._frame, registration=result, reason=reason, fallback=motion is None,
                                reference=ref_frame, times=times)

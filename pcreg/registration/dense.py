@@ -78,7 +78,7 @@ from ..validation import short_repr, check_bool, check_choice, check_float, chec
 
 
 __all__ = ["DenseRegistrationResult", "DenseIteration", "register_dense", "field_from_matrix", "is_field",
-           "match_window", "STIFFNESS_SCHEDULE"]
+           "match_window", "STIFFNESS_SCHEDULE", "DENSE_STAGES"]
 
 #: Stiffness per iteration of a level (Amberg et al. 2007: stiff to relaxed); the last value repeats.
 STIFFNESS_SCHEDULE: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
@@ -225,6 +225,32 @@ def _best_in_window_py(img, x, y, col, radius, lam2):
     return bx, by, cx, cy
 
 
+def _best_in_window3_py(img, x, y, c0, c1, c2, radius, lam2):
+    """:func:`_best_in_window_py` for three channels, the colour given as scalars: the same costs in the
+    same order (the float32 differences squared, summed in float64), without an array view per call."""
+    h, w, _ = img.shape
+    cx = int((x + 0.5) // 1.0)  # the nearest pixel, halves up (as the general search's rounding)
+    cy = int((y + 0.5) // 1.0)
+    x0, x1 = max(cx - radius, 0), min(cx + radius, w - 1)
+    y0, y1 = max(cy - radius, 0), min(cy + radius, h - 1)
+    best, bx, by = np.inf, -1, -1
+    for qy in range(y0, y1 + 1):
+        dy2 = (qy - y) * (qy - y)
+        for qx in range(x0, x1 + 1):
+            c = (qx - x) * (qx - x) + dy2
+            s = 0.0
+            d = img[qy, qx, 0] - c0
+            s += d * d
+            d = img[qy, qx, 1] - c1
+            s += d * d
+            d = img[qy, qx, 2] - c2
+            s += d * d
+            c += lam2 * s
+            if c < best:
+                best, bx, by = c, qx, qy
+    return bx, by, cx, cy
+
+
 def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
     """Pure-Python body of :func:`match_window` (compiled with numba when it is installed)."""
     h, w, nc = ref.shape
@@ -237,7 +263,10 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
         xi, yi = x[i], y[i]
         if not (xi > -radius and yi > -radius and xi < w - 1 + radius and yi < h - 1 + radius):
             continue
-        bx, by, cx, cy = _best_in_window(ref, xi, yi, cols[i], radius, lam2)
+        if nc == 3:
+            bx, by, cx, cy = _best_in_window3(ref, xi, yi, cols[i, 0], cols[i, 1], cols[i, 2], radius, lam2)
+        else:
+            bx, by, cx, cy = _best_in_window(ref, xi, yi, cols[i], radius, lam2)
         if bx < 0:
             continue
         # the best candidate on the gate's rim (not the image's): its partner may lie outside the gate
@@ -281,7 +310,10 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
         # point's own displacement says it came from, must be the point (within a pixel)
         ex = px[i] + (bx - xi)
         ey = py[i] + (by - yi)
-        b2x, b2y, _, _ = _best_in_window(mov, ex, ey, ref[by, bx], radius, lam2)
+        if nc == 3:
+            b2x, b2y, _, _ = _best_in_window3(mov, ex, ey, ref[by, bx, 0], ref[by, bx, 1], ref[by, bx, 2], radius, lam2)
+        else:
+            b2x, b2y, _, _ = _best_in_window(mov, ex, ey, ref[by, bx], radius, lam2)
         if b2x >= 0 and abs(b2x - px[i]) <= 1.0 and abs(b2y - py[i]) <= 1.0:
             out[i, 3] = 1.0
     return out
@@ -291,9 +323,11 @@ try:  # the compiled search; the pure-Python body is the same code and the fallb
     from numba import njit
 
     _best_in_window = njit(cache=True, nogil=True)(_best_in_window_py)
+    _best_in_window3 = njit(cache=True, nogil=True, inline="always")(_best_in_window3_py)
     _match_window_jit = njit(cache=True, nogil=True)(_match_window_py)
 except ImportError:  # pragma: no cover - numba is a declared dependency
     _best_in_window = _best_in_window_py
+    _best_in_window3 = _best_in_window3_py
     _match_window_jit = None
 
 
@@ -325,6 +359,16 @@ def match_window(reference: np.ndarray, moving: np.ndarray, sources: np.ndarray,
 # the grid
 # ---------------------------------------------------------------------------------------------------
 
+#: ``v / 255`` in float32 for every 8-bit value v.
+_UNIT_LUT = (np.arange(256, dtype=np.float32) / 255.0).reshape(1, 256, 1)
+
+
+def _unit_float(img: np.ndarray) -> np.ndarray:
+    """A uint8 image as float32 in [0, 1]: ``img.astype(np.float32) / 255`` looked up in a 256-entry
+    table (the same numbers, a tenth of the time at 640x480)."""
+    return cv2.LUT(np.ascontiguousarray(img), _UNIT_LUT)
+
+
 def _noise_sigma(gray: np.ndarray) -> float:
     """Immerkaer (1996) noise standard deviation of a [0, 1] float image from its Laplacian-difference filter."""
     k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
@@ -337,18 +381,25 @@ def _grid_shape(h: int, w: int, s: float) -> tuple[int, int]:
     return int(math.ceil((h - 1) / s)) + 1, int(math.ceil((w - 1) / s)) + 1
 
 
-def _bilinear_matrix(pts: np.ndarray, gshape: tuple[int, int], s: float) -> sp.csr_matrix:
-    """(N, gh*gw) sparse bilinear weights of points (level px) on a grid of spacing ``s``."""
+def _bilinear_weights(pts: np.ndarray, gshape: tuple[int, int], s: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(cols (N, 4) int64, vals (N, 4) float64)``: the grid nodes (corners (i, j), (i, j + 1),
+    (i + 1, j), (i + 1, j + 1) of each point's cell, ascending and distinct) and bilinear weights of
+    points (level px) on a grid of spacing ``s``: the rows of :func:`_bilinear_matrix`."""
     gh, gw = gshape
     gx = np.clip(pts[:, 0] / s, 0.0, gw - 1.000001)
     gy = np.clip(pts[:, 1] / s, 0.0, gh - 1.000001)
     ix, iy = np.floor(gx).astype(np.int64), np.floor(gy).astype(np.int64)
     fx, fy = gx - ix, gy - iy
+    cols = np.stack([iy * gw + ix, iy * gw + ix + 1, (iy + 1) * gw + ix, (iy + 1) * gw + ix + 1], axis=1)
+    vals = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1)
+    return cols, vals
+
+
+def _bilinear_matrix(pts: np.ndarray, gshape: tuple[int, int], s: float) -> sp.csr_matrix:
+    """(N, gh*gw) sparse bilinear weights of points (level px) on a grid of spacing ``s``."""
+    cols, vals = _bilinear_weights(pts, gshape, s)
     n = len(pts)
-    rows = np.repeat(np.arange(n), 4)
-    cols = np.stack([iy * gw + ix, iy * gw + ix + 1, (iy + 1) * gw + ix, (iy + 1) * gw + ix + 1], axis=1).ravel()
-    vals = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1).ravel()
-    return sp.csr_matrix((vals, (rows, cols)), shape=(n, gh * gw))
+    return sp.csr_matrix((vals.ravel(), (np.repeat(np.arange(n), 4), cols.ravel())), shape=(n, gshape[0] * gshape[1]))
 
 
 class _NormalEquations:
@@ -362,12 +413,9 @@ class _NormalEquations:
 
     def __init__(self, pts: np.ndarray, gshape: tuple[int, int], s: float,
                  edge_weights: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        B = _bilinear_matrix(pts, gshape, s)
-        n, m = B.shape
+        self.cols, self.vals = _bilinear_weights(pts, gshape, s)
         gh, gw = gshape
-        self.m = m
-        self.cols = B.indices.reshape(n, 4)
-        self.vals = B.data.reshape(n, 4)
+        m = self.m = gh * gw
         self.offsets = np.array([0, 1, -1, gw, -gw, gw + 1, -(gw + 1), gw - 1, -(gw - 1)])
         where = {int(o): k for k, o in enumerate(self.offsets)}
         # (corner p, corner q) -> diagonal of offset idx(q) - idx(p); corners (i,j), (i,j+1), (i+1,j), (i+1,j+1)
@@ -394,28 +442,59 @@ class _NormalEquations:
         self.lap = lap
 
     def interpolate(self, U: np.ndarray) -> np.ndarray:
-        """(N, 2) ``B U``."""
-        return np.einsum("nk,nkc->nc", self.vals, U[self.cols])
+        """(N, 2) ``B U`` (each sample's four corners summed in order, as ``np.einsum`` does)."""
+        out = np.empty((self.cols.shape[0], 2))
+        return _interpolate(self.cols, self.vals, np.ascontiguousarray(U, dtype=np.float64), out)
 
     def solve(self, w: np.ndarray, target: np.ndarray, alpha: float, eps: float, x0: np.ndarray | None = None,
               *, maxiter: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """``(U (M, 2), node data weights (M,))``: sparse LU, or with ``maxiter`` > 0 at most that many
         Jacobi-preconditioned conjugate-gradient steps from ``x0`` (an inexact step of the ICP), both
         compiled with numba where it is installed (the same arithmetic as scipy's ``cg``)."""
-        data = alpha * self.lap
-        data[0] += eps
-        rhs = np.zeros((self.m, 2))
-        node_w = np.zeros(self.m)
+        data, rhs, node_w = self._blank(alpha, eps)
         _assemble(self.cols, self.vals, np.ascontiguousarray(w, dtype=np.float64),
                   np.ascontiguousarray(target, dtype=np.float64), self.pair_k, data, rhs, node_w)
+        return self._solve(data, rhs, x0, maxiter), node_w
+
+    def robust_step(self, matches: np.ndarray, positions: np.ndarray, start: np.ndarray, sigma: float,
+                    alpha: float, eps: float, x0: np.ndarray, *, maxiter: int = 0
+                    ) -> tuple[np.ndarray, np.ndarray, float, float, int] | None:
+        """One step of the dense ICP from :func:`match_window`'s ``matches`` (N, 4) found at
+        ``positions`` (N, 2), the samples' global positions ``start`` (N, 2) and the level's noise
+        ``sigma``: the mutual matches weighted by Tukey's biweight (:func:`_robust_scale`), each weighted
+        match's target ``match - start`` scattered into the equations in the same compiled pass as its
+        weight (:func:`_weigh_assemble_py`; the same sums as :meth:`solve` with those weights), then
+        solved as :meth:`solve` does.
+
+        Returns ``(U, node data weights, sum of weights, sum of weight x squared residual (level px^2),
+        samples with a weight)``, or None when no sample got a weight (the field stays as it is)."""
+        m = np.ascontiguousarray(matches, dtype=np.float64)
+        data, rhs, node_w = self._blank(alpha, eps)
+        wts, wres = np.zeros(len(m)), np.zeros(len(m))
+        inliers = _weigh_assemble(m, np.ascontiguousarray(positions, dtype=np.float64),
+                                  np.ascontiguousarray(start, dtype=np.float64), _robust_scale(m, float(sigma)),
+                                  self.cols, self.vals, self.pair_k, data, rhs, node_w, wts, wres)
+        if inliers == 0:
+            return None
+        # summed by numpy (pairwise), as the weights and residuals were before they were compiled
+        return self._solve(data, rhs, x0, maxiter), node_w, float(wts.sum()), float(wres.sum()), inliers
+
+    def _blank(self, alpha: float, eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The membrane's diagonals times ``alpha``, ``eps`` added to the main one, and a zero right-hand
+        side and node weights: what the samples are scattered into."""
+        data = alpha * self.lap
+        data[0] += eps
+        return data, np.zeros((self.m, 2)), np.zeros(self.m)
+
+    def _solve(self, data: np.ndarray, rhs: np.ndarray, x0: np.ndarray | None, maxiter: int) -> np.ndarray:
         if maxiter <= 0 or x0 is None:
             A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc()
-            return spla.splu(A).solve(rhs), node_w
+            return spla.splu(A).solve(rhs)
         out = np.empty_like(rhs)
         for c in range(2):
             out[:, c] = _cg_dia(data, self.offsets, np.ascontiguousarray(rhs[:, c]),
                                 np.array(x0[:, c], dtype=np.float64), int(maxiter), 1e-4)
-        return out, node_w
+        return out
 
 
 def _assemble_py(cols, vals, w, target, pair_k, data, rhs, node_w):
@@ -434,6 +513,18 @@ def _assemble_py(cols, vals, w, target, pair_k, data, rhs, node_w):
             rhs[a, 1] += wv * target[i, 1]
             for q in range(4):
                 data[pair_k[p, q], cols[i, q]] += wv * vals[i, q]
+
+
+def _interpolate_py(cols, vals, U, out):
+    """``out[i] = sum_k vals[i, k] U[cols[i, k]]``, the corners in order: (N, 2) ``B U``."""
+    n = cols.shape[0]
+    for i in range(n):
+        for c in range(2):
+            s = 0.0
+            for k in range(4):
+                s += vals[i, k] * U[cols[i, k], c]
+            out[i, c] = s
+    return out
 
 
 def _cg_dia_py(data, offsets, b, x, maxiter, rtol):
@@ -483,8 +574,9 @@ try:
 
     _assemble = _njit(cache=True, nogil=True)(_assemble_py)
     _cg_dia = _njit(cache=True, nogil=True)(_cg_dia_py)
+    _interpolate = _njit(cache=True, nogil=True)(_interpolate_py)
 except ImportError:  # pragma: no cover - numba is a declared dependency
-    _assemble, _cg_dia = _assemble_py, _cg_dia_py
+    _assemble, _cg_dia, _interpolate = _assemble_py, _cg_dia_py, _interpolate_py
 
 
 def _edge_weights(img: np.ndarray, gshape: tuple[int, int], s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -525,8 +617,8 @@ def _upsample_grid(U: np.ndarray, old_shape: tuple[int, int], old_s: float, new_
     ys, xs = np.mgrid[0:gh, 0:gw].astype(np.float64)
     # new node (level l) at x_l = j s_new; in level l + 1 pixels: (x_l - 0.5) / 2
     pts = np.column_stack([((xs * new_s - 0.5) / factor).ravel(), ((ys * new_s - 0.5) / factor).ravel()])
-    B = _bilinear_matrix(pts, old_shape, old_s)
-    return factor * (B @ U)
+    cols, vals = _bilinear_weights(pts, old_shape, old_s)
+    return factor * _interpolate(cols, vals, np.ascontiguousarray(U, dtype=np.float64), np.empty((len(pts), 2)))
 
 
 def _level_matrix(T: np.ndarray, level: int) -> np.ndarray:
@@ -576,14 +668,93 @@ def _texture(img: np.ndarray, sigma: float, structure: float = 0.05) -> np.ndarr
     return (img - (1.0 - structure) * cv2.GaussianBlur(img, (0, 0), sigma)).astype(np.float32)
 
 
-def _tukey(r: np.ndarray, c: float) -> np.ndarray:
-    u = r / c
-    return np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+def _robust_scale_py(m, sigma):
+    """Tukey's scale for the colour distances ``m[:, 2]`` of the mutual matches of
+    :func:`match_window`'s rows ``m`` (``m[:, 3] > 0``, a partner found): ``median + TUKEY_C * 1.4826
+    MAD`` of those distances, at least twice the distance of two noisy pixels of one point
+    (``2 sqrt(6) sigma``); 0.0 (no weights) when fewer than 8 matches are mutual."""
+    n = m.shape[0]
+    g = np.empty(n)
+    k = 0
+    for i in range(n):
+        if m[i, 3] > 0.0 and np.isfinite(m[i, 0]):
+            g[k] = m[i, 2]
+            k += 1
+    if k < 8:
+        return 0.0
+    med = np.median(g[:k])
+    mad = np.median(np.abs(g[:k] - med)) * 1.4826
+    return max(med + TUKEY_C * max(mad, 1e-6), 2.0 * math.sqrt(6.0) * sigma)
+
+
+def _weigh_assemble_py(m, x, start, scale, cols, vals, pair_k, data, rhs, node_w, wts, wres):
+    """Tukey's biweight at ``scale`` of the colour distance of each mutual match in ``m``
+    (:func:`match_window`'s rows; no weight without a mutual partner, nor for any match when ``scale``
+    <= 0) into ``wts`` (N,), weight x ``|m[:, :2] - x|^2`` into ``wres`` (N,) (both left 0 where there
+    is no weight), and each weighted match's target ``m[:, :2] - start`` scattered into the equations as
+    :func:`_assemble_py` does. Returns how many samples got a non-zero weight."""
+    n = m.shape[0]
+    inliers = 0
+    for i in range(n):
+        if not (scale > 0.0 and m[i, 3] > 0.0 and np.isfinite(m[i, 0])):
+            continue
+        u = m[i, 2] / scale
+        if not abs(u) < 1.0:
+            continue
+        wi = (1.0 - u * u) ** 2
+        if wi == 0.0:
+            continue
+        inliers += 1
+        wts[i] = wi
+        rx = m[i, 0] - x[i, 0]
+        ry = m[i, 1] - x[i, 1]
+        wres[i] = wi * (rx * rx + ry * ry)
+        tx = m[i, 0] - start[i, 0]
+        ty = m[i, 1] - start[i, 1]
+        for p in range(4):
+            a = cols[i, p]
+            wv = wi * vals[i, p]
+            node_w[a] += wv
+            rhs[a, 0] += wv * tx
+            rhs[a, 1] += wv * ty
+            for q in range(4):
+                data[pair_k[p, q], cols[i, q]] += wv * vals[i, q]
+    return inliers
+
+
+try:
+    from numba import njit as _njit
+
+    _robust_scale = _njit(cache=True, nogil=True)(_robust_scale_py)
+    _weigh_assemble = _njit(cache=True, nogil=True)(_weigh_assemble_py)
+except ImportError:  # pragma: no cover - numba is a declared dependency
+    _robust_scale, _weigh_assemble = _robust_scale_py, _weigh_assemble_py
 
 
 # ---------------------------------------------------------------------------------------------------
 # the dense registration
 # ---------------------------------------------------------------------------------------------------
+
+#: Stages of :func:`register_dense` timed in its result's ``info["times"]`` (seconds): pyramids,
+#: noise, samples and the normal equations' set-up per level; the samples' positions under the field
+#: and the windowed correspondence search; the robust weights and the grid's solve; the plausibility
+#: figure; the field and its confidence at full resolution. The global step is the result's
+#: ``global_result.seconds``.
+DENSE_STAGES: tuple[str, ...] = ("pyramid", "search", "solve", "evidence", "field")
+
+
+class _StageClock:
+    """Seconds per stage: each :meth:`lap` charges the time since the last one to the stage named."""
+
+    def __init__(self) -> None:
+        self.times = dict.fromkeys(DENSE_STAGES, 0.0)
+        self._t = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        t = time.perf_counter()
+        self.times[stage] += t - self._t
+        self._t = t
+
 
 def _plausibility(R, Mv, P, C, GP, NE, lam, radius, U) -> float:
     """The field's evidence against chance: the median colour distance of the samples' matches with
@@ -694,8 +865,9 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
 
     from .clouds import valid_region
 
+    clock = _StageClock()
     ref_valid, mov_valid = valid_region(ref), valid_region(mov)
-    pyr_r, pyr_m = [ref.astype(np.float32) / 255.0], [mov.astype(np.float32) / 255.0]
+    pyr_r, pyr_m = [_unit_float(ref)], [_unit_float(mov)]
     val_r, val_m = [ref_valid], [mov_valid]
     for _ in range(coarsest):
         pyr_r.append(cv2.pyrDown(pyr_r[-1]))
@@ -708,7 +880,9 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     total_it = 0
     fitness, rms = 0.0, 0.0
     weights_node = None
+    clock.lap("pyramid")
     for level in range(coarsest, finest_level - 1, -1):
+        clock.lap("solve")  # the last iteration of the level above
         R, Mv = pyr_r[level], pyr_m[level]
         lh, lw = R.shape[:2]
         s = float(grid_spacing)
@@ -735,38 +909,29 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         f = float(2 ** level)
         base_alpha = 1.0 / (s * strain) ** 2
         for it in range(iterations):
+            clock.lap("pyramid" if it == 0 else "solve")
             X = GP + NE.interpolate(U)
             m = match_window(R_match, Mv, P, X, C, radius=radius if level == coarsest else fine_radius, lam=lam)
-            found = np.isfinite(m[:, 0])
-            cd = np.where(found, m[:, 2], np.inf)
-            good = found & (m[:, 3] > 0)
-            wts = np.zeros(len(P))
-            if good.sum() >= 8:
-                med = float(np.median(cd[good]))
-                mad = float(np.median(np.abs(cd[good] - med))) * 1.4826
-                scale = max(med + TUKEY_C * max(mad, 1e-6), 2.0 * math.sqrt(6.0) * sigma)
-                wts[good] = _tukey(cd[good], scale)
-            inl = wts > 0
-            Q = np.where(found[:, None], m[:, :2], X)
-            target = Q - GP
-            res = Q - X
-            if not wts.any():
-                break
+            clock.lap("search")
             k = stiffness[min(it, len(stiffness) - 1)]
             alpha = k * base_alpha
-            U, weights_node = NE.solve(wts, target, alpha, 1e-4 * alpha, U, maxiter=cg_iterations)
+            step = NE.robust_step(m, X, GP, sigma, alpha, 1e-4 * alpha, U, maxiter=cg_iterations)
+            if step is None:  # no sample got a weight: the field stays
+                break
+            U, weights_node, sw, swr, n_inliers = step
             total_it += 1
-            sw = float(wts.sum())
-            rms = f * math.sqrt(float((wts * (res ** 2).sum(axis=1)).sum()) / sw) if sw > 0 else 0.0
-            fitness = float(inl.mean())
+            rms = f * math.sqrt(swr / sw) if sw > 0 else 0.0
+            fitness = n_inliers / len(P)
             last = (R_match, Mv, P, C, GP, NE, lam, radius if level == coarsest else fine_radius)
             if callback is not None:
                 callback(DenseIteration(level=level, iteration=it, stiffness=float(k), points=len(P),
-                                        inliers=int(inl.sum()), rms=rms,
+                                        inliers=int(n_inliers), rms=rms,
                                         grid=(f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)))
+    clock.lap("solve")
     if U is None or weights_node is None:
         raise RegistrationError("dense registration found no textured samples to match")
     evidence = _plausibility(*last, U)
+    clock.lap("evidence")
     if chance_factor is not None and evidence < chance_factor:
         raise RegistrationError(
             f"dense registration refused: the field's matches are only {evidence:.2f} times closer in colour "
@@ -791,8 +956,10 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     inside = ((field_full[:, :, 0] >= -0.5) & (field_full[:, :, 0] <= w - 0.5)
               & (field_full[:, :, 1] >= -0.5) & (field_full[:, :, 1] <= h - 0.5))
     conf = np.where(inside, conf, 0.0).astype(np.float32)
+    clock.lap("field")
     return DenseRegistrationResult(matrix=T, field=field_full.astype(np.float32), confidence=conf,
                                    global_result=global_result, fitness=fitness, inlier_rmse=rms,
                                    iterations=total_it, seconds=time.perf_counter() - t_start + given_seconds,
                                    backend=backend,
-                                   info={"levels": (coarsest, finest_level), "grid": grid.shape[:2], "evidence": evidence})
+                                   info={"levels": (coarsest, finest_level), "grid": grid.shape[:2], "evidence": evidence,
+                                         "times": clock.times})

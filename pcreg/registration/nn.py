@@ -75,6 +75,22 @@ _EPS_CELLS = 1e-7  # slack (in cell units) on every geometric lower bound: round
 # ---------------------------------------------------------------------------------------------------
 
 @njit(cache=True)
+def _bounds(pts):
+    """Per-dimension minimum and maximum of (M, d) points, M >= 1, in one pass (the values of
+    ``pts.min(axis=0)`` and ``pts.max(axis=0)``, which numpy reduces slowly along a short axis)."""
+    lo = pts[0].copy()
+    hi = pts[0].copy()
+    for t in range(1, pts.shape[0]):
+        for a in range(pts.shape[1]):
+            v = pts[t, a]
+            if v < lo[a]:
+                lo[a] = v
+            if v > hi[a]:
+                hi[a] = v
+    return lo, hi
+
+
+@njit(cache=True)
 def _hash_slot(key, mask):
     # Fibonacci hashing of a non-negative int64 key
     return ((key * np.int64(-7046029254386353131)) >> np.int64(17)) & mask
@@ -330,6 +346,14 @@ def _moments(pts, target, out_d2, out_i, center):
     return k, sd2, sp, sq, spp, sqp
 
 
+@njit(cache=True)
+def _move_match_moments_serial(pts, M, move, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2,
+                               out_i, target, center):
+    """:func:`_move_query_serial` then :func:`_moments`, in one call (one dispatch from Python)."""
+    _move_query_serial(pts, M, move, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i)
+    return _moments(pts, target, out_d2, out_i, center)
+
+
 # ---------------------------------------------------------------------------------------------------
 # the index
 # ---------------------------------------------------------------------------------------------------
@@ -351,8 +375,7 @@ class GridIndex:
         if pts.ndim != 2 or pts.shape[1] not in (2, 3) or pts.shape[0] < 1:
             raise ValueError(f"GridIndex needs an (M, 2|3) array with M >= 1, got shape {pts.shape}")
         m, d = pts.shape
-        lo = pts.min(axis=0)
-        hi = pts.max(axis=0)
+        lo, hi = _bounds(pts)
         extent = hi - lo
         if cell is None:
             span = np.maximum(extent, 0.0)
@@ -430,10 +453,14 @@ class GridIndex:
         out_d2 = np.empty(n, np.float64)
         out_i = np.empty(n, np.int64)
         M = np.eye(self.dim + 1) if update is None else np.ascontiguousarray(update, dtype=np.float64)
-        kernel = _move_query_parallel if n >= PARALLEL_MIN_QUERIES else _move_query_serial
-        kernel(points, M, update is not None, r2, self._spts, self._sidx, self._start, self._tkeys, self._tcell,
-               self.origin, self.cell, self.dims, self.hashed, out_d2, out_i)
-        return out_d2, out_i, (*_moments(points, self.data, out_d2, out_i, self.center), self.center)
+        args = (points, M, update is not None, r2, self._spts, self._sidx, self._start, self._tkeys, self._tcell,
+                self.origin, self.cell, self.dims, self.hashed, out_d2, out_i)
+        if n >= PARALLEL_MIN_QUERIES:
+            _move_query_parallel(*args)
+            mom = _moments(points, self.data, out_d2, out_i, self.center)
+        else:
+            mom = _move_match_moments_serial(*args, self.data, self.center)
+        return out_d2, out_i, (*mom, self.center)
 
     def query(self, x: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf, workers: int = 1, **_ignored
               ) -> tuple[np.ndarray, np.ndarray]:

@@ -79,12 +79,14 @@ def umeyama_from_moments(cov: np.ndarray, var_p: float, mp: np.ndarray, mq: np.n
     if d == 2:
         a, b, c, e = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
         th = np.arctan2(c - b, a + e)
-        R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+        cos, sin = np.cos(th), np.sin(th)
+        R = np.array([[cos, -sin], [sin, cos]])
         k = float(np.hypot(a + e, c - b) / var_p) if with_scale else 1.0
     else:
         U, D, Vt = np.linalg.svd(cov)
         S = np.ones(d)
-        if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        # U and V are orthogonal: their determinants are +-1, and only the sign of the product is used
+        if _det_sign(U) * _det_sign(Vt) < 0:
             S[-1] = -1.0
         R = (U * S) @ Vt
         k = float((D * S).sum() / var_p) if with_scale else 1.0
@@ -92,6 +94,15 @@ def umeyama_from_moments(cov: np.ndarray, var_p: float, mp: np.ndarray, mq: np.n
     T[:d, :d] = k * R
     T[:d, d] = mq - k * R @ mp
     return T
+
+
+def _det_sign(M: np.ndarray) -> float:
+    """The sign of the determinant of an orthogonal matrix (+-1 up to rounding, so a 3x3's cofactor
+    expansion has the sign of ``np.linalg.det``'s LU, without a LAPACK call)."""
+    if M.shape != (3, 3):
+        return 1.0 if np.linalg.det(M) >= 0 else -1.0
+    (a, b, c), (d, e, f), (g, h, i) = M.tolist()
+    return 1.0 if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0 else -1.0
 
 
 def estimate_horn_quaternion(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -407,12 +418,12 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
                 update = np.eye(d + 1)
                 update[:d, d] = mq - mp
             else:
-                cov = sqp / k - np.outer(mq, mp)  # Umeyama's Eq. 38
+                cov = sqp / k - mq[:, None] * mp[None, :]  # Umeyama's Eq. 38 (np.outer's product)
                 var_p = spp / k - float(mp @ mp)  # Eq. 36
                 update = umeyama_from_moments(cov, var_p, mp, mq, with_scale=model == "similarity")
             # back from centred coordinates: x -> A (x - c) + t + c
             update[:d, d] += c - update[:d, :d] @ c
-        if not np.all(np.isfinite(update)):
+        if not np.isfinite(update).all():
             raise RegistrationError("ICP update is not finite (degenerate correspondences)")
         T = update @ T
         iterations = i + 1

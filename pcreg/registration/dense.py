@@ -74,11 +74,11 @@ from ..errors import InputError, RegistrationError
 from .clouds import as_rgb_uint8
 from .result import RegistrationResult
 from .transforms import MODELS
-from ..validation import short_repr, check_bool, check_choice, check_float, check_floats, check_int
+from ..validation import check_bool, check_callable, check_choice, check_float, check_floats, check_int, short_repr
 
 
 __all__ = ["DenseRegistrationResult", "DenseIteration", "register_dense", "field_from_matrix", "is_field",
-           "match_window", "STIFFNESS_SCHEDULE", "DENSE_STAGES"]
+           "match_window", "STIFFNESS_SCHEDULE", "DENSE_STAGES", "DenseOptions"]
 
 #: Stiffness per iteration of a level (Amberg et al. 2007: stiff to relaxed); the last value repeats.
 STIFFNESS_SCHEDULE: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
@@ -769,6 +769,281 @@ def _plausibility(R, Mv, P, C, GP, NE, lam, radius, U) -> float:
     return float(np.nanmedian(mc[:, 2]) / max(float(np.nanmedian(m[:, 2])), 1e-9))
 
 
+@dataclass(frozen=True)
+class DenseOptions:
+    """The dense step's options of :func:`register_dense`, checked (see its docstring for each)."""
+
+    levels: int = 5
+    finest_level: int = 1
+    iterations: int = 4
+    grid_spacing: float = 8.0
+    radius: int = 3
+    fine_radius: int = 2
+    max_points: int = 10000
+    stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE
+    strain: float = 0.25
+    edge_aware: bool = False
+    cg_iterations: int = 30
+    texture: float | None = 1.0
+    chance_factor: float | None = None
+
+
+def _dense_options(shape: tuple[int, ...], *, levels, finest_level, iterations, grid_spacing, radius, fine_radius,
+                   max_points, stiffness, strain, edge_aware, cg_iterations, texture,
+                   chance_factor) -> DenseOptions:
+    """The options checked, in the order their errors are reported (images of ``shape``)."""
+    levels = check_int(levels, "levels", lo=1, hi=8)
+    finest_level = check_int(finest_level, "finest_level", lo=0, hi=levels - 1)
+    iterations = check_int(iterations, "iterations", lo=1, hi=100_000)
+    radius = check_int(radius, "radius", lo=1, hi=64)
+    fine_radius = check_int(fine_radius, "fine_radius", lo=1, hi=64)
+    max_points = check_int(max_points, "max_points", lo=16)
+    grid_spacing = check_float(grid_spacing, "grid_spacing", lo=2, hi=max(shape[:2]))
+    cg_iterations = check_int(cg_iterations, "cg_iterations", lo=0, hi=100_000)
+    stiffness = check_floats(stiffness, "stiffness", lo=0, lo_open=True)
+    if not stiffness:
+        raise InputError("stiffness must be a non-empty sequence of positive numbers")
+    strain = check_float(strain, "strain", lo=0, lo_open=True, hi=100)
+    edge_aware = check_bool(edge_aware, "edge_aware")
+    if texture is not None:
+        texture = check_float(texture, "texture", lo=0, lo_open=True, hi=max(shape[:2]))
+    if chance_factor is not None:
+        chance_factor = check_float(chance_factor, "chance_factor", lo=0)
+    return DenseOptions(levels=levels, finest_level=finest_level, iterations=iterations, grid_spacing=grid_spacing,
+                        radius=radius, fine_radius=fine_radius, max_points=max_points, stiffness=stiffness,
+                        strain=strain, edge_aware=edge_aware, cg_iterations=cg_iterations, texture=texture,
+                        chance_factor=chance_factor)
+
+
+def _coarsest_level(shape: tuple[int, ...], options: DenseOptions) -> int:
+    """The coarsest pyramid level worked at: ``levels - 1``, or finer where the image would be under 16 px."""
+    coarsest = options.levels - 1
+    while coarsest > options.finest_level and min(shape[:2]) >> coarsest < 16:
+        coarsest -= 1
+    return coarsest
+
+
+def _given_global(global_result) -> RegistrationResult:
+    """A given global step (a result, or a 3x3 ``T_ref_mov``) as a :class:`RegistrationResult`."""
+    if isinstance(global_result, RegistrationResult):
+        return global_result
+    try:
+        M = np.asarray(global_result, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix") from None
+    if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
+        raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix")
+    return RegistrationResult(matrix=M, fitness=float("nan"), inlier_rmse=float("nan"), iterations=0,
+                              converged=True, backend="given")
+
+
+@dataclass(frozen=True)
+class _Pyramids:
+    """Both images as float32 RGB in [0, 1] per level (0 = full size), and their valid (unpadded) masks."""
+
+    reference: list[np.ndarray]
+    moving: list[np.ndarray]
+    reference_valid: list[np.ndarray]
+    moving_valid: list[np.ndarray]
+
+
+def _pyramids(ref: np.ndarray, mov: np.ndarray, coarsest: int) -> _Pyramids:
+    from .clouds import valid_region
+
+    pyr_r, pyr_m = [_unit_float(ref)], [_unit_float(mov)]
+    val_r, val_m = [valid_region(ref)], [valid_region(mov)]
+    for _ in range(coarsest):
+        pyr_r.append(cv2.pyrDown(pyr_r[-1]))
+        pyr_m.append(cv2.pyrDown(pyr_m[-1]))
+        val_m.append(cv2.resize(val_m[-1].astype(np.uint8), pyr_m[-1].shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0)
+        val_r.append(cv2.resize(val_r[-1].astype(np.uint8), pyr_r[-1].shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0)
+    return _Pyramids(pyr_r, pyr_m, val_r, val_m)
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """One level's matching problem: the images to match (texture parts where asked), the moving
+    samples ``P`` and their colours ``C``, the samples under the global transform ``GP``, the grid's
+    normal equations, the colour weight, the gate and the image noise."""
+
+    R: np.ndarray
+    Mv: np.ndarray
+    P: np.ndarray
+    C: np.ndarray
+    GP: np.ndarray
+    NE: _NormalEquations
+    lam: float
+    radius: int
+    sigma: float
+
+
+@dataclass(frozen=True)
+class _Level:
+    """One pyramid level: its control grid (spacing, shape), the samples' rate, and its matching
+    problem (None: under 16 textured samples, the level is skipped)."""
+
+    level: int
+    spacing: float
+    gshape: tuple[int, int]
+    rate: float
+    problem: _Problem | None
+
+    @property
+    def scale(self) -> float:
+        """Pixels of the full image per pixel of the level."""
+        return float(2 ** self.level)
+
+
+def _level_problem(pyr: _Pyramids, level: int, T: np.ndarray, options: DenseOptions, *, coarsest: int,
+                   seed: int) -> _Level:
+    """The level's grid, samples and equations (no problem under 16 samples)."""
+    R, Mv = pyr.reference[level], pyr.moving[level]
+    lh, lw = R.shape[:2]
+    s = float(options.grid_spacing)
+    gshape = _grid_shape(lh, lw, s)
+    sigma = max(_noise_sigma(cv2.cvtColor(Mv, cv2.COLOR_RGB2GRAY)), 0.5 / 255.0)
+    lam = 1.0 / (math.sqrt(6.0) * sigma)
+    radius = options.radius if level == coarsest else options.fine_radius
+    # pixels near black padding are not scene content
+    val_m = pyr.moving_valid[level]
+    valid = cv2.erode(val_m.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0 if not val_m.all() else None
+    P, _, rate = _samples(Mv, sigma, max_points=options.max_points, seed=seed + level, valid=valid)
+    if len(P) < 16:
+        return _Level(level, s, gshape, rate, None)
+    if options.texture is not None:
+        R, Mv = _texture(R, options.texture), _texture(Mv, options.texture)
+    C = Mv[P[:, 1].astype(np.intp), P[:, 0].astype(np.intp)]
+    val_r = pyr.reference_valid[level]
+    R_match = R if val_r.all() else np.where(val_r[:, :, None], R, np.float32(10.0))
+    NE = _NormalEquations(P, gshape, s, _edge_weights(Mv, gshape, s) if options.edge_aware else None)
+    GP = _apply(_level_matrix(T, level), P)
+    return _Level(level, s, gshape, rate, _Problem(R_match, Mv, P, C, GP, NE, lam, radius, sigma))
+
+
+@dataclass(frozen=True)
+class _LevelOutcome:
+    """After a level's iterations: the grid's displacements, the nodes' data weights (None when no
+    step was taken), the steps taken, and the last step's fitness and weighted rms (px of the image)."""
+
+    U: np.ndarray
+    weights_node: np.ndarray | None
+    steps: int
+    fitness: float
+    rms: float
+
+
+def _iterate_level(lv: _Level, pb: _Problem, U: np.ndarray, options: DenseOptions, *, clock: _StageClock,
+                   callback: Callable[[DenseIteration], None] | None) -> _LevelOutcome:
+    """The non-rigid ICP iterations of one level, from the grid ``U``; a level whose matches all fail
+    stops early. ``pb``: the level's problem."""
+    f = lv.scale
+    base_alpha = 1.0 / (lv.spacing * options.strain) ** 2
+    weights_node, steps, fitness, rms = None, 0, float("nan"), float("nan")
+    for it in range(options.iterations):
+        clock.lap("pyramid" if it == 0 else "solve")
+        X = pb.GP + pb.NE.interpolate(U)
+        m = match_window(pb.R, pb.Mv, pb.P, X, pb.C, radius=pb.radius, lam=pb.lam)
+        clock.lap("search")
+        k = options.stiffness[min(it, len(options.stiffness) - 1)]
+        alpha = k * base_alpha
+        step = pb.NE.robust_step(m, X, pb.GP, pb.sigma, alpha, 1e-4 * alpha, U, maxiter=options.cg_iterations)
+        if step is None:  # no sample got a weight: the field stays
+            break
+        U, weights_node, sw, swr, n_inliers = step
+        steps += 1
+        rms = f * math.sqrt(swr / sw) if sw > 0 else 0.0
+        fitness = n_inliers / len(pb.P)
+        if callback is not None:
+            callback(DenseIteration(level=lv.level, iteration=it, stiffness=float(k), points=len(pb.P),
+                                    inliers=int(n_inliers), rms=rms,
+                                    grid=(f * U).reshape(lv.gshape[0], lv.gshape[1], 2).astype(np.float32)))
+    return _LevelOutcome(U, weights_node, steps, fitness, rms)
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """The control grid after every level: its displacements ``U`` (nodes, 2) in pixels of the finest
+    level, the nodes' data weights, the steps taken, the last step's fitness and rms, the problem of the
+    last level that took a step (``last``) and of the finest level (``finest``)."""
+
+    U: np.ndarray
+    weights_node: np.ndarray
+    steps: int
+    fitness: float
+    rms: float
+    last: _Problem
+    finest: _Level
+
+
+def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, coarsest: int, seed: int,
+                    clock: _StageClock, callback: Callable[[DenseIteration], None] | None) -> _Grid:
+    """Every level from ``coarsest`` to the finest, each starting from the coarser level's grid;
+    :class:`~pcreg.errors.RegistrationError` when no level had samples to match."""
+    U: np.ndarray | None = None
+    prev: _Level | None = None  # the coarser level
+    last: _Problem | None = None
+    weights_node, steps, fitness, rms = None, 0, 0.0, 0.0
+    for level in range(coarsest, options.finest_level - 1, -1):
+        clock.lap("solve")  # the last iteration of the level above
+        lv = _level_problem(pyr, level, T, options, coarsest=coarsest, seed=seed)
+        if U is None or prev is None:
+            U = np.zeros((lv.gshape[0] * lv.gshape[1], 2))
+        else:
+            U = _upsample_grid(U, prev.gshape, prev.spacing, lv.gshape, lv.spacing, 2.0)
+        prev = lv
+        if lv.problem is None:
+            continue
+        done = _iterate_level(lv, lv.problem, U, options, clock=clock, callback=callback)
+        U = done.U
+        if done.steps:
+            weights_node, fitness, rms, last = done.weights_node, done.fitness, done.rms, lv.problem
+            steps += done.steps
+    clock.lap("solve")
+    if U is None or weights_node is None or last is None or prev is None:
+        raise RegistrationError("dense registration found no textured samples to match")
+    return _Grid(U, weights_node, steps, fitness, rms, last, prev)
+
+
+def _check_evidence(evidence: float, chance_factor: float | None) -> None:
+    if chance_factor is not None and evidence < chance_factor:
+        raise RegistrationError(
+            f"dense registration refused: the field's matches are only {evidence:.2f} times closer in colour "
+            f"than matches on unrelated content (at least {chance_factor:g} required); the images do not "
+            f"show the same scene")
+
+
+@dataclass(frozen=True)
+class _FullField:
+    """The field (H, W, 2) float32 at full resolution, its confidence (H, W) float32, and the grid's
+    displacements (gh, gw, 2) in full-image pixels."""
+
+    field: np.ndarray
+    confidence: np.ndarray
+    grid: np.ndarray
+
+
+def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Level, shape: tuple[int, int]
+                ) -> _FullField:
+    """The global transform plus the grid's displacements, interpolated at every full-size pixel, and
+    the confidence: the nodes' data weight against a quarter of a cell's pixels (at the sampling rate),
+    0 where the field leaves the reference image. ``lv``: the finest level."""
+    h, w = shape
+    f, s, gshape = lv.scale, lv.spacing, lv.gshape
+    grid = (f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)
+    xs = (np.arange(w, dtype=np.float32) - (f - 1) / 2.0) / f / s
+    ys = (np.arange(h, dtype=np.float32) - (f - 1) / 2.0) / f / s
+    mx, my = np.meshgrid(xs, ys)
+    disp = cv2.remap(grid, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    field_full = field_from_matrix(T, (h, w)) + disp
+    cell = 0.25 * s * s * lv.rate
+    conf_nodes = np.clip(weights_node / cell, 0.0, 1.0).reshape(gshape).astype(np.float32)
+    conf = cv2.remap(conf_nodes, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    inside = ((field_full[:, :, 0] >= -0.5) & (field_full[:, :, 0] <= w - 0.5)
+              & (field_full[:, :, 1] >= -0.5) & (field_full[:, :, 1] <= h - 0.5))
+    conf = np.where(inside, conf, 0.0).astype(np.float32)
+    return _FullField(field_full.astype(np.float32), conf, grid)
+
+
 def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, model: str = "similarity",
                    global_result: RegistrationResult | np.ndarray | None = None, levels: int = 5,
                    finest_level: int = 1, iterations: int = 4, grid_spacing: float = 8.0, radius: int = 3,
@@ -817,149 +1092,40 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         raise InputError(f"dense registration needs images of one size, got {ref.shape[:2]} and {mov.shape[:2]}")
     if not isinstance(model, str) or model not in MODELS:
         raise InputError(f"unknown global motion model {short_repr(model)}; choose one of {', '.join(MODELS)}")
-    levels = check_int(levels, "levels", lo=1, hi=8)
-    finest_level = check_int(finest_level, "finest_level", lo=0, hi=levels - 1)
-    iterations = check_int(iterations, "iterations", lo=1, hi=100_000)
-    radius = check_int(radius, "radius", lo=1, hi=64)
-    fine_radius = check_int(fine_radius, "fine_radius", lo=1, hi=64)
-    max_points = check_int(max_points, "max_points", lo=16)
-    grid_spacing = check_float(grid_spacing, "grid_spacing", lo=2, hi=max(ref.shape[:2]))
-    cg_iterations = check_int(cg_iterations, "cg_iterations", lo=0, hi=100_000)
-    stiffness = check_floats(stiffness, "stiffness", lo=0, lo_open=True)
-    if not stiffness:
-        raise InputError("stiffness must be a non-empty sequence of positive numbers")
-    strain = check_float(strain, "strain", lo=0, lo_open=True, hi=100)
-    edge_aware = check_bool(edge_aware, "edge_aware")
-    if texture is not None:
-        texture = check_float(texture, "texture", lo=0, lo_open=True, hi=max(ref.shape[:2]))
-    if chance_factor is not None:
-        chance_factor = check_float(chance_factor, "chance_factor", lo=0)
+    options = _dense_options(ref.shape, levels=levels, finest_level=finest_level, iterations=iterations,
+                             grid_spacing=grid_spacing, radius=radius, fine_radius=fine_radius,
+                             max_points=max_points, stiffness=stiffness, strain=strain, edge_aware=edge_aware,
+                             cg_iterations=cg_iterations, texture=texture, chance_factor=chance_factor)
     seed = check_int(seed, "seed", lo=0)
     global_levels = check_int(global_levels, "global_levels", lo=1, hi=8)
     global_iterations = check_int(global_iterations, "global_iterations", lo=1, hi=100_000)
     backend = check_choice(backend, "backend", ("reference", "open3d"))
-    if callback is not None and not callable(callback):
-        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
-    h, w = ref.shape[:2]
-    coarsest = levels - 1
-    while coarsest > finest_level and min(h, w) >> coarsest < 16:
-        coarsest -= 1
-
-    given = global_result is not None
-    if global_result is None:
+    check_callable(callback, "callback")
+    coarsest = _coarsest_level(ref.shape, options)
+    if global_result is None:  # 1. the global step (given, or pcreg.register's)
         from .api import register
 
         global_result = register(ref, mov, backend=backend, model=model, levels=global_levels,
                                  iterations=global_iterations, init=init, seed=seed)
-    elif not isinstance(global_result, RegistrationResult):
-        try:
-            M = np.asarray(global_result, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix") from None
-        if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
-            raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix")
-        global_result = RegistrationResult(matrix=M, fitness=float("nan"), inlier_rmse=float("nan"), iterations=0,
-                                           converged=True, backend="given")
+        given_seconds = 0.0
+    else:
+        global_result = _given_global(global_result)
+        given_seconds = float(global_result.seconds)
     T = np.asarray(global_result.matrix, dtype=np.float64)
-    given_seconds = float(global_result.seconds) if given else 0.0
-
-    from .clouds import valid_region
-
     clock = _StageClock()
-    ref_valid, mov_valid = valid_region(ref), valid_region(mov)
-    pyr_r, pyr_m = [_unit_float(ref)], [_unit_float(mov)]
-    val_r, val_m = [ref_valid], [mov_valid]
-    for _ in range(coarsest):
-        pyr_r.append(cv2.pyrDown(pyr_r[-1]))
-        pyr_m.append(cv2.pyrDown(pyr_m[-1]))
-        val_m.append(cv2.resize(val_m[-1].astype(np.uint8), pyr_m[-1].shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0)
-        val_r.append(cv2.resize(val_r[-1].astype(np.uint8), pyr_r[-1].shape[1::-1], interpolation=cv2.INTER_NEAREST) > 0)
-
-    U = None
-    prev = None  # (grid shape, spacing) of the level above
-    total_it = 0
-    fitness, rms = 0.0, 0.0
-    weights_node = None
+    pyr = _pyramids(ref, mov, coarsest)
     clock.lap("pyramid")
-    for level in range(coarsest, finest_level - 1, -1):
-        clock.lap("solve")  # the last iteration of the level above
-        R, Mv = pyr_r[level], pyr_m[level]
-        lh, lw = R.shape[:2]
-        s = float(grid_spacing)
-        gshape = _grid_shape(lh, lw, s)
-        if U is None:
-            U = np.zeros((gshape[0] * gshape[1], 2))
-        else:
-            U = _upsample_grid(U, prev[0], prev[1], gshape, s, 2.0)
-        prev = (gshape, s)
-        sigma = max(_noise_sigma(cv2.cvtColor(Mv, cv2.COLOR_RGB2GRAY)), 0.5 / 255.0)
-        lam = 1.0 / (math.sqrt(6.0) * sigma)
-        # pixels near black padding are not scene content
-        valid = cv2.erode(val_m[level].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0 if not val_m[level].all() else None
-        P, _, rate = _samples(Mv, sigma, max_points=max_points, seed=seed + level, valid=valid)
-        if len(P) < 16:
-            continue
-        if texture is not None:
-            R, Mv = _texture(R, texture), _texture(Mv, texture)
-        C = Mv[P[:, 1].astype(np.intp), P[:, 0].astype(np.intp)]
-        R_match = R if val_r[level].all() else np.where(val_r[level][:, :, None], R, np.float32(10.0))
-        NE = _NormalEquations(P, gshape, s, _edge_weights(Mv, gshape, s) if edge_aware else None)
-        Gl = _level_matrix(T, level)
-        GP = _apply(Gl, P)
-        f = float(2 ** level)
-        base_alpha = 1.0 / (s * strain) ** 2
-        for it in range(iterations):
-            clock.lap("pyramid" if it == 0 else "solve")
-            X = GP + NE.interpolate(U)
-            m = match_window(R_match, Mv, P, X, C, radius=radius if level == coarsest else fine_radius, lam=lam)
-            clock.lap("search")
-            k = stiffness[min(it, len(stiffness) - 1)]
-            alpha = k * base_alpha
-            step = NE.robust_step(m, X, GP, sigma, alpha, 1e-4 * alpha, U, maxiter=cg_iterations)
-            if step is None:  # no sample got a weight: the field stays
-                break
-            U, weights_node, sw, swr, n_inliers = step
-            total_it += 1
-            rms = f * math.sqrt(swr / sw) if sw > 0 else 0.0
-            fitness = n_inliers / len(P)
-            last = (R_match, Mv, P, C, GP, NE, lam, radius if level == coarsest else fine_radius)
-            if callback is not None:
-                callback(DenseIteration(level=level, iteration=it, stiffness=float(k), points=len(P),
-                                        inliers=int(n_inliers), rms=rms,
-                                        grid=(f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)))
-    clock.lap("solve")
-    if U is None or weights_node is None:
-        raise RegistrationError("dense registration found no textured samples to match")
-    evidence = _plausibility(*last, U)
+    grid = _coarse_to_fine(pyr, T, options, coarsest=coarsest, seed=seed, clock=clock,
+                           callback=callback)  # 2. the grid, coarse to fine
+    last = grid.last  # 3. the plausibility test, then the field at full resolution
+    evidence = _plausibility(last.R, last.Mv, last.P, last.C, last.GP, last.NE, last.lam, last.radius, grid.U)
     clock.lap("evidence")
-    if chance_factor is not None and evidence < chance_factor:
-        raise RegistrationError(
-            f"dense registration refused: the field's matches are only {evidence:.2f} times closer in colour "
-            f"than matches on unrelated content (at least {chance_factor:g} required); the images do not "
-            f"show the same scene")
-
-    # the field at full resolution: the global transform plus the grid's displacements, interpolated
-    lvl = finest_level
-    f = float(2 ** lvl)
-    gshape = prev[0]
-    s = prev[1]
-    grid = (f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)
-    xs = (np.arange(w, dtype=np.float32) - (f - 1) / 2.0) / f / s
-    ys = (np.arange(h, dtype=np.float32) - (f - 1) / 2.0) / f / s
-    mx, my = np.meshgrid(xs, ys)
-    disp = cv2.remap(grid, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    field_full = field_from_matrix(T, (h, w)) + disp
-    # confidence: the nodes' data weight against a quarter of a cell's pixels (at the sampling rate)
-    cell = 0.25 * s * s * rate
-    conf_nodes = np.clip(weights_node / cell, 0.0, 1.0).reshape(gshape).astype(np.float32)
-    conf = cv2.remap(conf_nodes, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    inside = ((field_full[:, :, 0] >= -0.5) & (field_full[:, :, 0] <= w - 0.5)
-              & (field_full[:, :, 1] >= -0.5) & (field_full[:, :, 1] <= h - 0.5))
-    conf = np.where(inside, conf, 0.0).astype(np.float32)
+    _check_evidence(evidence, options.chance_factor)
+    full = _full_field(T, grid.U, grid.weights_node, grid.finest, ref.shape[:2])
     clock.lap("field")
-    return DenseRegistrationResult(matrix=T, field=field_full.astype(np.float32), confidence=conf,
-                                   global_result=global_result, fitness=fitness, inlier_rmse=rms,
-                                   iterations=total_it, seconds=time.perf_counter() - t_start + given_seconds,
-                                   backend=backend,
-                                   info={"levels": (coarsest, finest_level), "grid": grid.shape[:2], "evidence": evidence,
-                                         "times": clock.times})
+    return DenseRegistrationResult(matrix=T, field=full.field, confidence=full.confidence,
+                                   global_result=global_result, fitness=grid.fitness, inlier_rmse=grid.rms,
+                                   iterations=grid.steps, seconds=time.perf_counter() - t_start + given_seconds,
+                                   backend=backend, info={"levels": (coarsest, options.finest_level),
+                                                          "grid": full.grid.shape[:2], "evidence": evidence,
+                                                          "times": clock.times})

@@ -7,7 +7,8 @@ import pytest
 
 from pcreg.errors import InputError
 from pcreg.classification.fusion import (FusionConfig, choose_weight, fuse, labels_from_log_odds, prior_from_labels,
-                          prior_from_log_odds, prior_log_odds, smooth_prior, warp_prior)
+                          prior_from_log_odds, prior_log_odds, smooth_prior)
+from pcreg.pipeline.prior import warp_prior
 from pcreg.registration.transforms import rigid2d
 
 

@@ -8,8 +8,9 @@ with two classes Bayes' rule is a sum of log-odds, so fusing is one multiply-add
    the class prior ``pi`` where the label is unknown. :func:`smooth_prior` blurs it (Gaussian, ``sigma``
    px) so that a registration error of a pixel or two near a boundary costs little, and mixes it with
    the class prior, ``q = (1 - eps) * blur(q_ref) + eps * pi``, so that no pixel is ever certain.
-2. :func:`warp_prior` moves ``q`` into the moving frame with ``T_mov_ref = inv(T_ref_mov)``; pixels
-   that come from outside the reference image get ``pi`` (no information).
+2. :func:`pcreg.pipeline.prior.warp_prior` moves ``q`` into the moving frame with
+   ``T_mov_ref = inv(T_ref_mov)``; pixels that come from outside the reference image get ``pi`` (no
+   information). This module stays with the arithmetic; it knows nothing of registration.
 3. :func:`prior_log_odds` gives ``l = logit(q) - logit(pi)``: 0 where the prior says nothing beyond the
    class prior the classifier already holds, so that there the fused result equals naive Bayes.
 4. :func:`fuse`: ``F = d + w * l`` where ``d`` is naive Bayes' log-odds on the moving frame; the label
@@ -36,7 +37,7 @@ __all__ = [
     "prior_from_log_odds",
     "smooth_prior",
     "label_prior",
-    "warp_prior",
+    "check_pi",
     "prior_log_odds",
     "fuse",
     "labels_from_log_odds",
@@ -75,7 +76,8 @@ class FusionConfig:
             raise InputError("fusion weight grid must hold finite numbers >= 0")
 
 
-def _check_pi(pi: float) -> float:
+def check_pi(pi: float) -> float:
+    """``pi`` as a float when it is a class prior in (0, 1)."""
     pi = float(pi)
     if not 0.0 < pi < 1.0:
         raise InputError(f"class prior of obstacle must be in (0, 1), got {pi}")
@@ -90,7 +92,7 @@ def prior_from_labels(labels: np.ndarray, *, pi: float) -> np.ndarray:
     labels = np.asarray(labels)
     if labels.ndim != 2:
         raise InputError(f"labels must be (H, W), got {labels.shape}")
-    lut = np.array([0.0, 1.0, _check_pi(pi)] + [_check_pi(pi)] * 253, dtype=np.float32)
+    lut = np.array([0.0, 1.0, check_pi(pi)] + [check_pi(pi)] * 253, dtype=np.float32)
     return lut[labels.astype(np.uint8, copy=False)]
 
 
@@ -110,7 +112,7 @@ def smooth_prior(q: np.ndarray, *, pi: float, eps: float = 0.05, sigma: float = 
     s = float(sigma) * q.shape[1] / 640.0
     if s > 0:
         q = cv2.GaussianBlur(q, (0, 0), s, borderType=cv2.BORDER_REPLICATE)
-    return cv2.addWeighted(q, 1.0 - float(eps), q, 0.0, float(eps) * _check_pi(pi))
+    return cv2.addWeighted(q, 1.0 - float(eps), q, 0.0, float(eps) * check_pi(pi))
 
 
 def label_prior(labels: np.ndarray, *, pi: float, fusion: FusionConfig = FusionConfig()) -> np.ndarray:
@@ -119,28 +121,9 @@ def label_prior(labels: np.ndarray, *, pi: float, fusion: FusionConfig = FusionC
     return smooth_prior(prior_from_labels(labels, pi=pi), pi=pi, eps=fusion.eps, sigma=fusion.sigma)
 
 
-def warp_prior(q: np.ndarray, T_ref_mov, *, shape: tuple[int, int], pi: float
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Move a reference-frame prior onto the moving frame's pixel grid.
-
-    q : (H, W) float32 probability of obstacle in the reference frame.
-    T_ref_mov : (3, 3) moving -> reference (as :func:`pcreg.register` returns), or a dense field
-        (H, W, 2) of reference coordinates of every moving pixel (:func:`pcreg.register_dense`);
-        None = identity (the unregistered ablation; sizes must then match, or the prior is
-        cropped/padded at the origin).
-    shape : (H, W) of the moving frame.
-    Returns ``(q_mov (H, W) float32, valid (H, W) bool)``; ``q_mov`` is ``pi`` where not valid.
-    """
-    from ..registration.warp import warp_to_moving
-
-    pi = _check_pi(pi)
-    motion = np.eye(3) if T_ref_mov is None else T_ref_mov
-    return warp_to_moving(np.asarray(q, dtype=np.float32), motion, shape=shape, interpolation="linear", fill=pi)
-
-
 def prior_log_odds(q: np.ndarray, *, pi: float) -> np.ndarray:
     """(H, W) float32 ``logit(q) - logit(pi)``: the evidence of the prior beyond the class prior."""
-    pi = _check_pi(pi)
+    pi = check_pi(pi)
     q = np.clip(np.asarray(q, dtype=np.float32), 1e-6, 1.0 - 1e-6)
     return (np.log(q / (1.0 - q)) - np.float32(np.log(pi / (1.0 - pi)))).astype(np.float32)
 

@@ -62,56 +62,65 @@ def _propagator(method: str, classifier, backend: str):
     return Propagator(classifier, model=model, anchor=anchor, backend=backend)
 
 
-class _Flow:
+class _KeyPrior:
+    """What the baselines share: the key frame's prior, fused with each frame's naive Bayes log-odds."""
+
+    def __init__(self, classifier, *, weight: float) -> None:
+        from ..classification.fusion import FusionConfig
+        from ..pipeline.prior import class_prior
+
+        self.classifier, self.weight, self.fusion = classifier, weight, FusionConfig()
+        self._pi = class_prior(classifier)
+
+    def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
+        from ..classification.fusion import label_prior, prior_log_odds
+
+        self._prior = label_prior(labels, pi=self._pi, fusion=self.fusion)
+        self._key_log_odds = prior_log_odds(self._prior, pi=self._pi)
+
+    def _labels(self, image: np.ndarray, motion) -> np.ndarray:
+        """The frame's labels with the key frame's prior carried by ``motion`` (None: not moved)."""
+        from ..classification.fusion import fuse, labels_from_log_odds
+        from ..pipeline.pair import log_odds
+        from ..pipeline.prior import warped_prior_log_odds
+
+        d = log_odds(self.classifier, image)
+        if motion is None:
+            l_prior = self._key_log_odds
+        else:
+            l_prior = warped_prior_log_odds(self._prior, motion, shape=d.shape, pi=self._pi)
+        return labels_from_log_odds(fuse(d, l_prior, weight=self.weight))
+
+
+class _Flow(_KeyPrior):
     """The DIS baseline with a propagator's interface: the key frame's prior warped by the flow."""
 
     def __init__(self, classifier, anchor: str) -> None:
-        from ..classification.fusion import FusionConfig
         from ..pipeline.stream import STREAM_WEIGHT
 
-        self.classifier, self.anchor = classifier, anchor
-        self.weight, self.fusion = STREAM_WEIGHT, FusionConfig()
-        self._pi = float(np.asarray(classifier.class_prior_)[1])
+        super().__init__(classifier, weight=STREAM_WEIGHT)
+        self.anchor = anchor
 
     def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
-        from ..classification.fusion import label_prior
-
+        super().reset(image, labels)
         self._key, self._prev, self._motion = image, image, None
-        self._prior = label_prior(labels, pi=self._pi, fusion=self.fusion)
 
     def step(self, image: np.ndarray) -> np.ndarray:
-        from ..classification.fusion import fuse, labels_from_log_odds, prior_log_odds, warp_prior
-        from ..pipeline.pair import flow_field, log_odds
+        from ..pipeline.pair import flow_field
         from ..pipeline.stream import compose_motions
 
         fld = flow_field(self._key if self.anchor == "key" else self._prev, image)
         if self.anchor == "previous" and self._motion is not None:
             fld = compose_motions(self._motion, fld, image.shape[:2])
         self._prev, self._motion = image, fld
-        d = log_odds(self.classifier, image)
-        q, _ = warp_prior(self._prior, fld, shape=d.shape, pi=self._pi)
-        return labels_from_log_odds(fuse(d, prior_log_odds(q, pi=self._pi), weight=self.weight))
+        return self._labels(image, fld)
 
 
-class _Fixed:
+class _Fixed(_KeyPrior):
     """``plain`` (weight 0) and ``unregistered`` (the key frame's prior, no motion)."""
 
-    def __init__(self, classifier, *, weight: float) -> None:
-        from ..classification.fusion import FusionConfig
-
-        self.classifier, self.weight, self.fusion = classifier, weight, FusionConfig()
-        self._pi = float(np.asarray(classifier.class_prior_)[1])
-
-    def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
-        from ..classification.fusion import label_prior, prior_log_odds
-
-        self._l = prior_log_odds(label_prior(labels, pi=self._pi, fusion=self.fusion), pi=self._pi)
-
     def step(self, image: np.ndarray) -> np.ndarray:
-        from ..classification.fusion import fuse, labels_from_log_odds
-        from ..pipeline.pair import log_odds
-
-        return labels_from_log_odds(fuse(log_odds(self.classifier, image), self._l, weight=self.weight))
+        return self._labels(image, None)
 
 
 def make_method(method: str, classifier, backend: str):

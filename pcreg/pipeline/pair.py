@@ -48,8 +48,8 @@ from ..validation import check_bool, check_callable, check_float, check_frame, c
 from ..registration.config import RegisterConfig
 from ..registration.dense import DENSE_GLOBAL_MODEL
 from ..registration.result import RegistrationResult
-from ..classification.fusion import (FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds,
-                                     warp_prior)
+from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
+from .prior import class_prior, warp_prior, warped_prior_log_odds
 
 if TYPE_CHECKING:  # for the annotation only
     from .temporal import TemporalFusion
@@ -284,6 +284,94 @@ def _check_pair_args(reference, moving, classifier, *, weight, config, registrat
         check_float(flow_weight, "flow_weight", lo=0)
 
 
+def _warp_moving(moving, motion, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The moving image on the reference grid and where it is valid (itself, all valid, unregistered)."""
+    from ..registration.warp import warp
+
+    if motion is None:
+        return moving.image, np.ones(shape, dtype=bool)
+    return warp(moving.image, motion, shape=shape)
+
+
+@dataclass(frozen=True)
+class _Fused:
+    """The fusing methods' log-odds on the moving frame (``temporal`` None without a chain), the
+    registered prior and the DIS field a recording shows, and the seconds of the two timed stages."""
+
+    registered: np.ndarray
+    unregistered: np.ndarray
+    temporal: np.ndarray | None
+    flow: np.ndarray
+    warped_prior: np.ndarray | None
+    flow_field: np.ndarray
+    fuse_seconds: float
+    flow_seconds: float
+
+
+def _fuse_methods(reference, moving, d_mov: np.ndarray, motion, *, pi: float, fusion: FusionConfig, weight: float,
+                  flow_weight: float, temporal, flow: np.ndarray | None) -> _Fused:
+    """The reference labels' prior fused with the moving frame's log-odds ``d_mov``: carried by the
+    registration's ``motion`` (None: no prior), by no motion, by the temporal chain, and by DIS flow."""
+    shape = d_mov.shape
+    t0 = time.perf_counter()
+    q_ref = label_prior(reference.labels, pi=pi, fusion=fusion)
+    q_mov = None
+    if motion is not None:
+        q_mov, _ = warp_prior(q_ref, motion, shape=shape, pi=pi)
+        l_reg = prior_log_odds(q_mov, pi=pi)
+    else:
+        l_reg = np.zeros(shape, np.float32)
+    fused = fuse(d_mov, l_reg, weight=weight)
+    fuse_seconds = time.perf_counter() - t0
+    fused_id = fuse(d_mov, prior_log_odds(q_ref, pi=pi), weight=weight)
+    fused_t = None if temporal is None else temporal.step(d_mov, motion, pi=pi)
+    t0 = time.perf_counter()
+    flow = flow_field(reference.image, moving.image) if flow is None else flow
+    fused_flow = fuse(d_mov, warped_prior_log_odds(q_ref, flow, shape=shape, pi=pi), weight=flow_weight)
+    return _Fused(fused, fused_id, fused_t, fused_flow, q_mov, flow, fuse_seconds, time.perf_counter() - t0)
+
+
+def _propagated(reference, motion, pred_mov: np.ndarray) -> np.ndarray:
+    """The reference's known labels carried to the moving frame by ``motion``, naive Bayes elsewhere."""
+    from ..registration.warp import warp_to_moving
+
+    if motion is None:
+        return pred_mov
+    ref_lab_mov, lab_valid = warp_to_moving(reference.labels, motion, shape=pred_mov.shape,
+                                            interpolation="nearest", fill=2)
+    return np.where(lab_valid & (ref_lab_mov < 2), ref_lab_mov, pred_mov)
+
+
+def _errors(preds: dict, *, reference, moving, pred_warped: np.ndarray, pred_masked: np.ndarray,
+            valid: np.ndarray) -> dict:
+    """{method: error %}: the moving frame's predictions against its labels, the thesis's methods
+    (on the reference grid) against the reference's."""
+    temporal = preds.get("augmented_temporal")
+    return {
+        "plain": _err(preds["plain"], moving.labels),
+        "thesis_before": _err(preds["plain"], reference.labels),
+        "thesis_after": _err(pred_warped, reference.labels),
+        "thesis_after_masked": _err(pred_masked, reference.labels),
+        "thesis_after_cropped": _err(pred_warped, reference.labels, valid),
+        "augmented": _err(preds["augmented"], moving.labels),
+        "augmented_unregistered": _err(preds["augmented_unregistered"], moving.labels),
+        "augmented_temporal": _err(temporal, moving.labels) if temporal is not None else float("nan"),
+        "propagated": _err(preds["propagated"], moving.labels),
+        "augmented_flow": _err(preds["augmented_flow"], moving.labels),
+    }
+
+
+def _corner_error(reference, moving, T: np.ndarray | None) -> float | None:
+    """The registration's largest corner distance from the true transform, where poses are known."""
+    from ..datasets import relative_transform
+    from ..registration.transforms import max_corner_error
+
+    truth_T = relative_transform(reference, moving)
+    if truth_T is None or T is None:
+        return None
+    return max_corner_error(T, truth_T, moving.shape)
+
+
 def process_pair(reference, moving, classifier, *, weight: float, config: PipelineConfig = PipelineConfig(),
                  registration: PairRegistration | None = None, temporal: TemporalFusion | None = None,
                  indices: tuple[int, int] = (0, 1), keep_arrays: bool = False,
@@ -300,95 +388,48 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     flow : the pair's DIS field (:func:`flow_field`; None: computed here). flow_weight : the fusion
         weight of ``augmented_flow`` (default ``weight``).
     """
-    from ..datasets import relative_transform
-    from ..registration.transforms import max_corner_error
-    from ..registration.warp import warp, warp_to_moving
-
     _check_pair_args(reference, moving, classifier, weight=weight, config=config, registration=registration,
                      temporal=temporal, indices=indices, keep_arrays=keep_arrays, callback=callback, flow=flow,
                      flow_weight=flow_weight)
     if reference.shape != moving.shape:
         raise InputError(f"reference {reference.shape} and moving {moving.shape} frames differ in size")
-    shape = moving.shape
     times = dict.fromkeys(STAGES, 0.0)
     reg = registration if registration is not None else register_pair(
         reference.image, moving.image, config=config, callback=callback)
-    res, reason = reg.result, reg.reason
+    res = reg.result
     times["register"] = reg.seconds
     T = None if res is None else np.asarray(res.matrix)
-    motion = reg.motion  # a dense registration's field, else T
+    motion = reg.motion  # a dense registration's field, else T; None when refused
 
     t0 = time.perf_counter()
-    if T is not None:
-        warped, valid = warp(moving.image, motion, shape=reference.shape)
-    else:
-        warped, valid = moving.image, np.ones(shape, dtype=bool)
+    warped, valid = _warp_moving(moving, motion, reference.shape)
     times["warp"] = time.perf_counter() - t0
-
     t0 = time.perf_counter()
     d_mov = log_odds(classifier, moving.image)
-    d_warped = log_odds(classifier, warped) if T is not None else d_mov
+    d_warped = log_odds(classifier, warped) if motion is not None else d_mov
     times["classify"] = time.perf_counter() - t0
     pred_mov = labels_from_log_odds(d_mov)
     pred_warped = labels_from_log_odds(d_warped)
-
-    t0 = time.perf_counter()
-    pi = float(np.asarray(classifier.class_prior_)[1])
-    fusion = config.fusion
-    q_ref = label_prior(reference.labels, pi=pi, fusion=fusion)
-    if T is not None:
-        q_mov, prior_valid = warp_prior(q_ref, motion, shape=shape, pi=pi)
-        l_reg = prior_log_odds(q_mov, pi=pi)
-    else:
-        l_reg = np.zeros(shape, np.float32)
-    fused = fuse(d_mov, l_reg, weight=weight)
-    times["fuse"] = time.perf_counter() - t0
-    l_id = prior_log_odds(q_ref, pi=pi)
-    fused_id = fuse(d_mov, l_id, weight=weight)
-    fused_t = None if temporal is None else temporal.step(d_mov, motion, pi=pi)
-    t0 = time.perf_counter()
-    flow = flow_field(reference.image, moving.image) if flow is None else flow
-    q_flow, _ = warp_prior(q_ref, flow, shape=shape, pi=pi)
-    fused_flow = fuse(d_mov, prior_log_odds(q_flow, pi=pi), weight=weight if flow_weight is None else flow_weight)
-    times["flow"] = time.perf_counter() - t0
+    fused = _fuse_methods(reference, moving, d_mov, motion, pi=class_prior(classifier), fusion=config.fusion,
+                          weight=weight, flow_weight=weight if flow_weight is None else flow_weight,
+                          temporal=temporal, flow=flow)
+    times["fuse"], times["flow"] = fused.fuse_seconds, fused.flow_seconds
 
     pred_masked = np.where(valid, pred_warped, pred_mov)
-    if T is not None:
-        ref_lab_mov, lab_valid = warp_to_moving(reference.labels, motion, shape=shape, interpolation="nearest",
-                                                fill=2)
-        propagated = np.where(lab_valid & (ref_lab_mov < 2), ref_lab_mov, pred_mov)
-    else:
-        propagated = pred_mov
     preds = {
-        "plain": pred_mov, "augmented": labels_from_log_odds(fused),
-        "augmented_unregistered": labels_from_log_odds(fused_id), "propagated": propagated,
-        "augmented_flow": labels_from_log_odds(fused_flow),
+        "plain": pred_mov, "augmented": labels_from_log_odds(fused.registered),
+        "augmented_unregistered": labels_from_log_odds(fused.unregistered),
+        "propagated": _propagated(reference, motion, pred_mov), "augmented_flow": labels_from_log_odds(fused.flow),
     }
-    if fused_t is not None:
-        preds["augmented_temporal"] = labels_from_log_odds(fused_t)
-    errors = {
-        "plain": _err(pred_mov, moving.labels),
-        "thesis_before": _err(pred_mov, reference.labels),
-        "thesis_after": _err(pred_warped, reference.labels),
-        "thesis_after_masked": _err(pred_masked, reference.labels),
-        "thesis_after_cropped": _err(pred_warped, reference.labels, valid),
-        "augmented": _err(preds["augmented"], moving.labels),
-        "augmented_unregistered": _err(preds["augmented_unregistered"], moving.labels),
-        "augmented_temporal": _err(preds["augmented_temporal"], moving.labels) if fused_t is not None else float("nan"),
-        "propagated": _err(propagated, moving.labels),
-        "augmented_flow": _err(preds["augmented_flow"], moving.labels),
-    }
-    truth_T = relative_transform(reference, moving)
-    corner = None
-    if truth_T is not None and T is not None:
-        corner = max_corner_error(T, truth_T, shape)
+    if fused.temporal is not None:
+        preds["augmented_temporal"] = labels_from_log_odds(fused.temporal)
+    errors = _errors(preds, reference=reference, moving=moving, pred_warped=pred_warped, pred_masked=pred_masked,
+                     valid=valid)
     result = PairResult(reference=int(indices[0]), moving=int(indices[1]), names=(reference.name, moving.name),
-                        registered=T is not None, reason=reason, registration=None if res is None else res.to_dict(),
-                        corner_error=corner, errors=errors, times=times, valid_fraction=float(valid.mean()))
+                        registered=T is not None, reason=reg.reason, registration=None if res is None else res.to_dict(),
+                        corner_error=_corner_error(reference, moving, T), errors=errors, times=times,
+                        valid_fraction=float(valid.mean()))
     arrays = PairArrays(warped=warped, valid=valid, predicted=preds, thesis_after=pred_warped,
-                        thesis_after_masked=pred_masked, motion=motion,
-                        warped_prior=q_mov if T is not None else None, flow=flow,
-                        confidence=getattr(res, "confidence", None)) if keep_arrays else None
+                        thesis_after_masked=pred_masked, motion=motion, warped_prior=fused.warped_prior,
+                        flow=fused.flow_field, confidence=getattr(res, "confidence", None)) if keep_arrays else None
     return ProcessedPair(result, arrays)
-
-

@@ -11,11 +11,12 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..classification.bayes import fit_classifier
-from ..classification.fusion import (FusionConfig, WeightChoice, choose_weight, label_prior, prior_log_odds,
-                                     warp_prior)
+from ..classification.fusion import FusionConfig, WeightChoice, choose_weight, label_prior
 from ..errors import InputError
 from ..validation import check_callable, check_frames, check_int, short_repr
-from .pair import METHODS, PairRegistration, PairResult, PipelineConfig, flow_field, log_odds, process_pair, register_pair
+from .pair import (METHODS, PairRegistration, PairResult, PipelineConfig, flow_field, log_odds, process_pair,
+                   register_pair)
+from .prior import class_prior, warped_prior_log_odds
 from .temporal import TemporalFusion, temporal_update
 
 __all__ = ["SequenceResult", "run_sequence", "pair_indices", "resolve_fusion_frames"]
@@ -116,6 +117,174 @@ def _odd_sized(frames: Sequence) -> dict[int, str]:
             for i, f in enumerate(frames) if f.shape != (h, w)}
 
 
+def _check_sequence_args(frames: Sequence, *, k, config, train, fusion_frames, on_pair,
+                         icp_callback) -> tuple[int, int | None]:
+    """``(k, fusion_frames)`` checked; :class:`~pcreg.errors.InputError` on bad input."""
+    check_frames(frames, "frames")
+    k = check_int(k, "k", lo=1)
+    if any(f.labels is None for f in frames):
+        raise InputError("every frame needs labels to be scored")
+    if not isinstance(config, PipelineConfig):
+        raise InputError(f"config must be a PipelineConfig, got {type(config).__name__}")
+    if not isinstance(train, str):
+        raise InputError(f"train must be 'reference' or 'first:K', got {short_repr(train)}")
+    if fusion_frames is not None:
+        fusion_frames = check_int(fusion_frames, "fusion_frames", lo=0)
+    check_callable(on_pair, "on_pair")
+    check_callable(icp_callback, "icp_callback")
+    if train != "reference":
+        if not train.startswith("first:") or not train.split(":", 1)[1].isdigit() or int(train.split(":", 1)[1]) < 1:
+            raise InputError(f"train must be 'reference' or 'first:K' with K >= 1, got {train!r}")
+    return k, fusion_frames
+
+
+class _Classifiers:
+    """The naive Bayes of each reference frame (the last one kept), or one shared model (``first:K``)."""
+
+    def __init__(self, frames: Sequence, *, train: str, features: tuple[str, ...]) -> None:
+        self._frames, self._features = frames, features
+        self._shared = None
+        self._cache: dict[int, object] = {}
+        if train.startswith("first:"):
+            K = int(train.split(":", 1)[1])
+            if K >= len(frames):
+                raise InputError(f"train first:{K} leaves no test frame in a sequence of {len(frames)} frames")
+            self._shared = fit_classifier(frames[:K], features=features)
+
+    def __call__(self, i: int):
+        if self._shared is not None:
+            return self._shared
+        if i not in self._cache:
+            self._cache.clear()
+            self._cache[i] = fit_classifier([self._frames[i]], features=self._features)
+        return self._cache[i]
+
+
+class _Registrations:
+    """Each pair's :func:`register_pair`, computed once and kept until it is taken."""
+
+    def __init__(self, frames: Sequence, config: PipelineConfig) -> None:
+        self._frames, self._config = frames, config
+        self._cache: dict[tuple[int, int], PairRegistration] = {}
+
+    def __call__(self, i: int, j: int, callback=None) -> PairRegistration:
+        if (i, j) not in self._cache:
+            self._cache[(i, j)] = register_pair(self._frames[i].image, self._frames[j].image, config=self._config,
+                                                callback=callback)
+        return self._cache[(i, j)]
+
+    def take(self, i: int, j: int, callback=None) -> PairRegistration:
+        """The pair's registration, no longer kept."""
+        reg = self(i, j, callback)
+        self._cache.pop((i, j), None)
+        return reg
+
+    def keep_increment(self, k: int) -> None:
+        """Forget every pair that is not ``k`` apart."""
+        self._cache = {key: v for key, v in self._cache.items() if key[1] - key[0] == k}
+
+
+@dataclass(frozen=True)
+class _Weights:
+    """The fusion weights of a sequence: one-step, temporal and flow, with the notes on their choice."""
+
+    one_step: WeightChoice
+    temporal: WeightChoice
+    flow: WeightChoice
+    notes: tuple[str, ...] = ()
+
+
+def _fixed_choice(fusion: FusionConfig) -> WeightChoice:
+    """The choice of a fixed weight (or of 1 where none could be chosen): no pairs, NaN errors."""
+    fixed = fusion.weight
+    return WeightChoice(float(fixed if fixed is not None else 1.0), fusion.grid,
+                        tuple(float("nan") for _ in fusion.grid), 0, 0)
+
+
+def _prior_samples(calib: list, frames: Sequence, fusion: FusionConfig, motion: Callable) -> list:
+    """``(d, prior log-odds, truth)`` of every calibration pair whose ``motion(i, j, T)`` is not None."""
+    samples = []
+    for i, j, T, d, pi in calib:
+        m = motion(i, j, T)
+        if m is None:
+            continue
+        l_prior = warped_prior_log_odds(label_prior(frames[i].labels, pi=pi, fusion=fusion), m,
+                                        shape=frames[j].shape, pi=pi)
+        samples.append((d, l_prior, frames[j].labels))
+    return samples
+
+
+def _choose_weights(frames: Sequence, *, k: int, C: int, fusion: FusionConfig, classifier: _Classifiers,
+                    registration: _Registrations, odd: dict[int, str]) -> _Weights:
+    """The fusion weights (one-step, temporal and flow), chosen on the pairs among the first C frames
+    at increment min(k, C - 1); a fixed ``fusion.weight`` is used as it is."""
+    if fusion.weight is not None:
+        fixed = _fixed_choice(fusion)
+        return _Weights(fixed, fixed, fixed)
+    kc = min(k, C - 1)
+    calib = []  # (i, j, T, d_j, pi) of the registered pairs among the first C frames, in order
+    if kc >= 1:
+        for i, j in pair_indices(C, kc):
+            if i in odd or j in odd:
+                continue
+            clf = classifier(i)
+            calib.append((i, j, registration(i, j).motion, log_odds(clf, frames[j].image), class_prior(clf)))
+    choice = choose_weight(_prior_samples(calib, frames, fusion, lambda i, j, T: T), grid=fusion.grid)
+    flow_samples = _prior_samples(calib, frames, fusion, lambda i, j, T: flow_field(frames[i].image, frames[j].image))
+    flow_choice = choose_weight(flow_samples, grid=fusion.grid)
+    temporal_choice = _choose_temporal_weight(calib, frames, fusion=fusion)
+    notes = ()
+    if choice.pairs == 0:
+        notes = (f"no registered pair among the first {C} frames to choose the fusion weight: "
+                 f"w = {choice.weight} used",)
+    elif kc != k:
+        notes = (f"fusion weight chosen at increment {kc} (the first {C} frames hold no pair {k} apart)",)
+    registration.keep_increment(k)
+    return _Weights(choice, temporal_choice, flow_choice, notes)
+
+
+@dataclass(frozen=True)
+class _Walk:
+    """The scored pairs of a sequence and the failures among them."""
+
+    scored: tuple[PairResult, ...]
+    failures: tuple[dict, ...]
+
+
+def _walk_pairs(frames: Sequence, *, k: int, C: int, config: PipelineConfig, weights: _Weights,
+                classifier: _Classifiers, registration: _Registrations, odd: dict[int, str],
+                on_pair: Callable | None, icp_callback: Callable | None) -> _Walk:
+    """Every pair (i, i + k) in order: the temporal chains need all of them, the scores those with j >= C."""
+    chains: deque = deque()
+    scored: list[PairResult] = []
+    failures: list[dict] = []
+    for i, j in pair_indices(len(frames), k):
+        chain = chains.popleft() if i >= k else None
+        if i in odd or j in odd:
+            if j >= C:
+                failures.append({"reference": i, "moving": j, "reason": odd[i if i in odd else j]})
+            chains.append(None)  # the chain restarts after the odd frame
+            continue
+        if chain is None:
+            chain = TemporalFusion(frames[i].labels, weight=weights.temporal.weight, fusion=config.fusion)
+        score = j >= C
+        reg = registration.take(i, j, icp_callback if score else None)
+        clf = classifier(i)
+        if score:
+            done = process_pair(frames[i], frames[j], clf, weight=weights.one_step.weight, config=config,
+                                registration=reg, temporal=chain, indices=(i, j), keep_arrays=on_pair is not None,
+                                flow_weight=weights.flow.weight)
+            scored.append(done.result)
+            if not done.result.registered:
+                failures.append({"reference": i, "moving": j, "reason": done.result.reason})
+            if on_pair is not None:
+                on_pair(done.result, (frames[i], frames[j]), done.arrays)
+        else:
+            chain.step(log_odds(clf, frames[j].image), reg.motion, pi=class_prior(clf))
+        chains.append(chain)
+    return _Walk(tuple(scored), tuple(failures))
+
+
 def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineConfig(), train: str = "reference",
                  fusion_frames: int | None = None, on_pair: Callable | None = None,
                  icp_callback: Callable | None = None) -> SequenceResult:
@@ -136,132 +305,29 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
     a sequence too short for ``k`` gives no pairs and a note.
     """
     t_start = time.perf_counter()
-    check_frames(frames, "frames")
-    k = check_int(k, "k", lo=1)
+    k, fusion_frames = _check_sequence_args(frames, k=k, config=config, train=train, fusion_frames=fusion_frames,
+                                            on_pair=on_pair, icp_callback=icp_callback)
     n = len(frames)
-    if any(f.labels is None for f in frames):
-        raise InputError("every frame needs labels to be scored")
-    if not isinstance(config, PipelineConfig):
-        raise InputError(f"config must be a PipelineConfig, got {type(config).__name__}")
-    if not isinstance(train, str):
-        raise InputError(f"train must be 'reference' or 'first:K', got {short_repr(train)}")
-    if fusion_frames is not None:
-        fusion_frames = check_int(fusion_frames, "fusion_frames", lo=0)
-    check_callable(on_pair, "on_pair")
-    check_callable(icp_callback, "icp_callback")
-    if train != "reference":
-        if not train.startswith("first:") or not train.split(":", 1)[1].isdigit() or int(train.split(":", 1)[1]) < 1:
-            raise InputError(f"train must be 'reference' or 'first:K' with K >= 1, got {train!r}")
     C = resolve_fusion_frames(n, fusion_frames=fusion_frames, train=train)
     if C < 0:
         raise InputError("fusion_frames must be >= 0")
-    notes: list[str] = []
-    fixed = config.fusion.weight
-    empty_choice = WeightChoice(float(fixed if fixed is not None else 1.0), config.fusion.grid,
-                                tuple(float("nan") for _ in config.fusion.grid), 0, 0)
-    if n < 2:
-        notes.append(f"{n} frame(s): no pairs")
-        return SequenceResult(k, config.backend, C, empty_choice, (), _means([]), (), tuple(notes),
-                              time.perf_counter() - t_start, temporal_weight=empty_choice)
-    if k >= n:
-        notes.append(f"increment k={k} is not shorter than the sequence ({n} frames): no pairs")
-        return SequenceResult(k, config.backend, C, empty_choice, (), _means([]), (), tuple(notes),
-                              time.perf_counter() - t_start, temporal_weight=empty_choice)
+    if n < 2 or k >= n:
+        note = (f"{n} frame(s): no pairs" if n < 2
+                else f"increment k={k} is not shorter than the sequence ({n} frames): no pairs")
+        empty = _fixed_choice(config.fusion)
+        return SequenceResult(k, config.backend, C, empty, (), _means([]), (), (note,),
+                              time.perf_counter() - t_start, temporal_weight=empty)
 
-    shared_clf = None
-    if train.startswith("first:"):
-        K = int(train.split(":", 1)[1])
-        if K >= n:
-            raise InputError(f"train first:{K} leaves no test frame in a sequence of {n} frames")
-        shared_clf = fit_classifier(frames[:K], features=config.features)
-    clf_cache: dict[int, object] = {}
-
-    def classifier(i: int):
-        if shared_clf is not None:
-            return shared_clf
-        if i not in clf_cache:
-            clf_cache.clear()
-            clf_cache[i] = fit_classifier([frames[i]], features=config.features)
-        return clf_cache[i]
-
-    reg_cache: dict[tuple[int, int], PairRegistration] = {}
+    classifier = _Classifiers(frames, train=train, features=config.features)
+    registration = _Registrations(frames, config)
     odd = _odd_sized(frames)  # a frame of another size fails its own pairs only, with the reason
-
-
-    def registration(i: int, j: int, callback=None):
-        if (i, j) not in reg_cache:
-            reg_cache[(i, j)] = register_pair(frames[i].image, frames[j].image, config=config, callback=callback)
-        return reg_cache[(i, j)]
-
-    # 1. the fusion weights (one-step and temporal), on pairs among the first C frames
-    kc = min(k, C - 1)
-    calib = []  # (i, j, T, d_j, pi) of the registered pairs among the first C frames, in order
-    if fixed is None and kc >= 1:
-        for i, j in pair_indices(C, kc):
-            if i in odd or j in odd:
-                continue
-            clf = classifier(i)
-            calib.append((i, j, registration(i, j).motion, log_odds(clf, frames[j].image),
-                          float(np.asarray(clf.class_prior_)[1])))
-    if fixed is not None:
-        choice = temporal_choice = flow_choice = empty_choice
-    else:
-        samples = []
-        for i, j, T, d, pi in calib:
-            if T is None:
-                continue
-            q_mov, _ = warp_prior(label_prior(frames[i].labels, pi=pi, fusion=config.fusion), T,
-                                  shape=frames[j].shape, pi=pi)
-            samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
-        choice = choose_weight(samples, grid=config.fusion.grid)
-        flow_samples = []
-        for i, j, _, d, pi in calib:
-            q_mov, _ = warp_prior(label_prior(frames[i].labels, pi=pi, fusion=config.fusion),
-                                  flow_field(frames[i].image, frames[j].image), shape=frames[j].shape, pi=pi)
-            flow_samples.append((d, prior_log_odds(q_mov, pi=pi), frames[j].labels))
-        flow_choice = choose_weight(flow_samples, grid=config.fusion.grid)
-        temporal_choice = _choose_temporal_weight(calib, frames, fusion=config.fusion)
-        if choice.pairs == 0:
-            notes.append(f"no registered pair among the first {C} frames to choose the fusion weight: "
-                         f"w = {choice.weight} used")
-        elif kc != k:
-            notes.append(f"fusion weight chosen at increment {kc} (the first {C} frames hold no pair {k} apart)")
-        reg_cache = {key: v for key, v in reg_cache.items() if key[1] - key[0] == k}
-    weight = choice.weight
-    weight_t = temporal_choice.weight
-    weight_f = flow_choice.weight
-
-    # 2. every pair (i, i + k) in order; the temporal chains need all of them, the scores those with j >= C
-    chains: deque = deque()
-    scored: list[PairResult] = []
-    failures: list[dict] = []
-    for i, j in pair_indices(n, k):
-        chain = chains.popleft() if i >= k else None
-        if i in odd or j in odd:
-            if j >= C:
-                failures.append({"reference": i, "moving": j, "reason": odd[i if i in odd else j]})
-            chains.append(None)  # the chain restarts after the odd frame
-            continue
-        if chain is None:
-            chain = TemporalFusion(frames[i].labels, weight=weight_t, fusion=config.fusion)
-        score = j >= C
-        reg = registration(i, j, icp_callback if score else None)
-        reg_cache.pop((i, j), None)
-        clf = classifier(i)
-        if score:
-            done = process_pair(frames[i], frames[j], clf, weight=weight, config=config, registration=reg,
-                                temporal=chain, indices=(i, j), keep_arrays=on_pair is not None, flow_weight=weight_f)
-            result = done.result
-            scored.append(result)
-            if not result.registered:
-                failures.append({"reference": i, "moving": j, "reason": result.reason})
-            if on_pair is not None:
-                on_pair(result, (frames[i], frames[j]), done.arrays)
-        else:
-            chain.step(log_odds(clf, frames[j].image), reg.motion, pi=float(np.asarray(clf.class_prior_)[1]))
-        chains.append(chain)
-    if not scored:
-        notes.append(f"no pair with its moving frame after the {C} fusion frames")
-    return SequenceResult(k, config.backend, C, choice, tuple(scored), _means(scored), tuple(failures),
-                          tuple(notes), time.perf_counter() - t_start, temporal_weight=temporal_choice,
-                          flow_weight=flow_choice)
+    weights = _choose_weights(frames, k=k, C=C, fusion=config.fusion, classifier=classifier,
+                              registration=registration, odd=odd)
+    walk = _walk_pairs(frames, k=k, C=C, config=config, weights=weights, classifier=classifier,
+                       registration=registration, odd=odd, on_pair=on_pair, icp_callback=icp_callback)
+    notes = weights.notes
+    if not walk.scored:
+        notes += (f"no pair with its moving frame after the {C} fusion frames",)
+    return SequenceResult(k, config.backend, C, weights.one_step, walk.scored, _means(walk.scored), walk.failures,
+                          notes, time.perf_counter() - t_start, temporal_weight=weights.temporal,
+                          flow_weight=weights.flow)

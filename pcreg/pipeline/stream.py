@@ -47,7 +47,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds, warp_prior
+from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
+from .prior import class_prior, warp_prior
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
 
@@ -174,7 +175,7 @@ class Propagator:
         self.dense = dense
         self.weight = float(weight)
         self.fusion = fusion
-        self._pi = float(np.asarray(classifier.class_prior_)[1])
+        self._pi = class_prior(classifier)
         self._key_image: np.ndarray | None = None
         self._key_labels: np.ndarray | None = None
         self._key_prior: np.ndarray | None = None

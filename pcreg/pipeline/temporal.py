@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds, warp_prior
+from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
+from .prior import warped_prior_log_odds
 
 __all__ = ["registration_supported", "temporal_update", "TemporalFusion"]
 
@@ -70,9 +71,8 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
     reached, _ = warp_to_moving(labels_reference, T_ref_mov, shape=d.shape, interpolation="nearest", fill=2)
     if not registration_supported(reached, labels_reference, d):
         return d.copy(), np.full(d.shape, 2, np.uint8)
-    q_mov, _ = warp_prior(label_prior(labels_reference, pi=pi, fusion=fusion), T_ref_mov,
-                          shape=d.shape, pi=pi)
-    l_prior = prior_log_odds(q_mov, pi=pi)
+    l_prior = warped_prior_log_odds(label_prior(labels_reference, pi=pi, fusion=fusion), T_ref_mov,
+                                    shape=d.shape, pi=pi)
     fused = fuse(d, l_prior, weight=weight)
     judged = labels_from_log_odds(fuse(d, l_prior, weight=1.0))
     labels = np.where((reached < 2) & (judged == reached), reached, np.uint8(2)).astype(np.uint8)

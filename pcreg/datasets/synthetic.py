@@ -123,86 +123,131 @@ def _blob(rng: np.random.Generator, cx: float, cy: float, rx: float, ry: float, 
     return np.round(pts * 16).astype(np.int32).reshape(-1, 1, 2)
 
 
-def _render_canvas(preset: SyntheticPreset, seed: int, canvas_hw: tuple[int, int], vp: np.ndarray,
-                   width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """The scene's lit colours (Hc, Wc, 3) float32 and labels (Hc, Wc) uint8, in canvas pixels.
+@dataclass(frozen=True)
+class _Ground:
+    """The canvas's perspective and path: rows ``yy`` (hc, 1) and columns ``xx`` (1, wc) float32, the
+    horizon's row, the row of depth 1 (``bottom``), the depth ``t`` (hc, 1) (0 at the horizon), and the
+    path's centre line and half width at depth 1, in canvas pixels."""
 
-    The layout depends on (scene, seed) only, so the two lightings of a scene share it; sizes are in
-    units of the frame (``width``, ``height``), so any frame size sees the same scene.
-    """
-    import cv2
+    yy: np.ndarray
+    xx: np.ndarray
+    horizon: float
+    bottom: float
+    t: np.ndarray
+    path_x0: float
+    path_slant: float
+    bend: float
+    half_width: float
 
+    def path_centre(self, tt):
+        """The path's centre column at depth ``tt``."""
+        return (self.path_x0 + self.path_slant * tt
+                + self.bend * (1.0 - np.clip(tt, 0, 1)) ** 2 * np.clip(tt * 6.0, 0, 1))
+
+
+def _ground(layout: np.random.Generator, preset: SyntheticPreset, canvas_hw: tuple[int, int], vp: np.ndarray,
+            width: int, height: int) -> _Ground:
     hc, wc = canvas_hw
-    layout = np.random.default_rng([seed, 2000 + preset.scene])
-    look = np.random.default_rng([seed, 3000 + preset.scene, 0 if preset.lighting == "easy" else 1])
-    shift = 4  # cv2 drawing with sub-pixel coordinates (fixed point, 4 fractional bits)
     yy = np.arange(hc, dtype=np.float32)[:, None]
     xx = np.arange(wc, dtype=np.float32)[None, :]
     horizon = float(vp[1])
     bottom = horizon + (1.0 - _HORIZON) * height * 1.6  # depth t = 1 at this canvas row
     t = np.clip((yy - horizon) / (bottom - horizon), 0.0, None)  # (hc, 1) perspective depth, 0 at horizon
-
     bend = 0.0 if preset.path == "straight" else layout.choice([-1.0, 1.0]) * layout.uniform(0.25, 0.4) * width
     path_x0 = float(vp[0]) + layout.uniform(-0.04, 0.04) * width
     path_slant = layout.uniform(-0.15, 0.15) * width
+    return _Ground(yy, xx, horizon, bottom, t, path_x0, path_slant, bend, half_width=0.42 * width)
 
-    def path_centre(tt):
-        return path_x0 + path_slant * tt + bend * (1.0 - np.clip(tt, 0, 1)) ** 2 * np.clip(tt * 6.0, 0, 1)
 
-    half_width = 0.42 * width  # at t = 1
-
+def _terrain(layout: np.random.Generator, g: _Ground, canvas_hw: tuple[int, int], height: int) -> np.ndarray:
+    """The material (hc, wc) uint8 of every canvas pixel before the obstacles: sky, a wobbling far
+    treeline, grass, and the path."""
+    hc, wc = canvas_hw
     material = np.zeros((hc, wc), dtype=np.uint8)  # sky
     wobble = 0.012 * height * _noise_field(layout, (1, wc), (1, 14))[0]
-    tree_top = horizon - (0.05 * height + 0.03 * height * _noise_field(layout, (1, wc), (1, 30))[0]) + wobble
-    ground = yy >= horizon + wobble[None, :]
-    material[yy >= tree_top[None, :]] = 1  # far treeline (unknown)
+    tree_top = g.horizon - (0.05 * height + 0.03 * height * _noise_field(layout, (1, wc), (1, 30))[0]) + wobble
+    ground = g.yy >= g.horizon + wobble[None, :]
+    material[g.yy >= tree_top[None, :]] = 1  # far treeline (unknown)
     material[ground] = 2  # grass
-    on_path = np.abs(xx - path_centre(t)) <= half_width * t
+    on_path = np.abs(g.xx - g.path_centre(g.t)) <= g.half_width * g.t
     material[ground & on_path] = 3
+    return material
 
-    # Obstacles at random depths beside the path, far to near (painter's order).
+
+_SHIFT = 4  # cv2 drawing with sub-pixel coordinates (fixed point, 4 fractional bits)
+
+
+def _draw_obstacle(layout: np.random.Generator, material: np.ndarray, kind: str, cx: float, cy: float,
+                   size: float) -> None:
+    """Paint one obstacle of ``kind`` standing at (cx, cy), ``size`` px across at its depth, into ``material``."""
+    import cv2
+
+    if kind == "bush":
+        rx, ry = layout.uniform(0.08, 0.2) * size, layout.uniform(0.06, 0.14) * size
+        cv2.fillPoly(material, [_blob(layout, cx, cy - 0.8 * ry, rx, ry)], 4, shift=_SHIFT)
+    elif kind == "tree":
+        tw, th = 0.02 * size, layout.uniform(0.2, 0.4) * size
+        trunk = np.array([[cx - tw, cy], [cx + tw, cy], [cx + 0.7 * tw, cy - th], [cx - 0.7 * tw, cy - th]])
+        cv2.fillPoly(material, [np.round(trunk * 16).astype(np.int32).reshape(-1, 1, 2)], 5, shift=_SHIFT)
+        cr = layout.uniform(0.1, 0.2) * size
+        cv2.fillPoly(material, [_blob(layout, cx, cy - th - 0.5 * cr, cr, 1.1 * cr, n=24)], 6, shift=_SHIFT)
+    elif kind == "hay":
+        bw, bh = layout.uniform(0.08, 0.14) * size, layout.uniform(0.06, 0.09) * size
+        box = cv2.boxPoints(((cx, cy - bh / 2), (2 * bw, bh), layout.uniform(-4, 4)))
+        cv2.fillPoly(material, [np.round(box * 16).astype(np.int32).reshape(-1, 1, 2)], 7, shift=_SHIFT)
+    else:
+        r = layout.uniform(0.04, 0.08) * size
+        cv2.fillPoly(material, [_blob(layout, cx, cy - 0.5 * r, 1.3 * r, 0.8 * r, n=10)], 8, shift=_SHIFT)
+
+
+def _obstacles(layout: np.random.Generator, material: np.ndarray, g: _Ground, preset: SyntheticPreset,
+               width: int, height: int) -> np.ndarray:
+    """Paint the obstacles at random depths beside the path, far to near (painter's order), into
+    ``material``; returns their cast shadows (hc, wc) uint8 (1 in shadow)."""
+    import cv2
+
+    hc, wc = material.shape
     depth = np.sort(layout.uniform(0.05, 1.25, preset.obstacles))
     shadow = np.zeros((hc, wc), dtype=np.uint8)
     sun = layout.uniform(-1.0, 1.0)  # shadows fall to the left (< 0) or right (> 0)
     kinds = layout.choice(["bush", "tree", "hay", "rock"], size=preset.obstacles, p=[0.4, 0.25, 0.25, 0.1])
     for tt, kind in zip(depth, kinds):
         side = layout.choice([-1.0, 1.0])
-        gap = layout.uniform(0.02, 2.5) * half_width * tt
-        cx = float(path_centre(tt)) + side * (half_width * tt + gap)
-        cy = horizon + tt * (bottom - horizon)
+        gap = layout.uniform(0.02, 2.5) * g.half_width * tt
+        cx = float(g.path_centre(tt)) + side * (g.half_width * tt + gap)
+        cy = g.horizon + tt * (g.bottom - g.horizon)
         size = tt * width
         if cx < -0.3 * wc or cx > 1.3 * wc or cy > hc + 0.3 * height:
             continue
         sh_poly = _blob(layout, cx + sun * 0.2 * size, cy + 0.02 * size, 0.22 * size, 0.04 * size)
-        cv2.fillPoly(shadow, [sh_poly], 1, lineType=cv2.LINE_8, shift=shift)
-        if kind == "bush":
-            rx, ry = layout.uniform(0.08, 0.2) * size, layout.uniform(0.06, 0.14) * size
-            cv2.fillPoly(material, [_blob(layout, cx, cy - 0.8 * ry, rx, ry)], 4, shift=shift)
-        elif kind == "tree":
-            tw, th = 0.02 * size, layout.uniform(0.2, 0.4) * size
-            trunk = np.array([[cx - tw, cy], [cx + tw, cy], [cx + 0.7 * tw, cy - th], [cx - 0.7 * tw, cy - th]])
-            cv2.fillPoly(material, [np.round(trunk * 16).astype(np.int32).reshape(-1, 1, 2)], 5, shift=shift)
-            cr = layout.uniform(0.1, 0.2) * size
-            cv2.fillPoly(material, [_blob(layout, cx, cy - th - 0.5 * cr, cr, 1.1 * cr, n=24)], 6, shift=shift)
-        elif kind == "hay":
-            bw, bh = layout.uniform(0.08, 0.14) * size, layout.uniform(0.06, 0.09) * size
-            box = cv2.boxPoints(((cx, cy - bh / 2), (2 * bw, bh), layout.uniform(-4, 4)))
-            cv2.fillPoly(material, [np.round(box * 16).astype(np.int32).reshape(-1, 1, 2)], 7, shift=shift)
-        else:
-            r = layout.uniform(0.04, 0.08) * size
-            cv2.fillPoly(material, [_blob(layout, cx, cy - 0.5 * r, 1.3 * r, 0.8 * r, n=10)], 8, shift=shift)
+        cv2.fillPoly(shadow, [sh_poly], 1, lineType=cv2.LINE_8, shift=_SHIFT)
+        _draw_obstacle(layout, material, kind, cx, cy, size)
+    return shadow
+
+
+def _hand_labels(material: np.ndarray, width: int) -> np.ndarray:
+    """Labels (hc, wc) uint8 of the materials, with the thin unknown seam that hand labels leave around
+    obstacles (about 2 px at 640 wide)."""
+    import cv2
 
     labels = _LABEL_OF[material]
-    # Hand labels leave a thin unknown seam around obstacles (about 2 px at 640 wide).
     seam = max(1, int(round(2 * width / 640)))
     obstacle = (labels == 1).astype(np.uint8)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * seam + 1, 2 * seam + 1))
     ring = (cv2.dilate(obstacle, kernel) > 0) & (cv2.erode(obstacle, kernel) == 0)
     labels = labels.copy()
     labels[ring & (labels != 2)] = 2
+    return labels
 
-    # Colours: albedo x texture x lighting.
-    albedo = _ALBEDO[preset.lighting] * (1.0 + 0.05 * look.standard_normal((len(_MATERIALS), 3))).astype(np.float32)
+
+def _colours(look: np.random.Generator, material: np.ndarray, shadow: np.ndarray, g: _Ground, lighting: str,
+             width: int) -> np.ndarray:
+    """The lit colours (hc, wc, 3) float32: albedo x texture x lighting, shadows and haze."""
+    import cv2
+
+    hc, wc = material.shape
+    yy = g.yy
+    albedo = _ALBEDO[lighting] * (1.0 + 0.05 * look.standard_normal((len(_MATERIALS), 3))).astype(np.float32)
     scale = width / 640.0
     fine = _noise_field(look, (hc, wc), (max(4, int(hc / (3 * scale))), max(4, int(wc / (3 * scale)))))
     medium = _noise_field(look, (hc, wc), (max(4, int(hc / (14 * scale))), max(4, int(wc / (14 * scale)))))
@@ -218,16 +263,32 @@ def _render_canvas(preset: SyntheticPreset, seed: int, canvas_hw: tuple[int, int
     colour += veg * hue[..., None] * np.array([14.0, 6.0, -4.0], dtype=np.float32)
     # Ground darkens towards the camera (sky and treeline keep theirs).
     sky = material == 0
-    colour[sky] *= (0.85 + 0.25 * np.clip((yy / max(horizon, 1.0)), 0, 1) * np.ones((1, wc), np.float32))[sky][:, None]
+    colour[sky] *= (0.85 + 0.25 * np.clip((yy / max(g.horizon, 1.0)), 0, 1) * np.ones((1, wc), np.float32))[sky][:, None]
     # Cast shadows of obstacles on the ground, softened.
-    shadow_strength, haze = _LIGHT[preset.lighting][0], _LIGHT[preset.lighting][1]
+    shadow_strength, haze = _LIGHT[lighting][0], _LIGHT[lighting][1]
     sh = cv2.GaussianBlur(shadow.astype(np.float32), (0, 0), max(0.8, 2.0 * scale))
     sh *= (material >= 2) & (material <= 3)
     colour *= (1.0 - (1.0 - shadow_strength) * sh)[..., None]
     if haze > 0:  # haze washes colours towards grey, more towards the horizon
-        w_h = haze * np.clip(1.0 - t, 0.0, 1.0)
+        w_h = haze * np.clip(1.0 - g.t, 0.0, 1.0)
         colour = colour * (1.0 - w_h[..., None]) + 170.0 * w_h[..., None]
-    return colour.astype(np.float32), labels
+    return colour.astype(np.float32)
+
+
+def _render_canvas(preset: SyntheticPreset, seed: int, canvas_hw: tuple[int, int], vp: np.ndarray,
+                   width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The scene's lit colours (Hc, Wc, 3) float32 and labels (Hc, Wc) uint8, in canvas pixels.
+
+    The layout depends on (scene, seed) only, so the two lightings of a scene share it; sizes are in
+    units of the frame (``width``, ``height``), so any frame size sees the same scene.
+    """
+    layout = np.random.default_rng([seed, 2000 + preset.scene])
+    look = np.random.default_rng([seed, 3000 + preset.scene, 0 if preset.lighting == "easy" else 1])
+    g = _ground(layout, preset, canvas_hw, vp, width, height)
+    material = _terrain(layout, g, canvas_hw, height)
+    shadow = _obstacles(layout, material, g, preset, width, height)
+    labels = _hand_labels(material, width)
+    return _colours(look, material, shadow, g, preset.lighting, width), labels
 
 
 @lru_cache(maxsize=4)

@@ -40,60 +40,53 @@ def _say(text: str) -> None:
     print(text, flush=True)
 
 
-def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: str | Path | None = None,
-             raw_images: bool = False) -> Path:
-    """Run every part and write ``out/report.md``; returns its path. Overwrites earlier demo output."""
-    import numpy as np
-
-    from ..implementations.crosscheck import crosscheck
-    from ..outputs import atomic_write_json, atomic_write_text
+def _classification(config: DemoConfig, out: Path, workers: int):
+    """Ch. 4: naive Bayes alone, cases I-III."""
     from .._runner import make_executor
-    from ..datasets import load_dataset
-    from . import classification, rotation, sequence
+    from . import classification
     from .reports import classification as classification_report
-    from .reports import rotation as rotation_report
-    from .reports import sequence as sequence_report
-    from .reports.demo import pair_figure, report
-    from .units import plain_config
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    times: dict[str, float] = {}
-    atomic_write_json(out / "config.json", plain_config(config))
-    datasets = load_dataset(config.data, n_frames=config.frames, size=config.size, seed=config.seed)
-
-    # 1. Ch. 4
-    _say("1/5 naive Bayes alone (thesis Ch. 4)")
-    t = time.perf_counter()
     k1 = tuple(sorted({max(1, config.frames // 4), config.frames // 2, 3 * config.frames // 4}))
     ccfg = classification.ClassificationConfig(data=config.data, frames=config.frames, size=config.size,
                                                seed=config.seed, case1_k=k1, case3_k=(2, 4), n_trials=30)
     with make_executor(workers) as ex:
         cres = classification.evaluate(ccfg, executor=ex, show_progress=False)
     classification_report.write_outputs(cres, out / "classification")
-    times["Ch. 4 classification"] = time.perf_counter() - t
+    return cres
 
-    # 2. Ch. 5
-    _say("2/5 rotated frames, before and after registration (thesis Ch. 5), both backends")
-    t = time.perf_counter()
+
+def _rotation(config: DemoConfig, out: Path, workers: int):
+    """Ch. 5: rotated frames before and after registration, both backends."""
+    from .._runner import make_executor
+    from . import rotation
+    from .reports import rotation as rotation_report
+
     rcfg = rotation.RotationConfig(data=config.data, angles=config.angles, samples=1, backends=("reference", "open3d"),
                                    frames=config.frames, size=config.size, seed=config.seed)
     with make_executor(workers) as ex:
         rres = rotation.evaluate(rcfg, out=out / "rotation", force=True, executor=ex, show_progress=False)
     rotation_report.write_outputs(rres, out / "rotation")
-    times["Ch. 5 rotation"] = time.perf_counter() - t
+    return rres
 
-    # 3. cross-check of the backends
-    _say("3/5 cross-check of the two ICP backends")
-    t = time.perf_counter()
+
+def _crosscheck(datasets: dict, out: Path) -> dict:
+    """The two ICP backends cross-checked on frames 0 and 3 of the first sequence."""
+    from ..implementations.crosscheck import crosscheck
+    from ..outputs import atomic_write_json
+
     first = next(iter(datasets.values()))
     cc = crosscheck(first[0].image, first[3].image).to_dict()
     atomic_write_json(out / "crosscheck.json", cc)
-    times["cross-check"] = time.perf_counter() - t
+    return cc
 
-    # 4. Ch. 6-7 with a recording
-    _say("4/5 sequences: registration, before/after, label propagation (thesis Ch. 6-7), both backends")
-    t = time.perf_counter()
+
+def _sequence(config: DemoConfig, out: Path, workers: int, record: str | Path | None, raw_images: bool):
+    """Ch. 6-7: the pairs of every increment, both backends; recorded in this process when ``record``
+    is given, else run by ``workers`` processes."""
+    from .._runner import make_executor
+    from . import sequence
+    from .reports import sequence as sequence_report
+
     scfg = sequence.SequenceConfig(data=config.data, increments=config.increments, backends=("reference", "open3d"),
                                    frames=config.frames, size=config.size, seed=config.seed)
     if record is not None:
@@ -105,22 +98,68 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
         with make_executor(workers) as ex:
             sres = sequence.evaluate(scfg, out=out / "sequence", force=True, executor=ex, show_progress=False)
     sequence_report.write_outputs(sres, out / "sequence")
-    times["Ch. 6-7 sequence" + (" (recorded)" if record is not None else "")] = time.perf_counter() - t
+    return scfg, sres
 
-    # 5. the story figure and the report
-    _say("5/5 report")
+
+def _pair_figure(config: DemoConfig, datasets: dict, sres: dict, out: Path) -> None:
+    """The story figure: the first sequence's pair at the second increment, with its chosen weight."""
+    from .reports.demo import pair_figure
+
     name = next(iter(datasets))
     k_fig = config.increments[min(1, len(config.increments) - 1)]
     unit = next(u for u in sres["units"] if u["dataset"] == name and u["k"] == k_fig and u["backend"] == "reference")
     w_fig = unit["weight"]["weight"] if unit.get("weight") else 1.0
     pair_figure(datasets[name], k=k_fig, weight=w_fig, out=out / "pair.png", title=name)
-    stage_rows = []
-    for b in scfg.backends:
+
+
+def _stage_rows(backends: tuple[str, ...], sres: dict) -> list[list]:
+    """Per backend: pairs, the median ms of each pipeline stage, and their sum."""
+    import numpy as np
+
+    rows = []
+    for b in backends:
         pairs = [p for u in sres["units"] if u["backend"] == b for p in u["pairs"]]
         med = {s: 1000.0 * float(np.median([p["times"][s] for p in pairs])) for s in ("register", "warp", "classify", "fuse")}
-        stage_rows.append([b, len(pairs), *med.values(), sum(med.values())])
-    text = report(config, cres, rres, sres, cc, stage_rows, times, record, out)
+        rows.append([b, len(pairs), *med.values(), sum(med.values())])
+    return rows
+
+
+def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: str | Path | None = None,
+             raw_images: bool = False) -> Path:
+    """Run every part and write ``out/report.md``; returns its path. Overwrites earlier demo output."""
+    from ..datasets import load_dataset
+    from ..outputs import atomic_write_json, atomic_write_text
+    from .reports.demo import report
+    from .units import plain_config
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    times: dict[str, float] = {}
+    atomic_write_json(out / "config.json", plain_config(config))
+    datasets = load_dataset(config.data, n_frames=config.frames, size=config.size, seed=config.seed)
+
+    _say("1/5 naive Bayes alone (thesis Ch. 4)")
+    t = time.perf_counter()
+    cres = _classification(config, out, workers)
+    times["Ch. 4 classification"] = time.perf_counter() - t
+
+    _say("2/5 rotated frames, before and after registration (thesis Ch. 5), both backends")
+    t = time.perf_counter()
+    rres = _rotation(config, out, workers)
+    times["Ch. 5 rotation"] = time.perf_counter() - t
+
+    _say("3/5 cross-check of the two ICP backends")
+    t = time.perf_counter()
+    cc = _crosscheck(datasets, out)
+    times["cross-check"] = time.perf_counter() - t
+
+    _say("4/5 sequences: registration, before/after, label propagation (thesis Ch. 6-7), both backends")
+    t = time.perf_counter()
+    scfg, sres = _sequence(config, out, workers, record, raw_images)
+    times["Ch. 6-7 sequence" + (" (recorded)" if record is not None else "")] = time.perf_counter() - t
+
+    _say("5/5 report")
+    _pair_figure(config, datasets, sres, out)
+    text = report(config, cres, rres, sres, cc, _stage_rows(scfg.backends, sres), times, record, out)
     atomic_write_text(out / "report.md", text)
     return out / "report.md"
-
-

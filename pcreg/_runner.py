@@ -86,7 +86,7 @@ def _shielded() -> Iterator[None]:
         _SHIELDED[0] -= 1
 
 
-class _InlineExecutor(Executor):
+class InlineExecutor(Executor):
     """Runs each call at submit time, in this process (``--workers 1``): easiest to debug and profile."""
 
     def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Future:
@@ -163,7 +163,7 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         finally:
             client.close()
     elif workers <= 1:
-        yield _InlineExecutor()
+        yield InlineExecutor()
     else:
         import os
 
@@ -201,7 +201,7 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
     try:
         # A pool forks its workers inside submit; a KeyboardInterrupt raised in an os.fork hook would be
         # printed and lost, so a signal there is only noted, and raised once the units are submitted.
-        with _shielded() if not isinstance(executor, _InlineExecutor) else nullcontext():
+        with _shielded() if not isinstance(executor, InlineExecutor) else nullcontext():
             for i, u in enumerate(units):
                 futures[executor.submit(fn, u)] = i
         check_interrupted()

@@ -126,7 +126,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
     unit's ``recording_frames`` (where it lies on an earlier run's recording) is dropped: this run's
     recording, if any, holds only the units it runs.
     """
-    from .._runner import _InlineExecutor, check_interrupted, run_units
+    from .._runner import InlineExecutor, check_interrupted, run_units
     from ..validation import check_units
 
     check_units(len(units), "evaluation units")
@@ -152,7 +152,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
             check_interrupted()
             keep(u, run_unit(u, recorder=recorder, frame_counter=counter))
     else:
-        run_units(run_unit, todo, executor=executor or _InlineExecutor(), desc=desc, on_result=keep,
+        run_units(run_unit, todo, executor=executor or InlineExecutor(), desc=desc, on_result=keep,
                   show_progress=show_progress)
     return done, len(units) - len(todo)
 

@@ -17,7 +17,6 @@ import numpy as np
 
 def warm_up() -> None:
     """Compile (or load from the on-disk cache) every compiled kernel of pcreg, on small inputs."""
-    from ..datasets.synthetic import synthetic
     from . import nn, reference
     from .clouds import image_pyramid
     from .dense import register_dense
@@ -27,8 +26,20 @@ def warm_up() -> None:
     img = np.zeros((64, 64, 3), np.uint8)
     img[16:48, 20:40] = 200
     image_pyramid(img, levels=2).clouds(max_points=100)
-    a, b = synthetic("syn1a", 2, 0, width=160, height=120)
-    register_dense(a.image, b.image)
+    a, b = _textured_pair()
+    register_dense(a, b)
+
+
+def _textured_pair(size: int = 96, shift: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Two (size, size, 3) uint8 views of one smooth random texture, ``shift`` px apart: enough texture
+    at every level for the dense registration's kernels to run."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    cells = rng.integers(0, 256, (size // 4 + shift, size // 4 + shift, 3), dtype=np.uint8)
+    texture = cv2.resize(cells, ((size + 4 * shift),) * 2, interpolation=cv2.INTER_CUBIC)
+    return (np.ascontiguousarray(texture[:size, :size]),
+            np.ascontiguousarray(texture[shift:size + shift, shift:size + shift]))
 
 
 def main() -> int:  # pragma: no cover - run by the Makefile

@@ -53,7 +53,8 @@ def _add(sub, name: str, module: str, help_: str) -> None:
 
 def _add_limits(p: argparse.ArgumentParser) -> None:
     """--max-pixels on every command (images and clouds larger than this are refused before decoding)."""
-    from .validation import DEFAULT_MAX_PIXELS, arg_int
+    from .commands._common import arg_int
+    from .validation import DEFAULT_MAX_PIXELS
 
     if not any("--max-pixels" in a.option_strings for a in p._actions):
         p.add_argument("--max-pixels", type=arg_int(1), default=None, metavar="N",

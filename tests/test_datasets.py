@@ -232,7 +232,7 @@ def test_load_folder_with_dict_mapping_and_without_labels(tmp_path):
 
 
 @pytest.mark.parametrize("damage, message", [
-    ("no_images", "no .png or .jpg frames"),
+    ("no_images", "no image frames"),
     ("image_without_label", "no label file"),
     ("label_without_image", "label file without an image"),
     ("size_mismatch", "but the image is"),

@@ -141,7 +141,7 @@ def _damage(root: Path, case: str) -> str:
 
 
 BAD = {
-    "no_frames": "no .png or .jpg frames",
+    "no_frames": "no image frames",
     "image_without_label": "no label file",
     "label_without_image": "label file without an image",
     "size_mismatch": "but the image is",

@@ -9,6 +9,56 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..validation import range_text
+
+
+def arg_int(lo: int | None = None, hi: int | None = None):
+    """An argparse ``type=`` for an integer in [lo, hi]."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"expected an integer {'' if hi is None else 'in '}{range_text(lo, hi)}, got {v}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def arg_float(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, hi_open: bool = False):
+    """An argparse ``type=`` for a finite number in the range (``lo_open``: > lo)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        if (lo is not None and (v <= lo if lo_open else v < lo)) or (hi is not None and (v >= hi if hi_open else v > hi)):
+            lo_s = "-inf" if lo is None else f"{lo:g}"
+            hi_s = "inf" if hi is None else f"{hi:g}"
+            raise argparse.ArgumentTypeError(f"expected a number in {'(' if lo_open else '['}{lo_s}, {hi_s}"
+                                             f"{')' if hi_open else ']'}, got {text!r}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+def arg_window_size(text: str) -> str:
+    """``"1600x900"``: a window size in points, each side 16..16384; returned as the same text."""
+    try:
+        w, h = (int(v) for v in text.strip().lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if not (16 <= w <= 16384 and 16 <= h <= 16384):
+        raise argparse.ArgumentTypeError(f"each side must be in 16..16384, got {text!r}")
+    return f"{w}x{h}"
+
 
 def positive_int(text: str) -> int:
     try:
@@ -143,8 +193,6 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     """--data, --frames, --size, --seed: which sequences an evaluation runs on."""
     parser.add_argument("--data", default="synthetic",
                         help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
-    from ..validation import arg_int
-
     parser.add_argument("--frames", type=arg_int(1, MAX_FRAMES), default=None,
                         help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
     parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
@@ -155,8 +203,6 @@ def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
     """--backend, --levels, --iterations, --workers, --scheduler, --out and the recording options."""
     parser.add_argument("--backend", choices=BACKEND_CHOICES, default="reference",
                         help="ICP backend(s) (default reference)")
-    from ..validation import arg_int
-
     parser.add_argument("--levels", type=arg_int(1, 8), default=4, help="pyramid levels, 1..8 (default 4)")
     parser.add_argument("--iterations", type=arg_int(1, 10_000), default=14, help="ICP iterations per level (default 14)")
     parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")

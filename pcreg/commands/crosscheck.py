@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", choices=("rigid", "similarity"), default="rigid", help="images: motion model")
     p.add_argument("--iterations", "--max-iterations", dest="iterations", type=positive_int, default=30,
                    help="max ICP iterations (per level for images)")
-    from ..validation import arg_int
+    from ._common import arg_int
 
     p.add_argument("--levels", type=arg_int(1, 8), default=4, help="images: pyramid levels")
     p.add_argument("--max-distance", type=positive_float, default=None,
@@ -34,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--voxel-size", type=positive_float, default=None,
                    help="clouds: voxel-downsample both clouds once, before every implementation")
     p.add_argument("--init", metavar="FILE", help="clouds: initial guess, a (d+1)x(d+1) text matrix (default identity)")
-    from ..validation import arg_float
+    from ._common import arg_float
 
     p.add_argument("--relative-fitness", type=arg_float(0, 1), default=1e-6, help="stopping rule: |Δfitness| threshold")
     p.add_argument("--relative-rmse", type=arg_float(0), default=1e-6, help="stopping rule: |Δinlier RMSE| threshold")
@@ -128,7 +128,7 @@ def _clouds(args) -> int:
 
     init = None
     if args.init:
-        from ..validation import read_text_matrix
+        from ..formats import read_text_matrix
 
         init = read_text_matrix(args.init, what="initial guess")  # regular file, bounded, finite
     voxel = args.voxel_size or (args.voxel_sizes[-1] if args.voxel_sizes else None)

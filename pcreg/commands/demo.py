@@ -14,7 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ._common import add_record_arguments
 
     parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    from ..validation import arg_int
+    from ._common import arg_int
 
     parser.add_argument("--workers", type=arg_int(1, 1024), default=2, help="processes for Ch. 4 and 5 (default 2)")
     parser.add_argument("--frames", type=int, default=16, help="frames per synthetic sequence (default 16)")

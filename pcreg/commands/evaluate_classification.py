@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Case I training frame counts (default 10%%..90%% of each sequence: 10..90 of 100)")
     parser.add_argument("--k3", dest="case3_k", type=c.int_list, default=(), metavar="K,K,...",
                         help="Case III frames per dataset (default 10%% and 20%% of each sequence)")
-    from ..validation import arg_int
+    from ._common import arg_int
 
     parser.add_argument("--frames", type=arg_int(1, c.MAX_FRAMES), default=None, help="frames per synthetic sequence (default 100); "
                         "first frames of real sequences (default all)")

@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="frame increments k (default 1,4,7,10)")
     parser.add_argument("--train", type=c.train, default="reference",
                         help="reference (train on each pair's reference frame, default) or first:K")
-    from ..validation import arg_float, arg_int
+    from ._common import arg_float, arg_int
 
     parser.add_argument("--fusion-frames", type=arg_int(0, c.MAX_FRAMES), default=None, metavar="C",
                         help="frames at the start of each sequence that choose the fusion weight and are not "

@@ -12,7 +12,7 @@ from ..experiments.stream import METHODS, StreamConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..validation import arg_int
+    from ._common import arg_int
     from . import _common as c
 
     c.add_data_arguments(parser)

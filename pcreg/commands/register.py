@@ -22,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="correspondence distance in px at full resolution (x 2^level)")
     p.add_argument("--refine", choices=("none", "point_to_line"), default="none",
                    help="finish: point_to_line (reference backend only) removes edge-sampling bias")
-    from ..validation import arg_float
+    from ._common import arg_float
 
     p.add_argument("--min-inlier-ratio", type=arg_float(0, 1), default=None, metavar="R",
                    help="refuse (exit 3) below this share of tight inliers (default: the library's, 0.15); "

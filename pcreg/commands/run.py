@@ -15,9 +15,6 @@ from pathlib import Path
 
 from ._common import add_record_arguments, open_recorder
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm")
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..registration.transforms import MODELS
 
@@ -40,6 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _frames(folder: Path) -> list[Path]:
     from ..errors import InputError
+    from ..formats import IMAGE_SUFFIXES
 
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder")
@@ -59,14 +57,9 @@ def _read_labels(path: Path, mapping: str):
 
     from ..datasets.folder import mapping_lut
     from ..errors import InputError
+    from ..formats import read_image_file
 
-    from ..validation import imdecode_quietly
-
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    raw, said = imdecode_quietly(np.fromfile(str(path), dtype=np.uint8).tobytes(), cv2.IMREAD_UNCHANGED)
-    if raw is None or isinstance(raw, Exception):
-        raise InputError(f"{path}: not an image" + (f" ({said})" if said else ""))
+    raw = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)  # a regular file, its size checked first
     if raw.ndim == 3:
         raw = raw[:, :, 0]
     if raw.dtype != np.uint8:

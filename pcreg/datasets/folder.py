@@ -1,4 +1,4 @@
-"""Image folders (CamVid and the like): ``images/*.png|jpg`` with ``labels/*.png`` raw ids mapped to
+"""Image folders (CamVid and the like): ``images/*`` (:data:`pcreg.formats.IMAGE_SUFFIXES`) with ``labels/*.png`` raw ids mapped to
 {0 ground, 1 obstacle, 2 unknown}."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import DatasetError, InputError
 from .frame import Frame
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+from ..formats import IMAGE_SUFFIXES
 
 # CamVid's 12 class ids -> LAGR labels (0 ground, 1 obstacle, 2 unknown); ../shared/data/README.md.
 CAMVID_MAPPING: dict[int, int] = {
@@ -57,13 +57,10 @@ def mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
 def _read_png(path: Path, *, color: bool) -> np.ndarray:
     import cv2
 
-    from ..errors import InputError
-    from ..validation import decode_image, max_file_bytes, max_pixels, read_regular_file
+    from ..formats import read_image_file
 
-    limit = max_pixels()
     try:  # regular files only, size checked in the header before decoding
-        data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image")
-        img = decode_image(data, str(path), flags=cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED, limit=limit)
+        img = read_image_file(path, flags=cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED)
     except InputError as exc:
         raise DatasetError(str(exc)) from None
     if color:
@@ -72,7 +69,7 @@ def _read_png(path: Path, *, color: bool) -> np.ndarray:
 
 
 def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None = "camvid") -> list[Frame]:
-    """Load ``folder/images/NAME.png|jpg`` with ``folder/labels/NAME.png`` in name order.
+    """Load ``folder/images/NAME.png`` (or another image suffix) with ``folder/labels/NAME.png`` in name order.
 
     mapping : ``"camvid"`` (CamVid's 12 ids, the default), a dict raw id -> label in {0, 1, 2}, or
         None (label files already hold 0, 1, 2). A label id outside the mapping is an error.
@@ -90,7 +87,7 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
         raise DatasetError(f"{folder}: no images/ folder")
     images = {p.stem: p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()}
     if not images:
-        raise DatasetError(f"{img_dir}: no .png or .jpg frames")
+        raise DatasetError(f"{img_dir}: no image frames ({', '.join(IMAGE_SUFFIXES)})")
     labels: dict[str, Path] | None = None
     if lab_dir.is_dir():
         labels = {p.stem: p for p in sorted(lab_dir.iterdir()) if p.suffix.lower() == ".png" and p.is_file()}

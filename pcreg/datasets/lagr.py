@@ -24,7 +24,8 @@ def _mat_frame(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     import scipy.io
 
     from ..errors import InputError
-    from ..validation import check_regular_file, max_file_bytes, max_pixels
+    from ..formats import check_regular_file, max_file_bytes
+    from ..validation import max_pixels
 
     try:
         check_regular_file(path, what=".mat file")

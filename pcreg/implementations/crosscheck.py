@@ -17,6 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..formats import IMAGE_SUFFIXES
 from ..registration.clouds import as_rgb_uint8, load_image
 from ..registration.api import check_cloud, register
 from ..registration.config import RegisterConfig
@@ -24,7 +25,6 @@ from ..registration.result import IcpIteration, RegistrationResult
 from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
 
 
 #: The registration both backends run in a cross-check of two images: 30 ICP iterations a level and
@@ -76,7 +76,9 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
     (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
     """
-    from ..validation import capture_output_fds, check_cloud_file, check_npy_file, max_pixels
+    from ..formats import check_cloud_file, check_npy_file
+    from ..quiet import capture_output_fds
+    from ..validation import max_pixels
 
     path = Path(path)
     suffix = path.suffix.lower()

@@ -39,7 +39,7 @@ from typing import Sequence
 import numpy as np
 
 from ..outputs import atomic_write_bytes, atomic_write_text, to_json
-from ..validation import read_text_matrix
+from ..formats import read_text_matrix
 from ..errors import InputError
 from ..registration.transforms import apply, rigid2d
 from .base import Pinned
@@ -246,7 +246,7 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     """The cases of a suite written by :func:`export_suite` (or by hand in its format)."""
     path = Path(path)
     index = path / "index.json"
-    from ..validation import read_regular_file
+    from ..formats import read_regular_file
 
     try:
         meta = json.loads(read_regular_file(index, max_bytes=1 << 20, what="suite index"))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
+from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds
 from .prior import warped_prior_log_odds
 
 __all__ = ["registration_supported", "temporal_update", "TemporalFusion"]

@@ -50,12 +50,10 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
     Only regular files are read (a FIFO or device is refused, never waited on); the size in the header
     is checked against ``max_pixels`` (default :func:`pcreg.validation.max_pixels`) before decoding.
     """
-    from ..validation import decode_image, max_file_bytes, max_pixels as limit_of, read_regular_file
+    from ..formats import read_image_file
 
     path = check_path(path, "path")
-    limit = limit_of(max_pixels)
-    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image")
-    img = decode_image(data, str(path), limit=limit)
+    img = read_image_file(path, limit=max_pixels)
     if img.ndim == 3 and img.shape[2] == 4:
         img = img[:, :, :3]
     if img.ndim == 3:

@@ -1,0 +1,483 @@
+"""pcreg's file formats: reading files safely, sniffing image and cloud headers, decoding images.
+
+:func:`read_regular_file` opens without blocking (a FIFO never hangs), accepts regular files only and
+reads at most a bounded number of bytes. :func:`image_size` reads the width and height from an image's
+header (PNG, JPEG, BMP, TIFF, WebP, PNM) so :func:`check_image_bytes` can refuse an image larger than
+the pixel limit (:func:`pcreg.validation.max_pixels`) *before* OpenCV decodes it.
+:func:`check_cloud_file` compares the point count a PLY/PCD/NPY header declares with what the file
+holds (a truncated binary PLY otherwise loads as made-up zeros).
+
+Everything raises :class:`~pcreg.errors.InputError` (a :class:`~pcreg.errors.PcregError`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import stat
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .quiet import capture_output_fds
+from .validation import max_pixels
+
+#: The image files pcreg reads from a folder (by suffix, any case); what decodes is checked by header.
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
+
+
+def max_file_bytes(limit: int) -> int:
+    """Largest file accepted for a pixel limit: 8 bytes a pixel (RGBA, 16 bits) plus 16 MiB of headers."""
+    return int(limit) * 8 + (16 << 20)
+
+
+
+# --------------------------------------------------------------------------------------------------
+# files
+# --------------------------------------------------------------------------------------------------
+
+def check_regular_file(path: str | os.PathLike, *, what: str = "file") -> Path:
+    """``path`` if it names a regular file (symbolic links followed); an :class:`InputError` otherwise.
+
+    Never opens the file, so a FIFO cannot block.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except (OSError, ValueError) as exc:  # ValueError: embedded NUL
+        raise InputError(f"{p}: cannot read {what} ({getattr(exc, 'strerror', None) or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{p}: is a folder, not a {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{p}: not a regular file (a FIFO, device or socket cannot be a {what})")
+    if not os.access(p, os.R_OK):
+        raise InputError(f"{p}: permission denied")
+    return p
+
+
+def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "file") -> bytes:
+    """The bytes of a regular file of at most ``max_bytes`` (opened non-blocking; FIFOs, devices and
+    folders refused; a file that grows while read is cut at the bound and refused)."""
+    p = Path(path)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(p, flags)
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a folder, not a {what}") from None
+    except PermissionError:
+        raise InputError(f"{p}: permission denied") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{p}: cannot read {what} ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise InputError(f"{p}: is a folder, not a {what}")
+        if not stat.S_ISREG(st.st_mode):
+            raise InputError(f"{p}: not a regular file (a FIFO, device or socket cannot be a {what})")
+        if st.st_size > max_bytes:
+            raise InputError(f"{p}: {what} of {st.st_size / 2**20:.0f} MiB exceeds the limit of "
+                             f"{max_bytes / 2**20:.0f} MiB (raise --max-pixels / PCREG_MAX_PIXELS)")
+        chunks, total = [], 0
+        while True:
+            try:
+                b = os.read(fd, min(1 << 24, max_bytes + 1 - total))
+            except OSError as exc:
+                raise InputError(f"{p}: cannot read {what} ({exc.strerror or exc})") from None
+            if not b:
+                break
+            chunks.append(b)
+            total += len(b)
+            if total > max_bytes:
+                raise InputError(f"{p}: {what} exceeds the limit of {max_bytes / 2**20:.0f} MiB")
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:
+    """A small whitespace-separated text matrix (an initial guess, a ground truth) from a regular file of
+    at most 64 kB, as a finite 2-D float64 array."""
+    import io
+
+    data = read_regular_file(path, max_bytes=1 << 16, what=what)
+    try:
+        m = np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2)
+    except (ValueError, IndexError, TypeError) as exc:
+        raise InputError(f"{path}: not a text matrix ({' '.join(str(exc).split())[:160]})") from None
+    if m.size == 0 or not np.all(np.isfinite(m)):
+        raise InputError(f"{path}: the {what} must hold finite numbers")
+    return m
+
+
+# --------------------------------------------------------------------------------------------------
+# image headers
+# --------------------------------------------------------------------------------------------------
+
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    i, n = 2, len(data)
+    while i + 4 <= n:
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            i += 2
+            continue
+        if marker == 0xD9:
+            return None
+        (seg,) = struct.unpack(">H", data[i + 2:i + 4])
+        if seg < 2:
+            return None
+        if marker in _JPEG_SOF:
+            if i + 9 > n:
+                return None
+            h, w = struct.unpack(">HH", data[i + 5:i + 9])
+            return w, h
+        i += 2 + seg
+    return None
+
+
+def _tiff_size(data: bytes) -> tuple[int, int] | None:
+    end = "<" if data[:2] == b"II" else ">"
+    try:
+        (off,) = struct.unpack(end + "I", data[4:8])
+        (count,) = struct.unpack(end + "H", data[off:off + 2])
+        w = h = None
+        for k in range(min(count, 4096)):
+            e = off + 2 + 12 * k
+            tag, typ = struct.unpack(end + "HH", data[e:e + 4])
+            if tag in (256, 257):
+                val = struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + (10 if typ == 3 else 12)])[0]
+                if tag == 256:
+                    w = val
+                else:
+                    h = val
+        return (w, h) if w is not None and h is not None else None
+    except struct.error:
+        return None
+
+
+def _pnm_size(data: bytes) -> tuple[int, int] | None:
+    tokens: list[bytes] = []
+    i = 2
+    head = data[:4096]
+    while len(tokens) < 2 and i < len(head):
+        c = head[i:i + 1]
+        if c == b"#":
+            j = head.find(b"\n", i)
+            i = len(head) if j < 0 else j + 1
+        elif c.isspace():
+            i += 1
+        else:
+            j = i
+            while j < len(head) and not head[j:j + 1].isspace() and head[j:j + 1] != b"#":
+                j += 1
+            tokens.append(head[i:j])
+            i = j
+    try:
+        return int(tokens[0]), int(tokens[1])
+    except (IndexError, ValueError):
+        return None
+
+
+def image_size(data: bytes) -> tuple[str, tuple[int, int] | None] | None:
+    """(format, (width, height)) from an image file's header, (format, None) for a known format whose
+    header is damaged, or None for a format pcreg does not read."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n":
+        if len(data) >= 24 and data[12:16] == b"IHDR":
+            return "PNG", struct.unpack(">II", data[16:24])
+        return "PNG", None
+    if data[:3] == b"\xff\xd8\xff":
+        return "JPEG", _jpeg_size(data)
+    if data[:2] == b"BM":
+        if len(data) >= 26:
+            w, h = struct.unpack("<ii", data[18:26])
+            return "BMP", (abs(w), abs(h))
+        return "BMP", None
+    if data[:4] in (b"II*\x00", b"MM\x00*"):
+        return "TIFF", _tiff_size(data)
+    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+        kind = data[12:16]
+        try:
+            if kind == b"VP8 ":
+                w, h = struct.unpack("<HH", data[26:30])
+                return "WebP", (w & 0x3FFF, h & 0x3FFF)
+            if kind == b"VP8L":
+                b = int.from_bytes(data[21:25], "little")
+                return "WebP", ((b & 0x3FFF) + 1, ((b >> 14) & 0x3FFF) + 1)
+            if kind == b"VP8X":
+                return "WebP", (int.from_bytes(data[24:27], "little") + 1, int.from_bytes(data[27:30], "little") + 1)
+        except struct.error:
+            pass
+        return "WebP", None
+    if len(data) >= 2 and data[0:1] == b"P" and data[1:2] in b"123456":
+        return "PNM", _pnm_size(data)
+    return None
+
+
+def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tuple[int, int]:
+    """(width, height) declared by an encoded image, refused when empty, of an unknown format, damaged
+    or larger than the pixel limit."""
+    if not data:
+        raise InputError(f"{name}: empty file")
+    found = image_size(data)
+    if found is None:
+        raise InputError(f"{name}: not an image pcreg reads (PNG, JPEG, BMP, TIFF, WebP, PNM)")
+    fmt, size = found
+    if size is None or size[0] <= 0 or size[1] <= 0:
+        raise InputError(f"{name}: cannot decode image (damaged {fmt} header)")
+    lim = max_pixels(limit)
+    w, h = size
+    if w * h > lim:
+        raise InputError(f"{name}: {w}x{h} px exceeds the limit of {lim} pixels "
+                         "(raise it with --max-pixels or PCREG_MAX_PIXELS)")
+    return w, h
+
+
+def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int | None = None) -> np.ndarray:
+    """``cv2.imdecode`` of checked bytes; OpenCV's errors become :class:`InputError`."""
+    import cv2
+
+    w, h = check_image_bytes(data, name, limit=limit)
+    img, said = imdecode_quietly(data, cv2.IMREAD_UNCHANGED if flags is None else flags)
+    if isinstance(img, Exception):
+        raise InputError(f"{name}: cannot decode image ({_cv2_message(img)})") from None
+    if img is None or img.size == 0:
+        raise InputError(f"{name}: cannot decode image ({said or 'corrupt or truncated'})")
+    if img.shape[0] != h or img.shape[1] != w:
+        raise InputError(f"{name}: decoded {img.shape[1]}x{img.shape[0]} px but the header says {w}x{h}")
+    return img
+
+
+def imdecode_quietly(data: bytes, flags: int) -> tuple:
+    """``cv2.imdecode`` with what the codec libraries print (libpng's ``libpng error: ...`` on a damaged
+    chunk) kept off the terminal. Returns (image, or None, or the ``cv2.error`` raised; the last line
+    the codec printed, or "")."""
+    import cv2
+
+    with capture_output_fds() as said:
+        try:
+            img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+        except cv2.error as exc:
+            img = exc
+    lines = [line.strip() for line in "".join(said).splitlines() if line.strip()]
+    return img, (lines[-1][:200] if lines else "")
+
+
+def _cv2_message(exc: Exception) -> str:
+    text = str(exc).strip().splitlines()
+    return (text[-1] if text else type(exc).__name__).strip()[:200]
+
+
+# --------------------------------------------------------------------------------------------------
+# point-cloud files
+# --------------------------------------------------------------------------------------------------
+
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _ply_check(path: Path, size: int, limit: int) -> int:
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    if not head.startswith(b"ply"):
+        raise InputError(f"{path}: no points could be read (not a PLY file: no 'ply' magic)")
+    i = head.find(b"end_header")
+    if i < 0:
+        raise InputError(f"{path}: PLY header without end_header")
+    j = head.find(b"\n", i)
+    if j < 0:
+        raise InputError(f"{path}: truncated PLY header")
+    body_start = j + 1
+    fmt = None
+    elements: list[list] = []  # [name, count, [sizes], has_list]
+    for raw in head[:i].decode("ascii", "replace").splitlines():
+        t = raw.split()
+        if not t:
+            continue
+        if t[0] == "format" and len(t) >= 2:
+            fmt = t[1]
+        elif t[0] == "element" and len(t) == 3:
+            try:
+                elements.append([t[1], int(t[2]), [], False])
+            except ValueError:
+                raise InputError(f"{path}: bad PLY element line {raw.strip()!r}") from None
+            if elements[-1][1] < 0:
+                raise InputError(f"{path}: negative PLY element count")
+        elif t[0] == "property" and elements:
+            if len(t) >= 2 and t[1] == "list":
+                elements[-1][3] = True
+            elif len(t) >= 3 and t[1] in _PLY_SIZES:
+                elements[-1][2].append(_PLY_SIZES[t[1]])
+            else:
+                raise InputError(f"{path}: bad PLY property line {raw.strip()!r}")
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise InputError(f"{path}: unknown PLY format {fmt!r}")
+    vertex = next((e for e in elements if e[0] == "vertex"), None)
+    if vertex is None or vertex[1] == 0:
+        raise InputError(f"{path}: no vertices in the PLY header")
+    n = vertex[1]
+    if n > limit:
+        raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if fmt == "ascii":
+        lines = _count_data_lines(path, body_start, n + sum(e[1] for e in elements if e is not vertex))
+        before = 0
+        for e in elements:
+            if e is vertex:
+                break
+            before += e[1]
+        if lines < before + n:
+            raise InputError(f"{path}: truncated PLY: the header declares {n} vertices, the file holds "
+                             f"{max(0, lines - before)}")
+        return n
+    need = 0
+    for e in elements:
+        rec = sum(e[2]) + (1 if e[3] else 0)  # a list property takes at least its count byte
+        need += e[1] * rec
+        if e is vertex:
+            break
+    have = size - body_start
+    if have < need:
+        got = max(0, have) // max(1, sum(vertex[2]))
+        raise InputError(f"{path}: truncated PLY: the header declares {n} vertices "
+                         f"({need} bytes), the file holds {have} bytes (about {min(got, n)} vertices)")
+    return n
+
+
+def _count_data_lines(path: Path, start: int, stop_after: int) -> int:
+    count = 0
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        for line in fh:
+            if line.strip():
+                count += 1
+                if count >= stop_after:
+                    break
+    return count
+
+
+def _pcd_check(path: Path, size: int, limit: int) -> int:
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    fields: dict[str, list[str]] = {}
+    pos = 0
+    data_kind = None
+    for line in head.split(b"\n"):
+        pos += len(line) + 1
+        text = line.decode("ascii", "replace").strip()
+        if not text or text.startswith("#"):
+            continue
+        t = text.split()
+        fields[t[0].upper()] = t[1:]
+        if t[0].upper() == "DATA":
+            data_kind = t[1].lower() if len(t) > 1 else None
+            break
+    if data_kind is None:
+        raise InputError(f"{path}: PCD header without a DATA line")
+    try:
+        n = int(fields.get("POINTS", [None])[0]) if "POINTS" in fields else \
+            int(fields["WIDTH"][0]) * int(fields["HEIGHT"][0])
+        sizes = [int(s) for s in fields["SIZE"]]
+        counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
+    except (KeyError, ValueError, IndexError, TypeError):
+        raise InputError(f"{path}: damaged PCD header (POINTS, SIZE, COUNT)") from None
+    if n <= 0:
+        raise InputError(f"{path}: no points in the PCD header")
+    if n > limit:
+        raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if len(counts) != len(sizes) or any(s <= 0 for s in sizes) or any(c <= 0 for c in counts):
+        raise InputError(f"{path}: damaged PCD header (SIZE and COUNT disagree)")
+    point_bytes = sum(s * c for s, c in zip(sizes, counts))
+    have = size - pos
+    if data_kind == "ascii":
+        lines = _count_data_lines(path, pos, n)
+        if lines < n:
+            raise InputError(f"{path}: truncated PCD: the header declares {n} points, the file holds {lines}")
+    elif data_kind == "binary":
+        if have < n * point_bytes:
+            raise InputError(f"{path}: truncated PCD: the header declares {n} points ({n * point_bytes} bytes), "
+                             f"the file holds {have} bytes")
+    elif data_kind == "binary_compressed":
+        with open(path, "rb") as fh:
+            fh.seek(pos)
+            sz = fh.read(8)
+        if len(sz) < 8:
+            raise InputError(f"{path}: truncated PCD (no compressed block)")
+        comp, raw = struct.unpack("<II", sz)
+        if raw != n * point_bytes or have - 8 < comp:
+            raise InputError(f"{path}: truncated or damaged compressed PCD (block of {comp} bytes, "
+                             f"{have - 8} present; {raw} bytes unpacked for {n * point_bytes} expected)")
+    else:
+        raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r}")
+    return n
+
+
+def check_npy_file(path: Path, limit: int) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype from a .npy header, with the file's size checked against them."""
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh, max_header_size=10000)
+            elif version in ((2, 0), (3, 0)):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh, max_header_size=10000)
+            else:
+                raise ValueError(f"unsupported .npy version {version}")
+            start = fh.tell()
+    except (ValueError, OSError, SyntaxError, TypeError, struct.error, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a numpy array file ({str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__})") from None
+    if dtype.hasobject or dtype.kind not in "biuf" or dtype.fields is not None or dtype.subdtype is not None:
+        raise InputError(f"{path}: points must be a numeric array, got dtype {dtype}")
+    if any(int(s) < 0 for s in shape):
+        raise InputError(f"{path}: bad shape {shape}")
+    count = math.prod(int(s) for s in shape)
+    if len(shape) == 2 and shape[0] > limit:
+        raise InputError(f"{path}: {shape[0]} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if count > 3 * limit:
+        raise InputError(f"{path}: {count} values exceed the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
+    size = path.stat().st_size
+    if size - start < count * dtype.itemsize:
+        raise InputError(f"{path}: truncated .npy: the header declares {shape} {dtype} "
+                         f"({count * dtype.itemsize} bytes), the file holds {size - start}")
+    return tuple(int(s) for s in shape), dtype
+
+
+def check_cloud_file(path: str | os.PathLike, *, limit: int | None = None) -> Path:
+    """A regular point-cloud file whose header's point count is within the limit and whose data is
+    all there (PLY and PCD, ASCII and binary). Other text formats (.xyz, .pts) are only size-bounded."""
+    p = check_regular_file(path, what="point cloud")
+    lim = max_pixels(limit)
+    size = p.stat().st_size
+    if size == 0:
+        raise InputError(f"{p}: empty file")
+    if size > max_file_bytes(lim) * 4:  # ASCII formats spend up to ~100 bytes a point
+        raise InputError(f"{p}: {size / 2**20:.0f} MiB exceeds the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".ply":
+            _ply_check(p, size, lim)
+        elif suffix == ".pcd":
+            _pcd_check(p, size, lim)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read point cloud ({exc.strerror or exc})") from None
+    return p
+
+
+def read_image_file(path: str | os.PathLike, *, flags: int | None = None, limit: int | None = None) -> np.ndarray:
+    """An image file decoded by OpenCV (``flags``; default ``IMREAD_UNCHANGED``, channels in BGR order):
+    a regular file only, its size checked against the pixel ``limit`` (default
+    :func:`pcreg.validation.max_pixels`) in the header before decoding."""
+    limit = max_pixels(limit)
+    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image")
+    return decode_image(data, str(path), flags=flags, limit=limit)

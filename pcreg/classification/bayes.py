@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import InputError
 from .features import (
+    DEFAULT_FEATURES,
     check_image,
     feature_groups,
     feature_names,
@@ -81,7 +82,7 @@ def _as_lists(images, labels) -> tuple[list[np.ndarray], list[np.ndarray]]:
     return out_i, out_l
 
 
-def class_histograms(images, labels, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
+def class_histograms(images, labels, features: str | Iterable[str] = DEFAULT_FEATURES, *,
                      weights: Sequence[float] | None = None, exclude_unknown: bool = True) -> np.ndarray:
     """Per-class, per-feature histograms of the training pixels.
 
@@ -141,7 +142,7 @@ def _gaussian_params(counts: np.ndarray, classes: np.ndarray, *, var_smoothing: 
     return {"class_count": n_c, "theta": theta, "var": var, "epsilon": epsilon, "prior": prior}
 
 
-def fit_classifier(frames: Sequence, *, features: Sequence[str] = ("rgb", "hsv", "row")) -> "NaiveBayesPixelClassifier":
+def fit_classifier(frames: Sequence, *, features: Sequence[str] = DEFAULT_FEATURES) -> "NaiveBayesPixelClassifier":
     """A :class:`NaiveBayesPixelClassifier` fitted on labelled frames (objects with ``image`` and
     ``labels``, such as :class:`pcreg.datasets.Frame`); unknown pixels are left out."""
     from ..validation import check_frames
@@ -175,7 +176,7 @@ class NaiveBayesPixelClassifier:
     histograms, ``feature_names_`` (F,).
     """
 
-    def __init__(self, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
+    def __init__(self, features: str | Iterable[str] = DEFAULT_FEATURES, *,
                  weights: Sequence[float] | None = None, exclude_unknown: bool = True,
                  var_smoothing: float = 1e-9, priors: Sequence[float] | None = None) -> None:
         from ..validation import check_bool, check_float, short_repr

@@ -32,6 +32,8 @@ FEATURES: dict[str, tuple[str, ...]] = {
 }
 TEXTURE_WINDOW = 7
 DEFAULT_WEIGHTS = (1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0)
+#: The features pcreg's classifier uses unless told otherwise: colour (RGB and HSV) and image row.
+DEFAULT_FEATURES: tuple[str, ...] = ("rgb", "hsv", "row")
 
 
 def parse_features(features: str | Iterable[str]) -> tuple[str, ...]:
@@ -92,7 +94,7 @@ def row_levels(height: int) -> np.ndarray:
     return np.rint(np.arange(height, dtype=np.float64) * (255.0 / (height - 1))).astype(np.uint8)
 
 
-def feature_groups(image: np.ndarray, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
+def feature_groups(image: np.ndarray, features: str | Iterable[str] = DEFAULT_FEATURES, *,
                    weights: Sequence[float] | None = None) -> list[tuple[str, np.ndarray]]:
     """Each named feature's planes, computed once.
 
@@ -132,7 +134,7 @@ def feature_groups(image: np.ndarray, features: str | Iterable[str] = ("rgb", "h
     return out
 
 
-def feature_planes(image: np.ndarray, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
+def feature_planes(image: np.ndarray, features: str | Iterable[str] = DEFAULT_FEATURES, *,
                    weights: Sequence[float] | None = None) -> np.ndarray:
     """All features of every pixel as one (H, W, F) uint8 array (F = ``len(feature_names(features))``)."""
     image = check_image(image)
@@ -145,7 +147,7 @@ def feature_planes(image: np.ndarray, features: str | Iterable[str] = ("rgb", "h
     return np.concatenate(parts, axis=2)
 
 
-def feature_matrix(image: np.ndarray, features: str | Iterable[str] = ("rgb", "hsv", "row"), *,
+def feature_matrix(image: np.ndarray, features: str | Iterable[str] = DEFAULT_FEATURES, *,
                    weights: Sequence[float] | None = None) -> np.ndarray:
     """(H*W, F) float64, pixels in row-major order: the same numbers as :func:`feature_planes`,
     laid out for scikit-learn."""

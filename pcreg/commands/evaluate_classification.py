@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..experiments.classification import CASES, DEFAULT_FEATURES, ClassificationConfig
+from ..experiments.classification import CASES, DEFAULT_FEATURE_SETS, ClassificationConfig
 
 
 
@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", default="synthetic",
                         help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
     parser.add_argument("--cases", type=_cases, default=CASES, help="cases to run, e.g. I,III (default I,II,III)")
-    parser.add_argument("--features", nargs="+", default=list(DEFAULT_FEATURES), metavar="SET",
+    parser.add_argument("--features", nargs="+", default=list(DEFAULT_FEATURE_SETS), metavar="SET",
                         help="feature sets, each names joined by + from thesis, rgb, hsv, lab, texture, row "
                              "(default: thesis rgb+hsv+row)")
     parser.add_argument("--k", dest="case1_k", type=c.int_list, default=(), metavar="K,K,...",

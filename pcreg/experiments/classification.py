@@ -20,8 +20,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..classification.features import DEFAULT_FEATURES
+
 CASES = ("I", "II", "III")
-DEFAULT_FEATURES = ("thesis", "rgb+hsv+row")
+DEFAULT_FEATURE_SETS = ("thesis", "+".join(DEFAULT_FEATURES))
 CASE1_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 CASE3_FRACTIONS = (0.1, 0.2)
 OUTPUT_FILES = (
@@ -51,7 +53,7 @@ class ClassificationConfig:
 
     data: str = "synthetic"
     cases: tuple[str, ...] = CASES
-    features: tuple[str, ...] = DEFAULT_FEATURES
+    features: tuple[str, ...] = DEFAULT_FEATURE_SETS
     case1_k: tuple[int, ...] = ()
     case3_k: tuple[int, ...] = ()
     case1_fractions: tuple[float, ...] = CASE1_FRACTIONS

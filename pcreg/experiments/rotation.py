@@ -25,6 +25,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..classification.features import DEFAULT_FEATURES
 from ..registration.config import RegisterConfig
 
 
@@ -52,7 +53,7 @@ class RotationConfig:
     size: tuple[int, int] | None = None
     seed: int = 0
     registration: RegisterConfig = RegisterConfig()
-    features: tuple[str, ...] = ("rgb", "hsv", "row")
+    features: tuple[str, ...] = DEFAULT_FEATURES
 
 
 

@@ -22,6 +22,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..classification.features import DEFAULT_FEATURES
 from ..pipeline import PIPELINE_REGISTRATION
 from ..registration.config import RegisterConfig
 
@@ -56,7 +57,7 @@ class SequenceConfig:
     eps: float = 0.05
     sigma: float = 2.0
     registration: RegisterConfig = PIPELINE_REGISTRATION
-    features: tuple[str, ...] = ("rgb", "hsv", "row")
+    features: tuple[str, ...] = DEFAULT_FEATURES
 
     def pipeline(self, backend: str):
         from ..classification.fusion import FusionConfig

@@ -48,6 +48,7 @@ from ..validation import check_bool, check_callable, check_float, check_frame, c
 from ..registration.config import RegisterConfig
 from ..registration.dense import DENSE_GLOBAL_MODEL
 from ..registration.result import RegistrationResult
+from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
 from .prior import class_prior, warp_prior, warped_prior_log_odds
 
@@ -91,7 +92,7 @@ class PipelineConfig:
     """
 
     registration: RegisterConfig = PIPELINE_REGISTRATION
-    features: tuple[str, ...] = ("rgb", "hsv", "row")
+    features: tuple[str, ...] = DEFAULT_FEATURES
     fusion: FusionConfig = field(default_factory=FusionConfig)
 
     def __post_init__(self) -> None:

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
 from .prior import class_prior, warp_prior
 from ..errors import InputError, RegistrationError
@@ -184,7 +185,7 @@ class Propagator:
         self.last: StepReport | None = None
 
     @classmethod
-    def from_key_frame(cls, image: np.ndarray, labels: np.ndarray, *, features=("rgb", "hsv", "row"),
+    def from_key_frame(cls, image: np.ndarray, labels: np.ndarray, *, features=DEFAULT_FEATURES,
                        **options) -> "Propagator":
         """A propagator whose classifier is fitted on the key frame (unknown pixels left out), reset to it."""
         from ..classification.bayes import fit_classifier

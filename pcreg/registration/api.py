@@ -16,8 +16,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import InputError, RegistrationError
-from ..validation import (check_bool, check_choice, check_counts, check_float, check_floats, check_int, check_ints,
-                          check_matrix, short_repr)
+from ..validation import (check_bool, check_callable, check_choice, check_counts, check_float, check_floats,
+                          check_int, check_ints, check_matrix, short_repr)
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .global_search import GENERATORS
 from .open3d_icp import check_model as check_open3d_model
@@ -122,17 +122,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
                                                 lo=0, lo_open=True)
     max_iterations = check_ints(max_iterations, "max_iterations", lo=0, hi=100_000)
     count_iterations = check_bool(count_iterations, "count_iterations")
-    if callback is not None and not callable(callback):
-        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
-    if not isinstance(rotation, str) or rotation not in ("svd", "quaternion"):
-        raise InputError(f"rotation must be 'svd' or 'quaternion', got {short_repr(rotation)}")
-    if rotation == "quaternion" and (dim != 3 or model != "rigid"):
-        raise InputError("rotation='quaternion' (Horn's closed form) is for the rigid model of 3-D clouds")
-    if metric == "point_to_line" and (dim != 2 or target_normals is None or voxel_sizes):
-        raise InputError("metric='point_to_line' needs 2-D clouds, target_normals and no voxel_sizes "
-                         "(normals cannot follow a voxel downsampling)")
-    if target_normals is not None and metric != "point_to_line":
-        raise InputError("target_normals are used only by metric='point_to_line'")
+    check_callable(callback, "callback")
     check_rank(src, model)
     check_rank(tgt, model)
     if target_normals is not None:

@@ -233,7 +233,7 @@ def _choose_weights(frames: Sequence, *, k: int, C: int, fusion: FusionConfig, c
     flow_samples = _prior_samples(calib, frames, fusion, lambda i, j, T: flow_field(frames[i].image, frames[j].image))
     flow_choice = choose_weight(flow_samples, grid=fusion.grid)
     temporal_choice = _choose_temporal_weight(calib, frames, fusion=fusion)
-    notes = ()
+    notes: tuple[str, ...] = ()
     if choice.pairs == 0:
         notes = (f"no registered pair among the first {C} frames to choose the fusion weight: "
                  f"w = {choice.weight} used",)

@@ -837,6 +837,19 @@ def _given_global(global_result) -> RegistrationResult:
                               converged=True, backend="given")
 
 
+def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, *, model: str, backend: str, levels: int,
+                 iterations: int, init, seed: int) -> tuple[RegistrationResult, float]:
+    """The global step: the given one (with its seconds, counted in the dense result's), or
+    :func:`pcreg.register`'s (its time is inside the dense step's own)."""
+    if global_result is not None:
+        given = _given_global(global_result)
+        return given, float(given.seconds)
+    from .api import register
+
+    return register(ref, mov, backend=backend, model=model, levels=levels, iterations=iterations, init=init,
+                    seed=seed), 0.0
+
+
 @dataclass(frozen=True)
 class _Pyramids:
     """Both images as float32 RGB in [0, 1] per level (0 = full size), and their valid (unpadded) masks."""
@@ -1102,15 +1115,8 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     backend = check_choice(backend, "backend", ("reference", "open3d"))
     check_callable(callback, "callback")
     coarsest = _coarsest_level(ref.shape, options)
-    if global_result is None:  # 1. the global step (given, or pcreg.register's)
-        from .api import register
-
-        global_result = register(ref, mov, backend=backend, model=model, levels=global_levels,
-                                 iterations=global_iterations, init=init, seed=seed)
-        given_seconds = 0.0
-    else:
-        global_result = _given_global(global_result)
-        given_seconds = float(global_result.seconds)
+    global_result, given_seconds = _global_step(ref, mov, global_result, model=model, backend=backend,
+                                                levels=global_levels, iterations=global_iterations, init=init, seed=seed)
     T = np.asarray(global_result.matrix, dtype=np.float64)
     clock = _StageClock()
     pyr = _pyramids(ref, mov, coarsest)

@@ -201,12 +201,3 @@ def max_pixels(value: int | None = None) -> int:
 def set_max_pixels(value: int) -> None:
     """Set the limit for this process and the worker processes it starts (through ``PCREG_MAX_PIXELS``)."""
     os.environ[_ENV] = str(check_int(value, "max_pixels", lo=1))
-
-
-def __getattr__(name: str):
-    # the argparse types live in pcreg.commands._common; kept reachable here for the view command
-    if name in ("arg_int", "arg_float", "arg_window_size"):
-        from .commands import _common
-
-        return getattr(_common, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

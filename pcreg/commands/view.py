@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--screenshot", metavar="OUT.png", help="render to this PNG headless instead of opening a window")
     parser.add_argument("--time", metavar="TIMELINE=N", help="put the time cursor here before the screenshot, e.g. frame=3")
     parser.add_argument("--view", metavar="NAME", help="screenshot only the view with this name (e.g. Registration)")
-    from ..validation import arg_float, arg_window_size
+    from ._common import arg_float, arg_window_size
 
     parser.add_argument("--size", type=arg_window_size, metavar="WxH", default="1600x900", help="headless window size in points (default 1600x900)")
     parser.add_argument("--viewer", metavar="PATH", help="the rerun program (default: the one installed with rerun-sdk)")

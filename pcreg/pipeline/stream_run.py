@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -34,13 +35,14 @@ STEPS = "steps.jsonl"
 class StreamRun:
     """One run: ``frames`` (paths, the first is the key frame), the key frame's ``labels``, ``out``, the
     propagator's ``options`` (:class:`pcreg.Propagator` keywords), and optional ``truth`` label maps
-    (one per frame, or None) to score against."""
+    (a sequence indexed by frame, an entry None where there is none; it may read each when asked) to
+    score against."""
 
     frames: list[Path]
     labels: np.ndarray
     out: Path
     options: dict
-    truth: list[np.ndarray | None] | None = None
+    truth: Sequence[np.ndarray | None] | None = None
     identity: dict | None = None  # what a resumed run must match (paths and options), written in run.json
 
     def start(self, *, force: bool = False) -> int:

@@ -118,7 +118,7 @@ def same(x, y) -> bool:
 def assert_same_results(a: Path, b: Path) -> None:
     """Two evaluation folders hold the same files: JSON the same but for clocks, tables and checks byte
     for byte, figures that decode."""
-    files = lambda d: {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file() and p.name != ".pcreg.lock"}  # noqa: E731
+    files = lambda d: {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file() and p.name != ".pcreg.lock"}
     assert files(a) == files(b)
     assert not [f for f in files(b) if f.endswith(".tmp")]
     for name in sorted(files(a)):
@@ -195,9 +195,9 @@ def test_web_viewer_serves_a_recording_while_an_evaluation_writes_it(alone, tmp_
     the evaluation finishes as it would alone, the recording reads back whole."""
     import re
 
-    from pcreg.recording.readback import complete_length, recordings_in
-
     from _browser import Browser, find_chromium
+
+    from pcreg.recording.readback import complete_length, recordings_in
 
     rrd, stream = tmp_path / "stream.rrd", tmp_path / "stream"
     evaluation = start([*STREAM, "--out", stream, "--record", rrd])
@@ -246,7 +246,12 @@ def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
 
     from pcreg.commands.view import check_recording
     from pcreg.errors import InputError
-    from pcreg.recording.readback import complete_length, read_recording, recordings_in, snapshot
+    from pcreg.recording.readback import (
+        complete_length,
+        read_recording,
+        recordings_in,
+        snapshot,
+    )
     from pcreg.recording.recorder import Recorder
     from pcreg.recording.staging import stage
 
@@ -261,7 +266,7 @@ def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
     assert complete_length(path) == len(data)  # finished: all of it
     cut = tmp_path / "cut.rrd"
     cut.write_bytes(data[: len(data) // 2])
-    with pytest.raises(Exception):  # rerun's reader alone gives up on the half-written message
+    with pytest.raises(Exception, match="exceeds"):  # rerun's reader alone gives up on the half-written message
         rerun.chunk.RrdReader(str(cut)).recordings()
     n = complete_length(cut)
     assert 0 < n < len(data) // 2

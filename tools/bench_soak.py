@@ -38,7 +38,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from benchlib import REPO_ROOT, checks_markdown, machine_info, write_report
 
 #: Resident memory may grow at most this much from the warm frame to the end: a leak of one label map
@@ -131,7 +130,7 @@ def sample(pid: int, state: Path) -> dict | None:
         state_bytes = None
     return {"t": time.monotonic(), "rss_mb": kb.get("VmRSS", 0) / 1024, "hwm_mb": kb.get("VmHWM", 0) / 1024,
             "cpu_s": (int(fields[11]) + int(fields[12])) / ticks, "wchar": wchar, "done": _done(state),
-            "state_bytes": state_bytes}
+            "state_bytes": state_bytes, "load1": os.getloadavg()[0]}
 
 
 def soak_run(folder: Path, out: Path, *, interval: float, logs: Path) -> dict:
@@ -228,7 +227,7 @@ def analyse(run: dict, out: Path, names: list[str], clip: list[int]) -> dict:
     sizes = [(s["done"], s["state_bytes"]) for s in samples if s["state_bytes"]]
     state_first = [b for d, b in sizes if 1 < d <= w + 1]
     state_last = [b for d, b in sizes if d > n - w]
-    med = lambda xs: float(np.median(xs)) if len(xs) else float("nan")  # noqa: E731
+    med = lambda xs: float(np.median(xs)) if len(xs) else float("nan")
     return {
         "frames": n, "window": w, "warm_frame": warm,
         "same_content_in_windows": sorted(clip[1:w + 1]) == sorted(clip[n - w:]),
@@ -244,8 +243,10 @@ def analyse(run: dict, out: Path, names: list[str], clip: list[int]) -> dict:
         "state_bytes_first": med(state_first), "state_bytes_last": med(state_last),
         "state_bytes_min": min((b for _, b in sizes), default=None), "state_bytes_max": max((b for _, b in sizes), default=None),
         "step_line_bytes_first": med(line_bytes[first]), "step_line_bytes_last": med(line_bytes[last]),
+        "load_first": med([s["load1"] for s in samples if 1 < s["done"] <= w + 1]),
+        "load_last": med([s["load1"] for s in samples if s["done"] > n - w]),
         "series": {"frame_ms": frame_ms, "step_ms": step_ms, "step_line_bytes": line_bytes,
-                   "samples": [{k: s[k] for k in ("done", "rss_mb", "hwm_mb", "cpu_s", "wchar", "state_bytes")}
+                   "samples": [{k: s[k] for k in ("done", "rss_mb", "hwm_mb", "cpu_s", "wchar", "state_bytes", "load1")}
                                for s in samples]},
     }
 
@@ -264,6 +265,11 @@ def checks(report: dict) -> list[tuple[str, str, bool | None]]:
     r = _ratio(a["frame_ms_last"], a["frame_ms_first"])
     rows.append((f"median ms per frame, last tenth within {100 * TARGET_TIME_DRIFT:g}% of the first",
                  f"{a['frame_ms_first']:.1f} -> {a['frame_ms_last']:.1f} ms ({r:.3f}x)",
+                 abs(r - 1.0) <= TARGET_TIME_DRIFT if np.isfinite(r) else None))
+    r = _ratio(a["cpu_ms_per_frame_last"], a["cpu_ms_per_frame_first"])
+    rows.append((f"CPU ms per frame (the process's own; others' load moves it less), last tenth within "
+                 f"{100 * TARGET_TIME_DRIFT:g}% of the first",
+                 f"{a['cpu_ms_per_frame_first']:.1f} -> {a['cpu_ms_per_frame_last']:.1f} ms ({r:.3f}x)",
                  abs(r - 1.0) <= TARGET_TIME_DRIFT if np.isfinite(r) else None))
     for key, what in (("write_bytes_per_frame", "bytes written per frame (write() calls)"),
                       ("state_bytes", "run.json bytes (rewritten each frame)"),
@@ -298,6 +304,7 @@ def render(report: dict) -> str:
                  ["bytes written per frame", a["write_bytes_per_frame_first"], a["write_bytes_per_frame_last"]],
                  ["run.json bytes", a["state_bytes_first"], a["state_bytes_last"]],
                  ["steps.jsonl line bytes", a["step_line_bytes_first"], a["step_line_bytes_last"]],
+                 ["load average (1 min)", a["load_first"], a["load_last"]],
              ], digits=1),
              f"Resident memory: {a['rss_mb_at_warm']:.1f} MB at frame {a['warm_frame']}, at most "
              f"{a['rss_mb_max_after_warm']:.1f} MB after, {a['rss_mb_at_end']:.1f} MB at the end "
@@ -338,6 +345,9 @@ def figure(report: dict):
         ax2.plot(x, rolling, lw=1.2, color="black", label=f"running median of {k}")
     ax2.set_yscale("log")
     ax2.set_ylabel("ms per frame")
+    load = ax2.twinx()  # the machine's load moves the wall time: shown beside it
+    load.plot(done, [x.get("load1", np.nan) for x in s["samples"]], lw=0.8, color="tab:red", alpha=0.6)
+    load.set_ylabel("load average (1 min)", color="tab:red", fontsize=8)
     ax2.set_xlabel("frame")
     ax2.legend(fontsize=8)
     ax2.grid(alpha=0.3)

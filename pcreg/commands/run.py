@@ -59,7 +59,6 @@ def _read_labels(path: Path, mapping: str):
 
     from ..datasets.folder import mapping_lut
     from ..errors import InputError
-
     from ..validation import imdecode_quietly
 
     if not path.is_file():

@@ -17,9 +17,9 @@ the resumed run writes exactly what an uninterrupted run writes.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 

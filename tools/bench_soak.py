@@ -121,6 +121,8 @@ def sample(pid: int, state: Path) -> dict | None:
     except OSError:
         return None
     kb = {ln.split(":")[0]: int(ln.split()[1]) for ln in status.splitlines() if ln.startswith(("VmRSS", "VmHWM"))}
+    if "VmRSS" not in kb:  # exited, not yet reaped: no memory left to measure
+        return None
     fields = stat[stat.rindex(")") + 2:].split()
     ticks = os.sysconf("SC_CLK_TCK")
     wchar = next(int(ln.split()[1]) for ln in io.splitlines() if ln.startswith("wchar"))
@@ -128,7 +130,7 @@ def sample(pid: int, state: Path) -> dict | None:
         state_bytes = state.stat().st_size
     except OSError:
         state_bytes = None
-    return {"t": time.monotonic(), "rss_mb": kb.get("VmRSS", 0) / 1024, "hwm_mb": kb.get("VmHWM", 0) / 1024,
+    return {"t": time.monotonic(), "rss_mb": kb["VmRSS"] / 1024, "hwm_mb": kb.get("VmHWM", kb["VmRSS"]) / 1024,
             "cpu_s": (int(fields[11]) + int(fields[12])) / ticks, "wchar": wchar, "done": _done(state),
             "state_bytes": state_bytes, "load1": os.getloadavg()[0]}
 

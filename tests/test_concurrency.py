@@ -244,7 +244,7 @@ def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
     """What a reader finds while the writer is half-way through a message: the whole messages before it."""
     import rerun.chunk
 
-    from pcreg.commands.view import check_recording
+    from pcreg.recording.viewer import check_recording
     from pcreg.errors import InputError
     from pcreg.recording.readback import (
         complete_length,

@@ -229,7 +229,8 @@ def analyse(run: dict, out: Path, names: list[str], clip: list[int]) -> dict:
     sizes = [(s["done"], s["state_bytes"]) for s in samples if s["state_bytes"]]
     state_first = [b for d, b in sizes if 1 < d <= w + 1]
     state_last = [b for d, b in sizes if d > n - w]
-    med = lambda xs: float(np.median(xs)) if len(xs) else float("nan")
+    def med(xs) -> float:
+        return float(np.median(xs)) if len(xs) else float("nan")
     return {
         "frames": n, "window": w, "warm_frame": warm,
         "same_content_in_windows": sorted(clip[1:w + 1]) == sorted(clip[n - w:]),

@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "BlueprintView", "read_blueprint", "tensor", "image", "segmentation", "scalar", "text", "points", "complete_length", "snapshot", "recordings_in"]
+__all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "BlueprintView", "read_blueprint", "tensor",
+           "image", "segmentation", "scalar", "text", "points", "complete_length", "snapshot", "recordings_in"]
 
 _SKIP_TIMELINES = {"log_time", "log_tick"}
 

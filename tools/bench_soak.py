@@ -224,6 +224,9 @@ def analyse(run: dict, out: Path, names: list[str], clip: list[int]) -> dict:
         inside = [s for s in samples if lo <= s["done"] <= hi]
         if len(inside) < 2 or inside[-1]["done"] == inside[0]["done"]:
             return float("nan")
+        # from the moment the first count was reached to the moment the last was: after the last frame
+        # the process still prints, closes and exits, which is no frame's work
+        inside = inside[: next(i for i, s in enumerate(inside) if s["done"] == inside[-1]["done"]) + 1]
         return (inside[-1][key] - inside[0][key]) / (inside[-1]["done"] - inside[0]["done"])
 
     sizes = [(s["done"], s["state_bytes"]) for s in samples if s["state_bytes"]]

@@ -146,3 +146,24 @@ def test_bench_dense_runs_and_reports_the_ratio_to_dis(tmp_path):
     assert report["pairs"] == 1 and report["ratio_to_dis"]["dis_medium"] == 1.0
     assert set(report["median_ms"]) == {"dis_medium", "dense_step", "global", "dense_total"}
     assert "ratio to DIS medium" in (out / "bench_dense.md").read_text()
+
+
+def test_bench_soak_short_stream_reports_and_resumes_exactly(tmp_path):
+    bench = _load("bench_soak")
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--frames", "30", "--size", "160x120", "--seed", "1", "--interval", "0.01"]) == 0
+    report = json.loads((out / "bench_soak.json").read_text())
+    a = report["soak"]
+    assert a["frames"] == 30 and a["window"] == 2 and a["same_content_in_windows"]
+    series = a["series"]
+    assert len(series["frame_ms"]) == len(series["step_ms"]) == len(series["step_line_bytes"]) == 29
+    assert series["samples"] and all(s["rss_mb"] > 0 for s in series["samples"])
+    # a window of two short frames may fall between two samples: sampled sizes are checked over the run
+    assert a["rss_mb_at_warm"] > 0 and a["state_bytes_max"] > 0 and a["step_line_bytes_first"] > 0
+    k = report["kill"]
+    assert k["killed"] and 2 <= k["done_at_kill"] < 30 and k["returncode_killed"] == -9
+    assert k["returncode_resumed"] == 0 and k["compare"]["identical"], k["compare"]
+    assert k["compare"]["files"] == 30 + 2  # a label PNG per frame, run.json and steps.jsonl
+    md = (out / "bench_soak.md").read_text()
+    assert "### Checks" in md and "killed (SIGKILL) and resumed" in md and report["command"].startswith("python ")
+    assert (out / "bench_soak.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -140,7 +140,11 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
     # two more frames arrive: the run resumes from the state it kept, as an uninterrupted run would
     for i in (4, 5):
         cv2.imwrite(str(src / f"f{i:03d}.png"), frames[i].image[:, :, ::-1])
+    stale = [out / ".f004.png.k1ll3d_1.tmp", out / ".run.json.k1ll3d_2.tmp"]  # what a kill mid-write leaves
+    for f in stale:
+        f.write_bytes(b"half")
     assert main(args) == 0
+    assert not any(f.exists() for f in stale)
     state = json.loads((out / "run.json").read_text())
     assert state["done"] == 6 and len((out / "steps.jsonl").read_text().splitlines()) == 5
     whole = tmp_path / "whole"

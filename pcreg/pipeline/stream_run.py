@@ -9,14 +9,16 @@ Outputs in ``out``, each written atomically:
   against the truth: rewritten after every frame, and always the same small size.
 
 ``run.json`` is the commit point: a frame counts once it is written. A run that stops anywhere (a
-kill, Ctrl-C) resumes at the first frame not counted, and ``steps.jsonl`` is cut back to the frames
-counted. Every frame is registered to the key frame, so a step depends on the key frame and itself only:
-the resumed run writes exactly what an uninterrupted run writes.
+kill, Ctrl-C) resumes at the first frame not counted: ``steps.jsonl`` is cut back to the frames
+counted and the temporary files of writes it left half done are removed. Every frame is registered to
+the key frame, so a step depends on the key frame and itself only: the resumed run writes exactly what
+an uninterrupted run writes.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,13 +36,14 @@ STEPS = "steps.jsonl"
 class StreamRun:
     """One run: ``frames`` (paths, the first is the key frame), the key frame's ``labels``, ``out``, the
     propagator's ``options`` (:class:`pcreg.Propagator` keywords), and optional ``truth`` label maps
-    (one per frame, or None) to score against."""
+    (a sequence indexed by frame, an entry None where there is none; it may read each when asked) to
+    score against."""
 
     frames: list[Path]
     labels: np.ndarray
     out: Path
     options: dict
-    truth: list[np.ndarray | None] | None = None
+    truth: Sequence[np.ndarray | None] | None = None
     identity: dict | None = None  # what a resumed run must match (paths and options), written in run.json
 
     def start(self, *, force: bool = False) -> int:
@@ -61,6 +64,7 @@ class StreamRun:
                                   "another --out")
             self.state = state
             self._cut_steps(int(state["done"]) - 1)
+            self._remove_partial_writes()
             return int(state["done"])
         self.state = {"run": self.identity, "key_frame": self.frames[0].name, "done": 1, "fallbacks": 0,
                       "truth": {"frames": 0, "wrong": 0, "known": 0, "plain_wrong": 0} if self.truth else None}
@@ -68,6 +72,13 @@ class StreamRun:
         (self.out / STEPS).write_bytes(b"")
         atomic_write_json(state_path, self.state)
         return 1
+
+    def _remove_partial_writes(self) -> None:
+        """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
+        PNG or run.json, :func:`pcreg.outputs.atomic_write_bytes`); the caller holds the folder's lock."""
+        for f in self.out.glob(".*.tmp"):
+            if f.name.startswith(f".{STATE}.") or ".png." in f.name:
+                f.unlink(missing_ok=True)
 
     def _cut_steps(self, n: int) -> None:
         """Keep the first ``n`` lines of steps.jsonl (a step appended after the last commit is dropped)."""

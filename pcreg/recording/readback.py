@@ -12,15 +12,89 @@ Example::
 from __future__ import annotations
 
 import os
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "BlueprintView", "read_blueprint", "tensor", "image", "segmentation", "scalar", "text", "points"]
+__all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "BlueprintView", "read_blueprint", "tensor",
+           "image", "segmentation", "scalar", "text", "points", "complete_length", "snapshot", "recordings_in"]
 
 _SKIP_TIMELINES = {"log_time", "log_tick"}
+
+# The framing of an .rrd file (rerun 0.41, "RRF2"): a stream header of 12 bytes (magic, version,
+# options), then messages, each a header of two little-endian u64 (kind, payload length) and its
+# payload; kind 0 ends the stream (a finished file's footer follows it).
+_RRD_MAGIC = b"RRF2"
+_STREAM_HEADER = 12
+_MESSAGE_HEADER = struct.Struct("<QQ")
+_END = 0
+#: Reading a file that is still being written: rerun's reader notes that it has no footer (it scans it).
+_NO_FOOTER = "RRD file has no footer"
+
+
+def complete_length(path: str | os.PathLike) -> int | None:
+    """Bytes of ``path`` that are whole messages: its size when it is finished or ends on a message, less
+    when a writer is half-way through one (rerun's writer appends messages as they come). None when it
+    does not start as an .rrd file (the reader's own error then says why)."""
+    with open(path, "rb") as fh:
+        size = os.fstat(fh.fileno()).st_size  # what is there now; a writer only appends after it
+        if fh.read(len(_RRD_MAGIC)) != _RRD_MAGIC or size < _STREAM_HEADER:
+            return None
+        end = _STREAM_HEADER
+        while end + _MESSAGE_HEADER.size <= size:
+            fh.seek(end)
+            kind, length = _MESSAGE_HEADER.unpack(fh.read(_MESSAGE_HEADER.size))
+            if end + _MESSAGE_HEADER.size + length > size:
+                break
+            end += _MESSAGE_HEADER.size + length
+            if kind == _END:
+                return size
+        return end
+
+
+def snapshot(path: str | os.PathLike, dest: str | os.PathLike) -> Path:
+    """Copy ``path`` to ``dest`` as it stands, up to its last whole message (:func:`complete_length`), so
+    that a recording still being written reads back up to there; a finished file is copied whole."""
+    import shutil
+
+    dest = Path(dest)
+    n = complete_length(path)
+    with open(path, "rb") as src, open(dest, "wb") as out:
+        if n is None:
+            shutil.copyfileobj(src, out)
+        else:
+            remaining = n
+            while remaining:
+                block = src.read(min(remaining, 1 << 20))
+                if not block:
+                    break
+                out.write(block)
+                remaining -= len(block)
+    return dest
+
+
+def recordings_in(path: str | os.PathLike) -> list:
+    """``RrdReader(path).recordings()``, also of a file a writer is half-way through a message of: then
+    those of its whole messages (read from a :func:`snapshot`). The reader's error otherwise."""
+    import tempfile
+    import warnings
+
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=_NO_FOOTER)
+            return RrdReader(str(path)).recordings()
+    except Exception:  # rerun raises its own types
+        if complete_length(path) is None:
+            raise
+    with tempfile.TemporaryDirectory(prefix="pcreg-rrd-") as tmp:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=_NO_FOOTER)
+            return RrdReader(str(snapshot(path, Path(tmp) / "snapshot.rrd"))).recordings()
 
 
 @dataclass(frozen=True)

@@ -4,19 +4,22 @@
 the blueprint of its kind built from the entities it holds, or merges several recordings into one, each
 under ``/{label}/...``, with the comparison blueprint (:func:`pcreg.recording.blueprint.compare_blueprint`):
 the same pane of every recording side by side, their series in one plot with the label in each legend.
-The inputs are only read.
+The inputs are only read, each as it stands when staging starts (a recording still being written is
+read up to its last whole message: :func:`pcreg.recording.readback.snapshot`).
 """
 
 from __future__ import annotations
 
 import os
 import re
+import tempfile
 import uuid
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 from . import blueprint as B
-from .readback import read_entities, read_kind
+from .readback import _NO_FOOTER, read_entities, read_kind, snapshot
 
 __all__ = ["Staged", "stage", "labels_for"]
 
@@ -44,25 +47,34 @@ def labels_for(paths: list[str | os.PathLike]) -> list[str]:
 
 def stage(paths: list[str | os.PathLike], out: str | os.PathLike) -> Staged:
     """Write ``out`` (.rrd) holding ``paths``' recordings with the blueprint that shows them (see module)."""
+    if not paths:
+        raise ValueError("no recording to stage")
+    out = Path(out)
+    with tempfile.TemporaryDirectory(prefix="pcreg-stage-", dir=out.parent) as tmp, warnings.catch_warnings():
+        # a recording may still be written (an evaluation's --record): each is read as it stands, up to its
+        # last whole message, from one copy, so that every reading below sees the same data
+        warnings.filterwarnings("ignore", message=_NO_FOOTER)
+        copies = [snapshot(p, Path(tmp) / f"{i}.rrd") for i, p in enumerate(paths)]
+        return _stage(paths, copies, out)
+
+
+def _stage(paths: list[str | os.PathLike], copies: list[Path], out: Path) -> Staged:
     import rerun as rr
     from rerun.chunk import RrdReader
 
-    if not paths:
-        raise ValueError("no recording to stage")
-    readers = [RrdReader(str(p)) for p in paths]
+    readers = [RrdReader(str(c)) for c in copies]
     stores = []
     for p, r in zip(paths, readers):
         recs = r.recordings()
         if not recs:
             raise ValueError(f"{p}: no recording in this file")
         stores.append(recs[0])
-    everything = [read_entities(p) for p in paths]
-    kinds = [read_kind(p) or B.infer_kind(e) for p, e in zip(paths, everything)]
+    everything = [read_entities(c) for c in copies]
+    kinds = [read_kind(c) or B.infer_kind(e) for c, e in zip(copies, everything)]
     # only what the viewer shows on the timeline the layout opens on (no view without data there)
     timelines = {B.timeline(k, e) for k, e in zip(kinds, everything)}
     shown_on = timelines.pop() if len(timelines) == 1 else B.timeline("sequence")
-    entities = [read_entities(p, timeline=shown_on) for p in paths]
-    out = Path(out)
+    entities = [read_entities(c, timeline=shown_on) for c in copies]
     if len(paths) == 1:
         stream = rr.RecordingStream(stores[0].application_id, recording_id=stores[0].recording_id)
         has_views = bool(B.panes(kinds[0], entities[0]))  # else (nothing to show) the viewer chooses

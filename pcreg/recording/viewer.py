@@ -64,10 +64,10 @@ def check_recording(path: str | os.PathLike) -> tuple[str, str]:
         raise InputError(f"{p}: no such file")
     if not p.is_file():
         raise InputError(f"{p}: not a file")
-    from rerun.chunk import RrdReader
+    from .readback import recordings_in
 
     try:
-        stores = RrdReader(str(p)).recordings()
+        stores = recordings_in(p)  # a recording still being written: up to its last whole message
     except Exception as exc:  # rerun's reader raises its own types for a bad file
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputError(f"{p}: not a rerun recording ({first})") from None

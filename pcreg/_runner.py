@@ -65,6 +65,19 @@ def restore_signals(previous: dict) -> None:
             pass
 
 
+def ignore_signals() -> None:
+    """Ignore SIGINT and SIGTERM from now on: a program that is already stopping on one (exit 130) must
+    not be killed by a second one (a terminal's Ctrl-C pressed twice, a signal sent to the whole process
+    group) while Python shuts down, which would end it with the signal instead of its exit code."""
+    import signal
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(signum, signal.SIG_IGN)
+        except (ValueError, OSError):  # not the main thread
+            pass
+
+
 def interrupted() -> bool:
     """Whether a SIGINT or SIGTERM arrived since :func:`interrupt_on_signals`."""
     return bool(_RECEIVED)

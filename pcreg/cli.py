@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from .errors import RegistrationError
 
-    from ._runner import interrupt_on_signals, interrupted, restore_signals
+    from ._runner import ignore_signals, interrupt_on_signals, interrupted, restore_signals
 
     previous = interrupt_on_signals()  # Ctrl-C and SIGTERM: exit 130, finished units kept
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
@@ -134,7 +134,10 @@ def main(argv: list[str] | None = None) -> int:
                              "(PCREG_TRACEBACK=1 shows the traceback)\n")
         return 1
     finally:
-        restore_signals(previous)
+        if argv is None and interrupted():  # the program itself is stopping on a signal: let it exit 130
+            ignore_signals()
+        else:
+            restore_signals(previous)
         if saved_limit is None:
             os.environ.pop("PCREG_MAX_PIXELS", None)
         else:

@@ -341,6 +341,18 @@ def _check_options(*, sampler: str = "canny", grid_step: int = 8, top_k: int | N
     check_float(canny_percentile, "canny_percentile", lo=0, hi=100)
 
 
+def _image_levels(img: np.ndarray, levels: int):
+    """``(level, image)`` for levels 0..levels-1 of a Gaussian pyramid (``cv2.pyrDown``), built as it is
+    walked; an :class:`InputError` when a level would fall below 16 px before it is made."""
+    lvl_img = img
+    for level in range(levels):
+        if level:
+            if min(lvl_img.shape[:2]) < 16:
+                raise InputError(f"image {img.shape[1]}x{img.shape[0]} is too small for {levels} pyramid levels")
+            lvl_img = cv2.pyrDown(lvl_img)
+        yield level, lvl_img
+
+
 def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple[int | None, ...] | None = None,
                   mask: np.ndarray | str | None = "auto", seed: int = 0, **kwargs) -> list[ImageCloud]:
     """The same cloud at pyramid levels 0..levels-1 (index = level; each level halves the image).
@@ -353,12 +365,8 @@ def cloud_pyramid(image: np.ndarray, *, levels: int = 4, max_points: int | tuple
     _check_options(**{k: v for k, v in kwargs.items() if k in _OPTIONS})
     img = as_rgb_uint8(image)
     mask = usable_mask(mask, img)
-    out, lvl_img = [], img
-    for level in range(levels):
-        if level:
-            if min(lvl_img.shape[:2]) < 16:
-                raise InputError(f"image {img.shape[1]}x{img.shape[0]} is too small for {levels} pyramid levels")
-            lvl_img = cv2.pyrDown(lvl_img)
+    out = []
+    for level, lvl_img in _image_levels(img, levels):
         out.append(level_cloud(lvl_img, level=level, shape=img.shape[:2], mask=mask, max_points=max_points[level],
                                seed=seed, **kwargs))
     return out
@@ -427,12 +435,8 @@ def image_pyramid(image: np.ndarray, *, levels: int = 4, mask: np.ndarray | str 
     mask = usable_mask(mask, img)
     if sampler == "gradient" and top_k is None:
         top_k = 5000
-    dets, lvl_img = [], img
-    for level in range(levels):
-        if level:
-            if min(lvl_img.shape[:2]) < 16:
-                raise InputError(f"image {img.shape[1]}x{img.shape[0]} is too small for {levels} pyramid levels")
-            lvl_img = cv2.pyrDown(lvl_img)
+    dets = []
+    for level, lvl_img in _image_levels(img, levels):
         dets.append(_detect(lvl_img, sampler=sampler, valid=_level_valid(mask, lvl_img, level), grid_step=grid_step,
                             top_k=top_k, canny_percentile=canny_percentile))
     options = (("sampler", sampler), ("grid_step", grid_step), ("top_k", top_k), ("subpixel", subpixel),

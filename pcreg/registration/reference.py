@@ -313,6 +313,19 @@ def _score(d2: np.ndarray, ok: np.ndarray, n: int) -> tuple[float, float]:
     return k / n, float(np.sqrt(np.sum(d2[ok]) / k))
 
 
+def _settled(prev_fitness: float, fitness: float, prev_rmse: float, rmse: float, relative_fitness: float,
+             relative_rmse: float) -> bool:
+    """Open3D's stopping rule: both the fitness and the inlier RMSE changed by less than their thresholds
+    (absolute changes, despite the names)."""
+    return abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse
+
+
+def _finished(T: np.ndarray, fitness: float, rmse: float, iterations: int, converged: bool,
+              start: float) -> RegistrationResult:
+    return RegistrationResult(matrix=T, fitness=fitness, inlier_rmse=rmse, iterations=iterations,
+                              converged=converged, backend="reference", seconds=time.perf_counter() - start)
+
+
 def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid",
                   max_correspondence_distance: float, init: np.ndarray | None = None,
                   max_iteration: int = 30, relative_fitness: float = 1e-6, relative_rmse: float = 1e-6,
@@ -371,11 +384,10 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
         d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
         fitness, rmse = _score(d2, ok, n)
         report(iterations)
-        if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
+        if _settled(prev_fitness, fitness, prev_rmse, rmse, relative_fitness, relative_rmse):
             converged = True
             break
-    return RegistrationResult(matrix=T, fitness=fitness, inlier_rmse=rmse, iterations=iterations,
-                              converged=converged, backend="reference", seconds=time.perf_counter() - start)
+    return _finished(T, fitness, rmse, iterations, converged, start)
 
 
 _MOMENT_MODELS = ("translation", "rigid", "similarity")
@@ -431,11 +443,10 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
         d2, idx, mom = tree.move_and_match(pts, update, max_distance)
         fitness, rmse = score(mom)
         report(iterations)
-        if abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse:
+        if _settled(prev_fitness, fitness, prev_rmse, rmse, relative_fitness, relative_rmse):
             converged = True
             break
-    return RegistrationResult(matrix=T, fitness=fitness, inlier_rmse=rmse, iterations=iterations,
-                              converged=converged, backend="reference", seconds=time.perf_counter() - start)
+    return _finished(T, fitness, rmse, iterations, converged, start)
 
 
 def warm_up() -> None:

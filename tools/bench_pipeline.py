@@ -68,7 +68,8 @@ def bench_stream(frames) -> dict:
     import cv2
 
     import pcreg
-    from pcreg.classification.fusion import fuse, label_prior, labels_from_log_odds, prior_log_odds, warp_prior
+    from pcreg.classification.fusion import fuse, label_prior, labels_from_log_odds, prior_log_odds
+    from pcreg.pipeline.prior import warp_prior
     from pcreg.pipeline.stream import STEP_PARTS, STEP_STAGES
 
     key = frames[0]

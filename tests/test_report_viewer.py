@@ -23,6 +23,7 @@ import cv2
 import pytest
 
 from _events import until
+from _browser import listening
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -37,22 +38,6 @@ def _one_line_error(capsys) -> str:
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("pcreg: error: "), err
     return err
-
-
-def _listening(port: int) -> list[str]:
-    """Local addresses (hex, as /proc/net/tcp writes them) listening on ``port``."""
-    out = []
-    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
-        try:
-            lines = open(table).read().splitlines()[1:]
-        except OSError:
-            continue
-        for line in lines:
-            fields = line.split()
-            addr, hexport = fields[1].split(":")
-            if fields[3] == "0A" and int(hexport, 16) == port:
-                out.append(addr)
-    return out
 
 
 # -- bad input ----------------------------------------------------------------------------------------
@@ -189,7 +174,7 @@ def test_report_page_in_a_browser(evaluations, kind, tmp_path):
         grpc_port = report["recording"]["grpc_port"]
         ports = [page_port, grpc_port]
         for port in ports:  # loopback only, not every interface
-            assert _listening(port) == ["0100007F"], (port, _listening(port))
+            assert listening(port) == ["0100007F"], (port, listening(port))
         for bad in ("/files/..%2Fresults.json", "/files/../config.json", "/files/units", "/viz/../pcreg"):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(url.rstrip("/") + bad, timeout=30)
@@ -257,7 +242,7 @@ def test_report_page_in_a_browser(evaluations, kind, tmp_path):
         proc.stdout.close()
         proc.stderr.close()
     assert code == 130
-    assert not [p for p in ports if _listening(p)]
+    assert not [p for p in ports if listening(p)]
 
 
 def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
@@ -274,7 +259,7 @@ def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
     report = load_report(folder)
     assert report.recordings == () and report.experiment == "rotation"
     with ReportServer(folder, page_data(report), web_port=0) as server:
-        assert _listening(server.port) == ["0100007F"]
+        assert listening(server.port) == ["0100007F"]
         with urllib.request.urlopen(server.url + "report.json", timeout=30) as r:
             data = json.loads(r.read())
         assert data["recording"] is None and data["experiment"] == "rotation"

@@ -13,6 +13,7 @@ from pcreg.errors import PcregError
 from pcreg.recording.recorder import Recorder
 
 from _events import until
+from _browser import listening
 
 
 def pcreg_view(argv: list[str]) -> int:
@@ -102,22 +103,6 @@ def _colours(shot: np.ndarray) -> tuple[float, float]:
     return float(red.mean()), float(green.mean())
 
 
-def _listening(port: int) -> list[str]:
-    """Local addresses (hex, as /proc/net/tcp writes them) listening on ``port``."""
-    out = []
-    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
-        try:
-            lines = open(table).read().splitlines()[1:]
-        except OSError:
-            continue
-        for line in lines:
-            fields = line.split()
-            addr, hexport = fields[1].split(":")
-            if fields[3] == "0A" and int(hexport, 16) == port:
-                out.append(addr)
-    return out
-
-
 def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
     """``pcreg view --web`` in a real browser: headless Chromium, software GL, no display, no GPU."""
     import os
@@ -145,7 +130,7 @@ def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
         m = re.match(r"http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1%3A(\d+)%2Fproxy$", url)
         assert m, url
         for port in map(int, m.groups()):  # bound to the loopback address only, not to every interface
-            assert _listening(port) == ["0100007F"], (port, _listening(port))
+            assert listening(port) == ["0100007F"], (port, listening(port))
         with Browser(width=1280, height=720) as browser:
             browser.open(url)
             # both recordings drawn: their red and green in the left and in the right half of the page
@@ -166,7 +151,7 @@ def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
         proc.stdout.close()
         proc.stderr.close()
     assert code == 130
-    assert not _listening(int(m.group(1))) and not _listening(int(m.group(2)))
+    assert not listening(int(m.group(1))) and not listening(int(m.group(2)))
 
 
 # -- one blueprint per kind of recording ------------------------------------------------------------
@@ -448,7 +433,7 @@ def test_web_viewer_on_another_address(small_recording):
     try:
         assert url.startswith("http://127.0.0.2:") and "127.0.0.2%3A" in url
         ports = [int(p) for p in __import__("re").findall(r"127\.0\.0\.2(?::|%3A)(\d+)", url)]
-        assert all(_listening(p) == ["0200007F"] for p in ports), ports
+        assert all(listening(p) == ["0200007F"] for p in ports), ports
         with Browser(width=1280, height=720) as browser:
             browser.open(url)
             ok, shot = browser.wait_for(lambda s: min(_colours(s)) > 0.03, timeout=120)

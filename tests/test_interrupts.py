@@ -28,6 +28,8 @@ SEQUENCE = ["evaluate", "sequence", "--data", "synthetic:syn1a,syn2b", "--frames
             "-k", "1,2,3,4,5,6"]  # 12 units of about a second
 ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "6", "--size", "160x120",
             "--angles", "0:180:10", "--samples", "6"]  # 6 units of 19 registrations each
+STREAM = ["evaluate", "stream", "--data", "synthetic:syn1a,syn2a,syn2b,syn3a", "--frames", "6", "--size", "160x120",
+          "--methods", "unregistered,pcreg,flow_key"]  # 4 units (clips) of 5 frames each
 CLASSIFICATION = ["evaluate", "classification", "--data", "synthetic:syn1a,syn2b", "--frames", "24",
                   "--size", "160x120", "--trials", "30"]
 
@@ -178,6 +180,18 @@ def test_evaluate_classification_stops_and_resumes(tmp_path, how, workers):
     wait_for(p, lambda: units(out), "a finished unit")
     signal_and_check(p, how, out)
     resumed(args, out, units(out))
+
+
+@pytest.mark.parametrize("how, workers", [("group", 2), ("parent", 1)])
+def test_evaluate_stream_stops_and_resumes(tmp_path, how, workers):
+    out = tmp_path / "stream"
+    args = [*STREAM, "--workers", workers, "--out", out]
+    p = start(args)
+    wait_for(p, lambda: units(out), "a finished unit")
+    signal_and_check(p, how, out)
+    kept = units(out)
+    results = resumed(args, out, kept)
+    assert set(results["datasets"]) == {"syn1a", "syn2a", "syn2b", "syn3a"}
 
 
 def _done(state: Path) -> int:

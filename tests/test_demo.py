@@ -15,9 +15,13 @@ def test_demo_writes_report_figures_and_recording(tmp_path):
     config = DemoConfig(presets=("syn1a",), frames=8, size=(160, 120), increments=(1, 4), angles=(0.0, 90.0))
     report = run_demo(config, out=out, workers=1, record=out / "demo.rrd")
     text = report.read_text()
-    for heading in ("Naive Bayes alone", "Rotated frames", "ICP backends", "Sequences", "stage times"):
+    for heading in ("Naive Bayes alone", "Rotated frames", "ICP backends", "Sequences", "labelled from its key frame",
+                    "stage times"):
         assert heading in text
-    for png in ("pair.png", "rotation/rotation.png", "sequence/sequence_syn1a.png", "classification/case1.png"):
+    stream = json.loads((out / "stream" / "results.json").read_text())
+    assert stream["methods"] == ["plain", "unregistered", "pcreg", "flow_key"]
+    assert stream["datasets"]["syn1a"]["means"]["pcreg"] < stream["datasets"]["syn1a"]["means"]["plain"]
+    for png in ("stream/stream.png", "pair.png", "rotation/rotation.png", "sequence/sequence_syn1a.png", "classification/case1.png"):
         assert (out / png).is_file(), png
         assert f"({png})" in text
     seq = json.loads((out / "sequence" / "results.json").read_text())

@@ -225,7 +225,7 @@ def test_run_stops_between_frames_and_resumes(tmp_path, how):
     assert _done(out / "run.json") == len(frames)
 
 
-@pytest.mark.parametrize("how, workers, at", [("group", 2, "2/5"), ("term", 1, "4/5")])
+@pytest.mark.parametrize("how, workers, at", [("group", 2, "2/6"), ("term", 1, "4/6")])
 def test_demo_stops_and_runs_again(tmp_path, how, workers, at):
     """Stopped in Ch. 5 (units in worker processes) or in Ch. 6-7 (recording in this process); the same
     command then runs to the end, replacing the recording the interrupted run left."""

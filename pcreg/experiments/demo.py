@@ -5,7 +5,9 @@
 3. the two ICP backends cross-checked on the same clouds;
 4. Ch. 6-7 - pairs (i, i+k) registered, classified before/after, and labels propagated through the
    registration (the augmented methods), both backends, with a recording of every pair;
-5. per-stage times of the pipeline.
+5. a stream labelled from its key frame (what ``pcreg run`` does) beside naive Bayes, the key frame's
+   labels unwarped and DIS optical flow;
+6. per-stage times of the pipeline.
 
 Writes ``OUT/report.md`` (tables and figures), one folder per experiment and ``OUT/demo.rrd``.
 """
@@ -101,6 +103,20 @@ def _sequence(config: DemoConfig, out: Path, workers: int, record: str | Path | 
     return scfg, sres
 
 
+def _stream(config: DemoConfig, out: Path, workers: int) -> dict:
+    """Each preset as a stream from its first frame: pcreg's propagation and the baselines."""
+    from .._runner import make_executor
+    from . import stream
+    from .reports import stream as stream_report
+
+    cfg = stream.StreamConfig(data=config.data, frames=config.frames, size=config.size, seed=config.seed,
+                              methods=("plain", "unregistered", "pcreg", "flow_key"))
+    with make_executor(workers) as ex:
+        res = stream.evaluate(cfg, out=out / "stream", force=True, executor=ex, show_progress=False)
+    stream_report.write_outputs(res, out / "stream")
+    return res
+
+
 def _pair_figure(config: DemoConfig, datasets: dict, sres: dict, out: Path) -> None:
     """The story figure: the first sequence's pair at the second increment, with its chosen weight."""
     from .reports.demo import pair_figure
@@ -138,28 +154,33 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
     atomic_write_json(out / "config.json", plain_config(config))
     datasets = load_dataset(config.data, n_frames=config.frames, size=config.size, seed=config.seed)
 
-    _say("1/5 naive Bayes alone (thesis Ch. 4)")
+    _say("1/6 naive Bayes alone (thesis Ch. 4)")
     t = time.perf_counter()
     cres = _classification(config, out, workers)
     times["Ch. 4 classification"] = time.perf_counter() - t
 
-    _say("2/5 rotated frames, before and after registration (thesis Ch. 5), both backends")
+    _say("2/6 rotated frames, before and after registration (thesis Ch. 5), both backends")
     t = time.perf_counter()
     rres = _rotation(config, out, workers)
     times["Ch. 5 rotation"] = time.perf_counter() - t
 
-    _say("3/5 cross-check of the two ICP backends")
+    _say("3/6 cross-check of the two ICP backends")
     t = time.perf_counter()
     cc = _crosscheck(datasets, out)
     times["cross-check"] = time.perf_counter() - t
 
-    _say("4/5 sequences: registration, before/after, label propagation (thesis Ch. 6-7), both backends")
+    _say("4/6 sequences: registration, before/after, label propagation (thesis Ch. 6-7), both backends")
     t = time.perf_counter()
     scfg, sres = _sequence(config, out, workers, record, raw_images)
     times["Ch. 6-7 sequence" + (" (recorded)" if record is not None else "")] = time.perf_counter() - t
 
-    _say("5/5 report")
+    _say("5/6 a stream labelled from its key frame, beside the baselines")
+    t = time.perf_counter()
+    stres = _stream(config, out, workers)
+    times["stream"] = time.perf_counter() - t
+
+    _say("6/6 report")
     _pair_figure(config, datasets, sres, out)
-    text = report(config, cres, rres, sres, cc, _stage_rows(scfg.backends, sres), times, record, out)
+    text = report(config, cres, rres, sres, cc, _stage_rows(scfg.backends, sres), times, record, out, stres)
     atomic_write_text(out / "report.md", text)
     return out / "report.md"

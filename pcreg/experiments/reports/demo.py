@@ -66,9 +66,10 @@ not scored.
 """
 
 
-def report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path) -> str:
+def report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path, stres: dict | None = None) -> str:
     from ...outputs import markdown_table
     from . import classification, rotation, sequence
+    from . import stream as stream_report
 
     parts = ["# pcreg demo\n",
              f"Synthetic presets {', '.join(config.presets)} ({config.frames} frames of "
@@ -102,7 +103,17 @@ def report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path) -
     for name in sres["datasets"]:
         parts.append(f"![{name}](sequence/sequence_{name}.png)\n")
     parts.append("![summary](sequence/sequence_summary.png)\n")
-    parts.append("## 5. Pipeline stage times (median ms per pair in this run, this machine)\n")
+    if stres is not None:
+        parts.append("## 5. A stream labelled from its key frame (`pcreg run`, `pcreg evaluate stream`)\n")
+        parts.append("Each preset as a stream: its first frame is the key frame with its labels; every later frame "
+                     "is labelled by naive Bayes alone (`plain`), with the key frame's labels unwarped "
+                     "(`unregistered`), by pcreg (a dense field from the key frame) and with DIS optical flow "
+                     "from the key frame (`flow_key`), all fused the same way. Mean error % per clip:\n")
+        header, rows, footer = stream_report.table(stres)
+        parts.append(markdown_table(header, rows) + footer)
+        parts.append(stream_report.checks(stres))
+        parts.append("![stream](stream/stream.png)\n")
+    parts.append("## 6. Pipeline stage times (median ms per pair in this run, this machine)\n")
     parts.append(markdown_table(["backend", "pairs", "register", "warp", "classify", "fuse", "total"], stage_rows, digits=1))
     parts.append("\n`tools/bench_pipeline.py` measures 640x480 frames.\n")
     parts.append("## Run\n")

@@ -24,20 +24,9 @@ import pytest
 
 from _events import until
 from _browser import listening
+from _view import one_line_error, pcreg_view
 
 REPO = Path(__file__).resolve().parent.parent
-
-
-def pcreg_view(argv: list[str]) -> int:
-    from pcreg import cli
-
-    return cli.main(["view", *argv])
-
-
-def _one_line_error(capsys) -> str:
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("pcreg: error: "), err
-    return err
 
 
 # -- bad input ----------------------------------------------------------------------------------------
@@ -45,26 +34,26 @@ def _one_line_error(capsys) -> str:
 
 def test_bad_out_dir_is_one_line(tmp_path, capsys):
     assert pcreg_view([str(tmp_path / "missing"), "--web"]) == 2
-    assert "no such file or folder" in _one_line_error(capsys)
+    assert "no such file or folder" in one_line_error(capsys)
     empty = tmp_path / "empty"
     empty.mkdir()
     assert pcreg_view([str(empty), "--web"]) == 2
-    assert "no results.json" in _one_line_error(capsys)
+    assert "no results.json" in one_line_error(capsys)
     corrupt = tmp_path / "corrupt"
     corrupt.mkdir()
     (corrupt / "results.json").write_text('{"datasets": {"syn1a": ')
     assert pcreg_view([str(corrupt), "--web"]) == 2
-    assert "not valid JSON" in _one_line_error(capsys)
+    assert "not valid JSON" in one_line_error(capsys)
     (corrupt / "results.json").write_bytes(b"\xff\xfe\x00garbage")
     assert pcreg_view([str(corrupt), "--web"]) == 2
-    assert "not valid JSON" in _one_line_error(capsys)
+    assert "not valid JSON" in one_line_error(capsys)
     (corrupt / "results.json").write_text('{"something": "else"}')
     assert pcreg_view([str(corrupt), "--web"]) == 2
-    assert "not the results of pcreg evaluate" in _one_line_error(capsys)
+    assert "not the results of pcreg evaluate" in one_line_error(capsys)
     # a sequence's shape with the wrong insides
     (corrupt / "results.json").write_text('{"backends": {"reference": {"datasets": {"a": {"increments": {"1": 3}}}}}}')
     assert pcreg_view([str(corrupt), "--web"]) == 2
-    assert "not the results of pcreg evaluate sequence" in _one_line_error(capsys)
+    assert "not the results of pcreg evaluate sequence" in one_line_error(capsys)
 
 
 # -- three small recorded evaluations -----------------------------------------------------------------
@@ -275,9 +264,9 @@ def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
 
 def test_out_dir_needs_web(evaluations, capsys):
     assert pcreg_view([str(evaluations["rotation"])]) == 2
-    assert "--web" in _one_line_error(capsys)
+    assert "--web" in one_line_error(capsys)
     assert pcreg_view([str(evaluations["rotation"]), "--web", "--screenshot", "x.png"]) == 2
-    assert "--screenshot" in _one_line_error(capsys)
+    assert "--screenshot" in one_line_error(capsys)
 
 
 def test_the_wheel_lists_every_package_and_the_page():

@@ -14,31 +14,19 @@ from pcreg.recording.recorder import Recorder
 
 from _events import until
 from _browser import listening
-
-
-def pcreg_view(argv: list[str]) -> int:
-    """``pcreg view ARGV`` in-process, through the command line's own entry point."""
-    from pcreg import cli
-
-    return cli.main(["view", *argv])
-
-
-def _one_line_error(capsys) -> str:
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("pcreg: error: "), err
-    return err
+from _view import one_line_error, pcreg_view
 
 
 def test_missing_file(tmp_path, capsys):
     assert pcreg_view([str(tmp_path / "nope.rrd")]) == 2
-    assert "no such file" in _one_line_error(capsys)
+    assert "no such file" in one_line_error(capsys)
 
 
 def test_file_that_is_not_a_recording(tmp_path, capsys):
     bad = tmp_path / "bad.rrd"
     bad.write_bytes(b"this is not a rerun recording\n" * 10)
     assert pcreg_view([str(bad), "--screenshot", str(tmp_path / "x.png")]) == 2
-    assert "not a rerun recording" in _one_line_error(capsys)
+    assert "not a rerun recording" in one_line_error(capsys)
     assert not (tmp_path / "x.png").exists()
 
 
@@ -62,20 +50,20 @@ def small_recording(tmp_path_factory):
 def test_missing_viewer_binary(small_recording, tmp_path, capsys):
     code = pcreg_view([str(small_recording), "--viewer", str(tmp_path / "no-rerun")])
     assert code == 2
-    assert "rerun viewer not found" in _one_line_error(capsys)
+    assert "rerun viewer not found" in one_line_error(capsys)
 
 
 def test_existing_screenshot_refused(small_recording, tmp_path, capsys):
     out = tmp_path / "shot.png"
     out.write_bytes(b"old")
     assert pcreg_view([str(small_recording), "--screenshot", str(out)]) == 2
-    assert "exists" in _one_line_error(capsys)
+    assert "exists" in one_line_error(capsys)
     assert out.read_bytes() == b"old"
 
 
 def test_bad_time_argument(small_recording, tmp_path, capsys):
     assert pcreg_view([str(small_recording), "--screenshot", str(tmp_path / "s.png"), "--time", "frame"]) == 2
-    assert "TIMELINE=N" in _one_line_error(capsys)
+    assert "TIMELINE=N" in one_line_error(capsys)
 
 
 def test_headless_screenshot_shows_the_images(small_recording, tmp_path, capsys):
@@ -391,9 +379,9 @@ def test_staging_an_empty_recording_and_bad_files(tmp_path, capsys):
     bad = tmp_path / "bad.rrd"
     bad.write_bytes(b"not a recording")
     assert pcreg_view([str(empty), str(bad), "--screenshot", str(tmp_path / "x.png")]) == 2
-    assert "not a rerun recording" in _one_line_error(capsys)
+    assert "not a rerun recording" in one_line_error(capsys)
     assert pcreg_view([str(empty), "--web", "--screenshot", str(tmp_path / "x.png")]) == 2
-    assert "choose one" in _one_line_error(capsys)
+    assert "choose one" in one_line_error(capsys)
 
 
 def test_native_viewer_without_a_display_points_to_web(small_recording, monkeypatch, capsys):
@@ -402,7 +390,7 @@ def test_native_viewer_without_a_display_points_to_web(small_recording, monkeypa
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     assert pcreg_view([str(small_recording)]) == 2
-    assert "--web" in _one_line_error(capsys)
+    assert "--web" in one_line_error(capsys)
 
 
 def test_web_arguments(small_recording, capsys):
@@ -412,11 +400,11 @@ def test_web_arguments(small_recording, capsys):
     assert view.web_url("127.0.0.1", 9090, 9876) == \
         "http://127.0.0.1:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy"
     assert pcreg_view([str(small_recording), "--web", "--web-port", "9999", "--grpc-port", "9999"]) == 2
-    assert "must differ" in _one_line_error(capsys)
+    assert "must differ" in one_line_error(capsys)
     assert pcreg_view([str(small_recording), "--web", "--bind", "not-an-address"]) == 2
-    assert "IP address" in _one_line_error(capsys)
+    assert "IP address" in one_line_error(capsys)
     assert pcreg_view([str(small_recording), "--web", "--bind", "192.0.2.1"]) == 2  # not this machine's
-    assert "cannot listen there" in _one_line_error(capsys)
+    assert "cannot listen there" in one_line_error(capsys)
 
 
 def test_web_viewer_on_another_address(small_recording):

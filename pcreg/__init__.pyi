@@ -4,40 +4,23 @@ from __future__ import annotations
 
 from pcreg.registration import transforms as transforms
 from pcreg.classification.bayes import (
-    NaiveBayesPixelClassifier as NaiveBayesPixelClassifier,
     fit_classifier as fit_classifier,
-    thesis_weight_search as thesis_weight_search,
-)
-from pcreg.classification.fusion import (
-    FusionConfig as FusionConfig,
 )
 from pcreg.classification.metrics import (
-    confusion_matrix as confusion_matrix,
     error_rate as error_rate,
 )
 from pcreg.datasets import (
     Frame as Frame,
-    SYNTHETIC_PRESETS as SYNTHETIC_PRESETS,
     load_dataset as load_dataset,
-    load_folder as load_folder,
-    load_lagr as load_lagr,
-    relative_transform as relative_transform,
     synthetic as synthetic,
 )
 from pcreg.errors import (
-    DatasetError as DatasetError,
     InputError as InputError,
-    OutputError as OutputError,
     PcregError as PcregError,
     RegistrationError as RegistrationError,
 )
 from pcreg.implementations.crosscheck import (
     crosscheck as crosscheck,
-)
-from pcreg.pipeline import (
-    PipelineConfig as PipelineConfig,
-    process_pair as process_pair,
-    run_sequence as run_sequence,
 )
 from pcreg.pipeline.stream import (
     Propagator as Propagator,
@@ -47,27 +30,20 @@ from pcreg.registration.api import (
     register as register,
 )
 from pcreg.registration.clouds import (
-    ImageCloud as ImageCloud,
-    ImagePyramid as ImagePyramid,
-    cloud_pyramid as cloud_pyramid,
     image_cloud as image_cloud,
-    image_pyramid as image_pyramid,
     load_image as load_image,
 )
 from pcreg.registration.config import (
     RegisterConfig as RegisterConfig,
 )
 from pcreg.registration.dense import (
-    DenseRegistrationResult as DenseRegistrationResult,
     register_dense as register_dense,
 )
 from pcreg.registration.result import (
-    IcpIteration as IcpIteration,
     RegistrationResult as RegistrationResult,
 )
 from pcreg.registration.warp import (
     warp as warp,
-    warp_to_moving as warp_to_moving,
 )
 
 __version__: str

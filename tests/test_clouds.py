@@ -2,7 +2,8 @@ import cv2
 import numpy as np
 import pytest
 
-from pcreg import InputError, cloud_pyramid, image_cloud, load_image
+from pcreg import InputError, image_cloud, load_image
+from pcreg.registration.clouds import cloud_pyramid
 from pcreg.registration.clouds import as_rgb_uint8, valid_region
 
 

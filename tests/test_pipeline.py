@@ -76,7 +76,7 @@ def test_failed_registration_is_recorded_and_the_pair_still_scored(frames, clf):
 
 
 def test_temporal_update_passes_on_only_what_labels_reached(frames):
-    from pcreg import warp_to_moving
+    from pcreg.registration.warp import warp_to_moving
 
     T = np.array([[1.0, 0, 20.0], [0, 1.0, 0], [0, 0, 1.0]])  # the reference lies 20 px to the right
     # a classifier that sees the moving frame's true content (so the registration is supported)

@@ -55,11 +55,16 @@ class Reference(Implementation):
                        seconds=float(getattr(r, "seconds", 0.0)), trace=tuple(steps))
 
 
-class Open3DLegacy(Implementation):
-    name = "open3d"
+class _Open3D(Implementation):
+    """Open3D's point-to-point ICPs: the same step as the reference, so compared step by step."""
+
     comparability = STEP
-    description = "Open3D legacy registration_icp, TransformationEstimationPointToPoint"
     requires = ("open3d",)
+
+
+class Open3DLegacy(_Open3D):
+    name = "open3d"
+    description = "Open3D legacy registration_icp, TransformationEstimationPointToPoint"
 
     def settings(self, pinned):
         return {"estimation": "TransformationEstimationPointToPoint(with_scaling=False)",
@@ -92,11 +97,9 @@ class Open3DLegacy(Implementation):
                        seconds=seconds, trace=tuple(steps) if trace else (), info=info)
 
 
-class Open3DTensor(Implementation):
+class Open3DTensor(_Open3D):
     name = "open3d-tensor"
-    comparability = STEP
     description = "Open3D tensor pipelines.registration.icp in Float64 on the CPU"
-    requires = ("open3d",)
 
     def settings(self, pinned):
         return {"dtype": "Float64", "device": "CPU:0", "voxel_size": -1,
@@ -184,20 +187,22 @@ class SmallGicp(Implementation):
                        converged=bool(r.converged), seconds=seconds, info=info)
 
 
-class SmallGicpPlane(SmallGicp):
-    name = "small_gicp-plane"
+class _SmallGicpSurface(SmallGicp):
+    """small_gicp's surface objectives: they need normals or covariances, so 3-D only, and they minimise
+    another objective than point-to-point ICP (compared by objective, not by fixed point)."""
+
     comparability = OBJECTIVE
-    kind = "PLANE_ICP"
+    dims = (3,)
+
+
+class SmallGicpPlane(_SmallGicpSurface):
+    name, kind = "small_gicp-plane", "PLANE_ICP"
     description = "small_gicp align(), registration_type='PLANE_ICP' (point-to-plane)"
-    dims = (3,)
 
 
-class SmallGicpGicp(SmallGicp):
-    name = "small_gicp-gicp"
-    comparability = OBJECTIVE
-    kind = "GICP"
+class SmallGicpGicp(_SmallGicpSurface):
+    name, kind = "small_gicp-gicp", "GICP"
     description = "small_gicp align(), registration_type='GICP' (generalized ICP, plane-to-plane)"
-    dims = (3,)
 
 
 class KissIcp(Implementation):

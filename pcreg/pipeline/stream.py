@@ -153,7 +153,7 @@ class Propagator:
 
         for attr in ("decision_function", "class_prior_"):
             if not hasattr(classifier, attr):
-                raise InputError(f"the classifier has no {attr}: fit a pcreg.NaiveBayesPixelClassifier first "
+                raise InputError(f"the classifier has no {attr}: fit a classifier first "
                                  "(pcreg.fit_classifier on the key frame and its labels)")
         classes = list(np.asarray(getattr(classifier, "classes_", [0, 1])).tolist())
         if classes != [0, 1]:

@@ -428,14 +428,8 @@ class Recorder:
     def _points(self, points: np.ndarray, colors: np.ndarray | None, *, radius: float = 1.5) -> Any:
         return rr.Points2D(points, colors=colors, radii=radius)
 
-    def log_clouds(
-        self,
-        *,
-        reference_points: np.ndarray | None = None,
-        reference_colors: np.ndarray | None = None,
-        moving_points: np.ndarray | None = None,
-        moving_colors: np.ndarray | None = None,
-    ) -> None:
+    def log_clouds(self, *, reference_points: np.ndarray | None = None, reference_colors: np.ndarray | None = None,
+                   moving_points: np.ndarray | None = None, moving_colors: np.ndarray | None = None) -> None:
         """Log both clouds as Points2D coloured by their pixels' colour (at most ``max_display_points`` each).
 
         *_points : (N, 2) float64 pixel coordinates (x right, y down) in their own image.

@@ -27,7 +27,7 @@ from .reference import METRICS, WEIGHTS, check_rank
 from .refine import CoarseToFine
 from .result import IcpIteration, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
-from .steps import BACKENDS, IcpSettings, icp_step, refuse_for_open3d
+from .steps import BACKENDS, IcpSettings, StepCall, icp_step, refuse_for_open3d
 from .transforms import about_point, apply, check_model, image_center
 
 __all__ = ["CHANCE_FACTOR", "CONVINCING_NCC", "DEFAULT_MIN_INLIER_RATIO", "MIRROR_FACTOR", "START_LEVEL",
@@ -144,9 +144,10 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = 
                            metric=metric, rotation=rotation, stepwise=count_iterations)
     total_iter = 0
     for i, (s, t, d, n) in enumerate(schedule):
-        r = step(s, t, T, settings=settings, max_correspondence_distance=d, max_iteration=n,
-                 relative_rmse=relative_rmse, level=len(schedule) - 1 - i, callback=callback,
-                 target_normals=target_normals if not voxel_sizes else None)
+        r = step(s, t, T, settings, StepCall(max_correspondence_distance=d, max_iteration=n,
+                                             relative_rmse=relative_rmse, level=len(schedule) - 1 - i,
+                                             callback=callback,
+                                             target_normals=target_normals if not voxel_sizes else None))
         T = r.matrix
         total_iter = -1 if (r.iterations < 0 or total_iter < 0) else total_iter + r.iterations
     seconds = time.perf_counter() - start
@@ -246,7 +247,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         threshold is in full-resolution px, scaled by 2^level); the point-to-line finish uses at most 1e-6.
     min_inlier_ratio, inlier_tolerance : the plausibility test's threshold (None turns it off) and px.
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
-    reference_pyramid, moving_pyramid : the images' :func:`pcreg.image_pyramid` (same ``levels``,
+    reference_pyramid, moving_pyramid : the images' :func:`~pcreg.registration.clouds.image_pyramid` (same ``levels``,
         ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
         stream is the moving image once and the reference once); None builds the clouds here. The
         clouds are the same (to OpenCV's float32 rounding of the gradient magnitude).
@@ -407,7 +408,7 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
               masks: tuple, max_points: tuple) -> tuple[CloudPyramid, CloudPyramid]:
     """The reference's and the moving image's cloud pyramids (seeds ``seed`` and ``seed + 1``), each level
     built when first used (a search that ends at level 1 never builds levels 2-3), drawn from the caller's
-    :func:`pcreg.image_pyramid` where given."""
+    :func:`~pcreg.registration.clouds.image_pyramid` where given."""
     out = []
     for name, image, kept, mask, n, s in (("reference", ref_img, reference_pyramid, masks[0], max_points[0], seed),
                                           ("moving", mov_img, moving_pyramid, masks[1], max_points[1], seed + 1)):

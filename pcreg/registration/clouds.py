@@ -450,7 +450,7 @@ def check_pyramid(image: np.ndarray, pyramid: ImagePyramid, *, levels: int, samp
     """``pyramid`` when it was built for ``image`` with enough levels and these options, else an
     :class:`~pcreg.errors.InputError`."""
     if not isinstance(pyramid, ImagePyramid):
-        raise InputError(f"{name} pyramid: expected an ImagePyramid (pcreg.image_pyramid), got {type(pyramid).__name__}")
+        raise InputError(f"{name} pyramid: expected an ImagePyramid (pcreg.registration.clouds.image_pyramid), got {type(pyramid).__name__}")
     if tuple(pyramid.shape) != tuple(image.shape[:2]):
         raise InputError(f"{name} pyramid was built for a {pyramid.shape} image, not {tuple(image.shape[:2])}")
     if len(pyramid) < levels:

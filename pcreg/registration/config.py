@@ -1,7 +1,7 @@
 """One configuration for image registration, nested in every configuration that registers images.
 
 :class:`RegisterConfig` holds :func:`pcreg.register`'s options (its defaults are ``register``'s); the
-pipeline (:class:`pcreg.PipelineConfig`) and the evaluations nest one and unpack it into ``register``'s
+pipeline (:class:`~pcreg.pipeline.pair.PipelineConfig`) and the evaluations nest one and unpack it into ``register``'s
 keyword arguments with :meth:`RegisterConfig.kwargs`, so the algorithm never sees a config object.
 """
 
@@ -11,7 +11,7 @@ from dataclasses import dataclass, fields, replace
 
 from ..errors import InputError
 
-BACKENDS = ("reference", "open3d")
+BACKENDS = ("reference", "open3d")  # the ICP steps of steps.ICP_STEPS, in that order
 
 
 @dataclass(frozen=True)

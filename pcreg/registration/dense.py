@@ -201,35 +201,14 @@ def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarr
 # the compiled windowed nearest-neighbour search
 # ---------------------------------------------------------------------------------------------------
 
-def _best_in_window_py(img, x, y, col, radius, lam2):
+def _best_in_window_py(img, x, y, src, sy, sx, radius, lam2):
     """The pixel of ``img`` (H, W, C) within ``radius`` (per axis) of the pixel nearest (x, y) with the least
-    ``|q - (x, y)|^2 + lam2 |img[q] - col|^2``: ``(qx, qy, cx, cy)``, (cx, cy) the window's centre;
-    qx = qy = -1 when the window holds no pixel of the image (ties: the first in row order)."""
+    ``|q - (x, y)|^2 + lam2 |img[q] - src[sy, sx]|^2``: ``(qx, qy, cx, cy)``, (cx, cy) the window's centre;
+    qx = qy = -1 when the window holds no pixel of the image (ties: the first in row order). The colour is
+    read in place from ``src`` (..., C), so no array view is made per call; the float32 differences are
+    squared and summed in float64."""
     h, w, nc = img.shape
-    cx = int(np.floor(x + 0.5))
-    cy = int(np.floor(y + 0.5))
-    x0, x1 = max(cx - radius, 0), min(cx + radius, w - 1)
-    y0, y1 = max(cy - radius, 0), min(cy + radius, h - 1)
-    best, bx, by = np.inf, -1, -1
-    for qy in range(y0, y1 + 1):
-        dy2 = (qy - y) * (qy - y)
-        for qx in range(x0, x1 + 1):
-            c = (qx - x) * (qx - x) + dy2
-            s = 0.0
-            for k in range(nc):
-                d = img[qy, qx, k] - col[k]
-                s += d * d
-            c += lam2 * s
-            if c < best:
-                best, bx, by = c, qx, qy
-    return bx, by, cx, cy
-
-
-def _best_in_window3_py(img, x, y, c0, c1, c2, radius, lam2):
-    """:func:`_best_in_window_py` for three channels, the colour given as scalars: the same costs in the
-    same order (the float32 differences squared, summed in float64), without an array view per call."""
-    h, w, _ = img.shape
-    cx = int((x + 0.5) // 1.0)  # the nearest pixel, halves up (as the general search's rounding)
+    cx = int((x + 0.5) // 1.0)  # the nearest pixel, halves up
     cy = int((y + 0.5) // 1.0)
     x0, x1 = max(cx - radius, 0), min(cx + radius, w - 1)
     y0, y1 = max(cy - radius, 0), min(cy + radius, h - 1)
@@ -237,15 +216,19 @@ def _best_in_window3_py(img, x, y, c0, c1, c2, radius, lam2):
     for qy in range(y0, y1 + 1):
         dy2 = (qy - y) * (qy - y)
         for qx in range(x0, x1 + 1):
-            c = (qx - x) * (qx - x) + dy2
             s = 0.0
-            d = img[qy, qx, 0] - c0
-            s += d * d
-            d = img[qy, qx, 1] - c1
-            s += d * d
-            d = img[qy, qx, 2] - c2
-            s += d * d
-            c += lam2 * s
+            if nc == 3:  # the common case unrolled (a quarter faster); the same sum in the same order
+                d = img[qy, qx, 0] - src[sy, sx, 0]
+                s += d * d
+                d = img[qy, qx, 1] - src[sy, sx, 1]
+                s += d * d
+                d = img[qy, qx, 2] - src[sy, sx, 2]
+                s += d * d
+            else:
+                for k in range(nc):
+                    d = img[qy, qx, k] - src[sy, sx, k]
+                    s += d * d
+            c = (qx - x) * (qx - x) + dy2 + lam2 * s
             if c < best:
                 best, bx, by = c, qx, qy
     return bx, by, cx, cy
@@ -255,6 +238,7 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
     """Pure-Python body of :func:`match_window` (compiled with numba when it is installed)."""
     h, w, nc = ref.shape
     n = x.shape[0]
+    cols3 = cols.reshape(n, 1, nc)  # each point's colour as a one-pixel row, read in place by the search
     for i in prange(n):
         out[i, 0] = np.nan
         out[i, 1] = np.nan
@@ -263,10 +247,7 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
         xi, yi = x[i], y[i]
         if not (xi > -radius and yi > -radius and xi < w - 1 + radius and yi < h - 1 + radius):
             continue
-        if nc == 3:
-            bx, by, cx, cy = _best_in_window3(ref, xi, yi, cols[i, 0], cols[i, 1], cols[i, 2], radius, lam2)
-        else:
-            bx, by, cx, cy = _best_in_window(ref, xi, yi, cols[i], radius, lam2)
+        bx, by, cx, cy = _best_in_window(ref, xi, yi, cols3, i, 0, radius, lam2)
         if bx < 0:
             continue
         # the best candidate on the gate's rim (not the image's): its partner may lie outside the gate
@@ -310,10 +291,7 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
         # point's own displacement says it came from, must be the point (within a pixel)
         ex = px[i] + (bx - xi)
         ey = py[i] + (by - yi)
-        if nc == 3:
-            b2x, b2y, _, _ = _best_in_window3(mov, ex, ey, ref[by, bx, 0], ref[by, bx, 1], ref[by, bx, 2], radius, lam2)
-        else:
-            b2x, b2y, _, _ = _best_in_window(mov, ex, ey, ref[by, bx], radius, lam2)
+        b2x, b2y, _, _ = _best_in_window(mov, ex, ey, ref, by, bx, radius, lam2)
         if b2x >= 0 and abs(b2x - px[i]) <= 1.0 and abs(b2y - py[i]) <= 1.0:
             out[i, 3] = 1.0
     return out
@@ -322,12 +300,10 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
 try:  # the compiled search; the pure-Python body is the same code and the fallback
     from numba import njit
 
-    _best_in_window = njit(cache=True, nogil=True)(_best_in_window_py)
-    _best_in_window3 = njit(cache=True, nogil=True, inline="always")(_best_in_window3_py)
+    _best_in_window = njit(cache=True, nogil=True, inline="always")(_best_in_window_py)
     _match_window_jit = njit(cache=True, nogil=True)(_match_window_py)
 except ImportError:  # pragma: no cover - numba is a declared dependency
     _best_in_window = _best_in_window_py
-    _best_in_window3 = _best_in_window3_py
     _match_window_jit = None
 
 

@@ -302,19 +302,17 @@ def _move(pts, t, M, d):
 
 @njit(cache=True)
 def _move_query_serial(pts, M, move, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i):
-    d = pts.shape[1]
     for t in range(pts.shape[0]):
         if move:
-            _move(pts, t, M, d)
+            _move(pts, t, M, pts.shape[1])
         out_d2[t], out_i[t] = _nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
 
 
 @njit(cache=True, parallel=True)
 def _move_query_parallel(pts, M, move, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed, out_d2, out_i):
-    d = pts.shape[1]
     for t in prange(pts.shape[0]):
         if move:
-            _move(pts, t, M, d)
+            _move(pts, t, M, pts.shape[1])
         out_d2[t], out_i[t] = _nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
 
 

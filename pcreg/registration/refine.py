@@ -16,7 +16,7 @@ import numpy as np
 from .pyramid import CloudPyramid
 from .reference import build_tree, check_rank
 from .result import IcpIteration, RegistrationResult
-from .steps import IcpSettings, IcpStep, reference_step
+from .steps import IcpSettings, IcpStep, StepCall, reference_step
 
 
 @dataclass(frozen=True)
@@ -67,10 +67,10 @@ class CoarseToFine:
         """One ICP step at ``level`` from ``T`` with correspondence distance ``dist`` (``model`` overrides
         the settings' model)."""
         settings = self.settings if model is None else replace(self.settings, model=model)
-        return self.step(moving[level].points, self.reference[level].points, T, settings=settings,
-                         max_correspondence_distance=dist, max_iteration=self.iterations,
-                         relative_rmse=self.relative_rmse * 2**level, level=level, callback=callback, final=final,
-                         target_index=lambda: self.tree(level), open3d_clouds=self._open3d_clouds)
+        call = StepCall(max_correspondence_distance=dist, max_iteration=self.iterations,
+                        relative_rmse=self.relative_rmse * 2**level, level=level, callback=callback, final=final,
+                        target_index=lambda: self.tree(level), open3d_clouds=self._open3d_clouds)
+        return self.step(moving[level].points, self.reference[level].points, T, settings, call)
 
     def refine(self, moving: CloudPyramid, T: np.ndarray, *, top: int | None = None,
                callback: Callable[[IcpIteration], None] | None = None) -> Refinement:
@@ -101,10 +101,9 @@ class CoarseToFine:
         settings = IcpSettings(model=s.model, relative_fitness=min(s.relative_fitness, 1e-6),
                                weights="tukey" if s.weights == "none" else s.weights, metric="point_to_line")
         target = self.reference[0]
-        r = reference_step(moving[0].points, target.points, start.matrix, settings=settings,
-                           max_correspondence_distance=self.max_correspondence_distance,
-                           max_iteration=self.iterations, relative_rmse=min(self.relative_rmse, 1e-6),
-                           target_normals=target.normals, callback=callback, level=0,
-                           target_index=lambda: self.tree(0))
+        call = StepCall(max_correspondence_distance=self.max_correspondence_distance, max_iteration=self.iterations,
+                        relative_rmse=min(self.relative_rmse, 1e-6), target_normals=target.normals, callback=callback,
+                        level=0, target_index=lambda: self.tree(0))
+        r = reference_step(moving[0].points, target.points, start.matrix, settings, call)
         return Refinement(r.matrix, r.fitness, r.inlier_rmse, -1 if start.iterations < 0 else
                           start.iterations + r.iterations, r.converged)

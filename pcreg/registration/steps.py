@@ -8,11 +8,12 @@ arguments and returns a :class:`~pcreg.registration.result.RegistrationResult` (
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
 from ..errors import InputError
+from .config import BACKENDS
 from .open3d_icp import icp_open3d, to_pointcloud
 from .reference import icp_reference
 from .result import IcpIteration, RegistrationResult
@@ -36,52 +37,67 @@ class IcpSettings:
     stepwise: bool = False
 
 
-IcpStep = Callable[..., RegistrationResult]
+@dataclass(frozen=True)
+class StepCall:
+    """What varies from one call of a step to the next (a level, a candidate, a voxel size).
+
+    level : the pyramid level (reported in each :class:`IcpIteration`). final : False skips Open3D's extra
+    step that decides ``converged`` (an intermediate level's, which nobody reads). target_normals : the
+    reference step's point-to-line metric. target_index : returns a prebuilt index of the target (the
+    reference step; None: built there). open3d_clouds : a dict in which Open3D's copy of each array is made
+    once (the candidates and levels of a registration share it; Open3D's step).
+    """
+
+    max_correspondence_distance: float
+    max_iteration: int
+    relative_rmse: float
+    level: int = 0
+    callback: Callable[[IcpIteration], None] | None = None
+    final: bool = True
+    target_normals: np.ndarray | None = None
+    target_index: Callable[[], object] | None = None
+    open3d_clouds: dict | None = None
 
 
-def reference_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, *, settings: IcpSettings,
-                   max_correspondence_distance: float, max_iteration: int, relative_rmse: float, level: int = 0,
-                   callback: Callable[[IcpIteration], None] | None = None, final: bool = True,
-                   target_normals: np.ndarray | None = None, target_index: Callable[[], object] | None = None,
-                   open3d_clouds: dict | None = None,
-                   ) -> RegistrationResult:
-    """The reference ICP (:func:`~pcreg.registration.reference.icp_reference`); ``target_index()`` returns
-    a prebuilt index of ``target`` (None: built here). ``final`` and ``open3d_clouds`` serve Open3D's step only."""
-    return icp_reference(source, target, model=settings.model, max_correspondence_distance=max_correspondence_distance,
-                         init=init, max_iteration=max_iteration, relative_fitness=settings.relative_fitness,
-                         relative_rmse=relative_rmse, weights=settings.weights, metric=settings.metric,
-                         target_normals=target_normals, callback=callback, level=level, rotation=settings.rotation,
-                         tree=None if target_index is None else target_index(),
+class IcpStep(Protocol):
+    """One ICP run from ``init``: ``(source, target, init, settings, call) -> RegistrationResult``."""
+
+    def __call__(self, source: np.ndarray, target: np.ndarray, init: np.ndarray, settings: IcpSettings,
+                 call: StepCall) -> RegistrationResult: ...
+
+
+def reference_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, settings: IcpSettings,
+                   call: StepCall) -> RegistrationResult:
+    """The reference ICP (:func:`~pcreg.registration.reference.icp_reference`)."""
+    return icp_reference(source, target, model=settings.model,
+                         max_correspondence_distance=call.max_correspondence_distance, init=init,
+                         max_iteration=call.max_iteration, relative_fitness=settings.relative_fitness,
+                         relative_rmse=call.relative_rmse, weights=settings.weights, metric=settings.metric,
+                         target_normals=call.target_normals, callback=call.callback, level=call.level,
+                         rotation=settings.rotation, tree=None if call.target_index is None else call.target_index(),
                          trim_fraction=settings.trim_fraction)
 
 
-def open3d_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, *, settings: IcpSettings,
-                max_correspondence_distance: float, max_iteration: int, relative_rmse: float, level: int = 0,
-                callback: Callable[[IcpIteration], None] | None = None, final: bool = True,
-                target_normals: np.ndarray | None = None, target_index: Callable[[], object] | None = None,
-                open3d_clouds: dict | None = None,
-                ) -> RegistrationResult:
-    """Open3D's point-to-point ICP (:func:`~pcreg.registration.open3d_icp.icp_open3d`).
-
-    final : False skips the extra step that decides ``converged`` (an intermediate pyramid level's,
-        which nobody reads). open3d_clouds : a dict in which Open3D's copy of each array is made once
-        (the candidates and levels of a registration share it). ``target_index`` serves the reference step
-        only.
-    """
-    refuse_for_open3d(weights=settings.weights, metric=settings.metric, target_normals=target_normals,
+def open3d_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, settings: IcpSettings,
+                call: StepCall) -> RegistrationResult:
+    """Open3D's point-to-point ICP (:func:`~pcreg.registration.open3d_icp.icp_open3d`); every option only
+    the reference honours is refused."""
+    refuse_for_open3d(weights=settings.weights, metric=settings.metric, target_normals=call.target_normals,
                       rotation=settings.rotation, trim_fraction=settings.trim_fraction)
     source_pcd = target_pcd = None
-    if open3d_clouds is not None:
-        source_pcd, target_pcd = open3d_cloud(open3d_clouds, source), open3d_cloud(open3d_clouds, target)
-    return icp_open3d(source, target, model=settings.model, max_correspondence_distance=max_correspondence_distance,
-                      init=init, max_iteration=max_iteration, relative_fitness=settings.relative_fitness,
-                      relative_rmse=relative_rmse, callback=callback, level=level,
-                      stepwise=settings.stepwise or callback is not None, source_pcd=source_pcd,
-                      target_pcd=target_pcd, check_convergence=final or callback is not None)
+    if call.open3d_clouds is not None:
+        source_pcd, target_pcd = open3d_cloud(call.open3d_clouds, source), open3d_cloud(call.open3d_clouds, target)
+    return icp_open3d(source, target, model=settings.model,
+                      max_correspondence_distance=call.max_correspondence_distance, init=init,
+                      max_iteration=call.max_iteration, relative_fitness=settings.relative_fitness,
+                      relative_rmse=call.relative_rmse, callback=call.callback, level=call.level,
+                      stepwise=settings.stepwise or call.callback is not None, source_pcd=source_pcd,
+                      target_pcd=target_pcd, check_convergence=call.final or call.callback is not None)
 
 
 ICP_STEPS: dict[str, IcpStep] = {"reference": reference_step, "open3d": open3d_step}
-BACKENDS = tuple(ICP_STEPS)
+if tuple(ICP_STEPS) != BACKENDS:  # one list of backends; config.py keeps it, free of the heavy imports here
+    raise ImportError(f"ICP_STEPS {tuple(ICP_STEPS)} and config.BACKENDS {BACKENDS} disagree")
 
 
 def icp_step(backend: str) -> IcpStep:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterable
 
 from ...errors import InputError
 
@@ -112,22 +112,31 @@ def _units(results: dict) -> list[dict]:
     return [u for u in results.get("units", []) if isinstance(u, dict)]
 
 
+def _backend_tables(results: dict, R: Any, *, key: str, title: str, select: str, errors: Any,
+                    row_frames: Callable[[str, str, dict], Iterable[int | None]]) -> list[dict]:
+    """One table per backend, ``R.table(results, backend)``; ``row_frames(backend, dataset, entry)`` gives
+    the recording frame of each of that dataset's rows (None: not recorded)."""
+    out = []
+    for b, bd in results["backends"].items():
+        header, rows = R.table(results, b)
+        frames = [f for name, d in bd["datasets"].items() for f in row_frames(b, name, d)]
+        out.append(_table(f"{key}_{b}", f"{title}, backend {b}", header, rows, frames, select=select, errors=errors))
+    return out
+
+
 def _sequence_tables(results: dict) -> list[dict]:
     from . import sequence as R
 
     units = _units(results)
-    out = []
-    for b, bd in results["backends"].items():
-        header, rows = R.table(results, b)
-        frames = []
-        for name, d in bd["datasets"].items():
-            for k in d["increments"]:
-                u = next((u for u in units if u.get("dataset") == name and str(u.get("k")) == str(k)
-                          and u.get("backend") == b), None)
-                frames.append(_first_frame(u.get("recording_frames")) if u else None)
-        out.append(_table(f"sequence_{b}", f"Mean error % over pairs (i, i+k), backend {b}", header, rows, frames,
-                          select="a clip and increment", errors=results.get("methods", ())))
-    return out
+
+    def row_frames(b: str, name: str, d: dict) -> Iterable[int | None]:
+        for k in d["increments"]:
+            u = next((u for u in units if u.get("dataset") == name and str(u.get("k")) == str(k)
+                      and u.get("backend") == b), None)
+            yield _first_frame(u.get("recording_frames")) if u else None
+
+    return _backend_tables(results, R, key="sequence", title="Mean error % over pairs (i, i+k)",
+                           select="a clip and increment", errors=results.get("methods", ()), row_frames=row_frames)
 
 
 def _rotation_tables(results: dict) -> list[dict]:
@@ -135,18 +144,15 @@ def _rotation_tables(results: dict) -> list[dict]:
     from . import rotation as R
 
     units = sorted(_units(results), key=lambda u: u.get("index", 0))
-    out = []
-    for b, bd in results["backends"].items():
-        header, rows = R.table(results, b)
-        frames = []
-        for name, d in bd["datasets"].items():
-            for a in d["angles"]:
-                hits = [u["recording_frames"][a] for u in units if u.get("dataset") == name and u.get("backend") == b
-                        and a in (u.get("recording_frames") or {})]
-                frames.append(hits[0] if hits else None)
-        out.append(_table(f"rotation_{b}", f"Error % of rotated frames (mean over sampled frames), backend {b}",
-                          header, rows, frames, select="an angle (the first sampled frame)", errors=KEYS))
-    return out
+
+    def row_frames(b: str, name: str, d: dict) -> Iterable[int | None]:
+        for a in d["angles"]:
+            hits = [u["recording_frames"][a] for u in units if u.get("dataset") == name and u.get("backend") == b
+                    and a in (u.get("recording_frames") or {})]
+            yield hits[0] if hits else None
+
+    return _backend_tables(results, R, key="rotation", title="Error % of rotated frames (mean over sampled frames)",
+                           select="an angle (the first sampled frame)", errors=KEYS, row_frames=row_frames)
 
 
 def _stream_tables(results: dict) -> list[dict]:

@@ -147,3 +147,26 @@ def test_sigterm_cancels_the_cluster_units_and_keeps_the_finished(cluster, tmp_p
               what="an empty task list on the scheduler")
     finally:
         client.close()
+
+
+@pytest.mark.parametrize("phase", ["data", "units", "report"])
+def test_a_signal_in_each_phase_of_a_cluster_run_stops_and_resumes(cluster, local_run, monkeypatch, capsys, tmp_path,
+                                                                   phase):
+    """--scheduler: the signal while the data load, after the first unit came back, while the report is
+    written; exit 130, the units not finished are cancelled on the scheduler, the rerun resumes."""
+    from test_interrupt_phases import close, interrupt_and_resume
+
+    monkeypatch.setitem(__import__("test_interrupt_phases").COMMANDS, "rotation", ARGS)
+    res, kept = interrupt_and_resume(monkeypatch, capsys, tmp_path, "rotation", phase,
+                                     ["--scheduler", cluster.scheduler_address])
+    n_units = len(_units(local_run))
+    lo, hi = {"data": (0, 0), "units": (1, n_units - 1), "report": (n_units, n_units)}[phase]
+    assert lo <= kept <= hi, f"{kept} of {n_units} units kept"
+    local = json.loads((local_run / "results.json").read_text())
+    assert not close(_strip_times(res), _strip_times({k: v for k, v in local.items() if k != "resumed_units"}))
+    client = distributed.Client(cluster.scheduler_address, set_as_default=False)
+    try:
+        until(lambda: client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0,
+              what="an empty task list on the scheduler")
+    finally:
+        client.close()

@@ -370,12 +370,12 @@ PUBLIC_CALLS = {
              "max_iterations", "weights", "trim_fraction", "metric", "rotation"]),
     "image_cloud": (lambda **kw: __import__("pcreg").image_cloud(GOOD, **kw),
                     ["sampler", "max_points", "level", "canny_percentile"]),
-    "cloud_pyramid": (lambda **kw: __import__("pcreg").cloud_pyramid(GOOD, **kw), ["levels", "max_points"]),
+    "cloud_pyramid": (lambda **kw: __import__("pcreg.registration.clouds", fromlist=["x"]).cloud_pyramid(GOOD, **kw), ["levels", "max_points"]),
     "warp": (lambda **kw: __import__("pcreg").warp(GOOD, np.eye(3), **kw), ["shape", "interpolation", "fill"]),
     "synthetic": (lambda **kw: __import__("pcreg").synthetic("syn1a", **{"n_frames": 2, "width": 32, "height": 24, **kw}), ["n_frames", "seed", "width", "height"]),
     "load_dataset": (lambda **kw: __import__("pcreg").load_dataset("synthetic:syn1a", **{"n_frames": 2, "size": (32, 24), **kw}),
                      ["n_frames", "size", "seed"]),
-    "NaiveBayesPixelClassifier": (lambda **kw: __import__("pcreg").NaiveBayesPixelClassifier(**kw),
+    "NaiveBayesPixelClassifier": (lambda **kw: __import__("pcreg.classification.bayes", fromlist=["x"]).NaiveBayesPixelClassifier(**kw),
                                   ["features", "weights", "var_smoothing", "priors"]),
 }
 

@@ -11,7 +11,7 @@ Every frame t of a stream goes, in the same run and in an alternating order, thr
   the motion only, no labels.
 
 The ratio ``step / dis_medium`` is taken per frame and summarised by its median. The step's stages
-are its own clocks (:attr:`pcreg.StepReport.times`, :data:`pcreg.pipeline.stream.STEP_PARTS`): the
+are its own clocks (:attr:`pcreg.pipeline.stream.StepReport.times`, :data:`pcreg.pipeline.stream.STEP_PARTS`): the
 dense registration's pyramids and samples, correspondence search, solve, plausibility figure and
 full-resolution field; the classifier's features and naive Bayes; the prior's warp and the fusion.
 Error rates (unknown left out) show what the time buys: the step's labels, naive Bayes alone, and the

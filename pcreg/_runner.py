@@ -78,6 +78,16 @@ def ignore_signals() -> None:
             pass
 
 
+def forget_stray_interrupt() -> None:
+    """Clear CPython's note of a KeyboardInterrupt that escaped an ``exec``/``eval`` of a string.
+
+    When Ctrl-C lands while such code runs (a dataclass or namedtuple being made during a lazy import,
+    generated code), CPython notes it, and ``python -m pcreg.cli`` then ends by SIGINT at exit even
+    though the command handled the interrupt and exits 130. Evaluating a string resets that note.
+    """
+    exec("None")  # noqa: S102 - a constant: its only effect is the reset
+
+
 def interrupted() -> bool:
     """Whether a SIGINT or SIGTERM arrived since :func:`interrupt_on_signals`."""
     return bool(_RECEIVED)

@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from .errors import RegistrationError
 
-    from ._runner import ignore_signals, interrupt_on_signals, interrupted, restore_signals
+    from ._runner import forget_stray_interrupt, ignore_signals, interrupt_on_signals, interrupted, restore_signals
 
     previous = interrupt_on_signals()  # Ctrl-C and SIGTERM: exit 130, finished units kept
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
@@ -136,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if argv is None and interrupted():  # the program itself is stopping on a signal: let it exit 130
             ignore_signals()
+            forget_stray_interrupt()
         else:
             restore_signals(previous)
         if saved_limit is None:

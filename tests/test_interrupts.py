@@ -238,3 +238,14 @@ def test_demo_stops_and_runs_again(tmp_path, how, workers, at):
     again = subprocess.run([*PCREG, *map(str, args)], capture_output=True, text=True, timeout=HANG)
     assert again.returncode == 0, again.stderr
     assert (out / "report.md").is_file() and (out / "demo.rrd").is_file()
+
+
+def test_an_interrupt_inside_exec_of_a_string_still_exits_130():
+    """CPython ends ``python -m`` by SIGINT when a KeyboardInterrupt once escaped an ``exec`` of a string,
+    even after the program handled it; the command line clears that note."""
+    tests = Path(__file__).parent
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tests), os.environ.get("PYTHONPATH", "")])}
+    p = subprocess.run([sys.executable, "-m", "_interrupted_in_exec"], capture_output=True, text=True, env=env,
+                       cwd=tests, timeout=HANG)
+    assert p.returncode == 130, p.stderr
+    assert p.stderr.startswith("pcreg: interrupted"), p.stderr

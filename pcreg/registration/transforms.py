@@ -24,15 +24,19 @@ def check_model(model: str, dim: int = 2) -> str:
 
 
 def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a (d+1, d+1) homogeneous transform to (N, d) points; projective rows divide through."""
+    """Apply a (d+1, d+1) homogeneous transform to (N, d) points; projective rows divide through.
+
+    A point that a projective transform sends to infinity comes out as inf or nan, without a warning:
+    callers that search over hypotheses meet such matrices and judge them by their results."""
     matrix = np.asarray(matrix, dtype=np.float64)
     points = np.asarray(points, dtype=np.float64)
     d = points.shape[1]
-    out = points @ matrix[:d, :d].T + matrix[:d, d]
-    last = matrix[d, :d]
-    if np.any(last != 0) or matrix[d, d] != 1:
-        w = points @ last + matrix[d, d]
-        out = out / w[:, None]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        out = points @ matrix[:d, :d].T + matrix[:d, d]
+        last = matrix[d, :d]
+        if np.any(last != 0) or matrix[d, d] != 1:
+            w = points @ last + matrix[d, d]
+            out = out / w[:, None]
     return out
 
 

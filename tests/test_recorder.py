@@ -182,11 +182,12 @@ def test_icp_iterations_on_their_timeline_per_backend(recorded):
         assert [scalar(r) for r in fit[:4]] == pytest.approx([0.5, 0.6, 0.7, 0.8])
         rmse = rec.series(E.icp_path(backend, "inlier_rmse"), timeline="icp_iteration")
         assert rmse == pytest.approx({0: 2.0, 1: 1.0, 2: 2 / 3, 3: 0.5})
-        corr = rec.get(E.icp_path(backend, "correspondences"))
+        corr = [r for r in rec.get(E.icp_path(backend, "correspondences")) if not r.static]  # static: the style
         assert len(corr) == 12
         assert all(len(r["LineStrips2D:strips"]) <= 200 for r in corr)
-        assert len(points(rec.get(E.icp_path(backend, "moving"))[0])) == 300
-        targets = rec.get(E.icp_path(backend, "target"))
+        moving = [r for r in rec.get(E.icp_path(backend, "moving")) if not r.static]
+        assert len(moving) == 12 and len(points(moving[0])) == 300
+        targets = [r for r in rec.get(E.icp_path(backend, "target")) if not r.static]
         assert len(targets) == 6  # once per frame and pyramid level
     # frame-level entities sit at the start of the iteration timelines (shown with the iterations)
     at_start = {"frame": 2, "icp_iteration": 0, "crosscheck_iteration": 0}

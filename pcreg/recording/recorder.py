@@ -30,6 +30,7 @@ by rerun's own thread as data arrives (every ~0.2 s); :meth:`Recorder.flush` for
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass, field
 import json
 import math
 import os
@@ -124,6 +125,19 @@ def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
     elif isinstance(obj, (int, float, np.integer, np.floating)) and not isinstance(obj, (bool, np.bool_)):
         out[prefix] = float(obj)
     return out
+
+
+@dataclass
+class _IcpRows:
+    """One backend's ICP iterations in the current frame, kept until they are sent as columns."""
+
+    steps: list[int] = field(default_factory=list)
+    fitness: list[float] = field(default_factory=list)
+    rmse: list[float] = field(default_factory=list)
+    drawn: list[int] = field(default_factory=list)  # the steps whose clouds are drawn (2-D)
+    moving: list[np.ndarray] = field(default_factory=list)
+    strips: list[np.ndarray] = field(default_factory=list)
+    targets: list[tuple[int, np.ndarray]] = field(default_factory=list)
 
 
 class Recorder:
@@ -230,6 +244,8 @@ class Recorder:
         self._matrix: np.ndarray | None = None
         self._moving_shape: tuple[int, int] | None = None
         self._series_named: set[str] = set()
+        self._styled: set[str] = set()
+        self._icp_rows: dict[str, _IcpRows] = {}
         self._send("/", rr.AnnotationContext(
             [rr.AnnotationInfo(id=k, label=name, color=color) for k, (name, color) in E.CLASSES.items()]
         ), static=True)
@@ -250,7 +266,10 @@ class Recorder:
         """Flush everything to the file and finish it (idempotent)."""
         if self._closed:
             return
-        self._closed = True
+        try:
+            self._send_icp_rows()
+        finally:
+            self._closed = True
         try:
             self._wait_pending()
         finally:
@@ -261,6 +280,7 @@ class Recorder:
 
     def flush(self) -> None:
         """Block until everything logged so far is in the file."""
+        self._send_icp_rows()
         self._wait_pending()
         self._rec.flush()
 
@@ -281,11 +301,14 @@ class Recorder:
     def _send(self, path: str, *archetypes: Any, static: bool = False) -> None:
         """Log to rerun and note which archetypes each entity has (for the blueprint)."""
         self._rec.log(path, *archetypes, static=static)
-        names = {type(a).__name__ for a in archetypes}
+        self._note(path, {type(a).__name__ for a in archetypes})
+
+    def _note(self, path: str, names: set[str], rows: int = 1) -> None:
+        """Note the archetypes an entity has (``rows`` values logged at once), for the blueprint."""
         key = "/" + path.strip("/")
         with self._entities_lock:
             if "Scalars" in names:  # two values make a line (pcreg.recording.blueprint.SERIES)
-                self._scalar_counts[key] = self._scalar_counts.get(key, 0) + 1
+                self._scalar_counts[key] = self._scalar_counts.get(key, 0) + rows
                 if self._scalar_counts[key] >= 2:
                     names.add("Scalars+")
             self._entities.setdefault(key, set()).update(names)
@@ -315,6 +338,7 @@ class Recorder:
         Waits for the previous frame's images to be encoded (they are done by then in practice) and
         starts, without waiting, a flush of everything before to the file.
         """
+        self._send_icp_rows()  # the previous frame's iterations, at that frame
         if self._frame is not None:
             self._wait_pending()
             self._rec.flush(timeout_sec=0)
@@ -603,36 +627,79 @@ class Recorder:
         Per iteration: the moving (source) cloud as it moves (<= ``max_points``), <= ``max_correspondences``
         source -> target pairs as LineStrips2D, fitness and inlier RMSE as Scalars. The target cloud is
         logged once per frame and pyramid level. Only 2-D iterations are drawn; series are logged for any.
+        The iterations of a frame are kept and sent as columns (one message per entity) when the next
+        frame starts or the recording is flushed: a registration's dozens of iterations cost a few
+        messages, not a hundred.
         """
         backend = str(backend)
 
         def callback(it: IcpIteration) -> None:
+            if self._closed:
+                raise OutputError(f"{self.path}: the recording is closed")
+            rows = self._icp_rows.setdefault(backend, _IcpRows())
             step = self._icp_step.get(backend, 0)
             self._icp_step[backend] = step + 1
-            self._rec.set_time(E.ICP_TIMELINE, sequence=step)
-            try:
-                self._scalar(E.icp_path(backend, "fitness"), it.fitness, f"{backend} fitness")
-                self._scalar(E.icp_path(backend, "inlier_rmse"), it.inlier_rmse, f"{backend} inlier RMSE")
-                src = np.asarray(it.source_points)
-                tgt = np.asarray(it.target_points)
-                if src.ndim == 2 and src.shape[1] == 2 and tgt.ndim == 2 and tgt.shape[1] == 2:
-                    key = (it.level, len(tgt))
-                    if self._icp_target_key.get(backend) != key:
-                        self._icp_target_key[backend] = key
-                        t_idx = _display_indices(len(tgt), max_points)
-                        self._log(E.icp_path(backend, "target"), rr.Points2D(tgt[t_idx], colors=[80, 160, 255], radii=1.5))
-                    s_idx = _display_indices(len(src), max_points)
-                    self._log(E.icp_path(backend, "moving"), rr.Points2D(src[s_idx], colors=[255, 120, 0], radii=1.5))
-                    ti = np.asarray(it.target_indices)
-                    matched = np.flatnonzero(ti >= 0)
-                    pick = matched[_display_indices(len(matched), max_correspondences)]
-                    strips = np.stack([src[pick], tgt[ti[pick]]], axis=1) if len(pick) else np.zeros((0, 2, 2))
-                    self._log(E.icp_path(backend, "correspondences"),
-                              rr.LineStrips2D(strips, colors=[255, 255, 255], radii=0.5))
-            finally:
-                self._rec.set_time(E.ICP_TIMELINE, sequence=0)
+            rows.steps.append(step)
+            rows.fitness.append(float(it.fitness))
+            rows.rmse.append(float(it.inlier_rmse))
+            src = np.asarray(it.source_points)
+            tgt = np.asarray(it.target_points)
+            if not (src.ndim == 2 and src.shape[1] == 2 and tgt.ndim == 2 and tgt.shape[1] == 2):
+                return
+            key = (it.level, len(tgt))
+            if self._icp_target_key.get(backend) != key:
+                self._icp_target_key[backend] = key
+                rows.targets.append((step, tgt[_display_indices(len(tgt), max_points)].copy()))
+            rows.drawn.append(step)
+            rows.moving.append(src[_display_indices(len(src), max_points)].copy())
+            ti = np.asarray(it.target_indices)
+            matched = np.flatnonzero(ti >= 0)
+            pick = matched[_display_indices(len(matched), max_correspondences)]
+            rows.strips.append(np.stack([src[pick], tgt[ti[pick]]], axis=1) if len(pick) else np.zeros((0, 2, 2)))
 
         return callback
+
+    def _send_icp_rows(self) -> None:
+        """Send the ICP iterations kept since the frame started, one column per entity."""
+        rows_by_backend, self._icp_rows = self._icp_rows, {}
+        for backend, rows in rows_by_backend.items():
+            self._send_columns(E.icp_path(backend, "fitness"), rows.steps,
+                               rr.Scalars.columns(scalars=rows.fitness), series=f"{backend} fitness")
+            self._send_columns(E.icp_path(backend, "inlier_rmse"), rows.steps,
+                               rr.Scalars.columns(scalars=rows.rmse), series=f"{backend} inlier RMSE")
+            if rows.targets:
+                steps, clouds = zip(*rows.targets)
+                self._send_points(E.icp_path(backend, "target"), list(steps), list(clouds), [80, 160, 255])
+            if rows.drawn:
+                self._send_points(E.icp_path(backend, "moving"), rows.drawn, rows.moving, [255, 120, 0])
+                strips = [s for row in rows.strips for s in row]
+                column = rr.LineStrips2D.columns(strips=strips if strips else np.zeros((0, 2, 2)))
+                self._send_columns(E.icp_path(backend, "correspondences"), rows.drawn,
+                                   column.partition([len(r) for r in rows.strips]), archetype="LineStrips2D",
+                                   style=rr.LineStrips2D.from_fields(colors=[255, 255, 255], radii=0.5))
+
+    def _send_points(self, path: str, steps: list[int], clouds: list[np.ndarray], color: list[int]) -> None:
+        column = rr.Points2D.columns(positions=np.concatenate(clouds)).partition([len(c) for c in clouds])
+        self._send_columns(path, steps, column, archetype="Points2D",
+                           style=rr.Points2D.from_fields(colors=color, radii=1.5))
+
+    def _send_columns(self, path: str, steps: list[int], columns: Any, *, series: str | None = None,
+                      archetype: str = "Scalars", style: Any = None) -> None:
+        """``columns`` at ``steps`` of the ICP timeline, in this frame (at the start of the cross-check
+        timeline, as everything of the frame). ``series`` names a Scalars line; ``style`` is logged once,
+        statically (colours and radii that every row shares)."""
+        if series is not None and path not in self._series_named:
+            self._series_named.add(path)
+            self._send(path, rr.SeriesLines(names=series), static=True)
+        if style is not None and path not in self._styled:
+            self._styled.add(path)
+            self._send(path, style, static=True)
+        indexes = [rr.TimeColumn(E.ICP_TIMELINE, sequence=steps)]
+        if self._frame is not None:
+            indexes += [rr.TimeColumn(E.FRAME_TIMELINE, sequence=[self._frame] * len(steps)),
+                        rr.TimeColumn(E.CROSSCHECK_TIMELINE, sequence=[0] * len(steps))]
+        self._rec.send_columns(path, indexes=indexes, columns=columns)
+        self._note(path, {archetype}, rows=len(steps))
 
     # -- crosscheck ---------------------------------------------------------------------------
 

@@ -98,9 +98,11 @@ def add_record_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = True):
-    """A :class:`pcreg.recording.recorder.Recorder` for ``--record``, or a null context."""
+    """A :class:`pcreg.recording.recorder.Recorder` for ``--record``, or the null recorder (in a null context)."""
+    from ..recording.null import NULL_RECORDER
+
     if not getattr(args, "record", None):
-        return contextlib.nullcontext(None)
+        return contextlib.nullcontext(NULL_RECORDER)
     from ..recording.recorder import Recorder
 
     return Recorder(args.record, recording_name=name, raw_images=args.record_raw, force=args.force,

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     ref = load_image(args.reference)
     mov = load_image(args.moving)
     with open_recorder(args, name=f"register {args.moving} -> {args.reference}") as rec:
-        if rec is not None:
+        if rec.enabled:
             rec.set_frame(0)
             rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
             rec.log_images(reference=ref, moving=mov)
@@ -59,11 +59,11 @@ def run(args: argparse.Namespace) -> int:
         result = register(ref, mov, backend=args.backend, model=args.model, levels=args.levels,
                           iterations=args.iterations, init=args.init, max_correspondence_distance=args.max_distance,
                           refine=args.refine, min_inlier_ratio=None if mir == 0 else mir,
-                          callback=rec.icp_callback(args.backend) if rec is not None else None)
+                          callback=rec.icp_callback(args.backend) if rec.enabled else None)
         warped = valid = None
-        if args.out or rec is not None:
+        if args.out or rec.enabled:
             warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)
-        if rec is not None:
+        if rec.enabled:
             rec.log_transform(result.matrix)
             if getattr(result, "field", None) is not None:
                 rec.log_dense(result.field, matrix=result.matrix, confidence=result.confidence)

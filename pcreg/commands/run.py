@@ -151,7 +151,7 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
             labels = prop.step(image)
             plain = prop.classifier.predict(image) if truth is not None else None
             stream.record(t, labels, prop.last.to_dict(), plain)
-            if rec is not None:
+            if rec.enabled:
                 _log(rec, t, image, labels, prop.last, paths[t].name)
             bar.update(1)
     s = stream.state

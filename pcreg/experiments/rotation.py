@@ -27,6 +27,7 @@ from pathlib import Path
 
 from ..classification.features import DEFAULT_FEATURES
 from ..registration.config import RegisterConfig
+from ..recording.null import NULL_RECORDER
 
 
 DEFAULT_ANGLES = tuple(float(a) for a in range(0, 181, 5))
@@ -87,7 +88,7 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
     return image_r, labels_r, content, T_rot
 
 
-def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
+def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = None) -> dict:
     """Every angle for one sampled frame with one backend: a pure function of ``unit``. With a
     recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``), and
     the result's ``recording_frames`` maps each angle to that index."""
@@ -107,7 +108,8 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
     clf = fit_classifier([frame], features=cfg.features)
     shape = frame.shape
     out = {"dataset": unit.dataset, "index": unit.index, "name": frame.name, "backend": unit.backend, "angles": {}}
-    counter = frame_counter if frame_counter is not None else [0]
+    recorded: dict[str, int] = {}
+    on_angle = _angle_logger(recorder, unit, frame_counter if frame_counter is not None else [0], recorded)
     for angle in cfg.angles:
         image_r, labels_r, content, T_rot = rotate_frame(frame.image, frame.labels, angle, canvas=cfg.canvas)
         T_centre = about_point(np.eye(3), image_center(image_r.shape), image_center(shape))
@@ -117,7 +119,7 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
         t_reg = time.perf_counter()
         try:
             res = register(frame.image, image_r, **cfg.registration.replace(backend=unit.backend).kwargs(),
-                           callback=None if recorder is None else recorder.icp_callback(unit.backend))
+                           callback=recorder.icp_callback(unit.backend))
             T, reason = res.matrix, None
         except RegistrationError as exc:
             res, T, reason = None, None, str(exc)
@@ -141,24 +143,42 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
         row["registered"] = T is not None
         row["reason"] = reason
         out["angles"][angle_key(angle)] = row
-        if recorder is not None:
-            recorder.set_frame(counter[0])
-            out.setdefault("recording_frames", {})[angle_key(angle)] = counter[0]
-            counter[0] += 1
-            prefix = f"{unit.dataset}/frame{unit.index}/{unit.backend}"
-            recorder.log_text(f"{prefix}: rotated by {angle:g} degrees")
-            recorder.log_images(reference=frame.image, moving=image_r, warped=warped, valid_mask=valid)
-            if T is not None:
-                recorder.log_transform(T)
-            else:
-                recorder.log_failure(f"{prefix} at {angle:g} degrees: {reason}")
-            recorder.log_labels(truth=frame.labels)
-            recorder.log_labels(predicted=pred_after, prefix="after")
-            recorder.log_labels(predicted=pred_masked, prefix="after_masked")
-            recorder.log_labels(predicted=pred_before, prefix="before")
-            recorder.log_errors({f"{prefix}/{k}": row[k] for k in KEYS})
+        if on_angle is not None:
+            on_angle(angle, row, images=(frame.image, image_r, warped, valid), T=T, reason=reason,
+                     labels=(frame.labels, pred_after, pred_masked, pred_before))
+    if recorded:
+        out["recording_frames"] = recorded
     out["seconds"] = time.perf_counter() - t0
     return out
+
+
+def _angle_logger(rec, unit, counter: list[int], recorded: dict[str, int]):
+    """The hook that logs one angle at the next index of the ``frame`` timeline; None when not recording."""
+    if not rec.enabled:
+        return None
+    from .units import angle_key
+
+    prefix = f"{unit.dataset}/frame{unit.index}/{unit.backend}"
+
+    def on_angle(angle, row, *, images, T, reason, labels) -> None:
+        reference, rotated, warped, valid = images
+        truth, after, after_masked, before = labels
+        rec.set_frame(counter[0])
+        recorded[angle_key(angle)] = counter[0]
+        counter[0] += 1
+        rec.log_text(f"{prefix}: rotated by {angle:g} degrees")
+        rec.log_images(reference=reference, moving=rotated, warped=warped, valid_mask=valid)
+        if T is not None:
+            rec.log_transform(T)
+        else:
+            rec.log_failure(f"{prefix} at {angle:g} degrees: {reason}")
+        rec.log_labels(truth=truth)
+        rec.log_labels(predicted=after, prefix="after")
+        rec.log_labels(predicted=after_masked, prefix="after_masked")
+        rec.log_labels(predicted=before, prefix="before")
+        rec.log_errors({f"{prefix}/{k}": row[k] for k in KEYS})
+
+    return on_angle
 
 
 # ---------------------------------------------------------------------------------------------
@@ -175,7 +195,7 @@ def sample_indices(n: int, samples: int) -> list[int]:
 
 
 def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
-             recorder=None, show_progress: bool | None = None) -> dict:
+             recorder=NULL_RECORDER, show_progress: bool | None = None) -> dict:
     """Run every unit (resuming from ``out/units``); returns what results.json holds."""
     from ..errors import DatasetError
     from .units import Unit, evaluate_units, load_cached

@@ -25,6 +25,7 @@ from pathlib import Path
 from ..classification.features import DEFAULT_FEATURES
 from ..pipeline import PIPELINE_REGISTRATION
 from ..registration.config import RegisterConfig
+from ..recording.null import NULL_RECORDER
 
 
 DEFAULT_INCREMENTS = (1, 4, 7, 10)
@@ -71,7 +72,7 @@ class SequenceConfig:
 # units
 # ---------------------------------------------------------------------------------------------
 
-def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
+def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = None) -> dict:
     """One (dataset, k, backend): a pure function of ``unit`` (data from the per-process cache).
     With a recorder, every scored pair is logged (images, transform, warp, labels, error rates) at the
     next index of the recording's ``frame`` timeline (``frame_counter[0]``, advanced per pair), and the
@@ -83,11 +84,8 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
     cfg = unit.config
     t0 = time.perf_counter()
     frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
-    on_pair = icp = None
     recorded: dict[str, int] = {}
-    if recorder is not None:
-        on_pair, icp = _recording_hooks(recorder, unit, frame_counter if frame_counter is not None else [0],
-                                        recorded)
+    on_pair, icp = _recording_hooks(recorder, unit, frame_counter if frame_counter is not None else [0], recorded)
     try:
         res = run_sequence(frames, k=unit.k, config=cfg.pipeline(unit.backend), train=cfg.train,
                            fusion_frames=cfg.fusion_frames, on_pair=on_pair, icp_callback=icp)
@@ -98,12 +96,14 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
                "error": str(exc)}
     out.update(dataset=unit.dataset, frames=len(frames), seconds=time.perf_counter() - t0,
                width=frames[0].shape[1] if frames else None, height=frames[0].shape[0] if frames else None)
-    if recorder is not None:
+    if recorded:
         out["recording_frames"] = recorded
     return out
 
 
 def _recording_hooks(rec, unit, counter: list[int], recorded: dict[str, int]):
+    if not rec.enabled:  # nothing to log: the pipeline keeps no arrays for it
+        return None, None
     prefix = f"{unit.dataset}/k{unit.k}/{unit.backend}"
     rec.log_text(f"sequence {prefix}: start")
 
@@ -144,7 +144,7 @@ def plan_units(config: SequenceConfig, names: list[str]) -> list:
 
 
 def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
-             recorder=None, show_progress: bool | None = None) -> dict:
+             recorder=NULL_RECORDER, show_progress: bool | None = None) -> dict:
     """Run every unit (resuming from ``out/units`` when ``out`` is given); returns what results.json holds."""
     from ..errors import DatasetError
     from .units import evaluate_units, load_cached

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..recording.null import NULL_RECORDER
+
 #: Methods scored per frame, in table order.
 METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "dense_key", "dense_previous", "similarity_key",
                             "similarity_previous", "flow_key", "flow_previous")
@@ -200,7 +202,7 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
 # units
 # ---------------------------------------------------------------------------------------------
 
-def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> dict:
+def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = None) -> dict:
     """One clip: a pure function of ``unit`` (data from the per-process cache). With a recorder, each
     scored frame is logged at the next index of the ``frame`` timeline (``frame_counter[0]``), and the
     result's ``recording_frames`` maps each frame's index in the clip to that index."""
@@ -210,17 +212,18 @@ def run_unit(unit, *, recorder=None, frame_counter: list[int] | None = None) -> 
     t0 = time.perf_counter()
     frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
     recorded: dict[str, int] = {}
-    hook = None if recorder is None else _recording_hook(recorder, unit.dataset,
-                                                         frame_counter if frame_counter is not None else [0], recorded)
+    hook = _recording_hook(recorder, unit.dataset, frame_counter if frame_counter is not None else [0], recorded)
     out = run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=unit.backend, on_frame=hook)
     out.update(dataset=unit.dataset, backend=unit.backend, n_frames=len(frames), seconds=time.perf_counter() - t0,
                width=frames[0].shape[1], height=frames[0].shape[0])
-    if recorder is not None:
+    if recorded:
         out["recording_frames"] = recorded
     return out
 
 
 def _recording_hook(rec, clip: str, counter: list[int], recorded: dict[str, int]):
+    if not rec.enabled:  # nothing to log: the clip runs without a per-frame hook
+        return None
     rec.log_text(f"stream {clip}: start")
 
     def on_frame(t, frame, preds) -> None:
@@ -242,7 +245,7 @@ def plan_units(config: StreamConfig, names: list[str]) -> list:
     return [Unit(f"{d}_{b}", d, (("backend", b),), config) for d in names for b in config.backends]
 
 
-def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=None, recorder=None,
+def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=None, recorder=NULL_RECORDER,
              show_progress: bool | None = None) -> dict:
     """Run every clip (resuming from ``out/units`` when ``out`` is given); returns what results.json holds."""
     from .units import evaluate_units, load_cached

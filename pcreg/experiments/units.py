@@ -18,6 +18,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..recording.null import NULL_RECORDER
+
 _DATA_CACHE: dict = {}
 
 
@@ -117,7 +119,7 @@ class UnitStore:
         atomic_write_json(self.path(key), result)
 
 
-def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=None,
+def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=NULL_RECORDER,
                   executor=None, desc: str = "", show_progress: bool | None = None) -> tuple[dict, int]:
     """Run the units not finished yet (``store`` keeps each result as it lands), in this process when
     recording (one recorder, frames in order), else through ``executor``.
@@ -145,7 +147,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
         if store is not None:
             store.save(unit.key, result)
 
-    if recorder is not None:
+    if recorder.enabled:  # a recording is written by this process, its frames in order
         recorder.log_config(cfg_dict)
         counter = [0]
         for u in todo:
@@ -169,7 +171,7 @@ def nan_to_none(obj: Any) -> Any:
 
 
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
-                   force: bool = False, executor=None, recorder=None, desc: str = "",
+                   force: bool = False, executor=None, recorder=NULL_RECORDER, desc: str = "",
                    show_progress: bool | None = None) -> dict:
     """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
     them without ``out``), summarise their results in order (``summarise(config, results)``), and add

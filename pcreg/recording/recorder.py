@@ -177,6 +177,8 @@ class Recorder:
         ``path`` exists and not ``force``, or it cannot be written.
     """
 
+    enabled = True  # as against pcreg.recording.null.NULL_RECORDER
+
     def __init__(
         self,
         path: str | os.PathLike,

@@ -49,6 +49,17 @@ def test_backends_agree_iteration_by_iteration():
         np.testing.assert_array_equal(a.target_indices, b.target_indices)
 
 
+def test_crosscheck_of_two_clouds_takes_its_stopping_rule_from_the_config():
+    rng = np.random.default_rng(0)
+    target = rng.uniform(-10, 10, (800, 2))
+    source = tf.apply(np.linalg.inv(tf.rigid2d(5, 0.3, -0.2)), target)
+    d = pcreg.crosscheck(source, target).to_dict()
+    assert d["kind"] == "clouds"
+    assert {k: d["settings"][k] for k in ("max_iterations", "relative_fitness", "relative_rmse")} == \
+        {"max_iterations": 30, "relative_fitness": 1e-6, "relative_rmse": 1e-6}
+    assert d["implementations"]["open3d"]["agrees"] is True
+
+
 def test_crosscheck_images_agree():
     ref = shapes_image()
     mov = moved(ref, rigid_about_centre(ref.shape, 35.0, 10.0, -6.0))

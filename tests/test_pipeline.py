@@ -146,10 +146,10 @@ def test_helpers():
     assert resolve_fusion_frames(100, fusion_frames=None, train="first:7") == 7
     assert resolve_fusion_frames(100, fusion_frames=3, train="first:7") == 3
     with pytest.raises(InputError):
-        RegisterConfig(backend="nope")
+        RegisterConfig.of(backend="nope")
     open3d = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(backend="open3d"))
     assert open3d.backend == "open3d" and open3d.registration.model == "similarity"
-    assert PipelineConfig().registration.model == "similarity" and PipelineConfig().registration.init == "identity"
+    assert PipelineConfig().registration.model == "similarity" and PipelineConfig().registration.search.init == "identity"
 
 
 def test_a_refused_pair_is_recorded_with_its_reason(frames, clf):

@@ -372,6 +372,24 @@ def test_point_to_line_finish_is_explicit_and_tighter():
     assert not np.allclose(plain.matrix, p2l.matrix)
 
 
+def test_register_config_is_split_by_step_and_changed_by_flat_names():
+    from pcreg.registration.config import IcpConfig, PlausibilityConfig, RegisterConfig, SearchConfig
+
+    cfg = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None, backend="open3d", levels=3)
+    assert cfg.search == SearchConfig(init="identity") and cfg.plausibility == PlausibilityConfig(min_inlier_ratio=None)
+    assert cfg.icp == IcpConfig(backend="open3d") and cfg.pyramid.levels == 3 and cfg.backend == "open3d"
+    assert cfg.replace(icp=IcpConfig(iterations=5)).icp == IcpConfig(iterations=5)
+    assert cfg.replace(iterations=5).icp == IcpConfig(backend="open3d", iterations=5)
+    assert cfg.icp.kwargs() == {f: getattr(cfg.icp, f) for f in ("backend", "iterations", "max_correspondence_distance",
+                                                                 "refine", "weights", "relative_fitness", "relative_rmse")}
+    with pytest.raises(InputError, match="unknown registration option.*: max_iterations"):
+        cfg.replace(max_iterations=3)
+    with pytest.raises(InputError, match="levels must be an integer in 1..8"):
+        cfg.replace(levels=9)
+    with pytest.raises(InputError, match="RegisterConfig.icp must be a IcpConfig instance"):
+        RegisterConfig(icp=SearchConfig())
+
+
 def test_register_config_mirrors_the_keyword_arguments_of_register():
     """Every RegisterConfig field is a keyword argument of register with the same default, and every
     option of register that is not data (images, masks, pyramids, a callback) is a field."""

@@ -38,7 +38,7 @@ def config_from_args(args: argparse.Namespace) -> RotationConfig:
         raise InputError("--workers must be at least 1")
     return RotationConfig(data=args.data, angles=tuple(args.angles), samples=args.samples, canvas=args.canvas,
                           backends=c.backends(args.backend), frames=args.frames, size=args.size, seed=args.seed,
-                          registration=RegisterConfig(levels=args.levels, iterations=args.iterations))
+                          registration=RegisterConfig.of(levels=args.levels, iterations=args.iterations))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -31,8 +31,8 @@ CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
 #: Open3D's default stopping thresholds (1e-6), more moving points than ``register``'s default, no
 #: point-to-line finish (only the reference backend has it) and no plausibility test (a cross-check
 #: reports, it does not refuse).
-CROSSCHECK_REGISTRATION = RegisterConfig(iterations=30, relative_fitness=1e-6, relative_rmse=1e-6,
-                                         max_points=(3000, 1500, 800, 400), refine="none", min_inlier_ratio=None)
+CROSSCHECK_REGISTRATION = RegisterConfig.of(iterations=30, relative_fitness=1e-6, relative_rmse=1e-6,
+                                            max_points=(3000, 1500, 800, 400), refine="none", min_inlier_ratio=None)
 
 
 @dataclass(frozen=True)
@@ -219,9 +219,9 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
     if ka != kb:
         raise InputError(f"cannot cross-check {ka[:-1]} against {kb[:-1]}: give two images or two clouds")
     if ka == "clouds":
-        cloud_options.setdefault("max_iterations", config.registration.iterations)
-        cloud_options.setdefault("relative_fitness", config.registration.relative_fitness)
-        cloud_options.setdefault("relative_rmse", config.registration.relative_rmse)
+        cloud_options.setdefault("max_iterations", config.registration.icp.iterations)
+        cloud_options.setdefault("relative_fitness", config.registration.icp.relative_fitness)
+        cloud_options.setdefault("relative_rmse", config.registration.icp.relative_rmse)
         return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
                                           **cloud_options)
     return crosscheck_images(A, B, config=config, callback=callback)

@@ -75,7 +75,7 @@ STAGES: tuple[str, ...] = ("register", "warp", "classify", "fuse", "flow")
 #: although the transform still carries labels usefully; the fusion weight, chosen on the first frames,
 #: sets how much it is trusted, and every pair records its evidence (``inlier_ratio``). A
 #: :class:`pcreg.Propagator` keeps the test on and falls back to plain naive Bayes on a refusal.
-PIPELINE_REGISTRATION = RegisterConfig(model="similarity", init="identity", min_inlier_ratio=None)
+PIPELINE_REGISTRATION = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None)
 
 
 @dataclass(frozen=True)
@@ -168,7 +168,7 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
             start = config.registration.replace(model=DENSE_GLOBAL_MODEL, min_inlier_ratio=None)
             glob = register(reference_image, moving_image, **start.kwargs(), callback=callback)
             res = register_dense(reference_image, moving_image, global_result=glob,
-                                 backend=config.registration.backend, seed=config.registration.seed)
+                                 backend=config.registration.backend, seed=config.registration.search.seed)
         else:
             res = register(reference_image, moving_image, **config.registration.kwargs(), callback=callback)
     except RegistrationError as exc:

@@ -72,7 +72,7 @@ ANCHORS: tuple[str, ...] = ("key", "previous")
 #: Fusion weight of the key frame's prior (see the module's docstring).
 STREAM_WEIGHT = 2.0
 #: A stream's global registration: from the identity, the photograph-calibrated test off.
-STREAM_REGISTRATION = RegisterConfig(model="similarity", init="identity", min_inlier_ratio=None)
+STREAM_REGISTRATION = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None)
 
 
 @dataclass(frozen=True)
@@ -267,7 +267,7 @@ class Propagator:
                 start = (register(reference, image, **self.config.kwargs())
                          if self.dense.global_start == "register" else np.eye(3))
                 result = register_dense(reference, image, global_result=start, backend=self.config.backend,
-                                        seed=self.config.seed, **self.dense.kwargs())
+                                        seed=self.config.search.seed, **self.dense.kwargs())
         except RegistrationError as exc:
             return None, str(exc)
         from ..registration.transforms import degeneracy

@@ -2,9 +2,10 @@
 of recording, reading recordings back, staging them (one, or several side by side) for a viewer, the
 viewer's processes (native, headless, web) and the report page's server.
 
-``pcreg.recording.entities`` has no dependencies; the other modules import rerun.
+``pcreg.recording.entities`` and ``pcreg.recording.null`` (the recorder that records nothing) have no
+dependencies; the other modules import rerun.
 """
 
 from __future__ import annotations
 
-__all__ = ["blueprint", "entities", "readback", "recorder", "report", "staging", "viewer"]
+__all__ = ["blueprint", "entities", "null", "readback", "recorder", "report", "staging", "viewer"]

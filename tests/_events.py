@@ -11,7 +11,8 @@ from __future__ import annotations
 import subprocess
 import threading
 import time
-from typing import Callable
+from pathlib import Path
+from typing import Callable, NamedTuple
 
 HANG = 300.0  # s
 POLL = 0.05  # s
@@ -47,3 +48,27 @@ def until(check: Callable[[], object], *, what: str, alive: subprocess.Popen | t
             continue
         time.sleep(POLL)  # nothing to wait on: look again shortly
     raise AssertionError(f"no {what} within {bound:g} s (hung?)")
+
+
+class Process(NamedTuple):
+    """A live process as ``/proc/PID/stat`` shows it."""
+
+    pid: int
+    state: str  # R, S, Z, ...
+    ppid: int
+    pgrp: int
+
+
+def processes() -> list[Process]:
+    """Every process of this machine that ``/proc`` lists (those ending meanwhile are passed over)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()  # state, ppid, pgrp, ...
+        found.append(Process(int(entry.name), fields[0], int(fields[1]), int(fields[2])))
+    return found

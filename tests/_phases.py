@@ -47,18 +47,10 @@ def signal_at(monkeypatch: pytest.MonkeyPatch, owner: object, name: str, flag: P
 
 def live_children() -> dict[int, str]:
     """pid -> state of this process's children that have not exited (zombies aside)."""
-    me, found = os.getpid(), {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rindex(")") + 2:].split()  # state, ppid, ...
-        if int(fields[1]) == me and fields[0] != "Z":
-            found[int(entry.name)] = fields[0]
-    return found
+    from _events import processes
+
+    me = os.getpid()
+    return {p.pid: p.state for p in processes() if p.ppid == me and p.state != "Z"}
 
 
 def interrupted_line(err: str) -> None:

@@ -140,9 +140,13 @@ def test_sigterm_cancels_the_cluster_units_and_keeps_the_finished(cluster, tmp_p
     assert p.returncode == 130 and "interrupted" in err, err
     kept = _units(out)
     assert 1 <= len(kept) < 4
+    _scheduler_drains(cluster)
+
+
+def _scheduler_drains(cluster) -> None:
+    """The units not finished were cancelled on the scheduler: its task list empties."""
     client = distributed.Client(cluster.scheduler_address, set_as_default=False)
     try:
-        # the units not finished were cancelled on the scheduler: its task list empties
         until(lambda: client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0,
               what="an empty task list on the scheduler")
     finally:
@@ -164,9 +168,4 @@ def test_a_signal_in_each_phase_of_a_cluster_run_stops_and_resumes(cluster, loca
     assert lo <= kept <= hi, f"{kept} of {n_units} units kept"
     local = json.loads((local_run / "results.json").read_text())
     assert not close(_strip_times(res), _strip_times({k: v for k, v in local.items() if k != "resumed_units"}))
-    client = distributed.Client(cluster.scheduler_address, set_as_default=False)
-    try:
-        until(lambda: client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0,
-              what="an empty task list on the scheduler")
-    finally:
-        client.close()
+    _scheduler_drains(cluster)

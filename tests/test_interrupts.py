@@ -20,7 +20,7 @@ from typing import Callable
 import cv2
 import pytest
 
-from _events import HANG, Ended, until
+from _events import HANG, Ended, processes, until
 
 PCREG = [sys.executable, "-m", "pcreg.cli"]
 
@@ -63,18 +63,7 @@ def wait_for_line(p: subprocess.Popen, text: str) -> None:
 
 def group_members(pgid: int) -> dict[int, str]:
     """pid -> state letter of every process in the group (from /proc)."""
-    found = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rindex(")") + 2:].split()  # state, ppid, pgrp, ...
-        if int(fields[2]) == pgid:
-            found[int(entry.name)] = fields[0]
-    return found
+    return {p.pid: p.state for p in processes() if p.pgrp == pgid}
 
 
 def signal_and_check(p: subprocess.Popen, how: str, out: Path | None) -> str:

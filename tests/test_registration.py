@@ -77,7 +77,7 @@ def test_result_is_frozen_and_readable():
         r.matrix[0, 0] = 2.0
     assert "RegistrationResult(backend='reference'" in repr(r)
     assert set(r.to_dict()) == {"matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds",
-                                "inlier_ratio", "chance_ratio", "overlap", "generator"}
+                                "inlier_ratio", "chance_ratio", "overlap", "generator", "frames"}
     assert r.to_dict()["inlier_ratio"] is None  # clouds carry no image evidence
 
 
@@ -370,6 +370,24 @@ def test_point_to_line_finish_is_explicit_and_tighter():
     p2l = pcreg.register(REF, mov, refine="point_to_line")
     assert tf.max_corner_error(p2l.matrix, T, REF.shape) < 0.2
     assert not np.allclose(plain.matrix, p2l.matrix)
+
+
+def test_results_name_their_frames():
+    """An image registration's matrix is T_ref_mov, a cloud registration's T_target_source; the other
+    name says which one the result has."""
+    ref = shapes_image()
+    image = pcreg.register(ref, moved(ref, rigid_about_centre(ref.shape, 5.0, 3.0, -2.0)))
+    assert image.frames == "T_ref_mov" and image.T_ref_mov is image.matrix
+    assert "T_ref_mov=[[" in repr(image) and image.to_dict()["frames"] == "T_ref_mov"
+    with pytest.raises(AttributeError, match="an image registration's transform is T_ref_mov, not T_target_source"):
+        image.T_target_source
+    rng = np.random.default_rng(0)
+    target = rng.uniform(-10, 10, (500, 3))
+    cloud = pcreg.icp(target + 0.05, target, max_correspondence_distance=1.0)
+    assert cloud.frames == "T_target_source" and cloud.T_target_source.shape == (4, 4)
+    assert "T_target_source=[[" in repr(cloud)
+    with pytest.raises(AttributeError, match="a cloud registration's transform is T_target_source, not T_ref_mov"):
+        cloud.T_ref_mov
 
 
 def test_register_config_is_split_by_step_and_changed_by_flat_names():

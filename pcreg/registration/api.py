@@ -309,7 +309,7 @@ def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate
     return RegistrationResult(
         matrix=r.matrix, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=r.iterations,
         converged=r.converged, backend=backend, seconds=seconds, inlier_ratio=evidence.inlier_ratio,
-        chance_ratio=evidence.chance_ratio, overlap=evidence.overlap, generator=best.generator,
+        chance_ratio=evidence.chance_ratio, overlap=evidence.overlap, generator=best.generator, frames="T_ref_mov",
         info={"moving_points": points[0], "reference_points": points[1],
               "hypotheses": [{"generator": c.generator, "inlier_ratio": c.inlier_ratio,
                               "photometric_ncc": c.photometric_ncc} for c in tried],

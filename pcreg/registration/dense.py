@@ -144,6 +144,11 @@ class DenseRegistrationResult:
             object.__setattr__(self, name, a)
 
     @property
+    def T_ref_mov(self) -> np.ndarray:
+        """(3, 3) the global ``T_ref_mov`` (``matrix``) the field refines."""
+        return self.matrix
+
+    @property
     def displacement(self) -> np.ndarray:
         """(H, W, 2) float32: the field minus the global transform (full-resolution px)."""
         return self.field - field_from_matrix(self.matrix, self.field.shape[:2])
@@ -810,7 +815,7 @@ def _given_global(global_result) -> RegistrationResult:
     if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
         raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix")
     return RegistrationResult(matrix=M, fitness=float("nan"), inlier_rmse=float("nan"), iterations=0,
-                              converged=True, backend="given")
+                              converged=True, backend="given", frames="T_ref_mov")
 
 
 def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, *, model: str, backend: str, levels: int,

@@ -7,6 +7,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+FRAMES = ("T_ref_mov", "T_target_source")  # images, clouds
+
+
+def _named(result: "RegistrationResult", name: str) -> np.ndarray:
+    """``result.matrix`` under the name of its frames; the other name is an AttributeError that says why."""
+    if result.frames != name:
+        kind = "an image" if result.frames == "T_ref_mov" else "a cloud"
+        raise AttributeError(f"{kind} registration's transform is {result.frames}, not {name}")
+    return result.matrix
+
+
 def _fmt_matrix(m: np.ndarray) -> str:
     return "[" + ", ".join("[" + ", ".join(f"{v:.6g}" for v in row) + "]" for row in np.asarray(m)) + "]"
 
@@ -16,8 +27,10 @@ class RegistrationResult:
     """What both ICP backends return, so they can be compared field by field.
 
     matrix : (3, 3) or (4, 4) float64
-        Homogeneous transform that maps moving/source coordinates into reference/target
-        coordinates (``T_ref_mov``).
+        Homogeneous transform that maps moving/source coordinates into reference/target coordinates.
+        It is also available by the name of its frames, as ``frames`` says: :attr:`T_ref_mov` for an
+        image registration (:func:`pcreg.register`), :attr:`T_target_source` for a cloud registration
+        (:func:`pcreg.icp`), as small_gicp names it.
     fitness : float
         Fraction of source points with a correspondence within the max distance (Open3D's definition).
     inlier_rmse : float
@@ -41,6 +54,9 @@ class RegistrationResult:
     generator : str or None
         Which hypothesis generator's candidate won (``"edges"``, ``"fourier_mellin"``, ``"orb"``, or
         ``"init"`` for a given initial guess); None for clouds.
+    frames : str
+        ``"T_ref_mov"`` (images: moving image -> reference image) or ``"T_target_source"`` (clouds:
+        source cloud -> target cloud): the name ``matrix`` goes by.
     """
 
     matrix: np.ndarray
@@ -55,11 +71,24 @@ class RegistrationResult:
     overlap: float = float("nan")
     generator: str | None = None
     info: dict = field(default_factory=dict, compare=False)
+    frames: str = "T_target_source"
 
     def __post_init__(self) -> None:
+        if self.frames not in FRAMES:
+            raise ValueError(f"frames must be one of {', '.join(FRAMES)}, got {self.frames!r}")
         m = np.array(self.matrix, dtype=np.float64, copy=True)
         m.setflags(write=False)
         object.__setattr__(self, "matrix", m)
+
+    @property
+    def T_ref_mov(self) -> np.ndarray:
+        """(3, 3) moving image -> reference image: the ``matrix`` of an image registration."""
+        return _named(self, "T_ref_mov")
+
+    @property
+    def T_target_source(self) -> np.ndarray:
+        """(d+1, d+1) source cloud -> target cloud: the ``matrix`` of a cloud registration."""
+        return _named(self, "T_target_source")
 
     def __repr__(self) -> str:
         return (
@@ -67,7 +96,7 @@ class RegistrationResult:
             f"inlier_rmse={self.inlier_rmse:.4g}, iterations={self.iterations}, converged={self.converged}, "
             + (f"inlier_ratio={self.inlier_ratio:.3f}, chance_ratio={self.chance_ratio:.3f}, overlap={self.overlap:.3f}, generator={self.generator!r}, "
                if self.generator is not None else "")
-            + f"seconds={self.seconds:.4f}, matrix={_fmt_matrix(self.matrix)})"
+            + f"seconds={self.seconds:.4f}, {self.frames}={_fmt_matrix(self.matrix)})"
         )
 
     def to_dict(self) -> dict:
@@ -84,6 +113,7 @@ class RegistrationResult:
             "chance_ratio": None if np.isnan(self.chance_ratio) else float(self.chance_ratio),
             "overlap": None if np.isnan(self.overlap) else float(self.overlap),
             "generator": self.generator,
+            "frames": self.frames,
         }
 
 

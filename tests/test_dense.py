@@ -193,8 +193,8 @@ def test_process_pair_keeps_the_field_for_recordings(frames):
     cfg = PipelineConfig(registration=PIPELINE_REGISTRATION.replace(model="dense"))
     done = process_pair(frames[0], frames[2], clf, weight=2.0, config=cfg, keep_arrays=True)
     arrays = done.arrays
-    assert arrays.motion.shape == frames[0].shape + (2,)
-    assert arrays.confidence.shape == frames[0].shape
+    assert arrays.motion.field.shape == frames[0].shape + (2,)
+    assert arrays.motion.confidence.shape == frames[0].shape
     assert arrays.warped_prior.shape == frames[0].shape and arrays.flow.shape == frames[0].shape + (2,)
     assert np.isfinite(done.result.errors["augmented_flow"])
 

@@ -116,8 +116,8 @@ def _recording_hooks(rec, unit, counter: list[int], recorded: dict[str, int]):
         rec.log_images(reference=ref.image, moving=mov.image, warped=arrays.warped, valid_mask=arrays.valid)
         if result.registered:
             rec.log_transform(result.registration["matrix"])
-            if arrays.motion is not None and arrays.motion.ndim == 3:  # a dense registration's field
-                rec.log_dense(arrays.motion, matrix=result.registration["matrix"], confidence=arrays.confidence,
+            if arrays.motion is not None and arrays.motion.is_field:  # a dense registration's field
+                rec.log_dense(arrays.motion.field, matrix=result.registration["matrix"], confidence=arrays.motion.confidence,
                               warped_prior=arrays.warped_prior)
         else:
             rec.log_failure(f"{prefix}: frames {result.reference} -> {result.moving}: {result.reason}")

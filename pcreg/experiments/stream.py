@@ -109,13 +109,13 @@ class _Flow(_KeyPrior):
 
     def step(self, image: np.ndarray) -> np.ndarray:
         from ..pipeline.pair import flow_field
-        from ..pipeline.stream import compose_motions
+        from ..registration.motion import Motion
 
-        fld = flow_field(self._key if self.anchor == "key" else self._prev, image)
+        motion = Motion(field=flow_field(self._key if self.anchor == "key" else self._prev, image))
         if self.anchor == "previous" and self._motion is not None:
-            fld = compose_motions(self._motion, fld, image.shape[:2])
-        self._prev, self._motion = image, fld
-        return self._labels(image, fld)
+            motion = self._motion.after(motion, image.shape[:2])
+        self._prev, self._motion = image, motion
+        return self._labels(image, motion)
 
 
 class _Fixed(_KeyPrior):

@@ -47,6 +47,7 @@ from ..errors import InputError, RegistrationError
 from ..validation import check_bool, check_callable, check_float, check_frame, check_ints
 from ..registration.config import RegisterConfig
 from ..registration.dense import DENSE_GLOBAL_MODEL
+from ..registration.motion import Motion
 from ..registration.result import RegistrationResult
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
@@ -139,17 +140,14 @@ class PairRegistration:
         return None if self.result is None else self.result.matrix
 
     @property
-    def motion(self) -> np.ndarray | None:
-        """What warps the pair: a dense result's field (H, W, 2), else ``matrix``."""
+    def motion(self) -> Motion | None:
+        """What warps the pair: a dense result's field with its confidence, else ``matrix`` (None when refused)."""
         return motion_of(self.result)
 
 
-def motion_of(res) -> np.ndarray | None:
-    """The dense field of a dense result, else the 3x3 matrix (None: no result)."""
-    if res is None:
-        return None
-    fld = getattr(res, "field", None)
-    return np.asarray(fld) if fld is not None else np.asarray(res.matrix)
+def motion_of(res) -> Motion | None:
+    """A registration result's :class:`~pcreg.registration.motion.Motion` (None: no result)."""
+    return None if res is None else Motion.of(res)
 
 
 def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, config: PipelineConfig = PipelineConfig(),
@@ -233,10 +231,9 @@ class PairArrays:
     warped : the moving image warped onto the reference grid (H, W, 3) uint8; valid : (H, W) bool, where
     it came from inside the moving image; predicted : {method: (H, W) uint8 labels} of the moving frame;
     thesis_after, thesis_after_masked : labels on the reference grid.
-    motion : the registration's (3, 3) matrix or dense field (H, W, 2) (None when refused);
-    warped_prior : (H, W) float32 obstacle probability of the reference labels warped into the moving
-    frame; flow : the DIS field (H, W, 2) of ``augmented_flow``; confidence : a dense registration's
-    per-pixel confidence (H, W) (None for a matrix).
+    motion : the registration's :class:`~pcreg.registration.motion.Motion` (a 3x3 matrix, or a dense field
+    with its confidence; None when refused); warped_prior : (H, W) float32 obstacle probability of the
+    reference labels warped into the moving frame; flow : the DIS field (H, W, 2) of ``augmented_flow``.
     """
 
     warped: np.ndarray
@@ -244,10 +241,9 @@ class PairArrays:
     predicted: dict
     thesis_after: np.ndarray
     thesis_after_masked: np.ndarray
-    motion: np.ndarray | None = None
+    motion: Motion | None = None
     warped_prior: np.ndarray | None = None
     flow: np.ndarray | None = None
-    confidence: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -400,7 +396,7 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
     res = reg.result
     times["register"] = reg.seconds
     T = None if res is None else np.asarray(res.matrix)
-    motion = reg.motion  # a dense registration's field, else T; None when refused
+    motion = reg.motion  # a dense registration's field (and confidence), else T; None when refused
 
     t0 = time.perf_counter()
     warped, valid = _warp_moving(moving, motion, reference.shape)
@@ -432,5 +428,5 @@ def process_pair(reference, moving, classifier, *, weight: float, config: Pipeli
                         valid_fraction=float(valid.mean()))
     arrays = PairArrays(warped=warped, valid=valid, predicted=preds, thesis_after=pred_warped,
                         thesis_after_masked=pred_masked, motion=motion, warped_prior=fused.warped_prior,
-                        flow=fused.flow_field, confidence=getattr(res, "confidence", None)) if keep_arrays else None
+                        flow=fused.flow_field) if keep_arrays else None
     return ProcessedPair(result, arrays)

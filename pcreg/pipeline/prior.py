@@ -1,7 +1,8 @@
 """The reference frame's prior carried onto the moving frame: where registration meets the fusion.
 
 :mod:`pcreg.classification.fusion` holds the log-odds arithmetic; here the prior it builds is warped
-by a motion (a 3x3 ``T_ref_mov`` or a dense field) onto the moving frame's pixel grid.
+by a motion (:class:`~pcreg.registration.motion.Motion`: a 3x3 ``T_ref_mov`` or a dense field) onto the moving
+frame's pixel grid.
 """
 
 from __future__ import annotations
@@ -18,14 +19,14 @@ def class_prior(classifier) -> float:
     return float(np.asarray(classifier.class_prior_)[1])
 
 
-def warp_prior(q: np.ndarray, T_ref_mov, *, shape: tuple[int, int], pi: float
+def warp_prior(q: np.ndarray, motion, *, shape: tuple[int, int], pi: float
                ) -> tuple[np.ndarray, np.ndarray]:
     """Move a reference-frame prior onto the moving frame's pixel grid.
 
     q : (H, W) float32 probability of obstacle in the reference frame.
-    T_ref_mov : (3, 3) moving -> reference (as :func:`pcreg.register` returns), or a dense field
-        (H, W, 2) of reference coordinates of every moving pixel (:func:`pcreg.register_dense`);
-        None = identity (the unregistered ablation; sizes must then match, or the prior is
+    motion : a :class:`~pcreg.registration.motion.Motion` or what its ``of`` takes: a (3, 3) ``T_ref_mov``
+        (as :func:`pcreg.register` returns), a dense field (H, W, 2) of reference coordinates of every
+        moving pixel (:func:`pcreg.register_dense`), a registration result; None = identity (the unregistered ablation; sizes must then match, or the prior is
         cropped/padded at the origin).
     shape : (H, W) of the moving frame.
     Returns ``(q_mov (H, W) float32, valid (H, W) bool)``; ``q_mov`` is ``pi`` where not valid.
@@ -33,12 +34,12 @@ def warp_prior(q: np.ndarray, T_ref_mov, *, shape: tuple[int, int], pi: float
     from ..registration.warp import warp_to_moving
 
     pi = check_pi(pi)
-    motion = np.eye(3) if T_ref_mov is None else T_ref_mov
+    motion = np.eye(3) if motion is None else motion
     return warp_to_moving(np.asarray(q, dtype=np.float32), motion, shape=shape, interpolation="linear", fill=pi)
 
 
-def warped_prior_log_odds(q: np.ndarray, T_ref_mov, *, shape: tuple[int, int], pi: float) -> np.ndarray:
+def warped_prior_log_odds(q: np.ndarray, motion, *, shape: tuple[int, int], pi: float) -> np.ndarray:
     """The prior log-odds (H, W) float32 on the moving frame: :func:`warp_prior`, then
     :func:`~pcreg.classification.fusion.prior_log_odds`."""
-    q_mov, _ = warp_prior(q, T_ref_mov, shape=shape, pi=pi)
+    q_mov, _ = warp_prior(q, motion, shape=shape, pi=pi)
     return prior_log_odds(q_mov, pi=pi)

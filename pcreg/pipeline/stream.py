@@ -52,6 +52,7 @@ from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from
 from .prior import class_prior, warp_prior
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
+from ..registration.motion import Motion
 
 __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep", "STREAM_DENSE", "STREAM_REGISTRATION",
            "STREAM_WEIGHT", "ANCHORS"]
@@ -180,7 +181,7 @@ class Propagator:
         self._key_image: np.ndarray | None = None
         self._key_labels: np.ndarray | None = None
         self._key_prior: np.ndarray | None = None
-        self._chain: tuple[np.ndarray, object, int] | None = None  # (image, motion to the key frame, frame)
+        self._chain: tuple[np.ndarray, Motion | None, int] | None = None  # (image, motion to the key frame, frame)
         self._frame = 0
         self.last: StepReport | None = None
 
@@ -227,7 +228,7 @@ class Propagator:
         t0 = time.perf_counter()
         reference, ref_frame = (self._key_image, 0) if self.anchor == "key" else (self._chain[0], self._chain[2])
         result, reason = self._register(reference, img)
-        motion = None if result is None else self._to_key(_motion(result), img.shape[:2])
+        motion = None if result is None else self._to_key(Motion.of(result), img.shape[:2])
         times["register"] = time.perf_counter() - t0
 
         dense_times = getattr(result, "info", {}).get("times") if result is not None else None
@@ -275,43 +276,16 @@ class Propagator:
         why = degeneracy(result.matrix, image.shape)
         return (result, None) if why is None else (None, f"registration refused: {why}")
 
-    def _to_key(self, motion, shape: tuple[int, int]):
-        """The new frame's motion to the key frame: itself when anchored to it, else composed with the
-        previous frame's motion to the key frame."""
+    def _to_key(self, motion: Motion, shape: tuple[int, int]) -> Motion:
+        """The new frame's motion to the key frame: itself when anchored to it, else the previous frame's
+        motion to the key frame after it."""
         prev = self._chain[1] if self.anchor == "previous" else None
-        if prev is None:
-            return motion
-        if motion.ndim == 2 and prev.ndim == 2:
-            return prev @ motion
-        return compose_motions(prev, motion, shape)
+        return motion if prev is None else prev.after(motion, shape)
 
     @property
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
-
-
-def compose_motions(T_a_b, T_b_c, shape: tuple[int, int]) -> np.ndarray:
-    """The field (H, W, 2) of ``T_a_b`` after ``T_b_c``: for every pixel of frame c its coordinates in
-    frame a. Each is a 3x3 matrix or a field; ``shape`` is frame c's (H, W). Points that leave frame b
-    land far outside frame a (no prior arrives there)."""
-    import cv2
-
-    from ..registration.dense import field_from_matrix
-
-    f_bc = T_b_c if np.ndim(T_b_c) == 3 else field_from_matrix(np.asarray(T_b_c, dtype=np.float64), shape)
-    if np.ndim(T_a_b) == 2:
-        M = np.asarray(T_a_b, dtype=np.float64)
-        p = np.concatenate([f_bc.reshape(-1, 2), np.ones((f_bc.shape[0] * f_bc.shape[1], 1))], axis=1) @ M.T
-        return (p[:, :2] / p[:, 2:3]).reshape(f_bc.shape).astype(np.float32)
-    f_ab = np.asarray(T_a_b, dtype=np.float32)
-    return cv2.remap(f_ab, f_bc[:, :, 0].astype(np.float32), f_bc[:, :, 1].astype(np.float32), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e6, -1e6))
-
-
-def _motion(result):
-    fld = getattr(result, "field", None)
-    return np.asarray(fld) if fld is not None else np.asarray(result.matrix, dtype=np.float64)
 
 
 def _check_image(image) -> np.ndarray:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds
+from ..registration.motion import Motion
 from .prior import warped_prior_log_odds
 
 __all__ = ["registration_supported", "temporal_update", "TemporalFusion"]
@@ -31,14 +32,15 @@ def registration_supported(warped_labels: np.ndarray, labels: np.ndarray, log_od
     return agree_w >= agree_i
 
 
-def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T_ref_mov: np.ndarray | None, *,
+def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, motion: Motion | None, *,
                     pi: float, weight: float, fusion: FusionConfig = FusionConfig()) -> tuple[np.ndarray, np.ndarray]:
     """One step of the temporal filter.
 
     log_odds_moving : (H, W) float32 naive Bayes log-odds of the new frame. labels_reference : (H, W)
     uint8 labels the chain holds for the previous frame (true labels at the chain's start, then its
-    own fused labels; 2 where it knows nothing). T_ref_mov : previous -> new registration, a 3x3 matrix
-    or a dense field (None: no prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``:
+    own fused labels; 2 where it knows nothing). motion : previous -> new registration, a
+    :class:`~pcreg.registration.motion.Motion` or what :meth:`~pcreg.registration.motion.Motion.of` takes
+    (None: no prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``:
     the fused log-odds at ``weight``, and the label carried over from the previous frame where it
     reached the new frame and Bayes' rule at weight 1 agrees with it, 2 (unknown) elsewhere. So a
     label survives while the classifier does not overrule it, and neither
@@ -58,20 +60,20 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, T
     k = 1 with the dense registration, plain naive Bayes 6.0%). At weight 1 the prior is the calibrated
     probability it was built as, so the classifier can still overrule a label it contradicts strongly
     (5.7% there), and the chain's state no longer depends on a weight chosen on too few frames.
-    A failed registration (``T_ref_mov`` None) ends the chain's labels: the frame falls back to plain
+    A failed registration (``motion`` None) ends the chain's labels: the frame falls back to plain
     naive Bayes, and so does the rest of the chain; so does a registration that the new frame's
     evidence does not support (:func:`registration_supported`): a poor registration is not carried on.
     """
     d = np.asarray(log_odds_moving, dtype=np.float32)
-    if T_ref_mov is None:
+    if motion is None:
         return d.copy(), np.full(d.shape, 2, np.uint8)
     from ..registration.warp import warp_to_moving
 
     labels_reference = np.asarray(labels_reference, dtype=np.uint8)
-    reached, _ = warp_to_moving(labels_reference, T_ref_mov, shape=d.shape, interpolation="nearest", fill=2)
+    reached, _ = warp_to_moving(labels_reference, motion, shape=d.shape, interpolation="nearest", fill=2)
     if not registration_supported(reached, labels_reference, d):
         return d.copy(), np.full(d.shape, 2, np.uint8)
-    l_prior = warped_prior_log_odds(label_prior(labels_reference, pi=pi, fusion=fusion), T_ref_mov,
+    l_prior = warped_prior_log_odds(label_prior(labels_reference, pi=pi, fusion=fusion), motion,
                                     shape=d.shape, pi=pi)
     fused = fuse(d, l_prior, weight=weight)
     judged = labels_from_log_odds(fuse(d, l_prior, weight=1.0))
@@ -108,8 +110,8 @@ class TemporalFusion:
     def weight(self) -> float:
         return self._weight
 
-    def step(self, log_odds_moving: np.ndarray, T_ref_mov: np.ndarray | None, *, pi: float | None = None) -> np.ndarray:
-        """Fuse the moving frame's log-odds (H, W) with the state warped by ``T_ref_mov`` (None: no
+    def step(self, log_odds_moving: np.ndarray, motion: Motion | None, *, pi: float | None = None) -> np.ndarray:
+        """Fuse the moving frame's log-odds (H, W) with the state warped by ``motion`` (None: no
         prior); returns the fused log-odds (H, W) float32 and keeps the new label state.
 
         pi : the obstacle prior of the classifier that made the log-odds (kept for later steps); None
@@ -117,7 +119,7 @@ class TemporalFusion:
         """
         if pi is not None:
             self._pi = float(pi)
-        fused, labels = temporal_update(log_odds_moving, self._labels, T_ref_mov, pi=self._pi,
+        fused, labels = temporal_update(log_odds_moving, self._labels, motion, pi=self._pi,
                                         weight=self._weight, fusion=self._fusion)
         labels.setflags(write=False)
         self._labels = labels

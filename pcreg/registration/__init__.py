@@ -10,6 +10,8 @@
   (coarse-to-fine ICP), :mod:`.search` (hypotheses, refined and measured) and :mod:`.plausibility`;
 - :mod:`.dense`: ``register_dense``, the global result refined into a dense field by a non-rigid ICP;
 - :mod:`.flow`: OpenCV's DIS optical flow as a field (the baseline of the evaluations);
-- :mod:`.config`: :class:`~.config.RegisterConfig`, ``register``'s options as one frozen config;
+- :mod:`.config`: :class:`~.config.RegisterConfig`, ``register``'s options as one frozen config, by step;
+- :mod:`.motion`: :class:`~.motion.Motion`, the one motion type (a 3x3 ``T_ref_mov``, or a dense field
+  with its confidence) that warping, the fusion's prior, the temporal filter and the stream take;
 - :mod:`.warp`, :mod:`.transforms`, :mod:`.result`: warping, homogeneous transforms, result types.
 """

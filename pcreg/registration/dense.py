@@ -72,12 +72,13 @@ import scipy.sparse.linalg as spla
 
 from ..errors import InputError, RegistrationError
 from .clouds import as_rgb_uint8
+from .motion import field_from_matrix
 from .result import RegistrationResult
 from .transforms import MODELS
 from ..validation import check_bool, check_callable, check_choice, check_float, check_floats, check_int, short_repr
 
 
-__all__ = ["DenseRegistrationResult", "DenseIteration", "register_dense", "field_from_matrix", "is_field",
+__all__ = ["DenseRegistrationResult", "DenseIteration", "register_dense", "field_from_matrix",
            "match_window", "STIFFNESS_SCHEDULE", "DENSE_STAGES", "DenseOptions"]
 
 #: Stiffness per iteration of a level (Amberg et al. 2007: stiff to relaxed); the last value repeats.
@@ -171,35 +172,6 @@ class DenseRegistrationResult:
                  median_displacement=float(np.median(disp)), max_displacement=float(disp.max()),
                  evidence=float(self.info.get("evidence", float("nan"))))
         return d
-
-
-# ---------------------------------------------------------------------------------------------------
-# fields
-# ---------------------------------------------------------------------------------------------------
-
-def is_field(motion) -> bool:
-    """True for an (H, W, 2) field (or a result that holds one), False for a 3x3 matrix."""
-    if isinstance(motion, DenseRegistrationResult):
-        return True
-    a = np.asarray(motion)
-    return a.ndim == 3 and a.shape[2] == 2
-
-
-def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W, 2) float32 reference coordinates of every moving pixel under a 3x3 transform."""
-    h, w = int(shape[0]), int(shape[1])
-    M = np.asarray(T_ref_mov, dtype=np.float64)
-    x = np.arange(w, dtype=np.float64)[None, :]
-    y = np.arange(h, dtype=np.float64)[:, None]
-    out = np.empty((h, w, 2), np.float32)
-    if M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1:
-        out[:, :, 0] = M[0, 0] * x + (M[0, 1] * y + M[0, 2])
-        out[:, :, 1] = M[1, 0] * x + (M[1, 1] * y + M[1, 2])
-        return out
-    den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
-    out[:, :, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den
-    out[:, :, 1] = (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den
-    return out
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -1,8 +1,8 @@
 """Warping between the moving and the reference image's pixel grids, by a 3x3 transform or a dense field.
 
-A motion is either a (3, 3) ``T_ref_mov`` or an (H, W, 2) field (:mod:`pcreg.registration.dense`):
-the reference coordinates of every moving pixel (a :class:`~pcreg.registration.dense.DenseRegistrationResult`
-stands for its field). :func:`warp` brings a moving-frame array onto the reference grid;
+A motion is a :class:`~pcreg.registration.motion.Motion`: a (3, 3) ``T_ref_mov`` or an (H, W, 2) field, the
+reference coordinates of every moving pixel; anything :meth:`Motion.of <pcreg.registration.motion.Motion.of>`
+takes stands for one (a registration result, a matrix, a field array). :func:`warp` brings a moving-frame array onto the reference grid;
 :func:`warp_to_moving` brings a reference-frame array onto the moving grid (labels, priors).
 """
 
@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..validation import check_float, short_repr
+from .motion import Motion
 
 # OpenCV's remap supports these (float16 is warped as float32; bool as uint8).
 _DTYPES = tuple(np.dtype(d) for d in (np.bool_, np.uint8, np.uint16, np.int16, np.float16, np.float32, np.float64))
@@ -39,15 +40,15 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     if moving.ndim not in (2, 3) or moving.shape[0] == 0 or moving.shape[1] == 0:
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {moving.shape}")
     fill = _check_remap_input(moving, interpolation, fill)
-    if _is_field(T_ref_mov):
-        fld = _check_field(T_ref_mov, moving.shape[:2])
+    motion = _motion(T_ref_mov)
+    if motion.field is not None:
+        fld = _check_field(motion.field, moving.shape[:2])
         h, w = _check_shape(shape if shape is not None else moving.shape[:2])
         inverse, ok = invert_field(fld, (h, w))
         warped, valid = _remap(moving, inverse, interpolation=interpolation, fill=fill)
         return warped, valid & ok
-    M = _as_matrix(T_ref_mov)
-    if M.shape != (3, 3) or not np.all(np.isfinite(M)):
-        raise InputError("warp: T_ref_mov must be a finite 3x3 matrix")
+    M = motion.matrix
+    assert M is not None
     if abs(np.linalg.det(M)) < 1e-12:
         raise InputError("warp: T_ref_mov is singular")
     h, w = _check_shape(shape if shape is not None else moving.shape[:2])
@@ -61,12 +62,12 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     return _resample(moving, one, interpolation=interpolation, fill=fill)
 
 
-def _as_matrix(T_ref_mov) -> np.ndarray:
-    """``T_ref_mov`` as a float64 array (its shape and values are checked by the caller)."""
+def _motion(T_ref_mov) -> Motion:
+    """``T_ref_mov`` as a :class:`Motion`; what is not one is an :class:`InputError` that names ``warp``."""
     try:
-        return np.asarray(T_ref_mov, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"warp: T_ref_mov must be a 3x3 matrix or a dense field, got {type(T_ref_mov).__name__}") from None
+        return Motion.of(T_ref_mov)
+    except InputError as exc:
+        raise InputError(f"warp: {exc}") from None
 
 
 def _check_shape(shape) -> tuple[int, int]:
@@ -89,22 +90,11 @@ def _check_shape(shape) -> tuple[int, int]:
 # dense fields
 # ---------------------------------------------------------------------------------------------------
 
-def _is_field(motion) -> bool:
-    if hasattr(motion, "field") and hasattr(motion, "matrix"):
-        return True
-    a = np.asarray(motion)
-    return a.ndim == 3 and a.shape[2] == 2
-
-
-def _check_field(motion, shape: tuple[int, int] | None) -> np.ndarray:
-    fld = np.asarray(getattr(motion, "field", motion), dtype=np.float32)
-    if fld.ndim != 3 or fld.shape[2] != 2 or fld.shape[0] == 0 or fld.shape[1] == 0:
-        raise InputError(f"warp: a field must be (H, W, 2), got shape {fld.shape}")
+def _check_field(fld: np.ndarray, shape: tuple[int, int] | None) -> np.ndarray:
+    """A motion's field (checked by :class:`Motion`), of the moving grid's size where that is known."""
     if shape is not None and fld.shape[:2] != tuple(shape[:2]):
         raise InputError(f"warp: the field is {fld.shape[1]}x{fld.shape[0]} but the moving grid is "
                          f"{shape[1]}x{shape[0]}")
-    if not np.all(np.isfinite(fld)):
-        raise InputError("warp: the field has NaN or inf values")
     return fld
 
 
@@ -172,12 +162,14 @@ def warp_to_moving(reference: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] |
     reference = np.asarray(reference)
     if reference.ndim not in (2, 3) or reference.shape[0] == 0 or reference.shape[1] == 0:
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {reference.shape}")
-    if _is_field(T_ref_mov):
-        fld = _check_field(T_ref_mov, shape[:2] if shape is not None else None)
+    motion = _motion(T_ref_mov)
+    if motion.field is not None:
+        fld = _check_field(motion.field, shape[:2] if shape is not None else None)
         fill = _check_remap_input(reference, interpolation, fill)
         return _remap(reference, fld, interpolation=interpolation, fill=fill)
-    M = _as_matrix(T_ref_mov)
-    if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
+    M = motion.matrix
+    assert M is not None
+    if abs(np.linalg.det(M)) < 1e-12:
         raise InputError("warp: T_ref_mov must be a finite invertible 3x3 matrix")
     return warp(reference, np.linalg.inv(M), shape=shape, interpolation=interpolation, fill=fill)
 

@@ -1,0 +1,148 @@
+"""One motion type: where every pixel of the moving image lies in the reference image.
+
+A :class:`Motion` is either a (3, 3) ``T_ref_mov`` (any global model) or a dense field (H, W, 2) of the
+moving grid's size (:func:`pcreg.register_dense`, a flow) with, where the registration gave one, its
+per-pixel confidence (H, W) in [0, 1]. :func:`pcreg.warp`, the prior of the fusion
+(:func:`pcreg.pipeline.prior.warp_prior`), the temporal filter and the stream take one, or anything
+:meth:`Motion.of` turns into one: a registration result, a 3x3 matrix or a field array.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["Motion", "field_from_matrix"]
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Motion:
+    """``matrix`` (3, 3) float64 ``T_ref_mov``, or ``field`` (H, W, 2) float32 reference coordinates of every
+    moving pixel with an optional ``confidence`` (H, W) float32; exactly one of ``matrix`` and ``field``.
+    Arrays are read-only copies."""
+
+    matrix: np.ndarray | None = None
+    field: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if (self.matrix is None) == (self.field is None):
+            raise InputError("a motion is a 3x3 matrix or a dense field: give exactly one")
+        if self.matrix is not None:
+            self._keep("matrix", _checked_matrix(self.matrix))
+            if self.confidence is not None:
+                raise InputError("a motion's confidence goes with a dense field, not a matrix")
+            return
+        fld = _checked_field(self.field)
+        self._keep("field", fld)
+        if self.confidence is not None:
+            conf = np.asarray(self.confidence, dtype=np.float32)
+            if conf.shape != fld.shape[:2]:
+                raise InputError(f"a field's confidence must be (H, W) = {fld.shape[:2]}, got shape {conf.shape}")
+            self._keep("confidence", conf)
+
+    def _keep(self, name: str, value: np.ndarray) -> None:
+        if value.flags.writeable:  # a caller's array: a read-only copy (a result's arrays are read-only already)
+            value = value.copy()
+            value.setflags(write=False)
+        object.__setattr__(self, name, value)
+
+    @classmethod
+    def of(cls, motion: Any) -> "Motion":
+        """``motion`` as a :class:`Motion`: itself; a dense result's field and confidence; a registration
+        result's ``matrix``; a (3, 3) array; an (H, W, 2) array. Anything else is an :class:`InputError`."""
+        if isinstance(motion, Motion):
+            return motion
+        fld = getattr(motion, "field", None)
+        if fld is not None:
+            return cls(field=fld, confidence=getattr(motion, "confidence", None))
+        if hasattr(motion, "matrix"):
+            return cls(matrix=motion.matrix)
+        try:
+            a = np.asarray(motion, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"a motion must be a 3x3 matrix or a dense field, got {type(motion).__name__}") from None
+        if a.ndim == 3 and a.shape[2] == 2:
+            return cls(field=a)
+        if a.shape != (3, 3):
+            raise InputError(f"a motion must be a 3x3 matrix or an (H, W, 2) field, got shape {a.shape}")
+        return cls(matrix=a)
+
+    @property
+    def is_field(self) -> bool:
+        return self.field is not None
+
+    def as_field(self, shape: tuple[int, int]) -> np.ndarray:
+        """(H, W, 2) float32: the field, or the matrix applied to every pixel of an (H, W) ``shape`` grid."""
+        if self.field is not None:
+            return self.field
+        assert self.matrix is not None
+        return field_from_matrix(self.matrix, shape)
+
+    def after(self, other: "Motion", shape: tuple[int, int]) -> "Motion":
+        """This motion (frame b to frame a) after ``other`` (frame c to frame b): frame c to frame a.
+
+        Two matrices compose into a matrix; otherwise the result is a field on frame c's (H, W)
+        ``shape``, and points that leave frame b land far outside frame a (no prior arrives there)."""
+        import cv2
+
+        if self.matrix is not None and other.matrix is not None:
+            return Motion(matrix=self.matrix @ other.matrix)
+        f_cb = other.as_field(shape)
+        if self.matrix is not None:
+            p = np.concatenate([f_cb.reshape(-1, 2), np.ones((f_cb.shape[0] * f_cb.shape[1], 1))], axis=1) @ self.matrix.T
+            return Motion(field=(p[:, :2] / p[:, 2:3]).reshape(f_cb.shape).astype(np.float32))
+        assert self.field is not None
+        return Motion(field=cv2.remap(self.field, f_cb[:, :, 0].astype(np.float32), f_cb[:, :, 1].astype(np.float32),
+                                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e6, -1e6)))
+
+    def __repr__(self) -> str:
+        if self.matrix is not None:
+            return f"Motion(T_ref_mov={np.round(self.matrix, 6).tolist()})"
+        assert self.field is not None
+        h, w = self.field.shape[:2]
+        conf = "" if self.confidence is None else f", mean_confidence={float(self.confidence.mean()):.3f}"
+        return f"Motion(field={w}x{h}{conf})"
+
+
+def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W, 2) float32 reference coordinates of every moving pixel under a 3x3 transform."""
+    h, w = int(shape[0]), int(shape[1])
+    M = np.asarray(T_ref_mov, dtype=np.float64)
+    x = np.arange(w, dtype=np.float64)[None, :]
+    y = np.arange(h, dtype=np.float64)[:, None]
+    out = np.empty((h, w, 2), np.float32)
+    if M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1:
+        out[:, :, 0] = M[0, 0] * x + (M[0, 1] * y + M[0, 2])
+        out[:, :, 1] = M[1, 0] * x + (M[1, 1] * y + M[1, 2])
+        return out
+    den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
+    out[:, :, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den
+    out[:, :, 1] = (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den
+    return out
+
+
+def _checked_matrix(m: Any) -> np.ndarray:
+    try:
+        a = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"T_ref_mov must be a 3x3 matrix, got {type(m).__name__}") from None
+    if a.shape != (3, 3) or not np.all(np.isfinite(a)):
+        raise InputError(f"T_ref_mov must be a finite 3x3 matrix, got shape {a.shape}")
+    return a
+
+
+def _checked_field(f: Any) -> np.ndarray:
+    try:
+        a = np.asarray(f, dtype=np.float32)
+    except (TypeError, ValueError):
+        raise InputError(f"a field must be an (H, W, 2) array, got {type(f).__name__}") from None
+    if a.ndim != 3 or a.shape[2] != 2 or a.shape[0] == 0 or a.shape[1] == 0:
+        raise InputError(f"a field must be (H, W, 2), got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InputError("the field has NaN or inf values")
+    return a

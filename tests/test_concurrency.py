@@ -239,6 +239,22 @@ def _saturated(shot: np.ndarray) -> float:
     return float(((hsv[..., 1] > 80) & (hsv[..., 2] > 60)).mean())
 
 
+def _message_starts(data: bytes) -> list[int]:
+    """Where each message with a payload starts in an .rrd file's bytes: after the 12-byte stream header,
+    each message is a 16-byte header (kind, payload length: little-endian u64) and its payload; kind 0
+    ends the stream (the footer follows)."""
+    starts, at = [], 12
+    while at + 16 <= len(data):
+        kind = int.from_bytes(data[at:at + 8], "little")
+        length = int.from_bytes(data[at + 8:at + 16], "little")
+        if kind == 0:
+            break
+        if length > 1:
+            starts.append(at)
+        at += 16 + length
+    return starts
+
+
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")
 def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
     """What a reader finds while the writer is half-way through a message: the whole messages before it."""
@@ -262,21 +278,28 @@ def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
             rec.set_frame(f)
             rec.log_images(reference=img, moving=img)
             rec.log_errors({"plain": float(f)})
+            rec.flush()  # each frame's messages in the file before the next frame's
     data = path.read_bytes()
     assert complete_length(path) == len(data)  # finished: all of it
+    # cut half-way through the payload of the first message that starts past the middle of the file
+    starts = _message_starts(data)
+    start = next((s for s in starts if s >= len(data) // 2), starts[-1])
+    length = int.from_bytes(data[start + 8:start + 16], "little")
+    cut_at = start + 16 + length // 2
     cut = tmp_path / "cut.rrd"
-    cut.write_bytes(data[: len(data) // 2])
+    cut.write_bytes(data[:cut_at])
     with pytest.raises(Exception, match="exceeds"):  # rerun's reader alone gives up on the half-written message
         rerun.chunk.RrdReader(str(cut)).recordings()
     n = complete_length(cut)
-    assert 0 < n < len(data) // 2
+    assert n == start
     assert snapshot(cut, tmp_path / "snap.rrd").stat().st_size == n
     assert recordings_in(cut)[0].application_id == "pcreg"
     assert check_recording(cut)[0] == "pcreg"
     staged = stage([cut], tmp_path / "staged.rrd")
     frames = read_recording(staged.path).series("errors/plain")
-    assert frames and set(frames) < set(range(6)) and all(frames[f] == f for f in frames)
-    assert cut.read_bytes() == data[: len(data) // 2]  # only read
+    assert frames and set(frames) <= set(range(6)) and all(frames[f] == f for f in frames)
+    assert frames == read_recording(tmp_path / "snap.rrd").series("errors/plain")  # the whole messages, no more
+    assert cut.read_bytes() == data[:cut_at]  # only read
     bad = tmp_path / "bad.rrd"
     bad.write_bytes(b"not a recording" * 10)
     assert complete_length(bad) is None

@@ -186,9 +186,11 @@ def figure(report: dict):
         ax.invert_yaxis()
         ax.set_title(f"{s['description']}: step / DIS = {s['ratio_step_over_dis']:.2f}", fontsize=9)
         ax.grid(alpha=0.3, axis="x")
-        ax.legend(fontsize=6, loc="lower right", ncol=3)
+        ax.set_xlim(0, max(left, s["median_ms"]["dis_medium"]) * 1.4)  # room for the labels
     axes[-1, 0].set_xlabel("median ms per 640x480 frame")
-    fig.tight_layout()
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=len(parts), frameon=False)  # one, under all
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     return fig
 
 

@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
             from .commands._common import print_json
 
             print_json({"ok": False, "reason": reason})
-        sys.stderr.write(f"pcreg: registration refused: {reason}\n")
+        sys.stderr.write(f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n")
         return 3
     except PcregError as exc:
         sys.stderr.write(f"pcreg: error: {_one_line(exc)}\n")

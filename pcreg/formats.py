@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import stat
 import struct
 from pathlib import Path
@@ -271,8 +272,13 @@ def imdecode_quietly(data: bytes, flags: int) -> tuple:
             img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
         except cv2.error as exc:
             img = exc
-    lines = [line.strip() for line in "".join(said).splitlines() if line.strip()]
+    lines = [_OPENCV_LOG_PREFIX.sub("", line).strip() for line in "".join(said).splitlines() if line.strip()]
     return img, (lines[-1][:200] if lines else "")
+
+
+#: OpenCV's own log prefix, ``[ WARN:0@0.632] global grfmt_png.cpp:793 readFromStreamOrBuffer ``: where in
+#: OpenCV it logged and when, which a user's one-line error does not need.
+_OPENCV_LOG_PREFIX = re.compile(r"^\[\s*[A-Z]+:\d+@[\d.]+\]\s+(?:global\s+)?\S+:\d+\s+\S+\s+")
 
 
 def _cv2_message(exc: Exception) -> str:

@@ -37,7 +37,8 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert p.returncode == 0, p.stderr
     result = json.loads(p.stdout)
     assert set(result) == {"ok", "matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds",
-                           "inlier_ratio", "chance_ratio", "overlap", "generator"}
+                           "inlier_ratio", "chance_ratio", "overlap", "generator", "frames"}
+    assert result["frames"] == "T_ref_mov"  # the name of ``matrix``: moving image -> reference image
     assert result["ok"] is True and result["inlier_ratio"] > 0.5
     assert tf.max_corner_error(np.array(result["matrix"]), T, (240, 320)) < 0.5
     assert result["seconds"] > 0 and result["backend"] == "reference"
@@ -52,6 +53,7 @@ def test_refused_registration_exits_3_with_one_line(pair, tmp_path):
     assert p.returncode == 3, p.stderr
     assert p.stdout == "" and len(p.stderr.strip().splitlines()) == 1
     assert p.stderr.startswith("pcreg: registration refused: ")
+    assert "refused: registration refused" not in p.stderr  # said once
     p = run("register", d / "ref.png", tmp_path / "noise.png", "--json")
     assert p.returncode == 3 and len(p.stderr.strip().splitlines()) == 1
     out = json.loads(p.stdout)

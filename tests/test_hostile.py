@@ -360,6 +360,14 @@ def test_library_raises_pcreg_errors_only(files, kind):
     assert "\n" not in str(err.value)
 
 
+def test_a_damaged_image_is_named_in_pcregs_words_not_opencvs_log(files):
+    """The codec's own reason is kept, without the prefix OpenCV logs it with (level, time, source line)."""
+    with pytest.raises(InputError) as err:
+        LIBRARY["png_truncated"][0](files)
+    text = str(err.value)
+    assert "cannot decode image (" in text and "[ WARN" not in text and ".cpp:" not in text, text
+
+
 BAD_VALUES = [None, "x", -1, 2.5, float("nan"), float("inf"), 1e300, [], {}, np.zeros((3, 3)), True, object()]
 PUBLIC_CALLS = {
     "register": (lambda **kw: __import__("pcreg").register(GOOD, GOOD, **kw),

@@ -73,6 +73,27 @@ def test_fuse_and_labels():
     assert prior_from_log_odds(np.array([[0.0, 60.0]])).tolist()[0][0] == pytest.approx(0.5)
 
 
+def test_a_weight_per_pixel():
+    d = np.array([[-1.0, 2.0, 0.5]], np.float32)
+    l = np.array([[3.0, -3.0, 1.0]], np.float32)
+    assert np.allclose(fuse(d, l, weight=np.array([[0.0, 1.0, 2.0]])), [[-1.0, -1.0, 2.5]])
+    with pytest.raises(InputError, match="weight map must have the log-odds' shape"):
+        fuse(d, l, weight=np.ones((1, 2)))
+    with pytest.raises(InputError, match="finite and >= 0"):
+        fuse(d, l, weight=np.array([[1.0, -1.0, 1.0]]))
+    with pytest.raises(InputError, match="finite and >= 0"):
+        fuse(d, l, weight=np.array([[1.0, np.nan, 1.0]]))
+
+
+def test_the_streams_weight_follows_the_fields_confidence():
+    from pcreg.pipeline.stream import CONFIDENCE_SPAN, pixel_weight
+
+    assert CONFIDENCE_SPAN == (0.5, 2.0)
+    assert pixel_weight(2.0, None) == 2.0  # a global transform: one weight
+    w = pixel_weight(2.0, np.array([[0.0, 1 / 3, 1.0, 1.5, -0.2]], np.float32))
+    assert w.dtype == np.float32 and np.allclose(w, [[1.0, 2.0, 4.0, 4.0, 1.0]])  # clipped to [0, 1]
+
+
 def test_choose_weight_trusts_a_good_prior_and_ignores_a_bad_one():
     rng = np.random.default_rng(0)
     truth = (rng.random((50, 50)) < 0.4).astype(np.uint8)

@@ -128,15 +128,25 @@ def prior_log_odds(q: np.ndarray, *, pi: float) -> np.ndarray:
     return (np.log(q / (1.0 - q)) - np.float32(np.log(pi / (1.0 - pi)))).astype(np.float32)
 
 
-def fuse(log_odds: np.ndarray, prior: np.ndarray, *, weight: float) -> np.ndarray:
-    """(H, W) float32 fused log-odds ``log_odds + weight * prior`` (both (H, W) log-odds maps)."""
+def fuse(log_odds: np.ndarray, prior: np.ndarray, *, weight: float | np.ndarray) -> np.ndarray:
+    """(H, W) float32 fused log-odds ``log_odds + weight * prior`` (both (H, W) log-odds maps).
+
+    weight : one number, or an (H, W) map of them (a weight per pixel), finite and >= 0.
+    """
     d = np.asarray(log_odds, dtype=np.float32)
     l = np.asarray(prior, dtype=np.float32)
     if d.shape != l.shape:
         raise InputError(f"log-odds {d.shape} and prior {l.shape} differ in shape")
-    if weight == 0:
-        return d.copy()
-    return d + np.float32(weight) * l
+    if np.ndim(weight) == 0:
+        if weight == 0:
+            return d.copy()
+        return d + np.float32(weight) * l
+    w = np.asarray(weight, dtype=np.float32)
+    if w.shape != d.shape:
+        raise InputError(f"a weight map must have the log-odds' shape {d.shape}, got {w.shape}")
+    if not (np.all(np.isfinite(w)) and float(w.min(initial=0.0)) >= 0):
+        raise InputError("a weight map must be finite and >= 0")
+    return d + w * l
 
 
 def labels_from_log_odds(log_odds: np.ndarray) -> np.ndarray:

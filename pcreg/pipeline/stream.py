@@ -14,7 +14,8 @@ Each :meth:`Propagator.step`
    default) a dense field (:func:`pcreg.register_dense`), else one transform (:func:`pcreg.register`);
 2. warps the key frame's labels, as a smoothed prior, into the new frame along that motion;
 3. classifies the new frame (naive Bayes log-odds) and fuses the two at ``weight``
-   (:func:`pcreg.classification.fusion.fuse`).
+   (:func:`pcreg.classification.fusion.fuse`); with a dense field, per pixel, from half to twice
+   ``weight`` as the field's confidence there goes from 0 to 1 (:func:`pixel_weight`).
 
 A registration that fails (:class:`~pcreg.errors.RegistrationError`, or a degenerate transform) does
 not throw the key frame's labels away: they are fused as they are, unwarped (the best prior that needs
@@ -38,6 +39,13 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
   (RGB and HSV are two codings of one colour), so its log-odds are about twice as sure as a calibrated
   classifier's; the prior, built as a calibrated probability, is weighted to match. No label of a later
   frame is needed to choose it.
+- **The weight follows the field's confidence** (:data:`CONFIDENCE_SPAN`): where the dense field has the
+  evidence of many matched samples the warped labels are trusted more, where it was interpolated over
+  a textureless or occluded area less, a factor of two either way around the weight (``weight`` where
+  the confidence is 1/3). On the four shared CamVid clips it took the mean reduction of plain's error
+  from 31.9% to 35.0% (every clip better), and from 78.9% to 87.9% on 8-frame synthetic streams; the
+  same weight everywhere raised to 3 gave 31.2% and 85.6%, the weight in proportion to the confidence
+  27.7%.
 """
 
 from __future__ import annotations
@@ -70,6 +78,9 @@ STEP_PARTS: dict[str, tuple[str, ...]] = {
 }
 #: Where a frame is registered to: the key frame, or the previous frame (motions composed).
 ANCHORS: tuple[str, ...] = ("key", "previous")
+#: The prior's weight per pixel, as a multiple of ``weight``, where a dense field's confidence is 0 and
+#: where it is 1 (linear between): a factor of two either way (see the module's docstring).
+CONFIDENCE_SPAN: tuple[float, float] = (0.5, 2.0)
 #: Fusion weight of the key frame's prior (see the module's docstring).
 STREAM_WEIGHT = 2.0
 #: A stream's global registration: from the identity, the photograph-calibrated test off.
@@ -144,7 +155,8 @@ class Propagator:
     register : further :class:`~pcreg.registration.config.RegisterConfig` options (levels, iterations,
         points, the plausibility test, ...); ``backend``, ``init`` and a global ``model`` override its own.
     dense : :class:`DenseStep` options of the dense model.
-    weight : fusion weight of the prior (0 = naive Bayes alone). fusion : how the prior is smoothed.
+    weight : fusion weight of the prior (0 = naive Bayes alone); with a dense field, per pixel from
+        half to twice it by the field's confidence (:func:`pixel_weight`). fusion : how the prior is smoothed.
     """
 
     def __init__(self, classifier, *, model: str = "dense", anchor: str = "key", backend: str = "reference",
@@ -246,7 +258,8 @@ class Propagator:
 
         q, _ = warp_prior(self._key_prior, motion, shape=d.shape, pi=self._pi)
         t3 = time.perf_counter()
-        labels = labels_from_log_odds(fuse(d, prior_log_odds(q, pi=self._pi), weight=self.weight))
+        weight = self.weight if motion is None else pixel_weight(self.weight, motion.confidence)
+        labels = labels_from_log_odds(fuse(d, prior_log_odds(q, pi=self._pi), weight=weight))
         if motion is not None and self.anchor == "previous":
             self._chain = (img, motion, self._frame)
         t4 = time.perf_counter()
@@ -286,6 +299,17 @@ class Propagator:
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
+
+
+def pixel_weight(weight: float, confidence: np.ndarray | None) -> float | np.ndarray:
+    """The prior's fusion weight: ``weight`` where there is no confidence map (a global transform, a
+    composed chain), else per pixel ``weight * (lo + (hi - lo) * confidence)`` with ``(lo, hi)`` =
+    :data:`CONFIDENCE_SPAN`, a (H, W) float32 map."""
+    if confidence is None:
+        return weight
+    lo, hi = CONFIDENCE_SPAN
+    c = np.clip(np.asarray(confidence, dtype=np.float32), 0.0, 1.0)
+    return np.float32(weight) * (np.float32(lo) + np.float32(hi - lo) * c)
 
 
 def _check_image(image) -> np.ndarray:

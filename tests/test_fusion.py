@@ -90,8 +90,8 @@ def test_the_streams_weight_follows_the_fields_confidence():
 
     assert CONFIDENCE_SPAN == (0.5, 2.0)
     assert pixel_weight(2.0, None) == 2.0  # a global transform: one weight
-    w = pixel_weight(2.0, np.array([[0.0, 1 / 3, 1.0, 1.5, -0.2]], np.float32))
-    assert w.dtype == np.float32 and np.allclose(w, [[1.0, 2.0, 4.0, 4.0, 1.0]])  # clipped to [0, 1]
+    w = pixel_weight(2.0, np.array([[0.0, 1 / 3, 1.0, 1.5, -0.2, np.nan]], np.float32))
+    assert w.dtype == np.float32 and np.allclose(w, [[1.0, 2.0, 4.0, 4.0, 1.0, 1.0]])  # clipped to [0, 1]; NaN as 0
 
 
 def test_choose_weight_trusts_a_good_prior_and_ignores_a_bad_one():

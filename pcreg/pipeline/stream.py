@@ -308,7 +308,7 @@ def pixel_weight(weight: float, confidence: np.ndarray | None) -> float | np.nda
     if confidence is None:
         return weight
     lo, hi = CONFIDENCE_SPAN
-    c = np.clip(np.asarray(confidence, dtype=np.float32), 0.0, 1.0)
+    c = np.clip(np.nan_to_num(np.asarray(confidence, dtype=np.float32), nan=0.0), 0.0, 1.0)  # NaN: no evidence
     return np.float32(weight) * (np.float32(lo) + np.float32(hi - lo) * c)
 
 

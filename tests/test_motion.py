@@ -45,7 +45,7 @@ def test_arrays_are_read_only_copies():
 
 @pytest.mark.parametrize("bad, match", [
     (np.eye(4), r"3x3 matrix or an \(H, W, 2\) field, got shape \(4, 4\)"),
-    (np.full((3, 3), np.nan), "finite 3x3 matrix"),
+    (np.full((3, 3), np.nan), "T_ref_mov must be finite: it has NaN or inf values"),
     (np.zeros((4, 5, 3)), r"got shape \(4, 5, 3\)"),
     ("identity", "a 3x3 matrix or a dense field, got str"),
     (object(), "must be a 3x3 matrix or a dense field, got object"),

@@ -62,10 +62,7 @@ class Motion:
             return cls(field=fld, confidence=getattr(motion, "confidence", None))
         if hasattr(motion, "matrix"):
             return cls(matrix=motion.matrix)
-        try:
-            a = np.asarray(motion, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError(f"a motion must be a 3x3 matrix or a dense field, got {type(motion).__name__}") from None
+        a = _array(motion, np.float64, "a motion must be a 3x3 matrix or a dense field")
         if a.ndim == 3 and a.shape[2] == 2:
             return cls(field=a)
         if a.shape != (3, 3):
@@ -126,21 +123,25 @@ def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarr
     return out
 
 
-def _checked_matrix(m: Any) -> np.ndarray:
+def _array(x: Any, dtype: type, what: str) -> np.ndarray:
+    """``x`` as an array of ``dtype``; what does not convert is an :class:`InputError` saying ``what``."""
     try:
-        a = np.asarray(m, dtype=np.float64)
+        return np.asarray(x, dtype=dtype)
     except (TypeError, ValueError):
-        raise InputError(f"T_ref_mov must be a 3x3 matrix, got {type(m).__name__}") from None
-    if a.shape != (3, 3) or not np.all(np.isfinite(a)):
-        raise InputError(f"T_ref_mov must be a finite 3x3 matrix, got shape {a.shape}")
+        raise InputError(f"{what}, got {type(x).__name__}") from None
+
+
+def _checked_matrix(m: Any) -> np.ndarray:
+    a = _array(m, np.float64, "T_ref_mov must be a 3x3 matrix")
+    if a.shape != (3, 3):
+        raise InputError(f"T_ref_mov must be a 3x3 matrix, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InputError("T_ref_mov must be finite: it has NaN or inf values")
     return a
 
 
 def _checked_field(f: Any) -> np.ndarray:
-    try:
-        a = np.asarray(f, dtype=np.float32)
-    except (TypeError, ValueError):
-        raise InputError(f"a field must be an (H, W, 2) array, got {type(f).__name__}") from None
+    a = _array(f, np.float32, "a field must be an (H, W, 2) array")
     if a.ndim != 3 or a.shape[2] != 2 or a.shape[0] == 0 or a.shape[1] == 0:
         raise InputError(f"a field must be (H, W, 2), got shape {a.shape}")
     if not np.all(np.isfinite(a)):

@@ -134,9 +134,8 @@ def _clouds(args) -> int:
     voxel = args.voxel_size or (args.voxel_sizes[-1] if args.voxel_sizes else None)
     names = _implementations(args)
     with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
-        if rec.enabled:
-            rec.set_frame(0)
-            rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
+        rec.set_frame(0)
+        rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
         # Libraries print from C++ straight to file descriptor 1: keep stdout for the report alone.
         with stdout_to_stderr():
             report = crosscheck(args.a, args.b, implementations=names, init=init,
@@ -144,7 +143,7 @@ def _clouds(args) -> int:
                                 relative_fitness=args.relative_fitness, relative_rmse=args.relative_rmse,
                                 voxel_size=voxel, timeout=args.timeout, progress=not args.json)
         out = report.to_dict()
-        if rec.enabled:
+        if rec.enabled:  # the moved clouds are made for the recording alone
             log_cloud_crosscheck(rec, report)
     if args.json:
         print_json(out)
@@ -218,17 +217,13 @@ def _images(args) -> int:
         model=args.model, iterations=args.iterations, levels=args.levels,
         max_correspondence_distance=args.max_distance if args.max_distance else 2.5))
     with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
-        if rec.enabled:
-            rec.set_frame(0)
-            rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
-        callbacks = {}
-        if rec.enabled:
-            callbacks = {b: rec.icp_callback(b) for b in ("reference", "open3d")}
-        cb = (lambda it: callbacks[it.backend](it)) if rec.enabled else None
+        rec.set_frame(0)
+        rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
+        callbacks = {b: rec.icp_callback(b) for b in ("reference", "open3d")}  # None each without a recording
+        cb = (lambda it: callbacks[it.backend](it)) if callbacks["reference"] is not None else None
         report = crosscheck(args.a, args.b, config=config, callback=cb)  # B registered onto A
         out = report.to_dict()
-        if rec.enabled:
-            rec.log_crosscheck(out)
+        rec.log_crosscheck(out)
     if args.json:
         print_json(out)
     else:

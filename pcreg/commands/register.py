@@ -46,10 +46,10 @@ def run(args: argparse.Namespace) -> int:
     ref = load_image(args.reference)
     mov = load_image(args.moving)
     with open_recorder(args, name=f"register {args.moving} -> {args.reference}") as rec:
-        if rec.enabled:
-            rec.set_frame(0)
-            rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
-            rec.log_images(reference=ref, moving=mov)
+        rec.set_frame(0)
+        rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
+        rec.log_images(reference=ref, moving=mov)
+        if rec.enabled:  # the clouds are made for the recording alone
             rc, mc = cloud_pyramid(ref, levels=1)[0], cloud_pyramid(mov, levels=1)[0]
             rec.log_clouds(reference_points=rc.points, reference_colors=rc.colors, moving_points=mc.points,
                            moving_colors=mc.colors)
@@ -59,16 +59,15 @@ def run(args: argparse.Namespace) -> int:
         result = register(ref, mov, backend=args.backend, model=args.model, levels=args.levels,
                           iterations=args.iterations, init=args.init, max_correspondence_distance=args.max_distance,
                           refine=args.refine, min_inlier_ratio=None if mir == 0 else mir,
-                          callback=rec.icp_callback(args.backend) if rec.enabled else None)
+                          callback=rec.icp_callback(args.backend))
         warped = valid = None
         if args.out or rec.enabled:
             warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)
-        if rec.enabled:
-            rec.log_transform(result.matrix)
-            if getattr(result, "field", None) is not None:
-                rec.log_dense(result.field, matrix=result.matrix, confidence=result.confidence)
-            rec.log_images(warped=warped, valid_mask=valid)
-            rec.log_text(repr(result))
+        rec.log_transform(result.matrix)
+        if getattr(result, "field", None) is not None:
+            rec.log_dense(result.field, matrix=result.matrix, confidence=result.confidence)
+        rec.log_images(warped=warped, valid_mask=valid)
+        rec.log_text(repr(result))
     if args.out:
         ok, buf = cv2.imencode(".png" if not args.out.lower().endswith((".jpg", ".jpeg")) else ".jpg",
                                warped[:, :, ::-1])

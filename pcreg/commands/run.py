@@ -151,8 +151,7 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
             labels = prop.step(image)
             plain = prop.classifier.predict(image) if truth is not None else None
             stream.record(t, labels, prop.last.to_dict(), plain)
-            if rec.enabled:
-                _log(rec, t, image, labels, prop.last, paths[t].name)
+            _log(rec, t, image, labels, prop.last, paths[t].name)
             bar.update(1)
     s = stream.state
     msg = f"{len(paths) - start} frame(s) labelled into {out}"

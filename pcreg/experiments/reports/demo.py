@@ -108,7 +108,8 @@ def report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path, s
         parts.append("Each preset as a stream: its first frame is the key frame with its labels; every later frame "
                      "is labelled by naive Bayes alone (`plain`), with the key frame's labels unwarped "
                      "(`unregistered`), by pcreg (a dense field from the key frame) and with DIS optical flow "
-                     "from the key frame (`flow_key`), all fused the same way. Mean error % per clip:\n")
+                     "from the key frame (`flow_key`), all fused at the same weight (pcreg's per pixel, higher where its "
+                     "field has evidence, lower where it has none). Mean error % per clip:\n")
         header, rows, footer = stream_report.table(stres)
         parts.append(markdown_table(header, rows) + footer)
         parts.append(stream_report.checks(stres))

@@ -80,44 +80,6 @@ def test_flat_areas_get_lower_confidence_and_the_global_motion():
     assert np.median(flat) < 0.5
 
 
-def _search_case(n, seed=2):
-    rng = np.random.default_rng(seed)
-    ref = rng.random((120, 160, 3)).astype(np.float32)
-    mov = rng.random((120, 160, 3)).astype(np.float32)
-    src = np.column_stack([rng.integers(0, 160, n), rng.integers(0, 120, n)]).astype(np.float64)
-    return ref, mov, src, src + rng.uniform(-3, 3, (n, 2)), rng.random((n, 3)).astype(np.float32)
-
-
-@pytest.mark.parametrize("threads", [2, 3, 8])
-def test_the_window_search_on_threads_finds_the_same_matches_to_the_bit(monkeypatch, threads):
-    import pcreg.registration.dense as dense
-
-    case = _search_case(5 * dense.MIN_QUERIES_PER_THREAD + 17)
-    monkeypatch.setattr(dense, "_search_threads", lambda: 1)
-    one = match_window(*case, radius=3, lam=4.0)
-    monkeypatch.setattr(dense, "_search_threads", lambda: threads)
-    monkeypatch.setattr(dense, "_POOL", None)
-    many = match_window(*case, radius=3, lam=4.0)
-    assert dense._POOL is not None  # the threads were used
-    np.testing.assert_array_equal(one, many)
-
-
-def test_a_forked_worker_searches_on_threads_of_its_own(monkeypatch):
-    """A process forked after its parent used the search threads (an evaluation's --workers pool) has none
-    of them: it makes its own pool and finishes, where it would otherwise wait forever."""
-    import multiprocessing
-
-    import pcreg.registration.dense as dense
-
-    monkeypatch.setattr(dense, "_search_threads", lambda: 2)
-    case = _search_case(4 * dense.MIN_QUERIES_PER_THREAD)
-    expected = match_window(*case, radius=3, lam=4.0)
-    ctx = multiprocessing.get_context("fork")
-    with ctx.Pool(1) as pool:
-        got = pool.apply_async(match_window, case, {"radius": 3, "lam": 4.0}).get(timeout=120)
-    np.testing.assert_array_equal(got, expected)
-
-
 def test_window_search_is_the_exact_nearest_neighbour_in_position_and_colour():
     from scipy.spatial import cKDTree
 

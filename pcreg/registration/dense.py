@@ -302,51 +302,10 @@ def match_window(reference: np.ndarray, moving: np.ndarray, sources: np.ndarray,
     pos = np.asarray(positions, dtype=np.float64)
     cols = np.ascontiguousarray(colours, dtype=np.float32)
     out = np.empty((len(pos), 4), dtype=np.float64)
-    px, py = np.ascontiguousarray(src[:, 0]), np.ascontiguousarray(src[:, 1])
-    x, y = np.ascontiguousarray(pos[:, 0]), np.ascontiguousarray(pos[:, 1])
-    if not compiled or _match_window_jit is None:
-        return _match_window_py(ref, mov, px, py, x, y, cols, int(radius), float(lam) ** 2, out)
-    n = len(pos)
-    chunks = min(_search_threads(), n // MIN_QUERIES_PER_THREAD)
-    if chunks < 2:
-        return _match_window_jit(ref, mov, px, py, x, y, cols, int(radius), float(lam) ** 2, out)
-    # every query is independent: contiguous slices searched on threads (the kernel releases the GIL)
-    # write the same rows the one call would, so the matches are the same to the bit
-    cuts = [n * k // chunks for k in range(chunks + 1)]
-    jobs = [_search_pool().submit(_match_window_jit, ref, mov, px[a:b], py[a:b], x[a:b], y[a:b], cols[a:b],
-                                  int(radius), float(lam) ** 2, out[a:b]) for a, b in zip(cuts[1:-1], cuts[2:])]
-    _match_window_jit(ref, mov, px[:cuts[1]], py[:cuts[1]], x[:cuts[1]], y[:cuts[1]], cols[:cuts[1]], int(radius),
-                      float(lam) ** 2, out[:cuts[1]])
-    for job in jobs:
-        job.result()
-    return out
-
-
-#: Queries a thread of the window search takes at the least: handing a slice to a thread costs some tens
-#: of microseconds, a query about a microsecond, so a smaller slice would cost more than it saves.
-MIN_QUERIES_PER_THREAD = 2048
-_POOL: tuple[int, object] | None = None  # (the process that made it, its thread pool)
-
-
-def _search_threads() -> int:
-    """Threads the window search may use: numba's thread count (``NUMBA_NUM_THREADS``, by default the
-    CPUs this process may run on), read from its configuration without starting numba's own threads."""
-    import numba
-
-    return max(1, int(numba.config.NUMBA_NUM_THREADS))
-
-
-def _search_pool():
-    """This process's thread pool for the window search. A forked child (an evaluation's worker) makes its
-    own: the parent's threads do not exist there."""
-    global _POOL
-    import os
-    from concurrent.futures import ThreadPoolExecutor
-
-    if _POOL is None or _POOL[0] != os.getpid():
-        _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=max(1, _search_threads() - 1),
-                                                 thread_name_prefix="pcreg-search"))
-    return _POOL[1]
+    fn = _match_window_jit if (compiled and _match_window_jit is not None) else _match_window_py
+    return fn(ref, mov, np.ascontiguousarray(src[:, 0]), np.ascontiguousarray(src[:, 1]),
+              np.ascontiguousarray(pos[:, 0]), np.ascontiguousarray(pos[:, 1]), cols, int(radius),
+              float(lam) ** 2, out)
 
 
 # ---------------------------------------------------------------------------------------------------

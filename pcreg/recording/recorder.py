@@ -245,8 +245,7 @@ class Recorder:
         self._moving_display: tuple[np.ndarray, np.ndarray | None] | None = None
         self._matrix: np.ndarray | None = None
         self._moving_shape: tuple[int, int] | None = None
-        self._series_named: set[str] = set()
-        self._styled: set[str] = set()
+        self._static_once: set[tuple[str, str]] = set()  # (entity, what): series names and styles logged
         self._icp_rows: dict[str, _IcpRows] = {}
         self._send("/", rr.AnnotationContext(
             [rr.AnnotationInfo(id=k, label=name, color=color) for k, (name, color) in E.CLASSES.items()]
@@ -604,10 +603,15 @@ class Recorder:
 
     # -- series -------------------------------------------------------------------------------
 
+    def _once(self, path: str, what: str, make: Callable[[], Any]) -> None:
+        """Log ``make()`` statically at ``path`` the first time ``what`` is asked for there (a series' name,
+        a style that every row shares)."""
+        if (path, what) not in self._static_once:
+            self._static_once.add((path, what))
+            self._log(path, make(), static=True)
+
     def _scalar(self, path: str, value: float, name: str | None = None) -> None:
-        if path not in self._series_named:
-            self._series_named.add(path)
-            self._log(path, rr.SeriesLines(names=name or path.rsplit("/", 1)[-1]), static=True)
+        self._once(path, "series", lambda: rr.SeriesLines(names=name or path.rsplit("/", 1)[-1]))
         self._log(path, rr.Scalars(float(value)))
 
     def log_errors(self, errors: Mapping[str, float]) -> None:
@@ -665,10 +669,10 @@ class Recorder:
         """Send the ICP iterations kept since the frame started, one column per entity."""
         rows_by_backend, self._icp_rows = self._icp_rows, {}
         for backend, rows in rows_by_backend.items():
-            self._send_columns(E.icp_path(backend, "fitness"), rows.steps,
-                               rr.Scalars.columns(scalars=rows.fitness), series=f"{backend} fitness")
-            self._send_columns(E.icp_path(backend, "inlier_rmse"), rows.steps,
-                               rr.Scalars.columns(scalars=rows.rmse), series=f"{backend} inlier RMSE")
+            for what, values, name in (("fitness", rows.fitness, "fitness"), ("inlier_rmse", rows.rmse, "inlier RMSE")):
+                path = E.icp_path(backend, what)
+                self._once(path, "series", lambda: rr.SeriesLines(names=f"{backend} {name}"))
+                self._send_columns(path, rows.steps, rr.Scalars.columns(scalars=values))
             if rows.targets:
                 steps, clouds = zip(*rows.targets)
                 self._send_points(E.icp_path(backend, "target"), list(steps), list(clouds), [80, 160, 255])
@@ -676,26 +680,19 @@ class Recorder:
                 self._send_points(E.icp_path(backend, "moving"), rows.drawn, rows.moving, [255, 120, 0])
                 strips = [s for row in rows.strips for s in row]
                 column = rr.LineStrips2D.columns(strips=strips if strips else np.zeros((0, 2, 2)))
-                self._send_columns(E.icp_path(backend, "correspondences"), rows.drawn,
-                                   column.partition([len(r) for r in rows.strips]), archetype="LineStrips2D",
-                                   style=rr.LineStrips2D.from_fields(colors=[255, 255, 255], radii=0.5))
+                path = E.icp_path(backend, "correspondences")
+                self._once(path, "style", lambda: rr.LineStrips2D.from_fields(colors=[255, 255, 255], radii=0.5))
+                self._send_columns(path, rows.drawn, column.partition([len(r) for r in rows.strips]),
+                                   archetype="LineStrips2D")
 
     def _send_points(self, path: str, steps: list[int], clouds: list[np.ndarray], color: list[int]) -> None:
         column = rr.Points2D.columns(positions=np.concatenate(clouds)).partition([len(c) for c in clouds])
-        self._send_columns(path, steps, column, archetype="Points2D",
-                           style=rr.Points2D.from_fields(colors=color, radii=1.5))
+        self._once(path, "style", lambda: rr.Points2D.from_fields(colors=color, radii=1.5))
+        self._send_columns(path, steps, column, archetype="Points2D")
 
-    def _send_columns(self, path: str, steps: list[int], columns: Any, *, series: str | None = None,
-                      archetype: str = "Scalars", style: Any = None) -> None:
+    def _send_columns(self, path: str, steps: list[int], columns: Any, *, archetype: str = "Scalars") -> None:
         """``columns`` at ``steps`` of the ICP timeline, in this frame (at the start of the cross-check
-        timeline, as everything of the frame). ``series`` names a Scalars line; ``style`` is logged once,
-        statically (colours and radii that every row shares)."""
-        if series is not None and path not in self._series_named:
-            self._series_named.add(path)
-            self._send(path, rr.SeriesLines(names=series), static=True)
-        if style is not None and path not in self._styled:
-            self._styled.add(path)
-            self._send(path, style, static=True)
+        timeline, as everything of the frame)."""
         indexes = [rr.TimeColumn(E.ICP_TIMELINE, sequence=steps)]
         if self._frame is not None:
             indexes += [rr.TimeColumn(E.FRAME_TIMELINE, sequence=[self._frame] * len(steps)),

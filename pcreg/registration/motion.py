@@ -91,8 +91,9 @@ class Motion:
             return Motion(matrix=self.matrix @ other.matrix)
         f_cb = other.as_field(shape)
         if self.matrix is not None:
-            p = np.concatenate([f_cb.reshape(-1, 2), np.ones((f_cb.shape[0] * f_cb.shape[1], 1))], axis=1) @ self.matrix.T
-            return Motion(field=(p[:, :2] / p[:, 2:3]).reshape(f_cb.shape).astype(np.float32))
+            from .transforms import apply
+
+            return Motion(field=apply(self.matrix, f_cb.reshape(-1, 2)).reshape(f_cb.shape).astype(np.float32))
         assert self.field is not None
         return Motion(field=cv2.remap(self.field, f_cb[:, :, 0].astype(np.float32), f_cb[:, :, 1].astype(np.float32),
                                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(-1e6, -1e6)))

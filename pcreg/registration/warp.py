@@ -2,8 +2,9 @@
 
 A motion is a :class:`~pcreg.registration.motion.Motion`: a (3, 3) ``T_ref_mov`` or an (H, W, 2) field, the
 reference coordinates of every moving pixel; anything :meth:`Motion.of <pcreg.registration.motion.Motion.of>`
-takes stands for one (a registration result, a matrix, a field array). :func:`warp` brings a moving-frame array onto the reference grid;
-:func:`warp_to_moving` brings a reference-frame array onto the moving grid (labels, priors).
+takes stands for one (a registration result, a matrix, a field array). :func:`warp` brings a moving-frame
+array onto the reference grid; :func:`warp_to_moving` brings a reference-frame array onto the moving grid
+(labels, priors).
 """
 
 from __future__ import annotations

@@ -103,6 +103,38 @@ def test_divergence_names_the_iteration_and_the_cause():
     assert "stopping rule" in d["cause"]
 
 
+def test_an_implementation_returns_the_registration_result_that_icp_returns(tmp_path):
+    """One result type for a registration: an implementation's result is a RegistrationResult named by its
+    frames, its trace IcpIterations without point arrays; what a user's function does not report is
+    NaN, -1 or None there and None in the cross-check row."""
+    from pcreg.registration.result import IcpIteration, RegistrationResult
+
+    rng = np.random.default_rng(3)
+    tgt = rng.uniform(-10, 10, (300, 2))
+    src = tf.apply(np.linalg.inv(tf.rigid2d(4, 0.3, -0.2)), tgt)
+    p = Pinned(src, tgt, np.eye(3), 2.0, 30)
+    r = get("open3d-tensor").run(p, trace=True)
+    assert isinstance(r, RegistrationResult) and r.backend == "open3d-tensor" and r.frames == "T_target_source"
+    np.testing.assert_array_equal(r.T_target_source, r.matrix)
+    assert r.trace and all(isinstance(s, IcpIteration) and s.source_points is None for s in r.trace)
+    assert [s.iteration for s in r.trace] == list(range(len(r.trace)))
+    assert np.isnan(r.trace[0].fitness)  # Open3D's callback starts after the first update
+    assert r.trace[-1].fitness == pytest.approx(r.fitness)
+
+    (tmp_path / "bareimpl.py").write_text("def bare(source, target, *, init, **params):\n    return init\n")
+    sys.path.insert(0, str(tmp_path))
+    try:
+        bare = get("py:bareimpl:bare").run(p)
+        row = crosscheck_implementations(src, tgt, implementations=["reference", "py:bareimpl:bare"],
+                                         max_correspondence_distance=2.0).rows["py:bareimpl:bare"]
+    finally:
+        sys.path.remove(str(tmp_path))
+    assert np.isnan(bare.fitness) and np.isnan(bare.inlier_rmse) and bare.iterations == -1 and bare.converged is None
+    assert bare.backend == "py:bareimpl:bare" and bare.trace == ()
+    assert (row["fitness"], row["inlier_rmse"], row["iterations"], row["converged"]) == (None, None, None, None)
+    assert "fitness=nan" in repr(bare)
+
+
 def test_parse_list_keeps_quoted_commas_and_expands_all():
     items = parse_list('reference,cmd:"prog --x=1,2 {source} {out}",py:m:f,all')
     assert items[1] == 'cmd:"prog --x=1,2 {source} {out}"' and items[2] == "py:m:f"

@@ -156,6 +156,7 @@ def log_cloud_crosscheck(rec, report) -> None:
     """Every implementation's moved cloud and error per iteration on the crosscheck_iteration timeline."""
     import numpy as np
 
+    from ..implementations import reported
     from ..registration.transforms import apply
 
     rec.log_crosscheck_target(report.target)
@@ -168,7 +169,7 @@ def log_cloud_crosscheck(rec, report) -> None:
             rec.log_text(f"crosscheck {name}: {row['error']}", level="WARN")
             continue
         steps = report.traces.get(name) or ()
-        poses = [(s.iteration, s.matrix, s.fitness, s.inlier_rmse) for s in steps] or \
+        poses = [(s.iteration, s.matrix, reported(s.fitness), reported(s.inlier_rmse)) for s in steps] or \
                 [(row["iterations"] or 0, np.asarray(row["matrix"]), row["fitness"], row["inlier_rmse"])]
         for k, m, fit, rmse in poses:
             moved = apply(np.asarray(m), src)

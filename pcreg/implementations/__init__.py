@@ -2,13 +2,14 @@
 
 ``get(spec)`` returns an :class:`~pcreg.implementations.base.Implementation` for a built-in name
 (:data:`BUILTIN`), ``py:MODULE:FUNCTION`` or ``cmd:"PROGRAM {source} {target} {init} {out} {params}"``;
-``parse_list`` splits a ``--with`` value on commas outside quotes.
+``parse_list`` splits a ``--with`` value on commas outside quotes. Every implementation returns a
+:class:`~pcreg.registration.result.RegistrationResult`, as :func:`pcreg.icp` does.
 """
 
 from __future__ import annotations
 
 from .base import (COMPARABILITY, FIXED_POINT, OBJECTIVE, STEP, ImplementationError, Implementation, MissingLibrary,
-                   Outcome, Pinned, TraceStep, stdout_to_stderr)
+                   Pinned, reported, stdout_to_stderr)
 from .builtin import BUILTIN
 from .user import Command, PythonCallable
 
@@ -54,5 +55,5 @@ def parse_list(text: str) -> list[str]:
 
 
 __all__ = ["BUILTIN", "COMPARABILITY", "DEFAULT", "FIXED_POINT", "OBJECTIVE", "STEP", "Command", "Implementation",
-           "ImplementationError", "MissingLibrary", "Outcome", "Pinned", "PythonCallable", "TraceStep", "get",
-           "parse_list", "stdout_to_stderr"]
+           "ImplementationError", "MissingLibrary", "Pinned", "PythonCallable", "get",
+           "parse_list", "reported", "stdout_to_stderr"]

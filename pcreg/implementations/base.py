@@ -1,7 +1,9 @@
 """What every ICP implementation takes and returns, and how comparable it claims to be.
 
 An implementation receives :class:`Pinned` inputs — the same clouds, initial guess, correspondence
-distance, iteration limit and stopping thresholds for all — and returns an :class:`Outcome`. It declares
+distance, iteration limit and stopping thresholds for all — and returns a
+:class:`~pcreg.registration.result.RegistrationResult` (``T_target_source``, ``backend`` its name, the fields it
+cannot report None, its iterations in ``trace`` when asked). It declares
 its ``comparability`` with pcreg's reference ICP:
 
 - ``step``: same correspondences, same closed-form step, same stopping rule: every iteration must match;
@@ -20,12 +22,13 @@ import contextlib
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from ..errors import PcregError
+from ..registration.result import IcpIteration, RegistrationResult
 
 STEP, FIXED_POINT, OBJECTIVE = "step", "fixed-point", "objective"
 COMPARABILITY = (STEP, FIXED_POINT, OBJECTIVE)
@@ -73,32 +76,6 @@ class Pinned:
         return Pinned(**kw)
 
 
-@dataclass(frozen=True)
-class TraceStep:
-    """One iteration of a trace: the pose after ``iteration`` updates (0 = the initial guess), the
-    fitness and inlier RMSE there, and each source point's target index (-1 = none) where known."""
-
-    iteration: int
-    matrix: np.ndarray
-    fitness: float | None = None
-    inlier_rmse: float | None = None
-    target_indices: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """One implementation's result. Fields it cannot report are None."""
-
-    matrix: np.ndarray
-    iterations: int | None = None
-    fitness: float | None = None
-    inlier_rmse: float | None = None
-    converged: bool | None = None
-    seconds: float = 0.0
-    trace: tuple[TraceStep, ...] = ()
-    info: dict = field(default_factory=dict)
-
-
 class Implementation:
     """Base class of the adapters. Subclasses set the class attributes and implement :meth:`_run`."""
 
@@ -121,7 +98,7 @@ class Implementation:
         """The settings this implementation pins (recorded in the report)."""
         return {}
 
-    def run(self, pinned: Pinned, *, trace: bool = False) -> Outcome:
+    def run(self, pinned: Pinned, *, trace: bool = False) -> RegistrationResult:
         why = self.missing()
         if why:
             raise MissingLibrary(why)
@@ -138,16 +115,48 @@ class Implementation:
             raise ImplementationError(f"returned a {m.shape} matrix, expected {d + 1}x{d + 1}")
         if not np.all(np.isfinite(m)):
             raise ImplementationError("returned a matrix with NaN or inf")
-        return Outcome(matrix=m, iterations=out.iterations, fitness=out.fitness, inlier_rmse=out.inlier_rmse,
-                       converged=out.converged, seconds=out.seconds or seconds, trace=out.trace, info=out.info)
+        return replace(out, matrix=m, seconds=out.seconds or seconds, backend=self.name, frames="T_target_source")
 
-    def _run(self, pinned: Pinned, *, trace: bool) -> Outcome:  # pragma: no cover - abstract
+    def _run(self, pinned: Pinned, *, trace: bool) -> RegistrationResult:  # pragma: no cover - abstract
         raise NotImplementedError
 
 
 # ---------------------------------------------------------------------------------------------------
 # Helpers shared by adapters
 # ---------------------------------------------------------------------------------------------------
+
+def _number(value: float | None) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def result(name: str, matrix, *, iterations: int | None = None, fitness: float | None = None,
+           inlier_rmse: float | None = None, converged: bool | None = None, seconds: float = 0.0,
+           trace=(), info: dict | None = None) -> RegistrationResult:
+    """An implementation's result: ``matrix`` is ``T_target_source``; what it does not report (None here)
+    is left as RegistrationResult marks it (NaN, -1, None), and :func:`reported` reads it back as None."""
+    return RegistrationResult(matrix=matrix, fitness=_number(fitness), inlier_rmse=_number(inlier_rmse),
+                              iterations=-1 if iterations is None else int(iterations), converged=converged,
+                              backend=name, seconds=seconds, info=info or {}, frames="T_target_source",
+                              trace=tuple(trace))
+
+
+def step(name: str, iteration: int, matrix, fitness: float | None = None, inlier_rmse: float | None = None,
+         target_indices=None) -> IcpIteration:
+    """One step of an implementation's trace: the pose after ``iteration`` updates, without point arrays."""
+    return IcpIteration(backend=name, level=0, iteration=int(iteration), matrix=np.array(matrix, dtype=np.float64),
+                        fitness=_number(fitness), inlier_rmse=_number(inlier_rmse),
+                        target_indices=None if target_indices is None else np.array(target_indices))
+
+
+def reported(value):
+    """A result's or a trace step's field as a report shows it: None where the implementation did not
+    report it (a NaN number, -1 iterations)."""
+    if value is None or isinstance(value, bool):
+        return value
+    if isinstance(value, (int, np.integer)):
+        return None if value < 0 else int(value)
+    return None if np.isnan(value) else float(value)
+
 
 def lift(points: np.ndarray) -> np.ndarray:
     """(N, 2) -> (N, 3) on z = 0; (N, 3) unchanged."""

@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
-from .base import (FIXED_POINT, OBJECTIVE, STEP, ImplementationError, Implementation, Outcome, Pinned, TraceStep,
-                   lift, lift_matrix, out_of_plane, project, score, unpack)
+from .base import (FIXED_POINT, OBJECTIVE, STEP, ImplementationError, Implementation, Pinned, lift, lift_matrix,
+                   out_of_plane, project, result, score, step, unpack)
 from ..registration.transforms import rotation_part
 
 CONVERGED_ITERATIONS = 200
@@ -40,19 +40,18 @@ class Reference(Implementation):
     def _run(self, pinned, *, trace):
         from ..registration.api import icp
 
-        steps: list[TraceStep] = []
+        steps: list = []
 
         def cb(it):
-            steps.append(TraceStep(it.iteration, np.array(it.matrix), it.fitness, it.inlier_rmse,
-                                   np.asarray(it.target_indices).copy()))
+            steps.append(step(self.name, it.iteration, it.matrix, it.fitness, it.inlier_rmse, it.target_indices))
 
         r = icp(pinned.source, pinned.target, backend="reference", model="rigid",
                 max_correspondence_distance=pinned.max_correspondence_distance, init=pinned.init,
                 max_iteration=pinned.max_iterations, relative_fitness=pinned.relative_fitness,
                 relative_rmse=pinned.relative_rmse, callback=cb if trace else None)
         m, fit, rmse, it, conv = unpack(r)
-        return Outcome(matrix=m, iterations=it, fitness=fit, inlier_rmse=rmse, converged=conv,
-                       seconds=float(getattr(r, "seconds", 0.0)), trace=tuple(steps))
+        return result(self.name, m, iterations=it, fitness=fit, inlier_rmse=rmse, converged=conv,
+                      seconds=float(getattr(r, "seconds", 0.0)), trace=tuple(steps))
 
 
 class _Open3D(Implementation):
@@ -82,19 +81,18 @@ class Open3DLegacy(_Open3D):
         start = time.perf_counter()
         m, fit, rmse, _, conv = unpack(icp_open3d(pinned.source, pinned.target, stepwise=False, **kw))
         seconds = time.perf_counter() - start
-        steps: list[TraceStep] = []
+        steps: list = []
 
         def cb(it):
-            steps.append(TraceStep(it.iteration, np.array(it.matrix), it.fitness, it.inlier_rmse,
-                                   np.asarray(it.target_indices).copy()))
+            steps.append(step(self.name, it.iteration, it.matrix, it.fitness, it.inlier_rmse, it.target_indices))
 
         m2, _, _, iterations, conv2 = unpack(icp_open3d(pinned.source, pinned.target, stepwise=True, callback=cb, **kw))
         info = {}
         gap = float(np.max(np.abs(m - m2)))
         if gap > 0:
             info["stepwise_gap"] = gap
-        return Outcome(matrix=m, iterations=iterations, fitness=fit, inlier_rmse=rmse, converged=conv2,
-                       seconds=seconds, trace=tuple(steps) if trace else (), info=info)
+        return result(self.name, m, iterations=iterations, fitness=fit, inlier_rmse=rmse, converged=conv2,
+                      seconds=seconds, trace=tuple(steps) if trace else (), info=info)
 
 
 class Open3DTensor(_Open3D):
@@ -117,11 +115,11 @@ class Open3DTensor(_Open3D):
         init = o3d.core.Tensor(lift_matrix(pinned.init), o3d.core.float64, dev)
         d = pinned.dim
         back = project if d == 2 else (lambda x: x)
-        steps = [TraceStep(0, np.array(pinned.init))]
+        steps = [step(self.name, 0, pinned.init)]
 
         def cb(info):
-            steps.append(TraceStep(len(steps), back(info["transformation"].numpy().copy()),
-                                   float(info["fitness"].item()), float(info["inlier_rmse"].item())))
+            steps.append(step(self.name, len(steps), back(info["transformation"].numpy()),
+                              float(info["fitness"].item()), float(info["inlier_rmse"].item())))
 
         start = time.perf_counter()
         r = treg.icp(src, tgt, float(pinned.max_correspondence_distance), init,
@@ -131,9 +129,9 @@ class Open3DTensor(_Open3D):
         info = {}
         if d == 2:
             info["out_of_plane"] = out_of_plane(m)
-        return Outcome(matrix=back(m), iterations=int(r.num_iterations), fitness=float(r.fitness),
-                       inlier_rmse=float(r.inlier_rmse), converged=bool(r.converged), seconds=seconds,
-                       trace=tuple(steps) if trace else (), info=info)
+        return result(self.name, back(m), iterations=int(r.num_iterations), fitness=float(r.fitness),
+                      inlier_rmse=float(r.inlier_rmse), converged=bool(r.converged), seconds=seconds,
+                      trace=tuple(steps) if trace else (), info=info)
 
 
 class SmallGicp(Implementation):
@@ -183,8 +181,8 @@ class SmallGicp(Implementation):
             m = project(m)
         fit, rmse, _ = score(pinned, m)
         info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
-        return Outcome(matrix=m, iterations=int(r.iterations), fitness=fit, inlier_rmse=rmse,
-                       converged=bool(r.converged), seconds=seconds, info=info)
+        return result(self.name, m, iterations=int(r.iterations), fitness=fit, inlier_rmse=rmse,
+                      converged=bool(r.converged), seconds=seconds, info=info)
 
 
 class _SmallGicpSurface(SmallGicp):
@@ -266,7 +264,7 @@ class KissIcp(Implementation):
         m = np.asarray(m)
         steps, iterations = (), None
         if trace:
-            steps, iterations = self._trace(reg1=Registration(max_num_iterations=1, convergence_criterion=0.0,
+            steps, iterations = self._trace(name=self.name, reg1=Registration(max_num_iterations=1, convergence_criterion=0.0,
                                                               max_num_threads=1),
                                             vmap=vmap, pinned=pinned, settings=s)
         info = {"map_points": kept, "target_points": len(tgt)}
@@ -283,12 +281,12 @@ class KissIcp(Implementation):
                 info["stepwise_gap"] = gap
         if iterations is not None:
             info["iterations_from"] = "a second run, one Gauss-Newton step per call (each step is stateless)"
-        return Outcome(matrix=m, iterations=iterations, fitness=fit, inlier_rmse=rmse,
-                       converged=None if iterations is None else iterations < s["max_num_iterations"],
-                       seconds=seconds, trace=steps, info=info)
+        return result(self.name, m, iterations=iterations, fitness=fit, inlier_rmse=rmse,
+                      converged=None if iterations is None else iterations < s["max_num_iterations"],
+                      seconds=seconds, trace=steps, info=info)
 
     @staticmethod
-    def _trace(*, reg1, vmap, pinned, settings):
+    def _trace(*, name, reg1, vmap, pinned, settings):
         """Its iterations one call at a time: each KISS-ICP step is a Gauss-Newton step from the current
         pose with fresh correspondences, so chaining one-iteration calls replays its loop; it stops, as
         KISS-ICP does, once the step's norm (rotation vector, translation) is below the criterion."""
@@ -298,7 +296,7 @@ class KissIcp(Implementation):
         T = lift_matrix(pinned.init)
         back = project if pinned.dim == 2 else (lambda x: x)
         fit, rmse, idx = score(pinned, pinned.init)
-        steps = [TraceStep(0, np.array(pinned.init), fit, rmse, idx)]
+        steps = [step(name, 0, pinned.init, fit, rmse, idx)]
         for k in range(1, settings["max_num_iterations"] + 1):
             T_new = np.asarray(reg1.align_points_to_map(src, vmap, T, max_correspondance_distance=settings["voxel_size"],
                                                         kernel=settings["kernel"]))
@@ -307,7 +305,7 @@ class KissIcp(Implementation):
             T = T_new
             M = back(T)
             fit, rmse, idx = score(pinned, M)
-            steps.append(TraceStep(k, M, fit, rmse, idx))
+            steps.append(step(name, k, M, fit, rmse, idx))
             if np.linalg.norm(dx) < settings["convergence_criterion"]:
                 break
         return tuple(steps), len(steps) - 1
@@ -356,10 +354,10 @@ class PyCpd(_Probabilistic):
         M[:d, d] = np.ravel(t)
         m = M @ pinned.init
         fit, rmse, _ = score(pinned, m)
-        return Outcome(matrix=m, iterations=int(reg.iteration), fitness=fit, inlier_rmse=rmse,
-                       converged=bool(reg.iteration < self.max_em_iterations), seconds=seconds,
-                       info={"scale": float(s), "sigma2": float(reg.sigma2),
-                             "fitness_from": "pcreg (Open3D's definition at the returned pose)"})
+        return result(self.name, m, iterations=int(reg.iteration), fitness=fit, inlier_rmse=rmse,
+                      converged=bool(reg.iteration < self.max_em_iterations), seconds=seconds,
+                      info={"scale": float(s), "sigma2": float(reg.sigma2),
+                            "fitness_from": "pcreg (Open3D's definition at the returned pose)"})
 
 
 class _Probreg(_Probabilistic):
@@ -395,8 +393,8 @@ class _Probreg(_Probabilistic):
         m = M @ pinned.init
         fit, rmse, _ = score(pinned, m)
         info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
-        return Outcome(matrix=m, iterations=None, fitness=fit, inlier_rmse=rmse, converged=None, seconds=seconds,
-                       info=info)
+        return result(self.name, m, iterations=None, fitness=fit, inlier_rmse=rmse, converged=None, seconds=seconds,
+                      info=info)
 
 
 class ProbregCpd(_Probreg):

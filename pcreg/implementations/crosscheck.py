@@ -23,6 +23,7 @@ from ..registration.api import check_cloud, register
 from ..registration.config import RegisterConfig
 from ..registration.result import IcpIteration, RegistrationResult
 from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
+from .base import reported
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
 
@@ -378,7 +379,7 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     voxel_size : both clouds are voxel-downsampled once (:func:`pcreg.registration.api.voxel_downsample`)
         before any implementation sees them.
     truth : optional (d+1, d+1) ground truth; rows then also report their error against it.
-    on_result : called with (name, Outcome or exception) as each implementation finishes.
+    on_result : called with (name, RegistrationResult or exception) as each implementation finishes.
 
     A failing or missing implementation becomes its row's one-line ``error``; the others still run.
     """
@@ -401,7 +402,7 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
         o = outcomes.get(name)
         rows[name] = _row(name, o, adapters.get(name), errors, pinned, ref=ref, conv=conv, src=src, diag=diag,
                           truth=truth)
-        if isinstance(o, impls.Outcome):
+        if isinstance(o, RegistrationResult):
             traces[name] = o.trace
     settings = {**pinned.params(), "init": T0.tolist(), "voxel_size": voxel_size, "dimension": d,
                 "source_points": len(src), "target_points": len(tgt), "target_diagonal": diag}
@@ -452,7 +453,7 @@ def _adapters(names: list[str], timeout: float | None) -> tuple[dict, dict]:
 
 
 def _run_each(names: list[str], adapters: dict, errors: dict, pinned, *, progress: bool, on_result) -> dict:
-    """{name: Outcome, or "missing" for a library not installed}; each failure's one line goes to ``errors``."""
+    """{name: RegistrationResult, or "missing" for a library not installed}; each failure's one line goes to ``errors``."""
     from .. import implementations as impls
 
     outcomes: dict = {}
@@ -479,10 +480,8 @@ def _run_each(names: list[str], adapters: dict, errors: dict, pinned, *, progres
 def _reference_at_convergence(adapters: dict, outcomes: dict, pinned) -> tuple:
     """The reference run to convergence and its summary, when an implementation compares at the fixed
     point or by objective (else (None, None))."""
-    from .. import implementations as impls
-
     if outcomes.get(REFERENCE) is None or not any(
-            isinstance(outcomes.get(n), impls.Outcome) and adapters[n].comparability != "step"
+            isinstance(outcomes.get(n), RegistrationResult) and adapters[n].comparability != "step"
             for n in outcomes if n != REFERENCE):
         return None, None
     try:
@@ -497,8 +496,6 @@ def _reference_at_convergence(adapters: dict, outcomes: dict, pinned) -> tuple:
 def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float, truth) -> dict:
     """One implementation's row: its outcome, compared with the reference (step for step, or at
     convergence) and with ``truth``."""
-    from .. import implementations as impls
-
     comp = a.comparability if a is not None else "step"
     row = {"matrix": None, "iterations": None, "fitness": None, "inlier_rmse": None, "converged": None,
            "seconds": 0.0, "comparability": comp, "rotation_disagreement_deg": None,
@@ -511,10 +508,10 @@ def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, d
             row["settings"] = a.settings(pinned)
         except Exception:  # noqa: BLE001 - settings are informative only
             row["settings"] = None
-    if not isinstance(o, impls.Outcome):
+    if not isinstance(o, RegistrationResult):
         return row
-    row.update({"matrix": o.matrix.tolist(), "iterations": o.iterations, "fitness": o.fitness,
-                "inlier_rmse": o.inlier_rmse, "converged": o.converged, "seconds": float(o.seconds),
+    row.update({"matrix": o.matrix.tolist(), "iterations": reported(o.iterations), "fitness": reported(o.fitness),
+                "inlier_rmse": reported(o.inlier_rmse), "converged": o.converged, "seconds": float(o.seconds),
                 "trace": bool(o.trace)})
     if o.info:
         row["info"] = o.info

@@ -42,7 +42,7 @@ from ..outputs import atomic_write_bytes, atomic_write_text, to_json
 from ..formats import read_text_matrix
 from ..errors import InputError
 from ..registration.transforms import apply, rigid2d
-from .base import Pinned
+from .base import Pinned, reported
 
 FORMAT = "pcreg-crosscheck-suite/1"
 
@@ -235,8 +235,8 @@ def export_suite(out: str | os.PathLike, cases: Sequence[Case], *, progress: boo
                           "".join(" ".join(map(str, row)) + "\n" for row in corr))
         atomic_write_text(d / "reference" / "trace.json", to_json({
             "iterations": r.iterations, "converged": r.converged,
-            "steps": [{"iteration": s.iteration, "matrix": s.matrix.tolist(), "fitness": s.fitness,
-                       "inlier_rmse": s.inlier_rmse} for s in tr]}) + "\n")
+            "steps": [{"iteration": s.iteration, "matrix": s.matrix.tolist(), "fitness": reported(s.fitness),
+                       "inlier_rmse": reported(s.inlier_rmse)} for s in tr]}) + "\n")
         atomic_write_text(d / "reference" / "final.txt", _txt(r.matrix))
     atomic_write_text(out / "index.json", to_json({"format": FORMAT, "cases": [c.name for c in cases]}) + "\n")
     return out

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .base import COMPARABILITY, STEP, ImplementationError, Implementation, Outcome
+from .base import COMPARABILITY, STEP, ImplementationError, Implementation, result
 
 PLACEHOLDERS = ("source", "target", "init", "out", "params")
 DEFAULT_TIMEOUT = 60.0
@@ -124,10 +124,10 @@ class PythonCallable(Implementation):
             raise ImplementationError("returned a matrix that is not numeric") from None
         isarr = isinstance(r, (np.ndarray, list, tuple))
         conv = None if isarr else get("converged")
-        return Outcome(matrix=matrix, iterations=None if isarr else _number(get("iterations"), "iterations", int),
-                       fitness=None if isarr else _number(get("fitness"), "fitness"),
-                       inlier_rmse=None if isarr else _number(get("inlier_rmse"), "inlier_rmse"),
-                       converged=None if conv is None else bool(conv), seconds=seconds)
+        return result(self.name, matrix, iterations=None if isarr else _number(get("iterations"), "iterations", int),
+                      fitness=None if isarr else _number(get("fitness"), "fitness"),
+                      inlier_rmse=None if isarr else _number(get("inlier_rmse"), "inlier_rmse"),
+                      converged=None if conv is None else bool(conv), seconds=seconds)
 
 
 class Command(Implementation):
@@ -216,7 +216,7 @@ class Command(Implementation):
                     raise ImplementationError(f"{side.name} is not a JSON object")
             self._declared = _comparability(extra.get("comparability"), self.name)
             conv = extra.get("converged")
-            return Outcome(matrix=m, iterations=_number(extra.get("iterations"), "iterations", int),
-                           fitness=_number(extra.get("fitness"), "fitness"),
-                           inlier_rmse=_number(extra.get("inlier_rmse"), "inlier_rmse"),
-                           converged=None if conv is None else bool(conv), seconds=seconds)
+            return result(self.name, m, iterations=_number(extra.get("iterations"), "iterations", int),
+                          fitness=_number(extra.get("fitness"), "fitness"),
+                          inlier_rmse=_number(extra.get("inlier_rmse"), "inlier_rmse"),
+                          converged=None if conv is None else bool(conv), seconds=seconds)

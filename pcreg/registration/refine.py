@@ -22,13 +22,14 @@ from .steps import IcpSettings, IcpStep, StepCall, reference_step
 @dataclass(frozen=True)
 class Refinement:
     """Where a coarse-to-fine ICP ended: ``matrix`` is ``T_ref_mov``; fitness and inlier RMSE of the last
-    step; iterations over all levels (-1 where a step does not count them); the last step's convergence."""
+    step; iterations over all levels (-1 where a step does not count them); the last step's convergence
+    (None where the step does not say)."""
 
     matrix: np.ndarray
     fitness: float = 0.0
     inlier_rmse: float = 0.0
     iterations: int = 0
-    converged: bool = False
+    converged: bool | None = False
 
 
 def _total(total: int, r: RegistrationResult) -> int:

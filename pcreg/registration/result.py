@@ -1,4 +1,5 @@
-"""Result types shared by both ICP backends."""
+"""The result of a registration and of one ICP iteration: what ``register`` and ``icp`` return, what
+both backends hand to a callback, and what every cross-checked implementation returns."""
 
 from __future__ import annotations
 
@@ -24,7 +25,8 @@ def _fmt_matrix(m: np.ndarray) -> str:
 
 @dataclass(frozen=True, repr=False)
 class RegistrationResult:
-    """What both ICP backends return, so they can be compared field by field.
+    """What both ICP backends and every cross-checked implementation return, so they can be compared
+    field by field.
 
     matrix : (3, 3) or (4, 4) float64
         Homogeneous transform that maps moving/source coordinates into reference/target coordinates.
@@ -37,10 +39,13 @@ class RegistrationResult:
         RMS distance over those correspondences (0 when there are none), in the cloud's units.
     iterations : int
         ICP iterations run, summed over pyramid levels (-1 where the backend cannot tell).
-    converged : bool
+    converged : bool or None
         The stopping rule fired before ``max_iteration`` at the finest level.
+        A cross-checked implementation that does not report one of these four (a user's ``py:`` function
+        that returns a bare matrix, say) leaves NaN, -1 or None there; ``register`` and ``icp`` set them all.
     backend : str
-        ``"reference"`` or ``"open3d"``.
+        ``"reference"`` or ``"open3d"`` (:func:`pcreg.register`, :func:`pcreg.icp`); in a cross-check,
+        the implementation's name.
     seconds : float
         Wall time of the registration alone (no I/O, no imports).
     inlier_ratio : float
@@ -57,13 +62,18 @@ class RegistrationResult:
     frames : str
         ``"T_ref_mov"`` (images: moving image -> reference image) or ``"T_target_source"`` (clouds:
         source cloud -> target cloud): the name ``matrix`` goes by.
+    info : dict
+        What a backend or implementation adds (a dense registration's evidence, an adapter's notes).
+    trace : tuple of IcpIteration
+        The iterations of a cross-checked implementation run with ``trace=True`` (the pose after each
+        update, iteration 0 the initial guess), without their point arrays; empty otherwise.
     """
 
     matrix: np.ndarray
     fitness: float
     inlier_rmse: float
     iterations: int
-    converged: bool
+    converged: bool | None
     backend: str
     seconds: float = 0.0
     inlier_ratio: float = float("nan")
@@ -72,6 +82,7 @@ class RegistrationResult:
     generator: str | None = None
     info: dict = field(default_factory=dict, compare=False)
     frames: str = "T_target_source"
+    trace: tuple[IcpIteration, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
         if self.frames not in FRAMES:
@@ -106,7 +117,7 @@ class RegistrationResult:
             "fitness": float(self.fitness),
             "inlier_rmse": float(self.inlier_rmse),
             "iterations": int(self.iterations),
-            "converged": bool(self.converged),
+            "converged": None if self.converged is None else bool(self.converged),
             "backend": self.backend,
             "seconds": float(self.seconds),
             "inlier_ratio": None if np.isnan(self.inlier_ratio) else float(self.inlier_ratio),
@@ -119,11 +130,17 @@ class RegistrationResult:
 
 @dataclass(frozen=True, repr=False)
 class IcpIteration:
-    """One ICP iteration, handed to the optional per-iteration callback.
+    """One ICP iteration, handed to the optional per-iteration callback, and one step of a cross-checked
+    implementation's :attr:`RegistrationResult.trace`.
 
+    matrix : the pose after ``iteration`` updates (0 = the initial guess).
     source_points : (N, d) float64 — the source cloud moved by ``matrix`` (this level's units: pixels
     of the full-resolution image for image registration).
     target_indices : (N,) int — index of each source point's correspondence in ``target_points``, -1 for none.
+
+    A callback always gets every field. In a trace the point arrays are None (the clouds are the pinned
+    inputs; keeping them per step would hold the clouds once per iteration), ``target_indices`` is None
+    and ``fitness`` and ``inlier_rmse`` NaN where the implementation does not report them.
     """
 
     backend: str
@@ -132,9 +149,9 @@ class IcpIteration:
     matrix: np.ndarray
     fitness: float
     inlier_rmse: float
-    source_points: np.ndarray
-    target_points: np.ndarray
-    target_indices: np.ndarray
+    source_points: np.ndarray | None = None
+    target_points: np.ndarray | None = None
+    target_indices: np.ndarray | None = None
 
     def __repr__(self) -> str:
         return (f"IcpIteration(backend={self.backend!r}, level={self.level}, iteration={self.iteration}, "

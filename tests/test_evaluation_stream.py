@@ -38,6 +38,27 @@ def test_evaluate_stream_writes_every_table_and_resumes(tmp_path, capsys):
     assert json.loads((out / "results.json").read_text())["resumed_units"] == 2
 
 
+def test_evaluate_returns_typed_results_and_the_report_writes_exactly_them(tmp_path):
+    from pcreg.experiments.reports.stream import write_outputs
+    from pcreg.experiments.results import Results
+    from pcreg.experiments.stream import StreamConfig, evaluate
+    from pcreg.experiments.units import nan_to_none
+
+    config = StreamConfig(data="synthetic:syn1a", frames=3, size=(96, 72), methods=("plain", "unregistered"))
+    res = evaluate(config, show_progress=False)
+    assert isinstance(res, Results) and res.kind == "stream" and res.primary_backend == "reference"
+    assert res.methods == ("plain", "unregistered") and list(res.datasets) == ["syn1a"]
+    assert res.datasets["syn1a"]["scored"] == 2 and len(res.units) == 1 and res.resumed_units == 0
+    assert set(res.average_reduction) == {"plain", "unregistered"} and res.k is None and res.backends is None
+    write_outputs(res, tmp_path)
+    on_disk = json.loads((tmp_path / "results.json").read_text())
+    assert on_disk == json.loads(json.dumps(nan_to_none(res.to_dict())))
+    assert list(on_disk) == ["config", "primary_backend", "methods", "datasets", "average_reduction", "units",
+                             "resumed_units", "seconds"]  # what an evaluation does not have is left out
+    with pytest.raises(ValueError, match="kind must be one of"):
+        Results("streams", {}, {}, [])
+
+
 def test_pcreg_is_exactly_the_propagator_and_key_frames_restart(tmp_path):
     import pcreg
 

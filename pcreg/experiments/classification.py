@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..classification.features import DEFAULT_FEATURES
+from .results import Results
 
 CASES = ("I", "II", "III")
 DEFAULT_FEATURE_SETS = ("thesis", "+".join(DEFAULT_FEATURES))
@@ -230,9 +231,9 @@ def run_weight_search(unit) -> dict:
 # ---------------------------------------------------------------------------------------------
 
 def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
-             show_progress: bool | None = None) -> dict:
+             show_progress: bool | None = None) -> Results:
     """Run the configured cases (resuming from ``out/units`` when ``out`` is given: finished units are
-    kept there as they land); returns every number (what results.json holds)."""
+    kept there as they land); returns every number as :class:`~pcreg.experiments.results.Results`."""
     from ..datasets import PRESETS
     from .units import Unit, UnitStore, load_cached, plain_config, run_resumable
 
@@ -262,14 +263,6 @@ def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, for
                      + ", ".join(f"{d}: {lengths[d]} frames" for d in scaled))
     if scaled and not config.case3_k and "III" in config.cases:
         notes.append("Case III: k per dataset is 10% and 20% of its length (the thesis: 10 and 20 of 100)")
-    return {
-        "config": cfg_dict,
-        "datasets": info,
-        "k": ks,
-        "notes": notes,
-        "weight_search": searches,
-        "units": results,
-        "resumed_units": resumed,
-        "seconds": time.perf_counter() - t0,
-    }
+    return Results("classification", cfg_dict, info, results, resumed_units=resumed, seconds=time.perf_counter() - t0,
+                   notes=tuple(notes), k=ks, weight_search=searches)
 

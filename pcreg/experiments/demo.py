@@ -18,6 +18,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from .results import Results
+
 
 @dataclass(frozen=True)
 class DemoConfig:
@@ -42,7 +44,7 @@ def _say(text: str) -> None:
     print(text, flush=True)
 
 
-def _classification(config: DemoConfig, out: Path, workers: int):
+def _classification(config: DemoConfig, out: Path, workers: int) -> Results:
     """Ch. 4: naive Bayes alone, cases I-III."""
     from .._runner import make_executor
     from . import classification
@@ -57,7 +59,7 @@ def _classification(config: DemoConfig, out: Path, workers: int):
     return cres
 
 
-def _rotation(config: DemoConfig, out: Path, workers: int):
+def _rotation(config: DemoConfig, out: Path, workers: int) -> Results:
     """Ch. 5: rotated frames before and after registration, both backends."""
     from .._runner import make_executor
     from . import rotation
@@ -82,7 +84,8 @@ def _crosscheck(datasets: dict, out: Path) -> dict:
     return cc
 
 
-def _sequence(config: DemoConfig, out: Path, workers: int, record: str | Path | None, raw_images: bool):
+def _sequence(config: DemoConfig, out: Path, workers: int, record: str | Path | None,
+              raw_images: bool) -> tuple:
     """Ch. 6-7: the pairs of every increment, both backends; recorded in this process when ``record``
     is given, else run by ``workers`` processes."""
     from .._runner import make_executor
@@ -103,7 +106,7 @@ def _sequence(config: DemoConfig, out: Path, workers: int, record: str | Path | 
     return scfg, sres
 
 
-def _stream(config: DemoConfig, out: Path, workers: int) -> dict:
+def _stream(config: DemoConfig, out: Path, workers: int) -> Results:
     """Each preset as a stream from its first frame: pcreg's propagation and the baselines."""
     from .._runner import make_executor
     from . import stream
@@ -117,24 +120,24 @@ def _stream(config: DemoConfig, out: Path, workers: int) -> dict:
     return res
 
 
-def _pair_figure(config: DemoConfig, datasets: dict, sres: dict, out: Path) -> None:
+def _pair_figure(config: DemoConfig, datasets: dict, sres: Results, out: Path) -> None:
     """The story figure: the first sequence's pair at the second increment, with its chosen weight."""
     from .reports.demo import pair_figure
 
     name = next(iter(datasets))
     k_fig = config.increments[min(1, len(config.increments) - 1)]
-    unit = next(u for u in sres["units"] if u["dataset"] == name and u["k"] == k_fig and u["backend"] == "reference")
+    unit = next(u for u in sres.units if u["dataset"] == name and u["k"] == k_fig and u["backend"] == "reference")
     w_fig = unit["weight"]["weight"] if unit.get("weight") else 1.0
     pair_figure(datasets[name], k=k_fig, weight=w_fig, out=out / "pair.png", title=name)
 
 
-def _stage_rows(backends: tuple[str, ...], sres: dict) -> list[list]:
+def _stage_rows(backends: tuple[str, ...], sres: Results) -> list[list]:
     """Per backend: pairs, the median ms of each pipeline stage, and their sum."""
     import numpy as np
 
     rows = []
     for b in backends:
-        pairs = [p for u in sres["units"] if u["backend"] == b for p in u["pairs"]]
+        pairs = [p for u in sres.units if u["backend"] == b for p in u["pairs"]]
         med = {s: 1000.0 * float(np.median([p["times"][s] for p in pairs])) for s in ("register", "warp", "classify", "fuse")}
         rows.append([b, len(pairs), *med.values(), sum(med.values())])
     return rows
@@ -181,6 +184,8 @@ def run_demo(config: DemoConfig, *, out: str | Path, workers: int = 2, record: s
 
     _say("6/6 report")
     _pair_figure(config, datasets, sres, out)
-    text = report(config, cres, rres, sres, cc, _stage_rows(scfg.backends, sres), times, record, out, stres)
+    # the report reads the results.json documents, as the evaluations' own reports do
+    text = report(config, cres.to_dict(), rres.to_dict(), sres.to_dict(), cc, _stage_rows(scfg.backends, sres), times,
+                  record, out, stres.to_dict())
     atomic_write_text(out / "report.md", text)
     return out / "report.md"

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..classification.features import DEFAULT_FEATURES
+from .results import Results
 from ..registration.config import RegisterConfig
 from ..recording.null import NULL_RECORDER
 
@@ -195,8 +196,8 @@ def sample_indices(n: int, samples: int) -> list[int]:
 
 
 def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
-             recorder=NULL_RECORDER, show_progress: bool | None = None) -> dict:
-    """Run every unit (resuming from ``out/units``); returns what results.json holds."""
+             recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
+    """Run every unit (resuming from ``out/units``); returns its :class:`Results`."""
     from ..errors import DatasetError
     from .units import Unit, evaluate_units, load_cached
 
@@ -212,7 +213,7 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
                           recorder=recorder, desc="rotation", show_progress=show_progress)
 
 
-def summarise(config: RotationConfig, unit_results: list[dict]) -> dict:
+def summarise(config: RotationConfig, unit_results: list[dict]) -> Results:
     """results.json: per dataset and angle the mean over sampled frames (first backend at top level)."""
     import numpy as np
 
@@ -235,7 +236,6 @@ def summarise(config: RotationConfig, unit_results: list[dict]) -> dict:
                             seconds_register_median=float(np.median([r["seconds_register"] for r in rows])))
                 angles[key] = cell
             by_backend[b]["datasets"][name] = {"frames": [u["name"] for u in us], "angles": angles}
-    return {"config": plain_config(config), "primary_backend": primary,
-            "datasets": {n: dict(d) for n, d in by_backend[primary]["datasets"].items()},
-            "backends": by_backend, "units": unit_results}
+    return Results("rotation", plain_config(config), {n: dict(d) for n, d in by_backend[primary]["datasets"].items()},
+                   unit_results, primary_backend=primary, backends=by_backend)
 

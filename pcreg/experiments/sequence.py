@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..classification.features import DEFAULT_FEATURES
+from .results import Results
 from ..pipeline import PIPELINE_REGISTRATION
 from ..registration.config import RegisterConfig
 from ..recording.null import NULL_RECORDER
@@ -144,8 +145,8 @@ def plan_units(config: SequenceConfig, names: list[str]) -> list:
 
 
 def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
-             recorder=NULL_RECORDER, show_progress: bool | None = None) -> dict:
-    """Run every unit (resuming from ``out/units`` when ``out`` is given); returns what results.json holds."""
+             recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
+    """Run every unit (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
     from ..errors import DatasetError
     from .units import evaluate_units, load_cached
 
@@ -158,7 +159,7 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
                           show_progress=show_progress)
 
 
-def summarise(config: SequenceConfig, unit_results: list[dict]) -> dict:
+def summarise(config: SequenceConfig, unit_results: list[dict]) -> Results:
     """results.json: top-level means for the first backend, per-backend means, pair counts, units."""
     from ..pipeline import METHODS
     from .units import plain_config
@@ -183,6 +184,6 @@ def summarise(config: SequenceConfig, unit_results: list[dict]) -> dict:
             d["increments"][k] = means
             d["pairs"][k] = stats
         notes += [f"{name} k={k} {b}: {n}" for n in r["notes"]]
-    return {"config": plain_config(config), "primary_backend": primary, "methods": list(METHODS),
-            "datasets": out_datasets, "backends": by_backend, "notes": notes, "units": unit_results}
+    return Results("sequence", plain_config(config), out_datasets, unit_results, primary_backend=primary,
+                   methods=tuple(METHODS), backends=by_backend, notes=tuple(notes))
 

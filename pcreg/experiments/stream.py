@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..recording.null import NULL_RECORDER
+from .results import Results
 
 #: Methods scored per frame, in table order.
 METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "dense_key", "dense_previous", "similarity_key",
@@ -246,8 +247,8 @@ def plan_units(config: StreamConfig, names: list[str]) -> list:
 
 
 def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=None, recorder=NULL_RECORDER,
-             show_progress: bool | None = None) -> dict:
-    """Run every clip (resuming from ``out/units`` when ``out`` is given); returns what results.json holds."""
+             show_progress: bool | None = None) -> Results:
+    """Run every clip (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
     from .units import evaluate_units, load_cached
 
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
@@ -263,8 +264,8 @@ def reduction(plain: float, value: float) -> float:
     return 100.0 * (plain - value) / plain if plain else float("nan")
 
 
-def summarise(config: StreamConfig, unit_results: list[dict]) -> dict:
-    """results.json: per clip the mean error of every method and its reduction against plain; the
+def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
+    """Per clip the mean error of every method and its reduction against plain; the
     average reduction over clips; the units (per-frame errors) themselves."""
     from .units import plain_config
 
@@ -276,5 +277,5 @@ def summarise(config: StreamConfig, unit_results: list[dict]) -> dict:
                                "reduction": {m: reduction(means["plain"], v) for m, v in means.items()},
                                "ms_per_frame": r["ms_per_frame"]}
     average = {m: float(np.mean([c["reduction"][m] for c in clips.values()])) for m in config.methods} if clips else {}
-    return {"config": plain_config(config), "primary_backend": config.backends[0], "methods": list(config.methods),
-            "datasets": clips, "average_reduction": average, "units": unit_results}
+    return Results("stream", plain_config(config), clips, unit_results, primary_backend=config.backends[0],
+                   methods=tuple(config.methods), average_reduction=average)

@@ -14,11 +14,12 @@ from __future__ import annotations
 import json
 import math
 import shutil
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from ..recording.null import NULL_RECORDER
+from .results import Results
 
 _DATA_CACHE: dict = {}
 
@@ -172,7 +173,7 @@ def nan_to_none(obj: Any) -> Any:
 
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
                    force: bool = False, executor=None, recorder=NULL_RECORDER, desc: str = "",
-                   show_progress: bool | None = None) -> dict:
+                   show_progress: bool | None = None) -> Results:
     """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
     them without ``out``), summarise their results in order (``summarise(config, results)``), and add
     the presets' real counterparts, the number of resumed units and the wall time."""
@@ -186,9 +187,7 @@ def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | 
     done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
                                   executor=executor, desc=desc, show_progress=show_progress)
     results = summarise(config, [done[u.key] for u in units])
-    for name in results["datasets"]:
+    for name, tables in results.datasets.items():
         if name in PRESETS:
-            results["datasets"][name]["mirrors"] = PRESETS[name].mirrors
-    results["resumed_units"] = resumed
-    results["seconds"] = time.perf_counter() - t0
-    return results
+            tables["mirrors"] = PRESETS[name].mirrors
+    return replace(results, resumed_units=resumed, seconds=time.perf_counter() - t0)

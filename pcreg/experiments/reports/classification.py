@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..results import Results
+
 
 def _label(name: str, info: dict) -> str:
     m = info.get(name, {}).get("mirrors")
@@ -122,14 +124,15 @@ def _figures(results: dict) -> dict:
     return figs
 
 
-def write_outputs(results: dict, out: str | Path) -> list[Path]:
+def write_outputs(results: Results, out: str | Path) -> list[Path]:
     """The tables (.csv, .md), figures, config.json and (last) results.json, atomically; returns the paths."""
     from .files import write_files
 
+    doc = results.to_dict()
     specs = {}
-    for name, (header, rows) in tables(results).items():
-        notes = [n for n in results["notes"] if (name == "case1" and n.startswith("Case I:"))
+    for name, (header, rows) in tables(doc).items():
+        notes = [n for n in doc["notes"] if (name == "case1" and n.startswith("Case I:"))
                  or (name == "case3" and n.startswith("Case III:"))]
         footer = "\n" + "\n".join(f"Note: {n}." for n in notes) + "\n" if notes else ""
         specs[name] = (_TITLES[name], header, rows, footer)
-    return write_files(out, results, tables=specs, figures=_figures(results))
+    return write_files(out, doc, tables=specs, figures=_figures(doc))

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..results import Results
 from ..rotation import KEYS
+
 
 def table(results: dict, backend: str) -> tuple[list, list]:
     """One row per dataset and angle: before, after, after_masked, after_cropped, registration."""
@@ -91,11 +93,12 @@ def _figure(results: dict):
     return fig
 
 
-def write_outputs(results: dict, out: str | Path) -> list[Path]:
+def write_outputs(results: Results, out: str | Path) -> list[Path]:
     """rotation_BACKEND.csv/.md, checks.md, rotation.png, config.json and results.json."""
     from .files import write_files
 
+    doc = results.to_dict()
     tables = {f"rotation_{b}": (f"Rotation (thesis Ch. 5), backend {b}: error % (mean over sampled frames)",
-                                *table(results, b)) for b in results["backends"]}
-    return write_files(out, results, tables=tables, texts={"checks.md": checks(results)},
-                       figures={"rotation": _figure(results)})
+                                *table(doc, b)) for b in doc["backends"]}
+    return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
+                       figures={"rotation": _figure(doc)})

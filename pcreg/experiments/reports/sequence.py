@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ...pipeline import METHODS
+from ..results import Results
+
 
 def _label(name: str, info: dict) -> str:
     m = info.get("mirrors")
@@ -133,10 +135,11 @@ def _figures(results: dict) -> dict:
     return figs
 
 
-def write_outputs(results: dict, out: str | Path) -> list[Path]:
+def write_outputs(results: Results, out: str | Path) -> list[Path]:
     """sequence_BACKEND.csv/.md, checks.md, the figures, config.json and results.json."""
     from .files import write_files
 
+    doc = results.to_dict()
     tables = {f"sequence_{b}": (f"Sequence (thesis Ch. 6-7), backend {b}: mean error % over pairs (i, i+k)",
-                                *table(results, b)) for b in results["backends"]}
-    return write_files(out, results, tables=tables, texts={"checks.md": checks(results)}, figures=_figures(results))
+                                *table(doc, b)) for b in doc["backends"]}
+    return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)}, figures=_figures(doc))

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..results import Results
+
 
 def table(results: dict) -> tuple[list, list, str]:
     """One row per clip: mean error % of every method, and the average reduction against plain."""
@@ -83,14 +85,15 @@ def _figure(results: dict):
     return fig
 
 
-def write_outputs(results: dict, out: str | Path) -> list[Path]:
+def write_outputs(results: Results, out: str | Path) -> list[Path]:
     """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results."""
     from .files import write_files
 
-    b = results["primary_backend"]
-    h, rows, footer = table(results)
-    ph, prows = per_frame(results)
+    doc = results.to_dict()
+    b = doc["primary_backend"]
+    h, rows, footer = table(doc)
+    ph, prows = per_frame(doc)
     tables = {f"stream_{b}": ("Labelling a stream from its key frame: mean error % per clip", h, rows, footer),
               "stream_frames": ("Error % per frame", ph, prows)}
-    return write_files(out, results, tables=tables, texts={"checks.md": checks(results)},
-                       figures={"stream": _figure(results)})
+    return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
+                       figures={"stream": _figure(doc)})

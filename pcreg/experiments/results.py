@@ -1,0 +1,66 @@
+"""What an evaluation returns: :class:`Results`, typed at the top, its tables as results.json holds them.
+
+Every evaluation (:mod:`.classification`, :mod:`.rotation`, :mod:`.sequence`, :mod:`.stream`) returns one.
+:meth:`Results.to_dict` is the results.json document; the reports (:mod:`.reports`) read that document and
+nothing else, the same one that ``pcreg view OUT_DIR`` reads back from disk.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+KINDS = ("classification", "rotation", "sequence", "stream")
+
+
+@dataclass(frozen=True)
+class Results:
+    """One evaluation's numbers.
+
+    kind : ``"classification"``, ``"rotation"``, ``"sequence"`` or ``"stream"``.
+    config : the evaluation's configuration as plain JSON values (config.json).
+    datasets : per dataset (a sequence or clip), the first backend's tables: for a sequence, the mean
+        error of each method per increment; for a clip, each method's mean error and its reduction against
+        plain; for rotation, each angle's errors; for classification, the dataset's frames and classes.
+    units : every unit's own result, in plan order, as ``OUT/units/*.json`` keeps it (resume reads them).
+    resumed_units : units read back from an earlier run instead of run again.
+    seconds : wall time of the whole evaluation.
+    primary_backend : the backend of ``datasets`` (None for classification, which registers nothing).
+    methods : the methods compared, in table order (sequence, stream).
+    backends : per backend, its own ``datasets`` tables (rotation, sequence).
+    notes : what the tables' readers should know (a scaled k, a refused pair).
+    k : classification: the training sizes of cases I and III per dataset.
+    weight_search : classification: the thesis feature weights found per dataset.
+    average_reduction : stream: each method's mean over clips of its reduction of plain's error (%).
+    """
+
+    kind: str
+    config: dict
+    datasets: dict[str, dict]
+    units: list[dict]
+    resumed_units: int = 0
+    seconds: float = 0.0
+    primary_backend: str | None = None
+    methods: tuple[str, ...] | None = None
+    backends: dict[str, dict] | None = None
+    notes: tuple[str, ...] | None = None
+    k: dict | None = None
+    weight_search: list[dict] | None = None
+    average_reduction: dict[str, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The results.json document: the fields in this order, those an evaluation does not have left out."""
+        doc: dict[str, Any] = {"config": self.config}
+        optional = {"primary_backend": self.primary_backend,
+                    "methods": None if self.methods is None else list(self.methods)}
+        doc.update((k, v) for k, v in optional.items() if v is not None)
+        doc["datasets"] = self.datasets
+        later = {"backends": self.backends, "k": self.k, "notes": None if self.notes is None else list(self.notes),
+                 "weight_search": self.weight_search, "average_reduction": self.average_reduction}
+        doc.update((k, v) for k, v in later.items() if v is not None)
+        doc.update(units=self.units, resumed_units=self.resumed_units, seconds=self.seconds)
+        return doc

@@ -92,7 +92,8 @@ class DenseStep:
     """Options of the dense registration of a stream (:func:`pcreg.register_dense`'s keywords).
 
     texture : None matches plain colours (see the module's docstring). iterations : ICP iterations per
-    level (8: the stiffness schedule 8, 4, 2, 1 gets four relaxed iterations to settle).
+    level (8, :func:`pcreg.register_dense`'s: the stiffness schedule 8, 4, 2, 1 gets four relaxed
+    iterations to settle).
     max_points : moving samples per level (5,000 measured as accurate as 10,000 at two thirds of the time).
     global_start : ``"identity"`` or ``"register"`` (the stream's global registration first).
     """

@@ -728,7 +728,7 @@ class DenseOptions:
 
     levels: int = 5
     finest_level: int = 1
-    iterations: int = 4
+    iterations: int = 8
     grid_spacing: float = 8.0
     radius: int = 3
     fine_radius: int = 2
@@ -1012,7 +1012,7 @@ def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Lev
 
 def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, model: str = "similarity",
                    global_result: RegistrationResult | np.ndarray | None = None, levels: int = 5,
-                   finest_level: int = 1, iterations: int = 4, grid_spacing: float = 8.0, radius: int = 3,
+                   finest_level: int = 1, iterations: int = 8, grid_spacing: float = 8.0, radius: int = 3,
                    fine_radius: int = 2,
                    max_points: int = 10000, stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE, strain: float = 0.25,
                    edge_aware: bool = False, cg_iterations: int = 30, texture: float | None = 1.0,
@@ -1029,7 +1029,10 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         :class:`~pcreg.errors.RegistrationError` propagates.
     levels : pyramid levels of the dense step (the coarsest is ``levels - 1``); finest_level : the
         finest level it works at (1: half resolution, as DIS's medium preset; 0: full resolution).
-    iterations : ICP iterations per level (the stiffness schedule runs within each level).
+    iterations : ICP iterations per level (the stiffness schedule runs within each level). 8: the
+        schedule's four stiff steps, then four at the final stiffness to settle; with 4 the final
+        stiffness got one step, and the pairwise evaluation's dense share was 0.60 points on CamVid
+        against 0.73 with 8 (synthetic presets 3.90 and 3.98), at about twice the dense step's time.
     grid_spacing : control-grid spacing in pixels of each level.
     radius : gate at the coarsest level, fine_radius : at the others (pixels of the level): a finer
         level starts from the coarser level's field, within about a pixel of it there (two here).

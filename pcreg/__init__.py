@@ -16,7 +16,7 @@ __version__ = "0.1.0"
 _EXPORTS = {
     # registration: images and clouds
     "register": "pcreg.registration.api",
-    "register_dense": "pcreg.registration.dense",
+    "register_dense": "pcreg.registration.api",
     "RegisterConfig": "pcreg.registration.config",
     "RegistrationResult": "pcreg.registration.result",
     "icp": "pcreg.registration.api",

@@ -28,6 +28,7 @@ from pcreg.pipeline.stream import (
 from pcreg.registration.api import (
     icp as icp,
     register as register,
+    register_dense as register_dense,
 )
 from pcreg.registration.clouds import (
     image_cloud as image_cloud,
@@ -35,9 +36,6 @@ from pcreg.registration.clouds import (
 )
 from pcreg.registration.config import (
     RegisterConfig as RegisterConfig,
-)
-from pcreg.registration.dense import (
-    register_dense as register_dense,
 )
 from pcreg.registration.result import (
     RegistrationResult as RegistrationResult,

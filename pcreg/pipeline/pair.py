@@ -159,7 +159,7 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
     t0 = time.perf_counter()
     try:
         if config.registration.model == "dense":
-            from ..registration.dense import register_dense
+            from ..registration.api import register_dense
 
             # the global step is the dense step's start, not its answer: a 3-D scene fails a global
             # model's plausibility test by design, so the test is the dense step's own (on its field)

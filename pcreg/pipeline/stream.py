@@ -273,7 +273,7 @@ class Propagator:
     def _register(self, reference: np.ndarray, image: np.ndarray):
         """``(result, None)``, or ``(None, reason)`` when the registration failed or is degenerate."""
         from ..registration.api import register
-        from ..registration.dense import register_dense
+        from ..registration.api import register_dense
 
         try:
             if self.model != "dense":

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,15 @@ _MESSAGE_HEADER = struct.Struct("<QQ")
 _END = 0
 #: Reading a file that is still being written: rerun's reader notes that it has no footer (it scans it).
 _NO_FOOTER = "RRD file has no footer"
+
+
+@contextmanager
+def unfinished_files_allowed():
+    """Read recordings that may still be written without rerun's note that such a file has no footer
+    (its reader then scans the file, which is what is wanted)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=_NO_FOOTER)
+        yield
 
 
 def complete_length(path: str | os.PathLike) -> int | None:
@@ -80,20 +91,17 @@ def recordings_in(path: str | os.PathLike) -> list:
     """``RrdReader(path).recordings()``, also of a file a writer is half-way through a message of: then
     those of its whole messages (read from a :func:`snapshot`). The reader's error otherwise."""
     import tempfile
-    import warnings
 
     from rerun.chunk import RrdReader
 
     try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=_NO_FOOTER)
+        with unfinished_files_allowed():
             return RrdReader(str(path)).recordings()
     except Exception:  # rerun raises its own types
         if complete_length(path) is None:
             raise
     with tempfile.TemporaryDirectory(prefix="pcreg-rrd-") as tmp:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=_NO_FOOTER)
+        with unfinished_files_allowed():
             return RrdReader(str(snapshot(path, Path(tmp) / "snapshot.rrd"))).recordings()
 
 

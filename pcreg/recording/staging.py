@@ -14,12 +14,11 @@ import os
 import re
 import tempfile
 import uuid
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 from . import blueprint as B
-from .readback import _NO_FOOTER, read_entities, read_kind, snapshot
+from .readback import read_entities, read_kind, snapshot, unfinished_files_allowed
 
 __all__ = ["Staged", "stage", "labels_for"]
 
@@ -50,10 +49,9 @@ def stage(paths: list[str | os.PathLike], out: str | os.PathLike) -> Staged:
     if not paths:
         raise ValueError("no recording to stage")
     out = Path(out)
-    with tempfile.TemporaryDirectory(prefix="pcreg-stage-", dir=out.parent) as tmp, warnings.catch_warnings():
+    with tempfile.TemporaryDirectory(prefix="pcreg-stage-", dir=out.parent) as tmp, unfinished_files_allowed():
         # a recording may still be written (an evaluation's --record): each is read as it stands, up to its
         # last whole message, from one copy, so that every reading below sees the same data
-        warnings.filterwarnings("ignore", message=_NO_FOOTER)
         copies = [snapshot(p, Path(tmp) / f"{i}.rrd") for i, p in enumerate(paths)]
         return _stage(paths, copies, out)
 

@@ -5,10 +5,11 @@
 - :mod:`.open3d_icp`: Open3D's point-to-point ICP on clouds lifted to z = 0;
 - :mod:`.global_search`: hypotheses for images (edge FFT search, Fourier-Mellin, ORB + RANSAC) and the
   evidence that tells a true alignment from chance;
-- :mod:`.api`: ``icp`` (clouds) and ``register`` (images: hypotheses, ICP, plausibility test), made of
-  :mod:`.steps` (each backend's ICP step), :mod:`.pyramid` (lazy cloud pyramids), :mod:`.refine`
-  (coarse-to-fine ICP), :mod:`.search` (hypotheses, refined and measured) and :mod:`.plausibility`;
-- :mod:`.dense`: ``register_dense``, the global result refined into a dense field by a non-rigid ICP;
+- :mod:`.api`: ``icp`` (clouds), ``register`` (images: hypotheses, ICP, plausibility test) and
+  ``register_dense`` (``register``'s global result refined into a dense field), made of :mod:`.steps`
+  (each backend's ICP step), :mod:`.pyramid` (lazy cloud pyramids), :mod:`.refine` (coarse-to-fine ICP),
+  :mod:`.search` (hypotheses, refined and measured), :mod:`.plausibility` and :mod:`.dense`;
+- :mod:`.dense`: the dense field, a non-rigid ICP of the two colour clouds from a global ``T_ref_mov``;
 - :mod:`.flow`: OpenCV's DIS optical flow as a field (the baseline of the evaluations);
 - :mod:`.config`: :class:`~.config.RegisterConfig`, ``register``'s options as one frozen config, by step;
 - :mod:`.motion`: :class:`~.motion.Motion`, the one motion type (a 3x3 ``T_ref_mov``, or a dense field

@@ -19,7 +19,7 @@ def warm_up() -> None:
     """Compile (or load from the on-disk cache) every compiled kernel of pcreg, on small inputs."""
     from . import nn, reference
     from .clouds import image_pyramid
-    from .dense import register_dense
+    from .api import register_dense
 
     nn.warm_up()
     reference.warm_up()

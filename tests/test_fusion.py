@@ -86,7 +86,7 @@ def test_a_weight_per_pixel():
 
 
 def test_the_streams_weight_follows_the_fields_confidence():
-    from pcreg.pipeline.stream import CONFIDENCE_SPAN, pixel_weight
+    from pcreg.pipeline.prior import CONFIDENCE_SPAN, pixel_weight
 
     assert CONFIDENCE_SPAN == (0.5, 2.0)
     assert pixel_weight(2.0, None) == 2.0  # a global transform: one weight

@@ -173,3 +173,28 @@ def test_a_sequence_goes_on_past_a_failed_registration(frames):
         assert np.isfinite(p.errors["plain"])
         if not p.registered:
             assert p.errors["augmented"] == p.errors["plain"]
+
+
+def test_a_dense_fields_prior_is_weighted_per_pixel_by_its_confidence(frames):
+    """The pair's fusion trusts a dense field's prior where the field has evidence (confidence 1: twice
+    the weight) and distrusts it where it was interpolated (confidence 0: half), as the stream does."""
+    from pcreg.pipeline.pair import _fuse_methods
+    from pcreg.pipeline.prior import CONFIDENCE_SPAN
+    from pcreg.registration.motion import Motion, field_from_matrix
+
+    ref, mov = frames[0], frames[1]
+    h, w = mov.labels.shape
+    field = field_from_matrix(np.eye(3), (h, w))
+    d = np.zeros((h, w), np.float32)  # no evidence of its own: the fused log-odds are the weighted prior
+    conf = np.zeros((h, w), np.float32)
+    conf[:, w // 2:] = 1.0
+    kw = dict(pi=0.3, fusion=FusionConfig(), weight=2.0, flow_weight=2.0, temporal=None, flow=np.zeros((h, w, 2)))
+    weighted = _fuse_methods(ref, mov, d, Motion(field=field, confidence=conf), **kw).registered
+    one = _fuse_methods(ref, mov, d, Motion(matrix=np.eye(3)), **kw).registered  # a matrix: the one weight
+    lo, hi = CONFIDENCE_SPAN
+    known = np.abs(one) > 1e-3
+    left, right = known.copy(), known.copy()
+    left[:, w // 2:] = False
+    right[:, :w // 2] = False
+    np.testing.assert_allclose(weighted[left], lo * one[left], rtol=1e-5)
+    np.testing.assert_allclose(weighted[right], hi * one[right], rtol=1e-5)

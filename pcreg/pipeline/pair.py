@@ -51,7 +51,7 @@ from ..registration.motion import Motion
 from ..registration.result import RegistrationResult
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
-from .prior import class_prior, warp_prior, warped_prior_log_odds
+from .prior import class_prior, pixel_weight, warp_prior, warped_prior_log_odds
 
 if TYPE_CHECKING:  # for the annotation only
     from .temporal import TemporalFusion
@@ -318,7 +318,8 @@ def _fuse_methods(reference, moving, d_mov: np.ndarray, motion, *, pi: float, fu
         l_reg = prior_log_odds(q_mov, pi=pi)
     else:
         l_reg = np.zeros(shape, np.float32)
-    fused = fuse(d_mov, l_reg, weight=weight)
+    # a dense field's prior is weighted per pixel by its confidence, as in the stream
+    fused = fuse(d_mov, l_reg, weight=weight if motion is None else pixel_weight(weight, motion.confidence))
     fuse_seconds = time.perf_counter() - t0
     fused_id = fuse(d_mov, prior_log_odds(q_ref, pi=pi), weight=weight)
     fused_t = None if temporal is None else temporal.step(d_mov, motion, pi=pi)

@@ -11,7 +11,15 @@ import numpy as np
 
 from ..classification.fusion import check_pi, prior_log_odds
 
-__all__ = ["class_prior", "warp_prior", "warped_prior_log_odds"]
+__all__ = ["CONFIDENCE_SPAN", "class_prior", "pixel_weight", "warp_prior", "warped_prior_log_odds"]
+
+#: The prior's weight per pixel, as a multiple of the fusion weight, where a dense field's confidence is 0
+#: and where it is 1 (linear between): a factor of two either way. Where the field has the evidence of
+#: many matched samples the warped labels are trusted more, where it was interpolated over a textureless
+#: or occluded area less. Measured in the stream (:mod:`pcreg.pipeline.stream`) and in the pairs of
+#: ``evaluate sequence --model dense`` (:func:`pcreg.pipeline.process_pair`); a global transform has no
+#: confidence map and keeps the one weight.
+CONFIDENCE_SPAN: tuple[float, float] = (0.5, 2.0)
 
 
 def class_prior(classifier) -> float:
@@ -43,3 +51,14 @@ def warped_prior_log_odds(q: np.ndarray, motion, *, shape: tuple[int, int], pi: 
     :func:`~pcreg.classification.fusion.prior_log_odds`."""
     q_mov, _ = warp_prior(q, motion, shape=shape, pi=pi)
     return prior_log_odds(q_mov, pi=pi)
+
+
+def pixel_weight(weight: float, confidence: np.ndarray | None) -> float | np.ndarray:
+    """The prior's fusion weight: ``weight`` where there is no confidence map (a global transform, a
+    composed chain), else per pixel ``weight * (lo + (hi - lo) * confidence)`` with ``(lo, hi)`` =
+    :data:`CONFIDENCE_SPAN`, a (H, W) float32 map."""
+    if confidence is None:
+        return weight
+    lo, hi = CONFIDENCE_SPAN
+    c = np.clip(np.nan_to_num(np.asarray(confidence, dtype=np.float32), nan=0.0), 0.0, 1.0)  # NaN: no evidence
+    return np.float32(weight) * (np.float32(lo) + np.float32(hi - lo) * c)

@@ -39,7 +39,7 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
   (RGB and HSV are two codings of one colour), so its log-odds are about twice as sure as a calibrated
   classifier's; the prior, built as a calibrated probability, is weighted to match. No label of a later
   frame is needed to choose it.
-- **The weight follows the field's confidence** (:data:`CONFIDENCE_SPAN`): where the dense field has the
+- **The weight follows the field's confidence** (:data:`~pcreg.pipeline.prior.CONFIDENCE_SPAN`): where the dense field has the
   evidence of many matched samples the warped labels are trusted more, where it was interpolated over
   a textureless or occluded area less, a factor of two either way around the weight (``weight`` where
   the confidence is 1/3). On the four shared CamVid clips it took the mean reduction of plain's error
@@ -57,7 +57,7 @@ import numpy as np
 
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
-from .prior import class_prior, warp_prior
+from .prior import class_prior, pixel_weight, warp_prior
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
@@ -78,9 +78,6 @@ STEP_PARTS: dict[str, tuple[str, ...]] = {
 }
 #: Where a frame is registered to: the key frame, or the previous frame (motions composed).
 ANCHORS: tuple[str, ...] = ("key", "previous")
-#: The prior's weight per pixel, as a multiple of ``weight``, where a dense field's confidence is 0 and
-#: where it is 1 (linear between): a factor of two either way (see the module's docstring).
-CONFIDENCE_SPAN: tuple[float, float] = (0.5, 2.0)
 #: Fusion weight of the key frame's prior (see the module's docstring).
 STREAM_WEIGHT = 2.0
 #: A stream's global registration: from the identity, the photograph-calibrated test off.
@@ -157,7 +154,7 @@ class Propagator:
         points, the plausibility test, ...); ``backend``, ``init`` and a global ``model`` override its own.
     dense : :class:`DenseStep` options of the dense model.
     weight : fusion weight of the prior (0 = naive Bayes alone); with a dense field, per pixel from
-        half to twice it by the field's confidence (:func:`pixel_weight`). fusion : how the prior is smoothed.
+        half to twice it by the field's confidence (:func:`~pcreg.pipeline.prior.pixel_weight`). fusion : how the prior is smoothed.
     """
 
     def __init__(self, classifier, *, model: str = "dense", anchor: str = "key", backend: str = "reference",
@@ -300,17 +297,6 @@ class Propagator:
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
-
-
-def pixel_weight(weight: float, confidence: np.ndarray | None) -> float | np.ndarray:
-    """The prior's fusion weight: ``weight`` where there is no confidence map (a global transform, a
-    composed chain), else per pixel ``weight * (lo + (hi - lo) * confidence)`` with ``(lo, hi)`` =
-    :data:`CONFIDENCE_SPAN`, a (H, W) float32 map."""
-    if confidence is None:
-        return weight
-    lo, hi = CONFIDENCE_SPAN
-    c = np.clip(np.nan_to_num(np.asarray(confidence, dtype=np.float32), nan=0.0), 0.0, 1.0)  # NaN: no evidence
-    return np.float32(weight) * (np.float32(lo) + np.float32(hi - lo) * c)
 
 
 def _check_image(image) -> np.ndarray:

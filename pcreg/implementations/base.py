@@ -2,8 +2,8 @@
 
 An implementation receives :class:`Pinned` inputs — the same clouds, initial guess, correspondence
 distance, iteration limit and stopping thresholds for all — and returns a
-:class:`~pcreg.registration.result.RegistrationResult` (``T_target_source``, ``backend`` its name, the fields it
-cannot report None, its iterations in ``trace`` when asked). It declares
+:class:`~pcreg.registration.result.RegistrationResult` (``T_target_source``, ``backend`` its name, a figure
+it cannot report NaN, -1 or None, its iterations in ``trace`` when asked). It declares
 its ``comparability`` with pcreg's reference ICP:
 
 - ``step``: same correspondences, same closed-form step, same stopping rule: every iteration must match;

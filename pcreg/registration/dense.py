@@ -616,7 +616,7 @@ def _texture(img: np.ndarray, sigma: float, structure: float = 0.05) -> np.ndarr
     ``sigma`` of one pixel of the level, each pyramid level would match its own octave of detail
     alone (the band of a Laplacian pyramid, Burt & Adelson 1983); the default, 4 pixels, keeps two
     octaves more, the colour of a pole or a road marking as well as its edges, and still removes what
-    varies over tens of pixels (see ``texture`` in :func:`register_dense` for the measurements)."""
+    varies over tens of pixels (see ``texture`` in :func:`pcreg.register_dense` for the measurements)."""
     return (img - (1.0 - structure) * cv2.GaussianBlur(img, (0, 0), sigma)).astype(np.float32)
 
 
@@ -687,7 +687,7 @@ except ImportError:  # pragma: no cover - numba is a declared dependency
 # the dense registration
 # ---------------------------------------------------------------------------------------------------
 
-#: Stages of :func:`register_dense` timed in its result's ``info["times"]`` (seconds): pyramids,
+#: Stages of :func:`pcreg.register_dense` timed in its result's ``info["times"]`` (seconds): pyramids,
 #: noise, samples and the normal equations' set-up per level; the samples' positions under the field
 #: and the windowed correspondence search; the robust weights and the grid's solve; the plausibility
 #: figure; the field and its confidence at full resolution. The global step is the result's
@@ -723,7 +723,7 @@ def _plausibility(R, Mv, P, C, GP, NE, lam, radius, U) -> float:
 
 @dataclass(frozen=True)
 class DenseOptions:
-    """The dense step's options of :func:`register_dense`, checked (see its docstring for each)."""
+    """The dense step's options of :func:`pcreg.register_dense`, checked (see its docstring for each)."""
 
     levels: int = 5
     finest_level: int = 1

@@ -121,6 +121,40 @@ def test_stopping_rule_and_callback():
                          relative_rmse=0).iterations == 7
 
 
+@pytest.mark.parametrize("d, model", [(2, "rigid"), (2, "similarity"), (3, "rigid"), (3, "translation")])
+def test_the_compiled_loop_runs_the_same_steps_whichever_way_it_is_driven(d, model, monkeypatch):
+    """All iterations in one compiled call, one a call (with a callback) and the threaded search called
+    once an iteration (large clouds): the same iterations, matches and transform."""
+    from pcreg.registration import nn
+
+    rng = np.random.default_rng(11)
+    target = rng.uniform(0, 100, (800, d))
+    T = tf.rigid2d(4, 2, -1)
+    if d == 3:
+        T = np.eye(4)
+        T[:3, :3] = tf.rigid2d(3)  # as a 3x3 matrix: a rotation by 3 degrees about z
+        T[:3, 3] = [1.5, -1.0, 0.5]
+    source = tf.apply(np.linalg.inv(T), target)[:600] + rng.normal(0, 0.05, (600, d))
+    kw = dict(model=model, max_correspondence_distance=6.0, max_iteration=40)
+    fused = icp_reference(source, target, **kw)
+    seen = []
+    stepped = icp_reference(source, target, callback=seen.append, **kw)
+    monkeypatch.setattr(nn, "PARALLEL_MIN_QUERIES", 1)
+    threaded = icp_reference(source, target, **kw)
+    assert 2 < fused.iterations < 40 and fused.converged
+    for r in (stepped, threaded):
+        assert (r.iterations, r.converged, r.fitness) == (fused.iterations, fused.converged, fused.fitness)
+        np.testing.assert_allclose(r.matrix, fused.matrix, rtol=0, atol=1e-12)
+    assert [s.iteration for s in seen] == list(range(fused.iterations + 1))
+
+
+def test_a_similarity_of_coinciding_points_is_refused_in_the_compiled_loop():
+    target = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    source = np.array([[0.2, 0.2], [0.2, 0.2], [0.2, 0.2]])
+    with pytest.raises(RegistrationError, match="coincide"):
+        icp_reference(source, target, model="similarity", max_correspondence_distance=5.0)
+
+
 def test_no_correspondences_means_no_motion():
     a = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     r = icp_reference(a, a + 100, max_correspondence_distance=1.0)

@@ -20,9 +20,9 @@ its traversal order. The cost curve (PNG) shows seconds / (N log2 N), relative t
 smallest N: flat or falling means the cost grows no faster than N log N.
 
 The profile section splits the reference's time at the smallest N (where a fixed cost per call weighs
-most) with ``cProfile``: the index build, the compiled search kernels, the Python around them (their
-wrapper: output arrays, dispatch), the closed form, and the rest of the loop (the stopping rule,
-conversions, checks). cProfile adds a little to every Python call, so the Python parts read high.
+most) with ``cProfile``: the index build, the first match, the compiled loop (every iteration: the
+update, the move, the search, the sums and the stopping rule, without returning to Python) and the
+Python around them. cProfile adds a little to every Python call, so the Python part reads high.
 
     python tools/bench_icp.py --out out/bench [--sizes 1000,3000,10000,30000,100000] [--iterations 15] [--repeats 5]
 
@@ -123,18 +123,18 @@ def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int,
 
 
 #: (part, functions whose cumulative time it is), by ``(file name, function name)``; the parts are
-#: disjoint and "the rest of the loop" is the call's total minus them.
+#: disjoint and "the rest of the call" is the call's total minus them.
 PROFILE_PARTS = (
     ("index build (GridIndex)", (("nn.py", "__init__"),)),
-    ("search kernels (compiled)", (("nn.py", "_move_match_moments_serial"), ("nn.py", "_move_query_serial"),
-                                   ("nn.py", "_move_query_parallel"), ("nn.py", "_moments"))),
-    ("closed form (umeyama_from_moments)", (("reference.py", "umeyama_from_moments"),)),
+    ("first match (move_and_match)", (("nn.py", "move_and_match"),)),
+    ("compiled loop (update, move, search, sums, stopping rule)", (("reference.py", "_moment_loop"),)),
 )
 
 
 def profile_reference(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int, calls: int) -> dict:
     """Where one reference ICP call's time goes (ms per call, by :data:`PROFILE_PARTS`), from cProfile
-    over ``calls`` calls; ``search wrapper`` is ``GridIndex.move_and_match`` minus its kernels."""
+    over ``calls`` calls; what is left is the Python around the compiled loop (checks, set-up, the
+    result)."""
     import cProfile
     import pstats
 
@@ -159,9 +159,7 @@ def profile_reference(src: np.ndarray, tgt: np.ndarray, *, dist: float, iteratio
 
     total = cum((("reference.py", "icp_reference"),))
     parts = {name: cum(keys) for name, keys in PROFILE_PARTS}
-    kernels = parts["search kernels (compiled)"]
-    parts["search wrapper (move_and_match minus kernels)"] = max(cum((("nn.py", "move_and_match"),)) - kernels, 0.0)
-    parts["the rest of the loop (stopping rule, conversions, checks)"] = max(total - sum(parts.values()), 0.0)
+    parts["the rest of the call (checks, set-up, the result)"] = max(total - sum(parts.values()), 0.0)
     return {"source_points": len(src), "calls": calls, "total_ms": 1e3 * total / calls,
             "parts_ms": {k: 1e3 * v / calls for k, v in parts.items()}}
 

@@ -410,6 +410,14 @@ class GridIndex:
     def __len__(self) -> int:
         return self.n
 
+    @property
+    def search_arrays(self) -> tuple:
+        """The index as the compiled search takes it: (sorted points, their indices, cell starts, hash
+        keys, hash cells, origin, cell size, cells per dimension, hashed), the arguments of
+        :func:`_nearest` after the query and its bound, for kernels that search inside their own loop."""
+        return (self._spts, self._sidx, self._start, self._tkeys, self._tcell, self.origin, self.cell, self.dims,
+                self.hashed)
+
     def __repr__(self) -> str:
         return (f"GridIndex(n={self.n}, dim={self.dim}, cell={self.cell:.4g}, cells={'x'.join(map(str, self.dims))}, "
                 f"{'hashed' if self.hashed else 'dense'})")
@@ -428,8 +436,7 @@ class GridIndex:
         r2 = r * r if np.isfinite(r) else np.inf
         out_d2 = np.empty(q.shape[0], np.float64)
         out_i = np.empty(q.shape[0], np.int64)
-        args = (q, r2, self._spts, self._sidx, self._start, self._tkeys, self._tcell, self.origin, self.cell,
-                self.dims, self.hashed, out_d2, out_i)
+        args = (q, r2, *self.search_arrays, out_d2, out_i)
         parallel = (workers is None and q.shape[0] >= PARALLEL_MIN_QUERIES) or (workers is not None and workers != 1)
         if parallel:
             _query_parallel(*args)
@@ -451,8 +458,7 @@ class GridIndex:
         out_d2 = np.empty(n, np.float64)
         out_i = np.empty(n, np.int64)
         M = np.eye(self.dim + 1) if update is None else np.ascontiguousarray(update, dtype=np.float64)
-        args = (points, M, update is not None, r2, self._spts, self._sidx, self._start, self._tkeys, self._tcell,
-                self.origin, self.cell, self.dims, self.hashed, out_d2, out_i)
+        args = (points, M, update is not None, r2, *self.search_arrays, out_d2, out_i)
         if n >= PARALLEL_MIN_QUERIES:
             _move_query_parallel(*args)
             mom = _moments(points, self.data, out_d2, out_i, self.center)

@@ -15,12 +15,15 @@ Open3D's legacy ``registration_icp`` so the two can be checked against each othe
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable
 
 import numpy as np
+from numba import njit
 
 from ..errors import RegistrationError
+from . import nn
 from .nn import GridIndex
 from .result import IcpIteration, RegistrationResult
 from .transforms import apply
@@ -71,38 +74,66 @@ def umeyama_from_moments(cov: np.ndarray, var_p: float, mp: np.ndarray, mq: np.n
     Σ = U D V^T; S = diag(1, …, 1, det(U) det(V)) (Eq. 43, the reflection guard); R = U S V^T (Eq. 40);
     c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41). In 2-D without the SVD (same result, no
     LAPACK call): for Σ = [[a, b], [c, d]] the rotation maximising tr(R^T Σ) is θ = atan2(c - b, a + d)
-    and tr(D S) = hypot(a + d, c - b).
+    and tr(D S) = hypot(a + d, c - b). Compiled (:func:`_umeyama`), the same code the ICP loop runs.
     """
-    d = cov.shape[0]
-    if with_scale and not var_p > 0:
+    T, ok = _umeyama(np.ascontiguousarray(cov, dtype=np.float64), float(var_p),
+                     np.ascontiguousarray(mp, dtype=np.float64), np.ascontiguousarray(mq, dtype=np.float64),
+                     bool(with_scale))
+    if not ok:
         raise RegistrationError("degenerate correspondences: all source points coincide")
+    return T
+
+
+@njit(cache=True)
+def _det_sign(M: np.ndarray) -> float:
+    """The sign of the determinant of an orthogonal matrix (+-1 up to rounding, so a 3x3's cofactor
+    expansion has the sign of ``np.linalg.det``'s LU, without a LAPACK call)."""
+    if M.shape[0] != 3:
+        return 1.0 if np.linalg.det(M) >= 0 else -1.0
+    a, b, c = M[0, 0], M[0, 1], M[0, 2]
+    d, e, f = M[1, 0], M[1, 1], M[1, 2]
+    g, h, i = M[2, 0], M[2, 1], M[2, 2]
+    return 1.0 if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0 else -1.0
+
+
+@njit(cache=True)
+def _umeyama(cov, var_p, mp, mq, with_scale):
+    """:func:`umeyama_from_moments`, compiled: (T, True), or (identity, False) when ``with_scale`` and
+    the source variance is not positive (every source point in one place)."""
+    d = cov.shape[0]
+    T = np.eye(d + 1)
+    if with_scale and not var_p > 0:
+        return T, False
+    R = np.empty((d, d))
+    k = 1.0
     if d == 2:
         a, b, c, e = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
-        th = np.arctan2(c - b, a + e)
-        cos, sin = np.cos(th), np.sin(th)
-        R = np.array([[cos, -sin], [sin, cos]])
-        k = float(np.hypot(a + e, c - b) / var_p) if with_scale else 1.0
+        th = math.atan2(c - b, a + e)
+        cos, sin = math.cos(th), math.sin(th)
+        R[0, 0], R[0, 1], R[1, 0], R[1, 1] = cos, -sin, sin, cos
+        if with_scale:
+            k = math.hypot(a + e, c - b) / var_p
     else:
         U, D, Vt = np.linalg.svd(cov)
         S = np.ones(d)
         # U and V are orthogonal: their determinants are +-1, and only the sign of the product is used
         if _det_sign(U) * _det_sign(Vt) < 0:
-            S[-1] = -1.0
-        R = (U * S) @ Vt
-        k = float((D * S).sum() / var_p) if with_scale else 1.0
-    T = np.eye(d + 1)
-    T[:d, :d] = k * R
-    T[:d, d] = mq - k * R @ mp
-    return T
-
-
-def _det_sign(M: np.ndarray) -> float:
-    """The sign of the determinant of an orthogonal matrix (+-1 up to rounding, so a 3x3's cofactor
-    expansion has the sign of ``np.linalg.det``'s LU, without a LAPACK call)."""
-    if M.shape != (3, 3):
-        return 1.0 if np.linalg.det(M) >= 0 else -1.0
-    (a, b, c), (d, e, f), (g, h, i) = M.tolist()
-    return 1.0 if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0 else -1.0
+            S[d - 1] = -1.0
+        for i in range(d):
+            for j in range(d):
+                acc = 0.0
+                for m in range(d):
+                    acc += U[i, m] * S[m] * Vt[m, j]
+                R[i, j] = acc
+        if with_scale:
+            k = (D * S).sum() / var_p
+    for i in range(d):
+        acc = 0.0
+        for j in range(d):
+            T[i, j] = k * R[i, j]
+            acc += T[i, j] * mp[j]
+        T[i, d] = mq[i] - acc
+    return T, True
 
 
 def estimate_horn_quaternion(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -397,61 +428,142 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
                  max_distance: float, max_iteration: int, relative_fitness: float, relative_rmse: float,
                  callback, level: int, start: float) -> RegistrationResult:
     """The same loop as :func:`icp_reference` for point-to-point steps without weights of the models
-    whose closed form needs only the pairs' moments (translation, rigid, similarity): each iteration's
-    move, correspondence search and sums run in one compiled pass
-    (:meth:`~pcreg.registration.nn.GridIndex.move_and_match`); the closed form runs on the sums."""
+    whose closed form needs only the pairs' moments (translation, rigid, similarity), compiled: each
+    iteration's move, correspondence search, sums, closed form and stopping rule run in
+    :func:`_moment_loop` without returning to Python. With a ``callback`` the loop runs one iteration a
+    call, so that the callback sees each iteration as it ends.
+
+    From :data:`~pcreg.registration.nn.PARALLEL_MIN_QUERIES` source points the search runs on every
+    thread, called from here once an iteration (its cost then dwarfs the call's): a cached compiled
+    function that calls a ``parallel=True`` one can crash once it is loaded back from the cache
+    (numba issue 8578), so the threaded search is never called from inside the loop."""
     d = source.shape[1]
     n = source.shape[0]
     pts = np.ascontiguousarray(apply(T, source))
-    need = MIN_POINTS[model] if d == 2 else 3
+    T = np.array(T, dtype=np.float64)
+    code, need = _MOMENT_MODELS.index(model), MIN_POINTS[model] if d == 2 else 3
+    r2 = float(max_distance) ** 2 if np.isfinite(max_distance) else np.inf
+    rel_fitness, rel_rmse = float(relative_fitness), float(relative_rmse)  # one compiled signature
     d2, idx, mom = tree.move_and_match(pts, None, max_distance)
+    state = np.zeros(5)  # fitness, inlier RMSE, iterations, converged, error (see _moment_loop)
+    _scored(mom[0], mom[1], n, 0.0, 0.0, state)  # thresholds 0: the rule cannot hold (|x| < 0)
 
-    def score(mom):
-        k, sd2 = mom[0], mom[1]
-        return (0.0, 0.0) if k == 0 else (k / n, float(np.sqrt(sd2 / k)))
-
-    fitness, rmse = score(mom)
-    iterations, converged = 0, False
-
-    def report(i: int) -> None:
+    def report() -> None:
         if callback is not None:
-            callback(IcpIteration(backend="reference", level=level, iteration=i, matrix=T.copy(), fitness=fitness,
-                                  inlier_rmse=rmse, source_points=pts.copy(), target_points=target,
-                                  target_indices=idx.copy()))
+            callback(IcpIteration(backend="reference", level=level, iteration=int(state[2]), matrix=T.copy(),
+                                  fitness=float(state[0]), inlier_rmse=float(state[1]), source_points=pts.copy(),
+                                  target_points=target, target_indices=idx.copy()))
 
-    report(0)
-    for i in range(max_iteration):
-        k, _, sp, sq, spp, sqp, c = mom
-        if k < need:
-            update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
+    report()
+    fused = n < nn.PARALLEL_MIN_QUERIES
+    while state[2] < max_iteration and not state[3]:
+        if fused:
+            steps = 1 if callback is not None else max_iteration - int(state[2])
+            _moment_loop(pts, T, steps, code, need, rel_fitness, rel_rmse, r2, *tree.search_arrays, d2, idx, tree.data,
+                         tree.center, state)
         else:
-            mp, mq = sp / k, sq / k  # relative to the centre c
-            if model == "translation":
-                update = np.eye(d + 1)
-                update[:d, d] = mq - mp
-            else:
-                cov = sqp / k - mq[:, None] * mp[None, :]  # Umeyama's Eq. 38 (np.outer's product)
-                var_p = spp / k - float(mp @ mp)  # Eq. 36
-                update = umeyama_from_moments(cov, var_p, mp, mq, with_scale=model == "similarity")
-            # back from centred coordinates: x -> A (x - c) + t + c
-            update[:d, d] += c - update[:d, :d] @ c
-        if not np.isfinite(update).all():
+            update = _next_update(*mom, code, need, T, state)
+            if not state[4]:
+                d2, idx, mom = tree.move_and_match(pts, update, max_distance)
+                _scored(mom[0], mom[1], n, rel_fitness, rel_rmse, state)
+        if state[4] == 1:
             raise RegistrationError("ICP update is not finite (degenerate correspondences)")
-        T = update @ T
-        iterations = i + 1
-        prev_fitness, prev_rmse = fitness, rmse
-        d2, idx, mom = tree.move_and_match(pts, update, max_distance)
-        fitness, rmse = score(mom)
-        report(iterations)
-        if _settled(prev_fitness, fitness, prev_rmse, rmse, relative_fitness, relative_rmse):
-            converged = True
-            break
-    return _finished(T, fitness, rmse, iterations, converged, start)
+        if state[4] == 2:
+            raise RegistrationError("degenerate correspondences: all source points coincide")
+        report()
+    return _finished(T, float(state[0]), float(state[1]), int(state[2]), bool(state[3]), start)
+
+
+@njit(cache=True)
+def _next_update(k, sd2, sp, sq, spp, sqp, center, model, need, T, state):
+    """One iteration's update from the matched pairs' moments (:func:`pcreg.registration.nn._moments`,
+    relative to ``center``; ``sd2`` unused), in the original coordinates; model 0, 1, 2 = translation,
+    rigid, similarity. Applies it to ``T`` and counts the iteration in ``state`` (:func:`_moment_loop`);
+    on error (1: not finite; 2: a similarity's source points all coincide) sets ``state[4]`` instead."""
+    d = sp.shape[0]
+    update = np.eye(d + 1)
+    if k >= need:  # else as Open3D: no usable correspondences, no motion; the rule then stops
+        mp = sp / k
+        mq = sq / k
+        if model == 0:
+            for a in range(d):
+                update[a, d] = mq[a] - mp[a]
+        else:
+            cov = np.empty((d, d))  # Umeyama's Eq. 38
+            var_p = spp / k  # Eq. 36
+            for a in range(d):
+                var_p -= mp[a] * mp[a]
+                for b in range(d):
+                    cov[a, b] = sqp[a, b] / k - mq[a] * mp[b]
+            update, ok = _umeyama(cov, var_p, mp, mq, model == 2)
+            if not ok:
+                state[4] = 2
+                return update
+        # back from centred coordinates: x -> A (x - c) + t + c
+        for a in range(d):
+            acc = 0.0
+            for b in range(d):
+                acc += update[a, b] * center[b]
+            update[a, d] += center[a] - acc
+    if not np.isfinite(update).all():
+        state[4] = 1
+        return update
+    moved = np.empty_like(T)
+    for a in range(d + 1):
+        for b in range(d + 1):
+            acc = 0.0
+            for m in range(d + 1):
+                acc += update[a, m] * T[m, b]
+            moved[a, b] = acc
+    T[:, :] = moved
+    state[2] += 1
+    return update
+
+
+@njit(cache=True)
+def _scored(k, sd2, n, relative_fitness, relative_rmse, state):
+    """Fitness and inlier RMSE of ``k`` matches (squared distances summing to ``sd2``) among ``n`` source
+    points into ``state``; True, and converged set, when Open3D's stopping rule (:func:`_settled`) holds."""
+    fitness = 0.0 if k == 0 else k / n
+    rmse = 0.0 if k == 0 else math.sqrt(sd2 / k)
+    settled = abs(state[0] - fitness) < relative_fitness and abs(state[1] - rmse) < relative_rmse
+    state[0], state[1] = fitness, rmse
+    if settled:
+        state[3] = 1.0
+    return settled
+
+
+@njit(cache=True)
+def _moment_loop(pts, T, steps, model, need, relative_fitness, relative_rmse, r2, spts, sidx, start, tkeys,
+                 tcell, origin, h, dims, hashed, out_d2, out_i, target, center, state):
+    """Up to ``steps`` point-to-point iterations, in place: ``pts`` (the moved source), ``T``, the
+    matches ``out_d2`` / ``out_i`` (on entry, those of ``pts``) and ``state`` = [fitness, inlier RMSE,
+    iterations, converged, error]. Stops early on an error (:func:`_next_update`) or when the
+    stopping rule holds."""
+    mom = nn._moments(pts, target, out_d2, out_i, center)
+    for _ in range(steps):
+        update = _next_update(*mom, center, model, need, T, state)
+        if state[4] != 0:
+            return
+        nn._move_query_serial(pts, update, True, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed,
+                              out_d2, out_i)
+        mom = nn._moments(pts, target, out_d2, out_i, center)
+        if _scored(mom[0], mom[1], pts.shape[0], relative_fitness, relative_rmse, state):
+            return
 
 
 def warm_up() -> None:
-    """Run the ICP once in 2-D and 3-D so that every compiled kernel it uses is loaded (or compiled)."""
+    """Run the ICP once in 2-D and 3-D, and each of its compiled parts that Python calls directly, so
+    that every compiled kernel it uses is loaded (or compiled)."""
     rng = np.random.default_rng(0)
     for d in (2, 3):
         target = rng.uniform(0, 10, (50, d))
         icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2)
+        estimate_umeyama(target + 0.05, target, np.ones(50), with_scale=True)
+        # the threaded path's steps (clouds of nn.PARALLEL_MIN_QUERIES points and more)
+        tree = GridIndex(target, max_distance=1.0)
+        pts = np.ascontiguousarray(target + 0.05)
+        state = np.zeros(5)
+        mom = tree.move_and_match(pts, None, 1.0)[2]
+        _next_update(*mom, 1, 3, np.eye(d + 1), state)
+        _scored(mom[0], mom[1], 50, 0.0, 0.0, state)

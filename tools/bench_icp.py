@@ -24,6 +24,9 @@ most) with ``cProfile``: the index build, the first match, the compiled loop (ev
 update, the move, the search, the sums and the stopping rule, without returning to Python) and the
 Python around them. cProfile adds a little to every Python call, so the Python part reads high.
 
+The last section runs ``pcreg crosscheck`` on the LiDAR pair itself (reference and Open3D, the command's
+defaults) ``--crosscheck-runs`` times and compares the seconds each implementation reports.
+
     python tools/bench_icp.py --out out/bench [--sizes 1000,3000,10000,30000,100000] [--iterations 15] [--repeats 5]
 
 Writes bench_icp.json, bench_icp.md and bench_icp.png to --out.
@@ -197,6 +200,27 @@ def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: in
     return {"iterations": iterations, "repeats": repeats, "kinds": kinds}
 
 
+def crosscheck_lidar(data: Path, repeats: int) -> dict | None:
+    """``pcreg crosscheck`` on the LiDAR pair (``data/scans``, the command's defaults: reference and
+    Open3D legacy, every iteration traced): each implementation's own seconds, ``repeats`` times; the
+    ratio reference / Open3D per run, then the median. None without the pair."""
+    src_path, tgt_path = data / "scans" / "source.ply", data / "scans" / "target.ply"
+    if not (src_path.is_file() and tgt_path.is_file()):
+        return None
+    from pcreg.implementations.crosscheck import crosscheck, load_cloud
+
+    source, target = load_cloud(src_path), load_cloud(tgt_path)
+    crosscheck(target, source)  # warm-up: imports, compiled kernels, page faults
+    runs = []
+    for _ in range(repeats):
+        rows = crosscheck(target, source).rows
+        runs.append({n: float(rows[n]["seconds"]) for n in ("reference", "open3d")})
+    ratios = [r["reference"] / r["open3d"] for r in runs]
+    return {"source_points": len(source), "target_points": len(target), "runs": runs,
+            "median_seconds": {n: float(np.median([r[n] for r in runs])) for n in ("reference", "open3d")},
+            "ratio_reference_over_open3d": float(np.median(ratios)), "ratios": ratios}
+
+
 def render(report: dict) -> str:
     from pcreg.outputs import markdown_table
 
@@ -237,6 +261,17 @@ def render(report: dict) -> str:
         lines.append(markdown_table(["part"] + [f"{kind}, N = {p['source_points']}" for kind, p in profiles.items()],
                                     body, digits=3))
         lines.append("")
+    cc = report.get("crosscheck")
+    if cc:
+        lines.append(f"### `pcreg crosscheck` on the LiDAR pair ({cc['source_points']} / {cc['target_points']} "
+                     f"points, its defaults, {len(cc['runs'])} runs)\n")
+        lines.append(markdown_table(["reference (s)", "open3d (s)", "reference / open3d (median of the runs' ratios)"],
+                                    [[cc["median_seconds"]["reference"], cc["median_seconds"]["open3d"],
+                                      cc["ratio_reference_over_open3d"]]], digits=2))
+        lines.append("")
+        checks.append(("`pcreg crosscheck` on the LiDAR pair: reference <= 1.0x Open3D",
+                       f"{cc['ratio_reference_over_open3d']:.2f}x (runs: "
+                       + ", ".join(f"{x:.2f}" for x in cc["ratios"]) + ")", cc["ratio_reference_over_open3d"] <= 1.0))
     lines.append(checks_markdown(checks))
     return "\n".join(lines)
 
@@ -277,6 +312,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--implementations", default=",".join(IMPLEMENTATIONS))
+    p.add_argument("--crosscheck-runs", type=int, default=5,
+                   help="runs of `pcreg crosscheck` on the LiDAR pair (default 5; 0: none)")
     p.add_argument("--profile-calls", type=int, default=20,
                    help="reference calls profiled at the smallest size (default 20; 0: no profile)")
     args = p.parse_args(argv)
@@ -285,6 +322,8 @@ def main(argv: list[str] | None = None) -> int:
     report = {"machine": machine_info(), **run(args.data, sizes=sizes, iterations=args.iterations,
                                                repeats=args.repeats, seed=args.seed, implementations=impls,
                                                profile_calls=args.profile_calls)}
+    if args.crosscheck_runs > 0 and "reference" in impls and "open3d" in impls:
+        report["crosscheck"] = crosscheck_lidar(args.data, args.crosscheck_runs)
     report["machine"]["load_average_at_end"] = machine_info()["load_average"]
     md = render(report)
     write_report(args.out, "bench_icp", report, md, figure(report))

@@ -167,6 +167,18 @@ def profile_reference(src: np.ndarray, tgt: np.ndarray, *, dist: float, iteratio
             "parts_ms": {k: 1e3 * v / calls for k, v in parts.items()}}
 
 
+#: Each size is timed over at least this many source points per implementation (repeats of a small
+#: cloud): a call of a few milliseconds is at the mercy of a shared machine's scheduler, and a median
+#: of 5 such calls swung by +-0.5 in the ratio at 1k points.
+MIN_POINTS_TIMED = 50_000
+
+
+def repeats_at(n: int, repeats: int) -> int:
+    """Repeats for a cloud of ``n`` points: ``repeats``, or more where that times under
+    :data:`MIN_POINTS_TIMED` points."""
+    return max(repeats, -(-MIN_POINTS_TIMED // max(n, 1)))
+
+
 def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: int,
         implementations=IMPLEMENTATIONS, profile_calls: int = 20) -> dict:
     from pcreg._runner import progress
@@ -184,7 +196,7 @@ def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: in
             for n, (src, tgt) in clouds.items():
                 if profile is None and "reference" in implementations and profile_calls > 0:
                     profile = profile_reference(src, tgt, dist=dist, iterations=iterations, calls=profile_calls)
-                row = time_pair(src, tgt, dist=dist, iterations=iterations, repeats=repeats,
+                row = time_pair(src, tgt, dist=dist, iterations=iterations, repeats=repeats_at(len(src), repeats),
                                 implementations=implementations)
                 rows.append(row)
                 bar.update(1)
@@ -225,7 +237,8 @@ def render(report: dict) -> str:
     from pcreg.outputs import markdown_table
 
     lines = [f"## ICP: reference vs Open3D legacy vs small_gicp ({report['iterations']} iterations, "
-             f"median of {report['repeats']} repeats)\n"]
+             f"median of {report['repeats']} repeats, more below {MIN_POINTS_TIMED:,} points: "
+             f"at least {MIN_POINTS_TIMED:,} points timed per size)\n"]
     checks = []
     for kind, k in report["kinds"].items():
         lines.append(f"{kind}: {k['description']}; correspondence distance {k['max_correspondence_distance']:g}.\n")

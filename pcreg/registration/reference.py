@@ -344,10 +344,11 @@ def _score(d2: np.ndarray, ok: np.ndarray, n: int) -> tuple[float, float]:
     return k / n, float(np.sqrt(np.sum(d2[ok]) / k))
 
 
+@njit(cache=True)
 def _settled(prev_fitness: float, fitness: float, prev_rmse: float, rmse: float, relative_fitness: float,
              relative_rmse: float) -> bool:
     """Open3D's stopping rule: both the fitness and the inlier RMSE changed by less than their thresholds
-    (absolute changes, despite the names)."""
+    (absolute changes, despite the names). Compiled: the compiled loop (:func:`_scored`) applies it too."""
     return abs(prev_fitness - fitness) < relative_fitness and abs(prev_rmse - rmse) < relative_rmse
 
 
@@ -415,7 +416,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
         d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
         fitness, rmse = _score(d2, ok, n)
         report(iterations)
-        if _settled(prev_fitness, fitness, prev_rmse, rmse, relative_fitness, relative_rmse):
+        if _settled(prev_fitness, fitness, prev_rmse, rmse, float(relative_fitness), float(relative_rmse)):
             converged = True
             break
     return _finished(T, fitness, rmse, iterations, converged, start)
@@ -436,7 +437,7 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
     From :data:`~pcreg.registration.nn.PARALLEL_MIN_QUERIES` source points the search runs on every
     thread, called from here once an iteration (its cost then dwarfs the call's): a cached compiled
     function that calls a ``parallel=True`` one can crash once it is loaded back from the cache
-    (numba issue 8578), so the threaded search is never called from inside the loop."""
+    (numba bug 8578), so the threaded search is never called from inside the loop."""
     d = source.shape[1]
     n = source.shape[0]
     pts = np.ascontiguousarray(apply(T, source))
@@ -527,7 +528,7 @@ def _scored(k, sd2, n, relative_fitness, relative_rmse, state):
     points into ``state``; True, and converged set, when Open3D's stopping rule (:func:`_settled`) holds."""
     fitness = 0.0 if k == 0 else k / n
     rmse = 0.0 if k == 0 else math.sqrt(sd2 / k)
-    settled = abs(state[0] - fitness) < relative_fitness and abs(state[1] - rmse) < relative_rmse
+    settled = _settled(state[0], fitness, state[1], rmse, relative_fitness, relative_rmse)
     state[0], state[1] = fitness, rmse
     if settled:
         state[3] = 1.0
@@ -560,6 +561,7 @@ def warm_up() -> None:
     for d in (2, 3):
         target = rng.uniform(0, 10, (50, d))
         icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2)
+        icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2, weights="huber")
         estimate_umeyama(target + 0.05, target, np.ones(50), with_scale=True)
         # the threaded path's steps (clouds of nn.PARALLEL_MIN_QUERIES points and more)
         tree = GridIndex(target, max_distance=1.0)

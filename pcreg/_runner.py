@@ -141,6 +141,7 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
 
 def _terminate_workers(pool: ProcessPoolExecutor) -> None:
     processes = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets it
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
         try:
@@ -155,6 +156,11 @@ def _terminate_workers(pool: ProcessPoolExecutor) -> None:
                 proc.join(timeout=2)
         except (OSError, ValueError, AssertionError, AttributeError):
             pass
+    # Let the pool's manager thread see its workers gone and close its wake-up pipe now. CPython 3.11's
+    # exit hook (concurrent.futures.process._python_exit) writes to that pipe without the pool's lock; a
+    # close racing with it printed "Exception ignored ... Bad file descriptor" after "interrupted".
+    if manager is not None and manager.is_alive():
+        manager.join(timeout=5)
 
 
 @contextmanager

@@ -356,6 +356,13 @@ def _move_match_moments_serial(pts, M, move, r2, spts, sidx, start, tkeys, tcell
 # the index
 # ---------------------------------------------------------------------------------------------------
 
+def squared_bound(max_distance: float) -> float:
+    """The squared distance bound of a search: ``max_distance ** 2``, or inf where the distance is not
+    finite (inf or NaN: no bound) or its square is beyond float range."""
+    r = float(max_distance)
+    return r * r if np.isfinite(r) else np.inf
+
+
 class GridIndex:
     """Exact nearest-neighbour index of (M, 2|3) points on a uniform grid.
 
@@ -432,8 +439,7 @@ class GridIndex:
         q = np.ascontiguousarray(queries, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != self.dim:
             raise ValueError(f"queries must be (K, {self.dim}), got shape {q.shape}")
-        r = float(max_distance)
-        r2 = r * r if np.isfinite(r) else np.inf
+        r2 = squared_bound(max_distance)
         out_d2 = np.empty(q.shape[0], np.float64)
         out_i = np.empty(q.shape[0], np.int64)
         args = (q, r2, *self.search_arrays, out_d2, out_i)
@@ -453,8 +459,7 @@ class GridIndex:
         Returns (squared distances (N,), indices (N,) with -1 for none, (count, sum d^2, sum p,
         sum q, sum |p|^2, sum q p^T, centre))."""
         n = points.shape[0]
-        r = float(max_distance)
-        r2 = r * r if np.isfinite(r) else np.inf
+        r2 = squared_bound(max_distance)
         out_d2 = np.empty(n, np.float64)
         out_i = np.empty(n, np.int64)
         M = np.eye(self.dim + 1) if update is None else np.ascontiguousarray(update, dtype=np.float64)

@@ -443,8 +443,7 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
     pts = np.ascontiguousarray(apply(T, source))
     T = np.array(T, dtype=np.float64)
     code, need = _MOMENT_MODELS.index(model), MIN_POINTS[model] if d == 2 else 3
-    r = float(max_distance)
-    r2 = r * r  # a product beyond float range is inf; ``r ** 2`` would raise OverflowError
+    r2 = nn.squared_bound(max_distance)  # the bound move_and_match uses
     rel_fitness, rel_rmse = float(relative_fitness), float(relative_rmse)  # one compiled signature
     d2, idx, mom = tree.move_and_match(pts, None, max_distance)
     state = np.zeros(5)  # fitness, inlier RMSE, iterations, converged, error (see _moment_loop)

@@ -1,5 +1,5 @@
 """Hostile input, by kind: every case ends in a PcregError (library) or one stderr line and exit 2 (CLI),
-in bounded memory. The lock and special-file cases run as real subprocesses (signals: test_interrupts.py)."""
+in bounded memory. The lock and special-file cases run as real subprocesses (signals: test_interrupts*.py)."""
 
 from __future__ import annotations
 

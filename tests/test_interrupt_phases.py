@@ -4,7 +4,7 @@ unlocked, the finished units kept; the same command then resumes (the kept units
 gives the results of a run that was never interrupted.
 
 The signal comes from the phase itself (:func:`_phases.signal_at`), so no test waits on time; the
-subprocess tests in ``test_interrupts.py`` cover the process group and SIGTERM.
+subprocess tests in ``test_interrupts*.py`` cover the process group and SIGTERM.
 """
 
 from __future__ import annotations

@@ -1,0 +1,111 @@
+"""What the interrupt tests share: a command started in its own process group, waits for the events
+that show it under way, and the signal with the checks of its aftermath (exit 130, one line on stderr,
+no process left, the output lock free). The tests: ``test_interrupts*.py``."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Callable
+
+import pytest
+
+from _events import HANG, Ended, processes, until
+
+PCREG = [sys.executable, "-m", "pcreg.cli"]
+
+def start(args: list, **kwargs) -> subprocess.Popen:
+    """The command in a new session (its own process group, whose id is its pid)."""
+    return subprocess.Popen([*PCREG, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **kwargs)
+
+
+def wait_for(p: subprocess.Popen, event: Callable[[], object], what: str) -> None:
+    """Poll ``event`` until it holds; fail with the command's output if it ends first."""
+    try:
+        until(event, what=what, alive=p)
+    except Ended as exc:
+        out, err = p.communicate()
+        pytest.fail(f"{exc}:\n{out[-2000:]}\n{err[-2000:]}")
+
+
+def wait_for_line(p: subprocess.Popen, text: str) -> None:
+    """Read stdout until a line holds ``text`` (the command flushes it)."""
+    seen = []
+    for line in p.stdout:
+        seen.append(line)
+        if text in line:
+            return
+    p.wait(timeout=HANG)
+    pytest.fail(f"the command ended (exit {p.returncode}) without printing {text!r}:\n{''.join(seen)}"
+                f"\n{p.stderr.read()[-2000:]}")
+
+
+def group_members(pgid: int) -> dict[int, str]:
+    """pid -> state letter of every process in the group (from /proc)."""
+    return {p.pid: p.state for p in processes() if p.pgrp == pgid}
+
+
+def signal_and_check(p: subprocess.Popen, how: str, out: Path | None) -> str:
+    """Send the signal (``group``: SIGINT to the process group, as Ctrl-C; ``parent``: SIGINT to the
+    command alone; ``term``: SIGTERM to the command alone), then check the exit and the aftermath: every
+    process of the group ends (waited for through pidfds, readable when a process exits), the output
+    lock is free. Returns stderr."""
+    import select
+
+    members = group_members(p.pid)
+    fds = []
+    for pid in members:
+        try:
+            fds.append(os.pidfd_open(pid))
+        except ProcessLookupError:
+            pass
+    try:
+        if how == "group":
+            os.killpg(p.pid, signal.SIGINT)
+        elif how == "parent":
+            p.send_signal(signal.SIGINT)
+        else:
+            p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=HANG)
+        pending = list(fds)
+        while pending:
+            ready, _, _ = select.select(pending, [], [], HANG)
+            assert ready, f"processes of the command still running {HANG} s after it exited"
+            pending = [fd for fd in pending if fd not in ready]
+    finally:
+        for fd in fds:
+            os.close(fd)
+        if p.poll() is None or any(state != "Z" for state in group_members(p.pid).values()):
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 130, err
+    said = [part.strip() for line in err.splitlines() for part in line.split("\r")]
+    said = [line for line in said if line and "%|" not in line]  # progress bars aside: one line
+    assert len(said) == 1 and said[0].startswith("pcreg: interrupted"), err
+    left = {pid: st for pid, st in group_members(p.pid).items() if st != "Z"}  # zombies: exited, init reaps them
+    assert not left, f"processes of the command left behind: {left}"
+    if out is not None:
+        from pcreg.outputs import OutputLock
+
+        with OutputLock(out):  # released: a new run may take it
+            pass
+    return err
+
+
+def units(out: Path) -> list[Path]:
+    return sorted(out.glob("units/**/*.json"))
+
+
+def resumed(args: list, out: Path, kept: list[Path]) -> dict:
+    """Run the same command to the end: the units the interrupted run finished are reused, not redone
+    (their files are not written again)."""
+    assert kept
+    before = {u: (u.stat().st_ino, u.stat().st_mtime_ns) for u in kept}
+    p = subprocess.run([*PCREG, *map(str, args)], capture_output=True, text=True, timeout=HANG)
+    assert p.returncode == 0, p.stderr
+    assert {u: (u.stat().st_ino, u.stat().st_mtime_ns) for u in kept} == before
+    return json.loads((out / "results.json").read_text())

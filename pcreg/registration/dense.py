@@ -968,18 +968,21 @@ def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Lev
     h, w = shape
     f, s, gshape = lv.scale, lv.spacing, lv.gshape
     grid = (f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)
-    xs = (np.arange(w, dtype=np.float32) - (f - 1) / 2.0) / f / s
-    ys = (np.arange(h, dtype=np.float32) - (f - 1) / 2.0) / f / s
-    mx, my = np.meshgrid(xs, ys)
-    disp = cv2.remap(grid, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    field_full = field_from_matrix(T, (h, w)) + disp
     cell = 0.25 * s * s * lv.rate
     conf_nodes = np.clip(weights_node / cell, 0.0, 1.0).reshape(gshape).astype(np.float32)
-    conf = cv2.remap(conf_nodes, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    inside = ((field_full[:, :, 0] >= -0.5) & (field_full[:, :, 0] <= w - 0.5)
-              & (field_full[:, :, 1] >= -0.5) & (field_full[:, :, 1] <= h - 0.5))
-    conf = np.where(inside, conf, 0.0).astype(np.float32)
-    return _FullField(field_full.astype(np.float32), conf, grid)
+    # full-size pixel x lies at (x - (f - 1) / 2) / (f s) grid cells: an affine resampling of the nodes
+    # (bilinear, the grid's edge nodes repeated beyond it)
+    to_grid = np.array([[1.0, 0.0, -(f - 1) / 2.0], [0.0, 1.0, -(f - 1) / 2.0]]) / (f * s)
+
+    def at_pixels(nodes: np.ndarray) -> np.ndarray:
+        return cv2.warpAffine(nodes, to_grid, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REPLICATE)
+
+    field_full = field_from_matrix(T, (h, w))
+    field_full += at_pixels(grid)
+    conf = at_pixels(conf_nodes)
+    conf[cv2.inRange(field_full, (-0.5, -0.5), (w - 0.5, h - 0.5)) == 0] = 0.0  # the field leaves the image
+    return _FullField(field_full, conf, grid)
 
 
 def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationResult, options: DenseOptions, *,

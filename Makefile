@@ -46,7 +46,7 @@ test: setup lint docs
 
 # ruff (pyflakes, syntax and statement errors, line length) and mypy, configured in pyproject.toml.
 lint: setup
-	$(BIN)/ruff check pcreg tools
+	$(BIN)/ruff check pcreg tools tests
 	$(BIN)/mypy
 
 # The documentation site (mkdocs.yml) into build/site; strict: a broken link or a stale API name fails.

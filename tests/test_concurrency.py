@@ -118,7 +118,9 @@ def same(x, y) -> bool:
 def assert_same_results(a: Path, b: Path) -> None:
     """Two evaluation folders hold the same files: JSON the same but for clocks, tables and checks byte
     for byte, figures that decode."""
-    files = lambda d: {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file() and p.name != ".pcreg.lock"}
+    def files(d: Path) -> set[str]:
+        return {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file() and p.name != ".pcreg.lock"}
+
     assert files(a) == files(b)
     assert not [f for f in files(b) if f.endswith(".tmp")]
     for name in sorted(files(a)):

@@ -19,7 +19,7 @@ from pcreg.datasets import (
     relative_transform,
     synthetic,
 )
-from pcreg.errors import DatasetError, InputError, PcregError
+from pcreg.errors import DatasetError, InputError
 
 W, H = 96, 72
 

@@ -10,7 +10,6 @@ import pytest
 
 from pcreg import register_dense, warp
 from pcreg.registration.warp import warp_to_moving
-from pcreg import transforms as tf
 from pcreg.errors import InputError
 from pcreg.registration.dense import DenseRegistrationResult, field_from_matrix, match_window
 from pcreg.registration.warp import invert_field

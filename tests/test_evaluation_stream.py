@@ -2,14 +2,13 @@
 
 import csv
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pcreg.cli import main
-from pcreg.experiments.stream import METHODS, run_clip
+from pcreg.experiments.stream import run_clip
 
 CAMVID = Path(__file__).resolve().parents[2] / "shared" / "data" / "camvid"
 

@@ -667,7 +667,6 @@ def test_every_option_with_hostile_values(tmp_path, capsys, monkeypatch):
     an unexpected error. Evaluations are parsed and their config built, not run."""
     import importlib
 
-    from pcreg.cli import main
 
     monkeypatch.chdir(tmp_path)  # an accepted value such as `--out nan` writes its file here
     cv2.imwrite(str(tmp_path / "a.png"), GOOD[:, :, ::-1])

@@ -100,6 +100,15 @@ def units(out: Path) -> list[Path]:
     return sorted(out.glob("units/**/*.json"))
 
 
+def stopped(args: list, out: Path, how: str, **kwargs) -> list[Path]:
+    """Start the evaluation ``args`` (writing to ``out``), signal it once a unit is finished
+    (:func:`signal_and_check`) and return the unit files it kept."""
+    p = start(args, **kwargs)
+    wait_for(p, lambda: units(out), "a finished unit")
+    signal_and_check(p, how, out)
+    return units(out)
+
+
 def resumed(args: list, out: Path, kept: list[Path]) -> dict:
     """Run the same command to the end: the units the interrupted run finished are reused, not redone
     (their files are not written again)."""

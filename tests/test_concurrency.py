@@ -22,7 +22,8 @@ import cv2
 import numpy as np
 import pytest
 
-from _events import HANG, Ended, until
+from _events import HANG
+from _interrupting import units, wait_for
 
 PCREG = [sys.executable, "-m", "pcreg.cli"]
 
@@ -43,18 +44,6 @@ def _env() -> dict:
 def start(args: list, **kwargs) -> subprocess.Popen:
     return subprocess.Popen([*PCREG, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, env=_env(), **kwargs)
-
-
-def units(out: Path) -> list[Path]:
-    return sorted(out.glob("units/**/*.json"))
-
-
-def wait_for(p: subprocess.Popen, event, what: str) -> None:
-    try:
-        until(event, what=what, alive=p)
-    except Ended as exc:
-        out, err = p.communicate()
-        pytest.fail(f"{exc}:\n{out[-2000:]}\n{err[-2000:]}")
 
 
 def pause_mid_run(p: subprocess.Popen, out: Path) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from _interrupting import resumed, signal_and_check, start, units, wait_for
+from _interrupting import resumed, stopped
 
 ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "6", "--size", "160x120",
             "--angles", "0:180:10", "--samples", "6"]  # 6 units of 19 registrations each
@@ -25,29 +25,19 @@ CLASSIFICATION = ["evaluate", "classification", "--data", "synthetic:syn1a,syn2b
 def test_evaluate_rotation_stops_and_resumes(tmp_path, how, workers):
     out = tmp_path / "rot"
     args = [*ROTATION, "--workers", workers, "--out", out]
-    p = start(args)
-    wait_for(p, lambda: units(out), "a finished unit")
-    signal_and_check(p, how, out)
-    resumed(args, out, units(out))
+    resumed(args, out, stopped(args, out, how))
 
 
 @pytest.mark.parametrize("how, workers", [("group", 2), ("parent", 1)])
 def test_evaluate_classification_stops_and_resumes(tmp_path, how, workers):
     out = tmp_path / "cls"
     args = [*CLASSIFICATION, "--workers", workers, "--out", out]
-    p = start(args)
-    wait_for(p, lambda: units(out), "a finished unit")
-    signal_and_check(p, how, out)
-    resumed(args, out, units(out))
+    resumed(args, out, stopped(args, out, how))
 
 
 @pytest.mark.parametrize("how, workers", [("group", 2), ("parent", 1)])
 def test_evaluate_stream_stops_and_resumes(tmp_path, how, workers):
     out = tmp_path / "stream"
     args = [*STREAM, "--workers", workers, "--out", out]
-    p = start(args)
-    wait_for(p, lambda: units(out), "a finished unit")
-    signal_and_check(p, how, out)
-    kept = units(out)
-    results = resumed(args, out, kept)
+    results = resumed(args, out, stopped(args, out, how))
     assert set(results["datasets"]) == {"syn1a", "syn2a", "syn2b", "syn3a"}

@@ -11,7 +11,7 @@ import signal
 
 import pytest
 
-from _interrupting import resumed, signal_and_check, start, units, wait_for
+from _interrupting import resumed, stopped
 
 SEQUENCE = ["evaluate", "sequence", "--data", "synthetic:syn1a,syn2b", "--frames", "24", "--size", "160x120",
             "-k", "1,2,3,4,5,6"]  # 12 units of about a second
@@ -21,10 +21,7 @@ SEQUENCE = ["evaluate", "sequence", "--data", "synthetic:syn1a,syn2b", "--frames
 def test_evaluate_sequence_stops_keeps_units_and_resumes(tmp_path, how, workers):
     out = tmp_path / "seq"
     args = [*SEQUENCE, "--workers", workers, "--out", out]
-    p = start(args)
-    wait_for(p, lambda: units(out), "a finished unit")
-    signal_and_check(p, how, out)
-    kept = units(out)
+    kept = stopped(args, out, how)
     assert kept and all(json.loads(u.read_text())["pairs"] for u in kept)  # whole files
     assert not (out / "results.json").exists()
     resumed(args, out, kept)
@@ -35,7 +32,5 @@ def test_sigint_stops_a_command_started_with_sigint_ignored(tmp_path):
     SIGINT ignored; ``kill -INT`` (and Ctrl-C through a wrapper) must still stop them."""
     out = tmp_path / "seq"
     args = [*SEQUENCE, "--workers", 2, "--out", out]
-    p = start(args, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
-    wait_for(p, lambda: units(out), "a finished unit")
-    signal_and_check(p, "parent", out)
-    resumed(args, out, units(out))
+    kept = stopped(args, out, "parent", preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    resumed(args, out, kept)

@@ -332,3 +332,47 @@ def test_compiled_robust_step_matches_the_array_formulation():
     few = m.copy()
     few[8:, 3] = 0.0  # at most 6 mutual matches left (rows 1-6): too few for a scale, no step
     assert ne.robust_step(few, X, start, sigma, 0.25, 1e-5, x0, maxiter=30) is None
+
+
+@pytest.mark.parametrize("level", [0, 1, 2])
+def test_the_full_size_field_interpolates_the_grid_at_each_pixels_place(level):
+    """The field at full resolution is the global transform plus the grid's displacements interpolated
+    bilinearly where each pixel lies on the grid of its level (pixel x at ``(x - (2^l - 1) / 2) / (2^l s)``
+    cells, edge nodes repeated beyond the grid), and its confidence is 0 where it leaves the image."""
+    from pcreg.registration.dense import _full_field, _grid_shape, _Level
+
+    h, w, s = 97, 131, 2.0  # a fine grid: a cell is a few pixels, so a quarter-pixel slip shows
+    f = 2 ** level
+    gshape = _grid_shape(-(-h // f), -(-w // f), s)
+    rng = np.random.default_rng(level)
+    U = rng.normal(0, 4, (gshape[0] * gshape[1], 2))
+    weights = rng.uniform(0, 40, gshape[0] * gshape[1])
+    T = np.array([[1.01, 0.02, 3.5], [-0.02, 1.01, -60.0], [0, 0, 1]])  # leaves the image at the top
+    lv = _Level(level, s, gshape, 0.5, None)
+    out = _full_field(T, U, weights, lv, (h, w))
+
+    def bilinear(nodes, gx, gy):
+        gx = np.clip(gx, 0, gshape[1] - 1)
+        gy = np.clip(gy, 0, gshape[0] - 1)
+        x0 = np.minimum(np.floor(gx).astype(int), gshape[1] - 2)
+        y0 = np.minimum(np.floor(gy).astype(int), gshape[0] - 2)
+        ax, ay = gx - x0, gy - y0
+        if nodes.ndim == 3:
+            ax, ay = ax[..., None], ay[..., None]
+        return ((1 - ay) * ((1 - ax) * nodes[y0, x0] + ax * nodes[y0, x0 + 1])
+                + ay * ((1 - ax) * nodes[y0 + 1, x0] + ax * nodes[y0 + 1, x0 + 1]))
+
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    gx, gy = (xs - (f - 1) / 2) / (f * s), (ys - (f - 1) / 2) / (f * s)
+    grid = (f * U).reshape(gshape[0], gshape[1], 2)
+    expected = field_from_matrix(T, (h, w)) + bilinear(grid, gx, gy)
+    # OpenCV interpolates with weights in steps of 1/32: at most a 32nd of a node-to-node difference
+    step = max(np.abs(np.diff(grid, axis=0)).max(), np.abs(np.diff(grid, axis=1)).max())
+    assert np.abs(out.field - expected).max() <= step / 32 + 1e-3
+    conf = bilinear(np.clip(weights / (0.25 * s * s * 0.5), 0, 1).reshape(gshape), gx, gy)
+    inside = ((out.field[..., 0] >= -0.5) & (out.field[..., 0] <= w - 0.5)
+              & (out.field[..., 1] >= -0.5) & (out.field[..., 1] <= h - 0.5))
+    assert 0 < inside.mean() < 1
+    assert np.all(out.confidence[~inside] == 0)
+    assert np.abs(out.confidence[inside] - conf[inside]).max() <= 1 / 32 + 1e-6
+    assert out.field.dtype == np.float32 and out.confidence.dtype == np.float32

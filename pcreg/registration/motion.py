@@ -115,10 +115,8 @@ def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarr
     y = np.arange(h, dtype=np.float64)[:, None]
     out = np.empty((h, w, 2), np.float32)
     if M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1:
-        # the row and column terms summed in float64 and rounded into ``out`` as they are written: the
-        # same numbers as an (H, W) float64 sum cast afterwards, without that array (a sixth of the time)
-        np.add(M[0, 0] * x, M[0, 1] * y + M[0, 2], out=out[:, :, 0], casting="unsafe")
-        np.add(M[1, 0] * x, M[1, 1] * y + M[1, 2], out=out[:, :, 1], casting="unsafe")
+        out[:, :, 0] = M[0, 0] * x + (M[0, 1] * y + M[0, 2])
+        out[:, :, 1] = M[1, 0] * x + (M[1, 1] * y + M[1, 2])
         return out
     den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
     out[:, :, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den

@@ -18,6 +18,7 @@ from _events import HANG, Ended, processes, until
 
 PCREG = [sys.executable, "-m", "pcreg.cli"]
 
+
 def start(args: list, **kwargs) -> subprocess.Popen:
     """The command in a new session (its own process group, whose id is its pid)."""
     return subprocess.Popen([*PCREG, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

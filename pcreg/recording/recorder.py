@@ -22,8 +22,9 @@ Usage::
             rec.log_transform(result.matrix)
 
 Cost: images are JPEG-encoded (quality 60 by default) on a background thread, and clouds and label
-maps are subsampled for display, so a 100-frame 640x480 sequence stays under 15 MB and recording
-adds a few milliseconds per frame (``tools/bench_recording.py`` measures both). The file is written
+maps are subsampled for display: 100 recorded 640x480 pairs of ``pcreg evaluate sequence`` take about
+22 MB, and recording adds 8-17% to their time (``tools/bench_recording.py`` measures both; the
+benchmarks page breaks the size down). The file is written
 by rerun's own thread as data arrives (every ~0.2 s); :meth:`Recorder.flush` forces it.
 """
 
@@ -53,8 +54,9 @@ from ..registration.result import IcpIteration
 
 __all__ = ["Recorder", "DEFAULT_JPEG_QUALITY"]
 
-#: JPEG quality of logged images (with optimised Huffman tables): the highest that keeps a 100-frame
-#: 640x480 sequence recording under 15 MB (README, design notes). ``raw_images=True`` logs losslessly.
+#: JPEG quality of logged images (with optimised Huffman tables): the highest that kept a 100-frame
+#: 640x480 sequence recording of an earlier layout under 15 MB (design notes, docs/algorithms.md).
+#: ``raw_images=True`` logs losslessly.
 DEFAULT_JPEG_QUALITY = 60
 
 _LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}

@@ -20,6 +20,7 @@ points there; an alignment of unrelated content only as many as chance allows (s
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -173,6 +174,18 @@ def _canvas(gray: np.ndarray, mask: np.ndarray | None, size: int) -> np.ndarray:
     return out
 
 
+@functools.lru_cache(maxsize=8)
+def _spectrum_weights(size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The (size, size) Hanning window and the high-pass weight of the magnitude spectra (the low
+    frequencies carry the window, not the content), made once per canvas size; read-only."""
+    win = cv2.createHanningWindow((size, size), cv2.CV_32F)
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    highpass = np.clip(np.hypot(xx - size / 2, yy - size / 2) / (size / 2), 0, 1) ** 2
+    win.flags.writeable = False
+    highpass.flags.writeable = False
+    return win, highpass
+
+
 def fourier_mellin_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, level: int = 2,
                               model: str = "rigid", reference_valid: np.ndarray | None = None,
                               moving_valid: np.ndarray | None = None) -> list[np.ndarray]:
@@ -186,12 +199,9 @@ def fourier_mellin_hypotheses(reference_image: np.ndarray, moving_image: np.ndar
     g1, m1 = gray_level(reference_image, level, valid=reference_valid)
     g2, m2 = gray_level(moving_image, level, valid=moving_valid)
     size = cv2.getOptimalDFTSize(max(g1.shape + g2.shape))
-    win = cv2.createHanningWindow((size, size), cv2.CV_32F)
-    A = _canvas(g1, m1, size)
+    win, highpass = _spectrum_weights(size)
+    A = _canvas(g1, m1, size)  # also the reference side of each translation's phase correlation (copied)
     B = _canvas(g2, m2, size)
-    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
-    # High-pass weight: the low frequencies carry the window, not the content.
-    highpass = np.clip(np.hypot(xx - size / 2, yy - size / 2) / (size / 2), 0, 1) ** 2
 
     def logpolar_magnitude(img):
         F = cv2.dft(img * win, flags=cv2.DFT_COMPLEX_OUTPUT)
@@ -224,8 +234,8 @@ def fourier_mellin_hypotheses(reference_image: np.ndarray, moving_image: np.ndar
                             flags=cv2.INTER_NEAREST)
         wm = cv2.erode(wm, np.ones((5, 5), np.uint8))
         P = _canvas(warped, wm if m1 is None else cv2.bitwise_and(wm, m1), size)
-        Q = _canvas(g1, m1, size)
-        (dx, dy), _ = cv2.phaseCorrelate(P, Q, win)
+        # a copy: with a window, cv2.phaseCorrelate multiplies its inputs by it in place (OpenCV 5.0)
+        (dx, dy), _ = cv2.phaseCorrelate(P, A.copy(), win)
         T = T0.copy()
         T[:2, 2] += np.array([dx, dy]) * f
         out.append(_fix_model(T, model))

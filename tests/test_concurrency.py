@@ -15,7 +15,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -23,9 +22,7 @@ import numpy as np
 import pytest
 
 from _events import HANG
-from _interrupting import units, wait_for
-
-PCREG = [sys.executable, "-m", "pcreg.cli"]
+from _interrupting import start as start_in_own_group, units, wait_for
 
 # Small, and each long enough (two units) to be caught mid-run.
 ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
@@ -42,8 +39,8 @@ def _env() -> dict:
 
 
 def start(args: list, **kwargs) -> subprocess.Popen:
-    return subprocess.Popen([*PCREG, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, env=_env(), **kwargs)
+    """The command in its own process group, with this checkout's pcreg first on its path."""
+    return start_in_own_group(args, env=_env(), **kwargs)
 
 
 def pause_mid_run(p: subprocess.Popen, out: Path) -> None:

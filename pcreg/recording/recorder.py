@@ -24,8 +24,8 @@ Usage::
 Cost: images are JPEG-encoded (quality 60 by default) on a background thread, and clouds and label
 maps are subsampled for display: 100 recorded 640x480 pairs of ``pcreg evaluate sequence`` take about
 22 MB, and recording adds 8-17% to their time (``tools/bench_recording.py`` measures both; the
-benchmarks page breaks the size down). The file is written
-by rerun's own thread as data arrives (every ~0.2 s); :meth:`Recorder.flush` forces it.
+benchmarks page breaks the size down). The file is written by rerun's own thread as data arrives
+(every ~0.2 s); :meth:`Recorder.flush` forces it.
 """
 
 from __future__ import annotations

@@ -376,3 +376,61 @@ def test_the_full_size_field_interpolates_the_grid_at_each_pixels_place(level):
     assert np.all(out.confidence[~inside] == 0)
     assert np.abs(out.confidence[inside] - conf[inside]).max() <= 1 / 32 + 1e-6
     assert out.field.dtype == np.float32 and out.confidence.dtype == np.float32
+
+
+def test_a_registration_started_from_an_earlier_grid_follows_a_motion_beyond_the_cold_gate():
+    """At one level (1), a 60 px shift is beyond what the cold start's eight steps can reach (a 3 px gate
+    of the level, 6 px, each); from the grid of a registration that put the frame 54 px away, the 6 px
+    left are within the gate."""
+    ref = _textured(seed=3)
+    h, w = ref.shape[:2]
+    shift = lambda dx: cv2.warpAffine(ref, np.float32([[1, 0, dx], [0, 1, 0]]), (w, h),  # noqa: E731
+                                      flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
+    kw = dict(levels=2, texture=None, max_points=5000)
+    earlier = register_dense(ref, shift(54.0), global_result=np.eye(3) + np.array([[0, 0, 54.0], [0, 0, 0], [0, 0, 0]]),
+                             **kw)
+    assert earlier.grid.shape == (16, 21, 2) and earlier.grid.dtype == np.float32 and not earlier.grid.flags.writeable
+    grid = earlier.grid + np.float32([54.0, 0.0])  # its displacements from the identity
+    inner = (slice(24, -24), slice(80, -80))
+    cold = register_dense(ref, shift(60.0), global_result=np.eye(3), **kw)
+    warm = register_dense(ref, shift(60.0), global_result=np.eye(3), initial=grid, initial_level=1, **kw)
+    err = lambda r: np.median(np.abs(r.field[..., 0] - (np.arange(w) + 60.0))[inner])  # noqa: E731
+    assert err(cold) > 10 and err(warm) < 0.5, (err(cold), err(warm))
+    assert warm.info["levels"] == cold.info["levels"] == (1, 1)
+    assert warm.info["evidence"] > 2 * cold.info["evidence"]
+
+
+def test_an_initial_grid_at_the_finest_level_is_the_grid_itself_and_coarser_levels_interpolate_it():
+    from pcreg.registration.dense import _grid_at_level, _Level
+
+    rng = np.random.default_rng(0)
+    grid = rng.normal(0, 3, (31, 41, 2)).astype(np.float32)  # full-size px
+    finest = _Level(level=1, spacing=8.0, gshape=(31, 41), rate=1.0, problem=None)
+    np.testing.assert_allclose(_grid_at_level(grid, 1, finest), grid.reshape(-1, 2) / 2, atol=1e-5)  # level-1 px
+    # an affine field is interpolated exactly: node (i, j) of level 2 sits at full-size x = 32 j + 1.5,
+    # which is x = 16 j + 0.5 on level 1, 2 j + 1/16 of its nodes
+    gy, gx = np.mgrid[0:31, 0:41].astype(np.float64)
+    affine = np.dstack([0.5 * gx + 2.0, -0.25 * gy + 1.0]).astype(np.float32)
+    coarse = _Level(level=2, spacing=8.0, gshape=(16, 21), rate=1.0, problem=None)
+    got = _grid_at_level(affine, 1, coarse).reshape(16, 21, 2)
+    cy, cx = np.mgrid[0:16, 0:21].astype(np.float64)
+    ux, uy = np.minimum(2 * cx + 1 / 16, 40), np.minimum(2 * cy + 1 / 16, 30)  # the edge nodes held beyond
+    np.testing.assert_allclose(got[..., 0], (0.5 * ux + 2.0) / 4, atol=1e-5)  # in level-2 px
+    np.testing.assert_allclose(got[..., 1], (-0.25 * uy + 1.0) / 4, atol=1e-5)
+
+
+def test_bad_initial_grids_are_refused(warped_pair):
+    ref, mov, _ = warped_pair
+    kw = dict(global_result=np.eye(3), levels=4)
+    good = register_dense(ref, mov, **kw)
+    for bad, match in ((good.grid[:-1], "nodes"), (np.full_like(good.grid, np.nan), "non-finite"),
+                       ("grid", "nodes|grid"), (np.zeros((3, 3)), "nodes")):
+        with pytest.raises(InputError, match=match):
+            register_dense(ref, mov, initial=bad, **kw)
+    for level in (0, 8, 2.5, "2"):
+        with pytest.raises(InputError, match="initial_level"):
+            register_dense(ref, mov, initial=good, initial_level=level, **kw)
+    with pytest.raises(InputError, match="nodes"):  # another grid spacing
+        register_dense(ref, mov, initial=good, grid_spacing=12.0, **kw)
+    same = register_dense(ref, mov, initial=good, initial_level=2, **kw)  # from its own end: no worse
+    assert same.info["evidence"] >= 0.9 * good.info["evidence"]

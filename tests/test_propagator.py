@@ -96,6 +96,65 @@ def test_a_failed_registration_falls_back_to_the_key_frames_labels(frames):
         assert prop.last.registered and prop.last.reference == (0 if not options else 1)
 
 
+def test_dense_steps_start_from_the_previous_grid_and_restart_cold_after_a_jump(frames):
+    from pcreg.pipeline.stream import STREAM_DENSE, DenseStep
+
+    key = frames[0]
+    prop = pcreg.Propagator.from_key_frame(key.image, key.labels)
+    cold = pcreg.Propagator.from_key_frame(key.image, key.labels, dense=DenseStep(warm=False))
+    for f in frames[1:4]:
+        prop.step(f.image)
+        cold.step(f.image)
+        assert cold.last.start == "cold" and cold.carry is None
+    assert prop.carry.grid.shape == prop.last.registration.grid.shape
+    # a jump of 60 px, five times the warm gate (3 px at level 2): the warm field's evidence collapses,
+    # the step runs again cold and keeps the cold field
+    h, w = key.image.shape[:2]
+    jumped = cv2.warpAffine(frames[4].image, np.float32([[1, 0, 60], [0, 1, 0]]), (w, h),
+                            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
+    prop.step(jumped)
+    assert prop.last.start == "restarted"
+    fresh = pcreg.register_dense(key.image, jumped, global_result=np.eye(3), **STREAM_DENSE.kwargs())
+    np.testing.assert_array_equal(prop.last.registration.field, fresh.field)
+    assert prop.carry.reference_evidence == fresh.info["evidence"]
+    prop.step(jumped)  # from the restarted field: warm again
+    assert prop.last.start == "warm"
+
+
+def test_a_resumed_propagator_continues_exactly_as_the_uninterrupted_one(frames):
+    from pcreg.pipeline.stream import Carry
+
+    whole = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    for f in frames[1:4]:
+        whole.step(f.image)
+    saved = Carry(whole.carry.grid.copy(), whole.carry.reference_evidence)
+    expected = whole.step(frames[4].image)
+    resumed = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    resumed.resume(3, saved)
+    np.testing.assert_array_equal(resumed.step(frames[4].image), expected)
+    assert resumed.last.frame == 4 and resumed.last.start == whole.last.start == "warm"
+    np.testing.assert_array_equal(resumed.last.registration.field, whole.last.registration.field)
+    with pytest.raises(InputError, match="anchored"):
+        pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, anchor="previous").resume(3, saved)
+    with pytest.raises(InputError, match="Carry"):
+        resumed.resume(3, saved.grid)
+    with pytest.raises(InputError, match="before reset"):
+        pcreg.Propagator(resumed.classifier).resume(3, saved)
+    for grid, evidence in ((np.zeros((4, 4)), 1.0), (np.full((4, 4, 2), np.nan), 1.0), (np.zeros((4, 4, 2)), np.inf)):
+        with pytest.raises(InputError, match="carried"):
+            Carry(grid, evidence)
+
+
+def test_dense_step_options_are_checked():
+    from pcreg.pipeline.stream import DenseStep
+
+    for bad in ({"warm": 1}, {"warm_level": -1}, {"warm_iterations": 0}, {"warm_iterations": 2.0},
+                {"restart_ratio": 1.5}, {"restart_ratio": "half"}, {"iterations": True}):
+        with pytest.raises(InputError):
+            DenseStep(**bad)
+    assert DenseStep().kwargs(warm=True) == {"texture": None, "iterations": 4, "max_points": 5000, "initial_level": 2}
+
+
 def test_propagator_input_errors(frames):
     clf = pcreg.fit_classifier([frames[0]])
     prop = pcreg.Propagator(clf)
@@ -153,6 +212,17 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
         np.testing.assert_array_equal(cv2.imread(str(out / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED),
                                       cv2.imread(str(whole / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED))
     assert main(args) == 0 and "already done" in capsys.readouterr().out
+    # a resume needs the last counted frame's carry
+    state["done"] = 5
+    (out / "run.json").write_text(json.dumps(state))
+    (out / "carry-0.npz").unlink()
+    assert main(args) == 2
+    assert "carry-0.npz: missing or unreadable" in capsys.readouterr().err
+    (out / "carry-0.npz").write_bytes((out / "carry-1.npz").read_bytes())  # frame 5's, not frame 4's
+    assert main(args) == 2
+    assert "holds frame 5's carry, not frame 4's" in capsys.readouterr().err
+    state["done"] = 6
+    (out / "run.json").write_text(json.dumps(state))
     # other options over the same folder: refused, unless --force
     assert main(args + ["--weight", "3"]) == 2
     assert "other options" in capsys.readouterr().err
@@ -187,12 +257,12 @@ def test_run_scores_against_truth_and_resumes_exactly_after_a_crash(tmp_path, fr
     # a crash after frame 3's PNG and step line were written, before run.json counted it
     real = stream_run.StreamRun.record
 
-    def crash(self, t, labels, report, plain=None):
+    def crash(self, t, labels, report, plain=None, **kw):
         if t == 3:
             import pcreg.outputs
 
             monkeypatch.setattr(pcreg.outputs, "atomic_write_json", _raise_kill)
-        return real(self, t, labels, report, plain)
+        return real(self, t, labels, report, plain, **kw)
 
     monkeypatch.setattr(stream_run.StreamRun, "record", crash)
     assert main(base + ["--out", str(tmp_path / "cut")]) == 130
@@ -200,7 +270,10 @@ def test_run_scores_against_truth_and_resumes_exactly_after_a_crash(tmp_path, fr
     assert json.loads((tmp_path / "cut" / "run.json").read_text())["done"] == 3
     assert len((tmp_path / "cut" / "steps.jsonl").read_text().splitlines()) == 3  # frame 3's line, uncommitted
     assert main(base + ["--out", str(tmp_path / "cut")]) == 0
-    for name in ["run.json", "steps.jsonl"] + [f"f{i:03d}.png" for i in range(6)]:
+    # the steps after the first start from the one before (the resumed frame 3 from frame 2's carry)
+    starts = [json.loads(line)["start"] for line in (tmp_path / "cut" / "steps.jsonl").read_text().splitlines()]
+    assert starts[0] == "cold" and set(starts[1:]) <= {"warm", "restarted"} and "warm" in starts[1:], starts
+    for name in ["run.json", "steps.jsonl", "carry-0.npz", "carry-1.npz"] + [f"f{i:03d}.png" for i in range(6)]:
         a, b = (tmp_path / "whole" / name).read_bytes(), (tmp_path / "cut" / name).read_bytes()
         if name == "steps.jsonl":  # times differ from run to run; everything else is the same
             a, b = ([_timeless(json.loads(line)) for line in x.splitlines()] for x in (a, b))

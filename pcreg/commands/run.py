@@ -143,6 +143,8 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
     if start >= len(paths):
         print(f"{out}: all {len(paths)} frames already done")
         return 0
+    if start > 1:
+        prop.resume(start - 1, stream.carry_after(start - 1))
     with open_recorder(args, name=f"run {folder}") as rec, \
             progress(total=len(paths) - start, desc="frames", disable=None) as bar:
         for t in range(start, len(paths)):
@@ -150,7 +152,7 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
             image = load_image(paths[t])
             labels = prop.step(image)
             plain = prop.classifier.predict(image) if truth is not None else None
-            stream.record(t, labels, prop.last.to_dict(), plain)
+            stream.record(t, labels, prop.last.to_dict(), plain, carry=prop.carry)
             _log(rec, t, image, labels, prop.last, paths[t].name)
             bar.update(1)
     s = stream.state

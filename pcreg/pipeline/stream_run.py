@@ -6,13 +6,16 @@ Outputs in ``out``, each written atomically:
 - ``steps.jsonl``: one line per step (:meth:`pcreg.Propagator.step`'s report, and the frame's error
   against the truth when there is one), appended;
 - ``run.json``: the options, how many frames are done, how many fell back, and the running error
-  against the truth: rewritten after every frame, and always the same small size.
+  against the truth: rewritten after every frame, and always the same small size;
+- ``carry-0.npz`` and ``carry-1.npz``: what each step handed to the next (:class:`pcreg.pipeline.stream.Carry`,
+  the dense field's control grid), frame t's in ``carry-{t % 2}.npz``, so the one of the last frame
+  counted is always there.
 
 ``run.json`` is the commit point: a frame counts once it is written. A run that stops anywhere (a
 kill, Ctrl-C) resumes at the first frame not counted: ``steps.jsonl`` is cut back to the frames
-counted and the temporary files of writes it left half done are removed. Every frame is registered to
-the key frame, so a step depends on the key frame and itself only: the resumed run writes exactly what
-an uninterrupted run writes.
+counted, the temporary files of writes it left half done are removed, and the propagator continues
+from the last counted frame's carry. Every frame is registered to the key frame and its registration
+starts from that carry, so the resumed run writes exactly what an uninterrupted run writes.
 """
 
 from __future__ import annotations
@@ -26,10 +29,11 @@ import numpy as np
 
 from ..errors import InputError, OutputError
 
-__all__ = ["StreamRun", "STATE", "STEPS"]
+__all__ = ["StreamRun", "STATE", "STEPS", "CARRY"]
 
 STATE = "run.json"
 STEPS = "steps.jsonl"
+CARRY = "carry-{}.npz"
 
 
 @dataclass
@@ -66,6 +70,8 @@ class StreamRun:
             self._cut_steps(int(state["done"]) - 1)
             self._remove_partial_writes()
             return int(state["done"])
+        for slot in (0, 1):
+            (self.out / CARRY.format(slot)).unlink(missing_ok=True)
         self.state = {"run": self.identity, "key_frame": self.frames[0].name, "done": 1, "fallbacks": 0,
                       "truth": {"frames": 0, "wrong": 0, "known": 0, "plain_wrong": 0} if self.truth else None}
         _write_png(self.out / f"{self.frames[0].stem}.png", self.labels)
@@ -77,7 +83,7 @@ class StreamRun:
         """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
         PNG or run.json, :func:`pcreg.outputs.atomic_write_bytes`); the caller holds the folder's lock."""
         for f in self.out.glob(".*.tmp"):
-            if f.name.startswith(f".{STATE}.") or ".png." in f.name:
+            if f.name.startswith((f".{STATE}.", ".carry-")) or ".png." in f.name:
                 f.unlink(missing_ok=True)
 
     def _cut_steps(self, n: int) -> None:
@@ -89,8 +95,26 @@ class StreamRun:
         if len(lines) != n:
             path.write_bytes(b"".join(lines[:n]))
 
-    def record(self, t: int, labels: np.ndarray, report: dict, plain: np.ndarray | None = None) -> None:
-        """Write frame ``t``'s labels and step, then commit it in run.json."""
+    def carry_after(self, t: int):
+        """The carry frame ``t`` left (a counted frame; None for the key frame, or where it left none)."""
+        from ..pipeline.stream import Carry
+
+        if t == 0:
+            return None
+        path = self.out / CARRY.format(t % 2)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                frame, grid, evidence = int(z["frame"]), np.array(z["grid"]), float(z["evidence"])
+        except (OSError, ValueError, KeyError):
+            raise OutputError(f"{path}: missing or unreadable, so frame {t + 1} cannot continue where frame {t} "
+                              "left off; use --force to start over") from None
+        if frame != t:
+            raise OutputError(f"{path} holds frame {frame}'s carry, not frame {t}'s; use --force to start over")
+        return None if grid.size == 0 else Carry(grid, evidence)
+
+    def record(self, t: int, labels: np.ndarray, report: dict, plain: np.ndarray | None = None, carry=None) -> None:
+        """Write frame ``t``'s labels, step and ``carry`` (a :class:`~pcreg.pipeline.stream.Carry` or None),
+        then commit it in run.json."""
         from ..classification.metrics import error_rate
         from ..outputs import atomic_write_json, to_json
 
@@ -112,9 +136,22 @@ class StreamRun:
             s["plain_error"] = 100.0 * s["plain_wrong"] / s["known"] if s["known"] else None
         with open(self.out / STEPS, "ab") as fh:
             fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
+        _write_carry(self.out / CARRY.format(t % 2), t, carry)
         self.state["done"] = t + 1
         self.state["fallbacks"] += int(report.get("fallback", False))
         atomic_write_json(self.out / STATE, self.state)  # the commit point
+
+
+def _write_carry(path: Path, t: int, carry) -> None:
+    import io
+
+    from ..outputs import atomic_write_bytes
+
+    buf = io.BytesIO()
+    grid = np.zeros((0, 0, 2), np.float32) if carry is None else carry.grid
+    evidence = float("nan") if carry is None else carry.reference_evidence
+    np.savez(buf, frame=np.int64(t), grid=grid, evidence=np.float64(evidence))
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def _write_png(path: Path, labels: np.ndarray) -> None:

@@ -122,6 +122,10 @@ class DenseRegistrationResult:
     inlier_rmse : weighted RMS of their residuals after the last step (full-resolution px).
     iterations : dense iterations run (all levels). seconds : wall time, global step included (a given
         global result's own ``seconds`` added).
+    grid : (gh, gw, 2) float32 displacements (full-resolution px) of the finest level's control grid
+        from the global transform: the field is the global transform plus their bilinear interpolation.
+        A later registration of the same reference can start from it (``initial`` of
+        :func:`pcreg.register_dense`).
     """
 
     matrix: np.ndarray
@@ -134,10 +138,13 @@ class DenseRegistrationResult:
     seconds: float
     backend: str = "reference"
     converged: bool = True
+    grid: np.ndarray | None = None
     info: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
-        for name in ("matrix", "field", "confidence"):
+        for name in ("matrix", "field", "confidence", "grid"):
+            if getattr(self, name) is None:
+                continue
             a = np.array(getattr(self, name), copy=True)
             a.setflags(write=False)
             object.__setattr__(self, name, a)
@@ -914,17 +921,23 @@ class _Grid:
 
 
 def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, coarsest: int, seed: int,
-                    clock: _StageClock, callback: Callable[[DenseIteration], None] | None) -> _Grid:
-    """Every level from ``coarsest`` to the finest, each starting from the coarser level's grid;
+                    clock: _StageClock, callback: Callable[[DenseIteration], None] | None,
+                    initial: InitialGrid | None = None) -> _Grid:
+    """Every level from ``coarsest`` (from ``initial.level`` when it is given, and finer) to the finest,
+    each starting from the coarser level's grid, the first from ``initial``'s grid or from zero (the
+    global transform); the first level gets the wide gate (``options.radius``).
     :class:`~pcreg.errors.RegistrationError` when no level had samples to match."""
     U: np.ndarray | None = None
     prev: _Level | None = None  # the coarser level
     last: _Problem | None = None
     weights_node, steps, fitness, rms = None, 0, 0.0, 0.0
-    for level in range(coarsest, options.finest_level - 1, -1):
+    top = coarsest if initial is None else min(initial.level, coarsest)
+    for level in range(top, options.finest_level - 1, -1):
         clock.lap("solve")  # the last iteration of the level above
-        lv = _level_problem(pyr, level, T, options, coarsest=coarsest, seed=seed)
-        if U is None or prev is None:
+        lv = _level_problem(pyr, level, T, options, coarsest=top, seed=seed)
+        if (U is None or prev is None) and initial is not None:
+            U = _grid_at_level(initial.grid, options.finest_level, lv)
+        elif U is None or prev is None:
             U = np.zeros((lv.gshape[0] * lv.gshape[1], 2))
         else:
             U = _upsample_grid(U, prev.gshape, prev.spacing, lv.gshape, lv.spacing, 2.0)
@@ -940,6 +953,41 @@ def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, coa
     if U is None or weights_node is None or last is None or prev is None:
         raise RegistrationError("dense registration found no textured samples to match")
     return _Grid(U, weights_node, steps, fitness, rms, last, prev)
+
+
+@dataclass(frozen=True)
+class InitialGrid:
+    """Where the grid starts: ``grid`` (gh, gw, 2), the finest level's displacements in full-resolution
+    px (a :attr:`DenseRegistrationResult.grid`), at pyramid ``level`` (the levels above it are skipped)."""
+
+    grid: np.ndarray
+    level: int
+
+
+def _grid_at_level(grid: np.ndarray, finest: int, lv: _Level) -> np.ndarray:
+    """The finest level's grid (gh, gw, 2; full-resolution px) interpolated at level ``lv``'s nodes, in
+    that level's px (bilinear, the edge nodes held beyond the grid): the same grid at the finest level."""
+    gh, gw = lv.gshape
+    ys, xs = np.mgrid[0:gh, 0:gw].astype(np.float64)
+    f, F = lv.scale, float(2 ** finest)
+
+    def on_finest(v: np.ndarray) -> np.ndarray:
+        # a node at x_l = j s of its level lies at x_0 = f x_l + (f - 1) / 2 at full size, and at
+        # (x_0 - (F - 1) / 2) / F on the finest level
+        return ((f * v * lv.spacing + (f - 1) / 2.0) - (F - 1) / 2.0) / F
+
+    pts = np.column_stack([on_finest(xs).ravel(), on_finest(ys).ravel()])
+    cols, vals = _bilinear_weights(pts, grid.shape[:2], lv.spacing)
+    flat = np.ascontiguousarray(grid.reshape(-1, 2), dtype=np.float64)
+    return _interpolate(cols, vals, flat, np.empty((len(pts), 2))) / f
+
+
+def finest_grid_shape(shape: tuple[int, ...], options: DenseOptions) -> tuple[int, int]:
+    """The finest level's control grid (rows, columns) for images of ``shape`` (full size)."""
+    h, w = shape[:2]
+    for _ in range(options.finest_level):
+        h, w = (h + 1) // 2, (w + 1) // 2  # cv2.pyrDown's sizes
+    return _grid_shape(h, w, float(options.grid_spacing))
 
 
 def _check_evidence(evidence: float, chance_factor: float | None) -> None:
@@ -987,18 +1035,19 @@ def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Lev
 
 def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationResult, options: DenseOptions, *,
                  backend: str, seed: int, callback: Callable[[DenseIteration], None] | None, started: float,
-                 given_seconds: float = 0.0) -> DenseRegistrationResult:
+                 given_seconds: float = 0.0, initial: InitialGrid | None = None) -> DenseRegistrationResult:
     """The dense step of :func:`pcreg.register_dense` on checked inputs: ``ref`` and ``mov`` (H, W, 3) uint8
     of one size, the global step's result (its ``T_ref_mov`` the field's start), ``options`` from
     :func:`dense_options`; ``started`` is when the registration began (``time.perf_counter()``) and
-    ``given_seconds`` the time of a global step done before it, both counted in the result's seconds."""
+    ``given_seconds`` the time of a global step done before it, both counted in the result's seconds;
+    ``initial``: where the grid starts (None: from zero at the coarsest level)."""
     coarsest = _coarsest_level(ref.shape, options)
     T = np.asarray(global_result.matrix, dtype=np.float64)
     clock = _StageClock()
     pyr = _pyramids(ref, mov, coarsest)
     clock.lap("pyramid")
     grid = _coarse_to_fine(pyr, T, options, coarsest=coarsest, seed=seed, clock=clock,
-                           callback=callback)  # 2. the grid, coarse to fine
+                           callback=callback, initial=initial)  # 2. the grid, coarse to fine
     last = grid.last  # 3. the plausibility test, then the field at full resolution
     evidence = _plausibility(last.R, last.Mv, last.P, last.C, last.GP, last.NE, last.lam, last.radius, grid.U)
     clock.lap("evidence")
@@ -1008,6 +1057,8 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
     return DenseRegistrationResult(matrix=T, field=full.field, confidence=full.confidence,
                                    global_result=global_result, fitness=grid.fitness, inlier_rmse=grid.rms,
                                    iterations=grid.steps, seconds=time.perf_counter() - started + given_seconds,
-                                   backend=backend, info={"levels": (coarsest, options.finest_level),
+                                   backend=backend, grid=full.grid,
+                                   info={"levels": (coarsest if initial is None else min(initial.level, coarsest),
+                                                    options.finest_level),
                                                           "grid": full.grid.shape[:2], "evidence": evidence,
                                                           "times": clock.times})

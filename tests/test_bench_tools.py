@@ -163,7 +163,7 @@ def test_bench_soak_short_stream_reports_and_resumes_exactly(tmp_path):
     k = report["kill"]
     assert k["killed"] and 2 <= k["done_at_kill"] < 30 and k["returncode_killed"] == -9
     assert k["returncode_resumed"] == 0 and k["compare"]["identical"], k["compare"]
-    assert k["compare"]["files"] == 30 + 2  # a label PNG per frame, run.json and steps.jsonl
+    assert k["compare"]["files"] == 30 + 4  # a label PNG per frame, run.json, steps.jsonl and the two carry slots
     md = (out / "bench_soak.md").read_text()
     assert "### Checks" in md and "killed (SIGKILL) and resumed" in md and report["command"].startswith("python ")
     assert (out / "bench_soak.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

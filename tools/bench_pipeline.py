@@ -3,9 +3,10 @@
 Every frame t of a stream goes, in the same run and in an alternating order, through
 
 - ``step``: :meth:`pcreg.Propagator.step` with its defaults (``model="dense"``, anchored to the key
-  frame: :func:`pcreg.register_dense` from the identity with :data:`pcreg.pipeline.stream.STREAM_DENSE`,
-  naive Bayes log-odds, the key frame's prior warped along the field, fused): the whole frame, from a
-  propagator fitted on frame 0 and its labels (:meth:`pcreg.Propagator.from_key_frame`);
+  frame: :func:`pcreg.register_dense` with :data:`pcreg.pipeline.stream.STREAM_DENSE`, from the
+  identity on the first frame and from the previous frame's grid after it, naive Bayes log-odds, the
+  key frame's prior warped along the field, fused): the whole frame, from a propagator fitted on
+  frame 0 and its labels (:meth:`pcreg.Propagator.from_key_frame`), the frames in order;
 - ``dis_medium``: OpenCV's DIS optical flow, medium preset (``cv2.DISOpticalFlow_create(
   cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)``), from frame t to the key frame, grey conversion included:
   the motion only, no labels.
@@ -107,6 +108,7 @@ def bench_stream(frames) -> dict:
         last = prop.last
         row["stages_ms"] = {s: 1e3 * float(last.times.get(s, float("nan"))) for s in stages}
         row["registered"] = last.registered
+        row["start"] = last.start
         row["error_step"] = pcreg.error_rate(labels, mov.labels)
         d = np.asarray(clf.decision_function(mov.image), dtype=np.float32)
         row["error_naive_bayes"] = pcreg.error_rate(labels_from_log_odds(d), mov.labels)
@@ -121,7 +123,8 @@ def bench_stream(frames) -> dict:
             "stages_median_ms": {s: float(np.nanmedian([r["stages_ms"][s] for r in rows])) for s in stages},
             "mean_error": {k: float(np.nanmean([r[f"error_{k}"] for r in rows]))
                            for k in ("step", "naive_bayes", "dis_prior")},
-            "refused": int(sum(not r["registered"] for r in rows))}
+            "refused": int(sum(not r["registered"] for r in rows)),
+            "starts": {k: sum(r["start"] == k for r in rows) for k in ("cold", "warm", "restarted")}}
 
 
 def render(report: dict) -> str:
@@ -141,6 +144,10 @@ def render(report: dict) -> str:
                 ["the same prior along DIS's flow (for the error)", float("nan"), float("nan"),
                  s["mean_error"]["dis_prior"]]]
         lines.append(markdown_table(["method", "median ms", "p90 ms", "mean error %"], body, digits=1))
+        starts = s.get("starts", {})
+        lines.append(f"\nThe step's dense registrations: {starts.get('cold', 0)} cold (from the identity), "
+                     f"{starts.get('warm', 0)} warm (from the previous frame's grid), {starts.get('restarted', 0)} "
+                     "restarted cold by the evidence rule.")
         st = s["stages_median_ms"]
         stage_rows = []
         for stage, parts in STEP_PARTS.items():

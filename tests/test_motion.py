@@ -94,3 +94,24 @@ def test_warp_takes_a_motion_a_matrix_or_a_result_alike():
     assert np.array_equal(by_matrix, by_motion) and np.array_equal(valid, valid_m)
     with pytest.raises(InputError, match="^warp: "):
         pcreg.warp(img, np.eye(4))
+
+
+def test_the_compiled_field_of_a_matrix_is_the_broadcast_formula_to_the_bit():
+    from pcreg.registration.motion import _field_py, field_from_matrix
+
+    rng = np.random.default_rng(0)
+    h, w = 37, 53
+    x = np.arange(w, dtype=np.float64)[None, :]
+    y = np.arange(h, dtype=np.float64)[:, None]
+    for k in range(6):
+        M = np.eye(3) + rng.normal(0, 0.05, (3, 3))
+        M[2] = [0, 0, 1] if k % 2 else [1e-3 * rng.normal(), 1e-3 * rng.normal(), 1.0]
+        if k % 2:
+            want = np.dstack([M[0, 0] * x + (M[0, 1] * y + M[0, 2]), M[1, 0] * x + (M[1, 1] * y + M[1, 2])])
+        else:
+            den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
+            want = np.dstack([(M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den, (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den])
+        got = field_from_matrix(M, (h, w))
+        assert got.dtype == np.float32 and got.shape == (h, w, 2)
+        np.testing.assert_array_equal(got, want.astype(np.float32))
+        np.testing.assert_array_equal(_field_py(M, np.empty((h, w, 2), np.float32)), got)  # the fallback

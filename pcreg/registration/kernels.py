@@ -3,8 +3,9 @@
     python -m pcreg.registration.kernels      # what `make setup` runs after installing
 
 The kernels: the exact correspondence search (:mod:`.nn`), the reference ICP's point-to-point loop
-(:mod:`.reference`), the sub-pixel edges of the image pyramids (:mod:`.clouds`) and the dense
-registration's window search, assembly and solver (:mod:`.dense`).
+(:mod:`.reference`), the sub-pixel edges of the image pyramids (:mod:`.clouds`), the dense
+registration's window search, assembly and solver (:mod:`.dense`) and the field of a transform
+(:mod:`.motion`).
 """
 
 from __future__ import annotations

@@ -110,18 +110,38 @@ class Motion:
 def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(H, W, 2) float32 reference coordinates of every moving pixel under a 3x3 transform."""
     h, w = int(shape[0]), int(shape[1])
-    M = np.asarray(T_ref_mov, dtype=np.float64)
-    x = np.arange(w, dtype=np.float64)[None, :]
-    y = np.arange(h, dtype=np.float64)[:, None]
+    M = np.ascontiguousarray(T_ref_mov, dtype=np.float64)
     out = np.empty((h, w, 2), np.float32)
-    if M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1:
-        out[:, :, 0] = M[0, 0] * x + (M[0, 1] * y + M[0, 2])
-        out[:, :, 1] = M[1, 0] * x + (M[1, 1] * y + M[1, 2])
-        return out
-    den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
-    out[:, :, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den
-    out[:, :, 1] = (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den
+    if _field_jit is not None:  # one pass over the output (about a fifth of the array version's time)
+        return _field_jit(M, out)
+    return _field_py(M, out)
+
+
+def _field_py(M, out):
+    """``out[y, x]`` = ``M (x, y, 1)`` (projected), in float64 and rounded once to float32; the same
+    operations in the same order as a broadcast of the pixel coordinates."""
+    h, w = out.shape[0], out.shape[1]
+    affine = M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1
+    for i in range(h):
+        y = float(i)
+        for j in range(w):
+            x = float(j)
+            if affine:
+                out[i, j, 0] = M[0, 0] * x + (M[0, 1] * y + M[0, 2])
+                out[i, j, 1] = M[1, 0] * x + (M[1, 1] * y + M[1, 2])
+            else:
+                den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
+                out[i, j, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den
+                out[i, j, 1] = (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den
     return out
+
+
+try:  # compiled with numba (a declared dependency); the Python body is the same code and the fallback
+    from numba import njit as _njit
+
+    _field_jit = _njit(cache=True, nogil=True)(_field_py)
+except ImportError:  # pragma: no cover
+    _field_jit = None
 
 
 def _array(x: Any, dtype: type, what: str) -> np.ndarray:

@@ -139,3 +139,18 @@ def test_a_forked_worker_runs_the_parallel_kernels_after_its_parent():
                        env=env)
     assert p.returncode == 0 and p.stdout.strip() == "True", (p.stdout, p.stderr)
     assert p.stderr == "", p.stderr
+
+
+def test_small_batches_use_the_threads_only_while_a_core_is_spare(monkeypatch):
+    from pcreg.registration import nn
+
+    monkeypatch.setattr(nn, "_usable_cpus", lambda: 2)
+    monkeypatch.setattr(nn.numba, "get_num_threads", lambda: 2)
+    for load, small in ((0.4, True), (1.9, True), (2.0, False), (3.5, False)):
+        monkeypatch.setattr(nn.os, "getloadavg", lambda load=load: (load, load, load))
+        assert nn.threaded(nn.PARALLEL_MIN_QUERIES_IDLE) is small, load
+        assert nn.threaded(nn.PARALLEL_MIN_QUERIES_IDLE - 1) is False
+        assert nn.threaded(nn.PARALLEL_MIN_QUERIES) is True  # large batches: always
+    monkeypatch.setattr(nn.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    monkeypatch.setattr(nn.numba, "get_num_threads", lambda: 1)
+    assert nn.threaded(5000) is False  # one thread: nothing to share

@@ -58,9 +58,37 @@ def _choose_threading_layer() -> None:
 
 _choose_threading_layer()
 
-#: Queries at or above this count use the multi-threaded kernel: below it, starting the threads (and,
-#: on a loaded machine, waiting for a core) costs more than it saves.
+#: Queries at or above this count use the multi-threaded kernel: below it, on a loaded machine,
+#: starting the threads and waiting for a core costs more than it saves.
 PARALLEL_MIN_QUERIES = 20000
+#: ... and from this count while the machine has a core to spare (:func:`threaded`). On an idle 2-CPU
+#: machine the threads paid from about 1,000 points: a 15-iteration ICP of 1k / 3k / 10k points took
+#: 0.5-0.6 of the one-thread time in 2-D and 0.6-0.75 in 3-D, while at 300 points they cost as much as
+#: they saved and at 100 more. On a loaded machine (load average 1.6-2.3 on 2 CPUs) the same change
+#: made 1k-point ICPs slower, hence the load test.
+PARALLEL_MIN_QUERIES_IDLE = 1000
+
+
+def _usable_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def threaded(n: int) -> bool:
+    """Whether a batch of ``n`` queries runs on numba's threads: from :data:`PARALLEL_MIN_QUERIES`
+    always, from :data:`PARALLEL_MIN_QUERIES_IDLE` while the 1-minute load average (this process
+    included) is under the CPUs this process may use. Both ways give the same answers, to the bit."""
+    if n >= PARALLEL_MIN_QUERIES:
+        return True
+    if n < PARALLEL_MIN_QUERIES_IDLE or numba.get_num_threads() < 2:
+        return False
+    try:
+        load = os.getloadavg()[0]
+    except OSError:  # pragma: no cover - no load average on this system
+        return False
+    return load < _usable_cpus()
 #: Target points per cell when the cell size is chosen from the point density.
 POINTS_PER_CELL = 2.0
 #: A dense cell table (8 bytes a cell) is used while it holds at most this many cells per point, or
@@ -434,7 +462,7 @@ class GridIndex:
         """Squared distance (K,) float64 and index (K,) int64 of each query's nearest point with
         ``d^2 < max_distance^2``; ``(max_distance^2, -1)`` where there is none.
 
-        workers : threads (None: all of numba's for large batches, 1 below :data:`PARALLEL_MIN_QUERIES`).
+        workers : threads (None: all of numba's where :func:`threaded` says so, else 1).
         """
         q = np.ascontiguousarray(queries, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != self.dim:
@@ -443,7 +471,7 @@ class GridIndex:
         out_d2 = np.empty(q.shape[0], np.float64)
         out_i = np.empty(q.shape[0], np.int64)
         args = (q, r2, *self.search_arrays, out_d2, out_i)
-        parallel = (workers is None and q.shape[0] >= PARALLEL_MIN_QUERIES) or (workers is not None and workers != 1)
+        parallel = (workers is None and threaded(q.shape[0])) or (workers is not None and workers != 1)
         if parallel:
             _query_parallel(*args)
         else:
@@ -464,7 +492,7 @@ class GridIndex:
         out_i = np.empty(n, np.int64)
         M = np.eye(self.dim + 1) if update is None else np.ascontiguousarray(update, dtype=np.float64)
         args = (points, M, update is not None, r2, *self.search_arrays, out_d2, out_i)
-        if n >= PARALLEL_MIN_QUERIES:
+        if threaded(n):
             _move_query_parallel(*args)
             mom = _moments(points, self.data, out_d2, out_i, self.center)
         else:

@@ -434,8 +434,8 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
     :func:`_moment_loop` without returning to Python. With a ``callback`` the loop runs one iteration a
     call, so that the callback sees each iteration as it ends.
 
-    From :data:`~pcreg.registration.nn.PARALLEL_MIN_QUERIES` source points the search runs on every
-    thread, called from here once an iteration (its cost then dwarfs the call's): a cached compiled
+    Where :func:`~pcreg.registration.nn.threaded` says so (large clouds, or from 1,000 source points
+    on a machine with a core to spare) the search runs on every thread, called from here once an iteration (its cost then dwarfs the call's): a cached compiled
     function that calls a ``parallel=True`` one can crash once it is loaded back from the cache
     (numba bug 8578), so the threaded search is never called from inside the loop."""
     d = source.shape[1]
@@ -456,7 +456,7 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
                                   target_points=target, target_indices=idx.copy()))
 
     report()
-    fused = n < nn.PARALLEL_MIN_QUERIES
+    fused = not nn.threaded(n)
     while state[2] < max_iteration and not state[3]:
         if fused:
             steps = 1 if callback is not None else max_iteration - int(state[2])

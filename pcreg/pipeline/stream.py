@@ -280,7 +280,7 @@ class Propagator:
         self._key_image, self._key_labels = img, lab
         self._key_prior = label_prior(lab, pi=self._pi, fusion=self.fusion)
         self._chain = (img, None, 0)
-        self._carry: Carry | None = None
+        self._carry = None
         self._frame = 0
         self.last = None
 

@@ -20,7 +20,7 @@ import time
 from typing import Callable
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ..errors import RegistrationError
 from . import nn
@@ -435,9 +435,9 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
     call, so that the callback sees each iteration as it ends.
 
     Where :func:`~pcreg.registration.nn.threaded` says so (large clouds, or from 1,000 source points
-    on a machine with a core to spare) the search runs on every thread, called from here once an iteration (its cost then dwarfs the call's): a cached compiled
-    function that calls a ``parallel=True`` one can crash once it is loaded back from the cache
-    (numba bug 8578), so the threaded search is never called from inside the loop."""
+    on a machine with a core to spare) the loop is :func:`_moment_loop_threads`, whose moves and
+    searches run on every thread: the same matches, and the moments summed on one thread in the same
+    order, so the same numbers to the bit."""
     d = source.shape[1]
     n = source.shape[0]
     pts = np.ascontiguousarray(apply(T, source))
@@ -456,17 +456,11 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
                                   target_points=target, target_indices=idx.copy()))
 
     report()
-    fused = not nn.threaded(n)
+    loop = _moment_loop_threads if nn.threaded(n) else _moment_loop
     while state[2] < max_iteration and not state[3]:
-        if fused:
-            steps = 1 if callback is not None else max_iteration - int(state[2])
-            _moment_loop(pts, T, steps, code, need, rel_fitness, rel_rmse, r2, *tree.search_arrays, d2, idx, tree.data,
-                         tree.center, state)
-        else:
-            update = _next_update(*mom, code, need, T, state)
-            if not state[4]:
-                d2, idx, mom = tree.move_and_match(pts, update, max_distance)
-                _scored(mom[0], mom[1], n, rel_fitness, rel_rmse, state)
+        steps = 1 if callback is not None else max_iteration - int(state[2])
+        loop(pts, T, steps, code, need, rel_fitness, rel_rmse, r2, *tree.search_arrays, d2, idx, tree.data,
+             tree.center, state)
         if state[4] == 1:
             raise RegistrationError("ICP update is not finite (degenerate correspondences)")
         if state[4] == 2:
@@ -553,6 +547,27 @@ def _moment_loop(pts, T, steps, model, need, relative_fitness, relative_rmse, r2
             return
 
 
+@njit(cache=True, parallel=True)
+def _moment_loop_threads(pts, T, steps, model, need, relative_fitness, relative_rmse, r2, spts, sidx, start, tkeys,
+                         tcell, origin, h, dims, hashed, out_d2, out_i, target, center, state):
+    """:func:`_moment_loop` with each iteration's moves and searches on every thread (numba's
+    ``prange``, written out here: a cached compiled function that calls a ``parallel=True`` one can
+    crash once it is loaded back from the cache, numba bug 8578). The moments are summed on one thread,
+    in point order, as there."""
+    d = pts.shape[1]
+    mom = nn._moments(pts, target, out_d2, out_i, center)
+    for _ in range(steps):
+        update = _next_update(*mom, center, model, need, T, state)
+        if state[4] != 0:
+            return
+        for t in prange(pts.shape[0]):
+            nn._move(pts, t, update, d)
+            out_d2[t], out_i[t] = nn._nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+        mom = nn._moments(pts, target, out_d2, out_i, center)
+        if _scored(mom[0], mom[1], pts.shape[0], relative_fitness, relative_rmse, state):
+            return
+
+
 def warm_up() -> None:
     """Run the ICP once in 2-D and 3-D, and each of its compiled parts that Python calls directly, so
     that every compiled kernel it uses is loaded (or compiled)."""
@@ -562,10 +577,14 @@ def warm_up() -> None:
         icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2)
         icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2, weights="huber")
         estimate_umeyama(target + 0.05, target, np.ones(50), with_scale=True)
-        # the threaded path's steps (clouds of nn.PARALLEL_MIN_QUERIES points and more)
+        # the threaded loop (clouds of nn.PARALLEL_MIN_QUERIES points and more, or from
+        # nn.PARALLEL_MIN_QUERIES_IDLE on an idle machine), and the steps other callers use
         tree = GridIndex(target, max_distance=1.0)
         pts = np.ascontiguousarray(target + 0.05)
         state = np.zeros(5)
         mom = tree.move_and_match(pts, None, 1.0)[2]
         _next_update(*mom, 1, 3, np.eye(d + 1), state)
         _scored(mom[0], mom[1], 50, 0.0, 0.0, state)
+        d2, idx, _ = tree.move_and_match(pts, None, 1.0)
+        _moment_loop_threads(pts, np.eye(d + 1), 2, 1, 3, 0.0, 0.0, 1.0, *tree.search_arrays, d2, idx, tree.data,
+                             tree.center, np.zeros(5))

@@ -221,6 +221,10 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
     (out / "carry-0.npz").write_bytes((out / "carry-1.npz").read_bytes())  # frame 5's, not frame 4's
     assert main(args) == 2
     assert "holds frame 5's carry, not frame 4's" in capsys.readouterr().err
+    for junk in (b"PK\x03\x04" + b"\0" * 40, (out / "carry-1.npz").read_bytes()[:300], b"not a carry"):
+        (out / "carry-0.npz").write_bytes(junk)  # a damaged file: bad input, exit 2, not a bug
+        assert main(args) == 2
+        assert "carry-0.npz: missing or unreadable" in capsys.readouterr().err
     state["done"] = 6
     (out / "run.json").write_text(json.dumps(state))
     # other options over the same folder: refused, unless --force

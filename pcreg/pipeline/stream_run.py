@@ -21,6 +21,7 @@ starts from that carry, so the resumed run writes exactly what an uninterrupted 
 from __future__ import annotations
 
 import json
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,12 +106,17 @@ class StreamRun:
         try:
             with np.load(path, allow_pickle=False) as z:
                 frame, grid, evidence = int(z["frame"]), np.array(z["grid"]), float(z["evidence"])
-        except (OSError, ValueError, KeyError):
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):
             raise OutputError(f"{path}: missing or unreadable, so frame {t + 1} cannot continue where frame {t} "
                               "left off; use --force to start over") from None
         if frame != t:
             raise OutputError(f"{path} holds frame {frame}'s carry, not frame {t}'s; use --force to start over")
-        return None if grid.size == 0 else Carry(grid, evidence)
+        if grid.size == 0:
+            return None
+        try:
+            return Carry(grid, evidence)
+        except InputError as exc:
+            raise OutputError(f"{path}: {exc}; use --force to start over") from None
 
     def record(self, t: int, labels: np.ndarray, report: dict, plain: np.ndarray | None = None, carry=None) -> None:
         """Write frame ``t``'s labels, step and ``carry`` (a :class:`~pcreg.pipeline.stream.Carry` or None),

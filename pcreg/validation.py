@@ -55,7 +55,10 @@ def check_float(value, name: str, *, lo: float | None = None, hi: float | None =
     """``value`` as a finite float within the range (``lo_open``: value > lo, else value >= lo)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise InputError(f"{name} must be a number, got {short_repr(value)}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an int beyond float's range
+        raise InputError(f"{name} must be a finite number, got {short_repr(value)}") from None
     if not math.isfinite(v):
         raise InputError(f"{name} must be a finite number, got {v}")
     if lo is not None and (v <= lo if lo_open else v < lo):

@@ -424,12 +424,16 @@ def test_bad_initial_grids_are_refused(warped_pair):
     kw = dict(global_result=np.eye(3), levels=4)
     good = register_dense(ref, mov, **kw)
     for bad, match in ((good.grid[:-1], "nodes"), (np.full_like(good.grid, np.nan), "non-finite"),
-                       ("grid", "nodes|grid"), (np.zeros((3, 3)), "nodes")):
+                       ("grid", "numeric"), (np.zeros((3, 3)), "nodes"), (good.grid > 0, "numeric"),
+                       (good.grid.astype(complex), "numeric"), (np.full(good.grid.shape, 1e300), "non-finite"),
+                       (np.full(good.grid.shape, "a"), "numeric"), (object(), "numeric")):
         with pytest.raises(InputError, match=match):
             register_dense(ref, mov, initial=bad, **kw)
     for level in (0, 8, 2.5, "2"):
         with pytest.raises(InputError, match="initial_level"):
             register_dense(ref, mov, initial=good, initial_level=level, **kw)
+    with pytest.raises(InputError, match="initial_level"):  # checked without an initial grid too
+        register_dense(ref, mov, initial_level="x", **kw)
     with pytest.raises(InputError, match="nodes"):  # another grid spacing
         register_dense(ref, mov, initial=good, grid_spacing=12.0, **kw)
     same = register_dense(ref, mov, initial=good, initial_level=2, **kw)  # from its own end: no worse

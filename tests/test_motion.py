@@ -115,3 +115,14 @@ def test_the_compiled_field_of_a_matrix_is_the_broadcast_formula_to_the_bit():
         assert got.dtype == np.float32 and got.shape == (h, w, 2)
         np.testing.assert_array_equal(got, want.astype(np.float32))
         np.testing.assert_array_equal(_field_py(M, np.empty((h, w, 2), np.float32)), got)  # the fallback
+
+
+def test_the_field_of_a_matrix_on_its_horizon_is_not_finite_and_a_wrong_shape_is_refused():
+    from pcreg.registration.motion import field_from_matrix
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = field_from_matrix([[1, 0, 0], [0, 1, 0], [-0.5, 0, 1]], (4, 5))  # x = 2 divides by zero
+    assert (~np.isfinite(f[:, 2])).any(axis=1).all() and np.isfinite(f[:, :2]).all()
+    for bad in (np.eye(2), np.zeros((2, 3)), np.eye(4)):
+        with pytest.raises(InputError, match="3x3"):
+            field_from_matrix(bad, (4, 5))

@@ -146,7 +146,7 @@ def test_small_batches_use_the_threads_only_while_a_core_is_spare(monkeypatch):
 
     monkeypatch.setattr(nn, "_usable_cpus", lambda: 2)
     monkeypatch.setattr(nn.numba, "get_num_threads", lambda: 2)
-    for load, small in ((0.4, True), (1.9, True), (2.0, False), (3.5, False)):
+    for load, small in ((0.4, True), (1.4, True), (1.5, False), (2.2, False)):
         monkeypatch.setattr(nn.os, "getloadavg", lambda load=load: (load, load, load))
         assert nn.threaded(nn.PARALLEL_MIN_QUERIES_IDLE) is small, load
         assert nn.threaded(nn.PARALLEL_MIN_QUERIES_IDLE - 1) is False

@@ -90,6 +90,8 @@ def test_a_failed_registration_falls_back_to_the_key_frames_labels(frames):
         flat = np.full_like(frames[2].image, 128)
         labels = prop.step(flat)
         assert prop.last.fallback and not prop.last.registered and prop.last.reason
+        # the dense step tried warm, then cold again, before it gave up; a global model has no start
+        assert prop.last.start == ("restarted" if not options else None)
         np.testing.assert_array_equal(labels, _unwarped(prop, flat))
         assert not np.array_equal(labels, (prop.classifier.decision_function(flat) > 0).astype(np.uint8))
         prop.step(frames[3].image)  # registered again, to the key frame or to frame 1, the last that registered
@@ -140,18 +142,34 @@ def test_a_resumed_propagator_continues_exactly_as_the_uninterrupted_one(frames)
         resumed.resume(3, saved.grid)
     with pytest.raises(InputError, match="before reset"):
         pcreg.Propagator(resumed.classifier).resume(3, saved)
-    for grid, evidence in ((np.zeros((4, 4)), 1.0), (np.full((4, 4, 2), np.nan), 1.0), (np.zeros((4, 4, 2)), np.inf)):
+    for grid, evidence in ((np.zeros((4, 4)), 1.0), (np.full((4, 4, 2), np.nan), 1.0), (np.zeros((4, 4, 2)), np.inf),
+                           ("abc", 1.0), (object(), 1.0), (np.full((4, 4, 2), "a"), 1.0), (np.zeros((0, 0, 2)), 1.0),
+                           (np.zeros((4, 4, 2), complex), 1.0), (np.zeros((4, 4, 2)), None), (np.zeros((4, 4, 2)), "3"),
+                           (np.zeros((4, 4, 2)), 1 + 1j), (np.zeros((4, 4, 2)), 10**400), (np.zeros((4, 4, 2)), True),
+                           (np.zeros((4, 4, 2)), -1.0), (np.full((4, 4, 2), 1e300), 1.0)):
         with pytest.raises(InputError, match="carried"):
             Carry(grid, evidence)
+    for frame in ("x", None, -3, 2.7, True):
+        with pytest.raises(InputError, match="frame"):
+            resumed.resume(frame, saved)
+    with pytest.raises(InputError, match="another stream"):
+        resumed.resume(3, Carry(np.zeros((5, 6, 2), np.float32), 1.0))
+    assert resumed.last.frame == 4 and resumed.carry is not None  # a refused resume changes nothing
+    global_model = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, model="similarity")
+    global_model.resume(3, saved)
+    assert global_model.carry is None  # nothing to carry between global registrations
 
 
 def test_dense_step_options_are_checked():
     from pcreg.pipeline.stream import DenseStep
 
-    for bad in ({"warm": 1}, {"warm_level": -1}, {"warm_iterations": 0}, {"warm_iterations": 2.0},
-                {"restart_ratio": 1.5}, {"restart_ratio": "half"}, {"iterations": True}):
+    for bad in ({"warm": 1}, {"warm_level": -1}, {"warm_level": 0}, {"warm_level": 8}, {"warm_iterations": 0},
+                {"warm_iterations": 2.0}, {"warm_iterations": 200_000}, {"restart_ratio": 1.5},
+                {"restart_ratio": "half"}, {"restart_ratio": True}, {"iterations": True}):
         with pytest.raises(InputError):
             DenseStep(**bad)
+    ok = DenseStep(warm=np.True_, restart_ratio=np.float32(0.5), warm_level=np.int64(3))
+    assert ok.warm is True and type(ok.restart_ratio) is float and type(ok.warm_level) is int
     assert DenseStep().kwargs(warm=True) == {"texture": None, "iterations": 4, "max_points": 5000, "initial_level": 2}
 
 
@@ -225,6 +243,22 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
         (out / "carry-0.npz").write_bytes(junk)  # a damaged file: bad input, exit 2, not a bug
         assert main(args) == 2
         assert "carry-0.npz: missing or unreadable" in capsys.readouterr().err
+    good = dict(np.load(out / "carry-1.npz"))
+    for change, said in (({"frame": np.array("4")}, "missing or unreadable"), ({"frame": np.float64(4.0)}, "missing"),
+                         ({"frame": np.int64(4), "grid": np.full((3, 3, 2), "a")}, "carried grid"),
+                         ({"frame": np.int64(4), "evidence": np.float64(-1)}, "carried evidence"),
+                         ({"frame": np.int64(4), "grid": np.zeros((0, 5))}, "carried grid"),
+                         ({"frame": np.int64(4), "grid": np.zeros((3, 3, 2), np.float32)}, "another stream")):
+        np.savez(out / "carry-0.npz", **{**good, **change})
+        assert main(args) == 2
+        assert said in capsys.readouterr().err, change
+    broken = bytearray((out / "carry-1.npz").read_bytes())
+    np.savez_compressed(out / "carry-0.npz", **{**good, "frame": np.int64(4)})
+    data = bytearray((out / "carry-0.npz").read_bytes())
+    data[60:90] = b"\xff" * 30  # a corrupt deflate stream
+    (out / "carry-0.npz").write_bytes(bytes(data))
+    assert main(args) == 2 and "missing or unreadable" in capsys.readouterr().err
+    del broken
     state["done"] = 6
     (out / "run.json").write_text(json.dumps(state))
     # other options over the same folder: refused, unless --force

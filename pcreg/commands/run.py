@@ -144,7 +144,12 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
         print(f"{out}: all {len(paths)} frames already done")
         return 0
     if start > 1:
-        prop.resume(start - 1, stream.carry_after(start - 1))
+        from ..errors import InputError, OutputError
+
+        try:
+            prop.resume(start - 1, stream.carry_after(start - 1) if prop.warm_starts else None)
+        except InputError as exc:  # a carry of another stream
+            raise OutputError(f"{out}: {exc}; use --force to start over") from None
     with open_recorder(args, name=f"run {folder}") as rec, \
             progress(total=len(paths) - start, desc="frames", disable=None) as bar:
         for t in range(start, len(paths)):

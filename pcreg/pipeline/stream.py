@@ -27,11 +27,14 @@ those would have lowered the error).
 
 Why the defaults (measured on CamVid clips, first frame as the key frame; docs/results.md):
 
-- **Anchored to the key frame.** Each frame is registered to the key frame directly, so an error is
-  never carried on: frame-to-frame chains diverged on clips at one frame a second.
-- **Dense, from the identity.** The field follows the motions that differ per object (parallax of the
-  road against a facade); its coarsest gate reaches ``radius * 2^(levels - 1)`` = 48 px. A global
-  similarity first gave no better labels and cost a registration more.
+- **Anchored to the key frame.** Each frame is registered to the key frame directly, so motions are
+  not composed and their errors not summed: frame-to-frame chains diverged on clips at one frame a
+  second. (The warm start below starts from the previous frame's field, but matches the new frame
+  against the key frame itself, and starts again from scratch where that start lost the frame.)
+- **Dense, from the identity** on the first frame after a key frame (and on restarts). The field
+  follows the motions that differ per object (parallax of the road against a facade); its coarsest
+  gate reaches ``radius * 2^(levels - 1)`` = 48 px. A global similarity first gave no better labels
+  and cost a registration more.
 - **Warm: each step starts from the previous step's field** (:attr:`DenseStep.warm`). The key frame's
   field to frame t is close to its field to frame t - 1, so the registration starts there, at pyramid
   level 2 with the wide gate (12 px of further motion), skips the two coarser levels and runs 4
@@ -125,16 +128,17 @@ class DenseStep:
     restart_ratio: float = 0.5
 
     def __post_init__(self) -> None:
+        from ..validation import check_bool, check_float, check_int
+
         if self.global_start not in ("identity", "register"):
             raise InputError(f"global_start must be identity or register, got {self.global_start!r}")
-        if not isinstance(self.warm, bool):
-            raise InputError(f"warm must be True or False, got {self.warm!r}")
-        for name in ("iterations", "warm_level", "warm_iterations"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name == "warm_level" else 1):
-                raise InputError(f"{name} must be an integer >= {0 if name == 'warm_level' else 1}, got {v!r}")
-        if not (isinstance(self.restart_ratio, (int, float)) and 0 <= self.restart_ratio <= 1):
-            raise InputError(f"restart_ratio must be a number in [0, 1], got {self.restart_ratio!r}")
+        object.__setattr__(self, "warm", check_bool(self.warm, "warm"))
+        object.__setattr__(self, "iterations", check_int(self.iterations, "iterations", lo=1, hi=100_000))
+        object.__setattr__(self, "warm_iterations", check_int(self.warm_iterations, "warm_iterations", lo=1,
+                                                              hi=100_000))
+        # register_dense's finest level (1) .. the coarsest it takes (7)
+        object.__setattr__(self, "warm_level", check_int(self.warm_level, "warm_level", lo=1, hi=7))
+        object.__setattr__(self, "restart_ratio", check_float(self.restart_ratio, "restart_ratio", lo=0, hi=1))
 
     def kwargs(self, *, warm: bool = False) -> dict:
         """:func:`pcreg.register_dense`'s keywords (a warm step's with ``warm``)."""
@@ -155,14 +159,19 @@ class Carry:
     reference_evidence: float
 
     def __post_init__(self) -> None:
-        g = np.array(self.grid, dtype=np.float32)
-        if g.ndim != 3 or g.shape[2] != 2 or not np.all(np.isfinite(g)):
+        from ..validation import check_float
+
+        raw = np.asarray(self.grid) if isinstance(self.grid, np.ndarray) else None
+        if raw is None or raw.dtype.kind not in "iuf":
+            raise InputError("a carried grid must be a numeric (rows, columns, 2) array")
+        with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: inf, refused below
+            g = np.array(raw, dtype=np.float32)
+        if g.ndim != 3 or g.shape[2] != 2 or g.size == 0 or not np.all(np.isfinite(g)):
             raise InputError(f"a carried grid must be a finite (rows, columns, 2) array, got shape {g.shape}")
-        if not (np.isfinite(self.reference_evidence)):
-            raise InputError(f"a carried evidence must be finite, got {self.reference_evidence!r}")
+        evidence = check_float(self.reference_evidence, "a carried evidence", lo=0)
         g.setflags(write=False)
         object.__setattr__(self, "grid", g)
-        object.__setattr__(self, "reference_evidence", float(self.reference_evidence))
+        object.__setattr__(self, "reference_evidence", evidence)
 
 
 STREAM_DENSE = DenseStep()
@@ -179,7 +188,8 @@ class StepReport:
     reference : the frame (counted like ``frame``, 0 = the key frame) the new frame was registered to.
     start : how the dense registration started: ``"cold"`` (from the identity), ``"warm"`` (from the
         previous step's grid) or ``"restarted"`` (warm, then cold again by the restart rule; the
-        registration kept is the one with more evidence); None for a global model.
+        registration kept is the one with more evidence), also when the registration then failed;
+        None for a global model.
     times : seconds per stage (:data:`STEP_STAGES`), and per part of a stage (:data:`STEP_PARTS`, keys
         such as ``"register.search"``); ``fuse`` includes warping the prior.
     """
@@ -254,6 +264,7 @@ class Propagator:
         self._key_prior: np.ndarray | None = None
         self._chain: tuple[np.ndarray, Motion | None, int] | None = None  # (image, motion to the key frame, frame)
         self._carry: Carry | None = None
+        self._attempt: str | None = None  # how the dense registration under way started (StepReport.start)
         self._frame = 0
         self.last: StepReport | None = None
 
@@ -341,10 +352,11 @@ class Propagator:
             if self.model != "dense":
                 result = register(reference, image, **self.config.kwargs())
             else:
+                self._attempt = None
                 result, start = self._register_dense(reference, image)
         except RegistrationError as exc:
             self._carry = None
-            return None, str(exc), start
+            return None, str(exc), self._attempt if self.model == "dense" else None
         why = degeneracy(result.matrix, image.shape)
         if why is not None:
             self._carry = None
@@ -356,7 +368,7 @@ class Propagator:
         ``(result, start)``; :class:`~pcreg.errors.RegistrationError` when the cold one fails."""
         from ..registration.api import register, register_dense
 
-        warm_ok = self.dense.warm and self.anchor == "key" and self.dense.global_start == "identity"
+        warm_ok = self.warm_starts
         if self.dense.global_start == "register":
             T = register(reference, image, **self.config.kwargs())
         else:
@@ -368,9 +380,11 @@ class Propagator:
 
         carry = self._carry if warm_ok else None
         if carry is None:
+            self._attempt = "cold"
             result, start = cold(), "cold"
             reference_evidence = result.info["evidence"]
         else:
+            self._attempt = "warm"
             try:
                 result = register_dense(reference, image, global_result=T, backend=self.config.backend,
                                         seed=self.config.search.seed, initial=carry.grid,
@@ -380,12 +394,19 @@ class Propagator:
                 result, start = None, "restarted"
             reference_evidence = carry.reference_evidence
             if result is None or result.info["evidence"] < self.dense.restart_ratio * reference_evidence:
+                self._attempt = "restarted"
                 again = cold()
                 if result is None or again.info["evidence"] >= result.info["evidence"]:
                     result = again
                 reference_evidence, start = again.info["evidence"], "restarted"
         self._carry = Carry(result.grid, reference_evidence) if warm_ok else None
         return result, start
+
+    @property
+    def warm_starts(self) -> bool:
+        """Whether dense steps start from the previous one (what :attr:`carry` is for)."""
+        return (self.model == "dense" and self.dense.warm and self.anchor == "key"
+                and self.dense.global_start == "identity")
 
     @property
     def carry(self) -> Carry | None:
@@ -397,14 +418,23 @@ class Propagator:
         with the ``carry`` that step left (:attr:`carry`, as saved): the next step does what it would
         have done in the uninterrupted stream. Anchored to the key frame only (a chained stream needs
         its previous frame)."""
+        from ..registration.dense import DenseOptions, finest_grid_shape
+        from ..validation import check_int
+
         if self._key_image is None:
             raise InputError("Propagator.resume before reset: give the key frame and its labels first")
         if self.anchor != "key":
             raise InputError("only a stream anchored to its key frame resumes (anchor='key')")
+        frame = check_int(frame, "frame", lo=0)
         if carry is not None and not isinstance(carry, Carry):
             raise InputError("carry must be a pcreg.pipeline.stream.Carry or None")
-        self._frame = int(frame)
-        self._carry = carry
+        if carry is not None and self.warm_starts:
+            want = finest_grid_shape(self._key_image.shape, DenseOptions())
+            if carry.grid.shape != (*want, 2):
+                raise InputError(f"the carried grid is {carry.grid.shape[0]}x{carry.grid.shape[1]}, a stream of "
+                                 f"these frames has {want[0]}x{want[1]}: it comes from another stream")
+        self._frame = frame
+        self._carry = carry if self.warm_starts else None
 
     def _to_key(self, motion: Motion, shape: tuple[int, int]) -> Motion:
         """The new frame's motion to the key frame: itself when anchored to it, else the previous frame's

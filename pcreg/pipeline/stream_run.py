@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -103,18 +104,21 @@ class StreamRun:
         if t == 0:
             return None
         path = self.out / CARRY.format(t % 2)
+        unreadable = OutputError(f"{path}: missing or unreadable, so frame {t + 1} cannot continue where frame "
+                                 f"{t} left off; use --force to start over")
         try:
             with np.load(path, allow_pickle=False) as z:
-                frame, grid, evidence = int(z["frame"]), np.array(z["grid"]), float(z["evidence"])
-        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):
-            raise OutputError(f"{path}: missing or unreadable, so frame {t + 1} cannot continue where frame {t} "
-                              "left off; use --force to start over") from None
-        if frame != t:
-            raise OutputError(f"{path} holds frame {frame}'s carry, not frame {t}'s; use --force to start over")
-        if grid.size == 0:
+                frame, grid, evidence = np.array(z["frame"]), np.array(z["grid"]), np.array(z["evidence"])
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, zlib.error):
+            raise unreadable from None
+        if frame.shape != () or frame.dtype.kind not in "iu" or evidence.shape != () or evidence.dtype.kind != "f":
+            raise unreadable
+        if int(frame) != t:
+            raise OutputError(f"{path} holds frame {int(frame)}'s carry, not frame {t}'s; use --force to start over")
+        if grid.shape == (0, 0, 2) and np.isnan(evidence):  # that frame left none (_write_carry)
             return None
         try:
-            return Carry(grid, evidence)
+            return Carry(grid, float(evidence))
         except InputError as exc:
             raise OutputError(f"{path}: {exc}; use --force to start over") from None
 

@@ -352,15 +352,17 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     callback : called with a :class:`~pcreg.registration.dense.DenseIteration` after every iteration.
     initial : start the grid from an earlier registration of the same reference (its result, or its
         ``grid`` array), typically the previous frame's in a video, instead of from the global
-        transform: its displacements (taken from this registration's global transform) start level
-        ``initial_level``, with the wide gate ``radius``, and the coarser levels are skipped. The new
-        frame may then have moved up to ``radius * 2^initial_level`` px (12 at the defaults) from where
-        the earlier field puts it, against ``radius * 2^(levels - 1)`` (48) from the global transform
-        without it. It must come from images of this size and the same ``finest_level`` and
-        ``grid_spacing``. On the shared CamVid clips, 4 iterations started from the previous frame's
+        transform: its displacements start level ``initial_level``, with the wide gate ``radius``, and
+        the coarser levels are skipped. The displacements are added to *this* registration's global
+        transform, so give the earlier one's (``global_result=earlier.matrix``, the identity in a
+        stream) unless the change is meant. The new frame may then have moved up to
+        ``radius * 2^initial_level`` px (12 at the defaults) from where the earlier field puts it,
+        against ``radius * 2^(levels - 1)`` (48) from the global transform without it. It must come
+        from images of this size and the same ``finest_level`` and ``grid_spacing`` (the grid's shape
+        is checked; two option sets with the same shape are not told apart). On the shared CamVid clips, 4 iterations started from the previous frame's
         grid labelled frames as well as 8 from the identity, at about 0.6 of the time
         (:class:`pcreg.pipeline.stream.DenseStep`).
-    initial_level : the level ``initial`` starts at (``finest_level`` or coarser; one coarser than
+    initial_level : the level ``initial`` starts at (``finest_level`` .. 7; one coarser than
         ``levels - 1``, or than the image allows, is the coarsest level).
     Returns a :class:`~pcreg.registration.dense.DenseRegistrationResult`.
     """
@@ -389,6 +391,7 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
 
 def _initial_grid(initial, level, shape: tuple[int, ...], options) -> InitialGrid | None:
     """``register_dense``'s ``initial`` and ``initial_level``, checked against the images and options."""
+    level = check_int(level, "initial_level", lo=0, hi=7)
     if initial is None:
         return None
     level = min(check_int(level, "initial_level", lo=options.finest_level, hi=7), options.levels - 1)
@@ -397,20 +400,22 @@ def _initial_grid(initial, level, shape: tuple[int, ...], options) -> InitialGri
             raise InputError("initial: this dense result carries no grid to start from")
         grid = initial.grid
     else:
-        try:
-            grid = np.asarray(initial, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError("initial must be a DenseRegistrationResult or a (rows, columns, 2) grid of "
-                             "displacements") from None
+        raw = np.asarray(initial) if isinstance(initial, (np.ndarray, list, tuple)) else None
+        if raw is None or raw.dtype.kind not in "iuf":
+            raise InputError("initial must be a DenseRegistrationResult or a numeric (rows, columns, 2) grid of "
+                             "displacements")
+        grid = raw
     expected = finest_grid_shape(shape, options)
     if grid.shape != (*expected, 2):
         raise InputError(f"initial: a grid of shape {grid.shape}, but a registration of {shape[1]}x{shape[0]} "
                          f"images at finest_level {options.finest_level} and grid_spacing "
                          f"{options.grid_spacing:g} has {expected[0]}x{expected[1]} nodes: it must come from "
                          "one of the same size and options")
+    with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: inf, refused below
+        grid = np.array(grid, dtype=np.float32)
     if not np.all(np.isfinite(grid)):
-        raise InputError("initial: the grid has non-finite displacements")
-    return InitialGrid(np.array(grid, dtype=np.float32), level)
+        raise InputError("initial: the grid has non-finite displacements (or beyond float32's range)")
+    return InitialGrid(grid, level)
 
 
 def _given_global(global_result) -> RegistrationResult:

@@ -111,6 +111,8 @@ def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarr
     """(H, W, 2) float32 reference coordinates of every moving pixel under a 3x3 transform."""
     h, w = int(shape[0]), int(shape[1])
     M = np.ascontiguousarray(T_ref_mov, dtype=np.float64)
+    if M.shape != (3, 3):
+        raise InputError(f"T_ref_mov must be a 3x3 matrix, got shape {M.shape}")
     out = np.empty((h, w, 2), np.float32)
     if _field_jit is not None:  # one pass over the output (about a fifth of the array version's time)
         return _field_jit(M, out)
@@ -139,7 +141,9 @@ def _field_py(M, out):
 try:  # compiled with numba (a declared dependency); the Python body is the same code and the fallback
     from numba import njit as _njit
 
-    _field_jit = _njit(cache=True, nogil=True)(_field_py)
+    # numpy's error model: a pixel on a projective transform's horizon divides by zero and gets inf
+    # or NaN, as in numpy, instead of raising
+    _field_jit = _njit(cache=True, nogil=True, error_model="numpy")(_field_py)
 except ImportError:  # pragma: no cover
     _field_jit = None
 

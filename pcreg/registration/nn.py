@@ -40,8 +40,9 @@ from numba import njit, prange
 
 
 def _choose_threading_layer() -> None:
-    """Name numba's threading layer instead of letting it probe: this module holds pcreg's only
-    ``parallel=True`` kernels, and the layer is picked when the first of them runs (after this).
+    """Name numba's threading layer instead of letting it probe: this module and the reference ICP's
+    threaded loop (:mod:`pcreg.registration.reference`, which imports this module first) hold pcreg's
+    only ``parallel=True`` kernels, and the layer is picked when the first of them runs (after this).
 
     - TBB (fork- and thread-safe) cannot be used: Open3D ships its own ``libtbb.so.12``, older than
       numba accepts, and once Open3D is imported numba's probe finds it and prints a ``NumbaWarning``.
@@ -64,8 +65,8 @@ PARALLEL_MIN_QUERIES = 20000
 #: ... and from this count while the machine has a core to spare (:func:`threaded`). On an idle 2-CPU
 #: machine the threads paid from about 1,000 points: a 15-iteration ICP of 1k / 3k / 10k points took
 #: 0.5-0.6 of the one-thread time in 2-D and 0.6-0.75 in 3-D, while at 300 points they cost as much as
-#: they saved and at 100 more. On a loaded machine (load average 1.6-2.3 on 2 CPUs) the same change
-#: made 1k-point ICPs slower, hence the load test.
+#: they saved and at 100 more. On a loaded machine (load average 1.6-2.3 on 2 CPUs, this process
+#: included) the same change made 1k-point ICPs slower, hence the load test.
 PARALLEL_MIN_QUERIES_IDLE = 1000
 
 
@@ -78,8 +79,9 @@ def _usable_cpus() -> int:
 
 def threaded(n: int) -> bool:
     """Whether a batch of ``n`` queries runs on numba's threads: from :data:`PARALLEL_MIN_QUERIES`
-    always, from :data:`PARALLEL_MIN_QUERIES_IDLE` while the 1-minute load average (this process
-    included) is under the CPUs this process may use. Both ways give the same answers, to the bit."""
+    always, from :data:`PARALLEL_MIN_QUERIES_IDLE` while the 1-minute load average (this process, about
+    1, included) is under the CPUs this process may use less half a CPU: on 2 CPUs, while the rest of
+    the machine keeps less than half a core busy. Both ways give the same answers, to the bit."""
     if n >= PARALLEL_MIN_QUERIES:
         return True
     if n < PARALLEL_MIN_QUERIES_IDLE or numba.get_num_threads() < 2:
@@ -88,7 +90,7 @@ def threaded(n: int) -> bool:
         load = os.getloadavg()[0]
     except OSError:  # pragma: no cover - no load average on this system
         return False
-    return load < _usable_cpus()
+    return load < _usable_cpus() - 0.5
 #: Target points per cell when the cell size is chosen from the point density.
 POINTS_PER_CELL = 2.0
 #: A dense cell table (8 bytes a cell) is used while it holds at most this many cells per point, or

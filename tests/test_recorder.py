@@ -392,3 +392,26 @@ def test_dense_field_is_logged_under_dense(tmp_path):
     vectors = np.asarray(row["Arrows2D:vectors"].to_pylist(), dtype=np.float32).reshape(-1, 2)
     assert len(vectors) == (H // 16) * (W // 16)
     np.testing.assert_allclose(vectors[:, 1], -4.0, atol=1e-5)
+
+
+def test_an_image_logged_again_is_encoded_once_and_stored_with_the_same_bytes(tmp_path, monkeypatch):
+    """A sequence's reference is the previous pair's moving image: its JPEG is reused, byte for byte."""
+    import cv2
+
+    calls = []
+    real = cv2.imencode
+    monkeypatch.setattr(cv2, "imencode", lambda ext, *a, **k: (calls.append(ext), real(ext, *a, **k))[1])
+    a, b, c = _image(1), _image(2), _image(3)
+    with Recorder(tmp_path / "r.rrd") as rec:
+        rec.set_frame(0)
+        rec.log_images(reference=a, moving=b)
+        rec.set_frame(1)
+        rec.log_images(reference=b.copy(), moving=c)  # an equal image in another buffer
+    assert calls.count(".jpg") == 3
+    back = read_recording(tmp_path / "r.rrd")
+
+    def blob(entity, frame):
+        return bytes(back.latest(entity, frame=frame)["EncodedImage:blob"][0].values.to_numpy(zero_copy_only=False))
+
+    assert blob(E.REFERENCE_IMAGE, 1) == blob(E.MOVING_IMAGE, 0)
+    assert blob(E.MOVING_IMAGE, 1) != blob(E.MOVING_IMAGE, 0)

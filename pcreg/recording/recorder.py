@@ -38,6 +38,7 @@ import os
 import threading
 import traceback
 import uuid
+from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, Literal, Mapping
@@ -240,6 +241,8 @@ class Recorder:
             self._rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: kind}))
         self._closed = False
         self._encoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-recorder")
+        #: the last images JPEG-encoded and their bytes (a frame's three images and the next one's)
+        self._jpegs: deque[tuple[np.ndarray, bytes]] = deque(maxlen=4)
         self._pending: list[Future] = []
         self._frame: int | None = None
         self._icp_step: dict[str, int] = {}
@@ -382,12 +385,23 @@ class Recorder:
     def _image(self, a: np.ndarray, **kw: Any) -> Any:
         if self.raw_images:
             return rr.Image(a, color_model="L" if a.ndim == 2 else "RGB", **kw)
+        return rr.EncodedImage(contents=self._jpeg(a), media_type="image/jpeg", **kw)
+
+    def _jpeg(self, a: np.ndarray) -> bytes:
+        """``a`` JPEG-encoded; the last images' encodings are kept, so an image logged again (a
+        sequence's reference is the previous pair's moving image) is not encoded twice. Runs on the
+        encoder thread only."""
+        for old, data in self._jpegs:  # a sparse look first: most candidates differ at once
+            if old.shape == a.shape and np.array_equal(old.ravel()[::997], a.ravel()[::997]) and np.array_equal(old, a):
+                return data
         bgr = a if a.ndim == 2 else cv2.cvtColor(a, cv2.COLOR_RGB2BGR)
         params = [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality, cv2.IMWRITE_JPEG_OPTIMIZE, 1]
         ok, buf = cv2.imencode(".jpg", bgr, params)
         if not ok:  # pragma: no cover - OpenCV's JPEG encoder does not fail on uint8 images
             raise OutputError("JPEG encoding failed")
-        return rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg", **kw)
+        data = buf.tobytes()
+        self._jpegs.append((a, data))
+        return data
 
     def _mask(self, m8: np.ndarray) -> Any:
         if self.raw_images:

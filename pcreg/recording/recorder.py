@@ -694,8 +694,10 @@ class Recorder:
                 self._send_points(E.icp_path(backend, "target"), list(steps), list(clouds), [80, 160, 255])
             if rows.drawn:
                 self._send_points(E.icp_path(backend, "moving"), rows.drawn, rows.moving, [255, 120, 0])
-                strips = [s for row in rows.strips for s in row]
-                column = rr.LineStrips2D.columns(strips=strips if strips else np.zeros((0, 2, 2)))
+                # one (N, 2, 2) array of segments: rerun's numpy path (a list of N strips is converted
+                # strip by strip, most of the recorder's own time on an ICP-heavy recording)
+                strips = np.concatenate(rows.strips) if rows.strips else np.zeros((0, 2, 2))
+                column = rr.LineStrips2D.columns(strips=strips)
                 path = E.icp_path(backend, "correspondences")
                 self._once(path, "style", lambda: rr.LineStrips2D.from_fields(colors=[255, 255, 255], radii=0.5))
                 self._send_columns(path, rows.drawn, column.partition([len(r) for r in rows.strips]),

@@ -350,20 +350,13 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         Jacobi-preconditioned conjugate-gradient iterations warm-started from the last field (the
         ICP iterates anyway); 0: an exact sparse LU solve each step.
     callback : called with a :class:`~pcreg.registration.dense.DenseIteration` after every iteration.
-    initial : start the grid from an earlier registration of the same reference (its result, or its
-        ``grid`` array), typically the previous frame's in a video, instead of from the global
-        transform: its displacements start level ``initial_level``, with the wide gate ``radius``, and
-        the coarser levels are skipped. The displacements are added to *this* registration's global
-        transform, so give the earlier one's (``global_result=earlier.matrix``, the identity in a
-        stream) unless the change is meant. The new frame may then have moved up to
-        ``radius * 2^initial_level`` px (12 at the defaults) from where the earlier field puts it,
-        against ``radius * 2^(levels - 1)`` (48) from the global transform without it. It must come
-        from images of this size and the same ``finest_level`` and ``grid_spacing`` (the grid's shape
-        is checked; two option sets with the same shape are not told apart). On the shared CamVid clips, 4 iterations started from the previous frame's
-        grid labelled frames as well as 8 from the identity, at about 0.6 of the time
-        (:class:`pcreg.pipeline.stream.DenseStep`).
-    initial_level : the level ``initial`` starts at (``finest_level`` .. 7; one coarser than
-        ``levels - 1``, or than the image allows, is the coarsest level).
+    initial : start from an earlier registration of the same reference (its result or its ``grid``),
+        e.g. the previous video frame's: its displacements, added to *this* registration's global
+        transform (give the earlier one's), start level ``initial_level`` with the gate ``radius``, and the
+        coarser levels are skipped, so the frame may have moved ``radius * 2^initial_level`` px (12) from
+        the earlier field, against 48 px from the global transform. Same image size, ``finest_level`` and
+        ``grid_spacing`` (the grid's shape is checked). Measured in use: :class:`pcreg.pipeline.stream.DenseStep`.
+    initial_level : where ``initial`` starts (``finest_level`` .. 7, capped at the coarsest level).
     Returns a :class:`~pcreg.registration.dense.DenseRegistrationResult`.
     """
     t_start = time.perf_counter()

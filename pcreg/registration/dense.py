@@ -920,18 +920,16 @@ class _Grid:
     finest: _Level
 
 
-def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, coarsest: int, seed: int,
+def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, top: int, seed: int,
                     clock: _StageClock, callback: Callable[[DenseIteration], None] | None,
                     initial: InitialGrid | None = None) -> _Grid:
-    """Every level from ``coarsest`` (from ``initial.level`` when it is given, and finer) to the finest,
-    each starting from the coarser level's grid, the first from ``initial``'s grid or from zero (the
-    global transform); the first level gets the wide gate (``options.radius``).
-    :class:`~pcreg.errors.RegistrationError` when no level had samples to match."""
+    """Every level from ``top`` to the finest, each starting from the coarser level's grid, the first
+    from ``initial``'s grid or from zero (the global transform); the first level gets the wide gate
+    (``options.radius``). :class:`~pcreg.errors.RegistrationError` when no level had samples to match."""
     U: np.ndarray | None = None
     prev: _Level | None = None  # the coarser level
     last: _Problem | None = None
     weights_node, steps, fitness, rms = None, 0, 0.0, 0.0
-    top = coarsest if initial is None else min(initial.level, coarsest)
     for level in range(top, options.finest_level - 1, -1):
         clock.lap("solve")  # the last iteration of the level above
         lv = _level_problem(pyr, level, T, options, coarsest=top, seed=seed)
@@ -1042,11 +1040,12 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
     ``given_seconds`` the time of a global step done before it, both counted in the result's seconds;
     ``initial``: where the grid starts (None: from zero at the coarsest level)."""
     coarsest = _coarsest_level(ref.shape, options)
+    top = coarsest if initial is None else min(initial.level, coarsest)  # the level the grid starts at
     T = np.asarray(global_result.matrix, dtype=np.float64)
     clock = _StageClock()
-    pyr = _pyramids(ref, mov, coarsest)
+    pyr = _pyramids(ref, mov, top)
     clock.lap("pyramid")
-    grid = _coarse_to_fine(pyr, T, options, coarsest=coarsest, seed=seed, clock=clock,
+    grid = _coarse_to_fine(pyr, T, options, top=top, seed=seed, clock=clock,
                            callback=callback, initial=initial)  # 2. the grid, coarse to fine
     last = grid.last  # 3. the plausibility test, then the field at full resolution
     evidence = _plausibility(last.R, last.Mv, last.P, last.C, last.GP, last.NE, last.lam, last.radius, grid.U)
@@ -1058,7 +1057,5 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
                                    global_result=global_result, fitness=grid.fitness, inlier_rmse=grid.rms,
                                    iterations=grid.steps, seconds=time.perf_counter() - started + given_seconds,
                                    backend=backend, grid=full.grid,
-                                   info={"levels": (coarsest if initial is None else min(initial.level, coarsest),
-                                                    options.finest_level),
-                                                          "grid": full.grid.shape[:2], "evidence": evidence,
-                                                          "times": clock.times})
+                                   info={"levels": (top, options.finest_level), "grid": full.grid.shape[:2],
+                                         "evidence": evidence, "times": clock.times})

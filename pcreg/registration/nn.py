@@ -91,6 +91,8 @@ def threaded(n: int) -> bool:
     except OSError:  # pragma: no cover - no load average on this system
         return False
     return load < _usable_cpus() - 0.5
+
+
 #: Target points per cell when the cell size is chosen from the point density.
 POINTS_PER_CELL = 2.0
 #: A dense cell table (8 bytes a cell) is used while it holds at most this many cells per point, or

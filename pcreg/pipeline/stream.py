@@ -374,9 +374,12 @@ class Propagator:
         else:
             T = np.eye(3)
 
-        def cold():
+        def dense(**options):
             return register_dense(reference, image, global_result=T, backend=self.config.backend,
-                                  seed=self.config.search.seed, **self.dense.kwargs())
+                                  seed=self.config.search.seed, **options)
+
+        def cold():
+            return dense(**self.dense.kwargs())
 
         carry = self._carry if warm_ok else None
         if carry is None:
@@ -386,9 +389,7 @@ class Propagator:
         else:
             self._attempt = "warm"
             try:
-                result = register_dense(reference, image, global_result=T, backend=self.config.backend,
-                                        seed=self.config.search.seed, initial=carry.grid,
-                                        **self.dense.kwargs(warm=True))
+                result = dense(initial=carry.grid, **self.dense.kwargs(warm=True))
                 start = "warm"
             except RegistrationError:
                 result, start = None, "restarted"

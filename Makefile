@@ -20,7 +20,7 @@ setup: sysdeps $(STAMP) warm
 # Compile the reference ICP's correspondence search once (numba, cached on disk next to the sources):
 # no command pays the compilation afterwards; when the cache is current this only loads it (about a second).
 warm: $(STAMP)
-	@$(BIN)/python -m pcreg.registration.kernels
+	@$(BIN)/python -m pcreg.kernels
 
 sysdeps:
 	@missing=""; for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \

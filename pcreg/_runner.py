@@ -123,13 +123,18 @@ class InlineExecutor(Executor):
         return fut
 
 
-def _worker_init() -> None:
-    """In a local worker process: the parent handles Ctrl-C (the terminal sends SIGINT to the whole
-    process group) and stops the workers itself; SIGTERM ends a worker at once."""
+def _worker_init(workers: int = 1) -> None:
+    """In a local worker process of a pool of ``workers``: the parent handles Ctrl-C (the terminal sends
+    SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once. The
+    helper thread (:mod:`pcreg._threads`) is used only where the CPUs leave two to each worker: the
+    pool already gives the others theirs."""
     import signal
+
+    from . import _threads
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _threads.set_enabled(_threads.usable_cpus() >= 2 * workers)
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
@@ -201,7 +206,7 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             from .errors import PcregError
 
             raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here")
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init)
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(workers,))
         try:
             yield pool
         except BaseException:

@@ -366,15 +366,15 @@ def test_the_full_size_field_interpolates_the_grid_at_each_pixels_place(level):
     gx, gy = (xs - (f - 1) / 2) / (f * s), (ys - (f - 1) / 2) / (f * s)
     grid = (f * U).reshape(gshape[0], gshape[1], 2)
     expected = field_from_matrix(T, (h, w)) + bilinear(grid, gx, gy)
-    # OpenCV interpolates with weights in steps of 1/32: at most a 32nd of a node-to-node difference
-    step = max(np.abs(np.diff(grid, axis=0)).max(), np.abs(np.diff(grid, axis=1)).max())
-    assert np.abs(out.field - expected).max() <= step / 32 + 1e-3
+    # exact bilinear weights (not OpenCV's steps of 1/32), rounded once to float32 and added to the
+    # float32 global part: a few float32 roundings of coordinates up to a few hundred pixels
+    assert np.abs(out.field - expected).max() <= 1e-4
     conf = bilinear(np.clip(weights / (0.25 * s * s * 0.5), 0, 1).reshape(gshape), gx, gy)
     inside = ((out.field[..., 0] >= -0.5) & (out.field[..., 0] <= w - 0.5)
               & (out.field[..., 1] >= -0.5) & (out.field[..., 1] <= h - 0.5))
     assert 0 < inside.mean() < 1
     assert np.all(out.confidence[~inside] == 0)
-    assert np.abs(out.confidence[inside] - conf[inside]).max() <= 1 / 32 + 1e-6
+    assert np.abs(out.confidence[inside] - conf[inside]).max() <= 1e-6
     assert out.field.dtype == np.float32 and out.confidence.dtype == np.float32
 
 

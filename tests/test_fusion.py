@@ -94,6 +94,27 @@ def test_the_streams_weight_follows_the_fields_confidence():
     assert w.dtype == np.float32 and np.allclose(w, [[1.0, 2.0, 4.0, 4.0, 1.0, 1.0]])  # clipped to [0, 1]; NaN as 0
 
 
+@pytest.mark.parametrize("shape", [(7, 5), (480, 640)])  # one thread; rows shared with the helper
+def test_fused_labels_are_the_composed_fusion_pixel_for_pixel(shape):
+    """The stream's one-pass fusion gives the labels of pixel_weight, prior_log_odds, fuse and
+    labels_from_log_odds composed, with the edge cases of each: NaN and infinite confidence, a prior of
+    exactly 0 or 1, confidence beyond [0, 1]."""
+    from pcreg.pipeline.prior import fused_labels, pixel_weight
+
+    rng = np.random.default_rng(shape[0])
+    d = rng.normal(0, 3, shape).astype(np.float32)
+    q = rng.uniform(0, 1, shape).astype(np.float32)
+    c = rng.uniform(-0.2, 1.2, shape).astype(np.float32)
+    q.flat[:4] = [0.0, 1.0, 0.0, 1.0]
+    c.flat[:6] = [np.nan, np.inf, -np.inf, np.nan, 0.0, 1.0]
+    for pi, weight in ((0.3, 2.0), (0.71, 0.5), (0.5, 0.0)):
+        composed = labels_from_log_odds(fuse(d, prior_log_odds(q, pi=pi), weight=pixel_weight(weight, c)))
+        one_pass = fused_labels(d, q, c, weight=weight, pi=pi)
+        assert one_pass.dtype == np.uint8 and np.array_equal(one_pass, composed)
+        assert np.array_equal(fused_labels(d, q, None, weight=weight, pi=pi),
+                              labels_from_log_odds(fuse(d, prior_log_odds(q, pi=pi), weight=weight)))
+
+
 def test_choose_weight_trusts_a_good_prior_and_ignores_a_bad_one():
     rng = np.random.default_rng(0)
     truth = (rng.random((50, 50)) < 0.4).astype(np.uint8)

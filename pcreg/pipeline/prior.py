@@ -11,7 +11,7 @@ import numpy as np
 
 from ..classification.fusion import check_pi, prior_log_odds
 
-__all__ = ["CONFIDENCE_SPAN", "class_prior", "pixel_weight", "warp_prior", "warped_prior_log_odds"]
+__all__ = ["CONFIDENCE_SPAN", "class_prior", "fused_labels", "pixel_weight", "warp_prior", "warped_prior_log_odds"]
 
 #: The prior's weight per pixel, as a multiple of the fusion weight, where a dense field's confidence is 0
 #: and where it is 1 (linear between): a factor of two either way. Where the field has the evidence of
@@ -62,3 +62,68 @@ def pixel_weight(weight: float, confidence: np.ndarray | None) -> float | np.nda
     lo, hi = CONFIDENCE_SPAN
     c = np.clip(np.nan_to_num(np.asarray(confidence, dtype=np.float32), nan=0.0), 0.0, 1.0)  # NaN: no evidence
     return np.float32(weight) * (np.float32(lo) + np.float32(hi - lo) * c)
+
+
+def fused_labels(log_odds: np.ndarray, q: np.ndarray, confidence: np.ndarray | None, *, weight: float,
+                 pi: float) -> np.ndarray:
+    """(H, W) uint8 labels of the classifier's log-odds fused with a warped prior, in one pass:
+    ``labels_from_log_odds(fuse(log_odds, prior_log_odds(q, pi=pi), weight=pixel_weight(weight,
+    confidence)))``, the same float32 operations pixel by pixel (a logarithm may differ in its last
+    bit from numpy's, which only matters for a pixel whose fused log-odds are within a rounding of 0).
+
+    log_odds : (H, W) float32 naive Bayes log-odds; q : (H, W) float32 warped prior probability of
+    obstacle; confidence : (H, W) the dense field's confidence, or None (one weight everywhere).
+    The rows are split with the helper thread (:mod:`pcreg._threads`) on large images.
+    """
+    from .._threads import interleave
+    from ..classification.fusion import check_pi, fuse, labels_from_log_odds
+
+    d = np.ascontiguousarray(log_odds, dtype=np.float32)
+    qq = np.ascontiguousarray(q, dtype=np.float32)
+    if d.shape != qq.shape or d.ndim != 2:
+        raise ValueError(f"log-odds {d.shape} and prior {qq.shape} must be one (H, W) shape")  # a caller's bug
+    if confidence is None or _fused_rows is None:  # pragma: no branch - numba is a declared dependency
+        return labels_from_log_odds(fuse(d, prior_log_odds(qq, pi=pi), weight=pixel_weight(weight, confidence)))
+    c = np.ascontiguousarray(confidence, dtype=np.float32)
+    if c.shape != d.shape:
+        raise ValueError(f"a confidence of shape {c.shape} for log-odds of shape {d.shape}")  # a caller's bug
+    pi = check_pi(pi)
+    lo, hi = CONFIDENCE_SPAN
+    out = np.empty(d.shape, np.uint8)
+    consts = (np.float32(weight), np.float32(lo), np.float32(hi - lo), np.float32(np.log(pi / (1.0 - pi))))
+    interleave(d.size, lambda first, stride: _fused_rows(d, qq, c, *consts, out, first, stride),
+               min_items=1 << 16)
+    return out
+
+
+#: Rows per block of :func:`_fused_rows_py` (two threads take alternate blocks).
+FUSED_BLOCK_ROWS = 16
+
+
+def _fused_rows_py(d, q, conf, weight, lo, span, logit_pi, out, first, stride):
+    """Rows of blocks ``first``, ``first + stride``, ... of :func:`fused_labels` (float32 throughout,
+    in the order of :func:`pixel_weight`, :func:`~pcreg.classification.fusion.prior_log_odds` and
+    :func:`~pcreg.classification.fusion.fuse`)."""
+    h, w = d.shape
+    qlo = np.float32(1e-6)
+    qhi = np.float32(1.0 - 1e-6)
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    for b in range(first * FUSED_BLOCK_ROWS, h, stride * FUSED_BLOCK_ROWS):
+        for i in range(b, min(b + FUSED_BLOCK_ROWS, h)):
+            for j in range(w):
+                c = conf[i, j]
+                c = zero if c != c else min(max(c, zero), one)  # NaN: no evidence
+                wp = weight * (lo + span * c)
+                qc = min(max(q[i, j], qlo), qhi)
+                prior = np.float32(np.log(qc / (one - qc))) - logit_pi
+                out[i, j] = 1 if d[i, j] + wp * prior > zero else 0
+    return out
+
+
+try:
+    from numba import njit as _njit
+
+    _fused_rows = _njit(cache=True, nogil=True)(_fused_rows_py)
+except ImportError:  # pragma: no cover - numba is a declared dependency
+    _fused_rows = None

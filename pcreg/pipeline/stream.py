@@ -72,9 +72,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._threads import beside
 from ..classification.features import DEFAULT_FEATURES
-from ..classification.fusion import FusionConfig, fuse, label_prior, labels_from_log_odds, prior_log_odds
-from .prior import class_prior, pixel_weight, warp_prior
+from ..classification.fusion import FusionConfig, label_prior
+from .prior import class_prior, fused_labels, warp_prior
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
@@ -309,29 +310,40 @@ class Propagator:
         self._frame += 1
         times = dict.fromkeys(STEP_STAGES, 0.0)
 
+        def classify() -> tuple[np.ndarray, dict]:
+            t0 = time.perf_counter()
+            groups = (self.classifier.feature_groups(img) if isinstance(self.classifier, NaiveBayesPixelClassifier)
+                      else None)
+            t1 = time.perf_counter()
+            d = log_odds(self.classifier, img) if groups is None else np.asarray(
+                self.classifier.decision_function(img, groups=groups), dtype=np.float32)
+            t2 = time.perf_counter()
+            return d, {"classify": t2 - t0, "classify.features": t1 - t0, "classify.bayes": t2 - t1}
+
+        # the new frame is classified on the helper thread while this one registers it (the two are
+        # independent); its times are its own, and ``total`` is the step's wall time
+        classified = beside(classify)
         t0 = time.perf_counter()
         reference, ref_frame = (self._key_image, 0) if self.anchor == "key" else (self._chain[0], self._chain[2])
-        result, reason, start = self._register(reference, img)
+        try:
+            result, reason, start = self._register(reference, img)
+        except BaseException:
+            _wait_quietly(classified)  # the helper's work ends before this error goes on
+            raise
         motion = None if result is None else self._to_key(Motion.of(result), img.shape[:2])
         times["register"] = time.perf_counter() - t0
+        d, classify_times = classified()
 
         dense_times = getattr(result, "info", {}).get("times") if result is not None else None
         if dense_times is not None:
             times["register.global"] = float(result.global_result.seconds)
             times.update({f"register.{k}": float(v) for k, v in dense_times.items()})
+        times.update(classify_times)
 
-        t0 = time.perf_counter()
-        groups = self.classifier.feature_groups(img) if isinstance(self.classifier, NaiveBayesPixelClassifier) else None
-        t1 = time.perf_counter()
-        d = log_odds(self.classifier, img) if groups is None else np.asarray(
-            self.classifier.decision_function(img, groups=groups), dtype=np.float32)
         t2 = time.perf_counter()
-        times.update({"classify": t2 - t0, "classify.features": t1 - t0, "classify.bayes": t2 - t1})
-
         q, _ = warp_prior(self._key_prior, motion, shape=d.shape, pi=self._pi)
         t3 = time.perf_counter()
-        weight = self.weight if motion is None else pixel_weight(self.weight, motion.confidence)
-        labels = labels_from_log_odds(fuse(d, prior_log_odds(q, pi=self._pi), weight=weight))
+        labels = fused_labels(d, q, None if motion is None else motion.confidence, weight=self.weight, pi=self._pi)
         if motion is not None and self.anchor == "previous":
             self._chain = (img, motion, self._frame)
         t4 = time.perf_counter()
@@ -447,6 +459,14 @@ class Propagator:
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
+
+
+def _wait_quietly(wait) -> None:
+    """Wait for work on the helper thread whose result is no longer wanted (an error is on its way)."""
+    try:
+        wait()
+    except Exception:  # noqa: BLE001 - the error under way is the one to report
+        pass
 
 
 def _check_image(image) -> np.ndarray:

@@ -64,12 +64,9 @@ from typing import Callable
 import cv2
 import numpy as np
 import scipy.sparse as sp
-try:
-    from numba import prange
-except ImportError:  # pragma: no cover
-    prange = range
 import scipy.sparse.linalg as spla
 
+from .._threads import beside, interleave
 from ..errors import InputError, RegistrationError
 from .motion import field_from_matrix
 from .result import RegistrationResult
@@ -216,66 +213,74 @@ def _best_in_window_py(img, x, y, src, sy, sx, radius, lam2):
     return bx, by, cx, cy
 
 
-def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out):
-    """Pure-Python body of :func:`match_window` (compiled with numba when it is installed)."""
+#: Samples per block of :func:`_match_window_py`: two threads take alternate blocks, so each gets
+#: samples from all over the image (a search costs more where there is texture to match) without
+#: writing to the same cache lines (32 rows of 32 bytes).
+MATCH_BLOCK = 32
+
+
+def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out, first, stride):
+    """Pure-Python body of :func:`match_window` (compiled with numba when it is installed): the samples
+    of blocks ``first``, ``first + stride``, ... of :data:`MATCH_BLOCK` samples."""
     h, w, nc = ref.shape
     n = x.shape[0]
     cols3 = cols.reshape(n, 1, nc)  # each point's colour as a one-pixel row, read in place by the search
-    for i in prange(n):
-        out[i, 0] = np.nan
-        out[i, 1] = np.nan
-        out[i, 2] = np.inf
-        out[i, 3] = 0.0
-        xi, yi = x[i], y[i]
-        if not (xi > -radius and yi > -radius and xi < w - 1 + radius and yi < h - 1 + radius):
-            continue
-        bx, by, cx, cy = _best_in_window(ref, xi, yi, cols3, i, 0, radius, lam2)
-        if bx < 0:
-            continue
-        # the best candidate on the gate's rim (not the image's): its partner may lie outside the gate
-        rim = ((bx == cx - radius and bx > 0) or (bx == cx + radius and bx < w - 1)
-               or (by == cy - radius and by > 0) or (by == cy + radius and by < h - 1))
-        # sub-pixel: one Gauss-Newton step on the same cost with the reference colour linearised at
-        # the best pixel (central differences), ``(lam2 J^T J + I) d = -lam2 J^T r - (q - x)``: the
-        # colour term of Park, Zhou & Koltun (2017, "Colored point cloud registration revisited"),
-        # free of the pull to whole pixels that a parabola through the costs has
-        ox = 0.0
-        oy = 0.0
-        if 0 < bx < w - 1 and 0 < by < h - 1:
-            a11 = 1.0
-            a12 = 0.0
-            a22 = 1.0
-            b1 = -(bx - xi)
-            b2 = -(by - yi)
+    for b in range(first * MATCH_BLOCK, n, stride * MATCH_BLOCK):
+        for i in range(b, min(b + MATCH_BLOCK, n)):
+            out[i, 0] = np.nan
+            out[i, 1] = np.nan
+            out[i, 2] = np.inf
+            out[i, 3] = 0.0
+            xi, yi = x[i], y[i]
+            if not (xi > -radius and yi > -radius and xi < w - 1 + radius and yi < h - 1 + radius):
+                continue
+            bx, by, cx, cy = _best_in_window(ref, xi, yi, cols3, i, 0, radius, lam2)
+            if bx < 0:
+                continue
+            # the best candidate on the gate's rim (not the image's): its partner may lie outside the gate
+            rim = ((bx == cx - radius and bx > 0) or (bx == cx + radius and bx < w - 1)
+                   or (by == cy - radius and by > 0) or (by == cy + radius and by < h - 1))
+            # sub-pixel: one Gauss-Newton step on the same cost with the reference colour linearised at
+            # the best pixel (central differences), ``(lam2 J^T J + I) d = -lam2 J^T r - (q - x)``: the
+            # colour term of Park, Zhou & Koltun (2017, "Colored point cloud registration revisited"),
+            # free of the pull to whole pixels that a parabola through the costs has
+            ox = 0.0
+            oy = 0.0
+            if 0 < bx < w - 1 and 0 < by < h - 1:
+                a11 = 1.0
+                a12 = 0.0
+                a22 = 1.0
+                b1 = -(bx - xi)
+                b2 = -(by - yi)
+                for k in range(nc):
+                    jx = 0.5 * (ref[by, bx + 1, k] - ref[by, bx - 1, k])
+                    jy = 0.5 * (ref[by + 1, bx, k] - ref[by - 1, bx, k])
+                    r = ref[by, bx, k] - cols[i, k]
+                    a11 += lam2 * jx * jx
+                    a12 += lam2 * jx * jy
+                    a22 += lam2 * jy * jy
+                    b1 -= lam2 * jx * r
+                    b2 -= lam2 * jy * r
+                det = a11 * a22 - a12 * a12
+                if det > 1e-12:
+                    ox = min(max((a22 * b1 - a12 * b2) / det, -0.5), 0.5)
+                    oy = min(max((a11 * b2 - a12 * b1) / det, -0.5), 0.5)
+            out[i, 0] = bx + ox
+            out[i, 1] = by + oy
+            s = 0.0
             for k in range(nc):
-                jx = 0.5 * (ref[by, bx + 1, k] - ref[by, bx - 1, k])
-                jy = 0.5 * (ref[by + 1, bx, k] - ref[by - 1, bx, k])
-                r = ref[by, bx, k] - cols[i, k]
-                a11 += lam2 * jx * jx
-                a12 += lam2 * jx * jy
-                a22 += lam2 * jy * jy
-                b1 -= lam2 * jx * r
-                b2 -= lam2 * jy * r
-            det = a11 * a22 - a12 * a12
-            if det > 1e-12:
-                ox = min(max((a22 * b1 - a12 * b2) / det, -0.5), 0.5)
-                oy = min(max((a11 * b2 - a12 * b1) / det, -0.5), 0.5)
-        out[i, 0] = bx + ox
-        out[i, 1] = by + oy
-        s = 0.0
-        for k in range(nc):
-            d = ref[by, bx, k] - cols[i, k]
-            s += d * d
-        out[i, 2] = math.sqrt(s)
-        if rim:
-            continue
-        # mutual test: the reference point's nearest moving pixel, searched back around where the
-        # point's own displacement says it came from, must be the point (within a pixel)
-        ex = px[i] + (bx - xi)
-        ey = py[i] + (by - yi)
-        b2x, b2y, _, _ = _best_in_window(mov, ex, ey, ref, by, bx, radius, lam2)
-        if b2x >= 0 and abs(b2x - px[i]) <= 1.0 and abs(b2y - py[i]) <= 1.0:
-            out[i, 3] = 1.0
+                d = ref[by, bx, k] - cols[i, k]
+                s += d * d
+            out[i, 2] = math.sqrt(s)
+            if rim:
+                continue
+            # mutual test: the reference point's nearest moving pixel, searched back around where the
+            # point's own displacement says it came from, must be the point (within a pixel)
+            ex = px[i] + (bx - xi)
+            ey = py[i] + (by - yi)
+            b2x, b2y, _, _ = _best_in_window(mov, ex, ey, ref, by, bx, radius, lam2)
+            if b2x >= 0 and abs(b2x - px[i]) <= 1.0 and abs(b2y - py[i]) <= 1.0:
+                out[i, 3] = 1.0
     return out
 
 
@@ -287,6 +292,11 @@ try:  # the compiled search; the pure-Python body is the same code and the fallb
 except ImportError:  # pragma: no cover - numba is a declared dependency
     _best_in_window = _best_in_window_py
     _match_window_jit = None
+
+
+#: From this many samples :func:`match_window` splits its samples between this thread and pcreg's
+#: helper thread (:mod:`pcreg._threads`), when the process may use two CPUs.
+SPLIT_MIN_SAMPLES = 1000
 
 
 def match_window(reference: np.ndarray, moving: np.ndarray, sources: np.ndarray, positions: np.ndarray,
@@ -307,10 +317,17 @@ def match_window(reference: np.ndarray, moving: np.ndarray, sources: np.ndarray,
     pos = np.asarray(positions, dtype=np.float64)
     cols = np.ascontiguousarray(colours, dtype=np.float32)
     out = np.empty((len(pos), 4), dtype=np.float64)
-    fn = _match_window_jit if (compiled and _match_window_jit is not None) else _match_window_py
-    return fn(ref, mov, np.ascontiguousarray(src[:, 0]), np.ascontiguousarray(src[:, 1]),
-              np.ascontiguousarray(pos[:, 0]), np.ascontiguousarray(pos[:, 1]), cols, int(radius),
-              float(lam) ** 2, out)
+    px, py = np.ascontiguousarray(src[:, 0]), np.ascontiguousarray(src[:, 1])
+    x, y = np.ascontiguousarray(pos[:, 0]), np.ascontiguousarray(pos[:, 1])
+    radius, lam2 = int(radius), float(lam) ** 2
+    if not (compiled and _match_window_jit is not None):
+        return _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out, 0, 1)
+
+    def blocks(first: int, stride: int) -> None:  # each sample's match is its own: any share is independent
+        _match_window_jit(ref, mov, px, py, x, y, cols, radius, lam2, out, first, stride)
+
+    interleave(len(pos), blocks, min_items=SPLIT_MIN_SAMPLES)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -449,9 +466,14 @@ class _NormalEquations:
             A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc()
             return spla.splu(A).solve(rhs)
         out = np.empty_like(rhs)
-        for c in range(2):
+
+        def column(c: int) -> None:  # the two columns are independent systems with the same matrix
             out[:, c] = _cg_dia(data, self.offsets, np.ascontiguousarray(rhs[:, c]),
                                 np.array(x0[:, c], dtype=np.float64), int(maxiter), 1e-4)
+
+        first = beside(lambda: column(0))
+        column(1)
+        first()
         return out
 
 
@@ -930,9 +952,17 @@ def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, top
     prev: _Level | None = None  # the coarser level
     last: _Problem | None = None
     weights_node, steps, fitness, rms = None, 0, 0.0, 0.0
-    for level in range(top, options.finest_level - 1, -1):
+    levels = range(top, options.finest_level - 1, -1)
+
+    def problem(level: int) -> Callable[[], _Level]:
+        return lambda: _level_problem(pyr, level, T, options, coarsest=top, seed=seed)
+
+    # a level's problem does not depend on the grid: the finer ones are made on the helper thread
+    # while this one works on the coarser levels
+    ahead = {level: beside(problem(level)) for level in levels[1:]}
+    for level in levels:
         clock.lap("solve")  # the last iteration of the level above
-        lv = _level_problem(pyr, level, T, options, coarsest=top, seed=seed)
+        lv = problem(level)() if level == top else ahead[level]()
         if (U is None or prev is None) and initial is not None:
             U = _grid_at_level(initial.grid, options.finest_level, lv)
         elif U is None or prev is None:
@@ -1016,19 +1046,92 @@ def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Lev
     grid = (f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)
     cell = 0.25 * s * s * lv.rate
     conf_nodes = np.clip(weights_node / cell, 0.0, 1.0).reshape(gshape).astype(np.float32)
-    # full-size pixel x lies at (x - (f - 1) / 2) / (f s) grid cells: an affine resampling of the nodes
-    # (bilinear, the grid's edge nodes repeated beyond it)
-    to_grid = np.array([[1.0, 0.0, -(f - 1) / 2.0], [0.0, 1.0, -(f - 1) / 2.0]]) / (f * s)
-
-    def at_pixels(nodes: np.ndarray) -> np.ndarray:
-        return cv2.warpAffine(nodes, to_grid, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                              borderMode=cv2.BORDER_REPLICATE)
-
-    field_full = field_from_matrix(T, (h, w))
-    field_full += at_pixels(grid)
-    conf = at_pixels(conf_nodes)
-    conf[cv2.inRange(field_full, (-0.5, -0.5), (w - 0.5, h - 0.5)) == 0] = 0.0  # the field leaves the image
+    M = np.ascontiguousarray(T, dtype=np.float64)
+    field_full = np.empty((h, w, 2), np.float32)
+    conf = np.empty((h, w), np.float32)
+    if _field_rows_jit is None:  # pragma: no cover - numba is a declared dependency
+        _field_rows_py(M, grid, conf_nodes, f, s, field_full, conf, 0, 1)
+    else:
+        interleave(h * w, lambda first, stride: _field_rows_jit(M, grid, conf_nodes, f, s, field_full, conf,
+                                                                first, stride), min_items=SPLIT_MIN_PIXELS)
     return _FullField(field_full, conf, grid)
+
+
+#: Rows per block of :func:`_field_rows_py` (two threads take alternate blocks).
+FIELD_BLOCK_ROWS = 16
+#: From this many pixels the full-size field is made on two threads (:mod:`pcreg._threads`).
+SPLIT_MIN_PIXELS = 1 << 16
+
+
+def _cell_py(g, n):
+    """The cell of grid coordinate ``g`` on an axis of ``n`` nodes, the edge nodes repeated beyond it:
+    ``(i0, i1, a)``, the value there being ``(1 - a) v[i0] + a v[i1]``."""
+    g = min(max(g, 0.0), n - 1.0)
+    i0 = min(int(g), n - 2) if n > 1 else 0
+    return i0, min(i0 + 1, n - 1), g - i0
+
+
+def _field_rows_py(M, grid, conf_nodes, f, s, field, conf, first, stride):
+    """The rows of blocks ``first``, ``first + stride``, ... (:data:`FIELD_BLOCK_ROWS` rows each) of the
+    full-size field and confidence: ``field[y, x]`` = ``M (x, y, 1)`` (projected, rounded to float32, as
+    :func:`~pcreg.registration.motion.field_from_matrix`) plus the grid (gh, gw, 2) interpolated
+    bilinearly (float64, rounded to float32) where the pixel lies on it, ``(x - (f - 1) / 2) / (f s)``
+    cells, the edge nodes repeated beyond it; ``conf[y, x]`` the nodes' confidence (gh, gw) interpolated
+    there, 0 where the field leaves the image (outside ``[-0.5, w - 0.5]`` x ``[-0.5, h - 0.5]``, or NaN).
+    The interpolation is separable: each row first interpolates the grid's rows (``(1 - a) g[y0] + a
+    g[y1]``), then each pixel that row's nodes."""
+    h, w = field.shape[0], field.shape[1]
+    gh, gw = conf_nodes.shape[0], conf_nodes.shape[1]
+    affine = M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1
+    half = (f - 1.0) / 2.0
+    cells = 1.0 / (f * s)
+    xi0 = np.empty(w, np.int64)
+    xi1 = np.empty(w, np.int64)
+    xa = np.empty(w)
+    for j in range(w):
+        xi0[j], xi1[j], xa[j] = _cell((j - half) * cells, gw)
+    row = np.empty((gw, 3))  # the grid's two channels and the confidence, interpolated at this row
+    for b in range(first * FIELD_BLOCK_ROWS, h, stride * FIELD_BLOCK_ROWS):
+        for i in range(b, min(b + FIELD_BLOCK_ROWS, h)):
+            y = float(i)
+            y0, y1, ay = _cell((y - half) * cells, gh)
+            for k in range(gw):
+                row[k, 0] = (1.0 - ay) * grid[y0, k, 0] + ay * grid[y1, k, 0]
+                row[k, 1] = (1.0 - ay) * grid[y0, k, 1] + ay * grid[y1, k, 1]
+                row[k, 2] = (1.0 - ay) * conf_nodes[y0, k] + ay * conf_nodes[y1, k]
+            if affine:  # the global part of the row first (field_from_matrix's arithmetic), then the grid's
+                cx = M[0, 1] * y + M[0, 2]
+                cy = M[1, 1] * y + M[1, 2]
+                for j in range(w):
+                    field[i, j, 0] = np.float32(M[0, 0] * float(j) + cx)
+                    field[i, j, 1] = np.float32(M[1, 0] * float(j) + cy)
+            else:
+                for j in range(w):
+                    x = float(j)
+                    den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
+                    field[i, j, 0] = np.float32((M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den)
+                    field[i, j, 1] = np.float32((M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den)
+            for j in range(w):
+                x0, x1, ax = xi0[j], xi1[j], xa[j]
+                fx = field[i, j, 0] + np.float32((1.0 - ax) * row[x0, 0] + ax * row[x1, 0])
+                fy = field[i, j, 1] + np.float32((1.0 - ax) * row[x0, 1] + ax * row[x1, 1])
+                field[i, j, 0] = fx
+                field[i, j, 1] = fy
+                c = np.float32((1.0 - ax) * row[x0, 2] + ax * row[x1, 2])
+                inside = (fx >= -0.5) & (fx <= w - 0.5) & (fy >= -0.5) & (fy <= h - 0.5)
+                conf[i, j] = c if inside else np.float32(0.0)
+    return field
+
+
+try:
+    from numba import njit as _njit
+
+    _cell = _njit(cache=True, nogil=True, inline="always")(_cell_py)
+    # numpy's error model: a pixel on a projective transform's horizon divides by zero and gets inf or
+    # NaN (and a confidence of 0), as field_from_matrix does, instead of raising
+    _field_rows_jit = _njit(cache=True, nogil=True, error_model="numpy")(_field_rows_py)
+except ImportError:  # pragma: no cover - numba is a declared dependency
+    _cell, _field_rows_jit = _cell_py, None
 
 
 def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationResult, options: DenseOptions, *,

@@ -24,7 +24,7 @@ distance, with no tree descent; building it is one counting sort (linear), again
 O(M log M). Per query against scipy's cKDTree: ``python -m pcreg.registration.nn --bench``; the ICP
 against Open3D's and small_gicp's: ``tools/bench_icp.py`` (README, Benchmarks).
 
-Compilation is cached on disk (``cache=True``); ``python -m pcreg.registration.kernels`` compiles every
+Compilation is cached on disk (``cache=True``); ``python -m pcreg.kernels`` compiles every
 kernel once (the Makefile's ``setup`` runs it), so no command compiles after installation; a new
 process only loads numba and the cached machine code, on its first registration.
 """
@@ -522,7 +522,7 @@ class GridIndex:
 
 def warm_up() -> None:
     """Compile (or load from the on-disk cache) the search's kernels: 2-D and 3-D, dense and hashed, serial
-    and parallel, bounded and unbounded (:mod:`pcreg.registration.kernels` warms every kernel of pcreg)."""
+    and parallel, bounded and unbounded (:mod:`pcreg.kernels` warms every kernel of pcreg)."""
     rng = np.random.default_rng(0)
     for d in (2, 3):
         pts = rng.uniform(0, 10, (64, d))

@@ -1,16 +1,16 @@
 """pcreg's compiled kernels (numba, cached on disk), compiled all at once so that no command pauses for it.
 
-    python -m pcreg.registration.kernels      # what `make setup` runs after installing
+    python -m pcreg.kernels      # what `make setup` runs after installing
 
-The kernels: the exact correspondence search (:mod:`.nn`), the reference ICP's point-to-point loop
-(:mod:`.reference`), the sub-pixel edges of the image pyramids (:mod:`.clouds`), the dense
-registration's window search, assembly and solver (:mod:`.dense`) and the field of a transform
-(:mod:`.motion`).
+The kernels: the exact correspondence search (:mod:`pcreg.registration.nn`), the reference ICP's
+point-to-point loop (:mod:`pcreg.registration.reference`), the sub-pixel edges of the image pyramids
+(:mod:`pcreg.registration.clouds`), the dense registration's window search, assembly, solver and
+full-size field (:mod:`pcreg.registration.dense`), the field of a transform
+(:mod:`pcreg.registration.motion`) and the stream's one-pass fusion (:mod:`pcreg.pipeline.prior`).
 """
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
@@ -18,9 +18,10 @@ import numpy as np
 
 def warm_up() -> None:
     """Compile (or load from the on-disk cache) every compiled kernel of pcreg, on small inputs."""
-    from . import nn, reference
-    from .clouds import image_pyramid
-    from .api import register_dense
+    from .pipeline.prior import fused_labels
+    from .registration import nn, reference
+    from .registration.api import register_dense
+    from .registration.clouds import image_pyramid
 
     nn.warm_up()
     reference.warm_up()
@@ -28,7 +29,9 @@ def warm_up() -> None:
     img[16:48, 20:40] = 200
     image_pyramid(img, levels=2).clouds(max_points=100)
     a, b = _textured_pair()
-    register_dense(a, b)
+    result = register_dense(a, b)
+    shape = result.confidence.shape
+    fused_labels(np.zeros(shape, np.float32), np.full(shape, 0.5, np.float32), result.confidence, weight=1.0, pi=0.5)
 
 
 def _textured_pair(size: int = 96, shift: int = 2) -> tuple[np.ndarray, np.ndarray]:
@@ -47,7 +50,7 @@ def main() -> int:  # pragma: no cover - run by the Makefile
     t0 = time.perf_counter()
     warm_up()
     print(f"pcreg: compiled kernels ready in {time.perf_counter() - t0:.1f} s "
-          f"(cache: {os.path.dirname(__file__)}/__pycache__ or NUMBA_CACHE_DIR)")
+          f"(cache: the __pycache__ folders beside pcreg's modules, or NUMBA_CACHE_DIR)")
     return 0
 
 

@@ -1,0 +1,139 @@
+"""One helper thread per process, for work that splits in two or runs beside the main thread.
+
+The streaming step (:meth:`pcreg.Propagator.step`) is one frame's work on a robot's computer, which
+has more than one core; OpenCV's DIS optical flow, what the step competes with, uses them all. On the
+helper pcreg runs
+
+- half of each windowed correspondence search (:func:`pcreg.registration.dense.match_window`: every
+  other block of samples), of the full-size field and of the fused labels (every other block of rows);
+- one of the grid's two conjugate-gradient solves (its x and y columns are independent systems);
+- the finer pyramid levels' matching problems, while the main thread works on the coarser ones;
+- the new frame's classification, while the main thread registers it.
+
+The work is the same and each item is computed by the same code whichever thread runs it, so the
+results are the same, to the bit, with or without the helper.
+
+- **Only compiled code that releases the GIL, or numpy and OpenCV, runs on it**, and never a numba
+  ``parallel=True`` kernel: numba's ``workqueue`` threading layer (:mod:`pcreg.registration.nn`) is
+  not thread-safe.
+- **One per process.** A ``--workers`` pool forks its workers; a forked child has no thread behind
+  its parent's executor (work handed to it would wait for ever), so a child makes its own. A pool's
+  workers use it only where the CPUs leave two to each worker (:func:`set_enabled`); ``PCREG_HELPER_THREAD=0``
+  in the environment turns it off.
+- **Nobody waits for a busy helper.** Work offered to it that it has not started when the caller
+  wants it is done by the caller (:func:`beside`, :func:`interleave`), so the helper only ever takes
+  work off the main thread.
+- **It is idle between calls** (a ``ThreadPoolExecutor`` of one thread, joined at the interpreter's
+  exit), and an interrupt in the main thread leaves it to finish what it holds, milliseconds.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Callable, TypeVar
+
+__all__ = ["beside", "enabled", "helper", "interleave", "set_enabled", "usable_cpus"]
+
+T = TypeVar("T")
+
+#: Set to 0 in the environment, pcreg uses no helper thread (one CPU a process, as in a pool of workers).
+ENVIRONMENT = "PCREG_HELPER_THREAD"
+
+_LOCK = threading.Lock()
+_STATE: dict = {"pool": None, "enabled": os.environ.get(ENVIRONMENT, "1").strip() != "0"}
+
+
+def _forget_after_fork() -> None:
+    """In a forked child: its parent's executor has no thread here (work handed to it would wait for
+    ever) and the lock may have been held by a parent's thread at the fork; start afresh."""
+    global _LOCK
+    _LOCK = threading.Lock()
+    _STATE["pool"] = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_after_fork)
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity; ``os.cpu_count`` where there is none)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def set_enabled(on: bool) -> None:
+    """Allow (True, the default) or forbid the helper thread in this process."""
+    _STATE["enabled"] = bool(on)
+
+
+def enabled() -> bool:
+    """Whether work may go to the helper: allowed, and this process may use two CPUs or more."""
+    return bool(_STATE["enabled"]) and usable_cpus() >= 2
+
+
+def helper() -> ThreadPoolExecutor | None:
+    """This process's helper (made on first use), or None when :func:`enabled` says no."""
+    if not enabled():
+        return None
+    with _LOCK:
+        if _STATE["pool"] is None:
+            _STATE["pool"] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-helper")
+        return _STATE["pool"]
+
+
+def _claim() -> Callable[[], bool]:
+    """A one-time claim: the first call returns True, every later one False (from any thread)."""
+    lock = threading.Lock()
+    taken = [False]
+
+    def take() -> bool:
+        with lock:
+            free, taken[0] = not taken[0], True
+            return free
+
+    return take
+
+
+def beside(fn: Callable[[], T]) -> Callable[[], T]:
+    """Offer ``fn()`` to the helper and return a function that gives its result (or raises its
+    exception): it waits for the helper, or runs ``fn`` itself when the helper has not started it
+    (busy with earlier work) or is disabled. ``fn`` runs once either way."""
+    pool = helper()
+    if pool is None:
+        return fn
+    take = _claim()
+    future: Future = pool.submit(lambda: fn() if take() else None)
+
+    def result() -> T:
+        return fn() if take() else future.result()
+
+    return result
+
+
+def interleave(n: int, fn: Callable[[int, int], object], *, min_items: int) -> None:
+    """``fn(first, stride)`` over ``n`` items in two shares, ``fn(0, 2)`` and ``fn(1, 2)``, the first
+    offered to the helper and the second run here, when ``n >= min_items`` and the helper is enabled;
+    else ``fn(0, 1)`` here. ``fn`` takes the blocks ``first, first + stride, ...`` of its items and writes
+    each item's output in its own row, so who runs a share does not change what it writes. A helper
+    still busy with earlier work when this thread has done its share leaves the other share to this
+    thread too. An exception of either share is raised here."""
+    pool = helper() if n >= min_items else None
+    if pool is None:
+        fn(0, 1)
+        return
+    take = _claim()
+    future = pool.submit(lambda: fn(0, 2) if take() else None)
+    try:
+        fn(1, 2)
+    except BaseException:
+        if not take():
+            future.exception()  # the helper's share ends first (it writes into the caller's arrays)
+        raise
+    if take():
+        fn(0, 2)  # the helper has not started it: this thread is free now
+    else:
+        future.result()

@@ -1,0 +1,130 @@
+"""The helper thread (pcreg._threads): work shared with it gives the same results, to the bit, as work
+done on one thread; a busy helper never holds the caller up; errors reach the caller."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg import _threads
+from pcreg.registration.dense import match_window
+
+
+def _with_helper(on: bool, fn):
+    before = _threads._STATE["enabled"]
+    _threads.set_enabled(on)
+    try:
+        return fn()
+    finally:
+        _threads.set_enabled(before)
+
+
+def _two_cpus():
+    if _threads.usable_cpus() < 2:
+        pytest.skip("this process may use one CPU: the helper thread is never used")
+
+
+def test_interleave_covers_every_block_once_with_and_without_the_helper():
+    _two_cpus()
+    for on in (False, True):
+        for n in (0, 1, 31, 32, 33, 1000, 4097):
+            seen = np.zeros(n, int)
+
+            def blocks(first, stride, seen=seen, n=n):
+                for b in range(first * 32, n, stride * 32):
+                    seen[b:b + 32] += 1
+
+            _with_helper(on, lambda: _threads.interleave(n, blocks, min_items=1))
+            assert np.all(seen == 1), (on, n)
+
+
+def test_a_busy_helper_leaves_the_other_share_and_the_offered_work_to_the_caller():
+    _two_cpus()
+    release = threading.Event()
+    started = threading.Event()
+    pool = _threads.helper()
+    assert pool is not None
+    busy = pool.submit(lambda: (started.set(), release.wait(30)))
+    started.wait(30)
+    try:
+        who: list[tuple[int, str]] = []
+        _threads.interleave(10, lambda first, stride: who.append((first, threading.current_thread().name)),
+                            min_items=1)
+        assert sorted(f for f, _ in who) == [0, 1]
+        assert all(name == threading.current_thread().name for _, name in who)  # nobody waited for the helper
+        result = _threads.beside(lambda: threading.current_thread().name)
+        assert result() == threading.current_thread().name
+    finally:
+        release.set()
+        busy.result(30)
+
+
+def test_work_offered_to_the_helper_runs_once_and_its_error_reaches_the_caller():
+    _two_cpus()
+    calls = []
+
+    def work():
+        calls.append(1)
+        raise KeyError("from the helper")
+
+    wait = _threads.beside(work)
+    with pytest.raises(KeyError, match="from the helper"):
+        wait()
+    assert calls == [1]
+
+    def failing(first, stride):
+        if first == 0:
+            raise ZeroDivisionError("share 0")
+
+    with pytest.raises(ZeroDivisionError, match="share 0"):
+        _threads.interleave(100, failing, min_items=1)
+
+
+def test_the_helper_is_off_with_one_cpu_or_when_disabled(monkeypatch):
+    monkeypatch.setattr(_threads, "usable_cpus", lambda: 1)
+    assert _threads.helper() is None
+    ran = []
+    assert _threads.beside(lambda: ran.append(1) or 7)() == 7 and ran == [1]
+    monkeypatch.undo()
+    _with_helper(False, lambda: pytest.fail("helper given") if _threads.helper() is not None else None)
+
+
+def test_the_split_window_search_gives_the_one_thread_answers_to_the_bit():
+    _two_cpus()
+    rng = np.random.default_rng(3)
+    ref = rng.random((60, 80, 3), dtype=np.float32)
+    mov = np.roll(ref, (2, -3), axis=(0, 1)) + rng.normal(0, 0.01, ref.shape).astype(np.float32)
+    n = 3001  # not a whole number of blocks
+    src = np.column_stack([rng.uniform(0, 79, n), rng.uniform(0, 59, n)])
+    pos = src + rng.normal(0, 2, (n, 2))
+    cols = mov[src[:, 1].astype(int), src[:, 0].astype(int)]
+    args = (ref, mov, src, pos, cols)
+    one = _with_helper(False, lambda: match_window(*args, radius=3, lam=4.0))
+    two = _with_helper(True, lambda: match_window(*args, radius=3, lam=4.0))
+    assert np.array_equal(one, two, equal_nan=True)
+    assert np.isfinite(one[:, 0]).mean() > 0.9
+
+
+def test_a_stream_gives_the_same_fields_and_labels_with_and_without_the_helper():
+    _two_cpus()
+    from pcreg.datasets import synthetic
+
+    frames = synthetic("syn2a", 5, 0, width=320, height=240)
+    runs = {}
+    for on in (False, True):
+        def stream():
+            prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+            out = []
+            for f in frames[1:]:
+                labels = prop.step(f.image)
+                r = prop.last.registration
+                out.append((labels, r.field, r.confidence, r.info["evidence"], prop.last.start))
+            return out
+        runs[on] = _with_helper(on, stream)
+    for a, b in zip(runs[False], runs[True]):
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
+        assert a[3] == b[3] and a[4] == b[4]
+    assert [r[4] for r in runs[True]] == ["cold", "warm", "warm", "warm"]

@@ -115,6 +115,22 @@ def test_fused_labels_are_the_composed_fusion_pixel_for_pixel(shape):
                               labels_from_log_odds(fuse(d, prior_log_odds(q, pi=pi), weight=weight)))
 
 
+def test_the_streams_prior_along_a_field_is_warp_priors_without_the_mask():
+    from pcreg.pipeline.prior import prior_on_moving
+
+    rng = np.random.default_rng(5)
+    q = rng.uniform(0, 1, (48, 64)).astype(np.float32)
+    grid = np.dstack(np.meshgrid(np.arange(64, dtype=np.float32), np.arange(48, dtype=np.float32)))
+    field = grid + rng.normal(0, 4, grid.shape).astype(np.float32)
+    field[0, :5] = -50.0  # off the key frame: pi there
+    for motion in (field, rigid2d(0.1, 2.0, -1.5), None):
+        expected, _ = warp_prior(q, motion, shape=(48, 64), pi=0.3)
+        assert np.array_equal(prior_on_moving(q, motion, shape=(48, 64), pi=0.3), expected)
+    assert np.all(prior_on_moving(q, field, shape=(48, 64), pi=0.3)[0, :5] == np.float32(0.3))
+    with pytest.raises(InputError, match="moving grid"):
+        prior_on_moving(q, field, shape=(40, 64), pi=0.3)
+
+
 def test_choose_weight_trusts_a_good_prior_and_ignores_a_bad_one():
     rng = np.random.default_rng(0)
     truth = (rng.random((50, 50)) < 0.4).astype(np.uint8)

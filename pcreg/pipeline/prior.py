@@ -10,8 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..classification.fusion import check_pi, prior_log_odds
+from ..errors import InputError
 
-__all__ = ["CONFIDENCE_SPAN", "class_prior", "fused_labels", "pixel_weight", "warp_prior", "warped_prior_log_odds"]
+__all__ = ["CONFIDENCE_SPAN", "class_prior", "fused_labels", "pixel_weight", "prior_on_moving", "warp_prior",
+           "warped_prior_log_odds"]
 
 #: The prior's weight per pixel, as a multiple of the fusion weight, where a dense field's confidence is 0
 #: and where it is 1 (linear between): a factor of two either way. Where the field has the evidence of
@@ -44,6 +46,25 @@ def warp_prior(q: np.ndarray, motion, *, shape: tuple[int, int], pi: float
     pi = check_pi(pi)
     motion = np.eye(3) if motion is None else motion
     return warp_to_moving(np.asarray(q, dtype=np.float32), motion, shape=shape, interpolation="linear", fill=pi)
+
+
+def prior_on_moving(q: np.ndarray, motion, *, shape: tuple[int, int], pi: float) -> np.ndarray:
+    """:func:`warp_prior`'s ``q_mov`` alone, without its validity mask: along a dense field one
+    ``cv2.remap`` (the field is its two-channel map; the same values as :func:`warp_prior`'s), else
+    :func:`warp_prior`. The stream's step needs no mask: where the field leaves the key frame the prior
+    is ``pi``, which carries no evidence."""
+    import cv2
+
+    from ..registration.motion import Motion
+
+    m = None if motion is None else Motion.of(motion)
+    if m is None or m.field is None:
+        return warp_prior(q, m, shape=shape, pi=pi)[0]
+    if m.field.shape[:2] != tuple(shape[:2]):
+        raise InputError(f"warp: the field is {m.field.shape[1]}x{m.field.shape[0]} but the moving grid is "
+                         f"{shape[1]}x{shape[0]}")
+    return cv2.remap(np.asarray(q, dtype=np.float32), m.field, None, cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=check_pi(pi))
 
 
 def warped_prior_log_odds(q: np.ndarray, motion, *, shape: tuple[int, int], pi: float) -> np.ndarray:

@@ -75,7 +75,7 @@ import numpy as np
 from .._threads import beside
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import FusionConfig, label_prior
-from .prior import class_prior, fused_labels, warp_prior
+from .prior import class_prior, fused_labels, prior_on_moving
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
@@ -341,7 +341,7 @@ class Propagator:
         times.update(classify_times)
 
         t2 = time.perf_counter()
-        q, _ = warp_prior(self._key_prior, motion, shape=d.shape, pi=self._pi)
+        q = prior_on_moving(self._key_prior, motion, shape=d.shape, pi=self._pi)
         t3 = time.perf_counter()
         labels = fused_labels(d, q, None if motion is None else motion.confidence, weight=self.weight, pi=self._pi)
         if motion is not None and self.anchor == "previous":

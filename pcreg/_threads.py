@@ -34,7 +34,7 @@ import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, TypeVar
 
-__all__ = ["beside", "enabled", "helper", "interleave", "set_enabled", "usable_cpus"]
+__all__ = ["beside", "close", "enabled", "helper", "interleave", "set_enabled", "usable_cpus"]
 
 T = TypeVar("T")
 
@@ -83,6 +83,16 @@ def helper() -> ThreadPoolExecutor | None:
         if _STATE["pool"] is None:
             _STATE["pool"] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-helper")
         return _STATE["pool"]
+
+
+def close() -> None:
+    """Let the helper finish what it holds and end it (a later use makes a new one). Commands call it
+    before they return, interrupted or not, so that no helper thread is alive when the interpreter
+    shuts down, whatever the order of the interpreter's own exit hooks."""
+    with _LOCK:
+        pool, _STATE["pool"] = _STATE["pool"], None
+    if pool is not None:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _claim() -> Callable[[], bool]:

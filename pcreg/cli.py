@@ -134,15 +134,19 @@ def main(argv: list[str] | None = None) -> int:
                              "(PCREG_TRACEBACK=1 shows the traceback)\n")
         return 1
     finally:
-        if argv is None and interrupted():  # the program itself is stopping on a signal: let it exit 130
+        stopping = argv is None and interrupted()
+        if stopping:  # the program itself is stopping on a signal: let it exit 130
             ignore_signals()
             forget_stray_interrupt()
-        else:
-            restore_signals(previous)
         if saved_limit is None:
             os.environ.pop("PCREG_MAX_PIXELS", None)
         else:
             os.environ["PCREG_MAX_PIXELS"] = saved_limit
+        from . import _threads
+
+        _threads.close()  # the helper thread ends here (milliseconds), not in the interpreter's shutdown
+        if not stopping:
+            restore_signals(previous)
 
 
 def _one_line(exc: BaseException) -> str:

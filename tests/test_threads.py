@@ -128,3 +128,22 @@ def test_a_stream_gives_the_same_fields_and_labels_with_and_without_the_helper()
         assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
         assert a[3] == b[3] and a[4] == b[4]
     assert [r[4] for r in runs[True]] == ["cold", "warm", "warm", "warm"]
+
+
+def test_close_ends_the_helper_after_its_work_and_a_later_use_makes_a_new_one():
+    _two_cpus()
+    started, release = threading.Event(), threading.Event()
+    done = []
+    pool = _threads.helper()
+    pool.submit(lambda: (started.set(), release.wait(30), done.append(1)))
+    started.wait(30)
+    closer = threading.Thread(target=_threads.close)
+    closer.start()
+    assert not done  # close waits for the work the helper holds ...
+    release.set()
+    closer.join(30)
+    assert not closer.is_alive() and done == [1]  # ... which was finished first
+    assert not any(t.name.startswith("pcreg-helper") and t.is_alive() for t in threading.enumerate())
+    again = _threads.helper()
+    assert again is not None and again is not pool
+    assert _threads.beside(lambda: 41 + 1)() == 42

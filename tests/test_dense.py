@@ -366,8 +366,8 @@ def test_the_full_size_field_interpolates_the_grid_at_each_pixels_place(level):
     gx, gy = (xs - (f - 1) / 2) / (f * s), (ys - (f - 1) / 2) / (f * s)
     grid = (f * U).reshape(gshape[0], gshape[1], 2)
     expected = field_from_matrix(T, (h, w)) + bilinear(grid, gx, gy)
-    # exact bilinear weights (not OpenCV's steps of 1/32), rounded once to float32 and added to the
-    # float32 global part: a few float32 roundings of coordinates up to a few hundred pixels
+    # bilinear weights in float64, the sum rounded once to float32 and added to the float32 global part:
+    # a few float32 roundings of coordinates up to a few hundred pixels
     assert np.abs(out.field - expected).max() <= 1e-4
     conf = bilinear(np.clip(weights / (0.25 * s * s * 0.5), 0, 1).reshape(gshape), gx, gy)
     inside = ((out.field[..., 0] >= -0.5) & (out.field[..., 0] <= w - 0.5)

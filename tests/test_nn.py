@@ -58,6 +58,32 @@ def test_ties_go_to_the_lowest_index_and_the_bound_is_strict():
     assert idx[0] == -1 and d2[0] == 0.25
 
 
+@pytest.mark.parametrize("d", [2, 3])
+def test_crowded_cells_with_repeated_points_answer_as_a_brute_force_search(d):
+    """Cells of more than SORTED_CELL_MIN points are sorted by x and read within reach of the query, and
+    points repeated there are indexed once: the answers are a brute-force search's, ties (repeats, and
+    points on a lattice equidistant from the query) to the lowest index."""
+    from pcreg.registration import nn
+
+    rng = np.random.default_rng(d)
+    crowd = np.round(rng.normal(0, 0.05, (3000, d)), 2)  # one crowded spot on a 0.01 lattice: many ties
+    repeats = np.repeat(rng.uniform(-0.1, 0.1, (5, d)), 200, axis=0)  # 5 points, 200 copies each
+    tgt = np.concatenate([crowd, repeats, rng.uniform(-5, 5, (500, d))])[rng.permutation(4500)]
+    index = GridIndex(tgt, cell=0.5)
+    counts = np.diff(index._start)
+    assert counts.max() > nn.SORTED_CELL_MIN  # the sorted path is taken
+    assert index._spts.shape[0] < len(tgt)  # and repeats were dropped
+    q = np.concatenate([np.round(rng.normal(0, 0.06, (400, d)), 3), tgt[:100], rng.uniform(-6, 6, (100, d))])
+    for bound in (0.004, 0.05, np.inf):
+        d2, idx = index.nearest(q, bound)
+        dist = ((q[:, None, :] - tgt[None, :, :]) ** 2).sum(axis=2)
+        best = dist.min(axis=1)
+        inside = best < bound * bound
+        want = np.where(inside, np.argmax(dist == best[:, None], axis=1), -1)  # the lowest index at the minimum
+        np.testing.assert_array_equal(idx, want)
+        np.testing.assert_array_equal(d2[inside], best[inside])
+
+
 def test_nan_queries_and_a_single_point():
     index = GridIndex(np.array([[1.0, 2.0]]))
     d2, idx = index.nearest(np.array([[np.nan, 0.0], [1.0, 2.5], [1e300, 0.0]]), 1.0)

@@ -170,7 +170,7 @@ def test_a_forked_worker_runs_the_parallel_kernels_after_its_parent():
 def test_small_batches_use_the_threads_only_while_a_core_is_spare(monkeypatch):
     from pcreg.registration import nn
 
-    monkeypatch.setattr(nn, "_usable_cpus", lambda: 2)
+    monkeypatch.setattr(nn, "usable_cpus", lambda: 2)
     monkeypatch.setattr(nn.numba, "get_num_threads", lambda: 2)
     for load, small in ((0.4, True), (1.4, True), (1.5, False), (2.2, False)):
         monkeypatch.setattr(nn.os, "getloadavg", lambda load=load: (load, load, load))

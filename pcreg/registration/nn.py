@@ -38,6 +38,8 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from .._threads import usable_cpus
+
 
 def _choose_threading_layer() -> None:
     """Name numba's threading layer instead of letting it probe: this module and the reference ICP's
@@ -70,13 +72,6 @@ PARALLEL_MIN_QUERIES = 20000
 PARALLEL_MIN_QUERIES_IDLE = 1000
 
 
-def _usable_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
 def threaded(n: int) -> bool:
     """Whether a batch of ``n`` queries runs on numba's threads: from :data:`PARALLEL_MIN_QUERIES`
     always, from :data:`PARALLEL_MIN_QUERIES_IDLE` while the 1-minute load average (this process, about
@@ -90,7 +85,7 @@ def threaded(n: int) -> bool:
         load = os.getloadavg()[0]
     except OSError:  # pragma: no cover - no load average on this system
         return False
-    return load < _usable_cpus() - 0.5
+    return load < usable_cpus() - 0.5
 
 
 #: A cell holding more points than this is kept sorted by the first coordinate, and a query reads only
@@ -299,6 +294,8 @@ def _nearest(q, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed):
                         continue
                     key = ix + n0 * (iy + n1 * iz)
                     s0, s1 = _cell_range(key, hashed, start, tkeys, tcell)
+                    # the plain scan written out here, as _scan_sorted's: calling one scan function per
+                    # cell for both measured 1.5x slower on 2-D image clouds
                     if s1 - s0 <= SORTED_CELL_MIN:
                         for j in range(s0, s1):
                             diff = q[0] - spts[j, 0]

@@ -92,6 +92,10 @@ def test_window_search_is_the_exact_nearest_neighbour_in_position_and_colour():
     fast = match_window(ref, mov, src, pos, cols, radius=radius, lam=lam)
     slow = match_window(ref, mov, src, pos, cols, radius=radius, lam=lam, compiled=False)
     np.testing.assert_allclose(fast, slow, rtol=1e-6, atol=1e-6)
+    # without the mutual test (what the evidence needs): the same matches and distances, no flags
+    alone = match_window(ref, mov, src, pos, cols, radius=radius, lam=lam, mutual=False)
+    np.testing.assert_array_equal(alone[:, :3], fast[:, :3])
+    assert not alone[:, 3].any() and fast[:, 3].any()
     ys, xs = np.mgrid[0:30, 0:40]
     feats = np.column_stack([xs.ravel(), ys.ravel(), lam * ref.reshape(-1, 3)])
     tree = cKDTree(feats)

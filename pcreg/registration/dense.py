@@ -220,7 +220,7 @@ def _best_in_window_py(img, x, y, src, sy, sx, radius, lam2):
 MATCH_BLOCK = 32
 
 
-def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out, first, stride):
+def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, mutual, out, first, stride):
     """Pure-Python body of :func:`match_window` (compiled with numba when it is installed): the samples
     of blocks ``first``, ``first + stride``, ... of :data:`MATCH_BLOCK` samples."""
     h, w, nc = ref.shape
@@ -273,7 +273,7 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out, first, str
                 d = ref[by, bx, k] - cols[i, k]
                 s += d * d
             out[i, 2] = math.sqrt(s)
-            if rim:
+            if rim or not mutual:
                 continue
             # mutual test: the reference point's nearest moving pixel, searched back around where the
             # point's own displacement says it came from, must be the point (within a pixel)
@@ -301,7 +301,8 @@ SPLIT_MIN_SAMPLES = 1000
 
 
 def match_window(reference: np.ndarray, moving: np.ndarray, sources: np.ndarray, positions: np.ndarray,
-                 colours: np.ndarray, *, radius: int, lam: float, compiled: bool = True) -> np.ndarray:
+                 colours: np.ndarray, *, radius: int, lam: float, mutual: bool = True,
+                 compiled: bool = True) -> np.ndarray:
     """Exact nearest neighbours in ``(x, y, lam * colour)`` within a square gate.
 
     reference, moving : (h, w, C) float32 images of one pyramid level (the reference cloud is every
@@ -309,6 +310,8 @@ def match_window(reference: np.ndarray, moving: np.ndarray, sources: np.ndarray,
     sources : (N, 2) moving pixel coordinates of the samples; positions : (N, 2) where the current
         field puts them in the reference; colours : (N, C) float32 their colours.
     radius : the gate, in pixels of this level (the window is (2 radius + 1)^2 pixels).
+    mutual : test each match that is not on the gate's rim for being mutual (a second window search,
+        back in ``moving``); False leaves the fourth column 0 and the first three as they are.
     Returns (N, 4) float64: matched reference x, y (sub-pixel; NaN where the gate holds no pixel),
     colour distance, and 1.0 where the match is mutual and not on the gate's rim (else 0.0).
     """
@@ -322,10 +325,10 @@ def match_window(reference: np.ndarray, moving: np.ndarray, sources: np.ndarray,
     x, y = np.ascontiguousarray(pos[:, 0]), np.ascontiguousarray(pos[:, 1])
     radius, lam2 = int(radius), float(lam) ** 2
     if not (compiled and _match_window_jit is not None):
-        return _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, out, 0, 1)
+        return _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, bool(mutual), out, 0, 1)
 
     def blocks(first: int, stride: int) -> None:  # each sample's match is its own: any share is independent
-        _match_window_jit(ref, mov, px, py, x, y, cols, radius, lam2, out, first, stride)
+        _match_window_jit(ref, mov, px, py, x, y, cols, radius, lam2, bool(mutual), out, first, stride)
 
     interleave(len(pos), blocks, min_items=SPLIT_MIN_SAMPLES)
     return out
@@ -745,9 +748,10 @@ def _plausibility(R, Mv, P, C, GP, NE, lam, radius, U) -> float:
     noise and on frames of different CamVid clips), 1.3-3.3 for neighbouring frames of one clip."""
     h, w = R.shape[:2]
     X = GP + NE.interpolate(U)
-    m = match_window(R, Mv, P, X, C, radius=radius, lam=lam)
+    # the colour distances alone: no mutual test (the same distances, half the search)
+    m = match_window(R, Mv, P, X, C, radius=radius, lam=lam, mutual=False)
     Xc = np.column_stack([np.mod(X[:, 0] + 0.5 * w, w), np.mod(X[:, 1] + 0.5 * h, h)])
-    mc = match_window(R, Mv, P, Xc, C, radius=radius, lam=lam)
+    mc = match_window(R, Mv, P, Xc, C, radius=radius, lam=lam, mutual=False)
     return float(np.nanmedian(mc[:, 2]) / max(float(np.nanmedian(m[:, 2])), 1e-9))
 
 

@@ -34,12 +34,17 @@ import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, TypeVar
 
-__all__ = ["beside", "close", "enabled", "helper", "interleave", "set_enabled", "usable_cpus"]
+__all__ = ["MIN_PIXELS", "beside", "close", "enabled", "helper", "interleave", "set_enabled", "usable_cpus"]
 
 T = TypeVar("T")
 
 #: Set to 0 in the environment, pcreg uses no helper thread (one CPU a process, as in a pool of workers).
 ENVIRONMENT = "PCREG_HELPER_THREAD"
+
+#: From this many pixels a per-pixel pass (the full-size field, the stream's fusion) shares its rows with
+#: the helper: at a few nanoseconds a pixel, 65,536 pixels are a few hundred microseconds of work, well
+#: above the tens of microseconds that handing a share over costs.
+MIN_PIXELS = 1 << 16
 
 _LOCK = threading.Lock()
 _STATE: dict = {"pool": None, "enabled": os.environ.get(ENVIRONMENT, "1").strip() != "0"}

@@ -9,8 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classification.fusion import check_pi, prior_log_odds
-from ..errors import InputError
+from ..classification.fusion import check_pi, fuse, labels_from_log_odds, prior_log_odds
 
 __all__ = ["CONFIDENCE_SPAN", "class_prior", "fused_labels", "pixel_weight", "prior_on_moving", "warp_prior",
            "warped_prior_log_odds"]
@@ -56,14 +55,12 @@ def prior_on_moving(q: np.ndarray, motion, *, shape: tuple[int, int], pi: float)
     import cv2
 
     from ..registration.motion import Motion
+    from ..registration.warp import check_field
 
     m = None if motion is None else Motion.of(motion)
     if m is None or m.field is None:
         return warp_prior(q, m, shape=shape, pi=pi)[0]
-    if m.field.shape[:2] != tuple(shape[:2]):
-        raise InputError(f"warp: the field is {m.field.shape[1]}x{m.field.shape[0]} but the moving grid is "
-                         f"{shape[1]}x{shape[0]}")
-    return cv2.remap(np.asarray(q, dtype=np.float32), m.field, None, cv2.INTER_LINEAR,
+    return cv2.remap(np.asarray(q, dtype=np.float32), check_field(m.field, shape), None, cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=check_pi(pi))
 
 
@@ -96,8 +93,7 @@ def fused_labels(log_odds: np.ndarray, q: np.ndarray, confidence: np.ndarray | N
     obstacle; confidence : (H, W) the dense field's confidence, or None (one weight everywhere).
     The rows are split with the helper thread (:mod:`pcreg._threads`) on large images.
     """
-    from .._threads import interleave
-    from ..classification.fusion import check_pi, fuse, labels_from_log_odds
+    from .._threads import MIN_PIXELS, interleave
 
     d = np.ascontiguousarray(log_odds, dtype=np.float32)
     qq = np.ascontiguousarray(q, dtype=np.float32)
@@ -113,7 +109,7 @@ def fused_labels(log_odds: np.ndarray, q: np.ndarray, confidence: np.ndarray | N
     out = np.empty(d.shape, np.uint8)
     consts = (np.float32(weight), np.float32(lo), np.float32(hi - lo), np.float32(np.log(pi / (1.0 - pi))))
     interleave(d.size, lambda first, stride: _fused_rows(d, qq, c, *consts, out, first, stride),
-               min_items=1 << 16)
+               min_items=MIN_PIXELS)
     return out
 
 

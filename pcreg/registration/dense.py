@@ -67,9 +67,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .._threads import beside, interleave
+from .._threads import MIN_PIXELS, beside, interleave
 from ..errors import InputError, RegistrationError
-from .motion import field_from_matrix
+from .motion import _field_row, field_from_matrix
 from .result import RegistrationResult
 from ..validation import check_bool, check_float, check_floats, check_int
 
@@ -1090,14 +1090,12 @@ def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Lev
         _field_rows_py(M, grid, conf_nodes, f, s, field_full, conf, 0, 1)
     else:
         interleave(h * w, lambda first, stride: _field_rows_jit(M, grid, conf_nodes, f, s, field_full, conf,
-                                                                first, stride), min_items=SPLIT_MIN_PIXELS)
+                                                                first, stride), min_items=MIN_PIXELS)
     return _FullField(field_full, conf, grid)
 
 
 #: Rows per block of :func:`_field_rows_py` (two threads take alternate blocks).
 FIELD_BLOCK_ROWS = 16
-#: From this many pixels the full-size field is made on two threads (:mod:`pcreg._threads`).
-SPLIT_MIN_PIXELS = 1 << 16
 
 
 def _cell_py(g, n):
@@ -1119,7 +1117,6 @@ def _field_rows_py(M, grid, conf_nodes, f, s, field, conf, first, stride):
     g[y1]``), then each pixel that row's nodes."""
     h, w = field.shape[0], field.shape[1]
     gh, gw = conf_nodes.shape[0], conf_nodes.shape[1]
-    affine = M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1
     half = (f - 1.0) / 2.0
     cells = 1.0 / (f * s)
     xi0 = np.empty(w, np.int64)
@@ -1136,18 +1133,7 @@ def _field_rows_py(M, grid, conf_nodes, f, s, field, conf, first, stride):
                 row[k, 0] = (1.0 - ay) * grid[y0, k, 0] + ay * grid[y1, k, 0]
                 row[k, 1] = (1.0 - ay) * grid[y0, k, 1] + ay * grid[y1, k, 1]
                 row[k, 2] = (1.0 - ay) * conf_nodes[y0, k] + ay * conf_nodes[y1, k]
-            if affine:  # the global part of the row first (field_from_matrix's arithmetic), then the grid's
-                cx = M[0, 1] * y + M[0, 2]
-                cy = M[1, 1] * y + M[1, 2]
-                for j in range(w):
-                    field[i, j, 0] = np.float32(M[0, 0] * float(j) + cx)
-                    field[i, j, 1] = np.float32(M[1, 0] * float(j) + cy)
-            else:
-                for j in range(w):
-                    x = float(j)
-                    den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
-                    field[i, j, 0] = np.float32((M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den)
-                    field[i, j, 1] = np.float32((M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den)
+            _field_row(M, y, field[i])  # the global part of the row first (field_from_matrix's), then the grid's
             for j in range(w):
                 x0, x1, ax = xi0[j], xi1[j], xa[j]
                 fx = field[i, j, 0] + np.float32((1.0 - ax) * row[x0, 0] + ax * row[x1, 0])

@@ -119,22 +119,30 @@ def field_from_matrix(T_ref_mov: np.ndarray, shape: tuple[int, int]) -> np.ndarr
     return _field_py(M, out)
 
 
-def _field_py(M, out):
-    """``out[y, x]`` = ``M (x, y, 1)`` (projected), in float64 and rounded once to float32; the same
-    operations in the same order as a broadcast of the pixel coordinates."""
-    h, w = out.shape[0], out.shape[1]
-    affine = M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1
-    for i in range(h):
-        y = float(i)
+def _field_row_py(M, y, row):
+    """``row[x]`` = ``M (x, y, 1)`` (projected) for one row ``y`` of a field, ``row`` (W, 2) float32: in
+    float64 and rounded once to float32, the same operations in the same order as a broadcast of the
+    pixel coordinates (an affine row's ``M[0, 1] y + M[0, 2]`` is the same for every pixel)."""
+    w = row.shape[0]
+    if M[2, 0] == 0 and M[2, 1] == 0 and M[2, 2] == 1:
+        cx = M[0, 1] * y + M[0, 2]
+        cy = M[1, 1] * y + M[1, 2]
         for j in range(w):
             x = float(j)
-            if affine:
-                out[i, j, 0] = M[0, 0] * x + (M[0, 1] * y + M[0, 2])
-                out[i, j, 1] = M[1, 0] * x + (M[1, 1] * y + M[1, 2])
-            else:
-                den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
-                out[i, j, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den
-                out[i, j, 1] = (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den
+            row[j, 0] = M[0, 0] * x + cx
+            row[j, 1] = M[1, 0] * x + cy
+    else:
+        for j in range(w):
+            x = float(j)
+            den = M[2, 0] * x + M[2, 1] * y + M[2, 2]
+            row[j, 0] = (M[0, 0] * x + M[0, 1] * y + M[0, 2]) / den
+            row[j, 1] = (M[1, 0] * x + M[1, 1] * y + M[1, 2]) / den
+
+
+def _field_py(M, out):
+    """``out[y, x]`` = ``M (x, y, 1)`` (projected) for every pixel, row by row (:func:`_field_row_py`)."""
+    for i in range(out.shape[0]):
+        _field_row(M, float(i), out[i])
     return out
 
 
@@ -143,9 +151,10 @@ try:  # compiled with numba (a declared dependency); the Python body is the same
 
     # numpy's error model: a pixel on a projective transform's horizon divides by zero and gets inf
     # or NaN, as in numpy, instead of raising
+    _field_row = _njit(cache=True, nogil=True, inline="always", error_model="numpy")(_field_row_py)
     _field_jit = _njit(cache=True, nogil=True, error_model="numpy")(_field_py)
 except ImportError:  # pragma: no cover
-    _field_jit = None
+    _field_row, _field_jit = _field_row_py, None
 
 
 def _array(x: Any, dtype: type, what: str) -> np.ndarray:

@@ -43,7 +43,7 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     fill = _check_remap_input(moving, interpolation, fill)
     motion = _motion(T_ref_mov)
     if motion.field is not None:
-        fld = _check_field(motion.field, moving.shape[:2])
+        fld = check_field(motion.field, moving.shape[:2])
         h, w = _check_shape(shape if shape is not None else moving.shape[:2])
         inverse, ok = invert_field(fld, (h, w))
         warped, valid = _remap(moving, inverse, interpolation=interpolation, fill=fill)
@@ -91,7 +91,7 @@ def _check_shape(shape) -> tuple[int, int]:
 # dense fields
 # ---------------------------------------------------------------------------------------------------
 
-def _check_field(fld: np.ndarray, shape: tuple[int, int] | None) -> np.ndarray:
+def check_field(fld: np.ndarray, shape: tuple[int, int] | None) -> np.ndarray:
     """A motion's field (checked by :class:`Motion`), of the moving grid's size where that is known."""
     if shape is not None and fld.shape[:2] != tuple(shape[:2]):
         raise InputError(f"warp: the field is {fld.shape[1]}x{fld.shape[0]} but the moving grid is "
@@ -165,7 +165,7 @@ def warp_to_moving(reference: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] |
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {reference.shape}")
     motion = _motion(T_ref_mov)
     if motion.field is not None:
-        fld = _check_field(motion.field, shape[:2] if shape is not None else None)
+        fld = check_field(motion.field, shape[:2] if shape is not None else None)
         fill = _check_remap_input(reference, interpolation, fill)
         return _remap(reference, fld, interpolation=interpolation, fill=fill)
     M = motion.matrix

@@ -104,7 +104,12 @@ def test_bench_recording_measures_the_real_sequence_pipeline(tmp_path, monkeypat
     assert "### Checks" in (out / "recording.md").read_text()
 
 
-def test_bench_icp_without_data_compares_three_implementations(tmp_path):
+@pytest.mark.parametrize("threads", [False, True])
+def test_bench_icp_without_data_compares_three_implementations(tmp_path, monkeypatch, threads):
+    from pcreg.registration import nn
+
+    # the profile finds the compiled loop whichever of its two forms runs
+    monkeypatch.setattr(nn, "threaded", lambda n: threads)
     bench = _load("bench_icp")
     out = tmp_path / "bench"
     assert bench.main(["--out", str(out), "--data", str(tmp_path / "absent"), "--sizes", "300,600",

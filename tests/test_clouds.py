@@ -115,3 +115,39 @@ def test_load_image_gray_and_16bit(tmp_path):
 
 def test_flat_image_has_no_edges():
     assert len(image_cloud(np.full((50, 50, 3), 128, np.uint8))) == 0
+
+
+def _at_offset(a: np.ndarray, offset: int) -> np.ndarray:
+    """A copy of ``a`` starting ``offset`` bytes into a fresh buffer (another alignment)."""
+    buf = np.empty(a.nbytes + 64, np.uint8)[offset:offset + a.nbytes].view(a.dtype).reshape(a.shape)
+    buf[...] = a
+    return buf
+
+
+def test_gradient_magnitude_is_correctly_rounded_whatever_the_buffer():
+    from pcreg.registration.clouds import magnitude
+
+    rng = np.random.default_rng(5)
+    # Sobel responses of 8-bit images: integers up to 4 * 255 (their squares' sum is exact in float32)
+    gx, gy = (rng.integers(-1020, 1021, (481, 643)).astype(np.float32) for _ in range(2))
+    want = np.sqrt(gx.astype(np.float64) ** 2 + gy.astype(np.float64) ** 2).astype(np.float32)
+    for offset in (0, 4, 8, 12, 36):
+        got = magnitude(_at_offset(gx, offset), _at_offset(gy, offset + 4))
+        assert got.dtype == np.float32
+        np.testing.assert_array_equal(got, want)
+
+
+def test_the_same_images_register_to_the_same_transform_and_field_in_any_buffer():
+    import pcreg
+    from pcreg.datasets import synthetic
+
+    frames = synthetic("syn2a", 2, 0, width=640, height=480)
+    a, b = frames[0].image, frames[1].image
+    first = pcreg.register(a, b)
+    first_dense = pcreg.register_dense(a, b)
+    for offset in range(1, 6):
+        np.testing.assert_array_equal(pcreg.register(_at_offset(a, offset), _at_offset(b, offset + 3)).matrix,
+                                      first.matrix)
+    for offset in (1, 2, 3):
+        np.testing.assert_array_equal(
+            pcreg.register_dense(_at_offset(a, offset), _at_offset(b, offset + 2)).field, first_dense.field)

@@ -130,7 +130,9 @@ def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int,
 PROFILE_PARTS = (
     ("index build (GridIndex)", (("nn.py", "__init__"),)),
     ("first match (move_and_match)", (("nn.py", "move_and_match"),)),
-    ("compiled loop (update, move, search, sums, stopping rule)", (("reference.py", "_moment_loop"),)),
+    # one thread or numba's threads (nn.threaded): the reference runs one of the two loops
+    ("compiled loop (update, move, search, sums, stopping rule)", (("reference.py", "_moment_loop"),
+                                                                   ("reference.py", "_moment_loop_threads"))),
 )
 
 

@@ -69,6 +69,7 @@ import scipy.sparse.linalg as spla
 
 from .._threads import MIN_PIXELS, beside, interleave
 from ..errors import InputError, RegistrationError
+from .clouds import magnitude, valid_region
 from .motion import _field_row, field_from_matrix
 from .result import RegistrationResult
 from ..validation import check_bool, check_float, check_floats, check_int
@@ -625,7 +626,7 @@ def _samples(img: np.ndarray, sigma: float, *, max_points: int, seed: int, valid
     gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
-    mag = cv2.magnitude(gx, gy)
+    mag = magnitude(gx, gy)
     thr = max(3.0 * math.sqrt(12.0) * sigma, 8.0 / 255.0)
     keep = mag > thr
     keep[[0, -1], :] = False
@@ -821,8 +822,6 @@ class _Pyramids:
 
 def _pyramid(img: np.ndarray, coarsest: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """One image as float32 RGB in [0, 1] per level 0 .. ``coarsest``, and its valid masks."""
-    from .clouds import valid_region
-
     pyr, val = [_unit_float(img)], [valid_region(img)]
     for _ in range(coarsest):
         pyr.append(cv2.pyrDown(pyr[-1]))

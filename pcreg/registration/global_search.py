@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .clouds import ImageCloud, valid_region
+from .clouds import ImageCloud, magnitude, valid_region
 from .transforms import about_point, apply, image_center, rigid2d
 
 GENERATORS = ("fourier_mellin", "edges", "orb")
@@ -205,7 +205,7 @@ def fourier_mellin_hypotheses(reference_image: np.ndarray, moving_image: np.ndar
 
     def logpolar_magnitude(img):
         F = cv2.dft(img * win, flags=cv2.DFT_COMPLEX_OUTPUT)
-        F = np.fft.fftshift(cv2.magnitude(F[..., 0], F[..., 1]))
+        F = np.fft.fftshift(magnitude(F[..., 0], F[..., 1]))
         F = np.log1p(F * highpass)
         return cv2.warpPolar(F, (size, size), (size / 2, size / 2), size / 2,
                              cv2.WARP_POLAR_LOG | cv2.INTER_LINEAR)

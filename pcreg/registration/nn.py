@@ -199,6 +199,47 @@ def _build(points, origin, h, dims, hashed):
     return spts, sidx, start, tkeys, tcell
 
 
+@njit(cache=True)
+def _repeats(spts, sidx, start, m):
+    """(m,) bool: the points that repeat a point of lower index in the same crowded cell (more than
+    :data:`SORTED_CELL_MIN` points), from :func:`_build`'s output. A crowded cell is sorted by x, stably,
+    so equal points lie in one run of equal x, in ascending index; each point of a run is compared with
+    the run's distinct points before it (a run is one point long unless x repeats)."""
+    drop = np.zeros(m, np.bool_)
+    d = spts.shape[1]
+    for c in range(start.shape[0] - 1):
+        s0, s1 = start[c], start[c + 1]
+        if s1 - s0 <= SORTED_CELL_MIN:
+            continue
+        r0 = s0
+        while r0 < s1:
+            r1 = r0 + 1
+            while r1 < s1 and spts[r1, 0] == spts[r0, 0]:
+                r1 += 1
+            if r1 - r0 > 1:
+                firsts = np.empty(r1 - r0, np.int64)  # the run's distinct points so far
+                n = 0
+                for j in range(r0, r1):
+                    seen = False
+                    for t in range(n):
+                        f = firsts[t]
+                        same = True
+                        for a in range(1, d):
+                            if spts[j, a] != spts[f, a]:
+                                same = False
+                                break
+                        if same:
+                            seen = True
+                            break
+                    if seen:
+                        drop[sidx[j]] = True
+                    else:
+                        firsts[n] = j
+                        n += 1
+            r0 = r1
+    return drop
+
+
 # ---------------------------------------------------------------------------------------------------
 # one query
 # ---------------------------------------------------------------------------------------------------
@@ -513,17 +554,11 @@ class GridIndex:
         """Index each point repeated in a crowded cell once, by its lowest index: a query's answer is the
         same (the lowest index wins a tie), and the cell no longer holds copies (a LiDAR scan can return
         thousands of points at one place: 5,032 in one cell of the LiDAR pair, which every query near
-        it read). Only crowded cells' points are compared (``np.unique`` on them)."""
-        counts = np.diff(self._start)
-        crowded = np.repeat(counts > SORTED_CELL_MIN, counts)
-        members = np.sort(self._sidx[crowded])
-        _, first = np.unique(pts[members], axis=0, return_index=True)
-        if first.size == members.size:
+        it read). Only crowded cells' points are compared (:func:`_repeats`)."""
+        drop = _repeats(self._spts, self._sidx, self._start, pts.shape[0])
+        if not drop.any():
             return
-        kept = np.ones(pts.shape[0], bool)
-        kept[members] = False
-        kept[members[first]] = True  # the first (lowest index) of each distinct point stays
-        keep = np.flatnonzero(kept)
+        keep = np.flatnonzero(~drop)
         spts, sidx, start, tkeys, tcell = _build(np.ascontiguousarray(pts[keep]), self.origin, self.cell, self.dims,
                                                  self.hashed)
         self._spts, self._sidx, self._start, self._tkeys, self._tcell = spts, keep[sidx], start, tkeys, tcell

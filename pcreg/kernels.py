@@ -7,6 +7,7 @@ point-to-point loop (:mod:`pcreg.registration.reference`), the sub-pixel edges o
 (:mod:`pcreg.registration.clouds`), the dense registration's window search, assembly, solver and
 full-size field (:mod:`pcreg.registration.dense`), the field of a transform
 (:mod:`pcreg.registration.motion`) and the stream's one-pass fusion (:mod:`pcreg.pipeline.prior`).
+Their cache is keyed to all of their sources together (:mod:`pcreg._jit`).
 """
 
 from __future__ import annotations

@@ -139,7 +139,7 @@ def _fused_rows_py(d, q, conf, weight, lo, span, logit_pi, out, first, stride):
 
 
 try:
-    from numba import njit as _njit
+    from .._jit import njit as _njit
 
     _fused_rows = _njit(cache=True, nogil=True)(_fused_rows_py)
 except ImportError:  # pragma: no cover - numba is a declared dependency

@@ -8,7 +8,7 @@ temporary arrays.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 
 @njit(cache=True, inline="always")

@@ -287,7 +287,7 @@ def _match_window_py(ref, mov, px, py, x, y, cols, radius, lam2, mutual, out, fi
 
 
 try:  # the compiled search; the pure-Python body is the same code and the fallback
-    from numba import njit
+    from .._jit import njit
 
     _best_in_window = njit(cache=True, nogil=True, inline="always")(_best_in_window_py)
     _match_window_jit = njit(cache=True, nogil=True)(_match_window_py)
@@ -555,7 +555,7 @@ def _cg_dia_py(data, offsets, b, x, maxiter, rtol):
 
 
 try:
-    from numba import njit as _njit
+    from .._jit import njit as _njit
 
     _assemble = _njit(cache=True, nogil=True)(_assemble_py)
     _cg_dia = _njit(cache=True, nogil=True)(_cg_dia_py)
@@ -709,7 +709,7 @@ def _weigh_assemble_py(m, x, start, scale, cols, vals, pair_k, data, rhs, node_w
 
 
 try:
-    from numba import njit as _njit
+    from .._jit import njit as _njit
 
     _robust_scale = _njit(cache=True, nogil=True)(_robust_scale_py)
     _weigh_assemble = _njit(cache=True, nogil=True)(_weigh_assemble_py)
@@ -1146,7 +1146,7 @@ def _field_rows_py(M, grid, conf_nodes, f, s, field, conf, first, stride):
 
 
 try:
-    from numba import njit as _njit
+    from .._jit import njit as _njit
 
     _cell = _njit(cache=True, nogil=True, inline="always")(_cell_py)
     # numpy's error model: a pixel on a projective transform's horizon divides by zero and gets inf or

@@ -147,7 +147,7 @@ def _field_py(M, out):
 
 
 try:  # compiled with numba (a declared dependency); the Python body is the same code and the fallback
-    from numba import njit as _njit
+    from .._jit import njit as _njit
 
     # numpy's error model: a pixel on a projective transform's horizon divides by zero and gets inf
     # or NaN, as in numpy, instead of raising

@@ -36,8 +36,8 @@ import os
 
 import numba
 import numpy as np
-from numba import njit, prange
 
+from .._jit import njit, prange
 from .._threads import usable_cpus
 
 

@@ -20,7 +20,7 @@ import time
 from typing import Callable
 
 import numpy as np
-from numba import njit, prange
+from .._jit import njit, prange
 
 from ..errors import RegistrationError
 from . import nn

@@ -17,6 +17,7 @@ import os
 import re
 import stat
 import struct
+import tokenize
 from pathlib import Path
 
 import numpy as np
@@ -429,6 +430,12 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
     return n
 
 
+#: What numpy raises on a damaged .npy header: its parser reads the header as a Python literal, and
+#: a header it cannot parse is tokenized again for Python 2's syntax (``tokenize.TokenError``).
+NPY_HEADER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, SyntaxError, TypeError, struct.error,
+                                                      UnicodeDecodeError, tokenize.TokenError)
+
+
 def check_npy_file(path: Path, limit: int) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype from a .npy header, with the file's size checked against them."""
     try:
@@ -441,7 +448,7 @@ def check_npy_file(path: Path, limit: int) -> tuple[tuple[int, ...], np.dtype]:
             else:
                 raise ValueError(f"unsupported .npy version {version}")
             start = fh.tell()
-    except (ValueError, OSError, SyntaxError, TypeError, struct.error, UnicodeDecodeError) as exc:
+    except NPY_HEADER_ERRORS as exc:
         raise InputError(f"{path}: not a numpy array file ({str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__})") from None
     if dtype.hasobject or dtype.kind not in "biuf" or dtype.fields is not None or dtype.subdtype is not None:
         raise InputError(f"{path}: points must be a numeric array, got dtype {dtype}")

@@ -148,6 +148,8 @@ def files(tmp_path_factory):
     (t / "huge_shape.npy").write_bytes(npy_bytes(np.zeros((2, 3)))
                                        .replace(b"(2, 3)", b"(10**12, 3)".replace(b"10**12", b"999999999999")))
     (t / "random.npy").write_bytes(os.urandom(300))
+    # a header numpy can parse neither as a literal nor, tokenized again, as Python 2's
+    (t / "bad_header.npy").write_bytes(full.replace(b"(300, 3), }", b"(300, 3\x00 }", 1))
     (t / "garbage.xyz").write_text("1 2 3\nfoo bar\n4 5 6\n7 8\n" + "".join(f"{i} 1 2\n" for i in range(30)))
     (t / "short.pts").write_text("4\n1 2 3\n4 5 6\n")
     (t / "far.xyz").write_text("\n".join("1e300 0 0" if i == 0 else f"{i} {i % 7} {i % 3}" for i in range(50)))
@@ -336,6 +338,7 @@ LIBRARY = {
     "npy_strings": (_load_cloud("strings.npy"), "numeric"),
     "npy_huge_shape": (_load_cloud("huge_shape.npy"), "limit"),
     "npy_random_bytes": (_load_cloud("random.npy"), "not a numpy array"),
+    "npy_unparsable_header": (_load_cloud("bad_header.npy"), "not a numpy array"),
     "npy_is_fifo": (_load_cloud("fifo.npy"), "not a regular file"),
     "xyz_coordinates_1e300": (_load_cloud("far.xyz"), "out of range"),
     "xyz_lines_that_are_not_points": (_load_cloud("garbage.xyz"), "not points"),

@@ -30,12 +30,16 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, OutputError
+from ..formats import NPY_HEADER_ERRORS
 
 __all__ = ["StreamRun", "STATE", "STEPS", "CARRY"]
 
 STATE = "run.json"
 STEPS = "steps.jsonl"
 CARRY = "carry-{}.npz"
+#: What reading a damaged carry file raises (a zip archive of .npy members).
+_UNREADABLE_CARRY: tuple[type[BaseException], ...] = (*NPY_HEADER_ERRORS, KeyError, EOFError, zipfile.BadZipFile,
+                                                      zlib.error)
 
 
 @dataclass
@@ -109,7 +113,7 @@ class StreamRun:
         try:
             with np.load(path, allow_pickle=False) as z:
                 frame, grid, evidence = np.array(z["frame"]), np.array(z["grid"]), np.array(z["evidence"])
-        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, zlib.error):
+        except _UNREADABLE_CARRY:
             raise unreadable from None
         if frame.shape != () or frame.dtype.kind not in "iu" or evidence.shape != () or evidence.dtype.kind != "f":
             raise unreadable

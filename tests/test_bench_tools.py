@@ -125,7 +125,14 @@ def test_bench_icp_without_data_compares_three_implementations(tmp_path, monkeyp
     assert sum(prof["parts_ms"].values()) == pytest.approx(prof["total_ms"])
     md = (out / "bench_icp.md").read_text()
     assert "### Checks" in md and "### Profile" in md
+    assert "| transforms equal to 1e-9, 2-D, sizes without tied queries | max " in md and "not held" not in md
     assert (out / "bench_icp.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # a size with tied queries (two right answers) is listed, not held to the equality; the others are
+    rows[1].update(max_abs_matrix_difference=5e-4, tied_queries_at_start=7)
+    md = bench.render(report)
+    assert "sizes with ties, not held to it: N = 600: 5.0e-04, 7 tied queries) | met |" in md
+    rows[0]["max_abs_matrix_difference"] = 1e-6
+    assert "| transforms equal to 1e-9, 2-D, sizes without tied queries | max 1.0e-06 (" in bench.render(report)
 
 
 def test_bench_pipeline_times_the_default_step_and_its_stages(tmp_path):

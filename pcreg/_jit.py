@@ -19,10 +19,11 @@ import functools
 import hashlib
 from pathlib import Path
 
-from numba import njit, prange
+import numba
+from numba import prange
 from numba.core import caching
 
-__all__ = ["njit", "prange", "kernel_sources_stamp"]
+__all__ = ["CACHED", "njit", "prange", "kernel_sources_stamp"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -66,20 +67,35 @@ def _numba(*names: str):
     for name in names:
         if hasattr(caching, name):
             return getattr(caching, name)
-    raise ImportError(f"numba.core.caching has none of {names}")  # pragma: no cover - numba>=0.60
+    raise AttributeError(f"numba.core.caching has none of {names}")
 
 
-_LOCATORS = tuple(type(f"Pcreg{base.__name__.lstrip('_')}", (_KernelStamp, base), {})
-                  for base in (_numba("UserProvidedCacheLocator", "_UserProvidedCacheLocator"),
-                               _numba("InTreeCacheLocator", "_InTreeCacheLocator"),
-                               _numba("UserWideCacheLocator", "_UserWideCacheLocator")))
+def _install() -> bool:
+    """Put pcreg's locators before numba's own (numba picks the first that takes a function). False,
+    changing nothing, where this numba lays out its caching otherwise."""
+    try:
+        bases = (_numba("UserProvidedCacheLocator", "_UserProvidedCacheLocator"),
+                 _numba("InTreeCacheLocator", "_InTreeCacheLocator"),
+                 _numba("UserWideCacheLocator", "_UserWideCacheLocator"))
+        impl = _numba("CacheImpl", "_CacheImpl")
+        classes = list(impl._locator_classes)
+    except AttributeError:  # pragma: no cover - a numba whose caching has moved
+        return False
+    if not any(isinstance(c, type) and issubclass(c, _KernelStamp) for c in classes):
+        impl._locator_classes = [*(type(f"Pcreg{b.__name__.lstrip('_')}", (_KernelStamp, b), {}) for b in bases),
+                                 *classes]
+    return True
 
 
-def _install() -> None:
-    """Put pcreg's locators before numba's own (numba picks the first that takes a function)."""
-    impl = _numba("CacheImpl", "_CacheImpl")
-    if not any(isinstance(c, type) and issubclass(c, _KernelStamp) for c in impl._locator_classes):
-        impl._locator_classes = [*_LOCATORS, *impl._locator_classes]
+#: Whether pcreg's kernels are cached on disk: where this numba's caching cannot be keyed to all of the
+#: kernel sources, they are compiled anew in each process rather than risk loading one built from
+#: older sources.
+CACHED = _install()
 
 
-_install()
+def njit(*args, **options):
+    """``numba.njit`` with the options given, its on-disk cache keyed to all of pcreg's kernel sources
+    (``cache=False`` where that cannot be done, :data:`CACHED`)."""
+    if not CACHED:  # pragma: no cover - see CACHED
+        options["cache"] = False
+    return numba.njit(*args, **options)

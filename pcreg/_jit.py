@@ -29,23 +29,17 @@ _PACKAGE = Path(__file__).resolve().parent
 
 
 @functools.lru_cache(maxsize=None)
-def _stamp(files: tuple[tuple[str, int, int], ...]) -> str:
-    digest = hashlib.sha256()
-    for name, _, _ in files:
-        text = (_PACKAGE / name).read_bytes()
-        if b"njit" in text:
-            digest.update(name.encode() + b"\0" + text + b"\0")
-    return digest.hexdigest()
-
-
 def kernel_sources_stamp() -> str:
-    """A hash of the names and contents of pcreg's source files that mention ``njit`` (read again
-    whenever a file's size or modification time changes)."""
-    files = []
+    """A hash of the names and contents of pcreg's source files that mention ``njit``, read once per
+    process: the kernels a process compiles come from the sources it imported, and numba asks for the
+    stamp once per kernel (39 times for a registration), which walking the files each time made about
+    100 ms of every start."""
+    digest = hashlib.sha256()
     for path in sorted(_PACKAGE.rglob("*.py")):
-        st = path.stat()
-        files.append((path.relative_to(_PACKAGE).as_posix(), st.st_mtime_ns, st.st_size))
-    return _stamp(tuple(files))
+        text = path.read_bytes()
+        if b"njit" in text:
+            digest.update(path.relative_to(_PACKAGE).as_posix().encode() + b"\0" + text + b"\0")
+    return digest.hexdigest()
 
 
 class _KernelStamp:

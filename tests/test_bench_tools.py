@@ -97,9 +97,10 @@ def test_bench_recording_measures_the_real_sequence_pipeline(tmp_path, monkeypat
     monkeypatch.syspath_prepend(str(TOOLS))
     bench = _load("bench_recording")
     out = tmp_path / "bench"
-    assert bench.main(["--out", str(out), "--pairs", "3", "--repeats", "1"]) == 0
+    assert bench.main(["--out", str(out), "--pairs", "3", "--repeats", "1", "--data", "synthetic:syn1a"]) == 0
     report = json.loads((out / "recording.json").read_text())
-    assert report["pairs"] == 3 and report["overhead_ratio"] > 0 and report["recording_mb"] > 0
+    (run,) = report["runs"]
+    assert run["pairs"] == 3 and run["overhead_ratio"] > 0 and run["recording_mb"] > 0
     assert report["command"].startswith("python ") and report["machine"]["cpu_count"] >= 1
     assert "### Checks" in (out / "recording.md").read_text()
 

@@ -186,6 +186,26 @@ def test_register_callback_sees_every_level():
     r = pcreg.register(REF, mov, generators=("fourier_mellin",), callback=lambda it: levels.add(it.level))
     assert levels == {0} and r.generator == "fourier_mellin"
 
+@pytest.mark.parametrize("init", ["auto", "identity"])
+def test_register_callback_reports_the_winners_refinement_without_refining_it_again(monkeypatch, init):
+    """The callback sees the iterations the search ran for the winner, ending at the result; the
+    registration refines as many times with a callback as without one."""
+    from pcreg.registration.refine import CoarseToFine
+
+    mov = moved(REF, rigid_about_centre(REF.shape, 5, 3, 2))
+    calls = []
+    refine = CoarseToFine.refine
+    monkeypatch.setattr(CoarseToFine, "refine", lambda self, *a, **k: calls.append(1) or refine(self, *a, **k))
+    plain = pcreg.register(REF, mov, init=init)
+    n_plain, calls[:] = len(calls), []
+    seen = []
+    r = pcreg.register(REF, mov, init=init, callback=seen.append)
+    assert len(calls) == n_plain >= 1
+    assert np.array_equal(r.matrix, plain.matrix)
+    assert seen and np.array_equal(seen[-1].matrix, r.matrix) and seen[-1].level == 0
+    assert sum(it.iteration > 0 for it in seen) == r.iterations
+
+
 
 @pytest.mark.data
 def test_register_real_camvid_pair(shared_data):

@@ -145,6 +145,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
 
     def keep(unit, result: dict) -> None:
         done[unit.key] = result
+        recorder.flush()  # a unit counts as done with its frames in the recording, not a second later
         if store is not None:
             store.save(unit.key, result)
 

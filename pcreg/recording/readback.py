@@ -156,6 +156,10 @@ class Recording:
                 if not r.static and timeline in r.times}
 
 
+#: The column of a chunk's record batch that holds each row's id.
+_ROW_ID = "rerun.controls.RowId"
+
+
 def read_recording(path: str | os.PathLike) -> Recording:
     """Read every chunk of the first recording in ``path``; raises ``ValueError`` if it is not a recording."""
     from rerun.chunk import RrdReader
@@ -166,11 +170,13 @@ def read_recording(path: str | os.PathLike) -> Recording:
         raise ValueError(f"{path}: no recording in this file")
     store = stores[0]
     out = Recording(Path(path), store.application_id, store.recording_id, len(reader.blueprints()))
+    logged: dict[str, list[tuple[bytes, Row]]] = {}
     for chunk in reader.stream(store=store):
         batch = chunk.to_record_batch()
         names = [n for n in batch.schema.names if not n.startswith("rerun.")]
         timelines = [n for n in chunk.timeline_names if n not in _SKIP_TIMELINES]
         comps = [n for n in names if n not in chunk.timeline_names]
+        row_ids = batch.column(_ROW_ID).to_pylist()
         for i in range(batch.num_rows):
             times = {}
             for t in timelines:
@@ -178,7 +184,11 @@ def read_recording(path: str | os.PathLike) -> Recording:
                 if v.is_valid:
                     times[t] = int(v.value) if hasattr(v, "value") else int(v.as_py())
             values = {c: batch.column(c)[i].values for c in comps if batch.column(c)[i].is_valid}
-            out.rows.setdefault(chunk.entity_path, []).append(Row(chunk.entity_path, chunk.is_static, times, values))
+            row = Row(chunk.entity_path, chunk.is_static, times, values)
+            logged.setdefault(chunk.entity_path, []).append((row_ids[i], row))
+    # in the order they were logged: rerun batches rows into chunks by their timelines, so the chunks of one
+    # entity need not come in that order; a row id is a big-endian (time, counter), which sorts as it was made
+    out.rows = {entity: [row for _, row in sorted(rows, key=lambda r: r[0])] for entity, rows in logged.items()}
     return out
 
 

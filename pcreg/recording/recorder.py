@@ -23,9 +23,10 @@ Usage::
 
 Cost: images are JPEG-encoded (quality 60 by default) on a background thread, and clouds and label
 maps are subsampled for display: 100 recorded 640x480 pairs of ``pcreg evaluate sequence`` take about
-22 MB, and recording adds 8-17% to their time (``tools/bench_recording.py`` measures both; the
-benchmarks page breaks the size down). The file is written by rerun's own thread as data arrives
-(every ~0.2 s); :meth:`Recorder.flush` forces it.
+12 MB (CamVid) to 19 MB (synthetic noise textures), and recording adds 1-5% (synthetic) to 16-19%
+(CamVid) to their time (``tools/bench_recording.py`` measures both; the benchmarks page breaks the
+size down). The file is written by rerun's own thread as data arrives
+(within about a second, :data:`BATCH_SECONDS`); :meth:`Recorder.flush` forces it.
 """
 
 from __future__ import annotations
@@ -59,6 +60,15 @@ __all__ = ["Recorder", "DEFAULT_JPEG_QUALITY"]
 #: 640x480 sequence recording of an earlier layout under 15 MB (design notes, docs/algorithms.md).
 #: ``raw_images=True`` logs losslessly.
 DEFAULT_JPEG_QUALITY = 60
+
+#: How rerun batches rows into chunks before writing them: a chunk holds up to a second of rows (or
+#: 16 MiB, which bounds the memory held). rerun's own default, a fifth of a second, and a flush at every
+#: frame made chunks of one frame's rows each (a sequence recording of 100 pairs had about 2,800), and
+#: every chunk carries its own schema and is compressed on its own: a second's chunks make the same
+#: recording 15-22% smaller (docs/benchmarks.md). A reader of the file as it grows, and a run killed
+#: without closing its recorder, are at most about a second behind.
+BATCH_SECONDS = 1.0
+BATCH_BYTES = 16 << 20
 
 _LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}
 
@@ -217,7 +227,8 @@ class Recorder:
         self.label_stride = int(label_stride if label_stride is not None else (1 if raw_images else 2))
         self.application_id = application_id
         self.recording_id = recording_id or str(uuid.uuid4())
-        self._rec = rr.RecordingStream(application_id, recording_id=self.recording_id)
+        self._rec = rr.RecordingStream(application_id, recording_id=self.recording_id, batcher_config=rr.ChunkBatcherConfig(
+            flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES))
         from pcreg.recording.blueprint import KINDS
 
         if isinstance(blueprint, str) and blueprint != "default":
@@ -341,13 +352,12 @@ class Recorder:
     def set_frame(self, index: int) -> None:
         """Put what follows on the ``frame`` timeline at ``index``.
 
-        Waits for the previous frame's images to be encoded (they are done by then in practice) and
-        starts, without waiting, a flush of everything before to the file.
+        Waits for the previous frame's images to be encoded (they are done by then in practice); rerun
+        writes them to the file within about a second (:data:`BATCH_SECONDS`).
         """
         self._send_icp_rows()  # the previous frame's iterations, at that frame
         if self._frame is not None:
             self._wait_pending()
-            self._rec.flush(timeout_sec=0)
         self._frame = int(index)
         self._rec.set_time(E.FRAME_TIMELINE, sequence=self._frame)
         # frame-level data sits at the start of the iteration timelines too, so a view on one of them (a

@@ -10,7 +10,7 @@ Both run the ICP step of one backend (:func:`~pcreg.registration.steps.icp_step`
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
@@ -279,15 +279,18 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
                            relative_rmse=o.relative_rmse, point_to_line=o.refine == "point_to_line")
     test = Plausibility(reference, refiner.tree, model=model, min_inlier_ratio=min_inlier_ratio,
                         inlier_tolerance=inlier_tolerance, reference_max_points=reference_max_points)
+    # with a callback each candidate's ICP iterations are kept as it is refined, and the winner's are
+    # reported: refining the winner again for the callback cost a recorded sequence a second refinement
     search = GlobalSearch(refiner, test.measure, model=model, generators=o.generators, angle_step=o.angle_step,
-                          n_candidates=o.n_candidates, seed=o.seed, convincing=test.convincing)
+                          n_candidates=o.n_candidates, seed=o.seed, convincing=test.convincing,
+                          keep_iterations=callback is not None)
     tried, mirror = _candidates(o.init, moving, refiner, test, search)
     if not tried:
         raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
     best = max(tried, key=lambda c: c.score)  # edges rank the hypotheses; intensities break repetitive ties
-    if callback is not None:  # replay the winner's refinement for the callback (the same steps)
-        best = replace(best, refined=refiner.refine(moving, best.hypothesis.matrix, top=best.hypothesis.top,
-                                                    callback=callback))
+    if callback is not None:
+        for iteration in best.iterations:
+            callback(iteration)
     evidence = test.check(best, mirror=mirror, shape=mov_img.shape)
     return _result(best, evidence, tried, mirror, backend=backend, seconds=time.perf_counter() - start,
                    points=(len(moving[0]), len(reference[0])))
@@ -576,5 +579,7 @@ def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausib
         ref_shape = refiner.reference.image.shape
         init = (about_point(np.eye(3), image_center(moving.image.shape), image_center(ref_shape))
                 if init == "center" else np.eye(3))
-    refined = refiner.refine(moving, init)
-    return [Candidate(Hypothesis("init", init), refined, test.measure(moving, refined.matrix))], None
+    kept: list = []
+    refined = refiner.refine(moving, init, callback=kept.append if search.keep_iterations else None)
+    return [Candidate(Hypothesis("init", init), refined, test.measure(moving, refined.matrix),
+                      iterations=tuple(kept))], None

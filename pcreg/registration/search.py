@@ -29,6 +29,7 @@ from .global_search import (Evidence, alignment_evidence, edge_fft_hypotheses, f
                             gray_level, orb_hypotheses, photometric_agreement)
 from .pyramid import CloudPyramid
 from .refine import CoarseToFine, Refinement
+from .result import IcpIteration
 from .transforms import apply, corners
 
 START_LEVEL = 0
@@ -52,12 +53,14 @@ class Hypothesis:
 @dataclass(frozen=True)
 class Candidate:
     """A hypothesis refined and measured: its refinement, the refined alignment's evidence and, where
-    measured, the normalised cross-correlation of the intensities it aligns (NaN otherwise)."""
+    measured, the normalised cross-correlation of the intensities it aligns (NaN otherwise); where the
+    search kept them (``GlobalSearch(keep_iterations=True)``), the refinement's ICP iterations."""
 
     hypothesis: Hypothesis
     refined: Refinement
     evidence: Evidence
     photometric_ncc: float = float("nan")
+    iterations: tuple[IcpIteration, ...] = ()
 
     @property
     def generator(self) -> str:
@@ -93,12 +96,15 @@ class GlobalSearch:
     refiner : the registration's coarse-to-fine ICP (its reference pyramid is the search's).
     measure : the evidence of an alignment of a moving pyramid (the plausibility test's measure).
     convincing : the inlier ratio at which a generator's refined hypothesis ends the search.
+    keep_iterations : keep each candidate's ICP iterations (:attr:`Candidate.iterations`), for a caller
+        that reports the winner's: the search refines it once, instead of again with a callback.
     """
 
     def __init__(self, refiner: CoarseToFine, measure: Callable[[CloudPyramid, np.ndarray], Evidence], *,
                  model: str, generators: Sequence[str], angle_step: float, n_candidates: int, seed: int,
-                 convincing: float):
+                 convincing: float, keep_iterations: bool = False):
         self.refiner, self.reference, self.measure = refiner, refiner.reference, measure
+        self.keep_iterations = keep_iterations
         self.model, self.generators, self.seed, self.convincing = model, tuple(generators), seed, convincing
         self.angle_step, self.n_candidates = angle_step, n_candidates
         self.search_model = "translation" if model == "translation" else "rigid"
@@ -127,9 +133,10 @@ class GlobalSearch:
 
     def evaluate(self, h: Hypothesis, moving: CloudPyramid, gray) -> Candidate:
         """``h`` refined coarse to fine and measured (edges and intensities)."""
-        refined = self.refiner.refine(moving, h.matrix, top=h.top)
+        kept: list[IcpIteration] = []
+        refined = self.refiner.refine(moving, h.matrix, top=h.top, callback=kept.append if self.keep_iterations else None)
         ncc = self.agreement(refined.matrix, gray)
-        return Candidate(h, refined, self.measure(moving, refined.matrix), ncc)
+        return Candidate(h, refined, self.measure(moving, refined.matrix), ncc, tuple(kept))
 
     def agreement(self, T: np.ndarray, gray) -> float:
         mov_gray, mov_valid = gray

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -428,3 +429,49 @@ def test_web_viewer_on_another_address(small_recording):
         assert ok, _colours(shot)
     finally:
         view.stop(proc)
+
+
+def test_web_viewer_ends_with_a_pcreg_killed_outright(small_recording):
+    """A ``pcreg view --web`` killed outright (SIGKILL: it cannot stop its viewer) leaves no viewer
+    serving on: the viewer, in a session of its own, is ended with it."""
+    import os
+    import re
+    import subprocess
+
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(small_recording), "--web",
+                             "--web-port", "0", "--grpc-port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    try:
+        url = next((line.strip() for line in proc.stdout if line.startswith("http://")), None)
+        assert url, proc.stderr.read()
+        ports = [int(p) for p in re.findall(r"(?::|%3A)(\d+)", url)]
+        assert len(ports) == 2 and all(listening(p) for p in ports)
+        children = [int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit() and _parent(p) == proc.pid]
+        assert children, "the viewer is not a child of pcreg view"
+        proc.kill()
+        proc.wait(timeout=30)
+        # (its ports are then closed with it; another test's viewer may take them at once, so they are
+        # not checked here)
+        for pid in children:
+            until(lambda pid=pid: not _alive(pid), what=f"viewer {pid} ending after pcreg view was killed")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=30)
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+def _parent(proc_dir: Path) -> int | None:
+    try:
+        return int((proc_dir / "stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def _alive(pid: int) -> bool:
+    """Running (not gone, nor a zombie waiting to be reaped)."""
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False

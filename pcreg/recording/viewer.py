@@ -19,6 +19,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import urllib.parse
 from pathlib import Path
@@ -116,7 +117,7 @@ def headless(recording: str | os.PathLike, *, size: str = "1600x900", viewer: st
            "--window-size", size, "--renderer", "vulkan"]
     started = time.monotonic()
     proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, start_new_session=True)
+                            stderr=subprocess.PIPE, start_new_session=True, preexec_fn=_ends_with_us())
     deadline = time.monotonic() + timeout
     try:
         client = None
@@ -191,6 +192,35 @@ def screenshot(
             if tmp.exists():
                 tmp.unlink()
     return out_path
+
+
+def _ends_with_us() -> Any:
+    """A ``preexec_fn`` that has the viewer ended (SIGTERM) when this process ends, however it ends.
+
+    The viewer runs in a session of its own, so that a Ctrl-C in the terminal reaches pcreg alone, which
+    then stops it (:func:`stop`). A pcreg killed outright (SIGKILL, or SIGHUP when its terminal closes)
+    cannot stop it, and the viewer would serve on, holding its ports, with no one to end it. On Linux
+    the kernel's parent-death signal ends it instead. That signal follows the thread that started the
+    child, so it is asked for only from the main thread, which lives as long as the process. None
+    elsewhere (no such signal, or another thread)."""
+    if not sys.platform.startswith("linux") or threading.current_thread() is not threading.main_thread():
+        return None
+    import ctypes
+    import signal
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):  # pragma: no cover - every Linux C library has prctl
+        return None
+    parent = os.getpid()
+    pr_set_pdeathsig = 1
+
+    def tie() -> None:  # in the child, between fork and exec: no locks, no allocation to speak of
+        prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before the signal was asked for
+            os._exit(1)
+
+    return tie
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -302,7 +332,7 @@ def serve_web(
     env.setdefault("RUST_LOG", "warn")
     with tempfile.TemporaryFile() as log:  # a file, not a pipe: a server that runs for hours must never block on it
         proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                stderr=log, start_new_session=True)
+                                stderr=log, start_new_session=True, preexec_fn=_ends_with_us())
         try:
             _wait_listening(proc, log, probe, (web_port, grpc_port), timeout)
         except BaseException:

@@ -253,6 +253,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
         ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
         stream is the moving image once and the reference once); None builds the clouds here. The
         clouds are the same (to OpenCV's float32 rounding of the gradient magnitude).
+    callback : called with each :class:`~pcreg.registration.result.IcpIteration` of the winning
+        hypothesis's refinement, in order, once the search has chosen it (before the plausibility test),
+        with the same numbers as without a callback.
 
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
@@ -579,7 +582,7 @@ def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausib
         ref_shape = refiner.reference.image.shape
         init = (about_point(np.eye(3), image_center(moving.image.shape), image_center(ref_shape))
                 if init == "center" else np.eye(3))
-    kept: list = []
+    kept: list[IcpIteration] = []
     refined = refiner.refine(moving, init, callback=kept.append if search.keep_iterations else None)
     return [Candidate(Hypothesis("init", init), refined, test.measure(moving, refined.matrix),
                       iterations=tuple(kept))], None

@@ -283,9 +283,14 @@ def _scan_all(q, best_d2, best_i, spts, sidx):
     return best_d2, best_i
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _nearest(q, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed):
-    """(squared distance, index) of the nearest point with d^2 < r2, or (r2, -1)."""
+    """(squared distance, index) of the nearest point with d^2 < r2, or (r2, -1).
+
+    Inlined into each loop over queries: as a call, each query passes its eleven arguments (the arrays
+    as several fields each) and reloads what the loop keeps in registers. Inlined, a loop of 1,000 or
+    10,000 queries on the bench's 2-D and 3-D clouds took 0.94-0.95 of the time, with the same answers
+    (both forms compiled in one process, alternating, median of 41 runs)."""
     d = q.shape[0]
     best_d2 = r2
     best_i = np.int64(-1)

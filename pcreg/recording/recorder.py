@@ -23,9 +23,9 @@ Usage::
 
 Cost: images are JPEG-encoded (quality 60 by default) on a background thread, and clouds and label
 maps are subsampled for display: 100 recorded 640x480 pairs of ``pcreg evaluate sequence`` take about
-12 MB (CamVid) to 19 MB (synthetic noise textures), and recording adds 1-5% (synthetic) to 16-19%
-(CamVid) to their time (``tools/bench_recording.py`` measures both; the benchmarks page breaks the
-size down). The file is written by rerun's own thread as data arrives
+12 MB (CamVid) to 19 MB (synthetic noise textures), and recording adds a few percent (synthetic) to
+16-19% (CamVid) to their time on a 2-CPU machine (``tools/bench_recording.py`` measures both; the
+benchmarks page breaks the size down). The file is written by rerun's own thread as data arrives
 (within about a second, :data:`BATCH_SECONDS`); :meth:`Recorder.flush` forces it.
 """
 

@@ -276,21 +276,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     reference, moving = _pyramids(ref_img, mov_img, reference_pyramid, moving_pyramid, levels=o.levels,
                                   sampler=sampler, canny_percentile=o.canny_percentile, seed=o.seed,
                                   masks=(reference_mask, moving_mask), max_points=(reference_max_points, max_points))
-    refiner = CoarseToFine(reference, icp_step(backend),
-                           settings=IcpSettings(model=model, relative_fitness=o.relative_fitness, weights=weights),
-                           max_correspondence_distance=o.max_correspondence_distance, iterations=o.iterations,
-                           relative_rmse=o.relative_rmse, point_to_line=o.refine == "point_to_line")
-    test = Plausibility(reference, refiner.tree, model=model, min_inlier_ratio=min_inlier_ratio,
-                        inlier_tolerance=inlier_tolerance, reference_max_points=reference_max_points)
-    # with a callback each candidate's ICP iterations are kept as it is refined, and the winner's are
-    # reported: refining the winner again for the callback cost a recorded sequence a second refinement
-    search = GlobalSearch(refiner, test.measure, model=model, generators=o.generators, angle_step=o.angle_step,
-                          n_candidates=o.n_candidates, seed=o.seed, convincing=test.convincing,
-                          keep_iterations=callback is not None)
-    tried, mirror = _candidates(o.init, moving, refiner, test, search)
-    if not tried:
-        raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
-    best = max(tried, key=lambda c: c.score)  # edges rank the hypotheses; intensities break repetitive ties
+    best, tried, mirror, test = _search(reference, moving, o, backend=backend, model=model, weights=weights,
+                                        min_inlier_ratio=min_inlier_ratio, inlier_tolerance=inlier_tolerance,
+                                        reference_max_points=reference_max_points,
+                                        keep_iterations=callback is not None)
     if callback is not None:
         for iteration in best.iterations:
             callback(iteration)
@@ -566,6 +555,30 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
     return out[0], out[1]
 
 
+def _search(reference: CloudPyramid, moving: CloudPyramid, o: _RegisterOptions, *, backend: str, model: str,
+            weights: str, min_inlier_ratio: float | None, inlier_tolerance: float, reference_max_points,
+            keep_iterations: bool) -> tuple[Candidate, list[Candidate], Candidate | None, Plausibility]:
+    """:func:`register`'s search: the coarse-to-fine ICP, the plausibility test and the hypotheses'
+    search built on the two pyramids, then the candidates refined (:func:`_candidates`). Returns the
+    best candidate, every one tried, the mirrored image's best (or None) and the test, which judges the
+    best. ``keep_iterations``: each candidate keeps its ICP iterations (a callback reports the best's,
+    instead of refining it a second time)."""
+    refiner = CoarseToFine(reference, icp_step(backend),
+                           settings=IcpSettings(model=model, relative_fitness=o.relative_fitness, weights=weights),
+                           max_correspondence_distance=o.max_correspondence_distance, iterations=o.iterations,
+                           relative_rmse=o.relative_rmse, point_to_line=o.refine == "point_to_line")
+    test = Plausibility(reference, refiner.tree, model=model, min_inlier_ratio=min_inlier_ratio,
+                        inlier_tolerance=inlier_tolerance, reference_max_points=reference_max_points)
+    search = GlobalSearch(refiner, test.measure, model=model, generators=o.generators, angle_step=o.angle_step,
+                          n_candidates=o.n_candidates, seed=o.seed, convincing=test.convincing,
+                          keep_iterations=keep_iterations)
+    tried, mirror = _candidates(o.init, moving, refiner, test, search)
+    if not tried:
+        raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
+    best = max(tried, key=lambda c: c.score)  # edges rank the hypotheses; intensities break repetitive ties
+    return best, tried, mirror, test
+
+
 def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausibility,
                 search: GlobalSearch) -> tuple[list[Candidate], Candidate | None]:
     """The refined hypotheses (the search's, or the one ``init`` names) and, where the search was not
@@ -582,7 +595,6 @@ def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausib
         ref_shape = refiner.reference.image.shape
         init = (about_point(np.eye(3), image_center(moving.image.shape), image_center(ref_shape))
                 if init == "center" else np.eye(3))
-    kept: list[IcpIteration] = []
-    refined = refiner.refine(moving, init, callback=kept.append if search.keep_iterations else None)
+    refined, iterations = search.refine(moving, init)
     return [Candidate(Hypothesis("init", init), refined, test.measure(moving, refined.matrix),
-                      iterations=tuple(kept))], None
+                      iterations=iterations)], None

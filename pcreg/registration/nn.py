@@ -206,7 +206,6 @@ def _repeats(spts, sidx, start, m):
     so equal points lie in one run of equal x, in ascending index; each point of a run is compared with
     the run's distinct points before it (a run is one point long unless x repeats)."""
     drop = np.zeros(m, np.bool_)
-    d = spts.shape[1]
     for c in range(start.shape[0] - 1):
         s0, s1 = start[c], start[c + 1]
         if s1 - s0 <= SORTED_CELL_MIN:
@@ -220,24 +219,29 @@ def _repeats(spts, sidx, start, m):
                 firsts = np.empty(r1 - r0, np.int64)  # the run's distinct points so far
                 n = 0
                 for j in range(r0, r1):
-                    seen = False
-                    for t in range(n):
-                        f = firsts[t]
-                        same = True
-                        for a in range(1, d):
-                            if spts[j, a] != spts[f, a]:
-                                same = False
-                                break
-                        if same:
-                            seen = True
-                            break
-                    if seen:
+                    if _seen(spts, j, firsts, n):
                         drop[sidx[j]] = True
                     else:
                         firsts[n] = j
                         n += 1
             r0 = r1
     return drop
+
+
+@njit(cache=True, inline="always")
+def _seen(spts, j, firsts, n):
+    """Whether point ``j`` equals one of ``firsts[:n]`` in every coordinate after the first (the run
+    already shares its x)."""
+    for t in range(n):
+        f = firsts[t]
+        same = True
+        for a in range(1, spts.shape[1]):
+            if spts[j, a] != spts[f, a]:
+                same = False
+                break
+        if same:
+            return True
+    return False
 
 
 # ---------------------------------------------------------------------------------------------------

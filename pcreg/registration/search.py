@@ -133,10 +133,16 @@ class GlobalSearch:
 
     def evaluate(self, h: Hypothesis, moving: CloudPyramid, gray) -> Candidate:
         """``h`` refined coarse to fine and measured (edges and intensities)."""
-        kept: list[IcpIteration] = []
-        refined = self.refiner.refine(moving, h.matrix, top=h.top, callback=kept.append if self.keep_iterations else None)
+        refined, iterations = self.refine(moving, h.matrix, top=h.top)
         ncc = self.agreement(refined.matrix, gray)
-        return Candidate(h, refined, self.measure(moving, refined.matrix), ncc, tuple(kept))
+        return Candidate(h, refined, self.measure(moving, refined.matrix), ncc, iterations)
+
+    def refine(self, moving: CloudPyramid, T: np.ndarray, *, top: int | None = None
+               ) -> tuple[Refinement, tuple[IcpIteration, ...]]:
+        """``T`` refined coarse to fine, and its ICP iterations where the search keeps them (else ())."""
+        kept: list[IcpIteration] = []
+        refined = self.refiner.refine(moving, T, top=top, callback=kept.append if self.keep_iterations else None)
+        return refined, tuple(kept)
 
     def agreement(self, T: np.ndarray, gray) -> float:
         mov_gray, mov_valid = gray

@@ -111,6 +111,43 @@ def test_window_search_is_the_exact_nearest_neighbour_in_position_and_colour():
         assert dd <= d.min() + 1e-9  # the global nearest neighbour is never farther than the gated one
 
 
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_window_search_skipping_rows_answers_the_full_scan_ties_included(channels):
+    """The compiled search skips rows that cannot hold the answer; it must answer what a full scan of
+    the window answers (the least cost, the first in row order among equal costs). Colours from a few
+    levels and whole-pixel queries make many equal costs, and queries on their own pixel make cheap
+    matches, so that rows are skipped often; windows run off the image's edges too."""
+    from pcreg.registration.dense import _best_in_window
+
+    rng = np.random.default_rng(7)
+    h, w = 24, 32
+    img = (rng.integers(0, 3, (h, w, channels)) / 2.0).astype(np.float32)
+    skipped = 0
+    for i in range(3000):
+        radius = int(rng.integers(1, 5))
+        lam2 = float(rng.choice([0.25, 1.0, 16.0]))
+        sy, sx = int(rng.integers(0, h)), int(rng.integers(0, w))
+        if i % 3 == 0:  # whole pixels: equal distances on either side
+            x, y = float(sx + rng.integers(-2, 3)), float(sy + rng.integers(-2, 3))
+        else:
+            x, y = sx + rng.uniform(-radius - 1, radius + 1), sy + rng.uniform(-radius - 1, radius + 1)
+        bx, by, cx, cy = _best_in_window(img, x, y, img, sy, sx, radius, lam2)
+        x0, x1, y0, y1 = max(cx - radius, 0), min(cx + radius, w - 1), max(cy - radius, 0), min(cy + radius, h - 1)
+        if x0 > x1 or y0 > y1:
+            assert (bx, by) == (-1, -1)
+            continue
+        qy, qx = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+        d = img[y0:y1 + 1, x0:x1 + 1] - img[sy, sx]  # float32, squared in float32, summed in float64
+        s = np.zeros(qx.shape)
+        for k in range(channels):
+            s += (d[..., k] * d[..., k]).astype(np.float64)
+        cost = (qx - x) * (qx - x) + (qy - y) * (qy - y) + lam2 * s
+        first = np.argmin(cost)  # the first least cost in row order
+        assert (bx, by) == (qx.ravel()[first], qy.ravel()[first]), (x, y, sx, sy, radius, lam2)
+        skipped += int(((qy[:, 0] - y) ** 2 > cost.min()).sum())
+    assert skipped > 1000  # rows that a skip could leave out were common
+
+
 def test_bad_inputs_are_refused():
     img = _textured()
     with pytest.raises(InputError):

@@ -734,14 +734,21 @@ def _weigh_assemble_py(m, x, start, scale, cols, vals, pair_k, data, rhs, node_w
         wres[i] = wi * (rx * rx + ry * ry)
         tx = m[i, 0] - start[i, 0]
         ty = m[i, 1] - start[i, 1]
+        # the corners' columns and weights in registers, and the inner loop written out: the compiler
+        # cannot tell that writes to ``data`` leave them unchanged, and read them again after each
+        # write (0.79 of the time; the same sums in the same order)
+        c0, c1, c2, c3 = cols[i, 0], cols[i, 1], cols[i, 2], cols[i, 3]
+        v0, v1, v2, v3 = vals[i, 0], vals[i, 1], vals[i, 2], vals[i, 3]
         for p in range(4):
             a = cols[i, p]
             wv = wi * vals[i, p]
             node_w[a] += wv
             rhs[a, 0] += wv * tx
             rhs[a, 1] += wv * ty
-            for q in range(4):
-                data[pair_k[p, q], cols[i, q]] += wv * vals[i, q]
+            data[pair_k[p, 0], c0] += wv * v0
+            data[pair_k[p, 1], c1] += wv * v1
+            data[pair_k[p, 2], c2] += wv * v2
+            data[pair_k[p, 3], c3] += wv * v3
     return inliers
 
 

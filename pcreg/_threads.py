@@ -34,7 +34,8 @@ import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, TypeVar
 
-__all__ = ["MIN_PIXELS", "beside", "close", "enabled", "helper", "interleave", "set_enabled", "usable_cpus"]
+__all__ = ["MIN_PIXELS", "beside", "close", "enabled", "helper", "interleave", "set_enabled", "usable_cpus",
+           "wait_quietly"]
 
 T = TypeVar("T")
 
@@ -127,6 +128,16 @@ def beside(fn: Callable[[], T]) -> Callable[[], T]:
         return fn() if take() else future.result()
 
     return result
+
+
+def wait_quietly(result: Callable[[], object]) -> None:
+    """Wait for work offered with :func:`beside` whose result is no longer wanted, because an error is on
+    its way: the helper's work ends before the error goes on, and an error of its own is dropped (the
+    one under way is the one to report)."""
+    try:
+        result()
+    except Exception:  # noqa: BLE001 - the error under way is the one to report
+        pass
 
 
 def interleave(n: int, fn: Callable[[int, int], object], *, min_items: int) -> None:

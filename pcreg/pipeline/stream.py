@@ -72,7 +72,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._threads import beside
+from .._threads import beside, wait_quietly
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import FusionConfig, label_prior
 from .prior import class_prior, fused_labels, prior_on_moving
@@ -328,7 +328,7 @@ class Propagator:
         try:
             result, reason, start = self._register(reference, img)
         except BaseException:
-            _wait_quietly(classified)  # the helper's work ends before this error goes on
+            wait_quietly(classified)  # the helper's work ends before this error goes on
             raise
         motion = None if result is None else self._to_key(Motion.of(result), img.shape[:2])
         times["register"] = time.perf_counter() - t0
@@ -459,14 +459,6 @@ class Propagator:
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
-
-
-def _wait_quietly(wait) -> None:
-    """Wait for work on the helper thread whose result is no longer wanted (an error is on its way)."""
-    try:
-        wait()
-    except Exception:  # noqa: BLE001 - the error under way is the one to report
-        pass
 
 
 def _check_image(image) -> np.ndarray:

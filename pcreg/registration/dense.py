@@ -67,7 +67,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .._threads import MIN_PIXELS, beside, interleave
+from .._threads import MIN_PIXELS, beside, interleave, wait_quietly
 from ..errors import InputError, RegistrationError
 from .clouds import magnitude, valid_region
 from .motion import _field_row, field_from_matrix
@@ -1116,11 +1116,12 @@ class _FullField:
     grid: np.ndarray
 
 
-def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Level, shape: tuple[int, int]
-                ) -> _FullField:
+def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Level, shape: tuple[int, int],
+                *, split: bool = True) -> _FullField:
     """The global transform plus the grid's displacements, interpolated at every full-size pixel, and
     the confidence: the nodes' data weight against a quarter of a cell's pixels (at the sampling rate),
-    0 where the field leaves the reference image. ``lv``: the finest level."""
+    0 where the field leaves the reference image. ``lv``: the finest level; ``split``: share the rows
+    with the helper thread (False on the helper itself)."""
     h, w = shape
     f, s, gshape = lv.scale, lv.spacing, lv.gshape
     grid = (f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)
@@ -1132,8 +1133,13 @@ def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Lev
     if _field_rows_jit is None:  # pragma: no cover - numba is a declared dependency
         _field_rows_py(M, grid, conf_nodes, f, s, field_full, conf, 0, 1)
     else:
-        interleave(h * w, lambda first, stride: _field_rows_jit(M, grid, conf_nodes, f, s, field_full, conf,
-                                                                first, stride), min_items=MIN_PIXELS)
+        def rows(first: int, stride: int) -> None:
+            _field_rows_jit(M, grid, conf_nodes, f, s, field_full, conf, first, stride)
+
+        if split:
+            interleave(h * w, rows, min_items=MIN_PIXELS)
+        else:
+            rows(0, 1)
     return _FullField(field_full, conf, grid)
 
 
@@ -1216,11 +1222,19 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
     clock.lap("pyramid")
     grid = _coarse_to_fine(pyr, T, options, top=top, seed=seed, clock=clock,
                            callback=callback, initial=initial)  # 2. the grid, coarse to fine
-    last = grid.last  # 3. the plausibility test, then the field at full resolution
-    evidence = _plausibility(last.R, last.Mv, last.P, last.C, last.GP, last.NE, last.lam, last.radius, grid.U)
-    clock.lap("evidence")
-    _check_evidence(evidence, options.chance_factor)
-    full = _full_field(T, grid.U, grid.weights_node, grid.finest, ref.shape[:2])
+    # 3. the plausibility test and the field at full resolution: both follow from the final grid
+    # alone, so the field is made whole on the helper thread while this one measures the evidence
+    # (instead of the two one after the other, each shared in halves)
+    field_later = beside(lambda: _full_field(T, grid.U, grid.weights_node, grid.finest, ref.shape[:2], split=False))
+    last = grid.last
+    try:
+        evidence = _plausibility(last.R, last.Mv, last.P, last.C, last.GP, last.NE, last.lam, last.radius, grid.U)
+        clock.lap("evidence")
+        _check_evidence(evidence, options.chance_factor)
+    except BaseException:
+        wait_quietly(field_later)
+        raise
+    full = field_later()
     clock.lap("field")
     return DenseRegistrationResult(matrix=T, field=full.field, confidence=full.confidence,
                                    global_result=global_result, fitness=grid.fitness, inlier_rmse=grid.rms,

@@ -715,6 +715,21 @@ def _robust_scale_py(m, sigma):
     return max(med + TUKEY_C * max(mad, 1e-6), 2.0 * math.sqrt(6.0) * sigma)
 
 
+def _nan_median_py(a):
+    """The median of the values of ``a`` (N,) that are not NaN, NaN when there is none: ``np.nanmedian``'s
+    number (the middle value, or the mean ``(a + b) / 2`` of the two middle ones), compiled: a fifth of
+    its time for the 5,000 distances of a level."""
+    g = np.empty(a.shape[0])
+    k = 0
+    for i in range(a.shape[0]):
+        if a[i] == a[i]:
+            g[k] = a[i]
+            k += 1
+    if k == 0:
+        return np.nan
+    return np.median(g[:k])
+
+
 def _weigh_assemble_py(m, x, start, scale, cols, vals, pair_k, data, rhs, node_w, wts, wres):
     """Tukey's biweight at ``scale`` of the colour distance of each mutual match in ``m``
     (:func:`match_window`'s rows; no weight without a mutual partner, nor for any match when ``scale``
@@ -761,9 +776,10 @@ try:
     from .._jit import njit as _njit
 
     _robust_scale = _njit(cache=True, nogil=True)(_robust_scale_py)
+    _nan_median = _njit(cache=True, nogil=True)(_nan_median_py)
     _weigh_assemble = _njit(cache=True, nogil=True)(_weigh_assemble_py)
 except ImportError:  # pragma: no cover - numba is a declared dependency
-    _robust_scale, _weigh_assemble = _robust_scale_py, _weigh_assemble_py
+    _robust_scale, _nan_median, _weigh_assemble = _robust_scale_py, _nan_median_py, _weigh_assemble_py
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -802,7 +818,7 @@ def _plausibility(R, Mv, P, C, GP, NE, lam, radius, U) -> float:
     m = match_window(R, Mv, P, X, C, radius=radius, lam=lam, mutual=False)
     Xc = np.column_stack([np.mod(X[:, 0] + 0.5 * w, w), np.mod(X[:, 1] + 0.5 * h, h)])
     mc = match_window(R, Mv, P, Xc, C, radius=radius, lam=lam, mutual=False)
-    return float(np.nanmedian(mc[:, 2]) / max(float(np.nanmedian(m[:, 2])), 1e-9))
+    return float(_nan_median(mc[:, 2]) / max(float(_nan_median(m[:, 2])), 1e-9))
 
 
 @dataclass(frozen=True)

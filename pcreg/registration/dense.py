@@ -56,6 +56,7 @@ global transform, and its confidence is low.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time
@@ -636,16 +637,30 @@ def _membrane(gshape: tuple[int, int]) -> sp.csr_matrix:
     return (D.T @ D).tocsr()
 
 
-def _upsample_grid(U: np.ndarray, old_shape: tuple[int, int], old_s: float, new_shape: tuple[int, int],
-                   new_s: float, factor: float) -> np.ndarray:
-    """Grid displacements on a finer level: the old grid interpolated at the new nodes, times ``factor``.
-    Node positions are in their own level's pixels; ``factor`` is the level scale (2)."""
+def _read_only(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    for a in arrays:
+        a.setflags(write=False)
+    return arrays
+
+
+@functools.lru_cache(maxsize=32)
+def _upsample_weights(old_shape: tuple[int, int], old_s: float, new_shape: tuple[int, int], new_s: float,
+                      factor: float) -> tuple[np.ndarray, ...]:
+    """Read-only bilinear ``(cols, vals)`` of :func:`_upsample_grid`'s new nodes on the old grid. They
+    depend on the shapes alone, so the frames of a stream, whose levels keep their shapes, make them once."""
     gh, gw = new_shape
     ys, xs = np.mgrid[0:gh, 0:gw].astype(np.float64)
     # new node (level l) at x_l = j s_new; in level l + 1 pixels: (x_l - 0.5) / 2
     pts = np.column_stack([((xs * new_s - 0.5) / factor).ravel(), ((ys * new_s - 0.5) / factor).ravel()])
-    cols, vals = _bilinear_weights(pts, old_shape, old_s)
-    return factor * _interpolate(cols, vals, np.ascontiguousarray(U, dtype=np.float64), np.empty((len(pts), 2)))
+    return _read_only(*_bilinear_weights(pts, old_shape, old_s))
+
+
+def _upsample_grid(U: np.ndarray, old_shape: tuple[int, int], old_s: float, new_shape: tuple[int, int],
+                   new_s: float, factor: float) -> np.ndarray:
+    """Grid displacements on a finer level: the old grid interpolated at the new nodes, times ``factor``.
+    Node positions are in their own level's pixels; ``factor`` is the level scale (2)."""
+    cols, vals = _upsample_weights(tuple(old_shape), float(old_s), tuple(new_shape), float(new_s), float(factor))
+    return factor * _interpolate(cols, vals, np.ascontiguousarray(U, dtype=np.float64), np.empty((len(cols), 2)))
 
 
 def _level_matrix(T: np.ndarray, level: int) -> np.ndarray:
@@ -1096,19 +1111,28 @@ class InitialGrid:
 def _grid_at_level(grid: np.ndarray, finest: int, lv: _Level) -> np.ndarray:
     """The finest level's grid (gh, gw, 2; full-resolution px) interpolated at level ``lv``'s nodes, in
     that level's px (bilinear, the edge nodes held beyond the grid): the same grid at the finest level."""
-    gh, gw = lv.gshape
+    cols, vals = _level_weights(tuple(grid.shape[:2]), finest, tuple(lv.gshape), lv.scale, float(lv.spacing))
+    flat = np.ascontiguousarray(grid.reshape(-1, 2), dtype=np.float64)
+    return _interpolate(cols, vals, flat, np.empty((len(cols), 2))) / lv.scale
+
+
+@functools.lru_cache(maxsize=32)
+def _level_weights(finest_shape: tuple[int, int], finest: int, gshape: tuple[int, int], f: float,
+                   spacing: float) -> tuple[np.ndarray, ...]:
+    """Read-only bilinear ``(cols, vals)`` of :func:`_grid_at_level`: the nodes (``gshape``, spacing
+    ``spacing``) of a level of scale ``f`` on the finest level's grid (``finest_shape``). Made once per
+    shape, as :func:`_upsample_weights`."""
+    gh, gw = gshape
     ys, xs = np.mgrid[0:gh, 0:gw].astype(np.float64)
-    f, F = lv.scale, float(2 ** finest)
+    F = float(2 ** finest)
 
     def on_finest(v: np.ndarray) -> np.ndarray:
         # a node at x_l = j s of its level lies at x_0 = f x_l + (f - 1) / 2 at full size, and at
         # (x_0 - (F - 1) / 2) / F on the finest level
-        return ((f * v * lv.spacing + (f - 1) / 2.0) - (F - 1) / 2.0) / F
+        return ((f * v * spacing + (f - 1) / 2.0) - (F - 1) / 2.0) / F
 
     pts = np.column_stack([on_finest(xs).ravel(), on_finest(ys).ravel()])
-    cols, vals = _bilinear_weights(pts, grid.shape[:2], lv.spacing)
-    flat = np.ascontiguousarray(grid.reshape(-1, 2), dtype=np.float64)
-    return _interpolate(cols, vals, flat, np.empty((len(pts), 2))) / f
+    return _read_only(*_bilinear_weights(pts, finest_shape, spacing))
 
 
 def finest_grid_shape(shape: tuple[int, ...], options: DenseOptions) -> tuple[int, int]:

@@ -5,9 +5,10 @@ has more than one core; OpenCV's DIS optical flow, what the step competes with, 
 helper pcreg runs
 
 - half of each windowed correspondence search (:func:`pcreg.registration.dense.match_window`: every
-  other block of samples), of the full-size field and of the fused labels (every other block of rows);
+  other block of samples) and of the fused labels (every other block of rows);
 - one of the grid's two conjugate-gradient solves (its x and y columns are independent systems);
 - the finer pyramid levels' matching problems, while the main thread works on the coarser ones;
+- the full-size field, while the main thread measures the registration's evidence;
 - the new frame's classification, while the main thread registers it.
 
 The work is the same and each item is computed by the same code whichever thread runs it, so the

@@ -82,13 +82,24 @@ def enabled() -> bool:
     return bool(_STATE["enabled"]) and usable_cpus() >= 2
 
 
+#: Marks the helper thread itself (set by its executor's initializer).
+_ON_HELPER = threading.local()
+
+
+def _mark_helper() -> None:
+    _ON_HELPER.value = True
+
+
 def helper() -> ThreadPoolExecutor | None:
-    """This process's helper (made on first use), or None when :func:`enabled` says no."""
-    if not enabled():
+    """This process's helper (made on first use), or None when :func:`enabled` says no or when called
+    on the helper itself: work offered there to itself could only be taken back by it (:func:`beside`,
+    :func:`interleave` then run it in place, whole)."""
+    if not enabled() or getattr(_ON_HELPER, "value", False):
         return None
     with _LOCK:
         if _STATE["pool"] is None:
-            _STATE["pool"] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-helper")
+            _STATE["pool"] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-helper",
+                                                initializer=_mark_helper)
         return _STATE["pool"]
 
 

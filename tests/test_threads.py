@@ -41,6 +41,27 @@ def test_interleave_covers_every_block_once_with_and_without_the_helper():
             assert np.all(seen == 1), (on, n)
 
 
+def test_work_offered_on_the_helper_runs_there_whole():
+    """The helper never offers work to itself (it could only take it back): on it, interleave runs
+    every block in one share and beside runs in place, both on the helper."""
+    _two_cpus()
+    pool = _threads.helper()
+    assert pool is not None
+
+    def on_helper():
+        shares: list[tuple[int, int, str]] = []
+        _threads.interleave(10, lambda first, stride: shares.append((first, stride, threading.current_thread().name)),
+                            min_items=1)
+        offered = _threads.beside(lambda: threading.current_thread().name)
+        return threading.current_thread().name, _threads.helper(), shares, offered()
+
+    name, inner, shares, offered = pool.submit(on_helper).result(timeout=60)
+    assert name != threading.current_thread().name
+    assert inner is None
+    assert shares == [(0, 1, name)] and offered == name
+    assert _threads.helper() is pool  # the caller's own thread still has it
+
+
 def test_a_busy_helper_leaves_the_other_share_and_the_offered_work_to_the_caller():
     _two_cpus()
     release = threading.Event()

@@ -926,8 +926,7 @@ class _LastReference:
             image, (pyr, val) = self._image, self._levels
         if image is None or image.shape != img.shape or len(pyr) <= coarsest or not np.array_equal(image, img):
             pyr, val = _pyramid(img, coarsest)
-            for a in pyr + val:
-                a.setflags(write=False)  # shared by later registrations: nobody writes into them
+            _read_only(*pyr, *val)  # shared by later registrations: nobody writes into them
             with self._lock:
                 self._image, self._levels = img.copy(), (pyr, val)
         return pyr[:coarsest + 1], val[:coarsest + 1]
@@ -1162,12 +1161,11 @@ class _FullField:
     grid: np.ndarray
 
 
-def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Level, shape: tuple[int, int],
-                *, split: bool = True) -> _FullField:
+def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Level, shape: tuple[int, int]
+                ) -> _FullField:
     """The global transform plus the grid's displacements, interpolated at every full-size pixel, and
     the confidence: the nodes' data weight against a quarter of a cell's pixels (at the sampling rate),
-    0 where the field leaves the reference image. ``lv``: the finest level; ``split``: share the rows
-    with the helper thread (False on the helper itself)."""
+    0 where the field leaves the reference image. ``lv``: the finest level."""
     h, w = shape
     f, s, gshape = lv.scale, lv.spacing, lv.gshape
     grid = (f * U).reshape(gshape[0], gshape[1], 2).astype(np.float32)
@@ -1178,14 +1176,9 @@ def _full_field(T: np.ndarray, U: np.ndarray, weights_node: np.ndarray, lv: _Lev
     conf = np.empty((h, w), np.float32)
     if _field_rows_jit is None:  # pragma: no cover - numba is a declared dependency
         _field_rows_py(M, grid, conf_nodes, f, s, field_full, conf, 0, 1)
-    else:
-        def rows(first: int, stride: int) -> None:
-            _field_rows_jit(M, grid, conf_nodes, f, s, field_full, conf, first, stride)
-
-        if split:
-            interleave(h * w, rows, min_items=MIN_PIXELS)
-        else:
-            rows(0, 1)
+    else:  # shared with the helper, or whole where this runs on the helper (refine_field)
+        interleave(h * w, lambda first, stride: _field_rows_jit(M, grid, conf_nodes, f, s, field_full, conf,
+                                                                first, stride), min_items=MIN_PIXELS)
     return _FullField(field_full, conf, grid)
 
 
@@ -1271,7 +1264,7 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
     # 3. the plausibility test and the field at full resolution: both follow from the final grid
     # alone, so the field is made whole on the helper thread while this one measures the evidence
     # (instead of the two one after the other, each shared in halves)
-    field_later = beside(lambda: _full_field(T, grid.U, grid.weights_node, grid.finest, ref.shape[:2], split=False))
+    field_later = beside(lambda: _full_field(T, grid.U, grid.weights_node, grid.finest, ref.shape[:2]))
     last = grid.last
     try:
         evidence = _plausibility(last.R, last.Mv, last.P, last.C, last.GP, last.NE, last.lam, last.radius, grid.U)

@@ -415,3 +415,53 @@ def test_an_image_logged_again_is_encoded_once_and_stored_with_the_same_bytes(tm
 
     assert blob(E.REFERENCE_IMAGE, 1) == blob(E.MOVING_IMAGE, 0)
     assert blob(E.MOVING_IMAGE, 1) != blob(E.MOVING_IMAGE, 0)
+
+
+def test_the_callers_buffers_are_free_at_once_and_lines_keep_their_order(tmp_path):
+    """What is logged is built on the recorder's thread; the caller may reuse its arrays as soon as a call
+    returns. The recorder's thread is held until the caller has overwritten them, so a call that kept a
+    reference instead of a copy would log the overwritten values."""
+    import threading
+
+    rng = np.random.default_rng(3)
+    m, truth = _matrix(rng), rng.integers(0, 3, (H, W)).astype(np.uint8)
+    field = np.dstack(np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32))) + 1.5
+    confidence = np.full((H, W), 0.75, np.float32)
+    pts = rng.uniform(0, [W, H], size=(50, 2))
+    release = threading.Event()
+    with Recorder(tmp_path / "r.rrd", label_stride=1) as rec:
+        rec.set_frame(0)
+        rec._later(release.wait)  # holds the recorder's thread
+        rec.log_transform(m)
+        rec.log_labels(truth=truth)
+        rec.log_clouds(moving_points=pts)
+        rec.log_dense(field, confidence=confidence)
+        for i in range(20):
+            rec.log_text(f"line {i}")
+        expected = (m.copy(), truth.copy(), pts.copy())
+        for a in (m, truth, pts, field, confidence):
+            a[...] = 0
+        release.set()
+    back = read_recording(tmp_path / "r.rrd")
+    assert np.array_equal(tensor(back.latest(E.transform_path("T_ref_mov"), frame=0)), expected[0])
+    assert np.array_equal(segmentation(back.latest(E.labels_path("truth", ""), frame=0)), expected[1])
+    np.testing.assert_allclose(points(back.latest(E.MOVING_CLOUD, frame=0)), expected[2], atol=1e-4)
+    assert back.series(E.DENSE_MAX_DISPLACEMENT) == {0: pytest.approx(1.5 * np.sqrt(2), rel=1e-6)}
+    assert image(back.latest(E.DENSE_CONFIDENCE, frame=0)).min() > 150  # 0.75, not the zeros written after
+    assert [text(r) for r in back.get(E.LOG)] == [f"line {i}" for i in range(20)]
+
+
+def test_icp_iterations_before_the_first_frame_have_no_frame(tmp_path):
+    """Iterations are sent in batches across frames; those logged before any frame are sent on their own."""
+    pts = np.random.default_rng(4).uniform(0, [W, H], size=(40, 2))
+    it = IcpIteration("reference", 0, 0, np.eye(3), 0.5, 1.0, pts, pts, np.arange(40))
+    with Recorder(tmp_path / "r.rrd") as rec:
+        cb = rec.icp_callback("reference")
+        cb(it)
+        cb(it)
+        for f in range(2):
+            rec.set_frame(f)
+            cb(it)
+    back = read_recording(tmp_path / "r.rrd")
+    fit = [r for r in back.get(E.icp_path("reference", "fitness"), "Scalars:scalars") if not r.static]
+    assert [(r.times.get("frame"), r.times["icp_iteration"]) for r in fit] == [(None, 0), (None, 1), (0, 0), (1, 0)]

@@ -129,7 +129,8 @@ def _recording_hooks(rec, unit, counter: list[int], recorded: dict[str, int]):
         rec.log_errors({f"{prefix}/{m}": v for m, v in result.errors.items()})
 
     # A sequence recording shows the ICP of every pair thinly (its frames, labels and errors are the point):
-    # its iterations are about 5% of a recording's size.
+    # its iterations are still 10% (synthetic) to 39% (CamVid, about 40 iterations a pair) of a
+    # recording's size (docs/benchmarks.md#recording).
     return on_pair, rec.icp_callback(unit.backend, max_points=64, max_correspondences=24)
 
 

@@ -21,22 +21,25 @@ Usage::
             rec.log_images(reference=reference, moving=moving)
             rec.log_transform(result.matrix)
 
-Cost: images are JPEG-encoded (quality 60 by default) on a background thread, and clouds and label
-maps are subsampled for display: 100 recorded 640x480 pairs of ``pcreg evaluate sequence`` take about
-12 MB (CamVid) to 19 MB (synthetic noise textures), and recording adds a few percent (synthetic) to
-16-19% (CamVid) to their time on a 2-CPU machine (``tools/bench_recording.py`` measures both; the
-benchmarks page breaks the size down). The file is written by rerun's own thread as data arrives
-(within about a second, :data:`BATCH_SECONDS`); :meth:`Recorder.flush` forces it.
+Cost: what is logged is built, encoded (images as JPEG, quality 60 by default) and logged on the
+recorder's own thread; the calling thread only checks and copies it. Clouds and label maps are
+subsampled for display. 100 recorded 640x480 pairs of ``pcreg evaluate sequence`` take about 11 MB
+(CamVid) to 18 MB (synthetic noise textures), and recording adds 7-9% to their time on a 2-CPU machine
+(``tools/bench_recording.py`` measures both; the benchmarks page breaks the size down). The file is
+written by rerun's own thread as data arrives (within about a second, :data:`BATCH_SECONDS`);
+:meth:`Recorder.flush` forces it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 import json
 import math
 import os
 import threading
+import time
 import traceback
 import uuid
 from collections import deque
@@ -103,7 +106,16 @@ def _display_indices(n: int, limit: int) -> np.ndarray | slice:
     """Evenly spaced indices of at most ``limit`` of ``n`` items (deterministic, order kept)."""
     if n <= limit:
         return slice(None)
-    return np.linspace(0, n - 1, limit).astype(np.intp)
+    return _spaced(n, limit)
+
+
+@functools.lru_cache(maxsize=64)
+def _spaced(n: int, limit: int) -> np.ndarray:
+    """``limit`` evenly spaced indices of ``n``, read-only: an ICP callback asks for the same few twice
+    an iteration, and ``np.linspace`` each time cost about a millisecond a recorded pair."""
+    idx = np.linspace(0, n - 1, limit).astype(np.intp)
+    idx.flags.writeable = False
+    return idx
 
 
 def _apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -142,15 +154,15 @@ def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
 
 @dataclass
 class _IcpRows:
-    """One backend's ICP iterations in the current frame, kept until they are sent as columns."""
+    """One backend's ICP iterations, kept until they are sent as columns; each at its (frame, step)."""
 
-    steps: list[int] = field(default_factory=list)
+    times: list[tuple[int | None, int]] = field(default_factory=list)
     fitness: list[float] = field(default_factory=list)
     rmse: list[float] = field(default_factory=list)
-    drawn: list[int] = field(default_factory=list)  # the steps whose clouds are drawn (2-D)
+    drawn: list[tuple[int | None, int]] = field(default_factory=list)  # the iterations drawn (2-D)
     moving: list[np.ndarray] = field(default_factory=list)
     strips: list[np.ndarray] = field(default_factory=list)
-    targets: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    targets: list[tuple[tuple[int | None, int], np.ndarray]] = field(default_factory=list)
 
 
 class Recorder:
@@ -251,7 +263,7 @@ class Recorder:
         if kind is not None:
             self._rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: kind}))
         self._closed = False
-        self._encoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-recorder")
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pcreg-recorder")
         #: the last images JPEG-encoded and their bytes (a frame's three images and the next one's)
         self._jpegs: deque[tuple[np.ndarray, bytes]] = deque(maxlen=4)
         self._pending: list[Future] = []
@@ -263,6 +275,7 @@ class Recorder:
         self._moving_shape: tuple[int, int] | None = None
         self._static_once: set[tuple[str, str]] = set()  # (entity, what): series names and styles logged
         self._icp_rows: dict[str, _IcpRows] = {}
+        self._icp_since = time.monotonic()  # when the ICP rows kept were last sent
         self._send("/", rr.AnnotationContext(
             [rr.AnnotationInfo(id=k, label=name, color=color) for k, (name, color) in E.CLASSES.items()]
         ), static=True)
@@ -284,20 +297,20 @@ class Recorder:
         if self._closed:
             return
         try:
-            self._send_icp_rows()
+            self._send_icp_rows(now=True)
         finally:
             self._closed = True
         try:
             self._wait_pending()
         finally:
-            self._encoder.shutdown(wait=True)
+            self._worker.shutdown(wait=True)
             self._finish_blueprint()
             self._rec.flush()
             self._rec.disconnect()
 
     def flush(self) -> None:
         """Block until everything logged so far is in the file."""
-        self._send_icp_rows()
+        self._send_icp_rows(now=True)
         self._wait_pending()
         self._rec.flush()
 
@@ -352,12 +365,12 @@ class Recorder:
     def set_frame(self, index: int) -> None:
         """Put what follows on the ``frame`` timeline at ``index``.
 
-        Waits for the previous frame's images to be encoded (they are done by then in practice); rerun
-        writes them to the file within about a second (:data:`BATCH_SECONDS`).
+        Waits for the previous frame's logging to be done on the recorder's thread (it is by then in
+        practice); rerun writes it to the file within about a second (:data:`BATCH_SECONDS`).
         """
-        self._send_icp_rows()  # the previous frame's iterations, at that frame
         if self._frame is not None:
             self._wait_pending()
+        self._send_icp_rows(now=self._frame is None)  # iterations before the first frame have no frame
         self._frame = int(index)
         self._rec.set_time(E.FRAME_TIMELINE, sequence=self._frame)
         # frame-level data sits at the start of the iteration timelines too, so a view on one of them (a
@@ -375,7 +388,8 @@ class Recorder:
         """Log the run's configuration (a dict or a dataclass) as text: a TextLog line and the ``config`` document."""
         text = to_json(_plain(config))
         self._log(E.CONFIG, rr.TextDocument(text, media_type=rr.MediaType.TEXT), static=True)
-        self._log(E.LOG, rr.TextLog("config: " + json.dumps(_plain(config), default=str), level="INFO"))
+        line = "config: " + json.dumps(_plain(config), default=str)
+        self._log_later(E.LOG, lambda: rr.TextLog(line, level="INFO"))
 
     def log_text(self, text: str, level: str = "INFO") -> None:
         """One line (or more) on the text log; ``level`` is TRACE, DEBUG, INFO, WARN, ERROR or CRITICAL."""
@@ -384,11 +398,11 @@ class Recorder:
             level = "WARN"
         if level not in _LEVELS:
             raise ValueError(f"unknown log level {level!r}")
-        self._log(E.LOG, rr.TextLog(str(text), level=level))
+        self._log_later(E.LOG, lambda: rr.TextLog(str(text), level=level))
 
     def log_failure(self, text: str) -> None:
         """A failure, as an ERROR line on the text log."""
-        self._log(E.LOG, rr.TextLog(str(text), level="ERROR"))
+        self._log_later(E.LOG, lambda: rr.TextLog(str(text), level="ERROR"))
 
     # -- images -------------------------------------------------------------------------------
 
@@ -400,7 +414,7 @@ class Recorder:
     def _jpeg(self, a: np.ndarray) -> bytes:
         """``a`` JPEG-encoded; the last images' encodings are kept, so an image logged again (a
         sequence's reference is the previous pair's moving image) is not encoded twice. Runs on the
-        encoder thread only."""
+        recorder's thread only."""
         for old, data in self._jpegs:  # a sparse look first: most candidates differ at once
             if old.shape == a.shape and np.array_equal(old.ravel()[::997], a.ravel()[::997]) and np.array_equal(old, a):
                 return data
@@ -419,10 +433,15 @@ class Recorder:
         ok, buf = cv2.imencode(".png", m8, [cv2.IMWRITE_PNG_BILEVEL, 1, cv2.IMWRITE_PNG_COMPRESSION, 1])
         return rr.EncodedImage(contents=buf.tobytes(), media_type="image/png")
 
-    def _log_later(self, path: str, make: Callable[[], Any]) -> None:
-        """Build an archetype (encode an image) on the background thread and log it at the current frame.
+    def _later(self, log: Callable[[], None]) -> None:
+        """Run ``log`` (archetypes built and logged, images encoded) on the recorder's thread, at the
+        current frame, in the order asked.
 
-        Rerun's time cursor is per thread, so the job sets the frame on its own thread.
+        The calling thread only checks and copies what it is given: building rerun's archetypes costs
+        0.05-0.3 ms each in Python, and a recorded sequence pair logs about twenty, which the pipeline's
+        thread would otherwise wait for (docs/benchmarks.md#recording). Errors surface on the calling thread at the next :meth:`set_frame`,
+        :meth:`flush` or :meth:`close`. Rerun's time cursor is per thread, so the job sets the frame on
+        its own thread.
         """
         if self._closed:
             raise OutputError(f"{self.path}: the recording is closed")
@@ -433,9 +452,13 @@ class Recorder:
                 self._rec.set_time(E.FRAME_TIMELINE, sequence=frame)
                 self._rec.set_time(E.ICP_TIMELINE, sequence=0)
                 self._rec.set_time(E.CROSSCHECK_TIMELINE, sequence=0)
-            self._send(path, make())
+            log()
 
-        self._pending.append(self._encoder.submit(job))
+        self._pending.append(self._worker.submit(job))
+
+    def _log_later(self, path: str, make: Callable[[], Any]) -> None:
+        """Build an archetype with ``make`` on the recorder's thread and log it at ``path`` (:meth:`_later`)."""
+        self._later(lambda: self._send(path, make()))
 
     def log_images(
         self,
@@ -491,22 +514,23 @@ class Recorder:
             p = _as_points(reference_points, "reference_points")
             c = _as_colors(reference_colors, len(p), "reference_colors")
             idx = _display_indices(len(p), self.max_display_points)
-            self._log(E.REFERENCE_CLOUD, self._points(p[idx], None if c is None else c[idx]))
+            shown = (p[idx].copy(), None if c is None else c[idx].copy())  # the caller may reuse its buffers
+            self._log_later(E.REFERENCE_CLOUD, lambda: self._points(*shown))
         if moving_points is not None:
             p = _as_points(moving_points, "moving_points")
             c = _as_colors(moving_colors, len(p), "moving_colors")
             idx = _display_indices(len(p), self.max_display_points)
-            shown = (p[idx], None if c is None else c[idx])
-            self._log(E.MOVING_CLOUD, self._points(*shown))
-            self._moving_display = shown
+            moving = (p[idx].copy(), None if c is None else c[idx].copy())
+            self._log_later(E.MOVING_CLOUD, lambda: self._points(*moving))
+            self._moving_display = moving
             if self._matrix is not None:
                 self._log_moved_cloud()
 
     def _log_moved_cloud(self) -> None:
         assert self._moving_display is not None and self._matrix is not None
-        points, colors = self._moving_display
-        if self._matrix.shape == (3, 3):
-            self._log(E.MOVED_CLOUD, self._points(_apply(self._matrix, points), colors))
+        (points, colors), matrix = self._moving_display, self._matrix
+        if matrix.shape == (3, 3):
+            self._log_later(E.MOVED_CLOUD, lambda: self._points(_apply(matrix, points), colors))
 
     # -- transform ----------------------------------------------------------------------------
 
@@ -524,10 +548,10 @@ class Recorder:
             Size of the moving image whose border is drawn mapped into the reference; defaults to the
             last moving image logged.
         """
-        m = np.asarray(matrix, dtype=np.float64)
+        m = np.array(matrix, dtype=np.float64)  # a copy: logged on the recorder's thread
         if m.shape not in ((3, 3), (4, 4)) or not np.all(np.isfinite(m)):
             raise InputError(f"matrix must be a finite (3, 3) or (4, 4) array, got shape {m.shape}")
-        self._log(E.transform_path(name), rr.Tensor(m, dim_names=["row", "col"]))
+        self._log_later(E.transform_path(name), lambda: rr.Tensor(m, dim_names=["row", "col"]))
         if m.shape != (3, 3):
             return
         if name == "T_ref_mov":
@@ -538,7 +562,8 @@ class Recorder:
         if shape is not None:
             h, w = shape
             corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5], [-0.5, -0.5]])
-            self._log(E.outline_path(name), rr.LineStrips2D([_apply(m, corners)], colors=[255, 220, 0], radii=1.0))
+            self._log_later(E.outline_path(name),
+                            lambda: rr.LineStrips2D([_apply(m, corners)], colors=[255, 220, 0], radii=1.0))
 
     # -- dense fields ---------------------------------------------------------------------------
 
@@ -561,9 +586,22 @@ class Recorder:
         logged as ``dense/max_displacement``); ``dense/quiver`` draws ``field(p) - p`` every
         ``quiver_step`` pixels.
         """
-        f = np.asarray(field, dtype=np.float32)
+        f = np.array(field, dtype=np.float32)  # copies: drawn on the recorder's thread
         if f.ndim != 3 or f.shape[2] != 2 or not np.all(np.isfinite(f)):
             raise InputError(f"field must be a finite (H, W, 2) array, got shape {f.shape}")
+        M = None if matrix is None else np.array(matrix, dtype=np.float64)
+        if M is not None and (M.shape != (3, 3) or not np.all(np.isfinite(M))):
+            raise InputError("matrix must be a finite (3, 3) array")
+        maps = {}
+        for path, a in ((E.DENSE_CONFIDENCE, confidence), (E.DENSE_WARPED_PRIOR, warped_prior)):
+            if a is not None:
+                maps[path] = np.array(a, dtype=np.float32)
+                if maps[path].shape != f.shape[:2]:
+                    raise InputError(f"{path.rsplit('/', 1)[-1]} must be (H, W) = {f.shape[:2]}, got {maps[path].shape}")
+        self._later(lambda: self._draw_dense(f, M, maps, max(1, int(quiver_step))))
+
+    def _draw_dense(self, f: np.ndarray, M: np.ndarray | None, maps: dict[str, np.ndarray], step: int) -> None:
+        """:meth:`log_dense`'s drawing, on the recorder's thread."""
         h, w = f.shape[:2]
         xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
         disp = f - np.dstack([xs, ys])
@@ -574,31 +612,19 @@ class Recorder:
             u8 = np.clip(255.0 * m / max(scale, 1e-6), 0, 255).astype(np.uint8)
             return cv2.cvtColor(cv2.applyColorMap(u8, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
 
-        jobs = [(E.DENSE_DISPLACEMENT, colour(mag, top))]
-        if matrix is not None:
-            M = np.asarray(matrix, dtype=np.float64)
-            if M.shape != (3, 3) or not np.all(np.isfinite(M)):
-                raise InputError("matrix must be a finite (3, 3) array")
+        self._send(E.DENSE_DISPLACEMENT, self._image(colour(mag, top)))
+        if M is not None:
             den = M[2, 0] * xs + M[2, 1] * ys + M[2, 2]
             gx = (M[0, 0] * xs + M[0, 1] * ys + M[0, 2]) / den
             gy = (M[1, 0] * xs + M[1, 1] * ys + M[1, 2]) / den
             ref = np.hypot(f[..., 0] - gx, f[..., 1] - gy)
-            jobs.append((E.DENSE_REFINEMENT, colour(ref, float(ref.max()) if ref.size else 0.0)))
-        for path, img in jobs:
-            self._log_later(path, lambda img=img: self._image(img))
-        for path, a in ((E.DENSE_CONFIDENCE, confidence), (E.DENSE_WARPED_PRIOR, warped_prior)):
-            if a is None:
-                continue
-            a = np.asarray(a, dtype=np.float32)
-            if a.shape != (h, w):
-                raise InputError(f"{path.rsplit('/', 1)[-1]} must be (H, W) = {(h, w)}, got {a.shape}")
-            u8 = np.clip(255.0 * np.nan_to_num(a), 0, 255).astype(np.uint8)
-            self._log_later(path, lambda u8=u8: self._image(u8))
-        step = max(1, int(quiver_step))
+            self._send(E.DENSE_REFINEMENT, self._image(colour(ref, float(ref.max()) if ref.size else 0.0)))
+        for path, a in maps.items():
+            self._send(path, self._image(np.clip(255.0 * np.nan_to_num(a), 0, 255).astype(np.uint8)))
         sy, sx = slice(step // 2, h, step), slice(step // 2, w, step)
         origins = np.column_stack([xs[sy, sx].ravel(), ys[sy, sx].ravel()])
         vectors = disp[sy, sx].reshape(-1, 2)
-        self._log(E.DENSE_QUIVER, rr.Arrows2D(origins=origins, vectors=vectors, colors=[255, 220, 0], radii=0.8))
+        self._send(E.DENSE_QUIVER, rr.Arrows2D(origins=origins, vectors=vectors, colors=[255, 220, 0], radii=0.8))
         self._scalar(E.DENSE_MAX_DISPLACEMENT, top)
 
     # -- labels -------------------------------------------------------------------------------
@@ -625,7 +651,8 @@ class Recorder:
                 raise InputError(f"{kind} labels must be (H, W) integers, got {a.dtype} {a.shape}")
             if a.size and (a.min() < 0 or a.max() > 255):
                 raise InputError(f"{kind} labels must be class ids in 0..255")
-            self._log(E.labels_path(kind, prefix), rr.SegmentationImage(np.ascontiguousarray(a[::s, ::s], dtype=np.uint8)))
+            shown = np.array(a[::s, ::s], dtype=np.uint8, order="C")  # a copy: logged on the recorder's thread
+            self._log_later(E.labels_path(kind, prefix), lambda shown=shown: rr.SegmentationImage(shown))
 
     # -- series -------------------------------------------------------------------------------
 
@@ -634,19 +661,22 @@ class Recorder:
         a style that every row shares)."""
         if (path, what) not in self._static_once:
             self._static_once.add((path, what))
-            self._log(path, make(), static=True)
+            self._send(path, make(), static=True)
 
     def _scalar(self, path: str, value: float, name: str | None = None) -> None:
         self._once(path, "series", lambda: rr.SeriesLines(names=name or path.rsplit("/", 1)[-1]))
-        self._log(path, rr.Scalars(float(value)))
+        self._send(path, rr.Scalars(float(value)))
 
     def log_errors(self, errors: Mapping[str, float]) -> None:
         """Log error rates in percent (as everywhere in pcreg) per method as Scalars at ``errors/{method}``;
         NaN is skipped."""
-        for method, value in errors.items():
-            v = float(value)
-            if math.isfinite(v):
-                self._scalar(E.error_path(str(method)), v, str(method))
+        finite = [(str(m), float(v)) for m, v in errors.items() if math.isfinite(float(v))]
+
+        def log() -> None:
+            for method, value in finite:
+                self._scalar(E.error_path(method), value, method)
+
+        self._later(log)
 
     # -- ICP ----------------------------------------------------------------------------------
 
@@ -671,7 +701,8 @@ class Recorder:
             rows = self._icp_rows.setdefault(backend, _IcpRows())
             step = self._icp_step.get(backend, 0)
             self._icp_step[backend] = step + 1
-            rows.steps.append(step)
+            at = (self._frame, step)
+            rows.times.append(at)
             rows.fitness.append(float(it.fitness))
             rows.rmse.append(float(it.inlier_rmse))
             src = np.asarray(it.source_points)
@@ -681,8 +712,8 @@ class Recorder:
             key = (it.level, len(tgt))
             if self._icp_target_key.get(backend) != key:
                 self._icp_target_key[backend] = key
-                rows.targets.append((step, tgt[_display_indices(len(tgt), max_points)].copy()))
-            rows.drawn.append(step)
+                rows.targets.append((at, tgt[_display_indices(len(tgt), max_points)].copy()))
+            rows.drawn.append(at)
             rows.moving.append(src[_display_indices(len(src), max_points)].copy())
             ti = np.asarray(it.target_indices)
             matched = np.flatnonzero(ti >= 0)
@@ -691,17 +722,25 @@ class Recorder:
 
         return callback
 
-    def _send_icp_rows(self) -> None:
-        """Send the ICP iterations kept since the frame started, one column per entity."""
+    def _send_icp_rows(self, *, now: bool = False) -> None:
+        """Send the ICP iterations kept, one column per entity, on the recorder's thread: when a frame
+        starts and they span :data:`BATCH_SECONDS`, or ``now``. Each send is a chunk of its own (rerun does
+        not batch columns), so a frame's iterations sent alone made five chunks a frame."""
+        if not self._icp_rows or not (now or time.monotonic() - self._icp_since >= BATCH_SECONDS):
+            return
         rows_by_backend, self._icp_rows = self._icp_rows, {}
+        self._icp_since = time.monotonic()
+        self._later(lambda: self._send_icp_columns(rows_by_backend))
+
+    def _send_icp_columns(self, rows_by_backend: dict[str, _IcpRows]) -> None:
         for backend, rows in rows_by_backend.items():
             for what, values, name in (("fitness", rows.fitness, "fitness"), ("inlier_rmse", rows.rmse, "inlier RMSE")):
                 path = E.icp_path(backend, what)
                 self._once(path, "series", lambda: rr.SeriesLines(names=f"{backend} {name}"))
-                self._send_columns(path, rows.steps, rr.Scalars.columns(scalars=values))
+                self._send_columns(path, rows.times, rr.Scalars.columns(scalars=values))
             if rows.targets:
-                steps, clouds = zip(*rows.targets)
-                self._send_points(E.icp_path(backend, "target"), list(steps), list(clouds), [80, 160, 255])
+                times, clouds = zip(*rows.targets)
+                self._send_points(E.icp_path(backend, "target"), list(times), list(clouds), [80, 160, 255])
             if rows.drawn:
                 self._send_points(E.icp_path(backend, "moving"), rows.drawn, rows.moving, [255, 120, 0])
                 # one (N, 2, 2) array of segments: rerun's numpy path (a list of N strips is converted
@@ -713,17 +752,21 @@ class Recorder:
                 self._send_columns(path, rows.drawn, column.partition([len(r) for r in rows.strips]),
                                    archetype="LineStrips2D")
 
-    def _send_points(self, path: str, steps: list[int], clouds: list[np.ndarray], color: list[int]) -> None:
+    def _send_points(self, path: str, times: list[tuple[int | None, int]], clouds: list[np.ndarray],
+                     color: list[int]) -> None:
         column = rr.Points2D.columns(positions=np.concatenate(clouds)).partition([len(c) for c in clouds])
         self._once(path, "style", lambda: rr.Points2D.from_fields(colors=color, radii=1.5))
-        self._send_columns(path, steps, column, archetype="Points2D")
+        self._send_columns(path, times, column, archetype="Points2D")
 
-    def _send_columns(self, path: str, steps: list[int], columns: Any, *, archetype: str = "Scalars") -> None:
-        """``columns`` at ``steps`` of the ICP timeline, in this frame (at the start of the cross-check
-        timeline, as everything of the frame)."""
-        indexes = [rr.TimeColumn(E.ICP_TIMELINE, sequence=steps)]
-        if self._frame is not None:
-            indexes += [rr.TimeColumn(E.FRAME_TIMELINE, sequence=[self._frame] * len(steps)),
+    def _send_columns(self, path: str, times: list[tuple[int | None, int]], columns: Any, *,
+                      archetype: str = "Scalars") -> None:
+        """``columns`` at their (frame, step): ``step`` on the ICP timeline, in ``frame`` (at the start of
+        the cross-check timeline, as everything of the frame). Rows before the first frame are sent
+        alone (:meth:`set_frame`) and have no frame."""
+        frames, steps = zip(*times)
+        indexes = [rr.TimeColumn(E.ICP_TIMELINE, sequence=list(steps))]
+        if frames[0] is not None:
+            indexes += [rr.TimeColumn(E.FRAME_TIMELINE, sequence=list(frames)),
                         rr.TimeColumn(E.CROSSCHECK_TIMELINE, sequence=[0] * len(steps))]
         self._rec.send_columns(path, indexes=indexes, columns=columns)
         self._note(path, {archetype}, rows=len(steps))
@@ -741,7 +784,8 @@ class Recorder:
             if math.isfinite(value):
                 self._scalar(f"{E.CROSSCHECK}/{key}", value, key)
         summary = ", ".join(f"{k}={v:.6g}" for k, v in numbers.items() if "/" not in k)
-        self._log(E.LOG, rr.TextLog(f"crosscheck: {summary}" if summary else "crosscheck logged", level="INFO"))
+        line = f"crosscheck: {summary}" if summary else "crosscheck logged"
+        self._log_later(E.LOG, lambda: rr.TextLog(line, level="INFO"))
 
     def _cloud(self, points: np.ndarray, color: list[int]) -> Any:
         p = np.asarray(points, dtype=np.float64)

@@ -69,7 +69,8 @@ DEFAULT_JPEG_QUALITY = 60
 #: frame made chunks of one frame's rows each (a sequence recording of 100 pairs had about 2,800), and
 #: every chunk carries its own schema and is compressed on its own: a second's chunks make the same
 #: recording 14% (synthetic) to 23% (CamVid) smaller (docs/benchmarks.md). A reader of the file as it grows, and a run killed
-#: without closing its recorder, are at most about a second behind.
+#: without closing its recorder, are at most about a second behind; the ICP's iterations, kept until
+#: they span a second and sent when the next frame starts, about a second and a frame.
 BATCH_SECONDS = 1.0
 BATCH_BYTES = 16 << 20
 

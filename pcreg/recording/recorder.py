@@ -324,9 +324,13 @@ class Recorder:
     def closed(self) -> bool:
         return self._closed
 
-    def _log(self, path: str, *archetypes: Any, static: bool = False) -> None:
+    def _check_open(self) -> None:
+        """Refuse to log after :meth:`close`."""
         if self._closed:
             raise OutputError(f"{self.path}: the recording is closed")
+
+    def _log(self, path: str, *archetypes: Any, static: bool = False) -> None:
+        self._check_open()
         self._send(path, *archetypes, static=static)
 
     def _send(self, path: str, *archetypes: Any, static: bool = False) -> None:
@@ -440,12 +444,11 @@ class Recorder:
 
         The calling thread only checks and copies what it is given: building rerun's archetypes costs
         0.05-0.3 ms each in Python, and a recorded sequence pair logs about twenty, which the pipeline's
-        thread would otherwise wait for (docs/benchmarks.md#recording). Errors surface on the calling thread at the next :meth:`set_frame`,
-        :meth:`flush` or :meth:`close`. Rerun's time cursor is per thread, so the job sets the frame on
-        its own thread.
+        thread would otherwise wait for (docs/benchmarks.md#recording). Errors surface on the calling
+        thread at the next :meth:`set_frame`, :meth:`flush` or :meth:`close`. Rerun's time cursor is per
+        thread, so the job sets the frame on its own thread.
         """
-        if self._closed:
-            raise OutputError(f"{self.path}: the recording is closed")
+        self._check_open()
         frame = self._frame
 
         def job() -> None:
@@ -596,9 +599,9 @@ class Recorder:
         maps = {}
         for path, a in ((E.DENSE_CONFIDENCE, confidence), (E.DENSE_WARPED_PRIOR, warped_prior)):
             if a is not None:
-                maps[path] = np.array(a, dtype=np.float32)
-                if maps[path].shape != f.shape[:2]:
-                    raise InputError(f"{path.rsplit('/', 1)[-1]} must be (H, W) = {f.shape[:2]}, got {maps[path].shape}")
+                maps[path] = a = np.array(a, dtype=np.float32)
+                if a.shape != f.shape[:2]:
+                    raise InputError(f"{path.rsplit('/', 1)[-1]} must be (H, W) = {f.shape[:2]}, got {a.shape}")
         self._later(lambda: self._draw_dense(f, M, maps, max(1, int(quiver_step))))
 
     def _draw_dense(self, f: np.ndarray, M: np.ndarray | None, maps: dict[str, np.ndarray], step: int) -> None:
@@ -697,8 +700,7 @@ class Recorder:
         backend = str(backend)
 
         def callback(it: IcpIteration) -> None:
-            if self._closed:
-                raise OutputError(f"{self.path}: the recording is closed")
+            self._check_open()
             rows = self._icp_rows.setdefault(backend, _IcpRows())
             step = self._icp_step.get(backend, 0)
             self._icp_step[backend] = step + 1

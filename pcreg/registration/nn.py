@@ -21,8 +21,10 @@ Agreement with KD-trees (Open3D's nanoflann, scipy's cKDTree):
 Why a grid rather than a compiled KD-tree: the ICP's queries are bounded (``max_correspondence_distance``)
 and arrive in spatially coherent order, so a query touches 3^d cells of about the correspondence
 distance, with no tree descent; building it is one counting sort (linear), against a KD-tree's
-O(M log M). Per query against scipy's cKDTree: ``python -m pcreg.registration.nn --bench``; the ICP
-against Open3D's and small_gicp's: ``tools/bench_icp.py`` (README, Benchmarks).
+O(M log M). A compiled KD-tree with the same tie rule (median splits, leaves of 4-16 points) was no
+faster per query on 1k-30k points of the LiDAR pair. Per query against scipy's cKDTree:
+``python -m pcreg.registration.nn --bench``; the ICP against Open3D's and small_gicp's:
+``tools/bench_icp.py`` (README, Benchmarks).
 
 Compilation is cached on disk (``cache=True``); ``python -m pcreg.kernels`` compiles every
 kernel once (the Makefile's ``setup`` runs it), so no command compiles after installation; a new
@@ -92,11 +94,19 @@ def threaded(n: int) -> bool:
 #: its points within reach along that axis: from the first within reach of its x (a binary search)
 #: until the next point is farther in x alone than the best so far. LiDAR scans crowd some cells of a
 #: uniform grid (on the LiDAR pair the largest holds 1,856 distinct points, and 5,032 copies of one
-#: point before :meth:`GridIndex._drop_repeats`). 64: image clouds (edge points on the pixel lattice)
+#: point before :func:`_build` keeps it once). 64: image clouds (edge points on the pixel lattice)
 #: have cells of up to about 40 points, where the sorted path measured slower than a plain scan.
 SORTED_CELL_MIN = 64
 #: Target points per cell when the cell size is chosen from the point density.
 POINTS_PER_CELL = 2.0
+#: ... but a bounded query's cell is no smaller than this fraction of that: below the correspondence
+#: distance, the cells a query visits outnumber the points they hold. The density is taken over the
+#: bounding box's volume, which is too low for points on surfaces (LiDAR scans) and their cells are far
+#: apart. Half against a quarter, build and 15 searches on one thread, medians of 21 alternating runs:
+#: 0.83 / 0.82 / 0.89 of the time on 1k / 3k / 10k points of the LiDAR pair, 0.80 on 1k uniform in a cube,
+#: 0.79 on 1k on a sphere, 0.92-0.97 at 10k, 0.93 on 1k image edge points (0.97-0.98 where both fractions
+#: give the same cell). Whole density cells (fraction 1) were slower from 10k 3-D points (1.13-1.42).
+MIN_CELL_OF_DENSITY = 0.5
 #: A dense cell table (8 bytes a cell) is used while it holds at most this many cells per point, or
 #: at most :data:`DENSE_MIN_CELLS`; beyond, a hash of the occupied cells (slower lookups, memory ~ points).
 DENSE_CELLS_PER_POINT = 16
@@ -132,8 +142,75 @@ def _hash_slot(key, mask):
 
 @njit(cache=True)
 def _build(points, origin, h, dims, hashed):
-    """Counting sort of the points into cells. Returns (sorted points, their original indices,
-    cell start offsets (n_cells + 1), hash keys, hash cell ids)."""
+    """Counting sort of the points into cells. Returns (sorted points, their original indices, cell
+    start offsets (n_cells + 1), hash keys, hash cell ids).
+
+    Within a cell the points keep ascending indices, except in a crowded cell (more than
+    :data:`SORTED_CELL_MIN` points), which is sorted by its first coordinate (stably) and keeps each
+    repeated point once, by its lowest index (:func:`_mark_repeats`): a query's answer is the same (the
+    lowest index wins a tie), and the cell no longer holds copies (a LiDAR scan can return thousands of
+    points at one place: 5,032 in one cell of the LiDAR pair, which every query near it read).
+
+    One pass over the cells (the running sum of their counts), and a second only where repeats are
+    dropped: a small cloud's dense table can have 30 cells a point, and each pass over it cost about as
+    much as the points themselves."""
+    m, d = points.shape
+    tkeys, tcell, cell_of, n_cells = _cells_of(points, origin, h, dims, hashed)
+    # start[c] counts cell c's points, then (running sum) ends it; the fill, backwards, leaves it at the
+    # cell's first row, and start[n_cells] = m
+    start = np.zeros(n_cells + 1, np.int64)
+    crowded = np.empty(m // (SORTED_CELL_MIN + 1) + 1, np.int64)
+    n_crowded = 0
+    for i in range(m):
+        c = cell_of[i]
+        start[c] += 1
+        if start[c] == SORTED_CELL_MIN + 1:
+            crowded[n_crowded] = c
+            n_crowded += 1
+    for c in range(1, n_cells):
+        start[c] += start[c - 1]
+    start[n_cells] = m
+    spts = np.empty((m, d), np.float64)
+    sidx = np.empty(m, np.int64)
+    for i in range(m - 1, -1, -1):  # backwards: within a cell, points keep ascending indices
+        c = cell_of[i]
+        start[c] -= 1
+        j = start[c]
+        for a in range(d):
+            spts[j, a] = points[i, a]
+        sidx[j] = i
+    if n_crowded == 0:
+        return spts, sidx, start, tkeys, tcell
+    drop = np.zeros(m, np.bool_)
+    n_drop = 0
+    for t in range(n_crowded):  # a crowded cell by its first coordinate (see SORTED_CELL_MIN), then its repeats
+        s0, s1 = start[crowded[t]], start[crowded[t] + 1]
+        order = np.argsort(spts[s0:s1, 0], kind="mergesort")
+        spts[s0:s1] = spts[s0:s1][order]
+        sidx[s0:s1] = sidx[s0:s1][order]
+        n_drop += _mark_repeats(spts, s0, s1, drop)
+    if n_drop == 0:
+        return spts, sidx, start, tkeys, tcell
+    w = 0
+    s0 = start[0]
+    for c in range(n_cells):
+        s1 = start[c + 1]
+        start[c] = w
+        for j in range(s0, s1):
+            if not drop[j]:
+                for a in range(d):
+                    spts[w, a] = spts[j, a]
+                sidx[w] = sidx[j]
+                w += 1
+        s0 = s1
+    start[n_cells] = w
+    return spts[:w], sidx[:w], start, tkeys, tcell
+
+
+@njit(cache=True)
+def _cells_of(points, origin, h, dims, hashed):
+    """Each point's cell: (hash keys, hash cell ids, the cell of each point, number of cells). A dense
+    table numbers the cells by their linear key; a hash numbers the occupied cells as it meets them."""
     m, d = points.shape
     keys = np.empty(m, np.int64)
     for i in range(m):
@@ -148,84 +225,58 @@ def _build(points, origin, h, dims, hashed):
             key += c * stride
             stride *= dims[a]
         keys[i] = key
-    if hashed:
-        size = 1
-        while size < 2 * m:
-            size *= 2
-        mask = np.int64(size - 1)
-        tkeys = np.full(size, -1, np.int64)
-        tcell = np.full(size, -1, np.int64)
-        n_cells = 0
-        cell_of = np.empty(m, np.int64)
-        for i in range(m):
-            s = _hash_slot(keys[i], mask)
-            while True:
-                if tkeys[s] == keys[i]:
-                    break
-                if tkeys[s] == -1:
-                    tkeys[s] = keys[i]
-                    tcell[s] = n_cells
-                    n_cells += 1
-                    break
-                s = (s + 1) & mask
-            cell_of[i] = tcell[s]
-    else:
+    if not hashed:
         n_cells = 1
         for a in range(d):
             n_cells *= dims[a]
-        tkeys = np.empty(0, np.int64)
-        tcell = np.empty(0, np.int64)
-        cell_of = keys
-    start = np.zeros(n_cells + 1, np.int64)
+        return np.empty(0, np.int64), np.empty(0, np.int64), keys, n_cells
+    size = 1
+    while size < 2 * m:
+        size *= 2
+    mask = np.int64(size - 1)
+    tkeys = np.full(size, -1, np.int64)
+    tcell = np.full(size, -1, np.int64)
+    n_cells = 0
+    cell_of = np.empty(m, np.int64)
     for i in range(m):
-        start[cell_of[i] + 1] += 1
-    for c in range(n_cells):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    spts = np.empty((m, d), np.float64)
-    sidx = np.empty(m, np.int64)
-    for i in range(m):  # in index order: within a cell, points keep ascending indices
-        j = fill[cell_of[i]]
-        fill[cell_of[i]] += 1
-        for a in range(d):
-            spts[j, a] = points[i, a]
-        sidx[j] = i
-    for c in range(n_cells):  # a crowded cell by its first coordinate (see SORTED_CELL_MIN)
-        s0, s1 = start[c], start[c + 1]
-        if s1 - s0 > SORTED_CELL_MIN:
-            order = np.argsort(spts[s0:s1, 0], kind="mergesort")
-            spts[s0:s1] = spts[s0:s1][order]
-            sidx[s0:s1] = sidx[s0:s1][order]
-    return spts, sidx, start, tkeys, tcell
+        s = _hash_slot(keys[i], mask)
+        while True:
+            if tkeys[s] == keys[i]:
+                break
+            if tkeys[s] == -1:
+                tkeys[s] = keys[i]
+                tcell[s] = n_cells
+                n_cells += 1
+                break
+            s = (s + 1) & mask
+        cell_of[i] = tcell[s]
+    return tkeys, tcell, cell_of, n_cells
 
 
 @njit(cache=True)
-def _repeats(spts, sidx, start, m):
-    """(m,) bool: the points that repeat a point of lower index in the same crowded cell (more than
-    :data:`SORTED_CELL_MIN` points), from :func:`_build`'s output. A crowded cell is sorted by x, stably,
-    so equal points lie in one run of equal x, in ascending index; each point of a run is compared with
-    the run's distinct points before it (a run is one point long unless x repeats)."""
-    drop = np.zeros(m, np.bool_)
-    for c in range(start.shape[0] - 1):
-        s0, s1 = start[c], start[c + 1]
-        if s1 - s0 <= SORTED_CELL_MIN:
-            continue
-        r0 = s0
-        while r0 < s1:
-            r1 = r0 + 1
-            while r1 < s1 and spts[r1, 0] == spts[r0, 0]:
-                r1 += 1
-            if r1 - r0 > 1:
-                firsts = np.empty(r1 - r0, np.int64)  # the run's distinct points so far
-                n = 0
-                for j in range(r0, r1):
-                    if _seen(spts, j, firsts, n):
-                        drop[sidx[j]] = True
-                    else:
-                        firsts[n] = j
-                        n += 1
-            r0 = r1
-    return drop
+def _mark_repeats(spts, s0, s1, drop):
+    """Marks in ``drop`` the rows of ``s0..s1`` (a cell sorted by its first coordinate, stably, so in
+    ascending index within equal x) that repeat a row before them, and returns how many. Equal points lie
+    in one run of equal x; each row of a run is compared with the run's distinct rows before it (a run is
+    one row long unless x repeats)."""
+    n_drop = 0
+    r0 = s0
+    while r0 < s1:
+        r1 = r0 + 1
+        while r1 < s1 and spts[r1, 0] == spts[r0, 0]:
+            r1 += 1
+        if r1 - r0 > 1:
+            firsts = np.empty(r1 - r0, np.int64)  # the run's distinct rows so far
+            n = 0
+            for j in range(r0, r1):
+                if _seen(spts, j, firsts, n):
+                    drop[j] = True
+                    n_drop += 1
+                else:
+                    firsts[n] = j
+                    n += 1
+        r0 = r1
+    return n_drop
 
 
 @njit(cache=True, inline="always")
@@ -512,7 +563,7 @@ class GridIndex:
     points : (M, d) finite float64, d = 2 or 3, M >= 1.
     cell : cell side in the points' units. None: from the density, about :data:`POINTS_PER_CELL`
         points per cell of the bounding box, but at most ``max_distance`` when that is given (queries
-        bounded by it then visit at most 3^d cells).
+        bounded by it then visit at most 3^d cells), and no less than :data:`MIN_CELL_OF_DENSITY` of it.
     max_distance : the distance bound the queries will mostly use (a hint for ``cell``).
 
     :meth:`query` answers like ``scipy.spatial.cKDTree.query`` with ``k=1``.
@@ -535,8 +586,7 @@ class GridIndex:
                 cell = float((np.prod(pos) * POINTS_PER_CELL / m) ** (1.0 / pos.size))
                 cell = max(cell, float(pos.max()) / 2**20)
             if max_distance is not None and np.isfinite(max_distance) and max_distance > 0:
-                # no smaller than a quarter of the density's cell: unbounded queries stay cheap
-                cell = max(min(cell, float(max_distance)), cell / 4.0)
+                cell = max(min(cell, float(max_distance)), cell * MIN_CELL_OF_DENSITY)
         cell = float(cell)
         if not (cell > 0 and np.isfinite(cell)):
             raise ValueError(f"cell size must be a positive number, got {cell}")
@@ -556,21 +606,6 @@ class GridIndex:
         self.data = pts
         self.center = (lo + hi) / 2.0
         self._spts, self._sidx, self._start, self._tkeys, self._tcell = _build(pts, self.origin, cell, dims, hashed)
-        if self._start.size > 1 and int(np.diff(self._start).max()) > SORTED_CELL_MIN:
-            self._drop_repeats(pts)
-
-    def _drop_repeats(self, pts: np.ndarray) -> None:
-        """Index each point repeated in a crowded cell once, by its lowest index: a query's answer is the
-        same (the lowest index wins a tie), and the cell no longer holds copies (a LiDAR scan can return
-        thousands of points at one place: 5,032 in one cell of the LiDAR pair, which every query near
-        it read). Only crowded cells' points are compared (:func:`_repeats`)."""
-        drop = _repeats(self._spts, self._sidx, self._start, pts.shape[0])
-        if not drop.any():
-            return
-        keep = np.flatnonzero(~drop)
-        spts, sidx, start, tkeys, tcell = _build(np.ascontiguousarray(pts[keep]), self.origin, self.cell, self.dims,
-                                                 self.hashed)
-        self._spts, self._sidx, self._start, self._tkeys, self._tcell = spts, keep[sidx], start, tkeys, tcell
 
     def __len__(self) -> int:
         return self.n

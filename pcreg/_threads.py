@@ -15,8 +15,8 @@ The work is the same and each item is computed by the same code whichever thread
 results are the same, to the bit, with or without the helper.
 
 - **Only compiled code that releases the GIL, or numpy and OpenCV, runs on it**, and never a numba
-  ``parallel=True`` kernel: numba's ``workqueue`` threading layer (:mod:`pcreg.registration.nn`) is
-  not thread-safe.
+  ``parallel=True`` kernel: numba's ``workqueue`` threading layer, pcreg's where OpenMP cannot be
+  loaded (:mod:`pcreg.registration.nn`), is not thread-safe.
 - **One per process.** A ``--workers`` pool forks its workers; a forked child has no thread behind
   its parent's executor (work handed to it would wait for ever), so a child makes its own. A pool's
   workers use it only where the CPUs leave two to each worker (:func:`set_enabled`); ``PCREG_HELPER_THREAD=0``
@@ -32,11 +32,12 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, TypeVar
 
-__all__ = ["MIN_PIXELS", "beside", "close", "enabled", "helper", "interleave", "set_enabled", "usable_cpus",
-           "wait_quietly"]
+__all__ = ["MIN_PIXELS", "beside", "close", "enabled", "helper", "interleave", "others_busy", "set_enabled",
+           "usable_cpus", "wait_quietly"]
 
 T = TypeVar("T")
 
@@ -54,10 +55,13 @@ _STATE: dict = {"pool": None, "enabled": os.environ.get(ENVIRONMENT, "1").strip(
 
 def _forget_after_fork() -> None:
     """In a forked child: its parent's executor has no thread here (work handed to it would wait for
-    ever) and the lock may have been held by a parent's thread at the fork; start afresh."""
-    global _LOCK
+    ever) and the lock may have been held by a parent's thread at the fork; start afresh. The parent's
+    last reading of the machine's CPU time is not the child's either (:func:`others_busy`)."""
+    global _LOCK, _OTHERS_LOCK
     _LOCK = threading.Lock()
     _STATE["pool"] = None
+    _OTHERS_LOCK = threading.Lock()
+    _OTHERS.update(at=None, value=None)
 
 
 if hasattr(os, "register_at_fork"):
@@ -70,6 +74,51 @@ def usable_cpus() -> int:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
         return os.cpu_count() or 1
+
+
+#: :func:`others_busy` reads the machine's CPU time at most this often (seconds), and measures over the
+#: time since its last reading.
+OTHERS_INTERVAL = 0.25
+_CLOCK_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+_OTHERS_LOCK = threading.Lock()
+_OTHERS: dict = {"at": None, "busy": 0.0, "own": 0.0, "value": None}
+
+
+def _machine_busy_seconds() -> float | None:
+    """CPU seconds the whole machine has been busy since it started: every state of ``/proc/stat``'s
+    ``cpu`` line but idle and I/O wait (time a hypervisor stole counts as busy); None where there is no
+    such file."""
+    try:
+        with open("/proc/stat", "rb") as f:
+            ticks = [int(x) for x in f.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    if len(ticks) < 8:
+        return None
+    return (sum(ticks) - ticks[3] - ticks[4]) / _CLOCK_TICKS
+
+
+def others_busy() -> float | None:
+    """CPUs that the rest of the machine (every process but this one) kept busy, on average since the
+    last reading (:data:`OTHERS_INTERVAL` or more ago): the machine's busy CPU time less this process's
+    own. None until a second reading, and where the machine's CPU time is not known.
+
+    Unlike the load average, this process's own threads do not count: a process that has just run two
+    threads (its own, or a library's such as Open3D's) pushes its own load average towards 2, and a test
+    of the load would then keep it on one thread on an otherwise idle machine."""
+    now = time.monotonic()
+    with _OTHERS_LOCK:
+        at = _OTHERS["at"]
+        if at is not None and now - at < OTHERS_INTERVAL:
+            return _OTHERS["value"]
+        busy = _machine_busy_seconds()
+        if busy is None:
+            return None
+        own = time.process_time()
+        if at is not None:
+            _OTHERS["value"] = max(0.0, ((busy - _OTHERS["busy"]) - (own - _OTHERS["own"])) / (now - at))
+        _OTHERS.update(at=now, busy=busy, own=own)
+        return _OTHERS["value"]
 
 
 def set_enabled(on: bool) -> None:

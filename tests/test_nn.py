@@ -1,10 +1,12 @@
 """The compiled grid search answers exactly as a KD-tree (scipy's cKDTree), ties by the lowest index."""
 
+import os
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from pcreg.registration.nn import GridIndex
+from pcreg.registration.nn import OPENMP_SPIN_COUNT, GridIndex
 from pcreg.registration.reference import build_tree, icp_reference
 
 
@@ -112,6 +114,7 @@ def test_icp_with_the_grid_equals_icp_with_a_kd_tree():
 
 
 PARALLEL_AFTER_OPEN3D = """
+import os
 import open3d  # loads Open3D's own libtbb, which numba's TBB probe used to warn about
 import numpy as np
 import numba
@@ -119,52 +122,77 @@ from pcreg.registration.nn import PARALLEL_MIN_QUERIES, GridIndex
 rng = np.random.default_rng(0)
 index = GridIndex(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))
 index.nearest(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))
-print(numba.threading_layer())
+print(numba.threading_layer(), os.environ.get("GOMP_SPINCOUNT"))
 """
 
 
-def test_the_parallel_kernels_choose_their_threading_layer_quietly():
-    import os
+def _openmp_loads() -> bool:
+    try:
+        from numba.np.ufunc import omppool  # noqa: F401  (needs libgomp)
+    except ImportError:
+        return False
+    return True
+
+
+def _clean_env(**extra: str) -> dict:
+    names = ("NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY", "GOMP_SPINCOUNT", "OMP_WAIT_POLICY")
+    return {**{k: v for k, v in os.environ.items() if k not in names}, **extra}
+
+
+@pytest.mark.parametrize("extra, layer, spin", [
+    ({}, "omp", str(OPENMP_SPIN_COUNT)),  # OpenMP first, its threads' spinning shortened
+    ({"OMP_WAIT_POLICY": "passive"}, "omp", None),  # a user's OpenMP wait policy is left alone
+    ({"NUMBA_THREADING_LAYER": "workqueue", "GOMP_SPINCOUNT": "5"}, "workqueue", "5"),  # so is a named layer
+])
+def test_the_parallel_kernels_choose_their_threading_layer_quietly(extra, layer, spin):
     import subprocess
     import sys
 
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_THREADING_LAYER"}
+    if layer == "omp" and not _openmp_loads():
+        layer = "workqueue"  # no libgomp: the fork-safe layer, as quietly
     p = subprocess.run([sys.executable, "-c", PARALLEL_AFTER_OPEN3D], capture_output=True, text=True, timeout=300,
-                       env=env)
+                       env=_clean_env(**extra))
     assert p.returncode == 0, p.stderr
-    assert p.stderr == "" and p.stdout.strip() == "workqueue", (p.stdout, p.stderr)
+    assert p.stderr == "", p.stderr
+    assert p.stdout.split() == [layer, str(spin)], p.stdout
 
 
 FORK_AFTER_PARALLEL = """
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
+import numba
 import numpy as np
-from pcreg.registration.nn import PARALLEL_MIN_QUERIES, GridIndex
+from pcreg.registration.nn import PARALLEL_MIN_QUERIES, GridIndex, can_thread
 
 def query(seed):
     rng = np.random.default_rng(seed)
     index = GridIndex(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))
-    return index.nearest(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))[1]
+    return index.nearest(rng.uniform(0, 100, (PARALLEL_MIN_QUERIES, 2)))[1], can_thread()
 
-here = query(0)  # the parent starts the threading layer's threads before the pool forks
+here, _ = query(0)  # the parent starts the threading layer's threads before the pool forks
 with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as pool:
     there = list(pool.map(query, [0, 0]))
-print(all(np.array_equal(here, t) for t in there))
+print(numba.threading_layer(), all(np.array_equal(here, t) for t, _ in there), [c for _, c in there])
 """
 
 
-def test_a_forked_worker_runs_the_parallel_kernels_after_its_parent():
-    """``--workers`` pools fork a parent that may have run a parallel kernel already: the threading
-    layer must survive it (GNU OpenMP's does not: numba ends such a child)."""
-    import os
+@pytest.mark.parametrize("layer", ["default", "workqueue"])
+def test_a_forked_worker_runs_the_parallel_kernels_after_its_parent(layer):
+    """``--workers`` pools fork a parent that may have run a parallel kernel already: numba ends such a
+    child when it runs one under GNU OpenMP, so the child runs the one-thread kernels, with the same
+    answers (under workqueue, fork-safe, it still runs them threaded)."""
     import subprocess
     import sys
 
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_THREADING_LAYER"}
+    extra = {} if layer == "default" else {"NUMBA_THREADING_LAYER": layer}
     p = subprocess.run([sys.executable, "-c", FORK_AFTER_PARALLEL], capture_output=True, text=True, timeout=300,
-                       env=env)
-    assert p.returncode == 0 and p.stdout.strip() == "True", (p.stdout, p.stderr)
+                       env=_clean_env(**extra))
+    assert p.returncode == 0, (p.stdout, p.stderr)
     assert p.stderr == "", p.stderr
+    started = p.stdout.split()[0]
+    assert started == ("omp" if layer == "default" and _openmp_loads() else "workqueue"), p.stdout
+    threads_in_child = "False" if started == "omp" else "True"
+    assert p.stdout.split()[1:] == ["True", f"[{threads_in_child},", f"{threads_in_child}]"], p.stdout
 
 
 def test_small_batches_use_the_threads_only_while_a_core_is_spare(monkeypatch):
@@ -172,11 +200,20 @@ def test_small_batches_use_the_threads_only_while_a_core_is_spare(monkeypatch):
 
     monkeypatch.setattr(nn, "usable_cpus", lambda: 2)
     monkeypatch.setattr(nn.numba, "get_num_threads", lambda: 2)
+    idle = nn.PARALLEL_MIN_QUERIES_IDLE
+    # the CPUs the rest of the machine keeps busy (this process's own threads do not count)
+    for others, small in ((0.0, True), (0.45, True), (0.5, False), (1.2, False)):
+        monkeypatch.setattr(nn, "others_busy", lambda others=others: others)
+        monkeypatch.setattr(nn.os, "getloadavg", lambda: (2.0, 2.0, 2.0))  # not read when others_busy knows
+        assert nn.threaded(idle) is small, others
+        assert nn.threaded(idle - 1) is False
+        assert nn.threaded(nn.PARALLEL_MIN_QUERIES) is True  # large batches: always
+    # before the first measure, or with no /proc/stat: the load average, this process included
+    monkeypatch.setattr(nn, "others_busy", lambda: None)
     for load, small in ((0.4, True), (1.4, True), (1.5, False), (2.2, False)):
         monkeypatch.setattr(nn.os, "getloadavg", lambda load=load: (load, load, load))
-        assert nn.threaded(nn.PARALLEL_MIN_QUERIES_IDLE) is small, load
-        assert nn.threaded(nn.PARALLEL_MIN_QUERIES_IDLE - 1) is False
-        assert nn.threaded(nn.PARALLEL_MIN_QUERIES) is True  # large batches: always
+        assert nn.threaded(idle) is small, load
+        assert nn.threaded(nn.PARALLEL_MIN_QUERIES) is True
     monkeypatch.setattr(nn.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     monkeypatch.setattr(nn.numba, "get_num_threads", lambda: 1)
     assert nn.threaded(5000) is False  # one thread: nothing to share

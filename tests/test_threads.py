@@ -168,3 +168,34 @@ def test_close_ends_the_helper_after_its_work_and_a_later_use_makes_a_new_one():
     again = _threads.helper()
     assert again is not None and again is not pool
     assert _threads.beside(lambda: 41 + 1)() == 42
+
+
+def test_others_busy_is_the_machines_busy_time_less_this_processs(monkeypatch):
+    """The CPUs the rest of the machine kept busy between two readings: this process's own threads (a
+    threaded ICP, Open3D's) do not count, as they do in the load average."""
+    from types import SimpleNamespace
+
+    clock = {"now": 100.0, "busy": 1000.0, "own": 5.0}
+    monkeypatch.setattr(_threads, "_machine_busy_seconds", lambda: clock["busy"])
+    monkeypatch.setattr(_threads, "time", SimpleNamespace(monotonic=lambda: clock["now"],
+                                                          process_time=lambda: clock["own"]))
+    monkeypatch.setattr(_threads, "_OTHERS", {"at": None, "busy": 0.0, "own": 0.0, "value": None})
+    assert _threads.others_busy() is None  # one reading: nothing to measure yet
+    clock.update(now=101.0, busy=1002.0, own=6.9)  # 2 CPU-seconds busy in a second, 1.9 of them this process's
+    assert _threads.others_busy() == pytest.approx(0.1)
+    clock.update(now=101.0 + _threads.OTHERS_INTERVAL / 2, busy=1003.0)  # too soon to read again
+    assert _threads.others_busy() == pytest.approx(0.1)
+    clock.update(now=102.0, busy=1003.5, own=6.9)  # another process busy, this one idle
+    assert _threads.others_busy() == pytest.approx(1.5)
+    clock.update(now=103.0, busy=1004.0, own=8.0)  # the machine's ticks behind this process's own clock
+    assert _threads.others_busy() == 0.0
+
+
+def test_the_machines_busy_time_is_read_where_the_system_has_it():
+    import os
+
+    if not os.path.exists("/proc/stat"):
+        pytest.skip("no /proc/stat on this system: the load average is used instead")
+    first = _threads._machine_busy_seconds()
+    assert first is not None and first > 0
+    assert _threads._machine_busy_seconds() >= first

@@ -40,25 +40,73 @@ import numba
 import numpy as np
 
 from .._jit import njit, prange
-from .._threads import usable_cpus
+from .._threads import others_busy, usable_cpus
+
+
+#: libgomp's spin count (``GOMP_SPINCOUNT``) where neither it nor ``OMP_WAIT_POLICY`` is set: how long
+#: an OpenMP thread waits, spinning, for the next parallel region before it sleeps. An ICP runs one
+#: region an iteration, back to back, apart by the moments' sum on one thread (tens of microseconds at
+#: 1k points). libgomp's default (300,000) kept a core busy 6.5 ms after every region on the Intel
+#: machine; 10,000 kept it 0.4 ms, and the 1k / 3k-point 3-D ICP took 0.81 / 0.67 of Open3D's time with
+#: it against 0.76 / 0.69 with the default and 0.97 / 0.71 with 1,000 (one process each, 61 calls).
+OPENMP_SPIN_COUNT = 10000
 
 
 def _choose_threading_layer() -> None:
-    """Name numba's threading layer instead of letting it probe: this module and the reference ICP's
+    """Name numba's threading layers instead of letting it probe: this module and the reference ICP's
     threaded loop (:mod:`pcreg.registration.reference`, which imports this module first) hold pcreg's
     only ``parallel=True`` kernels, and the layer is picked when the first of them runs (after this).
 
-    - TBB (fork- and thread-safe) cannot be used: Open3D ships its own ``libtbb.so.12``, older than
-      numba accepts, and once Open3D is imported numba's probe finds it and prints a ``NumbaWarning``.
-    - OpenMP here is GNU libgomp, which is not fork-safe: a ``--workers`` pool forks the parent, and a
-      child that runs a parallel kernel after its parent did is ended by numba.
-    - ``workqueue`` is fork-safe. It is not thread-safe, but these kernels hold the GIL while they run
-      (no ``nogil``), so two Python threads never enter it at once.
+    - **OpenMP first** (GNU libgomp; ``make setup`` installs it): its threads wait for the next region
+      spinning a while (:data:`OPENMP_SPIN_COUNT`), so the ICP's back-to-back regions find them awake.
+      With ``workqueue``, whose threads sleep between regions and must be woken for each, the 1k / 3k
+      3-D ICP took 1.40-1.43 / 0.96-1.04 of Open3D's time, against 0.74-0.77 / 0.68-0.70 with OpenMP
+      (alternating processes, 61 calls each). libgomp is not fork-safe: numba ends a forked child that
+      runs a parallel kernel once its parent's OpenMP threads started, so such a child runs the one-thread
+      kernels (:func:`can_thread`), which give the same answers.
+    - **workqueue** where OpenMP cannot be loaded (no libgomp): fork-safe; not thread-safe, but these
+      kernels hold the GIL while they run (no ``nogil``), so two Python threads never enter it at once.
+    - **TBB never**: Open3D ships its own ``libtbb.so.12``, older than numba accepts, and once Open3D is
+      imported numba's probe finds it and prints a ``NumbaWarning``. (numba wants all three named: it is
+      last, after workqueue, which always loads.)
 
-    ``NUMBA_THREADING_LAYER`` set in the environment still wins.
+    ``NUMBA_THREADING_LAYER`` or ``NUMBA_THREADING_LAYER_PRIORITY`` set in the environment still win,
+    and so do ``GOMP_SPINCOUNT`` and ``OMP_WAIT_POLICY``.
     """
-    if "NUMBA_THREADING_LAYER" not in os.environ:
-        numba.config.THREADING_LAYER = "workqueue"
+    if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
+        numba.config.THREADING_LAYER = "default"
+        numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
+    if "GOMP_SPINCOUNT" not in os.environ and "OMP_WAIT_POLICY" not in os.environ:
+        os.environ["GOMP_SPINCOUNT"] = str(OPENMP_SPIN_COUNT)  # read when libgomp loads, at the first region
+
+
+#: True in a process forked after its parent's OpenMP threads started (:func:`can_thread`).
+_FORKED_AFTER_OPENMP = False
+
+
+def _started_layer() -> str | None:
+    """The threading layer numba started in this process, or None before its first parallel kernel."""
+    try:
+        return numba.threading_layer()
+    except ValueError:
+        return None
+
+
+def _note_fork() -> None:
+    global _FORKED_AFTER_OPENMP
+    if _started_layer() == "omp":
+        _FORKED_AFTER_OPENMP = True
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_note_fork)
+
+
+def can_thread() -> bool:
+    """Whether this process may run a ``parallel=True`` kernel: not in a child forked after its parent
+    started GNU OpenMP's threads (numba ends such a child when it runs one; see
+    :func:`_choose_threading_layer`). Where it may not, the one-thread kernels give the same answers."""
+    return not _FORKED_AFTER_OPENMP
 
 
 _choose_threading_layer()
@@ -70,19 +118,26 @@ PARALLEL_MIN_QUERIES = 20000
 #: machine the threads paid from about 1,000 points: a 15-iteration ICP of 1k / 3k / 10k points took
 #: 0.5-0.6 of the one-thread time in 2-D and 0.6-0.75 in 3-D, while at 300 points they cost as much as
 #: they saved and at 100 more. On a loaded machine (load average 1.6-2.3 on 2 CPUs, this process
-#: included) the same change made 1k-point ICPs slower, hence the load test.
+#: included) the same change made 1k-point ICPs slower, hence the test of a spare core.
 PARALLEL_MIN_QUERIES_IDLE = 1000
 
 
 def threaded(n: int) -> bool:
     """Whether a batch of ``n`` queries runs on numba's threads: from :data:`PARALLEL_MIN_QUERIES`
-    always, from :data:`PARALLEL_MIN_QUERIES_IDLE` while the 1-minute load average (this process, about
-    1, included) is under the CPUs this process may use less half a CPU: on 2 CPUs, while the rest of
-    the machine keeps less than half a core busy. Both ways give the same answers, to the bit."""
+    always, from :data:`PARALLEL_MIN_QUERIES_IDLE` while the rest of the machine keeps busy fewer than
+    the CPUs this process may use less one and a half: on 2 CPUs, less than half a core
+    (:func:`~pcreg._threads.others_busy`; before its first measure, and where the machine's CPU time is
+    not known, the 1-minute load average, this process included, under the CPUs less half a CPU). Both
+    ways give the same answers, to the bit."""
+    if not can_thread():
+        return False
     if n >= PARALLEL_MIN_QUERIES:
         return True
     if n < PARALLEL_MIN_QUERIES_IDLE or numba.get_num_threads() < 2:
         return False
+    others = others_busy()
+    if others is not None:
+        return others < usable_cpus() - 1.5
     try:
         load = os.getloadavg()[0]
     except OSError:  # pragma: no cover - no load average on this system
@@ -627,7 +682,8 @@ class GridIndex:
         """Squared distance (K,) float64 and index (K,) int64 of each query's nearest point with
         ``d^2 < max_distance^2``; ``(max_distance^2, -1)`` where there is none.
 
-        workers : threads (None: all of numba's where :func:`threaded` says so, else 1).
+        workers : threads (None: all of numba's where :func:`threaded` says so, else 1; 1 where
+            :func:`can_thread` says no).
         """
         q = np.ascontiguousarray(queries, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != self.dim:
@@ -636,7 +692,7 @@ class GridIndex:
         out_d2 = np.empty(q.shape[0], np.float64)
         out_i = np.empty(q.shape[0], np.int64)
         args = (q, r2, *self.search_arrays, out_d2, out_i)
-        parallel = (workers is None and threaded(q.shape[0])) or (workers is not None and workers != 1)
+        parallel = (threaded(q.shape[0]) if workers is None else workers != 1) and can_thread()
         if parallel:
             _query_parallel(*args)
         else:
@@ -689,7 +745,7 @@ def warm_up() -> None:
         pts = rng.uniform(0, 10, (64, d))
         for hashed_cell in (None, 1e-3):
             idx = GridIndex(pts, cell=hashed_cell)
-            for workers in (1, 2):
+            for workers in (1, 2) if can_thread() else (1,):
                 idx.nearest(pts[:8] + 0.01, 0.5, workers=workers)
                 idx.nearest(pts[:8] + 100.0, workers=workers)
 

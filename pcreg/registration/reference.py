@@ -586,5 +586,7 @@ def warm_up() -> None:
         _next_update(*mom, 1, 3, np.eye(d + 1), state)
         _scored(mom[0], mom[1], 50, 0.0, 0.0, state)
         d2, idx, _ = tree.move_and_match(pts, None, 1.0)
+        if not nn.can_thread():  # a child forked after its parent's OpenMP threads started
+            continue
         _moment_loop_threads(pts, np.eye(d + 1), 2, 1, 3, 0.0, 0.0, 1.0, *tree.search_arrays, d2, idx, tree.data,
                              tree.center, np.zeros(5))

@@ -165,6 +165,27 @@ def test_nan_median_is_numpys():
     assert np.isnan(_nan_median(np.full(3, np.nan)))
 
 
+def test_robust_scale_is_numpys():
+    """Tukey's scale from the mutual matches' distances with np.median's numbers: odd and even counts,
+    ties, unmatched and one-sided rows left out, too few mutual matches giving 0."""
+    from pcreg.registration.dense import TUKEY_C, _robust_scale
+
+    rng = np.random.default_rng(5)
+    for n in [3, 8, 9, 10, 11, 1000, 1001]:
+        for _ in range(20):
+            m = np.column_stack([rng.random(n), rng.random(n), np.round(rng.random(n), 2),
+                                 (rng.random(n) < 0.8).astype(float)])
+            m[rng.random(n) < 0.1, 0] = np.nan
+            g = m[(m[:, 3] > 0) & np.isfinite(m[:, 0]), 2]
+            sigma = float(rng.random()) * 0.05
+            want = 0.0
+            if g.size >= 8:
+                med = np.median(g)
+                mad = np.median(np.abs(g - med)) * 1.4826
+                want = max(med + TUKEY_C * max(mad, 1e-6), 2.0 * np.sqrt(6.0) * sigma)
+            assert _robust_scale(m, sigma) == want
+
+
 def test_bad_inputs_are_refused():
     img = _textured()
     with pytest.raises(InputError):

@@ -712,38 +712,51 @@ def _texture(img: np.ndarray, sigma: float, structure: float = 0.05) -> np.ndarr
     return (img - (1.0 - structure) * cv2.GaussianBlur(img, (0, 0), sigma)).astype(np.float32)
 
 
-def _robust_scale_py(m, sigma):
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a 1-D float array without NaN (NaN when it is empty): the middle value, or the
+    mean of the two middle ones, the lower of which is the largest value left of the upper's place
+    after one ``np.partition``. numpy selects with SIMD where the CPU has it: 13 us for the 4,400
+    colour distances of a level, against 60 for numba's quickselect, whose branches the data of each
+    call mispredict anew (12 us when timed on one array over and over)."""
+    n = values.shape[0]
+    if n == 0:
+        return float("nan")
+    k = n // 2
+    part = np.partition(values, k)
+    if n % 2:
+        return float(part[k])
+    return (float(part[:k].max()) + float(part[k])) / 2
+
+
+def _robust_scale(m: np.ndarray, sigma: float) -> float:
     """Tukey's scale for the colour distances ``m[:, 2]`` of the mutual matches of
     :func:`match_window`'s rows ``m`` (``m[:, 3] > 0``, a partner found): ``median + TUKEY_C * 1.4826
     MAD`` of those distances, at least twice the distance of two noisy pixels of one point
     (``2 sqrt(6) sigma``); 0.0 (no weights) when fewer than 8 matches are mutual."""
-    n = m.shape[0]
-    g = np.empty(n)
-    k = 0
-    for i in range(n):
-        if m[i, 3] > 0.0 and np.isfinite(m[i, 0]):
-            g[k] = m[i, 2]
-            k += 1
-    if k < 8:
+    g = np.empty(m.shape[0])
+    g = g[:_mutual_distances(m, g)]
+    if g.shape[0] < 8:
         return 0.0
-    med = np.median(g[:k])
-    mad = np.median(np.abs(g[:k] - med)) * 1.4826
+    med = _median(g)
+    mad = _median(np.abs(g - med)) * 1.4826
     return max(med + TUKEY_C * max(mad, 1e-6), 2.0 * math.sqrt(6.0) * sigma)
 
 
-def _nan_median_py(a):
-    """The median of the values of ``a`` (N,) that are not NaN, NaN when there is none: ``np.nanmedian``'s
-    number (the middle value, or the mean ``(a + b) / 2`` of the two middle ones), compiled: a fifth of
-    its time for the 5,000 distances of a level."""
-    g = np.empty(a.shape[0])
+def _mutual_distances_py(m, out):
+    """The colour distances ``m[:, 2]`` of the rows of ``m`` with a mutual partner and a match, in order,
+    into ``out``; returns how many (a fifth of the time of numpy's masks on the columns)."""
     k = 0
-    for i in range(a.shape[0]):
-        if a[i] == a[i]:
-            g[k] = a[i]
+    for i in range(m.shape[0]):
+        if m[i, 3] > 0.0 and np.isfinite(m[i, 0]):
+            out[k] = m[i, 2]
             k += 1
-    if k == 0:
-        return np.nan
-    return np.median(g[:k])
+    return k
+
+
+def _nan_median(a: np.ndarray) -> float:
+    """The median of the values of ``a`` (N,) that are not NaN, NaN when there is none: ``np.nanmedian``'s
+    number (:func:`_median`), in a third of its time for the 5,000 distances of a level."""
+    return _median(a[~np.isnan(a)])
 
 
 def _weigh_assemble_py(m, x, start, scale, cols, vals, pair_k, data, rhs, node_w, wts, wres):
@@ -791,11 +804,10 @@ def _weigh_assemble_py(m, x, start, scale, cols, vals, pair_k, data, rhs, node_w
 try:
     from .._jit import njit as _njit
 
-    _robust_scale = _njit(cache=True, nogil=True)(_robust_scale_py)
-    _nan_median = _njit(cache=True, nogil=True)(_nan_median_py)
+    _mutual_distances = _njit(cache=True, nogil=True)(_mutual_distances_py)
     _weigh_assemble = _njit(cache=True, nogil=True)(_weigh_assemble_py)
 except ImportError:  # pragma: no cover - numba is a declared dependency
-    _robust_scale, _nan_median, _weigh_assemble = _robust_scale_py, _nan_median_py, _weigh_assemble_py
+    _mutual_distances, _weigh_assemble = _mutual_distances_py, _weigh_assemble_py
 
 
 # ---------------------------------------------------------------------------------------------------

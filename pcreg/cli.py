@@ -38,6 +38,13 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def _first_sentence(doc: str) -> str:
+    """The first sentence of a docstring's first paragraph, on one line (a command's description)."""
+    para = " ".join(doc.strip().split("\n\n")[0].split())
+    end = para.find(". ")
+    return para if end < 0 else para[:end + 1]
+
+
 def _add(sub, name: str, module: str, help_: str) -> None:
     try:
         mod = importlib.import_module(module)
@@ -45,7 +52,7 @@ def _add(sub, name: str, module: str, help_: str) -> None:
         if exc.name != module:  # a missing dependency inside the module is a real error
             raise
         return
-    p = sub.add_parser(name, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
+    p = sub.add_parser(name, help=help_, description=_first_sentence(mod.__doc__ or help_))
     mod.add_arguments(p)
     _add_limits(p)
     p.set_defaults(_module=module)
@@ -150,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
+    # a path that is not UTF-8 holds the file system's escapes (os.fsdecode): shown as \udcXX on any stream
+    text = " ".join(str(exc).split()).encode("utf-8", "backslashreplace").decode("utf-8")
     return text[:500] if text else type(exc).__name__
 
 

@@ -53,7 +53,7 @@ def check_regular_file(path: str | os.PathLike, *, what: str = "file") -> Path:
     except (OSError, ValueError) as exc:  # ValueError: embedded NUL
         raise InputError(f"{p}: cannot read {what} ({getattr(exc, 'strerror', None) or exc})") from None
     if stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{p}: is a folder, not a {what}")
+        raise InputError(f"{p}: is a folder, not a file ({what})")
     if not stat.S_ISREG(st.st_mode):
         raise InputError(f"{p}: not a regular file (a FIFO, device or socket cannot be a {what})")
     if not os.access(p, os.R_OK):
@@ -71,7 +71,7 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
     except FileNotFoundError:
         raise InputError(f"{p}: no such file") from None
     except IsADirectoryError:
-        raise InputError(f"{p}: is a folder, not a {what}") from None
+        raise InputError(f"{p}: is a folder, not a file ({what})") from None
     except PermissionError:
         raise InputError(f"{p}: permission denied") from None
     except (OSError, ValueError) as exc:
@@ -79,7 +79,7 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
     try:
         st = os.fstat(fd)
         if stat.S_ISDIR(st.st_mode):
-            raise InputError(f"{p}: is a folder, not a {what}")
+            raise InputError(f"{p}: is a folder, not a file ({what})")
         if not stat.S_ISREG(st.st_mode):
             raise InputError(f"{p}: not a regular file (a FIFO, device or socket cannot be a {what})")
         if st.st_size > max_bytes:
@@ -108,6 +108,8 @@ def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.nda
     import io
 
     data = read_regular_file(path, max_bytes=1 << 16, what=what)
+    if not data.strip():  # numpy would warn of it and give an empty array
+        raise InputError(f"{path}: the {what} file is empty")
     try:
         m = np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2)
     except (ValueError, IndexError, TypeError) as exc:
@@ -308,7 +310,7 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: truncated PLY header")
     body_start = j + 1
     fmt = None
-    elements: list[list] = []  # [name, count, [sizes], has_list]
+    elements: list[list] = []  # [name, count, [sizes], has_list, [names]]
     for raw in head[:i].decode("ascii", "replace").splitlines():
         t = raw.split()
         if not t:
@@ -317,7 +319,7 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
             fmt = t[1]
         elif t[0] == "element" and len(t) == 3:
             try:
-                elements.append([t[1], int(t[2]), [], False])
+                elements.append([t[1], int(t[2]), [], False, []])
             except ValueError:
                 raise InputError(f"{path}: bad PLY element line {raw.strip()!r}") from None
             if elements[-1][1] < 0:
@@ -327,6 +329,7 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
                 elements[-1][3] = True
             elif len(t) >= 3 and t[1] in _PLY_SIZES:
                 elements[-1][2].append(_PLY_SIZES[t[1]])
+                elements[-1][4].append(t[2])
             else:
                 raise InputError(f"{path}: bad PLY property line {raw.strip()!r}")
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
@@ -334,6 +337,10 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
     vertex = next((e for e in elements if e[0] == "vertex"), None)
     if vertex is None or vertex[1] == 0:
         raise InputError(f"{path}: no vertices in the PLY header")
+    missing = [c for c in "xyz" if c not in vertex[4]]
+    if missing:  # Open3D would fill them with whatever its memory held
+        raise InputError(f"{path}: PLY vertices without the {', '.join(missing)} propert"
+                         f"{'y' if len(missing) == 1 else 'ies'} (x, y and z are needed)")
     n = vertex[1]
     if n > limit:
         raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")

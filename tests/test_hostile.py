@@ -153,6 +153,10 @@ def files(tmp_path_factory):
     (t / "garbage.xyz").write_text("1 2 3\nfoo bar\n4 5 6\n7 8\n" + "".join(f"{i} 1 2\n" for i in range(30)))
     (t / "short.pts").write_text("4\n1 2 3\n4 5 6\n")
     (t / "far.xyz").write_text("\n".join("1e300 0 0" if i == 0 else f"{i} {i % 7} {i % 3}" for i in range(50)))
+    (t / "xy.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 300\nproperty float x\n"
+                               b"property float y\nend_header\n" + np.arange(600, dtype="<f4").tobytes())
+    (t / "empty_init.txt").write_text("")
+    (t / "zero_init.txt").write_text("0 0 0 0\n0 0 0 0\n0 0 0 0\n0 0 0 0\n")
     lagr = t / "lagr"
     lagr.mkdir()
     return t
@@ -209,6 +213,24 @@ def _icp(src=CLOUD, tgt=CLOUD, **kw):
         from pcreg.registration.api import icp
 
         return icp(src, tgt, **kw)
+    return f
+
+
+def _propagator(**kw):
+    def f(t):
+        from pcreg import Propagator
+
+        labels = np.zeros(GOOD.shape[:2], np.uint8)
+        labels[32:] = 1
+        return Propagator.from_key_frame(GOOD, labels, **kw)
+    return f
+
+
+def _error_rate(predicted, truth):
+    def f(t):
+        from pcreg import error_rate
+
+        return error_rate(predicted, truth)
     return f
 
 
@@ -305,6 +327,14 @@ LIBRARY = {
     "warp_singular": (_warp(GOOD, T=np.zeros((3, 3))), "singular"),
     "warp_nan_matrix": (_warp(GOOD, T=np.full((3, 3), np.nan)), "finite"),
     "warp_fill_nan": (_warp(GOOD, fill=float("nan")), "fill"),
+    "warp_matrix_1e300": (_warp(GOOD, T=np.diag([1e300, 1e300, 1.0])), "|m| <= 1e12"),
+    "cloud_complex": (_icp(src=CLOUD.astype(complex)), "numeric"),
+    "ply_without_z": (_load_cloud("xy.ply"), "without the z property"),
+    "propagator_affine_on_open3d": (_propagator(model="affine", backend="open3d"), "open3d backend"),
+    "propagator_weight_1e39": (_propagator(weight=1e39), "weight"),
+    "error_rate_of_fractions": (_error_rate(np.full((4, 4), 0.5), np.zeros((4, 4), int)), "integer"),
+    "error_rate_of_none": (_error_rate(None, None), "integer"),
+    "error_rate_truth_negative": (_error_rate(np.zeros((4, 4), int), np.full((4, 4), -1)), "truth labels"),
     # point clouds (arrays)
     "cloud_coordinates_1e300": (_icp(src=CLOUD * 1e300), "out of range"),
     "cloud_nan": (_icp(src=np.vstack([CLOUD, [[np.nan, 0, 0]]])), "NaN"),
@@ -539,6 +569,25 @@ CLI = {
                                         "--relative-fitness"),
     "crosscheck_suite_bad_params": (["crosscheck", "--suite", "{t}/suite"], "unreadable case"),
     "sequence_lagr_nan": (["evaluate", "sequence", "--data", "lagr:{t}/lagr_nan", "--out", "{t}/o"], "NaN"),
+    "register_out_not_png_or_jpeg": (["register", "{t}/good.png", "{t}/good.png", "--out", "{t}/w.webp"],
+                                     "name it .png"),
+    "register_out_a_folder_name": (["register", "{t}/good.png", "{t}/good.png", "--out", "{t}/w/"], "name it .png"),
+    "crosscheck_with_py_without_a_function": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", "py:"],
+                                              "py:MODULE:FUNCTION"),
+    "crosscheck_with_an_unclosed_quote": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", 'cmd:"x {out}'],
+                                          "cannot parse"),
+    "crosscheck_with_nothing": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", ""], "names no implementation"),
+    "crosscheck_init_empty": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/empty_init.txt"], "empty"),
+    "crosscheck_init_singular": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/zero_init.txt"],
+                                 "singular"),
+    "crosscheck_iterations_over_the_limit": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--iterations", "1000000"],
+                                             "--iterations"),
+    "crosscheck_voxel_size_on_images": (["crosscheck", "{t}/good.png", "{t}/good.png", "--voxel-size", "3"],
+                                        "point clouds"),
+    "sequence_fusion_frames_over_frames": (["evaluate", "sequence", "--frames", "12", "--fusion-frames", "13",
+                                            "--out", "{t}/o"], "--fusion-frames"),
+    "sequence_model_open3d_cannot_fit": (["evaluate", "sequence", "--model", "projective", "--backend", "open3d",
+                                          "--out", "{t}/o"], "open3d backend"),
 }
 
 
@@ -724,3 +773,41 @@ def test_one_odd_sized_frame_fails_only_its_own_pairs():
     assert all(f"frame {odd.name} is 90x72 px" in r for r in failed.values())
     scored = {(p.reference, p.moving) for p in res.pairs}
     assert scored == {(1, 2), (2, 3), (5, 6), (6, 7)}
+
+
+def test_view_time_beyond_64_bits_is_bad_input():
+    from pcreg.commands.view import _parse_time
+
+    assert _parse_time("frame=3") == ("frame", 3)
+    with pytest.raises(InputError, match="out of range"):
+        _parse_time("frame=99999999999999999999")
+
+
+def test_run_never_writes_over_its_inputs(tmp_path, capsys):
+    """--out the frames' folder (or the truth's) is refused before anything is written; labels in
+    colours are refused, a grey image saved in colour is read as grey."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(frames / f"f{i}.png"), np.roll(GOOD, 2 * i, axis=1))
+    labels = np.zeros(GOOD.shape[:2], np.uint8)
+    labels[32:] = 1
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    before = {p.name: p.read_bytes() for p in frames.iterdir()}
+    rc, err = cli(["run", frames, "--out", frames, "--labels", tmp_path / "key.png"], capsys)
+    assert rc == 2 and len(err) == 1 and "would overwrite the input" in err[0], err
+    assert {p.name: p.read_bytes() for p in frames.iterdir()} == before
+    rc, err = cli(["run", frames, "--out", tmp_path / "o", "--labels", frames / "f0.png"], capsys)
+    assert rc == 2 and "single-channel" in err[0], err
+    assert not (tmp_path / "o").exists()
+    cv2.imwrite(str(tmp_path / "key3.png"), np.dstack([labels] * 3))
+    rc, err = cli(["run", frames, "--out", tmp_path / "o", "--labels", tmp_path / "key3.png"], capsys)
+    assert rc == 0, err
+    assert sorted(p.name for p in (tmp_path / "o").glob("f*.png")) == ["f0.png", "f1.png", "f2.png"]
+
+
+def test_a_recording_path_that_is_not_utf8_leaves_no_file(files, tmp_path, capsys):
+    bad = tmp_path / os.fsdecode(b"r\xff.rrd")
+    rc, err = cli(["register", files / "good.png", files / "good.png", "--record", bad], capsys)
+    assert rc == 2 and len(err) == 1 and "UTF-8" in err[0], err
+    assert list(tmp_path.iterdir()) == []

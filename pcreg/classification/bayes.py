@@ -131,7 +131,9 @@ def _gaussian_params(counts: np.ndarray, classes: np.ndarray, *, var_smoothing: 
     n = total[0].sum()
     mu_all = (total * _LEVELS).sum(axis=1) / n
     var_all = (total * (_LEVELS[None, :] - mu_all[:, None]) ** 2).sum(axis=1) / n
-    epsilon = var_smoothing * float(var_all.max())
+    # scikit-learn's epsilon, but never under var_smoothing grey levels squared: features that are all
+    # constant (black frames) would otherwise have no variance at all, and no finite likelihood
+    epsilon = var_smoothing * max(float(var_all.max()), 1.0)
     var = var + epsilon
     if priors is None:
         prior = n_c / n_c.sum()

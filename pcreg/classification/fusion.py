@@ -47,6 +47,10 @@ __all__ = [
 
 #: Fusion weights tried by :func:`choose_weight` (0 = naive Bayes alone).
 WEIGHT_GRID: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
+#: The largest fusion weight taken: the prior's log-odds are bounded (``eps``), so a weight far beyond the
+#: grid's already lets the prior decide every pixel, and a weight near float32's largest number would
+#: overflow the float32 log-odds.
+MAX_WEIGHT = 1e6
 
 
 @dataclass(frozen=True)
@@ -70,10 +74,10 @@ class FusionConfig:
             raise InputError(f"fusion eps must be in (0, 1), got {self.eps}")
         if self.sigma < 0:
             raise InputError(f"fusion sigma must be >= 0, got {self.sigma}")
-        if self.weight is not None and not (np.isfinite(self.weight) and self.weight >= 0):
-            raise InputError(f"fusion weight must be a finite number >= 0, got {self.weight}")
-        if not self.grid or any(not (np.isfinite(g) and g >= 0) for g in self.grid):
-            raise InputError("fusion weight grid must hold finite numbers >= 0")
+        if self.weight is not None and not 0 <= self.weight <= MAX_WEIGHT:
+            raise InputError(f"fusion weight must be a number in 0..{MAX_WEIGHT:g}, got {self.weight}")
+        if not self.grid or any(not 0 <= g <= MAX_WEIGHT for g in self.grid):
+            raise InputError(f"fusion weight grid must hold numbers in 0..{MAX_WEIGHT:g}")
 
 
 def check_pi(pi: float) -> float:

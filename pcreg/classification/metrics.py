@@ -17,6 +17,9 @@ LABEL_NAMES = ("ground", "obstacle", "unknown")
 def _check_pair(predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray | None) -> tuple:
     predicted = np.asarray(predicted)
     truth = np.asarray(truth)
+    for name, a in (("predicted labels", predicted), ("truth", truth)):
+        if not np.issubdtype(a.dtype, np.integer):
+            raise InputError(f"{name} must be an integer array (0 ground, 1 obstacle, 2 unknown), got {a.dtype}")
     if predicted.shape != truth.shape:
         raise InputError(f"predicted labels {predicted.shape} and truth {truth.shape} differ in shape")
     if mask is not None:
@@ -40,6 +43,8 @@ def confusion_matrix(predicted: np.ndarray, truth: np.ndarray, *, mask: np.ndarr
     predicted, truth, mask = _check_pair(predicted, truth, mask)
     t = truth.reshape(-1)
     p = predicted.reshape(-1)
+    if t.size and (int(t.max()) >= N_LABELS or int(t.min()) < 0):
+        raise InputError(f"truth labels must be in 0..{N_LABELS - 1}")
     keep = t < (2 if exclude_unknown else N_LABELS)
     if mask is not None:
         keep &= mask.reshape(-1)

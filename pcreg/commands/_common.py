@@ -65,8 +65,8 @@ def positive_int(text: str) -> int:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1 or v > 1_000_000:
-        raise argparse.ArgumentTypeError(f"expected a positive integer (at most 1000000), got {v}")
+    if v < 1 or v > 100_000:  # the library's limit on iterations
+        raise argparse.ArgumentTypeError(f"expected a positive integer (at most 100000), got {v}")
     return v
 
 
@@ -163,7 +163,9 @@ def angle_list(text: str) -> tuple[float, ...]:
                 raise argparse.ArgumentTypeError(f"{len(vals)} angles; the limit is {MAX_UNITS}")
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected angles as A,B,C or START:STOP:STEP, got {text!r}") from None
-    if not vals or any(not np.isfinite(v) or abs(v) > 360 for v in vals):
+    if not vals:  # "10:0:5" (stop below start) or ","
+        raise argparse.ArgumentTypeError(f"{text!r} gives no angle (START:STOP:STEP needs STOP >= START)")
+    if any(not np.isfinite(v) or abs(v) > 360 for v in vals):
         raise argparse.ArgumentTypeError(f"angles must be within +-360 degrees, got {text!r}")
     return vals
 

@@ -9,6 +9,7 @@ a suite and writes a table and a figure.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ._common import add_record_arguments, float_list, open_recorder, positive_float, positive_int, print_json
@@ -50,12 +51,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_record_arguments(p)
 
 
+def _bar_wanted() -> bool:
+    """Progress bars only on a terminal: a log or a pipe gets the command's own lines alone."""
+    return sys.stderr.isatty()
+
+
 def _implementations(args) -> list[str]:
     from ..implementations import parse_list
 
+    from ..errors import InputError
+
     items: list[str] = []
     for text in args.implementations or ["reference,open3d"]:
-        items.extend(parse_list(text))
+        names = parse_list(text)
+        if not names:
+            raise InputError(f"--with {text!r} names no implementation")
+        items.extend(names)
     return list(dict.fromkeys(items))
 
 
@@ -99,7 +110,7 @@ def _suite(args) -> dict:
     out: dict = {}
     if args.export:
         cases, skipped = builtin_cases(scans=_scans(args))
-        export_suite(args.export, cases, progress=True)
+        export_suite(args.export, cases, progress=_bar_wanted())
         out["exported"] = args.export
         out["cases"] = [c.name for c in cases]
         out["skipped"] = skipped
@@ -114,7 +125,7 @@ def _suite(args) -> dict:
         from ..implementations import parse_list
 
         names = [n for t in names for n in parse_list(t)]
-        rows = run_suite(cases, names, timeout=args.timeout, progress=True)
+        rows = run_suite(cases, names, timeout=args.timeout, progress=_bar_wanted())
         out["results"] = write_results(Path(args.out or suite), rows, skipped=skipped)
         out["agreeing"] = sum(1 for r in rows if r.get("agrees"))
         out["rows"] = len(rows)
@@ -141,7 +152,7 @@ def _clouds(args) -> int:
             report = crosscheck(args.a, args.b, implementations=names, init=init,
                                 max_correspondence_distance=args.max_distance, max_iterations=args.iterations,
                                 relative_fitness=args.relative_fitness, relative_rmse=args.relative_rmse,
-                                voxel_size=voxel, timeout=args.timeout, progress=not args.json)
+                                voxel_size=voxel, timeout=args.timeout, progress=_bar_wanted() and not args.json)
         out = report.to_dict()
         if rec.enabled:  # the moved clouds are made for the recording alone
             log_cloud_crosscheck(rec, report)
@@ -210,10 +221,13 @@ def format_table(out: dict) -> str:
 def _images(args) -> int:
     from ..implementations.crosscheck import CROSSCHECK_REGISTRATION, CrosscheckConfig, crosscheck
 
-    if args.implementations:
-        from ..errors import InputError
+    from ..errors import InputError
 
+    if args.implementations:
         raise InputError("--with applies to point clouds; images are cross-checked with both register backends")
+    given = [o for o, v in (("--voxel-size", args.voxel_size), ("--init", args.init)) if v is not None]
+    if given:
+        raise InputError(f"{' and '.join(given)} appl{'y' if len(given) > 1 else 'ies'} to point clouds, not images")
     config = CrosscheckConfig(registration=CROSSCHECK_REGISTRATION.replace(
         model=args.model, iterations=args.iterations, levels=args.levels,
         max_correspondence_distance=args.max_distance if args.max_distance else 2.5))

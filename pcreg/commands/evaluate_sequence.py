@@ -19,12 +19,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="frame increments k (default 1,4,7,10)")
     parser.add_argument("--train", type=c.train, default="reference",
                         help="reference (train on each pair's reference frame, default) or first:K")
+    from ..classification.fusion import MAX_WEIGHT
     from ._common import arg_float, arg_int
 
     parser.add_argument("--fusion-frames", type=arg_int(0, c.MAX_FRAMES), default=None, metavar="C",
                         help="frames at the start of each sequence that choose the fusion weight and are not "
                              "scored (default: the training frames for first:K, else 10%% of the sequence, >= 2)")
-    parser.add_argument("--fusion-weight", type=arg_float(0, 1e6), default=None, metavar="W",
+    parser.add_argument("--fusion-weight", type=arg_float(0, MAX_WEIGHT), default=None, metavar="W",
                         help="fixed fusion weight instead of choosing it on the fusion frames")
     parser.add_argument("--init", choices=("identity", "auto"), default="identity",
                         help="registration start: identity (default) or auto (global rotation search)")
@@ -51,11 +52,16 @@ def config_from_args(args: argparse.Namespace) -> SequenceConfig:
         raise InputError(f"--model must be one of {', '.join(MODELS + ('dense',))}")
     if args.workers < 1:
         raise InputError("--workers must be at least 1")
+    if args.frames is not None and args.fusion_frames is not None and args.fusion_frames > args.frames:
+        raise InputError(f"--fusion-frames {args.fusion_frames} is more than --frames {args.frames}")
+    registration = PIPELINE_REGISTRATION.replace(levels=args.levels, iterations=args.iterations, init=args.init,
+                                                 model=args.model)
+    for backend in c.backends(args.backend):  # a model a backend cannot fit is refused before any unit runs
+        registration.replace(backend=backend)
     return SequenceConfig(data=args.data, increments=tuple(sorted(set(args.increments))),
                           backends=c.backends(args.backend), frames=args.frames, size=args.size, seed=args.seed,
                           train=args.train, fusion_frames=args.fusion_frames, fusion_weight=args.fusion_weight,
-                          registration=PIPELINE_REGISTRATION.replace(levels=args.levels, iterations=args.iterations,
-                                                                     init=args.init, model=args.model))
+                          registration=registration)
 
 
 def run(args: argparse.Namespace) -> int:

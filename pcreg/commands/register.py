@@ -33,15 +33,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import os
+    from pathlib import Path
+
     import cv2
 
+    from ..errors import InputError, OutputError
     from ..outputs import atomic_write_bytes, check_output
-    from ..errors import OutputError
     from ..registration.clouds import cloud_pyramid, load_image
     from ..registration.api import register
     from ..registration.warp import warp
 
-    if args.out:
+    if args.out is not None:
+        if args.out.endswith(("/", os.sep)) or Path(args.out).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+            raise InputError(f"--out {args.out!r}: the warped image is written as PNG or JPEG; name it .png or .jpg")
         check_output(args.out, force=args.force)
     ref = load_image(args.reference)
     mov = load_image(args.moving)

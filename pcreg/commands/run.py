@@ -60,7 +60,10 @@ def _read_labels(path: Path, mapping: str):
     from ..formats import read_image_file
 
     raw = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)  # a regular file, its size checked first
-    if raw.ndim == 3:
+    if raw.ndim == 3:  # a grey image saved in colour is read as grey; labels in colours are not labels
+        if raw.shape[2] not in (3, 4) or not (raw[:, :, 1:3] == raw[:, :, :1]).all():
+            raise InputError(f"{path}: labels must be a single-channel image (one class id per pixel), "
+                             f"got {raw.shape[2]} channels that differ")
         raw = raw[:, :, 0]
     if raw.dtype != np.uint8:
         raise InputError(f"{path}: labels must be an 8-bit image, got {raw.dtype}")
@@ -102,9 +105,19 @@ def _truth(folder: str | None, paths: list[Path], shape, mapping: str):
     return _TruthMaps(files, mapping)
 
 
-def run(args: argparse.Namespace) -> int:
-    import numpy as np
+def _check_spares_inputs(out: Path, paths: list[Path], labels: Path, truth) -> None:
+    """Refuse an ``--out`` whose label PNGs (``OUT/NAME.png`` per frame) would overwrite a frame, the key
+    frame's labels or a truth map: ``--out`` the frames' own folder, say."""
+    from ..errors import InputError
 
+    written = {(out / f"{p.stem}.png").resolve() for p in paths}
+    for f in [*paths, labels, *(truth.paths if truth is not None else [])]:
+        if f.resolve() in written:
+            raise InputError(f"--out {out} would overwrite the input {f}; choose another folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..classification.fusion import MAX_WEIGHT
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.stream import Propagator
@@ -112,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
 
     folder, out = Path(args.folder), Path(args.out)
     paths = _frames(folder)
-    if not np.isfinite(args.weight) or args.weight < 0:
-        raise InputError(f"--weight must be a finite number >= 0, got {args.weight}")
+    if not 0 <= args.weight <= MAX_WEIGHT:
+        raise InputError(f"--weight must be a number in 0..{MAX_WEIGHT:g}, got {args.weight}")
     options = {"backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
     key_labels = _read_labels(Path(args.labels), args.mapping)
     key_image = load_image(paths[0])
@@ -121,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
                          f"{paths[0].name} is {key_image.shape[1]}x{key_image.shape[0]}")
     truth = _truth(args.truth, paths, key_image.shape[:2], args.mapping)
+    _check_spares_inputs(out, paths, Path(args.labels), truth)
     prop = Propagator.from_key_frame(key_image, key_labels, **options)
     identity = {"folder": str(folder.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
                 "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
@@ -134,6 +148,7 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
     import sys
 
     from .._runner import check_interrupted, progress
+    from ..errors import InputError, OutputError
     from ..pipeline.stream_run import STATE, StreamRun
     from ..registration.clouds import load_image
 
@@ -144,7 +159,6 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
         print(f"{out}: all {len(paths)} frames already done")
         return 0
     if start > 1:
-        from ..errors import InputError, OutputError
 
         try:
             prop.resume(start - 1, stream.carry_after(start - 1) if prop.warm_starts else None)
@@ -155,6 +169,9 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
         for t in range(start, len(paths)):
             check_interrupted()
             image = load_image(paths[t])
+            if image.shape != key_labels.shape + image.shape[2:]:
+                raise InputError(f"{paths[t]}: {image.shape[1]}x{image.shape[0]}, the key frame {paths[0].name} "
+                                 f"is {key_labels.shape[1]}x{key_labels.shape[0]}")
             labels = prop.step(image)
             plain = prop.classifier.predict(image) if truth is not None else None
             stream.record(t, labels, prop.last.to_dict(), plain, carry=prop.carry)

@@ -71,9 +71,12 @@ def _parse_time(text: str | None) -> tuple[str, int] | None:
     try:
         if not sep or not name:
             raise ValueError
-        return name.strip(), int(value)
+        n = int(value)
     except ValueError:
         raise InputError(f"--time must look like TIMELINE=N (e.g. frame=3), got {text!r}") from None
+    if not -(2**63) <= n < 2**63:  # rerun's sequence times are 64-bit integers
+        raise InputError(f"--time {n} is out of range (a 64-bit integer)")
+    return name.strip(), n
 
 
 def run(args: argparse.Namespace) -> int:

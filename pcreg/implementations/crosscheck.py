@@ -416,6 +416,7 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     """The checked (and voxel-downsampled) clouds, the initial pose and the correspondence distance
     every implementation gets."""
     from ..registration.api import voxel_downsample
+    from ..validation import check_int, check_matrix
 
     src = check_cloud(source, "source")
     tgt = check_cloud(target, "target")
@@ -426,13 +427,14 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
         if not voxel_size > 0:
             raise InputError("voxel_size must be > 0")
         src, tgt = voxel_downsample(src, voxel_size), voxel_downsample(tgt, voxel_size)
-    T0 = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
-    if T0.shape != (d + 1, d + 1) or not np.all(np.isfinite(T0)):
-        raise InputError(f"init must be a finite {d + 1}x{d + 1} matrix")
+    # the shared inputs are checked here, once, as the reference checks them: a bad one is the
+    # caller's, not a failure of each implementation in turn
+    T0 = np.eye(d + 1) if init is None else check_matrix(init, "init", d + 1)
+    max_iterations = check_int(max_iterations, "max_iterations", lo=1, hi=100_000)
     if max_correspondence_distance is None:
         max_correspondence_distance = default_max_distance(tgt)
-    if not max_correspondence_distance > 0 or max_iterations < 1:
-        raise InputError("max_correspondence_distance must be > 0 and max_iterations >= 1")
+    if not max_correspondence_distance > 0:
+        raise InputError("max_correspondence_distance must be > 0")
     return src, tgt, T0, max_correspondence_distance
 
 

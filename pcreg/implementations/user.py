@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from .base import COMPARABILITY, STEP, ImplementationError, Implementation, result
 
 PLACEHOLDERS = ("source", "target", "init", "out", "params")
@@ -72,7 +73,7 @@ class PythonCallable(Implementation):
         body = spec[3:]
         module, sep, func = body.rpartition(":")
         if not sep or not module or not func:
-            raise ImplementationError(f"{spec}: expected py:MODULE:FUNCTION")
+            raise InputError(f"{spec}: expected py:MODULE:FUNCTION")
         self.module, self.function = module, func
         self.description = f"Python callable {module}.{func}"
         self._func = None
@@ -141,9 +142,9 @@ class Command(Implementation):
         try:
             self.argv = shlex.split(template)
         except ValueError as exc:
-            raise ImplementationError(f"cannot parse the command: {exc}") from None
+            raise InputError(f"{spec}: cannot parse the command: {exc}") from None
         if not self.argv:
-            raise ImplementationError("empty command")
+            raise InputError(f"{spec}: empty command")
         import string
 
         used = set()
@@ -152,10 +153,10 @@ class Command(Implementation):
                 if field is None:
                     continue
                 if field not in PLACEHOLDERS:
-                    raise ImplementationError(f"unknown placeholder {{{field}}} (use {', '.join('{'+p+'}' for p in PLACEHOLDERS)})")
+                    raise InputError(f"{spec}: unknown placeholder {{{field}}} (use {', '.join('{'+p+'}' for p in PLACEHOLDERS)})")
                 used.add(field)
         if "out" not in used:
-            raise ImplementationError("the command has no {out}: it cannot return a matrix")
+            raise InputError(f"{spec}: the command has no {{out}}: it cannot return a matrix")
         self.used = used
         self.timeout = float(timeout)
         self.description = f"external program {self.argv[0]}"

@@ -311,6 +311,8 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
     C = resolve_fusion_frames(n, fusion_frames=fusion_frames, train=train)
     if C < 0:
         raise InputError("fusion_frames must be >= 0")
+    if fusion_frames is not None and C > n:
+        raise InputError(f"fusion_frames {C} is more than the sequence's {n} frames")
     if n < 2 or k >= n:
         note = (f"{n} frame(s): no pairs" if n < 2
                 else f"increment k={k} is not shorter than the sequence ({n} frames): no pairs")

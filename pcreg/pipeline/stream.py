@@ -74,7 +74,7 @@ import numpy as np
 
 from .._threads import beside, wait_quietly
 from ..classification.features import DEFAULT_FEATURES
-from ..classification.fusion import FusionConfig, label_prior
+from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior
 from .prior import class_prior, fused_labels, prior_on_moving
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
@@ -245,8 +245,8 @@ class Propagator:
             raise InputError(f"unknown model {model!r}; choose dense or one of {', '.join(MODELS)}")
         if anchor not in ANCHORS:
             raise InputError(f"unknown anchor {anchor!r}; choose one of {', '.join(ANCHORS)}")
-        if not (np.isfinite(weight) and weight >= 0):
-            raise InputError(f"weight must be a finite number >= 0, got {weight}")
+        if not 0 <= weight <= MAX_WEIGHT:
+            raise InputError(f"weight must be a number in 0..{MAX_WEIGHT:g}, got {weight}")
         if register is not None and not isinstance(register, RegisterConfig):
             raise InputError("register must be a pcreg.RegisterConfig")
         if not isinstance(dense, DenseStep):

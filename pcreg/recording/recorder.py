@@ -229,6 +229,10 @@ class Recorder:
         if not 1 <= int(jpeg_quality) <= 100:
             raise ValueError(f"jpeg_quality must be in 1..100, got {jpeg_quality}")
         try:
+            str(self.path).encode("utf-8")
+        except UnicodeEncodeError:  # rerun takes the path as UTF-8 text
+            raise OutputError(f"cannot write {self.path}: a recording's path must be valid UTF-8") from None
+        try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             with open(self.path, "wb"):  # fail here, with our message, rather than in rerun's sink thread
                 pass
@@ -258,9 +262,10 @@ class Recorder:
         try:
             self._rec.save(self.path)
         except Exception as exc:  # rerun raises its own types for sink errors
+            self.path.unlink(missing_ok=True)  # the empty file made above
             raise OutputError(f"cannot write {self.path}: {exc}") from None
-        if recording_name:
-            self._rec.send_recording_name(recording_name)
+        if recording_name:  # a name from a path that is not UTF-8 (os.fsdecode's escapes) shown escaped
+            self._rec.send_recording_name(recording_name.encode("utf-8", "backslashreplace").decode("utf-8"))
         if kind is not None:
             self._rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: kind}))
         self._closed = False

@@ -45,6 +45,8 @@ MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 kee
 def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
     """(N, 2|3) finite float64 copy of ``points`` or an :class:`InputError`."""
     try:
+        if np.iscomplexobj(points):  # numpy would drop the imaginary part with a warning
+            raise TypeError
         p = np.array(points, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError(f"{name}: not a numeric array") from None

@@ -130,6 +130,12 @@ class RegisterConfig:
         for name, cls in _PARTS.items():
             if not isinstance(getattr(self, name), cls):
                 raise InputError(f"RegisterConfig.{name} must be a {cls.__name__} instance, got {type(getattr(self, name)).__name__}")
+        # a model the backend cannot fit is refused when the configuration is made, not at its first pair
+        # ("dense" is the pipeline's: a similarity refined by a field, pcreg.pipeline.pair.DENSE_GLOBAL_MODEL)
+        if self.icp.backend == "open3d" and self.model != "dense":
+            from .open3d_icp import check_model
+
+            check_model(self.model)
 
     @classmethod
     def of(cls, **options: Any) -> "RegisterConfig":

@@ -50,6 +50,8 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
         return warped, valid & ok
     M = motion.matrix
     assert M is not None
+    if np.max(np.abs(M)) > 1e12:  # also keeps the determinant below overflow
+        raise InputError(f"warp: T_ref_mov has entries up to {np.max(np.abs(M)):.3g} (|m| <= 1e12)")
     if abs(np.linalg.det(M)) < 1e-12:
         raise InputError("warp: T_ref_mov is singular")
     h, w = _check_shape(shape if shape is not None else moving.shape[:2])

@@ -258,3 +258,12 @@ def test_a_png_with_a_damaged_data_chunk_is_one_stderr_line(pair, tmp_path):
         lines = p.stderr.splitlines()
         assert len(lines) == 1 and lines[0].startswith("pcreg: error: "), p.stderr
         assert "damaged.png" in lines[0]
+
+
+def test_python_dash_m_pcreg_is_the_command(tmp_path):
+    """``python -m pcreg`` runs the same command line: its help, and a bad input's exit 2 and one line."""
+    ok = subprocess.run([sys.executable, "-m", "pcreg", "--help"], capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and ok.stdout.startswith("usage: pcreg"), ok.stderr
+    bad = subprocess.run([sys.executable, "-m", "pcreg", "register", str(tmp_path / "a.png"), str(tmp_path / "b.png")],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines() == [f"pcreg: error: {tmp_path / 'a.png'}: no such file"]

@@ -73,11 +73,18 @@ def test_increment_longer_than_the_sequence_is_a_note(tmp_path):
     assert res["datasets"]["syn1a"]["increments"]["5"]["plain"] is None  # NaN written as null
 
 
-def test_one_frame_dataset(tmp_path):
+def test_a_run_that_scores_no_pair_is_bad_input(tmp_path, capsys):
+    """A one-frame sequence (or an increment no shorter than the sequence) scores nothing: exit 2 and the
+    reason, not a report of NaNs whose checks read "met"."""
     assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "1", "--size", "160x120",
-                 "--increments", "1", "--out", str(tmp_path / "s")]) == 0
-    res = json.loads((tmp_path / "s" / "results.json").read_text())
-    assert res["datasets"]["syn1a"]["pairs"]["1"]["pairs"] == 0
+                 "--increments", "1", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no pair was scored" in err[0] and "no pairs" in err[0], err
+    assert not (tmp_path / "s" / "results.json").exists()
+    assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
+                 "--increments", "1,10", "--levels", "2", "--out", str(tmp_path / "t")]) == 0
+    res = json.loads((tmp_path / "t" / "results.json").read_text())
+    assert res["datasets"]["syn1a"]["pairs"]["10"]["pairs"] == 0 and res["datasets"]["syn1a"]["pairs"]["1"]["pairs"]
 
 
 def test_recording_holds_the_error_series_of_results_json(tmp_path):

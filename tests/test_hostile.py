@@ -234,6 +234,16 @@ def _error_rate(predicted, truth):
     return f
 
 
+def _call(path: str, *args, **kw):
+    """``pcreg.<path>(*args, **kw)``, imported when called."""
+    def f(t):
+        import importlib
+
+        module, _, name = path.rpartition(".")
+        return getattr(importlib.import_module(module), name)(*args, **kw)
+    return f
+
+
 def _nb(**kw):
     def f(t):
         from pcreg.classification.bayes import NaiveBayesPixelClassifier
@@ -334,6 +344,19 @@ LIBRARY = {
     "propagator_weight_1e39": (_propagator(weight=1e39), "weight"),
     "error_rate_of_fractions": (_error_rate(np.full((4, 4), 0.5), np.zeros((4, 4), int)), "integer"),
     "error_rate_of_none": (_error_rate(None, None), "integer"),
+    "synthetic_over_the_pixel_limit": (_call("pcreg.synthetic", "syn1a", 1, width=32767, height=32767),
+                                       "pixel limit"),
+    "synthetic_a_billion_frames": (_call("pcreg.synthetic", "syn1a", 10**9), "pixel limit"),
+    "fuse_weight_nan": (_call("pcreg.classification.fusion.fuse", np.zeros((2, 2)), np.zeros((2, 2)),
+                              weight=float("nan")), "weight"),
+    "fuse_weight_none": (_call("pcreg.classification.fusion.fuse", np.zeros((2, 2)), np.zeros((2, 2)), weight=None),
+                         "weight"),
+    "labels_from_nan_log_odds": (_call("pcreg.classification.fusion.labels_from_log_odds", np.full((2, 2), np.nan)),
+                                 "NaN"),
+    "fusion_sigma_inf": (_call("pcreg.classification.fusion.FusionConfig", sigma=float("inf")), "sigma"),
+    "choose_weight_empty_grid": (_call("pcreg.classification.fusion.choose_weight", [], grid=[]), "grid"),
+    "propagator_weight_none": (_propagator(weight=None), "weight"),
+    "propagator_fusion_none": (_propagator(fusion=None), "fusion"),
     "error_rate_truth_negative": (_error_rate(np.zeros((4, 4), int), np.full((4, 4), -1)), "truth labels"),
     # point clouds (arrays)
     "cloud_coordinates_1e300": (_icp(src=CLOUD * 1e300), "out of range"),
@@ -577,6 +600,11 @@ CLI = {
     "crosscheck_with_an_unclosed_quote": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", 'cmd:"x {out}'],
                                           "cannot parse"),
     "crosscheck_with_nothing": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", ""], "names no implementation"),
+    "stream_names_no_dataset": (["evaluate", "stream", "--data", "synthetic:,", "--out", "{t}/o"],
+                                "names no synthetic preset"),
+    "sequence_scores_no_pair": (["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "6", "--size",
+                                 "64x48", "--increments", "1", "--levels", "8", "--out", "{t}/o8"],
+                                "no pair was scored"),
     "crosscheck_init_empty": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/empty_init.txt"], "empty"),
     "crosscheck_init_singular": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/zero_init.txt"],
                                  "singular"),

@@ -51,6 +51,9 @@ WEIGHT_GRID: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0,
 #: grid's already lets the prior decide every pixel, and a weight near float32's largest number would
 #: overflow the float32 log-odds.
 MAX_WEIGHT = 1e6
+#: The widest blur of the prior taken (pixels at 640 px width): a blur wider than the image already
+#: smooths the prior to its mean.
+MAX_SIGMA = 640.0
 
 
 @dataclass(frozen=True)
@@ -70,14 +73,19 @@ class FusionConfig:
     grid: tuple[float, ...] = WEIGHT_GRID
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.eps < 1.0:
+        if not isinstance(self.eps, (int, float, np.floating)) or not 0.0 < self.eps < 1.0:
             raise InputError(f"fusion eps must be in (0, 1), got {self.eps}")
         if self.sigma < 0:
             raise InputError(f"fusion sigma must be >= 0, got {self.sigma}")
-        if self.weight is not None and not 0 <= self.weight <= MAX_WEIGHT:
-            raise InputError(f"fusion weight must be a number in 0..{MAX_WEIGHT:g}, got {self.weight}")
-        if not self.grid or any(not 0 <= g <= MAX_WEIGHT for g in self.grid):
-            raise InputError(f"fusion weight grid must hold numbers in 0..{MAX_WEIGHT:g}")
+        from ..validation import check_float
+
+        if self.weight is not None:
+            check_float(self.weight, "fusion weight", lo=0, hi=MAX_WEIGHT)
+        check_float(self.sigma, "fusion sigma", lo=0, hi=MAX_SIGMA)
+        if not isinstance(self.grid, (tuple, list)) or not self.grid:
+            raise InputError("fusion weight grid must be a non-empty sequence of numbers")
+        for g in self.grid:
+            check_float(g, "a fusion weight of the grid", lo=0, hi=MAX_WEIGHT)
 
 
 def check_pi(pi: float) -> float:
@@ -142,6 +150,9 @@ def fuse(log_odds: np.ndarray, prior: np.ndarray, *, weight: float | np.ndarray)
     if d.shape != l.shape:
         raise InputError(f"log-odds {d.shape} and prior {l.shape} differ in shape")
     if np.ndim(weight) == 0:
+        from ..validation import check_float
+
+        weight = check_float(weight.item() if isinstance(weight, np.ndarray) else weight, "weight", lo=0, hi=MAX_WEIGHT)
         if weight == 0:
             return d.copy()
         return d + np.float32(weight) * l
@@ -154,8 +165,14 @@ def fuse(log_odds: np.ndarray, prior: np.ndarray, *, weight: float | np.ndarray)
 
 
 def labels_from_log_odds(log_odds: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 labels: 1 obstacle where the log-odds are > 0, else 0 ground."""
-    return (np.asarray(log_odds) > 0).view(np.uint8)
+    """(H, W) uint8 labels: 1 obstacle where the log-odds are > 0, else 0 ground (NaN log-odds refused:
+    they would read as ground)."""
+    a = np.asarray(log_odds)
+    if not np.issubdtype(a.dtype, np.number):
+        raise InputError(f"log-odds must be a numeric array, got {a.dtype}")
+    if np.issubdtype(a.dtype, np.floating) and np.isnan(a).any():
+        raise InputError("log-odds hold NaN: no label can be read from them")
+    return (a > 0).view(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -187,7 +204,11 @@ def choose_weight(samples: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], 
     grid : candidate weights; ties go to the smaller weight. default : returned (with NaN errors)
         when there is no sample.
     """
-    grid = tuple(float(g) for g in grid)
+    from ..validation import check_float
+
+    if isinstance(grid, (str, bytes)) or not isinstance(grid, (Sequence, np.ndarray)) or len(grid) == 0:
+        raise InputError("grid must be a non-empty sequence of weights")
+    grid = tuple(check_float(g, "a weight of the grid", lo=0, hi=MAX_WEIGHT) for g in grid)
     wrong = np.zeros(len(grid), dtype=np.int64)
     total = 0
     n = 0

@@ -22,7 +22,7 @@ from ..errors import DatasetError, InputError
 from .folder import CAMVID_MAPPING, IMAGE_SUFFIXES, load_folder
 from .frame import Frame, relative_transform
 from .lagr import load_lagr
-from .synthetic import PRESETS, SYNTHETIC_PRESETS, SyntheticPreset, synthetic
+from .synthetic import PRESETS, SYNTHETIC_PRESETS, SyntheticPreset, check_synthetic_size, synthetic
 
 __all__ = [
     "Frame",
@@ -41,20 +41,6 @@ __all__ = [
 
 def _subfolders(path: Path, pattern) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_dir() and pattern(p))
-
-
-def _check_synthetic_size(sequences: int, frames: int, width: int, height: int) -> None:
-    """Refuse synthetic data that would not fit in memory: each frame within the pixel limit, all the
-    frames (kept in memory while an evaluation runs) within 20 times it (3 GB at the default)."""
-    from ..validation import max_pixels
-
-    limit = max_pixels()
-    if width < 1 or height < 1 or width * height > limit:
-        raise InputError(f"synthetic frames of {width}x{height} px exceed the pixel limit {limit} (--max-pixels)")
-    total = sequences * frames * width * height
-    if total > 20 * limit:
-        raise InputError(f"{sequences} synthetic sequence(s) of {frames} frames of {width}x{height} px hold "
-                         f"{total / 1e9:.1f} G pixels, more than 20x the pixel limit {limit} (--max-pixels)")
 
 
 def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int] | None = None,
@@ -83,12 +69,14 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     seed = check_int(seed, "seed", lo=0)
     if kind == "synthetic":
         names = [n.strip().lower() for n in arg.split(",") if n.strip()] if arg else list(SYNTHETIC_PRESETS)
+        if not names:
+            raise InputError(f"--data {spec!r} names no synthetic preset")
         if size is not None:
             size = check_ints(size, "size", lo=1)
             if len(size) != 2:
                 raise InputError(f"size must be (width, height), got {size!r}")
         width, height = size if size is not None else (640, 480)
-        _check_synthetic_size(len(names), 100 if n_frames is None else n_frames, width, height)
+        check_synthetic_size(len(names), 100 if n_frames is None else n_frames, width, height)
         return {n: synthetic(n, 100 if n_frames is None else n_frames, seed, width=width, height=height)
                 for n in names}
     if not arg:

@@ -338,6 +338,20 @@ def _synthetic_cached(name: str, n_frames: int, seed: int, width: int, height: i
     return tuple(frames)
 
 
+def check_synthetic_size(sequences: int, frames: int, width: int, height: int) -> None:
+    """Refuse synthetic data that would not fit in memory: each frame within the pixel limit, all the
+    frames (kept in memory while an evaluation runs) within 20 times it (3 GB at the default)."""
+    from ..validation import max_pixels
+
+    limit = max_pixels()
+    if width < 1 or height < 1 or width * height > limit:
+        raise InputError(f"synthetic frames of {width}x{height} px exceed the pixel limit {limit} (--max-pixels)")
+    total = sequences * frames * width * height
+    if total > 20 * limit:
+        raise InputError(f"{sequences} synthetic sequence(s) of {frames} frames of {width}x{height} px hold "
+                         f"{total / 1e9:.1f} G pixels, more than 20x the pixel limit {limit} (--max-pixels)")
+
+
 def synthetic(name: str, n_frames: int = 100, seed: int = 0, *, width: int = 640, height: int = 480) -> list[Frame]:
     """A synthetic LAGR-like sequence: forward-looking terrain with exact labels and camera poses.
 
@@ -367,4 +381,5 @@ def synthetic(name: str, n_frames: int = 100, seed: int = 0, *, width: int = 640
     seed = check_int(seed, "seed", lo=0)
     width = check_int(width, "width", lo=16, hi=32767)
     height = check_int(height, "height", lo=12, hi=32767)
+    check_synthetic_size(1, n_frames, width, height)
     return list(_synthetic_cached(key, n_frames, seed, width, height))

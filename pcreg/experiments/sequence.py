@@ -148,16 +148,22 @@ def plan_units(config: SequenceConfig, names: list[str]) -> list:
 def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
     """Run every unit (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
-    from ..errors import DatasetError
+    from ..errors import DatasetError, InputError
     from .units import evaluate_units, load_cached
 
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     for name, frames in datasets.items():
         if frames and any(f.labels is None for f in frames):
             raise DatasetError(f"dataset {name} has unlabelled frames; the sequence evaluation scores every frame")
-    return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
-                          force=force, executor=executor, recorder=recorder, desc="sequence",
-                          show_progress=show_progress)
+    results = evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
+                             force=force, executor=executor, recorder=recorder, desc="sequence",
+                             show_progress=show_progress)
+    units = results.units
+    if units and not any(u["pairs"] for u in units):  # a report without a number is the input's fault
+        u = next((u for u in units if u["notes"]), units[0])
+        why = u["notes"][0] if u["notes"] else "no pairs"
+        raise InputError(f"no pair was scored ({u['dataset']} k={u['k']}: {why})")
+    return results
 
 
 def summarise(config: SequenceConfig, unit_results: list[dict]) -> Results:

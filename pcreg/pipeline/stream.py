@@ -233,6 +233,7 @@ class Propagator:
                  init: str = "identity", register: RegisterConfig | None = None, dense: DenseStep = STREAM_DENSE,
                  weight: float = STREAM_WEIGHT, fusion: FusionConfig = FusionConfig()) -> None:
         from ..registration.transforms import MODELS
+        from ..validation import check_float, short_repr
 
         for attr in ("decision_function", "class_prior_"):
             if not hasattr(classifier, attr):
@@ -241,12 +242,13 @@ class Propagator:
         classes = list(np.asarray(getattr(classifier, "classes_", [0, 1])).tolist())
         if classes != [0, 1]:
             raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}")
-        if model not in MODELS + ("dense",):
-            raise InputError(f"unknown model {model!r}; choose dense or one of {', '.join(MODELS)}")
-        if anchor not in ANCHORS:
-            raise InputError(f"unknown anchor {anchor!r}; choose one of {', '.join(ANCHORS)}")
-        if not 0 <= weight <= MAX_WEIGHT:
-            raise InputError(f"weight must be a number in 0..{MAX_WEIGHT:g}, got {weight}")
+        if not isinstance(model, str) or model not in MODELS + ("dense",):
+            raise InputError(f"unknown model {short_repr(model)}; choose dense or one of {', '.join(MODELS)}")
+        if not isinstance(anchor, str) or anchor not in ANCHORS:
+            raise InputError(f"unknown anchor {short_repr(anchor)}; choose one of {', '.join(ANCHORS)}")
+        check_float(weight, "weight", lo=0, hi=MAX_WEIGHT)
+        if not isinstance(fusion, FusionConfig):
+            raise InputError("fusion must be a pcreg.classification.fusion.FusionConfig")
         if register is not None and not isinstance(register, RegisterConfig):
             raise InputError("register must be a pcreg.RegisterConfig")
         if not isinstance(dense, DenseStep):

@@ -157,6 +157,12 @@ def files(tmp_path_factory):
                                b"property float y\nend_header\n" + np.arange(600, dtype="<f4").tobytes())
     (t / "empty_init.txt").write_text("")
     (t / "zero_init.txt").write_text("0 0 0 0\n0 0 0 0\n0 0 0 0\n0 0 0 0\n")
+    twice = t / "twice"
+    (twice / "images").mkdir(parents=True)
+    (twice / "labels").mkdir()
+    cv2.imwrite(str(twice / "images" / "a.png"), GOOD)
+    cv2.imwrite(str(twice / "images" / "a.jpg"), GOOD)
+    cv2.imwrite(str(twice / "labels" / "a.png"), np.zeros(GOOD.shape[:2], np.uint8))
     lagr = t / "lagr"
     lagr.mkdir()
     return t
@@ -357,6 +363,8 @@ LIBRARY = {
     "choose_weight_empty_grid": (_call("pcreg.classification.fusion.choose_weight", [], grid=[]), "grid"),
     "propagator_weight_none": (_propagator(weight=None), "weight"),
     "propagator_fusion_none": (_propagator(fusion=None), "fusion"),
+    "check_pi_none": (_call("pcreg.classification.fusion.check_pi", None), "must be a number"),
+    "class_prior_of_none": (_call("pcreg.pipeline.prior.class_prior", None), "fitted two-class"),
     "error_rate_truth_negative": (_error_rate(np.zeros((4, 4), int), np.full((4, 4), -1)), "truth labels"),
     # point clouds (arrays)
     "cloud_coordinates_1e300": (_icp(src=CLOUD * 1e300), "out of range"),
@@ -396,6 +404,8 @@ LIBRARY = {
     "xyz_coordinates_1e300": (_load_cloud("far.xyz"), "out of range"),
     "xyz_lines_that_are_not_points": (_load_cloud("garbage.xyz"), "not points"),
     "pts_count_mismatch": (_load_cloud("short.pts"), "declares 4 points"),
+    "folder_two_images_one_frame": (lambda t: __import__("pcreg.datasets", fromlist=["x"]).load_folder(t / "twice"),
+                                    "share a frame name"),
     # LAGR .mat
     "mat_full_of_nan": (_lagr_load(np.full((20, 16, 3), np.nan)), "NaN"),
     "mat_values_above_255": (_lagr_load(np.full((20, 16, 3), 1e6)), "outside 0..255"),
@@ -408,7 +418,7 @@ LIBRARY = {
 @pytest.mark.parametrize("kind", sorted(LIBRARY))
 def test_library_raises_pcreg_errors_only(files, kind):
     call, message = LIBRARY[kind]
-    expected = DatasetError if kind.startswith("mat_") else InputError  # a .mat file is a dataset's
+    expected = DatasetError if kind.startswith(("mat_", "folder_")) else InputError  # a dataset's files
     with pytest.raises(PcregError) as err:
         call(files)
     assert type(err.value) is expected, repr(err.value)

@@ -238,7 +238,8 @@ class NaiveBayesPixelClassifier:
         self.epsilon_ = p["epsilon"]
         tables = _tables(self.theta_, self.var_)  # (n, F, 256)
         self._tables64 = tables
-        self._log_prior = np.log(self.class_prior_)
+        with np.errstate(divide="ignore"):  # a prior of 0 given on purpose: that class is never chosen
+            self._log_prior = np.log(self.class_prior_)
         # Fast path: for two classes, the decision is sign(sum_f D_f[x_f] + log p1 - log p0).
         self._diff32 = (tables[1] - tables[0]).astype(np.float32) if len(classes) == 2 else None
         self._tables32 = tables.astype(np.float32)

@@ -90,7 +90,9 @@ class FusionConfig:
 
 def check_pi(pi: float) -> float:
     """``pi`` as a float when it is a class prior in (0, 1)."""
-    pi = float(pi)
+    from ..validation import check_float
+
+    pi = check_float(pi, "class prior of obstacle")
     if not 0.0 < pi < 1.0:
         raise InputError(f"class prior of obstacle must be in (0, 1), got {pi}")
     return pi

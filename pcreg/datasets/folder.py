@@ -85,7 +85,11 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
     img_dir, lab_dir = folder / "images", folder / "labels"
     if not img_dir.is_dir():
         raise DatasetError(f"{folder}: no images/ folder")
-    images = {p.stem: p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()}
+    files = [p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()]
+    images = {p.stem: p for p in files}
+    if len(images) != len(files):  # X.png and X.jpg: which one is frame X?
+        twice = sorted({p.name for p in files if sum(q.stem == p.stem for q in files) > 1})
+        raise DatasetError(f"{img_dir}: two images share a frame name ({', '.join(twice[:4])})")
     if not images:
         raise DatasetError(f"{img_dir}: no image frames ({', '.join(IMAGE_SUFFIXES)})")
     labels: dict[str, Path] | None = None

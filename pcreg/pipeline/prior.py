@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..classification.fusion import check_pi, fuse, labels_from_log_odds, prior_log_odds
+from ..errors import InputError
 
 __all__ = ["CONFIDENCE_SPAN", "class_prior", "fused_labels", "pixel_weight", "prior_on_moving", "warp_prior",
            "warped_prior_log_odds"]
@@ -25,7 +26,11 @@ CONFIDENCE_SPAN: tuple[float, float] = (0.5, 2.0)
 
 def class_prior(classifier) -> float:
     """A fitted two-class naive Bayes' class prior of obstacle, ``pi``."""
-    return float(np.asarray(classifier.class_prior_)[1])
+    prior = getattr(classifier, "class_prior_", None)
+    if prior is None or np.shape(prior) != (2,):
+        raise InputError("the classifier must be a fitted two-class naive Bayes (class_prior_ of ground and "
+                         "obstacle)")
+    return float(np.asarray(prior)[1])
 
 
 def warp_prior(q: np.ndarray, motion, *, shape: tuple[int, int], pi: float

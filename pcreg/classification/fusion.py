@@ -73,12 +73,9 @@ class FusionConfig:
     grid: tuple[float, ...] = WEIGHT_GRID
 
     def __post_init__(self) -> None:
-        if not isinstance(self.eps, (int, float, np.floating)) or not 0.0 < self.eps < 1.0:
-            raise InputError(f"fusion eps must be in (0, 1), got {self.eps}")
-        if self.sigma < 0:
-            raise InputError(f"fusion sigma must be >= 0, got {self.sigma}")
         from ..validation import check_float
 
+        check_float(self.eps, "fusion eps", lo=0, lo_open=True, hi=1, hi_open=True)
         if self.weight is not None:
             check_float(self.weight, "fusion weight", lo=0, hi=MAX_WEIGHT)
         check_float(self.sigma, "fusion sigma", lo=0, hi=MAX_SIGMA)

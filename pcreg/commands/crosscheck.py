@@ -57,9 +57,8 @@ def _bar_wanted() -> bool:
 
 
 def _implementations(args) -> list[str]:
-    from ..implementations import parse_list
-
     from ..errors import InputError
+    from ..implementations import parse_list
 
     items: list[str] = []
     for text in args.implementations or ["reference,open3d"]:

@@ -159,7 +159,6 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
         print(f"{out}: all {len(paths)} frames already done")
         return 0
     if start > 1:
-
         try:
             prop.resume(start - 1, stream.carry_after(start - 1) if prop.warm_starts else None)
         except InputError as exc:  # a carry of another stream
@@ -169,10 +168,10 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
         for t in range(start, len(paths)):
             check_interrupted()
             image = load_image(paths[t])
-            if image.shape != key_labels.shape + image.shape[2:]:
-                raise InputError(f"{paths[t]}: {image.shape[1]}x{image.shape[0]}, the key frame {paths[0].name} "
-                                 f"is {key_labels.shape[1]}x{key_labels.shape[0]}")
-            labels = prop.step(image)
+            try:
+                labels = prop.step(image)
+            except InputError as exc:  # a frame of another size: the step's own check, the file named
+                raise InputError(f"{paths[t]}: {exc}") from None
             plain = prop.classifier.predict(image) if truth is not None else None
             stream.record(t, labels, prop.last.to_dict(), plain, carry=prop.carry)
             _log(rec, t, image, labels, prop.last, paths[t].name)

@@ -52,8 +52,8 @@ def test_evaluate_returns_typed_results_and_the_report_writes_exactly_them(tmp_p
     write_outputs(res, tmp_path)
     on_disk = json.loads((tmp_path / "results.json").read_text())
     assert on_disk == json.loads(json.dumps(nan_to_none(res.to_dict())))
-    assert list(on_disk) == ["config", "primary_backend", "methods", "datasets", "average_reduction", "units",
-                             "resumed_units", "seconds"]  # what an evaluation does not have is left out
+    assert list(on_disk) == ["config", "primary_backend", "methods", "datasets", "average_reduction", "calibration",
+                             "units", "resumed_units", "seconds"]  # what an evaluation does not have is left out
     with pytest.raises(ValueError, match="kind must be one of"):
         Results("streams", {}, {}, [])
 
@@ -64,8 +64,13 @@ def test_pcreg_is_exactly_the_propagator_and_key_frames_restart(tmp_path):
     frames = pcreg.synthetic("syn1a", 5, 0, width=160, height=120)
     r = run_clip(frames, methods=("plain", "pcreg", "dense_key"), key_every=3)
     assert [f["key"] for f in r["frames"]] == [0, 0, 3] and r["key_frames"] == [0, 3]
-    for f in r["frames"]:
-        assert f["errors"]["pcreg"] == f["errors"]["dense_key"]
+    expected = []
+    for key, later in ((0, (1, 2)), (3, (4,))):  # a propagator as pcreg run makes it, restarted at each key frame
+        prop = pcreg.Propagator.from_key_frame(frames[key].image, frames[key].labels)
+        expected += [pcreg.error_rate(prop.step(frames[t].image), frames[t].labels) for t in later]
+    assert [f["errors"]["pcreg"] for f in r["frames"]] == expected
+    cal = r["calibration"]  # pcreg's confidence over the known pixels of the three scored frames
+    assert np.sum(cal) == sum(int((f.labels < 2).sum()) for i, f in enumerate(frames) if i not in (0, 3))
 
 
 def test_evaluate_stream_bad_input(tmp_path, capsys):

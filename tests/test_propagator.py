@@ -84,8 +84,9 @@ def _unwarped(prop, image):
 
 
 def test_a_failed_registration_falls_back_to_the_key_frames_labels(frames):
-    for options in ({}, {"model": "similarity", "anchor": "previous"}):
-        prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, **options)
+    for options in ({}, {"model": "similarity", "anchor": "previous"}):  # without the trust rule: one weight
+        prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, trust=None, learning=None,
+                                               **options)
         prop.step(frames[1].image)
         flat = np.full_like(frames[2].image, 128)
         labels = prop.step(flat)
@@ -130,10 +131,16 @@ def test_a_resumed_propagator_continues_exactly_as_the_uninterrupted_one(frames)
     for f in frames[1:4]:
         whole.step(f.image)
     saved = Carry(whole.carry.grid.copy(), whole.carry.reference_evidence)
+    learned = whole.learned
+    assert learned is not None and learned.sum() > 0  # naive Bayes has learned from three frames
     expected = whole.step(frames[4].image)
     resumed = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
-    resumed.resume(3, saved)
+    resumed.resume(3, saved, learned)
     np.testing.assert_array_equal(resumed.step(frames[4].image), expected)
+    np.testing.assert_array_equal(resumed.last.confidence, whole.last.confidence)
+    forgetful = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    forgetful.resume(3, saved)  # without what was learned, the classifier is the key frame's again
+    assert forgetful.learned.sum() == 0
     assert resumed.last.frame == 4 and resumed.last.start == whole.last.start == "warm"
     np.testing.assert_array_equal(resumed.last.registration.field, whole.last.registration.field)
     with pytest.raises(InputError, match="anchored"):

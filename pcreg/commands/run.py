@@ -32,6 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", choices=("identity", "auto"), default="identity",
                    help="the global registration's start: identity (default) or auto (global search too)")
     p.add_argument("--weight", type=float, default=2.0, help="fusion weight of the prior (default 2; 0 = naive Bayes)")
+    p.add_argument("--confidence", action="store_true",
+                   help="also write OUT/confidence/NAME.png: 255 x the probability that each label is right")
     add_record_arguments(p)
 
 
@@ -138,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
     prop = Propagator.from_key_frame(key_image, key_labels, **options)
     identity = {"folder": str(folder.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
                 "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
+    if args.confidence:  # a run's identity names it only when on, so runs from before it still resume
+        identity["confidence"] = True
     with OutputLock(out):  # a second run on the same --out is refused, not raced
         return _label_frames(args, paths, prop, truth, options, identity, key_labels)
 
@@ -160,7 +164,8 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
         return 0
     if start > 1:
         try:
-            prop.resume(start - 1, stream.carry_after(start - 1) if prop.warm_starts else None)
+            prop.resume(start - 1, stream.carry_after(start - 1) if prop.warm_starts else None,
+                        stream.learned_after(start - 1))
         except InputError as exc:  # a carry of another stream
             raise OutputError(f"{out}: {exc}; use --force to start over") from None
     with open_recorder(args, name=f"run {folder}") as rec, \
@@ -173,7 +178,8 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
             except InputError as exc:  # a frame of another size: the step's own check, the file named
                 raise InputError(f"{paths[t]}: {exc}") from None
             plain = prop.classifier.predict(image) if truth is not None else None
-            stream.record(t, labels, prop.last.to_dict(), plain, carry=prop.carry)
+            stream.record(t, labels, prop.last.to_dict(), plain, carry=prop.carry, learned=prop.learned,
+                          confidence=prop.last.confidence if args.confidence else None)
             _log(rec, t, image, labels, prop.last, paths[t].name)
             bar.update(1)
     s = stream.state

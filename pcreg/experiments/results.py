@@ -32,6 +32,8 @@ class Results:
     k : classification: the training sizes of cases I and III per dataset.
     weight_search : classification: the thesis feature weights found per dataset.
     average_reduction : stream: each method's mean over clips of its reduction of plain's error (%).
+    calibration : stream: pcreg's confidence over every clip's known pixels
+        (:func:`pcreg.experiments.stream.calibration`).
     """
 
     kind: str
@@ -47,6 +49,7 @@ class Results:
     k: dict | None = None
     weight_search: list[dict] | None = None
     average_reduction: dict[str, float] | None = None
+    calibration: dict | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -60,7 +63,8 @@ class Results:
         doc.update((k, v) for k, v in optional.items() if v is not None)
         doc["datasets"] = self.datasets
         later = {"backends": self.backends, "k": self.k, "notes": None if self.notes is None else list(self.notes),
-                 "weight_search": self.weight_search, "average_reduction": self.average_reduction}
+                 "weight_search": self.weight_search, "average_reduction": self.average_reduction,
+                 "calibration": self.calibration}
         doc.update((k, v) for k, v in later.items() if v is not None)
         doc.update(units=self.units, resumed_units=self.resumed_units, seconds=self.seconds)
         return doc

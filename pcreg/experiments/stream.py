@@ -17,6 +17,10 @@ The methods (:data:`METHODS`):
 - ``flow_key`` / ``flow_previous``: the baselines, the same fusion with OpenCV's DIS optical flow
   (medium preset) as the motion, anchored or chained the same way.
 
+``pcreg``'s confidence (:attr:`pcreg.pipeline.stream.StepReport.confidence`) is scored too, pooled over
+the known pixels of every scored frame (:func:`calibration`): the expected calibration error over ten
+bins of confidence, and the error of the most confident 80% of pixels against the error of all.
+
 Each clip is one unit of work (``--workers``, ``--scheduler``); finished units are kept in
 ``OUT/units/`` and skipped when the same command runs again.
 """
@@ -57,12 +61,64 @@ class StreamConfig:
 
 
 def _propagator(method: str, classifier, backend: str):
+    """``pcreg``: the propagator as ``pcreg run`` makes it; the other models and anchors as ablations of
+    the motion alone: the prior at the one weight, by the field's confidence (no trust rule, no learning)."""
     from ..pipeline.stream import Propagator
 
     if method == "pcreg":
         return Propagator(classifier, backend=backend)
     model, anchor = method.split("_")
-    return Propagator(classifier, model=model, anchor=anchor, backend=backend)
+    return Propagator(classifier, model=model, anchor=anchor, backend=backend, trust=None, learning=None)
+
+
+#: Levels of the confidence histograms (:func:`calibration_counts`): the 8-bit steps of a confidence PNG.
+CONFIDENCE_LEVELS = 256
+
+
+def calibration_counts(confidence: np.ndarray, labels: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(2, 256) int64: over the known pixels, how many labels were right (row 0) and wrong (row 1) at
+    each 8-bit level of their confidence (``round(255 * confidence)``)."""
+    known = truth < 2
+    level = np.rint(np.asarray(confidence, np.float32)[known] * (CONFIDENCE_LEVELS - 1)).astype(np.intp)
+    wrong = (labels[known] == 1) != (truth[known] == 1)
+    return np.stack([np.bincount(level[~wrong], minlength=CONFIDENCE_LEVELS),
+                     np.bincount(level[wrong], minlength=CONFIDENCE_LEVELS)]).astype(np.int64)
+
+
+def calibration(counts) -> dict:
+    """From :func:`calibration_counts` (summed over frames): the expected calibration error over 10 equal
+    bins of confidence (``ece``), the error % of all known pixels (``error``) and of the most confident
+    80% of them (``error_top80``, the share at the cut-off level taken in proportion), their ratio, and
+    the reliability curve (per bin: mean confidence, accuracy, share of pixels)."""
+    c = np.asarray(counts, dtype=np.float64)
+    right, wrong = c[0], c[1]
+    n = right + wrong
+    total = n.sum()
+    if total == 0:
+        return {"pixels": 0}
+    conf = np.arange(CONFIDENCE_LEVELS) / (CONFIDENCE_LEVELS - 1)
+    bins = np.minimum((conf * 10).astype(int), 9)
+    ece, curve = 0.0, []
+    for b in range(10):
+        m = bins == b
+        nb = n[m].sum()
+        if nb == 0:
+            continue
+        mean_conf, acc = float((n[m] * conf[m]).sum() / nb), float(right[m].sum() / nb)
+        ece += nb / total * abs(acc - mean_conf)
+        curve.append({"bin": b, "confidence": mean_conf, "accuracy": acc, "share": float(nb / total)})
+    keep, kept_wrong = 0.8 * total, 0.0
+    for level in range(CONFIDENCE_LEVELS - 1, -1, -1):  # most confident first
+        if n[level] == 0:
+            continue
+        take = min(n[level], keep)
+        kept_wrong += wrong[level] * take / n[level]
+        keep -= take
+        if keep <= 0:
+            break
+    error, top = 100.0 * wrong.sum() / total, 100.0 * kept_wrong / (0.8 * total)
+    return {"pixels": int(total), "ece": float(ece), "error": float(error), "error_top80": float(top),
+            "top80_ratio": float(top / error) if error else float("nan"), "curve": curve}
 
 
 class _KeyPrior:
@@ -173,6 +229,7 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
 
     keys = set(key_frames(len(frames), key_every))
     seconds = dict.fromkeys(methods, 0.0)
+    counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows, labellers, key = [], {}, 0
     for t, f in enumerate(frames):
         if t in keys:
@@ -191,12 +248,16 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
             preds[m] = lab.step(f.image)
             seconds[m] += time.perf_counter() - t0
             errors[m] = error_rate(preds[m], f.labels)
+        confidence = getattr(getattr(labellers.get("pcreg"), "last", None), "confidence", None)
+        if confidence is not None:
+            counts += calibration_counts(confidence, preds["pcreg"], f.labels)
         rows.append({"index": t, "name": f.name, "key": key, "since_key": t - key, "errors": errors})
         if on_frame is not None:
             on_frame(t, f, preds)
     means = {m: float(np.nanmean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods}
     per_frame_ms = {m: 1000.0 * s / max(1, len(rows)) for m, s in seconds.items()}
-    return {"frames": rows, "means": means, "ms_per_frame": per_frame_ms, "key_frames": sorted(keys)}
+    return {"frames": rows, "means": means, "ms_per_frame": per_frame_ms, "key_frames": sorted(keys),
+            "calibration": counts.tolist()}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -275,7 +336,10 @@ def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
         clips[r["dataset"]] = {"frames": r["n_frames"], "scored": len(r["frames"]), "width": r["width"],
                                "height": r["height"], "key_frames": r["key_frames"], "means": means,
                                "reduction": {m: reduction(means["plain"], v) for m, v in means.items()},
-                               "ms_per_frame": r["ms_per_frame"]}
+                               "ms_per_frame": r["ms_per_frame"],
+                               "calibration": calibration(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS))))}
+    pooled = sum((np.asarray(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS))), np.int64) for r in unit_results),
+                 np.zeros((2, CONFIDENCE_LEVELS), np.int64))
     average = {m: float(np.mean([c["reduction"][m] for c in clips.values()])) for m in config.methods} if clips else {}
     return Results("stream", plain_config(config), clips, unit_results, primary_backend=config.backends[0],
-                   methods=tuple(config.methods), average_reduction=average)
+                   methods=tuple(config.methods), average_reduction=average, calibration=calibration(pooled))

@@ -75,7 +75,9 @@ import numpy as np
 from .._threads import beside, wait_quietly
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior
+from .learning import STREAM_LEARNING, Learner, Learning
 from .prior import class_prior, fused_labels, prior_on_moving
+from .trust import STREAM_TRUST, TrustRule, predicted_error
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
@@ -87,12 +89,14 @@ __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep",
 STEP_STAGES: tuple[str, ...] = ("register", "classify", "fuse", "total")
 #: Their parts, timed as ``"stage.part"`` in :attr:`StepReport.times`: a dense registration's own
 #: stages (:data:`pcreg.registration.dense.DENSE_STAGES`, its global step as ``global``; present when
-#: the dense registration ran), the classifier's features and its naive Bayes log-odds (``features``
-#: is 0 for a classifier that cannot compute them apart), the prior's warp and the fusion itself.
+#: the dense registration ran), the classifier's features, its naive Bayes log-odds (``features``
+#: is 0 for a classifier that cannot compute them apart) and the DIS flow of the trust rule, the
+#: priors' warp, their trust (:mod:`pcreg.pipeline.trust`), the fusion itself, the labels' confidence
+#: and the classifier's learning (:mod:`pcreg.pipeline.learning`); a part the step did not do is 0.
 STEP_PARTS: dict[str, tuple[str, ...]] = {
     "register": ("global", "pyramid", "search", "solve", "evidence", "field"),
-    "classify": ("features", "bayes"),
-    "fuse": ("warp", "fusion"),
+    "classify": ("features", "bayes", "flow"),
+    "fuse": ("warp", "trust", "fusion", "confidence", "learn"),
 }
 #: Where a frame is registered to: the key frame, or the previous frame (motions composed).
 ANCHORS: tuple[str, ...] = ("key", "previous")
@@ -193,6 +197,10 @@ class StepReport:
         None for a global model.
     times : seconds per stage (:data:`STEP_STAGES`), and per part of a stage (:data:`STEP_PARTS`, keys
         such as ``"register.search"``); ``fuse`` includes warping the prior.
+    confidence : (H, W) float32 in [0, 1], the probability that each label is right
+        (:func:`pcreg.pipeline.trust.label_confidence`), or None without a trust rule.
+    predicted_error : the frame's predicted error in percent, the mean of 1 - ``confidence`` (None
+        without a trust rule).
     """
 
     frame: int
@@ -202,6 +210,8 @@ class StepReport:
     reference: int
     times: dict = field(default_factory=dict)
     start: str | None = None
+    confidence: np.ndarray | None = field(default=None, repr=False)
+    predicted_error: float | None = None
 
     @property
     def registered(self) -> bool:
@@ -210,6 +220,7 @@ class StepReport:
     def to_dict(self) -> dict:
         return {"frame": self.frame, "registered": self.registered, "reason": self.reason,
                 "fallback": self.fallback, "reference": self.reference, "start": self.start,
+                "predicted_error": self.predicted_error,
                 "registration": None if self.registration is None else self.registration.to_dict(),
                 "times": {k: float(v) for k, v in self.times.items()}}
 
@@ -227,11 +238,19 @@ class Propagator:
     dense : :class:`DenseStep` options of the dense model.
     weight : fusion weight of the prior (0 = naive Bayes alone); with a dense field, per pixel from
         half to twice it by the field's confidence (:func:`~pcreg.pipeline.prior.pixel_weight`). fusion : how the prior is smoothed.
+    trust : how far each carried prior is trusted per pixel, and a second prior carried by DIS flow
+        (:class:`~pcreg.pipeline.trust.TrustRule`; the default :data:`~pcreg.pipeline.trust.STREAM_TRUST`);
+        it also gives every label its confidence (:attr:`StepReport.confidence`). None: the prior at
+        ``weight``, by the field's confidence alone, as :func:`~pcreg.pipeline.prior.fused_labels`.
+    learning : how naive Bayes learns from the frames it labels (:class:`~pcreg.pipeline.learning.Learning`;
+        with a trust rule and a pcreg :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier`
+        only; None: it does not).
     """
 
     def __init__(self, classifier, *, model: str = "dense", anchor: str = "key", backend: str = "reference",
                  init: str = "identity", register: RegisterConfig | None = None, dense: DenseStep = STREAM_DENSE,
-                 weight: float = STREAM_WEIGHT, fusion: FusionConfig = FusionConfig()) -> None:
+                 weight: float = STREAM_WEIGHT, fusion: FusionConfig = FusionConfig(),
+                 trust: TrustRule | None = STREAM_TRUST, learning: Learning | None = STREAM_LEARNING) -> None:
         from ..registration.transforms import MODELS
         from ..validation import check_float, short_repr
 
@@ -253,6 +272,10 @@ class Propagator:
             raise InputError("register must be a pcreg.RegisterConfig")
         if not isinstance(dense, DenseStep):
             raise InputError("dense must be a pcreg.pipeline.stream.DenseStep")
+        if trust is not None and not isinstance(trust, TrustRule):
+            raise InputError("trust must be a pcreg.pipeline.trust.TrustRule or None")
+        if learning is not None and not isinstance(learning, Learning):
+            raise InputError("learning must be a pcreg.pipeline.learning.Learning or None")
         self.classifier = classifier
         self.model, self.anchor = model, anchor
         base = register or STREAM_REGISTRATION
@@ -261,6 +284,10 @@ class Propagator:
         self.dense = dense
         self.weight = float(weight)
         self.fusion = fusion
+        self.trust = trust
+        self.learning = learning if trust is not None and _learns(classifier) else None
+        self._learner: Learner | None = None
+        self._key_blurred: np.ndarray | None = None
         self._pi = class_prior(classifier)
         self._key_image: np.ndarray | None = None
         self._key_labels: np.ndarray | None = None
@@ -293,6 +320,11 @@ class Propagator:
         lab = _check_labels(labels, img.shape[:2])
         self._key_image, self._key_labels = img, lab
         self._key_prior = label_prior(lab, pi=self._pi, fusion=self.fusion)
+        if self.trust is not None:
+            from .trust import blurred
+
+            self._key_blurred = blurred(img)
+        self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         self._chain = (img, None, 0)
         self._carry = None
         self._frame = 0
@@ -300,9 +332,6 @@ class Propagator:
 
     def step(self, image: np.ndarray) -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame; see :attr:`last` for what happened."""
-        from ..classification.bayes import NaiveBayesPixelClassifier
-        from .pair import log_odds
-
         if self._key_image is None:
             raise InputError("Propagator.step before reset: give the key frame and its labels first")
         t_start = time.perf_counter()
@@ -311,20 +340,11 @@ class Propagator:
             raise InputError(f"frame of shape {img.shape} in a stream of {self._key_image.shape} frames")
         self._frame += 1
         times = dict.fromkeys(STEP_STAGES, 0.0)
+        times.update({f"{stage}.{part}": 0.0 for stage in ("classify", "fuse") for part in STEP_PARTS[stage]})
 
-        def classify() -> tuple[np.ndarray, dict]:
-            t0 = time.perf_counter()
-            groups = (self.classifier.feature_groups(img) if isinstance(self.classifier, NaiveBayesPixelClassifier)
-                      else None)
-            t1 = time.perf_counter()
-            d = log_odds(self.classifier, img) if groups is None else np.asarray(
-                self.classifier.decision_function(img, groups=groups), dtype=np.float32)
-            t2 = time.perf_counter()
-            return d, {"classify": t2 - t0, "classify.features": t1 - t0, "classify.bayes": t2 - t1}
-
-        # the new frame is classified on the helper thread while this one registers it (the two are
-        # independent); its times are its own, and ``total`` is the step's wall time
-        classified = beside(classify)
+        # the new frame is classified (and its DIS flow found) on the helper thread while this one
+        # registers it (the two are independent); its times are its own, and ``total`` is the step's
+        classified = beside(lambda: self._classify(img))
         t0 = time.perf_counter()
         reference, ref_frame = (self._key_image, 0) if self.anchor == "key" else (self._chain[0], self._chain[2])
         try:
@@ -334,7 +354,7 @@ class Propagator:
             raise
         motion = None if result is None else self._to_key(Motion.of(result), img.shape[:2])
         times["register"] = time.perf_counter() - t0
-        d, classify_times = classified()
+        d, flow, classify_times = classified()
 
         dense_times = getattr(result, "info", {}).get("times") if result is not None else None
         if dense_times is not None:
@@ -342,18 +362,84 @@ class Propagator:
             times.update({f"register.{k}": float(v) for k, v in dense_times.items()})
         times.update(classify_times)
 
-        t2 = time.perf_counter()
-        q = prior_on_moving(self._key_prior, motion, shape=d.shape, pi=self._pi)
-        t3 = time.perf_counter()
-        labels = fused_labels(d, q, None if motion is None else motion.confidence, weight=self.weight, pi=self._pi)
+        if self.trust is None:
+            labels, confidence = self._fuse(d, motion, times), None
+        else:
+            labels, confidence = self._fuse_trusted(img, d, flow, motion, times)
         if motion is not None and self.anchor == "previous":
             self._chain = (img, motion, self._frame)
-        t4 = time.perf_counter()
-        times.update({"fuse": t4 - t2, "fuse.warp": t3 - t2, "fuse.fusion": t4 - t3})
+        times["fuse"] = sum(times[f"fuse.{part}"] for part in STEP_PARTS["fuse"])
         times["total"] = time.perf_counter() - t_start
         self.last = StepReport(frame=self._frame, registration=result, reason=reason, fallback=motion is None,
-                               reference=ref_frame, times=times, start=start)
+                               reference=ref_frame, times=times, start=start, confidence=confidence,
+                               predicted_error=None if confidence is None else predicted_error(confidence))
         return labels
+
+    def _classify(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, dict]:
+        """``(log_odds, flow, times)``: naive Bayes' log-odds of the frame (the classifier as learned so
+        far) and, with a trust rule that uses it, the DIS field from the frame to the key frame."""
+        from ..classification.bayes import NaiveBayesPixelClassifier
+        from ..registration.flow import dis_field
+        from .pair import log_odds
+
+        clf = self.classifier if self._learner is None else self._learner.classifier
+        t0 = time.perf_counter()
+        groups = clf.feature_groups(img) if isinstance(clf, NaiveBayesPixelClassifier) else None
+        t1 = time.perf_counter()
+        d = log_odds(clf, img) if groups is None else np.asarray(clf.decision_function(img, groups=groups),
+                                                                  dtype=np.float32)
+        t2 = time.perf_counter()
+        flow = None
+        if self.trust is not None and self.trust.flow > 0:
+            flow = dis_field(self._key_image, img, preset=self.trust.preset)[0]
+        t3 = time.perf_counter()
+        return d, flow, {"classify": t3 - t0, "classify.features": t1 - t0, "classify.bayes": t2 - t1,
+                         "classify.flow": t3 - t2}
+
+    def _fuse(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:
+        """The labels without a trust rule: the key frame's prior along ``motion`` at :attr:`weight`, by
+        the field's confidence (:func:`~pcreg.pipeline.prior.fused_labels`)."""
+        t0 = time.perf_counter()
+        q = prior_on_moving(self._key_prior, motion, shape=d.shape, pi=self._pi)
+        t1 = time.perf_counter()
+        labels = fused_labels(d, q, None if motion is None else motion.confidence, weight=self.weight, pi=self._pi)
+        times.update({"fuse.warp": t1 - t0, "fuse.fusion": time.perf_counter() - t1})
+        return labels
+
+    def _fuse_trusted(self, img: np.ndarray, d: np.ndarray, flow: np.ndarray | None, motion: Motion | None,
+                      times: dict) -> tuple[np.ndarray, np.ndarray]:
+        """``(labels, confidence)`` by the trust rule (:mod:`pcreg.pipeline.trust`): the key frame's
+        prior along ``motion`` (unmoved where the registration failed) and along the DIS ``flow``, each
+        trusted per pixel; then the classifier learns from the frame."""
+        from ..classification.fusion import labels_from_log_odds, prior_log_odds
+        from .trust import blurred, carried_residual, label_confidence, trust_maps
+
+        assert self.trust is not None and self._key_blurred is not None
+        shape = d.shape
+        t0 = time.perf_counter()
+        moved = motion if motion is not None else Motion(matrix=np.eye(3))
+        l_dense = prior_log_odds(prior_on_moving(self._key_prior, moved, shape=shape, pi=self._pi), pi=self._pi)
+        l_flow = None if flow is None else prior_log_odds(
+            prior_on_moving(self._key_prior, Motion(field=flow), shape=shape, pi=self._pi), pi=self._pi)
+        t1 = time.perf_counter()
+        frame = blurred(img)
+        maps = trust_maps(self.trust, weight=self.weight, dense_prior=l_dense, confidence=moved.confidence,
+                          dense_residual=carried_residual(self._key_blurred, frame, moved.as_field(shape)),
+                          flow_prior=l_flow,
+                          flow_residual=None if flow is None else carried_residual(self._key_blurred, frame, flow))
+        t2 = time.perf_counter()
+        prior = maps.prior_term(shape)
+        fused = d + prior
+        labels = labels_from_log_odds(fused)
+        t3 = time.perf_counter()
+        confidence = label_confidence(fused, d, prior)
+        t4 = time.perf_counter()
+        if self._learner is not None:
+            self._learner.update(img, fused, prior)
+        t5 = time.perf_counter()
+        times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.fusion": t3 - t2,
+                      "fuse.confidence": t4 - t3, "fuse.learn": t5 - t4})
+        return labels, confidence
 
     def _register(self, reference: np.ndarray, image: np.ndarray):
         """``(result, None, start)``, or ``(None, reason, start)`` when the registration failed or is
@@ -428,11 +514,18 @@ class Propagator:
         """What the next dense step starts from (None: it starts cold); see :class:`Carry`."""
         return self._carry
 
-    def resume(self, frame: int, carry: Carry | None) -> None:
+    @property
+    def learned(self) -> np.ndarray | None:
+        """What naive Bayes has learned from the stream so far ((3, F, 256) float64 histograms,
+        :class:`~pcreg.pipeline.learning.Learner`), or None without learning; ``pcreg run`` saves it
+        with every frame."""
+        return None if self._learner is None else self._learner.stream.copy()
+
+    def resume(self, frame: int, carry: Carry | None, learned: np.ndarray | None = None) -> None:
         """Continue a stream after its step ``frame`` (counted from the key frame, as :attr:`StepReport.frame`)
         with the ``carry`` that step left (:attr:`carry`, as saved): the next step does what it would
         have done in the uninterrupted stream. Anchored to the key frame only (a chained stream needs
-        its previous frame)."""
+        its previous frame). ``learned``: what the classifier had learned by then (:attr:`learned`)."""
         from ..registration.dense import DenseOptions, finest_grid_shape
         from ..validation import check_int
 
@@ -450,6 +543,8 @@ class Propagator:
                                  f"these frames has {want[0]}x{want[1]}: it comes from another stream")
         self._frame = frame
         self._carry = carry if self.warm_starts else None
+        if self._learner is not None:
+            self._learner.restore(learned)
 
     def _to_key(self, motion: Motion, shape: tuple[int, int]) -> Motion:
         """The new frame's motion to the key frame: itself when anchored to it, else the previous frame's
@@ -461,6 +556,12 @@ class Propagator:
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
+
+
+def _learns(classifier) -> bool:
+    from ..classification.bayes import NaiveBayesPixelClassifier
+
+    return isinstance(classifier, NaiveBayesPixelClassifier) and hasattr(classifier, "counts_")
 
 
 def _check_image(image) -> np.ndarray:

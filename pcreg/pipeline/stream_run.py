@@ -8,8 +8,10 @@ Outputs in ``out``, each written atomically:
 - ``run.json``: the options, how many frames are done, how many fell back, and the running error
   against the truth: rewritten after every frame, and always the same small size;
 - ``carry-0.npz`` and ``carry-1.npz``: what each step handed to the next (:class:`pcreg.pipeline.stream.Carry`,
-  the dense field's control grid), frame t's in ``carry-{t % 2}.npz``, so the one of the last frame
-  counted is always there.
+  the dense field's control grid, and what naive Bayes has learned from the stream), frame t's in
+  ``carry-{t % 2}.npz``, so the one of the last frame counted is always there;
+- with ``--confidence``, ``confidence/NAME.png`` per frame: 255 times the probability that each label is
+  right (:attr:`pcreg.pipeline.stream.StepReport.confidence`).
 
 ``run.json`` is the commit point: a frame counts once it is written. A run that stops anywhere (a
 kill, Ctrl-C) resumes at the first frame not counted: ``steps.jsonl`` is cut back to the frames
@@ -32,11 +34,12 @@ import numpy as np
 from ..errors import InputError, OutputError
 from ..formats import NPY_HEADER_ERRORS
 
-__all__ = ["StreamRun", "STATE", "STEPS", "CARRY"]
+__all__ = ["StreamRun", "STATE", "STEPS", "CARRY", "CONFIDENCE", "confidence_png"]
 
 STATE = "run.json"
 STEPS = "steps.jsonl"
 CARRY = "carry-{}.npz"
+CONFIDENCE = "confidence"
 #: What reading a damaged carry file raises (a zip archive of .npy members).
 _UNREADABLE_CARRY: tuple[type[BaseException], ...] = (*NPY_HEADER_ERRORS, KeyError, EOFError, zipfile.BadZipFile,
                                                       zlib.error)
@@ -126,13 +129,31 @@ class StreamRun:
         except InputError as exc:
             raise OutputError(f"{path}: {exc}; use --force to start over") from None
 
-    def record(self, t: int, labels: np.ndarray, report: dict, plain: np.ndarray | None = None, carry=None) -> None:
-        """Write frame ``t``'s labels, step and ``carry`` (a :class:`~pcreg.pipeline.stream.Carry` or None),
-        then commit it in run.json."""
+    def learned_after(self, t: int) -> np.ndarray | None:
+        """What the classifier had learned from the stream after frame ``t`` (a counted frame), as
+        :attr:`pcreg.Propagator.learned` saved it; None where it had learned nothing."""
+        if t == 0:
+            return None
+        path = self.out / CARRY.format(t % 2)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                learned = np.array(z["learned"]) if "learned" in z.files else None
+        except _UNREADABLE_CARRY:
+            raise OutputError(f"{path}: missing or unreadable; use --force to start over") from None
+        return None if learned is None or learned.size == 0 else learned
+
+    def record(self, t: int, labels: np.ndarray, report: dict, plain: np.ndarray | None = None, carry=None,
+               learned: np.ndarray | None = None, confidence: np.ndarray | None = None) -> None:
+        """Write frame ``t``'s labels (and ``confidence``, (H, W) in [0, 1], as ``confidence/NAME.png``),
+        step, ``carry`` (a :class:`~pcreg.pipeline.stream.Carry` or None) and what the classifier has
+        ``learned``, then commit it in run.json."""
         from ..classification.metrics import error_rate
         from ..outputs import atomic_write_json, to_json
 
         _write_png(self.out / f"{self.frames[t].stem}.png", labels)
+        if confidence is not None:
+            (self.out / CONFIDENCE).mkdir(exist_ok=True)
+            _write_png(self.out / CONFIDENCE / f"{self.frames[t].stem}.png", confidence_png(confidence))
         step = dict(report, frame=t, name=self.frames[t].name)
         truth = None if self.truth is None else self.truth[t]
         if truth is not None:
@@ -150,13 +171,22 @@ class StreamRun:
             s["plain_error"] = 100.0 * s["plain_wrong"] / s["known"] if s["known"] else None
         with open(self.out / STEPS, "ab") as fh:
             fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
-        _write_carry(self.out / CARRY.format(t % 2), t, carry)
+        _write_carry(self.out / CARRY.format(t % 2), t, carry, learned)
         self.state["done"] = t + 1
         self.state["fallbacks"] += int(report.get("fallback", False))
         atomic_write_json(self.out / STATE, self.state)  # the commit point
 
 
-def _write_carry(path: Path, t: int, carry) -> None:
+def confidence_png(confidence: np.ndarray) -> np.ndarray:
+    """(H, W) uint8: 255 times the probability that the label is right, rounded. A confidence that is
+    NaN or outside [0, 1] is a bug, never written."""
+    c = np.asarray(confidence, dtype=np.float32)
+    if not (np.all(np.isfinite(c)) and c.min(initial=0.0) >= 0.0 and c.max(initial=0.0) <= 1.0):
+        raise AssertionError("a confidence outside [0, 1] reached the writer")
+    return np.rint(c * 255.0).astype(np.uint8)
+
+
+def _write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:
     import io
 
     from ..outputs import atomic_write_bytes
@@ -164,7 +194,8 @@ def _write_carry(path: Path, t: int, carry) -> None:
     buf = io.BytesIO()
     grid = np.zeros((0, 0, 2), np.float32) if carry is None else carry.grid
     evidence = float("nan") if carry is None else carry.reference_evidence
-    np.savez(buf, frame=np.int64(t), grid=grid, evidence=np.float64(evidence))
+    learned = np.zeros((0,), np.float64) if learned is None else np.asarray(learned, np.float64)
+    np.savez(buf, frame=np.int64(t), grid=grid, evidence=np.float64(evidence), learned=learned)
     atomic_write_bytes(path, buf.getvalue())
 
 

@@ -30,6 +30,30 @@ def per_frame(results: dict) -> tuple[list, list]:
     return header, rows
 
 
+def calibration_table(results: dict) -> tuple[list, list, str]:
+    """pcreg's confidence per clip and over all clips: expected calibration error, error of all known
+    pixels and of the most confident 80%, and their ratio."""
+    header = ["clip", "known pixels", "ECE", "error %", "error % of the most confident 80%", "ratio"]
+    items = [(n, c.get("calibration") or {}) for n, c in results["datasets"].items()]
+    items.append(("all clips", results.get("calibration") or {}))
+    rows = [[n, c.get("pixels", 0), c.get("ece", float("nan")), c.get("error", float("nan")),
+             c.get("error_top80", float("nan")), c.get("top80_ratio", float("nan"))] for n, c in items]
+    footer = ("\n(the confidence of each label pcreg writes, 10 equal bins for the expected calibration error; "
+              "unknown truth left out)\n")
+    return header, rows, footer
+
+
+def _calibration_checks(results: dict) -> list[str]:
+    cal = results.get("calibration") or {}
+    if not cal.get("pixels"):
+        return ["- pcreg's confidence: no scored pixel"]
+    return [f"- pcreg's confidence is calibrated (expected calibration error <= 0.02 over all known pixels): "
+            f"{'met' if cal['ece'] <= 0.02 else 'NOT met'} ({cal['ece']:.4f})",
+            f"- the most confident 80% of known pixels carry at most a third of the error of all: "
+            f"{'met' if cal['top80_ratio'] <= 1 / 3 else 'NOT met'} ({cal['error_top80']:.2f}% against "
+            f"{cal['error']:.2f}%, {cal['top80_ratio']:.3f})"]
+
+
 def checks(results: dict) -> str:
     """pcreg against the DIS baselines, plain and the unregistered key frame (Markdown)."""
     avg, clips = results["average_reduction"], results["datasets"]
@@ -47,6 +71,7 @@ def checks(results: dict) -> str:
                  if other in c["means"] and c["means"]["pcreg"] > c["means"][other]]
         lines.append(f"- pcreg never worse than {other} on any clip ({len(clips)} clips): "
                      + ("met" if not worse else "NOT met: " + "; ".join(worse)))
+    lines += _calibration_checks(results)
     for name, c in clips.items():
         ms = c.get("ms_per_frame", {})
         if "pcreg" in ms and "flow_key" in ms and ms["flow_key"] > 0:
@@ -85,6 +110,33 @@ def _figure(results: dict):
     return fig
 
 
+def _reliability(results: dict):
+    """The reliability figure: accuracy against confidence per bin, and the share of pixels per bin."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curve = (results.get("calibration") or {}).get("curve")
+    if not curve:
+        return None
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(8.4, 3.6))
+    conf = [b["confidence"] for b in curve]
+    ax.plot([0, 1], [0, 1], color="0.6", ls="--", lw=1, label="calibrated")
+    ax.plot(conf, [b["accuracy"] for b in curve], "o-", color="C3", lw=1.4, label="pcreg")
+    ax.set_xlabel("confidence of the label")
+    ax.set_ylabel("share of labels that are right")
+    ax.set_title(f"reliability (ECE {results['calibration']['ece']:.4f})")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    ax2.bar(conf, [b["share"] for b in curve], width=0.08, color="C3")
+    ax2.set_xlabel("confidence of the label")
+    ax2.set_ylabel("share of known pixels")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
 def write_outputs(results: Results, out: str | Path) -> list[Path]:
     """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results."""
     from .files import write_files
@@ -93,7 +145,9 @@ def write_outputs(results: Results, out: str | Path) -> list[Path]:
     b = doc["primary_backend"]
     h, rows, footer = table(doc)
     ph, prows = per_frame(doc)
+    ch, crows, cfooter = calibration_table(doc)
     tables = {f"stream_{b}": ("Labelling a stream from its key frame: mean error % per clip", h, rows, footer),
-              "stream_frames": ("Error % per frame", ph, prows)}
+              "stream_frames": ("Error % per frame", ph, prows),
+              "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter)}
     return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
-                       figures={"stream": _figure(doc)})
+                       figures={"stream": _figure(doc), "stream_reliability": _reliability(doc)})

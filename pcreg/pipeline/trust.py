@@ -1,0 +1,200 @@
+"""Where a carried label can be trusted, and how sure each output label is.
+
+A stream's step carries the key frame's labels into the new frame along two motions found
+independently: pcreg's dense field (:func:`pcreg.register_dense`) and OpenCV's DIS optical flow at its
+ultrafast preset (:func:`pcreg.registration.flow.dis_field`, about 5 ms at 640x480). Each carried prior
+is trusted, pixel by pixel, by how well the key frame carried along the *same* motion matches the new
+frame there (:func:`carried_residual`): where the key image lands on what the frame shows, the labels
+landed right too; where it does not (an occlusion, a disocclusion, a field that slid, a scene that
+changed) the prior fades and naive Bayes has the say. When the whole frame stops matching, every
+pixel's trust falls, and the step is naive Bayes alone. The fused log-odds (:func:`fused_log_odds`)::
+
+    F = d + weight * (dense * (0.5 + 1.5 c) * exp(-r_field / residual) * l_field
+                      + flow * exp(-r_flow / residual) * l_flow)
+
+with ``d`` naive Bayes' log-odds, ``l_*`` each carried prior's log-odds, ``c`` the dense field's own
+confidence and ``r_*`` each motion's residual in grey levels. The rule's three numbers
+(:class:`TrustRule`) were each chosen with one CamVid clip left out, for each of the eight shared
+clips, and scored on the clip left out (docs/results.md, "Trust").
+
+Every output label gets a calibrated confidence, the probability that it is right
+(:func:`label_confidence`), from four things a person can see: how far the fused log-odds are from 0,
+how much of the label's neighbourhood has the same label at two sizes (errors sit on the boundaries
+between classes), and how much of the neighbourhood's classifier agrees with the carried prior. Its
+five coefficients (:data:`CONFIDENCE_COEFFICIENTS`) were fitted by logistic regression on the eight
+shared clips, and checked clip by clip with each clip left out (``tools/fit_trust.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual",
+           "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error"]
+
+#: The width at which the rule's pixel sizes are stated; they scale with the frame's width.
+BASE_WIDTH = 480.0
+#: Blurs (px at :data:`BASE_WIDTH`): of both images before comparing, and of the residual after.
+IMAGE_SIGMA, RESIDUAL_SIGMA = 1.5, 3.0
+#: The residual outside the key frame (grey levels): nothing carried there can be trusted.
+OUTSIDE = 255.0
+#: Sides (px at :data:`BASE_WIDTH`) of the neighbourhoods the confidence reads: the label's purity at
+#: two sizes, and the agreement of the classifier with the carried prior.
+PURITY_SIDES, AGREEMENT_SIDE = (15, 33), 33
+#: The confidence's logistic coefficients: intercept, then log1p(|F|), purity at 15 px, purity at 33 px,
+#: agreement at 33 px; fitted on the eight shared CamVid clips (``tools/fit_trust.py``).
+CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-4.498, 0.526, -1.619, 6.054, 2.773)
+
+
+@dataclass(frozen=True)
+class TrustRule:
+    """How far each carried prior is trusted (see the module's docstring).
+
+    dense : the dense field's prior weight, a multiple of the propagator's ``weight``, at a field
+        confidence of 1/3 and a residual of 0 (from half to twice it as the confidence goes 0 to 1).
+    flow : the DIS flow's prior weight, the same way (0: the flow is not computed).
+    residual : grey levels of the carried key frame's mean colour difference at which a prior's trust
+        falls to 1/e.
+    preset : the DIS preset of the second motion.
+    """
+
+    dense: float = 2.0
+    flow: float = 1.5
+    residual: float = 40.0
+    preset: str = "ultrafast"
+
+    def __post_init__(self) -> None:
+        from ..registration.flow import PRESETS
+        from ..validation import check_float
+
+        check_float(self.dense, "trust dense", lo=0, hi=1e6)
+        check_float(self.flow, "trust flow", lo=0, hi=1e6)
+        check_float(self.residual, "trust residual", lo=0, lo_open=True, hi=1e6)
+        if self.preset not in PRESETS:
+            raise InputError(f"unknown DIS preset {self.preset!r}; choose one of {', '.join(PRESETS)}")
+
+
+#: The stream's trust rule (chosen with each shared clip left out; docs/results.md).
+STREAM_TRUST = TrustRule()
+
+
+def _scaled(px: float, width: int) -> float:
+    return px * width / BASE_WIDTH
+
+
+def _odd(px: float, width: int) -> int:
+    return max(1, int(round(_scaled(px, width))) // 2 * 2 + 1)
+
+
+def blurred(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32: the image blurred by :data:`IMAGE_SIGMA` (scaled), what residuals compare."""
+    import cv2
+
+    return cv2.GaussianBlur(np.asarray(image, dtype=np.float32), (0, 0), _scaled(IMAGE_SIGMA, image.shape[1]))
+
+
+def carried_residual(key_blurred: np.ndarray, frame_blurred: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the mean absolute colour difference, in grey levels, between the frame and the key
+    frame carried along ``field`` (reference coordinates of every frame pixel), both :func:`blurred`,
+    blurred again by :data:`RESIDUAL_SIGMA`; :data:`OUTSIDE` where the field leaves the key frame."""
+    import cv2
+
+    h, w = frame_blurred.shape[:2]
+    fld = np.ascontiguousarray(field, dtype=np.float32)
+    carried = cv2.remap(key_blurred, fld, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    res = cv2.absdiff(carried, frame_blurred)
+    res = cv2.transform(res, np.full((1, 3), 1.0 / 3.0))
+    x, y = fld[:, :, 0], fld[:, :, 1]
+    inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)  # NaN compares False: outside
+    res[~inside] = OUTSIDE
+    return cv2.GaussianBlur(res, (0, 0), _scaled(RESIDUAL_SIGMA, w))
+
+
+@dataclass(frozen=True)
+class TrustMaps:
+    """Per pixel (H, W) float32: each carried prior's fusion weight (``dense``, ``flow``; None where that
+    prior is absent) and its log-odds (``dense_prior``, ``flow_prior``)."""
+
+    dense: np.ndarray | None
+    dense_prior: np.ndarray | None
+    flow: np.ndarray | None
+    flow_prior: np.ndarray | None
+
+    def prior_term(self, shape: tuple[int, int]) -> np.ndarray:
+        """(H, W) float32: the sum of weight times log-odds over the priors present."""
+        out = np.zeros(shape, np.float32)
+        for w, l in ((self.dense, self.dense_prior), (self.flow, self.flow_prior)):
+            if w is not None and l is not None:
+                out += w * l
+        return out
+
+
+def trust_maps(rule: TrustRule, *, weight: float, dense_prior: np.ndarray | None, dense_residual: np.ndarray | None,
+               confidence: np.ndarray | None, flow_prior: np.ndarray | None, flow_residual: np.ndarray | None
+               ) -> TrustMaps:
+    """Each carried prior's weight per pixel by ``rule`` (the module's formula); a prior given as None
+    (its motion failed or was not computed) gets none, and a pixel whose residual's neighbourhood lies
+    wholly outside the key frame (:data:`OUTSIDE`) gets 0."""
+    def trust(res: np.ndarray) -> np.ndarray:  # 0 where the residual is all outside the key frame
+        r = np.asarray(res, np.float32)
+        return np.where(r < OUTSIDE, np.exp(r * np.float32(-1.0 / rule.residual)), np.float32(0.0))
+
+    wd = wf = None
+    if dense_prior is not None and dense_residual is not None:
+        c = 1.0 / 3.0 if confidence is None else np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0)
+        wd = (np.float32(weight * rule.dense) * (np.float32(0.5) + np.float32(1.5) * c) * trust(dense_residual))
+        wd = wd.astype(np.float32, copy=False)
+    if flow_prior is not None and flow_residual is not None:
+        wf = np.float32(weight * rule.flow) * trust(flow_residual)
+    return TrustMaps(wd, dense_prior, wf, flow_prior)
+
+
+def fused_log_odds(log_odds: np.ndarray, maps: TrustMaps) -> np.ndarray:
+    """(H, W) float32 ``F``: naive Bayes' log-odds plus every trusted prior (the module's formula)."""
+    d = np.asarray(log_odds, dtype=np.float32)
+    return d + maps.prior_term(d.shape)
+
+
+def confidence_features(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray) -> list[np.ndarray]:
+    """The confidence's four features, (H, W) float32 each: log1p(|F|), the share of the label's
+    neighbourhood with the same label at the two :data:`PURITY_SIDES`, and the share of the
+    :data:`AGREEMENT_SIDE` neighbourhood where naive Bayes' sign agrees with the carried prior's."""
+    import cv2
+
+    F = np.asarray(fused, dtype=np.float32)
+    w = F.shape[1]
+    lab = (F > 0).astype(np.float32)
+    feats = [np.log1p(np.abs(F))]
+    for side in PURITY_SIDES:
+        k = _odd(side, w)
+        m = cv2.blur(lab, (k, k), borderType=cv2.BORDER_REFLECT)
+        feats.append(np.where(lab > 0, m, 1.0 - m).astype(np.float32))
+    agree = ((np.asarray(log_odds) > 0) == (np.asarray(prior_term) > 0)).astype(np.float32)
+    k = _odd(AGREEMENT_SIDE, w)
+    feats.append(cv2.blur(agree, (k, k), borderType=cv2.BORDER_REFLECT))
+    return feats
+
+
+def label_confidence(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray,
+                     coefficients: tuple[float, ...] = CONFIDENCE_COEFFICIENTS) -> np.ndarray:
+    """(H, W) float32 in [0, 1]: the probability that the label ``F > 0`` is right at each pixel, by the
+    logistic model over :func:`confidence_features` (:data:`CONFIDENCE_COEFFICIENTS`)."""
+    feats = confidence_features(fused, log_odds, prior_term)
+    if len(coefficients) != len(feats) + 1:
+        raise InputError(f"the confidence takes {len(feats) + 1} coefficients, got {len(coefficients)}")
+    z = np.full(feats[0].shape, np.float32(coefficients[0]), np.float32)
+    for a, f in zip(coefficients[1:], feats):
+        z += np.float32(a) * f
+    conf = (1.0 / (1.0 + np.exp(-np.clip(z, -60.0, 60.0)))).astype(np.float32)
+    if not np.all(np.isfinite(conf)):  # finite inputs give a finite logistic: anything else is a bug
+        raise AssertionError("a confidence came out NaN")
+    return conf
+
+
+def predicted_error(confidence: np.ndarray) -> float:
+    """A frame's predicted error in percent: the mean of 1 - confidence over its pixels."""
+    return float(100.0 * (1.0 - np.mean(confidence, dtype=np.float64)))

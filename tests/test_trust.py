@@ -1,0 +1,170 @@
+"""The trust rule, the labels' confidence, learning from the stream, and their outputs."""
+
+import json
+
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.errors import InputError
+from pcreg.pipeline import trust as T
+from pcreg.pipeline.learning import Learner, Learning
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return pcreg.synthetic("syn2a", 6, 0, width=320, height=240)
+
+
+@pytest.fixture(scope="module")
+def stepped(frames):
+    prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    reports = []
+    for f in frames[1:]:
+        labels = prop.step(f.image)
+        reports.append((f, labels, prop.last))
+    return prop, reports
+
+
+def test_every_label_has_a_confidence_in_0_1_and_the_sure_ones_are_more_often_right(stepped):
+    _, reports = stepped
+    right, conf = [], []
+    for f, labels, last in reports:
+        c = last.confidence
+        assert c.shape == labels.shape and c.dtype == np.float32
+        assert np.all(np.isfinite(c)) and c.min() >= 0 and c.max() <= 1
+        assert last.predicted_error == pytest.approx(100 * (1 - c.mean(dtype=np.float64)))
+        assert json.loads(json.dumps(last.to_dict()))["predicted_error"] == pytest.approx(last.predicted_error)
+        known = f.labels < 2
+        right.append(((labels == 1) == (f.labels == 1))[known])
+        conf.append(c[known])
+    right, conf = np.concatenate(right), np.concatenate(conf)
+    sure = conf >= np.quantile(conf, 0.5)
+    assert right[sure].mean() > right[~sure].mean()  # the confidence ranks the labels
+
+
+def test_the_trust_rule_labels_better_than_one_weight(frames, stepped):
+    _, reports = stepped
+    plain = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, trust=None, learning=None)
+    err_trust = np.mean([pcreg.error_rate(labels, f.labels) for f, labels, _ in reports])
+    err_plain = np.mean([pcreg.error_rate(plain.step(f.image), f.labels) for f, _, _ in reports])
+    assert err_trust <= err_plain
+
+
+def test_a_prior_wholly_outside_the_key_frame_leaves_naive_bayes_alone():
+    rng = np.random.default_rng(0)
+    d = rng.normal(0, 3, (40, 60)).astype(np.float32)
+    prior = rng.normal(0, 5, (40, 60)).astype(np.float32)
+    outside = np.full((40, 60), T.OUTSIDE, np.float32)
+    maps = T.trust_maps(T.STREAM_TRUST, weight=2.0, dense_prior=prior, dense_residual=outside,
+                        confidence=np.ones((40, 60), np.float32), flow_prior=prior, flow_residual=outside)
+    np.testing.assert_array_equal(T.fused_log_odds(d, maps), d)
+    near = T.trust_maps(T.STREAM_TRUST, weight=2.0, dense_prior=prior, dense_residual=np.zeros_like(d),
+                        confidence=None, flow_prior=None, flow_residual=None)
+    np.testing.assert_allclose(near.dense, 2.0 * T.STREAM_TRUST.dense)  # full trust at confidence 1/3
+    assert near.flow is None
+
+
+def test_carried_residual_is_zero_along_the_true_motion_and_outside_beyond_the_frame():
+    rng = np.random.default_rng(1)
+    img = rng.integers(0, 255, (60, 80, 3)).astype(np.uint8)
+    b = T.blurred(img)
+    ys, xs = np.mgrid[0:60, 0:80].astype(np.float32)
+    same = T.carried_residual(b, b, np.dstack([xs, ys]))
+    assert same.max() < 1e-3
+    away = T.carried_residual(b, b, np.dstack([xs + 500, ys]))
+    np.testing.assert_allclose(away, T.OUTSIDE, rtol=1e-5)
+
+
+def test_label_confidence_refuses_wrong_coefficients():
+    z = np.zeros((8, 8), np.float32)
+    with pytest.raises(InputError, match="coefficients"):
+        T.label_confidence(z, z, z, coefficients=(1.0, 2.0))
+    for bad in ({"dense": -1}, {"flow": "x"}, {"residual": 0}, {"preset": "slow"}):
+        with pytest.raises(InputError):
+            T.TrustRule(**bad)
+    with pytest.raises(InputError, match="TrustRule"):
+        pcreg.Propagator(pcreg.fit_classifier(pcreg.synthetic("syn1a", 1, 0, width=64, height=48)), trust=0.5)
+
+
+def test_learning_never_lets_the_stream_outweigh_the_key_frame(frames):
+    clf = pcreg.fit_classifier([frames[0]])
+    rule = Learning(share=0.5, decay=1.0, sure=0.0, stride=2)
+    learner = Learner(clf, rule)
+    key_pixels = clf.counts_[:, 0].sum()
+    for f in frames[1:] * 4:  # twenty frames, all taken as sure
+        fused = np.where(f.labels == 1, 5.0, -5.0).astype(np.float32)
+        learner.update(f.image, fused, fused)
+    assert learner.stream[:, 0].sum() > key_pixels  # more stream pixels than key pixels were seen ...
+    learned = learner.classifier.counts_[:, 0].sum()
+    assert learned <= key_pixels * (1 + rule.share) + 3  # ... but they weigh at most half the key frame's
+    assert not np.array_equal(learner.classifier.theta_, clf.theta_)
+    again = Learner(clf, rule)
+    again.restore(learner.stream)
+    np.testing.assert_array_equal(again.classifier.theta_, learner.classifier.theta_)
+    for bad in (np.zeros((2, 2)), np.full(learner.stream.shape, np.nan), -np.ones(learner.stream.shape)):
+        with pytest.raises(InputError, match="learned"):
+            again.restore(bad)
+    with pytest.raises(InputError):
+        Learning(share=2)
+
+
+def test_calibration_summary_matches_a_direct_count():
+    from pcreg.experiments.stream import calibration, calibration_counts
+
+    rng = np.random.default_rng(2)
+    conf = rng.uniform(0.5, 1.0, (50, 40)).astype(np.float32)
+    truth = rng.integers(0, 3, (50, 40)).astype(np.uint8)
+    labels = np.where(rng.uniform(size=(50, 40)) < conf, truth, 1 - np.minimum(truth, 1)).astype(np.uint8)
+    labels[truth == 2] = 0
+    counts = calibration_counts(conf, labels, truth)
+    cal = calibration(counts)
+    known = truth < 2
+    wrong = (labels[known] == 1) != (truth[known] == 1)
+    assert cal["pixels"] == known.sum()
+    assert cal["error"] == pytest.approx(100 * wrong.mean())
+    level = np.rint(conf[known] * 255) / 255
+    order = np.argsort(-level, kind="stable")
+    n = int(0.8 * known.sum())
+    assert cal["error_top80"] == pytest.approx(100 * wrong[order[:n]].mean(), abs=2.0)
+    assert 0 <= cal["ece"] < 0.2
+    assert calibration(np.zeros((2, 256))) == {"pixels": 0}
+
+
+def _folder(tmp_path, frames):
+    import cv2
+
+    src = tmp_path / "frames"
+    src.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(src / f"f{i:03d}.png"), cv2.cvtColor(f.image, cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    return src
+
+
+def test_run_writes_confidence_maps_and_refuses_to_resume_without_them(tmp_path, frames, capsys):
+    import cv2
+
+    src = _folder(tmp_path, frames[:4])
+    out = tmp_path / "out"
+    args = ["run", str(src), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
+    assert main(args + ["--confidence"]) == 0
+    for i in range(1, 4):
+        c = cv2.imread(str(out / "confidence" / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED)
+        assert c.dtype == np.uint8 and c.shape == frames[0].labels.shape and c.max() > 128
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    assert len(steps) == 3 and all(0 <= s["predicted_error"] <= 100 for s in steps)
+    before = sorted(p.name for p in out.rglob("*"))
+    assert main(args) == 2  # the same run without --confidence: another run's options
+    assert "other options" in capsys.readouterr().err
+    assert sorted(p.name for p in out.rglob("*")) == before  # nothing lost
+
+
+def test_a_confidence_outside_0_1_is_never_written():
+    from pcreg.pipeline.stream_run import confidence_png
+
+    np.testing.assert_array_equal(confidence_png(np.array([[0.0, 0.5, 1.0]])), [[0, 128, 255]])
+    for bad in (np.array([[np.nan]]), np.array([[1.5]]), np.array([[-0.1]])):
+        with pytest.raises(AssertionError):
+            confidence_png(bad)

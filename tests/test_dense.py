@@ -117,7 +117,7 @@ def test_window_search_skipping_rows_answers_the_full_scan_ties_included(channel
     the window answers (the least cost, the first in row order among equal costs). Colours from a few
     levels and whole-pixel queries make many equal costs, and queries on their own pixel make cheap
     matches, so that rows are skipped often; windows run off the image's edges too."""
-    from pcreg.registration.dense import _best_in_window
+    from pcreg.registration.dense.window import _best_in_window
 
     rng = np.random.default_rng(7)
     h, w = 24, 32
@@ -150,7 +150,7 @@ def test_window_search_skipping_rows_answers_the_full_scan_ties_included(channel
 
 def test_nan_median_is_numpys():
     """The evidence's compiled median gives np.nanmedian's number: odd and even counts, ties, NaNs, none left."""
-    from pcreg.registration.dense import _nan_median
+    from pcreg.registration.dense.robust import _nan_median
 
     rng = np.random.default_rng(3)
     for n in [1, 2, 3, 4, 5, 1000, 1001]:
@@ -168,7 +168,7 @@ def test_nan_median_is_numpys():
 def test_robust_scale_is_numpys():
     """Tukey's scale from the mutual matches' distances with np.median's numbers: odd and even counts,
     ties, unmatched and one-sided rows left out, too few mutual matches giving 0."""
-    from pcreg.registration.dense import TUKEY_C, _robust_scale
+    from pcreg.registration.dense.robust import TUKEY_C, _robust_scale
 
     rng = np.random.default_rng(5)
     for n in [3, 8, 9, 10, 11, 1000, 1001]:
@@ -326,7 +326,7 @@ def test_compiled_normal_equations_match_scipy():
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    from pcreg.registration.dense import _NormalEquations
+    from pcreg.registration.dense.grid import _NormalEquations
 
     rng = np.random.default_rng(0)
     ne = _NormalEquations(rng.uniform(0, [160, 120], (3000, 2)), (16, 21), 8.0)
@@ -337,7 +337,7 @@ def test_compiled_normal_equations_match_scipy():
     U_cg, node_w = ne.solve(w, t, 0.25, 1e-5, x0, maxiter=40)
     U_lu, _ = ne.solve(w, t, 0.25, 1e-5)
     # the same system assembled with scipy.sparse from the bilinear matrix
-    from pcreg.registration.dense import _bilinear_matrix, _membrane
+    from pcreg.registration.dense.grid import _bilinear_matrix, _membrane
 
     B = sp.csr_matrix((ne.vals.ravel(), ne.cols.ravel(), np.arange(0, 4 * 3000 + 1, 4)), shape=(3000, ne.m))
     A = (B.T @ sp.diags(w) @ B + 0.25 * _membrane((16, 21)) + 1e-5 * sp.identity(ne.m)).tocsc()
@@ -382,7 +382,8 @@ def test_dense_is_a_model_of_register_and_of_the_command(frames, tmp_path, capsy
 def test_compiled_robust_step_matches_the_array_formulation():
     import math
 
-    from pcreg.registration.dense import TUKEY_C, _NormalEquations
+    from pcreg.registration.dense.grid import _NormalEquations
+    from pcreg.registration.dense.robust import TUKEY_C
 
     rng = np.random.default_rng(1)
     n, sigma = 3000, 0.004
@@ -418,7 +419,9 @@ def test_the_full_size_field_interpolates_the_grid_at_each_pixels_place(level):
     """The field at full resolution is the global transform plus the grid's displacements interpolated
     bilinearly where each pixel lies on the grid of its level (pixel x at ``(x - (2^l - 1) / 2) / (2^l s)``
     cells, edge nodes repeated beyond the grid), and its confidence is 0 where it leaves the image."""
-    from pcreg.registration.dense import _full_field, _grid_shape, _Level
+    from pcreg.registration.dense.field import _full_field
+    from pcreg.registration.dense.grid import _grid_shape
+    from pcreg.registration.dense.levels import _Level
 
     h, w, s = 97, 131, 2.0  # a fine grid: a cell is a few pixels, so a quarter-pixel slip shows
     f = 2 ** level
@@ -480,7 +483,8 @@ def test_a_registration_started_from_an_earlier_grid_follows_a_motion_beyond_the
 
 
 def test_an_initial_grid_at_the_finest_level_is_the_grid_itself_and_coarser_levels_interpolate_it():
-    from pcreg.registration.dense import _grid_at_level, _Level
+    from pcreg.registration.dense.coarse_to_fine import _grid_at_level
+    from pcreg.registration.dense.levels import _Level
 
     rng = np.random.default_rng(0)
     grid = rng.normal(0, 3, (31, 41, 2)).astype(np.float32)  # full-size px

@@ -331,8 +331,8 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     stiffness : the schedule multiplying the membrane weight (the last value repeats).
     strain : the largest plausible motion gradient (px per px), which sets the membrane weight.
     edge_aware : weight each membrane edge by the moving image's colour change across it
-        (:func:`~pcreg.registration.dense._edge_weights`), so the field can bend at object outlines; False: a uniform membrane.
-    texture : match on each level's texture part (:func:`~pcreg.registration.dense._texture`), the image minus its Gaussian blur
+        (:func:`~pcreg.registration.dense.grid._edge_weights`), so the field can bend at object outlines; False: a uniform membrane.
+    texture : match on each level's texture part (:func:`~pcreg.registration.dense.levels._texture`), the image minus its Gaussian blur
         of ``texture`` pixels of the level; None matches the plain colours. 4: on the pairwise evaluation
         (``evaluate sequence --model dense``) a wider blur keeps more of real scenes' colour and helps
         (CamVid, sigma 1 / 2 / 4 / 8 / 16: 46.2 / 45.4 / 48.4 / 49.3 / 47.9% below plain), while the
@@ -340,7 +340,7 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
         94.6%); 4 is the widest that keeps them where sigma 1 had them (within 0.5 points).
     chance_factor : plausibility test on the field (off by default): refuse with
         :class:`~pcreg.errors.RegistrationError` when the matches under the field are not this many
-        times closer in colour than on unrelated content (:func:`~pcreg.registration.dense._plausibility`; the result's
+        times closer in colour than on unrelated content (:func:`~pcreg.registration.dense.coarse_to_fine._plausibility`; the result's
         ``info["evidence"]`` holds the figure either way). Without it, unrelated images are refused
         only by the global step's own test (:func:`pcreg.register`, when it runs here).
     cg_iterations : each step solves the grid's equations inexactly, with at most this many

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 
-from pcreg import register_dense, warp
+from pcreg import DenseOptions, register_dense, warp
 from pcreg.registration.warp import warp_to_moving
 from pcreg.errors import InputError
 from pcreg.registration.dense import DenseRegistrationResult, field_from_matrix, match_window
@@ -42,7 +43,7 @@ def warped_pair():
 
 def test_recovers_a_known_smooth_field(warped_pair):
     ref, mov, F = warped_pair
-    res = register_dense(ref, mov, levels=4)
+    res = register_dense(ref, mov, options=DenseOptions(levels=4))
     assert isinstance(res, DenseRegistrationResult)
     assert res.field.shape == ref.shape[:2] + (2,) and res.field.dtype == np.float32
     assert res.confidence.shape == ref.shape[:2] and 0 <= res.confidence.min() <= res.confidence.max() <= 1
@@ -61,7 +62,7 @@ def test_recovers_a_known_smooth_field(warped_pair):
 
 def test_no_motion_gives_the_identity_field():
     img = _textured(seed=3)
-    res = register_dense(img, img, global_result=np.eye(3), levels=3)
+    res = register_dense(img, img, global_result=np.eye(3), options=DenseOptions(levels=3))
     ident = field_from_matrix(np.eye(3), img.shape[:2])
     assert np.median(np.linalg.norm(res.field - ident, axis=2)) < 0.15
 
@@ -72,7 +73,7 @@ def test_flat_areas_get_lower_confidence_and_the_global_motion():
     T = rigid_about_centre(img.shape, 0.0, 4.0, -3.0)
     mov = cv2.warpAffine(img, T[:2], (320, 240), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                          borderMode=cv2.BORDER_REFLECT)
-    res = register_dense(img, mov, global_result=T, levels=3)
+    res = register_dense(img, mov, global_result=T, options=DenseOptions(levels=3))
     assert res.confidence[20:-20, 20:140].mean() > 2 * res.confidence[20:-20, 200:-20].mean()
     # where there is nothing to match, the field stays with the global transform
     flat = np.linalg.norm(res.field - field_from_matrix(T, img.shape[:2]), axis=2)[20:-20, 220:-20]
@@ -191,11 +192,15 @@ def test_bad_inputs_are_refused():
     with pytest.raises(InputError):
         register_dense(img, img[:200])
     with pytest.raises(InputError):
-        register_dense(img, img, model="warp")
+        DenseOptions(model="warp")
     with pytest.raises(InputError):
         register_dense(img, img, global_result=np.zeros((3, 3)))
     with pytest.raises(InputError):
-        register_dense(img, img, radius=0)
+        DenseOptions(radius=0)
+    with pytest.raises(InputError, match="grid_spacing"):  # beyond the images' longer side
+        register_dense(img, img, options=DenseOptions(grid_spacing=400.0))
+    with pytest.raises(InputError, match="options"):
+        register_dense(img, img, options={"levels": 4})
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -314,11 +319,11 @@ def test_a_change_of_brightness_and_colour_is_not_read_as_motion(warped_pair):
     ref, mov, F = warped_pair
     # the camera's exposure and white balance change between the frames
     lit = np.clip(mov.astype(np.float32) * np.array([1.2, 1.1, 0.9], np.float32) + 12.0, 0, 255).astype(np.uint8)
-    res = register_dense(ref, lit, levels=4)
+    res = register_dense(ref, lit, options=DenseOptions(levels=4))
     inner = (slice(16, -16), slice(16, -16))
     err = np.linalg.norm(res.field - F, axis=2)[inner]
     assert np.median(err) < 0.8, np.median(err)
-    plain = register_dense(ref, lit, levels=4, texture=None)
+    plain = register_dense(ref, lit, options=DenseOptions(levels=4, texture=None))
     assert np.median(err) < np.median(np.linalg.norm(plain.field - F, axis=2)[inner])
 
 
@@ -353,13 +358,13 @@ def test_evidence_against_chance_and_the_optional_refusal(warped_pair):
     from pcreg.errors import RegistrationError
 
     ref, mov, F = warped_pair
-    res = register_dense(ref, mov, levels=4)
+    res = register_dense(ref, mov, options=DenseOptions(levels=4))
     assert res.info["evidence"] > 1.5 and res.to_dict()["evidence"] == pytest.approx(res.info["evidence"])
     noise = np.random.default_rng(3).integers(0, 256, ref.shape).astype(np.uint8)
-    unrelated = register_dense(ref, noise, global_result=np.eye(3), levels=4)
+    unrelated = register_dense(ref, noise, global_result=np.eye(3), options=DenseOptions(levels=4))
     assert unrelated.info["evidence"] < 1.3
     with pytest.raises(RegistrationError):
-        register_dense(ref, noise, global_result=np.eye(3), levels=4, chance_factor=1.5)
+        register_dense(ref, noise, global_result=np.eye(3), options=DenseOptions(levels=4, chance_factor=1.5))
 
 
 def test_dense_is_a_model_of_register_and_of_the_command(frames, tmp_path, capsys):
@@ -468,14 +473,15 @@ def test_a_registration_started_from_an_earlier_grid_follows_a_motion_beyond_the
     h, w = ref.shape[:2]
     shift = lambda dx: cv2.warpAffine(ref, np.float32([[1, 0, dx], [0, 1, 0]]), (w, h),  # noqa: E731
                                       flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
-    kw = dict(levels=2, texture=None, max_points=5000)
+    options = DenseOptions(levels=2, texture=None, max_points=5000)
     earlier = register_dense(ref, shift(54.0), global_result=np.eye(3) + np.array([[0, 0, 54.0], [0, 0, 0], [0, 0, 0]]),
-                             **kw)
+                             options=options)
     assert earlier.grid.shape == (16, 21, 2) and earlier.grid.dtype == np.float32 and not earlier.grid.flags.writeable
     grid = earlier.grid + np.float32([54.0, 0.0])  # its displacements from the identity
     inner = (slice(24, -24), slice(80, -80))
-    cold = register_dense(ref, shift(60.0), global_result=np.eye(3), **kw)
-    warm = register_dense(ref, shift(60.0), global_result=np.eye(3), initial=grid, initial_level=1, **kw)
+    cold = register_dense(ref, shift(60.0), global_result=np.eye(3), options=options)
+    warm = register_dense(ref, shift(60.0), global_result=np.eye(3), initial=grid,
+                          options=replace(options, initial_level=1))
     err = lambda r: np.median(np.abs(r.field[..., 0] - (np.arange(w) + 60.0))[inner])  # noqa: E731
     assert err(cold) > 10 and err(warm) < 0.5, (err(cold), err(warm))
     assert warm.info["levels"] == cold.info["levels"] == (1, 1)
@@ -504,7 +510,8 @@ def test_an_initial_grid_at_the_finest_level_is_the_grid_itself_and_coarser_leve
 
 def test_bad_initial_grids_are_refused(warped_pair):
     ref, mov, _ = warped_pair
-    kw = dict(global_result=np.eye(3), levels=4)
+    options = DenseOptions(levels=4)
+    kw = dict(global_result=np.eye(3), options=options)
     good = register_dense(ref, mov, **kw)
     for bad, match in ((good.grid[:-1], "nodes"), (np.full_like(good.grid, np.nan), "non-finite"),
                        ("grid", "numeric"), (np.zeros((3, 3)), "nodes"), (good.grid > 0, "numeric"),
@@ -512,12 +519,33 @@ def test_bad_initial_grids_are_refused(warped_pair):
                        (np.full(good.grid.shape, "a"), "numeric"), (object(), "numeric")):
         with pytest.raises(InputError, match=match):
             register_dense(ref, mov, initial=bad, **kw)
-    for level in (0, 8, 2.5, "2"):
+    with pytest.raises(InputError, match="initial_level"):  # under finest_level: with an initial grid
+        register_dense(ref, mov, initial=good, global_result=np.eye(3), options=replace(options, initial_level=0))
+    for level in (8, 2.5, "2", "x"):  # refused when the options are made
         with pytest.raises(InputError, match="initial_level"):
-            register_dense(ref, mov, initial=good, initial_level=level, **kw)
-    with pytest.raises(InputError, match="initial_level"):  # checked without an initial grid too
-        register_dense(ref, mov, initial_level="x", **kw)
+            replace(options, initial_level=level)
     with pytest.raises(InputError, match="nodes"):  # another grid spacing
-        register_dense(ref, mov, initial=good, grid_spacing=12.0, **kw)
-    same = register_dense(ref, mov, initial=good, initial_level=2, **kw)  # from its own end: no worse
+        register_dense(ref, mov, initial=good, global_result=np.eye(3), options=replace(options, grid_spacing=12.0))
+    same = register_dense(ref, mov, initial=good, **kw)  # from its own end (level 2): no worse
     assert same.info["evidence"] >= 0.9 * good.info["evidence"]
+
+
+def test_dense_options_are_one_checked_frozen_value():
+    from pcreg.registration.dense import STIFFNESS_SCHEDULE
+
+    o = DenseOptions(levels=np.int64(4), stiffness=[4, 2.0], texture=2, init=np.eye(3) * 2)
+    assert type(o.levels) is int and o.stiffness == (4.0, 2.0) and type(o.texture) is float
+    assert o.init == ((2.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 2.0)) and o.global_init.dtype == np.float64
+    assert hash(o) == hash(DenseOptions(levels=4, stiffness=(4.0, 2.0), texture=2.0, init=2 * np.eye(3)))
+    assert DenseOptions().stiffness == STIFFNESS_SCHEDULE and DenseOptions().global_init == "identity"
+    with pytest.raises(AttributeError):
+        o.levels = 3  # type: ignore[misc]
+    for bad, match in (({"levels": 0}, "levels"), ({"levels": 3, "finest_level": 3}, "finest_level"),
+                       ({"grid_spacing": 1.0}, "grid_spacing"), ({"stiffness": ()}, "stiffness"),
+                       ({"texture": 0}, "texture"), ({"edge_aware": 1}, "edge_aware"), ({"init": "nowhere"}, "init"),
+                       ({"init": np.zeros((3, 3))}, "init"), ({"backend": "gpu"}, "backend"), ({"seed": -1}, "seed"),
+                       ({"global_levels": 9}, "global_levels"), ({"chance_factor": float("nan")}, "chance_factor")):
+        with pytest.raises(InputError, match=match):
+            DenseOptions(**bad)
+        with pytest.raises(InputError, match=match):  # a copy with a change is checked as well
+            replace(DenseOptions(), **bad)

@@ -69,10 +69,10 @@ from __future__ import annotations
 
 from ..motion import field_from_matrix
 from .coarse_to_fine import DENSE_STAGES, InitialGrid, refine_field
-from .options import DENSE_GLOBAL_MODEL, STIFFNESS_SCHEDULE, DenseOptions, dense_options, finest_grid_shape
+from .options import DENSE_GLOBAL_MODEL, STIFFNESS_SCHEDULE, DenseOptions, finest_grid_shape
 from .result import DenseIteration, DenseRegistrationResult
 from .window import match_window
 
-__all__ = ["DenseRegistrationResult", "DenseIteration", "refine_field", "dense_options", "field_from_matrix",
+__all__ = ["DenseRegistrationResult", "DenseIteration", "refine_field", "field_from_matrix",
            "match_window", "STIFFNESS_SCHEDULE", "DENSE_STAGES", "DenseOptions", "DENSE_GLOBAL_MODEL",
            "InitialGrid", "finest_grid_shape"]

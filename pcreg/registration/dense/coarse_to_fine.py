@@ -116,7 +116,7 @@ class _Grid:
     finest: _Level
 
 
-def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, top: int, seed: int,
+def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, top: int,
                     clock: _StageClock, callback: Callable[[DenseIteration], None] | None,
                     initial: InitialGrid | None = None) -> _Grid:
     """Every level from ``top`` to the finest, each starting from the coarser level's grid, the first
@@ -129,7 +129,7 @@ def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, top
     levels = range(top, options.finest_level - 1, -1)
 
     def problem(level: int) -> Callable[[], _Level]:
-        return lambda: _level_problem(pyr, level, T, options, coarsest=top, seed=seed)
+        return lambda: _level_problem(pyr, level, T, options, coarsest=top)
 
     # a level's problem does not depend on the grid: the finer ones are made on the helper thread
     # while this one works on the coarser levels
@@ -202,11 +202,11 @@ def _check_evidence(evidence: float, chance_factor: float | None) -> None:
 
 
 def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationResult, options: DenseOptions, *,
-                 backend: str, seed: int, callback: Callable[[DenseIteration], None] | None, started: float,
+                 callback: Callable[[DenseIteration], None] | None, started: float,
                  given_seconds: float = 0.0, initial: InitialGrid | None = None) -> DenseRegistrationResult:
     """The dense step of :func:`pcreg.register_dense` on checked inputs: ``ref`` and ``mov`` (H, W, 3) uint8
-    of one size, the global step's result (its ``T_ref_mov`` the field's start), ``options`` from
-    :func:`dense_options`; ``started`` is when the registration began (``time.perf_counter()``) and
+    of one size, the global step's result (its ``T_ref_mov`` the field's start), ``options`` (checked
+    against the images' shape); ``started`` is when the registration began (``time.perf_counter()``) and
     ``given_seconds`` the time of a global step done before it, both counted in the result's seconds;
     ``initial``: where the grid starts (None: from zero at the coarsest level)."""
     coarsest = _coarsest_level(ref.shape, options)
@@ -215,7 +215,7 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
     clock = _StageClock()
     pyr = _pyramids(ref, mov, top)
     clock.lap("pyramid")
-    grid = _coarse_to_fine(pyr, T, options, top=top, seed=seed, clock=clock,
+    grid = _coarse_to_fine(pyr, T, options, top=top, clock=clock,
                            callback=callback, initial=initial)  # 2. the grid, coarse to fine
     # 3. the plausibility test and the field at full resolution: both follow from the final grid
     # alone, so the field is made whole on the helper thread while this one measures the evidence
@@ -234,6 +234,6 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
     return DenseRegistrationResult(matrix=T, field=full.field, confidence=full.confidence,
                                    global_result=global_result, fitness=grid.fitness, inlier_rmse=grid.rms,
                                    iterations=grid.steps, seconds=time.perf_counter() - started + given_seconds,
-                                   backend=backend, grid=full.grid,
+                                   backend=options.backend, grid=full.grid,
                                    info={"levels": (top, options.finest_level), "grid": full.grid.shape[:2],
                                          "evidence": evidence, "times": clock.times})

@@ -80,7 +80,7 @@ def _texture(img: np.ndarray, sigma: float, structure: float = 0.05) -> np.ndarr
     ``sigma`` of one pixel of the level, each pyramid level would match its own octave of detail
     alone (the band of a Laplacian pyramid, Burt & Adelson 1983); the default, 4 pixels, keeps two
     octaves more, the colour of a pole or a road marking as well as its edges, and still removes what
-    varies over tens of pixels (see ``texture`` in :func:`pcreg.register_dense` for the measurements)."""
+    varies over tens of pixels (see ``texture`` in :class:`~pcreg.registration.dense.options.DenseOptions` for the measurements)."""
     return (img - (1.0 - structure) * cv2.GaussianBlur(img, (0, 0), sigma)).astype(np.float32)
 
 
@@ -170,9 +170,8 @@ class _Level:
         return float(2 ** self.level)
 
 
-def _level_problem(pyr: _Pyramids, level: int, T: np.ndarray, options: DenseOptions, *, coarsest: int,
-                   seed: int) -> _Level:
-    """The level's grid, samples and equations (no problem under 16 samples)."""
+def _level_problem(pyr: _Pyramids, level: int, T: np.ndarray, options: DenseOptions, *, coarsest: int) -> _Level:
+    """The level's grid, samples (seed ``options.seed + level``) and equations (no problem under 16 samples)."""
     R, Mv = pyr.reference[level], pyr.moving[level]
     lh, lw = R.shape[:2]
     s = float(options.grid_spacing)
@@ -183,7 +182,7 @@ def _level_problem(pyr: _Pyramids, level: int, T: np.ndarray, options: DenseOpti
     # pixels near black padding are not scene content
     val_m = pyr.moving_valid[level]
     valid = cv2.erode(val_m.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0 if not val_m.all() else None
-    P, _, rate = _samples(Mv, sigma, max_points=options.max_points, seed=seed + level, valid=valid)
+    P, _, rate = _samples(Mv, sigma, max_points=options.max_points, seed=options.seed + level, valid=valid)
     if len(P) < 16:
         return _Level(level, s, gshape, rate, None)
     if options.texture is not None:

@@ -549,3 +549,27 @@ def test_dense_options_are_one_checked_frozen_value():
             DenseOptions(**bad)
         with pytest.raises(InputError, match=match):  # a copy with a change is checked as well
             replace(DenseOptions(), **bad)
+
+
+def test_a_prepared_reference_gives_the_same_registration_and_is_refused_for_another_image(warped_pair):
+    from pcreg.registration.dense import prepare_reference
+
+    ref, mov, _ = warped_pair
+    options = DenseOptions(levels=4, texture=None)
+    prepared = prepare_reference(ref, options=options)
+    assert len(prepared.levels) == len(prepared.valid) == 4 and "320x240" in repr(prepared)
+    assert not prepared.image.flags.writeable and not any(a.flags.writeable for a in prepared.levels)
+    assert prepared.image is not ref and ref.flags.writeable  # a copy: the caller's image is left as it was
+    plain = register_dense(ref, mov, options=options, global_result=np.eye(3))
+    for _ in range(2):  # reused: the same numbers each time, and as without it
+        again = register_dense(ref, mov, options=options, global_result=np.eye(3), prepared=prepared)
+        np.testing.assert_array_equal(again.field, plain.field)
+        np.testing.assert_array_equal(again.confidence, plain.confidence)
+    other = ref.copy()
+    other[0, 0, 0] ^= 1
+    with pytest.raises(InputError, match="another image"):
+        register_dense(other, mov, options=options, prepared=prepared)
+    with pytest.raises(InputError, match="levels"):  # prepared for three levels, given to four
+        register_dense(ref, mov, options=options, prepared=prepare_reference(ref, options=replace(options, levels=3)))
+    with pytest.raises(InputError, match="DenseReference"):
+        register_dense(ref, mov, options=options, prepared=prepared.levels)

@@ -82,7 +82,7 @@ from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
 
 if TYPE_CHECKING:
-    from ..registration.dense import DenseOptions
+    from ..registration.dense import DenseOptions, DenseReference
 
 __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep", "Carry", "STREAM_DENSE", "STREAM_REGISTRATION",
            "STREAM_WEIGHT", "ANCHORS"]
@@ -279,6 +279,7 @@ class Propagator:
         self._key_image: np.ndarray | None = None
         self._key_labels: np.ndarray | None = None
         self._key_prior: np.ndarray | None = None
+        self._key_prepared: DenseReference | None = None  # the key frame prepared for the dense registration
         self._chain: tuple[np.ndarray, Motion | None, int] | None = None  # (image, motion to the key frame, frame)
         self._carry: Carry | None = None
         self._attempt: str | None = None  # how the dense registration under way started (StepReport.start)
@@ -302,11 +303,17 @@ class Propagator:
 
     def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8 with
-        0 ground, 1 obstacle, 2 unknown."""
+        0 ground, 1 obstacle, 2 unknown. A dense stream anchored to the key frame prepares it here, once
+        (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid), for every step's registration."""
         img = _check_image(image)
         lab = _check_labels(labels, img.shape[:2])
         self._key_image, self._key_labels = img, lab
         self._key_prior = label_prior(lab, pi=self._pi, fusion=self.fusion)
+        self._key_prepared = None
+        if self.model == "dense" and self.anchor == "key":  # every frame registers to it: its pyramid once
+            from ..registration.dense import prepare_reference
+
+            self._key_prepared = prepare_reference(img, options=self._dense_options[0])
         self._chain = (img, None, 0)
         self._carry = None
         self._frame = 0
@@ -405,7 +412,8 @@ class Propagator:
         cold_options, warm_options = self._dense_options
 
         def dense(options: DenseOptions, initial=None):
-            return register_dense(reference, image, options=options, global_result=T, initial=initial)
+            return register_dense(reference, image, options=options, global_result=T, initial=initial,
+                                  prepared=self._key_prepared if reference is self._key_image else None)
 
         def cold():
             return dense(cold_options)

@@ -19,8 +19,9 @@ from ..errors import InputError, RegistrationError
 from ..validation import (check_bool, check_callable, check_choice, check_counts, check_float, check_floats,
                           check_int, check_ints, check_matrix, short_repr)
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
-from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseRegistrationResult, InitialGrid,
-                    finest_grid_shape, refine_field)
+from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
+                    InitialGrid, finest_grid_shape, refine_field)
+from .dense.levels import check_prepared
 from .global_search import GENERATORS
 from .open3d_icp import check_model as check_open3d_model
 from .plausibility import CHANCE_FACTOR, DEFAULT_MIN_INLIER_RATIO, MIRROR_FACTOR, Plausibility
@@ -303,6 +304,7 @@ def _register_dense_model(reference_image, moving_image, *, backend: str, levels
 def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, options: DenseOptions = DenseOptions(),
                    global_result: RegistrationResult | np.ndarray | None = None,
                    initial: DenseRegistrationResult | np.ndarray | None = None,
+                   prepared: DenseReference | None = None,
                    callback: Callable[[DenseIteration], None] | None = None) -> DenseRegistrationResult:
     """Register ``moving_image`` to ``reference_image`` with a smooth dense field (:mod:`pcreg.registration.dense`).
 
@@ -319,6 +321,10 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, opt
         2^initial_level`` px (12) from the earlier field, against 48 px from the global transform. Same
         image size, ``finest_level`` and ``grid_spacing`` (the grid's shape is checked). Measured in use:
         :class:`pcreg.pipeline.stream.DenseStep`.
+    prepared : ``reference_image`` prepared once for many registrations
+        (:func:`~pcreg.registration.dense.prepare_reference` with the same options), which saves building
+        its pyramid each time (a stream's key frame: :class:`pcreg.Propagator`); refused when it was made
+        from another image. The same result as without it.
     callback : called with a :class:`~pcreg.registration.dense.DenseIteration` after every iteration.
     Returns a :class:`~pcreg.registration.dense.DenseRegistrationResult`.
     """
@@ -330,11 +336,13 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, opt
     if not isinstance(options, DenseOptions):
         raise InputError(f"options must be a pcreg.DenseOptions, got {type(options).__name__}")
     options.check_shape(ref.shape)
+    if prepared is not None:
+        check_prepared(prepared, ref, options)
     check_callable(callback, "callback")
     start = _initial_grid(initial, ref.shape, options)
     global_result, given_seconds = _global_step(ref, mov, global_result, options)
     return refine_field(ref, mov, global_result, options, callback=callback, started=t_start,
-                        given_seconds=given_seconds, initial=start)
+                        given_seconds=given_seconds, initial=start, prepared=prepared)
 
 
 def _initial_grid(initial, shape: tuple[int, ...], options: DenseOptions) -> InitialGrid | None:

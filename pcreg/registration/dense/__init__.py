@@ -57,7 +57,8 @@ The package, one job to a module:
 
 - :mod:`.options`: :class:`DenseOptions`, the options, checked;
 - :mod:`.result`: :class:`DenseRegistrationResult` and the callback's :class:`DenseIteration`;
-- :mod:`.levels`: the pyramids, noise, samples and texture of each level, and its matching problem;
+- :mod:`.levels`: the pyramids (a reference's prepared once: :func:`prepare_reference`), noise, samples
+  and texture of each level, and its matching problem;
 - :mod:`.window`: the compiled windowed correspondence search (:func:`match_window`);
 - :mod:`.robust`: Tukey's weights and their scale;
 - :mod:`.grid`: the control grid, its normal equations and their solvers;
@@ -69,10 +70,11 @@ from __future__ import annotations
 
 from ..motion import field_from_matrix
 from .coarse_to_fine import DENSE_STAGES, InitialGrid, refine_field
+from .levels import DenseReference, prepare_reference
 from .options import DENSE_GLOBAL_MODEL, STIFFNESS_SCHEDULE, DenseOptions, finest_grid_shape
 from .result import DenseIteration, DenseRegistrationResult
 from .window import match_window
 
 __all__ = ["DenseRegistrationResult", "DenseIteration", "refine_field", "field_from_matrix",
            "match_window", "STIFFNESS_SCHEDULE", "DENSE_STAGES", "DenseOptions", "DENSE_GLOBAL_MODEL",
-           "InitialGrid", "finest_grid_shape"]
+           "InitialGrid", "finest_grid_shape", "DenseReference", "prepare_reference"]

@@ -17,7 +17,7 @@ from ...errors import RegistrationError
 from ..result import RegistrationResult
 from .field import _full_field
 from .grid import _bilinear_weights, _interpolate, _read_only, _upsample_grid
-from .levels import _Level, _level_problem, _Problem, _Pyramids, _pyramids
+from .levels import DenseReference, _Level, _level_problem, _Problem, _Pyramids, _pyramids
 from .options import DenseOptions, _coarsest_level
 from .result import DenseIteration, DenseRegistrationResult
 from .robust import _nan_median
@@ -203,17 +203,20 @@ def _check_evidence(evidence: float, chance_factor: float | None) -> None:
 
 def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationResult, options: DenseOptions, *,
                  callback: Callable[[DenseIteration], None] | None, started: float,
-                 given_seconds: float = 0.0, initial: InitialGrid | None = None) -> DenseRegistrationResult:
+                 given_seconds: float = 0.0, initial: InitialGrid | None = None,
+                 prepared: DenseReference | None = None) -> DenseRegistrationResult:
     """The dense step of :func:`pcreg.register_dense` on checked inputs: ``ref`` and ``mov`` (H, W, 3) uint8
     of one size, the global step's result (its ``T_ref_mov`` the field's start), ``options`` (checked
     against the images' shape); ``started`` is when the registration began (``time.perf_counter()``) and
     ``given_seconds`` the time of a global step done before it, both counted in the result's seconds;
-    ``initial``: where the grid starts (None: from zero at the coarsest level)."""
+    ``initial``: where the grid starts (None: from zero at the coarsest level); ``prepared``: ``ref``'s
+    pyramid, checked against it (:func:`~pcreg.registration.dense.levels.check_prepared`), or None to
+    build it here."""
     coarsest = _coarsest_level(ref.shape, options)
     top = coarsest if initial is None else min(initial.level, coarsest)  # the level the grid starts at
     T = np.asarray(global_result.matrix, dtype=np.float64)
     clock = _StageClock()
-    pyr = _pyramids(ref, mov, top)
+    pyr = _pyramids(ref if prepared is None else prepared, mov, top)
     clock.lap("pyramid")
     grid = _coarse_to_fine(pyr, T, options, top=top, clock=clock,
                            callback=callback, initial=initial)  # 2. the grid, coarse to fine

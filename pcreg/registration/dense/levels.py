@@ -4,15 +4,17 @@ image noise, the textured moving samples, the texture part matched, and each lev
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from ..clouds import magnitude, valid_region
+from ...errors import InputError
+from ..clouds import as_rgb_uint8, magnitude, valid_region
 from .grid import _edge_weights, _grid_shape, _NormalEquations, _read_only
-from .options import DenseOptions
+from .options import DenseOptions, _coarsest_level
+
+__all__ = ["DenseReference", "prepare_reference"]
 
 
 #: ``v / 255`` in float32 for every 8-bit value v.
@@ -103,35 +105,61 @@ def _pyramid(img: np.ndarray, coarsest: int) -> tuple[list[np.ndarray], list[np.
     return pyr, val
 
 
-class _LastReference:
-    """The pyramid of the last reference image seen, reused while the next one is the same image: a
-    stream registers every frame to one key frame. Whether it is the same is decided by comparing every
-    byte (a tenth of a millisecond at 640x480 against 1.5 ms for the pyramid), never by identity or a
-    hash, so an image changed in place is never mistaken for the one before."""
+@dataclass(frozen=True, repr=False)
+class DenseReference:
+    """A reference image prepared once for the dense registrations of many moving images (a stream's
+    key frame; :func:`prepare_reference`), given to :func:`pcreg.register_dense` as ``prepared`` so
+    that its pyramid is not built again for each. Read-only, like small_gicp's preprocessed target.
 
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._image: np.ndarray | None = None
-        self._levels: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
+    image : (H, W, 3) uint8 RGB, a read-only copy of the reference. levels : its pyramid, float32 RGB
+    in [0, 1] per level (0 = full size) to the coarsest level the options it was made for work at.
+    valid : each level's valid (unpadded) mask, (h, w) bool.
+    """
 
-    def pyramid(self, img: np.ndarray, coarsest: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        with self._lock:
-            image, (pyr, val) = self._image, self._levels
-        if image is None or image.shape != img.shape or len(pyr) <= coarsest or not np.array_equal(image, img):
-            pyr, val = _pyramid(img, coarsest)
-            _read_only(*pyr, *val)  # shared by later registrations: nobody writes into them
-            with self._lock:
-                self._image, self._levels = img.copy(), (pyr, val)
-        return pyr[:coarsest + 1], val[:coarsest + 1]
+    image: np.ndarray
+    levels: tuple[np.ndarray, ...]
+    valid: tuple[np.ndarray, ...]
+
+    def __repr__(self) -> str:
+        h, w = self.image.shape[:2]
+        return f"DenseReference(image={w}x{h}, levels={len(self.levels)})"
 
 
-_LAST_REFERENCE = _LastReference()
+def prepare_reference(reference_image: np.ndarray, *, options: DenseOptions = DenseOptions()) -> DenseReference:
+    """``reference_image`` (as :func:`pcreg.register_dense` takes it) prepared for registrations with
+    ``options``: a read-only copy and its pyramid to the coarsest level they work at."""
+    img = as_rgb_uint8(reference_image, name="reference image")
+    if not isinstance(options, DenseOptions):
+        raise InputError(f"options must be a pcreg.DenseOptions, got {type(options).__name__}")
+    pyr, val = _pyramid(img, _coarsest_level(img.shape, options))
+    image = img.copy()
+    _read_only(image, *pyr, *val)  # shared by every registration it is given to: nobody writes into them
+    return DenseReference(image, tuple(pyr), tuple(val))
 
 
-def _pyramids(ref: np.ndarray, mov: np.ndarray, coarsest: int) -> _Pyramids:
-    """Both images' pyramids to level ``coarsest`` (the reference's reused from the last call when it is
-    the same image)."""
-    pyr_r, val_r = _LAST_REFERENCE.pyramid(ref, coarsest)
+def check_prepared(prepared: DenseReference, image: np.ndarray, options: DenseOptions) -> None:
+    """Refuse a prepared reference that is not ``image``'s (decided by comparing every byte, a tenth of
+    a millisecond at 640x480 against 1.5 ms for the pyramid, never by identity, so an image changed in
+    place is never mistaken for the one prepared) or that lacks a level ``options`` work at."""
+    if not isinstance(prepared, DenseReference):
+        raise InputError("prepared must be a DenseReference (pcreg.registration.dense.prepare_reference), "
+                         f"got {type(prepared).__name__}")
+    if prepared.image.shape != image.shape or not np.array_equal(prepared.image, image):
+        raise InputError("prepared: made from another image than the reference image given")
+    need = _coarsest_level(image.shape, options) + 1
+    if len(prepared.levels) < need:
+        raise InputError(f"prepared: a pyramid of {len(prepared.levels)} levels, these options work at {need}: "
+                         "prepare it with the same options")
+
+
+def _pyramids(reference: np.ndarray | DenseReference, mov: np.ndarray, coarsest: int) -> _Pyramids:
+    """Both images' pyramids to level ``coarsest``: the reference's from its prepared pyramid where it is
+    a :class:`DenseReference`, else built here (read-only as well: the kernels see the same arrays)."""
+    if isinstance(reference, DenseReference):
+        pyr_r, val_r = list(reference.levels[:coarsest + 1]), list(reference.valid[:coarsest + 1])
+    else:
+        pyr_r, val_r = _pyramid(reference, coarsest)
+        _read_only(*pyr_r, *val_r)
     pyr_m, val_m = _pyramid(mov, coarsest)
     return _Pyramids(pyr_r, pyr_m, val_r, val_m)
 

@@ -17,6 +17,7 @@ _EXPORTS = {
     # registration: images and clouds
     "register": "pcreg.registration.api",
     "register_dense": "pcreg.registration.api",
+    "DenseOptions": "pcreg.registration.dense",
     "RegisterConfig": "pcreg.registration.config",
     "RegistrationResult": "pcreg.registration.result",
     "icp": "pcreg.registration.api",

@@ -37,6 +37,9 @@ from pcreg.registration.clouds import (
 from pcreg.registration.config import (
     RegisterConfig as RegisterConfig,
 )
+from pcreg.registration.dense import (
+    DenseOptions as DenseOptions,
+)
 from pcreg.registration.result import (
     RegistrationResult as RegistrationResult,
 )

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 
-from pcreg import register_dense, warp
+from pcreg import DenseOptions, register_dense, warp
 from pcreg.registration.warp import warp_to_moving
 from pcreg.errors import InputError
 from pcreg.registration.dense import DenseRegistrationResult, field_from_matrix, match_window
@@ -42,7 +43,7 @@ def warped_pair():
 
 def test_recovers_a_known_smooth_field(warped_pair):
     ref, mov, F = warped_pair
-    res = register_dense(ref, mov, levels=4)
+    res = register_dense(ref, mov, options=DenseOptions(levels=4))
     assert isinstance(res, DenseRegistrationResult)
     assert res.field.shape == ref.shape[:2] + (2,) and res.field.dtype == np.float32
     assert res.confidence.shape == ref.shape[:2] and 0 <= res.confidence.min() <= res.confidence.max() <= 1
@@ -61,7 +62,7 @@ def test_recovers_a_known_smooth_field(warped_pair):
 
 def test_no_motion_gives_the_identity_field():
     img = _textured(seed=3)
-    res = register_dense(img, img, global_result=np.eye(3), levels=3)
+    res = register_dense(img, img, global_result=np.eye(3), options=DenseOptions(levels=3))
     ident = field_from_matrix(np.eye(3), img.shape[:2])
     assert np.median(np.linalg.norm(res.field - ident, axis=2)) < 0.15
 
@@ -72,7 +73,7 @@ def test_flat_areas_get_lower_confidence_and_the_global_motion():
     T = rigid_about_centre(img.shape, 0.0, 4.0, -3.0)
     mov = cv2.warpAffine(img, T[:2], (320, 240), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                          borderMode=cv2.BORDER_REFLECT)
-    res = register_dense(img, mov, global_result=T, levels=3)
+    res = register_dense(img, mov, global_result=T, options=DenseOptions(levels=3))
     assert res.confidence[20:-20, 20:140].mean() > 2 * res.confidence[20:-20, 200:-20].mean()
     # where there is nothing to match, the field stays with the global transform
     flat = np.linalg.norm(res.field - field_from_matrix(T, img.shape[:2]), axis=2)[20:-20, 220:-20]
@@ -117,7 +118,7 @@ def test_window_search_skipping_rows_answers_the_full_scan_ties_included(channel
     the window answers (the least cost, the first in row order among equal costs). Colours from a few
     levels and whole-pixel queries make many equal costs, and queries on their own pixel make cheap
     matches, so that rows are skipped often; windows run off the image's edges too."""
-    from pcreg.registration.dense import _best_in_window
+    from pcreg.registration.dense.window import _best_in_window
 
     rng = np.random.default_rng(7)
     h, w = 24, 32
@@ -150,7 +151,7 @@ def test_window_search_skipping_rows_answers_the_full_scan_ties_included(channel
 
 def test_nan_median_is_numpys():
     """The evidence's compiled median gives np.nanmedian's number: odd and even counts, ties, NaNs, none left."""
-    from pcreg.registration.dense import _nan_median
+    from pcreg.registration.dense.robust import _nan_median
 
     rng = np.random.default_rng(3)
     for n in [1, 2, 3, 4, 5, 1000, 1001]:
@@ -168,7 +169,7 @@ def test_nan_median_is_numpys():
 def test_robust_scale_is_numpys():
     """Tukey's scale from the mutual matches' distances with np.median's numbers: odd and even counts,
     ties, unmatched and one-sided rows left out, too few mutual matches giving 0."""
-    from pcreg.registration.dense import TUKEY_C, _robust_scale
+    from pcreg.registration.dense.robust import TUKEY_C, _robust_scale
 
     rng = np.random.default_rng(5)
     for n in [3, 8, 9, 10, 11, 1000, 1001]:
@@ -191,11 +192,15 @@ def test_bad_inputs_are_refused():
     with pytest.raises(InputError):
         register_dense(img, img[:200])
     with pytest.raises(InputError):
-        register_dense(img, img, model="warp")
+        DenseOptions(model="warp")
     with pytest.raises(InputError):
         register_dense(img, img, global_result=np.zeros((3, 3)))
     with pytest.raises(InputError):
-        register_dense(img, img, radius=0)
+        DenseOptions(radius=0)
+    with pytest.raises(InputError, match="grid_spacing"):  # beyond the images' longer side
+        register_dense(img, img, options=DenseOptions(grid_spacing=400.0))
+    with pytest.raises(InputError, match="options"):
+        register_dense(img, img, options={"levels": 4})
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -314,11 +319,11 @@ def test_a_change_of_brightness_and_colour_is_not_read_as_motion(warped_pair):
     ref, mov, F = warped_pair
     # the camera's exposure and white balance change between the frames
     lit = np.clip(mov.astype(np.float32) * np.array([1.2, 1.1, 0.9], np.float32) + 12.0, 0, 255).astype(np.uint8)
-    res = register_dense(ref, lit, levels=4)
+    res = register_dense(ref, lit, options=DenseOptions(levels=4))
     inner = (slice(16, -16), slice(16, -16))
     err = np.linalg.norm(res.field - F, axis=2)[inner]
     assert np.median(err) < 0.8, np.median(err)
-    plain = register_dense(ref, lit, levels=4, texture=None)
+    plain = register_dense(ref, lit, options=DenseOptions(levels=4, texture=None))
     assert np.median(err) < np.median(np.linalg.norm(plain.field - F, axis=2)[inner])
 
 
@@ -326,7 +331,7 @@ def test_compiled_normal_equations_match_scipy():
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    from pcreg.registration.dense import _NormalEquations
+    from pcreg.registration.dense.grid import _NormalEquations
 
     rng = np.random.default_rng(0)
     ne = _NormalEquations(rng.uniform(0, [160, 120], (3000, 2)), (16, 21), 8.0)
@@ -337,7 +342,7 @@ def test_compiled_normal_equations_match_scipy():
     U_cg, node_w = ne.solve(w, t, 0.25, 1e-5, x0, maxiter=40)
     U_lu, _ = ne.solve(w, t, 0.25, 1e-5)
     # the same system assembled with scipy.sparse from the bilinear matrix
-    from pcreg.registration.dense import _bilinear_matrix, _membrane
+    from pcreg.registration.dense.grid import _bilinear_matrix, _membrane
 
     B = sp.csr_matrix((ne.vals.ravel(), ne.cols.ravel(), np.arange(0, 4 * 3000 + 1, 4)), shape=(3000, ne.m))
     A = (B.T @ sp.diags(w) @ B + 0.25 * _membrane((16, 21)) + 1e-5 * sp.identity(ne.m)).tocsc()
@@ -353,13 +358,13 @@ def test_evidence_against_chance_and_the_optional_refusal(warped_pair):
     from pcreg.errors import RegistrationError
 
     ref, mov, F = warped_pair
-    res = register_dense(ref, mov, levels=4)
+    res = register_dense(ref, mov, options=DenseOptions(levels=4))
     assert res.info["evidence"] > 1.5 and res.to_dict()["evidence"] == pytest.approx(res.info["evidence"])
     noise = np.random.default_rng(3).integers(0, 256, ref.shape).astype(np.uint8)
-    unrelated = register_dense(ref, noise, global_result=np.eye(3), levels=4)
+    unrelated = register_dense(ref, noise, global_result=np.eye(3), options=DenseOptions(levels=4))
     assert unrelated.info["evidence"] < 1.3
     with pytest.raises(RegistrationError):
-        register_dense(ref, noise, global_result=np.eye(3), levels=4, chance_factor=1.5)
+        register_dense(ref, noise, global_result=np.eye(3), options=DenseOptions(levels=4, chance_factor=1.5))
 
 
 def test_dense_is_a_model_of_register_and_of_the_command(frames, tmp_path, capsys):
@@ -382,7 +387,8 @@ def test_dense_is_a_model_of_register_and_of_the_command(frames, tmp_path, capsy
 def test_compiled_robust_step_matches_the_array_formulation():
     import math
 
-    from pcreg.registration.dense import TUKEY_C, _NormalEquations
+    from pcreg.registration.dense.grid import _NormalEquations
+    from pcreg.registration.dense.robust import TUKEY_C
 
     rng = np.random.default_rng(1)
     n, sigma = 3000, 0.004
@@ -418,7 +424,9 @@ def test_the_full_size_field_interpolates_the_grid_at_each_pixels_place(level):
     """The field at full resolution is the global transform plus the grid's displacements interpolated
     bilinearly where each pixel lies on the grid of its level (pixel x at ``(x - (2^l - 1) / 2) / (2^l s)``
     cells, edge nodes repeated beyond the grid), and its confidence is 0 where it leaves the image."""
-    from pcreg.registration.dense import _full_field, _grid_shape, _Level
+    from pcreg.registration.dense.field import _full_field
+    from pcreg.registration.dense.grid import _grid_shape
+    from pcreg.registration.dense.levels import _Level
 
     h, w, s = 97, 131, 2.0  # a fine grid: a cell is a few pixels, so a quarter-pixel slip shows
     f = 2 ** level
@@ -465,14 +473,15 @@ def test_a_registration_started_from_an_earlier_grid_follows_a_motion_beyond_the
     h, w = ref.shape[:2]
     shift = lambda dx: cv2.warpAffine(ref, np.float32([[1, 0, dx], [0, 1, 0]]), (w, h),  # noqa: E731
                                       flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
-    kw = dict(levels=2, texture=None, max_points=5000)
+    options = DenseOptions(levels=2, texture=None, max_points=5000)
     earlier = register_dense(ref, shift(54.0), global_result=np.eye(3) + np.array([[0, 0, 54.0], [0, 0, 0], [0, 0, 0]]),
-                             **kw)
+                             options=options)
     assert earlier.grid.shape == (16, 21, 2) and earlier.grid.dtype == np.float32 and not earlier.grid.flags.writeable
     grid = earlier.grid + np.float32([54.0, 0.0])  # its displacements from the identity
     inner = (slice(24, -24), slice(80, -80))
-    cold = register_dense(ref, shift(60.0), global_result=np.eye(3), **kw)
-    warm = register_dense(ref, shift(60.0), global_result=np.eye(3), initial=grid, initial_level=1, **kw)
+    cold = register_dense(ref, shift(60.0), global_result=np.eye(3), options=options)
+    warm = register_dense(ref, shift(60.0), global_result=np.eye(3), initial=grid,
+                          options=replace(options, initial_level=1))
     err = lambda r: np.median(np.abs(r.field[..., 0] - (np.arange(w) + 60.0))[inner])  # noqa: E731
     assert err(cold) > 10 and err(warm) < 0.5, (err(cold), err(warm))
     assert warm.info["levels"] == cold.info["levels"] == (1, 1)
@@ -480,7 +489,8 @@ def test_a_registration_started_from_an_earlier_grid_follows_a_motion_beyond_the
 
 
 def test_an_initial_grid_at_the_finest_level_is_the_grid_itself_and_coarser_levels_interpolate_it():
-    from pcreg.registration.dense import _grid_at_level, _Level
+    from pcreg.registration.dense.coarse_to_fine import _grid_at_level
+    from pcreg.registration.dense.levels import _Level
 
     rng = np.random.default_rng(0)
     grid = rng.normal(0, 3, (31, 41, 2)).astype(np.float32)  # full-size px
@@ -500,7 +510,8 @@ def test_an_initial_grid_at_the_finest_level_is_the_grid_itself_and_coarser_leve
 
 def test_bad_initial_grids_are_refused(warped_pair):
     ref, mov, _ = warped_pair
-    kw = dict(global_result=np.eye(3), levels=4)
+    options = DenseOptions(levels=4)
+    kw = dict(global_result=np.eye(3), options=options)
     good = register_dense(ref, mov, **kw)
     for bad, match in ((good.grid[:-1], "nodes"), (np.full_like(good.grid, np.nan), "non-finite"),
                        ("grid", "numeric"), (np.zeros((3, 3)), "nodes"), (good.grid > 0, "numeric"),
@@ -508,12 +519,57 @@ def test_bad_initial_grids_are_refused(warped_pair):
                        (np.full(good.grid.shape, "a"), "numeric"), (object(), "numeric")):
         with pytest.raises(InputError, match=match):
             register_dense(ref, mov, initial=bad, **kw)
-    for level in (0, 8, 2.5, "2"):
+    with pytest.raises(InputError, match="initial_level"):  # under finest_level: with an initial grid
+        register_dense(ref, mov, initial=good, global_result=np.eye(3), options=replace(options, initial_level=0))
+    for level in (8, 2.5, "2", "x"):  # refused when the options are made
         with pytest.raises(InputError, match="initial_level"):
-            register_dense(ref, mov, initial=good, initial_level=level, **kw)
-    with pytest.raises(InputError, match="initial_level"):  # checked without an initial grid too
-        register_dense(ref, mov, initial_level="x", **kw)
+            replace(options, initial_level=level)
     with pytest.raises(InputError, match="nodes"):  # another grid spacing
-        register_dense(ref, mov, initial=good, grid_spacing=12.0, **kw)
-    same = register_dense(ref, mov, initial=good, initial_level=2, **kw)  # from its own end: no worse
+        register_dense(ref, mov, initial=good, global_result=np.eye(3), options=replace(options, grid_spacing=12.0))
+    same = register_dense(ref, mov, initial=good, **kw)  # from its own end (level 2): no worse
     assert same.info["evidence"] >= 0.9 * good.info["evidence"]
+
+
+def test_dense_options_are_one_checked_frozen_value():
+    from pcreg.registration.dense import STIFFNESS_SCHEDULE
+
+    o = DenseOptions(levels=np.int64(4), stiffness=[4, 2.0], texture=2, init=np.eye(3) * 2)
+    assert type(o.levels) is int and o.stiffness == (4.0, 2.0) and type(o.texture) is float
+    assert o.init == ((2.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 2.0)) and o.global_init.dtype == np.float64
+    assert hash(o) == hash(DenseOptions(levels=4, stiffness=(4.0, 2.0), texture=2.0, init=2 * np.eye(3)))
+    assert DenseOptions().stiffness == STIFFNESS_SCHEDULE and DenseOptions().global_init == "identity"
+    with pytest.raises(AttributeError):
+        o.levels = 3  # type: ignore[misc]
+    for bad, match in (({"levels": 0}, "levels"), ({"levels": 3, "finest_level": 3}, "finest_level"),
+                       ({"grid_spacing": 1.0}, "grid_spacing"), ({"stiffness": ()}, "stiffness"),
+                       ({"texture": 0}, "texture"), ({"edge_aware": 1}, "edge_aware"), ({"init": "nowhere"}, "init"),
+                       ({"init": np.zeros((3, 3))}, "init"), ({"backend": "gpu"}, "backend"), ({"seed": -1}, "seed"),
+                       ({"global_levels": 9}, "global_levels"), ({"chance_factor": float("nan")}, "chance_factor")):
+        with pytest.raises(InputError, match=match):
+            DenseOptions(**bad)
+        with pytest.raises(InputError, match=match):  # a copy with a change is checked as well
+            replace(DenseOptions(), **bad)
+
+
+def test_a_prepared_reference_gives_the_same_registration_and_is_refused_for_another_image(warped_pair):
+    from pcreg.registration.dense import prepare_reference
+
+    ref, mov, _ = warped_pair
+    options = DenseOptions(levels=4, texture=None)
+    prepared = prepare_reference(ref, options=options)
+    assert len(prepared.levels) == len(prepared.valid) == 4 and "320x240" in repr(prepared)
+    assert not prepared.image.flags.writeable and not any(a.flags.writeable for a in prepared.levels)
+    assert prepared.image is not ref and ref.flags.writeable  # a copy: the caller's image is left as it was
+    plain = register_dense(ref, mov, options=options, global_result=np.eye(3))
+    for _ in range(2):  # reused: the same numbers each time, and as without it
+        again = register_dense(ref, mov, options=options, global_result=np.eye(3), prepared=prepared)
+        np.testing.assert_array_equal(again.field, plain.field)
+        np.testing.assert_array_equal(again.confidence, plain.confidence)
+    other = ref.copy()
+    other[0, 0, 0] ^= 1
+    with pytest.raises(InputError, match="another image"):
+        register_dense(other, mov, options=options, prepared=prepared)
+    with pytest.raises(InputError, match="levels"):  # prepared for three levels, given to four
+        register_dense(ref, mov, options=options, prepared=prepare_reference(ref, options=replace(options, levels=3)))
+    with pytest.raises(InputError, match="DenseReference"):
+        register_dense(ref, mov, options=options, prepared=prepared.levels)

@@ -1,6 +1,7 @@
 """The streaming propagator, cached pyramids, and the `pcreg run` command."""
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -117,7 +118,7 @@ def test_dense_steps_start_from_the_previous_grid_and_restart_cold_after_a_jump(
                             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
     prop.step(jumped)
     assert prop.last.start == "restarted"
-    fresh = pcreg.register_dense(key.image, jumped, global_result=np.eye(3), **STREAM_DENSE.kwargs())
+    fresh = pcreg.register_dense(key.image, jumped, global_result=np.eye(3), options=STREAM_DENSE.options())
     np.testing.assert_array_equal(prop.last.registration.field, fresh.field)
     assert prop.carry.reference_evidence == fresh.info["evidence"]
     prop.step(jumped)  # from the restarted field: warm again
@@ -177,7 +178,14 @@ def test_dense_step_options_are_checked():
             DenseStep(**bad)
     ok = DenseStep(warm=np.True_, restart_ratio=np.float32(0.5), warm_level=np.int64(3))
     assert ok.warm is True and type(ok.restart_ratio) is float and type(ok.warm_level) is int
-    assert DenseStep().kwargs(warm=True) == {"texture": None, "iterations": 4, "max_points": 5000, "initial_level": 2}
+    assert DenseStep().options(warm=True) == pcreg.DenseOptions(texture=None, iterations=4, max_points=5000,
+                                                                initial_level=2)
+    base = pcreg.DenseOptions(backend="open3d", seed=3)
+    assert DenseStep().options(base) == replace(base, texture=None, iterations=8, max_points=5000)
+    with pytest.raises(InputError, match="max_points"):  # the dense options are checked when the stream is made
+        image = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+        pcreg.Propagator.from_key_frame(image, np.repeat([[0], [1]], 32, axis=0) * np.ones(64, np.uint8),
+                                        dense=DenseStep(max_points=3))
 
 
 def test_propagator_input_errors(frames):

@@ -68,7 +68,8 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -81,6 +82,9 @@ from .trust import STREAM_TRUST, TrustRule, predicted_error
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
+
+if TYPE_CHECKING:
+    from ..registration.dense import DenseOptions, DenseReference
 
 __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep", "Carry", "STREAM_DENSE", "STREAM_REGISTRATION",
            "STREAM_WEIGHT", "ANCHORS"]
@@ -108,10 +112,11 @@ STREAM_REGISTRATION = RegisterConfig.of(model="similarity", init="identity", min
 
 @dataclass(frozen=True)
 class DenseStep:
-    """Options of the dense registration of a stream (:func:`pcreg.register_dense`'s keywords).
+    """Options of the dense registration of a stream (turned into :func:`pcreg.register_dense`'s
+    :class:`~pcreg.registration.dense.DenseOptions` by :meth:`options`).
 
     texture : None matches plain colours (see the module's docstring). iterations : ICP iterations per
-    level (8, :func:`pcreg.register_dense`'s: the stiffness schedule 8, 4, 2, 1 gets four relaxed
+    level (8, :class:`~pcreg.registration.dense.DenseOptions`'s: the stiffness schedule 8, 4, 2, 1 gets four relaxed
     iterations to settle).
     max_points : moving samples per level (5,000 measured as accurate as 10,000 at two thirds of the time).
     global_start : ``"identity"`` or ``"register"`` (the stream's global registration first).
@@ -145,12 +150,16 @@ class DenseStep:
         object.__setattr__(self, "warm_level", check_int(self.warm_level, "warm_level", lo=1, hi=7))
         object.__setattr__(self, "restart_ratio", check_float(self.restart_ratio, "restart_ratio", lo=0, hi=1))
 
-    def kwargs(self, *, warm: bool = False) -> dict:
-        """:func:`pcreg.register_dense`'s keywords (a warm step's with ``warm``)."""
-        kw = {"texture": self.texture, "iterations": self.iterations, "max_points": self.max_points}
+    def options(self, base: DenseOptions | None = None, *, warm: bool = False) -> DenseOptions:
+        """:func:`pcreg.register_dense`'s options: ``base`` (the defaults when None) with this step's
+        texture, iterations and samples (a warm step's iterations and start level with ``warm``)."""
+        from ..registration.dense import DenseOptions
+
+        base = DenseOptions() if base is None else base
         if warm:
-            kw.update(iterations=self.warm_iterations, initial_level=self.warm_level)
-        return kw
+            return replace(base, texture=self.texture, iterations=self.warm_iterations, max_points=self.max_points,
+                           initial_level=self.warm_level)
+        return replace(base, texture=self.texture, iterations=self.iterations, max_points=self.max_points)
 
 
 @dataclass(frozen=True)
@@ -282,6 +291,11 @@ class Propagator:
         self.config = base.replace(backend=backend, init=init,
                                    model=base.model if model == "dense" else model)
         self.dense = dense
+        # the dense registration's options, cold and warm, checked once here
+        from ..registration.dense import DenseOptions
+
+        base = DenseOptions(backend=self.config.backend, seed=self.config.search.seed)
+        self._dense_options = (dense.options(base), dense.options(base, warm=True))
         self.weight = float(weight)
         self.fusion = fusion
         self.trust = trust
@@ -292,6 +306,7 @@ class Propagator:
         self._key_image: np.ndarray | None = None
         self._key_labels: np.ndarray | None = None
         self._key_prior: np.ndarray | None = None
+        self._key_prepared: DenseReference | None = None  # the key frame prepared for the dense registration
         self._chain: tuple[np.ndarray, Motion | None, int] | None = None  # (image, motion to the key frame, frame)
         self._carry: Carry | None = None
         self._attempt: str | None = None  # how the dense registration under way started (StepReport.start)
@@ -315,7 +330,8 @@ class Propagator:
 
     def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8 with
-        0 ground, 1 obstacle, 2 unknown."""
+        0 ground, 1 obstacle, 2 unknown. A dense stream anchored to the key frame prepares it here, once
+        (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid), for every step's registration."""
         img = _check_image(image)
         lab = _check_labels(labels, img.shape[:2])
         self._key_image, self._key_labels = img, lab
@@ -325,6 +341,11 @@ class Propagator:
 
             self._key_blurred = blurred(img)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
+        self._key_prepared = None
+        if self.model == "dense" and self.anchor == "key":  # every frame registers to it: its pyramid once
+            from ..registration.dense import prepare_reference
+
+            self._key_prepared = prepare_reference(img, options=self._dense_options[0])
         self._chain = (img, None, 0)
         self._carry = None
         self._frame = 0
@@ -474,12 +495,14 @@ class Propagator:
         else:
             T = np.eye(3)
 
-        def dense(**options):
-            return register_dense(reference, image, global_result=T, backend=self.config.backend,
-                                  seed=self.config.search.seed, **options)
+        cold_options, warm_options = self._dense_options
+
+        def dense(options: DenseOptions, initial=None):
+            return register_dense(reference, image, options=options, global_result=T, initial=initial,
+                                  prepared=self._key_prepared if reference is self._key_image else None)
 
         def cold():
-            return dense(**self.dense.kwargs())
+            return dense(cold_options)
 
         carry = self._carry if warm_ok else None
         if carry is None:
@@ -489,7 +512,7 @@ class Propagator:
         else:
             self._attempt = "warm"
             try:
-                result = dense(initial=carry.grid, **self.dense.kwargs(warm=True))
+                result = dense(warm_options, carry.grid)
                 start = "warm"
             except RegistrationError:
                 result, start = None, "restarted"
@@ -526,7 +549,7 @@ class Propagator:
         with the ``carry`` that step left (:attr:`carry`, as saved): the next step does what it would
         have done in the uninterrupted stream. Anchored to the key frame only (a chained stream needs
         its previous frame). ``learned``: what the classifier had learned by then (:attr:`learned`)."""
-        from ..registration.dense import DenseOptions, finest_grid_shape
+        from ..registration.dense import finest_grid_shape
         from ..validation import check_int
 
         if self._key_image is None:
@@ -537,7 +560,7 @@ class Propagator:
         if carry is not None and not isinstance(carry, Carry):
             raise InputError("carry must be a pcreg.pipeline.stream.Carry or None")
         if carry is not None and self.warm_starts:
-            want = finest_grid_shape(self._key_image.shape, DenseOptions())
+            want = finest_grid_shape(self._key_image.shape, self._dense_options[0])
             if carry.grid.shape != (*want, 2):
                 raise InputError(f"the carried grid is {carry.grid.shape[0]}x{carry.grid.shape[1]}, a stream of "
                                  f"these frames has {want[0]}x{want[1]}: it comes from another stream")

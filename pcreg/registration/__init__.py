@@ -9,7 +9,8 @@
   ``register_dense`` (``register``'s global result refined into a dense field), made of :mod:`.steps`
   (each backend's ICP step), :mod:`.pyramid` (lazy cloud pyramids), :mod:`.refine` (coarse-to-fine ICP),
   :mod:`.search` (hypotheses, refined and measured), :mod:`.plausibility` and :mod:`.dense`;
-- :mod:`.dense`: the dense field, a non-rigid ICP of the two colour clouds from a global ``T_ref_mov``;
+- :mod:`.dense`: the dense field, a non-rigid ICP of the two colour clouds from a global ``T_ref_mov``
+  (a package: options, result, levels, window search, robust weights, grid solver, coarse-to-fine driver, field);
 - :mod:`.flow`: OpenCV's DIS optical flow as a field (the baseline of the evaluations);
 - :mod:`.config`: :class:`~.config.RegisterConfig`, ``register``'s options as one frozen config, by step;
 - :mod:`.motion`: :class:`~.motion.Motion`, the one motion type (a 3x3 ``T_ref_mov``, or a dense field

@@ -19,8 +19,9 @@ from ..errors import InputError, RegistrationError
 from ..validation import (check_bool, check_callable, check_choice, check_counts, check_float, check_floats,
                           check_int, check_ints, check_matrix, short_repr)
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
-from .dense import (DENSE_GLOBAL_MODEL, STIFFNESS_SCHEDULE, DenseIteration, DenseRegistrationResult, InitialGrid,
-                    dense_options, finest_grid_shape, refine_field)
+from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
+                    InitialGrid, finest_grid_shape, refine_field)
+from .dense.levels import check_prepared
 from .global_search import GENERATORS
 from .open3d_icp import check_model as check_open3d_model
 from .plausibility import CHANCE_FACTOR, DEFAULT_MIN_INLIER_RATIO, MIRROR_FACTOR, Plausibility
@@ -30,7 +31,7 @@ from .refine import CoarseToFine
 from .result import IcpIteration, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
 from .steps import BACKENDS, IcpSettings, StepCall, icp_step, refuse_for_open3d
-from .transforms import MODELS, about_point, apply, check_model, image_center
+from .transforms import about_point, apply, check_model, image_center
 
 __all__ = ["CHANCE_FACTOR", "CONVINCING_NCC", "DEFAULT_MIN_INLIER_RATIO", "MIRROR_FACTOR", "START_LEVEL",
            "check_cloud", "icp", "register", "register_dense", "voxel_downsample"]
@@ -296,64 +297,35 @@ def _register_dense_model(reference_image, moving_image, *, backend: str, levels
     (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult`."""
     start = register(reference_image, moving_image, backend=backend, model=DENSE_GLOBAL_MODEL, levels=levels,
                      iterations=iterations, init=init, min_inlier_ratio=min_inlier_ratio, seed=seed)
-    return register_dense(reference_image, moving_image, global_result=start, backend=backend, seed=seed)
+    return register_dense(reference_image, moving_image, options=DenseOptions(backend=backend, seed=seed),
+                          global_result=start)
 
 
-def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, model: str = "similarity",
-                   global_result: RegistrationResult | np.ndarray | None = None, levels: int = 5,
-                   finest_level: int = 1, iterations: int = 8, grid_spacing: float = 8.0, radius: int = 3,
-                   fine_radius: int = 2,
-                   max_points: int = 10000, stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE, strain: float = 0.25,
-                   edge_aware: bool = False, cg_iterations: int = 30, texture: float | None = 4.0,
-                   chance_factor: float | None = None,
-                   global_levels: int = 4, global_iterations: int = 14, init: str | np.ndarray = "identity",
-                   backend: str = "reference", seed: int = 0,
-                   callback: Callable[[DenseIteration], None] | None = None,
+def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, options: DenseOptions = DenseOptions(),
+                   global_result: RegistrationResult | np.ndarray | None = None,
                    initial: DenseRegistrationResult | np.ndarray | None = None,
-                   initial_level: int = 2) -> DenseRegistrationResult:
+                   prepared: DenseReference | None = None,
+                   callback: Callable[[DenseIteration], None] | None = None) -> DenseRegistrationResult:
     """Register ``moving_image`` to ``reference_image`` with a smooth dense field (:mod:`pcreg.registration.dense`).
 
     reference_image, moving_image : (H, W, 3) uint8 RGB of the same size (also gray, uint16, float).
-    model : the global step's motion model (``similarity``, ``projective``, ...), run by
-        :func:`pcreg.register` with ``global_levels``, ``global_iterations``, ``init`` and ``backend``
-        unless ``global_result`` (a result or a 3x3 ``T_ref_mov``) is given. Its
-        :class:`~pcreg.errors.RegistrationError` propagates.
-    levels : pyramid levels of the dense step (the coarsest is ``levels - 1``); finest_level : the
-        finest level it works at (1: half resolution, as DIS's medium preset; 0: full resolution).
-    iterations : ICP iterations per level (the stiffness schedule runs within each level). 8: the
-        schedule's four stiff steps, then four at the final stiffness to settle; with 4 the final
-        stiffness got one step, and the pairwise evaluation's dense share was 0.60 points on CamVid
-        against 0.73 with 8 (synthetic presets 3.90 and 3.98), at about twice the dense step's time.
-    grid_spacing : control-grid spacing in pixels of each level.
-    radius : gate at the coarsest level, fine_radius : at the others (pixels of the level): a finer
-        level starts from the coarser level's field, within about a pixel of it there (two here).
-    max_points : moving samples per level at most (at random with ``seed``).
-    stiffness : the schedule multiplying the membrane weight (the last value repeats).
-    strain : the largest plausible motion gradient (px per px), which sets the membrane weight.
-    edge_aware : weight each membrane edge by the moving image's colour change across it
-        (:func:`~pcreg.registration.dense._edge_weights`), so the field can bend at object outlines; False: a uniform membrane.
-    texture : match on each level's texture part (:func:`~pcreg.registration.dense._texture`), the image minus its Gaussian blur
-        of ``texture`` pixels of the level; None matches the plain colours. 4: on the pairwise evaluation
-        (``evaluate sequence --model dense``) a wider blur keeps more of real scenes' colour and helps
-        (CamVid, sigma 1 / 2 / 4 / 8 / 16: 46.2 / 45.4 / 48.4 / 49.3 / 47.9% below plain), while the
-        synthetic presets' exposure and shadow changes want a narrow one (98.0 / 98.1 / 97.8 / 96.4 /
-        94.6%); 4 is the widest that keeps them where sigma 1 had them (within 0.5 points).
-    chance_factor : plausibility test on the field (off by default): refuse with
-        :class:`~pcreg.errors.RegistrationError` when the matches under the field are not this many
-        times closer in colour than on unrelated content (:func:`~pcreg.registration.dense._plausibility`; the result's
-        ``info["evidence"]`` holds the figure either way). Without it, unrelated images are refused
-        only by the global step's own test (:func:`pcreg.register`, when it runs here).
-    cg_iterations : each step solves the grid's equations inexactly, with at most this many
-        Jacobi-preconditioned conjugate-gradient iterations warm-started from the last field (the
-        ICP iterates anyway); 0: an exact sparse LU solve each step.
-    callback : called with a :class:`~pcreg.registration.dense.DenseIteration` after every iteration.
+    options : :class:`~pcreg.registration.dense.DenseOptions`, the dense step's and the global step's
+        options (checked when made, and here against the images' size).
+    global_result : the global step's result or a 3x3 ``T_ref_mov``; None runs :func:`pcreg.register`
+        with the options' ``model``, ``global_levels``, ``global_iterations``, ``init`` and ``backend``
+        (its :class:`~pcreg.errors.RegistrationError` propagates).
     initial : start from an earlier registration of the same reference (its result or its ``grid``),
         e.g. the previous video frame's: its displacements, added to *this* registration's global
-        transform (give the earlier one's), start level ``initial_level`` with the gate ``radius``, and the
-        coarser levels are skipped, so the frame may have moved ``radius * 2^initial_level`` px (12) from
-        the earlier field, against 48 px from the global transform. Same image size, ``finest_level`` and
-        ``grid_spacing`` (the grid's shape is checked). Measured in use: :class:`pcreg.pipeline.stream.DenseStep`.
-    initial_level : where ``initial`` starts (``finest_level`` .. 7, capped at the coarsest level).
+        transform (give the earlier one's), start level ``options.initial_level`` with the gate
+        ``radius``, and the coarser levels are skipped, so the frame may have moved ``radius *
+        2^initial_level`` px (12) from the earlier field, against 48 px from the global transform. Same
+        image size, ``finest_level`` and ``grid_spacing`` (the grid's shape is checked). Measured in use:
+        :class:`pcreg.pipeline.stream.DenseStep`.
+    prepared : ``reference_image`` prepared once for many registrations
+        (:func:`~pcreg.registration.dense.prepare_reference` with the same options), which saves building
+        its pyramid each time (a stream's key frame: :class:`pcreg.Propagator`); refused when it was made
+        from another image. The same result as without it.
+    callback : called with a :class:`~pcreg.registration.dense.DenseIteration` after every iteration.
     Returns a :class:`~pcreg.registration.dense.DenseRegistrationResult`.
     """
     t_start = time.perf_counter()
@@ -361,30 +333,24 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, mod
     mov = as_rgb_uint8(moving_image, name="moving image")
     if ref.shape != mov.shape:
         raise InputError(f"dense registration needs images of one size, got {ref.shape[:2]} and {mov.shape[:2]}")
-    if not isinstance(model, str) or model not in MODELS:
-        raise InputError(f"unknown global motion model {short_repr(model)}; choose one of {', '.join(MODELS)}")
-    options = dense_options(ref.shape, levels=levels, finest_level=finest_level, iterations=iterations,
-                            grid_spacing=grid_spacing, radius=radius, fine_radius=fine_radius,
-                            max_points=max_points, stiffness=stiffness, strain=strain, edge_aware=edge_aware,
-                            cg_iterations=cg_iterations, texture=texture, chance_factor=chance_factor)
-    seed = check_int(seed, "seed", lo=0)
-    global_levels = check_int(global_levels, "global_levels", lo=1, hi=8)
-    global_iterations = check_int(global_iterations, "global_iterations", lo=1, hi=100_000)
-    backend = check_choice(backend, "backend", ("reference", "open3d"))
+    if not isinstance(options, DenseOptions):
+        raise InputError(f"options must be a pcreg.DenseOptions, got {type(options).__name__}")
+    options.check_shape(ref.shape)
+    if prepared is not None:
+        check_prepared(prepared, ref, options)
     check_callable(callback, "callback")
-    start = _initial_grid(initial, initial_level, ref.shape, options)
-    global_result, given_seconds = _global_step(ref, mov, global_result, model=model, backend=backend,
-                                                levels=global_levels, iterations=global_iterations, init=init, seed=seed)
-    return refine_field(ref, mov, global_result, options, backend=backend, seed=seed, callback=callback,
-                        started=t_start, given_seconds=given_seconds, initial=start)
+    start = _initial_grid(initial, ref.shape, options)
+    global_result, given_seconds = _global_step(ref, mov, global_result, options)
+    return refine_field(ref, mov, global_result, options, callback=callback, started=t_start,
+                        given_seconds=given_seconds, initial=start, prepared=prepared)
 
 
-def _initial_grid(initial, level, shape: tuple[int, ...], options) -> InitialGrid | None:
-    """``register_dense``'s ``initial`` and ``initial_level``, checked against the images and options."""
-    level = check_int(level, "initial_level", lo=0, hi=7)
+def _initial_grid(initial, shape: tuple[int, ...], options: DenseOptions) -> InitialGrid | None:
+    """``register_dense``'s ``initial``, checked against the images and options, starting at
+    ``options.initial_level`` (at least ``finest_level``, capped at the coarsest level)."""
     if initial is None:
         return None
-    level = min(check_int(level, "initial_level", lo=options.finest_level, hi=7), options.levels - 1)
+    level = min(check_int(options.initial_level, "initial_level", lo=options.finest_level, hi=7), options.levels - 1)
     if isinstance(initial, DenseRegistrationResult):
         if initial.grid is None:
             raise InputError("initial: this dense result carries no grid to start from")
@@ -422,15 +388,15 @@ def _given_global(global_result) -> RegistrationResult:
                               converged=True, backend="given", frames="T_ref_mov")
 
 
-def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, *, model: str, backend: str, levels: int,
-                 iterations: int, init, seed: int) -> tuple[RegistrationResult, float]:
+def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: DenseOptions
+                 ) -> tuple[RegistrationResult, float]:
     """The global step: the given one (with its seconds, counted in the dense result's), or
-    :func:`pcreg.register`'s (its time is inside the dense step's own)."""
+    :func:`pcreg.register`'s with ``options``' global step (its time is inside the dense step's own)."""
     if global_result is not None:
         given = _given_global(global_result)
         return given, float(given.seconds)
-    return register(ref, mov, backend=backend, model=model, levels=levels, iterations=iterations, init=init,
-                    seed=seed), 0.0
+    return register(ref, mov, backend=options.backend, model=options.model, levels=options.global_levels,
+                    iterations=options.global_iterations, init=options.global_init, seed=options.seed), 0.0
 
 
 

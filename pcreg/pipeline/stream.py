@@ -75,10 +75,10 @@ import numpy as np
 
 from .._threads import beside, wait_quietly
 from ..classification.features import DEFAULT_FEATURES
-from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior
+from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
 from .learning import STREAM_LEARNING, Learner, Learning
 from .prior import class_prior, fused_labels, prior_on_moving
-from .trust import STREAM_TRUST, TrustRule, predicted_error
+from .trust import STREAM_TRUST, TrustMaps, TrustRule, predicted_error
 from ..errors import InputError, RegistrationError
 from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
@@ -210,6 +210,9 @@ class StepReport:
         (:func:`pcreg.pipeline.trust.label_confidence`), or None without a trust rule.
     predicted_error : the frame's predicted error in percent, the mean of 1 - ``confidence`` (None
         without a trust rule).
+    trust : the step's trust map (:class:`~pcreg.pipeline.trust.TrustMaps`: each carried prior, its
+        evidence and its weight per pixel), None without a trust rule; ``to_dict`` gives its summary
+        (``trust``: each prior's mean weight as a share of the most the rule gives it).
     """
 
     frame: int
@@ -221,6 +224,8 @@ class StepReport:
     start: str | None = None
     confidence: np.ndarray | None = field(default=None, repr=False)
     predicted_error: float | None = None
+    trust: "TrustMaps | None" = field(default=None, repr=False)
+    trust_summary: dict | None = None
 
     @property
     def registered(self) -> bool:
@@ -229,7 +234,7 @@ class StepReport:
     def to_dict(self) -> dict:
         return {"frame": self.frame, "registered": self.registered, "reason": self.reason,
                 "fallback": self.fallback, "reference": self.reference, "start": self.start,
-                "predicted_error": self.predicted_error,
+                "predicted_error": self.predicted_error, "trust": self.trust_summary,
                 "registration": None if self.registration is None else self.registration.to_dict(),
                 "times": {k: float(v) for k, v in self.times.items()}}
 
@@ -302,6 +307,7 @@ class Propagator:
         self.learning = learning if trust is not None and _learns(classifier) else None
         self._learner: Learner | None = None
         self._key_blurred: np.ndarray | None = None
+        self._key_log_odds: np.ndarray | None = None
         self._pi = class_prior(classifier)
         self._key_image: np.ndarray | None = None
         self._key_labels: np.ndarray | None = None
@@ -340,6 +346,7 @@ class Propagator:
             from .trust import blurred
 
             self._key_blurred = blurred(img)
+            self._key_log_odds = prior_log_odds(self._key_prior, pi=self._pi)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         self._key_prepared = None
         if self.model == "dense" and self.anchor == "key":  # every frame registers to it: its pyramid once
@@ -383,17 +390,20 @@ class Propagator:
             times.update({f"register.{k}": float(v) for k, v in dense_times.items()})
         times.update(classify_times)
 
+        maps: TrustMaps | None = None
         if self.trust is None:
             labels, confidence = self._fuse(d, motion, times), None
         else:
-            labels, confidence = self._fuse_trusted(img, d, flow, motion, times)
+            labels, confidence, maps = self._fuse_trusted(img, d, flow, motion, times)
         if motion is not None and self.anchor == "previous":
             self._chain = (img, motion, self._frame)
         times["fuse"] = sum(times[f"fuse.{part}"] for part in STEP_PARTS["fuse"])
         times["total"] = time.perf_counter() - t_start
         self.last = StepReport(frame=self._frame, registration=result, reason=reason, fallback=motion is None,
                                reference=ref_frame, times=times, start=start, confidence=confidence,
-                               predicted_error=None if confidence is None else predicted_error(confidence))
+                               predicted_error=None if confidence is None else predicted_error(confidence),
+                               trust=maps, trust_summary=None if maps is None or self.trust is None
+                               else maps.summary(self.trust, self.weight))
         return labels
 
     def _classify(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, dict]:
@@ -428,24 +438,24 @@ class Propagator:
         return labels
 
     def _fuse_trusted(self, img: np.ndarray, d: np.ndarray, flow: np.ndarray | None, motion: Motion | None,
-                      times: dict) -> tuple[np.ndarray, np.ndarray]:
-        """``(labels, confidence)`` by the trust rule (:mod:`pcreg.pipeline.trust`): the key frame's
+                      times: dict) -> tuple[np.ndarray, np.ndarray, TrustMaps]:
+        """``(labels, confidence, trust map)`` by the trust rule (:mod:`pcreg.pipeline.trust`): the key frame's
         prior along ``motion`` (unmoved where the registration failed) and along the DIS ``flow``, each
         trusted per pixel; then the classifier learns from the frame."""
-        from ..classification.fusion import labels_from_log_odds, prior_log_odds
-        from .trust import blurred, carried_residual, label_confidence, trust_maps
+        from ..classification.fusion import labels_from_log_odds
+        from .trust import blurred, carried_log_odds, carried_residual, label_confidence, trust_maps
 
-        assert self.trust is not None and self._key_blurred is not None
+        assert self.trust is not None and self._key_blurred is not None and self._key_log_odds is not None
         shape = d.shape
         t0 = time.perf_counter()
         moved = motion if motion is not None else Motion(matrix=np.eye(3))
-        l_dense = prior_log_odds(prior_on_moving(self._key_prior, moved, shape=shape, pi=self._pi), pi=self._pi)
-        l_flow = None if flow is None else prior_log_odds(
-            prior_on_moving(self._key_prior, Motion(field=flow), shape=shape, pi=self._pi), pi=self._pi)
+        moved_field = moved.as_field(shape)
+        l_dense = carried_log_odds(self._key_log_odds, moved_field)
+        l_flow = None if flow is None else carried_log_odds(self._key_log_odds, flow)
         t1 = time.perf_counter()
         frame = blurred(img)
         maps = trust_maps(self.trust, weight=self.weight, dense_prior=l_dense, confidence=moved.confidence,
-                          dense_residual=carried_residual(self._key_blurred, frame, moved.as_field(shape)),
+                          dense_residual=carried_residual(self._key_blurred, frame, moved_field),
                           flow_prior=l_flow,
                           flow_residual=None if flow is None else carried_residual(self._key_blurred, frame, flow))
         t2 = time.perf_counter()
@@ -460,7 +470,7 @@ class Propagator:
         t5 = time.perf_counter()
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.fusion": t3 - t2,
                       "fuse.confidence": t4 - t3, "fuse.learn": t5 - t4})
-        return labels, confidence
+        return labels, confidence, maps
 
     def _register(self, reference: np.ndarray, image: np.ndarray):
         """``(result, None, start)``, or ``(None, reason, start)`` when the registration failed or is

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual",
+__all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
            "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error"]
 
 #: The width at which the rule's pixel sizes are stated; they scale with the frame's width.
@@ -90,39 +90,69 @@ def _odd(px: float, width: int) -> int:
     return max(1, int(round(_scaled(px, width))) // 2 * 2 + 1)
 
 
-def blurred(image: np.ndarray) -> np.ndarray:
-    """(H, W, 3) float32: the image blurred by :data:`IMAGE_SIGMA` (scaled), what residuals compare."""
+def half(image: np.ndarray) -> np.ndarray:
+    """The image at half its size (each pixel the mean of a 2x2 block), as float32."""
     import cv2
 
-    return cv2.GaussianBlur(np.asarray(image, dtype=np.float32), (0, 0), _scaled(IMAGE_SIGMA, image.shape[1]))
+    a = np.asarray(image, dtype=np.float32)
+    h, w = a.shape[:2]
+    return cv2.resize(a, (max(1, w // 2), max(1, h // 2)), interpolation=cv2.INTER_AREA)
+
+
+def blurred(image: np.ndarray) -> np.ndarray:
+    """(H/2, W/2, 3) float32: the image at half size (:func:`half`), blurred by :data:`IMAGE_SIGMA` (scaled
+    to the frame's full width): what residuals compare. The residual is blurred wider than a pixel
+    anyway, so it is measured at half size, a quarter of the work."""
+    import cv2
+
+    width = np.shape(image)[1]
+    return cv2.GaussianBlur(half(image), (0, 0), _scaled(IMAGE_SIGMA, width) / 2)
 
 
 def carried_residual(key_blurred: np.ndarray, frame_blurred: np.ndarray, field: np.ndarray) -> np.ndarray:
     """(H, W) float32: the mean absolute colour difference, in grey levels, between the frame and the key
-    frame carried along ``field`` (reference coordinates of every frame pixel), both :func:`blurred`,
-    blurred again by :data:`RESIDUAL_SIGMA`; :data:`OUTSIDE` where the field leaves the key frame."""
+    frame carried along ``field`` (H, W, 2: reference coordinates of every frame pixel), both
+    :func:`blurred`, blurred again by :data:`RESIDUAL_SIGMA`; :data:`OUTSIDE` where the field leaves the
+    key frame. Measured at half size (the field averaged over each 2x2 block, in half-size
+    coordinates) and brought back to the field's size bilinearly."""
     import cv2
 
-    h, w = frame_blurred.shape[:2]
-    fld = np.ascontiguousarray(field, dtype=np.float32)
-    carried = cv2.remap(key_blurred, fld, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    res = cv2.absdiff(carried, frame_blurred)
-    res = cv2.transform(res, np.full((1, 3), 1.0 / 3.0))
-    x, y = fld[:, :, 0], fld[:, :, 1]
-    inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)  # NaN compares False: outside
+    fld = np.asarray(field, dtype=np.float32)
+    h, w = fld.shape[:2]
+    hh, hw = frame_blurred.shape[:2]
+    small = (cv2.resize(fld, (hw, hh), interpolation=cv2.INTER_AREA) - np.float32(0.5)) * np.float32(0.5)
+    carried = cv2.remap(key_blurred, small, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    res = cv2.transform(cv2.absdiff(carried, frame_blurred), np.full((1, 3), 1.0 / 3.0))
+    x, y = small[:, :, 0], small[:, :, 1]
+    inside = (x >= -0.5) & (x <= hw - 0.5) & (y >= -0.5) & (y <= hh - 0.5)  # NaN compares False: outside
     res[~inside] = OUTSIDE
-    return cv2.GaussianBlur(res, (0, 0), _scaled(RESIDUAL_SIGMA, w))
+    res = cv2.GaussianBlur(res, (0, 0), _scaled(RESIDUAL_SIGMA, w) / 2)
+    return cv2.resize(res, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-@dataclass(frozen=True)
+def carried_log_odds(log_odds: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the key frame's prior log-odds carried along ``field`` (bilinear), 0 (no evidence
+    beyond the class prior) where the field leaves the key frame."""
+    import cv2
+
+    return cv2.remap(np.asarray(log_odds, np.float32), np.ascontiguousarray(field, dtype=np.float32), None,
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+@dataclass(frozen=True, eq=False)
 class TrustMaps:
-    """Per pixel (H, W) float32: each carried prior's fusion weight (``dense``, ``flow``; None where that
-    prior is absent) and its log-odds (``dense_prior``, ``flow_prior``)."""
+    """A step's trust map, per pixel (H, W) float32: each carried prior's log-odds (``dense_prior``,
+    ``flow_prior``), the evidence for it (the key frame's ``dense_residual`` and ``flow_residual`` along
+    each motion, the dense field's own ``confidence``) and the fusion weight the rule gave it (``dense``,
+    ``flow``); None where that prior is absent."""
 
     dense: np.ndarray | None
     dense_prior: np.ndarray | None
     flow: np.ndarray | None
     flow_prior: np.ndarray | None
+    dense_residual: np.ndarray | None = None
+    flow_residual: np.ndarray | None = None
+    confidence: np.ndarray | None = None
 
     def prior_term(self, shape: tuple[int, int]) -> np.ndarray:
         """(H, W) float32: the sum of weight times log-odds over the priors present."""
@@ -130,6 +160,14 @@ class TrustMaps:
         for w, l in ((self.dense, self.dense_prior), (self.flow, self.flow_prior)):
             if w is not None and l is not None:
                 out += w * l
+        return out
+
+    def summary(self, rule: "TrustRule", weight: float) -> dict:
+        """The frame's trust in one number per prior: the mean of its weight over the pixels, as a share
+        of the most the rule gives it (``weight * dense * 2`` at full confidence, ``weight * flow``)."""
+        out = {}
+        for name, w, top in (("dense", self.dense, weight * rule.dense * 2.0), ("flow", self.flow, weight * rule.flow)):
+            out[name] = None if w is None or top <= 0 else float(np.mean(w, dtype=np.float64) / top)
         return out
 
 
@@ -150,7 +188,8 @@ def trust_maps(rule: TrustRule, *, weight: float, dense_prior: np.ndarray | None
         wd = wd.astype(np.float32, copy=False)
     if flow_prior is not None and flow_residual is not None:
         wf = np.float32(weight * rule.flow) * trust(flow_residual)
-    return TrustMaps(wd, dense_prior, wf, flow_prior)
+    return TrustMaps(wd, dense_prior, wf, flow_prior, dense_residual, flow_residual,
+                     None if confidence is None else np.asarray(confidence, np.float32))
 
 
 def fused_log_odds(log_odds: np.ndarray, maps: TrustMaps) -> np.ndarray:
@@ -162,20 +201,22 @@ def fused_log_odds(log_odds: np.ndarray, maps: TrustMaps) -> np.ndarray:
 def confidence_features(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray) -> list[np.ndarray]:
     """The confidence's four features, (H, W) float32 each: log1p(|F|), the share of the label's
     neighbourhood with the same label at the two :data:`PURITY_SIDES`, and the share of the
-    :data:`AGREEMENT_SIDE` neighbourhood where naive Bayes' sign agrees with the carried prior's."""
+    :data:`AGREEMENT_SIDE` neighbourhood where naive Bayes' sign agrees with the carried prior's. The
+    neighbourhoods (15-33 px) are read at half size and brought back bilinearly."""
     import cv2
 
     F = np.asarray(fused, dtype=np.float32)
-    w = F.shape[1]
+    h, w = F.shape
     lab = (F > 0).astype(np.float32)
-    feats = [np.log1p(np.abs(F))]
-    for side in PURITY_SIDES:
-        k = _odd(side, w)
-        m = cv2.blur(lab, (k, k), borderType=cv2.BORDER_REFLECT)
-        feats.append(np.where(lab > 0, m, 1.0 - m).astype(np.float32))
     agree = ((np.asarray(log_odds) > 0) == (np.asarray(prior_term) > 0)).astype(np.float32)
-    k = _odd(AGREEMENT_SIDE, w)
-    feats.append(cv2.blur(agree, (k, k), borderType=cv2.BORDER_REFLECT))
+    lab_h, agree_h = half(lab), half(agree)
+    feats = [np.log1p(np.abs(F))]
+    for side, src in zip((*PURITY_SIDES, AGREEMENT_SIDE), (lab_h, lab_h, agree_h)):
+        k = _odd(side / 2, w)
+        m = cv2.blur(src, (k, k), borderType=cv2.BORDER_REFLECT)
+        if src is lab_h:  # the share of the neighbourhood with the pixel's own label
+            m = np.where(lab_h >= 0.5, m, 1.0 - m).astype(np.float32)
+        feats.append(cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR))
     return feats
 
 
@@ -183,9 +224,9 @@ def label_confidence(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.nda
                      coefficients: tuple[float, ...] = CONFIDENCE_COEFFICIENTS) -> np.ndarray:
     """(H, W) float32 in [0, 1]: the probability that the label ``F > 0`` is right at each pixel, by the
     logistic model over :func:`confidence_features` (:data:`CONFIDENCE_COEFFICIENTS`)."""
+    if len(coefficients) != 5:
+        raise InputError(f"the confidence takes 5 coefficients, got {len(coefficients)}")
     feats = confidence_features(fused, log_odds, prior_term)
-    if len(coefficients) != len(feats) + 1:
-        raise InputError(f"the confidence takes {len(feats) + 1} coefficients, got {len(coefficients)}")
     z = np.full(feats[0].shape, np.float32(coefficients[0]), np.float32)
     for a, f in zip(coefficients[1:], feats):
         z += np.float32(a) * f

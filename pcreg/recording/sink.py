@@ -100,12 +100,20 @@ class Sink:
     Parameters
     ----------
     path : str or Path
-        The .rrd file. application_id, recording_id, recording_name : as rerun's (a fresh UUID4 id when
-        None). kind : str, optional
+        The .rrd file.
+    application_id, recording_id, recording_name : str
+        Rerun's (a fresh UUID4 recording id when None; no name when None).
+    kind : str, optional
         Stored as the recording property ``pcreg.kind``; inferred from what was logged at :meth:`close`
-        when None. embed_blueprint : bool
-        Embed the blueprint of the kind at :meth:`close`. raw_images, jpeg_quality : how :meth:`image`
-        encodes. force : overwrite an existing file.
+        when None.
+    embed_blueprint : bool
+        Embed the blueprint of the kind, built from the entities logged, at :meth:`close`.
+    raw_images : bool
+        :meth:`image` and :meth:`mask` log raw pixels instead of JPEG and PNG.
+    jpeg_quality : int
+        1..100 (:class:`JpegCache`).
+    force : bool
+        Overwrite an existing file.
 
     Raises
     ------
@@ -147,12 +155,14 @@ class Sink:
 
     @property
     def jpeg_quality(self) -> int:
+        """The JPEG quality of logged images."""
         return self._jpegs.quality
 
     # -- life cycle ---------------------------------------------------------------------------
 
     @property
     def closed(self) -> bool:
+        """Whether :meth:`close` was called (logging is then refused)."""
         return self._closed
 
     def check_open(self) -> None:
@@ -225,6 +235,7 @@ class Sink:
         self._rec.set_time(timeline, sequence=int(sequence))
 
     def disable_timeline(self, timeline: str) -> None:
+        """Take ``timeline`` off the calling thread's time cursor."""
         self._rec.disable_timeline(timeline)
 
     # -- sending ------------------------------------------------------------------------------

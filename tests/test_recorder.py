@@ -431,7 +431,7 @@ def test_the_callers_buffers_are_free_at_once_and_lines_keep_their_order(tmp_pat
     release = threading.Event()
     with Recorder(tmp_path / "r.rrd", label_stride=1) as rec:
         rec.set_frame(0)
-        rec._later(release.wait)  # holds the recorder's thread
+        rec.sink.later(release.wait)  # holds the recorder's thread
         rec.log_transform(m)
         rec.log_labels(truth=truth)
         rec.log_clouds(moving_points=pts)
@@ -465,3 +465,53 @@ def test_icp_iterations_before_the_first_frame_have_no_frame(tmp_path):
     back = read_recording(tmp_path / "r.rrd")
     fit = [r for r in back.get(E.icp_path("reference", "fitness"), "Scalars:scalars") if not r.static]
     assert [(r.times.get("frame"), r.times["icp_iteration"]) for r in fit] == [(None, 0), (None, 1), (0, 0), (1, 0)]
+
+
+def test_both_recorders_implement_the_protocol_method_for_method():
+    """Recorder and NullRecorder have every method of RecorderProtocol with its signature, and nothing else
+    answers: the null recorder has no catch-all."""
+    import inspect
+
+    from pcreg.recording.interface import RecorderProtocol
+    from pcreg.recording.null import NULL_RECORDER, NullRecorder
+
+    methods = [n for n, v in vars(RecorderProtocol).items() if callable(v) and not n.startswith("_")]
+    assert {"set_frame", "flush", "log_images", "log_transform", "icp_callback", "log_crosscheck_iteration"} <= set(methods)
+    for cls in (Recorder, NullRecorder):
+        for name in methods:
+            assert inspect.signature(getattr(cls, name)).parameters == inspect.signature(getattr(RecorderProtocol, name)).parameters, (cls, name)
+    assert Recorder.enabled and not NULL_RECORDER.enabled
+    assert NULL_RECORDER.icp_callback("reference") is None
+    with pytest.raises(AttributeError):
+        NULL_RECORDER.log_everything()
+
+
+def test_only_the_recording_package_imports_rerun():
+    import re
+
+    root = Path(__file__).resolve().parents[1] / "pcreg"
+    importers = {p.relative_to(root).parts[0] for p in root.rglob("*.py")
+                 if re.search(r"^\s*(import rerun|from rerun)", p.read_text(encoding="utf-8"), re.M)}
+    assert importers == {"recording"}
+
+
+def test_a_transform_is_drawn_with_its_own_frames_moving_image(tmp_path):
+    """The outline and the moved cloud are drawn from what was logged of the frame's pair (Recorder.pairs.pair):
+    a frame without a moving image draws no outline until given ``moving_shape``."""
+    pts = np.random.default_rng(5).uniform(0, [W, H], size=(30, 2))
+    with Recorder(tmp_path / "r.rrd") as rec:
+        rec.set_frame(0)
+        rec.log_images(moving=_image(0))
+        assert rec.pairs.pair.moving_shape == (H, W)
+        rec.log_transform(np.eye(3))
+        rec.set_frame(1)
+        assert rec.pairs.pair.moving_shape is None and rec.pairs.pair.matrix is None
+        rec.log_transform(np.eye(3))
+        rec.log_clouds(moving_points=pts)  # after the transform: mapped by it
+        rec.set_frame(2)
+        rec.log_transform(np.eye(3), moving_shape=(10, 20))
+    back = read_recording(tmp_path / "r.rrd")
+    outlines = {r.times["frame"]: r for r in back.get(E.outline_path("T_ref_mov"))}
+    assert set(outlines) == {0, 2}
+    np.testing.assert_allclose(np.asarray(outlines[2]["LineStrips2D:strips"].to_pylist()[0])[2], [19.5, 9.5])
+    np.testing.assert_allclose(points(back.latest(E.MOVED_CLOUD, frame=1)), pts, atol=1e-4)

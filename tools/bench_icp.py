@@ -1,8 +1,9 @@
 """Benchmark: the reference ICP against Open3D's legacy ICP and small_gicp's ICP, 1k..100k points, 2-D and 3-D.
 
-Identical clouds (the builders of ``tools/bench_registration.py``): 2-D, the strongest-gradient pixels
-(sub-pixel) of a CamVid frame upscaled 3x and of its copy rotated by 3 deg and shifted; 3-D, random
-subsets of the LiDAR pair ``../shared/data/scans``. Each implementation runs point-to-point rigid ICP
+Identical clouds (``clouds_2d`` and ``clouds_3d`` of ``tools/benchlib.py``, as in
+``tools/bench_registration.py``): 2-D, the strongest-gradient pixels (sub-pixel) of a CamVid frame
+upscaled 3x and of its copy rotated by 3 deg and shifted; 3-D, random subsets of the LiDAR pair
+``../shared/data/scans``. Each implementation runs point-to-point rigid ICP
 from the identity with the same correspondence distance for exactly ``--iterations`` iterations:
 
 - ``reference``: ``pcreg.registration.reference.icp_reference`` (thresholds 0), building its grid;
@@ -36,24 +37,15 @@ Writes bench_icp.json, bench_icp.md and bench_icp.png to --out.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchlib import SHARED_DATA, checks_markdown, machine_info, write_report
+from benchlib import SHARED_DATA, checks_markdown, clouds_2d, clouds_3d, finish, machine_info
 
 IMPLEMENTATIONS = ("reference", "open3d", "small_gicp")
-TOOLS = Path(__file__).resolve().parent
-
-
-def _cloud_builders():
-    spec = importlib.util.spec_from_file_location("bench_registration", TOOLS / "bench_registration.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.clouds_2d, mod.clouds_3d
 
 
 def tied_queries(src: np.ndarray, tgt: np.ndarray, dist: float) -> int:
@@ -186,7 +178,6 @@ def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: in
         implementations=IMPLEMENTATIONS, profile_calls: int = 20) -> dict:
     from pcreg._runner import progress
 
-    clouds_2d, clouds_3d = _cloud_builders()
     jobs = [("2-D", clouds_2d(data, sizes, seed))]
     c3 = clouds_3d(data, sizes, seed)
     if c3 is not None:
@@ -346,11 +337,7 @@ def main(argv: list[str] | None = None) -> int:
                                                profile_calls=args.profile_calls)}
     if args.crosscheck_runs > 0 and "reference" in impls and "open3d" in impls:
         report["crosscheck"] = crosscheck_lidar(args.data, args.crosscheck_runs)
-    report["machine"]["load_average_at_end"] = machine_info()["load_average"]
-    md = render(report)
-    write_report(args.out, "bench_icp", report, md, figure(report))
-    print(md)
-    return 0
+    return finish(args.out, "bench_icp", report, render, figure)
 
 
 if __name__ == "__main__":

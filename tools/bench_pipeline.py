@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchlib import SHARED_DATA, checks_markdown, machine_info, write_report
+from benchlib import SHARED_DATA, checks_markdown, finish, machine_info
 
 #: The step is meant to cost no more than the optical flow it competes with ...
 TARGET_VS_DIS = 1.0
@@ -238,11 +238,7 @@ def main(argv=None) -> int:
         desc, frames = loaded
         print(f"{desc}: {len(frames)} frames ...", file=sys.stderr, flush=True)
         report["streams"][which] = {"description": desc, **bench_stream(frames)}
-    report["machine"]["load_average_at_end"] = machine_info()["load_average"]
-    md = render(report)
-    write_report(args.out, "bench_pipeline", report, md, figure(report))
-    print(md)
-    return 0
+    return finish(args.out, "bench_pipeline", report, render, figure)
 
 
 if __name__ == "__main__":

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchlib import SHARED_DATA, ecc, machine_info
+from benchlib import SHARED_DATA, camvid_images, clouds_2d, clouds_3d, command_line, ecc, machine_info, make_moving, write_report
 
 DEFAULT_DATA = SHARED_DATA
 
@@ -67,10 +67,6 @@ TARGETS = {"median_px": 0.1, "p95_px": 0.5, "success": 0.99, "icp_ratio_vs_open3
 # ---------------------------------------------------------------------------------------------------
 # Part 1: images with known rigid motions, impossible pairs
 # ---------------------------------------------------------------------------------------------------
-
-def find_images(data: Path) -> list[Path]:
-    return sorted((data / "camvid").glob("*/images/*.png"))
-
 
 def find_photos(data: Path) -> list[Path]:
     return sorted(p for p in (data / "photos").glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
@@ -129,14 +125,6 @@ def truth_matrix(case: dict, shape: tuple[int, ...]) -> np.ndarray:
     c = image_center(shape)
     h, w = shape[:2]
     return about_point(rigid2d(case["angle_deg"], case.get("fx", 0.0) * w, case.get("fy", 0.0) * h), c, c)
-
-
-def make_moving(reference: np.ndarray, T_ref_mov: np.ndarray) -> np.ndarray:
-    """The moving image whose pixel x shows the reference at ``T_ref_mov @ x`` (black outside)."""
-    import cv2
-
-    h, w = reference.shape[:2]
-    return cv2.warpAffine(reference, T_ref_mov[:2], (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
 
 
 def ecc_register(reference: np.ndarray, moving: np.ndarray, *, levels: int = 4) -> np.ndarray:
@@ -323,7 +311,7 @@ def run_images(data: Path, *, cases: int, camvid_cases: int, impossible: int, se
     for c in make_cases(terrain, 2, max_angle=30.0, seed=seed + 999):
         run_case(c, methods, cache, max_side=max_side)
     plan = [("terrain", terrain, cases, seed, "photographs (../shared/data/photos) and procedural textures")]
-    camvid = [str(p) for p in find_images(data)]
+    camvid = [str(p) for p in camvid_images(data)]
     if camvid and camvid_cases:
         plan.append(("camvid", camvid, camvid_cases, seed + 1, "CamVid frames (../shared/data/camvid)"))
     elif camvid_cases:
@@ -350,80 +338,6 @@ def run_images(data: Path, *, cases: int, camvid_cases: int, impossible: int, se
 # ---------------------------------------------------------------------------------------------------
 # Part 2: ICP cost against the number of points
 # ---------------------------------------------------------------------------------------------------
-
-def clouds_2d(data: Path, sizes: list[int], seed: int) -> tuple[str, dict[int, tuple[np.ndarray, np.ndarray]], float]:
-    """(description, {N: (source, target)}, correspondence distance) for 2-D clouds."""
-    import cv2
-
-    import pcreg
-    from pcreg.registration.transforms import about_point, image_center, rigid2d
-
-    images = find_images(data)
-    out = {}
-    if images:
-        img = pcreg.load_image(images[0])
-        big = cv2.resize(img, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)
-        c = image_center(big.shape)
-        T = about_point(rigid2d(3.0, 6.0, -4.0), c, c)
-        mov = make_moving(big, T)
-        rng = np.random.default_rng(seed)
-        for n in sizes:
-            tgt = pcreg.image_cloud(big, sampler="gradient", top_k=n, mask=None).points
-            # The moving copy's black padding is masked out after the top-k choice: ask for more, keep n.
-            k = n
-            while True:
-                src = pcreg.image_cloud(mov, sampler="gradient", top_k=k, mask="auto").points
-                if len(src) >= n or k >= mov.shape[0] * mov.shape[1]:
-                    break
-                k = int(k * 1.5) + 1
-            if len(src) > n:
-                src = src[np.sort(rng.choice(len(src), n, replace=False))]
-            out[n] = (src, tgt)
-        desc = (f"strongest-gradient pixels (sub-pixel) of {images[0].name} upscaled 3x "
-                f"({big.shape[1]}x{big.shape[0]}) and of its copy rotated 3 deg, shifted (6, -4) px")
-        return desc, out, 15.0
-    # No real frames: points on random smooth closed curves in a 1000 x 1000 box.
-    rng = np.random.default_rng(seed)
-    k = 40
-    centres = rng.uniform(100, 900, (k, 2))
-    coef = rng.normal(0, 1, (k, 4, 2)) * np.array([60, 15, 8, 4])[None, :, None]
-
-    def sample(n, r):
-        curve = r.integers(k, size=n)
-        t = r.uniform(0, 2 * np.pi, n)
-        harm = np.arange(1, 5)
-        pts = centres[curve] + np.einsum("nh,nhd->nd", np.cos(harm[None] * t[:, None]), coef[curve])
-        pts += np.einsum("nh,nhd->nd", np.sin(harm[None] * t[:, None]), coef[curve][:, :, ::-1])
-        return pts
-
-    T = about_point(rigid2d(3.0, 6.0, -4.0), (500.0, 500.0))
-    for n in sizes:
-        r = np.random.default_rng(seed + n)
-        tgt = sample(n, r)
-        src = (sample(n, r) - T[:2, 2]) @ np.linalg.inv(T[:2, :2]).T
-        out[n] = (src, tgt)
-    return "points on 40 random smooth closed curves in a 1000 x 1000 box", out, 15.0
-
-
-def clouds_3d(data: Path, sizes: list[int], seed: int) -> tuple[str, dict[int, tuple[np.ndarray, np.ndarray]], float] | None:
-    src_path, tgt_path = data / "scans" / "source.ply", data / "scans" / "target.ply"
-    if not (src_path.is_file() and tgt_path.is_file()):
-        print(f"skipping 3-D clouds: {src_path} or {tgt_path} not found", file=sys.stderr)
-        return None
-    import open3d as o3d
-
-    src_all = np.asarray(o3d.io.read_point_cloud(str(src_path)).points, dtype=np.float64)
-    tgt_all = np.asarray(o3d.io.read_point_cloud(str(tgt_path)).points, dtype=np.float64)
-    rng = np.random.default_rng(seed)
-    out = {}
-    for n in sizes:
-        ns, nt = min(n, len(src_all)), min(n, len(tgt_all))
-        out[ns] = (src_all[np.sort(rng.choice(len(src_all), ns, replace=False))],
-                   tgt_all[np.sort(rng.choice(len(tgt_all), nt, replace=False))])
-    desc = (f"random subsets of the LiDAR pair data/scans (source {len(src_all)} / target {len(tgt_all)} points; "
-            "sizes above that use every point)")
-    return desc, out, 0.5
-
 
 def time_icp_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int, repeats: int) -> dict:
     """Reference vs Open3D legacy ICP on identical clouds, exactly ``iterations`` iterations each."""
@@ -553,96 +467,136 @@ def _image_targets(img: dict) -> list[list]:
     return targets
 
 
-def render_markdown(report: dict) -> str:
+def _set_section(st: dict, img: dict) -> list[str]:
+    """One set of genuine pairs: the summary per method, success per image and by angle, the misses."""
     from pcreg.outputs import markdown_table
 
-    m = report["machine"]
+    methods = img["methods"]
+    lines = [f"## {st['description']}: rigid motion, angle uniform in ±180°, shift within ±10% "
+             f"({len(st['rows'])} cases over {st['sources']} images, longer side <= {img['max_side']} px, "
+             f"seed {st['seed']})\n"]
+    header = ["method", "success (<= 1 px)", "median error (px)", "p95 error (px)", "refused", "exceptions",
+              "median time (ms)", "time / ORB's", "time / ECC's where ECC succeeds"]
+    rows = []
+    for meth in methods:
+        s = st["summary"][meth]
+        rows.append([LABELS[meth], f"{100 * s['success']:.1f}%", f"{s['median_px']:.3f}", f"{s['p95_px']:.3f}",
+                     s["refused"], s["exceptions"], f"{1e3 * s['median_seconds']:.0f}",
+                     f"{s.get('time_ratio_vs_orb', float('nan')):.2f}" if meth != "orb" else "1",
+                     f"{s.get('time_ratio_vs_ecc_where_ecc_succeeds', float('nan')):.2f}" if meth != "ecc" else "1"])
+    lines.append(markdown_table(header, rows))
+    ps = st["per_source"]
+    lines.append("\nSuccess per image (texture kinds pooled over seeds):\n")
+    lines.append(markdown_table(["image", "cases"] + [LABELS[x] for x in methods],
+                                [[k, v["cases"]] + [f"{100 * v[x]['success']:.0f}% ({v[x]['median_px']:.2f} px)"
+                                                    for x in methods] for k, v in ps.items()]))
+    sba = st["success_by_angle"]
+    e = sba["edges"]
+    lines.append("\nSuccess rate (error <= 1 px) by angle:\n")
+    lines.append(markdown_table(["angle bin (deg)", "cases"] + [LABELS[x] for x in methods],
+                                [[f"[{e[b]:.0f}, {e[b + 1]:.0f})", sba["counts"][b]]
+                                 + [f"{100 * sba[x][b]:.0f}%" if np.isfinite(sba[x][b]) else "-"
+                                    for x in methods] for b in range(len(e) - 1)]))
+    ours = [x for x in methods if x.startswith("pcreg")]
+    fails = [r for r in st["rows"] if any(r[x]["error_px"] > SUCCESS_PX for x in ours)]
+    if fails:
+        lines.append("\nCases where pcreg.register missed 1 px:\n")
+        lines.append(markdown_table(
+            ["case", "image", "angle (deg)"] + [LABELS[x] for x in ours],
+            [[r["case"], r["image"].split("/")[-1], f"{r['angle_deg']:.1f}"]
+             + [f"{r[x]['error_px']:.3g}" + (f" ({r[x]['failure'][:60]})" if r[x]["failure"] else "") for x in ours]
+             for r in fails]))
+    lines.append("")
+    return lines
+
+
+def _impossible_section(imp: dict) -> list[str]:
+    """The impossible pairs refused per method and kind (nothing without them)."""
+    from pcreg.outputs import markdown_table
+
+    if not imp["rows"]:
+        return []
+    n_kind = {k: sum(r["kind"] == k for r in imp["rows"]) for k in IMPOSSIBLE}
+    return [f"## Impossible pairs ({', '.join(f'{n} {k}' for k, n in n_kind.items())}): refused?\n",
+            "Unrelated: a different image of the same pool, moved; noise: uniform noise; mirror: the "
+            "image mirrored left-right, moved. ORB+RANSAC and ECC have no refusal: they return a "
+            "transform for every pair.\n",
+            markdown_table(["method"] + list(IMPOSSIBLE) + ["all", "median time (ms)"],
+                           [[LABELS[x]] + [f"{s['by_kind'][k]['refused']}/{s['by_kind'][k]['cases']}" for k in IMPOSSIBLE]
+                            + [f"{s['refused']}/{s['cases']}", f"{1e3 * s['median_seconds']:.0f}"]
+                            for x, s in imp["summary"].items()]),
+            ""]
+
+
+def _scaling_section(sc: dict) -> list[str]:
+    """The ICP's cost per cloud size, reference against Open3D, per kind of cloud."""
+    from pcreg.outputs import markdown_table
+
+    lines = [f"## ICP cost against the number of points: reference ICP vs Open3D legacy ICP "
+             f"({sc['iterations']} iterations each, thresholds 0, median of {sc['repeats']} repeats)\n"]
+    for kind, k in sc["kinds"].items():
+        lines.append(f"{kind}: {k['description']}; correspondence distance {k['max_correspondence_distance']:g}.\n")
+        header = ["points (source / target)", "reference (ms)", "Open3D (ms)", "median ratio reference / Open3D",
+                  "reference cost / (N log N), rel.", "Open3D cost / (N log N), rel.", "max |ΔT|"]
+        rows = [[f"{r['source_points']} / {r['target_points']}", f"{1e3 * r['median_reference_seconds']:.1f}",
+                 f"{1e3 * r['median_open3d_seconds']:.1f}", f"{r['median_ratio']:.2f}",
+                 f"{k['fit']['reference']['cost_per_nlogn_relative'][i]:.2f}",
+                 f"{k['fit']['open3d']['cost_per_nlogn_relative'][i]:.2f}",
+                 f"{r['max_abs_matrix_difference']:.1e}"] for i, r in enumerate(k["rows"])]
+        lines.append(markdown_table(header, rows))
+        lines.append(f"\nLog-log slope of time against N: reference {k['fit']['reference']['loglog_slope']:.2f}, "
+                     f"Open3D {k['fit']['open3d']['loglog_slope']:.2f} (N log N over this range: "
+                     f"{k['nlogn_loglog_slope']:.2f}).\n")
+    return lines
+
+
+def _scaling_targets(sc: dict) -> list[list]:
+    targets = []
+    for kind, k in sc["kinds"].items():
+        ratios = [r["median_ratio"] for r in k["rows"]]
+        targets.append([f"{kind} clouds: reference ICP no slower than Open3D (median ratio <= 1), per size",
+                        ", ".join(f"{x:.2f}" for x in ratios), _met(max(ratios) <= TARGETS["icp_ratio_vs_open3d"])])
+    return targets
+
+
+def render_markdown(report: dict) -> str:
+    """The report's Markdown: the targets, then each part (:func:`benchlib.write_report` adds the command
+    line and the machine)."""
+    from pcreg.outputs import markdown_table
+
     lines = ["# Registration benchmark\n",
-             f"Command: `{report['command']}`  \n"
-             f"Machine: {m['cpu_model']}, {m['cpu_count']} CPUs (load average at start "
-             f"{', '.join(f'{x:.1f}' for x in m['load_average'] or [])}), {m['platform']}; Python {m['python']}, "
-             f"numpy {m['numpy']}, scipy {m['scipy']}, OpenCV {m['opencv']}, Open3D {m['open3d']}; "
-             f"pcreg at {str(m['git_commit'])[:12]}{' (pcreg/ modified)' if m['pcreg_dirty'] else ''}.  \n"
              f"Started {report['started']}, took {report['wall_seconds'] / 60:.1f} min. Times are wall clock on a shared "
              "machine; compare the ratios (same cases, same run), not the absolute times.\n"]
-    img = report.get("images")
     targets = []
+    img = report.get("images")
     if img:
-        for set_name, st in img["sets"].items():
-            lines.append(f"## {st['description']}: rigid motion, angle uniform in ±180°, shift within ±10% "
-                         f"({len(st['rows'])} cases over {st['sources']} images, longer side <= {img['max_side']} px, "
-                         f"seed {st['seed']})\n")
-            header = ["method", "success (<= 1 px)", "median error (px)", "p95 error (px)", "refused", "exceptions",
-                      "median time (ms)", "time / ORB's", "time / ECC's where ECC succeeds"]
-            rows = []
-            for meth in img["methods"]:
-                s = st["summary"][meth]
-                rows.append([LABELS[meth], f"{100 * s['success']:.1f}%", f"{s['median_px']:.3f}", f"{s['p95_px']:.3f}",
-                             s["refused"], s["exceptions"], f"{1e3 * s['median_seconds']:.0f}",
-                             f"{s.get('time_ratio_vs_orb', float('nan')):.2f}" if meth != "orb" else "1",
-                             f"{s.get('time_ratio_vs_ecc_where_ecc_succeeds', float('nan')):.2f}" if meth != "ecc" else "1"])
-            lines.append(markdown_table(header, rows))
-            ps = st["per_source"]
-            lines.append("\nSuccess per image (texture kinds pooled over seeds):\n")
-            lines.append(markdown_table(["image", "cases"] + [LABELS[x] for x in img["methods"]],
-                                        [[k, v["cases"]] + [f"{100 * v[x]['success']:.0f}% ({v[x]['median_px']:.2f} px)"
-                                                            for x in img["methods"]] for k, v in ps.items()]))
-            sba = st["success_by_angle"]
-            e = sba["edges"]
-            lines.append("\nSuccess rate (error <= 1 px) by angle:\n")
-            lines.append(markdown_table(["angle bin (deg)", "cases"] + [LABELS[x] for x in img["methods"]],
-                                        [[f"[{e[b]:.0f}, {e[b + 1]:.0f})", sba["counts"][b]]
-                                         + [f"{100 * sba[x][b]:.0f}%" if np.isfinite(sba[x][b]) else "-"
-                                            for x in img["methods"]] for b in range(len(e) - 1)]))
-            fails = [r for r in st["rows"] if any(r[x]["error_px"] > SUCCESS_PX for x in img["methods"]
-                                                  if x.startswith("pcreg"))]
-            if fails:
-                lines.append("\nCases where pcreg.register missed 1 px:\n")
-                lines.append(markdown_table(
-                    ["case", "image", "angle (deg)"] + [LABELS[x] for x in img["methods"] if x.startswith("pcreg")],
-                    [[r["case"], r["image"].split("/")[-1], f"{r['angle_deg']:.1f}"]
-                     + [f"{r[x]['error_px']:.3g}" + (f" ({r[x]['failure'][:60]})" if r[x]["failure"] else "")
-                        for x in img["methods"] if x.startswith("pcreg")] for r in fails]))
-            lines.append("")
-        imp = img["impossible"]
-        if imp["rows"]:
-            n_kind = {k: sum(r["kind"] == k for r in imp["rows"]) for k in IMPOSSIBLE}
-            lines.append(f"## Impossible pairs ({', '.join(f'{n} {k}' for k, n in n_kind.items())}): refused?\n")
-            lines.append("Unrelated: a different image of the same pool, moved; noise: uniform noise; mirror: the "
-                         "image mirrored left-right, moved. ORB+RANSAC and ECC have no refusal: they return a "
-                         "transform for every pair.\n")
-            lines.append(markdown_table(["method"] + list(IMPOSSIBLE) + ["all", "median time (ms)"],
-                                        [[LABELS[x]] + [f"{s['by_kind'][k]['refused']}/{s['by_kind'][k]['cases']}"
-                                                        for k in IMPOSSIBLE]
-                                         + [f"{s['refused']}/{s['cases']}", f"{1e3 * s['median_seconds']:.0f}"]
-                                         for x, s in imp["summary"].items()]))
-            lines.append("")
+        for st in img["sets"].values():
+            lines += _set_section(st, img)
+        lines += _impossible_section(img["impossible"])
         targets += _image_targets(img)
     else:
         lines.append("Image benchmark skipped.\n")
     sc = report.get("scaling")
     if sc:
-        lines.append(f"## ICP cost against the number of points: reference ICP vs Open3D legacy ICP "
-                     f"({sc['iterations']} iterations each, thresholds 0, median of {sc['repeats']} repeats)\n")
-        for kind, k in sc["kinds"].items():
-            lines.append(f"{kind}: {k['description']}; correspondence distance {k['max_correspondence_distance']:g}.\n")
-            header = ["points (source / target)", "reference (ms)", "Open3D (ms)", "median ratio reference / Open3D",
-                      "reference cost / (N log N), rel.", "Open3D cost / (N log N), rel.", "max |ΔT|"]
-            rows = [[f"{r['source_points']} / {r['target_points']}", f"{1e3 * r['median_reference_seconds']:.1f}",
-                     f"{1e3 * r['median_open3d_seconds']:.1f}", f"{r['median_ratio']:.2f}",
-                     f"{k['fit']['reference']['cost_per_nlogn_relative'][i]:.2f}",
-                     f"{k['fit']['open3d']['cost_per_nlogn_relative'][i]:.2f}",
-                     f"{r['max_abs_matrix_difference']:.1e}"] for i, r in enumerate(k["rows"])]
-            lines.append(markdown_table(header, rows))
-            lines.append(f"\nLog-log slope of time against N: reference {k['fit']['reference']['loglog_slope']:.2f}, "
-                         f"Open3D {k['fit']['open3d']['loglog_slope']:.2f} (N log N over this range: "
-                         f"{k['nlogn_loglog_slope']:.2f}).\n")
-            ratios = [r["median_ratio"] for r in k["rows"]]
-            targets.append([f"{kind} clouds: reference ICP no slower than Open3D (median ratio <= 1), per size",
-                           ", ".join(f"{x:.2f}" for x in ratios), _met(max(ratios) <= TARGETS["icp_ratio_vs_open3d"])])
+        lines += _scaling_section(sc)
+        targets += _scaling_targets(sc)
     if targets:
         lines.insert(1, "## Targets\n\n" + markdown_table(["target", "measured", ""], targets) + "\n")
     return "\n".join(lines) + "\n"
+
+
+def _label(ax, xlabel: str | None, ylabel: str, title: str, *, grid: str = "both", legend: str = "best") -> None:
+    """Axis labels, a title, a light grid (``"both"``: major and minor lines; ``"y"``: horizontal ones) and
+    the legend at ``legend``."""
+    if xlabel is not None:
+        ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    if grid == "y":
+        ax.grid(True, axis="y", alpha=0.3)
+    else:
+        ax.grid(True, which=grid, alpha=0.3)
+    ax.legend(fontsize=8, loc=legend)
 
 
 def plot_accuracy(report: dict):
@@ -665,11 +619,8 @@ def plot_accuracy(report: dict):
         ax.set_xscale("log")
         ax.set_xlim(1e-3, cap)
         ax.set_ylim(0, 1.01)
-        ax.set_xlabel("max corner error (px, log; failures at the right edge)")
-        ax.set_ylabel("fraction of cases with error <= x")
-        ax.set_title(f"{name}: ±180°, {len(st['rows'])} cases")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8, loc="upper left")
+        _label(ax, "max corner error (px, log; failures at the right edge)", "fraction of cases with error <= x",
+               f"{name}: ±180°, {len(st['rows'])} cases", legend="upper left")
     ax = axes[-1]
     x = np.arange(len(sets))
     wbar = 0.8 / len(methods)
@@ -678,10 +629,7 @@ def plot_accuracy(report: dict):
                label=LABELS[m])
     ax.set_xticks(x + 0.4 - wbar / 2)
     ax.set_xticklabels([n for n, _ in sets])
-    ax.set_ylabel("median time per pair (ms)")
-    ax.set_title("Time, same cases, same run")
-    ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=8)
+    _label(ax, None, "median time per pair (ms)", "Time, same cases, same run", grid="y")
     fig.tight_layout()
     return fig
 
@@ -711,11 +659,7 @@ def plot_scaling(report: dict):
         ax.plot(nn, t_ref[i] * nn / n[i], ":", color="gray", lw=1.2, label="∝ N")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel("points per cloud N")
-        ax.set_ylabel(f"seconds for {sc['iterations']} ICP iterations")
-        ax.set_title(f"{kind} clouds: time vs N")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        _label(ax, "points per cloud N", f"seconds for {sc['iterations']} ICP iterations", f"{kind} clouds: time vs N")
     ax = axes[-1]
     for (kind, k), marker in zip(kinds, "os"):
         n = [r["source_points"] for r in k["rows"]]
@@ -723,51 +667,43 @@ def plot_scaling(report: dict):
     ax.axhline(1.0, color="k", ls="--", lw=1)
     ax.set_xscale("log")
     ax.set_ylim(0, max(2.0, 1.1 * max(r["median_ratio"] for _, k in kinds for r in k["rows"])))
-    ax.set_xlabel("points per cloud N")
-    ax.set_ylabel("median time ratio reference / Open3D")
-    ax.set_title("Same clouds, same iterations: ratio (< 1: reference faster)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    _label(ax, "points per cloud N", "median time ratio reference / Open3D",
+           "Same clouds, same iterations: ratio (< 1: reference faster)")
     fig.tight_layout()
     return fig
 
 
-def write_outputs(report: dict, out: Path) -> list[Path]:
-    import matplotlib
+CSV_HEADER = ["set", "case", "kind", "image", "other", "angle_deg", "shift_x_frac", "shift_y_frac", "method", "error_px",
+              "refused", "seconds", "inlier_ratio", "generator", "failure"]
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from pcreg.outputs import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text
+def csv_rows(img: dict) -> list[list]:
+    """A row per case and method (:data:`CSV_HEADER`), genuine sets then the impossible pairs."""
+    rows = []
+    for set_name, st in list(img["sets"].items()) + [("impossible", img["impossible"])]:
+        meths = img["methods"] if set_name != "impossible" else img["impossible"]["methods"]
+        for r in st["rows"]:
+            for m in meths:
+                x = r[m]
+                rows.append([set_name, r["case"], r["kind"], r["image"], r.get("other", ""), f"{r['angle_deg']:.3f}",
+                             f"{r['fx']:.4f}", f"{r['fy']:.4f}", m,
+                             "" if x["error_px"] is None else f"{x['error_px']:.5g}", int(x["refused"]),
+                             f"{x['seconds']:.5f}", "" if x.get("inlier_ratio") is None else f"{x['inlier_ratio']:.4f}",
+                             x.get("generator") or "", x["failure"] or ""])
+    return rows
 
-    paths = [atomic_write_json(out / "registration.json", report),
-             atomic_write_text(out / "registration.md", render_markdown(report))]
+
+def write_outputs(report: dict, out: Path, *, command: str | None = None) -> list[Path]:
+    """``registration.json``, ``.md``, ``.csv`` and the figures ``registration_accuracy.png`` and
+    ``registration_scaling.png`` (those with data), through :func:`benchlib.write_report`."""
     img = report.get("images")
-    if img:
-        rows = []
-        for set_name, st in list(img["sets"].items()) + [("impossible", img["impossible"])]:
-            meths = img["methods"] if set_name != "impossible" else img["impossible"]["methods"]
-            for r in st["rows"]:
-                for m in meths:
-                    x = r[m]
-                    rows.append([set_name, r["case"], r["kind"], r["image"], r.get("other", ""), f"{r['angle_deg']:.3f}",
-                                 f"{r['fx']:.4f}", f"{r['fy']:.4f}", m,
-                                 "" if x["error_px"] is None else f"{x['error_px']:.5g}", int(x["refused"]),
-                                 f"{x['seconds']:.5f}", "" if x.get("inlier_ratio") is None else f"{x['inlier_ratio']:.4f}",
-                                 x.get("generator") or "", x["failure"] or ""])
-        paths.append(atomic_write_csv(out / "registration.csv",
-                                      ["set", "case", "kind", "image", "other", "angle_deg", "shift_x_frac",
-                                       "shift_y_frac", "method", "error_px", "refused", "seconds", "inlier_ratio",
-                                       "generator", "failure"], rows))
-        if img["sets"]:
-            fig = plot_accuracy(report)
-            paths.append(atomic_save_figure(fig, out / "registration_accuracy.png"))
-            plt.close(fig)
+    figures = {}
+    if img and img["sets"]:
+        figures["accuracy"] = plot_accuracy(report)
     if report.get("scaling"):
-        fig = plot_scaling(report)
-        paths.append(atomic_save_figure(fig, out / "registration_scaling.png"))
-        plt.close(fig)
-    return paths
+        figures["scaling"] = plot_scaling(report)
+    return write_report(out, "registration", report, render_markdown(report), figures=figures,
+                        table=(CSV_HEADER, csv_rows(img)) if img else None, command=command)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -814,8 +750,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
     t0 = time.perf_counter()
-    report: dict = {"command": " ".join(["python", "tools/bench_registration.py"] + (sys.argv[1:] if argv is None else list(argv))),
-                    "started": started, "machine": machine_info(),
+    report: dict = {"started": started, "machine": machine_info(),
                     "settings": {"cases": cases, "camvid_cases": camvid, "impossible_per_kind": impossible,
                                  "texture_seeds": args.texture_seeds, "max_side": args.max_side, "seed": args.seed,
                                  "sizes": sizes, "icp_iterations": args.icp_iterations, "repeats": repeats,
@@ -839,7 +774,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     report["wall_seconds"] = time.perf_counter() - t0
     try:
-        paths = write_outputs(report, out)
+        paths = write_outputs(report, out, command=command_line(argv, __file__))
     except OSError as exc:
         print(f"error: cannot write to {out}: {exc}", file=sys.stderr)
         return 2

@@ -12,6 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..recording.interface import RecorderProtocol
 from ._common import add_record_arguments, float_list, open_recorder, positive_float, positive_int, print_json
 
 
@@ -162,7 +163,7 @@ def _clouds(args) -> int:
     return 0 if out["implementations"]["reference"]["error"] is None else 3
 
 
-def log_cloud_crosscheck(rec, report) -> None:
+def log_cloud_crosscheck(rec: RecorderProtocol, report) -> None:
     """Every implementation's moved cloud and error per iteration on the crosscheck_iteration timeline."""
     import numpy as np
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..recording.interface import RecorderProtocol
 from ._common import add_record_arguments, open_recorder
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -194,7 +195,7 @@ def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, opti
     return 0
 
 
-def _log(rec, t: int, image, labels, report, name: str) -> None:
+def _log(rec: RecorderProtocol, t: int, image, labels, report, name: str) -> None:
     rec.set_frame(t)
     rec.log_images(moving=image)
     rec.log_labels(predicted=labels)

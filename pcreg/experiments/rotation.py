@@ -28,6 +28,7 @@ from pathlib import Path
 from ..classification.features import DEFAULT_FEATURES
 from .results import Results
 from ..registration.config import RegisterConfig
+from ..recording.interface import RecorderProtocol
 from ..recording.null import NULL_RECORDER
 
 
@@ -153,7 +154,7 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     return out
 
 
-def _angle_logger(rec, unit, counter: list[int], recorded: dict[str, int]):
+def _angle_logger(rec: RecorderProtocol, unit, counter: list[int], recorded: dict[str, int]):
     """The hook that logs one angle at the next index of the ``frame`` timeline; None when not recording."""
     if not rec.enabled:
         return None

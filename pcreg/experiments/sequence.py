@@ -26,6 +26,7 @@ from ..classification.features import DEFAULT_FEATURES
 from .results import Results
 from ..pipeline import PIPELINE_REGISTRATION
 from ..registration.config import RegisterConfig
+from ..recording.interface import RecorderProtocol
 from ..recording.null import NULL_RECORDER
 
 
@@ -102,7 +103,7 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     return out
 
 
-def _recording_hooks(rec, unit, counter: list[int], recorded: dict[str, int]):
+def _recording_hooks(rec: RecorderProtocol, unit, counter: list[int], recorded: dict[str, int]):
     if not rec.enabled:  # nothing to log: the pipeline keeps no arrays for it
         return None, None
     prefix = f"{unit.dataset}/k{unit.k}/{unit.backend}"

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..recording.interface import RecorderProtocol
 from ..recording.null import NULL_RECORDER
 from .results import Results
 
@@ -283,7 +284,7 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     return out
 
 
-def _recording_hook(rec, clip: str, counter: list[int], recorded: dict[str, int]):
+def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], recorded: dict[str, int]):
     if not rec.enabled:  # nothing to log: the clip runs without a per-frame hook
         return None
     rec.log_text(f"stream {clip}: start")

@@ -1,0 +1,124 @@
+"""A registration pair: its images, clouds and transforms (``registration/``, ``moving/``, ``warped/``,
+``transforms/``): :class:`PairLogger`, and :class:`Pair`, what it holds of the frame's pair."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import rerun as rr
+
+from pcreg.recording import entities as E
+
+from ..errors import InputError
+from .sink import Sink
+from .values import apply_homography, as_colors, as_image, as_points, display_indices
+
+__all__ = ["Pair", "PairLogger"]
+
+@dataclass(frozen=True)
+class Pair:
+    """What the logs of one pair (one frame) draw with, from what was logged of it so far.
+
+    moving_shape : (H, W) of the moving image logged (its border is drawn by a 3x3 transform).
+    moving_cloud : (points (n, 2) float64, colours (n, 3) uint8 or None), the moving cloud's display
+        subsample (drawn in the reference by ``T_ref_mov``).
+    matrix : (3, 3) ``T_ref_mov`` logged (moves the moving cloud logged after it).
+    """
+
+    moving_shape: tuple[int, int] | None = None
+    moving_cloud: tuple[np.ndarray, np.ndarray | None] | None = None
+    matrix: np.ndarray | None = None
+
+
+class PairLogger:
+    """Logs a registration pair to a :class:`~pcreg.recording.sink.Sink`.
+
+    The moving cloud in the reference needs both the cloud and ``T_ref_mov``, and a transform's outline
+    the moving image's size: whichever comes second draws it, from :attr:`pair` (what was logged of the
+    frame's pair so far), which :meth:`new_pair` clears.
+    """
+
+    def __init__(self, sink: Sink, *, max_display_points: int = 500) -> None:
+        self.sink = sink
+        self.max_display_points = int(max_display_points)
+        self.pair = Pair()
+
+    def new_pair(self) -> None:
+        """Forget the pair logged so far (a new frame)."""
+        self.pair = Pair()
+
+    def log_images(self, *, reference: np.ndarray | None = None, moving: np.ndarray | None = None,
+                   warped: np.ndarray | None = None, valid_mask: np.ndarray | None = None) -> None:
+        """Images as JPEG (or raw), the mask as PNG; checked and copied here (the caller may reuse its buffers)."""
+        sink = self.sink
+        jobs = []
+        if reference is not None:
+            a = as_image(reference, "reference").copy()
+            jobs.append((E.REFERENCE_IMAGE, lambda a=a: sink.image(a, draw_order=-10.0)))
+        if moving is not None:
+            m = as_image(moving, "moving").copy()
+            self.pair = dataclasses.replace(self.pair, moving_shape=(int(m.shape[0]), int(m.shape[1])))
+            jobs.append((E.MOVING_IMAGE, lambda m=m: sink.image(m, draw_order=-10.0)))
+        if warped is not None:
+            w = as_image(warped, "warped").copy()
+            jobs.append((E.WARPED_IMAGE, lambda w=w: sink.image(w, opacity=0.5, draw_order=-5.0)))
+        if valid_mask is not None:
+            mask = np.asarray(valid_mask)
+            if mask.ndim != 2:
+                raise InputError(f"valid_mask must be (H, W), got shape {mask.shape}")
+            m8 = np.where(mask.astype(bool), np.uint8(255), np.uint8(0))
+            jobs.append((E.VALID_MASK, lambda m8=m8: sink.mask(m8)))
+        for path, make in jobs:
+            sink.log_later(path, make)
+
+    def _shown(self, points: np.ndarray, colors: np.ndarray | None, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+        """The display subsample of a cloud and its colours, copied (the caller may reuse its buffers)."""
+        p = as_points(points, f"{name}_points")
+        c = as_colors(colors, len(p), f"{name}_colors")
+        idx = display_indices(len(p), self.max_display_points)
+        return p[idx].copy(), None if c is None else c[idx].copy()
+
+    def log_clouds(self, *, reference_points: np.ndarray | None = None, reference_colors: np.ndarray | None = None,
+                   moving_points: np.ndarray | None = None, moving_colors: np.ndarray | None = None) -> None:
+        """Points2D of at most ``max_display_points`` each; the moving cloud also mapped by the pair's matrix."""
+        if reference_points is not None:
+            shown = self._shown(reference_points, reference_colors, "reference")
+            self.sink.log_later(E.REFERENCE_CLOUD, lambda: _points(*shown))
+        if moving_points is not None:
+            moving = self._shown(moving_points, moving_colors, "moving")
+            self.sink.log_later(E.MOVING_CLOUD, lambda: _points(*moving))
+            self.pair = dataclasses.replace(self.pair, moving_cloud=moving)
+            self._log_moved_cloud()
+
+    def _log_moved_cloud(self) -> None:
+        """The moving cloud in the reference, once the pair has both it and ``T_ref_mov``."""
+        cloud, matrix = self.pair.moving_cloud, self.pair.matrix
+        if cloud is not None and matrix is not None:
+            points, colors = cloud
+            self.sink.log_later(E.MOVED_CLOUD, lambda: _points(apply_homography(matrix, points), colors))
+
+    def log_transform(self, matrix: np.ndarray, *, name: str = "T_ref_mov",
+                      moving_shape: tuple[int, int] | None = None) -> None:
+        """A Tensor at ``transforms/{name}``; a 3x3 one also drawn (``registration/outline/{name}``, and the
+        moving cloud for ``T_ref_mov``)."""
+        m = np.array(matrix, dtype=np.float64)  # a copy: logged on the sink's thread
+        if m.shape not in ((3, 3), (4, 4)) or not np.all(np.isfinite(m)):
+            raise InputError(f"matrix must be a finite (3, 3) or (4, 4) array, got shape {m.shape}")
+        self.sink.log_later(E.transform_path(name), lambda: rr.Tensor(m, dim_names=["row", "col"]))
+        if m.shape != (3, 3):
+            return
+        if name == "T_ref_mov":
+            self.pair = dataclasses.replace(self.pair, matrix=m)
+            self._log_moved_cloud()
+        shape = moving_shape or self.pair.moving_shape
+        if shape is not None:
+            h, w = shape
+            corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5], [-0.5, -0.5]])
+            self.sink.log_later(E.outline_path(name),
+                                lambda: rr.LineStrips2D([apply_homography(m, corners)], colors=[255, 220, 0], radii=1.0))
+
+
+def _points(points: np.ndarray, colors: np.ndarray | None) -> rr.Points2D:
+    return rr.Points2D(points, colors=colors, radii=1.5)

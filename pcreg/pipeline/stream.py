@@ -12,10 +12,18 @@ Each :meth:`Propagator.step`
 1. registers the new frame to the key frame (``anchor="key"``, the default) or to the previous frame
    (``anchor="previous"``, the motions composed back to the key frame): with ``model="dense"`` (the
    default) a dense field (:func:`pcreg.register_dense`), else one transform (:func:`pcreg.register`);
-2. warps the key frame's labels, as a smoothed prior, into the new frame along that motion;
-3. classifies the new frame (naive Bayes log-odds) and fuses the two at ``weight``
-   (:func:`pcreg.classification.fusion.fuse`); with a dense field, per pixel, from half to twice
-   ``weight`` as the field's confidence there goes from 0 to 1 (:func:`pixel_weight`).
+2. warps the key frame's labels, as a smoothed prior, into the new frame along that motion, and along
+   a second motion found independently, DIS optical flow at its ultrafast preset;
+3. classifies the new frame (naive Bayes log-odds) and fuses it with both priors, each weighted per
+   pixel by how well the key frame carried along the same motion matches the new frame there (the
+   trust rule, :mod:`pcreg.pipeline.trust`), and gives every label its confidence, the probability
+   that it is right (:attr:`StepReport.confidence`);
+4. lets naive Bayes learn from the pixels it labelled with sure priors, never beyond half the key
+   frame's weight (:mod:`pcreg.pipeline.learning`).
+
+With ``trust=None`` (and so no learning) step 3 is the fusion of one prior at ``weight``, per pixel
+from half to twice ``weight`` as the dense field's confidence goes from 0 to 1 (:func:`pixel_weight`),
+as the evaluations' motion ablations run it.
 
 A registration that fails (:class:`~pcreg.errors.RegistrationError`, or a degenerate transform) does
 not throw the key frame's labels away: they are fused as they are, unwarped (the best prior that needs
@@ -50,6 +58,12 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
   is then a function of the key frame, the new frame and the previous step's grid
   (:attr:`Propagator.carry`), which ``pcreg run`` saves with every frame, so an interrupted run still
   resumes exactly.
+- **Trust, a second motion and learning** (:data:`~pcreg.pipeline.trust.STREAM_TRUST`,
+  :data:`~pcreg.pipeline.learning.STREAM_LEARNING`): on the eight shared CamVid clips, each constant
+  chosen with the clip scored left out, the trust rule took the mean reduction of plain's error from
+  35.9% (one prior by the field's confidence) to 42.2%, and learning to 43.2%; the carried key frame
+  matching the new frame is what tells a slid field or a changed scene, and two motions found
+  independently are wrong in different places (docs/results.md, "Trust").
 - **Plain colours** (:data:`STREAM_DENSE`): over seconds the low frequencies (road against sky and
   facade) are what tells regions apart; matching the texture part alone lost a fifth of the gain.
 - **Weight 2** (:data:`STREAM_WEIGHT`): naive Bayes over ``rgb+hsv+row`` counts the same colour twice
@@ -213,6 +227,9 @@ class StepReport:
     trust : the step's trust map (:class:`~pcreg.pipeline.trust.TrustMaps`: each carried prior, its
         evidence and its weight per pixel), None without a trust rule; ``to_dict`` gives its summary
         (``trust``: each prior's mean weight as a share of the most the rule gives it).
+    log_odds : (H, W) float32 naive Bayes' own log-odds of the frame (the classifier as learned so
+        far); ``log_odds > 0`` are its labels alone, and ``log_odds`` plus the trust map's
+        :meth:`~pcreg.pipeline.trust.TrustMaps.prior_term` the fused log-odds.
     """
 
     frame: int
@@ -226,6 +243,7 @@ class StepReport:
     predicted_error: float | None = None
     trust: "TrustMaps | None" = field(default=None, repr=False)
     trust_summary: dict | None = None
+    log_odds: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def registered(self) -> bool:
@@ -382,19 +400,20 @@ class Propagator:
             raise
         motion = None if result is None else self._to_key(Motion.of(result), img.shape[:2])
         times["register"] = time.perf_counter() - t0
-        d, flow, classify_times = classified()
+        c = classified()
+        d = c.d
 
         dense_times = getattr(result, "info", {}).get("times") if result is not None else None
         if dense_times is not None:
             times["register.global"] = float(result.global_result.seconds)
             times.update({f"register.{k}": float(v) for k, v in dense_times.items()})
-        times.update(classify_times)
+        times.update(c.times)
 
         maps: TrustMaps | None = None
         if self.trust is None:
             labels, confidence = self._fuse(d, motion, times), None
         else:
-            labels, confidence, maps = self._fuse_trusted(img, d, flow, motion, times)
+            labels, confidence, maps = self._fuse_trusted(img, c, motion, times)
         if motion is not None and self.anchor == "previous":
             self._chain = (img, motion, self._frame)
         times["fuse"] = sum(times[f"fuse.{part}"] for part in STEP_PARTS["fuse"])
@@ -403,15 +422,17 @@ class Propagator:
                                reference=ref_frame, times=times, start=start, confidence=confidence,
                                predicted_error=None if confidence is None else predicted_error(confidence),
                                trust=maps, trust_summary=None if maps is None or self.trust is None
-                               else maps.summary(self.trust, self.weight))
+                               else maps.summary(self.trust, self.weight), log_odds=d)
         return labels
 
-    def _classify(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, dict]:
-        """``(log_odds, flow, times)``: naive Bayes' log-odds of the frame (the classifier as learned so
-        far) and, with a trust rule that uses it, the DIS field from the frame to the key frame."""
+    def _classify(self, img: np.ndarray) -> "_Classified":
+        """Naive Bayes' log-odds of the frame (the classifier as learned so far) and, with a trust rule
+        that uses it, the DIS field from the frame to the key frame, the key frame's prior carried along
+        it and its residual (:mod:`pcreg.pipeline.trust`): all that needs no registration."""
         from ..classification.bayes import NaiveBayesPixelClassifier
         from ..registration.flow import dis_field
         from .pair import log_odds
+        from .trust import blurred, carried_log_odds, carried_residual
 
         clf = self.classifier if self._learner is None else self._learner.classifier
         t0 = time.perf_counter()
@@ -420,12 +441,17 @@ class Propagator:
         d = log_odds(clf, img) if groups is None else np.asarray(clf.decision_function(img, groups=groups),
                                                                   dtype=np.float32)
         t2 = time.perf_counter()
-        flow = None
-        if self.trust is not None and self.trust.flow > 0:
-            flow = dis_field(self._key_image, img, preset=self.trust.preset)[0]
+        out = _Classified(d)
+        if self.trust is not None:
+            out.frame_blurred = blurred(img)
+            if self.trust.flow > 0:
+                out.flow = dis_field(self._key_image, img, preset=self.trust.preset)[0]
+                out.flow_prior = carried_log_odds(self._key_log_odds, out.flow)
+                out.flow_residual = carried_residual(self._key_blurred, out.frame_blurred, out.flow)
         t3 = time.perf_counter()
-        return d, flow, {"classify": t3 - t0, "classify.features": t1 - t0, "classify.bayes": t2 - t1,
-                         "classify.flow": t3 - t2}
+        out.times = {"classify": t3 - t0, "classify.features": t1 - t0, "classify.bayes": t2 - t1,
+                     "classify.flow": t3 - t2}
+        return out
 
     def _fuse(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:
         """The labels without a trust rule: the key frame's prior along ``motion`` at :attr:`weight`, by
@@ -437,40 +463,43 @@ class Propagator:
         times.update({"fuse.warp": t1 - t0, "fuse.fusion": time.perf_counter() - t1})
         return labels
 
-    def _fuse_trusted(self, img: np.ndarray, d: np.ndarray, flow: np.ndarray | None, motion: Motion | None,
-                      times: dict) -> tuple[np.ndarray, np.ndarray, TrustMaps]:
-        """``(labels, confidence, trust map)`` by the trust rule (:mod:`pcreg.pipeline.trust`): the key frame's
-        prior along ``motion`` (unmoved where the registration failed) and along the DIS ``flow``, each
-        trusted per pixel; then the classifier learns from the frame."""
+    def _fuse_trusted(self, img: np.ndarray, c: "_Classified", motion: Motion | None, times: dict
+                      ) -> tuple[np.ndarray, np.ndarray, TrustMaps]:
+        """``(labels, confidence, trust map)`` by the trust rule (:mod:`pcreg.pipeline.trust`): the key
+        frame's prior along ``motion`` (unmoved where the registration failed) and along the DIS flow
+        (``c``), each trusted per pixel; then the labels' confidence (on the helper thread) while the
+        classifier learns from the frame."""
         from ..classification.fusion import labels_from_log_odds
-        from .trust import blurred, carried_log_odds, carried_residual, label_confidence, trust_maps
+        from .trust import carried_log_odds, carried_residual, label_confidence, trust_maps
 
         assert self.trust is not None and self._key_blurred is not None and self._key_log_odds is not None
-        shape = d.shape
+        d = c.d
         t0 = time.perf_counter()
         moved = motion if motion is not None else Motion(matrix=np.eye(3))
-        moved_field = moved.as_field(shape)
+        moved_field = moved.as_field(d.shape)
         l_dense = carried_log_odds(self._key_log_odds, moved_field)
-        l_flow = None if flow is None else carried_log_odds(self._key_log_odds, flow)
         t1 = time.perf_counter()
-        frame = blurred(img)
         maps = trust_maps(self.trust, weight=self.weight, dense_prior=l_dense, confidence=moved.confidence,
-                          dense_residual=carried_residual(self._key_blurred, frame, moved_field),
-                          flow_prior=l_flow,
-                          flow_residual=None if flow is None else carried_residual(self._key_blurred, frame, flow))
+                          dense_residual=carried_residual(self._key_blurred, c.frame_blurred, moved_field),
+                          flow_prior=c.flow_prior, flow_residual=c.flow_residual)
         t2 = time.perf_counter()
-        prior = maps.prior_term(shape)
+        prior = maps.prior_term(d.shape)
         fused = d + prior
         labels = labels_from_log_odds(fused)
         t3 = time.perf_counter()
-        confidence = label_confidence(fused, d, prior)
+        confidence = beside(lambda: label_confidence(fused, d, prior))
+        try:
+            if self._learner is not None:
+                self._learner.update(img, fused, prior)
+        except BaseException:
+            wait_quietly(confidence)
+            raise
         t4 = time.perf_counter()
-        if self._learner is not None:
-            self._learner.update(img, fused, prior)
+        conf = confidence()
         t5 = time.perf_counter()
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.fusion": t3 - t2,
-                      "fuse.confidence": t4 - t3, "fuse.learn": t5 - t4})
-        return labels, confidence, maps
+                      "fuse.learn": t4 - t3, "fuse.confidence": t5 - t4})
+        return labels, conf, maps
 
     def _register(self, reference: np.ndarray, image: np.ndarray):
         """``(result, None, start)``, or ``(None, reason, start)`` when the registration failed or is
@@ -589,6 +618,18 @@ class Propagator:
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
+
+
+@dataclass
+class _Classified:
+    """What a step finds on the helper thread while it registers the frame (:meth:`Propagator._classify`)."""
+
+    d: np.ndarray
+    frame_blurred: np.ndarray | None = None
+    flow: np.ndarray | None = None
+    flow_prior: np.ndarray | None = None
+    flow_residual: np.ndarray | None = None
+    times: dict = field(default_factory=dict)
 
 
 def _learns(classifier) -> bool:

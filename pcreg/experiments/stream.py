@@ -15,7 +15,9 @@ The methods (:data:`METHODS`):
   that registration model, each frame registered to the key frame, or to the previous frame with the
   motions composed back to the key frame (chained).
 - ``flow_key`` / ``flow_previous``: the baselines, the same fusion with OpenCV's DIS optical flow
-  (medium preset) as the motion, anchored or chained the same way.
+  (medium preset) as the motion, anchored or chained the same way; ``flowfast_key`` and
+  ``flowultrafast_key``: anchored, with DIS's fast and ultrafast presets, what a user who weighs
+  labels against time would pick (each method's time a frame is in ``ms_per_frame``).
 
 ``pcreg``'s confidence (:attr:`pcreg.pipeline.stream.StepReport.confidence`) is scored too, pooled over
 the known pixels of every scored frame (:func:`calibration`): the expected calibration error over ten
@@ -38,9 +40,10 @@ from .results import Results
 
 #: Methods scored per frame, in table order.
 METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "dense_key", "dense_previous", "similarity_key",
-                            "similarity_previous", "flow_key", "flow_previous")
-#: The DIS baselines.
-BASELINES: tuple[str, ...] = ("flow_key", "flow_previous")
+                            "similarity_previous", "flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
+#: The DIS baselines, and the preset of each (``flow``: medium).
+BASELINES: tuple[str, ...] = ("flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
+PRESET_OF: dict[str, str] = {"flow": "medium", "flowfast": "fast", "flowultrafast": "ultrafast"}
 
 
 @dataclass(frozen=True)
@@ -155,21 +158,22 @@ class _KeyPrior:
 class _Flow(_KeyPrior):
     """The DIS baseline with a propagator's interface: the key frame's prior warped by the flow."""
 
-    def __init__(self, classifier, anchor: str) -> None:
+    def __init__(self, classifier, anchor: str, preset: str = "medium") -> None:
         from ..pipeline.stream import STREAM_WEIGHT
 
         super().__init__(classifier, weight=STREAM_WEIGHT)
-        self.anchor = anchor
+        self.anchor, self.preset = anchor, preset
 
     def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
         super().reset(image, labels)
         self._key, self._prev, self._motion = image, image, None
 
     def step(self, image: np.ndarray) -> np.ndarray:
-        from ..pipeline.pair import flow_field
+        from ..registration.flow import dis_field
         from ..registration.motion import Motion
 
-        motion = Motion(field=flow_field(self._key if self.anchor == "key" else self._prev, image))
+        motion = Motion(field=dis_field(self._key if self.anchor == "key" else self._prev, image,
+                                        preset=self.preset)[0])
         if self.anchor == "previous" and self._motion is not None:
             motion = self._motion.after(motion, image.shape[:2])
         self._prev, self._motion = image, motion
@@ -192,7 +196,8 @@ def make_method(method: str, classifier, backend: str):
     if method == "unregistered":
         return _Fixed(classifier, weight=STREAM_WEIGHT)
     if method in BASELINES:
-        return _Flow(classifier, method.split("_")[1])
+        kind, anchor = method.split("_")
+        return _Flow(classifier, anchor, PRESET_OF[kind])
     return _propagator(method, classifier, backend)
 
 

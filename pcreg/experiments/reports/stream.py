@@ -60,7 +60,7 @@ def checks(results: dict) -> str:
     lines = ["### Checks\n"]
     if "pcreg" not in avg:
         return "\n".join(lines + ["- pcreg was not run\n"])
-    base = [m for m in ("flow_key", "flow_previous") if m in avg]
+    base = [m for m in BASELINE_NAMES if m in avg]
     if base:
         best = max(base, key=lambda m: avg[m])
         ok = avg["pcreg"] >= avg[best]
@@ -72,11 +72,12 @@ def checks(results: dict) -> str:
         lines.append(f"- pcreg never worse than {other} on any clip ({len(clips)} clips): "
                      + ("met" if not worse else "NOT met: " + "; ".join(worse)))
     lines += _calibration_checks(results)
-    for name, c in clips.items():
-        ms = c.get("ms_per_frame", {})
-        if "pcreg" in ms and "flow_key" in ms and ms["flow_key"] > 0:
-            lines.append(f"- {name}: pcreg {ms['pcreg']:.0f} ms a frame, DIS key-anchored {ms['flow_key']:.0f} ms "
-                         f"({ms['pcreg'] / ms['flow_key']:.2f}x; classification and fusion included in both)")
+    times = {m: float(np.median([c["ms_per_frame"][m] for c in clips.values()])) for m in results["methods"]
+             if all(m in c.get("ms_per_frame", {}) for c in clips.values())} if clips else {}
+    if "pcreg" in times:
+        others = ", ".join(f"{m} {times[m]:.0f} ms ({avg[m]:.1f}%)" for m in base if m in times)
+        lines.append(f"- time a frame, the median over clips (classification and fusion included in every method): "
+                     f"pcreg {times['pcreg']:.0f} ms ({avg['pcreg']:.1f}% below plain); {others or 'no DIS baseline run'}")
     return "\n".join(lines) + "\n"
 
 
@@ -92,7 +93,7 @@ def _figure(results: dict):
         return None
     fig, axes = plt.subplots(1, len(units), figsize=(4.2 * len(units), 3.6), squeeze=False)
     style = {"plain": ("0.4", ":"), "unregistered": ("0.6", "--"), "pcreg": ("C3", "-"),
-             "flow_key": ("C0", "-"), "flow_previous": ("C0", "--")}
+             "flow_key": ("C0", "-"), "flow_previous": ("C0", "--"), "flowultrafast_key": ("C2", "-")}
     for ax, u in zip(axes[0], units):
         since = np.array([r["since_key"] for r in u["frames"]])
         for m in results["methods"]:
@@ -137,6 +138,35 @@ def _reliability(results: dict):
     return fig
 
 
+def _accuracy_time(results: dict):
+    """Each method's reduction of plain's error (mean over clips) against its time a frame (median over
+    clips), classification and fusion included: what each costs for what it gains."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    clips, avg = results["datasets"], results["average_reduction"]
+    points = [(m, float(np.median([c["ms_per_frame"][m] for c in clips.values()])), avg[m]) for m in results["methods"]
+              if m != "plain" and clips and all(m in c.get("ms_per_frame", {}) for c in clips.values())]
+    if not points:
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for m, ms, red in points:
+        ax.scatter(ms, red, color="C3" if m == "pcreg" else ("C0" if m in BASELINE_NAMES else "0.5"), zorder=3)
+        ax.annotate(m, (ms, red), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("ms a frame (median over clips; classification and fusion included)")
+    ax.set_ylabel("lower than plain, mean over clips (%)")
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    return fig
+
+
+#: The DIS baselines (:data:`pcreg.experiments.stream.BASELINES`), drawn in one colour.
+BASELINE_NAMES = ("flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
+
+
 def write_outputs(results: Results, out: str | Path) -> list[Path]:
     """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results."""
     from .files import write_files
@@ -150,4 +180,5 @@ def write_outputs(results: Results, out: str | Path) -> list[Path]:
               "stream_frames": ("Error % per frame", ph, prows),
               "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter)}
     return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
-                       figures={"stream": _figure(doc), "stream_reliability": _reliability(doc)})
+                       figures={"stream": _figure(doc), "stream_reliability": _reliability(doc),
+                                "stream_speed": _accuracy_time(doc)})

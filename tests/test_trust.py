@@ -168,3 +168,58 @@ def test_a_confidence_outside_0_1_is_never_written():
     for bad in (np.array([[np.nan]]), np.array([[1.5]]), np.array([[-0.1]])):
         with pytest.raises(AssertionError):
             confidence_png(bad)
+
+
+def test_two_key_frames_label_the_frames_between_better_than_one(frames):
+    from pcreg.pipeline.keyframes import label_clip, segments
+
+    n = len(frames)
+    assert segments(n, [2, 4]) == [(None, 2, range(0, 2)), (2, 4, range(3, 4)), (4, None, range(5, 6))]
+    with pytest.raises(InputError, match="outside"):
+        segments(n, [0, n])
+    one = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels})
+    two = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels, n - 1: frames[n - 1].labels})
+    between = range(1, n - 1)
+    err1 = np.mean([pcreg.error_rate(one[t].labels, frames[t].labels) for t in between])
+    err2 = np.mean([pcreg.error_rate(two[t].labels, frames[t].labels) for t in between])
+    assert err2 < err1
+    for f in two:
+        assert (f.confidence is None) == (f.index in (0, n - 1))
+        assert f.keys == ((f.index,) if f.index in (0, n - 1) else (0, n - 1))
+    back = label_clip(lambda t: frames[t].image, n, {n - 1: frames[n - 1].labels})  # backwards only
+    assert all(f.keys == (n - 1,) for f in back)
+
+
+def test_suggest_picks_far_frames_predicted_wrong_without_truth():
+    from pcreg.pipeline.keyframes import suggest
+
+    predicted = {t: 1.0 + 0.1 * t for t in range(1, 30)}
+    assert suggest(predicted, [0], 1, 30) == [29]  # the far end of a stretch labelled from one side
+    picks = suggest(predicted, [0], 3, 30)
+    assert picks[0] == 29 and len(set(picks)) == 3 and 0 not in picks
+    bumped = {**predicted, 10: 50.0}
+    assert suggest(bumped, [0, 29], 1, 30) == [10]  # between two key frames: where the error is predicted
+    with pytest.raises(InputError, match="only"):
+        suggest({1: 1.0}, [0], 2, 3)
+
+
+def test_evaluate_stream_with_key_frames_anywhere(tmp_path, capsys):
+    from pcreg.experiments.stream_keys import key_indices
+
+    assert key_indices("first,last", 10) == [0, 9] and key_indices("every:4", 10) == [0, 4, 8]
+    assert key_indices("spaced:3", 9) == [0, 3, 6] and key_indices("2,5", 10) == [2, 5]
+    for bad in ("every:0", "suggest:x", "0,12", "spaced:0", "a,b"):
+        with pytest.raises(InputError, match="--keys"):
+            key_indices(bad, 10)
+    out = tmp_path / "o"
+    args = ["evaluate", "stream", "--frames", "5", "--size", "160x120", "--data", "synthetic:syn1a", "--out", str(out)]
+    assert main(args + ["--keys", "suggest:2"]) == 0
+    res = json.loads((out / "results.json").read_text())
+    c = res["datasets"]["syn1a"]
+    assert c["key_frames"][0] == 0 and len(c["key_frames"]) == 2 and c["scored"] == 3
+    assert res["methods"] == ["plain", "unregistered", "pcreg", "flow_key", "flowultrafast_key"]
+    assert res["calibration"]["pixels"] > 0
+    capsys.readouterr()
+    assert main(args + ["--keys", "first", "--key-every", "2", "--force"]) == 2
+    assert "give one" in capsys.readouterr().err
+    assert main(args + ["--keys", "first", "--methods", "dense_key", "--force"]) == 2

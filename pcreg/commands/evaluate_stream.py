@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 
 from ..experiments.stream import METHODS, StreamConfig
+from ..experiments.stream_keys import KEY_METHODS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,8 +19,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     c.add_data_arguments(parser)
     parser.add_argument("--key-every", type=arg_int(2, c.MAX_FRAMES), default=None, metavar="N",
                         help="a new key frame every N frames (default: the first frame only)")
-    parser.add_argument("--methods", default=",".join(METHODS), metavar="M,M,...",
-                        help=f"methods to run (default all: {', '.join(METHODS)})")
+    parser.add_argument("--keys", default=None, metavar="SPEC",
+                        help="key frames anywhere, every other frame labelled from those around it, both ways: "
+                             "first, first,last, every:N, spaced:N (N evenly spaced), suggest:N (chosen without truth) "
+                             "or frame indices")
+    parser.add_argument("--methods", default=None, metavar="M,M,...",
+                        help=f"methods to run (default all: {', '.join(METHODS)}; with --keys: {', '.join(KEY_METHODS)})")
     parser.add_argument("--backend", choices=("reference", "open3d"), default="reference",
                         help="ICP backend of the registrations (default reference)")
     parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")
@@ -31,15 +36,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def config_from_args(args: argparse.Namespace) -> StreamConfig:
     from ..errors import InputError
 
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    unknown = [m for m in methods if m not in METHODS]
+    allowed = METHODS if args.keys is None else KEY_METHODS
+    if args.keys is not None and args.key_every is not None:
+        raise InputError("--keys and --key-every choose the key frames two ways: give one")
+    if args.keys is not None and not args.keys.strip():
+        raise InputError("--keys: give first, first,last, every:N, suggest:N or frame indices")
+    given = ",".join(allowed) if args.methods is None else args.methods
+    methods = tuple(m.strip() for m in given.split(",") if m.strip())
+    unknown = [m for m in methods if m not in allowed]
     if unknown or not methods:
-        raise InputError(f"--methods: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(METHODS)}")
+        raise InputError(f"--methods: unknown {', '.join(unknown) or '(none given)'}; choose from {', '.join(allowed)}")
     if "plain" not in methods:
         methods = ("plain",) + methods  # every reduction is against plain
     frames = args.frames if args.frames is not None else (40 if args.data == "synthetic" else None)
     return StreamConfig(data=args.data, frames=frames, size=args.size, seed=args.seed, key_every=args.key_every,
-                        backends=(args.backend,), methods=tuple(m for m in METHODS if m in methods))
+                        keys=args.keys, backends=(args.backend,), methods=tuple(m for m in allowed if m in methods))
 
 
 def run(args: argparse.Namespace) -> int:

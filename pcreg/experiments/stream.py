@@ -51,7 +51,10 @@ class StreamConfig:
     """Everything that determines ``pcreg evaluate stream``'s numbers (written as config.json).
 
     data : a ``--data`` value. frames : first frames of each clip (default all; synthetic default 40).
-    size, seed : synthetic data. key_every : a new key frame every N frames (None: the first only).
+    size, seed : synthetic data. key_every : a new key frame every N frames (None: the first only), each
+        labelling the frames after it. keys : key frames anywhere, every other frame labelled from the
+        key frames around it in both directions (:mod:`pcreg.experiments.stream_keys`; None: as
+        ``key_every``).
     backends : the ICP backend (one). methods : which of :data:`METHODS` to run.
     """
 
@@ -60,6 +63,7 @@ class StreamConfig:
     size: tuple[int, int] | None = None
     seed: int = 0
     key_every: int | None = None
+    keys: str | None = None
     backends: tuple[str, ...] = ("reference",)
     methods: tuple[str, ...] = METHODS
 
@@ -281,7 +285,13 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
     recorded: dict[str, int] = {}
     hook = _recording_hook(recorder, unit.dataset, frame_counter if frame_counter is not None else [0], recorded)
-    out = run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=unit.backend, on_frame=hook)
+    if cfg.keys is not None:
+        from .stream_keys import key_indices, run_clip_keys
+
+        keys = key_indices(cfg.keys, len(frames), frames, backend=unit.backend)
+        out = run_clip_keys(frames, keys, methods=cfg.methods, backend=unit.backend)
+    else:
+        out = run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=unit.backend, on_frame=hook)
     out.update(dataset=unit.dataset, backend=unit.backend, n_frames=len(frames), seconds=time.perf_counter() - t0,
                width=frames[0].shape[1], height=frames[0].shape[0])
     if recorded:

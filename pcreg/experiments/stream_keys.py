@@ -1,0 +1,145 @@
+"""``pcreg evaluate stream --keys SPEC``: key frames anywhere in a clip, every other frame labelled from the
+key frames around it, forwards and backwards (:func:`pcreg.pipeline.keyframes.label_clip`).
+
+SPEC (:func:`key_indices`): ``first``; ``first,last``; ``every:N`` (frames 0, N, 2N, ...); ``spaced:N`` (N
+frames evenly spaced from frame 0: what ``--key-every`` gives with N key frames); ``suggest:N``
+(frame 0, then the N - 1 frames :func:`pcreg.pipeline.keyframes.suggest` picks from the predicted error
+of a run from frame 0 alone: no label of any other frame is used to choose); or frame indices
+(``0,12,29``). Naive Bayes is fitted on the key frames; each frame that is not a key frame is scored.
+
+The methods (:data:`KEY_METHODS`): ``plain`` (naive Bayes alone); ``unregistered`` (the key frames'
+labels unmoved); ``pcreg`` (:func:`~pcreg.pipeline.keyframes.label_clip`); ``flow_key`` and
+``flowultrafast_key`` (each key frame's prior warped by DIS, medium or ultrafast preset, from that key
+frame). The baselines weight the two key frames around a frame by its distance in frames to each
+(the nearer key frame more, linearly; one key frame alone on a one-sided stretch) and fuse at the
+stream's weight 2.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["KEY_METHODS", "key_indices", "run_clip_keys"]
+
+#: Methods of the key-frame protocol, in table order.
+KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "flow_key", "flowultrafast_key")
+
+
+def key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") -> list[int]:
+    """The key frames of a clip of ``n`` frames by ``spec`` (the module's docstring). ``suggest:N`` runs
+    pcreg from frame 0 (``frames`` with images and frame 0's labels) and picks from its predicted errors."""
+    from ..errors import InputError
+    from ..pipeline.keyframes import label_clip, suggest
+
+    s = spec.strip()
+    if s == "first":
+        return [0]
+    if s in ("first,last", "last,first"):
+        return sorted({0, n - 1})
+    kind, _, arg = s.partition(":")
+    if kind in ("every", "suggest", "spaced"):
+        try:
+            k = int(arg)
+        except ValueError:
+            raise InputError(f"--keys {spec}: {kind}:N takes a whole number") from None
+        if kind == "every":
+            if k < 1:
+                raise InputError(f"--keys {spec}: every:N needs N >= 1")
+            return list(range(0, n, k))
+        if kind == "spaced":
+            if not 1 <= k <= n:
+                raise InputError(f"--keys {spec}: spaced:N needs 1 <= N <= {n} (the clip's frames)")
+            return sorted({int(round(i * n / k)) for i in range(k)})
+        if not 1 <= k <= n:
+            raise InputError(f"--keys {spec}: suggest:N needs 1 <= N <= {n} (the clip's frames)")
+        if k == 1:
+            return [0]
+        if frames is None:
+            raise InputError("--keys suggest:N needs the clip's frames")
+        first = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels}, backend=backend)
+        predicted = {f.index: f.predicted_error for f in first if f.index != 0}
+        return sorted([0] + suggest(predicted, [0], k - 1, n))
+    try:
+        idx = sorted({int(v) for v in s.split(",")})
+    except ValueError:
+        raise InputError(f"--keys {spec}: not first, first,last, every:N, suggest:N or frame indices") from None
+    if not idx or idx[0] < 0 or idx[-1] >= n:
+        raise InputError(f"--keys {spec}: frame indices must lie in 0..{n - 1}")
+    return idx
+
+
+def _baseline_prior(fields: dict, priors: dict, t: int, a: int | None, b: int | None) -> np.ndarray:
+    """The key frames' priors around frame ``t``, each carried by its field (None: unmoved), weighted by
+    the frame's distance to each: log-odds (H, W) float32."""
+    from ..classification.fusion import prior_log_odds
+    from ..pipeline.prior import warp_prior
+
+    if a is not None and b is not None:
+        around = [(a, (b - t) / (b - a)), (b, (t - a) / (b - a))]
+    else:
+        around = [(k, 1.0) for k in (a, b) if k is not None]
+    parts = []
+    for k, share in around:
+        q, pi = priors[k]
+        fld = fields.get(k)
+        moved = q if fld is None else warp_prior(q, fld, shape=q.shape, pi=pi)[0]
+        parts.append(share * prior_log_odds(moved, pi=pi))
+    return np.sum(parts, axis=0).astype(np.float32)
+
+
+def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str = "reference") -> dict:
+    """Every method on one clip with these key frames; the same result layout as
+    :func:`pcreg.experiments.stream.run_clip` (``key`` of a row: the nearest key frame before it, or
+    after it before the first)."""
+    from ..classification.bayes import fit_classifier
+    from ..classification.fusion import label_prior
+    from ..classification.metrics import error_rate
+    from ..pipeline.keyframes import label_clip, segments
+    from ..pipeline.pair import log_odds
+    from ..pipeline.prior import class_prior
+    from ..pipeline.stream import STREAM_WEIGHT
+    from ..registration.flow import dis_field
+    from .stream import CONFIDENCE_LEVELS, PRESET_OF, calibration_counts
+
+    n = len(frames)
+    clf = fit_classifier([frames[k] for k in keys])
+    pi = class_prior(clf)
+    priors = {k: (label_prior(frames[k].labels, pi=pi), pi) for k in keys}
+    seconds = dict.fromkeys(methods, 0.0)
+    t0 = time.perf_counter()
+    ours = {f.index: f for f in label_clip(lambda t: frames[t].image, n, {k: frames[k].labels for k in keys},
+                                           classifier=clf, backend=backend)} if "pcreg" in methods else {}
+    seconds["pcreg"] = time.perf_counter() - t0 if "pcreg" in methods else 0.0
+    counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
+    rows = []
+    for a, b, stretch in segments(n, keys):
+        for t in stretch:
+            f = frames[t]
+            t1 = time.perf_counter()
+            d = log_odds(clf, f.image)
+            classify = time.perf_counter() - t1
+            seconds["plain"] += classify
+            preds = {"plain": (d > 0).astype(np.uint8)}
+            if ours:
+                preds["pcreg"] = ours[t].labels
+                conf = ours[t].confidence
+                assert conf is not None  # a frame that is not a key frame has one
+                counts += calibration_counts(conf, ours[t].labels, f.labels)
+            for m in methods:
+                if m in ("plain", "pcreg"):
+                    continue
+                t1 = time.perf_counter()
+                fields = {} if m == "unregistered" else {
+                    k: dis_field(frames[k].image, f.image, preset=PRESET_OF[m.split("_")[0]])[0]
+                    for k in (a, b) if k is not None}
+                preds[m] = ((d + STREAM_WEIGHT * _baseline_prior(fields, priors, t, a, b)) > 0).astype(np.uint8)
+                seconds[m] += time.perf_counter() - t1 + classify
+            key = int(a if a is not None else b)  # type: ignore[arg-type]  (a stretch has a key on one side)
+            rows.append({"index": t, "name": f.name, "key": key, "since_key": abs(t - key),
+                         "errors": {m: error_rate(preds[m], f.labels) for m in methods}})
+    rows.sort(key=lambda r: r["index"])
+    means = {m: float(np.nanmean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods}
+    return {"frames": rows, "means": means, "key_frames": sorted(keys), "calibration": counts.tolist(),
+            "ms_per_frame": {m: 1000.0 * s / max(1, len(rows)) for m, s in seconds.items()}}

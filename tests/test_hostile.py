@@ -684,6 +684,7 @@ def run(args, timeout=60, **kw):
     return subprocess.run([*PCREG, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
 
 
+@pytest.mark.slow
 def test_subprocess_fifo_and_bomb_end_in_bounded_memory(files):
     # each command runs under a one-child launcher that reports that child's peak memory alone (this test
     # process's own RUSAGE_CHILDREN also counts every command the suite ran before it)
@@ -700,6 +701,7 @@ def test_subprocess_fifo_and_bomb_end_in_bounded_memory(files):
         assert int(peak.read_text()) < 1_000_000, bad  # KiB: far below a decoded bomb
 
 
+@pytest.mark.slow
 def test_crosscheck_json_stays_parseable(files):
     """Open3D reports a damaged file only by printing (on stdout); it is refused with one line and
     stdout stays clean, and a good file gives JSON alone on stdout."""
@@ -713,8 +715,8 @@ def test_crosscheck_json_stays_parseable(files):
     assert json.loads(p.stdout)["kind"] == "clouds"
 
 
-ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
-            "--angles", "0:180:10", "--samples", "4"]  # 4 units of 19 registrations each
+ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "2", "--size", "160x120",
+            "--angles", "0,90", "--samples", "1"]  # 1 unit of 2 registrations: the run that follows the lock
 
 
 def test_second_run_on_the_same_out_is_refused(tmp_path):
@@ -762,6 +764,7 @@ def _all_subcommands():
     return parser, found
 
 
+@pytest.mark.slow
 def test_every_option_with_hostile_values(tmp_path, capsys, monkeypatch):
     """Every option of every command, given each hostile value: refused with one line and exit 2, or
     accepted and run (register, crosscheck on two small images) to exit 0 or 2 — never a traceback or

@@ -13,7 +13,7 @@ OPEN3D ?= cpu
 # suite takes 7 minutes against 10-11 in one process. PYTEST_ARGS= runs it in one process.
 PYTEST_ARGS ?= -n auto --dist loadfile
 
-.PHONY: setup sysdeps warm demo test lint docs bench clean
+.PHONY: setup sysdeps warm demo test check lint docs bench clean
 
 setup: sysdeps $(STAMP) warm
 
@@ -43,6 +43,13 @@ demo: setup
 
 test: setup lint docs
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+
+# The edit loop: lint, types and the tests not marked slow (pyproject.toml's `slow` marker: commands
+# stopped by signals, browsers and viewers, a dask cluster, whole evaluations and benchmarks in
+# subprocesses), two processes each taking whole files: 90 s on 2 CPUs shared with other jobs (782 of
+# 868 tests). `make test` runs all of them, with the docs.
+check: setup lint
+	$(BIN)/python -m pytest -q -m "not slow" -n 2 --dist loadfile
 
 # ruff (pyflakes, syntax and statement errors, line length) and mypy, configured in pyproject.toml.
 lint: setup

@@ -51,6 +51,7 @@ def test_bench_registration_without_data_uses_textures_and_synthetic_clouds(tmp_
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 @pytest.mark.data
 def test_bench_registration_on_the_shared_data(tmp_path, shared_data):
     bench = _load("bench_registration")
@@ -105,6 +106,7 @@ def test_bench_recording_measures_the_real_sequence_pipeline(tmp_path, monkeypat
     assert "### Checks" in (out / "recording.md").read_text()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("threads", [False, True])
 def test_bench_icp_without_data_compares_three_implementations(tmp_path, monkeypatch, threads):
     from pcreg.registration import nn
@@ -161,6 +163,7 @@ def test_bench_dense_runs_and_reports_the_ratio_to_dis(tmp_path):
     assert "ratio to DIS medium" in (out / "bench_dense.md").read_text()
 
 
+@pytest.mark.slow
 def test_bench_soak_short_stream_reports_and_resumes_exactly(tmp_path):
     bench = _load("bench_soak")
     out = tmp_path / "bench"

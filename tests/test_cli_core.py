@@ -44,6 +44,7 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert cv2.imread(str(out)).shape == (240, 320, 3)
 
 
+@pytest.mark.slow
 def test_refused_registration_exits_3_with_one_line(pair, tmp_path):
     d, _ = pair
     noise = np.random.default_rng(0).integers(0, 256, (240, 320, 3), dtype=np.uint8)
@@ -76,6 +77,7 @@ def test_register_open3d_backend(pair):
     assert json.loads(p.stdout)["backend"] == "open3d"
 
 
+@pytest.mark.slow
 def test_register_records(pair, tmp_path):
     d, T = pair
     rrd = tmp_path / "reg.rrd"
@@ -87,6 +89,7 @@ def test_register_records(pair, tmp_path):
     np.testing.assert_array_equal(logged, np.array(json.loads(p.stdout)["matrix"]))
 
 
+@pytest.mark.slow
 def test_crosscheck_images_json(pair):
     d, _ = pair
     p = run("crosscheck", d / "ref.png", d / "mov.png", "--json")
@@ -97,6 +100,7 @@ def test_crosscheck_images_json(pair):
     assert out["reference_seconds"] > 0 and out["open3d_seconds"] > 0
 
 
+@pytest.mark.slow
 def test_crosscheck_clouds_json(tmp_path):
     rng = np.random.default_rng(0)
     target = rng.uniform(-5, 5, (2000, 3))
@@ -233,6 +237,7 @@ def _not_progress(stderr: str) -> list[str]:
     return [p for p in parts if p and "%|" not in p]
 
 
+@pytest.mark.slow
 def test_register_and_crosscheck_say_nothing_on_stderr(pair):
     d, _ = pair
     for args in (("register", d / "ref.png", d / "mov.png", "--json"),

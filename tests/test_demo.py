@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from pcreg.cli import main
 from pcreg.experiments.demo import DemoConfig, run_demo
 
 
+@pytest.mark.slow
 def test_demo_writes_report_figures_and_recording(tmp_path):
     from pcreg.recording.readback import read_recording
 

@@ -13,6 +13,8 @@ import pytest
 
 from _events import HANG, until
 
+pytestmark = pytest.mark.slow  # a local dask cluster per module
+
 distributed = pytest.importorskip("distributed", reason="pcreg[distributed] (dask.distributed) is not installed")
 
 ARGS = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",

@@ -71,6 +71,7 @@ def test_case_i_numbers_are_recomputed_exactly(small_run):
     assert case2["error"] == pytest.approx(error_from_confusion(total))
 
 
+@pytest.mark.slow
 def test_workers_give_the_same_numbers(small_run, tmp_path):
     rc = run_cli(["--data", "synthetic:syn1a,syn2b", *SMALL, "--cases", "II", "--workers", "2",
                   "--out", str(tmp_path)])

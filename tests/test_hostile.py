@@ -195,11 +195,12 @@ def _load_cloud(name):
     return f
 
 
-def _register(ref=GOOD, mov=GOOD, **kw):
+def _register(ref=GOOD, mov=GOOD, init=None, **options):
     def f(t):
         from pcreg.registration.api import register
+        from pcreg.registration.config import RegisterConfig
 
-        return register(ref, mov, **kw)
+        return register(ref, mov, config=RegisterConfig.of(**options), init=init)
     return f
 
 
@@ -437,8 +438,12 @@ def test_a_damaged_image_is_named_in_pcregs_words_not_opencvs_log(files):
 BAD_VALUES = [None, "x", -1, 2.5, float("nan"), float("inf"), 1e300, [], {}, np.zeros((3, 3)), True, object()]
 PUBLIC_CALLS = {
     "register": (lambda **kw: __import__("pcreg").register(GOOD, GOOD, **kw),
-                 ["backend", "model", "levels", "iterations", "init", "sampler", "max_points", "refine", "weights",
-                  "angle_step", "n_candidates", "reference_mask", "canny_percentile", "seed"]),
+                 ["config", "backend", "model", "init", "reference_mask", "moving_mask", "callback"]),
+    "RegisterConfig": (lambda **kw: __import__("pcreg").RegisterConfig.of(**kw),
+                       ["backend", "model", "levels", "iterations", "init", "sampler", "max_points", "refine",
+                        "weights", "angle_step", "n_candidates", "canny_percentile", "seed", "generators",
+                        "max_correspondence_distance", "relative_fitness", "relative_rmse", "reference_max_points",
+                        "min_inlier_ratio", "inlier_tolerance"]),
     "icp": (lambda **kw: __import__("pcreg").icp(CLOUD, CLOUD, **kw),
             ["backend", "model", "max_correspondence_distance", "init", "max_iteration", "voxel_sizes",
              "max_iterations", "weights", "trim_fraction", "metric", "rotation"]),
@@ -457,8 +462,13 @@ PUBLIC_CALLS = {
 # Values among BAD_VALUES that a keyword accepts, and the type of the result; every other value is refused
 # with an InputError whose message names the keyword (its "name" here when the message says it otherwise).
 ACCEPTED = {
-    ("register", "max_points"): {None}, ("register", "refine"): {None}, ("register", "angle_step"): {2.5},
-    ("register", "reference_mask"): {None}, ("register", "canny_percentile"): {2.5},
+    ("register", "backend"): {None}, ("register", "model"): {None}, ("register", "init"): {None},
+    ("register", "reference_mask"): {None}, ("register", "moving_mask"): {None}, ("register", "callback"): {None},
+    ("RegisterConfig", "max_points"): {None}, ("RegisterConfig", "refine"): {None},
+    ("RegisterConfig", "angle_step"): {2.5}, ("RegisterConfig", "canny_percentile"): {2.5},
+    ("RegisterConfig", "reference_max_points"): {None}, ("RegisterConfig", "max_correspondence_distance"): {2.5},
+    ("RegisterConfig", "relative_fitness"): {2.5, 1e300}, ("RegisterConfig", "relative_rmse"): {2.5, 1e300},
+    ("RegisterConfig", "min_inlier_ratio"): {None}, ("RegisterConfig", "inlier_tolerance"): {2.5, 1e300},
     ("icp", "max_correspondence_distance"): {None, 2.5, 1e300}, ("icp", "init"): {None},
     ("icp", "voxel_sizes"): {None, "[]"}, ("icp", "max_iterations"): {None, "[]"},
     ("image_cloud", "max_points"): {None}, ("image_cloud", "canny_percentile"): {2.5},
@@ -468,10 +478,11 @@ ACCEPTED = {
     ("NaiveBayesPixelClassifier", "weights"): {None}, ("NaiveBayesPixelClassifier", "priors"): {None},
     ("NaiveBayesPixelClassifier", "var_smoothing"): {2.5, 1e300},
 }
-RESULT = {"register": "RegistrationResult", "icp": "RegistrationResult", "image_cloud": "ImageCloud",
+RESULT = {"register": "RegistrationResult", "RegisterConfig": "RegisterConfig", "icp": "RegistrationResult", "image_cloud": "ImageCloud",
           "cloud_pyramid": "list", "warp": "tuple", "synthetic": "list", "load_dataset": "dict",
           "NaiveBayesPixelClassifier": "NaiveBayesPixelClassifier"}
 NAMED = {("register", "reference_mask"): "reference_mask", ("register", "model"): "model",
+         ("RegisterConfig", "model"): "model", ("RegisterConfig", "weights"): "weights",
          ("icp", "model"): "model", ("icp", "weights"): "weights", ("warp", "interpolation"): "interpolation",
          ("NaiveBayesPixelClassifier", "features"): "feature", ("NaiveBayesPixelClassifier", "weights"): "weights",
          ("synthetic", "seed"): "seed"}
@@ -673,6 +684,7 @@ def run(args, timeout=60, **kw):
     return subprocess.run([*PCREG, *map(str, args)], capture_output=True, text=True, timeout=timeout, **kw)
 
 
+@pytest.mark.slow
 def test_subprocess_fifo_and_bomb_end_in_bounded_memory(files):
     # each command runs under a one-child launcher that reports that child's peak memory alone (this test
     # process's own RUSAGE_CHILDREN also counts every command the suite ran before it)
@@ -689,6 +701,7 @@ def test_subprocess_fifo_and_bomb_end_in_bounded_memory(files):
         assert int(peak.read_text()) < 1_000_000, bad  # KiB: far below a decoded bomb
 
 
+@pytest.mark.slow
 def test_crosscheck_json_stays_parseable(files):
     """Open3D reports a damaged file only by printing (on stdout); it is refused with one line and
     stdout stays clean, and a good file gives JSON alone on stdout."""
@@ -702,8 +715,8 @@ def test_crosscheck_json_stays_parseable(files):
     assert json.loads(p.stdout)["kind"] == "clouds"
 
 
-ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
-            "--angles", "0:180:10", "--samples", "4"]  # 4 units of 19 registrations each
+ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "2", "--size", "160x120",
+            "--angles", "0,90", "--samples", "1"]  # 1 unit of 2 registrations: the run that follows the lock
 
 
 def test_second_run_on_the_same_out_is_refused(tmp_path):
@@ -751,6 +764,7 @@ def _all_subcommands():
     return parser, found
 
 
+@pytest.mark.slow
 def test_every_option_with_hostile_values(tmp_path, capsys, monkeypatch):
     """Every option of every command, given each hostile value: refused with one line and exit 2, or
     accepted and run (register, crosscheck on two small images) to exit 0 or 2 — never a traceback or

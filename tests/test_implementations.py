@@ -68,6 +68,7 @@ def test_json_layout_of_a_cloud_crosscheck(edge_report):
     assert out["reference_at_convergence"]["converged"] is True
 
 
+@pytest.mark.slow
 @pytest.mark.data
 def test_six_implementations_meet_their_floors_on_the_lidar_pair(shared_data):
     from pcreg.registration.api import voxel_downsample
@@ -187,6 +188,7 @@ def test_external_c_icp_agrees_step_for_step_and_a_wrong_one_disagrees(icp_min, 
     assert w["error"] is None and not w["agrees"] and w["rotation_disagreement_deg"] > 1.0
 
 
+@pytest.mark.slow
 def test_broken_programs_fail_in_one_line_and_the_others_still_run(tmp_path):
     py = sys.executable
     scripts = {
@@ -305,6 +307,7 @@ def test_suite_writes_a_table_and_a_figure(tmp_path):
     assert ref["truth_rotation_deg"] < 1e-6  # exact ground truth
 
 
+@pytest.mark.slow
 def test_command_json_is_the_only_thing_on_stdout(tmp_path):
     rng = np.random.default_rng(2)
     tgt = rng.uniform(-5, 5, (300, 3))

@@ -15,6 +15,8 @@ import pytest
 
 from _phases import interrupted_line, live_children, results_without_times, signal_at, unit_files
 
+pytestmark = pytest.mark.slow  # commands stopped by signals and run again: seconds each
+
 SMALL = ["--size", "160x120"]
 COMMANDS = {
     "sequence": ["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "12", *SMALL, "-k", "1,2,3"],

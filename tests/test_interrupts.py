@@ -13,6 +13,8 @@ import pytest
 
 from _interrupting import resumed, stopped
 
+pytestmark = pytest.mark.slow  # commands stopped by signals and run again: seconds each
+
 ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "6", "--size", "160x120",
             "--angles", "0:180:10", "--samples", "6"]  # 6 units of 19 registrations each
 STREAM = ["evaluate", "stream", "--data", "synthetic:syn1a,syn2a,syn2b,syn3a", "--frames", "6", "--size", "160x120",

@@ -17,6 +17,8 @@ import pytest
 from _events import HANG
 from _interrupting import PCREG, signal_and_check, start, wait_for, wait_for_line
 
+pytestmark = pytest.mark.slow  # commands stopped by signals and run again: seconds each
+
 
 def _done(state: Path) -> int:
     try:

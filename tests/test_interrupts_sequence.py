@@ -13,6 +13,8 @@ import pytest
 
 from _interrupting import resumed, stopped
 
+pytestmark = pytest.mark.slow  # commands stopped by signals and run again: seconds each
+
 SEQUENCE = ["evaluate", "sequence", "--data", "synthetic:syn1a,syn2b", "--frames", "24", "--size", "160x120",
             "-k", "1,2,3,4,5,6"]  # 12 units of about a second
 

@@ -144,6 +144,7 @@ def _clean_env(**extra: str) -> dict:
     ({"OMP_WAIT_POLICY": "passive"}, "omp", None),  # a user's OpenMP wait policy is left alone
     ({"NUMBA_THREADING_LAYER": "workqueue", "GOMP_SPINCOUNT": "5"}, "workqueue", "5"),  # so is a named layer
 ])
+@pytest.mark.slow
 def test_the_parallel_kernels_choose_their_threading_layer_quietly(extra, layer, spin):
     import subprocess
     import sys

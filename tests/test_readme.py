@@ -38,6 +38,7 @@ def test_python_example_runs():
         exec(compile(block, "README.md", "exec"), {"__name__": "readme"})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("line", [l for l in sh_lines() if l.split()[1] in ("register", "crosscheck")])
 def test_registration_commands_run(line, shared_data, tmp_path):
     frames = sorted((shared_data / "camvid" / "0016E5" / "images").glob("*.png"))

@@ -139,7 +139,7 @@ def test_register_recovers_any_rotation_and_shift(angle, fx, fy):
     # Point-to-point ICP slides a little along the long straight edges of this drawing; the point-to-line
     # finish removes that.
     assert tf.max_corner_error(pcreg.register(REF, mov).matrix, T, REF.shape) < 1.0
-    r = pcreg.register(REF, mov, refine="point_to_line")
+    r = pcreg.register(REF, mov, config=pcreg.RegisterConfig.of(refine="point_to_line"))
     assert tf.max_corner_error(r.matrix, T, REF.shape) < 0.5
 
 
@@ -152,7 +152,7 @@ def test_register_recovers_any_rotation_and_shift(angle, fx, fy):
 def test_register_motion_models(model, T):
     # Affine and projective are reference-backend models: the point-to-line finish sharpens their fit.
     refine = "point_to_line" if model in ("affine", "projective") else "none"
-    r = pcreg.register(REF, moved(REF, T), model=model, refine=refine)
+    r = pcreg.register(REF, moved(REF, T), config=pcreg.RegisterConfig.of(model=model, refine=refine))
     assert tf.max_corner_error(r.matrix, T, REF.shape) < 0.5
 
 
@@ -180,10 +180,10 @@ def test_register_callback_sees_every_level():
     # After the edge search, ICP still refines from the coarsest level; an intensity hypothesis (rigid)
     # at full resolution.
     levels.clear()
-    pcreg.register(REF, mov, generators=("edges",), callback=lambda it: levels.add(it.level))
+    pcreg.register(REF, mov, config=pcreg.RegisterConfig.of(generators=("edges",)), callback=lambda it: levels.add(it.level))
     assert levels == {0, 1, 2, 3}
     levels.clear()
-    r = pcreg.register(REF, mov, generators=("fourier_mellin",), callback=lambda it: levels.add(it.level))
+    r = pcreg.register(REF, mov, config=pcreg.RegisterConfig.of(generators=("fourier_mellin",)), callback=lambda it: levels.add(it.level))
     assert levels == {0} and r.generator == "fourier_mellin"
 
 @pytest.mark.parametrize("init", ["auto", "identity"])
@@ -227,7 +227,7 @@ def test_register_real_camvid_pair(shared_data):
 ])
 def test_register_bad_input(moving, kwargs, error, message):
     with pytest.raises(error, match=message):
-        pcreg.register(REF, moving, **kwargs)
+        pcreg.register(REF, moving, config=pcreg.RegisterConfig.of(**kwargs))
 
 
 @pytest.mark.parametrize("angle", [15.0, 60.0, 200.0])
@@ -275,7 +275,7 @@ def test_register_textures_under_large_rotations(kind, angle):
 def test_each_generator_alone_finds_a_large_rotation(generator):
     ref = texture("gravel", height=240, width=320, seed=2)
     T = rigid_about_centre(ref.shape, 135.0, -12.0, 9.0)
-    r = pcreg.register(ref, moved(ref, T), generators=(generator,))
+    r = pcreg.register(ref, moved(ref, T), config=pcreg.RegisterConfig.of(generators=(generator,)))
     assert r.generator == generator
     assert tf.max_corner_error(r.matrix, T, ref.shape) < 1.0
 
@@ -314,11 +314,11 @@ def test_register_too_few_inliers_and_the_user_threshold():
 
     T = rigid_about_centre(REF.shape, 20.0, 5.0, 3.0)
     mov = cv2.GaussianBlur(moved(REF, T), (0, 0), 2.5)
-    r = pcreg.register(REF, mov, min_inlier_ratio=None)
+    r = pcreg.register(REF, mov, config=pcreg.RegisterConfig.of(min_inlier_ratio=None))
     assert 0 < r.inlier_ratio < 0.99
     with pytest.raises(RegistrationError, match="too few|only"):
-        pcreg.register(REF, mov, min_inlier_ratio=min(1.0, r.inlier_ratio + 0.01))
-    ok = pcreg.register(REF, mov, min_inlier_ratio=max(0.0, r.inlier_ratio - 0.01))
+        pcreg.register(REF, mov, config=pcreg.RegisterConfig.of(min_inlier_ratio=min(1.0, r.inlier_ratio + 0.01)))
+    ok = pcreg.register(REF, mov, config=pcreg.RegisterConfig.of(min_inlier_ratio=max(0.0, r.inlier_ratio - 0.01)))
     assert ok.inlier_ratio >= r.inlier_ratio - 0.01
     assert tf.max_corner_error(ok.matrix, T, REF.shape) < 1.0
 
@@ -351,7 +351,7 @@ def test_synthetic_sequence_pairs_are_not_refused():
 ])
 def test_register_refuses_options_a_backend_cannot_honour(kwargs, message):
     with pytest.raises(InputError, match=message):
-        pcreg.register(REF, REF, **kwargs)
+        pcreg.register(REF, REF, config=pcreg.RegisterConfig.of(**kwargs))
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -387,7 +387,7 @@ def test_point_to_line_finish_is_explicit_and_tighter():
     T = rigid_about_centre(REF.shape, 33.0, 6.0, 4.0)
     mov = moved(REF, T)
     plain = pcreg.register(REF, mov)
-    p2l = pcreg.register(REF, mov, refine="point_to_line")
+    p2l = pcreg.register(REF, mov, config=pcreg.RegisterConfig.of(refine="point_to_line"))
     assert tf.max_corner_error(p2l.matrix, T, REF.shape) < 0.2
     assert not np.allclose(plain.matrix, p2l.matrix)
 
@@ -411,35 +411,57 @@ def test_results_name_their_frames():
 
 
 def test_register_config_is_split_by_step_and_changed_by_flat_names():
-    from pcreg.registration.config import IcpConfig, PlausibilityConfig, RegisterConfig, SearchConfig
+    from pcreg.registration.config import IcpConfig, PlausibilityConfig, PyramidConfig, RegisterConfig, SearchConfig
 
     cfg = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None, backend="open3d", levels=3)
     assert cfg.search == SearchConfig(init="identity") and cfg.plausibility == PlausibilityConfig(min_inlier_ratio=None)
     assert cfg.icp == IcpConfig(backend="open3d") and cfg.pyramid.levels == 3 and cfg.backend == "open3d"
     assert cfg.replace(icp=IcpConfig(iterations=5)).icp == IcpConfig(iterations=5)
     assert cfg.replace(iterations=5).icp == IcpConfig(backend="open3d", iterations=5)
-    assert cfg.icp.kwargs() == {f: getattr(cfg.icp, f) for f in ("backend", "iterations", "max_correspondence_distance",
-                                                                 "refine", "weights", "relative_fitness", "relative_rmse")}
     with pytest.raises(InputError, match="unknown registration option.*: max_iterations"):
         cfg.replace(max_iterations=3)
-    with pytest.raises(InputError, match="levels must be an integer in 1..8"):
+    with pytest.raises(InputError, match="levels must be in 1..8"):
         cfg.replace(levels=9)
     with pytest.raises(InputError, match="RegisterConfig.icp must be a IcpConfig instance"):
         RegisterConfig(icp=SearchConfig())
+    # checked once, when made, and normalised there: register reads the values as they are
+    assert PyramidConfig(levels=np.int64(3), max_points=[900, None]) == PyramidConfig(levels=3, max_points=(900, None))
+    assert SearchConfig(generators="edges").generators == ("edges",) and IcpConfig(refine=None).refine == "none"
+    assert type(RegisterConfig.of(angle_step=10).search.angle_step) is float
+    with pytest.raises(InputError, match="a 3x3 matrix is register's init="):
+        SearchConfig(init=np.eye(3))
 
 
-def test_register_config_mirrors_the_keyword_arguments_of_register():
-    """Every RegisterConfig field is a keyword argument of register with the same default, and every
-    option of register that is not data (images, masks, pyramids, a callback) is a field."""
+def test_register_takes_its_options_as_one_config(monkeypatch):
+    """register's options live in RegisterConfig alone (their defaults are written there once); its
+    shorthands (model, backend, an init name) become that config at the door, and a 3x3 init is the
+    start it refines."""
     import inspect
 
+    from pcreg.registration import api
     from pcreg.registration.config import RegisterConfig
 
     params = inspect.signature(pcreg.register).parameters
-    fields = RegisterConfig().kwargs()
-    data = {"reference_image", "moving_image", "reference_mask", "moving_mask", "callback", "reference_pyramid",
-            "moving_pyramid"}
-    assert set(params) - data == set(fields)
-    for name, value in fields.items():
-        default = params[name].default
-        assert (tuple(default) if isinstance(default, list) else default) == value, name
+    assert len(params) <= 12 and params["config"].default == RegisterConfig()
+    default = RegisterConfig()
+    options = {f.name for part in (default.pyramid, default.search, default.icp, default.plausibility)
+               for f in dataclasses.fields(part)}
+    assert set(params) & options == {"backend", "init"} and "model" in params
+    seen = []
+
+    def stop(reference, moving, config, init, **kw):
+        seen.append((config, init))
+        raise RegistrationError("stopped")
+
+    monkeypatch.setattr(api, "_search", stop)
+    with pytest.raises(RegistrationError, match="stopped"):
+        pcreg.register(REF, REF, model="similarity", backend="open3d", init="identity")
+    assert seen[-1] == (RegisterConfig.of(model="similarity", backend="open3d", init="identity"), "identity")
+    with pytest.raises(RegistrationError, match="stopped"):
+        pcreg.register(REF, REF, config=RegisterConfig.of(levels=3, init="center"), init=np.eye(3).tolist())
+    config, init = seen[-1]
+    assert config == RegisterConfig.of(levels=3, init="center") and np.array_equal(init, np.eye(3))
+    with pytest.raises(InputError, match="config must be a pcreg.RegisterConfig, got dict"):
+        pcreg.register(REF, REF, config={"levels": 3})
+    with pytest.raises(InputError, match="supports the rigid and similarity"):
+        pcreg.register(REF, REF, config=RegisterConfig.of(model="affine"), backend="open3d")

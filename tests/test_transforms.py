@@ -78,7 +78,7 @@ def test_register_never_returns_a_degenerate_homography_with_the_test_off():
         mask[y0:y0 + 30, x0:x0 + 40] = True
         try:
             res = pcreg.register(frames[0].image, frames[2].image, model="projective", reference_mask=mask,
-                                 min_inlier_ratio=None, init="identity")
+                                 config=pcreg.RegisterConfig.of(min_inlier_ratio=None), init="identity")
         except RegistrationError as exc:
             refused += 1
             assert str(exc).startswith(("registration", "the reference image")), exc

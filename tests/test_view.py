@@ -67,6 +67,7 @@ def test_bad_time_argument(small_recording, tmp_path, capsys):
     assert "TIMELINE=N" in one_line_error(capsys)
 
 
+@pytest.mark.slow
 def test_headless_screenshot_shows_the_images(small_recording, tmp_path, capsys):
     if sys.platform.startswith("linux") and not view.vulkan_icds():
         pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
@@ -92,6 +93,7 @@ def _colours(shot: np.ndarray) -> tuple[float, float]:
     return float(red.mean()), float(green.mean())
 
 
+@pytest.mark.slow
 def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
     """``pcreg view --web`` in a real browser: headless Chromium, software GL, no display, no GPU."""
     import os
@@ -264,6 +266,7 @@ def _colourful(img: np.ndarray) -> float:
     return float(((hsv[..., 1] > 90) & (hsv[..., 2] > 70)).mean())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", KIND_NAMES)
 def test_headless_viewer_draws_every_view_of_each_kind(kind_recordings, kind, tmp_path):
     """``pcreg view`` of each kind in the headless viewer: the views it lays out are the blueprint's,
@@ -319,6 +322,7 @@ def test_headless_viewer_draws_every_view_of_each_kind(kind_recordings, kind, tm
 # -- several recordings together ------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_two_backends_side_by_side(kind_recordings, tmp_path, capsys):
     """``pcreg view A.rrd B.rrd``: one recording per backend of the same registration, merged under
     their file names; each 2-D view has one pane per recording, each series plot both recordings."""
@@ -408,6 +412,7 @@ def test_web_arguments(small_recording, capsys):
     assert "cannot listen there" in one_line_error(capsys)
 
 
+@pytest.mark.slow
 def test_web_viewer_on_another_address(small_recording):
     """``--bind`` opts in to another address; the page, reached by that address, still gets the data
     (127.0.0.2: another address on this machine's loopback, so nothing is exposed by the test)."""
@@ -431,6 +436,7 @@ def test_web_viewer_on_another_address(small_recording):
         view.stop(proc)
 
 
+@pytest.mark.slow
 def test_web_viewer_ends_with_a_pcreg_killed_outright(small_recording):
     """A ``pcreg view --web`` killed outright (SIGKILL: it cannot stop its viewer) leaves no viewer
     serving on: the viewer, in a session of its own, is ended with it."""

@@ -45,10 +45,11 @@ def bench(images: list[np.ndarray], *, repeats: int = 3) -> dict:
     """Per-pair times (ms) of each method, interleaved, and their medians and ratios to DIS."""
     import cv2
 
-    from pcreg import register, register_dense
+    from pcreg import RegisterConfig, register, register_dense
 
+    similarity = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    g = register(images[0], images[1], model="similarity", init="identity", min_inlier_ratio=None)  # warm-up (imports, JIT)
+    g = register(images[0], images[1], config=similarity)  # warm-up (imports, JIT)
     register_dense(images[0], images[1], global_result=g)
     rows = []
     for _ in range(repeats):
@@ -60,7 +61,7 @@ def bench(images: list[np.ndarray], *, repeats: int = 3) -> dict:
             dis.calc(g_mov, g_ref, None)
             r["dis_medium"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            g = register(ref, mov, model="similarity", init="identity", min_inlier_ratio=None)
+            g = register(ref, mov, config=similarity)
             r["global"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             register_dense(ref, mov, global_result=g)

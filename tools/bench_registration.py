@@ -167,7 +167,7 @@ def _run_method(method: str, reference: np.ndarray, moving: np.ndarray) -> tuple
         return r.matrix, {"inlier_ratio": r.inlier_ratio, "chance_ratio": r.chance_ratio, "generator": r.generator,
                           "inner_seconds": r.seconds}
     if method == "pcreg_reference_p2l":
-        r = pcreg.register(reference, moving, backend="reference", refine="point_to_line")
+        r = pcreg.register(reference, moving, config=pcreg.RegisterConfig.of(backend="reference", refine="point_to_line"))
         return r.matrix, {"inlier_ratio": r.inlier_ratio, "generator": r.generator, "inner_seconds": r.seconds}
     if method == "orb":
         return orb_register(reference, moving), {}

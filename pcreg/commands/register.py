@@ -42,12 +42,17 @@ def run(args: argparse.Namespace) -> int:
     from ..outputs import atomic_write_bytes, check_output
     from ..registration.clouds import cloud_pyramid, load_image
     from ..registration.api import register
+    from ..registration.config import RegisterConfig
     from ..registration.warp import warp
 
     if args.out is not None:
         if args.out.endswith(("/", os.sep)) or Path(args.out).suffix.lower() not in (".png", ".jpg", ".jpeg"):
             raise InputError(f"--out {args.out!r}: the warped image is written as PNG or JPEG; name it .png or .jpg")
         check_output(args.out, force=args.force)
+    options = {} if args.min_inlier_ratio is None else {"min_inlier_ratio": args.min_inlier_ratio or None}  # 0: off
+    config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
+                               init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,
+                               **options)
     ref = load_image(args.reference)
     mov = load_image(args.moving)
     with open_recorder(args, name=f"register {args.moving} -> {args.reference}") as rec:
@@ -58,13 +63,7 @@ def run(args: argparse.Namespace) -> int:
             rc, mc = cloud_pyramid(ref, levels=1)[0], cloud_pyramid(mov, levels=1)[0]
             rec.log_clouds(reference_points=rc.points, reference_colors=rc.colors, moving_points=mc.points,
                            moving_colors=mc.colors)
-        from ..registration.api import DEFAULT_MIN_INLIER_RATIO
-
-        mir = DEFAULT_MIN_INLIER_RATIO if args.min_inlier_ratio is None else args.min_inlier_ratio
-        result = register(ref, mov, backend=args.backend, model=args.model, levels=args.levels,
-                          iterations=args.iterations, init=args.init, max_correspondence_distance=args.max_distance,
-                          refine=args.refine, min_inlier_ratio=None if mir == 0 else mir,
-                          callback=rec.icp_callback(args.backend))
+        result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend))
         warped = valid = None
         if args.out or rec.enabled:
             warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)

@@ -136,7 +136,8 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
                     for k in (a, b) if k is not None}
                 preds[m] = ((d + STREAM_WEIGHT * _baseline_prior(fields, priors, t, a, b)) > 0).astype(np.uint8)
                 seconds[m] += time.perf_counter() - t1 + classify
-            key = int(a if a is not None else b)  # type: ignore[arg-type]  (a stretch has a key on one side)
+            key = a if a is not None else b
+            assert key is not None  # a stretch has a key frame on one side at least
             rows.append({"index": t, "name": f.name, "key": key, "since_key": abs(t - key),
                          "errors": {m: error_rate(preds[m], f.labels) for m in methods}})
     rows.sort(key=lambda r: r["index"])

@@ -164,7 +164,7 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
     results = {}
     for backend in ("reference", "open3d"):
         # A callback makes both backends report every iteration (Open3D then runs stepwise: exact counts).
-        results[backend] = register(ref, mov, **config.registration.replace(backend=backend).kwargs(),
+        results[backend] = register(ref, mov, config=config.registration, backend=backend,
                                     callback=callback or (lambda it: None))
     a, b = results["reference"], results["open3d"]
     c = corners(mov.shape)

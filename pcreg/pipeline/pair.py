@@ -165,11 +165,11 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
             # the global step is the dense step's start, not its answer: a 3-D scene fails a global
             # model's plausibility test by design, so the test is the dense step's own (on its field)
             start = config.registration.replace(model=DENSE_GLOBAL_MODEL, min_inlier_ratio=None)
-            glob = register(reference_image, moving_image, **start.kwargs(), callback=callback)
+            glob = register(reference_image, moving_image, config=start, callback=callback)
             options = DenseOptions(backend=config.registration.backend, seed=config.registration.search.seed)
             res = register_dense(reference_image, moving_image, options=options, global_result=glob)
         else:
-            res = register(reference_image, moving_image, **config.registration.kwargs(), callback=callback)
+            res = register(reference_image, moving_image, config=config.registration, callback=callback)
     except RegistrationError as exc:
         return PairRegistration(None, str(exc), time.perf_counter() - t0)
     from ..registration.transforms import degeneracy

@@ -510,7 +510,7 @@ class Propagator:
         start = None
         try:
             if self.model != "dense":
-                result = register(reference, image, **self.config.kwargs())
+                result = register(reference, image, config=self.config)
             else:
                 self._attempt = None
                 result, start = self._register_dense(reference, image)
@@ -530,7 +530,7 @@ class Propagator:
 
         warm_ok = self.warm_starts
         if self.dense.global_start == "register":
-            T = register(reference, image, **self.config.kwargs())
+            T = register(reference, image, config=self.config)
         else:
             T = np.eye(3)
 

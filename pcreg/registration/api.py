@@ -10,21 +10,20 @@ Both run the ICP step of one backend (:func:`~pcreg.registration.steps.icp_step`
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
 
 from ..errors import InputError, RegistrationError
-from ..validation import (check_bool, check_callable, check_choice, check_counts, check_float, check_floats,
+from ..validation import (check_bool, check_callable, check_float, check_floats,
                           check_int, check_ints, check_matrix, short_repr)
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
+from .config import DEFAULT_MIN_INLIER_RATIO, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
                     InitialGrid, finest_grid_shape, refine_field)
 from .dense.levels import check_prepared
-from .global_search import GENERATORS
 from .open3d_icp import check_model as check_open3d_model
-from .plausibility import CHANCE_FACTOR, DEFAULT_MIN_INLIER_RATIO, MIRROR_FACTOR, Plausibility
+from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, Plausibility
 from .pyramid import CloudPyramid
 from .reference import METRICS, WEIGHTS, check_rank
 from .refine import CoarseToFine
@@ -211,46 +210,31 @@ def _voxel_schedule(src: np.ndarray, tgt: np.ndarray, voxel_sizes, max_correspon
 # Images
 # ---------------------------------------------------------------------------------------------------
 
-REFINES = ("none", "point_to_line")
-
-
-def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: str = "reference",
-             model: str = "rigid", levels: int = 4, iterations: int = 14, init: str | np.ndarray = "auto",
-             sampler: str = "canny", max_points: Sequence[int | None] | int | None = (2000, 800, 600, 400),
-             reference_max_points: int | None = 60000, max_correspondence_distance: float = 2.5,
-             refine: str | None = "none", weights: str = "none",
-             relative_fitness: float = 1e-4, relative_rmse: float = 1e-3, angle_step: float = 15.0,
-             n_candidates: int = 2, generators: Sequence[str] = ("fourier_mellin", "edges", "orb"),
-             min_inlier_ratio: float | None = DEFAULT_MIN_INLIER_RATIO, inlier_tolerance: float = 1.0,
+def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: RegisterConfig = RegisterConfig(),
+             model: str | None = None, backend: str | None = None, init: str | np.ndarray | None = None,
              reference_mask: np.ndarray | str | None = "auto", moving_mask: np.ndarray | str | None = "auto",
-             canny_percentile: float = 85.0, seed: int = 0,
-             callback: Callable[[IcpIteration], None] | None = None,
              reference_pyramid: ImagePyramid | None = None, moving_pyramid: ImagePyramid | None = None,
-             ) -> RegistrationResult:
+             callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
     """Register ``moving_image`` to ``reference_image``: the returned ``matrix`` is ``T_ref_mov``.
 
     Both images become edge clouds (:func:`pcreg.image_cloud`) at pyramid levels 0..levels-1
     (:class:`~pcreg.registration.pyramid.CloudPyramid`). With ``init="auto"`` (or ``"global"``) hypotheses
-    come from the ``generators``, tried in order until one is convincing, each refined coarse to fine
-    (:class:`~pcreg.registration.search.GlobalSearch`); ``init="identity"``, ``"center"`` (image centres
-    aligned) or a 3x3 matrix replaces the search by that one hypothesis. The winner must pass the
+    come from the search's ``generators``, tried in order until one is convincing, each refined coarse to
+    fine (:class:`~pcreg.registration.search.GlobalSearch`); ``init="identity"``, ``"center"`` (image
+    centres aligned) or a 3x3 matrix replaces the search by that one hypothesis. The winner must pass the
     plausibility test (:mod:`pcreg.registration.plausibility`): unrelated images, noise and mirror images
     raise :class:`~pcreg.errors.RegistrationError` with a one-line reason.
 
-    backend : ``"reference"`` or ``"open3d"``: the ICP of every step (candidates, levels, finish).
-    refine : ``"none"`` (default: the same algorithm for both backends, so that their results compare) or
-        ``"point_to_line"``: point-to-line iterations (Tukey weights) at full resolution after the levels,
-        which removes the bias of matching edge points sampled at different places along the same edge
-        (reference backend only; Open3D's refuses it with :class:`~pcreg.errors.InputError`).
     reference_image, moving_image : (H, W, 3) uint8 RGB (also gray, uint16, float in [0, 1]); the
         sizes may differ.
-    max_points : moving points kept per level (finest first), at random with ``seed``.
-    reference_max_points : reference points kept per level: edges of a 480x360 street scene number
-        15-20k, a 512x512 texture 30-60k; a random subset of them biases nearest-neighbour matches, so
-        the cap is high (it bounds the time on very large images).
-    relative_fitness, relative_rmse : Open3D's stopping rule per level (absolute changes; the RMSE
-        threshold is in full-resolution px, scaled by 2^level); the point-to-line finish uses at most 1e-6.
-    min_inlier_ratio, inlier_tolerance : the plausibility test's threshold (None turns it off) and px.
+    config : the options, by step (:class:`~pcreg.registration.config.RegisterConfig`: the pyramid, the
+        search, the ICP and its backend, the plausibility test), checked when the config was made.
+        Its ``model="dense"`` returns the global similarity (this function, with the rest of the config)
+        refined by a dense field (:func:`pcreg.register_dense`), a
+        :class:`~pcreg.registration.dense.DenseRegistrationResult`.
+    model, backend : shorthands for ``config.replace(model=..., backend=...)``; None keeps the config's.
+    init : None keeps the config's ``search.init``; one of its names replaces it; a 3x3 ``T_ref_mov``
+        is the one hypothesis, refined instead of searching.
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
     reference_pyramid, moving_pyramid : the images' :func:`~pcreg.registration.clouds.image_pyramid` (same ``levels``,
         ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
@@ -263,42 +247,45 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, backend: 
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
     """
-    if isinstance(model, str) and model == "dense":
-        return _register_dense_model(reference_image, moving_image, backend=backend, levels=levels, iterations=iterations,
-                                     init=init, min_inlier_ratio=min_inlier_ratio, seed=seed)
+    config = _configured(config, model=model, backend=backend, init=init)
+    start_matrix = None if init is None or isinstance(init, str) else check_matrix(init, "init", 3)
+    if config.model == "dense":
+        return _register_dense_model(reference_image, moving_image, config, start_matrix)
     ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")
-    o = _checked_register_options(ref_img, mov_img, backend=backend, model=model, levels=levels,
-                                  iterations=iterations, init=init, max_correspondence_distance=max_correspondence_distance,
-                                  refine=refine, weights=weights, relative_fitness=relative_fitness,
-                                  relative_rmse=relative_rmse, angle_step=angle_step, n_candidates=n_candidates,
-                                  generators=generators, min_inlier_ratio=min_inlier_ratio,
-                                  inlier_tolerance=inlier_tolerance, canny_percentile=canny_percentile, seed=seed)
-    sampler, max_points, reference_max_points = _checked_sampling(
-        ref_img, mov_img, sampler, max_points, reference_max_points, reference_mask, moving_mask, callback)
+    _check_inputs(ref_img, mov_img, config.pyramid.levels, reference_mask, moving_mask, callback)
     start = time.perf_counter()
-    reference, moving = _pyramids(ref_img, mov_img, reference_pyramid, moving_pyramid, levels=o.levels,
-                                  sampler=sampler, canny_percentile=o.canny_percentile, seed=o.seed,
-                                  masks=(reference_mask, moving_mask), max_points=(reference_max_points, max_points))
-    best, tried, mirror, test = _search(reference, moving, o, backend=backend, model=model, weights=weights,
-                                        min_inlier_ratio=min_inlier_ratio, inlier_tolerance=inlier_tolerance,
-                                        reference_max_points=reference_max_points,
+    p = config.pyramid
+    reference, moving = _pyramids(ref_img, mov_img, reference_pyramid, moving_pyramid, levels=p.levels,
+                                  sampler=p.sampler, canny_percentile=p.canny_percentile, seed=config.search.seed,
+                                  masks=(reference_mask, moving_mask), max_points=(p.reference_max_points, p.max_points))
+    best, tried, mirror, test = _search(reference, moving, config,
+                                        config.search.init if start_matrix is None else start_matrix,
                                         keep_iterations=callback is not None)
     if callback is not None:
         for iteration in best.iterations:
             callback(iteration)
     evidence = test.check(best, mirror=mirror, shape=mov_img.shape)
-    return _result(best, evidence, tried, mirror, backend=backend, seconds=time.perf_counter() - start,
+    return _result(best, evidence, tried, mirror, backend=config.backend, seconds=time.perf_counter() - start,
                    points=(len(moving[0]), len(reference[0])))
 
 
-def _register_dense_model(reference_image, moving_image, *, backend: str, levels: int, iterations: int, init,
-                          min_inlier_ratio: float | None, seed: int):
-    """``model="dense"``: the global similarity (this function, its test as given), refined by a dense field
-    (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult`."""
-    start = register(reference_image, moving_image, backend=backend, model=DENSE_GLOBAL_MODEL, levels=levels,
-                     iterations=iterations, init=init, min_inlier_ratio=min_inlier_ratio, seed=seed)
-    return register_dense(reference_image, moving_image, options=DenseOptions(backend=backend, seed=seed),
-                          global_result=start)
+def _configured(config: RegisterConfig, *, model: str | None, backend: str | None, init) -> RegisterConfig:
+    """:func:`register`'s ``config`` with its shorthands (``model``, ``backend``, an ``init`` name) set in
+    it: the one place they become options, checked by the config."""
+    if not isinstance(config, RegisterConfig):
+        raise InputError(f"config must be a pcreg.RegisterConfig, got {type(config).__name__}")
+    changes = {name: value for name, value in (("model", model), ("backend", backend)) if value is not None}
+    if isinstance(init, str):
+        changes["init"] = init
+    return config.replace(**changes) if changes else config
+
+
+def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix):
+    """``model="dense"``: the global similarity (this function, with the rest of ``config``), refined by a
+    dense field (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult`."""
+    start = register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL), init=start_matrix)
+    return register_dense(reference_image, moving_image, global_result=start,
+                          options=DenseOptions(backend=config.backend, seed=config.search.seed))
 
 
 def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, options: DenseOptions = DenseOptions(),
@@ -395,8 +382,9 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
     if global_result is not None:
         given = _given_global(global_result)
         return given, float(given.seconds)
-    return register(ref, mov, backend=options.backend, model=options.model, levels=options.global_levels,
-                    iterations=options.global_iterations, init=options.global_init, seed=options.seed), 0.0
+    config = RegisterConfig.of(backend=options.backend, model=options.model, levels=options.global_levels,
+                               iterations=options.global_iterations, seed=options.seed)
+    return register(ref, mov, config=config, init=options.global_init), 0.0
 
 
 
@@ -414,91 +402,16 @@ def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate
               "mirror_inlier_ratio": None if mirror is None else mirror.inlier_ratio})
 
 
-@dataclass(frozen=True)
-class _RegisterOptions:
-    """:func:`register`'s options, checked and normalised."""
+def _check_inputs(ref_img: np.ndarray, mov_img: np.ndarray, levels: int, reference_mask, moving_mask, callback) -> None:
+    """What :func:`register` takes besides its config, checked against the images (an :class:`InputError`
+    for the first bad one)."""
+    from .clouds import check_mask
 
-    levels: int
-    iterations: int
-    n_candidates: int
-    seed: int
-    angle_step: float
-    max_correspondence_distance: float
-    relative_fitness: float
-    relative_rmse: float
-    canny_percentile: float
-    init: str | np.ndarray
-    refine: str
-    generators: tuple[str, ...]
-
-
-def _checked_sampling(ref_img, mov_img, sampler, max_points, reference_max_points, reference_mask, moving_mask,
-                      callback):
-    """The sampling options of :func:`register` checked (an :class:`InputError` for the first bad one)."""
-    from .clouds import SAMPLERS, check_mask
-
-    sampler = check_choice(sampler, "sampler", SAMPLERS)
-    max_points = check_counts(max_points, "max_points")
-    reference_max_points = check_counts(reference_max_points, "reference_max_points")
-    check_mask(reference_mask, ref_img.shape, name="reference_mask")
-    check_mask(moving_mask, mov_img.shape, name="moving_mask")
-    if callback is not None and not callable(callback):
-        raise InputError(f"callback must be callable or None, got {type(callback).__name__}")
-    return sampler, max_points, reference_max_points
-
-
-def _checked_register_options(ref_img: np.ndarray, mov_img: np.ndarray, *, backend: str, model: str, levels: int,
-                              iterations: int, init, max_correspondence_distance: float, refine: str | None,
-                              weights: str, relative_fitness: float, relative_rmse: float, angle_step: float,
-                              n_candidates: int, generators, min_inlier_ratio: float | None, inlier_tolerance: float,
-                              canny_percentile: float, seed: int) -> _RegisterOptions:
-    """:func:`register`'s options checked (an :class:`InputError` for the first bad one) and normalised."""
-    _check_options(backend, model, 2, weights, "point_to_point")
-    levels = check_int(levels, "levels", lo=1, hi=8)
-    iterations = check_int(iterations, "iterations", lo=1, hi=100_000)
-    n_candidates = check_int(n_candidates, "n_candidates", lo=1, hi=360)
-    seed = check_int(seed, "seed", lo=0)
-    angle_step = check_float(angle_step, "angle_step", lo=0.01, hi=360)
-    max_correspondence_distance = check_float(max_correspondence_distance, "max_correspondence_distance",
-                                              lo=0, lo_open=True, hi=1e6)
-    relative_fitness = check_float(relative_fitness, "relative_fitness", lo=0)
-    relative_rmse = check_float(relative_rmse, "relative_rmse", lo=0)
-    canny_percentile = check_float(canny_percentile, "canny_percentile", lo=0, hi=100)
-    if not isinstance(init, str):
-        init = check_matrix(init, "init", 3)
-    refine = _check_refine(backend, model, refine, weights)
-    if min_inlier_ratio is not None:
-        min_inlier_ratio = check_float(min_inlier_ratio, "min_inlier_ratio", lo=0, hi=1)
-    inlier_tolerance = check_float(inlier_tolerance, "inlier_tolerance", lo=0, lo_open=True)
-    if isinstance(generators, str):
-        generators = (generators,)
-    try:
-        generators = tuple(generators)
-    except TypeError:
-        raise InputError(f"generators must be a selection of {', '.join(GENERATORS)}, got {short_repr(generators)}") from None
-    bad = [g for g in generators if not isinstance(g, str) or g not in GENERATORS]
-    if bad or not generators:
-        raise InputError(f"generators must be a non-empty selection of {', '.join(GENERATORS)}, got {short_repr(generators)}")
     if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
         raise InputError(f"images too small for {levels} pyramid levels")
-    return _RegisterOptions(levels, iterations, n_candidates, seed, angle_step, max_correspondence_distance,
-                            relative_fitness, relative_rmse, canny_percentile, init, refine, generators)
-
-
-def _check_refine(backend: str, model: str, refine: str | None, weights: str) -> str:
-    """``refine`` (None: ``"none"``), checked against the backend: the point-to-line finish and robust
-    weights are the reference backend's; Open3D's has two motion models."""
-    if refine is None:
-        refine = "none"
-    refine = check_choice(refine, "refine", REFINES)
-    if refine == "point_to_line" and backend != "reference":
-        raise InputError("refine='point_to_line' is a reference-backend finish (Open3D's ICP here is point-to-point); "
-                         "use refine='none' with backend='open3d'")
-    if weights != "none" and backend != "reference":
-        raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
-    if backend == "open3d":
-        check_open3d_model(model)
-    return refine
+    check_mask(reference_mask, ref_img.shape, name="reference_mask")
+    check_mask(moving_mask, mov_img.shape, name="moving_mask")
+    check_callable(callback, "callback")
 
 
 def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: ImagePyramid | None,
@@ -523,24 +436,27 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
     return out[0], out[1]
 
 
-def _search(reference: CloudPyramid, moving: CloudPyramid, o: _RegisterOptions, *, backend: str, model: str,
-            weights: str, min_inlier_ratio: float | None, inlier_tolerance: float, reference_max_points,
+def _search(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, init, *,
             keep_iterations: bool) -> tuple[Candidate, list[Candidate], Candidate | None, Plausibility]:
     """:func:`register`'s search: the coarse-to-fine ICP, the plausibility test and the hypotheses'
-    search built on the two pyramids, then the candidates refined (:func:`_candidates`). Returns the
-    best candidate, every one tried, the mirrored image's best (or None) and the test, which judges the
-    best. ``keep_iterations``: each candidate keeps its ICP iterations (a callback reports the best's,
-    instead of refining it a second time)."""
-    refiner = CoarseToFine(reference, icp_step(backend),
-                           settings=IcpSettings(model=model, relative_fitness=o.relative_fitness, weights=weights),
-                           max_correspondence_distance=o.max_correspondence_distance, iterations=o.iterations,
-                           relative_rmse=o.relative_rmse, point_to_line=o.refine == "point_to_line")
-    test = Plausibility(reference, refiner.tree, model=model, min_inlier_ratio=min_inlier_ratio,
-                        inlier_tolerance=inlier_tolerance, reference_max_points=reference_max_points)
-    search = GlobalSearch(refiner, test.measure, model=model, generators=o.generators, angle_step=o.angle_step,
-                          n_candidates=o.n_candidates, seed=o.seed, convincing=test.convincing,
+    search, each built from its part of ``config`` on the two pyramids, then the candidates refined from
+    ``init`` (a name or a 3x3 start, :func:`_candidates`). Returns the best candidate, every one tried,
+    the mirrored image's best (or None) and the test, which judges the best. ``keep_iterations``: each
+    candidate keeps its ICP iterations (a callback reports the best's, instead of refining it a second
+    time)."""
+    icp, plausibility, s = config.icp, config.plausibility, config.search
+    refiner = CoarseToFine(reference, icp_step(icp.backend),
+                           settings=IcpSettings(model=config.model, relative_fitness=icp.relative_fitness,
+                                                weights=icp.weights),
+                           max_correspondence_distance=icp.max_correspondence_distance, iterations=icp.iterations,
+                           relative_rmse=icp.relative_rmse, point_to_line=icp.refine == "point_to_line")
+    test = Plausibility(reference, refiner.tree, model=config.model, min_inlier_ratio=plausibility.min_inlier_ratio,
+                        inlier_tolerance=plausibility.inlier_tolerance,
+                        reference_max_points=config.pyramid.reference_max_points)
+    search = GlobalSearch(refiner, test.measure, model=config.model, generators=s.generators, angle_step=s.angle_step,
+                          n_candidates=s.n_candidates, seed=s.seed, convincing=test.convincing,
                           keep_iterations=keep_iterations)
-    tried, mirror = _candidates(o.init, moving, refiner, test, search)
+    tried, mirror = _candidates(init, moving, refiner, test, search)
     if not tried:
         raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
     best = max(tried, key=lambda c: c.score)  # edges rank the hypotheses; intensities break repetitive ties
@@ -551,9 +467,7 @@ def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausib
                 search: GlobalSearch) -> tuple[list[Candidate], Candidate | None]:
     """The refined hypotheses (the search's, or the one ``init`` names) and, where the search was not
     convinced, the best of the mirrored image's (None when not searched)."""
-    if isinstance(init, str):
-        if init not in ("auto", "global", "identity", "center"):
-            raise InputError(f"init must be 'auto', 'global', 'identity', 'center' or a 3x3 matrix, got {init!r}")
+    if isinstance(init, str):  # one of the config's names, checked there
         if init in ("auto", "global"):
             tried = search.run(moving)
             if not test.worth_a_mirror(tried, any(search.is_convincing(c) for c in tried)):

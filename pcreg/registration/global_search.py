@@ -15,7 +15,7 @@ Generators (each returns candidate ``T_ref_mov`` matrices in full-resolution pix
 among those that land on the reference image, that have a reference edge point within ``tolerance``
 px whose edge direction agrees within ``max_angle_deg``. A true alignment of the same scene puts most
 points there; an alignment of unrelated content only as many as chance allows (see
-:data:`DEFAULT_MIN_INLIER_RATIO` in :mod:`pcreg.registration.plausibility`).
+:data:`DEFAULT_MIN_INLIER_RATIO` in :mod:`pcreg.registration.config`).
 """
 
 from __future__ import annotations

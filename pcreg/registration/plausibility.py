@@ -6,7 +6,7 @@ on the reference image, with a reference edge point within ``inlier_tolerance`` 
 agrees within 30° (measured at full resolution; on images whose full-resolution reference cloud hits
 ``reference_max_points``, at the finest level where it does not, with the tolerance scaled to it).
 ``chance_ratio`` is what unrelated content reaches at the same distances. Below ``min_inlier_ratio``
-(see :data:`DEFAULT_MIN_INLIER_RATIO`; None turns the test off), below :data:`CHANCE_FACTOR` x
+(see :data:`~pcreg.registration.config.DEFAULT_MIN_INLIER_RATIO`; None turns the test off), below :data:`CHANCE_FACTOR` x
 ``chance_ratio``, with fewer than 2% of the points on the reference (no overlap), or when the moving
 image's mirror aligns clearly better (:data:`MIRROR_FACTOR`), :class:`~pcreg.errors.RegistrationError`
 is raised with a one-line reason. Unrelated images, noise and mirror images are refused this way.
@@ -20,22 +20,6 @@ from ..errors import RegistrationError
 from .global_search import Evidence, alignment_evidence
 from .pyramid import CloudPyramid
 from .search import Candidate
-
-DEFAULT_MIN_INLIER_RATIO = 0.15
-"""Default plausibility threshold of :func:`register`: the share of tight (<= 1 px), direction-consistent
-inliers an alignment must reach.
-
-The argument: content unrelated to the reference reaches only the test's chance level, the share of
-points that fall within 1 px of some reference edge times the chance that two unrelated edge directions
-agree within 30° (about 1/6 for uniform directions). Measured after the full search and ICP (which
-optimise the alignment, so this is the worst case), unrelated photographs, noise and procedural
-textures against each other reach 0.01-0.09, and the permutation estimate of chance
-(``chance_ratio``) is at most 0.20 even on dense, oriented textures (grass). True alignments of the
-same content reach 0.5-0.95 on photographs and textures; consecutive street-scene frames 15 per second
-apart 0.43-0.62. 0.15 lies above every unrelated alignment measured, with room below true ones; the
-second test, ``inlier_ratio >= CHANCE_FACTOR x chance_ratio``, covers textures whose own chance level
-comes near it. Mirror images are refused by comparison with their mirror (see :func:`register`).
-"""
 
 MIRROR_FACTOR = 1.2
 """A moving image whose mirror scores (:attr:`~pcreg.registration.search.Candidate.score`) this much better

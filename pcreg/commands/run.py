@@ -170,8 +170,10 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     out = Path(args.out)
     stream = StreamRun(frames, key_labels, out, options, truth=truth, identity=identity)
     start = stream.start(force=args.force)
+    # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
+    # never where the run stops (decoding finds the end)
     total = len(frames) if frames.kind == "folder" else frames.count()
-    if total is not None and start >= total:
+    if frames.kind == "folder" and start >= len(frames):
         print(f"{out}: all {start} frames already done")
         return 0
     if start == 1:
@@ -187,7 +189,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
             raise OutputError(f"{out}: {exc}; use --force to start over") from None
     done = start
     with open_recorder(args, name=f"run {args.folder}") as rec, \
-            progress(total=None if total is None else total - start, desc="frames", disable=None) as bar:
+            progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar:
         for frame in todo:
             check_interrupted()
             t = frame.position

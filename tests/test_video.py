@@ -204,6 +204,7 @@ def test_bad_videos_and_options_are_refused_in_one_line(tmp_path, frames, capsys
     assert "--stop 2 must be greater than --start 5" in refused(good, "--start", 5, "--stop", 2)
     assert f"{small}: labels are 160x60, the key frame 000000 is 160x120" in refused(good, labels=small)
     assert f"{good}: needs at least two frames" in refused(good, "--start", 7)
+    assert f"{good}: 160x120 px frames exceed the limit of 1000 pixels" in refused(good, "--max-pixels", 1000)
     keep = tmp_path / "keep"  # key labels named as a frame's output, in --out: refused, never overwritten
     keep.mkdir()
     cv2.imwrite(str(keep / "000000.png"), frames[0].labels)
@@ -252,3 +253,27 @@ def test_a_video_that_breaks_midway_keeps_the_frames_already_labelled(tmp_path, 
     assert done >= 3 and len(list((tmp_path / "c").glob("0*.png"))) == done
     assert main(args) == 2 and "truncated or damaged" in _err(capsys)[0]  # resumed: the same frames, kept
     assert json.loads((tmp_path / "c" / "run.json").read_text())["done"] == done
+
+
+def test_a_rotated_video_is_read_as_it_is_shown(tmp_path, frames):
+    """A display rotation (a phone held upright) is applied, as players and OpenCV's capture apply it."""
+    av = pytest.importorskip("av")
+    image = frames[0].image
+    for degrees in (90, -90, 180):
+        path = tmp_path / f"r{degrees}.mp4"
+        with av.open(str(path), "w") as container:
+            stream = container.add_stream("mpeg4", rate=10)
+            stream.width, stream.height, stream.pix_fmt = 160, 120, "yuv420p"
+            if not hasattr(stream, "set_display_rotation"):
+                pytest.skip("this PyAV cannot write a display rotation")
+            stream.set_display_rotation(degrees)
+            for _ in range(2):
+                for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
+                    container.mux(packet)
+            for packet in stream.encode():
+                container.mux(packet)
+        got = next(VideoFrames(path).frames()).image
+        shown = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG).read()[1][:, :, ::-1]
+        assert got.shape == shown.shape == np.rot90(image, degrees // 90).shape
+        assert np.abs(got.astype(int) - shown).mean() < 2
+        assert np.abs(got.astype(int) - np.rot90(image, degrees // 90)).mean() < 8

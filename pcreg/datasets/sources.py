@@ -15,6 +15,9 @@ Videos are decoded with PyAV (FFmpeg's libraries, called directly), not with Ope
 - the container: PyAV names the demuxer FFmpeg chose (an image renamed ``.mp4`` opens as a one-frame
   ``png_pipe`` in both) and the frame count the container's index declares.
 
+A frame's display rotation (a phone's portrait video) is applied by quarter turns, as players and
+OpenCV's capture show the frame: the key frame's labels are drawn on what the annotator saw.
+
 Frames are read in decoding order and never by seeking: a seek lands on a key frame near the target and
 is exact only where the container's timestamps are, so a resumed run decodes (without converting) the
 frames before its first and gets every frame bit for bit as an uninterrupted run does.
@@ -142,10 +145,15 @@ class VideoFrames:
 
     def __init__(self, path: str | Path, selection: Selection = Selection()) -> None:
         from ..formats import check_regular_file
+        from ..validation import max_pixels
 
         self.path, self.selection = check_regular_file(path, what="video"), selection
         with self._open() as container:
             stream = container.streams.video[0]
+            w, h = stream.codec_context.width, stream.codec_context.height
+            if w * h > max_pixels():  # the limit images have, checked before a frame is decoded
+                raise InputError(f"{self.path}: {w}x{h} px frames exceed the limit of {max_pixels()} pixels "
+                                 "(raise --max-pixels or PCREG_MAX_PIXELS)")
             declared = int(stream.frames or 0)
             #: The frame count the container's index declares (MP4, QuickTime, AVI): exact; else None.
             self.declared: int | None = declared if declared > 0 else None
@@ -206,10 +214,12 @@ class VideoFrames:
                 for frame in container.decode(stream):
                     i = decoded
                     decoded += 1
+                    turns = _quarter_turns(getattr(frame, "rotation", 0), self.path)
+                    shown = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)
                     if size is None:
-                        size = (frame.width, frame.height)
-                    elif (frame.width, frame.height) != size:
-                        raise InputError(f"{self.path}: frame {i} is {frame.width}x{frame.height}, the frames before it "
+                        size = shown
+                    elif shown != size:
+                        raise InputError(f"{self.path}: frame {i} is {shown[0]}x{shown[1]}, the frames before it "
                                          f"{size[0]}x{size[1]}; pcreg needs one frame size")
                     if s.stop is not None and i >= s.stop:
                         return
@@ -218,7 +228,10 @@ class VideoFrames:
                     position = (i - s.start) // s.every
                     name = f"{i:06d}"
                     yielded = True
-                    yield SourceFrame(position, i, name, name, frame.to_ndarray(format="rgb24"))
+                    image = frame.to_ndarray(format="rgb24")
+                    if turns:  # shown as players show it (and as OpenCV's capture turns it)
+                        image = np.ascontiguousarray(np.rot90(image, turns))
+                    yield SourceFrame(position, i, name, name, image)
             except av.FFmpegError as exc:
                 reason = getattr(exc, "strerror", None) or str(exc)
                 raise InputError(f"{self.path}: frame {decoded} does not decode ({reason}): the video is truncated "
@@ -239,6 +252,15 @@ class VideoFrames:
         if self.estimated is not None and decoded < self.estimated - max(2, 0.02 * self.estimated):
             raise InputError(f"{self.path}: ends after {decoded} frames, its duration holds about {self.estimated}: "
                              "the video is truncated or damaged")
+
+
+def _quarter_turns(rotation: float, path: Path) -> int:
+    """The counter-clockwise quarter turns (0-3) of a frame's display rotation (degrees, FFmpeg's display
+    matrix, as PyAV's ``VideoFrame.rotation``); one that is not a multiple of 90 degrees is refused."""
+    turns = round(float(rotation) / 90.0)
+    if abs(float(rotation) - 90.0 * turns) > 0.5:
+        raise InputError(f"{path}: a display rotation of {rotation:g} degrees; pcreg turns frames by quarter turns only")
+    return turns % 4
 
 
 def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderFrames | VideoFrames:

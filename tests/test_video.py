@@ -277,3 +277,21 @@ def test_a_rotated_video_is_read_as_it_is_shown(tmp_path, frames):
         assert got.shape == shown.shape == np.rot90(image, degrees // 90).shape
         assert np.abs(got.astype(int) - shown).mean() < 2
         assert np.abs(got.astype(int) - np.rot90(image, degrees // 90)).mean() < 8
+
+
+@pytest.mark.parametrize("suffix, fourcc", [(".avi", "MJPG"), (".mp4", "mp4v"), (".mkv", "MJPG")])
+def test_damaged_videos_decode_or_are_refused_never_crash(tmp_path, frames, suffix, fourcc):
+    """Seeded damage (bytes changed, the file cut anywhere): every frame decodes, or InputError says why."""
+    data = np.frombuffer(_write_video(tmp_path / f"v{suffix}", [f.image for f in frames[:4]], fourcc).read_bytes(), np.uint8)
+    rng = np.random.default_rng(0)
+    for k in range(20):
+        damaged = data[:rng.integers(1, len(data))].copy() if k % 3 == 0 else data.copy()
+        where = rng.integers(0, len(damaged), size=rng.integers(1, 12))
+        damaged[where] = rng.integers(0, 256, size=len(where))
+        path = tmp_path / f"d{suffix}"
+        path.write_bytes(damaged.tobytes())
+        try:
+            for f in VideoFrames(path).frames():
+                assert f.image.shape == (120, 160, 3) and f.image.dtype == np.uint8
+        except InputError as exc:
+            assert str(exc).startswith(f"{path}: ") or str(exc).startswith("--start"), exc

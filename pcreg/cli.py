@@ -21,7 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "register": ("pcreg.commands.register", "register a moving image to a reference image"),
     "crosscheck": ("pcreg.commands.crosscheck", "run both ICP backends on the same input and compare them"),
     "demo": ("pcreg.commands.demo", "the whole story on the built-in synthetic data (what `make demo` runs)"),
-    "run": ("pcreg.commands.run", "label a folder of frames from a labelled key frame (streaming propagation)"),
+    "run": ("pcreg.commands.run", "label a folder of frames or a video file from a labelled key frame (streaming propagation)"),
     "view": ("pcreg.commands.view", "open a rerun recording, render a screenshot of it, or serve an evaluation's report page"),
 }
 EVALUATIONS: dict[str, tuple[str, str]] = {

@@ -1,9 +1,11 @@
-"""Stream a folder of frames through the label propagator: one label PNG per frame.
+"""Stream a folder of frames or a video file through the label propagator: one label PNG per frame.
 
-The first frame (in name order) is the key frame and ``--labels`` its label image. A naive Bayes
-classifier is fitted on the key frame and those labels (unknown pixels left out); every following
-frame is registered to the key frame (a dense field by default), the key frame's labels are warped in
-as a prior and fused with the classifier (:class:`pcreg.Propagator`). Outputs and resuming:
+The first chosen frame (in name order, or a video's first; ``--start``, ``--stop`` and ``--every N``
+choose) is the key frame and ``--labels`` its label image. A naive Bayes classifier is fitted on the
+key frame and those labels (unknown pixels left out); every following frame is registered to the key
+frame (a dense field by default), the key frame's labels are warped in as a prior and fused with the
+classifier (:class:`pcreg.Propagator`). Frames are read one at a time
+(:mod:`pcreg.datasets.sources`; a video's frame ``i`` is named ``{i:06d}``). Outputs and resuming:
 :mod:`pcreg.pipeline.stream_run`. ``--truth LABELS_DIR`` scores every frame against its labels there
 (``NAME.png`` for frame ``NAME``) and keeps the running error in ``run.json``.
 """
@@ -14,12 +16,14 @@ import argparse
 from pathlib import Path
 
 from ..recording.interface import RecorderProtocol
-from ._common import add_record_arguments, open_recorder
+from ._common import add_record_arguments, arg_int, open_recorder
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..registration.transforms import MODELS
 
-    p.add_argument("folder", help="folder of frames (image files, or an images/ sub-folder), read in name order")
+    p.add_argument("folder", metavar="FRAMES",
+                   help="a video file (.mp4, .avi, .mkv, .mov) or a folder of frames (image files, or an images/ "
+                        "sub-folder, read in name order)")
     p.add_argument("--labels", required=True, metavar="KEYFRAME.png",
                    help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the label PNGs, run.json and steps.jsonl")
@@ -35,23 +39,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weight", type=float, default=2.0, help="fusion weight of the prior (default 2; 0 = naive Bayes)")
     p.add_argument("--confidence", action="store_true",
                    help="also write OUT/confidence/NAME.png: 255 x the probability that each label is right")
+    p.add_argument("--start", type=arg_int(0), default=0, metavar="I",
+                   help="the key frame: frame I (from 0, in name or decoding order; default 0)")
+    p.add_argument("--stop", type=arg_int(1), default=None, metavar="J", help="stop before frame J (default: the end)")
+    p.add_argument("--every", type=arg_int(1), default=1, metavar="N", help="every N-th frame from --start (default 1)")
     add_record_arguments(p)
-
-
-def _frames(folder: Path) -> list[Path]:
-    from ..errors import InputError
-    from ..formats import IMAGE_SUFFIXES
-
-    if not folder.is_dir():
-        raise InputError(f"{folder}: not a folder")
-    src = folder / "images" if (folder / "images").is_dir() else folder
-    paths = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if len(paths) < 2:
-        raise InputError(f"{src}: needs at least two frames (the key frame and one more), found {len(paths)}")
-    names = [p.stem for p in paths]
-    if len(set(names)) != len(names):
-        raise InputError(f"{folder}: two frames share a name ({len(names) - len(set(names))} duplicates)")
-    return paths
 
 
 def _read_labels(path: Path, mapping: str):
@@ -79,112 +71,145 @@ def _read_labels(path: Path, mapping: str):
 
 
 class _TruthMaps:
-    """Each frame's truth labels, read when the frame is scored: a long stream's maps are not all held in
-    memory (2,000 frames at 640x480 are 600 MB)."""
+    """Each frame's truth labels, ``ROOT/STEM.png``, read when the frame is scored: a long stream's maps are
+    not all held in memory (2,000 frames at 640x480 are 600 MB). A folder's are all checked before the
+    run starts; a video's length is known only once decoded, so each of its maps is checked when read."""
 
-    def __init__(self, paths: list[Path], mapping: str) -> None:
-        self.paths, self.mapping = paths, mapping
+    def __init__(self, root: Path, frames, mapping: str, shape: tuple[int, int]) -> None:
+        self.root, self.frames, self.mapping, self.shape = root, frames, mapping, shape
 
-    def __len__(self) -> int:
-        return len(self.paths)
+    def path(self, t: int) -> Path:
+        return self.root / f"{self.frames.stem(t)}.png"
 
     def __getitem__(self, t: int):
-        return _read_labels(self.paths[t], self.mapping)
+        from ..pipeline.stream_run import check_truth
+
+        f = self.path(t)
+        lab = _read_labels(f, self.mapping) if f.is_file() else None
+        check_truth([lab], self.shape, [self.frames.name(t)])
+        return lab
 
 
-def _truth(folder: str | None, paths: list[Path], shape, mapping: str):
-    """The frames' truth labels (:class:`_TruthMaps`), every one checked first, one at a time."""
+def _truth(folder: str | None, frames, shape, mapping: str):
+    """The frames' truth labels (:class:`_TruthMaps`); a folder's checked first, every one, one at a time."""
     from ..errors import InputError
-    from ..pipeline.stream_run import check_truth
 
     if folder is None:
         return None
     root = Path(folder)
     if not root.is_dir():
         raise InputError(f"--truth {root}: not a folder")
-    files = [root / f"{p.stem}.png" for p in paths]
-    for f, p in zip(files, paths):
-        check_truth([_read_labels(f, mapping) if f.is_file() else None], shape, [p.name])
-    return _TruthMaps(files, mapping)
+    truth = _TruthMaps(root, frames, mapping, shape)
+    if frames.kind == "folder":
+        for t in range(len(frames)):
+            truth[t]
+    return truth
 
 
-def _check_spares_inputs(out: Path, paths: list[Path], labels: Path, truth) -> None:
+def _check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
     """Refuse an ``--out`` whose label PNGs (``OUT/NAME.png`` per frame) would overwrite a frame, the key
     frame's labels or a truth map: ``--out`` the frames' own folder, say."""
     from ..errors import InputError
 
-    written = {(out / f"{p.stem}.png").resolve() for p in paths}
-    for f in [*paths, labels, *(truth.paths if truth is not None else [])]:
-        if f.resolve() in written:
-            raise InputError(f"--out {out} would overwrite the input {f}; choose another folder")
+    if truth is not None and truth.root.resolve() == out.resolve():
+        raise InputError(f"--out {out} would overwrite the truth maps in {truth.root}; choose another folder")
+    if frames.kind == "folder":
+        written = {(out / f"{p.stem}.png").resolve() for p in frames.paths}
+        clobbered = [f for f in [*frames.paths, labels] if f.resolve() in written]
+    else:  # a video's outputs are OUT/{i:06d}.png, as many as it has frames
+        clobbered = [labels] if frames.writes(labels.stem) and (out / f"{labels.stem}.png").resolve() == labels.resolve() else []
+    if clobbered:
+        raise InputError(f"--out {out} would overwrite the input {clobbered[0]}; choose another folder")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..classification.fusion import MAX_WEIGHT
+    from ..datasets.sources import Selection, open_frames
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.stream import Propagator
-    from ..registration.clouds import load_image
 
-    folder, out = Path(args.folder), Path(args.out)
-    paths = _frames(folder)
+    source, out = Path(args.folder), Path(args.out)
     if not 0 <= args.weight <= MAX_WEIGHT:
         raise InputError(f"--weight must be a number in 0..{MAX_WEIGHT:g}, got {args.weight}")
+    selection = Selection(args.start, args.stop, args.every)
+    frames = open_frames(source, selection)
     options = {"backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
     key_labels = _read_labels(Path(args.labels), args.mapping)
-    key_image = load_image(paths[0])
-    if key_labels.shape != key_image.shape[:2]:
+    decoded = frames.frames(0)
+    key = next(decoded)  # a source with no frame at --start raises, never ends empty
+    second = next(decoded, None)
+    if second is None:
+        raise InputError(f"{source}: needs at least two frames (the key frame and one more), found 1")
+    if key_labels.shape != key.image.shape[:2]:
         raise InputError(f"{args.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
-                         f"{paths[0].name} is {key_image.shape[1]}x{key_image.shape[0]}")
-    truth = _truth(args.truth, paths, key_image.shape[:2], args.mapping)
-    _check_spares_inputs(out, paths, Path(args.labels), truth)
-    prop = Propagator.from_key_frame(key_image, key_labels, **options)
-    identity = {"folder": str(folder.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
+                         f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}")
+    truth = _truth(args.truth, frames, key.image.shape[:2], args.mapping)
+    _check_spares_inputs(out, frames, Path(args.labels), truth)
+    prop = Propagator.from_key_frame(key.image, key_labels, **options)
+    identity = {frames.kind: str(source.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
                 "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
     if args.confidence:  # a run's identity names it only when on, so runs from before it still resume
         identity["confidence"] = True
+    if selection.to_dict() is not None:  # named only when not every frame, as --confidence
+        identity["frames"] = selection.to_dict()
     with OutputLock(out):  # a second run on the same --out is refused, not raced
-        return _label_frames(args, paths, prop, truth, options, identity, key_labels)
+        return _label_frames(args, frames, (second, decoded), prop, truth, options, identity, key_labels)
 
 
-def _label_frames(args: argparse.Namespace, paths: list[Path], prop, truth, options: dict, identity: dict,
+def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, options: dict, identity: dict,
                   key_labels) -> int:
-    """The frames not labelled yet, in order; ``OUT/run.json`` is the commit point of each."""
+    """The frames not labelled yet, in order; ``OUT/run.json`` is the commit point of each. ``pending``: the
+    frame after the key frame and the decoder it came from, which a fresh run continues."""
+    import itertools
     import sys
 
     from .._runner import check_interrupted, progress
     from ..errors import InputError, OutputError
     from ..pipeline.stream_run import STATE, StreamRun
-    from ..registration.clouds import load_image
 
-    folder, out = Path(args.folder), Path(args.out)
-    stream = StreamRun(paths, key_labels, out, options, truth=truth, identity=identity)
+    out = Path(args.out)
+    stream = StreamRun(frames, key_labels, out, options, truth=truth, identity=identity)
     start = stream.start(force=args.force)
-    if start >= len(paths):
-        print(f"{out}: all {len(paths)} frames already done")
+    # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
+    # never where the run stops (decoding finds the end)
+    total = len(frames) if frames.kind == "folder" else frames.count()
+    if frames.kind == "folder" and start >= len(frames):
+        print(f"{out}: all {start} frames already done")
         return 0
+    if start == 1:
+        todo = itertools.chain([pending[0]], pending[1])
+    else:
+        pending[1].close()
+        todo = frames.frames(start)  # decodes (a video) or skips (a folder) the frames done
     if start > 1:
         try:
             prop.resume(start - 1, stream.carry_after(start - 1) if prop.warm_starts else None,
                         stream.learned_after(start - 1))
         except InputError as exc:  # a carry of another stream
             raise OutputError(f"{out}: {exc}; use --force to start over") from None
-    with open_recorder(args, name=f"run {folder}") as rec, \
-            progress(total=len(paths) - start, desc="frames", disable=None) as bar:
-        for t in range(start, len(paths)):
+    done = start
+    with open_recorder(args, name=f"run {args.folder}") as rec, \
+            progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar:
+        for frame in todo:
             check_interrupted()
-            image = load_image(paths[t])
+            t = frame.position
             try:
-                labels = prop.step(image)
+                labels = prop.step(frame.image)
             except InputError as exc:  # a frame of another size: the step's own check, the file named
-                raise InputError(f"{paths[t]}: {exc}") from None
-            plain = prop.classifier.predict(image) if truth is not None else None
+                where = frames.paths[t] if frames.kind == "folder" else f"{frames.path} frame {frame.name}"
+                raise InputError(f"{where}: {exc}") from None
+            plain = prop.classifier.predict(frame.image) if truth is not None else None
             stream.record(t, labels, prop.last.to_dict(), plain, carry=prop.carry, learned=prop.learned,
                           confidence=prop.last.confidence if args.confidence else None)
-            _log(rec, t, image, labels, prop.last, paths[t].name)
+            _log(rec, t, frame.image, labels, prop.last, frame.name)
+            done = t + 1
             bar.update(1)
+    if done == start:
+        print(f"{out}: all {start} frames already done")
+        return 0
     s = stream.state
-    msg = f"{len(paths) - start} frame(s) labelled into {out}"
+    msg = f"{done - start} frame(s) labelled into {out}"
     if s["fallbacks"]:
         msg += (f"; {s['fallbacks']} registration(s) failed (those frames fuse the key frame's labels unwarped; "
                 f"see {out / 'steps.jsonl'})")

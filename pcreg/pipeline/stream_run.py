@@ -1,8 +1,8 @@
-"""A stream over a folder of frames, resumable: what ``pcreg run`` does.
+"""A stream over a folder of frames or a video, resumable: what ``pcreg run`` does.
 
 Outputs in ``out``, each written atomically:
 
-- ``NAME.png`` per frame: its labels (0 ground, 1 obstacle; the key frame's own labels as given);
+- ``NAME.png`` per frame (a folder's file name without its suffix; ``{i:06d}`` for a video's frame ``i``): its labels (0 ground, 1 obstacle; the key frame's own labels as given);
 - ``steps.jsonl``: one line per step (:meth:`pcreg.Propagator.step`'s report, and the frame's error
   against the truth when there is one), appended;
 - ``run.json``: the options, how many frames are done, how many fell back, and the running error
@@ -28,6 +28,7 @@ import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -45,14 +46,23 @@ _UNREADABLE_CARRY: tuple[type[BaseException], ...] = (*NPY_HEADER_ERRORS, KeyErr
                                                       zlib.error)
 
 
+class FrameNames(Protocol):
+    """What a run needs of its frames: the name of the frame at each position (0 is the key frame) and
+    the stem its outputs are named after (:class:`pcreg.datasets.sources.FolderFrames`, ``VideoFrames``)."""
+
+    def name(self, position: int) -> str: ...
+
+    def stem(self, position: int) -> str: ...
+
+
 @dataclass
 class StreamRun:
-    """One run: ``frames`` (paths, the first is the key frame), the key frame's ``labels``, ``out``, the
-    propagator's ``options`` (:class:`pcreg.Propagator` keywords), and optional ``truth`` label maps
-    (a sequence indexed by frame, an entry None where there is none; it may read each when asked) to
-    score against."""
+    """One run: ``frames`` (the frame source's names, position 0 is the key frame), the key frame's
+    ``labels``, ``out``, the propagator's ``options`` (:class:`pcreg.Propagator` keywords), and optional
+    ``truth`` label maps (indexed by position, an entry None where there is none; it may read each when
+    asked) to score against."""
 
-    frames: list[Path]
+    frames: FrameNames
     labels: np.ndarray
     out: Path
     options: dict
@@ -81,9 +91,9 @@ class StreamRun:
             return int(state["done"])
         for slot in (0, 1):
             (self.out / CARRY.format(slot)).unlink(missing_ok=True)
-        self.state = {"run": self.identity, "key_frame": self.frames[0].name, "done": 1, "fallbacks": 0,
+        self.state = {"run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": {"frames": 0, "wrong": 0, "known": 0, "plain_wrong": 0} if self.truth else None}
-        _write_png(self.out / f"{self.frames[0].stem}.png", self.labels)
+        _write_png(self.out / f"{self.frames.stem(0)}.png", self.labels)
         (self.out / STEPS).write_bytes(b"")
         atomic_write_json(state_path, self.state)
         return 1
@@ -150,11 +160,11 @@ class StreamRun:
         from ..classification.metrics import error_rate
         from ..outputs import atomic_write_json, to_json
 
-        _write_png(self.out / f"{self.frames[t].stem}.png", labels)
+        _write_png(self.out / f"{self.frames.stem(t)}.png", labels)
         if confidence is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
-            _write_png(self.out / CONFIDENCE / f"{self.frames[t].stem}.png", confidence_png(confidence))
-        step = dict(report, frame=t, name=self.frames[t].name)
+            _write_png(self.out / CONFIDENCE / f"{self.frames.stem(t)}.png", confidence_png(confidence))
+        step = dict(report, frame=t, name=self.frames.name(t))
         truth = None if self.truth is None else self.truth[t]
         if truth is not None:
             known = truth < 2

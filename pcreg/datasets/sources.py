@@ -1,0 +1,273 @@
+"""Frame sources for a stream: a folder of images or a video file, each frame decoded when it is read.
+
+A source yields :class:`SourceFrame` (position in the stream, index in the folder or video, name,
+image) lazily, one frame at a time: memory does not grow with the length of the video, and a resumed
+stream starts at its first frame not done. :class:`Selection` chooses the frames (``start``, ``stop``,
+``every``); the first chosen frame is the key frame.
+
+Videos are decoded with PyAV (FFmpeg's libraries, called directly), not with OpenCV's
+``cv2.VideoCapture``. Both run FFmpeg underneath; PyAV says what OpenCV hides:
+
+- a frame of another size: OpenCV scales every frame silently to the first frame's size, PyAV gives each
+  frame as decoded (a size change is refused, never resampled into the labels);
+- a decoding error: OpenCV's ``read()`` returns False at an error as at the end of the stream, PyAV
+  raises, so a damaged or truncated file is told from its end;
+- the container: PyAV names the demuxer FFmpeg chose (an image renamed ``.mp4`` opens as a one-frame
+  ``png_pipe`` in both) and the frame count the container's index declares.
+
+A frame's display rotation (a phone's portrait video) is applied by quarter turns, as players and
+OpenCV's capture show the frame: the key frame's labels are drawn on what the annotator saw.
+
+Frames are read in decoding order and never by seeking: a seek lands on a key frame near the target and
+is exact only where the container's timestamps are, so a resumed run decodes (without converting) the
+frames before its first and gets every frame bit for bit as an uninterrupted run does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "VIDEO_SUFFIXES"]
+
+#: The video files pcreg reads (by suffix, any case); what the file holds is checked by FFmpeg's demuxer.
+VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".avi", ".mkv", ".mov")
+# FFmpeg's demuxers for those containers, by the name PyAV reports.
+_CONTAINERS = {"mov,mp4,m4a,3gp,3g2,mj2": "MP4/QuickTime", "avi": "AVI", "matroska,webm": "Matroska"}
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which frames of a source a stream reads: indices ``start``, ``start + every``, ... below ``stop``
+    (None: to the end). Indices count from 0 in name order (a folder) or decoding order (a video)."""
+
+    start: int = 0
+    stop: int | None = None
+    every: int = 1
+
+    def __post_init__(self) -> None:
+        for name, v in (("start", self.start), ("every", self.every), ("stop", self.stop)):
+            if v is not None and (not isinstance(v, (int, np.integer)) or isinstance(v, bool)):
+                raise InputError(f"--{name} must be an integer, got {v!r}")
+        if self.start < 0:
+            raise InputError(f"--start must be 0 or more, got {self.start}")
+        if self.every < 1:
+            raise InputError(f"--every must be 1 or more, got {self.every}")
+        if self.stop is not None and self.stop <= self.start:
+            raise InputError(f"--stop {self.stop} must be greater than --start {self.start}")
+
+    def index(self, position: int) -> int:
+        """The source index of the stream's ``position``-th frame."""
+        return self.start + position * self.every
+
+    def chosen(self, index: int) -> bool:
+        """Whether the source's frame ``index`` is one of the stream's."""
+        return (index >= self.start and (self.stop is None or index < self.stop)
+                and (index - self.start) % self.every == 0)
+
+    def to_dict(self) -> dict | None:
+        """The selection as a run's identity names it: None for every frame (a run from before the
+        options resumes as it was)."""
+        return None if self == Selection() else {"start": self.start, "stop": self.stop, "every": self.every}
+
+
+@dataclass(frozen=True, eq=False)
+class SourceFrame:
+    """One frame of a stream: its ``position`` (0 is the key frame), its ``index`` in the source, its
+    ``name`` (a folder's file name; ``{index:06d}`` in a video), the ``stem`` its outputs are named
+    after, and the ``image`` (H, W, 3) uint8 RGB."""
+
+    position: int
+    index: int
+    name: str
+    stem: str
+    image: np.ndarray
+
+
+class FolderFrames:
+    """The image files of a folder (or of its ``images/`` sub-folder) in name order, each read when the
+    stream reaches it."""
+
+    kind = "folder"
+
+    def __init__(self, folder: str | Path, selection: Selection = Selection()) -> None:
+        from ..formats import IMAGE_SUFFIXES
+
+        self.path, self.selection = Path(folder), selection
+        if not self.path.is_dir():
+            raise InputError(f"{self.path}: not a folder or a video file ({', '.join(VIDEO_SUFFIXES)})")
+        src = self.path / "images" if (self.path / "images").is_dir() else self.path
+        files = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+        names = [p.stem for p in files]
+        if len(set(names)) != len(names):
+            raise InputError(f"{self.path}: two frames share a name ({len(names) - len(set(names))} duplicates)")
+        if files and selection.start >= len(files):
+            raise InputError(f"--start {selection.start} is past the end of {src} ({len(files)} frames)")
+        self.paths = files[selection.start:selection.stop:selection.every]
+        if len(self.paths) < 2:
+            raise InputError(f"{src}: needs at least two frames (the key frame and one more), found {len(self.paths)}"
+                             + ("" if selection == Selection() else " of those chosen"))
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def name(self, position: int) -> str:
+        return self.paths[position].name
+
+    def stem(self, position: int) -> str:
+        return self.paths[position].stem
+
+    def writes(self, stem: str) -> bool:
+        """Whether a stream over this source writes an output named ``stem`` (``OUT/STEM.png``)."""
+        return stem in {p.stem for p in self.paths}
+
+    def frames(self, first: int = 0) -> Iterator[SourceFrame]:
+        """The chosen frames from position ``first`` on, each read as it is asked for."""
+        from ..registration.clouds import load_image
+
+        for t in range(first, len(self.paths)):
+            p = self.paths[t]
+            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, load_image(p))
+
+
+class VideoFrames:
+    """The frames of a video file, decoded one at a time with PyAV; frame ``i`` (from 0) is named
+    ``{i:06d}``. Opening reads the container's header: a file FFmpeg cannot open, that is not an MP4,
+    QuickTime, AVI or Matroska file, or that holds no video stream is refused here; a truncated or
+    damaged file, a frame of another size, or a ``start`` past the end is refused where decoding meets it."""
+
+    kind = "video"
+
+    def __init__(self, path: str | Path, selection: Selection = Selection()) -> None:
+        from ..formats import check_regular_file
+        from ..validation import max_pixels
+
+        self.path, self.selection = check_regular_file(path, what="video"), selection
+        with self._open() as container:
+            stream = container.streams.video[0]
+            w, h = stream.codec_context.width, stream.codec_context.height
+            if w * h > max_pixels():  # the limit images have, checked before a frame is decoded
+                raise InputError(f"{self.path}: {w}x{h} px frames exceed the limit of {max_pixels()} pixels "
+                                 "(raise --max-pixels or PCREG_MAX_PIXELS)")
+            declared = int(stream.frames or 0)
+            #: The frame count the container's index declares (MP4, QuickTime, AVI): exact; else None.
+            self.declared: int | None = declared if declared > 0 else None
+            #: Without one (Matroska), the count its duration and frame rate give: an estimate.
+            self.estimated: int | None = None
+            if self.declared is None and container.duration and stream.average_rate:
+                self.estimated = int(round(container.duration / 1e6 * float(stream.average_rate)))
+        if self.declared is not None and selection.start >= self.declared:
+            raise InputError(f"--start {selection.start} is past the end of {self.path} ({self.declared} frames)")
+
+    def _open(self):
+        import av
+
+        try:
+            container = av.open(str(self.path), metadata_errors="ignore")
+        except (av.FFmpegError, UnicodeDecodeError) as exc:
+            reason = getattr(exc, "strerror", None) or str(exc)
+            raise InputError(f"{self.path}: not a video FFmpeg can read ({reason}): not a video, or truncated or "
+                             "damaged") from None
+        fmt = container.format.name
+        if fmt not in _CONTAINERS:
+            container.close()
+            raise InputError(f"{self.path}: not a video (FFmpeg reads it as {fmt}, not as {', '.join(_CONTAINERS.values())})")
+        if not container.streams.video:
+            container.close()
+            raise InputError(f"{self.path}: holds no video stream (an empty or damaged {_CONTAINERS[fmt]} file)")
+        return container
+
+    def count(self) -> int | None:
+        """How many frames the stream chooses, from the container's count (None if it gives none)."""
+        n = self.declared or self.estimated
+        if n is None:
+            return None
+        s = self.selection
+        end = n if s.stop is None else min(n, s.stop)
+        return max(0, -(-(end - s.start) // s.every))
+
+    def name(self, position: int) -> str:
+        return f"{self.selection.index(position):06d}"
+
+    stem = name
+
+    def writes(self, stem: str) -> bool:
+        """Whether a stream over this video writes an output named ``stem`` (``OUT/{i:06d}.png``)."""
+        return len(stem) >= 6 and stem.isdigit() and stem.isascii() and self.selection.chosen(int(stem))
+
+    def frames(self, first: int = 0) -> Iterator[SourceFrame]:
+        """The chosen frames from position ``first`` on, decoded in order: every frame before is decoded
+        too (never converted), so frame ``i`` is the same however the stream got there."""
+        import av
+
+        s = self.selection
+        target = s.index(first)
+        decoded, size, yielded = 0, None, False
+        with self._open() as container:
+            stream = container.streams.video[0]
+            try:
+                for frame in container.decode(stream):
+                    i = decoded
+                    decoded += 1
+                    turns = _quarter_turns(getattr(frame, "rotation", 0), self.path)
+                    shown = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)
+                    if size is None:
+                        size = shown
+                    elif shown != size:
+                        raise InputError(f"{self.path}: frame {i} is {shown[0]}x{shown[1]}, the frames before it "
+                                         f"{size[0]}x{size[1]}; pcreg needs one frame size")
+                    if s.stop is not None and i >= s.stop:
+                        return
+                    if i < target or not s.chosen(i):
+                        continue
+                    position = (i - s.start) // s.every
+                    name = f"{i:06d}"
+                    yielded = True
+                    image = frame.to_ndarray(format="rgb24")
+                    if turns:  # shown as players show it (and as OpenCV's capture turns it)
+                        image = np.ascontiguousarray(np.rot90(image, turns))
+                    yield SourceFrame(position, i, name, name, image)
+            except av.FFmpegError as exc:
+                reason = getattr(exc, "strerror", None) or str(exc)
+                raise InputError(f"{self.path}: frame {decoded} does not decode ({reason}): the video is truncated "
+                                 "or damaged") from None
+        if decoded == 0:
+            raise InputError(f"{self.path}: no frame decodes (an empty, truncated or damaged video)")
+        self._check_length(decoded)
+        if first == 0 and not yielded:
+            raise InputError(f"--start {s.start} is past the end of {self.path} ({decoded} frames)")
+
+    def _check_length(self, decoded: int) -> None:
+        """At the end of the stream: fewer frames than the container declares is a truncated file. An
+        estimate from the duration (Matroska) may be a frame or two off, or more for a variable frame
+        rate: a shortfall of more than 2 frames and 2% is refused."""
+        if self.declared is not None and decoded < self.declared:
+            raise InputError(f"{self.path}: ends after {decoded} of the {self.declared} frames its container declares: "
+                             "the video is truncated or damaged")
+        if self.estimated is not None and decoded < self.estimated - max(2, 0.02 * self.estimated):
+            raise InputError(f"{self.path}: ends after {decoded} frames, its duration holds about {self.estimated}: "
+                             "the video is truncated or damaged")
+
+
+def _quarter_turns(rotation: float, path: Path) -> int:
+    """The counter-clockwise quarter turns (0-3) of a frame's display rotation (degrees, FFmpeg's display
+    matrix, as PyAV's ``VideoFrame.rotation``); one that is not a multiple of 90 degrees is refused."""
+    turns = round(float(rotation) / 90.0)
+    if abs(float(rotation) - 90.0 * turns) > 0.5:
+        raise InputError(f"{path}: a display rotation of {rotation:g} degrees; pcreg turns frames by quarter turns only")
+    return turns % 4
+
+
+def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderFrames | VideoFrames:
+    """The frame source at ``path``: a video file (:data:`VIDEO_SUFFIXES`) or a folder of images."""
+    p = Path(path)
+    if p.suffix.lower() in VIDEO_SUFFIXES and not p.is_dir():
+        return VideoFrames(p, selection)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{p}: not a folder or a video file ({', '.join(VIDEO_SUFFIXES)})")
+    return FolderFrames(p, selection)

@@ -1,0 +1,297 @@
+"""`pcreg run VIDEO`: a video file's frames decoded one at a time, named by index, chosen with --start,
+--stop and --every, resumed exactly; bad videos and options refused in one line (exit 2), nothing
+already written lost. Every video is written here with OpenCV's writer (or by hand, for an AVI whose
+frame size changes)."""
+
+import json
+import struct
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.datasets.sources import Selection, VideoFrames, open_frames
+from pcreg.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return pcreg.synthetic("syn1a", 8, 0, width=160, height=120)
+
+
+def _write_video(path, images, fourcc="mp4v"):
+    h, w = images[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 10, (w, h))
+    assert writer.isOpened(), path
+    for rgb in images:
+        writer.write(np.ascontiguousarray(rgb[:, :, ::-1]))
+    writer.release()
+    return path
+
+
+def _mjpeg_avi(path, images):
+    """An AVI of JPEG frames written by hand, each frame at its own size (OpenCV's writer keeps one)."""
+    def chunk(fourcc, data):
+        return fourcc + struct.pack("<I", len(data)) + data + b"\0" * (len(data) % 2)
+
+    def listed(kind, body):
+        return b"LIST" + struct.pack("<I", len(body) + 4) + kind + body
+
+    h, w = images[0].shape[:2]
+    n = len(images)
+    avih = struct.pack("<14I", 100_000, 0, 0, 0x10, n, 0, 1, 0, w, h, 0, 0, 0, 0)
+    strh = b"vidsMJPG" + struct.pack("<IHHIIIIIIIIhhhh", 0, 0, 0, 0, 1, 10, 0, n, 0, 0xFFFFFFFF, 0, 0, 0, w, h)
+    strf = struct.pack("<IiiHHIIiiII", 40, w, h, 1, 24, int.from_bytes(b"MJPG", "little"), w * h * 3, 0, 0, 0, 0)
+    hdrl = listed(b"hdrl", chunk(b"avih", avih) + listed(b"strl", chunk(b"strh", strh) + chunk(b"strf", strf)))
+    movi = listed(b"movi", b"".join(chunk(b"00dc", cv2.imencode(".jpg", f[:, :, ::-1])[1].tobytes()) for f in images))
+    body = b"AVI " + hdrl + movi
+    path.write_bytes(b"RIFF" + struct.pack("<I", len(body)) + body)
+    return path
+
+
+def _err(capsys) -> list[str]:
+    return capsys.readouterr().err.strip().splitlines()
+
+
+def _timeless(line: str) -> dict:
+    step = json.loads(line)
+    step.pop("times")
+    step["registration"].pop("seconds")
+    return step
+
+
+def test_video_frames_are_decoded_in_order_and_chosen(tmp_path, frames):
+    video = _write_video(tmp_path / "v.mp4", [f.image for f in frames])
+    src = open_frames(video)
+    assert isinstance(src, VideoFrames) and src.declared == 8 and src.count() == 8
+    got = list(src.frames())
+    assert [(f.position, f.index, f.name) for f in got] == [(i, i, f"{i:06d}") for i in range(8)]
+    for f, truth in zip(got, frames):  # mp4v is lossy: close, not equal
+        assert f.image.shape == truth.image.shape and f.image.dtype == np.uint8
+        assert np.abs(f.image.astype(int) - truth.image).mean() < 8
+    chosen = VideoFrames(video, Selection(1, 7, 2))
+    assert chosen.count() == 3 and [f.name for f in chosen.frames()] == ["000001", "000003", "000005"]
+    later = list(chosen.frames(1))  # a resumed stream: the frames before decoded, not returned
+    assert [(f.position, f.name) for f in later] == [(1, "000003"), (2, "000005")]
+    np.testing.assert_array_equal(later[0].image, got[3].image)
+    assert chosen.writes("000003") and not chosen.writes("000002") and not chosen.writes("000007")
+    for bad, said in (({"every": 0}, "--every"), ({"start": 3, "stop": 3}, "--stop 3 must be greater"),
+                      ({"start": -1}, "--start")):
+        with pytest.raises(InputError, match=said):
+            Selection(**bad)
+
+
+def test_run_on_a_video_names_frames_by_index_and_resumes_exactly(tmp_path, frames, capsys, monkeypatch):
+    from pcreg.pipeline import stream_run
+
+    video = _write_video(tmp_path / "clip.avi", [f.image for f in frames[:6]], "MJPG")
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--confidence"]
+    assert main(args + ["--out", str(tmp_path / "whole")]) == 0
+    whole = tmp_path / "whole"
+    assert sorted(p.name for p in whole.glob("*.png")) == [f"{i:06d}.png" for i in range(6)]
+    assert sorted(p.name for p in (whole / "confidence").glob("*.png")) == [f"{i:06d}.png" for i in range(1, 6)]
+    steps = [json.loads(line) for line in (whole / "steps.jsonl").read_text().splitlines()]
+    assert [s["name"] for s in steps] == [f"{i:06d}" for i in range(1, 6)]
+    state = json.loads((whole / "run.json").read_text())
+    assert state["key_frame"] == "000000" and state["done"] == 6 and state["run"]["video"] == str(video)
+    assert "frames" not in state["run"]  # every frame: the identity names no selection
+
+    # killed after frame 3's PNG and step line were written, before run.json counted it; then resumed
+    real = stream_run.StreamRun.record
+
+    def crash(self, t, labels, report, plain=None, **kw):
+        if t == 3:
+            import pcreg.outputs
+
+            monkeypatch.setattr(pcreg.outputs, "atomic_write_json", _raise_kill)
+        return real(self, t, labels, report, plain, **kw)
+
+    monkeypatch.setattr(stream_run.StreamRun, "record", crash)
+    assert main(args + ["--out", str(tmp_path / "cut")]) == 130
+    monkeypatch.undo()
+    cut = tmp_path / "cut"
+    assert json.loads((cut / "run.json").read_text())["done"] == 3
+    assert main(args + ["--out", str(cut)]) == 0
+    names = [f"{i:06d}.png" for i in range(6)] + [f"confidence/{i:06d}.png" for i in range(1, 6)]
+    for name in ["run.json", "carry-0.npz", "carry-1.npz", *names]:
+        assert (whole / name).read_bytes() == (cut / name).read_bytes(), name
+    assert ([_timeless(x) for x in (whole / "steps.jsonl").read_text().splitlines()]
+            == [_timeless(x) for x in (cut / "steps.jsonl").read_text().splitlines()])
+    assert main(args + ["--out", str(cut)]) == 0 and "already done" in capsys.readouterr().out
+
+    # another choice of frames over the same --out is refused; in its own folder it names frames by index
+    for other in (["--every", "2"], ["--start", "1"], ["--stop", "5"]):
+        assert main(args + ["--out", str(cut), *other]) == 2
+        assert "other options" in _err(capsys)[0]
+    picked = tmp_path / "picked"
+    assert main(args + ["--out", str(picked), "--start", "1", "--every", "2"]) == 0
+    assert sorted(p.name for p in picked.glob("*.png")) == ["000001.png", "000003.png", "000005.png"]
+    state = json.loads((picked / "run.json").read_text())
+    assert state["key_frame"] == "000001" and state["run"]["frames"] == {"start": 1, "stop": None, "every": 2}
+    # the labels of a chosen frame are the same however the stream got there (frame 3 from frame 1's key)
+    half = tmp_path / "half"
+    assert main(args + ["--out", str(half), "--start", "1", "--every", "2", "--stop", "4"]) == 0
+    assert sorted(p.name for p in half.glob("*.png")) == ["000001.png", "000003.png"]
+    assert (half / "000003.png").read_bytes() == (picked / "000003.png").read_bytes()
+
+
+def _raise_kill(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def test_a_folder_takes_start_stop_and_every_too(tmp_path, frames, capsys):
+    src = tmp_path / "frames"
+    src.mkdir()
+    for i, f in enumerate(frames[:6]):
+        cv2.imwrite(str(src / f"f{i:03d}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "key.png"), frames[1].labels)
+    base = ["run", str(src), "--labels", str(tmp_path / "key.png")]
+    assert main(base + ["--out", str(tmp_path / "o"), "--start", "1", "--stop", "5", "--every", "2"]) == 0
+    out = tmp_path / "o"
+    assert sorted(p.name for p in out.glob("*.png")) == ["f001.png", "f003.png"]
+    assert [json.loads(x)["name"] for x in (out / "steps.jsonl").read_text().splitlines()] == ["f003.png"]
+    assert json.loads((out / "run.json").read_text())["key_frame"] == "f001.png"
+    assert main(base + ["--out", str(tmp_path / "p"), "--start", "6"]) == 2
+    assert _err(capsys) == [f"pcreg: error: --start 6 is past the end of {src} (6 frames)"]
+    assert main(base + ["--out", str(tmp_path / "p"), "--start", "5"]) == 2
+    assert "needs at least two frames" in _err(capsys)[0]
+    assert not (tmp_path / "p").exists()
+
+
+def test_bad_videos_and_options_are_refused_in_one_line(tmp_path, frames, capsys):
+    images = [f.image for f in frames]
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    good = _write_video(tmp_path / "good.mp4", images)
+    text = tmp_path / "text.mp4"
+    text.write_text("not a video\n" * 50)
+    png = tmp_path / "image.mp4"
+    png.write_bytes(cv2.imencode(".png", images[0])[1].tobytes())
+    other = tmp_path / "notes.txt"
+    other.write_text("x")
+    data = good.read_bytes()
+    cut_mp4 = tmp_path / "cut.mp4"
+    cut_mp4.write_bytes(data[:len(data) // 2])  # OpenCV writes the index (moov) last: it is gone
+    empty_avi = tmp_path / "empty.avi"
+    cv2.VideoWriter(str(empty_avi), cv2.VideoWriter_fourcc(*"MJPG"), 10, (160, 120)).release()  # no frame
+    empty_mp4 = tmp_path / "empty.mp4"
+    cv2.VideoWriter(str(empty_mp4), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120)).release()
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), frames[0].labels[:60])
+
+    def refused(source, *extra, labels=tmp_path / "key.png"):
+        out = tmp_path / "o"
+        try:
+            rc = main(["run", str(source), "--labels", str(labels), "--out", str(out), *map(str, extra)])
+        except SystemExit as exc:  # an option argparse refuses
+            rc = exc.code
+        err = _err(capsys)
+        assert rc == 2 and len(err) == 1, (rc, err)
+        assert not out.exists()  # refused before anything was written
+        return err[0]
+
+    assert f"{text}: not a video FFmpeg can read" in refused(text)
+    assert f"{png}: not a video (FFmpeg reads it as png_pipe" in refused(png)
+    assert f"{other}: not a folder or a video file" in refused(other)
+    assert f"{cut_mp4}: not a video FFmpeg can read" in refused(cut_mp4)
+    assert f"{empty_avi}: no frame decodes" in refused(empty_avi)
+    assert f"{empty_mp4}: holds no video stream" in refused(empty_mp4)
+    assert "--every: expected an integer" in refused(good, "--every", 0)
+    assert f"--start 8 is past the end of {good} (8 frames)" in refused(good, "--start", 8)
+    assert "--stop 3 must be greater than --start 3" in refused(good, "--start", 3, "--stop", 3)
+    assert "--stop 2 must be greater than --start 5" in refused(good, "--start", 5, "--stop", 2)
+    assert f"{small}: labels are 160x60, the key frame 000000 is 160x120" in refused(good, labels=small)
+    assert f"{good}: needs at least two frames" in refused(good, "--start", 7)
+    assert f"{good}: 160x120 px frames exceed the limit of 1000 pixels" in refused(good, "--max-pixels", 1000)
+    keep = tmp_path / "keep"  # key labels named as a frame's output, in --out: refused, never overwritten
+    keep.mkdir()
+    cv2.imwrite(str(keep / "000000.png"), frames[0].labels)
+    assert main(["run", str(good), "--labels", str(keep / "000000.png"), "--out", str(keep)]) == 2
+    assert "would overwrite the input" in _err(capsys)[0] and sorted(p.name for p in keep.iterdir()) == ["000000.png"]
+
+
+def test_a_video_is_scored_against_truth_maps_named_by_index(tmp_path, frames, capsys):
+    video = _write_video(tmp_path / "v.avi", [f.image for f in frames[:5]], "MJPG")
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    truth = tmp_path / "truth"
+    truth.mkdir()
+    for i, f in enumerate(frames[:3]):
+        cv2.imwrite(str(truth / f"{i:06d}.png"), f.labels)
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--truth", str(truth), "--out", str(tmp_path / "o")]
+    assert main(args + ["--stop", "3"]) == 0
+    state = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert state["truth"]["frames"] == 2 and state["truth"]["error"] < state["truth"]["plain_error"]
+    # a video's length is known once decoded: a missing map stops the run at its frame, the frames before kept
+    assert main(args[:-1] + [str(tmp_path / "p")]) == 2
+    assert _err(capsys) == ["pcreg: error: no truth labels for frame 000003"]
+    assert json.loads((tmp_path / "p" / "run.json").read_text())["done"] == 3
+
+
+def test_a_video_that_breaks_midway_keeps_the_frames_already_labelled(tmp_path, frames, capsys):
+    images = [frames[i % 8].image for i in range(12)]
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    # the frame size changes at frame 3: refused there, never resampled; frames 0-2 stay labelled
+    mixed = _mjpeg_avi(tmp_path / "mixed.avi", images[:3] + [cv2.resize(im, (80, 60)) for im in images[3:5]])
+    args = ["run", str(mixed), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "m")]
+    assert main(args) == 2
+    assert _err(capsys) == [f"pcreg: error: {mixed}: frame 3 is 80x60, the frames before it 160x120; "
+                            "pcreg needs one frame size"]
+    assert json.loads((tmp_path / "m" / "run.json").read_text())["done"] == 3
+    assert sorted(p.name for p in (tmp_path / "m").glob("*.png")) == ["000000.png", "000001.png", "000002.png"]
+    # a video cut in half: the frames before the cut are labelled and kept, the cut is named
+    whole = _write_video(tmp_path / "whole.avi", images, "MJPG")
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[:len(data) // 2])
+    args = ["run", str(cut), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "c")]
+    assert main(args) == 2
+    err = _err(capsys)
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {cut}: ") and "truncated or damaged" in err[0], err
+    done = json.loads((tmp_path / "c" / "run.json").read_text())["done"]
+    assert done >= 3 and len(list((tmp_path / "c").glob("0*.png"))) == done
+    assert main(args) == 2 and "truncated or damaged" in _err(capsys)[0]  # resumed: the same frames, kept
+    assert json.loads((tmp_path / "c" / "run.json").read_text())["done"] == done
+
+
+def test_a_rotated_video_is_read_as_it_is_shown(tmp_path, frames):
+    """A display rotation (a phone held upright) is applied, as players and OpenCV's capture apply it."""
+    av = pytest.importorskip("av")
+    image = frames[0].image
+    for degrees in (90, -90, 180):
+        path = tmp_path / f"r{degrees}.mp4"
+        with av.open(str(path), "w") as container:
+            stream = container.add_stream("mpeg4", rate=10)
+            stream.width, stream.height, stream.pix_fmt = 160, 120, "yuv420p"
+            if not hasattr(stream, "set_display_rotation"):
+                pytest.skip("this PyAV cannot write a display rotation")
+            stream.set_display_rotation(degrees)
+            for _ in range(2):
+                for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
+                    container.mux(packet)
+            for packet in stream.encode():
+                container.mux(packet)
+        got = next(VideoFrames(path).frames()).image
+        shown = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG).read()[1][:, :, ::-1]
+        assert got.shape == shown.shape == np.rot90(image, degrees // 90).shape
+        assert np.abs(got.astype(int) - shown).mean() < 2
+        assert np.abs(got.astype(int) - np.rot90(image, degrees // 90)).mean() < 8
+
+
+@pytest.mark.parametrize("suffix, fourcc", [(".avi", "MJPG"), (".mp4", "mp4v"), (".mkv", "MJPG")])
+def test_damaged_videos_decode_or_are_refused_never_crash(tmp_path, frames, suffix, fourcc):
+    """Seeded damage (bytes changed, the file cut anywhere): every frame decodes, or InputError says why."""
+    data = np.frombuffer(_write_video(tmp_path / f"v{suffix}", [f.image for f in frames[:4]], fourcc).read_bytes(), np.uint8)
+    rng = np.random.default_rng(0)
+    for k in range(20):
+        damaged = data[:rng.integers(1, len(data))].copy() if k % 3 == 0 else data.copy()
+        where = rng.integers(0, len(damaged), size=rng.integers(1, 12))
+        damaged[where] = rng.integers(0, 256, size=len(where))
+        path = tmp_path / f"d{suffix}"
+        path.write_bytes(damaged.tobytes())
+        try:
+            for f in VideoFrames(path).frames():
+                assert f.image.shape == (120, 160, 3) and f.image.dtype == np.uint8
+        except InputError as exc:
+            assert str(exc).startswith(f"{path}: ") or str(exc).startswith("--start"), exc

@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from ..outputs import atomic_write_bytes, check_output
 
     run_labels = read_run(args.folder)
-    dest = check_output(Path(args.to) if args.to else Path(args.folder) / default_name(args.format), force=args.force)
+    dest = check_output(Path(args.to) if args.to is not None else Path(args.folder) / default_name(args.format), force=args.force)
     frames = ((name, labels_with_confidence(run_labels, t, args.min_confidence))
               for t, name in enumerate(run_labels.names))
     data, counts = cvat_mask_archive(frames)  # every file read and checked before anything is written

@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "crosscheck": ("pcreg.commands.crosscheck", "run both ICP backends on the same input and compare them"),
     "demo": ("pcreg.commands.demo", "the whole story on the built-in synthetic data (what `make demo` runs)"),
     "run": ("pcreg.commands.run", "label a folder of frames or a video file from a labelled key frame (streaming propagation)"),
+    "export": ("pcreg.commands.export", "write a pcreg run's labels as an archive an annotation tool imports (CVAT)"),
     "view": ("pcreg.commands.view", "open a rerun recording, render a screenshot of it, or serve an evaluation's report page"),
 }
 EVALUATIONS: dict[str, tuple[str, str]] = {

@@ -1,0 +1,46 @@
+"""Write a ``pcreg run`` output's labels as an archive an annotation tool imports as it is.
+
+``--format cvat-mask``: CVAT's "Segmentation mask 1.1" (the Pascal VOC segmentation layout; see
+:mod:`pcreg.export`), one mask per labelled frame, the key frame included, named as the frames are.
+Unknown pixels, and with ``--min-confidence P`` every pixel whose confidence (``OUT/confidence/``) is
+below P, are left unlabelled in the tool. Everything is read and checked before the archive is written
+(atomically) to ``OUT/export-cvat-mask.zip`` or ``--to FILE``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ._common import arg_float
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..export import FORMATS
+
+    p.add_argument("folder", metavar="OUT", help="a pcreg run output folder (its run.json, steps.jsonl and NAME.png)")
+    p.add_argument("--format", choices=FORMATS, default=FORMATS[0],
+                   help="cvat-mask (default): CVAT's Segmentation mask 1.1 zip, the Pascal VOC segmentation layout")
+    p.add_argument("--to", metavar="FILE.zip", default=None, help="the archive (default OUT/export-FORMAT.zip)")
+    p.add_argument("--min-confidence", type=arg_float(0, 1), default=None, metavar="P",
+                   help="leave unlabelled every pixel whose confidence is below P (needs a run made with --confidence; "
+                        "the key frame's labels are kept)")
+    p.add_argument("--force", action="store_true", help="overwrite the archive")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..export import LABELMAP, cvat_mask_archive, default_name, labels_with_confidence, read_run
+    from ..outputs import atomic_write_bytes, check_output
+
+    run_labels = read_run(args.folder)
+    dest = check_output(Path(args.to) if args.to is not None else Path(args.folder) / default_name(args.format), force=args.force)
+    frames = ((name, labels_with_confidence(run_labels, t, args.min_confidence))
+              for t, name in enumerate(run_labels.names))
+    data, counts = cvat_mask_archive(frames)  # every file read and checked before anything is written
+    atomic_write_bytes(dest, data)
+    shown = ", ".join(f"{name} in {counts[name]}" for name, _ in LABELMAP.values() if name != "background")
+    print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {shown}; unknown left unlabelled "
+          f"in {counts['background']})")
+    print("CVAT: a task with the labels ground and obstacle over the same frames; Upload annotations, "
+          "format Segmentation mask 1.1")
+    return 0

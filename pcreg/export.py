@@ -1,0 +1,196 @@
+"""A ``pcreg run`` output as an archive an annotation tool imports, so a person corrects the labels there.
+
+One format: CVAT's "Segmentation mask 1.1" (``cvat-mask``), the Pascal VOC segmentation layout that CVAT
+reads through Datumaro's ``voc`` importer::
+
+    export-cvat-mask.zip
+    ├── labelmap.txt                    # label:color_rgb:parts:actions
+    ├── ImageSets/Segmentation/default.txt   # the frames' names, without extension, in run order
+    ├── SegmentationClass/NAME.png      # RGB, one colour per class (LABELMAP)
+    └── SegmentationObject/NAME.png     # RGB, VOC instance colours: ground 1, obstacle 2, unknown 0
+
+Unknown pixels (2) are black, ``background`` in the label map, and instance 0 in ``SegmentationObject``:
+the importer makes no annotation of instance 0, so in the tool they are unlabelled, where a person looks.
+Ground and obstacle become one mask each per frame (a class that a frame does not show, none). The
+task needs the labels ``ground`` and ``obstacle``; colours are matched through ``labelmap.txt``, names
+of frames through ``default.txt`` (the frame's file name without its extension).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["FORMATS", "LABELMAP", "INSTANCE_COLOURS", "RunLabels", "read_run", "read_labels", "labels_with_confidence",
+           "cvat_mask_archive", "default_name"]
+
+#: The formats ``pcreg export`` writes.
+FORMATS: tuple[str, ...] = ("cvat-mask",)
+
+#: pcreg's class id -> (name in the archive, RGB colour) of ``SegmentationClass``; unknown is the
+#: importer's ``background``, black (CVAT's own export writes it the same way).
+LABELMAP: dict[int, tuple[str, tuple[int, int, int]]] = {
+    2: ("background", (0, 0, 0)),
+    0: ("ground", (0, 128, 0)),
+    1: ("obstacle", (128, 0, 0)),
+}
+
+#: pcreg's class id -> RGB of its instance in ``SegmentationObject``: the VOC instance colour map's
+#: entries 1 and 2, and 0 (black, no instance) for unknown.
+INSTANCE_COLOURS: dict[int, tuple[int, int, int]] = {0: (128, 0, 0), 1: (0, 128, 0), 2: (0, 0, 0)}
+
+
+@dataclass(frozen=True)
+class RunLabels:
+    """The labelled frames of a run: ``names`` (the frames' file names, the key frame first) and
+    ``paths`` (each frame's label PNG, ``OUT/STEM.png``), ``confidence`` (each frame's confidence PNG,
+    or None: the key frame, or a run without ``--confidence``)."""
+
+    folder: Path
+    names: tuple[str, ...]
+    paths: tuple[Path, ...]
+    confidence: tuple[Path | None, ...]
+
+
+def default_name(fmt: str) -> str:
+    """The archive's file name in the run's folder when no destination is given."""
+    return f"export-{fmt}.zip"
+
+
+def read_run(folder: str | Path) -> RunLabels:
+    """The frames a ``pcreg run`` output in ``folder`` has labelled (counted in its ``run.json``), in order.
+
+    Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json`` (not a run's output), one
+    that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
+    """
+    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder")
+    state_path = folder / STATE
+    if not state_path.is_file():
+        raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
+    try:
+        state = json.loads(state_path.read_text(encoding="utf-8"))
+        key, done = str(state["key_frame"]), int(state["done"])
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError):
+        raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
+    names = [key]
+    steps_path = folder / STEPS
+    if done > 1:
+        try:
+            lines = steps_path.read_bytes().splitlines()[:done - 1]
+            names += [str(json.loads(line)["name"]) for line in lines]
+        except (OSError, ValueError, KeyError, TypeError):
+            raise InputError(f"{steps_path}: missing or unreadable") from None
+        if len(names) != done:
+            raise InputError(f"{steps_path}: {len(names) - 1} steps for {done - 1} labelled frames")
+    stems = [Path(n).stem for n in names]
+    if any(not s or "/" in n or "\\" in n for s, n in zip(stems, names)):
+        raise InputError(f"{steps_path}: a frame name that is not a file name")
+    paths = [folder / f"{s}.png" for s in stems]
+    if not any(p.is_file() for p in paths):
+        raise InputError(f"{folder}: no label files (none of {', '.join(p.name for p in paths[:3])}"
+                         f"{', ...' if len(paths) > 3 else ''})")
+    for p in paths:
+        if not p.is_file():
+            raise InputError(f"{p}: missing (a labelled frame's label file)")
+    conf_dir = folder / CONFIDENCE
+    confidence = [None] + [conf_dir / f"{s}.png" if conf_dir.is_dir() else None for s in stems[1:]]
+    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence))
+
+
+def read_labels(path: Path) -> np.ndarray:
+    """(H, W) uint8 labels of a run's label PNG, each 0, 1 or 2; an :class:`InputError` naming it otherwise."""
+    import cv2
+
+    from .formats import read_image_file
+
+    lab = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)
+    if lab.ndim != 2 or lab.dtype != np.uint8:
+        raise InputError(f"{path}: not a label image (8-bit, one channel)")
+    if lab.size and lab.max() > 2:
+        raise InputError(f"{path}: label value {int(lab.max())} is not 0, 1 or 2")
+    return lab
+
+
+def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None) -> np.ndarray:
+    """Frame ``t``'s labels; with ``min_confidence``, the pixels whose confidence is below it set to
+    unknown (2). The key frame's labels (a person's) are kept as they are."""
+    import cv2
+
+    from .formats import read_image_file
+
+    lab = read_labels(run.paths[t])
+    if min_confidence is None or t == 0:
+        return lab
+    path = run.confidence[t]
+    if path is None:
+        raise InputError(f"--min-confidence: {run.folder} has no confidence/ (run pcreg run with --confidence)")
+    if not path.is_file():
+        raise InputError(f"{path}: missing (--min-confidence needs every frame's confidence)")
+    conf = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)
+    if conf.ndim != 2 or conf.dtype != np.uint8 or conf.shape != lab.shape:
+        raise InputError(f"{path}: not a confidence map of {run.paths[t].name}'s size (8-bit, one channel)")
+    out = lab.copy()
+    out[conf.astype(np.float64) < min_confidence * 255.0] = 2  # 255 x the probability that the label is right
+    return out
+
+
+def _png(rgb: np.ndarray, path: str) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[:, :, ::-1]))  # OpenCV writes BGR
+    if not ok:
+        raise InputError(f"cannot encode {path}")
+    return buf.tobytes()
+
+
+def _paint(labels: np.ndarray, colours: dict[int, tuple[int, int, int]]) -> np.ndarray:
+    lut = np.zeros((256, 3), np.uint8)
+    for k, c in colours.items():
+        lut[k] = c
+    return lut[labels]
+
+
+def cvat_mask_archive(frames) -> tuple[bytes, dict[str, int]]:
+    """The bytes of a "Segmentation mask 1.1" zip of ``frames`` (pairs of a frame's file name and its
+    (H, W) uint8 labels, 0 ground, 1 obstacle, 2 unknown), and how many frames show each class.
+
+    Members are stored in a fixed order with a fixed date, so the same labels give the same bytes.
+    """
+    buf = io.BytesIO()
+    counts = {name: 0 for name, _ in LABELMAP.values()}
+    stems: list[str] = []
+    class_colours = {k: colour for k, (_, colour) in LABELMAP.items()}
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as z:  # PNGs are compressed already
+        def add(name: str, data: bytes | str) -> None:
+            info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16  # rw-r--r-- once unpacked (0 would be no permission at all)
+            z.writestr(info, data)
+
+        lines = ["# label:color_rgb:parts:actions"]
+        lines += [f"{name}:{','.join(map(str, colour))}::" for name, colour in LABELMAP.values()]
+        add("labelmap.txt", "\n".join(lines) + "\n")
+        for frame, labels in frames:
+            stem = Path(frame).stem
+            labels = np.asarray(labels)
+            if labels.ndim != 2 or labels.dtype != np.uint8 or (labels.size and labels.max() > 2):
+                raise InputError(f"{frame}: labels must be (H, W) uint8 in 0, 1, 2")
+            if stem in stems:
+                raise InputError(f"{frame}: two frames named {stem}")
+            stems.append(stem)
+            for k in np.unique(labels):
+                counts[LABELMAP[int(k)][0]] += 1
+            add(f"SegmentationClass/{stem}.png", _png(_paint(labels, class_colours), stem))
+            add(f"SegmentationObject/{stem}.png", _png(_paint(labels, INSTANCE_COLOURS), stem))
+        add("ImageSets/Segmentation/default.txt", "".join(f"{s}\n" for s in stems))
+    return buf.getvalue(), counts

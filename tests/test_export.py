@@ -1,0 +1,202 @@
+"""`pcreg export`: a real run's labels as CVAT's "Segmentation mask 1.1" zip, decoded back through its own
+label map to exactly the run's labels; the confidence threshold; every bad input refused in one line with
+exit code 2 and nothing written."""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import zipfile
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+
+NAMES = {"ground": 0, "obstacle": 1, "background": 2}  # the archive's names -> pcreg's class ids
+
+
+@pytest.fixture(scope="module")
+def run_out(tmp_path_factory):
+    """A real `pcreg run` of four synthetic frames with --confidence (made once for the module)."""
+    root = tmp_path_factory.mktemp("run")
+    frames = pcreg.synthetic("syn1a", 4, 0, width=160, height=120)
+    (root / "frames").mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(root / "frames" / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(root / "key.png"), frames[0].labels)
+    assert 2 in frames[0].labels  # the key frame holds unknown pixels too
+    out = root / "out"
+    assert main(["run", str(root / "frames"), "--labels", str(root / "key.png"), "--out", str(out), "--confidence"]) == 0
+    return out
+
+
+@pytest.fixture
+def run_copy(run_out, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(run_out, out)
+    return out
+
+
+def _labelmap(text: str) -> dict[tuple[int, int, int], str]:
+    colours = {}
+    for line in text.splitlines():
+        if line.strip() and not line.startswith("#"):
+            name, colour, parts, actions = line.split(":")
+            colours[tuple(int(c) for c in colour.split(","))] = name
+    return colours
+
+
+def _decode(z: zipfile.ZipFile, member: str, colours: dict) -> np.ndarray:
+    """A colour-coded PNG of the archive back to pcreg's class ids through ``colours`` (RGB -> id)."""
+    rgb = cv2.imdecode(np.frombuffer(z.read(member), np.uint8), cv2.IMREAD_UNCHANGED)[:, :, ::-1]
+    out = np.full(rgb.shape[:2], 255, np.uint8)
+    for colour, k in colours.items():
+        out[(rgb == colour).all(axis=2)] = k
+    assert (out != 255).all(), f"{member}: a colour the label map does not declare"
+    return out
+
+
+def _run_frames(out):
+    state = json.loads((out / "run.json").read_text())
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    return [state["key_frame"]] + [s["name"] for s in steps]
+
+
+def _check_archive(path, out, expected: dict[str, np.ndarray]):
+    names = _run_frames(out)
+    stems = [n.rsplit(".", 1)[0] for n in names]
+    with zipfile.ZipFile(path) as z:
+        assert z.testzip() is None
+        assert sorted(z.namelist()) == sorted(["labelmap.txt", "ImageSets/Segmentation/default.txt"]
+                                              + [f"SegmentationClass/{s}.png" for s in stems]
+                                              + [f"SegmentationObject/{s}.png" for s in stems])
+        assert z.read("ImageSets/Segmentation/default.txt").decode().split("\n") == stems + [""]
+        colours = _labelmap(z.read("labelmap.txt").decode())
+        assert sorted(colours.values()) == ["background", "ground", "obstacle"]
+        assert {v: k for k, v in colours.items()}["background"] == (0, 0, 0)  # the importer's background
+        by_id = {c: NAMES[name] for c, name in colours.items()}
+        # the VOC instance colour map: 0 black (no instance: unlabelled in the tool), 1 (128,0,0), 2 (0,128,0)
+        instances = {(0, 0, 0): 0, (128, 0, 0): 1, (0, 128, 0): 2}
+        for stem in stems:
+            labels = _decode(z, f"SegmentationClass/{stem}.png", by_id)
+            np.testing.assert_array_equal(labels, expected[stem])
+            inst = _decode(z, f"SegmentationObject/{stem}.png", instances)
+            np.testing.assert_array_equal(inst == 0, labels == 2)  # unknown: no instance, nothing imported
+            for i in (1, 2):  # each instance holds one class: ground 1, obstacle 2
+                assert len(np.unique(labels[inst == i])) <= 1
+            np.testing.assert_array_equal(inst[labels == 0], 1)
+            np.testing.assert_array_equal(inst[labels == 1], 2)
+
+
+def _labels(out):
+    return {p.stem: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in out.glob("*.png")}
+
+
+def test_export_decodes_back_to_the_runs_labels(run_copy, capsys):
+    out = run_copy
+    assert main(["export", str(out), "--format", "cvat-mask"]) == 0
+    said = capsys.readouterr().out
+    assert "4 frame(s)" in said and "Segmentation mask 1.1" in said
+    archive = out / "export-cvat-mask.zip"
+    expected = _labels(out)
+    assert len(expected) == 4 and (expected["frame_000"] == 2).any()  # the key frame's unknown pixels
+    _check_archive(archive, out, expected)
+    # the same labels give the same bytes; an existing archive is kept unless --force
+    first = archive.read_bytes()
+    assert main(["export", str(out)]) == 2
+    assert "exists (use --force" in capsys.readouterr().err
+    assert main(["export", str(out), "--force"]) == 0 and archive.read_bytes() == first
+    assert not list(out.glob(".*.tmp"))
+
+
+def test_export_to_a_file_elsewhere(run_copy, tmp_path):
+    dest = tmp_path / "for" / "cvat.zip"
+    assert main(["export", str(run_copy), "--to", str(dest)]) == 0
+    _check_archive(dest, run_copy, _labels(run_copy))
+    assert not (run_copy / "export-cvat-mask.zip").exists()
+
+
+def test_min_confidence_leaves_unsure_pixels_unlabelled(run_copy, tmp_path):
+    out = run_copy
+    labels = _labels(out)
+    conf = {p.stem: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in (out / "confidence").glob("*.png")}
+    assert sorted(conf) == ["frame_001", "frame_002", "frame_003"]  # the key frame has none: a person's labels
+    p = float(np.median(np.concatenate([c.ravel() for c in conf.values()]))) / 255.0 + 1e-3
+    expected = dict(labels)
+    for stem, c in conf.items():
+        expected[stem] = np.where(c.astype(np.float64) / 255.0 < p, 2, labels[stem]).astype(np.uint8)
+        assert (expected[stem] == 2).sum() > (labels[stem] == 2).sum()  # about half the pixels marked
+    assert main(["export", str(out), "--min-confidence", f"{p!r}", "--to", str(tmp_path / "c.zip")]) == 0
+    _check_archive(tmp_path / "c.zip", out, expected)
+    # 0 changes nothing; 1 leaves every frame after the key frame unlabelled, bar labels known for sure
+    assert main(["export", str(out), "--min-confidence", "0", "--to", str(tmp_path / "z.zip")]) == 0
+    _check_archive(tmp_path / "z.zip", out, labels)
+    assert main(["export", str(out), "--min-confidence", "1", "--to", str(tmp_path / "o.zip")]) == 0
+    everything = {s: (np.where(conf[s] < 255, 2, labels[s]).astype(np.uint8) if s in conf else labels[s]) for s in labels}
+    _check_archive(tmp_path / "o.zip", out, everything)
+
+
+def _refused(args, capsys, *said):
+    try:
+        code = main(["export", *args])
+    except SystemExit as exc:  # a bad option: the parser's one line
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pcreg"), err
+    for s in said:
+        assert s in err, err
+    return err
+
+
+def test_bad_input_one_line_exit_2_nothing_written(run_copy, tmp_path, capsys):
+    out = run_copy
+    before = sorted(p.name for p in out.rglob("*"))
+    # a folder that is not a run's output; one that does not exist
+    (tmp_path / "plain").mkdir()
+    _refused([str(tmp_path / "plain")], capsys, "run.json", "not the output of pcreg run")
+    _refused([str(tmp_path / "nowhere")], capsys, "nowhere")
+    # an unknown format; a confidence threshold out of range
+    _refused([str(out), "--format", "coco"], capsys, "--format", "coco")
+    _refused([str(out), "--min-confidence", "1.5"], capsys, "--min-confidence")
+    # an unwritable destination: a folder, a path under a file
+    _refused([str(out), "--to", str(tmp_path)], capsys, str(tmp_path), "is a folder")
+    _refused([str(out), "--to", ""], capsys, "is a folder")
+    _refused([str(out), "--to", str(out / "run.json" / "x.zip")], capsys, "run.json", "not a folder")
+    assert sorted(p.name for p in out.rglob("*")) == before
+    # --min-confidence on a run made without --confidence
+    no_conf = tmp_path / "no_conf"
+    shutil.copytree(out, no_conf)
+    shutil.rmtree(no_conf / "confidence")
+    _refused([str(no_conf), "--min-confidence", "0.5"], capsys, "--min-confidence", "--confidence")
+    assert not (no_conf / "export-cvat-mask.zip").exists()
+    # a label file that is missing, or holds a value that is not a label: named, nothing written
+    (out / "frame_002.png").rename(tmp_path / "aside.png")
+    _refused([str(out)], capsys, "frame_002.png", "missing")
+    cv2.imwrite(str(out / "frame_002.png"), np.full((120, 160), 7, np.uint8))
+    _refused([str(out)], capsys, "frame_002.png", "label value 7")
+    cv2.imwrite(str(out / "frame_002.png"), np.zeros((120, 160, 3), np.uint8) + [0, 0, 9])
+    _refused([str(out)], capsys, "frame_002.png")
+    assert not (out / "export-cvat-mask.zip").exists() and not list(out.glob(".*.tmp"))
+    # a run with no label files; a run.json that pcreg run did not write
+    for p in out.glob("*.png"):
+        p.unlink()
+    _refused([str(out)], capsys, "no label files")
+    (out / "run.json").write_text("{not json")
+    _refused([str(out)], capsys, "run.json", "unreadable")
+    assert not (out / "export-cvat-mask.zip").exists()
+
+
+def test_only_the_frames_the_run_counted(run_copy):
+    """A step appended after run.json's last commit (a run killed there) is not exported."""
+    out = run_copy
+    state = json.loads((out / "run.json").read_text())
+    state["done"] = 3
+    (out / "run.json").write_text(json.dumps(state))
+    assert main(["export", str(out)]) == 0
+    with zipfile.ZipFile(io.BytesIO((out / "export-cvat-mask.zip").read_bytes())) as z:
+        assert z.read("ImageSets/Segmentation/default.txt").decode().split() == ["frame_000", "frame_001", "frame_002"]

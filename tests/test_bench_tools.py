@@ -143,12 +143,13 @@ def test_bench_pipeline_times_the_default_step_and_its_stages(tmp_path):
     out = tmp_path / "bench"
     assert bench.main(["--out", str(out), "--data", "synthetic", "--frames", "3", "--cores", "0"]) == 0
     s = json.loads((out / "bench_pipeline.json").read_text())["streams"]["synthetic"]
-    assert s["pairs"] == 2 and set(s["median_ms"]) == {"step", "dis_medium"} and s["refused"] == 0
+    assert s["pairs"] == 2 and set(s["median_ms"]) == set(bench.METHODS) and s["refused"] == 0
     st = s["stages_median_ms"]
     assert st["total"] > 0 and st["register.search"] > 0 and st["register.field"] > 0 and st["fuse.warp"] > 0
     assert all(0 <= e <= 100 for e in s["mean_error"].values())
     md = (out / "bench_pipeline.md").read_text()
-    assert "Propagator.step (default) / DIS medium <= 1" in md and "Propagator.step (default) / DIS medium <= 3" in md
+    assert "Propagator.step (default) / DIS fast <= 1" in md and "Propagator.step (default) / DIS medium <= 1" in md
+    assert "the trust map and learning add <= 15% to the step" in md and st["fuse.trust"] > 0
     assert (out / "bench_pipeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert bench.main(["--out", str(out), "--frames", "2"]) == 2
 

@@ -319,11 +319,18 @@ def _fuse_methods(reference, moving, d_mov: np.ndarray, motion, *, pi: float, fu
         l_reg = prior_log_odds(q_mov, pi=pi)
     else:
         l_reg = np.zeros(shape, np.float32)
-    # a dense field's prior is weighted per pixel by its confidence, as in the stream
-    fused = fuse(d_mov, l_reg, weight=weight if motion is None else pixel_weight(weight, motion.confidence))
+    # a dense field's prior is weighted per pixel by its confidence and by how well the reference carried
+    # along it matches the moving frame (the stream's trust, pcreg.pipeline.trust.residual_trust)
+    trust = None
+    if motion is not None and motion.field is not None:
+        from .trust import residual_trust
+
+        trust = residual_trust(reference.image, moving.image, motion.field)
+    w_reg = weight if motion is None else pixel_weight(weight, motion.confidence)
+    fused = fuse(d_mov, l_reg, weight=w_reg if trust is None else (np.float32(w_reg) * trust).astype(np.float32))
     fuse_seconds = time.perf_counter() - t0
     fused_id = fuse(d_mov, prior_log_odds(q_ref, pi=pi), weight=weight)
-    fused_t = None if temporal is None else temporal.step(d_mov, motion, pi=pi)
+    fused_t = None if temporal is None else temporal.step(d_mov, motion, pi=pi, trust=trust)
     t0 = time.perf_counter()
     flow = flow_field(reference.image, moving.image) if flow is None else flow
     fused_flow = fuse(d_mov, warped_prior_log_odds(q_ref, flow, shape=shape, pi=pi), weight=flow_weight)

@@ -33,14 +33,17 @@ def registration_supported(warped_labels: np.ndarray, labels: np.ndarray, log_od
 
 
 def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, motion: Motion | None, *,
-                    pi: float, weight: float, fusion: FusionConfig = FusionConfig()) -> tuple[np.ndarray, np.ndarray]:
+                    pi: float, weight: float, fusion: FusionConfig = FusionConfig(),
+                    trust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One step of the temporal filter.
 
     log_odds_moving : (H, W) float32 naive Bayes log-odds of the new frame. labels_reference : (H, W)
     uint8 labels the chain holds for the previous frame (true labels at the chain's start, then its
     own fused labels; 2 where it knows nothing). motion : previous -> new registration, a
     :class:`~pcreg.registration.motion.Motion` or what :meth:`~pcreg.registration.motion.Motion.of` takes
-    (None: no prior). Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``:
+    (None: no prior). trust : (H, W) factors in [0, 1] on the prior's weight (and on the judging
+    weight), the stream's trust in the carried labels (:func:`pcreg.pipeline.trust.residual_trust`);
+    None: 1 everywhere. Returns ``(fused log-odds (H, W) float32, labels (H, W) uint8)``:
     the fused log-odds at ``weight``, and the label carried over from the previous frame where it
     reached the new frame and Bayes' rule at weight 1 agrees with it, 2 (unknown) elsewhere. So a
     label survives while the classifier does not overrule it, and neither
@@ -75,9 +78,14 @@ def temporal_update(log_odds_moving: np.ndarray, labels_reference: np.ndarray, m
         return d.copy(), np.full(d.shape, 2, np.uint8)
     l_prior = warped_prior_log_odds(label_prior(labels_reference, pi=pi, fusion=fusion), motion,
                                     shape=d.shape, pi=pi)
+    if trust is not None:
+        l_prior = (l_prior * np.asarray(trust, np.float32)).astype(np.float32)
     fused = fuse(d, l_prior, weight=weight)
     judged = labels_from_log_odds(fuse(d, l_prior, weight=1.0))
-    labels = np.where((reached < 2) & (judged == reached), reached, np.uint8(2)).astype(np.uint8)
+    kept = (reached < 2) & (judged == reached)
+    if trust is not None:  # a label is carried on only where it is trusted at least half
+        kept &= np.asarray(trust) >= 0.5
+    labels = np.where(kept, reached, np.uint8(2)).astype(np.uint8)
     return fused, labels
 
 
@@ -110,17 +118,18 @@ class TemporalFusion:
     def weight(self) -> float:
         return self._weight
 
-    def step(self, log_odds_moving: np.ndarray, motion: Motion | None, *, pi: float | None = None) -> np.ndarray:
+    def step(self, log_odds_moving: np.ndarray, motion: Motion | None, *, pi: float | None = None,
+             trust: np.ndarray | None = None) -> np.ndarray:
         """Fuse the moving frame's log-odds (H, W) with the state warped by ``motion`` (None: no
         prior); returns the fused log-odds (H, W) float32 and keeps the new label state.
 
         pi : the obstacle prior of the classifier that made the log-odds (kept for later steps); None
-        keeps the last one.
+        keeps the last one. trust : per-pixel factors on the carried labels' weight (:func:`temporal_update`).
         """
         if pi is not None:
             self._pi = float(pi)
         fused, labels = temporal_update(log_odds_moving, self._labels, motion, pi=self._pi,
-                                        weight=self._weight, fusion=self._fusion)
+                                        weight=self._weight, fusion=self._fusion, trust=trust)
         labels.setflags(write=False)
         self._labels = labels
         return fused

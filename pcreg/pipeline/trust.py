@@ -34,6 +34,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
+           "residual_trust",
            "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error"]
 
 #: The width at which the rule's pixel sizes are stated; they scale with the frame's width.
@@ -135,6 +136,16 @@ def carried_residual(key_blurred: np.ndarray, frame_blurred: np.ndarray, field: 
     res[~inside] = OUTSIDE
     res = cv2.GaussianBlur(res, (0, 0), _scaled(RESIDUAL_SIGMA, w) / 2)
     return cv2.resize(res, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def residual_trust(reference_image: np.ndarray, moving_image: np.ndarray, field: np.ndarray,
+                   rule: "TrustRule | None" = None) -> np.ndarray:
+    """(H, W) float32 in [0, 1]: how far labels carried from ``reference_image`` into ``moving_image``
+    along ``field`` (reference coordinates of every moving pixel) can be trusted, the stream's rule
+    (``exp(-r / residual)`` of :func:`carried_residual`, 0 wholly outside the reference), for a pair."""
+    rule = STREAM_TRUST if rule is None else rule
+    r = carried_residual(blurred(reference_image), blurred(moving_image), field)
+    return np.where(r < OUTSIDE, np.exp(r * np.float32(-1.0 / rule.residual)), np.float32(0.0)).astype(np.float32)
 
 
 def carried_log_odds(log_odds: np.ndarray, field: np.ndarray) -> np.ndarray:

@@ -460,10 +460,12 @@ def test_a_recording_of_the_old_layout_reads_back_and_gets_its_blueprint(tmp_pat
 
     from pcreg.recording.blueprint import panes
     from pcreg.recording.readback import read_entities
+    from pcreg.recording.staging import stage
 
     path = tmp_path / "old.rrd"
     rec = rr.RecordingStream("pcreg", recording_id="old-layout")
     rec.save(path)
+    rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: "sequence"}))
     for f in range(3):
         rec.set_time(E.FRAME_TIMELINE, sequence=f)
         rec.log(E.REFERENCE_IMAGE, rr.Image(_image(f), color_model="RGB", draw_order=-10.0))
@@ -477,6 +479,13 @@ def test_a_recording_of_the_old_layout_reads_back_and_gets_its_blueprint(tmp_pat
         assert np.array_equal(image(back.reference(f)), _image(f))
     registration = next(p for p in panes("sequence", read_entities(path)) if p.name == "Registration")
     assert registration.offsets == () and "/" + E.MOVING_IMAGE not in registration.include
+    # what `pcreg view` opens: the recording staged with the layout of what it holds
+    staged = stage([path], tmp_path / "staged.rrd")
+    assert staged.kinds == ("sequence",)
+    shown = panes("sequence", read_entities(staged.path, timeline=E.FRAME_TIMELINE))
+    assert [(p.name, p.include, p.offsets) for p in shown if p.name == "Registration"] == [
+        ("Registration", ("/registration/**",), ())]
+    assert np.array_equal(image(read_recording(staged.path).reference(2)), _image(2))
 
 
 def test_the_callers_buffers_are_free_at_once_and_lines_keep_their_order(tmp_path):

@@ -85,6 +85,37 @@ def test_headless_screenshot_shows_the_images(small_recording, tmp_path, capsys)
     assert shot.std() > 20
 
 
+def test_headless_screenshot_shows_the_reference_stored_once(tmp_path, capsys):
+    """Raw images: frame 1's reference is frame 0's moving image, stored once: the Registration view at
+    frame 1 draws it (red and green) from frame 0, not frame 1's own moving image (blue), nor frame 0's
+    reference (grey)."""
+    if sys.platform.startswith("linux") and not view.vulkan_icds():
+        pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
+    halves = np.zeros((120, 160, 3), np.uint8)
+    halves[:, :80] = (230, 20, 20)
+    halves[:, 80:] = (20, 210, 20)
+    grey = np.full((120, 160, 3), 128, np.uint8)
+    blue = np.zeros((120, 160, 3), np.uint8)
+    blue[:] = (20, 20, 230)
+    path = tmp_path / "once.rrd"
+    with Recorder(path, kind="sequence", raw_images=True) as rec:
+        for f, (reference, moving) in enumerate([(grey, halves), (halves, blue)]):
+            rec.set_frame(f)
+            rec.log_images(reference=reference, moving=moving)
+            rec.log_errors({"plain": 0.1 + f})
+    shots = {}
+    for name in ("Registration", "Moving"):
+        shots[name] = tmp_path / f"{name}.png"
+        code = pcreg_view([str(path), "--screenshot", str(shots[name]), "--time", "frame=1", "--view", name,
+                           "--size", "1280x720"])
+        assert code == 0, capsys.readouterr().err
+    red, green = _colours(cv2.imread(str(shots["Registration"]), cv2.IMREAD_COLOR))
+    assert red > 0.05 and green > 0.05, (red, green)
+    b, g, r = (cv2.imread(str(shots["Moving"]), cv2.IMREAD_COLOR)[..., i].astype(int) for i in range(3))
+    assert ((b > 150) & (r < 90) & (g < 90)).mean() > 0.05
+    assert min(_colours(cv2.imread(str(shots["Moving"]), cv2.IMREAD_COLOR))) < 0.01
+
+
 def _colours(shot: np.ndarray) -> tuple[float, float]:
     """Fractions of the picture that are the recording's saturated red and green (BGR input)."""
     b, g, r = (shot[..., i].astype(int) for i in range(3))

@@ -15,7 +15,7 @@ the file (so recordings from any version, or cut short, get the layout of what t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Mapping
+from typing import Any, Iterable, Mapping
 
 from . import entities as E
 
@@ -41,15 +41,24 @@ REGISTRATION_VIEW = "Registration"
 Entities = Mapping[str, Iterable[str]]
 
 
+#: What marks a recording (of raw images) whose pairs' references may be the previous frame's moving
+#: image, stored once (``pcreg.recording.pair_log``): a ``Clear`` at ``registration/reference``.
+PREVIOUS_FRAME_MARK = frozenset({"Clear"})
+
+
 @dataclass(frozen=True)
 class Pane:
     """One view: ``view`` is ``2D``, ``TimeSeries``, ``TextLog`` or ``TextDocument``; ``include`` holds
-    entity paths, exact or ending in ``/**`` (the path and everything below it)."""
+    entity paths, exact or ending in ``/**`` (the path and everything below it). ``offsets`` maps some of
+    them, exact, to a number of frames: the view draws that entity as it was that many frames from the
+    time cursor on the ``frame`` timeline (a visible time range of one frame), e.g. ``-1``, the previous
+    frame."""
 
     name: str
     view: str
     origin: str
     include: tuple[str, ...]
+    offsets: tuple[tuple[str, int], ...] = ()
 
     def shows(self, path: str) -> bool:
         """Whether ``path`` is one of the entities this pane shows."""
@@ -157,8 +166,14 @@ def _texts(entities) -> list[Pane]:
 
 
 def _registration(entities) -> list[Pane]:
-    return (_spatial(entities, REGISTRATION_VIEW, E.REGISTRATION) + _spatial(entities, "Moving", E.MOVING)
-            + _exact_spatial(entities, "Valid mask", E.VALID_MASK))
+    """The registration (the reference, with the previous frame's moving image where the recording shows
+    the reference so, and what is drawn over it), the moving image and the valid mask."""
+    main = _spatial(entities, REGISTRATION_VIEW, E.REGISTRATION)
+    reference, moving = "/" + E.REFERENCE_IMAGE, "/" + E.MOVING_IMAGE
+    if PREVIOUS_FRAME_MARK & entities.get(reference, frozenset()) and SPATIAL & entities.get(moving, frozenset()):
+        base = "/" + E.REGISTRATION
+        main = [Pane(REGISTRATION_VIEW, "2D", base, (base + "/**", moving), ((moving, -1),))]
+    return main + _spatial(entities, "Moving", E.MOVING) + _exact_spatial(entities, "Valid mask", E.VALID_MASK)
 
 
 def _dense(entities) -> tuple[list[Pane], list[Pane]]:
@@ -239,7 +254,18 @@ def _view(pane: Pane):
 
     cls = {"2D": rrb.Spatial2DView, "3D": rrb.Spatial3DView, "TimeSeries": rrb.TimeSeriesView, "TextLog": rrb.TextLogView,
            "TextDocument": rrb.TextDocumentView}[pane.view]
-    return cls(origin=pane.origin, contents=[f"+ {p}" for p in pane.include], name=pane.name)
+    kw: dict[str, Any] = {}
+    if pane.offsets:
+        kw["overrides"] = {path: rrb.VisibleTimeRanges([_frame_offset(n)]) for path, n in pane.offsets}
+    return cls(origin=pane.origin, contents=[f"+ {p}" for p in pane.include], name=pane.name, **kw)
+
+
+def _frame_offset(n: int):
+    """The visible time range of the one frame ``n`` frames from the time cursor."""
+    import rerun.blueprint as rrb
+
+    at = rrb.TimeRangeBoundary.cursor_relative(seq=int(n))
+    return rrb.VisibleTimeRange(E.FRAME_TIMELINE, start=at, end=at)
 
 
 def _layout(main: list, side: list, labels: list, series: list, texts: list):
@@ -301,7 +327,7 @@ def prefixed(pane: Pane, label: str) -> Pane:
     """``pane`` moved under ``/{label}`` (a recording merged into a comparison)."""
     root = "/" + label.strip("/")
     return Pane(f"{label}: {pane.name}", pane.view, root + pane.origin,
-                tuple(root + p for p in pane.include))
+                tuple(root + p for p in pane.include), tuple((root + p, n) for p, n in pane.offsets))
 
 
 def compare_panes(recordings: list[tuple[str, str, Entities]]) -> list[list[Pane]]:

@@ -13,7 +13,10 @@ Layout (``{x}`` is filled in at log time)::
     /                                   AnnotationContext (static): 0 ground, 1 obstacle, 2 unknown
     config                              TextDocument (static): the run's configuration as JSON
     log                                 TextLog: configuration, progress, failures
-    registration/reference              reference image, reference pixel frame (JPEG or raw)
+    registration/reference              reference image, reference pixel frame (JPEG or raw); logged when
+                                        it changes. Raw images: a Clear where the reference is the previous
+                                        frame's moving image, which the Registration view then draws
+                                        (moving/image one frame back; pcreg.recording.pair_log)
     registration/warped                 moving image warped into the reference frame (drawn at half opacity)
     registration/reference_cloud        Points2D: reference cloud (display subsample), coloured by pixel colour
     registration/moving_cloud           Points2D: moving cloud mapped into the reference by the transform

@@ -1,5 +1,15 @@
 """A registration pair: its images, clouds and transforms (``registration/``, ``moving/``, ``warped/``,
-``transforms/``): :class:`PairLogger`, and :class:`Pair`, what it holds of the frame's pair."""
+``transforms/``): :class:`PairLogger`, and :class:`Pair`, what it holds of the frame's pair.
+
+A reference is not logged again while it stays the same (a rotation's angles share their frame's): the
+viewer's latest-at query keeps showing the one logged. In a recording of raw images, a pair's reference
+that is the previous frame's moving image (a sequence at k = 1) is not logged again either: a ``Clear`` at
+``registration/reference`` lets the blueprint's Registration view draw ``moving/image`` as it was one
+frame earlier (a visible time range, :mod:`pcreg.recording.blueprint`), so each frame's image is stored
+once. JPEG images are logged again there: rerun's viewer (0.41) draws an ``EncodedImage`` entity as an
+image sequence at the time cursor and ignores visible time ranges, so the view would show the moving
+image in the reference's place (docs/benchmarks.md#recording). :meth:`pcreg.recording.readback.Recording.reference`
+reads a pair's reference back from any of these layouts."""
 
 from __future__ import annotations
 
@@ -15,7 +25,12 @@ from ..errors import InputError
 from .sink import Sink
 from .values import apply_homography, as_colors, as_image, as_points, display_indices
 
-__all__ = ["Pair", "PairLogger"]
+__all__ = ["Pair", "PairLogger", "REFERENCE_DRAW_ORDER", "MOVING_DRAW_ORDER"]
+
+#: Draw orders in the Registration view: a reference logged for its pair above the previous frame's moving
+#: image that the view also draws (:mod:`pcreg.recording.blueprint`), both below the warped image (-5).
+REFERENCE_DRAW_ORDER = -9.0
+MOVING_DRAW_ORDER = -10.0
 
 @dataclass(frozen=True)
 class Pair:
@@ -44,6 +59,12 @@ class PairLogger:
         self.sink = sink
         self.max_display_points = int(max_display_points)
         self.pair = Pair()
+        # on the sink's thread only: the last moving image logged and its frame, the reference that
+        # registration/reference shows (None: none, or cleared), and whether it was cleared last
+        self._last_moving: tuple[int | None, np.ndarray] | None = None
+        self._shown_reference: np.ndarray | None = None
+        self._cleared = False
+        self._last_frame: int | None = None  # the latest frame an image was logged at
 
     def new_pair(self) -> None:
         """Forget the pair logged so far (a new frame)."""
@@ -53,14 +74,15 @@ class PairLogger:
                    warped: np.ndarray | None = None, valid_mask: np.ndarray | None = None) -> None:
         """Images as JPEG (or raw), the mask as PNG; checked and copied here (the caller may reuse its buffers)."""
         sink = self.sink
+        frame = sink.frame
         jobs = []
         if reference is not None:
             a = as_image(reference, "reference").copy()
-            jobs.append((E.REFERENCE_IMAGE, lambda a=a: sink.image(a, draw_order=-10.0)))
+            sink.later(lambda: self._log_reference(a, frame))
         if moving is not None:
             m = as_image(moving, "moving").copy()
             self.pair = dataclasses.replace(self.pair, moving_shape=(int(m.shape[0]), int(m.shape[1])))
-            jobs.append((E.MOVING_IMAGE, lambda m=m: sink.image(m, draw_order=-10.0)))
+            sink.later(lambda: self._log_moving(m, frame))
         if warped is not None:
             w = as_image(warped, "warped").copy()
             jobs.append((E.WARPED_IMAGE, lambda w=w: sink.image(w, opacity=0.5, draw_order=-5.0)))
@@ -72,6 +94,34 @@ class PairLogger:
             jobs.append((E.VALID_MASK, lambda m8=m8: sink.mask(m8)))
         for path, make in jobs:
             sink.log_later(path, make)
+
+    def _log_moving(self, m: np.ndarray, frame: int | None) -> None:
+        """On the sink's thread: the moving image, the frame's image logged once."""
+        self.sink.send(E.MOVING_IMAGE, self.sink.image(m, draw_order=MOVING_DRAW_ORDER))
+        self._last_moving = (frame, m)
+        self._note_frame(frame)
+
+    def _log_reference(self, a: np.ndarray, frame: int | None) -> None:
+        """On the sink's thread: the reference, unless the recording shows it already (see the module).
+        Only while frames go forward: a view's latest-at query at ``frame`` must see what was logged before."""
+        sink = self.sink
+        forward = frame is not None and (self._last_frame is None or frame >= self._last_frame)
+        self._note_frame(frame)
+        previous = self._last_moving
+        if (sink.raw_images and forward and frame is not None and previous is not None and previous[0] == frame - 1
+                and _same(previous[1], a)):
+            if not self._cleared:  # a reference logged earlier would cover it; the first also marks the layout
+                sink.send(E.REFERENCE_IMAGE, rr.Clear(recursive=False))
+                self._cleared, self._shown_reference = True, None
+            return
+        if forward and self._shown_reference is not None and _same(self._shown_reference, a):
+            return  # latest-at: registration/reference still shows it
+        sink.send(E.REFERENCE_IMAGE, sink.image(a, draw_order=REFERENCE_DRAW_ORDER))
+        self._cleared, self._shown_reference = False, a
+
+    def _note_frame(self, frame: int | None) -> None:
+        if frame is not None and (self._last_frame is None or frame > self._last_frame):
+            self._last_frame = frame
 
     def _shown(self, points: np.ndarray, colors: np.ndarray | None, name: str) -> tuple[np.ndarray, np.ndarray | None]:
         """The display subsample of a cloud and its colours, copied (the caller may reuse its buffers)."""
@@ -118,6 +168,11 @@ class PairLogger:
             corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5], [-0.5, -0.5]])
             self.sink.log_later(E.outline_path(name),
                                 lambda: rr.LineStrips2D([apply_homography(m, corners)], colors=[255, 220, 0], radii=1.0))
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two images are equal (a sparse look first: most that differ do so at once)."""
+    return a.shape == b.shape and np.array_equal(a.ravel()[::997], b.ravel()[::997]) and np.array_equal(a, b)
 
 
 def _points(points: np.ndarray, colors: np.ndarray | None) -> rr.Points2D:

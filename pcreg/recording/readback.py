@@ -7,6 +7,7 @@ Example::
     T = tensor(rec.latest("transforms/T_ref_mov", frame=0))          # (3, 3) float64, exact
     errors = rec.series("errors/plain")                              # {frame: value}
     labels = segmentation(rec.latest("labels/predicted", frame=3))   # (h, w) uint8
+    reference = image(rec.reference(frame=3))                        # the pair's reference image, (h, w, 3)
 """
 
 from __future__ import annotations
@@ -150,11 +151,39 @@ class Recording:
             raise KeyError(f"{entity}: nothing logged" + (f" at frame {frame}" if frame is not None else ""))
         return pick[-1]
 
+    def latest_at(self, entity: str, *, frame: int, component: str | None = None) -> Row:
+        """What a viewer shows of ``entity`` at ``frame``: its last row at the latest frame up to ``frame``
+        (a ``Clear`` row included), else its last static row."""
+        rows = self.get(entity, component)
+        temporal = [(r.times["frame"], i) for i, r in enumerate(rows)
+                    if not r.static and r.times.get("frame") is not None and r.times["frame"] <= frame]
+        if temporal:
+            return rows[max(temporal)[1]]
+        static = [r for r in rows if r.static]
+        if not static:
+            raise KeyError(f"{entity}: nothing logged up to frame {frame}")
+        return static[-1]
+
+    def reference(self, frame: int) -> Row:
+        """The row holding the reference image of the pair at ``frame``, in any layout: logged at that
+        frame (every pair's, in recordings made before a reference was logged only when it changed), kept
+        from an earlier frame, or, where ``registration/reference`` was cleared (raw images), the moving
+        image of the previous frame (see :mod:`pcreg.recording.pair_log`)."""
+        from . import entities as E
+
+        row = self.latest_at(E.REFERENCE_IMAGE, frame=frame)
+        if _CLEAR in row.components:
+            return self.latest(E.MOVING_IMAGE, frame=frame - 1)
+        return row
+
     def series(self, entity: str, *, timeline: str = "frame") -> dict[int, float]:
         """``{time: value}`` of a Scalars entity on ``timeline``."""
         return {r.times[timeline]: scalar(r) for r in self.get(entity, "Scalars:scalars")
                 if not r.static and timeline in r.times}
 
+
+#: The component of a ``Clear`` row.
+_CLEAR = "Clear:is_recursive"
 
 #: The column of a chunk's record batch that holds each row's id.
 _ROW_ID = "rerun.controls.RowId"
@@ -242,12 +271,15 @@ def read_entities(path: str | os.PathLike, *, timeline: str | None = None) -> di
 @dataclass(frozen=True)
 class BlueprintView:
     """One view of a blueprint stored in a recording file: its class (``2D``, ``TimeSeries``,
-    ``TextLog``, ``TextDocument``, ...), name, origin and content queries (``+ /path/**``)."""
+    ``TextLog``, ``TextDocument``, ...), name, origin and content queries (``+ /path/**``), and the
+    visible time ranges of single entities: ``(entity, timeline, start, end)``, the bounds as stored (a
+    time relative to the cursor or absolute, or None for unbounded)."""
 
     view_class: str
     name: str
     origin: str
     query: tuple[str, ...]
+    time_ranges: tuple[tuple[str, str, Any, Any], ...] = ()
 
 
 def read_blueprint(path: str | os.PathLike) -> tuple[list[BlueprintView], str | None]:
@@ -281,8 +313,13 @@ def read_blueprint(path: str | os.PathLike) -> tuple[list[BlueprintView], str | 
             return str(v[0] if isinstance(v, list) else v) if v is not None else ""
 
         query = fields.get(entity + "/ViewContents", {}).get("ViewContents:query") or []
+        overrides = entity + "/ViewContents/overrides/"
+        ranges = tuple(("/" + path[len(overrides):].removesuffix("/visualizers"), r["timeline"], r["range"]["start"],
+                        r["range"]["end"])
+                       for path, f2 in fields.items() if path.startswith(overrides)
+                       for r in f2.get("VisibleTimeRanges:ranges") or [])
         views.append(BlueprintView(one("ViewBlueprint:class_identifier"), one("ViewBlueprint:display_name"),
-                                   one("ViewBlueprint:space_origin"), tuple(str(q) for q in query)))
+                                   one("ViewBlueprint:space_origin"), tuple(str(q) for q in query), ranges))
     return views, timeline
 
 

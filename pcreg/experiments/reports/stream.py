@@ -74,7 +74,7 @@ def checks(results: dict) -> str:
     lines += _calibration_checks(results)
     times = {m: float(np.median([c["ms_per_frame"][m] for c in clips.values()])) for m in results["methods"]
              if all(m in c.get("ms_per_frame", {}) for c in clips.values())} if clips else {}
-    if "pcreg" in times:
+    if "pcreg" in times and base:  # the clock's line only beside a baseline (it differs from run to run)
         others = ", ".join(f"{m} {times[m]:.0f} ms ({avg[m]:.1f}%)" for m in base if m in times)
         lines.append(f"- time a frame, the median over clips (classification and fusion included in every method): "
                      f"pcreg {times['pcreg']:.0f} ms ({avg['pcreg']:.1f}% below plain); {others or 'no DIS baseline run'}")

@@ -173,11 +173,9 @@ class _Flow(_KeyPrior):
         self._key, self._prev, self._motion = image, image, None
 
     def step(self, image: np.ndarray) -> np.ndarray:
-        from ..registration.flow import dis_field
-        from ..registration.motion import Motion
+        from ..pipeline.estimators import FlowEstimator
 
-        motion = Motion(field=dis_field(self._key if self.anchor == "key" else self._prev, image,
-                                        preset=self.preset)[0])
+        motion = FlowEstimator(self.preset).estimate(self._key if self.anchor == "key" else self._prev, image).motion
         if self.anchor == "previous" and self._motion is not None:
             motion = self._motion.after(motion, image.shape[:2])
         self._prev, self._motion = image, motion

@@ -100,7 +100,7 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
     from ..pipeline.pair import log_odds
     from ..pipeline.prior import class_prior
     from ..pipeline.stream import STREAM_WEIGHT
-    from ..registration.flow import dis_field
+    from ..pipeline.estimators import FlowEstimator
     from .stream import CONFIDENCE_LEVELS, PRESET_OF, calibration_counts
 
     n = len(frames)
@@ -131,9 +131,9 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
                 if m in ("plain", "pcreg"):
                     continue
                 t1 = time.perf_counter()
-                fields = {} if m == "unregistered" else {
-                    k: dis_field(frames[k].image, f.image, preset=PRESET_OF[m.split("_")[0]])[0]
-                    for k in (a, b) if k is not None}
+                flow = FlowEstimator(PRESET_OF[m.split("_")[0]]) if m != "unregistered" else None
+                fields = {} if flow is None else {k: flow.estimate(frames[k].image, f.image).result.field  # type: ignore[union-attr]
+                                                  for k in (a, b) if k is not None}
                 preds[m] = ((d + STREAM_WEIGHT * _baseline_prior(fields, priors, t, a, b)) > 0).astype(np.uint8)
                 seconds[m] += time.perf_counter() - t1 + classify
             key = a if a is not None else b

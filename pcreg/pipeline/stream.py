@@ -82,7 +82,7 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -90,15 +90,16 @@ import numpy as np
 from .._threads import beside, wait_quietly
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
+from .estimators import STREAM_DENSE, Carry, DenseEstimator, DenseStep, GlobalEstimator
 from .learning import STREAM_LEARNING, Learner, Learning
 from .prior import class_prior, fused_labels, prior_on_moving
 from .trust import STREAM_TRUST, TrustMaps, TrustRule, predicted_error
-from ..errors import InputError, RegistrationError
+from ..errors import InputError
 from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
 
 if TYPE_CHECKING:
-    from ..registration.dense import DenseOptions, DenseReference
+    from ..registration.dense import DenseReference
 
 __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep", "Carry", "STREAM_DENSE", "STREAM_REGISTRATION",
            "STREAM_WEIGHT", "ANCHORS"]
@@ -124,85 +125,6 @@ STREAM_WEIGHT = 2.0
 STREAM_REGISTRATION = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None)
 
 
-@dataclass(frozen=True)
-class DenseStep:
-    """Options of the dense registration of a stream (turned into :func:`pcreg.register_dense`'s
-    :class:`~pcreg.registration.dense.DenseOptions` by :meth:`options`).
-
-    texture : None matches plain colours (see the module's docstring). iterations : ICP iterations per
-    level (8, :class:`~pcreg.registration.dense.DenseOptions`'s: the stiffness schedule 8, 4, 2, 1 gets four relaxed
-    iterations to settle).
-    max_points : moving samples per level (5,000 measured as accurate as 10,000 at two thirds of the time).
-    global_start : ``"identity"`` or ``"register"`` (the stream's global registration first).
-    warm : start each step from the previous step's grid (:class:`Carry`) at pyramid level
-        ``warm_level`` with ``warm_iterations`` per level, instead of from the identity at the coarsest
-        level (only anchored to the key frame and from the identity; see the module's docstring).
-    restart_ratio : a warm step whose evidence (the matches' colour agreement against chance,
-        ``info["evidence"]``) falls under this fraction of the last cold step's is run again cold, and
-        the one with more evidence is kept.
-    """
-
-    texture: float | None = None
-    iterations: int = 8
-    max_points: int = 5000
-    global_start: str = "identity"
-    warm: bool = True
-    warm_level: int = 2
-    warm_iterations: int = 4
-    restart_ratio: float = 0.5
-
-    def __post_init__(self) -> None:
-        from ..validation import check_bool, check_float, check_int
-
-        if self.global_start not in ("identity", "register"):
-            raise InputError(f"global_start must be identity or register, got {self.global_start!r}")
-        object.__setattr__(self, "warm", check_bool(self.warm, "warm"))
-        object.__setattr__(self, "iterations", check_int(self.iterations, "iterations", lo=1, hi=100_000))
-        object.__setattr__(self, "warm_iterations", check_int(self.warm_iterations, "warm_iterations", lo=1,
-                                                              hi=100_000))
-        # register_dense's finest level (1) .. the coarsest it takes (7)
-        object.__setattr__(self, "warm_level", check_int(self.warm_level, "warm_level", lo=1, hi=7))
-        object.__setattr__(self, "restart_ratio", check_float(self.restart_ratio, "restart_ratio", lo=0, hi=1))
-
-    def options(self, base: DenseOptions | None = None, *, warm: bool = False) -> DenseOptions:
-        """:func:`pcreg.register_dense`'s options: ``base`` (the defaults when None) with this step's
-        texture, iterations and samples (a warm step's iterations and start level with ``warm``)."""
-        from ..registration.dense import DenseOptions
-
-        base = DenseOptions() if base is None else base
-        if warm:
-            return replace(base, texture=self.texture, iterations=self.warm_iterations, max_points=self.max_points,
-                           initial_level=self.warm_level)
-        return replace(base, texture=self.texture, iterations=self.iterations, max_points=self.max_points)
-
-
-@dataclass(frozen=True)
-class Carry:
-    """What a dense step hands to the next one (:attr:`Propagator.carry`): the dense field's control
-    ``grid`` (:attr:`~pcreg.registration.dense.DenseRegistrationResult.grid`, float32) and the evidence
-    of the last cold step (``reference_evidence``), the restart rule's yardstick. ``pcreg run`` saves it
-    with every frame, so that a resumed run continues as the uninterrupted one did."""
-
-    grid: np.ndarray
-    reference_evidence: float
-
-    def __post_init__(self) -> None:
-        from ..validation import check_float
-
-        raw = np.asarray(self.grid) if isinstance(self.grid, np.ndarray) else None
-        if raw is None or raw.dtype.kind not in "iuf":
-            raise InputError("a carried grid must be a numeric (rows, columns, 2) array")
-        with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: inf, refused below
-            g = np.array(raw, dtype=np.float32)
-        if g.ndim != 3 or g.shape[2] != 2 or g.size == 0 or not np.all(np.isfinite(g)):
-            raise InputError(f"a carried grid must be a finite (rows, columns, 2) array, got shape {g.shape}")
-        evidence = check_float(self.reference_evidence, "a carried evidence", lo=0)
-        g.setflags(write=False)
-        object.__setattr__(self, "grid", g)
-        object.__setattr__(self, "reference_evidence", evidence)
-
-
-STREAM_DENSE = DenseStep()
 
 
 @dataclass(frozen=True)
@@ -319,6 +241,8 @@ class Propagator:
 
         base = DenseOptions(backend=self.config.backend, seed=self.config.search.seed)
         self._dense_options = (dense.options(base), dense.options(base, warm=True))
+        self._estimator: DenseEstimator | GlobalEstimator = (
+            DenseEstimator(self.config, dense, *self._dense_options) if model == "dense" else GlobalEstimator(self.config))
         self.weight = float(weight)
         self.fusion = fusion
         self.trust = trust
@@ -333,7 +257,6 @@ class Propagator:
         self._key_prepared: DenseReference | None = None  # the key frame prepared for the dense registration
         self._chain: tuple[np.ndarray, Motion | None, int] | None = None  # (image, motion to the key frame, frame)
         self._carry: Carry | None = None
-        self._attempt: str | None = None  # how the dense registration under way started (StepReport.start)
         self._frame = 0
         self.last: StepReport | None = None
 
@@ -368,9 +291,8 @@ class Propagator:
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         self._key_prepared = None
         if self.model == "dense" and self.anchor == "key":  # every frame registers to it: its pyramid once
-            from ..registration.dense import prepare_reference
-
-            self._key_prepared = prepare_reference(img, options=self._dense_options[0])
+            assert isinstance(self._estimator, DenseEstimator)
+            self._key_prepared = self._estimator.prepare(img)
         self._chain = (img, None, 0)
         self._carry = None
         self._frame = 0
@@ -503,67 +425,13 @@ class Propagator:
 
     def _register(self, reference: np.ndarray, image: np.ndarray):
         """``(result, None, start)``, or ``(None, reason, start)`` when the registration failed or is
-        degenerate; ``start`` as :attr:`StepReport.start`."""
-        from ..registration.api import register
-        from ..registration.transforms import degeneracy
-
-        start = None
-        try:
-            if self.model != "dense":
-                result = register(reference, image, config=self.config)
-            else:
-                self._attempt = None
-                result, start = self._register_dense(reference, image)
-        except RegistrationError as exc:
-            self._carry = None
-            return None, str(exc), self._attempt if self.model == "dense" else None
-        why = degeneracy(result.matrix, image.shape)
-        if why is not None:
-            self._carry = None
-            return None, f"registration refused: {why}", start
-        return result, None, start
-
-    def _register_dense(self, reference: np.ndarray, image: np.ndarray):
-        """The dense registration, warm from the carried grid where it can be, and the carry it leaves:
-        ``(result, start)``; :class:`~pcreg.errors.RegistrationError` when the cold one fails."""
-        from ..registration.api import register, register_dense
-
-        warm_ok = self.warm_starts
-        if self.dense.global_start == "register":
-            T = register(reference, image, config=self.config)
-        else:
-            T = np.eye(3)
-
-        cold_options, warm_options = self._dense_options
-
-        def dense(options: DenseOptions, initial=None):
-            return register_dense(reference, image, options=options, global_result=T, initial=initial,
-                                  prepared=self._key_prepared if reference is self._key_image else None)
-
-        def cold():
-            return dense(cold_options)
-
-        carry = self._carry if warm_ok else None
-        if carry is None:
-            self._attempt = "cold"
-            result, start = cold(), "cold"
-            reference_evidence = result.info["evidence"]
-        else:
-            self._attempt = "warm"
-            try:
-                result = dense(warm_options, carry.grid)
-                start = "warm"
-            except RegistrationError:
-                result, start = None, "restarted"
-            reference_evidence = carry.reference_evidence
-            if result is None or result.info["evidence"] < self.dense.restart_ratio * reference_evidence:
-                self._attempt = "restarted"
-                again = cold()
-                if result is None or again.info["evidence"] >= result.info["evidence"]:
-                    result = again
-                reference_evidence, start = again.info["evidence"], "restarted"
-        self._carry = Carry(result.grid, reference_evidence) if warm_ok else None
-        return result, start
+        degenerate (:meth:`~pcreg.pipeline.estimators.DenseEstimator.estimate`); ``start`` as
+        :attr:`StepReport.start`. Keeps the carry the estimate leaves."""
+        prepared = self._key_prepared if reference is self._key_image else None
+        est = self._estimator.estimate(reference, image, prepared=prepared,
+                                       carry=self._carry if self.warm_starts else None)
+        self._carry = est.carry if self.warm_starts else None
+        return est.result, est.reason, est.start
 
     @property
     def warm_starts(self) -> bool:

@@ -1,0 +1,232 @@
+"""Finding a frame's motion, or saying why not: one seam for the stream, its baselines and the pairs.
+
+Each way of finding a frame's motion is an estimator built once from its typed options, answering one
+call, :meth:`estimate` ``(reference, image, *, prepared=None, carry=None)`` -> :class:`Estimate`: the
+registration result (a :class:`~pcreg.registration.motion.Motion` through :attr:`Estimate.motion`) with
+its evidence, or the reason it was refused, how it started, and what the next call may start from.
+
+- :class:`GlobalEstimator`: one transform (:func:`pcreg.register` with a
+  :class:`~pcreg.registration.config.RegisterConfig`), refused where degenerate;
+- :class:`DenseEstimator`: a dense field (:func:`pcreg.register_dense`), warm from the previous
+  frame's grid where it can be and cold again where the warm start loses the frame (:class:`DenseStep`,
+  :class:`Carry`);
+- :class:`FlowEstimator`: OpenCV's DIS optical flow at a preset, the baselines' motion.
+
+The reference may come prepared (:func:`pcreg.registration.dense.prepare_reference`, its pyramid built
+once): the caller holds it, as :class:`pcreg.Propagator` holds its key frame's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..errors import InputError, RegistrationError
+from ..registration.config import RegisterConfig
+from ..registration.motion import Motion
+
+if TYPE_CHECKING:
+    from ..registration.dense import DenseOptions, DenseReference
+
+__all__ = ["DenseStep", "Carry", "STREAM_DENSE", "Estimate", "GlobalEstimator", "DenseEstimator", "FlowEstimator"]
+
+
+@dataclass(frozen=True)
+class DenseStep:
+    """Options of the dense registration of a stream (turned into :func:`pcreg.register_dense`'s
+    :class:`~pcreg.registration.dense.DenseOptions` by :meth:`options`).
+
+    texture : None matches plain colours (see the module's docstring). iterations : ICP iterations per
+    level (8, :class:`~pcreg.registration.dense.DenseOptions`'s: the stiffness schedule 8, 4, 2, 1 gets four relaxed
+    iterations to settle).
+    max_points : moving samples per level (5,000 measured as accurate as 10,000 at two thirds of the time).
+    global_start : ``"identity"`` or ``"register"`` (the stream's global registration first).
+    warm : start each step from the previous step's grid (:class:`Carry`) at pyramid level
+        ``warm_level`` with ``warm_iterations`` per level, instead of from the identity at the coarsest
+        level (only anchored to the key frame and from the identity; see the module's docstring).
+    restart_ratio : a warm step whose evidence (the matches' colour agreement against chance,
+        ``info["evidence"]``) falls under this fraction of the last cold step's is run again cold, and
+        the one with more evidence is kept.
+    """
+
+    texture: float | None = None
+    iterations: int = 8
+    max_points: int = 5000
+    global_start: str = "identity"
+    warm: bool = True
+    warm_level: int = 2
+    warm_iterations: int = 4
+    restart_ratio: float = 0.5
+
+    def __post_init__(self) -> None:
+        from ..validation import check_bool, check_float, check_int
+
+        if self.global_start not in ("identity", "register"):
+            raise InputError(f"global_start must be identity or register, got {self.global_start!r}")
+        object.__setattr__(self, "warm", check_bool(self.warm, "warm"))
+        object.__setattr__(self, "iterations", check_int(self.iterations, "iterations", lo=1, hi=100_000))
+        object.__setattr__(self, "warm_iterations", check_int(self.warm_iterations, "warm_iterations", lo=1,
+                                                              hi=100_000))
+        # register_dense's finest level (1) .. the coarsest it takes (7)
+        object.__setattr__(self, "warm_level", check_int(self.warm_level, "warm_level", lo=1, hi=7))
+        object.__setattr__(self, "restart_ratio", check_float(self.restart_ratio, "restart_ratio", lo=0, hi=1))
+
+    def options(self, base: DenseOptions | None = None, *, warm: bool = False) -> DenseOptions:
+        """:func:`pcreg.register_dense`'s options: ``base`` (the defaults when None) with this step's
+        texture, iterations and samples (a warm step's iterations and start level with ``warm``)."""
+        from ..registration.dense import DenseOptions
+
+        base = DenseOptions() if base is None else base
+        if warm:
+            return replace(base, texture=self.texture, iterations=self.warm_iterations, max_points=self.max_points,
+                           initial_level=self.warm_level)
+        return replace(base, texture=self.texture, iterations=self.iterations, max_points=self.max_points)
+
+
+@dataclass(frozen=True)
+class Carry:
+    """What a dense step hands to the next one (:attr:`Propagator.carry`): the dense field's control
+    ``grid`` (:attr:`~pcreg.registration.dense.DenseRegistrationResult.grid`, float32) and the evidence
+    of the last cold step (``reference_evidence``), the restart rule's yardstick. ``pcreg run`` saves it
+    with every frame, so that a resumed run continues as the uninterrupted one did."""
+
+    grid: np.ndarray
+    reference_evidence: float
+
+    def __post_init__(self) -> None:
+        from ..validation import check_float
+
+        raw = np.asarray(self.grid) if isinstance(self.grid, np.ndarray) else None
+        if raw is None or raw.dtype.kind not in "iuf":
+            raise InputError("a carried grid must be a numeric (rows, columns, 2) array")
+        with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: inf, refused below
+            g = np.array(raw, dtype=np.float32)
+        if g.ndim != 3 or g.shape[2] != 2 or g.size == 0 or not np.all(np.isfinite(g)):
+            raise InputError(f"a carried grid must be a finite (rows, columns, 2) array, got shape {g.shape}")
+        evidence = check_float(self.reference_evidence, "a carried evidence", lo=0)
+        g.setflags(write=False)
+        object.__setattr__(self, "grid", g)
+        object.__setattr__(self, "reference_evidence", evidence)
+
+
+STREAM_DENSE = DenseStep()
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """What an estimator found: ``result`` (a registration result, a dense result with its field, or a
+    :class:`~pcreg.registration.motion.Motion` for a flow) or None with the ``reason``; ``start``: how a
+    dense registration started (``"cold"``, ``"warm"``, ``"restarted"``; None for the others);
+    ``carry``: what the next estimate may start from (None: cold)."""
+
+    result: object | None
+    reason: str | None = None
+    start: str | None = None
+    carry: Carry | None = None
+
+    @property
+    def motion(self) -> Motion | None:
+        """The motion found (None when refused)."""
+        return None if self.result is None else Motion.of(self.result)
+
+
+def _refused(result, image: np.ndarray) -> str | None:
+    """Why a result's transform cannot carry labels (a degenerate matrix), or None."""
+    from ..registration.transforms import degeneracy
+
+    why = degeneracy(result.matrix, image.shape)
+    return None if why is None else f"registration refused: {why}"
+
+
+class GlobalEstimator:
+    """One transform per frame: :func:`pcreg.register` with ``config``, a degenerate one refused."""
+
+    def __init__(self, config: RegisterConfig) -> None:
+        if not isinstance(config, RegisterConfig):
+            raise InputError("config must be a pcreg.RegisterConfig")
+        self.config = config
+
+    def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
+        from ..registration.api import register
+
+        try:
+            result = register(reference, image, config=self.config)
+        except RegistrationError as exc:
+            return Estimate(None, str(exc))
+        why = _refused(result, image)
+        return Estimate(None, why) if why is not None else Estimate(result)
+
+
+class DenseEstimator:
+    """A dense field per frame (:func:`pcreg.register_dense`), with ``cold`` and ``warm`` options (the
+    stream's: :meth:`DenseStep.options`); from the identity, or after ``config``'s global registration
+    when ``step.global_start`` is ``"register"``. Given a :class:`Carry`, it starts warm from its grid,
+    and runs again cold where the warm field's evidence falls under ``step.restart_ratio`` of the last
+    cold field's, keeping the field with more evidence."""
+
+    def __init__(self, config: RegisterConfig, step: "DenseStep", cold: "DenseOptions", warm: "DenseOptions") -> None:
+        self.config, self.step, self.cold, self.warm = config, step, cold, warm
+
+    def prepare(self, reference: np.ndarray) -> "DenseReference":
+        """The reference's pyramid, built once for every estimate against it."""
+        from ..registration.dense import prepare_reference
+
+        return prepare_reference(reference, options=self.cold)
+
+    def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared: "DenseReference | None" = None,
+                 carry: Carry | None = None) -> Estimate:
+        attempt = ["cold" if carry is None else "warm"]
+        try:
+            result, start, evidence = self._field(reference, image, prepared, carry, attempt)
+        except RegistrationError as exc:
+            return Estimate(None, str(exc), attempt[0])
+        why = _refused(result, image)
+        if why is not None:
+            return Estimate(None, why, start)
+        return Estimate(result, None, start, Carry(result.grid, evidence))
+
+    def _field(self, reference, image, prepared, carry, attempt: list):
+        """``(result, start, the evidence the restart rule compares with)``; ``attempt[0]`` follows how
+        the registration under way started, for a refusal's report."""
+        from ..registration.api import register, register_dense
+
+        T = register(reference, image, config=self.config) if self.step.global_start == "register" else np.eye(3)
+
+        def dense(options, initial=None):
+            return register_dense(reference, image, options=options, global_result=T, initial=initial,
+                                  prepared=prepared)
+
+        if carry is None:
+            result = dense(self.cold)
+            return result, "cold", result.info["evidence"]
+        try:
+            result, start = dense(self.warm, carry.grid), "warm"
+        except RegistrationError:
+            result, start = None, "restarted"
+        evidence = carry.reference_evidence
+        if result is None or result.info["evidence"] < self.step.restart_ratio * evidence:
+            attempt[0] = "restarted"
+            again = dense(self.cold)
+            if result is None or again.info["evidence"] >= result.info["evidence"]:
+                result = again
+            evidence, start = again.info["evidence"], "restarted"
+        return result, start, evidence
+
+
+class FlowEstimator:
+    """OpenCV's DIS optical flow (:func:`pcreg.registration.flow.dis_field`) at ``preset``: a field with no
+    evidence of its own, never refused."""
+
+    def __init__(self, preset: str = "medium") -> None:
+        from ..registration.flow import PRESETS
+
+        if preset not in PRESETS:
+            raise InputError(f"unknown DIS preset {preset!r}; choose one of {', '.join(PRESETS)}")
+        self.preset = preset
+
+    def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
+        from ..registration.flow import dis_field
+
+        return Estimate(Motion(field=dis_field(reference, image, preset=self.preset)[0]))

@@ -97,7 +97,7 @@ def test_one_key_frame_at_the_first_frame_labels_as_a_single_label_image(tmp_pat
 
 
 @pytest.mark.parametrize("kill_at, phase", [(10, "store"), (15, "between"), (18, "backward"), (21, "forward")])
-def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypatch, kill_at, phase):
+def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypatch, capsys, kill_at, phase):
     """A video with key frames 1 and 4, killed at a commit of the stretch between them (its frames being
     kept, its forward pass, its backward pass) or of the one after, then run again."""
     from pcreg.pipeline.keys_run import KeyRun
@@ -119,6 +119,18 @@ def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypa
     assert main(args + ["--out", str(tmp_path / "cut")]) == 130
     monkeypatch.undo()
     assert any((tmp_path / "cut" / ".keys").iterdir())  # what the stretch's passes hand on, in the hidden folder
+    if phase == "backward":  # what the forward pass kept, lost: refused in one line, --force starts over
+        import shutil
+
+        lost = shutil.copytree(tmp_path / "cut", tmp_path / "lost")
+        capsys.readouterr()
+        for f in lost.glob(".keys/*/prior-*.npz"):
+            f.unlink()
+        assert main(args + ["--out", str(lost)]) == 2
+        assert _err(capsys) == [f"pcreg: error: {next(lost.glob('.keys/*'))}/prior-2.npz: missing or unreadable; use --force "
+                                "to start over"]
+        assert main(args + ["--out", str(lost), "--force"]) == 0
+        assert _outputs(tmp_path / "whole") == _outputs(lost)
     assert main(args + ["--out", str(tmp_path / "cut")]) == 0
     assert _outputs(tmp_path / "whole") == _outputs(tmp_path / "cut")
     assert (tmp_path / "whole" / "run.json").read_bytes() == (tmp_path / "cut" / "run.json").read_bytes()

@@ -29,9 +29,10 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import BinaryIO, Callable, Iterator
 
 import numpy as np
 
@@ -42,6 +43,8 @@ __all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
 
 #: The hidden folder under ``out`` that holds what a stretch's passes hand on.
 HIDDEN = ".keys"
+#: What reading a missing or damaged file of that folder raises.
+_UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *_UNREADABLE_CARRY)
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,16 @@ def stretches(keys, n: int | None) -> list[Stretch]:
     return out
 
 
+@contextmanager
+def _kept(path: Path) -> Iterator[BinaryIO]:
+    """A file a pass kept for the next one, open; missing or damaged, one line saying how to start over."""
+    try:
+        with open(path, "rb") as f:
+            yield f
+    except _UNREADABLE_KEPT:
+        raise OutputError(f"{path}: missing or unreadable; use --force to start over") from None
+
+
 def _digest(labels: np.ndarray) -> str:
     lab = np.ascontiguousarray(labels, dtype=np.uint8)
     return hashlib.sha256(f"{lab.shape}".encode() + lab.tobytes()).hexdigest()
@@ -97,11 +110,17 @@ class KeyRun:
         self.n = len(frames) if frames.kind == "folder" else None
         self.plan = stretches(self.keys, self.n)
         self.labelled = 0
+        self._fingerprints: dict[Stretch, str] = {}
 
     # -- bookkeeping ---------------------------------------------------------------------------------
 
     def fingerprint(self, s: Stretch) -> str:
         """What a stretch's labels depend on: its key frames (position, name, labels), its extent, the options."""
+        if s not in self._fingerprints:
+            self._fingerprints[s] = self._fingerprint(s)
+        return self._fingerprints[s]
+
+    def _fingerprint(self, s: Stretch) -> str:
         what = {"keys": [[k, self.frames.name(k), _digest(self.keys[k])] for k in s.keys],
                 "first": s.first, "last": s.last, "options": self.options, "confidence": self.confidence,
                 "fit": "stretch"}
@@ -222,7 +241,8 @@ class KeyRun:
 
         if self.frames.kind == "folder":
             return load_image(self.frames.paths[t])
-        return np.load(self._hidden(self.fingerprint(s)) / f"frame-{t}.npy", allow_pickle=False)
+        with _kept(self._hidden(self.fingerprint(s)) / f"frame-{t}.npy") as f:
+            return np.load(f, allow_pickle=False)
 
     def _classifier(self, s: Stretch, images: dict):
         from ..classification.bayes import fit_classifier
@@ -330,7 +350,7 @@ class KeyRun:
             step = report.to_dict()
             conf = report.confidence
             if both:
-                with np.load(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz", allow_pickle=False) as z:
+                with _kept(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz") as f, np.load(f, allow_pickle=False) as z:
                     p_a, fallback = z["prior"].astype(np.float32), bool(z["fallback"])
                 d = report.log_odds
                 prior = p_a + report.trust.prior_term(image.shape[:2])

@@ -315,7 +315,7 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     """``--labels FOLDER``: every frame labelled from the key frames around it (:mod:`pcreg.pipeline.keys_run`)."""
     import sys
 
-    from .._runner import check_interrupted
+    from .._runner import check_interrupted, progress
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.keys_run import KeyRun
@@ -340,8 +340,14 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     with OutputLock(out), open_recorder(args, name=f"run {args.folder}") as rec:
         job = KeyRun(frames, keys, out, options, identity=identity, truth=truth, confidence=args.confidence)
         job.start(force=args.force)
-        done = job.run(on_frame=lambda t, image, labels, report, name: _log(rec, t, image, labels, report, name),
-                       check=check_interrupted)
+        n = len(frames) if frames.kind == "folder" else frames.count()
+        left = None if n is None else max(0, n - len(keys) - job.state["lines"])  # what the bar counts, not the run
+        with progress(total=left, desc="frames", disable=None) as bar:
+            def on_frame(t, image, labels, report, name) -> None:
+                _log(rec, t, image, labels, report, name)
+                bar.update(1)
+
+            done = job.run(on_frame=on_frame, check=check_interrupted)
         s = job.state
         if done == 0:
             print(f"{out}: all frames already done")

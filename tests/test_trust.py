@@ -190,6 +190,25 @@ def test_two_key_frames_label_the_frames_between_better_than_one(frames):
     assert all(f.keys == (n - 1,) for f in back)
 
 
+def test_a_key_frame_added_relabels_only_the_stretch_it_splits(frames):
+    """Each stretch's classifier is fitted on its own key frames (fit="stretch"): the frames outside the
+    split stretch keep their labels; fitted on all of them (fit="all"), every frame may change."""
+    from pcreg.pipeline.keyframes import label_clip
+
+    n, image = len(frames), (lambda t: frames[t].image)
+    keys = {1: frames[1].labels, 3: frames[3].labels}
+    before = label_clip(image, n, keys)
+    after = label_clip(image, n, {**keys, 5: frames[5].labels})
+    for t in range(4):  # before 1, and between 1 and 3: untouched by a key frame at 5
+        np.testing.assert_array_equal(after[t].labels, before[t].labels)
+        assert after[t].predicted_error == before[t].predicted_error
+    assert after[4].keys == (3, 5) and before[4].keys == (3,)
+    everywhere = label_clip(image, n, {**keys, 5: frames[5].labels}, fit="all")
+    assert [f.keys for f in everywhere] == [f.keys for f in after]
+    with pytest.raises(InputError, match="fit"):
+        label_clip(image, n, keys, fit="some")
+
+
 def test_suggest_picks_far_frames_predicted_wrong_without_truth():
     from pcreg.pipeline.keyframes import suggest
 

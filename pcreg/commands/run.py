@@ -8,6 +8,12 @@ classifier (:class:`pcreg.Propagator`). Frames are read one at a time
 (:mod:`pcreg.datasets.sources`; a video's frame ``i`` is named ``{i:06d}``). Outputs and resuming:
 :mod:`pcreg.pipeline.stream_run`. ``--truth LABELS_DIR`` scores every frame against its labels there
 (``NAME.png`` for frame ``NAME``) and keeps the running error in ``run.json``.
+
+``--labels`` may also be a folder of key frames' labels anywhere in the video, ``NAME.png`` for the frame
+``NAME`` (a folder's frame names are its files' stems, a video's ``{i:06d}``): every frame is labelled
+from the key frames around it, forwards and backwards (:mod:`pcreg.pipeline.keys_run`). ``--suggest N``
+writes ``OUT/suggest.txt``, the N frames to label next, best first, each with its predicted error
+(:func:`pcreg.pipeline.keyframes.suggest`).
 """
 
 from __future__ import annotations
@@ -24,8 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", metavar="FRAMES",
                    help="a video file (.mp4, .avi, .mkv, .mov) or a folder of frames (image files, or an images/ "
                         "sub-folder, read in name order)")
-    p.add_argument("--labels", required=True, metavar="KEYFRAME.png",
-                   help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid)")
+    p.add_argument("--labels", required=True, metavar="KEYFRAME.png|DIR",
+                   help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid); or a "
+                        "folder of key frames' labels, NAME.png for the frame NAME, every frame labelled from those around it")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the label PNGs, run.json and steps.jsonl")
     p.add_argument("--mapping", choices=("none", "camvid"), default="none",
                    help="how --labels and --truth are coded: none (0/1/2, the default) or camvid (CamVid class ids)")
@@ -43,6 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the key frame: frame I (from 0, in name or decoding order; default 0)")
     p.add_argument("--stop", type=arg_int(1), default=None, metavar="J", help="stop before frame J (default: the end)")
     p.add_argument("--every", type=arg_int(1), default=1, metavar="N", help="every N-th frame from --start (default 1)")
+    p.add_argument("--suggest", type=arg_int(1), default=None, metavar="N",
+                   help="write OUT/suggest.txt: the N frames to label next, best first, with their predicted error")
     add_record_arguments(p)
 
 
@@ -135,6 +144,8 @@ def run(args: argparse.Namespace) -> int:
     selection = Selection(args.start, args.stop, args.every)
     frames = open_frames(source, selection)
     options = {"backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
+    if Path(args.labels).is_dir():
+        return _run_keys(args, frames, selection, options)
     key_labels = _read_labels(Path(args.labels), args.mapping)
     decoded = frames.frames(0)
     key = next(decoded)  # a source with no frame at --start raises, never ends empty
@@ -146,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
                          f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}")
     truth = _truth(args.truth, frames, key.image.shape[:2], args.mapping)
     _check_spares_inputs(out, frames, Path(args.labels), truth)
+    _check_suggest(args.suggest, frames, 1)
     prop = Propagator.from_key_frame(key.image, key_labels, **options)
     identity = {frames.kind: str(source.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
                 "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
@@ -176,6 +188,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     total = len(frames) if frames.kind == "folder" else frames.count()
     if frames.kind == "folder" and start >= len(frames):
         print(f"{out}: all {start} frames already done")
+        _write_suggest(args.suggest, out, frames, [0])
         return 0
     if start == 1:
         todo = itertools.chain([pending[0]], pending[1])
@@ -207,7 +220,9 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
             bar.update(1)
     if done == start:
         print(f"{out}: all {start} frames already done")
+        _write_suggest(args.suggest, out, frames, [0])
         return 0
+    _write_suggest(args.suggest, out, frames, [0])
     s = stream.state
     msg = f"{done - start} frame(s) labelled into {out}"
     if s["fallbacks"]:
@@ -217,6 +232,134 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
         msg += (f"\nerror against the truth: {s['truth']['error']:.2f}% over {s['truth']['frames']} frames "
                 f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
     print(msg, file=sys.stdout)
+    return 0
+
+
+def _check_suggest(count: int | None, frames, keys: int) -> None:
+    """``--suggest N`` no larger than the frames that are not key frames (a video's count where its
+    container gives it; else checked once the run has decoded them all)."""
+    from ..errors import InputError
+
+    n = len(frames) if frames.kind == "folder" else frames.count()
+    if count is not None and n is not None and count > n - keys:
+        raise InputError(f"--suggest {count}: only {n - keys} frame(s) are not key frames")
+
+
+def _write_suggest(count: int | None, out: Path, frames, keys: list[int]) -> None:
+    """``OUT/suggest.txt``: the ``count`` frames to label next, best first, ``NAME PREDICTED_ERROR`` a line,
+    from the predicted errors in steps.jsonl (:func:`pcreg.pipeline.keyframes.suggest`)."""
+    import json
+
+    from ..errors import InputError
+    from ..outputs import atomic_write_text
+    from ..pipeline.keyframes import suggest
+    from ..pipeline.stream_run import STEPS
+
+    if count is None:
+        return
+    predicted = {}
+    for line in (out / STEPS).read_text().splitlines():
+        step = json.loads(line)
+        if step.get("predicted_error") is not None:
+            predicted[int(step["frame"])] = float(step["predicted_error"])
+    try:
+        chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
+    except InputError as exc:
+        raise InputError(f"--suggest {count}: {exc}") from None
+    atomic_write_text(out / "suggest.txt", "".join(f"{frames.stem(t)} {predicted[t]:.2f}\n" for t in chosen))
+    print(f"the {count} frame(s) to label next, best first: {out / 'suggest.txt'}")
+
+
+def _key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> dict:
+    """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``), each
+    checked: a frame it names, one label a frame, the frames' size, something known."""
+    from ..errors import InputError
+
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith("."))
+    if not files:
+        raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
+    if frames.kind == "folder":
+        positions = {p.stem: t for t, p in enumerate(frames.paths)}
+
+        def where(stem: str) -> int | None:
+            return positions.get(stem)
+    else:
+        s = frames.selection
+
+        def where(stem: str) -> int | None:
+            if not (stem.isascii() and stem.isdigit()) or not s.chosen(int(stem)):
+                return None
+            if frames.declared is not None and int(stem) >= frames.declared:
+                return None
+            return (int(stem) - s.start) // s.every
+
+    keys: dict = {}
+    seen: dict[int, Path] = {}
+    for f in files:
+        t = where(f.stem)
+        if t is None:
+            raise InputError(f"{f}: names no frame of {frames.path}" + ("" if frames.selection.to_dict() is None
+                                                                           else " among those chosen"))
+        if t in seen:
+            raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
+        lab = _read_labels(f, mapping)
+        if lab.shape != shape:
+            raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}")
+        if not (lab < 2).any():
+            raise InputError(f"{f}: the labels are all unknown (2): nothing to fit or propagate")
+        keys[t], seen[t] = lab, f
+    return {t: keys[t] for t in sorted(keys)}
+
+
+def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int:
+    """``--labels FOLDER``: every frame labelled from the key frames around it (:mod:`pcreg.pipeline.keys_run`)."""
+    import sys
+
+    from .._runner import check_interrupted, progress
+    from ..errors import InputError
+    from ..outputs import OutputLock
+    from ..pipeline.keys_run import KeyRun
+    from ..pipeline.stream_run import STATE
+
+    source, out, folder = Path(args.folder), Path(args.out), Path(args.labels)
+    first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty
+    shape = first.image.shape[:2]
+    if folder.resolve() == out.resolve():
+        raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
+    keys = _key_labels(folder, frames, args.mapping, shape)
+    truth = _truth(args.truth, frames, shape, args.mapping)
+    # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
+    _check_spares_inputs(out, frames, folder / f"{frames.stem(next(iter(keys)))}.png", truth)
+    _check_suggest(args.suggest, frames, len(keys))
+    identity = {frames.kind: str(source.resolve()), "labels": str(folder.resolve()), "mapping": args.mapping,
+                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
+    if args.confidence:
+        identity["confidence"] = True
+    if selection.to_dict() is not None:
+        identity["frames"] = selection.to_dict()
+    with OutputLock(out), open_recorder(args, name=f"run {args.folder}") as rec:
+        job = KeyRun(frames, keys, out, options, identity=identity, truth=truth, confidence=args.confidence)
+        job.start(force=args.force)
+        n = len(frames) if frames.kind == "folder" else frames.count()
+        left = None if n is None else max(0, n - len(keys) - job.state["lines"])  # what the bar counts, not the run
+        with progress(total=left, desc="frames", disable=None) as bar:
+            def on_frame(t, image, labels, report, name) -> None:
+                _log(rec, t, image, labels, report, name)
+                bar.update(1)
+
+            done = job.run(on_frame=on_frame, check=check_interrupted)
+        s = job.state
+        if done == 0:
+            print(f"{out}: all frames already done")
+        else:
+            msg = f"{done} frame(s) labelled from {len(keys)} key frame(s) into {out}"
+            if s["fallbacks"]:
+                msg += f"; {s['fallbacks']} registration(s) failed (see {out / 'steps.jsonl'})"
+            if s.get("truth") and s["truth"].get("error") is not None:
+                msg += (f"\nerror against the truth: {s['truth']['error']:.2f}% over {s['truth']['frames']} frames "
+                        f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
+            print(msg, file=sys.stdout)
+        _write_suggest(args.suggest, out, frames, sorted(keys))
     return 0
 
 

@@ -5,7 +5,9 @@ SPEC (:func:`key_indices`): ``first``; ``first,last``; ``every:N`` (frames 0, N,
 frames evenly spaced from frame 0: what ``--key-every`` gives with N key frames); ``suggest:N``
 (frame 0, then the N - 1 frames :func:`pcreg.pipeline.keyframes.suggest` picks from the predicted error
 of a run from frame 0 alone: no label of any other frame is used to choose); or frame indices
-(``0,12,29``). Naive Bayes is fitted on the key frames; each frame that is not a key frame is scored.
+(``0,12,29``). Each frame that is not a key frame is scored. ``plain`` and the baselines fit naive Bayes on
+all the key frames; ``pcreg`` fits each stretch's on its own key frames, as ``pcreg run`` does
+(:data:`~pcreg.pipeline.keyframes.KEY_FITS`).
 
 The methods (:data:`KEY_METHODS`): ``plain`` (naive Bayes alone); ``unregistered`` (the key frames'
 labels unmoved); ``pcreg`` (:func:`~pcreg.pipeline.keyframes.label_clip`); ``flow_key`` and
@@ -110,7 +112,7 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
     seconds = dict.fromkeys(methods, 0.0)
     t0 = time.perf_counter()
     ours = {f.index: f for f in label_clip(lambda t: frames[t].image, n, {k: frames[k].labels for k in keys},
-                                           classifier=clf, backend=backend)} if "pcreg" in methods else {}
+                                           backend=backend)} if "pcreg" in methods else {}
     seconds["pcreg"] = time.perf_counter() - t0 if "pcreg" in methods else 0.0
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows = []

@@ -1,0 +1,421 @@
+"""A run labelled from key frames anywhere, both ways, resumable: what ``pcreg run --labels FOLDER`` does.
+
+Every frame is labelled from the key frames around it, as :func:`pcreg.pipeline.keyframes.label_clip`
+labels a clip in memory: before the first key frame backwards from it, between two key frames from
+both (``F = d + P_earlier + P_later``), after the last forwards from it. Each stretch's naive Bayes is
+fitted on its own key frames (one or two, :data:`~pcreg.pipeline.keyframes.KEY_FITS`), so a stretch's
+labels depend on nothing outside it.
+
+Outputs in ``out`` (as :mod:`pcreg.pipeline.stream_run`'s, each written atomically): ``NAME.png`` per
+frame (a key frame's own labels as given), ``confidence/NAME.png`` with ``--confidence``,
+``steps.jsonl`` (one line per labelled frame, in the order they were labelled; ``keys`` names the key
+frames it was labelled from) and ``run.json``, the commit point of every step.
+
+A stretch between two key frames needs its forward pass before its backward pass: the forward pass
+keeps each frame's prior term (:meth:`~pcreg.pipeline.trust.TrustMaps.prior_term`, float16) in
+``OUT/.keys/STRETCH/`` (and, for a video, the decoded frames of the stretch, which the backward pass
+reads in reverse), removed when the stretch is done; memory does not grow with the stretch's length.
+A run that stops anywhere resumes at its first step not committed, from the carry that step's
+propagator left (``carry-{0,1}.npz`` beside the stretch's files), and writes what an uninterrupted
+run writes.
+
+``run.json`` keeps each finished stretch's fingerprint (its key frames' names and labels, and the
+options): a run on a labels folder that gained, lost or changed a key frame redoes only the stretches
+whose fingerprint changed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO, Callable, Iterator
+
+import numpy as np
+
+from ..errors import InputError, OutputError
+from .stream_run import CONFIDENCE, STATE, STEPS, _UNREADABLE_CARRY, _write_carry, _write_png, confidence_png
+
+__all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
+
+#: The hidden folder under ``out`` that holds what a stretch's passes hand on.
+HIDDEN = ".keys"
+#: What reading a missing or damaged file of that folder raises.
+_UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *_UNREADABLE_CARRY)
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """The frames between two key frames (positions): ``first`` the earlier key frame (None before the
+    first), ``last`` the later one (None after the last); ``stop`` the position after its last frame
+    (None: to the end of a video whose length is not known yet)."""
+
+    first: int | None
+    last: int | None
+    stop: int | None
+
+    @property
+    def start(self) -> int:
+        return 0 if self.first is None else self.first + 1
+
+    def __contains__(self, t: int) -> bool:
+        return t >= self.start and (self.stop is None or t < self.stop)
+
+    @property
+    def keys(self) -> tuple[int, ...]:
+        return tuple(k for k in (self.first, self.last) if k is not None)
+
+
+def stretches(keys, n: int | None) -> list[Stretch]:
+    """The stretches of ``n`` frames (None: a video not decoded to its end) around the key frames
+    ``keys`` (positions), in order, empty ones left out."""
+    ks = sorted(set(keys))
+    out = []
+    if ks[0] > 0:
+        out.append(Stretch(None, ks[0], ks[0]))
+    out += [Stretch(a, b, b) for a, b in zip(ks, ks[1:]) if b > a + 1]
+    if n is None or ks[-1] < n - 1:
+        out.append(Stretch(ks[-1], None, n))
+    return out
+
+
+@contextmanager
+def _kept(path: Path) -> Iterator[BinaryIO]:
+    """A file a pass kept for the next one, open; missing or damaged, one line saying how to start over."""
+    try:
+        with open(path, "rb") as f:
+            yield f
+    except _UNREADABLE_KEPT:
+        raise OutputError(f"{path}: missing or unreadable; use --force to start over") from None
+
+
+def _digest(labels: np.ndarray) -> str:
+    lab = np.ascontiguousarray(labels, dtype=np.uint8)
+    return hashlib.sha256(f"{lab.shape}".encode() + lab.tobytes()).hexdigest()
+
+
+class KeyRun:
+    """One run: ``frames`` (a :class:`~pcreg.datasets.sources.FolderFrames` or ``VideoFrames``), ``keys``
+    ({position: (H, W) uint8 labels}), ``out``, the propagator's ``options``, ``identity`` (what a
+    resumed run must match, in run.json), optional ``truth`` (indexed by position, as
+    :class:`~pcreg.pipeline.stream_run.StreamRun`'s) and ``confidence`` (write ``confidence/NAME.png``)."""
+
+    def __init__(self, frames, keys: dict[int, np.ndarray], out: Path, options: dict, *, identity: dict,
+                 truth=None, confidence: bool = False) -> None:
+        self.frames, self.keys, self.out, self.options = frames, dict(sorted(keys.items())), Path(out), options
+        self.identity, self.truth, self.confidence = identity, truth, confidence
+        self.n = len(frames) if frames.kind == "folder" else None
+        self.plan = stretches(self.keys, self.n)
+        self.labelled = 0
+        self._fingerprints: dict[Stretch, str] = {}
+
+    # -- bookkeeping ---------------------------------------------------------------------------------
+
+    def fingerprint(self, s: Stretch) -> str:
+        """What a stretch's labels depend on: its key frames (position, name, labels), its extent, the options."""
+        if s not in self._fingerprints:
+            self._fingerprints[s] = self._fingerprint(s)
+        return self._fingerprints[s]
+
+    def _fingerprint(self, s: Stretch) -> str:
+        what = {"keys": [[k, self.frames.name(k), _digest(self.keys[k])] for k in s.keys],
+                "first": s.first, "last": s.last, "options": self.options, "confidence": self.confidence,
+                "fit": "stretch"}
+        return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
+
+    def _commit(self) -> None:
+        from ..outputs import atomic_write_json
+
+        atomic_write_json(self.out / STATE, self.state)
+
+    def _hidden(self, fp: str) -> Path:
+        return self.out / HIDDEN / fp[:16]
+
+    def start(self, *, force: bool = False) -> None:
+        """Open (or resume) the run: the steps of stretches no longer in the plan forgotten, the key
+        frames' labels written where they changed."""
+        if self.out.exists() and not self.out.is_dir():
+            raise OutputError(f"{self.out}: exists and is not a folder")
+        self.out.mkdir(parents=True, exist_ok=True)
+        state_path = self.out / STATE
+        fresh = force or not state_path.is_file()
+        if not fresh:
+            try:
+                state = json.loads(state_path.read_text())
+            except (OSError, ValueError):
+                raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
+            if state.get("run") != self.identity:
+                raise OutputError(f"{self.out} holds a run with other options; use --force to start over or "
+                                  "another --out")
+            self.state = state
+        else:
+            shutil.rmtree(self.out / HIDDEN, ignore_errors=True)
+            for slot in (0, 1):  # a run from one label image's carries
+                (self.out / f"carry-{slot}.npz").unlink(missing_ok=True)
+            self.state = {"run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
+                          "fallbacks": 0, "truth": None}
+            (self.out / STEPS).write_bytes(b"")
+        for f in self.out.glob(".*.tmp"):  # writes a killed run left half done
+            f.unlink(missing_ok=True)
+        plan = {self.fingerprint(s): s for s in self.plan}
+        kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan]
+        cursor = self.state["cursor"]
+        if cursor is not None and cursor["fingerprint"] not in plan:
+            cursor = None
+        live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
+        lines = (self.out / STEPS).read_bytes().splitlines(keepends=True) if (self.out / STEPS).is_file() else []
+        if len(lines) < self.state["lines"]:
+            raise OutputError(f"{self.out / STEPS}: {len(lines)} steps for {self.state['lines']} finished frames; "
+                              "use --force to start over")
+        lines = [ln for ln in lines[:self.state["lines"]] if any(json.loads(ln)["frame"] in s for s in live)]
+        (self.out / STEPS).write_bytes(b"".join(lines))
+        keep_hidden = None if cursor is None else self._hidden(cursor["fingerprint"]).name
+        if (self.out / HIDDEN).is_dir():
+            for d in (self.out / HIDDEN).iterdir():
+                if d.name != keep_hidden:
+                    shutil.rmtree(d, ignore_errors=True)
+        names = {self.frames.name(k): _digest(lab) for k, lab in self.keys.items()}
+        for k, lab in self.keys.items():
+            f = self.out / f"{self.frames.stem(k)}.png"
+            if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
+                _write_png(f, lab)
+        self.state.update(keys=names, stretches=kept, cursor=cursor, lines=len(lines))
+        self._totals()
+        self._commit()
+
+    def _totals(self) -> None:
+        parts = self.state["stretches"] + ([] if self.state["cursor"] is None else [self.state["cursor"]])
+        self.state["fallbacks"] = sum(p["fallbacks"] for p in parts)
+        if self.truth is None:
+            return
+        s = {k: sum(p["truth"][k] for p in parts) for k in ("frames", "wrong", "known", "plain_wrong")}
+        s["error"] = 100.0 * s["wrong"] / s["known"] if s["known"] else None
+        s["plain_error"] = 100.0 * s["plain_wrong"] / s["known"] if s["known"] else None
+        self.state["truth"] = s
+
+    # -- the run ---------------------------------------------------------------------------------------
+
+    def run(self, on_frame: Callable | None = None, check: Callable[[], None] = lambda: None) -> int:
+        """Label every stretch not done yet; returns how many frames this call labelled. ``on_frame(t,
+        image, labels, report, name)`` after each frame; ``check()`` before each step (an interruption)."""
+        self.on_frame, self.check = on_frame, check
+        done = {e["fingerprint"] for e in self.state["stretches"]}
+        for s in self.plan:
+            fp = self.fingerprint(s)
+            if fp in done:
+                continue
+            cur = self.state["cursor"]
+            if cur is None or cur["fingerprint"] != fp:
+                self.state["cursor"] = cur = {"fingerprint": fp, "phase": self._phases(s)[0], "next": None, "steps": 0,
+                                              "fallbacks": 0, "truth": None if self.truth is None else
+                                              {"frames": 0, "wrong": 0, "known": 0, "plain_wrong": 0}}
+                self._commit()
+            self._hidden(fp).mkdir(parents=True, exist_ok=True)
+            for phase in self._phases(s)[self._phases(s).index(cur["phase"]):]:
+                if cur["phase"] != phase:
+                    cur.update(phase=phase, next=None, steps=0)
+                    self._commit()
+                getattr(self, f"_{phase}")(s, cur)
+            entry = {"fingerprint": fp, "keys": [self.frames.name(k) for k in s.keys],
+                     "fallbacks": cur["fallbacks"], "truth": cur["truth"]}
+            self.state["stretches"].append(entry)
+            self.state["cursor"] = None
+            self._totals()
+            self._commit()
+            shutil.rmtree(self._hidden(fp), ignore_errors=True)
+        if (self.out / HIDDEN).is_dir() and not any((self.out / HIDDEN).iterdir()):
+            (self.out / HIDDEN).rmdir()
+        return self.labelled
+
+    def _phases(self, s: Stretch) -> list[str]:
+        video = self.frames.kind == "video"
+        if s.last is None:
+            return ["forward"]
+        return (["store"] if video else []) + (["between"] if s.first is not None else []) + ["backward"]
+
+    def _image(self, s: Stretch, t: int) -> np.ndarray:
+        from ..registration.clouds import load_image
+
+        if self.frames.kind == "folder":
+            return load_image(self.frames.paths[t])
+        with _kept(self._hidden(self.fingerprint(s)) / f"frame-{t}.npy") as f:
+            return np.load(f, allow_pickle=False)
+
+    def _classifier(self, s: Stretch, images: dict):
+        from ..classification.bayes import fit_classifier
+        from ..datasets import Frame
+
+        return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys])
+
+    def _propagator(self, clf, image, labels, learning: bool):
+        from .learning import STREAM_LEARNING
+        from .stream import Propagator
+
+        prop = Propagator(clf, **self.options, learning=STREAM_LEARNING if learning else None)
+        prop.reset(image, labels)
+        return prop
+
+    def _resume(self, prop, s: Stretch, cur: dict) -> None:
+        if cur["steps"]:
+            carry, learned = self._read_carry(s, cur["steps"])
+            prop.resume(cur["steps"], carry if prop.warm_starts else None, learned)
+
+    def _read_carry(self, s: Stretch, steps: int):
+        from .stream import Carry
+
+        path = self._hidden(self.fingerprint(s)) / f"carry-{steps % 2}.npz"
+        bad = OutputError(f"{path}: missing or unreadable; use --force to start over")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                frame, grid, evidence = int(z["frame"]), np.array(z["grid"]), float(z["evidence"])
+                learned = np.array(z["learned"])
+        except _UNREADABLE_CARRY:
+            raise bad from None
+        if frame != steps:
+            raise bad
+        carry = None if grid.shape == (0, 0, 2) and np.isnan(evidence) else Carry(grid, evidence)
+        return carry, (None if learned.size == 0 else learned)
+
+    def _write_carry(self, s: Stretch, steps: int, prop) -> None:
+        _write_carry(self._hidden(self.fingerprint(s)) / f"carry-{steps % 2}.npz", steps, prop.carry, prop.learned)
+
+    def _store(self, s: Stretch, cur: dict) -> None:
+        """A video's frames of the stretch and its key frames, decoded in order into the hidden folder."""
+        from ..outputs import atomic_write_bytes
+        import io
+
+        lo, hi = s.start if s.first is None else s.first, s.last
+        assert hi is not None
+        first = lo if cur["next"] is None else cur["next"]
+        for frame in self.frames.frames(first):
+            if frame.position > hi:
+                break
+            self.check()
+            buf = io.BytesIO()
+            np.save(buf, frame.image, allow_pickle=False)
+            atomic_write_bytes(self._hidden(cur["fingerprint"]) / f"frame-{frame.position}.npy", buf.getvalue())
+            cur["next"] = frame.position + 1
+            self._commit()
+        if cur["next"] is None or cur["next"] <= hi:
+            raise InputError(f"{self.frames.path}: the video ends before key frame {self.frames.name(hi)}")
+
+    def _between(self, s: Stretch, cur: dict) -> None:
+        """The forward pass of a stretch between two key frames: each frame's prior term from the earlier
+        key frame, kept (float16) for the backward pass."""
+        from ..outputs import atomic_write_bytes
+        import io
+
+        a, b = s.first, s.last
+        assert a is not None and b is not None
+        keys = {k: self._image(s, k) for k in (a, b)}
+        prop = self._propagator(self._classifier(s, keys), keys[a], self.keys[a], learning=False)
+        self._resume(prop, s, cur)
+        start = a + 1 if cur["next"] is None else cur["next"]
+        for t in range(start, b):
+            self.check()
+            image = self._image(s, t)
+            prop.step(image)
+            report = prop.last
+            buf = io.BytesIO()
+            np.savez(buf, prior=report.trust.prior_term(image.shape[:2]).astype(np.float16),
+                     fallback=np.bool_(report.fallback))
+            atomic_write_bytes(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz", buf.getvalue())
+            cur["steps"] += 1
+            self._write_carry(s, cur["steps"], prop)
+            cur["next"] = t + 1
+            cur["fallbacks"] += int(report.fallback)
+            self._commit()
+
+    def _backward(self, s: Stretch, cur: dict) -> None:
+        """From the later key frame back to the stretch's first frame; between two key frames, each frame
+        fuses the forward pass's prior term too."""
+        from .trust import label_confidence, predicted_error
+
+        b = s.last
+        assert b is not None
+        both = s.first is not None
+        keys = {k: self._image(s, k) for k in s.keys}
+        clf = self._classifier(s, keys)
+        prop = self._propagator(clf, keys[b], self.keys[b], learning=not both)
+        self._resume(prop, s, cur)
+        start = b - 1 if cur["next"] is None else cur["next"]
+        for t in range(start, s.start - 1, -1):
+            self.check()
+            image = self._image(s, t)
+            labels = prop.step(image)
+            report = prop.last
+            step = report.to_dict()
+            conf = report.confidence
+            if both:
+                with _kept(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz") as f, np.load(f, allow_pickle=False) as z:
+                    p_a, fallback = z["prior"].astype(np.float32), bool(z["fallback"])
+                d = report.log_odds
+                prior = p_a + report.trust.prior_term(image.shape[:2])
+                fused = d + prior
+                labels = (fused > 0).astype(np.uint8)
+                conf = label_confidence(fused, d, prior)
+                step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
+            self._record(s, cur, t, image, labels, conf, step, prop, clf)
+            cur["next"] = t - 1
+            self._commit()
+
+    def _forward(self, s: Stretch, cur: dict) -> None:
+        """From the last key frame to the end, as a run from one key frame."""
+        a = s.first
+        assert a is not None
+        frames = self.frames.frames(a)
+        key = next(frames, None)
+        if key is None:
+            raise InputError(f"{self.frames.path}: the video ends before key frame {self.frames.name(a)}")
+        clf = self._classifier(s, {a: key.image})
+        prop = self._propagator(clf, key.image, self.keys[a], learning=True)
+        self._resume(prop, s, cur)
+        start = a + 1 if cur["next"] is None else cur["next"]
+        for frame in frames:
+            if frame.position < start:
+                continue
+            self.check()
+            t = frame.position
+            try:
+                labels = prop.step(frame.image)
+            except InputError as exc:  # a frame of another size: the step's own check, the file named
+                where = self.frames.paths[t] if self.frames.kind == "folder" else f"{self.frames.path} frame {frame.name}"
+                raise InputError(f"{where}: {exc}") from None
+            self._record(s, cur, t, frame.image, labels, prop.last.confidence, prop.last.to_dict(), prop, clf)
+            cur["next"] = t + 1
+            self._commit()
+
+    def _record(self, s: Stretch, cur: dict, t: int, image, labels, conf, step: dict, prop, clf) -> None:
+        """Frame ``t``'s outputs and step line; the caller commits."""
+        from ..classification.metrics import error_rate
+        from ..outputs import to_json
+
+        stem = self.frames.stem(t)
+        _write_png(self.out / f"{stem}.png", labels)
+        if self.confidence and conf is not None:
+            (self.out / CONFIDENCE).mkdir(exist_ok=True)
+            _write_png(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
+        step = dict(step, frame=t, name=self.frames.name(t), keys=[self.frames.name(k) for k in s.keys])
+        truth = None if self.truth is None else self.truth[t]
+        if truth is not None:
+            plain = clf.predict(image)
+            known = truth < 2
+            c = cur["truth"]
+            c["frames"] += 1
+            c["wrong"] += int(np.count_nonzero((labels[known] == 1) != (truth[known] == 1)))
+            c["known"] += int(known.sum())
+            c["plain_wrong"] += int(np.count_nonzero((plain[known] == 1) != (truth[known] == 1)))
+            step.update(error=error_rate(labels, truth), plain_error=error_rate(plain, truth))
+        with open(self.out / STEPS, "ab") as fh:
+            fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
+        cur["steps"] += 1
+        self._write_carry(s, cur["steps"], prop)
+        cur["fallbacks"] += int(step.get("fallback", False)) + int(step.get("forward", {}).get("fallback", False))
+        self.state["lines"] += 1
+        self._totals()
+        self.labelled += 1
+        if self.on_frame is not None:
+            self.on_frame(t, image, labels, prop.last, self.frames.name(t))

@@ -1,0 +1,209 @@
+"""`pcreg run SOURCE --labels FOLDER`: key frames anywhere, every frame labelled from those around it, both
+ways; resumed exactly after an interrupt; a key frame added relabels only its stretch; --suggest N; bad
+labels folders and options refused in one line (exit 2), nothing already written lost."""
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.classification.metrics import error_rate
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return pcreg.synthetic("syn1a", 6, 0, width=160, height=120)
+
+
+@pytest.fixture()
+def folder(tmp_path, frames):
+    d = tmp_path / "frames"
+    d.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(d / f"f{i}.png"), f.image[:, :, ::-1])
+    return d
+
+
+def _video(tmp_path, frames):
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (160, 120))
+    for f in frames:
+        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
+    writer.release()
+    return path
+
+
+def _keys(path, frames, which, name="f{}"):
+    path.mkdir(exist_ok=True)
+    for i in which:
+        cv2.imwrite(str(path / f"{name.format(i)}.png"), frames[i].labels)
+    return path
+
+
+def _labels(out, name):
+    return cv2.imread(str(out / f"{name}.png"), cv2.IMREAD_UNCHANGED)
+
+
+def _err(capsys) -> list[str]:
+    return capsys.readouterr().err.strip().splitlines()
+
+
+def _timeless(line: str) -> dict:
+    step = json.loads(line)
+    step.pop("times")
+    step["registration"].pop("seconds")
+    return step
+
+
+def _outputs(out) -> dict:
+    return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*.png"))}
+
+
+def test_two_key_frames_label_the_frames_between_better_than_one_as_label_clip_does(tmp_path, frames, folder):
+    from pcreg.pipeline.keyframes import label_clip
+    from pcreg.registration.clouds import load_image
+
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "k1", frames, [0])), "--out", str(one)]) == 0
+    assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "k2", frames, [0, 4])), "--out", str(two)]) == 0
+    between = range(1, 4)
+    e1 = np.mean([error_rate(_labels(one, f"f{t}"), frames[t].labels) for t in between])
+    e2 = np.mean([error_rate(_labels(two, f"f{t}"), frames[t].labels) for t in between])
+    assert e2 < e1
+    np.testing.assert_array_equal(_labels(two, "f4"), frames[4].labels)  # a key frame's labels as given
+    # the run labels each frame as label_clip does (each stretch's classifier on its own key frames)
+    images = [load_image(folder / f"f{t}.png") for t in range(6)]
+    clip = label_clip(lambda t: images[t], 6, {0: frames[0].labels, 4: frames[4].labels})
+    for f in clip:
+        np.testing.assert_array_equal(_labels(two, f"f{f.index}"), f.labels)
+    steps = [json.loads(line) for line in (two / "steps.jsonl").read_text().splitlines()]
+    assert sorted((s["frame"], tuple(s["keys"])) for s in steps) == [
+        (1, ("f0.png", "f4.png")), (2, ("f0.png", "f4.png")), (3, ("f0.png", "f4.png")), (5, ("f4.png",))]
+    assert not (two / ".keys").exists()
+
+
+def test_one_key_frame_at_the_first_frame_labels_as_a_single_label_image(tmp_path, frames, folder):
+    _keys(tmp_path / "k", frames, [0])
+    more = ["--confidence", "--suggest", "2"]
+    assert main(["run", str(folder), "--labels", str(tmp_path / "k"), "--out", str(tmp_path / "a"), *more]) == 0
+    assert main(["run", str(folder), "--labels", str(tmp_path / "k" / "f0.png"), "--out", str(tmp_path / "b"), *more]) == 0
+    assert _outputs(tmp_path / "a") == _outputs(tmp_path / "b")
+    suggested = (tmp_path / "b" / "suggest.txt").read_text()
+    assert suggested == (tmp_path / "a" / "suggest.txt").read_text() and len(suggested.splitlines()) == 2
+
+
+@pytest.mark.parametrize("kill_at, phase", [(10, "store"), (15, "between"), (18, "backward"), (21, "forward")])
+def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypatch, capsys, kill_at, phase):
+    """A video with key frames 1 and 4, killed at a commit of the stretch between them (its frames being
+    kept, its forward pass, its backward pass) or of the one after, then run again."""
+    from pcreg.pipeline.keys_run import KeyRun
+
+    video = _video(tmp_path, frames)
+    keys = _keys(tmp_path / "keys", frames, [1, 4], name="{:06d}")
+    args = ["run", str(video), "--labels", str(keys), "--confidence"]
+    assert main(args + ["--out", str(tmp_path / "whole")]) == 0
+    real, count = KeyRun._commit, [0]
+
+    def crash(self):
+        count[0] += 1
+        if count[0] == kill_at:
+            assert self.state["cursor"]["phase"] == phase
+            raise KeyboardInterrupt
+        real(self)
+
+    monkeypatch.setattr(KeyRun, "_commit", crash)
+    assert main(args + ["--out", str(tmp_path / "cut")]) == 130
+    monkeypatch.undo()
+    assert any((tmp_path / "cut" / ".keys").iterdir())  # what the stretch's passes hand on, in the hidden folder
+    if phase == "backward":  # what the forward pass kept, lost: refused in one line, --force starts over
+        import shutil
+
+        lost = shutil.copytree(tmp_path / "cut", tmp_path / "lost")
+        capsys.readouterr()
+        for f in lost.glob(".keys/*/prior-*.npz"):
+            f.unlink()
+        assert main(args + ["--out", str(lost)]) == 2
+        assert _err(capsys) == [f"pcreg: error: {next(lost.glob('.keys/*'))}/prior-2.npz: missing or unreadable; use --force "
+                                "to start over"]
+        assert main(args + ["--out", str(lost), "--force"]) == 0
+        assert _outputs(tmp_path / "whole") == _outputs(lost)
+    assert main(args + ["--out", str(tmp_path / "cut")]) == 0
+    assert _outputs(tmp_path / "whole") == _outputs(tmp_path / "cut")
+    assert (tmp_path / "whole" / "run.json").read_bytes() == (tmp_path / "cut" / "run.json").read_bytes()
+    assert ([_timeless(x) for x in (tmp_path / "whole" / "steps.jsonl").read_text().splitlines()]
+            == [_timeless(x) for x in (tmp_path / "cut" / "steps.jsonl").read_text().splitlines()])
+    assert sorted(_outputs(tmp_path / "cut")) == ([f"{i:06d}.png" for i in range(6)]
+                                                  + [f"confidence/{i:06d}.png" for i in (0, 2, 3, 5)])
+    state = json.loads((tmp_path / "cut" / "run.json").read_text())
+    assert state["cursor"] is None and [s["keys"] for s in state["stretches"]] == [["000001"], ["000001", "000004"],
+                                                                                    ["000004"]]
+    assert not (tmp_path / "cut" / ".keys").exists()
+
+
+def test_a_key_frame_added_relabels_only_its_stretch_and_suggest_names_the_frames(tmp_path, frames, folder, capsys):
+    keys, out = _keys(tmp_path / "keys", frames, [0, 3]), tmp_path / "out"
+    args = ["run", str(folder), "--labels", str(keys), "--out", str(out), "--suggest", "2"]
+    assert main(args) == 0
+    lines = (out / "suggest.txt").read_text().splitlines()
+    steps = {s["name"]: s["predicted_error"] for s in map(json.loads, (out / "steps.jsonl").read_text().splitlines())}
+    assert len(lines) == 2 and len({ln.split()[0] for ln in lines}) == 2
+    for ln in lines:
+        name, err = ln.split()
+        assert name in {"f1", "f2", "f4", "f5"} and float(err) == pytest.approx(steps[f"{name}.png"], abs=0.005)
+    before = {p.name: p.stat().st_mtime_ns for p in out.glob("f*.png")}
+    _keys(keys, frames, [5])  # splits the last stretch (f4, f5 from f3) into f4 between f3 and f5
+    os.utime(out / "f1.png", ns=(1, 1))  # a frame of an unchanged stretch: never written again
+    assert main(args) == 0
+    after = {p.name: p.stat().st_mtime_ns for p in out.glob("f*.png")}
+    assert after["f1.png"] == 1 and all(after[n] == before[n] for n in ("f0.png", "f2.png", "f3.png"))
+    assert after["f4.png"] != before["f4.png"] and after["f5.png"] != before["f5.png"]
+    np.testing.assert_array_equal(_labels(out, "f5"), frames[5].labels)
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    assert sorted(s["name"] for s in steps) == ["f1.png", "f2.png", "f4.png"]
+    assert main(args) == 0 and "already done" in capsys.readouterr().out
+    # another option is refused; --suggest asks for more frames than are left
+    assert main(args + ["--weight", "1"]) == 2 and "other options" in _err(capsys)[0]
+    assert main(args[:-1] + ["4"]) == 2
+    assert _err(capsys) == ["pcreg: error: --suggest 4: only 3 frame(s) are not key frames"]
+
+
+def test_bad_labels_folders_and_options_are_refused(tmp_path, frames, folder, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "k", frames, [0])), "--out", str(out)]) == 0
+    written = _outputs(out)
+
+    def refused(keys, *more):
+        assert main(["run", str(folder), "--labels", str(keys), "--out", str(out), *more]) == 2
+        err = _err(capsys)
+        assert len(err) == 1 and _outputs(out) == written
+        return err[0]
+
+    assert "names no frame" in refused(_keys(tmp_path / "nameless", frames, [0, 2], name="g{}"))
+    twice = _keys(tmp_path / "twice", frames, [0, 2])
+    cv2.imwrite(str(twice / "f2.PNG"), frames[2].labels)
+    if len(list(twice.iterdir())) == 3:  # a file system that tells case apart
+        assert "a second label for the frame f2.png" in refused(twice)
+    small = _keys(tmp_path / "small", frames, [0])
+    cv2.imwrite(str(small / "f3.png"), frames[3].labels[:60])
+    msg = refused(small)
+    assert msg.startswith("pcreg: error: ") and "f3.png: labels are 160x60, the frames 160x120" in msg
+    with pytest.raises(SystemExit) as exit_:  # argparse's own refusal, one line too
+        main(["run", str(folder), "--labels", str(tmp_path / "k"), "--out", str(out), "--suggest", "0"])
+    assert exit_.value.code == 2 and _err(capsys) == ["pcreg run: error: argument --suggest: expected an integer >= 1, got 0"]
+    assert "only 5 frame(s)" in refused(tmp_path / "k", "--suggest", "6")
+    assert main(["run", str(folder), "--labels", str(tmp_path / "k"), "--out", str(tmp_path / "k")]) == 2
+    assert "would overwrite the key frames' labels" in _err(capsys)[0]
+    # a video's frames are named by index: two names of one frame, a frame past the end
+    video = _video(tmp_path, frames)
+    vkeys = _keys(tmp_path / "vk", frames, [1], name="{:06d}")
+    cv2.imwrite(str(vkeys / "0000001.png"), frames[1].labels)
+    assert main(["run", str(video), "--labels", str(vkeys), "--out", str(out)]) == 2
+    assert "a second label for the frame 000001" in _err(capsys)[0]
+    late = _keys(tmp_path / "late", frames, [1], name="{:06d}")
+    cv2.imwrite(str(late / "000009.png"), frames[1].labels)
+    assert main(["run", str(video), "--labels", str(late), "--out", str(out)]) == 2
+    assert "000009.png: names no frame" in _err(capsys)[0] and _outputs(out) == written

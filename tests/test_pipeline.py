@@ -182,7 +182,7 @@ def test_a_dense_fields_prior_is_weighted_per_pixel_by_its_confidence(frames):
     from pcreg.pipeline.prior import CONFIDENCE_SPAN
     from pcreg.registration.motion import Motion, field_from_matrix
 
-    ref, mov = frames[0], frames[1]
+    ref = mov = frames[0]  # the same image: the reference carried along the field matches it, full trust
     h, w = mov.labels.shape
     field = field_from_matrix(np.eye(3), (h, w))
     d = np.zeros((h, w), np.float32)  # no evidence of its own: the fused log-odds are the weighted prior
@@ -198,3 +198,25 @@ def test_a_dense_fields_prior_is_weighted_per_pixel_by_its_confidence(frames):
     right[:, :w // 2] = False
     np.testing.assert_allclose(weighted[left], lo * one[left], rtol=1e-5)
     np.testing.assert_allclose(weighted[right], hi * one[right], rtol=1e-5)
+
+
+def test_a_dense_fields_prior_fades_where_the_carried_reference_does_not_match(frames):
+    """The pair's trust, as the stream's: where the reference carried along the field differs from the
+    moving frame, the prior's weight falls (exp(-r / 40) of the residual r); where it matches, it stays."""
+    from pcreg.pipeline.pair import _fuse_methods
+    from pcreg.pipeline.trust import residual_trust
+    from pcreg.registration.motion import Motion, field_from_matrix
+
+    ref = frames[0]
+    h, w = ref.labels.shape
+    field = field_from_matrix(np.eye(3), (h, w))
+    changed = ref.image.copy()
+    changed[:, w // 2:] = 255 - changed[:, w // 2:]  # the right half no longer the reference's
+    mov = type(ref)(changed, ref.labels, "changed")
+    trust = residual_trust(ref.image, changed, field)
+    assert trust[:, : w // 4].mean() > 0.9 and trust[:, 3 * w // 4:].mean() < 0.2
+    d = np.zeros((h, w), np.float32)
+    kw = dict(pi=0.3, fusion=FusionConfig(), weight=2.0, flow_weight=2.0, temporal=None, flow=np.zeros((h, w, 2)))
+    same = _fuse_methods(ref, ref, d, Motion(field=field), **kw).registered
+    faded = _fuse_methods(ref, mov, d, Motion(field=field), **kw).registered
+    np.testing.assert_allclose(faded, same * trust, rtol=1e-5, atol=1e-6)

@@ -23,7 +23,7 @@ import numpy as np
 from .._jit import njit, prange
 
 from ..errors import RegistrationError
-from . import nn
+from . import _nn_kernels, nn
 from .nn import GridIndex
 from .result import IcpIteration, RegistrationResult
 from .transforms import apply
@@ -471,7 +471,7 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
 
 @njit(cache=True)
 def _next_update(k, sd2, sp, sq, spp, sqp, center, model, need, T, state):
-    """One iteration's update from the matched pairs' moments (:func:`pcreg.registration.nn._moments`,
+    """One iteration's update from the matched pairs' moments (:func:`pcreg.registration._nn_kernels._moments`,
     relative to ``center``; ``sd2`` unused), in the original coordinates; model 0, 1, 2 = translation,
     rigid, similarity. Applies it to ``T`` and counts the iteration in ``state`` (:func:`_moment_loop`);
     on error (1: not finite; 2: a similarity's source points all coincide) sets ``state[4]`` instead."""
@@ -535,14 +535,14 @@ def _moment_loop(pts, T, steps, model, need, relative_fitness, relative_rmse, r2
     matches ``out_d2`` / ``out_i`` (on entry, those of ``pts``) and ``state`` = [fitness, inlier RMSE,
     iterations, converged, error]. Stops early on an error (:func:`_next_update`) or when the
     stopping rule holds."""
-    mom = nn._moments(pts, target, out_d2, out_i, center)
+    mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
     for _ in range(steps):
         update = _next_update(*mom, center, model, need, T, state)
         if state[4] != 0:
             return
-        nn._move_query_serial(pts, update, True, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed,
-                              out_d2, out_i)
-        mom = nn._moments(pts, target, out_d2, out_i, center)
+        _nn_kernels._move_query_serial(pts, update, True, r2, spts, sidx, start, tkeys, tcell, origin, h, dims,
+                                       hashed, out_d2, out_i)
+        mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
         if _scored(mom[0], mom[1], pts.shape[0], relative_fitness, relative_rmse, state):
             return
 
@@ -555,15 +555,15 @@ def _moment_loop_threads(pts, T, steps, model, need, relative_fitness, relative_
     crash once it is loaded back from the cache, numba bug 8578). The moments are summed on one thread,
     in point order, as there."""
     d = pts.shape[1]
-    mom = nn._moments(pts, target, out_d2, out_i, center)
+    mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
     for _ in range(steps):
         update = _next_update(*mom, center, model, need, T, state)
         if state[4] != 0:
             return
         for t in prange(pts.shape[0]):
-            nn._move(pts, t, update, d)
-            out_d2[t], out_i[t] = nn._nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
-        mom = nn._moments(pts, target, out_d2, out_i, center)
+            _nn_kernels._move(pts, t, update, d)
+            out_d2[t], out_i[t] = _nn_kernels._nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+        mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
         if _scored(mom[0], mom[1], pts.shape[0], relative_fitness, relative_rmse, state):
             return
 

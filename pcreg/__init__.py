@@ -21,6 +21,8 @@ _EXPORTS = {
     "RegisterConfig": "pcreg.registration.config",
     "RegistrationResult": "pcreg.registration.result",
     "icp": "pcreg.registration.api",
+    "ICPOptions": "pcreg.registration.icp_options",
+    "VoxelSchedule": "pcreg.registration.icp_options",
     "image_cloud": "pcreg.registration.clouds",
     "load_image": "pcreg.registration.clouds",
     "warp": "pcreg.registration.warp",

@@ -84,7 +84,8 @@ def _choose_threading_layer() -> None:
         os.environ["GOMP_SPINCOUNT"] = str(OPENMP_SPIN_COUNT)  # read when libgomp loads, at the first region
 
 
-#: True in a process forked after its parent's OpenMP threads started (:func:`can_thread`).
+#: True in a process forked after its parent's OpenMP threads started (:func:`can_thread`): a fact about
+#: this process and numba's threading layer in it, set by the fork hook, so held at module level.
 _FORKED_AFTER_OPENMP = False
 
 

@@ -21,6 +21,8 @@ _EXPORTS = {
     "RegisterConfig": "pcreg.registration.config",
     "RegistrationResult": "pcreg.registration.result",
     "icp": "pcreg.registration.api",
+    "ICPOptions": "pcreg.registration.icp_options",
+    "VoxelSchedule": "pcreg.registration.icp_options",
     "image_cloud": "pcreg.registration.clouds",
     "load_image": "pcreg.registration.clouds",
     "warp": "pcreg.registration.warp",
@@ -49,10 +51,10 @@ def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'pcreg' has no attribute {name!r}")
+    # not kept in the module's globals: sys.modules holds the imported module, and the name is looked
+    # up there on each use
     mod = importlib.import_module(module)
-    value = mod if name in _MODULES else getattr(mod, name)
-    globals()[name] = value
-    return value
+    return mod if name in _MODULES else getattr(mod, name)
 
 
 def __dir__() -> list[str]:

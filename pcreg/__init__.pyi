@@ -40,6 +40,10 @@ from pcreg.registration.config import (
 from pcreg.registration.dense import (
     DenseOptions as DenseOptions,
 )
+from pcreg.registration.icp_options import (
+    ICPOptions as ICPOptions,
+    VoxelSchedule as VoxelSchedule,
+)
 from pcreg.registration.result import (
     RegistrationResult as RegistrationResult,
 )

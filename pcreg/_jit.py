@@ -33,7 +33,8 @@ def kernel_sources_stamp() -> str:
     """A hash of the names and contents of pcreg's source files that mention ``njit``, read once per
     process: the kernels a process compiles come from the sources it imported, and numba asks for the
     stamp once per kernel (39 times for a registration), which walking the files each time made about
-    100 ms of every start."""
+    100 ms of every start. Kept for the process (it takes no argument: one value, as a constant would be,
+    read when the first kernel is loaded rather than at import)."""
     digest = hashlib.sha256()
     for path in sorted(_PACKAGE.rglob("*.py")):
         text = path.read_bytes()

@@ -17,6 +17,7 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 # Ctrl-C and SIGTERM
 # ---------------------------------------------------------------------------------------------
 
+# Signal handlers are the process's: what they note is held at module level, one per process.
 #: Termination signals received since :func:`interrupt_on_signals` (cleared by each call).
 _RECEIVED: list[int] = []
 #: > 0 while workers are being stopped: a signal then is noted, not raised, so the clean-up completes.

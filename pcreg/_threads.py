@@ -26,6 +26,10 @@ results are the same, to the bit, with or without the helper.
   work off the main thread.
 - **It is idle between calls** (a ``ThreadPoolExecutor`` of one thread, joined at the interpreter's
   exit), and an interrupt in the main thread leaves it to finish what it holds, milliseconds.
+- **Its state is the process's**, held at module level for that reason: the executor, its lock and
+  whether it is enabled (``_STATE``), the machine's last CPU-time reading that :func:`others_busy`
+  measures from (``_OTHERS``) and the mark of the helper thread itself. None of it is a cache of data;
+  a forked child starts it afresh.
 """
 
 from __future__ import annotations

@@ -25,8 +25,8 @@ def test_backends_agree_on_synthetic_clouds(dim, model):
         T[:dim, :dim] *= 1.02
     source = tf.apply(np.linalg.inv(T), target) + rng.normal(scale=0.02, size=target.shape)
     kw = dict(model=model, max_correspondence_distance=1.0, max_iteration=50)
-    ref = pcreg.icp(source, target, backend="reference", **kw)
-    o3d = pcreg.icp(source, target, backend="open3d", **kw)
+    ref = pcreg.icp(source, target, pcreg.ICPOptions(backend="reference", **kw))
+    o3d = pcreg.icp(source, target, pcreg.ICPOptions(backend="open3d", **kw))
     assert relative(ref.matrix, o3d.matrix) < 1e-6
     assert ref.iterations == o3d.iterations
     assert ref.converged == o3d.converged
@@ -40,7 +40,7 @@ def test_backends_agree_iteration_by_iteration():
     source = tf.apply(np.linalg.inv(tf.rigid2d(6, 0.5, -0.4)), target)
     seen = {"reference": [], "open3d": []}
     for backend in seen:
-        pcreg.icp(source, target, backend=backend, max_correspondence_distance=2.0, max_iteration=20,
+        pcreg.icp(source, target, pcreg.ICPOptions(backend=backend, max_correspondence_distance=2.0, max_iteration=20),
                   callback=lambda it: seen[it.backend].append(it))
     assert len(seen["reference"]) == len(seen["open3d"]) > 3
     for a, b in zip(seen["reference"], seen["open3d"]):
@@ -76,10 +76,10 @@ def test_real_scan_pair_both_backends_land_on_the_ground_truth(shared_data):
     scans = shared_data / "scans"
     source, target = load_cloud(scans / "source.ply"), load_cloud(scans / "target.ply")
     truth = np.loadtxt(scans / "T_target_source.txt")
-    kw = dict(model="rigid", voxel_sizes=(1.0, 0.5, 0.25), max_iteration=30, relative_fitness=1e-6,
+    kw = dict(model="rigid", schedule=pcreg.VoxelSchedule((1.0, 0.5, 0.25)), max_iteration=30, relative_fitness=1e-6,
               relative_rmse=1e-6)
-    ref = pcreg.icp(source, target, backend="reference", **kw)
-    o3d = pcreg.icp(source, target, backend="open3d", **kw)
+    ref = pcreg.icp(source, target, pcreg.ICPOptions(backend="reference", **kw))
+    o3d = pcreg.icp(source, target, pcreg.ICPOptions(backend="open3d", **kw))
     assert relative(ref.matrix, o3d.matrix) < 1e-6
     for r in (ref, o3d):
         assert np.linalg.norm(r.matrix[:3, 3] - truth[:3, 3]) < 0.05

@@ -573,3 +573,27 @@ def test_a_prepared_reference_gives_the_same_registration_and_is_refused_for_ano
         register_dense(ref, mov, options=options, prepared=prepare_reference(ref, options=replace(options, levels=3)))
     with pytest.raises(InputError, match="DenseReference"):
         register_dense(ref, mov, options=options, prepared=prepared.levels)
+
+
+def test_a_prepared_reference_holds_the_grid_weights_its_registrations_use(warped_pair, monkeypatch):
+    """The control grids' bilinear weights depend on the shapes alone: the prepared reference makes them
+    once (read-only, the numbers made without it), and its registrations make none of their own."""
+    from pcreg.registration.dense import grid, prepare_reference
+
+    ref, mov, _ = warped_pair
+    options = DenseOptions(levels=4, texture=None)
+    prepared = prepare_reference(ref, options=options)
+    assert prepared.grid_weights
+    for key, made in prepared.grid_weights.items():
+        fresh = (grid._upsample_weights if key[0] == "upsample" else grid._level_weights)(*key[1:])
+        for a, b in zip(made, fresh):
+            assert not a.flags.writeable
+            np.testing.assert_array_equal(a, b)
+    plain = register_dense(ref, mov, options=options, global_result=np.eye(3))
+
+    def made_again(*args):
+        raise AssertionError("grid weights made again")
+
+    monkeypatch.setattr(grid, "_upsample_weights", made_again)
+    again = register_dense(ref, mov, options=options, global_result=np.eye(3), prepared=prepared)
+    np.testing.assert_array_equal(again.field, plain.field)

@@ -215,11 +215,24 @@ def _warp(img, T=np.eye(3), **kw):
 CLOUD = np.random.default_rng(4).normal(size=(60, 3))
 
 
+def _icp_call(src, tgt, *, init=None, **kw):
+    """``pcreg.icp`` with ``kw`` as its options: an ICPOptions, the voxel schedule's keywords as its
+    VoxelSchedule (no schedule without voxel sizes; empty sequences as None)."""
+    import pcreg
+
+    keys = ("voxel_sizes", "max_correspondence_distances", "max_iterations")
+    if any(k in kw for k in keys):
+        sched = {k: kw.pop(k) for k in keys if k in kw}
+        sched = {k: None if isinstance(v, list) and not v else v for k, v in sched.items()}
+        sizes = sched.pop("voxel_sizes", (1.0,))
+        if sizes is not None:
+            kw["schedule"] = pcreg.VoxelSchedule(sizes, **sched)
+    return pcreg.icp(src, tgt, pcreg.ICPOptions(**kw), init=init)
+
+
 def _icp(src=CLOUD, tgt=CLOUD, **kw):
     def f(t):
-        from pcreg.registration.api import icp
-
-        return icp(src, tgt, **kw)
+        return _icp_call(src, tgt, **kw)
     return f
 
 
@@ -444,7 +457,7 @@ PUBLIC_CALLS = {
                         "weights", "angle_step", "n_candidates", "canny_percentile", "seed", "generators",
                         "max_correspondence_distance", "relative_fitness", "relative_rmse", "reference_max_points",
                         "min_inlier_ratio", "inlier_tolerance"]),
-    "icp": (lambda **kw: __import__("pcreg").icp(CLOUD, CLOUD, **kw),
+    "icp": (lambda **kw: _icp_call(CLOUD, CLOUD, **kw),
             ["backend", "model", "max_correspondence_distance", "init", "max_iteration", "voxel_sizes",
              "max_iterations", "weights", "trim_fraction", "metric", "rotation"]),
     "image_cloud": (lambda **kw: __import__("pcreg").image_cloud(GOOD, **kw),

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from pcreg import ICPOptions
 from pcreg import transforms as tf
 from pcreg.errors import RegistrationError
 from pcreg.registration.reference import (
@@ -80,8 +81,8 @@ def test_point_to_line_converges_on_lines(model):
          "affine": np.array([[1.02, 0.01, 1.5], [-0.01, 0.99, -1], [0, 0, 1.0]]),
          "projective": np.array([[1.02, 0.01, 1.5], [-0.01, 0.99, -1], [2e-4, -1e-4, 1.0]])}[model]
     source = tf.apply(np.linalg.inv(T), target[::3])
-    M = icp_reference(source, target, model=model, max_correspondence_distance=10,
-                      metric="point_to_line", target_normals=normals, max_iteration=50).matrix
+    M = icp_reference(source, target, ICPOptions(model=model, max_correspondence_distance=10, metric="point_to_line",
+                                                 max_iteration=50), target_normals=normals).matrix
     assert tf.max_corner_error(M, T, (100, 140)) < 0.05
 
 
@@ -100,8 +101,9 @@ def test_outliers_need_robust_weights():
     T = tf.rigid2d(3, 1.0, -0.5)
     source = tf.apply(np.linalg.inv(T), target)
     source[:60] = rng.uniform(0, 100, (60, 2))  # 20% gross outliers with correspondences of their own
-    plain = icp_reference(source, target, max_correspondence_distance=5, max_iteration=60).matrix
-    robust = icp_reference(source, target, max_correspondence_distance=5, max_iteration=60, weights="tukey").matrix
+    plain = icp_reference(source, target, ICPOptions(max_correspondence_distance=5, max_iteration=60)).matrix
+    robust = icp_reference(source, target, ICPOptions(max_correspondence_distance=5, max_iteration=60,
+                                                      weights="tukey")).matrix
     assert tf.max_corner_error(robust, T, (100, 100)) < tf.max_corner_error(plain, T, (100, 100))
     assert tf.max_corner_error(robust, T, (100, 100)) < 0.05
 
@@ -111,14 +113,14 @@ def test_stopping_rule_and_callback():
     target = rng.uniform(0, 100, (500, 2))
     source = tf.apply(np.linalg.inv(tf.rigid2d(2, 1, 1)), target)
     seen = []
-    r = icp_reference(source, target, max_correspondence_distance=10, max_iteration=100, callback=seen.append)
+    r = icp_reference(source, target, ICPOptions(max_correspondence_distance=10, max_iteration=100), callback=seen.append)
     assert r.converged and r.iterations < 100 and r.backend == "reference"
     assert [s.iteration for s in seen] == list(range(r.iterations + 1))
     assert seen[-1].fitness == r.fitness and seen[-1].inlier_rmse == r.inlier_rmse
     np.testing.assert_array_equal(seen[-1].matrix, r.matrix)
     # Disabled thresholds: exactly max_iteration updates.
-    assert icp_reference(source, target, max_correspondence_distance=10, max_iteration=7, relative_fitness=0,
-                         relative_rmse=0).iterations == 7
+    assert icp_reference(source, target, ICPOptions(max_correspondence_distance=10, max_iteration=7, relative_fitness=0,
+                                                    relative_rmse=0)).iterations == 7
 
 
 @pytest.mark.parametrize("d, model", [(2, "rigid"), (2, "similarity"), (3, "rigid"), (3, "translation")])
@@ -135,13 +137,13 @@ def test_the_compiled_loop_runs_the_same_steps_whichever_way_it_is_driven(d, mod
         T[:3, :3] = tf.rigid2d(3)  # as a 3x3 matrix: a rotation by 3 degrees about z
         T[:3, 3] = [1.5, -1.0, 0.5]
     source = tf.apply(np.linalg.inv(T), target)[:600] + rng.normal(0, 0.05, (600, d))
-    kw = dict(model=model, max_correspondence_distance=6.0, max_iteration=40)
-    fused = icp_reference(source, target, **kw)
+    options = ICPOptions(model=model, max_correspondence_distance=6.0, max_iteration=40)
+    fused = icp_reference(source, target, options)
     seen = []
-    stepped = icp_reference(source, target, callback=seen.append, **kw)
+    stepped = icp_reference(source, target, options, callback=seen.append)
     monkeypatch.setattr(nn, "PARALLEL_MIN_QUERIES", 1)
-    threaded = icp_reference(source, target, **kw)
-    threaded_stepped = icp_reference(source, target, callback=lambda it: None, **kw)
+    threaded = icp_reference(source, target, options)
+    threaded_stepped = icp_reference(source, target, options, callback=lambda it: None)
     assert 2 < fused.iterations < 40 and fused.converged
     for r in (stepped, threaded, threaded_stepped):
         assert (r.iterations, r.converged, r.fitness) == (fused.iterations, fused.converged, fused.fitness)
@@ -153,12 +155,12 @@ def test_a_similarity_of_coinciding_points_is_refused_in_the_compiled_loop():
     target = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     source = np.array([[0.2, 0.2], [0.2, 0.2], [0.2, 0.2]])
     with pytest.raises(RegistrationError, match="coincide"):
-        icp_reference(source, target, model="similarity", max_correspondence_distance=5.0)
+        icp_reference(source, target, ICPOptions(model="similarity", max_correspondence_distance=5.0))
 
 
 def test_no_correspondences_means_no_motion():
     a = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    r = icp_reference(a, a + 100, max_correspondence_distance=1.0)
+    r = icp_reference(a, a + 100, ICPOptions(max_correspondence_distance=1.0))
     np.testing.assert_array_equal(r.matrix, np.eye(3))
     assert r.fitness == 0.0 and r.inlier_rmse == 0.0 and r.converged
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pcreg import ICPOptions
 from pcreg import transforms as tf
 from pcreg.implementations.suite import builtin_cases, edge_cloud_pair, export_suite, load_suite, run_suite, write_results
 from pcreg.implementations.crosscheck import (FIXED_POINT_TOLERANCE, STEP_TOLERANCE, crosscheck_implementations, load_cloud,
@@ -41,8 +42,8 @@ def check_floors(report, *, min_running=6):
 @pytest.fixture(scope="module")
 def edge_report():
     src, tgt, truth = edge_cloud_pair(max_points=500)
-    return crosscheck_implementations(src, tgt, implementations=DEFAULT, max_correspondence_distance=5.0,
-                                      max_iterations=60, truth=truth)
+    return crosscheck_implementations(src, tgt, implementations=DEFAULT,
+                                      options=ICPOptions(max_correspondence_distance=5.0, max_iteration=60), truth=truth)
 
 
 def test_six_implementations_meet_their_floors_on_a_2d_edge_cloud(edge_report):
@@ -77,8 +78,8 @@ def test_six_implementations_meet_their_floors_on_the_lidar_pair(shared_data):
     src = voxel_downsample(load_cloud(scans / "source.ply"), 1.0)
     tgt = voxel_downsample(load_cloud(scans / "target.ply"), 1.0)
     truth = np.loadtxt(scans / "T_target_source.txt")
-    report = crosscheck_implementations(src, tgt, implementations=DEFAULT, max_correspondence_distance=1.0,
-                                        max_iterations=60, truth=truth)
+    report = crosscheck_implementations(src, tgt, implementations=DEFAULT,
+                                        options=ICPOptions(max_correspondence_distance=1.0, max_iteration=60), truth=truth)
     running = check_floors(report)
     assert len(running) == len(DEFAULT)
     rows = report.rows
@@ -127,7 +128,7 @@ def test_an_implementation_returns_the_registration_result_that_icp_returns(tmp_
     try:
         bare = get("py:bareimpl:bare").run(p)
         row = crosscheck_implementations(src, tgt, implementations=["reference", "py:bareimpl:bare"],
-                                         max_correspondence_distance=2.0).rows["py:bareimpl:bare"]
+                                         options=ICPOptions(max_correspondence_distance=2.0)).rows["py:bareimpl:bare"]
     finally:
         sys.path.remove(str(tmp_path))
     assert np.isnan(bare.fitness) and np.isnan(bare.inlier_rmse) and bare.iterations == -1 and bare.converged is None
@@ -147,7 +148,7 @@ def test_missing_library_is_reported_not_fatal(monkeypatch):
     rng = np.random.default_rng(0)
     tgt = rng.uniform(-5, 5, (200, 3))
     r = crosscheck_implementations(tgt + 0.05, tgt, implementations=["reference", "small_gicp", "open3d"],
-                                   max_correspondence_distance=1.0)
+                                   options=ICPOptions(max_correspondence_distance=1.0))
     assert r.rows["small_gicp"]["status"] == "missing" and "no_such_module_xyz" in r.rows["small_gicp"]["error"]
     assert r.rows["open3d"]["agrees"]
 
@@ -179,7 +180,7 @@ def test_external_c_icp_agrees_step_for_step_and_a_wrong_one_disagrees(icp_min, 
     good = f'cmd:"{icp_min} {{source}} {{target}} {{init}} {{out}} {{params}}"'
     wrong = f'cmd:"{icp_min} {{source}} {{target}} {{init}} {{out}} {{params}} --wrong"'
     r = crosscheck_implementations(src, tgt, implementations=["reference", good, wrong],
-                                   max_correspondence_distance=2.0, max_iterations=40)
+                                   options=ICPOptions(max_correspondence_distance=2.0, max_iteration=40))
     g, w = r.rows[good], r.rows[wrong]
     assert g["error"] is None and g["comparability"] == "step"
     assert g["matrix_relative_disagreement"] <= STEP_TOLERANCE and g["agrees"]
@@ -218,7 +219,7 @@ def test_broken_programs_fail_in_one_line_and_the_others_still_run(tmp_path):
         specs["py"] = "py:userimpl:identity"
         specs["pycrash"] = "py:userimpl:crash"
         r = crosscheck_implementations(tgt + 0.1, tgt, implementations=["reference", "open3d", *specs.values()],
-                                       max_correspondence_distance=1.0, timeout=3)
+                                       options=ICPOptions(max_correspondence_distance=1.0), timeout=3)
     finally:
         sys.path.remove(str(tmp_path))
     rows = r.rows
@@ -251,7 +252,8 @@ def test_cmd_protocol_files_are_exactly_as_documented(tmp_path):
     tgt = rng.uniform(-5, 5, (100, 3))
     init = np.eye(4)
     init[:3, 3] = [0.1, 0.2, 0.3]
-    r = crosscheck_implementations(tgt, tgt, implementations=[spec], init=init, max_correspondence_distance=1.0)
+    r = crosscheck_implementations(tgt, tgt, implementations=[spec], init=init,
+                                   options=ICPOptions(max_correspondence_distance=1.0))
     row = r.rows[spec]
     assert row["error"] is None, row["error"]
     np.testing.assert_allclose(row["matrix"], init)

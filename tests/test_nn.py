@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pcreg.registration.nn import OPENMP_SPIN_COUNT, GridIndex
+from pcreg import ICPOptions
 from pcreg.registration.reference import build_tree, icp_reference
 
 
@@ -104,7 +105,7 @@ def test_icp_with_the_grid_equals_icp_with_a_kd_tree():
     seen = {}
     for name, tree in (("grid", build_tree(target, max_distance=1.0)), ("kdtree", cKDTree(target))):
         seen[name] = []
-        icp_reference(source, target, max_correspondence_distance=1.0, max_iteration=20, tree=tree,
+        icp_reference(source, target, ICPOptions(max_correspondence_distance=1.0, max_iteration=20), tree=tree,
                       callback=seen[name].append)
     assert len(seen["grid"]) == len(seen["kdtree"]) > 3
     for a, b in zip(seen["grid"], seen["kdtree"]):

@@ -93,8 +93,8 @@ def test_open3d_icp_point_to_point_on_its_grid(iterations):
     tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(GRID_TARGET))
     legacy = reg.registration_icp(src, tgt, 3.0, GRID_INIT, reg.TransformationEstimationPointToPoint(),
                                   reg.ICPConvergenceCriteria(max_iteration=iterations))
-    r = crosscheck_implementations(GRID_SOURCE, GRID_TARGET, implementations=["open3d", "open3d-tensor"],
-                                   init=GRID_INIT, max_correspondence_distance=3.0, max_iterations=iterations)
+    r = crosscheck_implementations(GRID_SOURCE, GRID_TARGET, implementations=["open3d", "open3d-tensor"], init=GRID_INIT,
+                                   options=pcreg.ICPOptions(max_correspondence_distance=3.0, max_iteration=iterations))
     for name, row in r.rows.items():
         np.testing.assert_allclose(row["inlier_rmse"], legacy.inlier_rmse, rtol=1e-3)
         np.testing.assert_allclose(row["fitness"], legacy.fitness, rtol=1e-3)
@@ -130,14 +130,14 @@ def test_small_gicp_registration_test_icp_with_the_reference(pair):
     noise = [np.eye(4)] + [_random_pose(rng, 0.5, -10, 10) for _ in range(3)]
     shifted = [_random_pose(rng, 2.0, 0, 180) for _ in range(2)]
     rot_tol, trans_tol = np.deg2rad(2.5), 0.2
-    kw = dict(backend="reference", max_correspondence_distance=1.0, max_iteration=100)
+    options = pcreg.ICPOptions(backend="reference", max_correspondence_distance=1.0, max_iteration=100)
     worst = (0.0, 0.0)
     for N in noise:
         runs = [(source, target, N, gt), (target, source, N, np.linalg.inv(gt))]
         for S in shifted:  # the source moved by S^-1, the guess S N: the answer is gt S
             runs.append((pcreg.transforms.apply(np.linalg.inv(S), source), target, S @ N, gt @ S))
         for src, tgt, init, truth in runs:
-            r = pcreg.icp(src, tgt, init=init, **kw)
+            r = pcreg.icp(src, tgt, options, init=init)
             et, er = compare_transformation(truth, r.matrix)
             assert et < trans_tol and er < rot_tol, (et, np.rad2deg(er))
             worst = (max(worst[0], et), max(worst[1], er))

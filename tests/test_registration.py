@@ -27,7 +27,7 @@ def structured_cloud(n=400, seed=0):
 @pytest.mark.parametrize("backend", ["reference", "open3d"])
 def test_icp_no_motion_is_identity(backend):
     a = structured_cloud()
-    r = pcreg.icp(a, a, backend=backend, max_correspondence_distance=1.0)
+    r = pcreg.icp(a, a, pcreg.ICPOptions(backend=backend, max_correspondence_distance=1.0))
     np.testing.assert_allclose(r.matrix, np.eye(3), atol=1e-12)
     assert r.fitness == 1.0 and r.inlier_rmse == pytest.approx(0.0, abs=1e-9) and r.converged
     assert r.iterations == 1 and r.backend == backend and r.seconds > 0
@@ -39,7 +39,7 @@ def test_icp_recovers_any_small_rigid_motion(angle, tx, ty):
     target = structured_cloud()
     T = tf.rigid2d(angle, tx, ty)
     source = tf.apply(np.linalg.inv(T), target)
-    r = pcreg.icp(source, target, max_iteration=200, max_correspondence_distance=30)
+    r = pcreg.icp(source, target, pcreg.ICPOptions(max_iteration=200, max_correspondence_distance=30))
     np.testing.assert_allclose(r.matrix, T, atol=1e-6)
 
 
@@ -56,7 +56,7 @@ def test_icp_3d_models(model):
     if model == "affine":
         T[0, 1] = 0.05
     T[:3, 3] = [0.1, -0.05, 0.02]
-    r = pcreg.icp(tf.apply(np.linalg.inv(T), target), target, model=model, max_iteration=100)
+    r = pcreg.icp(tf.apply(np.linalg.inv(T), target), target, pcreg.ICPOptions(model=model, max_iteration=100))
     np.testing.assert_allclose(r.matrix, T, atol=1e-6)
 
 
@@ -94,7 +94,7 @@ def test_result_is_frozen_and_readable():
 def test_icp_bad_input(source, target, error, message):
     model = "affine" if message == "collinear" else "rigid"
     with pytest.raises(error, match=message):
-        pcreg.icp(source, target, model=model)
+        pcreg.icp(source, target, pcreg.ICPOptions(model=model))
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -103,20 +103,39 @@ def test_icp_bad_input(source, target, error, message):
     ({"weights": "cauchy"}, "unknown robust weights"),
     ({"backend": "open3d", "model": "affine"}, "supports the rigid and similarity"),
     ({"backend": "open3d", "weights": "huber"}, "reference-backend feature"),
-    ({"init": np.eye(4)}, "init must be"),
     ({"max_correspondence_distance": -1.0}, "must be > 0"),
 ])
 def test_icp_bad_options(kwargs, message):
     a = structured_cloud()
     with pytest.raises(InputError, match=message):
-        pcreg.icp(a, a, **kwargs)
+        pcreg.icp(a, a, pcreg.ICPOptions(**kwargs))
+
+
+def test_icp_bad_init():
+    a = structured_cloud()
+    with pytest.raises(InputError, match="init must be"):
+        pcreg.icp(a, a, init=np.eye(4))
+
+
+def test_icp_options_are_frozen_and_changed_by_replace():
+    options = pcreg.ICPOptions(max_iteration=np.int64(7), relative_fitness=0)
+    assert options.max_iteration == 7 and type(options.max_iteration) is int and options.relative_fitness == 0.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        options.model = "affine"
+    with pytest.raises(InputError, match="unknown motion model"):
+        dataclasses.replace(options, model="warp")
+    with pytest.raises(InputError, match="differ in length"):
+        pcreg.VoxelSchedule((1.0, 0.5), max_iterations=(10,))
+    with pytest.raises(InputError, match="options must be a pcreg.ICPOptions"):
+        pcreg.icp(structured_cloud(), structured_cloud(), {"model": "rigid"})
 
 
 def test_open3d_counts_iterations_only_when_asked():
     target = structured_cloud()
     source = tf.apply(np.linalg.inv(tf.rigid2d(4, 1, -1)), target)
-    exact = pcreg.icp(source, target, backend="open3d", max_correspondence_distance=10)
-    fast = pcreg.icp(source, target, backend="open3d", max_correspondence_distance=10, count_iterations=False)
+    options = pcreg.ICPOptions(backend="open3d", max_correspondence_distance=10)
+    exact = pcreg.icp(source, target, options)
+    fast = pcreg.icp(source, target, dataclasses.replace(options, count_iterations=False))
     assert exact.iterations > 0 and fast.iterations == -1
     assert exact.converged and fast.converged
     np.testing.assert_allclose(exact.matrix, fast.matrix, atol=1e-9)
@@ -354,23 +373,23 @@ def test_register_refuses_options_a_backend_cannot_honour(kwargs, message):
         pcreg.register(REF, REF, config=pcreg.RegisterConfig.of(**kwargs))
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"metric": "point_to_line", "target_normals": np.ones((400, 2)) / np.sqrt(2)}, "metric 'point_to_line'"),
-    ({"target_normals": np.ones((400, 2))}, "target_normals"),
-    ({"rotation": "quaternion"}, "rotation='quaternion'"),
-    ({"weights": "tukey"}, "robust weights"),
-    ({"trim_fraction": 0.5}, "trim_fraction"),
+@pytest.mark.parametrize("kwargs, normals, message", [
+    ({"metric": "point_to_line"}, np.ones((400, 2)) / np.sqrt(2), "metric 'point_to_line'"),
+    ({}, np.ones((400, 2)), "target_normals"),
+    ({"rotation": "quaternion"}, None, "rotation='quaternion'"),
+    ({"weights": "tukey"}, None, "robust weights"),
+    ({"trim_fraction": 0.5}, None, "trim_fraction"),
 ])
-def test_icp_open3d_refuses_what_it_cannot_honour(kwargs, message):
+def test_icp_open3d_refuses_what_it_cannot_honour(kwargs, normals, message):
     a = structured_cloud()
     with pytest.raises(InputError, match=message):
-        pcreg.icp(a, a, backend="open3d", **kwargs)
+        pcreg.icp(a, a, pcreg.ICPOptions(backend="open3d", **kwargs), target_normals=normals)
 
 
 def test_icp_reference_point_to_line_needs_normals():
     a = structured_cloud()
     with pytest.raises(InputError, match="needs 2-D clouds, target_normals"):
-        pcreg.icp(a, a, metric="point_to_line")
+        pcreg.icp(a, a, pcreg.ICPOptions(metric="point_to_line"))
 
 
 def test_open3d_backend_runs_open3d_for_every_step():
@@ -403,7 +422,7 @@ def test_results_name_their_frames():
         image.T_target_source
     rng = np.random.default_rng(0)
     target = rng.uniform(-10, 10, (500, 3))
-    cloud = pcreg.icp(target + 0.05, target, max_correspondence_distance=1.0)
+    cloud = pcreg.icp(target + 0.05, target, pcreg.ICPOptions(max_correspondence_distance=1.0))
     assert cloud.frames == "T_target_source" and cloud.T_target_source.shape == (4, 4)
     assert "T_target_source=[[" in repr(cloud)
     with pytest.raises(AttributeError, match="a cloud registration's transform is T_target_source, not T_ref_mov"):

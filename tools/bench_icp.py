@@ -61,6 +61,7 @@ def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int,
     import open3d as o3d
 
     from pcreg.registration.open3d_icp import to_pointcloud
+    from pcreg.registration.icp_options import ICPOptions
     from pcreg.registration.reference import icp_reference
     from pcreg.registration.transforms import lift_to_3d
 
@@ -73,8 +74,8 @@ def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int,
 
     def reference():
         t0 = time.perf_counter()
-        r = icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist, init=np.eye(d + 1),
-                          max_iteration=iterations, relative_fitness=0.0, relative_rmse=0.0)
+        r = icp_reference(src, tgt, ICPOptions(max_correspondence_distance=dist, max_iteration=iterations,
+                                               relative_fitness=0.0, relative_rmse=0.0), init=np.eye(d + 1))
         return time.perf_counter() - t0, lift_to_3d(r.matrix) if d == 2 else r.matrix
 
     def open3d():
@@ -136,13 +137,14 @@ def profile_reference(src: np.ndarray, tgt: np.ndarray, *, dist: float, iteratio
     import cProfile
     import pstats
 
+    from pcreg.registration.icp_options import ICPOptions
     from pcreg.registration.reference import icp_reference
 
     d = src.shape[1]
 
     def call():
-        icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist, init=np.eye(d + 1),
-                      max_iteration=iterations, relative_fitness=0.0, relative_rmse=0.0)
+        icp_reference(src, tgt, ICPOptions(max_correspondence_distance=dist, max_iteration=iterations,
+                                           relative_fitness=0.0, relative_rmse=0.0), init=np.eye(d + 1))
 
     call()
     prof = cProfile.Profile()

@@ -344,6 +344,7 @@ def time_icp_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: 
     import open3d as o3d
 
     from pcreg.registration.open3d_icp import to_pointcloud
+    from pcreg.registration.icp_options import ICPOptions
     from pcreg.registration.reference import icp_reference
 
     reg = o3d.pipelines.registration
@@ -353,8 +354,8 @@ def time_icp_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: 
 
     def ref_run():
         t0 = time.perf_counter()
-        r = icp_reference(src, tgt, model="rigid", max_correspondence_distance=dist, init=np.eye(d + 1),
-                          max_iteration=iterations, relative_fitness=0.0, relative_rmse=0.0)
+        r = icp_reference(src, tgt, ICPOptions(max_correspondence_distance=dist, max_iteration=iterations,
+                                               relative_fitness=0.0, relative_rmse=0.0), init=np.eye(d + 1))
         return time.perf_counter() - t0, r.matrix, r.fitness, r.inlier_rmse, r.iterations
 
     def o3d_run():

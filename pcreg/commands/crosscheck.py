@@ -136,6 +136,7 @@ def _suite(args) -> dict:
 def _clouds(args) -> int:
     from ..implementations.crosscheck import crosscheck
     from ..implementations import stdout_to_stderr
+    from ..registration.icp_options import ICPOptions
 
     init = None
     if args.init:
@@ -149,9 +150,9 @@ def _clouds(args) -> int:
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
         # Libraries print from C++ straight to file descriptor 1: keep stdout for the report alone.
         with stdout_to_stderr():
-            report = crosscheck(args.a, args.b, implementations=names, init=init,
-                                max_correspondence_distance=args.max_distance, max_iterations=args.iterations,
-                                relative_fitness=args.relative_fitness, relative_rmse=args.relative_rmse,
+            options = ICPOptions(max_correspondence_distance=args.max_distance, max_iteration=args.iterations,
+                                 relative_fitness=args.relative_fitness, relative_rmse=args.relative_rmse)
+            report = crosscheck(args.a, args.b, implementations=names, init=init, options=options,
                                 voxel_size=voxel, timeout=args.timeout, progress=_bar_wanted() and not args.json)
         out = report.to_dict()
         if rec.enabled:  # the moved clouds are made for the recording alone

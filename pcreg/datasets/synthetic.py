@@ -4,7 +4,6 @@ so registration can be scored; six presets mirror DS1A ... DS3B."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
@@ -291,8 +290,7 @@ def _render_canvas(preset: SyntheticPreset, seed: int, canvas_hw: tuple[int, int
     return _colours(look, material, shadow, g, preset.lighting, width), labels
 
 
-@lru_cache(maxsize=4)
-def _synthetic_cached(name: str, n_frames: int, seed: int, width: int, height: int) -> tuple[Frame, ...]:
+def _synthetic_frames(name: str, n_frames: int, seed: int, width: int, height: int) -> list[Frame]:
     import cv2
 
     preset = PRESETS[name]
@@ -335,7 +333,7 @@ def _synthetic_cached(name: str, n_frames: int, seed: int, width: int, height: i
         frame_img = cv2.addWeighted(lit, 1.0, cv2.add(u[0], u[1], dtype=cv2.CV_32F), k, -255.0 * k,
                                     dtype=cv2.CV_8U)
         frames.append(Frame(image=frame_img, labels=lab, name=f"{name}_{i + 1:03d}", pose=poses[i]))
-    return tuple(frames)
+    return frames
 
 
 def check_synthetic_size(sequences: int, frames: int, width: int, height: int) -> None:
@@ -382,4 +380,4 @@ def synthetic(name: str, n_frames: int = 100, seed: int = 0, *, width: int = 640
     width = check_int(width, "width", lo=16, hi=32767)
     height = check_int(height, "height", lo=12, hi=32767)
     check_synthetic_size(1, n_frames, width, height)
-    return list(_synthetic_cached(key, n_frames, seed, width, height))
+    return _synthetic_frames(key, n_frames, seed, width, height)

@@ -14,14 +14,24 @@ Settings each adapter pins, and why:
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from .base import (FIXED_POINT, OBJECTIVE, STEP, ImplementationError, Implementation, Pinned, lift, lift_matrix,
                    out_of_plane, project, result, score, step, unpack)
+from ..registration.icp_options import ICPOptions
 from ..registration.transforms import rotation_part
 
 CONVERGED_ITERATIONS = 200
+
+
+def pinned_options(pinned: Pinned, *, backend: str = "reference", count_iterations: bool = True) -> ICPOptions:
+    """pcreg's ICP as the cross-check pins it: rigid, point to point, ``pinned``'s correspondence distance
+    and stopping rule."""
+    return ICPOptions(backend=backend, model="rigid", max_correspondence_distance=pinned.max_correspondence_distance,
+                      max_iteration=pinned.max_iterations, relative_fitness=pinned.relative_fitness,
+                      relative_rmse=pinned.relative_rmse, count_iterations=count_iterations)
 
 
 def _converged_iterations(pinned: Pinned) -> int:
@@ -45,10 +55,7 @@ class Reference(Implementation):
         def cb(it):
             steps.append(step(self.name, it.iteration, it.matrix, it.fitness, it.inlier_rmse, it.target_indices))
 
-        r = icp(pinned.source, pinned.target, backend="reference", model="rigid",
-                max_correspondence_distance=pinned.max_correspondence_distance, init=pinned.init,
-                max_iteration=pinned.max_iterations, relative_fitness=pinned.relative_fitness,
-                relative_rmse=pinned.relative_rmse, callback=cb if trace else None)
+        r = icp(pinned.source, pinned.target, pinned_options(pinned), init=pinned.init, callback=cb if trace else None)
         m, fit, rmse, it, conv = unpack(r)
         return result(self.name, m, iterations=it, fitness=fit, inlier_rmse=rmse, converged=conv,
                       seconds=float(getattr(r, "seconds", 0.0)), trace=tuple(steps))
@@ -75,18 +82,17 @@ class Open3DLegacy(_Open3D):
     def _run(self, pinned, *, trace):
         from ..registration.open3d_icp import icp_open3d
 
-        kw = dict(model="rigid", max_correspondence_distance=pinned.max_correspondence_distance, init=pinned.init,
-                  max_iteration=pinned.max_iterations, relative_fitness=pinned.relative_fitness,
-                  relative_rmse=pinned.relative_rmse)
+        options = pinned_options(pinned, backend="open3d", count_iterations=False)
         start = time.perf_counter()
-        m, fit, rmse, _, conv = unpack(icp_open3d(pinned.source, pinned.target, stepwise=False, **kw))
+        m, fit, rmse, _, conv = unpack(icp_open3d(pinned.source, pinned.target, options, init=pinned.init))
         seconds = time.perf_counter() - start
         steps: list = []
 
         def cb(it):
             steps.append(step(self.name, it.iteration, it.matrix, it.fitness, it.inlier_rmse, it.target_indices))
 
-        m2, _, _, iterations, conv2 = unpack(icp_open3d(pinned.source, pinned.target, stepwise=True, callback=cb, **kw))
+        m2, _, _, iterations, conv2 = unpack(icp_open3d(pinned.source, pinned.target, replace(options, count_iterations=True),
+                                                        init=pinned.init, callback=cb))
         info = {}
         gap = float(np.max(np.abs(m - m2)))
         if gap > 0:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -21,6 +21,7 @@ from ..formats import IMAGE_SUFFIXES
 from ..registration.clouds import as_rgb_uint8, load_image
 from ..registration.api import check_cloud, register
 from ..registration.config import RegisterConfig
+from ..registration.icp_options import ICPOptions
 from ..registration.result import IcpIteration, RegistrationResult
 from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
 from .base import reported
@@ -185,7 +186,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
 
     Images: both backends through the image pipeline, a :class:`CrosscheckReport`. Clouds: every name in
     ``implementations`` (default reference and open3d) through :func:`crosscheck_implementations` with
-    ``cloud_options`` (its keyword arguments; ``max_iterations`` defaults to the registration's iterations), a
+    ``cloud_options`` (its keyword arguments; ``options`` defaults to the registration's iterations and
+    thresholds), a
     :class:`CloudCrosscheck`.
 
     Image arrays are (H, W, 3)/(H, W); cloud arrays (N, 2|3). Paths are read by suffix: images through
@@ -220,9 +222,9 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
     if ka != kb:
         raise InputError(f"cannot cross-check {ka[:-1]} against {kb[:-1]}: give two images or two clouds")
     if ka == "clouds":
-        cloud_options.setdefault("max_iterations", config.registration.icp.iterations)
-        cloud_options.setdefault("relative_fitness", config.registration.icp.relative_fitness)
-        cloud_options.setdefault("relative_rmse", config.registration.icp.relative_rmse)
+        icp = config.registration.icp
+        cloud_options.setdefault("options", ICPOptions(max_iteration=icp.iterations, relative_fitness=icp.relative_fitness,
+                                                       relative_rmse=icp.relative_rmse))
         return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
                                           **cloud_options)
     return crosscheck_images(A, B, config=config, callback=callback)
@@ -367,8 +369,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implementations: Sequence[str] = ("reference", "open3d"),
-                               init: np.ndarray | None = None, max_correspondence_distance: float | None = None,
-                               max_iterations: int = 30, relative_fitness: float = 1e-6, relative_rmse: float = 1e-6,
+                               options: ICPOptions = ICPOptions(), init: np.ndarray | None = None,
                                voxel_size: float | None = None, truth: np.ndarray | None = None,
                                timeout: float | None = None, progress: bool = False,
                                on_result: Callable[[str, object], None] | None = None) -> CloudCrosscheck:
@@ -376,6 +377,10 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     with pcreg's reference ICP.
 
     source, target : (N, d), (M, d), d = 2 or 3; ``target`` is fixed, the result maps ``source`` onto it.
+    options : the pinned correspondence distance (None: :func:`default_max_distance` of the target) and
+        stopping rule (``max_iteration``, ``relative_fitness``, ``relative_rmse``) of an
+        :class:`~pcreg.registration.icp_options.ICPOptions`; the rest is pinned (rigid, point to point,
+        one scale) and must keep its default.
     voxel_size : both clouds are voxel-downsampled once (:func:`pcreg.registration.api.voxel_downsample`)
         before any implementation sees them.
     truth : optional (d+1, d+1) ground truth; rows then also report their error against it.
@@ -385,8 +390,10 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     """
     from .. import implementations as impls
 
+    _check_pinned_options(options)
+    max_iterations, relative_fitness, relative_rmse = options.max_iteration, options.relative_fitness, options.relative_rmse
     src, tgt, T0, max_correspondence_distance = _pinned_clouds(source, target, init=init, voxel_size=voxel_size,
-                                                               max_correspondence_distance=max_correspondence_distance,
+                                                               max_correspondence_distance=options.max_correspondence_distance,
                                                                max_iterations=max_iterations)
     d = src.shape[1]
     names = list(dict.fromkeys([REFERENCE, *implementations]))
@@ -410,6 +417,18 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
         settings["reference_error"] = errors.get(REFERENCE)
     return CloudCrosscheck(rows=rows, settings=settings, reference_at_convergence=conv_info, traces=traces,
                            source=src, target=tgt)
+
+
+def _check_pinned_options(options: ICPOptions) -> None:
+    """:class:`InputError` unless ``options`` sets only what the cross-check lets vary (the correspondence
+    distance and the stopping rule): every implementation runs the rigid point-to-point ICP at one scale."""
+    if not isinstance(options, ICPOptions):
+        raise InputError(f"options must be a pcreg.ICPOptions, got {type(options).__name__}")
+    pinned = ("max_correspondence_distance", "max_iteration", "relative_fitness", "relative_rmse")
+    changed = [f.name for f in fields(ICPOptions) if f.name not in pinned and getattr(options, f.name) != f.default]
+    if changed:
+        raise InputError(f"the cross-check pins the rigid point-to-point ICP at one scale; options may set "
+                         f"{', '.join(pinned)} only, not {', '.join(changed)}")
 
 
 def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_distance, max_iterations):

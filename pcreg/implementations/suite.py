@@ -289,6 +289,7 @@ COLUMNS = ("case", "implementation", "comparability", "status", "agrees", "matri
 def run_suite(cases: Sequence[Case], implementations: Sequence[str], *, timeout: float | None = None,
               progress: bool = False) -> list[dict]:
     """One row per (case, implementation): the cross-check row plus the case's name."""
+    from ..registration.icp_options import ICPOptions
     from .crosscheck import crosscheck_implementations
 
     rows = []
@@ -304,10 +305,10 @@ def run_suite(cases: Sequence[Case], implementations: Sequence[str], *, timeout:
     for c in it:
         check_interrupted()
         try:
-            r = crosscheck_implementations(c.source, c.target, implementations=implementations, init=c.init,
-                                           max_correspondence_distance=c.max_correspondence_distance,
-                                           max_iterations=c.max_iterations, relative_fitness=c.relative_fitness,
-                                           relative_rmse=c.relative_rmse, truth=c.truth, timeout=timeout)
+            options = ICPOptions(max_correspondence_distance=c.max_correspondence_distance, max_iteration=c.max_iterations,
+                                 relative_fitness=c.relative_fitness, relative_rmse=c.relative_rmse)
+            r = crosscheck_implementations(c.source, c.target, implementations=implementations, options=options,
+                                           init=c.init, truth=c.truth, timeout=timeout)
         except InputError as exc:
             rows.append({"case": c.name, "implementation": "reference", "status": "failed", "agrees": False,
                          "error": str(exc)})

@@ -10,22 +10,21 @@ Both run the ICP step of one backend (:func:`~pcreg.registration.steps.icp_step`
 from __future__ import annotations
 
 import time
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 
 from ..errors import InputError, RegistrationError
-from ..validation import (check_bool, check_callable, check_float, check_floats,
-                          check_int, check_ints, check_matrix, short_repr)
+from ..validation import (check_callable, check_int, check_matrix, short_repr)
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .config import DEFAULT_MIN_INLIER_RATIO, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
                     InitialGrid, finest_grid_shape, refine_field)
 from .dense.levels import check_prepared
-from .open3d_icp import check_model as check_open3d_model
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, Plausibility
 from .pyramid import CloudPyramid
-from .reference import METRICS, WEIGHTS, check_rank
+from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule
+from .reference import check_rank
 from .refine import CoarseToFine
 from .result import IcpIteration, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
@@ -89,102 +88,77 @@ def _check_options(backend: str, model: str, dim: int, weights: str, metric: str
         raise InputError(f"unknown metric {short_repr(metric)}; choose one of {', '.join(METRICS)}")
 
 
-def icp(source_points: np.ndarray, target_points: np.ndarray, *, backend: str = "reference", model: str = "rigid",
-        max_correspondence_distance: float | None = None, init: np.ndarray | None = None, max_iteration: int = 30,
-        relative_fitness: float = 1e-6, relative_rmse: float = 1e-6, voxel_sizes: Sequence[float] | None = None,
-        max_correspondence_distances: Sequence[float] | None = None, max_iterations: Sequence[int] | None = None,
-        weights: str = "none", trim_fraction: float = 0.9, metric: str = "point_to_point",
-        target_normals: np.ndarray | None = None, rotation: str = "svd", count_iterations: bool = True,
+def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOptions = ICPOptions(), *,
+        init: np.ndarray | None = None, target_normals: np.ndarray | None = None,
         callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
     """Register two point clouds: the transform that maps ``source_points`` onto ``target_points``.
 
     source_points : (N, d), target_points : (M, d) float, d = 2 or 3, finite.
-    max_correspondence_distance : pairs farther apart are ignored (default: the clouds' joint
-        bounding-box diagonal, i.e. every nearest neighbour counts).
-    voxel_sizes : coarse-to-fine schedule, e.g. (1.0, 0.5, 0.25): both clouds are voxel-downsampled
-        identically (:func:`voxel_downsample`) at each size, and ICP runs at each in turn with
-        ``max_correspondence_distances`` (default 2 x voxel) and ``max_iterations`` (default max_iteration).
-    weights : robust weights (reference backend): ``none``, ``trimmed``, ``huber``, ``tukey``.
-    metric : ``point_to_point`` or (2-D, reference backend, with ``target_normals``) ``point_to_line``.
-    rotation : 3-D rigid closed form of the reference backend: ``svd`` (Umeyama) or ``quaternion`` (Horn).
+    options : the backend, model, correspondence distance, stopping rule, robust weights, metric and
+        coarse-to-fine schedule (:class:`~pcreg.registration.icp_options.ICPOptions`, every default there).
+    init : (d+1, d+1) initial ``T_target_source`` (None: the identity).
+    target_normals : (M, 2) the target's normals, for ``metric="point_to_line"`` (2-D, reference backend,
+        no schedule).
     callback : called with an :class:`~pcreg.registration.result.IcpIteration` after every iteration.
-    count_iterations : Open3D backend only: run Open3D one iteration at a time (its stopping rule
-        applied between steps) so that ``iterations`` and ``converged`` are exact; False runs it in one
-        call (faster) and reports ``iterations = -1``.
 
     Returns a :class:`RegistrationResult` whose ``matrix`` is (d+1, d+1) ``T_target_source``.
     """
+    if not isinstance(options, ICPOptions):
+        raise InputError(f"options must be a pcreg.ICPOptions, got {type(options).__name__}")
     src = check_cloud(source_points, "source")
     tgt = check_cloud(target_points, "target")
     if src.shape[1] != tgt.shape[1]:
         raise InputError(f"source is {src.shape[1]}-D but target is {tgt.shape[1]}-D")
     dim = src.shape[1]
-    _check_icp_options(backend, model, dim, weights=weights, metric=metric, target_normals=target_normals,
-                       rotation=rotation, trim_fraction=trim_fraction, voxel_sizes=voxel_sizes)
-    voxel_sizes = check_floats(voxel_sizes, "voxel_sizes", lo=0, lo_open=True)
-    max_correspondence_distances = check_floats(max_correspondence_distances, "max_correspondence_distances",
-                                                lo=0, lo_open=True)
-    max_iterations = check_ints(max_iterations, "max_iterations", lo=0, hi=100_000)
-    count_iterations = check_bool(count_iterations, "count_iterations")
+    _check_icp_options(options, dim, target_normals)
     check_callable(callback, "callback")
-    check_rank(src, model)
-    check_rank(tgt, model)
+    check_rank(src, options.model)
+    check_rank(tgt, options.model)
     if target_normals is not None:
         target_normals = check_cloud(target_normals, "target_normals")
         if target_normals.shape != tgt.shape:
             raise InputError("target_normals must have the target's shape")
     T = np.eye(dim + 1) if init is None else check_matrix(init, "init", dim + 1)
-    max_iteration = check_int(max_iteration, "max_iteration", lo=0, hi=100_000)
-    relative_fitness = check_float(relative_fitness, "relative_fitness", lo=0)
-    relative_rmse = check_float(relative_rmse, "relative_rmse", lo=0)
-    trim_fraction = check_float(trim_fraction, "trim_fraction", lo=0, lo_open=True, hi=1)
-    max_correspondence_distance = _check_distances(src, tgt, T, max_correspondence_distance, voxel_sizes,
-                                                   max_correspondence_distances, max_iterations)
+    max_correspondence_distance = _check_distance(src, tgt, T, options.max_correspondence_distance)
     start = time.perf_counter()
-    schedule = _voxel_schedule(src, tgt, voxel_sizes, max_correspondence_distances, max_iterations,
-                               distance=max_correspondence_distance, max_iteration=max_iteration)
-    step = icp_step(backend)
-    settings = IcpSettings(model=model, relative_fitness=relative_fitness, weights=weights, trim_fraction=trim_fraction,
-                           metric=metric, rotation=rotation, stepwise=count_iterations)
+    schedule = _voxel_schedule(src, tgt, options.schedule, distance=max_correspondence_distance,
+                               max_iteration=options.max_iteration)
+    step = icp_step(options.backend)
+    settings = IcpSettings(model=options.model, relative_fitness=options.relative_fitness, weights=options.weights,
+                           trim_fraction=options.trim_fraction, metric=options.metric, rotation=options.rotation,
+                           stepwise=options.count_iterations)
     total_iter = 0
     for i, (s, t, d, n) in enumerate(schedule):
         r = step(s, t, T, settings, StepCall(max_correspondence_distance=d, max_iteration=n,
-                                             relative_rmse=relative_rmse, level=len(schedule) - 1 - i,
+                                             relative_rmse=options.relative_rmse, level=len(schedule) - 1 - i,
                                              callback=callback,
-                                             target_normals=target_normals if not voxel_sizes else None))
+                                             target_normals=target_normals if options.schedule is None else None))
         T = r.matrix
         total_iter = -1 if (r.iterations < 0 or total_iter < 0) else total_iter + r.iterations
     seconds = time.perf_counter() - start
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
-                              converged=r.converged, backend=backend, seconds=seconds)
+                              converged=r.converged, backend=options.backend, seconds=seconds)
 
 
-def _check_icp_options(backend: str, model: str, dim: int, *, weights: str, metric: str, target_normals,
-                       rotation: str, trim_fraction: float, voxel_sizes) -> None:
-    """:class:`InputError` for an option :func:`icp` cannot honour with this backend, model and metric."""
-    _check_options(backend, model, dim, weights, metric)
-    if backend == "open3d":
-        check_open3d_model(model)
-        refuse_for_open3d(weights=weights, metric=metric, target_normals=target_normals, rotation=rotation,
-                          trim_fraction=trim_fraction)
-    if not isinstance(rotation, str) or rotation not in ("svd", "quaternion"):
-        raise InputError(f"rotation must be 'svd' or 'quaternion', got {short_repr(rotation)}")
-    if rotation == "quaternion" and (dim != 3 or model != "rigid"):
+def _check_icp_options(options: ICPOptions, dim: int, target_normals) -> None:
+    """:class:`InputError` for an option :func:`icp` cannot honour with clouds of ``dim`` dimensions
+    (``options`` checked its values when it was made)."""
+    check_model(options.model, dim)
+    if options.backend == "open3d" and target_normals is not None:
+        refuse_for_open3d(target_normals=target_normals)
+    if options.rotation == "quaternion" and (dim != 3 or options.model != "rigid"):
         raise InputError("rotation='quaternion' (Horn's closed form) is for the rigid model of 3-D clouds")
-    if metric == "point_to_line" and (dim != 2 or target_normals is None or voxel_sizes):
-        raise InputError("metric='point_to_line' needs 2-D clouds, target_normals and no voxel_sizes "
+    if options.metric == "point_to_line" and (dim != 2 or target_normals is None or options.schedule is not None):
+        raise InputError("metric='point_to_line' needs 2-D clouds, target_normals and no schedule "
                          "(normals cannot follow a voxel downsampling)")
-    if target_normals is not None and metric != "point_to_line":
+    if target_normals is not None and options.metric != "point_to_line":
         raise InputError("target_normals are used only by metric='point_to_line'")
 
 
-def _check_distances(src: np.ndarray, tgt: np.ndarray, T: np.ndarray, max_correspondence_distance: float | None,
-                     voxel_sizes, max_correspondence_distances, max_iterations) -> float:
-    """The schedule's values checked, and ``max_correspondence_distance`` (default: the joint bounding-box
-    diagonal of the source moved by ``T`` and the target, plus 1)."""
-    if max_correspondence_distance is not None:
-        max_correspondence_distance = check_float(max_correspondence_distance, "max_correspondence_distance",
-                                                  lo=0, lo_open=True)
+def _check_distance(src: np.ndarray, tgt: np.ndarray, T: np.ndarray, max_correspondence_distance: float | None
+                    ) -> float:
+    """``max_correspondence_distance``, or where it is None the joint bounding-box diagonal of the source
+    moved by ``T`` and the target, plus 1."""
     if max_correspondence_distance is None:
         both = np.vstack([apply(T, src), tgt])
         max_correspondence_distance = float(np.linalg.norm(both.max(axis=0) - both.min(axis=0))) + 1.0
@@ -193,17 +167,16 @@ def _check_distances(src: np.ndarray, tgt: np.ndarray, T: np.ndarray, max_corres
     return max_correspondence_distance
 
 
-def _voxel_schedule(src: np.ndarray, tgt: np.ndarray, voxel_sizes, max_correspondence_distances, max_iterations,
-                    *, distance: float, max_iteration: int) -> list[tuple]:
+def _voxel_schedule(src: np.ndarray, tgt: np.ndarray, schedule: VoxelSchedule | None, *, distance: float,
+                    max_iteration: int) -> list[tuple]:
     """[(source, target, correspondence distance, iterations)] per scale, coarsest first (one scale, the
-    clouds themselves, without ``voxel_sizes``)."""
-    if not voxel_sizes:
+    clouds themselves, without a schedule)."""
+    if schedule is None:
         return [(src, tgt, distance, max_iteration)]
-    dists = list(max_correspondence_distances or [2.0 * v for v in voxel_sizes])
-    iters = list(max_iterations or [max_iteration] * len(voxel_sizes))
-    if not (len(dists) == len(iters) == len(voxel_sizes)):
-        raise InputError("voxel_sizes, max_correspondence_distances and max_iterations differ in length")
-    return [(voxel_downsample(src, v), voxel_downsample(tgt, v), d, n) for v, d, n in zip(voxel_sizes, dists, iters)]
+    sizes = schedule.voxel_sizes
+    dists = list(schedule.max_correspondence_distances or [2.0 * v for v in sizes])
+    iters = list(schedule.max_iterations or [max_iteration] * len(sizes))
+    return [(voxel_downsample(src, v), voxel_downsample(tgt, v), d, n) for v, d, n in zip(sizes, dists, iters)]
 
 
 # ---------------------------------------------------------------------------------------------------

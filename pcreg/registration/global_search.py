@@ -20,7 +20,6 @@ points there; an alignment of unrelated content only as many as chance allows (s
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import cv2
@@ -174,15 +173,14 @@ def _canvas(gray: np.ndarray, mask: np.ndarray | None, size: int) -> np.ndarray:
     return out
 
 
-@functools.lru_cache(maxsize=8)
 def _spectrum_weights(size: int) -> tuple[np.ndarray, np.ndarray]:
     """The (size, size) Hanning window and the high-pass weight of the magnitude spectra (the low
-    frequencies carry the window, not the content), made once per canvas size; read-only."""
+    frequencies carry the window, not the content), float32. The high-pass weight is the distance from
+    the centre of each (x, y) of the grid, its rows and columns broadcast (the values of a full
+    ``np.mgrid``'s, made in a fraction of its time)."""
     win = cv2.createHanningWindow((size, size), cv2.CV_32F)
-    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
-    highpass = np.clip(np.hypot(xx - size / 2, yy - size / 2) / (size / 2), 0, 1) ** 2
-    win.flags.writeable = False
-    highpass.flags.writeable = False
+    ax = np.arange(size, dtype=np.float32) - size / 2
+    highpass = np.clip(np.hypot(ax[None, :], ax[:, None]) / (size / 2), 0, 1) ** 2
     return win, highpass
 
 

@@ -12,13 +12,16 @@ The tensor API's ``multi_scale_icp`` (Float64) serves voxel-pyramid registration
 from __future__ import annotations
 
 import time
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
 from ..errors import InputError, RegistrationError
 from .result import IcpIteration, RegistrationResult
 from .transforms import lift_to_3d, project_to_2d
+
+if TYPE_CHECKING:
+    from .icp_options import ICPOptions
 
 SUPPORTED = ("rigid", "similarity")
 
@@ -53,16 +56,26 @@ def _result(matrix: np.ndarray, r, iterations: int, converged: bool, start: floa
                               seconds=time.perf_counter() - start)
 
 
-def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", max_correspondence_distance: float,
-               init: np.ndarray | None = None, max_iteration: int = 30, relative_fitness: float = 1e-6,
-               relative_rmse: float = 1e-6, callback: Callable[[IcpIteration], None] | None = None,
-               stepwise: bool | None = None, level: int = 0, source_pcd=None, target_pcd=None,
+def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, init: np.ndarray | None = None,
+               callback: Callable[[IcpIteration], None] | None = None, level: int = 0, clouds: tuple | None = None,
                check_convergence: bool = True) -> RegistrationResult:
     """One Open3D ICP run at one scale: a :class:`RegistrationResult` (``matrix`` is ``T_target_source``).
 
+    options : the model (rigid or similarity), ``max_correspondence_distance`` (a number here) and the
+        stopping rule (:class:`~pcreg.registration.icp_options.ICPOptions`); ``count_iterations`` runs
+        Open3D one iteration at a time (as a ``callback`` does), so that ``iterations`` and ``converged``
+        are exact.
+    clouds : Open3D's copies of ``source`` and ``target`` (:func:`to_pointcloud`), made once for many
+        runs (None: made here).
     ``check_convergence=False`` (one call, no callback) skips the extra step that decides ``converged``
     (reported False): for intermediate pyramid levels, whose convergence nobody reads.
     """
+    if options.max_correspondence_distance is None:
+        raise InputError("icp_open3d needs options.max_correspondence_distance (pcreg.icp chooses one)")
+    model, max_correspondence_distance, max_iteration = options.model, options.max_correspondence_distance, options.max_iteration
+    relative_fitness, relative_rmse = options.relative_fitness, options.relative_rmse
+    stepwise = options.count_iterations or callback is not None
+    source_pcd, target_pcd = (None, None) if clouds is None else clouds
     start = time.perf_counter()
     check_model(model)
     o3d = _o3d()
@@ -74,8 +87,6 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, *, model: str = "rigid", 
     tgt = target_pcd if target_pcd is not None else to_pointcloud(target)
     est = reg.TransformationEstimationPointToPoint(with_scaling=(model == "similarity"))
     back = (lambda m: project_to_2d(m)) if d == 2 else (lambda m: m)
-    if stepwise is None:
-        stepwise = callback is not None
 
     def step(T4, n_iter):
         crit = reg.ICPConvergenceCriteria(relative_fitness=relative_fitness, relative_rmse=relative_rmse,

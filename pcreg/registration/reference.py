@@ -17,19 +17,19 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 from .._jit import njit, prange
 
-from ..errors import RegistrationError
-from . import nn
+from ..errors import InputError, RegistrationError
+from . import _nn_kernels, nn
+from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, WEIGHTS: named here too)
 from .nn import GridIndex
 from .result import IcpIteration, RegistrationResult
 from .transforms import apply
 
-WEIGHTS = ("none", "trimmed", "huber", "tukey")
-METRICS = ("point_to_point", "point_to_line")
 MIN_POINTS = {"translation": 1, "rigid": 2, "similarity": 2, "affine": 3, "projective": 4}
 
 
@@ -358,21 +358,28 @@ def _finished(T: np.ndarray, fitness: float, rmse: float, iterations: int, conve
                               converged=converged, backend="reference", seconds=time.perf_counter() - start)
 
 
-def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid",
-                  max_correspondence_distance: float, init: np.ndarray | None = None,
-                  max_iteration: int = 30, relative_fitness: float = 1e-6, relative_rmse: float = 1e-6,
-                  weights: str = "none", robust_scale: float | None = None, trim_fraction: float = 0.9,
-                  metric: str = "point_to_point", target_normals: np.ndarray | None = None,
-                  rotation: str = "svd", tree: GridIndex | None = None,
+def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, init: np.ndarray | None = None,
+                  target_normals: np.ndarray | None = None, tree: GridIndex | None = None,
                   callback: Callable[[IcpIteration], None] | None = None, level: int = 0,
-                  ) -> RegistrationResult:
+                  robust_scale: float | None = None) -> RegistrationResult:
     """One ICP run at one scale: a :class:`RegistrationResult` whose ``matrix`` is ``T_target_source``.
 
     source : (N, d), target : (M, d) float64, finite; d = 2 or 3.
+    options : the model, ``max_correspondence_distance`` (a number here), the stopping rule, the weights,
+        metric and rotation (:class:`~pcreg.registration.icp_options.ICPOptions`; its ``schedule`` and
+        ``count_iterations`` are :func:`pcreg.icp`'s and Open3D's, not read here).
+    target_normals : (M, d) the target's normals, for ``metric="point_to_line"`` (2-D; without them the
+        step is point-to-point).
     tree : a prebuilt index of ``target`` (:func:`build_tree`, or a ``scipy.spatial.cKDTree``), reused
         across calls on the same target.
+    robust_scale : the robust weights' scale (None: estimated from each iteration's distances).
     """
+    if options.max_correspondence_distance is None:
+        raise InputError("icp_reference needs options.max_correspondence_distance (pcreg.icp chooses one)")
     start = time.perf_counter()
+    model, weights, metric, rotation = options.model, options.weights, options.metric, options.rotation
+    max_correspondence_distance, max_iteration = options.max_correspondence_distance, options.max_iteration
+    relative_fitness, relative_rmse = options.relative_fitness, options.relative_rmse
     d = source.shape[1]
     T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
     if tree is None:
@@ -400,7 +407,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, *, model: str = "rigid
     for i in range(max_iteration):
         need = MIN_POINTS[model] if d == 2 else 3
         p, q = pts[ok], target[idx[ok]]
-        w = robust_weights(np.sqrt(d2[ok]), weights, scale=robust_scale, trim_fraction=trim_fraction)
+        w = robust_weights(np.sqrt(d2[ok]), weights, scale=robust_scale, trim_fraction=options.trim_fraction)
         if int(np.count_nonzero(w)) < need:
             update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
         elif metric == "point_to_line":
@@ -471,7 +478,7 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: Gr
 
 @njit(cache=True)
 def _next_update(k, sd2, sp, sq, spp, sqp, center, model, need, T, state):
-    """One iteration's update from the matched pairs' moments (:func:`pcreg.registration.nn._moments`,
+    """One iteration's update from the matched pairs' moments (:func:`pcreg.registration._nn_kernels._moments`,
     relative to ``center``; ``sd2`` unused), in the original coordinates; model 0, 1, 2 = translation,
     rigid, similarity. Applies it to ``T`` and counts the iteration in ``state`` (:func:`_moment_loop`);
     on error (1: not finite; 2: a similarity's source points all coincide) sets ``state[4]`` instead."""
@@ -535,14 +542,14 @@ def _moment_loop(pts, T, steps, model, need, relative_fitness, relative_rmse, r2
     matches ``out_d2`` / ``out_i`` (on entry, those of ``pts``) and ``state`` = [fitness, inlier RMSE,
     iterations, converged, error]. Stops early on an error (:func:`_next_update`) or when the
     stopping rule holds."""
-    mom = nn._moments(pts, target, out_d2, out_i, center)
+    mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
     for _ in range(steps):
         update = _next_update(*mom, center, model, need, T, state)
         if state[4] != 0:
             return
-        nn._move_query_serial(pts, update, True, r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed,
-                              out_d2, out_i)
-        mom = nn._moments(pts, target, out_d2, out_i, center)
+        _nn_kernels._move_query_serial(pts, update, True, r2, spts, sidx, start, tkeys, tcell, origin, h, dims,
+                                       hashed, out_d2, out_i)
+        mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
         if _scored(mom[0], mom[1], pts.shape[0], relative_fitness, relative_rmse, state):
             return
 
@@ -555,15 +562,15 @@ def _moment_loop_threads(pts, T, steps, model, need, relative_fitness, relative_
     crash once it is loaded back from the cache, numba bug 8578). The moments are summed on one thread,
     in point order, as there."""
     d = pts.shape[1]
-    mom = nn._moments(pts, target, out_d2, out_i, center)
+    mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
     for _ in range(steps):
         update = _next_update(*mom, center, model, need, T, state)
         if state[4] != 0:
             return
         for t in prange(pts.shape[0]):
-            nn._move(pts, t, update, d)
-            out_d2[t], out_i[t] = nn._nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
-        mom = nn._moments(pts, target, out_d2, out_i, center)
+            _nn_kernels._move(pts, t, update, d)
+            out_d2[t], out_i[t] = _nn_kernels._nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+        mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
         if _scored(mom[0], mom[1], pts.shape[0], relative_fitness, relative_rmse, state):
             return
 
@@ -574,8 +581,9 @@ def warm_up() -> None:
     rng = np.random.default_rng(0)
     for d in (2, 3):
         target = rng.uniform(0, 10, (50, d))
-        icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2)
-        icp_reference(target + 0.05, target, max_correspondence_distance=1.0, max_iteration=2, weights="huber")
+        options = ICPOptions(max_correspondence_distance=1.0, max_iteration=2)
+        icp_reference(target + 0.05, target, options)
+        icp_reference(target + 0.05, target, replace(options, weights="huber"))
         estimate_umeyama(target + 0.05, target, np.ones(50), with_scale=True)
         # the threaded loop (clouds of nn.PARALLEL_MIN_QUERIES points and more, or from
         # nn.PARALLEL_MIN_QUERIES_IDLE on an idle machine), and the steps other callers use

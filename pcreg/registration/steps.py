@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import InputError
 from .config import BACKENDS
+from .icp_options import ICPOptions, refuse_for_open3d
 from .open3d_icp import icp_open3d, to_pointcloud
 from .reference import icp_reference
 from .result import IcpIteration, RegistrationResult
@@ -66,16 +67,21 @@ class IcpStep(Protocol):
                  call: StepCall) -> RegistrationResult: ...
 
 
+def step_options(backend: str, settings: IcpSettings, call: StepCall) -> ICPOptions:
+    """The :class:`~pcreg.registration.icp_options.ICPOptions` of one step's run (``settings`` and this
+    call's distance, iterations and RMSE threshold)."""
+    return ICPOptions(backend=backend, model=settings.model, max_correspondence_distance=call.max_correspondence_distance,
+                      max_iteration=call.max_iteration, relative_fitness=settings.relative_fitness,
+                      relative_rmse=call.relative_rmse, weights=settings.weights, trim_fraction=settings.trim_fraction,
+                      metric=settings.metric, rotation=settings.rotation, count_iterations=settings.stepwise)
+
+
 def reference_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, settings: IcpSettings,
                    call: StepCall) -> RegistrationResult:
     """The reference ICP (:func:`~pcreg.registration.reference.icp_reference`)."""
-    return icp_reference(source, target, model=settings.model,
-                         max_correspondence_distance=call.max_correspondence_distance, init=init,
-                         max_iteration=call.max_iteration, relative_fitness=settings.relative_fitness,
-                         relative_rmse=call.relative_rmse, weights=settings.weights, metric=settings.metric,
+    return icp_reference(source, target, step_options("reference", settings, call), init=init,
                          target_normals=call.target_normals, callback=call.callback, level=call.level,
-                         rotation=settings.rotation, tree=None if call.target_index is None else call.target_index(),
-                         trim_fraction=settings.trim_fraction)
+                         tree=None if call.target_index is None else call.target_index())
 
 
 def open3d_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, settings: IcpSettings,
@@ -84,15 +90,11 @@ def open3d_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, settin
     the reference honours is refused."""
     refuse_for_open3d(weights=settings.weights, metric=settings.metric, target_normals=call.target_normals,
                       rotation=settings.rotation, trim_fraction=settings.trim_fraction)
-    source_pcd = target_pcd = None
+    clouds = None
     if call.open3d_clouds is not None:
-        source_pcd, target_pcd = open3d_cloud(call.open3d_clouds, source), open3d_cloud(call.open3d_clouds, target)
-    return icp_open3d(source, target, model=settings.model,
-                      max_correspondence_distance=call.max_correspondence_distance, init=init,
-                      max_iteration=call.max_iteration, relative_fitness=settings.relative_fitness,
-                      relative_rmse=call.relative_rmse, callback=call.callback, level=call.level,
-                      stepwise=settings.stepwise or call.callback is not None, source_pcd=source_pcd,
-                      target_pcd=target_pcd, check_convergence=call.final or call.callback is not None)
+        clouds = open3d_cloud(call.open3d_clouds, source), open3d_cloud(call.open3d_clouds, target)
+    return icp_open3d(source, target, step_options("open3d", settings, call), init=init, callback=call.callback, level=call.level, clouds=clouds,
+                      check_convergence=call.final or call.callback is not None)
 
 
 ICP_STEPS: dict[str, IcpStep] = {"reference": reference_step, "open3d": open3d_step}
@@ -113,20 +115,3 @@ def open3d_cloud(made: dict, points: np.ndarray):
     if id(points) not in made:
         made[id(points)] = (points, to_pointcloud(points))
     return made[id(points)][1]
-
-
-def refuse_for_open3d(*, weights: str = "none", metric: str = "point_to_point", target_normals=None,
-                      rotation: str = "svd", trim_fraction: float = 0.9) -> None:
-    """:class:`InputError` for every option Open3D's point-to-point ICP cannot honour (none is ignored)."""
-    if weights != "none":
-        raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
-    if metric != "point_to_point":
-        raise InputError(f"metric {metric!r} is a reference-backend feature; the open3d backend is point-to-point")
-    if target_normals is not None:
-        raise InputError("target_normals serve the reference backend's point-to-line metric; "
-                         "the open3d backend (point-to-point) would ignore them")
-    if rotation != "svd":
-        raise InputError(f"rotation={rotation!r} chooses the reference backend's closed form; "
-                         "Open3D's point-to-point estimation has its own (SVD)")
-    if trim_fraction != 0.9:
-        raise InputError("trim_fraction belongs to the reference backend's trimmed weights")

@@ -4,7 +4,6 @@ full resolution (:func:`refine_field`)."""
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass
@@ -16,7 +15,7 @@ from ..._threads import beside, wait_quietly
 from ...errors import RegistrationError
 from ..result import RegistrationResult
 from .field import _full_field
-from .grid import _bilinear_weights, _interpolate, _read_only, _upsample_grid
+from .grid import GridWeights, _interpolate, _level_key, _level_weights, _upsample_grid
 from .levels import DenseReference, _Level, _level_problem, _Problem, _Pyramids, _pyramids
 from .options import DenseOptions, _coarsest_level
 from .result import DenseIteration, DenseRegistrationResult
@@ -138,11 +137,11 @@ def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, top
         clock.lap("solve")  # the last iteration of the level above
         lv = problem(level)() if level == top else ahead[level]()
         if (U is None or prev is None) and initial is not None:
-            U = _grid_at_level(initial.grid, options.finest_level, lv)
+            U = _grid_at_level(initial.grid, options.finest_level, lv, pyr.grid_weights)
         elif U is None or prev is None:
             U = np.zeros((lv.gshape[0] * lv.gshape[1], 2))
         else:
-            U = _upsample_grid(U, prev.gshape, prev.spacing, lv.gshape, lv.spacing, 2.0)
+            U = _upsample_grid(U, prev.gshape, prev.spacing, lv.gshape, lv.spacing, 2.0, pyr.grid_weights)
         prev = lv
         if lv.problem is None:
             continue
@@ -166,31 +165,14 @@ class InitialGrid:
     level: int
 
 
-def _grid_at_level(grid: np.ndarray, finest: int, lv: _Level) -> np.ndarray:
+def _grid_at_level(grid: np.ndarray, finest: int, lv: _Level, known: GridWeights | None = None) -> np.ndarray:
     """The finest level's grid (gh, gw, 2; full-resolution px) interpolated at level ``lv``'s nodes, in
-    that level's px (bilinear, the edge nodes held beyond the grid): the same grid at the finest level."""
-    cols, vals = _level_weights(tuple(grid.shape[:2]), finest, tuple(lv.gshape), lv.scale, float(lv.spacing))
+    that level's px (bilinear, the edge nodes held beyond the grid): the same grid at the finest level.
+    ``known``: weights made before (:func:`~pcreg.registration.dense.grid.grid_weights`)."""
+    key = _level_key(grid.shape[:2], finest, lv.gshape, lv.scale, lv.spacing)
+    cols, vals = known[key] if known and key in known else _level_weights(*key[1:])
     flat = np.ascontiguousarray(grid.reshape(-1, 2), dtype=np.float64)
     return _interpolate(cols, vals, flat, np.empty((len(cols), 2))) / lv.scale
-
-
-@functools.lru_cache(maxsize=32)
-def _level_weights(finest_shape: tuple[int, int], finest: int, gshape: tuple[int, int], f: float,
-                   spacing: float) -> tuple[np.ndarray, ...]:
-    """Read-only bilinear ``(cols, vals)`` of :func:`_grid_at_level`: the nodes (``gshape``, spacing
-    ``spacing``) of a level of scale ``f`` on the finest level's grid (``finest_shape``). Made once per
-    shape, as :func:`_upsample_weights`."""
-    gh, gw = gshape
-    ys, xs = np.mgrid[0:gh, 0:gw].astype(np.float64)
-    F = float(2 ** finest)
-
-    def on_finest(v: np.ndarray) -> np.ndarray:
-        # a node at x_l = j s of its level lies at x_0 = f x_l + (f - 1) / 2 at full size, and at
-        # (x_0 - (F - 1) / 2) / F on the finest level
-        return ((f * v * spacing + (f - 1) / 2.0) - (F - 1) / 2.0) / F
-
-    pts = np.column_stack([on_finest(xs).ravel(), on_finest(ys).ravel()])
-    return _read_only(*_bilinear_weights(pts, finest_shape, spacing))
 
 
 def _check_evidence(evidence: float, chance_factor: float | None) -> None:

@@ -5,8 +5,8 @@ from one pyramid level to the next."""
 
 from __future__ import annotations
 
-import functools
 import math
+from typing import Mapping
 
 import cv2
 import numpy as np
@@ -266,11 +266,21 @@ def _read_only(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     return arrays
 
 
-@functools.lru_cache(maxsize=32)
+#: Grid weights made once and handed to the registrations that share the shapes they depend on
+#: (:func:`grid_weights`, kept by a prepared reference), by :func:`_upsample_key` / :func:`_level_key`.
+GridWeights = Mapping[tuple, tuple[np.ndarray, ...]]
+
+
+def _upsample_key(old_shape: tuple[int, int], old_s: float, new_shape: tuple[int, int], new_s: float,
+                  factor: float) -> tuple:
+    return ("upsample", tuple(old_shape), float(old_s), tuple(new_shape), float(new_s), float(factor))
+
+
 def _upsample_weights(old_shape: tuple[int, int], old_s: float, new_shape: tuple[int, int], new_s: float,
                       factor: float) -> tuple[np.ndarray, ...]:
     """Read-only bilinear ``(cols, vals)`` of :func:`_upsample_grid`'s new nodes on the old grid. They
-    depend on the shapes alone, so the frames of a stream, whose levels keep their shapes, make them once."""
+    depend on the shapes alone, so a prepared reference (a stream's key frame, whose registrations keep
+    their levels' shapes) makes them once (:func:`grid_weights`)."""
     gh, gw = new_shape
     ys, xs = np.mgrid[0:gh, 0:gw].astype(np.float64)
     # new node (level l) at x_l = j s_new; in level l + 1 pixels: (x_l - 0.5) / 2
@@ -279,9 +289,50 @@ def _upsample_weights(old_shape: tuple[int, int], old_s: float, new_shape: tuple
 
 
 def _upsample_grid(U: np.ndarray, old_shape: tuple[int, int], old_s: float, new_shape: tuple[int, int],
-                   new_s: float, factor: float) -> np.ndarray:
+                   new_s: float, factor: float, known: GridWeights | None = None) -> np.ndarray:
     """Grid displacements on a finer level: the old grid interpolated at the new nodes, times ``factor``.
-    Node positions are in their own level's pixels; ``factor`` is the level scale (2)."""
-    cols, vals = _upsample_weights(tuple(old_shape), float(old_s), tuple(new_shape), float(new_s), float(factor))
+    Node positions are in their own level's pixels; ``factor`` is the level scale (2). ``known``: weights
+    made before (:func:`grid_weights`), used where they hold these shapes."""
+    key = _upsample_key(old_shape, old_s, new_shape, new_s, factor)
+    cols, vals = known[key] if known and key in known else _upsample_weights(*key[1:])
     return factor * _interpolate(cols, vals, np.ascontiguousarray(U, dtype=np.float64), np.empty((len(cols), 2)))
 
+
+def _level_key(finest_shape: tuple[int, int], finest: int, gshape: tuple[int, int], f: float, spacing: float) -> tuple:
+    return ("level", tuple(finest_shape), int(finest), tuple(gshape), float(f), float(spacing))
+
+
+def _level_weights(finest_shape: tuple[int, int], finest: int, gshape: tuple[int, int], f: float,
+                   spacing: float) -> tuple[np.ndarray, ...]:
+    """Read-only bilinear ``(cols, vals)`` of the nodes (``gshape``, spacing ``spacing``) of a level of
+    scale ``f`` on the finest level's grid (``finest_shape``): where an earlier registration's grid
+    starts this level (:func:`~pcreg.registration.dense.coarse_to_fine._grid_at_level`). Made once for a
+    prepared reference, as :func:`_upsample_weights`."""
+    gh, gw = gshape
+    ys, xs = np.mgrid[0:gh, 0:gw].astype(np.float64)
+    F = float(2 ** finest)
+
+    def on_finest(v: np.ndarray) -> np.ndarray:
+        # a node at x_l = j s of its level lies at x_0 = f x_l + (f - 1) / 2 at full size, and at
+        # (x_0 - (F - 1) / 2) / F on the finest level
+        return ((f * v * spacing + (f - 1) / 2.0) - (F - 1) / 2.0) / F
+
+    pts = np.column_stack([on_finest(xs).ravel(), on_finest(ys).ravel()])
+    return _read_only(*_bilinear_weights(pts, finest_shape, spacing))
+
+
+def grid_weights(level_shapes: list[tuple[int, int]], spacing: float, finest: int) -> GridWeights:
+    """Every grid weight a registration on levels of these (h, w) shapes (index = level) makes, with
+    grid ``spacing`` and finest level ``finest``: the upsampling from each level to the next finer, and
+    each level's nodes on the finest level's grid. Read-only: a prepared reference keeps them for all of
+    its registrations, which use them where their options give the same grids."""
+    s = float(spacing)
+    gshapes = [_grid_shape(h, w, s) for h, w in level_shapes]
+    made: dict[tuple, tuple[np.ndarray, ...]] = {}
+    for level in range(finest, len(gshapes)):
+        if level + 1 < len(gshapes):
+            key = _upsample_key(gshapes[level + 1], s, gshapes[level], s, 2.0)
+            made[key] = _upsample_weights(*key[1:])
+        key = _level_key(gshapes[finest], finest, gshapes[level], float(2 ** level), s)
+        made[key] = _level_weights(*key[1:])
+    return made

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import cv2
 import numpy as np
 
 from ...errors import InputError
 from ..clouds import as_rgb_uint8, magnitude, valid_region
-from .grid import _edge_weights, _grid_shape, _NormalEquations, _read_only
+from .grid import GridWeights, _edge_weights, _grid_shape, _NormalEquations, _read_only, grid_weights
 from .options import DenseOptions, _coarsest_level
 
 __all__ = ["DenseReference", "prepare_reference"]
@@ -88,12 +89,14 @@ def _texture(img: np.ndarray, sigma: float, structure: float = 0.05) -> np.ndarr
 
 @dataclass(frozen=True)
 class _Pyramids:
-    """Both images as float32 RGB in [0, 1] per level (0 = full size), and their valid (unpadded) masks."""
+    """Both images as float32 RGB in [0, 1] per level (0 = full size), their valid (unpadded) masks, and
+    the grid weights a prepared reference made once (None: none)."""
 
     reference: list[np.ndarray]
     moving: list[np.ndarray]
     reference_valid: list[np.ndarray]
     moving_valid: list[np.ndarray]
+    grid_weights: GridWeights | None = None
 
 
 def _pyramid(img: np.ndarray, coarsest: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -113,12 +116,15 @@ class DenseReference:
 
     image : (H, W, 3) uint8 RGB, a read-only copy of the reference. levels : its pyramid, float32 RGB
     in [0, 1] per level (0 = full size) to the coarsest level the options it was made for work at.
-    valid : each level's valid (unpadded) mask, (h, w) bool.
+    valid : each level's valid (unpadded) mask, (h, w) bool. grid_weights : the control grids' bilinear
+    weights from level to level for the options it was made for (they depend on the shapes alone; a
+    registration with other grids makes its own).
     """
 
     image: np.ndarray
     levels: tuple[np.ndarray, ...]
     valid: tuple[np.ndarray, ...]
+    grid_weights: GridWeights
 
     def __repr__(self) -> str:
         h, w = self.image.shape[:2]
@@ -127,14 +133,16 @@ class DenseReference:
 
 def prepare_reference(reference_image: np.ndarray, *, options: DenseOptions = DenseOptions()) -> DenseReference:
     """``reference_image`` (as :func:`pcreg.register_dense` takes it) prepared for registrations with
-    ``options``: a read-only copy and its pyramid to the coarsest level they work at."""
+    ``options``: a read-only copy, its pyramid to the coarsest level they work at and its control grids'
+    weights."""
     img = as_rgb_uint8(reference_image, name="reference image")
     if not isinstance(options, DenseOptions):
         raise InputError(f"options must be a pcreg.DenseOptions, got {type(options).__name__}")
     pyr, val = _pyramid(img, _coarsest_level(img.shape, options))
     image = img.copy()
     _read_only(image, *pyr, *val)  # shared by every registration it is given to: nobody writes into them
-    return DenseReference(image, tuple(pyr), tuple(val))
+    weights = MappingProxyType(grid_weights([p.shape[:2] for p in pyr], options.grid_spacing, options.finest_level))
+    return DenseReference(image, tuple(pyr), tuple(val), weights)
 
 
 def check_prepared(prepared: DenseReference, image: np.ndarray, options: DenseOptions) -> None:
@@ -157,11 +165,13 @@ def _pyramids(reference: np.ndarray | DenseReference, mov: np.ndarray, coarsest:
     a :class:`DenseReference`, else built here (read-only as well: the kernels see the same arrays)."""
     if isinstance(reference, DenseReference):
         pyr_r, val_r = list(reference.levels[:coarsest + 1]), list(reference.valid[:coarsest + 1])
+        weights: GridWeights | None = reference.grid_weights
     else:
         pyr_r, val_r = _pyramid(reference, coarsest)
         _read_only(*pyr_r, *val_r)
+        weights = None
     pyr_m, val_m = _pyramid(mov, coarsest)
-    return _Pyramids(pyr_r, pyr_m, val_r, val_m)
+    return _Pyramids(pyr_r, pyr_m, val_r, val_m, weights)
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,8 @@ from typing import BinaryIO, Callable, Iterator
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .stream_run import CONFIDENCE, STATE, STEPS, _UNREADABLE_CARRY, _write_carry, _write_png, confidence_png
+from .stream_run import (CONFIDENCE, STATE, STEPS, _UNREADABLE_CARRY, _write_carry, _write_png, confidence_png,
+                         open_state)
 
 __all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
 
@@ -137,19 +138,8 @@ class KeyRun:
     def start(self, *, force: bool = False) -> None:
         """Open (or resume) the run: the steps of stretches no longer in the plan forgotten, the key
         frames' labels written where they changed."""
-        if self.out.exists() and not self.out.is_dir():
-            raise OutputError(f"{self.out}: exists and is not a folder")
-        self.out.mkdir(parents=True, exist_ok=True)
-        state_path = self.out / STATE
-        fresh = force or not state_path.is_file()
-        if not fresh:
-            try:
-                state = json.loads(state_path.read_text())
-            except (OSError, ValueError):
-                raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
-            if state.get("run") != self.identity:
-                raise OutputError(f"{self.out} holds a run with other options; use --force to start over or "
-                                  "another --out")
+        state = open_state(self.out, self.identity, force=force)
+        if state is not None:
             self.state = state
         else:
             shutil.rmtree(self.out / HIDDEN, ignore_errors=True)

@@ -73,18 +73,8 @@ class StreamRun:
         """Open (or resume) the run; returns the index of the first frame still to do."""
         from ..outputs import atomic_write_json
 
-        if self.out.exists() and not self.out.is_dir():
-            raise OutputError(f"{self.out}: exists and is not a folder")
-        self.out.mkdir(parents=True, exist_ok=True)
-        state_path = self.out / STATE
-        if state_path.is_file() and not force:
-            try:
-                state = json.loads(state_path.read_text())
-            except (OSError, ValueError):
-                raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
-            if state.get("run") != self.identity:
-                raise OutputError(f"{self.out} holds a run with other options; use --force to start over or "
-                                  "another --out")
+        state = open_state(self.out, self.identity, force=force)
+        if state is not None:
             self.state = state
             self._cut_steps(int(state["done"]) - 1)
             self._remove_partial_writes()
@@ -95,7 +85,7 @@ class StreamRun:
                       "truth": {"frames": 0, "wrong": 0, "known": 0, "plain_wrong": 0} if self.truth else None}
         _write_png(self.out / f"{self.frames.stem(0)}.png", self.labels)
         (self.out / STEPS).write_bytes(b"")
-        atomic_write_json(state_path, self.state)
+        atomic_write_json(self.out / STATE, self.state)
         return 1
 
     def _remove_partial_writes(self) -> None:
@@ -194,6 +184,25 @@ def confidence_png(confidence: np.ndarray) -> np.ndarray:
     if not (np.all(np.isfinite(c)) and c.min(initial=0.0) >= 0.0 and c.max(initial=0.0) <= 1.0):
         raise AssertionError("a confidence outside [0, 1] reached the writer")
     return np.rint(c * 255.0).astype(np.uint8)
+
+
+def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
+    """Make ``out`` (a folder) and read the run it holds: its run.json when it is a run of ``identity``
+    (the same options and inputs), None when there is none or ``force`` starts over; a run of other
+    options, or an unreadable run.json, is an :class:`~pcreg.errors.OutputError`."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    state_path = out / STATE
+    if force or not state_path.is_file():
+        return None
+    try:
+        state = json.loads(state_path.read_text())
+    except (OSError, ValueError):
+        raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
+    if state.get("run") != identity:
+        raise OutputError(f"{out} holds a run with other options; use --force to start over or another --out")
+    return state
 
 
 def _write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:

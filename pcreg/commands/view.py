@@ -16,6 +16,10 @@ results.json), figures and checks, with the run's recording (the .rrd files in O
 recordings given after it) embedded beside them; choosing a row of a table moves the recording to that row's frame.
 ``pcreg view FILE.rrd --screenshot OUT.png [--time frame=N] [--view NAME]`` renders the recording
 headless (:func:`pcreg.recording.viewer.screenshot`) and saves the picture.
+``pcreg view RUN_OUT --web`` (a ``pcreg run`` output, recognised by its run.json) serves the review page
+(:mod:`pcreg.recording.review`): every frame of the run with its labels drawn over it, the unsure
+labels hatched, the key frames marked, the predicted error per frame and the suggested frames.
+``pcreg view RUN_OUT --overlay FILE.mp4`` writes the same frames as a video (:func:`pcreg.review.write_overlay_video`).
 
 The viewer processes themselves are managed in :mod:`pcreg.recording.viewer` and
 :mod:`pcreg.recording.report`.
@@ -51,7 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=arg_window_size, metavar="WxH", default="1600x900", help="headless window size in points (default 1600x900)")
     parser.add_argument("--viewer", metavar="PATH", help="the rerun program (default: the one installed with rerun-sdk)")
     parser.add_argument("--timeout", type=arg_float(0, 86400, lo_open=True), default=60.0, help="seconds to wait for the viewer (default 60)")
-    parser.add_argument("--force", action="store_true", help="overwrite OUT.png")
+    parser.add_argument("--overlay", metavar="FILE.mp4",
+                        help="for a pcreg run output: write its frames with their labels drawn over them as a video")
+    parser.add_argument("--fps", type=arg_float(0, 1000, lo_open=True), default=10.0,
+                        help="frames per second of the --overlay video (default 10)")
+    parser.add_argument("--force", action="store_true", help="overwrite OUT.png (or the --overlay video)")
 
 
 def _port(text: str) -> int:
@@ -84,6 +92,13 @@ def run(args: argparse.Namespace) -> int:
     from ..recording import viewer as V
     from ..recording.staging import stage
 
+    from ..review import is_run
+
+    runs = [p for p in args.recordings if Path(p).is_dir() and is_run(p)]
+    if runs:
+        return _review(args, runs)
+    if args.overlay:
+        raise InputError("--overlay takes a pcreg run output folder (one with a run.json)")
     folders = [p for p in args.recordings if Path(p).is_dir() or Path(p).name == "results.json"]
     if folders:
         return _report(args, folders)
@@ -182,4 +197,42 @@ def _report(args: argparse.Namespace, folders: list[str]) -> int:
                 server.wait()
             except KeyboardInterrupt:
                 return 130
+    return 0
+
+
+def _review(args: argparse.Namespace, runs: list[str]) -> int:
+    """``pcreg view RUN_OUT --web`` (the review page) or ``--overlay FILE.mp4`` (the same frames as a video)."""
+    from ..outputs import check_output
+    from ..recording.review import ReviewServer
+    from ..review import read_review, write_overlay_video
+
+    if len(args.recordings) > 1:
+        raise InputError(f"one run output folder at a time (got {', '.join(args.recordings)})")
+    folder = Path(runs[0])
+    if args.screenshot or args.time or args.view:
+        raise InputError(f"{folder}: a run's output is shown with --web or written with --overlay FILE.mp4; "
+                         "--screenshot, --time and --view take a recording (.rrd)")
+    if args.web and args.overlay:
+        raise InputError("--web serves the review page; --overlay writes a video: choose one")
+    if not (args.web or args.overlay):
+        raise InputError(f"{folder}: a run's output is reviewed in a browser (add --web) or as a video "
+                         "(--overlay FILE.mp4)")
+    if args.overlay:
+        out = check_output(args.overlay, force=args.force)
+        if out.suffix.lower() != ".mp4":
+            raise OutputError(f"{out}: the overlay is written as an MP4 video; name it .mp4")
+    review = read_review(folder)
+    if args.overlay:
+        n = write_overlay_video(review, out, fps=args.fps)
+        print(f"wrote {out}: {n} frame(s) of {folder} with their labels")
+        return 0
+    with ReviewServer(review, bind=args.bind, web_port=args.web_port) as server:
+        _note_bind(args.bind)
+        try:
+            print(f"serving the review of {folder} ({len(review.names)} frames of {review.source}) on {args.bind} "
+                  "(Ctrl-C stops)")
+            print(server.url, flush=True)
+            server.wait()
+        except KeyboardInterrupt:
+            return 130
     return 0

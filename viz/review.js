@@ -69,33 +69,34 @@ function show(t) {
 
 // -- the plot --------------------------------------------------------------------------------------
 
-function niceMax(v) {
+function niceStep(v) { // the smallest of 1, 2, 5 x 10^k at least v
   if (!(v > 0)) return 1;
   const p = Math.pow(10, Math.floor(Math.log10(v)));
-  for (const m of [1, 2, 2.5, 5, 10]) if (m * p >= v) return m * p;
+  for (const m of [1, 2, 5, 10]) if (m * p >= v - 1e-12) return m * p;
   return 10 * p;
 }
 
 function drawPlot() {
   const frames = state.data.frames;
   const n = frames.length;
-  const W = 400, H = 190, L = 38, R = 10, T = 10, B = 26;
+  const W = 400, H = 220, L = 38, R = 10, T = 10, B = 26;
   const errs = frames.map((f) => (f.key ? null : f.error));
-  const top = niceMax(Math.max(0, ...errs.filter((e) => e !== null)));
+  const highest = Math.max(0, ...errs.filter((e) => e !== null));
+  const yStep = niceStep(highest / 5);
+  const top = Math.max(yStep, Math.ceil(highest / yStep - 1e-9) * yStep);
   const x = (t) => L + (n > 1 ? (t / (n - 1)) * (W - L - R) : (W - L - R) / 2);
   const y = (e) => T + (1 - e / top) * (H - T - B);
   const root = svg("svg", { viewBox: `0 0 ${W} ${H}`, role: "img", "aria-label": "predicted error per frame" });
-  for (let i = 0; i <= 4; i++) {
-    const v = (top * i) / 4;
+  for (let i = 0; i <= Math.round(top / yStep); i++) {
+    const v = i * yStep;
     root.append(svg("line", { class: "grid", x1: L, x2: W - R, y1: y(v), y2: y(v) }));
     const label = svg("text", { class: "tick", x: L - 4, y: y(v) + 3, "text-anchor": "end" });
-    label.textContent = `${+v.toFixed(1)}%`;
+    label.textContent = `${+v.toFixed(2)}%`;
     root.append(label);
   }
   root.append(svg("line", { class: "axis", x1: L, x2: W - R, y1: H - B, y2: H - B }));
-  const ticks = Math.min(n, 6);
-  for (let i = 0; i < ticks; i++) {
-    const t = ticks > 1 ? Math.round((i * (n - 1)) / (ticks - 1)) : 0;
+  const xStep = Math.max(1, niceStep((n - 1) / 6));
+  for (let t = 0; t < n; t += xStep) {
     const label = svg("text", { class: "tick", x: x(t), y: H - B + 14, "text-anchor": "middle" });
     label.textContent = String(t);
     root.append(label);
@@ -194,7 +195,7 @@ function drawHeader() {
   document.title = `pcreg review: ${folder}`;
   const errs = d.frames.filter((f) => !f.key && f.error !== null).map((f) => f.error);
   const mean = errs.length ? errs.reduce((a, b) => a + b, 0) / errs.length : null;
-  const facts = [["source", d.source], ["frames", String(d.frames.length)],
+  const facts = [["folder", d.folder], ["source", d.source], ["frames", String(d.frames.length)],
     ["key frames", String(d.frames.filter((f) => f.key).length)],
     ["mean predicted error", pct(mean)], ["confidence", d.confidence ? "yes" : "not recorded (run --confidence)"]];
   $("facts").replaceChildren(...facts.map(([k, v]) => el("span", { class: "fact" }, el("em", { text: k }), v)));

@@ -313,3 +313,47 @@ def test_the_overlay_video_has_every_frame(which, request, tmp_path, capsys):
     assert pcreg_view([str(out), "--overlay", str(video)]) == 2
     assert "exists" in one_line_error(capsys)
     assert not list(video.parent.glob(".*.tmp*"))
+
+
+def test_a_videos_frames_are_decoded_where_asked_and_all_kept(tmp_path, monkeypatch):
+    """A frame asked for far ahead of the decoding is started at (the frames before it decoded, not
+    converted), and those passed over are filled in afterwards: every frame cached is its own frame."""
+    import threading
+
+    from pcreg.datasets.sources import VideoFrames
+    from pcreg.review import FrameImages, RunReview
+
+    n = 40
+    video = tmp_path / "count.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
+    for t in range(n):  # frame t is grey 6 t
+        writer.write(np.full((120, 160, 3), 6 * t, np.uint8))
+    writer.release()
+    straight = [float(f.image.mean()) for f in VideoFrames(video).frames()]  # the frames decoded in order
+    names = tuple(f"{t:06d}" for t in range(n))
+    review = RunReview(tmp_path, video, "video", names, names, frozenset({0}), (None,) * n, (), False)
+    gate, starts = threading.Event(), []
+    original = VideoFrames.frames
+
+    def frames(self, first=0):  # the decoding's starts recorded; its first held until a frame is asked for
+        starts.append(first)
+        if len(starts) == 1:
+            gate.wait()
+        yield from original(self, first)
+
+    monkeypatch.setattr(VideoFrames, "frames", frames)
+    with FrameImages(review, tmp_path / "cache") as images:
+        got = {}
+        asker = threading.Thread(target=lambda: got.setdefault(30, images[30]))
+        asker.start()
+        until(lambda: images._wanted == 30, what="frame 30 asked for", alive=asker)
+        gate.set()
+        asker.join()
+        until(lambda: all(images._have), what="every frame cached", alive=images._thread)
+    assert starts[:3] == [0, 30, 1], starts
+    assert abs(float(got[30].mean()) - straight[30]) < 1.5
+    assert sorted(p.name for p in (tmp_path / "cache").iterdir()) == [f"{t:06d}.jpg" for t in range(n)]
+    with FrameImages(review, tmp_path / "cache") as again:  # all cached: nothing decoded
+        for t in range(n):
+            assert np.argmin([abs(float(again[t].mean()) - m) for m in straight]) == t, t
+    assert len(starts) == 3

@@ -31,9 +31,9 @@ __all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "SUGGEST", "RunReview"
 #: A label is marked unsure where its confidence (the probability that it is right) is below this.
 LOW_CONFIDENCE = 0.7
 #: Class id -> RGB drawn over the frame; unknown (2) is left clear.
-COLOURS: dict[int, tuple[int, int, int]] = {0: (34, 197, 94), 1: (239, 68, 68)}
+COLOURS: dict[int, tuple[int, int, int]] = {0: (34, 197, 94), 1: (255, 40, 40)}
 #: How much of a labelled pixel is the label's colour (the rest is the frame).
-ALPHA = 0.45
+ALPHA = 0.5
 #: The hidden folder in a run's output where the review keeps what it decoded.
 CACHE = ".pcreg-review"
 #: The frames suggested to label next: one frame name a line, optionally a tab and its predicted error.

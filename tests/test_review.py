@@ -145,7 +145,7 @@ def test_the_overlay_colours_labels_and_hatches_unsure_ones():
     drawn = overlay(image, labels, conf)
     assert drawn.shape == image.shape and drawn.dtype == np.uint8 and (image == 100).all()
     for k, cols in ((0, slice(0, 8)), (1, slice(8, 16))):
-        want = np.round((1 - ALPHA) * 100 + ALPHA * np.array(COLOURS[k]))
+        want = np.floor((1 - ALPHA) * 100 + ALPHA * np.array(COLOURS[k]) + 0.5)
         assert (drawn[:8, cols] == want).all(), k
     assert (drawn[:, 16:] == 100).all()  # unknown: clear, and never hatched
     low = drawn[8:, :16].astype(int)

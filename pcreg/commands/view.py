@@ -1,5 +1,6 @@
 """Open rerun recordings (.rrd) in the viewer or in a browser, render a screenshot of one without a display,
-or show an evaluation's output folder (its tables, figures and checks beside its recording) in a browser.
+show an evaluation's output folder (its tables, figures and checks beside its recording) in a browser, or
+review a pcreg run output (its frames with their labels) in a browser or as a video.
 
 Every recording is shown with the blueprint of its kind built from what it holds (no empty view);
 several recordings (``pcreg view A.rrd B.rrd``) are merged into one comparison, each under its file
@@ -41,8 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recordings", metavar="FILE.rrd|OUT_DIR", nargs="+",
                         help="the recording to show; several are shown side by side (a comparison); or an "
                              "evaluation's output folder, shown with --web (its recording: the .rrd files in it, "
-                             "or the recordings given after it)")
-    parser.add_argument("--web", action="store_true", help="serve the web viewer (for OUT_DIR: the report page) and print its URL instead of opening a window")
+                             "or the recordings given after it); or a pcreg run output, reviewed with --web or "
+                             "written with --overlay FILE.mp4")
+    parser.add_argument("--web", action="store_true",
+                        help="serve the web viewer (for OUT_DIR: the report page, or a run's review page) and print its URL "
+                             "instead of opening a window")
     parser.add_argument("--bind", metavar="ADDRESS", default="127.0.0.1",
                         help="address the web viewer and its data server listen on (default 127.0.0.1: this machine only)")
     parser.add_argument("--web-port", type=_port, default=9090, help="web page's HTTP port (default 9090; 0: any free port)")

@@ -339,16 +339,48 @@ class FrameImages:
         self.close()
 
 
-def write_overlay_video(review: RunReview, path: str | Path, *, fps: float = 10.0) -> int:
-    """Every frame of ``review`` with its labels drawn over it (:func:`overlay`) as an H.264 MP4 at ``path``
-    (written to a temporary file beside it, then renamed); frames of odd size are padded by a pixel. The
-    source is read straight through, once. Returns the number of frames written."""
+def _video_rate(review: RunReview) -> float | None:
+    """The frames per second of a review's video, every chosen frame counted (None: a folder, or a video
+    that does not say)."""
+    import av
+
+    if review.kind != "video":
+        return None
+    try:
+        with av.open(str(review.source), metadata_errors="ignore") as container:
+            rate = container.streams.video[0].average_rate
+    except (av.FFmpegError, IndexError):
+        return None
+    every = int((review.selection or {}).get("every", 1))
+    return float(rate) / every if rate else None
+
+
+def _encoder() -> str:
+    """H.264 (libx264) where this FFmpeg has it, else MPEG-4 part 2 (FFmpeg's own ``mpeg4``)."""
+    import av
+
+    try:
+        av.codec.Codec("libx264", "w")
+    except (av.FFmpegError, ValueError):
+        return "mpeg4"
+    return "libx264"
+
+
+def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | None = None) -> int:
+    """Every frame of ``review`` with its labels drawn over it (:func:`overlay`) as an MP4 at ``path``
+    (H.264; written to a temporary file beside it, then renamed); frames of odd size are padded by a
+    pixel. ``fps``: frames per second (default: a video's own rate, divided by the run's ``--every``;
+    10 for a folder). The source is read straight through, once. Returns the number of frames written."""
     import os
     import tempfile
     from fractions import Fraction
 
     import av
 
+    from ._runner import progress
+
+    fps = fps or _video_rate(review) or 10.0
+    codec = _encoder()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.mp4", dir=path.parent)
@@ -356,16 +388,20 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float = 10.
     n = 0
     images = FrameImages(review)  # no thread: a video is read through frames()
     try:
-        with av.open(tmp, "w", format="mp4") as container:
+        with av.open(tmp, "w", format="mp4") as container, \
+                progress(total=len(review.names), desc="frames", disable=None) as bar:
             stream = None
             for t, image in images.frames():
                 drawn = read_overlay(review, t, image)
                 h, w = drawn.shape[:2]
                 if stream is None:
-                    stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1000))
+                    stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1000))
                     stream.width, stream.height = w + w % 2, h + h % 2
                     stream.pix_fmt = "yuv420p"
-                    stream.options = {"crf": "20", "preset": "veryfast"}
+                    if codec == "libx264":
+                        stream.options = {"crf": "20", "preset": "veryfast"}
+                    else:
+                        stream.bit_rate = max(1_000_000, int(w * h * fps))  # a bit a pixel a frame
                 if (h + h % 2, w + w % 2) != (stream.height, stream.width):
                     raise InputError(f"{review.source}: frame {review.names[t]} is {w}x{h}, the first {stream.width}x{stream.height}")
                 if w % 2 or h % 2:
@@ -373,6 +409,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float = 10.
                 for packet in stream.encode(av.VideoFrame.from_ndarray(drawn, format="rgb24")):
                     container.mux(packet)
                 n += 1
+                bar.update(1)
             if stream is not None:
                 for packet in stream.encode():
                     container.mux(packet)

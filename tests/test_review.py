@@ -59,9 +59,9 @@ def run_out(tmp_path_factory, synthetic):
 
 @pytest.fixture(scope="module")
 def video_out(tmp_path_factory, synthetic):
-    """The same frames as an MP4 video, run the same way."""
+    """The same frames as an MP4 video (12 frames a second), run the same way."""
     root = tmp_path_factory.mktemp("review-video")
-    writer = cv2.VideoWriter(str(root / "clip.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
+    writer = cv2.VideoWriter(str(root / "clip.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 12, (160, 120))
     for f in synthetic:
         writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
     writer.release()
@@ -292,15 +292,23 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
 # -- the overlay as a video ----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("which", ["run_out", "video_out"])
-def test_the_overlay_video_has_every_frame(which, request, tmp_path, capsys):
+@pytest.mark.parametrize("which, encoder, fps", [("run_out", None, None), ("video_out", None, None),
+                                                 ("run_out", "mpeg4", "5")])
+def test_the_overlay_video_has_every_frame(which, encoder, fps, request, tmp_path, capsys, monkeypatch):
     import av
 
+    import pcreg.review
+
+    if encoder is not None:  # FFmpeg's own MPEG-4 encoder, where there is no libx264
+        monkeypatch.setattr(pcreg.review, "_encoder", lambda: encoder)
     out = request.getfixturevalue(which)
     video = tmp_path / "sub" / "overlay.mp4"
-    assert pcreg_view([str(out), "--overlay", str(video), "--fps", "5"]) == 0
+    assert pcreg_view([str(out), "--overlay", str(video), *(["--fps", fps] if fps else [])]) == 0
     assert f"wrote {video}: {N} frame(s)" in capsys.readouterr().out
     with av.open(str(video)) as container:
+        stream = container.streams.video[0]
+        assert stream.codec_context.name == (encoder or "h264")
+        assert float(stream.average_rate) == float(fps or (12 if which == "video_out" else 10))  # the video's own, or 10
         frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
     assert len(frames) == N and all(f.shape == (120, 160, 3) for f in frames)
     # what the page shows, up to the video's compression

@@ -61,8 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout", type=arg_float(0, 86400, lo_open=True), default=60.0, help="seconds to wait for the viewer (default 60)")
     parser.add_argument("--overlay", metavar="FILE.mp4",
                         help="for a pcreg run output: write its frames with their labels drawn over them as a video")
-    parser.add_argument("--fps", type=arg_float(0, 1000, lo_open=True), default=10.0,
-                        help="frames per second of the --overlay video (default 10)")
+    parser.add_argument("--fps", type=arg_float(0, 1000, lo_open=True), default=None,
+                        help="frames per second of the --overlay video (default: a video's own, 10 for a folder of frames)")
     parser.add_argument("--force", action="store_true", help="overwrite OUT.png (or the --overlay video)")
 
 

@@ -278,7 +278,6 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
             shot = browser.screenshot()
             cv2.imwrite(str(tmp_path / "review.png"), shot)
             print("review page screenshot:", tmp_path / "review.png")
-            assert not [c for c in browser.console if "error" in c.lower()]
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGINT)

@@ -326,11 +326,13 @@ class FrameImages:
             yield frame.position, frame.image
 
     def close(self) -> None:
+        """Stop the decoding: at once between frames; one decoding its way to a frame far into a long video
+        cannot be stopped midway and is left to end with the process (a daemon thread), after 5 s."""
         with self._cond:
             self._stop = True
             self._cond.notify_all()
         if self._thread is not None:
-            self._thread.join()
+            self._thread.join(timeout=5.0)
 
     def __enter__(self) -> "FrameImages":
         return self

@@ -279,4 +279,4 @@ def test_the_wheel_lists_every_package_and_the_page():
     from fnmatch import fnmatch
 
     shipped = [p.name for p in (REPO / "viz").iterdir() if any(fnmatch(p.name, g) for g in cfg["package-data"]["pcreg._viz"])]
-    assert {"index.html", "report.css", "report.js"} <= set(shipped)
+    assert {"index.html", "report.css", "report.js", "review.html", "review.css", "review.js"} <= set(shipped)

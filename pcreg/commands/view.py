@@ -1,5 +1,6 @@
 """Open rerun recordings (.rrd) in the viewer or in a browser, render a screenshot of one without a display,
-or show an evaluation's output folder (its tables, figures and checks beside its recording) in a browser.
+show an evaluation's output folder (its tables, figures and checks beside its recording) in a browser, or
+review a pcreg run output (its frames with their labels) in a browser or as a video.
 
 Every recording is shown with the blueprint of its kind built from what it holds (no empty view);
 several recordings (``pcreg view A.rrd B.rrd``) are merged into one comparison, each under its file
@@ -16,6 +17,10 @@ results.json), figures and checks, with the run's recording (the .rrd files in O
 recordings given after it) embedded beside them; choosing a row of a table moves the recording to that row's frame.
 ``pcreg view FILE.rrd --screenshot OUT.png [--time frame=N] [--view NAME]`` renders the recording
 headless (:func:`pcreg.recording.viewer.screenshot`) and saves the picture.
+``pcreg view RUN_OUT --web`` (a ``pcreg run`` output, recognised by its run.json) serves the review page
+(:mod:`pcreg.recording.review`): every frame of the run with its labels drawn over it, the unsure
+labels hatched, the key frames marked, the predicted error per frame and the suggested frames.
+``pcreg view RUN_OUT --overlay FILE.mp4`` writes the same frames as a video (:func:`pcreg.review.write_overlay_video`).
 
 The viewer processes themselves are managed in :mod:`pcreg.recording.viewer` and
 :mod:`pcreg.recording.report`.
@@ -37,8 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recordings", metavar="FILE.rrd|OUT_DIR", nargs="+",
                         help="the recording to show; several are shown side by side (a comparison); or an "
                              "evaluation's output folder, shown with --web (its recording: the .rrd files in it, "
-                             "or the recordings given after it)")
-    parser.add_argument("--web", action="store_true", help="serve the web viewer (for OUT_DIR: the report page) and print its URL instead of opening a window")
+                             "or the recordings given after it); or a pcreg run output, reviewed with --web or "
+                             "written with --overlay FILE.mp4")
+    parser.add_argument("--web", action="store_true",
+                        help="serve the web viewer (for OUT_DIR: the report page, or a run's review page) and print its URL "
+                             "instead of opening a window")
     parser.add_argument("--bind", metavar="ADDRESS", default="127.0.0.1",
                         help="address the web viewer and its data server listen on (default 127.0.0.1: this machine only)")
     parser.add_argument("--web-port", type=_port, default=9090, help="web page's HTTP port (default 9090; 0: any free port)")
@@ -51,7 +59,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=arg_window_size, metavar="WxH", default="1600x900", help="headless window size in points (default 1600x900)")
     parser.add_argument("--viewer", metavar="PATH", help="the rerun program (default: the one installed with rerun-sdk)")
     parser.add_argument("--timeout", type=arg_float(0, 86400, lo_open=True), default=60.0, help="seconds to wait for the viewer (default 60)")
-    parser.add_argument("--force", action="store_true", help="overwrite OUT.png")
+    parser.add_argument("--overlay", metavar="FILE.mp4",
+                        help="for a pcreg run output: write its frames with their labels drawn over them as a video")
+    parser.add_argument("--fps", type=arg_float(0, 1000, lo_open=True), default=None,
+                        help="frames per second of the --overlay video (default: a video's own, 10 for a folder of frames)")
+    parser.add_argument("--force", action="store_true", help="overwrite OUT.png (or the --overlay video)")
 
 
 def _port(text: str) -> int:
@@ -84,6 +96,13 @@ def run(args: argparse.Namespace) -> int:
     from ..recording import viewer as V
     from ..recording.staging import stage
 
+    from ..review import is_run
+
+    runs = [p for p in args.recordings if Path(p).is_dir() and is_run(p)]
+    if runs:
+        return _review(args, runs)
+    if args.overlay:
+        raise InputError("--overlay takes a pcreg run output folder (one with a run.json)")
     folders = [p for p in args.recordings if Path(p).is_dir() or Path(p).name == "results.json"]
     if folders:
         return _report(args, folders)
@@ -182,4 +201,42 @@ def _report(args: argparse.Namespace, folders: list[str]) -> int:
                 server.wait()
             except KeyboardInterrupt:
                 return 130
+    return 0
+
+
+def _review(args: argparse.Namespace, runs: list[str]) -> int:
+    """``pcreg view RUN_OUT --web`` (the review page) or ``--overlay FILE.mp4`` (the same frames as a video)."""
+    from ..outputs import check_output
+    from ..recording.review import ReviewServer
+    from ..review import read_review, write_overlay_video
+
+    if len(args.recordings) > 1:
+        raise InputError(f"one run output folder at a time (got {', '.join(args.recordings)})")
+    folder = Path(runs[0])
+    if args.screenshot or args.time or args.view:
+        raise InputError(f"{folder}: a run's output is shown with --web or written with --overlay FILE.mp4; "
+                         "--screenshot, --time and --view take a recording (.rrd)")
+    if args.web and args.overlay:
+        raise InputError("--web serves the review page; --overlay writes a video: choose one")
+    if not (args.web or args.overlay):
+        raise InputError(f"{folder}: a run's output is reviewed in a browser (add --web) or as a video "
+                         "(--overlay FILE.mp4)")
+    if args.overlay:
+        out = check_output(args.overlay, force=args.force)
+        if out.suffix.lower() != ".mp4":
+            raise OutputError(f"{out}: the overlay is written as an MP4 video; name it .mp4")
+    review = read_review(folder)
+    if args.overlay:
+        n = write_overlay_video(review, out, fps=args.fps)
+        print(f"wrote {out}: {n} frame(s) of {folder} with their labels")
+        return 0
+    with ReviewServer(review, bind=args.bind, web_port=args.web_port) as server:
+        _note_bind(args.bind)
+        try:
+            print(f"serving the review of {folder} ({len(review.names)} frames of {review.source}) on {args.bind} "
+                  "(Ctrl-C stops)")
+            print(server.url, flush=True)
+            server.wait()
+        except KeyboardInterrupt:
+            return 130
     return 0

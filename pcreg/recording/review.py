@@ -1,0 +1,196 @@
+"""The review page's server: a ``pcreg run`` output's frames with their labels drawn over them, in a browser.
+
+:class:`ReviewServer` serves, on one address and port (127.0.0.1 unless told otherwise):
+
+- ``/``: the page (``viz/review.html`` with its CSS and JavaScript under ``/viz/``; no build step);
+- ``/review.json``: the frames (name, key frame or not, predicted error), the suggested frames, whether
+  there is a confidence, the colours and the frames' size;
+- ``/overlay/T.jpg``: frame ``T`` (its position in the run) with its labels drawn over it
+  (:func:`pcreg.review.overlay`), rendered when asked for and kept for the next time (a few hundred);
+- ``/frame/T.jpg``: frame ``T`` as it is.
+
+Nothing is rendered ahead: the page asks for the frame shown and its neighbours, so a long run opens at
+once. A video's frames come from :class:`pcreg.review.FrameImages` (decoded once into the run's
+``.pcreg-review/`` folder, under a name of the video's path, size and time).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import OrderedDict
+from http.server import BaseHTTPRequestHandler
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, PcregError
+from .report import _Server, _Server6, viz_dir
+from .viewer import check_bind, free_port, port_free, url_host
+
+__all__ = ["ReviewServer"]
+
+_KEEP = 256  # rendered JPEGs kept in memory
+
+
+def _video_key(path: Path) -> str:
+    """The cache folder's name for a video: its file's path, size and time of change, so that a run
+    made again on another video never shows the frames decoded from the first."""
+    import hashlib
+
+    st = path.stat()
+    return "frames-" + hashlib.sha1(f"{path.resolve()}\0{st.st_size}\0{st.st_mtime_ns}".encode()).hexdigest()[:12]
+
+
+class ReviewServer:
+    """The review page of the run output ``review`` (:func:`pcreg.review.read_review`); a context
+    manager. ``url`` is the page to open."""
+
+    def __init__(self, review, *, bind: str = "127.0.0.1", web_port: int = 9090, cache: Path | None = None) -> None:
+        from ..review import CACHE, FrameImages
+
+        self.review = review
+        probe = check_bind(bind)
+        try:
+            web_port = web_port or free_port(probe)
+        except OSError as exc:
+            raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
+        if not port_free(probe, web_port):
+            raise InputError(f"--web-port {web_port}: the port is in use on {bind} (choose another, or 0 for any free port)")
+        self._tmp = None
+        if review.kind == "video" and cache is None:
+            cache = review.folder / CACHE / _video_key(review.source)
+            try:
+                cache.mkdir(parents=True, exist_ok=True)
+            except OSError:  # a run's folder that is not writable: the decoded frames last as long as the server
+                import tempfile
+
+                self._tmp = tempfile.TemporaryDirectory(prefix="pcreg-review-")
+                cache = Path(self._tmp.name)
+        self.images = FrameImages(review, cache)
+        self._static = viz_dir()
+        self._rendered: OrderedDict[tuple[str, int], bytes] = OrderedDict()
+        self._lock = threading.Lock()
+        host = "127.0.0.1" if bind == "localhost" else bind
+        try:
+            self._httpd = (_Server6 if ":" in host else _Server)((host, web_port), self._handler())
+        except OSError as exc:
+            self.images.close()
+            raise InputError(f"--web-port {web_port}: cannot listen on {bind} ({exc.strerror or exc})") from None
+        self.port = int(self._httpd.server_address[1])
+        self.url = f"http://{url_host(bind)}:{self.port}/"
+        self._thread = threading.Thread(target=self._httpd.serve_forever, name="pcreg-review", daemon=True)
+        self._thread.start()
+
+    # -- what the page asks for -------------------------------------------------------------------
+
+    def review_json(self) -> bytes:
+        from ..review import COLOURS, LOW_CONFIDENCE
+
+        r = self.review
+        frames = [{"name": n, "key": t in r.keys, "error": r.errors[t]} for t, n in enumerate(r.names)]
+        suggested = [{"frame": t, "name": r.names[t], "error": e} for t, e in r.suggested]
+        return json.dumps({
+            "folder": str(r.folder), "source": str(r.source), "kind": r.kind, "frames": frames,
+            "suggested": suggested, "confidence": r.confidence, "low_confidence": LOW_CONFIDENCE,
+            "colours": {"ground": COLOURS[0], "obstacle": COLOURS[1]},
+        }, allow_nan=False).encode()
+
+    def image(self, what: str, t: int) -> bytes:
+        """Frame ``t`` as JPEG: ``what`` is ``overlay`` (its labels drawn over it) or ``frame``."""
+        import cv2
+
+        from ..review import read_overlay
+
+        with self._lock:
+            if (what, t) in self._rendered:
+                self._rendered.move_to_end((what, t))
+                return self._rendered[(what, t)]
+        image = self.images[t]
+        drawn = read_overlay(self.review, t, image) if what == "overlay" else image
+        ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(drawn[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 90])
+        if not ok:
+            raise PcregError(f"frame {self.review.names[t]} does not encode as JPEG")
+        body = buf.tobytes()
+        with self._lock:
+            self._rendered[(what, t)] = body
+            while len(self._rendered) > _KEEP:
+                self._rendered.popitem(last=False)
+        return body
+
+    def _handler(self):
+        server = self
+        static = {f.name: f for f in self._static.iterdir() if f.is_file()}
+        n = len(self.review.names)
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *args) -> None:  # no line per request on the terminal
+                pass
+
+            def _send(self, status: int, ctype: str, body: bytes, cache: bool = False) -> None:
+                self.send_response(status)
+                self.send_header("Content-Type", ctype)
+                self.send_header("Content-Length", str(len(body)))
+                self.send_header("Cache-Control", "max-age=60" if cache else "no-store")
+                self.end_headers()
+                if self.command != "HEAD":
+                    self.wfile.write(body)
+
+            def do_HEAD(self) -> None:
+                self.do_GET()
+
+            def do_GET(self) -> None:
+                path = self.path.split("?", 1)[0].split("#", 1)[0]
+                try:
+                    if path in ("/", "/index.html", "/review.html"):
+                        return self._file(static["review.html"])
+                    if path.startswith("/viz/") and path[5:] in static:
+                        return self._file(static[path[5:]])
+                    if path == "/review.json":
+                        return self._send(200, "application/json", server.review_json())
+                    what, _, name = path.strip("/").partition("/")
+                    if what in ("overlay", "frame") and name.endswith(".jpg") and name[:-4].isdigit() \
+                            and name[:-4].isascii() and int(name[:-4]) < n:
+                        try:
+                            body = server.image(what, int(name[:-4]))
+                        except (InputError, OSError) as exc:
+                            return self._send(500, "text/plain; charset=utf-8", f"{exc}\n".encode())
+                        return self._send(200, "image/jpeg", body, cache=True)
+                    self._send(404, "text/plain", b"not found\n")
+                except (BrokenPipeError, ConnectionResetError):  # the browser went away
+                    pass
+
+            def _file(self, p: Path) -> None:
+                import mimetypes
+
+                try:
+                    body = p.read_bytes()
+                except OSError:
+                    return self._send(404, "text/plain", b"not found\n")
+                ctype = mimetypes.guess_type(p.name)[0] or "application/octet-stream"
+                if ctype.startswith("text/") or ctype in ("application/javascript", "application/json"):
+                    ctype += "; charset=utf-8"
+                self._send(200, ctype, body)
+
+        return Handler
+
+    # -- life -------------------------------------------------------------------------------------
+
+    def wait(self) -> None:
+        """Serve until interrupted (KeyboardInterrupt)."""
+        self._thread.join()
+
+    def close(self) -> None:
+        httpd = getattr(self, "_httpd", None)
+        if httpd is not None:
+            httpd.shutdown()
+            httpd.server_close()
+        self.images.close()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+    def __enter__(self) -> "ReviewServer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,424 @@
+"""A ``pcreg run`` output as a person reviews it: each frame with its labels drawn over it.
+
+:func:`read_review` reads what a run's folder says about its frames (``run.json``, ``steps.jsonl``, and
+``suggest.txt`` when there is one): the frames in order, which are key frames, each frame's predicted
+error and the frames suggested to label next. :class:`FrameImages` reads the frames themselves from the
+run's source, a folder of images or a video. :func:`overlay` draws one frame's labels over it (ground
+green, obstacle red, unknown left clear) and, with its confidence, hatches the pixels whose label is
+less sure than :data:`LOW_CONFIDENCE`. :func:`write_overlay_video` writes every frame so drawn as a video.
+
+A video is read in decoding order, never by seeking (as :mod:`pcreg.datasets.sources` reads it), so
+that frame ``i`` is the run's frame ``i``. For a page that jumps about a long video,
+:class:`FrameImages` decodes it in a thread into JPEG files in ``OUT/.pcreg-review/``: a frame is shown
+as soon as the decoding reaches it (a frame far ahead is skipped to, decoding without converting the
+frames between), and at once the next time the run is reviewed.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "SUGGEST", "RunReview", "read_review", "overlay",
+           "FrameImages", "write_overlay_video"]
+
+#: A label is marked unsure where its confidence (the probability that it is right) is below this.
+LOW_CONFIDENCE = 0.7
+#: Class id -> RGB drawn over the frame; unknown (2) is left clear.
+COLOURS: dict[int, tuple[int, int, int]] = {0: (34, 197, 94), 1: (255, 40, 40)}
+#: How much of a labelled pixel is the label's colour (the rest is the frame).
+ALPHA = 0.5
+#: The hidden folder in a run's output where the review keeps what it decoded.
+CACHE = ".pcreg-review"
+#: The frames suggested to label next: one frame name a line, optionally a tab and its predicted error.
+SUGGEST = "suggest.txt"
+
+
+@dataclass(frozen=True)
+class RunReview:
+    """What a run's folder says about its frames, in run order (position 0 is the first chosen frame).
+
+    ``names`` are the frames' names (a folder's file names, ``{i:06d}`` in a video), ``stems`` what
+    their outputs are named after (``OUT/STEM.png``, ``OUT/confidence/STEM.png``); ``keys`` the positions
+    of key frames (named in ``run.json``, or without a line in ``steps.jsonl``); ``errors`` each frame's
+    predicted error in % (None for a key frame or a step without one); ``suggested`` the positions listed in
+    ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists."""
+
+    folder: Path
+    source: Path
+    kind: str  # "folder" or "video"
+    names: tuple[str, ...]
+    stems: tuple[str, ...]
+    keys: frozenset[int]
+    errors: tuple[float | None, ...]
+    suggested: tuple[tuple[int, float | None], ...]
+    confidence: bool
+    selection: dict | None = None
+
+    def labels_path(self, t: int) -> Path:
+        return self.folder / f"{self.stems[t]}.png"
+
+    def confidence_path(self, t: int) -> Path | None:
+        from .pipeline.stream_run import CONFIDENCE
+
+        p = self.folder / CONFIDENCE / f"{self.stems[t]}.png"
+        return p if self.confidence and t not in self.keys and p.is_file() else None
+
+
+def is_run(folder: str | Path) -> bool:
+    """Whether ``folder`` is a ``pcreg run`` output (it holds a ``run.json`` naming the run's source)."""
+    from .pipeline.stream_run import STATE
+
+    p = Path(folder) / STATE
+    if not p.is_file():
+        return False
+    try:
+        state = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(state, dict) and isinstance(state.get("run"), dict) and "key_frame" in state
+
+
+def read_review(folder: str | Path) -> RunReview:
+    """The frames of the ``pcreg run`` output in ``folder``, those counted done in its ``run.json``.
+
+    Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json``, one pcreg run did not write,
+    a source that is gone, an unreadable ``steps.jsonl`` or ``suggest.txt``.
+    """
+    from .datasets.sources import FolderFrames, Selection, open_frames
+    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS
+
+    folder = Path(folder)
+    state_path = folder / STATE
+    if not state_path.is_file():
+        raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
+    try:
+        state = json.loads(state_path.read_text(encoding="utf-8"))
+        run, done = state["run"], int(state["done"])
+        kind = "video" if "video" in run else "folder"
+        source = Path(run[kind])
+        named = [str(state["key_frame"]), *map(str, state.get("key_frames") or [])]
+        chosen = run.get("frames") or {}
+        selection = Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
+        raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
+    if not source.exists():
+        raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there)")
+    frames = open_frames(source, selection)
+    if isinstance(frames, FolderFrames):
+        done = min(done, len(frames))
+    names = [frames.name(t) for t in range(done)]
+    stems = [frames.stem(t) for t in range(done)]
+    steps: dict[str, dict] = {}
+    steps_path = folder / STEPS
+    if steps_path.is_file():
+        try:
+            for line in steps_path.read_bytes().splitlines():
+                if line.strip():
+                    step = json.loads(line)
+                    steps[str(step["name"])] = step
+        except (OSError, ValueError, KeyError, TypeError):
+            raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
+    keys = frozenset(t for t, n in enumerate(names) if n in named or n not in steps)
+    errors = []
+    for t, n in enumerate(names):
+        e = None if t in keys else steps[n].get("predicted_error")
+        errors.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
+    return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
+                     _suggested(folder / SUGGEST, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict())
+
+
+def _suggested(path: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:
+    """``suggest.txt``'s frames (a frame's name, or its stem) that are the run's, in its order."""
+    if not path.is_file():
+        return ()
+    where = {**{s: t for t, s in enumerate(stems)}, **{n: t for t, n in enumerate(names)}}
+    out = []
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError):
+        raise InputError(f"{path}: unreadable (one frame name a line, optionally a tab and its predicted error)") from None
+    for line in lines:
+        name, _, rest = line.partition("\t")
+        name = name.strip()
+        if not name or name.startswith("#") or name not in where:
+            continue
+        try:
+            error: float | None = float(rest.strip()) if rest.strip() else None
+        except ValueError:
+            error = None
+        out.append((where[name], error if error is None or np.isfinite(error) else None))
+    return tuple(out)
+
+
+def overlay(image: np.ndarray, labels: np.ndarray, confidence: np.ndarray | None = None, *,
+            low: float = LOW_CONFIDENCE, key: bool = False) -> np.ndarray:
+    """``image`` (H, W, 3) uint8 RGB with ``labels`` (H, W) 0 ground / 1 obstacle / 2 unknown drawn over it
+    (:data:`COLOURS`, :data:`ALPHA`; unknown left clear); where ``confidence`` (H, W) uint8, 255 x the
+    probability that the label is right, is below ``low``, dark diagonal hatching. ``key``: a key frame,
+    framed in blue. Returns a new (H, W, 3) uint8 RGB image."""
+    if labels.shape != image.shape[:2]:
+        raise InputError(f"labels are {labels.shape[1]}x{labels.shape[0]}, the frame {image.shape[1]}x{image.shape[0]}")
+    out = image.astype(np.float32)
+    for k, colour in COLOURS.items():
+        m = labels == k
+        out[m] = (1 - ALPHA) * out[m] + ALPHA * np.asarray(colour, np.float32)
+    if confidence is not None:
+        if confidence.shape != labels.shape:
+            raise InputError("a confidence map of another size than its labels")
+        h, w = labels.shape
+        yy, xx = np.mgrid[0:h, 0:w]
+        hatch = ((xx + yy) % 8 < 3) & (confidence.astype(np.float32) < low * 255.0) & (labels != 2)
+        out[hatch] *= 0.3
+    if key:
+        b = max(2, min(labels.shape) // 60)
+        out[:b], out[-b:], out[:, :b], out[:, -b:] = (59, 130, 246), (59, 130, 246), (59, 130, 246), (59, 130, 246)
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+def read_overlay(review: RunReview, t: int, image: np.ndarray) -> np.ndarray:
+    """Frame ``t`` of ``review`` (its ``image``, RGB) with its labels and confidence drawn over it."""
+    import cv2
+
+    from .export import read_labels
+    from .formats import read_image_file
+
+    labels = read_labels(review.labels_path(t))
+    conf_path = review.confidence_path(t)
+    conf = None
+    if conf_path is not None:
+        conf = read_image_file(conf_path, flags=cv2.IMREAD_UNCHANGED)
+        if conf.ndim != 2 or conf.dtype != np.uint8 or conf.shape != labels.shape:
+            raise InputError(f"{conf_path}: not a confidence map of {review.labels_path(t).name}'s size")
+    return overlay(image, labels, conf, key=t in review.keys)
+
+
+class FrameImages:
+    """The frames of a review's source, RGB, by position: a folder's read when asked for; a video's
+    decoded by a thread into ``cache`` (JPEG, one file a frame, kept for the next review), each asked for
+    waited for until the decoding reaches it (without ``cache``, a video is only read straight through,
+    by :meth:`frames`). The thread decodes in order from the first frame not cached; for a frame asked
+    for behind it, or far enough ahead (:attr:`JUMP`, :attr:`RATIO`), it starts again from the video's
+    start, converting nothing before that frame (FFmpeg's decoding alone); the frames passed over are
+    filled in afterwards. ``close()``
+    stops the thread; a context manager."""
+
+    #: A frame asked for ahead of the decoding is skipped to (decoding again from the start, converting
+    #: nothing before it) when that costs less than going on: converting a frame and encoding its JPEG take
+    #: about twice as long as decoding it (720p H.264: 4.7 ms to decode, 14.6 ms with both), so when the
+    #: frame is more than JUMP frames ahead and ``frame < RATIO * (frame - decoding)``.
+    JUMP = 8
+    RATIO = 3.0
+
+    def __init__(self, review: RunReview, cache: Path | None = None) -> None:
+        from .datasets.sources import Selection, open_frames
+
+        self.review = review
+        sel = review.selection or {}
+        self._frames = open_frames(review.source, Selection(sel.get("start", 0), sel.get("stop"), sel.get("every", 1)))
+        self._cond = threading.Condition()
+        self._stop = False
+        self._failed: str | None = None
+        self._thread: threading.Thread | None = None
+        self._wanted: int | None = None
+        self.cache = cache
+        if review.kind == "video" and cache is not None:
+            import os
+
+            cache.mkdir(parents=True, exist_ok=True)
+            there = set(os.listdir(cache))
+            self._have = [f"{s}.jpg" in there for s in review.stems]
+            self._thread = threading.Thread(target=self._decode, name="pcreg-review-decode", daemon=True)
+            self._thread.start()
+
+    def _path(self, t: int) -> Path:
+        assert self.cache is not None
+        return self.cache / f"{self.review.stems[t]}.jpg"
+
+    def _next_start(self) -> int | None:
+        """Where the decoding starts next: the frame asked for if it is not cached, else the first not
+        cached (None: all are)."""
+        with self._cond:
+            if self._wanted is not None and not self._have[self._wanted]:
+                return self._wanted
+            return next((t for t, have in enumerate(self._have) if not have), None)
+
+    def _decode(self) -> None:
+        import os
+
+        import cv2
+
+        n = len(self.review.names)
+        try:
+            while not self._stop:
+                first = self._next_start()
+                if first is None:
+                    return
+                decoded = self._frames.frames(first)
+                t = first - 1
+                try:
+                    for frame in decoded:
+                        t = frame.position
+                        if self._stop or t >= n:
+                            break
+                        if not self._have[t]:
+                            ok, buf = cv2.imencode(".jpg", frame.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 92])
+                            path = self._path(t)
+                            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+                            tmp.write_bytes(buf.tobytes())
+                            os.replace(tmp, path)
+                        with self._cond:
+                            self._have[t] = True
+                            self._cond.notify_all()
+                            w = self._wanted
+                            if w is not None and not self._have[w] and (
+                                    w < t or (w > t + self.JUMP and w < self.RATIO * (w - t))):
+                                break  # start again at the frame asked for
+                    else:
+                        if t < n - 1:  # the video ended before the run's frames did
+                            self._failed = f"{self.review.source}: ends before the run's frame {self.review.names[t + 1]}"
+                            return
+                finally:
+                    getattr(decoded, "close")()  # the generator's: the video file closed now
+        except (InputError, OSError) as exc:
+            self._failed = str(exc)
+        finally:
+            with self._cond:
+                self._stop = True
+                self._cond.notify_all()
+
+    def __getitem__(self, t: int) -> np.ndarray:
+        if not 0 <= t < len(self.review.names):
+            raise IndexError(t)
+        if self._thread is None:
+            from .datasets.sources import FolderFrames
+            from .registration.clouds import load_image
+
+            if not isinstance(self._frames, FolderFrames):
+                raise ValueError("a video's frames by position need a cache folder (or read them in order: frames())")
+            return load_image(self._frames.paths[t])
+        with self._cond:
+            if not self._have[t]:
+                self._wanted = t
+                self._cond.wait_for(lambda: self._have[t] or self._stop)
+        path = self._path(t)
+        if not path.is_file():
+            raise InputError(self._failed or f"{self.review.source}: frame {self.review.names[t]} was not decoded")
+        from .formats import read_image_file
+
+        return np.ascontiguousarray(read_image_file(path)[:, :, ::-1])
+
+    def frames(self):
+        """Every frame in order, (position, RGB image): a video decoded straight through."""
+        if self.review.kind == "folder":
+            for t in range(len(self.review.names)):
+                yield t, self[t]
+            return
+        for frame in self._frames.frames(0):
+            if frame.position >= len(self.review.names):
+                return
+            yield frame.position, frame.image
+
+    def close(self) -> None:
+        """Stop the decoding: at once between frames; one decoding its way to a frame far into a long video
+        cannot be stopped midway and is left to end with the process (a daemon thread), after 5 s."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> "FrameImages":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _video_rate(review: RunReview) -> float | None:
+    """The frames per second of a review's video, every chosen frame counted (None: a folder, or a video
+    that does not say)."""
+    import av
+
+    if review.kind != "video":
+        return None
+    try:
+        with av.open(str(review.source), metadata_errors="ignore") as container:
+            rate = container.streams.video[0].average_rate
+    except (av.FFmpegError, IndexError):
+        return None
+    every = int((review.selection or {}).get("every", 1))
+    return float(rate) / every if rate else None
+
+
+def _encoder() -> str:
+    """H.264 (libx264) where this FFmpeg has it, else MPEG-4 part 2 (FFmpeg's own ``mpeg4``)."""
+    import av
+
+    try:
+        av.codec.Codec("libx264", "w")
+    except (av.FFmpegError, ValueError):
+        return "mpeg4"
+    return "libx264"
+
+
+def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | None = None) -> int:
+    """Every frame of ``review`` with its labels drawn over it (:func:`overlay`) as an MP4 at ``path``
+    (H.264; written to a temporary file beside it, then renamed); frames of odd size are padded by a
+    pixel. ``fps``: frames per second (default: a video's own rate, divided by the run's ``--every``;
+    10 for a folder). The source is read straight through, once. Returns the number of frames written."""
+    import os
+    import tempfile
+    from fractions import Fraction
+
+    import av
+
+    from ._runner import progress
+
+    fps = fps or _video_rate(review) or 10.0
+    codec = _encoder()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.mp4", dir=path.parent)
+    os.close(fd)
+    n = 0
+    images = FrameImages(review)  # no thread: a video is read through frames()
+    try:
+        with av.open(tmp, "w", format="mp4") as container, \
+                progress(total=len(review.names), desc="frames", disable=None) as bar:
+            stream = None
+            for t, image in images.frames():
+                drawn = read_overlay(review, t, image)
+                h, w = drawn.shape[:2]
+                if stream is None:
+                    stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1000))
+                    stream.width, stream.height = w + w % 2, h + h % 2
+                    stream.pix_fmt = "yuv420p"
+                    if codec == "libx264":
+                        stream.options = {"crf": "20", "preset": "veryfast"}
+                    else:
+                        stream.bit_rate = max(1_000_000, int(w * h * fps))  # a bit a pixel a frame
+                if (h + h % 2, w + w % 2) != (stream.height, stream.width):
+                    raise InputError(f"{review.source}: frame {review.names[t]} is {w}x{h}, the first {stream.width}x{stream.height}")
+                if w % 2 or h % 2:
+                    drawn = np.pad(drawn, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+                for packet in stream.encode(av.VideoFrame.from_ndarray(drawn, format="rgb24")):
+                    container.mux(packet)
+                n += 1
+                bar.update(1)
+            if stream is not None:
+                for packet in stream.encode():
+                    container.mux(packet)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    finally:
+        images.close()
+    return n

@@ -1,0 +1,366 @@
+"""``pcreg view RUN_OUT --web`` and ``--overlay FILE.mp4``: a real ``pcreg run`` reviewed.
+
+A run of five synthetic frames with --confidence (from a folder, and from a video): what the review reads
+of its folder (frames, key frames, predicted errors, suggest.txt), the overlay drawn (colours, unknown
+clear, unsure labels hatched), the page's server (loopback only, its images, nothing else served), the
+page itself in headless Chromium (frame 0 with the key frame marked, the slider and the arrow keys move
+the frame and its picture, one plot point per frame that is not a key, suggest.txt's frames listed and
+leading there), and the overlay video (as many frames as the run, of the frames' size).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from _browser import listening
+from _events import until
+from _view import one_line_error, pcreg_view
+
+N = 5
+
+
+def _run(root, source, key_labels):
+    out = root / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(source), "--labels", str(key_labels), "--out", str(out), "--confidence"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    return pcreg.synthetic("syn1a", N, 0, width=160, height=120)
+
+
+@pytest.fixture(scope="module")
+def run_out(tmp_path_factory, synthetic):
+    """A real ``pcreg run`` of five synthetic frames (PNGs in a folder) with --confidence."""
+    root = tmp_path_factory.mktemp("review")
+    (root / "frames").mkdir()
+    for i, f in enumerate(synthetic):
+        cv2.imwrite(str(root / "frames" / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(root / "key.png"), synthetic[0].labels)
+    return _run(root, root / "frames", root / "key.png")
+
+
+@pytest.fixture(scope="module")
+def video_out(tmp_path_factory, synthetic):
+    """The same frames as an MP4 video (12 frames a second), run the same way."""
+    root = tmp_path_factory.mktemp("review-video")
+    writer = cv2.VideoWriter(str(root / "clip.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 12, (160, 120))
+    for f in synthetic:
+        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
+    writer.release()
+    cv2.imwrite(str(root / "key.png"), synthetic[0].labels)
+    return _run(root, root / "clip.mp4", root / "key.png")
+
+
+@pytest.fixture
+def run_copy(run_out, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(run_out, out)
+    return out
+
+
+def _steps(out):
+    return [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+
+
+# -- what the review reads ----------------------------------------------------------------------------
+
+
+def test_the_review_reads_the_runs_frames_keys_and_errors(run_copy):
+    from pcreg.review import read_review
+
+    r = read_review(run_copy)
+    assert r.kind == "folder" and r.confidence
+    assert r.names == tuple(f"frame_{i:03d}.png" for i in range(N))
+    assert r.keys == frozenset({0})
+    steps = _steps(run_copy)
+    assert r.errors == (None, *(s["predicted_error"] for s in steps))
+    assert r.suggested == ()
+    assert r.confidence_path(0) is None and r.confidence_path(1) == run_copy / "confidence" / "frame_001.png"
+    # suggest.txt: a name or a stem, an optional error after a tab; names not in the run passed over
+    (run_copy / "suggest.txt").write_text("frame_003.png\t12.5\nframe_001\n# a comment\nnot_a_frame\t3\n\n")
+    assert read_review(run_copy).suggested == ((3, 12.5), (1, None))
+    # several key frames: named in run.json, or a frame without a line in steps.jsonl
+    state = json.loads((run_copy / "run.json").read_text())
+    (run_copy / "run.json").write_text(json.dumps({**state, "key_frames": ["frame_002.png"]}))
+    (run_copy / "steps.jsonl").write_text("".join(json.dumps(s) + "\n" for s in steps if s["name"] != "frame_004.png"))
+    r = read_review(run_copy)
+    assert r.keys == frozenset({0, 2, 4})
+    assert [e is None for e in r.errors] == [True, False, True, False, True]
+
+
+def test_a_video_runs_frames_are_named_by_index(video_out):
+    from pcreg.review import read_review
+
+    r = read_review(video_out)
+    assert r.kind == "video" and r.names == tuple(f"{i:06d}" for i in range(N)) and r.keys == frozenset({0})
+
+
+def test_bad_run_folders_are_one_line(run_copy, tmp_path, capsys):
+    state = json.loads((run_copy / "run.json").read_text())
+    (run_copy / "run.json").write_text(json.dumps({**state, "run": {**state["run"], "folder": str(tmp_path / "gone")}}))
+    assert pcreg_view([str(run_copy), "--web"]) == 2
+    assert "is gone" in one_line_error(capsys)
+    (run_copy / "run.json").write_text(json.dumps(state))
+    (run_copy / "steps.jsonl").write_text("{not json\n")
+    assert pcreg_view([str(run_copy), "--web"]) == 2
+    assert "steps.jsonl: unreadable" in one_line_error(capsys)
+    assert pcreg_view([str(run_copy)]) == 2
+    assert "--web" in one_line_error(capsys)
+    assert pcreg_view([str(run_copy), "--web", "--overlay", str(tmp_path / "o.mp4")]) == 2
+    assert "choose one" in one_line_error(capsys)
+    assert pcreg_view([str(run_copy), "--overlay", str(tmp_path / "o.avi")]) == 2
+    assert "name it .mp4" in one_line_error(capsys)
+
+
+# -- the overlay ---------------------------------------------------------------------------------------
+
+
+def test_the_overlay_colours_labels_and_hatches_unsure_ones():
+    from pcreg.review import ALPHA, COLOURS, overlay
+
+    image = np.full((16, 24, 3), 100, np.uint8)
+    labels = np.zeros((16, 24), np.uint8)
+    labels[:, 8:16] = 1
+    labels[:, 16:] = 2
+    conf = np.full((16, 24), 255, np.uint8)
+    conf[8:] = 100  # 0.39: below 0.7
+    drawn = overlay(image, labels, conf)
+    assert drawn.shape == image.shape and drawn.dtype == np.uint8 and (image == 100).all()
+    for k, cols in ((0, slice(0, 8)), (1, slice(8, 16))):
+        want = np.floor((1 - ALPHA) * 100 + ALPHA * np.array(COLOURS[k]) + 0.5)
+        assert (drawn[:8, cols] == want).all(), k
+    assert (drawn[:, 16:] == 100).all()  # unknown: clear, and never hatched
+    low = drawn[8:, :16].astype(int)
+    assert (low.sum(axis=2) < drawn[:8, :16].sum(axis=2).min()).any()  # dark hatching where unsure
+    assert (low == drawn[:8, :16]).all(axis=2).any()  # between the hatch lines, the colour as where sure
+    keyed = overlay(image, labels, key=True)
+    assert tuple(keyed[0, 0]) == (59, 130, 246) and (keyed[8, 8] == drawn[0, 8]).all()
+
+
+# -- the page's server ---------------------------------------------------------------------------------
+
+
+def _get(url):
+    with urllib.request.urlopen(url, timeout=30) as r:
+        return r.headers.get("Content-Type"), r.read()
+
+
+@pytest.mark.parametrize("which", ["run_out", "video_out"])
+def test_the_server_renders_each_frame_on_request(which, request):
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import CACHE, read_review
+
+    out = request.getfixturevalue(which)
+    review = read_review(out)
+    with ReviewServer(review, web_port=0) as server:
+        assert listening(server.port) == ["0100007F"]
+        _, body = _get(server.url + "review.json")
+        data = json.loads(body)
+        assert [f["name"] for f in data["frames"]] == list(review.names)
+        assert [f["key"] for f in data["frames"]] == [True] + [False] * (N - 1)
+        assert data["confidence"] is True and data["suggested"] == []
+        shots = {}
+        for t in (N - 1, 0, 2):  # out of order: a video's frame waits for the decoding to reach it
+            for what in ("overlay", "frame"):
+                ctype, jpg = _get(server.url + f"{what}/{t}.jpg")
+                img = cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR)
+                assert ctype == "image/jpeg" and img.shape == (120, 160, 3), (what, t)
+                shots[what, t] = img.astype(int)
+        assert np.abs(shots["overlay", 2] - shots["frame", 2]).mean() > 10  # the labels are drawn
+        assert np.abs(shots["overlay", 2] - shots["overlay", 0]).mean() > 1
+        _, page = _get(server.url)
+        assert b"review.js" in page
+        for bad in (f"overlay/{N}.jpg", "overlay/-1.jpg", "overlay/x.jpg", "frame/../run.json", "run.json",
+                    "viz/../pcreg", "files/run.json"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(server.url + bad, timeout=30)
+            assert e.value.code == 404, bad
+    if which == "video_out":
+        cached = list((out / CACHE).iterdir())
+        assert len(cached) == 1 and sorted(p.name for p in cached[0].iterdir()) == [f"{i:06d}.jpg" for i in range(N)]
+
+
+# -- the page in a browser -----------------------------------------------------------------------------
+
+SHOWN_JS = "document.body.dataset.shown || ''"
+IMG_JS = "(() => { const r = document.getElementById('overlay').getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()"
+
+
+@pytest.mark.slow
+def test_the_review_page_in_a_browser(run_copy, tmp_path):
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    (run_copy / "suggest.txt").write_text("frame_003.png\t12.5\nframe_001.png\n")
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(run_copy), "--web", "--web-port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+    port = None
+    try:
+        url = None
+        for line in proc.stdout:
+            if line.startswith("http://"):
+                url = line.strip()
+                break
+        assert url and url.startswith("http://127.0.0.1:"), (url, proc.stderr.read() if proc.poll() is not None else "")
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        assert listening(port) == ["0100007F"]
+        with Browser(width=1400, height=800) as browser:
+            browser.open(url)
+
+            def ev(expr):
+                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+
+            def picture():
+                x, y, w, h = (int(v) for v in ev(IMG_JS))
+                return browser.screenshot()[y:y + h, x:x + w].astype(int)
+
+            def key(name, code):
+                for kind in ("keyDown", "keyUp"):
+                    browser.call("Input.dispatchKeyEvent", session=True, type=kind, key=name, code=name,
+                                 windowsVirtualKeyCode=code)
+
+            # frame 0, the key frame, marked as one
+            until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
+            assert ev("document.body.dataset.loaded") == "1"
+            assert ev("document.getElementById('frame-tag').hidden") is False
+            assert ev("document.getElementById('frame-tag').textContent") == "key frame"
+            assert ev("document.getElementById('frame-name').textContent").startswith("frame_000.png")
+            assert ev("Array.from(document.querySelectorAll('#keys li')).map(li => li.textContent)") == ["frame_000.png"]
+            first = picture()
+            # the slider moves to frame 2: its picture and the plot's cursor follow
+            ev("(() => { const s = document.getElementById('slider'); s.value = '2'; s.dispatchEvent(new Event('input')); })()")
+            until(lambda: ev(SHOWN_JS) == "/overlay/2.jpg", what="frame 2 shown", alive=proc, bound=60)
+            assert ev("document.getElementById('frame-tag').hidden") is True
+            steps = _steps(run_copy)
+            assert ev("document.getElementById('frame-error').textContent") == f"predicted error {steps[1]['predicted_error']:.1f} %"
+            assert ev("document.querySelector('circle.point.current').dataset.frame") == "2"
+            ok = until(lambda: np.abs(picture() - first).mean() > 1, what="the picture changing", alive=proc, bound=60)
+            assert ok
+            # the arrow keys step through frames
+            key("ArrowRight", 39)
+            until(lambda: ev(SHOWN_JS) == "/overlay/3.jpg", what="frame 3 shown", alive=proc, bound=60)
+            key("ArrowLeft", 37)
+            key("ArrowLeft", 37)
+            until(lambda: ev(SHOWN_JS) == "/overlay/1.jpg", what="frame 1 shown", alive=proc, bound=60)
+            # one plot point per frame that is not a key frame, at its predicted error; a click goes there
+            points = ev("Array.from(document.querySelectorAll('#plot circle.point')).map(c => Number(c.dataset.frame))")
+            assert points == [1, 2, 3, 4]
+            ev("document.querySelector('#plot circle.point[data-frame=\"4\"]').dispatchEvent(new MouseEvent('click', {bubbles: true}))")
+            until(lambda: ev(SHOWN_JS) == "/overlay/4.jpg", what="frame 4 shown", alive=proc, bound=60)
+            # suggest.txt's frames listed in its order; choosing one goes there
+            assert ev("document.getElementById('suggest-card').hidden") is False
+            assert ev("Array.from(document.querySelectorAll('#suggested li')).map(li => li.textContent)") == [
+                "frame_003.png predicted error 12.5 %", "frame_001.png"]
+            ev("document.querySelectorAll('#suggested a')[0].click()")
+            until(lambda: ev(SHOWN_JS) == "/overlay/3.jpg", what="frame 3 shown", alive=proc, bound=60)
+            assert ev("document.getElementById('frame-tag').textContent") == "suggested"
+            assert "confidence below 70 %" in ev("document.getElementById('legend').textContent")
+            shot = browser.screenshot()
+            cv2.imwrite(str(tmp_path / "review.png"), shot)
+            print("review page screenshot:", tmp_path / "review.png")
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(timeout=30)
+        proc.stdout.close()
+        proc.stderr.close()
+    assert code == 130
+    assert port is None or not listening(port)
+
+
+# -- the overlay as a video ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("which, encoder, fps", [("run_out", None, None), ("video_out", None, None),
+                                                 ("run_out", "mpeg4", "5")])
+def test_the_overlay_video_has_every_frame(which, encoder, fps, request, tmp_path, capsys, monkeypatch):
+    import av
+
+    import pcreg.review
+
+    if encoder is not None:  # FFmpeg's own MPEG-4 encoder, where there is no libx264
+        monkeypatch.setattr(pcreg.review, "_encoder", lambda: encoder)
+    out = request.getfixturevalue(which)
+    video = tmp_path / "sub" / "overlay.mp4"
+    assert pcreg_view([str(out), "--overlay", str(video), *(["--fps", fps] if fps else [])]) == 0
+    assert f"wrote {video}: {N} frame(s)" in capsys.readouterr().out
+    with av.open(str(video)) as container:
+        stream = container.streams.video[0]
+        assert stream.codec_context.name == (encoder or "h264")
+        assert float(stream.average_rate) == float(fps or (12 if which == "video_out" else 10))  # the video's own, or 10
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    assert len(frames) == N and all(f.shape == (120, 160, 3) for f in frames)
+    # what the page shows, up to the video's compression
+    from pcreg.review import FrameImages, read_overlay, read_review
+
+    review = read_review(out)
+    with FrameImages(review, tmp_path / "cache") as images:
+        drawn = read_overlay(review, 2, images[2]).astype(int)
+    assert np.abs(frames[2].astype(int) - drawn).mean() < 8
+    assert pcreg_view([str(out), "--overlay", str(video)]) == 2
+    assert "exists" in one_line_error(capsys)
+    assert not list(video.parent.glob(".*.tmp*"))
+
+
+def test_a_videos_frames_are_decoded_where_asked_and_all_kept(tmp_path, monkeypatch):
+    """A frame asked for far ahead of the decoding is started at (the frames before it decoded, not
+    converted), and those passed over are filled in afterwards: every frame cached is its own frame."""
+    import threading
+
+    from pcreg.datasets.sources import VideoFrames
+    from pcreg.review import FrameImages, RunReview
+
+    n = 40
+    video = tmp_path / "count.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
+    for t in range(n):  # frame t is grey 6 t
+        writer.write(np.full((120, 160, 3), 6 * t, np.uint8))
+    writer.release()
+    straight = [float(f.image.mean()) for f in VideoFrames(video).frames()]  # the frames decoded in order
+    names = tuple(f"{t:06d}" for t in range(n))
+    review = RunReview(tmp_path, video, "video", names, names, frozenset({0}), (None,) * n, (), False)
+    gate, starts = threading.Event(), []
+    original = VideoFrames.frames
+
+    def frames(self, first=0):  # the decoding's starts recorded; its first held until a frame is asked for
+        starts.append(first)
+        if len(starts) == 1:
+            gate.wait()
+        yield from original(self, first)
+
+    monkeypatch.setattr(VideoFrames, "frames", frames)
+    with FrameImages(review, tmp_path / "cache") as images:
+        got = {}
+        asker = threading.Thread(target=lambda: got.setdefault(30, images[30]))
+        asker.start()
+        until(lambda: images._wanted == 30, what="frame 30 asked for", alive=asker)
+        gate.set()
+        asker.join()
+        until(lambda: all(images._have), what="every frame cached", alive=images._thread)
+    assert starts[:3] == [0, 30, 1], starts
+    assert abs(float(got[30].mean()) - straight[30]) < 1.5
+    assert sorted(p.name for p in (tmp_path / "cache").iterdir()) == [f"{t:06d}.jpg" for t in range(n)]
+    with FrameImages(review, tmp_path / "cache") as again:  # all cached: nothing decoded
+        for t in range(n):
+            assert np.argmin([abs(float(again[t].mean()) - m) for m in straight]) == t, t
+    assert len(starts) == 3

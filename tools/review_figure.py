@@ -1,0 +1,87 @@
+"""docs/figures/review_page.png: the review page of a ``pcreg run`` over the 60 frames of CamVid 0016E5.
+
+    python tools/review_figure.py --data ../shared/data --out out/review_figure
+
+The run labels every frame from the first one's CamVid labels (``--mapping camvid --confidence``);
+suggest.txt holds the three frames :func:`pcreg.pipeline.keyframes.suggest` picks from the predicted
+errors; the page (``pcreg view OUT --web``) is shown at frame 29 in headless Chromium (tests/_browser.py)
+and stored with a palette (small).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def small_png(src: Path, dst: Path, *, width: int = 1100) -> None:
+    """``src`` scaled to ``width`` with a palette of 256 colours (octree: the page's few accent colours kept)."""
+    from PIL import Image
+
+    img = Image.open(src).convert("RGB")
+    if img.width > width:
+        img = img.resize((width, round(img.height * width / img.width)), Image.LANCZOS)
+    img.quantize(colors=256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(dst, optimize=True)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
+    ap.add_argument("--out", default="out/review_figure")
+    ap.add_argument("--figure", default=str(ROOT / "docs" / "figures" / "review_page.png"))
+    args = ap.parse_args()
+    clip = Path(args.data) / "camvid" / "0016E5"
+    images = sorted((clip / "images").glob("*.png"))
+    if not images:
+        sys.exit(f"no CamVid clip at {clip} (give --data)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    run = out / "0016E5"
+    subprocess.run([sys.executable, "-m", "pcreg.cli", "run", str(clip / "images"), "--labels",
+                    str(clip / "labels" / images[0].name), "--mapping", "camvid", "--out", str(run), "--confidence",
+                    "--force"], check=True, env=env)
+
+    sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+    from _browser import Browser
+    from pcreg.pipeline.keyframes import suggest
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    steps = [json.loads(line) for line in (run / "steps.jsonl").read_text().splitlines()]
+    predicted = {s["frame"]: s["predicted_error"] for s in steps}
+    names = {s["frame"]: s["name"] for s in steps}
+    picks = suggest(predicted, [0], 3, len(steps) + 1)
+    (run / "suggest.txt").write_text("".join(f"{names[t]}\t{predicted[t]:.2f}\n" for t in picks))
+    shot = out / "review_page.png"
+    with ReviewServer(read_review(run), web_port=0) as server, Browser(width=1400, height=760) as browser:
+        browser.open(server.url + "#29")
+
+        def shown() -> bool:
+            answer = browser.call("Runtime.evaluate", session=True, returnByValue=True,
+                                  expression="document.body && document.body.dataset.shown")
+            return answer["result"].get("value") == "/overlay/29.jpg"
+
+        for _ in range(600):  # the page draws the frame it opens on
+            if shown():
+                break
+            time.sleep(0.1)
+        else:
+            sys.exit("the review page did not show frame 29")
+        import cv2  # captureScreenshot waits for the next frame drawn, the loaded picture in it
+
+        cv2.imwrite(str(shot), browser.screenshot())
+    small_png(shot, Path(args.figure))
+    print(f"{args.figure}: {Path(args.figure).stat().st_size // 1024} kB", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -31,6 +31,41 @@ from .viewer import ViewerError, check_bind, free_port, port_free, serve_web, st
 __all__ = ["ReportServer", "viz_dir"]
 
 
+class QuietHandler(BaseHTTPRequestHandler):
+    """What pcreg's local pages share: no line per request on the terminal, one way to answer (``HEAD``
+    as ``GET`` without the body) and a file served with its type."""
+
+    def log_message(self, *args) -> None:  # no line per request on the terminal
+        pass
+
+    def _send(self, status: int, ctype: str, body: bytes, headers: dict | None = None, cache: bool = False) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "max-age=60" if cache else "no-store")
+        for k, v in (headers or {}).items():
+            self.send_header(k, v)
+        self.end_headers()
+        if self.command != "HEAD":
+            self.wfile.write(body)
+
+    def do_HEAD(self) -> None:
+        self.do_GET()
+
+    def do_GET(self) -> None:  # each page's own
+        self._send(404, "text/plain", b"not found\n")
+
+    def _file(self, p: Path) -> None:
+        try:
+            body = p.read_bytes()
+        except OSError:
+            return self._send(404, "text/plain", b"not found\n")
+        ctype = mimetypes.guess_type(p.name)[0] or "application/octet-stream"
+        if ctype.startswith("text/") or ctype in ("application/javascript", "application/json"):
+            ctype += "; charset=utf-8"
+        self._send(200, ctype, body)
+
+
 def viz_dir() -> Path:
     """The report page's static files: ``pcreg/_viz`` in an installed wheel, ``viz/`` in a source checkout."""
     here = Path(__file__).resolve().parent.parent
@@ -128,24 +163,7 @@ class ReportServer:
         static = {f.name: f for f in self._static.iterdir() if f.is_file()}
         files = {n: server.folder / n for n in (*server.data.get("figures", []), *server.data.get("files", []))}
 
-        class Handler(BaseHTTPRequestHandler):
-            def log_message(self, *args) -> None:  # no line per request on the terminal
-                pass
-
-            def _send(self, status: int, ctype: str, body: bytes, headers: dict | None = None) -> None:
-                self.send_response(status)
-                self.send_header("Content-Type", ctype)
-                self.send_header("Content-Length", str(len(body)))
-                self.send_header("Cache-Control", "no-store")
-                for k, v in (headers or {}).items():
-                    self.send_header(k, v)
-                self.end_headers()
-                if self.command != "HEAD":
-                    self.wfile.write(body)
-
-            def do_HEAD(self) -> None:
-                self.do_GET()
-
+        class Handler(QuietHandler):
             def do_GET(self) -> None:
                 path = self.path.split("?", 1)[0].split("#", 1)[0]
                 try:
@@ -162,16 +180,6 @@ class ReportServer:
                     self._send(404, "text/plain", b"not found\n")
                 except (BrokenPipeError, ConnectionResetError):  # the browser went away
                     pass
-
-            def _file(self, p: Path) -> None:
-                try:
-                    body = p.read_bytes()
-                except OSError:
-                    return self._send(404, "text/plain", b"not found\n")
-                ctype = mimetypes.guess_type(p.name)[0] or "application/octet-stream"
-                if ctype.startswith("text/") or ctype in ("application/javascript", "application/json"):
-                    ctype += "; charset=utf-8"
-                self._send(200, ctype, body)
 
         return Handler
 

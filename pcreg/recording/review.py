@@ -19,13 +19,12 @@ from __future__ import annotations
 import json
 import threading
 from collections import OrderedDict
-from http.server import BaseHTTPRequestHandler
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError, PcregError
-from .report import _Server, _Server6, viz_dir
+from .report import QuietHandler, _Server, _Server6, viz_dir
 from .viewer import check_bind, free_port, port_free, url_host
 
 __all__ = ["ReviewServer"]
@@ -123,22 +122,7 @@ class ReviewServer:
         static = {f.name: f for f in self._static.iterdir() if f.is_file()}
         n = len(self.review.names)
 
-        class Handler(BaseHTTPRequestHandler):
-            def log_message(self, *args) -> None:  # no line per request on the terminal
-                pass
-
-            def _send(self, status: int, ctype: str, body: bytes, cache: bool = False) -> None:
-                self.send_response(status)
-                self.send_header("Content-Type", ctype)
-                self.send_header("Content-Length", str(len(body)))
-                self.send_header("Cache-Control", "max-age=60" if cache else "no-store")
-                self.end_headers()
-                if self.command != "HEAD":
-                    self.wfile.write(body)
-
-            def do_HEAD(self) -> None:
-                self.do_GET()
-
+        class Handler(QuietHandler):
             def do_GET(self) -> None:
                 path = self.path.split("?", 1)[0].split("#", 1)[0]
                 try:
@@ -159,18 +143,6 @@ class ReviewServer:
                     self._send(404, "text/plain", b"not found\n")
                 except (BrokenPipeError, ConnectionResetError):  # the browser went away
                     pass
-
-            def _file(self, p: Path) -> None:
-                import mimetypes
-
-                try:
-                    body = p.read_bytes()
-                except OSError:
-                    return self._send(404, "text/plain", b"not found\n")
-                ctype = mimetypes.guess_type(p.name)[0] or "application/octet-stream"
-                if ctype.startswith("text/") or ctype in ("application/javascript", "application/json"):
-                    ctype += "; charset=utf-8"
-                self._send(200, ctype, body)
 
         return Handler
 

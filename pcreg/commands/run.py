@@ -176,6 +176,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     import itertools
     import sys
 
+    from ..datasets.sources import read_ahead
     from .._runner import check_interrupted, progress
     from ..errors import InputError, OutputError
     from ..pipeline.stream_run import STATE, StreamRun
@@ -204,7 +205,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     done = start
     with open_recorder(args, name=f"run {args.folder}") as rec, \
             progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar:
-        for frame in todo:
+        for frame in read_ahead(todo):  # the next frame decoded while this one is labelled
             check_interrupted()
             t = frame.position
             try:

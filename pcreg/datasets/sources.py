@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "VIDEO_SUFFIXES"]
+__all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES"]
 
 #: The video files pcreg reads (by suffix, any case); what the file holds is checked by FFmpeg's demuxer.
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".avi", ".mkv", ".mov")
@@ -271,3 +271,48 @@ def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderF
     if p.exists() and not p.is_dir():
         raise InputError(f"{p}: not a folder or a video file ({', '.join(VIDEO_SUFFIXES)})")
     return FolderFrames(p, selection)
+
+
+def read_ahead(frames: Iterator[SourceFrame]) -> Iterator[SourceFrame]:
+    """``frames`` as they come, the next one read and decoded on a thread of its own while the caller
+    works on this one (a 640x480 PNG takes about 14 ms to decode; PyAV and OpenCV release the GIL while
+    they decode). An error reading a frame comes out where that frame would have; closing this
+    iterator (the caller stops, or is interrupted) stops the thread after the frame it holds."""
+    import queue
+    import threading
+
+    box: queue.Queue = queue.Queue(maxsize=1)
+    stop = threading.Event()
+
+    def work() -> None:
+        try:
+            for frame in frames:
+                box.put(("frame", frame))
+                if stop.is_set():
+                    return
+            box.put(("end", None))
+        except BaseException as exc:  # handed to the caller, who raises it in its own thread
+            box.put(("error", exc))
+        finally:
+            close = getattr(frames, "close", None)
+            if close is not None:
+                close()
+
+    reader = threading.Thread(target=work, name="pcreg-read-ahead", daemon=True)
+    reader.start()
+    try:
+        while True:
+            kind, item = box.get()
+            if kind == "frame":
+                yield item
+            elif kind == "error":
+                raise item
+            else:
+                return
+    finally:
+        stop.set()
+        try:  # a slot for the frame the reader may be putting, so that it sees the stop
+            box.get_nowait()
+        except queue.Empty:
+            pass
+        reader.join()

@@ -217,7 +217,8 @@ class DenseEstimator:
 
 class FlowEstimator:
     """OpenCV's DIS optical flow (:func:`pcreg.registration.flow.dis_field`) at ``preset``: a field with no
-    evidence of its own, never refused."""
+    evidence of its own, never refused. A reference :meth:`prepare`\ d once (its grey levels and the
+    pixel grid) is not converted again for every frame; the fields are the same."""
 
     def __init__(self, preset: str = "medium") -> None:
         from ..registration.flow import PRESETS
@@ -226,7 +227,28 @@ class FlowEstimator:
             raise InputError(f"unknown DIS preset {preset!r}; choose one of {', '.join(PRESETS)}")
         self.preset = preset
 
-    def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
-        from ..registration.flow import dis_field
+    def prepare(self, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The reference's grey levels and its pixel grid's x and y (float32), for :meth:`estimate`."""
+        import cv2
 
-        return Estimate(Motion(field=dis_field(reference, image, preset=self.preset)[0]))
+        from ..registration.clouds import as_rgb_uint8
+
+        grey = cv2.cvtColor(as_rgb_uint8(reference, name="reference image"), cv2.COLOR_RGB2GRAY)
+        h, w = grey.shape
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        for a in (grey, xs, ys):
+            a.setflags(write=False)
+        return grey, xs, ys
+
+    def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
+        """The flow from ``image`` to the reference; with ``prepared`` (:meth:`prepare` of the reference)
+        ``image`` must be an (H, W, 3) uint8 RGB frame of its size, already checked."""
+        import cv2
+
+        from ..registration.flow import PRESETS, dis_field
+
+        if prepared is None:
+            return Estimate(Motion(field=dis_field(reference, image, preset=self.preset)[0]))
+        grey, xs, ys = prepared
+        flow = cv2.DISOpticalFlow_create(PRESETS[self.preset]).calc(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), grey, None)
+        return Estimate(Motion(field=np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)))

@@ -90,7 +90,7 @@ import numpy as np
 from .._threads import beside, wait_quietly
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
-from .estimators import STREAM_DENSE, Carry, DenseEstimator, DenseStep, GlobalEstimator
+from .estimators import STREAM_DENSE, Carry, DenseEstimator, DenseStep, FlowEstimator, GlobalEstimator
 from .learning import STREAM_LEARNING, Learner, Learning
 from .prior import class_prior, fused_labels, prior_on_moving
 from .trust import STREAM_TRUST, TrustMaps, TrustRule, predicted_error
@@ -250,6 +250,8 @@ class Propagator:
         self._learner: Learner | None = None
         self._key_blurred: np.ndarray | None = None
         self._key_log_odds: np.ndarray | None = None
+        self._flow = FlowEstimator("ultrafast" if trust is None else trust.preset)
+        self._key_flow: tuple | None = None
         self._pi = class_prior(classifier)
         self._key_image: np.ndarray | None = None
         self._key_labels: np.ndarray | None = None
@@ -287,6 +289,7 @@ class Propagator:
             from .trust import blurred
 
             self._key_blurred = blurred(img)
+            self._key_flow = self._flow.prepare(img)
             self._key_log_odds = prior_log_odds(self._key_prior, pi=self._pi)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         self._key_prepared = None
@@ -352,7 +355,6 @@ class Propagator:
         that uses it, the DIS field from the frame to the key frame, the key frame's prior carried along
         it and its residual (:mod:`pcreg.pipeline.trust`): all that needs no registration."""
         from ..classification.bayes import NaiveBayesPixelClassifier
-        from ..registration.flow import dis_field
         from .pair import log_odds
         from .trust import blurred, carried_log_odds, carried_residual
 
@@ -367,7 +369,7 @@ class Propagator:
         if self.trust is not None:
             out.frame_blurred = blurred(img)
             if self.trust.flow > 0:
-                out.flow = dis_field(self._key_image, img, preset=self.trust.preset)[0]
+                out.flow = self._flow.estimate(self._key_image, img, prepared=self._key_flow).result.field
                 out.flow_prior = carried_log_odds(self._key_log_odds, out.flow)
                 out.flow_residual = carried_residual(self._key_blurred, out.frame_blurred, out.flow)
         t3 = time.perf_counter()

@@ -4,15 +4,15 @@ Three measurements, each ``pcreg run`` as a subprocess (its peak resident memory
 
 - **accuracy**: a CamVid clip (``--clip``, its first ``--frames``) written to an MP4 file with OpenCV's
   writer (``mp4v``, lossy), run from the file and from the folder, both scored against the clip's truth
-  labels (the video's through ``--truth`` with the maps linked as ``{i:06d}.png``); the floor: the video's
+  labels (the video's through ``--truth`` with the maps linked as ``{i:06d}.png``); the target: the video's
   error within 0.5 points of the folder's;
 - **memory**: the clip resized to 640x480 and played forwards and backwards into a ``--long`` frame and a
   ``--short`` frame video, each run with ``--every STRIDE`` (every frame decoded, one in ``--stride``
-  labelled; 1, every frame, by default); the floor: the long run's peak memory within 10% of the short run's;
+  labelled; 1, every frame, by default); the target: the long run's peak memory within 10% of the short run's;
 - **speed**: the first ``--speed-frames`` frames of the 640x480 video against the same frames written
   as PNG files (decoded from the video, so the pixels are the same), run alternately ``--repeats``
   times each; the loop's frame rate from the label PNGs' modification times (start-up left out); the
-  floor: the video at no less than 0.9x the folder's frame rate (medians).
+  target: the video at no less than 0.9x the folder's frame rate (medians).
 
     python tools/bench_video.py --out out/bench --work /tmp/bench-video
 

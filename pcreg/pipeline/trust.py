@@ -53,7 +53,7 @@ CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-5.001, 0.648, -2.302, 6.542, 3.33
 
 #: The least confidence a label gets: it is the likelier of two classes. The logistic model's low end
 #: over-predicts errors there (labels it gave 0.1-0.4 were right 39-45% of the time on the shared
-#: clips); with this floor the expected calibration error over the clips, each left out, fell from
+#: clips); with this least value the expected calibration error over the clips, each left out, fell from
 #: 0.0074 to 0.0038, and the order of the pixels by confidence is the same.
 MIN_CONFIDENCE = 0.5
 

@@ -1,8 +1,8 @@
-"""List what breaks pcreg's structure floors, read from the sources with ``ast``.
+"""List what breaks pcreg's structure targets, read from the sources with ``ast``.
 
-    python tools/check_floors.py [pcreg]      # one line per finding; exit status 1 when there is any
+    python tools/check_structure.py [pcreg]      # one line per finding; exit status 1 when there is any
 
-The floors: no file over 600 lines, no function over 80; no public function or constructor (a dataclass's
+The targets: no file over 600 lines, no function over 80; no public function or constructor (a dataclass's
 fields count as its constructor's parameters) over 12 parameters; no module-level mutable state (a
 module-level dict, list or set that a function changes, a ``global`` statement, an ``lru_cache`` /
 ``cache``). Module-level state a module documents as one per process is listed too: a line to read,

@@ -217,8 +217,8 @@ class DenseEstimator:
 
 class FlowEstimator:
     """OpenCV's DIS optical flow (:func:`pcreg.registration.flow.dis_field`) at ``preset``: a field with no
-    evidence of its own, never refused. A reference :meth:`prepare`\ d once (its grey levels and the
-    pixel grid) is not converted again for every frame; the fields are the same."""
+    evidence of its own, never refused. A reference prepared once (:meth:`prepare`: its grey levels and
+    the pixel grid) is not converted again for every frame; the fields are the same."""
 
     def __init__(self, preset: str = "medium") -> None:
         from ..registration.flow import PRESETS

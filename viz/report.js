@@ -4,17 +4,7 @@
 // control API (WebHandle.viewer_control, which takes an encoded ViewerControlRequest).
 "use strict";
 
-const $ = (id) => document.getElementById(id);
-const el = (tag, attrs = {}, ...children) => {
-  const e = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (k === "class") e.className = v;
-    else if (k === "text") e.textContent = v;
-    else e.setAttribute(k, v);
-  }
-  for (const c of children) e.append(c);
-  return e;
-};
+// $ and el: viz/common.js
 
 // -- the viewer's control messages (protobuf, rerun.viewer_control.v1alpha1) ----------------------
 

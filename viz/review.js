@@ -3,17 +3,7 @@
 // marked, the predicted error per frame as a plot (click a point to go there) and the suggested frames.
 "use strict";
 
-const $ = (id) => document.getElementById(id);
-const el = (tag, attrs = {}, ...children) => {
-  const e = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (k === "class") e.className = v;
-    else if (k === "text") e.textContent = v;
-    else e.setAttribute(k, v);
-  }
-  for (const c of children) e.append(c);
-  return e;
-};
+// $ and el: viz/common.js
 const SVG = "http://www.w3.org/2000/svg";
 const svg = (tag, attrs = {}) => {
   const e = document.createElementNS(SVG, tag);

@@ -70,7 +70,7 @@ def read_run(folder: str | Path) -> RunLabels:
     Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json`` (not a run's output), one
     that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
     """
-    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS
+    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -80,19 +80,18 @@ def read_run(folder: str | Path) -> RunLabels:
         raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
     try:
         state = json.loads(state_path.read_text(encoding="utf-8"))
-        key, done = str(state["key_frame"]), int(state["done"])
-    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError):
+        if not isinstance(state, dict):
+            raise TypeError("not an object")
+    except (OSError, ValueError, TypeError, UnicodeDecodeError):
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
-    names = [key]
     steps_path = folder / STEPS
-    if done > 1:
-        try:
-            lines = steps_path.read_bytes().splitlines()[:done - 1]
-            names += [str(json.loads(line)["name"]) for line in lines]
-        except (OSError, ValueError, KeyError, TypeError):
-            raise InputError(f"{steps_path}: missing or unreadable") from None
-        if len(names) != done:
-            raise InputError(f"{steps_path}: {len(names) - 1} steps for {done - 1} labelled frames")
+    try:
+        lines = steps_path.read_bytes().splitlines() if steps_path.is_file() else []
+        keys, names = run_frames(state, [ln for ln in lines if ln.strip()])
+    except (KeyError, TypeError, AttributeError):
+        raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{steps_path}: missing or unreadable ({exc})") from None
     stems = [Path(n).stem for n in names]
     if any(not s or "/" in n or "\\" in n for s, n in zip(stems, names)):
         raise InputError(f"{steps_path}: a frame name that is not a file name")
@@ -104,7 +103,7 @@ def read_run(folder: str | Path) -> RunLabels:
         if not p.is_file():
             raise InputError(f"{p}: missing (a labelled frame's label file)")
     conf_dir = folder / CONFIDENCE
-    confidence = [None] + [conf_dir / f"{s}.png" if conf_dir.is_dir() else None for s in stems[1:]]
+    confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence))
 
 

@@ -82,7 +82,7 @@ def is_run(folder: str | Path) -> bool:
         state = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError, UnicodeDecodeError):
         return False
-    return isinstance(state, dict) and isinstance(state.get("run"), dict) and "key_frame" in state
+    return isinstance(state, dict) and isinstance(state.get("run"), dict) and ("key_frame" in state or "stretches" in state)
 
 
 def read_review(folder: str | Path) -> RunReview:
@@ -92,7 +92,7 @@ def read_review(folder: str | Path) -> RunReview:
     a source that is gone, an unreadable ``steps.jsonl`` or ``suggest.txt``.
     """
     from .datasets.sources import FolderFrames, Selection, open_frames
-    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS
+    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames
 
     folder = Path(folder)
     state_path = folder / STATE
@@ -100,10 +100,17 @@ def read_review(folder: str | Path) -> RunReview:
         raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
     try:
         state = json.loads(state_path.read_text(encoding="utf-8"))
-        run, done = state["run"], int(state["done"])
+        run = state["run"]
         kind = "video" if "video" in run else "folder"
         source = Path(run[kind])
-        named = [str(state["key_frame"]), *map(str, state.get("key_frames") or [])]
+        labelled: list[str] | None = None
+        if "stretches" in state:  # a run from a folder of key frames: its keys and the steps it counted
+            steps_file = folder / STEPS
+            lines = steps_file.read_bytes().splitlines() if steps_file.is_file() else []
+            named, labelled = run_frames(state, [ln for ln in lines if ln.strip()])
+        else:
+            named, count = [str(state["key_frame"])], int(state["done"])
+        named = [*named, *map(str, state.get("key_frames") or [])]
         chosen = run.get("frames") or {}
         selection = Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
     except (OSError, ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
@@ -111,8 +118,13 @@ def read_review(folder: str | Path) -> RunReview:
     if not source.exists():
         raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there)")
     frames = open_frames(source, selection)
-    if isinstance(frames, FolderFrames):
-        done = min(done, len(frames))
+    if labelled is None:  # a run from one label image labels its frames in order
+        done = min(count, len(frames)) if isinstance(frames, FolderFrames) else count
+    else:  # stretch by stretch: the frames labelled from the first on
+        done, wanted = 0, set(labelled)
+        while done < len(labelled) and (not isinstance(frames, FolderFrames) or done < len(frames)) \
+                and frames.name(done) in wanted:
+            done += 1
     names = [frames.name(t) for t in range(done)]
     stems = [frames.stem(t) for t in range(done)]
     steps: dict[str, dict] = {}

@@ -207,3 +207,25 @@ def test_bad_labels_folders_and_options_are_refused(tmp_path, frames, folder, ca
     cv2.imwrite(str(late / "000009.png"), frames[1].labels)
     assert main(["run", str(video), "--labels", str(late), "--out", str(out)]) == 2
     assert "000009.png: names no frame" in _err(capsys)[0] and _outputs(out) == written
+
+
+def test_a_key_frames_run_is_exported_and_reviewed_like_a_one_key_run(tmp_path, folder, frames):
+    """export and the review read a run from a folder of key frames: every frame, the key frames among
+    them, in frame order."""
+    import zipfile
+
+    from pcreg.export import read_run
+    from pcreg.review import read_review
+
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "keys", frames, (0, 5))),
+                 "--out", str(out), "--confidence"]) == 0
+    run = read_run(out)
+    assert run.names == tuple(f"f{i}.png" for i in range(6))
+    assert run.confidence[0] is None and run.confidence[5] is None and run.confidence[2] is not None
+    assert main(["export", str(out), "--format", "cvat-mask"]) == 0
+    with zipfile.ZipFile(out / "export-cvat-mask.zip") as z:
+        assert sum(n.startswith("SegmentationClass/") for n in z.namelist()) == 6
+    r = read_review(out)
+    assert r.names == tuple(f"f{i}.png" for i in range(6)) and r.keys == frozenset({0, 5})
+    assert all((e is None) == (t in (0, 5)) for t, e in enumerate(r.errors))

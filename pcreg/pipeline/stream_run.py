@@ -35,7 +35,7 @@ import numpy as np
 from ..errors import InputError, OutputError
 from ..formats import NPY_HEADER_ERRORS
 
-__all__ = ["StreamRun", "STATE", "STEPS", "CARRY", "CONFIDENCE", "confidence_png"]
+__all__ = ["StreamRun", "STATE", "STEPS", "CARRY", "CONFIDENCE", "confidence_png", "run_frames"]
 
 STATE = "run.json"
 STEPS = "steps.jsonl"
@@ -184,6 +184,23 @@ def confidence_png(confidence: np.ndarray) -> np.ndarray:
     if not (np.all(np.isfinite(c)) and c.min(initial=0.0) >= 0.0 and c.max(initial=0.0) <= 1.0):
         raise AssertionError("a confidence outside [0, 1] reached the writer")
     return np.rint(c * 255.0).astype(np.uint8)
+
+
+def run_frames(state: dict, steps: list[bytes]) -> tuple[list[str], list[str]]:
+    """``(key frames, every labelled frame)`` of a run, by name, in frame order, from its run.json
+    (``state``) and the lines of its steps.jsonl: a run from one label image (its key frame, then the
+    frames it counted done) or from a folder of key frames (:mod:`pcreg.pipeline.keys_run`: its key
+    frames and the steps it counted, in name order, which is a folder's and a video's frame order).
+    Raises KeyError, TypeError or ValueError for a state or a line pcreg run did not write."""
+    if "stretches" in state:
+        keys = sorted(str(k) for k in state["keys"])
+        done = [str(json.loads(line)["name"]) for line in steps[:int(state["lines"])]]
+        return keys, sorted(set(keys) | set(done))
+    key, count = str(state["key_frame"]), int(state["done"])
+    names = [key] + [str(json.loads(line)["name"]) for line in steps[:count - 1]]
+    if len(names) != count:
+        raise ValueError(f"{len(names) - 1} steps for {count - 1} labelled frames")
+    return [key], names
 
 
 def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:

@@ -12,6 +12,7 @@ import pytest
 import pcreg
 from pcreg.cli import main
 from pcreg.classification.metrics import error_rate
+from _runs import one_line_errors, timeless
 
 
 @pytest.fixture(scope="module")
@@ -48,15 +49,7 @@ def _labels(out, name):
     return cv2.imread(str(out / f"{name}.png"), cv2.IMREAD_UNCHANGED)
 
 
-def _err(capsys) -> list[str]:
-    return capsys.readouterr().err.strip().splitlines()
-
-
-def _timeless(line: str) -> dict:
-    step = json.loads(line)
-    step.pop("times")
-    step["registration"].pop("seconds")
-    return step
+_err, _timeless = one_line_errors, timeless
 
 
 def _outputs(out) -> dict:

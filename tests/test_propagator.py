@@ -11,6 +11,7 @@ import pcreg
 from pcreg.cli import main
 from pcreg.errors import InputError
 from pcreg.registration.clouds import cloud_pyramid, image_pyramid
+from _runs import kill_before_commit
 
 
 @pytest.fixture(scope="module")
@@ -293,7 +294,6 @@ def test_run_command_bad_input(tmp_path, frames, capsys):
 
 
 def test_run_scores_against_truth_and_resumes_exactly_after_a_crash(tmp_path, frames, capsys, monkeypatch):
-    from pcreg.pipeline import stream_run
 
     src, truth = tmp_path / "frames", tmp_path / "truth"
     _write_frames(src, frames[:6])
@@ -308,16 +308,7 @@ def test_run_scores_against_truth_and_resumes_exactly_after_a_crash(tmp_path, fr
     assert "error against the truth" in capsys.readouterr().out
 
     # a crash after frame 3's PNG and step line were written, before run.json counted it
-    real = stream_run.StreamRun.record
-
-    def crash(self, t, labels, report, plain=None, **kw):
-        if t == 3:
-            import pcreg.outputs
-
-            monkeypatch.setattr(pcreg.outputs, "atomic_write_json", _raise_kill)
-        return real(self, t, labels, report, plain, **kw)
-
-    monkeypatch.setattr(stream_run.StreamRun, "record", crash)
+    kill_before_commit(monkeypatch, 3)
     assert main(base + ["--out", str(tmp_path / "cut")]) == 130
     monkeypatch.undo()
     assert json.loads((tmp_path / "cut" / "run.json").read_text())["done"] == 3
@@ -339,10 +330,6 @@ def _timeless(step: dict) -> dict:
     step.pop("times")
     step["registration"].pop("seconds")
     return step
-
-
-def _raise_kill(*args, **kwargs):
-    raise KeyboardInterrupt
 
 
 def test_run_truth_bad_input(tmp_path, frames, capsys):

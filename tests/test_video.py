@@ -14,6 +14,7 @@ import pcreg
 from pcreg.cli import main
 from pcreg.datasets.sources import Selection, VideoFrames, open_frames
 from pcreg.errors import InputError
+from _runs import kill_before_commit, one_line_errors, timeless
 
 
 @pytest.fixture(scope="module")
@@ -51,15 +52,7 @@ def _mjpeg_avi(path, images):
     return path
 
 
-def _err(capsys) -> list[str]:
-    return capsys.readouterr().err.strip().splitlines()
-
-
-def _timeless(line: str) -> dict:
-    step = json.loads(line)
-    step.pop("times")
-    step["registration"].pop("seconds")
-    return step
+_err, _timeless = one_line_errors, timeless
 
 
 def test_video_frames_are_decoded_in_order_and_chosen(tmp_path, frames):
@@ -84,7 +77,6 @@ def test_video_frames_are_decoded_in_order_and_chosen(tmp_path, frames):
 
 
 def test_run_on_a_video_names_frames_by_index_and_resumes_exactly(tmp_path, frames, capsys, monkeypatch):
-    from pcreg.pipeline import stream_run
 
     video = _write_video(tmp_path / "clip.avi", [f.image for f in frames[:6]], "MJPG")
     cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
@@ -100,16 +92,7 @@ def test_run_on_a_video_names_frames_by_index_and_resumes_exactly(tmp_path, fram
     assert "frames" not in state["run"]  # every frame: the identity names no selection
 
     # killed after frame 3's PNG and step line were written, before run.json counted it; then resumed
-    real = stream_run.StreamRun.record
-
-    def crash(self, t, labels, report, plain=None, **kw):
-        if t == 3:
-            import pcreg.outputs
-
-            monkeypatch.setattr(pcreg.outputs, "atomic_write_json", _raise_kill)
-        return real(self, t, labels, report, plain, **kw)
-
-    monkeypatch.setattr(stream_run.StreamRun, "record", crash)
+    kill_before_commit(monkeypatch, 3)
     assert main(args + ["--out", str(tmp_path / "cut")]) == 130
     monkeypatch.undo()
     cut = tmp_path / "cut"
@@ -136,10 +119,6 @@ def test_run_on_a_video_names_frames_by_index_and_resumes_exactly(tmp_path, fram
     assert main(args + ["--out", str(half), "--start", "1", "--every", "2", "--stop", "4"]) == 0
     assert sorted(p.name for p in half.glob("*.png")) == ["000001.png", "000003.png"]
     assert (half / "000003.png").read_bytes() == (picked / "000003.png").read_bytes()
-
-
-def _raise_kill(*args, **kwargs):
-    raise KeyboardInterrupt
 
 
 def test_a_folder_takes_start_stop_and_every_too(tmp_path, frames, capsys):

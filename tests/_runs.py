@@ -1,0 +1,39 @@
+"""What the tests of `pcreg run` share: its one-line errors, its steps without their clocks, and a run
+killed after a frame's files were written but before run.json counted it."""
+
+from __future__ import annotations
+
+import json
+
+
+def one_line_errors(capsys) -> list[str]:
+    """The lines the command printed on stderr."""
+    return capsys.readouterr().err.strip().splitlines()
+
+
+def timeless(line: str) -> dict:
+    """A steps.jsonl line without what differs from run to run (its clocks)."""
+    step = json.loads(line)
+    step.pop("times")
+    step["registration"].pop("seconds")
+    return step
+
+
+def _kill(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def kill_before_commit(monkeypatch, frame: int) -> None:
+    """Make a one-key run stop (as at Ctrl-C) after ``frame``'s label PNG and step line are written and
+    before run.json counts it; ``monkeypatch.undo()`` lets the next run go on."""
+    import pcreg.outputs
+    from pcreg.pipeline import stream_run
+
+    real = stream_run.StreamRun.record
+
+    def crash(self, t, labels, report, plain=None, **kw):
+        if t == frame:
+            monkeypatch.setattr(pcreg.outputs, "atomic_write_json", _kill)
+        return real(self, t, labels, report, plain, **kw)
+
+    monkeypatch.setattr(stream_run.StreamRun, "record", crash)

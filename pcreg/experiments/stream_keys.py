@@ -76,7 +76,7 @@ def _baseline_prior(fields: dict, priors: dict, t: int, a: int | None, b: int | 
     """The key frames' priors around frame ``t``, each carried by its field (None: unmoved), weighted by
     the frame's distance to each: log-odds (H, W) float32."""
     from ..classification.fusion import prior_log_odds
-    from ..pipeline.prior import warp_prior
+    from ..pipeline.prior import warped_prior_log_odds
 
     if a is not None and b is not None:
         around = [(a, (b - t) / (b - a)), (b, (t - a) / (b - a))]
@@ -86,8 +86,8 @@ def _baseline_prior(fields: dict, priors: dict, t: int, a: int | None, b: int | 
     for k, share in around:
         q, pi = priors[k]
         fld = fields.get(k)
-        moved = q if fld is None else warp_prior(q, fld, shape=q.shape, pi=pi)[0]
-        parts.append(share * prior_log_odds(moved, pi=pi))
+        l_prior = prior_log_odds(q, pi=pi) if fld is None else warped_prior_log_odds(q, fld, shape=q.shape, pi=pi)
+        parts.append(share * l_prior)
     return np.sum(parts, axis=0).astype(np.float32)
 
 

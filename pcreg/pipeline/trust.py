@@ -143,9 +143,15 @@ def residual_trust(reference_image: np.ndarray, moving_image: np.ndarray, field:
     """(H, W) float32 in [0, 1]: how far labels carried from ``reference_image`` into ``moving_image``
     along ``field`` (reference coordinates of every moving pixel) can be trusted, the stream's rule
     (``exp(-r / residual)`` of :func:`carried_residual`, 0 wholly outside the reference), for a pair."""
-    rule = STREAM_TRUST if rule is None else rule
     r = carried_residual(blurred(reference_image), blurred(moving_image), field)
-    return np.where(r < OUTSIDE, np.exp(r * np.float32(-1.0 / rule.residual)), np.float32(0.0)).astype(np.float32)
+    return residual_weight(r, STREAM_TRUST if rule is None else rule).astype(np.float32)
+
+
+def residual_weight(residual: np.ndarray, rule: "TrustRule") -> np.ndarray:
+    """(H, W) float32 in [0, 1]: ``exp(-r / rule.residual)`` of a :func:`carried_residual`, 0 where the
+    residual's neighbourhood lies wholly outside the key frame (:data:`OUTSIDE`)."""
+    r = np.asarray(residual, np.float32)
+    return np.where(r < OUTSIDE, np.exp(r * np.float32(-1.0 / rule.residual)), np.float32(0.0))
 
 
 def carried_log_odds(log_odds: np.ndarray, field: np.ndarray) -> np.ndarray:
@@ -195,9 +201,8 @@ def trust_maps(rule: TrustRule, *, weight: float, dense_prior: np.ndarray | None
     """Each carried prior's weight per pixel by ``rule`` (the module's formula); a prior given as None
     (its motion failed or was not computed) gets none, and a pixel whose residual's neighbourhood lies
     wholly outside the key frame (:data:`OUTSIDE`) gets 0."""
-    def trust(res: np.ndarray) -> np.ndarray:  # 0 where the residual is all outside the key frame
-        r = np.asarray(res, np.float32)
-        return np.where(r < OUTSIDE, np.exp(r * np.float32(-1.0 / rule.residual)), np.float32(0.0))
+    def trust(res: np.ndarray) -> np.ndarray:
+        return residual_weight(res, rule)
 
     wd = wf = None
     if dense_prior is not None and dense_residual is not None:

@@ -40,9 +40,10 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, TypeVar
 
-__all__ = ["MIN_PIXELS", "beside", "close", "enabled", "helper", "interleave", "others_busy", "set_enabled",
+__all__ = ["MIN_PIXELS", "beside", "both", "close", "enabled", "helper", "interleave", "others_busy", "set_enabled",
            "usable_cpus", "wait_quietly"]
 
+S = TypeVar("S")
 T = TypeVar("T")
 
 #: Set to 0 in the environment, pcreg uses no helper thread (one CPU a process, as in a pool of workers).
@@ -193,6 +194,18 @@ def beside(fn: Callable[[], T]) -> Callable[[], T]:
         return fn() if take() else future.result()
 
     return result
+
+
+def both(side: Callable[[], S], here: Callable[[], T]) -> tuple[S, T]:
+    """``(side(), here())``, ``side`` offered to the helper (:func:`beside`) while this thread runs
+    ``here``. When ``here`` raises, ``side`` ends first (:func:`wait_quietly`), then the error goes on."""
+    later = beside(side)
+    try:
+        mine = here()
+    except BaseException:
+        wait_quietly(later)
+        raise
+    return later(), mine
 
 
 def wait_quietly(result: Callable[[], object]) -> None:

@@ -199,3 +199,24 @@ def test_the_machines_busy_time_is_read_where_the_system_has_it():
     first = _threads._machine_busy_seconds()
     assert first is not None and first > 0
     assert _threads._machine_busy_seconds() >= first
+
+
+def test_both_gives_both_results_and_an_error_here_waits_for_the_side_first():
+    _two_cpus()
+    assert _threads.both(lambda: 1, lambda: 2) == (1, 2)
+    started, release, finished = threading.Event(), threading.Event(), []
+
+    def side():
+        started.set()
+        release.wait(10)
+        finished.append(1)
+        return "side"
+
+    def here():
+        started.wait(10)  # the helper holds the side's work
+        release.set()
+        raise ValueError("here")
+
+    with pytest.raises(ValueError, match="here"):
+        _threads.both(side, here)
+    assert finished == [1]  # the side's work had ended when the error reached the caller

@@ -209,8 +209,8 @@ def figure(report: dict):
             ("register.solve", "solve", "#aec7e8"), ("register.evidence", "evidence", "#9467bd"),
             ("register.field", "field", "#17becf"), ("fuse.warp", "warp", "#98df8a"),
             ("fuse.trust", "trust", "#d62728"), ("fuse.fusion", "fusion", "#2ca02c"),
-            ("fuse.confidence", "confidence", "#e377c2"), ("fuse.learn", "learning", "#bcbd22")]
-    beside = [("classify.features", "features", "#ffbb78"), ("classify.bayes", "naive Bayes", "#ff7f0e"),
+            ("fuse.confidence", "confidence", "#e377c2"), ("fuse.learn", "sure pixels", "#bcbd22")]
+    beside = [("classify.learn", "learning", "#dbdb8d"), ("classify.bayes", "naive Bayes (features, tables)", "#ff7f0e"),
               ("classify.flow", "DIS ultrafast + its trust", "#c49c94")]
     for ax, (name, s) in zip(axes[:, 0], streams.items()):
         right = 0.0

@@ -26,6 +26,8 @@ from .features import (
     DEFAULT_FEATURES,
     check_image,
     feature_groups,
+    frame_features,
+    table_sum,
     feature_names,
     normalise_weights,
     parse_features,
@@ -250,42 +252,15 @@ class NaiveBayesPixelClassifier:
             raise InputError("classifier is not fitted; call fit(images, labels) first")
 
     # -- evaluation ----------------------------------------------------------------------------
-    def feature_groups(self, image: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    def feature_groups(self, image) -> list[tuple[str, np.ndarray]]:
         """The model's features of an (H, W, 3) uint8 image
         (:func:`pcreg.classification.features.feature_groups`), to hand to :meth:`decision_function`
-        when they are computed (and timed) apart."""
-        return feature_groups(check_image(image), self.features, weights=self.weights)
+        when they are computed (and timed) apart; a :class:`~pcreg.frame.PreparedFrame`'s are made once
+        and kept with it (every classifier of these features finds them there)."""
+        return frame_features(image, self.features, weights=self.weights)
 
-    def _sum_tables(self, image: np.ndarray, tables: np.ndarray, groups=None) -> np.ndarray:
-        """(H, W) sum over features of ``tables[f][x_f]``; tables (F, 256) float32/float64; groups: the
-        image's :meth:`feature_groups` when already computed."""
-        import cv2
-
-        h, w = image.shape[:2]
-        acc = None
-        row_term = None
-        f = 0
-        if groups is None:
-            groups = feature_groups(image, self.features, weights=self.weights)
-        for name, planes in groups:
-            if name == "row":
-                row_term = tables[f][planes]
-                f += 1
-                continue
-            c = planes.shape[-1]
-            lut = np.ascontiguousarray(tables[f:f + c].T.reshape(1, 256, c))
-            looked = cv2.LUT(planes, lut)
-            if c > 1:
-                looked = cv2.transform(looked, np.ones((1, c), dtype=np.float64))
-            elif looked.ndim == 3:
-                looked = looked[:, :, 0]
-            acc = looked if acc is None else cv2.add(acc, looked)
-            f += c
-        if acc is None:
-            acc = np.zeros((h, w), dtype=tables.dtype)
-        if row_term is not None:
-            acc = acc + row_term[:, None].astype(acc.dtype)
-        return acc
+    def _sum_tables(self, image, tables: np.ndarray, groups=None) -> np.ndarray:
+        return table_sum(image, tables, self.features, weights=self.weights, groups=groups)
 
     def _jll_planes(self, image: np.ndarray) -> list[np.ndarray]:
         self._check_fitted()
@@ -325,9 +300,8 @@ class NaiveBayesPixelClassifier:
         self._check_fitted()
         if self._diff32 is None:
             raise InputError(f"decision_function needs a two-class model, this one has {len(self.classes_)} classes")
-        image = check_image(image)
         bias = np.float32(self._log_prior[1] - self._log_prior[0])
-        d = self._sum_tables(image, self._diff32, groups).astype(np.float32, copy=False)
+        d = table_sum(image, self._diff32, self.features, weights=self.weights, groups=groups).astype(np.float32, copy=False)
         d += bias
         return d
 

@@ -20,6 +20,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..frame import PreparedFrame
 from ..validation import short_repr
 
 FEATURES: dict[str, tuple[str, ...]] = {
@@ -77,8 +78,11 @@ def feature_names(features: str | Iterable[str]) -> tuple[str, ...]:
     return tuple(c for f in parse_features(features) for c in FEATURES[f])
 
 
-def check_image(image: np.ndarray) -> np.ndarray:
-    """``image`` as a C-contiguous (H, W, 3) uint8 array (no copy when it already is one)."""
+def check_image(image) -> np.ndarray:
+    """``image`` as a C-contiguous (H, W, 3) uint8 array (no copy when it already is one); a
+    :class:`~pcreg.frame.PreparedFrame` is its ``rgb``, checked already."""
+    if isinstance(image, PreparedFrame):
+        return image.rgb
     image = np.asarray(image)
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
         raise InputError(f"image must be (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
@@ -132,6 +136,51 @@ def feature_groups(image: np.ndarray, features: str | Iterable[str] = DEFAULT_FE
             planes = row_levels(image.shape[0])
         out.append((name, planes))
     return out
+
+
+def frame_features(image, features: str | Iterable[str] = DEFAULT_FEATURES, *,
+                   weights: Sequence[float] | None = None) -> list[tuple[str, np.ndarray]]:
+    """:func:`feature_groups` of an (H, W, 3) uint8 image; a :class:`~pcreg.frame.PreparedFrame`'s are made
+    once and kept with it, so every classifier of these features finds them there."""
+    if isinstance(image, PreparedFrame):
+        key = ("features", parse_features(features), normalise_weights(weights))
+        return image.derived(key, lambda rgb: feature_groups(rgb, features, weights=weights))
+    return feature_groups(image, features, weights=weights)
+
+
+def table_sum(image, tables: np.ndarray, features: str | Iterable[str] = DEFAULT_FEATURES, *,
+              weights: Sequence[float] | None = None, groups=None) -> np.ndarray:
+    """(H, W) sum over the image's features of ``tables[f][x_f]``: one 256-entry table (F, 256) float32 or
+    float64 per feature, looked up at each pixel's 8-bit value (what a naive Bayes over these features
+    sums). groups : the image's :func:`frame_features`, when already computed."""
+    import cv2
+
+    image = check_image(image)
+    h, w = image.shape[:2]
+    acc = None
+    row_term = None
+    f = 0
+    if groups is None:
+        groups = frame_features(image, features, weights=weights)
+    for name, planes in groups:
+        if name == "row":
+            row_term = tables[f][planes]
+            f += 1
+            continue
+        c = planes.shape[-1]
+        lut = np.ascontiguousarray(tables[f:f + c].T.reshape(1, 256, c))
+        looked = cv2.LUT(planes, lut)
+        if c > 1:
+            looked = cv2.transform(looked, np.ones((1, c), dtype=np.float64))
+        elif looked.ndim == 3:
+            looked = looked[:, :, 0]
+        acc = looked if acc is None else cv2.add(acc, looked)
+        f += c
+    if acc is None:
+        acc = np.zeros((h, w), dtype=tables.dtype)
+    if row_term is not None:
+        acc = acc + row_term[:, None].astype(acc.dtype)
+    return acc
 
 
 def feature_planes(image: np.ndarray, features: str | Iterable[str] = DEFAULT_FEATURES, *,

@@ -231,7 +231,7 @@ class FlowEstimator:
         """The reference's grey levels and its pixel grid's x and y (float32), for :meth:`estimate`."""
         import cv2
 
-        from ..registration.clouds import as_rgb_uint8
+        from ..frame import as_rgb_uint8
 
         grey = cv2.cvtColor(as_rgb_uint8(reference, name="reference image"), cv2.COLOR_RGB2GRAY)
         h, w = grey.shape
@@ -242,13 +242,15 @@ class FlowEstimator:
 
     def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
         """The flow from ``image`` to the reference; with ``prepared`` (:meth:`prepare` of the reference)
-        ``image`` must be an (H, W, 3) uint8 RGB frame of its size, already checked."""
+        ``image`` must be a frame of its size (a :class:`~pcreg.frame.PreparedFrame` is not checked again)."""
         import cv2
 
+        from ..frame import as_rgb_uint8
         from ..registration.flow import PRESETS, dis_field
 
         if prepared is None:
             return Estimate(Motion(field=dis_field(reference, image, preset=self.preset)[0]))
         grey, xs, ys = prepared
-        flow = cv2.DISOpticalFlow_create(PRESETS[self.preset]).calc(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), grey, None)
+        frame = cv2.cvtColor(as_rgb_uint8(image, name="moving image"), cv2.COLOR_RGB2GRAY)
+        flow = cv2.DISOpticalFlow_create(PRESETS[self.preset]).calc(frame, grey, None)
         return Estimate(Motion(field=np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)))

@@ -49,7 +49,12 @@ STREAM_LEARNING = Learning()
 
 
 class Learner:
-    """The key frame's classifier and what the stream has taught it (:meth:`update`)."""
+    """The key frame's classifier and what the stream has taught it.
+
+    :meth:`update` takes a labelled frame's sure pixels and returns at once; they are counted, and the
+    classifier refitted, when the classifier is next wanted (:attr:`classifier`, on the helper thread in
+    a stream's next step, beside its registration) or the histogram read (:attr:`stream`): the same
+    numbers as counting them at once, off the step's own path."""
 
     def __init__(self, classifier, rule: Learning) -> None:
         from ..classification.bayes import NaiveBayesPixelClassifier
@@ -59,40 +64,66 @@ class Learner:
         self.key_classifier, self.rule = classifier, rule
         self._key = np.asarray(classifier.counts_, dtype=np.float64)
         self._key_pixels = float(self._key[:, 0].sum())
-        self.stream = np.zeros_like(self._key)
-        self.classifier = classifier
+        self._stream = np.zeros_like(self._key)
+        self._classifier = classifier
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def classifier(self):
+        """The classifier as learned so far (what :meth:`update` gave it counted first)."""
+        self._learn_pending()
+        return self._classifier
+
+    @property
+    def stream(self) -> np.ndarray:
+        """(3, F, 256) float64: the stream's decayed histogram so far (what :meth:`update` gave it counted
+        first)."""
+        self._learn_pending()
+        return self._stream
 
     def restore(self, stream: np.ndarray | None) -> None:
         """Continue from a saved :attr:`stream` histogram (None: nothing learned yet)."""
+        self._pending = None
         if stream is None:
-            self.stream = np.zeros_like(self._key)
+            self._stream = np.zeros_like(self._key)
         else:
             s = np.asarray(stream, dtype=np.float64)
             if s.shape != self._key.shape or not np.all(np.isfinite(s)) or s.min(initial=0.0) < 0:
                 raise InputError(f"a learned histogram must be finite, >= 0 and of shape {self._key.shape}")
-            self.stream = s.copy()
-        self.classifier = self._refit()
+            self._stream = s.copy()
+        self._classifier = self._refit()
 
-    def update(self, image: np.ndarray, fused: np.ndarray, prior_term: np.ndarray) -> None:
-        """Learn from one labelled frame: ``fused`` (H, W) log-odds, ``prior_term`` (H, W) the trusted
-        priors' part of them."""
-        from ..classification.bayes import class_histograms
+    def update(self, image, fused: np.ndarray, prior_term: np.ndarray) -> None:
+        """Learn from one labelled frame (an (H, W, 3) uint8 image or a
+        :class:`~pcreg.frame.PreparedFrame`): ``fused`` (H, W) log-odds, ``prior_term`` (H, W) the trusted
+        priors' part of them. Its sure pixels are kept, one in ``stride`` along each axis, and counted
+        when the classifier is next wanted."""
+        from ..frame import as_rgb_uint8
 
+        self._learn_pending()
         s = self.rule.stride
         F, P = fused[::s, ::s], prior_term[::s, ::s]
         sure = (np.abs(P) > self.rule.sure) & ((P > 0) == (F > 0))
         labels = np.where(sure, (F > 0).astype(np.uint8), np.uint8(2)).astype(np.uint8)
-        counts = class_histograms(np.ascontiguousarray(image[::s, ::s]), labels, self.key_classifier.features,
-                                  weights=self.key_classifier.weights)
-        self.stream = self.rule.decay * self.stream + counts
-        self.classifier = self._refit()
+        self._pending = (np.ascontiguousarray(as_rgb_uint8(image, name="frame")[::s, ::s]), labels)
+
+    def _learn_pending(self) -> None:
+        if self._pending is None:
+            return
+        from ..classification.bayes import class_histograms
+
+        pixels, labels = self._pending
+        self._pending = None
+        counts = class_histograms(pixels, labels, self.key_classifier.features, weights=self.key_classifier.weights)
+        self._stream = self.rule.decay * self._stream + counts
+        self._classifier = self._refit()
 
     def _refit(self):
-        n = float(self.stream[:, 0].sum())
+        n = float(self._stream[:, 0].sum())
         if n == 0 or self.rule.share == 0:
             return self.key_classifier
         scale = min(1.0, self.rule.share * self._key_pixels / n)
         base = self.key_classifier
         clf = type(base)(base.features, weights=base.weights, exclude_unknown=base.exclude_unknown,
                          var_smoothing=base.var_smoothing, priors=base.priors)
-        return clf.fit_histograms(np.rint(self._key + scale * self.stream).astype(np.int64))
+        return clf.fit_histograms(np.rint(self._key + scale * self._stream).astype(np.int64))

@@ -87,19 +87,21 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._threads import beside, wait_quietly
+from .._threads import both
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
 from .estimators import STREAM_DENSE, Carry, DenseEstimator, DenseStep, FlowEstimator, GlobalEstimator
 from .learning import STREAM_LEARNING, Learner, Learning
 from .prior import class_prior, fused_labels, prior_on_moving
-from .trust import STREAM_TRUST, TrustMaps, TrustRule, predicted_error
+from .trust import STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
 from ..errors import InputError
+from ..frame import PreparedFrame
 from ..registration.config import RegisterConfig
 from ..registration.motion import Motion
 
 if TYPE_CHECKING:
     from ..registration.dense import DenseReference
+    from .estimators import Estimate
 
 __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep", "Carry", "STREAM_DENSE", "STREAM_REGISTRATION",
            "STREAM_WEIGHT", "ANCHORS"]
@@ -108,13 +110,14 @@ __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep",
 STEP_STAGES: tuple[str, ...] = ("register", "classify", "fuse", "total")
 #: Their parts, timed as ``"stage.part"`` in :attr:`StepReport.times`: a dense registration's own
 #: stages (:data:`pcreg.registration.dense.DENSE_STAGES`, its global step as ``global``; present when
-#: the dense registration ran), the classifier's features, its naive Bayes log-odds (``features``
-#: is 0 for a classifier that cannot compute them apart) and the DIS flow of the trust rule, the
-#: priors' warp, their trust (:mod:`pcreg.pipeline.trust`), the fusion itself, the labels' confidence
-#: and the classifier's learning (:mod:`pcreg.pipeline.learning`); a part the step did not do is 0.
+#: the dense registration ran); on the helper thread, the classifier's learning from the last frame
+#: (:mod:`pcreg.pipeline.learning`: its histograms counted and naive Bayes refitted), its log-odds
+#: (features and tables) and the DIS flow of the trust rule; then the priors' warp, their trust
+#: (:mod:`pcreg.pipeline.trust`), the fusion itself, the labels' confidence and the frame's sure pixels
+#: kept for learning; a part the step did not do is 0.
 STEP_PARTS: dict[str, tuple[str, ...]] = {
     "register": ("global", "pyramid", "search", "solve", "evidence", "field"),
-    "classify": ("features", "bayes", "flow"),
+    "classify": ("learn", "bayes", "flow"),
     "fuse": ("warp", "trust", "fusion", "confidence", "learn"),
 }
 #: Where a frame is registered to: the key frame, or the previous frame (motions composed).
@@ -248,16 +251,16 @@ class Propagator:
         self.trust = trust
         self.learning = learning if trust is not None and _learns(classifier) else None
         self._learner: Learner | None = None
-        self._key_blurred: np.ndarray | None = None
-        self._key_log_odds: np.ndarray | None = None
         self._flow = FlowEstimator("ultrafast" if trust is None else trust.preset)
-        self._key_flow: tuple | None = None
         self._pi = class_prior(classifier)
-        self._key_image: np.ndarray | None = None
+        # the key frame, checked once, and what every step reads of it, made once (:meth:`reset`)
+        self._key: PreparedFrame | None = None
         self._key_labels: np.ndarray | None = None
         self._key_prior: np.ndarray | None = None
-        self._key_prepared: DenseReference | None = None  # the key frame prepared for the dense registration
-        self._chain: tuple[np.ndarray, Motion | None, int] | None = None  # (image, motion to the key frame, frame)
+        self._key_trusted: TrustedKey | None = None  # its prior and colours as the trust rule reads them
+        self._key_flow: tuple | None = None  # its grey levels and grid for DIS
+        self._key_prepared: DenseReference | None = None  # its pyramid for the dense registration
+        self._chain: tuple[PreparedFrame, Motion | None, int] | None = None  # (frame, motion to the key frame, frame)
         self._carry: Carry | None = None
         self._frame = 0
         self.last: StepReport | None = None
@@ -269,111 +272,103 @@ class Propagator:
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
 
-        img, lab = _check_image(image), _check_labels(labels, None)
+        key, lab = PreparedFrame.of(image, name="key frame"), _check_labels(labels, None)
         if not (lab < 2).any():
             raise InputError("the key frame's labels are all unknown (2): nothing to fit or propagate")
-        clf = fit_classifier([Frame(img, lab, "key")], features=features)
+        clf = fit_classifier([Frame(key.rgb, lab, "key")], features=features)
         prop = cls(clf, **options)
-        prop.reset(img, lab)
+        prop.reset(key, lab)
         return prop
 
     def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8 with
         0 ground, 1 obstacle, 2 unknown. A dense stream anchored to the key frame prepares it here, once
         (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid), for every step's registration."""
-        img = _check_image(image)
-        lab = _check_labels(labels, img.shape[:2])
-        self._key_image, self._key_labels = img, lab
+        key = PreparedFrame.of(image, name="key frame")
+        lab = _check_labels(labels, key.shape)
+        self._key, self._key_labels = key, lab
         self._key_prior = label_prior(lab, pi=self._pi, fusion=self.fusion)
+        self._key_trusted = self._key_flow = None
         if self.trust is not None:
-            from .trust import blurred
-
-            self._key_blurred = blurred(img)
-            self._key_flow = self._flow.prepare(img)
-            self._key_log_odds = prior_log_odds(self._key_prior, pi=self._pi)
+            self._key_trusted = TrustedKey(self.trust, self.weight, key.rgb, prior_log_odds(self._key_prior, pi=self._pi))
+            self._key_flow = self._flow.prepare(key)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         self._key_prepared = None
         if self.model == "dense" and self.anchor == "key":  # every frame registers to it: its pyramid once
             assert isinstance(self._estimator, DenseEstimator)
-            self._key_prepared = self._estimator.prepare(img)
-        self._chain = (img, None, 0)
+            self._key_prepared = self._estimator.prepare(key)
+        self._chain = (key, None, 0)
         self._carry = None
         self._frame = 0
         self.last = None
 
     def step(self, image: np.ndarray) -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame; see :attr:`last` for what happened."""
-        if self._key_image is None:
+        key = self._key
+        if key is None:
             raise InputError("Propagator.step before reset: give the key frame and its labels first")
         t_start = time.perf_counter()
-        img = _check_image(image)
-        if img.shape != self._key_image.shape:
-            raise InputError(f"frame of shape {img.shape} in a stream of {self._key_image.shape} frames")
+        frame = PreparedFrame.of(image, name="frame", shape=key.shape)
         self._frame += 1
         times = dict.fromkeys(STEP_STAGES, 0.0)
-        times.update({f"{stage}.{part}": 0.0 for stage in ("classify", "fuse") for part in STEP_PARTS[stage]})
-
+        times.update({f"{stage}.{part}": 0.0 for stage, parts in STEP_PARTS.items() if stage != "register"
+                      for part in parts})
         # the new frame is classified (and its DIS flow found) on the helper thread while this one
         # registers it (the two are independent); its times are its own, and ``total`` is the step's
-        classified = beside(lambda: self._classify(img))
-        t0 = time.perf_counter()
-        reference, ref_frame = (self._key_image, 0) if self.anchor == "key" else (self._chain[0], self._chain[2])
-        try:
-            result, reason, start = self._register(reference, img)
-        except BaseException:
-            wait_quietly(classified)  # the helper's work ends before this error goes on
-            raise
-        motion = None if result is None else self._to_key(Motion.of(result), img.shape[:2])
-        times["register"] = time.perf_counter() - t0
-        c = classified()
-        d = c.d
-
+        reference, ref_frame = (key, 0) if self.anchor == "key" else (self._chain[0], self._chain[2])
+        c, (est, times["register"]) = both(lambda: self._classify(frame), lambda: self._register(reference, frame))
+        times.update(c.times)
+        result, motion = est.result, est.motion
+        if motion is not None and self.anchor == "previous" and self._chain[1] is not None:
+            motion = self._chain[1].after(motion, frame.shape)  # the previous frame's motion to the key frame after it
         dense_times = getattr(result, "info", {}).get("times") if result is not None else None
         if dense_times is not None:
             times["register.global"] = float(result.global_result.seconds)
             times.update({f"register.{k}": float(v) for k, v in dense_times.items()})
-        times.update(c.times)
 
-        maps: TrustMaps | None = None
-        if self.trust is None:
-            labels, confidence = self._fuse(d, motion, times), None
+        trusted: Trusted | None = None
+        if self._key_trusted is None:
+            labels = self._fuse(c.d, motion, times)
         else:
-            labels, confidence, maps = self._fuse_trusted(img, c, motion, times)
+            moved = motion if motion is not None else Motion(matrix=np.eye(3))
+            trusted = self._key_trusted.fuse(c.d, c.frame_blurred, moved.as_field(frame.shape), moved.confidence,
+                                             c.flow, times)
+            labels = trusted.labels
+            if self._learner is not None:
+                t0 = time.perf_counter()
+                self._learner.update(frame, trusted.fused, trusted.prior)
+                times["fuse.learn"] = time.perf_counter() - t0
         if motion is not None and self.anchor == "previous":
-            self._chain = (img, motion, self._frame)
+            self._chain = (frame, motion, self._frame)
         times["fuse"] = sum(times[f"fuse.{part}"] for part in STEP_PARTS["fuse"])
         times["total"] = time.perf_counter() - t_start
-        self.last = StepReport(frame=self._frame, registration=result, reason=reason, fallback=motion is None,
-                               reference=ref_frame, times=times, start=start, confidence=confidence,
-                               predicted_error=None if confidence is None else predicted_error(confidence),
-                               trust=maps, trust_summary=None if maps is None or self.trust is None
-                               else maps.summary(self.trust, self.weight), log_odds=d)
+        self.last = StepReport(frame=self._frame, registration=result, reason=est.reason, fallback=motion is None,
+                               reference=ref_frame, times=times, start=est.start, log_odds=c.d,
+                               **({} if trusted is None else trusted.report(self.trust, self.weight)))
         return labels
 
-    def _classify(self, img: np.ndarray) -> "_Classified":
-        """Naive Bayes' log-odds of the frame (the classifier as learned so far) and, with a trust rule
-        that uses it, the DIS field from the frame to the key frame, the key frame's prior carried along
-        it and its residual (:mod:`pcreg.pipeline.trust`): all that needs no registration."""
+    def _classify(self, frame: PreparedFrame) -> "_Classified":
+        """Naive Bayes' log-odds of the frame (the classifier as learned so far, what the last frame taught
+        it counted first) and, with a trust rule that uses it, the DIS field from the frame to the key
+        frame with the key frame's prior and residual carried along it (:class:`~pcreg.pipeline.trust.TrustedKey`):
+        all that needs no registration."""
         from ..classification.bayes import NaiveBayesPixelClassifier
-        from .pair import log_odds
-        from .trust import blurred, carried_log_odds, carried_residual
+        from .trust import blurred
 
-        clf = self.classifier if self._learner is None else self._learner.classifier
         t0 = time.perf_counter()
-        groups = clf.feature_groups(img) if isinstance(clf, NaiveBayesPixelClassifier) else None
+        clf = self.classifier if self._learner is None else self._learner.classifier
         t1 = time.perf_counter()
-        d = log_odds(clf, img) if groups is None else np.asarray(clf.decision_function(img, groups=groups),
-                                                                  dtype=np.float32)
+        d = np.asarray(clf.decision_function(frame if isinstance(clf, NaiveBayesPixelClassifier) else frame.rgb),
+                       dtype=np.float32)
         t2 = time.perf_counter()
         out = _Classified(d)
-        if self.trust is not None:
-            out.frame_blurred = blurred(img)
-            if self.trust.flow > 0:
-                out.flow = self._flow.estimate(self._key_image, img, prepared=self._key_flow).result.field
-                out.flow_prior = carried_log_odds(self._key_log_odds, out.flow)
-                out.flow_residual = carried_residual(self._key_blurred, out.frame_blurred, out.flow)
+        if self._key_trusted is not None:
+            out.frame_blurred = blurred(frame.rgb)
+            if self._key_flow is not None and self._key_trusted.rule.flow > 0:
+                flow = self._flow.estimate(self._key, frame, prepared=self._key_flow).result.field
+                out.flow = self._key_trusted.carried(out.frame_blurred, flow)
         t3 = time.perf_counter()
-        out.times = {"classify": t3 - t0, "classify.features": t1 - t0, "classify.bayes": t2 - t1,
+        out.times = {"classify": t3 - t0, "classify.learn": t1 - t0, "classify.bayes": t2 - t1,
                      "classify.flow": t3 - t2}
         return out
 
@@ -387,53 +382,16 @@ class Propagator:
         times.update({"fuse.warp": t1 - t0, "fuse.fusion": time.perf_counter() - t1})
         return labels
 
-    def _fuse_trusted(self, img: np.ndarray, c: "_Classified", motion: Motion | None, times: dict
-                      ) -> tuple[np.ndarray, np.ndarray, TrustMaps]:
-        """``(labels, confidence, trust map)`` by the trust rule (:mod:`pcreg.pipeline.trust`): the key
-        frame's prior along ``motion`` (unmoved where the registration failed) and along the DIS flow
-        (``c``), each trusted per pixel; then the labels' confidence (on the helper thread) while the
-        classifier learns from the frame."""
-        from ..classification.fusion import labels_from_log_odds
-        from .trust import carried_log_odds, carried_residual, label_confidence, trust_maps
-
-        assert self.trust is not None and self._key_blurred is not None and self._key_log_odds is not None
-        d = c.d
+    def _register(self, reference: PreparedFrame, frame: PreparedFrame) -> tuple["Estimate", float]:
+        """The estimate of ``frame``'s motion to ``reference`` and its seconds
+        (:meth:`~pcreg.pipeline.estimators.DenseEstimator.estimate`: a result, or a refusal and why); keeps
+        the carry it leaves."""
         t0 = time.perf_counter()
-        moved = motion if motion is not None else Motion(matrix=np.eye(3))
-        moved_field = moved.as_field(d.shape)
-        l_dense = carried_log_odds(self._key_log_odds, moved_field)
-        t1 = time.perf_counter()
-        maps = trust_maps(self.trust, weight=self.weight, dense_prior=l_dense, confidence=moved.confidence,
-                          dense_residual=carried_residual(self._key_blurred, c.frame_blurred, moved_field),
-                          flow_prior=c.flow_prior, flow_residual=c.flow_residual)
-        t2 = time.perf_counter()
-        prior = maps.prior_term(d.shape)
-        fused = d + prior
-        labels = labels_from_log_odds(fused)
-        t3 = time.perf_counter()
-        confidence = beside(lambda: label_confidence(fused, d, prior))
-        try:
-            if self._learner is not None:
-                self._learner.update(img, fused, prior)
-        except BaseException:
-            wait_quietly(confidence)
-            raise
-        t4 = time.perf_counter()
-        conf = confidence()
-        t5 = time.perf_counter()
-        times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.fusion": t3 - t2,
-                      "fuse.learn": t4 - t3, "fuse.confidence": t5 - t4})
-        return labels, conf, maps
-
-    def _register(self, reference: np.ndarray, image: np.ndarray):
-        """``(result, None, start)``, or ``(None, reason, start)`` when the registration failed or is
-        degenerate (:meth:`~pcreg.pipeline.estimators.DenseEstimator.estimate`); ``start`` as
-        :attr:`StepReport.start`. Keeps the carry the estimate leaves."""
-        prepared = self._key_prepared if reference is self._key_image else None
-        est = self._estimator.estimate(reference, image, prepared=prepared,
+        prepared = self._key_prepared if reference is self._key else None
+        est = self._estimator.estimate(reference, frame, prepared=prepared,
                                        carry=self._carry if self.warm_starts else None)
         self._carry = est.carry if self.warm_starts else None
-        return est.result, est.reason, est.start
+        return est, time.perf_counter() - t0
 
     @property
     def warm_starts(self) -> bool:
@@ -461,7 +419,7 @@ class Propagator:
         from ..registration.dense import finest_grid_shape
         from ..validation import check_int
 
-        if self._key_image is None:
+        if self._key is None:
             raise InputError("Propagator.resume before reset: give the key frame and its labels first")
         if self.anchor != "key":
             raise InputError("only a stream anchored to its key frame resumes (anchor='key')")
@@ -469,7 +427,7 @@ class Propagator:
         if carry is not None and not isinstance(carry, Carry):
             raise InputError("carry must be a pcreg.pipeline.stream.Carry or None")
         if carry is not None and self.warm_starts:
-            want = finest_grid_shape(self._key_image.shape, self._dense_options[0])
+            want = finest_grid_shape(self._key.rgb.shape, self._dense_options[0])
             if carry.grid.shape != (*want, 2):
                 raise InputError(f"the carried grid is {carry.grid.shape[0]}x{carry.grid.shape[1]}, a stream of "
                                  f"these frames has {want[0]}x{want[1]}: it comes from another stream")
@@ -477,12 +435,6 @@ class Propagator:
         self._carry = carry if self.warm_starts else None
         if self._learner is not None:
             self._learner.restore(learned)
-
-    def _to_key(self, motion: Motion, shape: tuple[int, int]) -> Motion:
-        """The new frame's motion to the key frame: itself when anchored to it, else the previous frame's
-        motion to the key frame after it."""
-        prev = self._chain[1] if self.anchor == "previous" else None
-        return motion if prev is None else prev.after(motion, shape)
 
     @property
     def key_labels(self) -> np.ndarray | None:
@@ -496,9 +448,7 @@ class _Classified:
 
     d: np.ndarray
     frame_blurred: np.ndarray | None = None
-    flow: np.ndarray | None = None
-    flow_prior: np.ndarray | None = None
-    flow_residual: np.ndarray | None = None
+    flow: tuple[np.ndarray, np.ndarray] | None = None  # the key frame's prior and residual along the DIS flow
     times: dict = field(default_factory=dict)
 
 
@@ -506,12 +456,6 @@ def _learns(classifier) -> bool:
     from ..classification.bayes import NaiveBayesPixelClassifier
 
     return isinstance(classifier, NaiveBayesPixelClassifier) and hasattr(classifier, "counts_")
-
-
-def _check_image(image) -> np.ndarray:
-    from ..registration.clouds import as_rgb_uint8
-
-    return as_rgb_uint8(image, name="frame")
 
 
 def _check_labels(labels, shape) -> np.ndarray:

@@ -27,6 +27,7 @@ shared clips, and checked clip by clip with each clip left out (``tools/fit_trus
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,7 +35,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
-           "residual_trust",
+           "residual_trust", "TrustedKey", "Trusted",
            "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error"]
 
 #: The width at which the rule's pixel sizes are stated; they scale with the frame's width.
@@ -263,3 +264,60 @@ def label_confidence(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.nda
 def predicted_error(confidence: np.ndarray) -> float:
     """A frame's predicted error in percent: the mean of 1 - confidence over its pixels."""
     return float(100.0 * (1.0 - np.mean(confidence, dtype=np.float64)))
+
+
+@dataclass(frozen=True, eq=False)
+class Trusted:
+    """A step's labels by the trust rule (:meth:`TrustedKey.fuse`): ``labels`` (H, W) uint8, their
+    ``confidence`` (:func:`label_confidence`), the trust ``maps``, the ``fused`` log-odds and the
+    trusted priors' part of them (``prior``)."""
+
+    labels: np.ndarray
+    confidence: np.ndarray
+    maps: TrustMaps
+    fused: np.ndarray
+    prior: np.ndarray
+
+    def report(self, rule: TrustRule, weight: float) -> dict:
+        """What a step's report (:class:`~pcreg.pipeline.stream.StepReport`) gives of it: the confidence,
+        the predicted error, the trust map and its summary."""
+        return {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence),
+                "trust": self.maps, "trust_summary": self.maps.summary(rule, weight)}
+
+
+class TrustedKey:
+    """The key frame as the trust rule reads it, made once: its prior's log-odds and its colours at half
+    size, blurred (:func:`blurred`); it carries both along a motion's field into a new frame
+    (:meth:`carried`) and fuses a frame's naive Bayes with what it carried (:meth:`fuse`)."""
+
+    def __init__(self, rule: TrustRule, weight: float, image: np.ndarray, log_odds: np.ndarray) -> None:
+        self.rule, self.weight = rule, float(weight)
+        self.blurred, self.log_odds = blurred(image), log_odds
+
+    def carried(self, frame_blurred: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(prior, residual)`` along ``field``: :func:`carried_log_odds` and :func:`carried_residual`."""
+        return carried_log_odds(self.log_odds, field), carried_residual(self.blurred, frame_blurred, field)
+
+    def fuse(self, log_odds: np.ndarray, frame_blurred: np.ndarray, field: np.ndarray,
+             field_confidence: np.ndarray | None, flow: tuple[np.ndarray, np.ndarray] | None, times: dict) -> Trusted:
+        """Naive Bayes' ``log_odds`` with the key frame's prior carried along the dense ``field`` (its
+        ``field_confidence``) and along the DIS flow (``flow``: :meth:`carried` along it, or None), each
+        trusted per pixel; the times of the parts go into ``times`` (``fuse.warp``, ``fuse.trust``,
+        ``fuse.fusion``, ``fuse.confidence``)."""
+        from ..classification.fusion import labels_from_log_odds
+
+        t0 = time.perf_counter()
+        dense_prior, dense_residual = self.carried(frame_blurred, field)
+        t1 = time.perf_counter()
+        flow_prior, flow_residual = (None, None) if flow is None else flow
+        maps = trust_maps(self.rule, weight=self.weight, dense_prior=dense_prior, confidence=field_confidence,
+                          dense_residual=dense_residual, flow_prior=flow_prior, flow_residual=flow_residual)
+        t2 = time.perf_counter()
+        prior = maps.prior_term(log_odds.shape)
+        fused = log_odds + prior
+        labels = labels_from_log_odds(fused)
+        t3 = time.perf_counter()
+        confidence = label_confidence(fused, log_odds, prior)
+        times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.fusion": t3 - t2,
+                      "fuse.confidence": time.perf_counter() - t3})
+        return Trusted(labels, confidence, maps, fused, prior)

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..frame import as_rgb_uint8
 from ..validation import check_bool, check_choice, check_count, check_counts, check_float, check_int, check_path
 
 SAMPLERS = ("canny", "gradient", "grid")
@@ -59,42 +60,6 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
     if img.ndim == 3:
         img = img[:, :, ::-1]  # BGR -> RGB
     return as_rgb_uint8(img, name=str(path))
-
-
-def as_rgb_uint8(image: np.ndarray, *, name: str = "image") -> np.ndarray:
-    """Validate and convert an image array to (H, W, 3) uint8 RGB (a new array; input untouched).
-
-    Accepts (H, W) grayscale, (H, W, 1|3|4), uint8, uint16 (scaled by 1/257) and float in [0, 1].
-    """
-    if not isinstance(image, np.ndarray):
-        raise InputError(f"{name}: expected a numpy array, got {type(image).__name__}")
-    img = image
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    if img.ndim != 3 or img.shape[2] not in (3, 4):
-        raise InputError(f"{name}: expected an (H, W) or (H, W, 3) image, got shape {image.shape}")
-    img = img[:, :, :3]
-    if img.shape[0] == 0 or img.shape[1] == 0:
-        raise InputError(f"{name}: empty image (shape {image.shape})")
-    if img.shape[0] < 8 or img.shape[1] < 8:
-        raise InputError(f"{name}: image too small to register ({img.shape[1]}x{img.shape[0]} px)")
-    if img.dtype == np.uint8:
-        return np.ascontiguousarray(img)
-    if img.dtype == np.uint16:
-        return np.ascontiguousarray((img.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
-    if np.issubdtype(img.dtype, np.floating):
-        if not np.all(np.isfinite(img)):
-            raise InputError(f"{name}: image has NaN or inf values")
-        lo, hi = float(img.min()), float(img.max())
-        if lo < 0.0 or hi > 1.0:
-            raise InputError(f"{name}: a float image must hold values in [0, 1], got {lo:g}..{hi:g} "
-                             "(divide by 255 for 8-bit values)")
-        return np.ascontiguousarray(np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
-    if img.dtype == np.bool_:
-        return np.ascontiguousarray(img.astype(np.uint8) * 255)
-    raise InputError(f"{name}: unsupported image dtype {img.dtype}")
 
 
 def valid_region(image: np.ndarray) -> np.ndarray:

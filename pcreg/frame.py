@@ -1,0 +1,103 @@
+"""A frame checked once where it enters the library: :func:`as_rgb_uint8` and :class:`PreparedFrame`.
+
+Every function that takes an image checks it with :func:`as_rgb_uint8`. A stream's frame goes through
+several of them (naive Bayes, the dense registration, DIS flow, the trust map): :meth:`PreparedFrame.of`
+checks it once, and each of them takes the prepared frame as it is, with no copy and no second check.
+What is derived from a frame (its features, its grey levels) is made on first use and kept with it
+(:meth:`PreparedFrame.derived`), so nothing is computed twice for one frame.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Hashable, TypeVar
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["PreparedFrame", "as_rgb_uint8"]
+
+T = TypeVar("T")
+
+
+class PreparedFrame:
+    """An (H, W, 3) uint8 RGB frame, checked once (:meth:`of`), read-only, and what is derived from it.
+
+    rgb : the frame, C-contiguous and read-only (a view: the caller's array is not touched).
+    shape : (H, W).
+    """
+
+    __slots__ = ("rgb", "_derived")
+
+    def __init__(self, rgb: np.ndarray) -> None:
+        """Use :meth:`of`, which checks: ``rgb`` must already be C-contiguous (H, W, 3) uint8."""
+        view = rgb.view()
+        view.setflags(write=False)
+        self.rgb = view
+        self._derived: dict = {}
+
+    @classmethod
+    def of(cls, image, *, name: str = "frame", shape: tuple[int, int] | None = None) -> "PreparedFrame":
+        """``image`` checked and converted once (:func:`as_rgb_uint8`; a prepared frame is itself);
+        ``shape``: the (H, W) it must have (a stream's), :class:`~pcreg.errors.InputError` otherwise."""
+        frame = image if isinstance(image, PreparedFrame) else cls(as_rgb_uint8(image, name=name))
+        if shape is not None and frame.shape != tuple(shape):
+            raise InputError(f"{name} of shape {frame.rgb.shape} in a stream of {(*shape, 3)} frames")
+        return frame
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.rgb.shape[:2]
+
+    def derived(self, key: Hashable, make: Callable[[np.ndarray], T]) -> T:
+        """``make(rgb)``, made on the first call with this ``key`` and kept with the frame (a key names
+        what is made, with every option it depends on)."""
+        try:
+            return self._derived[key]
+        except KeyError:
+            value = self._derived[key] = make(self.rgb)
+            return value
+
+    def __repr__(self) -> str:
+        h, w = self.shape
+        return f"PreparedFrame({w}x{h})"
+
+
+def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
+    """Validate and convert an image array to (H, W, 3) uint8 RGB (no copy when it already is a
+    C-contiguous one; the input is never changed); a :class:`PreparedFrame` gives its checked, read-only
+    ``rgb`` as it is.
+
+    Accepts (H, W) grayscale, (H, W, 1|3|4), uint8, uint16 (scaled by 1/257) and float in [0, 1].
+    """
+    if isinstance(image, PreparedFrame):
+        return image.rgb
+    if not isinstance(image, np.ndarray):
+        raise InputError(f"{name}: expected a numpy array, got {type(image).__name__}")
+    img = image
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise InputError(f"{name}: expected an (H, W) or (H, W, 3) image, got shape {image.shape}")
+    img = img[:, :, :3]
+    if img.shape[0] == 0 or img.shape[1] == 0:
+        raise InputError(f"{name}: empty image (shape {image.shape})")
+    if img.shape[0] < 8 or img.shape[1] < 8:
+        raise InputError(f"{name}: image too small to register ({img.shape[1]}x{img.shape[0]} px)")
+    if img.dtype == np.uint8:
+        return np.ascontiguousarray(img)
+    if img.dtype == np.uint16:
+        return np.ascontiguousarray((img.astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
+    if np.issubdtype(img.dtype, np.floating):
+        if not np.all(np.isfinite(img)):
+            raise InputError(f"{name}: image has NaN or inf values")
+        lo, hi = float(img.min()), float(img.max())
+        if lo < 0.0 or hi > 1.0:
+            raise InputError(f"{name}: a float image must hold values in [0, 1], got {lo:g}..{hi:g} "
+                             "(divide by 255 for 8-bit values)")
+        return np.ascontiguousarray(np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
+    if img.dtype == np.bool_:
+        return np.ascontiguousarray(img.astype(np.uint8) * 255)
+    raise InputError(f"{name}: unsupported image dtype {img.dtype}")

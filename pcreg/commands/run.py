@@ -179,6 +179,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     from ..datasets.sources import read_ahead
     from .._runner import check_interrupted, progress
     from ..errors import InputError, OutputError
+    from ..frame import PreparedFrame
     from ..pipeline.stream_run import STATE, StreamRun
 
     out = Path(args.out)
@@ -208,12 +209,13 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
         for frame in read_ahead(todo):  # the next frame decoded while this one is labelled
             check_interrupted()
             t = frame.position
-            try:
-                labels = prop.step(frame.image)
+            try:  # checked once; naive Bayes alone (with --truth) reads the features the step made
+                image = PreparedFrame.of(frame.image, name="frame")
+                labels = prop.step(image)
             except InputError as exc:  # a frame of another size: the step's own check, the file named
                 where = frames.paths[t] if frames.kind == "folder" else f"{frames.path} frame {frame.name}"
                 raise InputError(f"{where}: {exc}") from None
-            plain = prop.classifier.predict(frame.image) if truth is not None else None
+            plain = prop.classifier.predict(image) if truth is not None else None
             stream.record(t, labels, prop.last.to_dict(), plain, carry=prop.carry, learned=prop.learned,
                           confidence=prop.last.confidence if args.confidence else None)
             _log(rec, t, frame.image, labels, prop.last, frame.name)

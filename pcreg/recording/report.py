@@ -84,6 +84,21 @@ class _Server6(_Server):
     address_family = socket.AF_INET6
 
 
+def listen(bind: str, web_port: int, handler, *, name: str) -> tuple[ThreadingHTTPServer, threading.Thread, int, str]:
+    """A local page's server on ``bind``:``web_port`` (0: a free port) answering with ``handler``, serving
+    on a daemon thread called ``name``: ``(server, thread, port, url)``; :class:`~pcreg.errors.InputError` when it
+    cannot listen there."""
+    host = "127.0.0.1" if bind == "localhost" else bind
+    try:
+        httpd = (_Server6 if ":" in host else _Server)((host, web_port), handler)
+    except OSError as exc:
+        raise InputError(f"--web-port {web_port}: cannot listen on {bind} ({exc.strerror or exc})") from None
+    port = int(httpd.server_address[1])
+    thread = threading.Thread(target=httpd.serve_forever, name=name, daemon=True)
+    thread.start()
+    return httpd, thread, port, f"http://{url_host(bind)}:{port}/"
+
+
 class ReportServer:
     """The report page of ``data`` (files from ``folder``) and, with ``recording``, rerun's web viewer and
     the recording's data server; a context manager. ``url`` is the page to open."""
@@ -120,16 +135,11 @@ class ReportServer:
             self.proc, _ = serve_web(recording, bind=bind, web_port=self._viewer_port, grpc_port=grpc_port,
                                      viewer=viewer, timeout=timeout, page_port=web_port)
         self.grpc_port = grpc_port if recording is not None else None
-        host = "127.0.0.1" if bind == "localhost" else bind
         try:
-            self._httpd = (_Server6 if ":" in host else _Server)((host, web_port), self._handler())
-        except OSError as exc:
+            self._httpd, self._thread, self.port, self.url = listen(bind, web_port, self._handler(), name="pcreg-report")
+        except InputError:
             self.close()
-            raise InputError(f"--web-port {web_port}: cannot listen on {bind} ({exc.strerror or exc})") from None
-        self.port = int(self._httpd.server_address[1])
-        self.url = f"http://{url_host(bind)}:{self.port}/"
-        self._thread = threading.Thread(target=self._httpd.serve_forever, name="pcreg-report", daemon=True)
-        self._thread.start()
+            raise
 
     # -- what the page asks for -------------------------------------------------------------------
 

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, PcregError
-from .report import QuietHandler, _Server, _Server6, viz_dir
-from .viewer import check_bind, free_port, port_free, url_host
+from .report import QuietHandler, listen, viz_dir
+from .viewer import check_bind, free_port, port_free
 
 __all__ = ["ReviewServer"]
 
@@ -70,16 +70,11 @@ class ReviewServer:
         self._static = viz_dir()
         self._rendered: OrderedDict[tuple[str, int], bytes] = OrderedDict()
         self._lock = threading.Lock()
-        host = "127.0.0.1" if bind == "localhost" else bind
         try:
-            self._httpd = (_Server6 if ":" in host else _Server)((host, web_port), self._handler())
-        except OSError as exc:
+            self._httpd, self._thread, self.port, self.url = listen(bind, web_port, self._handler(), name="pcreg-review")
+        except InputError:
             self.images.close()
-            raise InputError(f"--web-port {web_port}: cannot listen on {bind} ({exc.strerror or exc})") from None
-        self.port = int(self._httpd.server_address[1])
-        self.url = f"http://{url_host(bind)}:{self.port}/"
-        self._thread = threading.Thread(target=self._httpd.serve_forever, name="pcreg-review", daemon=True)
-        self._thread.start()
+            raise
 
     # -- what the page asks for -------------------------------------------------------------------
 

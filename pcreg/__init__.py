@@ -36,6 +36,7 @@ _EXPORTS = {
     "error_rate": "pcreg.classification.metrics",
     # labelling a stream from a key frame
     "Propagator": "pcreg.pipeline.stream",
+    "PreparedFrame": "pcreg.frame",
     # errors
     "PcregError": "pcreg.errors",
     "InputError": "pcreg.errors",

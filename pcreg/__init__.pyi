@@ -19,6 +19,9 @@ from pcreg.errors import (
     PcregError as PcregError,
     RegistrationError as RegistrationError,
 )
+from pcreg.frame import (
+    PreparedFrame as PreparedFrame,
+)
 from pcreg.implementations.crosscheck import (
     crosscheck as crosscheck,
 )

@@ -302,8 +302,10 @@ class Propagator:
         self._frame = 0
         self.last = None
 
-    def step(self, image: np.ndarray) -> np.ndarray:
-        """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame; see :attr:`last` for what happened."""
+    def step(self, image: "np.ndarray | PreparedFrame") -> np.ndarray:
+        """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame, an image or a
+        :class:`~pcreg.frame.PreparedFrame` (checked once here; naive Bayes, both motions and the learning
+        take it as it is, and its features are kept with it); see :attr:`last` for what happened."""
         key = self._key
         if key is None:
             raise InputError("Propagator.step before reset: give the key frame and its labels first")

@@ -26,7 +26,7 @@ from .pyramid import CloudPyramid
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule
 from .reference import check_rank
 from .refine import CoarseToFine
-from .result import IcpIteration, RegistrationResult
+from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
 from .steps import BACKENDS, IcpSettings, StepCall, icp_step, refuse_for_open3d
 from .transforms import about_point, apply, check_model, image_center
@@ -365,8 +365,9 @@ def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate
     r = best.refined
     return RegistrationResult(
         matrix=r.matrix, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=r.iterations,
-        converged=r.converged, backend=backend, seconds=seconds, inlier_ratio=evidence.inlier_ratio,
-        chance_ratio=evidence.chance_ratio, overlap=evidence.overlap, generator=best.generator, frames="T_ref_mov",
+        converged=r.converged, backend=backend, seconds=seconds, frames="T_ref_mov",
+        evidence=ImageEvidence(inlier_ratio=evidence.inlier_ratio, chance_ratio=evidence.chance_ratio,
+                               overlap=evidence.overlap, generator=best.generator),
         info={"moving_points": points[0], "reference_points": points[1],
               "hypotheses": [{"generator": c.generator, "inlier_ratio": c.inlier_ratio,
                               "photometric_ncc": c.photometric_ncc} for c in tried],

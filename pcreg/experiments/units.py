@@ -64,8 +64,10 @@ def angle_key(angle: float) -> str:
 
 
 def plain_config(config: Any) -> dict:
-    """A frozen dataclass config as JSON-ready dict (tuples as lists)."""
-    return json.loads(json.dumps(asdict(config), default=str))
+    """A frozen dataclass config as JSON-ready dict (tuples as lists): its ``to_dict()`` where it has one,
+    else all its fields."""
+    doc = config.to_dict() if callable(getattr(config, "to_dict", None)) else asdict(config)
+    return json.loads(json.dumps(doc, default=str))
 
 
 class UnitStore:

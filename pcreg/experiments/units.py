@@ -21,6 +21,9 @@ from typing import Any
 from ..recording.null import NULL_RECORDER
 from .results import Results
 
+# The data sets loaded last, one per process: units sent to worker processes arrive one by one, and a
+# worker reads the data once for all those it runs. Loading every unit's data again would cost more
+# than the unit (a classification unit takes about 0.5 s, loading two synthetic presets 1.0 s, all six 3.4 s).
 _DATA_CACHE: dict = {}
 
 

@@ -12,7 +12,7 @@ import pytest
 from pcreg import DenseOptions, register_dense, warp
 from pcreg.registration.warp import warp_to_moving
 from pcreg.errors import InputError
-from pcreg.registration.dense import DenseRegistrationResult, field_from_matrix, match_window
+from pcreg.registration.dense import DenseRegistrationResult, GlobalStep, Membrane, field_from_matrix, match_window
 from pcreg.registration.warp import invert_field
 
 from _images import rigid_about_centre, shapes_image
@@ -192,13 +192,13 @@ def test_bad_inputs_are_refused():
     with pytest.raises(InputError):
         register_dense(img, img[:200])
     with pytest.raises(InputError):
-        DenseOptions(model="warp")
+        GlobalStep(model="warp")
     with pytest.raises(InputError):
         register_dense(img, img, global_result=np.zeros((3, 3)))
     with pytest.raises(InputError):
         DenseOptions(radius=0)
     with pytest.raises(InputError, match="grid_spacing"):  # beyond the images' longer side
-        register_dense(img, img, options=DenseOptions(grid_spacing=400.0))
+        register_dense(img, img, options=DenseOptions(membrane=Membrane(grid_spacing=400.0)))
     with pytest.raises(InputError, match="options"):
         register_dense(img, img, options={"levels": 4})
 
@@ -525,7 +525,7 @@ def test_bad_initial_grids_are_refused(warped_pair):
         with pytest.raises(InputError, match="initial_level"):
             replace(options, initial_level=level)
     with pytest.raises(InputError, match="nodes"):  # another grid spacing
-        register_dense(ref, mov, initial=good, global_result=np.eye(3), options=replace(options, grid_spacing=12.0))
+        register_dense(ref, mov, initial=good, global_result=np.eye(3), options=replace(options, membrane=Membrane(grid_spacing=12.0)))
     same = register_dense(ref, mov, initial=good, **kw)  # from its own end (level 2): no worse
     assert same.info["evidence"] >= 0.9 * good.info["evidence"]
 
@@ -533,22 +533,33 @@ def test_bad_initial_grids_are_refused(warped_pair):
 def test_dense_options_are_one_checked_frozen_value():
     from pcreg.registration.dense import STIFFNESS_SCHEDULE
 
-    o = DenseOptions(levels=np.int64(4), stiffness=[4, 2.0], texture=2, init=np.eye(3) * 2)
-    assert type(o.levels) is int and o.stiffness == (4.0, 2.0) and type(o.texture) is float
-    assert o.init == ((2.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 2.0)) and o.global_init.dtype == np.float64
-    assert hash(o) == hash(DenseOptions(levels=4, stiffness=(4.0, 2.0), texture=2.0, init=2 * np.eye(3)))
-    assert DenseOptions().stiffness == STIFFNESS_SCHEDULE and DenseOptions().global_init == "identity"
+    o = DenseOptions(levels=np.int64(4), texture=2, membrane=Membrane(stiffness=[4, 2.0]),
+                     global_step=GlobalStep(init=np.eye(3) * 2))
+    assert type(o.levels) is int and o.membrane.stiffness == (4.0, 2.0) and type(o.texture) is float
+    assert o.global_step.init == ((2.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 2.0))
+    assert o.global_step.start.dtype == np.float64
+    assert hash(o) == hash(DenseOptions(levels=4, texture=2.0, membrane=Membrane(stiffness=(4.0, 2.0)),
+                                        global_step=GlobalStep(init=2 * np.eye(3))))
+    assert DenseOptions().membrane.stiffness == STIFFNESS_SCHEDULE and DenseOptions().global_step.start == "identity"
     with pytest.raises(AttributeError):
         o.levels = 3  # type: ignore[misc]
-    for bad, match in (({"levels": 0}, "levels"), ({"levels": 3, "finest_level": 3}, "finest_level"),
-                       ({"grid_spacing": 1.0}, "grid_spacing"), ({"stiffness": ()}, "stiffness"),
-                       ({"texture": 0}, "texture"), ({"edge_aware": 1}, "edge_aware"), ({"init": "nowhere"}, "init"),
-                       ({"init": np.zeros((3, 3))}, "init"), ({"backend": "gpu"}, "backend"), ({"seed": -1}, "seed"),
-                       ({"global_levels": 9}, "global_levels"), ({"chance_factor": float("nan")}, "chance_factor")):
+    for part, bad, match in ((DenseOptions, {"levels": 0}, "levels"),
+                             (DenseOptions, {"levels": 3, "finest_level": 3}, "finest_level"),
+                             (DenseOptions, {"texture": 0}, "texture"), (DenseOptions, {"seed": -1}, "seed"),
+                             (DenseOptions, {"chance_factor": float("nan")}, "chance_factor"),
+                             (DenseOptions, {"membrane": {"strain": 1.0}}, "membrane"),
+                             (DenseOptions, {"global_step": "identity"}, "global_step"),
+                             (Membrane, {"grid_spacing": 1.0}, "grid_spacing"), (Membrane, {"stiffness": ()}, "stiffness"),
+                             (Membrane, {"edge_aware": 1}, "edge_aware"), (Membrane, {"strain": 0}, "strain"),
+                             (Membrane, {"cg_iterations": -1}, "cg_iterations"),
+                             (GlobalStep, {"init": "nowhere"}, "init"), (GlobalStep, {"init": np.zeros((3, 3))}, "init"),
+                             (GlobalStep, {"backend": "gpu"}, "backend"), (GlobalStep, {"model": "warp"}, "model"),
+                             (GlobalStep, {"levels": 9}, "global_step.levels"),
+                             (GlobalStep, {"iterations": 0}, "global_step.iterations")):
         with pytest.raises(InputError, match=match):
-            DenseOptions(**bad)
+            part(**bad)
         with pytest.raises(InputError, match=match):  # a copy with a change is checked as well
-            replace(DenseOptions(), **bad)
+            replace(part(), **bad)
 
 
 def test_a_prepared_reference_gives_the_same_registration_and_is_refused_for_another_image(warped_pair):

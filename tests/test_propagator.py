@@ -181,7 +181,9 @@ def test_dense_step_options_are_checked():
     assert ok.warm is True and type(ok.restart_ratio) is float and type(ok.warm_level) is int
     assert DenseStep().options(warm=True) == pcreg.DenseOptions(texture=None, iterations=4, max_points=5000,
                                                                 initial_level=2)
-    base = pcreg.DenseOptions(backend="open3d", seed=3)
+    from pcreg.registration.dense import GlobalStep
+
+    base = pcreg.DenseOptions(seed=3, global_step=GlobalStep(backend="open3d"))
     assert DenseStep().options(base) == replace(base, texture=None, iterations=8, max_points=5000)
     with pytest.raises(InputError, match="max_points"):  # the dense options are checked when the stream is made
         image = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)

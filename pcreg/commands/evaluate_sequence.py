@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..experiments.sequence import DEFAULT_INCREMENTS, SequenceConfig
+from ..experiments.sequence import DEFAULT_INCREMENTS, SequenceConfig, SequenceFusion
 from ..pipeline import PIPELINE_REGISTRATION
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -60,7 +60,7 @@ def config_from_args(args: argparse.Namespace) -> SequenceConfig:
         registration.replace(backend=backend)
     return SequenceConfig(data=args.data, increments=tuple(sorted(set(args.increments))),
                           backends=c.backends(args.backend), frames=args.frames, size=args.size, seed=args.seed,
-                          train=args.train, fusion_frames=args.fusion_frames, fusion_weight=args.fusion_weight,
+                          train=args.train, fusion=SequenceFusion(frames=args.fusion_frames, weight=args.fusion_weight),
                           registration=registration)
 
 

@@ -264,5 +264,5 @@ def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, for
     if scaled and not config.case3_k and "III" in config.cases:
         notes.append("Case III: k per dataset is 10% and 20% of its length (the thesis: 10 and 20 of 100)")
     return Results("classification", cfg_dict, info, results, resumed_units=resumed, seconds=time.perf_counter() - t0,
-                   notes=tuple(notes), k=ks, weight_search=searches)
+                   notes=tuple(notes), sections={"k": ks, "weight_search": searches})
 

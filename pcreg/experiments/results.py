@@ -7,10 +7,12 @@ nothing else, the same one that ``pcreg view OUT_DIR`` reads back from disk.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 KINDS = ("classification", "rotation", "sequence", "stream")
+#: The top-level sections one kind of evaluation has and the others do not (:attr:`Results.sections`).
+SECTIONS = ("k", "weight_search", "average_reduction", "calibration")
 
 
 @dataclass(frozen=True)
@@ -29,11 +31,14 @@ class Results:
     methods : the methods compared, in table order (sequence, stream).
     backends : per backend, its own ``datasets`` tables (rotation, sequence).
     notes : what the tables' readers should know (a scaled k, a refused pair).
-    k : classification: the training sizes of cases I and III per dataset.
-    weight_search : classification: the thesis feature weights found per dataset.
-    average_reduction : stream: each method's mean over clips of its reduction of plain's error (%).
-    calibration : stream: pcreg's confidence over every clip's known pixels
-        (:func:`pcreg.experiments.stream.calibration`).
+    sections : the sections of one kind of evaluation (:data:`SECTIONS`), each also read as an attribute
+        (None where absent):
+
+        - ``k`` (classification): the training sizes of cases I and III per dataset;
+        - ``weight_search`` (classification): the thesis feature weights found per dataset;
+        - ``average_reduction`` (stream): each method's mean over clips of its reduction of plain's error (%);
+        - ``calibration`` (stream): pcreg's confidence over every clip's known pixels
+          (:func:`pcreg.experiments.stream.calibration`).
     """
 
     kind: str
@@ -46,14 +51,34 @@ class Results:
     methods: tuple[str, ...] | None = None
     backends: dict[str, dict] | None = None
     notes: tuple[str, ...] | None = None
-    k: dict | None = None
-    weight_search: list[dict] | None = None
-    average_reduction: dict[str, float] | None = None
-    calibration: dict | None = None
+    sections: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        unknown = sorted(set(self.sections) - set(SECTIONS))
+        if unknown:
+            raise ValueError(f"unknown results section(s) {', '.join(unknown)}; the sections are {', '.join(SECTIONS)}")
+
+    @property
+    def k(self) -> dict | None:
+        """Classification: the training sizes of cases I and III per dataset."""
+        return self.sections.get("k")
+
+    @property
+    def weight_search(self) -> list[dict] | None:
+        """Classification: the thesis feature weights found per dataset."""
+        return self.sections.get("weight_search")
+
+    @property
+    def average_reduction(self) -> dict[str, float] | None:
+        """Stream: each method's mean over clips of its reduction of plain's error (%)."""
+        return self.sections.get("average_reduction")
+
+    @property
+    def calibration(self) -> dict | None:
+        """Stream: pcreg's confidence over every clip's known pixels."""
+        return self.sections.get("calibration")
 
     def to_dict(self) -> dict[str, Any]:
         """The results.json document: the fields in this order, those an evaluation does not have left out."""

@@ -19,8 +19,9 @@ thesis's Figures 6.1-6.9) and sequence_summary.png.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 from ..classification.features import DEFAULT_FEATURES
 from .results import Results
@@ -36,16 +37,37 @@ RECORDED_PREDICTIONS = ("plain", "augmented", "augmented_temporal")
 
 
 @dataclass(frozen=True)
+class SequenceFusion:
+    """How ``pcreg evaluate sequence`` fuses each pair's propagated prior (:attr:`SequenceConfig.fusion`).
+
+    frames : C, the first frames of each sequence the fusion weight is chosen on (None: the default,
+        :func:`pcreg.pipeline.resolve_fusion_frames`). weight : a fixed weight (None: chosen on the first
+        C frames). eps, sigma : the prior's mixing and blur (:class:`pcreg.classification.fusion.FusionConfig`).
+    """
+
+    frames: int | None = None
+    weight: float | None = None
+    eps: float = 0.05
+    sigma: float = 2.0
+
+    def config(self):
+        """The pipeline's :class:`~pcreg.classification.fusion.FusionConfig` (checked when made)."""
+        from ..classification.fusion import FusionConfig
+
+        return FusionConfig(weight=self.weight, eps=self.eps, sigma=self.sigma)
+
+
+@dataclass(frozen=True)
 class SequenceConfig:
-    """Everything that determines ``pcreg evaluate sequence``'s numbers (written as config.json).
+    """Everything that determines ``pcreg evaluate sequence``'s numbers (written as config.json by
+    :meth:`to_dict`).
 
     data : a ``--data`` value. increments : k values. backends : ICP backends, in order (the first is
     the one whose means are the top-level numbers of results.json). frames : frames per synthetic
     sequence (default 100) or first frames of real ones (default all). size : synthetic (width, height).
-    seed : synthetic data. train : ``reference`` or ``first:K``. fusion_frames : C (None: default).
-    fusion_weight : fixed weight (None: chosen on the first C frames). eps, sigma : the prior's mixing
-    and blur (:class:`pcreg.classification.fusion.FusionConfig`). registration (its backend is set per
-    unit from ``backends``), features: the pipeline (:class:`pcreg.pipeline.PipelineConfig`).
+    seed : synthetic data. train : ``reference`` or ``first:K``. fusion : the frames the fusion weight
+    is chosen on, a fixed weight, the prior's mixing and blur (:class:`SequenceFusion`). registration (its
+    backend is set per unit from ``backends``), features: the pipeline (:class:`pcreg.pipeline.PipelineConfig`).
     """
 
     data: str = "synthetic"
@@ -55,19 +77,27 @@ class SequenceConfig:
     size: tuple[int, int] | None = None
     seed: int = 0
     train: str = "reference"
-    fusion_frames: int | None = None
-    fusion_weight: float | None = None
-    eps: float = 0.05
-    sigma: float = 2.0
+    fusion: SequenceFusion = SequenceFusion()
     registration: RegisterConfig = PIPELINE_REGISTRATION
     features: tuple[str, ...] = DEFAULT_FEATURES
 
     def pipeline(self, backend: str):
-        from ..classification.fusion import FusionConfig
         from ..pipeline import PipelineConfig
 
         return PipelineConfig(registration=self.registration.replace(backend=backend), features=tuple(self.features),
-                              fusion=FusionConfig(weight=self.fusion_weight, eps=self.eps, sigma=self.sigma))
+                              fusion=self.fusion.config())
+
+    def to_dict(self) -> dict[str, Any]:
+        """config.json: the fields in order, ``fusion`` written flat in its place as ``fusion_frames``,
+        ``fusion_weight``, ``eps`` and ``sigma`` (so earlier output folders resume)."""
+        doc: dict[str, Any] = {}
+        for name, value in asdict(self).items():
+            if name == "fusion":
+                doc.update(fusion_frames=value["frames"], fusion_weight=value["weight"], eps=value["eps"],
+                           sigma=value["sigma"])
+            else:
+                doc[name] = value
+        return doc
 
 
 # ---------------------------------------------------------------------------------------------
@@ -90,7 +120,7 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     on_pair, icp = _recording_hooks(recorder, unit, frame_counter if frame_counter is not None else [0], recorded)
     try:
         res = run_sequence(frames, k=unit.k, config=cfg.pipeline(unit.backend), train=cfg.train,
-                           fusion_frames=cfg.fusion_frames, on_pair=on_pair, icp_callback=icp)
+                           fusion_frames=cfg.fusion.frames, on_pair=on_pair, icp_callback=icp)
         out = res.to_dict()
         out["error"] = None
     except InputError as exc:  # e.g. a training frame with one class only: the unit fails, the run goes on

@@ -356,4 +356,5 @@ def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
                  np.zeros((2, CONFIDENCE_LEVELS), np.int64))
     average = {m: float(np.mean([c["reduction"][m] for c in clips.values()])) for m in config.methods} if clips else {}
     return Results("stream", plain_config(config), clips, unit_results, primary_backend=config.backends[0],
-                   methods=tuple(config.methods), average_reduction=average, calibration=calibration(pooled))
+                   methods=tuple(config.methods),
+                   sections={"average_reduction": average, "calibration": calibration(pooled)})

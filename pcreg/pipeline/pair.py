@@ -160,13 +160,14 @@ def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, conf
     try:
         if config.registration.model == "dense":
             from ..registration.api import register_dense
-            from ..registration.dense import DenseOptions
+            from ..registration.dense import DenseOptions, GlobalStep
 
             # the global step is the dense step's start, not its answer: a 3-D scene fails a global
             # model's plausibility test by design, so the test is the dense step's own (on its field)
             start = config.registration.replace(model=DENSE_GLOBAL_MODEL, min_inlier_ratio=None)
             glob = register(reference_image, moving_image, config=start, callback=callback)
-            options = DenseOptions(backend=config.registration.backend, seed=config.registration.search.seed)
+            options = DenseOptions(seed=config.registration.search.seed,
+                                   global_step=GlobalStep(backend=config.registration.backend))
             res = register_dense(reference_image, moving_image, options=options, global_result=glob)
         else:
             res = register(reference_image, moving_image, config=config.registration, callback=callback)

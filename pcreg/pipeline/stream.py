@@ -240,9 +240,9 @@ class Propagator:
                                    model=base.model if model == "dense" else model)
         self.dense = dense
         # the dense registration's options, cold and warm, checked once here
-        from ..registration.dense import DenseOptions
+        from ..registration.dense import DenseOptions, GlobalStep
 
-        base = DenseOptions(backend=self.config.backend, seed=self.config.search.seed)
+        base = DenseOptions(seed=self.config.search.seed, global_step=GlobalStep(backend=self.config.backend))
         self._dense_options = (dense.options(base), dense.options(base, warm=True))
         self._estimator: DenseEstimator | GlobalEstimator = (
             DenseEstimator(self.config, dense, *self._dense_options) if model == "dense" else GlobalEstimator(self.config))

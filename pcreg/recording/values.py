@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import Any, Mapping
 
 import numpy as np
@@ -42,19 +41,11 @@ def as_colors(colors: Any, n: int, name: str) -> np.ndarray | None:
 
 
 def display_indices(n: int, limit: int) -> np.ndarray | slice:
-    """Evenly spaced indices of at most ``limit`` of ``n`` items (deterministic, order kept)."""
+    """Evenly spaced indices of at most ``limit`` of ``n`` items (deterministic, order kept). Computed
+    each time: about 4 us, three times a recorded ICP iteration."""
     if n <= limit:
         return slice(None)
-    return _spaced(n, limit)
-
-
-@functools.lru_cache(maxsize=64)
-def _spaced(n: int, limit: int) -> np.ndarray:
-    """``limit`` evenly spaced indices of ``n``, read-only: an ICP callback asks for the same few twice
-    an iteration, and ``np.linspace`` each time cost about a millisecond a recorded pair."""
-    idx = np.linspace(0, n - 1, limit).astype(np.intp)
-    idx.flags.writeable = False
-    return idx
+    return np.linspace(0, n - 1, limit).astype(np.intp)
 
 
 def apply_homography(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -19,14 +19,14 @@ from ..validation import (check_callable, check_int, check_matrix, short_repr)
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .config import DEFAULT_MIN_INLIER_RATIO, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
-                    InitialGrid, finest_grid_shape, refine_field)
+                    GlobalStep, InitialGrid, finest_grid_shape, refine_field)
 from .dense.levels import check_prepared
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, Plausibility
 from .pyramid import CloudPyramid
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule
 from .reference import check_rank
 from .refine import CoarseToFine
-from .result import IcpIteration, RegistrationResult
+from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
 from .steps import BACKENDS, IcpSettings, StepCall, icp_step, refuse_for_open3d
 from .transforms import about_point, apply, check_model, image_center
@@ -258,7 +258,7 @@ def _register_dense_model(reference_image, moving_image, config: RegisterConfig,
     dense field (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult`."""
     start = register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL), init=start_matrix)
     return register_dense(reference_image, moving_image, global_result=start,
-                          options=DenseOptions(backend=config.backend, seed=config.search.seed))
+                          options=DenseOptions(seed=config.search.seed, global_step=GlobalStep(backend=config.backend)))
 
 
 def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, options: DenseOptions = DenseOptions(),
@@ -272,14 +272,13 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, opt
     options : :class:`~pcreg.registration.dense.DenseOptions`, the dense step's and the global step's
         options (checked when made, and here against the images' size).
     global_result : the global step's result or a 3x3 ``T_ref_mov``; None runs :func:`pcreg.register`
-        with the options' ``model``, ``global_levels``, ``global_iterations``, ``init`` and ``backend``
-        (its :class:`~pcreg.errors.RegistrationError` propagates).
+        with the options' :class:`~pcreg.registration.dense.GlobalStep` and ``seed`` (its :class:`~pcreg.errors.RegistrationError` propagates).
     initial : start from an earlier registration of the same reference (its result or its ``grid``),
         e.g. the previous video frame's: its displacements, added to *this* registration's global
         transform (give the earlier one's), start level ``options.initial_level`` with the gate
         ``radius``, and the coarser levels are skipped, so the frame may have moved ``radius *
         2^initial_level`` px (12) from the earlier field, against 48 px from the global transform. Same
-        image size, ``finest_level`` and ``grid_spacing`` (the grid's shape is checked). Measured in use:
+        image size, ``finest_level`` and ``membrane.grid_spacing`` (the grid's shape is checked). Measured in use:
         :class:`pcreg.pipeline.stream.DenseStep`.
     prepared : ``reference_image`` prepared once for many registrations
         (:func:`~pcreg.registration.dense.prepare_reference` with the same options), which saves building
@@ -325,7 +324,7 @@ def _initial_grid(initial, shape: tuple[int, ...], options: DenseOptions) -> Ini
     if grid.shape != (*expected, 2):
         raise InputError(f"initial: a grid of shape {grid.shape}, but a registration of {shape[1]}x{shape[0]} "
                          f"images at finest_level {options.finest_level} and grid_spacing "
-                         f"{options.grid_spacing:g} has {expected[0]}x{expected[1]} nodes: it must come from "
+                         f"{options.membrane.grid_spacing:g} has {expected[0]}x{expected[1]} nodes: it must come from "
                          "one of the same size and options")
     with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: inf, refused below
         grid = np.array(grid, dtype=np.float32)
@@ -355,9 +354,8 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
     if global_result is not None:
         given = _given_global(global_result)
         return given, float(given.seconds)
-    config = RegisterConfig.of(backend=options.backend, model=options.model, levels=options.global_levels,
-                               iterations=options.global_iterations, seed=options.seed)
-    return register(ref, mov, config=config, init=options.global_init), 0.0
+    step = options.global_step
+    return register(ref, mov, config=step.config(options.seed), init=step.start), 0.0
 
 
 
@@ -367,8 +365,9 @@ def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate
     r = best.refined
     return RegistrationResult(
         matrix=r.matrix, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=r.iterations,
-        converged=r.converged, backend=backend, seconds=seconds, inlier_ratio=evidence.inlier_ratio,
-        chance_ratio=evidence.chance_ratio, overlap=evidence.overlap, generator=best.generator, frames="T_ref_mov",
+        converged=r.converged, backend=backend, seconds=seconds, frames="T_ref_mov",
+        evidence=ImageEvidence(inlier_ratio=evidence.inlier_ratio, chance_ratio=evidence.chance_ratio,
+                               overlap=evidence.overlap, generator=best.generator),
         info={"moving_points": points[0], "reference_points": points[1],
               "hypotheses": [{"generator": c.generator, "inlier_ratio": c.inlier_ratio,
                               "photometric_ncc": c.photometric_ncc} for c in tried],

@@ -23,6 +23,26 @@ def _fmt_matrix(m: np.ndarray) -> str:
     return "[" + ", ".join("[" + ", ".join(f"{v:.6g}" for v in row) + "]" for row in np.asarray(m)) + "]"
 
 
+@dataclass(frozen=True)
+class ImageEvidence:
+    """An image registration's evidence (:attr:`RegistrationResult.evidence`): how well its transform
+    aligns the edges, and which hypothesis it came from.
+
+    inlier_ratio : share of the moving edge points that land on the reference with a reference edge point
+        within 1 px (``inlier_tolerance``) and the same edge direction.
+    chance_ratio : the inlier ratio that content unrelated in edge direction would reach at the same
+        distances; a true alignment is well above it.
+    overlap : share of the moving edge points that land on the reference image.
+    generator : which hypothesis generator's candidate won (``"edges"``, ``"fourier_mellin"``, ``"orb"``,
+        or ``"init"`` for a given initial guess).
+    """
+
+    inlier_ratio: float
+    chance_ratio: float
+    overlap: float
+    generator: str
+
+
 @dataclass(frozen=True, repr=False)
 class RegistrationResult:
     """What both ICP backends and every cross-checked implementation return, so they can be compared
@@ -48,17 +68,11 @@ class RegistrationResult:
         the implementation's name.
     seconds : float
         Wall time of the registration alone (no I/O, no imports).
-    inlier_ratio : float
-        Image registration's evidence: share of the moving edge points that land on the reference with a
-        reference edge point within 1 px (``inlier_tolerance``) and the same edge direction (NaN for clouds).
-    chance_ratio : float
-        The inlier ratio that content unrelated in edge direction would reach at the same distances (NaN
-        for clouds); a true alignment is well above it.
-    overlap : float
-        Share of the moving edge points that land on the reference image (NaN for clouds).
-    generator : str or None
-        Which hypothesis generator's candidate won (``"edges"``, ``"fourier_mellin"``, ``"orb"``, or
-        ``"init"`` for a given initial guess); None for clouds.
+    evidence : ImageEvidence or None
+        An image registration's evidence (:func:`pcreg.register`): its edge inlier, chance and overlap
+        ratios and the generator of the winning hypothesis, also read as :attr:`inlier_ratio`,
+        :attr:`chance_ratio`, :attr:`overlap` and :attr:`generator`; None for clouds and for a given
+        transform (those read as NaN, and None for the generator).
     frames : str
         ``"T_ref_mov"`` (images: moving image -> reference image) or ``"T_target_source"`` (clouds:
         source cloud -> target cloud): the name ``matrix`` goes by.
@@ -76,10 +90,7 @@ class RegistrationResult:
     converged: bool | None
     backend: str
     seconds: float = 0.0
-    inlier_ratio: float = float("nan")
-    chance_ratio: float = float("nan")
-    overlap: float = float("nan")
-    generator: str | None = None
+    evidence: ImageEvidence | None = None
     info: dict = field(default_factory=dict, compare=False)
     frames: str = "T_target_source"
     trace: tuple[IcpIteration, ...] = field(default=(), compare=False)
@@ -90,6 +101,26 @@ class RegistrationResult:
         m = np.array(self.matrix, dtype=np.float64, copy=True)
         m.setflags(write=False)
         object.__setattr__(self, "matrix", m)
+
+    @property
+    def inlier_ratio(self) -> float:
+        """``evidence.inlier_ratio`` (NaN without evidence)."""
+        return float("nan") if self.evidence is None else self.evidence.inlier_ratio
+
+    @property
+    def chance_ratio(self) -> float:
+        """``evidence.chance_ratio`` (NaN without evidence)."""
+        return float("nan") if self.evidence is None else self.evidence.chance_ratio
+
+    @property
+    def overlap(self) -> float:
+        """``evidence.overlap`` (NaN without evidence)."""
+        return float("nan") if self.evidence is None else self.evidence.overlap
+
+    @property
+    def generator(self) -> str | None:
+        """``evidence.generator`` (None without evidence)."""
+        return None if self.evidence is None else self.evidence.generator
 
     @property
     def T_ref_mov(self) -> np.ndarray:

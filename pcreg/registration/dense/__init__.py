@@ -6,7 +6,7 @@ displacement field by a non-rigid ICP, coarse to fine:
 - **Clouds.** At each pyramid level the reference cloud is every pixel of the reference image, each a
   point ``(x, y, lam * colour)``; the moving cloud is every moving pixel with texture (gradient above
   the image's noise), so flat areas and edges alike carry samples, not edges alone.
-- **Field.** Displacements ``U`` (M, 2) on a control grid of spacing ``grid_spacing`` pixels of the
+- **Field.** Displacements ``U`` (M, 2) on a control grid of spacing ``grid_spacing`` (:class:`Membrane`) pixels of the
   level, interpolated bilinearly: a moving point ``p`` lands at ``G(p) + B(p) U`` (``G`` the global
   transform, ``B`` (N, M) sparse bilinear weights). This is the free-form deformation of Rueckert et
   al. (1999, "Nonrigid registration using free-form deformations", IEEE TMI 18(8)) with first-order
@@ -55,7 +55,8 @@ global transform, and its confidence is low.
 
 The package, one job to a module:
 
-- :mod:`.options`: :class:`DenseOptions`, the options, checked;
+- :mod:`.options`: :class:`DenseOptions`, the options, checked, with their parts :class:`Membrane` and
+  :class:`GlobalStep`;
 - :mod:`.result`: :class:`DenseRegistrationResult` and the callback's :class:`DenseIteration`;
 - :mod:`.levels`: the pyramids (a reference's prepared once: :func:`prepare_reference`), noise, samples
   and texture of each level, and its matching problem;
@@ -71,10 +72,10 @@ from __future__ import annotations
 from ..motion import field_from_matrix
 from .coarse_to_fine import DENSE_STAGES, InitialGrid, refine_field
 from .levels import DenseReference, prepare_reference
-from .options import DENSE_GLOBAL_MODEL, STIFFNESS_SCHEDULE, DenseOptions, finest_grid_shape
+from .options import DENSE_GLOBAL_MODEL, STIFFNESS_SCHEDULE, DenseOptions, GlobalStep, Membrane, finest_grid_shape
 from .result import DenseIteration, DenseRegistrationResult
 from .window import match_window
 
 __all__ = ["DenseRegistrationResult", "DenseIteration", "refine_field", "field_from_matrix",
-           "match_window", "STIFFNESS_SCHEDULE", "DENSE_STAGES", "DenseOptions", "DENSE_GLOBAL_MODEL",
+           "match_window", "STIFFNESS_SCHEDULE", "DENSE_STAGES", "DenseOptions", "GlobalStep", "Membrane", "DENSE_GLOBAL_MODEL",
            "InitialGrid", "finest_grid_shape", "DenseReference", "prepare_reference"]

@@ -77,16 +77,17 @@ def _iterate_level(lv: _Level, pb: _Problem, U: np.ndarray, options: DenseOption
     """The non-rigid ICP iterations of one level, from the grid ``U``; a level whose matches all fail
     stops early. ``pb``: the level's problem."""
     f = lv.scale
-    base_alpha = 1.0 / (lv.spacing * options.strain) ** 2
+    membrane = options.membrane
+    base_alpha = 1.0 / (lv.spacing * membrane.strain) ** 2
     weights_node, steps, fitness, rms = None, 0, float("nan"), float("nan")
     for it in range(options.iterations):
         clock.lap("pyramid" if it == 0 else "solve")
         X = pb.GP + pb.NE.interpolate(U)
         m = match_window(pb.R, pb.Mv, pb.P, X, pb.C, radius=pb.radius, lam=pb.lam)
         clock.lap("search")
-        k = options.stiffness[min(it, len(options.stiffness) - 1)]
+        k = membrane.stiffness[min(it, len(membrane.stiffness) - 1)]
         alpha = k * base_alpha
-        step = pb.NE.robust_step(m, X, pb.GP, pb.sigma, alpha, 1e-4 * alpha, U, maxiter=options.cg_iterations)
+        step = pb.NE.robust_step(m, X, pb.GP, pb.sigma, alpha, 1e-4 * alpha, U, maxiter=membrane.cg_iterations)
         if step is None:  # no sample got a weight: the field stays
             break
         U, weights_node, sw, swr, n_inliers = step
@@ -219,6 +220,6 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
     return DenseRegistrationResult(matrix=T, field=full.field, confidence=full.confidence,
                                    global_result=global_result, fitness=grid.fitness, inlier_rmse=grid.rms,
                                    iterations=grid.steps, seconds=time.perf_counter() - started + given_seconds,
-                                   backend=options.backend, grid=full.grid,
+                                   backend=options.global_step.backend, grid=full.grid,
                                    info={"levels": (top, options.finest_level), "grid": full.grid.shape[:2],
                                          "evidence": evidence, "times": clock.times})

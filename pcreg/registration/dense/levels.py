@@ -141,7 +141,7 @@ def prepare_reference(reference_image: np.ndarray, *, options: DenseOptions = De
     pyr, val = _pyramid(img, _coarsest_level(img.shape, options))
     image = img.copy()
     _read_only(image, *pyr, *val)  # shared by every registration it is given to: nobody writes into them
-    weights = MappingProxyType(grid_weights([p.shape[:2] for p in pyr], options.grid_spacing, options.finest_level))
+    weights = MappingProxyType(grid_weights([p.shape[:2] for p in pyr], options.membrane.grid_spacing, options.finest_level))
     return DenseReference(image, tuple(pyr), tuple(val), weights)
 
 
@@ -212,7 +212,7 @@ def _level_problem(pyr: _Pyramids, level: int, T: np.ndarray, options: DenseOpti
     """The level's grid, samples (seed ``options.seed + level``) and equations (no problem under 16 samples)."""
     R, Mv = pyr.reference[level], pyr.moving[level]
     lh, lw = R.shape[:2]
-    s = float(options.grid_spacing)
+    s = float(options.membrane.grid_spacing)
     gshape = _grid_shape(lh, lw, s)
     sigma = max(_noise_sigma(cv2.cvtColor(Mv, cv2.COLOR_RGB2GRAY)), 0.5 / 255.0)
     lam = 1.0 / (math.sqrt(6.0) * sigma)
@@ -228,6 +228,6 @@ def _level_problem(pyr: _Pyramids, level: int, T: np.ndarray, options: DenseOpti
     C = Mv[P[:, 1].astype(np.intp), P[:, 0].astype(np.intp)]
     val_r = pyr.reference_valid[level]
     R_match = R if val_r.all() else np.where(val_r[:, :, None], R, np.float32(10.0))
-    NE = _NormalEquations(P, gshape, s, _edge_weights(Mv, gshape, s) if options.edge_aware else None)
+    NE = _NormalEquations(P, gshape, s, _edge_weights(Mv, gshape, s) if options.membrane.edge_aware else None)
     GP = _apply(_level_matrix(T, level), P)
     return _Level(level, s, gshape, rate, _Problem(R_match, Mv, P, C, GP, NE, lam, radius, sigma))

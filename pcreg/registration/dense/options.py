@@ -1,4 +1,5 @@
-"""The dense registration's options: :class:`DenseOptions`, one frozen value, checked when it is made."""
+"""The dense registration's options: :class:`DenseOptions`, one frozen value checked when it is made, with
+its two parts, the field's :class:`Membrane` and the :class:`GlobalStep`."""
 
 from __future__ import annotations
 
@@ -8,11 +9,11 @@ import numpy as np
 
 from ...errors import InputError
 from ...validation import check_bool, check_choice, check_float, check_floats, check_int, check_matrix, short_repr
-from ..config import BACKENDS, INITS
+from ..config import BACKENDS, INITS, RegisterConfig
 from ..transforms import MODELS
 from .grid import _grid_shape
 
-__all__ = ["DENSE_GLOBAL_MODEL", "STIFFNESS_SCHEDULE", "DenseOptions", "finest_grid_shape"]
+__all__ = ["DENSE_GLOBAL_MODEL", "STIFFNESS_SCHEDULE", "DenseOptions", "GlobalStep", "Membrane", "finest_grid_shape"]
 
 #: Stiffness per iteration of a level (Amberg et al. 2007: stiff to relaxed); the last value repeats.
 STIFFNESS_SCHEDULE: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
@@ -20,12 +21,90 @@ STIFFNESS_SCHEDULE: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
 DENSE_GLOBAL_MODEL = "similarity"
 
 
+def _put(options, name: str, value) -> None:
+    """Store a checked, normalised option on a frozen value."""
+    object.__setattr__(options, name, value)
+
+
+@dataclass(frozen=True)
+class Membrane:
+    """The field's control grid and the membrane that keeps it smooth (:mod:`.grid`); part of
+    :class:`DenseOptions`, checked when made.
+
+    grid_spacing : control-grid spacing in pixels of each level (at least 2; at most the images' longer
+        side, checked by :meth:`DenseOptions.check_shape`).
+    stiffness : the schedule multiplying the membrane weight per iteration of a level (the last value repeats).
+    strain : the largest plausible motion gradient (px per px), which sets the membrane weight.
+    edge_aware : weight each membrane edge by the moving image's colour change across it
+        (:func:`~pcreg.registration.dense.grid._edge_weights`), so the field can bend at object outlines;
+        False: a uniform membrane.
+    cg_iterations : each step solves the grid's equations inexactly, with at most this many
+        Jacobi-preconditioned conjugate-gradient iterations warm-started from the last field (the
+        ICP iterates anyway); 0: an exact sparse LU solve each step.
+    """
+
+    grid_spacing: float = 8.0
+    stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE
+    strain: float = 0.25
+    edge_aware: bool = False
+    cg_iterations: int = 30
+
+    def __post_init__(self) -> None:
+        _put(self, "grid_spacing", check_float(self.grid_spacing, "grid_spacing", lo=2))
+        stiffness = check_floats(self.stiffness, "stiffness", lo=0, lo_open=True)
+        if not stiffness:
+            raise InputError("stiffness must be a non-empty sequence of positive numbers")
+        _put(self, "stiffness", stiffness)
+        _put(self, "strain", check_float(self.strain, "strain", lo=0, lo_open=True, hi=100))
+        _put(self, "edge_aware", check_bool(self.edge_aware, "edge_aware"))
+        _put(self, "cg_iterations", check_int(self.cg_iterations, "cg_iterations", lo=0, hi=100_000))
+
+
+@dataclass(frozen=True)
+class GlobalStep:
+    """The global step of :func:`pcreg.register_dense` (:func:`pcreg.register`, run unless it is given a
+    ``global_result``); part of :class:`DenseOptions`, checked when made.
+
+    model : its motion model (:data:`DENSE_GLOBAL_MODEL`, ``projective``, ...).
+    levels, iterations : its pyramid levels and ICP iterations per level.
+    init : its start (``"identity"``, ``"center"``, ``"auto"``/``"global"``, or a 3x3 matrix, kept as a
+        tuple of rows so that the options stay hashable and compare by value).
+    backend : ``"reference"`` or ``"open3d"``: its ICP, and the dense result's ``backend``.
+    """
+
+    model: str = DENSE_GLOBAL_MODEL
+    levels: int = 4
+    iterations: int = 14
+    init: str | tuple[tuple[float, ...], ...] = "identity"
+    backend: str = "reference"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, str) or self.model not in MODELS:
+            raise InputError(f"unknown global motion model {short_repr(self.model)}; choose one of {', '.join(MODELS)}")
+        _put(self, "levels", check_int(self.levels, "global_step.levels", lo=1, hi=8))
+        _put(self, "iterations", check_int(self.iterations, "global_step.iterations", lo=1, hi=100_000))
+        if isinstance(self.init, str):
+            check_choice(self.init, "init", INITS)
+        else:
+            _put(self, "init", tuple(tuple(float(v) for v in row) for row in check_matrix(self.init, "init", 3)))
+        _put(self, "backend", check_choice(self.backend, "backend", BACKENDS))
+
+    @property
+    def start(self) -> str | np.ndarray:
+        """``init`` as :func:`pcreg.register` takes it (a matrix as a (3, 3) float64 array)."""
+        return self.init if isinstance(self.init, str) else np.array(self.init, dtype=np.float64)
+
+    def config(self, seed: int) -> RegisterConfig:
+        """:func:`pcreg.register`'s configuration of this step, its random choices from ``seed``."""
+        return RegisterConfig.of(backend=self.backend, model=self.model, levels=self.levels,
+                                 iterations=self.iterations, seed=seed)
+
+
 @dataclass(frozen=True)
 class DenseOptions:
-    """Options of :func:`pcreg.register_dense`; frozen (change with ``dataclasses.replace``), checked when
-    made (:class:`~pcreg.errors.InputError` for the first bad one, in the order below).
-
-    The dense step:
+    """Options of :func:`pcreg.register_dense`; frozen (change with ``dataclasses.replace``, a part with
+    ``replace(options, membrane=replace(options.membrane, strain=0.5))``), checked when made
+    (:class:`~pcreg.errors.InputError` for the first bad one, in the order below; each part checks its own).
 
     levels : pyramid levels of the dense step (the coarsest is ``levels - 1``); finest_level : the
         finest level it works at (1: half resolution, as DIS's medium preset; 0: full resolution).
@@ -33,18 +112,9 @@ class DenseOptions:
         schedule's four stiff steps, then four at the final stiffness to settle; with 4 the final
         stiffness got one step, and the pairwise evaluation's dense share was 0.60 points on CamVid
         against 0.73 with 8 (synthetic presets 3.90 and 3.98), at about twice the dense step's time.
-    grid_spacing : control-grid spacing in pixels of each level (at least 2; at most the images' longer
-        side, checked by :meth:`check_shape`).
     radius : gate at the coarsest level, fine_radius : at the others (pixels of the level): a finer
         level starts from the coarser level's field, within about a pixel of it there (two here).
     max_points : moving samples per level at most (at random with ``seed``).
-    stiffness : the schedule multiplying the membrane weight (the last value repeats).
-    strain : the largest plausible motion gradient (px per px), which sets the membrane weight.
-    edge_aware : weight each membrane edge by the moving image's colour change across it
-        (:func:`~pcreg.registration.dense.grid._edge_weights`), so the field can bend at object outlines; False: a uniform membrane.
-    cg_iterations : each step solves the grid's equations inexactly, with at most this many
-        Jacobi-preconditioned conjugate-gradient iterations warm-started from the last field (the
-        ICP iterates anyway); 0: an exact sparse LU solve each step.
     texture : match on each level's texture part (:func:`~pcreg.registration.dense.levels._texture`), the image minus its Gaussian blur
         of ``texture`` pixels of the level; None matches the plain colours. 4: on the pairwise evaluation
         (``evaluate sequence --model dense``) a wider blur keeps more of real scenes' colour and helps
@@ -58,83 +128,48 @@ class DenseOptions:
         only by the global step's own test (:func:`pcreg.register`, when it runs here).
     initial_level : where a registration given an ``initial`` grid starts (``finest_level`` .. 7, capped
         at the coarsest level; see ``initial`` of :func:`pcreg.register_dense`).
-
-    The global step (:func:`pcreg.register`, run unless ``register_dense`` is given a ``global_result``):
-
-    model : its motion model (:data:`DENSE_GLOBAL_MODEL`, ``projective``, ...); global_levels,
-        global_iterations : its pyramid levels and ICP iterations per level; init : its start
-        (``"identity"``, ``"center"``, ``"auto"``/``"global"``, or a 3x3 matrix, kept as a tuple of rows).
-    backend : ``"reference"`` or ``"open3d"``: the global step's ICP, and the result's ``backend``.
-    seed : the random choices of both steps (the dense step's samples).
+    seed : the random choices of both steps (the dense step's samples, the global step's search).
+    membrane : the control grid and its smoothness (:class:`Membrane`).
+    global_step : the global step's options (:class:`GlobalStep`); its ``backend`` is the result's.
     """
 
     levels: int = 5
     finest_level: int = 1
     iterations: int = 8
-    grid_spacing: float = 8.0
     radius: int = 3
     fine_radius: int = 2
     max_points: int = 10000
-    stiffness: tuple[float, ...] = STIFFNESS_SCHEDULE
-    strain: float = 0.25
-    edge_aware: bool = False
-    cg_iterations: int = 30
     texture: float | None = 4.0
     chance_factor: float | None = None
     initial_level: int = 2
-    model: str = DENSE_GLOBAL_MODEL
-    global_levels: int = 4
-    global_iterations: int = 14
-    init: str | tuple[tuple[float, ...], ...] = "identity"
-    backend: str = "reference"
     seed: int = 0
+    membrane: Membrane = Membrane()
+    global_step: GlobalStep = GlobalStep()
 
     def __post_init__(self) -> None:
-        def put(name: str, value) -> None:
-            object.__setattr__(self, name, value)
-
-        put("levels", check_int(self.levels, "levels", lo=1, hi=8))
-        put("finest_level", check_int(self.finest_level, "finest_level", lo=0, hi=self.levels - 1))
-        put("iterations", check_int(self.iterations, "iterations", lo=1, hi=100_000))
-        put("grid_spacing", check_float(self.grid_spacing, "grid_spacing", lo=2))
-        put("radius", check_int(self.radius, "radius", lo=1, hi=64))
-        put("fine_radius", check_int(self.fine_radius, "fine_radius", lo=1, hi=64))
-        put("max_points", check_int(self.max_points, "max_points", lo=16))
-        stiffness = check_floats(self.stiffness, "stiffness", lo=0, lo_open=True)
-        if not stiffness:
-            raise InputError("stiffness must be a non-empty sequence of positive numbers")
-        put("stiffness", stiffness)
-        put("strain", check_float(self.strain, "strain", lo=0, lo_open=True, hi=100))
-        put("edge_aware", check_bool(self.edge_aware, "edge_aware"))
-        put("cg_iterations", check_int(self.cg_iterations, "cg_iterations", lo=0, hi=100_000))
+        _put(self, "levels", check_int(self.levels, "levels", lo=1, hi=8))
+        _put(self, "finest_level", check_int(self.finest_level, "finest_level", lo=0, hi=self.levels - 1))
+        _put(self, "iterations", check_int(self.iterations, "iterations", lo=1, hi=100_000))
+        _put(self, "radius", check_int(self.radius, "radius", lo=1, hi=64))
+        _put(self, "fine_radius", check_int(self.fine_radius, "fine_radius", lo=1, hi=64))
+        _put(self, "max_points", check_int(self.max_points, "max_points", lo=16))
         if self.texture is not None:
-            put("texture", check_float(self.texture, "texture", lo=0, lo_open=True))
+            _put(self, "texture", check_float(self.texture, "texture", lo=0, lo_open=True))
         if self.chance_factor is not None:
-            put("chance_factor", check_float(self.chance_factor, "chance_factor", lo=0))
-        put("initial_level", check_int(self.initial_level, "initial_level", lo=0, hi=7))
-        if not isinstance(self.model, str) or self.model not in MODELS:
-            raise InputError(f"unknown global motion model {short_repr(self.model)}; choose one of {', '.join(MODELS)}")
-        put("global_levels", check_int(self.global_levels, "global_levels", lo=1, hi=8))
-        put("global_iterations", check_int(self.global_iterations, "global_iterations", lo=1, hi=100_000))
-        if isinstance(self.init, str):
-            check_choice(self.init, "init", INITS)
-        else:  # a matrix, as a tuple of rows: the options stay hashable and compare by value
-            put("init", tuple(tuple(float(v) for v in row) for row in check_matrix(self.init, "init", 3)))
-        put("backend", check_choice(self.backend, "backend", BACKENDS))
-        put("seed", check_int(self.seed, "seed", lo=0))
+            _put(self, "chance_factor", check_float(self.chance_factor, "chance_factor", lo=0))
+        _put(self, "initial_level", check_int(self.initial_level, "initial_level", lo=0, hi=7))
+        _put(self, "seed", check_int(self.seed, "seed", lo=0))
+        for name, part in (("membrane", Membrane), ("global_step", GlobalStep)):
+            if not isinstance(getattr(self, name), part):
+                raise InputError(f"DenseOptions.{name} must be a {part.__name__}, got {type(getattr(self, name)).__name__}")
 
     def check_shape(self, shape: tuple[int, ...]) -> None:
         """Refuse options that do not fit images of ``shape``: a grid spacing or a texture blur beyond
         the images' longer side."""
         side = max(shape[:2])
-        check_float(self.grid_spacing, "grid_spacing", hi=side)
+        check_float(self.membrane.grid_spacing, "grid_spacing", hi=side)
         if self.texture is not None:
             check_float(self.texture, "texture", hi=side)
-
-    @property
-    def global_init(self) -> str | np.ndarray:
-        """``init`` as :func:`pcreg.register` takes it (a matrix as a (3, 3) float64 array)."""
-        return self.init if isinstance(self.init, str) else np.array(self.init, dtype=np.float64)
 
 
 def _coarsest_level(shape: tuple[int, ...], options: DenseOptions) -> int:
@@ -150,5 +185,5 @@ def finest_grid_shape(shape: tuple[int, ...], options: DenseOptions) -> tuple[in
     h, w = shape[:2]
     for _ in range(options.finest_level):
         h, w = (h + 1) // 2, (w + 1) // 2  # cv2.pyrDown's sizes
-    return _grid_shape(h, w, float(options.grid_spacing))
+    return _grid_shape(h, w, float(options.membrane.grid_spacing))
 

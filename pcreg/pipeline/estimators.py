@@ -19,7 +19,7 @@ once): the caller holds it, as :class:`pcreg.Propagator` holds its key frame's.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -30,7 +30,8 @@ from ..registration.motion import Motion
 if TYPE_CHECKING:
     from ..registration.dense import DenseOptions, DenseReference
 
-__all__ = ["DenseStep", "Carry", "STREAM_DENSE", "Estimate", "GlobalEstimator", "DenseEstimator", "FlowEstimator"]
+__all__ = ["DenseStep", "Carry", "STREAM_DENSE", "Estimate", "GlobalEstimator", "DenseEstimator", "FlowEstimator",
+           "pair_estimator"]
 
 
 @dataclass(frozen=True)
@@ -141,18 +142,19 @@ def _refused(result, image: np.ndarray) -> str | None:
 
 
 class GlobalEstimator:
-    """One transform per frame: :func:`pcreg.register` with ``config``, a degenerate one refused."""
+    """One transform per frame: :func:`pcreg.register` with ``config`` (and its ``callback``, called after
+    every ICP iteration), a degenerate one refused."""
 
-    def __init__(self, config: RegisterConfig) -> None:
+    def __init__(self, config: RegisterConfig, *, callback: Callable | None = None) -> None:
         if not isinstance(config, RegisterConfig):
             raise InputError("config must be a pcreg.RegisterConfig")
-        self.config = config
+        self.config, self.callback = config, callback
 
     def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
         from ..registration.api import register
 
         try:
-            result = register(reference, image, config=self.config)
+            result = register(reference, image, config=self.config, callback=self.callback)
         except RegistrationError as exc:
             return Estimate(None, str(exc))
         why = _refused(result, image)
@@ -164,10 +166,12 @@ class DenseEstimator:
     stream's: :meth:`DenseStep.options`); from the identity, or after ``config``'s global registration
     when ``step.global_start`` is ``"register"``. Given a :class:`Carry`, it starts warm from its grid,
     and runs again cold where the warm field's evidence falls under ``step.restart_ratio`` of the last
-    cold field's, keeping the field with more evidence."""
+    cold field's, keeping the field with more evidence. ``callback``: the global registration's, called
+    after every ICP iteration."""
 
-    def __init__(self, config: RegisterConfig, step: "DenseStep", cold: "DenseOptions", warm: "DenseOptions") -> None:
-        self.config, self.step, self.cold, self.warm = config, step, cold, warm
+    def __init__(self, config: RegisterConfig, step: "DenseStep", cold: "DenseOptions", warm: "DenseOptions", *,
+                 callback: Callable | None = None) -> None:
+        self.config, self.step, self.cold, self.warm, self.callback = config, step, cold, warm, callback
 
     def prepare(self, reference: np.ndarray) -> "DenseReference":
         """The reference's pyramid, built once for every estimate against it."""
@@ -192,7 +196,8 @@ class DenseEstimator:
         the registration under way started, for a refusal's report."""
         from ..registration.api import register, register_dense
 
-        T = register(reference, image, config=self.config) if self.step.global_start == "register" else np.eye(3)
+        T = (register(reference, image, config=self.config, callback=self.callback)
+             if self.step.global_start == "register" else np.eye(3))
 
         def dense(options, initial=None):
             return register_dense(reference, image, options=options, global_result=T, initial=initial,
@@ -213,6 +218,22 @@ class DenseEstimator:
                 result = again
             evidence, start = again.info["evidence"], "restarted"
         return result, start, evidence
+
+
+def pair_estimator(registration: RegisterConfig, *, callback: Callable | None = None
+                   ) -> "GlobalEstimator | DenseEstimator":
+    """How a pair of images is registered (:func:`pcreg.pipeline.pair.register_pair`): ``registration``'s
+    global model, or with ``model="dense"`` a dense field from scratch after a global similarity. That
+    global step is the dense step's start, not its answer: a 3-D scene fails a global model's
+    plausibility test by design, so the test is off there and the dense step's own (on its field)
+    decides."""
+    if registration.model != "dense":
+        return GlobalEstimator(registration, callback=callback)
+    from ..registration.dense import DENSE_GLOBAL_MODEL, DenseOptions, GlobalStep
+
+    start = registration.replace(model=DENSE_GLOBAL_MODEL, min_inlier_ratio=None)
+    options = DenseOptions(seed=registration.search.seed, global_step=GlobalStep(backend=registration.backend))
+    return DenseEstimator(start, DenseStep(global_start="register", warm=False), options, options, callback=callback)
 
 
 class FlowEstimator:

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from ..errors import InputError, RegistrationError
+from ..errors import InputError
 from ..validation import check_bool, check_callable, check_float, check_frame, check_ints
 from ..registration.config import RegisterConfig
 from ..registration.dense import DENSE_GLOBAL_MODEL
@@ -152,33 +152,14 @@ def motion_of(res) -> Motion | None:
 
 def register_pair(reference_image: np.ndarray, moving_image: np.ndarray, *, config: PipelineConfig = PipelineConfig(),
                   callback: Callable | None = None) -> PairRegistration:
-    """:func:`pcreg.register` with the configured options; a :class:`~pcreg.errors.RegistrationError`
-    (or a degenerate transform) becomes a :class:`PairRegistration` with ``result=None`` and its reason."""
-    from ..registration.api import register
+    """The pair's motion by its configured registration (:func:`~pcreg.pipeline.estimators.pair_estimator`:
+    :func:`pcreg.register`, or a dense field from scratch); a :class:`~pcreg.errors.RegistrationError` (or
+    a degenerate transform) becomes a :class:`PairRegistration` with ``result=None`` and its reason."""
+    from .estimators import pair_estimator
 
     t0 = time.perf_counter()
-    try:
-        if config.registration.model == "dense":
-            from ..registration.api import register_dense
-            from ..registration.dense import DenseOptions, GlobalStep
-
-            # the global step is the dense step's start, not its answer: a 3-D scene fails a global
-            # model's plausibility test by design, so the test is the dense step's own (on its field)
-            start = config.registration.replace(model=DENSE_GLOBAL_MODEL, min_inlier_ratio=None)
-            glob = register(reference_image, moving_image, config=start, callback=callback)
-            options = DenseOptions(seed=config.registration.search.seed,
-                                   global_step=GlobalStep(backend=config.registration.backend))
-            res = register_dense(reference_image, moving_image, options=options, global_result=glob)
-        else:
-            res = register(reference_image, moving_image, config=config.registration, callback=callback)
-    except RegistrationError as exc:
-        return PairRegistration(None, str(exc), time.perf_counter() - t0)
-    from ..registration.transforms import degeneracy
-
-    why = degeneracy(res.matrix, np.shape(moving_image))
-    if why is not None:
-        return PairRegistration(None, f"registration refused: {why}", time.perf_counter() - t0)
-    return PairRegistration(res, None, time.perf_counter() - t0)
+    est = pair_estimator(config.registration, callback=callback).estimate(reference_image, moving_image)
+    return PairRegistration(est.result, est.reason, time.perf_counter() - t0)
 
 
 def flow_field(reference_image: np.ndarray, moving_image: np.ndarray) -> np.ndarray:

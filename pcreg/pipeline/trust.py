@@ -304,20 +304,80 @@ class TrustedKey:
         ``field_confidence``) and along the DIS flow (``flow``: :meth:`carried` along it, or None), each
         trusted per pixel; the times of the parts go into ``times`` (``fuse.warp``, ``fuse.trust``,
         ``fuse.fusion``, ``fuse.confidence``)."""
-        from ..classification.fusion import labels_from_log_odds
-
         t0 = time.perf_counter()
         dense_prior, dense_residual = self.carried(frame_blurred, field)
         t1 = time.perf_counter()
-        flow_prior, flow_residual = (None, None) if flow is None else flow
-        maps = trust_maps(self.rule, weight=self.weight, dense_prior=dense_prior, confidence=field_confidence,
-                          dense_residual=dense_residual, flow_prior=flow_prior, flow_residual=flow_residual)
-        t2 = time.perf_counter()
-        prior = maps.prior_term(log_odds.shape)
-        fused = log_odds + prior
-        labels = labels_from_log_odds(fused)
-        t3 = time.perf_counter()
+        maps, prior, fused, labels = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
+                                                    field_confidence, flow)
+        t2 = t3 = time.perf_counter()
         confidence = label_confidence(fused, log_odds, prior)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.fusion": t3 - t2,
                       "fuse.confidence": time.perf_counter() - t3})
         return Trusted(labels, confidence, maps, fused, prior)
+
+
+def trusted_fusion(rule: TrustRule, weight: float, log_odds: np.ndarray, dense_prior: np.ndarray,
+                   dense_residual: np.ndarray, confidence: np.ndarray | None,
+                   flow: tuple[np.ndarray, np.ndarray] | None) -> tuple[TrustMaps, np.ndarray, np.ndarray, np.ndarray]:
+    """``(maps, prior term, fused log-odds, labels)`` in one pass over the pixels: :func:`trust_maps`,
+    :meth:`TrustMaps.prior_term`, :func:`fused_log_odds` and the labels ``F > 0``, the same float32
+    operations pixel by pixel (an exponential may differ in its last bit from numpy's). ``flow``: the
+    DIS prior and its residual, or None. The rows are split with the helper thread on large frames."""
+    from .._threads import MIN_PIXELS, interleave
+
+    d = np.ascontiguousarray(log_odds, dtype=np.float32)
+    h, w = d.shape
+    arrays = [np.ascontiguousarray(a, dtype=np.float32) for a in (dense_prior, dense_residual)]
+    c = np.full((1, 1), np.nan, np.float32) if confidence is None else np.ascontiguousarray(confidence, np.float32)
+    lf, rf = (np.zeros((1, 1), np.float32),) * 2 if flow is None else (np.ascontiguousarray(a, np.float32) for a in flow)
+    wd, wf = np.empty((h, w), np.float32), np.empty((h, w) if flow is not None else (1, 1), np.float32)
+    prior, fused, labels = np.empty((h, w), np.float32), np.empty((h, w), np.float32), np.empty((h, w), np.uint8)
+    consts = (np.float32(weight * rule.dense), np.float32(weight * rule.flow), np.float32(-1.0 / rule.residual),
+              confidence is not None, flow is not None)
+    interleave(d.size, lambda first, stride: _trusted_rows(d, *arrays, c, lf, rf, *consts, wd, wf, prior, fused,
+                                                           labels, first, stride), min_items=MIN_PIXELS)
+    maps = TrustMaps(wd, arrays[0], wf if flow is not None else None, lf if flow is not None else None,
+                     arrays[1], rf if flow is not None else None, None if confidence is None else c)
+    return maps, prior, fused, labels
+
+
+#: Rows per block of :func:`_trusted_rows_py` (two threads take alternate blocks).
+TRUSTED_BLOCK_ROWS = 16
+
+
+def _trusted_rows_py(d, ld, rd, conf, lf, rf, kd, kf, scale, has_conf, has_flow, wd, wf, prior, fused, labels,
+                     first, stride):
+    """Rows of blocks ``first``, ``first + stride``, ... of :func:`trusted_fusion`, in the order of
+    :func:`trust_maps` (``kd * (0.5 + 1.5 c) * exp(scale r)``, 0 where ``r`` is :data:`OUTSIDE`; the flow's
+    ``kf * exp(scale r)``), :meth:`TrustMaps.prior_term` (the dense term first) and the fusion."""
+    h, w = d.shape
+    zero, one = np.float32(0.0), np.float32(1.0)
+    half, three_halves, outside = np.float32(0.5), np.float32(1.5), np.float32(OUTSIDE)
+    third = np.float32(1.0 / 3.0)
+    for b in range(first * TRUSTED_BLOCK_ROWS, h, stride * TRUSTED_BLOCK_ROWS):
+        for i in range(b, min(b + TRUSTED_BLOCK_ROWS, h)):
+            for j in range(w):
+                c = third
+                if has_conf:
+                    c = conf[i, j]
+                    c = zero if c != c else min(max(c, zero), one)  # NaN: no evidence
+                r = rd[i, j]
+                t = np.float32(np.exp(r * scale)) if r < outside else zero
+                a = kd * (half + three_halves * c) * t
+                wd[i, j] = a
+                p = zero + a * ld[i, j]
+                if has_flow:
+                    r = rf[i, j]
+                    t = np.float32(np.exp(r * scale)) if r < outside else zero
+                    a = kf * t
+                    wf[i, j] = a
+                    p = p + a * lf[i, j]
+                prior[i, j] = p
+                f = d[i, j] + p
+                fused[i, j] = f
+                labels[i, j] = 1 if f > zero else 0
+
+
+from .._jit import njit as _njit  # noqa: E402 - the kernel's compiler, after the pure-Python kernel it compiles
+
+_trusted_rows = _njit(cache=True, nogil=True)(_trusted_rows_py)

@@ -192,7 +192,7 @@ def test_icp_iterations_on_their_timeline_per_backend(recorded):
     # frame-level entities sit at the start of the iteration timelines (shown with the iterations)
     at_start = {"frame": 2, "icp_iteration": 0, "crosscheck_iteration": 0}
     assert rec.latest(E.transform_path("T_ref_mov"), frame=2).times == at_start
-    assert rec.latest(E.MOVING_IMAGE, frame=2).times == at_start
+    assert rec.moving(frame=2).times == at_start
 
 
 def test_text_config_and_crosscheck(recorded):
@@ -412,80 +412,34 @@ def _blob(row) -> bytes:
     return bytes(row["EncodedImage:blob"][0].values.to_numpy(zero_copy_only=False))
 
 
-def test_an_image_logged_again_is_encoded_once_and_stored_with_the_same_bytes(tmp_path, monkeypatch):
-    """JPEG: a sequence's reference is the previous pair's moving image, logged again (the viewer draws
-    JPEG images at the time cursor only) with the same bytes, encoded once; a reference that stays the
-    same is logged once; every pair's reference reads back."""
+@pytest.mark.parametrize("raw_images", [False, True], ids=["jpeg", "raw"])
+def test_each_frame_is_stored_once(tmp_path, monkeypatch, raw_images):
+    """Every pair's moving image is stored once, in the image slots; a reference that is the previous
+    pair's moving image is not stored again (its slot is placed as the reference and
+    registration/reference cleared), another is stored when it changes; every pair's images read back."""
     from pcreg.recording.readback import read_blueprint
 
     calls = []
     real = cv2.imencode
     monkeypatch.setattr(cv2, "imencode", lambda ext, *a, **k: (calls.append(ext), real(ext, *a, **k))[1])
-    images, back = _pairs(tmp_path / "r.rrd")
-    assert calls.count(".jpg") == 6  # 0 1 2 3 4 as met, and 0 again (out of the last four kept)
-    assert [r.times["frame"] for r in back.get(E.REFERENCE_IMAGE)] == [0, 1, 2, 4]  # frame 3's is frame 2's
-    assert _blob(back.reference(1)) == _blob(back.latest(E.MOVING_IMAGE, frame=0))
-    assert _blob(back.reference(3)) == _blob(back.reference(2))
-    assert _blob(back.latest(E.MOVING_IMAGE, frame=1)) != _blob(back.latest(E.MOVING_IMAGE, frame=0))
-    for f, (r, _) in enumerate(PAIRS):
-        assert back.reference(f).entity == "/" + E.REFERENCE_IMAGE
-        assert np.abs(image(back.reference(f)).astype(int) - images[r]).mean() < 4.0
-    views, _ = read_blueprint(tmp_path / "r.rrd")
-    assert all(v.time_ranges == () for v in views)
-
-
-def test_raw_frames_are_stored_once(tmp_path):
-    """Raw images: a reference that is the previous frame's moving image is not logged again; a Clear at
-    registration/reference has the Registration view draw the moving image one frame back instead."""
-    from pcreg.recording.readback import read_blueprint
-
-    images, back = _pairs(tmp_path / "r.rrd", raw_images=True)
-    kinds = [("Image:buffer" in r.components, r.times["frame"]) for r in back.get(E.REFERENCE_IMAGE)]
-    assert kinds == [(True, 0), (False, 1), (True, 2), (False, 4)]  # images at 0 and 2, clears at 1 and 4
+    images, back = _pairs(tmp_path / "r.rrd", raw_images=raw_images)
+    key = "Image:buffer" if raw_images else "EncodedImage:blob"
+    stored = [(r.entity, r.times["frame"]) for e in (E.REFERENCE_IMAGE, *E.IMAGE_SLOTS) for r in back.get(e, key)]
+    assert sorted(f for e, f in stored if e == "/" + E.REFERENCE_IMAGE) == [0, 2]  # frame 3's is frame 2's
+    assert sorted(f for e, f in stored if e != "/" + E.REFERENCE_IMAGE) == [0, 1, 2, 3, 4]  # the moving images
+    assert [r.times["frame"] for r in back.get(E.REFERENCE_IMAGE, "Clear:is_recursive")] == [1, 4]
+    assert calls.count(".jpg") == (0 if raw_images else 6)  # 0 1 2 3 4 as met, and 0 again (out of the last four kept)
     where = [back.reference(f).entity.strip("/") for f in range(5)]
-    assert where == [E.REFERENCE_IMAGE, E.MOVING_IMAGE, E.REFERENCE_IMAGE, E.REFERENCE_IMAGE, E.MOVING_IMAGE]
-    for f, (r, _) in enumerate(PAIRS):
-        assert np.array_equal(image(back.reference(f)), images[r])
+    assert where == [E.REFERENCE_IMAGE, E.IMAGE_SLOTS[0], E.REFERENCE_IMAGE, E.REFERENCE_IMAGE, E.IMAGE_SLOTS[1]]
+    assert [back.moving(f).entity.strip("/") for f in range(5)] == [E.IMAGE_SLOTS[f % 2] for f in range(5)]
+    for f, (r, m) in enumerate(PAIRS):
+        for row, want in ((back.reference(f), images[r]), (back.moving(f), images[m])):
+            got = image(row).astype(int)
+            assert np.array_equal(got, want) if raw_images else np.abs(got - want).mean() < 4.0
     views, _ = read_blueprint(tmp_path / "r.rrd")
     registration = next(v for v in views if v.name == "Registration")
-    assert "+ /" + E.MOVING_IMAGE in registration.query
-    assert registration.time_ranges == (("/" + E.MOVING_IMAGE, E.FRAME_TIMELINE, -1, -1),)
-
-
-def test_a_recording_of_the_old_layout_reads_back_and_gets_its_blueprint(tmp_path):
-    """A recording made before each frame was stored once (every pair's reference logged at its frame,
-    written here with rerun directly): its references read back, and its Registration view shows
-    ``registration/reference`` alone, as it always did."""
-    import rerun as rr
-
-    from pcreg.recording.blueprint import panes
-    from pcreg.recording.readback import read_entities
-    from pcreg.recording.staging import stage
-
-    path = tmp_path / "old.rrd"
-    rec = rr.RecordingStream("pcreg", recording_id="old-layout")
-    rec.save(path)
-    rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: "sequence"}))
-    for f in range(3):
-        rec.set_time(E.FRAME_TIMELINE, sequence=f)
-        rec.log(E.REFERENCE_IMAGE, rr.Image(_image(f), color_model="RGB", draw_order=-10.0))
-        rec.log(E.MOVING_IMAGE, rr.Image(_image(f + 1), color_model="RGB", draw_order=-10.0))
-        rec.log(E.WARPED_IMAGE, rr.Image(_image(f + 1), color_model="RGB", opacity=0.5, draw_order=-5.0))
-    rec.flush()
-    rec.disconnect()
-    back = read_recording(path)
-    for f in range(3):
-        assert back.reference(f).entity == "/" + E.REFERENCE_IMAGE
-        assert np.array_equal(image(back.reference(f)), _image(f))
-    registration = next(p for p in panes("sequence", read_entities(path)) if p.name == "Registration")
-    assert registration.offsets == () and "/" + E.MOVING_IMAGE not in registration.include
-    # what `pcreg view` opens: the recording staged with the layout of what it holds
-    staged = stage([path], tmp_path / "staged.rrd")
-    assert staged.kinds == ("sequence",)
-    shown = panes("sequence", read_entities(staged.path, timeline=E.FRAME_TIMELINE))
-    assert [(p.name, p.include, p.offsets) for p in shown if p.name == "Registration"] == [
-        ("Registration", ("/registration/**",), ())]
-    assert np.array_equal(image(read_recording(staged.path).reference(2)), _image(2))
+    assert f"+ /{E.IMAGES}/**" in registration.query and registration.time_ranges == ()
+    assert all(v.time_ranges == () for v in views)
 
 
 def test_the_callers_buffers_are_free_at_once_and_lines_keep_their_order(tmp_path):

@@ -85,10 +85,12 @@ def test_headless_screenshot_shows_the_images(small_recording, tmp_path, capsys)
     assert shot.std() > 20
 
 
-def test_headless_screenshot_shows_the_reference_stored_once(tmp_path, capsys):
-    """Raw images: frame 1's reference is frame 0's moving image, stored once: the Registration view at
-    frame 1 draws it (red and green) from frame 0, not frame 1's own moving image (blue), nor frame 0's
-    reference (grey)."""
+@pytest.mark.parametrize("raw_images", [False, True], ids=["jpeg", "raw"])
+def test_headless_screenshot_shows_the_reference_stored_once(tmp_path, capsys, raw_images):
+    """Frame 1's reference is frame 0's moving image, stored once (in an image slot): the Registration view
+    at frame 1 draws it (red and green), not frame 1's own moving image (blue) nor frame 0's reference
+    (grey), and the Moving view draws the blue image alone; at frame 0 they draw the grey reference and
+    the red and green moving image."""
     if sys.platform.startswith("linux") and not view.vulkan_icds():
         pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
     halves = np.zeros((120, 160, 3), np.uint8)
@@ -98,30 +100,37 @@ def test_headless_screenshot_shows_the_reference_stored_once(tmp_path, capsys):
     blue = np.zeros((120, 160, 3), np.uint8)
     blue[:] = (20, 20, 230)
     path = tmp_path / "once.rrd"
-    with Recorder(path, kind="sequence", raw_images=True) as rec:
+    with Recorder(path, kind="sequence", raw_images=raw_images) as rec:
         for f, (reference, moving) in enumerate([(grey, halves), (halves, blue)]):
             rec.set_frame(f)
             rec.log_images(reference=reference, moving=moving)
             rec.log_errors({"plain": 0.1 + f})
     shots = {}
     for name in ("Registration", "Moving"):
-        shots[name] = tmp_path / f"{name}.png"
-        code = pcreg_view([str(path), "--screenshot", str(shots[name]), "--time", "frame=1", "--view", name,
-                           "--size", "1280x720"])
-        assert code == 0, capsys.readouterr().err
-    red, green = _colours(cv2.imread(str(shots["Registration"]), cv2.IMREAD_COLOR))
-    assert red > 0.05 and green > 0.05, (red, green)
-    b, g, r = (cv2.imread(str(shots["Moving"]), cv2.IMREAD_COLOR)[..., i].astype(int) for i in range(3))
-    assert ((b > 150) & (r < 90) & (g < 90)).mean() > 0.05
-    assert min(_colours(cv2.imread(str(shots["Moving"]), cv2.IMREAD_COLOR))) < 0.01
+        for f in (0, 1):
+            shots[name, f] = tmp_path / f"{name}{f}.png"
+            code = pcreg_view([str(path), "--screenshot", str(shots[name, f]), "--time", f"frame={f}", "--view", name,
+                               "--size", "1280x720"])
+            assert code == 0, capsys.readouterr().err
+    seen = {key: _colours(cv2.imread(str(shot), cv2.IMREAD_COLOR)) for key, shot in shots.items()}
+    red, green, blue_, grey_ = seen["Registration", 1]
+    assert red > 0.05 and green > 0.05 and blue_ < 0.01 and grey_ < 0.01, seen
+    red, green, blue_, grey_ = seen["Moving", 1]
+    assert blue_ > 0.05 and max(red, green, grey_) < 0.01, seen
+    red, green, blue_, grey_ = seen["Registration", 0]
+    assert grey_ > 0.05 and max(red, green, blue_) < 0.01, seen
+    red, green, blue_, grey_ = seen["Moving", 0]
+    assert red > 0.05 and green > 0.05 and max(blue_, grey_) < 0.01, seen
 
 
-def _colours(shot: np.ndarray) -> tuple[float, float]:
-    """Fractions of the picture that are the recording's saturated red and green (BGR input)."""
+def _colours(shot: np.ndarray) -> tuple[float, float, float, float]:
+    """Fractions of the picture that are the recording's saturated red, green and blue, and its grey (BGR input)."""
     b, g, r = (shot[..., i].astype(int) for i in range(3))
     red = (r > 150) & (g < 90) & (b < 90)
     green = (g > 140) & (r < 90) & (b < 90)
-    return float(red.mean()), float(green.mean())
+    blue = (b > 150) & (r < 90) & (g < 90)
+    grey = (np.abs(r - 128) < 12) & (np.abs(g - 128) < 12) & (np.abs(b - 128) < 12)
+    return float(red.mean()), float(green.mean()), float(blue.mean()), float(grey.mean())
 
 
 @pytest.mark.slow
@@ -158,12 +167,12 @@ def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
             # both recordings drawn: their red and green in the left and in the right half of the page
             def both(s):
                 half = s.shape[1] // 2
-                return min(*_colours(s[:, :half]), *_colours(s[:, half:])) > 0.02
+                return min(*_colours(s[:, :half])[:2], *_colours(s[:, half:])[:2]) > 0.02
 
             ok, shot = browser.wait_for(both, timeout=120)
             cv2.imwrite(str(tmp_path / "web.png"), shot)
             print("web viewer screenshot:", tmp_path / "web.png")
-        red, green = _colours(shot)
+        red, green = _colours(shot)[:2]
         assert ok, f"the recordings' colours are not on both halves of the page: red {red:.3f}, green {green:.3f}"
         assert shot.std() > 20
     finally:
@@ -461,8 +470,8 @@ def test_web_viewer_on_another_address(small_recording):
         assert all(listening(p) == ["0200007F"] for p in ports), ports
         with Browser(width=1280, height=720) as browser:
             browser.open(url)
-            ok, shot = browser.wait_for(lambda s: min(_colours(s)) > 0.03, timeout=120)
-        assert ok, _colours(shot)
+            ok, shot = browser.wait_for(lambda s: min(_colours(s)[:2]) > 0.03, timeout=120)
+        assert ok, _colours(shot)[:2]
     finally:
         view.stop(proc)
 

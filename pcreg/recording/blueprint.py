@@ -41,8 +41,8 @@ REGISTRATION_VIEW = "Registration"
 Entities = Mapping[str, Iterable[str]]
 
 
-#: What marks a recording (of raw images) whose pairs' references may be the previous frame's moving
-#: image, stored once (``pcreg.recording.pair_log``): a ``Clear`` at ``registration/reference``.
+#: What marks a recording of raw images made before the image slots whose pairs' references may be the
+#: previous frame's moving image, stored once: a ``Clear`` at ``registration/reference`` (and no ``images/``).
 PREVIOUS_FRAME_MARK = frozenset({"Clear"})
 
 
@@ -166,12 +166,19 @@ def _texts(entities) -> list[Pane]:
 
 
 def _registration(entities) -> list[Pane]:
-    """The registration (the reference, with the previous frame's moving image where the recording shows
-    the reference so, and what is drawn over it), the moving image and the valid mask."""
+    """The registration (the reference, and what is drawn over it), the moving image and the valid mask.
+    Each frame's moving image in the image slots (``images/0``, ``images/1``): both views draw both slots,
+    each the one at its depth (:mod:`pcreg.recording.pair_log`). Recordings of raw images made before the
+    slots: the previous frame's moving image drawn one frame back where ``registration/reference`` was cleared."""
+    base, moving_base = "/" + E.REGISTRATION, "/" + E.MOVING
+    if any(SPATIAL & entities.get("/" + s, frozenset()) for s in E.IMAGE_SLOTS):
+        shared = (f"/{E.IMAGES}/**",)
+        return [Pane(REGISTRATION_VIEW, "2D", base, (base + "/**", *shared)),
+                Pane("Moving", "2D", f"/{E.IMAGES}", (moving_base + "/**", *shared))] + _exact_spatial(
+            entities, "Valid mask", E.VALID_MASK)
     main = _spatial(entities, REGISTRATION_VIEW, E.REGISTRATION)
     reference, moving = "/" + E.REFERENCE_IMAGE, "/" + E.MOVING_IMAGE
     if PREVIOUS_FRAME_MARK & entities.get(reference, frozenset()) and SPATIAL & entities.get(moving, frozenset()):
-        base = "/" + E.REGISTRATION
         main = [Pane(REGISTRATION_VIEW, "2D", base, (base + "/**", moving), ((moving, -1),))]
     return main + _spatial(entities, "Moving", E.MOVING) + _exact_spatial(entities, "Valid mask", E.VALID_MASK)
 

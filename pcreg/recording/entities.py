@@ -13,15 +13,20 @@ Layout (``{x}`` is filled in at log time)::
     /                                   AnnotationContext (static): 0 ground, 1 obstacle, 2 unknown
     config                              TextDocument (static): the run's configuration as JSON
     log                                 TextLog: configuration, progress, failures
+    registration                        Transform3D (static): z = SLOT_DEPTH, where images/{0,1} stand to be
+                                        the reference (pcreg.recording.pair_log)
     registration/reference              reference image, reference pixel frame (JPEG or raw); logged when
-                                        it changes. Raw images: a Clear where the reference is the previous
-                                        frame's moving image, which the Registration view then draws
-                                        (moving/image one frame back; pcreg.recording.pair_log)
+                                        it changes; a Clear where the reference is the previous frame's
+                                        moving image, which images/{0,1} then show
     registration/warped                 moving image warped into the reference frame (drawn at half opacity)
     registration/reference_cloud        Points2D: reference cloud (display subsample), coloured by pixel colour
     registration/moving_cloud           Points2D: moving cloud mapped into the reference by the transform
     registration/outline/{name}         LineStrips2D: the moving image's border mapped into the reference
-    moving/image                        moving image, its own pixel frame
+    images/0, images/1                  each frame's moving image, stored once: the two alternate, each with a
+                                        Transform3D at every frame that puts it at z = 0 (the moving image,
+                                        drawn by the Moving view), z = SLOT_DEPTH (the reference, drawn by the
+                                        Registration view) or z = -SLOT_DEPTH (neither); pcreg.recording.pair_log
+    moving/image                        moving image, its own pixel frame (recordings made before images/)
     moving/cloud                        Points2D: moving cloud (display subsample), moving pixel frame
     warped/valid_mask                   where the warped image has data (PNG-encoded 0/255, or raw)
     transforms/{name}                   Tensor (3, 3) float64: the exact matrix, e.g. T_ref_mov
@@ -75,6 +80,12 @@ OUTLINE = "registration/outline"
 
 MOVING = "moving"
 MOVING_IMAGE = "moving/image"
+
+#: The two entities that hold each frame's moving image once (they alternate), and their depths: a 2-D view
+#: draws what is at its origin's depth and clips what is this far in front of it or behind it.
+IMAGES = "images"
+IMAGE_SLOTS = (f"{IMAGES}/0", f"{IMAGES}/1")
+SLOT_DEPTH = float(1 << 20)
 MOVING_CLOUD = "moving/cloud"
 
 VALID_MASK = "warped/valid_mask"

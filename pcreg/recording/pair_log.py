@@ -1,15 +1,22 @@
-"""A registration pair: its images, clouds and transforms (``registration/``, ``moving/``, ``warped/``,
-``transforms/``): :class:`PairLogger`, and :class:`Pair`, what it holds of the frame's pair.
+"""A registration pair: its images, clouds and transforms (``registration/``, ``images/``, ``moving/``,
+``warped/``, ``transforms/``): :class:`PairLogger`, and :class:`Pair`, what it holds of the frame's pair.
 
-A reference is not logged again while it stays the same (a rotation's angles share their frame's): the
-viewer's latest-at query keeps showing the one logged. In a recording of raw images, a pair's reference
-that is the previous frame's moving image (a sequence at k = 1) is not logged again either: a ``Clear`` at
-``registration/reference`` lets the blueprint's Registration view draw ``moving/image`` as it was one
-frame earlier (a visible time range, :mod:`pcreg.recording.blueprint`), so each frame's image is stored
-once. JPEG images are logged again there: rerun's viewer (0.41) draws an ``EncodedImage`` entity as an
-image sequence at the time cursor and ignores visible time ranges, so the view would show the moving
-image in the reference's place (docs/benchmarks.md#recording). :meth:`pcreg.recording.readback.Recording.reference`
-reads a pair's reference back from any of these layouts."""
+Each frame's moving image is stored once. A sequence's pair (k = 1) has the previous pair's moving image
+as its reference, and rerun's viewer (0.41) draws an image at the time cursor only (an ``EncodedImage``
+ignores a view's visible time range), so one entity cannot be the moving image at one frame and the
+reference at the next. Two entities (:data:`~pcreg.recording.entities.IMAGE_SLOTS`) take the moving
+images in turn, and a Transform3D logged on each at every frame places it: at depth 0, where the Moving
+view (origin ``moving``) draws it; at the depth of ``registration`` (a static transform), where the
+Registration view draws it as the reference; or at neither, hidden. A 2-D view clips what lies far from
+its origin's depth (:data:`~pcreg.recording.entities.SLOT_DEPTH`), and depth moves nothing on the image
+plane, so each view draws the one image it shows, framed as before. ``registration/reference`` then
+holds a ``Clear``.
+
+A reference that is not the previous frame's moving image (a rotation's angles, k > 1, the first pair) is
+logged at ``registration/reference``, and only when it changes: the viewer's latest-at query keeps
+showing the one logged. :meth:`pcreg.recording.readback.Recording.reference` and
+:meth:`~pcreg.recording.readback.Recording.moving` read a pair's images back from this layout and from
+those of earlier recordings."""
 
 from __future__ import annotations
 
@@ -28,9 +35,15 @@ from .values import apply_homography, as_colors, as_image, as_points, display_in
 __all__ = ["Pair", "PairLogger", "REFERENCE_DRAW_ORDER", "MOVING_DRAW_ORDER"]
 
 #: Draw orders in the Registration view: a reference logged for its pair above the previous frame's moving
-#: image that the view also draws (:mod:`pcreg.recording.blueprint`), both below the warped image (-5).
+#: image, both below the warped image (-5).
 REFERENCE_DRAW_ORDER = -9.0
 MOVING_DRAW_ORDER = -10.0
+
+#: Where an image slot stands (a translation along z): drawn by the Moving view, by the Registration view
+#: as the reference, or by neither.
+MOVING_AT = (0.0, 0.0, 0.0)
+REFERENCE_AT = (0.0, 0.0, E.SLOT_DEPTH)
+HIDDEN_AT = (0.0, 0.0, -E.SLOT_DEPTH)
 
 @dataclass(frozen=True)
 class Pair:
@@ -59,12 +72,15 @@ class PairLogger:
         self.sink = sink
         self.max_display_points = int(max_display_points)
         self.pair = Pair()
-        # on the sink's thread only: the last moving image logged and its frame, the reference that
-        # registration/reference shows (None: none, or cleared), and whether it was cleared last
-        self._last_moving: tuple[int | None, np.ndarray] | None = None
+        # on the sink's thread only: each slot's image and the frame it was logged at, the slot holding the
+        # newest, the slot shown as the reference (None: none), the reference registration/reference shows
+        # (None: none, or cleared), whether it was cleared last, and the latest frame an image was logged at
+        self._slots: list[tuple[int | None, np.ndarray] | None] = [None, None]
+        self._newest: int | None = None
+        self._reference_slot: int | None = None
         self._shown_reference: np.ndarray | None = None
         self._cleared = False
-        self._last_frame: int | None = None  # the latest frame an image was logged at
+        self._last_frame: int | None = None
 
     def new_pair(self) -> None:
         """Forget the pair logged so far (a new frame)."""
@@ -95,27 +111,52 @@ class PairLogger:
         for path, make in jobs:
             sink.log_later(path, make)
 
+    def _place(self, slot: int, at: tuple[float, float, float], *images) -> None:
+        self.sink.send(E.IMAGE_SLOTS[slot], *images, rr.Transform3D(translation=at))
+
     def _log_moving(self, m: np.ndarray, frame: int | None) -> None:
-        """On the sink's thread: the moving image, the frame's image logged once."""
-        self.sink.send(E.MOVING_IMAGE, self.sink.image(m, draw_order=MOVING_DRAW_ORDER))
-        self._last_moving = (frame, m)
+        """On the sink's thread: the moving image, in the slot that is not the reference shown (else the one
+        not holding the newest image), at depth 0; the other slot hidden unless it is the reference."""
+        self.sink.once(E.REGISTRATION, "slot depth", lambda: rr.Transform3D(translation=REFERENCE_AT))
+        if self._reference_slot is not None:
+            slot = 1 - self._reference_slot
+        else:
+            slot = 0 if self._newest is None else 1 - self._newest
+        self._place(slot, MOVING_AT, self.sink.image(m, draw_order=MOVING_DRAW_ORDER))
+        other = 1 - slot
+        if self._slots[other] is not None and other != self._reference_slot:
+            self._place(other, HIDDEN_AT)
+        self._slots[slot], self._newest = (frame, m), slot
         self._note_frame(frame)
 
     def _log_reference(self, a: np.ndarray, frame: int | None) -> None:
-        """On the sink's thread: the reference, unless the recording shows it already (see the module).
-        Only while frames go forward: a view's latest-at query at ``frame`` must see what was logged before."""
+        """On the sink's thread: the reference, shown from the slot holding the previous frame's moving image
+        where it is that image, else logged at ``registration/reference`` unless shown already (see the
+        module). Only while frames go forward: a view's latest-at query at ``frame`` must see what was
+        logged before."""
         sink = self.sink
         forward = frame is not None and (self._last_frame is None or frame >= self._last_frame)
         self._note_frame(frame)
-        previous = self._last_moving
-        if (sink.raw_images and forward and frame is not None and previous is not None and previous[0] == frame - 1
-                and _same(previous[1], a)):
-            if not self._cleared:  # a reference logged earlier would cover it; the first also marks the layout
+        newest = self._newest
+        previous = None if newest is None else self._slots[newest]
+        if forward and frame is not None and previous is not None and previous[0] == frame - 1 and _same(previous[1], a):
+            assert newest is not None
+            if self._reference_slot is not None and self._reference_slot != newest:
+                self._place(self._reference_slot, HIDDEN_AT)
+            self._place(newest, REFERENCE_AT)
+            self._reference_slot = newest
+            if not self._cleared:
                 sink.send(E.REFERENCE_IMAGE, rr.Clear(recursive=False))
                 self._cleared, self._shown_reference = True, None
             return
+        shown = self._slots[self._reference_slot] if self._reference_slot is not None else None
+        if forward and shown is not None and _same(shown[1], a):
+            return  # latest-at: the slot still shows it
         if forward and self._shown_reference is not None and _same(self._shown_reference, a):
             return  # latest-at: registration/reference still shows it
+        if self._reference_slot is not None:
+            self._place(self._reference_slot, HIDDEN_AT)
+            self._reference_slot = None
         sink.send(E.REFERENCE_IMAGE, sink.image(a, draw_order=REFERENCE_DRAW_ORDER))
         self._cleared, self._shown_reference = False, a
 

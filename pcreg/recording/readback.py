@@ -8,6 +8,7 @@ Example::
     errors = rec.series("errors/plain")                              # {frame: value}
     labels = segmentation(rec.latest("labels/predicted", frame=3))   # (h, w) uint8
     reference = image(rec.reference(frame=3))                        # the pair's reference image, (h, w, 3)
+    moving = image(rec.moving(frame=3))                              # its moving image
 """
 
 from __future__ import annotations
@@ -167,14 +168,44 @@ class Recording:
     def reference(self, frame: int) -> Row:
         """The row holding the reference image of the pair at ``frame``, in any layout: logged at that
         frame (every pair's, in recordings made before a reference was logged only when it changed), kept
-        from an earlier frame, or, where ``registration/reference`` was cleared (raw images), the moving
+        from an earlier frame, or, where ``registration/reference`` was cleared, the image slot placed as
+        the reference (``images/0``, ``images/1``), or in earlier recordings of raw images the moving
         image of the previous frame (see :mod:`pcreg.recording.pair_log`)."""
         from . import entities as E
 
         row = self.latest_at(E.REFERENCE_IMAGE, frame=frame)
-        if _CLEAR in row.components:
+        if _CLEAR not in row.components:
+            return row
+        if not self._slotted():
             return self.latest(E.MOVING_IMAGE, frame=frame - 1)
-        return row
+        return self._slot_at(frame, E.SLOT_DEPTH)
+
+    def moving(self, frame: int) -> Row:
+        """The row holding the moving image of the pair at ``frame`` (the image a viewer's Moving view
+        shows there), in any layout: an image slot at depth 0, or ``moving/image``."""
+        from . import entities as E
+
+        if not self._slotted():
+            return self.latest_at(E.MOVING_IMAGE, frame=frame)
+        return self._slot_at(frame, 0.0)
+
+    def _slotted(self) -> bool:
+        from . import entities as E
+
+        return any(self.get(slot) for slot in E.IMAGE_SLOTS)
+
+    def _slot_at(self, frame: int, depth: float) -> Row:
+        """The image of the slot placed at ``depth`` at ``frame``."""
+        from . import entities as E
+
+        for slot in E.IMAGE_SLOTS:
+            if not self.get(slot, _TRANSLATION):
+                continue
+            at = self.latest_at(slot, frame=frame, component=_TRANSLATION)[_TRANSLATION].to_pylist()[0]
+            if at is not None and float(at[2]) == depth:
+                return self.latest_at(slot, frame=frame, component=_IMAGE_OF_SLOT[0]) if self.get(
+                    slot, _IMAGE_OF_SLOT[0]) else self.latest_at(slot, frame=frame, component=_IMAGE_OF_SLOT[1])
+        raise KeyError(f"no image slot at depth {depth:g} at frame {frame}")
 
     def series(self, entity: str, *, timeline: str = "frame") -> dict[int, float]:
         """``{time: value}`` of a Scalars entity on ``timeline``."""
@@ -184,6 +215,8 @@ class Recording:
 
 #: The component of a ``Clear`` row.
 _CLEAR = "Clear:is_recursive"
+_TRANSLATION = "Transform3D:translation"
+_IMAGE_OF_SLOT = ("EncodedImage:blob", "Image:buffer")
 
 #: The column of a chunk's record batch that holds each row's id.
 _ROW_ID = "rerun.controls.RowId"

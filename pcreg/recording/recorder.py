@@ -31,9 +31,10 @@ Usage::
 
 Cost: what is logged is built, encoded (images as JPEG, quality 60 by default) and logged on the
 recorder's own thread; the calling thread only checks and copies it. Clouds and label maps are
-subsampled for display. 100 recorded 640x480 pairs of ``pcreg evaluate sequence`` take about 11 MB
-(CamVid) to 18 MB (synthetic noise textures), and recording adds 7-9% to their time on a 2-CPU machine
-(``tools/bench_recording.py`` measures both; the benchmarks page breaks the size down). The file is
+subsampled for display, and each frame's image is stored once (:mod:`~pcreg.recording.pair_log`). 100
+recorded 640x480 pairs of ``pcreg evaluate sequence`` take about 9 MB (CamVid) to 14 MB (synthetic noise
+textures), and recording adds 3-9% to their time on a quiet 2-CPU machine, more when other work holds a
+core (``tools/bench_recording.py`` measures both; the benchmarks page breaks the size down). The file is
 written by rerun's own thread as data arrives (within about a second,
 :data:`~pcreg.recording.sink.BATCH_SECONDS`); :meth:`Recorder.flush` forces it.
 """

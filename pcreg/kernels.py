@@ -6,7 +6,8 @@ The kernels: the exact correspondence search (:mod:`pcreg.registration.nn`), the
 point-to-point loop (:mod:`pcreg.registration.reference`), the sub-pixel edges of the image pyramids
 (:mod:`pcreg.registration.clouds`), the dense registration's window search, assembly, solver and
 full-size field (:mod:`pcreg.registration.dense`), the field of a transform
-(:mod:`pcreg.registration.motion`) and the stream's one-pass fusion (:mod:`pcreg.pipeline.prior`).
+(:mod:`pcreg.registration.motion`) and the stream's one-pass fusions (:mod:`pcreg.pipeline.prior`,
+:mod:`pcreg.pipeline.trust`).
 Their cache is keyed to all of their sources together (:mod:`pcreg._jit`).
 """
 
@@ -20,6 +21,7 @@ import numpy as np
 def warm_up() -> None:
     """Compile (or load from the on-disk cache) every compiled kernel of pcreg, on small inputs."""
     from .pipeline.prior import fused_labels
+    from .pipeline.trust import STREAM_TRUST, trusted_fusion
     from .registration import nn, reference
     from .registration.api import register_dense
     from .registration.clouds import image_pyramid
@@ -33,6 +35,8 @@ def warm_up() -> None:
     result = register_dense(a, b)
     shape = result.confidence.shape
     fused_labels(np.zeros(shape, np.float32), np.full(shape, 0.5, np.float32), result.confidence, weight=1.0, pi=0.5)
+    zeros = np.zeros(shape, np.float32)
+    trusted_fusion(STREAM_TRUST, 1.0, zeros, zeros, zeros, result.confidence, (zeros, zeros))
 
 
 def _textured_pair(size: int = 96, shift: int = 2) -> tuple[np.ndarray, np.ndarray]:

@@ -2,6 +2,7 @@
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -242,3 +243,19 @@ def test_evaluate_stream_with_key_frames_anywhere(tmp_path, capsys):
     assert main(args + ["--keys", "first", "--key-every", "2", "--force"]) == 2
     assert "give one" in capsys.readouterr().err
     assert main(args + ["--keys", "first", "--methods", "dense_key", "--force"]) == 2
+
+
+def test_label_confidence_is_the_logistic_model_over_its_features():
+    # the neighbourhoods' part summed at half size and resized once is the model over the features
+    rng = np.random.default_rng(3)
+    d = cv2.GaussianBlur(rng.normal(0, 4, (96, 128)).astype(np.float32), (0, 0), 3)
+    prior = cv2.GaussianBlur(rng.normal(0, 6, (96, 128)).astype(np.float32), (0, 0), 5)
+    F = d + prior
+    feats = T.confidence_features(F, d, prior)
+    a = T.CONFIDENCE_COEFFICIENTS
+    z = a[0] + sum(np.float64(c) * f for c, f in zip(a[1:], feats))
+    want = np.maximum(1.0 / (1.0 + np.exp(-z)), T.MIN_CONFIDENCE)
+    got = T.label_confidence(F, d, prior)
+    assert got.dtype == np.float32 and got.shape == F.shape
+    np.testing.assert_allclose(got, want, atol=2e-5)
+    assert 0.5 < got.mean() < 1.0 and got.min() == np.float32(0.5) and got.max() > 0.9

@@ -222,6 +222,25 @@ def fused_log_odds(log_odds: np.ndarray, maps: TrustMaps) -> np.ndarray:
     return d + maps.prior_term(d.shape)
 
 
+def _neighbourhoods(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray) -> list[np.ndarray]:
+    """The confidence's three neighbourhood features at half size (:func:`confidence_features`)."""
+    import cv2
+
+    F = np.asarray(fused, dtype=np.float32)
+    w = F.shape[1]
+    lab = (F > 0).astype(np.float32)
+    agree = ((np.asarray(log_odds) > 0) == (np.asarray(prior_term) > 0)).astype(np.float32)
+    lab_h, agree_h = half(lab), half(agree)
+    out = []
+    for side, src in zip((*PURITY_SIDES, AGREEMENT_SIDE), (lab_h, lab_h, agree_h)):
+        k = _odd(side / 2, w)
+        m = cv2.blur(src, (k, k), borderType=cv2.BORDER_REFLECT)
+        if src is lab_h:  # the share of the neighbourhood with the pixel's own label
+            m = np.where(lab_h >= 0.5, m, 1.0 - m).astype(np.float32)
+        out.append(m)
+    return out
+
+
 def confidence_features(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray) -> list[np.ndarray]:
     """The confidence's four features, (H, W) float32 each: log1p(|F|), the share of the label's
     neighbourhood with the same label at the two :data:`PURITY_SIDES`, and the share of the
@@ -231,31 +250,38 @@ def confidence_features(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.
 
     F = np.asarray(fused, dtype=np.float32)
     h, w = F.shape
-    lab = (F > 0).astype(np.float32)
-    agree = ((np.asarray(log_odds) > 0) == (np.asarray(prior_term) > 0)).astype(np.float32)
-    lab_h, agree_h = half(lab), half(agree)
-    feats = [np.log1p(np.abs(F))]
-    for side, src in zip((*PURITY_SIDES, AGREEMENT_SIDE), (lab_h, lab_h, agree_h)):
-        k = _odd(side / 2, w)
-        m = cv2.blur(src, (k, k), borderType=cv2.BORDER_REFLECT)
-        if src is lab_h:  # the share of the neighbourhood with the pixel's own label
-            m = np.where(lab_h >= 0.5, m, 1.0 - m).astype(np.float32)
-        feats.append(cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR))
-    return feats
+    return [np.log1p(np.abs(F))] + [cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR)
+                                    for m in _neighbourhoods(F, log_odds, prior_term)]
 
 
 def label_confidence(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray,
                      coefficients: tuple[float, ...] = CONFIDENCE_COEFFICIENTS) -> np.ndarray:
     """(H, W) float32 in [1/2, 1]: the probability that the label ``F > 0`` is right at each pixel, by
     the logistic model over :func:`confidence_features` (:data:`CONFIDENCE_COEFFICIENTS`), never below
-    :data:`MIN_CONFIDENCE`."""
+    :data:`MIN_CONFIDENCE`. The neighbourhoods' part of the model is summed at half size and brought
+    back once (bilinear resizing is linear: the same sum, to float32 rounding)."""
+    import cv2
+
     if len(coefficients) != 5:
         raise InputError(f"the confidence takes 5 coefficients, got {len(coefficients)}")
-    feats = confidence_features(fused, log_odds, prior_term)
-    z = np.full(feats[0].shape, np.float32(coefficients[0]), np.float32)
-    for a, f in zip(coefficients[1:], feats):
-        z += np.float32(a) * f
-    conf = np.maximum(1.0 / (1.0 + np.exp(-np.clip(z, -60.0, 60.0))), np.float32(MIN_CONFIDENCE)).astype(np.float32)
+    F = np.ascontiguousarray(fused, dtype=np.float32)
+    h, w = F.shape
+    parts = _neighbourhoods(F, log_odds, prior_term)
+    linear = np.zeros(parts[0].shape, np.float32)
+    for a, m in zip(coefficients[2:], parts):
+        linear += np.float32(a) * m
+    z = cv2.resize(linear, (w, h), interpolation=cv2.INTER_LINEAR)
+    t = np.abs(F)
+    np.log1p(t, out=t)
+    t *= np.float32(coefficients[1])
+    z += t
+    z += np.float32(coefficients[0])
+    np.clip(z, -60.0, 60.0, out=z)
+    np.negative(z, out=z)
+    conf = np.exp(z, out=z)
+    conf += np.float32(1.0)
+    np.reciprocal(conf, out=conf)
+    np.maximum(conf, np.float32(MIN_CONFIDENCE), out=conf)
     if not np.all(np.isfinite(conf)):  # finite inputs give a finite logistic: anything else is a bug
         raise AssertionError("a confidence came out NaN")
     return conf

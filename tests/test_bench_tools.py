@@ -150,6 +150,7 @@ def test_bench_pipeline_times_the_default_step_and_its_stages(tmp_path):
     md = (out / "bench_pipeline.md").read_text()
     assert "Propagator.step (default) / DIS fast <= 1" in md and "Propagator.step (default) / DIS medium <= 1" in md
     assert "the trust map and learning add <= 15% to the step" in md and st["fuse.trust"] > 0
+    assert "without the second motion" in md and "without learning" in md  # what each part of the trust costs
     assert (out / "bench_pipeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert bench.main(["--out", str(out), "--frames", "2"]) == 2
 

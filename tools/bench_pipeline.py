@@ -33,6 +33,7 @@ import argparse
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +49,10 @@ TARGET_VS_DIS = 1.0
 #: (the default step against the same step with ``trust=None``, which also turns learning off).
 TARGET_TRUST_SHARE = 0.15
 SIZE = (640, 480)
-METHODS = ("step", "step_no_trust", "dis_medium", "dis_fast", "dis_ultrafast")
+METHODS = ("step", "step_no_trust", "step_no_flow", "step_no_learning", "dis_medium", "dis_fast", "dis_ultrafast")
+#: The step's variants beside the default (what each part of the trust rule costs): Propagator options.
+VARIANTS = {"step_no_trust": {"trust": None, "learning": None}, "step_no_flow": {"flow": 0.0},
+            "step_no_learning": {"learning": None}}
 PRESETS = {"dis_medium": "MEDIUM", "dis_fast": "FAST", "dis_ultrafast": "ULTRAFAST"}
 
 
@@ -82,8 +86,13 @@ def bench_stream(frames) -> dict:
 
     key = frames[0]
     prop = pcreg.Propagator.from_key_frame(key.image, key.labels)
-    plain_prop = pcreg.Propagator(prop.classifier, trust=None, learning=None)
-    plain_prop.reset(key.image, key.labels)
+    from pcreg.pipeline.trust import STREAM_TRUST
+
+    variants = {}
+    for m, kw in VARIANTS.items():
+        opts = {"trust": replace(STREAM_TRUST, flow=kw["flow"])} if "flow" in kw else dict(kw)
+        variants[m] = pcreg.Propagator(prop.classifier, **opts)
+        variants[m].reset(key.image, key.labels)
     clf = prop.classifier
     pi = float(clf.class_prior_[1])
     key_prior = label_prior(key.labels, pi=pi, fusion=prop.fusion)
@@ -99,10 +108,9 @@ def bench_stream(frames) -> dict:
     # warm-up on the first frame: imports, compiled kernels, OpenCV's buffers
     for m in PRESETS:
         dis_flow(frames[1].image, m)
-    prop.step(frames[1].image)
-    plain_prop.step(frames[1].image)
-    prop.reset(key.image, key.labels)
-    plain_prop.reset(key.image, key.labels)
+    for p in (prop, *variants.values()):
+        p.step(frames[1].image)
+        p.reset(key.image, key.labels)
     stages = list(STEP_STAGES) + [f"{s}.{p}" for s, parts in STEP_PARTS.items() for p in parts]
     rows = []
     for t in range(1, len(frames)):
@@ -113,8 +121,8 @@ def bench_stream(frames) -> dict:
             t0 = time.perf_counter()
             if m == "step":
                 labels = prop.step(mov.image)
-            elif m == "step_no_trust":
-                plain_prop.step(mov.image)
+            elif m in variants:
+                variants[m].step(mov.image)
             elif m == "dis_medium":
                 flow = dis_flow(mov.image)
             else:
@@ -157,6 +165,9 @@ def render(report: dict) -> str:
                  s["p90_ms"]["step"], s["mean_error"]["step"]],
                 ["Propagator.step with trust=None (one prior, no learning)", s["median_ms"]["step_no_trust"],
                  s["p90_ms"]["step_no_trust"], float("nan")],
+                *([[f"Propagator.step without {what}", s["median_ms"][m], s["p90_ms"][m], float("nan")]
+                   for m, what in (("step_no_flow", "the second motion (trust flow=0)"),
+                                   ("step_no_learning", "learning (learning=None)")) if m in s["median_ms"]]),
                 ["DIS optical flow, medium (motion only)", s["median_ms"]["dis_medium"], s["p90_ms"]["dis_medium"],
                  float("nan")],
                 ["DIS optical flow, fast (motion only)", s["median_ms"]["dis_fast"], s["p90_ms"]["dis_fast"],

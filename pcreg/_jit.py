@@ -15,7 +15,6 @@ beside the sources, else numba's folder in the user's cache. Kernel modules impo
 
 from __future__ import annotations
 
-import functools
 import hashlib
 from pathlib import Path
 
@@ -23,24 +22,29 @@ import numba
 from numba import prange
 from numba.core import caching
 
-__all__ = ["CACHED", "njit", "prange", "kernel_sources_stamp"]
+__all__ = ["CACHED", "KERNEL_SOURCES_STAMP", "njit", "prange", "kernel_sources_stamp"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
 
-@functools.lru_cache(maxsize=None)
-def kernel_sources_stamp() -> str:
-    """A hash of the names and contents of pcreg's source files that mention ``njit``, read once per
-    process: the kernels a process compiles come from the sources it imported, and numba asks for the
-    stamp once per kernel (39 times for a registration), which walking the files each time made about
-    100 ms of every start. Kept for the process (it takes no argument: one value, as a constant would be,
-    read when the first kernel is loaded rather than at import)."""
+def _sources_stamp() -> str:
     digest = hashlib.sha256()
     for path in sorted(_PACKAGE.rglob("*.py")):
         text = path.read_bytes()
         if b"njit" in text:
             digest.update(path.relative_to(_PACKAGE).as_posix().encode() + b"\0" + text + b"\0")
     return digest.hexdigest()
+
+
+#: A hash of the names and contents of pcreg's source files that mention ``njit``, read once, when the
+#: kernels' compiler is imported (2-3 ms): the kernels a process compiles come from the sources it
+#: imported, and numba asks for the stamp once per kernel (39 times for a registration).
+KERNEL_SOURCES_STAMP: str = _sources_stamp()
+
+
+def kernel_sources_stamp() -> str:
+    """:data:`KERNEL_SOURCES_STAMP`."""
+    return KERNEL_SOURCES_STAMP
 
 
 class _KernelStamp:

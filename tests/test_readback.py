@@ -20,23 +20,32 @@ def _image(seed: int) -> np.ndarray:
     return np.stack([x * 4, y * 5, np.full_like(x, 40 * (seed % 5))], axis=-1).astype(np.uint8) + np.uint8(seed)
 
 
+def _write_old(path, recording_id: str, log_frame) -> None:
+    """A sequence recording of three frames written with rerun directly, ``log_frame(rec, f)`` at each."""
+    rec = rr.RecordingStream("pcreg", recording_id=recording_id)
+    rec.save(path)
+    rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: "sequence"}))
+    for f in range(3):
+        rec.set_time(E.FRAME_TIMELINE, sequence=f)
+        log_frame(rec, f)
+    rec.flush()
+    rec.disconnect()
+
+
 def test_raw_frames_of_the_layout_before_the_slots_read_back(tmp_path):
     """A recording of raw images made before the image slots (a Clear at registration/reference where the
     reference was the previous frame's moving image, written here with rerun directly): its references
     read back, and its Registration view draws moving/image one frame back, as it did."""
     path = tmp_path / "raw-old.rrd"
-    rec = rr.RecordingStream("pcreg", recording_id="raw-old-layout")
-    rec.save(path)
-    rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: "sequence"}))
-    for f in range(3):
-        rec.set_time(E.FRAME_TIMELINE, sequence=f)
+
+    def frame(rec, f):
         if f == 0:
             rec.log(E.REFERENCE_IMAGE, rr.Image(_image(9), color_model="RGB", draw_order=-9.0))
         elif f == 1:
             rec.log(E.REFERENCE_IMAGE, rr.Clear(recursive=False))
         rec.log(E.MOVING_IMAGE, rr.Image(_image(f), color_model="RGB", draw_order=-10.0))
-    rec.flush()
-    rec.disconnect()
+
+    _write_old(path, "raw-old-layout", frame)
     back = read_recording(path)
     assert [back.reference(f).entity.strip("/") for f in range(3)] == [E.REFERENCE_IMAGE, E.MOVING_IMAGE, E.MOVING_IMAGE]
     for f, want in enumerate([_image(9), _image(0), _image(1)]):
@@ -52,16 +61,13 @@ def test_a_recording_of_the_old_layout_reads_back_and_gets_its_blueprint(tmp_pat
     written here with rerun directly): its references read back, and its Registration view shows
     ``registration/reference`` alone, as it always did."""
     path = tmp_path / "old.rrd"
-    rec = rr.RecordingStream("pcreg", recording_id="old-layout")
-    rec.save(path)
-    rec.send_property(E.PROPERTY, rr.AnyValues(**{E.KIND_FIELD: "sequence"}))
-    for f in range(3):
-        rec.set_time(E.FRAME_TIMELINE, sequence=f)
+
+    def frame(rec, f):
         rec.log(E.REFERENCE_IMAGE, rr.Image(_image(f), color_model="RGB", draw_order=-10.0))
         rec.log(E.MOVING_IMAGE, rr.Image(_image(f + 1), color_model="RGB", draw_order=-10.0))
         rec.log(E.WARPED_IMAGE, rr.Image(_image(f + 1), color_model="RGB", opacity=0.5, draw_order=-5.0))
-    rec.flush()
-    rec.disconnect()
+
+    _write_old(path, "old-layout", frame)
     back = read_recording(path)
     for f in range(3):
         assert back.reference(f).entity == "/" + E.REFERENCE_IMAGE

@@ -58,6 +58,15 @@ class PreparedFrame:
             value = self._derived[key] = make(self.rgb)
             return value
 
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        """The frame as numpy sees it (``np.asarray(frame)``): its read-only ``rgb``, or a copy when asked
+        for one or for another dtype."""
+        if copy is False and dtype is not None and np.dtype(dtype) != self.rgb.dtype:
+            raise ValueError("a PreparedFrame is uint8: another dtype needs a copy")
+        if copy or (dtype is not None and np.dtype(dtype) != self.rgb.dtype):
+            return np.array(self.rgb, dtype=dtype, copy=True)
+        return self.rgb
+
     def __repr__(self) -> str:
         h, w = self.shape
         return f"PreparedFrame({w}x{h})"

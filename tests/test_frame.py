@@ -66,3 +66,17 @@ def test_a_stream_learns_the_same_when_its_counts_wait_for_the_next_frame():
         labels = np.where(f.labels[::2, ::2] == 1, 1, 0).astype(np.uint8)
         direct = 0.5 * direct + class_histograms(np.ascontiguousarray(f.image[::2, ::2]), labels, clf.features)
         np.testing.assert_array_equal(learner.stream, direct)
+
+
+def test_a_prepared_frame_is_an_array_to_numpy_and_to_every_public_function():
+    frames = pcreg.synthetic("syn1a", 2, 0, width=96, height=72)
+    a, b = PreparedFrame.of(frames[0].image), PreparedFrame.of(frames[1].image)
+    assert np.asarray(a) is a.rgb and np.array(a).flags.writeable  # a copy only when asked for
+    assert np.asarray(a, dtype=np.float32).dtype == np.float32
+    with pytest.raises(ValueError):
+        np.asarray(a, dtype=np.float32, copy=False)
+    np.testing.assert_array_equal(pcreg.warp(a, np.eye(3))[0], pcreg.warp(frames[0].image, np.eye(3))[0])
+    clf = pcreg.fit_classifier([pcreg.Frame(a, frames[0].labels, "key")])
+    np.testing.assert_array_equal(clf.predict(b), pcreg.fit_classifier([frames[0]]).predict(frames[1].image))
+    r, r_array = pcreg.register(a, b), pcreg.register(frames[0].image, frames[1].image)
+    np.testing.assert_array_equal(r.T_ref_mov, r_array.T_ref_mov)

@@ -23,7 +23,8 @@ T = TypeVar("T")
 class PreparedFrame:
     """An (H, W, 3) uint8 RGB frame, checked once (:meth:`of`), read-only, and what is derived from it.
 
-    rgb : the frame, C-contiguous and read-only (a view: the caller's array is not touched).
+    rgb : the frame, C-contiguous and read-only (a view of the caller's array where it already was one:
+        the caller keeps it unchanged while the frame is in use; :meth:`copy` for a frame kept longer).
     shape : (H, W).
     """
 
@@ -48,6 +49,14 @@ class PreparedFrame:
     @property
     def shape(self) -> tuple[int, int]:
         return self.rgb.shape[:2]
+
+    def copy(self) -> "PreparedFrame":
+        """The frame over a copy of its own, with what was derived from it: for a frame kept beyond the
+        call that prepared it (a stream's key frame), whose caller may write the next frame into the same
+        array (a camera's or a decoder's buffer)."""
+        frame = PreparedFrame(self.rgb.copy())
+        frame._derived.update(self._derived)
+        return frame
 
     def derived(self, key: Hashable, make: Callable[[np.ndarray], T]) -> T:
         """``make(rgb)``, made on the first call with this ``key`` and kept with the frame (a key names

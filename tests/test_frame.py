@@ -80,3 +80,17 @@ def test_a_prepared_frame_is_an_array_to_numpy_and_to_every_public_function():
     np.testing.assert_array_equal(clf.predict(b), pcreg.fit_classifier([frames[0]]).predict(frames[1].image))
     r, r_array = pcreg.register(a, b), pcreg.register(frames[0].image, frames[1].image)
     np.testing.assert_array_equal(r.T_ref_mov, r_array.T_ref_mov)
+
+
+@pytest.mark.parametrize("anchor", ["key", "previous"])
+def test_a_stream_whose_frames_come_in_one_reused_buffer_labels_as_from_separate_arrays(anchor):
+    # a camera driver or a decoder writes each frame into the same array: the key frame (and a chained
+    # stream's previous frame) must be the propagator's own copy
+    frames = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
+    prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, anchor=anchor)
+    want = [prop.step(f.image) for f in frames[1:]]
+    buffer = frames[0].image.copy()
+    prop = pcreg.Propagator.from_key_frame(buffer, frames[0].labels, anchor=anchor)
+    for f, labels in zip(frames[1:], want):
+        buffer[...] = f.image
+        np.testing.assert_array_equal(prop.step(buffer), labels)

@@ -284,7 +284,7 @@ class Propagator:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8 with
         0 ground, 1 obstacle, 2 unknown. A dense stream anchored to the key frame prepares it here, once
         (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid), for every step's registration."""
-        key = PreparedFrame.of(image, name="key frame")
+        key = PreparedFrame.of(image, name="key frame").copy()  # the caller may reuse its array for the frames
         lab = _check_labels(labels, key.shape)
         self._key, self._key_labels = key, lab
         self._key_prior = label_prior(lab, pi=self._pi, fusion=self.fusion)
@@ -341,7 +341,7 @@ class Propagator:
                 self._learner.update(frame, trusted.fused, trusted.prior)
                 times["fuse.learn"] = time.perf_counter() - t0
         if motion is not None and self.anchor == "previous":
-            self._chain = (frame, motion, self._frame)
+            self._chain = (frame.copy(), motion, self._frame)  # the next step's reference, kept
         times["fuse"] = sum(times[f"fuse.{part}"] for part in STEP_PARTS["fuse"])
         times["total"] = time.perf_counter() - t_start
         self.last = StepReport(frame=self._frame, registration=result, reason=est.reason, fallback=motion is None,

@@ -540,3 +540,13 @@ def test_a_transform_is_drawn_with_its_own_frames_moving_image(tmp_path):
     assert set(outlines) == {0, 2}
     np.testing.assert_allclose(np.asarray(outlines[2]["LineStrips2D:strips"].to_pylist()[0])[2], [19.5, 9.5])
     np.testing.assert_allclose(points(back.latest(E.MOVED_CLOUD, frame=1)), pts, atol=1e-4)
+
+
+def test_display_indices_are_numpys_evenly_spaced_ones():
+    from pcreg.recording.values import display_indices
+
+    assert display_indices(10, 300) == slice(None)
+    for n in (2, 301, 1001, 4093, 100_000):
+        for limit in (0, 1, 2, 3, 200, 300):
+            if n > limit:
+                np.testing.assert_array_equal(display_indices(n, limit), np.linspace(0, n - 1, limit).astype(np.intp))

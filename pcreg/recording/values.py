@@ -41,11 +41,16 @@ def as_colors(colors: Any, n: int, name: str) -> np.ndarray | None:
 
 
 def display_indices(n: int, limit: int) -> np.ndarray | slice:
-    """Evenly spaced indices of at most ``limit`` of ``n`` items (deterministic, order kept). Computed
-    each time: about 4 us, three times a recorded ICP iteration."""
+    """Evenly spaced indices of at most ``limit`` of ``n`` items (deterministic, order kept):
+    ``np.linspace(0, n - 1, limit)`` truncated, by its own arithmetic without its checks (under 2 us
+    against 5, three times a recorded ICP iteration)."""
     if n <= limit:
         return slice(None)
-    return np.linspace(0, n - 1, limit).astype(np.intp)
+    if limit <= 1:
+        return np.zeros(max(limit, 0), np.intp)
+    idx = (np.arange(limit, dtype=np.float64) * ((n - 1) / (limit - 1))).astype(np.intp)
+    idx[-1] = n - 1
+    return idx
 
 
 def apply_homography(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -155,3 +155,30 @@ def listening(port: int) -> list[str]:
             if fields[3] == "0A" and int(hexport, 16) == port:
                 out.append(addr)
     return out
+
+
+def view_web(*args: str):
+    """``pcreg view ARGS --web --web-port 0`` in a session of its own: ``(process, url)``, the URL the
+    first line it printed (the process's stderr in the assertion where it printed none)."""
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", *args, "--web", "--web-port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    url = next((line.strip() for line in proc.stdout if line.startswith("http://")), None)
+    assert url and url.startswith("http://127.0.0.1:"), (url, proc.stderr.read() if proc.poll() is not None else "")
+    return proc, url
+
+
+def stop_view(proc) -> int:
+    """Interrupt a :func:`view_web` process as Ctrl-C does (if it still runs) and its exit code."""
+    import signal
+
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+    code = proc.wait(timeout=30)
+    proc.stdout.close()
+    proc.stderr.close()
+    return code

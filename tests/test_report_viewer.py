@@ -11,10 +11,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import os
-import signal
-import subprocess
-import sys
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -23,7 +19,7 @@ import cv2
 import pytest
 
 from _events import until
-from _browser import listening
+from _browser import listening, stop_view, view_web
 from _view import one_line_error, pcreg_view
 
 REPO = Path(__file__).resolve().parent.parent
@@ -145,18 +141,9 @@ def test_report_page_in_a_browser(evaluations, kind, tmp_path):
     results = json.loads((folder / "results.json").read_text())
     recorded = {f for u in results["units"] for f in (u.get("recording_frames") or {}).values()}
     assert recorded, "the recorded run notes no recording frame"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(folder), "--web", "--web-port", "0",
-                             "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True)
+    proc, url = view_web(str(folder), "--grpc-port", "0")
     ports = []
     try:
-        url = None
-        for line in proc.stdout:
-            if line.startswith("http://"):
-                url = line.strip()
-                break
-        assert url and url.startswith("http://127.0.0.1:"), (url, proc.stderr.read() if proc.poll() is not None else "")
         page_port = int(url.rsplit(":", 1)[1].strip("/"))
         with urllib.request.urlopen(url + "report.json", timeout=30) as r:
             report = json.loads(r.read())
@@ -225,11 +212,7 @@ def test_report_page_in_a_browser(evaluations, kind, tmp_path):
                       what=f"the recording at frame {rows[i]}", alive=proc, bound=60)
                 assert ev("document.getElementById('rec-status').textContent") == f"frame {rows[i]}"
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)
-        code = proc.wait(timeout=30)
-        proc.stdout.close()
-        proc.stderr.close()
+        code = stop_view(proc)
     assert code == 130
     assert not [p for p in ports if listening(p)]
 

@@ -13,11 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import os
 import shutil
-import signal
-import subprocess
-import sys
 import urllib.error
 import urllib.request
 
@@ -27,7 +23,7 @@ import pytest
 
 import pcreg
 from pcreg.cli import main
-from _browser import listening
+from _browser import listening, stop_view, view_web
 from _events import until
 from _view import one_line_error, pcreg_view
 
@@ -211,17 +207,9 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
     (run_copy / "suggest.txt").write_text("frame_003.png\t12.5\nframe_001.png\n")
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(run_copy), "--web", "--web-port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+    proc, url = view_web(str(run_copy))
     port = None
     try:
-        url = None
-        for line in proc.stdout:
-            if line.startswith("http://"):
-                url = line.strip()
-                break
-        assert url and url.startswith("http://127.0.0.1:"), (url, proc.stderr.read() if proc.poll() is not None else "")
         port = int(url.rsplit(":", 1)[1].strip("/"))
         assert listening(port) == ["0100007F"]
         with Browser(width=1400, height=800) as browser:
@@ -279,11 +267,7 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
             cv2.imwrite(str(tmp_path / "review.png"), shot)
             print("review page screenshot:", tmp_path / "review.png")
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)
-        code = proc.wait(timeout=30)
-        proc.stdout.close()
-        proc.stderr.close()
+        code = stop_view(proc)
     assert code == 130
     assert port is None or not listening(port)
 

@@ -14,7 +14,7 @@ from pcreg.errors import PcregError
 from pcreg.recording.recorder import Recorder
 
 from _events import until
-from _browser import listening
+from _browser import listening, stop_view, view_web
 from _view import one_line_error, pcreg_view
 
 
@@ -136,28 +136,16 @@ def _colours(shot: np.ndarray) -> tuple[float, float, float, float]:
 @pytest.mark.slow
 def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
     """``pcreg view --web`` in a real browser: headless Chromium, software GL, no display, no GPU."""
-    import os
     import re
-    import signal
-    import subprocess
 
     from _browser import Browser, find_chromium
 
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
     second = tmp_path / "again.rrd"  # two recordings, shown side by side
     second.write_bytes(small_recording.read_bytes())
-    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(small_recording), str(second), "--web",
-                             "--web-port", "0", "--grpc-port", "0"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+    proc, url = view_web(str(small_recording), str(second), "--grpc-port", "0")
     try:
-        url = None
-        for line in proc.stdout:
-            if line.startswith("http://"):
-                url = line.strip()
-                break
-        assert url, proc.stderr.read()
         m = re.match(r"http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1%3A(\d+)%2Fproxy$", url)
         assert m, url
         for port in map(int, m.groups()):  # bound to the loopback address only, not to every interface
@@ -176,11 +164,7 @@ def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
         assert ok, f"the recordings' colours are not on both halves of the page: red {red:.3f}, green {green:.3f}"
         assert shot.std() > 20
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)
-        code = proc.wait(timeout=30)
-        proc.stdout.close()
-        proc.stderr.close()
+        code = stop_view(proc)
     assert code == 130
     assert not listening(int(m.group(1))) and not listening(int(m.group(2)))
 

@@ -5,7 +5,14 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import threading
 from typing import Iterator
+
+#: Held while file descriptors 1 and 2 point into a capture. They are the process's own, so two threads
+#: capturing at once (``pcreg run`` decodes a frame on its reader thread while its writer reads a truth
+#: map) would each restore what the other had put there, and leave the terminal writing into a closed
+#: temporary file.
+_FDS = threading.RLock()
 
 
 def _flush_c_stdio() -> None:
@@ -21,11 +28,21 @@ def _flush_c_stdio() -> None:
 def capture_output_fds() -> Iterator[list[str]]:
     """Capture what C/C++ code writes to file descriptors 1 and 2 for the duration (Open3D reports a
     failed read only as a printed warning, on stdout; RPly prints on stderr). Yields a list that holds
-    the captured text after the block; nothing of it reaches the terminal or ``--json`` output."""
+    the captured text after the block; nothing of it reaches the terminal or ``--json`` output. One
+    capture at a time in the process; Python's own ``sys.stdout`` and ``sys.stderr`` are taken over only
+    on the main thread (Open3D's Python module prints through them), so that a capture on another
+    thread does not take the main thread's printing."""
+    with _FDS:
+        with _captured(threading.current_thread() is threading.main_thread()) as captured:
+            yield captured
+
+
+@contextlib.contextmanager
+def _captured(python: bool) -> Iterator[list[str]]:
     import tempfile
 
     captured: list[str] = []
-    for stream in (sys.stdout, sys.stderr):
+    for stream in (sys.stdout, sys.stderr) if python else ():  # another thread's buffers are its own
         try:
             stream.flush()
         except (OSError, ValueError, AttributeError):
@@ -43,12 +60,14 @@ def capture_output_fds() -> Iterator[list[str]]:
         try:
             os.dup2(tmp.fileno(), 1)
             os.dup2(tmp.fileno(), 2)
-            sys.stdout = sys.stderr = text
+            if python:
+                sys.stdout = sys.stderr = text
             yield captured
         finally:
-            sys.stdout, sys.stderr = py_out, py_err
+            if python:
+                sys.stdout, sys.stderr = py_out, py_err
             _flush_c_stdio()  # C++ code writes through libc's buffers: empty them into the capture
-            for stream in (sys.stdout, sys.stderr):
+            for stream in (sys.stdout, sys.stderr) if python else ():
                 try:
                     stream.flush()
                 except (OSError, ValueError, AttributeError):

@@ -186,3 +186,65 @@ class OutputLock:
                 pass
             os.close(self._fd)  # closing releases the flock
             self._fd = None
+
+
+class WriteBehind:
+    """Calls run in order on a thread of their own, at most ``depth`` waiting, while the caller goes on:
+    ``pcreg run`` writes a frame's outputs (its label PNG, its line of steps.jsonl, the carry and the
+    run.json that commits them) while it labels the next frame. Encoding releases the GIL and
+    ``fsync`` waits on the disk, so the writing costs the step little.
+
+    An error of a call is raised in the caller, at its next :meth:`submit` or when the ``with`` block
+    ends, and nothing after it is written. Leaving the block, on an error or an interrupt as well, first
+    lets the calls already submitted finish: the last frame committed is a whole one, and a run resumes
+    after it.
+    """
+
+    def __init__(self, depth: int = 2, *, name: str = "pcreg-write-behind") -> None:
+        import queue
+        import threading
+
+        self._box: queue.Queue = queue.Queue(maxsize=depth)
+        self._error: BaseException | None = None  # to raise in the caller, once
+        self._failed = False  # and from then on nothing is written
+        self._thread = threading.Thread(target=self._work, name=name, daemon=True)
+        self._thread.start()
+
+    def _work(self) -> None:
+        while True:
+            item = self._box.get()
+            if item is None:
+                return
+            if not self._failed:  # after an error nothing more is written
+                fn, args, kwargs = item
+                try:
+                    fn(*args, **kwargs)
+                except BaseException as exc:  # noqa: BLE001 - handed to the caller, raised in its thread
+                    self._error, self._failed = exc, True
+
+    def submit(self, fn, /, *args: Any, **kwargs: Any) -> None:
+        """Run ``fn(*args, **kwargs)`` after the calls submitted before (waiting while ``depth`` wait)."""
+        self._raise()
+        self._box.put((fn, args, kwargs))
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
+
+    def close(self) -> None:
+        """Wait for every call submitted, then raise the first error of one."""
+        if self._thread.is_alive():
+            self._box.put(None)
+            self._thread.join()
+        self._raise()
+
+    def __enter__(self) -> "WriteBehind":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        elif self._thread.is_alive():  # the error under way is the one to report
+            self._box.put(None)
+            self._thread.join()

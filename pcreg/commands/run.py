@@ -180,6 +180,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     from .._runner import check_interrupted, progress
     from ..errors import InputError, OutputError
     from ..frame import PreparedFrame
+    from ..outputs import WriteBehind
     from ..pipeline.stream_run import STATE, StreamRun
 
     out = Path(args.out)
@@ -205,7 +206,8 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
             raise OutputError(f"{out}: {exc}; use --force to start over") from None
     done = start
     with open_recorder(args, name=f"run {args.folder}") as rec, \
-            progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar:
+            progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
+            WriteBehind() as writer:  # a frame's outputs written while the next is labelled
         for frame in read_ahead(todo):  # the next frame decoded while this one is labelled
             check_interrupted()
             t = frame.position
@@ -216,7 +218,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
                 where = frames.paths[t] if frames.kind == "folder" else f"{frames.path} frame {frame.name}"
                 raise InputError(f"{where}: {exc}") from None
             plain = prop.classifier.predict(image) if truth is not None else None
-            stream.record(t, labels, prop.last.to_dict(), plain, carry=prop.carry, learned=prop.learned,
+            writer.submit(stream.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),
                           confidence=prop.last.confidence if args.confidence else None)
             _log(rec, t, frame.image, labels, prop.last, frame.name)
             done = t + 1

@@ -18,6 +18,7 @@ hardly moves over share 0.25-1, decay 0-0.9 and sure 2-8.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -80,6 +81,22 @@ class Learner:
         first)."""
         self._learn_pending()
         return self._stream
+
+    def stream_later(self) -> Callable[[], np.ndarray]:
+        """What :attr:`stream` is now, to be computed when called, on any thread, without changing the
+        learner: its frames not counted yet stay for the helper thread to count (a saved histogram
+        written beside the next step, as ``pcreg run`` writes it)."""
+        stream, pending, decay = self._stream, self._pending, self.rule.decay  # replaced, never written into
+        if pending is None:
+            return stream.copy
+        features, weights = self.key_classifier.features, self.key_classifier.weights
+
+        def later() -> np.ndarray:
+            from ..classification.bayes import class_histograms
+
+            return decay * stream + class_histograms(pending[0], pending[1], features, weights=weights)
+
+        return later
 
     def restore(self, stream: np.ndarray | None) -> None:
         """Continue from a saved :attr:`stream` histogram (None: nothing learned yet)."""

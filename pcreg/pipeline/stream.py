@@ -83,7 +83,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -411,7 +411,12 @@ class Propagator:
         """What naive Bayes has learned from the stream so far ((3, F, 256) float64 histograms,
         :class:`~pcreg.pipeline.learning.Learner`), or None without learning; ``pcreg run`` saves it
         with every frame."""
-        return None if self._learner is None else self._learner.stream.copy()
+        return None if self._learner is None else self._learner.stream_later()()
+
+    def learned_later(self) -> Callable[[], np.ndarray | None]:
+        """:attr:`learned` as it is now, computed when called, on any thread (``pcreg run`` writes it beside
+        the next step); the step's own learning is left to the helper thread."""
+        return (lambda: None) if self._learner is None else self._learner.stream_later()
 
     def resume(self, frame: int, carry: Carry | None, learned: np.ndarray | None = None) -> None:
         """Continue a stream after its step ``frame`` (counted from the key frame, as :attr:`StepReport.frame`)

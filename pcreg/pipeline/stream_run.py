@@ -142,11 +142,12 @@ class StreamRun:
             raise OutputError(f"{path}: missing or unreadable; use --force to start over") from None
         return None if learned is None or learned.size == 0 else learned
 
-    def record(self, t: int, labels: np.ndarray, report: dict, plain: np.ndarray | None = None, carry=None,
-               learned: np.ndarray | None = None, confidence: np.ndarray | None = None) -> None:
+    def record(self, t: int, labels: np.ndarray, report, plain: np.ndarray | None = None, carry=None,
+               learned=None, confidence: np.ndarray | None = None) -> None:
         """Write frame ``t``'s labels (and ``confidence``, (H, W) in [0, 1], as ``confidence/NAME.png``),
-        step, ``carry`` (a :class:`~pcreg.pipeline.stream.Carry` or None) and what the classifier has
-        ``learned``, then commit it in run.json."""
+        step (``report``: its dict, or a :class:`~pcreg.pipeline.stream.StepReport`), ``carry`` (a
+        :class:`~pcreg.pipeline.stream.Carry` or None) and what the classifier has ``learned`` (an array,
+        None, or :meth:`~pcreg.pipeline.stream.Propagator.learned_later`), then commit it in run.json."""
         from ..classification.metrics import error_rate
         from ..outputs import atomic_write_json, to_json
 
@@ -154,6 +155,8 @@ class StreamRun:
         if confidence is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
             _write_png(self.out / CONFIDENCE / f"{self.frames.stem(t)}.png", confidence_png(confidence))
+        report = report if isinstance(report, dict) else report.to_dict()
+        learned = learned() if callable(learned) else learned
         step = dict(report, frame=t, name=self.frames.name(t))
         truth = None if self.truth is None else self.truth[t]
         if truth is not None:

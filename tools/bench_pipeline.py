@@ -219,7 +219,7 @@ def figure(report: dict):
     main = [("register.pyramid", "pyramids, samples", "#8c564b"), ("register.search", "search", "#1f77b4"),
             ("register.solve", "solve", "#aec7e8"), ("register.evidence", "evidence", "#9467bd"),
             ("register.field", "field", "#17becf"), ("fuse.warp", "warp", "#98df8a"),
-            ("fuse.trust", "trust", "#d62728"), ("fuse.fusion", "fusion", "#2ca02c"),
+            ("fuse.trust", "trust and fusion", "#d62728"), ("fuse.fusion", "fusion", "#2ca02c"),
             ("fuse.confidence", "confidence", "#e377c2"), ("fuse.learn", "sure pixels", "#bcbd22")]
     beside = [("classify.learn", "learning", "#dbdb8d"), ("classify.bayes", "naive Bayes (features, tables)", "#ff7f0e"),
               ("classify.flow", "DIS ultrafast + its trust", "#c49c94")]

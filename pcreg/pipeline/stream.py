@@ -113,8 +113,9 @@ STEP_STAGES: tuple[str, ...] = ("register", "classify", "fuse", "total")
 #: the dense registration ran); on the helper thread, the classifier's learning from the last frame
 #: (:mod:`pcreg.pipeline.learning`: its histograms counted and naive Bayes refitted), its log-odds
 #: (features and tables) and the DIS flow of the trust rule; then the priors' warp, their trust
-#: (:mod:`pcreg.pipeline.trust`), the fusion itself, the labels' confidence and the frame's sure pixels
-#: kept for learning; a part the step did not do is 0.
+#: (:mod:`pcreg.pipeline.trust`), the fusion itself (with a trust rule, one pass with the trust, timed as
+#: ``trust``), the labels' confidence and the frame's sure pixels kept for learning; a part the step did
+#: not do is 0.
 STEP_PARTS: dict[str, tuple[str, ...]] = {
     "register": ("global", "pyramid", "search", "solve", "evidence", "field"),
     "classify": ("learn", "bayes", "flow"),

@@ -328,17 +328,16 @@ class TrustedKey:
              field_confidence: np.ndarray | None, flow: tuple[np.ndarray, np.ndarray] | None, times: dict) -> Trusted:
         """Naive Bayes' ``log_odds`` with the key frame's prior carried along the dense ``field`` (its
         ``field_confidence``) and along the DIS flow (``flow``: :meth:`carried` along it, or None), each
-        trusted per pixel; the times of the parts go into ``times`` (``fuse.warp``, ``fuse.trust``,
-        ``fuse.fusion``, ``fuse.confidence``)."""
+        trusted per pixel; the times of the parts go into ``times`` (``fuse.warp``, ``fuse.trust``: the
+        trust map and the fusion, one pass; ``fuse.confidence``)."""
         t0 = time.perf_counter()
         dense_prior, dense_residual = self.carried(frame_blurred, field)
         t1 = time.perf_counter()
         maps, prior, fused, labels = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
                                                     field_confidence, flow)
-        t2 = t3 = time.perf_counter()
+        t2 = time.perf_counter()
         confidence = label_confidence(fused, log_odds, prior)
-        times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.fusion": t3 - t2,
-                      "fuse.confidence": time.perf_counter() - t3})
+        times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior)
 
 

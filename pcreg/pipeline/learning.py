@@ -127,12 +127,7 @@ class Learner:
     def _learn_pending(self) -> None:
         if self._pending is None:
             return
-        from ..classification.bayes import class_histograms
-
-        pixels, labels = self._pending
-        self._pending = None
-        counts = class_histograms(pixels, labels, self.key_classifier.features, weights=self.key_classifier.weights)
-        self._stream = self.rule.decay * self._stream + counts
+        self._stream, self._pending = self.stream_later()(), None
         self._classifier = self._refit()
 
     def _refit(self):

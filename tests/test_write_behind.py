@@ -74,9 +74,9 @@ def test_the_learned_histogram_taken_for_later_is_the_one_of_that_moment():
     prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
     prop.step(frames[1].image)
     prop.step(frames[2].image)
-    now = prop.learned
-    later = prop.learned_later()
-    prop.step(frames[3].image)  # the learner moves on (and counts frame 2 on the helper thread)
+    later = prop.learned_later()  # frame 2's pixels not counted yet: counted when it is called
+    now = prop.learned  # counted here
+    prop.step(frames[3].image)  # the learner moves on
     np.testing.assert_array_equal(later(), now)
     assert not np.array_equal(prop.learned, now)
     assert pcreg.Propagator(prop.classifier, learning=None).learned_later()() is None

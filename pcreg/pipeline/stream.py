@@ -412,7 +412,7 @@ class Propagator:
         """What naive Bayes has learned from the stream so far ((3, F, 256) float64 histograms,
         :class:`~pcreg.pipeline.learning.Learner`), or None without learning; ``pcreg run`` saves it
         with every frame."""
-        return None if self._learner is None else self._learner.stream_later()()
+        return None if self._learner is None else self._learner.stream.copy()
 
     def learned_later(self) -> Callable[[], np.ndarray | None]:
         """:attr:`learned` as it is now, computed when called, on any thread (``pcreg run`` writes it beside

@@ -51,12 +51,11 @@ class PreparedFrame:
         return self.rgb.shape[:2]
 
     def copy(self) -> "PreparedFrame":
-        """The frame over a copy of its own, with what was derived from it: for a frame kept beyond the
-        call that prepared it (a stream's key frame), whose caller may write the next frame into the same
-        array (a camera's or a decoder's buffer)."""
-        frame = PreparedFrame(self.rgb.copy())
-        frame._derived.update(self._derived)
-        return frame
+        """The frame over a copy of its own: for a frame kept beyond the call that prepared it (a stream's
+        key frame), whose caller may write the next frame into the same array (a camera's or a decoder's
+        buffer). What was derived is not carried over: it may hold views of that array (the ``rgb``
+        feature is the image itself)."""
+        return PreparedFrame(self.rgb.copy())
 
     def derived(self, key: Hashable, make: Callable[[np.ndarray], T]) -> T:
         """``make(rgb)``, made on the first call with this ``key`` and kept with the frame (a key names

@@ -185,3 +185,16 @@ def test_bench_soak_short_stream_reports_and_resumes_exactly(tmp_path):
     md = (out / "bench_soak.md").read_text()
     assert "### Checks" in md and "killed (SIGKILL) and resumed" in md and report["command"].startswith("python ")
     assert (out / "bench_soak.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+def test_bench_run_times_pcreg_run_and_slows_its_disk(tmp_path, shared_data):
+    bench = _load("bench_run")
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--data", str(shared_data / "camvid"), "--repeats", "1",
+                       "--fsync-ms", "1"]) == 0
+    report = json.loads((out / "bench_run.json").read_text())
+    assert report["frames"] > 2 and report["fsync_ms"] == 1.0
+    assert 0 < report["median_whole_fps"] < report["median_loop_fps"]  # start-up is in the whole command only
+    assert "15 frames a second or more" in (out / "bench_run.md").read_text()
+    assert bench.main(["--out", str(out), "--data", str(tmp_path / "nowhere")]) == 2

@@ -259,3 +259,29 @@ def test_label_confidence_is_the_logistic_model_over_its_features():
     assert got.dtype == np.float32 and got.shape == F.shape
     np.testing.assert_allclose(got, want, atol=2e-5)
     assert 0.5 < got.mean() < 1.0 and got.min() == np.float32(0.5) and got.max() > 0.9
+
+
+def test_the_compiled_trusted_fusion_is_the_numpy_rule():
+    # the stream's one pass (trusted_fusion) against trust_maps, prior_term and the fusion written in numpy,
+    # with and without the field's confidence and the second motion, residuals outside the key frame included
+    rng = np.random.default_rng(5)
+    h, w = 300, 260  # over the helper's row split
+    d, ld, lf = (rng.normal(0, 3, (h, w)).astype(np.float32) for _ in range(3))
+    rd, rf = (rng.uniform(0, 120, (h, w)).astype(np.float32) for _ in range(2))
+    rd[:10], rf[-10:] = T.OUTSIDE, T.OUTSIDE
+    conf = rng.uniform(-0.2, 1.2, (h, w)).astype(np.float32)
+    conf[5, 5] = np.nan
+    for c in (conf, None):
+        for flow in ((lf, rf), None):
+            maps, prior, fused, labels = T.trusted_fusion(T.STREAM_TRUST, 2.0, d, ld, rd, c, flow)
+            want = T.trust_maps(T.STREAM_TRUST, weight=2.0, dense_prior=ld, dense_residual=rd, confidence=c,
+                                flow_prior=None if flow is None else lf, flow_residual=None if flow is None else rf)
+            np.testing.assert_allclose(maps.dense, want.dense, rtol=1e-6, atol=1e-7)
+            assert (maps.flow is None) == (flow is None)
+            if flow is not None:
+                np.testing.assert_allclose(maps.flow, want.flow, rtol=1e-6, atol=1e-7)
+            np.testing.assert_allclose(prior, want.prior_term((h, w)), rtol=1e-5, atol=1e-5)
+            numpy_fused = T.fused_log_odds(d, want)
+            np.testing.assert_allclose(fused, numpy_fused, rtol=1e-5, atol=1e-5)
+            sure = np.abs(numpy_fused) > 1e-4  # a label within a rounding of 0 may go either way
+            np.testing.assert_array_equal(labels[sure], (numpy_fused > 0)[sure])

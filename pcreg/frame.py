@@ -3,8 +3,8 @@
 Every function that takes an image checks it with :func:`as_rgb_uint8`. A stream's frame goes through
 several of them (naive Bayes, the dense registration, DIS flow, the trust map): :meth:`PreparedFrame.of`
 checks it once, and each of them takes the prepared frame as it is, with no copy and no second check.
-What is derived from a frame (its features, its grey levels) is made on first use and kept with it
-(:meth:`PreparedFrame.derived`), so nothing is computed twice for one frame.
+What is derived from a frame (naive Bayes' features) is made on first use and kept with it
+(:meth:`PreparedFrame.derived`), so it is not computed twice for one frame.
 """
 
 from __future__ import annotations

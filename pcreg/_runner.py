@@ -233,24 +233,33 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
     """
     futures: dict = {}
     results: list = [None] * len(units)
+    inline = isinstance(executor, InlineExecutor)
     try:
-        # A pool forks its workers inside submit; a KeyboardInterrupt raised in an os.fork hook would be
-        # printed and lost, so a signal there is only noted, and raised once the units are submitted.
-        with _shielded() if not isinstance(executor, InlineExecutor) else nullcontext():
-            for i, u in enumerate(units):
-                futures[executor.submit(fn, u)] = i
-        check_interrupted()
         with progress(total=len(units), desc=desc, disable=None if show_progress is None else not show_progress) as bar:
-            pending = set(futures)
+
+            def land(fut: Future) -> None:
+                i = futures[fut]
+                results[i] = fut.result()
+                if on_result is not None:
+                    on_result(units[i], results[i])
+                bar.update(1)
+
+            # A pool forks its workers inside submit; a KeyboardInterrupt raised in an os.fork hook would be
+            # printed and lost, so a signal there is only noted, and raised once the units are submitted.
+            # Inline, submit runs the unit: each result lands (and is kept) before the next unit starts.
+            with nullcontext() if inline else _shielded():
+                for i, u in enumerate(units):
+                    fut = executor.submit(fn, u)
+                    futures[fut] = i
+                    if inline:
+                        land(fut)
+            check_interrupted()
+            pending = set() if inline else set(futures)
             while pending:
                 done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
                 check_interrupted()  # also when no unit finished: the wait itself is where Ctrl-C lands
                 for fut in done:
-                    i = futures[fut]
-                    results[i] = fut.result()
-                    if on_result is not None:
-                        on_result(units[i], results[i])
-                    bar.update(1)
+                    land(fut)
     except BaseException:
         for fut in futures:  # nothing more starts; what finished was handed to on_result already
             fut.cancel()

@@ -104,7 +104,10 @@ def main(argv: list[str] | None = None) -> int:
             from .validation import set_max_pixels
 
             set_max_pixels(args.max_pixels)  # also seen by worker processes
-        return int(module.run(args) or 0)
+        code = int(module.run(args) or 0)
+        if interrupted():  # the signal's KeyboardInterrupt was swallowed (an ignored callback): still stop
+            raise KeyboardInterrupt
+        return code
     except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)
         reason = _one_line(exc)
         if getattr(args, "json", False):

@@ -155,3 +155,56 @@ def test_crosscheck_suite_stops_in_each_phase_and_runs_again(monkeypatch, capsys
     # the 2d-edges case (sub-pixel edges of an image and its warped copy) differs between two runs in one
     # process by ~1e-8 relative in its errors against the truth; every other number is identical
     assert not close(results_without_times(out), results_without_times(whole), tol=1e-6)
+
+
+def test_a_signal_whose_interrupt_was_swallowed_still_stops_the_command(monkeypatch, capsys, tmp_path):
+    """Python only prints a KeyboardInterrupt raised in a weakref callback or a ``__del__`` (an import
+    lock's clean-up, say) and goes on. A Ctrl-C landing there must still end the command with 130."""
+    import os
+    import signal
+
+    from pcreg.cli import main
+    from pcreg.experiments.reports import sequence as report
+
+    real = report.write_outputs
+    swallowed = []
+
+    def write_outputs(*args, **kwargs):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)  # the handler runs before os.kill returns
+        except KeyboardInterrupt:
+            swallowed.append(True)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(report, "write_outputs", write_outputs)
+    out = tmp_path / "out"
+    rc = main([*COMMANDS["sequence"], "--out", str(out)])
+    err = capsys.readouterr().err
+    assert swallowed and rc == 130, err
+    interrupted_line(err)
+    assert len(unit_files(out)) == 3  # every unit kept: the same command has nothing left to run
+
+
+def test_in_one_process_each_unit_is_kept_before_the_next_starts(monkeypatch, capsys, tmp_path):
+    """``--workers 1``: a unit's file is written as soon as it finishes, so a stop (or a crash) in the
+    next unit loses none of the work done."""
+    import pcreg.experiments.sequence as sequence
+    import pcreg.experiments.units as units
+    from pcreg.cli import main
+
+    events: list[str] = []
+    real_run, real_save = sequence.run_unit, units.UnitStore.save
+
+    def run_unit(unit, **kwargs):
+        events.append("run")
+        return real_run(unit, **kwargs)
+
+    def save(self, key, result):
+        events.append("save")
+        return real_save(self, key, result)
+
+    monkeypatch.setattr(sequence, "run_unit", run_unit)
+    monkeypatch.setattr(units.UnitStore, "save", save)
+    assert main([*COMMANDS["sequence"], "--workers", "1", "--out", str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    assert events == ["run", "save"] * 3

@@ -31,7 +31,7 @@ def _done(state: Path) -> int:
 def test_run_stops_between_frames_and_resumes(tmp_path, how):
     import pcreg
 
-    frames = pcreg.synthetic("syn1a", 24, 0, width=320, height=240)
+    frames = pcreg.synthetic("syn1a", 60, 0, width=320, height=240)  # about 1.5 s left when it is stopped
     src = tmp_path / "frames"
     src.mkdir()
     for i, f in enumerate(frames):

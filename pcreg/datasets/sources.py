@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, TypeVar
 
 import numpy as np
 
@@ -273,7 +273,11 @@ def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderF
     return FolderFrames(p, selection)
 
 
-def read_ahead(frames: Iterator[SourceFrame]) -> Iterator[SourceFrame]:
+#: What :func:`read_ahead` hands on: a decoded frame, or anything an iterator yields.
+_Item = TypeVar("_Item")
+
+
+def read_ahead(frames: Iterator[_Item]) -> Iterator[_Item]:
     """``frames`` as they come, the next one read and decoded on a thread of its own while the caller
     works on this one (a 640x480 PNG takes about 14 ms to decode; PyAV and OpenCV release the GIL while
     they decode). An error reading a frame comes out where that frame would have; closing this

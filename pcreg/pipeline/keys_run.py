@@ -234,6 +234,13 @@ class KeyRun:
         with _kept(self._hidden(self.fingerprint(s)) / f"frame-{t}.npy") as f:
             return np.load(f, allow_pickle=False)
 
+    def _images(self, s: Stretch, positions: range) -> Iterator[tuple[int, np.ndarray]]:
+        """``(t, image)`` for the frames at ``positions``, in that order, the next one read on a thread of
+        its own while the caller labels this one (:func:`~pcreg.datasets.sources.read_ahead`)."""
+        from ..datasets.sources import read_ahead
+
+        return read_ahead((t, self._image(s, t)) for t in positions)
+
     def _classifier(self, s: Stretch, images: dict):
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
@@ -269,8 +276,11 @@ class KeyRun:
         carry = None if grid.shape == (0, 0, 2) and np.isnan(evidence) else Carry(grid, evidence)
         return carry, (None if learned.size == 0 else learned)
 
-    def _write_carry(self, s: Stretch, steps: int, prop) -> None:
-        _write_carry(self._hidden(self.fingerprint(s)) / f"carry-{steps % 2}.npz", steps, prop.carry, prop.learned)
+    def _keep_carry(self, cur: dict, carry, learned: Callable[[], np.ndarray | None]) -> None:
+        """One more step done: the carry it left and what was ``learned`` (computed now), for a resumed run."""
+        cur["steps"] += 1
+        _write_carry(self._hidden(cur["fingerprint"]) / f"carry-{cur['steps'] % 2}.npz", cur["steps"], carry,
+                     learned())
 
     def _store(self, s: Stretch, cur: dict) -> None:
         """A video's frames of the stretch and its key frames, decoded in order into the hidden folder."""
@@ -295,8 +305,7 @@ class KeyRun:
     def _between(self, s: Stretch, cur: dict) -> None:
         """The forward pass of a stretch between two key frames: each frame's prior term from the earlier
         key frame, kept (float16) for the backward pass."""
-        from ..outputs import atomic_write_bytes
-        import io
+        from ..outputs import WriteBehind
 
         a, b = s.first, s.last
         assert a is not None and b is not None
@@ -304,24 +313,33 @@ class KeyRun:
         prop = self._propagator(self._classifier(s, keys), keys[a], self.keys[a], learning=False)
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
-        for t in range(start, b):
-            self.check()
-            image = self._image(s, t)
-            prop.step(image)
-            report = prop.last
-            buf = io.BytesIO()
-            np.savez(buf, prior=report.trust.prior_term(image.shape[:2]).astype(np.float16),
-                     fallback=np.bool_(report.fallback))
-            atomic_write_bytes(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz", buf.getvalue())
-            cur["steps"] += 1
-            self._write_carry(s, cur["steps"], prop)
-            cur["next"] = t + 1
-            cur["fallbacks"] += int(report.fallback)
-            self._commit()
+        with WriteBehind() as writer:  # a frame's prior term, carry and commit written while the next is labelled
+            for t, image in self._images(s, range(start, b)):
+                self.check()
+                prop.step(image)
+                report = prop.last
+                prior = report.trust.prior_term(image.shape[:2]).astype(np.float16)
+                writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
+                              prop.learned_later())
+
+    def _keep_prior(self, cur: dict, t: int, prior: np.ndarray, fallback: bool, carry, learned) -> None:
+        """Frame ``t`` of a forward pass between two key frames: its prior term kept for the backward pass,
+        the propagator's carry, and the commit."""
+        from ..outputs import atomic_write_bytes
+        import io
+
+        buf = io.BytesIO()
+        np.savez(buf, prior=prior, fallback=np.bool_(fallback))
+        atomic_write_bytes(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz", buf.getvalue())
+        self._keep_carry(cur, carry, learned)
+        cur["next"] = t + 1
+        cur["fallbacks"] += int(fallback)
+        self._commit()
 
     def _backward(self, s: Stretch, cur: dict) -> None:
         """From the later key frame back to the stretch's first frame; between two key frames, each frame
         fuses the forward pass's prior term too."""
+        from ..outputs import WriteBehind
         from .trust import label_confidence, predicted_error
 
         b = s.last
@@ -332,28 +350,29 @@ class KeyRun:
         prop = self._propagator(clf, keys[b], self.keys[b], learning=not both)
         self._resume(prop, s, cur)
         start = b - 1 if cur["next"] is None else cur["next"]
-        for t in range(start, s.start - 1, -1):
-            self.check()
-            image = self._image(s, t)
-            labels = prop.step(image)
-            report = prop.last
-            step = report.to_dict()
-            conf = report.confidence
-            if both:
-                with _kept(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz") as f, np.load(f, allow_pickle=False) as z:
-                    p_a, fallback = z["prior"].astype(np.float32), bool(z["fallback"])
-                d = report.log_odds
-                prior = p_a + report.trust.prior_term(image.shape[:2])
-                fused = d + prior
-                labels = (fused > 0).astype(np.uint8)
-                conf = label_confidence(fused, d, prior)
-                step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
-            self._record(s, cur, t, image, labels, conf, step, prop, clf)
-            cur["next"] = t - 1
-            self._commit()
+        with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
+            for t, image in self._images(s, range(start, s.start - 1, -1)):
+                self.check()
+                labels = prop.step(image)
+                report = prop.last
+                step = report.to_dict()
+                conf = report.confidence
+                if both:
+                    with _kept(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz") as f, \
+                            np.load(f, allow_pickle=False) as z:
+                        p_a, fallback = z["prior"].astype(np.float32), bool(z["fallback"])
+                    d = report.log_odds
+                    prior = p_a + report.trust.prior_term(image.shape[:2])
+                    fused = d + prior
+                    labels = (fused > 0).astype(np.uint8)
+                    conf = label_confidence(fused, d, prior)
+                    step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
+                self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1)
 
     def _forward(self, s: Stretch, cur: dict) -> None:
         """From the last key frame to the end, as a run from one key frame."""
+        from ..outputs import WriteBehind
+
         a = s.first
         assert a is not None
         frames = self.frames.frames(a)
@@ -364,23 +383,41 @@ class KeyRun:
         prop = self._propagator(clf, key.image, self.keys[a], learning=True)
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
-        for frame in frames:
-            if frame.position < start:
-                continue
-            self.check()
-            t = frame.position
-            try:
-                labels = prop.step(frame.image)
-            except InputError as exc:  # a frame of another size: the step's own check, the file named
-                where = self.frames.paths[t] if self.frames.kind == "folder" else f"{self.frames.path} frame {frame.name}"
-                raise InputError(f"{where}: {exc}") from None
-            self._record(s, cur, t, frame.image, labels, prop.last.confidence, prop.last.to_dict(), prop, clf)
-            cur["next"] = t + 1
-            self._commit()
+        with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
+            for frame in frames:
+                if frame.position < start:
+                    continue
+                self.check()
+                t = frame.position
+                try:
+                    labels = prop.step(frame.image)
+                except InputError as exc:  # a frame of another size: the step's own check, the file named
+                    where = (self.frames.paths[t] if self.frames.kind == "folder"
+                             else f"{self.frames.path} frame {frame.name}")
+                    raise InputError(f"{where}: {exc}") from None
+                self._record(writer, s, cur, t, frame.image, labels, prop.last.confidence, prop.last.to_dict(), prop,
+                             clf, after=t + 1)
 
-    def _record(self, s: Stretch, cur: dict, t: int, image, labels, conf, step: dict, prop, clf) -> None:
-        """Frame ``t``'s outputs and step line; the caller commits."""
+    def _record(self, writer, s: Stretch, cur: dict, t: int, image, labels, conf, step: dict, prop, clf, *,
+                after: int) -> None:
+        """Frame ``t``'s outputs, its step line and the commit (the next frame to label: ``after``), written by
+        ``writer`` (a :class:`~pcreg.outputs.WriteBehind`) while the next frame is labelled; naive Bayes
+        alone (for the truth) and the propagator's carry are taken here, as they are now."""
         from ..classification.metrics import error_rate
+
+        step = dict(step, frame=t, name=self.frames.name(t), keys=[self.frames.name(k) for k in s.keys])
+        truth = None if self.truth is None else self.truth[t]
+        plain = None
+        if truth is not None:
+            plain = clf.predict(image)
+            step.update(error=error_rate(labels, truth), plain_error=error_rate(plain, truth))
+        writer.submit(self._write_frame, cur, t, labels, conf, step, plain, prop.carry, prop.learned_later(),
+                      after=after)
+        if self.on_frame is not None:
+            self.on_frame(t, image, labels, prop.last, self.frames.name(t))
+
+    def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, plain, carry, learned, *, after: int) -> None:
+        """On the writer's thread: what :meth:`_record` hands on, in the order a resumed run reads it back."""
         from ..outputs import to_json
 
         stem = self.frames.stem(t)
@@ -388,24 +425,20 @@ class KeyRun:
         if self.confidence and conf is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
             _write_png(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
-        step = dict(step, frame=t, name=self.frames.name(t), keys=[self.frames.name(k) for k in s.keys])
         truth = None if self.truth is None else self.truth[t]
         if truth is not None:
-            plain = clf.predict(image)
             known = truth < 2
             c = cur["truth"]
             c["frames"] += 1
             c["wrong"] += int(np.count_nonzero((labels[known] == 1) != (truth[known] == 1)))
             c["known"] += int(known.sum())
             c["plain_wrong"] += int(np.count_nonzero((plain[known] == 1) != (truth[known] == 1)))
-            step.update(error=error_rate(labels, truth), plain_error=error_rate(plain, truth))
         with open(self.out / STEPS, "ab") as fh:
             fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
-        cur["steps"] += 1
-        self._write_carry(s, cur["steps"], prop)
+        self._keep_carry(cur, carry, learned)
         cur["fallbacks"] += int(step.get("fallback", False)) + int(step.get("forward", {}).get("fallback", False))
         self.state["lines"] += 1
         self._totals()
         self.labelled += 1
-        if self.on_frame is not None:
-            self.on_frame(t, image, labels, prop.last, self.frames.name(t))
+        cur["next"] = after
+        self._commit()

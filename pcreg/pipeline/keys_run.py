@@ -9,7 +9,9 @@ labels depend on nothing outside it.
 Outputs in ``out`` (as :mod:`pcreg.pipeline.stream_run`'s, each written atomically): ``NAME.png`` per
 frame (a key frame's own labels as given), ``confidence/NAME.png`` with ``--confidence``,
 ``steps.jsonl`` (one line per labelled frame, in the order they were labelled; ``keys`` names the key
-frames it was labelled from) and ``run.json``, the commit point of every step.
+frames it was labelled from) and ``run.json``, the commit point of every step. Each pass reads its
+next frame on a thread of its own and writes a frame's outputs and commit on another
+(:class:`~pcreg.outputs.WriteBehind`), in order, while the next frame is labelled.
 
 A stretch between two key frames needs its forward pass before its backward pass: the forward pass
 keeps each frame's prior term (:meth:`~pcreg.pipeline.trust.TrustMaps.prior_term`, float16) in

@@ -158,6 +158,10 @@ def test_a_key_frame_added_relabels_only_its_stretch_and_suggest_names_the_frame
     steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
     assert sorted(s["name"] for s in steps) == ["f1.png", "f2.png", "f4.png"]
     assert main(args) == 0 and "already done" in capsys.readouterr().out
+    # a frame's labels the run counts done, gone since: refused, not called done
+    moved = (out / "f2.png").rename(tmp_path / "f2.png")
+    assert main(args) == 2 and _err(capsys)[0].startswith(f"pcreg: error: {out / 'f2.png'} is missing, though")
+    moved.rename(out / "f2.png")
     # another option is refused; --suggest asks for more frames than are left
     assert main(args + ["--weight", "1"]) == 2 and "other options" in _err(capsys)[0]
     assert main(args[:-1] + ["4"]) == 2

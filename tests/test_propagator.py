@@ -248,6 +248,11 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
         np.testing.assert_array_equal(cv2.imread(str(out / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED),
                                       cv2.imread(str(whole / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED))
     assert main(args) == 0 and "already done" in capsys.readouterr().out
+    # a label PNG the run counts done, gone since: refused, not called done
+    moved = (out / "f002.png").rename(tmp_path / "f002.png")
+    assert main(args) == 2
+    assert "f002.png is missing, though" in capsys.readouterr().err
+    moved.rename(out / "f002.png")
     # a resume needs the last counted frame's carry
     state["done"] = 5
     (out / "run.json").write_text(json.dumps(state))

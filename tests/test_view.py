@@ -413,6 +413,24 @@ def test_staging_an_empty_recording_and_bad_files(tmp_path, capsys):
     assert "choose one" in one_line_error(capsys)
 
 
+def test_a_screenshot_of_nothing_is_refused_at_once(tmp_path, capsys):
+    """A recording with nothing logged, or cut short before its first data, has nothing to draw: the
+    screenshot is refused in one line (exit 2) instead of the headless viewer waiting its whole timeout."""
+    empty = tmp_path / "empty.rrd"
+    with Recorder(empty):
+        pass
+    whole = tmp_path / "whole.rrd"
+    with Recorder(whole) as rec:
+        rec.set_frame(0)
+        rec.log_text("something to draw")
+    cut = tmp_path / "cut.rrd"
+    cut.write_bytes(whole.read_bytes()[:300])  # the file's header and first messages, no data
+    for path in (empty, cut):
+        assert pcreg_view([str(path), "--screenshot", str(tmp_path / "x.png"), "--timeout", "600"]) == 2
+        assert one_line_error(capsys).rstrip().endswith("nothing to draw (nothing logged, or the file ends before its first data)")
+    assert not (tmp_path / "x.png").exists()
+
+
 def test_native_viewer_without_a_display_points_to_web(small_recording, monkeypatch, capsys):
     if not sys.platform.startswith("linux"):
         pytest.skip("DISPLAY/WAYLAND_DISPLAY decide only on Linux")

@@ -39,8 +39,8 @@ from typing import BinaryIO, Callable, Iterator
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .stream_run import (CONFIDENCE, STATE, STEPS, _UNREADABLE_CARRY, _write_carry, _write_png, confidence_png,
-                         open_state)
+from .stream_run import (CONFIDENCE, STATE, STEPS, _UNREADABLE_CARRY, _write_carry, _write_png, check_labelled,
+                         confidence_png, open_state)
 
 __all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
 
@@ -163,6 +163,7 @@ class KeyRun:
             raise OutputError(f"{self.out / STEPS}: {len(lines)} steps for {self.state['lines']} finished frames; "
                               "use --force to start over")
         lines = [ln for ln in lines[:self.state["lines"]] if any(json.loads(ln)["frame"] in s for s in live)]
+        check_labelled(self.out, [self.frames.stem(int(json.loads(ln)["frame"])) for ln in lines])
         (self.out / STEPS).write_bytes(b"".join(lines))
         keep_hidden = None if cursor is None else self._hidden(cursor["fingerprint"]).name
         if (self.out / HIDDEN).is_dir():

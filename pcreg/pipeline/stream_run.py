@@ -78,6 +78,7 @@ class StreamRun:
             self.state = state
             self._cut_steps(int(state["done"]) - 1)
             self._remove_partial_writes()
+            check_labelled(self.out, [self.frames.stem(t) for t in range(int(state["done"]))])
             return int(state["done"])
         for slot in (0, 1):
             (self.out / CARRY.format(slot)).unlink(missing_ok=True)
@@ -223,6 +224,16 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
     if state.get("run") != identity:
         raise OutputError(f"{out} holds a run with other options; use --force to start over or another --out")
     return state
+
+
+def check_labelled(out: Path, stems: list[str]) -> None:
+    """The label PNG of every frame run.json counts labelled (``stems``) is in ``out``; one gone (deleted
+    or moved since) is an :class:`~pcreg.errors.OutputError`: the run cannot make it again where it
+    stands, and "all frames done" would not be true."""
+    for stem in stems:
+        if not (out / f"{stem}.png").is_file():
+            raise OutputError(f"{out / stem}.png is missing, though {out / STATE} counts that frame labelled; "
+                              "use --force to start over")
 
 
 def _write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:

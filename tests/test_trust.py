@@ -285,3 +285,28 @@ def test_the_compiled_trusted_fusion_is_the_numpy_rule():
             np.testing.assert_allclose(fused, numpy_fused, rtol=1e-5, atol=1e-5)
             sure = np.abs(numpy_fused) > 1e-4  # a label within a rounding of 0 may go either way
             np.testing.assert_array_equal(labels[sure], (numpy_fused > 0)[sure])
+
+
+def test_the_labels_are_the_sign_of_the_fused_log_odds_blurred_by_the_rule(frames):
+    """The rule's ``smooth``: a Gaussian of that many px at 480 wide (here 320: 2/3 of it) over the fused
+    log-odds, whose sign is the label and which the confidence reads; 0 reads each pixel alone."""
+    from dataclasses import replace
+
+    key, clf = frames[0], pcreg.fit_classifier([frames[0]])
+    w = key.image.shape[1]
+    seen = {}
+    for smooth in (0.0, 3.0):
+        prop = pcreg.Propagator(clf, trust=replace(T.STREAM_TRUST, smooth=smooth), learning=None)
+        prop.reset(key.image, key.labels)
+        labels = prop.step(frames[2].image)
+        last = prop.last
+        prior = last.trust.prior_term(labels.shape)
+        fused = (last.log_odds + prior).astype(np.float32)
+        shown = fused if smooth == 0 else cv2.GaussianBlur(fused, (0, 0), smooth * w / 480.0)
+        clear = np.abs(shown) > 1e-3  # the kernel's exponential may differ from numpy's in its last bit
+        assert np.array_equal(labels[clear], (shown > 0)[clear])
+        np.testing.assert_allclose(last.confidence, T.label_confidence(shown, last.log_odds, prior), atol=1e-4)
+        seen[smooth] = labels
+    assert np.count_nonzero(seen[0.0] != seen[3.0]) > 0.001 * seen[0.0].size  # the blur changed some labels
+    with pytest.raises(InputError, match="trust smooth"):
+        T.TrustRule(smooth=-1.0)

@@ -109,7 +109,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     from ..datasets import Frame
     from .learning import STREAM_LEARNING
     from .stream import Propagator
-    from .trust import label_confidence, predicted_error
+    from .trust import STREAM_TRUST, label_confidence, predicted_error, smoothed
 
     if not keys:
         raise InputError("at least one key frame is needed")
@@ -145,15 +145,15 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
         for t in frames:
             if not both:
                 d, prior, conf = (fwd or bwd)[t]
-                fused = d + prior
+                shown = smoothed(d + prior, STREAM_TRUST)
             else:
                 d, p_a, _ = fwd[t]
                 _, p_b, _ = bwd[t]
                 p_a = p_a.astype(np.float16).astype(np.float32)  # as pcreg run keeps it between its two passes
                 prior = p_a + p_b
-                fused = d + prior
-                conf = label_confidence(fused, d, prior)
-            emit(LabelledFrame(t, (fused > 0).astype(np.uint8), conf, predicted_error(conf),
+                shown = smoothed(d + prior, STREAM_TRUST)
+                conf = label_confidence(shown, d, prior)
+            emit(LabelledFrame(t, (shown > 0).astype(np.uint8), conf, predicted_error(conf),
                                tuple(k for k in (a, b) if k is not None)))
     return [done[t] for t in range(n)]
 

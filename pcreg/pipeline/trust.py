@@ -13,9 +13,11 @@ pixel's trust falls, and the step is naive Bayes alone. The fused log-odds (:fun
                       + flow * exp(-r_flow / residual) * l_flow)
 
 with ``d`` naive Bayes' log-odds, ``l_*`` each carried prior's log-odds, ``c`` the dense field's own
-confidence and ``r_*`` each motion's residual in grey levels. The rule's three numbers
-(:class:`TrustRule`) were each chosen with one CamVid clip left out, for each of the eight shared
-clips, and scored on the clip left out (docs/results.md, "Trust").
+confidence and ``r_*`` each motion's residual in grey levels. The labels are the sign of ``F`` blurred
+(:func:`smoothed`: a Gaussian of :attr:`TrustRule.smooth` px at :data:`BASE_WIDTH`): a pixel is labelled
+by the evidence around it, not by its own alone. The rule's numbers (:class:`TrustRule`) were each
+chosen with one CamVid clip left out, for each of the eight shared clips, and scored on the clip left
+out (docs/results.md, "Trust" and "Smoothing").
 
 Every output label gets a calibrated confidence, the probability that it is right
 (:func:`label_confidence`), from four things a person can see: how far the fused log-odds are from 0,
@@ -35,7 +37,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
-           "residual_trust", "TrustedKey", "Trusted",
+           "residual_trust", "TrustedKey", "Trusted", "smoothed",
            "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error"]
 
 #: The width at which the rule's pixel sizes are stated; they scale with the frame's width.
@@ -69,12 +71,15 @@ class TrustRule:
     residual : grey levels of the carried key frame's mean colour difference at which a prior's trust
         falls to 1/e.
     preset : the DIS preset of the second motion.
+    smooth : the blur of the fused log-odds before they are read as labels and as the labels'
+        confidence (:func:`smoothed`): a Gaussian's sigma in px at :data:`BASE_WIDTH` (0: none).
     """
 
     dense: float = 2.0
     flow: float = 1.5
     residual: float = 40.0
     preset: str = "ultrafast"
+    smooth: float = 3.0
 
     def __post_init__(self) -> None:
         from ..registration.flow import PRESETS
@@ -83,6 +88,7 @@ class TrustRule:
         check_float(self.dense, "trust dense", lo=0, hi=1e6)
         check_float(self.flow, "trust flow", lo=0, hi=1e6)
         check_float(self.residual, "trust residual", lo=0, lo_open=True, hi=1e6)
+        check_float(self.smooth, "trust smooth", lo=0, hi=1e3)
         if self.preset not in PRESETS:
             raise InputError(f"unknown DIS preset {self.preset!r}; choose one of {', '.join(PRESETS)}")
 
@@ -97,6 +103,18 @@ def _scaled(px: float, width: int) -> float:
 
 def _odd(px: float, width: int) -> int:
     return max(1, int(round(_scaled(px, width))) // 2 * 2 + 1)
+
+
+def smoothed(fused: np.ndarray, rule: TrustRule) -> np.ndarray:
+    """(H, W) float32: the fused log-odds as the labels read them, blurred by a Gaussian of ``rule.smooth``
+    px at :data:`BASE_WIDTH` (scaled to the frame's width; the borders reflected); ``fused`` itself (as
+    float32) when ``rule.smooth`` is 0. Its sign is the label, and :func:`label_confidence` reads it."""
+    import cv2
+
+    F = np.ascontiguousarray(fused, dtype=np.float32)
+    if rule.smooth <= 0:
+        return F
+    return cv2.GaussianBlur(F, (0, 0), _scaled(rule.smooth, F.shape[1]))
 
 
 def half(image: np.ndarray) -> np.ndarray:
@@ -294,9 +312,9 @@ def predicted_error(confidence: np.ndarray) -> float:
 
 @dataclass(frozen=True, eq=False)
 class Trusted:
-    """A step's labels by the trust rule (:meth:`TrustedKey.fuse`): ``labels`` (H, W) uint8, their
-    ``confidence`` (:func:`label_confidence`), the trust ``maps``, the ``fused`` log-odds and the
-    trusted priors' part of them (``prior``)."""
+    """A step's labels by the trust rule (:meth:`TrustedKey.fuse`): ``labels`` (H, W) uint8, the sign of
+    the ``fused`` log-odds :func:`smoothed`, their ``confidence`` (:func:`label_confidence` of the same),
+    the trust ``maps``, the fused log-odds themselves and the trusted priors' part of them (``prior``)."""
 
     labels: np.ndarray
     confidence: np.ndarray
@@ -335,8 +353,11 @@ class TrustedKey:
         t1 = time.perf_counter()
         maps, prior, fused, labels = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
                                                     field_confidence, flow)
+        shown = smoothed(fused, self.rule)
+        if self.rule.smooth > 0:
+            labels = (shown > 0).astype(np.uint8)
         t2 = time.perf_counter()
-        confidence = label_confidence(fused, log_odds, prior)
+        confidence = label_confidence(shown, log_odds, prior)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior)
 

@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
 
             set_max_pixels(args.max_pixels)  # also seen by worker processes
         code = int(module.run(args) or 0)
-        if interrupted():  # the signal's KeyboardInterrupt was swallowed (an ignored callback): still stop
+        if code == 0 and interrupted():  # the signal's KeyboardInterrupt was swallowed (an ignored callback)
             raise KeyboardInterrupt
         return code
     except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)

@@ -284,9 +284,13 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
     del broken
     state["done"] = 6
     (out / "run.json").write_text(json.dumps(state))
-    # other options over the same folder: refused, unless --force
+    # other options over the same folder: refused, unless --force; the message names what differs
     assert main(args + ["--weight", "3"]) == 2
-    assert "other options" in capsys.readouterr().err
+    assert "other options (weight: 2.0 then, 3.0 now)" in capsys.readouterr().err
+    # a run begun when the labels were read pixel by pixel is not continued with blurred ones
+    (out / "run.json").write_text(json.dumps({**state, "run": {k: v for k, v in state["run"].items() if k != "smooth"}}))
+    assert main(args) == 2
+    assert "other options (smooth: not set then, 3.0 now)" in capsys.readouterr().err
 
 
 def test_run_command_bad_input(tmp_path, frames, capsys):

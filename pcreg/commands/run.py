@@ -24,6 +24,14 @@ from pathlib import Path
 from ..recording.interface import RecorderProtocol
 from ._common import add_record_arguments, arg_int, open_recorder
 
+def _labels_read() -> dict:
+    """How the labels are read from the fused log-odds (the trust rule's blur), in a run's identity: a run
+    begun when they were read otherwise is not continued with labels of another kind."""
+    from ..pipeline.trust import STREAM_TRUST
+
+    return {"smooth": STREAM_TRUST.smooth}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..registration.transforms import MODELS
 
@@ -160,7 +168,8 @@ def run(args: argparse.Namespace) -> int:
     _check_suggest(args.suggest, frames, 1)
     prop = Propagator.from_key_frame(key.image, key_labels, **options)
     identity = {frames.kind: str(source.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
-                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
+                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options,
+                **_labels_read()}
     if args.confidence:  # a run's identity names it only when on, so runs from before it still resume
         identity["confidence"] = True
     if selection.to_dict() is not None:  # named only when not every frame, as --confidence
@@ -337,7 +346,7 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     _check_spares_inputs(out, frames, folder / f"{frames.stem(next(iter(keys)))}.png", truth)
     _check_suggest(args.suggest, frames, len(keys))
     identity = {frames.kind: str(source.resolve()), "labels": str(folder.resolve()), "mapping": args.mapping,
-                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options}
+                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options, **_labels_read()}
     if args.confidence:
         identity["confidence"] = True
     if selection.to_dict() is not None:

@@ -222,8 +222,24 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
     except (OSError, ValueError):
         raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
     if state.get("run") != identity:
-        raise OutputError(f"{out} holds a run with other options; use --force to start over or another --out")
+        raise OutputError(f"{out} holds a run with other options{_differences(state.get('run'), identity or {})}; "
+                          "use --force to start over or another --out")
     return state
+
+
+def _differences(before: object, now: dict) -> str:
+    """`` (NAME: A then, B now, ...)``: what differs between a kept run's identity and this one's."""
+    from ..validation import short_repr
+
+    if not isinstance(before, dict):
+        return ""
+
+    def shown(d: dict, k: str) -> str:
+        return short_repr(d[k]) if k in d else "not set"
+
+    names = sorted(k for k in set(before) | set(now) if shown(before, k) != shown(now, k))
+    said = [f"{k}: {shown(before, k)} then, {shown(now, k)} now" for k in names[:3]]
+    return f" ({'; '.join(said)}{'; ...' if len(names) > 3 else ''})" if said else ""
 
 
 def check_labelled(out: Path, stems: list[str]) -> None:

@@ -97,8 +97,8 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     options : the backend, model, correspondence distance, stopping rule, robust weights, metric and
         coarse-to-fine schedule (:class:`~pcreg.registration.icp_options.ICPOptions`, every default there).
     init : (d+1, d+1) initial ``T_target_source`` (None: the identity).
-    target_normals : (M, 2) the target's normals, for ``metric="point_to_line"`` (2-D, reference backend,
-        no schedule).
+    target_normals : (M, d) the target's normals, for ``metric="point_to_line"`` (2-D, reference backend)
+        and ``metric="point_to_plane"`` (3-D, rigid, either backend); no schedule with either.
     callback : called with an :class:`~pcreg.registration.result.IcpIteration` after every iteration.
 
     Returns a :class:`RegistrationResult` whose ``matrix`` is (d+1, d+1) ``T_target_source``.
@@ -145,14 +145,18 @@ def _check_icp_options(options: ICPOptions, dim: int, target_normals) -> None:
     (``options`` checked its values when it was made)."""
     check_model(options.model, dim)
     if options.backend == "open3d" and target_normals is not None:
-        refuse_for_open3d(target_normals=target_normals)
+        refuse_for_open3d(target_normals=target_normals, metric=options.metric)
     if options.rotation == "quaternion" and (dim != 3 or options.model != "rigid"):
         raise InputError("rotation='quaternion' (Horn's closed form) is for the rigid model of 3-D clouds")
     if options.metric == "point_to_line" and (dim != 2 or target_normals is None or options.schedule is not None):
         raise InputError("metric='point_to_line' needs 2-D clouds, target_normals and no schedule "
                          "(normals cannot follow a voxel downsampling)")
-    if target_normals is not None and options.metric != "point_to_line":
-        raise InputError("target_normals are used only by metric='point_to_line'")
+    if options.metric == "point_to_plane" and (dim != 3 or target_normals is None or options.schedule is not None
+                                               or options.model != "rigid"):
+        raise InputError("metric='point_to_plane' needs 3-D clouds, target_normals, the rigid model and no "
+                         "schedule (normals cannot follow a voxel downsampling)")
+    if target_normals is not None and options.metric not in ("point_to_line", "point_to_plane"):
+        raise InputError("target_normals are used only by metric='point_to_line' or 'point_to_plane'")
 
 
 def _check_distance(src: np.ndarray, tgt: np.ndarray, T: np.ndarray, max_correspondence_distance: float | None

@@ -24,7 +24,7 @@ __all__ = ["ICPOptions", "METRICS", "ROTATIONS", "VoxelSchedule", "WEIGHTS", "re
 #: Robust weights of the reference backend's steps.
 WEIGHTS = ("none", "trimmed", "huber", "tukey")
 #: Distances minimised: point to point, or (2-D, reference backend) point to the target's tangent line.
-METRICS = ("point_to_point", "point_to_line")
+METRICS = ("point_to_point", "point_to_line", "point_to_plane")
 #: The 3-D rigid closed form of the reference backend: Umeyama's SVD or Horn's quaternion.
 ROTATIONS = ("svd", "quaternion")
 
@@ -80,7 +80,8 @@ class ICPOptions:
         updates, and stop once the fitness and the inlier RMSE changed by less than these (absolute changes).
     weights : robust weights (reference backend): ``none``, ``trimmed``, ``huber``, ``tukey``;
         ``trim_fraction`` the share of pairs ``trimmed`` keeps, in (0, 1].
-    metric : ``point_to_point`` or (2-D, reference backend, with target normals) ``point_to_line``.
+    metric : ``point_to_point``, or with the target's normals ``point_to_line`` (2-D, reference backend)
+        or ``point_to_plane`` (3-D, rigid, either backend: Open3D's ``TransformationEstimationPointToPlane``).
     rotation : 3-D rigid closed form of the reference backend: ``svd`` (Umeyama) or ``quaternion`` (Horn).
     count_iterations : Open3D backend only: run Open3D one iteration at a time (its stopping rule applied
         between steps) so that ``iterations`` and ``converged`` are exact; False runs it in one call
@@ -135,11 +136,12 @@ def refuse_for_open3d(*, weights: str = "none", metric: str = "point_to_point", 
     """:class:`InputError` for every option Open3D's point-to-point ICP cannot honour (none is ignored)."""
     if weights != "none":
         raise InputError("robust weights are a reference-backend feature; Open3D's point-to-point ICP has none")
-    if metric != "point_to_point":
-        raise InputError(f"metric {metric!r} is a reference-backend feature; the open3d backend is point-to-point")
-    if target_normals is not None:
-        raise InputError("target_normals serve the reference backend's point-to-line metric; "
-                         "the open3d backend (point-to-point) would ignore them")
+    if metric not in ("point_to_point", "point_to_plane"):
+        raise InputError(f"metric {metric!r} is a reference-backend feature; the open3d backend is point-to-point "
+                         "or point-to-plane")
+    if target_normals is not None and metric != "point_to_plane":
+        raise InputError("target_normals serve the point-to-line and point-to-plane metrics; "
+                         "the open3d backend's point-to-point ICP would ignore them")
     if rotation != "svd":
         raise InputError(f"rotation={rotation!r} chooses the reference backend's closed form; "
                          "Open3D's point-to-point estimation has its own (SVD)")

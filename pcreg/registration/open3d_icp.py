@@ -58,7 +58,7 @@ def _result(matrix: np.ndarray, r, iterations: int, converged: bool, start: floa
 
 def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, init: np.ndarray | None = None,
                callback: Callable[[IcpIteration], None] | None = None, level: int = 0, clouds: tuple | None = None,
-               check_convergence: bool = True) -> RegistrationResult:
+               check_convergence: bool = True, target_normals: np.ndarray | None = None) -> RegistrationResult:
     """One Open3D ICP run at one scale: a :class:`RegistrationResult` (``matrix`` is ``T_target_source``).
 
     options : the model (rigid or similarity), ``max_correspondence_distance`` (a number here) and the
@@ -69,6 +69,8 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, i
         runs (None: made here).
     ``check_convergence=False`` (one call, no callback) skips the extra step that decides ``converged``
     (reported False): for intermediate pyramid levels, whose convergence nobody reads.
+    target_normals : (M, 3) with ``options.metric == "point_to_plane"``: Open3D's point-to-plane estimation
+        on a copy of the target cloud that holds them.
     """
     if options.max_correspondence_distance is None:
         raise InputError("icp_open3d needs options.max_correspondence_distance (pcreg.icp chooses one)")
@@ -85,7 +87,14 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, i
     T4 = lift_to_3d(T) if d == 2 else T.copy()
     src = source_pcd if source_pcd is not None else to_pointcloud(source)
     tgt = target_pcd if target_pcd is not None else to_pointcloud(target)
-    est = reg.TransformationEstimationPointToPoint(with_scaling=(model == "similarity"))
+    if options.metric == "point_to_plane":
+        if target_normals is None or d != 3 or model != "rigid":
+            raise InputError("Open3D's point-to-plane ICP needs 3-D clouds, the target's normals and the rigid model")
+        tgt = to_pointcloud(target)  # a copy of its own: the normals go with it
+        tgt.normals = _o3d().utility.Vector3dVector(np.asarray(target_normals, dtype=np.float64))
+        est = reg.TransformationEstimationPointToPlane()
+    else:
+        est = reg.TransformationEstimationPointToPoint(with_scaling=(model == "similarity"))
     back = (lambda m: project_to_2d(m)) if d == 2 else (lambda m: m)
 
     def step(T4, n_iter):

@@ -249,6 +249,32 @@ def estimate_point_to_line(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.nd
     return np.linalg.inv(N) @ U @ N
 
 
+def estimate_point_to_plane(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """3-D rigid point-to-plane step (Chen & Medioni 1992), linearised as Open3D's
+    ``TransformationEstimationPointToPlane``: minimises Σ w ((p - q) · n + ω · (p × n) + t · n)^2 over the
+    small rotation ω and the translation t (the 6x6 normal equations, in the clouds' own coordinates),
+    then builds the rotation Rz(ω_z) Ry(ω_y) Rx(ω_x). A singular system gives no motion (the identity),
+    as Open3D's solver does when it fails."""
+    r = np.einsum("ij,ij->i", p - q, n)
+    J = np.hstack([np.cross(p, n), n])
+    Jw = J * w[:, None]
+    JTJ, JTr = Jw.T @ J, Jw.T @ r
+    try:
+        x = np.linalg.solve(JTJ, -JTr)
+    except np.linalg.LinAlgError:
+        return np.eye(4)
+    if not np.all(np.isfinite(x)) or np.linalg.cond(JTJ) > 1e12:
+        return np.eye(4)
+    (cx, cy, cz), (sx, sy, sz) = np.cos(x[:3]), np.sin(x[:3])
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+    Ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+    Rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+    U = np.eye(4)
+    U[:3, :3] = Rz @ Ry @ Rx
+    U[:3, 3] = x[3:]
+    return U
+
+
 def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotation: str = "svd") -> np.ndarray:
     """Closed-form update for one motion model from weighted correspondences p_i -> q_i."""
     if model == "translation":
@@ -369,7 +395,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
         metric and rotation (:class:`~pcreg.registration.icp_options.ICPOptions`; its ``schedule`` and
         ``count_iterations`` are :func:`pcreg.icp`'s and Open3D's, not read here).
     target_normals : (M, d) the target's normals, for ``metric="point_to_line"`` (2-D; without them the
-        step is point-to-point).
+        step is point-to-point) and ``metric="point_to_plane"`` (3-D, rigid; needed).
     tree : a prebuilt index of ``target`` (:func:`build_tree`, or a ``scipy.spatial.cKDTree``), reused
         across calls on the same target.
     robust_scale : the robust weights' scale (None: estimated from each iteration's distances).
@@ -386,6 +412,8 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
         tree = build_tree(target, max_distance=max_correspondence_distance)
     if metric == "point_to_line" and (d != 2 or target_normals is None):
         metric = "point_to_point"
+    if metric == "point_to_plane" and (d != 3 or target_normals is None or model != "rigid"):
+        raise InputError("metric='point_to_plane' needs 3-D clouds, the target's normals and the rigid model")
     if (metric == "point_to_point" and weights == "none" and model in _MOMENT_MODELS and isinstance(tree, GridIndex)
             and not (rotation == "quaternion" and d == 3 and model == "rigid")):
         return _icp_moments(source, target, T, tree, model=model, max_distance=max_correspondence_distance,
@@ -412,6 +440,8 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
             update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
         elif metric == "point_to_line":
             update = estimate_point_to_line(p, q, target_normals[idx[ok]], w, model)
+        elif metric == "point_to_plane":
+            update = estimate_point_to_plane(p, q, target_normals[idx[ok]], w)
         else:
             update = estimate(p, q, w, model, rotation=rotation)
         if not np.all(np.isfinite(update)):

@@ -86,15 +86,16 @@ def reference_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, set
 
 def open3d_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, settings: IcpSettings,
                 call: StepCall) -> RegistrationResult:
-    """Open3D's point-to-point ICP (:func:`~pcreg.registration.open3d_icp.icp_open3d`); every option only
-    the reference honours is refused."""
+    """Open3D's point-to-point or point-to-plane ICP (:func:`~pcreg.registration.open3d_icp.icp_open3d`);
+    every option only the reference honours is refused."""
     refuse_for_open3d(weights=settings.weights, metric=settings.metric, target_normals=call.target_normals,
                       rotation=settings.rotation, trim_fraction=settings.trim_fraction)
     clouds = None
     if call.open3d_clouds is not None:
         clouds = open3d_cloud(call.open3d_clouds, source), open3d_cloud(call.open3d_clouds, target)
-    return icp_open3d(source, target, step_options("open3d", settings, call), init=init, callback=call.callback, level=call.level, clouds=clouds,
-                      check_convergence=call.final or call.callback is not None)
+    return icp_open3d(source, target, step_options("open3d", settings, call), init=init, callback=call.callback,
+                      level=call.level, clouds=clouds, check_convergence=call.final or call.callback is not None,
+                      target_normals=call.target_normals)
 
 
 ICP_STEPS: dict[str, IcpStep] = {"reference": reference_step, "open3d": open3d_step}

@@ -56,6 +56,20 @@ def _result(matrix: np.ndarray, r, iterations: int, converged: bool, start: floa
                               seconds=time.perf_counter() - start)
 
 
+def _estimation(options: ICPOptions, target: np.ndarray, target_pcd, target_normals: np.ndarray | None):
+    """``(estimation, Open3D's target cloud)`` for ``options.metric``: point-to-plane on a copy of the
+    target that carries its normals (3-D, rigid), else point-to-point on ``target_pcd`` (made when None)."""
+    reg = _o3d().pipelines.registration
+    if options.metric == "point_to_plane":
+        if target_normals is None or target.shape[1] != 3 or options.model != "rigid":
+            raise InputError("Open3D's point-to-plane ICP needs 3-D clouds, the target's normals and the rigid model")
+        tgt = to_pointcloud(target)  # a copy of its own: the normals go with it
+        tgt.normals = _o3d().utility.Vector3dVector(np.asarray(target_normals, dtype=np.float64))
+        return reg.TransformationEstimationPointToPlane(), tgt
+    tgt = target_pcd if target_pcd is not None else to_pointcloud(target)
+    return reg.TransformationEstimationPointToPoint(with_scaling=(options.model == "similarity")), tgt
+
+
 def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, init: np.ndarray | None = None,
                callback: Callable[[IcpIteration], None] | None = None, level: int = 0, clouds: tuple | None = None,
                check_convergence: bool = True, target_normals: np.ndarray | None = None) -> RegistrationResult:
@@ -86,15 +100,7 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, i
     T = np.eye(d + 1) if init is None else np.asarray(init, dtype=np.float64)
     T4 = lift_to_3d(T) if d == 2 else T.copy()
     src = source_pcd if source_pcd is not None else to_pointcloud(source)
-    tgt = target_pcd if target_pcd is not None else to_pointcloud(target)
-    if options.metric == "point_to_plane":
-        if target_normals is None or d != 3 or model != "rigid":
-            raise InputError("Open3D's point-to-plane ICP needs 3-D clouds, the target's normals and the rigid model")
-        tgt = to_pointcloud(target)  # a copy of its own: the normals go with it
-        tgt.normals = _o3d().utility.Vector3dVector(np.asarray(target_normals, dtype=np.float64))
-        est = reg.TransformationEstimationPointToPlane()
-    else:
-        est = reg.TransformationEstimationPointToPoint(with_scaling=(model == "similarity"))
+    est, tgt = _estimation(options, target, target_pcd, target_normals)
     back = (lambda m: project_to_2d(m)) if d == 2 else (lambda m: m)
 
     def step(T4, n_iter):

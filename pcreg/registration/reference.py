@@ -27,6 +27,7 @@ from ..errors import InputError, RegistrationError
 from . import _nn_kernels, nn
 from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, WEIGHTS: named here too)
 from .nn import GridIndex
+from .normal_steps import estimate_point_to_line, estimate_point_to_plane
 from .result import IcpIteration, RegistrationResult
 from .transforms import apply
 
@@ -205,74 +206,6 @@ def estimate_projective(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarr
     if abs(H[2, 2]) < 1e-12:
         raise RegistrationError("degenerate homography")
     return H / H[2, 2]
-
-
-def estimate_point_to_line(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray, model: str) -> np.ndarray:
-    """2-D point-to-line step (the planar case of Chen & Medioni 1992's point-to-plane).
-
-    Minimises Σ w ((U(p) - q) · n)^2 over a small update U linearised about the identity, in
-    coordinates centred on the weighted mean of p and scaled to unit RMS radius (for conditioning).
-    The projective update is U = I + dH with h33 = 1, linearised as
-    Δx = a x + b y + c - x (g x + h y), Δy = d x + e y + f - y (g x + h y).
-    Rigid and similarity rotations are rebuilt exactly from the solved angle.
-    """
-    mp = (w @ p) / w.sum()
-    scale = float(np.sqrt((w @ np.sum((p - mp) ** 2, axis=1)) / w.sum())) or 1.0
-    N = np.array([[1 / scale, 0, -mp[0] / scale], [0, 1 / scale, -mp[1] / scale], [0, 0, 1.0]])
-    pn, qn = (p - mp) / scale, (q - mp) / scale
-    x, y = pn[:, 0], pn[:, 1]
-    nx, ny = n[:, 0], n[:, 1]
-    r0 = np.einsum("ij,ij->i", pn - qn, n)
-    perp = ny * x - nx * y  # d/dθ of (R p)·n at θ = 0
-    radial = x * nx + y * ny
-    cols = {"translation": [nx, ny],
-            "rigid": [perp, nx, ny],
-            "similarity": [perp, radial, nx, ny],
-            "affine": [x * nx, y * nx, nx, x * ny, y * ny, ny],
-            "projective": [x * nx, y * nx, nx, x * ny, y * ny, ny, -x * radial, -y * radial]}
-    J = np.column_stack(cols[model])
-    JTJ = (J * w[:, None]).T @ J
-    JTJ += np.eye(J.shape[1]) * 1e-9 * max(np.trace(JTJ), 1.0)
-    v = np.linalg.solve(JTJ, -(J * w[:, None]).T @ r0)
-    U = np.eye(3)
-    if model == "translation":
-        U[:2, 2] = v
-    elif model in ("rigid", "similarity"):
-        k = 1.0 + v[1] if model == "similarity" else 1.0
-        U[:2, :2] = k * np.array([[np.cos(v[0]), -np.sin(v[0])], [np.sin(v[0]), np.cos(v[0])]])
-        U[:2, 2] = v[-2:]
-    else:
-        U[0, :] += v[0:3]
-        U[1, :] += v[3:6]
-        if model == "projective":
-            U[2, :2] = v[6:8]
-    return np.linalg.inv(N) @ U @ N
-
-
-def estimate_point_to_plane(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """3-D rigid point-to-plane step (Chen & Medioni 1992), linearised as Open3D's
-    ``TransformationEstimationPointToPlane``: minimises Σ w ((p - q) · n + ω · (p × n) + t · n)^2 over the
-    small rotation ω and the translation t (the 6x6 normal equations, in the clouds' own coordinates),
-    then builds the rotation Rz(ω_z) Ry(ω_y) Rx(ω_x). A singular system gives no motion (the identity),
-    as Open3D's solver does when it fails."""
-    r = np.einsum("ij,ij->i", p - q, n)
-    J = np.hstack([np.cross(p, n), n])
-    Jw = J * w[:, None]
-    JTJ, JTr = Jw.T @ J, Jw.T @ r
-    try:
-        x = np.linalg.solve(JTJ, -JTr)
-    except np.linalg.LinAlgError:
-        return np.eye(4)
-    if not np.all(np.isfinite(x)) or np.linalg.cond(JTJ) > 1e12:
-        return np.eye(4)
-    (cx, cy, cz), (sx, sy, sz) = np.cos(x[:3]), np.sin(x[:3])
-    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
-    Ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-    Rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
-    U = np.eye(4)
-    U[:3, :3] = Rz @ Ry @ Rx
-    U[:3, 3] = x[3:]
-    return U
 
 
 def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotation: str = "svd") -> np.ndarray:

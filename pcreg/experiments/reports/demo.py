@@ -108,9 +108,11 @@ def report(config, cres, rres, sres, cc, stage_rows, times, record, out: Path, s
         parts.append("Each preset as a stream: its first frame is the key frame with its labels; every later frame "
                      "is labelled by naive Bayes alone (`plain`), with the key frame's labels unwarped "
                      "(`unregistered`), by pcreg (the key frame's labels carried by a dense field and by DIS flow, "
-                     "each trusted per pixel by how well the key frame carried along it matches the frame, and naive "
-                     "Bayes learning from the frames it labels surely) and with DIS optical flow from the key frame "
-                     "alone (`flow_key`, at the same weight everywhere). Mean error % per clip:\n")
+                     "each trusted per pixel by how well the key frame carried along it matches the frame, each label "
+                     "read from the evidence of its neighbourhood (the fused log-odds blurred by a few pixels), and "
+                     "naive Bayes learning from the frames it labels surely) and with DIS optical flow from the key "
+                     "frame alone (`flow_key`, at the same weight everywhere, each pixel read alone). Mean error % per "
+                     "clip:\n")
         header, rows, footer = stream_report.table(stres)
         parts.append(markdown_table(header, rows) + footer)
         parts.append(stream_report.checks(stres))

@@ -10,7 +10,9 @@ The methods (:data:`METHODS`):
 
 - ``plain``: naive Bayes alone.
 - ``unregistered``: the key frame's labels fused as they are (no motion).
-- ``pcreg``: exactly what ``pcreg run`` does (:class:`pcreg.Propagator` with its defaults).
+- ``pcreg``: exactly what ``pcreg run`` does (:class:`pcreg.Propagator` with its defaults; its labels read
+  the fused log-odds blurred, :func:`pcreg.pipeline.trust.smoothed`, where every other method reads each
+  pixel alone).
 - ``dense_key`` / ``dense_previous``, ``similarity_key`` / ``similarity_previous``: the propagator with
   that registration model, each frame registered to the key frame, or to the previous frame with the
   motions composed back to the key frame (chained).

@@ -109,7 +109,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     from ..datasets import Frame
     from .learning import STREAM_LEARNING
     from .stream import Propagator
-    from .trust import STREAM_TRUST, label_confidence, predicted_error, smoothed
+    from .trust import STREAM_TRUST, predicted_error, read_labels, smoothed
 
     if not keys:
         raise InputError("at least one key frame is needed")
@@ -145,15 +145,14 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
         for t in frames:
             if not both:
                 d, prior, conf = (fwd or bwd)[t]
-                shown = smoothed(d + prior, STREAM_TRUST)
+                labels = (smoothed(d + prior, STREAM_TRUST) > 0).astype(np.uint8)  # conf: the propagator's
             else:
                 d, p_a, _ = fwd[t]
                 _, p_b, _ = bwd[t]
                 p_a = p_a.astype(np.float16).astype(np.float32)  # as pcreg run keeps it between its two passes
                 prior = p_a + p_b
-                shown = smoothed(d + prior, STREAM_TRUST)
-                conf = label_confidence(shown, d, prior)
-            emit(LabelledFrame(t, (shown > 0).astype(np.uint8), conf, predicted_error(conf),
+                labels, conf = read_labels(d + prior, d, prior, STREAM_TRUST)
+            emit(LabelledFrame(t, labels, conf, predicted_error(conf),
                                tuple(k for k in (a, b) if k is not None)))
     return [done[t] for t in range(n)]
 

@@ -343,7 +343,7 @@ class KeyRun:
         """From the later key frame back to the stretch's first frame; between two key frames, each frame
         fuses the forward pass's prior term too."""
         from ..outputs import WriteBehind
-        from .trust import label_confidence, predicted_error, smoothed
+        from .trust import predicted_error, read_labels
 
         b = s.last
         assert b is not None
@@ -366,9 +366,7 @@ class KeyRun:
                         p_a, fallback = z["prior"].astype(np.float32), bool(z["fallback"])
                     d = report.log_odds
                     prior = p_a + report.trust.prior_term(image.shape[:2])
-                    shown = smoothed(d + prior, prop.trust)
-                    labels = (shown > 0).astype(np.uint8)
-                    conf = label_confidence(shown, d, prior)
+                    labels, conf = read_labels(d + prior, d, prior, prop.trust)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1)
 

@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
-           "residual_trust", "TrustedKey", "Trusted", "smoothed",
+           "residual_trust", "TrustedKey", "Trusted", "smoothed", "read_labels",
            "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error"]
 
 #: The width at which the rule's pixel sizes are stated; they scale with the frame's width.
@@ -115,6 +115,15 @@ def smoothed(fused: np.ndarray, rule: TrustRule) -> np.ndarray:
     if rule.smooth <= 0:
         return F
     return cv2.GaussianBlur(F, (0, 0), _scaled(rule.smooth, F.shape[1]))
+
+
+def read_labels(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray,
+                rule: TrustRule) -> tuple[np.ndarray, np.ndarray]:
+    """``(labels, confidence)`` of fused log-odds as ``rule`` reads them: (H, W) uint8, the sign of the
+    :func:`smoothed` log-odds, and :func:`label_confidence` of the same (``log_odds``: naive Bayes' own,
+    ``prior_term``: the priors' part of ``fused``)."""
+    shown = smoothed(fused, rule)
+    return (shown > 0).astype(np.uint8), label_confidence(shown, log_odds, prior_term)
 
 
 def half(image: np.ndarray) -> np.ndarray:
@@ -220,16 +229,13 @@ def trust_maps(rule: TrustRule, *, weight: float, dense_prior: np.ndarray | None
     """Each carried prior's weight per pixel by ``rule`` (the module's formula); a prior given as None
     (its motion failed or was not computed) gets none, and a pixel whose residual's neighbourhood lies
     wholly outside the key frame (:data:`OUTSIDE`) gets 0."""
-    def trust(res: np.ndarray) -> np.ndarray:
-        return residual_weight(res, rule)
-
     wd = wf = None
     if dense_prior is not None and dense_residual is not None:
         c = 1.0 / 3.0 if confidence is None else np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0)
-        wd = (np.float32(weight * rule.dense) * (np.float32(0.5) + np.float32(1.5) * c) * trust(dense_residual))
+        wd = (np.float32(weight * rule.dense) * (np.float32(0.5) + np.float32(1.5) * c) * residual_weight(dense_residual, rule))
         wd = wd.astype(np.float32, copy=False)
     if flow_prior is not None and flow_residual is not None:
-        wf = np.float32(weight * rule.flow) * trust(flow_residual)
+        wf = np.float32(weight * rule.flow) * residual_weight(flow_residual, rule)
     return TrustMaps(wd, dense_prior, wf, flow_prior, dense_residual, flow_residual,
                      None if confidence is None else np.asarray(confidence, np.float32))
 
@@ -351,13 +357,10 @@ class TrustedKey:
         t0 = time.perf_counter()
         dense_prior, dense_residual = self.carried(frame_blurred, field)
         t1 = time.perf_counter()
-        maps, prior, fused, labels = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
+        maps, prior, fused, _ = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
                                                     field_confidence, flow)
-        shown = smoothed(fused, self.rule)
-        if self.rule.smooth > 0:
-            labels = (shown > 0).astype(np.uint8)
         t2 = time.perf_counter()
-        confidence = label_confidence(shown, log_odds, prior)
+        labels, confidence = read_labels(fused, log_odds, prior, self.rule)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior)
 

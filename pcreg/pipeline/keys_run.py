@@ -412,13 +412,15 @@ class KeyRun:
         if truth is not None:
             plain = clf.predict(image)
             step.update(error=error_rate(labels, truth), plain_error=error_rate(plain, truth))
-        writer.submit(self._write_frame, cur, t, labels, conf, step, plain, prop.carry, prop.learned_later(),
+        writer.submit(self._write_frame, cur, t, labels, conf, step, (truth, plain), prop.carry, prop.learned_later(),
                       after=after)
         if self.on_frame is not None:
             self.on_frame(t, image, labels, prop.last, self.frames.name(t))
 
-    def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, plain, carry, learned, *, after: int) -> None:
-        """On the writer's thread: what :meth:`_record` hands on, in the order a resumed run reads it back."""
+    def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, scored: tuple, carry, learned, *,
+                     after: int) -> None:
+        """On the writer's thread: what :meth:`_record` hands on, in the order a resumed run reads it back
+        (``scored``: the frame's truth map and naive Bayes' labels alone, or two Nones)."""
         from ..outputs import to_json
 
         stem = self.frames.stem(t)
@@ -426,7 +428,7 @@ class KeyRun:
         if self.confidence and conf is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
             _write_png(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
-        truth = None if self.truth is None else self.truth[t]
+        truth, plain = scored
         if truth is not None:
             known = truth < 2
             c = cur["truth"]

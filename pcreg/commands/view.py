@@ -128,7 +128,9 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="pcreg-view-") as tmp:
         staged = _stage(stage, args.recordings, Path(tmp))
         if out is not None:
-            _check_drawable(staged.path, args.recordings)
+            if not staged.logged:  # the headless viewer would wait its whole --timeout for it to load
+                raise InputError(f"{', '.join(args.recordings)}: nothing to draw (nothing logged, or the file ends "
+                                 "before its first data)")
             path = V.screenshot(staged.path, out, time_cursor=time_cursor, view=args.view, size=args.size,
                                 viewer=binary, timeout=args.timeout)
             print(path)
@@ -156,16 +158,6 @@ def _stage(stage, recordings: list[str], tmp: Path):
         return stage(recordings, tmp / "view.rrd")
     except ValueError as exc:
         raise InputError(str(exc)) from None
-
-
-def _check_drawable(staged: Path, recordings: list[str]) -> None:
-    """Refuse a screenshot of recordings that hold no data to draw (nothing logged, or a file cut short
-    before its first data): the headless viewer would wait its whole ``--timeout`` for them to load."""
-    from ..recording.readback import read_entities
-
-    if not any(entity != "/" for entity in read_entities(staged)):
-        raise InputError(f"{', '.join(recordings)}: nothing to draw (nothing logged, or the file ends before "
-                         "its first data)")
 
 
 def _note_bind(bind: str) -> None:

@@ -25,11 +25,13 @@ __all__ = ["Staged", "stage", "labels_for"]
 
 @dataclass(frozen=True)
 class Staged:
-    """A staged file: its path, and per input recording its label (``""`` for one input) and kind."""
+    """A staged file: its path, per input recording its label (``""`` for one input) and kind, and whether
+    any input logged data (an entity besides the root's; False for files with nothing to draw)."""
 
     path: Path
     labels: tuple[str, ...]
     kinds: tuple[str, ...]
+    logged: bool = True
 
 
 def labels_for(paths: list[str | os.PathLike]) -> list[str]:
@@ -69,6 +71,7 @@ def _stage(paths: list[str | os.PathLike], copies: list[Path], out: Path) -> Sta
         stores.append(recs[0])
     everything = [read_entities(c) for c in copies]
     kinds = [read_kind(c) or B.infer_kind(e) for c, e in zip(copies, everything)]
+    logged = any(entity != "/" for e in everything for entity in e)
     # only what the viewer shows on the timeline the layout opens on (no view without data there)
     timelines = {B.timeline(k, e) for k, e in zip(kinds, everything)}
     shown_on = timelines.pop() if len(timelines) == 1 else B.timeline("sequence")
@@ -80,7 +83,7 @@ def _stage(paths: list[str | os.PathLike], copies: list[Path], out: Path) -> Sta
         stream.send_chunks(readers[0].stream(store=stores[0]))
         stream.flush()
         stream.disconnect()
-        return Staged(out, ("",), (kinds[0],))
+        return Staged(out, ("",), (kinds[0],), logged)
 
     labels = labels_for(paths)
     bp = B.compare_blueprint(list(zip(labels, kinds, entities)))
@@ -109,4 +112,4 @@ def _stage(paths: list[str | os.PathLike], copies: list[Path], out: Path) -> Sta
         stream.log(path, rr.SeriesLines(names=[f"{label} {n}" for n in names]), static=True)
     stream.flush()
     stream.disconnect()
-    return Staged(out, tuple(labels), tuple(kinds))
+    return Staged(out, tuple(labels), tuple(kinds), logged)

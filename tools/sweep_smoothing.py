@@ -35,12 +35,10 @@ def clip(args: tuple) -> dict:
     """Mean error % of each method at each blur on one clip, and pcreg's confidence counts per blur."""
     frames, sigmas = args
     import pcreg
-    from pcreg.classification.fusion import fuse
     from pcreg.classification.metrics import error_rate
     from pcreg.experiments.stream import _Flow, calibration_counts
     from pcreg.pipeline.estimators import FlowEstimator
     from pcreg.pipeline.pair import log_odds
-    from pcreg.pipeline.prior import warped_prior_log_odds
     from pcreg.pipeline.trust import STREAM_TRUST, label_confidence, smoothed
 
     key = frames[0]
@@ -57,12 +55,9 @@ def clip(args: tuple) -> dict:
         report = prop.last
         d = report.log_odds
         prior = report.trust.prior_term((h, w))
-        dd = log_odds(clf, f.image)
         motion = FlowEstimator("medium").estimate(key.image, f.image).motion
-        fused = {"plain": dd, "unregistered": fuse(dd, flow._key_log_odds, weight=flow.weight),
-                 "flow_key": fuse(dd, warped_prior_log_odds(flow._prior, motion, shape=dd.shape, pi=flow._pi),
-                                  weight=flow.weight),
-                 "pcreg": d + prior}
+        fused = {"plain": log_odds(clf, f.image), "unregistered": flow.fused(f.image, None),
+                 "flow_key": flow.fused(f.image, motion), "pcreg": d + prior}
         for s in sigmas:
             rule = replace(STREAM_TRUST, smooth=s)
             for m, F in fused.items():

@@ -147,9 +147,9 @@ class _KeyPrior:
         self._prior = label_prior(labels, pi=self._pi, fusion=self.fusion)
         self._key_log_odds = prior_log_odds(self._prior, pi=self._pi)
 
-    def _labels(self, image: np.ndarray, motion) -> np.ndarray:
-        """The frame's labels with the key frame's prior carried by ``motion`` (None: not moved)."""
-        from ..classification.fusion import fuse, labels_from_log_odds
+    def fused(self, image: np.ndarray, motion) -> np.ndarray:
+        """The frame's fused log-odds with the key frame's prior carried by ``motion`` (None: not moved)."""
+        from ..classification.fusion import fuse
         from ..pipeline.pair import log_odds
         from ..pipeline.prior import warped_prior_log_odds
 
@@ -158,7 +158,13 @@ class _KeyPrior:
             l_prior = self._key_log_odds
         else:
             l_prior = warped_prior_log_odds(self._prior, motion, shape=d.shape, pi=self._pi)
-        return labels_from_log_odds(fuse(d, l_prior, weight=self.weight))
+        return fuse(d, l_prior, weight=self.weight)
+
+    def _labels(self, image: np.ndarray, motion) -> np.ndarray:
+        """The frame's labels, each pixel read alone (:meth:`fused`)."""
+        from ..classification.fusion import labels_from_log_odds
+
+        return labels_from_log_odds(self.fused(image, motion))
 
 
 class _Flow(_KeyPrior):

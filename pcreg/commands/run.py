@@ -52,6 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", choices=("identity", "auto"), default="identity",
                    help="the global registration's start: identity (default) or auto (global search too)")
     p.add_argument("--weight", type=float, default=2.0, help="fusion weight of the prior (default 2; 0 = naive Bayes)")
+    p.add_argument("--scale", type=float, default=1.0, metavar="S",
+                   help="run each step at this share of the frames' width and height (0 < S <= 1; default 1); the "
+                        "labels come back at full size. 0.5 is about twice as fast, a little less accurate")
     p.add_argument("--confidence", action="store_true",
                    help="also write OUT/confidence/NAME.png: 255 x the probability that each label is right")
     p.add_argument("--start", type=arg_int(0), default=0, metavar="I",
@@ -145,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.stream import Propagator
+    from ..validation import check_float
 
     source, out = Path(args.folder), Path(args.out)
     if not 0 <= args.weight <= MAX_WEIGHT:
@@ -152,6 +156,8 @@ def run(args: argparse.Namespace) -> int:
     selection = Selection(args.start, args.stop, args.every)
     frames = open_frames(source, selection)
     options = {"backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
+    if args.scale != 1.0:  # named only when below 1, so runs from before it still resume
+        options["scale"] = check_float(args.scale, "--scale", lo=0, lo_open=True, hi=1)
     if Path(args.labels).is_dir():
         return _run_keys(args, frames, selection, options)
     key_labels = _read_labels(Path(args.labels), args.mapping)
@@ -229,7 +235,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
             plain = prop.classifier.predict(image) if truth is not None else None
             writer.submit(stream.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),
                           confidence=prop.last.confidence if args.confidence else None)
-            _log(rec, t, frame.image, labels, prop.last, frame.name)
+            _log(rec, t, frame.image, labels, prop.last, frame.name, prop.working_size)
             done = t + 1
             bar.update(1)
     if done == start:
@@ -333,6 +339,7 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.keys_run import KeyRun
+    from ..pipeline.working import WorkingSize
     from ..pipeline.stream_run import STATE
 
     source, out, folder = Path(args.folder), Path(args.out), Path(args.labels)
@@ -358,7 +365,7 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
         left = None if n is None else max(0, n - len(keys) - job.state["lines"])  # what the bar counts, not the run
         with progress(total=left, desc="frames", disable=None) as bar:
             def on_frame(t, image, labels, report, name) -> None:
-                _log(rec, t, image, labels, report, name)
+                _log(rec, t, image, labels, report, name, WorkingSize(image.shape[:2], options.get("scale", 1.0)))
                 bar.update(1)
 
             done = job.run(on_frame=on_frame, check=check_interrupted)
@@ -377,14 +384,20 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     return 0
 
 
-def _log(rec: RecorderProtocol, t: int, image, labels, report, name: str) -> None:
+def _log(rec: RecorderProtocol, t: int, image, labels, report, name: str, size=None) -> None:
+    """One frame into the recording; ``size``: the propagator's working size (its motion is logged in the
+    frames' pixels)."""
     rec.set_frame(t)
     rec.log_images(moving=image)
     rec.log_labels(predicted=labels)
     reg = report.registration
+    scaled = size is not None and size.scaled
     if reg is None:
         rec.log_failure(f"{name}: {report.reason} (the key frame's labels, unwarped)")
-    elif getattr(reg, "field", None) is not None:
-        rec.log_dense(reg.field, matrix=reg.matrix, confidence=reg.confidence)
+        return
+    matrix = size.frame_matrix(reg.matrix) if scaled else reg.matrix
+    if getattr(reg, "field", None) is not None:
+        rec.log_dense(size.frame_field(reg.field) if scaled else reg.field, matrix=matrix,
+                      confidence=size.grow(reg.confidence) if scaled else reg.confidence)
     else:
-        rec.log_transform(reg.matrix)
+        rec.log_transform(matrix)

@@ -81,19 +81,21 @@ def segments(n: int, keys: Sequence[int]) -> list[tuple[int | None, int | None, 
     return out
 
 
-def _carry(make: Callable, key_image, key_labels, images: Callable[[int], np.ndarray], order, shape) -> dict:
-    """One direction: ``{t: (log_odds, prior_term)}`` along ``order`` from the key frame."""
+def _carry(make: Callable, key_image, key_labels, images: Callable[[int], np.ndarray], order) -> dict:
+    """One direction: ``{t: (log_odds, prior_term, confidence)}`` along ``order`` from the key frame (the
+    first two at the propagator's working size)."""
     prop = make()
     prop.reset(key_image, key_labels)
     out = {}
     for t in order:
         prop.step(images(t))
-        out[t] = (prop.last.log_odds, prop.last.trust.prior_term(shape), prop.last.confidence)
+        d = prop.last.log_odds
+        out[t] = (d, prop.last.trust.prior_term(d.shape), prop.last.confidence)
     return out
 
 
 def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, np.ndarray], *, classifier=None,
-               fit: str = "stretch", backend: str = "reference",
+               fit: str = "stretch", backend: str = "reference", scale: float = 1.0,
                on_frame: Callable[[LabelledFrame], None] | None = None) -> list[LabelledFrame]:
     """Every frame of a clip of ``n`` frames labelled from its key frames (see the module's docstring).
 
@@ -102,6 +104,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     classifier : one classifier for every stretch; when None, each stretch's is fitted
         (:func:`pcreg.fit_classifier`) on its own key frames (``fit="stretch"``, one or two) or every
         stretch's on all the key frames (``fit="all"``).
+    scale : the working size (:class:`pcreg.Propagator`'s ``scale``).
     on_frame : called with each :class:`LabelledFrame` as soon as it is done (segments in order).
     Returns the frames in index order (key frames with their own labels).
     """
@@ -110,6 +113,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     from .learning import STREAM_LEARNING
     from .stream import Propagator
     from .trust import STREAM_TRUST, predicted_error, read_labels, smoothed
+    from .working import WorkingSize
 
     if not keys:
         raise InputError("at least one key frame is needed")
@@ -132,26 +136,26 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     for k in sorted(keys):
         emit(LabelledFrame(k, np.asarray(keys[k], np.uint8), None, 0.0, (k,)))
     for a, b, frames in parts:
-        shape = np.asarray(keys[a if a is not None else int(b)]).shape[:2]  # type: ignore[arg-type]
+        size = WorkingSize(np.asarray(keys[a if a is not None else int(b)]).shape[:2], scale)  # type: ignore[arg-type]
         both = a is not None and b is not None
         learning = None if both else STREAM_LEARNING
         clf = classifier if classifier is not None else fitted([k for k in (a, b) if k is not None])
 
         def make(learning=learning, clf=clf):
-            return Propagator(clf, backend=backend, learning=learning)
+            return Propagator(clf, backend=backend, learning=learning, scale=scale)
 
-        fwd = {} if a is None else _carry(make, images(a), keys[a], images, frames, shape)
-        bwd = {} if b is None else _carry(make, images(b), keys[b], images, frames[::-1], shape)
+        fwd = {} if a is None else _carry(make, images(a), keys[a], images, frames)
+        bwd = {} if b is None else _carry(make, images(b), keys[b], images, frames[::-1])
         for t in frames:
             if not both:
                 d, prior, conf = (fwd or bwd)[t]
-                labels = (smoothed(d + prior, STREAM_TRUST) > 0).astype(np.uint8)  # conf: the propagator's
+                labels = (size.grow(smoothed(d + prior, STREAM_TRUST)) > 0).astype(np.uint8)  # conf: the propagator's
             else:
                 d, p_a, _ = fwd[t]
                 _, p_b, _ = bwd[t]
                 p_a = p_a.astype(np.float16).astype(np.float32)  # as pcreg run keeps it between its two passes
                 prior = p_a + p_b
-                labels, conf = read_labels(d + prior, d, prior, STREAM_TRUST)
+                labels, conf = read_labels(d + prior, d, prior, STREAM_TRUST, size=size)
             emit(LabelledFrame(t, labels, conf, predicted_error(conf),
                                tuple(k for k in (a, b) if k is not None)))
     return [done[t] for t in range(n)]

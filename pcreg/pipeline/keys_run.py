@@ -321,7 +321,7 @@ class KeyRun:
                 self.check()
                 prop.step(image)
                 report = prop.last
-                prior = report.trust.prior_term(image.shape[:2]).astype(np.float16)
+                prior = report.trust.prior_term(report.log_odds.shape).astype(np.float16)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
                               prop.learned_later())
 
@@ -365,8 +365,8 @@ class KeyRun:
                             np.load(f, allow_pickle=False) as z:
                         p_a, fallback = z["prior"].astype(np.float32), bool(z["fallback"])
                     d = report.log_odds
-                    prior = p_a + report.trust.prior_term(image.shape[:2])
-                    labels, conf = read_labels(d + prior, d, prior, prop.trust)
+                    prior = p_a + report.trust.prior_term(d.shape)
+                    labels, conf = read_labels(d + prior, d, prior, prop.trust, size=prop.working_size)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1)
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from .working import WorkingSize
 
 __all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
            "residual_trust", "TrustedKey", "Trusted", "smoothed", "read_labels",
@@ -117,13 +118,18 @@ def smoothed(fused: np.ndarray, rule: TrustRule) -> np.ndarray:
     return cv2.GaussianBlur(F, (0, 0), _scaled(rule.smooth, F.shape[1]))
 
 
-def read_labels(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray,
-                rule: TrustRule) -> tuple[np.ndarray, np.ndarray]:
+def read_labels(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray, rule: TrustRule, *,
+                size: WorkingSize | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(labels, confidence)`` of fused log-odds as ``rule`` reads them: (H, W) uint8, the sign of the
     :func:`smoothed` log-odds, and :func:`label_confidence` of the same (``log_odds``: naive Bayes' own,
-    ``prior_term``: the priors' part of ``fused``)."""
+    ``prior_term``: the priors' part of ``fused``). ``size``: the stream's working size, when the maps
+    are at it: both are brought to the frames' size (:meth:`~pcreg.pipeline.working.WorkingSize.grow`),
+    the labels the sign of the resized log-odds."""
     shown = smoothed(fused, rule)
-    return (shown > 0).astype(np.uint8), label_confidence(shown, log_odds, prior_term)
+    confidence = label_confidence(shown, log_odds, prior_term)
+    if size is not None and size.scaled:
+        shown, confidence = size.grow(shown), size.grow(confidence)
+    return (shown > 0).astype(np.uint8), confidence
 
 
 def half(image: np.ndarray) -> np.ndarray:
@@ -338,10 +344,13 @@ class Trusted:
 class TrustedKey:
     """The key frame as the trust rule reads it, made once: its prior's log-odds and its colours at half
     size, blurred (:func:`blurred`); it carries both along a motion's field into a new frame
-    (:meth:`carried`) and fuses a frame's naive Bayes with what it carried (:meth:`fuse`)."""
+    (:meth:`carried`) and fuses a frame's naive Bayes with what it carried (:meth:`fuse`). ``size``: the
+    stream's working size when the key frame is at it (the labels and confidence come back at the frames'
+    size)."""
 
-    def __init__(self, rule: TrustRule, weight: float, image: np.ndarray, log_odds: np.ndarray) -> None:
-        self.rule, self.weight = rule, float(weight)
+    def __init__(self, rule: TrustRule, weight: float, image: np.ndarray, log_odds: np.ndarray,
+                 size: WorkingSize | None = None) -> None:
+        self.rule, self.weight, self.size = rule, float(weight), size
         self.blurred, self.log_odds = blurred(image), log_odds
 
     def carried(self, frame_blurred: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -360,7 +369,7 @@ class TrustedKey:
         maps, prior, fused, _ = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
                                                     field_confidence, flow)
         t2 = time.perf_counter()
-        labels, confidence = read_labels(fused, log_odds, prior, self.rule)
+        labels, confidence = read_labels(fused, log_odds, prior, self.rule, size=self.size)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior)
 

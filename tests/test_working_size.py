@@ -1,0 +1,143 @@
+"""A stream run below its frames' size (``Propagator(scale=...)``, ``pcreg run --scale``): the step at the
+working size, the labels and confidence back at the frames' own, resumed and recorded as at full size."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.errors import InputError
+from pcreg.pipeline.working import WorkingSize
+from _runs import one_line_errors
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return pcreg.synthetic("syn1a", 7, 0, width=320, height=240)
+
+
+def test_working_size_shapes_and_conversions_keep_pixel_centres():
+    size = WorkingSize((240, 320), 0.5)
+    assert size.shape == (120, 160) and size.scaled
+    assert WorkingSize((240, 320)).shape == (240, 320) and not WorkingSize((240, 320)).scaled
+    assert WorkingSize((3, 5), 0.01).shape == (1, 1)  # never below a pixel
+    for bad in (0, -0.5, 1.5, float("nan"), "half", None, True):
+        with pytest.raises(InputError, match="scale"):
+            WorkingSize((240, 320), bad)
+    # a shift of one working pixel is two of the frames'; the pixel centres map onto each other
+    shift = np.array([[1.0, 0, 1], [0, 1, -1], [0, 0, 1]])
+    np.testing.assert_allclose(size.frame_matrix(shift), [[1, 0, 2], [0, 1, -2], [0, 0, 1]], atol=1e-12)
+    ys, xs = np.mgrid[0:120, 0:160].astype(np.float32)
+    field = size.frame_field(np.dstack([xs + 1, ys]))
+    assert field.shape == (240, 320, 2)
+    Y, X = np.mgrid[0:240, 0:320].astype(np.float32)
+    inner = (slice(2, -2), slice(2, -2))  # bilinear resizing holds the outermost half pixel
+    np.testing.assert_allclose(field[..., 0][inner], X[inner] + 2, atol=1e-4)
+    np.testing.assert_allclose(field[..., 1][inner], Y[inner], atol=1e-4)
+    grown = size.grow(np.full((120, 160), 0.7, np.float32))
+    assert grown.shape == (240, 320) and np.allclose(grown, 0.7)
+    with pytest.raises(ValueError, match="working at"):
+        size.grow(np.zeros((100, 100), np.float32))
+
+
+def test_a_stream_at_half_size_labels_the_full_frames_better_than_naive_bayes_and_resumes(frames):
+    from pcreg.pipeline.stream import Carry
+
+    key = frames[0]
+    half = pcreg.Propagator.from_key_frame(key.image, key.labels, scale=0.5)
+    plain_err, half_err = [], []
+    for f in frames[1:4]:
+        labels = half.step(f.image)
+        r = half.last
+        assert labels.shape == f.labels.shape and labels.dtype == np.uint8 and labels.max() <= 1
+        assert r.confidence.shape == f.labels.shape and 0.5 <= r.confidence.min() and r.confidence.max() <= 1
+        assert r.log_odds.shape == (120, 160) and r.registration.field.shape == (120, 160, 2)
+        half_err.append(pcreg.error_rate(labels, f.labels))
+        plain_err.append(pcreg.error_rate(half.classifier.predict(f.image), f.labels))
+    assert np.mean(half_err) < 0.5 * np.mean(plain_err)
+    assert half.working_size.shape == (120, 160) and half.key_labels.shape == key.labels.shape
+    # the carry is the working size's grid, and a resumed stream continues exactly
+    saved, learned = Carry(half.carry.grid.copy(), half.carry.reference_evidence), half.learned
+    expected = half.step(frames[4].image)
+    resumed = pcreg.Propagator.from_key_frame(key.image, key.labels, scale=0.5)
+    resumed.resume(3, saved, learned)
+    np.testing.assert_array_equal(resumed.step(frames[4].image), expected)
+    np.testing.assert_array_equal(resumed.last.confidence, half.last.confidence)
+    with pytest.raises(InputError, match="another stream"):  # a full-size stream's carry is not this one's
+        full = pcreg.Propagator.from_key_frame(key.image, key.labels)
+        full.step(frames[1].image)
+        resumed.resume(3, full.carry)
+    # without a trust rule the fused log-odds are brought back, then read
+    bare = pcreg.Propagator.from_key_frame(key.image, key.labels, scale=0.5, trust=None)
+    labels = bare.step(frames[1].image)
+    assert labels.shape == key.labels.shape and bare.last.confidence is None
+    assert pcreg.error_rate(labels, frames[1].labels) < pcreg.error_rate(bare.classifier.predict(frames[1].image),
+                                                                         frames[1].labels)
+    for bad in (0, 2, -1, "x"):
+        with pytest.raises(InputError, match="scale"):
+            pcreg.Propagator(half.classifier, scale=bad)
+    with pytest.raises(InputError, match="shape"):  # frames of another size than the key frame's, as at full size
+        half.step(frames[1].image[:200])
+
+
+def test_label_clip_at_half_size_gives_full_size_labels(frames):
+    from pcreg.pipeline.keyframes import label_clip
+
+    images = [f.image for f in frames]
+    keys = {0: frames[0].labels, 5: frames[5].labels}
+    clip = label_clip(lambda t: images[t], 7, keys, scale=0.5)
+    assert [f.index for f in clip] == list(range(7))
+    for f in clip[1:5]:
+        assert f.labels.shape == (240, 320) and f.confidence.shape == (240, 320)
+    between = [pcreg.error_rate(clip[t].labels, frames[t].labels) for t in range(1, 5)]
+    clf = pcreg.fit_classifier([frames[0], frames[5]])
+    plain = [pcreg.error_rate(clf.predict(frames[t].image), frames[t].labels) for t in range(1, 5)]
+    assert np.mean(between) < np.mean(plain)
+    assert clip[6].labels.shape == (240, 320)  # after the last key frame, one-sided
+    with pytest.raises(InputError, match="scale"):
+        label_clip(lambda t: images[t], 7, keys, scale=0)
+
+
+def test_run_at_half_size_writes_full_size_labels_records_and_keeps_its_scale(tmp_path, frames, capsys):
+    from pcreg.recording import entities as E
+    from pcreg.recording.readback import image, read_recording
+
+    folder, keys = tmp_path / "frames", tmp_path / "keys"
+    folder.mkdir()
+    keys.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(keys / "f0.png"), frames[0].labels)
+    cv2.imwrite(str(keys / "f4.png"), frames[4].labels)
+    out, rrd = tmp_path / "out", tmp_path / "run.rrd"
+    assert main(["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(out), "--scale", "0.5",
+                 "--confidence", "--record", str(rrd)]) == 0
+    for i in range(1, 7):
+        labels = cv2.imread(str(out / f"f{i}.png"), cv2.IMREAD_UNCHANGED)
+        assert labels.shape == (240, 320) and pcreg.error_rate(labels, frames[i].labels) < 10
+    rec = read_recording(rrd)  # the frames and the field's maps at the frames' size, in their pixels
+    assert image(rec.moving(1)).shape[:2] == (240, 320)
+    assert image(rec.latest(E.DENSE_CONFIDENCE, frame=1)).shape[:2] == (240, 320)
+    # the run remembers its scale: resumed without it, it is refused rather than continued otherwise
+    capsys.readouterr()
+    assert main(["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(out)]) == 2
+    assert "scale: 0.5 then, not set now" in one_line_errors(capsys)[-1]
+    again = ["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(out), "--scale", "0.5", "--confidence"]
+    assert main(again) == 0 and "all 7 frames already done" in capsys.readouterr().out
+    # key frames at both ends of a stretch, at half size
+    two = tmp_path / "two"
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(two), "--scale", "0.5"]) == 0
+    for i in (1, 2, 3, 5, 6):
+        labels = cv2.imread(str(two / f"f{i}.png"), cv2.IMREAD_UNCHANGED)
+        assert labels.shape == (240, 320) and pcreg.error_rate(labels, frames[i].labels) < 10
+    bad_run = ["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(tmp_path / "bad"), "--scale"]
+    for bad in ("0", "1.5", "nan"):
+        capsys.readouterr()
+        assert main([*bad_run, bad]) == 2
+        assert "scale" in capsys.readouterr().err
+    with pytest.raises(SystemExit, match="2"):  # not a number: the parser's own one-line refusal
+        main([*bad_run, "x"])
+    assert not (tmp_path / "bad").exists()

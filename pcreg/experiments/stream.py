@@ -13,6 +13,8 @@ The methods (:data:`METHODS`):
 - ``pcreg``: exactly what ``pcreg run`` does (:class:`pcreg.Propagator` with its defaults; its labels read
   the fused log-odds blurred, :func:`pcreg.pipeline.trust.smoothed`, where every other method reads each
   pixel alone).
+- ``pcreg_half``: the same at half the frames' width and height (``pcreg run --scale 0.5``: the step on the
+  frames resized, the labels brought back to the frames' size; :mod:`pcreg.pipeline.working`).
 - ``dense_key`` / ``dense_previous``, ``similarity_key`` / ``similarity_previous``: the propagator with
   that registration model, each frame registered to the key frame, or to the previous frame with the
   motions composed back to the key frame (chained).
@@ -41,7 +43,7 @@ from ..recording.null import NULL_RECORDER
 from .results import Results
 
 #: Methods scored per frame, in table order.
-METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "dense_key", "dense_previous", "similarity_key",
+METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "dense_key", "dense_previous", "similarity_key",
                             "similarity_previous", "flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
 #: The DIS baselines, and the preset of each (``flow``: medium).
 BASELINES: tuple[str, ...] = ("flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
@@ -75,8 +77,8 @@ def _propagator(method: str, classifier, backend: str):
     the motion alone: the prior at the one weight, by the field's confidence (no trust rule, no learning)."""
     from ..pipeline.stream import Propagator
 
-    if method == "pcreg":
-        return Propagator(classifier, backend=backend)
+    if method in ("pcreg", "pcreg_half"):
+        return Propagator(classifier, backend=backend, scale=0.5 if method == "pcreg_half" else 1.0)
     model, anchor = method.split("_")
     return Propagator(classifier, model=model, anchor=anchor, backend=backend, trust=None, learning=None)
 

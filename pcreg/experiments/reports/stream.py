@@ -76,8 +76,10 @@ def checks(results: dict) -> str:
              if all(m in c.get("ms_per_frame", {}) for c in clips.values())} if clips else {}
     if "pcreg" in times and base:  # the clock's line only beside a baseline (it differs from run to run)
         others = ", ".join(f"{m} {times[m]:.0f} ms ({avg[m]:.1f}%)" for m in base if m in times)
+        half = f", at half size {times['pcreg_half']:.0f} ms ({avg['pcreg_half']:.1f}%)" if "pcreg_half" in times else ""
         lines.append(f"- time a frame, the median over clips (classification and fusion included in every method): "
-                     f"pcreg {times['pcreg']:.0f} ms ({avg['pcreg']:.1f}% below plain); {others or 'no DIS baseline run'}")
+                     f"pcreg {times['pcreg']:.0f} ms ({avg['pcreg']:.1f}% below plain){half}; "
+                     f"{others or 'no DIS baseline run'}")
     return "\n".join(lines) + "\n"
 
 
@@ -92,7 +94,7 @@ def _figure(results: dict):
     if not units:
         return None
     fig, axes = plt.subplots(1, len(units), figsize=(4.2 * len(units), 3.6), squeeze=False)
-    style = {"plain": ("0.4", ":"), "unregistered": ("0.6", "--"), "pcreg": ("C3", "-"),
+    style = {"plain": ("0.4", ":"), "unregistered": ("0.6", "--"), "pcreg": ("C3", "-"), "pcreg_half": ("C3", "--"),
              "flow_key": ("C0", "-"), "flow_previous": ("C0", "--"), "flowultrafast_key": ("C2", "-")}
     for ax, u in zip(axes[0], units):
         since = np.array([r["since_key"] for r in u["frames"]])
@@ -152,9 +154,10 @@ def _accuracy_time(results: dict):
     if not points:
         return None
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    for m, ms, red in points:
-        ax.scatter(ms, red, color="C3" if m == "pcreg" else ("C0" if m in BASELINE_NAMES else "0.5"), zorder=3)
-        ax.annotate(m, (ms, red), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    for i, (m, ms, red) in enumerate(sorted(points, key=lambda p: p[1])):
+        ax.scatter(ms, red, color="C3" if m.startswith("pcreg") else ("C0" if m in BASELINE_NAMES else "0.5"), zorder=3)
+        # neighbours in time alternate above and below their points, so that close names do not overlap
+        ax.annotate(m, (ms, red), textcoords="offset points", xytext=(4, 4 if i % 2 == 0 else -11), fontsize=8)
     ax.set_xscale("log")
     ax.set_xlabel("ms a frame (median over clips; classification and fusion included)")
     ax.set_ylabel("lower than plain, mean over clips (%)")

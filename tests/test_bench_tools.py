@@ -151,8 +151,22 @@ def test_bench_pipeline_times_the_default_step_and_its_stages(tmp_path):
     assert "Propagator.step (default) / DIS fast <= 1" in md and "Propagator.step (default) / DIS medium <= 1" in md
     assert "the trust map and learning add <= 15% to the step" in md and st["fuse.trust"] > 0
     assert "without the second motion" in md and "without learning" in md  # what each part of the trust costs
+    assert "Propagator.step at half size / DIS fast <= 1" in md and 0 < s["ratio_half_over_step"]
     assert (out / "bench_pipeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert bench.main(["--out", str(out), "--frames", "2"]) == 2
+
+
+def test_sweep_scale_scores_each_working_size_beside_dis(tmp_path):
+    sweep = _load("sweep_scale")
+    out = tmp_path / "sweep"
+    assert sweep.main(["--out", str(out), "--data", "synthetic:syn1a,syn2b", "--frames", "3", "--scales", "1,0.5",
+                       "--workers", "1"]) == 0
+    r = json.loads((out / "sweep_scale.json").read_text())
+    assert set(r["reduction"]) == {"scale 1", "scale 0.5", *sweep.BASELINES, *(f"{m} blurred" for m in sweep.BASELINES)}
+    assert all(len(v) == 2 for v in r["reduction"].values()) and all(v > 0 for v in r["median_ms"].values())
+    assert r["reduction"]["scale 0.5"] != r["reduction"]["scale 1"]  # the working size changed the labels
+    assert "| scale 0.5 |" in (out / "sweep_scale.md").read_text()
+    assert (out / "sweep_scale.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_bench_dense_runs_and_reports_the_ratio_to_dis(tmp_path):

@@ -10,7 +10,7 @@ disk would, to show what writing beside the step saves there. ``--key-every N`` 
 key frames instead (``--labels FOLDER``: every N-th frame's labels and the last frame's), each frame
 between two key frames labelled from both (two steps a frame).
 
-    python tools/bench_run.py --out out/bench [--times 1] [--repeats 5] [--fsync-ms 0] [--key-every 0]
+    python tools/bench_run.py --out out/bench [--times 1] [--repeats 5] [--fsync-ms 0] [--key-every 0] [--scale 1]
 
 Writes bench_run.json and bench_run.md; the target of a run from one key frame (15 frames a second, the
 whole command, median of the runs) is in its checks table.
@@ -82,13 +82,14 @@ def write_keys(clip: Path, work: Path, n: int, every: int) -> tuple[Path, int]:
     return folder, len(chosen)
 
 
-def run_once(folder: Path, key: Path, out: Path, fsync_ms: float, keys: int = 1) -> tuple[float, float]:
+def run_once(folder: Path, key: Path, out: Path, fsync_ms: float, keys: int = 1, scale: float = 1.0) -> tuple[float, float]:
     """``(seconds of the whole command, frames a second of its loop)``; a failure stops the benchmark.
-    ``key``: a label image, or a folder of ``keys`` key frames' labels (written first, left out of the loop)."""
+    ``key``: a label image, or a folder of ``keys`` key frames' labels (written first, left out of the loop);
+    ``scale``: ``pcreg run --scale``."""
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
     p = subprocess.run([sys.executable, "-c", _RUN, str(fsync_ms), "run", str(folder), "--labels", str(key),
-                        "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                        "--out", str(out), *(["--scale", f"{scale:g}"] if scale != 1 else [])], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     seconds = time.perf_counter() - t0
     if p.returncode != 0:
         raise SystemExit(f"pcreg run failed ({p.returncode}): {p.stderr.strip()}")
@@ -106,6 +107,7 @@ def main(argv=None) -> int:
     ap.add_argument("--fsync-ms", type=float, default=0.0, help="milliseconds added to every fsync (default 0)")
     ap.add_argument("--key-every", type=int, default=0,
                     help="label from key frames every N frames and the last (--labels FOLDER) instead of the first")
+    ap.add_argument("--scale", type=float, default=1.0, help="pcreg run's --scale (default 1: full size)")
     args = ap.parse_args(argv)
     clip = Path(args.data) / args.clip
     if not clip.is_dir():
@@ -116,15 +118,17 @@ def main(argv=None) -> int:
         keys = 1
         if args.key_every > 0:
             key, keys = write_keys(clip, Path(tmp), n, args.key_every)
-        runs = [run_once(folder, key, Path(tmp) / "out", args.fsync_ms, keys) for _ in range(max(1, args.repeats))]
+        runs = [run_once(folder, key, Path(tmp) / "out", args.fsync_ms, keys, args.scale)
+                for _ in range(max(1, args.repeats))]
     whole = [(n - keys) / s for s, _ in runs]
     loop = [r for _, r in runs]
-    report = {"machine": machine_info(), "clip": args.clip, "frames": n, "key_frames": keys, "fsync_ms": args.fsync_ms,
+    report = {"machine": machine_info(), "clip": args.clip, "frames": n, "key_frames": keys, "fsync_ms": args.fsync_ms, "scale": args.scale,
               "whole_fps": whole, "loop_fps": loop, "median_whole_fps": float(np.median(whole)),
               "median_loop_fps": float(np.median(loop))}
     md = (f"## `pcreg run` on {n} frames of CamVid {args.clip} at 640x480"
           f"{f', from {keys} key frames (every {args.key_every}th and the last)' if args.key_every > 0 else ''}"
-          f"{f', every fsync {args.fsync_ms:g} ms slower' if args.fsync_ms else ''}\n\n"
+          f"{f', every fsync {args.fsync_ms:g} ms slower' if args.fsync_ms else ''}"
+          f"{f', --scale {args.scale:g}' if args.scale != 1 else ''}\n\n"
           f"| run | frames a second, the whole command | frames a second, its loop |\n|---|---|---|\n"
           + "".join(f"| {i + 1} | {w:.1f} | {r:.1f} |\n" for i, (w, r) in enumerate(zip(whole, loop)))
           + f"| **median** | **{report['median_whole_fps']:.1f}** | **{report['median_loop_fps']:.1f}** |\n\n"

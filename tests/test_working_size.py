@@ -79,6 +79,8 @@ def test_a_stream_at_half_size_labels_the_full_frames_better_than_naive_bayes_an
     for bad in (0, 2, -1, "x"):
         with pytest.raises(InputError, match="scale"):
             pcreg.Propagator(half.classifier, scale=bad)
+    with pytest.raises(InputError, match="works at 3x2 for frames of 320x240: too small"):  # at reset, not at a step
+        pcreg.Propagator(half.classifier, scale=0.01).reset(key.image, key.labels)
     with pytest.raises(InputError, match="shape"):  # frames of another size than the key frame's, as at full size
         half.step(frames[1].image[:200])
 

@@ -296,7 +296,14 @@ class Propagator:
         full = PreparedFrame.of(image, name="key frame")
         lab = _check_labels(labels, full.shape)
         self._size = size = WorkingSize(full.shape, self.scale)
-        key = size.image(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
+        if size.scaled and self.model == "dense":  # refused here, in the user's words, not at the first step
+            try:
+                self._dense_options[0].check_shape(size.shape)
+            except InputError as exc:
+                (H, W), (h, w) = size.frame, size.shape
+                raise InputError(f"scale {self.scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
+                                 f"dense registration ({exc}); choose a larger scale") from None
+        key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
         self._key_prior = label_prior(size.labels(lab), pi=self._pi, fusion=self.fusion)
         self._key_trusted = self._key_flow = None
@@ -322,7 +329,7 @@ class Propagator:
         if key is None or size is None:
             raise InputError("Propagator.step before reset: give the key frame and its labels first")
         t_start = time.perf_counter()
-        frame = size.image(PreparedFrame.of(image, name="frame", shape=size.frame))
+        frame = size.shrunk(PreparedFrame.of(image, name="frame", shape=size.frame))
         self._frame += 1
         times = dict.fromkeys(STEP_STAGES, 0.0)
         times.update({f"{stage}.{part}": 0.0 for stage, parts in STEP_PARTS.items() if stage != "register"

@@ -49,7 +49,7 @@ class WorkingSize:
         """Whether the working size is below the frames' own."""
         return self.shape != self.frame
 
-    def image(self, frame: PreparedFrame) -> PreparedFrame:
+    def shrunk(self, frame: PreparedFrame) -> PreparedFrame:
         """``frame`` at the working size (itself at full size); made once and kept with the frame."""
         if not self.scaled:
             return frame

@@ -37,6 +37,17 @@ def test_working_size_shapes_and_conversions_keep_pixel_centres():
     inner = (slice(2, -2), slice(2, -2))  # bilinear resizing holds the outermost half pixel
     np.testing.assert_allclose(field[..., 0][inner], X[inner] + 2, atol=1e-4)
     np.testing.assert_allclose(field[..., 1][inner], Y[inner], atol=1e-4)
+    # the key frame's labels shrink over the same areas as its image: discs keep their place (the nearest
+    # pixel, each block's top-left one, would move them (1/scale - 1) / 2 px down and right)
+    rng = np.random.default_rng(0)
+    discs = np.zeros((480, 640), np.uint8)
+    for _ in range(30):
+        cv2.circle(discs, (int(rng.integers(40, 600)), int(rng.integers(40, 440))), int(rng.integers(10, 40)), 1, -1)
+    ys, xs = np.nonzero(discs == 1)
+    for scale in (0.5, 0.25):
+        yw, xw = np.nonzero(WorkingSize((480, 640), scale).labels(discs) == 1)
+        assert abs((xw + 0.5).mean() / scale - 0.5 - xs.mean()) < 0.4
+        assert abs((yw + 0.5).mean() / scale - 0.5 - ys.mean()) < 0.4
     grown = size.grow(np.full((120, 160), 0.7, np.float32))
     assert grown.shape == (240, 320) and np.allclose(grown, 0.7)
     with pytest.raises(ValueError, match="working at"):

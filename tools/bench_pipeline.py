@@ -128,7 +128,7 @@ def bench_stream(frames) -> dict:
             elif m in variants:
                 out = variants[m].step(mov.image)
                 if m == "step_half":
-                    row["error_half"] = pcreg.error_rate(out, mov.labels)
+                    half_labels = out
             elif m == "dis_medium":
                 flow = dis_flow(mov.image)
             else:
@@ -139,6 +139,7 @@ def bench_stream(frames) -> dict:
         row["registered"] = last.registered
         row["start"] = last.start
         row["error_step"] = pcreg.error_rate(labels, mov.labels)
+        row["error_half"] = pcreg.error_rate(half_labels, mov.labels)  # outside the clock, as the step's
         d = np.asarray(clf.decision_function(mov.image), dtype=np.float32)
         row["error_naive_bayes"] = pcreg.error_rate(labels_from_log_odds(d), mov.labels)
         q, _ = warp_prior(key_prior, grid + flow, shape=d.shape, pi=pi)

@@ -92,6 +92,11 @@ def test_a_stream_at_half_size_labels_the_full_frames_better_than_naive_bayes_an
             pcreg.Propagator(half.classifier, scale=bad)
     with pytest.raises(InputError, match="works at 3x2 for frames of 320x240: too small"):  # at reset, not at a step
         pcreg.Propagator(half.classifier, scale=0.01).reset(key.image, key.labels)
+    with pytest.raises(InputError, match="works at 64x48 .* too small for the similarity registration"):
+        pcreg.Propagator(half.classifier, model="similarity", scale=0.2).reset(key.image, key.labels)
+    similar = pcreg.Propagator(half.classifier, model="similarity", scale=0.5)  # a global model at half size
+    similar.reset(key.image, key.labels)
+    assert similar.step(frames[1].image).shape == key.labels.shape and similar.last.registered
     with pytest.raises(InputError, match="shape"):  # frames of another size than the key frame's, as at full size
         half.step(frames[1].image[:200])
 

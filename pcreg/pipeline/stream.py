@@ -296,13 +296,8 @@ class Propagator:
         full = PreparedFrame.of(image, name="key frame")
         lab = _check_labels(labels, full.shape)
         self._size = size = WorkingSize(full.shape, self.scale)
-        if size.scaled and self.model == "dense":  # refused here, in the user's words, not at the first step
-            try:
-                self._dense_options[0].check_shape(size.shape)
-            except InputError as exc:
-                (H, W), (h, w) = size.frame, size.shape
-                raise InputError(f"scale {self.scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
-                                 f"dense registration ({exc}); choose a larger scale") from None
+        if size.scaled:  # a working size the registration cannot take: refused here, in the user's words
+            self._check_working_size(size)
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
         self._key_prior = label_prior(size.labels(lab), pi=self._pi, fusion=self.fusion)
@@ -320,6 +315,20 @@ class Propagator:
         self._carry = None
         self._frame = 0
         self.last = None
+
+    def _check_working_size(self, size: WorkingSize) -> None:
+        """Refuse a working size the registration cannot take (its pyramid's levels, the dense grid's
+        spacing) when the key frame comes, naming the scale, instead of at the first frame."""
+        try:
+            if self.model == "dense":
+                self._dense_options[0].check_shape(size.shape)
+            if self.model != "dense" or self.dense.global_start == "register":
+                self.config.pyramid.check_shape(size.shape)
+        except InputError as exc:
+            (H, W), (h, w) = size.frame, size.shape
+            what = "dense registration" if self.model == "dense" else f"{self.model} registration"
+            raise InputError(f"scale {self.scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
+                             f"{what} ({exc}); choose a larger scale") from None
 
     def step(self, image: "np.ndarray | PreparedFrame") -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame, an image or a

@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import InputError, RegistrationError
 from ..validation import (check_callable, check_int, check_matrix, short_repr)
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
-from .config import DEFAULT_MIN_INLIER_RATIO, RegisterConfig
+from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
                     GlobalStep, InitialGrid, finest_grid_shape, refine_field)
 from .dense.levels import check_prepared
@@ -229,7 +229,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     if config.model == "dense":
         return _register_dense_model(reference_image, moving_image, config, start_matrix)
     ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")
-    _check_inputs(ref_img, mov_img, config.pyramid.levels, reference_mask, moving_mask, callback)
+    _check_inputs(ref_img, mov_img, config.pyramid, reference_mask, moving_mask, callback)
     start = time.perf_counter()
     p = config.pyramid
     reference, moving = _pyramids(ref_img, mov_img, reference_pyramid, moving_pyramid, levels=p.levels,
@@ -378,13 +378,14 @@ def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate
               "mirror_inlier_ratio": None if mirror is None else mirror.inlier_ratio})
 
 
-def _check_inputs(ref_img: np.ndarray, mov_img: np.ndarray, levels: int, reference_mask, moving_mask, callback) -> None:
+def _check_inputs(ref_img: np.ndarray, mov_img: np.ndarray, pyramid: PyramidConfig, reference_mask, moving_mask,
+                  callback) -> None:
     """What :func:`register` takes besides its config, checked against the images (an :class:`InputError`
     for the first bad one)."""
     from .clouds import check_mask
 
-    if min(ref_img.shape[:2] + mov_img.shape[:2]) >> (levels - 1) < 8:
-        raise InputError(f"images too small for {levels} pyramid levels")
+    for img in (ref_img, mov_img):
+        pyramid.check_shape(img.shape)
     check_mask(reference_mask, ref_img.shape, name="reference_mask")
     check_mask(moving_mask, mov_img.shape, name="moving_mask")
     check_callable(callback, "callback")

@@ -79,6 +79,11 @@ class PyramidConfig:
         _set(self, "reference_max_points", check_count(self.reference_max_points, "reference_max_points"))
         _set(self, "canny_percentile", check_float(self.canny_percentile, "canny_percentile", lo=0, hi=100))
 
+    def check_shape(self, shape: tuple[int, ...]) -> None:
+        """Refuse images of ``shape`` too small for the levels: the coarsest under 8 px a side."""
+        if min(shape[:2]) >> (self.levels - 1) < 8:
+            raise InputError(f"images too small for {self.levels} pyramid levels")
+
 
 @dataclass(frozen=True)
 class SearchConfig:

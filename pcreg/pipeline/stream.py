@@ -479,8 +479,8 @@ class Propagator:
 
     @property
     def working_size(self) -> WorkingSize | None:
-        """The frames' size and the size the steps run at (None before :meth:`reset`); the report's maps but
-        the labels and confidence are at its ``shape``."""
+        """The frames' size (its ``frame``: the labels' and the confidence's) and the size the steps run at
+        (its ``shape``: the report's other maps'); None before :meth:`reset`."""
         return self._size
 
     @property

@@ -19,6 +19,11 @@ The LiDAR pair in ``../shared/data/scans`` is small_gicp's test data (``data/sou
   (``test_compute_rmse_point_to_point``, ``test_compute_transformation_point_to_point``): 14 source and
   11 target points with given correspondences; RMSE 0.706437 before and 0.578255 after the closed-form
   point-to-point step (relative tolerance 1e-4). The reference's Umeyama and Horn closed forms reproduce both.
+  ``test_compute_rmse_point_to_plane`` and ``test_compute_transformation_point_to_plane``: the same points
+  with 11 target normals (not of unit length), RMSE 0.335499 before and 0.601422 after one point-to-plane
+  step. Open3D's tensor RMSE here squares each coordinate of ``(p - q) * n`` and sums them (not the
+  squared dot product); with that measure the reference's point-to-plane step reproduces both, and its
+  matrix is Open3D's to 1e-12.
 - Open3D ``python/test/t/registration/test_registration.py`` (``test_icp_point_to_point``): 49 / 38 points
   on a 0.5 grid (many equidistant neighbours), a non-orthonormal initial guess, gate 3.0, two
   iterations; the tensor and legacy ICPs agree in fitness and inlier RMSE to 1e-3. The reference agrees
@@ -66,6 +71,11 @@ EST_TARGET = np.array([
     [2.38836, 1.39096, 1.74914], [1.30911, 1.4252, 1.37429], [3.16847, 1.39194, 1.90959],
     [1.59412, 1.53304, 1.5804], [1.34342, 2.19027, 1.30075]])
 EST_CORRESPONDENCES = np.array([10, 1, 1, 3, 2, 5, 9, 7, 5, 8, 7, 7, 5, 8])
+EST_TARGET_NORMALS = np.array([
+    [-0.0085016, -0.22355, -0.519574], [0.257463, -0.0738755, -0.698319], [0.0574301, -0.484248, -0.409929],
+    [-0.0123503, -0.230172, -0.52072], [0.355904, -0.142007, -0.720467], [0.0674038, -0.418757, -0.458602],
+    [0.226091, 0.258253, -0.874024], [0.43979, 0.122441, -0.574998], [0.109144, 0.180992, -0.762368],
+    [0.273325, 0.292013, -0.903111], [0.385407, -0.212348, -0.277818]])
 
 
 @pytest.mark.parametrize("rotation", ["svd", "quaternion"])
@@ -80,6 +90,27 @@ def test_open3d_transformation_estimation_point_to_point(rotation):
     np.testing.assert_allclose(rmse(EST_SOURCE), 0.706437, rtol=1e-4)
     T = estimate(EST_SOURCE, q, np.ones(len(q)), "rigid", rotation=rotation)
     np.testing.assert_allclose(rmse(pcreg.transforms.apply(T, EST_SOURCE)), 0.578255, rtol=1e-4)
+
+
+def test_open3d_transformation_estimation_point_to_plane():
+    import open3d as o3d
+
+    from pcreg.registration.normal_steps import estimate_point_to_plane
+
+    q, n = EST_TARGET[EST_CORRESPONDENCES], EST_TARGET_NORMALS[EST_CORRESPONDENCES]
+
+    def rmse(p):  # Open3D's tensor point-to-plane RMSE: each coordinate of (p - q) * n squared, all summed
+        return float(np.sqrt(np.mean(np.sum(((p - q) * n) ** 2, axis=1))))
+
+    np.testing.assert_allclose(rmse(EST_SOURCE), 0.335499, rtol=1e-4)
+    T = estimate_point_to_plane(EST_SOURCE, q, n, np.ones(len(q)))
+    np.testing.assert_allclose(rmse(pcreg.transforms.apply(T, EST_SOURCE)), 0.601422, rtol=1e-4)
+    source, target = o3d.t.geometry.PointCloud(), o3d.t.geometry.PointCloud()
+    source.point.positions = o3d.core.Tensor(EST_SOURCE)
+    target.point.positions, target.point.normals = o3d.core.Tensor(EST_TARGET), o3d.core.Tensor(EST_TARGET_NORMALS)
+    step = o3d.t.pipelines.registration.TransformationEstimationPointToPlane()
+    theirs = step.compute_transformation(source, target, o3d.core.Tensor(EST_CORRESPONDENCES, o3d.core.int64))
+    np.testing.assert_allclose(T, theirs.numpy(), atol=1e-12)
 
 
 @pytest.mark.parametrize("iterations", [2, 30])

@@ -132,6 +132,10 @@ def main(argv: list[str] | None = None) -> int:
     except MemoryError:
         sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels)\n")
         return 2
+    except OSError as exc:  # the file system refused (a full disk, a folder where a file goes, permissions)
+        where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
+        sys.stderr.write(f"pcreg: error: {exc.strerror or _one_line(exc)}{where}\n")
+        return 2
     except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
         if interrupted():  # e.g. the workers died of the same SIGTERM before the parent's handler ran
             sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")

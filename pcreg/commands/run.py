@@ -268,20 +268,15 @@ def _check_suggest(count: int | None, frames, keys: int) -> None:
 def _write_suggest(count: int | None, out: Path, frames, keys: list[int]) -> None:
     """``OUT/suggest.txt``: the ``count`` frames to label next, best first, ``NAME PREDICTED_ERROR`` a line,
     from the predicted errors in steps.jsonl (:func:`pcreg.pipeline.keyframes.suggest`)."""
-    import json
-
     from ..errors import InputError
     from ..outputs import atomic_write_text
     from ..pipeline.keyframes import suggest
-    from ..pipeline.stream_run import STEPS
+    from ..pipeline.stream_run import STEPS, parse_steps
 
     if count is None:
         return
-    predicted = {}
-    for line in (out / STEPS).read_text().splitlines():
-        step = json.loads(line)
-        if step.get("predicted_error") is not None:
-            predicted[int(step["frame"])] = float(step["predicted_error"])
+    steps = parse_steps(out / STEPS, (out / STEPS).read_bytes().splitlines())
+    predicted = {s["frame"]: float(s["predicted_error"]) for s in steps if s.get("predicted_error") is not None}
     try:
         chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
     except InputError as exc:

@@ -267,11 +267,11 @@ class FlowEstimator:
         import cv2
 
         from ..frame import as_rgb_uint8
-        from ..registration.flow import PRESETS, dis_field
+        from ..registration.flow import dis_field, dis_flow
 
         if prepared is None:
             return Estimate(Motion(field=dis_field(reference, image, preset=self.preset)[0]))
         grey, xs, ys = prepared
         frame = cv2.cvtColor(as_rgb_uint8(image, name="moving image"), cv2.COLOR_RGB2GRAY)
-        flow = cv2.DISOpticalFlow_create(PRESETS[self.preset]).calc(frame, grey, None)
+        flow = dis_flow(frame, grey, self.preset)
         return Estimate(Motion(field=np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)))

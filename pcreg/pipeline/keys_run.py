@@ -39,10 +39,35 @@ from typing import BinaryIO, Callable, Iterator
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .stream_run import (CONFIDENCE, STATE, STEPS, _UNREADABLE_CARRY, _write_carry, _write_png, check_labelled,
-                         confidence_png, open_state)
+from .stream_run import (CONFIDENCE, STATE, STEPS, TRUTH_COUNTS, _UNREADABLE_CARRY, _count, _counts, _write_carry,
+                         _write_png, check_labelled, confidence_png, open_state, parse_steps)
 
 __all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
+
+
+def _stretch_problem(e, cursor: bool) -> bool:
+    """Whether a stretch's entry in run.json (done, or the ``cursor`` under way) is not as pcreg run writes it."""
+    if not (isinstance(e, dict) and isinstance(e.get("fingerprint"), str) and _count(e.get("fallbacks"))
+            and (e.get("truth") is None or _counts(e["truth"], TRUTH_COUNTS))):
+        return True
+    return cursor and not (isinstance(e.get("phase"), str) and _count(e.get("steps"))
+                           and (e.get("next") is None or _count(e["next"])))
+
+
+def keys_state_problem(state: dict) -> str | None:
+    """What in a key-frames run's run.json is not as pcreg run writes it (the first field), or None."""
+    if not isinstance(state.get("keys"), dict):
+        return "keys"
+    if not isinstance(state.get("stretches"), list) or any(_stretch_problem(e, False) for e in state["stretches"]):
+        return "stretches"
+    if state.get("cursor") is not None and _stretch_problem(state["cursor"], True):
+        return "cursor"
+    for name in ("lines", "fallbacks"):
+        if not _count(state.get(name)):
+            return name
+    if state.get("truth") is not None and not _counts(state["truth"], TRUTH_COUNTS):
+        return "truth"
+    return None
 
 #: The hidden folder under ``out`` that holds what a stretch's passes hand on.
 HIDDEN = ".keys"
@@ -140,7 +165,7 @@ class KeyRun:
     def start(self, *, force: bool = False) -> None:
         """Open (or resume) the run: the steps of stretches no longer in the plan forgotten, the key
         frames' labels written where they changed."""
-        state = open_state(self.out, self.identity, force=force)
+        state = open_state(self.out, self.identity, force=force, problem=keys_state_problem)
         if state is not None:
             self.state = state
         else:
@@ -162,8 +187,10 @@ class KeyRun:
         if len(lines) < self.state["lines"]:
             raise OutputError(f"{self.out / STEPS}: {len(lines)} steps for {self.state['lines']} finished frames; "
                               "use --force to start over")
-        lines = [ln for ln in lines[:self.state["lines"]] if any(json.loads(ln)["frame"] in s for s in live)]
-        check_labelled(self.out, [self.frames.stem(int(json.loads(ln)["frame"])) for ln in lines])
+        steps = parse_steps(self.out / STEPS, lines[:self.state["lines"]])
+        kept_steps = [(ln, st["frame"]) for ln, st in zip(lines, steps) if any(st["frame"] in s for s in live)]
+        lines = [ln for ln, _ in kept_steps]
+        check_labelled(self.out, [self.frames.stem(t) for _, t in kept_steps])
         (self.out / STEPS).write_bytes(b"".join(lines))
         keep_hidden = None if cursor is None else self._hidden(cursor["fingerprint"]).name
         if (self.out / HIDDEN).is_dir():

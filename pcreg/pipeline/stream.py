@@ -98,6 +98,7 @@ from .working import WorkingSize
 from ..errors import InputError
 from ..frame import PreparedFrame
 from ..registration.config import RegisterConfig
+from ..registration.flow import DIS_MIN_SIDE
 from ..registration.motion import Motion
 
 if TYPE_CHECKING:
@@ -305,7 +306,8 @@ class Propagator:
         if self.trust is not None:
             self._key_trusted = TrustedKey(self.trust, self.weight, key.rgb, prior_log_odds(self._key_prior, pi=self._pi),
                                            size)
-            self._key_flow = self._flow.prepare(key)
+            if min(key.shape) >= DIS_MIN_SIDE:  # smaller frames have no second motion: DIS does not take them
+                self._key_flow = self._flow.prepare(key)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         self._key_prepared = None
         if self.model == "dense" and self.anchor == "key":  # every frame registers to it: its pyramid once

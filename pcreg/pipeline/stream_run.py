@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import zipfile
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -207,10 +207,58 @@ def run_frames(state: dict, steps: list[bytes]) -> tuple[list[str], list[str]]:
     return [key], names
 
 
-def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
+def _count(value, lo: int = 0) -> bool:
+    return type(value) is int and value >= lo
+
+
+def _counts(d, names: tuple[str, ...]) -> bool:
+    return isinstance(d, dict) and all(_count(d.get(k)) for k in names)
+
+
+#: The counters of a run's running error (run.json's ``truth``, and each key-frame stretch's).
+TRUTH_COUNTS = ("frames", "wrong", "known", "plain_wrong")
+
+
+def stream_state_problem(state: dict) -> str | None:
+    """What in a one-key run's run.json is not as pcreg run writes it (the first field), or None."""
+    if not _count(state.get("done"), 1):
+        return "done"
+    if not _count(state.get("fallbacks")):
+        return "fallbacks"
+    if not isinstance(state.get("key_frame"), str):
+        return "key_frame"
+    if state.get("truth") is not None and not _counts(state["truth"], TRUTH_COUNTS):
+        return "truth"
+    return None
+
+
+def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:
+    """The steps of ``lines`` of a run's steps.jsonl (``path``), each a dict whose ``frame`` is an int and
+    whose ``predicted_error`` is a finite number or None; a line that is not one pcreg run wrote is an
+    :class:`~pcreg.errors.OutputError` naming it."""
+    import math
+
+    steps = []
+    for i, line in enumerate(lines):
+        try:
+            step = json.loads(line)
+            ok = (isinstance(step, dict) and type(step.get("frame")) is int and step["frame"] >= 0
+                  and (step.get("predicted_error") is None
+                       or (type(step["predicted_error"]) in (int, float) and math.isfinite(step["predicted_error"]))))
+        except ValueError:  # not JSON, or not UTF-8
+            ok = False
+        if not ok:
+            raise OutputError(f"{path}: line {i + 1} is not a step pcreg run wrote; use --force to start over")
+        steps.append(step)
+    return steps
+
+
+def open_state(out: Path, identity: dict | None, *, force: bool,
+               problem: Callable[[dict], str | None] = stream_state_problem) -> dict | None:
     """Make ``out`` (a folder) and read the run it holds: its run.json when it is a run of ``identity``
     (the same options and inputs), None when there is none or ``force`` starts over; a run of other
-    options, or an unreadable run.json, is an :class:`~pcreg.errors.OutputError`."""
+    options, an unreadable run.json, or one whose fields are not as pcreg run writes them (``problem``
+    names the first) is an :class:`~pcreg.errors.OutputError`."""
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
@@ -221,9 +269,14 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
         state = json.loads(state_path.read_text())
     except (OSError, ValueError):
         raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
+    if not isinstance(state, dict):
+        raise OutputError(f"{state_path}: not a run's state (a JSON {type(state).__name__}); use --force to start over")
     if state.get("run") != identity:
         raise OutputError(f"{out} holds a run with other options{_differences(state.get('run'), identity or {})}; "
                           "use --force to start over or another --out")
+    field = problem(state)
+    if field is not None:
+        raise OutputError(f"{state_path}: its {field!r} is not as pcreg run writes it; use --force to start over")
     return state
 
 

@@ -68,7 +68,8 @@ class TrustRule:
 
     dense : the dense field's prior weight, a multiple of the propagator's ``weight``, at a field
         confidence of 1/3 and a residual of 0 (from half to twice it as the confidence goes 0 to 1).
-    flow : the DIS flow's prior weight, the same way (0: the flow is not computed).
+    flow : the DIS flow's prior weight, the same way (0: the flow is not computed; nor is it for frames with a
+        side under 32 px, :data:`~pcreg.registration.flow.DIS_MIN_SIDE`, which DIS does not take).
     residual : grey levels of the carried key frame's mean colour difference at which a prior's trust
         falls to 1/e.
     preset : the DIS preset of the second motion.

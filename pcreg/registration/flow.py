@@ -15,10 +15,24 @@ import numpy as np
 from ..errors import InputError
 from .clouds import as_rgb_uint8
 
-__all__ = ["PRESETS", "dis_field"]
+__all__ = ["PRESETS", "DIS_MIN_SIDE", "dis_field", "dis_flow"]
 
 PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
            "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+#: The shortest side DIS takes, px. Below it OpenCV 5.0's DIS raises or crashes the process (a
+#: segmentation fault measured at 8-12 x 48-64 px): its coarsest pyramid level, set by the shorter side
+#: and the patch (8 px; 12 for medium), falls below its finest (2; 1 for medium), 32 px for every preset.
+DIS_MIN_SIDE = 32
+
+
+def dis_flow(moving_grey: np.ndarray, reference_grey: np.ndarray, preset: str) -> np.ndarray:
+    """(H, W, 2) float32 DIS flow from ``moving_grey`` to ``reference_grey`` (uint8, one size), ``preset``
+    one of :data:`PRESETS`; an :class:`~pcreg.errors.InputError` for images with a side under
+    :data:`DIS_MIN_SIDE`, which OpenCV's DIS does not take."""
+    h, w = moving_grey.shape[:2]
+    if min(h, w) < DIS_MIN_SIDE:
+        raise InputError(f"{w}x{h} px is too small for DIS optical flow (at least {DIS_MIN_SIDE} px a side)")
+    return cv2.DISOpticalFlow_create(PRESETS[preset]).calc(moving_grey, reference_grey, None)
 
 
 def dis_field(reference_image: np.ndarray, moving_image: np.ndarray, *, preset: str = "medium"
@@ -34,7 +48,7 @@ def dis_field(reference_image: np.ndarray, moving_image: np.ndarray, *, preset: 
     g_ref = cv2.cvtColor(ref, cv2.COLOR_RGB2GRAY)
     g_mov = cv2.cvtColor(mov, cv2.COLOR_RGB2GRAY)
     t0 = time.perf_counter()
-    flow = cv2.DISOpticalFlow_create(PRESETS[preset]).calc(g_mov, g_ref, None)
+    flow = dis_flow(g_mov, g_ref, preset)
     seconds = time.perf_counter() - t0
     h, w = g_mov.shape
     xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))

@@ -1,0 +1,126 @@
+"""`pcreg run` on hostile frames and on output folders that are not as it left them: every case ends in
+exit 0 (frames it can label) or one line and exit 2, never an internal error."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from pcreg.errors import InputError
+from _runs import one_line_errors
+
+
+def _frames(folder, shape, n=4, seed=0):
+    """``n`` frames of a textured scene drifting right by 1 px a frame, and the key frame's labels."""
+    h, w = shape
+    rng = np.random.default_rng(seed)
+    scene = cv2.GaussianBlur(rng.integers(0, 256, (h, w + n, 3), dtype=np.uint8), (0, 0), 1.5)
+    folder.mkdir()
+    for i in range(n):
+        cv2.imwrite(str(folder / f"f{i}.png"), np.ascontiguousarray(scene[:, n - i:n - i + w]))
+    labels = (np.arange(h)[:, None] * np.ones((1, w)) > h / 2).astype(np.uint8)
+    cv2.imwrite(str(folder.parent / "key.png"), labels)
+    return folder, folder.parent / "key.png"
+
+
+@pytest.mark.parametrize("shape", [(8, 8), (8, 1000), (20, 1200), (12, 16)])
+def test_frames_too_small_for_dis_are_labelled_without_the_second_motion(tmp_path, shape, capsys):
+    folder, key = _frames(tmp_path / "frames", shape)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]) == 0
+    for i in range(1, 4):
+        assert cv2.imread(str(out / f"f{i}.png"), cv2.IMREAD_UNCHANGED).shape == shape
+    # DIS itself refuses them in one line, where OpenCV raises or crashes the process
+    from pcreg.registration.flow import DIS_MIN_SIDE, dis_field
+
+    img = np.zeros((*shape, 3), np.uint8)
+    with pytest.raises(InputError, match=f"too small for DIS optical flow \\(at least {DIS_MIN_SIDE} px"):
+        dis_field(img, img, preset="ultrafast")
+
+
+def test_an_output_folder_whose_files_are_in_the_way_is_refused_in_one_line(tmp_path, capsys):
+    folder, key = _frames(tmp_path / "frames", (48, 64))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "confidence").write_text("a file where the confidence folder goes")
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "File exists" in err[0] and "confidence" in err[0]
+    assert (out / "confidence").read_text().startswith("a file")  # left as it was
+
+
+CORRUPT_STATES = {
+    "a list": lambda s: [s], "null": lambda s: None, "a string": lambda s: "run",
+    "no done": lambda s: {k: v for k, v in s.items() if k != "done"}, "done text": lambda s: {**s, "done": "abc"},
+    "done infinite": lambda s: {**s, "done": float("inf")}, "done a list": lambda s: {**s, "done": [2]},
+    "done zero": lambda s: {**s, "done": 0}, "fallbacks negative": lambda s: {**s, "fallbacks": -1},
+    "truth not counts": lambda s: {**s, "truth": {"frames": "x"}},
+}
+
+
+@pytest.mark.parametrize("change", sorted(CORRUPT_STATES))
+def test_a_run_json_pcreg_did_not_write_is_refused_by_name(tmp_path, capsys, change):
+    folder, key = _frames(tmp_path / "frames", (48, 64))
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    assert main(run) == 0
+    state = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps(CORRUPT_STATES[change](state)))
+    capsys.readouterr()
+    assert main([*run, "--suggest", "1"]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "run.json" in err[0] and "--force" in err[0]
+    assert main([*run, "--force"]) == 0  # and --force starts over
+
+
+@pytest.mark.parametrize("line", [b"garbage", b"\xff\xfe", b"null", b"[1, 2]", b'{"frame": "3"}',
+                                  b'{"frame": 1, "predicted_error": "high"}', b'{"frame": 1, "predicted_error": 1e999}'])
+def test_a_steps_line_pcreg_did_not_write_is_refused_by_line(tmp_path, capsys, line):
+    folder, key = _frames(tmp_path / "frames", (48, 64))
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out), "--suggest", "1"]
+    assert main(run) == 0
+    lines = (out / "steps.jsonl").read_bytes().splitlines(keepends=True)
+    (out / "steps.jsonl").write_bytes(b"".join(lines[:1]) + line + b"\n" + b"".join(lines[2:]))
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "steps.jsonl: line 2 is not a step pcreg run wrote" in err[0]
+
+
+def test_a_key_frames_run_with_a_damaged_state_or_step_is_refused(tmp_path, capsys):
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=5)
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
+    for i in (0, 4):
+        cv2.imwrite(str(keys / f"f{i}.png"), labels)
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
+    assert main(run) == 0
+    good = (out / "run.json").read_text()
+    for change in ({"stretches": {}}, {"cursor": 3}, {"lines": -2}, {"keys": []}):
+        (out / "run.json").write_text(json.dumps({**json.loads(good), **change}))
+        capsys.readouterr()
+        assert main(run) == 2
+        assert f"its {next(iter(change))!r} is not as pcreg run writes it" in one_line_errors(capsys)[-1]
+    (out / "run.json").write_text(good)
+    steps = (out / "steps.jsonl").read_bytes().splitlines(keepends=True)
+    (out / "steps.jsonl").write_bytes(b"[]\n" + b"".join(steps[1:]))
+    capsys.readouterr()
+    assert main(run) == 2
+    assert "steps.jsonl: line 1 is not a step pcreg run wrote" in one_line_errors(capsys)[-1]
+
+
+def test_a_full_disk_or_a_folder_in_the_way_is_bad_input_not_a_bug(tmp_path, capsys):
+    folder, key = _frames(tmp_path / "frames", (48, 64))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "steps.jsonl").mkdir()  # a folder where the run writes its steps
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "steps.jsonl" in err[0] and "internal error" not in err[0]

@@ -2,7 +2,8 @@
 
 Exit codes: 0 ok; 1 a bug in pcreg (any exception pcreg did not raise on purpose: one line on stderr
 that says so, or the whole traceback with ``PCREG_TRACEBACK=1``); 2 bad input (a
-:class:`pcreg.errors.PcregError` other than a refused registration, or bad options: one line on stderr);
+:class:`pcreg.errors.PcregError` other than a refused registration, bad options, or an ``OSError``: the file
+system refused, a full disk or a folder where a file goes; one line on stderr);
 3 a refused registration (:class:`pcreg.errors.RegistrationError`; with ``--json``, the object
 ``{"ok": false, "reason": ...}`` is printed on stdout as well); 130 interrupted (Ctrl-C or SIGTERM).
 Each command lives in its own module under ``pcreg.commands`` and exposes

@@ -83,8 +83,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _usable_streams() -> None:
+    """The program's stdout and stderr as the command writes them: a stream its caller closed
+    (``exec 1>&-``) goes to the null device, and what the terminal's encoding cannot show (a path's
+    letters under ``PYTHONIOENCODING=ascii``) is written escaped instead of failing the command."""
+    import os
+
+    for name in ("stdout", "stderr"):
+        stream = getattr(sys, name)
+        if stream is None:
+            setattr(sys, name, open(os.devnull, "w"))
+        elif hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
+
+
 def main(argv: list[str] | None = None) -> int:
     from .errors import PcregError
+
+    if argv is None:  # the program itself, not a caller's own streams
+        _usable_streams()
 
     parser = build_parser()
     args = parser.parse_args(argv)

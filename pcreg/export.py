@@ -70,7 +70,7 @@ def read_run(folder: str | Path) -> RunLabels:
     Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json`` (not a run's output), one
     that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
     """
-    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames
+    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames, state_problem
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -80,8 +80,8 @@ def read_run(folder: str | Path) -> RunLabels:
         raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
     try:
         state = json.loads(state_path.read_text(encoding="utf-8"))
-        if not isinstance(state, dict):
-            raise TypeError("not an object")
+        if state_problem(state) is not None:
+            raise TypeError("not a run's state")
     except (OSError, ValueError, TypeError, UnicodeDecodeError):
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
     steps_path = folder / STEPS

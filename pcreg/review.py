@@ -92,7 +92,7 @@ def read_review(folder: str | Path) -> RunReview:
     a source that is gone, an unreadable ``steps.jsonl`` or ``suggest.txt``.
     """
     from .datasets.sources import FolderFrames, Selection, open_frames
-    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames
+    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames, state_problem
 
     folder = Path(folder)
     state_path = folder / STATE
@@ -100,6 +100,8 @@ def read_review(folder: str | Path) -> RunReview:
         raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
     try:
         state = json.loads(state_path.read_text(encoding="utf-8"))
+        if state_problem(state) is not None:
+            raise ValueError("not a run's state")
         run = state["run"]
         kind = "video" if "video" in run else "folder"
         source = Path(run[kind])

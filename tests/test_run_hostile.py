@@ -124,3 +124,21 @@ def test_a_full_disk_or_a_folder_in_the_way_is_bad_input_not_a_bug(tmp_path, cap
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and "steps.jsonl" in err[0] and "internal error" not in err[0]
+
+
+def test_the_program_runs_with_an_ascii_terminal_and_a_closed_stdout(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    folder, key = _frames(tmp_path / "кадры", (96, 128), n=2)
+    env = {**os.environ, "PYTHONIOENCODING": "ascii"}
+    out = tmp_path / "выход"
+    p = subprocess.run([sys.executable, "-m", "pcreg", "run", str(folder), "--labels", str(key), "--out", str(out)],
+                       capture_output=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert b"\\u0432\\u044b" in p.stdout and (out / "f1.png").is_file()  # the path escaped, not a failure
+    # stdout closed by the caller: the JSON goes nowhere, and the command still succeeds
+    p = subprocess.run([sys.executable, "-m", "pcreg", "register", str(folder / "f0.png"), str(folder / "f1.png"),
+                        "--json"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=lambda: os.close(1))
+    assert p.returncode in (0, 3) and b"internal error" not in p.stderr, p.stderr

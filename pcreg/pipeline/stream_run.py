@@ -196,6 +196,9 @@ def run_frames(state: dict, steps: list[bytes]) -> tuple[list[str], list[str]]:
     frames it counted done) or from a folder of key frames (:mod:`pcreg.pipeline.keys_run`: its key
     frames and the steps it counted, in name order, which is a folder's and a video's frame order).
     Raises KeyError, TypeError or ValueError for a state or a line pcreg run did not write."""
+    field = state_problem(state)
+    if field is not None:
+        raise ValueError(f"run.json's {field!r} is not as pcreg run writes it")
     if "stretches" in state:
         keys = sorted(str(k) for k in state["keys"])
         done = [str(json.loads(line)["name"]) for line in steps[:int(state["lines"])]]
@@ -230,6 +233,15 @@ def stream_state_problem(state: dict) -> str | None:
     if state.get("truth") is not None and not _counts(state["truth"], TRUTH_COUNTS):
         return "truth"
     return None
+
+
+def state_problem(state) -> str | None:
+    """What in a run.json (one key frame's, or a folder of key frames') is not as pcreg run writes it."""
+    from .keys_run import keys_state_problem
+
+    if not isinstance(state, dict):
+        return "its top level"
+    return (keys_state_problem if "stretches" in state else stream_state_problem)(state)
 
 
 def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:

@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import os
 
-    from .errors import RegistrationError
+    from .errors import RegistrationError, StuckOutput
 
     from ._runner import forget_stray_interrupt, ignore_signals, interrupt_on_signals, interrupted, restore_signals
 
@@ -136,6 +136,10 @@ def main(argv: list[str] | None = None) -> int:
         return 3
     except PcregError as exc:
         sys.stderr.write(f"pcreg: error: {_one_line(exc)}\n")
+        if isinstance(exc, StuckOutput) and argv is None:  # a writer outside Python would hold the process at exit
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(2)
         return 2
     except KeyboardInterrupt:
         sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")

@@ -25,3 +25,9 @@ class DatasetError(PcregError):
 
 class OutputError(PcregError):
     """An output path that cannot be written, or that exists and would be overwritten."""
+
+
+class StuckOutput(OutputError):
+    """An output whose writer, outside Python, stopped and cannot be finished (a recording on a full disk):
+    the process cannot end normally either (the writer's library waits for it at exit), so the command
+    line reports it and ends the process at once."""

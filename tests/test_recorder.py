@@ -550,3 +550,28 @@ def test_display_indices_are_numpys_evenly_spaced_ones():
         for limit in (0, 1, 2, 3, 200, 300):
             if n > limit:
                 np.testing.assert_array_equal(display_indices(n, limit), np.linspace(0, n - 1, limit).astype(np.intp))
+
+
+def test_a_recording_whose_writer_stopped_is_refused_and_removed_not_waited_on(tmp_path, monkeypatch):
+    """A full disk stops rerun's file writer; its flush and its exit then wait without end. The sink waits
+    in bounded steps, and a file that stops growing while data is still held is a StuckOutput (the
+    command line ends the process at once on it), the unfinished file removed."""
+    from pcreg.errors import StuckOutput
+    from pcreg.recording import sink as sink_module
+
+    path = tmp_path / "r.rrd"
+    rec = Recorder(path)
+    rec.log_images(reference=np.zeros((32, 32, 3), np.uint8))
+    waits = []
+
+    def stalled_flush(*, timeout_sec=1e38):  # rerun's flush when its writer is gone: each wait runs out
+        waits.append(timeout_sec)
+        raise RuntimeError("Flush timed out - not all log messages were sent")
+
+    monkeypatch.setattr(rec.sink._rec, "flush", stalled_flush)
+    monkeypatch.setattr(rec.sink._rec, "disconnect", lambda: pytest.fail("a stuck writer must not be waited on"))
+    with pytest.raises(StuckOutput, match="could not be written .* it was removed"):
+        rec.close()
+    assert not path.exists()
+    # bounded waits, never rerun's default of 1e38 s; the real writer may still grow the file at first
+    assert set(waits) == {sink_module.FLUSH_SECONDS} and sink_module.FLUSH_STALLS < len(waits) < 100

@@ -24,7 +24,7 @@ import rerun as rr
 
 from pcreg.recording import entities as E
 
-from ..errors import OutputError
+from ..errors import OutputError, StuckOutput
 from ..outputs import check_output
 
 __all__ = ["Sink", "JpegCache", "DEFAULT_JPEG_QUALITY", "BATCH_SECONDS", "BATCH_BYTES"]
@@ -43,6 +43,11 @@ DEFAULT_JPEG_QUALITY = 60
 #: they span a second and sent when the next frame starts, about a second and a frame.
 BATCH_SECONDS = 1.0
 BATCH_BYTES = 16 << 20
+#: Seconds of each wait for rerun's writer when a recording is finished; a file that has not grown over
+#: :data:`FLUSH_STALLS` waits in a row while rerun still holds data is a writer that stopped (a full disk,
+#: where rerun's flush and its exit otherwise wait without end).
+FLUSH_SECONDS = 5.0
+FLUSH_STALLS = 3
 
 
 class JpegCache:
@@ -177,9 +182,9 @@ class Sink:
             f.result()
 
     def flush(self) -> None:
-        """Block until everything logged so far is in the file."""
+        """Block until everything logged so far is in the file (:class:`StuckOutput` when it cannot be)."""
         self.wait()
-        self._rec.flush()
+        self._flush_to_file()
 
     def close(self) -> None:
         """Finish the jobs, store the kind and the blueprint, and finish the file (idempotent)."""
@@ -191,8 +196,29 @@ class Sink:
         finally:
             self._worker.shutdown(wait=True)
             self._finish_blueprint()
-            self._rec.flush()
+            self._flush_to_file()
             self._rec.disconnect()
+
+    def _flush_to_file(self) -> None:
+        """rerun's flush, in waits of :data:`FLUSH_SECONDS`, until the file holds everything; a writer that
+        has stopped (an error, or no growth over :data:`FLUSH_STALLS` waits) is a :class:`StuckOutput`, and
+        the unfinished file is removed."""
+        size, stalls = -1, 0
+        while True:
+            try:
+                self._rec.flush(timeout_sec=FLUSH_SECONDS)
+                return
+            except RuntimeError as exc:  # rerun's: a wait that ran out, or its writer gone
+                now = self.path.stat().st_size if self.path.exists() else -1
+                stalls = stalls + 1 if now == size else 0
+                size = now
+                if "timed out" not in str(exc) or stalls >= FLUSH_STALLS:
+                    import shutil
+
+                    free = shutil.disk_usage(self.path.parent).free if self.path.parent.exists() else 0
+                    self.path.unlink(missing_ok=True)
+                    raise StuckOutput(f"{self.path}: the recording could not be written ({free} bytes free on its "
+                                      f"disk; rerun: {str(exc).splitlines()[0]}); it was removed") from None
 
     def _send_kind(self, kind: str) -> None:
         """The recording property that names the kind of recording."""

@@ -169,6 +169,21 @@ def _terminate_workers(pool: ProcessPoolExecutor) -> None:
         manager.join(timeout=5)
 
 
+def _check_scheduler_address(scheduler: str) -> None:
+    """Refuse a dask scheduler address that cannot be one (no port, an unknown form) before a client is
+    made: a client refused while it is made still waits for its own close at exit (60 s)."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    from .errors import PcregError
+
+    try:
+        protocol, location = parse_address(scheduler)
+        if protocol in ("tcp", "tls"):
+            parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise PcregError(f"--scheduler {scheduler!r} is not a dask scheduler address (tcp://HOST:PORT): {exc}") from None
+
+
 @contextmanager
 def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator[Executor]:
     """An executor for ``workers`` local processes, or for a dask.distributed scheduler address.
@@ -185,6 +200,7 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             raise PcregError("--scheduler needs dask.distributed (pip install 'pcreg[distributed]')") from None
         from .errors import PcregError
 
+        _check_scheduler_address(scheduler)
         try:
             client = Client(scheduler, set_as_default=False)  # timeout: distributed.comm.timeouts.connect
         except (OSError, TimeoutError, ValueError, TypeError) as exc:

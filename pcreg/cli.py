@@ -105,8 +105,10 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not getattr(args, "_module", None):
-        parser.print_help(sys.stderr)
+    if not getattr(args, "_module", None):  # `pcreg` or `pcreg evaluate` alone: one line, as any bad input
+        group = EVALUATIONS if getattr(args, "command", None) == "evaluate" else [*COMMANDS, "evaluate"]
+        what = "pcreg evaluate" if group is EVALUATIONS else "pcreg"
+        sys.stderr.write(f"{what}: error: choose one of {', '.join(group)} ({what} --help says what each does)\n")
         return 2
     import os
 
@@ -117,6 +119,10 @@ def main(argv: list[str] | None = None) -> int:
     previous = interrupt_on_signals()  # Ctrl-C and SIGTERM: exit 130, finished units kept
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
+        if "NUMBA_THREADING_LAYER" in os.environ:  # the environment is input too
+            from .registration.nn import check_threading_layer
+
+            check_threading_layer()
         module = importlib.import_module(args._module)
         if getattr(args, "max_pixels", None):
             from .validation import set_max_pixels

@@ -172,6 +172,11 @@ def cvat_mask_archive(frames) -> tuple[bytes, dict[str, int]]:
     class_colours = {k: colour for k, (_, colour) in LABELMAP.items()}
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as z:  # PNGs are compressed already
         def add(name: str, data: bytes | str) -> None:
+            # a frame name that is not UTF-8 (os.fsdecode's escapes) stored with its bad bytes replaced, in
+            # the members' names and in the list of them alike: a zip's names are UTF-8
+            name = name.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+            if isinstance(data, str):
+                data = data.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
             info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
             info.external_attr = 0o644 << 16  # rw-r--r-- once unpacked (0 would be no permission at all)
             z.writestr(info, data)

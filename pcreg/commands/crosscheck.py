@@ -161,7 +161,11 @@ def _clouds(args) -> int:
         print_json(out)
     else:
         print(format_table(out))
-    return 0 if out["implementations"]["reference"]["error"] is None else 3
+    failed = out["implementations"]["reference"]["error"]
+    if failed is None:
+        return 0
+    sys.stderr.write(f"pcreg: registration refused: the reference ICP failed on these clouds: {failed}\n")
+    return 3
 
 
 def log_cloud_crosscheck(rec: RecorderProtocol, report) -> None:

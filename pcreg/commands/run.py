@@ -269,7 +269,7 @@ def _write_suggest(count: int | None, out: Path, frames, keys: list[int]) -> Non
     """``OUT/suggest.txt``: the ``count`` frames to label next, best first, ``NAME PREDICTED_ERROR`` a line,
     from the predicted errors in steps.jsonl (:func:`pcreg.pipeline.keyframes.suggest`)."""
     from ..errors import InputError
-    from ..outputs import atomic_write_text
+    from ..outputs import atomic_write_bytes
     from ..pipeline.keyframes import suggest
     from ..pipeline.stream_run import STEPS, parse_steps
 
@@ -281,7 +281,8 @@ def _write_suggest(count: int | None, out: Path, frames, keys: list[int]) -> Non
         chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
     except InputError as exc:
         raise InputError(f"--suggest {count}: {exc}") from None
-    atomic_write_text(out / "suggest.txt", "".join(f"{frames.stem(t)} {predicted[t]:.2f}\n" for t in chosen))
+    text = "".join(f"{frames.stem(t)} {predicted[t]:.2f}\n" for t in chosen)
+    atomic_write_bytes(out / "suggest.txt", text.encode("utf-8", "surrogateescape"))  # names as the files have them
     print(f"the {count} frame(s) to label next, best first: {out / 'suggest.txt'}")
 
 

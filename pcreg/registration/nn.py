@@ -84,6 +84,20 @@ def _choose_threading_layer() -> None:
         os.environ["GOMP_SPINCOUNT"] = str(OPENMP_SPIN_COUNT)  # read when libgomp loads, at the first region
 
 
+#: The values numba takes for ``NUMBA_THREADING_LAYER`` (its layers, and the choices among them).
+THREADING_LAYERS = ("default", "safe", "forksafe", "threadsafe", "omp", "tbb", "workqueue")
+
+def check_threading_layer() -> None:
+    """Refuse a ``NUMBA_THREADING_LAYER`` numba does not know (an :class:`~pcreg.errors.InputError` now,
+    rather than numba's error at the first parallel kernel)."""
+    given = os.environ.get("NUMBA_THREADING_LAYER")
+    if given is not None and given not in THREADING_LAYERS:
+        from ..errors import InputError
+
+        raise InputError(f"NUMBA_THREADING_LAYER={given!r} is not a numba threading layer; choose one of "
+                         f"{', '.join(THREADING_LAYERS)} or unset it")
+
+
 #: True in a process forked after its parent's OpenMP threads started (:func:`can_thread`): a fact about
 #: this process and numba's threading layer in it, set by the fork hook, so held at module level.
 _FORKED_AFTER_OPENMP = False

@@ -1,0 +1,74 @@
+"""The command line on hostile invocations and environments: one line on stderr and the documented exit
+code, quickly, never an internal error or a wait."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from _runs import one_line_errors
+
+
+@pytest.mark.parametrize("argv, names", [([], "register, crosscheck"), (["evaluate"], "classification, rotation")])
+def test_no_command_is_one_line(capsys, argv, names):
+    assert main(argv) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and names in err[0] and "--help" in err[0]
+
+
+def test_an_unknown_numba_threading_layer_is_bad_input(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("NUMBA_THREADING_LAYER", "bogus")
+    img = tmp_path / "a.png"
+    cv2.imwrite(str(img), np.zeros((64, 64, 3), np.uint8))
+    assert main(["register", str(img), str(img)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "NUMBA_THREADING_LAYER='bogus'" in err[0] and "workqueue" in err[0]
+
+
+def test_a_scheduler_address_that_cannot_be_one_is_refused_before_connecting(capsys):
+    from pcreg._runner import make_executor
+    from pcreg.errors import PcregError
+
+    with pytest.raises(PcregError, match="not a dask scheduler address .* missing port"):
+        with make_executor(scheduler="notanaddress"):
+            pass
+
+
+def test_a_crosscheck_whose_reference_fails_says_why_on_stderr(tmp_path, capsys):
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    np.save(a, np.random.default_rng(0).normal(size=(200, 3)))
+    np.save(b, np.random.default_rng(1).normal(size=(2, 3)))
+    assert main(["crosscheck", str(a), str(b)]) == 3
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "reference ICP failed" in err[0] and "too few" in err[0]
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="file names as bytes: a Linux file system")
+def test_file_names_that_are_not_utf8_reach_suggest_and_export(tmp_path):
+    frames = os.fsdecode(bytes(tmp_path) + b"/fr\xffmes")
+    os.mkdir(frames)
+    rng = np.random.default_rng(0)
+    scene = cv2.GaussianBlur(rng.integers(0, 256, (96, 140, 3), dtype=np.uint8), (0, 0), 1.5)
+    for i in range(3):  # written by Python: OpenCV's own file functions crash on such a path
+        with open(os.path.join(frames, f"f\udcfe{i}.png"), "wb") as fh:
+            fh.write(cv2.imencode(".png", np.ascontiguousarray(scene[:, 10 - i:138 - i]))[1].tobytes())
+    key = os.path.join(str(tmp_path), "key.png")
+    cv2.imwrite(key, (np.arange(96)[:, None] * np.ones((1, 128)) > 48).astype(np.uint8))
+    out = os.fsdecode(bytes(tmp_path) + b"/o\xffut")
+    run = [sys.executable, "-m", "pcreg", "run", frames, "--labels", key, "--out", out, "--suggest", "1"]
+    p = subprocess.run(run, capture_output=True)
+    assert p.returncode == 0, p.stderr
+    assert open(os.path.join(out, "suggest.txt"), "rb").read().startswith(b"f\xfe")  # the file's own bytes
+    p = subprocess.run([sys.executable, "-m", "pcreg", "export", out], capture_output=True)
+    assert p.returncode == 0, p.stderr
+    import zipfile
+
+    with zipfile.ZipFile(os.path.join(out, "export-cvat-mask.zip")) as z:
+        assert "SegmentationClass/f\ufffd1.png" in z.namelist()
+        assert "f\ufffd1" in z.read("ImageSets/Segmentation/default.txt").decode()

@@ -72,3 +72,24 @@ def test_file_names_that_are_not_utf8_reach_suggest_and_export(tmp_path):
     with zipfile.ZipFile(os.path.join(out, "export-cvat-mask.zip")) as z:
         assert "SegmentationClass/f\ufffd1.png" in z.namelist()
         assert "f\ufffd1" in z.read("ImageSets/Segmentation/default.txt").decode()
+
+
+def test_export_never_replaces_a_file_of_the_run_and_a_suite_that_is_a_file_is_refused_first(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    scene = cv2.GaussianBlur(rng.integers(0, 256, (96, 140, 3), dtype=np.uint8), (0, 0), 1.5)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(frames / f"f{i}.png"), np.ascontiguousarray(scene[:, 10 - i:138 - i]))
+    cv2.imwrite(str(tmp_path / "key.png"), (np.arange(96)[:, None] * np.ones((1, 128)) > 48).astype(np.uint8))
+    out = tmp_path / "out"
+    assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0
+    before = (out / "f1.png").read_bytes()
+    capsys.readouterr()
+    assert main(["export", str(out), "--to", str(out / "f1.png"), "--force"]) == 2
+    assert "would replace one of the run's files" in one_line_errors(capsys)[-1]
+    assert (out / "f1.png").read_bytes() == before
+    assert main(["export", str(out), "--to", str(out / "mine.zip")]) == 0  # a zip of its own there is fine
+    capsys.readouterr()
+    assert main(["crosscheck", "--suite", str(out / "f1.png")]) == 2
+    assert "exists and is not a folder" in one_line_errors(capsys)[-1]

@@ -105,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _suite(args) -> dict:
+    from ..errors import InputError
     from ..implementations.suite import builtin_cases, export_suite, load_suite, run_suite, write_results
 
     out: dict = {}
@@ -116,6 +117,9 @@ def _suite(args) -> dict:
         out["skipped"] = skipped
     if args.suite:
         suite = Path(args.suite)
+        for where, what in ((suite, "--suite"), (Path(args.out) if args.out else None, "--out")):
+            if where is not None and where.exists() and not where.is_dir():  # refused now, not after the suite ran
+                raise InputError(f"{what} {where}: exists and is not a folder")
         skipped = {}
         if (suite / "index.json").exists():
             cases = load_suite(suite)

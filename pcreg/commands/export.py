@@ -32,8 +32,15 @@ def run(args: argparse.Namespace) -> int:
     from ..export import LABELMAP, cvat_mask_archive, default_name, labels_with_confidence, read_run
     from ..outputs import atomic_write_bytes, check_output
 
+    from ..errors import OutputError
+
     run_labels = read_run(args.folder)
-    dest = check_output(Path(args.to) if args.to is not None else Path(args.folder) / default_name(args.format), force=args.force)
+    default = Path(args.folder) / default_name(args.format)
+    dest = check_output(Path(args.to) if args.to is not None else default, force=args.force)
+    folder = Path(args.folder).resolve()
+    if dest.resolve() != default.resolve() and folder in dest.resolve().parents and dest.suffix.lower() != ".zip":
+        raise OutputError(f"--to {dest}: inside the run's own folder and not a .zip; the archive would replace one "
+                          "of the run's files (choose a .zip name or another folder)")
     frames = ((name, labels_with_confidence(run_labels, t, args.min_confidence))
               for t, name in enumerate(run_labels.names))
     data, counts = cvat_mask_archive(frames)  # every file read and checked before anything is written

@@ -250,10 +250,15 @@ def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tu
 
 
 def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int | None = None) -> np.ndarray:
-    """``cv2.imdecode`` of checked bytes; OpenCV's errors become :class:`InputError`."""
+    """``cv2.imdecode`` of checked bytes; OpenCV's errors become :class:`InputError`. The pixels as the file
+    stores them, whatever the flags: an EXIF orientation is never applied (``IMREAD_UNCHANGED`` ignores
+    it, and other flags get ``IMREAD_IGNORE_ORIENTATION``), so a frame and its labels share one grid
+    however each is read."""
     import cv2
 
     w, h = check_image_bytes(data, name, limit=limit)
+    if flags is not None and flags != cv2.IMREAD_UNCHANGED:
+        flags |= cv2.IMREAD_IGNORE_ORIENTATION
     img, said = imdecode_quietly(data, cv2.IMREAD_UNCHANGED if flags is None else flags)
     if isinstance(img, Exception):
         raise InputError(f"{name}: cannot decode image ({_cv2_message(img)})") from None

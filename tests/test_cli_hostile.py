@@ -93,3 +93,31 @@ def test_export_never_replaces_a_file_of_the_run_and_a_suite_that_is_a_file_is_r
     capsys.readouterr()
     assert main(["crosscheck", "--suite", str(out / "f1.png")]) == 2
     assert "exists and is not a folder" in one_line_errors(capsys)[-1]
+
+
+def _jpeg_turned(img: np.ndarray) -> bytes:
+    """A JPEG of ``img`` whose EXIF orientation (6) asks viewers to turn it a quarter clockwise."""
+    import struct
+
+    jpeg = cv2.imencode(".jpg", img)[1].tobytes()
+    ifd = struct.pack(">H", 1) + struct.pack(">HHIHH", 0x0112, 3, 1, 6, 0) + struct.pack(">I", 0)
+    exif = b"Exif\x00\x00" + b"MM\x00\x2a" + struct.pack(">I", 8) + ifd
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(exif) + 2) + exif + jpeg[2:]
+
+
+def test_an_exif_orientation_is_never_applied_so_frames_and_labels_share_a_grid(tmp_path):
+    from pcreg.datasets import load_dataset
+
+    img = np.random.default_rng(0).integers(0, 256, (48, 80, 3), dtype=np.uint8)
+    data = _jpeg_turned(img)
+    probe = tmp_path / "probe.jpg"
+    probe.write_bytes(data)
+    assert cv2.imread(str(probe), cv2.IMREAD_COLOR).shape[:2] == (80, 48)  # OpenCV itself turns it
+    clip = tmp_path / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i in range(2):
+        (clip / "images" / f"f{i}.jpg").write_bytes(data)
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), np.zeros((48, 80), np.uint8))
+    frames = load_dataset(f"folder:{clip}")["clip"]
+    assert frames[0].image.shape == (48, 80, 3) and frames[0].labels.shape == (48, 80)

@@ -97,6 +97,55 @@ def _usable_streams() -> None:
             stream.reconfigure(errors="backslashreplace")
 
 
+def _no_command(args: argparse.Namespace) -> int:
+    """`pcreg` or `pcreg evaluate` alone: one line naming the choices, as any bad input."""
+    group = EVALUATIONS if getattr(args, "command", None) == "evaluate" else [*COMMANDS, "evaluate"]
+    what = "pcreg evaluate" if group is EVALUATIONS else "pcreg"
+    sys.stderr.write(f"{what}: error: choose one of {', '.join(group)} ({what} --help says what each does)\n")
+    return 2
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    """The command's own run (its module's ``run``), after what the environment asks is checked."""
+    import os
+
+    from ._runner import interrupted
+
+    if "NUMBA_THREADING_LAYER" in os.environ:  # the environment is input too
+        from .registration.nn import check_threading_layer
+
+        check_threading_layer()
+    module = importlib.import_module(args._module)
+    if getattr(args, "max_pixels", None):
+        from .validation import set_max_pixels
+
+        set_max_pixels(args.max_pixels)  # also seen by worker processes
+    code = int(module.run(args) or 0)
+    if code == 0 and interrupted():  # the signal's KeyboardInterrupt was swallowed (an ignored callback)
+        raise KeyboardInterrupt
+    return code
+
+
+def _bug(exc: Exception) -> int:
+    """An exception pcreg did not raise on purpose: exit 1 with one line (the traceback with
+    ``PCREG_TRACEBACK=1``), or 130 when the process was being stopped by a signal anyway."""
+    import os
+
+    from ._runner import interrupted
+
+    if interrupted():  # e.g. the workers died of the same SIGTERM before the parent's handler ran
+        sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")
+        return 130
+    if os.environ.get("PCREG_TRACEBACK", "") not in ("", "0"):
+        import traceback
+
+        traceback.print_exc(file=sys.stderr)
+    else:
+        sys.stderr.write(f"pcreg: internal error, a bug in pcreg: {type(exc).__name__}: {_one_line(exc)} "
+                         "(PCREG_TRACEBACK=1 shows the traceback)\n")
+    return 1
+
+
 def main(argv: list[str] | None = None) -> int:
     from .errors import PcregError
 
@@ -105,11 +154,8 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not getattr(args, "_module", None):  # `pcreg` or `pcreg evaluate` alone: one line, as any bad input
-        group = EVALUATIONS if getattr(args, "command", None) == "evaluate" else [*COMMANDS, "evaluate"]
-        what = "pcreg evaluate" if group is EVALUATIONS else "pcreg"
-        sys.stderr.write(f"{what}: error: choose one of {', '.join(group)} ({what} --help says what each does)\n")
-        return 2
+    if not getattr(args, "_module", None):
+        return _no_command(args)
     import os
 
     from .errors import RegistrationError, StuckOutput
@@ -119,19 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     previous = interrupt_on_signals()  # Ctrl-C and SIGTERM: exit 130, finished units kept
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
-        if "NUMBA_THREADING_LAYER" in os.environ:  # the environment is input too
-            from .registration.nn import check_threading_layer
-
-            check_threading_layer()
-        module = importlib.import_module(args._module)
-        if getattr(args, "max_pixels", None):
-            from .validation import set_max_pixels
-
-            set_max_pixels(args.max_pixels)  # also seen by worker processes
-        code = int(module.run(args) or 0)
-        if code == 0 and interrupted():  # the signal's KeyboardInterrupt was swallowed (an ignored callback)
-            raise KeyboardInterrupt
-        return code
+        return _run_command(args)
     except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)
         reason = _one_line(exc)
         if getattr(args, "json", False):
@@ -165,17 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write(f"pcreg: error: {exc.strerror or _one_line(exc)}{where}\n")
         return 2
     except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
-        if interrupted():  # e.g. the workers died of the same SIGTERM before the parent's handler ran
-            sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")
-            return 130
-        if os.environ.get("PCREG_TRACEBACK", "") not in ("", "0"):
-            import traceback
-
-            traceback.print_exc(file=sys.stderr)
-        else:
-            sys.stderr.write(f"pcreg: internal error, a bug in pcreg: {type(exc).__name__}: {_one_line(exc)} "
-                             "(PCREG_TRACEBACK=1 shows the traceback)\n")
-        return 1
+        return _bug(exc)
     finally:
         stopping = argv is None and interrupted()
         if stopping:  # the program itself is stopping on a signal: let it exit 130

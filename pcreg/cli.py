@@ -149,20 +149,28 @@ def _bug(exc: Exception) -> int:
 def main(argv: list[str] | None = None) -> int:
     from .errors import PcregError
 
+    from ._runner import forget_stray_interrupt, ignore_signals, interrupt_on_signals, interrupted, restore_signals
+
     if argv is None:  # the program itself, not a caller's own streams
         _usable_streams()
-
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    # Ctrl-C and SIGTERM: exit 130, finished units kept; from the start, while the commands' modules load
+    previous = interrupt_on_signals()
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:
+        restore_signals(previous)
+        sys.stderr.write("pcreg: interrupted before the command started\n")
+        return 130
+    except BaseException:  # the parser's own exit (a bad option: 2; --help: 0)
+        restore_signals(previous)
+        raise
     if not getattr(args, "_module", None):
+        restore_signals(previous)
         return _no_command(args)
     import os
 
     from .errors import RegistrationError, StuckOutput
 
-    from ._runner import forget_stray_interrupt, ignore_signals, interrupt_on_signals, interrupted, restore_signals
-
-    previous = interrupt_on_signals()  # Ctrl-C and SIGTERM: exit 130, finished units kept
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
         return _run_command(args)

@@ -121,3 +121,19 @@ def test_an_exif_orientation_is_never_applied_so_frames_and_labels_share_a_grid(
         cv2.imwrite(str(clip / "labels" / f"f{i}.png"), np.zeros((48, 80), np.uint8))
     frames = load_dataset(f"folder:{clip}")["clip"]
     assert frames[0].image.shape == (48, 80, 3) and frames[0].labels.shape == (48, 80)
+
+
+def test_a_signal_while_the_commands_load_is_an_interruption(monkeypatch, capsys):
+    """Ctrl-C or SIGTERM (made a KeyboardInterrupt from the start of main) while the commands' modules load."""
+    import signal
+
+    import pcreg.cli as cli
+
+    def loading():
+        raise KeyboardInterrupt
+
+    before = signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(cli, "build_parser", loading)
+    assert cli.main(["register", "a.png", "b.png"]) == 130
+    assert one_line_errors(capsys) == ["pcreg: interrupted before the command started"]
+    assert signal.getsignal(signal.SIGTERM) is before  # the handlers put back

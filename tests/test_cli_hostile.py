@@ -137,3 +137,9 @@ def test_a_signal_while_the_commands_load_is_an_interruption(monkeypatch, capsys
     assert cli.main(["register", "a.png", "b.png"]) == 130
     assert one_line_errors(capsys) == ["pcreg: interrupted before the command started"]
     assert signal.getsignal(signal.SIGTERM) is before  # the handlers put back
+
+
+def test_viewing_a_run_folder_whose_run_json_is_damaged_names_the_run_json(tmp_path, capsys):
+    (tmp_path / "run.json").write_text("garbage")
+    assert main(["view", str(tmp_path), "--web"]) == 2
+    assert one_line_errors(capsys)[-1].endswith("run.json: unreadable (not a run.json that pcreg run wrote)")

@@ -70,6 +70,8 @@ def load_report(folder: str | Path) -> Report:
     if not p.is_dir():
         raise InputError(f"{p}: not a folder")
     rp = p / "results.json"
+    if not rp.is_file() and (p / "run.json").is_file():  # a run's folder, whose run.json the review did not take
+        raise InputError(f"{p / 'run.json'}: unreadable (not a run.json that pcreg run wrote)")
     if not rp.is_file():
         raise InputError(f"{p}: no results.json here (an evaluation's output folder: pcreg evaluate ... --out {p})")
     try:

@@ -143,3 +143,10 @@ def test_viewing_a_run_folder_whose_run_json_is_damaged_names_the_run_json(tmp_p
     (tmp_path / "run.json").write_text("garbage")
     assert main(["view", str(tmp_path), "--web"]) == 2
     assert one_line_errors(capsys)[-1].endswith("run.json: unreadable (not a run.json that pcreg run wrote)")
+
+
+@pytest.mark.parametrize("size", ["16384x16384", "8193x100", "15x900", "wide"])
+def test_a_screenshot_size_the_headless_viewer_cannot_draw_is_refused_at_once(tmp_path, capsys, size):
+    with pytest.raises(SystemExit, match="2"):
+        main(["view", str(tmp_path / "r.rrd"), "--screenshot", str(tmp_path / "s.png"), "--size", size])
+    assert "--size" in capsys.readouterr().err

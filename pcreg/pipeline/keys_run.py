@@ -39,7 +39,7 @@ from typing import BinaryIO, Callable, Iterator
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .stream_run import (CONFIDENCE, STATE, STEPS, TRUTH_COUNTS, _UNREADABLE_CARRY, _count, _counts, _write_carry,
+from .stream_run import (CONFIDENCE, STATE, STEPS, TRUTH_COUNTS, _UNREADABLE_CARRY, is_count, has_counts, _write_carry,
                          _write_png, check_labelled, confidence_png, open_state, parse_steps)
 
 __all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
@@ -47,11 +47,11 @@ __all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
 
 def _stretch_problem(e, cursor: bool) -> bool:
     """Whether a stretch's entry in run.json (done, or the ``cursor`` under way) is not as pcreg run writes it."""
-    if not (isinstance(e, dict) and isinstance(e.get("fingerprint"), str) and _count(e.get("fallbacks"))
-            and (e.get("truth") is None or _counts(e["truth"], TRUTH_COUNTS))):
+    if not (isinstance(e, dict) and isinstance(e.get("fingerprint"), str) and is_count(e.get("fallbacks"))
+            and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS))):
         return True
-    return cursor and not (isinstance(e.get("phase"), str) and _count(e.get("steps"))
-                           and (e.get("next") is None or _count(e["next"])))
+    return cursor and not (isinstance(e.get("phase"), str) and is_count(e.get("steps"))
+                           and (e.get("next") is None or is_count(e["next"])))
 
 
 def keys_state_problem(state: dict) -> str | None:
@@ -63,11 +63,12 @@ def keys_state_problem(state: dict) -> str | None:
     if state.get("cursor") is not None and _stretch_problem(state["cursor"], True):
         return "cursor"
     for name in ("lines", "fallbacks"):
-        if not _count(state.get(name)):
+        if not is_count(state.get(name)):
             return name
-    if state.get("truth") is not None and not _counts(state["truth"], TRUTH_COUNTS):
+    if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
         return "truth"
     return None
+
 
 #: The hidden folder under ``out`` that holds what a stretch's passes hand on.
 HIDDEN = ".keys"
@@ -165,7 +166,7 @@ class KeyRun:
     def start(self, *, force: bool = False) -> None:
         """Open (or resume) the run: the steps of stretches no longer in the plan forgotten, the key
         frames' labels written where they changed."""
-        state = open_state(self.out, self.identity, force=force, problem=keys_state_problem)
+        state = open_state(self.out, self.identity, force=force)
         if state is not None:
             self.state = state
         else:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import zipfile
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -210,12 +210,14 @@ def run_frames(state: dict, steps: list[bytes]) -> tuple[list[str], list[str]]:
     return [key], names
 
 
-def _count(value, lo: int = 0) -> bool:
+def is_count(value, lo: int = 0) -> bool:
+    """Whether ``value`` is an int (not a bool, not a float) of at least ``lo``, as run.json's counts are."""
     return type(value) is int and value >= lo
 
 
-def _counts(d, names: tuple[str, ...]) -> bool:
-    return isinstance(d, dict) and all(_count(d.get(k)) for k in names)
+def has_counts(d, names: tuple[str, ...]) -> bool:
+    """Whether ``d`` is a dict whose ``names`` are all counts (:func:`is_count`)."""
+    return isinstance(d, dict) and all(is_count(d.get(k)) for k in names)
 
 
 #: The counters of a run's running error (run.json's ``truth``, and each key-frame stretch's).
@@ -224,13 +226,13 @@ TRUTH_COUNTS = ("frames", "wrong", "known", "plain_wrong")
 
 def stream_state_problem(state: dict) -> str | None:
     """What in a one-key run's run.json is not as pcreg run writes it (the first field), or None."""
-    if not _count(state.get("done"), 1):
+    if not is_count(state.get("done"), 1):
         return "done"
-    if not _count(state.get("fallbacks")):
+    if not is_count(state.get("fallbacks")):
         return "fallbacks"
     if not isinstance(state.get("key_frame"), str):
         return "key_frame"
-    if state.get("truth") is not None and not _counts(state["truth"], TRUTH_COUNTS):
+    if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
         return "truth"
     return None
 
@@ -265,12 +267,11 @@ def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:
     return steps
 
 
-def open_state(out: Path, identity: dict | None, *, force: bool,
-               problem: Callable[[dict], str | None] = stream_state_problem) -> dict | None:
+def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
     """Make ``out`` (a folder) and read the run it holds: its run.json when it is a run of ``identity``
     (the same options and inputs), None when there is none or ``force`` starts over; a run of other
-    options, an unreadable run.json, or one whose fields are not as pcreg run writes them (``problem``
-    names the first) is an :class:`~pcreg.errors.OutputError`."""
+    options, an unreadable run.json, or one whose fields are not as pcreg run writes them
+    (:func:`state_problem`) is an :class:`~pcreg.errors.OutputError`."""
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
@@ -286,7 +287,7 @@ def open_state(out: Path, identity: dict | None, *, force: bool,
     if state.get("run") != identity:
         raise OutputError(f"{out} holds a run with other options{_differences(state.get('run'), identity or {})}; "
                           "use --force to start over or another --out")
-    field = problem(state)
+    field = state_problem(state)
     if field is not None:
         raise OutputError(f"{state_path}: its {field!r} is not as pcreg run writes it; use --force to start over")
     return state

@@ -24,8 +24,37 @@ _RECEIVED: list[int] = []
 _SHIELDED = [0]
 
 
+#: Seconds a stopping command has, from its first SIGINT or SIGTERM, to end by itself (finished units
+#: kept, exit 130); past them the process is ended with exit 130 all the same, so that a stop never waits
+#: without end, wherever the signal landed (a lock or a thread left waiting for work that will not come).
+STOP_GRACE_SECONDS = 60.0
+#: The armed watchdog's cancel event (:func:`_arm_watchdog`; set by :func:`restore_signals`).
+_WATCHDOG: list = []
+
+
+def _arm_watchdog() -> None:
+    """After the first signal: a daemon thread that ends the process with exit 130 once
+    :data:`STOP_GRACE_SECONDS` have passed without :func:`restore_signals` or the process's own exit."""
+    import os
+    import threading
+
+    cancel = threading.Event()
+    _WATCHDOG.append(cancel)
+
+    def watch() -> None:
+        if not cancel.wait(STOP_GRACE_SECONDS):
+            sys.stderr.write(f"pcreg: interrupted; still stopping after {STOP_GRACE_SECONDS:g} s, so ended now "
+                             "(finished units are kept)\n")
+            sys.stderr.flush()
+            os._exit(130)
+
+    threading.Thread(target=watch, name="pcreg-stop-watchdog", daemon=True).start()
+
+
 def _on_signal(signum, frame) -> None:
     _RECEIVED.append(signum)
+    if len(_RECEIVED) == 1:
+        _arm_watchdog()
     if not _SHIELDED[0]:
         raise KeyboardInterrupt
 
@@ -43,6 +72,8 @@ def interrupt_on_signals() -> dict:
     import signal
 
     _RECEIVED.clear()
+    while _WATCHDOG:  # one armed by an earlier command in this process, and never put back
+        _WATCHDOG.pop().set()
     _SHIELDED[0] = 0
     previous: dict = {}
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -58,7 +89,8 @@ def restore_signals(previous: dict) -> None:
     import signal
 
     _RECEIVED.clear()
-
+    while _WATCHDOG:
+        _WATCHDOG.pop().set()
     for signum, handler in previous.items():
         try:
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)

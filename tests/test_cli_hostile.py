@@ -150,3 +150,42 @@ def test_a_screenshot_size_the_headless_viewer_cannot_draw_is_refused_at_once(tm
     with pytest.raises(SystemExit, match="2"):
         main(["view", str(tmp_path / "r.rrd"), "--screenshot", str(tmp_path / "s.png"), "--size", size])
     assert "--size" in capsys.readouterr().err
+
+
+def test_a_stop_that_does_not_end_by_itself_is_ended_after_its_grace(tmp_path):
+    """Wherever the signal lands, a stopping command ends: past the grace from the first signal, the
+    watchdog ends the process with exit 130; a command that ends by itself puts the watchdog away."""
+    import textwrap
+    import threading
+
+    script = tmp_path / "stuck.py"
+    script.write_text(textwrap.dedent("""
+        import os, signal, threading
+        from pcreg import _runner
+        _runner.STOP_GRACE_SECONDS = 0.5
+        _runner.interrupt_on_signals()
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)  # handled at once: a KeyboardInterrupt here
+        except KeyboardInterrupt:
+            pass
+        never = threading.Event()
+        while True:  # a stop that never ends by itself: the interruption is swallowed, the wait goes on
+            try:
+                never.wait()
+            except KeyboardInterrupt:
+                pass
+    """))
+    p = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 130 and "still stopping after 0.5 s, so ended now" in p.stderr
+
+    from pcreg import _runner
+
+    previous = _runner.interrupt_on_signals()
+    try:
+        _runner._on_signal(15, None)
+    except KeyboardInterrupt:
+        pass
+    watchdog = next(t for t in threading.enumerate() if t.name == "pcreg-stop-watchdog")
+    _runner.restore_signals(previous)  # the command ended by itself: the watchdog stands down
+    watchdog.join(timeout=120)
+    assert not watchdog.is_alive() and not _runner._WATCHDOG

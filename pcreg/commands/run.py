@@ -335,7 +335,6 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.keys_run import KeyRun
-    from ..pipeline.working import WorkingSize
     from ..pipeline.stream_run import STATE
 
     source, out, folder = Path(args.folder), Path(args.out), Path(args.labels)
@@ -360,8 +359,8 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
         n = len(frames) if frames.kind == "folder" else frames.count()
         left = None if n is None else max(0, n - len(keys) - job.state["lines"])  # what the bar counts, not the run
         with progress(total=left, desc="frames", disable=None) as bar:
-            def on_frame(t, image, labels, report, name) -> None:
-                _log(rec, t, image, labels, report, name, WorkingSize(image.shape[:2], options.get("scale", 1.0)))
+            def on_frame(t, image, labels, report, name, size) -> None:
+                _log(rec, t, image, labels, report, name, size)
                 bar.update(1)
 
             done = job.run(on_frame=on_frame, check=check_interrupted)
@@ -380,20 +379,19 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     return 0
 
 
-def _log(rec: RecorderProtocol, t: int, image, labels, report, name: str, size=None) -> None:
+def _log(rec: RecorderProtocol, t: int, image, labels, report, name: str, size) -> None:
     """One frame into the recording; ``size``: the propagator's working size (its motion is logged in the
     frames' pixels)."""
     rec.set_frame(t)
     rec.log_images(moving=image)
     rec.log_labels(predicted=labels)
     reg = report.registration
-    scaled = size is not None and size.scaled
     if reg is None:
         rec.log_failure(f"{name}: {report.reason} (the key frame's labels, unwarped)")
         return
-    matrix = size.frame_matrix(reg.matrix) if scaled else reg.matrix
+    matrix = size.frame_matrix(reg.matrix)
     if getattr(reg, "field", None) is not None:
-        rec.log_dense(size.frame_field(reg.field) if scaled else reg.field, matrix=matrix,
-                      confidence=size.grow(reg.confidence) if scaled else reg.confidence)
+        rec.log_dense(size.frame_field(reg.field), matrix=matrix,
+                      confidence=None if reg.confidence is None else size.grow(reg.confidence))
     else:
         rec.log_transform(matrix)

@@ -221,7 +221,7 @@ class KeyRun:
 
     def run(self, on_frame: Callable | None = None, check: Callable[[], None] = lambda: None) -> int:
         """Label every stretch not done yet; returns how many frames this call labelled. ``on_frame(t,
-        image, labels, report, name)`` after each frame; ``check()`` before each step (an interruption)."""
+        image, labels, report, name, size)`` after each frame (``size``: the propagator's working size); ``check()`` before each step (an interruption)."""
         self.on_frame, self.check = on_frame, check
         done = {e["fingerprint"] for e in self.state["stretches"]}
         for s in self.plan:
@@ -443,7 +443,7 @@ class KeyRun:
         writer.submit(self._write_frame, cur, t, labels, conf, step, (truth, plain), prop.carry, prop.learned_later(),
                       after=after)
         if self.on_frame is not None:
-            self.on_frame(t, image, labels, prop.last, self.frames.name(t))
+            self.on_frame(t, image, labels, prop.last, self.frames.name(t), prop.working_size)
 
     def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, scored: tuple, carry, learned, *,
                      after: int) -> None:

@@ -91,14 +91,18 @@ class WorkingSize:
 
     def frame_matrix(self, matrix: np.ndarray) -> np.ndarray:
         """A 3x3 transform between two frames at the working size, in the frames' own pixels (pixel centres
-        kept: ``x = sx * x_w + (sx - 1) / 2``)."""
+        kept: ``x = sx * x_w + (sx - 1) / 2``); itself at full size."""
+        if not self.scaled:
+            return matrix
         sx, sy = self._ratios()
         S = np.array([[sx, 0.0, (sx - 1) / 2], [0.0, sy, (sy - 1) / 2], [0.0, 0.0, 1.0]])
         return S @ np.asarray(matrix, dtype=np.float64) @ np.linalg.inv(S)
 
     def frame_field(self, field: np.ndarray) -> np.ndarray:
         """An (h, w, 2) field of positions at the working size (each pixel's position in the other frame)
-        as an (H, W, 2) field of positions in the frames' own pixels, bilinearly."""
+        as an (H, W, 2) field of positions in the frames' own pixels, bilinearly; itself at full size."""
+        if not self.scaled:
+            return field
         import cv2
 
         sx, sy = self._ratios()

@@ -12,8 +12,8 @@ import numpy as np
 from ..classification.fusion import check_pi, fuse, labels_from_log_odds, prior_log_odds
 from ..errors import InputError
 
-__all__ = ["CONFIDENCE_SPAN", "class_prior", "fused_labels", "pixel_weight", "prior_on_moving", "warp_prior",
-           "warped_prior_log_odds"]
+__all__ = ["CONFIDENCE_SPAN", "class_prior", "fused_labels", "fused_log_odds", "pixel_weight", "prior_on_moving",
+           "warp_prior", "warped_prior_log_odds"]
 
 #: The prior's weight per pixel, as a multiple of the fusion weight, where a dense field's confidence is 0
 #: and where it is 1 (linear between): a factor of two either way. Where the field has the evidence of
@@ -87,6 +87,15 @@ def pixel_weight(weight: float, confidence: np.ndarray | None) -> float | np.nda
     return np.float32(weight) * (np.float32(lo) + np.float32(hi - lo) * c)
 
 
+def fused_log_odds(log_odds: np.ndarray, q: np.ndarray, confidence: np.ndarray | None, *, weight: float,
+                   pi: float) -> np.ndarray:
+    """(H, W) float32: the classifier's log-odds fused with a warped prior ``q`` (:func:`fused_labels`'
+    arguments), ``fuse(log_odds, prior_log_odds(q, pi=pi), weight=pixel_weight(weight, confidence))``:
+    what :func:`fused_labels` takes the sign of, for a caller that needs the numbers themselves (a
+    stream working below the frames' size brings them to the frames' size first)."""
+    return fuse(log_odds, prior_log_odds(q, pi=pi), weight=pixel_weight(weight, confidence))
+
+
 def fused_labels(log_odds: np.ndarray, q: np.ndarray, confidence: np.ndarray | None, *, weight: float,
                  pi: float) -> np.ndarray:
     """(H, W) uint8 labels of the classifier's log-odds fused with a warped prior, in one pass:
@@ -105,7 +114,7 @@ def fused_labels(log_odds: np.ndarray, q: np.ndarray, confidence: np.ndarray | N
     if d.shape != qq.shape or d.ndim != 2:
         raise ValueError(f"log-odds {d.shape} and prior {qq.shape} must be one (H, W) shape")  # a caller's bug
     if confidence is None or _fused_rows is None:  # pragma: no branch - numba is a declared dependency
-        return labels_from_log_odds(fuse(d, prior_log_odds(qq, pi=pi), weight=pixel_weight(weight, confidence)))
+        return labels_from_log_odds(fused_log_odds(d, qq, confidence, weight=weight, pi=pi))
     c = np.ascontiguousarray(confidence, dtype=np.float32)
     if c.shape != d.shape:
         raise ValueError(f"a confidence of shape {c.shape} for log-odds of shape {d.shape}")  # a caller's bug

@@ -89,10 +89,10 @@ import numpy as np
 
 from .._threads import both
 from ..classification.features import DEFAULT_FEATURES
-from ..classification.fusion import MAX_WEIGHT, FusionConfig, fuse, label_prior, prior_log_odds
+from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
 from .estimators import STREAM_DENSE, Carry, DenseEstimator, DenseStep, FlowEstimator, GlobalEstimator
 from .learning import STREAM_LEARNING, Learner, Learning
-from .prior import class_prior, fused_labels, pixel_weight, prior_on_moving
+from .prior import class_prior, fused_labels, fused_log_odds, prior_on_moving
 from .trust import STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
 from .working import WorkingSize
 from ..errors import InputError
@@ -413,7 +413,7 @@ class Propagator:
         confidence = None if motion is None else motion.confidence
         size = self._size
         if size is not None and size.scaled:  # the fused log-odds brought to the frames' size, then their sign
-            fused = fuse(d, prior_log_odds(q, pi=self._pi), weight=pixel_weight(self.weight, confidence))
+            fused = fused_log_odds(d, q, confidence, weight=self.weight, pi=self._pi)
             labels = (size.grow(fused) > 0).astype(np.uint8)
         else:
             labels = fused_labels(d, q, confidence, weight=self.weight, pi=self._pi)

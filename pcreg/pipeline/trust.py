@@ -367,7 +367,7 @@ class TrustedKey:
         t0 = time.perf_counter()
         dense_prior, dense_residual = self.carried(frame_blurred, field)
         t1 = time.perf_counter()
-        maps, prior, fused, _ = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
+        maps, prior, fused = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
                                                     field_confidence, flow)
         t2 = time.perf_counter()
         labels, confidence = read_labels(fused, log_odds, prior, self.rule, size=self.size)
@@ -377,9 +377,9 @@ class TrustedKey:
 
 def trusted_fusion(rule: TrustRule, weight: float, log_odds: np.ndarray, dense_prior: np.ndarray,
                    dense_residual: np.ndarray, confidence: np.ndarray | None,
-                   flow: tuple[np.ndarray, np.ndarray] | None) -> tuple[TrustMaps, np.ndarray, np.ndarray, np.ndarray]:
-    """``(maps, prior term, fused log-odds, labels)`` in one pass over the pixels: :func:`trust_maps`,
-    :meth:`TrustMaps.prior_term`, :func:`fused_log_odds` and the labels ``F > 0``, the same float32
+                   flow: tuple[np.ndarray, np.ndarray] | None) -> tuple[TrustMaps, np.ndarray, np.ndarray]:
+    """``(maps, prior term, fused log-odds)`` in one pass over the pixels: :func:`trust_maps`,
+    :meth:`TrustMaps.prior_term` and :func:`fused_log_odds`, the same float32
     operations pixel by pixel (an exponential may differ in its last bit from numpy's). ``flow``: the
     DIS prior and its residual, or None. The rows are split with the helper thread on large frames."""
     from .._threads import MIN_PIXELS, interleave
@@ -390,22 +390,22 @@ def trusted_fusion(rule: TrustRule, weight: float, log_odds: np.ndarray, dense_p
     c = np.full((1, 1), np.nan, np.float32) if confidence is None else np.ascontiguousarray(confidence, np.float32)
     lf, rf = (np.zeros((1, 1), np.float32),) * 2 if flow is None else (np.ascontiguousarray(a, np.float32) for a in flow)
     wd, wf = np.empty((h, w), np.float32), np.empty((h, w) if flow is not None else (1, 1), np.float32)
-    prior, fused, labels = np.empty((h, w), np.float32), np.empty((h, w), np.float32), np.empty((h, w), np.uint8)
+    prior, fused = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
     consts = (np.float32(weight * rule.dense), np.float32(weight * rule.flow), np.float32(-1.0 / rule.residual),
               confidence is not None, flow is not None)
     interleave(d.size, lambda first, stride: _trusted_rows(d, *arrays, c, lf, rf, *consts, wd, wf, prior, fused,
-                                                           labels, first, stride), min_items=MIN_PIXELS)
+                                                           first, stride), min_items=MIN_PIXELS)
     maps = TrustMaps(wd, arrays[0], wf if flow is not None else None, lf if flow is not None else None,
                      arrays[1], rf if flow is not None else None, None if confidence is None else c)
-    return maps, prior, fused, labels
+    return maps, prior, fused
 
 
 #: Rows per block of :func:`_trusted_rows_py` (two threads take alternate blocks).
 TRUSTED_BLOCK_ROWS = 16
 
 
-def _trusted_rows_py(d, ld, rd, conf, lf, rf, kd, kf, scale, has_conf, has_flow, wd, wf, prior, fused, labels,
-                     first, stride):
+def _trusted_rows_py(d, ld, rd, conf, lf, rf, kd, kf, scale, has_conf, has_flow, wd, wf, prior, fused, first,
+                     stride):
     """Rows of blocks ``first``, ``first + stride``, ... of :func:`trusted_fusion`, in the order of
     :func:`trust_maps` (``kd * (0.5 + 1.5 c) * exp(scale r)``, 0 where ``r`` is :data:`OUTSIDE`; the flow's
     ``kf * exp(scale r)``), :meth:`TrustMaps.prior_term` (the dense term first) and the fusion."""
@@ -432,9 +432,7 @@ def _trusted_rows_py(d, ld, rd, conf, lf, rf, kd, kf, scale, has_conf, has_flow,
                     wf[i, j] = a
                     p = p + a * lf[i, j]
                 prior[i, j] = p
-                f = d[i, j] + p
-                fused[i, j] = f
-                labels[i, j] = 1 if f > zero else 0
+                fused[i, j] = d[i, j] + p
 
 
 from .._jit import njit as _njit  # noqa: E402 - the kernel's compiler, after the pure-Python kernel it compiles

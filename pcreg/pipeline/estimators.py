@@ -18,6 +18,7 @@ once): the caller holds it, as :class:`pcreg.Propagator` holds its key frame's.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
@@ -118,7 +119,7 @@ STREAM_DENSE = DenseStep()
 @dataclass(frozen=True, eq=False)
 class Estimate:
     """What an estimator found: ``result`` (a registration result, a dense result with its field, or a
-    :class:`~pcreg.registration.motion.Motion` for a flow) or None with the ``reason``; ``start``: how a
+    :class:`~pcreg.registration.flow.FlowResult` for a flow) or None with the ``reason``; ``start``: how a
     dense registration started (``"cold"``, ``"warm"``, ``"restarted"``; None for the others);
     ``carry``: what the next estimate may start from (None: cold)."""
 
@@ -238,8 +239,9 @@ def pair_estimator(registration: RegisterConfig, *, callback: Callable | None = 
 
 class FlowEstimator:
     """OpenCV's DIS optical flow (:func:`pcreg.registration.flow.dis_field`) at ``preset``: a field with no
-    evidence of its own, never refused. A reference prepared once (:meth:`prepare`: its grey levels and
-    the pixel grid) is not converted again for every frame; the fields are the same."""
+    evidence of its own, never refused (a :class:`~pcreg.registration.flow.FlowResult`). A reference
+    prepared once (:meth:`prepare`: its grey levels and the pixel grid) is not converted again for every
+    frame; the fields are the same."""
 
     def __init__(self, preset: str = "medium") -> None:
         from ..registration.flow import PRESETS
@@ -267,11 +269,14 @@ class FlowEstimator:
         import cv2
 
         from ..frame import as_rgb_uint8
-        from ..registration.flow import dis_field, dis_flow
+        from ..registration.flow import FlowResult, dis_field, dis_flow
 
         if prepared is None:
-            return Estimate(Motion(field=dis_field(reference, image, preset=self.preset)[0]))
+            fld, seconds = dis_field(reference, image, preset=self.preset)
+            return Estimate(FlowResult(fld, self.preset, seconds))
         grey, xs, ys = prepared
+        t0 = time.perf_counter()
         frame = cv2.cvtColor(as_rgb_uint8(image, name="moving image"), cv2.COLOR_RGB2GRAY)
         flow = dis_flow(frame, grey, self.preset)
-        return Estimate(Motion(field=np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)))
+        fld = np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)
+        return Estimate(FlowResult(fld, self.preset, time.perf_counter() - t0))

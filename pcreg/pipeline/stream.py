@@ -11,9 +11,11 @@ Each :meth:`Propagator.step`
 
 1. registers the new frame to the key frame (``anchor="key"``, the default) or to the previous frame
    (``anchor="previous"``, the motions composed back to the key frame): with ``model="dense"`` (the
-   default) a dense field (:func:`pcreg.register_dense`), else one transform (:func:`pcreg.register`);
+   default) a dense field (:func:`pcreg.register_dense`), with ``model="flow"`` DIS optical flow at
+   ``preset`` (:func:`pcreg.registration.flow.dis_flow`), else one transform (:func:`pcreg.register`);
 2. warps the key frame's labels, as a smoothed prior, into the new frame along that motion, and along
-   a second motion found independently, DIS optical flow at its ultrafast preset;
+   a second motion found independently, DIS optical flow at its ultrafast preset (none when the first
+   motion is a flow already);
 3. classifies the new frame (naive Bayes log-odds) and fuses it with both priors, each weighted per
    pixel by how well the key frame carried along the same motion matches the new frame there (the
    trust rule, :mod:`pcreg.pipeline.trust`), and gives every label its confidence, the probability
@@ -105,8 +107,8 @@ if TYPE_CHECKING:
     from ..registration.dense import DenseReference
     from .estimators import Estimate
 
-__all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "DenseStep", "Carry", "STREAM_DENSE", "STREAM_REGISTRATION",
-           "STREAM_WEIGHT", "ANCHORS"]
+__all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "STREAM_MODELS", "DenseStep", "Carry", "STREAM_DENSE",
+           "STREAM_REGISTRATION", "STREAM_WEIGHT", "ANCHORS"]
 
 #: Stages timed by every step (seconds in :attr:`StepReport.times`).
 STEP_STAGES: tuple[str, ...] = ("register", "classify", "fuse", "total")
@@ -123,6 +125,9 @@ STEP_PARTS: dict[str, tuple[str, ...]] = {
     "classify": ("learn", "bayes", "flow"),
     "fuse": ("warp", "trust", "fusion", "confidence", "learn"),
 }
+#: The stream's motions beside the global models (:data:`pcreg.registration.transforms.MODELS`): a dense
+#: field, and DIS optical flow.
+STREAM_MODELS: tuple[str, ...] = ("dense", "flow")
 #: Where a frame is registered to: the key frame, or the previous frame (motions composed).
 ANCHORS: tuple[str, ...] = ("key", "previous")
 #: Fusion weight of the key frame's prior (see the module's docstring).
@@ -190,7 +195,8 @@ class Propagator:
 
     classifier : a fitted ground/obstacle naive Bayes (:func:`pcreg.fit_classifier` on the key frame and
         its labels is the usual choice; it needs ``decision_function`` and ``class_prior_``).
-    model : ``"dense"`` (default) or a global motion model (``similarity``, ``projective``, ...).
+    model : ``"dense"`` (default), ``"flow"`` (DIS optical flow at ``preset`` from each frame to the key
+        frame: the fast choice, see ``preset``) or a global motion model (``similarity``, ``projective``, ...).
     anchor : ``"key"`` (default) or ``"previous"`` (:data:`ANCHORS`).
     backend, init : the registration's (:func:`pcreg.register`, also the dense model's global step).
     register : further :class:`~pcreg.registration.config.RegisterConfig` options (levels, iterations,
@@ -209,13 +215,18 @@ class Propagator:
         runs at (:mod:`pcreg.pipeline.working`); the labels and their confidence come back at the frames'
         size, the report's other maps (log-odds, trust map, field) are at the working size. 0.5 runs a
         640x480 step in 0.53-0.56 of the time, for 48.4% below plain instead of 49.7% on the shared CamVid clips.
+    preset : with ``model="flow"``, DIS's preset (``"ultrafast"``, ``"fast"``, ``"medium"``, the default);
+        the trust rule then carries no second motion, and learning and the confidence are as with the
+        dense field. On the shared CamVid clips (docs/results.md, "The flow model") ``medium`` at
+        ``scale=0.5`` labels 47% below plain at a quarter of the default step's time, ``fast`` at half
+        size 43% at an eighth.
     """
 
     def __init__(self, classifier, *, model: str = "dense", anchor: str = "key", backend: str = "reference",
                  init: str = "identity", register: RegisterConfig | None = None, dense: DenseStep = STREAM_DENSE,
                  weight: float = STREAM_WEIGHT, fusion: FusionConfig = FusionConfig(),
                  trust: TrustRule | None = STREAM_TRUST, learning: Learning | None = STREAM_LEARNING,
-                 scale: float = 1.0) -> None:
+                 scale: float = 1.0, preset: str = "medium") -> None:
         from ..registration.transforms import MODELS
         from ..validation import check_float, short_repr
 
@@ -226,8 +237,8 @@ class Propagator:
         classes = list(np.asarray(getattr(classifier, "classes_", [0, 1])).tolist())
         if classes != [0, 1]:
             raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}")
-        if not isinstance(model, str) or model not in MODELS + ("dense",):
-            raise InputError(f"unknown model {short_repr(model)}; choose dense or one of {', '.join(MODELS)}")
+        if not isinstance(model, str) or model not in STREAM_MODELS + MODELS:
+            raise InputError(f"unknown model {short_repr(model)}; choose dense, flow or one of {', '.join(MODELS)}")
         if not isinstance(anchor, str) or anchor not in ANCHORS:
             raise InputError(f"unknown anchor {short_repr(anchor)}; choose one of {', '.join(ANCHORS)}")
         check_float(weight, "weight", lo=0, hi=MAX_WEIGHT)
@@ -246,15 +257,21 @@ class Propagator:
         self.scale = check_float(scale, "scale", lo=0, lo_open=True, hi=1)
         base = register or STREAM_REGISTRATION
         self.config = base.replace(backend=backend, init=init,
-                                   model=base.model if model == "dense" else model)
+                                   model=base.model if model in STREAM_MODELS else model)
         self.dense = dense
         # the dense registration's options, cold and warm, checked once here
         from ..registration.dense import DenseOptions, GlobalStep
 
         base = DenseOptions(seed=self.config.search.seed, global_step=GlobalStep(backend=self.config.backend))
         self._dense_options = (dense.options(base), dense.options(base, warm=True))
-        self._estimator: DenseEstimator | GlobalEstimator = (
-            DenseEstimator(self.config, dense, *self._dense_options) if model == "dense" else GlobalEstimator(self.config))
+        from ..registration.flow import PRESETS
+
+        if not isinstance(preset, str) or preset not in PRESETS:
+            raise InputError(f"unknown DIS preset {short_repr(preset)}; choose one of {', '.join(PRESETS)}")
+        self.preset = preset
+        self._estimator: DenseEstimator | FlowEstimator | GlobalEstimator = (
+            DenseEstimator(self.config, dense, *self._dense_options) if model == "dense"
+            else FlowEstimator(preset) if model == "flow" else GlobalEstimator(self.config))
         self.weight = float(weight)
         self.fusion = fusion
         self.trust = trust
@@ -268,8 +285,8 @@ class Propagator:
         self._size: WorkingSize | None = None
         self._key_prior: np.ndarray | None = None
         self._key_trusted: TrustedKey | None = None  # its prior and colours as the trust rule reads them
-        self._key_flow: tuple | None = None  # its grey levels and grid for DIS
-        self._key_prepared: DenseReference | None = None  # its pyramid for the dense registration
+        self._key_flow: tuple | None = None  # its grey levels and grid for the second motion's DIS
+        self._key_prepared: DenseReference | tuple | None = None  # its pyramid (dense) or grey levels (flow)
         self._chain: tuple[PreparedFrame, Motion | None, int] | None = None  # (frame, motion to the key frame, frame)
         self._carry: Carry | None = None
         self._frame = 0
@@ -297,7 +314,7 @@ class Propagator:
         full = PreparedFrame.of(image, name="key frame")
         lab = _check_labels(labels, full.shape)
         self._size = size = WorkingSize(full.shape, self.scale)
-        if size.scaled:  # a working size the registration cannot take: refused here, in the user's words
+        if size.scaled or self.model == "flow":  # a size the motion cannot take: refused here, in the user's words
             self._check_working_size(size)
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
@@ -306,13 +323,13 @@ class Propagator:
         if self.trust is not None:
             self._key_trusted = TrustedKey(self.trust, self.weight, key.rgb, prior_log_odds(self._key_prior, pi=self._pi),
                                            size)
-            if min(key.shape) >= DIS_MIN_SIDE:  # smaller frames have no second motion: DIS does not take them
+            if min(key.shape) >= DIS_MIN_SIDE and self.model != "flow":  # smaller frames have no second
+                # motion (DIS does not take them), nor has a flow: it would be the same motion twice
                 self._key_flow = self._flow.prepare(key)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         self._key_prepared = None
-        if self.model == "dense" and self.anchor == "key":  # every frame registers to it: its pyramid once
-            assert isinstance(self._estimator, DenseEstimator)
-            self._key_prepared = self._estimator.prepare(key)
+        if self.anchor == "key" and isinstance(self._estimator, (DenseEstimator, FlowEstimator)):
+            self._key_prepared = self._estimator.prepare(key)  # every frame registers to it: prepared once
         self._chain = (key, None, 0)
         self._carry = None
         self._frame = 0
@@ -321,14 +338,18 @@ class Propagator:
     def _check_working_size(self, size: WorkingSize) -> None:
         """Refuse a working size the registration cannot take (its pyramid's levels, the dense grid's
         spacing) when the key frame comes, naming the scale, instead of at the first frame."""
+        (H, W), (h, w) = size.frame, size.shape
         try:
+            if self.model == "flow" and min(h, w) < DIS_MIN_SIDE:
+                raise InputError(f"DIS optical flow takes at least {DIS_MIN_SIDE} px a side")
             if self.model == "dense":
                 self._dense_options[0].check_shape(size.shape)
-            if self.model != "dense" or self.dense.global_start == "register":
+            if self.model not in STREAM_MODELS or (self.model == "dense" and self.dense.global_start == "register"):
                 self.config.pyramid.check_shape(size.shape)
         except InputError as exc:
-            (H, W), (h, w) = size.frame, size.shape
-            what = "dense registration" if self.model == "dense" else f"{self.model} registration"
+            if not size.scaled:
+                raise InputError(f"frames of {W}x{H} are too small for the {self.model} model ({exc})") from None
+            what = {"dense": "dense registration", "flow": "optical flow"}.get(self.model, f"{self.model} registration")
             raise InputError(f"scale {self.scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
                              f"{what} ({exc}); choose a larger scale") from None
 

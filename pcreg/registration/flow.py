@@ -8,6 +8,8 @@ the evaluations run it beside pcreg's own dense registration (:mod:`pcreg.regist
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from dataclasses import field as _field
 
 import cv2
 import numpy as np
@@ -15,7 +17,7 @@ import numpy as np
 from ..errors import InputError
 from .clouds import as_rgb_uint8
 
-__all__ = ["PRESETS", "DIS_MIN_SIDE", "dis_field", "dis_flow"]
+__all__ = ["PRESETS", "DIS_MIN_SIDE", "FlowResult", "dis_field", "dis_flow"]
 
 PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
            "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
@@ -53,3 +55,32 @@ def dis_field(reference_image: np.ndarray, moving_image: np.ndarray, *, preset: 
     h, w = g_mov.shape
     xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     return np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32), seconds
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class FlowResult:
+    """A DIS flow as a registration result (a stream's motion with ``model="flow"``): ``field`` (H, W, 2)
+    float32, reference coordinates of every moving pixel; ``preset``; ``seconds`` the flow took. A flow
+    has no global transform (``matrix`` is the identity) and no confidence of its own (None)."""
+
+    field: np.ndarray
+    preset: str
+    seconds: float
+    matrix: np.ndarray = _field(default_factory=lambda: np.eye(3), init=False)
+    confidence: None = _field(default=None, init=False)
+
+    def __post_init__(self) -> None:
+        self.field.setflags(write=False)  # the motion made of it keeps it as it is, uncopied
+
+    def __repr__(self) -> str:
+        h, w = self.field.shape[:2]
+        return f"FlowResult(field={w}x{h}, preset={self.preset!r})"
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary: the model, the preset, the seconds and the displacement's median (every
+        second pixel along each axis) and largest length, px."""
+        h, w = self.field.shape[:2]
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        disp = cv2.magnitude(self.field[:, :, 0] - xs, self.field[:, :, 1] - ys)
+        return {"model": "flow", "preset": self.preset, "seconds": float(self.seconds),
+                "median_displacement": float(np.median(disp[::2, ::2])), "max_displacement": float(disp.max())}

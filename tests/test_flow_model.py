@@ -1,0 +1,130 @@
+"""A stream whose motion is DIS optical flow (``Propagator(model="flow")``, ``pcreg run --model flow``): the
+trust rule, learning and the confidence on a flow, no second motion, refused where DIS cannot run."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.errors import InputError
+from pcreg.registration.flow import FlowResult
+from _runs import one_line_errors
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return pcreg.synthetic("syn1a", 7, 0, width=320, height=240)
+
+
+def _errors(prop, frames):
+    return [pcreg.error_rate(prop.step(f.image), f.labels) for f in frames[1:]]
+
+
+@pytest.mark.parametrize("preset, scale", [("medium", 1.0), ("fast", 0.5), ("ultrafast", 1.0)])
+def test_a_flow_stream_labels_better_than_naive_bayes_with_one_motion_and_a_confidence(frames, preset, scale):
+    key = frames[0]
+    clf = pcreg.fit_classifier([key])
+    prop = pcreg.Propagator(clf, model="flow", preset=preset, scale=scale)
+    prop.reset(key.image, key.labels)
+    errors, reports = [], []
+    for f in frames[1:]:
+        errors.append(pcreg.error_rate(prop.step(f.image), f.labels))
+        reports.append(prop.last)
+    plain = [pcreg.error_rate(clf.predict(f.image), f.labels) for f in frames[1:]]
+    assert np.mean(errors) < 0.7 * np.mean(plain)
+    for r in reports:
+        assert isinstance(r.registration, FlowResult) and r.registration.preset == preset and r.start is None
+        d = r.to_dict()["registration"]
+        assert d["model"] == "flow" and d["preset"] == preset and d["median_displacement"] >= 0
+        assert r.trust.flow is None and r.trust.dense is not None  # the flow's prior alone: no second motion
+        assert r.confidence.shape == (240, 320) and 0.5 <= float(r.confidence.min())
+    assert prop.carry is None and not prop.warm_starts  # a flow starts from nothing: every step stands alone
+
+
+def test_a_flow_stream_is_a_function_of_the_key_frame_and_the_frame(frames):
+    # no state carried from step to step (learning aside): the same frame after other frames gives the same labels
+    key = frames[0]
+    clf = pcreg.fit_classifier([key])
+    a = pcreg.Propagator(clf, model="flow", learning=None)
+    a.reset(key.image, key.labels)
+    b = pcreg.Propagator(clf, model="flow", learning=None)
+    b.reset(key.image, key.labels)
+    for f in frames[1:4]:
+        a.step(f.image)
+    np.testing.assert_array_equal(a.step(frames[4].image), b.step(frames[4].image))
+
+
+def test_the_flow_model_on_camvid_beats_plain_and_the_unmoved_key_frame(shared_data):
+    from pcreg.datasets import load_folder
+
+    clip = load_folder(shared_data / "camvid" / "0016E5")[:12]
+    key = clip[0]
+    clf = pcreg.fit_classifier([key])
+    prop = pcreg.Propagator(clf, model="flow", preset="fast", scale=0.5)
+    prop.reset(key.image, key.labels)
+    ours = _errors(prop, clip)
+    plain = [pcreg.error_rate(clf.predict(f.image), f.labels) for f in clip[1:]]
+    unmoved_errors = [pcreg.error_rate(key.labels, f.labels) for f in clip[1:]]
+    assert np.mean(ours) < 0.75 * np.mean(plain)
+    assert np.mean(ours) < np.mean(unmoved_errors)
+
+
+def test_bad_presets_and_frames_too_small_for_dis_are_refused(frames):
+    clf = pcreg.fit_classifier([frames[0]])
+    for bad in ("slow", None, 3):
+        with pytest.raises(InputError, match="preset"):
+            pcreg.Propagator(clf, model="flow", preset=bad)
+    tiny = cv2.resize(frames[0].image, (40, 30))
+    prop = pcreg.Propagator(clf, model="flow")
+    with pytest.raises(InputError, match="40x30 are too small for the flow model"):
+        prop.reset(tiny, np.zeros((30, 40), np.uint8))
+    with pytest.raises(InputError, match=r"scale 0.1 works at 32x24 .* optical flow"):
+        pcreg.Propagator(clf, model="flow", scale=0.1).reset(frames[0].image, frames[0].labels)
+    # the dense model takes what DIS cannot: its second motion is left out instead
+    dense = pcreg.Propagator(clf)
+    dense.reset(cv2.resize(frames[0].image, (64, 30)), np.zeros((30, 64), np.uint8))
+
+
+def test_the_flow_model_anchored_to_the_previous_frame(frames):
+    key = frames[0]
+    clf = pcreg.fit_classifier([key])
+    prop = pcreg.Propagator(clf, model="flow", anchor="previous")
+    prop.reset(key.image, key.labels)
+    errors = _errors(prop, frames)
+    plain = [pcreg.error_rate(clf.predict(f.image), f.labels) for f in frames[1:]]
+    assert np.mean(errors) < np.mean(plain)
+    assert prop.last.reference == len(frames) - 2
+
+
+def test_run_with_the_flow_model_keeps_its_preset(tmp_path, frames, capsys):
+    folder, keys = tmp_path / "frames", tmp_path / "keys"
+    folder.mkdir()
+    keys.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(keys / "f0.png"), frames[0].labels)
+    cv2.imwrite(str(keys / "f4.png"), frames[4].labels)
+    out = tmp_path / "out"
+    args = ["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(out), "--model", "flow"]
+    assert main([*args, "--preset", "fast", "--scale", "0.5"]) == 0
+    capsys.readouterr()
+    assert main([*args, "--scale", "0.5"]) == 2  # continued with another preset: refused, not mixed
+    assert "preset: 'fast' then, 'medium' now" in one_line_errors(capsys)[-1]
+    assert main([*args, "--preset", "fast", "--scale", "0.5"]) == 0
+    assert "all 7 frames already done" in capsys.readouterr().out
+    for i in range(1, 7):
+        labels = cv2.imread(str(out / f"f{i}.png"), cv2.IMREAD_UNCHANGED)
+        assert labels.shape == (240, 320) and pcreg.error_rate(labels, frames[i].labels) < 10
+    # key frames at both ends of a stretch
+    two = tmp_path / "two"
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(two), "--model", "flow"]) == 0
+    for i in (1, 2, 3, 5, 6):
+        assert pcreg.error_rate(cv2.imread(str(two / f"f{i}.png"), cv2.IMREAD_UNCHANGED), frames[i].labels) < 10
+    capsys.readouterr()
+    assert main(["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(tmp_path / "x"),
+                 "--preset", "fast"]) == 2  # a preset without the flow model
+    assert "--preset is DIS's, for --model flow" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

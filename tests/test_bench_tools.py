@@ -152,6 +152,8 @@ def test_bench_pipeline_times_the_default_step_and_its_stages(tmp_path):
     assert "the trust map and learning add <= 15% to the step" in md and st["fuse.trust"] > 0
     assert "without the second motion" in md and "without learning" in md  # what each part of the trust costs
     assert "Propagator.step at half size / DIS fast <= 1" in md and 0 < s["ratio_half_over_step"]
+    assert "DIS medium's flow at a quarter size (trust and learning on) / DIS fast <= 1" in md
+    assert 0 < s["ratio_flow_quarter_over_dis_fast"] and 0 <= s["mean_error"]["flow_half"] <= 100
     assert (out / "bench_pipeline.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert bench.main(["--out", str(out), "--frames", "2"]) == 2
 
@@ -160,9 +162,10 @@ def test_sweep_scale_scores_each_working_size_beside_dis(tmp_path):
     sweep = _load("sweep_scale")
     out = tmp_path / "sweep"
     assert sweep.main(["--out", str(out), "--data", "synthetic:syn1a,syn2b", "--frames", "3", "--scales", "1,0.5",
-                       "--workers", "1"]) == 0
+                       "--flow-presets", "fast", "--flow-scales", "0.5", "--workers", "1"]) == 0
     r = json.loads((out / "sweep_scale.json").read_text())
-    assert set(r["reduction"]) == {"scale 1", "scale 0.5", *sweep.BASELINES, *(f"{m} blurred" for m in sweep.BASELINES)}
+    assert set(r["reduction"]) == {"scale 1", "scale 0.5", "flow fast, scale 0.5", *sweep.BASELINES,
+                                   *(f"{m} blurred" for m in sweep.BASELINES)}
     assert all(len(v) == 2 for v in r["reduction"].values()) and all(v > 0 for v in r["median_ms"].values())
     assert r["reduction"]["scale 0.5"] != r["reduction"]["scale 1"]  # the working size changed the labels
     assert "| scale 0.5 |" in (out / "sweep_scale.md").read_text()

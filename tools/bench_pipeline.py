@@ -11,8 +11,10 @@ Every frame t of a stream goes, in the same run and in an alternating order, thr
   cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)``), from frame t to the key frame, grey conversion included:
   the motion only, no labels;
 - ``step_half``: the same step at half the frames' width and height (``Propagator(scale=0.5)``,
-  ``pcreg run --scale 0.5``), its labels brought back to 640x480; and the step without parts of its
-  trust rule, to show what each costs.
+  ``pcreg run --scale 0.5``), its labels brought back to 640x480; ``step_flow_half`` and
+  ``step_flow_quarter``: the step with DIS's flow (medium preset) as its motion at half and a quarter of
+  the size (``pcreg run --model flow --scale S``), the trust rule, learning and the confidence on; and the
+  step without parts of its trust rule, to show what each costs.
 
 Both use the machine's cores: DIS through OpenCV's threads, the step through pcreg's helper thread
 (:mod:`pcreg._threads`: half of each search, the frame's classification during the registration, ...).
@@ -52,11 +54,14 @@ TARGET_VS_DIS = 1.0
 #: (the default step against the same step with ``trust=None``, which also turns learning off).
 TARGET_TRUST_SHARE = 0.15
 SIZE = (640, 480)
-METHODS = ("step", "step_half", "step_no_trust", "step_no_flow", "step_no_learning", "dis_medium", "dis_fast",
-           "dis_ultrafast")
+METHODS = ("step", "step_half", "step_flow_half", "step_flow_quarter", "step_no_trust", "step_no_flow",
+           "step_no_learning", "dis_medium", "dis_fast", "dis_ultrafast")
 #: The step's variants beside the default (what each part of the trust rule costs): Propagator options.
-VARIANTS = {"step_half": {"scale": 0.5}, "step_no_trust": {"trust": None, "learning": None}, "step_no_flow": {"flow": 0.0},
-            "step_no_learning": {"learning": None}}
+VARIANTS = {"step_half": {"scale": 0.5}, "step_flow_half": {"model": "flow", "scale": 0.5},
+            "step_flow_quarter": {"model": "flow", "scale": 0.25}, "step_no_trust": {"trust": None, "learning": None},
+            "step_no_flow": {"flow": 0.0}, "step_no_learning": {"learning": None}}
+#: The variants whose labels are scored (outside the clock), and the name of their error.
+SCORED = {"step_half": "half", "step_flow_half": "flow_half", "step_flow_quarter": "flow_quarter"}
 PRESETS = {"dis_medium": "MEDIUM", "dis_fast": "FAST", "dis_ultrafast": "ULTRAFAST"}
 
 
@@ -120,15 +125,14 @@ def bench_stream(frames) -> dict:
     for t in range(1, len(frames)):
         mov = frames[t]
         row = {"frame": mov.name, "ms": {}}
+        outs: dict = {}
         order = METHODS if t % 2 else METHODS[::-1]
         for m in order:
             t0 = time.perf_counter()
             if m == "step":
                 labels = prop.step(mov.image)
             elif m in variants:
-                out = variants[m].step(mov.image)
-                if m == "step_half":
-                    half_labels = out
+                outs[m] = variants[m].step(mov.image)
             elif m == "dis_medium":
                 flow = dis_flow(mov.image)
             else:
@@ -139,7 +143,8 @@ def bench_stream(frames) -> dict:
         row["registered"] = last.registered
         row["start"] = last.start
         row["error_step"] = pcreg.error_rate(labels, mov.labels)
-        row["error_half"] = pcreg.error_rate(half_labels, mov.labels)  # outside the clock, as the step's
+        for m, what in SCORED.items():  # outside the clock, as the step's
+            row[f"error_{what}"] = pcreg.error_rate(outs[m], mov.labels)
         d = np.asarray(clf.decision_function(mov.image), dtype=np.float32)
         row["error_naive_bayes"] = pcreg.error_rate(labels_from_log_odds(d), mov.labels)
         q, _ = warp_prior(key_prior, grid + flow, shape=d.shape, pi=pi)
@@ -152,11 +157,13 @@ def bench_stream(frames) -> dict:
             "ratio_step_over_dis": float(np.median([r["ms"]["step"] / r["ms"]["dis_medium"] for r in rows])),
             "ratio_step_over_dis_fast": float(np.median([r["ms"]["step"] / r["ms"]["dis_fast"] for r in rows])),
             "ratio_half_over_dis_fast": float(np.median([r["ms"]["step_half"] / r["ms"]["dis_fast"] for r in rows])),
+            **{f"ratio_{what}_over_dis_fast": float(np.median([r["ms"][m] / r["ms"]["dis_fast"] for r in rows]))
+               for m, what in SCORED.items() if m != "step_half"},
             "ratio_half_over_step": float(np.median([r["ms"]["step_half"] / r["ms"]["step"] for r in rows])),
             "ratio_step_over_no_trust": float(np.median([r["ms"]["step"] / r["ms"]["step_no_trust"] for r in rows])),
             "stages_median_ms": {s: float(np.nanmedian([r["stages_ms"][s] for r in rows])) for s in stages},
             "mean_error": {k: float(np.nanmean([r[f"error_{k}"] for r in rows]))
-                           for k in ("step", "half", "naive_bayes", "dis_prior")},
+                           for k in ("step", *SCORED.values(), "naive_bayes", "dis_prior")},
             "refused": int(sum(not r["registered"] for r in rows)),
             "starts": {k: sum(r["start"] == k for r in rows) for k in ("cold", "warm", "restarted")}}
 
@@ -174,6 +181,10 @@ def render(report: dict) -> str:
                  s["p90_ms"]["step"], s["mean_error"]["step"]],
                 ["Propagator.step at half size (scale=0.5: the step on the frame resized, the labels brought back)",
                  s["median_ms"]["step_half"], s["p90_ms"]["step_half"], s["mean_error"]["half"]],
+                *([[f"Propagator.step on DIS medium's flow at {what} size (model=\"flow\", scale={sc:g}; trust, learning)",
+                    s["median_ms"][m], s["p90_ms"][m], s["mean_error"][SCORED[m]]]
+                   for m, what, sc in (("step_flow_half", "half", 0.5), ("step_flow_quarter", "a quarter", 0.25))
+                   if m in s["median_ms"]]),
                 ["Propagator.step with trust=None (one prior, no learning)", s["median_ms"]["step_no_trust"],
                  s["p90_ms"]["step_no_trust"], float("nan")],
                 *([[f"Propagator.step without {what}", s["median_ms"][m], s["p90_ms"][m], float("nan")]
@@ -211,6 +222,10 @@ def render(report: dict) -> str:
         r = s["ratio_half_over_dis_fast"]
         checks.append((f"{name}: Propagator.step at half size / DIS fast <= {TARGET_VS_DIS_FAST:g}", f"{r:.2f}",
                        r <= TARGET_VS_DIS_FAST))
+        for what, label in (("flow_half", "half"), ("flow_quarter", "a quarter")):
+            r = s[f"ratio_{what}_over_dis_fast"]
+            checks.append((f"{name}: Propagator.step on DIS medium's flow at {label} size (trust and learning on) / "
+                           f"DIS fast <= {TARGET_VS_DIS_FAST:g}", f"{r:.2f}", r <= TARGET_VS_DIS_FAST))
         r = s["ratio_step_over_dis"]
         checks.append((f"{name}: Propagator.step (default) / DIS medium <= {TARGET_VS_DIS:g}", f"{r:.2f}", r <= TARGET_VS_DIS))
         r = s["ratio_step_over_no_trust"] - 1.0

@@ -11,6 +11,7 @@ key frames instead (``--labels FOLDER``: every N-th frame's labels and the last 
 between two key frames labelled from both (two steps a frame).
 
     python tools/bench_run.py --out out/bench [--times 1] [--repeats 5] [--fsync-ms 0] [--key-every 0] [--scale 1]
+        [--model dense|flow] [--preset medium]
 
 Writes bench_run.json and bench_run.md; the target of a run from one key frame (15 frames a second, the
 whole command, median of the runs) is in its checks table.
@@ -82,14 +83,16 @@ def write_keys(clip: Path, work: Path, n: int, every: int) -> tuple[Path, int]:
     return folder, len(chosen)
 
 
-def run_once(folder: Path, key: Path, out: Path, fsync_ms: float, keys: int = 1, scale: float = 1.0) -> tuple[float, float]:
+def run_once(folder: Path, key: Path, out: Path, fsync_ms: float, keys: int = 1, scale: float = 1.0,
+             options: tuple[str, ...] = ()) -> tuple[float, float]:
     """``(seconds of the whole command, frames a second of its loop)``; a failure stops the benchmark.
     ``key``: a label image, or a folder of ``keys`` key frames' labels (written first, left out of the loop);
-    ``scale``: ``pcreg run --scale``."""
+    ``scale``: ``pcreg run --scale``; ``options``: more of pcreg run's arguments."""
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
     p = subprocess.run([sys.executable, "-c", _RUN, str(fsync_ms), "run", str(folder), "--labels", str(key),
-                        "--out", str(out), *(["--scale", f"{scale:g}"] if scale != 1 else [])], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                        "--out", str(out), *(["--scale", f"{scale:g}"] if scale != 1 else []), *options],
+                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     seconds = time.perf_counter() - t0
     if p.returncode != 0:
         raise SystemExit(f"pcreg run failed ({p.returncode}): {p.stderr.strip()}")
@@ -108,7 +111,10 @@ def main(argv=None) -> int:
     ap.add_argument("--key-every", type=int, default=0,
                     help="label from key frames every N frames and the last (--labels FOLDER) instead of the first")
     ap.add_argument("--scale", type=float, default=1.0, help="pcreg run's --scale (default 1: full size)")
+    ap.add_argument("--model", default="dense", help="pcreg run's --model (default dense)")
+    ap.add_argument("--preset", default=None, help="pcreg run's --preset, with --model flow")
     args = ap.parse_args(argv)
+    options = ("--model", args.model, *(("--preset", args.preset) if args.preset else ()))
     clip = Path(args.data) / args.clip
     if not clip.is_dir():
         print(f"{clip} not found: the benchmark needs the shared CamVid clips", file=sys.stderr)
@@ -118,17 +124,19 @@ def main(argv=None) -> int:
         keys = 1
         if args.key_every > 0:
             key, keys = write_keys(clip, Path(tmp), n, args.key_every)
-        runs = [run_once(folder, key, Path(tmp) / "out", args.fsync_ms, keys, args.scale)
+        runs = [run_once(folder, key, Path(tmp) / "out", args.fsync_ms, keys, args.scale, options)
                 for _ in range(max(1, args.repeats))]
     whole = [(n - keys) / s for s, _ in runs]
     loop = [r for _, r in runs]
     report = {"machine": machine_info(), "clip": args.clip, "frames": n, "key_frames": keys, "fsync_ms": args.fsync_ms, "scale": args.scale,
+              "model": args.model, "preset": args.preset,
               "whole_fps": whole, "loop_fps": loop, "median_whole_fps": float(np.median(whole)),
               "median_loop_fps": float(np.median(loop))}
     md = (f"## `pcreg run` on {n} frames of CamVid {args.clip} at 640x480"
           f"{f', from {keys} key frames (every {args.key_every}th and the last)' if args.key_every > 0 else ''}"
           f"{f', every fsync {args.fsync_ms:g} ms slower' if args.fsync_ms else ''}"
-          f"{f', --scale {args.scale:g}' if args.scale != 1 else ''}\n\n"
+          f"{f', --scale {args.scale:g}' if args.scale != 1 else ''}"
+          f"{f', --model {args.model}' if args.model != 'dense' else ''}{f' --preset {args.preset}' if args.preset else ''}\n\n"
           f"| run | frames a second, the whole command | frames a second, its loop |\n|---|---|---|\n"
           + "".join(f"| {i + 1} | {w:.1f} | {r:.1f} |\n" for i, (w, r) in enumerate(zip(whole, loop)))
           + f"| **median** | **{report['median_whole_fps']:.1f}** | **{report['median_loop_fps']:.1f}** |\n\n"

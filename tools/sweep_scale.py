@@ -1,11 +1,13 @@
 """What each working size costs and gives: pcreg's labels at several ``scale``s against DIS's three presets.
 
     python tools/sweep_scale.py --data camvid:../shared/data/camvid --out out/sweep_scale [--scales 1,0.75,0.5,0.375,0.25]
-        [--workers 2] [--frames N]
+        [--flow-presets medium,fast,ultrafast] [--flow-scales 1,0.5,0.25] [--workers 2] [--frames N]
 
 Each clip is labelled from its first frame, in one run, by the propagator as ``pcreg run --scale S`` makes it
 for each ``S`` (the whole step on the frames resized, the labels and confidence brought back to the
-frames' size; :mod:`pcreg.pipeline.working`) and by the DIS baselines of ``pcreg evaluate stream`` (the
+frames' size; :mod:`pcreg.pipeline.working`), by the same with DIS's flow as its motion
+(``pcreg run --model flow --preset P --scale S``: the trust rule, learning and the confidence on the flow)
+for each preset and size, and by the DIS baselines of ``pcreg evaluate stream`` (the
 key frame's prior along DIS's flow from the key frame, medium, fast and ultrafast presets; and the same
 with their fused log-odds blurred as pcreg's labels read them, :func:`pcreg.pipeline.trust.smoothed`,
 since the blur helps every method). Per clip: the
@@ -35,7 +37,7 @@ BASELINES = ("flow_key", "flowfast_key", "flowultrafast_key")
 
 def clip(args: tuple) -> dict:
     """Mean error % and median ms a frame of each method on one clip."""
-    frames, scales = args
+    frames, scales, flow_presets, flow_scales = args
     import pcreg
     from pcreg.classification.metrics import error_rate
     from pcreg.experiments.stream import PRESET_OF, _Flow, make_method
@@ -45,6 +47,8 @@ def clip(args: tuple) -> dict:
     key = frames[0]
     clf = pcreg.fit_classifier([key])
     methods = {f"scale {s:g}": pcreg.Propagator(clf, scale=s) for s in scales}
+    methods.update({f"flow {p}, scale {s:g}": pcreg.Propagator(clf, model="flow", preset=p, scale=s)
+                    for p in flow_presets for s in flow_scales})
     methods["plain"] = make_method("plain", clf, "reference")
     flows = {m: _Flow(clf, "key", PRESET_OF[m.split("_")[0]]) for m in BASELINES}
     for m in (*methods.values(), *flows.values()):
@@ -78,14 +82,21 @@ def figure(points: list[tuple[str, float, float]]):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = plt.subplots(figsize=(7.2, 4.6))
     ours = sorted([p for p in points if p[0].startswith("scale")], key=lambda p: p[1])
     ax.plot([p[1] for p in ours], [p[2] for p in ours], "o-", color="C3", label="pcreg at each working size")
     for name, x, y in ours:
         ax.annotate(name.replace("scale ", ""), (x, y), textcoords="offset points", xytext=(4, 5), fontsize=8)
+    presets = sorted({p[0].split(",")[0] for p in points if p[0].startswith("flow ")})
+    for preset, colour in zip(presets, ("C1", "C4", "C5")):
+        line = sorted([p for p in points if p[0].startswith(preset + ",")], key=lambda p: p[1])
+        ax.plot([p[1] for p in line], [p[2] for p in line], "^-", color=colour,
+                label=f"pcreg on DIS {preset.split()[1]} (--model flow), each size")
+        for name, x, y in line:
+            ax.annotate(name.split("scale ")[1], (x, y), textcoords="offset points", xytext=(4, 5), fontsize=7)
     for blurred, colour, label in ((False, "C0", "DIS from the key frame"),
                                    (True, "C2", "DIS, its log-odds blurred as pcreg's")):
-        dis = sorted([p for p in points if not p[0].startswith("scale") and p[0].endswith("blurred") == blurred],
+        dis = sorted([p for p in points if not p[0].startswith(("scale", "flow ")) and p[0].endswith("blurred") == blurred],
                      key=lambda p: p[1])
         ax.plot([p[1] for p in dis], [p[2] for p in dis], "s--", color=colour, label=label)
         for name, x, y in dis:
@@ -95,7 +106,7 @@ def figure(points: list[tuple[str, float, float]]):
     ax.set_xlabel("ms a frame (median over clips; classification and fusion included)")
     ax.set_ylabel("lower than plain, mean over clips (%)")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     return fig
 
@@ -110,27 +121,34 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="clips at a time, one process each (1: in this process)")
     ap.add_argument("--frames", type=int, default=None, help="first frames of each clip (default all)")
     ap.add_argument("--scales", default="1,0.75,0.5,0.375,0.25", help="working sizes to try (default 1,0.75,0.5,0.375,0.25)")
+    ap.add_argument("--flow-presets", default="medium,fast,ultrafast",
+                    help="DIS presets of the flow model to try (default medium,fast,ultrafast; empty: none)")
+    ap.add_argument("--flow-scales", default="1,0.5,0.25", help="the flow model's working sizes (default 1,0.5,0.25)")
     args = ap.parse_args(argv)
     scales = sorted({float(x) for x in args.scales.split(",")}, reverse=True)
+    flow_presets = [p for p in args.flow_presets.split(",") if p]
+    flow_scales = sorted({float(x) for x in args.flow_scales.split(",")}, reverse=True)
     clips = load_dataset(args.data, n_frames=args.frames)
     names = list(clips)
-    jobs = [(frames, scales) for frames in clips.values()]
+    jobs = [(frames, scales, flow_presets, flow_scales) for frames in clips.values()]
     if args.workers > 1:
         with ProcessPoolExecutor(args.workers) as pool:
             per_clip = dict(zip(names, pool.map(clip, jobs)))
     else:
         per_clip = dict(zip(names, map(clip, jobs)))
     plain = np.array([per_clip[c]["error"]["plain"] for c in names])
-    methods = [f"scale {s:g}" for s in scales] + list(BASELINES) + [f"{m} blurred" for m in BASELINES]
+    methods = ([f"scale {s:g}" for s in scales] + [f"flow {p}, scale {s:g}" for p in flow_presets for s in flow_scales]
+               + list(BASELINES)) + [f"{m} blurred" for m in BASELINES]
     red = {m: 100.0 * (plain - np.array([per_clip[c]["error"][m] for c in names])) / plain for m in methods}
     ms = {m: float(np.median([per_clip[c]["ms"][m] for c in names])) for m in methods}
     sizes = sorted({tuple(per_clip[c]["size"]) for c in names})
-    md = (f"### Each working size and DIS preset over {len(names)} clips ({', '.join(f'{w}x{h}' for h, w in sizes)})\n\n"
+    md = (f"### Each working size, motion and DIS preset over {len(names)} clips ({', '.join(f'{w}x{h}' for h, w in sizes)})\n\n"
           + markdown_table(["method", "reduction of plain's error, mean %", "worst clip %", "ms a frame (median)"],
                            [[m, float(red[m].mean()), float(red[m].min()), ms[m]] for m in methods], digits=1)
           + "\n\n### Per clip (reduction of plain's error, %)\n\n"
           + markdown_table(["method", *names], [[m, *(float(x) for x in red[m])] for m in methods], digits=1) + "\n")
-    report = {"machine": benchlib.machine_info(), "scales": scales, "clips": per_clip,
+    report = {"machine": benchlib.machine_info(), "scales": scales, "flow_presets": flow_presets,
+              "flow_scales": flow_scales, "clips": per_clip,
               "reduction": {m: [float(x) for x in red[m]] for m in methods}, "median_ms": ms}
     benchlib.write_report(args.out, "sweep_scale", report, md,
                           figure([(m, ms[m], float(red[m].mean())) for m in methods]))

@@ -106,7 +106,7 @@ def figure(points: list[tuple[str, float, float]]):
     ax.set_xlabel("ms a frame (median over clips; classification and fusion included)")
     ax.set_ylabel("lower than plain, mean over clips (%)")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="center right")
     fig.tight_layout()
     return fig
 

@@ -99,3 +99,15 @@ def test_pcreg_beats_plain_and_unregistered_on_a_real_clip():
     frames = load_folder(CAMVID / "0016E5")[:12]
     r = run_clip(frames, methods=("plain", "unregistered", "pcreg"))
     assert r["means"]["pcreg"] < r["means"]["unregistered"] < r["means"]["plain"]
+
+
+def test_pcreg_flow_is_pcreg_run_with_the_flow_model_at_half_size():
+    import pcreg
+    from pcreg.datasets import synthetic
+
+    frames = synthetic("syn1a", 5, 0, width=320, height=240)
+    r = run_clip(frames, methods=("plain", "pcreg_flow"))
+    assert r["means"]["pcreg_flow"] < r["means"]["plain"] and r["ms_per_frame"]["pcreg_flow"] > 0
+    prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, model="flow", scale=0.5)
+    direct = [pcreg.error_rate(prop.step(f.image), f.labels) for f in frames[1:]]
+    np.testing.assert_allclose([f["errors"]["pcreg_flow"] for f in r["frames"]], direct)

@@ -15,6 +15,8 @@ The methods (:data:`METHODS`):
   pixel alone).
 - ``pcreg_half``: the same at half the frames' width and height (``pcreg run --scale 0.5``: the step on the
   frames resized, the labels brought back to the frames' size; :mod:`pcreg.pipeline.working`).
+- ``pcreg_flow``: the same at half size with DIS's flow (medium preset) as its motion instead of the dense
+  registration (``pcreg run --model flow --scale 0.5``): the trust rule, learning and the blur on the flow.
 - ``dense_key`` / ``dense_previous``, ``similarity_key`` / ``similarity_previous``: the propagator with
   that registration model, each frame registered to the key frame, or to the previous frame with the
   motions composed back to the key frame (chained).
@@ -43,8 +45,11 @@ from ..recording.null import NULL_RECORDER
 from .results import Results
 
 #: Methods scored per frame, in table order.
-METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "dense_key", "dense_previous", "similarity_key",
-                            "similarity_previous", "flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
+METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "dense_key", "dense_previous",
+                            "similarity_key", "similarity_previous", "flow_key", "flow_previous", "flowfast_key",
+                            "flowultrafast_key")
+#: The ``pcreg`` methods: what ``pcreg run`` does with these options.
+PCREG_METHODS: dict[str, dict] = {"pcreg": {}, "pcreg_half": {"scale": 0.5}, "pcreg_flow": {"model": "flow", "scale": 0.5}}
 #: The DIS baselines, and the preset of each (``flow``: medium).
 BASELINES: tuple[str, ...] = ("flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
 PRESET_OF: dict[str, str] = {"flow": "medium", "flowfast": "fast", "flowultrafast": "ultrafast"}
@@ -77,8 +82,8 @@ def _propagator(method: str, classifier, backend: str):
     the motion alone: the prior at the one weight, by the field's confidence (no trust rule, no learning)."""
     from ..pipeline.stream import Propagator
 
-    if method in ("pcreg", "pcreg_half"):
-        return Propagator(classifier, backend=backend, scale=0.5 if method == "pcreg_half" else 1.0)
+    if method in PCREG_METHODS:
+        return Propagator(classifier, backend=backend, **PCREG_METHODS[method])
     model, anchor = method.split("_")
     return Propagator(classifier, model=model, anchor=anchor, backend=backend, trust=None, learning=None)
 

@@ -76,7 +76,8 @@ def checks(results: dict) -> str:
              if all(m in c.get("ms_per_frame", {}) for c in clips.values())} if clips else {}
     if "pcreg" in times and base:  # the clock's line only beside a baseline (it differs from run to run)
         others = ", ".join(f"{m} {times[m]:.0f} ms ({avg[m]:.1f}%)" for m in base if m in times)
-        half = f", at half size {times['pcreg_half']:.0f} ms ({avg['pcreg_half']:.1f}%)" if "pcreg_half" in times else ""
+        half = "".join(f", {what} {times[m]:.0f} ms ({avg[m]:.1f}%)" for m, what in
+                       (("pcreg_half", "at half size"), ("pcreg_flow", "on DIS's flow at half size")) if m in times)
         lines.append(f"- time a frame, the median over clips (classification and fusion included in every method): "
                      f"pcreg {times['pcreg']:.0f} ms ({avg['pcreg']:.1f}% below plain){half}; "
                      f"{others or 'no DIS baseline run'}")
@@ -95,6 +96,7 @@ def _figure(results: dict):
         return None
     fig, axes = plt.subplots(1, len(units), figsize=(4.2 * len(units), 3.6), squeeze=False)
     style = {"plain": ("0.4", ":"), "unregistered": ("0.6", "--"), "pcreg": ("C3", "-"), "pcreg_half": ("C3", "--"),
+             "pcreg_flow": ("C1", "-"),
              "flow_key": ("C0", "-"), "flow_previous": ("C0", "--"), "flowultrafast_key": ("C2", "-")}
     for ax, u in zip(axes[0], units):
         since = np.array([r["since_key"] for r in u["frames"]])

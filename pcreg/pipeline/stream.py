@@ -143,14 +143,14 @@ class StepReport:
     """What one :meth:`Propagator.step` did.
 
     frame : steps since the last :meth:`~Propagator.reset` (1 for the first step).
-    registration : the registration result (``T_ref_mov``, or a dense result with its field), or None
-        when it failed. reason : why it failed (None when it did not).
+    registration : the registration result (``T_ref_mov``, a dense result with its field, or with
+        ``model="flow"`` a :class:`~pcreg.registration.flow.FlowResult`), or None when it failed. reason : why it failed (None when it did not).
     fallback : True when the key frame's labels were fused unwarped (the registration failed).
     reference : the frame (counted like ``frame``, 0 = the key frame) the new frame was registered to.
     start : how the dense registration started: ``"cold"`` (from the identity), ``"warm"`` (from the
         previous step's grid) or ``"restarted"`` (warm, then cold again by the restart rule; the
         registration kept is the one with more evidence), also when the registration then failed;
-        None for a global model.
+        None for a global model and a flow.
     times : seconds per stage (:data:`STEP_STAGES`), and per part of a stage (:data:`STEP_PARTS`, keys
         such as ``"register.search"``); ``fuse`` includes warping the prior.
     confidence : (H, W) float32 in [0, 1], the probability that each label is right

@@ -128,3 +128,17 @@ def test_run_with_the_flow_model_keeps_its_preset(tmp_path, frames, capsys):
                  "--preset", "fast"]) == 2  # a preset without the flow model
     assert "--preset is DIS's, for --model flow" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_label_clip_takes_the_flow_model(frames):
+    from pcreg.pipeline.keyframes import label_clip
+
+    images = [f.image for f in frames]
+    clip = label_clip(lambda t: images[t], 7, {0: frames[0].labels, 5: frames[5].labels}, model="flow",
+                      preset="fast", scale=0.5)
+    between = [pcreg.error_rate(clip[t].labels, frames[t].labels) for t in range(1, 5)]
+    clf = pcreg.fit_classifier([frames[0], frames[5]])
+    plain = [pcreg.error_rate(clf.predict(frames[t].image), frames[t].labels) for t in range(1, 5)]
+    assert np.mean(between) < np.mean(plain) and clip[3].confidence.shape == (240, 320)
+    with pytest.raises(InputError, match="preset"):
+        label_clip(lambda t: images[t], 7, {0: frames[0].labels}, model="flow", preset="slow")

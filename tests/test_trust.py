@@ -237,8 +237,9 @@ def test_evaluate_stream_with_key_frames_anywhere(tmp_path, capsys):
     res = json.loads((out / "results.json").read_text())
     c = res["datasets"]["syn1a"]
     assert c["key_frames"][0] == 0 and len(c["key_frames"]) == 2 and c["scored"] == 3
-    assert res["methods"] == ["plain", "unregistered", "pcreg", "flow_key", "flowultrafast_key"]
+    assert res["methods"] == ["plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "flow_key", "flowultrafast_key"]
     assert res["calibration"]["pixels"] > 0
+    assert c["means"]["pcreg_flow"] < c["means"]["plain"] and c["means"]["pcreg_half"] < c["means"]["plain"]
     capsys.readouterr()
     assert main(args + ["--keys", "first", "--key-every", "2", "--force"]) == 2
     assert "give one" in capsys.readouterr().err

@@ -10,7 +10,8 @@ all the key frames; ``pcreg`` fits each stretch's on its own key frames, as ``pc
 (:data:`~pcreg.pipeline.keyframes.KEY_FITS`).
 
 The methods (:data:`KEY_METHODS`): ``plain`` (naive Bayes alone); ``unregistered`` (the key frames'
-labels unmoved); ``pcreg`` (:func:`~pcreg.pipeline.keyframes.label_clip`); ``flow_key`` and
+labels unmoved); ``pcreg`` (:func:`~pcreg.pipeline.keyframes.label_clip`), ``pcreg_half`` and ``pcreg_flow``
+(the same at half size, and on DIS's flow at half size: :data:`pcreg.experiments.stream.PCREG_METHODS`); ``flow_key`` and
 ``flowultrafast_key`` (each key frame's prior warped by DIS, medium or ultrafast preset, from that key
 frame). The baselines weight the two key frames around a frame by its distance in frames to each
 (the nearer key frame more, linearly; one key frame alone on a one-sided stretch) and fuse at the
@@ -26,7 +27,8 @@ import numpy as np
 __all__ = ["KEY_METHODS", "key_indices", "run_clip_keys"]
 
 #: Methods of the key-frame protocol, in table order.
-KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "flow_key", "flowultrafast_key")
+KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "flow_key",
+                                 "flowultrafast_key")
 
 
 def key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") -> list[int]:
@@ -103,17 +105,19 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
     from ..pipeline.prior import class_prior
     from ..pipeline.stream import STREAM_WEIGHT
     from ..pipeline.estimators import FlowEstimator
-    from .stream import CONFIDENCE_LEVELS, PRESET_OF, calibration_counts
+    from .stream import CONFIDENCE_LEVELS, PCREG_METHODS, PRESET_OF, calibration_counts
 
     n = len(frames)
     clf = fit_classifier([frames[k] for k in keys])
     pi = class_prior(clf)
     priors = {k: (label_prior(frames[k].labels, pi=pi), pi) for k in keys}
     seconds = dict.fromkeys(methods, 0.0)
-    t0 = time.perf_counter()
-    ours = {f.index: f for f in label_clip(lambda t: frames[t].image, n, {k: frames[k].labels for k in keys},
-                                           backend=backend)} if "pcreg" in methods else {}
-    seconds["pcreg"] = time.perf_counter() - t0 if "pcreg" in methods else 0.0
+    ours: dict = {}  # each pcreg method's frames, by index
+    for m in (m for m in PCREG_METHODS if m in methods):
+        t0 = time.perf_counter()
+        ours[m] = {f.index: f for f in label_clip(lambda t: frames[t].image, n, {k: frames[k].labels for k in keys},
+                                                  backend=backend, **PCREG_METHODS[m])}
+        seconds[m] = time.perf_counter() - t0
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows = []
     for a, b, stretch in segments(n, keys):
@@ -124,13 +128,14 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
             classify = time.perf_counter() - t1
             seconds["plain"] += classify
             preds = {"plain": (d > 0).astype(np.uint8)}
-            if ours:
-                preds["pcreg"] = ours[t].labels
-                conf = ours[t].confidence
+            for m, labelled in ours.items():
+                preds[m] = labelled[t].labels
+            if "pcreg" in ours:
+                conf = ours["pcreg"][t].confidence
                 assert conf is not None  # a frame that is not a key frame has one
-                counts += calibration_counts(conf, ours[t].labels, f.labels)
+                counts += calibration_counts(conf, ours["pcreg"][t].labels, f.labels)
             for m in methods:
-                if m in ("plain", "pcreg"):
+                if m == "plain" or m in ours:
                     continue
                 t1 = time.perf_counter()
                 flow = FlowEstimator(PRESET_OF[m.split("_")[0]]) if m != "unregistered" else None

@@ -27,7 +27,7 @@ def _errors(prop, frames):
 def test_a_flow_stream_labels_better_than_naive_bayes_with_one_motion_and_a_confidence(frames, preset, scale):
     key = frames[0]
     clf = pcreg.fit_classifier([key])
-    prop = pcreg.Propagator(clf, model="flow", preset=preset, scale=scale)
+    prop = pcreg.Propagator(clf, model=f"flow:{preset}", scale=scale)
     prop.reset(key.image, key.labels)
     errors, reports = [], []
     for f in frames[1:]:
@@ -63,7 +63,7 @@ def test_the_flow_model_on_camvid_beats_plain_and_the_unmoved_key_frame(shared_d
     clip = load_folder(shared_data / "camvid" / "0016E5")[:12]
     key = clip[0]
     clf = pcreg.fit_classifier([key])
-    prop = pcreg.Propagator(clf, model="flow", preset="fast", scale=0.5)
+    prop = pcreg.Propagator(clf, model="flow:fast", scale=0.5)
     prop.reset(key.image, key.labels)
     ours = _errors(prop, clip)
     plain = [pcreg.error_rate(clf.predict(f.image), f.labels) for f in clip[1:]]
@@ -74,9 +74,10 @@ def test_the_flow_model_on_camvid_beats_plain_and_the_unmoved_key_frame(shared_d
 
 def test_bad_presets_and_frames_too_small_for_dis_are_refused(frames):
     clf = pcreg.fit_classifier([frames[0]])
-    for bad in ("slow", None, 3):
-        with pytest.raises(InputError, match="preset"):
-            pcreg.Propagator(clf, model="flow", preset=bad)
+    for bad in ("flow:slow", "flow:", "flows", None, 3):
+        with pytest.raises(InputError, match="preset" if str(bad).startswith("flow:") else "unknown model"):
+            pcreg.Propagator(clf, model=bad)
+    assert pcreg.Propagator(clf, model="flow").preset == "medium" and pcreg.Propagator(clf).preset is None
     tiny = cv2.resize(frames[0].image, (40, 30))
     prop = pcreg.Propagator(clf, model="flow")
     with pytest.raises(InputError, match="40x30 are too small for the flow model"):
@@ -112,7 +113,7 @@ def test_run_with_the_flow_model_keeps_its_preset(tmp_path, frames, capsys):
     assert main([*args, "--preset", "fast", "--scale", "0.5"]) == 0
     capsys.readouterr()
     assert main([*args, "--scale", "0.5"]) == 2  # continued with another preset: refused, not mixed
-    assert "preset: 'fast' then, 'medium' now" in one_line_errors(capsys)[-1]
+    assert "model: 'flow:fast' then, 'flow:medium' now" in one_line_errors(capsys)[-1]
     assert main([*args, "--preset", "fast", "--scale", "0.5"]) == 0
     assert "all 7 frames already done" in capsys.readouterr().out
     for i in range(1, 7):
@@ -134,11 +135,11 @@ def test_label_clip_takes_the_flow_model(frames):
     from pcreg.pipeline.keyframes import label_clip
 
     images = [f.image for f in frames]
-    clip = label_clip(lambda t: images[t], 7, {0: frames[0].labels, 5: frames[5].labels}, model="flow",
-                      preset="fast", scale=0.5)
+    clip = label_clip(lambda t: images[t], 7, {0: frames[0].labels, 5: frames[5].labels}, model="flow:fast",
+                      scale=0.5)
     between = [pcreg.error_rate(clip[t].labels, frames[t].labels) for t in range(1, 5)]
     clf = pcreg.fit_classifier([frames[0], frames[5]])
     plain = [pcreg.error_rate(clf.predict(frames[t].image), frames[t].labels) for t in range(1, 5)]
     assert np.mean(between) < np.mean(plain) and clip[3].confidence.shape == (240, 320)
     with pytest.raises(InputError, match="preset"):
-        label_clip(lambda t: images[t], 7, {0: frames[0].labels}, model="flow", preset="slow")
+        label_clip(lambda t: images[t], 7, {0: frames[0].labels}, model="flow:slow")

@@ -47,7 +47,7 @@ def clip(args: tuple) -> dict:
     key = frames[0]
     clf = pcreg.fit_classifier([key])
     methods = {f"scale {s:g}": pcreg.Propagator(clf, scale=s) for s in scales}
-    methods.update({f"flow {p}, scale {s:g}": pcreg.Propagator(clf, model="flow", preset=p, scale=s)
+    methods.update({f"flow {p}, scale {s:g}": pcreg.Propagator(clf, model=f"flow:{p}", scale=s)
                     for p in flow_presets for s in flow_scales})
     methods["plain"] = make_method("plain", clf, "reference")
     flows = {m: _Flow(clf, "key", PRESET_OF[m.split("_")[0]]) for m in BASELINES}

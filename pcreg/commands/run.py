@@ -162,8 +162,8 @@ def run(args: argparse.Namespace) -> int:
     options = {"backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
     if args.preset is not None and args.model != "flow":
         raise InputError(f"--preset is DIS's, for --model flow (not {args.model})")
-    if args.model == "flow":  # named only for the flow model, so runs from before it still resume
-        options["preset"] = args.preset or "medium"
+    if args.model == "flow":  # the preset named in the model: runs from before it still resume
+        options["model"] = f"flow:{args.preset or 'medium'}"
     if args.scale != 1.0:  # named only when below 1, so runs from before it still resume
         options["scale"] = check_float(args.scale, "--scale", lo=0, lo_open=True, hi=1)
     if Path(args.labels).is_dir():

@@ -96,7 +96,7 @@ def _carry(make: Callable, key_image, key_labels, images: Callable[[int], np.nda
 
 def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, np.ndarray], *, classifier=None,
                fit: str = "stretch", backend: str = "reference", scale: float = 1.0, model: str = "dense",
-               preset: str = "medium", on_frame: Callable[[LabelledFrame], None] | None = None) -> list[LabelledFrame]:
+               on_frame: Callable[[LabelledFrame], None] | None = None) -> list[LabelledFrame]:
     """Every frame of a clip of ``n`` frames labelled from its key frames (see the module's docstring).
 
     images : ``images(t)`` gives frame ``t`` ((H, W, 3) uint8 RGB; asked for as each direction needs it).
@@ -104,8 +104,8 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     classifier : one classifier for every stretch; when None, each stretch's is fitted
         (:func:`pcreg.fit_classifier`) on its own key frames (``fit="stretch"``, one or two) or every
         stretch's on all the key frames (``fit="all"``).
-    scale, model, preset : the working size and the motion (:class:`pcreg.Propagator`'s; ``model="flow"``:
-        DIS's flow at ``preset``).
+    scale, model : the working size and the motion (:class:`pcreg.Propagator`'s: ``"dense"``, ``"flow"``,
+        ``"flow:fast"``, ...).
     on_frame : called with each :class:`LabelledFrame` as soon as it is done (segments in order).
     Returns the frames in index order (key frames with their own labels).
     """
@@ -143,7 +143,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
         clf = classifier if classifier is not None else fitted([k for k in (a, b) if k is not None])
 
         def make(learning=learning, clf=clf):
-            return Propagator(clf, backend=backend, learning=learning, scale=scale, model=model, preset=preset)
+            return Propagator(clf, backend=backend, learning=learning, scale=scale, model=model)
 
         fwd = {} if a is None else _carry(make, images(a), keys[a], images, frames)
         bwd = {} if b is None else _carry(make, images(b), keys[b], images, frames[::-1])

@@ -195,8 +195,12 @@ class Propagator:
 
     classifier : a fitted ground/obstacle naive Bayes (:func:`pcreg.fit_classifier` on the key frame and
         its labels is the usual choice; it needs ``decision_function`` and ``class_prior_``).
-    model : ``"dense"`` (default), ``"flow"`` (DIS optical flow at ``preset`` from each frame to the key
-        frame: the fast choice, see ``preset``) or a global motion model (``similarity``, ``projective``, ...).
+    model : ``"dense"`` (default), ``"flow"`` (DIS optical flow from each frame to the key frame, medium
+        preset; ``"flow:fast"``, ``"flow:ultrafast"``: another preset) or a global motion model
+        (``similarity``, ``projective``, ...). With a flow the trust rule carries no second motion, and
+        learning and the confidence are as with the dense field. On the shared CamVid clips
+        (docs/results.md, "The flow model") ``"flow"`` at ``scale=0.5`` labels 47% below plain at a
+        quarter of the default step's time, ``"flow:fast"`` at half size 43% at an eighth.
     anchor : ``"key"`` (default) or ``"previous"`` (:data:`ANCHORS`).
     backend, init : the registration's (:func:`pcreg.register`, also the dense model's global step).
     register : further :class:`~pcreg.registration.config.RegisterConfig` options (levels, iterations,
@@ -215,19 +219,13 @@ class Propagator:
         runs at (:mod:`pcreg.pipeline.working`); the labels and their confidence come back at the frames'
         size, the report's other maps (log-odds, trust map, field) are at the working size. 0.5 runs a
         640x480 step in 0.53-0.56 of the time, for 48.4% below plain instead of 49.7% on the shared CamVid clips.
-    preset : with ``model="flow"``, DIS's preset (``"ultrafast"``, ``"fast"``, ``"medium"``, the default);
-        the trust rule then carries no second motion, and learning and the confidence are as with the
-        dense field. On the shared CamVid clips (docs/results.md, "The flow model") ``medium`` at
-        ``scale=0.5`` labels 47% below plain at a quarter of the default step's time, ``fast`` at half
-        size 43% at an eighth.
     """
 
     def __init__(self, classifier, *, model: str = "dense", anchor: str = "key", backend: str = "reference",
                  init: str = "identity", register: RegisterConfig | None = None, dense: DenseStep = STREAM_DENSE,
                  weight: float = STREAM_WEIGHT, fusion: FusionConfig = FusionConfig(),
                  trust: TrustRule | None = STREAM_TRUST, learning: Learning | None = STREAM_LEARNING,
-                 scale: float = 1.0, preset: str = "medium") -> None:
-        from ..registration.transforms import MODELS
+                 scale: float = 1.0) -> None:
         from ..validation import check_float, short_repr
 
         for attr in ("decision_function", "class_prior_"):
@@ -237,8 +235,7 @@ class Propagator:
         classes = list(np.asarray(getattr(classifier, "classes_", [0, 1])).tolist())
         if classes != [0, 1]:
             raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}")
-        if not isinstance(model, str) or model not in STREAM_MODELS + MODELS:
-            raise InputError(f"unknown model {short_repr(model)}; choose dense, flow or one of {', '.join(MODELS)}")
+        model, preset = _motion_model(model)
         if not isinstance(anchor, str) or anchor not in ANCHORS:
             raise InputError(f"unknown anchor {short_repr(anchor)}; choose one of {', '.join(ANCHORS)}")
         check_float(weight, "weight", lo=0, hi=MAX_WEIGHT)
@@ -264,14 +261,10 @@ class Propagator:
 
         base = DenseOptions(seed=self.config.search.seed, global_step=GlobalStep(backend=self.config.backend))
         self._dense_options = (dense.options(base), dense.options(base, warm=True))
-        from ..registration.flow import PRESETS
-
-        if not isinstance(preset, str) or preset not in PRESETS:
-            raise InputError(f"unknown DIS preset {short_repr(preset)}; choose one of {', '.join(PRESETS)}")
-        self.preset = preset
+        self.preset = preset  # a flow's DIS preset (None for the other models)
         self._estimator: DenseEstimator | FlowEstimator | GlobalEstimator = (
             DenseEstimator(self.config, dense, *self._dense_options) if model == "dense"
-            else FlowEstimator(preset) if model == "flow" else GlobalEstimator(self.config))
+            else FlowEstimator(preset) if preset is not None else GlobalEstimator(self.config))
         self.weight = float(weight)
         self.fusion = fusion
         self.trust = trust
@@ -510,6 +503,25 @@ class Propagator:
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
+
+
+def _motion_model(model) -> tuple[str, str | None]:
+    """``(model, preset)`` of a :class:`Propagator`'s ``model``: ``"flow"`` or ``"flow:PRESET"`` (DIS's preset,
+    :data:`pcreg.registration.flow.PRESETS`; medium by default) gives ``("flow", PRESET)``; ``"dense"`` and the
+    global models ``(model, None)``; anything else an :class:`~pcreg.errors.InputError`."""
+    from ..registration.flow import PRESETS
+    from ..registration.transforms import MODELS
+    from ..validation import short_repr
+
+    if isinstance(model, str) and (model == "flow" or model.startswith("flow:")):
+        preset = model.partition(":")[2] if ":" in model else "medium"
+        if preset not in PRESETS:
+            raise InputError(f"unknown DIS preset {short_repr(preset)} in model {short_repr(model)}; choose flow or "
+                             f"flow:PRESET, PRESET one of {', '.join(PRESETS)}")
+        return "flow", preset
+    if not isinstance(model, str) or model not in STREAM_MODELS + MODELS:
+        raise InputError(f"unknown model {short_repr(model)}; choose dense, flow or one of {', '.join(MODELS)}")
+    return model, None
 
 
 @dataclass

@@ -1,5 +1,5 @@
-"""What the tests of `pcreg run` share: its one-line errors, its steps without their clocks, and a run
-killed after a frame's files were written but before run.json counted it."""
+"""What the tests of `pcreg run` share: its one-line errors, its steps without their clocks, a run killed
+after a frame's files were written but before run.json counted it, and a folder of frames to run on."""
 
 from __future__ import annotations
 
@@ -37,3 +37,18 @@ def kill_before_commit(monkeypatch, frame: int) -> None:
         return real(self, t, labels, report, plain, **kw)
 
     monkeypatch.setattr(stream_run.StreamRun, "record", crash)
+
+
+def frames_folder(path, frames, keys=(0, 4)):
+    """``(folder, keys)``: ``frames`` written as PNGs ``f0.png``, ``f1.png``, ... into ``path / "frames"``, and
+    the labels of the frames ``keys`` under the same names into ``path / "keys"``."""
+    import cv2
+
+    folder, labels = path / "frames", path / "keys"
+    folder.mkdir()
+    labels.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
+    for k in keys:
+        cv2.imwrite(str(labels / f"f{k}.png"), frames[k].labels)
+    return folder, labels

@@ -11,7 +11,7 @@ import pcreg
 from pcreg.cli import main
 from pcreg.errors import InputError
 from pcreg.registration.flow import FlowResult
-from _runs import one_line_errors
+from _runs import frames_folder, one_line_errors
 
 
 @pytest.fixture(scope="module")
@@ -101,13 +101,7 @@ def test_the_flow_model_anchored_to_the_previous_frame(frames):
 
 
 def test_run_with_the_flow_model_keeps_its_preset(tmp_path, frames, capsys):
-    folder, keys = tmp_path / "frames", tmp_path / "keys"
-    folder.mkdir()
-    keys.mkdir()
-    for i, f in enumerate(frames):
-        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
-    cv2.imwrite(str(keys / "f0.png"), frames[0].labels)
-    cv2.imwrite(str(keys / "f4.png"), frames[4].labels)
+    folder, keys = frames_folder(tmp_path, frames)
     out = tmp_path / "out"
     args = ["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(out), "--model", "flow"]
     assert main([*args, "--preset", "fast", "--scale", "0.5"]) == 0

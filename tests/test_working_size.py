@@ -11,7 +11,7 @@ import pcreg
 from pcreg.cli import main
 from pcreg.errors import InputError
 from pcreg.pipeline.working import WorkingSize
-from _runs import one_line_errors
+from _runs import frames_folder, one_line_errors
 
 
 @pytest.fixture(scope="module")
@@ -123,13 +123,7 @@ def test_run_at_half_size_writes_full_size_labels_records_and_keeps_its_scale(tm
     from pcreg.recording import entities as E
     from pcreg.recording.readback import image, read_recording
 
-    folder, keys = tmp_path / "frames", tmp_path / "keys"
-    folder.mkdir()
-    keys.mkdir()
-    for i, f in enumerate(frames):
-        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
-    cv2.imwrite(str(keys / "f0.png"), frames[0].labels)
-    cv2.imwrite(str(keys / "f4.png"), frames[4].labels)
+    folder, keys = frames_folder(tmp_path, frames)
     out, rrd = tmp_path / "out", tmp_path / "run.rrd"
     assert main(["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(out), "--scale", "0.5",
                  "--confidence", "--record", str(rrd)]) == 0

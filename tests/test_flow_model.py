@@ -101,10 +101,20 @@ def test_the_flow_model_anchored_to_the_previous_frame(frames):
 
 
 def test_run_with_the_flow_model_keeps_its_preset(tmp_path, frames, capsys):
+    import json
+
+    from pcreg.recording import entities as E
+    from pcreg.recording.readback import image, read_recording
+
     folder, keys = frames_folder(tmp_path, frames)
-    out = tmp_path / "out"
+    out, rrd = tmp_path / "out", tmp_path / "run.rrd"
     args = ["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(out), "--model", "flow"]
-    assert main([*args, "--preset", "fast", "--scale", "0.5"]) == 0
+    assert main([*args, "--preset", "fast", "--scale", "0.5", "--record", str(rrd)]) == 0
+    rec = read_recording(rrd)  # the flow's displacement logged at the frames' size, in their pixels
+    assert image(rec.latest(E.DENSE_DISPLACEMENT, frame=2)).shape[:2] == (240, 320)
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    assert [s["registration"]["model"] for s in steps] == ["flow"] * 6 and steps[0]["registration"]["preset"] == "fast"
+    assert steps[0]["trust"]["flow"] is None and steps[0]["start"] is None
     capsys.readouterr()
     assert main([*args, "--scale", "0.5"]) == 2  # continued with another preset: refused, not mixed
     assert "model: 'flow:fast' then, 'flow:medium' now" in one_line_errors(capsys)[-1]

@@ -329,8 +329,9 @@ class Propagator:
         self.last = None
 
     def _check_working_size(self, size: WorkingSize) -> None:
-        """Refuse a working size the registration cannot take (its pyramid's levels, the dense grid's
-        spacing) when the key frame comes, naming the scale, instead of at the first frame."""
+        """Refuse a working size the motion cannot take (its pyramid's levels, the dense grid's spacing,
+        DIS's smallest side) when the key frame comes, naming the scale (or the frames' size when they are
+        not scaled), instead of at the first frame."""
         (H, W), (h, w) = size.frame, size.shape
         try:
             if self.model == "flow" and min(h, w) < DIS_MIN_SIDE:

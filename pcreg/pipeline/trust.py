@@ -368,7 +368,7 @@ class TrustedKey:
         dense_prior, dense_residual = self.carried(frame_blurred, field)
         t1 = time.perf_counter()
         maps, prior, fused = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
-                                                    field_confidence, flow)
+                                            field_confidence, flow)
         t2 = time.perf_counter()
         labels, confidence = read_labels(fused, log_odds, prior, self.rule, size=self.size)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})

@@ -2,7 +2,8 @@
 
     python -m pcreg.kernels      # what `make setup` runs after installing
 
-The kernels: the exact correspondence search (:mod:`pcreg.registration.nn`), the reference ICP's
+The kernels: the exact correspondence search (:mod:`pcreg.registration.kdtree`; the grid of
+:mod:`pcreg.registration.nn`), the reference ICP's
 point-to-point loop (:mod:`pcreg.registration.reference`), the sub-pixel edges of the image pyramids
 (:mod:`pcreg.registration.clouds`), the dense registration's window search, assembly, solver and
 full-size field (:mod:`pcreg.registration.dense`), the field of a transform
@@ -22,11 +23,12 @@ def warm_up() -> None:
     """Compile (or load from the on-disk cache) every compiled kernel of pcreg, on small inputs."""
     from .pipeline.prior import fused_labels
     from .pipeline.trust import STREAM_TRUST, trusted_fusion
-    from .registration import nn, reference
+    from .registration import kdtree, nn, reference
     from .registration.api import register_dense
     from .registration.clouds import image_pyramid
 
     nn.warm_up()
+    kdtree.warm_up()
     reference.warm_up()
     img = np.zeros((64, 64, 3), np.uint8)
     img[16:48, 20:40] = 200

@@ -122,8 +122,8 @@ def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int,
 #: (part, functions whose cumulative time it is), by ``(file name, function name)``; the parts are
 #: disjoint and "the rest of the call" is the call's total minus them.
 PROFILE_PARTS = (
-    ("index build (GridIndex)", (("nn.py", "__init__"),)),
-    ("first match (move_and_match)", (("nn.py", "move_and_match"),)),
+    ("index build (KDTreeIndex)", (("kdtree.py", "__init__"),)),
+    ("first match (move_and_match)", (("kdtree.py", "move_and_match"),)),
     # one thread or numba's threads (nn.threaded): the reference runs one of the two loops
     ("compiled loop (update, move, search, sums, stopping rule)", (("reference.py", "_moment_loop"),
                                                                    ("reference.py", "_moment_loop_threads"))),

@@ -1,4 +1,4 @@
-"""pcreg's reference ICP: numpy + a compiled exact nearest-neighbour grid, any dimension, every motion model.
+"""pcreg's reference ICP: numpy + a compiled exact nearest-neighbour KD-tree, any dimension, every motion model.
 
 Iterative closest point after Besl & McKay (1992, "A method for registration of 3-D shapes"), with
 closed-form steps from Umeyama (1991, "Least-squares estimation of transformation parameters between
@@ -7,7 +7,7 @@ quaternions"). The loop, the stopping rule and the definitions of fitness and in
 Open3D's legacy ``registration_icp`` so the two can be checked against each other:
 
 - correspondences: each source point's nearest target point closer than ``max_correspondence_distance``
-  (:class:`pcreg.registration.nn.GridIndex`, exact; equidistant targets: the lowest index);
+  (:class:`pcreg.registration.kdtree.KDTreeIndex`, exact; equidistant targets: the lowest index);
 - fitness = correspondences / source points; inlier_rmse = sqrt(mean squared correspondence distance);
 - after each update, stop when |Δfitness| < relative_fitness and |Δinlier_rmse| < relative_rmse
   (absolute changes, as Open3D compares them), or after ``max_iteration`` updates.
@@ -24,8 +24,9 @@ import numpy as np
 from .._jit import njit, prange
 
 from ..errors import InputError, RegistrationError
-from . import _nn_kernels, nn
+from . import _kd_kernels, _nn_kernels, nn
 from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, WEIGHTS: named here too)
+from .kdtree import KDTreeIndex
 from .nn import GridIndex
 from .normal_steps import estimate_point_to_line, estimate_point_to_plane
 from .result import IcpIteration, RegistrationResult
@@ -274,20 +275,19 @@ def check_rank(points: np.ndarray, model: str) -> None:
 # The ICP loop
 # ---------------------------------------------------------------------------------------------------
 
-def build_tree(target: np.ndarray, *, queries: int | None = None, max_distance: float | None = None) -> GridIndex:
-    """Exact nearest-neighbour index of the target (:class:`~pcreg.registration.nn.GridIndex`).
+def build_tree(target: np.ndarray, *, queries: int | None = None, max_distance: float | None = None) -> KDTreeIndex:
+    """Exact nearest-neighbour index of the target (:class:`~pcreg.registration.kdtree.KDTreeIndex`).
 
-    max_distance : the correspondence distance the queries will use (sizes the cells; optional).
-    queries : accepted for compatibility (a grid costs the same to build whatever the queries).
+    max_distance, queries : accepted for compatibility (the tree is the same whatever the queries).
     """
-    return GridIndex(target, max_distance=max_distance)
+    return KDTreeIndex(target)
 
 
 def _correspond(tree, pts: np.ndarray, max_dist: float):
     """(squared distances, indices, found) of each point's nearest target within ``max_dist``.
 
-    ``tree`` is a :class:`GridIndex` or anything with ``cKDTree.query``'s interface."""
-    if isinstance(tree, GridIndex):
+    ``tree`` is a :class:`KDTreeIndex`, a :class:`GridIndex` or anything with ``cKDTree.query``'s interface."""
+    if isinstance(tree, (KDTreeIndex, GridIndex)):
         d2, idx = tree.nearest(pts, max_dist)
         return d2, idx, idx >= 0
     workers = -1 if pts.shape[0] > 20000 else 1
@@ -318,7 +318,7 @@ def _finished(T: np.ndarray, fitness: float, rmse: float, iterations: int, conve
 
 
 def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, init: np.ndarray | None = None,
-                  target_normals: np.ndarray | None = None, tree: GridIndex | None = None,
+                  target_normals: np.ndarray | None = None, tree: KDTreeIndex | GridIndex | None = None,
                   callback: Callable[[IcpIteration], None] | None = None, level: int = 0,
                   robust_scale: float | None = None) -> RegistrationResult:
     """One ICP run at one scale: a :class:`RegistrationResult` whose ``matrix`` is ``T_target_source``.
@@ -347,7 +347,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
         metric = "point_to_point"
     if metric == "point_to_plane" and (d != 3 or target_normals is None or model != "rigid"):
         raise InputError("metric='point_to_plane' needs 3-D clouds, the target's normals and the rigid model")
-    if (metric == "point_to_point" and weights == "none" and model in _MOMENT_MODELS and isinstance(tree, GridIndex)
+    if (metric == "point_to_point" and weights == "none" and model in _MOMENT_MODELS and isinstance(tree, KDTreeIndex)
             and not (rotation == "quaternion" and d == 3 and model == "rigid")):
         return _icp_moments(source, target, T, tree, model=model, max_distance=max_correspondence_distance,
                             max_iteration=max_iteration, relative_fitness=relative_fitness,
@@ -395,7 +395,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
 _MOMENT_MODELS = ("translation", "rigid", "similarity")
 
 
-def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: GridIndex, *, model: str,
+def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: KDTreeIndex, *, model: str,
                  max_distance: float, max_iteration: int, relative_fitness: float, relative_rmse: float,
                  callback, level: int, start: float) -> RegistrationResult:
     """The same loop as :func:`icp_reference` for point-to-point steps without weights of the models
@@ -499,8 +499,8 @@ def _scored(k, sd2, n, relative_fitness, relative_rmse, state):
 
 
 @njit(cache=True)
-def _moment_loop(pts, T, steps, model, need, relative_fitness, relative_rmse, r2, spts, sidx, start, tkeys,
-                 tcell, origin, h, dims, hashed, out_d2, out_i, target, center, state):
+def _moment_loop(pts, T, steps, model, need, relative_fitness, relative_rmse, r2, nodes, spts, sidx, depth, out_d2,
+                 out_i, target, center, state):
     """Up to ``steps`` point-to-point iterations, in place: ``pts`` (the moved source), ``T``, the
     matches ``out_d2`` / ``out_i`` (on entry, those of ``pts``) and ``state`` = [fitness, inlier RMSE,
     iterations, converged, error]. Stops early on an error (:func:`_next_update`) or when the
@@ -510,29 +510,32 @@ def _moment_loop(pts, T, steps, model, need, relative_fitness, relative_rmse, r2
         update = _next_update(*mom, center, model, need, T, state)
         if state[4] != 0:
             return
-        _nn_kernels._move_query_serial(pts, update, True, r2, spts, sidx, start, tkeys, tcell, origin, h, dims,
-                                       hashed, out_d2, out_i)
+        _kd_kernels._move_query_serial(pts, update, True, r2, nodes, spts, sidx, depth, out_d2, out_i)
         mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
         if _scored(mom[0], mom[1], pts.shape[0], relative_fitness, relative_rmse, state):
             return
 
 
 @njit(cache=True, parallel=True)
-def _moment_loop_threads(pts, T, steps, model, need, relative_fitness, relative_rmse, r2, spts, sidx, start, tkeys,
-                         tcell, origin, h, dims, hashed, out_d2, out_i, target, center, state):
+def _moment_loop_threads(pts, T, steps, model, need, relative_fitness, relative_rmse, r2, nodes, spts, sidx, depth,
+                         out_d2, out_i, target, center, state):
     """:func:`_moment_loop` with each iteration's moves and searches on every thread (numba's
     ``prange``, written out here: a cached compiled function that calls a ``parallel=True`` one can
     crash once it is loaded back from the cache, numba bug 8578). The moments are summed on one thread,
-    in point order, as there."""
-    d = pts.shape[1]
+    in point order, as there. Each thread takes chunks of :data:`~pcreg.registration._kd_kernels.CHUNK`
+    queries, with one search stack a chunk."""
+    d, n, chunk = pts.shape[1], pts.shape[0], _kd_kernels.CHUNK
     mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
     for _ in range(steps):
         update = _next_update(*mom, center, model, need, T, state)
         if state[4] != 0:
             return
-        for t in prange(pts.shape[0]):
-            _nn_kernels._move(pts, t, update, d)
-            out_d2[t], out_i[t] = _nn_kernels._nearest(pts[t], r2, spts, sidx, start, tkeys, tcell, origin, h, dims, hashed)
+        for c in prange((n + chunk - 1) // chunk):
+            stack_node, stack_gap = _kd_kernels._stacks(depth)
+            for t in range(c * chunk, min(n, (c + 1) * chunk)):
+                _nn_kernels._move(pts, t, update, d)
+                out_d2[t], out_i[t] = _kd_kernels._nearest(pts[t], r2, np.int64(-1), nodes, spts, sidx, stack_node,
+                                                           stack_gap)
         mom = _nn_kernels._moments(pts, target, out_d2, out_i, center)
         if _scored(mom[0], mom[1], pts.shape[0], relative_fitness, relative_rmse, state):
             return
@@ -550,7 +553,7 @@ def warm_up() -> None:
         estimate_umeyama(target + 0.05, target, np.ones(50), with_scale=True)
         # the threaded loop (clouds of nn.PARALLEL_MIN_QUERIES points and more, or from
         # nn.PARALLEL_MIN_QUERIES_IDLE on an idle machine), and the steps other callers use
-        tree = GridIndex(target, max_distance=1.0)
+        tree = KDTreeIndex(target)
         pts = np.ascontiguousarray(target + 0.05)
         state = np.zeros(5)
         mom = tree.move_and_match(pts, None, 1.0)[2]

@@ -29,7 +29,12 @@ Python around them. cProfile adds a little to every Python call, so the Python p
 The last section runs ``pcreg crosscheck`` on the LiDAR pair itself (reference and Open3D, the command's
 defaults) ``--crosscheck-runs`` times and compares the seconds each implementation reports.
 
-    python tools/bench_icp.py --out out/bench [--sizes 1000,3000,10000,30000,100000] [--iterations 15] [--repeats 5]
+``--threads N`` gives every implementation N threads: numba's (``NUMBA_NUM_THREADS``), Open3D's OpenMP
+(``OMP_NUM_THREADS``, read when Open3D loads) and small_gicp's ``num_threads``; without it each library
+takes its default (all CPUs). The targets: reference / Open3D <= 1.0 at every size with one thread, and
+with more <= 1.0 in 2-D and <= 0.8 in 3-D.
+
+    python tools/bench_icp.py --out out/bench [--threads 1] [--sizes 1000,3000,10000,30000,100000] [--iterations 15] [--repeats 5]
 
 Writes bench_icp.json, bench_icp.md and bench_icp.png to --out.
 """
@@ -37,6 +42,7 @@ Writes bench_icp.json, bench_icp.md and bench_icp.png to --out.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -57,7 +63,7 @@ def tied_queries(src: np.ndarray, tgt: np.ndarray, dist: float) -> int:
 
 
 def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int, repeats: int,
-              implementations=IMPLEMENTATIONS) -> dict:
+              implementations=IMPLEMENTATIONS, threads: int | None = None) -> dict:
     import open3d as o3d
 
     from pcreg.registration.open3d_icp import to_pointcloud
@@ -89,9 +95,9 @@ def time_pair(src: np.ndarray, tgt: np.ndarray, *, dist: float, iterations: int,
 
         s, t = sg.PointCloud(s3), sg.PointCloud(t3)
         t0 = time.perf_counter()
-        tree = sg.KdTree(t, num_threads=2)
+        tree = sg.KdTree(t, num_threads=threads or 2)
         r = sg.align(t, s, tree, np.eye(4), registration_type="ICP", max_correspondence_distance=dist,
-                     num_threads=2, max_iterations=iterations, rotation_epsilon=0.0, translation_epsilon=0.0)
+                     num_threads=threads or 2, max_iterations=iterations, rotation_epsilon=0.0, translation_epsilon=0.0)
         return time.perf_counter() - t0, np.asarray(r.T_target_source)
 
     fns = {"reference": reference, "open3d": open3d, "small_gicp": small_gicp}
@@ -177,7 +183,7 @@ def repeats_at(n: int, repeats: int) -> int:
 
 
 def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: int,
-        implementations=IMPLEMENTATIONS, profile_calls: int = 20) -> dict:
+        implementations=IMPLEMENTATIONS, profile_calls: int = 20, threads: int | None = None) -> dict:
     from pcreg._runner import progress
 
     jobs = [("2-D", clouds_2d(data, sizes, seed))]
@@ -193,7 +199,7 @@ def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: in
                 if profile is None and "reference" in implementations and profile_calls > 0:
                     profile = profile_reference(src, tgt, dist=dist, iterations=iterations, calls=profile_calls)
                 row = time_pair(src, tgt, dist=dist, iterations=iterations, repeats=repeats_at(len(src), repeats),
-                                implementations=implementations)
+                                implementations=implementations, threads=threads)
                 rows.append(row)
                 bar.update(1)
             ns = np.array([r["source_points"] for r in rows], dtype=np.float64)
@@ -205,7 +211,7 @@ def run(data: Path, *, sizes: list[int], iterations: int, repeats: int, seed: in
                             "cost_per_nlogn_relative": (per / per[0]).tolist()}
             kinds[kind] = {"description": desc, "max_correspondence_distance": dist, "rows": rows, "curve": curve,
                            "profile": profile}
-    return {"iterations": iterations, "repeats": repeats, "kinds": kinds}
+    return {"iterations": iterations, "repeats": repeats, "threads": threads, "kinds": kinds}
 
 
 def crosscheck_lidar(data: Path, repeats: int) -> dict | None:
@@ -229,12 +235,42 @@ def crosscheck_lidar(data: Path, repeats: int) -> dict | None:
             "ratio_reference_over_open3d": float(np.median(ratios)), "ratios": ratios}
 
 
+#: The reference's time / (N log N) at the largest N, at most this many times the smallest N's: in 3-D a
+#: denser LiDAR subset puts more points within each query's reach, and every implementation's time grows
+#: faster than N log N there.
+COST_TARGET = {"2-D": 1.0, "3-D": 1.5}
+
+
+def ratio_target(kind: str, threads: int | None) -> float:
+    """The target reference / Open3D legacy: 1.0 with one thread each, and with more 1.0 in 2-D and
+    0.8 in 3-D (Open3D's legacy ICP takes no more from a second thread; the reference's search does)."""
+    return 1.0 if threads == 1 or kind != "3-D" else 0.8
+
+
+def set_threads(threads: int) -> None:
+    """Give numba and OpenMP (Open3D) ``threads`` threads: their environment variables, read when each
+    loads, so before either is imported; numba's count is also set where it is already loaded (a test
+    calling :func:`main`). Open3D already loaded with another count is refused."""
+    if "open3d" in sys.modules and os.environ.get("OMP_NUM_THREADS") != str(threads):
+        raise SystemExit(f"--threads {threads}: Open3D was loaded before; run the benchmark as a script, "
+                         f"or set OMP_NUM_THREADS={threads} before it starts")
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    if "numba" not in sys.modules:
+        os.environ["NUMBA_NUM_THREADS"] = str(threads)
+        return
+    import numba
+
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
 def render(report: dict) -> str:
     from pcreg.outputs import markdown_table
 
+    threads = report.get("threads")
     lines = [f"## ICP: reference vs Open3D legacy vs small_gicp ({report['iterations']} iterations, "
              f"median of {report['repeats']} repeats, more below {MIN_POINTS_TIMED:,} points: "
-             f"at least {MIN_POINTS_TIMED:,} points timed per size)\n"]
+             f"at least {MIN_POINTS_TIMED:,} points timed per size; "
+             f"{'each library its default threads' if threads is None else f'{threads} thread(s) each'})\n"]
     checks = []
     for kind, k in report["kinds"].items():
         lines.append(f"{kind}: {k['description']}; correspondence distance {k['max_correspondence_distance']:g}.\n")
@@ -251,9 +287,11 @@ def render(report: dict) -> str:
         lines.append(f"Log-log slope of time against N: {slopes} (N log N over this range is about 1.1).\n")
         if "reference" in impls and "open3d" in impls:
             ratios = [r["ratio_reference_over_open3d"] for r in k["rows"]]
-            checks.append((f"reference ICP <= 1.0x Open3D legacy, {kind}, every size",
+            target = ratio_target(kind, threads)
+            checks.append((f"reference ICP <= {target}x Open3D legacy, {kind}, every size, "
+                           f"{'default threads' if threads is None else f'{threads} thread(s)'}",
                            "max " + f"{max(ratios):.2f}x (" + ", ".join(f"{x:.2f}" for x in ratios) + ")",
-                           max(ratios) <= 1.0))
+                           max(ratios) <= target))
             # a tied query has two right answers (the reference takes the lower index, Open3D's KD-tree
             # the one its traversal meets first), so the steps may part there: sizes with ties are
             # reported, not held to the equality
@@ -265,8 +303,8 @@ def render(report: dict) -> str:
             checks.append((f"transforms equal to 1e-9, {kind}, sizes without tied queries", measured,
                            bool(untied) and max(untied) <= 1e-9))
             rel = k["curve"]["reference"]["cost_per_nlogn_relative"]
-            checks.append((f"reference cost no worse than N log N, {kind}",
-                           f"time/(N log N) at the largest N = {rel[-1]:.2f}x the smallest's", rel[-1] <= 1.0))
+            checks.append((f"reference cost: time/(N log N) at the largest N <= {COST_TARGET[kind]}x the smallest's, {kind}",
+                           f"{rel[-1]:.2f}x", rel[-1] <= COST_TARGET[kind]))
     profiles = {kind: k["profile"] for kind, k in report["kinds"].items() if k.get("profile")}
     if profiles:
         lines.append("### Profile: where the reference's time goes at the smallest N (cProfile, ms per call)\n")
@@ -326,17 +364,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=15)
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=None,
+                   help="threads for every implementation (numba, Open3D's OpenMP, small_gicp); default: theirs")
     p.add_argument("--implementations", default=",".join(IMPLEMENTATIONS))
     p.add_argument("--crosscheck-runs", type=int, default=5,
                    help="runs of `pcreg crosscheck` on the LiDAR pair (default 5; 0: none)")
     p.add_argument("--profile-calls", type=int, default=20,
                    help="reference calls profiled at the smallest size (default 20; 0: no profile)")
     args = p.parse_args(argv)
+    if args.threads is not None:
+        if args.threads < 1:
+            p.error("--threads takes a positive count")
+        set_threads(args.threads)
     sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
     impls = tuple(s.strip() for s in args.implementations.split(",") if s.strip())
     report = {"machine": machine_info(), **run(args.data, sizes=sizes, iterations=args.iterations,
                                                repeats=args.repeats, seed=args.seed, implementations=impls,
-                                               profile_calls=args.profile_calls)}
+                                               profile_calls=args.profile_calls, threads=args.threads)}
     if args.crosscheck_runs > 0 and "reference" in impls and "open3d" in impls:
         report["crosscheck"] = crosscheck_lidar(args.data, args.crosscheck_runs)
     return finish(args.out, "bench_icp", report, render, figure)

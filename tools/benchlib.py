@@ -58,7 +58,7 @@ def machine_info() -> dict:
         "platform": platform.platform(), "python": sys.version.split()[0],
         "numpy": np.__version__, "scipy": scipy.__version__, "opencv": cv2.__version__, "open3d": o3d_version,
         "opencv_threads": cv2.getNumThreads(),
-        "env": {k: os.environ[k] for k in ("OPENBLAS_CORETYPE", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+        "env": {k: os.environ[k] for k in ("OPENBLAS_CORETYPE", "OMP_NUM_THREADS", "NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS")
                 if k in os.environ},
         "git_commit": commit, "pcreg_dirty": dirty, "load_average": load_average(),
     }

@@ -1,8 +1,8 @@
 """numba's compiler for pcreg's kernels, with an on-disk cache that knows which sources a kernel uses.
 
 numba caches a compiled function under a stamp of the file that defines it, alone. A pcreg kernel also
-compiles in the kernels it calls from other files (the ICP loop in ``reference.py`` inlines the grid
-search of ``nn.py``), so after a change to ``nn.py`` alone numba would load the ICP loop compiled with
+compiles in the kernels it calls from other files (the ICP loop in ``reference.py`` inlines the KD-tree
+search of ``_kd_kernels.py``), so after a change to that file alone numba would load the ICP loop compiled with
 the old search: the code that runs would not be the code on disk. Here every kernel of pcreg is cached
 under a stamp of all of pcreg's kernel sources (its files that mention ``njit``): any change to one of
 them compiles every kernel again, once, and ``make setup`` (``python -m pcreg.kernels``) does that

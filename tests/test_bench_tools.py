@@ -106,6 +106,27 @@ def test_bench_recording_measures_the_real_sequence_pipeline(tmp_path, monkeypat
     assert "### Checks" in (out / "recording.md").read_text()
 
 
+def test_bench_icp_threads_set_both_libraries_and_the_targets(monkeypatch):
+    """--threads N: numba's and OpenMP's counts (Open3D loaded with another count is refused); one thread
+    each is held to 1.0 in 2-D and 3-D, more to 1.0 in 2-D and 0.8 in 3-D."""
+    import numba
+
+    bench = _load("bench_icp")
+    assert bench.ratio_target("3-D", 1) == bench.ratio_target("2-D", 1) == bench.ratio_target("2-D", 2) == 1.0
+    assert bench.ratio_target("3-D", 2) == bench.ratio_target("3-D", None) == 0.8
+    monkeypatch.setitem(sys.modules, "open3d", object())
+    monkeypatch.setenv("OMP_NUM_THREADS", "4")
+    with pytest.raises(SystemExit, match="Open3D was loaded before"):
+        bench.set_threads(1)
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    before = numba.get_num_threads()
+    try:
+        bench.set_threads(1)
+        assert numba.get_num_threads() == 1
+    finally:
+        numba.set_num_threads(before)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("threads", [False, True])
 def test_bench_icp_without_data_compares_three_implementations(tmp_path, monkeypatch, threads):
@@ -118,6 +139,7 @@ def test_bench_icp_without_data_compares_three_implementations(tmp_path, monkeyp
     assert bench.main(["--out", str(out), "--data", str(tmp_path / "absent"), "--sizes", "300,600",
                        "--repeats", "1", "--iterations", "3"]) == 0
     report = json.loads((out / "bench_icp.json").read_text())
+    assert report["threads"] is None  # each library its default
     rows = report["kinds"]["2-D"]["rows"]
     assert [r["source_points"] for r in rows] == [300, 600]
     assert all(set(r["median_seconds"]) == {"reference", "open3d", "small_gicp"} for r in rows)

@@ -1,5 +1,7 @@
-"""Exact nearest-neighbour search on a uniform grid, compiled with numba: the correspondence search of
-the reference ICP.
+"""Exact nearest-neighbour search on a uniform grid, compiled with numba, and when a batch of queries runs
+on numba's threads (:func:`threaded`, for the grid and the KD-tree alike). The grid was the reference
+ICP's correspondence search until the KD-tree of :mod:`pcreg.registration.kdtree` replaced it; it is
+kept as the tree's measured baseline (``python -m pcreg.registration.kdtree``).
 
 The target points are bucketed into cubic cells of side ``h`` (a counting sort: a dense cell table when
 the bounding box holds at most 16 cells a point or 2^18 cells, else an open-addressing hash of the
@@ -18,11 +20,12 @@ Agreement with KD-trees (Open3D's nanoflann, scipy's cKDTree):
   (Open3D's often returns a higher index). Generic coordinates never tie; clouds on a common lattice
   can (pixel clouds compared at the identity), and there the two may pick different, equally near points.
 
-Why a grid rather than a compiled KD-tree: the ICP's queries are bounded (``max_correspondence_distance``)
-and arrive in spatially coherent order, so a query touches 3^d cells of about the correspondence
-distance, with no tree descent; building it is one counting sort (linear), against a KD-tree's
-O(M log M). A compiled KD-tree with the same tie rule (median splits, leaves of 4-16 points) was no
-faster per query on 1k-30k points of the LiDAR pair. Per query against scipy's cKDTree:
+Why it gave way to a tree: a bounded query touches 3^d cells of about the correspondence distance, with
+no tree descent, which suits image edge points; but the points of a LiDAR scan lie on surfaces, at
+densities that vary a hundredfold with the range, and no one cell size suits them (crowded cells near
+the sensor, hundreds of empty ones for a query elsewhere). A KD-tree with sliding-midpoint splits
+answered the LiDAR pair's queries in a fifth of the grid's time or less, one thread each, and 2-D edge
+points in about half (:mod:`pcreg.registration.kdtree`). Per query against scipy's cKDTree:
 ``python -m pcreg.registration.nn --bench``; the ICP against Open3D's and small_gicp's:
 ``tools/bench_icp.py`` (README, Benchmarks).
 

@@ -36,9 +36,18 @@ from ._kd_kernels import _build, _move_query_parallel, _move_query_serial, _quer
 from ._nn_kernels import _bounds, _moments
 from .nn import can_thread, squared_bound, threaded
 
-#: Points a leaf holds at most. On the LiDAR pair's subsets (1k-70k points) and 2-D edge points, one
-#: thread, leaves of 8, 12 and 16 points searched within 10% of one another; 12 was never the slowest.
-LEAF_SIZE = 12
+#: Points a leaf holds at most: a leaf's points are read in a row, faster than the nodes above them. The
+#: index built and searched 15 times (the bench's ICP clouds, one thread, medians of 7 alternating
+#: rounds, time relative to the fastest leaf; the machine was loaded, load average 7):
+#:
+#: | leaf | 12 | 16 | 24 | 32 | 48 | 64 |
+#: |---|---|---|---|---|---|---|
+#: | 3-D 1k / 10k / 70k | 1.76 / 1.17 / 1.31 | 1.06 / 1.19 / 1.32 | 1.07 / 1.00 / 1.00 | 1.06 / 1.07 / 1.11 | 1.00 / 1.10 / 1.18 | 1.33 / 1.29 / 1.28 |
+#: | 2-D 1k / 10k / 100k | 1.23 / 1.32 / 1.51 | 1.43 / 1.41 / 1.08 | 1.00 / 1.58 / 1.07 | 1.02 / 1.33 / 1.19 | 1.59 / 1.00 / 1.00 | 1.45 / 1.33 / 1.16 |
+#:
+#: and in a round of 3 searches a build, leaves of 6 / 8 / 12 / 16 / 24 points took 1.11-1.57 / 1.08-1.46 /
+#: 1.04-1.25 / 1.03-1.12 / 1.00 of the fastest's time at every size.
+LEAF_SIZE = 24
 
 
 class KDTreeIndex:

@@ -21,9 +21,9 @@ Why a tree rather than the uniform grid it replaced in the ICP: the points of a 
 surfaces, at densities that vary a hundredfold with the range. No one cell size suits them: cells of
 about the correspondence distance held 28-196 points on average (a query near the sensor read hundreds),
 smaller ones left a bounded query hundreds of empty cells to visit. The tree's cells follow the points.
-On the LiDAR pair's subsets of 1k-70k points it answered the same queries in a fifth to an eighth of
-the grid's time, one thread each, and on 2-D image edge points in 0.3-0.5 of it (``docs/benchmarks.md``,
-ICP). Per query against scipy's cKDTree and the grid: ``python -m pcreg.registration.kdtree``.
+On the LiDAR pair's subsets of 1k-70k points it answered the same queries in a quarter to a ninth of
+the grid's time, one thread each, and on 2-D image edge points in 0.3-0.9 of it (``docs/benchmarks.md``,
+ICP, per thread). Per query against scipy's cKDTree and the grid: ``python -m pcreg.registration.kdtree``.
 
 Compilation is cached on disk (:mod:`pcreg._jit`); ``python -m pcreg.kernels`` compiles every kernel.
 """

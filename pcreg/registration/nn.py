@@ -24,8 +24,8 @@ Why it gave way to a tree: a bounded query touches 3^d cells of about the corres
 no tree descent, which suits image edge points; but the points of a LiDAR scan lie on surfaces, at
 densities that vary a hundredfold with the range, and no one cell size suits them (crowded cells near
 the sensor, hundreds of empty ones for a query elsewhere). A KD-tree with sliding-midpoint splits
-answered the LiDAR pair's queries in a fifth of the grid's time or less, one thread each, and 2-D edge
-points in about half (:mod:`pcreg.registration.kdtree`). Per query against scipy's cKDTree:
+answered the LiDAR pair's queries in a quarter of the grid's time or less, one thread each, and 2-D
+edge points in 0.3-0.9 of it (:mod:`pcreg.registration.kdtree`). Per query against scipy's cKDTree:
 ``python -m pcreg.registration.nn --bench``; the ICP against Open3D's and small_gicp's:
 ``tools/bench_icp.py`` (README, Benchmarks).
 

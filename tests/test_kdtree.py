@@ -87,3 +87,7 @@ def test_a_single_point_and_bad_input():
         KDTreeIndex(np.empty((0, 2)))
     with pytest.raises(ValueError, match="queries must be"):
         index.nearest(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="finite"):
+        KDTreeIndex(np.array([[0.0, 1.0], [np.nan, 2.0], [3.0, 4.0]]))
+    far = KDTreeIndex(np.array([[-1e308, 0.0], [1e308, 0.0], [0.0, 1.0]] * 20))  # extents beyond float range
+    assert far.nearest(np.array([[1e308, 0.0]]))[1].tolist() == [1]

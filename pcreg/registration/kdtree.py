@@ -66,6 +66,8 @@ class KDTreeIndex:
             raise ValueError(f"KDTreeIndex needs an (M, 2|3) array with M >= 1, got shape {pts.shape}")
         if int(leaf) < 1:
             raise ValueError(f"leaf must hold at least one point, got {leaf}")
+        if not np.isfinite(pts).all():  # a NaN would have no side of a cut: refused, not split for ever
+            raise ValueError("KDTreeIndex needs finite points")
         lo, hi = _bounds(pts)
         self.dim = pts.shape[1]
         self.n = pts.shape[0]

@@ -19,7 +19,6 @@ of frames through ``default.txt`` (the frame's file name without its extension).
 from __future__ import annotations
 
 import io
-import json
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,26 +69,19 @@ def read_run(folder: str | Path) -> RunLabels:
     Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json`` (not a run's output), one
     that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
     """
-    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames, state_problem
+    from .runs.files import CONFIDENCE, STEPS
+    from .runs.state import STATE, read_state, run_frames
 
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder")
-    state_path = folder / STATE
-    if not state_path.is_file():
-        raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
-    try:
-        state = json.loads(state_path.read_text(encoding="utf-8"))
-        if state_problem(state) is not None:
-            raise TypeError("not a run's state")
-    except (OSError, ValueError, TypeError, UnicodeDecodeError):
-        raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
+    state = read_state(folder)
     steps_path = folder / STEPS
     try:
         lines = steps_path.read_bytes().splitlines() if steps_path.is_file() else []
         keys, names = run_frames(state, [ln for ln in lines if ln.strip()])
     except (KeyError, TypeError, AttributeError):
-        raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
+        raise InputError(f"{folder / STATE}: unreadable (not a run.json that pcreg run wrote)") from None
     except (OSError, ValueError) as exc:
         raise InputError(f"{steps_path}: missing or unreadable ({exc})") from None
     stems = [Path(n).stem for n in names]

@@ -163,7 +163,7 @@ def test_run_writes_confidence_maps_and_refuses_to_resume_without_them(tmp_path,
 
 
 def test_a_confidence_outside_0_1_is_never_written():
-    from pcreg.pipeline.stream_run import confidence_png
+    from pcreg.runs.files import confidence_png
 
     np.testing.assert_array_equal(confidence_png(np.array([[0.0, 0.5, 1.0]])), [[0, 128, 255]])
     for bad in (np.array([[np.nan]]), np.array([[1.5]]), np.array([[-0.1]])):

@@ -106,7 +106,7 @@ class _TruthMaps:
         return self.root / f"{self.frames.stem(t)}.png"
 
     def __getitem__(self, t: int):
-        from ..pipeline.stream_run import check_truth
+        from ..runs.truth import check_truth
 
         f = self.path(t)
         lab = _read_labels(f, self.mapping) if f.is_file() else None
@@ -204,7 +204,8 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     from ..errors import InputError, OutputError
     from ..frame import PreparedFrame
     from ..outputs import WriteBehind
-    from ..pipeline.stream_run import STATE, StreamRun
+    from ..pipeline.stream_run import StreamRun
+    from ..runs.state import STATE
 
     out = Path(args.out)
     stream = StreamRun(frames, key_labels, out, options, truth=truth, identity=identity)
@@ -223,8 +224,8 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
         todo = frames.frames(start)  # decodes (a video) or skips (a folder) the frames done
     if start > 1:
         try:
-            prop.resume(start - 1, stream.carry_after(start - 1) if prop.warm_starts else None,
-                        stream.learned_after(start - 1))
+            carry, learned = stream.carry_after(start - 1)
+            prop.resume(start - 1, carry if prop.warm_starts else None, learned)
         except InputError as exc:  # a carry of another stream
             raise OutputError(f"{out}: {exc}; use --force to start over") from None
     done = start
@@ -274,24 +275,23 @@ def _check_suggest(count: int | None, frames, keys: int) -> None:
 
 
 def _write_suggest(count: int | None, out: Path, frames, keys: list[int]) -> None:
-    """``OUT/suggest.txt``: the ``count`` frames to label next, best first, ``NAME PREDICTED_ERROR`` a line,
-    from the predicted errors in steps.jsonl (:func:`pcreg.pipeline.keyframes.suggest`)."""
+    """``OUT/suggest.txt``: the ``count`` frames to label next, best first, with their predicted error
+    (:func:`pcreg.runs.files.write_suggestions`), from the predicted errors in steps.jsonl
+    (:func:`pcreg.pipeline.keyframes.suggest`)."""
     from ..errors import InputError
-    from ..outputs import atomic_write_bytes
     from ..pipeline.keyframes import suggest
-    from ..pipeline.stream_run import STEPS, parse_steps
+    from ..runs.files import STEPS, parse_steps, read_step_lines, write_suggestions
 
     if count is None:
         return
-    steps = parse_steps(out / STEPS, (out / STEPS).read_bytes().splitlines())
+    steps = parse_steps(out / STEPS, [ln for ln in read_step_lines(out) if ln.strip()])
     predicted = {s["frame"]: float(s["predicted_error"]) for s in steps if s.get("predicted_error") is not None}
     try:
         chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
     except InputError as exc:
         raise InputError(f"--suggest {count}: {exc}") from None
-    text = "".join(f"{frames.stem(t)} {predicted[t]:.2f}\n" for t in chosen)
-    atomic_write_bytes(out / "suggest.txt", text.encode("utf-8", "surrogateescape"))  # names as the files have them
-    print(f"the {count} frame(s) to label next, best first: {out / 'suggest.txt'}")
+    path = write_suggestions(out, [(frames.stem(t), predicted[t]) for t in chosen])
+    print(f"the {count} frame(s) to label next, best first: {path}")
 
 
 def _key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> dict:
@@ -343,7 +343,7 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.keys_run import KeyRun
-    from ..pipeline.stream_run import STATE
+    from ..runs.state import STATE
 
     source, out, folder = Path(args.folder), Path(args.out), Path(args.labels)
     first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty

@@ -39,41 +39,18 @@ from typing import BinaryIO, Callable, Iterator
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .stream_run import (CONFIDENCE, STATE, STEPS, TRUTH_COUNTS, _UNREADABLE_CARRY, is_count, has_counts, _write_carry,
-                         _write_png, check_labelled, confidence_png, open_state, parse_steps)
+from ..runs.files import (CONFIDENCE, STEPS, UNREADABLE_CARRY, append_step, check_labelled, confidence_png,
+                          parse_steps, read_carry, read_step_lines, write_carry, write_labels)
+from ..runs.state import open_state, write_state
+from ..runs.truth import add_rates, count_frame, empty_counts
 
 __all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
-
-
-def _stretch_problem(e, cursor: bool) -> bool:
-    """Whether a stretch's entry in run.json (done, or the ``cursor`` under way) is not as pcreg run writes it."""
-    if not (isinstance(e, dict) and isinstance(e.get("fingerprint"), str) and is_count(e.get("fallbacks"))
-            and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS))):
-        return True
-    return cursor and not (isinstance(e.get("phase"), str) and is_count(e.get("steps"))
-                           and (e.get("next") is None or is_count(e["next"])))
-
-
-def keys_state_problem(state: dict) -> str | None:
-    """What in a key-frames run's run.json is not as pcreg run writes it (the first field), or None."""
-    if not isinstance(state.get("keys"), dict):
-        return "keys"
-    if not isinstance(state.get("stretches"), list) or any(_stretch_problem(e, False) for e in state["stretches"]):
-        return "stretches"
-    if state.get("cursor") is not None and _stretch_problem(state["cursor"], True):
-        return "cursor"
-    for name in ("lines", "fallbacks"):
-        if not is_count(state.get(name)):
-            return name
-    if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
-        return "truth"
-    return None
 
 
 #: The hidden folder under ``out`` that holds what a stretch's passes hand on.
 HIDDEN = ".keys"
 #: What reading a missing or damaged file of that folder raises.
-_UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *_UNREADABLE_CARRY)
+_UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *UNREADABLE_CARRY)
 
 
 @dataclass(frozen=True)
@@ -156,9 +133,7 @@ class KeyRun:
         return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
 
     def _commit(self) -> None:
-        from ..outputs import atomic_write_json
-
-        atomic_write_json(self.out / STATE, self.state)
+        write_state(self.out, self.state)
 
     def _hidden(self, fp: str) -> Path:
         return self.out / HIDDEN / fp[:16]
@@ -184,7 +159,7 @@ class KeyRun:
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
-        lines = (self.out / STEPS).read_bytes().splitlines(keepends=True) if (self.out / STEPS).is_file() else []
+        lines = read_step_lines(self.out)
         if len(lines) < self.state["lines"]:
             raise OutputError(f"{self.out / STEPS}: {len(lines)} steps for {self.state['lines']} finished frames; "
                               "use --force to start over")
@@ -202,7 +177,7 @@ class KeyRun:
         for k, lab in self.keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
-                _write_png(f, lab)
+                write_labels(f, lab)
         self.state.update(keys=names, stretches=kept, cursor=cursor, lines=len(lines))
         self._totals()
         self._commit()
@@ -212,10 +187,7 @@ class KeyRun:
         self.state["fallbacks"] = sum(p["fallbacks"] for p in parts)
         if self.truth is None:
             return
-        s = {k: sum(p["truth"][k] for p in parts) for k in ("frames", "wrong", "known", "plain_wrong")}
-        s["error"] = 100.0 * s["wrong"] / s["known"] if s["known"] else None
-        s["plain_error"] = 100.0 * s["plain_wrong"] / s["known"] if s["known"] else None
-        self.state["truth"] = s
+        self.state["truth"] = add_rates({k: sum(p["truth"][k] for p in parts) for k in empty_counts()})
 
     # -- the run ---------------------------------------------------------------------------------------
 
@@ -231,8 +203,7 @@ class KeyRun:
             cur = self.state["cursor"]
             if cur is None or cur["fingerprint"] != fp:
                 self.state["cursor"] = cur = {"fingerprint": fp, "phase": self._phases(s)[0], "next": None, "steps": 0,
-                                              "fallbacks": 0, "truth": None if self.truth is None else
-                                              {"frames": 0, "wrong": 0, "known": 0, "plain_wrong": 0}}
+                                              "fallbacks": 0, "truth": None if self.truth is None else empty_counts()}
                 self._commit()
             self._hidden(fp).mkdir(parents=True, exist_ok=True)
             for phase in self._phases(s)[self._phases(s).index(cur["phase"]):]:
@@ -292,25 +263,12 @@ class KeyRun:
             prop.resume(cur["steps"], carry if prop.warm_starts else None, learned)
 
     def _read_carry(self, s: Stretch, steps: int):
-        from .stream import Carry
-
-        path = self._hidden(self.fingerprint(s)) / f"carry-{steps % 2}.npz"
-        bad = OutputError(f"{path}: missing or unreadable; use --force to start over")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                frame, grid, evidence = int(z["frame"]), np.array(z["grid"]), float(z["evidence"])
-                learned = np.array(z["learned"])
-        except _UNREADABLE_CARRY:
-            raise bad from None
-        if frame != steps:
-            raise bad
-        carry = None if grid.shape == (0, 0, 2) and np.isnan(evidence) else Carry(grid, evidence)
-        return carry, (None if learned.size == 0 else learned)
+        return read_carry(self._hidden(self.fingerprint(s)) / f"carry-{steps % 2}.npz", steps, "")
 
     def _keep_carry(self, cur: dict, carry, learned: Callable[[], np.ndarray | None]) -> None:
         """One more step done: the carry it left and what was ``learned`` (computed now), for a resumed run."""
         cur["steps"] += 1
-        _write_carry(self._hidden(cur["fingerprint"]) / f"carry-{cur['steps'] % 2}.npz", cur["steps"], carry,
+        write_carry(self._hidden(cur["fingerprint"]) / f"carry-{cur['steps'] % 2}.npz", cur["steps"], carry,
                      learned())
 
     def _store(self, s: Stretch, cur: dict) -> None:
@@ -449,23 +407,15 @@ class KeyRun:
                      after: int) -> None:
         """On the writer's thread: what :meth:`_record` hands on, in the order a resumed run reads it back
         (``scored``: the frame's truth map and naive Bayes' labels alone, or two Nones)."""
-        from ..outputs import to_json
-
         stem = self.frames.stem(t)
-        _write_png(self.out / f"{stem}.png", labels)
+        write_labels(self.out / f"{stem}.png", labels)
         if self.confidence and conf is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
-            _write_png(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
+            write_labels(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
         truth, plain = scored
         if truth is not None:
-            known = truth < 2
-            c = cur["truth"]
-            c["frames"] += 1
-            c["wrong"] += int(np.count_nonzero((labels[known] == 1) != (truth[known] == 1)))
-            c["known"] += int(known.sum())
-            c["plain_wrong"] += int(np.count_nonzero((plain[known] == 1) != (truth[known] == 1)))
-        with open(self.out / STEPS, "ab") as fh:
-            fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
+            count_frame(cur["truth"], labels, truth, plain)
+        append_step(self.out, step)
         self._keep_carry(cur, carry, learned)
         cur["fallbacks"] += int(step.get("fallback", False)) + int(step.get("forward", {}).get("fallback", False))
         self.state["lines"] += 1

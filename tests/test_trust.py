@@ -172,12 +172,17 @@ def test_a_confidence_outside_0_1_is_never_written():
 
 
 def test_two_key_frames_label_the_frames_between_better_than_one(frames):
-    from pcreg.pipeline.keyframes import label_clip, segments
+    from pcreg.pipeline.engine import Stretch, stretches
+    from pcreg.pipeline.keyframes import label_clip
 
     n = len(frames)
-    assert segments(n, [2, 4]) == [(None, 2, range(0, 2)), (2, 4, range(3, 4)), (4, None, range(5, 6))]
+    plan = stretches([4, 2], n)
+    assert plan == [Stretch(None, 2, 2), Stretch(2, 4, 4), Stretch(4, None, n)]
+    assert [s.frames for s in plan] == [range(0, 2), range(3, 4), range(5, 6)]
+    assert [s.keys for s in plan] == [(2,), (2, 4), (4,)]
+    assert stretches([3], None) == [Stretch(None, 3, 3), Stretch(3, None, None)]  # a video of unknown length
     with pytest.raises(InputError, match="outside"):
-        segments(n, [0, n])
+        stretches([0, n], n)
     one = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels})
     two = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels, n - 1: frames[n - 1].labels})
     between = range(1, n - 1)

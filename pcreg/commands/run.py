@@ -204,6 +204,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     from ..errors import InputError, OutputError
     from ..frame import PreparedFrame
     from ..outputs import WriteBehind
+    from ..pipeline.engine import propagate
     from ..pipeline.stream_run import StreamRun
     from ..runs.state import STATE
 
@@ -232,19 +233,14 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     with open_recorder(args, name=f"run {args.folder}") as rec, \
             progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
             WriteBehind() as writer:  # a frame's outputs written while the next is labelled
-        for frame in read_ahead(todo):  # the next frame decoded while this one is labelled
-            check_interrupted()
-            t = frame.position
-            try:  # checked once; naive Bayes alone (with --truth) reads the features the step made
-                image = PreparedFrame.of(frame.image, name="frame")
-                labels = prop.step(image)
-            except InputError as exc:  # a frame of another size: the step's own check, the file named
-                where = frames.paths[t] if frames.kind == "folder" else f"{frames.path} frame {frame.name}"
-                raise InputError(f"{where}: {exc}") from None
+        prepared = ((f.position, PreparedFrame.of(f.image, name="frame")) for f in read_ahead(todo))
+        # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
+        # reads the features the step made
+        for t, image, labels in propagate(prop, prepared, check=check_interrupted, where=frames.where):
             plain = prop.classifier.predict(image) if truth is not None else None
             writer.submit(stream.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),
                           confidence=prop.last.confidence if args.confidence else None)
-            _log(rec, t, frame.image, labels, prop.last, frame.name, prop.working_size)
+            _log(rec, t, image.rgb, labels, prop.last, frames.name(t), prop.working_size)
             done = t + 1
             bar.update(1)
     if done == start:

@@ -100,7 +100,8 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
     from ..classification.bayes import fit_classifier
     from ..classification.fusion import label_prior
     from ..classification.metrics import error_rate
-    from ..pipeline.keyframes import label_clip, segments
+    from ..pipeline.engine import stretches
+    from ..pipeline.keyframes import label_clip
     from ..pipeline.pair import log_odds
     from ..pipeline.prior import class_prior
     from ..pipeline.stream import STREAM_WEIGHT
@@ -120,8 +121,9 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
         seconds[m] = time.perf_counter() - t0
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows = []
-    for a, b, stretch in segments(n, keys):
-        for t in stretch:
+    for s in stretches(keys, n):
+        a, b = s.first, s.last
+        for t in s.frames:
             f = frames[t]
             t1 = time.perf_counter()
             d = log_odds(clf, f.image)

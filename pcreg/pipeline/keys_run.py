@@ -32,7 +32,6 @@ import hashlib
 import json
 import shutil
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Callable, Iterator
 
@@ -44,48 +43,15 @@ from ..runs.files import (CONFIDENCE, STEPS, UNREADABLE_CARRY, append_step, chec
 from ..runs.state import open_state, write_state
 from ..runs.truth import add_rates, count_frame, empty_counts
 
-__all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
+from .engine import PRIOR_STORE_DTYPE, Stretch, propagate, stretches, two_sided
+
+__all__ = ["KeyRun", "HIDDEN"]
 
 
 #: The hidden folder under ``out`` that holds what a stretch's passes hand on.
 HIDDEN = ".keys"
 #: What reading a missing or damaged file of that folder raises.
 _UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *UNREADABLE_CARRY)
-
-
-@dataclass(frozen=True)
-class Stretch:
-    """The frames between two key frames (positions): ``first`` the earlier key frame (None before the
-    first), ``last`` the later one (None after the last); ``stop`` the position after its last frame
-    (None: to the end of a video whose length is not known yet)."""
-
-    first: int | None
-    last: int | None
-    stop: int | None
-
-    @property
-    def start(self) -> int:
-        return 0 if self.first is None else self.first + 1
-
-    def __contains__(self, t: int) -> bool:
-        return t >= self.start and (self.stop is None or t < self.stop)
-
-    @property
-    def keys(self) -> tuple[int, ...]:
-        return tuple(k for k in (self.first, self.last) if k is not None)
-
-
-def stretches(keys, n: int | None) -> list[Stretch]:
-    """The stretches of ``n`` frames (None: a video not decoded to its end) around the key frames
-    ``keys`` (positions), in order, empty ones left out."""
-    ks = sorted(set(keys))
-    out = []
-    if ks[0] > 0:
-        out.append(Stretch(None, ks[0], ks[0]))
-    out += [Stretch(a, b, b) for a, b in zip(ks, ks[1:]) if b > a + 1]
-    if n is None or ks[-1] < n - 1:
-        out.append(Stretch(ks[-1], None, n))
-    return out
 
 
 @contextmanager
@@ -303,11 +269,9 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
         with WriteBehind() as writer:  # a frame's prior term, carry and commit written while the next is labelled
-            for t, image in self._images(s, range(start, b)):
-                self.check()
-                prop.step(image)
+            for t, _, _ in propagate(prop, self._images(s, range(start, b)), check=self.check):
                 report = prop.last
-                prior = report.trust.prior_term(report.log_odds.shape).astype(np.float16)
+                prior = report.trust.prior_term(report.log_odds.shape).astype(PRIOR_STORE_DTYPE)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
                               prop.learned_later())
 
@@ -329,7 +293,7 @@ class KeyRun:
         """From the later key frame back to the stretch's first frame; between two key frames, each frame
         fuses the forward pass's prior term too."""
         from ..outputs import WriteBehind
-        from .trust import predicted_error, read_labels
+        from .trust import predicted_error
 
         b = s.last
         assert b is not None
@@ -340,19 +304,17 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = b - 1 if cur["next"] is None else cur["next"]
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
-            for t, image in self._images(s, range(start, s.start - 1, -1)):
-                self.check()
-                labels = prop.step(image)
+            for t, image, labels in propagate(prop, self._images(s, range(start, s.start - 1, -1)), check=self.check):
                 report = prop.last
                 step = report.to_dict()
                 conf = report.confidence
                 if both:
                     with _kept(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz") as f, \
                             np.load(f, allow_pickle=False) as z:
-                        p_a, fallback = z["prior"].astype(np.float32), bool(z["fallback"])
+                        p_a, fallback = z["prior"], bool(z["fallback"])
                     d = report.log_odds
-                    prior = p_a + report.trust.prior_term(d.shape)
-                    labels, conf = read_labels(d + prior, d, prior, prop.trust, size=prop.working_size)
+                    labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
+                                                size=prop.working_size)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1)
 
@@ -370,19 +332,10 @@ class KeyRun:
         prop = self._propagator(clf, key.image, self.keys[a], learning=True)
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
+        todo = ((f.position, f.image) for f in frames if f.position >= start)
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
-            for frame in frames:
-                if frame.position < start:
-                    continue
-                self.check()
-                t = frame.position
-                try:
-                    labels = prop.step(frame.image)
-                except InputError as exc:  # a frame of another size: the step's own check, the file named
-                    where = (self.frames.paths[t] if self.frames.kind == "folder"
-                             else f"{self.frames.path} frame {frame.name}")
-                    raise InputError(f"{where}: {exc}") from None
-                self._record(writer, s, cur, t, frame.image, labels, prop.last.confidence, prop.last.to_dict(), prop,
+            for t, image, labels in propagate(prop, todo, check=self.check, where=self.frames.where):
+                self._record(writer, s, cur, t, image, labels, prop.last.confidence, prop.last.to_dict(), prop,
                              clf, after=t + 1)
 
     def _record(self, writer, s: Stretch, cur: dict, t: int, image, labels, conf, step: dict, prop, clf, *,

@@ -79,12 +79,15 @@ class StreamConfig:
 
 def _propagator(method: str, classifier, backend: str):
     """``pcreg``: the propagator as ``pcreg run`` makes it; the other models and anchors as ablations of
-    the motion alone: the prior at the one weight, by the field's confidence (no trust rule, no learning)."""
+    the motion alone: the prior at the one weight, by the field's confidence (no trust rule, no learning).
+    The DIS baselines are the same ablation with DIS's flow at their preset as the motion."""
     from ..pipeline.stream import Propagator
 
     if method in PCREG_METHODS:
         return Propagator(classifier, backend=backend, **PCREG_METHODS[method])
     model, anchor = method.split("_")
+    if method in BASELINES:
+        model = f"flow:{PRESET_OF[model]}"
     return Propagator(classifier, model=model, anchor=anchor, backend=backend, trust=None, learning=None)
 
 
@@ -174,29 +177,6 @@ class _KeyPrior:
         return labels_from_log_odds(self.fused(image, motion))
 
 
-class _Flow(_KeyPrior):
-    """The DIS baseline with a propagator's interface: the key frame's prior warped by the flow."""
-
-    def __init__(self, classifier, anchor: str, preset: str = "medium") -> None:
-        from ..pipeline.stream import STREAM_WEIGHT
-
-        super().__init__(classifier, weight=STREAM_WEIGHT)
-        self.anchor, self.preset = anchor, preset
-
-    def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
-        super().reset(image, labels)
-        self._key, self._prev, self._motion = image, image, None
-
-    def step(self, image: np.ndarray) -> np.ndarray:
-        from ..pipeline.estimators import FlowEstimator
-
-        motion = FlowEstimator(self.preset).estimate(self._key if self.anchor == "key" else self._prev, image).motion
-        if self.anchor == "previous" and self._motion is not None:
-            motion = self._motion.after(motion, image.shape[:2])
-        self._prev, self._motion = image, motion
-        return self._labels(image, motion)
-
-
 class _Fixed(_KeyPrior):
     """``plain`` (weight 0) and ``unregistered`` (the key frame's prior, no motion)."""
 
@@ -212,9 +192,6 @@ def make_method(method: str, classifier, backend: str):
         return _Fixed(classifier, weight=0.0)
     if method == "unregistered":
         return _Fixed(classifier, weight=STREAM_WEIGHT)
-    if method in BASELINES:
-        kind, anchor = method.split("_")
-        return _Flow(classifier, anchor, PRESET_OF[kind])
     return _propagator(method, classifier, backend)
 
 
@@ -243,43 +220,59 @@ def check_clip(name: str, frames) -> None:
         raise DatasetError(f"clip {name}: the key frame {frames[0].name} has no known label (all unknown)")
 
 
+class Timed:
+    """A labeller whose steps are timed: ``seconds`` adds up the time of each."""
+
+    def __init__(self, labeller) -> None:
+        self.labeller, self.seconds = labeller, 0.0
+
+    def step(self, image: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
+        labels = self.labeller.step(image)
+        self.seconds += time.perf_counter() - t0
+        return labels
+
+
 def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: str = "reference",
              on_frame=None) -> dict:
     """Every method on one clip: ``{"frames": [{index, name, key, since_key, errors}], "means", "seconds"}``.
-    ``on_frame(index, frame, predictions)`` is called after every scored frame (a recording hook)."""
+    Each stretch from a key frame to the next is one pass of each method
+    (:func:`pcreg.pipeline.engine.propagate`), forwards from its key frame. ``on_frame(index, frame,
+    predictions)`` is called after every scored frame (a recording hook)."""
     from ..classification.bayes import fit_classifier
     from ..classification.metrics import error_rate
+    from ..pipeline.engine import propagate, stretches
 
-    keys = set(key_frames(len(frames), key_every))
+    n = len(frames)
+    # a later key frame with nothing known keeps the current one (check_clip refuses a first such)
+    keys = [k for k in key_frames(n, key_every) if k == 0 or (frames[k].labels < 2).any()]
     seconds = dict.fromkeys(methods, 0.0)
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
-    rows, labellers, key = [], {}, 0
-    for t, f in enumerate(frames):
-        if t in keys:
-            if not (f.labels < 2).any():  # a later key frame with nothing known keeps the current one
-                keys.discard(t)
-            else:
-                key = t
-                clf = fit_classifier([f])
-                labellers = {m: make_method(m, clf, backend) for m in methods}
-                for lab in labellers.values():
-                    lab.reset(f.image, f.labels)
-                continue
-        preds, errors = {}, {}
-        for m, lab in labellers.items():
-            t0 = time.perf_counter()
-            preds[m] = lab.step(f.image)
-            seconds[m] += time.perf_counter() - t0
-            errors[m] = error_rate(preds[m], f.labels)
-        confidence = getattr(getattr(labellers.get("pcreg"), "last", None), "confidence", None)
-        if confidence is not None:
-            counts += calibration_counts(confidence, preds["pcreg"], f.labels)
-        rows.append({"index": t, "name": f.name, "key": key, "since_key": t - key, "errors": errors})
-        if on_frame is not None:
-            on_frame(t, f, preds)
+    rows = []
+    for s in stretches(keys, n):
+        key = s.first
+        assert key is not None  # frame 0 is a key frame: each stretch runs forwards from its earlier one
+        clf = fit_classifier([frames[key]])
+        errors: dict[int, dict] = {t: {} for t in s.frames}
+        preds: dict[int, dict] = {t: {} for t in s.frames}
+        for m in methods:
+            labeller = make_method(m, clf, backend)
+            labeller.reset(frames[key].image, frames[key].labels)
+            timed = Timed(labeller)
+            for t, _, labels in propagate(timed, ((t, frames[t].image) for t in s.frames)):
+                errors[t][m] = error_rate(labels, frames[t].labels)
+                if m == "pcreg" and labeller.last.confidence is not None:
+                    counts += calibration_counts(labeller.last.confidence, labels, frames[t].labels)
+                if on_frame is not None:
+                    preds[t][m] = labels
+            seconds[m] += timed.seconds
+        for t in s.frames:
+            rows.append({"index": t, "name": frames[t].name, "key": key, "since_key": t - key, "errors": errors[t]})
+            if on_frame is not None:
+                on_frame(t, frames[t], preds.pop(t))
     means = {m: float(np.nanmean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods}
     per_frame_ms = {m: 1000.0 * s / max(1, len(rows)) for m, s in seconds.items()}
-    return {"frames": rows, "means": means, "ms_per_frame": per_frame_ms, "key_frames": sorted(keys),
+    return {"frames": rows, "means": means, "ms_per_frame": per_frame_ms, "key_frames": keys,
             "calibration": counts.tolist()}
 
 

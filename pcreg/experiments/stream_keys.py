@@ -101,7 +101,7 @@ class _AroundKeys:
 
     def __init__(self, method: str, classifier, frames, stretch, priors: dict) -> None:
         from ..pipeline.estimators import FlowEstimator
-        from .stream import PRESET_OF
+        from .stream_methods import PRESET_OF
 
         self.method, self.classifier, self.frames, self.stretch, self.priors = method, classifier, frames, stretch, priors
         self.flow = FlowEstimator(PRESET_OF[method.split("_")[0]]) if method not in ("plain", "unregistered") else None
@@ -133,7 +133,7 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
     from ..pipeline.engine import propagate, stretches
     from ..pipeline.keyframes import label_clip
     from ..pipeline.prior import class_prior
-    from .stream import CONFIDENCE_LEVELS, PCREG_METHODS, Timed, calibration_counts
+    from .stream_methods import CONFIDENCE_LEVELS, PCREG_METHODS, Timed, calibration_counts
 
     n = len(frames)
     clf = fit_classifier([frames[k] for k in keys])

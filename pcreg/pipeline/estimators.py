@@ -255,13 +255,11 @@ class FlowEstimator:
         import cv2
 
         from ..frame import as_rgb_uint8
+        from ..registration.flow import pixel_grid
 
         grey = cv2.cvtColor(as_rgb_uint8(reference, name="reference image"), cv2.COLOR_RGB2GRAY)
-        h, w = grey.shape
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        for a in (grey, xs, ys):
-            a.setflags(write=False)
-        return grey, xs, ys
+        grey.setflags(write=False)
+        return (grey, *pixel_grid(grey.shape))
 
     def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
         """The flow from ``image`` to the reference; with ``prepared`` (:meth:`prepare` of the reference)
@@ -269,7 +267,7 @@ class FlowEstimator:
         import cv2
 
         from ..frame import as_rgb_uint8
-        from ..registration.flow import FlowResult, dis_field, dis_flow
+        from ..registration.flow import FlowResult, dis_field, dis_flow, flow_field
 
         if prepared is None:
             fld, seconds = dis_field(reference, image, preset=self.preset)
@@ -277,6 +275,5 @@ class FlowEstimator:
         grey, xs, ys = prepared
         t0 = time.perf_counter()
         frame = cv2.cvtColor(as_rgb_uint8(image, name="moving image"), cv2.COLOR_RGB2GRAY)
-        flow = dis_flow(frame, grey, self.preset)
-        fld = np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)
+        fld = flow_field(dis_flow(frame, grey, self.preset), (xs, ys))
         return Estimate(FlowResult(fld, self.preset, time.perf_counter() - t0))

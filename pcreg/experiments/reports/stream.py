@@ -173,8 +173,10 @@ BASELINE_NAMES = ("flow_key", "flow_previous", "flowfast_key", "flowultrafast_ke
 
 
 def write_outputs(results: Results, out: str | Path) -> list[Path]:
-    """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results."""
+    """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results; on
+    DAVIS also davis_J and davis_F (:mod:`.stream_davis`)."""
     from .files import write_files
+    from .stream_davis import davis_tables
 
     doc = results.to_dict()
     b = doc["primary_backend"]
@@ -183,7 +185,8 @@ def write_outputs(results: Results, out: str | Path) -> list[Path]:
     ch, crows, cfooter = calibration_table(doc)
     tables = {f"stream_{b}": ("Labelling a stream from its key frame: mean error % per clip", h, rows, footer),
               "stream_frames": ("Error % per frame", ph, prows),
-              "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter)}
+              "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter),
+              **davis_tables(doc)}
     return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
                        figures={"stream": _figure(doc), "stream_reliability": _reliability(doc),
                                 "stream_speed": _accuracy_time(doc)})

@@ -27,8 +27,8 @@ import numpy as np
 from ..errors import DatasetError, InputError
 from .frame import Frame
 
-__all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "load_sequence",
-           "load_davis", "published"]
+__all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "check_key_mask",
+           "mask_hint", "load_sequence", "load_davis", "published"]
 
 #: A DAVIS mask's values as pcreg's labels: 0 the background (0), anything else the object (1).
 DAVIS_MAPPING: dict[int, int] = {0: 0, **{v: 1 for v in range(1, 256)}}
@@ -107,6 +107,21 @@ def _mask(path: Path, frame: Path, shape: tuple[int, int]) -> np.ndarray:
     return obj.astype(np.uint8)
 
 
+def check_key_mask(labels: np.ndarray, path: str | Path) -> None:
+    """Refuse a key frame's mask (pcreg's labels) with no object pixel, naming its file ``path``."""
+    if not (np.asarray(labels) == 1).any():
+        raise DatasetError(f"{path}: the object's mask on the key frame is empty: there is no object to follow")
+
+
+def mask_hint(raw: np.ndarray) -> str:
+    """What to say of label values that are not pcreg's: when ``raw`` holds a 0/255 object mask, which
+    mapping reads it ("" otherwise)."""
+    values = np.unique(np.asarray(raw))
+    if values.size <= 2 and set(values.tolist()) <= {0, 255}:
+        return "; it is a 0/255 object mask (DAVIS): --mapping davis reads it (0 the background, 255 the object)"
+    return ""
+
+
 def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None = None,
                   name: str | None = None) -> list[Frame]:
     """One sequence: every image of ``frames`` (.jpg, .jpeg or .png, in name order; the first ``n_frames``)
@@ -132,8 +147,8 @@ def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None
             raise DatasetError(f"{m}: {what}")
         image = _read(f, color=True)
         labels = _mask(m, f, image.shape[:2])
-        if t == 0 and not labels.any():
-            raise DatasetError(f"{m}: the object's mask on the key frame is empty: there is no object to follow")
+        if t == 0:
+            check_key_mask(labels, m)
         out.append(Frame(image=image, labels=labels, name=f.stem))
     return out
 

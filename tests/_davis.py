@@ -9,16 +9,17 @@ import numpy as np
 
 
 def frames_and_masks(n: int = 5, shape=(48, 64), seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``n`` (BGR image, 0/255 mask) pairs: a bright disc moving 2 px right a frame over a textured ground."""
+    """``n`` (BGR image, 0/255 mask) pairs: a lighter textured disc moving 2 px right a frame (its texture with it) over a textured ground."""
     h, w = shape
     rng = np.random.default_rng(seed)
-    ground = cv2.GaussianBlur(rng.integers(0, 120, (h, w, 3), dtype=np.uint8), (0, 0), 1.0)
+    ground = cv2.GaussianBlur(rng.integers(0, 200, (h, w + 2 * n, 3), dtype=np.uint8), (0, 0), 1.0)
     out = []
     for i in range(n):
         mask = np.zeros((h, w), np.uint8)
         cv2.circle(mask, (w // 3 + 2 * i, h // 2), h // 5, 255, -1)
-        img = ground.copy()
-        img[mask > 0] = (60, 200, 240)
+        img = np.ascontiguousarray(ground[:, :w])
+        moved = ground[:, 2 * n - 2 * i:2 * n - 2 * i + w].astype(np.int16) + 50  # the disc's own texture, lighter
+        img[mask > 0] = np.clip(moved, 0, 255).astype(np.uint8)[mask > 0]
         out.append((img, mask))
     return out
 

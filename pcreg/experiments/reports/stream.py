@@ -153,6 +153,7 @@ def _accuracy_time(results: dict):
     clips, avg = results["datasets"], results["average_reduction"]
     points = [(m, float(np.median([c["ms_per_frame"][m] for c in clips.values()])), avg[m]) for m in results["methods"]
               if m != "plain" and clips and all(m in c.get("ms_per_frame", {}) for c in clips.values())]
+    points = [p for p in points if p[1] > 0 and np.isfinite(p[2])]  # plain without error: no reduction to draw
     if not points:
         return None
     fig, ax = plt.subplots(figsize=(6.4, 4.0))

@@ -21,6 +21,9 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
     footer = (f"\n({_WHAT[measure]}; frames 1 to n-2 of each sequence of n, averaged per sequence, then over the "
               f"sequences, as the DAVIS 2016 benchmark's evaluation does. Upper case: the methods the benchmark "
               f"published, from {pub['source']}; nan where it has no figure for the sequence)\n")
+    if results["config"].get("frames"):
+        footer += (f"\nOnly the first {results['config']['frames']} frames of each sequence were run (--frames): the "
+                   "published figures are over whole sequences, and the two do not compare.\n")
     return header, rows, footer
 
 

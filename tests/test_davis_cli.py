@@ -40,6 +40,10 @@ def test_evaluate_stream_on_davis_scores_j_and_f_beside_the_published_methods(tm
     assert "| blackswan | 3 |" in table and "OSVOS" in table and "davisvideochallenge.github.io" in table
     header = (out / "davis_F.csv").read_text().splitlines()[0]
     assert header.startswith("sequence,frames scored,plain,unregistered,flow_key,OSVOS,MSK")
+    from pcreg.experiments.reports.page import load_report, page_data  # the report page shows them too
+
+    shown = {t["name"]: t for t in page_data(load_report(out))["tables"]}
+    assert shown["davis_J"]["better"] == "higher" and shown["davis_J"]["columns"] == header.split(",")
 
 
 def test_evaluate_stream_on_davis_refuses_other_key_frames(tmp_path, capsys):

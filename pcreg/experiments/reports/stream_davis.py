@@ -24,6 +24,9 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
     if results["config"].get("frames"):
         footer += (f"\nOnly the first {results['config']['frames']} frames of each sequence were run (--frames): the "
                    "published figures are over whole sequences, and the two do not compare.\n")
+    if results["config"].get("key_every"):
+        footer += (f"\nA key frame every {results['config']['key_every']} frames (--key-every): those frames' masks "
+                   "were given, and they are not scored.\n")
     return header, rows, footer
 
 

@@ -39,11 +39,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a video file (.mp4, .avi, .mkv, .mov) or a folder of frames (image files, or an images/ "
                         "sub-folder, read in name order)")
     p.add_argument("--labels", required=True, metavar="KEYFRAME.png|DIR",
-                   help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid); or a "
+                   help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid, davis); or a "
                         "folder of key frames' labels, NAME.png for the frame NAME, every frame labelled from those around it")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the label PNGs, run.json and steps.jsonl")
-    p.add_argument("--mapping", choices=("none", "camvid"), default="none",
-                   help="how --labels and --truth are coded: none (0/1/2, the default) or camvid (CamVid class ids)")
+    p.add_argument("--mapping", choices=("none", "camvid", "davis"), default="none",
+                   help="how --labels and --truth are coded: none (0/1/2, the default), camvid (CamVid class ids) or "
+                        "davis (an object mask: 0 the background, anything else the object, label 1)")
     p.add_argument("--truth", metavar="LABELS_DIR", default=None,
                    help="score every frame against LABELS_DIR/NAME.png and keep the error in run.json")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
@@ -74,6 +75,7 @@ def _read_labels(path: Path, mapping: str):
     import cv2
     import numpy as np
 
+    from ..datasets.davis import mask_hint
     from ..datasets.folder import mapping_lut
     from ..errors import InputError
     from ..formats import read_image_file
@@ -90,7 +92,8 @@ def _read_labels(path: Path, mapping: str):
     lab = lut[raw]
     if (lab == 255).any():
         bad = int(raw[lab == 255][0])
-        raise InputError(f"{path}: label value {bad} is not {'a CamVid class id' if mapping == 'camvid' else '0, 1 or 2'}")
+        raise InputError(f"{path}: label value {bad} is not {'a CamVid class id' if mapping == 'camvid' else '0, 1 or 2'}"
+                         + mask_hint(raw))
     return lab
 
 
@@ -148,6 +151,7 @@ def _check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..classification.fusion import MAX_WEIGHT
+    from ..datasets.davis import check_key_mask
     from ..datasets.sources import Selection, open_frames
     from ..errors import InputError
     from ..outputs import OutputLock
@@ -169,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
     if Path(args.labels).is_dir():
         return _run_keys(args, frames, selection, options)
     key_labels = _read_labels(Path(args.labels), args.mapping)
+    if args.mapping == "davis":
+        check_key_mask(key_labels, args.labels)
     decoded = frames.frames(0)
     key = next(decoded)  # a source with no frame at --start raises, never ends empty
     second = next(decoded, None)

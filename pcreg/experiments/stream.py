@@ -29,6 +29,9 @@ The methods (:data:`METHODS`):
 the known pixels of every scored frame (:func:`calibration`): the expected calibration error over ten
 bins of confidence, and the error of the most confident 80% of pixels against the error of all.
 
+On DAVIS (``--data davis:PATH``) every method is also scored with the benchmark's J and F, beside the
+published methods (:mod:`pcreg.experiments.stream_davis`).
+
 Each clip is one unit of work (``--workers``, ``--scheduler``); finished units are kept in
 ``OUT/units/`` and skipped when the same command runs again.
 """
@@ -43,6 +46,7 @@ import numpy as np
 from ..recording.interface import RecorderProtocol
 from ..recording.null import NULL_RECORDER
 from .results import Results
+from .stream_davis import DavisScores, chain, check_davis_config, is_davis, summarise_davis
 from .stream_methods import (BASELINES, CONFIDENCE_LEVELS, METHODS, PCREG_METHODS, PRESET_OF, Timed,  # noqa: F401
                              calibration, calibration_counts, make_method)
 
@@ -151,6 +155,10 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
     recorded: dict[str, int] = {}
     hook = _recording_hook(recorder, unit.dataset, frame_counter if frame_counter is not None else [0], recorded)
+    davis = None
+    if is_davis(cfg.data):  # the benchmark's J and F, frame by frame (:mod:`.stream_davis`)
+        davis = DavisScores(len(frames))
+        hook = chain(hook, davis.on_frame)
     if cfg.keys is not None:
         from .stream_keys import key_indices, run_clip_keys
 
@@ -162,6 +170,8 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
                width=frames[0].shape[1], height=frames[0].shape[0])
     if recorded:
         out["recording_frames"] = recorded
+    if davis is not None:
+        out["davis"] = davis.result()
     return out
 
 
@@ -194,6 +204,7 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
     """Run every clip (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
     from .units import evaluate_units, load_cached
 
+    check_davis_config(config)
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     for name, frames in datasets.items():
         check_clip(name, frames)
@@ -223,6 +234,8 @@ def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
     pooled = sum((np.asarray(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS))), np.int64) for r in unit_results),
                  np.zeros((2, CONFIDENCE_LEVELS), np.int64))
     average = {m: float(np.mean([c["reduction"][m] for c in clips.values()])) for m in config.methods} if clips else {}
+    sections = {"average_reduction": average, "calibration": calibration(pooled)}
+    if is_davis(config.data):
+        sections["davis"] = summarise_davis(config, unit_results)
     return Results("stream", plain_config(config), clips, unit_results, primary_backend=config.backends[0],
-                   methods=tuple(config.methods),
-                   sections={"average_reduction": average, "calibration": calibration(pooled)})
+                   methods=tuple(config.methods), sections=sections)

@@ -207,54 +207,75 @@ def carried_log_odds(log_odds: np.ndarray, field: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class TrustMaps:
-    """A step's trust map, per pixel (H, W) float32: each carried prior's log-odds (``dense_prior``,
-    ``flow_prior``), the evidence for it (the key frame's ``dense_residual`` and ``flow_residual`` along
-    each motion, the dense field's own ``confidence``) and the fusion weight the rule gave it (``dense``,
-    ``flow``); None where that prior is absent."""
+    """A step's trust map, per pixel (H, W) float32, its motions named by their role: the ``primary`` motion
+    (the stream's own: a dense field, DIS's flow with ``model="flow"``, or a global transform) and the
+    ``second`` (DIS's flow beside a registration; None with a flow, or for frames DIS does not take). For
+    each, the carried prior's log-odds (``primary_prior``, ``second_prior``), the evidence for it (the key
+    frame's ``primary_residual`` and ``second_residual`` along each motion, the primary field's own
+    ``confidence``) and the fusion weight the rule gave it (``primary``, ``second``); None where that
+    prior is absent. The names of before 0.2.0 (``dense``, ``flow``, ``dense_prior``, ...) still read,
+    with a :class:`DeprecationWarning`."""
 
-    dense: np.ndarray | None
-    dense_prior: np.ndarray | None
-    flow: np.ndarray | None
-    flow_prior: np.ndarray | None
-    dense_residual: np.ndarray | None = None
-    flow_residual: np.ndarray | None = None
+    primary: np.ndarray | None
+    primary_prior: np.ndarray | None
+    second: np.ndarray | None
+    second_prior: np.ndarray | None
+    primary_residual: np.ndarray | None = None
+    second_residual: np.ndarray | None = None
     confidence: np.ndarray | None = None
 
     def prior_term(self, shape: tuple[int, int]) -> np.ndarray:
         """(H, W) float32: the sum of weight times log-odds over the priors present."""
         out = np.zeros(shape, np.float32)
-        for w, l in ((self.dense, self.dense_prior), (self.flow, self.flow_prior)):
+        for w, l in ((self.primary, self.primary_prior), (self.second, self.second_prior)):
             if w is not None and l is not None:
                 out += w * l
         return out
 
     def summary(self, rule: "TrustRule", weight: float) -> dict:
-        """The frame's trust in one number per prior: the mean of its weight over the pixels, as a share
-        of the most the rule gives it (``weight * dense`` times the top of
-        :data:`~pcreg.classification.fusion.CONFIDENCE_SPAN` at full confidence, ``weight * flow``)."""
+        """The frame's trust in one number per motion (``primary``, ``second``: ``steps.jsonl``'s ``trust``):
+        the mean of its weight over the pixels, as a share of the most the rule gives it (``weight *
+        rule.dense`` times the top of :data:`~pcreg.classification.fusion.CONFIDENCE_SPAN` at full confidence,
+        ``weight * rule.flow``)."""
         out = {}
-        top_dense = weight * rule.dense * CONFIDENCE_SPAN[1]
-        for name, w, top in (("dense", self.dense, top_dense), ("flow", self.flow, weight * rule.flow)):
+        top_primary = weight * rule.dense * CONFIDENCE_SPAN[1]
+        for name, w, top in (("primary", self.primary, top_primary), ("second", self.second, weight * rule.flow)):
             out[name] = None if w is None or top <= 0 else float(np.mean(w, dtype=np.float64) / top)
         return out
 
+    def __getattr__(self, name: str):
+        new = _OLD_TRUST_NAMES.get(name)
+        if new is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        import warnings
 
-def trust_maps(rule: TrustRule, *, weight: float, dense_prior: np.ndarray | None, dense_residual: np.ndarray | None,
-               confidence: np.ndarray | None, flow_prior: np.ndarray | None, flow_residual: np.ndarray | None
-               ) -> TrustMaps:
-    """Each carried prior's weight per pixel by ``rule`` (the module's formula); a prior given as None
-    (its motion failed or was not computed) gets none, and a pixel whose residual's neighbourhood lies
-    wholly outside the key frame (:data:`OUTSIDE`) gets 0."""
+        warnings.warn(f"TrustMaps.{name} is deprecated since 0.2.0 (the motions are named by their role); "
+                      f"use TrustMaps.{new}", DeprecationWarning, stacklevel=2)
+        return getattr(self, new)
+
+
+#: :class:`TrustMaps`' names of before 0.2.0, and what they are now.
+_OLD_TRUST_NAMES = {"dense": "primary", "dense_prior": "primary_prior", "dense_residual": "primary_residual",
+                    "flow": "second", "flow_prior": "second_prior", "flow_residual": "second_residual"}
+
+
+def trust_maps(rule: TrustRule, *, weight: float, primary_prior: np.ndarray | None,
+               primary_residual: np.ndarray | None, confidence: np.ndarray | None, second_prior: np.ndarray | None,
+               second_residual: np.ndarray | None) -> TrustMaps:
+    """Each carried prior's weight per pixel by ``rule`` (the module's formula): the primary motion's and
+    the second's (:class:`TrustMaps`); a prior given as None (its motion failed or was not computed) gets
+    none, and a pixel whose residual's neighbourhood lies wholly outside the key frame (:data:`OUTSIDE`)
+    gets 0."""
     wd = wf = None
-    if dense_prior is not None and dense_residual is not None:
+    if primary_prior is not None and primary_residual is not None:
         lo, hi = CONFIDENCE_SPAN
         c = UNKNOWN_CONFIDENCE if confidence is None else np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0)
         wd = (np.float32(weight * rule.dense) * (np.float32(lo) + np.float32(hi - lo) * c)
-              * residual_weight(dense_residual, rule))
+              * residual_weight(primary_residual, rule))
         wd = wd.astype(np.float32, copy=False)
-    if flow_prior is not None and flow_residual is not None:
-        wf = np.float32(weight * rule.flow) * residual_weight(flow_residual, rule)
-    return TrustMaps(wd, dense_prior, wf, flow_prior, dense_residual, flow_residual,
+    if second_prior is not None and second_residual is not None:
+        wf = np.float32(weight * rule.flow) * residual_weight(second_residual, rule)
+    return TrustMaps(wd, primary_prior, wf, second_prior, primary_residual, second_residual,
                      None if confidence is None else np.asarray(confidence, np.float32))
 
 

@@ -173,7 +173,7 @@ def parse_table_json(text: str, where: str) -> ClassTable:
         colour = c["colour"]
         if not isinstance(colour, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in colour):
             raise InputError(f"{where}: class {c.get('name')!r} has colour {colour!r}, not [R, G, B] integers")
-        classes.append(LabelClass(c.get("id", i), c["name"], tuple(colour)))  # type: ignore[arg-type]
+        classes.append(LabelClass(c.get("id", i), c["name"], tuple(colour)))
     unknown = doc["unknown"]
     if isinstance(unknown, str):  # the unknown class by name
         unknown = next((c.id for c in classes if c.name == unknown), unknown)

@@ -339,7 +339,13 @@ class NaiveBayesPixelClassifier:
             if self.classes_[0] == 0 and self.classes_[1] == 1:
                 return out
             return self.classes_[out]
-        return self.classes_[np.argmax(self.class_scores(image), axis=-1)]
+        planes = self._score_planes(image, None)
+        best, idx = planes[0].copy(), np.zeros(planes[0].shape, np.uint8)
+        for k, p in enumerate(planes[1:], start=1):  # argmax over the classes, the first of equals winning
+            better = p > best
+            idx[better] = k
+            np.maximum(best, p, out=best)
+        return self.classes_[idx]
 
     def class_scores(self, image, *, groups=None) -> np.ndarray:
         """(H, W, K) float32, K = ``len(classes_)``: channel k is ``log p(c_k) + sum_f log N(x_f; theta_kf,
@@ -351,21 +357,31 @@ class NaiveBayesPixelClassifier:
         Evaluated through the fitted 256-entry float32 tables, one look-up per feature, pixel and class:
         time and memory grow linearly with K. groups : the image's :meth:`feature_groups`, when already
         computed (made once here otherwise, for every class)."""
+        return np.stack(self._score_planes(image, groups), axis=-1)
+
+    def _score_planes(self, image, groups) -> list[np.ndarray]:
         self._check_fitted()
         if groups is None:
             groups = self.feature_groups(image)
-        return np.stack([table_sum(image, self._tables32[i], self.features, weights=self.weights, groups=groups)
-                         + np.float32(self._log_prior[i]) for i in range(len(self.classes_))], axis=-1)
+        return [table_sum(image, self._tables32[i], self.features, weights=self.weights, groups=groups)
+                + np.float32(self._log_prior[i]) for i in range(len(self.classes_))]
 
     def log_posteriors(self, image, *, groups=None) -> np.ndarray:
         """(H, W, K) float32 normalised log-posteriors ``log p(c_k | x)`` over the trained classes
         ``classes_`` (:meth:`class_scores` minus their log-sum-exp at each pixel); ``exp`` sums to 1 over
         the last axis."""
-        s = self.class_scores(image, groups=groups)
-        m = s.max(axis=-1, keepdims=True)
-        lse = m + np.log(np.exp(s - m).sum(axis=-1, keepdims=True))
-        s -= lse
-        return s
+        import cv2
+
+        planes = self._score_planes(image, groups)
+        m = np.maximum.reduce(planes)
+        total = np.zeros_like(m)
+        for p in planes:
+            total += cv2.exp(p - m)
+        lse = m + np.log(total)
+        out = np.empty(m.shape + (len(planes),), np.float32)
+        for k, p in enumerate(planes):
+            np.subtract(p, lse, out=out[:, :, k])
+        return out
 
     def score_error(self, images, labels, *, exclude_unknown: bool = True) -> float:
         """Error rate in percent over all pixels of the given frames (pooled), unknown truth left out."""

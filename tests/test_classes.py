@@ -254,3 +254,19 @@ def test_davis_masks_through_the_mapping_then_the_table(tmp_path):
     ids = mapping_lut("davis")[raw]
     out = write_label_png(tmp_path / "m.png", ids, DAVIS)
     np.testing.assert_array_equal(read_label_png(out, DAVIS), (raw != 0).astype(np.uint8))
+
+
+def test_runs_label_files_and_palette_pngs_read_back_the_same(tmp_path):
+    """What ``pcreg run`` writes today (pcreg.runs.files.write_labels, one grey channel) and the palette PNG
+    that replaces it read back through read_label_png as identical arrays."""
+    from pcreg.datasets import synthetic
+    from pcreg.runs.files import write_labels
+
+    labels = synthetic("syn1a", 1, 0, width=160, height=120)[0].labels
+    assert set(np.unique(labels)) == {0, 1, 2}
+    write_labels(tmp_path / "today.png", labels)
+    write_label_png(tmp_path / "palette.png", labels, LAGR)
+    today, palette = read_label_png(tmp_path / "today.png", LAGR), read_label_png(tmp_path / "palette.png", LAGR)
+    np.testing.assert_array_equal(today, labels)
+    np.testing.assert_array_equal(palette, labels)
+    assert today.dtype == palette.dtype == np.uint8

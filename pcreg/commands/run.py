@@ -24,14 +24,6 @@ from pathlib import Path
 from ..recording.interface import RecorderProtocol
 from ._common import add_record_arguments, arg_int, open_recorder
 
-def _labels_read() -> dict:
-    """How the labels are read from the fused log-odds (the trust rule's blur), in a run's identity: a run
-    begun when they were read otherwise is not continued with labels of another kind."""
-    from ..pipeline.trust import STREAM_TRUST
-
-    return {"smooth": STREAM_TRUST.smooth}
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..registration.transforms import MODELS
 
@@ -150,28 +142,19 @@ def _check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..classification.fusion import MAX_WEIGHT
     from ..datasets.davis import check_key_mask
     from ..datasets.sources import Selection, open_frames
     from ..errors import InputError
     from ..outputs import OutputLock
-    from ..pipeline.stream import Propagator
-    from ..validation import check_float
+    from ..pipeline.config import PropagatorConfig
+    from ..runs.state import run_identity
 
     source, out = Path(args.folder), Path(args.out)
-    if not 0 <= args.weight <= MAX_WEIGHT:
-        raise InputError(f"--weight must be a number in 0..{MAX_WEIGHT:g}, got {args.weight}")
-    selection = Selection(args.start, args.stop, args.every)
-    frames = open_frames(source, selection)
-    options = {"backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
-    if args.preset is not None and args.model != "flow":
-        raise InputError(f"--preset is DIS's, for --model flow (not {args.model})")
-    if args.model == "flow":  # the preset named in the model: runs from before it still resume
-        options["model"] = f"flow:{args.preset or 'medium'}"
-    if args.scale != 1.0:  # named only when below 1, so runs from before it still resume
-        options["scale"] = check_float(args.scale, "--scale", lo=0, lo_open=True, hi=1)
+    config = PropagatorConfig(model=args.model, preset=args.preset, backend=args.backend, init=args.init,
+                              weight=args.weight, scale=args.scale)
+    frames = open_frames(source, Selection(args.start, args.stop, args.every))
     if Path(args.labels).is_dir():
-        return _run_keys(args, frames, selection, options)
+        return _run_keys(args, frames, config)
     key_labels = _read_labels(Path(args.labels), args.mapping)
     if args.mapping == "davis":
         check_key_mask(key_labels, args.labels)
@@ -186,19 +169,21 @@ def run(args: argparse.Namespace) -> int:
     truth = _truth(args.truth, frames, key.image.shape[:2], args.mapping)
     _check_spares_inputs(out, frames, Path(args.labels), truth)
     _check_suggest(args.suggest, frames, 1)
-    prop = Propagator.from_key_frame(key.image, key_labels, **options)
-    identity = {frames.kind: str(source.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
-                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options,
-                **_labels_read()}
-    if args.confidence:  # a run's identity names it only when on, so runs from before it still resume
-        identity["confidence"] = True
-    if selection.to_dict() is not None:  # named only when not every frame, as --confidence
-        identity["frames"] = selection.to_dict()
+    prop = _key_propagator(config, key.image, key_labels)
+    identity = run_identity(frames, source, Path(args.labels), config, mapping=args.mapping, truth=args.truth,
+                            confidence=args.confidence)
     with OutputLock(out):  # a second run on the same --out is refused, not raced
-        return _label_frames(args, frames, (second, decoded), prop, truth, options, identity, key_labels)
+        return _label_frames(args, frames, (second, decoded), prop, truth, config, identity, key_labels)
 
 
-def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, options: dict, identity: dict,
+def _key_propagator(config, image, labels):
+    """A propagator whose classifier is fitted on the key frame (:meth:`pcreg.Propagator.from_key_frame`)."""
+    from ..pipeline.stream import Propagator
+
+    return Propagator.from_key_frame(image, labels, **config.options())
+
+
+def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, config, identity: dict,
                   key_labels) -> int:
     """The frames not labelled yet, in order; ``OUT/run.json`` is the commit point of each. ``pending``: the
     frame after the key frame and the decoder it came from, which a fresh run continues."""
@@ -215,7 +200,7 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     from ..runs.state import STATE
 
     out = Path(args.out)
-    stream = StreamRun(frames, key_labels, out, options, truth=truth, identity=identity)
+    stream = StreamRun(frames, key_labels, out, config, truth=truth, identity=identity)
     start = stream.start(force=args.force)
     # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
     # never where the run stops (decoding finds the end)
@@ -337,7 +322,7 @@ def _key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> d
     return {t: keys[t] for t in sorted(keys)}
 
 
-def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int:
+def _run_keys(args: argparse.Namespace, frames, config) -> int:
     """``--labels FOLDER``: every frame labelled from the key frames around it (:mod:`pcreg.pipeline.keys_run`)."""
     import sys
 
@@ -345,7 +330,7 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.keys_run import KeyRun
-    from ..runs.state import STATE
+    from ..runs.state import STATE, run_identity
 
     source, out, folder = Path(args.folder), Path(args.out), Path(args.labels)
     first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty
@@ -357,14 +342,10 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
     _check_spares_inputs(out, frames, folder / f"{frames.stem(next(iter(keys)))}.png", truth)
     _check_suggest(args.suggest, frames, len(keys))
-    identity = {frames.kind: str(source.resolve()), "labels": str(folder.resolve()), "mapping": args.mapping,
-                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options, **_labels_read()}
-    if args.confidence:
-        identity["confidence"] = True
-    if selection.to_dict() is not None:
-        identity["frames"] = selection.to_dict()
+    identity = run_identity(frames, source, folder, config, mapping=args.mapping, truth=args.truth,
+                            confidence=args.confidence)
     with OutputLock(out), open_recorder(args, name=f"run {args.folder}") as rec:
-        job = KeyRun(frames, keys, out, options, identity=identity, truth=truth, confidence=args.confidence)
+        job = KeyRun(frames, keys, out, config, identity=identity, truth=truth, confidence=args.confidence)
         job.start(force=args.force)
         n = len(frames) if frames.kind == "folder" else frames.count()
         left = None if n is None else max(0, n - len(keys) - job.state["lines"])  # what the bar counts, not the run

@@ -71,13 +71,14 @@ def _digest(labels: np.ndarray) -> str:
 
 class KeyRun:
     """One run: ``frames`` (a :class:`~pcreg.datasets.sources.FolderFrames` or ``VideoFrames``), ``keys``
-    ({position: (H, W) uint8 labels}), ``out``, the propagator's ``options``, ``identity`` (what a
+    ({position: (H, W) uint8 labels}), ``out``, the propagators' ``config``
+    (:class:`~pcreg.pipeline.config.PropagatorConfig`), ``identity`` (what a
     resumed run must match, in run.json), optional ``truth`` (indexed by position, as
     :class:`~pcreg.pipeline.stream_run.StreamRun`'s) and ``confidence`` (write ``confidence/NAME.png``)."""
 
-    def __init__(self, frames, keys: dict[int, np.ndarray], out: Path, options: dict, *, identity: dict,
+    def __init__(self, frames, keys: dict[int, np.ndarray], out: Path, config, *, identity: dict,
                  truth=None, confidence: bool = False) -> None:
-        self.frames, self.keys, self.out, self.options = frames, dict(sorted(keys.items())), Path(out), options
+        self.frames, self.keys, self.out, self.config = frames, dict(sorted(keys.items())), Path(out), config
         self.identity, self.truth, self.confidence = identity, truth, confidence
         self.n = len(frames) if frames.kind == "folder" else None
         self.plan = stretches(self.keys, self.n)
@@ -94,7 +95,7 @@ class KeyRun:
 
     def _fingerprint(self, s: Stretch) -> str:
         what = {"keys": [[k, self.frames.name(k), _digest(self.keys[k])] for k in s.keys],
-                "first": s.first, "last": s.last, "options": self.options, "confidence": self.confidence,
+                "first": s.first, "last": s.last, "options": self.config.options(), "confidence": self.confidence,
                 "fit": "stretch"}
         return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
 
@@ -216,10 +217,7 @@ class KeyRun:
         return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys])
 
     def _propagator(self, clf, image, labels, learning: bool):
-        from .learning import STREAM_LEARNING
-        from .stream import Propagator
-
-        prop = Propagator(clf, **self.options, learning=STREAM_LEARNING if learning else None)
+        prop = self.config.propagator(clf, learns=learning)
         prop.reset(image, labels)
         return prop
 

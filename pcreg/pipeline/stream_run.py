@@ -50,14 +50,14 @@ class FrameNames(Protocol):
 @dataclass
 class StreamRun:
     """One run: ``frames`` (the frame source's names, position 0 is the key frame), the key frame's
-    ``labels``, ``out``, the propagator's ``options`` (:class:`pcreg.Propagator` keywords), and optional
+    ``labels``, ``out``, the propagator's ``config`` (:class:`~pcreg.pipeline.config.PropagatorConfig`), and optional
     ``truth`` label maps (indexed by position, an entry None where there is none; it may read each when
     asked) to score against."""
 
     frames: FrameNames
     labels: np.ndarray
     out: Path
-    options: dict
+    config: object
     truth: Sequence[np.ndarray | None] | None = None
     identity: dict | None = None  # what a resumed run must match (paths and options), written in run.json
 

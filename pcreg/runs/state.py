@@ -16,8 +16,8 @@ from pathlib import Path
 
 from ..errors import InputError, OutputError
 
-__all__ = ["STATE", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "open_state", "read_state",
-           "run_frames"]
+__all__ = ["STATE", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
+           "read_state", "run_frames"]
 
 STATE = "run.json"
 #: The counters of a run's running error (run.json's ``truth``, and each key-frame stretch's).
@@ -77,6 +77,27 @@ def state_problem(state) -> str | None:
     if not isinstance(state, dict):
         return "its top level"
     return (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
+
+
+def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | None,
+                 confidence: bool) -> dict:
+    """What a run is, as its run.json names it and a resumed run must match: its frames (``source``, a
+    folder or a video, and which of them: ``frames.selection``), its ``labels`` (a label image or a folder
+    of key frames), how labels are coded (``mapping``), the ``truth`` folder, the propagators' options
+    (``config``, a :class:`~pcreg.pipeline.config.PropagatorConfig`), how labels are read from the fused
+    log-odds (the trust rule's blur: a run begun when they were read otherwise is not continued), and
+    ``--confidence``. ``confidence`` and the selection are named only when on (runs from before them
+    still resume)."""
+    from ..pipeline.trust import STREAM_TRUST
+
+    identity = {frames.kind: str(source.resolve()), "labels": str(labels.resolve()), "mapping": mapping,
+                "truth": None if truth is None else str(Path(truth).resolve()), **config.options(),
+                "smooth": STREAM_TRUST.smooth}
+    if confidence:
+        identity["confidence"] = True
+    if frames.selection.to_dict() is not None:
+        identity["frames"] = frames.selection.to_dict()
+    return identity
 
 
 def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:

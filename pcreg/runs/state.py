@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import InputError, OutputError
+from ..formats import load_json_object
 
 __all__ = ["STATE", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
            "read_state", "run_frames"]
@@ -112,11 +113,9 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
     if force or not state_path.is_file():
         return None
     try:
-        state = json.loads(state_path.read_text())
-    except (OSError, ValueError):
-        raise OutputError(f"{state_path}: unreadable; use --force to start over") from None
-    if not isinstance(state, dict):
-        raise OutputError(f"{state_path}: not a run's state (a JSON {type(state).__name__}); use --force to start over")
+        state = load_json_object(state_path)
+    except ValueError as exc:
+        raise OutputError(f"{state_path}: {exc}, not a run's state; use --force to start over") from None
     if state.get("run") != identity:
         raise OutputError(f"{out} holds a run with other options{_differences(state.get('run'), identity or {})}; "
                           "use --force to start over or another --out")

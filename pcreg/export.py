@@ -4,47 +4,46 @@ One format: CVAT's "Segmentation mask 1.1" (``cvat-mask``), the Pascal VOC segme
 reads through Datumaro's ``voc`` importer::
 
     export-cvat-mask.zip
-    ├── labelmap.txt                    # label:color_rgb:parts:actions
+    ├── labelmap.txt                    # label:color_rgb:parts:actions (the class table's, pcreg.classes)
     ├── ImageSets/Segmentation/default.txt   # the frames' names, without extension, in run order
-    ├── SegmentationClass/NAME.png      # RGB, one colour per class (LABELMAP)
-    └── SegmentationObject/NAME.png     # RGB, VOC instance colours: ground 1, obstacle 2, unknown 0
+    ├── SegmentationClass/NAME.png      # RGB, each class in its table colour
+    └── SegmentationObject/NAME.png     # RGB, VOC instance colours: the known classes 1, 2, ..., unknown 0
 
-Unknown pixels (2) are black, ``background`` in the label map, and instance 0 in ``SegmentationObject``:
-the importer makes no annotation of instance 0, so in the tool they are unlabelled, where a person looks.
-Ground and obstacle become one mask each per frame (a class that a frame does not show, none). The
-task needs the labels ``ground`` and ``obstacle``; colours are matched through ``labelmap.txt``, names
-of frames through ``default.txt`` (the frame's file name without its extension).
+Unknown pixels are black, the label map's background (its unknown class, under its own name: no extra
+``background`` line duplicates a class), and instance 0 in ``SegmentationObject``: the importer makes no
+annotation of instance 0, so in the tool they are unlabelled, where a person looks. Each known class becomes
+one mask per frame (a class that a frame does not show, none). The task needs the table's known classes as
+labels (``ground`` and ``obstacle`` for the default table, ``lagr``); colours are matched through
+``labelmap.txt``, names of frames through ``default.txt`` (the frame's file name without its extension).
 """
 
 from __future__ import annotations
 
 import io
-import json
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
 
-__all__ = ["FORMATS", "LABELMAP", "INSTANCE_COLOURS", "RunLabels", "read_run", "read_labels", "labels_with_confidence",
+__all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labels_with_confidence", "instance_colours",
            "cvat_mask_archive", "default_name"]
 
 #: The formats ``pcreg export`` writes.
 FORMATS: tuple[str, ...] = ("cvat-mask",)
 
-#: pcreg's class id -> (name in the archive, RGB colour) of ``SegmentationClass``; unknown is the
-#: importer's ``background``, black (CVAT's own export writes it the same way).
-LABELMAP: dict[int, tuple[str, tuple[int, int, int]]] = {
-    2: ("background", (0, 0, 0)),
-    0: ("ground", (0, 128, 0)),
-    1: ("obstacle", (128, 0, 0)),
-}
+def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:
+    """Class id -> RGB of its instance in ``SegmentationObject``: the k-th known class the VOC instance
+    colour map's entry k (1 (128, 0, 0), 2 (0, 128, 0), ...), the unknown 0 (black, no instance)."""
+    from .classes import voc_colormap
 
-#: pcreg's class id -> RGB of its instance in ``SegmentationObject``: the VOC instance colour map's
-#: entries 1 and 2, and 0 (black, no instance) for unknown.
-INSTANCE_COLOURS: dict[int, tuple[int, int, int]] = {0: (128, 0, 0), 1: (0, 128, 0), 2: (0, 0, 0)}
+    cmap = voc_colormap(table.n_known + 1)
+    out = {c.id: (int(cmap[k + 1][0]), int(cmap[k + 1][1]), int(cmap[k + 1][2])) for k, c in enumerate(table.known)}
+    out[table.unknown] = (0, 0, 0)
+    return out
 
 
 @dataclass(frozen=True)
@@ -70,26 +69,19 @@ def read_run(folder: str | Path) -> RunLabels:
     Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json`` (not a run's output), one
     that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
     """
-    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames, state_problem
+    from .runs.files import CONFIDENCE, STEPS
+    from .runs.state import STATE, read_state, run_frames
 
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder")
-    state_path = folder / STATE
-    if not state_path.is_file():
-        raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
-    try:
-        state = json.loads(state_path.read_text(encoding="utf-8"))
-        if state_problem(state) is not None:
-            raise TypeError("not a run's state")
-    except (OSError, ValueError, TypeError, UnicodeDecodeError):
-        raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
+    state = read_state(folder)
     steps_path = folder / STEPS
     try:
         lines = steps_path.read_bytes().splitlines() if steps_path.is_file() else []
         keys, names = run_frames(state, [ln for ln in lines if ln.strip()])
     except (KeyError, TypeError, AttributeError):
-        raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
+        raise InputError(f"{folder / STATE}: unreadable (not a run.json that pcreg run wrote)") from None
     except (OSError, ValueError) as exc:
         raise InputError(f"{steps_path}: missing or unreadable ({exc})") from None
     stems = [Path(n).stem for n in names]
@@ -107,28 +99,23 @@ def read_run(folder: str | Path) -> RunLabels:
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence))
 
 
-def read_labels(path: Path) -> np.ndarray:
-    """(H, W) uint8 labels of a run's label PNG, each 0, 1 or 2; an :class:`InputError` naming it otherwise."""
-    import cv2
+def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
+    """(H, W) uint8 class ids of a run's label PNG (:func:`pcreg.classes.read_label_png`: class ids or a
+    palette PNG in the table's colours); an :class:`InputError` naming it otherwise."""
+    from .classes import read_label_png
 
-    from .formats import read_image_file
-
-    lab = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)
-    if lab.ndim != 2 or lab.dtype != np.uint8:
-        raise InputError(f"{path}: not a label image (8-bit, one channel)")
-    if lab.size and lab.max() > 2:
-        raise InputError(f"{path}: label value {int(lab.max())} is not 0, 1 or 2")
-    return lab
+    return read_label_png(path, table)
 
 
-def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None) -> np.ndarray:
+def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None,
+                           table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
     """Frame ``t``'s labels; with ``min_confidence``, the pixels whose confidence is below it set to
-    unknown (2). The key frame's labels (a person's) are kept as they are."""
+    unknown (the table's). The key frame's labels (a person's) are kept as they are."""
     import cv2
 
     from .formats import read_image_file
 
-    lab = read_labels(run.paths[t])
+    lab = read_labels(run.paths[t], table)
     if min_confidence is None or t == 0:
         return lab
     path = run.confidence[t]
@@ -140,7 +127,7 @@ def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None)
     if conf.ndim != 2 or conf.dtype != np.uint8 or conf.shape != lab.shape:
         raise InputError(f"{path}: not a confidence map of {run.paths[t].name}'s size (8-bit, one channel)")
     out = lab.copy()
-    out[conf.astype(np.float64) < min_confidence * 255.0] = 2  # 255 x the probability that the label is right
+    out[conf.astype(np.float64) < min_confidence * 255.0] = table.unknown  # 255 x the probability that the label is right
     return out
 
 
@@ -160,16 +147,21 @@ def _paint(labels: np.ndarray, colours: dict[int, tuple[int, int, int]]) -> np.n
     return lut[labels]
 
 
-def cvat_mask_archive(frames) -> tuple[bytes, dict[str, int]]:
+def cvat_mask_archive(frames, table: ClassTable = DEFAULT_TABLE) -> tuple[bytes, dict[str, int]]:
     """The bytes of a "Segmentation mask 1.1" zip of ``frames`` (pairs of a frame's file name and its
-    (H, W) uint8 labels, 0 ground, 1 obstacle, 2 unknown), and how many frames show each class.
+    (H, W) uint8 class ids of ``table``), and how many frames show each class (by name, every class of
+    the table).
 
     Members are stored in a fixed order with a fixed date, so the same labels give the same bytes.
     """
+    from .classes import labelmap_text
+
     buf = io.BytesIO()
-    counts = {name: 0 for name, _ in LABELMAP.values()}
+    counts = {c.name: 0 for c in table.classes}
     stems: list[str] = []
-    class_colours = {k: colour for k, (_, colour) in LABELMAP.items()}
+    class_colours = {c.id: c.colour for c in table.classes}
+    instances = instance_colours(table)
+    labelmap = labelmap_text(table)
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as z:  # PNGs are compressed already
         def add(name: str, data: bytes | str) -> None:
             # a frame name that is not UTF-8 (os.fsdecode's escapes) stored with its bad bytes replaced, in
@@ -181,20 +173,19 @@ def cvat_mask_archive(frames) -> tuple[bytes, dict[str, int]]:
             info.external_attr = 0o644 << 16  # rw-r--r-- once unpacked (0 would be no permission at all)
             z.writestr(info, data)
 
-        lines = ["# label:color_rgb:parts:actions"]
-        lines += [f"{name}:{','.join(map(str, colour))}::" for name, colour in LABELMAP.values()]
-        add("labelmap.txt", "\n".join(lines) + "\n")
+        add("labelmap.txt", labelmap)
         for frame, labels in frames:
             stem = Path(frame).stem
             labels = np.asarray(labels)
-            if labels.ndim != 2 or labels.dtype != np.uint8 or (labels.size and labels.max() > 2):
-                raise InputError(f"{frame}: labels must be (H, W) uint8 in 0, 1, 2")
+            if labels.ndim != 2 or labels.dtype != np.uint8:
+                raise InputError(f"{frame}: labels must be (H, W) uint8 class ids")
+            labels = table.check_labels(labels, frame)
             if stem in stems:
                 raise InputError(f"{frame}: two frames named {stem}")
             stems.append(stem)
             for k in np.unique(labels):
-                counts[LABELMAP[int(k)][0]] += 1
+                counts[table.name_of(int(k))] += 1
             add(f"SegmentationClass/{stem}.png", _png(_paint(labels, class_colours), stem))
-            add(f"SegmentationObject/{stem}.png", _png(_paint(labels, INSTANCE_COLOURS), stem))
+            add(f"SegmentationObject/{stem}.png", _png(_paint(labels, instances), stem))
         add("ImageSets/Segmentation/default.txt", "".join(f"{s}\n" for s in stems))
     return buf.getvalue(), counts

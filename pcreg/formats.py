@@ -102,6 +102,22 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
         os.close(fd)
 
 
+def load_json_object(path: str | os.PathLike) -> dict:
+    """The JSON object a small file holds; a ValueError saying why not for a file that cannot be read
+    (missing, a folder, no permission), is not UTF-8, is not JSON, or holds another JSON value."""
+    import json
+
+    try:
+        value = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ValueError(f"unreadable ({exc.strerror or exc})") from None
+    except ValueError:
+        raise ValueError("unreadable (not JSON)") from None
+    if not isinstance(value, dict):
+        raise ValueError(f"not a JSON object (a JSON {type(value).__name__})")
+    return value
+
+
 def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:
     """A small whitespace-separated text matrix (an initial guess, a ground truth) from a regular file of
     at most 64 kB, as a finite 2-D float64 array."""

@@ -38,7 +38,9 @@ def warm_up() -> None:
     shape = result.confidence.shape
     fused_labels(np.zeros(shape, np.float32), np.full(shape, 0.5, np.float32), result.confidence, weight=1.0, pi=0.5)
     zeros = np.zeros(shape, np.float32)
-    trusted_fusion(STREAM_TRUST, 1.0, zeros, zeros, zeros, result.confidence, (zeros, zeros))
+    for confidence in (result.confidence, None):  # the one fusion kernel, compiled for each case a stream meets
+        for flow in ((zeros, zeros), None):
+            trusted_fusion(STREAM_TRUST, 1.0, zeros, zeros, zeros, confidence, flow)
 
 
 def _textured_pair(size: int = 96, shift: int = 2) -> tuple[np.ndarray, np.ndarray]:

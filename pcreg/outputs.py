@@ -69,8 +69,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the file the usual permissions
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException as exc:
         try:
             os.unlink(tmp)
@@ -80,6 +79,13 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
             raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
     return path
+
+
+def publish(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
+    """Put a finished temporary file (made by :func:`tempfile.mkstemp` beside ``path``) in ``path``'s place
+    with the permissions any new file gets (mkstemp makes it 0600): the last step of every atomic write."""
+    os.chmod(tmp, 0o666 & ~_UMASK)
+    os.replace(tmp, path)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:

@@ -25,7 +25,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "SUGGEST", "RunReview", "read_review", "overlay",
+__all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay",
            "FrameImages", "write_overlay_video"]
 
 #: A label is marked unsure where its confidence (the probability that it is right) is below this.
@@ -36,8 +36,6 @@ COLOURS: dict[int, tuple[int, int, int]] = {0: (34, 197, 94), 1: (255, 40, 40)}
 ALPHA = 0.5
 #: The hidden folder in a run's output where the review keeps what it decoded.
 CACHE = ".pcreg-review"
-#: The frames suggested to label next: one frame name a line, optionally a tab and its predicted error.
-SUGGEST = "suggest.txt"
 
 
 @dataclass(frozen=True)
@@ -65,7 +63,7 @@ class RunReview:
         return self.folder / f"{self.stems[t]}.png"
 
     def confidence_path(self, t: int) -> Path | None:
-        from .pipeline.stream_run import CONFIDENCE
+        from .runs.files import CONFIDENCE
 
         p = self.folder / CONFIDENCE / f"{self.stems[t]}.png"
         return p if self.confidence and t not in self.keys and p.is_file() else None
@@ -73,7 +71,7 @@ class RunReview:
 
 def is_run(folder: str | Path) -> bool:
     """Whether ``folder`` is a ``pcreg run`` output (it holds a ``run.json`` naming the run's source)."""
-    from .pipeline.stream_run import STATE
+    from .runs.state import STATE
 
     p = Path(folder) / STATE
     if not p.is_file():
@@ -92,16 +90,13 @@ def read_review(folder: str | Path) -> RunReview:
     a source that is gone, an unreadable ``steps.jsonl`` or ``suggest.txt``.
     """
     from .datasets.sources import FolderFrames, Selection, open_frames
-    from .pipeline.stream_run import CONFIDENCE, STATE, STEPS, run_frames, state_problem
+    from .runs.files import CONFIDENCE, STEPS
+    from .runs.state import STATE, read_state, run_frames
 
     folder = Path(folder)
     state_path = folder / STATE
-    if not state_path.is_file():
-        raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
+    state = read_state(folder)
     try:
-        state = json.loads(state_path.read_text(encoding="utf-8"))
-        if state_problem(state) is not None:
-            raise ValueError("not a run's state")
         run = state["run"]
         kind = "video" if "video" in run else "folder"
         source = Path(run[kind])
@@ -145,30 +140,16 @@ def read_review(folder: str | Path) -> RunReview:
         e = None if t in keys else steps[n].get("predicted_error")
         errors.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
-                     _suggested(folder / SUGGEST, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict())
+                     _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict())
 
 
-def _suggested(path: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:
-    """``suggest.txt``'s frames (a frame's name, or its stem) that are the run's, in its order."""
-    if not path.is_file():
-        return ()
+def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:
+    """The run's frames that ``suggest.txt`` names (by name or stem, :func:`pcreg.runs.files.read_suggestions`),
+    as positions, in its order, with the predicted error given there."""
+    from .runs.files import read_suggestions
+
     where = {**{s: t for t, s in enumerate(stems)}, **{n: t for t, n in enumerate(names)}}
-    out = []
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError):
-        raise InputError(f"{path}: unreadable (one frame name a line, optionally a tab and its predicted error)") from None
-    for line in lines:
-        name, _, rest = line.partition("\t")
-        name = name.strip()
-        if not name or name.startswith("#") or name not in where:
-            continue
-        try:
-            error: float | None = float(rest.strip()) if rest.strip() else None
-        except ValueError:
-            error = None
-        out.append((where[name], error if error is None or np.isfinite(error) else None))
-    return tuple(out)
+    return tuple((where[name], error) for name, error in read_suggestions(folder, set(where)))
 
 
 def overlay(image: np.ndarray, labels: np.ndarray, confidence: np.ndarray | None = None, *,
@@ -394,6 +375,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     import av
 
     from ._runner import progress
+    from .outputs import publish
 
     fps = fps or _video_rate(review) or 10.0
     codec = _encoder()
@@ -429,7 +411,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
             if stream is not None:
                 for packet in stream.encode():
                     container.mux(packet)
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

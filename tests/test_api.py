@@ -34,3 +34,27 @@ def test_import_is_cheap():
     code = "import sys, pcreg; print(','.join(m for m in ('open3d', 'rerun', 'sklearn', 'cv2') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == ""
+
+
+def test_icp_keywords_of_before_0_2_still_work_with_a_deprecation_warning():
+    """``pcreg.icp(..., backend=...)`` (before 0.2.0) gives what ``pcreg.icp(..., ICPOptions(...))`` gives,
+    and warns naming the new spelling; a keyword that never existed is still a TypeError."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    target = rng.uniform(0, 50, (300, 2))
+    c, s = np.cos(0.05), np.sin(0.05)
+    source = (target - 25) @ np.array([[c, -s], [s, c]]).T + 25 + [0.7, -0.4]
+    new = pcreg.icp(source, target, pcreg.ICPOptions(model="rigid", max_iteration=40, max_correspondence_distance=5.0))
+    with pytest.warns(DeprecationWarning, match=r"pcreg\.ICPOptions\(.*max_iteration=.*\)"):
+        old = pcreg.icp(source, target, model="rigid", max_iteration=40, max_correspondence_distance=5.0)
+    np.testing.assert_array_equal(old.matrix, new.matrix)
+    assert old.iterations == new.iterations
+    sched = pcreg.icp(source, target, pcreg.ICPOptions(schedule=pcreg.VoxelSchedule((4.0, 1.0))))
+    with pytest.warns(DeprecationWarning, match=r"schedule=pcreg\.VoxelSchedule"):
+        old_sched = pcreg.icp(source, target, voxel_sizes=(4.0, 1.0))
+    np.testing.assert_array_equal(old_sched.matrix, sched.matrix)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'backnd'"):
+        pcreg.icp(source, target, backnd="open3d")
+    with pytest.raises(TypeError, match="not both"):
+        pcreg.icp(source, target, pcreg.ICPOptions(), backend="open3d")

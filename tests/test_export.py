@@ -16,7 +16,7 @@ import pytest
 import pcreg
 from pcreg.cli import main
 
-NAMES = {"ground": 0, "obstacle": 1, "background": 2}  # the archive's names -> pcreg's class ids
+NAMES = {"ground": 0, "obstacle": 1, "unknown": 2}  # the archive's names -> pcreg's class ids (LAGR's table)
 
 
 @pytest.fixture(scope="module")
@@ -76,8 +76,11 @@ def _check_archive(path, out, expected: dict[str, np.ndarray]):
                                               + [f"SegmentationObject/{s}.png" for s in stems])
         assert z.read("ImageSets/Segmentation/default.txt").decode().split("\n") == stems + [""]
         colours = _labelmap(z.read("labelmap.txt").decode())
-        assert sorted(colours.values()) == ["background", "ground", "obstacle"]
-        assert {v: k for k, v in colours.items()}["background"] == (0, 0, 0)  # the importer's background
+        assert sorted(colours.values()) == ["ground", "obstacle", "unknown"]  # no extra background line
+        assert {v: k for k, v in colours.items()}["unknown"] == (0, 0, 0)  # the importer's background: black
+        from pcreg.classes import LAGR, parse_labelmap
+
+        assert parse_labelmap(z.read("labelmap.txt").decode(), "labelmap.txt") == LAGR
         by_id = {c: NAMES[name] for c, name in colours.items()}
         # the VOC instance colour map: 0 black (no instance: unlabelled in the tool), 1 (128,0,0), 2 (0,128,0)
         instances = {(0, 0, 0): 0, (128, 0, 0): 1, (0, 128, 0): 2}

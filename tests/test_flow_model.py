@@ -39,7 +39,7 @@ def test_a_flow_stream_labels_better_than_naive_bayes_with_one_motion_and_a_conf
         assert isinstance(r.registration, FlowResult) and r.registration.preset == preset and r.start is None
         d = r.to_dict()["registration"]
         assert d["model"] == "flow" and d["preset"] == preset and d["median_displacement"] >= 0
-        assert r.trust.flow is None and r.trust.dense is not None  # the flow's prior alone: no second motion
+        assert r.trust.second is None and r.trust.primary is not None  # the flow's prior alone: no second motion
         assert r.confidence.shape == (240, 320) and 0.5 <= float(r.confidence.min())
     assert prop.carry is None and not prop.warm_starts  # a flow starts from nothing: every step stands alone
 
@@ -114,7 +114,7 @@ def test_run_with_the_flow_model_keeps_its_preset(tmp_path, frames, capsys):
     assert image(rec.latest(E.DENSE_DISPLACEMENT, frame=2)).shape[:2] == (240, 320)
     steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
     assert [s["registration"]["model"] for s in steps] == ["flow"] * 6 and steps[0]["registration"]["preset"] == "fast"
-    assert steps[0]["trust"]["flow"] is None and steps[0]["start"] is None
+    assert steps[0]["trust"]["second"] is None and steps[0]["start"] is None
     capsys.readouterr()
     assert main([*args, "--scale", "0.5"]) == 2  # continued with another preset: refused, not mixed
     assert "model: 'flow:fast' then, 'flow:medium' now" in one_line_errors(capsys)[-1]

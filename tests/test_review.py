@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import shutil
 import urllib.error
 import urllib.request
@@ -30,11 +31,23 @@ from _view import one_line_error, pcreg_view
 N = 5
 
 
+SUGGEST = 3
+
+
 def _run(root, source, key_labels):
     out = root / "out"
     with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", str(source), "--labels", str(key_labels), "--out", str(out), "--confidence"]) == 0
+        assert main(["run", str(source), "--labels", str(key_labels), "--out", str(out), "--confidence",
+                     "--suggest", str(SUGGEST)]) == 0
     return out
+
+
+def _suggested(out):
+    """The frames pcreg run suggests, worked out here from its steps' predicted errors: (position, error)."""
+    from pcreg.pipeline.keyframes import suggest
+
+    predicted = {s["frame"]: s["predicted_error"] for s in _steps(out)}
+    return [(t, round(predicted[t], 2)) for t in suggest(predicted, [0], SUGGEST, N)]
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +57,7 @@ def synthetic():
 
 @pytest.fixture(scope="module")
 def run_out(tmp_path_factory, synthetic):
-    """A real ``pcreg run`` of five synthetic frames (PNGs in a folder) with --confidence."""
+    """A real ``pcreg run`` of five synthetic frames (PNGs in a folder) with --confidence and --suggest 3."""
     root = tmp_path_factory.mktemp("review")
     (root / "frames").mkdir()
     for i, f in enumerate(synthetic):
@@ -88,11 +101,14 @@ def test_the_review_reads_the_runs_frames_keys_and_errors(run_copy):
     assert r.keys == frozenset({0})
     steps = _steps(run_copy)
     assert r.errors == (None, *(s["predicted_error"] for s in steps))
-    assert r.suggested == ()
+    # the frames pcreg run --suggest wrote to label next, with their predicted errors, in its order
+    assert r.suggested == tuple(_suggested(run_copy)) and len(r.suggested) == SUGGEST
     assert r.confidence_path(0) is None and r.confidence_path(1) == run_copy / "confidence" / "frame_001.png"
-    # suggest.txt: a name or a stem, an optional error after a tab; names not in the run passed over
-    (run_copy / "suggest.txt").write_text("frame_003.png\t12.5\nframe_001\n# a comment\nnot_a_frame\t3\n\n")
-    assert read_review(run_copy).suggested == ((3, 12.5), (1, None))
+    # a suggest.txt edited by hand: a name or a stem, an optional error after a tab; names not in the run,
+    # comments and blank lines passed over; pcreg 0.1's space-separated lines read too
+    (run_copy / "suggest.txt").write_text("frame_003.png\t12.5\nframe_001\n# a comment\nnot_a_frame\t3\n\n"
+                                          "frame_002 7.25\n")
+    assert read_review(run_copy).suggested == ((3, 12.5), (1, None), (2, 7.25))
     # several key frames: named in run.json, or a frame without a line in steps.jsonl
     state = json.loads((run_copy / "run.json").read_text())
     (run_copy / "run.json").write_text(json.dumps({**state, "key_frames": ["frame_002.png"]}))
@@ -172,7 +188,9 @@ def test_the_server_renders_each_frame_on_request(which, request):
         data = json.loads(body)
         assert [f["name"] for f in data["frames"]] == list(review.names)
         assert [f["key"] for f in data["frames"]] == [True] + [False] * (N - 1)
-        assert data["confidence"] is True and data["suggested"] == []
+        assert data["confidence"] is True
+        assert [(f["frame"], f["name"], f["error"]) for f in data["suggested"]] == [
+            (t, review.names[t], e) for t, e in _suggested(out)]
         shots = {}
         for t in (N - 1, 0, 2):  # out of order: a video's frame waits for the decoding to reach it
             for what in ("overlay", "frame"):
@@ -206,7 +224,7 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
 
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
-    (run_copy / "suggest.txt").write_text("frame_003.png\t12.5\nframe_001.png\n")
+    suggested = _suggested(run_copy)  # what pcreg run --suggest 3 wrote, worked out from its steps
     proc, url = view_web(str(run_copy))
     port = None
     try:
@@ -238,7 +256,8 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
             # the slider moves to frame 2: its picture and the plot's cursor follow
             ev("(() => { const s = document.getElementById('slider'); s.value = '2'; s.dispatchEvent(new Event('input')); })()")
             until(lambda: ev(SHOWN_JS) == "/overlay/2.jpg", what="frame 2 shown", alive=proc, bound=60)
-            assert ev("document.getElementById('frame-tag').hidden") is True
+            picked = [t for t, _ in suggested]
+            assert ev("document.getElementById('frame-tag').hidden") is (2 not in picked)  # tagged only if suggested
             steps = _steps(run_copy)
             assert ev("document.getElementById('frame-error').textContent") == f"predicted error {steps[1]['predicted_error']:.1f} %"
             assert ev("document.querySelector('circle.point.current').dataset.frame") == "2"
@@ -255,12 +274,13 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
             assert points == [1, 2, 3, 4]
             ev("document.querySelector('#plot circle.point[data-frame=\"4\"]').dispatchEvent(new MouseEvent('click', {bubbles: true}))")
             until(lambda: ev(SHOWN_JS) == "/overlay/4.jpg", what="frame 4 shown", alive=proc, bound=60)
-            # suggest.txt's frames listed in its order; choosing one goes there
+            # the run's suggest.txt: its three frames listed in its order; choosing one goes there
             assert ev("document.getElementById('suggest-card').hidden") is False
             assert ev("Array.from(document.querySelectorAll('#suggested li')).map(li => li.textContent)") == [
-                "frame_003.png predicted error 12.5 %", "frame_001.png"]
+                f"frame_{t:03d}.png predicted error {e:.1f} %" for t, e in suggested]
             ev("document.querySelectorAll('#suggested a')[0].click()")
-            until(lambda: ev(SHOWN_JS) == "/overlay/3.jpg", what="frame 3 shown", alive=proc, bound=60)
+            until(lambda: ev(SHOWN_JS) == f"/overlay/{suggested[0][0]}.jpg", what="the first suggested frame shown",
+                  alive=proc, bound=60)
             assert ev("document.getElementById('frame-tag').textContent") == "suggested"
             assert "confidence below 70 %" in ev("document.getElementById('legend').textContent")
             shot = browser.screenshot()
@@ -288,6 +308,9 @@ def test_the_overlay_video_has_every_frame(which, encoder, fps, request, tmp_pat
     video = tmp_path / "sub" / "overlay.mp4"
     assert pcreg_view([str(out), "--overlay", str(video), *(["--fps", fps] if fps else [])]) == 0
     assert f"wrote {video}: {N} frame(s)" in capsys.readouterr().out
+    umask = os.umask(0)
+    os.umask(umask)
+    assert video.stat().st_mode & 0o777 == 0o666 & ~umask  # as every other output, not mkstemp's 0600
     with av.open(str(video)) as container:
         stream = container.streams.video[0]
         assert stream.codec_context.name == (encoder or "h264")

@@ -58,13 +58,13 @@ def test_a_prior_wholly_outside_the_key_frame_leaves_naive_bayes_alone():
     d = rng.normal(0, 3, (40, 60)).astype(np.float32)
     prior = rng.normal(0, 5, (40, 60)).astype(np.float32)
     outside = np.full((40, 60), T.OUTSIDE, np.float32)
-    maps = T.trust_maps(T.STREAM_TRUST, weight=2.0, dense_prior=prior, dense_residual=outside,
-                        confidence=np.ones((40, 60), np.float32), flow_prior=prior, flow_residual=outside)
+    maps = T.trust_maps(T.STREAM_TRUST, weight=2.0, primary_prior=prior, primary_residual=outside,
+                        confidence=np.ones((40, 60), np.float32), second_prior=prior, second_residual=outside)
     np.testing.assert_array_equal(T.fused_log_odds(d, maps), d)
-    near = T.trust_maps(T.STREAM_TRUST, weight=2.0, dense_prior=prior, dense_residual=np.zeros_like(d),
-                        confidence=None, flow_prior=None, flow_residual=None)
-    np.testing.assert_allclose(near.dense, 2.0 * T.STREAM_TRUST.dense)  # full trust at confidence 1/3
-    assert near.flow is None
+    near = T.trust_maps(T.STREAM_TRUST, weight=2.0, primary_prior=prior, primary_residual=np.zeros_like(d),
+                        confidence=None, second_prior=None, second_residual=None)
+    np.testing.assert_allclose(near.primary, 2.0 * T.STREAM_TRUST.dense)  # full trust at confidence 1/3
+    assert near.second is None
 
 
 def test_carried_residual_is_zero_along_the_true_motion_and_outside_beyond_the_frame():
@@ -163,7 +163,7 @@ def test_run_writes_confidence_maps_and_refuses_to_resume_without_them(tmp_path,
 
 
 def test_a_confidence_outside_0_1_is_never_written():
-    from pcreg.pipeline.stream_run import confidence_png
+    from pcreg.runs.files import confidence_png
 
     np.testing.assert_array_equal(confidence_png(np.array([[0.0, 0.5, 1.0]])), [[0, 128, 255]])
     for bad in (np.array([[np.nan]]), np.array([[1.5]]), np.array([[-0.1]])):
@@ -172,12 +172,17 @@ def test_a_confidence_outside_0_1_is_never_written():
 
 
 def test_two_key_frames_label_the_frames_between_better_than_one(frames):
-    from pcreg.pipeline.keyframes import label_clip, segments
+    from pcreg.pipeline.engine import Stretch, stretches
+    from pcreg.pipeline.keyframes import label_clip
 
     n = len(frames)
-    assert segments(n, [2, 4]) == [(None, 2, range(0, 2)), (2, 4, range(3, 4)), (4, None, range(5, 6))]
+    plan = stretches([4, 2], n)
+    assert plan == [Stretch(None, 2, 2), Stretch(2, 4, 4), Stretch(4, None, n)]
+    assert [s.frames for s in plan] == [range(0, 2), range(3, 4), range(5, 6)]
+    assert [s.keys for s in plan] == [(2,), (2, 4), (4,)]
+    assert stretches([3], None) == [Stretch(None, 3, 3), Stretch(3, None, None)]  # a video of unknown length
     with pytest.raises(InputError, match="outside"):
-        segments(n, [0, n])
+        stretches([0, n], n)
     one = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels})
     two = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels, n - 1: frames[n - 1].labels})
     between = range(1, n - 1)
@@ -275,12 +280,12 @@ def test_the_compiled_trusted_fusion_is_the_numpy_rule():
     for c in (conf, None):
         for flow in ((lf, rf), None):
             maps, prior, fused = T.trusted_fusion(T.STREAM_TRUST, 2.0, d, ld, rd, c, flow)
-            want = T.trust_maps(T.STREAM_TRUST, weight=2.0, dense_prior=ld, dense_residual=rd, confidence=c,
-                                flow_prior=None if flow is None else lf, flow_residual=None if flow is None else rf)
-            np.testing.assert_allclose(maps.dense, want.dense, rtol=1e-6, atol=1e-7)
-            assert (maps.flow is None) == (flow is None)
+            want = T.trust_maps(T.STREAM_TRUST, weight=2.0, primary_prior=ld, primary_residual=rd, confidence=c,
+                                second_prior=None if flow is None else lf, second_residual=None if flow is None else rf)
+            np.testing.assert_allclose(maps.primary, want.primary, rtol=1e-6, atol=1e-7)
+            assert (maps.second is None) == (flow is None)
             if flow is not None:
-                np.testing.assert_allclose(maps.flow, want.flow, rtol=1e-6, atol=1e-7)
+                np.testing.assert_allclose(maps.second, want.second, rtol=1e-6, atol=1e-7)
             np.testing.assert_allclose(prior, want.prior_term((h, w)), rtol=1e-5, atol=1e-5)
             numpy_fused = T.fused_log_odds(d, want)
             np.testing.assert_allclose(fused, numpy_fused, rtol=1e-5, atol=1e-5)
@@ -309,3 +314,16 @@ def test_the_labels_are_the_sign_of_the_fused_log_odds_blurred_by_the_rule(frame
     assert np.count_nonzero(seen[0.0] != seen[3.0]) > 0.001 * seen[0.0].size  # the blur changed some labels
     with pytest.raises(InputError, match="trust smooth"):
         T.TrustRule(smooth=-1.0)
+
+
+def test_the_trust_maps_names_of_before_0_2_still_read_with_a_warning():
+    """TrustMaps names its motions by their role (primary, second); dense/flow/... still read, warning."""
+    a, b = np.ones((2, 2), np.float32), np.zeros((2, 2), np.float32)
+    maps = T.TrustMaps(a, b, None, None, a * 3, None)
+    for old, new in (("dense", "primary"), ("dense_prior", "primary_prior"), ("dense_residual", "primary_residual"),
+                     ("flow", "second"), ("flow_prior", "second_prior"), ("flow_residual", "second_residual")):
+        with pytest.warns(DeprecationWarning, match=f"use TrustMaps.{new}"):
+            assert getattr(maps, old) is getattr(maps, new)
+    with pytest.raises(AttributeError):
+        maps.nothing_of_the_kind
+    assert set(maps.summary(T.STREAM_TRUST, 2.0)) == {"primary", "second"}

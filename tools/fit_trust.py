@@ -50,7 +50,7 @@ def record(frames, stride: int) -> list[dict]:
         s = (slice(None, None, stride), slice(None, None, stride))
         rows.append({"image": f.image, "truth": f.labels[s], "d": prop.last.log_odds[s],
                      **{k: None if getattr(m, k) is None else np.asarray(getattr(m, k))[s]
-                        for k in ("dense_prior", "dense_residual", "confidence", "flow_prior", "flow_residual")}})
+                        for k in ("primary_prior", "primary_residual", "confidence", "second_prior", "second_residual")}})
     return rows
 
 
@@ -72,8 +72,8 @@ def rule_errors(rows: list[dict], rule, learning=None, classifier=None) -> tuple
         if learner is not None:
             stride = r["image"].shape[0] // d.shape[0] if d.shape[0] else 1
             d = learner.classifier.decision_function(r["image"])[::stride, ::stride][:d.shape[0], :d.shape[1]]
-        maps = trust_maps(rule, weight=2.0, dense_prior=r["dense_prior"], dense_residual=r["dense_residual"],
-                          confidence=r["confidence"], flow_prior=r["flow_prior"], flow_residual=r["flow_residual"])
+        maps = trust_maps(rule, weight=2.0, primary_prior=r["primary_prior"], primary_residual=r["primary_residual"],
+                          confidence=r["confidence"], second_prior=r["second_prior"], second_residual=r["second_residual"])
         prior = maps.prior_term(d.shape)
         F = d + prior
         plain.append(error(r["d"], r["truth"]))

@@ -3,7 +3,7 @@
     python tools/review_figure.py --data ../shared/data --out out/review_figure
 
 The run labels every frame from the first one's CamVid labels (``--mapping camvid --confidence``);
-suggest.txt holds the three frames :func:`pcreg.pipeline.keyframes.suggest` picks from the predicted
+``--suggest 3`` writes suggest.txt, the three frames :func:`pcreg.pipeline.keyframes.suggest` picks from the predicted
 errors; the page (``pcreg view OUT --web``) is shown at frame 29 in headless Chromium (tests/_browser.py)
 and stored with a palette (small).
 """
@@ -11,7 +11,6 @@ and stored with a palette (small).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -47,19 +46,13 @@ def main() -> int:
     run = out / "0016E5"
     subprocess.run([sys.executable, "-m", "pcreg.cli", "run", str(clip / "images"), "--labels",
                     str(clip / "labels" / images[0].name), "--mapping", "camvid", "--out", str(run), "--confidence",
-                    "--force"], check=True, env=env)
+                    "--suggest", "3", "--force"], check=True, env=env)
 
     sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
     from _browser import Browser
-    from pcreg.pipeline.keyframes import suggest
     from pcreg.recording.review import ReviewServer
     from pcreg.review import read_review
 
-    steps = [json.loads(line) for line in (run / "steps.jsonl").read_text().splitlines()]
-    predicted = {s["frame"]: s["predicted_error"] for s in steps}
-    names = {s["frame"]: s["name"] for s in steps}
-    picks = suggest(predicted, [0], 3, len(steps) + 1)
-    (run / "suggest.txt").write_text("".join(f"{names[t]}\t{predicted[t]:.2f}\n" for t in picks))
     shot = out / "review_page.png"
     with ReviewServer(read_review(run), web_port=0) as server, Browser(width=1400, height=760) as browser:
         browser.open(server.url + "#29")

@@ -40,8 +40,9 @@ def clip(args: tuple) -> dict:
     frames, scales, flow_presets, flow_scales = args
     import pcreg
     from pcreg.classification.metrics import error_rate
-    from pcreg.experiments.stream import PRESET_OF, _Flow, make_method
+    from pcreg.experiments.stream_methods import PRESET_OF, KeyPrior, make_method
     from pcreg.pipeline.estimators import FlowEstimator
+    from pcreg.pipeline.stream import STREAM_WEIGHT
     from pcreg.pipeline.trust import STREAM_TRUST, smoothed
 
     key = frames[0]
@@ -50,7 +51,7 @@ def clip(args: tuple) -> dict:
     methods.update({f"flow {p}, scale {s:g}": pcreg.Propagator(clf, model=f"flow:{p}", scale=s)
                     for p in flow_presets for s in flow_scales})
     methods["plain"] = make_method("plain", clf, "reference")
-    flows = {m: _Flow(clf, "key", PRESET_OF[m.split("_")[0]]) for m in BASELINES}
+    flows = {m: KeyPrior(clf, weight=STREAM_WEIGHT) for m in BASELINES}  # the key frame's prior, as DIS's baselines fuse it
     for m in (*methods.values(), *flows.values()):
         m.reset(key.image, key.labels)
     names = [*methods, *flows, *(f"{m} blurred" for m in flows)]
@@ -64,7 +65,8 @@ def clip(args: tuple) -> dict:
             errors[name].append(error_rate(labels, f.labels))
         for name, flow in flows.items():  # as the evaluation's baseline, and its log-odds blurred as pcreg's are
             t0 = time.perf_counter()
-            fused = flow.fused(f.image, FlowEstimator(flow.preset).estimate(key.image, f.image).motion)
+            preset = PRESET_OF[name.split("_")[0]]
+            fused = flow.fused(f.image, FlowEstimator(preset).estimate(key.image, f.image).motion)
             t1 = time.perf_counter()
             blurred = (smoothed(fused, STREAM_TRUST) > 0).astype(np.uint8)
             t2 = time.perf_counter()

@@ -36,9 +36,10 @@ def clip(args: tuple) -> dict:
     frames, sigmas = args
     import pcreg
     from pcreg.classification.metrics import error_rate
-    from pcreg.experiments.stream import _Flow, calibration_counts
+    from pcreg.experiments.stream_methods import KeyPrior, calibration_counts
     from pcreg.pipeline.estimators import FlowEstimator
     from pcreg.pipeline.pair import log_odds
+    from pcreg.pipeline.stream import STREAM_WEIGHT
     from pcreg.pipeline.trust import STREAM_TRUST, label_confidence, smoothed
 
     key = frames[0]
@@ -46,7 +47,7 @@ def clip(args: tuple) -> dict:
     h, w = key.image.shape[:2]
     prop = pcreg.Propagator(clf, trust=replace(STREAM_TRUST, smooth=0.0))
     prop.reset(key.image, key.labels)
-    flow = _Flow(clf, "key")
+    flow = KeyPrior(clf, weight=STREAM_WEIGHT)  # the key frame's prior, as the DIS baseline fuses it
     flow.reset(key.image, key.labels)
     errors: dict = {m: {s: [] for s in sigmas} for m in METHODS}
     counts = {s: np.zeros((2, 256), np.int64) for s in sigmas}

@@ -1,4 +1,5 @@
-"""Per-pixel Gaussian naive Bayes terrain classifier (ground / obstacle / unknown).
+"""Per-pixel Gaussian naive Bayes classifier over the classes of a class table (ground / obstacle / unknown
+by default).
 
 The model is scikit-learn's :class:`~sklearn.naive_bayes.GaussianNB` (same parameters, same
 ``var_smoothing`` rule, same log-posteriors), fitted and evaluated through the fact that every feature
@@ -9,6 +10,12 @@ of :mod:`pcreg.classification.features` is an 8-bit plane:
 - *predict* looks every plane up in a 256-entry table of per-class Gaussian log-likelihoods
   (``cv2.LUT``) and sums them, which is Eq. (log p(c) + sum_f log N(x_f; mu_cf, var_cf)) of
   Gaussian naive Bayes evaluated without a single exp or division per pixel.
+
+Labels are class ids of a :class:`~pcreg.classes.ClassTable` (default :data:`~pcreg.classes.LAGR`: 0 ground,
+1 obstacle, 2 unknown); the known classes present in the training labels are the model's classes, the
+unknown left out. Two classes have a fast path (:meth:`NaiveBayesPixelClassifier.decision_function`, one
+table of log-likelihood differences); K classes are scored per class
+(:meth:`NaiveBayesPixelClassifier.class_scores`, :meth:`NaiveBayesPixelClassifier.log_posteriors`).
 
 The thesis's weight search (30 random (w_r, w_g, w_b), lowest training error wins, its Table 4.1) is
 :func:`thesis_weight_search`; it scores each trial from per-class counts of distinct colours.
@@ -21,6 +28,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from ..classes import DEFAULT_TABLE, ClassTable
 from ..errors import InputError
 from .features import (
     DEFAULT_FEATURES,
@@ -47,8 +55,9 @@ __all__ = [
 _LEVELS = np.arange(256, dtype=np.float64)
 
 
-def _as_lists(images, labels) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Accept one image/label pair or sequences of them; check shapes, dtypes and label values."""
+def _as_lists(images, labels, table: ClassTable = DEFAULT_TABLE) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Accept one image/label pair or sequences of them; check shapes, dtypes and label values (each a
+    class id of ``table``)."""
     if isinstance(images, np.ndarray) and images.ndim == 3:
         images = [images]
     if isinstance(labels, np.ndarray) and labels.ndim == 2:
@@ -76,30 +85,34 @@ def _as_lists(images, labels) -> tuple[list[np.ndarray], list[np.ndarray]]:
             if lab.size and (lab.min() < 0 or lab.max() > 255):
                 raise InputError(f"label values outside 0..255 in training pair {k}")
             lab = lab.astype(np.uint8)
-        if lab.size and lab.max() >= N_LABELS:
-            raise InputError(f"label values must be 0 ground, 1 obstacle, 2 unknown; got {int(lab.max())} "
-                             f"in training pair {k}")
+        if lab.size and (lab.max() >= table.n_values or not table.valid()[np.unique(lab)].all()):
+            bad = next(int(v) for v in np.unique(lab) if not table.valid()[v])
+            raise InputError(f"label values must be {table.describe()}; got {bad} in training pair {k}")
         out_i.append(im)
         out_l.append(lab)
     return out_i, out_l
 
 
 def class_histograms(images, labels, features: str | Iterable[str] = DEFAULT_FEATURES, *,
-                     weights: Sequence[float] | None = None, exclude_unknown: bool = True) -> np.ndarray:
+                     weights: Sequence[float] | None = None, exclude_unknown: bool = True,
+                     classes: ClassTable | None = None) -> np.ndarray:
     """Per-class, per-feature histograms of the training pixels.
 
-    images : (H, W, 3) uint8 or a sequence of them; labels : (H, W) uint8 in {0, 1, 2} or a sequence.
-    Returns (3, F, 256) int64: ``counts[c, f, v]`` = number of pixels of label c whose feature f is v
-    (row 2, unknown, stays zero when ``exclude_unknown``).
+    images : (H, W, 3) uint8 or a sequence of them; labels : (H, W) uint8 class ids of ``classes`` (default
+    :data:`~pcreg.classes.LAGR`, 0 ground, 1 obstacle, 2 unknown) or a sequence.
+    Returns (N, F, 256) int64, N = ``classes.n_values`` (3 by default): ``counts[c, f, v]`` = number of
+    pixels of label c whose feature f is v (the unknown's row stays zero when ``exclude_unknown``).
     """
-    images, labels = _as_lists(images, labels)
+    table = DEFAULT_TABLE if classes is None else classes
+    images, labels = _as_lists(images, labels, table)
     names = parse_features(features)
     n_feat = len(feature_names(names))
-    counts = np.zeros((N_LABELS, n_feat, 256), dtype=np.int64)
-    top = 2 if exclude_unknown else N_LABELS
+    n_labels = table.n_values
+    counts = np.zeros((n_labels, n_feat, 256), dtype=np.int64)
+    counted = [c for c in table.ids if not (exclude_unknown and c == table.unknown)]
     for im, lab in zip(images, labels):
         lab_flat = lab.reshape(-1)
-        keep = lab_flat < top
+        keep = lab_flat != table.unknown if exclude_unknown else np.ones(lab_flat.shape, bool)
         all_kept = bool(keep.all())
         lab_k = (lab_flat if all_kept else lab_flat[keep]).astype(np.intp) * 256
         f = 0
@@ -107,24 +120,24 @@ def class_histograms(images, labels, features: str | Iterable[str] = DEFAULT_FEA
             if name == "row":
                 # one value per row: count labels per row, then add the rows' counts to their levels
                 h, w = lab.shape
-                per_row = np.zeros((N_LABELS, h), dtype=np.int64)
-                for c in range(top):
+                per_row = np.zeros((n_labels, h), dtype=np.int64)
+                for c in counted:
                     per_row[c] = np.count_nonzero(lab == c, axis=1)
-                for c in range(top):
+                for c in counted:
                     counts[c, f] += np.bincount(planes, weights=per_row[c], minlength=256).astype(np.int64)
                 f += 1
                 continue
             flat = planes.reshape(-1, planes.shape[-1])
             for j in range(flat.shape[1]):
                 col = flat[:, j] if all_kept else flat[keep, j]
-                counts[:, f] += np.bincount(lab_k + col, minlength=N_LABELS * 256).reshape(N_LABELS, 256)
+                counts[:, f] += np.bincount(lab_k + col, minlength=n_labels * 256).reshape(n_labels, 256)
                 f += 1
     return counts
 
 
 def _gaussian_params(counts: np.ndarray, classes: np.ndarray, *, var_smoothing: float,
                      priors: Sequence[float] | None) -> dict:
-    """GaussianNB's fitted parameters from (3, F, 256) histograms (scikit-learn's definitions)."""
+    """GaussianNB's fitted parameters from (N, F, 256) histograms (scikit-learn's definitions)."""
     h = counts[classes].astype(np.float64)  # (n, F, 256)
     n_c = h[:, 0, :].sum(axis=1)  # (n,)
     theta = (h * _LEVELS).sum(axis=2) / n_c[:, None]
@@ -146,13 +159,16 @@ def _gaussian_params(counts: np.ndarray, classes: np.ndarray, *, var_smoothing: 
     return {"class_count": n_c, "theta": theta, "var": var, "epsilon": epsilon, "prior": prior}
 
 
-def fit_classifier(frames: Sequence, *, features: Sequence[str] = DEFAULT_FEATURES) -> "NaiveBayesPixelClassifier":
+def fit_classifier(frames: Sequence, *, features: Sequence[str] = DEFAULT_FEATURES,
+                   classes: ClassTable | str | None = None) -> "NaiveBayesPixelClassifier":
     """A :class:`NaiveBayesPixelClassifier` fitted on labelled frames (objects with ``image`` and
-    ``labels``, such as :class:`pcreg.datasets.Frame`); unknown pixels are left out."""
+    ``labels``, such as :class:`pcreg.datasets.Frame`), labels the ids of ``classes`` (a
+    :class:`~pcreg.classes.ClassTable` or what :func:`pcreg.classes.class_table` reads; default ``lagr``);
+    unknown pixels are left out, and every known class with training pixels is a class of the model."""
     from ..validation import check_frames
 
     check_frames(frames, "frames", labelled=True)
-    return NaiveBayesPixelClassifier(features).fit([f.image for f in frames], [f.labels for f in frames])
+    return NaiveBayesPixelClassifier(features, classes=classes).fit([f.image for f in frames], [f.labels for f in frames])
 
 
 def _tables(theta: np.ndarray, var: np.ndarray) -> np.ndarray:
@@ -169,22 +185,28 @@ class NaiveBayesPixelClassifier:
     features : names from :data:`pcreg.classification.features.FEATURES` (``"thesis"``, ``"rgb"``, ``"hsv"``,
         ``"lab"``, ``"texture"``, ``"row"``), a tuple or a ``"rgb+hsv+row"`` string.
     weights : (w_r, w_g, w_b) of the ``"thesis"`` feature (normalised to sum 1; default equal).
-    exclude_unknown : leave unknown (label 2) pixels out of training (the default, as in the thesis);
-        with False, unknown is a third class.
+    exclude_unknown : leave the unknown's pixels (label 2 by default) out of training (the default, as in
+        the thesis); with False, unknown is one more class.
     var_smoothing : as scikit-learn's GaussianNB: ``var_smoothing * max feature variance`` is added to
         every variance.
     priors : class priors in the order of ``classes_``; default: training frequencies.
+    classes : the class table of the labels (:func:`pcreg.classes.class_table`: a table, a built-in's name
+        or a file; default ``lagr``, 0 ground, 1 obstacle, 2 unknown).
 
-    Fitted attributes (scikit-learn's names): ``classes_`` (n,) uint8, ``class_count_`` (n,),
-    ``class_prior_`` (n,), ``theta_`` (n, F), ``var_`` (n, F), ``epsilon_``, ``counts_`` (3, F, 256)
-    histograms, ``feature_names_`` (F,).
+    Fitted attributes (scikit-learn's names): ``classes_`` (n,) uint8, the ids of the classes with training
+    pixels, ascending; ``class_count_`` (n,), ``class_prior_`` (n,), ``theta_`` (n, F), ``var_`` (n, F),
+    ``epsilon_``, ``counts_`` (N, F, 256) histograms (N = ``class_table.n_values``, 3 by default),
+    ``feature_names_`` (F,).
     """
 
     def __init__(self, features: str | Iterable[str] = DEFAULT_FEATURES, *,
                  weights: Sequence[float] | None = None, exclude_unknown: bool = True,
-                 var_smoothing: float = 1e-9, priors: Sequence[float] | None = None) -> None:
+                 var_smoothing: float = 1e-9, priors: Sequence[float] | None = None,
+                 classes: ClassTable | str | None = None) -> None:
+        from ..classes import class_table
         from ..validation import check_bool, check_float, short_repr
 
+        self.class_table = class_table(classes)
         self.features = parse_features(features)
         self.weights = normalise_weights(weights)
         self.exclude_unknown = check_bool(exclude_unknown, "exclude_unknown")
@@ -202,7 +224,7 @@ class NaiveBayesPixelClassifier:
 
     def __repr__(self) -> str:
         w = "" if "thesis" not in self.features else f", weights=({', '.join(f'{v:.3f}' for v in self.weights)})"
-        fitted = "" if not hasattr(self, "classes_") else f", classes={[LABEL_NAMES[c] for c in self.classes_]}"
+        fitted = "" if not hasattr(self, "classes_") else f", classes={[self.class_table.name_of(c) for c in self.classes_]}"
         return (f"NaiveBayesPixelClassifier(features={'+'.join(self.features)}{w}, "
                 f"exclude_unknown={self.exclude_unknown}{fitted})")
 
@@ -213,23 +235,25 @@ class NaiveBayesPixelClassifier:
         Raises :class:`~pcreg.errors.InputError` when fewer than two classes have training pixels.
         """
         counts = class_histograms(images, labels, self.features, weights=self.weights,
-                                  exclude_unknown=self.exclude_unknown)
+                                  exclude_unknown=self.exclude_unknown, classes=self.class_table)
         return self.fit_histograms(counts)
 
     def fit_histograms(self, counts: np.ndarray) -> "NaiveBayesPixelClassifier":
-        """Fit from :func:`class_histograms` output, (3, F, 256) int (histograms of several training
+        """Fit from :func:`class_histograms` output, (N, F, 256) int (histograms of several training
         sets can be summed first)."""
         counts = np.asarray(counts)
         n_feat = len(self.feature_names_)
-        if counts.shape != (N_LABELS, n_feat, 256):
-            raise InputError(f"histograms must be (3, {n_feat}, 256), got {counts.shape}")
-        if self.exclude_unknown and counts[2].any():
+        table = self.class_table
+        if counts.shape != (table.n_values, n_feat, 256):
+            raise InputError(f"histograms must be ({table.n_values}, {n_feat}, 256), got {counts.shape}")
+        if self.exclude_unknown and counts[table.unknown].any():
             raise InputError("histograms count unknown pixels but exclude_unknown is set")
         present = counts[:, 0, :].sum(axis=1) > 0
         classes = np.flatnonzero(present).astype(np.uint8)
         if len(classes) < 2:
-            only = ", ".join(LABEL_NAMES[c] for c in classes) or "none"
-            raise InputError(f"training labels hold only one class ({only}); need both ground and obstacle pixels")
+            only = ", ".join(table.name_of(int(c)) for c in classes) or "none"
+            need = "both ground and obstacle" if table.agrees(DEFAULT_TABLE) else "at least two classes'"
+            raise InputError(f"training labels hold only one class ({only}); need {need} pixels")
         p = _gaussian_params(counts, classes, var_smoothing=self.var_smoothing, priors=self.priors)
         self.counts_ = counts.astype(np.int64, copy=True)
         self.classes_ = classes
@@ -272,21 +296,21 @@ class NaiveBayesPixelClassifier:
         return np.stack(self._jll_planes(image), axis=-1)
 
     def predict_log_proba(self, image: np.ndarray) -> np.ndarray:
-        """(H, W, 3) float64 log-posteriors over (ground, obstacle, unknown); a class the model was not
-        trained on (unknown, by default) gets -inf."""
+        """(H, W, N) float64 log-posteriors over every label value 0..N-1 of the class table (ground,
+        obstacle, unknown by default); a class the model was not trained on (unknown, by default) gets -inf."""
         jll = self._jll_planes(image)
         m = np.maximum.reduce(jll) if len(jll) > 1 else jll[0]
         total = np.zeros_like(m)
         for j in jll:
             total += np.exp(j - m)
         log_norm = m + np.log(total)
-        out = np.full(m.shape + (N_LABELS,), -np.inf, dtype=np.float64)
+        out = np.full(m.shape + (self.class_table.n_values,), -np.inf, dtype=np.float64)
         for c, j in zip(self.classes_, jll):
             out[:, :, c] = j - log_norm
         return out
 
     def predict_proba(self, image: np.ndarray) -> np.ndarray:
-        """(H, W, 3) float64 posteriors over (ground, obstacle, unknown)."""
+        """(H, W, N) float64 posteriors over the table's label values (:meth:`predict_log_proba`)."""
         return np.exp(self.predict_log_proba(image))
 
     def decision_function(self, image: np.ndarray, *, groups=None) -> np.ndarray:
@@ -315,16 +339,57 @@ class NaiveBayesPixelClassifier:
             if self.classes_[0] == 0 and self.classes_[1] == 1:
                 return out
             return self.classes_[out]
-        scores = np.stack([self._sum_tables(image, self._tables32[i]) + np.float32(self._log_prior[i])
-                           for i in range(len(self.classes_))], axis=-1)
-        return self.classes_[np.argmax(scores, axis=-1)]
+        planes = self._score_planes(image, None)
+        best, idx = planes[0].copy(), np.zeros(planes[0].shape, np.uint8)
+        for k, p in enumerate(planes[1:], start=1):  # argmax over the classes, the first of equals winning
+            better = p > best
+            idx[better] = k
+            np.maximum(best, p, out=best)
+        return self.classes_[idx]
+
+    def class_scores(self, image, *, groups=None) -> np.ndarray:
+        """(H, W, K) float32, K = ``len(classes_)``: channel k is ``log p(c_k) + sum_f log N(x_f; theta_kf,
+        var_kf)`` for class ``classes_[k]``, the joint log-likelihood, a log-posterior up to one constant
+        per pixel (:meth:`log_posteriors` subtracts it). Differences of two channels are log posterior
+        odds; with two classes, channel 1 minus channel 0 is :meth:`decision_function` up to float32
+        rounding (that method sums one table of differences, this one a table per class).
+
+        Evaluated through the fitted 256-entry float32 tables, one look-up per feature, pixel and class:
+        time and memory grow linearly with K. groups : the image's :meth:`feature_groups`, when already
+        computed (made once here otherwise, for every class)."""
+        return np.stack(self._score_planes(image, groups), axis=-1)
+
+    def _score_planes(self, image, groups) -> list[np.ndarray]:
+        self._check_fitted()
+        if groups is None:
+            groups = self.feature_groups(image)
+        return [table_sum(image, self._tables32[i], self.features, weights=self.weights, groups=groups)
+                + np.float32(self._log_prior[i]) for i in range(len(self.classes_))]
+
+    def log_posteriors(self, image, *, groups=None) -> np.ndarray:
+        """(H, W, K) float32 normalised log-posteriors ``log p(c_k | x)`` over the trained classes
+        ``classes_`` (:meth:`class_scores` minus their log-sum-exp at each pixel); ``exp`` sums to 1 over
+        the last axis."""
+        import cv2
+
+        planes = self._score_planes(image, groups)
+        m = np.maximum.reduce(planes)
+        total = np.zeros_like(m)
+        for p in planes:
+            total += cv2.exp(p - m)
+        lse = m + np.log(total)
+        out = np.empty(m.shape + (len(planes),), np.float32)
+        for k, p in enumerate(planes):
+            np.subtract(p, lse, out=out[:, :, k])
+        return out
 
     def score_error(self, images, labels, *, exclude_unknown: bool = True) -> float:
         """Error rate in percent over all pixels of the given frames (pooled), unknown truth left out."""
-        images, labels = _as_lists(images, labels)
-        conf = np.zeros((N_LABELS, N_LABELS), dtype=np.int64)
+        images, labels = _as_lists(images, labels, self.class_table)
+        n = self.class_table.n_values
+        conf = np.zeros((n, n), dtype=np.int64)
         for im, lab in zip(images, labels):
-            conf += confusion_matrix(self.predict(im), lab, exclude_unknown=exclude_unknown)
+            conf += confusion_matrix(self.predict(im), lab, exclude_unknown=exclude_unknown, classes=self.class_table)
         return error_from_confusion(conf)
 
     def to_sklearn(self):

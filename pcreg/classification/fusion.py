@@ -31,6 +31,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = [
+    "CONFIDENCE_SPAN",
     "FusionConfig",
     "WEIGHT_GRID",
     "prior_from_labels",
@@ -45,6 +46,14 @@ __all__ = [
     "WeightChoice",
 ]
 
+#: The prior's weight per pixel, as a multiple of the fusion weight, where a dense field's confidence is 0
+#: and where it is 1 (linear between): a factor of two either way. Where the field has the evidence of
+#: many matched samples the warped labels are trusted more, where it was interpolated over a textureless
+#: or occluded area less. Measured in the stream (:mod:`pcreg.pipeline.stream`) and in the pairs of
+#: ``evaluate sequence --model dense`` (:func:`pcreg.pipeline.process_pair`); a global transform has no
+#: confidence map and keeps the one weight. The one home of these numbers: the stream's trust rule
+#: (:mod:`pcreg.pipeline.trust`) and the pairs' weights (:func:`pcreg.pipeline.prior.pixel_weight`) read them here.
+CONFIDENCE_SPAN: tuple[float, float] = (0.5, 2.0)
 #: Fusion weights tried by :func:`choose_weight` (0 = naive Bayes alone).
 WEIGHT_GRID: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
 #: The largest fusion weight taken: the prior's log-odds are bounded (``eps``), so a weight far beyond the

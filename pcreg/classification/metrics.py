@@ -30,36 +30,39 @@ def _check_pair(predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray | Non
 
 
 def confusion_matrix(predicted: np.ndarray, truth: np.ndarray, *, mask: np.ndarray | None = None,
-                     exclude_unknown: bool = True) -> np.ndarray:
+                     exclude_unknown: bool = True, classes=None) -> np.ndarray:
     """Pixel counts of (true label, predicted label).
 
-    predicted, truth : (H, W) integer arrays with values in {0, 1, 2} (any equal shape works).
+    predicted, truth : (H, W) integer arrays with values in {0, 1, 2} (any equal shape works); with
+        ``classes`` (a :class:`~pcreg.classes.ClassTable`), in 0..N-1, N = ``classes.n_values``.
     mask : (H, W) bool, optional — only pixels where it is True are counted (e.g. the valid part of a
         warped image).
-    exclude_unknown : leave out pixels whose truth is 2 (unknown).
+    exclude_unknown : leave out pixels whose truth is unknown (2, or ``classes.unknown``).
 
-    Returns (3, 3) int64, rows = truth, columns = prediction.
+    Returns (N, N) int64 ((3, 3) by default), rows = truth, columns = prediction.
     """
+    n_labels = N_LABELS if classes is None else classes.n_values
+    unknown = 2 if classes is None else classes.unknown
     predicted, truth, mask = _check_pair(predicted, truth, mask)
     t = truth.reshape(-1)
     p = predicted.reshape(-1)
-    if t.size and (int(t.max()) >= N_LABELS or int(t.min()) < 0):
-        raise InputError(f"truth labels must be in 0..{N_LABELS - 1}")
-    keep = t < (2 if exclude_unknown else N_LABELS)
+    if t.size and (int(t.max()) >= n_labels or int(t.min()) < 0):
+        raise InputError(f"truth labels must be in 0..{n_labels - 1}")
+    keep = t != unknown if exclude_unknown else np.ones(t.shape, bool)
     if mask is not None:
         keep &= mask.reshape(-1)
     if keep.all():
         t_k, p_k = t, p
     else:
         t_k, p_k = t[keep], p[keep]
-    if p_k.size and (int(p_k.max()) >= N_LABELS or int(p_k.min()) < 0):
-        raise InputError(f"predicted labels must be in 0..{N_LABELS - 1}")
-    counts = np.bincount(t_k.astype(np.intp) * N_LABELS + p_k.astype(np.intp), minlength=N_LABELS * N_LABELS)
-    return counts.reshape(N_LABELS, N_LABELS).astype(np.int64)
+    if p_k.size and (int(p_k.max()) >= n_labels or int(p_k.min()) < 0):
+        raise InputError(f"predicted labels must be in 0..{n_labels - 1}")
+    counts = np.bincount(t_k.astype(np.intp) * n_labels + p_k.astype(np.intp), minlength=n_labels * n_labels)
+    return counts.reshape(n_labels, n_labels).astype(np.int64)
 
 
 def error_from_confusion(confusion: np.ndarray) -> float:
-    """Error rate in percent from a (3, 3) confusion matrix; NaN when it counts no pixel."""
+    """Error rate in percent from a square (N, N) confusion matrix; NaN when it counts no pixel."""
     confusion = np.asarray(confusion)
     total = int(confusion.sum())
     if total == 0:

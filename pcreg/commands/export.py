@@ -29,7 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..export import LABELMAP, cvat_mask_archive, default_name, labels_with_confidence, read_run
+    from ..classes import DEFAULT_TABLE as table
+    from ..export import cvat_mask_archive, default_name, labels_with_confidence, read_run
     from ..outputs import atomic_write_bytes, check_output
 
     from ..errors import OutputError
@@ -41,13 +42,14 @@ def run(args: argparse.Namespace) -> int:
     if dest.resolve() != default.resolve() and folder in dest.resolve().parents and dest.suffix.lower() != ".zip":
         raise OutputError(f"--to {dest}: inside the run's own folder and not a .zip; the archive would replace one "
                           "of the run's files (choose a .zip name or another folder)")
-    frames = ((name, labels_with_confidence(run_labels, t, args.min_confidence))
+    frames = ((name, labels_with_confidence(run_labels, t, args.min_confidence, table))
               for t, name in enumerate(run_labels.names))
-    data, counts = cvat_mask_archive(frames)  # every file read and checked before anything is written
+    data, counts = cvat_mask_archive(frames, table)  # every file read and checked before anything is written
     atomic_write_bytes(dest, data)
-    shown = ", ".join(f"{name} in {counts[name]}" for name, _ in LABELMAP.values() if name != "background")
+    shown = ", ".join(f"{c.name} in {counts[c.name]}" for c in table.known)
     print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {shown}; unknown left unlabelled "
-          f"in {counts['background']})")
-    print("CVAT: a task with the labels ground and obstacle over the same frames; Upload annotations, "
+          f"in {counts[table.unknown_class.name]})")
+    names = [c.name for c in table.known]
+    print(f"CVAT: a task with the labels {', '.join(names[:-1])} and {names[-1]} over the same frames; Upload annotations, "
           "format Segmentation mask 1.1")
     return 0

@@ -24,14 +24,6 @@ from pathlib import Path
 from ..recording.interface import RecorderProtocol
 from ._common import add_record_arguments, arg_int, open_recorder
 
-def _labels_read() -> dict:
-    """How the labels are read from the fused log-odds (the trust rule's blur), in a run's identity: a run
-    begun when they were read otherwise is not continued with labels of another kind."""
-    from ..pipeline.trust import STREAM_TRUST
-
-    return {"smooth": STREAM_TRUST.smooth}
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..registration.transforms import MODELS
 
@@ -39,11 +31,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a video file (.mp4, .avi, .mkv, .mov) or a folder of frames (image files, or an images/ "
                         "sub-folder, read in name order)")
     p.add_argument("--labels", required=True, metavar="KEYFRAME.png|DIR",
-                   help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid); or a "
+                   help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid, davis); or a "
                         "folder of key frames' labels, NAME.png for the frame NAME, every frame labelled from those around it")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the label PNGs, run.json and steps.jsonl")
-    p.add_argument("--mapping", choices=("none", "camvid"), default="none",
-                   help="how --labels and --truth are coded: none (0/1/2, the default) or camvid (CamVid class ids)")
+    p.add_argument("--mapping", choices=("none", "camvid", "davis"), default="none",
+                   help="how --labels and --truth are coded: none (0/1/2, the default), camvid (CamVid class ids) or "
+                        "davis (an object mask: 0 the background, anything else the object, label 1)")
     p.add_argument("--truth", metavar="LABELS_DIR", default=None,
                    help="score every frame against LABELS_DIR/NAME.png and keep the error in run.json")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
@@ -74,6 +67,7 @@ def _read_labels(path: Path, mapping: str):
     import cv2
     import numpy as np
 
+    from ..datasets.davis import mask_hint
     from ..datasets.folder import mapping_lut
     from ..errors import InputError
     from ..formats import read_image_file
@@ -90,7 +84,8 @@ def _read_labels(path: Path, mapping: str):
     lab = lut[raw]
     if (lab == 255).any():
         bad = int(raw[lab == 255][0])
-        raise InputError(f"{path}: label value {bad} is not {'a CamVid class id' if mapping == 'camvid' else '0, 1 or 2'}")
+        raise InputError(f"{path}: label value {bad} is not {'a CamVid class id' if mapping == 'camvid' else '0, 1 or 2'}"
+                         + mask_hint(raw))
     return lab
 
 
@@ -106,7 +101,7 @@ class _TruthMaps:
         return self.root / f"{self.frames.stem(t)}.png"
 
     def __getitem__(self, t: int):
-        from ..pipeline.stream_run import check_truth
+        from ..runs.truth import check_truth
 
         f = self.path(t)
         lab = _read_labels(f, self.mapping) if f.is_file() else None
@@ -147,28 +142,22 @@ def _check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..classification.fusion import MAX_WEIGHT
+    from ..datasets.davis import check_key_mask
     from ..datasets.sources import Selection, open_frames
     from ..errors import InputError
     from ..outputs import OutputLock
-    from ..pipeline.stream import Propagator
-    from ..validation import check_float
+    from ..pipeline.config import PropagatorConfig
+    from ..runs.state import run_identity
 
     source, out = Path(args.folder), Path(args.out)
-    if not 0 <= args.weight <= MAX_WEIGHT:
-        raise InputError(f"--weight must be a number in 0..{MAX_WEIGHT:g}, got {args.weight}")
-    selection = Selection(args.start, args.stop, args.every)
-    frames = open_frames(source, selection)
-    options = {"backend": args.backend, "model": args.model, "init": args.init, "weight": float(args.weight)}
-    if args.preset is not None and args.model != "flow":
-        raise InputError(f"--preset is DIS's, for --model flow (not {args.model})")
-    if args.model == "flow":  # the preset named in the model: runs from before it still resume
-        options["model"] = f"flow:{args.preset or 'medium'}"
-    if args.scale != 1.0:  # named only when below 1, so runs from before it still resume
-        options["scale"] = check_float(args.scale, "--scale", lo=0, lo_open=True, hi=1)
+    config = PropagatorConfig(model=args.model, preset=args.preset, backend=args.backend, init=args.init,
+                              weight=args.weight, scale=args.scale)
+    frames = open_frames(source, Selection(args.start, args.stop, args.every))
     if Path(args.labels).is_dir():
-        return _run_keys(args, frames, selection, options)
+        return _run_keys(args, frames, config)
     key_labels = _read_labels(Path(args.labels), args.mapping)
+    if args.mapping == "davis":
+        check_key_mask(key_labels, args.labels)
     decoded = frames.frames(0)
     key = next(decoded)  # a source with no frame at --start raises, never ends empty
     second = next(decoded, None)
@@ -180,19 +169,21 @@ def run(args: argparse.Namespace) -> int:
     truth = _truth(args.truth, frames, key.image.shape[:2], args.mapping)
     _check_spares_inputs(out, frames, Path(args.labels), truth)
     _check_suggest(args.suggest, frames, 1)
-    prop = Propagator.from_key_frame(key.image, key_labels, **options)
-    identity = {frames.kind: str(source.resolve()), "labels": str(Path(args.labels).resolve()), "mapping": args.mapping,
-                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options,
-                **_labels_read()}
-    if args.confidence:  # a run's identity names it only when on, so runs from before it still resume
-        identity["confidence"] = True
-    if selection.to_dict() is not None:  # named only when not every frame, as --confidence
-        identity["frames"] = selection.to_dict()
+    prop = _key_propagator(config, key.image, key_labels)
+    identity = run_identity(frames, source, Path(args.labels), config, mapping=args.mapping, truth=args.truth,
+                            confidence=args.confidence)
     with OutputLock(out):  # a second run on the same --out is refused, not raced
-        return _label_frames(args, frames, (second, decoded), prop, truth, options, identity, key_labels)
+        return _label_frames(args, frames, (second, decoded), prop, truth, config, identity, key_labels)
 
 
-def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, options: dict, identity: dict,
+def _key_propagator(config, image, labels):
+    """A propagator whose classifier is fitted on the key frame (:meth:`pcreg.Propagator.from_key_frame`)."""
+    from ..pipeline.stream import Propagator
+
+    return Propagator.from_key_frame(image, labels, **config.options())
+
+
+def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, config, identity: dict,
                   key_labels) -> int:
     """The frames not labelled yet, in order; ``OUT/run.json`` is the commit point of each. ``pending``: the
     frame after the key frame and the decoder it came from, which a fresh run continues."""
@@ -204,10 +195,12 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
     from ..errors import InputError, OutputError
     from ..frame import PreparedFrame
     from ..outputs import WriteBehind
-    from ..pipeline.stream_run import STATE, StreamRun
+    from ..pipeline.engine import propagate
+    from ..pipeline.stream_run import StreamRun
+    from ..runs.state import STATE
 
     out = Path(args.out)
-    stream = StreamRun(frames, key_labels, out, options, truth=truth, identity=identity)
+    stream = StreamRun(frames, key_labels, out, config, truth=truth, identity=identity)
     start = stream.start(force=args.force)
     # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
     # never where the run stops (decoding finds the end)
@@ -223,27 +216,22 @@ def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, option
         todo = frames.frames(start)  # decodes (a video) or skips (a folder) the frames done
     if start > 1:
         try:
-            prop.resume(start - 1, stream.carry_after(start - 1) if prop.warm_starts else None,
-                        stream.learned_after(start - 1))
+            carry, learned = stream.carry_after(start - 1)
+            prop.resume(start - 1, carry if prop.warm_starts else None, learned)
         except InputError as exc:  # a carry of another stream
             raise OutputError(f"{out}: {exc}; use --force to start over") from None
     done = start
     with open_recorder(args, name=f"run {args.folder}") as rec, \
             progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
             WriteBehind() as writer:  # a frame's outputs written while the next is labelled
-        for frame in read_ahead(todo):  # the next frame decoded while this one is labelled
-            check_interrupted()
-            t = frame.position
-            try:  # checked once; naive Bayes alone (with --truth) reads the features the step made
-                image = PreparedFrame.of(frame.image, name="frame")
-                labels = prop.step(image)
-            except InputError as exc:  # a frame of another size: the step's own check, the file named
-                where = frames.paths[t] if frames.kind == "folder" else f"{frames.path} frame {frame.name}"
-                raise InputError(f"{where}: {exc}") from None
+        prepared = ((f.position, PreparedFrame.of(f.image, name="frame")) for f in read_ahead(todo))
+        # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
+        # reads the features the step made
+        for t, image, labels in propagate(prop, prepared, check=check_interrupted, where=frames.where):
             plain = prop.classifier.predict(image) if truth is not None else None
             writer.submit(stream.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),
                           confidence=prop.last.confidence if args.confidence else None)
-            _log(rec, t, frame.image, labels, prop.last, frame.name, prop.working_size)
+            _log(rec, t, image.rgb, labels, prop.last, frames.name(t), prop.working_size)
             done = t + 1
             bar.update(1)
     if done == start:
@@ -274,24 +262,23 @@ def _check_suggest(count: int | None, frames, keys: int) -> None:
 
 
 def _write_suggest(count: int | None, out: Path, frames, keys: list[int]) -> None:
-    """``OUT/suggest.txt``: the ``count`` frames to label next, best first, ``NAME PREDICTED_ERROR`` a line,
-    from the predicted errors in steps.jsonl (:func:`pcreg.pipeline.keyframes.suggest`)."""
+    """``OUT/suggest.txt``: the ``count`` frames to label next, best first, with their predicted error
+    (:func:`pcreg.runs.files.write_suggestions`), from the predicted errors in steps.jsonl
+    (:func:`pcreg.pipeline.keyframes.suggest`)."""
     from ..errors import InputError
-    from ..outputs import atomic_write_bytes
     from ..pipeline.keyframes import suggest
-    from ..pipeline.stream_run import STEPS, parse_steps
+    from ..runs.files import STEPS, parse_steps, read_step_lines, write_suggestions
 
     if count is None:
         return
-    steps = parse_steps(out / STEPS, (out / STEPS).read_bytes().splitlines())
+    steps = parse_steps(out / STEPS, [ln for ln in read_step_lines(out) if ln.strip()])
     predicted = {s["frame"]: float(s["predicted_error"]) for s in steps if s.get("predicted_error") is not None}
     try:
         chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
     except InputError as exc:
         raise InputError(f"--suggest {count}: {exc}") from None
-    text = "".join(f"{frames.stem(t)} {predicted[t]:.2f}\n" for t in chosen)
-    atomic_write_bytes(out / "suggest.txt", text.encode("utf-8", "surrogateescape"))  # names as the files have them
-    print(f"the {count} frame(s) to label next, best first: {out / 'suggest.txt'}")
+    path = write_suggestions(out, [(frames.stem(t), predicted[t]) for t in chosen])
+    print(f"the {count} frame(s) to label next, best first: {path}")
 
 
 def _key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> dict:
@@ -335,7 +322,7 @@ def _key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> d
     return {t: keys[t] for t in sorted(keys)}
 
 
-def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int:
+def _run_keys(args: argparse.Namespace, frames, config) -> int:
     """``--labels FOLDER``: every frame labelled from the key frames around it (:mod:`pcreg.pipeline.keys_run`)."""
     import sys
 
@@ -343,7 +330,7 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     from ..errors import InputError
     from ..outputs import OutputLock
     from ..pipeline.keys_run import KeyRun
-    from ..pipeline.stream_run import STATE
+    from ..runs.state import STATE, run_identity
 
     source, out, folder = Path(args.folder), Path(args.out), Path(args.labels)
     first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty
@@ -355,14 +342,10 @@ def _run_keys(args: argparse.Namespace, frames, selection, options: dict) -> int
     # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
     _check_spares_inputs(out, frames, folder / f"{frames.stem(next(iter(keys)))}.png", truth)
     _check_suggest(args.suggest, frames, len(keys))
-    identity = {frames.kind: str(source.resolve()), "labels": str(folder.resolve()), "mapping": args.mapping,
-                "truth": None if args.truth is None else str(Path(args.truth).resolve()), **options, **_labels_read()}
-    if args.confidence:
-        identity["confidence"] = True
-    if selection.to_dict() is not None:
-        identity["frames"] = selection.to_dict()
+    identity = run_identity(frames, source, folder, config, mapping=args.mapping, truth=args.truth,
+                            confidence=args.confidence)
     with OutputLock(out), open_recorder(args, name=f"run {args.folder}") as rec:
-        job = KeyRun(frames, keys, out, options, identity=identity, truth=truth, confidence=args.confidence)
+        job = KeyRun(frames, keys, out, config, identity=identity, truth=truth, confidence=args.confidence)
         job.start(force=args.force)
         n = len(frames) if frames.kind == "folder" else frames.count()
         left = None if n is None else max(0, n - len(keys) - job.state["lines"])  # what the bar counts, not the run

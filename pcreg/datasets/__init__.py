@@ -7,6 +7,8 @@ pcreg's convention: 0 ground (traversable), 1 obstacle, 2 unknown.
   ``manual_human_labeling_mask`` stored transposed, 640x480).
 - :func:`load_folder` reads ``images/*.png|jpg`` with ``labels/*.png`` and maps raw label ids to
   {0, 1, 2}; CamVid's mapping (``../shared/data/README.md``) is built in.
+- :func:`load_davis` reads DAVIS 2016 sequences (the object's mask on every frame: 0 background,
+  1 the object), in pcreg's layout or the official one (:mod:`pcreg.datasets.davis`).
 - :func:`synthetic` renders LAGR-like forward-looking terrain sequences with exact labels and exact
   camera poses, so registration can be scored; six presets mirror DS1A ... DS3B.
 - :func:`load_dataset` turns a ``--data`` value into named sequences.
@@ -19,6 +21,7 @@ import re
 from pathlib import Path
 
 from ..errors import DatasetError, InputError
+from .davis import load_davis
 from .folder import CAMVID_MAPPING, IMAGE_SUFFIXES, load_folder
 from .frame import Frame, relative_transform
 from .lagr import load_lagr
@@ -29,6 +32,7 @@ __all__ = [
     "relative_transform",
     "load_lagr",
     "load_folder",
+    "load_davis",
     "synthetic",
     "SYNTHETIC_PRESETS",
     "SyntheticPreset",
@@ -52,6 +56,8 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     - ``"camvid:PATH"``: every clip folder of PATH holding ``images/`` (or PATH itself if it does),
       with CamVid's label mapping.
     - ``"folder:PATH"``: the same layout with labels already in {0, 1, 2}.
+    - ``"davis:PATH"``: DAVIS 2016 sequences, PATH one sequence or a folder of them, pcreg's layout or
+      the official one (:func:`pcreg.datasets.davis.find_sequences`); labels 0 background, 1 the object.
     - ``"lagr:PATH"``: every ``labeled_lagr_data_*`` folder under PATH (or PATH itself if it holds
       .mat frames).
 
@@ -80,12 +86,14 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         return {n: synthetic(n, 100 if n_frames is None else n_frames, seed, width=width, height=height)
                 for n in names}
     if not arg:
-        raise InputError(f"--data {spec!r}: expected synthetic, synthetic:NAMES, camvid:PATH, folder:PATH or lagr:PATH")
-    if kind not in ("camvid", "folder", "lagr"):
-        raise InputError(f"--data {spec!r}: unknown kind {kind!r} (synthetic, camvid, folder or lagr)")
+        raise InputError(f"--data {spec!r}: expected synthetic, synthetic:NAMES, camvid:PATH, folder:PATH, davis:PATH or lagr:PATH")
+    if kind not in ("camvid", "folder", "davis", "lagr"):
+        raise InputError(f"--data {spec!r}: unknown kind {kind!r} (synthetic, camvid, folder, davis or lagr)")
     path = Path(arg).expanduser()
     if not path.is_dir():
         raise DatasetError(f"{path}: no such folder")
+    if kind == "davis":
+        return load_davis(path, n_frames=n_frames)
     out: dict[str, list[Frame]] = {}
     if kind in ("camvid", "folder"):
         mapping = "camvid" if kind == "camvid" else None

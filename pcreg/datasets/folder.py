@@ -31,17 +31,23 @@ CAMVID_MAPPING: dict[int, int] = {
 
 
 def mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
-    """256-entry table raw id -> label, 255 for ids outside the mapping; None for identity on {0,1,2}."""
+    """256-entry table raw id -> label, 255 for ids outside the mapping; None for identity on {0,1,2};
+    ``"davis"``: 0 the background (0), every other value the object (1)."""
     if mapping is None:
         lut = np.full(256, 255, dtype=np.uint8)
         lut[:3] = (0, 1, 2)
         return lut
     if isinstance(mapping, str):
-        if mapping.lower() != "camvid":
-            raise InputError(f"unknown label mapping {mapping!r} (use 'camvid', a dict or None)")
-        mapping = CAMVID_MAPPING
+        if mapping.lower() not in ("camvid", "davis"):
+            raise InputError(f"unknown label mapping {mapping!r} (use 'camvid', 'davis', a dict or None)")
+        if mapping.lower() == "davis":
+            from .davis import DAVIS_MAPPING
+
+            mapping = DAVIS_MAPPING
+        else:
+            mapping = CAMVID_MAPPING
     if not isinstance(mapping, Mapping):
-        raise InputError(f"mapping must be 'camvid', a dict raw id -> label or None, got {type(mapping).__name__}")
+        raise InputError(f"mapping must be 'camvid', 'davis', a dict raw id -> label or None, got {type(mapping).__name__}")
     lut = np.full(256, 255, dtype=np.uint8)
     for raw, lab in mapping.items():
         try:

@@ -122,6 +122,10 @@ class FolderFrames:
     def stem(self, position: int) -> str:
         return self.paths[position].stem
 
+    def where(self, position: int) -> Path:
+        """The file of the frame at ``position``, as a message names it."""
+        return self.paths[position]
+
     def writes(self, stem: str) -> bool:
         """Whether a stream over this source writes an output named ``stem`` (``OUT/STEM.png``)."""
         return stem in {p.stem for p in self.paths}
@@ -195,6 +199,10 @@ class VideoFrames:
         return f"{self.selection.index(position):06d}"
 
     stem = name
+
+    def where(self, position: int) -> str:
+        """The video and the frame at ``position``, as a message names it."""
+        return f"{self.path} frame {self.name(position)}"
 
     def writes(self, stem: str) -> bool:
         """Whether a stream over this video writes an output named ``stem`` (``OUT/{i:06d}.png``)."""

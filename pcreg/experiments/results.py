@@ -12,7 +12,7 @@ from typing import Any
 
 KINDS = ("classification", "rotation", "sequence", "stream")
 #: The top-level sections one kind of evaluation has and the others do not (:attr:`Results.sections`).
-SECTIONS = ("k", "weight_search", "average_reduction", "calibration")
+SECTIONS = ("k", "weight_search", "average_reduction", "calibration", "davis")
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,9 @@ class Results:
         - ``weight_search`` (classification): the thesis feature weights found per dataset;
         - ``average_reduction`` (stream): each method's mean over clips of its reduction of plain's error (%);
         - ``calibration`` (stream): pcreg's confidence over every clip's known pixels
-          (:func:`pcreg.experiments.stream.calibration`).
+          (:func:`pcreg.experiments.stream.calibration`);
+        - ``davis`` (stream on DAVIS): J and F per sequence and method, beside the published methods
+          (:func:`pcreg.experiments.stream_davis.summarise_davis`).
     """
 
     kind: str
@@ -80,6 +82,11 @@ class Results:
         """Stream: pcreg's confidence over every clip's known pixels."""
         return self.sections.get("calibration")
 
+    @property
+    def davis(self) -> dict | None:
+        """Stream on DAVIS: J and F per sequence and method, beside the published methods."""
+        return self.sections.get("davis")
+
     def to_dict(self) -> dict[str, Any]:
         """The results.json document: the fields in this order, those an evaluation does not have left out."""
         doc: dict[str, Any] = {"config": self.config}
@@ -89,7 +96,7 @@ class Results:
         doc["datasets"] = self.datasets
         later = {"backends": self.backends, "k": self.k, "notes": None if self.notes is None else list(self.notes),
                  "weight_search": self.weight_search, "average_reduction": self.average_reduction,
-                 "calibration": self.calibration}
+                 "calibration": self.calibration, "davis": self.davis}
         doc.update((k, v) for k, v in later.items() if v is not None)
         doc.update(units=self.units, resumed_units=self.resumed_units, seconds=self.seconds)
         return doc

@@ -93,19 +93,47 @@ def _baseline_prior(fields: dict, priors: dict, t: int, a: int | None, b: int | 
     return np.sum(parts, axis=0).astype(np.float32)
 
 
+class _AroundKeys:
+    """A baseline between key frames, as a labeller of the frames of one stretch in order
+    (:func:`pcreg.pipeline.engine.propagate`): naive Bayes alone (``plain``), or fused with the key frames'
+    priors around each frame, unmoved (``unregistered``) or each carried by DIS from its key frame
+    (:func:`_baseline_prior`)."""
+
+    def __init__(self, method: str, classifier, frames, stretch, priors: dict) -> None:
+        from ..pipeline.estimators import FlowEstimator
+        from .stream_methods import PRESET_OF
+
+        self.method, self.classifier, self.frames, self.stretch, self.priors = method, classifier, frames, stretch, priors
+        self.flow = FlowEstimator(PRESET_OF[method.split("_")[0]]) if method not in ("plain", "unregistered") else None
+        self.t = stretch.start
+
+    def step(self, image: np.ndarray) -> np.ndarray:
+        from ..pipeline.pair import log_odds
+        from ..pipeline.stream import STREAM_WEIGHT
+
+        t, s = self.t, self.stretch
+        self.t += 1
+        d = log_odds(self.classifier, image)
+        if self.method == "plain":
+            return (d > 0).astype(np.uint8)
+        fields = {} if self.flow is None else {k: self.flow.estimate(self.frames[k].image, image).result.field  # type: ignore[union-attr]
+                                               for k in s.keys}
+        return ((d + STREAM_WEIGHT * _baseline_prior(fields, self.priors, t, s.first, s.last)) > 0).astype(np.uint8)
+
+
 def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str = "reference") -> dict:
     """Every method on one clip with these key frames; the same result layout as
     :func:`pcreg.experiments.stream.run_clip` (``key`` of a row: the nearest key frame before it, or
-    after it before the first)."""
+    after it before the first). The pcreg methods label the clip with
+    :func:`~pcreg.pipeline.keyframes.label_clip`; each baseline is a pass along each stretch
+    (:func:`~pcreg.pipeline.engine.propagate`)."""
     from ..classification.bayes import fit_classifier
     from ..classification.fusion import label_prior
     from ..classification.metrics import error_rate
-    from ..pipeline.keyframes import label_clip, segments
-    from ..pipeline.pair import log_odds
+    from ..pipeline.engine import propagate, stretches
+    from ..pipeline.keyframes import label_clip
     from ..pipeline.prior import class_prior
-    from ..pipeline.stream import STREAM_WEIGHT
-    from ..pipeline.estimators import FlowEstimator
-    from .stream import CONFIDENCE_LEVELS, PCREG_METHODS, PRESET_OF, calibration_counts
+    from .stream_methods import CONFIDENCE_LEVELS, PCREG_METHODS, Timed, calibration_counts
 
     n = len(frames)
     clf = fit_classifier([frames[k] for k in keys])
@@ -120,33 +148,26 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
         seconds[m] = time.perf_counter() - t0
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows = []
-    for a, b, stretch in segments(n, keys):
-        for t in stretch:
-            f = frames[t]
-            t1 = time.perf_counter()
-            d = log_odds(clf, f.image)
-            classify = time.perf_counter() - t1
-            seconds["plain"] += classify
-            preds = {"plain": (d > 0).astype(np.uint8)}
-            for m, labelled in ours.items():
-                preds[m] = labelled[t].labels
+    for s in stretches(keys, n):
+        errors: dict[int, dict] = {t: {} for t in s.frames}
+        for m in methods:
+            if m in ours:
+                for t in s.frames:
+                    errors[t][m] = error_rate(ours[m][t].labels, frames[t].labels)
+                continue
+            timed = Timed(_AroundKeys(m, clf, frames, s, priors))
+            for t, _, labels in propagate(timed, ((t, frames[t].image) for t in s.frames)):
+                errors[t][m] = error_rate(labels, frames[t].labels)
+            seconds[m] += timed.seconds
+        for t in s.frames:
             if "pcreg" in ours:
                 conf = ours["pcreg"][t].confidence
                 assert conf is not None  # a frame that is not a key frame has one
-                counts += calibration_counts(conf, ours["pcreg"][t].labels, f.labels)
-            for m in methods:
-                if m == "plain" or m in ours:
-                    continue
-                t1 = time.perf_counter()
-                flow = FlowEstimator(PRESET_OF[m.split("_")[0]]) if m != "unregistered" else None
-                fields = {} if flow is None else {k: flow.estimate(frames[k].image, f.image).result.field  # type: ignore[union-attr]
-                                                  for k in (a, b) if k is not None}
-                preds[m] = ((d + STREAM_WEIGHT * _baseline_prior(fields, priors, t, a, b)) > 0).astype(np.uint8)
-                seconds[m] += time.perf_counter() - t1 + classify
-            key = a if a is not None else b
+                counts += calibration_counts(conf, ours["pcreg"][t].labels, frames[t].labels)
+            key = s.first if s.first is not None else s.last
             assert key is not None  # a stretch has a key frame on one side at least
-            rows.append({"index": t, "name": f.name, "key": key, "since_key": abs(t - key),
-                         "errors": {m: error_rate(preds[m], f.labels) for m in methods}})
+            rows.append({"index": t, "name": frames[t].name, "key": key, "since_key": abs(t - key),
+                         "errors": {m: errors[t][m] for m in methods}})
     rows.sort(key=lambda r: r["index"])
     means = {m: float(np.nanmean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods}
     return {"frames": rows, "means": means, "key_frames": sorted(keys), "calibration": counts.tolist(),

@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..formats import load_json_object
 from ..errors import InputError
 from .base import COMPARABILITY, STEP, ImplementationError, Implementation, result
 
@@ -210,11 +211,9 @@ class Command(Implementation):
             side = Path(str(out) + ".json")
             if side.exists():
                 try:
-                    extra = json.loads(side.read_text())
-                except (ValueError, UnicodeDecodeError):
-                    raise ImplementationError(f"unreadable {side.name}") from None
-                if not isinstance(extra, dict):
-                    raise ImplementationError(f"{side.name} is not a JSON object")
+                    extra = load_json_object(side)
+                except ValueError as exc:
+                    raise ImplementationError(f"{side.name}: {exc}") from None
             self._declared = _comparability(extra.get("comparability"), self.name)
             conv = extra.get("converged")
             return result(self.name, m, iterations=_number(extra.get("iterations"), "iterations", int),

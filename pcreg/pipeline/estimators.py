@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Protocol
 
 import numpy as np
 
@@ -31,8 +31,8 @@ from ..registration.motion import Motion
 if TYPE_CHECKING:
     from ..registration.dense import DenseOptions, DenseReference
 
-__all__ = ["DenseStep", "Carry", "STREAM_DENSE", "Estimate", "GlobalEstimator", "DenseEstimator", "FlowEstimator",
-           "pair_estimator"]
+__all__ = ["DenseStep", "Carry", "STREAM_DENSE", "Estimate", "StreamMotion", "GlobalEstimator", "DenseEstimator",
+           "FlowEstimator", "stream_motion", "pair_estimator"]
 
 
 @dataclass(frozen=True)
@@ -134,6 +134,34 @@ class Estimate:
         return None if self.result is None else Motion.of(self.result)
 
 
+class StreamMotion(Protocol):
+    """What a stream (:class:`pcreg.Propagator`) asks of the way it finds each frame's motion, so that it
+    never asks which way that is.
+
+    name : how a message names it (``"dense registration"``, ``"optical flow"``, ...).
+    second_motion : whether the trust rule carries the key frame along DIS's flow too, as a second motion
+        (not when the motion is itself a flow: it would be the same motion twice).
+    checks_every_size : whether frames it cannot take are refused at the key frame even at the frames'
+        own size (DIS crashes on them; a registration fails on them and the step falls back instead).
+    """
+
+    name: str
+    second_motion: bool
+    checks_every_size: bool
+
+    def prepare(self, reference: np.ndarray) -> object | None:
+        """What every estimate against ``reference`` shares, made once (None: nothing)."""
+
+    def check_size(self, shape: tuple[int, int]) -> None:
+        """An :class:`~pcreg.errors.InputError` for frames of ``shape`` it cannot take."""
+
+    def warm_starts(self, anchor: str) -> bool:
+        """Whether each estimate starts from the last one's :class:`Carry` in a stream anchored so."""
+
+    def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> "Estimate":
+        """The motion from ``image`` to ``reference``, or why not."""
+
+
 def _refused(result, image: np.ndarray) -> str | None:
     """Why a result's transform cannot carry labels (a degenerate matrix), or None."""
     from ..registration.transforms import degeneracy
@@ -146,10 +174,23 @@ class GlobalEstimator:
     """One transform per frame: :func:`pcreg.register` with ``config`` (and its ``callback``, called after
     every ICP iteration), a degenerate one refused."""
 
+    second_motion, checks_every_size = True, False
+
     def __init__(self, config: RegisterConfig, *, callback: Callable | None = None) -> None:
         if not isinstance(config, RegisterConfig):
             raise InputError("config must be a pcreg.RegisterConfig")
         self.config, self.callback = config, callback
+        self.name = f"{config.model} registration"
+
+    def prepare(self, reference: np.ndarray) -> None:
+        """Nothing: each frame's global registration builds its own pyramids."""
+        return None
+
+    def check_size(self, shape: tuple[int, int]) -> None:
+        self.config.pyramid.check_shape(shape)
+
+    def warm_starts(self, anchor: str) -> bool:
+        return False
 
     def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
         from ..registration.api import register
@@ -170,9 +211,20 @@ class DenseEstimator:
     cold field's, keeping the field with more evidence. ``callback``: the global registration's, called
     after every ICP iteration."""
 
+    name, second_motion, checks_every_size = "dense registration", True, False
+
     def __init__(self, config: RegisterConfig, step: "DenseStep", cold: "DenseOptions", warm: "DenseOptions", *,
                  callback: Callable | None = None) -> None:
         self.config, self.step, self.cold, self.warm, self.callback = config, step, cold, warm, callback
+
+    def check_size(self, shape: tuple[int, int]) -> None:
+        self.cold.check_shape(shape)
+        if self.step.global_start == "register":
+            self.config.pyramid.check_shape(shape)
+
+    def warm_starts(self, anchor: str) -> bool:
+        """From the previous step's grid: anchored to the key frame, from the identity, with ``step.warm``."""
+        return self.step.warm and anchor == "key" and self.step.global_start == "identity"
 
     def prepare(self, reference: np.ndarray) -> "DenseReference":
         """The reference's pyramid, built once for every estimate against it."""
@@ -221,6 +273,18 @@ class DenseEstimator:
         return result, start, evidence
 
 
+def stream_motion(model: str, preset: str | None, config: RegisterConfig, step: DenseStep,
+                  options: tuple["DenseOptions", "DenseOptions"]) -> StreamMotion:
+    """A stream's motion by its ``model`` (:class:`pcreg.Propagator`'s, parsed into ``model`` and a flow's
+    ``preset``): a dense field (``"dense"``: ``step``, cold and warm ``options``), DIS's flow (``"flow"``)
+    or one global transform by ``config``."""
+    if model == "dense":
+        return DenseEstimator(config, step, *options)
+    if model == "flow":
+        return FlowEstimator(preset or "medium")
+    return GlobalEstimator(config)
+
+
 def pair_estimator(registration: RegisterConfig, *, callback: Callable | None = None
                    ) -> "GlobalEstimator | DenseEstimator":
     """How a pair of images is registered (:func:`pcreg.pipeline.pair.register_pair`): ``registration``'s
@@ -243,6 +307,8 @@ class FlowEstimator:
     prepared once (:meth:`prepare`: its grey levels and the pixel grid) is not converted again for every
     frame; the fields are the same."""
 
+    name, second_motion, checks_every_size = "optical flow", False, True
+
     def __init__(self, preset: str = "medium") -> None:
         from ..registration.flow import PRESETS
 
@@ -250,18 +316,25 @@ class FlowEstimator:
             raise InputError(f"unknown DIS preset {preset!r}; choose one of {', '.join(PRESETS)}")
         self.preset = preset
 
+    def check_size(self, shape: tuple[int, int]) -> None:
+        from ..registration.flow import DIS_MIN_SIDE
+
+        if min(shape) < DIS_MIN_SIDE:
+            raise InputError(f"DIS optical flow takes at least {DIS_MIN_SIDE} px a side")
+
+    def warm_starts(self, anchor: str) -> bool:
+        return False
+
     def prepare(self, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The reference's grey levels and its pixel grid's x and y (float32), for :meth:`estimate`."""
         import cv2
 
         from ..frame import as_rgb_uint8
+        from ..registration.flow import pixel_grid
 
         grey = cv2.cvtColor(as_rgb_uint8(reference, name="reference image"), cv2.COLOR_RGB2GRAY)
-        h, w = grey.shape
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        for a in (grey, xs, ys):
-            a.setflags(write=False)
-        return grey, xs, ys
+        grey.setflags(write=False)
+        return (grey, *pixel_grid(grey.shape))
 
     def estimate(self, reference: np.ndarray, image: np.ndarray, *, prepared=None, carry=None) -> Estimate:
         """The flow from ``image`` to the reference; with ``prepared`` (:meth:`prepare` of the reference)
@@ -269,7 +342,7 @@ class FlowEstimator:
         import cv2
 
         from ..frame import as_rgb_uint8
-        from ..registration.flow import FlowResult, dis_field, dis_flow
+        from ..registration.flow import FlowResult, dis_field, dis_flow, flow_field
 
         if prepared is None:
             fld, seconds = dis_field(reference, image, preset=self.preset)
@@ -277,6 +350,5 @@ class FlowEstimator:
         grey, xs, ys = prepared
         t0 = time.perf_counter()
         frame = cv2.cvtColor(as_rgb_uint8(image, name="moving image"), cv2.COLOR_RGB2GRAY)
-        flow = dis_flow(frame, grey, self.preset)
-        fld = np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)
+        fld = flow_field(dis_flow(frame, grey, self.preset), (xs, ys))
         return Estimate(FlowResult(fld, self.preset, time.perf_counter() - t0))

@@ -37,13 +37,13 @@ a stretch labelled from one side only first, then the frame whose predicted erro
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["LabelledFrame", "label_clip", "suggest", "segments", "KEY_FITS"]
+__all__ = ["LabelledFrame", "label_clip", "suggest", "KEY_FITS"]
 
 #: What each stretch's naive Bayes is fitted on: its own key frames (one or two), or all of them.
 KEY_FITS: tuple[str, ...] = ("stretch", "all")
@@ -62,36 +62,19 @@ class LabelledFrame:
     keys: tuple[int, ...]
 
 
-def segments(n: int, keys: Sequence[int]) -> list[tuple[int | None, int | None, range]]:
-    """The stretches between key frames: ``(earlier key or None, later key or None, frames)`` in order,
-    each non-key frame of ``range(n)`` in exactly one."""
-    ks = sorted(set(int(k) for k in keys))
-    if not ks:
-        raise InputError("at least one key frame is needed")
-    if ks[0] < 0 or ks[-1] >= n:
-        raise InputError(f"key frame {ks[0] if ks[0] < 0 else ks[-1]} is outside the clip's {n} frames")
-    out: list[tuple[int | None, int | None, range]] = []
-    if ks[0] > 0:
-        out.append((None, ks[0], range(0, ks[0])))
-    for a, b in zip(ks, ks[1:]):
-        if b > a + 1:
-            out.append((a, b, range(a + 1, b)))
-    if ks[-1] < n - 1:
-        out.append((ks[-1], None, range(ks[-1] + 1, n)))
-    return out
+def _pass(make: Callable, key_image, key_labels, images: Callable[[int], np.ndarray], order) -> tuple[dict, Any]:
+    """One direction, by :func:`~pcreg.pipeline.engine.propagate`: ``{t: (log_odds, prior_term, labels,
+    confidence)}`` along ``order`` from the key frame (the first two at the propagator's working size),
+    and the propagator."""
+    from .engine import propagate
 
-
-def _carry(make: Callable, key_image, key_labels, images: Callable[[int], np.ndarray], order) -> dict:
-    """One direction: ``{t: (log_odds, prior_term, confidence)}`` along ``order`` from the key frame (the
-    first two at the propagator's working size)."""
     prop = make()
     prop.reset(key_image, key_labels)
     out = {}
-    for t in order:
-        prop.step(images(t))
+    for t, _, labels in propagate(prop, ((t, images(t)) for t in order)):
         d = prop.last.log_odds
-        out[t] = (d, prop.last.trust.prior_term(d.shape), prop.last.confidence)
-    return out
+        out[t] = (d, prop.last.trust.prior_term(d.shape), labels, prop.last.confidence)
+    return out, prop
 
 
 def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, np.ndarray], *, classifier=None,
@@ -106,21 +89,21 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
         stretch's on all the key frames (``fit="all"``).
     scale, model : the working size and the motion (:class:`pcreg.Propagator`'s: ``"dense"``, ``"flow"``,
         ``"flow:fast"``, ...).
-    on_frame : called with each :class:`LabelledFrame` as soon as it is done (segments in order).
+    on_frame : called with each :class:`LabelledFrame` as soon as it is done (stretches in order).
     Returns the frames in index order (key frames with their own labels).
     """
     from ..classification.bayes import fit_classifier
     from ..datasets import Frame
+    from .engine import stretches, two_sided
     from .learning import STREAM_LEARNING
     from .stream import Propagator
-    from .trust import STREAM_TRUST, predicted_error, read_labels, smoothed
-    from .working import WorkingSize
+    from .trust import predicted_error
 
     if not keys:
         raise InputError("at least one key frame is needed")
     if fit not in KEY_FITS:
         raise InputError(f"fit must be one of {', '.join(KEY_FITS)}, got {fit!r}")
-    parts = segments(n, list(keys))
+    plan = stretches(list(keys), n)
 
     def fitted(around) -> object:
         return fit_classifier([Frame(images(k), np.asarray(keys[k]), str(k)) for k in sorted(around)])
@@ -136,29 +119,24 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
 
     for k in sorted(keys):
         emit(LabelledFrame(k, np.asarray(keys[k], np.uint8), None, 0.0, (k,)))
-    for a, b, frames in parts:
-        size = WorkingSize(np.asarray(keys[a if a is not None else int(b)]).shape[:2], scale)  # type: ignore[arg-type]
-        both = a is not None and b is not None
-        learning = None if both else STREAM_LEARNING
-        clf = classifier if classifier is not None else fitted([k for k in (a, b) if k is not None])
+    for s in plan:
+        a, b = s.first, s.last
+        learning = None if len(s.keys) == 2 else STREAM_LEARNING
+        clf = classifier if classifier is not None else fitted(s.keys)
 
         def make(learning=learning, clf=clf):
             return Propagator(clf, backend=backend, learning=learning, scale=scale, model=model)
 
-        fwd = {} if a is None else _carry(make, images(a), keys[a], images, frames)
-        bwd = {} if b is None else _carry(make, images(b), keys[b], images, frames[::-1])
-        for t in frames:
-            if not both:
-                d, prior, conf = (fwd or bwd)[t]
-                labels = (size.grow(smoothed(d + prior, STREAM_TRUST)) > 0).astype(np.uint8)  # conf: the propagator's
-            else:
-                d, p_a, _ = fwd[t]
-                _, p_b, _ = bwd[t]
-                p_a = p_a.astype(np.float16).astype(np.float32)  # as pcreg run keeps it between its two passes
-                prior = p_a + p_b
-                labels, conf = read_labels(d + prior, d, prior, STREAM_TRUST, size=size)
-            emit(LabelledFrame(t, labels, conf, predicted_error(conf),
-                               tuple(k for k in (a, b) if k is not None)))
+        fwd, prop = ({}, None) if a is None else _pass(make, images(a), keys[a], images, s.frames)
+        bwd, prop = (fwd, prop) if b is None else _pass(make, images(b), keys[b], images, s.frames[::-1])
+        for t in s.frames:
+            if len(s.keys) == 1:
+                _, _, labels, conf = bwd[t]
+            else:  # as pcreg run's backward pass between two key frames
+                assert prop is not None
+                d, p_a, _, _ = fwd[t]
+                labels, conf, _ = two_sided(d, p_a, bwd[t][1], prop.trust, size=prop.working_size)
+            emit(LabelledFrame(t, labels, conf, predicted_error(conf), s.keys))
     return [done[t] for t in range(n)]
 
 

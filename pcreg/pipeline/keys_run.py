@@ -32,83 +32,26 @@ import hashlib
 import json
 import shutil
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Callable, Iterator
 
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .stream_run import (CONFIDENCE, STATE, STEPS, TRUTH_COUNTS, _UNREADABLE_CARRY, is_count, has_counts, _write_carry,
-                         _write_png, check_labelled, confidence_png, open_state, parse_steps)
+from ..runs.files import (CONFIDENCE, STEPS, UNREADABLE_CARRY, append_step, check_labelled, confidence_png,
+                          parse_steps, read_carry, read_step_lines, write_carry, write_labels)
+from ..runs.state import open_state, write_state
+from ..runs.truth import add_rates, count_frame, empty_counts
 
-__all__ = ["KeyRun", "Stretch", "HIDDEN", "stretches"]
+from .engine import PRIOR_STORE_DTYPE, Stretch, propagate, stretches, two_sided
 
-
-def _stretch_problem(e, cursor: bool) -> bool:
-    """Whether a stretch's entry in run.json (done, or the ``cursor`` under way) is not as pcreg run writes it."""
-    if not (isinstance(e, dict) and isinstance(e.get("fingerprint"), str) and is_count(e.get("fallbacks"))
-            and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS))):
-        return True
-    return cursor and not (isinstance(e.get("phase"), str) and is_count(e.get("steps"))
-                           and (e.get("next") is None or is_count(e["next"])))
-
-
-def keys_state_problem(state: dict) -> str | None:
-    """What in a key-frames run's run.json is not as pcreg run writes it (the first field), or None."""
-    if not isinstance(state.get("keys"), dict):
-        return "keys"
-    if not isinstance(state.get("stretches"), list) or any(_stretch_problem(e, False) for e in state["stretches"]):
-        return "stretches"
-    if state.get("cursor") is not None and _stretch_problem(state["cursor"], True):
-        return "cursor"
-    for name in ("lines", "fallbacks"):
-        if not is_count(state.get(name)):
-            return name
-    if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
-        return "truth"
-    return None
+__all__ = ["KeyRun", "HIDDEN"]
 
 
 #: The hidden folder under ``out`` that holds what a stretch's passes hand on.
 HIDDEN = ".keys"
 #: What reading a missing or damaged file of that folder raises.
-_UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *_UNREADABLE_CARRY)
-
-
-@dataclass(frozen=True)
-class Stretch:
-    """The frames between two key frames (positions): ``first`` the earlier key frame (None before the
-    first), ``last`` the later one (None after the last); ``stop`` the position after its last frame
-    (None: to the end of a video whose length is not known yet)."""
-
-    first: int | None
-    last: int | None
-    stop: int | None
-
-    @property
-    def start(self) -> int:
-        return 0 if self.first is None else self.first + 1
-
-    def __contains__(self, t: int) -> bool:
-        return t >= self.start and (self.stop is None or t < self.stop)
-
-    @property
-    def keys(self) -> tuple[int, ...]:
-        return tuple(k for k in (self.first, self.last) if k is not None)
-
-
-def stretches(keys, n: int | None) -> list[Stretch]:
-    """The stretches of ``n`` frames (None: a video not decoded to its end) around the key frames
-    ``keys`` (positions), in order, empty ones left out."""
-    ks = sorted(set(keys))
-    out = []
-    if ks[0] > 0:
-        out.append(Stretch(None, ks[0], ks[0]))
-    out += [Stretch(a, b, b) for a, b in zip(ks, ks[1:]) if b > a + 1]
-    if n is None or ks[-1] < n - 1:
-        out.append(Stretch(ks[-1], None, n))
-    return out
+_UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *UNREADABLE_CARRY)
 
 
 @contextmanager
@@ -128,13 +71,14 @@ def _digest(labels: np.ndarray) -> str:
 
 class KeyRun:
     """One run: ``frames`` (a :class:`~pcreg.datasets.sources.FolderFrames` or ``VideoFrames``), ``keys``
-    ({position: (H, W) uint8 labels}), ``out``, the propagator's ``options``, ``identity`` (what a
+    ({position: (H, W) uint8 labels}), ``out``, the propagators' ``config``
+    (:class:`~pcreg.pipeline.config.PropagatorConfig`), ``identity`` (what a
     resumed run must match, in run.json), optional ``truth`` (indexed by position, as
     :class:`~pcreg.pipeline.stream_run.StreamRun`'s) and ``confidence`` (write ``confidence/NAME.png``)."""
 
-    def __init__(self, frames, keys: dict[int, np.ndarray], out: Path, options: dict, *, identity: dict,
+    def __init__(self, frames, keys: dict[int, np.ndarray], out: Path, config, *, identity: dict,
                  truth=None, confidence: bool = False) -> None:
-        self.frames, self.keys, self.out, self.options = frames, dict(sorted(keys.items())), Path(out), options
+        self.frames, self.keys, self.out, self.config = frames, dict(sorted(keys.items())), Path(out), config
         self.identity, self.truth, self.confidence = identity, truth, confidence
         self.n = len(frames) if frames.kind == "folder" else None
         self.plan = stretches(self.keys, self.n)
@@ -151,14 +95,12 @@ class KeyRun:
 
     def _fingerprint(self, s: Stretch) -> str:
         what = {"keys": [[k, self.frames.name(k), _digest(self.keys[k])] for k in s.keys],
-                "first": s.first, "last": s.last, "options": self.options, "confidence": self.confidence,
+                "first": s.first, "last": s.last, "options": self.config.options(), "confidence": self.confidence,
                 "fit": "stretch"}
         return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
 
     def _commit(self) -> None:
-        from ..outputs import atomic_write_json
-
-        atomic_write_json(self.out / STATE, self.state)
+        write_state(self.out, self.state)
 
     def _hidden(self, fp: str) -> Path:
         return self.out / HIDDEN / fp[:16]
@@ -184,7 +126,7 @@ class KeyRun:
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
-        lines = (self.out / STEPS).read_bytes().splitlines(keepends=True) if (self.out / STEPS).is_file() else []
+        lines = read_step_lines(self.out)
         if len(lines) < self.state["lines"]:
             raise OutputError(f"{self.out / STEPS}: {len(lines)} steps for {self.state['lines']} finished frames; "
                               "use --force to start over")
@@ -202,7 +144,7 @@ class KeyRun:
         for k, lab in self.keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
-                _write_png(f, lab)
+                write_labels(f, lab)
         self.state.update(keys=names, stretches=kept, cursor=cursor, lines=len(lines))
         self._totals()
         self._commit()
@@ -212,10 +154,7 @@ class KeyRun:
         self.state["fallbacks"] = sum(p["fallbacks"] for p in parts)
         if self.truth is None:
             return
-        s = {k: sum(p["truth"][k] for p in parts) for k in ("frames", "wrong", "known", "plain_wrong")}
-        s["error"] = 100.0 * s["wrong"] / s["known"] if s["known"] else None
-        s["plain_error"] = 100.0 * s["plain_wrong"] / s["known"] if s["known"] else None
-        self.state["truth"] = s
+        self.state["truth"] = add_rates({k: sum(p["truth"][k] for p in parts) for k in empty_counts()})
 
     # -- the run ---------------------------------------------------------------------------------------
 
@@ -231,8 +170,7 @@ class KeyRun:
             cur = self.state["cursor"]
             if cur is None or cur["fingerprint"] != fp:
                 self.state["cursor"] = cur = {"fingerprint": fp, "phase": self._phases(s)[0], "next": None, "steps": 0,
-                                              "fallbacks": 0, "truth": None if self.truth is None else
-                                              {"frames": 0, "wrong": 0, "known": 0, "plain_wrong": 0}}
+                                              "fallbacks": 0, "truth": None if self.truth is None else empty_counts()}
                 self._commit()
             self._hidden(fp).mkdir(parents=True, exist_ok=True)
             for phase in self._phases(s)[self._phases(s).index(cur["phase"]):]:
@@ -279,10 +217,7 @@ class KeyRun:
         return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys])
 
     def _propagator(self, clf, image, labels, learning: bool):
-        from .learning import STREAM_LEARNING
-        from .stream import Propagator
-
-        prop = Propagator(clf, **self.options, learning=STREAM_LEARNING if learning else None)
+        prop = self.config.propagator(clf, learns=learning)
         prop.reset(image, labels)
         return prop
 
@@ -292,25 +227,12 @@ class KeyRun:
             prop.resume(cur["steps"], carry if prop.warm_starts else None, learned)
 
     def _read_carry(self, s: Stretch, steps: int):
-        from .stream import Carry
-
-        path = self._hidden(self.fingerprint(s)) / f"carry-{steps % 2}.npz"
-        bad = OutputError(f"{path}: missing or unreadable; use --force to start over")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                frame, grid, evidence = int(z["frame"]), np.array(z["grid"]), float(z["evidence"])
-                learned = np.array(z["learned"])
-        except _UNREADABLE_CARRY:
-            raise bad from None
-        if frame != steps:
-            raise bad
-        carry = None if grid.shape == (0, 0, 2) and np.isnan(evidence) else Carry(grid, evidence)
-        return carry, (None if learned.size == 0 else learned)
+        return read_carry(self._hidden(self.fingerprint(s)) / f"carry-{steps % 2}.npz", steps, "")
 
     def _keep_carry(self, cur: dict, carry, learned: Callable[[], np.ndarray | None]) -> None:
         """One more step done: the carry it left and what was ``learned`` (computed now), for a resumed run."""
         cur["steps"] += 1
-        _write_carry(self._hidden(cur["fingerprint"]) / f"carry-{cur['steps'] % 2}.npz", cur["steps"], carry,
+        write_carry(self._hidden(cur["fingerprint"]) / f"carry-{cur['steps'] % 2}.npz", cur["steps"], carry,
                      learned())
 
     def _store(self, s: Stretch, cur: dict) -> None:
@@ -345,11 +267,9 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
         with WriteBehind() as writer:  # a frame's prior term, carry and commit written while the next is labelled
-            for t, image in self._images(s, range(start, b)):
-                self.check()
-                prop.step(image)
+            for t, _, _ in propagate(prop, self._images(s, range(start, b)), check=self.check):
                 report = prop.last
-                prior = report.trust.prior_term(report.log_odds.shape).astype(np.float16)
+                prior = report.trust.prior_term(report.log_odds.shape).astype(PRIOR_STORE_DTYPE)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
                               prop.learned_later())
 
@@ -371,7 +291,7 @@ class KeyRun:
         """From the later key frame back to the stretch's first frame; between two key frames, each frame
         fuses the forward pass's prior term too."""
         from ..outputs import WriteBehind
-        from .trust import predicted_error, read_labels
+        from .trust import predicted_error
 
         b = s.last
         assert b is not None
@@ -382,19 +302,17 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = b - 1 if cur["next"] is None else cur["next"]
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
-            for t, image in self._images(s, range(start, s.start - 1, -1)):
-                self.check()
-                labels = prop.step(image)
+            for t, image, labels in propagate(prop, self._images(s, range(start, s.start - 1, -1)), check=self.check):
                 report = prop.last
                 step = report.to_dict()
                 conf = report.confidence
                 if both:
                     with _kept(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz") as f, \
                             np.load(f, allow_pickle=False) as z:
-                        p_a, fallback = z["prior"].astype(np.float32), bool(z["fallback"])
+                        p_a, fallback = z["prior"], bool(z["fallback"])
                     d = report.log_odds
-                    prior = p_a + report.trust.prior_term(d.shape)
-                    labels, conf = read_labels(d + prior, d, prior, prop.trust, size=prop.working_size)
+                    labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
+                                                size=prop.working_size)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1)
 
@@ -412,19 +330,10 @@ class KeyRun:
         prop = self._propagator(clf, key.image, self.keys[a], learning=True)
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
+        todo = ((f.position, f.image) for f in frames if f.position >= start)
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
-            for frame in frames:
-                if frame.position < start:
-                    continue
-                self.check()
-                t = frame.position
-                try:
-                    labels = prop.step(frame.image)
-                except InputError as exc:  # a frame of another size: the step's own check, the file named
-                    where = (self.frames.paths[t] if self.frames.kind == "folder"
-                             else f"{self.frames.path} frame {frame.name}")
-                    raise InputError(f"{where}: {exc}") from None
-                self._record(writer, s, cur, t, frame.image, labels, prop.last.confidence, prop.last.to_dict(), prop,
+            for t, image, labels in propagate(prop, todo, check=self.check, where=self.frames.where):
+                self._record(writer, s, cur, t, image, labels, prop.last.confidence, prop.last.to_dict(), prop,
                              clf, after=t + 1)
 
     def _record(self, writer, s: Stretch, cur: dict, t: int, image, labels, conf, step: dict, prop, clf, *,
@@ -449,23 +358,15 @@ class KeyRun:
                      after: int) -> None:
         """On the writer's thread: what :meth:`_record` hands on, in the order a resumed run reads it back
         (``scored``: the frame's truth map and naive Bayes' labels alone, or two Nones)."""
-        from ..outputs import to_json
-
         stem = self.frames.stem(t)
-        _write_png(self.out / f"{stem}.png", labels)
+        write_labels(self.out / f"{stem}.png", labels)
         if self.confidence and conf is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
-            _write_png(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
+            write_labels(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
         truth, plain = scored
         if truth is not None:
-            known = truth < 2
-            c = cur["truth"]
-            c["frames"] += 1
-            c["wrong"] += int(np.count_nonzero((labels[known] == 1) != (truth[known] == 1)))
-            c["known"] += int(known.sum())
-            c["plain_wrong"] += int(np.count_nonzero((plain[known] == 1) != (truth[known] == 1)))
-        with open(self.out / STEPS, "ab") as fh:
-            fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
+            count_frame(cur["truth"], labels, truth, plain)
+        append_step(self.out, step)
         self._keep_carry(cur, carry, learned)
         cur["fallbacks"] += int(step.get("fallback", False)) + int(step.get("forward", {}).get("fallback", False))
         self.state["lines"] += 1

@@ -9,19 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..classification.fusion import check_pi, fuse, labels_from_log_odds, prior_log_odds
+from ..classification.fusion import CONFIDENCE_SPAN, check_pi, fuse, labels_from_log_odds, prior_log_odds
 from ..errors import InputError
 
 __all__ = ["CONFIDENCE_SPAN", "class_prior", "fused_labels", "fused_log_odds", "pixel_weight", "prior_on_moving",
            "warp_prior", "warped_prior_log_odds"]
 
-#: The prior's weight per pixel, as a multiple of the fusion weight, where a dense field's confidence is 0
-#: and where it is 1 (linear between): a factor of two either way. Where the field has the evidence of
-#: many matched samples the warped labels are trusted more, where it was interpolated over a textureless
-#: or occluded area less. Measured in the stream (:mod:`pcreg.pipeline.stream`) and in the pairs of
-#: ``evaluate sequence --model dense`` (:func:`pcreg.pipeline.process_pair`); a global transform has no
-#: confidence map and keeps the one weight.
-CONFIDENCE_SPAN: tuple[float, float] = (0.5, 2.0)
 
 
 def class_prior(classifier) -> float:
@@ -107,61 +100,15 @@ def fused_labels(log_odds: np.ndarray, q: np.ndarray, confidence: np.ndarray | N
     obstacle; confidence : (H, W) the dense field's confidence, or None (one weight everywhere).
     The rows are split with the helper thread (:mod:`pcreg._threads`) on large images.
     """
-    from .._threads import MIN_PIXELS, interleave
+    from .trust import fused_labels_kernel
 
     d = np.ascontiguousarray(log_odds, dtype=np.float32)
     qq = np.ascontiguousarray(q, dtype=np.float32)
     if d.shape != qq.shape or d.ndim != 2:
         raise ValueError(f"log-odds {d.shape} and prior {qq.shape} must be one (H, W) shape")  # a caller's bug
-    if confidence is None or _fused_rows is None:  # pragma: no branch - numba is a declared dependency
+    if confidence is None:
         return labels_from_log_odds(fused_log_odds(d, qq, confidence, weight=weight, pi=pi))
     c = np.ascontiguousarray(confidence, dtype=np.float32)
     if c.shape != d.shape:
         raise ValueError(f"a confidence of shape {c.shape} for log-odds of shape {d.shape}")  # a caller's bug
-    pi = check_pi(pi)
-    lo, hi = CONFIDENCE_SPAN
-    out = np.empty(d.shape, np.uint8)
-    consts = (np.float32(weight), np.float32(lo), np.float32(hi - lo), np.float32(np.log(pi / (1.0 - pi))))
-    interleave(d.size, lambda first, stride: _fused_rows(d, qq, c, *consts, out, first, stride),
-               min_items=MIN_PIXELS)
-    return out
-
-
-#: Rows per block of :func:`_fused_rows_py` (two threads take alternate blocks).
-FUSED_BLOCK_ROWS = 16
-
-
-def _fused_rows_py(d, q, conf, weight, lo, span, logit_pi, out, first, stride):
-    """Rows of blocks ``first``, ``first + stride``, ... of :func:`fused_labels` (float32 throughout,
-    in the order of :func:`pixel_weight`, :func:`~pcreg.classification.fusion.prior_log_odds` and
-    :func:`~pcreg.classification.fusion.fuse`). A pixel whose clipped prior equals its left
-    neighbour's reuses that neighbour's log-odds (the same number): the warped prior is flat inside
-    labelled regions, so the logarithm is taken for 13-28% of the pixels of streamed CamVid and
-    synthetic frames."""
-    h, w = d.shape
-    qlo = np.float32(1e-6)
-    qhi = np.float32(1.0 - 1e-6)
-    one = np.float32(1.0)
-    zero = np.float32(0.0)
-    for b in range(first * FUSED_BLOCK_ROWS, h, stride * FUSED_BLOCK_ROWS):
-        for i in range(b, min(b + FUSED_BLOCK_ROWS, h)):
-            last = np.float32(np.nan)  # no pixel's clipped prior equals it
-            prior = zero
-            for j in range(w):
-                c = conf[i, j]
-                c = zero if c != c else min(max(c, zero), one)  # NaN: no evidence
-                wp = weight * (lo + span * c)
-                qc = min(max(q[i, j], qlo), qhi)
-                if qc != last:  # the logarithm again only where the prior changes along the row
-                    prior = np.float32(np.log(qc / (one - qc))) - logit_pi
-                    last = qc
-                out[i, j] = 1 if d[i, j] + wp * prior > zero else 0
-    return out
-
-
-try:
-    from .._jit import njit as _njit
-
-    _fused_rows = _njit(cache=True, nogil=True)(_fused_rows_py)
-except ImportError:  # pragma: no cover - numba is a declared dependency
-    _fused_rows = None
+    return fused_labels_kernel(d, qq, c, weight=weight, pi=check_pi(pi))

@@ -92,7 +92,7 @@ import numpy as np
 from .._threads import both
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
-from .estimators import STREAM_DENSE, Carry, DenseEstimator, DenseStep, FlowEstimator, GlobalEstimator
+from .estimators import STREAM_DENSE, Carry, DenseStep, FlowEstimator, StreamMotion, stream_motion
 from .learning import STREAM_LEARNING, Learner, Learning
 from .prior import class_prior, fused_labels, fused_log_odds, prior_on_moving
 from .trust import STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
@@ -262,9 +262,7 @@ class Propagator:
         base = DenseOptions(seed=self.config.search.seed, global_step=GlobalStep(backend=self.config.backend))
         self._dense_options = (dense.options(base), dense.options(base, warm=True))
         self.preset = preset  # a flow's DIS preset (None for the other models)
-        self._estimator: DenseEstimator | FlowEstimator | GlobalEstimator = (
-            DenseEstimator(self.config, dense, *self._dense_options) if model == "dense"
-            else FlowEstimator(preset) if preset is not None else GlobalEstimator(self.config))
+        self._estimator: StreamMotion = stream_motion(model, preset, self.config, dense, self._dense_options)
         self.weight = float(weight)
         self.fusion = fusion
         self.trust = trust
@@ -307,7 +305,7 @@ class Propagator:
         full = PreparedFrame.of(image, name="key frame")
         lab = _check_labels(labels, full.shape)
         self._size = size = WorkingSize(full.shape, self.scale)
-        if size.scaled or self.model == "flow":  # a size the motion cannot take: refused here, in the user's words
+        if size.scaled or self._estimator.checks_every_size:  # a size the motion cannot take: refused here
             self._check_working_size(size)
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
@@ -316,13 +314,12 @@ class Propagator:
         if self.trust is not None:
             self._key_trusted = TrustedKey(self.trust, self.weight, key.rgb, prior_log_odds(self._key_prior, pi=self._pi),
                                            size)
-            if min(key.shape) >= DIS_MIN_SIDE and self.model != "flow":  # smaller frames have no second
-                # motion (DIS does not take them), nor has a flow: it would be the same motion twice
+            if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # smaller frames have no
+                # second motion (DIS does not take them)
                 self._key_flow = self._flow.prepare(key)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
-        self._key_prepared = None
-        if self.anchor == "key" and isinstance(self._estimator, (DenseEstimator, FlowEstimator)):
-            self._key_prepared = self._estimator.prepare(key)  # every frame registers to it: prepared once
+        # every frame registers to the key frame: what the motion needs of it, prepared once
+        self._key_prepared = self._estimator.prepare(key) if self.anchor == "key" else None
         self._chain = (key, None, 0)
         self._carry = None
         self._frame = 0
@@ -334,18 +331,12 @@ class Propagator:
         not scaled), instead of at the first frame."""
         (H, W), (h, w) = size.frame, size.shape
         try:
-            if self.model == "flow" and min(h, w) < DIS_MIN_SIDE:
-                raise InputError(f"DIS optical flow takes at least {DIS_MIN_SIDE} px a side")
-            if self.model == "dense":
-                self._dense_options[0].check_shape(size.shape)
-            if self.model not in STREAM_MODELS or (self.model == "dense" and self.dense.global_start == "register"):
-                self.config.pyramid.check_shape(size.shape)
+            self._estimator.check_size(size.shape)
         except InputError as exc:
             if not size.scaled:
                 raise InputError(f"frames of {W}x{H} are too small for the {self.model} model ({exc})") from None
-            what = {"dense": "dense registration", "flow": "optical flow"}.get(self.model, f"{self.model} registration")
             raise InputError(f"scale {self.scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
-                             f"{what} ({exc}); choose a larger scale") from None
+                             f"{self._estimator.name} ({exc}); choose a larger scale") from None
 
     def step(self, image: "np.ndarray | PreparedFrame") -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame, an image or a
@@ -449,8 +440,7 @@ class Propagator:
     @property
     def warm_starts(self) -> bool:
         """Whether dense steps start from the previous one (what :attr:`carry` is for)."""
-        return (self.model == "dense" and self.dense.warm and self.anchor == "key"
-                and self.dense.global_start == "identity")
+        return self._estimator.warm_starts(self.anchor)
 
     @property
     def carry(self) -> Carry | None:

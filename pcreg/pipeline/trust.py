@@ -9,11 +9,12 @@ landed right too; where it does not (an occlusion, a disocclusion, a field that 
 changed) the prior fades and naive Bayes has the say. When the whole frame stops matching, every
 pixel's trust falls, and the step is naive Bayes alone. The fused log-odds (:func:`fused_log_odds`)::
 
-    F = d + weight * (dense * (0.5 + 1.5 c) * exp(-r_field / residual) * l_field
+    F = d + weight * (dense * (lo + (hi - lo) c) * exp(-r_field / residual) * l_field
                       + flow * exp(-r_flow / residual) * l_flow)
 
-with ``d`` naive Bayes' log-odds, ``l_*`` each carried prior's log-odds, ``c`` the dense field's own
-confidence and ``r_*`` each motion's residual in grey levels. The labels are the sign of ``F`` blurred
+with ``d`` naive Bayes' log-odds, ``l_*`` each carried prior's log-odds, ``(lo, hi)`` the span of
+:data:`~pcreg.classification.fusion.CONFIDENCE_SPAN` (0.5, 2), ``c`` the dense field's own
+confidence (:data:`UNKNOWN_CONFIDENCE` where it has none) and ``r_*`` each motion's residual in grey levels. The labels are the sign of ``F`` blurred
 (:func:`smoothed`: a Gaussian of :attr:`TrustRule.smooth` px at :data:`BASE_WIDTH`): a pixel is labelled
 by the evidence around it, not by its own alone. The rule's numbers (:class:`TrustRule`) were each
 chosen with one CamVid clip left out, for each of the eight shared clips, and scored on the clip left
@@ -34,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..classification.fusion import CONFIDENCE_SPAN
 from ..errors import InputError
 from .working import WorkingSize
 
@@ -53,6 +55,11 @@ PURITY_SIDES, AGREEMENT_SIDE = (15, 33), 33
 #: The confidence's logistic coefficients: intercept, then log1p(|F|), purity at 15 px, purity at 33 px,
 #: agreement at 33 px; fitted on the eight shared CamVid clips (``tools/fit_trust.py``).
 CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-5.001, 0.648, -2.302, 6.542, 3.339)
+
+
+#: The dense field's confidence taken where it gives none (a field of unknown confidence, as DIS's flow):
+#: the rule's ``dense`` weight is stated at it (:class:`TrustRule`).
+UNKNOWN_CONFIDENCE = 1.0 / 3.0
 
 
 #: The least confidence a label gets: it is the likelier of two classes. The logistic model's low end
@@ -200,50 +207,75 @@ def carried_log_odds(log_odds: np.ndarray, field: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class TrustMaps:
-    """A step's trust map, per pixel (H, W) float32: each carried prior's log-odds (``dense_prior``,
-    ``flow_prior``), the evidence for it (the key frame's ``dense_residual`` and ``flow_residual`` along
-    each motion, the dense field's own ``confidence``) and the fusion weight the rule gave it (``dense``,
-    ``flow``); None where that prior is absent."""
+    """A step's trust map, per pixel (H, W) float32, its motions named by their role: the ``primary`` motion
+    (the stream's own: a dense field, DIS's flow with ``model="flow"``, or a global transform) and the
+    ``second`` (DIS's flow beside a registration; None with a flow, or for frames DIS does not take). For
+    each, the carried prior's log-odds (``primary_prior``, ``second_prior``), the evidence for it (the key
+    frame's ``primary_residual`` and ``second_residual`` along each motion, the primary field's own
+    ``confidence``) and the fusion weight the rule gave it (``primary``, ``second``); None where that
+    prior is absent. The names of before 0.2.0 (``dense``, ``flow``, ``dense_prior``, ...) still read,
+    with a :class:`DeprecationWarning`."""
 
-    dense: np.ndarray | None
-    dense_prior: np.ndarray | None
-    flow: np.ndarray | None
-    flow_prior: np.ndarray | None
-    dense_residual: np.ndarray | None = None
-    flow_residual: np.ndarray | None = None
+    primary: np.ndarray | None
+    primary_prior: np.ndarray | None
+    second: np.ndarray | None
+    second_prior: np.ndarray | None
+    primary_residual: np.ndarray | None = None
+    second_residual: np.ndarray | None = None
     confidence: np.ndarray | None = None
 
     def prior_term(self, shape: tuple[int, int]) -> np.ndarray:
         """(H, W) float32: the sum of weight times log-odds over the priors present."""
         out = np.zeros(shape, np.float32)
-        for w, l in ((self.dense, self.dense_prior), (self.flow, self.flow_prior)):
+        for w, l in ((self.primary, self.primary_prior), (self.second, self.second_prior)):
             if w is not None and l is not None:
                 out += w * l
         return out
 
     def summary(self, rule: "TrustRule", weight: float) -> dict:
-        """The frame's trust in one number per prior: the mean of its weight over the pixels, as a share
-        of the most the rule gives it (``weight * dense * 2`` at full confidence, ``weight * flow``)."""
+        """The frame's trust in one number per motion (``primary``, ``second``: ``steps.jsonl``'s ``trust``):
+        the mean of its weight over the pixels, as a share of the most the rule gives it (``weight *
+        rule.dense`` times the top of :data:`~pcreg.classification.fusion.CONFIDENCE_SPAN` at full confidence,
+        ``weight * rule.flow``)."""
         out = {}
-        for name, w, top in (("dense", self.dense, weight * rule.dense * 2.0), ("flow", self.flow, weight * rule.flow)):
+        top_primary = weight * rule.dense * CONFIDENCE_SPAN[1]
+        for name, w, top in (("primary", self.primary, top_primary), ("second", self.second, weight * rule.flow)):
             out[name] = None if w is None or top <= 0 else float(np.mean(w, dtype=np.float64) / top)
         return out
 
+    def __getattr__(self, name: str):
+        new = _OLD_TRUST_NAMES.get(name)
+        if new is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        import warnings
 
-def trust_maps(rule: TrustRule, *, weight: float, dense_prior: np.ndarray | None, dense_residual: np.ndarray | None,
-               confidence: np.ndarray | None, flow_prior: np.ndarray | None, flow_residual: np.ndarray | None
-               ) -> TrustMaps:
-    """Each carried prior's weight per pixel by ``rule`` (the module's formula); a prior given as None
-    (its motion failed or was not computed) gets none, and a pixel whose residual's neighbourhood lies
-    wholly outside the key frame (:data:`OUTSIDE`) gets 0."""
+        warnings.warn(f"TrustMaps.{name} is deprecated since 0.2.0 (the motions are named by their role); "
+                      f"use TrustMaps.{new}", DeprecationWarning, stacklevel=2)
+        return getattr(self, new)
+
+
+#: :class:`TrustMaps`' names of before 0.2.0, and what they are now.
+_OLD_TRUST_NAMES = {"dense": "primary", "dense_prior": "primary_prior", "dense_residual": "primary_residual",
+                    "flow": "second", "flow_prior": "second_prior", "flow_residual": "second_residual"}
+
+
+def trust_maps(rule: TrustRule, *, weight: float, primary_prior: np.ndarray | None,
+               primary_residual: np.ndarray | None, confidence: np.ndarray | None, second_prior: np.ndarray | None,
+               second_residual: np.ndarray | None) -> TrustMaps:
+    """Each carried prior's weight per pixel by ``rule`` (the module's formula): the primary motion's and
+    the second's (:class:`TrustMaps`); a prior given as None (its motion failed or was not computed) gets
+    none, and a pixel whose residual's neighbourhood lies wholly outside the key frame (:data:`OUTSIDE`)
+    gets 0."""
     wd = wf = None
-    if dense_prior is not None and dense_residual is not None:
-        c = 1.0 / 3.0 if confidence is None else np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0)
-        wd = (np.float32(weight * rule.dense) * (np.float32(0.5) + np.float32(1.5) * c) * residual_weight(dense_residual, rule))
+    if primary_prior is not None and primary_residual is not None:
+        lo, hi = CONFIDENCE_SPAN
+        c = UNKNOWN_CONFIDENCE if confidence is None else np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0)
+        wd = (np.float32(weight * rule.dense) * (np.float32(lo) + np.float32(hi - lo) * c)
+              * residual_weight(primary_residual, rule))
         wd = wd.astype(np.float32, copy=False)
-    if flow_prior is not None and flow_residual is not None:
-        wf = np.float32(weight * rule.flow) * residual_weight(flow_residual, rule)
-    return TrustMaps(wd, dense_prior, wf, flow_prior, dense_residual, flow_residual,
+    if second_prior is not None and second_residual is not None:
+        wf = np.float32(weight * rule.flow) * residual_weight(second_residual, rule)
+    return TrustMaps(wd, primary_prior, wf, second_prior, primary_residual, second_residual,
                      None if confidence is None else np.asarray(confidence, np.float32))
 
 
@@ -382,59 +414,111 @@ def trusted_fusion(rule: TrustRule, weight: float, log_odds: np.ndarray, dense_p
     :meth:`TrustMaps.prior_term` and :func:`fused_log_odds`, the same float32
     operations pixel by pixel (an exponential may differ in its last bit from numpy's). ``flow``: the
     DIS prior and its residual, or None. The rows are split with the helper thread on large frames."""
-    from .._threads import MIN_PIXELS, interleave
-
     d = np.ascontiguousarray(log_odds, dtype=np.float32)
     h, w = d.shape
-    arrays = [np.ascontiguousarray(a, dtype=np.float32) for a in (dense_prior, dense_residual)]
-    c = np.full((1, 1), np.nan, np.float32) if confidence is None else np.ascontiguousarray(confidence, np.float32)
-    lf, rf = (np.zeros((1, 1), np.float32),) * 2 if flow is None else (np.ascontiguousarray(a, np.float32) for a in flow)
-    wd, wf = np.empty((h, w), np.float32), np.empty((h, w) if flow is not None else (1, 1), np.float32)
+    ld, rd = (np.ascontiguousarray(a, dtype=np.float32) for a in (dense_prior, dense_residual))
+    c = None if confidence is None else np.ascontiguousarray(confidence, np.float32)
+    lf, rf = (None, None) if flow is None else (np.ascontiguousarray(a, np.float32) for a in flow)
+    wd, wf = np.empty((h, w), np.float32), None if flow is None else np.empty((h, w), np.float32)
     prior, fused = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
-    consts = (np.float32(weight * rule.dense), np.float32(weight * rule.flow), np.float32(-1.0 / rule.residual),
-              confidence is not None, flow is not None)
-    interleave(d.size, lambda first, stride: _trusted_rows(d, *arrays, c, lf, rf, *consts, wd, wf, prior, fused,
-                                                           first, stride), min_items=MIN_PIXELS)
-    maps = TrustMaps(wd, arrays[0], wf if flow is not None else None, lf if flow is not None else None,
-                     arrays[1], rf if flow is not None else None, None if confidence is None else c)
-    return maps, prior, fused
+    _fuse(d, (ld, None, rd, c, lf, rf), (weight * rule.dense, weight * rule.flow, -1.0 / rule.residual, 0.0),
+          (wd, wf, prior, fused, None))
+    return TrustMaps(wd, ld, wf, lf, rd, rf, c), prior, fused
 
 
-#: Rows per block of :func:`_trusted_rows_py` (two threads take alternate blocks).
-TRUSTED_BLOCK_ROWS = 16
+def fused_labels_kernel(log_odds: np.ndarray, q: np.ndarray, confidence: np.ndarray, *, weight: float,
+                        pi: float) -> np.ndarray:
+    """(H, W) uint8 labels of :func:`pcreg.pipeline.prior.fused_labels` (float32, C-contiguous, one shape,
+    ``pi`` checked): the one fusion kernel of :func:`trusted_fusion` with a uniform trust (no residual, no
+    second motion), the prior's log-odds taken from the probability ``q`` as it goes, and only the labels kept."""
+    labels = np.empty(log_odds.shape, np.uint8)
+    _fuse(log_odds, (q, q, None, confidence, None, None), (weight, 0.0, 0.0, np.log(pi / (1.0 - pi))),
+          (_UNUSED, None, _UNUSED, _UNUSED, labels))
+    return labels
 
 
-def _trusted_rows_py(d, ld, rd, conf, lf, rf, kd, kf, scale, has_conf, has_flow, wd, wf, prior, fused, first,
-                     stride):
-    """Rows of blocks ``first``, ``first + stride``, ... of :func:`trusted_fusion`, in the order of
-    :func:`trust_maps` (``kd * (0.5 + 1.5 c) * exp(scale r)``, 0 where ``r`` is :data:`OUTSIDE`; the flow's
-    ``kf * exp(scale r)``), :meth:`TrustMaps.prior_term` (the dense term first) and the fusion."""
+#: What stands for a map the kernel keeps in one compilation and not in another (never written).
+_UNUSED = np.zeros((1, 1), np.float32)
+
+
+def _fuse(d: np.ndarray, inputs: tuple, constants: tuple, outputs: tuple) -> None:
+    """Run the one fusion kernel (:func:`_fusion_rows_py`) over every row, split with the helper thread on
+    large frames (:mod:`pcreg._threads`). ``inputs``: (first prior's log-odds, or its probability; its
+    residual; the field's confidence; the second prior's log-odds; its residual), None where absent;
+    ``constants``: (first weight, second weight, the residual's scale, the class prior's logit);
+    ``outputs``: (first weight map, second weight map, prior term, fused log-odds, labels), None where not
+    kept. A None is known when the kernel is compiled (numba prunes the branch that an ``is None`` of a
+    None argument rules out): each combination is compiled once, without the branches it does not take."""
+    from .._threads import MIN_PIXELS, interleave
+
+    lo, hi = CONFIDENCE_SPAN
+    k1, k2, scale, logit_pi = (np.float32(v) for v in constants)
+    consts = (k1, k2, np.float32(lo), np.float32(hi - lo), scale, logit_pi, np.float32(UNKNOWN_CONFIDENCE))
+    interleave(d.size, lambda first, stride: _fusion_rows(d, *inputs, *consts, *outputs, first, stride),
+               min_items=MIN_PIXELS)
+
+
+#: Rows per block of :func:`_fusion_rows_py` (two threads take alternate blocks).
+FUSION_BLOCK_ROWS = 16
+
+
+def _fusion_rows_py(d, ld, q, rd, conf, lf, rf, kd, kf, lo, span, scale, logit_pi, unknown, wd, wf, prior, fused,
+                    labels, first, stride):
+    """Rows of blocks ``first``, ``first + stride``, ... of the one fusion: naive Bayes' log-odds ``d`` plus
+    each carried prior's log-odds times its weight per pixel, in the order of :func:`trust_maps`
+    (``kd * (lo + span * c) * exp(scale r)``, 0 where ``r`` is :data:`OUTSIDE`; the second motion's
+    ``kf * exp(scale r)``), :meth:`TrustMaps.prior_term` (the first motion's term first) and the sum.
+
+    Without residuals (``rd`` None) the trust is uniform (1); without a confidence map ``c`` is
+    ``unknown``; the first prior is log-odds ``ld`` (``q`` None), or the probability ``q``, whose log-odds
+    against ``logit_pi`` are taken here, once per run of equal values along a row (the warped prior is
+    flat inside labelled regions: 13-28% of the pixels of streamed frames need the logarithm). Without
+    ``labels`` the maps are written (``wf`` with a second motion), with it only the labels (``fused > 0``).
+    Each test is ``X is None`` of an argument, so that numba drops the branch a None rules out."""
     h, w = d.shape
     zero, one = np.float32(0.0), np.float32(1.0)
-    half, three_halves, outside = np.float32(0.5), np.float32(1.5), np.float32(OUTSIDE)
-    third = np.float32(1.0 / 3.0)
-    for b in range(first * TRUSTED_BLOCK_ROWS, h, stride * TRUSTED_BLOCK_ROWS):
-        for i in range(b, min(b + TRUSTED_BLOCK_ROWS, h)):
+    qlo, qhi = np.float32(1e-6), np.float32(1.0 - 1e-6)
+    outside = np.float32(OUTSIDE)
+    for b in range(first * FUSION_BLOCK_ROWS, h, stride * FUSION_BLOCK_ROWS):
+        for i in range(b, min(b + FUSION_BLOCK_ROWS, h)):
+            last = np.float32(np.nan)  # no pixel's clipped prior equals it
+            l1 = zero
             for j in range(w):
-                c = third
-                if has_conf:
+                if conf is None:
+                    c = unknown
+                else:
                     c = conf[i, j]
                     c = zero if c != c else min(max(c, zero), one)  # NaN: no evidence
-                r = rd[i, j]
-                t = np.float32(np.exp(r * scale)) if r < outside else zero
-                a = kd * (half + three_halves * c) * t
-                wd[i, j] = a
-                p = zero + a * ld[i, j]
-                if has_flow:
+                if rd is None:
+                    t = one
+                else:
+                    r = rd[i, j]
+                    t = np.float32(np.exp(r * scale)) if r < outside else zero
+                a = kd * (lo + span * c) * t
+                if q is None:
+                    l1 = ld[i, j]
+                else:
+                    qc = min(max(q[i, j], qlo), qhi)
+                    if qc != last:  # the logarithm again only where the prior changes along the row
+                        l1 = np.float32(np.log(qc / (one - qc))) - logit_pi
+                        last = qc
+                p = zero + a * l1
+                if lf is None:
+                    pass
+                else:
                     r = rf[i, j]
                     t = np.float32(np.exp(r * scale)) if r < outside else zero
-                    a = kf * t
-                    wf[i, j] = a
-                    p = p + a * lf[i, j]
-                prior[i, j] = p
-                fused[i, j] = d[i, j] + p
-
+                    a2 = kf * t
+                    wf[i, j] = a2
+                    p = p + a2 * lf[i, j]
+                f = d[i, j] + p
+                if labels is None:
+                    wd[i, j] = a
+                    prior[i, j] = p
+                    fused[i, j] = f
+                else:
+                    labels[i, j] = 1 if f > zero else 0
 
 from .._jit import njit as _njit  # noqa: E402 - the kernel's compiler, after the pure-Python kernel it compiles
 
-_trusted_rows = _njit(cache=True, nogil=True)(_trusted_rows_py)
+_fusion_rows = _njit(cache=True, nogil=True)(_fusion_rows_py)

@@ -88,9 +88,41 @@ def _check_options(backend: str, model: str, dim: int, weights: str, metric: str
         raise InputError(f"unknown metric {short_repr(metric)}; choose one of {', '.join(METRICS)}")
 
 
-def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOptions = ICPOptions(), *,
+#: ``pcreg.icp``'s keyword options before 0.2.0, each now a field of :class:`ICPOptions` (or of its
+#: :class:`VoxelSchedule`); still taken, with a :class:`DeprecationWarning`, until 0.3.0.
+_ICP_SCHEDULE_KEYWORDS = ("voxel_sizes", "max_correspondence_distances", "max_iterations")
+_ICP_LEGACY_KEYWORDS = ("backend", "model", "max_correspondence_distance", "max_iteration", "relative_fitness",
+                        "relative_rmse", "weights", "trim_fraction", "metric", "rotation", "count_iterations",
+                        *_ICP_SCHEDULE_KEYWORDS)
+
+
+def _legacy_icp_options(options: ICPOptions | None, legacy: dict) -> ICPOptions:
+    """The :class:`ICPOptions` that ``pcreg.icp``'s keywords of before 0.2.0 (``legacy``) spell, with a
+    :class:`DeprecationWarning` naming the new spelling; an unknown keyword is a TypeError, as Python's own."""
+    import warnings
+
+    unknown = sorted(set(legacy) - set(_ICP_LEGACY_KEYWORDS))
+    if unknown:
+        raise TypeError(f"icp() got an unexpected keyword argument {unknown[0]!r}")
+    if options is not None:
+        raise TypeError("icp() takes its options either as an ICPOptions or as keywords, not both")
+    fields = {k: v for k, v in legacy.items() if k not in _ICP_SCHEDULE_KEYWORDS}
+    spelled = ", ".join(f"{k}=..." for k in fields)
+    if legacy.get("voxel_sizes") is not None:
+        fields["schedule"] = VoxelSchedule(legacy["voxel_sizes"], legacy.get("max_correspondence_distances"),
+                                           legacy.get("max_iterations"))
+        spelled += (", " if spelled else "") + "schedule=pcreg.VoxelSchedule(...)"
+    elif any(legacy.get(k) is not None for k in _ICP_SCHEDULE_KEYWORDS[1:]):
+        raise InputError("max_correspondence_distances and max_iterations need voxel_sizes")
+    warnings.warn(f"pcreg.icp(..., {', '.join(sorted(legacy))}=...) is deprecated since 0.2.0 and will be removed in "
+                  f"0.3.0; pass pcreg.icp(source, target, pcreg.ICPOptions({spelled}))",
+                  DeprecationWarning, stacklevel=3)
+    return ICPOptions(**fields)
+
+
+def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOptions | None = None, *,
         init: np.ndarray | None = None, target_normals: np.ndarray | None = None,
-        callback: Callable[[IcpIteration], None] | None = None) -> RegistrationResult:
+        callback: Callable[[IcpIteration], None] | None = None, **deprecated) -> RegistrationResult:
     """Register two point clouds: the transform that maps ``source_points`` onto ``target_points``.
 
     source_points : (N, d), target_points : (M, d) float, d = 2 or 3, finite.
@@ -100,9 +132,16 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     target_normals : (M, d) the target's normals, for ``metric="point_to_line"`` (2-D, reference backend)
         and ``metric="point_to_plane"`` (3-D, rigid, either backend); no schedule with either.
     callback : called with an :class:`~pcreg.registration.result.IcpIteration` after every iteration.
+    deprecated : the keyword options of before 0.2.0 (``backend=``, ``model=``, ``max_iteration=``,
+        ``voxel_sizes=``, ...): still taken until 0.3.0, with a :class:`DeprecationWarning` naming the
+        :class:`ICPOptions` that spells them.
 
     Returns a :class:`RegistrationResult` whose ``matrix`` is (d+1, d+1) ``T_target_source``.
     """
+    if deprecated:
+        options = _legacy_icp_options(options, deprecated)
+    elif options is None:
+        options = ICPOptions()
     if not isinstance(options, ICPOptions):
         raise InputError(f"options must be a pcreg.ICPOptions, got {type(options).__name__}")
     src = check_cloud(source_points, "source")

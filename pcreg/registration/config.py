@@ -27,8 +27,8 @@ from typing import Any
 
 from ..errors import InputError
 from ..validation import check_choice, check_count, check_counts, check_float, check_int, short_repr
+from .choices import BACKENDS, WEIGHTS, check_open3d_model
 
-BACKENDS = ("reference", "open3d")  # the ICP steps of steps.ICP_STEPS, in that order
 INITS = ("auto", "global", "identity", "center")
 REFINES = ("none", "point_to_line")
 
@@ -138,7 +138,6 @@ class IcpConfig:
     relative_rmse: float = 1e-3
 
     def __post_init__(self) -> None:
-        from .reference import WEIGHTS
 
         if not isinstance(self.backend, str) or self.backend not in BACKENDS:
             raise InputError(f"unknown backend {short_repr(self.backend)}; choose one of {', '.join(BACKENDS)}")
@@ -204,7 +203,6 @@ class RegisterConfig:
             check_model(self.model)
         # a model the backend cannot fit is refused when the configuration is made, not at its first pair
         if self.icp.backend == "open3d" and not dense:
-            from .open3d_icp import check_model as check_open3d_model
 
             check_open3d_model(self.model)
 

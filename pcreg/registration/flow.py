@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import InputError
 from .clouds import as_rgb_uint8
 
-__all__ = ["PRESETS", "DIS_MIN_SIDE", "FlowResult", "dis_field", "dis_flow"]
+__all__ = ["PRESETS", "DIS_MIN_SIDE", "FlowResult", "dis_field", "dis_flow", "pixel_grid", "flow_field"]
 
 PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
            "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
@@ -37,6 +37,23 @@ def dis_flow(moving_grey: np.ndarray, reference_grey: np.ndarray, preset: str) -
     return cv2.DISOpticalFlow_create(PRESETS[preset]).calc(moving_grey, reference_grey, None)
 
 
+def pixel_grid(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """``(xs, ys)``: the x and y of every pixel of an image of ``shape`` ((H, W, ...)), (H, W) float32
+    each, read-only (a stream makes it once for its key frame)."""
+    h, w = shape[:2]
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    for a in (xs, ys):
+        a.setflags(write=False)
+    return xs, ys
+
+
+def flow_field(flow: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(H, W, 2) float32 field of a flow: each moving pixel's reference coordinates, its own
+    (:func:`pixel_grid`, or ``grid`` made beforehand) plus the flow there."""
+    xs, ys = pixel_grid(flow.shape) if grid is None else grid
+    return np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32)
+
+
 def dis_field(reference_image: np.ndarray, moving_image: np.ndarray, *, preset: str = "medium"
               ) -> tuple[np.ndarray, float]:
     """``(field (H, W, 2) float32, seconds)``: reference coordinates of every moving pixel by DIS flow
@@ -52,9 +69,7 @@ def dis_field(reference_image: np.ndarray, moving_image: np.ndarray, *, preset: 
     t0 = time.perf_counter()
     flow = dis_flow(g_mov, g_ref, preset)
     seconds = time.perf_counter() - t0
-    h, w = g_mov.shape
-    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return np.dstack([xs + flow[:, :, 0], ys + flow[:, :, 1]]).astype(np.float32), seconds
+    return flow_field(flow), seconds
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -79,8 +94,7 @@ class FlowResult:
     def to_dict(self) -> dict:
         """JSON-ready summary: the model, the preset, the seconds and the displacement's median (every
         second pixel along each axis) and largest length, px."""
-        h, w = self.field.shape[:2]
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        xs, ys = pixel_grid(self.field.shape)
         disp = cv2.magnitude(self.field[:, :, 0] - xs, self.field[:, :, 1] - ys)
         return {"model": "flow", "preset": self.preset, "seconds": float(self.seconds),
                 "median_displacement": float(np.median(disp[::2, ::2])), "max_displacement": float(disp.max())}

@@ -15,18 +15,11 @@ from dataclasses import dataclass
 
 from ..errors import InputError
 from ..validation import check_bool, check_float, check_floats, check_int, check_ints, short_repr
-from .config import BACKENDS
-from .open3d_icp import check_model as check_open3d_model
+from .choices import BACKENDS, METRICS, ROTATIONS, WEIGHTS, check_open3d_model
 from .transforms import MODELS
 
 __all__ = ["ICPOptions", "METRICS", "ROTATIONS", "VoxelSchedule", "WEIGHTS", "refuse_for_open3d"]
 
-#: Robust weights of the reference backend's steps.
-WEIGHTS = ("none", "trimmed", "huber", "tukey")
-#: Distances minimised: point to point, or (2-D, reference backend) point to the target's tangent line.
-METRICS = ("point_to_point", "point_to_line", "point_to_plane")
-#: The 3-D rigid closed form of the reference backend: Umeyama's SVD or Horn's quaternion.
-ROTATIONS = ("svd", "quaternion")
 
 _MAX_ITERATIONS = 100_000
 #: The share of pairs the ``trimmed`` weights keep by default.

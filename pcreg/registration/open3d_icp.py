@@ -17,13 +17,15 @@ from typing import TYPE_CHECKING, Callable, Sequence
 import numpy as np
 
 from ..errors import InputError, RegistrationError
+from .choices import OPEN3D_MODELS, check_open3d_model
 from .result import IcpIteration, RegistrationResult
 from .transforms import lift_to_3d, project_to_2d
 
 if TYPE_CHECKING:
     from .icp_options import ICPOptions
 
-SUPPORTED = ("rigid", "similarity")
+#: The motion models Open3D's point-to-point estimation fits (:data:`~pcreg.registration.choices.OPEN3D_MODELS`).
+SUPPORTED = OPEN3D_MODELS
 
 
 def _o3d():
@@ -41,13 +43,7 @@ def to_pointcloud(points: np.ndarray):
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
 
 
-def check_model(model: str) -> None:
-    """Raise :class:`InputError` for a motion model Open3D's point-to-point estimation cannot fit."""
-    if model not in SUPPORTED:
-        raise InputError(
-            f"the open3d backend (point-to-point) supports the {' and '.join(SUPPORTED)} models, not {model!r}; "
-            "use backend='reference'"
-        )
+check_model = check_open3d_model
 
 
 def _result(matrix: np.ndarray, r, iterations: int, converged: bool, start: float) -> RegistrationResult:

@@ -178,7 +178,21 @@ def _stream_tables(results: dict) -> list[dict]:
         frames = [f for f, k in zip(frames, keep) if k]
     per_frame = _table("stream_frames", "Error % per frame", header, rows, frames, select="a frame of a clip",
                        errors=results["methods"])
-    return [reference, reduction, per_frame]
+    return [reference, reduction, per_frame, *_davis_tables(results)]
+
+
+def _davis_tables(results: dict) -> list[dict]:
+    """On DAVIS: J and F per sequence of every method and of the published ones (higher is better)."""
+    from .stream_davis import davis_table
+
+    if not results.get("davis"):
+        return []
+    tables = []
+    for k in ("J", "F"):
+        header, rows, _ = davis_table(results, k)
+        tables.append(_table(f"davis_{k}", f"DAVIS: {k} per sequence (upper case: the published methods)", header,
+                             rows, [None] * len(rows), errors=header[2:], better="higher"))
+    return tables
 
 
 def _classification_tables(results: dict) -> list[dict]:

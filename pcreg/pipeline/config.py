@@ -1,0 +1,74 @@
+"""A stream's configuration as one frozen, validated value: :class:`PropagatorConfig`.
+
+What ``pcreg run`` takes from its command line (the motion, its DIS preset, the ICP backend, the global
+registration's start, the fusion weight, the working size) is checked once, when the value is made, and
+travels as it is: to each :class:`pcreg.Propagator` a run makes (:meth:`PropagatorConfig.propagator`),
+and into the run's identity in ``run.json``, which a resumed run must match
+(:meth:`PropagatorConfig.identity`; :func:`pcreg.runs.state.run_identity`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import InputError
+
+__all__ = ["PropagatorConfig", "DEFAULT_PRESET"]
+
+#: DIS's preset of ``model="flow"`` when none is named.
+DEFAULT_PRESET = "medium"
+
+
+@dataclass(frozen=True)
+class PropagatorConfig:
+    """How a run's propagators carry labels (:class:`pcreg.Propagator`'s options of the same names).
+
+    model : ``"dense"`` (default), ``"flow"`` (DIS's optical flow at ``preset``) or a global model.
+    preset : DIS's preset with ``model="flow"`` (None: :data:`DEFAULT_PRESET`); refused with another model.
+    backend : the ICP backend of the registrations. init : the global registration's start.
+    weight : the prior's fusion weight (0: naive Bayes alone).
+    scale : the working size, a share of the frames' width and height (0 < scale <= 1).
+    """
+
+    model: str = "dense"
+    preset: str | None = None
+    backend: str = "reference"
+    init: str = "identity"
+    weight: float = 2.0
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        from ..classification.fusion import MAX_WEIGHT
+        from ..registration.choices import BACKENDS
+        from ..registration.flow import PRESETS
+        from ..validation import check_float, short_repr
+
+        if self.backend not in BACKENDS:
+            raise InputError(f"unknown backend {short_repr(self.backend)}; choose one of {', '.join(BACKENDS)}")
+        if self.preset is not None and self.model != "flow":
+            raise InputError(f"--preset is DIS's, for --model flow (not {self.model})")
+        if self.preset is not None and self.preset not in PRESETS:
+            raise InputError(f"unknown DIS preset {short_repr(self.preset)}; choose one of {', '.join(PRESETS)}")
+        if not (isinstance(self.weight, (int, float)) and 0 <= self.weight <= MAX_WEIGHT):
+            raise InputError(f"--weight must be a number in 0..{MAX_WEIGHT:g}, got {self.weight}")
+        object.__setattr__(self, "weight", float(self.weight))
+        object.__setattr__(self, "scale", check_float(self.scale, "--scale", lo=0, lo_open=True, hi=1))
+
+    def options(self) -> dict:
+        """The options as :class:`pcreg.Propagator` takes them and as a run's identity names them: a flow's
+        preset in its model's name (``"flow:medium"``), the scale only when below 1 (so that runs from
+        before either was named still resume)."""
+        model = f"flow:{self.preset or DEFAULT_PRESET}" if self.model == "flow" else self.model
+        out: dict = {"backend": self.backend, "model": model, "init": self.init, "weight": self.weight}
+        if self.scale != 1.0:
+            out["scale"] = self.scale
+        return out
+
+    def propagator(self, classifier, *, learns: bool = True):
+        """A :class:`pcreg.Propagator` of ``classifier`` with these options, learning from the stream as
+        the stream does by default (:data:`~pcreg.pipeline.learning.STREAM_LEARNING`) or, ``learns=False``,
+        not at all (between two key frames)."""
+        from .learning import STREAM_LEARNING
+        from .stream import Propagator
+
+        return Propagator(classifier, **self.options(), learning=STREAM_LEARNING if learns else None)

@@ -1,0 +1,129 @@
+"""The one propagation engine: a clip's stretches between key frames, one pass along a stretch in either
+direction, and the fusion of a frame's two passes.
+
+The people who label video label a few frames anywhere in it and fill in between. A clip is cut into
+stretches at its key frames (:func:`stretches`): before the first key frame (labelled backwards from
+it), between two (from both), after the last (forwards from it). A pass (:func:`propagate`) carries one
+key frame's labels along a stretch, one frame after the other, in the order it is given the frames:
+forwards or backwards is only the order, as in SAM2's ``propagate_in_video(..., reverse=)``. Between two
+key frames each frame has two passes, and :func:`two_sided` adds their trusted priors to the frame's
+naive Bayes (``F = d + P_earlier + P_later``).
+
+``pcreg run`` (one key frame: one stretch, forwards; or a folder of key frames, resumable,
+:mod:`pcreg.pipeline.keys_run`), :func:`pcreg.pipeline.keyframes.label_clip` (a clip in memory) and the
+stream evaluations (:mod:`pcreg.experiments.stream`, :mod:`pcreg.experiments.stream_keys`) all label
+through these three: :func:`propagate` is the one loop that steps a stretch's frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable, Iterator, Protocol, TypeVar
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["Labeller", "Stretch", "stretches", "propagate", "two_sided", "PRIOR_STORE_DTYPE"]
+
+#: How a forward pass keeps each frame's prior term for the backward pass between two key frames
+#: (``pcreg run`` keeps it on disk between its two passes; :func:`pcreg.pipeline.keyframes.label_clip`
+#: rounds it the same way, so both give the same labels).
+PRIOR_STORE_DTYPE = np.float16
+
+
+#: A frame as a pass is given it: an image, or a :class:`~pcreg.frame.PreparedFrame`.
+Image = TypeVar("Image")
+
+
+class Labeller(Protocol):
+    """What a pass steps: :class:`pcreg.Propagator`, or one of the evaluations' baselines (reset to a
+    key frame beforehand; its ``step`` labels the next frame)."""
+
+    def step(self, image) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """The frames between two key frames (positions): ``first`` the earlier key frame (None before the
+    first), ``last`` the later one (None after the last); ``stop`` the position after its last frame
+    (None: to the end of a video whose length is not known yet)."""
+
+    first: int | None
+    last: int | None
+    stop: int | None
+
+    @property
+    def start(self) -> int:
+        return 0 if self.first is None else self.first + 1
+
+    def __contains__(self, t: int) -> bool:
+        return t >= self.start and (self.stop is None or t < self.stop)
+
+    @property
+    def keys(self) -> tuple[int, ...]:
+        return tuple(k for k in (self.first, self.last) if k is not None)
+
+    @property
+    def frames(self) -> range:
+        """Its frames in order (a stretch whose ``stop`` is known)."""
+        if self.stop is None:
+            raise ValueError("a stretch to the end of a video of unknown length has no range")  # a caller's bug
+        return range(self.start, self.stop)
+
+
+def stretches(keys: Iterable[int], n: int | None) -> list[Stretch]:
+    """The stretches of ``n`` frames (None: a video not decoded to its end) around the key frames
+    ``keys`` (positions), in order, empty ones left out: every frame that is not a key frame is in
+    exactly one. No key frame, or one outside the clip, is an :class:`~pcreg.errors.InputError`."""
+    ks = sorted(set(int(k) for k in keys))
+    if not ks:
+        raise InputError("at least one key frame is needed")
+    if ks[0] < 0 or (n is not None and ks[-1] >= n):
+        raise InputError(f"key frame {ks[0] if ks[0] < 0 else ks[-1]} is outside the clip's {n} frames")
+    out = []
+    if ks[0] > 0:
+        out.append(Stretch(None, ks[0], ks[0]))
+    out += [Stretch(a, b, b) for a, b in zip(ks, ks[1:]) if b > a + 1]
+    if n is None or ks[-1] < n - 1:
+        out.append(Stretch(ks[-1], None, n))
+    return out
+
+
+def propagate(labeller: Labeller, frames: Iterable[tuple[int, Image]], *,
+              check: Callable[[], None] | None = None,
+              where: Callable[[int], object] | None = None) -> Iterator[tuple[int, Image, np.ndarray]]:
+    """One pass: each ``(t, image)`` of ``frames``, in the order given (forwards or backwards along a
+    stretch), labelled by ``labeller`` (already reset to the pass's key frame, or resumed); yields
+    ``(t, image, labels)`` as each is done, the labeller's report of it in its ``last``.
+
+    check : called before each step (an interruption raises there).
+    where : names frame ``t``'s file for a step's :class:`~pcreg.errors.InputError` (a frame of
+        another size): the error then says which file.
+    """
+    for t, image in frames:
+        if check is not None:
+            check()
+        try:
+            labels = labeller.step(image)
+        except InputError as exc:
+            if where is None:
+                raise
+            raise InputError(f"{where(t)}: {exc}") from None
+        yield t, image, labels
+
+
+def two_sided(log_odds: np.ndarray, earlier: np.ndarray, later: np.ndarray, rule, *,
+              size=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A frame between two key frames: ``(labels, confidence, prior)`` of naive Bayes' ``log_odds`` with
+    the trusted prior terms of both passes added (``F = d + P_earlier + P_later``; ``earlier`` as the
+    forward pass kept it, :data:`PRIOR_STORE_DTYPE`), read by the trust ``rule``
+    (:func:`~pcreg.pipeline.trust.read_labels`; ``size``: the stream's working size, when the maps are at
+    it). Measured against averaging the priors, weighting them by distance or by trust, and taking the
+    more trusted one: adding them lowered the error most (docs/results.md, "Several key frames")."""
+    from .trust import read_labels
+
+    prior = np.asarray(earlier, PRIOR_STORE_DTYPE).astype(np.float32) + later
+    labels, confidence = read_labels(log_odds + prior, log_odds, prior, rule, size=size)
+    return labels, confidence, prior
+

@@ -1,0 +1,180 @@
+"""The files of a run's folder other than run.json (:mod:`pcreg.runs.state`), each written and read by
+one pair of functions here, and nowhere else:
+
+- labels, ``NAME.png``: :func:`write_labels` (and a run's readers read them back through
+  :func:`pcreg.export.read_labels`);
+- confidence, ``confidence/NAME.png``: :func:`confidence_png` then :func:`write_labels`;
+- steps, ``steps.jsonl``: :func:`append_step`, :func:`read_step_lines` and :func:`parse_steps`;
+- the carry, ``carry-{0,1}.npz`` (and a key-frames stretch's own): :func:`write_carry`, :func:`read_carry`;
+- the frames to label next, ``suggest.txt``: :func:`write_suggestions`, :func:`read_suggestions`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+import zlib
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, OutputError
+from ..formats import NPY_HEADER_ERRORS
+
+__all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "UNREADABLE_CARRY", "write_labels", "confidence_png",
+           "append_step", "read_step_lines", "parse_steps", "write_carry", "read_carry", "check_labelled",
+           "write_suggestions", "read_suggestions"]
+
+STEPS = "steps.jsonl"
+CARRY = "carry-{}.npz"
+CONFIDENCE = "confidence"
+#: The frames suggested to label next: ``NAME<TAB>PREDICTED_ERROR`` a line, best first.
+SUGGEST = "suggest.txt"
+#: What reading a damaged carry file raises (a zip archive of .npy members).
+UNREADABLE_CARRY: tuple[type[BaseException], ...] = (*NPY_HEADER_ERRORS, KeyError, EOFError, zipfile.BadZipFile,
+                                                     zlib.error)
+
+
+def write_labels(path: Path, labels: np.ndarray) -> None:
+    """An (H, W) uint8 map (labels, or a confidence PNG's values) as a PNG at ``path``, atomically."""
+    import cv2
+
+    from ..outputs import atomic_write_bytes
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(labels, dtype=np.uint8))
+    if not ok:
+        raise OutputError(f"cannot encode {path}")
+    atomic_write_bytes(path, buf.tobytes())
+
+
+def confidence_png(confidence: np.ndarray) -> np.ndarray:
+    """(H, W) uint8: 255 times the probability that the label is right, rounded. A confidence that is
+    NaN or outside [0, 1] is a bug, never written."""
+    c = np.asarray(confidence, dtype=np.float32)
+    if not (np.all(np.isfinite(c)) and c.min(initial=0.0) >= 0.0 and c.max(initial=0.0) <= 1.0):
+        raise AssertionError("a confidence outside [0, 1] reached the writer")
+    return np.rint(c * 255.0).astype(np.uint8)
+
+
+def append_step(out: Path, step: dict) -> None:
+    """One line of ``out``'s steps.jsonl: ``step`` as strict JSON (NaN and infinities as null)."""
+    from ..outputs import to_json
+
+    with open(out / STEPS, "ab") as fh:
+        fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
+
+
+def read_step_lines(out: Path) -> list[bytes]:
+    """The lines of ``out``'s steps.jsonl (none when there is no such file)."""
+    path = out / STEPS
+    return path.read_bytes().splitlines(keepends=True) if path.is_file() else []
+
+
+def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:
+    """The steps of ``lines`` of a run's steps.jsonl (``path``), each a dict whose ``frame`` is an int and
+    whose ``predicted_error`` is a finite number or None; a line that is not one pcreg run wrote is an
+    :class:`~pcreg.errors.OutputError` naming it."""
+    steps = []
+    for i, line in enumerate(lines):
+        try:
+            step = json.loads(line)
+            ok = (isinstance(step, dict) and type(step.get("frame")) is int and step["frame"] >= 0
+                  and (step.get("predicted_error") is None
+                       or (type(step["predicted_error"]) in (int, float) and math.isfinite(step["predicted_error"]))))
+        except ValueError:  # not JSON, or not UTF-8
+            ok = False
+        if not ok:
+            raise OutputError(f"{path}: line {i + 1} is not a step pcreg run wrote; use --force to start over")
+        steps.append(step)
+    return steps
+
+
+def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:
+    """What step ``t`` hands to the next (a :class:`~pcreg.pipeline.stream.Carry` or None, and what the
+    classifier has ``learned``, or None), atomically at ``path``."""
+    import io
+
+    from ..outputs import atomic_write_bytes
+
+    buf = io.BytesIO()
+    grid = np.zeros((0, 0, 2), np.float32) if carry is None else carry.grid
+    evidence = float("nan") if carry is None else carry.reference_evidence
+    learned = np.zeros((0,), np.float64) if learned is None else np.asarray(learned, np.float64)
+    np.savez(buf, frame=np.int64(t), grid=grid, evidence=np.float64(evidence), learned=learned)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def read_carry(path: Path, t: int, unreadable: str):
+    """``(carry, learned)`` that step ``t`` left at ``path`` (:func:`write_carry`): a
+    :class:`~pcreg.pipeline.stream.Carry` or None, and an array or None. A missing or damaged file, or
+    one of another step, is an :class:`~pcreg.errors.OutputError`: ``unreadable`` says what it stops."""
+    from ..pipeline.stream import Carry
+
+    bad = OutputError(f"{path}: missing or unreadable{unreadable}; use --force to start over")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            frame, grid, evidence = np.array(z["frame"]), np.array(z["grid"]), np.array(z["evidence"])
+            learned = np.array(z["learned"]) if "learned" in z.files else None
+    except UNREADABLE_CARRY:
+        raise bad from None
+    if frame.shape != () or frame.dtype.kind not in "iu" or evidence.shape != () or evidence.dtype.kind != "f":
+        raise bad
+    if int(frame) != t:
+        raise OutputError(f"{path} holds frame {int(frame)}'s carry, not frame {t}'s; use --force to start over")
+    learned = None if learned is None or learned.size == 0 else learned
+    if grid.shape == (0, 0, 2) and np.isnan(evidence):  # that step left none
+        return None, learned
+    try:
+        return Carry(grid, float(evidence)), learned
+    except InputError as exc:
+        raise OutputError(f"{path}: {exc}; use --force to start over") from None
+
+
+def check_labelled(out: Path, stems: list[str]) -> None:
+    """The label PNG of every frame run.json counts labelled (``stems``) is in ``out``; one gone (deleted
+    or moved since) is an :class:`~pcreg.errors.OutputError`: the run cannot make it again where it
+    stands, and "all frames done" would not be true."""
+    from .state import STATE
+
+    for stem in stems:
+        if not (out / f"{stem}.png").is_file():
+            raise OutputError(f"{out / stem}.png is missing, though {out / STATE} counts that frame labelled; "
+                              "use --force to start over")
+
+
+def write_suggestions(out: Path, chosen: Sequence[tuple[str, float]]) -> Path:
+    """``out``'s suggest.txt: the frames to label next, best first, as ``(stem, predicted error %)``,
+    ``STEM<TAB>ERROR`` a line (a tab, since a file name may hold spaces); names as the files have them."""
+    from ..outputs import atomic_write_bytes
+
+    text = "".join(f"{stem}\t{error:.2f}\n" for stem, error in chosen)
+    return atomic_write_bytes(out / SUGGEST, text.encode("utf-8", "surrogateescape"))
+
+
+def read_suggestions(out: Path, known: set[str]) -> list[tuple[str, float | None]]:
+    """suggest.txt's frames that are among ``known`` (names or stems), in its order, with the predicted
+    error given there (None where none is, or it is not a number). A line of the space-separated form of
+    pcreg 0.1 (``STEM ERROR``) is read too; lines naming no known frame, blank or ``#`` lines are skipped."""
+    path = out / SUGGEST
+    if not path.is_file():
+        return []
+    try:
+        lines = path.read_bytes().decode("utf-8", "surrogateescape").splitlines()
+    except OSError:
+        raise InputError(f"{path}: unreadable (one frame name a line, a tab and its predicted error)") from None
+    found: list[tuple[str, float | None]] = []
+    for line in lines:
+        name, tab, rest = line.partition("\t")
+        if not tab and line.strip() not in known:  # pcreg 0.1's NAME ERROR
+            name, _, rest = line.rpartition(" ")
+        name = name.strip()
+        if not name or name.startswith("#") or name not in known:
+            continue
+        try:
+            error: float | None = float(rest.strip()) if rest.strip() else None
+        except ValueError:
+            error = None
+        found.append((name, error if error is None or math.isfinite(error) else None))
+    return found

@@ -1,0 +1,183 @@
+"""A run's ``run.json``: what a run of ``pcreg run`` is (its identity: inputs and options), how far it
+has come, and its running error against the truth. Rewritten atomically after every frame, it is the
+commit point: a frame counts once run.json counts it.
+
+Two kinds: a run from one label image (``key_frame``, ``done``) and a run from a folder of key frames
+(``keys``, ``stretches``, ``cursor``, ``lines``, :mod:`pcreg.pipeline.keys_run`). :func:`open_state` opens
+either for a run that writes (resume or start over); :func:`read_state` reads either for a reader
+(``pcreg view``, ``pcreg export``); :func:`run_frames` lists what it labelled.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+from ..errors import InputError, OutputError
+from ..formats import load_json_object
+
+__all__ = ["STATE", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
+           "read_state", "run_frames"]
+
+STATE = "run.json"
+#: The counters of a run's running error (run.json's ``truth``, and each key-frame stretch's).
+TRUTH_COUNTS = ("frames", "wrong", "known", "plain_wrong")
+
+
+def is_count(value, lo: int = 0) -> bool:
+    """Whether ``value`` is an int (not a bool, not a float) of at least ``lo``, as run.json's counts are."""
+    return type(value) is int and value >= lo
+
+
+def has_counts(d, names: tuple[str, ...]) -> bool:
+    """Whether ``d`` is a dict whose ``names`` are all counts (:func:`is_count`)."""
+    return isinstance(d, dict) and all(is_count(d.get(k)) for k in names)
+
+
+def _stream_state_problem(state: dict) -> str | None:
+    """What in a one-key run's run.json is not as pcreg run writes it (the first field), or None."""
+    if not is_count(state.get("done"), 1):
+        return "done"
+    if not is_count(state.get("fallbacks")):
+        return "fallbacks"
+    if not isinstance(state.get("key_frame"), str):
+        return "key_frame"
+    if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
+        return "truth"
+    return None
+
+
+def _stretch_problem(e, cursor: bool) -> bool:
+    """Whether a stretch's entry in run.json (done, or the ``cursor`` under way) is not as pcreg run writes it."""
+    if not (isinstance(e, dict) and isinstance(e.get("fingerprint"), str) and is_count(e.get("fallbacks"))
+            and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS))):
+        return True
+    return cursor and not (isinstance(e.get("phase"), str) and is_count(e.get("steps"))
+                           and (e.get("next") is None or is_count(e["next"])))
+
+
+def _keys_state_problem(state: dict) -> str | None:
+    """What in a key-frames run's run.json is not as pcreg run writes it (the first field), or None."""
+    if not isinstance(state.get("keys"), dict):
+        return "keys"
+    if not isinstance(state.get("stretches"), list) or any(_stretch_problem(e, False) for e in state["stretches"]):
+        return "stretches"
+    if state.get("cursor") is not None and _stretch_problem(state["cursor"], True):
+        return "cursor"
+    for name in ("lines", "fallbacks"):
+        if not is_count(state.get(name)):
+            return name
+    if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
+        return "truth"
+    return None
+
+
+def state_problem(state) -> str | None:
+    """What in a run.json (one key frame's, or a folder of key frames') is not as pcreg run writes it."""
+    if not isinstance(state, dict):
+        return "its top level"
+    return (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
+
+
+def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | None,
+                 confidence: bool) -> dict:
+    """What a run is, as its run.json names it and a resumed run must match: its frames (``source``, a
+    folder or a video, and which of them: ``frames.selection``), its ``labels`` (a label image or a folder
+    of key frames), how labels are coded (``mapping``), the ``truth`` folder, the propagators' options
+    (``config``, a :class:`~pcreg.pipeline.config.PropagatorConfig`), how labels are read from the fused
+    log-odds (the trust rule's blur: a run begun when they were read otherwise is not continued), and
+    ``--confidence``. ``confidence`` and the selection are named only when on (runs from before them
+    still resume)."""
+    from ..pipeline.trust import STREAM_TRUST
+
+    identity = {frames.kind: str(source.resolve()), "labels": str(labels.resolve()), "mapping": mapping,
+                "truth": None if truth is None else str(Path(truth).resolve()), **config.options(),
+                "smooth": STREAM_TRUST.smooth}
+    if confidence:
+        identity["confidence"] = True
+    if frames.selection.to_dict() is not None:
+        identity["frames"] = frames.selection.to_dict()
+    return identity
+
+
+def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
+    """Make ``out`` (a folder) and read the run it holds: its run.json when it is a run of ``identity``
+    (the same options and inputs), None when there is none or ``force`` starts over; a run of other
+    options, an unreadable run.json, or one whose fields are not as pcreg run writes them
+    (:func:`state_problem`) is an :class:`~pcreg.errors.OutputError`."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    state_path = out / STATE
+    if force or not state_path.is_file():
+        return None
+    try:
+        state = load_json_object(state_path)
+    except ValueError as exc:
+        raise OutputError(f"{state_path}: {exc}, not a run's state; use --force to start over") from None
+    if state.get("run") != identity:
+        raise OutputError(f"{out} holds a run with other options{_differences(state.get('run'), identity or {})}; "
+                          "use --force to start over or another --out")
+    field = state_problem(state)
+    if field is not None:
+        raise OutputError(f"{state_path}: its {field!r} is not as pcreg run writes it; use --force to start over")
+    return state
+
+
+def write_state(out: Path, state: dict) -> None:
+    """Commit ``state`` as ``out``'s run.json (atomically: the commit point of a frame)."""
+    from ..outputs import atomic_write_json
+
+    atomic_write_json(out / STATE, state)
+
+
+def read_state(folder: Path) -> dict:
+    """The run.json of a finished or stopped run in ``folder``, for a reader: an
+    :class:`~pcreg.errors.InputError` naming the file when there is none (not a run's output) or it is not
+    one pcreg run wrote."""
+    state_path = folder / STATE
+    if not state_path.is_file():
+        raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
+    try:
+        state = json.loads(state_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        state = None
+    if state_problem(state) is not None or not isinstance(state.get("run"), dict):
+        raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)")
+    return state
+
+
+def _differences(before: object, now: dict) -> str:
+    """`` (NAME: A then, B now, ...)``: what differs between a kept run's identity and this one's."""
+    from ..validation import short_repr
+
+    if not isinstance(before, dict):
+        return ""
+
+    def shown(d: dict, k: str) -> str:
+        return short_repr(d[k]) if k in d else "not set"
+
+    names = sorted(k for k in set(before) | set(now) if shown(before, k) != shown(now, k))
+    said = [f"{k}: {shown(before, k)} then, {shown(now, k)} now" for k in names[:3]]
+    return f" ({'; '.join(said)}{'; ...' if len(names) > 3 else ''})" if said else ""
+
+
+def run_frames(state: dict, steps: Sequence[bytes]) -> tuple[list[str], list[str]]:
+    """``(key frames, every labelled frame)`` of a run, by name, in frame order, from its run.json
+    (``state``) and the lines of its steps.jsonl: a run from one label image (its key frame, then the
+    frames it counted done) or from a folder of key frames (:mod:`pcreg.pipeline.keys_run`: its key
+    frames and the steps it counted, in name order, which is a folder's and a video's frame order).
+    Raises KeyError, TypeError or ValueError for a state or a line pcreg run did not write."""
+    field = state_problem(state)
+    if field is not None:
+        raise ValueError(f"run.json's {field!r} is not as pcreg run writes it")
+    if "stretches" in state:
+        keys = sorted(str(k) for k in state["keys"])
+        done = [str(json.loads(line)["name"]) for line in steps[:int(state["lines"])]]
+        return keys, sorted(set(keys) | set(done))
+    key, count = str(state["key_frame"]), int(state["done"])
+    names = [key] + [str(json.loads(line)["name"]) for line in steps[:count - 1]]
+    if len(names) != count:
+        raise ValueError(f"{len(names) - 1} steps for {count - 1} labelled frames")
+    return [key], names

@@ -1,0 +1,44 @@
+"""A run's running error against the truth (``pcreg run --truth``): the counts run.json keeps, whole and
+per key-frame stretch, and the check of the truth maps themselves."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .state import TRUTH_COUNTS
+
+__all__ = ["empty_counts", "count_frame", "add_rates", "check_truth"]
+
+
+def empty_counts() -> dict:
+    """No frame counted yet."""
+    return {k: 0 for k in TRUTH_COUNTS}
+
+
+def count_frame(counts: dict, labels: np.ndarray, truth: np.ndarray, plain: np.ndarray | None) -> None:
+    """Add one frame to ``counts`` (in place): its pixels of known truth (``truth`` < 2), how many of them
+    ``labels`` has wrong, and how many naive Bayes alone (``plain``, when given) has wrong."""
+    known = truth < 2
+    counts["frames"] += 1
+    counts["wrong"] += int(np.count_nonzero((labels[known] == 1) != (truth[known] == 1)))
+    counts["known"] += int(known.sum())
+    if plain is not None:
+        counts["plain_wrong"] += int(np.count_nonzero((plain[known] == 1) != (truth[known] == 1)))
+
+
+def add_rates(counts: dict) -> dict:
+    """``counts`` with its error rates in % (``error``, ``plain_error``; None before a known pixel)."""
+    counts["error"] = 100.0 * counts["wrong"] / counts["known"] if counts["known"] else None
+    counts["plain_error"] = 100.0 * counts["plain_wrong"] / counts["known"] if counts["known"] else None
+    return counts
+
+
+def check_truth(truth: list[np.ndarray | None], shape: tuple[int, int], names: list[str]) -> None:
+    """Every truth map present and of the frames' size, or one line naming the first that is not."""
+    for lab, name in zip(truth, names):
+        if lab is None:
+            raise InputError(f"no truth labels for frame {name}")
+        if lab.shape != shape:
+            raise InputError(f"truth labels of {name} are {lab.shape[1]}x{lab.shape[0]}, the frames "
+                             f"{shape[1]}x{shape[0]}")

@@ -1,0 +1,135 @@
+"""pcreg.classification.bayes over K classes of a class table: against scikit-learn's GaussianNB, per-class
+scores and log-posteriors, the unknown left out, the two-class outputs unchanged, learning's refit keeping
+the table; on synthetic eleven-class frames and on the shared CamVid clips."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sklearn.naive_bayes import GaussianNB
+
+from pcreg.classes import CAMVID11, LAGR, ClassTable, LabelClass
+from pcreg.classification.bayes import NaiveBayesPixelClassifier, class_histograms, fit_classifier
+from pcreg.classification.features import feature_matrix
+from pcreg.classification.metrics import confusion_matrix
+from pcreg.datasets import synthetic
+from pcreg.errors import InputError
+
+CAMVID = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "camvid" / "0001TP"
+FEATURES = "rgb+hsv+row"
+
+
+def _eleven(seed: int = 0, shape=(48, 64)):
+    """Frames whose eleven classes are blocks of their own colour (plus noise), and void pixels."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    labels = (np.arange(w)[None, :] * 11 // w).repeat(h, axis=0).astype(np.uint8)
+    labels[: h // 6] = 11  # void
+    means = rng.integers(20, 235, size=(12, 3))
+    image = np.clip(means[labels] + rng.normal(0, 12, size=(h, w, 3)), 0, 255).astype(np.uint8)
+    return image, labels
+
+
+def _sklearn(images, labels, unknown):
+    x = np.concatenate([feature_matrix(im, FEATURES) for im in images])
+    y = np.concatenate([lab.ravel() for lab in labels])
+    return GaussianNB().fit(x[y != unknown], y[y != unknown])
+
+
+def test_k_classes_match_sklearn():
+    image, labels = _eleven()
+    clf = NaiveBayesPixelClassifier(FEATURES, classes=CAMVID11).fit(image, labels)
+    assert clf.classes_.tolist() == list(range(11)) and clf.counts_.shape == (12, 7, 256)
+    assert not clf.counts_[11].any()  # void never counted
+    nb = _sklearn([image], [labels], 11)
+    np.testing.assert_allclose(clf.theta_, nb.theta_, rtol=1e-10)
+    np.testing.assert_allclose(clf.var_, nb.var_, rtol=1e-9)
+    np.testing.assert_allclose(clf.class_prior_, nb.class_prior_, rtol=1e-12)
+    test, _ = _eleven(1)
+    x = feature_matrix(test, FEATURES)
+    ref = nb.predict_log_proba(x).reshape(test.shape[0], test.shape[1], 11)
+    logp = clf.log_posteriors(test)
+    assert logp.shape == (*test.shape[:2], 11) and logp.dtype == np.float32
+    np.testing.assert_allclose(logp, ref, atol=2e-3)
+    np.testing.assert_allclose(np.exp(logp).sum(axis=-1), 1.0, atol=1e-5)
+    scores = clf.class_scores(test)
+    assert scores.dtype == np.float32 and scores.shape == logp.shape
+    np.testing.assert_allclose(scores, clf.joint_log_likelihood(test), rtol=1e-5, atol=1e-3)
+    assert (clf.predict(test) == nb.predict(x).reshape(test.shape[:2])).mean() > 0.999
+    full = clf.predict_log_proba(test)
+    assert full.shape[-1] == 12 and np.isneginf(full[:, :, 11]).all()
+    # the features made once, handed over: the same scores
+    np.testing.assert_array_equal(clf.class_scores(test, groups=clf.feature_groups(test)), scores)
+
+
+def test_classes_present_only_and_errors():
+    image, labels = _eleven()
+    sub = np.where(labels > 4, 11, labels).astype(np.uint8)  # only sky..pavement drawn
+    clf = fit_classifier([type("F", (), {"image": image, "labels": sub})()], features=FEATURES, classes="camvid11")
+    assert clf.classes_.tolist() == [0, 1, 2, 3, 4] and clf.class_scores(image).shape[-1] == 5
+    assert "sky" in repr(clf)
+    with pytest.raises(InputError, match="2 unknown; got 3 in training pair 0"):
+        NaiveBayesPixelClassifier(FEATURES).fit(image, labels)  # LAGR's table: 11 is no class
+    one = np.where(labels == 3, 3, 11).astype(np.uint8)
+    with pytest.raises(InputError, match=r"only one class \(road\); need at least two"):
+        NaiveBayesPixelClassifier(FEATURES, classes=CAMVID11).fit(image, one)
+    with pytest.raises(InputError, match=r"histograms must be \(12, 7, 256\)"):
+        NaiveBayesPixelClassifier(FEATURES, classes=CAMVID11).fit_histograms(np.zeros((3, 7, 256), np.int64))
+    gap = ClassTable((LabelClass(0, "a", (1, 1, 1)), LabelClass(5, "b", (2, 2, 2)), LabelClass(9, "u", (0, 0, 0))), 9)
+    with pytest.raises(InputError, match="got 3"):
+        class_histograms(image, np.full(labels.shape, 3, np.uint8), FEATURES, classes=gap)
+
+
+def test_two_classes_scores_are_the_log_odds():
+    frames = synthetic("syn2b", 3, 0, width=80, height=60)
+    clf = NaiveBayesPixelClassifier(FEATURES).fit([f.image for f in frames[:2]], [f.labels for f in frames[:2]])
+    assert clf.class_table is LAGR
+    img = frames[2].image
+    s = clf.class_scores(img)
+    np.testing.assert_allclose(s[:, :, 1] - s[:, :, 0], clf.decision_function(img), atol=2e-3)
+    np.testing.assert_array_equal(np.argmax(s, axis=-1).astype(np.uint8) == 1, clf.decision_function(img) > 0)
+
+
+def test_confusion_matrix_over_a_table():
+    t = np.array([[0, 3, 11], [10, 3, 3]])
+    p = np.array([[0, 4, 5], [10, 3, 2]])
+    conf = confusion_matrix(p, t, classes=CAMVID11)
+    assert conf.shape == (12, 12) and conf.sum() == 5 and conf[3, 4] == 1 and conf[3, 3] == 1
+    assert confusion_matrix(p, t, classes=CAMVID11, exclude_unknown=False).sum() == 6
+
+
+def test_learning_refits_in_the_same_table():
+    from pcreg.pipeline.learning import STREAM_LEARNING, Learner
+
+    image, labels = _eleven()
+    clf = NaiveBayesPixelClassifier(FEATURES, classes=CAMVID11).fit(image, labels)
+    learner = Learner(clf, STREAM_LEARNING)
+    learner.restore(clf.counts_ * 0.5)
+    assert learner.classifier.class_table is CAMVID11 and learner.classifier.classes_.tolist() == list(range(11))
+
+
+@pytest.mark.data
+@pytest.mark.skipif(not CAMVID.is_dir(), reason="needs ../shared/data/camvid (the shared CamVid clips)")
+def test_camvid_eleven_classes_against_sklearn():
+    import cv2
+
+    from types import SimpleNamespace
+
+    from pcreg.classes import read_label_png
+
+    names = sorted(p.name for p in (CAMVID / "labels").glob("*.png"))[:2]
+    # (pcreg.datasets.Frame holds labels 0, 1, 2 only, so a plain pair of image and labels)
+    key, later = (SimpleNamespace(image=cv2.imread(str(CAMVID / "images" / n))[:, :, ::-1].copy(),
+                                  labels=read_label_png(CAMVID / "labels" / n, CAMVID11)) for n in names)
+    clf = fit_classifier([key], features=FEATURES, classes=CAMVID11)
+    nb = _sklearn([key.image], [key.labels], 11)
+    assert clf.classes_.tolist() == nb.classes_.tolist()
+    x = feature_matrix(later.image, FEATURES)
+    pred = clf.predict(later.image)
+    assert (pred == nb.predict(x).reshape(pred.shape)).mean() > 0.999
+    logp = clf.log_posteriors(later.image)
+    ref = nb.predict_log_proba(x).reshape(logp.shape)
+    sure = ref.max(axis=-1) > -1e-3  # where both are far from ties, float32 agrees closely
+    np.testing.assert_allclose(logp.max(axis=-1)[sure], ref.max(axis=-1)[sure], atol=2e-3)

@@ -1,0 +1,272 @@
+"""Class tables: the built-ins, labelmap.txt and JSON read and written, label PNGs (palette, ids, colour)
+written and read back to the same ids, and every bad input refused in one line naming the file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+
+from pcreg.classes import (CAMVID11, DAVIS, LAGR, TABLES, ClassTable, LabelClass, check_tables_agree, class_table,
+                           encode_label_png, is_palette_png, labelmap_text, parse_labelmap,
+                           parse_table_json, read_label_png, read_labelmap, table_json, voc_colormap, write_label_png,
+                           write_labelmap)
+from pcreg.errors import InputError
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+CAMVID = DATA / "camvid" / "0001TP"
+DAVIS_SEQ = DATA / "davis" / "blackswan"
+
+# CVAT's own "Segmentation mask 1.1" label map of a task with the labels road and car (its format:
+# cvat/apps/dataset_manager/formats/utils.py make_colormap adds background first; Datumaro dumps it)
+CVAT_LABELMAP = "# label:color_rgb:parts:actions\nbackground:0,0,0::\nroad:128,64,128::\ncar:64,0,128::\n"
+
+
+def _one_line(exc: pytest.ExceptionInfo, *needles: str) -> None:
+    msg = str(exc.value)
+    assert "\n" not in msg
+    for n in needles:
+        assert n in msg, msg
+
+
+def test_builtins():
+    assert LAGR.known_ids == (0, 1) and LAGR.unknown == 2 and LAGR.n_known == 2
+    assert [c.name for c in LAGR.classes] == ["ground", "obstacle", "unknown"]
+    from pcreg.review import COLOURS
+
+    assert {c.id: c.colour for c in LAGR.known} == COLOURS  # the review's colours
+    assert CAMVID11.known_ids == tuple(range(11)) and CAMVID11.unknown == 11
+    assert CAMVID11.name_of(0) == "sky" and CAMVID11.name_of(10) == "bicyclist" and CAMVID11.id_of("road") == 3
+    assert DAVIS.known_ids == (0, 1) and DAVIS.name_of(1) == "object"
+    assert set(TABLES) == {"lagr", "camvid11", "davis"}
+    for t in TABLES.values():
+        assert t.unknown_class.colour == (0, 0, 0)
+        assert class_table(t.source) is t
+    assert class_table(None) is LAGR
+    assert "ground" in repr(LAGR) and "0 ground, 1 obstacle, 2 unknown" == LAGR.describe()
+
+
+def test_camvid_mapping_agrees_with_the_table():
+    """The data's mapping of CamVid ids to LAGR labels names the same classes in the same ids."""
+    from pcreg.datasets.folder import CAMVID_MAPPING
+
+    assert set(CAMVID_MAPPING) == set(CAMVID11.ids)
+    assert CAMVID_MAPPING[CAMVID11.id_of("road")] == 0 and CAMVID_MAPPING[CAMVID11.unknown] == 2
+
+
+@pytest.mark.parametrize("bad, needle", [
+    (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 6))), "1 known class"),  # fewer than two known
+    (((0, "a", (1, 2, 3)), (0, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "share the id"),
+    (((0, "a", (1, 2, 3)), (1, "a", (4, 5, 6)), (2, "c", (0, 0, 0))), "share the name"),
+    (((0, "a", (1, 2, 3)), (1, "b", (1, 2, 3)), (2, "c", (0, 0, 0))), "share the colour"),
+    (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 6)), (255, "c", (0, 0, 0))), "0..254"),
+    (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 256)), (2, "c", (0, 0, 0))), "three integers"),
+    (((0, "a:b", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "holds ':'"),
+])
+def test_table_validation(bad, needle):
+    unknown = bad[-1][0]
+    with pytest.raises(InputError) as exc:
+        ClassTable(tuple(LabelClass(*c) for c in bad), unknown, "my.json")
+    _one_line(exc, "my.json", needle)
+    with pytest.raises(InputError, match="unknown id 7"):
+        ClassTable(LAGR.classes, 7, "t")
+
+
+def test_labelmap_round_trips_and_reads_cvats(tmp_path):
+    for t in TABLES.values():
+        p = write_labelmap(tmp_path / t.source / "labelmap.txt", t)
+        back = read_labelmap(p)
+        assert back == t and back.agrees(t)
+        assert class_table(str(p)) == t and class_table(p.parent) == t  # a file, or an unpacked export's folder
+    text = labelmap_text(CAMVID11)
+    assert text.count("0,0,0") == 1 and "background" not in text  # no extra background beside void
+    assert text.splitlines()[:2] == ["# label:color_rgb:parts:actions", "void:0,0,0::"]
+    cvat = parse_labelmap(CVAT_LABELMAP, "labelmap.txt")
+    assert cvat.known_ids == (0, 1) and [c.name for c in cvat.known] == ["road", "car"]
+    assert cvat.unknown == 2 and cvat.unknown_class.name == "background"
+    assert labelmap_text(cvat) == CVAT_LABELMAP  # written back as CVAT wrote it
+    # LAGR's table from CVAT (its unknown called background) agrees with the built-in
+    assert parse_labelmap("background:0,0,0::\nground:34,197,94::\nobstacle:255,40,40::\n", "x").agrees(LAGR)
+
+
+def test_labelmap_forms_datumaro_accepts():
+    # comments, blank lines, spaces, parts and actions (ignored), the background named but not first
+    t = parse_labelmap("# c\n\n  sky:1,2,3:head,hand:jumping  \nbackground:0,0,0::\ncar: 4, 5 ,6::\n", "f")
+    assert [c.name for c in t.known] == ["sky", "car"] and t.unknown_class.name == "background"
+    # no colours at all: VOC's colour map in order (its first, black, the background)
+    t = parse_labelmap("background:::\nroad:::\ncar:::\n", "f")
+    assert t.unknown_class.colour == (0, 0, 0) and t.known[0].colour == (128, 0, 0) and t.known[1].colour == (0, 128, 0)
+    np.testing.assert_array_equal(voc_colormap(4), [[0, 0, 0], [128, 0, 0], [0, 128, 0], [128, 128, 0]])
+    # no background line: one added, black, as Datumaro's exporter adds it
+    t = parse_labelmap("road:128,64,128::\ncar:64,0,128::\n", "f")
+    assert t.unknown == 2 and t.unknown_class == LabelClass(2, "background", (0, 0, 0))
+    # a class named background that is not black is the background when nothing is black
+    t = parse_labelmap("background:9,9,9::\nroad:128,64,128::\ncar:64,0,128::\n", "f")
+    assert t.unknown_class.colour == (9, 9, 9)
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("background:0,0,0::\nroad:1,2,3::\nroad:4,5,6::\n", "two classes named 'road'"),
+    ("background:0,0,0::\nroad:1,2,3::\ncar:1,2,3::\n", "share the colour (1, 2, 3)"),
+    ("background:0,0,0::\nroad:1,2::\ncar:4,5,6::\n", "not R,G,B"),
+    ("background:0,0,0::\nroad:1,2,300::\n", "not R,G,B"),
+    ("background:0,0,0::\nroad:1,2,3::\n", "1 known class"),
+    ("background:0,0,0::\nroad:1,2,3::\ncar:::\n", "has no colour"),
+    ("background:0,0,0::\nroad:1,2,3::x:y\n", "fields"),
+    ("# nothing\n", "no class"),
+])
+def test_bad_labelmaps(tmp_path, text, needle):
+    p = tmp_path / "labelmap.txt"
+    p.write_text(text)
+    with pytest.raises(InputError) as exc:
+        read_labelmap(p)
+    _one_line(exc, str(p), needle)
+
+
+def test_labelmap_needs_a_black_unknown():
+    t = ClassTable((LabelClass(0, "a", (1, 1, 1)), LabelClass(1, "b", (2, 2, 2)), LabelClass(2, "u", (3, 3, 3))), 2, "t.json")
+    with pytest.raises(InputError, match="needs it black"):
+        labelmap_text(t)
+
+
+def test_json_round_trip_and_errors(tmp_path):
+    for t in TABLES.values():
+        p = tmp_path / f"{t.source}.json"
+        p.write_text(table_json(t))
+        assert class_table(str(p)) == t
+    t = parse_table_json('{"classes": [{"name": "a", "colour": [1,2,3]}, {"name": "b", "colour": [4,5,6]},'
+                         '{"name": "u", "colour": [0,0,0]}], "unknown": "u"}', "x")
+    assert t.known_ids == (0, 1) and t.unknown == 2
+    for text, needle in [("[", "not JSON"), ('{"classes": []}', '"unknown"'),
+                         ('{"classes": [{"name": "a"}], "unknown": 0}', "class 0"),
+                         ('{"classes": [{"name": "a", "colour": "red"}], "unknown": 0}', "colour 'red'")]:
+        with pytest.raises(InputError) as exc:
+            parse_table_json(text, "t.json")
+        _one_line(exc, "t.json", needle)
+    with pytest.raises(InputError, match="neither a built-in"):
+        class_table("nope")
+
+
+def test_tables_agree():
+    assert check_tables_agree([("a.png", LAGR), ("b.png", LAGR)]) is LAGR
+    with pytest.raises(InputError) as exc:
+        check_tables_agree([("a/labelmap.txt", LAGR), ("b/labelmap.txt", LAGR), ("c/labelmap.txt", DAVIS)])
+    _one_line(exc, "c/labelmap.txt", "a/labelmap.txt", "class 0 is")
+
+
+@pytest.mark.parametrize("table", list(TABLES.values()), ids=list(TABLES))
+def test_label_png_round_trip(tmp_path, table):
+    rng = np.random.default_rng(0)
+    labels = rng.choice(np.array(table.ids, np.uint8), size=(37, 53))
+    p = write_label_png(tmp_path / "x.png", labels, table)
+    data = p.read_bytes()
+    assert is_palette_png(data) and not list(tmp_path.glob(".*.tmp"))
+    back = read_label_png(p, table)
+    assert back.dtype == np.uint8 and back.shape == labels.shape
+    np.testing.assert_array_equal(back, labels)
+    with Image.open(p) as im:  # any viewer: the table's colours
+        assert im.mode == "P"
+        np.testing.assert_array_equal(np.asarray(im.convert("RGB")), table.paint(labels))
+    # OpenCV expands the palette to colour: the colours read back through the table are the same ids
+    bgr = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    assert bgr.ndim == 3
+    np.testing.assert_array_equal(table.ids_from_colours(bgr[:, :, ::-1], "x"), labels)
+    assert encode_label_png(labels, table) == data  # the same labels, the same bytes
+
+
+def test_label_png_ids_and_colour_forms(tmp_path):
+    labels = np.array([[0, 1, 2], [2, 1, 0]], np.uint8)
+    cv2.imwrite(str(tmp_path / "ids.png"), labels)
+    np.testing.assert_array_equal(read_label_png(tmp_path / "ids.png", LAGR), labels)
+    cv2.imwrite(str(tmp_path / "ids16.png"), labels.astype(np.uint16))
+    np.testing.assert_array_equal(read_label_png(tmp_path / "ids16.png", LAGR), labels)
+    cv2.imwrite(str(tmp_path / "rgb.png"), LAGR.paint(labels)[:, :, ::-1])
+    np.testing.assert_array_equal(read_label_png(tmp_path / "rgb.png", LAGR), labels)
+    bgra = np.dstack([LAGR.paint(labels)[:, :, ::-1], np.full(labels.shape, 255, np.uint8)])
+    cv2.imwrite(str(tmp_path / "rgba.png"), bgra)
+    np.testing.assert_array_equal(read_label_png(tmp_path / "rgba.png", LAGR), labels)
+    bgra[0, 0, 3] = 0
+    cv2.imwrite(str(tmp_path / "rgba.png"), bgra)
+    with pytest.raises(InputError, match="transparent"):
+        read_label_png(tmp_path / "rgba.png", LAGR)
+    # a VOC-style palette PNG (VOC's colour map) read through a table in those colours
+    voc = ClassTable(tuple(LabelClass(i, n, tuple(int(v) for v in voc_colormap(3)[i]))
+                           for i, n in enumerate(["background", "aeroplane", "bicycle"])), 0, "voc")
+    im = Image.frombytes("P", (3, 2), np.array([[0, 1, 2], [2, 2, 0]], np.uint8).tobytes())
+    im.putpalette(voc_colormap(256).tobytes())
+    im.save(tmp_path / "voc.png")
+    np.testing.assert_array_equal(read_label_png(tmp_path / "voc.png", voc), [[0, 1, 2], [2, 2, 0]])
+
+
+def test_bad_label_pngs(tmp_path):
+    p = tmp_path / "k.png"
+    cv2.imwrite(str(p), np.array([[0, 1, 7]], np.uint8))
+    with pytest.raises(InputError) as exc:
+        read_label_png(p, LAGR)
+    _one_line(exc, str(p), "label value 7 is not a class id", "0 ground, 1 obstacle, 2 unknown")
+    rgb = LAGR.paint(np.array([[0, 1, 2]], np.uint8))
+    rgb[0, 1] = (1, 2, 3)
+    cv2.imwrite(str(p), rgb[:, :, ::-1])
+    with pytest.raises(InputError) as exc:
+        read_label_png(p, LAGR)
+    _one_line(exc, str(p), "colour (1, 2, 3)", "x=1, y=0")
+    write_label_png(p, np.array([[0, 1, 2]], np.uint8), LAGR)  # LAGR's palette read as DAVIS's ids
+    with pytest.raises(InputError) as exc:
+        read_label_png(p, DAVIS)
+    _one_line(exc, str(p), "palette", "'background'")
+    write_label_png(p, np.array([[0, 11]], np.uint8), CAMVID11)
+    with pytest.raises(InputError, match="label value 11"):
+        read_label_png(p, LAGR)
+    with pytest.raises(InputError, match="label value 5"):
+        write_label_png(tmp_path / "w.png", np.array([[0, 5]], np.uint8), LAGR)
+    assert not (tmp_path / "w.png").exists()
+    p.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 30)
+    with pytest.raises(InputError, match=str(p)):
+        read_label_png(p, LAGR)
+    with pytest.raises(InputError, match="no such file"):
+        read_label_png(tmp_path / "none.png", LAGR)
+
+
+@pytest.mark.data
+@pytest.mark.skipif(not CAMVID.is_dir(), reason="needs ../shared/data/camvid (the shared CamVid clips)")
+def test_camvid_labels_read_and_written_in_camvid11(tmp_path):
+    files = sorted((CAMVID / "labels").glob("*.png"))[:3]
+    for f in files:
+        raw = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        ids = read_label_png(f, CAMVID11)  # 8-bit class ids
+        np.testing.assert_array_equal(ids, raw)
+        out = write_label_png(tmp_path / f.name, ids, CAMVID11)
+        np.testing.assert_array_equal(read_label_png(out, CAMVID11), raw)
+
+
+@pytest.mark.data
+@pytest.mark.skipif(not DAVIS_SEQ.is_dir(), reason="needs ../shared/data/davis (the shared DAVIS sequences)")
+def test_davis_masks_through_the_mapping_then_the_table(tmp_path):
+    from pcreg.datasets.folder import mapping_lut
+
+    f = sorted((DAVIS_SEQ / "labels").glob("*.png"))[0]
+    raw = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+    with pytest.raises(InputError, match="label value 255"):
+        read_label_png(f, DAVIS)  # a 0/255 mask: DAVIS_MAPPING reads it
+    ids = mapping_lut("davis")[raw]
+    out = write_label_png(tmp_path / "m.png", ids, DAVIS)
+    np.testing.assert_array_equal(read_label_png(out, DAVIS), (raw != 0).astype(np.uint8))
+
+
+def test_runs_label_files_and_palette_pngs_read_back_the_same(tmp_path):
+    """What ``pcreg run`` writes today (pcreg.runs.files.write_labels, one grey channel) and the palette PNG
+    that replaces it read back through read_label_png as identical arrays."""
+    from pcreg.datasets import synthetic
+    from pcreg.runs.files import write_labels
+
+    labels = synthetic("syn1a", 1, 0, width=160, height=120)[0].labels
+    assert set(np.unique(labels)) == {0, 1, 2}
+    write_labels(tmp_path / "today.png", labels)
+    write_label_png(tmp_path / "palette.png", labels, LAGR)
+    today, palette = read_label_png(tmp_path / "today.png", LAGR), read_label_png(tmp_path / "palette.png", LAGR)
+    np.testing.assert_array_equal(today, labels)
+    np.testing.assert_array_equal(palette, labels)
+    assert today.dtype == palette.dtype == np.uint8

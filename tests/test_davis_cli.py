@@ -1,0 +1,148 @@
+"""DAVIS through the command line: ``pcreg evaluate stream --data davis:PATH`` scores J and F beside the
+published methods, ``pcreg run --mapping davis`` follows the object, and bad input ends in one line and
+exit 2 with nothing already written lost."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.classification.davis_measures import jaccard
+from pcreg.cli import main
+from _davis import frames_and_masks, write_official_layout, write_pcreg_layout
+from _runs import one_line_errors
+from test_davis_dataset import BROKEN, _broken
+
+
+def test_evaluate_stream_on_davis_scores_j_and_f_beside_the_published_methods(tmp_path, capsys):
+    root = write_official_layout(tmp_path / "DAVIS", "blackswan", frames_and_masks(5))
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{root}", "--methods", "unregistered,flow_key",
+                 "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    d = res["davis"]
+    assert d["methods"] == ["plain", "unregistered", "flow_key"]
+    unit = res["units"][0]["davis"]
+    assert unit["frames"] == [1, 2, 3]  # frames 1 to n-2
+    for k in ("J", "F"):
+        for m in d["methods"]:
+            assert d["sequences"]["blackswan"][k][m] == pytest.approx(np.mean(unit[k][m]))
+            assert d["mean"][k][m] == pytest.approx(d["sequences"]["blackswan"][k][m])
+            assert 0 <= d["mean"][k][m] <= 1
+    assert d["mean"]["J"]["flow_key"] > 0.8  # the disc moves 2 px a frame: DIS carries its mask
+    # the published figures of the same sequence (pcreg's own copy: no csv beside the official layout)
+    assert d["published"]["J"]["osvos"] == {"blackswan": 0.9423}
+    assert "davisvideochallenge.github.io" in d["published"]["source"]
+    table = (out / "davis_J.md").read_text()
+    assert "| blackswan | 3 |" in table and "OSVOS" in table and "davisvideochallenge.github.io" in table
+    header = (out / "davis_F.csv").read_text().splitlines()[0]
+    assert header.startswith("sequence,frames scored,plain,unregistered,flow_key,OSVOS,MSK")
+    from pcreg.experiments.reports.page import load_report, page_data  # the report page shows them too
+
+    shown = {t["name"]: t for t in page_data(load_report(out))["tables"]}
+    assert shown["davis_J"]["better"] == "higher" and shown["davis_J"]["columns"] == header.split(",")
+
+
+def test_evaluate_stream_on_davis_refuses_other_key_frames(tmp_path, capsys):
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(4))
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--keys", "first,last", "--out",
+                 str(tmp_path / "o")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "DAVIS gives the first frame's mask only" in err[0]
+
+
+@pytest.mark.parametrize("how", BROKEN)
+def test_a_broken_davis_sequence_is_one_line_and_exit_2_and_the_earlier_results_stay(tmp_path, capsys, how):
+    seq, path, what = _broken(tmp_path, how)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "results.json").write_text("{}")  # an earlier evaluation's
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "unregistered", "--out", str(out)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and str(path) in err[0] and what in err[0]
+    assert (out / "results.json").read_text() == "{}"
+
+
+def _run_case(tmp_path, how: str):
+    """Frames in a folder and a key mask broken one way: (extra args, the file named, what is said)."""
+    pairs = frames_and_masks(4)
+    seq = write_pcreg_layout(tmp_path / "seq", pairs)
+    key = seq / "labels" / "00000.png"
+    if how == "a 0/255 mask without --mapping davis":
+        return [], key, "--mapping davis reads it"
+    if how == "a mask of another size":
+        cv2.imwrite(str(key), np.full((24, 32), 255, np.uint8))
+        return ["--mapping", "davis"], key, "labels are 32x24, the key frame 00000.jpg is 64x48"
+    if how == "no first mask":
+        key.unlink()
+        return ["--mapping", "davis"], key, "no such file"
+    cv2.imwrite(str(key), np.zeros((48, 64), np.uint8))
+    return ["--mapping", "davis"], key, "the object's mask on the key frame is empty"
+
+
+RUN_CASES = ("a 0/255 mask without --mapping davis", "a mask of another size", "no first mask", "an empty key mask")
+
+
+@pytest.mark.parametrize("how", RUN_CASES)
+def test_pcreg_run_refuses_a_bad_davis_key_mask_in_one_line(tmp_path, capsys, how):
+    extra, key, what = _run_case(tmp_path, how)
+    out = tmp_path / "out"
+    assert main(["run", str(tmp_path / "seq"), "--labels", str(key), "--out", str(out), *extra]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and str(key) in err[0] and what in err[0]
+    assert not out.exists()
+
+
+def test_pcreg_run_stops_at_an_unreadable_jpeg_keeps_what_it_wrote_and_resumes(tmp_path, capsys):
+    pairs = frames_and_masks(4)
+    seq = write_pcreg_layout(tmp_path / "seq", pairs)
+    bad = seq / "images" / "00002.jpg"
+    good = bad.read_bytes()
+    bad.write_bytes(good[:200])
+    out = tmp_path / "out"
+    args = ["run", str(seq), "--labels", str(seq / "labels" / "00000.png"), "--mapping", "davis", "--out", str(out)]
+    assert main(args) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and str(bad) in err[0] and "cannot decode image" in err[0]
+    first = (out / "00001.png").read_bytes()
+    assert json.loads((out / "run.json").read_text())["done"] == 2
+    bad.write_bytes(good)
+    assert main(args) == 0
+    assert (out / "00001.png").read_bytes() == first  # kept, not labelled again
+    assert json.loads((out / "run.json").read_text())["done"] == 4
+
+
+@pytest.mark.data
+def test_pcreg_run_with_the_davis_mapping_follows_a_shared_sequence(shared_data, tmp_path):
+    goat = shared_data / "davis" / "goat"
+    if not goat.is_dir():
+        pytest.skip(f"{goat} is absent")
+    out = tmp_path / "out"
+    assert main(["run", str(goat / "images"), "--labels", str(goat / "labels" / "00000.png"), "--mapping", "davis",
+                 "--truth", str(goat / "labels"), "--stop", "6", "--out", str(out)]) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert run["run"]["mapping"] == "davis" and run["done"] == 6
+    for i in range(1, 6):
+        labels = cv2.imread(str(out / f"{i:05d}.png"), cv2.IMREAD_UNCHANGED)
+        truth = cv2.imread(str(goat / "labels" / f"{i:05d}.png"), cv2.IMREAD_GRAYSCALE)
+        assert labels.shape == truth.shape and set(np.unique(labels)) <= {0, 1}
+        assert jaccard(labels, truth) > 0.6  # the goat, five frames after its mask
+    assert 0 <= run["truth"]["error"] < 5  # percent of pixels
+
+
+@pytest.mark.data
+def test_evaluate_stream_on_a_shared_davis_sequence(shared_data, tmp_path, capsys):
+    goat = shared_data / "davis" / "goat"
+    if not goat.is_dir():
+        pytest.skip(f"{goat} is absent")
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{goat}", "--frames", "4", "--methods", "pcreg",
+                 "--out", str(out)]) == 0
+    d = json.loads((out / "results.json").read_text())["davis"]
+    assert d["sequences"]["goat"]["frames"] == 2
+    assert d["mean"]["J"]["pcreg"] > 0.6 and d["mean"]["J"]["pcreg"] > d["mean"]["J"]["plain"]
+    # the published figures beside the shared sequences: the benchmark's, over the whole sequence
+    assert d["published"]["J"]["bvs"] == {"goat": 0.6612} and d["published"]["F"]["bvs"] == {"goat": 0.5839}

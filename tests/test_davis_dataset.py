@@ -1,0 +1,135 @@
+"""DAVIS sequences (pcreg.datasets.davis): both layouts, one sequence or a folder of them, the published
+results beside them or shipped, and bad sequences refused naming the file."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.datasets import load_dataset
+from pcreg.datasets.davis import PUBLISHED_CSV, PUBLISHED_SOURCE, find_sequences, load_davis, published
+from pcreg.errors import DatasetError
+from _davis import frames_and_masks, write_official_layout, write_pcreg_layout
+
+
+def _same(a, b) -> None:
+    assert list(a) == list(b)
+    for name in a:
+        assert [f.name for f in a[name]] == [f.name for f in b[name]]
+        for fa, fb in zip(a[name], b[name]):
+            np.testing.assert_array_equal(fa.image, fb.image)
+            np.testing.assert_array_equal(fa.labels, fb.labels)
+
+
+def test_both_layouts_one_sequence_or_a_folder_give_the_same_frames(tmp_path):
+    pairs = frames_and_masks(4)
+    ours = tmp_path / "ours"
+    write_pcreg_layout(ours / "disc", pairs)
+    write_pcreg_layout(ours / "disc2", pairs[:3])
+    root = write_official_layout(tmp_path / "DAVIS", "disc", pairs)
+    write_official_layout(root, "disc2", pairs[:3])
+    folder = load_dataset(f"davis:{ours}")
+    assert list(folder) == ["disc", "disc2"] and len(folder["disc"]) == 4 and len(folder["disc2"]) == 3
+    for spec in (f"davis:{root}", f"davis:{root}/JPEGImages/480p"):
+        _same(load_dataset(spec), folder)
+    one = load_dataset(f"davis:{root}/JPEGImages/480p/disc")
+    _same(one, load_dataset(f"davis:{ours}/disc"))
+    assert list(one) == ["disc"]
+    f = one["disc"][0]
+    assert f.name == "00000" and f.labels.dtype == np.uint8 and set(np.unique(f.labels)) == {0, 1}
+    np.testing.assert_array_equal(f.labels, pairs[0][1] > 0)  # 0 the background, anything else the object
+    assert len(load_dataset(f"davis:{ours}/disc", n_frames=2)["disc"]) == 2
+    # where the published results are looked for: beside the sequences
+    assert find_sequences(ours / "disc")[1] == ours and find_sequences(ours)[1] == ours
+    for p in (root, root / "JPEGImages" / "480p", root / "JPEGImages" / "480p" / "disc"):
+        assert find_sequences(p)[1] == root
+
+
+def test_another_resolution_folder_and_a_palette_mask_are_read(tmp_path):
+    pairs = frames_and_masks(3)
+    root = write_official_layout(tmp_path / "DAVIS", "disc", pairs, resolution="Full-Resolution")
+    colour = np.zeros((*pairs[1][1].shape, 3), np.uint8)
+    colour[pairs[1][1] > 0] = (0, 0, 128)  # DAVIS 2017's masks are palette images: object 1 is dark red
+    cv2.imwrite(str(root / "Annotations" / "Full-Resolution" / "disc" / "00001.png"), colour)
+    frames = load_davis(root)["disc"]
+    np.testing.assert_array_equal(frames[1].labels, pairs[1][1] > 0)
+
+
+@pytest.mark.data
+def test_a_shared_sequence_in_the_official_layout_reads_as_in_pcregs(shared_data, tmp_path):
+    goat = shared_data / "davis" / "goat"
+    if not goat.is_dir():
+        pytest.skip(f"{goat} is absent")
+    root = tmp_path / "DAVIS"
+    for sub, dst in (("images", "JPEGImages"), ("labels", "Annotations")):
+        (root / dst / "480p" / "goat").mkdir(parents=True)
+        for i in range(3):
+            name = f"{i:05d}" + (".jpg" if sub == "images" else ".png")
+            (root / dst / "480p" / "goat" / name).write_bytes((goat / sub / name).read_bytes())
+    _same(load_davis(root), load_davis(goat, n_frames=3))
+    assert load_davis(root)["goat"][0].shape == (480, 854)
+
+
+def test_the_published_results_beside_the_sequences_or_pcregs_own(tmp_path):
+    ours = tmp_path / "ours"
+    write_pcreg_layout(ours / "blackswan", frames_and_masks(3))
+    shipped = published(ours)
+    assert shipped["file"] == str(PUBLISHED_CSV) and shipped["source"] == PUBLISHED_SOURCE
+    assert shipped["methods"] == ["osvos", "msk", "ofl", "bvs", "fcp", "jmp", "hvs", "sea", "tsp"]
+    assert len(shipped["J"]["osvos"]) == 20  # DAVIS 2016 val
+    assert shipped["J"]["osvos"]["blackswan"] == 0.9423 and shipped["F"]["tsp"]["breakdance"] == 0.0699
+    # the means over the twenty sequences are the website's (json_data/global_eval_val_2016.js)
+    for m, j, f in (("osvos", 0.798, 0.806), ("ofl", 0.680, 0.634), ("bvs", 0.600, 0.588), ("tsp", 0.319, 0.297)):
+        assert np.mean(list(shipped["J"][m].values())) == pytest.approx(j, abs=6e-4)
+        assert np.mean(list(shipped["F"][m].values())) == pytest.approx(f, abs=6e-4)
+    # a file beside them with the same figures is cited as the website's; other figures as the file's own
+    (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\nosvos,blackswan,0.9423,0.9753\n")
+    beside = published(ours)
+    assert beside["file"].endswith("published_mine.csv") and beside["source"] == PUBLISHED_SOURCE
+    assert beside["methods"] == ["osvos"]
+    (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\nmine,blackswan,0.5,0.4\n")
+    assert published(ours)["source"] == "published_mine.csv (which names no source)"
+    (ours / "published_mine.csv").write_text("method,sequence,J\nmine,blackswan,0.5\n")
+    with pytest.raises(DatasetError, match="published_mine.csv: published results need the columns"):
+        published(ours)
+
+
+@pytest.mark.data
+def test_the_shared_published_csv_is_the_figures_pcreg_ships(shared_data):
+    if not (shared_data / "davis" / "published_val2016_shared.csv").is_file():
+        pytest.skip("../shared/data/davis/published_val2016_shared.csv is absent")
+    doc = published(shared_data / "davis")
+    assert doc["source"] == PUBLISHED_SOURCE and len(doc["methods"]) == 9
+    assert set(doc["J"]["bvs"]) == {"blackswan", "breakdance", "car-roundabout", "goat", "kite-surf"}
+
+
+def _broken(tmp_path, how: str):
+    """A pcreg-layout sequence broken one way; the file its message must name."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(4))
+    if how == "a mask of another size":
+        cv2.imwrite(str(seq / "labels" / "00002.png"), np.zeros((24, 32), np.uint8))
+        return seq, seq / "labels" / "00002.png", "the mask is 32x24, its frame 00002.jpg 64x48"
+    if how == "no first mask":
+        (seq / "labels" / "00000.png").unlink()
+        return seq, seq / "labels" / "00000.png", "no mask of the first frame"
+    if how == "an empty key mask":
+        cv2.imwrite(str(seq / "labels" / "00000.png"), np.zeros((48, 64), np.uint8))
+        return seq, seq / "labels" / "00000.png", "the object's mask on the key frame is empty"
+    if how == "an unreadable JPEG":
+        path = seq / "images" / "00001.jpg"
+        path.write_bytes(path.read_bytes()[:200])
+        return seq, path, "cannot decode image"
+    (seq / "labels" / "00003.png").unlink()  # a later mask missing
+    return seq, seq / "labels" / "00003.png", "no mask of frame 00003.jpg"
+
+
+BROKEN = ("a mask of another size", "no first mask", "an empty key mask", "an unreadable JPEG", "a later mask missing")
+
+
+@pytest.mark.parametrize("how", BROKEN)
+def test_a_broken_sequence_is_refused_naming_the_file(tmp_path, how):
+    seq, path, what = _broken(tmp_path, how)
+    with pytest.raises(DatasetError) as err:
+        load_dataset(f"davis:{seq}")
+    assert str(err.value).startswith(f"{path}: ") and what in str(err.value)

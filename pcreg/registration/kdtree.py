@@ -34,7 +34,7 @@ import numpy as np
 
 from ._kd_kernels import _build, _move_query_parallel, _move_query_serial, _query_parallel, _query_serial
 from ._nn_kernels import _bounds, _moments
-from .nn import can_thread, squared_bound, threaded
+from .nn import NearestIndex, can_thread, squared_bound, threaded
 
 #: Points a leaf holds at most: a leaf's points are read in a row, faster than the nodes above them. The
 #: index built and searched 15 times (the bench's ICP clouds, one thread, medians of 7 alternating
@@ -50,7 +50,7 @@ from .nn import can_thread, squared_bound, threaded
 LEAF_SIZE = 24
 
 
-class KDTreeIndex:
+class KDTreeIndex(NearestIndex):
     """Exact nearest-neighbour index of (M, 2|3) finite points on a KD-tree.
 
     points : (M, d) finite float64, d = 2 or 3, M >= 1.
@@ -59,6 +59,8 @@ class KDTreeIndex:
 
     :meth:`query` answers like ``scipy.spatial.cKDTree.query`` with ``k=1``.
     """
+
+    _query_kernels = (_query_serial, _query_parallel)
 
     def __init__(self, points: np.ndarray, *, leaf: int = LEAF_SIZE, max_distance: float | None = None) -> None:
         pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -89,26 +91,6 @@ class KDTreeIndex:
         leaves = int(np.count_nonzero(self._nodes[:, 2] < 0))
         return f"KDTreeIndex(n={self.n}, dim={self.dim}, nodes={len(self._nodes)}, leaves={leaves}, depth={self.depth})"
 
-    def nearest(self, queries: np.ndarray, max_distance: float = np.inf, *, workers: int | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-        """Squared distance (K,) float64 and index (K,) int64 of each query's nearest point with
-        ``d^2 < max_distance^2``; ``(max_distance^2, -1)`` where there is none.
-
-        workers : threads (None: all of numba's where :func:`~pcreg.registration.nn.threaded` says so,
-            else 1; 1 where :func:`~pcreg.registration.nn.can_thread` says no).
-        """
-        q = np.ascontiguousarray(queries, dtype=np.float64)
-        if q.ndim != 2 or q.shape[1] != self.dim:
-            raise ValueError(f"queries must be (K, {self.dim}), got shape {q.shape}")
-        out_d2 = np.empty(q.shape[0], np.float64)
-        out_i = np.empty(q.shape[0], np.int64)
-        args = (q, squared_bound(max_distance), *self.search_arrays, out_d2, out_i)
-        if (threaded(q.shape[0]) if workers is None else workers != 1) and can_thread():
-            _query_parallel(*args)
-        else:
-            _query_serial(*args)
-        return out_d2, out_i
-
     def move_and_match(self, points: np.ndarray, update: np.ndarray | None, max_distance: float):
         """One point-to-point ICP iteration's correspondence step, compiled: move ``points`` (N, d),
         C-contiguous float64, **in place** by the affine ``update`` ((d+1, d+1); None: do not move),
@@ -126,21 +108,6 @@ class KDTreeIndex:
         mom = _moments(points, self.data, out_d2, out_i, self.center)
         return out_d2, out_i, (*mom, self.center)
 
-    def query(self, x: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf, workers: int = 1, **_ignored
-              ) -> tuple[np.ndarray, np.ndarray]:
-        """As ``cKDTree.query(x, k=1, distance_upper_bound=...)``: (distances, indices), ``inf`` and ``n``
-        where no point is closer than the bound."""
-        if k != 1:
-            raise ValueError("KDTreeIndex answers k=1 queries only")
-        x = np.asarray(x, dtype=np.float64)
-        single = x.ndim == 1
-        d2, idx = self.nearest(x[None] if single else x, distance_upper_bound,
-                               workers=None if workers in (-1, None) else workers)
-        miss = idx < 0
-        dist = np.sqrt(d2)
-        dist[miss] = np.inf
-        idx[miss] = self.n
-        return (dist[0], idx[0]) if single else (dist, idx)
 
 
 def warm_up() -> None:
@@ -159,12 +126,11 @@ def warm_up() -> None:
 
 
 def _bench(repeats: int = 7) -> None:  # pragma: no cover - a measurement, not a test
-    import time
     from pathlib import Path
 
     from scipy.spatial import cKDTree
 
-    from .nn import GridIndex
+    from .nn import GridIndex, time_search
 
     rng = np.random.default_rng(0)
     scans = Path(__file__).resolve().parents[3] / "shared" / "data" / "scans"
@@ -186,17 +152,8 @@ def _bench(repeats: int = 7) -> None:  # pragma: no cover - a measurement, not a
             ("grid", lambda: GridIndex(tgt, max_distance=dist), lambda s: s.nearest(src, dist, workers=1)),
             ("KD-tree", lambda: KDTreeIndex(tgt), lambda s: s.nearest(src, dist, workers=1)),
         ):
-            s = build()
-            run(s)
-            tb, tq = [], []
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                s = build()
-                t1 = time.perf_counter()
-                run(s)
-                tb.append(t1 - t0)
-                tq.append(time.perf_counter() - t1)
-            print(f"  {name:8s} build {np.median(tb) * 1e3:7.2f} ms   query {np.median(tq) / len(src) * 1e9:6.0f} ns/point")
+            tb, tq = time_search(build, run, repeats)
+            print(f"  {name:8s} build {tb * 1e3:7.2f} ms   query {tq / len(src) * 1e9:6.0f} ns/point")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -194,7 +194,56 @@ def squared_bound(max_distance: float) -> float:
     return r * r if np.isfinite(r) else np.inf
 
 
-class GridIndex:
+class NearestIndex:
+    """What the reference ICP's searches share: :meth:`nearest` over the search's own compiled kernels
+    (``_query_kernels``: serial, parallel; each takes the queries, the squared bound, the search's
+    ``search_arrays`` and the two outputs) and :meth:`query` in scipy's ``cKDTree`` form."""
+
+    n: int
+    dim: int
+    _query_kernels: tuple
+
+    @property
+    def search_arrays(self) -> tuple:
+        """The arrays the compiled kernels search, after the queries and the bound."""
+        raise NotImplementedError  # each search's own
+
+    def nearest(self, queries: np.ndarray, max_distance: float = np.inf, *, workers: int | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Squared distance (K,) float64 and index (K,) int64 of each query's nearest point with
+        ``d^2 < max_distance^2``; ``(max_distance^2, -1)`` where there is none.
+
+        workers : threads (None: all of numba's where :func:`threaded` says so, else 1; 1 where
+            :func:`can_thread` says no).
+        """
+        q = np.ascontiguousarray(queries, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != self.dim:
+            raise ValueError(f"queries must be (K, {self.dim}), got shape {q.shape}")
+        out_d2 = np.empty(q.shape[0], np.float64)
+        out_i = np.empty(q.shape[0], np.int64)
+        serial, parallel = self._query_kernels
+        search = parallel if (threaded(q.shape[0]) if workers is None else workers != 1) and can_thread() else serial
+        search(q, squared_bound(max_distance), *self.search_arrays, out_d2, out_i)
+        return out_d2, out_i
+
+    def query(self, x: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf, workers: int = 1, **_ignored
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """As ``cKDTree.query(x, k=1, distance_upper_bound=...)``: (distances, indices), ``inf`` and ``n``
+        where no point is closer than the bound."""
+        if k != 1:
+            raise ValueError(f"{type(self).__name__} answers k=1 queries only")
+        x = np.asarray(x, dtype=np.float64)
+        single = x.ndim == 1
+        d2, idx = self.nearest(x[None] if single else x, distance_upper_bound,
+                               workers=None if workers in (-1, None) else workers)
+        miss = idx < 0
+        dist = np.sqrt(d2)
+        dist[miss] = np.inf
+        idx[miss] = self.n
+        return (dist[0], idx[0]) if single else (dist, idx)
+
+
+class GridIndex(NearestIndex):
     """Exact nearest-neighbour index of (M, 2|3) points on a uniform grid.
 
     points : (M, d) finite float64, d = 2 or 3, M >= 1.
@@ -205,6 +254,8 @@ class GridIndex:
 
     :meth:`query` answers like ``scipy.spatial.cKDTree.query`` with ``k=1``.
     """
+
+    _query_kernels = (_query_serial, _query_parallel)
 
     def __init__(self, points: np.ndarray, *, cell: float | None = None, max_distance: float | None = None) -> None:
         pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -259,28 +310,6 @@ class GridIndex:
         return (f"GridIndex(n={self.n}, dim={self.dim}, cell={self.cell:.4g}, cells={'x'.join(map(str, self.dims))}, "
                 f"{'hashed' if self.hashed else 'dense'})")
 
-    def nearest(self, queries: np.ndarray, max_distance: float = np.inf, *, workers: int | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-        """Squared distance (K,) float64 and index (K,) int64 of each query's nearest point with
-        ``d^2 < max_distance^2``; ``(max_distance^2, -1)`` where there is none.
-
-        workers : threads (None: all of numba's where :func:`threaded` says so, else 1; 1 where
-            :func:`can_thread` says no).
-        """
-        q = np.ascontiguousarray(queries, dtype=np.float64)
-        if q.ndim != 2 or q.shape[1] != self.dim:
-            raise ValueError(f"queries must be (K, {self.dim}), got shape {q.shape}")
-        r2 = squared_bound(max_distance)
-        out_d2 = np.empty(q.shape[0], np.float64)
-        out_i = np.empty(q.shape[0], np.int64)
-        args = (q, r2, *self.search_arrays, out_d2, out_i)
-        parallel = (threaded(q.shape[0]) if workers is None else workers != 1) and can_thread()
-        if parallel:
-            _query_parallel(*args)
-        else:
-            _query_serial(*args)
-        return out_d2, out_i
-
     def move_and_match(self, points: np.ndarray, update: np.ndarray | None, max_distance: float):
         """One point-to-point ICP iteration's correspondence step, compiled: move ``points`` (N, d),
         C-contiguous float64, **in place** by the affine ``update`` ((d+1, d+1); None: do not move),
@@ -302,21 +331,6 @@ class GridIndex:
             mom = _move_match_moments_serial(*args, self.data, self.center)
         return out_d2, out_i, (*mom, self.center)
 
-    def query(self, x: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf, workers: int = 1, **_ignored
-              ) -> tuple[np.ndarray, np.ndarray]:
-        """As ``cKDTree.query(x, k=1, distance_upper_bound=...)``: (distances, indices), ``inf`` and ``n``
-        where no point is closer than the bound."""
-        if k != 1:
-            raise ValueError("GridIndex answers k=1 queries only")
-        x = np.asarray(x, dtype=np.float64)
-        single = x.ndim == 1
-        d2, idx = self.nearest(x[None] if single else x, distance_upper_bound,
-                               workers=None if workers in (-1, None) else workers)
-        miss = idx < 0
-        dist = np.sqrt(d2)
-        dist[miss] = np.inf
-        idx[miss] = self.n
-        return (dist[0], idx[0]) if single else (dist, idx)
 
 
 def warm_up() -> None:
@@ -332,8 +346,24 @@ def warm_up() -> None:
                 idx.nearest(pts[:8] + 100.0, workers=workers)
 
 
-def _bench(n: int = 20000, repeats: int = 7) -> None:  # pragma: no cover - a measurement, not a test
+def time_search(build, run, repeats: int) -> tuple[float, float]:
+    """Median seconds of ``build()`` and of ``run(index)`` over ``repeats`` rounds, after one round not
+    counted (compilation, caches): what this module's and the KD-tree's measurements print."""
     import time
+
+    run(build())
+    tb, tq = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        index = build()
+        t1 = time.perf_counter()
+        run(index)
+        tb.append(t1 - t0)
+        tq.append(time.perf_counter() - t1)
+    return float(np.median(tb)), float(np.median(tq))
+
+
+def _bench(n: int = 20000, repeats: int = 7) -> None:  # pragma: no cover - a measurement, not a test
 
     from scipy.spatial import cKDTree
 
@@ -347,18 +377,8 @@ def _bench(n: int = 20000, repeats: int = 7) -> None:  # pragma: no cover - a me
         ("grid 1 thread", lambda: GridIndex(tgt, max_distance=2.5), lambda s: s.nearest(src, 2.5, workers=1)),
         ("grid 2 threads", lambda: GridIndex(tgt, max_distance=2.5), lambda s: s.nearest(src, 2.5, workers=2)),
     ):
-        s = build()
-        run(s)
-        tb, tq = [], []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            s = build()
-            t1 = time.perf_counter()
-            run(s)
-            t2 = time.perf_counter()
-            tb.append(t1 - t0)
-            tq.append(t2 - t1)
-        rows[name] = (np.median(tb) * 1e3, np.median(tq) / n * 1e6)
+        tb, tq = time_search(build, run, repeats)
+        rows[name] = (tb * 1e3, tq / n * 1e6)
     for name, (b, q) in rows.items():
         print(f"{name:16s} build {b:7.2f} ms   query {q:6.3f} us/point")
 

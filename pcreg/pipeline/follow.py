@@ -29,9 +29,9 @@ A label is the sign of their sum, resized bilinearly to the frame's size; its co
 of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENCE_OFFSET`). The hard labels at the
 working size and the frame's grey levels are all a step hands to the next (:class:`FollowCarry`), which
 ``pcreg run`` saves with every frame, so a stopped run resumes exactly. The two flows are independent:
-one runs on the helper thread (:func:`pcreg._threads.both`).
+one runs on pcreg's helper thread (``pcreg._threads``).
 
-Measured (docs/results.md, "Following an object"): on the five shared DAVIS 2016 sequences, the three
+Measured (docs/results.md, "Following one moving object"): on the five shared DAVIS 2016 sequences, the three
 weights and the residual's width chosen leaving one sequence out, J 0.742 and F 0.645 against the scene
 stream's 0.552 and 0.482, at about 55 ms a frame at 854x480. Every term is needed (without the chain J
 0.507, the colours 0.632, the key carry 0.629, the gate 0.583). On CamVid's clips (scenes, not objects)
@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -49,6 +50,9 @@ import numpy as np
 from ..errors import InputError
 from ..frame import PreparedFrame
 from .working import WorkingSize
+
+if TYPE_CHECKING:
+    from .stream import StepReport
 
 __all__ = ["ObjectFollower", "FollowCarry", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
            "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET"]
@@ -154,7 +158,7 @@ class ObjectFollower:
 
     def __init__(self, classifier=None) -> None:
         self.classifier = classifier
-        self.last = None
+        self.last: StepReport | None = None
         self._size: WorkingSize | None = None
         self._key_labels: np.ndarray | None = None
         self._carry: FollowCarry | None = None

@@ -106,8 +106,11 @@ def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) ->
     grid = np.zeros((0, 0, 2), np.float32) if carry is None or follow else carry.grid
     evidence = float("nan") if carry is None or follow else carry.reference_evidence
     learned = np.zeros((0,), np.float64) if learned is None else np.asarray(learned, np.float64)
-    extra = {"follow": np.stack([carry.labels, carry.grey])} if follow else {}
-    np.savez(buf, frame=np.int64(t), grid=grid, evidence=np.float64(evidence), learned=learned, **extra)
+    members: dict = {"frame": np.int64(t), "grid": grid, "evidence": np.float64(evidence),
+                                      "learned": learned}
+    if follow:
+        members["follow"] = np.stack([carry.labels, carry.grey])
+    np.savez(buf, **members)
     atomic_write_bytes(path, buf.getvalue())
 
 

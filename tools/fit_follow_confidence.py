@@ -43,7 +43,9 @@ def record(frames) -> np.ndarray:
             continue
         size = follower.working_size
         assert size is not None and follower.last is not None
-        magnitude = np.abs(size.grow(follower.last.log_odds))
+        report = follower.last
+        assert report.log_odds is not None and report.trust is not None
+        magnitude = np.abs(size.grow(report.log_odds + report.trust.prior_term(report.log_odds.shape)))
         b = np.minimum((magnitude / STEP).astype(np.intp), N_BINS - 1).ravel()
         wrong = ((labels == 1) != (frames[t].labels == 1)).ravel()
         counts[0] += np.bincount(b[~wrong], minlength=N_BINS)

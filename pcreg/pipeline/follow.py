@@ -54,7 +54,7 @@ from .working import WorkingSize
 if TYPE_CHECKING:
     from .stream import StepReport
 
-__all__ = ["ObjectFollower", "FollowCarry", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
+__all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
            "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET"]
 
 #: The working size, a share of the frames' sides (427x240 for 854x480): DIS at full size carried the
@@ -144,6 +144,31 @@ def _colour_table(rgb: np.ndarray, share: np.ndarray, known: np.ndarray) -> np.n
     return np.clip(np.log(p1) - np.log(p0), -CLIP, CLIP).astype(np.float32)
 
 
+@dataclass(frozen=True, eq=False)
+class FollowTerms:
+    """A follower's step's carried terms (its report's ``trust``): ``prior`` (h, w) float32 at the working
+    size, the previous labels' and the key frame's labels' part of the fused log-odds; the report's
+    ``log_odds`` is the colour term, the rest (as a scene stream's report splits naive Bayes from its
+    priors)."""
+
+    prior: np.ndarray
+
+    def prior_term(self, shape: tuple[int, int]) -> np.ndarray:
+        """(h, w) float32: the carried terms (``shape`` the working size's, as the log-odds')."""
+        if tuple(shape) != self.prior.shape:
+            raise ValueError(f"the carried terms are {self.prior.shape}, not {tuple(shape)}")  # a caller's bug
+        return self.prior
+
+
+def _read(fused: np.ndarray, size: WorkingSize) -> tuple[np.ndarray, np.ndarray]:
+    """``(labels, confidence)`` at the frames' size of fused log-odds (h, w) at the working size: the sign of
+    the log-odds brought to the frames' size bilinearly, and ``sigmoid(CONFIDENCE_SLOPE * |L| +
+    CONFIDENCE_OFFSET)``."""
+    full = size.grow(fused)
+    confidence = 1.0 / (1.0 + np.exp(-(CONFIDENCE_SLOPE * np.abs(full) + CONFIDENCE_OFFSET)))
+    return (full > 0).astype(np.uint8), confidence.astype(np.float32)
+
+
 def _warp(values: np.ndarray, field: np.ndarray) -> np.ndarray:
     return cv2.remap(values, field, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
@@ -154,7 +179,7 @@ class ObjectFollower:
     ``last``, ``carry``, ``resume``). ``classifier``: naive Bayes fitted on the key frame, used only to
     score naive Bayes alone beside the labels (``pcreg run --truth``); None without one."""
 
-    trust = None
+    trust = None  # no trust rule: one key frame only (a key-frames run is refused)
 
     def __init__(self, classifier=None) -> None:
         self.classifier = classifier
@@ -226,25 +251,24 @@ class ObjectFollower:
         key_field, previous_field = flow_field(to_key, self._grid), flow_field(to_previous, self._grid)
         t1 = time.perf_counter()
         carried = _warp(carry.labels.astype(np.float32), previous_field)
-        L = CARRY_WEIGHT * _logit(cv2.GaussianBlur(carried, (0, 0), CARRY_BLUR), 1e-4)
-        L += COLOUR_WEIGHT * self._colours[_colour_index(rgb)]
+        colour = COLOUR_WEIGHT * self._colours[_colour_index(rgb)]
         t2 = time.perf_counter()
         residual = np.abs(rgb.astype(np.float32) - _warp(self._key_rgb, key_field)).mean(axis=2)
         trust = np.exp(-(cv2.GaussianBlur(residual, (0, 0), RESIDUAL_BLUR) / RESIDUAL_SIGMA) ** 2)
         on_key, on_chain = _warp(self._share, key_field) > 0.5, carried > 0.5
         gate = float((on_key & on_chain).sum()) / max(1, int((on_key | on_chain).sum()))
-        L += (KEY_WEIGHT * gate ** GATE_POWER) * trust * _warp(self._key_logit, key_field)
-        full = size.grow(L)
-        labels = (full > 0).astype(np.uint8)
-        confidence = 1.0 / (1.0 + np.exp(-(CONFIDENCE_SLOPE * np.abs(full) + CONFIDENCE_OFFSET)))
-        self._carry = FollowCarry((L > 0).astype(np.uint8), grey)
+        prior = CARRY_WEIGHT * _logit(cv2.GaussianBlur(carried, (0, 0), CARRY_BLUR), 1e-4)
+        prior += (KEY_WEIGHT * gate ** GATE_POWER) * trust * _warp(self._key_logit, key_field)
+        fused = colour + prior
+        labels, confidence = _read(fused, size)
+        self._carry = FollowCarry((fused > 0).astype(np.uint8), grey)
         self._frame += 1
         t3 = time.perf_counter()
         times = {"register": t1 - t0, "classify": t2 - t1, "fuse": t3 - t2, "total": t3 - t0}
         self.last = StepReport(frame=self._frame, registration=_flow_result(key_field, t1 - t0), reason=None,
                                fallback=False, reference=0, times=times, confidence=confidence,
                                predicted_error=float(100.0 * (1.0 - confidence).mean()),
-                               trust_summary={"gate": gate}, log_odds=L)
+                               trust=FollowTerms(prior), trust_summary={"gate": gate}, log_odds=colour)
         return labels
 
     @property

@@ -105,6 +105,7 @@ from ..registration.motion import Motion
 
 if TYPE_CHECKING:
     from ..registration.dense import DenseReference
+    from .follow import FollowTerms
     from .estimators import Estimate
 
 __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "STREAM_MODELS", "DenseStep", "Carry", "STREAM_DENSE",
@@ -174,7 +175,7 @@ class StepReport:
     start: str | None = None
     confidence: np.ndarray | None = field(default=None, repr=False)
     predicted_error: float | None = None
-    trust: "TrustMaps | None" = field(default=None, repr=False)
+    trust: "TrustMaps | FollowTerms | None" = field(default=None, repr=False)
     trust_summary: dict | None = None
     log_odds: np.ndarray | None = field(default=None, repr=False)
 

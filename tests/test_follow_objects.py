@@ -151,3 +151,18 @@ def test_bad_follow_options_are_one_line_and_exit_2(tmp_path, capsys, extra, mes
     assert not (tmp_path / "out").exists()
     with pytest.raises(InputError, match="unknown --follow"):
         PropagatorConfig(follow="objects")
+
+
+def test_a_followers_carry_file_round_trips_and_a_damaged_one_is_one_line(tmp_path):
+    from pcreg.errors import OutputError
+    from pcreg.runs.files import read_carry, write_carry
+
+    carry = FollowCarry(np.eye(6, 8, dtype=np.uint8), np.full((6, 8), 7, np.uint8))
+    write_carry(tmp_path / "c.npz", 3, carry, None)
+    back, learned = read_carry(tmp_path / "c.npz", 3, "")
+    assert isinstance(back, FollowCarry) and learned is None
+    assert np.array_equal(back.labels, carry.labels) and np.array_equal(back.grey, carry.grey)
+    np.savez(tmp_path / "bad.npz", frame=np.int64(3), grid=np.zeros((0, 0, 2), np.float32),
+             evidence=np.float64("nan"), learned=np.zeros(0), follow=np.zeros((3, 6, 8), np.float32))
+    with pytest.raises(OutputError, match="use --force"):
+        read_carry(tmp_path / "bad.npz", 3, "")

@@ -31,10 +31,12 @@ working size and the frame's grey levels are all a step hands to the next (:clas
 ``pcreg run`` saves with every frame, so a stopped run resumes exactly. The two flows are independent:
 one runs on pcreg's helper thread (``pcreg._threads``).
 
-Measured (docs/results.md, "Following one moving object"): on the five shared DAVIS 2016 sequences, the three
-weights and the residual's width chosen leaving one sequence out, J 0.742 and F 0.645 against the scene
-stream's 0.552 and 0.482, at about 55 ms a frame at 854x480. Every term is needed (without the chain J
-0.507, the colours 0.632, the key carry 0.629, the gate 0.583). On CamVid's clips (scenes, not objects)
+Measured (docs/results.md, "Following one moving object"): on the five shared DAVIS 2016 sequences, the two
+weights, the residual's width and the carry's blur chosen leaving one sequence out, J 0.742 and F 0.645
+(0.748 and 0.654 with the constants shipped, on all five) against the scene stream's 0.552 and 0.482;
+``pcreg run --follow object`` takes 40-65 ms a frame at 854x480, everything included, 0.6 of the scene
+stream's time. Every term is needed (without the chain J 0.507, the colours 0.632, the key carry 0.629,
+the gate 0.583; measured with residual 60 and blur 2). On CamVid's clips (scenes, not objects)
 it is worse than plain naive Bayes on three of eight: it is a mode of its own, not the default.
 """
 
@@ -60,7 +62,7 @@ __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGH
 #: The working size, a share of the frames' sides (427x240 for 854x480): DIS at full size carried the
 #: true mask one step only 0.008-0.023 IoU better, in four times the time.
 SCALE = 0.5
-#: DIS's preset of both flows (fast: J 0.735 / F 0.628 in about half the time).
+#: DIS's preset of both flows (fast: J 0.735 / F 0.628 in about half the time, with residual 60 and blur 2).
 FLOW_PRESET = "medium"
 #: Every log-odds term is clipped to +-CLIP.
 CLIP = 4.0

@@ -24,6 +24,8 @@ The methods (:data:`METHODS`):
   (medium preset) as the motion, anchored or chained the same way; ``flowfast_key`` and
   ``flowultrafast_key``: anchored, with DIS's fast and ultrafast presets, what a user who weighs
   labels against time would pick (each method's time a frame is in ``ms_per_frame``).
+- ``pcreg_object``: what ``pcreg run --follow object`` does: one moving object followed from the key frame's
+  mask (:class:`pcreg.pipeline.follow.ObjectFollower`), for DAVIS; not meant for CamVid's scenes.
 
 ``pcreg``'s confidence (:attr:`pcreg.pipeline.stream.StepReport.confidence`) is scored too, pooled over
 the known pixels of every scored frame (:func:`calibration`): the expected calibration error over ten

@@ -9,15 +9,18 @@ import time
 
 import numpy as np
 
-__all__ = ["METHODS", "PCREG_METHODS", "BASELINES", "PRESET_OF", "CONFIDENCE_LEVELS", "calibration_counts",
+__all__ = ["METHODS", "PCREG_METHODS", "OBJECT_METHOD", "BASELINES", "PRESET_OF", "CONFIDENCE_LEVELS", "calibration_counts",
            "calibration", "KeyPrior", "FixedPrior", "make_method", "Timed"]
 
 #: Methods scored per frame, in table order.
 METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "dense_key", "dense_previous",
                             "similarity_key", "similarity_previous", "flow_key", "flow_previous", "flowfast_key",
-                            "flowultrafast_key")
+                            "flowultrafast_key", "pcreg_object")
 #: The ``pcreg`` methods: what ``pcreg run`` does with these options.
 PCREG_METHODS: dict[str, dict] = {"pcreg": {}, "pcreg_half": {"scale": 0.5}, "pcreg_flow": {"model": "flow", "scale": 0.5}}
+#: What ``pcreg run --follow object`` does: one moving object followed from the key frame's mask
+#: (:class:`pcreg.pipeline.follow.ObjectFollower`).
+OBJECT_METHOD = "pcreg_object"
 #: The DIS baselines, and the preset of each (``flow``: medium).
 BASELINES: tuple[str, ...] = ("flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
 PRESET_OF: dict[str, str] = {"flow": "medium", "flowfast": "fast", "flowultrafast": "ultrafast"}
@@ -138,6 +141,10 @@ def make_method(method: str, classifier, backend: str):
         return FixedPrior(classifier, weight=0.0)
     if method == "unregistered":
         return FixedPrior(classifier, weight=STREAM_WEIGHT)
+    if method == OBJECT_METHOD:
+        from ..pipeline.follow import ObjectFollower
+
+        return ObjectFollower(classifier)
     return _propagator(method, classifier, backend)
 
 

@@ -105,6 +105,7 @@ from ..registration.motion import Motion
 
 if TYPE_CHECKING:
     from ..registration.dense import DenseReference
+    from .follow import FollowTerms
     from .estimators import Estimate
 
 __all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "STREAM_MODELS", "DenseStep", "Carry", "STREAM_DENSE",
@@ -158,7 +159,8 @@ class StepReport:
     predicted_error : the frame's predicted error in percent, the mean of 1 - ``confidence`` (None
         without a trust rule).
     trust : the step's trust map (:class:`~pcreg.pipeline.trust.TrustMaps`: each carried prior, its
-        evidence and its weight per pixel), None without a trust rule; ``to_dict`` gives its summary
+        evidence and its weight per pixel; an object follower's: its carried terms,
+        :class:`~pcreg.pipeline.follow.FollowTerms`), None without a trust rule; ``to_dict`` gives its summary
         (``trust``: each prior's mean weight as a share of the most the rule gives it).
     log_odds : (H, W) float32 naive Bayes' own log-odds of the frame (the classifier as learned so
         far); ``log_odds > 0`` are its labels alone, and ``log_odds`` plus the trust map's
@@ -174,7 +176,7 @@ class StepReport:
     start: str | None = None
     confidence: np.ndarray | None = field(default=None, repr=False)
     predicted_error: float | None = None
-    trust: "TrustMaps | None" = field(default=None, repr=False)
+    trust: "TrustMaps | FollowTerms | None" = field(default=None, repr=False)
     trust_summary: dict | None = None
     log_odds: np.ndarray | None = field(default=None, repr=False)
 

@@ -92,24 +92,34 @@ def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:
 
 
 def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:
-    """What step ``t`` hands to the next (a :class:`~pcreg.pipeline.stream.Carry` or None, and what the
-    classifier has ``learned``, or None), atomically at ``path``."""
+    """What step ``t`` hands to the next (a :class:`~pcreg.pipeline.stream.Carry`, an object follower's
+    :class:`~pcreg.pipeline.follow.FollowCarry`, or None, and what the classifier has ``learned``, or
+    None), atomically at ``path``. A follower's carry is the ``follow`` member: its labels and grey
+    levels, (2, h, w) uint8."""
     import io
 
     from ..outputs import atomic_write_bytes
+    from ..pipeline.follow import FollowCarry
 
     buf = io.BytesIO()
-    grid = np.zeros((0, 0, 2), np.float32) if carry is None else carry.grid
-    evidence = float("nan") if carry is None else carry.reference_evidence
+    follow = isinstance(carry, FollowCarry)
+    grid = np.zeros((0, 0, 2), np.float32) if carry is None or follow else carry.grid
+    evidence = float("nan") if carry is None or follow else carry.reference_evidence
     learned = np.zeros((0,), np.float64) if learned is None else np.asarray(learned, np.float64)
-    np.savez(buf, frame=np.int64(t), grid=grid, evidence=np.float64(evidence), learned=learned)
+    members: dict = {"frame": np.int64(t), "grid": grid, "evidence": np.float64(evidence),
+                                      "learned": learned}
+    if follow:
+        members["follow"] = np.stack([carry.labels, carry.grey])
+    np.savez(buf, **members)
     atomic_write_bytes(path, buf.getvalue())
 
 
 def read_carry(path: Path, t: int, unreadable: str):
     """``(carry, learned)`` that step ``t`` left at ``path`` (:func:`write_carry`): a
-    :class:`~pcreg.pipeline.stream.Carry` or None, and an array or None. A missing or damaged file, or
+    :class:`~pcreg.pipeline.stream.Carry`, a :class:`~pcreg.pipeline.follow.FollowCarry` or None, and an
+    array or None. A missing or damaged file, or
     one of another step, is an :class:`~pcreg.errors.OutputError`: ``unreadable`` says what it stops."""
+    from ..pipeline.follow import FollowCarry
     from ..pipeline.stream import Carry
 
     bad = OutputError(f"{path}: missing or unreadable{unreadable}; use --force to start over")
@@ -117,6 +127,7 @@ def read_carry(path: Path, t: int, unreadable: str):
         with np.load(path, allow_pickle=False) as z:
             frame, grid, evidence = np.array(z["frame"]), np.array(z["grid"]), np.array(z["evidence"])
             learned = np.array(z["learned"]) if "learned" in z.files else None
+            follow = np.array(z["follow"]) if "follow" in z.files else None
     except UNREADABLE_CARRY:
         raise bad from None
     if frame.shape != () or frame.dtype.kind not in "iu" or evidence.shape != () or evidence.dtype.kind != "f":
@@ -124,6 +135,10 @@ def read_carry(path: Path, t: int, unreadable: str):
     if int(frame) != t:
         raise OutputError(f"{path} holds frame {int(frame)}'s carry, not frame {t}'s; use --force to start over")
     learned = None if learned is None or learned.size == 0 else learned
+    if follow is not None:
+        if follow.ndim != 3 or follow.shape[0] != 2 or follow.dtype != np.uint8:
+            raise bad
+        return FollowCarry(follow[0], follow[1]), learned
     if grid.shape == (0, 0, 2) and np.isnan(evidence):  # that step left none
         return None, learned
     try:

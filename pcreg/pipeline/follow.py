@@ -196,10 +196,10 @@ class ObjectFollower:
         """A follower reset to the key frame, with naive Bayes fitted on it (:attr:`classifier`)."""
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
-        from .stream import _check_labels
+        from .stream import check_labels
 
         key = PreparedFrame.of(image, name="key frame")
-        lab = _check_labels(labels, key.shape)
+        lab = check_labels(labels, key.shape)
         if not (lab < 2).any():
             raise InputError("the key frame's labels are all unknown (2): nothing to fit or propagate")
         follower = cls()
@@ -211,10 +211,10 @@ class ObjectFollower:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB (or a PreparedFrame), labels (H, W)
         uint8 with 0 background, 1 the object, 2 unknown."""
         from ..registration.flow import DIS_MIN_SIDE, pixel_grid
-        from .stream import _check_labels
+        from .stream import check_labels
 
         full = PreparedFrame.of(image, name="key frame")
-        lab = _check_labels(labels, full.shape)
+        lab = check_labels(labels, full.shape)
         size = WorkingSize(full.shape, SCALE)
         h, w = size.shape
         if min(h, w) < DIS_MIN_SIDE:

@@ -85,7 +85,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Protocol
 
 import numpy as np
 
@@ -105,10 +105,9 @@ from ..registration.motion import Motion
 
 if TYPE_CHECKING:
     from ..registration.dense import DenseReference
-    from .follow import FollowTerms
     from .estimators import Estimate
 
-__all__ = ["Propagator", "StepReport", "STEP_STAGES", "STEP_PARTS", "STREAM_MODELS", "DenseStep", "Carry", "STREAM_DENSE",
+__all__ = ["Propagator", "StepReport", "PriorTerms", "check_labels", "STEP_STAGES", "STEP_PARTS", "STREAM_MODELS", "DenseStep", "Carry", "STREAM_DENSE",
            "STREAM_REGISTRATION", "STREAM_WEIGHT", "ANCHORS"]
 
 #: Stages timed by every step (seconds in :attr:`StepReport.times`).
@@ -137,6 +136,13 @@ STREAM_WEIGHT = 2.0
 STREAM_REGISTRATION = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None)
 
 
+
+
+class PriorTerms(Protocol):
+    """A step's carried priors as a report gives them (:class:`~pcreg.pipeline.trust.TrustMaps`, or an
+    object follower's :class:`~pcreg.pipeline.follow.FollowTerms`): their part of the fused log-odds."""
+
+    def prior_term(self, shape: tuple[int, int]) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -176,7 +182,7 @@ class StepReport:
     start: str | None = None
     confidence: np.ndarray | None = field(default=None, repr=False)
     predicted_error: float | None = None
-    trust: "TrustMaps | FollowTerms | None" = field(default=None, repr=False)
+    trust: "TrustMaps | PriorTerms | None" = field(default=None, repr=False)
     trust_summary: dict | None = None
     log_odds: np.ndarray | None = field(default=None, repr=False)
 
@@ -292,7 +298,7 @@ class Propagator:
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
 
-        key, lab = PreparedFrame.of(image, name="key frame"), _check_labels(labels, None)
+        key, lab = PreparedFrame.of(image, name="key frame"), check_labels(labels, None)
         if not (lab < 2).any():
             raise InputError("the key frame's labels are all unknown (2): nothing to fit or propagate")
         clf = fit_classifier([Frame(key.rgb, lab, "key")], features=features)
@@ -305,7 +311,7 @@ class Propagator:
         0 ground, 1 obstacle, 2 unknown. A dense stream anchored to the key frame prepares it here, once
         (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid), for every step's registration."""
         full = PreparedFrame.of(image, name="key frame")
-        lab = _check_labels(labels, full.shape)
+        lab = check_labels(labels, full.shape)
         self._size = size = WorkingSize(full.shape, self.scale)
         if size.scaled or self._estimator.checks_every_size:  # a size the motion cannot take: refused here
             self._check_working_size(size)
@@ -533,7 +539,7 @@ def _learns(classifier) -> bool:
     return isinstance(classifier, NaiveBayesPixelClassifier) and hasattr(classifier, "counts_")
 
 
-def _check_labels(labels, shape) -> np.ndarray:
+def check_labels(labels, shape) -> np.ndarray:
     lab = np.asarray(labels)
     if lab.ndim == 3 and lab.shape[2] in (1, 3, 4):
         lab = lab[:, :, 0]

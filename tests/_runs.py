@@ -52,3 +52,13 @@ def frames_folder(path, frames, keys=(0, 4)):
     for k in keys:
         cv2.imwrite(str(labels / f"f{k}.png"), frames[k].labels)
     return folder, labels
+
+
+def assert_same_run(whole, cut, frames: int) -> None:
+    """Two run folders hold the same labels and confidence PNGs, byte for byte, of frames ``f1`` ..
+    ``f{frames - 1}``, and the same steps but for their clocks: an interrupted run resumed as the whole one."""
+    for i in range(1, frames):
+        for name in (f"f{i}.png", f"confidence/f{i}.png"):
+            assert (whole / name).read_bytes() == (cut / name).read_bytes(), name
+    steps = [[timeless(line) for line in (run / "steps.jsonl").read_text().splitlines()] for run in (whole, cut)]
+    assert steps[0] == steps[1]

@@ -14,7 +14,7 @@ from pcreg.cli import main
 from pcreg.errors import InputError
 from pcreg.pipeline.config import PropagatorConfig
 from pcreg.pipeline.follow import FollowCarry, ObjectFollower
-from _runs import kill_before_commit, one_line_errors, timeless
+from _runs import assert_same_run, kill_before_commit, one_line_errors
 
 
 def moving_object(n: int = 8, shape=(120, 160), step: int = 4, seed: int = 1) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -113,12 +113,7 @@ def test_run_follow_object_writes_labels_and_resumes_exactly(tmp_path, monkeypat
     monkeypatch.undo()
     assert json.loads((tmp_path / "cut" / "run.json").read_text())["done"] == 3
     assert main([*base, "--out", str(tmp_path / "cut")]) == 0  # frame 3 again, from frame 2's carry
-    for i in range(1, 7):
-        for name in (f"f{i}.png", f"confidence/f{i}.png"):
-            assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "cut" / name).read_bytes(), name
-    steps = [[timeless(line) for line in (tmp_path / run / "steps.jsonl").read_text().splitlines()]
-             for run in ("whole", "cut")]
-    assert steps[0] == steps[1]
+    assert_same_run(tmp_path / "whole", tmp_path / "cut", 7)
     capsys.readouterr()
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "cut")]) == 2  # the scene now
     assert "follow" in one_line_errors(capsys)[-1]

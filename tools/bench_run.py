@@ -15,8 +15,8 @@ between two key frames labelled from both (two steps a frame).
     python tools/bench_run.py --davis ../shared/data/davis/goat [--follow object] --out out/bench_davis
 
 ``--davis SEQ`` runs on a DAVIS sequence at its own size (854x480; ``SEQ/images``, the first mask of
-``SEQ/labels``, ``--mapping davis``) instead, ``--follow object`` following its object; its target is the
-issue's 100 ms a frame, everything included (10 frames a second, the whole command, median of the runs).
+``SEQ/labels``, ``--mapping davis``) instead, ``--follow object`` following its object; its target is
+100 ms a frame, everything included (10 frames a second, the whole command, median of the runs).
 
 Writes bench_run.json and bench_run.md; the target of a run from one key frame (15 frames a second, the
 whole command, median of the runs) is in its checks table.

@@ -178,22 +178,11 @@ def run(args: argparse.Namespace) -> int:
     truth = _truth(args.truth, frames, key.image.shape[:2], args.mapping)
     _check_spares_inputs(out, frames, Path(args.labels), truth)
     _check_suggest(args.suggest, frames, 1)
-    prop = _key_propagator(config, key.image, key_labels)
+    prop = config.from_key_frame(key.image, key_labels)
     identity = run_identity(frames, source, Path(args.labels), config, mapping=args.mapping, truth=args.truth,
                             confidence=args.confidence)
     with OutputLock(out):  # a second run on the same --out is refused, not raced
         return _label_frames(args, frames, (second, decoded), prop, truth, config, identity, key_labels)
-
-
-def _key_propagator(config, image, labels):
-    """A propagator whose classifier is fitted on the key frame (:meth:`pcreg.Propagator.from_key_frame`),
-    or with ``--follow object`` an object follower (:meth:`pcreg.pipeline.follow.ObjectFollower.from_key_frame`)."""
-    from ..pipeline.follow import ObjectFollower
-    from ..pipeline.stream import Propagator
-
-    if config.follow == "object":
-        return ObjectFollower.from_key_frame(image, labels)
-    return Propagator.from_key_frame(image, labels, **config.options())
 
 
 def _label_frames(args: argparse.Namespace, frames, pending, prop, truth, config, identity: dict,

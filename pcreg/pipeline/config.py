@@ -96,3 +96,13 @@ class PropagatorConfig:
         if self.follow == "object":
             return ObjectFollower(classifier)
         return Propagator(classifier, **self.options(), learning=STREAM_LEARNING if learns else None)
+
+    def from_key_frame(self, image, labels):
+        """:meth:`propagator`'s labeller with its classifier fitted on the key frame ``image`` and its
+        ``labels`` (unknown pixels left out), reset to them (each kind's own ``from_key_frame``)."""
+        from .follow import ObjectFollower
+        from .stream import Propagator
+
+        if self.follow == "object":
+            return ObjectFollower.from_key_frame(image, labels)
+        return Propagator.from_key_frame(image, labels, **self.options())

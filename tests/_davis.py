@@ -43,3 +43,13 @@ def write_official_layout(root: Path, name: str, pairs, resolution: str = "480p"
         cv2.imwrite(str(img_dir / f"{i:05d}.jpg"), img)
         cv2.imwrite(str(ann_dir / f"{i:05d}.png"), mask)
     return root
+
+
+def shared_sequence(shared_data: Path, name: str) -> Path:
+    """``../shared/data/davis/NAME``, or the test skipped saying it is absent."""
+    import pytest
+
+    seq = shared_data / "davis" / name
+    if not seq.is_dir():
+        pytest.skip(f"{seq} is absent")
+    return seq

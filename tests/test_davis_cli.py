@@ -12,7 +12,7 @@ import pytest
 
 from pcreg.classification.davis_measures import jaccard
 from pcreg.cli import main
-from _davis import frames_and_masks, write_official_layout, write_pcreg_layout
+from _davis import frames_and_masks, shared_sequence, write_official_layout, write_pcreg_layout
 from _runs import one_line_errors
 from test_davis_dataset import BROKEN, _broken
 
@@ -117,9 +117,7 @@ def test_pcreg_run_stops_at_an_unreadable_jpeg_keeps_what_it_wrote_and_resumes(t
 
 @pytest.mark.data
 def test_pcreg_run_with_the_davis_mapping_follows_a_shared_sequence(shared_data, tmp_path):
-    goat = shared_data / "davis" / "goat"
-    if not goat.is_dir():
-        pytest.skip(f"{goat} is absent")
+    goat = shared_sequence(shared_data, "goat")
     out = tmp_path / "out"
     assert main(["run", str(goat / "images"), "--labels", str(goat / "labels" / "00000.png"), "--mapping", "davis",
                  "--truth", str(goat / "labels"), "--stop", "6", "--out", str(out)]) == 0
@@ -135,9 +133,7 @@ def test_pcreg_run_with_the_davis_mapping_follows_a_shared_sequence(shared_data,
 
 @pytest.mark.data
 def test_evaluate_stream_on_a_shared_davis_sequence(shared_data, tmp_path, capsys):
-    goat = shared_data / "davis" / "goat"
-    if not goat.is_dir():
-        pytest.skip(f"{goat} is absent")
+    goat = shared_sequence(shared_data, "goat")
     out = tmp_path / "out"
     assert main(["evaluate", "stream", "--data", f"davis:{goat}", "--frames", "4", "--methods", "pcreg",
                  "--out", str(out)]) == 0

@@ -10,7 +10,7 @@ import pytest
 from pcreg.datasets import load_dataset
 from pcreg.datasets.davis import PUBLISHED_CSV, PUBLISHED_SOURCE, find_sequences, load_davis, published
 from pcreg.errors import DatasetError
-from _davis import frames_and_masks, write_official_layout, write_pcreg_layout
+from _davis import frames_and_masks, shared_sequence, write_official_layout, write_pcreg_layout
 
 
 def _same(a, b) -> None:
@@ -58,9 +58,7 @@ def test_another_resolution_folder_and_a_palette_mask_are_read(tmp_path):
 
 @pytest.mark.data
 def test_a_shared_sequence_in_the_official_layout_reads_as_in_pcregs(shared_data, tmp_path):
-    goat = shared_data / "davis" / "goat"
-    if not goat.is_dir():
-        pytest.skip(f"{goat} is absent")
+    goat = shared_sequence(shared_data, "goat")
     root = tmp_path / "DAVIS"
     for sub, dst in (("images", "JPEGImages"), ("labels", "Annotations")):
         (root / dst / "480p" / "goat").mkdir(parents=True)

@@ -20,7 +20,8 @@ class Frame:
     """One frame of a sequence.
 
     image : (H, W, 3) uint8 RGB.
-    labels : (H, W) uint8 in {0 ground, 1 obstacle, 2 unknown}, or None for an unlabelled frame.
+    labels : (H, W) uint8 class ids (of :data:`~pcreg.classes.LAGR` by default: 0 ground, 1 obstacle,
+        2 unknown; a classifier checks them against its class table), or None for an unlabelled frame.
     name : str, unique within its sequence (e.g. the file stem).
     pose : (3, 3) float64 ``T_canvas_frame`` or None: maps this frame's pixel coordinates (x right,
         y down, (0, 0) the centre of the top-left pixel) into one coordinate frame common to the whole
@@ -45,8 +46,6 @@ class Frame:
             if labels.dtype != np.uint8 or labels.shape != image.shape[:2]:
                 raise InputError(f"frame {self.name!r}: labels must be (H, W) uint8 matching the image "
                                  f"{image.shape[:2]}, got {labels.shape} {labels.dtype}")
-            if labels.size and labels.max() > 2:
-                raise InputError(f"frame {self.name!r}: label values must be 0, 1 or 2, got {int(labels.max())}")
             object.__setattr__(self, "labels", _readonly(labels))
         if self.pose is not None:
             pose = np.array(self.pose, dtype=np.float64)

@@ -77,7 +77,7 @@ class Learner:
 
     @property
     def stream(self) -> np.ndarray:
-        """(3, F, 256) float64: the stream's decayed histogram so far (what :meth:`update` gave it counted
+        """(N, F, 256) float64 (N the class table's values, 3 by default): the stream's decayed histogram so far (what :meth:`update` gave it counted
         first)."""
         self._learn_pending()
         return self._stream
@@ -90,11 +90,12 @@ class Learner:
         if pending is None:
             return stream.copy
         features, weights = self.key_classifier.features, self.key_classifier.weights
+        table = self.key_classifier.class_table
 
         def later() -> np.ndarray:
             from ..classification.bayes import class_histograms
 
-            return decay * stream + class_histograms(pending[0], pending[1], features, weights=weights)
+            return decay * stream + class_histograms(pending[0], pending[1], features, weights=weights, classes=table)
 
         return later
 
@@ -113,15 +114,21 @@ class Learner:
     def update(self, image, fused: np.ndarray, prior_term: np.ndarray) -> None:
         """Learn from one labelled frame (an (H, W, 3) uint8 image or a
         :class:`~pcreg.frame.PreparedFrame`): ``fused`` (H, W) log-odds, ``prior_term`` (H, W) the trusted
-        priors' part of them. Its sure pixels are kept, one in ``stride`` along each axis, and counted
+        priors' part of them (with more than two classes (H, W, K) class scores and their priors' part). Its sure pixels are kept, one in ``stride`` along each axis, and counted
         when the classifier is next wanted."""
         from ..frame import as_rgb_uint8
 
         self._learn_pending()
         s = self.rule.stride
         F, P = fused[::s, ::s], prior_term[::s, ::s]
-        sure = (np.abs(P) > self.rule.sure) & ((P > 0) == (F > 0))
-        labels = np.where(sure, (F > 0).astype(np.uint8), np.uint8(2)).astype(np.uint8)
+        if F.ndim == 3:  # K classes: fused class scores (:func:`~pcreg.pipeline.multiclass.sure_labels`)
+            from .multiclass import sure_labels
+
+            clf = self.key_classifier
+            labels = sure_labels(F, P, clf.classes_, clf.class_table.unknown, sure=self.rule.sure)
+        else:
+            sure = (np.abs(P) > self.rule.sure) & ((P > 0) == (F > 0))
+            labels = np.where(sure, (F > 0).astype(np.uint8), np.uint8(2)).astype(np.uint8)
         self._pending = (np.ascontiguousarray(as_rgb_uint8(image, name="frame")[::s, ::s]), labels)
 
     def _learn_pending(self) -> None:

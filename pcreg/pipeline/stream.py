@@ -94,7 +94,8 @@ from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
 from .estimators import STREAM_DENSE, Carry, DenseStep, FlowEstimator, StreamMotion, stream_motion
 from .learning import STREAM_LEARNING, Learner, Learning
-from .prior import class_prior, fused_labels, fused_log_odds, prior_on_moving
+from .multiclass import carried_log_probs, class_prior_maps, class_priors, prior_log_probs
+from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
 from .trust import STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
 from .working import WorkingSize
 from ..errors import InputError
@@ -170,7 +171,10 @@ class StepReport:
         (``trust``: each prior's mean weight as a share of the most the rule gives it).
     log_odds : (H, W) float32 naive Bayes' own log-odds of the frame (the classifier as learned so
         far); ``log_odds > 0`` are its labels alone, and ``log_odds`` plus the trust map's
-        :meth:`~pcreg.pipeline.trust.TrustMaps.prior_term` the fused log-odds.
+        :meth:`~pcreg.pipeline.trust.TrustMaps.prior_term` the fused log-odds. With more than two classes
+        (H, W, K) float32 class scores (:meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.class_scores`).
+    predicted_iou : with more than two classes and a trust rule, each class's predicted IoU from the
+        confidence (:func:`~pcreg.pipeline.multiclass.predicted_iou`), by class id; else None.
     """
 
     frame: int
@@ -185,6 +189,7 @@ class StepReport:
     trust: "TrustMaps | PriorTerms | None" = field(default=None, repr=False)
     trust_summary: dict | None = None
     log_odds: np.ndarray | None = field(default=None, repr=False)
+    predicted_iou: dict | None = None
 
     @property
     def registered(self) -> bool:
@@ -195,7 +200,9 @@ class StepReport:
                 "fallback": self.fallback, "reference": self.reference, "start": self.start,
                 "predicted_error": self.predicted_error, "trust": self.trust_summary,
                 "registration": None if self.registration is None else self.registration.to_dict(),
-                "times": {k: float(v) for k, v in self.times.items()}}
+                "times": {k: float(v) for k, v in self.times.items()},
+                **({} if self.predicted_iou is None else {"predicted_iou": {str(k): v for k, v in
+                                                                            self.predicted_iou.items()}})}
 
 
 class Propagator:
@@ -241,8 +248,10 @@ class Propagator:
                 raise InputError(f"the classifier has no {attr}: fit a classifier first "
                                  "(pcreg.fit_classifier on the key frame and its labels)")
         classes = list(np.asarray(getattr(classifier, "classes_", [0, 1])).tolist())
-        if classes != [0, 1]:
-            raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}")
+        if classes != [0, 1] and not (len(classes) >= 2 and hasattr(classifier, "class_scores")
+                                      and hasattr(classifier, "class_table")):
+            raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}; "
+                             "other classes need a pcreg NaiveBayesPixelClassifier with its class table")
         model, preset = _motion_model(model)
         if not isinstance(anchor, str) or anchor not in ANCHORS:
             raise InputError(f"unknown anchor {short_repr(anchor)}; choose one of {', '.join(ANCHORS)}")
@@ -277,7 +286,9 @@ class Propagator:
         self.learning = learning if trust is not None and _learns(classifier) else None
         self._learner: Learner | None = None
         self._flow = FlowEstimator("ultrafast" if trust is None else trust.preset)
-        self._pi = class_prior(classifier)
+        # K classes (any but ground and obstacle): the step of :mod:`pcreg.pipeline.multiclass`
+        self._classes = None if classes == [0, 1] else np.asarray(classes, np.uint8)
+        self._pi = class_prior(classifier) if self._classes is None else class_priors(classifier)
         # the key frame, checked once, and what every step reads of it, made once (:meth:`reset`)
         self._key: PreparedFrame | None = None  # at the working size
         self._key_labels: np.ndarray | None = None  # at the frames' size
@@ -293,15 +304,20 @@ class Propagator:
 
     @classmethod
     def from_key_frame(cls, image: np.ndarray, labels: np.ndarray, *, features=DEFAULT_FEATURES,
-                       **options) -> "Propagator":
-        """A propagator whose classifier is fitted on the key frame (unknown pixels left out), reset to it."""
+                       classes=None, **options) -> "Propagator":
+        """A propagator whose classifier is fitted on the key frame (unknown pixels left out), reset to it.
+        classes : the labels' class table (a :class:`~pcreg.classes.ClassTable` or what
+        :func:`pcreg.classes.class_table` reads; default ``lagr``, ground and obstacle)."""
+        from ..classes import class_table
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
 
-        key, lab = PreparedFrame.of(image, name="key frame"), check_labels(labels, None)
-        if not (lab < 2).any():
-            raise InputError("the key frame's labels are all unknown (2): nothing to fit or propagate")
-        clf = fit_classifier([Frame(key.rgb, lab, "key")], features=features)
+        table = class_table(classes)
+        key = PreparedFrame.of(image, name="key frame")
+        lab = check_labels(labels, None, table)
+        if not (lab != table.unknown).any():
+            raise InputError(f"the key frame's labels are all unknown ({table.unknown}): nothing to fit or propagate")
+        clf = fit_classifier([Frame(key.rgb, lab, "key")], features=features, classes=table)
         prop = cls(clf, **options)
         prop.reset(key, lab)
         return prop
@@ -311,17 +327,21 @@ class Propagator:
         0 ground, 1 obstacle, 2 unknown. A dense stream anchored to the key frame prepares it here, once
         (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid), for every step's registration."""
         full = PreparedFrame.of(image, name="key frame")
-        lab = check_labels(labels, full.shape)
+        lab = check_labels(labels, full.shape, getattr(self.classifier, "class_table", None))
         self._size = size = WorkingSize(full.shape, self.scale)
         if size.scaled or self._estimator.checks_every_size:  # a size the motion cannot take: refused here
             self._check_working_size(size)
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
-        self._key_prior = label_prior(size.labels(lab), pi=self._pi, fusion=self.fusion)
         self._key_trusted = self._key_flow = None
+        if self._classes is not None:  # K classes: the prior's evidence per class, what every motion carries
+            self._key_prior = prior_log_probs(class_prior_maps(size.labels(lab), self._classes, self._pi,
+                                                               fusion=self.fusion), self._pi)
+        else:
+            self._key_prior = label_prior(size.labels(lab), pi=self._pi, fusion=self.fusion)
         if self.trust is not None:
-            self._key_trusted = TrustedKey(self.trust, self.weight, key.rgb, prior_log_odds(self._key_prior, pi=self._pi),
-                                           size)
+            evidence = self._key_prior if self._classes is not None else prior_log_odds(self._key_prior, pi=self._pi)
+            self._key_trusted = TrustedKey(self.trust, self.weight, key.rgb, evidence, size, classes=self._classes)
             if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # smaller frames have no
                 # second motion (DIS does not take them)
                 self._key_flow = self._flow.prepare(key)
@@ -404,7 +424,8 @@ class Propagator:
         t0 = time.perf_counter()
         clf = self.classifier if self._learner is None else self._learner.classifier
         t1 = time.perf_counter()
-        d = np.asarray(clf.decision_function(frame if isinstance(clf, NaiveBayesPixelClassifier) else frame.rgb),
+        image = frame if isinstance(clf, NaiveBayesPixelClassifier) else frame.rgb
+        d = np.asarray(clf.decision_function(image) if self._classes is None else clf.class_scores(image),
                        dtype=np.float32)
         t2 = time.perf_counter()
         out = _Classified(d)
@@ -421,6 +442,8 @@ class Propagator:
     def _fuse(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:
         """The labels without a trust rule: the key frame's prior along ``motion`` at :attr:`weight`, by
         the field's confidence (:func:`~pcreg.pipeline.prior.fused_labels`)."""
+        if self._classes is not None:
+            return self._fuse_classes(d, motion, times)
         t0 = time.perf_counter()
         q = prior_on_moving(self._key_prior, motion, shape=d.shape, pi=self._pi)
         t1 = time.perf_counter()
@@ -431,6 +454,22 @@ class Propagator:
             labels = (size.grow(fused) > 0).astype(np.uint8)
         else:
             labels = fused_labels(d, q, confidence, weight=self.weight, pi=self._pi)
+        times.update({"fuse.warp": t1 - t0, "fuse.fusion": time.perf_counter() - t1})
+        return labels
+
+    def _fuse_classes(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:
+        """:meth:`_fuse` with K classes: the key frame's evidence per class along ``motion`` (unmoved when it
+        failed), at :attr:`weight` by the field's confidence, added to the class scores; the best class."""
+        t0 = time.perf_counter()
+        h, w = d.shape[:2]
+        lp = self._key_prior if motion is None else carried_log_probs(self._key_prior, motion.as_field((h, w)))
+        t1 = time.perf_counter()
+        wt = pixel_weight(self.weight, None if motion is None else motion.confidence)
+        fused = d + (np.asarray(wt, np.float32)[..., None] if np.ndim(wt) else np.float32(wt)) * lp
+        size = self._size
+        if size is not None and size.scaled:
+            fused = size.grow(fused)
+        labels = self._classes[np.argmax(fused, axis=2)]
         times.update({"fuse.warp": t1 - t0, "fuse.fusion": time.perf_counter() - t1})
         return labels
 
@@ -539,7 +578,9 @@ def _learns(classifier) -> bool:
     return isinstance(classifier, NaiveBayesPixelClassifier) and hasattr(classifier, "counts_")
 
 
-def check_labels(labels, shape) -> np.ndarray:
+def check_labels(labels, shape, table=None) -> np.ndarray:
+    """(H, W) uint8 key labels, checked: of ``shape`` (when given), and each value a class of ``table``
+    (a :class:`~pcreg.classes.ClassTable`; None: 0 ground, 1 obstacle, 2 unknown)."""
     lab = np.asarray(labels)
     if lab.ndim == 3 and lab.shape[2] in (1, 3, 4):
         lab = lab[:, :, 0]
@@ -549,6 +590,8 @@ def check_labels(labels, shape) -> np.ndarray:
         raise InputError(f"labels of shape {lab.shape} for an image of shape {tuple(shape)}")
     if not (np.issubdtype(lab.dtype, np.integer) or lab.dtype == np.bool_):
         raise InputError(f"labels must be integers (0 ground, 1 obstacle, 2 unknown), got {lab.dtype}")
+    if table is not None and table.n_known > 2:
+        return table.check_labels(lab, "the key frame's labels")
     if lab.size and (lab.min() < 0 or lab.max() > 2):
         raise InputError(f"labels must be 0 (ground), 1 (obstacle) or 2 (unknown); found {int(lab.max())}")
     return lab.astype(np.uint8)

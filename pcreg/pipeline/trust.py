@@ -359,19 +359,27 @@ def predicted_error(confidence: np.ndarray) -> float:
 class Trusted:
     """A step's labels by the trust rule (:meth:`TrustedKey.fuse`): ``labels`` (H, W) uint8, the sign of
     the ``fused`` log-odds :func:`smoothed`, their ``confidence`` (:func:`label_confidence` of the same),
-    the trust ``maps``, the fused log-odds themselves and the trusted priors' part of them (``prior``)."""
+    the trust ``maps``, the fused log-odds themselves and the trusted priors' part of them (``prior``);
+    with K classes (:mod:`pcreg.pipeline.multiclass`) ``fused`` and ``prior`` are (H, W, K) class scores
+    and ``second`` each pixel's runner-up class."""
 
     labels: np.ndarray
     confidence: np.ndarray
     maps: TrustMaps
     fused: np.ndarray
     prior: np.ndarray
+    second: np.ndarray | None = None
 
     def report(self, rule: TrustRule, weight: float) -> dict:
         """What a step's report (:class:`~pcreg.pipeline.stream.StepReport`) gives of it: the confidence,
-        the predicted error, the trust map and its summary."""
-        return {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence),
-                "trust": self.maps, "trust_summary": self.maps.summary(rule, weight)}
+        the predicted error, the trust map and its summary; with K classes each class's predicted IoU."""
+        out = {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence),
+               "trust": self.maps, "trust_summary": self.maps.summary(rule, weight)}
+        if self.second is not None:
+            from .multiclass import predicted_iou
+
+            out["predicted_iou"] = predicted_iou(self.labels, self.confidence, self.second, np.unique(self.labels))
+        return out
 
 
 class TrustedKey:
@@ -382,9 +390,11 @@ class TrustedKey:
     size)."""
 
     def __init__(self, rule: TrustRule, weight: float, image: np.ndarray, log_odds: np.ndarray,
-                 size: WorkingSize | None = None) -> None:
+                 size: WorkingSize | None = None, *, classes: np.ndarray | None = None,
+                 coefficients: tuple[float, ...] = CONFIDENCE_COEFFICIENTS) -> None:
         self.rule, self.weight, self.size = rule, float(weight), size
         self.blurred, self.log_odds = blurred(image), log_odds
+        self.classes, self.coefficients = classes, coefficients  # K classes: their ids, (H, W, K) log_odds
 
     def carried(self, frame_blurred: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(prior, residual)`` along ``field``: :func:`carried_log_odds` and :func:`carried_residual`."""
@@ -399,12 +409,30 @@ class TrustedKey:
         t0 = time.perf_counter()
         dense_prior, dense_residual = self.carried(frame_blurred, field)
         t1 = time.perf_counter()
+        if self.classes is not None:
+            return self._fuse_classes(log_odds, dense_prior, dense_residual, field_confidence, flow, times, t0, t1)
         maps, prior, fused = trusted_fusion(self.rule, self.weight, log_odds, dense_prior, dense_residual,
                                             field_confidence, flow)
         t2 = time.perf_counter()
         labels, confidence = read_labels(fused, log_odds, prior, self.rule, size=self.size)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior)
+
+    def _fuse_classes(self, scores, dense_prior, dense_residual, field_confidence, flow, times, t0, t1) -> Trusted:
+        """:meth:`fuse` with K classes (:mod:`pcreg.pipeline.multiclass`): the same trust maps, the priors'
+        evidence per class, the label the best class of the blurred sum."""
+        from .multiclass import fused_scores, read_class_labels
+
+        second_prior, second_residual = (None, None) if flow is None else flow
+        maps = trust_maps(self.rule, weight=self.weight, primary_prior=dense_prior, primary_residual=dense_residual,
+                          confidence=field_confidence, second_prior=second_prior, second_residual=second_residual)
+        fused, prior = fused_scores(scores, [(maps.primary, maps.primary_prior), (maps.second, maps.second_prior)])
+        t2 = time.perf_counter()
+        labels, confidence, second = read_class_labels(
+            fused, scores, prior, self.classes, smooth_px=_scaled(self.rule.smooth, fused.shape[1]),
+            coefficients=self.coefficients, size=self.size)
+        times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
+        return Trusted(labels, confidence, maps, fused, prior, second)
 
 
 def trusted_fusion(rule: TrustRule, weight: float, log_odds: np.ndarray, dense_prior: np.ndarray,

@@ -60,7 +60,7 @@ class WorkingSize:
             cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)))
 
     def labels(self, labels: np.ndarray) -> np.ndarray:
-        """(H, W) uint8 labels (0, 1, 2) at the working size: each working pixel takes the label that covers
+        """(H, W) uint8 labels (class ids) at the working size: each working pixel takes the label that covers
         most of its area (the lowest on a tie), the same area the image's pixel is the mean of. (The
         nearest pixel, ``cv2.INTER_NEAREST``, takes each block's top-left one: the labels would sit
         ``(1/scale - 1) / 2`` px off the image, half a pixel at half size.)"""
@@ -70,20 +70,22 @@ class WorkingSize:
 
         h, w = self.shape
         lab = np.asarray(labels)
-        shares = [cv2.resize((lab == k).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) for k in (0, 1, 2)]
-        return np.argmax(np.stack(shares), axis=0).astype(np.uint8)
+        values = np.unique(lab)
+        shares = [cv2.resize((lab == k).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) for k in values]
+        return values[np.argmax(np.stack(shares), axis=0)].astype(np.uint8)
 
     def grow(self, values: np.ndarray) -> np.ndarray:
-        """(h, w) float32 values of the working size at the frames' size, bilinearly (itself at full size)."""
+        """(h, w) float32 values of the working size (or (h, w, K): K values a pixel) at the frames' size,
+        bilinearly (itself at full size)."""
         a = np.ascontiguousarray(values, dtype=np.float32)
-        if a.shape == self.frame:
+        if a.shape[:2] == self.frame:
             return a
-        if a.shape != self.shape:
+        if a.shape[:2] != self.shape:
             raise ValueError(f"a map of shape {a.shape} in a stream working at {self.shape}")  # a caller's bug
         import cv2
 
         h, w = self.frame
-        return cv2.resize(a, (w, h), interpolation=cv2.INTER_LINEAR)
+        return cv2.resize(a, (w, h), interpolation=cv2.INTER_LINEAR).reshape((h, w) + a.shape[2:])
 
     def _ratios(self) -> tuple[float, float]:
         (H, W), (h, w) = self.frame, self.shape

@@ -1,0 +1,221 @@
+"""The stream's step with more than two classes: the two-class rule, class by class.
+
+A two-class stream fuses log-odds (:mod:`pcreg.pipeline.trust`). With K classes every quantity becomes
+a vector of K per pixel, and every rule of the two-class step is kept as it is stated:
+
+- naive Bayes gives each class's joint log-likelihood ``d_k`` (:meth:`~pcreg.classification.bayes.
+  NaiveBayesPixelClassifier.class_scores`), where two classes gave ``d_1 - d_0``;
+- the key frame's prior is its one-hot labels blurred and mixed with the class prior ``pi`` exactly as
+  :func:`~pcreg.classification.fusion.label_prior` does for one class (:func:`class_prior_maps`), and its
+  evidence beyond the class prior is ``l_k = log q_k - log pi_k`` (:func:`prior_log_probs`; two classes:
+  ``l_1 - l_0`` is :func:`~pcreg.classification.fusion.prior_log_odds`);
+- each carried prior is trusted per pixel by the same weight maps (:func:`~pcreg.pipeline.trust.trust_maps`:
+  they do not depend on the classes), so ``S_k = d_k + w_primary l_primary,k + w_second l_second,k``;
+- the label is the class of the largest ``S_k`` blurred (:func:`read_class_labels`; two classes: the
+  sign of ``S_1 - S_0`` blurred, as the blur is linear);
+- the confidence reads the same four features, with the margin between the two best classes in place of
+  ``|F|`` (at two classes the same number), the purity of each label's neighbourhood, and the share of
+  the neighbourhood where naive Bayes' best class is the carried prior's.
+
+Memory and time grow with K: the scores, the carried priors and their blur are (H, W, K) float32 maps,
+4 K bytes a pixel each. docs/results.md ("Many classes") gives the measured figures.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..classification.fusion import FusionConfig
+from ..errors import InputError
+
+__all__ = ["class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs", "fused_scores",
+           "read_class_labels", "class_confidence", "runner_up", "predicted_iou", "sure_labels"]
+
+#: The least class prior taken: a class with (almost) no key-frame pixels must not give -inf evidence.
+MIN_PROBABILITY = 1e-6
+
+
+def class_priors(classifier) -> np.ndarray:
+    """(K,) float64: a fitted naive Bayes' class priors over its classes (``class_prior_``), each at least
+    :data:`MIN_PROBABILITY`."""
+    prior = np.asarray(getattr(classifier, "class_prior_", None), dtype=np.float64)
+    if prior.ndim != 1 or prior.size < 2 or not np.all(np.isfinite(prior)):
+        raise InputError("the classifier must be a fitted naive Bayes with a class prior per class")
+    return np.maximum(prior, MIN_PROBABILITY)
+
+
+def class_prior_maps(labels: np.ndarray, classes: np.ndarray, pi: np.ndarray, *,
+                     fusion: FusionConfig = FusionConfig()) -> np.ndarray:
+    """(H, W, K) float32: each class's probability from a label map, the one-hot of ``classes`` (ids, in
+    the classifier's order) with ``pi`` where the label is none of them (unknown, or a class the key frame
+    did not train), blurred by ``fusion.sigma * W / 640`` and mixed with ``pi`` by ``fusion.eps``, as
+    :func:`~pcreg.classification.fusion.smooth_prior` does for one class."""
+    import cv2
+
+    lab = np.asarray(labels)
+    k = len(classes)
+    lut = np.tile(np.asarray(pi, np.float32), (256, 1))
+    for i, c in enumerate(classes):
+        lut[int(c)] = 0.0
+        lut[int(c), i] = 1.0
+    q = lut[lab.astype(np.uint8, copy=False)]
+    s = float(fusion.sigma) * lab.shape[1] / 640.0
+    if s > 0:
+        q = cv2.GaussianBlur(q, (0, 0), s, borderType=cv2.BORDER_REPLICATE).reshape(lab.shape + (k,))
+    eps = np.float32(fusion.eps)
+    return (q * (np.float32(1.0) - eps) + eps * np.asarray(pi, np.float32)).astype(np.float32)
+
+
+def prior_log_probs(q: np.ndarray, pi: np.ndarray) -> np.ndarray:
+    """(H, W, K) float32 ``log q_k - log pi_k``: the evidence of the prior beyond the class prior."""
+    qq = np.clip(np.asarray(q, np.float32), np.float32(MIN_PROBABILITY), np.float32(1.0))
+    return (np.log(qq) - np.log(np.asarray(pi, np.float32))).astype(np.float32)
+
+
+def carried_log_probs(log_probs: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """(H, W, K) float32: the key frame's prior evidence carried along ``field`` (bilinear), 0 (none
+    beyond the class prior) where the field leaves the key frame; each channel as
+    :func:`~pcreg.pipeline.trust.carried_log_odds`."""
+    import cv2
+
+    out = cv2.remap(np.asarray(log_probs, np.float32), np.ascontiguousarray(field, dtype=np.float32), None,
+                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.reshape(np.shape(field)[:2] + (np.shape(log_probs)[2],))
+
+
+def fused_scores(scores: np.ndarray, weighted: list[tuple[np.ndarray | float | None, np.ndarray | None]]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """``(fused, prior_term)``, (H, W, K) float32 each: naive Bayes' class scores plus each prior's
+    evidence times its weight (a (H, W) map or a number; a pair with a None is left out)."""
+    d = np.asarray(scores, np.float32)
+    prior = np.zeros(d.shape, np.float32)
+    for w, lp in weighted:
+        if w is None or lp is None:
+            continue
+        prior += (np.asarray(w, np.float32)[..., None] if np.ndim(w) else np.float32(w)) * lp
+    return d + prior, prior
+
+
+def _smoothed(fused: np.ndarray, sigma_px: float) -> np.ndarray:
+    import cv2
+
+    S = np.ascontiguousarray(fused, dtype=np.float32)
+    if sigma_px <= 0:
+        return S
+    return cv2.GaussianBlur(S, (0, 0), sigma_px).reshape(S.shape)
+
+
+def _top_two(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(best index, runner-up index, margin)`` per pixel of (H, W, K) scores: the margin is the best
+    score minus the runner-up's (the first of equals is the best)."""
+    best = np.argmax(S, axis=2)
+    top = np.take_along_axis(S, best[..., None], axis=2)[..., 0]
+    masked = S.copy()
+    np.put_along_axis(masked, best[..., None], -np.inf, axis=2)
+    second = np.argmax(masked, axis=2)
+    margin = top - np.take_along_axis(S, second[..., None], axis=2)[..., 0]
+    return best, second, margin.astype(np.float32)
+
+
+def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndarray, classes: np.ndarray, *,
+                      smooth_px: float, coefficients: tuple[float, ...], size=None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(labels, confidence, runner_up)`` of fused class scores (H, W, K): the class ids (``classes`` in the
+    classifier's order) of the largest score blurred by a Gaussian of ``smooth_px`` px, the probability
+    that each is right (:func:`class_confidence`), and the second likeliest class's id. ``size``: the
+    stream's :class:`~pcreg.pipeline.working.WorkingSize` when the maps are at it: the blurred scores and
+    the confidence are brought to the frames' size, and the labels read there."""
+    S = _smoothed(fused, smooth_px)
+    best, second, margin = _top_two(S)
+    conf = class_confidence(margin, best, scores, prior_term, coefficients)
+    if size is not None and size.scaled:
+        best, second, _ = _top_two(size.grow(S))
+        conf = size.grow(conf)
+    ids = np.asarray(classes, np.uint8)
+    return ids[best], conf, ids[second]
+
+
+def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_term: np.ndarray) -> list[np.ndarray]:
+    """The confidence's three neighbourhood features at half size, as
+    :func:`pcreg.pipeline.trust.confidence_features` reads them for two classes: the share of the
+    neighbourhood with the pixel's own label at the two purity sides, and the share of the agreement side
+    where naive Bayes' best class is the carried prior's."""
+    import cv2
+
+    from .trust import AGREEMENT_SIDE, PURITY_SIDES, _odd, half
+
+    w = best.shape[1]
+    onehot = (best[..., None] == np.arange(k)).astype(np.float32)
+    oh = half(onehot).reshape(-1, max(1, w // 2), k) if k > 1 else half(onehot)
+    own = np.argmax(oh, axis=2)[..., None]
+    agree = (np.argmax(scores, axis=2) == np.argmax(prior_term, axis=2)).astype(np.float32)
+    out = []
+    for side in PURITY_SIDES:
+        kk = _odd(side / 2, w)
+        m = cv2.blur(oh, (kk, kk), borderType=cv2.BORDER_REFLECT).reshape(oh.shape)
+        out.append(np.take_along_axis(m, own, axis=2)[..., 0].astype(np.float32))
+    kk = _odd(AGREEMENT_SIDE / 2, w)
+    out.append(cv2.blur(half(agree), (kk, kk), borderType=cv2.BORDER_REFLECT))
+    return out
+
+
+def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, prior_term: np.ndarray,
+                     coefficients: tuple[float, ...]) -> np.ndarray:
+    """(H, W) float32 in [1/K, 1]: the probability that each pixel's label is right, the logistic model of
+    :func:`pcreg.pipeline.trust.label_confidence` over log1p(margin), the purities and the agreement, with
+    ``coefficients`` (intercept first), never below 1/K (the label is the likeliest of K classes)."""
+    import cv2
+
+    if len(coefficients) != 5:
+        raise InputError(f"the confidence takes 5 coefficients, got {len(coefficients)}")
+    k = scores.shape[2]
+    h, w = margin.shape
+    linear = np.zeros((max(1, h // 2), max(1, w // 2)), np.float32)
+    for a, m in zip(coefficients[2:], _purity_and_agreement(best, k, scores, prior_term)):
+        linear += np.float32(a) * m
+    z = cv2.resize(linear, (w, h), interpolation=cv2.INTER_LINEAR)
+    z += np.float32(coefficients[1]) * np.log1p(np.maximum(margin, 0)) + np.float32(coefficients[0])
+    conf = (1.0 / (1.0 + np.exp(-np.clip(z, -60.0, 60.0)))).astype(np.float32)
+    np.maximum(conf, np.float32(1.0 / k), out=conf)
+    if not np.all(np.isfinite(conf)):
+        raise AssertionError("a confidence came out NaN")
+    return conf
+
+
+def runner_up(fused: np.ndarray) -> np.ndarray:
+    """(H, W) intp: each pixel's second likeliest class index of (H, W, K) scores."""
+    return _top_two(np.asarray(fused, np.float32))[1]
+
+
+def predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray, classes) -> dict[int, float]:
+    """Each class's predicted IoU from the confidence alone: a label of class k is right with probability
+    ``c``, so k's expected true positives are the sum of ``c`` over its pixels and its false positives
+    the sum of ``1 - c``; a wrong label's truth is taken to be its runner-up (``second``), so k's expected
+    misses are the sum of ``1 - c`` over the pixels whose runner-up is k. Classes with no pixel and no
+    miss are left out."""
+    lab = np.asarray(labels).ravel()
+    c = np.asarray(confidence, np.float64).ravel()
+    sec = np.asarray(second).ravel()
+    n = 256
+    tp = np.bincount(lab, weights=c, minlength=n)
+    fp = np.bincount(lab, weights=1.0 - c, minlength=n)
+    fn = np.bincount(sec, weights=1.0 - c, minlength=n)
+    out = {}
+    for k in classes:
+        denom = tp[k] + fp[k] + fn[k]
+        if denom > 0:
+            out[int(k)] = float(tp[k] / denom)
+    return out
+
+
+def sure_labels(fused: np.ndarray, prior_term: np.ndarray, classes: np.ndarray, unknown: int, *,
+                sure: float) -> np.ndarray:
+    """(H, W) uint8: the fused label where the carried priors are sure of it (their margin between the two
+    best classes beyond ``sure`` and their best class the fused one), ``unknown`` elsewhere: what naive
+    Bayes learns from a frame (:class:`~pcreg.pipeline.learning.Learner`; two classes: ``|P| > sure`` and
+    the signs agree)."""
+    best_f = np.argmax(fused, axis=2)
+    best_p, _, margin = _top_two(np.asarray(prior_term, np.float32))
+    ok = (margin > np.float32(sure)) & (best_p == best_f)
+    ids = np.asarray(classes, np.uint8)
+    return np.where(ok, ids[best_f], np.uint8(unknown)).astype(np.uint8)

@@ -462,14 +462,16 @@ class Propagator:
         failed), at :attr:`weight` by the field's confidence, added to the class scores; the best class."""
         t0 = time.perf_counter()
         h, w = d.shape[:2]
-        lp = self._key_prior if motion is None else carried_log_probs(self._key_prior, motion.as_field((h, w)))
+        key, classes = self._key_prior, self._classes
+        assert key is not None and classes is not None  # reset made them
+        lp = key if motion is None else carried_log_probs(key, motion.as_field((h, w)))
         t1 = time.perf_counter()
         wt = pixel_weight(self.weight, None if motion is None else motion.confidence)
         fused = d + (np.asarray(wt, np.float32)[..., None] if np.ndim(wt) else np.float32(wt)) * lp
         size = self._size
         if size is not None and size.scaled:
             fused = size.grow(fused)
-        labels = self._classes[np.argmax(fused, axis=2)]
+        labels = classes[np.argmax(fused, axis=2)]
         times.update({"fuse.warp": t1 - t0, "fuse.fusion": time.perf_counter() - t1})
         return labels
 

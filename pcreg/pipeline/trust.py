@@ -423,13 +423,15 @@ class TrustedKey:
         evidence per class, the label the best class of the blurred sum."""
         from .multiclass import fused_scores, read_class_labels
 
+        classes = self.classes
+        assert classes is not None  # fuse sends K classes here only
         second_prior, second_residual = (None, None) if flow is None else flow
         maps = trust_maps(self.rule, weight=self.weight, primary_prior=dense_prior, primary_residual=dense_residual,
                           confidence=field_confidence, second_prior=second_prior, second_residual=second_residual)
         fused, prior = fused_scores(scores, [(maps.primary, maps.primary_prior), (maps.second, maps.second_prior)])
         t2 = time.perf_counter()
         labels, confidence, second = read_class_labels(
-            fused, scores, prior, self.classes, smooth_px=_scaled(self.rule.smooth, fused.shape[1]),
+            fused, scores, prior, classes, smooth_px=_scaled(self.rule.smooth, fused.shape[1]),
             coefficients=self.coefficients, size=self.size)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior, second)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 
 from ..experiments.stream import METHODS, StreamConfig
+from ..experiments.stream_classes import CLASS_METHODS
 from ..experiments.stream_keys import KEY_METHODS
 
 
@@ -24,7 +25,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "first, first,last, every:N, spaced:N (N evenly spaced), suggest:N (chosen without truth) "
                              "or frame indices")
     parser.add_argument("--methods", default=None, metavar="M,M,...",
-                        help=f"methods to run (default all: {', '.join(METHODS)}; with --keys: {', '.join(KEY_METHODS)})")
+                        help=f"methods to run (default all: {', '.join(METHODS)}; with --keys: {', '.join(KEY_METHODS)}; "
+                             f"with --classes: {', '.join(CLASS_METHODS)})")
+    parser.add_argument("--classes", default=None, metavar="TABLE",
+                        help="label and score every class of a table (camvid11, or a labelmap.txt or JSON file): pixel "
+                             "error, per-class IoU and mIoU beside the baselines in the same classes (default: ground "
+                             "and obstacle)")
     parser.add_argument("--backend", choices=("reference", "open3d"), default="reference",
                         help="ICP backend of the registrations (default reference)")
     parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")
@@ -36,7 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def config_from_args(args: argparse.Namespace) -> StreamConfig:
     from ..errors import InputError
 
-    allowed = METHODS if args.keys is None else KEY_METHODS
+    classes = _many_classes(getattr(args, "classes", None))
+    allowed = CLASS_METHODS if classes is not None else METHODS if args.keys is None else KEY_METHODS
+    if classes is not None and args.key_every is not None:
+        raise InputError("--classes takes its key frames from --keys (first by default), not --key-every")
     if args.keys is not None and args.key_every is not None:
         raise InputError("--keys and --key-every choose the key frames two ways: give one")
     if args.keys is not None and not args.keys.strip():
@@ -50,7 +59,18 @@ def config_from_args(args: argparse.Namespace) -> StreamConfig:
         methods = ("plain",) + methods  # every reduction is against plain
     frames = args.frames if args.frames is not None else (40 if args.data == "synthetic" else None)
     return StreamConfig(data=args.data, frames=frames, size=args.size, seed=args.seed, key_every=args.key_every,
-                        keys=args.keys, backends=(args.backend,), methods=tuple(m for m in allowed if m in methods))
+                        keys=args.keys, backends=(args.backend,), methods=tuple(m for m in allowed if m in methods),
+                        classes=classes)
+
+
+def _many_classes(spec: str | None) -> str | None:
+    """``--classes``: the table's spec when it has more than two classes (checked here), else None (a
+    two-class table is the two-class evaluation)."""
+    if spec is None:
+        return None
+    from ..classes import class_table
+
+    return spec if class_table(spec).n_known > 2 else None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -62,6 +62,9 @@ class StreamConfig:
         key frames around it in both directions (:mod:`pcreg.experiments.stream_keys`; None: as
         ``key_every``).
     backends : the ICP backend (one). methods : which of :data:`METHODS` to run.
+    classes : a class table with more than two classes (``camvid11``, a labelmap.txt, ...): every class is
+        labelled and scored, beside the baselines in the same classes (:mod:`.stream_classes`; needs
+        ``keys``); CamVid's ids are then read as they are. None: ground and obstacle.
     """
 
     data: str = "synthetic"
@@ -72,6 +75,23 @@ class StreamConfig:
     keys: str | None = None
     backends: tuple[str, ...] = ("reference",)
     methods: tuple[str, ...] = METHODS
+    classes: str | None = None
+
+    def to_dict(self) -> dict:
+        """The fields, ``classes`` only when a table is chosen (the config of a two-class evaluation is
+        what it was before tables)."""
+        from dataclasses import asdict
+
+        doc = asdict(self)
+        if self.classes is None:
+            doc.pop("classes")
+        return doc
+
+    def data_spec(self) -> str:
+        """The data as loaded: with a class table CamVid's own ids (``folder:``), not ground and obstacle."""
+        if self.classes is not None and self.data.startswith("camvid:"):
+            return "folder:" + self.data[len("camvid:"):]
+        return self.data
 
 
 def key_frames(n: int, key_every: int | None) -> list[int]:
@@ -79,7 +99,7 @@ def key_frames(n: int, key_every: int | None) -> list[int]:
     return list(range(0, n, key_every)) if key_every else [0]
 
 
-def check_clip(name: str, frames) -> None:
+def check_clip(name: str, frames, classes: str | None = None) -> None:
     """Refuse a clip the protocol cannot score, with one line: fewer than two frames, a frame without
     labels, labels of another size than their image, or a key frame with no known label."""
     from ..errors import DatasetError
@@ -95,6 +115,13 @@ def check_clip(name: str, frames) -> None:
         if f.image.shape != frames[0].image.shape:
             raise DatasetError(f"clip {name}: frame {f.name} is {f.image.shape[1]}x{f.image.shape[0]}, the clip's "
                                f"first frame {frames[0].image.shape[1]}x{frames[0].image.shape[0]}")
+    if classes is not None:
+        from ..classes import class_table
+
+        table = class_table(classes)
+        for f in frames:
+            table.check_labels(f.labels, f"clip {name}: frame {f.name}")
+        return
     if not (frames[0].labels < 2).any():
         raise DatasetError(f"clip {name}: the key frame {frames[0].name} has no known label (all unknown)")
 
@@ -154,14 +181,21 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
 
     cfg = unit.config
     t0 = time.perf_counter()
-    frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
+    frames = load_cached(cfg.data_spec(), frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
     recorded: dict[str, int] = {}
     hook = _recording_hook(recorder, unit.dataset, frame_counter if frame_counter is not None else [0], recorded)
     davis = None
     if is_davis(cfg.data):  # the benchmark's J and F, frame by frame (:mod:`.stream_davis`)
         davis = DavisScores(len(frames))
         hook = chain(hook, davis.on_frame)
-    if cfg.keys is not None:
+    if cfg.classes is not None:
+        from ..classes import class_table
+        from .stream_classes import run_clip_classes
+        from .stream_keys import key_indices
+
+        keys = key_indices(cfg.keys or "first", len(frames), frames, backend=unit.backend)
+        out = run_clip_classes(frames, keys, class_table(cfg.classes), methods=cfg.methods, backend=unit.backend)
+    elif cfg.keys is not None:
         from .stream_keys import key_indices, run_clip_keys
 
         keys = key_indices(cfg.keys, len(frames), frames, backend=unit.backend)
@@ -207,9 +241,9 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
     from .units import evaluate_units, load_cached
 
     check_davis_config(config)
-    datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
+    datasets = load_cached(config.data_spec(), frames=config.frames, size=config.size, seed=config.seed)
     for name, frames in datasets.items():
-        check_clip(name, frames)
+        check_clip(name, frames, config.classes)
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                           force=force, executor=executor, recorder=recorder, desc="stream",
                           show_progress=show_progress)
@@ -232,7 +266,8 @@ def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
                                "height": r["height"], "key_frames": r["key_frames"], "means": means,
                                "reduction": {m: reduction(means["plain"], v) for m, v in means.items()},
                                "ms_per_frame": r["ms_per_frame"],
-                               "calibration": calibration(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS))))}
+                               "calibration": calibration(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS)))),
+                               **({"miou": r["miou"], "iou": r["iou"]} if "miou" in r else {})}
     pooled = sum((np.asarray(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS))), np.int64) for r in unit_results),
                  np.zeros((2, CONFIDENCE_LEVELS), np.int64))
     average = {m: float(np.mean([c["reduction"][m] for c in clips.values()])) for m in config.methods} if clips else {}

@@ -114,16 +114,26 @@ def propagate(labeller: Labeller, frames: Iterable[tuple[int, Image]], *,
 
 
 def two_sided(log_odds: np.ndarray, earlier: np.ndarray, later: np.ndarray, rule, *,
-              size=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              size=None, classes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A frame between two key frames: ``(labels, confidence, prior)`` of naive Bayes' ``log_odds`` with
     the trusted prior terms of both passes added (``F = d + P_earlier + P_later``; ``earlier`` as the
     forward pass kept it, :data:`PRIOR_STORE_DTYPE`), read by the trust ``rule``
     (:func:`~pcreg.pipeline.trust.read_labels`; ``size``: the stream's working size, when the maps are at
     it). Measured against averaging the priors, weighting them by distance or by trust, and taking the
-    more trusted one: adding them lowered the error most (docs/results.md, "Several key frames")."""
+    more trusted one: adding them lowered the error most (docs/results.md, "Several key frames").
+    ``classes``: with K classes (:mod:`pcreg.pipeline.multiclass`) their ids, the maps (H, W, K) class
+    scores and evidence, read as the stream reads them (:func:`~pcreg.pipeline.multiclass.read_class_labels`)."""
     from .trust import read_labels
 
     prior = np.asarray(earlier, PRIOR_STORE_DTYPE).astype(np.float32) + later
+    if classes is not None:
+        from .multiclass import read_class_labels
+        from .trust import CONFIDENCE_COEFFICIENTS, _scaled
+
+        labels, confidence, _ = read_class_labels(log_odds + prior, log_odds, prior, classes,
+                                                  smooth_px=_scaled(rule.smooth, prior.shape[1]),
+                                                  coefficients=CONFIDENCE_COEFFICIENTS, size=size)
+        return labels, confidence, prior
     labels, confidence = read_labels(log_odds + prior, log_odds, prior, rule, size=size)
     return labels, confidence, prior
 

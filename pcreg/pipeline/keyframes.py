@@ -79,7 +79,7 @@ def _pass(make: Callable, key_image, key_labels, images: Callable[[int], np.ndar
 
 def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, np.ndarray], *, classifier=None,
                fit: str = "stretch", backend: str = "reference", scale: float = 1.0, model: str = "dense",
-               on_frame: Callable[[LabelledFrame], None] | None = None) -> list[LabelledFrame]:
+               on_frame: Callable[[LabelledFrame], None] | None = None, classes=None) -> list[LabelledFrame]:
     """Every frame of a clip of ``n`` frames labelled from its key frames (see the module's docstring).
 
     images : ``images(t)`` gives frame ``t`` ((H, W, 3) uint8 RGB; asked for as each direction needs it).
@@ -90,6 +90,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     scale, model : the working size and the motion (:class:`pcreg.Propagator`'s: ``"dense"``, ``"flow"``,
         ``"flow:fast"``, ...).
     on_frame : called with each :class:`LabelledFrame` as soon as it is done (stretches in order).
+    classes : the key labels' class table (:func:`pcreg.classes.class_table`'s spec; default ``lagr``).
     Returns the frames in index order (key frames with their own labels).
     """
     from ..classification.bayes import fit_classifier
@@ -106,7 +107,8 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     plan = stretches(list(keys), n)
 
     def fitted(around) -> object:
-        return fit_classifier([Frame(images(k), np.asarray(keys[k]), str(k)) for k in sorted(around)])
+        return fit_classifier([Frame(images(k), np.asarray(keys[k]), str(k)) for k in sorted(around)],
+                              classes=classes)
 
     if classifier is None and fit == "all":
         classifier = fitted(keys)
@@ -135,7 +137,8 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
             else:  # as pcreg run's backward pass between two key frames
                 assert prop is not None
                 d, p_a, _, _ = fwd[t]
-                labels, conf, _ = two_sided(d, p_a, bwd[t][1], prop.trust, size=prop.working_size)
+                labels, conf, _ = two_sided(d, p_a, bwd[t][1], prop.trust, size=prop.working_size,
+                                            classes=prop.classes)
             emit(LabelledFrame(t, labels, conf, predicted_error(conf), s.keys))
     return [done[t] for t in range(n)]
 

@@ -540,6 +540,12 @@ class Propagator:
         return self._size
 
     @property
+    def classes(self) -> np.ndarray | None:
+        """With more than two classes (:mod:`pcreg.pipeline.multiclass`) the classifier's class ids, in the
+        order of the class scores' channels; None for ground and obstacle."""
+        return None if self._classes is None else self._classes.copy()
+
+    @property
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()

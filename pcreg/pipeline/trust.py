@@ -225,11 +225,12 @@ class TrustMaps:
     confidence: np.ndarray | None = None
 
     def prior_term(self, shape: tuple[int, int]) -> np.ndarray:
-        """(H, W) float32: the sum of weight times log-odds over the priors present."""
+        """(H, W) float32: the sum of weight times log-odds over the priors present; with K classes
+        (priors of (H, W, K) class evidence, ``shape`` (H, W, K)) the same per class."""
         out = np.zeros(shape, np.float32)
         for w, l in ((self.primary, self.primary_prior), (self.second, self.second_prior)):
             if w is not None and l is not None:
-                out += w * l
+                out += (w[..., None] if l.ndim == 3 else w) * l
         return out
 
     def summary(self, rule: "TrustRule", weight: float) -> dict:

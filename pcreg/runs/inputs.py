@@ -28,19 +28,25 @@ class RunInputs:
     pending: tuple | None = None
 
 
-def read_inputs(request) -> RunInputs:
-    """The inputs of ``request`` (a :class:`~pcreg.runs.run.RunRequest`), read and checked in the order a
-    run meets them: the frames, the key frames' labels, the truth, ``--out`` and ``--suggest``."""
-    from ..datasets.sources import open_frames
-
-    frames = open_frames(request.frames, request.selection)
+def read_inputs(request, frames) -> RunInputs:
+    """The inputs of ``request`` (a :class:`~pcreg.runs.run.RunRequest`) whose ``frames`` are open, read and
+    checked in the order a run meets them: the key frames' labels, the truth, ``--out`` and ``--suggest``."""
     if request.labels.is_dir():
-        return _key_folder_inputs(request, frames)
-    return _key_image_inputs(request, frames)
+        keys, shape, pending = _key_folder(request, frames), None, None
+        # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
+        spared = request.labels / f"{frames.stem(next(iter(keys)))}.png"
+    else:
+        keys, pending = _key_image(request, frames)
+        shape, spared = pending[0].image.shape[:2], request.labels
+    truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, request.mapping)
+    check_spares_inputs(request.out, frames, spared, truth)
+    check_suggest(request.suggest, frames, len(keys))
+    return RunInputs(frames, keys, pending is None, truth, pending)
 
 
-def _key_image_inputs(request, frames) -> RunInputs:
-    """One label image, the key frame's (the first frame chosen); at least one frame more."""
+def _key_image(request, frames) -> tuple[dict, tuple]:
+    """One label image, the key frame's (the first frame chosen), and the frames it leaves pending (the key
+    frame, the next and their decoder); at least one frame more."""
     from ..datasets.davis import check_key_mask
     from ..errors import InputError
 
@@ -55,27 +61,18 @@ def _key_image_inputs(request, frames) -> RunInputs:
     if key_labels.shape != key.image.shape[:2]:
         raise InputError(f"{request.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
                          f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}")
-    truth = open_truth(request.truth, frames, key.image.shape[:2], request.mapping)
-    check_spares_inputs(request.out, frames, request.labels, truth)
-    check_suggest(request.suggest, frames, 1)
-    return RunInputs(frames, {0: key_labels}, False, truth, pending=(key, second, decoded))
+    return {0: key_labels}, (key, second, decoded)
 
 
-def _key_folder_inputs(request, frames) -> RunInputs:
-    """A folder of key frames' labels, ``NAME.png`` for the frame ``NAME``."""
+def _key_folder(request, frames) -> dict:
+    """A folder of key frames' labels, ``NAME.png`` for the frame ``NAME``, each of the frames' size."""
     from ..errors import InputError
 
     out, folder = request.out, request.labels
     first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty
-    shape = first.image.shape[:2]
     if folder.resolve() == out.resolve():
         raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
-    keys = read_key_labels(folder, frames, request.mapping, shape)
-    truth = open_truth(request.truth, frames, shape, request.mapping)
-    # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
-    check_spares_inputs(out, frames, folder / f"{frames.stem(next(iter(keys)))}.png", truth)
-    check_suggest(request.suggest, frames, len(keys))
-    return RunInputs(frames, keys, True, truth)
+    return read_key_labels(folder, frames, request.mapping, first.image.shape[:2])
 
 
 def read_labels(path: Path, mapping: str):

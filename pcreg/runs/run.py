@@ -99,11 +99,12 @@ class Run:
         """Label what ``request`` asks into its ``out`` (resuming a run of the same identity there); the
         exit code, 0. Bad inputs are :class:`~pcreg.errors.InputError`, an ``out`` that holds another run an
         :class:`~pcreg.errors.OutputError`, each one line."""
+        from ..datasets.sources import open_frames
         from ..outputs import OutputLock
         from .inputs import read_inputs
         from .state import run_identity
 
-        inputs = read_inputs(request)
+        inputs = read_inputs(request, open_frames(request.frames, request.selection))
         keys, pending = inputs.keys, inputs.pending
         prop = None if pending is None else request.config.from_key_frame(pending[0].image, keys[0])
         identity = run_identity(inputs.frames, request.frames, request.labels, request.config, mapping=request.mapping,

@@ -27,16 +27,16 @@ def kill_before_commit(monkeypatch, frame: int) -> None:
     """Make a one-key run stop (as at Ctrl-C) after ``frame``'s label PNG and step line are written and
     before run.json counts it; ``monkeypatch.undo()`` lets the next run go on."""
     import pcreg.outputs
-    from pcreg.pipeline import stream_run
+    from pcreg.runs.run import Run
 
-    real = stream_run.StreamRun.record
+    real = Run.record
 
     def crash(self, t, labels, report, plain=None, **kw):
         if t == frame:
             monkeypatch.setattr(pcreg.outputs, "atomic_write_json", _kill)
         return real(self, t, labels, report, plain, **kw)
 
-    monkeypatch.setattr(stream_run.StreamRun, "record", crash)
+    monkeypatch.setattr(Run, "record", crash)
 
 
 def frames_folder(path, frames, keys=(0, 4)):

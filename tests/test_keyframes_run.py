@@ -93,13 +93,13 @@ def test_one_key_frame_at_the_first_frame_labels_as_a_single_label_image(tmp_pat
 def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypatch, capsys, kill_at, phase):
     """A video with key frames 1 and 4, killed at a commit of the stretch between them (its frames being
     kept, its forward pass, its backward pass) or of the one after, then run again."""
-    from pcreg.pipeline.keys_run import KeyRun
+    from pcreg.runs.run import Run
 
     video = _video(tmp_path, frames)
     keys = _keys(tmp_path / "keys", frames, [1, 4], name="{:06d}")
     args = ["run", str(video), "--labels", str(keys), "--confidence"]
     assert main(args + ["--out", str(tmp_path / "whole")]) == 0
-    real, count = KeyRun._commit, [0]
+    real, count = Run.commit, [0]
 
     def crash(self):
         count[0] += 1
@@ -108,7 +108,7 @@ def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypa
             raise KeyboardInterrupt
         real(self)
 
-    monkeypatch.setattr(KeyRun, "_commit", crash)
+    monkeypatch.setattr(Run, "commit", crash)
     assert main(args + ["--out", str(tmp_path / "cut")]) == 130
     monkeypatch.undo()
     assert any((tmp_path / "cut" / ".keys").iterdir())  # what the stretch's passes hand on, in the hidden folder
@@ -226,3 +226,21 @@ def test_a_key_frames_run_is_exported_and_reviewed_like_a_one_key_run(tmp_path, 
     r = read_review(out)
     assert r.names == tuple(f"f{i}.png" for i in range(6)) and r.keys == frozenset({0, 5})
     assert all((e is None) == (t in (0, 5)) for t, e in enumerate(r.errors))
+
+
+def test_the_old_stream_run_name_warns_and_still_opens_a_run(tmp_path, frames):
+    """`pcreg.pipeline.stream_run.StreamRun` is `pcreg.runs.run.Run` for a run from one label image, with a
+    DeprecationWarning naming the new spelling."""
+    from pcreg.datasets.sources import open_frames
+    from pcreg.pipeline import stream_run
+    from pcreg.runs.run import Run
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, f in enumerate(frames[:2]):
+        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
+    with pytest.warns(DeprecationWarning, match="pcreg.runs.run.Run"):
+        old = stream_run.StreamRun
+    run = old(open_frames(folder), frames[0].labels, tmp_path / "out", None, identity={"x": 1})
+    assert isinstance(run, Run) and run.start() == 1
+    assert (tmp_path / "out" / "f0.png").is_file() and json.loads((tmp_path / "out" / "run.json").read_text())["done"] == 1

@@ -103,15 +103,15 @@ def add_record_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = True):
-    """A :class:`pcreg.recording.recorder.Recorder` for ``--record``, or the null recorder (in a null context)."""
+    """A :class:`pcreg.recording.recorder.Recorder` for ``--record``, or the null recorder (in a null context):
+    :func:`pcreg.recording.recorder.open_recording`."""
     from ..recording.null import NULL_RECORDER
 
     if not getattr(args, "record", None):
         return contextlib.nullcontext(NULL_RECORDER)
-    from ..recording.recorder import Recorder
+    from ..recording.recorder import open_recording
 
-    return Recorder(args.record, recording_name=name, raw_images=args.record_raw, force=args.force,
-                    blueprint=layout)
+    return open_recording(args.record, name=name, raw=args.record_raw, force=args.force, layout=layout)
 
 
 def print_json(obj) -> None:

@@ -6,8 +6,8 @@ both (``F = d + P_earlier + P_later``), after the last forwards from it. Each st
 fitted on its own key frames (one or two, :data:`~pcreg.pipeline.keyframes.KEY_FITS`), so a stretch's
 labels depend on nothing outside it.
 
-Outputs in ``out`` (as :mod:`pcreg.pipeline.stream_run`'s, each written atomically): ``NAME.png`` per
-frame (a key frame's own labels as given), ``confidence/NAME.png`` with ``--confidence``,
+Outputs in ``out`` (as a run from one label image's, :mod:`pcreg.runs.run`, each written atomically and
+committed through its :class:`~pcreg.runs.run.Run`): ``NAME.png`` per frame (a key frame's own labels as given), ``confidence/NAME.png`` with ``--confidence``,
 ``steps.jsonl`` (one line per labelled frame, in the order they were labelled; ``keys`` names the key
 frames it was labelled from) and ``run.json``, the commit point of every step. Each pass reads its
 next frame on a thread of its own and writes a frame's outputs and commit on another
@@ -38,18 +38,14 @@ from typing import BinaryIO, Callable, Iterator
 import numpy as np
 
 from ..errors import InputError, OutputError
-from ..runs.files import (CONFIDENCE, STEPS, UNREADABLE_CARRY, append_step, check_labelled, confidence_png,
-                          parse_steps, read_carry, read_step_lines, write_carry, write_labels)
-from ..runs.state import open_state, write_state
-from ..runs.truth import add_rates, count_frame, empty_counts
+from ..runs.files import HIDDEN, UNREADABLE_CARRY, label_digest
+from ..runs.truth import empty_counts
 
 from .engine import PRIOR_STORE_DTYPE, Stretch, propagate, stretches, two_sided
 
-__all__ = ["KeyRun", "HIDDEN"]
+__all__ = ["KeyRun", "HIDDEN"]  # HIDDEN: pcreg.runs.files.HIDDEN, named here as before
 
 
-#: The hidden folder under ``out`` that holds what a stretch's passes hand on.
-HIDDEN = ".keys"
 #: What reading a missing or damaged file of that folder raises.
 _UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *UNREADABLE_CARRY)
 
@@ -64,26 +60,23 @@ def _kept(path: Path) -> Iterator[BinaryIO]:
         raise OutputError(f"{path}: missing or unreadable; use --force to start over") from None
 
 
-def _digest(labels: np.ndarray) -> str:
-    lab = np.ascontiguousarray(labels, dtype=np.uint8)
-    return hashlib.sha256(f"{lab.shape}".encode() + lab.tobytes()).hexdigest()
-
-
 class KeyRun:
-    """One run: ``frames`` (a :class:`~pcreg.datasets.sources.FolderFrames` or ``VideoFrames``), ``keys``
-    ({position: (H, W) uint8 labels}), ``out``, the propagators' ``config``
-    (:class:`~pcreg.pipeline.config.PropagatorConfig`), ``identity`` (what a
-    resumed run must match, in run.json), optional ``truth`` (indexed by position, as
-    :class:`~pcreg.pipeline.stream_run.StreamRun`'s) and ``confidence`` (write ``confidence/NAME.png``)."""
+    """A run's passes: ``owner`` (the :class:`~pcreg.runs.run.Run` whose folder they label into and which
+    commits each frame: its frames, ``out``, truth and ``confidence``), ``keys`` ({position: (H, W) uint8
+    labels}) and the propagators' ``config`` (:class:`~pcreg.pipeline.config.PropagatorConfig`)."""
 
-    def __init__(self, frames, keys: dict[int, np.ndarray], out: Path, config, *, identity: dict,
-                 truth=None, confidence: bool = False) -> None:
-        self.frames, self.keys, self.out, self.config = frames, dict(sorted(keys.items())), Path(out), config
-        self.identity, self.truth, self.confidence = identity, truth, confidence
-        self.n = len(frames) if frames.kind == "folder" else None
+    def __init__(self, owner, keys: dict[int, np.ndarray], config) -> None:
+        self.owner, self.keys, self.config = owner, dict(sorted(keys.items())), config
+        self.frames, self.truth, self.confidence = owner.frames, owner.truth, owner.confidence
+        self.n = len(self.frames) if self.frames.kind == "folder" else None
         self.plan = stretches(self.keys, self.n)
         self.labelled = 0
         self._fingerprints: dict[Stretch, str] = {}
+
+    @property
+    def state(self) -> dict:
+        """The run's run.json, as :attr:`owner` keeps it."""
+        return self.owner.state
 
     # -- bookkeeping ---------------------------------------------------------------------------------
 
@@ -94,67 +87,21 @@ class KeyRun:
         return self._fingerprints[s]
 
     def _fingerprint(self, s: Stretch) -> str:
-        what = {"keys": [[k, self.frames.name(k), _digest(self.keys[k])] for k in s.keys],
+        what = {"keys": [[k, self.frames.name(k), label_digest(self.keys[k])] for k in s.keys],
                 "first": s.first, "last": s.last, "options": self.config.options(), "confidence": self.confidence,
                 "fit": "stretch"}
         return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
 
     def _commit(self) -> None:
-        write_state(self.out, self.state)
+        self.owner.commit()
 
     def _hidden(self, fp: str) -> Path:
-        return self.out / HIDDEN / fp[:16]
+        return self.owner.hidden(fp)
 
     def start(self, *, force: bool = False) -> None:
-        """Open (or resume) the run: the steps of stretches no longer in the plan forgotten, the key
-        frames' labels written where they changed."""
-        state = open_state(self.out, self.identity, force=force)
-        if state is not None:
-            self.state = state
-        else:
-            shutil.rmtree(self.out / HIDDEN, ignore_errors=True)
-            for slot in (0, 1):  # a run from one label image's carries
-                (self.out / f"carry-{slot}.npz").unlink(missing_ok=True)
-            self.state = {"run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
-                          "fallbacks": 0, "truth": None}
-            (self.out / STEPS).write_bytes(b"")
-        for f in self.out.glob(".*.tmp"):  # writes a killed run left half done
-            f.unlink(missing_ok=True)
-        plan = {self.fingerprint(s): s for s in self.plan}
-        kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan]
-        cursor = self.state["cursor"]
-        if cursor is not None and cursor["fingerprint"] not in plan:
-            cursor = None
-        live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
-        lines = read_step_lines(self.out)
-        if len(lines) < self.state["lines"]:
-            raise OutputError(f"{self.out / STEPS}: {len(lines)} steps for {self.state['lines']} finished frames; "
-                              "use --force to start over")
-        steps = parse_steps(self.out / STEPS, lines[:self.state["lines"]])
-        kept_steps = [(ln, st["frame"]) for ln, st in zip(lines, steps) if any(st["frame"] in s for s in live)]
-        lines = [ln for ln, _ in kept_steps]
-        check_labelled(self.out, [self.frames.stem(t) for _, t in kept_steps])
-        (self.out / STEPS).write_bytes(b"".join(lines))
-        keep_hidden = None if cursor is None else self._hidden(cursor["fingerprint"]).name
-        if (self.out / HIDDEN).is_dir():
-            for d in (self.out / HIDDEN).iterdir():
-                if d.name != keep_hidden:
-                    shutil.rmtree(d, ignore_errors=True)
-        names = {self.frames.name(k): _digest(lab) for k, lab in self.keys.items()}
-        for k, lab in self.keys.items():
-            f = self.out / f"{self.frames.stem(k)}.png"
-            if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
-                write_labels(f, lab)
-        self.state.update(keys=names, stretches=kept, cursor=cursor, lines=len(lines))
-        self._totals()
-        self._commit()
-
-    def _totals(self) -> None:
-        parts = self.state["stretches"] + ([] if self.state["cursor"] is None else [self.state["cursor"]])
-        self.state["fallbacks"] = sum(p["fallbacks"] for p in parts)
-        if self.truth is None:
-            return
-        self.state["truth"] = add_rates({k: sum(p["truth"][k] for p in parts) for k in empty_counts()})
+        """Open (or resume) the run (:meth:`pcreg.runs.run.Run.open_keys`): the steps of stretches no longer
+        in the plan forgotten, the key frames' labels written where they changed."""
+        self.owner.open_keys(self.keys, {self.fingerprint(s): s for s in self.plan}, force=force)
 
     # -- the run ---------------------------------------------------------------------------------------
 
@@ -182,11 +129,12 @@ class KeyRun:
                      "fallbacks": cur["fallbacks"], "truth": cur["truth"]}
             self.state["stretches"].append(entry)
             self.state["cursor"] = None
-            self._totals()
+            self.owner.totals()
             self._commit()
             shutil.rmtree(self._hidden(fp), ignore_errors=True)
-        if (self.out / HIDDEN).is_dir() and not any((self.out / HIDDEN).iterdir()):
-            (self.out / HIDDEN).rmdir()
+        hidden = self.owner.out / HIDDEN
+        if hidden.is_dir() and not any(hidden.iterdir()):
+            hidden.rmdir()
         return self.labelled
 
     def _phases(self, s: Stretch) -> list[str]:
@@ -227,13 +175,12 @@ class KeyRun:
             prop.resume(cur["steps"], carry if prop.warm_starts else None, learned)
 
     def _read_carry(self, s: Stretch, steps: int):
-        return read_carry(self._hidden(self.fingerprint(s)) / f"carry-{steps % 2}.npz", steps, "")
+        return self.owner.read_carry(steps, stretch=self.fingerprint(s))
 
     def _keep_carry(self, cur: dict, carry, learned: Callable[[], np.ndarray | None]) -> None:
         """One more step done: the carry it left and what was ``learned`` (computed now), for a resumed run."""
         cur["steps"] += 1
-        write_carry(self._hidden(cur["fingerprint"]) / f"carry-{cur['steps'] % 2}.npz", cur["steps"], carry,
-                     learned())
+        self.owner.keep_carry(cur["steps"], carry, learned(), stretch=cur["fingerprint"])
 
     def _store(self, s: Stretch, cur: dict) -> None:
         """A video's frames of the stretch and its key frames, decoded in order into the hidden folder."""
@@ -357,20 +304,12 @@ class KeyRun:
     def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, scored: tuple, carry, learned, *,
                      after: int) -> None:
         """On the writer's thread: what :meth:`_record` hands on, in the order a resumed run reads it back
-        (``scored``: the frame's truth map and naive Bayes' labels alone, or two Nones)."""
-        stem = self.frames.stem(t)
-        write_labels(self.out / f"{stem}.png", labels)
-        if self.confidence and conf is not None:
-            (self.out / CONFIDENCE).mkdir(exist_ok=True)
-            write_labels(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
-        truth, plain = scored
-        if truth is not None:
-            count_frame(cur["truth"], labels, truth, plain)
-        append_step(self.out, step)
+        (``scored``: the frame's truth map and naive Bayes' labels alone, or two Nones), committed by the run."""
+        self.owner.write_frame(t, labels, conf if self.confidence else None, step, cur["truth"], scored)
         self._keep_carry(cur, carry, learned)
         cur["fallbacks"] += int(step.get("fallback", False)) + int(step.get("forward", {}).get("fallback", False))
         self.state["lines"] += 1
-        self._totals()
+        self.owner.totals()
         self.labelled += 1
         cur["next"] = after
         self._commit()

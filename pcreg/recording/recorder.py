@@ -58,7 +58,7 @@ from .pair_log import PairLogger
 from .sink import BATCH_SECONDS, DEFAULT_JPEG_QUALITY, Sink
 from .text_log import TextLogger
 
-__all__ = ["Recorder", "DEFAULT_JPEG_QUALITY", "BATCH_SECONDS"]
+__all__ = ["Recorder", "open_recording", "DEFAULT_JPEG_QUALITY", "BATCH_SECONDS"]
 
 
 def _kind(kind: str | None, blueprint: bool | str) -> str | None:
@@ -74,12 +74,36 @@ def _kind(kind: str | None, blueprint: bool | str) -> str | None:
     return kind
 
 
+def open_recording(path: str | os.PathLike | None, *, name: str, raw: bool = False, force: bool = False,
+                   layout: bool | str = True):
+    """A :class:`Recorder` writing ``path`` (``name``: the recording's; ``raw``: images lossless; ``force``:
+    overwrite; ``layout``: its ``blueprint``), or, with no path, the null recorder in a null context."""
+    import contextlib
+
+    from .null import NULL_RECORDER
+
+    if not path:
+        return contextlib.nullcontext(NULL_RECORDER)
+    return Recorder(path, recording_name=name, raw_images=raw, force=force, blueprint=layout)
+
+
+#: How the :class:`Recorder` makes each of its loggers, by attribute name.
+_LOGGERS: dict[str, Callable[["Recorder"], Any]] = {
+    "text": lambda rec: TextLogger(rec.sink),
+    "pairs": lambda rec: PairLogger(rec.sink, max_display_points=rec._max_display_points),
+    "icp": lambda rec: IcpLogger(rec.sink),
+    "dense": lambda rec: DenseLogger(rec.sink),
+    "evaluation": lambda rec: EvaluationLogger(rec.sink, label_stride=rec._label_stride),
+    "crosscheck": lambda rec: CrosscheckLogger(rec.sink, max_display_points=rec._max_display_points),
+}
+
+
 class Recorder(RecorderProtocol):
     """Writes one rerun recording (.rrd) of a pcreg run; a context manager.
 
     Each method of :class:`~pcreg.recording.interface.RecorderProtocol` (documented there) is handed to
     one of the loggers, which are attributes: :attr:`text`, :attr:`pairs`, :attr:`icp`, :attr:`dense`,
-    :attr:`evaluation` and :attr:`crosscheck`, all writing to :attr:`sink`.
+    :attr:`evaluation` and :attr:`crosscheck`, all writing to :attr:`sink`, each made when first used.
 
     Parameters
     ----------
@@ -135,20 +159,33 @@ class Recorder(RecorderProtocol):
         label_stride: int | None = None,
     ) -> None:
         kind = _kind(kind, blueprint)
-        self.sink = Sink(path, application_id=application_id, recording_id=recording_id, recording_name=recording_name,
+        self.sink: Sink = Sink(path, application_id=application_id, recording_id=recording_id, recording_name=recording_name,
                          kind=kind, embed_blueprint=bool(blueprint), raw_images=raw_images, jpeg_quality=jpeg_quality,
                          force=force)
-        stride = label_stride if label_stride is not None else (1 if raw_images else 2)
-        self.text = TextLogger(self.sink)
-        self.pairs = PairLogger(self.sink, max_display_points=max_display_points)
-        self.icp = IcpLogger(self.sink)
-        self.dense = DenseLogger(self.sink)
-        self.evaluation = EvaluationLogger(self.sink, label_stride=stride)
-        self.crosscheck = CrosscheckLogger(self.sink, max_display_points=max_display_points)
-        self.evaluation.log_classes()
+        self._label_stride: int = label_stride if label_stride is not None else (1 if raw_images else 2)
+        self._max_display_points: int = max_display_points
         self.path: Path = self.sink.path
         self.recording_id: str = self.sink.recording_id
         self.kind = kind  # None: inferred from what was logged when the recording closes
+        self.evaluation.log_classes()
+
+    # -- the loggers, each made when first used -------------------------------------------------
+
+    text: TextLogger
+    pairs: PairLogger
+    icp: IcpLogger
+    dense: DenseLogger
+    evaluation: EvaluationLogger
+    crosscheck: CrosscheckLogger
+
+    def __getattr__(self, name: str) -> Any:
+        """A logger (:attr:`text`, :attr:`pairs`, :attr:`icp`, :attr:`dense`, :attr:`evaluation`,
+        :attr:`crosscheck`) the first time it is asked for: made over :attr:`sink` and kept."""
+        if name not in _LOGGERS:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        logger = _LOGGERS[name](self)
+        setattr(self, name, logger)
+        return logger
 
     # -- life cycle ---------------------------------------------------------------------------
 

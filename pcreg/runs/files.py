@@ -5,7 +5,8 @@ one pair of functions here, and nowhere else:
   :func:`pcreg.export.read_labels`);
 - confidence, ``confidence/NAME.png``: :func:`confidence_png` then :func:`write_labels`;
 - steps, ``steps.jsonl``: :func:`append_step`, :func:`read_step_lines` and :func:`parse_steps`;
-- the carry, ``carry-{0,1}.npz`` (and a key-frames stretch's own): :func:`write_carry`, :func:`read_carry`;
+- the carry, ``carry-{0,1}.npz`` (and a key-frames stretch's own, under :data:`HIDDEN`): :func:`write_carry`,
+  :func:`read_carry`;
 - the frames to label next, ``suggest.txt``: :func:`write_suggestions`, :func:`read_suggestions`.
 """
 
@@ -23,7 +24,7 @@ import numpy as np
 from ..errors import InputError, OutputError
 from ..formats import NPY_HEADER_ERRORS
 
-__all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "UNREADABLE_CARRY", "write_labels", "confidence_png",
+__all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels", "confidence_png",
            "append_step", "read_step_lines", "parse_steps", "write_carry", "read_carry", "check_labelled",
            "write_suggestions", "read_suggestions"]
 
@@ -32,9 +33,20 @@ CARRY = "carry-{}.npz"
 CONFIDENCE = "confidence"
 #: The frames suggested to label next: ``NAME<TAB>PREDICTED_ERROR`` a line, best first.
 SUGGEST = "suggest.txt"
+#: The hidden folder of a run from a folder of key frames that holds what a stretch's passes hand on.
+HIDDEN = ".keys"
 #: What reading a damaged carry file raises (a zip archive of .npy members).
 UNREADABLE_CARRY: tuple[type[BaseException], ...] = (*NPY_HEADER_ERRORS, KeyError, EOFError, zipfile.BadZipFile,
                                                      zlib.error)
+
+
+def label_digest(labels: np.ndarray) -> str:
+    """A key frame's labels as run.json names them, to tell when they changed: the SHA-256 of their shape
+    and bytes."""
+    import hashlib
+
+    lab = np.ascontiguousarray(labels, dtype=np.uint8)
+    return hashlib.sha256(f"{lab.shape}".encode() + lab.tobytes()).hexdigest()
 
 
 def write_labels(path: Path, labels: np.ndarray) -> None:

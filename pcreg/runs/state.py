@@ -80,7 +80,7 @@ def state_problem(state) -> str | None:
     return (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
 
 
-def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | None,
+def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | Path | None,
                  confidence: bool) -> dict:
     """What a run is, as its run.json names it and a resumed run must match: its frames (``source``, a
     folder or a video, and which of them: ``frames.selection``), its ``labels`` (a label image or a folder

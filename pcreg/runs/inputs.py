@@ -1,0 +1,203 @@
+"""What a run reads before it labels: its frames' source, the key frame's labels (one label image, or a
+folder of key frames' labels), the truth maps to score against, and the checks that they fit together
+and that ``--out`` overwrites none of them (:func:`read_inputs`). Every check is one line naming the file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth", "check_spares_inputs",
+           "check_suggest", "read_key_labels"]
+
+
+@dataclass
+class RunInputs:
+    """A run's inputs, read and checked: its ``frames`` (a :class:`~pcreg.datasets.sources.FolderFrames` or
+    ``VideoFrames``), the key frames' labels ``keys`` ({position: (H, W) uint8}), whether they came from a
+    ``folder`` of key frames (else one label image, at position 0), the ``truth`` maps
+    (:class:`TruthMaps`, or None) and, from one label image, the frames ``pending``: the frame after the
+    key frame and the decoder it came from, which a fresh run continues (None from a folder)."""
+
+    frames: Any
+    keys: dict
+    folder: bool
+    truth: "TruthMaps | None"
+    pending: tuple | None = None
+
+
+def read_inputs(request, frames) -> RunInputs:
+    """The inputs of ``request`` (a :class:`~pcreg.runs.run.RunRequest`) whose ``frames`` are open, read and
+    checked in the order a run meets them: the key frames' labels, the truth, ``--out`` and ``--suggest``."""
+    if request.labels.is_dir():
+        keys, shape, pending = _key_folder(request, frames), None, None
+        # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
+        spared = request.labels / f"{frames.stem(next(iter(keys)))}.png"
+    else:
+        keys, pending = _key_image(request, frames)
+        shape, spared = pending[0].image.shape[:2], request.labels
+    truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, request.mapping)
+    check_spares_inputs(request.out, frames, spared, truth)
+    check_suggest(request.suggest, frames, len(keys))
+    return RunInputs(frames, keys, pending is None, truth, pending)
+
+
+def _key_image(request, frames) -> tuple[dict, tuple]:
+    """One label image, the key frame's (the first frame chosen), and the frames it leaves pending (the key
+    frame, the next and their decoder); at least one frame more."""
+    from ..datasets.davis import check_key_mask
+    from ..errors import InputError
+
+    key_labels = read_labels(request.labels, request.mapping)
+    if request.mapping == "davis":
+        check_key_mask(key_labels, str(request.labels))
+    decoded = frames.frames(0)
+    key = next(decoded)  # a source with no frame at --start raises, never ends empty
+    second = next(decoded, None)
+    if second is None:
+        raise InputError(f"{request.frames}: needs at least two frames (the key frame and one more), found 1")
+    if key_labels.shape != key.image.shape[:2]:
+        raise InputError(f"{request.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
+                         f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}")
+    return {0: key_labels}, (key, second, decoded)
+
+
+def _key_folder(request, frames) -> dict:
+    """A folder of key frames' labels, ``NAME.png`` for the frame ``NAME``, each of the frames' size."""
+    from ..errors import InputError
+
+    out, folder = request.out, request.labels
+    first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty
+    if folder.resolve() == out.resolve():
+        raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
+    return read_key_labels(folder, frames, request.mapping, first.image.shape[:2])
+
+
+def read_labels(path: Path, mapping: str):
+    import cv2
+    import numpy as np
+
+    from ..datasets.davis import mask_hint
+    from ..datasets.folder import mapping_lut
+    from ..errors import InputError
+    from ..formats import read_image_file
+
+    raw = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)  # a regular file, its size checked first
+    if raw.ndim == 3:  # a grey image saved in colour is read as grey; labels in colours are not labels
+        if raw.shape[2] not in (3, 4) or not (raw[:, :, 1:3] == raw[:, :, :1]).all():
+            raise InputError(f"{path}: labels must be a single-channel image (one class id per pixel), "
+                             f"got {raw.shape[2]} channels that differ")
+        raw = raw[:, :, 0]
+    if raw.dtype != np.uint8:
+        raise InputError(f"{path}: labels must be an 8-bit image, got {raw.dtype}")
+    lut = mapping_lut(None if mapping == "none" else mapping)
+    lab = lut[raw]
+    if (lab == 255).any():
+        bad = int(raw[lab == 255][0])
+        raise InputError(f"{path}: label value {bad} is not {'a CamVid class id' if mapping == 'camvid' else '0, 1 or 2'}"
+                         + mask_hint(raw))
+    return lab
+
+
+class TruthMaps:
+    """Each frame's truth labels, ``ROOT/STEM.png``, read when the frame is scored: a long stream's maps are
+    not all held in memory (2,000 frames at 640x480 are 600 MB). A folder's are all checked before the
+    run starts; a video's length is known only once decoded, so each of its maps is checked when read."""
+
+    def __init__(self, root: Path, frames, mapping: str, shape: tuple[int, int]) -> None:
+        self.root, self.frames, self.mapping, self.shape = root, frames, mapping, shape
+
+    def path(self, t: int) -> Path:
+        return self.root / f"{self.frames.stem(t)}.png"
+
+    def __getitem__(self, t: int):
+        from .truth import check_truth
+
+        f = self.path(t)
+        lab = read_labels(f, self.mapping) if f.is_file() else None
+        check_truth([lab], self.shape, [self.frames.name(t)])
+        return lab
+
+
+def open_truth(folder: str | None, frames, shape, mapping: str):
+    """The frames' truth labels (:class:`TruthMaps`); a folder's checked first, every one, one at a time."""
+    from ..errors import InputError
+
+    if folder is None:
+        return None
+    root = Path(folder)
+    if not root.is_dir():
+        raise InputError(f"--truth {root}: not a folder")
+    truth = TruthMaps(root, frames, mapping, shape)
+    if frames.kind == "folder":
+        for t in range(len(frames)):
+            truth[t]
+    return truth
+
+
+def check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
+    """Refuse an ``--out`` whose label PNGs (``OUT/NAME.png`` per frame) would overwrite a frame, the key
+    frame's labels or a truth map: ``--out`` the frames' own folder, say."""
+    from ..errors import InputError
+
+    if truth is not None and truth.root.resolve() == out.resolve():
+        raise InputError(f"--out {out} would overwrite the truth maps in {truth.root}; choose another folder")
+    if frames.kind == "folder":
+        written = {(out / f"{p.stem}.png").resolve() for p in frames.paths}
+        clobbered = [f for f in [*frames.paths, labels] if f.resolve() in written]
+    else:  # a video's outputs are OUT/{i:06d}.png, as many as it has frames
+        clobbered = [labels] if frames.writes(labels.stem) and (out / f"{labels.stem}.png").resolve() == labels.resolve() else []
+    if clobbered:
+        raise InputError(f"--out {out} would overwrite the input {clobbered[0]}; choose another folder")
+
+def check_suggest(count: int | None, frames, keys: int) -> None:
+    """``--suggest N`` no larger than the frames that are not key frames (a video's count where its
+    container gives it; else checked once the run has decoded them all)."""
+    from ..errors import InputError
+
+    n = len(frames) if frames.kind == "folder" else frames.count()
+    if count is not None and n is not None and count > n - keys:
+        raise InputError(f"--suggest {count}: only {n - keys} frame(s) are not key frames")
+
+def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> dict:
+    """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``), each
+    checked: a frame it names, one label a frame, the frames' size, something known."""
+    from ..errors import InputError
+
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith("."))
+    if not files:
+        raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
+    if frames.kind == "folder":
+        positions = {p.stem: t for t, p in enumerate(frames.paths)}
+
+        def where(stem: str) -> int | None:
+            return positions.get(stem)
+    else:
+        s = frames.selection
+
+        def where(stem: str) -> int | None:
+            if not (stem.isascii() and stem.isdigit()) or not s.chosen(int(stem)):
+                return None
+            if frames.declared is not None and int(stem) >= frames.declared:
+                return None
+            return (int(stem) - s.start) // s.every
+
+    keys: dict = {}
+    seen: dict[int, Path] = {}
+    for f in files:
+        t = where(f.stem)
+        if t is None:
+            raise InputError(f"{f}: names no frame of {frames.path}" + ("" if frames.selection.to_dict() is None
+                                                                           else " among those chosen"))
+        if t in seen:
+            raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
+        lab = read_labels(f, mapping)
+        if lab.shape != shape:
+            raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}")
+        if not (lab < 2).any():
+            raise InputError(f"{f}: the labels are all unknown (2): nothing to fit or propagate")
+        keys[t], seen[t] = lab, f
+    return {t: keys[t] for t in sorted(keys)}
+

@@ -1,0 +1,426 @@
+"""One run of ``pcreg run``: :class:`RunRequest` says what to label, :class:`Run` owns the folder it is
+labelled into and labels it.
+
+The command hands a request (the frames' source, the key frames' labels, ``--out``, how labels are
+coded, the truth folder, the propagators' :class:`~pcreg.pipeline.config.PropagatorConfig`, the outputs
+asked for) to :meth:`Run.label`, which reads and checks the inputs (:mod:`pcreg.runs.inputs`), opens or
+resumes the folder and labels every frame not labelled yet: from one label image, forwards from the key
+frame (:func:`pcreg.pipeline.engine.propagate`); from a folder of key frames, stretch by stretch
+(:class:`pcreg.pipeline.keys_run.KeyRun`, whose passes commit their frames here).
+
+Outputs in ``out``, each written atomically (:mod:`pcreg.runs.files`, :mod:`pcreg.runs.state`):
+
+- ``NAME.png`` per frame (a folder's file name without its suffix; ``{i:06d}`` for a video's frame ``i``):
+  its labels (0 ground, 1 obstacle; a key frame's own labels as given);
+- ``steps.jsonl``: one line per labelled frame (:meth:`pcreg.Propagator.step`'s report, and the frame's
+  error against the truth when there is one), appended;
+- ``run.json``: the run's identity, how far it has come, how many registrations fell back and the running
+  error against the truth: rewritten after every frame, it is the commit point;
+- ``carry-0.npz`` and ``carry-1.npz``: what each step handed to the next (:class:`pcreg.pipeline.stream.Carry`,
+  the dense field's control grid, and what naive Bayes has learned from the stream), frame t's in
+  ``carry-{t % 2}.npz``, so the one of the last frame counted is always there (a folder of key frames
+  keeps them beside each stretch's own files, in ``.keys/STRETCH/``);
+- with ``--confidence``, ``confidence/NAME.png`` per frame: 255 times the probability that each label is
+  right (:attr:`pcreg.pipeline.stream.StepReport.confidence`);
+- with ``--suggest N``, ``suggest.txt``: the frames to label next, best first.
+
+A frame counts once run.json counts it. A run that stops anywhere (a kill, Ctrl-C) resumes at the first
+frame not counted: ``steps.jsonl`` is cut back to the frames counted, the temporary files of writes it
+left half done are removed, and the propagator continues from the last counted frame's carry, so the
+resumed run writes exactly what an uninterrupted run writes.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..errors import InputError, OutputError
+from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, append_step, check_labelled, confidence_png, label_digest,
+                    parse_steps, read_carry, read_step_lines, write_carry, write_labels)
+from .state import STATE, open_state, read_state, run_frames, write_state
+from .truth import add_rates, count_frame, empty_counts
+
+if TYPE_CHECKING:
+    from ..datasets.sources import Selection
+    from ..pipeline.config import PropagatorConfig
+
+__all__ = ["RunRequest", "Run"]
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """What to label: the ``frames`` (a folder or a video) and which of them (``selection``, a
+    :class:`~pcreg.datasets.sources.Selection`), the key frame's ``labels`` (a label image, or a folder of
+    key frames' labels), ``out``, the propagators' ``config``, how labels are coded (``mapping``: none,
+    camvid or davis), a ``truth`` folder to score against, and the outputs asked for: ``confidence`` PNGs,
+    ``suggest`` (how many frames to label next), ``force`` (start over), a recording (``record``, a .rrd
+    path, ``record_raw``: its images lossless)."""
+
+    frames: Path
+    labels: Path
+    out: Path
+    config: PropagatorConfig
+    selection: Selection
+    mapping: str = "none"
+    truth: Path | None = None
+    confidence: bool = False
+    suggest: int | None = None
+    force: bool = False
+    record: Path | str | None = None
+    record_raw: bool = False
+
+    def __post_init__(self) -> None:
+        if self.config.follow == "object" and self.labels.is_dir():
+            raise InputError(f"--labels {self.labels}: --follow object follows one key frame's mask, not a folder of "
+                             "key frames; give one label image")
+
+
+class Run:
+    """A run's folder, its one owner: the run's ``identity`` (what a resumed run must match, in run.json),
+    opening and resuming it, committing a frame, its steps, the carry, the truth counts, the suggestions
+    and reading it back. ``frames``: the frame source's names (position 0 is the first frame chosen);
+    ``truth``: label maps indexed by position (an entry None where there is none; read when asked), or
+    None; ``confidence``: write ``confidence/NAME.png``."""
+
+    def __init__(self, frames, out: Path, identity: dict | None, *, truth=None, confidence: bool = False) -> None:
+        self.frames, self.out, self.identity = frames, Path(out), identity
+        self.truth, self.confidence = truth, confidence
+        self.state: dict = {}
+
+    # -- labelling ----------------------------------------------------------------------------------
+
+    @classmethod
+    def label(cls, request: RunRequest) -> int:
+        """Label what ``request`` asks into its ``out`` (resuming a run of the same identity there); the
+        exit code, 0. Bad inputs are :class:`~pcreg.errors.InputError`, an ``out`` that holds another run an
+        :class:`~pcreg.errors.OutputError`, each one line."""
+        from ..datasets.sources import open_frames
+        from ..outputs import OutputLock
+        from .inputs import read_inputs
+        from .state import run_identity
+
+        inputs = read_inputs(request, open_frames(request.frames, request.selection))
+        keys, pending = inputs.keys, inputs.pending
+        prop = None if pending is None else request.config.from_key_frame(pending[0].image, keys[0])
+        identity = run_identity(inputs.frames, request.frames, request.labels, request.config, mapping=request.mapping,
+                                truth=request.truth, confidence=request.confidence)
+        run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence)
+        with OutputLock(request.out):  # a second run on the same --out is refused, not raced
+            if pending is None:
+                run._label_from_keys(request, keys)
+            else:
+                run._label_from_key(request, pending, prop, keys[0])
+        return 0
+
+    def _label_from_key(self, request: RunRequest, pending: tuple, prop, labels: np.ndarray) -> None:
+        """The frames not labelled yet, forwards from the key frame (its ``labels``), in order; ``pending``:
+        the key frame, the frame after it and the decoder it came from, which a fresh run continues."""
+        import itertools
+
+        from .._runner import check_interrupted, progress
+        from ..datasets.sources import read_ahead
+        from ..frame import PreparedFrame
+        from ..outputs import WriteBehind
+        from ..pipeline.engine import propagate
+        from ..recording.recorder import open_recording
+
+        frames, out = self.frames, self.out
+        _, second, decoded = pending
+        start = self.open_key(labels, force=request.force)
+        # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
+        # never where the run stops (decoding finds the end)
+        total = len(frames) if frames.kind == "folder" else frames.count()
+        if frames.kind == "folder" and start >= len(frames):
+            return self._say_done(request, 0, [0], start=start)
+        if start == 1:
+            todo = itertools.chain([second], decoded)
+        else:
+            decoded.close()
+            todo = frames.frames(start)  # decodes (a video) or skips (a folder) the frames done
+        if start > 1:
+            try:
+                carry, learned = self.carry_after(start - 1)
+                prop.resume(start - 1, carry if prop.warm_starts else None, learned)
+            except InputError as exc:  # a carry of another stream
+                raise OutputError(f"{out}: {exc}; use --force to start over") from None
+        done = start
+        with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
+                            force=request.force) as rec, \
+                progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
+                WriteBehind() as writer:  # a frame's outputs written while the next is labelled
+            prepared = ((f.position, PreparedFrame.of(f.image, name="frame")) for f in read_ahead(todo))
+            # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
+            # reads the features the step made
+            for t, image, labels in propagate(prop, prepared, check=check_interrupted, where=frames.where):
+                plain = prop.classifier.predict(image) if self.truth is not None else None
+                writer.submit(self.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),
+                              confidence=prop.last.confidence if request.confidence else None)
+                log_frame(rec, t, image.rgb, labels, prop.last, frames.name(t), prop.working_size)
+                done = t + 1
+                bar.update(1)
+        self._say_done(request, done - start, [0], start=start)
+
+    def _label_from_keys(self, request: RunRequest, keys: dict) -> None:
+        """Every frame labelled from the key frames around it (:class:`pcreg.pipeline.keys_run.KeyRun`)."""
+        from .._runner import check_interrupted, progress
+        from ..pipeline.keys_run import KeyRun
+        from ..recording.recorder import open_recording
+
+        frames = self.frames
+        with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
+                            force=request.force) as rec:
+            job = KeyRun(self, keys, request.config)
+            job.start(force=request.force)
+            n = len(frames) if frames.kind == "folder" else frames.count()
+            left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run
+            with progress(total=left, desc="frames", disable=None) as bar:
+                def on_frame(t, image, labels, report, name, size) -> None:
+                    log_frame(rec, t, image, labels, report, name, size)
+                    bar.update(1)
+
+                done = job.run(on_frame=on_frame, check=check_interrupted)
+            self._say_done(request, done, sorted(keys))
+
+    def _say_done(self, request: RunRequest, done: int, keys: list[int], *, start: int | None = None) -> None:
+        """Print what the run did (``done`` frames this time; ``start``: the first of them, a run from one
+        label image) and write the suggestions (``keys``: the key frames' positions)."""
+        import sys
+
+        out, s = self.out, self.state
+        if done == 0:
+            print(f"{out}: all frames already done" if start is None else f"{out}: all {start} frames already done")
+            self.suggest(request.suggest, keys)
+            return
+        if start is not None:
+            self.suggest(request.suggest, keys)
+            msg = f"{done} frame(s) labelled into {out}"
+            failed = "those frames fuse the key frame's labels unwarped; "
+        else:
+            msg = f"{done} frame(s) labelled from {len(keys)} key frame(s) into {out}"
+            failed = ""
+        if s["fallbacks"]:
+            msg += f"; {s['fallbacks']} registration(s) failed ({failed}see {out / STEPS})"
+        if s.get("truth") and s["truth"].get("error") is not None:
+            msg += (f"\nerror against the truth: {s['truth']['error']:.2f}% over {s['truth']['frames']} frames "
+                    f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
+        print(msg, file=sys.stdout)
+        if start is None:
+            self.suggest(request.suggest, keys)
+
+    # -- opening and resuming -----------------------------------------------------------------------
+
+    def open_key(self, labels: np.ndarray, *, force: bool = False) -> int:
+        """Open (or resume) a run from one label image, the key frame's ``labels``; returns the index of the
+        first frame still to do."""
+        state = open_state(self.out, self.identity, force=force)
+        if state is not None:
+            self.state = state
+            self._cut_steps(int(state["done"]) - 1)
+            self._remove_partial_writes()
+            check_labelled(self.out, [self.frames.stem(t) for t in range(int(state["done"]))])
+            return int(state["done"])
+        for slot in (0, 1):
+            (self.out / CARRY.format(slot)).unlink(missing_ok=True)
+        self.state = {"run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
+                      "truth": empty_counts() if self.truth else None}
+        write_labels(self.out / f"{self.frames.stem(0)}.png", labels)
+        (self.out / STEPS).write_bytes(b"")
+        write_state(self.out, self.state)
+        return 1
+
+    def _remove_partial_writes(self) -> None:
+        """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
+        PNG or run.json, :func:`pcreg.outputs.atomic_write_bytes`); the caller holds the folder's lock."""
+        for f in self.out.glob(".*.tmp"):
+            if f.name.startswith((f".{STATE}.", ".carry-")) or ".png." in f.name:
+                f.unlink(missing_ok=True)
+
+    def _cut_steps(self, n: int) -> None:
+        """Keep the first ``n`` lines of steps.jsonl (a step appended after the last commit is dropped)."""
+        path = self.out / STEPS
+        lines = path.read_bytes().splitlines(keepends=True) if path.is_file() else []
+        if len(lines) < n:
+            raise OutputError(f"{path}: {len(lines)} steps for {n} finished frames; use --force to start over")
+        if len(lines) != n:
+            path.write_bytes(b"".join(lines[:n]))
+
+    def open_keys(self, keys: dict[int, np.ndarray], plan: dict, *, force: bool = False) -> None:
+        """Open (or resume) a run from a folder of key frames (``keys``, {position: labels}) whose stretches
+        are ``plan`` ({fingerprint: :class:`~pcreg.pipeline.engine.Stretch`}): the steps of stretches no
+        longer in the plan forgotten, the key frames' labels written where they changed."""
+        state = open_state(self.out, self.identity, force=force)
+        if state is not None:
+            self.state = state
+        else:
+            shutil.rmtree(self.out / HIDDEN, ignore_errors=True)
+            for slot in (0, 1):  # a run from one label image's carries
+                (self.out / CARRY.format(slot)).unlink(missing_ok=True)
+            self.state = {"run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
+                          "fallbacks": 0, "truth": None}
+            (self.out / STEPS).write_bytes(b"")
+        for f in self.out.glob(".*.tmp"):  # writes a killed run left half done
+            f.unlink(missing_ok=True)
+        kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan]
+        cursor = self.state["cursor"]
+        if cursor is not None and cursor["fingerprint"] not in plan:
+            cursor = None
+        live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
+        lines = read_step_lines(self.out)
+        if len(lines) < self.state["lines"]:
+            raise OutputError(f"{self.out / STEPS}: {len(lines)} steps for {self.state['lines']} finished frames; "
+                              "use --force to start over")
+        steps = parse_steps(self.out / STEPS, lines[:self.state["lines"]])
+        kept_steps = [(ln, st["frame"]) for ln, st in zip(lines, steps) if any(st["frame"] in s for s in live)]
+        lines = [ln for ln, _ in kept_steps]
+        check_labelled(self.out, [self.frames.stem(t) for _, t in kept_steps])
+        (self.out / STEPS).write_bytes(b"".join(lines))
+        keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
+        if (self.out / HIDDEN).is_dir():
+            for d in (self.out / HIDDEN).iterdir():
+                if d.name != keep_hidden:
+                    shutil.rmtree(d, ignore_errors=True)
+        names = {self.frames.name(k): label_digest(lab) for k, lab in keys.items()}
+        for k, lab in keys.items():
+            f = self.out / f"{self.frames.stem(k)}.png"
+            if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
+                write_labels(f, lab)
+        self.state.update(keys=names, stretches=kept, cursor=cursor, lines=len(lines))
+        self.totals()
+        self.commit()
+
+    def hidden(self, fingerprint: str) -> Path:
+        """The folder of what a key-frames stretch's passes hand on (its carry, prior terms, a video's frames)."""
+        return self.out / HIDDEN / fingerprint[:16]
+
+    # -- committing a frame -------------------------------------------------------------------------
+
+    def commit(self) -> None:
+        """Write run.json: the commit point."""
+        write_state(self.out, self.state)
+
+    def write_frame(self, t: int, labels: np.ndarray, confidence: np.ndarray | None, step: dict,
+                    counts: dict | None = None, scored: tuple = (None, None)) -> None:
+        """Frame ``t``'s label PNG (and ``confidence``, (H, W) in [0, 1], as ``confidence/NAME.png``), its truth
+        counted into ``counts`` (``scored``: its truth map and naive Bayes' labels alone, or two Nones) and
+        its ``step`` line; the caller commits."""
+        stem = self.frames.stem(t)
+        write_labels(self.out / f"{stem}.png", labels)
+        if confidence is not None:
+            (self.out / CONFIDENCE).mkdir(exist_ok=True)
+            write_labels(self.out / CONFIDENCE / f"{stem}.png", confidence_png(confidence))
+        truth, plain = scored
+        if truth is not None and counts is not None:
+            count_frame(counts, labels, truth, plain)
+        append_step(self.out, step)
+
+    def record(self, t: int, labels: np.ndarray, report, plain: np.ndarray | None = None, carry=None,
+               learned=None, confidence: np.ndarray | None = None) -> None:
+        """A run from one label image: write frame ``t``'s labels (and ``confidence``), step (``report``: its
+        dict, or a :class:`~pcreg.pipeline.stream.StepReport`), ``carry`` (a
+        :class:`~pcreg.pipeline.stream.Carry` or None) and what the classifier has ``learned`` (an array,
+        None, or :meth:`~pcreg.pipeline.stream.Propagator.learned_later`), then commit it in run.json."""
+        from ..classification.metrics import error_rate
+
+        report = report if isinstance(report, dict) else report.to_dict()
+        learned = learned() if callable(learned) else learned
+        step = dict(report, frame=t, name=self.frames.name(t))
+        truth = None if self.truth is None else self.truth[t]
+        if truth is not None:
+            step["error"] = error_rate(labels, truth)
+            if plain is not None:
+                step["plain_error"] = error_rate(plain, truth)
+        self.write_frame(t, labels, confidence, step, self.state["truth"], (truth, plain))
+        if truth is not None:
+            add_rates(self.state["truth"])
+        self.keep_carry(t, carry, learned)
+        self.state["done"] = t + 1
+        self.state["fallbacks"] += int(report.get("fallback", False))
+        self.commit()
+
+    # -- the carry ----------------------------------------------------------------------------------
+
+    def keep_carry(self, t: int, carry, learned: np.ndarray | None, *, stretch: str | None = None) -> None:
+        """What step ``t`` hands to the next (:func:`pcreg.runs.files.write_carry`), in ``carry-{t % 2}.npz``:
+        the run's own, or a key-frames ``stretch``'s (its fingerprint)."""
+        write_carry(self._carry_path(t, stretch), t, carry, learned)
+
+    def read_carry(self, t: int, *, stretch: str | None = None, unreadable: str = ""):
+        """``(carry, learned)`` that step ``t`` left (:meth:`keep_carry`)."""
+        return read_carry(self._carry_path(t, stretch), t, unreadable)
+
+    def carry_after(self, t: int):
+        """A run from one label image: ``(carry, learned)`` frame ``t`` left (a counted frame): the
+        :class:`~pcreg.pipeline.stream.Carry` (None for the key frame, or where it left none) and what the
+        classifier had learned from the stream, as :attr:`pcreg.Propagator.learned` saved it (None where
+        it had learned nothing)."""
+        if t == 0:
+            return None, None
+        return self.read_carry(t, unreadable=f", so frame {t + 1} cannot continue where frame {t} left off")
+
+    def _carry_path(self, t: int, stretch: str | None) -> Path:
+        return (self.out if stretch is None else self.hidden(stretch)) / CARRY.format(t % 2)
+
+    # -- the truth counts, the suggestions, reading back --------------------------------------------
+
+    def totals(self) -> None:
+        """A run from a folder of key frames: its fallbacks and truth counts, the sum of its stretches'."""
+        parts = self.state["stretches"] + ([] if self.state["cursor"] is None else [self.state["cursor"]])
+        self.state["fallbacks"] = sum(p["fallbacks"] for p in parts)
+        if self.truth is None:
+            return
+        self.state["truth"] = add_rates({k: sum(p["truth"][k] for p in parts) for k in empty_counts()})
+
+    def suggest(self, count: int | None, keys: list[int]) -> None:
+        """``OUT/suggest.txt``: the ``count`` frames to label next, best first, with their predicted error
+        (:func:`pcreg.runs.files.write_suggestions`), from the predicted errors in steps.jsonl
+        (:func:`pcreg.pipeline.keyframes.suggest`); ``keys``: the key frames' positions."""
+        from ..pipeline.keyframes import suggest
+        from .files import write_suggestions
+
+        if count is None:
+            return
+        steps = parse_steps(self.out / STEPS, [ln for ln in read_step_lines(self.out) if ln.strip()])
+        predicted = {s["frame"]: float(s["predicted_error"]) for s in steps if s.get("predicted_error") is not None}
+        try:
+            chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
+        except InputError as exc:
+            raise InputError(f"--suggest {count}: {exc}") from None
+        path = write_suggestions(self.out, [(self.frames.stem(t), predicted[t]) for t in chosen])
+        print(f"the {count} frame(s) to label next, best first: {path}")
+
+    @staticmethod
+    def read(folder: Path) -> tuple[dict, list[str], list[str]]:
+        """A finished or stopped run in ``folder``, for a reader: ``(run.json, key frames, every labelled
+        frame)``, by name, in frame order (:func:`pcreg.runs.state.read_state`,
+        :func:`pcreg.runs.state.run_frames`). No run.json, or one pcreg run did not write, is an
+        :class:`~pcreg.errors.InputError`; a steps.jsonl that does not match it raises OSError, KeyError,
+        TypeError or ValueError."""
+        state = read_state(folder)
+        steps = folder / STEPS
+        lines = steps.read_bytes().splitlines() if steps.is_file() else []
+        keys, names = run_frames(state, [ln for ln in lines if ln.strip()])
+        return state, keys, names
+
+
+def log_frame(rec, t: int, image, labels, report, name: str, size) -> None:
+    """One frame into the recording ``rec``; ``size``: the propagator's working size (its motion is logged
+    in the frames' pixels)."""
+    rec.set_frame(t)
+    rec.log_images(moving=image)
+    rec.log_labels(predicted=labels)
+    reg = report.registration
+    if reg is None:
+        rec.log_failure(f"{name}: {report.reason} (the key frame's labels, unwarped)")
+        return
+    matrix = size.frame_matrix(reg.matrix)
+    if getattr(reg, "field", None) is not None:
+        rec.log_dense(size.frame_field(reg.field), matrix=matrix,
+                      confidence=None if reg.confidence is None else size.grow(reg.confidence))
+    else:
+        rec.log_transform(matrix)
+

@@ -13,7 +13,8 @@ linearly), as the two-class baselines do (:mod:`pcreg.experiments.stream_keys`):
 - ``flow_labels``: the key frames' labels carried by DIS optical flow (medium preset) from each key frame
   (no classifier);
 - ``flow_key``: naive Bayes fused with the key frames' prior carried by DIS from each key frame, at the
-  stream's weight, read out through the stream's blur (:attr:`~pcreg.pipeline.trust.TrustRule.smooth`);
+  weight pcreg gives its priors with many classes, read out through pcreg's blur
+  (:data:`~pcreg.pipeline.trust.CLASS_TRUST`);
 - ``pcreg``: :func:`~pcreg.pipeline.keyframes.label_clip` with the table.
 """
 
@@ -68,8 +69,10 @@ class _Baseline:
 
     def step(self, image: np.ndarray) -> np.ndarray:
         from ..pipeline.multiclass import carried_log_probs
+        from ..pipeline.multiclass import CLASS_WEIGHT_SHARE
+        from ..pipeline.readout import scaled
         from ..pipeline.stream import STREAM_WEIGHT
-        from ..pipeline.trust import STREAM_TRUST, _scaled
+        from ..pipeline.trust import CLASS_TRUST
 
         t, s, classes = self.t, self.s, self.clf.classes_
         self.t += 1
@@ -85,10 +88,10 @@ class _Baseline:
         assert evidence is not None
         if labels_only:  # the labels' own probabilities: the evidence over the class prior, times it
             return classes[np.argmax(evidence + self.log_pi, axis=2)]
-        fused = self.clf.class_scores(image) + np.float32(STREAM_WEIGHT) * evidence
+        fused = self.clf.class_scores(image) + np.float32(STREAM_WEIGHT * CLASS_WEIGHT_SHARE) * evidence
         import cv2
 
-        fused = cv2.GaussianBlur(fused, (0, 0), _scaled(STREAM_TRUST.smooth, fused.shape[1])).reshape(fused.shape)
+        fused = cv2.GaussianBlur(fused, (0, 0), scaled(CLASS_TRUST.smooth, fused.shape[1])).reshape(fused.shape)
         return classes[np.argmax(fused, axis=2)]
 
 

@@ -128,10 +128,11 @@ def two_sided(log_odds: np.ndarray, earlier: np.ndarray, later: np.ndarray, rule
     prior = np.asarray(earlier, PRIOR_STORE_DTYPE).astype(np.float32) + later
     if classes is not None:
         from .multiclass import read_class_labels
-        from .trust import CONFIDENCE_COEFFICIENTS, _scaled
+        from .readout import scaled
+        from .trust import CONFIDENCE_COEFFICIENTS
 
         labels, confidence, _ = read_class_labels(log_odds + prior, log_odds, prior, classes,
-                                                  smooth_px=_scaled(rule.smooth, prior.shape[1]),
+                                                  smooth_px=scaled(rule.smooth, prior.shape[1]),
                                                   coefficients=CONFIDENCE_COEFFICIENTS, size=size)
         return labels, confidence, prior
     labels, confidence = read_labels(log_odds + prior, log_odds, prior, rule, size=size)

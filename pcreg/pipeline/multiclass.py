@@ -27,12 +27,17 @@ import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
+from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
-__all__ = ["class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs", "fused_scores",
+__all__ = ["CLASS_WEIGHT_SHARE", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs", "fused_scores",
            "read_class_labels", "class_confidence", "runner_up", "predicted_iou", "sure_labels"]
 
 #: The least class prior taken: a class with (almost) no key-frame pixels must not give -inf evidence.
 MIN_PROBABILITY = 1e-6
+#: With more than two classes the carried priors are weighed at this share of the propagator's ``weight``
+#: (naive Bayes' class scores are differences of K joint log-likelihoods, where two classes had one):
+#: chosen on the eight shared CamVid clips with each clip left out (docs/results.md, "Many classes").
+CLASS_WEIGHT_SHARE = 0.25
 
 
 def class_priors(classifier) -> np.ndarray:
@@ -142,8 +147,6 @@ def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_te
     where naive Bayes' best class is the carried prior's."""
     import cv2
 
-    from .trust import AGREEMENT_SIDE, PURITY_SIDES, _odd, half
-
     w = best.shape[1]
     onehot = (best[..., None] == np.arange(k)).astype(np.float32)
     oh = half(onehot).reshape(-1, max(1, w // 2), k) if k > 1 else half(onehot)
@@ -151,10 +154,10 @@ def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_te
     agree = (np.argmax(scores, axis=2) == np.argmax(prior_term, axis=2)).astype(np.float32)
     out = []
     for side in PURITY_SIDES:
-        kk = _odd(side / 2, w)
+        kk = odd(side / 2, w)
         m = cv2.blur(oh, (kk, kk), borderType=cv2.BORDER_REFLECT).reshape(oh.shape)
         out.append(np.take_along_axis(m, own, axis=2)[..., 0].astype(np.float32))
-    kk = _odd(AGREEMENT_SIDE / 2, w)
+    kk = odd(AGREEMENT_SIDE / 2, w)
     out.append(cv2.blur(half(agree), (kk, kk), borderType=cv2.BORDER_REFLECT))
     return out
 

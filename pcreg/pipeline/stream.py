@@ -94,9 +94,9 @@ from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
 from .estimators import STREAM_DENSE, Carry, DenseStep, FlowEstimator, StreamMotion, stream_motion
 from .learning import STREAM_LEARNING, Learner, Learning
-from .multiclass import carried_log_probs, class_prior_maps, class_priors, prior_log_probs
+from .multiclass import CLASS_WEIGHT_SHARE, carried_log_probs, class_prior_maps, class_priors, prior_log_probs
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
-from .trust import STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
+from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
 from .working import WorkingSize
 from ..errors import InputError
 from ..frame import PreparedFrame
@@ -281,13 +281,17 @@ class Propagator:
         self.preset = preset  # a flow's DIS preset (None for the other models)
         self._estimator: StreamMotion = stream_motion(model, preset, self.config, dense, self._dense_options)
         self.weight = float(weight)
+        # K classes (any but ground and obstacle): the step of :mod:`pcreg.pipeline.multiclass`, its priors at
+        # their share of the weight, and the stream's trust rule as it reads many classes
+        self._classes = None if classes == [0, 1] else np.asarray(classes, np.uint8)
+        self._prior_weight = self.weight if self._classes is None else self.weight * CLASS_WEIGHT_SHARE
+        if self._classes is not None and trust is STREAM_TRUST:
+            trust = CLASS_TRUST
         self.fusion = fusion
         self.trust = trust
         self.learning = learning if trust is not None and _learns(classifier) else None
         self._learner: Learner | None = None
         self._flow = FlowEstimator("ultrafast" if trust is None else trust.preset)
-        # K classes (any but ground and obstacle): the step of :mod:`pcreg.pipeline.multiclass`
-        self._classes = None if classes == [0, 1] else np.asarray(classes, np.uint8)
         self._pi = class_prior(classifier) if self._classes is None else class_priors(classifier)
         # the key frame, checked once, and what every step reads of it, made once (:meth:`reset`)
         self._key: PreparedFrame | None = None  # at the working size
@@ -341,7 +345,7 @@ class Propagator:
             self._key_prior = label_prior(size.labels(lab), pi=self._pi, fusion=self.fusion)
         if self.trust is not None:
             evidence = self._key_prior if self._classes is not None else prior_log_odds(self._key_prior, pi=self._pi)
-            self._key_trusted = TrustedKey(self.trust, self.weight, key.rgb, evidence, size, classes=self._classes)
+            self._key_trusted = TrustedKey(self.trust, self._prior_weight, key.rgb, evidence, size, classes=self._classes)
             if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # smaller frames have no
                 # second motion (DIS does not take them)
                 self._key_flow = self._flow.prepare(key)
@@ -410,7 +414,7 @@ class Propagator:
         times["total"] = time.perf_counter() - t_start
         self.last = StepReport(frame=self._frame, registration=result, reason=est.reason, fallback=motion is None,
                                reference=ref_frame, times=times, start=est.start, log_odds=c.d,
-                               **({} if trusted is None else trusted.report(self.trust, self.weight)))
+                               **({} if trusted is None else trusted.report(self.trust, self._prior_weight)))
         return labels
 
     def _classify(self, frame: PreparedFrame) -> "_Classified":
@@ -466,7 +470,7 @@ class Propagator:
         assert key is not None and classes is not None  # reset made them
         lp = key if motion is None else carried_log_probs(key, motion.as_field((h, w)))
         t1 = time.perf_counter()
-        wt = pixel_weight(self.weight, None if motion is None else motion.confidence)
+        wt = pixel_weight(self._prior_weight, None if motion is None else motion.confidence)
         fused = d + (np.asarray(wt, np.float32)[..., None] if np.ndim(wt) else np.float32(wt)) * lp
         size = self._size
         if size is not None and size.scaled:

@@ -37,21 +37,19 @@ import numpy as np
 
 from ..classification.fusion import CONFIDENCE_SPAN
 from ..errors import InputError
+from .readout import AGREEMENT_SIDE, BASE_WIDTH, PURITY_SIDES, half  # noqa: F401 - BASE_WIDTH: where the rule's sizes are stated
+from .readout import odd as _odd
+from .readout import scaled as _scaled
 from .working import WorkingSize
 
-__all__ = ["TrustRule", "STREAM_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
+__all__ = ["TrustRule", "STREAM_TRUST", "CLASS_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
            "residual_trust", "TrustedKey", "Trusted", "smoothed", "read_labels",
            "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error"]
 
-#: The width at which the rule's pixel sizes are stated; they scale with the frame's width.
-BASE_WIDTH = 480.0
 #: Blurs (px at :data:`BASE_WIDTH`): of both images before comparing, and of the residual after.
 IMAGE_SIGMA, RESIDUAL_SIGMA = 1.5, 3.0
 #: The residual outside the key frame (grey levels): nothing carried there can be trusted.
 OUTSIDE = 255.0
-#: Sides (px at :data:`BASE_WIDTH`) of the neighbourhoods the confidence reads: the label's purity at
-#: two sizes, and the agreement of the classifier with the carried prior.
-PURITY_SIDES, AGREEMENT_SIDE = (15, 33), 33
 #: The confidence's logistic coefficients: intercept, then log1p(|F|), purity at 15 px, purity at 33 px,
 #: agreement at 33 px; fitted on the eight shared CamVid clips (``tools/fit_trust.py``).
 CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-5.001, 0.648, -2.302, 6.542, 3.339)
@@ -104,14 +102,11 @@ class TrustRule:
 
 #: The stream's trust rule (chosen with each shared clip left out; docs/results.md).
 STREAM_TRUST = TrustRule()
-
-
-def _scaled(px: float, width: int) -> float:
-    return px * width / BASE_WIDTH
-
-
-def _odd(px: float, width: int) -> int:
-    return max(1, int(round(_scaled(px, width))) // 2 * 2 + 1)
+#: The trust rule with more than two classes (:mod:`pcreg.pipeline.multiclass`): the stream's, with a blur
+#: of 1 px at 480 px wide before the best class is read (thin classes, a pole or a sign, vanish under the
+#: two-class 3 px) and DIS's medium preset for the second motion; chosen with each shared CamVid clip
+#: left out (docs/results.md, "Many classes").
+CLASS_TRUST = TrustRule(smooth=1.0, preset="medium")
 
 
 def smoothed(fused: np.ndarray, rule: TrustRule) -> np.ndarray:
@@ -138,15 +133,6 @@ def read_labels(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.ndarray,
     if size is not None and size.scaled:
         shown, confidence = size.grow(shown), size.grow(confidence)
     return (shown > 0).astype(np.uint8), confidence
-
-
-def half(image: np.ndarray) -> np.ndarray:
-    """The image at half its size (each pixel the mean of a 2x2 block), as float32."""
-    import cv2
-
-    a = np.asarray(image, dtype=np.float32)
-    h, w = a.shape[:2]
-    return cv2.resize(a, (max(1, w // 2), max(1, h // 2)), interpolation=cv2.INTER_AREA)
 
 
 def blurred(image: np.ndarray) -> np.ndarray:

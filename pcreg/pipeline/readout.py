@@ -1,0 +1,34 @@
+"""The sizes a stream's read-out works at: pixel sizes stated at one width, and the half-size image its
+neighbourhoods are read at (:mod:`pcreg.pipeline.trust` for two classes, :mod:`pcreg.pipeline.multiclass`
+for more)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["BASE_WIDTH", "PURITY_SIDES", "AGREEMENT_SIDE", "scaled", "odd", "half"]
+
+#: The width at which the rule's pixel sizes are stated; they scale with the frame's width.
+BASE_WIDTH = 480.0
+#: Sides (px at :data:`BASE_WIDTH`) of the neighbourhoods the confidence reads: the label's purity at
+#: two sizes, and the agreement of the classifier with the carried prior.
+PURITY_SIDES, AGREEMENT_SIDE = (15, 33), 33
+
+
+def scaled(px: float, width: int) -> float:
+    """``px`` stated at :data:`BASE_WIDTH`, at a frame ``width`` px wide."""
+    return px * width / BASE_WIDTH
+
+
+def odd(px: float, width: int) -> int:
+    """:func:`scaled`, rounded to an odd number of pixels (a box filter's side), at least 1."""
+    return max(1, int(round(scaled(px, width))) // 2 * 2 + 1)
+
+
+def half(image: np.ndarray) -> np.ndarray:
+    """The image at half its size (each pixel the mean of a 2x2 block), as float32."""
+    import cv2
+
+    a = np.asarray(image, dtype=np.float32)
+    h, w = a.shape[:2]
+    return cv2.resize(a, (max(1, w // 2), max(1, h // 2)), interpolation=cv2.INTER_AREA)

@@ -13,7 +13,8 @@ linearly), as the two-class baselines do (:mod:`pcreg.experiments.stream_keys`):
 - ``flow_labels``: the key frames' labels carried by DIS optical flow (medium preset) from each key frame
   (no classifier);
 - ``flow_key``: naive Bayes fused with the key frames' prior carried by DIS from each key frame, at the
-  weight pcreg gives its priors with many classes, read out through pcreg's blur
+  stream's weight (2, as the two-class baselines; a quarter of it, pcreg's share with many classes, made
+  this baseline 3-15 points worse on the clips tried), read out through pcreg's blur
   (:data:`~pcreg.pipeline.trust.CLASS_TRUST`);
 - ``pcreg``: :func:`~pcreg.pipeline.keyframes.label_clip` with the table.
 """
@@ -69,7 +70,6 @@ class _Baseline:
 
     def step(self, image: np.ndarray) -> np.ndarray:
         from ..pipeline.multiclass import carried_log_probs
-        from ..pipeline.multiclass import CLASS_WEIGHT_SHARE
         from ..pipeline.readout import scaled
         from ..pipeline.stream import STREAM_WEIGHT
         from ..pipeline.trust import CLASS_TRUST
@@ -88,7 +88,7 @@ class _Baseline:
         assert evidence is not None
         if labels_only:  # the labels' own probabilities: the evidence over the class prior, times it
             return classes[np.argmax(evidence + self.log_pi, axis=2)]
-        fused = self.clf.class_scores(image) + np.float32(STREAM_WEIGHT * CLASS_WEIGHT_SHARE) * evidence
+        fused = self.clf.class_scores(image) + np.float32(STREAM_WEIGHT) * evidence
         import cv2
 
         fused = cv2.GaussianBlur(fused, (0, 0), scaled(CLASS_TRUST.smooth, fused.shape[1])).reshape(fused.shape)

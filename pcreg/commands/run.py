@@ -33,12 +33,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a video file (.mp4, .avi, .mkv, .mov) or a folder of frames (image files, or an images/ "
                         "sub-folder, read in name order)")
     p.add_argument("--labels", required=True, metavar="KEYFRAME.png|DIR",
-                   help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid, davis); or a "
-                        "folder of key frames' labels, NAME.png for the frame NAME, every frame labelled from those around it")
+                   help="label image of the first frame (class ids of --classes, a palette PNG, or the table's colours); or a "
+                        "folder of key frames' labels, NAME.png for the frame NAME, every frame labelled from those "
+                        "around it; or a CVAT 'Segmentation mask 1.1' export (its .zip or unpacked folder)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the label PNGs, run.json and steps.jsonl")
     p.add_argument("--mapping", choices=("none", "camvid", "davis"), default="none",
-                   help="how --labels and --truth are coded: none (0/1/2, the default), camvid (CamVid class ids) or "
-                        "davis (an object mask: 0 the background, anything else the object, label 1)")
+                   help="how --labels and --truth are coded: none (the class table's ids, colours or palette; the "
+                        "default), camvid (CamVid class ids mapped to ground and obstacle) or davis (an object mask: "
+                        "0 the background, anything else the object; the same as --classes davis)")
+    p.add_argument("--classes", metavar="lagr|camvid11|davis|FILE", default=None,
+                   help="the class table: lagr (0 ground, 1 obstacle, 2 unknown; the default), camvid11 (CamVid's "
+                        "eleven classes and void), davis (background and object), or a labelmap.txt or JSON file")
     p.add_argument("--truth", metavar="LABELS_DIR", default=None,
                    help="score every frame against LABELS_DIR/NAME.png and keep the error in run.json")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
@@ -69,30 +74,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_record_arguments(p)
 
 
-def _read_labels(path: Path, mapping: str):
-    import cv2
-    import numpy as np
+def _read_labels(path: Path, mapping: str, table=None):
+    """A key frame's (or a truth map's) labels read through the run's class table
+    (:func:`pcreg.classes.keys.read_key_labels`)."""
+    from ..classes import DEFAULT_TABLE
+    from ..classes.keys import read_key_labels
 
-    from ..datasets.davis import mask_hint
-    from ..datasets.folder import mapping_lut
-    from ..errors import InputError
-    from ..formats import read_image_file
-
-    raw = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)  # a regular file, its size checked first
-    if raw.ndim == 3:  # a grey image saved in colour is read as grey; labels in colours are not labels
-        if raw.shape[2] not in (3, 4) or not (raw[:, :, 1:3] == raw[:, :, :1]).all():
-            raise InputError(f"{path}: labels must be a single-channel image (one class id per pixel), "
-                             f"got {raw.shape[2]} channels that differ")
-        raw = raw[:, :, 0]
-    if raw.dtype != np.uint8:
-        raise InputError(f"{path}: labels must be an 8-bit image, got {raw.dtype}")
-    lut = mapping_lut(None if mapping == "none" else mapping)
-    lab = lut[raw]
-    if (lab == 255).any():
-        bad = int(raw[lab == 255][0])
-        raise InputError(f"{path}: label value {bad} is not {'a CamVid class id' if mapping == 'camvid' else '0, 1 or 2'}"
-                         + mask_hint(raw))
-    return lab
+    return read_key_labels(path, DEFAULT_TABLE if table is None else table, mapping)
 
 
 class _TruthMaps:
@@ -100,8 +88,8 @@ class _TruthMaps:
     not all held in memory (2,000 frames at 640x480 are 600 MB). A folder's are all checked before the
     run starts; a video's length is known only once decoded, so each of its maps is checked when read."""
 
-    def __init__(self, root: Path, frames, mapping: str, shape: tuple[int, int]) -> None:
-        self.root, self.frames, self.mapping, self.shape = root, frames, mapping, shape
+    def __init__(self, root: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> None:
+        self.root, self.frames, self.mapping, self.shape, self.table = root, frames, mapping, shape, table
 
     def path(self, t: int) -> Path:
         return self.root / f"{self.frames.stem(t)}.png"
@@ -110,12 +98,12 @@ class _TruthMaps:
         from ..runs.truth import check_truth
 
         f = self.path(t)
-        lab = _read_labels(f, self.mapping) if f.is_file() else None
+        lab = _read_labels(f, self.mapping, self.table) if f.is_file() else None
         check_truth([lab], self.shape, [self.frames.name(t)])
         return lab
 
 
-def _truth(folder: str | None, frames, shape, mapping: str):
+def _truth(folder: str | None, frames, shape, mapping: str, table=None):
     """The frames' truth labels (:class:`_TruthMaps`); a folder's checked first, every one, one at a time."""
     from ..errors import InputError
 
@@ -124,7 +112,7 @@ def _truth(folder: str | None, frames, shape, mapping: str):
     root = Path(folder)
     if not root.is_dir():
         raise InputError(f"--truth {root}: not a folder")
-    truth = _TruthMaps(root, frames, mapping, shape)
+    truth = _TruthMaps(root, frames, mapping, shape, table)
     if frames.kind == "folder":
         for t in range(len(frames)):
             truth[t]
@@ -148,6 +136,8 @@ def _check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..classes.keys import choose_table, with_classes
+    from ..classes.cvat import is_cvat_export
     from ..datasets.davis import check_key_mask
     from ..datasets.sources import Selection, open_frames
     from ..errors import InputError
@@ -156,15 +146,16 @@ def run(args: argparse.Namespace) -> int:
     from ..runs.state import run_identity
 
     source, out = Path(args.folder), Path(args.out)
+    args.table, args.mapping = choose_table(getattr(args, "classes", None), args.mapping)
     config = PropagatorConfig(model=args.model, preset=args.preset, backend=args.backend, init=args.init,
                               weight=args.weight, scale=args.scale, follow=args.follow)
-    if config.follow == "object" and Path(args.labels).is_dir():
+    if config.follow == "object" and (Path(args.labels).is_dir() or is_cvat_export(Path(args.labels))):
         raise InputError(f"--labels {args.labels}: --follow object follows one key frame's mask, not a folder of "
                          "key frames; give one label image")
     frames = open_frames(source, Selection(args.start, args.stop, args.every))
-    if Path(args.labels).is_dir():
+    if Path(args.labels).is_dir() or is_cvat_export(Path(args.labels)):
         return _run_keys(args, frames, config)
-    key_labels = _read_labels(Path(args.labels), args.mapping)
+    key_labels = _read_labels(Path(args.labels), args.mapping, args.table)
     if args.mapping == "davis":
         check_key_mask(key_labels, args.labels)
     decoded = frames.frames(0)
@@ -175,12 +166,12 @@ def run(args: argparse.Namespace) -> int:
     if key_labels.shape != key.image.shape[:2]:
         raise InputError(f"{args.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
                          f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}")
-    truth = _truth(args.truth, frames, key.image.shape[:2], args.mapping)
+    truth = _truth(args.truth, frames, key.image.shape[:2], args.mapping, args.table)
     _check_spares_inputs(out, frames, Path(args.labels), truth)
     _check_suggest(args.suggest, frames, 1)
-    prop = config.from_key_frame(key.image, key_labels)
-    identity = run_identity(frames, source, Path(args.labels), config, mapping=args.mapping, truth=args.truth,
-                            confidence=args.confidence)
+    prop = config.from_key_frame(key.image, key_labels, classes=args.table if args.table.n_known > 2 else None)
+    identity = with_classes(run_identity(frames, source, Path(args.labels), config, mapping=args.mapping,
+                                         truth=args.truth, confidence=args.confidence), args.table, args.mapping)
     with OutputLock(out):  # a second run on the same --out is refused, not raced
         return _label_frames(args, frames, (second, decoded), prop, truth, config, identity, key_labels)
 
@@ -283,9 +274,11 @@ def _write_suggest(count: int | None, out: Path, frames, keys: list[int]) -> Non
     print(f"the {count} frame(s) to label next, best first: {path}")
 
 
-def _key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> dict:
+def _key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> dict:
     """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``), each
     checked: a frame it names, one label a frame, the frames' size, something known."""
+    from ..classes import DEFAULT_TABLE
+    from ..classes.keys import all_unknown
     from ..errors import InputError
 
     files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith("."))
@@ -315,11 +308,12 @@ def _key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> d
                                                                            else " among those chosen"))
         if t in seen:
             raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
-        lab = _read_labels(f, mapping)
+        lab = _read_labels(f, mapping, table)
         if lab.shape != shape:
             raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}")
-        if not (lab < 2).any():
-            raise InputError(f"{f}: the labels are all unknown (2): nothing to fit or propagate")
+        if all_unknown(lab, table or DEFAULT_TABLE):
+            raise InputError(f"{f}: the labels are all unknown ({(table or DEFAULT_TABLE).unknown}): nothing to fit or "
+                             "propagate")
         keys[t], seen[t] = lab, f
     return {t: keys[t] for t in sorted(keys)}
 
@@ -331,6 +325,8 @@ def _run_keys(args: argparse.Namespace, frames, config) -> int:
     from .._runner import check_interrupted, progress
     from ..errors import InputError
     from ..outputs import OutputLock
+    from ..classes.cvat import is_cvat_export, read_cvat_keys
+    from ..classes.keys import with_classes
     from ..pipeline.keys_run import KeyRun
     from ..runs.state import STATE, run_identity
 
@@ -339,13 +335,17 @@ def _run_keys(args: argparse.Namespace, frames, config) -> int:
     shape = first.image.shape[:2]
     if folder.resolve() == out.resolve():
         raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
-    keys = _key_labels(folder, frames, args.mapping, shape)
-    truth = _truth(args.truth, frames, shape, args.mapping)
+    if is_cvat_export(folder):
+        args.table, keys = read_cvat_keys(folder, frames, shape, getattr(args, "classes", None),
+                                          mapping=args.mapping)
+    else:
+        keys = _key_labels(folder, frames, args.mapping, shape, args.table)
+    truth = _truth(args.truth, frames, shape, args.mapping, args.table)
     # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
     _check_spares_inputs(out, frames, folder / f"{frames.stem(next(iter(keys)))}.png", truth)
     _check_suggest(args.suggest, frames, len(keys))
-    identity = run_identity(frames, source, folder, config, mapping=args.mapping, truth=args.truth,
-                            confidence=args.confidence)
+    identity = with_classes(run_identity(frames, source, folder, config, mapping=args.mapping, truth=args.truth,
+                                         confidence=args.confidence), args.table, args.mapping)
     with OutputLock(out), open_recorder(args, name=f"run {args.folder}") as rec:
         job = KeyRun(frames, keys, out, config, identity=identity, truth=truth, confidence=args.confidence)
         job.start(force=args.force)

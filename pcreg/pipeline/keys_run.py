@@ -37,9 +37,10 @@ from typing import BinaryIO, Callable, Iterator
 
 import numpy as np
 
+from ..classes.keys import run_table
 from ..errors import InputError, OutputError
-from ..runs.files import (CONFIDENCE, STEPS, UNREADABLE_CARRY, append_step, check_labelled, confidence_png,
-                          parse_steps, read_carry, read_step_lines, write_carry, write_labels)
+from ..runs.files import (CONFIDENCE, STEPS, UNREADABLE_CARRY, append_step, check_labelled, parse_steps,
+                          read_carry, read_step_lines, write_carry, write_confidence, write_labels)
 from ..runs.state import open_state, write_state
 from ..runs.truth import add_rates, count_frame, empty_counts
 
@@ -144,7 +145,7 @@ class KeyRun:
         for k, lab in self.keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
-                write_labels(f, lab)
+                write_labels(f, lab, run_table(self.identity))
         self.state.update(keys=names, stretches=kept, cursor=cursor, lines=len(lines))
         self._totals()
         self._commit()
@@ -359,10 +360,10 @@ class KeyRun:
         """On the writer's thread: what :meth:`_record` hands on, in the order a resumed run reads it back
         (``scored``: the frame's truth map and naive Bayes' labels alone, or two Nones)."""
         stem = self.frames.stem(t)
-        write_labels(self.out / f"{stem}.png", labels)
+        write_labels(self.out / f"{stem}.png", labels, run_table(self.identity))
         if self.confidence and conf is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
-            write_labels(self.out / CONFIDENCE / f"{stem}.png", confidence_png(conf))
+            write_confidence(self.out / CONFIDENCE / f"{stem}.png", conf)
         truth, plain = scored
         if truth is not None:
             count_frame(cur["truth"], labels, truth, plain)

@@ -29,9 +29,10 @@ from typing import Protocol
 
 import numpy as np
 
+from ..classes.keys import run_table
 from ..errors import OutputError
-from ..runs.files import (CARRY, CONFIDENCE, STEPS, append_step, check_labelled, confidence_png, read_carry,
-                          write_carry, write_labels)
+from ..runs.files import (CARRY, CONFIDENCE, STEPS, append_step, check_labelled, read_carry,
+                          write_carry, write_confidence, write_labels)
 from ..runs.state import STATE, open_state, write_state
 from ..runs.truth import add_rates, count_frame, empty_counts
 
@@ -74,7 +75,7 @@ class StreamRun:
             (self.out / CARRY.format(slot)).unlink(missing_ok=True)
         self.state = {"run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None}
-        write_labels(self.out / f"{self.frames.stem(0)}.png", self.labels)
+        write_labels(self.out / f"{self.frames.stem(0)}.png", self.labels, run_table(self.identity))
         (self.out / STEPS).write_bytes(b"")
         write_state(self.out, self.state)
         return 1
@@ -113,10 +114,10 @@ class StreamRun:
         None, or :meth:`~pcreg.pipeline.stream.Propagator.learned_later`), then commit it in run.json."""
         from ..classification.metrics import error_rate
 
-        write_labels(self.out / f"{self.frames.stem(t)}.png", labels)
+        write_labels(self.out / f"{self.frames.stem(t)}.png", labels, run_table(self.identity))
         if confidence is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
-            write_labels(self.out / CONFIDENCE / f"{self.frames.stem(t)}.png", confidence_png(confidence))
+            write_confidence(self.out / CONFIDENCE / f"{self.frames.stem(t)}.png", confidence)
         report = report if isinstance(report, dict) else report.to_dict()
         learned = learned() if callable(learned) else learned
         step = dict(report, frame=t, name=self.frames.name(t))

@@ -140,7 +140,8 @@ def test_run_from_a_cvat_export_and_back(clip, tmp_path, capsys):
 def _datumaro_reads(archive: Path, where: Path, labels: dict[str, np.ndarray]) -> None:
     """Datumaro's VOC segmentation reader (CVAT's "Segmentation mask 1.1" import) finds every frame, the
     table's classes, and each class's mask where the run's labels have it."""
-    dm = pytest.importorskip("datumaro", reason="datumaro is not installed (pip install 'pcreg[cvat]')")
+    dm = pytest.importorskip("datumaro", reason="datumaro is not installed (its VOC reader is CVAT's import; "
+                             "pip install datumaro, which pins opencv<5 and pillow 12)")
     from datumaro.components.annotation import AnnotationType
 
     with zipfile.ZipFile(archive) as z:
@@ -201,3 +202,36 @@ def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
     rc, err = _run(["run", frames, "--labels", export, "--out", out, *args], capsys)
     assert rc == 2 and len(err) == 1 and said in err[0] and str(export) in err[0], err
     assert sorted(p.name for p in out.iterdir()) == ["kept.txt"]
+
+
+@pytest.mark.parametrize("stored", ["palette", "colours", "ids"])
+def test_a_folder_of_labels_reads_through_the_table(clip, tmp_path, stored):
+    """load_folder reads CamVid's labels stored as ids, a palette PNG or camvid11's colours alike (mapped to
+    lagr's three labels), and a folder of labels of another table through that table (classes=)."""
+    import pcreg
+    from pcreg.classes import write_label_png
+    from pcreg.datasets.folder import load_folder, mapping_lut
+
+    frames, ids = clip
+    lut = mapping_lut("camvid")
+    for table, lab_of, kw, want in ((CAMVID11, ids, {}, {s: lut[v] for s, v in ids.items()}),
+                                    (TWO, {s: TWO_LUT[v] for s, v in ids.items()}, {"mapping": None, "classes": TWO},
+                                     {s: TWO_LUT[v] for s, v in ids.items()})):
+        root = tmp_path / table.source
+        (root / "labels").mkdir(parents=True)
+        shutil.copytree(frames, root / "images")
+        for stem, lab in lab_of.items():
+            path = root / "labels" / f"{stem}.png"
+            if stored == "palette":
+                write_label_png(path, lab, table)
+            elif stored == "colours":
+                cv2.imwrite(str(path), table.paint(lab)[:, :, ::-1])
+            else:
+                cv2.imwrite(str(path), lab)
+        got = load_folder(root, **kw)
+        assert [f.name for f in got] == list(ids)
+        for f in got:
+            np.testing.assert_array_equal(f.labels, want[f.name])
+    if stored != "ids":  # lagr's table: the other table's palette and colours are not its classes
+        with pytest.raises(pcreg.errors.DatasetError, match="palette colours" if stored == "palette" else "colour"):
+            load_folder(tmp_path / "two", mapping=None)

@@ -50,12 +50,14 @@ def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:
 class RunLabels:
     """The labelled frames of a run: ``names`` (the frames' file names, the key frame first) and
     ``paths`` (each frame's label PNG, ``OUT/STEM.png``), ``confidence`` (each frame's confidence PNG,
-    or None: the key frame, or a run without ``--confidence``)."""
+    or None: the key frame, or a run without ``--confidence``), ``table`` the run's class table
+    (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``)."""
 
     folder: Path
     names: tuple[str, ...]
     paths: tuple[Path, ...]
     confidence: tuple[Path | None, ...]
+    table: ClassTable = DEFAULT_TABLE
 
 
 def default_name(fmt: str) -> str:
@@ -69,6 +71,7 @@ def read_run(folder: str | Path) -> RunLabels:
     Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json`` (not a run's output), one
     that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
     """
+    from .classes.keys import run_table
     from .runs.files import CONFIDENCE, STEPS
     from .runs.state import STATE, read_state, run_frames
 
@@ -96,7 +99,11 @@ def read_run(folder: str | Path) -> RunLabels:
             raise InputError(f"{p}: missing (a labelled frame's label file)")
     conf_dir = folder / CONFIDENCE
     confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
-    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence))
+    try:
+        table = run_table(state["run"])
+    except InputError as exc:
+        raise InputError(f"{folder / STATE}: {exc}") from None
+    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table)
 
 
 def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:

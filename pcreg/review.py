@@ -3,8 +3,8 @@
 :func:`read_review` reads what a run's folder says about its frames (``run.json``, ``steps.jsonl``, and
 ``suggest.txt`` when there is one): the frames in order, which are key frames, each frame's predicted
 error and the frames suggested to label next. :class:`FrameImages` reads the frames themselves from the
-run's source, a folder of images or a video. :func:`overlay` draws one frame's labels over it (ground
-green, obstacle red, unknown left clear) and, with its confidence, hatches the pixels whose label is
+run's source, a folder of images or a video. :func:`overlay` draws one frame's labels over it (each
+class in its colour of the run's class table, :mod:`pcreg.classes`; unknown left clear) and, with its confidence, hatches the pixels whose label is
 less sure than :data:`LOW_CONFIDENCE`. :func:`write_overlay_video` writes every frame so drawn as a video.
 
 A video is read in decoding order, never by seeking (as :mod:`pcreg.datasets.sources` reads it), so
@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
 
 __all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay",
@@ -30,7 +31,7 @@ __all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_rev
 
 #: A label is marked unsure where its confidence (the probability that it is right) is below this.
 LOW_CONFIDENCE = 0.7
-#: Class id -> RGB drawn over the frame; unknown (2) is left clear.
+#: Class id -> RGB drawn over the frame for the default table (``lagr``); unknown (2) is left clear.
 COLOURS: dict[int, tuple[int, int, int]] = {0: (34, 197, 94), 1: (255, 40, 40)}
 #: How much of a labelled pixel is the label's colour (the rest is the frame).
 ALPHA = 0.5
@@ -46,7 +47,8 @@ class RunReview:
     their outputs are named after (``OUT/STEM.png``, ``OUT/confidence/STEM.png``); ``keys`` the positions
     of key frames (named in ``run.json``, or without a line in ``steps.jsonl``); ``errors`` each frame's
     predicted error in % (None for a key frame or a step without one); ``suggested`` the positions listed in
-    ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists."""
+    ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
+    ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`)."""
 
     folder: Path
     source: Path
@@ -58,6 +60,7 @@ class RunReview:
     suggested: tuple[tuple[int, float | None], ...]
     confidence: bool
     selection: dict | None = None
+    table: ClassTable = DEFAULT_TABLE
 
     def labels_path(self, t: int) -> Path:
         return self.folder / f"{self.stems[t]}.png"
@@ -89,6 +92,7 @@ def read_review(folder: str | Path) -> RunReview:
     Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json``, one pcreg run did not write,
     a source that is gone, an unreadable ``steps.jsonl`` or ``suggest.txt``.
     """
+    from .classes.keys import run_table
     from .datasets.sources import FolderFrames, Selection, open_frames
     from .runs.files import CONFIDENCE, STEPS
     from .runs.state import STATE, read_state, run_frames
@@ -112,6 +116,7 @@ def read_review(folder: str | Path) -> RunReview:
         selection = Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
     except (OSError, ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
+    table = run_table(run)
     if not source.exists():
         raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there)")
     frames = open_frames(source, selection)
@@ -140,7 +145,7 @@ def read_review(folder: str | Path) -> RunReview:
         e = None if t in keys else steps[n].get("predicted_error")
         errors.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
-                     _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict())
+                     _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table)
 
 
 def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:
@@ -153,23 +158,24 @@ def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[
 
 
 def overlay(image: np.ndarray, labels: np.ndarray, confidence: np.ndarray | None = None, *,
-            low: float = LOW_CONFIDENCE, key: bool = False) -> np.ndarray:
-    """``image`` (H, W, 3) uint8 RGB with ``labels`` (H, W) 0 ground / 1 obstacle / 2 unknown drawn over it
-    (:data:`COLOURS`, :data:`ALPHA`; unknown left clear); where ``confidence`` (H, W) uint8, 255 x the
+            low: float = LOW_CONFIDENCE, key: bool = False, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
+    """``image`` (H, W, 3) uint8 RGB with ``labels`` (H, W) class ids of ``table`` drawn over it (each known
+    class in its table colour, :data:`ALPHA`; unknown left clear); where ``confidence`` (H, W) uint8, 255 x the
     probability that the label is right, is below ``low``, dark diagonal hatching. ``key``: a key frame,
     framed in blue. Returns a new (H, W, 3) uint8 RGB image."""
     if labels.shape != image.shape[:2]:
         raise InputError(f"labels are {labels.shape[1]}x{labels.shape[0]}, the frame {image.shape[1]}x{image.shape[0]}")
     out = image.astype(np.float32)
-    for k, colour in COLOURS.items():
-        m = labels == k
+    for c in table.known:
+        colour = c.colour
+        m = labels == c.id
         out[m] = (1 - ALPHA) * out[m] + ALPHA * np.asarray(colour, np.float32)
     if confidence is not None:
         if confidence.shape != labels.shape:
             raise InputError("a confidence map of another size than its labels")
         h, w = labels.shape
         yy, xx = np.mgrid[0:h, 0:w]
-        hatch = ((xx + yy) % 8 < 3) & (confidence.astype(np.float32) < low * 255.0) & (labels != 2)
+        hatch = ((xx + yy) % 8 < 3) & (confidence.astype(np.float32) < low * 255.0) & (labels != table.unknown)
         out[hatch] *= 0.3
     if key:
         b = max(2, min(labels.shape) // 60)
@@ -184,14 +190,14 @@ def read_overlay(review: RunReview, t: int, image: np.ndarray) -> np.ndarray:
     from .export import read_labels
     from .formats import read_image_file
 
-    labels = read_labels(review.labels_path(t))
+    labels = read_labels(review.labels_path(t), review.table)
     conf_path = review.confidence_path(t)
     conf = None
     if conf_path is not None:
         conf = read_image_file(conf_path, flags=cv2.IMREAD_UNCHANGED)
         if conf.ndim != 2 or conf.dtype != np.uint8 or conf.shape != labels.shape:
             raise InputError(f"{conf_path}: not a confidence map of {review.labels_path(t).name}'s size")
-    return overlay(image, labels, conf, key=t in review.keys)
+    return overlay(image, labels, conf, key=t in review.keys, table=review.table)
 
 
 class FrameImages:

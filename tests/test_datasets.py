@@ -243,7 +243,7 @@ def test_load_folder_with_dict_mapping_and_without_labels(tmp_path):
     ("image_without_label", "no label file"),
     ("label_without_image", "label file without an image"),
     ("size_mismatch", "but the image is"),
-    ("ids_outside_mapping", "outside the mapping"),
+    ("ids_outside_mapping", "label value 40 is not a class id"),
     ("corrupt_png", "cannot decode"),
 ])
 def test_load_folder_errors(tmp_path, damage, message):

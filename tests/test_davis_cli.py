@@ -15,6 +15,8 @@ from pcreg.cli import main
 from _davis import frames_and_masks, shared_sequence, write_official_layout, write_pcreg_layout
 from _runs import one_line_errors
 from test_davis_dataset import BROKEN, _broken
+from pcreg.export import read_labels
+from pcreg.classes import DAVIS
 
 
 def test_evaluate_stream_on_davis_scores_j_and_f_beside_the_published_methods(tmp_path, capsys):
@@ -124,7 +126,7 @@ def test_pcreg_run_with_the_davis_mapping_follows_a_shared_sequence(shared_data,
     run = json.loads((out / "run.json").read_text())
     assert run["run"]["mapping"] == "davis" and run["done"] == 6
     for i in range(1, 6):
-        labels = cv2.imread(str(out / f"{i:05d}.png"), cv2.IMREAD_UNCHANGED)
+        labels = read_labels(out / f"{i:05d}.png", DAVIS)
         truth = cv2.imread(str(goat / "labels" / f"{i:05d}.png"), cv2.IMREAD_GRAYSCALE)
         assert labels.shape == truth.shape and set(np.unique(labels)) <= {0, 1}
         assert jaccard(labels, truth) > 0.6  # the goat, five frames after its mask

@@ -146,7 +146,7 @@ BAD = {
     "image_without_label": "no label file",
     "label_without_image": "label file without an image",
     "size_mismatch": "but the image is",
-    "ids_outside_mapping": "outside the mapping",
+    "ids_outside_mapping": "label value 77 is not a class id",
     "lagr_without_variables": "im_rgb",
     "corrupt_png": "cannot decode",
     "one_class_only": "one class only",

@@ -15,6 +15,7 @@ import pytest
 
 import pcreg
 from pcreg.cli import main
+from pcreg.export import read_labels
 
 NAMES = {"ground": 0, "obstacle": 1, "unknown": 2}  # the archive's names -> pcreg's class ids (LAGR's table)
 
@@ -96,7 +97,7 @@ def _check_archive(path, out, expected: dict[str, np.ndarray]):
 
 
 def _labels(out):
-    return {p.stem: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in out.glob("*.png")}
+    return {p.stem: read_labels(p) for p in out.glob("*.png")}
 
 
 def test_export_decodes_back_to_the_runs_labels(run_copy, capsys):

@@ -15,6 +15,7 @@ from pcreg.errors import InputError
 from pcreg.pipeline.config import PropagatorConfig
 from pcreg.pipeline.follow import FollowCarry, ObjectFollower
 from _runs import assert_same_run, kill_before_commit, one_line_errors
+from pcreg.export import read_labels
 
 
 def moving_object(n: int = 8, shape=(120, 160), step: int = 4, seed: int = 1) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -105,7 +106,7 @@ def test_run_follow_object_writes_labels_and_resumes_exactly(tmp_path, monkeypat
     assert main([*base, "--out", str(tmp_path / "whole"), "--suggest", "2"]) == 0
     assert len((tmp_path / "whole" / "suggest.txt").read_text().splitlines()) == 2  # from the predicted errors
     for i in range(1, 7):
-        labels = cv2.imread(str(tmp_path / "whole" / f"f{i}.png"), cv2.IMREAD_UNCHANGED)
+        labels = read_labels(tmp_path / "whole" / f"f{i}.png")
         assert jaccard(labels == 1, pairs[i][1] == 1) > 0.85
     assert json.loads((tmp_path / "whole" / "run.json").read_text())["run"]["follow"] == "object"
     kill_before_commit(monkeypatch, 3)

@@ -13,6 +13,7 @@ import pcreg
 from pcreg.cli import main
 from pcreg.classification.metrics import error_rate
 from _runs import one_line_errors, timeless
+from pcreg.export import read_labels
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +47,7 @@ def _keys(path, frames, which, name="f{}"):
 
 
 def _labels(out, name):
-    return cv2.imread(str(out / f"{name}.png"), cv2.IMREAD_UNCHANGED)
+    return read_labels(out / f"{name}.png")
 
 
 _err, _timeless = one_line_errors, timeless

@@ -12,6 +12,7 @@ from pcreg.cli import main
 from pcreg.errors import InputError
 from pcreg.registration.clouds import cloud_pyramid, image_pyramid
 from _runs import kill_before_commit
+from pcreg.export import read_labels
 
 
 @pytest.fixture(scope="module")
@@ -230,7 +231,7 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
     steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
     assert state["done"] == 4 and [s["name"] for s in steps] == ["f001.png", "f002.png", "f003.png"]
     assert all(s["registered"] for s in steps) and state["fallbacks"] == 0
-    first = cv2.imread(str(out / "f003.png"), cv2.IMREAD_UNCHANGED)
+    first = read_labels(out / "f003.png")
     assert first.shape == frames[3].labels.shape and first.max() <= 1
     # two more frames arrive: the run resumes from the state it kept, as an uninterrupted run would
     for i in (4, 5):
@@ -245,8 +246,8 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
     whole = tmp_path / "whole"
     assert main(["run", str(src), "--labels", str(tmp_path / "key.png"), "--out", str(whole)]) == 0
     for i in range(6):
-        np.testing.assert_array_equal(cv2.imread(str(out / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED),
-                                      cv2.imread(str(whole / f"f{i:03d}.png"), cv2.IMREAD_UNCHANGED))
+        np.testing.assert_array_equal(read_labels(out / f"f{i:03d}.png"),
+                                      read_labels(whole / f"f{i:03d}.png"))
     assert main(args) == 0 and "already done" in capsys.readouterr().out
     # a label PNG the run counts done, gone since: refused, not called done
     moved = (out / "f002.png").rename(tmp_path / "f002.png")

@@ -371,3 +371,51 @@ def test_a_videos_frames_are_decoded_where_asked_and_all_kept(tmp_path, monkeypa
         for t in range(n):
             assert np.argmin([abs(float(again[t].mean()) - m) for m in straight]) == t, t
     assert len(starts) == 3
+
+
+# -- a run of another class table ----------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_the_review_draws_the_runs_class_table(synthetic, tmp_path):
+    """A run whose classes come from a labelmap.txt: the overlay paints each class in its table colour, the
+    page's legend lists the table's names (in headless Chromium)."""
+    from _browser import Browser, find_chromium
+    from pcreg.review import ALPHA, read_overlay, read_review
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, f in enumerate(synthetic):
+        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    (tmp_path / "labelmap.txt").write_text("background:0,0,0::\nfloor:0,0,255::\nwall:255,255,0::\n")
+    colours = np.array([(0, 0, 255), (255, 255, 0), (0, 0, 0)], np.uint8)
+    cv2.imwrite(str(tmp_path / "key.png"), colours[synthetic[0].labels][:, :, ::-1])
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
+                     "--classes", str(tmp_path / "labelmap.txt")]) == 0
+    review = read_review(out)
+    assert [c.name for c in review.table.known] == ["floor", "wall"]
+    image = np.full_like(synthetic[2].image, 128)
+    drawn = read_overlay(review, 2, image).astype(float)
+    labels = pcreg.export.read_labels(out / "frame_002.png", review.table)
+    for k, colour in enumerate(colours[:2]):
+        want = (1 - ALPHA) * 128 + ALPHA * colour.astype(float)
+        assert np.abs(drawn[labels == k] - want).max() <= 1, k
+    assert (drawn[labels == 2] == 128).all()  # unknown left clear
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    proc, url = view_web(str(out))
+    try:
+        with Browser(width=1200, height=700) as browser:
+            browser.open(url)
+
+            def ev(expr):
+                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+
+            until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
+            items = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => [s.textContent, "
+                       "s.querySelector('.swatch').style.background])")
+            assert items[:3] == [["floor", "rgb(0, 0, 255)"], ["wall", "rgb(255, 255, 0)"], ["background", ""]], items
+    finally:
+        stop_view(proc)

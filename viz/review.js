@@ -171,8 +171,9 @@ function drawLegend() {
     if (style) s.style.background = style;
     return el("span", {}, s, text);
   };
-  const items = [item("", rgb(d.colours.ground), "ground"), item("", rgb(d.colours.obstacle), "obstacle"),
-    item("clear", null, "unknown")];
+  // each class of the run's table in its colour, then its unknown (left clear)
+  const items = d.classes.map((c) => item("", rgb(c.colour), c.name));
+  items.push(item("clear", null, d.unknown.name));
   if (d.confidence) items.push(item("hatch", null, `confidence below ${Math.round(d.low_confidence * 100)} %`));
   items.push(item("key", null, "key frame"));
   $("legend").replaceChildren(...items);

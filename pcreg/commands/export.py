@@ -29,13 +29,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..classes import DEFAULT_TABLE as table
     from ..export import cvat_mask_archive, default_name, labels_with_confidence, read_run
     from ..outputs import atomic_write_bytes, check_output
 
     from ..errors import OutputError
 
     run_labels = read_run(args.folder)
+    table = run_labels.table  # the run's class table: its labelmap.txt, colours and names
     default = Path(args.folder) / default_name(args.format)
     dest = check_output(Path(args.to) if args.to is not None else default, force=args.force)
     folder = Path(args.folder).resolve()

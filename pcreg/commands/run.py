@@ -10,13 +10,15 @@ parsed to :meth:`pcreg.runs.run.Run.label` (a :class:`~pcreg.runs.run.RunRequest
 :mod:`pcreg.runs.run`, the inputs' checks: :mod:`pcreg.runs.inputs`. ``--truth LABELS_DIR`` scores every frame against its labels there
 (``NAME.png`` for frame ``NAME``) and keeps the running error in ``run.json``. ``--follow object``
 follows one moving object from the key frame's mask instead
-(:class:`pcreg.pipeline.follow.ObjectFollower`; one key frame).
+(:class:`pcreg.pipeline.follow.ObjectFollower`; one key frame). ``--classes`` names the class table the
+labels are ids of (:mod:`pcreg.classes.keys`); the label PNGs are written in its colours.
 
 ``--labels`` may also be a folder of key frames' labels anywhere in the video, ``NAME.png`` for the frame
 ``NAME`` (a folder's frame names are its files' stems, a video's ``{i:06d}``): every frame is labelled
 from the key frames around it, forwards and backwards (:mod:`pcreg.pipeline.keys_run`). ``--suggest N``
 writes ``OUT/suggest.txt``, the N frames to label next, best first, each with its predicted error
-(:func:`pcreg.pipeline.keyframes.suggest`).
+(:func:`pcreg.pipeline.keyframes.suggest`). ``--labels`` may be a CVAT "Segmentation mask 1.1" export
+too, a .zip or its unpacked folder (:mod:`pcreg.classes.cvat`), read as a folder of key frames.
 """
 
 from __future__ import annotations
@@ -33,12 +35,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a video file (.mp4, .avi, .mkv, .mov) or a folder of frames (image files, or an images/ "
                         "sub-folder, read in name order)")
     p.add_argument("--labels", required=True, metavar="KEYFRAME.png|DIR",
-                   help="label image of the first frame: 0 ground, 1 obstacle, 2 unknown (or --mapping camvid, davis); or a "
-                        "folder of key frames' labels, NAME.png for the frame NAME, every frame labelled from those around it")
+                   help="label image of the first frame (class ids of --classes, a palette PNG, or the table's colours); or a "
+                        "folder of key frames' labels, NAME.png for the frame NAME, every frame labelled from those "
+                        "around it; or a CVAT 'Segmentation mask 1.1' export (its .zip or unpacked folder)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the label PNGs, run.json and steps.jsonl")
     p.add_argument("--mapping", choices=("none", "camvid", "davis"), default="none",
-                   help="how --labels and --truth are coded: none (0/1/2, the default), camvid (CamVid class ids) or "
-                        "davis (an object mask: 0 the background, anything else the object, label 1)")
+                   help="how --labels and --truth are coded: none (the class table's ids, colours or palette; the "
+                        "default), camvid (CamVid class ids mapped to ground and obstacle) or davis (an object mask: "
+                        "0 the background, anything else the object; the same as --classes davis)")
+    p.add_argument("--classes", metavar="lagr|camvid11|davis|FILE", default=None,
+                   help="the class table: lagr (0 ground, 1 obstacle, 2 unknown; the default), camvid11 (CamVid's "
+                        "eleven classes and void), davis (background and object), or a labelmap.txt or JSON file")
     p.add_argument("--truth", metavar="LABELS_DIR", default=None,
                    help="score every frame against LABELS_DIR/NAME.png and keep the error in run.json")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
@@ -70,6 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..classes.keys import LabelCoding
     from ..datasets.sources import Selection
     from ..pipeline.config import PropagatorConfig
     from ..runs.run import Run, RunRequest
@@ -77,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     config = PropagatorConfig(model=args.model, preset=args.preset, backend=args.backend, init=args.init,
                               weight=args.weight, scale=args.scale, follow=args.follow)
     request = RunRequest(Path(args.folder), Path(args.labels), Path(args.out), config,
-                         Selection(args.start, args.stop, args.every), mapping=args.mapping,
+                         Selection(args.start, args.stop, args.every), LabelCoding(args.classes, args.mapping),
                          truth=None if args.truth is None else Path(args.truth), confidence=args.confidence,
                          suggest=args.suggest, force=args.force, record=args.record, record_raw=args.record_raw)
     return Run.label(request)

@@ -97,14 +97,20 @@ def _read(path: Path, *, color: bool) -> np.ndarray:
 
 
 def _mask(path: Path, frame: Path, shape: tuple[int, int]) -> np.ndarray:
-    """The object's mask as pcreg's labels (H, W) uint8: 1 wherever the file is not 0 (in any channel:
-    DAVIS 2017's masks are palette images, decoded to colour)."""
-    raw = _read(path, color=False)
-    if raw.shape[:2] != shape:
-        raise DatasetError(f"{path}: the mask is {raw.shape[1]}x{raw.shape[0]}, its frame {frame.name} "
+    """The object's mask as pcreg's labels (H, W) uint8: 1 wherever the file is not 0 (a palette PNG's
+    index, as DAVIS 2017 and VOC store masks; a grey value; a colour in any channel), read through the
+    ``davis`` table (:func:`pcreg.classes.keys.read_key_labels`)."""
+    from ..classes import DAVIS
+    from ..classes.keys import read_key_labels
+
+    try:
+        obj = read_key_labels(path, DAVIS, "davis")
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
+    if obj.shape[:2] != shape:
+        raise DatasetError(f"{path}: the mask is {obj.shape[1]}x{obj.shape[0]}, its frame {frame.name} "
                            f"{shape[1]}x{shape[0]}")
-    obj = raw != 0 if raw.ndim == 2 else (raw != 0).any(axis=2)
-    return obj.astype(np.uint8)
+    return obj
 
 
 def check_key_mask(labels: np.ndarray, path: str | Path) -> None:

@@ -74,11 +74,31 @@ def _read_png(path: Path, *, color: bool) -> np.ndarray:
     return img
 
 
-def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None = "camvid") -> list[Frame]:
+def _read_table_labels(path: Path, image: np.ndarray, table, mapping) -> np.ndarray:
+    """A label file read through ``table`` (``mapping`` None or ``"camvid"``), of its image's size; a
+    :class:`DatasetError` naming it otherwise."""
+    from ..classes.keys import read_key_labels
+
+    try:
+        lab = read_key_labels(path, table, "none" if mapping is None else "camvid")
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
+    if lab.shape != image.shape[:2]:
+        raise DatasetError(f"{path}: labels are {lab.shape[1]}x{lab.shape[0]} but the image is "
+                           f"{image.shape[1]}x{image.shape[0]}")
+    return lab
+
+
+def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None = "camvid",
+                classes=None) -> list[Frame]:
     """Load ``folder/images/NAME.png`` (or another image suffix) with ``folder/labels/NAME.png`` in name order.
 
     mapping : ``"camvid"`` (CamVid's 12 ids, the default), a dict raw id -> label in {0, 1, 2}, or
-        None (label files already hold 0, 1, 2). A label id outside the mapping is an error.
+        None (label files already hold the class table's ids). A label id outside the mapping is an error.
+    classes : with ``mapping=None``, the labels' class table (a :class:`~pcreg.classes.ClassTable` or what
+        :func:`pcreg.classes.class_table` reads; default ``lagr``): each label file is read through it
+        (class ids, a palette PNG, or the table's colours; :func:`pcreg.classes.keys.read_key_labels`).
+        ``"camvid"`` reads CamVid's ids, or ``camvid11``'s palette or colours, before mapping them.
 
     Without a ``labels/`` folder the frames load unlabelled. With one, every image needs its label
     file and every label file its image, of the same size.
@@ -86,7 +106,12 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
     """
     from ..validation import check_path
 
+    from ..classes import class_table
+
     folder = check_path(folder, "folder")
+    table = class_table(classes)
+    if classes is not None and mapping is not None:
+        raise InputError("load_folder: classes= reads the labels through a table, mapping= maps raw ids; give one")
     lut = mapping_lut(mapping)
     img_dir, lab_dir = folder / "images", folder / "labels"
     if not img_dir.is_dir():
@@ -112,6 +137,10 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
         image = _read_png(images[name], color=True)
         lab = None
         if labels is not None:
+            if mapping is None or mapping == "camvid":
+                frames.append(Frame(image=image, labels=_read_table_labels(labels[name], image, table, mapping),
+                                    name=name))
+                continue
             raw = _read_png(labels[name], color=False)
             if raw.ndim != 2 or raw.dtype != np.uint8:
                 raise DatasetError(f"{labels[name]}: label file must be a single-channel 8-bit PNG, got {raw.shape} {raw.dtype}")

@@ -97,12 +97,23 @@ class PropagatorConfig:
             return ObjectFollower(classifier)
         return Propagator(classifier, **self.options(), learning=STREAM_LEARNING if learns else None)
 
-    def from_key_frame(self, image, labels):
+    def from_key_frame(self, image, labels, *, classes=None):
         """:meth:`propagator`'s labeller with its classifier fitted on the key frame ``image`` and its
-        ``labels`` (unknown pixels left out), reset to them (each kind's own ``from_key_frame``)."""
+        ``labels`` (unknown pixels left out), reset to them (each kind's own ``from_key_frame``).
+        ``classes``: the labels' class table (a :class:`~pcreg.classes.ClassTable`; None: ``lagr``), handed
+        to the classifier (:func:`~pcreg.classification.bayes.fit_classifier`)."""
         from .follow import ObjectFollower
         from .stream import Propagator
 
         if self.follow == "object":
             return ObjectFollower.from_key_frame(image, labels)
-        return Propagator.from_key_frame(image, labels, **self.options())
+        if classes is None:
+            return Propagator.from_key_frame(image, labels, **self.options())
+        from ..classification.bayes import fit_classifier
+        from ..datasets import Frame
+        from ..frame import PreparedFrame
+
+        key = PreparedFrame.of(image, name="key frame")
+        prop = Propagator(fit_classifier([Frame(key.rgb, labels, "key")], classes=classes), **self.options())
+        prop.reset(key, labels)
+        return prop

@@ -4,7 +4,8 @@
 
 - ``/``: the page (``viz/review.html`` with its CSS and JavaScript under ``/viz/``; no build step);
 - ``/review.json``: the frames (name, key frame or not, predicted error), the suggested frames, whether
-  there is a confidence, the colours and the frames' size;
+  there is a confidence, the class table (each known class's name and colour, for the legend) and the
+  frames' size;
 - ``/overlay/T.jpg``: frame ``T`` (its position in the run) with its labels drawn over it
   (:func:`pcreg.review.overlay`), rendered when asked for and kept for the next time (a few hundred);
 - ``/frame/T.jpg``: frame ``T`` as it is.
@@ -79,7 +80,7 @@ class ReviewServer:
     # -- what the page asks for -------------------------------------------------------------------
 
     def review_json(self) -> bytes:
-        from ..review import COLOURS, LOW_CONFIDENCE
+        from ..review import LOW_CONFIDENCE
 
         r = self.review
         frames = [{"name": n, "key": t in r.keys, "error": r.errors[t]} for t, n in enumerate(r.names)]
@@ -87,7 +88,8 @@ class ReviewServer:
         return json.dumps({
             "folder": str(r.folder), "source": str(r.source), "kind": r.kind, "frames": frames,
             "suggested": suggested, "confidence": r.confidence, "low_confidence": LOW_CONFIDENCE,
-            "colours": {"ground": COLOURS[0], "obstacle": COLOURS[1]},
+            "classes": [{"id": c.id, "name": c.name, "colour": list(c.colour)} for c in r.table.known],
+            "unknown": {"id": r.table.unknown, "name": r.table.unknown_class.name},
         }, allow_nan=False).encode()
 
     def image(self, what: str, t: int) -> bytes:

@@ -1,9 +1,9 @@
 """The files of a run's folder other than run.json (:mod:`pcreg.runs.state`), each written and read by
 one pair of functions here, and nowhere else:
 
-- labels, ``NAME.png``: :func:`write_labels` (and a run's readers read them back through
-  :func:`pcreg.export.read_labels`);
-- confidence, ``confidence/NAME.png``: :func:`confidence_png` then :func:`write_labels`;
+- labels, ``NAME.png``: :func:`write_labels`, a palette PNG in the class table's colours (and a run's
+  readers read them back through :func:`pcreg.export.read_labels`);
+- confidence, ``confidence/NAME.png``: :func:`write_confidence` (:func:`confidence_png`, a grey PNG);
 - steps, ``steps.jsonl``: :func:`append_step`, :func:`read_step_lines` and :func:`parse_steps`;
 - the carry, ``carry-{0,1}.npz`` (and a key-frames stretch's own, under :data:`HIDDEN`): :func:`write_carry`,
   :func:`read_carry`;
@@ -24,7 +24,8 @@ import numpy as np
 from ..errors import InputError, OutputError
 from ..formats import NPY_HEADER_ERRORS
 
-__all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels", "confidence_png",
+__all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
+           "write_confidence", "write_grey", "confidence_png",
            "append_step", "read_step_lines", "parse_steps", "write_carry", "read_carry", "check_labelled",
            "write_suggestions", "read_suggestions"]
 
@@ -49,13 +50,27 @@ def label_digest(labels: np.ndarray) -> str:
     return hashlib.sha256(f"{lab.shape}".encode() + lab.tobytes()).hexdigest()
 
 
-def write_labels(path: Path, labels: np.ndarray) -> None:
-    """An (H, W) uint8 map (labels, or a confidence PNG's values) as a PNG at ``path``, atomically."""
+def write_labels(path: Path, labels: np.ndarray, table=None) -> None:
+    """(H, W) uint8 class ids of ``table`` (a :class:`~pcreg.classes.ClassTable`; None: ``lagr``) as a
+    palette PNG at ``path``, atomically: the values the ids, the palette the table's colours
+    (:func:`pcreg.classes.write_label_png`), so that any viewer shows the classes."""
+    from ..classes import DEFAULT_TABLE, write_label_png
+
+    write_label_png(path, np.asarray(labels), DEFAULT_TABLE if table is None else table)
+
+
+def write_confidence(path: Path, confidence: np.ndarray) -> None:
+    """A confidence map ((H, W) in [0, 1]) as a grey PNG at ``path``, atomically (:func:`confidence_png`)."""
+    write_grey(path, confidence_png(confidence))
+
+
+def write_grey(path: Path, values: np.ndarray) -> None:
+    """An (H, W) uint8 map as a grey PNG at ``path``, atomically."""
     import cv2
 
     from ..outputs import atomic_write_bytes
 
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(labels, dtype=np.uint8))
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(values, dtype=np.uint8))
     if not ok:
         raise OutputError(f"cannot encode {path}")
     atomic_write_bytes(path, buf.tobytes())

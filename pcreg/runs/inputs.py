@@ -1,6 +1,9 @@
-"""What a run reads before it labels: its frames' source, the key frame's labels (one label image, or a
-folder of key frames' labels), the truth maps to score against, and the checks that they fit together
-and that ``--out`` overwrites none of them (:func:`read_inputs`). Every check is one line naming the file.
+"""What a run reads before it labels: its frames' source, its class table (``--classes``,
+:func:`pcreg.classes.keys.choose_table`), the key frame's labels (one label image, a folder of key frames'
+labels, or a CVAT "Segmentation mask 1.1" export, :mod:`pcreg.classes.cvat`), the truth maps to score
+against, each read through the table (:func:`pcreg.classes.keys.read_key_labels`), and the checks that
+they fit together and that ``--out`` overwrites none of them (:func:`read_inputs`). Every check is one
+line naming the file.
 """
 
 from __future__ import annotations
@@ -17,41 +20,46 @@ __all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth",
 class RunInputs:
     """A run's inputs, read and checked: its ``frames`` (a :class:`~pcreg.datasets.sources.FolderFrames` or
     ``VideoFrames``), the key frames' labels ``keys`` ({position: (H, W) uint8}), whether they came from a
-    ``folder`` of key frames (else one label image, at position 0), the ``truth`` maps
-    (:class:`TruthMaps`, or None) and, from one label image, the frames ``pending``: the frame after the
-    key frame and the decoder it came from, which a fresh run continues (None from a folder)."""
+    ``folder`` of key frames (or a CVAT export; else one label image, at position 0), the ``truth`` maps
+    (:class:`TruthMaps`, or None), the class ``table`` the labels are ids of (the request's, or a CVAT
+    export's ``labelmap.txt``) and, from one label image, the frames ``pending``: the frame after the key
+    frame and the decoder it came from, which a fresh run continues (None from a folder)."""
 
     frames: Any
     keys: dict
     folder: bool
     truth: "TruthMaps | None"
+    table: Any
     pending: tuple | None = None
 
 
 def read_inputs(request, frames) -> RunInputs:
     """The inputs of ``request`` (a :class:`~pcreg.runs.run.RunRequest`) whose ``frames`` are open, read and
-    checked in the order a run meets them: the key frames' labels, the truth, ``--out`` and ``--suggest``."""
-    if request.labels.is_dir():
-        keys, shape, pending = _key_folder(request, frames), None, None
+    checked in the order a run meets them: the key frames' labels (through the request's class table, or a
+    CVAT export's), the truth, ``--out`` and ``--suggest``."""
+    table, mapping = request.coding.table, request.coding.mapping
+    if request.folder_of_keys:
+        (table, keys), shape, pending = _key_folder(request, frames, table, mapping), None, None
         # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
         spared = request.labels / f"{frames.stem(next(iter(keys)))}.png"
     else:
-        keys, pending = _key_image(request, frames)
+        keys, pending = _key_image(request, frames, table, mapping)
         shape, spared = pending[0].image.shape[:2], request.labels
-    truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, request.mapping)
+    truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, mapping, table)
     check_spares_inputs(request.out, frames, spared, truth)
     check_suggest(request.suggest, frames, len(keys))
-    return RunInputs(frames, keys, pending is None, truth, pending)
+    return RunInputs(frames, keys, pending is None, truth, table, pending)
 
 
-def _key_image(request, frames) -> tuple[dict, tuple]:
-    """One label image, the key frame's (the first frame chosen), and the frames it leaves pending (the key
-    frame, the next and their decoder); at least one frame more."""
+def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
+    """One label image, the key frame's (the first frame chosen), read through ``table`` as ``mapping``
+    says, and the frames it leaves pending (the key frame, the next and their decoder); at least one frame
+    more."""
     from ..datasets.davis import check_key_mask
     from ..errors import InputError
 
-    key_labels = read_labels(request.labels, request.mapping)
-    if request.mapping == "davis":
+    key_labels = read_labels(request.labels, mapping, table)
+    if mapping == "davis":
         check_key_mask(key_labels, str(request.labels))
     decoded = frames.frames(0)
     key = next(decoded)  # a source with no frame at --start raises, never ends empty
@@ -64,41 +72,29 @@ def _key_image(request, frames) -> tuple[dict, tuple]:
     return {0: key_labels}, (key, second, decoded)
 
 
-def _key_folder(request, frames) -> dict:
-    """A folder of key frames' labels, ``NAME.png`` for the frame ``NAME``, each of the frames' size."""
+def _key_folder(request, frames, table, mapping: str) -> tuple:
+    """``(table, keys)``: a folder of key frames' labels, ``NAME.png`` for the frame ``NAME``, read through
+    ``table``, or a CVAT export read through its ``labelmap.txt`` (:func:`pcreg.classes.cvat.read_cvat_keys`,
+    whose table it is); each of the frames' size."""
+    from ..classes.cvat import is_cvat_export, read_cvat_keys
     from ..errors import InputError
 
     out, folder = request.out, request.labels
     first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty
     if folder.resolve() == out.resolve():
         raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
-    return read_key_labels(folder, frames, request.mapping, first.image.shape[:2])
+    if is_cvat_export(folder):
+        return read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping)
+    return table, read_key_labels(folder, frames, mapping, first.image.shape[:2], table)
 
 
-def read_labels(path: Path, mapping: str):
-    import cv2
-    import numpy as np
+def read_labels(path: Path, mapping: str, table=None):
+    """A key frame's (or a truth map's) labels read through the run's class ``table`` (None: ``lagr``) as
+    ``mapping`` says (:func:`pcreg.classes.keys.read_key_labels`)."""
+    from ..classes import DEFAULT_TABLE
+    from ..classes.keys import read_key_labels as read_through
 
-    from ..datasets.davis import mask_hint
-    from ..datasets.folder import mapping_lut
-    from ..errors import InputError
-    from ..formats import read_image_file
-
-    raw = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)  # a regular file, its size checked first
-    if raw.ndim == 3:  # a grey image saved in colour is read as grey; labels in colours are not labels
-        if raw.shape[2] not in (3, 4) or not (raw[:, :, 1:3] == raw[:, :, :1]).all():
-            raise InputError(f"{path}: labels must be a single-channel image (one class id per pixel), "
-                             f"got {raw.shape[2]} channels that differ")
-        raw = raw[:, :, 0]
-    if raw.dtype != np.uint8:
-        raise InputError(f"{path}: labels must be an 8-bit image, got {raw.dtype}")
-    lut = mapping_lut(None if mapping == "none" else mapping)
-    lab = lut[raw]
-    if (lab == 255).any():
-        bad = int(raw[lab == 255][0])
-        raise InputError(f"{path}: label value {bad} is not {'a CamVid class id' if mapping == 'camvid' else '0, 1 or 2'}"
-                         + mask_hint(raw))
-    return lab
+    return read_through(path, DEFAULT_TABLE if table is None else table, mapping)
 
 
 class TruthMaps:
@@ -106,8 +102,8 @@ class TruthMaps:
     not all held in memory (2,000 frames at 640x480 are 600 MB). A folder's are all checked before the
     run starts; a video's length is known only once decoded, so each of its maps is checked when read."""
 
-    def __init__(self, root: Path, frames, mapping: str, shape: tuple[int, int]) -> None:
-        self.root, self.frames, self.mapping, self.shape = root, frames, mapping, shape
+    def __init__(self, root: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> None:
+        self.root, self.frames, self.mapping, self.shape, self.table = root, frames, mapping, shape, table
 
     def path(self, t: int) -> Path:
         return self.root / f"{self.frames.stem(t)}.png"
@@ -116,13 +112,14 @@ class TruthMaps:
         from .truth import check_truth
 
         f = self.path(t)
-        lab = read_labels(f, self.mapping) if f.is_file() else None
+        lab = read_labels(f, self.mapping, self.table) if f.is_file() else None
         check_truth([lab], self.shape, [self.frames.name(t)])
         return lab
 
 
-def open_truth(folder: str | None, frames, shape, mapping: str):
-    """The frames' truth labels (:class:`TruthMaps`); a folder's checked first, every one, one at a time."""
+def open_truth(folder: str | None, frames, shape, mapping: str, table=None):
+    """The frames' truth labels (:class:`TruthMaps`, read through ``table``); a folder's checked first, every
+    one, one at a time."""
     from ..errors import InputError
 
     if folder is None:
@@ -130,7 +127,7 @@ def open_truth(folder: str | None, frames, shape, mapping: str):
     root = Path(folder)
     if not root.is_dir():
         raise InputError(f"--truth {root}: not a folder")
-    truth = TruthMaps(root, frames, mapping, shape)
+    truth = TruthMaps(root, frames, mapping, shape, table)
     if frames.kind == "folder":
         for t in range(len(frames)):
             truth[t]
@@ -161,11 +158,15 @@ def check_suggest(count: int | None, frames, keys: int) -> None:
     if count is not None and n is not None and count > n - keys:
         raise InputError(f"--suggest {count}: only {n - keys} frame(s) are not key frames")
 
-def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) -> dict:
-    """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``), each
-    checked: a frame it names, one label a frame, the frames' size, something known."""
+def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> dict:
+    """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``), read
+    through ``table`` (None: ``lagr``), each checked: a frame it names, one label a frame, the frames' size,
+    something known."""
+    from ..classes import DEFAULT_TABLE
+    from ..classes.keys import all_unknown
     from ..errors import InputError
 
+    table = DEFAULT_TABLE if table is None else table
     files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith("."))
     if not files:
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
@@ -193,11 +194,11 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int]) 
                                                                            else " among those chosen"))
         if t in seen:
             raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
-        lab = read_labels(f, mapping)
+        lab = read_labels(f, mapping, table)
         if lab.shape != shape:
             raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}")
-        if not (lab < 2).any():
-            raise InputError(f"{f}: the labels are all unknown (2): nothing to fit or propagate")
+        if all_unknown(lab, table):
+            raise InputError(f"{f}: the labels are all unknown ({table.unknown}): nothing to fit or propagate")
         keys[t], seen[t] = lab, f
     return {t: keys[t] for t in sorted(keys)}
 

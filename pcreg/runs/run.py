@@ -3,15 +3,17 @@ labelled into and labels it.
 
 The command hands a request (the frames' source, the key frames' labels, ``--out``, how labels are
 coded, the truth folder, the propagators' :class:`~pcreg.pipeline.config.PropagatorConfig`, the outputs
-asked for) to :meth:`Run.label`, which reads and checks the inputs (:mod:`pcreg.runs.inputs`), opens or
-resumes the folder and labels every frame not labelled yet: from one label image, forwards from the key
-frame (:func:`pcreg.pipeline.engine.propagate`); from a folder of key frames, stretch by stretch
-(:class:`pcreg.pipeline.keys_run.KeyRun`, whose passes commit their frames here).
+asked for) to :meth:`Run.label`, which reads and checks the inputs (:mod:`pcreg.runs.inputs`; the key
+frames' labels and the truth read through the run's class table, ``--classes``), opens or resumes the
+folder and labels every frame not labelled yet: from one label image, forwards from the key frame
+(:func:`pcreg.pipeline.engine.propagate`); from a folder of key frames (or a CVAT export), stretch by
+stretch (:class:`pcreg.pipeline.keys_run.KeyRun`, whose passes commit their frames here).
 
 Outputs in ``out``, each written atomically (:mod:`pcreg.runs.files`, :mod:`pcreg.runs.state`):
 
 - ``NAME.png`` per frame (a folder's file name without its suffix; ``{i:06d}`` for a video's frame ``i``):
-  its labels (0 ground, 1 obstacle; a key frame's own labels as given);
+  its labels, a palette PNG in the class table's colours whose values are the class ids (``lagr``: 0 ground,
+  1 obstacle; a key frame's own labels as given);
 - ``steps.jsonl``: one line per labelled frame (:meth:`pcreg.Propagator.step`'s report, and the frame's
   error against the truth when there is one), appended;
 - ``run.json``: the run's identity, how far it has come, how many registrations fell back and the running
@@ -33,15 +35,16 @@ resumed run writes exactly what an uninterrupted run writes.
 from __future__ import annotations
 
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
-from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, append_step, check_labelled, confidence_png, label_digest,
-                    parse_steps, read_carry, read_step_lines, write_carry, write_labels)
+from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, append_step, check_labelled, label_digest, parse_steps,
+                    read_carry, read_step_lines, write_carry, write_confidence, write_labels)
 from .state import STATE, open_state, read_state, run_frames, write_state
 from .truth import add_rates, count_frame, empty_counts
 
@@ -56,17 +59,19 @@ __all__ = ["RunRequest", "Run"]
 class RunRequest:
     """What to label: the ``frames`` (a folder or a video) and which of them (``selection``, a
     :class:`~pcreg.datasets.sources.Selection`), the key frame's ``labels`` (a label image, or a folder of
-    key frames' labels), ``out``, the propagators' ``config``, how labels are coded (``mapping``: none,
-    camvid or davis), a ``truth`` folder to score against, and the outputs asked for: ``confidence`` PNGs,
-    ``suggest`` (how many frames to label next), ``force`` (start over), a recording (``record``, a .rrd
-    path, ``record_raw``: its images lossless)."""
+    key frames' labels, or a CVAT "Segmentation mask 1.1" export), ``out``, the propagators' ``config``,
+    how labels are coded (``coding``, a :class:`~pcreg.classes.keys.LabelCoding`: ``--classes``, the class
+    table, and ``--mapping``, none, camvid or davis), a ``truth`` folder to score against, and the outputs
+    asked for: ``confidence`` PNGs, ``suggest`` (how many frames to label next), ``force`` (start over), a
+    recording (``record``, a .rrd path, ``record_raw``: its images lossless). ``--follow object`` with a
+    folder of key frames is an :class:`~pcreg.errors.InputError`."""
 
     frames: Path
     labels: Path
     out: Path
     config: PropagatorConfig
     selection: Selection
-    mapping: str = "none"
+    coding: LabelCoding = field(default_factory=LabelCoding)
     truth: Path | None = None
     confidence: bool = False
     suggest: int | None = None
@@ -75,9 +80,17 @@ class RunRequest:
     record_raw: bool = False
 
     def __post_init__(self) -> None:
-        if self.config.follow == "object" and self.labels.is_dir():
+        if self.config.follow == "object" and self.folder_of_keys:
             raise InputError(f"--labels {self.labels}: --follow object follows one key frame's mask, not a folder of "
                              "key frames; give one label image")
+
+    @property
+    def folder_of_keys(self) -> bool:
+        """Whether ``labels`` is a folder of key frames' labels or a CVAT export
+        (:func:`pcreg.classes.cvat.is_cvat_export`), not one label image."""
+        from ..classes.cvat import is_cvat_export
+
+        return self.labels.is_dir() or is_cvat_export(self.labels)
 
 
 class Run:
@@ -85,10 +98,12 @@ class Run:
     opening and resuming it, committing a frame, its steps, the carry, the truth counts, the suggestions
     and reading it back. ``frames``: the frame source's names (position 0 is the first frame chosen);
     ``truth``: label maps indexed by position (an entry None where there is none; read when asked), or
-    None; ``confidence``: write ``confidence/NAME.png``."""
+    None; ``confidence``: write ``confidence/NAME.png``. The label PNGs are written in the class table
+    the identity names (:func:`pcreg.classes.keys.run_table`)."""
 
     def __init__(self, frames, out: Path, identity: dict | None, *, truth=None, confidence: bool = False) -> None:
         self.frames, self.out, self.identity = frames, Path(out), identity
+        self.table = run_table(identity)
         self.truth, self.confidence = truth, confidence
         self.state: dict = {}
 
@@ -99,16 +114,19 @@ class Run:
         """Label what ``request`` asks into its ``out`` (resuming a run of the same identity there); the
         exit code, 0. Bad inputs are :class:`~pcreg.errors.InputError`, an ``out`` that holds another run an
         :class:`~pcreg.errors.OutputError`, each one line."""
+        from ..classes.keys import with_classes
         from ..datasets.sources import open_frames
         from ..outputs import OutputLock
         from .inputs import read_inputs
         from .state import run_identity
 
         inputs = read_inputs(request, open_frames(request.frames, request.selection))
-        keys, pending = inputs.keys, inputs.pending
-        prop = None if pending is None else request.config.from_key_frame(pending[0].image, keys[0])
-        identity = run_identity(inputs.frames, request.frames, request.labels, request.config, mapping=request.mapping,
-                                truth=request.truth, confidence=request.confidence)
+        keys, pending, table = inputs.keys, inputs.pending, inputs.table
+        prop = None if pending is None else request.config.from_key_frame(
+            pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
+        identity = with_classes(run_identity(inputs.frames, request.frames, request.labels, request.config,
+                                             mapping=request.coding.mapping, truth=request.truth,
+                                             confidence=request.confidence), table, request.coding.mapping)
         run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence)
         with OutputLock(request.out):  # a second run on the same --out is refused, not raced
             if pending is None:
@@ -228,7 +246,7 @@ class Run:
             (self.out / CARRY.format(slot)).unlink(missing_ok=True)
         self.state = {"run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None}
-        write_labels(self.out / f"{self.frames.stem(0)}.png", labels)
+        write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
         (self.out / STEPS).write_bytes(b"")
         write_state(self.out, self.state)
         return 1
@@ -288,7 +306,7 @@ class Run:
         for k, lab in keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
-                write_labels(f, lab)
+                write_labels(f, lab, self.table)
         self.state.update(keys=names, stretches=kept, cursor=cursor, lines=len(lines))
         self.totals()
         self.commit()
@@ -309,10 +327,10 @@ class Run:
         counted into ``counts`` (``scored``: its truth map and naive Bayes' labels alone, or two Nones) and
         its ``step`` line; the caller commits."""
         stem = self.frames.stem(t)
-        write_labels(self.out / f"{stem}.png", labels)
+        write_labels(self.out / f"{stem}.png", labels, self.table)
         if confidence is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
-            write_labels(self.out / CONFIDENCE / f"{stem}.png", confidence_png(confidence))
+            write_confidence(self.out / CONFIDENCE / f"{stem}.png", confidence)
         truth, plain = scored
         if truth is not None and counts is not None:
             count_frame(counts, labels, truth, plain)

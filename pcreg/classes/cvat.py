@@ -1,0 +1,268 @@
+"""Key frames a person drew in CVAT, exported as "Segmentation mask 1.1": ``pcreg run --labels EXPORT.zip``
+(or the unpacked folder).
+
+The export is the Pascal VOC segmentation layout (CVAT's format page, docs.cvat.ai "Segmentation Mask";
+written by Datumaro's VOC exporter)::
+
+    EXPORT.zip
+    ├── labelmap.txt                        # name:R,G,B:parts:actions, the class table
+    ├── ImageSets/Segmentation/default.txt  # the frames' names, without extension
+    ├── SegmentationClass/NAME.png          # each pixel in its class's colour (RGB), black unlabelled
+    └── SegmentationObject/NAME.png         # instances (not read)
+
+The class table is the ``labelmap.txt``'s (:func:`pcreg.classes.files.parse_labelmap`; with ``--classes``
+too, the two must agree). A mask is read through the table's colours (RGB, or a palette PNG's colours);
+a one-channel mask holds each pixel's line in ``labelmap.txt``. A mask names its frame by its file's stem:
+the frame of that stem, else ``frame_NNNNNN`` (CVAT's name of a video's frame N, and of the N-th image of a
+task) the source's frame N, where the run chose it (``--start``, ``--every``). A mask that is all
+background is a frame nobody drew on, not a key frame.
+
+An archive is read in memory, never unpacked: members are looked up by name, a name that climbs out of
+the archive (``..``, an absolute path) is refused, and every member's size is bounded before it is read
+(:data:`MAX_MEMBERS`, the pixel limit's file size).
+"""
+
+from __future__ import annotations
+
+import re
+import zipfile
+import zlib
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from ..errors import InputError
+from .table import ClassTable
+
+__all__ = ["CLASS_DIR", "MAX_MEMBERS", "is_cvat_export", "CvatExport", "read_cvat_keys"]
+
+#: The folder of class masks in the export.
+CLASS_DIR = "SegmentationClass"
+#: The most members an archive may list.
+MAX_MEMBERS = 200_000
+_FRAME = re.compile(r"frame_(\d{1,9})")
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError, ValueError, OSError)
+
+
+def is_cvat_export(path: Path) -> bool:
+    """Whether ``--labels path`` names a CVAT export: a ``.zip`` file, or a folder holding a
+    ``SegmentationClass/`` folder."""
+    p = Path(path)
+    return (p.is_file() and p.suffix.lower() == ".zip") or (p.is_dir() and (p / CLASS_DIR).is_dir())
+
+
+def _safe_name(name: str) -> str | None:
+    """A member's name as a relative POSIX path, or None when it climbs out (``..``, absolute, a drive)."""
+    if "\\" in name or name.startswith("/") or re.match(r"[A-Za-z]:", name) or "\0" in name:
+        return None
+    parts = PurePosixPath(name).parts
+    if any(p in ("..", "") for p in parts):
+        return None
+    return "/".join(p for p in parts if p != ".")
+
+
+class CvatExport:
+    """The files of an export, a zip archive or a folder, by relative name (``labelmap.txt``,
+    ``SegmentationClass/NAME.png``); a context manager."""
+
+    def __init__(self, path: str | Path, *, max_bytes: int) -> None:
+        self.path, self.max_bytes = Path(path), max_bytes
+        self._zip: zipfile.ZipFile | None = None
+        self._members: dict[str, zipfile.ZipInfo] = {}
+        if self.path.is_dir():
+            return
+        try:
+            self._zip = zipfile.ZipFile(self.path)
+            infos = self._zip.infolist()
+        except _ZIP_ERRORS as exc:
+            raise InputError(f"{self.path}: not a readable zip archive ({exc})") from None
+        if len(infos) > MAX_MEMBERS:
+            self.close()
+            raise InputError(f"{self.path}: {len(infos)} members; a CVAT export of at most {MAX_MEMBERS} is read")
+        for info in infos:
+            name = _safe_name(info.filename)
+            if name is None:
+                self.close()
+                raise InputError(f"{self.path}: member {info.filename!r} names a path outside the archive")
+            if not info.is_dir():
+                self._members[name] = info
+
+    def names(self, folder: str) -> list[str]:
+        """The ``.png`` files directly in ``folder``, by relative name, in name order."""
+        if self._zip is None:
+            d = self.path / folder
+            return sorted(f"{folder}/{p.name}" for p in d.iterdir()
+                          if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith(".")) if d.is_dir() else []
+        return sorted(n for n in self._members if n.startswith(f"{folder}/") and n.count("/") == folder.count("/") + 1
+                      and n.lower().endswith(".png") and not n.rsplit("/", 1)[1].startswith("."))
+
+    def has(self, name: str) -> bool:
+        return (self.path / name).is_file() if self._zip is None else name in self._members
+
+    def where(self, name: str) -> str:
+        """How an error names a member: ``EXPORT.zip:NAME`` or the file's path."""
+        return str(self.path / name) if self._zip is None else f"{self.path}:{name}"
+
+    def read(self, name: str) -> bytes:
+        """The bytes of ``name``, no more than ``max_bytes`` (read so, whatever the archive declares)."""
+        from ..formats import read_regular_file
+
+        if self._zip is None:
+            return read_regular_file(self.path / name, max_bytes=self.max_bytes, what="CVAT export file")
+        info = self._members[name]
+        if info.file_size > self.max_bytes:
+            raise InputError(f"{self.where(name)}: {info.file_size} bytes, more than the {self.max_bytes} a label "
+                             "image may have")
+        try:
+            with self._zip.open(info) as fh:
+                data = fh.read(self.max_bytes + 1)
+        except _ZIP_ERRORS as exc:
+            raise InputError(f"{self.where(name)}: unreadable in the archive ({exc})") from None
+        if len(data) > self.max_bytes:
+            raise InputError(f"{self.where(name)}: larger than the {self.max_bytes} bytes a label image may have")
+        return data
+
+    def close(self) -> None:
+        if self._zip is not None:
+            self._zip.close()
+
+    def __enter__(self) -> "CvatExport":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[int]]:
+    """The export's table (``labelmap.txt``; with ``--classes`` too, they must agree) and each labelmap
+    line's class id, in the file's order (for one-channel masks)."""
+    from .files import LABELMAP_FILE, class_table, parse_labelmap
+    from .table import check_tables_agree
+
+    if not export.has(LABELMAP_FILE):
+        if classes is None:
+            raise InputError(f"{export.where(LABELMAP_FILE)}: missing (the export's class table; or name one with "
+                             "--classes)")
+        table = class_table(classes)
+        return table, [table.unknown, *table.known_ids]
+    try:
+        text = export.read(LABELMAP_FILE).decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise InputError(f"{export.where(LABELMAP_FILE)}: not UTF-8 text") from None
+    table = parse_labelmap(text, export.where(LABELMAP_FILE))
+    if classes is not None:
+        check_tables_agree([(f"--classes {classes}", class_table(classes)), (export.where(LABELMAP_FILE), table)])
+    order = [table.id_of(ln.split(":")[0].strip()) for ln in text.splitlines()
+             if ln.strip() and not ln.strip().startswith("#")]
+    return table, order
+
+
+def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], limit: int) -> np.ndarray:
+    """A CVAT class mask's class ids: colours (RGB, or a palette's) through the table, one channel as
+    labelmap lines."""
+    import io
+
+    from PIL import Image
+
+    from ..formats import check_image_bytes, decode_image
+    from .png import is_palette_png
+
+    check_image_bytes(data, name, limit=limit)
+    if is_palette_png(data):
+        try:
+            with Image.open(io.BytesIO(data)) as im:
+                rgb = np.asarray(im.convert("RGB"), dtype=np.uint8)
+        except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+            raise InputError(f"{name}: cannot decode image ({exc})") from None
+        return table.ids_from_colours(rgb, name)
+    img = decode_image(data, name, limit=limit)
+    if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] in (3, 4):
+        return table.ids_from_colours(np.ascontiguousarray(img[:, :, 2::-1]), name)
+    if img.ndim == 2 and img.dtype == np.uint8:
+        lut = np.full(256, 255, np.uint8)
+        lut[: len(order)] = order
+        ids = lut[img]
+        if (ids == 255).any():
+            bad = int(img[ids == 255][0])
+            raise InputError(f"{name}: value {bad} is no line of the labelmap.txt ({len(order)} classes)")
+        return ids
+    raise InputError(f"{name}: not a class mask (RGB colours of labelmap.txt, or one channel)")
+
+
+def _positions(frames):
+    """``stem -> position`` of the run's frames, and a function of a mask's stem to a position or None."""
+    s = frames.selection
+    by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
+
+    def source_index(i: int) -> int | None:
+        if not s.chosen(i):
+            return None
+        t = (i - s.start) // s.every
+        if frames.kind == "folder":
+            return t if t < len(frames) else None
+        return None if frames.declared is not None and i >= frames.declared else t
+
+    def where(stem: str) -> int | None:
+        if stem in by_stem:
+            return by_stem[stem]
+        m = _FRAME.fullmatch(stem)
+        if m is not None:
+            return source_index(int(m.group(1)))
+        if frames.kind != "folder" and stem.isascii() and stem.isdigit():
+            return source_index(int(stem))
+        return None
+
+    return where
+
+
+def _named(frames) -> str:
+    """How the run's frames are named: the first and the last."""
+    n = len(frames) if frames.kind == "folder" else frames.count()
+    first = frames.stem(0)
+    if frames.kind == "folder":
+        return f"{first} ... {frames.stem(len(frames) - 1)}"
+    return f"{first} ... {n - 1:06d}" if n else f"{first} ..."
+
+
+def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | None = None, *,
+                   mapping: str = "none", limit: int | None = None) -> tuple[ClassTable, dict[int, np.ndarray]]:
+    """``(table, {position: labels})`` of the CVAT export at ``path`` (the module's docstring) for the run's
+    ``frames`` (:mod:`pcreg.datasets.sources`), every key frame of ``shape`` (H, W). One line naming the
+    file: a malformed archive or mask, a colour not in ``labelmap.txt``, masks whose names match no frame
+    (saying how both are named), a labelled mask of no chosen frame, two masks of one frame, none drawn on."""
+    from ..formats import max_file_bytes
+    from ..validation import max_pixels
+
+    if mapping != "none":
+        raise InputError(f"--mapping {mapping}: the masks of a CVAT export ({path}) are read through its labelmap.txt")
+    lim = max_pixels(limit)
+    with CvatExport(path, max_bytes=max_file_bytes(lim)) as export:
+        table, order = _table(export, classes)
+        masks = export.names(CLASS_DIR)
+        if not masks:
+            raise InputError(f"{export.where(CLASS_DIR)}: no class mask (a CVAT 'Segmentation mask 1.1' export holds "
+                             f"{CLASS_DIR}/NAME.png)")
+        where = _positions(frames)
+        stems = [PurePosixPath(m).stem for m in masks]
+        placed = [where(s) for s in stems]
+        if all(t is None for t in placed):
+            raise InputError(f"{path}: its masks are named {stems[0]} ... {stems[-1]}, the frames of "
+                             f"{frames.path} {_named(frames)}: no mask names a frame")
+        keys: dict[int, np.ndarray] = {}
+        seen: dict[int, str] = {}
+        for m, t in zip(masks, placed):
+            lab = _decode_mask(export.read(m), export.where(m), table, order, lim)
+            if (lab == table.unknown).all():
+                continue  # a frame nobody drew on
+            if t is None:
+                raise InputError(f"{export.where(m)}: names no frame of {frames.path}"
+                                 + ("" if frames.selection.to_dict() is None else " among those chosen"))
+            if t in seen:
+                raise InputError(f"{export.where(m)}: a second mask of the frame {frames.name(t)} (also {seen[t]})")
+            if lab.shape != shape:
+                raise InputError(f"{export.where(m)}: the mask is {lab.shape[1]}x{lab.shape[0]}, the frames "
+                                 f"{shape[1]}x{shape[0]}")
+            keys[t], seen[t] = lab, m
+    if not keys:
+        raise InputError(f"{path}: every mask is background only: no key frame drawn")
+    return table, {t: keys[t] for t in sorted(keys)}

@@ -1,0 +1,199 @@
+"""Key labels as ``pcreg run`` reads them: a label image read through the run's class table, and the
+table a run names (``--classes``, ``--mapping``) and keeps in its ``run.json``.
+
+A label image is read three ways (:func:`pcreg.classes.png.decode_label_png`): class ids in one channel,
+a palette PNG (values the ids, its colours the table's), or colours (each pixel in its class's table
+colour, as CVAT's masks). pcreg's own label PNGs are palette PNGs in the table's colours, so a run's
+output reads back as key labels. A grey image saved in colour (three equal channels) is read as grey
+when its colours are not the table's.
+
+``--mapping`` says how the files are coded when they are not the table's ids:
+
+- ``none``: the table's ids (or its colours, or a palette in its colours);
+- ``camvid``: CamVid's twelve ids (or ``camvid11``'s colours), mapped to ``lagr``'s ground, obstacle and
+  unknown (:data:`pcreg.datasets.folder.CAMVID_MAPPING`); the table stays ``lagr``;
+- ``davis``: an object mask, 0 the background and any other value (or palette index) the object: the
+  ``davis`` table, whose ids are ``lagr``'s. ``--classes davis`` is the same.
+
+A run names its table in its identity (``run.json``'s ``run.classes``, :func:`identity_classes`) only when
+it is not the one its mapping implies (``lagr``, or ``davis`` with ``--mapping davis``), so that every
+binary run's ``run.json`` stays as it was; readers of a run get its table from :func:`run_table`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
+
+__all__ = ["MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "identity_classes", "with_classes",
+           "run_table", "all_unknown"]
+
+#: ``--mapping``'s values.
+MAPPINGS: tuple[str, ...] = ("none", "camvid", "davis")
+
+
+def choose_table(classes: str | None, mapping: str = "none") -> tuple[ClassTable, str]:
+    """``(table, mapping)`` of ``--classes`` (None: not given) and ``--mapping``: ``--classes davis`` reads
+    object masks as ``--mapping davis`` does, and ``--mapping davis`` names the ``davis`` table.
+    Refused: ``--mapping camvid`` (CamVid's ids mapped to ``lagr``) with another table than ``lagr``, and
+    ``--mapping davis`` with another than ``davis``."""
+    from .files import class_table
+
+    if mapping not in MAPPINGS:
+        raise InputError(f"unknown --mapping {mapping!r}; choose one of {', '.join(MAPPINGS)}")
+    if classes is None:
+        return (DAVIS if mapping == "davis" else DEFAULT_TABLE), mapping
+    table = class_table(classes)
+    if table.agrees(DAVIS) and classes == "davis" and mapping == "none":
+        mapping = "davis"
+    if mapping == "camvid" and not table.agrees(DEFAULT_TABLE):
+        raise InputError(f"--mapping camvid maps CamVid's ids to lagr's ground and obstacle, not to --classes "
+                         f"{classes}; --classes camvid11 reads CamVid's eleven classes as they are")
+    if mapping == "davis" and not table.agrees(DAVIS):
+        raise InputError(f"--mapping davis reads an object mask (the davis table), not --classes {classes}")
+    return table, mapping
+
+
+@dataclass(frozen=True)
+class LabelCoding:
+    """How a run's label images are coded: ``classes`` (``--classes``: a built-in table's name or a table's
+    file; None: not given) and ``mapping`` (``--mapping``: none, camvid or davis). Made, it holds the
+    ``table`` :func:`choose_table` resolves and the ``mapping`` it reads with (``davis`` when ``classes``
+    is ``davis``); a table or mapping that is none, or the two disagreeing, is an :class:`InputError`."""
+
+    classes: str | None = None
+    mapping: str = "none"
+    table: ClassTable = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        table, mapping = choose_table(self.classes, self.mapping)
+        object.__setattr__(self, "table", table)
+        object.__setattr__(self, "mapping", mapping)
+
+
+def _raw_values(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
+    """The values an object mask stores: a palette PNG's indices, a grey image's values, a colour
+    image's pixels that are not black as 1."""
+    from ..formats import check_image_bytes, decode_image
+    from .png import is_palette_png
+
+    check_image_bytes(data, name, limit=limit)
+    if is_palette_png(data):
+        import io
+
+        from PIL import Image
+
+        try:
+            with Image.open(io.BytesIO(data)) as im:
+                im.load()
+                return np.asarray(im.convert("P") if im.mode != "P" else im, dtype=np.uint8).copy()
+        except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+            raise InputError(f"{name}: cannot decode image ({exc})") from None
+    img = decode_image(data, name, limit=limit)
+    if img.ndim == 3:
+        return (img[:, :, :3] != 0).any(axis=2).astype(np.uint8)
+    if img.dtype != np.uint8:
+        raise InputError(f"{name}: an object mask must be an 8-bit image, got {img.dtype}")
+    return img
+
+
+def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | None) -> np.ndarray:
+    """Class ids of ``table`` (:func:`~pcreg.classes.png.decode_label_png`), a grey image saved in colour
+    read as grey, a photograph refused with what labels are."""
+    from ..formats import decode_image
+    from .png import decode_label_png, is_palette_png
+
+    try:
+        return decode_label_png(data, name, table, limit=limit)
+    except InputError as exc:
+        if is_palette_png(data) or "colour (" not in str(exc):
+            raise
+        img = decode_image(data, name, limit=limit)
+        if img.ndim == 3 and (img[:, :, 1:3] == img[:, :, :1]).all():
+            return table.check_labels(img[:, :, 0], name)
+        raise InputError(f"{exc}; labels are class ids in a single-channel image, a palette PNG, or the class "
+                         "table's colours") from None
+
+
+def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = "none", *,
+                      limit: int | None = None) -> np.ndarray:
+    """(H, W) uint8 class ids of ``table`` of an encoded label image ``name`` coded as ``mapping`` says
+    (the module's docstring); one line naming ``name`` for a value or colour that is no class."""
+    from ..datasets.davis import DAVIS_MAPPING, mask_hint
+    from ..datasets.folder import mapping_lut
+
+    if mapping == "davis":
+        lut = mapping_lut(DAVIS_MAPPING)
+        assert lut is not None
+        return lut[_raw_values(data, name, limit=limit)]
+    if mapping == "camvid":
+        raw = _through_table(data, name, CAMVID11, limit=limit)
+        lut = mapping_lut("camvid")
+        assert lut is not None
+        return lut[raw]
+    try:
+        return _through_table(data, name, table, limit=limit)
+    except InputError as exc:
+        hint = ""
+        if "label value" in str(exc):
+            try:
+                hint = mask_hint(_raw_values(data, name, limit=limit))
+            except InputError:
+                hint = ""
+        if hint and table.agrees(DEFAULT_TABLE):
+            raise InputError(f"{exc}{hint}") from None
+        raise
+
+
+def read_key_labels(path: str | Path, table: ClassTable, mapping: str = "none", *,
+                    limit: int | None = None) -> np.ndarray:
+    """:func:`decode_key_labels` of the file at ``path`` (a regular file, no larger than the pixel limit
+    allows)."""
+    from ..formats import max_file_bytes, read_regular_file
+    from ..validation import max_pixels
+
+    lim = max_pixels(limit)
+    data = read_regular_file(path, max_bytes=max_file_bytes(lim), what="image")
+    return decode_key_labels(data, str(path), table, mapping, limit=lim)
+
+
+def all_unknown(labels: np.ndarray, table: ClassTable) -> bool:
+    """Whether every pixel of ``labels`` is the table's unknown (nothing to fit or propagate)."""
+    return bool((np.asarray(labels) == table.unknown).all())
+
+
+def identity_classes(table: ClassTable, mapping: str) -> dict | None:
+    """What a run's identity says of its table: None when it is the one ``mapping`` implies (``lagr``;
+    ``davis`` with ``--mapping davis``), else the table's JSON form (:func:`~pcreg.classes.files.table_json`)."""
+    from .files import table_json
+
+    implied = DAVIS if mapping == "davis" else DEFAULT_TABLE
+    if table.agrees(implied) and table.unknown_class.name == implied.unknown_class.name:
+        return None
+    return json.loads(table_json(table))
+
+
+def with_classes(identity: dict, table: ClassTable, mapping: str) -> dict:
+    """``identity`` (a run's, :func:`pcreg.runs.state.run_identity`) naming ``table`` as ``classes`` when
+    :func:`identity_classes` says it must; a new dict."""
+    named = identity_classes(table, mapping)
+    return dict(identity) if named is None else {**identity, "classes": named}
+
+
+def run_table(identity: dict | None) -> ClassTable:
+    """The class table of a run whose identity (``run.json``'s ``run``) is ``identity``: the one it names
+    (:func:`identity_classes`), else the one its mapping implies. A table there that is not one is an
+    :class:`InputError`."""
+    from .files import parse_table_json
+
+    identity = identity or {}
+    named = identity.get("classes")
+    if named is None:
+        return DAVIS if identity.get("mapping") == "davis" else DEFAULT_TABLE
+    return parse_table_json(json.dumps(named), "run.json's classes")

@@ -1,0 +1,237 @@
+"""``pcreg run --labels EXPORT.zip``: key frames drawn in CVAT and exported as "Segmentation mask 1.1", and
+the run's export read back by Datumaro's VOC reader (the reader CVAT's import uses).
+
+The exports are written here in CVAT's documented layout (docs.cvat.ai, "Segmentation Mask": labelmap.txt,
+ImageSets/Segmentation/default.txt, SegmentationClass/NAME.png in the label map's colours,
+SegmentationObject/NAME.png) from the shared CamVid clip 0001TP, whose ids 0..10 and 11 void are the
+``camvid11`` table. Bad exports end in one line naming the file, exit 2.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+import zipfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.classes import CAMVID11, ClassTable, LabelClass, labelmap_text
+from pcreg.cli import main
+from pcreg.export import read_labels
+from _runs import one_line_errors
+
+CLIP = Path(__file__).resolve().parents[2] / "shared" / "data" / "camvid" / "0001TP"
+N = 5
+#: CamVid's ids -> a two-class table: road and pavement "drivable", sky and void unlabelled, the rest "other"
+TWO = ClassTable((LabelClass(0, "drivable", (128, 64, 128)), LabelClass(1, "other", (64, 0, 128)),
+                  LabelClass(2, "background", (0, 0, 0))), 2, "two")
+TWO_LUT = np.array([2, 1, 1, 0, 0, 1, 1, 1, 1, 1, 1, 2], np.uint8)
+
+
+def _needs_clip():
+    if not (CLIP / "images").is_dir():
+        pytest.skip(f"the shared CamVid clip is absent ({CLIP})")
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    """The first N frames of CamVid 0001TP in a folder, and their CamVid ids by stem."""
+    _needs_clip()
+    root = tmp_path_factory.mktemp("clip")
+    frames = root / "frames"
+    frames.mkdir()
+    names = sorted(p.name for p in (CLIP / "images").iterdir())[:N]
+    ids = {}
+    for n in names:
+        shutil.copy(CLIP / "images" / n, frames / n)
+        ids[Path(n).stem] = cv2.imread(str(CLIP / "labels" / n), cv2.IMREAD_UNCHANGED)
+    return frames, ids
+
+
+def cvat_export(path: Path, table: ClassTable, masks: dict[str, np.ndarray], *, as_zip: bool = True) -> Path:
+    """A CVAT "Segmentation mask 1.1" export of ``masks`` (stem -> class ids of ``table``) at ``path``
+    (a .zip, or an unpacked folder), in the documented layout."""
+    files: dict[str, bytes] = {"labelmap.txt": labelmap_text(table).encode(),
+                               "ImageSets/Segmentation/default.txt": "".join(f"{s}\n" for s in masks).encode()}
+    lut = np.zeros((256, 3), np.uint8)
+    lut[: table.n_values] = table.palette()
+    for stem, ids in masks.items():
+        rgb = lut[ids]
+        files[f"SegmentationClass/{stem}.png"] = cv2.imencode(".png", rgb[:, :, ::-1])[1].tobytes()
+        files[f"SegmentationObject/{stem}.png"] = cv2.imencode(".png", rgb[:, :, ::-1])[1].tobytes()
+    if as_zip:
+        with zipfile.ZipFile(path, "w") as z:
+            for name, data in files.items():
+                z.writestr(name, data)
+    else:
+        for name, data in files.items():
+            (path / name).parent.mkdir(parents=True, exist_ok=True)
+            (path / name).write_bytes(data)
+    return path
+
+
+def _run(args, capsys) -> tuple[int, list[str]]:
+    with contextlib.redirect_stdout(io.StringIO()):
+        rc = main([str(a) for a in args])
+    return rc, one_line_errors(capsys)
+
+
+def test_camvid11_export_reads_back_as_camvid_ids(clip, tmp_path):
+    """The eleven classes of a CVAT export come back as CamVid's own ids, by name and as frame_NNNNNN."""
+    from pcreg.classes.cvat import read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+
+    frames, ids = clip
+    stems = list(ids)
+    source = open_frames(frames, Selection())
+    by_name = cvat_export(tmp_path / "a.zip", CAMVID11, {stems[0]: ids[stems[0]], stems[3]: ids[stems[3]]})
+    table, keys = read_cvat_keys(by_name, source, ids[stems[0]].shape)
+    assert table.agrees(CAMVID11) and sorted(keys) == [0, 3]
+    np.testing.assert_array_equal(keys[3], ids[stems[3]])
+    (tmp_path / "b").mkdir()
+    by_index = cvat_export(tmp_path / "b", CAMVID11, {"frame_000000": ids[stems[0]], "frame_000004": ids[stems[4]],
+                                                      "frame_000002": np.full_like(ids[stems[2]], 11)}, as_zip=False)
+    table, keys = read_cvat_keys(by_index, source, ids[stems[0]].shape)
+    assert sorted(keys) == [0, 4]  # frame 2 all background: nobody drew on it
+    np.testing.assert_array_equal(keys[4], ids[stems[4]])
+    _, keys = read_cvat_keys(by_index, open_frames(frames, Selection(0, None, 2)), ids[stems[0]].shape)
+    assert sorted(keys) == [0, 2]  # --every 2: the source's frame 4 is the run's third
+
+
+def test_run_from_a_cvat_export_and_back(clip, tmp_path, capsys):
+    """Two key frames drawn in CVAT (its zip and the unpacked folder alike) label the clip; the run's
+    labels are palette PNGs in the export's colours; pcreg's export of it reads back through Datumaro's
+    VOC reader with the same classes and the same labels."""
+    frames, ids = clip
+    stems = list(ids)
+    keys = {stems[0]: TWO_LUT[ids[stems[0]]], f"frame_{N - 1:06d}": TWO_LUT[ids[stems[-1]]]}
+    export = cvat_export(tmp_path / "task.zip", TWO, keys)
+    out = tmp_path / "out"
+    rc, err = _run(["run", frames, "--labels", export, "--out", out, "--model", "flow", "--scale", "0.5"], capsys)
+    assert rc == 0, err
+    run = json.loads((out / "run.json").read_text())["run"]
+    assert [c["name"] for c in run["classes"]["classes"]] == ["drivable", "other", "background"]
+    from PIL import Image
+
+    with Image.open(out / f"{stems[2]}.png") as im:
+        assert im.mode == "P" and tuple(im.getpalette()[:9]) == (128, 64, 128, 64, 0, 128, 0, 0, 0)
+    np.testing.assert_array_equal(read_labels(out / f"{stems[0]}.png", TWO), keys[stems[0]])
+    (tmp_path / "unpacked").mkdir()
+    with zipfile.ZipFile(export) as z:
+        z.extractall(tmp_path / "unpacked")
+    rc, err = _run(["run", frames, "--labels", tmp_path / "unpacked", "--out", tmp_path / "out2", "--model", "flow",
+                    "--scale", "0.5"], capsys)
+    assert rc == 0, err
+    for s in stems:
+        assert (out / f"{s}.png").read_bytes() == (tmp_path / "out2" / f"{s}.png").read_bytes()
+    rc, err = _run(["export", out, "--to", tmp_path / "back.zip"], capsys)
+    assert rc == 0, err
+    with zipfile.ZipFile(tmp_path / "back.zip") as z:
+        assert z.read("labelmap.txt").decode().splitlines()[1:] == ["background:0,0,0::", "drivable:128,64,128::",
+                                                                    "other:64,0,128::"]
+    _datumaro_reads(tmp_path / "back.zip", tmp_path / "dm", {s: read_labels(out / f"{s}.png", TWO) for s in stems})
+
+
+def _datumaro_reads(archive: Path, where: Path, labels: dict[str, np.ndarray]) -> None:
+    """Datumaro's VOC segmentation reader (CVAT's "Segmentation mask 1.1" import) finds every frame, the
+    table's classes, and each class's mask where the run's labels have it."""
+    dm = pytest.importorskip("datumaro", reason="datumaro is not installed (its VOC reader is CVAT's import; "
+                             "pip install datumaro, which pins opencv<5 and pillow 12)")
+    from datumaro.components.annotation import AnnotationType
+
+    with zipfile.ZipFile(archive) as z:
+        z.extractall(where)
+    dataset = dm.Dataset.import_from(str(where), "voc_segmentation")
+    names = [c.name for c in dataset.categories()[AnnotationType.label]]
+    assert {"drivable", "other"} <= set(names) and names.count("background") == 1
+    assert sorted(item.id for item in dataset) == sorted(labels)
+    for item in dataset:
+        want = labels[item.id]
+        for name, k in (("drivable", 0), ("other", 1)):
+            masks = [a for a in item.annotations if a.type == AnnotationType.mask and names[a.label] == name]
+            got = np.zeros(want.shape, bool)
+            for m in masks:
+                got |= m.image.astype(bool)
+            np.testing.assert_array_equal(got, want == k, err_msg=f"{item.id} {name}")
+
+
+@pytest.mark.parametrize("how", ["names match no frame", "a member climbs out", "not a zip", "a colour not in labelmap",
+                                 "labelmap with two names", "--classes disagrees", "all background"])
+def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
+    frames, ids = clip
+    stems = list(ids)
+    good = {stems[0]: TWO_LUT[ids[stems[0]]]}
+    export, args, said = tmp_path / "task.zip", [], ""
+    if how == "names match no frame":
+        cvat_export(export, TWO, {"frame_000100": good[stems[0]], "frame_000200": good[stems[0]]})
+        said = f"named frame_000100 ... frame_000200, the frames of {frames} {stems[0]} ... {stems[-1]}"
+    elif how == "a member climbs out":
+        cvat_export(export, TWO, good)
+        with zipfile.ZipFile(export, "a") as z:
+            z.writestr("../evil.png", b"x")
+        said = "'../evil.png' names a path outside the archive"
+    elif how == "not a zip":
+        export.write_bytes(b"PK\x03\x04 this is no archive")
+        said = "not a readable zip archive"
+    elif how == "a colour not in labelmap":
+        cvat_export(export, TWO, good)
+        bad = np.zeros((*good[stems[0]].shape, 3), np.uint8)
+        bad[5, 7] = (1, 2, 3)
+        with zipfile.ZipFile(export, "a") as z:
+            z.writestr(f"SegmentationClass/{stems[1]}.png", cv2.imencode(".png", bad)[1].tobytes())
+        said = f"SegmentationClass/{stems[1]}.png: colour (3, 2, 1) (at x=7, y=5) is no class's colour"
+    elif how == "labelmap with two names":
+        with zipfile.ZipFile(export, "w") as z:
+            z.writestr("labelmap.txt", "background:0,0,0::\nroad:1,1,1::\nroad:2,2,2::\n")
+            z.writestr(f"SegmentationClass/{stems[0]}.png", b"")
+        said = "labelmap.txt: two classes named 'road'"
+    elif how == "--classes disagrees":
+        cvat_export(export, TWO, good)
+        args, said = ["--classes", "lagr"], "its class table disagrees with --classes lagr's"
+    elif how == "all background":
+        cvat_export(export, TWO, {stems[0]: np.full_like(good[stems[0]], 2)})
+        said = "every mask is background only"
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "kept.txt").write_text("written before")
+    rc, err = _run(["run", frames, "--labels", export, "--out", out, *args], capsys)
+    assert rc == 2 and len(err) == 1 and said in err[0] and str(export) in err[0], err
+    assert sorted(p.name for p in out.iterdir()) == ["kept.txt"]
+
+
+@pytest.mark.parametrize("stored", ["palette", "colours", "ids"])
+def test_a_folder_of_labels_reads_through_the_table(clip, tmp_path, stored):
+    """load_folder reads CamVid's labels stored as ids, a palette PNG or camvid11's colours alike (mapped to
+    lagr's three labels), and a folder of labels of another table through that table (classes=)."""
+    import pcreg
+    from pcreg.classes import write_label_png
+    from pcreg.datasets.folder import load_folder, mapping_lut
+
+    frames, ids = clip
+    lut = mapping_lut("camvid")
+    for table, lab_of, kw, want in ((CAMVID11, ids, {}, {s: lut[v] for s, v in ids.items()}),
+                                    (TWO, {s: TWO_LUT[v] for s, v in ids.items()}, {"mapping": None, "classes": TWO},
+                                     {s: TWO_LUT[v] for s, v in ids.items()})):
+        root = tmp_path / table.source
+        (root / "labels").mkdir(parents=True)
+        shutil.copytree(frames, root / "images")
+        for stem, lab in lab_of.items():
+            path = root / "labels" / f"{stem}.png"
+            if stored == "palette":
+                write_label_png(path, lab, table)
+            elif stored == "colours":
+                cv2.imwrite(str(path), table.paint(lab)[:, :, ::-1])
+            else:
+                cv2.imwrite(str(path), lab)
+        got = load_folder(root, **kw)
+        assert [f.name for f in got] == list(ids)
+        for f in got:
+            np.testing.assert_array_equal(f.labels, want[f.name])
+    if stored != "ids":  # lagr's table: the other table's palette and colours are not its classes
+        with pytest.raises(pcreg.errors.DatasetError, match="palette colours" if stored == "palette" else "colour"):
+            load_folder(tmp_path / "two", mapping=None)

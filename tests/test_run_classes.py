@@ -1,0 +1,172 @@
+"""``pcreg run --classes``: key labels read through a class table, label PNGs written as palette PNGs in
+its colours, the table kept in run.json only when it is not the default, and bad tables and labels
+refused in one line naming the file, exit 2, with what a run already wrote kept."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.classes import CAMVID11, DAVIS, LAGR, is_palette_png, write_label_png
+from pcreg.cli import main
+from pcreg.export import read_labels
+from _runs import frames_folder, one_line_errors
+
+N = 4
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    return pcreg.synthetic("syn1a", N, 0, width=160, height=120)
+
+
+def _run(args, capsys) -> tuple[int, list[str]]:
+    with contextlib.redirect_stdout(io.StringIO()):
+        try:
+            rc = main([str(a) for a in args])
+        except SystemExit as exc:  # argparse
+            rc = int(exc.code or 0)
+    return rc, one_line_errors(capsys)
+
+
+def _identity(out) -> dict:
+    return json.loads((out / "run.json").read_text())["run"]
+
+
+def test_a_binary_run_writes_palette_pngs_that_read_back_as_key_labels(synthetic, tmp_path, capsys):
+    """The default table names nothing new in run.json; each label PNG is a palette PNG in lagr's colours whose
+    values are the labels; a run's own output is a key frame of another run, with the same labels."""
+    folder, keys = frames_folder(tmp_path, synthetic, keys=(0,))
+    out = tmp_path / "out"
+    rc, err = _run(["run", folder, "--labels", keys / "f0.png", "--out", out, "--model", "flow"], capsys)
+    assert rc == 0, err
+    assert "classes" not in _identity(out)
+    data = (out / "f2.png").read_bytes()
+    assert is_palette_png(data)
+    from PIL import Image
+
+    with Image.open(out / "f2.png") as im:
+        assert tuple(im.getpalette()[:9]) == (34, 197, 94, 255, 40, 40, 0, 0, 0)
+        np.testing.assert_array_equal(np.asarray(im), read_labels(out / "f2.png"))
+    again = tmp_path / "again"
+    rc, err = _run(["run", folder, "--labels", out / "f0.png", "--out", again, "--model", "flow"], capsys)
+    assert rc == 0, err
+    for i in range(N):
+        assert (again / f"f{i}.png").read_bytes() == (out / f"f{i}.png").read_bytes()
+
+
+def test_classes_davis_is_mapping_davis(synthetic, tmp_path, capsys):
+    """``--classes davis`` reads an object mask as ``--mapping davis`` does: the same run.json, the same labels,
+    written in the davis table's colours."""
+    folder, _ = frames_folder(tmp_path, synthetic, keys=())
+    mask = np.where(synthetic[0].labels == 1, 255, 0).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "mask.png"), mask)
+    outs = []
+    for i, args in enumerate((["--classes", "davis"], ["--mapping", "davis"])):
+        outs.append(tmp_path / f"o{i}")
+        rc, err = _run(["run", folder, "--labels", tmp_path / "mask.png", "--out", outs[-1], "--model", "flow", *args],
+                       capsys)
+        assert rc == 0, err
+    assert _identity(outs[0]) == _identity(outs[1]) and "classes" not in _identity(outs[0])
+    assert (outs[0] / "f3.png").read_bytes() == (outs[1] / "f3.png").read_bytes()
+    np.testing.assert_array_equal(read_labels(outs[0] / "f0.png", DAVIS), (mask > 0).astype(np.uint8))
+
+
+def test_a_table_from_a_file_is_kept_in_run_json_and_resume_compares_it(synthetic, tmp_path, capsys):
+    """Key labels in a labelmap.txt's colours; the table in run.json; the same run resumes, another table is
+    refused without touching the run."""
+    folder, _ = frames_folder(tmp_path, synthetic, keys=())
+    (tmp_path / "labelmap.txt").write_text("# label:color_rgb:parts:actions\nbackground:0,0,0::\n"
+                                           "floor:10,200,10::\nwall:200,10,10::\n")
+    colours = np.array([(10, 200, 10), (200, 10, 10), (0, 0, 0)], np.uint8)
+    cv2.imwrite(str(tmp_path / "key.png"), colours[synthetic[0].labels][:, :, ::-1])
+    out = tmp_path / "out"
+    base = ["run", folder, "--labels", tmp_path / "key.png", "--out", out, "--model", "flow"]
+    rc, err = _run([*base, "--classes", tmp_path / "labelmap.txt"], capsys)
+    assert rc == 0, err
+    named = _identity(out)["classes"]
+    assert [c["name"] for c in named["classes"]] == ["floor", "wall", "background"] and named["unknown"] == 2
+    np.testing.assert_array_equal(read_labels(out / "f0.png", pcreg.classes.read_labelmap(tmp_path / "labelmap.txt")),
+                                  synthetic[0].labels)
+    rc, err = _run([*base, "--classes", tmp_path / "labelmap.txt"], capsys)
+    assert rc == 0, err  # all done: the same run
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    (tmp_path / "other.txt").write_text("background:0,0,0::\nfloor:10,200,10::\nrock:200,10,10::\n")
+    rc, err = _run([*base, "--classes", tmp_path / "other.txt"], capsys)
+    assert rc == 2 and len(err) == 1 and "holds a run with other options" in err[0], err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+
+
+def test_more_than_two_classes_reach_the_classifier(synthetic, tmp_path, capsys, monkeypatch):
+    """A table of more than two known classes is handed to PropagatorConfig.from_key_frame as ``classes=``
+    (two-class tables are not: the binary stream as it was)."""
+    from pcreg.pipeline.config import PropagatorConfig
+
+    seen = []
+
+    def spy(self, image, labels, *, classes=None):
+        seen.append(classes)
+        raise pcreg.errors.InputError("stopped here")
+
+    monkeypatch.setattr(PropagatorConfig, "from_key_frame", spy)
+    folder, keys = frames_folder(tmp_path, synthetic, keys=(0,))
+    camvid = np.where(synthetic[0].labels == 2, 11, synthetic[0].labels + 3).astype(np.uint8)  # road, pavement, void
+    cv2.imwrite(str(tmp_path / "camvid.png"), camvid)
+    for args in (["--labels", tmp_path / "camvid.png", "--classes", "camvid11"], ["--labels", keys / "f0.png"]):
+        rc, err = _run(["run", folder, "--out", tmp_path / "o", *args], capsys)
+        assert rc == 2 and err == ["pcreg: error: stopped here"], err
+    assert seen == [CAMVID11, None]
+
+
+def _case(tmp_path, synthetic, how: str):
+    """(extra arguments, the file named, what is said) of one bad input."""
+    key = tmp_path / "key.png"
+    lab = synthetic[0].labels.copy()
+    if how == "a value not in the table":
+        lab[3, 4] = 7
+        cv2.imwrite(str(key), lab)
+        return [], key, "label value 7 is not a class id"
+    if how == "a colour not in the table":
+        rgb = LAGR.paint(lab)
+        rgb[3, 4] = (1, 2, 3)
+        cv2.imwrite(str(key), rgb[:, :, ::-1])
+        return [], key, "colour (1, 2, 3) (at x=4, y=3) is no class's colour"
+    cv2.imwrite(str(key), lab)
+    lm = tmp_path / "labelmap.txt"
+    if how == "duplicate names":
+        lm.write_text("background:0,0,0::\nroad:1,1,1::\nroad:2,2,2::\n")
+        return ["--classes", lm], lm, "two classes named 'road'"
+    if how == "duplicate colours":
+        lm.write_text("background:0,0,0::\nroad:1,1,1::\ncar:1,1,1::\n")
+        return ["--classes", lm], lm, "share the colour (1, 1, 1)"
+    if how == "one class":
+        lm.write_text("background:0,0,0::\nroad:1,1,1::\n")
+        return ["--classes", lm], lm, "1 known class(es); a class table needs at least two"
+    keys = tmp_path / "keys"  # key frames that disagree: palettes of two tables (frames_folder made it)
+    write_label_png(keys / "f0.png", lab, LAGR)
+    write_label_png(keys / "f3.png", synthetic[3].labels, DAVIS)
+    return ["--keys-folder"], keys / "f3.png", "its palette colours index"
+
+
+@pytest.mark.parametrize("how", ["a value not in the table", "a colour not in the table", "duplicate names",
+                                 "duplicate colours", "one class", "key frames that disagree"])
+def test_bad_tables_and_labels_end_in_one_line_and_keep_what_was_written(synthetic, tmp_path, capsys, how):
+    folder, _ = frames_folder(tmp_path, synthetic, keys=())
+    out = tmp_path / "out"
+    good = tmp_path / "good.png"
+    cv2.imwrite(str(good), synthetic[0].labels)
+    rc, err = _run(["run", folder, "--labels", good, "--out", out, "--model", "flow"], capsys)
+    assert rc == 0, err
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    extra, named, said = _case(tmp_path, synthetic, how)
+    labels = named.parent if extra == ["--keys-folder"] else tmp_path / "key.png"
+    extra = [] if extra == ["--keys-folder"] else extra
+    rc, err = _run(["run", folder, "--labels", labels, "--out", out, "--model", "flow", "--force", *extra], capsys)
+    assert rc == 2 and len(err) == 1 and str(named) in err[0] and said in err[0], err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before

@@ -37,8 +37,9 @@ two flows are independent: one runs on pcreg's helper thread (``pcreg._threads``
 Measured (docs/results.md, "Following one moving object"): on the five shared DAVIS 2016 sequences, the two
 weights, the residual's width, the carry's blur and the read-out's reach chosen leaving one sequence out
 (on J + F), J 0.751 and F 0.670 (0.752 and 0.673 with the constants shipped, on all five) against the
-scene stream's 0.552 and 0.482; the full-size read-out costs 10-20 ms a frame at 854x480 (measured at load 5-7 on 2 cores, where the
-whole ``pcreg run --follow object`` took 143 ms a frame against 111 ms with the half-size read-out). Every term is
+scene stream's 0.552 and 0.482; the full-size read-out makes ``pcreg run --follow object`` about 1.3 times slower at 854x480
+(tools/bench_run.py, median of 5, alternated at load 5-7 on 2 cores: 143 against 111 and 120 against
+91 ms a frame, the 100 ms target not met at that load; the half-size read-out took 42 ms on a quieter one). Every term is
 needed (without the chain J 0.507, the colours 0.632, the key carry 0.629, the gate 0.583; measured with
 residual 60, blur 2 and the half-size read-out). On CamVid's clips (scenes, not objects) it is worse than
 plain naive Bayes on three of eight: it is a mode of its own, not the default.

@@ -162,3 +162,37 @@ def test_a_followers_carry_file_round_trips_and_a_damaged_one_is_one_line(tmp_pa
              evidence=np.float64("nan"), learned=np.zeros(0), follow=np.zeros((3, 6, 8), np.float32))
     with pytest.raises(OutputError, match="use --force"):
         read_carry(tmp_path / "bad.npz", 3, "")
+
+
+def test_the_colour_bins_are_the_top_bits_of_y_cr_cb():
+    from pcreg.pipeline.follow import BINS, _colour_index
+
+    rgb = np.random.default_rng(3).integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    c = cv2.cvtColor(rgb, cv2.COLOR_RGB2YCrCb).astype(np.int64)
+    want = (((c[..., 0] * BINS) >> 8) * BINS + ((c[..., 1] * BINS) >> 8)) * BINS + ((c[..., 2] * BINS) >> 8)
+    assert np.array_equal(_colour_index(rgb), want)
+
+
+def test_blobs_far_from_the_largest_component_are_dropped():
+    from pcreg.pipeline.follow import NEAR, _near_largest
+
+    mask = np.zeros((200, 300), np.uint8)
+    mask[50:150, 50:120] = 1                                    # the object
+    gap = int(NEAR) // 2
+    mask[60:70, 120 + gap:130 + gap] = 1                        # a part of it within NEAR px (a hand, a board)
+    mask[10:20, 120 + 2 * int(NEAR) + 5:140 + 2 * int(NEAR)] = 1  # a far-off blob of its colours
+    kept = _near_largest(mask, NEAR)
+    assert kept[100, 80] == 1 and kept[65, 125 + gap] == 1 and kept[15, 130 + 2 * int(NEAR)] == 0
+    assert int(kept.sum()) == int(mask.sum()) - 10 * 15
+    assert not _near_largest(np.zeros_like(mask), NEAR).any()
+
+
+def test_the_labels_are_the_sign_of_the_full_size_log_odds():
+    pairs = moving_object(4)
+    f = ObjectFollower.from_key_frame(*pairs[0])
+    assert f.log_odds is None
+    labels = f.step(pairs[1][0])
+    assert f.log_odds.shape == labels.shape and np.array_equal(labels == 1, f.log_odds > 0)
+    from pcreg.pipeline.follow import CONFIDENCE_OFFSET, CONFIDENCE_SLOPE
+    want = 1 / (1 + np.exp(-(CONFIDENCE_SLOPE * np.abs(f.log_odds) + CONFIDENCE_OFFSET)))
+    np.testing.assert_allclose(f.last.confidence, want, rtol=1e-5)

@@ -3,8 +3,8 @@
     python tools/fit_follow_confidence.py --data ../shared/data/davis
 
 The follower (:class:`pcreg.pipeline.follow.ObjectFollower`, ``pcreg run --follow object``) gives each
-label the confidence ``sigmoid(a * |L| + b)`` of its fused log-odds ``L`` at the frame's size. For each
-sequence, ``a`` and ``b`` are fitted (a logistic regression of "the label is right" on ``|L|``, every pixel
+label the confidence ``sigmoid(a * |L| + b)`` of its fused log-odds ``L`` at the frame's size (its
+``log_odds``). For each sequence, ``a`` and ``b`` are fitted (a logistic regression of "the label is right" on ``|L|``, every pixel
 of the scored frames 1 to n-2) on the other sequences, and the sequence left out is scored by its expected
 calibration error (:func:`pcreg.experiments.stream_methods.calibration`); the pooled row scores every
 pixel with the fit that left its sequence out. The coefficients fitted on every sequence are the ones to
@@ -41,11 +41,8 @@ def record(frames) -> np.ndarray:
         labels = follower.step(frames[t].image)
         if t not in scored:
             continue
-        size = follower.working_size
-        assert size is not None and follower.last is not None
-        report = follower.last
-        assert report.log_odds is not None and report.trust is not None
-        magnitude = np.abs(size.grow(report.log_odds + report.trust.prior_term(report.log_odds.shape)))
+        assert follower.log_odds is not None
+        magnitude = np.abs(follower.log_odds)
         b = np.minimum((magnitude / STEP).astype(np.intp), N_BINS - 1).ravel()
         wrong = ((labels == 1) != (frames[t].labels == 1)).ravel()
         counts[0] += np.bincount(b[~wrong], minlength=N_BINS)

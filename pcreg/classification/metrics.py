@@ -71,10 +71,12 @@ def error_from_confusion(confusion: np.ndarray) -> float:
 
 
 def error_rate(predicted: np.ndarray, truth: np.ndarray, *, mask: np.ndarray | None = None,
-               exclude_unknown: bool = True) -> float:
+               exclude_unknown: bool = True, classes=None) -> float:
     """Percentage of scored pixels whose predicted label differs from the truth.
 
-    predicted, truth : (H, W) integer arrays in {0, 1, 2}; mask : (H, W) bool, optional.
+    predicted, truth : (H, W) integer arrays in {0, 1, 2} (with ``classes``, a
+    :class:`~pcreg.classes.ClassTable`, its ids); mask : (H, W) bool, optional.
     Returns a float in [0, 100]; NaN when no pixel is scored (all unknown or all masked out).
     """
-    return error_from_confusion(confusion_matrix(predicted, truth, mask=mask, exclude_unknown=exclude_unknown))
+    return error_from_confusion(confusion_matrix(predicted, truth, mask=mask, exclude_unknown=exclude_unknown,
+                                                 classes=classes))

@@ -48,7 +48,7 @@ def _subfolders(path: Path, pattern) -> list[Path]:
 
 
 def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int] | None = None,
-                 seed: int = 0) -> dict[str, list[Frame]]:
+                 seed: int = 0, classes=None) -> dict[str, list[Frame]]:
     """Named sequences from a ``--data`` value.
 
     - ``"synthetic"``: the six presets; ``"synthetic:syn1a,syn2b"``: some of them
@@ -96,12 +96,13 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         return load_davis(path, n_frames=n_frames)
     out: dict[str, list[Frame]] = {}
     if kind in ("camvid", "folder"):
-        mapping = "camvid" if kind == "camvid" else None
+        # with a class table the label files hold its ids (CamVid's own with ``camvid11``), read through it
+        mapping = "camvid" if kind == "camvid" and classes is None else None
         clips = [path] if (path / "images").is_dir() else _subfolders(path, lambda p: (p / "images").is_dir())
         if not clips:
             raise DatasetError(f"{path}: no frames (no images/ folder in it or in its sub-folders)")
         for clip in clips:
-            out[clip.name] = load_folder(clip, mapping=mapping)
+            out[clip.name] = load_folder(clip, mapping=mapping, classes=classes)
     else:  # lagr
         if any(path.glob("*.mat")):
             sets = [path]

@@ -63,8 +63,9 @@ class StreamConfig:
         ``key_every``).
     backends : the ICP backend (one). methods : which of :data:`METHODS` to run.
     classes : a class table with more than two classes (``camvid11``, a labelmap.txt, ...): every class is
-        labelled and scored, beside the baselines in the same classes (:mod:`.stream_classes`; needs
-        ``keys``); CamVid's ids are then read as they are. None: ground and obstacle.
+        labelled and scored, beside the baselines in the same classes (:mod:`.stream_classes`; the key
+        frames from ``keys``, the first by default); the label files are read through the table (CamVid's
+        own ids with ``camvid11``). None: ground and obstacle.
     """
 
     data: str = "synthetic"
@@ -86,12 +87,6 @@ class StreamConfig:
         if self.classes is None:
             doc.pop("classes")
         return doc
-
-    def data_spec(self) -> str:
-        """The data as loaded: with a class table CamVid's own ids (``folder:``), not ground and obstacle."""
-        if self.classes is not None and self.data.startswith("camvid:"):
-            return "folder:" + self.data[len("camvid:"):]
-        return self.data
 
 
 def key_frames(n: int, key_every: int | None) -> list[int]:
@@ -181,7 +176,7 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
 
     cfg = unit.config
     t0 = time.perf_counter()
-    frames = load_cached(cfg.data_spec(), frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset]
+    frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed, classes=cfg.classes)[unit.dataset]
     recorded: dict[str, int] = {}
     hook = _recording_hook(recorder, unit.dataset, frame_counter if frame_counter is not None else [0], recorded)
     davis = None
@@ -241,7 +236,7 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
     from .units import evaluate_units, load_cached
 
     check_davis_config(config)
-    datasets = load_cached(config.data_spec(), frames=config.frames, size=config.size, seed=config.seed)
+    datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed, classes=config.classes)
     for name, frames in datasets.items():
         check_clip(name, frames, config.classes)
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,

@@ -50,14 +50,16 @@ class Unit:
         raise AttributeError(f"unit {self.key!r} has no parameter {name!r}")
 
 
-def load_cached(data: str, *, frames: int | None, size: tuple[int, int] | None, seed: int) -> dict:
+def load_cached(data: str, *, frames: int | None, size: tuple[int, int] | None, seed: int,
+                classes: str | None = None) -> dict:
     """:func:`pcreg.datasets.load_dataset`, cached per process (one data set at a time)."""
-    key = (data, frames, tuple(size) if size else None, seed)
+    key = (data, frames, tuple(size) if size else None, seed, classes)
     if key not in _DATA_CACHE:
         from ..datasets import load_dataset
 
         _DATA_CACHE.clear()
-        _DATA_CACHE[key] = load_dataset(data, n_frames=frames, size=tuple(size) if size else None, seed=seed)
+        _DATA_CACHE[key] = load_dataset(data, n_frames=frames, size=tuple(size) if size else None, seed=seed,
+                                        classes=classes)
     return _DATA_CACHE[key]
 
 

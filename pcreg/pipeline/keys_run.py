@@ -162,7 +162,9 @@ class KeyRun:
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
 
-        return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys])
+        table = getattr(self.owner, "table", None)  # the run's class table; two classes keep the default
+        return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys],
+                              classes=table if table is not None and table.n_known > 2 else None)
 
     def _propagator(self, clf, image, labels, learning: bool):
         prop = self.config.propagator(clf, learns=learning)
@@ -259,7 +261,7 @@ class KeyRun:
                         p_a, fallback = z["prior"], bool(z["fallback"])
                     d = report.log_odds
                     labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
-                                                size=prop.working_size)
+                                                size=prop.working_size, classes=prop.classes)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1)
 
@@ -295,7 +297,8 @@ class KeyRun:
         plain = None
         if truth is not None:
             plain = clf.predict(image)
-            step.update(error=error_rate(labels, truth), plain_error=error_rate(plain, truth))
+            table = getattr(self.owner, "table", None)
+            step.update(error=error_rate(labels, truth, classes=table), plain_error=error_rate(plain, truth, classes=table))
         writer.submit(self._write_frame, cur, t, labels, conf, step, (truth, plain), prop.carry, prop.learned_later(),
                       after=after)
         if self.on_frame is not None:

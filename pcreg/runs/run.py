@@ -333,7 +333,7 @@ class Run:
             write_confidence(self.out / CONFIDENCE / f"{stem}.png", confidence)
         truth, plain = scored
         if truth is not None and counts is not None:
-            count_frame(counts, labels, truth, plain)
+            count_frame(counts, labels, truth, plain, unknown=self.table.unknown)
         append_step(self.out, step)
 
     def record(self, t: int, labels: np.ndarray, report, plain: np.ndarray | None = None, carry=None,
@@ -349,9 +349,9 @@ class Run:
         step = dict(report, frame=t, name=self.frames.name(t))
         truth = None if self.truth is None else self.truth[t]
         if truth is not None:
-            step["error"] = error_rate(labels, truth)
+            step["error"] = error_rate(labels, truth, classes=self.table)
             if plain is not None:
-                step["plain_error"] = error_rate(plain, truth)
+                step["plain_error"] = error_rate(plain, truth, classes=self.table)
         self.write_frame(t, labels, confidence, step, self.state["truth"], (truth, plain))
         if truth is not None:
             add_rates(self.state["truth"])

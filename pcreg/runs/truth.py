@@ -16,15 +16,17 @@ def empty_counts() -> dict:
     return {k: 0 for k in TRUTH_COUNTS}
 
 
-def count_frame(counts: dict, labels: np.ndarray, truth: np.ndarray, plain: np.ndarray | None) -> None:
-    """Add one frame to ``counts`` (in place): its pixels of known truth (``truth`` < 2), how many of them
-    ``labels`` has wrong, and how many naive Bayes alone (``plain``, when given) has wrong."""
-    known = truth < 2
+def count_frame(counts: dict, labels: np.ndarray, truth: np.ndarray, plain: np.ndarray | None, *,
+                unknown: int = 2) -> None:
+    """Add one frame to ``counts`` (in place): its pixels of known truth (``truth`` not ``unknown``, the
+    class table's unknown id), how many of them ``labels`` has wrong, and how many naive Bayes alone
+    (``plain``, when given) has wrong."""
+    known = truth != unknown
     counts["frames"] += 1
-    counts["wrong"] += int(np.count_nonzero((labels[known] == 1) != (truth[known] == 1)))
+    counts["wrong"] += int(np.count_nonzero(labels[known] != truth[known]))
     counts["known"] += int(known.sum())
     if plain is not None:
-        counts["plain_wrong"] += int(np.count_nonzero((plain[known] == 1) != (truth[known] == 1)))
+        counts["plain_wrong"] += int(np.count_nonzero(plain[known] != truth[known]))
 
 
 def add_rates(counts: dict) -> dict:

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..results import Results
+from .stream_classes import classes_checks, classes_tables, is_many_classes
 
 
 def table(results: dict) -> tuple[list, list, str]:
@@ -60,6 +61,8 @@ def checks(results: dict) -> str:
     lines = ["### Checks\n"]
     if "pcreg" not in avg:
         return "\n".join(lines + ["- pcreg was not run\n"])
+    if is_many_classes(results):
+        return "\n".join(lines + classes_checks(results) + _calibration_checks(results)) + "\n"
     base = [m for m in BASELINE_NAMES if m in avg]
     if base:
         best = max(base, key=lambda m: avg[m])
@@ -187,7 +190,7 @@ def write_outputs(results: Results, out: str | Path) -> list[Path]:
     tables = {f"stream_{b}": ("Labelling a stream from its key frame: mean error % per clip", h, rows, footer),
               "stream_frames": ("Error % per frame", ph, prows),
               "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter),
-              **davis_tables(doc)}
+              **davis_tables(doc), **classes_tables(doc)}
     return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
                        figures={"stream": _figure(doc), "stream_reliability": _reliability(doc),
                                 "stream_speed": _accuracy_time(doc)})

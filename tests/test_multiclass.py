@@ -82,3 +82,70 @@ def test_predicted_iou_counts_misses_by_the_runner_up():
     iou = multiclass.predicted_iou(labels, conf, second, [0, 1])
     assert iou[0] == pytest.approx(1.5 / 2.0)  # tp 1.5, fp 0.5, no miss
     assert iou[1] == pytest.approx(2.0 / 2.5)  # tp 2, a miss of 0.5
+
+
+def _camvid_folder(shared_data, tmp_path, n=5, keys=(0,)):
+    import shutil
+
+    src = shared_data / "camvid" / "0001TP"
+    names = sorted(p.name for p in (src / "images").iterdir())[:n]
+    for sub in ("frames", "keys", "truth"):
+        (tmp_path / sub).mkdir()
+    for m in names:
+        shutil.copy(src / "images" / m, tmp_path / "frames" / m)
+        shutil.copy(src / "labels" / m, tmp_path / "truth" / m)
+    for k in keys:
+        shutil.copy(src / "labels" / names[k], tmp_path / "keys" / names[k])
+    return names
+
+
+@pytest.mark.parametrize("keys", [(0,), (0, 4)])
+def test_pcreg_run_labels_eleven_classes(shared_data, tmp_path, keys):
+    """``pcreg run --classes camvid11`` from one key frame or a folder of two: palette PNGs of CamVid's ids,
+    the error against the truth counted over the classes, each step's predicted IoU per class."""
+    import json
+
+    from pcreg.cli import main
+    from pcreg.export import read_labels
+
+    names = _camvid_folder(shared_data, tmp_path, keys=keys)
+    labels = tmp_path / "keys" if len(keys) > 1 else tmp_path / "keys" / names[0]
+    out = tmp_path / "out"
+    assert main(["run", str(tmp_path / "frames"), "--labels", str(labels), "--classes", "camvid11",
+                 "--truth", str(tmp_path / "truth"), "--confidence", "--out", str(out)]) == 0
+    import cv2
+
+    truth = [cv2.imread(str(tmp_path / "truth" / m), cv2.IMREAD_UNCHANGED) for m in names]
+    trained = set(np.unique(truth[0]).tolist()) - {CAMVID11.unknown}
+    errors = []
+    for m, t in zip(names[1:4], truth[1:4]):
+        lab = read_labels(out / m, CAMVID11)
+        assert set(np.unique(lab).tolist()) <= trained | set(np.unique(truth[4]).tolist())
+        known = t != CAMVID11.unknown
+        errors.append(100.0 * np.mean(lab[known] != t[known]))
+    state = json.loads((out / "run.json").read_text())
+    assert state["truth"]["error"] == pytest.approx(np.mean(errors), abs=15)  # pooled against per-frame means
+    assert state["truth"]["error"] < state["truth"]["plain_error"]
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    assert any("predicted_iou" in s for s in steps)
+    assert main(["run", str(tmp_path / "frames"), "--labels", str(labels), "--classes", "camvid11",
+                 "--truth", str(tmp_path / "truth"), "--confidence", "--out", str(out)]) == 0  # all done: resumes
+
+
+def test_evaluate_stream_scores_every_class(shared_data, tmp_path):
+    """``evaluate stream --classes camvid11``: every method's mIoU per clip and IoU per class, and the checks
+    against each baseline."""
+    import json
+
+    from pcreg.cli import main
+    from pcreg.experiments.stream_classes import CLASS_METHODS
+
+    out = tmp_path / "ev"
+    assert main(["evaluate", "stream", "--data", f"camvid:{shared_data / 'camvid' / '0001TP'}", "--frames", "4",
+                 "--keys", "first,last", "--classes", "camvid11", "--out", str(out)]) == 0
+    doc = json.loads((out / "results.json").read_text())
+    clip = doc["datasets"]["0001TP"]
+    assert set(clip["miou"]) == set(CLASS_METHODS) and all(0 <= v <= 100 for v in clip["miou"].values())
+    assert clip["means"]["pcreg"] < clip["means"]["plain"]
+    assert "sky" in (out / "stream_iou.md").read_text()
+    assert "mIoU at least 3 points" in (out / "checks.md").read_text()

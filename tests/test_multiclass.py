@@ -149,3 +149,20 @@ def test_evaluate_stream_scores_every_class(shared_data, tmp_path):
     assert clip["means"]["pcreg"] < clip["means"]["plain"]
     assert "sky" in (out / "stream_iou.md").read_text()
     assert "mIoU at least 3 points" in (out / "checks.md").read_text()
+
+
+@pytest.mark.parametrize("model", ["dense", "similarity"])
+def test_eleven_classes_without_a_trust_rule(shared_data, model):
+    """With no trust rule the key frame's evidence per class is carried along the motion (a field or a
+    global transform) at the weight, and the best class read: no confidence, labels of the trained classes."""
+    from pcreg.classification.bayes import fit_classifier
+    from pcreg.datasets import Frame
+
+    images, labels = _clip(shared_data, 3)
+    clf = fit_classifier([Frame(images[0], labels[0], "key")], classes=CAMVID11)
+    prop = Propagator(clf, trust=None, model=model)
+    prop.reset(images[0], labels[0])
+    for image in images[1:]:
+        out = prop.step(image)
+        assert set(np.unique(out).tolist()) <= set(clf.classes_.tolist())
+        assert prop.last.confidence is None and prop.last.predicted_iou is None

@@ -127,13 +127,12 @@ def two_sided(log_odds: np.ndarray, earlier: np.ndarray, later: np.ndarray, rule
 
     prior = np.asarray(earlier, PRIOR_STORE_DTYPE).astype(np.float32) + later
     if classes is not None:
-        from .multiclass import read_class_labels
+        from .multiclass import CLASS_CONFIDENCE_COEFFICIENTS, read_class_labels
         from .readout import scaled
-        from .trust import CONFIDENCE_COEFFICIENTS
 
         labels, confidence, _ = read_class_labels(log_odds + prior, log_odds, prior, classes,
                                                   smooth_px=scaled(rule.smooth, prior.shape[1]),
-                                                  coefficients=CONFIDENCE_COEFFICIENTS, size=size)
+                                                  coefficients=CLASS_CONFIDENCE_COEFFICIENTS, size=size)
         return labels, confidence, prior
     labels, confidence = read_labels(log_odds + prior, log_odds, prior, rule, size=size)
     return labels, confidence, prior

@@ -29,7 +29,7 @@ from ..classification.fusion import FusionConfig
 from ..errors import InputError
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
-__all__ = ["CLASS_WEIGHT_SHARE", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs", "fused_scores",
+__all__ = ["CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "fused_class_labels", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs", "fused_scores",
            "read_class_labels", "class_confidence", "runner_up", "predicted_iou", "sure_labels"]
 
 #: The least class prior taken: a class with (almost) no key-frame pixels must not give -inf evidence.
@@ -38,6 +38,11 @@ MIN_PROBABILITY = 1e-6
 #: (naive Bayes' class scores are differences of K joint log-likelihoods, where two classes had one):
 #: chosen on the eight shared CamVid clips with each clip left out (docs/results.md, "Many classes").
 CLASS_WEIGHT_SHARE = 0.25
+#: The confidence's logistic coefficients with more than two classes (intercept, then log1p of the margin
+#: between the two best classes, purity at 15 px, purity at 33 px, agreement at 33 px): fitted by logistic
+#: regression on the eight shared CamVid clips labelled in CamVid's eleven classes from three key frames,
+#: and checked with each clip left out (docs/results.md, "Many classes").
+CLASS_CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-2.890, 1.055, -1.401, 3.948, 0.803)
 
 
 def class_priors(classifier) -> np.ndarray:
@@ -222,3 +227,25 @@ def sure_labels(fused: np.ndarray, prior_term: np.ndarray, classes: np.ndarray, 
     ok = (margin > np.float32(sure)) & (best_p == best_f)
     ids = np.asarray(classes, np.uint8)
     return np.where(ok, ids[best_f], np.uint8(unknown)).astype(np.uint8)
+
+
+def fused_class_labels(scores: np.ndarray, evidence: np.ndarray, motion, pixel_weight, weight: float,
+                       classes: np.ndarray, size, times: dict) -> np.ndarray:
+    """(H, W) uint8 class ids without a trust rule: the key frame's ``evidence`` per class (at the working
+    size) carried along ``motion`` (unmoved when None), at ``weight`` by the field's confidence
+    (``pixel_weight``: :func:`~pcreg.pipeline.prior.pixel_weight`), added to the class scores; the best class,
+    read at the frames' size when ``size`` (a :class:`~pcreg.pipeline.working.WorkingSize`) is scaled. The
+    times of the parts go into ``times`` (``fuse.warp``, ``fuse.fusion``)."""
+    import time
+
+    t0 = time.perf_counter()
+    h, w = scores.shape[:2]
+    lp = evidence if motion is None else carried_log_probs(evidence, motion.as_field((h, w)))
+    t1 = time.perf_counter()
+    wt = pixel_weight(weight, None if motion is None else motion.confidence)
+    fused = scores + (np.asarray(wt, np.float32)[..., None] if np.ndim(wt) else np.float32(wt)) * lp
+    if size is not None and size.scaled:
+        fused = size.grow(fused)
+    labels = np.asarray(classes, np.uint8)[np.argmax(fused, axis=2)]
+    times.update({"fuse.warp": t1 - t0, "fuse.fusion": time.perf_counter() - t1})
+    return labels

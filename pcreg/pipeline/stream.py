@@ -94,9 +94,9 @@ from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
 from .estimators import STREAM_DENSE, Carry, DenseStep, FlowEstimator, StreamMotion, stream_motion
 from .learning import STREAM_LEARNING, Learner, Learning
-from .multiclass import CLASS_WEIGHT_SHARE, carried_log_probs, class_prior_maps, class_priors, prior_log_probs
+from .multiclass import CLASS_CONFIDENCE_COEFFICIENTS, CLASS_WEIGHT_SHARE, fused_class_labels, class_prior_maps, class_priors, prior_log_probs
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
-from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
+from .trust import CLASS_TRUST, CONFIDENCE_COEFFICIENTS, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
 from .working import WorkingSize
 from ..errors import InputError
 from ..frame import PreparedFrame
@@ -345,7 +345,9 @@ class Propagator:
             self._key_prior = label_prior(size.labels(lab), pi=self._pi, fusion=self.fusion)
         if self.trust is not None:
             evidence = self._key_prior if self._classes is not None else prior_log_odds(self._key_prior, pi=self._pi)
-            self._key_trusted = TrustedKey(self.trust, self._prior_weight, key.rgb, evidence, size, classes=self._classes)
+            self._key_trusted = TrustedKey(self.trust, self._prior_weight, key.rgb, evidence, size, classes=self._classes,
+                                           coefficients=CLASS_CONFIDENCE_COEFFICIENTS if self._classes is not None
+                                           else CONFIDENCE_COEFFICIENTS)
             if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # smaller frames have no
                 # second motion (DIS does not take them)
                 self._key_flow = self._flow.prepare(key)
@@ -464,20 +466,9 @@ class Propagator:
     def _fuse_classes(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:
         """:meth:`_fuse` with K classes: the key frame's evidence per class along ``motion`` (unmoved when it
         failed), at :attr:`weight` by the field's confidence, added to the class scores; the best class."""
-        t0 = time.perf_counter()
-        h, w = d.shape[:2]
         key, classes = self._key_prior, self._classes
         assert key is not None and classes is not None  # reset made them
-        lp = key if motion is None else carried_log_probs(key, motion.as_field((h, w)))
-        t1 = time.perf_counter()
-        wt = pixel_weight(self._prior_weight, None if motion is None else motion.confidence)
-        fused = d + (np.asarray(wt, np.float32)[..., None] if np.ndim(wt) else np.float32(wt)) * lp
-        size = self._size
-        if size is not None and size.scaled:
-            fused = size.grow(fused)
-        labels = classes[np.argmax(fused, axis=2)]
-        times.update({"fuse.warp": t1 - t0, "fuse.fusion": time.perf_counter() - t1})
-        return labels
+        return fused_class_labels(d, key, motion, pixel_weight, self._prior_weight, classes, self._size, times)
 
     def _register(self, reference: PreparedFrame, frame: PreparedFrame) -> tuple["Estimate", float]:
         """The estimate of ``frame``'s motion to ``reference`` and its seconds

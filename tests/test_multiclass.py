@@ -35,7 +35,8 @@ def test_eleven_classes_follow_the_clip(shared_data, scale):
         assert set(np.unique(out).tolist()) <= trained
         conf = prop.last.confidence
         k = len(trained)
-        assert conf.shape == truth.shape and conf.min() >= 1.0 / k - 1e-6 and conf.max() <= 1.0
+        assert conf.shape == truth.shape and conf.min() >= max(1.0 / k, multiclass.CLASS_MIN_CONFIDENCE) - 1e-6
+        assert conf.max() <= 1.0
         assert prop.last.log_odds.shape[2] == k
         iou = prop.last.predicted_iou
         assert iou and all(0.0 <= v <= 1.0 for v in iou.values()) and set(iou) <= trained

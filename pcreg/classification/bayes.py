@@ -357,7 +357,12 @@ class NaiveBayesPixelClassifier:
         Evaluated through the fitted 256-entry float32 tables, one look-up per feature, pixel and class:
         time and memory grow linearly with K. groups : the image's :meth:`feature_groups`, when already
         computed (made once here otherwise, for every class)."""
-        return np.stack(self._score_planes(image, groups), axis=-1)
+        from ._score_kernels import class_sums
+
+        self._check_fitted()
+        if groups is None:
+            groups = self.feature_groups(image)
+        return class_sums(groups, self._tables32, np.asarray(self._log_prior, np.float32))
 
     def _score_planes(self, image, groups) -> list[np.ndarray]:
         self._check_fitted()

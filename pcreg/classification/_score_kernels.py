@@ -1,0 +1,56 @@
+"""The compiled pass of many-class naive Bayes (:meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.
+class_scores`): every class's sum of table look-ups in one read of the pixel's features, where a look-up
+table per class and feature group would read the image K times."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._jit import njit
+
+__all__ = ["class_sums"]
+
+
+def _class_sums_py(planes, tables, row, out):
+    h, w, f = planes.shape
+    k = tables.shape[2]
+    for i in range(h):
+        for j in range(w):
+            for c in range(k):
+                out[i, j, c] = row[i, c]
+            for g in range(f):
+                v = planes[i, j, g]
+                for c in range(k):
+                    out[i, j, c] += tables[g, v, c]
+
+
+_class_sums = njit(cache=True, nogil=True)(_class_sums_py)
+
+
+def class_sums(groups, tables: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """(H, W, K) float32: for each class ``k``, ``bias[k]`` plus the sum over the features of
+    ``tables[k, f, x_f]`` (``tables`` (K, F, 256)), the features as :func:`~pcreg.classification.features.
+    frame_features` gives them (``groups``: ``(name, planes)``, a ``row`` feature one value per row)."""
+    k = tables.shape[0]
+    image_planes, image_tables = [], []
+    row = None
+    f = 0
+    for name, planes in groups:
+        if name == "row":
+            term = np.ascontiguousarray(tables[:, f, :][:, planes].T, dtype=np.float32)  # (H, K)
+            row = term if row is None else row + term
+            f += 1
+            continue
+        c = planes.shape[-1] if planes.ndim == 3 else 1
+        image_planes.append(planes.reshape(planes.shape[0], planes.shape[1], c))
+        image_tables.append(tables[:, f:f + c, :])
+        f += c
+    if not image_planes:
+        raise ValueError("class_sums needs at least one image feature")  # a caller's bug: rgb is always there
+    planes = np.ascontiguousarray(np.concatenate(image_planes, axis=2))
+    lut = np.ascontiguousarray(np.concatenate(image_tables, axis=1).transpose(1, 2, 0), dtype=np.float32)  # (F, 256, K)
+    h = planes.shape[0]
+    base = np.broadcast_to(np.asarray(bias, np.float32), (h, k)) if row is None else row + np.asarray(bias, np.float32)
+    out = np.empty(planes.shape[:2] + (k,), np.float32)
+    _class_sums(planes, lut, np.ascontiguousarray(base, dtype=np.float32), out)
+    return out

@@ -114,25 +114,28 @@ def propagate(labeller: Labeller, frames: Iterable[tuple[int, Image]], *,
 
 
 def two_sided(log_odds: np.ndarray, earlier: np.ndarray, later: np.ndarray, rule, *,
-              size=None, classes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              size=None, classes=None, weights: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A frame between two key frames: ``(labels, confidence, prior)`` of naive Bayes' ``log_odds`` with
     the trusted prior terms of both passes added (``F = d + P_earlier + P_later``; ``earlier`` as the
     forward pass kept it, :data:`PRIOR_STORE_DTYPE`), read by the trust ``rule``
     (:func:`~pcreg.pipeline.trust.read_labels`; ``size``: the stream's working size, when the maps are at
     it). Measured against averaging the priors, weighting them by distance or by trust, and taking the
     more trusted one: adding them lowered the error most (docs/results.md, "Several key frames").
-    ``classes``: with K classes (:mod:`pcreg.pipeline.multiclass`) their ids, the maps (H, W, K) class
-    scores and evidence, read as the stream reads them (:func:`~pcreg.pipeline.multiclass.read_class_labels`)."""
+    ``classes``: with K classes their read-out (:class:`~pcreg.pipeline.multiclass.ClassRead`), the maps
+    (H, W, K) class scores and evidence, read as the stream reads them
+    (:func:`~pcreg.pipeline.multiclass.read_class_labels`), ``weights`` each pass's summed trust weight (H, W)
+    for the class window."""
     from .trust import read_labels
 
     prior = np.asarray(earlier, PRIOR_STORE_DTYPE).astype(np.float32) + later
     if classes is not None:
-        from .multiclass import CLASS_CONFIDENCE_COEFFICIENTS, read_class_labels
+        from .multiclass import read_class_labels
         from .readout import scaled
 
-        labels, confidence, _ = read_class_labels(log_odds + prior, log_odds, prior, classes,
+        window = None if weights is None else (np.asarray(weights[0], np.float32) + weights[1], classes.log_pi)
+        labels, confidence, _ = read_class_labels(log_odds + prior, log_odds, prior, classes.classes,
                                                   smooth_px=scaled(rule.smooth, prior.shape[1]),
-                                                  coefficients=CLASS_CONFIDENCE_COEFFICIENTS, size=size)
+                                                  coefficients=classes.coefficients, size=size, window=window)
         return labels, confidence, prior
     labels, confidence = read_labels(log_odds + prior, log_odds, prior, rule, size=size)
     return labels, confidence, prior

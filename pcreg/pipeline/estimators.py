@@ -31,7 +31,7 @@ from ..registration.motion import Motion
 if TYPE_CHECKING:
     from ..registration.dense import DenseOptions, DenseReference
 
-__all__ = ["DenseStep", "Carry", "STREAM_DENSE", "Estimate", "StreamMotion", "GlobalEstimator", "DenseEstimator",
+__all__ = ["DenseStep", "Carry", "STREAM_DENSE", "Estimate", "StreamMotion", "motion_model", "GlobalEstimator", "DenseEstimator",
            "FlowEstimator", "stream_motion", "pair_estimator"]
 
 
@@ -352,3 +352,22 @@ class FlowEstimator:
         frame = cv2.cvtColor(as_rgb_uint8(image, name="moving image"), cv2.COLOR_RGB2GRAY)
         fld = flow_field(dis_flow(frame, grey, self.preset), (xs, ys))
         return Estimate(FlowResult(fld, self.preset, time.perf_counter() - t0))
+
+
+def motion_model(model) -> tuple[str, str | None]:
+    """``(model, preset)`` of a :class:`~pcreg.pipeline.stream.Propagator`'s ``model``: ``"flow"`` or ``"flow:PRESET"`` (DIS's preset,
+    :data:`pcreg.registration.flow.PRESETS`; medium by default) gives ``("flow", PRESET)``; ``"dense"`` and the
+    global models ``(model, None)``; anything else an :class:`~pcreg.errors.InputError`."""
+    from ..registration.flow import PRESETS
+    from ..registration.transforms import MODELS
+    from ..validation import short_repr
+
+    if isinstance(model, str) and (model == "flow" or model.startswith("flow:")):
+        preset = model.partition(":")[2] if ":" in model else "medium"
+        if preset not in PRESETS:
+            raise InputError(f"unknown DIS preset {short_repr(preset)} in model {short_repr(model)}; choose flow or "
+                             f"flow:PRESET, PRESET one of {', '.join(PRESETS)}")
+        return "flow", preset
+    if not isinstance(model, str) or model not in ("dense", "flow") + MODELS:
+        raise InputError(f"unknown model {short_repr(model)}; choose dense, flow or one of {', '.join(MODELS)}")
+    return model, None

@@ -67,13 +67,15 @@ def _pass(make: Callable, key_image, key_labels, images: Callable[[int], np.ndar
     confidence)}`` along ``order`` from the key frame (the first two at the propagator's working size),
     and the propagator."""
     from .engine import propagate
+    from .multiclass import weight_sum
 
     prop = make()
     prop.reset(key_image, key_labels)
     out = {}
     for t, _, labels in propagate(prop, ((t, images(t)) for t in order)):
-        d = prop.last.log_odds
-        out[t] = (d, prop.last.trust.prior_term(d.shape), labels, prop.last.confidence)
+        d, maps = prop.last.log_odds, prop.last.trust
+        out[t] = (d, maps.prior_term(d.shape), labels, prop.last.confidence,
+                  None if prop.classes is None else weight_sum(maps))
     return out, prop
 
 
@@ -133,12 +135,13 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
         bwd, prop = (fwd, prop) if b is None else _pass(make, images(b), keys[b], images, s.frames[::-1])
         for t in s.frames:
             if len(s.keys) == 1:
-                _, _, labels, conf = bwd[t]
+                _, _, labels, conf, _ = bwd[t]
             else:  # as pcreg run's backward pass between two key frames
                 assert prop is not None
-                d, p_a, _, _ = fwd[t]
+                d, p_a, _, _, w_a = fwd[t]
                 labels, conf, _ = two_sided(d, p_a, bwd[t][1], prop.trust, size=prop.working_size,
-                                            classes=prop.classes)
+                                            classes=prop.class_read,
+                                            weights=None if w_a is None else (w_a, bwd[t][4]))
             emit(LabelledFrame(t, labels, conf, predicted_error(conf), s.keys))
     return [done[t] for t in range(n)]
 

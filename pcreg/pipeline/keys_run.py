@@ -42,6 +42,7 @@ from ..runs.files import HIDDEN, UNREADABLE_CARRY, label_digest
 from ..runs.truth import empty_counts
 
 from .engine import PRIOR_STORE_DTYPE, Stretch, propagate, stretches, two_sided
+from .multiclass import weight_sum
 
 __all__ = ["KeyRun", "HIDDEN"]  # HIDDEN: pcreg.runs.files.HIDDEN, named here as before
 
@@ -219,17 +220,23 @@ class KeyRun:
             for t, _, _ in propagate(prop, self._images(s, range(start, b)), check=self.check):
                 report = prop.last
                 prior = report.trust.prior_term(report.log_odds.shape).astype(PRIOR_STORE_DTYPE)
+                weight = None if prop.classes is None else weight_sum(report.trust).astype(PRIOR_STORE_DTYPE)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
-                              prop.learned_later())
+                              prop.learned_later(), weight)
 
-    def _keep_prior(self, cur: dict, t: int, prior: np.ndarray, fallback: bool, carry, learned) -> None:
-        """Frame ``t`` of a forward pass between two key frames: its prior term kept for the backward pass,
-        the propagator's carry, and the commit."""
+    def _keep_prior(self, cur: dict, t: int, prior: np.ndarray, fallback: bool, carry, learned,
+                    weight: np.ndarray | None = None) -> None:
+        """Frame ``t`` of a forward pass between two key frames: its prior term (with many classes also its
+        summed trust weight, for the class window) kept for the backward pass, the propagator's carry, and
+        the commit."""
         from ..outputs import atomic_write_bytes
         import io
 
         buf = io.BytesIO()
-        np.savez(buf, prior=prior, fallback=np.bool_(fallback))
+        kept: dict[str, np.ndarray] = {"prior": prior, "fallback": np.asarray(fallback)}
+        if weight is not None:
+            kept["weight"] = weight
+        np.savez(buf, **kept)  # type: ignore[arg-type]  # (numpy's stub types a keyword as allow_pickle)
         atomic_write_bytes(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz", buf.getvalue())
         self._keep_carry(cur, carry, learned)
         cur["next"] = t + 1
@@ -259,9 +266,11 @@ class KeyRun:
                     with _kept(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz") as f, \
                             np.load(f, allow_pickle=False) as z:
                         p_a, fallback = z["prior"], bool(z["fallback"])
+                        w_a = z["weight"].astype(np.float32) if "weight" in z.files else None
                     d = report.log_odds
+                    weights = None if w_a is None else (w_a, weight_sum(report.trust))
                     labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
-                                                size=prop.working_size, classes=prop.classes)
+                                                size=prop.working_size, classes=prop.class_read, weights=weights)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1)
 

@@ -23,13 +23,16 @@ Memory and time grow with K: the scores, the carried priors and their blur are (
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
-__all__ = ["CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE",
+__all__ = ["CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
+           "CLASS_WINDOW", "CLASS_PENALTY", "ClassRead", "windowed", "weight_sum",
            "fused_class_labels", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs",
            "fused_scores", "read_class_labels", "class_confidence", "runner_up", "predicted_iou",
            "sure_labels"]
@@ -50,6 +53,19 @@ CLASS_CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-2.890, 1.055, -1.401, 3.948
 #: among 1/K, 0.2, 0.25, 0.3 and 0.35 with each clip left out (0.3 in seven folds of eight; the pooled
 #: calibration error 0.0211 -> 0.0163), the order of the pixels by confidence unchanged above it.
 CLASS_MIN_CONFIDENCE = 0.3
+#: The blur (px at 640 wide, :class:`~pcreg.classification.fusion.FusionConfig`'s ``sigma``) of the key frame's
+#: one-hot labels before they become a prior with many classes: none (the two-class prior's 2 px smeared
+#: thin classes into their neighbours); chosen with each clip left out (docs/results.md, "Many classes").
+CLASS_PRIOR_SIGMA = 0.0
+#: The class window (px at :data:`~pcreg.pipeline.readout.BASE_WIDTH`): a class that the carried labels do
+#: not show within this square around a pixel, where the carried priors are trusted, has its score lowered by
+#: :data:`CLASS_PENALTY` before the label is read (:func:`windowed`): naive Bayes may not invent there a class
+#: the key frames do not put near it (a pedestrian in the road's colours). Chosen with each clip left out.
+CLASS_WINDOW = 33
+#: How far a class outside the window is lowered (nats).
+CLASS_PENALTY = 15.0
+#: Below this summed trust weight the carried priors say nothing, and every class is allowed.
+UNTRUSTED = 1e-3
 
 
 def class_priors(classifier) -> np.ndarray:
@@ -132,14 +148,56 @@ def _top_two(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return top_two(S)
 
 
+@dataclass(frozen=True, eq=False)
+class ClassRead:
+    """What the many-class read-out needs of a stream: the class ids in the order of the scores' channels,
+    the log class priors, and the confidence's coefficients."""
+
+    classes: np.ndarray
+    log_pi: np.ndarray
+    coefficients: tuple[float, ...] = CLASS_CONFIDENCE_COEFFICIENTS
+
+
+def weight_sum(maps) -> np.ndarray:
+    """(H, W) float32: the carried priors' summed trust weight of a
+    :class:`~pcreg.pipeline.trust.TrustMaps` (the primary motion's and the second's)."""
+    w = np.asarray(maps.primary, np.float32)
+    return w if maps.second is None else w + maps.second
+
+
+def windowed(fused: np.ndarray, prior_term: np.ndarray, weight_sum: np.ndarray, log_pi: np.ndarray) -> np.ndarray:
+    """(H, W, K) float32: ``fused`` with every class that the carried labels do not show within
+    :data:`CLASS_WINDOW` of a pixel lowered by :data:`CLASS_PENALTY`. The carried label is the best class of
+    the priors' evidence per unit of trust plus the class prior (``prior_term / weight_sum + log_pi``: the
+    carried priors' own log-probabilities); where ``weight_sum`` is below :data:`UNTRUSTED` every class is
+    allowed."""
+    import cv2
+
+    from ._class_kernels import top_two
+
+    k = fused.shape[2]
+    w = np.asarray(weight_sum, np.float32)
+    carried = prior_term / np.maximum(w, np.float32(1e-6))[..., None] + np.asarray(log_pi, np.float32)
+    hard = top_two(carried)[0]
+    side = odd(CLASS_WINDOW, fused.shape[1])
+    shown = (hard[..., None] == np.arange(k)).astype(np.uint8)
+    allowed = cv2.dilate(shown, np.ones((side, side), np.uint8)).reshape(shown.shape)
+    allowed[w <= UNTRUSTED] = 1
+    return fused - np.float32(CLASS_PENALTY) * (1 - allowed).astype(np.float32)
+
+
 def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndarray, classes: np.ndarray, *,
-                      smooth_px: float, coefficients: tuple[float, ...], size=None
+                      smooth_px: float, coefficients: tuple[float, ...], size=None, window=None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(labels, confidence, runner_up)`` of fused class scores (H, W, K): the class ids (``classes`` in the
     classifier's order) of the largest score blurred by a Gaussian of ``smooth_px`` px, the probability
     that each is right (:func:`class_confidence`), and the second likeliest class's id. ``size``: the
     stream's :class:`~pcreg.pipeline.working.WorkingSize` when the maps are at it: the blurred scores and
-    the confidence are brought to the frames' size, and the labels read there."""
+    the confidence are brought to the frames' size, and the labels read there. ``window``: ``(weight_sum,
+    log_pi)``, the carried priors' summed trust weight (H, W) and the log class priors: the scores are
+    :func:`windowed` first."""
+    if window is not None:
+        fused = windowed(fused, prior_term, *window)
     S = _smoothed(fused, smooth_px)
     best, second, margin = _top_two(S)
     conf = class_confidence(margin, best, scores, prior_term, coefficients)

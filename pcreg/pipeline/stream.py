@@ -84,7 +84,7 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Callable, Protocol
 
 import numpy as np
@@ -92,11 +92,11 @@ import numpy as np
 from .._threads import both
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
-from .estimators import STREAM_DENSE, Carry, DenseStep, FlowEstimator, StreamMotion, stream_motion
+from .estimators import STREAM_DENSE, Carry, DenseStep, FlowEstimator, StreamMotion, motion_model, stream_motion
 from .learning import STREAM_LEARNING, Learner, Learning
-from .multiclass import CLASS_CONFIDENCE_COEFFICIENTS, CLASS_WEIGHT_SHARE, fused_class_labels, class_prior_maps, class_priors, prior_log_probs
+from .multiclass import CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, ClassRead, fused_class_labels, class_prior_maps, class_priors, prior_log_probs
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
-from .trust import CLASS_TRUST, CONFIDENCE_COEFFICIENTS, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
+from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
 from .working import WorkingSize
 from ..errors import InputError
 from ..frame import PreparedFrame
@@ -252,7 +252,7 @@ class Propagator:
                                       and hasattr(classifier, "class_table")):
             raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}; "
                              "other classes need a pcreg NaiveBayesPixelClassifier with its class table")
-        model, preset = _motion_model(model)
+        model, preset = motion_model(model)
         if not isinstance(anchor, str) or anchor not in ANCHORS:
             raise InputError(f"unknown anchor {short_repr(anchor)}; choose one of {', '.join(ANCHORS)}")
         check_float(weight, "weight", lo=0, hi=MAX_WEIGHT)
@@ -339,15 +339,15 @@ class Propagator:
         self._key, self._key_labels = key, lab
         self._key_trusted = self._key_flow = None
         if self._classes is not None:  # K classes: the prior's evidence per class, what every motion carries
+            fusion = replace(self.fusion, sigma=CLASS_PRIOR_SIGMA) if self.fusion == FusionConfig() else self.fusion
             self._key_prior = prior_log_probs(class_prior_maps(size.labels(lab), self._classes, self._pi,
-                                                               fusion=self.fusion), self._pi)
+                                                               fusion=fusion), self._pi)
         else:
             self._key_prior = label_prior(size.labels(lab), pi=self._pi, fusion=self.fusion)
         if self.trust is not None:
             evidence = self._key_prior if self._classes is not None else prior_log_odds(self._key_prior, pi=self._pi)
-            self._key_trusted = TrustedKey(self.trust, self._prior_weight, key.rgb, evidence, size, classes=self._classes,
-                                           coefficients=CLASS_CONFIDENCE_COEFFICIENTS if self._classes is not None
-                                           else CONFIDENCE_COEFFICIENTS)
+            self._key_trusted = TrustedKey(self.trust, self._prior_weight, key.rgb, evidence, size,
+                                           classes=self.class_read)
             if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # smaller frames have no
                 # second motion (DIS does not take them)
                 self._key_flow = self._flow.prepare(key)
@@ -541,28 +541,17 @@ class Propagator:
         return None if self._classes is None else self._classes.copy()
 
     @property
+    def class_read(self) -> ClassRead | None:
+        """With more than two classes what their read-out needs (:class:`~pcreg.pipeline.multiclass.ClassRead`:
+        the class ids, the log class priors, the confidence's coefficients); None for ground and obstacle."""
+        if self._classes is None:
+            return None
+        return ClassRead(self._classes.copy(), np.log(np.asarray(self._pi, np.float64)).astype(np.float32))
+
+    @property
     def key_labels(self) -> np.ndarray | None:
         """(H, W) uint8 labels of the key frame (None before :meth:`reset`)."""
         return None if self._key_labels is None else self._key_labels.copy()
-
-
-def _motion_model(model) -> tuple[str, str | None]:
-    """``(model, preset)`` of a :class:`Propagator`'s ``model``: ``"flow"`` or ``"flow:PRESET"`` (DIS's preset,
-    :data:`pcreg.registration.flow.PRESETS`; medium by default) gives ``("flow", PRESET)``; ``"dense"`` and the
-    global models ``(model, None)``; anything else an :class:`~pcreg.errors.InputError`."""
-    from ..registration.flow import PRESETS
-    from ..registration.transforms import MODELS
-    from ..validation import short_repr
-
-    if isinstance(model, str) and (model == "flow" or model.startswith("flow:")):
-        preset = model.partition(":")[2] if ":" in model else "medium"
-        if preset not in PRESETS:
-            raise InputError(f"unknown DIS preset {short_repr(preset)} in model {short_repr(model)}; choose flow or "
-                             f"flow:PRESET, PRESET one of {', '.join(PRESETS)}")
-        return "flow", preset
-    if not isinstance(model, str) or model not in STREAM_MODELS + MODELS:
-        raise InputError(f"unknown model {short_repr(model)}; choose dense, flow or one of {', '.join(MODELS)}")
-    return model, None
 
 
 @dataclass

@@ -377,11 +377,10 @@ class TrustedKey:
     size)."""
 
     def __init__(self, rule: TrustRule, weight: float, image: np.ndarray, log_odds: np.ndarray,
-                 size: WorkingSize | None = None, *, classes: np.ndarray | None = None,
-                 coefficients: tuple[float, ...] = CONFIDENCE_COEFFICIENTS) -> None:
+                 size: WorkingSize | None = None, *, classes=None) -> None:
         self.rule, self.weight, self.size = rule, float(weight), size
         self.blurred, self.log_odds = blurred(image), log_odds
-        self.classes, self.coefficients = classes, coefficients  # K classes: their ids, (H, W, K) log_odds
+        self.classes = classes  # K classes: a multiclass.ClassRead, and log_odds (H, W, K) evidence
 
     def carried(self, frame_blurred: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(prior, residual)`` along ``field``: :func:`carried_log_odds` and :func:`carried_residual`."""
@@ -408,18 +407,18 @@ class TrustedKey:
     def _fuse_classes(self, scores, dense_prior, dense_residual, field_confidence, flow, times, t0, t1) -> Trusted:
         """:meth:`fuse` with K classes (:mod:`pcreg.pipeline.multiclass`): the same trust maps, the priors'
         evidence per class, the label the best class of the blurred sum."""
-        from .multiclass import fused_scores, read_class_labels
+        from .multiclass import fused_scores, read_class_labels, weight_sum
 
-        classes = self.classes
-        assert classes is not None  # fuse sends K classes here only
+        read = self.classes
+        assert read is not None  # fuse sends K classes here only
         second_prior, second_residual = (None, None) if flow is None else flow
         maps = trust_maps(self.rule, weight=self.weight, primary_prior=dense_prior, primary_residual=dense_residual,
                           confidence=field_confidence, second_prior=second_prior, second_residual=second_residual)
         fused, prior = fused_scores(scores, [(maps.primary, maps.primary_prior), (maps.second, maps.second_prior)])
         t2 = time.perf_counter()
         labels, confidence, second = read_class_labels(
-            fused, scores, prior, classes, smooth_px=_scaled(self.rule.smooth, fused.shape[1]),
-            coefficients=self.coefficients, size=self.size)
+            fused, scores, prior, read.classes, smooth_px=_scaled(self.rule.smooth, fused.shape[1]),
+            coefficients=read.coefficients, size=self.size, window=(weight_sum(maps), read.log_pi))
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior, second)
 

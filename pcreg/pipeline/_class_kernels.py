@@ -8,28 +8,57 @@ import numpy as np
 
 from .._jit import njit
 
-__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes"]
+__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "carried_best", "penalised"]
 
 
 def _top_two_py(S, best, second, margin):
     h, w, k = S.shape
     for i in range(h):
         for j in range(w):
-            b, s = 0, -1
             vb = S[i, j, 0]
-            vs = -np.inf
-            for c in range(1, k):
+            b = 0
+            s = 0
+            vs = vb
+            if k > 1:  # the runner-up starts as the other of the first two
+                v = S[i, j, 1]
+                if v > vb:
+                    b, vb, s, vs = 1, v, 0, vb
+                else:
+                    s, vs = 1, v
+            for c in range(2, k):
                 v = S[i, j, c]
                 if v > vb:
                     s, vs = b, vb
                     b, vb = c, v
                 elif v > vs:
                     s, vs = c, v
-            if s < 0:  # one class only
-                s, vs = b, vb
             best[i, j] = b
             second[i, j] = s
             margin[i, j] = vb - vs
+
+
+def _carried_best_py(prior, weight, log_pi, floor, out):
+    h, w, k = prior.shape
+    for i in range(h):
+        for j in range(w):
+            inv = np.float32(1.0) / max(weight[i, j], floor)
+            b = 0
+            vb = prior[i, j, 0] * inv + log_pi[0]
+            for c in range(1, k):
+                v = prior[i, j, c] * inv + log_pi[c]
+                if v > vb:
+                    b, vb = c, v
+            out[i, j] = b
+
+
+def _penalised_py(fused, allowed, weight, untrusted, penalty, out):
+    h, w, k = fused.shape
+    for i in range(h):
+        for j in range(w):
+            free = weight[i, j] <= untrusted
+            for c in range(k):
+                v = fused[i, j, c]
+                out[i, j, c] = v if free or allowed[i, j, c] else v - penalty
 
 
 def _block_shares_py(best, k, out):
@@ -77,6 +106,8 @@ def _fuse_classes_py(d, w1, l1, w2, l2, fused, prior):
 _top_two = njit(cache=True, nogil=True)(_top_two_py)
 _block_shares = njit(cache=True, nogil=True)(_block_shares_py)
 _best_agreement = njit(cache=True, nogil=True)(_best_agreement_py)
+_carried_best = njit(cache=True, nogil=True)(_carried_best_py)
+_penalised = njit(cache=True, nogil=True)(_penalised_py)
 _fuse_classes = njit(cache=True, nogil=True)(_fuse_classes_py)
 
 
@@ -117,3 +148,22 @@ def fuse_classes(d: np.ndarray, w1: np.ndarray, l1: np.ndarray, w2: np.ndarray |
     _fuse_classes(d, c(w1, np.float32), c(l1, np.float32), None if w2 is None else c(w2, np.float32),
                   None if l2 is None else c(l2, np.float32), fused, prior)
     return fused, prior
+
+
+def carried_best(prior: np.ndarray, weight: np.ndarray, log_pi: np.ndarray) -> np.ndarray:
+    """(H, W) uint8: the best class index of ``prior / weight + log_pi`` ((H, W, K) evidence, (H, W) summed
+    trust weight, at least 1e-6; (K,) log class priors): the carried priors' own label."""
+    out = np.empty(prior.shape[:2], np.uint8)
+    _carried_best(np.ascontiguousarray(prior, np.float32), np.ascontiguousarray(weight, np.float32),
+                  np.ascontiguousarray(log_pi, np.float32), np.float32(1e-6), out)
+    return out
+
+
+def penalised(fused: np.ndarray, allowed: np.ndarray, weight: np.ndarray, untrusted: float,
+              penalty: float) -> np.ndarray:
+    """(H, W, K) float32: ``fused`` lowered by ``penalty`` where a class is not ``allowed`` ((H, W, K) uint8)
+    and the pixel's summed trust ``weight`` is above ``untrusted``."""
+    out = np.empty(fused.shape, np.float32)
+    _penalised(np.ascontiguousarray(fused, np.float32), np.ascontiguousarray(allowed),
+               np.ascontiguousarray(weight, np.float32), np.float32(untrusted), np.float32(penalty), out)
+    return out

@@ -173,17 +173,15 @@ def windowed(fused: np.ndarray, prior_term: np.ndarray, weight_sum: np.ndarray, 
     allowed."""
     import cv2
 
-    from ._class_kernels import top_two
+    from ._class_kernels import carried_best, penalised
 
     k = fused.shape[2]
     w = np.asarray(weight_sum, np.float32)
-    carried = prior_term / np.maximum(w, np.float32(1e-6))[..., None] + np.asarray(log_pi, np.float32)
-    hard = top_two(carried)[0]
+    hard = carried_best(prior_term, w, log_pi)
     side = odd(CLASS_WINDOW, fused.shape[1])
-    shown = (hard[..., None] == np.arange(k)).astype(np.uint8)
+    shown = (hard[..., None] == np.arange(k, dtype=np.uint8)).view(np.uint8)
     allowed = cv2.dilate(shown, np.ones((side, side), np.uint8)).reshape(shown.shape)
-    allowed[w <= UNTRUSTED] = 1
-    return fused - np.float32(CLASS_PENALTY) * (1 - allowed).astype(np.float32)
+    return penalised(fused, allowed, w, UNTRUSTED, CLASS_PENALTY)
 
 
 def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndarray, classes: np.ndarray, *,

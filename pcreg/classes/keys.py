@@ -125,8 +125,7 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
                       limit: int | None = None) -> np.ndarray:
     """(H, W) uint8 class ids of ``table`` of an encoded label image ``name`` coded as ``mapping`` says
     (the module's docstring); one line naming ``name`` for a value or colour that is no class."""
-    from ..datasets.davis import DAVIS_MAPPING, mask_hint
-    from ..datasets.folder import mapping_lut
+    from .mappings import DAVIS_MAPPING, mapping_lut, mask_hint
 
     if mapping == "davis":
         lut = mapping_lut(DAVIS_MAPPING)

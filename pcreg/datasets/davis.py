@@ -25,13 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DatasetError, InputError
+from ..classes.mappings import DAVIS_MAPPING, mask_hint
 from .frame import Frame
 
 __all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "check_key_mask",
            "mask_hint", "load_sequence", "load_davis", "published"]
 
-#: A DAVIS mask's values as pcreg's labels: 0 the background (0), anything else the object (1).
-DAVIS_MAPPING: dict[int, int] = {0: 0, **{v: 1 for v in range(1, 256)}}
 #: The official layout's resolution folders, the one read first first.
 RESOLUTIONS: tuple[str, ...] = ("480p", "1080p", "Full-Resolution")
 #: The figures pcreg ships: per method and sequence of DAVIS 2016 val, J and F averaged over frames 1..n-2.
@@ -117,15 +116,6 @@ def check_key_mask(labels: np.ndarray, path: str | Path) -> None:
     """Refuse a key frame's mask (pcreg's labels) with no object pixel, naming its file ``path``."""
     if not (np.asarray(labels) == 1).any():
         raise DatasetError(f"{path}: the object's mask on the key frame is empty: there is no object to follow")
-
-
-def mask_hint(raw: np.ndarray) -> str:
-    """What to say of label values that are not pcreg's: when ``raw`` holds a 0/255 object mask, which
-    mapping reads it ("" otherwise)."""
-    values = np.unique(np.asarray(raw))
-    if values.size <= 2 and set(values.tolist()) <= {0, 255}:
-        return "; it is a 0/255 object mask (DAVIS): --mapping davis reads it (0 the background, 255 the object)"
-    return ""
 
 
 def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None = None,

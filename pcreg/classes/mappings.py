@@ -1,0 +1,69 @@
+"""How raw label values become a class table's ids: CamVid's twelve ids read as ground and obstacle
+(``--mapping camvid``), and a DAVIS 0/255 object mask (``--mapping davis``)."""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["CAMVID_MAPPING", "DAVIS_MAPPING", "mapping_lut", "mask_hint"]
+
+# CamVid's 12 class ids -> LAGR labels (0 ground, 1 obstacle, 2 unknown); ../shared/data/README.md.
+CAMVID_MAPPING: dict[int, int] = {
+    0: 2,  # sky
+    1: 1,  # building
+    2: 1,  # pole
+    3: 0,  # road
+    4: 0,  # pavement
+    5: 1,  # tree
+    6: 1,  # sign symbol
+    7: 1,  # fence
+    8: 1,  # car
+    9: 1,  # pedestrian
+    10: 1,  # bicyclist
+    11: 2,  # void
+}
+
+
+def mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
+    """256-entry table raw id -> label, 255 for ids outside the mapping; None for identity on {0,1,2};
+    ``"davis"``: 0 the background (0), every other value the object (1)."""
+    if mapping is None:
+        lut = np.full(256, 255, dtype=np.uint8)
+        lut[:3] = (0, 1, 2)
+        return lut
+    if isinstance(mapping, str):
+        if mapping.lower() not in ("camvid", "davis"):
+            raise InputError(f"unknown label mapping {mapping!r} (use 'camvid', 'davis', a dict or None)")
+        if mapping.lower() == "davis":
+            mapping = DAVIS_MAPPING
+        else:
+            mapping = CAMVID_MAPPING
+    if not isinstance(mapping, Mapping):
+        raise InputError(f"mapping must be 'camvid', 'davis', a dict raw id -> label or None, got {type(mapping).__name__}")
+    lut = np.full(256, 255, dtype=np.uint8)
+    for raw, lab in mapping.items():
+        try:
+            r, c = int(raw), int(lab)
+        except (TypeError, ValueError, OverflowError):
+            r, c = -1, -1
+        if not (0 <= r <= 255) or c not in (0, 1, 2):
+            raise InputError(f"mapping entry {raw!r} -> {lab!r}: raw ids are 0..255, labels 0, 1 or 2")
+        lut[r] = c
+    return lut
+
+
+#: A DAVIS mask's values as pcreg's labels: 0 the background (0), anything else the object (1).
+DAVIS_MAPPING: dict[int, int] = {0: 0, **{v: 1 for v in range(1, 256)}}
+
+
+def mask_hint(raw: np.ndarray) -> str:
+    """What to say of label values that are not pcreg's: when ``raw`` holds a 0/255 object mask, which
+    mapping reads it ("" otherwise)."""
+    values = np.unique(np.asarray(raw))
+    if values.size <= 2 and set(values.tolist()) <= {0, 255}:
+        return "; it is a 0/255 object mask (DAVIS): --mapping davis reads it (0 the background, 255 the object)"
+    return ""

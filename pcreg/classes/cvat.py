@@ -24,6 +24,7 @@ the archive (``..``, an absolute path) is refused, and every member's size is bo
 
 from __future__ import annotations
 
+import contextlib
 import re
 import zipfile
 import zlib
@@ -61,7 +62,7 @@ def _safe_name(name: str) -> str | None:
     return "/".join(p for p in parts if p != ".")
 
 
-class CvatExport:
+class CvatExport(contextlib.AbstractContextManager):
     """The files of an export, a zip archive or a folder, by relative name (``labelmap.txt``,
     ``SegmentationClass/NAME.png``); a context manager."""
 
@@ -126,10 +127,7 @@ class CvatExport:
         if self._zip is not None:
             self._zip.close()
 
-    def __enter__(self) -> "CvatExport":
-        return self
-
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc) -> None:  # entering gives the export itself (AbstractContextManager)
         self.close()
 
 

@@ -173,8 +173,8 @@ class StepReport:
         far); ``log_odds > 0`` are its labels alone, and ``log_odds`` plus the trust map's
         :meth:`~pcreg.pipeline.trust.TrustMaps.prior_term` the fused log-odds. With more than two classes
         (H, W, K) float32 class scores (:meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.class_scores`).
-    predicted_iou : with more than two classes and a trust rule, each class's predicted IoU from the
-        confidence (:func:`~pcreg.pipeline.multiclass.predicted_iou`), by class id; else None.
+    predicted_iou : (a property) with more than two classes and a trust rule, each class's predicted IoU
+        from the confidence (:func:`~pcreg.pipeline.multiclass.predicted_iou`), by class id; else None.
     """
 
     frame: int
@@ -189,16 +189,21 @@ class StepReport:
     trust: "TrustMaps | PriorTerms | None" = field(default=None, repr=False)
     trust_summary: dict | None = None
     log_odds: np.ndarray | None = field(default=None, repr=False)
-    predicted_iou: dict | None = None
 
     @property
     def registered(self) -> bool:
         return self.registration is not None
 
+    @property
+    def predicted_iou(self) -> dict | None:
+        return None if self.trust_summary is None else self.trust_summary.get("predicted_iou")
+
     def to_dict(self) -> dict:
         return {"frame": self.frame, "registered": self.registered, "reason": self.reason,
                 "fallback": self.fallback, "reference": self.reference, "start": self.start,
-                "predicted_error": self.predicted_error, "trust": self.trust_summary,
+                "predicted_error": self.predicted_error,
+                "trust": None if self.trust_summary is None else {k: v for k, v in self.trust_summary.items()
+                                                                  if k != "predicted_iou"},
                 "registration": None if self.registration is None else self.registration.to_dict(),
                 "times": {k: float(v) for k, v in self.times.items()},
                 **({} if self.predicted_iou is None else {"predicted_iou": {str(k): v for k, v in

@@ -360,13 +360,13 @@ class Trusted:
     def report(self, rule: TrustRule, weight: float) -> dict:
         """What a step's report (:class:`~pcreg.pipeline.stream.StepReport`) gives of it: the confidence,
         the predicted error, the trust map and its summary; with K classes each class's predicted IoU."""
-        out = {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence),
-               "trust": self.maps, "trust_summary": self.maps.summary(rule, weight)}
+        summary: dict = self.maps.summary(rule, weight)
         if self.second is not None:
             from .multiclass import predicted_iou
 
-            out["predicted_iou"] = predicted_iou(self.labels, self.confidence, self.second, np.unique(self.labels))
-        return out
+            summary["predicted_iou"] = predicted_iou(self.labels, self.confidence, self.second, np.unique(self.labels))
+        return {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence),
+                "trust": self.maps, "trust_summary": summary}
 
 
 class TrustedKey:

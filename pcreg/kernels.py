@@ -41,6 +41,25 @@ def warm_up() -> None:
     for confidence in (result.confidence, None):  # the one fusion kernel, compiled for each case a stream meets
         for flow in ((zeros, zeros), None):
             trusted_fusion(STREAM_TRUST, 1.0, zeros, zeros, zeros, confidence, flow)
+    _warm_classes(shape)
+
+
+def _warm_classes(shape: tuple[int, int]) -> None:
+    """The many-class step's kernels (:mod:`pcreg.pipeline._class_kernels`, naive Bayes' class sums)."""
+    from .classification._score_kernels import class_sums
+    from .pipeline import _class_kernels as k
+
+    scores = np.zeros(shape + (3,), np.float32)
+    w = np.ones(shape, np.float32)
+    k.top_two(scores)
+    k.block_shares(np.zeros(shape, np.intp), 3)
+    k.best_agreement(scores, scores)
+    for second in ((w, scores), (None, None)):
+        k.fuse_classes(scores, w, scores, *second)
+    k.carried_best(scores, w, np.zeros(3, np.float32))
+    k.penalised(scores, np.ones(shape + (3,), np.uint8), w, 1e-3, 15.0)
+    class_sums([("rgb", np.zeros(shape + (3,), np.uint8)), ("row", np.zeros(shape[0], np.uint8))],
+               np.zeros((3, 4, 256), np.float32), np.zeros(3, np.float32))
 
 
 def _textured_pair(size: int = 96, shift: int = 2) -> tuple[np.ndarray, np.ndarray]:

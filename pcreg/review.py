@@ -48,7 +48,8 @@ class RunReview:
     of key frames (named in ``run.json``, or without a line in ``steps.jsonl``); ``errors`` each frame's
     predicted error in % (None for a key frame or a step without one); ``suggested`` the positions listed in
     ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
-    ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`)."""
+    ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
+    IoU per class id (``steps.jsonl``'s ``predicted_iou``, with more than two classes; None otherwise)."""
 
     folder: Path
     source: Path
@@ -61,6 +62,7 @@ class RunReview:
     confidence: bool
     selection: dict | None = None
     table: ClassTable = DEFAULT_TABLE
+    ious: tuple[dict | None, ...] = ()
 
     def labels_path(self, t: int) -> Path:
         return self.folder / f"{self.stems[t]}.png"
@@ -140,12 +142,15 @@ def read_review(folder: str | Path) -> RunReview:
         except (OSError, ValueError, KeyError, TypeError):
             raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
     keys = frozenset(t for t, n in enumerate(names) if n in named or n not in steps)
-    errors = []
+    errors, ious = [], []
     for t, n in enumerate(names):
         e = None if t in keys else steps[n].get("predicted_error")
         errors.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
+        iou = None if t in keys else steps[n].get("predicted_iou")
+        ious.append({int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None)
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
-                     _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table)
+                     _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
+                     tuple(ious))
 
 
 def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:
@@ -181,6 +186,19 @@ def overlay(image: np.ndarray, labels: np.ndarray, confidence: np.ndarray | None
         b = max(2, min(labels.shape) // 60)
         out[:b], out[-b:], out[:, :b], out[:, -b:] = (59, 130, 246), (59, 130, 246), (59, 130, 246), (59, 130, 246)
     return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+def class_figures(review: RunReview, t: int) -> list[dict]:
+    """Frame ``t``'s classes as the review's legend shows them: each known class's share of the frame's
+    pixels (%) and, with more than two classes, its predicted IoU from the confidence (None for a key
+    frame, or a class the step did not label)."""
+    from .export import read_labels
+
+    labels = read_labels(review.labels_path(t), review.table)
+    counts = np.bincount(labels.ravel(), minlength=256)
+    iou = review.ious[t] if t < len(review.ious) else None
+    return [{"id": c.id, "share": 100.0 * float(counts[c.id]) / max(1, labels.size),
+             "iou": None if iou is None else iou.get(c.id)} for c in review.table.known]
 
 
 def read_overlay(review: RunReview, t: int, image: np.ndarray) -> np.ndarray:

@@ -129,6 +129,12 @@ def test_pcreg_run_labels_eleven_classes(shared_data, tmp_path, keys):
     assert state["truth"]["error"] < state["truth"]["plain_error"]
     steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
     assert any("predicted_iou" in s for s in steps)
+    from pcreg.review import class_figures, read_review
+
+    figures = class_figures(read_review(out), 2)  # what the review's legend shows beside each class
+    assert [f["id"] for f in figures] == list(range(11))
+    assert sum(f["share"] for f in figures) <= 100.0 + 1e-6
+    assert any(f["iou"] is not None and 0 <= f["iou"] <= 1 for f in figures)
     assert main(["run", str(tmp_path / "frames"), "--labels", str(labels), "--classes", "camvid11",
                  "--truth", str(tmp_path / "truth"), "--confidence", "--out", str(out)]) == 0  # all done: resumes
 

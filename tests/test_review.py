@@ -414,8 +414,14 @@ def test_the_review_draws_the_runs_class_table(synthetic, tmp_path):
                 return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
 
             until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
-            items = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => [s.textContent, "
+            items = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => [s.childNodes[1].textContent, "
                        "s.querySelector('.swatch').style.background])")
             assert items[:3] == [["floor", "rgb(0, 0, 255)"], ["wall", "rgb(255, 255, 0)"], ["background", ""]], items
+            # beside each class its share of the frame shown, as the run's labels have it
+            share = "document.querySelector('#legend span[data-class=\"0\"]').textContent"
+            until(lambda: "%" in (ev(share) or ""), what="the classes' shares shown", alive=proc, bound=60)
+            shown = float(ev(share).strip().split()[0])
+            labels0 = pcreg.export.read_labels(out / "frame_000.png", review.table)
+            assert shown == pytest.approx(100.0 * np.mean(labels0 == 0), abs=0.06)
     finally:
         stop_view(proc)

@@ -55,6 +55,24 @@ function show(t) {
   for (const li of document.querySelectorAll("li[data-frame]")) li.classList.toggle("current", Number(li.dataset.frame) === t);
   drawCursor();
   preload(t);
+  drawClassFigures(t);
+}
+
+// each class's share of the frame and, with many classes, its predicted IoU, beside its name in the legend
+async function drawClassFigures(t) {
+  let figures;
+  try {
+    const r = await fetch(`/classes/${t}.json`);
+    if (!r.ok) return;
+    figures = await r.json();
+  } catch (e) { return; }
+  if (state.current !== t) return;
+  for (const f of figures) {
+    const span = document.querySelector(`#legend span[data-class="${f.id}"]`);
+    if (!span) continue;
+    const iou = f.iou === null || f.iou === undefined ? "" : `, predicted IoU ${f.iou.toFixed(2)}`;
+    span.textContent = ` ${f.share.toFixed(1)} %${iou}`;
+  }
 }
 
 // -- the plot --------------------------------------------------------------------------------------
@@ -172,7 +190,11 @@ function drawLegend() {
     return el("span", {}, s, text);
   };
   // each class of the run's table in its colour, then its unknown (left clear)
-  const items = d.classes.map((c) => item("", rgb(c.colour), c.name));
+  const items = d.classes.map((c) => {
+    const it = item("", rgb(c.colour), c.name);
+    it.append(el("span", { class: "muted", "data-class": c.id }));
+    return it;
+  });
   items.push(item("clear", null, d.unknown.name));
   if (d.confidence) items.push(item("hatch", null, `confidence below ${Math.round(d.low_confidence * 100)} %`));
   items.push(item("key", null, "key frame"));

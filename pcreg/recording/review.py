@@ -92,6 +92,13 @@ class ReviewServer:
             "unknown": {"id": r.table.unknown, "name": r.table.unknown_class.name},
         }, allow_nan=False).encode()
 
+    def class_json(self, t: int) -> bytes:
+        """Frame ``t``'s classes: each one's share of the frame and predicted IoU
+        (:func:`pcreg.review.class_figures`)."""
+        from ..review import class_figures
+
+        return json.dumps(class_figures(self.review, t), allow_nan=False).encode()
+
     def image(self, what: str, t: int) -> bytes:
         """Frame ``t`` as JPEG: ``what`` is ``overlay`` (its labels drawn over it) or ``frame``."""
         import cv2
@@ -130,6 +137,13 @@ class ReviewServer:
                     if path == "/review.json":
                         return self._send(200, "application/json", server.review_json())
                     what, _, name = path.strip("/").partition("/")
+                    if what == "classes" and name.endswith(".json") and name[:-5].isdigit() \
+                            and name[:-5].isascii() and int(name[:-5]) < n:
+                        try:
+                            body = server.class_json(int(name[:-5]))
+                        except (InputError, OSError) as exc:
+                            return self._send(500, "text/plain; charset=utf-8", f"{exc}\n".encode())
+                        return self._send(200, "application/json", body)
                     if what in ("overlay", "frame") and name.endswith(".jpg") and name[:-4].isdigit() \
                             and name[:-4].isascii() and int(name[:-4]) < n:
                         try:

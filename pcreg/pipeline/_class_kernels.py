@@ -37,11 +37,11 @@ def _top_two_py(S, best, second, margin):
             margin[i, j] = vb - vs
 
 
-def _carried_best_py(prior, weight, log_pi, floor, out):
+def _carried_best_py(prior, weight, log_pi, least, out):
     h, w, k = prior.shape
     for i in range(h):
         for j in range(w):
-            inv = np.float32(1.0) / max(weight[i, j], floor)
+            inv = np.float32(1.0) / max(weight[i, j], least)
             b = 0
             vb = prior[i, j, 0] * inv + log_pi[0]
             for c in range(1, k):

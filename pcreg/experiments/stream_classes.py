@@ -104,7 +104,7 @@ def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, b
     from ..pipeline.estimators import FlowEstimator
     from ..pipeline.keyframes import label_clip
     from ..pipeline.multiclass import class_prior_maps, class_priors, prior_log_probs
-    from .stream_methods import CONFIDENCE_LEVELS, Timed
+    from .stream_methods import CONFIDENCE_LEVELS, Timed, calibration_counts
 
     n = len(frames)
     clf = fit_classifier([frames[k] for k in keys], classes=table)
@@ -127,7 +127,7 @@ def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, b
             errors.setdefault(f.index, {})["pcreg"] = _error(f.labels, truth, unknown)
             conf_m["pcreg"] += confusion(f.labels, truth, unknown)
             assert f.confidence is not None
-            counts += class_calibration_counts(f.confidence, f.labels, truth, unknown)
+            counts += calibration_counts(f.confidence, f.labels, truth, unknown)
     flow = FlowEstimator("medium")
     for s in stretches(keys, n):
         for m in (m for m in methods if m != "pcreg"):
@@ -153,15 +153,3 @@ def _error(labels: np.ndarray, truth: np.ndarray, unknown: int) -> float:
     keep = truth != unknown
     return 100.0 * float(np.mean(labels[keep] != truth[keep])) if keep.any() else float("nan")
 
-
-def class_calibration_counts(confidence: np.ndarray, labels: np.ndarray, truth: np.ndarray, unknown: int) -> np.ndarray:
-    """(2, 256) int64, :func:`~pcreg.experiments.stream_methods.calibration_counts` over many classes: over
-    the pixels whose truth is not ``unknown``, how many labels were right (row 0) and wrong (row 1) at each
-    8-bit level of their confidence."""
-    from .stream_methods import CONFIDENCE_LEVELS
-
-    known = truth != unknown
-    level = np.rint(np.asarray(confidence, np.float32)[known] * (CONFIDENCE_LEVELS - 1)).astype(np.intp)
-    wrong = labels[known] != truth[known]
-    return np.stack([np.bincount(level[~wrong], minlength=CONFIDENCE_LEVELS),
-                     np.bincount(level[wrong], minlength=CONFIDENCE_LEVELS)]).astype(np.int64)

@@ -34,7 +34,7 @@ from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 __all__ = ["CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
            "CLASS_WINDOW", "CLASS_PENALTY", "ClassRead", "windowed", "weight_sum",
            "fused_class_labels", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs",
-           "fused_scores", "read_class_labels", "class_confidence", "runner_up", "predicted_iou",
+           "fused_scores", "read_class_labels", "class_confidence", "predicted_iou",
            "sure_labels"]
 
 #: The least class prior taken: a class with (almost) no key-frame pixels must not give -inf evidence.
@@ -251,11 +251,6 @@ def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, p
     if not np.all(np.isfinite(conf)):
         raise AssertionError("a confidence came out NaN")
     return conf
-
-
-def runner_up(fused: np.ndarray) -> np.ndarray:
-    """(H, W) intp: each pixel's second likeliest class index of (H, W, K) scores."""
-    return _top_two(np.asarray(fused, np.float32))[1]
 
 
 def predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray, classes) -> dict[int, float]:

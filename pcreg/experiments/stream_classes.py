@@ -69,7 +69,7 @@ class _Baseline:
         self.t = stretch.start
 
     def step(self, image: np.ndarray) -> np.ndarray:
-        from ..pipeline.multiclass import carried_log_probs
+        from ..pipeline.multiclass import carried_log_probs, smoothed_scores
         from ..pipeline.readout import scaled
         from ..pipeline.stream import STREAM_WEIGHT
         from ..pipeline.trust import CLASS_TRUST
@@ -89,10 +89,7 @@ class _Baseline:
         if labels_only:  # the labels' own probabilities: the evidence over the class prior, times it
             return classes[np.argmax(evidence + self.log_pi, axis=2)]
         fused = self.clf.class_scores(image) + np.float32(STREAM_WEIGHT) * evidence
-        import cv2
-
-        fused = cv2.GaussianBlur(fused, (0, 0), scaled(CLASS_TRUST.smooth, fused.shape[1])).reshape(fused.shape)
-        return classes[np.argmax(fused, axis=2)]
+        return classes[np.argmax(smoothed_scores(fused, scaled(CLASS_TRUST.smooth, fused.shape[1])), axis=2)]
 
 
 def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, backend: str = "reference") -> dict:

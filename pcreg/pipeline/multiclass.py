@@ -34,7 +34,7 @@ from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 __all__ = ["CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
            "CLASS_WINDOW", "CLASS_PENALTY", "ClassRead", "windowed", "weight_sum",
            "fused_class_labels", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs",
-           "fused_scores", "read_class_labels", "class_confidence", "predicted_iou",
+           "fused_scores", "smoothed_scores", "read_class_labels", "class_confidence", "predicted_iou",
            "sure_labels"]
 
 #: The least class prior taken: a class with (almost) no key-frame pixels must not give -inf evidence.
@@ -131,7 +131,8 @@ def fused_scores(scores: np.ndarray, weighted: list[tuple[np.ndarray | float | N
     return fuse_classes(d, w1, l1, w2, l2)
 
 
-def _smoothed(fused: np.ndarray, sigma_px: float) -> np.ndarray:
+def smoothed_scores(fused: np.ndarray, sigma_px: float) -> np.ndarray:
+    """(H, W, K) float32: class scores blurred, each class by a Gaussian of ``sigma_px`` px (itself at 0)."""
     import cv2
 
     S = np.ascontiguousarray(fused, dtype=np.float32)
@@ -196,7 +197,7 @@ def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndar
     :func:`windowed` first."""
     if window is not None:
         fused = windowed(fused, prior_term, *window)
-    S = _smoothed(fused, smooth_px)
+    S = smoothed_scores(fused, smooth_px)
     best, second, margin = _top_two(S)
     conf = class_confidence(margin, best, scores, prior_term, coefficients)
     if size is not None and size.scaled:

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
+from ._class_kernels import best_agreement, block_shares, carried_best, fuse_classes, penalised, top_two
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
 __all__ = ["CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
@@ -120,8 +121,6 @@ def fused_scores(scores: np.ndarray, weighted: list[tuple[np.ndarray | float | N
                  ) -> tuple[np.ndarray, np.ndarray]:
     """``(fused, prior_term)``, (H, W, K) float32 each: naive Bayes' class scores plus each prior's
     evidence times its weight (a (H, W) map or a number; a pair with a None is left out)."""
-    from ._class_kernels import fuse_classes
-
     d = np.asarray(scores, np.float32)
     pairs = [(np.broadcast_to(np.asarray(w, np.float32), d.shape[:2]), lp) for w, lp in weighted
              if w is not None and lp is not None]
@@ -139,14 +138,6 @@ def smoothed_scores(fused: np.ndarray, sigma_px: float) -> np.ndarray:
     if sigma_px <= 0:
         return S
     return cv2.GaussianBlur(S, (0, 0), sigma_px).reshape(S.shape)
-
-
-def _top_two(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(best index, runner-up index, margin)`` per pixel of (H, W, K) scores: the margin is the best
-    score minus the runner-up's (the first of equals is the best)."""
-    from ._class_kernels import top_two
-
-    return top_two(S)
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,8 +165,6 @@ def windowed(fused: np.ndarray, prior_term: np.ndarray, weight_sum: np.ndarray, 
     allowed."""
     import cv2
 
-    from ._class_kernels import carried_best, penalised
-
     k = fused.shape[2]
     w = np.asarray(weight_sum, np.float32)
     hard = carried_best(prior_term, w, log_pi)
@@ -198,10 +187,10 @@ def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndar
     if window is not None:
         fused = windowed(fused, prior_term, *window)
     S = smoothed_scores(fused, smooth_px)
-    best, second, margin = _top_two(S)
+    best, second, margin = top_two(S)
     conf = class_confidence(margin, best, scores, prior_term, coefficients)
     if size is not None and size.scaled:
-        best, second, _ = _top_two(size.grow(S))
+        best, second, _ = top_two(size.grow(S))
         conf = size.grow(conf)
     ids = np.asarray(classes, np.uint8)
     return ids[best], conf, ids[second]
@@ -213,8 +202,6 @@ def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_te
     neighbourhood with the pixel's own label at the two purity sides, and the share of the agreement side
     where naive Bayes' best class is the carried prior's."""
     import cv2
-
-    from ._class_kernels import best_agreement, block_shares, top_two
 
     w = best.shape[1]
     oh = block_shares(best, k)  # the one-hot labels at half size
@@ -282,7 +269,7 @@ def sure_labels(fused: np.ndarray, prior_term: np.ndarray, classes: np.ndarray, 
     Bayes learns from a frame (:class:`~pcreg.pipeline.learning.Learner`; two classes: ``|P| > sure`` and
     the signs agree)."""
     best_f = np.argmax(fused, axis=2)
-    best_p, _, margin = _top_two(np.asarray(prior_term, np.float32))
+    best_p, _, margin = top_two(np.asarray(prior_term, np.float32))
     ok = (margin > np.float32(sure)) & (best_p == best_f)
     ids = np.asarray(classes, np.uint8)
     return np.where(ok, ids[best_f], np.uint8(unknown)).astype(np.uint8)
@@ -292,7 +279,8 @@ def fused_class_labels(scores: np.ndarray, evidence: np.ndarray, motion, pixel_w
                        classes: np.ndarray, size, times: dict) -> np.ndarray:
     """(H, W) uint8 class ids without a trust rule: the key frame's ``evidence`` per class (at the working
     size) carried along ``motion`` (unmoved when None), at ``weight`` by the field's confidence
-    (``pixel_weight``: :func:`~pcreg.pipeline.prior.pixel_weight`), added to the class scores; the best class,
+    (``pixel_weight``: :func:`~pcreg.pipeline.prior.pixel_weight`, given by the caller: ``prior`` reads
+    :mod:`~pcreg.pipeline.trust`, which reads this module), added to the class scores; the best class,
     read at the frames' size when ``size`` (a :class:`~pcreg.pipeline.working.WorkingSize`) is scaled. The
     times of the parts go into ``times`` (``fuse.warp``, ``fuse.fusion``)."""
     import time

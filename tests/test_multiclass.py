@@ -173,3 +173,53 @@ def test_eleven_classes_without_a_trust_rule(shared_data, model):
         out = prop.step(image)
         assert set(np.unique(out).tolist()) <= set(clf.classes_.tolist())
         assert prop.last.confidence is None and prop.last.predicted_iou is None
+
+
+def test_a_chained_eleven_class_stream_resumes_exactly_from_its_saved_carry(shared_data, tmp_path):
+    """With more than two classes the stream registers each frame to the previous one; what a step hands to
+    the next (the frame and its motion to the key frame) goes through the carry file, and a propagator
+    resumed from it labels the next frames exactly as the uninterrupted one."""
+    from pcreg.pipeline.estimators import ChainCarry
+    from pcreg.runs.files import read_carry, write_carry
+
+    images, labels = _clip(shared_data, 6)
+    whole = Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11, scale=0.5)
+    assert whole.anchor == multiclass.CLASS_ANCHOR == "previous"
+    saved, expected = {}, {}
+    for t in range(1, 6):
+        expected[t] = (whole.step(images[t]).copy(), whole.last.confidence.copy())
+        saved[t] = (whole.carry, whole.learned)
+        assert whole.last.reference == t - 1  # registered to the frame before
+    carry = saved[3][0]
+    assert isinstance(carry, ChainCarry) and carry.frame == 3 and carry.rgb.shape == (180, 240, 3)
+    write_carry(tmp_path / "carry.npz", 3, *saved[3])
+    back, learned = read_carry(tmp_path / "carry.npz", 3, "")
+    resumed = Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11, scale=0.5)
+    resumed.resume(3, back, learned)
+    for t in (4, 5):
+        np.testing.assert_array_equal(resumed.step(images[t]), expected[t][0])
+        np.testing.assert_array_equal(resumed.last.confidence, expected[t][1])
+    with pytest.raises(InputError, match="ChainCarry"):
+        Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11, scale=0.5).resume(3, None)
+    with pytest.raises(InputError, match="another stream"):  # a carried frame of another size
+        Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11).resume(3, back)
+    keyed = Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11, anchor="key")
+    assert keyed.anchor == "key" and not isinstance(keyed.carry, ChainCarry)
+
+
+def test_an_interrupted_eleven_class_run_resumes_as_the_whole_one(shared_data, tmp_path, monkeypatch):
+    from _runs import kill_before_commit
+
+    from pcreg.cli import main
+
+    names = _camvid_folder(shared_data, tmp_path, n=5)
+    base = ["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "keys" / names[0]), "--classes", "camvid11",
+            "--scale", "0.5", "--confidence"]
+    assert main([*base, "--out", str(tmp_path / "whole")]) == 0
+    kill_before_commit(monkeypatch, 3)
+    assert main([*base, "--out", str(tmp_path / "cut")]) == 130
+    monkeypatch.undo()
+    assert main([*base, "--out", str(tmp_path / "cut")]) == 0
+    for m in names[1:]:
+        for name in (m, f"confidence/{m}"):
+            assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "cut" / name).read_bytes(), name

@@ -44,6 +44,8 @@ from .metrics import LABEL_NAMES, N_LABELS, confusion_matrix, error_from_confusi
 
 __all__ = [
     "NaiveBayesPixelClassifier",
+    "DENSITIES",
+    "HISTOGRAM_BANDWIDTH",
     "WeightSearch",
     "thesis_weight_search",
     "class_histograms",
@@ -171,6 +173,28 @@ def fit_classifier(frames: Sequence, *, features: Sequence[str] = DEFAULT_FEATUR
     return NaiveBayesPixelClassifier(features, classes=classes).fit([f.image for f in frames], [f.labels for f in frames])
 
 
+#: How a class's feature density is modelled (:class:`NaiveBayesPixelClassifier`'s ``density``): ``"auto"``
+#: (a Gaussian with two classes, a smoothed histogram with more), ``"gaussian"`` or ``"histogram"``.
+DENSITIES: tuple[str, ...] = ("auto", "gaussian", "histogram")
+#: The smoothed histogram's Gaussian kernel (8-bit levels): chosen between 2 and 3 with each CamVid clip
+#: left out (docs/results.md, "Many classes"); 4 and 8 were worse on all eight clips.
+HISTOGRAM_BANDWIDTH = 2.0
+#: The share of a uniform density mixed into each smoothed histogram, so that a level no training pixel
+#: had is unlikely, never impossible (log 0).
+HISTOGRAM_UNIFORM = 0.01
+
+
+def _histogram_tables(counts: np.ndarray) -> np.ndarray:
+    """(n, F, 256) float64: log of each class's and feature's histogram (``counts`` (n, F, 256)) smoothed by a
+    Gaussian of :data:`HISTOGRAM_BANDWIDTH` levels, normalised, and mixed with
+    :data:`HISTOGRAM_UNIFORM` of a uniform density."""
+    from scipy.ndimage import gaussian_filter1d
+
+    smooth = gaussian_filter1d(np.asarray(counts, np.float64), HISTOGRAM_BANDWIDTH, axis=2, mode="nearest")
+    density = smooth / np.maximum(smooth.sum(axis=2, keepdims=True), 1e-300)
+    return np.log((1.0 - HISTOGRAM_UNIFORM) * density + HISTOGRAM_UNIFORM / 256.0)
+
+
 def _tables(theta: np.ndarray, var: np.ndarray) -> np.ndarray:
     """(n, F, 256) float64: log N(v; theta, var) for every class, feature and 8-bit value v."""
     return -0.5 * np.log(2.0 * np.pi * var)[:, :, None] - 0.5 * (
@@ -178,7 +202,9 @@ def _tables(theta: np.ndarray, var: np.ndarray) -> np.ndarray:
 
 
 class NaiveBayesPixelClassifier:
-    """Gaussian naive Bayes over per-pixel features, with scikit-learn's conventions.
+    """Naive Bayes over per-pixel features, with scikit-learn's conventions: Gaussian (scikit-learn's
+    GaussianNB) with two classes; with more, each class's density of each feature is its training
+    histogram smoothed (``density``).
 
     Parameters
     ----------
@@ -192,6 +218,10 @@ class NaiveBayesPixelClassifier:
     priors : class priors in the order of ``classes_``; default: training frequencies.
     classes : the class table of the labels (:func:`pcreg.classes.class_table`: a table, a built-in's name
         or a file; default ``lagr``, 0 ground, 1 obstacle, 2 unknown).
+    density : :data:`DENSITIES`: ``"auto"`` (default) models each class's feature as a Gaussian when two
+        classes are trained and as its histogram smoothed by :data:`HISTOGRAM_BANDWIDTH` levels when more
+        are (buildings, trees or roads are rarely one Gaussian of colour); ``"gaussian"`` or
+        ``"histogram"`` choose one whatever the classes.
 
     Fitted attributes (scikit-learn's names): ``classes_`` (n,) uint8, the ids of the classes with training
     pixels, ascending; ``class_count_`` (n,), ``class_prior_`` (n,), ``theta_`` (n, F), ``var_`` (n, F),
@@ -202,7 +232,7 @@ class NaiveBayesPixelClassifier:
     def __init__(self, features: str | Iterable[str] = DEFAULT_FEATURES, *,
                  weights: Sequence[float] | None = None, exclude_unknown: bool = True,
                  var_smoothing: float = 1e-9, priors: Sequence[float] | None = None,
-                 classes: ClassTable | str | None = None) -> None:
+                 classes: ClassTable | str | None = None, density: str = "auto") -> None:
         from ..classes import class_table
         from ..validation import check_bool, check_float, short_repr
 
@@ -220,13 +250,17 @@ class NaiveBayesPixelClassifier:
             if not all(np.isfinite(p) and p >= 0 for p in priors) or abs(sum(priors) - 1) > 1e-6:
                 raise InputError(f"priors must be finite, >= 0 and sum to 1, got {priors}")
         self.priors = priors
+        if not isinstance(density, str) or density not in DENSITIES:
+            raise InputError(f"unknown density {short_repr(density)}; choose one of {', '.join(DENSITIES)}")
+        self.density = density
         self.feature_names_ = feature_names(self.features)
 
     def __repr__(self) -> str:
         w = "" if "thesis" not in self.features else f", weights=({', '.join(f'{v:.3f}' for v in self.weights)})"
         fitted = "" if not hasattr(self, "classes_") else f", classes={[self.class_table.name_of(c) for c in self.classes_]}"
+        density = "" if self.density == "auto" else f", density={self.density!r}"
         return (f"NaiveBayesPixelClassifier(features={'+'.join(self.features)}{w}, "
-                f"exclude_unknown={self.exclude_unknown}{fitted})")
+                f"exclude_unknown={self.exclude_unknown}{density}{fitted})")
 
     # -- fitting -------------------------------------------------------------------------------
     def fit(self, images, labels) -> "NaiveBayesPixelClassifier":
@@ -262,7 +296,8 @@ class NaiveBayesPixelClassifier:
         self.theta_ = p["theta"]
         self.var_ = p["var"]
         self.epsilon_ = p["epsilon"]
-        tables = _tables(self.theta_, self.var_)  # (n, F, 256)
+        histogram = self.density == "histogram" or (self.density == "auto" and len(classes) > 2)
+        tables = _histogram_tables(counts[classes]) if histogram else _tables(self.theta_, self.var_)  # (n, F, 256)
         self._tables64 = tables
         with np.errstate(divide="ignore"):  # a prior of 0 given on purpose: that class is never chosen
             self._log_prior = np.log(self.class_prior_)
@@ -292,7 +327,8 @@ class NaiveBayesPixelClassifier:
         return [self._sum_tables(image, self._tables64[i]) + self._log_prior[i] for i in range(len(self.classes_))]
 
     def joint_log_likelihood(self, image: np.ndarray) -> np.ndarray:
-        """(H, W, n) float64: log p(c) + sum_f log N(x_f; theta_cf, var_cf) for each trained class."""
+        """(H, W, n) float64: log p(c) + sum_f log p_cf(x_f) for each trained class (``p_cf`` the class's
+        density of feature f: N(theta_cf, var_cf), or its smoothed histogram)."""
         return np.stack(self._jll_planes(image), axis=-1)
 
     def predict_log_proba(self, image: np.ndarray) -> np.ndarray:

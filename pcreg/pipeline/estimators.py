@@ -31,7 +31,7 @@ from ..registration.motion import Motion
 if TYPE_CHECKING:
     from ..registration.dense import DenseOptions, DenseReference
 
-__all__ = ["DenseStep", "Carry", "STREAM_DENSE", "Estimate", "StreamMotion", "motion_model", "GlobalEstimator", "DenseEstimator",
+__all__ = ["DenseStep", "Carry", "ChainCarry", "chain_after", "STREAM_DENSE", "Estimate", "StreamMotion", "motion_model", "GlobalEstimator", "DenseEstimator",
            "FlowEstimator", "stream_motion", "pair_estimator"]
 
 
@@ -111,6 +111,38 @@ class Carry:
         g.setflags(write=False)
         object.__setattr__(self, "grid", g)
         object.__setattr__(self, "reference_evidence", evidence)
+
+
+@dataclass(frozen=True, eq=False)
+class ChainCarry:
+    """What a chained step (``anchor="previous"``) hands to the next: the frame the next is registered to
+    (``rgb``, (h, w, 3) uint8 at the working size), its ``motion`` to the key frame (None: it is the key
+    frame itself) and its step (``frame``, 0 for the key frame). ``pcreg run`` saves it with every frame
+    (:func:`pcreg.runs.files.write_carry`), so that a resumed chained run continues as the uninterrupted
+    one did."""
+
+    rgb: np.ndarray
+    motion: Motion | None
+    frame: int
+
+
+def chain_after(carry, key, frame: int) -> tuple:
+    """The chain a stream resumed after step ``frame`` continues from: ``carry`` a :class:`ChainCarry` of
+    that step (or of an earlier one, when later registrations failed), ``key`` the stream's key frame
+    (a :class:`~pcreg.frame.PreparedFrame` at the working size)."""
+    from ..frame import PreparedFrame
+
+    if not isinstance(carry, ChainCarry):
+        raise InputError("a chained stream (anchor='previous') resumes from the ChainCarry its last step left")
+    rgb = np.asarray(carry.rgb)
+    if carry.frame > frame or carry.frame < 0 or rgb.shape != key.rgb.shape or rgb.dtype != np.uint8:
+        raise InputError(f"the carried frame ({rgb.shape}, step {carry.frame}) is not of this stream's frames "
+                         f"({key.rgb.shape}) before step {frame + 1}: it comes from another stream")
+    if carry.frame == 0:
+        return (key, None, 0)
+    if carry.motion is None:
+        raise InputError("a chained stream's carried frame after the key frame needs its motion to the key frame")
+    return (PreparedFrame(np.ascontiguousarray(rgb)), carry.motion, int(carry.frame))
 
 
 STREAM_DENSE = DenseStep()

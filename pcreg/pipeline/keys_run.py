@@ -175,7 +175,7 @@ class KeyRun:
     def _resume(self, prop, s: Stretch, cur: dict) -> None:
         if cur["steps"]:
             carry, learned = self._read_carry(s, cur["steps"])
-            prop.resume(cur["steps"], carry if prop.warm_starts else None, learned)
+            prop.resume(cur["steps"], carry, learned)
 
     def _read_carry(self, s: Stretch, steps: int):
         return self.owner.read_carry(steps, stretch=self.fingerprint(s))

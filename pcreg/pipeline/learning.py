@@ -144,5 +144,6 @@ class Learner:
         scale = min(1.0, self.rule.share * self._key_pixels / n)
         base = self.key_classifier
         clf = type(base)(base.features, weights=base.weights, exclude_unknown=base.exclude_unknown,
-                         var_smoothing=base.var_smoothing, priors=base.priors, classes=base.class_table)
+                         var_smoothing=base.var_smoothing, priors=base.priors, classes=base.class_table,
+                         density=base.density)
         return clf.fit_histograms(np.rint(self._key + scale * self._stream).astype(np.int64))

@@ -32,7 +32,7 @@ from ..errors import InputError
 from ._class_kernels import best_agreement, block_shares, carried_best, fuse_classes, penalised, top_two
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
-__all__ = ["CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
+__all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
            "CLASS_WINDOW", "CLASS_PENALTY", "ClassRead", "windowed", "weight_sum",
            "fused_class_labels", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs",
            "fused_scores", "smoothed_scores", "read_class_labels", "class_confidence", "predicted_iou",
@@ -62,9 +62,14 @@ CLASS_PRIOR_SIGMA = 0.0
 #: not show within this square around a pixel, where the carried priors are trusted, has its score lowered by
 #: :data:`CLASS_PENALTY` before the label is read (:func:`windowed`): naive Bayes may not invent there a class
 #: the key frames do not put near it (a pedestrian in the road's colours). Chosen with each clip left out.
-CLASS_WINDOW = 33
+CLASS_WINDOW = 97
 #: How far a class outside the window is lowered (nats).
 CLASS_PENALTY = 15.0
+#: Where a stream with more than two classes registers each frame (:class:`~pcreg.pipeline.stream.Propagator`'s
+#: ``anchor``): to the previous frame, the motions composed back to the key frame. At one frame a second the
+#: frame-to-frame registrations composed carry the key frame's classes better than one registration across
+#: seconds; chosen with each clip left out (docs/results.md, "Many classes").
+CLASS_ANCHOR = "previous"
 #: Below this summed trust weight the carried priors say nothing, and every class is allowed.
 UNTRUSTED = 1e-3
 

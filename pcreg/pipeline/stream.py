@@ -92,9 +92,9 @@ import numpy as np
 from .._threads import both
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
-from .estimators import STREAM_DENSE, Carry, DenseStep, FlowEstimator, StreamMotion, motion_model, stream_motion
+from .estimators import STREAM_DENSE, Carry, ChainCarry, chain_after, DenseStep, FlowEstimator, StreamMotion, motion_model, stream_motion
 from .learning import STREAM_LEARNING, Learner, Learning
-from .multiclass import CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, ClassRead, fused_class_labels, class_prior_maps, class_priors, prior_log_probs
+from .multiclass import CLASS_ANCHOR, CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, ClassRead, fused_class_labels, class_prior_maps, class_priors, prior_log_probs
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
 from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
 from .working import WorkingSize
@@ -221,7 +221,8 @@ class Propagator:
         learning and the confidence are as with the dense field. On the shared CamVid clips
         (docs/results.md, "The flow model") ``"flow"`` at ``scale=0.5`` labels 47% below plain at a
         quarter of the default step's time, ``"flow:fast"`` at half size 43% at an eighth.
-    anchor : ``"key"`` (default) or ``"previous"`` (:data:`ANCHORS`).
+    anchor : ``"key"`` or ``"previous"`` (:data:`ANCHORS`); None (default): ``"key"`` for ground and
+        obstacle, :data:`~pcreg.pipeline.multiclass.CLASS_ANCHOR` with more classes.
     backend, init : the registration's (:func:`pcreg.register`, also the dense model's global step).
     register : further :class:`~pcreg.registration.config.RegisterConfig` options (levels, iterations,
         points, the plausibility test, ...); ``backend``, ``init`` and a global ``model`` override its own.
@@ -241,7 +242,7 @@ class Propagator:
         640x480 step in 0.53-0.56 of the time, for 48.4% below plain instead of 49.7% on the shared CamVid clips.
     """
 
-    def __init__(self, classifier, *, model: str = "dense", anchor: str = "key", backend: str = "reference",
+    def __init__(self, classifier, *, model: str = "dense", anchor: str | None = None, backend: str = "reference",
                  init: str = "identity", register: RegisterConfig | None = None, dense: DenseStep = STREAM_DENSE,
                  weight: float = STREAM_WEIGHT, fusion: FusionConfig = FusionConfig(),
                  trust: TrustRule | None = STREAM_TRUST, learning: Learning | None = STREAM_LEARNING,
@@ -258,7 +259,7 @@ class Propagator:
             raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}; "
                              "other classes need a pcreg NaiveBayesPixelClassifier with its class table")
         model, preset = motion_model(model)
-        if not isinstance(anchor, str) or anchor not in ANCHORS:
+        if anchor is not None and (not isinstance(anchor, str) or anchor not in ANCHORS):
             raise InputError(f"unknown anchor {short_repr(anchor)}; choose one of {', '.join(ANCHORS)}")
         check_float(weight, "weight", lo=0, hi=MAX_WEIGHT)
         if not isinstance(fusion, FusionConfig):
@@ -272,7 +273,8 @@ class Propagator:
         if learning is not None and not isinstance(learning, Learning):
             raise InputError("learning must be a pcreg.pipeline.learning.Learning or None")
         self.classifier = classifier
-        self.model, self.anchor = model, anchor
+        self.model = model
+        self.anchor: str = anchor or ("key" if classes == [0, 1] else CLASS_ANCHOR)
         self.scale = check_float(scale, "scale", lo=0, lo_open=True, hi=1)
         base = register or STREAM_REGISTRATION
         self.config = base.replace(backend=backend, init=init,
@@ -492,8 +494,11 @@ class Propagator:
         return self._estimator.warm_starts(self.anchor)
 
     @property
-    def carry(self) -> Carry | None:
-        """What the next dense step starts from (None: it starts cold); see :class:`Carry`."""
+    def carry(self) -> Carry | ChainCarry | None:
+        """What the next step starts from: a dense step's :class:`Carry` (None: it starts cold), or a chained
+        stream's :class:`~pcreg.pipeline.estimators.ChainCarry` (the frame the next is registered to)."""
+        if self.anchor == "previous" and self._chain is not None:
+            return ChainCarry(self._chain[0].rgb, self._chain[1], self._chain[2])
         return self._carry
 
     @property
@@ -508,19 +513,20 @@ class Propagator:
         the next step); the step's own learning is left to the helper thread."""
         return (lambda: None) if self._learner is None else self._learner.stream_later()
 
-    def resume(self, frame: int, carry: Carry | None, learned: np.ndarray | None = None) -> None:
+    def resume(self, frame: int, carry: "Carry | ChainCarry | None", learned: np.ndarray | None = None) -> None:
         """Continue a stream after its step ``frame`` (counted from the key frame, as :attr:`StepReport.frame`)
         with the ``carry`` that step left (:attr:`carry`, as saved): the next step does what it would
-        have done in the uninterrupted stream. Anchored to the key frame only (a chained stream needs
-        its previous frame). ``learned``: what the classifier had learned by then (:attr:`learned`)."""
+        have done in the uninterrupted stream (a chained stream's is a :class:`~pcreg.pipeline.estimators.
+        ChainCarry`). ``learned``: what the classifier had learned by then (:attr:`learned`)."""
         from ..registration.dense import finest_grid_shape
         from ..validation import check_int
 
         if self._key is None:
             raise InputError("Propagator.resume before reset: give the key frame and its labels first")
-        if self.anchor != "key":
-            raise InputError("only a stream anchored to its key frame resumes (anchor='key')")
         frame = check_int(frame, "frame", lo=0)
+        if self.anchor == "previous":
+            self._chain = chain_after(carry, self._key, frame)
+            carry = None
         if carry is not None and not isinstance(carry, Carry):
             raise InputError("carry must be a pcreg.pipeline.stream.Carry or None")
         if carry is not None and self.warm_starts:

@@ -119,16 +119,20 @@ def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:
 
 
 def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:
-    """What step ``t`` hands to the next (a :class:`~pcreg.pipeline.stream.Carry`, an object follower's
+    """What step ``t`` hands to the next (a :class:`~pcreg.pipeline.stream.Carry`, a chained stream's
+    :class:`~pcreg.pipeline.estimators.ChainCarry`, an object follower's
     :class:`~pcreg.pipeline.follow.FollowCarry`, or None, and what the classifier has ``learned``, or
     None), atomically at ``path``. A follower's carry is the ``follow`` member: its labels and grey
-    levels, (2, h, w) uint8."""
+    levels, (2, h, w) uint8; a chained stream's the ``chain_*`` members (:func:`_chain_members`)."""
     import io
 
     from ..outputs import atomic_write_bytes
+    from ..pipeline.estimators import ChainCarry
     from ..pipeline.follow import FollowCarry
 
     buf = io.BytesIO()
+    chain = _chain_members(carry) if isinstance(carry, ChainCarry) else {}
+    carry = None if chain else carry
     follow = isinstance(carry, FollowCarry)
     grid = np.zeros((0, 0, 2), np.float32) if carry is None or follow else carry.grid
     evidence = float("nan") if carry is None or follow else carry.reference_evidence
@@ -137,7 +141,7 @@ def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) ->
                                       "learned": learned}
     if follow:
         members["follow"] = np.stack([carry.labels, carry.grey])
-    np.savez(buf, **members)
+    np.savez(buf, **members, **chain)
     atomic_write_bytes(path, buf.getvalue())
 
 
@@ -155,6 +159,7 @@ def read_carry(path: Path, t: int, unreadable: str):
             frame, grid, evidence = np.array(z["frame"]), np.array(z["grid"]), np.array(z["evidence"])
             learned = np.array(z["learned"]) if "learned" in z.files else None
             follow = np.array(z["follow"]) if "follow" in z.files else None
+            chain = {k: np.array(z[k]) for k in z.files if k.startswith("chain_")}
     except UNREADABLE_CARRY:
         raise bad from None
     if frame.shape != () or frame.dtype.kind not in "iu" or evidence.shape != () or evidence.dtype.kind != "f":
@@ -162,6 +167,8 @@ def read_carry(path: Path, t: int, unreadable: str):
     if int(frame) != t:
         raise OutputError(f"{path} holds frame {int(frame)}'s carry, not frame {t}'s; use --force to start over")
     learned = None if learned is None or learned.size == 0 else learned
+    if chain:
+        return _chain_carry(chain, bad), learned
     if follow is not None:
         if follow.ndim != 3 or follow.shape[0] != 2 or follow.dtype != np.uint8:
             raise bad
@@ -172,6 +179,47 @@ def read_carry(path: Path, t: int, unreadable: str):
         return Carry(grid, float(evidence)), learned
     except InputError as exc:
         raise OutputError(f"{path}: {exc}; use --force to start over") from None
+
+
+def _chain_members(carry) -> dict:
+    """A :class:`~pcreg.pipeline.estimators.ChainCarry` as arrays: the frame (``chain_rgb``), its step
+    (``chain_frame``) and its motion to the key frame, a matrix (``chain_matrix``, (3, 3)) or a field and
+    its confidence (``chain_field``, ``chain_confidence``); an absent one is empty."""
+    m = carry.motion
+    empty = np.zeros((0,), np.float32)
+
+    def part(a, dtype):
+        return empty if a is None else np.asarray(a, dtype)
+
+    return {"chain_rgb": np.asarray(carry.rgb, np.uint8), "chain_frame": np.int64(carry.frame),
+            "chain_matrix": part(None if m is None else m.matrix, np.float64),
+            "chain_field": part(None if m is None else m.field, np.float32),
+            "chain_confidence": part(None if m is None else m.confidence, np.float32)}
+
+
+def _chain_carry(members: dict, bad: OutputError):
+    """The :class:`~pcreg.pipeline.estimators.ChainCarry` of :func:`_chain_members`' arrays; anything
+    malformed is ``bad``."""
+    from ..pipeline.estimators import ChainCarry
+    from ..registration.motion import Motion
+
+    try:
+        rgb, frame = members["chain_rgb"], members["chain_frame"]
+        matrix, fld, conf = members["chain_matrix"], members["chain_field"], members["chain_confidence"]
+    except KeyError:
+        raise bad from None
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8 or frame.shape != () or frame.dtype.kind not in "iu":
+        raise bad
+    try:
+        if matrix.size:
+            motion = Motion(matrix=matrix)
+        elif fld.size:
+            motion = Motion(field=fld, confidence=conf if conf.size else None)
+        else:
+            motion = None
+    except InputError:
+        raise bad from None
+    return ChainCarry(rgb, motion, int(frame))
 
 
 def check_labelled(out: Path, stems: list[str]) -> None:

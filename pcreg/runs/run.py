@@ -163,7 +163,7 @@ class Run:
         if start > 1:
             try:
                 carry, learned = self.carry_after(start - 1)
-                prop.resume(start - 1, carry if prop.warm_starts else None, learned)
+                prop.resume(start - 1, carry, learned)
             except InputError as exc:  # a carry of another stream
                 raise OutputError(f"{out}: {exc}; use --force to start over") from None
         done = start

@@ -40,7 +40,7 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, TypeVar
 
-__all__ = ["MIN_PIXELS", "beside", "both", "close", "enabled", "helper", "interleave", "others_busy", "set_enabled",
+__all__ = ["MIN_PIXELS", "alongside", "beside", "both", "close", "enabled", "helper", "interleave", "others_busy", "set_enabled",
            "usable_cpus", "wait_quietly"]
 
 S = TypeVar("S")
@@ -206,6 +206,22 @@ def both(side: Callable[[], S], here: Callable[[], T]) -> tuple[S, T]:
         wait_quietly(later)
         raise
     return later(), mine
+
+
+def alongside(here: Callable[[], T], *sides: Callable[[], object]) -> tuple[T, list]:
+    """``(here(), [side() for side in sides])``: the ``sides`` offered to the helper in their order
+    (:func:`beside`) while this thread runs ``here``; then this thread takes their results from the last
+    offered, so that it runs itself those the helper has not reached (the helper takes them in order). When
+    anything raises, every side offered ends first (:func:`wait_quietly`), then the error goes on."""
+    laters = [beside(side) for side in sides]
+    try:
+        mine = here()
+        results = [later() for later in reversed(laters)]
+    except BaseException:
+        for later in laters:
+            wait_quietly(later)
+        raise
+    return mine, results[::-1]
 
 
 def wait_quietly(result: Callable[[], object]) -> None:

@@ -56,7 +56,8 @@ def _warm_classes(shape: tuple[int, int]) -> None:
     k.best_agreement(scores, scores)
     for second in ((w, scores), (None, None)):
         k.fuse_classes(scores, w, scores, *second)
-    k.carried_best(scores, w, np.zeros(3, np.float32))
+    k.carried_shown(scores, w, np.zeros(3, np.float32))
+    k.remap_classes(np.zeros(shape + (5,), np.float32), np.zeros(shape + (2,), np.float32))
     k.penalised(scores, np.ones(shape + (3,), np.uint8), w, 1e-3, 15.0)
     class_sums([("rgb", np.zeros(shape + (3,), np.uint8)), ("row", np.zeros(shape[0], np.uint8))],
                np.zeros((3, 4, 256), np.float32), np.zeros(3, np.float32))

@@ -223,3 +223,20 @@ def test_an_interrupted_eleven_class_run_resumes_as_the_whole_one(shared_data, t
     for m in names[1:]:
         for name in (m, f"confidence/{m}"):
             assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "cut" / name).read_bytes(), name
+
+
+@pytest.mark.parametrize("k", [2, 3, 5, 11])
+def test_the_carried_evidence_is_opencvs_remap_to_the_bit(k):
+    import cv2
+
+    rng = np.random.default_rng(0)
+    h, w = 240, 320  # enough pixels for the rows to be shared with the helper thread
+    values = rng.normal(0.0, 3.0, (h, w, k)).astype(np.float32)
+    grid = np.stack(np.meshgrid(np.arange(w), np.arange(h)), axis=-1).astype(np.float32)
+    field = (grid + rng.normal(0.0, 4.0, (h, w, 2))).astype(np.float32)
+    field[::7, ::5] = np.nan  # no position: outside
+    field[0, :, 0] = np.linspace(-3.0, 2.0, w)  # across the left border
+    field[1, :, 1] = np.linspace(h - 2.0, h + 1.0, w)  # across the bottom one
+    field[2, :, 0] = np.arange(w) / 64.0  # positions half-way between two of OpenCV's 1/32 px steps
+    expected = cv2.remap(values, field, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    assert np.array_equal(multiclass.carried_log_probs(values, field), expected.reshape(h, w, k), equal_nan=True)

@@ -220,3 +220,44 @@ def test_both_gives_both_results_and_an_error_here_waits_for_the_side_first():
     with pytest.raises(ValueError, match="here"):
         _threads.both(side, here)
     assert finished == [1]  # the side's work had ended when the error reached the caller
+
+
+def test_alongside_leaves_the_sides_the_helper_has_not_reached_to_the_caller():
+    _two_cpus()
+    assert _threads.alongside(lambda: 0, lambda: 1, lambda: 2) == (0, [1, 2])
+    started, release = threading.Event(), threading.Event()
+
+    def first():
+        started.set()
+        release.wait(10)
+        return threading.current_thread().name
+
+    def second():  # the helper still holds the first side: the caller runs this one
+        release.set()
+        return threading.current_thread().name
+
+    def here():
+        started.wait(10)
+        return "here"
+
+    mine, (a, b) = _threads.alongside(here, first, second)
+    assert mine == "here" and b == threading.current_thread().name and a != b
+
+
+def test_alongside_waits_for_the_sides_before_an_error_goes_on():
+    _two_cpus()
+    started, release, finished = threading.Event(), threading.Event(), []
+
+    def side():
+        started.set()
+        release.wait(10)
+        finished.append(1)
+
+    def here():
+        started.wait(10)
+        release.set()
+        raise ValueError("here")
+
+    with pytest.raises(ValueError, match="here"):
+        _threads.alongside(here, side, lambda: None)
+    assert finished == [1]

@@ -1,6 +1,7 @@
 """The compiled pass of many-class naive Bayes (:meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.
 class_scores`): every class's sum of table look-ups in one read of the pixel's features, where a look-up
-table per class and feature group would read the image K times."""
+table per class and feature group would read the image K times. Its rows are taken in blocks, ``first, first +
+stride, ...``, so that a large frame's are shared with the helper thread, each pixel written by the same code."""
 
 from __future__ import annotations
 
@@ -11,17 +12,22 @@ from .._jit import njit
 __all__ = ["class_sums"]
 
 
-def _class_sums_py(planes, tables, row, out):
+#: Rows per block of the pass (two threads take alternate blocks: :func:`pcreg._threads.interleave`).
+BLOCK_ROWS = 16
+
+
+def _class_sums_py(planes, tables, row, out, first, stride):
     h, w, f = planes.shape
     k = tables.shape[2]
-    for i in range(h):
-        for j in range(w):
-            for c in range(k):
-                out[i, j, c] = row[i, c]
-            for g in range(f):
-                v = planes[i, j, g]
+    for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, h)):
+            for j in range(w):
                 for c in range(k):
-                    out[i, j, c] += tables[g, v, c]
+                    out[i, j, c] = row[i, c]
+                for g in range(f):
+                    v = planes[i, j, g]
+                    for c in range(k):
+                        out[i, j, c] += tables[g, v, c]
 
 
 _class_sums = njit(cache=True, nogil=True)(_class_sums_py)
@@ -47,10 +53,17 @@ def class_sums(groups, tables: np.ndarray, bias: np.ndarray) -> np.ndarray:
         f += c
     if not image_planes:
         raise ValueError("class_sums needs at least one image feature")  # a caller's bug: rgb is always there
-    planes = np.ascontiguousarray(np.concatenate(image_planes, axis=2))
+    import cv2
+
+    # cv2.merge, not np.concatenate: numpy copies a few bytes at a time along the last axis (4 ms at 640x480)
+    planes = np.ascontiguousarray(cv2.merge(image_planes)).reshape(image_planes[0].shape[:2] + (-1,))
     lut = np.ascontiguousarray(np.concatenate(image_tables, axis=1).transpose(1, 2, 0), dtype=np.float32)  # (F, 256, K)
     h = planes.shape[0]
     base = np.broadcast_to(np.asarray(bias, np.float32), (h, k)) if row is None else row + np.asarray(bias, np.float32)
     out = np.empty(planes.shape[:2] + (k,), np.float32)
-    _class_sums(planes, lut, np.ascontiguousarray(base, dtype=np.float32), out)
+    base = np.ascontiguousarray(base, dtype=np.float32)
+    from .._threads import MIN_PIXELS, interleave
+
+    interleave(h * planes.shape[1], lambda first, stride: _class_sums(planes, lut, base, out, first, stride),
+               min_items=MIN_PIXELS)  # rows shared with the helper thread when it is free
     return out

@@ -1,6 +1,9 @@
 """Compiled passes of the many-class read-out (:mod:`pcreg.pipeline.multiclass`): each reads an (H, W, K)
 map once, where numpy's ``argmax``, ``take_along_axis`` and one-hot arrays would read and write it
-several times (an eleven-class frame at 640x480 is 13.5 MB a map)."""
+several times (an eleven-class frame at 640x480 is 13.5 MB a map). Each pass takes blocks of rows,
+``first, first + stride, ...`` (:data:`BLOCK_ROWS` rows a block), and writes each pixel's output in its own
+place, so that a large frame's rows are shared with the helper thread (:func:`pcreg._threads.interleave`)
+with the same result to the bit."""
 
 from __future__ import annotations
 
@@ -8,57 +11,64 @@ import numpy as np
 
 from .._jit import njit
 
-__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "carried_best", "penalised"]
+__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "carried_shown",
+           "penalised", "remap_classes", "BLOCK_ROWS"]
 
+#: Rows per block of the passes (two threads take alternate blocks).
+BLOCK_ROWS = 16
 
-def _top_two_py(S, best, second, margin):
+def _top_two_py(S, best, second, margin, first, stride):
     h, w, k = S.shape
-    for i in range(h):
-        for j in range(w):
-            vb = S[i, j, 0]
-            b = 0
-            s = 0
-            vs = vb
-            if k > 1:  # the runner-up starts as the other of the first two
-                v = S[i, j, 1]
-                if v > vb:
-                    b, vb, s, vs = 1, v, 0, vb
-                else:
-                    s, vs = 1, v
-            for c in range(2, k):
-                v = S[i, j, c]
-                if v > vb:
-                    s, vs = b, vb
-                    b, vb = c, v
-                elif v > vs:
-                    s, vs = c, v
-            best[i, j] = b
-            second[i, j] = s
-            margin[i, j] = vb - vs
+    for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, h)):
+            for j in range(w):
+                vb = S[i, j, 0]
+                bb = 0
+                s = 0
+                vs = vb
+                if k > 1:  # the runner-up starts as the other of the first two
+                    v = S[i, j, 1]
+                    if v > vb:
+                        bb, vb, s, vs = 1, v, 0, vb
+                    else:
+                        s, vs = 1, v
+                for c in range(2, k):
+                    v = S[i, j, c]
+                    if v > vb:
+                        s, vs = bb, vb
+                        bb, vb = c, v
+                    elif v > vs:
+                        s, vs = c, v
+                best[i, j] = bb
+                second[i, j] = s
+                margin[i, j] = vb - vs
 
 
-def _carried_best_py(prior, weight, log_pi, least, out):
+def _carried_shown_py(prior, weight, log_pi, least, shown, first, stride):
     h, w, k = prior.shape
-    for i in range(h):
-        for j in range(w):
-            inv = np.float32(1.0) / max(weight[i, j], least)
-            b = 0
-            vb = prior[i, j, 0] * inv + log_pi[0]
-            for c in range(1, k):
-                v = prior[i, j, c] * inv + log_pi[c]
-                if v > vb:
-                    b, vb = c, v
-            out[i, j] = b
+    for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, h)):
+            for j in range(w):
+                inv = np.float32(1.0) / max(weight[i, j], least)
+                bb = 0
+                vb = prior[i, j, 0] * inv + log_pi[0]
+                for c in range(1, k):
+                    v = prior[i, j, c] * inv + log_pi[c]
+                    if v > vb:
+                        bb, vb = c, v
+                for c in range(k):  # the best class's one-hot, one byte a class
+                    shown[i, j, c] = 1 if c == bb else 0
 
 
-def _penalised_py(fused, allowed, weight, untrusted, penalty, out):
+def _penalised_py(fused, allowed, weight, untrusted, penalty, out, first, stride):
     h, w, k = fused.shape
-    for i in range(h):
-        for j in range(w):
-            free = weight[i, j] <= untrusted
-            for c in range(k):
-                v = fused[i, j, c]
-                out[i, j, c] = v if free or allowed[i, j, c] else v - penalty
+    for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, h)):
+            for j in range(w):
+                free = weight[i, j] <= untrusted
+                for c in range(k):
+                    v = fused[i, j, c]
+                    out[i, j, c] = v if free or allowed[i, j, c] else v - penalty
 
 
 def _block_shares_py(best, k, out):
@@ -75,40 +85,87 @@ def _block_shares_py(best, k, out):
                         out[i, j, best[y, x]] += 0.25
 
 
-def _best_agreement_py(d, p, out):
+def _best_agreement_py(d, p, out, first, stride):
     h, w, k = d.shape
-    for i in range(h):
-        for j in range(w):
-            bd, bp = 0, 0
-            vd, vp = d[i, j, 0], p[i, j, 0]
-            for c in range(1, k):
-                if d[i, j, c] > vd:
-                    bd, vd = c, d[i, j, c]
-                if p[i, j, c] > vp:
-                    bp, vp = c, p[i, j, c]
-            out[i, j] = 1.0 if bd == bp else 0.0
+    for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, h)):
+            for j in range(w):
+                bd, bp = 0, 0
+                vd, vp = d[i, j, 0], p[i, j, 0]
+                for c in range(1, k):
+                    if d[i, j, c] > vd:
+                        bd, vd = c, d[i, j, c]
+                    if p[i, j, c] > vp:
+                        bp, vp = c, p[i, j, c]
+                out[i, j] = 1.0 if bd == bp else 0.0
 
 
-def _fuse_classes_py(d, w1, l1, w2, l2, fused, prior):
+def _fuse_classes_py(d, w1, l1, w2, l2, fused, prior, first, stride):
     h, w, k = d.shape
-    for i in range(h):
-        for j in range(w):
-            a = w1[i, j]
-            b = np.float32(0.0) if w2 is None else w2[i, j]
-            for c in range(k):
-                p = a * l1[i, j, c]
-                if w2 is not None:
-                    p += b * l2[i, j, c]
-                prior[i, j, c] = p
-                fused[i, j, c] = d[i, j, c] + p
+    for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, h)):
+            for j in range(w):
+                a = w1[i, j]
+                bw = np.float32(0.0) if w2 is None else w2[i, j]
+                for c in range(k):
+                    p = a * l1[i, j, c]
+                    if w2 is not None:
+                        p += bw * l2[i, j, c]
+                    prior[i, j, c] = p
+                    fused[i, j, c] = d[i, j, c] + p
+
+
+def _remap_classes_py(src, fld, out, first, stride):
+    """OpenCV's bilinear ``remap`` of a float32 map of K channels (K not 1, 3 or 4) with a float32 field and
+    a constant border of 0, to the bit: each position rounded to 1/32 px (half to even), the four weights
+    products of ``1 - t`` and ``t`` (t = k/32), and the four neighbours summed in OpenCV's order, a
+    neighbour outside the map counted as 0."""
+    h, w, k = src.shape
+    rows, cols = fld.shape[0], fld.shape[1]
+    one, zero, scale, inv = np.float32(1.0), np.float32(0.0), np.float32(32.0), np.float32(1.0 / 32.0)
+    for b in range(first * BLOCK_ROWS, rows, stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, rows)):
+            for j in range(cols):
+                fx, fy = fld[i, j, 0], fld[i, j, 1]
+                if not (fx > -2.0 and fx < w + 1.0 and fy > -2.0 and fy < h + 1.0):  # far outside, or NaN
+                    for c in range(k):
+                        out[i, j, c] = zero
+                    continue
+                X, Y = int(np.rint(fx * scale)), int(np.rint(fy * scale))
+                sx, sy = X >> 5, Y >> 5
+                ax, ay = np.float32(X & 31) * inv, np.float32(Y & 31) * inv
+                w0, w1 = (one - ay) * (one - ax), (one - ay) * ax
+                w2, w3 = ay * (one - ax), ay * ax
+                if sx >= 0 and sy >= 0 and sx + 1 < w and sy + 1 < h:
+                    for c in range(k):
+                        out[i, j, c] = (src[sy, sx, c] * w0 + src[sy, sx + 1, c] * w1 + src[sy + 1, sx, c] * w2
+                                        + src[sy + 1, sx + 1, c] * w3)
+                    continue
+                in0, in1 = 0 <= sy < h, 0 <= sy + 1 < h
+                inl, inr = 0 <= sx < w, 0 <= sx + 1 < w
+                for c in range(k):
+                    v0 = src[sy, sx, c] if in0 and inl else zero
+                    v1 = src[sy, sx + 1, c] if in0 and inr else zero
+                    v2 = src[sy + 1, sx, c] if in1 and inl else zero
+                    v3 = src[sy + 1, sx + 1, c] if in1 and inr else zero
+                    out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
 
 
 _top_two = njit(cache=True, nogil=True)(_top_two_py)
 _block_shares = njit(cache=True, nogil=True)(_block_shares_py)
 _best_agreement = njit(cache=True, nogil=True)(_best_agreement_py)
-_carried_best = njit(cache=True, nogil=True)(_carried_best_py)
+_carried_shown = njit(cache=True, nogil=True)(_carried_shown_py)
 _penalised = njit(cache=True, nogil=True)(_penalised_py)
 _fuse_classes = njit(cache=True, nogil=True)(_fuse_classes_py)
+_remap_classes = njit(cache=True, nogil=True)(_remap_classes_py)
+
+
+def _rows(kernel, shape: tuple[int, ...], *args) -> None:
+    """``kernel(*args, first, stride)`` over the rows of a map of ``shape``, shared with the helper thread on
+    large maps (:func:`pcreg._threads.interleave`)."""
+    from .._threads import MIN_PIXELS, interleave
+
+    interleave(shape[0] * shape[1], lambda first, stride: kernel(*args, first, stride), min_items=MIN_PIXELS)
 
 
 def top_two(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -118,7 +175,7 @@ def top_two(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     h, w = S.shape[:2]
     best, second = np.empty((h, w), np.intp), np.empty((h, w), np.intp)
     margin = np.empty((h, w), np.float32)
-    _top_two(S, best, second, margin)
+    _rows(_top_two, S.shape, S, best, second, margin)
     return best, second, margin
 
 
@@ -134,7 +191,7 @@ def block_shares(best: np.ndarray, k: int) -> np.ndarray:
 def best_agreement(d: np.ndarray, p: np.ndarray) -> np.ndarray:
     """(H, W) float32: 1 where the best class of ``d`` is the best class of ``p`` ((H, W, K) each), else 0."""
     out = np.empty(d.shape[:2], np.float32)
-    _best_agreement(np.ascontiguousarray(d, np.float32), np.ascontiguousarray(p, np.float32), out)
+    _rows(_best_agreement, d.shape, np.ascontiguousarray(d, np.float32), np.ascontiguousarray(p, np.float32), out)
     return out
 
 
@@ -145,18 +202,19 @@ def fuse_classes(d: np.ndarray, w1: np.ndarray, l1: np.ndarray, w2: np.ndarray |
     d = np.ascontiguousarray(d, np.float32)
     fused, prior = np.empty_like(d), np.empty_like(d)
     c = np.ascontiguousarray
-    _fuse_classes(d, c(w1, np.float32), c(l1, np.float32), None if w2 is None else c(w2, np.float32),
-                  None if l2 is None else c(l2, np.float32), fused, prior)
+    _rows(_fuse_classes, d.shape, d, c(w1, np.float32), c(l1, np.float32), None if w2 is None else c(w2, np.float32),
+          None if l2 is None else c(l2, np.float32), fused, prior)
     return fused, prior
 
 
-def carried_best(prior: np.ndarray, weight: np.ndarray, log_pi: np.ndarray) -> np.ndarray:
-    """(H, W) uint8: the best class index of ``prior / weight + log_pi`` ((H, W, K) evidence, (H, W) summed
-    trust weight, at least 1e-6; (K,) log class priors): the carried priors' own label."""
-    out = np.empty(prior.shape[:2], np.uint8)
-    _carried_best(np.ascontiguousarray(prior, np.float32), np.ascontiguousarray(weight, np.float32),
-                  np.ascontiguousarray(log_pi, np.float32), np.float32(1e-6), out)
-    return out
+def carried_shown(prior: np.ndarray, weight: np.ndarray, log_pi: np.ndarray) -> np.ndarray:
+    """(H, W, K) uint8: the one-hot of the best class of ``prior / weight + log_pi`` ((H, W, K) evidence,
+    (H, W) summed trust weight, at least 1e-6; (K,) log class priors): the carried priors' own label, 1 at
+    its class and 0 elsewhere."""
+    shown = np.empty(prior.shape, np.uint8)
+    _rows(_carried_shown, prior.shape, np.ascontiguousarray(prior, np.float32), np.ascontiguousarray(weight, np.float32),
+          np.ascontiguousarray(log_pi, np.float32), np.float32(1e-6), shown)
+    return shown
 
 
 def penalised(fused: np.ndarray, allowed: np.ndarray, weight: np.ndarray, untrusted: float,
@@ -164,6 +222,24 @@ def penalised(fused: np.ndarray, allowed: np.ndarray, weight: np.ndarray, untrus
     """(H, W, K) float32: ``fused`` lowered by ``penalty`` where a class is not ``allowed`` ((H, W, K) uint8)
     and the pixel's summed trust ``weight`` is above ``untrusted``."""
     out = np.empty(fused.shape, np.float32)
-    _penalised(np.ascontiguousarray(fused, np.float32), np.ascontiguousarray(allowed),
-               np.ascontiguousarray(weight, np.float32), np.float32(untrusted), np.float32(penalty), out)
+    _rows(_penalised, fused.shape, np.ascontiguousarray(fused, np.float32), np.ascontiguousarray(allowed),
+          np.ascontiguousarray(weight, np.float32), np.float32(untrusted), np.float32(penalty), out)
+    return out
+
+
+def remap_classes(values: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """(h, w, K) float32: ``values`` (H, W, K) read at ``field`` (h, w, 2) float32 positions, bilinearly, 0
+    outside: ``cv2.remap(values, field, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)`` to the
+    bit, in one pass shared with the helper thread. OpenCV reads 1, 3 or 4 channels another way (its
+    weights are not rounded to 1/32 px there): for those it is called itself."""
+    src = np.ascontiguousarray(values, np.float32)
+    fld = np.ascontiguousarray(field, np.float32)
+    k = src.shape[2]
+    if k in (1, 3, 4):
+        import cv2
+
+        out = cv2.remap(src, fld, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return out.reshape(fld.shape[:2] + (k,))
+    out = np.empty(fld.shape[:2] + (k,), np.float32)
+    _rows(_remap_classes, fld.shape, src, fld, out)
     return out

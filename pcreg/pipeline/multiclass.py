@@ -29,7 +29,7 @@ import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
-from ._class_kernels import best_agreement, block_shares, carried_best, fuse_classes, penalised, top_two
+from ._class_kernels import best_agreement, block_shares, carried_shown, fuse_classes, penalised, remap_classes, top_two
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
 __all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
@@ -114,12 +114,9 @@ def prior_log_probs(q: np.ndarray, pi: np.ndarray) -> np.ndarray:
 def carried_log_probs(log_probs: np.ndarray, field: np.ndarray) -> np.ndarray:
     """(H, W, K) float32: the key frame's prior evidence carried along ``field`` (bilinear), 0 (none
     beyond the class prior) where the field leaves the key frame; each channel as
-    :func:`~pcreg.pipeline.trust.carried_log_odds`."""
-    import cv2
-
-    out = cv2.remap(np.asarray(log_probs, np.float32), np.ascontiguousarray(field, dtype=np.float32), None,
-                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return out.reshape(np.shape(field)[:2] + (np.shape(log_probs)[2],))
+    :func:`~pcreg.pipeline.trust.carried_log_odds` (OpenCV's ``remap``, to the bit: :func:`~pcreg.pipeline.
+    _class_kernels.remap_classes`)."""
+    return remap_classes(log_probs, field)
 
 
 def fused_scores(scores: np.ndarray, weighted: list[tuple[np.ndarray | float | None, np.ndarray | None]]
@@ -170,11 +167,9 @@ def windowed(fused: np.ndarray, prior_term: np.ndarray, weight_sum: np.ndarray, 
     allowed."""
     import cv2
 
-    k = fused.shape[2]
     w = np.asarray(weight_sum, np.float32)
-    hard = carried_best(prior_term, w, log_pi)
+    shown = carried_shown(prior_term, w, log_pi)
     side = odd(CLASS_WINDOW, fused.shape[1])
-    shown = (hard[..., None] == np.arange(k, dtype=np.uint8)).view(np.uint8)
     allowed = cv2.dilate(shown, np.ones((side, side), np.uint8)).reshape(shown.shape)
     return penalised(fused, allowed, w, UNTRUSTED, CLASS_PENALTY)
 

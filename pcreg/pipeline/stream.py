@@ -89,7 +89,7 @@ from typing import TYPE_CHECKING, Callable, Protocol
 
 import numpy as np
 
-from .._threads import both
+from .._threads import alongside
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
 from .estimators import STREAM_DENSE, Carry, ChainCarry, chain_after, DenseStep, FlowEstimator, StreamMotion, motion_model, stream_motion
@@ -115,12 +115,10 @@ __all__ = ["Propagator", "StepReport", "PriorTerms", "check_labels", "STEP_STAGE
 STEP_STAGES: tuple[str, ...] = ("register", "classify", "fuse", "total")
 #: Their parts, timed as ``"stage.part"`` in :attr:`StepReport.times`: a dense registration's own
 #: stages (:data:`pcreg.registration.dense.DENSE_STAGES`, its global step as ``global``; present when
-#: the dense registration ran); on the helper thread, the classifier's learning from the last frame
-#: (:mod:`pcreg.pipeline.learning`: its histograms counted and naive Bayes refitted), its log-odds
-#: (features and tables) and the DIS flow of the trust rule; then the priors' warp, their trust
-#: (:mod:`pcreg.pipeline.trust`), the fusion itself (with a trust rule, one pass with the trust, timed as
-#: ``trust``), the labels' confidence and the frame's sure pixels kept for learning; a part the step did
-#: not do is 0.
+#: the dense registration ran); beside it, the classifier's learning from the last frame (its histograms
+#: counted, naive Bayes refitted), its log-odds and the trust rule's DIS flow; then the priors' warp, their
+#: trust (:mod:`pcreg.pipeline.trust`), the fusion (with a trust rule, one pass with the trust, timed as
+#: ``trust``), the labels' confidence and the frame's sure pixels kept for learning; a part not done is 0.
 STEP_PARTS: dict[str, tuple[str, ...]] = {
     "register": ("global", "pyramid", "search", "solve", "evidence", "field"),
     "classify": ("learn", "bayes", "flow"),
@@ -392,11 +390,19 @@ class Propagator:
         times = dict.fromkeys(STEP_STAGES, 0.0)
         times.update({f"{stage}.{part}": 0.0 for stage, parts in STEP_PARTS.items() if stage != "register"
                       for part in parts})
-        # the new frame is classified (and its DIS flow found) on the helper thread while this one
-        # registers it (the two are independent); its times are its own, and ``total`` is the step's
         reference, ref_frame = (key, 0) if self.anchor == "key" else (self._chain[0], self._chain[2])
-        c, (est, times["register"]) = both(lambda: self._classify(frame), lambda: self._register(reference, frame))
+        # classified while this thread registers it (they are independent): the helper takes the second motion
+        # first, the longer part, then naive Bayes, which this thread does itself if it is done before the
+        # helper got to it (:func:`~pcreg._threads.alongside`); their times are their own, ``total`` the step's
+        sides: list[Callable] = [lambda: self._classify(frame)]
+        if self._key_trusted is not None:
+            sides.insert(0, lambda: self._second_motion(frame))
+        (est, times["register"]), classified = alongside(lambda: self._register(reference, frame), *sides)
+        c = classified[-1]
         times.update(c.times)
+        if len(classified) > 1:
+            c.frame_blurred, c.flow, times["classify.flow"] = classified[0]
+            times["classify"] += times["classify.flow"]
         result, motion = est.result, est.motion
         if motion is not None and self.anchor == "previous" and self._chain[1] is not None:
             motion = self._chain[1].after(motion, frame.shape)  # the previous frame's motion to the key frame after it
@@ -428,11 +434,8 @@ class Propagator:
 
     def _classify(self, frame: PreparedFrame) -> "_Classified":
         """Naive Bayes' log-odds of the frame (the classifier as learned so far, what the last frame taught
-        it counted first) and, with a trust rule that uses it, the DIS field from the frame to the key
-        frame with the key frame's prior and residual carried along it (:class:`~pcreg.pipeline.trust.TrustedKey`):
-        all that needs no registration."""
+        it counted first): all that needs no registration but the second motion (:meth:`_second_motion`)."""
         from ..classification.bayes import NaiveBayesPixelClassifier
-        from .trust import blurred
 
         t0 = time.perf_counter()
         clf = self.classifier if self._learner is None else self._learner.classifier
@@ -441,16 +444,19 @@ class Propagator:
         d = np.asarray(clf.decision_function(image) if self._classes is None else clf.class_scores(image),
                        dtype=np.float32)
         t2 = time.perf_counter()
-        out = _Classified(d)
-        if self._key_trusted is not None:
-            out.frame_blurred = blurred(frame.rgb)
-            if self._key_flow is not None and self._key_trusted.rule.flow > 0:
-                flow = self._flow.estimate(self._key, frame, prepared=self._key_flow).result.field
-                out.flow = self._key_trusted.carried(out.frame_blurred, flow)
-        t3 = time.perf_counter()
-        out.times = {"classify": t3 - t0, "classify.learn": t1 - t0, "classify.bayes": t2 - t1,
-                     "classify.flow": t3 - t2}
-        return out
+        return _Classified(d, times={"classify": t2 - t0, "classify.learn": t1 - t0, "classify.bayes": t2 - t1})
+
+    def _second_motion(self, frame: PreparedFrame) -> tuple[np.ndarray, tuple | None, float]:
+        """``(frame_blurred, flow, seconds)``: the frame as residuals compare it (:func:`~pcreg.pipeline.trust.
+        blurred`) and the key frame's prior and residual carried along the DIS flow to it (None without)."""
+        from .trust import blurred
+
+        t0 = time.perf_counter()
+        frame_blurred, flow = blurred(frame.rgb), None
+        if self._key_flow is not None and self._key_trusted is not None and self._key_trusted.rule.flow > 0:
+            field = self._flow.estimate(self._key, frame, prepared=self._key_flow).result.field
+            flow = self._key_trusted.carried(frame_blurred, field)
+        return frame_blurred, flow, time.perf_counter() - t0
 
     def _fuse(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:
         """The labels without a trust rule: the key frame's prior along ``motion`` at :attr:`weight`, by
@@ -567,7 +573,7 @@ class Propagator:
 
 @dataclass
 class _Classified:
-    """What a step finds on the helper thread while it registers the frame (:meth:`Propagator._classify`)."""
+    """What a step finds beside the frame's registration (:meth:`Propagator._classify`, ``_second_motion``)."""
 
     d: np.ndarray
     frame_blurred: np.ndarray | None = None

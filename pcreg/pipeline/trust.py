@@ -383,7 +383,12 @@ class TrustedKey:
         self.classes = classes  # K classes: a multiclass.ClassRead, and log_odds (H, W, K) evidence
 
     def carried(self, frame_blurred: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(prior, residual)`` along ``field``: :func:`carried_log_odds` and :func:`carried_residual`."""
+        """``(prior, residual)`` along ``field``: :func:`carried_log_odds` (with K classes
+        :func:`~pcreg.pipeline.multiclass.carried_log_probs`) and :func:`carried_residual`."""
+        if self.classes is not None:
+            from .multiclass import carried_log_probs
+
+            return carried_log_probs(self.log_odds, field), carried_residual(self.blurred, frame_blurred, field)
         return carried_log_odds(self.log_odds, field), carried_residual(self.blurred, frame_blurred, field)
 
     def fuse(self, log_odds: np.ndarray, frame_blurred: np.ndarray, field: np.ndarray,

@@ -54,8 +54,9 @@ def _warm_classes(shape: tuple[int, int]) -> None:
     k.top_two(scores)
     k.block_shares(np.zeros(shape, np.intp), 3)
     k.best_agreement(scores, scores)
-    for second in ((w, scores), (None, None)):
-        k.fuse_classes(scores, w, scores, *second)
+    for w2, l2 in ((w, scores), (None, None)):
+        k.fuse_classes(scores, w, scores, w2, l2)
+        k.fuse_and_mark(scores, w, scores, w2, l2, w, np.zeros(3, np.float32))
     k.carried_shown(scores, w, np.zeros(3, np.float32))
     k.remap_classes(np.zeros(shape + (5,), np.float32), np.zeros(shape + (2,), np.float32))
     k.penalised(scores, np.ones(shape + (3,), np.uint8), w, 1e-3, 15.0)

@@ -240,3 +240,24 @@ def test_the_carried_evidence_is_opencvs_remap_to_the_bit(k):
     field[2, :, 0] = np.arange(w) / 64.0  # positions half-way between two of OpenCV's 1/32 px steps
     expected = cv2.remap(values, field, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     assert np.array_equal(multiclass.carried_log_probs(values, field), expected.reshape(h, w, k), equal_nan=True)
+
+
+@pytest.mark.parametrize("second", [True, False])
+def test_the_fusion_marks_what_the_window_and_the_confidence_read_as_they_would(second):
+    from pcreg.pipeline._class_kernels import best_agreement, carried_shown
+
+    rng = np.random.default_rng(1)
+    h, w, k = 240, 320, 6
+    d, l1, l2 = (rng.normal(0.0, 3.0, (h, w, k)).astype(np.float32) for _ in range(3))
+    w1, w2 = (rng.uniform(0.0, 2.0, (h, w)).astype(np.float32) for _ in range(2))
+    w1[:10] = 0.0  # no trust at all: every class allowed, the carried label read at the least weight
+    pairs = [(w1, l1), (w2, l2) if second else (None, None)]
+    total = w1 + w2 if second else w1
+    log_pi = np.log(rng.dirichlet(np.ones(k))).astype(np.float32)
+    fused, prior, (shown, agree) = multiclass.fused_and_marked(d, pairs, total, log_pi)
+    f0, p0 = multiclass.fused_scores(d, pairs)
+    assert np.array_equal(fused, f0) and np.array_equal(prior, p0)
+    assert np.array_equal(shown, carried_shown(p0, total, log_pi))
+    assert np.array_equal(agree, best_agreement(d, p0))
+    assert np.array_equal(multiclass.windowed(f0, p0, total, log_pi, shown=shown),
+                          multiclass.windowed(f0, p0, total, log_pi))

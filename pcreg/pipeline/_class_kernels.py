@@ -11,7 +11,7 @@ import numpy as np
 
 from .._jit import njit
 
-__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "carried_shown",
+__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_shown",
            "penalised", "remap_classes", "BLOCK_ROWS"]
 
 #: Rows per block of the passes (two threads take alternate blocks).
@@ -100,19 +100,46 @@ def _best_agreement_py(d, p, out, first, stride):
                 out[i, j] = 1.0 if bd == bp else 0.0
 
 
-def _fuse_classes_py(d, w1, l1, w2, l2, fused, prior, first, stride):
+def _fuse_classes_py(d, w1, l1, w2, l2, ws, log_pi, least, fused, prior, shown, agree, first, stride):
+    """``prior = w1 l1 + w2 l2`` and ``fused = d + prior`` per class; with ``shown`` (else None, as ``ws``,
+    ``log_pi``, ``agree``) also, from the same values, what :func:`_carried_shown_py` and
+    :func:`_best_agreement_py` write of ``prior`` and ``d``."""
     h, w, k = d.shape
+    zero, one = np.float32(0.0), np.float32(1.0)
     for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
         for i in range(b, min(b + BLOCK_ROWS, h)):
             for j in range(w):
                 a = w1[i, j]
-                bw = np.float32(0.0) if w2 is None else w2[i, j]
+                bw = zero if w2 is None else w2[i, j]
+                inv = one if shown is None else one / max(ws[i, j], least)
+                bc, bp, bd = 0, 0, 0
+                vc, vp, vd = zero, zero, zero
                 for c in range(k):
                     p = a * l1[i, j, c]
                     if w2 is not None:
                         p += bw * l2[i, j, c]
                     prior[i, j, c] = p
-                    fused[i, j, c] = d[i, j, c] + p
+                    dc = d[i, j, c]
+                    fused[i, j, c] = dc + p
+                    if shown is None:
+                        pass
+                    else:
+                        v = p * inv + log_pi[c]
+                        if c == 0:
+                            vc, vp, vd = v, p, dc
+                        else:
+                            if v > vc:
+                                bc, vc = c, v
+                            if p > vp:
+                                bp, vp = c, p
+                            if dc > vd:
+                                bd, vd = c, dc
+                if shown is None:
+                    pass
+                else:
+                    for c in range(k):
+                        shown[i, j, c] = 1 if c == bc else 0
+                    agree[i, j] = 1.0 if bd == bp else 0.0
 
 
 def _remap_classes_py(src, fld, out, first, stride):
@@ -203,8 +230,23 @@ def fuse_classes(d: np.ndarray, w1: np.ndarray, l1: np.ndarray, w2: np.ndarray |
     fused, prior = np.empty_like(d), np.empty_like(d)
     c = np.ascontiguousarray
     _rows(_fuse_classes, d.shape, d, c(w1, np.float32), c(l1, np.float32), None if w2 is None else c(w2, np.float32),
-          None if l2 is None else c(l2, np.float32), fused, prior)
+          None if l2 is None else c(l2, np.float32), None, None, None, fused, prior, None, None)
     return fused, prior
+
+
+def fuse_and_mark(d: np.ndarray, w1: np.ndarray, l1: np.ndarray, w2: np.ndarray | None, l2: np.ndarray | None,
+                  weight: np.ndarray, log_pi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(fused, prior, shown, agree)``: :func:`fuse_classes`, with in the same pass :func:`carried_shown`
+    of ``prior`` (``weight`` the (H, W) summed trust weight, ``log_pi`` (K,)) and :func:`best_agreement` of
+    ``d`` and ``prior``, the same numbers as each apart."""
+    d = np.ascontiguousarray(d, np.float32)
+    fused, prior = np.empty_like(d), np.empty_like(d)
+    shown, agree = np.empty(d.shape, np.uint8), np.empty(d.shape[:2], np.float32)
+    c = np.ascontiguousarray
+    _rows(_fuse_classes, d.shape, d, c(w1, np.float32), c(l1, np.float32), None if w2 is None else c(w2, np.float32),
+          None if l2 is None else c(l2, np.float32), c(weight, np.float32), c(log_pi, np.float32), np.float32(1e-6),
+          fused, prior, shown, agree)
+    return fused, prior, shown, agree
 
 
 def carried_shown(prior: np.ndarray, weight: np.ndarray, log_pi: np.ndarray) -> np.ndarray:

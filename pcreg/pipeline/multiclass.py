@@ -29,13 +29,14 @@ import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
-from ._class_kernels import best_agreement, block_shares, carried_shown, fuse_classes, penalised, remap_classes, top_two
+from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes, penalised,
+                             remap_classes, top_two)
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
 __all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
            "CLASS_WINDOW", "CLASS_PENALTY", "ClassRead", "windowed", "weight_sum",
            "fused_class_labels", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs",
-           "fused_scores", "smoothed_scores", "read_class_labels", "class_confidence", "predicted_iou",
+           "fused_scores", "fused_and_marked", "smoothed_scores", "read_class_labels", "class_confidence", "predicted_iou",
            "sure_labels"]
 
 #: The least class prior taken: a class with (almost) no key-frame pixels must not give -inf evidence.
@@ -132,6 +133,23 @@ def fused_scores(scores: np.ndarray, weighted: list[tuple[np.ndarray | float | N
     return fuse_classes(d, w1, l1, w2, l2)
 
 
+def fused_and_marked(scores: np.ndarray, weighted: list, weight_sum: np.ndarray, log_pi: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """``(fused, prior_term, marks)``: :func:`fused_scores`, and in the same pass (one read of the maps) the
+    ``marks`` :func:`read_class_labels` reads of them: the carried label's one-hot (H, W, K) uint8 that
+    :func:`windowed` dilates (``weight_sum``, ``log_pi`` as it takes them) and the agreement (H, W) float32
+    of naive Bayes' best class with the priors' that :func:`class_confidence` averages."""
+    d = np.asarray(scores, np.float32)
+    pairs = [(np.broadcast_to(np.asarray(w, np.float32), d.shape[:2]), lp) for w, lp in weighted
+             if w is not None and lp is not None]
+    if not pairs:
+        fused, prior = fused_scores(d, weighted)
+        return fused, prior, (carried_shown(prior, weight_sum, log_pi), best_agreement(d, prior))
+    (w1, l1), (w2, l2) = pairs[0], (pairs[1] if len(pairs) > 1 else (None, None))
+    fused, prior, shown, agree = fuse_and_mark(d, w1, l1, w2, l2, weight_sum, log_pi)
+    return fused, prior, (shown, agree)
+
+
 def smoothed_scores(fused: np.ndarray, sigma_px: float) -> np.ndarray:
     """(H, W, K) float32: class scores blurred, each class by a Gaussian of ``sigma_px`` px (itself at 0)."""
     import cv2
@@ -159,23 +177,25 @@ def weight_sum(maps) -> np.ndarray:
     return w if maps.second is None else w + maps.second
 
 
-def windowed(fused: np.ndarray, prior_term: np.ndarray, weight_sum: np.ndarray, log_pi: np.ndarray) -> np.ndarray:
+def windowed(fused: np.ndarray, prior_term: np.ndarray, weight_sum: np.ndarray, log_pi: np.ndarray, *,
+             shown: np.ndarray | None = None) -> np.ndarray:
     """(H, W, K) float32: ``fused`` with every class that the carried labels do not show within
     :data:`CLASS_WINDOW` of a pixel lowered by :data:`CLASS_PENALTY`. The carried label is the best class of
     the priors' evidence per unit of trust plus the class prior (``prior_term / weight_sum + log_pi``: the
     carried priors' own log-probabilities); where ``weight_sum`` is below :data:`UNTRUSTED` every class is
-    allowed."""
+    allowed. ``shown``: the carried label's one-hot, when the fusion made it (:func:`fused_and_marked`)."""
     import cv2
 
     w = np.asarray(weight_sum, np.float32)
-    shown = carried_shown(prior_term, w, log_pi)
+    if shown is None:
+        shown = carried_shown(prior_term, w, log_pi)
     side = odd(CLASS_WINDOW, fused.shape[1])
     allowed = cv2.dilate(shown, np.ones((side, side), np.uint8)).reshape(shown.shape)
     return penalised(fused, allowed, w, UNTRUSTED, CLASS_PENALTY)
 
 
 def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndarray, classes: np.ndarray, *,
-                      smooth_px: float, coefficients: tuple[float, ...], size=None, window=None
+                      smooth_px: float, coefficients: tuple[float, ...], size=None, window=None, marks=None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(labels, confidence, runner_up)`` of fused class scores (H, W, K): the class ids (``classes`` in the
     classifier's order) of the largest score blurred by a Gaussian of ``smooth_px`` px, the probability
@@ -183,12 +203,13 @@ def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndar
     stream's :class:`~pcreg.pipeline.working.WorkingSize` when the maps are at it: the blurred scores and
     the confidence are brought to the frames' size, and the labels read there. ``window``: ``(weight_sum,
     log_pi)``, the carried priors' summed trust weight (H, W) and the log class priors: the scores are
-    :func:`windowed` first."""
+    :func:`windowed` first. ``marks``: ``(shown, agree)`` when the fusion made them (:func:`fused_and_marked`)."""
+    shown, agree = (None, None) if marks is None else marks
     if window is not None:
-        fused = windowed(fused, prior_term, *window)
+        fused = windowed(fused, prior_term, *window, shown=shown)
     S = smoothed_scores(fused, smooth_px)
     best, second, margin = top_two(S)
-    conf = class_confidence(margin, best, scores, prior_term, coefficients)
+    conf = class_confidence(margin, best, scores, prior_term, coefficients, agree=agree)
     if size is not None and size.scaled:
         best, second, _ = top_two(size.grow(S))
         conf = size.grow(conf)
@@ -196,7 +217,8 @@ def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndar
     return ids[best], conf, ids[second]
 
 
-def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_term: np.ndarray) -> list[np.ndarray]:
+def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_term: np.ndarray,
+                          agree: np.ndarray | None) -> list[np.ndarray]:
     """The confidence's three neighbourhood features at half size, as
     :func:`pcreg.pipeline.trust.confidence_features` reads them for two classes: the share of the
     neighbourhood with the pixel's own label at the two purity sides, and the share of the agreement side
@@ -206,7 +228,8 @@ def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_te
     w = best.shape[1]
     oh = block_shares(best, k)  # the one-hot labels at half size
     own = top_two(oh)[0][..., None]
-    agree = best_agreement(scores, prior_term)
+    if agree is None:
+        agree = best_agreement(scores, prior_term)
     out = []
     for side in PURITY_SIDES:
         kk = odd(side / 2, w)
@@ -218,11 +241,12 @@ def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_te
 
 
 def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, prior_term: np.ndarray,
-                     coefficients: tuple[float, ...]) -> np.ndarray:
+                     coefficients: tuple[float, ...], *, agree: np.ndarray | None = None) -> np.ndarray:
     """(H, W) float32 in [max(1/K, :data:`CLASS_MIN_CONFIDENCE`), 1]: the probability that each pixel's label
     is right, the logistic model of :func:`pcreg.pipeline.trust.label_confidence` over log1p(margin), the
     purities and the agreement, with ``coefficients`` (intercept first), never below 1/K (the label is the
-    likeliest of K classes) nor :data:`CLASS_MIN_CONFIDENCE`."""
+    likeliest of K classes) nor :data:`CLASS_MIN_CONFIDENCE`. ``agree``: :func:`~pcreg.pipeline._class_kernels.
+    best_agreement` of ``scores`` and ``prior_term``, when the fusion made it."""
     import cv2
 
     if len(coefficients) != 5:
@@ -230,11 +254,19 @@ def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, p
     k = scores.shape[2]
     h, w = margin.shape
     linear = np.zeros((max(1, h // 2), max(1, w // 2)), np.float32)
-    for a, m in zip(coefficients[2:], _purity_and_agreement(best, k, scores, prior_term)):
+    for a, m in zip(coefficients[2:], _purity_and_agreement(best, k, scores, prior_term, agree)):
         linear += np.float32(a) * m
     z = cv2.resize(linear, (w, h), interpolation=cv2.INTER_LINEAR)
-    z += np.float32(coefficients[1]) * np.log1p(np.maximum(margin, 0)) + np.float32(coefficients[0])
-    conf = (1.0 / (1.0 + np.exp(-np.clip(z, -60.0, 60.0)))).astype(np.float32)
+    t = np.maximum(margin, np.float32(0))  # in place from here: the same operations, in the same order
+    np.log1p(t, out=t)
+    t *= np.float32(coefficients[1])
+    t += np.float32(coefficients[0])
+    z += t
+    np.clip(z, -60.0, 60.0, out=z)
+    np.negative(z, out=z)
+    conf = np.exp(z, out=z)
+    conf += np.float32(1.0)
+    np.divide(np.float32(1.0), conf, out=conf)
     np.maximum(conf, np.float32(max(1.0 / k, CLASS_MIN_CONFIDENCE)), out=conf)
     if not np.all(np.isfinite(conf)):
         raise AssertionError("a confidence came out NaN")

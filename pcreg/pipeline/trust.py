@@ -412,18 +412,20 @@ class TrustedKey:
     def _fuse_classes(self, scores, dense_prior, dense_residual, field_confidence, flow, times, t0, t1) -> Trusted:
         """:meth:`fuse` with K classes (:mod:`pcreg.pipeline.multiclass`): the same trust maps, the priors'
         evidence per class, the label the best class of the blurred sum."""
-        from .multiclass import fused_scores, read_class_labels, weight_sum
+        from .multiclass import fused_and_marked, read_class_labels, weight_sum
 
         read = self.classes
         assert read is not None  # fuse sends K classes here only
         second_prior, second_residual = (None, None) if flow is None else flow
         maps = trust_maps(self.rule, weight=self.weight, primary_prior=dense_prior, primary_residual=dense_residual,
                           confidence=field_confidence, second_prior=second_prior, second_residual=second_residual)
-        fused, prior = fused_scores(scores, [(maps.primary, maps.primary_prior), (maps.second, maps.second_prior)])
+        w = weight_sum(maps)
+        fused, prior, marks = fused_and_marked(scores, [(maps.primary, maps.primary_prior),
+                                                        (maps.second, maps.second_prior)], w, read.log_pi)
         t2 = time.perf_counter()
         labels, confidence, second = read_class_labels(
             fused, scores, prior, read.classes, smooth_px=_scaled(self.rule.smooth, fused.shape[1]),
-            coefficients=read.coefficients, size=self.size, window=(weight_sum(maps), read.log_pi))
+            coefficients=read.coefficients, size=self.size, window=(w, read.log_pi), marks=marks)
         times.update({"fuse.warp": t1 - t0, "fuse.trust": t2 - t1, "fuse.confidence": time.perf_counter() - t2})
         return Trusted(labels, confidence, maps, fused, prior, second)
 

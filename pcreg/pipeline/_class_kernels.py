@@ -12,7 +12,7 @@ import numpy as np
 from .._jit import njit
 
 __all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_shown",
-           "penalised", "remap_classes", "BLOCK_ROWS"]
+           "penalised", "remap_classes", "margin_term", "BLOCK_ROWS"]
 
 #: Rows per block of the passes (two threads take alternate blocks).
 BLOCK_ROWS = 16
@@ -178,7 +178,18 @@ def _remap_classes_py(src, fld, out, first, stride):
                     out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
 
 
+def _margin_term_py(margin, a, b, out, first, stride):
+    """``a log1p(max(margin, 0)) + b`` per pixel (float32; the C library's ``log1pf``, as numpy's)."""
+    h, w = margin.shape
+    zero = np.float32(0.0)
+    for r in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(r, min(r + BLOCK_ROWS, h)):
+            for j in range(w):
+                out[i, j] = a * np.float32(np.log1p(max(margin[i, j], zero))) + b
+
+
 _top_two = njit(cache=True, nogil=True)(_top_two_py)
+_margin_term = njit(cache=True, nogil=True)(_margin_term_py)
 _block_shares = njit(cache=True, nogil=True)(_block_shares_py)
 _best_agreement = njit(cache=True, nogil=True)(_best_agreement_py)
 _carried_shown = njit(cache=True, nogil=True)(_carried_shown_py)
@@ -284,4 +295,13 @@ def remap_classes(values: np.ndarray, field: np.ndarray) -> np.ndarray:
         return out.reshape(fld.shape[:2] + (k,))
     out = np.empty(fld.shape[:2] + (k,), np.float32)
     _rows(_remap_classes, fld.shape, src, fld, out)
+    return out
+
+
+def margin_term(margin: np.ndarray, a: float, b: float) -> np.ndarray:
+    """(H, W) float32 ``a * log1p(max(margin, 0)) + b``: the margin's part of the confidence's logistic model,
+    numpy's float32 operations in the same order, one pass shared with the helper thread."""
+    m = np.ascontiguousarray(margin, np.float32)
+    out = np.empty(m.shape, np.float32)
+    _rows(_margin_term, m.shape, m, np.float32(a), np.float32(b), out)
     return out

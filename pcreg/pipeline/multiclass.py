@@ -29,8 +29,8 @@ import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
-from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes, penalised,
-                             remap_classes, top_two)
+from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes, margin_term,
+                             penalised, remap_classes, top_two)
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
 __all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
@@ -257,11 +257,7 @@ def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, p
     for a, m in zip(coefficients[2:], _purity_and_agreement(best, k, scores, prior_term, agree)):
         linear += np.float32(a) * m
     z = cv2.resize(linear, (w, h), interpolation=cv2.INTER_LINEAR)
-    t = np.maximum(margin, np.float32(0))  # in place from here: the same operations, in the same order
-    np.log1p(t, out=t)
-    t *= np.float32(coefficients[1])
-    t += np.float32(coefficients[0])
-    z += t
+    z += margin_term(margin, coefficients[1], coefficients[0])  # in place from here: the same operations
     np.clip(z, -60.0, 60.0, out=z)
     np.negative(z, out=z)
     conf = np.exp(z, out=z)

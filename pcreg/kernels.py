@@ -60,7 +60,7 @@ def _warm_classes(shape: tuple[int, int]) -> None:
     k.carried_shown(scores, w, np.zeros(3, np.float32))
     k.remap_classes(np.zeros(shape + (5,), np.float32), np.zeros(shape + (2,), np.float32))
     k.penalised(scores, np.ones(shape + (3,), np.uint8), w, 1e-3, 15.0)
-    k.margin_term(w, 1.0, 0.0)
+    k.logistic_confidence(np.zeros(shape, np.float32), w, 1.0, 0.0, 0.5)
     class_sums([("rgb", np.zeros(shape + (3,), np.uint8)), ("row", np.zeros(shape[0], np.uint8))],
                np.zeros((3, 4, 256), np.float32), np.zeros(3, np.float32))
 

@@ -12,7 +12,7 @@ import numpy as np
 from .._jit import njit
 
 __all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_shown",
-           "penalised", "remap_classes", "margin_term", "BLOCK_ROWS"]
+           "penalised", "remap_classes", "logistic_confidence", "BLOCK_ROWS"]
 
 #: Rows per block of the passes (two threads take alternate blocks).
 BLOCK_ROWS = 16
@@ -178,18 +178,35 @@ def _remap_classes_py(src, fld, out, first, stride):
                     out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
 
 
-def _margin_term_py(margin, a, b, out, first, stride):
-    """``a log1p(max(margin, 0)) + b`` per pixel (float32; the C library's ``log1pf``, as numpy's)."""
-    h, w = margin.shape
-    zero = np.float32(0.0)
+def _negative_logit_py(z, margin, a, b, first, stride):
+    """In place, ``z = -clip(z + (a log1p(max(margin, 0)) + b), -60, 60)`` (float32; the C library's ``log1pf``,
+    as numpy's; a NaN stays NaN, as in numpy)."""
+    h, w = z.shape
+    zero, lo, hi = np.float32(0.0), np.float32(-60.0), np.float32(60.0)
     for r in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
         for i in range(r, min(r + BLOCK_ROWS, h)):
             for j in range(w):
-                out[i, j] = a * np.float32(np.log1p(max(margin[i, j], zero))) + b
+                m = margin[i, j]
+                t = a * np.float32(np.log1p(zero if m < zero else m)) + b
+                v = z[i, j] + t
+                v = lo if v < lo else (hi if v > hi else v)
+                z[i, j] = -v
+
+
+def _logistic_py(e, least, first, stride):
+    """In place, ``e = max(1 / (e + 1), least)`` (float32; a NaN stays NaN)."""
+    h, w = e.shape
+    one = np.float32(1.0)
+    for r in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(r, min(r + BLOCK_ROWS, h)):
+            for j in range(w):
+                c = one / (e[i, j] + one)
+                e[i, j] = least if c < least else c
 
 
 _top_two = njit(cache=True, nogil=True)(_top_two_py)
-_margin_term = njit(cache=True, nogil=True)(_margin_term_py)
+_negative_logit = njit(cache=True, nogil=True)(_negative_logit_py)
+_logistic = njit(cache=True, nogil=True)(_logistic_py)
 _block_shares = njit(cache=True, nogil=True)(_block_shares_py)
 _best_agreement = njit(cache=True, nogil=True)(_best_agreement_py)
 _carried_shown = njit(cache=True, nogil=True)(_carried_shown_py)
@@ -298,10 +315,14 @@ def remap_classes(values: np.ndarray, field: np.ndarray) -> np.ndarray:
     return out
 
 
-def margin_term(margin: np.ndarray, a: float, b: float) -> np.ndarray:
-    """(H, W) float32 ``a * log1p(max(margin, 0)) + b``: the margin's part of the confidence's logistic model,
-    numpy's float32 operations in the same order, one pass shared with the helper thread."""
+def logistic_confidence(z: np.ndarray, margin: np.ndarray, a: float, b: float, least: float) -> np.ndarray:
+    """(H, W) float32, in ``z`` itself: ``max(1 / (1 + exp(-clip(z + (a log1p(max(margin, 0)) + b), -60, 60))),
+    least)``, numpy's float32 operations in the same order (its ``exp`` between two compiled passes shared
+    with the helper thread, in place of ten passes of numpy over the map)."""
     m = np.ascontiguousarray(margin, np.float32)
-    out = np.empty(m.shape, np.float32)
-    _rows(_margin_term, m.shape, m, np.float32(a), np.float32(b), out)
-    return out
+    if z.dtype != np.float32 or not z.flags.c_contiguous or z.shape != m.shape:
+        raise ValueError("logistic_confidence works in place on a C-contiguous float32 map of the margin's shape")
+    _rows(_negative_logit, z.shape, z, m, np.float32(a), np.float32(b))
+    np.exp(z, out=z)
+    _rows(_logistic, z.shape, z, np.float32(least))
+    return z

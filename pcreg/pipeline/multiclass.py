@@ -29,8 +29,8 @@ import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
-from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes, margin_term,
-                             penalised, remap_classes, top_two)
+from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes,
+                             logistic_confidence, penalised, remap_classes, top_two)
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
 __all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
@@ -257,13 +257,7 @@ def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, p
     for a, m in zip(coefficients[2:], _purity_and_agreement(best, k, scores, prior_term, agree)):
         linear += np.float32(a) * m
     z = cv2.resize(linear, (w, h), interpolation=cv2.INTER_LINEAR)
-    z += margin_term(margin, coefficients[1], coefficients[0])  # in place from here: the same operations
-    np.clip(z, -60.0, 60.0, out=z)
-    np.negative(z, out=z)
-    conf = np.exp(z, out=z)
-    conf += np.float32(1.0)
-    np.divide(np.float32(1.0), conf, out=conf)
-    np.maximum(conf, np.float32(max(1.0 / k, CLASS_MIN_CONFIDENCE)), out=conf)
+    conf = logistic_confidence(z, margin, coefficients[1], coefficients[0], max(1.0 / k, CLASS_MIN_CONFIDENCE))
     if not np.all(np.isfinite(conf)):
         raise AssertionError("a confidence came out NaN")
     return conf

@@ -261,3 +261,23 @@ def test_the_fusion_marks_what_the_window_and_the_confidence_read_as_they_would(
     assert np.array_equal(agree, best_agreement(d, p0))
     assert np.array_equal(multiclass.windowed(f0, p0, total, log_pi, shown=shown),
                           multiclass.windowed(f0, p0, total, log_pi))
+
+
+def test_evidence_of_one_vector_a_label_is_carried_from_the_labels_to_the_bit():
+    rng = np.random.default_rng(2)
+    h, w, k = 240, 320, 11
+    labels = rng.integers(0, 12, (h, w)).astype(np.uint8)
+    labels[:, :40] = 255  # a value no class has: the class prior alone
+    table = rng.normal(0.0, 3.0, (256, k)).astype(np.float32)
+    values = table[labels]
+    grid = np.stack(np.meshgrid(np.arange(w), np.arange(h)), axis=-1).astype(np.float32)
+    field = (grid + rng.normal(0.0, 6.0, (h, w, 2))).astype(np.float32)
+    field[::9, ::4] = np.nan
+    field[0, :, 0] = np.linspace(-3.0, 2.0, w)
+    by_label = multiclass.label_evidence(labels, values)
+    assert by_label is not None
+    assert np.array_equal(multiclass.carried_log_probs(values, field, labels=by_label),
+                          multiclass.carried_log_probs(values, field))
+    values[5, 5, 0] += 1.0  # no longer one vector a label
+    assert multiclass.label_evidence(labels, values) is None
+    assert multiclass.label_evidence(labels, values[:, :, :3]) is None  # three classes: OpenCV's own remap

@@ -12,7 +12,7 @@ import numpy as np
 from .._jit import njit
 
 __all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_shown",
-           "penalised", "remap_classes", "logistic_confidence", "BLOCK_ROWS"]
+           "penalised", "remap_classes", "remap_labels", "logistic_confidence", "BLOCK_ROWS"]
 
 #: Rows per block of the passes (two threads take alternate blocks).
 BLOCK_ROWS = 16
@@ -142,12 +142,17 @@ def _fuse_classes_py(d, w1, l1, w2, l2, ws, log_pi, least, fused, prior, shown, 
                     agree[i, j] = 1.0 if bd == bp else 0.0
 
 
-def _remap_classes_py(src, fld, out, first, stride):
+def _remap_classes_py(src, lab, fld, out, first, stride):
     """OpenCV's bilinear ``remap`` of a float32 map of K channels (K not 1, 3 or 4) with a float32 field and
     a constant border of 0, to the bit: each position rounded to 1/32 px (half to even), the four weights
     products of ``1 - t`` and ``t`` (t = k/32), and the four neighbours summed in OpenCV's order, a
-    neighbour outside the map counted as 0."""
-    h, w, k = src.shape
+    neighbour outside the map counted as 0. With ``lab`` (H, W) uint8 (else None) ``src`` is a (256, 1, K)
+    table and the map is ``src[lab, 0]``, read a label at a time."""
+    k = src.shape[2]
+    if lab is None:
+        h, w = src.shape[0], src.shape[1]
+    else:
+        h, w = lab.shape[0], lab.shape[1]
     rows, cols = fld.shape[0], fld.shape[1]
     one, zero, scale, inv = np.float32(1.0), np.float32(0.0), np.float32(32.0), np.float32(1.0 / 32.0)
     for b in range(first * BLOCK_ROWS, rows, stride * BLOCK_ROWS):
@@ -163,19 +168,31 @@ def _remap_classes_py(src, fld, out, first, stride):
                 ax, ay = np.float32(X & 31) * inv, np.float32(Y & 31) * inv
                 w0, w1 = (one - ay) * (one - ax), (one - ay) * ax
                 w2, w3 = ay * (one - ax), ay * ax
-                if sx >= 0 and sy >= 0 and sx + 1 < w and sy + 1 < h:
-                    for c in range(k):
-                        out[i, j, c] = (src[sy, sx, c] * w0 + src[sy, sx + 1, c] * w1 + src[sy + 1, sx, c] * w2
-                                        + src[sy + 1, sx + 1, c] * w3)
-                    continue
                 in0, in1 = 0 <= sy < h, 0 <= sy + 1 < h
                 inl, inr = 0 <= sx < w, 0 <= sx + 1 < w
-                for c in range(k):
-                    v0 = src[sy, sx, c] if in0 and inl else zero
-                    v1 = src[sy, sx + 1, c] if in0 and inr else zero
-                    v2 = src[sy + 1, sx, c] if in1 and inl else zero
-                    v3 = src[sy + 1, sx + 1, c] if in1 and inr else zero
-                    out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
+                if lab is None:
+                    if in0 and in1 and inl and inr:
+                        for c in range(k):
+                            out[i, j, c] = (src[sy, sx, c] * w0 + src[sy, sx + 1, c] * w1 + src[sy + 1, sx, c] * w2
+                                            + src[sy + 1, sx + 1, c] * w3)
+                        continue
+                    for c in range(k):
+                        v0 = src[sy, sx, c] if in0 and inl else zero
+                        v1 = src[sy, sx + 1, c] if in0 and inr else zero
+                        v2 = src[sy + 1, sx, c] if in1 and inl else zero
+                        v3 = src[sy + 1, sx + 1, c] if in1 and inr else zero
+                        out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
+                else:  # the labels of the four neighbours (256: outside, whose row of the table is 0)
+                    l0 = lab[sy, sx] if in0 and inl else 256
+                    l1 = lab[sy, sx + 1] if in0 and inr else 256
+                    l2 = lab[sy + 1, sx] if in1 and inl else 256
+                    l3 = lab[sy + 1, sx + 1] if in1 and inr else 256
+                    for c in range(k):
+                        v0 = src[l0, 0, c] if l0 < 256 else zero
+                        v1 = src[l1, 0, c] if l1 < 256 else zero
+                        v2 = src[l2, 0, c] if l2 < 256 else zero
+                        v3 = src[l3, 0, c] if l3 < 256 else zero
+                        out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
 
 
 def _negative_logit_py(z, margin, a, b, first, stride):
@@ -311,7 +328,20 @@ def remap_classes(values: np.ndarray, field: np.ndarray) -> np.ndarray:
         out = cv2.remap(src, fld, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return out.reshape(fld.shape[:2] + (k,))
     out = np.empty(fld.shape[:2] + (k,), np.float32)
-    _rows(_remap_classes, fld.shape, src, fld, out)
+    _rows(_remap_classes, fld.shape, src, None, fld, out)
+    return out
+
+
+def remap_labels(labels: np.ndarray, table: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """:func:`remap_classes` of ``table[labels]`` ((H, W) uint8 labels, (256, K) float32 table, K not 1, 3 or
+    4), the same numbers, each neighbour's values read from its label's row of the table."""
+    lab = np.ascontiguousarray(labels, np.uint8)
+    tab = np.ascontiguousarray(table, np.float32)
+    fld = np.ascontiguousarray(field, np.float32)
+    if tab.shape[0] != 256 or tab.shape[1] in (1, 3, 4):
+        raise ValueError("remap_labels takes a (256, K) table, K not 1, 3 or 4")  # a caller's bug
+    out = np.empty(fld.shape[:2] + (tab.shape[1],), np.float32)
+    _rows(_remap_classes, fld.shape, tab.reshape(256, 1, -1), lab, fld, out)
     return out
 
 

@@ -30,13 +30,13 @@ import numpy as np
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
 from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes,
-                             logistic_confidence, penalised, remap_classes, top_two)
+                             logistic_confidence, penalised, remap_classes, remap_labels, top_two)
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
 __all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
            "CLASS_WINDOW", "CLASS_PENALTY", "ClassRead", "windowed", "weight_sum",
            "fused_class_labels", "class_priors", "class_prior_maps", "prior_log_probs", "carried_log_probs",
-           "fused_scores", "fused_and_marked", "smoothed_scores", "read_class_labels", "class_confidence", "predicted_iou",
+           "label_evidence", "fused_scores", "fused_and_marked", "smoothed_scores", "read_class_labels", "class_confidence", "predicted_iou",
            "sure_labels"]
 
 #: The least class prior taken: a class with (almost) no key-frame pixels must not give -inf evidence.
@@ -112,12 +112,31 @@ def prior_log_probs(q: np.ndarray, pi: np.ndarray) -> np.ndarray:
     return (np.log(qq) - np.log(np.asarray(pi, np.float32))).astype(np.float32)
 
 
-def carried_log_probs(log_probs: np.ndarray, field: np.ndarray) -> np.ndarray:
+def carried_log_probs(log_probs: np.ndarray, field: np.ndarray, *, labels=None) -> np.ndarray:
     """(H, W, K) float32: the key frame's prior evidence carried along ``field`` (bilinear), 0 (none
     beyond the class prior) where the field leaves the key frame; each channel as
     :func:`~pcreg.pipeline.trust.carried_log_odds` (OpenCV's ``remap``, to the bit: :func:`~pcreg.pipeline.
-    _class_kernels.remap_classes`)."""
+    _class_kernels.remap_classes`). ``labels``: :func:`label_evidence` of ``log_probs``, when it is one
+    vector per label: the same numbers, read from the labels (a byte a pixel, not 4 K)."""
+    if labels is not None:
+        return remap_labels(labels[0], labels[1], field)
     return remap_classes(log_probs, field)
+
+
+def label_evidence(labels: np.ndarray, log_probs: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(labels, table)`` when ``log_probs`` (H, W, K) is ``table[labels]``, one vector per label value
+    (the evidence of unblurred one-hot labels, :data:`CLASS_PRIOR_SIGMA` 0), checked value for value;
+    ``labels`` (H, W) uint8, ``table`` (256, K) float32. None when it is not, or for 1, 3 or 4 classes (which
+    :func:`carried_log_probs` carries through OpenCV's own ``remap``)."""
+    lab = np.ascontiguousarray(labels, np.uint8)
+    lp = np.asarray(log_probs, np.float32)
+    if lp.ndim != 3 or lab.shape != lp.shape[:2] or lp.shape[2] in (1, 3, 4):
+        return None
+    k = lp.shape[2]
+    values, first = np.unique(lab.ravel(), return_index=True)
+    table = np.zeros((256, k), np.float32)
+    table[values] = lp.reshape(-1, k)[first]
+    return (lab, table) if np.array_equal(table[lab], lp) else None
 
 
 def fused_scores(scores: np.ndarray, weighted: list[tuple[np.ndarray | float | None, np.ndarray | None]]

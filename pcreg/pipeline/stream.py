@@ -343,18 +343,17 @@ class Propagator:
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
         self._key_trusted = self._key_flow = None
+        small = size.labels(lab)
         if self._classes is not None:  # K classes: the prior's evidence per class, what every motion carries
             fusion = replace(self.fusion, sigma=CLASS_PRIOR_SIGMA) if self.fusion == FusionConfig() else self.fusion
-            self._key_prior = prior_log_probs(class_prior_maps(size.labels(lab), self._classes, self._pi,
-                                                               fusion=fusion), self._pi)
+            self._key_prior = prior_log_probs(class_prior_maps(small, self._classes, self._pi, fusion=fusion), self._pi)
         else:
-            self._key_prior = label_prior(size.labels(lab), pi=self._pi, fusion=self.fusion)
+            self._key_prior = label_prior(small, pi=self._pi, fusion=self.fusion)
         if self.trust is not None:
             evidence = self._key_prior if self._classes is not None else prior_log_odds(self._key_prior, pi=self._pi)
             self._key_trusted = TrustedKey(self.trust, self._prior_weight, key.rgb, evidence, size,
-                                           classes=self.class_read)
-            if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # smaller frames have no
-                # second motion (DIS does not take them)
+                                           classes=self.class_read, labels=small)
+            if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # DIS takes no smaller frames
                 self._key_flow = self._flow.prepare(key)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         # every frame registers to the key frame: what the motion needs of it, prepared once

@@ -374,13 +374,20 @@ class TrustedKey:
     size, blurred (:func:`blurred`); it carries both along a motion's field into a new frame
     (:meth:`carried`) and fuses a frame's naive Bayes with what it carried (:meth:`fuse`). ``size``: the
     stream's working size when the key frame is at it (the labels and confidence come back at the frames'
-    size)."""
+    size). With K classes (``classes``, a :class:`~pcreg.pipeline.multiclass.ClassRead`, and ``log_odds``
+    (H, W, K) evidence) the key frame's ``labels`` (H, W) let the evidence be carried by reading the labels
+    when it is one vector per label (:func:`~pcreg.pipeline.multiclass.label_evidence`)."""
 
     def __init__(self, rule: TrustRule, weight: float, image: np.ndarray, log_odds: np.ndarray,
-                 size: WorkingSize | None = None, *, classes=None) -> None:
+                 size: WorkingSize | None = None, *, classes=None, labels: np.ndarray | None = None) -> None:
         self.rule, self.weight, self.size = rule, float(weight), size
         self.blurred, self.log_odds = blurred(image), log_odds
-        self.classes = classes  # K classes: a multiclass.ClassRead, and log_odds (H, W, K) evidence
+        self.classes = classes
+        self._by_label = None
+        if classes is not None and labels is not None:
+            from .multiclass import label_evidence
+
+            self._by_label = label_evidence(labels, log_odds)
 
     def carried(self, frame_blurred: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(prior, residual)`` along ``field``: :func:`carried_log_odds` (with K classes
@@ -388,7 +395,8 @@ class TrustedKey:
         if self.classes is not None:
             from .multiclass import carried_log_probs
 
-            return carried_log_probs(self.log_odds, field), carried_residual(self.blurred, frame_blurred, field)
+            return (carried_log_probs(self.log_odds, field, labels=self._by_label),
+                    carried_residual(self.blurred, frame_blurred, field))
         return carried_log_odds(self.log_odds, field), carried_residual(self.blurred, frame_blurred, field)
 
     def fuse(self, log_odds: np.ndarray, frame_blurred: np.ndarray, field: np.ndarray,

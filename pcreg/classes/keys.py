@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import InputError
 from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
 
-__all__ = ["MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "identity_classes", "with_classes",
+__all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "identity_classes", "with_classes",
            "run_table", "all_unknown"]
 
 #: ``--mapping``'s values.
@@ -196,3 +196,22 @@ def run_table(identity: dict | None) -> ClassTable:
     if named is None:
         return DAVIS if identity.get("mapping") == "davis" else DEFAULT_TABLE
     return parse_table_json(json.dumps(named), "run.json's classes")
+
+
+def check_labels(labels, shape, table=None) -> np.ndarray:
+    """(H, W) uint8 key labels, checked: of ``shape`` (when given), and each value a class of ``table``
+    (a :class:`~pcreg.classes.ClassTable`; None: 0 ground, 1 obstacle, 2 unknown)."""
+    lab = np.asarray(labels)
+    if lab.ndim == 3 and lab.shape[2] in (1, 3, 4):
+        lab = lab[:, :, 0]
+    if lab.ndim != 2:
+        raise InputError(f"labels must be an (H, W) array, got shape {lab.shape}")
+    if shape is not None and lab.shape != tuple(shape):
+        raise InputError(f"labels of shape {lab.shape} for an image of shape {tuple(shape)}")
+    if not (np.issubdtype(lab.dtype, np.integer) or lab.dtype == np.bool_):
+        raise InputError(f"labels must be integers (0 ground, 1 obstacle, 2 unknown), got {lab.dtype}")
+    if table is not None and table.n_known > 2:
+        return table.check_labels(lab, "the key frame's labels")
+    if lab.size and (lab.min() < 0 or lab.max() > 2):
+        raise InputError(f"labels must be 0 (ground), 1 (obstacle) or 2 (unknown); found {int(lab.max())}")
+    return lab.astype(np.uint8)

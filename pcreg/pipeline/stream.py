@@ -98,6 +98,7 @@ from .multiclass import CLASS_ANCHOR, CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, Cla
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
 from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
 from .working import WorkingSize
+from ..classes.keys import check_labels
 from ..errors import InputError
 from ..frame import PreparedFrame
 from ..registration.config import RegisterConfig
@@ -584,22 +585,3 @@ def _learns(classifier) -> bool:
     from ..classification.bayes import NaiveBayesPixelClassifier
 
     return isinstance(classifier, NaiveBayesPixelClassifier) and hasattr(classifier, "counts_")
-
-
-def check_labels(labels, shape, table=None) -> np.ndarray:
-    """(H, W) uint8 key labels, checked: of ``shape`` (when given), and each value a class of ``table``
-    (a :class:`~pcreg.classes.ClassTable`; None: 0 ground, 1 obstacle, 2 unknown)."""
-    lab = np.asarray(labels)
-    if lab.ndim == 3 and lab.shape[2] in (1, 3, 4):
-        lab = lab[:, :, 0]
-    if lab.ndim != 2:
-        raise InputError(f"labels must be an (H, W) array, got shape {lab.shape}")
-    if shape is not None and lab.shape != tuple(shape):
-        raise InputError(f"labels of shape {lab.shape} for an image of shape {tuple(shape)}")
-    if not (np.issubdtype(lab.dtype, np.integer) or lab.dtype == np.bool_):
-        raise InputError(f"labels must be integers (0 ground, 1 obstacle, 2 unknown), got {lab.dtype}")
-    if table is not None and table.n_known > 2:
-        return table.check_labels(lab, "the key frame's labels")
-    if lab.size and (lab.min() < 0 or lab.max() > 2):
-        raise InputError(f"labels must be 0 (ground), 1 (obstacle) or 2 (unknown); found {int(lab.max())}")
-    return lab.astype(np.uint8)

@@ -281,3 +281,37 @@ def test_evidence_of_one_vector_a_label_is_carried_from_the_labels_to_the_bit():
     values[5, 5, 0] += 1.0  # no longer one vector a label
     assert multiclass.label_evidence(labels, values) is None
     assert multiclass.label_evidence(labels, values[:, :, :3]) is None  # three classes: OpenCV's own remap
+
+
+def test_region_means_follow_connected_pieces():
+    """Each pixel gets the mean over its 4-connected piece of one label: two pieces of the same label apart
+    (here touching only at a corner) are two pieces."""
+    from pcreg.pipeline._class_regions import region_means
+
+    labels = np.array([[0, 0, 1, 2],
+                       [1, 1, 0, 2],
+                       [1, 1, 0, 2]], np.uint8)
+    values = np.arange(12, dtype=np.float32).reshape(3, 4)
+    want = np.array([[0.5, 0.5, 2.0, 7.0],
+                     [6.5, 6.5, 8.0, 7.0],
+                     [6.5, 6.5, 8.0, 7.0]], np.float32)
+    assert np.allclose(region_means(labels, values), want)
+
+
+def test_a_label_in_a_piece_read_with_small_margins_is_less_sure():
+    """Two pixels with the same margin, deep in pieces that are pure and agree with the carried prior: the
+    one whose piece was read with small margins elsewhere gets the lower confidence (the region's terms of
+    CLASS_CONFIDENCE_COEFFICIENTS); and the coefficients are seven."""
+    h, w, k = 64, 128, 3
+    best = np.zeros((h, w), np.intp)
+    best[:, 64:] = 1
+    margin = np.full((h, w), 5.0, np.float32)
+    margin[:, 64:] = 0.2
+    margin[24:40, 16:48] = margin[24:40, 80:112] = 3.0  # the same margin at the two pixels compared
+    scores = np.zeros((h, w, k), np.float32)
+    scores[..., 0] = best == 0
+    scores[..., 1] = best == 1
+    conf = multiclass.class_confidence(margin, best, scores, scores, multiclass.CLASS_CONFIDENCE_COEFFICIENTS)
+    assert conf[32, 32] > conf[32, 96] + 0.05
+    with pytest.raises(InputError, match="7 coefficients"):
+        multiclass.class_confidence(margin, best, scores, scores, multiclass.CLASS_CONFIDENCE_COEFFICIENTS[:5])

@@ -15,7 +15,8 @@ a vector of K per pixel, and every rule of the two-class step is kept as it is s
   sign of ``S_1 - S_0`` blurred, as the blur is linear);
 - the confidence reads the same four features, with the margin between the two best classes in place of
   ``|F|`` (at two classes the same number), the purity of each label's neighbourhood, and the share of
-  the neighbourhood where naive Bayes' best class is the carried prior's.
+  the neighbourhood where naive Bayes' best class is the carried prior's; and two more, the mean of
+  log1p(margin) over the pixel's connected piece of its label, alone and times the pixel's own.
 
 Memory and time grow with K: the scores, the carried priors and their blur are (H, W, K) float32 maps,
 4 K bytes a pixel each. docs/results.md ("Many classes") gives the measured figures.
@@ -31,6 +32,7 @@ from ..classification.fusion import FusionConfig
 from ..errors import InputError
 from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes,
                              logistic_confidence, penalised, remap_classes, remap_labels, top_two)
+from ._class_regions import region_means
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
 __all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
@@ -46,16 +48,16 @@ MIN_PROBABILITY = 1e-6
 #: chosen on the eight shared CamVid clips with each clip left out (docs/results.md, "Many classes").
 CLASS_WEIGHT_SHARE = 0.25
 #: The confidence's logistic coefficients with more than two classes (intercept, then log1p of the margin
-#: between the two best classes, purity at 15 px, purity at 33 px, agreement at 33 px): fitted by logistic
+#: between the two best classes, purity at 15 px, purity at 33 px, agreement at 33 px, the mean of log1p of
+#: the margin over the pixel's connected piece of its label, and that mean times log1p of the margin): fitted by logistic
 #: regression on the eight shared CamVid clips labelled in CamVid's eleven classes from three key frames,
 #: and checked with each clip left out (docs/results.md, "Many classes").
-CLASS_CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-2.605, 1.055, -0.649, 2.461, 1.482)
+CLASS_CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-1.235, -0.796, 0.64, 1.278, 1.006, -0.419, 0.712)
 #: The least confidence a label gets with many classes (or 1/K, when more): the logistic model's low end
-#: over-predicts errors; chosen among 0, 0.2, 0.25, 0.3, 0.35 and 0.4 with each clip left out (0.4 in five
-#: folds, 0.35 in three; with the coefficients fitted on all clips 0.35 and 0.4 both give a pooled
-#: calibration error of 0.0123, against 0.0159 with none), the order of the pixels by confidence unchanged
-#: above it.
-CLASS_MIN_CONFIDENCE = 0.35
+#: over-predicts errors; chosen among 0, 0.2, 0.25, 0.3, 0.35 and 0.4 with each clip left out (0.25 in four
+#: folds, 0.35 in three, 0.2 in one; with the coefficients fitted on all clips 0.25 gives the least pooled
+#: calibration error, 0.0050), the order of the pixels by confidence unchanged above it.
+CLASS_MIN_CONFIDENCE = 0.25
 #: The blur (px at 640 wide, :class:`~pcreg.classification.fusion.FusionConfig`'s ``sigma``) of the key frame's
 #: one-hot labels before they become a prior with many classes: none (the two-class prior's 2 px smeared
 #: thin classes into their neighbours); chosen with each clip left out (docs/results.md, "Many classes").
@@ -237,26 +239,28 @@ def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndar
     return ids[best], conf, ids[second]
 
 
-def _purity_and_agreement(best: np.ndarray, k: int, scores: np.ndarray, prior_term: np.ndarray,
-                          agree: np.ndarray | None) -> list[np.ndarray]:
-    """The confidence's three neighbourhood features at half size, as
-    :func:`pcreg.pipeline.trust.confidence_features` reads them for two classes: the share of the
-    neighbourhood with the pixel's own label at the two purity sides, and the share of the agreement side
-    where naive Bayes' best class is the carried prior's."""
+def _neighbourhood_features(best: np.ndarray, k: int, scores: np.ndarray, prior_term: np.ndarray,
+                            agree: np.ndarray | None, log_margin: np.ndarray) -> list[np.ndarray]:
+    """The confidence's neighbourhood features at half size, as :func:`pcreg.pipeline.trust.confidence_features`
+    reads them for two classes: the share of the neighbourhood with the pixel's own label at the two purity
+    sides and the share of the agreement side where naive Bayes' best class is the carried prior's; then the
+    mean of ``log_margin`` (log1p(margin), (H, W)) over the pixel's connected piece of its label
+    (:func:`~pcreg.pipeline._class_regions.region_means`)."""
     import cv2
 
     w = best.shape[1]
     oh = block_shares(best, k)  # the one-hot labels at half size
-    own = top_two(oh)[0][..., None]
+    own = top_two(oh)[0]
     if agree is None:
         agree = best_agreement(scores, prior_term)
     out = []
     for side in PURITY_SIDES:
         kk = odd(side / 2, w)
         m = cv2.blur(oh, (kk, kk), borderType=cv2.BORDER_REFLECT).reshape(oh.shape)
-        out.append(np.take_along_axis(m, own, axis=2)[..., 0].astype(np.float32))
+        out.append(np.take_along_axis(m, own[..., None], axis=2)[..., 0].astype(np.float32))
     kk = odd(AGREEMENT_SIDE / 2, w)
     out.append(cv2.blur(half(agree), (kk, kk), borderType=cv2.BORDER_REFLECT))
+    out.append(region_means(own, half(log_margin)))
     return out
 
 
@@ -264,19 +268,24 @@ def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, p
                      coefficients: tuple[float, ...], *, agree: np.ndarray | None = None) -> np.ndarray:
     """(H, W) float32 in [max(1/K, :data:`CLASS_MIN_CONFIDENCE`), 1]: the probability that each pixel's label
     is right, the logistic model of :func:`pcreg.pipeline.trust.label_confidence` over log1p(margin), the
-    purities and the agreement, with ``coefficients`` (intercept first), never below 1/K (the label is the
-    likeliest of K classes) nor :data:`CLASS_MIN_CONFIDENCE`. ``agree``: :func:`~pcreg.pipeline._class_kernels.
+    purities, the agreement, the mean of log1p(margin) over the pixel's connected piece of its label (``r``:
+    a whole piece read with small margins is a piece the motion or the colours may have got wrong) and ``r``
+    times log1p(margin), with ``coefficients`` (intercept first), never below 1/K (the label is the likeliest
+    of K classes) nor :data:`CLASS_MIN_CONFIDENCE`. ``agree``: :func:`~pcreg.pipeline._class_kernels.
     best_agreement` of ``scores`` and ``prior_term``, when the fusion made it."""
     import cv2
 
-    if len(coefficients) != 5:
-        raise InputError(f"the confidence takes 5 coefficients, got {len(coefficients)}")
+    if len(coefficients) != 7:
+        raise InputError(f"the confidence takes 7 coefficients, got {len(coefficients)}")
     k = scores.shape[2]
     h, w = margin.shape
-    linear = np.zeros((max(1, h // 2), max(1, w // 2)), np.float32)
-    for a, m in zip(coefficients[2:], _purity_and_agreement(best, k, scores, prior_term, agree)):
+    log_margin = np.log1p(np.maximum(np.asarray(margin, np.float32), np.float32(0)))
+    features = _neighbourhood_features(best, k, scores, prior_term, agree, log_margin)
+    linear = np.zeros(features[0].shape, np.float32)
+    for a, m in zip(coefficients[2:6], features):
         linear += np.float32(a) * m
     z = cv2.resize(linear, (w, h), interpolation=cv2.INTER_LINEAR)
+    z += np.float32(coefficients[6]) * cv2.resize(features[3], (w, h), interpolation=cv2.INTER_LINEAR) * log_margin
     conf = logistic_confidence(z, margin, coefficients[1], coefficients[0], max(1.0 / k, CLASS_MIN_CONFIDENCE))
     if not np.all(np.isfinite(conf)):
         raise AssertionError("a confidence came out NaN")

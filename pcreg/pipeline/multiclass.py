@@ -142,16 +142,25 @@ def label_evidence(labels: np.ndarray, log_probs: np.ndarray) -> tuple[np.ndarra
     return (lab, table) if np.array_equal(table[lab], lp) else None
 
 
+def _prior_pairs(d: np.ndarray, weighted: list) -> tuple | None:
+    """The first two ``(weight, evidence)`` pairs of ``weighted`` with both, each weight an (H, W) float32 map
+    (a number broadcast), the second ``(None, None)`` when there is one; None when there is none."""
+    pairs = [(np.broadcast_to(np.asarray(w, np.float32), d.shape[:2]), lp) for w, lp in weighted
+             if w is not None and lp is not None]
+    if not pairs:
+        return None
+    return pairs[0], (pairs[1] if len(pairs) > 1 else (None, None))
+
+
 def fused_scores(scores: np.ndarray, weighted: list[tuple[np.ndarray | float | None, np.ndarray | None]]
                  ) -> tuple[np.ndarray, np.ndarray]:
     """``(fused, prior_term)``, (H, W, K) float32 each: naive Bayes' class scores plus each prior's
     evidence times its weight (a (H, W) map or a number; a pair with a None is left out)."""
     d = np.asarray(scores, np.float32)
-    pairs = [(np.broadcast_to(np.asarray(w, np.float32), d.shape[:2]), lp) for w, lp in weighted
-             if w is not None and lp is not None]
-    if not pairs:
+    pairs = _prior_pairs(d, weighted)
+    if pairs is None:
         return d.copy(), np.zeros(d.shape, np.float32)
-    (w1, l1), (w2, l2) = pairs[0], (pairs[1] if len(pairs) > 1 else (None, None))
+    (w1, l1), (w2, l2) = pairs
     return fuse_classes(d, w1, l1, w2, l2)
 
 
@@ -162,12 +171,11 @@ def fused_and_marked(scores: np.ndarray, weighted: list, weight_sum: np.ndarray,
     :func:`windowed` dilates (``weight_sum``, ``log_pi`` as it takes them) and the agreement (H, W) float32
     of naive Bayes' best class with the priors' that :func:`class_confidence` averages."""
     d = np.asarray(scores, np.float32)
-    pairs = [(np.broadcast_to(np.asarray(w, np.float32), d.shape[:2]), lp) for w, lp in weighted
-             if w is not None and lp is not None]
-    if not pairs:
+    pairs = _prior_pairs(d, weighted)
+    if pairs is None:
         fused, prior = fused_scores(d, weighted)
         return fused, prior, (carried_shown(prior, weight_sum, log_pi), best_agreement(d, prior))
-    (w1, l1), (w2, l2) = pairs[0], (pairs[1] if len(pairs) > 1 else (None, None))
+    (w1, l1), (w2, l2) = pairs
     fused, prior, shown, agree = fuse_and_mark(d, w1, l1, w2, l2, weight_sum, log_pi)
     return fused, prior, (shown, agree)
 

@@ -164,3 +164,22 @@ def test_a_flow_run_stopped_between_a_frames_files_and_its_count_resumes_exactly
     assert json.loads((tmp_path / "cut" / "run.json").read_text())["done"] == 3
     assert main([*base, "--out", str(tmp_path / "cut")]) == 0  # frame 3 again, with what frame 2 had learned
     assert_same_run(tmp_path / "whole", tmp_path / "cut", 7)
+
+
+def test_medium_without_refinement_is_dis_medium_with_no_variational_step_and_is_a_preset_everywhere(frames):
+    from pcreg.pipeline.trust import CLASS_TRUST, TrustRule
+    from pcreg.registration.flow import PRESETS, UNREFINED, dis_flow
+
+    g0, g1 = (cv2.cvtColor(f.image, cv2.COLOR_RGB2GRAY) for f in frames[:2])
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    dis.setVariationalRefinementIterations(0)
+    unrefined = dis_flow(g1, g0, "medium-norefine")
+    np.testing.assert_array_equal(unrefined, dis.calc(g1, g0, None))
+    assert not np.array_equal(unrefined, dis_flow(g1, g0, "medium"))  # the refinement moves the flow
+    assert "medium-norefine" in PRESETS and UNREFINED <= set(PRESETS)
+    assert CLASS_TRUST.preset == "medium-norefine" and TrustRule(preset="medium-norefine").preset == "medium-norefine"
+    clf = pcreg.fit_classifier([frames[0]])
+    prop = pcreg.Propagator(clf, model="flow:medium-norefine")
+    prop.reset(frames[0].image, frames[0].labels)
+    labels = prop.step(frames[1].image)
+    assert prop.last.registration.preset == "medium-norefine" and labels.shape == frames[1].labels.shape

@@ -29,6 +29,7 @@ from pathlib import Path
 from ._common import add_record_arguments, arg_int
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..registration.flow import PRESETS
     from ..registration.transforms import MODELS
 
     p.add_argument("folder", metavar="FRAMES",
@@ -52,7 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", choices=("dense", "flow") + MODELS, default="dense",
                    help="dense (default: a dense field), flow (DIS optical flow at --preset: the fast choice) or a "
                         "global motion model")
-    p.add_argument("--preset", choices=("ultrafast", "fast", "medium"), default=None,
+    p.add_argument("--preset", choices=tuple(PRESETS), default=None,
                    help="with --model flow: DIS's preset (default medium). --model flow --scale 0.5 labels about 3x "
                         "faster than the default, a little less accurate")
     p.add_argument("--init", choices=("identity", "auto"), default="identity",

@@ -12,7 +12,7 @@ import numpy as np
 from .._jit import njit
 
 __all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_shown",
-           "penalised", "remap_classes", "remap_labels", "logistic_confidence", "BLOCK_ROWS"]
+           "penalised", "remap_classes", "remap_labels", "logistic_confidence", "iou_sums", "BLOCK_ROWS"]
 
 #: Rows per block of the passes (two threads take alternate blocks).
 BLOCK_ROWS = 16
@@ -195,16 +195,14 @@ def _remap_classes_py(src, lab, fld, out, first, stride):
                         out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
 
 
-def _negative_logit_py(z, margin, a, b, first, stride):
-    """In place, ``z = -clip(z + (a log1p(max(margin, 0)) + b), -60, 60)`` (float32; the C library's ``log1pf``,
-    as numpy's; a NaN stays NaN, as in numpy)."""
+def _negative_logit_py(z, log_margin, a, b, first, stride):
+    """In place, ``z = -clip(z + (a log_margin + b), -60, 60)`` (float32; a NaN stays NaN, as in numpy)."""
     h, w = z.shape
-    zero, lo, hi = np.float32(0.0), np.float32(-60.0), np.float32(60.0)
+    lo, hi = np.float32(-60.0), np.float32(60.0)
     for r in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
         for i in range(r, min(r + BLOCK_ROWS, h)):
             for j in range(w):
-                m = margin[i, j]
-                t = a * np.float32(np.log1p(zero if m < zero else m)) + b
+                t = a * log_margin[i, j] + b
                 v = z[i, j] + t
                 v = lo if v < lo else (hi if v > hi else v)
                 z[i, j] = -v
@@ -221,7 +219,20 @@ def _logistic_py(e, least, first, stride):
                 e[i, j] = least if c < least else c
 
 
+def _iou_sums_py(labels, confidence, second, tp, fp, fn):
+    """Per class id, in float64 and pixel order (as ``np.bincount`` with weights sums): the confidence over
+    the pixels labelled with it (``tp``), one minus it there (``fp``) and over the pixels whose runner-up it
+    is (``fn``)."""
+    one = 1.0
+    for i in range(labels.size):
+        c = np.float64(confidence[i])
+        tp[labels[i]] += c
+        fp[labels[i]] += one - c
+        fn[second[i]] += one - c
+
+
 _top_two = njit(cache=True, nogil=True)(_top_two_py)
+_iou_sums = njit(cache=True, nogil=True)(_iou_sums_py)
 _negative_logit = njit(cache=True, nogil=True)(_negative_logit_py)
 _logistic = njit(cache=True, nogil=True)(_logistic_py)
 _block_shares = njit(cache=True, nogil=True)(_block_shares_py)
@@ -345,11 +356,26 @@ def remap_labels(labels: np.ndarray, table: np.ndarray, field: np.ndarray) -> np
     return out
 
 
-def logistic_confidence(z: np.ndarray, margin: np.ndarray, a: float, b: float, least: float) -> np.ndarray:
-    """(H, W) float32, in ``z`` itself: ``max(1 / (1 + exp(-clip(z + (a log1p(max(margin, 0)) + b), -60, 60))),
-    least)``, numpy's float32 operations in the same order (its ``exp`` between two compiled passes shared
-    with the helper thread, in place of ten passes of numpy over the map)."""
-    m = np.ascontiguousarray(margin, np.float32)
+def iou_sums(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(tp, fp, fn)``, (256,) float64 each, by class id: the sums of ``confidence`` over each label's pixels,
+    of one minus it there, and of one minus it over the pixels whose runner-up (``second``) is the class; the
+    numbers ``np.bincount`` with weights gives, in one pass without its float64 copies."""
+    lab = np.ascontiguousarray(labels, np.uint8).ravel()
+    sec = np.ascontiguousarray(second, np.uint8).ravel()
+    conf = np.ascontiguousarray(confidence, np.float32).ravel()
+    if not lab.size == sec.size == conf.size:
+        raise ValueError("iou_sums takes maps of one size")  # a caller's bug
+    tp, fp, fn = np.zeros(256), np.zeros(256), np.zeros(256)
+    _iou_sums(lab, conf, sec, tp, fp, fn)
+    return tp, fp, fn
+
+
+def logistic_confidence(z: np.ndarray, log_margin: np.ndarray, a: float, b: float, least: float) -> np.ndarray:
+    """(H, W) float32, in ``z`` itself: ``max(1 / (1 + exp(-clip(z + (a log_margin + b), -60, 60))), least)``
+    (``log_margin``: log1p of the margin between the two best classes, at least 0, as the caller made it for
+    its own features), numpy's float32 operations in the same order (its ``exp`` between two compiled passes
+    shared with the helper thread, in place of ten passes of numpy over the map)."""
+    m = np.ascontiguousarray(log_margin, np.float32)
     if z.dtype != np.float32 or not z.flags.c_contiguous or z.shape != m.shape:
         raise ValueError("logistic_confidence works in place on a C-contiguous float32 map of the margin's shape")
     _rows(_negative_logit, z.shape, z, m, np.float32(a), np.float32(b))

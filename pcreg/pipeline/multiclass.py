@@ -31,7 +31,7 @@ import numpy as np
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
 from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes,
-                             logistic_confidence, penalised, remap_classes, remap_labels, top_two)
+                             iou_sums, logistic_confidence, penalised, remap_classes, remap_labels, top_two)
 from ._class_regions import region_means
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
 
@@ -52,12 +52,12 @@ CLASS_WEIGHT_SHARE = 0.25
 #: the margin over the pixel's connected piece of its label, and that mean times log1p of the margin): fitted by logistic
 #: regression on the eight shared CamVid clips labelled in CamVid's eleven classes from three key frames,
 #: and checked with each clip left out (docs/results.md, "Many classes").
-CLASS_CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-1.235, -0.796, 0.64, 1.278, 1.006, -0.419, 0.712)
+CLASS_CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-1.392, -0.705, 0.694, 1.418, 0.929, -0.371, 0.694)
 #: The least confidence a label gets with many classes (or 1/K, when more): the logistic model's low end
-#: over-predicts errors; chosen among 0, 0.2, 0.25, 0.3, 0.35 and 0.4 with each clip left out (0.25 in four
-#: folds, 0.35 in three, 0.2 in one; with the coefficients fitted on all clips 0.25 gives the least pooled
-#: calibration error, 0.0050), the order of the pixels by confidence unchanged above it.
-CLASS_MIN_CONFIDENCE = 0.25
+#: over-predicts errors; chosen among 0, 0.2, 0.25, 0.3, 0.35 and 0.4 with each clip left out (0.2 in three
+#: folds, 0 in three, 0.25 in two; with the coefficients fitted on all clips 0 and 0.2 give the least pooled
+#: calibration error, 0.0059, and the higher is taken), the order of the pixels by confidence unchanged above it.
+CLASS_MIN_CONFIDENCE = 0.2
 #: The blur (px at 640 wide, :class:`~pcreg.classification.fusion.FusionConfig`'s ``sigma``) of the key frame's
 #: one-hot labels before they become a prior with many classes: none (the two-class prior's 2 px smeared
 #: thin classes into their neighbours); chosen with each clip left out (docs/results.md, "Many classes").
@@ -294,7 +294,7 @@ def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, p
         linear += np.float32(a) * m
     z = cv2.resize(linear, (w, h), interpolation=cv2.INTER_LINEAR)
     z += np.float32(coefficients[6]) * cv2.resize(features[3], (w, h), interpolation=cv2.INTER_LINEAR) * log_margin
-    conf = logistic_confidence(z, margin, coefficients[1], coefficients[0], max(1.0 / k, CLASS_MIN_CONFIDENCE))
+    conf = logistic_confidence(z, log_margin, coefficients[1], coefficients[0], max(1.0 / k, CLASS_MIN_CONFIDENCE))
     if not np.all(np.isfinite(conf)):
         raise AssertionError("a confidence came out NaN")
     return conf
@@ -306,13 +306,7 @@ def predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray
     the sum of ``1 - c``; a wrong label's truth is taken to be its runner-up (``second``), so k's expected
     misses are the sum of ``1 - c`` over the pixels whose runner-up is k. Classes with no pixel and no
     miss are left out."""
-    lab = np.asarray(labels).ravel()
-    c = np.asarray(confidence, np.float64).ravel()
-    sec = np.asarray(second).ravel()
-    n = 256
-    tp = np.bincount(lab, weights=c, minlength=n)
-    fp = np.bincount(lab, weights=1.0 - c, minlength=n)
-    fn = np.bincount(sec, weights=1.0 - c, minlength=n)
+    tp, fp, fn = iou_sums(labels, confidence, second)
     out = {}
     for k in classes:
         denom = tp[k] + fp[k] + fn[k]

@@ -17,10 +17,15 @@ import numpy as np
 from ..errors import InputError
 from .clouds import as_rgb_uint8
 
-__all__ = ["PRESETS", "DIS_MIN_SIDE", "FlowResult", "dis_field", "dis_flow", "pixel_grid", "flow_field"]
+__all__ = ["PRESETS", "UNREFINED", "DIS_MIN_SIDE", "FlowResult", "dis_field", "dis_flow", "pixel_grid", "flow_field"]
 
 PRESETS = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
-           "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+           "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM, "medium-norefine": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+#: Presets run without OpenCV's variational refinement (0 iterations; its patch search and densification
+#: as the preset has them): ``medium-norefine`` takes about half of ``medium``'s time at 640x480, and
+#: carried CamVid's eleven classes better as the many-class stream's second motion (docs/results.md,
+#: "Many classes").
+UNREFINED = frozenset({"medium-norefine"})
 #: The shortest side DIS takes, px. Below it OpenCV 5.0's DIS raises or crashes the process (a
 #: segmentation fault measured at 8-12 x 48-64 px): its coarsest pyramid level, set by the shorter side
 #: and the patch (8 px; 12 for medium), falls below its finest (2; 1 for medium), 32 px for every preset.
@@ -34,7 +39,10 @@ def dis_flow(moving_grey: np.ndarray, reference_grey: np.ndarray, preset: str) -
     h, w = moving_grey.shape[:2]
     if min(h, w) < DIS_MIN_SIDE:
         raise InputError(f"{w}x{h} px is too small for DIS optical flow (at least {DIS_MIN_SIDE} px a side)")
-    return cv2.DISOpticalFlow_create(PRESETS[preset]).calc(moving_grey, reference_grey, None)
+    dis = cv2.DISOpticalFlow_create(PRESETS[preset])
+    if preset in UNREFINED:
+        dis.setVariationalRefinementIterations(0)
+    return dis.calc(moving_grey, reference_grey, None)
 
 
 def pixel_grid(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:

@@ -170,3 +170,15 @@ def test_many_classes_read_smoothed_histograms():
                                - 0.5 * (100 - two.theta_[0, 0]) ** 2 / two.var_[0, 0])
     with pytest.raises(InputError, match="density"):
         NaiveBayesPixelClassifier("rgb", density="kde")
+
+
+def test_an_unfitted_copy_keeps_every_option_and_fits_as_the_original():
+    image, labels = _eleven()
+    clf = NaiveBayesPixelClassifier("rgb+hsv", weights=None, var_smoothing=1e-6, classes=CAMVID11,
+                                    density="gaussian").fit(image, labels)
+    copy = clf.unfitted()
+    assert not hasattr(copy, "classes_") and copy is not clf
+    for name in ("features", "weights", "exclude_unknown", "var_smoothing", "priors", "class_table", "density"):
+        assert getattr(copy, name) == getattr(clf, name), name
+    copy.fit_histograms(clf.counts_)
+    np.testing.assert_array_equal(copy.class_scores(image), clf.class_scores(image))

@@ -315,3 +315,42 @@ def test_a_label_in_a_piece_read_with_small_margins_is_less_sure():
     assert conf[32, 32] > conf[32, 96] + 0.05
     with pytest.raises(InputError, match="7 coefficients"):
         multiclass.class_confidence(margin, best, scores, scores, multiclass.CLASS_CONFIDENCE_COEFFICIENTS[:5])
+
+
+@pytest.mark.parametrize("kill_at, phase", [(6, "between"), (9, "backward"), (13, "forward")])
+def test_an_interrupted_eleven_class_run_from_a_key_folder_resumes_to_the_same_bytes(shared_data, tmp_path, monkeypatch,
+                                                                                   kill_at, phase):
+    """Key frames 1 and 4 of seven CamVid frames, the stream chained frame to frame: killed at a commit of the
+    stretch between the key frames (its forward pass kept, its backward pass) or of the one after, then run
+    again: every label and confidence PNG, run.json and the steps are those of the uninterrupted run."""
+    from _runs import timeless
+
+    from pcreg.cli import main
+    from pcreg.runs.run import Run
+
+    names = _camvid_folder(shared_data, tmp_path, n=7, keys=(1, 4))
+    base = ["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "keys"), "--classes", "camvid11",
+            "--scale", "0.5", "--confidence"]
+    assert main([*base, "--out", str(tmp_path / "whole")]) == 0
+    real, count = Run.commit, [0]
+
+    def crash(self):
+        count[0] += 1
+        if count[0] == kill_at:
+            assert self.state["cursor"]["phase"] == phase
+            raise KeyboardInterrupt
+        real(self)
+
+    monkeypatch.setattr(Run, "commit", crash)
+    assert main([*base, "--out", str(tmp_path / "cut")]) == 130
+    monkeypatch.undo()
+    assert main([*base, "--out", str(tmp_path / "cut")]) == 0
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    written = sorted(p.relative_to(whole).as_posix() for p in whole.rglob("*.png"))
+    assert len(written) == 2 * 7 - 2  # every frame's labels, and the confidence of the five that are not key frames
+    for name in written:
+        assert (whole / name).read_bytes() == (cut / name).read_bytes(), name
+    assert (whole / "run.json").read_bytes() == (cut / "run.json").read_bytes()
+    assert ([timeless(x) for x in (whole / "steps.jsonl").read_text().splitlines()]
+            == [timeless(x) for x in (cut / "steps.jsonl").read_text().splitlines()])
+    assert names[1] in {p.name for p in whole.glob("*.png")}

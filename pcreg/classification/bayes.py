@@ -262,6 +262,13 @@ class NaiveBayesPixelClassifier:
         return (f"NaiveBayesPixelClassifier(features={'+'.join(self.features)}{w}, "
                 f"exclude_unknown={self.exclude_unknown}{density}{fitted})")
 
+    def unfitted(self) -> "NaiveBayesPixelClassifier":
+        """A new classifier with this one's options (features, weights, unknown, smoothing, priors, class table,
+        density), not fitted: what learning refits from its histograms."""
+        return type(self)(self.features, weights=self.weights, exclude_unknown=self.exclude_unknown,
+                          var_smoothing=self.var_smoothing, priors=self.priors, classes=self.class_table,
+                          density=self.density)
+
     # -- fitting -------------------------------------------------------------------------------
     def fit(self, images, labels) -> "NaiveBayesPixelClassifier":
         """Fit on one (H, W, 3) uint8 image and (H, W) uint8 labels, or on sequences of them.

@@ -142,8 +142,4 @@ class Learner:
         if n == 0 or self.rule.share == 0:
             return self.key_classifier
         scale = min(1.0, self.rule.share * self._key_pixels / n)
-        base = self.key_classifier
-        clf = type(base)(base.features, weights=base.weights, exclude_unknown=base.exclude_unknown,
-                         var_smoothing=base.var_smoothing, priors=base.priors, classes=base.class_table,
-                         density=base.density)
-        return clf.fit_histograms(np.rint(self._key + scale * self._stream).astype(np.int64))
+        return self.key_classifier.unfitted().fit_histograms(np.rint(self._key + scale * self._stream).astype(np.int64))

@@ -1,5 +1,6 @@
 """What the tests of `pcreg run` share: its one-line errors, its steps without their clocks, a run killed
-after a frame's files were written but before run.json counted it, and a folder of frames to run on."""
+after a frame's files were written but before run.json counted it, a run killed at its n-th commit, and a
+folder of frames to run on."""
 
 from __future__ import annotations
 
@@ -21,6 +22,23 @@ def timeless(line: str) -> dict:
 
 def _kill(*args, **kwargs):
     raise KeyboardInterrupt
+
+
+def kill_at_commit(monkeypatch, n: int, phase: str) -> None:
+    """Make a run stop (as at Ctrl-C) at its ``n``-th commit, which must be one of its ``phase``
+    (``run.json``'s cursor: ``"between"``, ``"backward"``, ...); ``monkeypatch.undo()`` lets the next run go on."""
+    from pcreg.runs.run import Run
+
+    real, count = Run.commit, [0]
+
+    def crash(self):
+        count[0] += 1
+        if count[0] == n:
+            assert self.state["cursor"]["phase"] == phase
+            raise KeyboardInterrupt
+        real(self)
+
+    monkeypatch.setattr(Run, "commit", crash)
 
 
 def kill_before_commit(monkeypatch, frame: int) -> None:

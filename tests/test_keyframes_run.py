@@ -12,7 +12,7 @@ import pytest
 import pcreg
 from pcreg.cli import main
 from pcreg.classification.metrics import error_rate
-from _runs import one_line_errors, timeless
+from _runs import kill_at_commit, one_line_errors, timeless
 from pcreg.export import read_labels
 
 
@@ -94,22 +94,11 @@ def test_one_key_frame_at_the_first_frame_labels_as_a_single_label_image(tmp_pat
 def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypatch, capsys, kill_at, phase):
     """A video with key frames 1 and 4, killed at a commit of the stretch between them (its frames being
     kept, its forward pass, its backward pass) or of the one after, then run again."""
-    from pcreg.runs.run import Run
-
     video = _video(tmp_path, frames)
     keys = _keys(tmp_path / "keys", frames, [1, 4], name="{:06d}")
     args = ["run", str(video), "--labels", str(keys), "--confidence"]
     assert main(args + ["--out", str(tmp_path / "whole")]) == 0
-    real, count = Run.commit, [0]
-
-    def crash(self):
-        count[0] += 1
-        if count[0] == kill_at:
-            assert self.state["cursor"]["phase"] == phase
-            raise KeyboardInterrupt
-        real(self)
-
-    monkeypatch.setattr(Run, "commit", crash)
+    kill_at_commit(monkeypatch, kill_at, phase)
     assert main(args + ["--out", str(tmp_path / "cut")]) == 130
     monkeypatch.undo()
     assert any((tmp_path / "cut" / ".keys").iterdir())  # what the stretch's passes hand on, in the hidden folder

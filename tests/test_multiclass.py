@@ -323,25 +323,15 @@ def test_an_interrupted_eleven_class_run_from_a_key_folder_resumes_to_the_same_b
     """Key frames 1 and 4 of seven CamVid frames, the stream chained frame to frame: killed at a commit of the
     stretch between the key frames (its forward pass kept, its backward pass) or of the one after, then run
     again: every label and confidence PNG, run.json and the steps are those of the uninterrupted run."""
-    from _runs import timeless
+    from _runs import kill_at_commit, timeless
 
     from pcreg.cli import main
-    from pcreg.runs.run import Run
 
     names = _camvid_folder(shared_data, tmp_path, n=7, keys=(1, 4))
     base = ["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "keys"), "--classes", "camvid11",
             "--scale", "0.5", "--confidence"]
     assert main([*base, "--out", str(tmp_path / "whole")]) == 0
-    real, count = Run.commit, [0]
-
-    def crash(self):
-        count[0] += 1
-        if count[0] == kill_at:
-            assert self.state["cursor"]["phase"] == phase
-            raise KeyboardInterrupt
-        real(self)
-
-    monkeypatch.setattr(Run, "commit", crash)
+    kill_at_commit(monkeypatch, kill_at, phase)
     assert main([*base, "--out", str(tmp_path / "cut")]) == 130
     monkeypatch.undo()
     assert main([*base, "--out", str(tmp_path / "cut")]) == 0

@@ -50,14 +50,15 @@ CLASS_WEIGHT_SHARE = 0.25
 #: The confidence's logistic coefficients with more than two classes (intercept, then log1p of the margin
 #: between the two best classes, purity at 15 px, purity at 33 px, agreement at 33 px, the mean of log1p of
 #: the margin over the pixel's connected piece of its label, and that mean times log1p of the margin): fitted by logistic
-#: regression on the eight shared CamVid clips labelled in CamVid's eleven classes from three key frames,
+#: regression on the eight shared CamVid clips labelled in CamVid's eleven classes, from three key frames and
+#: from the first frame alone together (a confidence calibrated whether a run has one key frame or several),
 #: and checked with each clip left out (docs/results.md, "Many classes").
-CLASS_CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-1.392, -0.705, 0.694, 1.418, 0.929, -0.371, 0.694)
+CLASS_CONFIDENCE_COEFFICIENTS: tuple[float, ...] = (-1.38, -1.131, 0.954, 0.996, 0.752, -0.253, 0.834)
 #: The least confidence a label gets with many classes (or 1/K, when more): the logistic model's low end
-#: over-predicts errors; chosen among 0, 0.2, 0.25, 0.3, 0.35 and 0.4 with each clip left out (0.2 in three
-#: folds, 0 in three, 0.25 in two; with the coefficients fitted on all clips 0 and 0.2 give the least pooled
-#: calibration error, 0.0059, and the higher is taken), the order of the pixels by confidence unchanged above it.
-CLASS_MIN_CONFIDENCE = 0.2
+#: over-predicts errors; chosen among 0, 0.2, 0.25, 0.3, 0.35 and 0.4 with each clip left out (0.25 in seven
+#: folds, 0.35 in one; with the coefficients fitted on all clips 0.25 gives the least calibration error over
+#: both protocols' pixels, 0.0094), the order of the pixels by confidence unchanged above it.
+CLASS_MIN_CONFIDENCE = 0.25
 #: The blur (px at 640 wide, :class:`~pcreg.classification.fusion.FusionConfig`'s ``sigma``) of the key frame's
 #: one-hot labels before they become a prior with many classes: none (the two-class prior's 2 px smeared
 #: thin classes into their neighbours); chosen with each clip left out (docs/results.md, "Many classes").

@@ -366,7 +366,7 @@ class Trusted:
         if self.second is not None:
             from .multiclass import predicted_iou
 
-            present = np.flatnonzero(np.bincount(self.labels.ravel(), minlength=256))  # np.unique's classes, unsorted work
+            present = np.flatnonzero(np.bincount(self.labels.ravel(), minlength=256))  # the classes the labels hold (np.unique sorts)
             summary["predicted_iou"] = predicted_iou(self.labels, self.confidence, self.second, present)
         return {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence),
                 "trust": self.maps, "trust_summary": summary}

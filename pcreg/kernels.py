@@ -59,10 +59,10 @@ def _warm_classes(shape: tuple[int, int]) -> None:
     for w2, l2 in ((w, scores), (None, None)):
         k.fuse_classes(scores, w, scores, w2, l2)
         k.fuse_and_mark(scores, w, scores, w2, l2, w, np.zeros(3, np.float32))
-    k.carried_shown(scores, w, np.zeros(3, np.float32))
+    k.class_window(k.carried_best(scores, w, np.zeros(3, np.float32)), 3, 3)
     k.remap_classes(np.zeros(shape + (5,), np.float32), np.zeros(shape + (2,), np.float32))
     k.remap_labels(np.zeros(shape, np.uint8), np.zeros((256, 5), np.float32), np.zeros(shape + (2,), np.float32))
-    k.penalised(scores, np.ones(shape + (3,), np.uint8), w, 1e-3, 15.0)
+    k.penalised(scores, np.ones(shape + (1,), np.uint64), w, 1e-3, 15.0)
     k.logistic_confidence(np.zeros(shape, np.float32), w, 1.0, 0.0, 0.5)
     k.iou_sums(np.zeros(shape, np.uint8), w, np.zeros(shape, np.uint8))
     region_means(np.zeros(shape, np.intp), w)

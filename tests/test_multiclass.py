@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -244,7 +245,7 @@ def test_the_carried_evidence_is_opencvs_remap_to_the_bit(k):
 
 @pytest.mark.parametrize("second", [True, False])
 def test_the_fusion_marks_what_the_window_and_the_confidence_read_as_they_would(second):
-    from pcreg.pipeline._class_kernels import best_agreement, carried_shown
+    from pcreg.pipeline._class_kernels import best_agreement, carried_best
 
     rng = np.random.default_rng(1)
     h, w, k = 240, 320, 6
@@ -254,13 +255,55 @@ def test_the_fusion_marks_what_the_window_and_the_confidence_read_as_they_would(
     pairs = [(w1, l1), (w2, l2) if second else (None, None)]
     total = w1 + w2 if second else w1
     log_pi = np.log(rng.dirichlet(np.ones(k))).astype(np.float32)
-    fused, prior, (shown, agree) = multiclass.fused_and_marked(d, pairs, total, log_pi)
+    fused, prior, (carried, agree) = multiclass.fused_and_marked(d, pairs, total, log_pi)
     f0, p0 = multiclass.fused_scores(d, pairs)
     assert np.array_equal(fused, f0) and np.array_equal(prior, p0)
-    assert np.array_equal(shown, carried_shown(p0, total, log_pi))
+    assert np.array_equal(carried, carried_best(p0, total, log_pi))
+    assert np.array_equal(carried, np.argmax(p0 / np.maximum(total, np.float32(1e-6))[..., None] + log_pi, axis=2))
     assert np.array_equal(agree, best_agreement(d, p0))
-    assert np.array_equal(multiclass.windowed(f0, p0, total, log_pi, shown=shown),
+    assert np.array_equal(multiclass.windowed(f0, p0, total, log_pi, carried=carried),
                           multiclass.windowed(f0, p0, total, log_pi))
+
+
+@pytest.mark.parametrize("h, w, k, side", [(480, 640, 11, 129), (7, 5, 3, 3), (1, 1, 2, 1), (50, 33, 70, 9),
+                                        (40, 60, 130, 97), (64, 80, 256, 11), (30, 20, 5, 201)])
+def test_the_class_window_holds_the_classes_a_dilation_of_each_class_would(h, w, k, side):
+    from pcreg.pipeline._class_kernels import class_window
+
+    rng = np.random.default_rng(h * w + k)
+    carried = cv2.resize(rng.integers(0, k, (max(1, h // 8), max(1, w // 8))).astype(np.uint8), (w, h),
+                         interpolation=cv2.INTER_NEAREST)
+    bits = class_window(carried, k, side)
+    assert bits.shape == (h, w, (k + 63) // 64) and bits.dtype == np.uint64
+    one_hot = (carried[..., None] == np.arange(k)).astype(np.uint8)
+    kernel = np.ones((side, side), np.uint8)  # OpenCV dilates at most 128 channels at once: 64 at a time
+    expected = np.concatenate([cv2.dilate(np.ascontiguousarray(one_hot[..., i:i + 64]), kernel).reshape(h, w, -1)
+                               for i in range(0, k, 64)], axis=2)
+    found = np.stack([(bits[..., c // 64] >> np.uint64(c % 64)) & np.uint64(1) for c in range(k)], axis=2)
+    assert np.array_equal(found, expected)
+
+
+def test_a_class_outside_the_window_is_lowered_where_the_priors_are_trusted():
+    rng = np.random.default_rng(5)
+    h, w, k = 120, 160, 4
+    fused = rng.normal(0.0, 2.0, (h, w, k)).astype(np.float32)
+    prior = np.zeros((h, w, k), np.float32)
+    prior[..., 0] = 5.0
+    prior[:, 150:, 0], prior[:, 150:, 2] = 0.0, 5.0  # class 2 carried at the right edge only
+    weight = np.ones((h, w), np.float32)
+    weight[:10] = 0.0  # untrusted rows: every class allowed
+    out = multiclass.windowed(fused, prior, weight, np.zeros(k, np.float32))
+    from pcreg.pipeline.readout import odd
+
+    side = odd(multiclass.CLASS_WINDOW, w)
+    near = np.zeros(w, bool)
+    near[max(0, 150 - side // 2):] = True
+    lowered = fused - np.float32(multiclass.CLASS_PENALTY)
+    assert np.array_equal(out[:10], fused[:10])
+    assert np.array_equal(out[10:, :, 0], fused[10:, :, 0])  # shown everywhere
+    assert np.array_equal(out[10:, :, 1], lowered[10:, :, 1]) and np.array_equal(out[10:, :, 3], lowered[10:, :, 3])
+    assert np.array_equal(out[10:, near, 2], fused[10:, near, 2])
+    assert np.array_equal(out[10:, ~near, 2], lowered[10:, ~near, 2])
 
 
 def test_evidence_of_one_vector_a_label_is_carried_from_the_labels_to_the_bit():

@@ -11,7 +11,7 @@ import numpy as np
 
 from .._jit import njit
 
-__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_shown",
+__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_best", "class_window",
            "penalised", "remap_classes", "remap_labels", "logistic_confidence", "iou_sums", "BLOCK_ROWS"]
 
 #: Rows per block of the passes (two threads take alternate blocks).
@@ -44,7 +44,7 @@ def _top_two_py(S, best, second, margin, first, stride):
                 margin[i, j] = vb - vs
 
 
-def _carried_shown_py(prior, weight, log_pi, least, shown, first, stride):
+def _carried_best_py(prior, weight, log_pi, least, carried, first, stride):
     h, w, k = prior.shape
     for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
         for i in range(b, min(b + BLOCK_ROWS, h)):
@@ -56,19 +56,86 @@ def _carried_shown_py(prior, weight, log_pi, least, shown, first, stride):
                     v = prior[i, j, c] * inv + log_pi[c]
                     if v > vb:
                         bb, vb = c, v
-                for c in range(k):  # the best class's one-hot, one byte a class
-                    shown[i, j, c] = 1 if c == bb else 0
+                carried[i, j] = bb
+
+
+def _window_rows_py(carried, r, bits, first, stride):
+    """Each row's classes within ``r`` px of each pixel along the row: ``bits`` (H, W, words) uint64, bit
+    ``c % 64`` of word ``c // 64`` set when class index ``c`` of ``carried`` (H, W) is in the row's window
+    (van Herk's running OR over blocks of ``2 r + 1``, the row padded with no class), a word at a time."""
+    h, w = carried.shape
+    words = bits.shape[2]
+    s = 2 * r + 1
+    n = w + 2 * r
+    one, zero = np.uint64(1), np.uint64(0)
+    pre = np.zeros(n, np.uint64)
+    suf = np.zeros(n, np.uint64)
+    for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(b, min(b + BLOCK_ROWS, h)):
+            for q in range(words):
+                at = 0  # x % s
+                for x in range(n):  # the padded row's class bit, ORed from each block's start
+                    j = x - r
+                    v = zero
+                    if 0 <= j < w:
+                        c = carried[i, j]
+                        if c >> 6 == q:
+                            v = one << np.uint64(c & 63)
+                    suf[x] = v
+                    pre[x] = v if at == 0 else pre[x - 1] | v
+                    at = 0 if at == s - 1 else at + 1
+                for start in range(0, n, s):  # ORed from each block's end
+                    for x in range(min(start + s, n) - 2, start - 1, -1):
+                        suf[x] |= suf[x + 1]
+                for j in range(w):  # the window [j - r, j + r] is [j, j + s - 1] padded
+                    bits[i, j, q] = suf[j] | pre[j + s - 1]
+
+
+def _window_cols_py(rows, r, bits, pre, suf, first, stride):
+    """:func:`_window_rows_py` down the columns of its output ``rows`` (H, W x words, flattened): ``bits``
+    the classes within the square of side ``2 r + 1`` around each pixel. ``pre``, ``suf``: (H + 2 r,
+    W x words) scratch. The columns are shared in ``stride`` contiguous parts (``first`` this call's)."""
+    h, m = rows.shape
+    s = 2 * r + 1
+    n = h + 2 * r
+    part = (m + stride - 1) // stride
+    b, e = first * part, min(m, (first + 1) * part)
+    zero = np.uint64(0)
+    for y in range(n):
+        i = y - r
+        if 0 <= i < h:
+            if y % s == 0:
+                for j in range(b, e):
+                    pre[y, j] = rows[i, j]
+                    suf[y, j] = rows[i, j]
+            else:
+                for j in range(b, e):
+                    pre[y, j] = pre[y - 1, j] | rows[i, j]
+                    suf[y, j] = rows[i, j]
+        else:
+            for j in range(b, e):
+                pre[y, j] = zero if y % s == 0 else pre[y - 1, j]
+                suf[y, j] = zero
+    for start in range(0, n, s):
+        for y in range(min(start + s, n) - 2, start - 1, -1):
+            for j in range(b, e):
+                suf[y, j] |= suf[y + 1, j]
+    for i in range(h):
+        for j in range(b, e):
+            bits[i, j] = suf[i, j] | pre[i + s - 1, j]
 
 
 def _penalised_py(fused, allowed, weight, untrusted, penalty, out, first, stride):
     h, w, k = fused.shape
+    one = np.uint64(1)
     for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
         for i in range(b, min(b + BLOCK_ROWS, h)):
             for j in range(w):
                 free = weight[i, j] <= untrusted
                 for c in range(k):
                     v = fused[i, j, c]
-                    out[i, j, c] = v if free or allowed[i, j, c] else v - penalty
+                    shown = (allowed[i, j, c >> 6] >> np.uint64(c & 63)) & one
+                    out[i, j, c] = v if free or shown else v - penalty
 
 
 def _block_shares_py(best, k, out):
@@ -100,9 +167,9 @@ def _best_agreement_py(d, p, out, first, stride):
                 out[i, j] = 1.0 if bd == bp else 0.0
 
 
-def _fuse_classes_py(d, w1, l1, w2, l2, ws, log_pi, least, fused, prior, shown, agree, first, stride):
-    """``prior = w1 l1 + w2 l2`` and ``fused = d + prior`` per class; with ``shown`` (else None, as ``ws``,
-    ``log_pi``, ``agree``) also, from the same values, what :func:`_carried_shown_py` and
+def _fuse_classes_py(d, w1, l1, w2, l2, ws, log_pi, least, fused, prior, carried, agree, first, stride):
+    """``prior = w1 l1 + w2 l2`` and ``fused = d + prior`` per class; with ``carried`` (else None, as ``ws``,
+    ``log_pi``, ``agree``) also, from the same values, what :func:`_carried_best_py` and
     :func:`_best_agreement_py` write of ``prior`` and ``d``."""
     h, w, k = d.shape
     zero, one = np.float32(0.0), np.float32(1.0)
@@ -111,7 +178,7 @@ def _fuse_classes_py(d, w1, l1, w2, l2, ws, log_pi, least, fused, prior, shown, 
             for j in range(w):
                 a = w1[i, j]
                 bw = zero if w2 is None else w2[i, j]
-                inv = one if shown is None else one / max(ws[i, j], least)
+                inv = one if carried is None else one / max(ws[i, j], least)
                 bc, bp, bd = 0, 0, 0
                 vc, vp, vd = zero, zero, zero
                 for c in range(k):
@@ -121,7 +188,7 @@ def _fuse_classes_py(d, w1, l1, w2, l2, ws, log_pi, least, fused, prior, shown, 
                     prior[i, j, c] = p
                     dc = d[i, j, c]
                     fused[i, j, c] = dc + p
-                    if shown is None:
+                    if carried is None:
                         pass
                     else:
                         v = p * inv + log_pi[c]
@@ -134,11 +201,10 @@ def _fuse_classes_py(d, w1, l1, w2, l2, ws, log_pi, least, fused, prior, shown, 
                                 bp, vp = c, p
                             if dc > vd:
                                 bd, vd = c, dc
-                if shown is None:
+                if carried is None:
                     pass
                 else:
-                    for c in range(k):
-                        shown[i, j, c] = 1 if c == bc else 0
+                    carried[i, j] = bc
                     agree[i, j] = 1.0 if bd == bp else 0.0
 
 
@@ -237,7 +303,9 @@ _negative_logit = njit(cache=True, nogil=True)(_negative_logit_py)
 _logistic = njit(cache=True, nogil=True)(_logistic_py)
 _block_shares = njit(cache=True, nogil=True)(_block_shares_py)
 _best_agreement = njit(cache=True, nogil=True)(_best_agreement_py)
-_carried_shown = njit(cache=True, nogil=True)(_carried_shown_py)
+_carried_best = njit(cache=True, nogil=True)(_carried_best_py)
+_window_rows = njit(cache=True, nogil=True)(_window_rows_py)
+_window_cols = njit(cache=True, nogil=True)(_window_cols_py)
 _penalised = njit(cache=True, nogil=True)(_penalised_py)
 _fuse_classes = njit(cache=True, nogil=True)(_fuse_classes_py)
 _remap_classes = njit(cache=True, nogil=True)(_remap_classes_py)
@@ -292,35 +360,57 @@ def fuse_classes(d: np.ndarray, w1: np.ndarray, l1: np.ndarray, w2: np.ndarray |
 
 def fuse_and_mark(d: np.ndarray, w1: np.ndarray, l1: np.ndarray, w2: np.ndarray | None, l2: np.ndarray | None,
                   weight: np.ndarray, log_pi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(fused, prior, shown, agree)``: :func:`fuse_classes`, with in the same pass :func:`carried_shown`
+    """``(fused, prior, carried, agree)``: :func:`fuse_classes`, with in the same pass :func:`carried_best`
     of ``prior`` (``weight`` the (H, W) summed trust weight, ``log_pi`` (K,)) and :func:`best_agreement` of
     ``d`` and ``prior``, the same numbers as each apart."""
     d = np.ascontiguousarray(d, np.float32)
     fused, prior = np.empty_like(d), np.empty_like(d)
-    shown, agree = np.empty(d.shape, np.uint8), np.empty(d.shape[:2], np.float32)
+    carried, agree = np.empty(d.shape[:2], np.uint8), np.empty(d.shape[:2], np.float32)
     c = np.ascontiguousarray
     _rows(_fuse_classes, d.shape, d, c(w1, np.float32), c(l1, np.float32), None if w2 is None else c(w2, np.float32),
           None if l2 is None else c(l2, np.float32), c(weight, np.float32), c(log_pi, np.float32), np.float32(1e-6),
-          fused, prior, shown, agree)
-    return fused, prior, shown, agree
+          fused, prior, carried, agree)
+    return fused, prior, carried, agree
 
 
-def carried_shown(prior: np.ndarray, weight: np.ndarray, log_pi: np.ndarray) -> np.ndarray:
-    """(H, W, K) uint8: the one-hot of the best class of ``prior / weight + log_pi`` ((H, W, K) evidence,
-    (H, W) summed trust weight, at least 1e-6; (K,) log class priors): the carried priors' own label, 1 at
-    its class and 0 elsewhere."""
-    shown = np.empty(prior.shape, np.uint8)
-    _rows(_carried_shown, prior.shape, np.ascontiguousarray(prior, np.float32), np.ascontiguousarray(weight, np.float32),
-          np.ascontiguousarray(log_pi, np.float32), np.float32(1e-6), shown)
-    return shown
+def carried_best(prior: np.ndarray, weight: np.ndarray, log_pi: np.ndarray) -> np.ndarray:
+    """(H, W) uint8: the index of the best class of ``prior / weight + log_pi`` ((H, W, K) evidence, K at
+    most 256; (H, W) summed trust weight, at least 1e-6; (K,) log class priors): the carried priors' own
+    label, the first of equals."""
+    carried = np.empty(prior.shape[:2], np.uint8)
+    _rows(_carried_best, prior.shape, np.ascontiguousarray(prior, np.float32), np.ascontiguousarray(weight, np.float32),
+          np.ascontiguousarray(log_pi, np.float32), np.float32(1e-6), carried)
+    return carried
+
+
+def class_window(carried: np.ndarray, k: int, side: int) -> np.ndarray:
+    """(H, W, ceil(K / 64)) uint64: the class indices of ``carried`` (H, W) uint8, each below ``k``, found
+    within the square of ``side`` px (odd) centred on each pixel, as bits (class ``c``: bit ``c % 64`` of
+    word ``c // 64``); what OpenCV's ``dilate`` of the K one-hot maps by that square gives, one bit a class
+    (the area outside the map holds no class), in two passes of van Herk's running OR (rows, then columns),
+    each shared with the helper thread."""
+    from .._threads import MIN_PIXELS, interleave
+
+    lab = np.ascontiguousarray(carried, np.uint8)
+    if side < 1 or side % 2 == 0 or not 1 <= k <= 256:
+        raise ValueError("class_window takes an odd side and 1 to 256 classes")  # a caller's bug
+    h, w = lab.shape
+    r, words = side // 2, (k + 63) // 64
+    rows = np.empty((h, w, words), np.uint64)
+    _rows(_window_rows, lab.shape, lab, r, rows)
+    flat, bits = rows.reshape(h, w * words), np.empty((h, w * words), np.uint64)
+    pre, suf = np.empty((h + 2 * r, w * words), np.uint64), np.empty((h + 2 * r, w * words), np.uint64)
+    interleave(h * w, lambda first, stride: _window_cols(flat, r, bits, pre, suf, first, stride), min_items=MIN_PIXELS)
+    return bits.reshape(h, w, words)
 
 
 def penalised(fused: np.ndarray, allowed: np.ndarray, weight: np.ndarray, untrusted: float,
               penalty: float) -> np.ndarray:
-    """(H, W, K) float32: ``fused`` lowered by ``penalty`` where a class is not ``allowed`` ((H, W, K) uint8)
-    and the pixel's summed trust ``weight`` is above ``untrusted``."""
+    """(H, W, K) float32: ``fused`` lowered by ``penalty`` where a class is not ``allowed`` (its bit unset
+    in the (H, W, words) uint64 of :func:`class_window`) and the pixel's summed trust ``weight`` is above
+    ``untrusted``."""
     out = np.empty(fused.shape, np.float32)
-    _rows(_penalised, fused.shape, np.ascontiguousarray(fused, np.float32), np.ascontiguousarray(allowed),
+    _rows(_penalised, fused.shape, np.ascontiguousarray(fused, np.float32), np.ascontiguousarray(allowed, np.uint64),
           np.ascontiguousarray(weight, np.float32), np.float32(untrusted), np.float32(penalty), out)
     return out
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
-from ._class_kernels import (best_agreement, block_shares, carried_shown, fuse_and_mark, fuse_classes,
+from ._class_kernels import (best_agreement, block_shares, carried_best, class_window, fuse_and_mark, fuse_classes,
                              iou_sums, logistic_confidence, penalised, remap_classes, remap_labels, top_two)
 from ._class_regions import region_means
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
@@ -168,17 +168,17 @@ def fused_scores(scores: np.ndarray, weighted: list[tuple[np.ndarray | float | N
 def fused_and_marked(scores: np.ndarray, weighted: list, weight_sum: np.ndarray, log_pi: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """``(fused, prior_term, marks)``: :func:`fused_scores`, and in the same pass (one read of the maps) the
-    ``marks`` :func:`read_class_labels` reads of them: the carried label's one-hot (H, W, K) uint8 that
-    :func:`windowed` dilates (``weight_sum``, ``log_pi`` as it takes them) and the agreement (H, W) float32
-    of naive Bayes' best class with the priors' that :func:`class_confidence` averages."""
+    ``marks`` :func:`read_class_labels` reads of them: the carried label's class index (H, W) uint8 whose
+    window :func:`windowed` takes (``weight_sum``, ``log_pi`` as it takes them) and the agreement (H, W)
+    float32 of naive Bayes' best class with the priors' that :func:`class_confidence` averages."""
     d = np.asarray(scores, np.float32)
     pairs = _prior_pairs(d, weighted)
     if pairs is None:
         fused, prior = fused_scores(d, weighted)
-        return fused, prior, (carried_shown(prior, weight_sum, log_pi), best_agreement(d, prior))
+        return fused, prior, (carried_best(prior, weight_sum, log_pi), best_agreement(d, prior))
     (w1, l1), (w2, l2) = pairs
-    fused, prior, shown, agree = fuse_and_mark(d, w1, l1, w2, l2, weight_sum, log_pi)
-    return fused, prior, (shown, agree)
+    fused, prior, carried, agree = fuse_and_mark(d, w1, l1, w2, l2, weight_sum, log_pi)
+    return fused, prior, (carried, agree)
 
 
 def smoothed_scores(fused: np.ndarray, sigma_px: float) -> np.ndarray:
@@ -209,19 +209,18 @@ def weight_sum(maps) -> np.ndarray:
 
 
 def windowed(fused: np.ndarray, prior_term: np.ndarray, weight_sum: np.ndarray, log_pi: np.ndarray, *,
-             shown: np.ndarray | None = None) -> np.ndarray:
+             carried: np.ndarray | None = None) -> np.ndarray:
     """(H, W, K) float32: ``fused`` with every class that the carried labels do not show within
     :data:`CLASS_WINDOW` of a pixel lowered by :data:`CLASS_PENALTY`. The carried label is the best class of
     the priors' evidence per unit of trust plus the class prior (``prior_term / weight_sum + log_pi``: the
     carried priors' own log-probabilities); where ``weight_sum`` is below :data:`UNTRUSTED` every class is
-    allowed. ``shown``: the carried label's one-hot, when the fusion made it (:func:`fused_and_marked`)."""
-    import cv2
-
+    allowed. ``carried``: the carried label's class index (H, W), when the fusion made it
+    (:func:`fused_and_marked`). The classes within the window are found as bits
+    (:func:`~pcreg.pipeline._class_kernels.class_window`), in two running passes in place of one dilation a class."""
     w = np.asarray(weight_sum, np.float32)
-    if shown is None:
-        shown = carried_shown(prior_term, w, log_pi)
-    side = odd(CLASS_WINDOW, fused.shape[1])
-    allowed = cv2.dilate(shown, np.ones((side, side), np.uint8)).reshape(shown.shape)
+    if carried is None:
+        carried = carried_best(prior_term, w, log_pi)
+    allowed = class_window(carried, fused.shape[2], odd(CLASS_WINDOW, fused.shape[1]))
     return penalised(fused, allowed, w, UNTRUSTED, CLASS_PENALTY)
 
 
@@ -234,10 +233,10 @@ def read_class_labels(fused: np.ndarray, scores: np.ndarray, prior_term: np.ndar
     stream's :class:`~pcreg.pipeline.working.WorkingSize` when the maps are at it: the blurred scores and
     the confidence are brought to the frames' size, and the labels read there. ``window``: ``(weight_sum,
     log_pi)``, the carried priors' summed trust weight (H, W) and the log class priors: the scores are
-    :func:`windowed` first. ``marks``: ``(shown, agree)`` when the fusion made them (:func:`fused_and_marked`)."""
-    shown, agree = (None, None) if marks is None else marks
+    :func:`windowed` first. ``marks``: ``(carried, agree)`` when the fusion made them (:func:`fused_and_marked`)."""
+    carried, agree = (None, None) if marks is None else marks
     if window is not None:
-        fused = windowed(fused, prior_term, *window, shown=shown)
+        fused = windowed(fused, prior_term, *window, carried=carried)
     S = smoothed_scores(fused, smooth_px)
     best, second, margin = top_two(S)
     conf = class_confidence(margin, best, scores, prior_term, coefficients, agree=agree)

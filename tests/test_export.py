@@ -15,7 +15,7 @@ import pytest
 
 import pcreg
 from pcreg.cli import main
-from pcreg.export import read_labels
+from pcreg.export import read_labels, read_run
 
 NAMES = {"ground": 0, "obstacle": 1, "unknown": 2}  # the archive's names -> pcreg's class ids (LAGR's table)
 
@@ -204,3 +204,40 @@ def test_only_the_frames_the_run_counted(run_copy):
     assert main(["export", str(out)]) == 0
     with zipfile.ZipFile(io.BytesIO((out / "export-cvat-mask.zip").read_bytes())) as z:
         assert z.read("ImageSets/Segmentation/default.txt").decode().split() == ["frame_000", "frame_001", "frame_002"]
+
+
+def test_a_summary_names_a_dozen_labels_and_counts_the_rest():
+    from pcreg.commands.export import MOST_NAMED, listed
+
+    assert listed([]) == "none" and listed(["road"]) == "road" and listed(["road", "car"]) == "road and car"
+    many = [f"c{i}" for i in range(150)]
+    assert listed(many) == ", ".join(many[:MOST_NAMED]) + f" and {150 - MOST_NAMED} more"
+
+
+def test_a_table_of_150_classes_runs_and_exports(tmp_path, capsys):
+    # more classes than OpenCV takes channels in one array (128): every map of the step is filtered in parts
+    from pcreg.classes.files import voc_colormap
+
+    k, h, w = 150, 96, 128
+    colours = voc_colormap(256)
+    (tmp_path / "labelmap.txt").write_text("\n".join(
+        ["# label:color_rgb:parts:actions"] + [f"c{i}:{','.join(str(int(v)) for v in colours[i])}::" for i in range(k)]))
+    rng = np.random.default_rng(3)
+    scene = cv2.resize(rng.integers(0, 256, (24, 40, 3)).astype(np.uint8), (w + 20, h), interpolation=cv2.INTER_LINEAR)
+    labels = cv2.resize(rng.integers(1, k, (8, 12)).astype(np.uint8), (w + 20, h), interpolation=cv2.INTER_NEAREST)
+    (tmp_path / "frames").mkdir()
+    (tmp_path / "keys").mkdir()
+    for t in range(5):
+        cv2.imwrite(str(tmp_path / "frames" / f"f{t}.png"), scene[:, 4 * t:4 * t + w])
+    for t in (0, 4):
+        cv2.imwrite(str(tmp_path / "keys" / f"f{t}.png"), labels[:, 4 * t:4 * t + w])
+    out = tmp_path / "out"
+    assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "keys"), "--classes",
+                 str(tmp_path / "labelmap.txt"), "--out", str(out), "--confidence"]) == 0
+    got = read_labels(out / "f2.png", read_run(out).table)
+    assert got.shape == (h, w) and np.mean(got == labels[:, 8:8 + w]) > 0.9
+    capsys.readouterr()
+    assert main(["export", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert f"the {k - 1} labels" in said and "more" in said and len(said.splitlines()[1]) < 300
+    assert zipfile.ZipFile(out / "export-cvat-mask.zip").read("labelmap.txt").decode().count("\n") >= k - 1

@@ -46,10 +46,25 @@ def run(args: argparse.Namespace) -> int:
               for t, name in enumerate(run_labels.names))
     data, counts = cvat_mask_archive(frames, table)  # every file read and checked before anything is written
     atomic_write_bytes(dest, data)
-    shown = ", ".join(f"{c.name} in {counts[c.name]}" for c in table.known)
-    print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {shown}; unknown left unlabelled "
-          f"in {counts[table.unknown_class.name]})")
+    shown = [f"{c.name} in {counts[c.name]}" for c in table.known if counts[c.name]]
+    absent = sum(1 for c in table.known if not counts[c.name])
+    print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {listed(shown)}"
+          f"{f'; {absent} in none' if absent else ''}; unknown left unlabelled in {counts[table.unknown_class.name]})")
     names = [c.name for c in table.known]
-    print(f"CVAT: a task with the labels {', '.join(names[:-1])} and {names[-1]} over the same frames; Upload annotations, "
-          "format Segmentation mask 1.1")
+    print(f"CVAT: a task with the {len(names)} labels {listed(names)} of its labelmap.txt over the same frames; "
+          "Upload annotations, format Segmentation mask 1.1")
     return 0
+
+
+#: The most items a summary line names before it counts the rest.
+MOST_NAMED = 12
+
+
+def listed(items: list[str]) -> str:
+    """``a, b and c``; beyond :data:`MOST_NAMED` items the first of them and how many more (a table of 150
+    classes is not printed on one line)."""
+    if not items:
+        return "none"
+    if len(items) > MOST_NAMED:
+        return f"{', '.join(items[:MOST_NAMED])} and {len(items) - MOST_NAMED} more"
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"

@@ -33,7 +33,7 @@ from ..errors import InputError
 from ._class_kernels import (best_agreement, block_shares, carried_best, class_window, fuse_and_mark, fuse_classes,
                              iou_sums, logistic_confidence, penalised, remap_classes, remap_labels, top_two)
 from ._class_regions import region_means
-from .readout import AGREEMENT_SIDE, PURITY_SIDES, half, odd
+from .readout import AGREEMENT_SIDE, PURITY_SIDES, channelwise, half, odd
 
 __all__ = ["CLASS_ANCHOR", "CLASS_WEIGHT_SHARE", "CLASS_CONFIDENCE_COEFFICIENTS", "CLASS_MIN_CONFIDENCE", "CLASS_PRIOR_SIGMA",
            "CLASS_WINDOW", "CLASS_PENALTY", "ClassRead", "windowed", "weight_sum",
@@ -97,7 +97,6 @@ def class_prior_maps(labels: np.ndarray, classes: np.ndarray, pi: np.ndarray, *,
     import cv2
 
     lab = np.asarray(labels)
-    k = len(classes)
     lut = np.tile(np.asarray(pi, np.float32), (256, 1))
     for i, c in enumerate(classes):
         lut[int(c)] = 0.0
@@ -105,7 +104,7 @@ def class_prior_maps(labels: np.ndarray, classes: np.ndarray, pi: np.ndarray, *,
     q = lut[lab.astype(np.uint8, copy=False)]
     s = float(fusion.sigma) * lab.shape[1] / 640.0
     if s > 0:
-        q = cv2.GaussianBlur(q, (0, 0), s, borderType=cv2.BORDER_REPLICATE).reshape(lab.shape + (k,))
+        q = channelwise(lambda a: cv2.GaussianBlur(a, (0, 0), s, borderType=cv2.BORDER_REPLICATE), q)
     eps = np.float32(fusion.eps)
     return (q * (np.float32(1.0) - eps) + eps * np.asarray(pi, np.float32)).astype(np.float32)
 
@@ -188,7 +187,7 @@ def smoothed_scores(fused: np.ndarray, sigma_px: float) -> np.ndarray:
     S = np.ascontiguousarray(fused, dtype=np.float32)
     if sigma_px <= 0:
         return S
-    return cv2.GaussianBlur(S, (0, 0), sigma_px).reshape(S.shape)
+    return channelwise(lambda a: cv2.GaussianBlur(a, (0, 0), sigma_px), S)
 
 
 @dataclass(frozen=True, eq=False)
@@ -264,7 +263,7 @@ def _neighbourhood_features(best: np.ndarray, k: int, scores: np.ndarray, prior_
     out = []
     for side in PURITY_SIDES:
         kk = odd(side / 2, w)
-        m = cv2.blur(oh, (kk, kk), borderType=cv2.BORDER_REFLECT).reshape(oh.shape)
+        m = channelwise(lambda a: cv2.blur(a, (kk, kk), borderType=cv2.BORDER_REFLECT), oh)
         out.append(np.take_along_axis(m, own[..., None], axis=2)[..., 0].astype(np.float32))
     kk = odd(AGREEMENT_SIDE / 2, w)
     out.append(cv2.blur(half(agree), (kk, kk), borderType=cv2.BORDER_REFLECT))

@@ -25,6 +25,24 @@ def odd(px: float, width: int) -> int:
     return max(1, int(round(scaled(px, width))) // 2 * 2 + 1)
 
 
+#: The most channels OpenCV's filters and resizes take in one array (``CV_CN_MAX`` of the OpenCV that pcreg
+#: pins; 512 before OpenCV 5).
+MAX_CHANNELS = 128
+
+
+def channelwise(fn, values: np.ndarray) -> np.ndarray:
+    """``fn`` (an OpenCV filter or resize of one array, channel by channel) of (H, W, K) ``values`` as an
+    (H', W', K) array: in one call up to :data:`MAX_CHANNELS` channels, beyond that in parts of that many
+    (each channel's numbers the same either way)."""
+    a = np.asarray(values)
+    k = a.shape[2]
+    if k <= MAX_CHANNELS:
+        out = fn(a)
+        return out.reshape(out.shape[:2] + (k,))
+    parts = [fn(np.ascontiguousarray(a[:, :, i:i + MAX_CHANNELS])) for i in range(0, k, MAX_CHANNELS)]
+    return np.concatenate([p.reshape(p.shape[:2] + (-1,)) for p in parts], axis=2)
+
+
 def half(image: np.ndarray) -> np.ndarray:
     """The image at half its size (each pixel the mean of a 2x2 block), as float32."""
     import cv2

@@ -85,7 +85,11 @@ class WorkingSize:
         import cv2
 
         h, w = self.frame
-        return cv2.resize(a, (w, h), interpolation=cv2.INTER_LINEAR).reshape((h, w) + a.shape[2:])
+        if a.ndim == 3:
+            from .readout import channelwise
+
+            return channelwise(lambda part: cv2.resize(part, (w, h), interpolation=cv2.INTER_LINEAR), a)
+        return cv2.resize(a, (w, h), interpolation=cv2.INTER_LINEAR)
 
     def _ratios(self) -> tuple[float, float]:
         (H, W), (h, w) = self.frame, self.shape

@@ -54,7 +54,7 @@ def _warm_classes(shape: tuple[int, int]) -> None:
     scores = np.zeros(shape + (3,), np.float32)
     w = np.ones(shape, np.float32)
     k.top_two(scores)
-    k.block_shares(np.zeros(shape, np.intp), 3)
+    k.purities(np.zeros(shape, np.intp), 3, (3, 5))
     k.best_agreement(scores, scores)
     for w2, l2 in ((w, scores), (None, None)):
         k.fuse_classes(scores, w, scores, w2, l2)
@@ -63,7 +63,9 @@ def _warm_classes(shape: tuple[int, int]) -> None:
     k.remap_classes(np.zeros(shape + (5,), np.float32), np.zeros(shape + (2,), np.float32))
     k.remap_labels(np.zeros(shape, np.uint8), np.zeros((256, 5), np.float32), np.zeros(shape + (2,), np.float32))
     k.penalised(scores, np.ones(shape + (1,), np.uint64), w, 1e-3, 15.0)
-    k.logistic_confidence(np.zeros(shape, np.float32), w, 1.0, 0.0, 0.5)
+    k.log_margins(w)
+    for piece in (w, None):
+        k.logistic_confidence(np.zeros(shape, np.float32), w, 1.0, 0.0, 0.5, piece=piece, c=1.0)
     k.iou_sums(np.zeros(shape, np.uint8), w, np.zeros(shape, np.uint8))
     region_means(np.zeros(shape, np.intp), w)
     class_sums([("rgb", np.zeros(shape + (3,), np.uint8)), ("row", np.zeros(shape[0], np.uint8))],

@@ -283,6 +283,53 @@ def test_the_class_window_holds_the_classes_a_dilation_of_each_class_would(h, w,
     assert np.array_equal(found, expected)
 
 
+@pytest.mark.parametrize("h, w, k, sides", [(480, 640, 11, (13, 29)), (7, 5, 3, (3, 9)), (1, 1, 2, (1, 3)),
+                                         (51, 33, 70, (5, 23)), (40, 60, 150, (15, 45)), (2, 3, 4, (7,))])
+def test_the_purities_are_what_blurring_each_class_at_half_size_reads(h, w, k, sides):
+    from pcreg.pipeline._class_kernels import purities
+
+    rng = np.random.default_rng(h + w + k)
+    best = cv2.resize(rng.integers(0, k, (max(1, h // 6), max(1, w // 6))).astype(np.uint8), (w, h),
+                      interpolation=cv2.INTER_NEAREST).astype(np.intp)
+    best[rng.random((h, w)) < 0.1] = rng.integers(0, k)  # ties within blocks, and classes in specks
+    own, shares = purities(best, k, sides)
+    hh, hw = max(1, h // 2), max(1, w // 2)
+    blocks = np.zeros((hh, hw, k), np.float32)  # each 2x2 block's share of each class
+    for di in range(2):
+        for dj in range(2):
+            part = best[di::2, dj::2][:hh, :hw]
+            np.add.at(blocks, (*np.indices(part.shape), part), np.float32(0.25))
+    assert np.array_equal(own, np.argmax(blocks, axis=2))
+    for n, side in enumerate(sides):
+        m = np.concatenate([cv2.blur(np.ascontiguousarray(blocks[..., i:i + 64]), (side, side),
+                                     borderType=cv2.BORDER_REFLECT).reshape(hh, hw, -1) for i in range(0, k, 64)], axis=2)
+        assert np.array_equal(shares[n], np.take_along_axis(m, own[..., None], axis=2)[..., 0])
+
+
+def test_the_confidence_kernels_give_numpys_numbers():
+    from pcreg.pipeline._class_kernels import log_margins, logistic_confidence
+
+    rng = np.random.default_rng(7)
+    h, w = 300, 400  # large enough to be shared with the helper thread
+    margin = (rng.standard_exponential((h, w)) * rng.choice([0.01, 1.0, 30.0, 1e4], (h, w))).astype(np.float32)
+    margin[:3] = np.array([-1.0, 0.0, np.nan], np.float32)[:, None]
+    with np.errstate(invalid="ignore"):
+        expected_lm = np.log1p(np.maximum(margin, np.float32(0)))
+    lm = log_margins(margin)
+    assert np.array_equal(lm, expected_lm, equal_nan=True)
+    lm = np.nan_to_num(lm)
+    z0, piece = (rng.normal(0.0, 20.0, (h, w)).astype(np.float32) for _ in range(2))
+    a, b, c, least = -1.131, -1.38, 0.834, 0.25
+    for p in (piece, None):
+        z = z0.copy()
+        if p is not None:
+            z += np.float32(c) * p * lm
+        z += np.float32(a) * lm + np.float32(b)
+        expected = np.maximum(np.float32(1) / (np.float32(1) + np.exp(-np.clip(z, -60.0, 60.0))), np.float32(least))
+        got = logistic_confidence(z0.copy(), lm, a, b, least, piece=p, c=c)
+        assert np.array_equal(got, expected)
+
+
 def test_a_class_outside_the_window_is_lowered_where_the_priors_are_trusted():
     rng = np.random.default_rng(5)
     h, w, k = 120, 160, 4

@@ -11,8 +11,8 @@ import numpy as np
 
 from .._jit import njit
 
-__all__ = ["top_two", "block_shares", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_best", "class_window",
-           "penalised", "remap_classes", "remap_labels", "logistic_confidence", "iou_sums", "BLOCK_ROWS"]
+__all__ = ["top_two", "purities", "best_agreement", "fuse_classes", "fuse_and_mark", "carried_best", "class_window",
+           "penalised", "remap_classes", "remap_labels", "log_margins", "logistic_confidence", "iou_sums", "BLOCK_ROWS"]
 
 #: Rows per block of the passes (two threads take alternate blocks).
 BLOCK_ROWS = 16
@@ -138,18 +138,76 @@ def _penalised_py(fused, allowed, weight, untrusted, penalty, out, first, stride
                     out[i, j, c] = v if free or shown else v - penalty
 
 
-def _block_shares_py(best, k, out):
+def _reflected(p, n):
+    """OpenCV's ``BORDER_REFLECT`` position (``fedcba|abcdefgh|hgfedcb``) of ``p`` in ``n`` items."""
+    if n == 1:
+        return 0
+    while p < 0 or p >= n:
+        p = -p - 1 if p < 0 else 2 * n - p - 1
+    return p
+
+
+def _purities_py(best, k, sides, own, out):
+    """The share of each half-size pixel's neighbourhood with its own label, for each box of ``sides``
+    (odd): ``own`` (h/2, w/2) the plurality of each 2x2 block of ``best`` (H, W) (the first of equals), and
+    ``out[s]`` (h/2, w/2) float32 the mean over the box of the blocks' shares of it, borders reflected: what
+    OpenCV's ``blur`` of the blocks' K shares gives at the own class (its sums in float64, exact for
+    quarters, times 1 / side^2), from one table of sums per class."""
     h, w = best.shape
-    hh, hw = out.shape[0], out.shape[1]
-    for i in range(hh):
+    hh, hw = own.shape
+    counts = np.zeros(k, np.int32)
+    for i in range(hh):  # each block's plurality
         for j in range(hw):
-            for c in range(k):
-                out[i, j, c] = 0.0
             for di in range(2):
                 for dj in range(2):
                     y, x = 2 * i + di, 2 * j + dj
                     if y < h and x < w:
-                        out[i, j, best[y, x]] += 0.25
+                        counts[best[y, x]] += 1
+            bb, vb = 0, counts[0]
+            for c in range(1, k):
+                if counts[c] > vb:
+                    bb, vb = c, counts[c]
+            own[i, j] = bb
+            for di in range(2):
+                for dj in range(2):
+                    y, x = 2 * i + di, 2 * j + dj
+                    if y < h and x < w:
+                        counts[best[y, x]] = 0
+    r = 0
+    for kk in sides:
+        r = max(r, kk // 2)
+    ph, pw = hh + 2 * r, hw + 2 * r
+    rows = np.empty(ph, np.int64)
+    cols = np.empty(pw, np.int64)
+    for y in range(ph):
+        rows[y] = _reflected(y - r, hh)
+    for x in range(pw):
+        cols[x] = _reflected(x - r, hw)
+    table = np.empty((ph + 1, pw + 1, k), np.int32)  # the reflected blocks' counts over [0, y) x [0, x)
+    table[0] = 0
+    for y in range(ph):
+        for c in range(k):
+            counts[c] = 0  # the row's running counts
+            table[y + 1, 0, c] = 0
+        by = 2 * rows[y]
+        for x in range(pw):
+            bx = 2 * cols[x]
+            for di in range(2):
+                for dj in range(2):
+                    if by + di < h and bx + dj < w:
+                        counts[best[by + di, bx + dj]] += 1
+            for c in range(k):
+                table[y + 1, x + 1, c] = table[y, x + 1, c] + counts[c]
+    for n in range(len(sides)):
+        q = sides[n] // 2
+        scale = 1.0 / (sides[n] * sides[n])
+        for i in range(hh):
+            y0, y1 = i - q + r, i + q + r + 1
+            for j in range(hw):
+                x0, x1 = j - q + r, j + q + r + 1
+                c = own[i, j]
+                total = table[y1, x1, c] - table[y0, x1, c] - table[y1, x0, c] + table[y0, x0, c]
+                out[n, i, j] = np.float32(np.float64(total) * 0.25 * scale)
 
 
 def _best_agreement_py(d, p, out, first, stride):
@@ -261,15 +319,30 @@ def _remap_classes_py(src, lab, fld, out, first, stride):
                         out[i, j, c] = v0 * w0 + v1 * w1 + v2 * w2 + v3 * w3
 
 
-def _negative_logit_py(z, log_margin, a, b, first, stride):
-    """In place, ``z = -clip(z + (a log_margin + b), -60, 60)`` (float32; a NaN stays NaN, as in numpy)."""
+def _log_margin_py(margin, out, first, stride):
+    """``out = log1p(max(margin, 0))`` (float32; a NaN stays NaN, as numpy's ``maximum`` and ``log1p``)."""
+    h, w = margin.shape
+    zero = np.float32(0.0)
+    for r in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
+        for i in range(r, min(r + BLOCK_ROWS, h)):
+            for j in range(w):
+                v = margin[i, j]
+                out[i, j] = np.log1p(zero if v < zero else v)
+
+
+def _negative_logit_py(z, log_margin, piece, c, a, b, first, stride):
+    """In place, ``z = -clip(z + (c piece) log_margin + (a log_margin + b), -60, 60)`` (float32, in numpy's
+    order: ``z += c * piece * log_margin`` first; no ``piece`` term when it is None; a NaN stays NaN)."""
     h, w = z.shape
     lo, hi = np.float32(-60.0), np.float32(60.0)
     for r in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
         for i in range(r, min(r + BLOCK_ROWS, h)):
             for j in range(w):
+                v = z[i, j]
+                if piece is not None:
+                    v = v + c * piece[i, j] * log_margin[i, j]
                 t = a * log_margin[i, j] + b
-                v = z[i, j] + t
+                v = v + t
                 v = lo if v < lo else (hi if v > hi else v)
                 z[i, j] = -v
 
@@ -300,8 +373,10 @@ def _iou_sums_py(labels, confidence, second, tp, fp, fn):
 _top_two = njit(cache=True, nogil=True)(_top_two_py)
 _iou_sums = njit(cache=True, nogil=True)(_iou_sums_py)
 _negative_logit = njit(cache=True, nogil=True)(_negative_logit_py)
+_log_margin = njit(cache=True, nogil=True)(_log_margin_py)
 _logistic = njit(cache=True, nogil=True)(_logistic_py)
-_block_shares = njit(cache=True, nogil=True)(_block_shares_py)
+_reflected = njit(cache=True, nogil=True)(_reflected)
+_purities = njit(cache=True, nogil=True)(_purities_py)
 _best_agreement = njit(cache=True, nogil=True)(_best_agreement_py)
 _carried_best = njit(cache=True, nogil=True)(_carried_best_py)
 _window_rows = njit(cache=True, nogil=True)(_window_rows_py)
@@ -330,13 +405,19 @@ def top_two(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return best, second, margin
 
 
-def block_shares(best: np.ndarray, k: int) -> np.ndarray:
-    """(H/2, W/2, K) float32: each 2x2 block's share of each class index of ``best`` (H, W) (the one-hot
-    labels at half size, as an area resize of them gives)."""
+def purities(best: np.ndarray, k: int, sides: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """``(own, shares)``: each 2x2 block's plurality class index of ``best`` (H, W) (the first of equals),
+    (H/2, W/2) intp, and for each odd box side of ``sides`` the share of the box around each block held by
+    the block's own class, (len(sides), H/2, W/2) float32: what OpenCV's ``blur`` (borders reflected) of the
+    K one-hot maps at half size (each block's share of each class) reads at the own class, to the bit,
+    without the K maps."""
     h, w = best.shape
-    out = np.empty((max(1, h // 2), max(1, w // 2), k), np.float32)
-    _block_shares(np.ascontiguousarray(best), k, out)
-    return out
+    if not 1 <= k <= 256 or any(s < 1 or s % 2 == 0 for s in sides):
+        raise ValueError("purities takes 1 to 256 classes and odd sides")  # a caller's bug
+    own = np.empty((max(1, h // 2), max(1, w // 2)), np.intp)
+    out = np.empty((len(sides),) + own.shape, np.float32)
+    _purities(np.ascontiguousarray(best, np.intp), k, np.asarray(sides, np.int64), own, out)
+    return own, out
 
 
 def best_agreement(d: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -460,15 +541,29 @@ def iou_sums(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray) -> 
     return tp, fp, fn
 
 
-def logistic_confidence(z: np.ndarray, log_margin: np.ndarray, a: float, b: float, least: float) -> np.ndarray:
-    """(H, W) float32, in ``z`` itself: ``max(1 / (1 + exp(-clip(z + (a log_margin + b), -60, 60))), least)``
-    (``log_margin``: log1p of the margin between the two best classes, at least 0, as the caller made it for
-    its own features), numpy's float32 operations in the same order (its ``exp`` between two compiled passes
-    shared with the helper thread, in place of ten passes of numpy over the map)."""
+def log_margins(margin: np.ndarray) -> np.ndarray:
+    """(H, W) float32 ``log1p(max(margin, 0))``, numpy's numbers in one compiled pass shared with the helper
+    thread."""
+    m = np.ascontiguousarray(margin, np.float32)
+    out = np.empty(m.shape, np.float32)
+    _rows(_log_margin, m.shape, m, out)
+    return out
+
+
+def logistic_confidence(z: np.ndarray, log_margin: np.ndarray, a: float, b: float, least: float, *,
+                        piece: np.ndarray | None = None, c: float = 0.0) -> np.ndarray:
+    """(H, W) float32, in ``z`` itself: ``max(1 / (1 + exp(-clip(z + c piece log_margin + (a log_margin + b),
+    -60, 60))), least)`` (``log_margin``: log1p of the margin between the two best classes, at least 0, as the
+    caller made it for its own features; ``piece``: a map multiplied by ``c`` and the log-margin, or None),
+    numpy's float32 operations in the same order (its ``exp`` between two compiled passes shared with the
+    helper thread, in place of a dozen passes of numpy over the map)."""
     m = np.ascontiguousarray(log_margin, np.float32)
     if z.dtype != np.float32 or not z.flags.c_contiguous or z.shape != m.shape:
         raise ValueError("logistic_confidence works in place on a C-contiguous float32 map of the margin's shape")
-    _rows(_negative_logit, z.shape, z, m, np.float32(a), np.float32(b))
+    p = None if piece is None else np.ascontiguousarray(piece, np.float32)
+    if p is not None and p.shape != m.shape:
+        raise ValueError("logistic_confidence takes a piece map of the margin's shape")
+    _rows(_negative_logit, z.shape, z, m, p, np.float32(c), np.float32(a), np.float32(b))
     np.exp(z, out=z)
     _rows(_logistic, z.shape, z, np.float32(least))
     return z

@@ -30,8 +30,8 @@ import numpy as np
 
 from ..classification.fusion import FusionConfig
 from ..errors import InputError
-from ._class_kernels import (best_agreement, block_shares, carried_best, class_window, fuse_and_mark, fuse_classes,
-                             iou_sums, logistic_confidence, penalised, remap_classes, remap_labels, top_two)
+from ._class_kernels import (best_agreement, carried_best, class_window, fuse_and_mark, fuse_classes,
+                             iou_sums, log_margins, logistic_confidence, penalised, purities, remap_classes, remap_labels, top_two)
 from ._class_regions import region_means
 from .readout import AGREEMENT_SIDE, PURITY_SIDES, channelwise, half, odd
 
@@ -256,15 +256,10 @@ def _neighbourhood_features(best: np.ndarray, k: int, scores: np.ndarray, prior_
     import cv2
 
     w = best.shape[1]
-    oh = block_shares(best, k)  # the one-hot labels at half size
-    own = top_two(oh)[0]
+    own, shares = purities(best, k, tuple(odd(side / 2, w) for side in PURITY_SIDES))  # at half size
     if agree is None:
         agree = best_agreement(scores, prior_term)
-    out = []
-    for side in PURITY_SIDES:
-        kk = odd(side / 2, w)
-        m = channelwise(lambda a: cv2.blur(a, (kk, kk), borderType=cv2.BORDER_REFLECT), oh)
-        out.append(np.take_along_axis(m, own[..., None], axis=2)[..., 0].astype(np.float32))
+    out = list(shares)
     kk = odd(AGREEMENT_SIDE / 2, w)
     out.append(cv2.blur(half(agree), (kk, kk), borderType=cv2.BORDER_REFLECT))
     out.append(region_means(own, half(log_margin)))
@@ -286,14 +281,15 @@ def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, p
         raise InputError(f"the confidence takes 7 coefficients, got {len(coefficients)}")
     k = scores.shape[2]
     h, w = margin.shape
-    log_margin = np.log1p(np.maximum(np.asarray(margin, np.float32), np.float32(0)))
+    log_margin = log_margins(margin)
     features = _neighbourhood_features(best, k, scores, prior_term, agree, log_margin)
     linear = np.zeros(features[0].shape, np.float32)
     for a, m in zip(coefficients[2:6], features):
         linear += np.float32(a) * m
     z = cv2.resize(linear, (w, h), interpolation=cv2.INTER_LINEAR)
-    z += np.float32(coefficients[6]) * cv2.resize(features[3], (w, h), interpolation=cv2.INTER_LINEAR) * log_margin
-    conf = logistic_confidence(z, log_margin, coefficients[1], coefficients[0], max(1.0 / k, CLASS_MIN_CONFIDENCE))
+    piece = cv2.resize(features[3], (w, h), interpolation=cv2.INTER_LINEAR)
+    conf = logistic_confidence(z, log_margin, coefficients[1], coefficients[0], max(1.0 / k, CLASS_MIN_CONFIDENCE),
+                               piece=piece, c=coefficients[6])
     if not np.all(np.isfinite(conf)):
         raise AssertionError("a confidence came out NaN")
     return conf

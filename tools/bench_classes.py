@@ -9,7 +9,7 @@ Memory: the eleven-class propagator steps ``--frames`` times (2,000 by default) 
 forwards and backwards at ``--size``; the process's resident memory (VmRSS) is sampled every 50 steps, and
 its growth from the warm step (:data:`WARM_STEP`) to the end is compared to the target.
 
-    python tools/bench_classes.py --out out/bench [--clip 0001TP] [--repeats 20] [--frames 2000] [--size 320x240]
+    python tools/bench_classes.py --out out/bench [--clip 0001TP] [--repeats 60] [--frames 2000] [--size 320x240]
 
 Writes bench_classes.json, bench_classes.md and bench_classes.png (memory against the step).
 """
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/bench")
     ap.add_argument("--clip", default="0001TP")
-    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--repeats", type=int, default=60)
     ap.add_argument("--frames", type=int, default=2000)
     ap.add_argument("--size", default="320x240")
     a = ap.parse_args(argv)

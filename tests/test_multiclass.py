@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -39,6 +41,9 @@ def test_eleven_classes_follow_the_clip(shared_data, scale):
         assert conf.shape == truth.shape and conf.min() >= max(1.0 / k, multiclass.CLASS_MIN_CONFIDENCE) - 1e-6
         assert conf.max() <= 1.0
         assert prop.last.log_odds.shape[2] == k
+        maps = prop.last.trust  # the fusion's priors' part, kept: what summing the maps again gives
+        assert maps.term is not None
+        assert np.array_equal(maps.prior_term(maps.term.shape), replace(maps, term=None).prior_term(maps.term.shape))
         iou = prop.last.predicted_iou
         assert iou and all(0.0 <= v <= 1.0 for v in iou.values()) and set(iou) <= trained
         known = truth != CAMVID11.unknown

@@ -31,7 +31,7 @@ shared clips, and checked clip by clip with each clip left out (``tools/fit_trus
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -201,8 +201,9 @@ class TrustMaps:
     each, the carried prior's log-odds (``primary_prior``, ``second_prior``), the evidence for it (the key
     frame's ``primary_residual`` and ``second_residual`` along each motion, the primary field's own
     ``confidence``) and the fusion weight the rule gave it (``primary``, ``second``); None where that
-    prior is absent. The names of before 0.2.0 (``dense``, ``flow``, ``dense_prior``, ...) still read,
-    with a :class:`DeprecationWarning`."""
+    prior is absent; ``term``, the priors' part of the fused scores when the fusion made it (what
+    :meth:`prior_term` gives). The names of before 0.2.0 (``dense``, ``flow``, ``dense_prior``, ...) still
+    read, with a :class:`DeprecationWarning`."""
 
     primary: np.ndarray | None
     primary_prior: np.ndarray | None
@@ -211,10 +212,14 @@ class TrustMaps:
     primary_residual: np.ndarray | None = None
     second_residual: np.ndarray | None = None
     confidence: np.ndarray | None = None
+    term: np.ndarray | None = field(default=None, repr=False)
 
     def prior_term(self, shape: tuple[int, int]) -> np.ndarray:
         """(H, W) float32: the sum of weight times log-odds over the priors present; with K classes
-        (priors of (H, W, K) class evidence, ``shape`` (H, W, K)) the same per class."""
+        (priors of (H, W, K) class evidence, ``shape`` (H, W, K)) the same per class. The fusion's own
+        array (:attr:`term`, the same numbers, not a copy) when it made one of that shape."""
+        if self.term is not None and self.term.shape == tuple(shape):
+            return self.term
         out = np.zeros(shape, np.float32)
         for w, l in ((self.primary, self.primary_prior), (self.second, self.second_prior)):
             if w is not None and l is not None:
@@ -433,6 +438,7 @@ class TrustedKey:
         w = weight_sum(maps)
         fused, prior, marks = fused_and_marked(scores, [(maps.primary, maps.primary_prior),
                                                         (maps.second, maps.second_prior)], w, read.log_pi)
+        maps = replace(maps, term=prior)
         t2 = time.perf_counter()
         labels, confidence, second = read_class_labels(
             fused, scores, prior, read.classes, smooth_px=_scaled(self.rule.smooth, fused.shape[1]),

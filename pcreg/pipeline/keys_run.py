@@ -219,23 +219,23 @@ class KeyRun:
         with WriteBehind() as writer:  # a frame's prior term, carry and commit written while the next is labelled
             for t, _, _ in propagate(prop, self._images(s, range(start, b)), check=self.check):
                 report = prop.last
-                prior = report.trust.prior_term(report.log_odds.shape).astype(PRIOR_STORE_DTYPE)
-                weight = None if prop.classes is None else weight_sum(report.trust).astype(PRIOR_STORE_DTYPE)
+                prior = report.trust.prior_term(report.log_odds.shape)  # made smaller on the writer's thread
+                weight = None if prop.classes is None else weight_sum(report.trust)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
                               prop.learned_later(), weight)
 
     def _keep_prior(self, cur: dict, t: int, prior: np.ndarray, fallback: bool, carry, learned,
                     weight: np.ndarray | None = None) -> None:
         """Frame ``t`` of a forward pass between two key frames: its prior term (with many classes also its
-        summed trust weight, for the class window) kept for the backward pass, the propagator's carry, and
-        the commit."""
+        summed trust weight, for the class window) kept for the backward pass as :data:`PRIOR_STORE_DTYPE`, the
+        propagator's carry, and the commit."""
         from ..outputs import atomic_write_bytes
         import io
 
         buf = io.BytesIO()
-        kept: dict[str, np.ndarray] = {"prior": prior, "fallback": np.asarray(fallback)}
+        kept: dict[str, np.ndarray] = {"prior": prior.astype(PRIOR_STORE_DTYPE), "fallback": np.asarray(fallback)}
         if weight is not None:
-            kept["weight"] = weight
+            kept["weight"] = weight.astype(PRIOR_STORE_DTYPE)
         np.savez(buf, **kept)  # type: ignore[arg-type]  # (numpy's stub types a keyword as allow_pickle)
         atomic_write_bytes(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz", buf.getvalue())
         self._keep_carry(cur, carry, learned)

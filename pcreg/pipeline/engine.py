@@ -127,7 +127,7 @@ def two_sided(log_odds: np.ndarray, earlier: np.ndarray, later: np.ndarray, rule
     for the class window."""
     from .trust import read_labels
 
-    prior = np.asarray(earlier, PRIOR_STORE_DTYPE).astype(np.float32) + later
+    prior = np.add(np.asarray(earlier, PRIOR_STORE_DTYPE), later, dtype=np.float32)  # float16 read as float32, no copy
     if classes is not None:
         from .multiclass import read_class_labels
         from .readout import scaled

@@ -138,7 +138,7 @@ def _penalised_py(fused, allowed, weight, untrusted, penalty, out, first, stride
                     out[i, j, c] = v if free or shown else v - penalty
 
 
-def _reflected(p, n):
+def _reflected_py(p, n):
     """OpenCV's ``BORDER_REFLECT`` position (``fedcba|abcdefgh|hgfedcb``) of ``p`` in ``n`` items."""
     if n == 1:
         return 0
@@ -375,7 +375,7 @@ _iou_sums = njit(cache=True, nogil=True)(_iou_sums_py)
 _negative_logit = njit(cache=True, nogil=True)(_negative_logit_py)
 _log_margin = njit(cache=True, nogil=True)(_log_margin_py)
 _logistic = njit(cache=True, nogil=True)(_logistic_py)
-_reflected = njit(cache=True, nogil=True)(_reflected)
+_reflected = njit(cache=True, nogil=True)(_reflected_py)
 _purities = njit(cache=True, nogil=True)(_purities_py)
 _best_agreement = njit(cache=True, nogil=True)(_best_agreement_py)
 _carried_best = njit(cache=True, nogil=True)(_carried_best_py)

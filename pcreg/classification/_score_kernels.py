@@ -19,15 +19,18 @@ BLOCK_ROWS = 16
 def _class_sums_py(planes, tables, row, out, first, stride):
     h, w, f = planes.shape
     k = tables.shape[2]
+    acc = np.empty(k, np.float32)  # a pixel's sums, in the order the features come
     for b in range(first * BLOCK_ROWS, h, stride * BLOCK_ROWS):
         for i in range(b, min(b + BLOCK_ROWS, h)):
             for j in range(w):
                 for c in range(k):
-                    out[i, j, c] = row[i, c]
+                    acc[c] = row[i, c]
                 for g in range(f):
                     v = planes[i, j, g]
                     for c in range(k):
-                        out[i, j, c] += tables[g, v, c]
+                        acc[c] += tables[g, v, c]
+                for c in range(k):
+                    out[i, j, c] = acc[c]
 
 
 _class_sums = njit(cache=True, nogil=True)(_class_sums_py)

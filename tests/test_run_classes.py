@@ -124,6 +124,30 @@ def test_more_than_two_classes_reach_the_classifier(synthetic, tmp_path, capsys,
     assert seen == [CAMVID11, None]
 
 
+def test_a_key_frame_with_only_the_first_two_classes_of_a_larger_table_runs_many_class(synthetic, tmp_path,
+                                                                                     capsys):
+    """A camvid11 key frame that shows only sky (0) and building (1) is a many-class stream that has seen two of
+    its classes: it runs as one (it once took the two-class step, which stopped at the third frame), labels
+    only those two classes, and writes the table's colours."""
+    folder, _ = frames_folder(tmp_path, synthetic, keys=())
+    two = np.where(synthetic[0].labels == 2, 11, synthetic[0].labels).astype(np.uint8)
+    (tmp_path / "two").mkdir()
+    cv2.imwrite(str(tmp_path / "two" / "f0.png"), two)
+    prop = pcreg.Propagator.from_key_frame(synthetic[0].image, two, classes=CAMVID11)
+    assert prop.class_read is not None and prop.anchor == "previous"
+    out = tmp_path / "out"
+    rc, err = _run(["run", folder, "--labels", tmp_path / "two" / "f0.png", "--classes", "camvid11", "--out", out,
+                    "--confidence"], capsys)
+    assert rc == 0, err
+    for i in range(1, N):
+        labels = read_labels(out / f"f{i}.png", CAMVID11)
+        assert set(np.unique(labels)) == {0, 1}
+    from PIL import Image
+
+    with Image.open(out / "f2.png") as im:
+        assert tuple(im.getpalette()[:6]) == tuple(c for k in CAMVID11.classes[:2] for c in k.colour)
+
+
 def _case(tmp_path, synthetic, how: str):
     """(extra arguments, the file named, what is said) of one bad input."""
     key = tmp_path / "key.png"

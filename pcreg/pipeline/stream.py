@@ -253,7 +253,11 @@ class Propagator:
                 raise InputError(f"the classifier has no {attr}: fit a classifier first "
                                  "(pcreg.fit_classifier on the key frame and its labels)")
         classes = list(np.asarray(getattr(classifier, "classes_", [0, 1])).tolist())
-        if classes != [0, 1] and not (len(classes) >= 2 and hasattr(classifier, "class_scores")
+        # ground and obstacle: classes 0 and 1 of a table that has no others (a key frame that shows only the
+        # first two classes of a larger table is a many-class stream that has seen two of them so far)
+        table = getattr(classifier, "class_table", None)
+        binary = classes == [0, 1] and (table is None or table.n_known <= 2)
+        if not binary and not (len(classes) >= 2 and hasattr(classifier, "class_scores")
                                       and hasattr(classifier, "class_table")):
             raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}; "
                              "other classes need a pcreg NaiveBayesPixelClassifier with its class table")
@@ -273,7 +277,7 @@ class Propagator:
             raise InputError("learning must be a pcreg.pipeline.learning.Learning or None")
         self.classifier = classifier
         self.model = model
-        self.anchor: str = anchor or ("key" if classes == [0, 1] else CLASS_ANCHOR)
+        self.anchor: str = anchor or ("key" if binary else CLASS_ANCHOR)
         self.scale = check_float(scale, "scale", lo=0, lo_open=True, hi=1)
         base = register or STREAM_REGISTRATION
         self.config = base.replace(backend=backend, init=init,
@@ -289,7 +293,7 @@ class Propagator:
         self.weight = float(weight)
         # K classes (any but ground and obstacle): the step of :mod:`pcreg.pipeline.multiclass`, its priors at
         # their share of the weight, and the stream's trust rule as it reads many classes
-        self._classes = None if classes == [0, 1] else np.asarray(classes, np.uint8)
+        self._classes = None if binary else np.asarray(classes, np.uint8)
         self._prior_weight = self.weight if self._classes is None else self.weight * CLASS_WEIGHT_SHARE
         if self._classes is not None and trust is STREAM_TRUST:
             trust = CLASS_TRUST

@@ -102,13 +102,23 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
         os.close(fd)
 
 
-def load_json_object(path: str | os.PathLike) -> dict:
-    """The JSON object a small file holds; a ValueError saying why not for a file that cannot be read
-    (missing, a folder, no permission), is not UTF-8, is not JSON, or holds another JSON value."""
+def loads_json(text: str | bytes):
+    """:func:`json.loads` of a file's text, where a document nested deeper than Python's recursion limit is a
+    ValueError like any other malformed one (json raises RecursionError for it: a hostile file, not a bug)."""
     import json
 
     try:
-        value = json.loads(Path(path).read_text(encoding="utf-8"))
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("JSON nested too deeply") from None
+
+
+def load_json_object(path: str | os.PathLike) -> dict:
+    """The JSON object a small file holds; a ValueError saying why not for a file that cannot be read
+    (missing, a folder, no permission), is not UTF-8, is not JSON, or holds another JSON value."""
+
+    try:
+        value = loads_json(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
         raise ValueError(f"unreadable ({exc.strerror or exc})") from None
     except ValueError:

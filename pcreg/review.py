@@ -16,7 +16,6 @@ frames between), and at once the next time the run is reviewed.
 
 from __future__ import annotations
 
-import json
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy as np
 
 from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
+from .formats import loads_json
 
 __all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay",
            "FrameImages", "write_overlay_video"]
@@ -82,7 +82,7 @@ def is_run(folder: str | Path) -> bool:
     if not p.is_file():
         return False
     try:
-        state = json.loads(p.read_text(encoding="utf-8"))
+        state = loads_json(p.read_text(encoding="utf-8"))
     except (OSError, ValueError, UnicodeDecodeError):
         return False
     return isinstance(state, dict) and isinstance(state.get("run"), dict) and ("key_frame" in state or "stretches" in state)
@@ -137,7 +137,7 @@ def read_review(folder: str | Path) -> RunReview:
         try:
             for line in steps_path.read_bytes().splitlines():
                 if line.strip():
-                    step = json.loads(line)
+                    step = loads_json(line)
                     steps[str(step["name"])] = step
         except (OSError, ValueError, KeyError, TypeError):
             raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None

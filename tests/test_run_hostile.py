@@ -79,7 +79,8 @@ def test_a_run_json_pcreg_did_not_write_is_refused_by_name(tmp_path, capsys, cha
 
 
 @pytest.mark.parametrize("line", [b"garbage", b"\xff\xfe", b"null", b"[1, 2]", b'{"frame": "3"}',
-                                  b'{"frame": 1, "predicted_error": "high"}', b'{"frame": 1, "predicted_error": 1e999}'])
+                                  b'{"frame": 1, "predicted_error": "high"}', b'{"frame": 1, "predicted_error": 1e999}',
+                                  b"[" * 100_000 + b"]" * 100_000])
 def test_a_steps_line_pcreg_did_not_write_is_refused_by_line(tmp_path, capsys, line):
     folder, key = _frames(tmp_path / "frames", (48, 64))
     out = tmp_path / "out"
@@ -91,6 +92,25 @@ def test_a_steps_line_pcreg_did_not_write_is_refused_by_line(tmp_path, capsys, l
     assert main(run) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and "steps.jsonl: line 2 is not a step pcreg run wrote" in err[0]
+
+
+def test_json_nested_beyond_the_recursion_limit_is_bad_input(tmp_path, capsys):
+    """json raises RecursionError for a document nested deeper than Python's recursion limit: a class table,
+    a run.json resumed and a run.json exported are each refused in one line, exit 2, not a bug."""
+    folder, key = _frames(tmp_path / "frames", (48, 64))
+    nested = "[" * 100_000 + "]" * 100_000
+    (tmp_path / "table.json").write_text(nested)
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    assert main([*run, "--classes", str(tmp_path / "table.json")]) == 2
+    assert "table.json" in one_line_errors(capsys)[-1]
+    assert main(run) == 0
+    (out / "run.json").write_text(nested)
+    capsys.readouterr()
+    for args in ([*run, "--suggest", "1"], ["export", str(out)]):
+        assert main(args) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and "run.json" in err[0], err
 
 
 def test_a_key_frames_run_with_a_damaged_state_or_step_is_refused(tmp_path, capsys):

@@ -35,6 +35,7 @@ import numpy as np
 
 from ..errors import InputError
 from .table import TABLES, ClassTable, LabelClass
+from ..formats import loads_json
 
 __all__ = ["LABELMAP_FILE", "LABELMAP_HEADER", "parse_labelmap", "read_labelmap", "labelmap_text", "write_labelmap",
            "parse_table_json", "table_json", "read_table_file", "class_table", "voc_colormap"]
@@ -161,7 +162,7 @@ def table_json(table: ClassTable) -> str:
 def parse_table_json(text: str, where: str) -> ClassTable:
     """The class table of :func:`table_json`'s text; a class's ``id`` may be left out (its position)."""
     try:
-        doc = json.loads(text)
+        doc = loads_json(text)
     except ValueError as exc:
         raise InputError(f"{where}: not JSON ({exc})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("classes"), list) or "unknown" not in doc:

@@ -20,6 +20,7 @@ from typing import Any
 
 from ..recording.null import NULL_RECORDER
 from .results import Results
+from ..formats import loads_json
 
 # The data sets loaded last, one per process: units sent to worker processes arrive one by one, and a
 # worker reads the data once for all those it runs. Loading every unit's data again would cost more
@@ -95,7 +96,7 @@ class UnitStore:
         old = None
         if cfg_path.is_file():
             try:
-                old = json.loads(cfg_path.read_text())
+                old = loads_json(cfg_path.read_text())
             except (OSError, ValueError):
                 old = None
         if force:
@@ -117,7 +118,7 @@ class UnitStore:
         if not p.is_file():
             return None
         try:
-            return json.loads(p.read_text())
+            return loads_json(p.read_text())
         except (OSError, ValueError):
             return None
 

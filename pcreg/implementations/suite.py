@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +38,7 @@ from typing import Sequence
 import numpy as np
 
 from ..outputs import atomic_write_bytes, atomic_write_text, to_json
-from ..formats import read_text_matrix
+from ..formats import loads_json, read_text_matrix
 from ..errors import InputError
 from ..registration.transforms import apply, rigid2d
 from .base import Pinned, reported
@@ -249,7 +248,7 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     from ..formats import read_regular_file
 
     try:
-        meta = json.loads(read_regular_file(index, max_bytes=1 << 20, what="suite index"))
+        meta = loads_json(read_regular_file(index, max_bytes=1 << 20, what="suite index"))
     except (OSError, ValueError) as exc:
         raise InputError(f"{index}: not a cross-check suite index ({' '.join(str(exc).split())[:160]})") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("cases"), list):
@@ -260,8 +259,8 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     for name in meta["cases"]:
         d = path / str(name)
         try:  # regular files only, bounded reads; a damaged case is one line, never a traceback
-            params = json.loads(read_regular_file(d / "params.json", max_bytes=1 << 20, what="params.json"))
-            info = (json.loads(read_regular_file(d / "case.json", max_bytes=1 << 20, what="case.json"))
+            params = loads_json(read_regular_file(d / "params.json", max_bytes=1 << 20, what="params.json"))
+            info = (loads_json(read_regular_file(d / "case.json", max_bytes=1 << 20, what="case.json"))
                     if (d / "case.json").exists() else {})
             init = read_text_matrix(d / "init.txt", what="initial guess")
             truth = read_text_matrix(d / "truth.txt", what="ground truth") if (d / "truth.txt").exists() else None

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, OutputError
-from ..formats import NPY_HEADER_ERRORS
+from ..formats import NPY_HEADER_ERRORS, loads_json
 
 __all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "write_confidence", "write_grey", "confidence_png",
@@ -106,7 +106,7 @@ def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:
     steps = []
     for i, line in enumerate(lines):
         try:
-            step = json.loads(line)
+            step = loads_json(line)
             ok = (isinstance(step, dict) and type(step.get("frame")) is int and step["frame"] >= 0
                   and (step.get("predicted_error") is None
                        or (type(step["predicted_error"]) in (int, float) and math.isfinite(step["predicted_error"]))))

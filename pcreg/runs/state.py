@@ -10,12 +10,11 @@ either for a run that writes (resume or start over); :func:`read_state` reads ei
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import InputError, OutputError
-from ..formats import load_json_object
+from ..formats import load_json_object, loads_json
 
 __all__ = ["STATE", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
            "read_state", "run_frames"]
@@ -140,7 +139,7 @@ def read_state(folder: Path) -> dict:
     if not state_path.is_file():
         raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
     try:
-        state = json.loads(state_path.read_text(encoding="utf-8"))
+        state = loads_json(state_path.read_text(encoding="utf-8"))
     except (OSError, ValueError, UnicodeDecodeError):
         state = None
     if state_problem(state) is not None or not isinstance(state.get("run"), dict):
@@ -174,10 +173,10 @@ def run_frames(state: dict, steps: Sequence[bytes]) -> tuple[list[str], list[str
         raise ValueError(f"run.json's {field!r} is not as pcreg run writes it")
     if "stretches" in state:
         keys = sorted(str(k) for k in state["keys"])
-        done = [str(json.loads(line)["name"]) for line in steps[:int(state["lines"])]]
+        done = [str(loads_json(line)["name"]) for line in steps[:int(state["lines"])]]
         return keys, sorted(set(keys) | set(done))
     key, count = str(state["key_frame"]), int(state["done"])
-    names = [key] + [str(json.loads(line)["name"]) for line in steps[:count - 1]]
+    names = [key] + [str(loads_json(line)["name"]) for line in steps[:count - 1]]
     if len(names) != count:
         raise ValueError(f"{len(names) - 1} steps for {count - 1} labelled frames")
     return [key], names

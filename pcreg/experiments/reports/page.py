@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from ...errors import InputError
+from ...formats import loads_json
 
 __all__ = ["Report", "load_report", "page_data", "EXPERIMENTS"]
 
@@ -75,11 +76,13 @@ def load_report(folder: str | Path) -> Report:
     if not rp.is_file():
         raise InputError(f"{p}: no results.json here (an evaluation's output folder: pcreg evaluate ... --out {p})")
     try:
-        results = json.loads(rp.read_text(encoding="utf-8"))
+        results = loads_json(rp.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
         raise InputError(f"{rp}: not valid JSON (not UTF-8 text)") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{rp}: not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+    except ValueError as exc:  # nested too deeply
+        raise InputError(f"{rp}: not valid JSON ({exc})") from None
     except OSError as exc:
         raise InputError(f"{rp}: cannot read it ({exc.strerror or exc})") from None
     experiment = _experiment(results) if isinstance(results, dict) else None
@@ -87,7 +90,7 @@ def load_report(folder: str | Path) -> Report:
         raise InputError(f"{rp}: not the results of pcreg evaluate sequence, rotation, stream or classification")
     config = results.get("config") if isinstance(results.get("config"), dict) else {}
     try:
-        on_disk = json.loads((p / "config.json").read_text(encoding="utf-8"))
+        on_disk = loads_json((p / "config.json").read_text(encoding="utf-8"))
         if isinstance(on_disk, dict):
             config = on_disk
     except (OSError, ValueError):

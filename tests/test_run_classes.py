@@ -194,3 +194,16 @@ def test_bad_tables_and_labels_end_in_one_line_and_keep_what_was_written(synthet
     rc, err = _run(["run", folder, "--labels", labels, "--out", out, "--model", "flow", "--force", *extra], capsys)
     assert rc == 2 and len(err) == 1 and str(named) in err[0] and said in err[0], err
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+
+
+def test_follow_object_with_more_than_two_classes_is_refused_before_anything_is_written(synthetic, tmp_path, capsys):
+    """--follow object follows one object: a table of eleven classes is refused in one line naming it, exit 2,
+    and no output folder is made (it once ran, reading ids 2 and up as unknown and dropping them)."""
+    folder, _ = frames_folder(tmp_path, synthetic, keys=())
+    (tmp_path / "k").mkdir()
+    cv2.imwrite(str(tmp_path / "k" / "f0.png"), synthetic[0].labels)  # ids 0, 1, 2: sky, building, pole
+    out = tmp_path / "out"
+    rc, err = _run(["run", folder, "--labels", tmp_path / "k" / "f0.png", "--classes", "camvid11", "--follow", "object",
+                    "--out", out], capsys)
+    assert rc == 2 and len(err) == 1 and "--classes camvid11" in err[0] and "--follow object" in err[0], err
+    assert not out.exists()

@@ -122,6 +122,9 @@ class Run:
 
         inputs = read_inputs(request, open_frames(request.frames, request.selection))
         keys, pending, table = inputs.keys, inputs.pending, inputs.table
+        if request.config.follow == "object" and table.n_known > 2:
+            raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
+                             f"object), not {table.n_known} classes; use --follow scene (the default) for them")
         prop = None if pending is None else request.config.from_key_frame(
             pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
         identity = with_classes(run_identity(inputs.frames, request.frames, request.labels, request.config,

@@ -65,6 +65,10 @@ def test_camvid_mapping_agrees_with_the_table():
     (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 6)), (255, "c", (0, 0, 0))), "0..254"),
     (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 256)), (2, "c", (0, 0, 0))), "three integers"),
     (((0, "a:b", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "holds ':'"),
+    # what would break a labelmap.txt line or cannot be written as UTF-8: every line break str.splitlines
+    # knows, a control character, half of a surrogate pair
+    *[(((0, f"a{ch}b", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "a line break or a control")
+      for ch in ("\n", "\r", "\x0b", "\x0c", "\x1c", "\x85", "\u2028", "\u2029", "\x00", "\t", "\ud800")],
 ])
 def test_table_validation(bad, needle):
     unknown = bad[-1][0]
@@ -73,6 +77,9 @@ def test_table_validation(bad, needle):
     _one_line(exc, "my.json", needle)
     with pytest.raises(InputError, match="unknown id 7"):
         ClassTable(LAGR.classes, 7, "t")
+    for unknown in (True, 2.0, "2", None):  # JSON's true is no id, nor a float or a string of digits
+        with pytest.raises(InputError, match="unknown id"):
+            ClassTable(LAGR.classes, unknown, "t")
 
 
 def test_labelmap_round_trips_and_reads_cvats(tmp_path):

@@ -53,8 +53,10 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
         raise InputError(f"{where}: class id {c.id!r} is not an integer 0..254")
     if not isinstance(c.name, str) or not c.name.strip() or c.name != c.name.strip():
         raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it)")
-    if any(ch in c.name for ch in ":\n\r#") or c.name.startswith("#"):
-        raise InputError(f"{where}: class name {c.name!r} holds ':', '#' or a line break")
+    if any(ch in ":#\x85\u2028\u2029" or ord(ch) < 32 or 0xD800 <= ord(ch) <= 0xDFFF for ch in c.name):
+        # a labelmap.txt line holds the name as it is: no field separator, comment, line break (any that
+        # str.splitlines splits on), control character or half of a surrogate pair (no UTF-8 for it)
+        raise InputError(f"{where}: class name {c.name!r} holds ':', '#', a line break or a control character")
     try:
         colour = tuple(int(v) for v in c.colour)
     except (TypeError, ValueError):
@@ -97,7 +99,8 @@ class ClassTable:
                 if k in seen:
                     raise InputError(f"{where}: classes {seen[k].name!r} and {c.name!r} share the {what} {k}")
                 seen[k] = c
-        if self.unknown not in [c.id for c in classes]:
+        if not isinstance(self.unknown, (int, np.integer)) or isinstance(self.unknown, bool) \
+                or self.unknown not in [c.id for c in classes]:
             raise InputError(f"{where}: the unknown id {self.unknown!r} is not one of the classes' ids")
         if len(classes) - 1 < 2:
             raise InputError(f"{where}: {len(classes) - 1} known class(es); a class table needs at least two")

@@ -161,7 +161,7 @@ def _datumaro_reads(archive: Path, where: Path, labels: dict[str, np.ndarray]) -
 
 
 @pytest.mark.parametrize("how", ["names match no frame", "a member climbs out", "not a zip", "a colour not in labelmap",
-                                 "labelmap with two names", "--classes disagrees", "all background"])
+                                 "labelmap with two names", "--classes disagrees", "all background", "a huge labelmap"])
 def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
     frames, ids = clip
     stems = list(ids)
@@ -190,6 +190,11 @@ def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
             z.writestr("labelmap.txt", "background:0,0,0::\nroad:1,1,1::\nroad:2,2,2::\n")
             z.writestr(f"SegmentationClass/{stems[0]}.png", b"")
         said = "labelmap.txt: two classes named 'road'"
+    elif how == "a huge labelmap":  # 64 MiB of comments in a few hundred kB: read no further than a table's limit
+        with zipfile.ZipFile(export, "w", compression=zipfile.ZIP_DEFLATED) as z:
+            z.writestr("labelmap.txt", "background:0,0,0::\nroad:1,1,1::\nsky:2,2,2::\n" + "#\n" * (32 << 20))
+            z.writestr(f"SegmentationClass/{stems[0]}.png", b"")
+        said = "labelmap.txt: 67108908 bytes, more than the 1048576 a class table may have"
     elif how == "--classes disagrees":
         cvat_export(export, TWO, good)
         args, said = ["--classes", "lagr"], "its class table disagrees with --classes lagr's"

@@ -104,23 +104,24 @@ class CvatExport(contextlib.AbstractContextManager):
         """How an error names a member: ``EXPORT.zip:NAME`` or the file's path."""
         return str(self.path / name) if self._zip is None else f"{self.path}:{name}"
 
-    def read(self, name: str) -> bytes:
-        """The bytes of ``name``, no more than ``max_bytes`` (read so, whatever the archive declares)."""
+    def read(self, name: str, *, max_bytes: int | None = None, what: str = "a label image") -> bytes:
+        """The bytes of ``name``, no more than ``max_bytes`` (default the export's; read so, whatever the
+        archive declares); ``what`` the file is, for the message of one too large."""
         from ..formats import read_regular_file
 
+        limit = self.max_bytes if max_bytes is None else max_bytes
         if self._zip is None:
-            return read_regular_file(self.path / name, max_bytes=self.max_bytes, what="CVAT export file")
+            return read_regular_file(self.path / name, max_bytes=limit, what="CVAT export file")
         info = self._members[name]
-        if info.file_size > self.max_bytes:
-            raise InputError(f"{self.where(name)}: {info.file_size} bytes, more than the {self.max_bytes} a label "
-                             "image may have")
+        if info.file_size > limit:
+            raise InputError(f"{self.where(name)}: {info.file_size} bytes, more than the {limit} {what} may have")
         try:
             with self._zip.open(info) as fh:
-                data = fh.read(self.max_bytes + 1)
+                data = fh.read(limit + 1)
         except _ZIP_ERRORS as exc:
             raise InputError(f"{self.where(name)}: unreadable in the archive ({exc})") from None
-        if len(data) > self.max_bytes:
-            raise InputError(f"{self.where(name)}: larger than the {self.max_bytes} bytes a label image may have")
+        if len(data) > limit:
+            raise InputError(f"{self.where(name)}: larger than the {limit} bytes {what} may have")
         return data
 
     def close(self) -> None:
@@ -134,7 +135,7 @@ class CvatExport(contextlib.AbstractContextManager):
 def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[int]]:
     """The export's table (``labelmap.txt``; with ``--classes`` too, they must agree) and each labelmap
     line's class id, in the file's order (for one-channel masks)."""
-    from .files import LABELMAP_FILE, class_table, parse_labelmap
+    from .files import LABELMAP_FILE, MAX_TABLE_BYTES, class_table, parse_labelmap
     from .table import check_tables_agree
 
     if not export.has(LABELMAP_FILE):
@@ -144,7 +145,7 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
         table = class_table(classes)
         return table, [table.unknown, *table.known_ids]
     try:
-        text = export.read(LABELMAP_FILE).decode("utf-8-sig")
+        text = export.read(LABELMAP_FILE, max_bytes=MAX_TABLE_BYTES, what="a class table").decode("utf-8-sig")
     except UnicodeDecodeError:
         raise InputError(f"{export.where(LABELMAP_FILE)}: not UTF-8 text") from None
     table = parse_labelmap(text, export.where(LABELMAP_FILE))

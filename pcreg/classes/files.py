@@ -46,7 +46,8 @@ LABELMAP_FILE = "labelmap.txt"
 LABELMAP_HEADER = "# label:color_rgb:parts:actions"
 #: The background's name and colour in CVAT's and Datumaro's label maps.
 BACKGROUND = ("background", (0, 0, 0))
-_MAX_BYTES = 1 << 20
+#: The most bytes a class table's file (a labelmap.txt, a JSON table) may have, inside a CVAT export too.
+MAX_TABLE_BYTES = 1 << 20
 
 
 def voc_colormap(n: int) -> np.ndarray:
@@ -120,7 +121,7 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
 def _read_text(path: Path, what: str) -> str:
     from ..formats import read_regular_file
 
-    data = read_regular_file(path, max_bytes=_MAX_BYTES, what=what)
+    data = read_regular_file(path, max_bytes=MAX_TABLE_BYTES, what=what)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError:

@@ -29,7 +29,7 @@ import numpy as np
 from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
 
-__all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labels_with_confidence", "instance_colours",
+__all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labelled_frames", "labels_with_confidence", "instance_colours",
            "cvat_mask_archive", "default_name"]
 
 #: The formats ``pcreg export`` writes.
@@ -112,6 +112,20 @@ def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
     from .classes import read_label_png
 
     return read_label_png(path, table)
+
+
+def labelled_frames(run: RunLabels, min_confidence: float | None = None):
+    """``(name, labels)`` of each frame of the run in order (:func:`labels_with_confidence`, in the run's
+    table), each label PNG checked to have the key frame's size (a file of another size is no label of this
+    run's frames: an :class:`InputError` naming it)."""
+    shape = None
+    for t, name in enumerate(run.names):
+        lab = labels_with_confidence(run, t, min_confidence, run.table)
+        if shape is not None and lab.shape != shape:
+            raise InputError(f"{run.paths[t]}: labels of {lab.shape[1]}x{lab.shape[0]}, the key frame's are "
+                             f"{shape[1]}x{shape[0]} (not a label image this run wrote)")
+        shape = lab.shape
+        yield name, lab
 
 
 def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None,

@@ -209,6 +209,9 @@ def read_overlay(review: RunReview, t: int, image: np.ndarray) -> np.ndarray:
     from .formats import read_image_file
 
     labels = read_labels(review.labels_path(t), review.table)
+    if labels.shape != image.shape[:2]:
+        raise InputError(f"{review.labels_path(t)}: labels of {labels.shape[1]}x{labels.shape[0]}, the frame is "
+                         f"{image.shape[1]}x{image.shape[0]} (not a label image this run wrote)")
     conf_path = review.confidence_path(t)
     conf = None
     if conf_path is not None:

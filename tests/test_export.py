@@ -185,6 +185,8 @@ def test_bad_input_one_line_exit_2_nothing_written(run_copy, tmp_path, capsys):
     _refused([str(out)], capsys, "frame_002.png", "label value 7")
     cv2.imwrite(str(out / "frame_002.png"), np.zeros((120, 160, 3), np.uint8) + [0, 0, 9])
     _refused([str(out)], capsys, "frame_002.png")
+    cv2.imwrite(str(out / "frame_002.png"), np.zeros((60, 80), np.uint8))  # labels, but of another size
+    _refused([str(out)], capsys, "frame_002.png", "labels of 80x60, the key frame's are")
     assert not (out / "export-cvat-mask.zip").exists() and not list(out.glob(".*.tmp"))
     # a run with no label files; a run.json that pcreg run did not write
     for p in out.glob("*.png"):

@@ -126,7 +126,7 @@ def test_a_video_runs_frames_are_named_by_index(video_out):
 
 
 def test_bad_run_folders_are_one_line(run_copy, tmp_path, capsys):
-    state = json.loads((run_copy / "run.json").read_text())
+    state, steps = json.loads((run_copy / "run.json").read_text()), (run_copy / "steps.jsonl").read_text()
     (run_copy / "run.json").write_text(json.dumps({**state, "run": {**state["run"], "folder": str(tmp_path / "gone")}}))
     assert pcreg_view([str(run_copy), "--web"]) == 2
     assert "is gone" in one_line_error(capsys)
@@ -140,6 +140,12 @@ def test_bad_run_folders_are_one_line(run_copy, tmp_path, capsys):
     assert "choose one" in one_line_error(capsys)
     assert pcreg_view([str(run_copy), "--overlay", str(tmp_path / "o.avi")]) == 2
     assert "name it .mp4" in one_line_error(capsys)
+    (run_copy / "steps.jsonl").write_text(steps)
+    label = sorted(p for p in run_copy.glob("*.png"))[2]
+    cv2.imwrite(str(label), np.zeros((6, 8), np.uint8))  # a label image of another size than the frames
+    assert pcreg_view([str(run_copy), "--overlay", str(tmp_path / "o.mp4")]) == 2
+    assert f"{label}: labels of 8x6, the frame is" in one_line_error(capsys)
+    assert not (tmp_path / "o.mp4").exists()
 
 
 # -- the overlay ---------------------------------------------------------------------------------------

@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..export import cvat_mask_archive, default_name, labels_with_confidence, read_run
+    from ..export import cvat_mask_archive, default_name, labelled_frames, read_run
     from ..outputs import atomic_write_bytes, check_output
 
     from ..errors import OutputError
@@ -42,9 +42,7 @@ def run(args: argparse.Namespace) -> int:
     if dest.resolve() != default.resolve() and folder in dest.resolve().parents and dest.suffix.lower() != ".zip":
         raise OutputError(f"--to {dest}: inside the run's own folder and not a .zip; the archive would replace one "
                           "of the run's files (choose a .zip name or another folder)")
-    frames = ((name, labels_with_confidence(run_labels, t, args.min_confidence, table))
-              for t, name in enumerate(run_labels.names))
-    data, counts = cvat_mask_archive(frames, table)  # every file read and checked before anything is written
+    data, counts = cvat_mask_archive(labelled_frames(run_labels, args.min_confidence), table)  # every file read and checked before anything is written
     atomic_write_bytes(dest, data)
     shown = [f"{c.name} in {counts[c.name]}" for c in table.known if counts[c.name]]
     absent = sum(1 for c in table.known if not counts[c.name])

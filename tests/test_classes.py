@@ -155,6 +155,8 @@ def test_json_round_trip_and_errors(tmp_path):
         _one_line(exc, "t.json", needle)
     with pytest.raises(InputError, match="neither a built-in"):
         class_table("nope")
+    with pytest.raises(InputError, match="--classes '': empty"):
+        class_table("")
 
 
 def test_tables_agree():
@@ -235,6 +237,32 @@ def test_bad_label_pngs(tmp_path):
         read_label_png(p, LAGR)
     with pytest.raises(InputError, match="no such file"):
         read_label_png(tmp_path / "none.png", LAGR)
+    # a palette PNG with a pixel beyond its palette (three colours, index 5): no viewer can show it, and a
+    # conversion to RGB makes it black; refused where a key frame is read and where a CVAT mask is
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    short = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 4, 1, 8, 3, 0, 0, 0))
+             + chunk(b"PLTE", bytes(CAMVID11.palette()[:3].ravel())) + chunk(b"IDAT", zlib.compress(b"\0\0\1\2\5"))
+             + chunk(b"IEND", b""))
+    p.write_bytes(short)
+    with pytest.raises(InputError) as exc:
+        read_label_png(p, CAMVID11)
+    _one_line(exc, str(p), "index 5, beyond its palette of 3 colours")
+    from pcreg.classes.cvat import _decode_mask
+
+    with pytest.raises(InputError, match="m.png: a pixel of index 5, beyond its palette"):
+        _decode_mask(short, "m.png", CAMVID11, [], None)
+    # a JPEG, whatever its name says: its values are changed at every edge (a class table of 150 classes would
+    # read most of them as some class), so it is no label image
+    ids = (np.arange(48 * 64).reshape(48, 64) // 300 % 11).astype(np.uint8)
+    p.write_bytes(cv2.imencode(".jpg", ids * 12)[1].tobytes())
+    with pytest.raises(InputError) as exc:
+        read_label_png(p, CAMVID11)
+    _one_line(exc, str(p), "a JPEG", "lossless")
 
 
 @pytest.mark.data

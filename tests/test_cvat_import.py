@@ -13,6 +13,7 @@ import contextlib
 import io
 import json
 import shutil
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -161,7 +162,8 @@ def _datumaro_reads(archive: Path, where: Path, labels: dict[str, np.ndarray]) -
 
 
 @pytest.mark.parametrize("how", ["names match no frame", "a member climbs out", "not a zip", "a colour not in labelmap",
-                                 "labelmap with two names", "--classes disagrees", "all background", "a huge labelmap"])
+                                 "labelmap with two names", "--classes disagrees", "all background", "a huge labelmap",
+                                 "two members of one name"])
 def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
     frames, ids = clip
     stems = list(ids)
@@ -195,6 +197,13 @@ def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
             z.writestr("labelmap.txt", "background:0,0,0::\nroad:1,1,1::\nsky:2,2,2::\n" + "#\n" * (32 << 20))
             z.writestr(f"SegmentationClass/{stems[0]}.png", b"")
         said = "labelmap.txt: 67108908 bytes, more than the 1048576 a class table may have"
+    elif how == "two members of one name":
+        cvat_export(export, TWO, good)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # zipfile warns of the duplicate name it is asked to write
+            with zipfile.ZipFile(export, "a") as z:
+                z.writestr(f"SegmentationClass/{stems[0]}.png", b"")
+        said = f"two members named 'SegmentationClass/{stems[0]}.png'"
     elif how == "--classes disagrees":
         cvat_export(export, TWO, good)
         args, said = ["--classes", "lagr"], "its class table disagrees with --classes lagr's"

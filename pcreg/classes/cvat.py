@@ -86,6 +86,9 @@ class CvatExport(contextlib.AbstractContextManager):
                 self.close()
                 raise InputError(f"{self.path}: member {info.filename!r} names a path outside the archive")
             if not info.is_dir():
+                if name in self._members:  # which one a reader takes is its own choice: no silent winner
+                    self.close()
+                    raise InputError(f"{self.path}: two members named {name!r}")
                 self._members[name] = info
 
     def names(self, folder: str) -> list[str]:
@@ -159,21 +162,13 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
 def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], limit: int) -> np.ndarray:
     """A CVAT class mask's class ids: colours (RGB, or a palette's) through the table, one channel as
     labelmap lines."""
-    import io
-
-    from PIL import Image
-
     from ..formats import check_image_bytes, decode_image
-    from .png import is_palette_png
+    from .png import is_palette_png, palette_image
 
     check_image_bytes(data, name, limit=limit)
     if is_palette_png(data):
-        try:
-            with Image.open(io.BytesIO(data)) as im:
-                rgb = np.asarray(im.convert("RGB"), dtype=np.uint8)
-        except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
-            raise InputError(f"{name}: cannot decode image ({exc})") from None
-        return table.ids_from_colours(rgb, name)
+        idx, pal = palette_image(data, name)
+        return table.ids_from_colours(pal[idx], name)
     img = decode_image(data, name, limit=limit)
     if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] in (3, 4):
         return table.ids_from_colours(np.ascontiguousarray(img[:, :, 2::-1]), name)
@@ -214,7 +209,7 @@ def _positions(frames):
     return where
 
 
-def _named(frames) -> str:
+def named_frames(frames) -> str:
     """How the run's frames are named: the first and the last."""
     n = len(frames) if frames.kind == "folder" else frames.count()
     first = frames.stem(0)
@@ -246,7 +241,7 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
         placed = [where(s) for s in stems]
         if all(t is None for t in placed):
             raise InputError(f"{path}: its masks are named {stems[0]} ... {stems[-1]}, the frames of "
-                             f"{frames.path} {_named(frames)}: no mask names a frame")
+                             f"{frames.path} {named_frames(frames)}: no mask names a frame")
         keys: dict[int, np.ndarray] = {}
         seen: dict[int, str] = {}
         for m, t in zip(masks, placed):

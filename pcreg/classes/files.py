@@ -204,6 +204,8 @@ def class_table(spec: str | Path | ClassTable | None) -> ClassTable:
         return spec
     if isinstance(spec, str) and spec in TABLES:
         return TABLES[spec]
+    if isinstance(spec, str) and not spec.strip():
+        raise InputError(f"--classes {spec!r}: empty; name a built-in class table ({', '.join(TABLES)}) or a file")
     p = Path(spec).expanduser()
     if not p.exists():
         raise InputError(f"{spec}: neither a built-in class table ({', '.join(TABLES)}) nor a file")

@@ -60,7 +60,10 @@ def write_label_png(path: str | Path, labels: np.ndarray, table: ClassTable) -> 
     return atomic_write_bytes(path, encode_label_png(labels, table))
 
 
-def _decode_palette(data: bytes, name: str, table: ClassTable) -> np.ndarray:
+def palette_image(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(indices, palette)`` of a palette PNG: (H, W) uint8 and (n, 3) uint8 RGB; an :class:`InputError`
+    naming it when it does not decode as one or a pixel's index is beyond its palette (a colour no viewer can
+    show, which a conversion to RGB would make black)."""
     from PIL import Image
 
     try:
@@ -74,14 +77,21 @@ def _decode_palette(data: bytes, name: str, table: ClassTable) -> np.ndarray:
         raise
     except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
         raise InputError(f"{name}: cannot decode image ({exc})") from None
+    pal = np.asarray(palette[: len(palette) // 3 * 3], np.uint8).reshape(-1, 3)
+    if idx.size and int(idx.max()) >= len(pal):
+        raise InputError(f"{name}: a pixel of index {int(idx.max())}, beyond its palette of {len(pal)} colours")
+    return idx, pal
+
+
+def _decode_palette(data: bytes, name: str, table: ClassTable) -> np.ndarray:
+    idx, pal = palette_image(data, name)
     lab = table.check_labels(idx, name)
     colours = {c.id: c.colour for c in table.classes}
     for v in np.flatnonzero(np.bincount(lab.ravel(), minlength=256)):
-        if 3 * v + 2 < len(palette):
-            said = tuple(palette[3 * v: 3 * v + 3])
-            if said != colours[int(v)]:
-                raise InputError(f"{name}: its palette colours index {v} {said}, the class table "
-                                 f"{table.name_of(int(v))!r} {colours[int(v)]} (another class table?)")
+        said = tuple(int(x) for x in pal[v])
+        if said != colours[int(v)]:
+            raise InputError(f"{name}: its palette colours index {v} {said}, the class table "
+                             f"{table.name_of(int(v))!r} {colours[int(v)]} (another class table?)")
     return lab
 
 
@@ -91,6 +101,10 @@ def decode_label_png(data: bytes, name: str, table: ClassTable, *, limit: int | 
     from ..formats import check_image_bytes, decode_image
 
     check_image_bytes(data, name, limit=limit)
+    lossy = "JPEG" if data[:3] == b"\xff\xd8\xff" else "lossy WebP" if data[:4] == b"RIFF" and data[8:16] == b"WEBPVP8 " \
+        else None
+    if lossy is not None:
+        raise InputError(f"{name}: a {lossy}, which changes the values at every edge; label images must be lossless (PNG)")
     if is_palette_png(data):
         return _decode_palette(data, name, table)
     img = decode_image(data, name, limit=limit)  # IMREAD_UNCHANGED: as the file stores it, BGR(A)

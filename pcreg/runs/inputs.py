@@ -163,6 +163,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     through ``table`` (None: ``lagr``), each checked: a frame it names, one label a frame, the frames' size,
     something known."""
     from ..classes import DEFAULT_TABLE
+    from ..classes.cvat import named_frames
     from ..classes.keys import all_unknown
     from ..errors import InputError
 
@@ -190,8 +191,8 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     for f in files:
         t = where(f.stem)
         if t is None:
-            raise InputError(f"{f}: names no frame of {frames.path}" + ("" if frames.selection.to_dict() is None
-                                                                           else " among those chosen"))
+            raise InputError(f"{f}: names no frame of {frames.path} ({named_frames(frames)})"
+                             + ("" if frames.selection.to_dict() is None else " among those chosen"))
         if t in seen:
             raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
         lab = read_labels(f, mapping, table)

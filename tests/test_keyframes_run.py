@@ -169,7 +169,8 @@ def test_bad_labels_folders_and_options_are_refused(tmp_path, frames, folder, ca
         assert len(err) == 1 and _outputs(out) == written
         return err[0]
 
-    assert "names no frame" in refused(_keys(tmp_path / "nameless", frames, [0, 2], name="g{}"))
+    said = refused(_keys(tmp_path / "nameless", frames, [0, 2], name="g{}"))
+    assert "g0.png: names no frame" in said and f"(f0 ... f{len(frames) - 1})" in said, said
     twice = _keys(tmp_path / "twice", frames, [0, 2])
     cv2.imwrite(str(twice / "f2.PNG"), frames[2].labels)
     if len(list(twice.iterdir())) == 3:  # a file system that tells case apart
@@ -178,6 +179,13 @@ def test_bad_labels_folders_and_options_are_refused(tmp_path, frames, folder, ca
     cv2.imwrite(str(small / "f3.png"), frames[3].labels[:60])
     msg = refused(small)
     assert msg.startswith("pcreg: error: ") and "f3.png: labels are 160x60, the frames 160x120" in msg
+    ground = tmp_path / "ground"  # two key frames that show ground alone: which ones is said
+    ground.mkdir()
+    for i in (0, 2):
+        cv2.imwrite(str(ground / f"f{i}.png"), np.zeros_like(frames[i].labels))
+    assert main(["run", str(folder), "--labels", str(ground), "--out", str(tmp_path / "o_ground")]) == 2
+    err = _err(capsys)
+    assert len(err) == 1 and "the labels of f0.png and f2.png: training labels hold only one class (ground)" in err[0]
     with pytest.raises(SystemExit) as exit_:  # argparse's own refusal, one line too
         main(["run", str(folder), "--labels", str(tmp_path / "k"), "--out", str(out), "--suggest", "0"])
     assert exit_.value.code == 2 and _err(capsys) == ["pcreg run: error: argument --suggest: expected an integer >= 1, got 0"]

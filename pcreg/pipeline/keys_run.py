@@ -164,8 +164,13 @@ class KeyRun:
         from ..datasets import Frame
 
         table = getattr(self.owner, "table", None)  # the run's class table; two classes keep the default
-        return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys],
-                              classes=table if table is not None and table.n_known > 2 else None)
+        try:
+            return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys],
+                                  classes=table if table is not None and table.n_known > 2 else None)
+        except InputError as exc:  # one class in these key frames' labels: say which key frames
+            names = [self.frames.name(k) for k in s.keys]
+            said = " and ".join(names) if len(names) < 3 else f"{names[0]} ... {names[-1]}"
+            raise InputError(f"the labels of {said}: {exc}") from None
 
     def _propagator(self, clf, image, labels, learning: bool):
         prop = self.config.propagator(clf, learns=learning)

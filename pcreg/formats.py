@@ -55,7 +55,7 @@ def check_regular_file(path: str | os.PathLike, *, what: str = "file") -> Path:
     if stat.S_ISDIR(st.st_mode):
         raise InputError(f"{p}: is a folder, not a file ({what})")
     if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{p}: not a regular file (a FIFO, device or socket cannot be a {what})")
+        raise InputError(f"{p}: not a regular file (a FIFO, device or socket is no {what})")
     if not os.access(p, os.R_OK):
         raise InputError(f"{p}: permission denied")
     return p
@@ -81,7 +81,7 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
         if stat.S_ISDIR(st.st_mode):
             raise InputError(f"{p}: is a folder, not a file ({what})")
         if not stat.S_ISREG(st.st_mode):
-            raise InputError(f"{p}: not a regular file (a FIFO, device or socket cannot be a {what})")
+            raise InputError(f"{p}: not a regular file (a FIFO, device or socket is no {what})")
         if st.st_size > max_bytes:
             raise InputError(f"{p}: {what} of {st.st_size / 2**20:.0f} MiB exceeds the limit of "
                              f"{max_bytes / 2**20:.0f} MiB (raise --max-pixels / PCREG_MAX_PIXELS)")

@@ -124,6 +124,8 @@ def test_labelmap_forms_datumaro_accepts():
     ("background:0,0,0::\nroad:1,2,3::\ncar:::\n", "has no colour"),
     ("background:0,0,0::\nroad:1,2,3::x:y\n", "fields"),
     ("# nothing\n", "no class"),
+    ("background:0,0,0::\nroad:1_0,2,3::\ncar:4,5,6::\n", "not R,G,B"),  # int() would read 10
+    ("background:0,0,0::\nroad:\u0661,2,3::\ncar:4,5,6::\n", "not R,G,B"),  # an Arabic-Indic 1
 ])
 def test_bad_labelmaps(tmp_path, text, needle):
     p = tmp_path / "labelmap.txt"

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from pcreg.classes import CAMVID11, ClassTable, LabelClass, labelmap_text
+from pcreg.errors import InputError
 from pcreg.cli import main
 from pcreg.export import read_labels
 from _runs import one_line_errors
@@ -95,6 +96,17 @@ def test_camvid11_export_reads_back_as_camvid_ids(clip, tmp_path):
     assert table.agrees(CAMVID11) and sorted(keys) == [0, 3]
     np.testing.assert_array_equal(keys[3], ids[stems[3]])
     (tmp_path / "b").mkdir()
+    wrapped = tmp_path / "wrapped.zip"  # the same export zipped with its folder around it
+    with zipfile.ZipFile(by_name) as z, zipfile.ZipFile(wrapped, "w") as w:
+        for name in z.namelist():
+            w.writestr(f"task_1/{name}", z.read(name))
+    table, again = read_cvat_keys(wrapped, source, ids[stems[0]].shape)
+    assert table.agrees(CAMVID11) and sorted(again) == [0, 3]
+    np.testing.assert_array_equal(again[3], keys[3])
+    with zipfile.ZipFile(wrapped, "a") as w:
+        w.writestr("task_1/SegmentationClass/x.png", b"")
+    with pytest.raises(InputError, match="wrapped.zip:task_1/SegmentationClass/x.png"):  # errors name the member
+        read_cvat_keys(wrapped, source, ids[stems[0]].shape)
     by_index = cvat_export(tmp_path / "b", CAMVID11, {"frame_000000": ids[stems[0]], "frame_000004": ids[stems[4]],
                                                       "frame_000002": np.full_like(ids[stems[2]], 11)}, as_zip=False)
     table, keys = read_cvat_keys(by_index, source, ids[stems[0]].shape)
@@ -163,7 +175,7 @@ def _datumaro_reads(archive: Path, where: Path, labels: dict[str, np.ndarray]) -
 
 @pytest.mark.parametrize("how", ["names match no frame", "a member climbs out", "not a zip", "a colour not in labelmap",
                                  "labelmap with two names", "--classes disagrees", "all background", "a huge labelmap",
-                                 "two members of one name"])
+                                 "two members of one name", "a transparent mask"])
 def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
     frames, ids = clip
     stems = list(ids)
@@ -204,6 +216,12 @@ def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
             with zipfile.ZipFile(export, "a") as z:
                 z.writestr(f"SegmentationClass/{stems[0]}.png", b"")
         said = f"two members named 'SegmentationClass/{stems[0]}.png'"
+    elif how == "a transparent mask":
+        cvat_export(export, TWO, good)
+        rgba = np.zeros((*good[stems[0]].shape, 4), np.uint8)  # black, but nothing drawn: alpha 0
+        with zipfile.ZipFile(export, "a") as z:
+            z.writestr(f"SegmentationClass/{stems[1]}.png", cv2.imencode(".png", rgba)[1].tobytes())
+        said = f"SegmentationClass/{stems[1]}.png: a class mask with transparent pixels"
     elif how == "--classes disagrees":
         cvat_export(export, TWO, good)
         args, said = ["--classes", "lagr"], "its class table disagrees with --classes lagr's"

@@ -18,8 +18,10 @@ task) the source's frame N, where the run chose it (``--start``, ``--every``). A
 background is a frame nobody drew on, not a key frame.
 
 An archive is read in memory, never unpacked: members are looked up by name, a name that climbs out of
-the archive (``..``, an absolute path) is refused, and every member's size is bounded before it is read
-(:data:`MAX_MEMBERS`, the pixel limit's file size).
+the archive (``..``, an absolute path) or two members of one name are refused, and every member's size is
+bounded before it is read (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class
+table's). An archive whose members all lie in one folder holding the export (an export zipped with its
+folder around it) is read inside that folder.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from ..errors import InputError
+from .files import LABELMAP_FILE
 from .table import ClassTable
 
 __all__ = ["CLASS_DIR", "MAX_MEMBERS", "is_cvat_export", "CvatExport", "read_cvat_keys"]
@@ -70,6 +73,7 @@ class CvatExport(contextlib.AbstractContextManager):
         self.path, self.max_bytes = Path(path), max_bytes
         self._zip: zipfile.ZipFile | None = None
         self._members: dict[str, zipfile.ZipInfo] = {}
+        self._prefix = ""
         if self.path.is_dir():
             return
         try:
@@ -90,6 +94,22 @@ class CvatExport(contextlib.AbstractContextManager):
                     self.close()
                     raise InputError(f"{self.path}: two members named {name!r}")
                 self._members[name] = info
+        self._prefix = self._wrapping_folder()
+        if self._prefix:  # an export zipped with its folder around it: read inside that folder
+            self._members = {n[len(self._prefix):]: info for n, info in self._members.items() if n.startswith(self._prefix)}
+
+    def _wrapping_folder(self) -> str:
+        """``"NAME/"`` when every member lies in one folder NAME that holds the export (its ``labelmap.txt``
+        or ``SegmentationClass/``) and the archive's top holds neither; else ``""``."""
+        names = self._members
+        if LABELMAP_FILE in names or any(n.startswith(f"{CLASS_DIR}/") for n in names):
+            return ""
+        tops = {n.split("/", 1)[0] + "/" if "/" in n else "" for n in names}
+        if len(tops) != 1 or "" in tops:
+            return ""
+        top = tops.pop()
+        inside = f"{top}{LABELMAP_FILE}" in names or any(n.startswith(f"{top}{CLASS_DIR}/") for n in names)
+        return top if inside else ""
 
     def names(self, folder: str) -> list[str]:
         """The ``.png`` files directly in ``folder``, by relative name, in name order."""
@@ -105,7 +125,7 @@ class CvatExport(contextlib.AbstractContextManager):
 
     def where(self, name: str) -> str:
         """How an error names a member: ``EXPORT.zip:NAME`` or the file's path."""
-        return str(self.path / name) if self._zip is None else f"{self.path}:{name}"
+        return str(self.path / name) if self._zip is None else f"{self.path}:{self._prefix}{name}"
 
     def read(self, name: str, *, max_bytes: int | None = None, what: str = "a label image") -> bytes:
         """The bytes of ``name``, no more than ``max_bytes`` (default the export's; read so, whatever the
@@ -138,7 +158,7 @@ class CvatExport(contextlib.AbstractContextManager):
 def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[int]]:
     """The export's table (``labelmap.txt``; with ``--classes`` too, they must agree) and each labelmap
     line's class id, in the file's order (for one-channel masks)."""
-    from .files import LABELMAP_FILE, MAX_TABLE_BYTES, class_table, parse_labelmap
+    from .files import MAX_TABLE_BYTES, class_table, parse_labelmap
     from .table import check_tables_agree
 
     if not export.has(LABELMAP_FILE):
@@ -171,6 +191,8 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
         return table.ids_from_colours(pal[idx], name)
     img = decode_image(data, name, limit=limit)
     if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] in (3, 4):
+        if img.shape[2] == 4 and (img[:, :, 3] != 255).any():  # as a key label image: no colour to read there
+            raise InputError(f"{name}: a class mask with transparent pixels (an alpha channel below 255)")
         return table.ids_from_colours(np.ascontiguousarray(img[:, :, 2::-1]), name)
     if img.ndim == 2 and img.dtype == np.uint8:
         lut = np.full(256, 255, np.uint8)

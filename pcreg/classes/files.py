@@ -64,10 +64,8 @@ def voc_colormap(n: int) -> np.ndarray:
 
 def _colour(text: str, name: str, where: str) -> tuple[int, int, int]:
     parts = [p.strip() for p in text.split(",")]
-    try:
-        rgb = tuple(int(p) for p in parts)
-    except ValueError:
-        rgb = ()
+    # decimal digits as CVAT writes them: int() alone would also take "1_0" and other scripts' digits
+    rgb = tuple(int(p) for p in parts) if all(p.isascii() and p.isdigit() for p in parts) else ()
     if len(rgb) != 3 or any(v < 0 or v > 255 for v in rgb):
         raise InputError(f"{where}: class {name!r} has colour {text!r}, not R,G,B in 0..255")
     return rgb[0], rgb[1], rgb[2]

@@ -396,7 +396,7 @@ def test_region_means_follow_connected_pieces():
 def test_a_label_in_a_piece_read_with_small_margins_is_less_sure():
     """Two pixels with the same margin, deep in pieces that are pure and agree with the carried prior: the
     one whose piece was read with small margins elsewhere gets the lower confidence (the region's terms of
-    CLASS_CONFIDENCE_COEFFICIENTS); and the coefficients are seven."""
+    CLASS_CONFIDENCE_COEFFICIENTS); and the coefficients are eight."""
     h, w, k = 64, 128, 3
     best = np.zeros((h, w), np.intp)
     best[:, 64:] = 1
@@ -408,8 +408,28 @@ def test_a_label_in_a_piece_read_with_small_margins_is_less_sure():
     scores[..., 1] = best == 1
     conf = multiclass.class_confidence(margin, best, scores, scores, multiclass.CLASS_CONFIDENCE_COEFFICIENTS)
     assert conf[32, 32] > conf[32, 96] + 0.05
-    with pytest.raises(InputError, match="7 coefficients"):
+    with pytest.raises(InputError, match="8 coefficients"):
         multiclass.class_confidence(margin, best, scores, scores, multiclass.CLASS_CONFIDENCE_COEFFICIENTS[:5])
+
+
+def test_a_frame_read_with_small_margins_overall_is_less_sure_everywhere():
+    """The same pixel, its piece and its neighbourhood alike, in two frames: in the one whose other pieces were
+    read with small margins it gets the lower confidence (the frame's term of CLASS_CONFIDENCE_COEFFICIENTS),
+    by the logistic model's intercept moved by 1.2 times the change of the frame's mean log1p(margin)."""
+    h, w, k = 64, 128, 3
+    best = np.zeros((h, w), np.intp)
+    best[:, 64:] = 1
+    scores = np.zeros((h, w, k), np.float32)
+    scores[..., 0] = best == 0
+    scores[..., 1] = best == 1
+    sure, unsure = np.full((h, w), 5.0, np.float32), np.full((h, w), 5.0, np.float32)
+    unsure[:, 64:] = 0.1  # the other piece read with small margins
+    coefficients = multiclass.CLASS_CONFIDENCE_COEFFICIENTS
+    a, b = (multiclass.class_confidence(m, best, scores, scores, coefficients)[32, 32] for m in (sure, unsure))
+    assert a > b > multiclass.CLASS_MIN_CONFIDENCE
+    logit = lambda p: np.log(p / (1.0 - p))  # noqa: E731
+    frame_change = float(np.mean(np.log1p(unsure)) - np.mean(np.log1p(sure)))
+    assert logit(b) - logit(a) == pytest.approx(coefficients[7] * frame_change, rel=1e-3)
 
 
 @pytest.mark.parametrize("kill_at, phase", [(6, "between"), (9, "backward"), (13, "forward")])

@@ -8,7 +8,8 @@ agrees within 30° (measured at full resolution; on images whose full-resolution
 ``chance_ratio`` is what unrelated content reaches at the same distances. Below ``min_inlier_ratio``
 (see :data:`~pcreg.registration.config.DEFAULT_MIN_INLIER_RATIO`; None turns the test off), below :data:`CHANCE_FACTOR` x
 ``chance_ratio``, with fewer than 2% of the points on the reference (no overlap), or when the moving
-image's mirror aligns clearly better (:data:`MIRROR_FACTOR`), :class:`~pcreg.errors.RegistrationError`
+image's mirror aligns clearly better (a score :data:`MIRROR_FACTOR` times as high, and more of its edge
+points; asked of every model when the search ended unconvinced), :class:`~pcreg.errors.RegistrationError`
 is raised with a one-line reason. Unrelated images, noise and mirror images are refused this way.
 """
 
@@ -23,7 +24,7 @@ from .search import Candidate
 
 MIRROR_FACTOR = 1.2
 """A moving image whose mirror scores (:attr:`~pcreg.registration.search.Candidate.score`) this much better
-than itself is refused as a mirror image."""
+than itself, and aligns more of its edge points, is refused as a mirror image."""
 
 CHANCE_FACTOR = 2.0
 """A plausible alignment has at least this multiple of its chance level of inliers (true alignments
@@ -60,11 +61,13 @@ class Plausibility:
 
     def worth_a_mirror(self, tried: list[Candidate], convincing: bool) -> bool:
         """Whether the search ended unconvinced though above the threshold: then the moving image may be a
-        mirror image of the reference (its mirror, if so, aligns better; a rigid or similarity motion
-        cannot mirror)."""
+        mirror image of the reference (its mirror, if so, aligns better). Every model is asked: a rigid or
+        similarity motion cannot mirror, and an affine or projective one, which could, starts from the
+        search's rotations and refines to one, never to a mirror (a mirrored transform is refused anyway,
+        :func:`~pcreg.registration.transforms.degeneracy`): a photograph's round outline or frame lines up
+        rotated while its content does not."""
         best_ratio = max((c.inlier_ratio for c in tried), default=0.0)
-        return (self.min_inlier_ratio is not None and self.model in ("translation", "rigid", "similarity")
-                and best_ratio >= self.min_inlier_ratio and not convincing)
+        return self.min_inlier_ratio is not None and best_ratio >= self.min_inlier_ratio and not convincing
 
     def check(self, best: Candidate, *, mirror: Candidate | None = None, shape: tuple[int, ...] | None = None
               ) -> Evidence:
@@ -81,7 +84,7 @@ class Plausibility:
         if best.refined.fitness == 0.0 or ev.overlap_points < need:
             raise RegistrationError(f"registration found no overlap between the images: {ev.overlap_points} of "
                                     f"{ev.moving_points} moving edge points land on the reference (at least {need} needed)")
-        if mirror is not None and mirror.score > MIRROR_FACTOR * best.score:
+        if mirror is not None and mirror.score > MIRROR_FACTOR * best.score and mirror.inlier_ratio > ratio:
             raise RegistrationError(
                 f"registration refused: the moving image is a mirror image of the reference (its mirror aligns "
                 f"{100 * mirror.inlier_ratio:.1f}% of the edge points within {self.inlier_tolerance:g} px, the image "

@@ -60,6 +60,41 @@ def test_crosscheck_of_two_clouds_takes_its_stopping_rule_from_the_config():
     assert d["implementations"]["open3d"]["agrees"] is True
 
 
+def test_a_crosscheck_with_no_correspondence_at_the_initial_pose_is_refused(tmp_path, capsys):
+    """Clouds 1e4 target diagonals apart: every ICP stops at the identity with fitness 0, which read as
+    implementations that converged and agree; the cross-check is refused (exit 3), and runs with an --init
+    that brings them together."""
+    from pcreg.cli import main
+    from pcreg.errors import RegistrationError
+
+    rng = np.random.default_rng(0)
+    target = rng.uniform(0, 10, (500, 3))
+    source = target + 1e5
+    with pytest.raises(RegistrationError, match="no source point lies within the correspondence distance"):
+        pcreg.crosscheck(source, target)
+    np.save(tmp_path / "s.npy", source)
+    np.save(tmp_path / "t.npy", target)
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy")]) == 3
+    assert "registration refused: no source point" in capsys.readouterr().err
+    init = np.eye(4)
+    init[:3, 3] = -1e5
+    np.savetxt(tmp_path / "init.txt", init)
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "init.txt")]) == 0
+
+
+def test_a_suite_case_with_no_correspondence_is_a_refused_row_and_the_others_run():
+    from pcreg.implementations.suite import Case, run_suite
+
+    rng = np.random.default_rng(1)
+    target = rng.uniform(0, 10, (300, 3))
+    near = Case(target + 0.05, target, np.eye(4), 1.0, 30, 1e-6, 1e-6, name="near")
+    far = Case(target + 1e5, target, np.eye(4), 1.0, 30, 1e-6, 1e-6, name="far")
+    rows = run_suite([far, near], ["reference", "open3d"])
+    assert [(r["case"], r["implementation"], r["status"]) for r in rows] == [
+        ("far", "reference", "refused"), ("near", "reference", "ok"), ("near", "open3d", "ok")]
+    assert "no source point lies within" in rows[0]["error"]
+
+
 def test_crosscheck_images_agree():
     ref = shapes_image()
     mov = moved(ref, rigid_about_centre(ref.shape, 35.0, 10.0, -6.0))

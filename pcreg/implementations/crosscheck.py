@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, RegistrationError
 from ..formats import IMAGE_SUFFIXES
 from ..registration.clouds import as_rgb_uint8, load_image
 from ..registration.api import check_cloud, register
@@ -403,6 +403,8 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
     outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
     ref = outcomes.get(REFERENCE)
+    if isinstance(ref, RegistrationResult):  # the reference ran: was there anything to run on?
+        _check_some_correspondence(src, tgt, T0, float(max_correspondence_distance))
     conv, conv_info = _reference_at_convergence(adapters, outcomes, pinned)
     rows, traces = {}, {}
     for name in names:
@@ -455,6 +457,20 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     if not max_correspondence_distance > 0:
         raise InputError("max_correspondence_distance must be > 0")
     return src, tgt, T0, max_correspondence_distance
+
+
+def _check_some_correspondence(src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, distance: float) -> None:
+    """A :class:`RegistrationError` when no source point, at the initial pose, has a target point within
+    ``distance``: every ICP stops where it started (fitness 0), and a cross-check of identities would read as
+    implementations that agree and converged."""
+    from scipy.spatial import cKDTree
+
+    moved = src @ T0[:-1, :-1].T + T0[:-1, -1]
+    near, _ = cKDTree(tgt).query(moved, k=1, distance_upper_bound=distance)
+    if not np.isfinite(near).any():
+        raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
+                                f"{distance:g} of a target point at the initial pose; every ICP would stop where it "
+                                "started (give --init, or a larger --max-distance)")
 
 
 def _adapters(names: list[str], timeout: float | None) -> tuple[dict, dict]:

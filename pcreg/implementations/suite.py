@@ -39,7 +39,7 @@ import numpy as np
 
 from ..outputs import atomic_write_bytes, atomic_write_text, to_json
 from ..formats import loads_json, read_text_matrix
-from ..errors import InputError
+from ..errors import InputError, RegistrationError
 from ..registration.transforms import apply, rigid2d
 from .base import Pinned, reported
 
@@ -308,9 +308,9 @@ def run_suite(cases: Sequence[Case], implementations: Sequence[str], *, timeout:
                                  relative_fitness=c.relative_fitness, relative_rmse=c.relative_rmse)
             r = crosscheck_implementations(c.source, c.target, implementations=implementations, options=options,
                                            init=c.init, truth=c.truth, timeout=timeout)
-        except InputError as exc:
-            rows.append({"case": c.name, "implementation": "reference", "status": "failed", "agrees": False,
-                         "error": str(exc)})
+        except (InputError, RegistrationError) as exc:  # bad, or nothing to compare: that case's one row
+            rows.append({"case": c.name, "implementation": "reference", "agrees": False, "error": str(exc),
+                         "status": "refused" if isinstance(exc, RegistrationError) else "failed"})
             continue
         for name, row in r.rows.items():
             div = row.get("divergence")
@@ -379,6 +379,8 @@ def _figure(path: Path, rows: list[dict]) -> None:
         elif status == "failed":
             code[i, j] = 2
             text[i][j] = "fail"
+        elif status == "refused":  # nothing to compare: no correspondence at the initial pose
+            text[i][j] = "refused"
         else:
             text[i][j] = "n/a"
     fig, ax = plt.subplots(figsize=(1.1 * len(impls) + 2.5, 0.38 * len(cases) + 1.8), dpi=110)

@@ -376,7 +376,10 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
     if n > limit:
         raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
     if fmt == "ascii":
-        lines = _count_data_lines(path, body_start, n + sum(e[1] for e in elements if e is not vertex))
+        total = sum(e[1] for e in elements)
+        lines = _count_data_lines(path, body_start, total + 1)
+        if lines > total:  # a count that lies low: Open3D would read the first n rows and drop the rest
+            raise InputError(f"{path}: the PLY header declares {total} data lines ({n} vertices), the file holds more")
         before = 0
         for e in elements:
             if e is vertex:
@@ -393,6 +396,9 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
         if e is vertex:
             break
     have = size - body_start
+    if vertex is elements[-1] and not any(e[3] for e in elements) and have - need >= sum(vertex[2]):
+        raise InputError(f"{path}: the PLY header declares {n} vertices ({need} bytes), the file holds {have} bytes "
+                         "(more vertices than declared?)")
     if have < need:
         got = max(0, have) // max(1, sum(vertex[2]))
         raise InputError(f"{path}: truncated PLY: the header declares {n} vertices "

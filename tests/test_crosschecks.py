@@ -142,6 +142,25 @@ def test_load_cloud_formats_and_errors(tmp_path):
         load_cloud(tmp_path / "nan.npy")
 
 
+def test_a_ply_that_holds_more_vertices_than_its_header_declares_is_refused(tmp_path):
+    """Open3D reads the count the header declares and drops the rest silently: a header that lies low is
+    refused, ASCII and binary; a trailing newline after the data is no vertex and is read."""
+    import open3d as o3d
+
+    pts = np.random.default_rng(0).normal(size=(300, 3))
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    for ascii_ in (True, False):
+        path = tmp_path / f"c{ascii_}.ply"
+        o3d.io.write_point_cloud(str(path), cloud, write_ascii=ascii_)
+        with open(path, "ab") as fh:
+            fh.write(b"\n")
+        assert load_cloud(path).shape == (300, 3)
+        data = path.read_bytes()
+        path.write_bytes(data.replace(b"element vertex 300", b"element vertex 100", 1))
+        with pytest.raises(InputError, match=f"{path.name}: the PLY header declares"):
+            load_cloud(path)
+
+
 def test_crosscheck_refuses_an_image_against_a_cloud(tmp_path):
     np.save(tmp_path / "a.npy", np.random.default_rng(0).normal(size=(50, 3)))
     import cv2

@@ -200,6 +200,14 @@ def test_broken_programs_fail_in_one_line_and_the_others_still_run(tmp_path):
         "garbage": "import sys; open(sys.argv[1], 'w').write('not a matrix')",
         "nan": "import sys; open(sys.argv[1], 'w').write('nan nan nan\\n' * 3)",
         "shape": "import sys; open(sys.argv[1], 'w').write('1 0 0 0\\n0 1 0 0\\n0 0 1 0\\n0 0 0 1\\n')",
+        # matrices no rigid ICP returns, and a side file of impossible figures
+        "scaled": "import sys; open(sys.argv[1], 'w').write('5 0 0\\n0 5 0\\n0 0 1\\n')",
+        "reflection": "import sys; open(sys.argv[1], 'w').write('-1 0 0\\n0 1 0\\n0 0 1\\n')",
+        "lastrow": "import sys; open(sys.argv[1], 'w').write('1 0 0\\n0 1 0\\n1 2 3\\n')",
+        "side": ("import sys, json; open(sys.argv[1], 'w').write('1 0 0\\n0 1 0\\n0 0 1\\n'); "
+                 "json.dump({'iterations': 3, 'fitness': 7.5}, open(sys.argv[1] + '.json', 'w'))"),
+        "converged": ("import sys, json; open(sys.argv[1], 'w').write('1 0 0\\n0 1 0\\n0 0 1\\n'); "
+                      "json.dump({'converged': 'yes'}, open(sys.argv[1] + '.json', 'w'))"),
     }
     specs = {}
     for name, code in scripts.items():
@@ -229,6 +237,12 @@ def test_broken_programs_fail_in_one_line_and_the_others_still_run(tmp_path):
     assert "unreadable output" in rows[specs["garbage"]]["error"]
     assert "NaN" in rows[specs["nan"]]["error"]
     assert "expected 3x3" in rows[specs["shape"]]["error"]
+    assert "not orthonormal (a scale or a shear)" in rows[specs["scaled"]]["error"]
+    assert "a reflection" in rows[specs["reflection"]]["error"]
+    assert "last row is [1.0, 2.0, 3.0]" in rows[specs["lastrow"]]["error"]
+    assert rows[specs["side"]]["error"] == "fitness must be in 0..1, got 7.5"
+    assert rows[specs["converged"]]["error"] == "converged must be true or false, got 'yes'"
+    assert not any(rows[specs[k]]["agrees"] for k in ("scaled", "reflection", "lastrow", "side", "converged"))
     assert "RuntimeError: no" in rows[specs["pycrash"]]["error"]
     assert rows[specs["py"]]["error"] is None and not rows[specs["py"]]["agrees"]
     for s in specs.values():

@@ -19,12 +19,13 @@ The file protocol of ``cmd:`` programs (fixed; other tools are written against i
 - ``{params}``: a JSON file with ``max_correspondence_distance``, ``max_iterations``, ``relative_fitness``
   and ``relative_rmse``;
 - ``{out}``: the program writes the (d+1)x(d+1) matrix mapping source points onto the target there, in
-  the format of ``{init}``; it may also write ``{out}.json`` with ``iterations``, ``fitness`` and
-  ``inlier_rmse`` (and ``comparability``).
+  the format of ``{init}``; it may also write ``{out}.json`` with ``iterations`` (whole, at least 0),
+  ``fitness`` (0..1), ``inlier_rmse`` (at least 0), ``converged`` (true or false) and ``comparability``.
 
 Placeholders the template does not use are not written. The program runs in the current directory
-with a time limit; a non-zero exit, a timeout, an unreadable output or a NaN is that implementation's
-failure.
+with a time limit; a non-zero exit, a timeout, an unreadable output, a NaN, a matrix that is not a rigid
+transform (:data:`RIGID_TOLERANCE`) or a figure out of its range is that implementation's failure (a
+Python callable's too).
 """
 
 from __future__ import annotations
@@ -58,12 +59,44 @@ def _comparability(value, where: str) -> str:
     return value
 
 
-def _number(value, key: str, kind=float):
+def _number(value, key: str, kind=float, lo: float = 0.0, hi: float = math.inf):
+    """A reported number, None when not reported; an :class:`ImplementationError` for one of another type or
+    outside ``lo`` .. ``hi`` (iterations and errors are not negative, a fitness is a share)."""
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ImplementationError(f"{key} must be a finite number, got {value!r}")
+    if kind is int and value != int(value):
+        raise ImplementationError(f"{key} must be a whole number, got {value!r}")
+    if not lo <= value <= hi:
+        raise ImplementationError(f"{key} must be in {lo:g}..{hi:g}, got {value!r}")
     return kind(value)
+
+
+def _converged(value):
+    if value is not None and not isinstance(value, bool):
+        raise ImplementationError(f"converged must be true or false, got {value!r}")
+    return value
+
+
+#: How far a returned matrix may be from a rigid transform (its rotation block's R^T R from the identity,
+#: its last row from (0, ..., 0, 1)): text written with six significant digits is well within it.
+RIGID_TOLERANCE = 1e-4
+
+
+def _rigid(matrix: np.ndarray) -> np.ndarray:
+    """``matrix`` when it is a rigid transform (the cross-check pins the rigid ICP): else an
+    :class:`ImplementationError` saying how it is not (a scale, a reflection, a last row of a projection)."""
+    k = matrix.shape[0] - 1
+    R = matrix[:k, :k]
+    if np.abs(matrix[k] - np.eye(k + 1)[k]).max() > RIGID_TOLERANCE:
+        raise ImplementationError(f"returned a matrix whose last row is {matrix[k].tolist()}, not a rigid transform's")
+    if np.abs(R.T @ R - np.eye(k)).max() > RIGID_TOLERANCE:
+        raise ImplementationError("returned a matrix whose rotation block is not orthonormal (a scale or a shear): "
+                                  "not a rigid transform")
+    if np.linalg.det(R) < 0:
+        raise ImplementationError("returned a reflection (determinant -1), not a rigid transform")
+    return matrix
 
 
 class PythonCallable(Implementation):
@@ -125,11 +158,16 @@ class PythonCallable(Implementation):
         except (TypeError, ValueError):
             raise ImplementationError("returned a matrix that is not numeric") from None
         isarr = isinstance(r, (np.ndarray, list, tuple))
-        conv = None if isarr else get("converged")
-        return result(self.name, matrix, iterations=None if isarr else _number(get("iterations"), "iterations", int),
-                      fitness=None if isarr else _number(get("fitness"), "fitness"),
+        d = pinned.source.shape[1]
+        if matrix.shape != (d + 1, d + 1):
+            raise ImplementationError(f"returned a {'x'.join(map(str, matrix.shape))} matrix, expected {d + 1}x{d + 1}")
+        if not np.all(np.isfinite(matrix)):
+            raise ImplementationError("returned a matrix holding NaN or inf")
+        return result(self.name, _rigid(matrix),
+                      iterations=None if isarr else _number(get("iterations"), "iterations", int),
+                      fitness=None if isarr else _number(get("fitness"), "fitness", hi=1.0),
                       inlier_rmse=None if isarr else _number(get("inlier_rmse"), "inlier_rmse"),
-                      converged=None if conv is None else bool(conv), seconds=seconds)
+                      converged=None if isarr else _converged(get("converged")), seconds=seconds)
 
 
 class Command(Implementation):
@@ -215,8 +253,7 @@ class Command(Implementation):
                 except ValueError as exc:
                     raise ImplementationError(f"{side.name}: {exc}") from None
             self._declared = _comparability(extra.get("comparability"), self.name)
-            conv = extra.get("converged")
-            return result(self.name, m, iterations=_number(extra.get("iterations"), "iterations", int),
-                          fitness=_number(extra.get("fitness"), "fitness"),
+            return result(self.name, _rigid(m), iterations=_number(extra.get("iterations"), "iterations", int),
+                          fitness=_number(extra.get("fitness"), "fitness", hi=1.0),
                           inlier_rmse=_number(extra.get("inlier_rmse"), "inlier_rmse"),
-                          converged=None if conv is None else bool(conv), seconds=seconds)
+                          converged=_converged(extra.get("converged")), seconds=seconds)

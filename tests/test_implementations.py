@@ -189,6 +189,40 @@ def test_external_c_icp_agrees_step_for_step_and_a_wrong_one_disagrees(icp_min, 
     assert w["error"] is None and not w["agrees"] and w["rotation_disagreement_deg"] > 1.0
 
 
+def _ended(pid: int) -> bool:
+    """Whether process ``pid`` is gone or a zombie (killed, not reaped yet)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+    return state in ("Z", "X")
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads a process's state in /proc")
+def test_a_program_past_its_time_limit_ends_with_its_children(tmp_path):
+    """A cmd: program that starts a child and hangs: at the time limit its row says so, and the child it
+    started is killed with it (it once outlived the cross-check)."""
+    from pcreg.implementations.crosscheck import crosscheck_implementations
+
+    script = tmp_path / "parent.py"
+    script.write_text("import subprocess, sys, threading\n"
+                      "child = subprocess.Popen([sys.executable, '-c', 'import threading; threading.Event().wait()'])\n"
+                      f"open({str(tmp_path / 'child.pid')!r}, 'w').write(str(child.pid))\n"
+                      "threading.Event().wait()\n")
+    spec = f'cmd:"{sys.executable} {script} {{out}}"'
+    tgt = np.random.default_rng(0).uniform(-5, 5, (100, 2))
+    r = crosscheck_implementations(tgt + 0.1, tgt, implementations=["reference", spec],
+                                   options=ICPOptions(max_correspondence_distance=1.0), timeout=3)
+    assert "timed out after 3 s" in r.rows[spec]["error"]
+    pid = int((tmp_path / "child.pid").read_text())
+    import time
+
+    deadline = time.monotonic() + 30  # SIGKILL was sent before the row was made; wait for it to land
+    while not _ended(pid) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert _ended(pid)
+
+
 @pytest.mark.slow
 def test_broken_programs_fail_in_one_line_and_the_others_still_run(tmp_path):
     py = sys.executable

@@ -170,6 +170,30 @@ class PythonCallable(Implementation):
                       converged=None if isarr else _converged(get("converged")), seconds=seconds)
 
 
+def _run_in_own_group(argv: list[str], timeout: float | None) -> subprocess.CompletedProcess:
+    """``argv`` run to its end in a process group of its own, its output captured; past ``timeout`` the
+    whole group is killed (a program's own children too, which a kill of the program alone leaves running)."""
+    import os
+    import signal
+
+    try:
+        p = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             start_new_session=True)
+    except OSError as exc:
+        raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.communicate()
+        raise ImplementationError(f"timed out after {timeout:g} s") from None
+    except BaseException:  # an interrupt: the program and its children end with this run
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+        raise
+    return subprocess.CompletedProcess(argv, p.returncode, out, err)
+
+
 class Command(Implementation):
     """``cmd:"PROGRAM {source} {target} {init} {out} {params}"``."""
 
@@ -223,12 +247,7 @@ class Command(Implementation):
                 paths["params"].write_text(json.dumps(pinned.params(), indent=2))
             argv = [tok.format(**{k: str(v) for k, v in paths.items()}) for tok in self.argv]
             start = time.perf_counter()
-            try:
-                proc = subprocess.run(argv, capture_output=True, timeout=self.timeout, stdin=subprocess.DEVNULL)
-            except subprocess.TimeoutExpired:
-                raise ImplementationError(f"timed out after {self.timeout:g} s") from None
-            except OSError as exc:
-                raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
+            proc = _run_in_own_group(argv, self.timeout)
             seconds = time.perf_counter() - start
             if proc.returncode != 0:
                 last = proc.stderr.decode("utf-8", "replace").strip().splitlines()

@@ -345,6 +345,13 @@ def test_an_affine_or_projective_registration_refuses_a_mirrored_photograph(shar
     assert tf.max_corner_error(r.matrix, T, small.shape) < 3.0  # corners of a 200 px image, outside the round photo
 
 
+def test_an_image_too_small_for_the_pyramid_is_named_with_its_size():
+    wide = np.zeros((8, 4800, 3), np.uint8)
+    with pytest.raises(InputError, match=r"the moving image \(4800x8\) is too small for 4 pyramid levels \(the "
+                                         r"shorter side needs at least 64 px\)"):
+        pcreg.register(REF, wide)
+
+
 def test_register_too_few_inliers_and_the_user_threshold():
     # A genuine pair blurred hard: the evidence drops; the user's threshold decides.
     import cv2

@@ -423,8 +423,8 @@ def _check_inputs(ref_img: np.ndarray, mov_img: np.ndarray, pyramid: PyramidConf
     for the first bad one)."""
     from .clouds import check_mask
 
-    for img in (ref_img, mov_img):
-        pyramid.check_shape(img.shape)
+    for img, name in ((ref_img, "the reference image"), (mov_img, "the moving image")):
+        pyramid.check_shape(img.shape, name)
     check_mask(reference_mask, ref_img.shape, name="reference_mask")
     check_mask(moving_mask, mov_img.shape, name="moving_mask")
     check_callable(callback, "callback")

@@ -79,10 +79,13 @@ class PyramidConfig:
         _set(self, "reference_max_points", check_count(self.reference_max_points, "reference_max_points"))
         _set(self, "canny_percentile", check_float(self.canny_percentile, "canny_percentile", lo=0, hi=100))
 
-    def check_shape(self, shape: tuple[int, ...]) -> None:
-        """Refuse images of ``shape`` too small for the levels: the coarsest under 8 px a side."""
+    def check_shape(self, shape: tuple[int, ...], name: str = "images") -> None:
+        """Refuse images of ``shape`` too small for the levels: the coarsest under 8 px a side (``name``: which
+        image, for the message)."""
         if min(shape[:2]) >> (self.levels - 1) < 8:
-            raise InputError(f"images too small for {self.levels} pyramid levels")
+            said = "images are" if name == "images" else f"{name} ({shape[1]}x{shape[0]}) is"
+            raise InputError(f"{said} too small for {self.levels} pyramid levels (the shorter side needs at least "
+                             f"{8 << (self.levels - 1)} px)")
 
 
 @dataclass(frozen=True)

@@ -624,7 +624,7 @@ CLI = {
     "crosscheck_init_nan": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--init", "{t}/nan.txt"], "finite"),
     "crosscheck_relative_fitness_nan": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--relative-fitness", "nan"],
                                         "--relative-fitness"),
-    "crosscheck_suite_bad_params": (["crosscheck", "--suite", "{t}/suite"], "unreadable case"),
+    "crosscheck_suite_bad_params": (["crosscheck", "--suite", "{t}/suite"], "params.json: max_correspondence_distance must be a number, got 'far'"),
     "sequence_lagr_nan": (["evaluate", "sequence", "--data", "lagr:{t}/lagr_nan", "--out", "{t}/o"], "NaN"),
     "register_out_not_png_or_jpeg": (["register", "{t}/good.png", "{t}/good.png", "--out", "{t}/w.webp"],
                                      "name it .png"),

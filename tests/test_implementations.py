@@ -338,6 +338,24 @@ def test_export_writes_readable_test_vectors_with_the_reference_trace(tmp_path):
     assert "collinear" in json.loads((tmp_path / "3d-collinear" / "case.json").read_text())["reference_error"]
     loaded = {c.name: c for c in load_suite(tmp_path)}
     np.testing.assert_array_equal(loaded["3d-noise"].source, src)
+    # A hand-edited suite: a parameter of the wrong type or range, or a case named outside the suite, is one line
+    from pcreg.errors import InputError
+
+    params = tmp_path / "3d-noise" / "params.json"
+    good = params.read_text()
+    for change, said in [({"max_iterations": 30.5}, "max_iterations must be an integer"),
+                         ({"max_iterations": -3}, "max_iterations must be"),
+                         ({"max_correspondence_distance": "1"}, "max_correspondence_distance must be a number"),
+                         ({"relative_rmse": float("nan")}, "relative_rmse must be")]:
+        params.write_text(json.dumps({**json.loads(good), **change}))
+        with pytest.raises(InputError, match=f"params.json: {said}"):
+            load_suite(tmp_path)
+    params.write_text(good)
+    index = tmp_path / "index.json"
+    meta = json.loads(index.read_text())
+    index.write_text(json.dumps({**meta, "cases": ["../../etc"]}))
+    with pytest.raises(InputError, match="case '../../etc' is not the name of a folder in the suite"):
+        load_suite(tmp_path)
 
 
 def test_suite_writes_a_table_and_a_figure(tmp_path):

@@ -255,19 +255,27 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
         raise InputError(f"{index}: expected {{\"format\": ..., \"cases\": [...]}}")
     from .crosscheck import load_cloud
 
+    from ..validation import check_float, check_int
+
     cases = []
     for name in meta["cases"]:
-        d = path / str(name)
+        if not isinstance(name, str) or not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name:
+            raise InputError(f"{index}: case {name!r} is not the name of a folder in the suite")
+        d = path / name
         try:  # regular files only, bounded reads; a damaged case is one line, never a traceback
             params = loads_json(read_regular_file(d / "params.json", max_bytes=1 << 20, what="params.json"))
             info = (loads_json(read_regular_file(d / "case.json", max_bytes=1 << 20, what="case.json"))
                     if (d / "case.json").exists() else {})
             init = read_text_matrix(d / "init.txt", what="initial guess")
             truth = read_text_matrix(d / "truth.txt", what="ground truth") if (d / "truth.txt").exists() else None
-            case = Case(load_cloud(d / "source.npy"), load_cloud(d / "target.npy"), init,
-                        float(params["max_correspondence_distance"]), int(params.get("max_iterations", 30)),
-                        float(params.get("relative_fitness", 1e-6)), float(params.get("relative_rmse", 1e-6)),
-                        name=str(name), description=str(info.get("description", "")), truth=truth)
+            where = f"{d / 'params.json'}: "
+            distance = check_float(params["max_correspondence_distance"], where + "max_correspondence_distance",
+                                   lo=0, lo_open=True)
+            iterations = check_int(params.get("max_iterations", 30), where + "max_iterations", lo=1, hi=100_000)
+            fitness, rmse = (check_float(params.get(k, 1e-6), where + k, lo=0) for k in ("relative_fitness",
+                                                                                         "relative_rmse"))
+            case = Case(load_cloud(d / "source.npy"), load_cloud(d / "target.npy"), init, distance, iterations,
+                        fitness, rmse, name=name, description=str(info.get("description", "")), truth=truth)
         except InputError:
             raise
         except (OSError, ValueError, KeyError, TypeError, AttributeError, OverflowError) as exc:

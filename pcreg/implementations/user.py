@@ -84,19 +84,23 @@ def _converged(value):
 RIGID_TOLERANCE = 1e-4
 
 
-def _rigid(matrix: np.ndarray) -> np.ndarray:
-    """``matrix`` when it is a rigid transform (the cross-check pins the rigid ICP): else an
-    :class:`ImplementationError` saying how it is not (a scale, a reflection, a last row of a projection)."""
-    k = matrix.shape[0] - 1
-    R = matrix[:k, :k]
-    if np.abs(matrix[k] - np.eye(k + 1)[k]).max() > RIGID_TOLERANCE:
-        raise ImplementationError(f"returned a matrix whose last row is {matrix[k].tolist()}, not a rigid transform's")
-    if np.abs(R.T @ R - np.eye(k)).max() > RIGID_TOLERANCE:
-        raise ImplementationError("returned a matrix whose rotation block is not orthonormal (a scale or a shear): "
-                                  "not a rigid transform")
+def _checked_matrix(m: np.ndarray, d: int, what: str) -> np.ndarray:
+    """``m`` when it is a finite rigid (d+1)x(d+1) transform (the cross-check pins the rigid ICP); else an
+    :class:`ImplementationError` naming ``what`` and how it is not (its shape, a NaN, a scale or a shear, a
+    reflection, a last row of a projection)."""
+    if m.shape != (d + 1, d + 1):
+        raise ImplementationError(f"{what} is {'x'.join(map(str, m.shape))}, expected {d + 1}x{d + 1}")
+    if not np.all(np.isfinite(m)):
+        raise ImplementationError(f"{what} holds NaN or inf")
+    R = m[:d, :d]
+    if np.abs(m[d] - np.eye(d + 1)[d]).max() > RIGID_TOLERANCE:
+        raise ImplementationError(f"{what}'s last row is {m[d].tolist()}, not a rigid transform's")
+    if np.abs(R.T @ R - np.eye(d)).max() > RIGID_TOLERANCE:
+        raise ImplementationError(f"{what}'s rotation block is not orthonormal (a scale or a shear): not a rigid "
+                                  "transform")
     if np.linalg.det(R) < 0:
-        raise ImplementationError("returned a reflection (determinant -1), not a rigid transform")
-    return matrix
+        raise ImplementationError(f"{what} is a reflection (determinant -1), not a rigid transform")
+    return m
 
 
 class PythonCallable(Implementation):
@@ -158,12 +162,7 @@ class PythonCallable(Implementation):
         except (TypeError, ValueError):
             raise ImplementationError("returned a matrix that is not numeric") from None
         isarr = isinstance(r, (np.ndarray, list, tuple))
-        d = pinned.source.shape[1]
-        if matrix.shape != (d + 1, d + 1):
-            raise ImplementationError(f"returned a {'x'.join(map(str, matrix.shape))} matrix, expected {d + 1}x{d + 1}")
-        if not np.all(np.isfinite(matrix)):
-            raise ImplementationError("returned a matrix holding NaN or inf")
-        return result(self.name, _rigid(matrix),
+        return result(self.name, _checked_matrix(matrix, pinned.source.shape[1], "the returned matrix"),
                       iterations=None if isarr else _number(get("iterations"), "iterations", int),
                       fitness=None if isarr else _number(get("fitness"), "fitness", hi=1.0),
                       inlier_rmse=None if isarr else _number(get("inlier_rmse"), "inlier_rmse"),
@@ -260,10 +259,7 @@ class Command(Implementation):
                 m = np.loadtxt(out, dtype=np.float64, ndmin=2)
             except ValueError as exc:
                 raise ImplementationError(f"unreadable output matrix ({str(exc).splitlines()[0][:120]})") from None
-            if m.shape != (d + 1, d + 1):
-                raise ImplementationError(f"output matrix is {m.shape[0]}x{m.shape[1]}, expected {d + 1}x{d + 1}")
-            if not np.all(np.isfinite(m)):
-                raise ImplementationError("output matrix holds NaN or inf")
+            m = _checked_matrix(m, d, "output matrix")
             extra = {}
             side = Path(str(out) + ".json")
             if side.exists():
@@ -272,7 +268,7 @@ class Command(Implementation):
                 except ValueError as exc:
                     raise ImplementationError(f"{side.name}: {exc}") from None
             self._declared = _comparability(extra.get("comparability"), self.name)
-            return result(self.name, _rigid(m), iterations=_number(extra.get("iterations"), "iterations", int),
+            return result(self.name, m, iterations=_number(extra.get("iterations"), "iterations", int),
                           fitness=_number(extra.get("fitness"), "fitness", hi=1.0),
                           inlier_rmse=_number(extra.get("inlier_rmse"), "inlier_rmse"),
                           converged=_converged(extra.get("converged")), seconds=seconds)

@@ -155,6 +155,12 @@ def test_json_round_trip_and_errors(tmp_path):
         with pytest.raises(InputError) as exc:
             parse_table_json(text, "t.json")
         _one_line(exc, "t.json", needle)
+    named_txt = tmp_path / "classes.txt"  # a JSON table under another name reads as JSON, a labelmap as one
+    named_txt.write_text(table_json(CAMVID11))
+    assert class_table(str(named_txt)) == CAMVID11  # the source is not compared
+    braced = tmp_path / "labelmap.txt"
+    braced.write_text("{odd}:1,2,3::\nb:4,5,6::\n")
+    assert [c.name for c in class_table(str(braced)).classes[:2]] == ["{odd}", "b"]
     with pytest.raises(InputError, match="neither a built-in"):
         class_table("nope")
     with pytest.raises(InputError, match="--classes '': empty"):

@@ -204,6 +204,22 @@ def test_bad_labels_folders_and_options_are_refused(tmp_path, frames, folder, ca
     assert "000009.png: names no frame" in _err(capsys)[0] and _outputs(out) == written
 
 
+def test_key_labels_named_as_cvat_names_frames_label_those_frames(tmp_path, frames, folder):
+    """A key folder's frame_NNNNNN.png labels the source frame NNNNNN (CVAT's names, for a folder and a
+    video alike): the run is the one its NAME.png keys give; a second name of one frame is refused."""
+    by_name, by_cvat = tmp_path / "o_name", tmp_path / "o_cvat"
+    assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "kn", frames, [0, 4])), "--out", str(by_name)]) == 0
+    cvat = _keys(tmp_path / "kc", frames, [0, 4], name="frame_{:06d}")
+    assert main(["run", str(folder), "--labels", str(cvat), "--out", str(by_cvat)]) == 0
+    assert _outputs(by_name) == _outputs(by_cvat)
+    cv2.imwrite(str(cvat / "f4.png"), frames[4].labels)
+    assert main(["run", str(folder), "--labels", str(cvat), "--out", str(tmp_path / "o_twice")]) == 2
+    video = _video(tmp_path, frames)
+    vkeys = _keys(tmp_path / "vc", frames, [2], name="frame_{:06d}")
+    assert main(["run", str(video), "--labels", str(vkeys), "--out", str(tmp_path / "o_video")]) == 0
+    assert (tmp_path / "o_video" / "000002.png").is_file()
+
+
 def test_a_key_frames_run_is_exported_and_reviewed_like_a_one_key_run(tmp_path, folder, frames):
     """export and the review read a run from a folder of key frames: every frame, the key frames among
     them, in frame order."""

@@ -205,8 +205,10 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
     raise InputError(f"{name}: not a class mask (RGB colours of labelmap.txt, or one channel)")
 
 
-def _positions(frames):
-    """``stem -> position`` of the run's frames, and a function of a mask's stem to a position or None."""
+def frame_positions(frames):
+    """A function of a label file's stem to the position of the run's frame it names, or None: a folder's
+    frame by its file's stem, any run's source frame ``i`` (counted before ``--start``/``--every``) by
+    ``frame_NNNNNN`` (CVAT's names), and a video's by its index in digits."""
     s = frames.selection
     by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
 
@@ -258,7 +260,7 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
         if not masks:
             raise InputError(f"{export.where(CLASS_DIR)}: no class mask (a CVAT 'Segmentation mask 1.1' export holds "
                              f"{CLASS_DIR}/NAME.png)")
-        where = _positions(frames)
+        where = frame_positions(frames)
         stems = [PurePosixPath(m).stem for m in masks]
         placed = [where(s) for s in stems]
         if all(t is None for t in placed):

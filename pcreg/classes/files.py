@@ -181,14 +181,28 @@ def parse_table_json(text: str, where: str) -> ClassTable:
 
 
 def read_table_file(path: str | Path) -> ClassTable:
-    """A class table from a file: ``.json`` (:func:`parse_table_json`), anything else a ``labelmap.txt``;
-    a folder, its ``labelmap.txt`` (an unpacked CVAT export)."""
+    """A class table from a file: ``.json``, or any file whose text is a JSON object, a JSON table
+    (:func:`parse_table_json`); anything else a ``labelmap.txt``; a folder, its ``labelmap.txt`` (an
+    unpacked CVAT export)."""
     p = Path(path).expanduser()
     if p.is_dir():
         p = p / LABELMAP_FILE
-    if p.suffix.lower() == ".json":
-        return parse_table_json(_read_text(p, "class table"), str(p))
-    return read_labelmap(p)
+    text = _read_text(p, "class table" if p.suffix.lower() == ".json" else "label map")
+    if p.suffix.lower() == ".json" or _json_object(text):
+        return parse_table_json(text, str(p))
+    return parse_labelmap(text, str(p))
+
+
+def _json_object(text: str) -> bool:
+    """Whether ``text`` is a JSON object (a JSON table under another name than ``.json``)."""
+    from ..formats import loads_json
+
+    if not text.lstrip().startswith("{"):
+        return False
+    try:
+        return isinstance(loads_json(text), dict)
+    except ValueError:
+        return False
 
 
 def class_table(spec: str | Path | ClassTable | None) -> ClassTable:

@@ -159,11 +159,12 @@ def check_suggest(count: int | None, frames, keys: int) -> None:
         raise InputError(f"--suggest {count}: only {n - keys} frame(s) are not key frames")
 
 def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> dict:
-    """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``), read
+    """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``, and
+    ``frame_NNNNNN.png`` the source frame NNNNNN, as CVAT names them: :func:`~pcreg.classes.cvat.frame_positions`), read
     through ``table`` (None: ``lagr``), each checked: a frame it names, one label a frame, the frames' size,
     something known."""
     from ..classes import DEFAULT_TABLE
-    from ..classes.cvat import named_frames
+    from ..classes.cvat import frame_positions, named_frames
     from ..classes.keys import all_unknown
     from ..errors import InputError
 
@@ -171,21 +172,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith("."))
     if not files:
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
-    if frames.kind == "folder":
-        positions = {p.stem: t for t, p in enumerate(frames.paths)}
-
-        def where(stem: str) -> int | None:
-            return positions.get(stem)
-    else:
-        s = frames.selection
-
-        def where(stem: str) -> int | None:
-            if not (stem.isascii() and stem.isdigit()) or not s.chosen(int(stem)):
-                return None
-            if frames.declared is not None and int(stem) >= frames.declared:
-                return None
-            return (int(stem) - s.start) // s.every
-
+    where = frame_positions(frames)
     keys: dict = {}
     seen: dict[int, Path] = {}
     for f in files:

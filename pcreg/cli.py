@@ -190,7 +190,9 @@ def main(argv: list[str] | None = None) -> int:
             os._exit(2)
         return 2
     except KeyboardInterrupt:
-        sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")
+        again = ("the same command with another --record file (the recording holds the frames done)"
+                 if getattr(args, "record", None) and getattr(args, "_module", "").endswith(".run") else "the same command")
+        sys.stderr.write(f"pcreg: interrupted (finished units are kept; rerun {again} to resume)\n")
         return 130
     except BrokenPipeError:  # stdout closed early (`pcreg ... | head`): no message, as other tools
         try:

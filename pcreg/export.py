@@ -203,6 +203,9 @@ def cvat_mask_archive(frames, table: ClassTable = DEFAULT_TABLE) -> tuple[bytes,
             labels = table.check_labels(labels, frame)
             if stem in stems:
                 raise InputError(f"{frame}: two frames named {stem}")
+            if stem.splitlines() != [stem]:  # default.txt lists a name a line: a line break would make it two
+                raise InputError(f"{frame!r}: a frame name with a line break cannot be listed in the archive's "
+                                 "default.txt; rename the frame")
             stems.append(stem)
             for k in np.unique(labels):
                 counts[table.name_of(int(k))] += 1

@@ -40,6 +40,19 @@ def max_file_bytes(limit: int) -> int:
 # files
 # --------------------------------------------------------------------------------------------------
 
+def resolved(path: str | os.PathLike) -> Path:
+    """``path`` made absolute with its symbolic links followed (:meth:`pathlib.Path.resolve`); a loop of
+    symbolic links (which ``resolve`` raises as RuntimeError) or a path the system cannot follow is an
+    :class:`InputError` naming it."""
+    p = Path(path)
+    try:
+        return p.resolve()
+    except RuntimeError:
+        raise InputError(f"{p}: a loop of symbolic links") from None
+    except (OSError, ValueError) as exc:  # ValueError: embedded NUL
+        raise InputError(f"{p}: cannot be followed ({getattr(exc, 'strerror', None) or exc})") from None
+
+
 def check_regular_file(path: str | os.PathLike, *, what: str = "file") -> Path:
     """``path`` if it names a regular file (symbolic links followed); an :class:`InputError` otherwise.
 

@@ -136,6 +136,8 @@ def check_output(path: str | os.PathLike, *, force: bool) -> Path:
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path} is a folder; give a file name")
+    if path.is_symlink() and not path.exists() and not force:  # a link to nothing, or a loop of links
+        raise OutputError(f"{path} exists, a symbolic link to nothing (use --force to overwrite)")
     if path.exists() and not path.is_file():
         raise OutputError(f"{path} is not a regular file")
     if path.exists() and not force:

@@ -45,7 +45,8 @@ class RunReview:
 
     ``names`` are the frames' names (a folder's file names, ``{i:06d}`` in a video), ``stems`` what
     their outputs are named after (``OUT/STEM.png``, ``OUT/confidence/STEM.png``); ``keys`` the positions
-    of key frames (named in ``run.json``, or without a line in ``steps.jsonl``); ``errors`` each frame's
+    of key frames (named in ``run.json``; with its ``key_frames`` list, also those without a line in
+    ``steps.jsonl``); ``errors`` each frame's
     predicted error in % (None for a key frame or a step without one); ``suggested`` the positions listed in
     ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
@@ -141,7 +142,12 @@ def read_review(folder: str | Path) -> RunReview:
                     steps[str(step["name"])] = step
         except (OSError, ValueError, KeyError, TypeError):
             raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
-    keys = frozenset(t for t, n in enumerate(names) if n in named or n not in steps)
+    legacy = "key_frames" in state  # a run.json that lists its key frames leaves their steps out
+    keys = frozenset(t for t, n in enumerate(names) if n in named or (legacy and n not in steps))
+    stepless = [n for t, n in enumerate(names) if t not in keys and n not in steps]
+    if stepless:  # as the export refuses it: such a frame would be shown as a key frame
+        raise InputError(f"{steps_path}: missing or unreadable ({len(names) - len(keys) - len(stepless)} steps for "
+                         f"{len(names) - len(keys)} labelled frames; none for {stepless[0]})")
     errors, ious = [], []
     for t, n in enumerate(names):
         e = None if t in keys else steps[n].get("predicted_error")

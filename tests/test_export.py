@@ -208,6 +208,19 @@ def test_only_the_frames_the_run_counted(run_copy):
         assert z.read("ImageSets/Segmentation/default.txt").decode().split() == ["frame_000", "frame_001", "frame_002"]
 
 
+@pytest.mark.parametrize("name", ["a\nb.png", "a\rb.png", "a\u2028b.png"])
+def test_a_frame_name_with_a_line_break_is_refused_not_split_in_default_txt(name):
+    from pcreg.errors import InputError
+    from pcreg.export import cvat_mask_archive
+
+    labels = np.zeros((4, 6), np.uint8)
+    with pytest.raises(InputError, match="a frame name with a line break"):
+        cvat_mask_archive([("f0.png", labels), (name, labels)])
+    data, _ = cvat_mask_archive([("f0.png", labels), ("a b é.png", labels)])
+    listed = zipfile.ZipFile(io.BytesIO(data)).read("ImageSets/Segmentation/default.txt").decode()
+    assert listed == "f0\na b é\n"
+
+
 def test_a_summary_names_a_dozen_labels_and_counts_the_rest():
     from pcreg.commands.export import MOST_NAMED, listed
 

@@ -862,6 +862,13 @@ def test_run_never_writes_over_its_inputs(tmp_path, capsys):
     rc, err = cli(["run", frames, "--out", frames, "--labels", tmp_path / "key.png"], capsys)
     assert rc == 2 and len(err) == 1 and "would overwrite the input" in err[0], err
     assert {p.name: p.read_bytes() for p in frames.iterdir()} == before
+    jpegs = tmp_path / "jpegs"  # frames of another format: its NAME.png would be a second frame NAME
+    jpegs.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(jpegs / f"f{i}.jpg"), np.roll(GOOD, 2 * i, axis=1))
+    rc, err = cli(["run", jpegs, "--out", jpegs, "--labels", tmp_path / "key.png"], capsys)
+    assert rc == 2 and len(err) == 1 and "is the frames' own folder" in err[0], err
+    assert sorted(p.suffix for p in jpegs.iterdir()) == [".jpg"] * 3
     rc, err = cli(["run", frames, "--out", tmp_path / "o", "--labels", frames / "f0.png"], capsys)
     assert rc == 2 and "single-channel" in err[0], err
     assert not (tmp_path / "o").exists()

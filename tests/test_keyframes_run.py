@@ -202,6 +202,9 @@ def test_bad_labels_folders_and_options_are_refused(tmp_path, frames, folder, ca
     cv2.imwrite(str(late / "000009.png"), frames[1].labels)
     assert main(["run", str(video), "--labels", str(late), "--out", str(out)]) == 2
     assert "000009.png: names no frame" in _err(capsys)[0] and _outputs(out) == written
+    unchosen = _keys(tmp_path / "unchosen", frames, [2], name="{:06d}")  # --start 1 --every 2 chooses 1, 3, 5
+    assert main(["run", str(video), "--labels", str(unchosen), "--out", str(out), "--start", "1", "--every", "2"]) == 2
+    assert "(000001 ... 000005) among those chosen" in _err(capsys)[0]
 
 
 def test_key_labels_named_as_cvat_names_frames_label_those_frames(tmp_path, frames, folder):

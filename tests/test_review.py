@@ -140,6 +140,9 @@ def test_bad_run_folders_are_one_line(run_copy, tmp_path, capsys):
     assert "choose one" in one_line_error(capsys)
     assert pcreg_view([str(run_copy), "--overlay", str(tmp_path / "o.avi")]) == 2
     assert "name it .mp4" in one_line_error(capsys)
+    (run_copy / "steps.jsonl").write_text("".join(steps.splitlines(keepends=True)[:1]))  # a labelled frame with no step
+    assert pcreg_view([str(run_copy), "--overlay", str(tmp_path / "o.mp4")]) == 2
+    assert "steps.jsonl: missing or unreadable (1 steps for" in one_line_error(capsys)
     (run_copy / "steps.jsonl").write_text(steps)
     label = sorted(p for p in run_copy.glob("*.png"))[2]
     cv2.imwrite(str(label), np.zeros((6, 8), np.uint8))  # a label image of another size than the frames

@@ -59,7 +59,7 @@ CORRUPT_STATES = {
     "no done": lambda s: {k: v for k, v in s.items() if k != "done"}, "done text": lambda s: {**s, "done": "abc"},
     "done infinite": lambda s: {**s, "done": float("inf")}, "done a list": lambda s: {**s, "done": [2]},
     "done zero": lambda s: {**s, "done": 0}, "fallbacks negative": lambda s: {**s, "fallbacks": -1},
-    "truth not counts": lambda s: {**s, "truth": {"frames": "x"}},
+    "truth not counts": lambda s: {**s, "truth": {"frames": "x"}}, "key_labels a number": lambda s: {**s, "key_labels": 3},
 }
 
 
@@ -163,3 +163,80 @@ def test_the_program_runs_with_an_ascii_terminal_and_a_closed_stdout(tmp_path):
     p = subprocess.run([sys.executable, "-m", "pcreg", "register", str(folder / "f0.png"), str(folder / "f1.png"),
                         "--json"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=lambda: os.close(1))
     assert p.returncode in (0, 3) and b"internal error" not in p.stderr, p.stderr
+
+
+def test_a_rerun_with_other_key_labels_or_fewer_frames_is_refused_and_force_starts_clean(tmp_path, capsys):
+    """A run from one label image is not continued from key labels edited since it began, nor over a frames
+    folder that lost frames (it was an internal error); ``--force`` starts over without the confidence maps
+    and suggestions the earlier run wrote (the review and the export read them)."""
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=5)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence", "--suggest", "1"]) == 0
+    assert (out / "confidence").is_dir() and (out / "suggest.txt").is_file()
+    written = {p.name: p.read_bytes() for p in out.glob("*.png")}
+    cv2.imwrite(str(key), 1 - cv2.imread(str(key), cv2.IMREAD_UNCHANGED))
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence", "--suggest", "1"]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "key.png: the key frame's labels changed since the run" in err[0], err
+    assert {p.name: p.read_bytes() for p in out.glob("*.png")} == written
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--force"]) == 0
+    assert not (out / "confidence").exists() and not (out / "suggest.txt").exists()
+    assert read_labels(out / "f0.png")[0, 0] == 1  # the new key labels
+    (folder / "f4.png").unlink()
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "counts 5 frames labelled" in err[0] and "holds 4" in err[0], err
+
+
+def test_output_paths_that_are_loops_of_symbolic_links_are_bad_input(tmp_path, capsys):
+    folder, key = _frames(tmp_path / "frames", (48, 64))
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(loop)]) == 2
+    assert "loop: a loop of symbolic links" in one_line_errors(capsys)[0]
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    assert main(["export", str(out), "--to", str(loop)]) == 2
+    assert "a symbolic link to nothing" in one_line_errors(capsys)[0]
+    assert main(["export", str(out), "--to", str(loop / "x.zip")]) == 2
+    assert "a loop of symbolic links" in one_line_errors(capsys)[0]
+    dangling = tmp_path / "gone.zip"
+    dangling.symlink_to(tmp_path / "nowhere.zip")
+    assert main(["export", str(out), "--to", str(dangling)]) == 2 and not (tmp_path / "nowhere.zip").exists()
+    assert main(["export", str(out), "--to", str(dangling), "--force"]) == 0
+
+
+def test_an_interrupted_recorded_run_says_how_to_resume_and_that_resumes(tmp_path, capsys, monkeypatch):
+    """Rerunning the very command of a run interrupted while recording is refused (the recording exists),
+    so the interrupt says to give another recording file; that rerun finishes the run."""
+    from _runs import kill_before_commit
+
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=5)
+    out = tmp_path / "out"
+    kill_before_commit(monkeypatch, 2)
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--record", str(tmp_path / "a.rrd")]) == 130
+    said = capsys.readouterr().err
+    assert "rerun the same command with another --record file" in said, said
+    monkeypatch.undo()
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--record", str(tmp_path / "b.rrd")]) == 0
+    assert json.loads((out / "run.json").read_text())["done"] == 5
+
+
+@pytest.mark.parametrize("where", ["frames", "keys"])
+@pytest.mark.parametrize("odd", ["link to nothing", "folder"])
+def test_an_entry_named_as_a_frame_or_key_that_is_not_a_file_is_refused_not_skipped(tmp_path, capsys, where, odd):
+    """A dangling link or a folder named like a frame (or key labels) was left out without a word: the
+    run labelled a frame fewer (or had a key frame fewer)."""
+    folder, key = _frames(tmp_path / "frames", (48, 64))
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    (keys / "f0.png").write_bytes(key.read_bytes())
+    entry = keys / "f2.png" if where == "keys" else folder / "f9.png"
+    if odd == "folder":
+        entry.mkdir()
+    else:
+        entry.symlink_to(tmp_path / "nowhere.png")
+    labels = keys if where == "keys" else key
+    assert main(["run", str(folder), "--labels", str(labels), "--out", str(tmp_path / "out")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"{entry.name}: named as" in err[0] and "not a file that can be read" in err[0], err

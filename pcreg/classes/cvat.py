@@ -239,7 +239,7 @@ def named_frames(frames) -> str:
     first = frames.stem(0)
     if frames.kind == "folder":
         return f"{first} ... {frames.stem(len(frames) - 1)}"
-    return f"{first} ... {n - 1:06d}" if n else f"{first} ..."
+    return f"{first} ... {frames.stem(n - 1)}" if n else f"{first} ..."
 
 
 def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | None = None, *,

@@ -30,6 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..export import cvat_mask_archive, default_name, labelled_frames, read_run
+    from ..formats import resolved
     from ..outputs import atomic_write_bytes, check_output
 
     from ..errors import OutputError
@@ -38,8 +39,8 @@ def run(args: argparse.Namespace) -> int:
     table = run_labels.table  # the run's class table: its labelmap.txt, colours and names
     default = Path(args.folder) / default_name(args.format)
     dest = check_output(Path(args.to) if args.to is not None else default, force=args.force)
-    folder = Path(args.folder).resolve()
-    if dest.resolve() != default.resolve() and folder in dest.resolve().parents and dest.suffix.lower() != ".zip":
+    folder, to = resolved(args.folder), resolved(dest)
+    if to != resolved(default) and folder in to.parents and dest.suffix.lower() != ".zip":
         raise OutputError(f"--to {dest}: inside the run's own folder and not a .zip; the archive would replace one "
                           "of the run's files (choose a .zip name or another folder)")
     data, counts = cvat_mask_archive(labelled_frames(run_labels, args.min_confidence), table)  # every file read and checked before anything is written

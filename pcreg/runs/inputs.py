@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..formats import resolved
+
 __all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth", "check_spares_inputs",
            "check_suggest", "read_key_labels"]
 
@@ -81,7 +83,7 @@ def _key_folder(request, frames, table, mapping: str) -> tuple:
 
     out, folder = request.out, request.labels
     first = next(frames.frames(0))  # a source with no frame at --start raises, never ends empty
-    if folder.resolve() == out.resolve():
+    if resolved(folder) == resolved(out):
         raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
     if is_cvat_export(folder):
         return read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping)
@@ -139,13 +141,18 @@ def check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
     frame's labels or a truth map: ``--out`` the frames' own folder, say."""
     from ..errors import InputError
 
-    if truth is not None and truth.root.resolve() == out.resolve():
+    resolved(out)  # a loop of symbolic links named as the --out it is
+    if truth is not None and resolved(truth.root) == resolved(out):
         raise InputError(f"--out {out} would overwrite the truth maps in {truth.root}; choose another folder")
     if frames.kind == "folder":
-        written = {(out / f"{p.stem}.png").resolve() for p in frames.paths}
-        clobbered = [f for f in [*frames.paths, labels] if f.resolve() in written]
+        written = {resolved(out / f"{p.stem}.png") for p in frames.paths}
+        clobbered = [f for f in [*frames.paths, labels] if resolved(f) in written]
+        # the frames' own folder: NAME.png written beside NAME.jpg would be read as a second frame NAME
+        if not clobbered and frames.paths and resolved(out) == resolved(frames.paths[0].parent):
+            raise InputError(f"--out {out} is the frames' own folder; its label PNGs would be read as frames "
+                             "beside them; choose another folder")
     else:  # a video's outputs are OUT/{i:06d}.png, as many as it has frames
-        clobbered = [labels] if frames.writes(labels.stem) and (out / f"{labels.stem}.png").resolve() == labels.resolve() else []
+        clobbered = [labels] if frames.writes(labels.stem) and resolved(out / f"{labels.stem}.png") == resolved(labels) else []
     if clobbered:
         raise InputError(f"--out {out} would overwrite the input {clobbered[0]}; choose another folder")
 
@@ -169,7 +176,12 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     from ..errors import InputError
 
     table = DEFAULT_TABLE if table is None else table
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith("."))
+    named = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and not p.name.startswith("."))
+    files = [p for p in named if p.is_file()]
+    if len(files) < len(named):  # left out, the run would have a key frame fewer without a word
+        odd = next(p for p in named if not p.is_file())
+        raise InputError(f"{odd}: named as key labels but not a file that can be read (a folder, a link to nothing, "
+                         "a FIFO or a device)")
     if not files:
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
     where = frame_positions(frames)

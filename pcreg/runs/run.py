@@ -43,7 +43,7 @@ import numpy as np
 
 from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
-from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, append_step, check_labelled, label_digest, parse_steps,
+from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest, parse_steps,
                     read_carry, read_step_lines, write_carry, write_confidence, write_labels)
 from .state import STATE, open_state, read_state, run_frames, write_state
 from .truth import add_rates, count_frame, empty_counts
@@ -239,20 +239,44 @@ class Run:
         """Open (or resume) a run from one label image, the key frame's ``labels``; returns the index of the
         first frame still to do."""
         state = open_state(self.out, self.identity, force=force)
+        digest = label_digest(labels)
         if state is not None:
             self.state = state
+            self._check_same_inputs(int(state["done"]), state.get("key_labels", digest) != digest)
             self._cut_steps(int(state["done"]) - 1)
             self._remove_partial_writes()
             check_labelled(self.out, [self.frames.stem(t) for t in range(int(state["done"]))])
             return int(state["done"])
-        for slot in (0, 1):
-            (self.out / CARRY.format(slot)).unlink(missing_ok=True)
+        self._start_over()
         self.state = {"run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
-                      "truth": empty_counts() if self.truth else None}
+                      "truth": empty_counts() if self.truth else None, "key_labels": digest}
         write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
         (self.out / STEPS).write_bytes(b"")
         write_state(self.out, self.state)
         return 1
+
+    def _check_same_inputs(self, done: int, labels_changed: bool) -> None:
+        """Refuse to continue a run from one label image whose key labels changed since it began (run.json's
+        ``key_labels``, their :func:`~pcreg.runs.files.label_digest`), or whose frames folder now holds fewer
+        frames than it labelled: its frames would mix two runs."""
+        labels = self.identity.get("labels") if self.identity else None
+        if labels_changed:
+            raise OutputError(f"{labels}: the key frame's labels changed since the run in {self.out} began; "
+                              "use --force to start over")
+        if self.frames.kind == "folder" and done > len(self.frames):
+            raise OutputError(f"{self.out / STATE} counts {done} frames labelled, {self.frames.path} now holds "
+                              f"{len(self.frames)}{' chosen' if self.frames.selection.to_dict() else ''}: the frames "
+                              "changed since the run began; use --force to start over")
+
+    def _start_over(self) -> None:
+        """Forget what an earlier run in ``out`` wrote beside its label PNGs, which a run started over
+        (``--force``, or a new run) would otherwise leave for the review and the export to read: its
+        carries, a key-frames run's passes, the confidence maps and the suggestions."""
+        for slot in (0, 1):
+            (self.out / CARRY.format(slot)).unlink(missing_ok=True)
+        shutil.rmtree(self.out / HIDDEN, ignore_errors=True)
+        shutil.rmtree(self.out / CONFIDENCE, ignore_errors=True)
+        (self.out / SUGGEST).unlink(missing_ok=True)
 
     def _remove_partial_writes(self) -> None:
         """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
@@ -278,9 +302,7 @@ class Run:
         if state is not None:
             self.state = state
         else:
-            shutil.rmtree(self.out / HIDDEN, ignore_errors=True)
-            for slot in (0, 1):  # a run from one label image's carries
-                (self.out / CARRY.format(slot)).unlink(missing_ok=True)
+            self._start_over()
             self.state = {"run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
                           "fallbacks": 0, "truth": None}
             (self.out / STEPS).write_bytes(b"")

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import InputError, OutputError
-from ..formats import load_json_object, loads_json
+from ..formats import load_json_object, loads_json, resolved
 
 __all__ = ["STATE", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
            "read_state", "run_frames"]
@@ -42,6 +42,8 @@ def _stream_state_problem(state: dict) -> str | None:
         return "fallbacks"
     if not isinstance(state.get("key_frame"), str):
         return "key_frame"
+    if not isinstance(state.get("key_labels", ""), str):  # runs begun before it was kept have none
+        return "key_labels"
     if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
         return "truth"
     return None
@@ -90,8 +92,8 @@ def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, tr
     still resume)."""
     from ..pipeline.trust import STREAM_TRUST
 
-    identity = {frames.kind: str(source.resolve()), "labels": str(labels.resolve()), "mapping": mapping,
-                "truth": None if truth is None else str(Path(truth).resolve()), **config.options(),
+    identity = {frames.kind: str(resolved(source)), "labels": str(resolved(labels)), "mapping": mapping,
+                "truth": None if truth is None else str(resolved(truth)), **config.options(),
                 "smooth": STREAM_TRUST.smooth}
     if confidence:
         identity["confidence"] = True

@@ -121,6 +121,14 @@ def forget_stray_interrupt() -> None:
     exec("None")  # noqa: S102 - a constant: its only effect is the reset
 
 
+def handles_signals() -> bool:
+    """Whether SIGINT raises through :func:`interrupt_on_signals`' handler (the command line), so that
+    :func:`interrupted` tells a real interrupt from a KeyboardInterrupt raised by other code."""
+    import signal
+
+    return signal.getsignal(signal.SIGINT) is _on_signal
+
+
 def interrupted() -> bool:
     """Whether a SIGINT or SIGTERM arrived since :func:`interrupt_on_signals`."""
     return bool(_RECEIVED)

@@ -126,15 +126,21 @@ def loads_json(text: str | bytes):
         raise ValueError("JSON nested too deeply") from None
 
 
+#: The largest JSON file pcreg reads (a run's run.json, a suite's index, a cross-check's side file).
+MAX_JSON_BYTES = 64 << 20
+
+
 def load_json_object(path: str | os.PathLike) -> dict:
     """The JSON object a small file holds; a ValueError saying why not for a file that cannot be read
     (missing, a folder, no permission), is not UTF-8, is not JSON, or holds another JSON value."""
 
+    try:  # a FIFO or a device refused, not read until it ends; at most MAX_JSON_BYTES
+        data = read_regular_file(path, max_bytes=MAX_JSON_BYTES, what="JSON file")
+    except InputError as exc:
+        raise ValueError(f"unreadable ({str(exc).removeprefix(f'{Path(path)}: ')})") from None
     try:
-        value = loads_json(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ValueError(f"unreadable ({exc.strerror or exc})") from None
-    except ValueError:
+        value = loads_json(data.decode("utf-8"))
+    except ValueError:  # UnicodeDecodeError too
         raise ValueError("unreadable (not JSON)") from None
     if not isinstance(value, dict):
         raise ValueError(f"not a JSON object (a JSON {type(value).__name__})")
@@ -464,6 +470,11 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: damaged PCD header (SIZE and COUNT disagree)")
     point_bytes = sum(s * c for s, c in zip(sizes, counts))
     have = size - pos
+    coords = [sizes[i] for i, f in enumerate(fields.get("FIELDS", [])[:len(sizes)]) if f.lower() in ("x", "y", "z")]
+    if data_kind in ("binary", "binary_compressed") and 8 in coords:
+        # Open3D reads 8-byte (double) coordinates of a binary PCD as zeros, without a word
+        raise InputError(f"{path}: a binary PCD whose x, y, z are 8-byte numbers is not read correctly "
+                         "(its points come out as zeros); save it with 4-byte floats, as ASCII PCD, PLY or .npy")
     if data_kind == "ascii":
         lines = _count_data_lines(path, pos, n)
         if lines < n:

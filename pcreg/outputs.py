@@ -131,11 +131,15 @@ def atomic_save_figure(fig: Any, path: str | os.PathLike, *, dpi: int = 110) -> 
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def check_output(path: str | os.PathLike, *, force: bool) -> Path:
-    """Refuse to overwrite an existing file unless ``force``; check that its folder is writable."""
+def check_output(path: str | os.PathLike, *, force: bool, inputs: tuple = ()) -> Path:
+    """Refuse to overwrite an existing file unless ``force``, and one of the command's ``inputs`` (paths) even
+    then; check that its folder is writable."""
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path} is a folder; give a file name")
+    for given in inputs:
+        if _same_file(path, given):
+            raise OutputError(f"{path} is the input {given}; the output would overwrite it (choose another file)")
     if path.is_symlink() and not path.exists() and not force:  # a link to nothing, or a loop of links
         raise OutputError(f"{path} exists, a symbolic link to nothing (use --force to overwrite)")
     if path.exists() and not path.is_file():
@@ -148,6 +152,14 @@ def check_output(path: str | os.PathLike, *, force: bool) -> Path:
     if parent.exists() and not parent.is_dir():
         raise OutputError(f"cannot write {path}: {parent} is not a folder")
     return path
+
+
+def _same_file(a: Path, b: str | os.PathLike) -> bool:
+    """Whether ``a`` and ``b`` name one existing file (links followed; False when either cannot be read)."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
 
 
 class OutputLock:

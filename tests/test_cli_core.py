@@ -44,6 +44,19 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert cv2.imread(str(out)).shape == (240, 320, 3)
 
 
+def test_register_never_writes_over_its_inputs_even_with_force(pair, tmp_path):
+    d, _ = pair
+    ref, mov = tmp_path / "ref.png", tmp_path / "mov.png"
+    ref.write_bytes((d / "ref.png").read_bytes())
+    mov.write_bytes((d / "mov.png").read_bytes())
+    (tmp_path / "link.png").symlink_to(ref)
+    before = ref.read_bytes(), mov.read_bytes()
+    for out in (ref, mov, tmp_path / "link.png"):
+        p = run("register", ref, mov, "--out", out, "--force")
+        assert p.returncode == 2 and "the output would overwrite it" in p.stderr, p.stderr
+    assert (ref.read_bytes(), mov.read_bytes()) == before
+
+
 @pytest.mark.slow
 def test_refused_registration_exits_3_with_one_line(pair, tmp_path):
     d, _ = pair

@@ -49,6 +49,47 @@ def test_a_crosscheck_whose_reference_fails_says_why_on_stderr(tmp_path, capsys)
     assert len(err) == 1 and "reference ICP failed" in err[0] and "too few" in err[0]
 
 
+@pytest.mark.parametrize("body, said", [("sys.exit(0)", "called sys.exit(0)"), ("raise SystemExit(3)", "called sys.exit(3)"),
+                                        ("raise KeyboardInterrupt", "raised KeyboardInterrupt (no interrupt came)")])
+def test_a_py_function_that_exits_or_raises_an_interrupt_fails_its_row_only(tmp_path, body, said):
+    """sys.exit or a KeyboardInterrupt in a py: function ended the cross-check (exit 0 with no output, exit
+    3 with no message, or "interrupted"): now its row says so, and the others are reported."""
+    import json
+
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    pts = np.random.default_rng(0).uniform(-5, 5, (200, 3))
+    np.save(a, pts)
+    np.save(b, pts + 0.05)
+    (tmp_path / "quitter.py").write_text(f"import sys\ndef icp(source, target, *, init, **params):\n    {body}\n")
+    p = subprocess.run([sys.executable, "-m", "pcreg", "crosscheck", str(a), str(b), "--with",
+                        "reference,py:quitter:icp,open3d", "--json"], capture_output=True, text=True, cwd=tmp_path,
+                       timeout=300)
+    assert p.returncode == 0, p.stderr
+    rows = json.loads(p.stdout)["implementations"]
+    assert said in rows["py:quitter:icp"]["error"] and rows["open3d"]["agrees"] is True, rows
+
+
+def test_georeferenced_clouds_do_not_crash_the_probabilistic_libraries(tmp_path):
+    """probreg's FilterReg on clouds 5e6 m from the origin (UTM coordinates) corrupted its memory and ended
+    the process (exit 134, no row reported); the probabilistic libraries now work on centred clouds."""
+    import json
+
+    rng = np.random.default_rng(0)
+    tgt = rng.uniform(-50, 50, (400, 3))
+    c, s = np.cos(0.05), np.sin(0.05)
+    src = (tgt - 0.3) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    offset = np.array([5e5, 5e6, 300.0])
+    np.save(tmp_path / "t.npy", tgt + offset)
+    np.save(tmp_path / "s.npy", src + offset)
+    p = subprocess.run([sys.executable, "-m", "pcreg", "crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"),
+                        "--with", "reference,probreg-filterreg,pycpd", "--json"], capture_output=True, text=True,
+                       timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    rows = json.loads(p.stdout)["implementations"]
+    assert rows["pycpd"]["agrees"] is True and rows["pycpd"]["translation_disagreement"] < 1e-3, rows["pycpd"]
+    assert rows["probreg-filterreg"]["error"] is None and rows["probreg-filterreg"]["fitness"] > 0.9
+
+
 @pytest.mark.skipif(sys.platform != "linux", reason="file names as bytes: a Linux file system")
 def test_file_names_that_are_not_utf8_reach_suggest_and_export(tmp_path):
     frames = os.fsdecode(bytes(tmp_path) + b"/fr\xffmes")

@@ -140,6 +140,8 @@ def files(tmp_path_factory):
     (t / "trunc_ascii.pcd").write_bytes(full[: len(full) // 2])
     (t / "bad_header.pcd").write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE four\nPOINTS 10\nDATA binary\n" + b"\0" * 120)
     (t / "no_data.pcd").write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\n")
+    (t / "double.pcd").write_bytes(pcd(200).replace(b"SIZE 4 4 4", b"SIZE 8 8 8").split(b"DATA binary\n")[0]
+                                   + b"DATA binary\n" + np.random.default_rng(2).normal(size=(200, 3)).astype("<f8").tobytes())
     full = npy_bytes(np.random.default_rng(3).normal(size=(300, 3)))
     (t / "trunc.npy").write_bytes(full[:-500])
     (t / "object.npy").write_bytes(npy_bytes(np.array([{"a": 1}, None], dtype=object)))
@@ -407,6 +409,7 @@ LIBRARY = {
     "pcd_truncated_ascii": (_load_cloud("trunc_ascii.pcd"), "truncated PCD"),
     "pcd_damaged_header": (_load_cloud("bad_header.pcd"), "damaged PCD header"),
     "pcd_no_data_line": (_load_cloud("no_data.pcd"), "DATA"),
+    "pcd_binary_doubles": (_load_cloud("double.pcd"), "8-byte numbers is not read correctly"),  # Open3D: zeros
     "npy_truncated": (_load_cloud("trunc.npy"), "truncated .npy"),
     "npy_pickled_objects": (_load_cloud("object.npy"), "numeric"),
     "npy_four_columns": (_load_cloud("four_cols.npy"), "(N, 2) or (N, 3)"),

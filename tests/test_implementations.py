@@ -198,6 +198,16 @@ def _ended(pid: int) -> bool:
     return state in ("Z", "X")
 
 
+def _ends(pid: int) -> bool:
+    """Whether process ``pid`` ends within 30 s: SIGKILL was sent before the row was made, and lands soon."""
+    import time
+
+    deadline = time.monotonic() + 30
+    while not _ended(pid) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return _ended(pid)
+
+
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads a process's state in /proc")
 def test_a_program_past_its_time_limit_ends_with_its_children(tmp_path):
     """A cmd: program that starts a child and hangs: at the time limit its row says so, and the child it
@@ -214,13 +224,37 @@ def test_a_program_past_its_time_limit_ends_with_its_children(tmp_path):
     r = crosscheck_implementations(tgt + 0.1, tgt, implementations=["reference", spec],
                                    options=ICPOptions(max_correspondence_distance=1.0), timeout=3)
     assert "timed out after 3 s" in r.rows[spec]["error"]
-    pid = int((tmp_path / "child.pid").read_text())
-    import time
+    assert _ends(int((tmp_path / "child.pid").read_text()))
 
-    deadline = time.monotonic() + 30  # SIGKILL was sent before the row was made; wait for it to land
-    while not _ended(pid) and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert _ended(pid)
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads a process's state in /proc")
+def test_a_program_that_leaves_a_fifo_a_child_or_a_flood_of_output_is_one_row(tmp_path):
+    """A FIFO at {out} blocked the read for ever; a child left running with the output streams open made a
+    finished program's row "timed out"; what a program prints is not kept in memory (its last stderr line
+    is what the row says)."""
+    from pcreg.implementations.crosscheck import crosscheck_implementations
+
+    py = sys.executable
+    scripts = {
+        "fifo": "import os, sys; os.mkfifo(sys.argv[1])",
+        "child": ("import subprocess, sys; open(sys.argv[1], 'w').write('1 0 0.1\\n0 1 0\\n0 0 1\\n'); "
+                  f"c = subprocess.Popen([sys.executable, '-c', 'import threading; threading.Event().wait()']); "
+                  f"open({str(tmp_path / 'child.pid')!r}, 'w').write(str(c.pid))"),
+        "flood": ("import sys; [sys.stdout.write('x' * 1000 + '\\n') for _ in range(20000)]; "
+                  "[sys.stderr.write('y' * 1000 + '\\n') for _ in range(20000)]; sys.stderr.write('the last word\\n'); "
+                  "sys.exit(4)"),
+    }
+    specs = {}
+    for name, code in scripts.items():
+        (tmp_path / f"{name}.py").write_text(code)
+        specs[name] = f'cmd:"{py} {tmp_path / name}.py {{out}}"'
+    tgt = np.random.default_rng(0).uniform(-5, 5, (100, 2))
+    r = crosscheck_implementations(tgt + 0.1, tgt, implementations=["reference", *specs.values()],
+                                   options=ICPOptions(max_correspondence_distance=1.0), timeout=60)
+    assert "not a regular file" in r.rows[specs["fifo"]]["error"]
+    assert "error" not in r.rows[specs["child"]] or not r.rows[specs["child"]]["error"], r.rows[specs["child"]]
+    assert _ends(int((tmp_path / "child.pid").read_text()))  # killed when its program ended
+    assert r.rows[specs["flood"]]["error"] == "exit status 4: the last word"
 
 
 @pytest.mark.slow

@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     out = None
     time_cursor = _parse_time(args.time)
     if args.screenshot is not None:
-        out = check_output(args.screenshot, force=args.force)
+        out = check_output(args.screenshot, force=args.force, inputs=tuple(args.recordings))
         if out.suffix.lower() != ".png":
             raise OutputError(f"{out}: the screenshot is written as PNG; name it .png")
     with tempfile.TemporaryDirectory(prefix="pcreg-view-") as tmp:

@@ -336,6 +336,25 @@ class _Probabilistic(Implementation):
                 "init": "source moved by the initial guess first"}
 
 
+def _centred(src: np.ndarray, tgt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(source, target, c)``: both clouds moved by ``-c``, the target's centroid. The probabilistic
+    libraries compute in the clouds' own coordinates: far from the origin (georeferenced clouds, 5e6 m)
+    probreg's FilterReg corrupted its memory and ended the process."""
+    c = tgt.mean(axis=0)
+    return src - c, tgt - c, c
+
+
+def _uncentred(M: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """A homogeneous transform found between clouds moved by ``-c`` (:func:`_centred`), in their own
+    coordinates: ``T(c) M T(-c)``."""
+    d = len(c)
+    shift = np.eye(d + 1)
+    shift[:d, d] = c
+    back = np.eye(d + 1)
+    back[:d, d] = -c
+    return shift @ M @ back
+
+
 class PyCpd(_Probabilistic):
     name = "pycpd"
     description = ("pycpd RigidRegistration: coherent point drift (Myronenko & Song 2010), a Gaussian mixture "
@@ -348,8 +367,8 @@ class PyCpd(_Probabilistic):
         from ..registration.transforms import apply
 
         d = pinned.dim
-        src = _subsample(apply(pinned.init, pinned.source), self.max_points, 0)
-        tgt = _subsample(pinned.target, self.max_points, 1)
+        src, tgt, c = _centred(_subsample(apply(pinned.init, pinned.source), self.max_points, 0),
+                               _subsample(pinned.target, self.max_points, 1))
         start = time.perf_counter()
         reg = RigidRegistration(X=tgt, Y=src, max_iterations=self.max_em_iterations, tolerance=self.tolerance, w=0.0)
         reg.register()
@@ -358,7 +377,7 @@ class PyCpd(_Probabilistic):
         M = np.eye(d + 1)
         M[:d, :d] = s * np.asarray(R).T  # pycpd maps row vectors: y -> s y R + t
         M[:d, d] = np.ravel(t)
-        m = M @ pinned.init
+        m = _uncentred(M, c) @ pinned.init
         fit, rmse, _ = score(pinned, m)
         return result(self.name, m, iterations=int(reg.iteration), fitness=fit, inlier_rmse=rmse,
                       converged=bool(reg.iteration < self.max_em_iterations), seconds=seconds,
@@ -383,8 +402,8 @@ class _Probreg(_Probabilistic):
         from ..registration.transforms import apply
 
         logging.getLogger("probreg").setLevel(logging.ERROR)
-        src = lift(_subsample(apply(pinned.init, pinned.source), self.max_points, 0))
-        tgt = lift(_subsample(pinned.target, self.max_points, 1))
+        src, tgt, c = _centred(lift(_subsample(apply(pinned.init, pinned.source), self.max_points, 0)),
+                               lift(_subsample(pinned.target, self.max_points, 1)))
         start = time.perf_counter()
         res = self._register(src, tgt)
         seconds = time.perf_counter() - start
@@ -392,6 +411,7 @@ class _Probreg(_Probabilistic):
         M = np.eye(4)
         M[:3, :3] = float(getattr(tf, "scale", 1.0)) * np.asarray(tf.rot)
         M[:3, 3] = np.asarray(tf.t)
+        M = _uncentred(M, c)
         info = {"sigma2": float(res.sigma2)}
         if pinned.dim == 2:
             info["out_of_plane"] = out_of_plane(M)

@@ -31,6 +31,7 @@ Python callable's too).
 from __future__ import annotations
 
 import importlib
+import io
 import json
 import math
 import os
@@ -43,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..formats import load_json_object
+from ..formats import load_json_object, read_regular_file
 from ..errors import InputError
 from .base import COMPARABILITY, STEP, ImplementationError, Implementation, result
 
@@ -152,6 +153,14 @@ class PythonCallable(Implementation):
             r = func(pinned.source.copy(), pinned.target.copy(), init=pinned.init.copy(), **pinned.params())
         except Exception as exc:  # noqa: BLE001 - a user function's failure is its row's error
             raise ImplementationError(f"raised {type(exc).__name__}: {exc}") from None
+        except SystemExit as exc:  # sys.exit in a function would end the cross-check with its status
+            raise ImplementationError(f"called sys.exit({exc.code!r}); a function returns its matrix") from None
+        except KeyboardInterrupt:  # raised by the function itself, not by Ctrl-C or SIGTERM
+            from .._runner import handles_signals, interrupted
+
+            if interrupted() or not handles_signals():  # a real interrupt, or one nothing can tell apart
+                raise
+            raise ImplementationError("raised KeyboardInterrupt (no interrupt came)") from None
         seconds = time.perf_counter() - start
         get = (lambda k: r.get(k)) if isinstance(r, dict) else (lambda k: getattr(r, k, None))
         matrix = r if isinstance(r, (np.ndarray, list, tuple)) else get("matrix")
@@ -169,28 +178,40 @@ class PythonCallable(Implementation):
                       converged=None if isarr else _converged(get("converged")), seconds=seconds)
 
 
-def _run_in_own_group(argv: list[str], timeout: float | None) -> subprocess.CompletedProcess:
-    """``argv`` run to its end in a process group of its own, its output captured; past ``timeout`` the
-    whole group is killed (a program's own children too, which a kill of the program alone leaves running)."""
-    import os
+def _run_in_own_group(argv: list[str], timeout: float | None, stderr_path: Path) -> tuple[int, str]:
+    """``(exit status, the last line it printed on stderr)`` of ``argv`` run to its end in a process group of
+    its own: its stdout dropped and its stderr kept in ``stderr_path`` (what it prints costs no memory); past
+    ``timeout`` the whole group is killed, and at its end what it left running (a program's own children
+    outlive a kill of the program alone, and would hold the run)."""
     import signal
 
-    try:
-        p = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             start_new_session=True)
-    except OSError as exc:
-        raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
-    try:
-        out, err = p.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(p.pid, signal.SIGKILL)
-        p.communicate()
-        raise ImplementationError(f"timed out after {timeout:g} s") from None
-    except BaseException:  # an interrupt: the program and its children end with this run
-        os.killpg(p.pid, signal.SIGKILL)
-        p.wait()
-        raise
-    return subprocess.CompletedProcess(argv, p.returncode, out, err)
+    def kill_group(pid: int) -> None:
+        try:
+            os.killpg(pid, signal.SIGKILL)
+        except ProcessLookupError:  # the group is gone already
+            pass
+
+    with open(stderr_path, "wb") as said:
+        try:
+            p = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=said,
+                                 start_new_session=True)
+        except OSError as exc:
+            raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
+        try:
+            status = p.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            kill_group(p.pid)
+            p.wait()
+            raise ImplementationError(f"timed out after {timeout:g} s") from None
+        except BaseException:  # an interrupt: the program and its children end with this run
+            kill_group(p.pid)
+            p.wait()
+            raise
+        kill_group(p.pid)
+    with open(stderr_path, "rb") as f:
+        f.seek(max(0, os.fstat(f.fileno()).st_size - 4096))
+        lines = f.read().decode("utf-8", "replace").strip().splitlines()
+    return status, lines[-1][:200] if lines else ""
 
 
 class Command(Implementation):
@@ -246,17 +267,18 @@ class Command(Implementation):
                 paths["params"].write_text(json.dumps(pinned.params(), indent=2))
             argv = [tok.format(**{k: str(v) for k, v in paths.items()}) for tok in self.argv]
             start = time.perf_counter()
-            proc = _run_in_own_group(argv, self.timeout)
+            status, last = _run_in_own_group(argv, self.timeout, Path(tmp) / "stderr.txt")
             seconds = time.perf_counter() - start
-            if proc.returncode != 0:
-                last = proc.stderr.decode("utf-8", "replace").strip().splitlines()
-                tail = f": {last[-1][:200]}" if last else ""
-                raise ImplementationError(f"exit status {proc.returncode}{tail}")
+            if status != 0:
+                raise ImplementationError(f"exit status {status}{f': {last}' if last else ''}")
             out = paths["out"]
             if not out.exists():
                 raise ImplementationError("wrote no output matrix")
-            try:
-                m = np.loadtxt(out, dtype=np.float64, ndmin=2)
+            try:  # a regular file of at most 64 kB: a FIFO left at {out} would block the read forever
+                text = read_regular_file(out, max_bytes=1 << 16, what="output matrix")
+                m = np.loadtxt(io.BytesIO(text), dtype=np.float64, ndmin=2)
+            except InputError as exc:
+                raise ImplementationError(str(exc).removeprefix(f"{out}: ")) from None
             except ValueError as exc:
                 raise ImplementationError(f"unreadable output matrix ({str(exc).splitlines()[0][:120]})") from None
             m = _checked_matrix(m, d, "output matrix")

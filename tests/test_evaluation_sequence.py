@@ -64,6 +64,22 @@ def test_a_different_config_needs_force(done, capsys):
     assert len(err) == 1 and "different configuration" in err[0]
 
 
+def test_a_config_that_finished_nothing_is_replaced_without_force(tmp_path, capsys):
+    """A bad option found once config.json was written left a folder that refused the corrected command
+    ("a different configuration"): with no unit finished and no report, it is replaced."""
+    from pcreg.errors import OutputError
+    from pcreg.experiments.units import UnitStore
+
+    out = tmp_path / "e"
+    UnitStore(out, {"keys": [5]}, force=False)  # what a run stopped by a bad --keys left
+    UnitStore(out, {"keys": [0]}, force=False)
+    assert json.loads((out / "config.json").read_text()) == {"keys": [0]}
+    (out / "units").mkdir()
+    (out / "units" / "a.json").write_text("{}")  # a finished unit: kept, and the other configuration refused
+    with pytest.raises(OutputError, match="different configuration"):
+        UnitStore(out, {"keys": [1]}, force=False)
+
+
 def test_increment_longer_than_the_sequence_is_a_note(tmp_path):
     assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "3", "--size", "160x120",
                  "--increments", "1,5", "--out", str(tmp_path / "s")]) == 0

@@ -88,3 +88,38 @@ def test_photometric_agreement():
     assert photometric_agreement(T, gray, gray, level=0) < 0.3
     noise = np.random.default_rng(0).integers(0, 256, gray.shape, dtype=np.uint8)
     assert abs(photometric_agreement(np.eye(3), gray, noise, level=0)) < 0.1
+
+
+def test_crops_too_small_to_tell_a_scene_are_refused_and_crops_of_one_place_registered(shared_data):
+    """32x32 crops of two different photographs registered with one pyramid level: some reached twice the
+    chance ratio with about 60 edge points (accepted, a made-up rotation); their inliers lie within five
+    standard deviations of chance. Two crops of one place a few pixels apart stay registered."""
+    import cv2
+
+    import pcreg
+    from pcreg.registration.config import RegisterConfig
+
+    names = ["camera.png", "coins.png", "moon.png", "cell.png", "page.png", "clock_motion.png", "ihc.png", "retina.jpg"]
+    imgs = [cv2.imread(str(shared_data / "photos" / n), cv2.IMREAD_GRAYSCALE) for n in names]
+    config, sz = RegisterConfig.of(levels=1), 32
+    unrelated, related, tried = 0, 0, 0
+    for k in range(40):
+        rng = np.random.default_rng(1000 + k)
+        i, j = rng.choice(len(imgs), 2, replace=False)
+        a_img, b_img = imgs[i], imgs[j]
+        ya, xa = rng.integers(8, a_img.shape[0] - sz - 8), rng.integers(8, a_img.shape[1] - sz - 8)
+        a = np.dstack([a_img[ya:ya + sz, xa:xa + sz]] * 3)
+        yb, xb = rng.integers(0, b_img.shape[0] - sz), rng.integers(0, b_img.shape[1] - sz)
+        dy, dx = rng.integers(-6, 7, 2)
+        for other, count in ((b_img[yb:yb + sz, xb:xb + sz], "unrelated"),
+                             (a_img[ya + dy:ya + dy + sz, xa + dx:xa + dx + sz], "related")):
+            try:
+                pcreg.register(a, np.dstack([other] * 3), config=config)
+            except (pcreg.RegistrationError, InputError):
+                continue
+            if count == "unrelated":
+                unrelated += 1
+            else:
+                related += 1
+        tried += 1
+    assert unrelated == 0 and related >= 30, (unrelated, related, tried)

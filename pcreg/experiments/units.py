@@ -81,7 +81,8 @@ class UnitStore:
 
     Opening the store compares ``config`` with ``out/config.json``: the same configuration resumes
     (finished units are loaded, not rerun); a different one raises :class:`~pcreg.errors.OutputError`
-    unless ``force``, which clears the old units. ``force`` with the same configuration reruns all.
+    unless ``force``, which clears the old units, or unless no unit finished and no report was written
+    (nothing is lost: it is replaced). ``force`` with the same configuration reruns all.
     """
 
     def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
@@ -102,12 +103,17 @@ class UnitStore:
         if force:
             if self.dir.is_dir():
                 shutil.rmtree(self.dir)
-        elif old is not None and old != config:
+        elif old is not None and old != config and self._holds_results():
             raise OutputError(f"{self.out} holds results of a different configuration "
                               "(use --force to replace them, or another --out)")
         elif old is None and (self.out / "results.json").exists():
             raise OutputError(f"{self.out}/results.json exists without a readable config.json (use --force)")
         atomic_write_json(cfg_path, config)
+
+    def _holds_results(self) -> bool:
+        """Whether a finished unit or a report is here: a configuration whose run stopped before any (a bad
+        option found after it was written) is replaced without ``--force``, nothing being lost."""
+        return (self.out / "results.json").exists() or (self.dir.is_dir() and any(self.dir.glob("*.json")))
 
     def path(self, key: str) -> Path:
         return self.dir / f"{key}.json"

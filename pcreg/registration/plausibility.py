@@ -7,7 +7,7 @@ agrees within 30° (measured at full resolution; on images whose full-resolution
 ``reference_max_points``, at the finest level where it does not, with the tolerance scaled to it).
 ``chance_ratio`` is what unrelated content reaches at the same distances. Below ``min_inlier_ratio``
 (see :data:`~pcreg.registration.config.DEFAULT_MIN_INLIER_RATIO`; None turns the test off), below :data:`CHANCE_FACTOR` x
-``chance_ratio``, with fewer than 2% of the points on the reference (no overlap), or when the moving
+``chance_ratio`` or within :data:`SIGNIFICANCE` standard deviations of it, with fewer than 2% of the points on the reference (no overlap), or when the moving
 image's mirror aligns clearly better (a score :data:`MIRROR_FACTOR` times as high, and more of its edge
 points; asked of every model when the search ended unconvinced), :class:`~pcreg.errors.RegistrationError`
 is raised with a one-line reason. Unrelated images, noise and mirror images are refused this way.
@@ -29,6 +29,13 @@ than itself, and aligns more of its edge points, is refused as a mirror image.""
 CHANCE_FACTOR = 2.0
 """A plausible alignment has at least this multiple of its chance level of inliers (true alignments
 measured at >= 2.8x, unrelated content at about 1x)."""
+
+SIGNIFICANCE = 5.0
+"""A plausible alignment's inliers exceed what chance gives by at least this many standard deviations of
+that count (binomial: ``n p (1 - p)`` for ``n`` overlapping edge points at the chance ratio ``p``): with few
+edge points (small images, ``--levels 1``) twice chance is within reach of chance. Five, a rule: random
+crops of the shared photographs (32 to 96 px, 40 pairs a size) reached at most 3.6 between different
+photographs, and at least 7.5 between two crops of one place (docs/algorithms.md)."""
 
 
 class Plausibility:
@@ -81,6 +88,9 @@ class Plausibility:
             raise RegistrationError(f"registration refused: {why}")
         ev, ratio = best.evidence, best.inlier_ratio
         need = max(10, int(np.ceil(0.02 * ev.moving_points)))
+        if best.refined.fitness != 0.0 and ev.moving_points < need:
+            raise RegistrationError(f"registration refused: the moving image has only {ev.moving_points} edge points "
+                                    f"(at least {need} needed)")
         if best.refined.fitness == 0.0 or ev.overlap_points < need:
             raise RegistrationError(f"registration found no overlap between the images: {ev.overlap_points} of "
                                     f"{ev.moving_points} moving edge points land on the reference (at least {need} needed)")
@@ -93,8 +103,15 @@ class Plausibility:
         if mir is not None and mir > 0 and ratio < CHANCE_FACTOR * chance:
             raise RegistrationError(
                 f"registration refused: the best alignment's {100 * ratio:.1f}% of tight, direction-consistent edge "
-                f"points is no better than chance ({100 * chance:.1f}% expected from unrelated content at the same "
-                f"distances); the images do not show the same scene under a {self.model} motion")
+                f"points is under {CHANCE_FACTOR:g}x chance ({100 * chance:.1f}% expected from unrelated content at "
+                f"the same distances); the images do not show the same scene under a {self.model} motion")
+        n = ev.overlap_points
+        spread = float(np.sqrt(n * chance * (1.0 - chance)))
+        if mir is not None and mir > 0 and ratio * n - chance * n < SIGNIFICANCE * spread:
+            raise RegistrationError(
+                f"registration refused: the best alignment's {ratio * n:.0f} tight, direction-consistent edge points "
+                f"of {n} are within {SIGNIFICANCE:g} standard deviations of chance ({chance * n:.0f} ± {spread:.0f} "
+                f"expected from unrelated content): too few edges to tell the same scene from another")
         if mir is not None and ratio < mir:
             raise RegistrationError(
                 f"registration refused: the best alignment puts only {100 * ratio:.1f}% of the overlapping edge "

@@ -509,3 +509,24 @@ def test_register_takes_its_options_as_one_config(monkeypatch):
         pcreg.register(REF, REF, config={"levels": 3})
     with pytest.raises(InputError, match="supports the rigid and similarity"):
         pcreg.register(REF, REF, config=RegisterConfig.of(model="affine"), backend="open3d")
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0])
+def test_edges_that_run_one_way_are_refused_not_given_an_arbitrary_motion(angle):
+    """Stripes shifted 7 px across came out as a 180° turn (exit 0): along stripes or a grating the motion
+    is not determined. A pattern of two directions, as much a pattern, is still registered."""
+    from pcreg.registration.clouds import cloud_pyramid
+    from pcreg.registration.plausibility import ONE_DIRECTION, edge_spread
+
+    h, w = 240, 320
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    t = np.deg2rad(angle)
+    across = -x * np.sin(t) + y * np.cos(t)
+    noise = np.random.default_rng(0).normal(0, 6, (h, w))
+    stripes = [np.clip(128 + 100 * np.sin(2 * np.pi * (across + d) / 20) + noise, 0, 255).astype(np.uint8) for d in (0, 7)]
+    a, b = (np.dstack([s] * 3) for s in stripes)
+    with pytest.raises(pcreg.RegistrationError, match="edges run one way"):
+        pcreg.register(a, b, model="similarity")
+    assert edge_spread(cloud_pyramid(b, levels=4)) < ONE_DIRECTION
+    grid = np.clip(128 + 60 * np.sin(2 * np.pi * x / 23) + 60 * np.sin(2 * np.pi * y / 31) + noise, 0, 255).astype(np.uint8)
+    assert edge_spread(cloud_pyramid(np.dstack([grid] * 3), levels=4)) > 2 * ONE_DIRECTION

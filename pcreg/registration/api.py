@@ -280,7 +280,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     if callback is not None:
         for iteration in best.iterations:
             callback(iteration)
-    evidence = test.check(best, mirror=mirror, shape=mov_img.shape)
+    evidence = test.check(best, mirror=mirror, shape=mov_img.shape, moving=moving)
     return _result(best, evidence, tried, mirror, backend=config.backend, seconds=time.perf_counter() - start,
                    points=(len(moving[0]), len(reference[0])))
 

@@ -57,6 +57,26 @@ def test_register_never_writes_over_its_inputs_even_with_force(pair, tmp_path):
     assert (ref.read_bytes(), mov.read_bytes()) == before
 
 
+def test_transparent_pixels_are_not_registered(tmp_path):
+    """Two RGBA images whose visible parts are one scene shifted by (-20, 15) and whose transparent parts
+    hold one same picture: the transparent parts aligned (a shift of 0, exit 0); a viewer shows nothing
+    there, and nothing there is matched now."""
+    from pcreg.datasets.textures import texture
+
+    scene = texture("leaves", height=240, width=320)
+    h, w = scene.shape[:2]
+    T = np.array([[1.0, 0, -20], [0, 1, 15], [0, 0, 1]])
+    shifted = moved(scene, T)
+    hidden = texture("leaves", height=h, width=w // 2, seed=1)  # half of each image, the same in both
+    for name, img in (("a.png", scene), ("b.png", shifted)):
+        rgba = np.dstack([img[:, :, ::-1], np.full((h, w), 255, np.uint8)])
+        rgba[:, : w // 2, :3], rgba[:, : w // 2, 3] = hidden[:, :, ::-1], 0
+        cv2.imwrite(str(tmp_path / name), rgba)
+    p = run("register", tmp_path / "a.png", tmp_path / "b.png", "--json")
+    assert p.returncode == 0, p.stderr
+    assert tf.max_corner_error(np.array(json.loads(p.stdout)["matrix"]), T, (h, w)) < 1.0
+
+
 @pytest.mark.slow
 def test_refused_registration_exits_3_with_one_line(pair, tmp_path):
     d, _ = pair

@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import InputError, OutputError
     from ..outputs import atomic_write_bytes, check_output
-    from ..registration.clouds import cloud_pyramid, load_image
+    from ..registration.clouds import cloud_pyramid, load_image_and_mask
     from ..registration.api import register
     from ..registration.config import RegisterConfig
     from ..registration.warp import warp
@@ -53,8 +53,8 @@ def run(args: argparse.Namespace) -> int:
     config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
                                init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,
                                **options)
-    ref = load_image(args.reference)
-    mov = load_image(args.moving)
+    ref, ref_mask = load_image_and_mask(args.reference)  # transparent pixels are not matched
+    mov, mov_mask = load_image_and_mask(args.moving)
     with open_recorder(args, name=f"register {args.moving} -> {args.reference}") as rec:
         rec.set_frame(0)
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
@@ -63,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
             rc, mc = cloud_pyramid(ref, levels=1)[0], cloud_pyramid(mov, levels=1)[0]
             rec.log_clouds(reference_points=rc.points, reference_colors=rc.colors, moving_points=mc.points,
                            moving_colors=mc.colors)
-        result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend))
+        result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend), reference_mask=ref_mask,
+                          moving_mask=mov_mask)
         warped = valid = None
         if args.out or rec.enabled:
             warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)

@@ -51,15 +51,27 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
     Only regular files are read (a FIFO or device is refused, never waited on); the size in the header
     is checked against ``max_pixels`` (default :func:`pcreg.validation.max_pixels`) before decoding.
     """
+    return load_image_and_mask(path, max_pixels=max_pixels)[0]
+
+
+def load_image_and_mask(path: str | os.PathLike, *, max_pixels: int | None = None
+                        ) -> tuple[np.ndarray, np.ndarray | str]:
+    """``(image, mask)``: :func:`load_image`'s image, and the pixels to register: ``"auto"`` (every pixel
+    but black padding, :func:`valid_region`) for an image without transparency, else its opaque pixels
+    (alpha above 0) less the padding. A viewer shows nothing where alpha is 0, so nothing there is matched."""
     from ..formats import read_image_file
 
     path = check_path(path, "path")
     img = read_image_file(path, limit=max_pixels)
+    alpha = None
     if img.ndim == 3 and img.shape[2] == 4:
-        img = img[:, :, :3]
+        img, alpha = img[:, :, :3], img[:, :, 3]
     if img.ndim == 3:
         img = img[:, :, ::-1]  # BGR -> RGB
-    return as_rgb_uint8(img, name=str(path))
+    rgb = as_rgb_uint8(img, name=str(path))
+    if alpha is None or np.all(alpha > 0):
+        return rgb, "auto"
+    return rgb, (alpha > 0) & valid_region(rgb)
 
 
 def valid_region(image: np.ndarray) -> np.ndarray:

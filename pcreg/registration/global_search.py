@@ -133,7 +133,8 @@ def orb_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, lev
                    seed: int = 0, reference_valid: np.ndarray | None = None,
                    moving_valid: np.ndarray | None = None) -> list[np.ndarray]:
     """At most one hypothesis: ORB features at pyramid ``level``, cross-checked Hamming matches, a
-    similarity by RANSAC (``cv2.estimateAffinePartial2D``, threshold ``ransac_px`` at that level).
+    similarity by RANSAC (``cv2.estimateAffinePartial2D``, threshold ``ransac_px`` at that level; for an
+    ``affine`` ``model`` a full affine, ``cv2.estimateAffine2D``).
 
     Black padding is masked out of the detection. Returns [] when fewer than 6 matches survive.
     """
@@ -150,9 +151,11 @@ def orb_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, lev
     p_mov = _to_full(np.float32([k2[m.queryIdx].pt for m in matches]), level)
     p_ref = _to_full(np.float32([k1[m.trainIdx].pt for m in matches]), level)
     cv2.setRNGSeed(int(seed))
-    M, inliers = cv2.estimateAffinePartial2D(p_mov.astype(np.float32), p_ref.astype(np.float32),
-                                             method=cv2.RANSAC, ransacReprojThreshold=ransac_px * 2**level,
-                                             maxIters=2000, confidence=0.995)
+    # an affine registration gets a full affine (a shear and two scales, which its ICP from a similarity start
+    # often did not reach: docs/algorithms.md); the others a similarity
+    fit = cv2.estimateAffine2D if model == "affine" else cv2.estimateAffinePartial2D
+    M, inliers = fit(p_mov.astype(np.float32), p_ref.astype(np.float32), method=cv2.RANSAC,
+                     ransacReprojThreshold=ransac_px * 2**level, maxIters=2000, confidence=0.995)
     if M is None or inliers is None or int(inliers.sum()) < 6 or not np.all(np.isfinite(M)):
         return []
     return [_fix_model(np.vstack([M, [0.0, 0.0, 1.0]]), model)]

@@ -188,7 +188,8 @@ class GlobalSearch:
                                              model=self.model if self.model in ("translation", "rigid") else "similarity",
                                              reference_valid=ref.valid, moving_valid=mov.valid)
         else:
-            hyps = orb_hypotheses(ref.image, mov.image, level=min(1, self.levels - 1), model=self.search_model,
+            hyps = orb_hypotheses(ref.image, mov.image, level=min(1, self.levels - 1),
+                                  model="affine" if self.model == "affine" else self.search_model,
                                   seed=self.seed, reference_valid=ref.valid, moving_valid=mov.valid)
         hyps = unseen(hyps, seen, mov.image.shape, min_px=2.0)
         if not hyps:

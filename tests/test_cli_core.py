@@ -77,6 +77,14 @@ def test_transparent_pixels_are_not_registered(tmp_path):
     assert tf.max_corner_error(np.array(json.loads(p.stdout)["matrix"]), T, (h, w)) < 1.0
 
 
+def test_an_image_too_small_for_the_pyramid_is_named_by_its_file(pair, tmp_path):
+    d, _ = pair
+    cv2.imwrite(str(tmp_path / "tiny.png"), np.full((16, 16, 3), 128, np.uint8))
+    for args, role in (((d / "ref.png", tmp_path / "tiny.png"), "moving"), ((tmp_path / "tiny.png", d / "ref.png"), "reference")):
+        p = run("register", *args)
+        assert p.returncode == 2 and p.stderr.startswith(f"pcreg: error: {tmp_path / 'tiny.png'}: the {role} image (16x16)"), p.stderr
+
+
 @pytest.mark.slow
 def test_refused_registration_exits_3_with_one_line(pair, tmp_path):
     d, _ = pair

@@ -63,8 +63,15 @@ def run(args: argparse.Namespace) -> int:
             rc, mc = cloud_pyramid(ref, levels=1)[0], cloud_pyramid(mov, levels=1)[0]
             rec.log_clouds(reference_points=rc.points, reference_colors=rc.colors, moving_points=mc.points,
                            moving_colors=mc.colors)
-        result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend), reference_mask=ref_mask,
-                          moving_mask=mov_mask)
+        try:
+            result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend), reference_mask=ref_mask,
+                              moving_mask=mov_mask)
+        except InputError as exc:  # "the reference image (16x16) is too small ...": name its file
+            said = str(exc)
+            for role, path in (("the reference image", args.reference), ("the moving image", args.moving)):
+                if said.startswith(role):
+                    raise InputError(f"{path}: {said}") from None
+            raise
         warped = valid = None
         if args.out or rec.enabled:
             warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)

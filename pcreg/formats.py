@@ -53,6 +53,17 @@ def resolved(path: str | os.PathLike) -> Path:
         raise InputError(f"{p}: cannot be followed ({getattr(exc, 'strerror', None) or exc})") from None
 
 
+def only_files(named: list[Path], what: str) -> list[Path]:
+    """``named``, entries a folder lists under the names of ``what`` (frames, key labels), when every one is
+    a file (links followed); the first that is not (a folder, a link to nothing, a FIFO or a device) is an
+    :class:`InputError` naming it: skipped, it would leave a frame or a key frame out without a word."""
+    for p in named:
+        if not p.is_file():
+            raise InputError(f"{p}: named as {what} but not a file that can be read (a folder, a link to nothing, "
+                             "a FIFO or a device)")
+    return list(named)
+
+
 def check_regular_file(path: str | os.PathLike, *, what: str = "file") -> Path:
     """``path`` if it names a regular file (symbolic links followed); an :class:`InputError` otherwise.
 

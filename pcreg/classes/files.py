@@ -158,10 +158,11 @@ def table_json(table: ClassTable) -> str:
     return json.dumps(doc, indent=1) + "\n"
 
 
-def parse_table_json(text: str, where: str) -> ClassTable:
-    """The class table of :func:`table_json`'s text; a class's ``id`` may be left out (its position)."""
+def parse_table_json(text: str | dict, where: str) -> ClassTable:
+    """The class table of :func:`table_json`'s text (or of the document already read from it); a class's
+    ``id`` may be left out (its position)."""
     try:
-        doc = loads_json(text)
+        doc = text if isinstance(text, dict) else loads_json(text)
     except ValueError as exc:
         raise InputError(f"{where}: not JSON ({exc})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("classes"), list) or "unknown" not in doc:
@@ -187,22 +188,22 @@ def read_table_file(path: str | Path) -> ClassTable:
     p = Path(path).expanduser()
     if p.is_dir():
         p = p / LABELMAP_FILE
-    text = _read_text(p, "class table" if p.suffix.lower() == ".json" else "label map")
-    if p.suffix.lower() == ".json" or _json_object(text):
-        return parse_table_json(text, str(p))
-    return parse_labelmap(text, str(p))
+    if p.suffix.lower() == ".json":
+        return parse_table_json(_read_text(p, "class table"), str(p))
+    text = _read_text(p, "label map")
+    doc = _json_object(text)
+    return parse_labelmap(text, str(p)) if doc is None else parse_table_json(doc, str(p))
 
 
-def _json_object(text: str) -> bool:
-    """Whether ``text`` is a JSON object (a JSON table under another name than ``.json``)."""
-    from ..formats import loads_json
-
+def _json_object(text: str) -> dict | None:
+    """The JSON object ``text`` holds (a JSON table under another name than ``.json``), or None."""
     if not text.lstrip().startswith("{"):
-        return False
+        return None
     try:
-        return isinstance(loads_json(text), dict)
+        doc = loads_json(text)
     except ValueError:
-        return False
+        return None
+    return doc if isinstance(doc, dict) else None
 
 
 def class_table(spec: str | Path | ClassTable | None) -> ClassTable:

@@ -96,18 +96,13 @@ class FolderFrames:
     kind = "folder"
 
     def __init__(self, folder: str | Path, selection: Selection = Selection()) -> None:
-        from ..formats import IMAGE_SUFFIXES
+        from ..formats import IMAGE_SUFFIXES, only_files
 
         self.path, self.selection = Path(folder), selection
         if not self.path.is_dir():
             raise InputError(f"{self.path}: not a folder or a video file ({', '.join(VIDEO_SUFFIXES)})")
         src = self.path / "images" if (self.path / "images").is_dir() else self.path
-        named = sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        files = [p for p in named if p.is_file()]
-        if len(files) < len(named):  # left out, the run would label fewer frames without a word
-            odd = next(p for p in named if not p.is_file())
-            raise InputError(f"{odd}: named as a frame but not a file that can be read (a folder, a link to "
-                             "nothing, a FIFO or a device); remove it or give the frames in another folder")
+        files = only_files(sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), "a frame")
         names = [p.stem for p in files]
         if len(set(names)) != len(names):
             raise InputError(f"{self.path}: two frames share a name ({len(names) - len(set(names))} duplicates)")

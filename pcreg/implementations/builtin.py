@@ -21,7 +21,7 @@ import numpy as np
 from .base import (FIXED_POINT, OBJECTIVE, STEP, ImplementationError, Implementation, Pinned, lift, lift_matrix,
                    out_of_plane, project, result, score, step, unpack)
 from ..registration.icp_options import ICPOptions
-from ..registration.transforms import rotation_part
+from ..registration.transforms import about_point, rotation_part
 
 CONVERGED_ITERATIONS = 200
 
@@ -337,22 +337,12 @@ class _Probabilistic(Implementation):
 
 
 def _centred(src: np.ndarray, tgt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(source, target, c)``: both clouds moved by ``-c``, the target's centroid. The probabilistic
+    """``(source, target, c)``: both clouds moved by ``-c``, the target's centroid (a transform found between
+    them is the clouds' own about ``c``: :func:`~pcreg.registration.transforms.about_point`). The probabilistic
     libraries compute in the clouds' own coordinates: far from the origin (georeferenced clouds, 5e6 m)
     probreg's FilterReg corrupted its memory and ended the process."""
     c = tgt.mean(axis=0)
     return src - c, tgt - c, c
-
-
-def _uncentred(M: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """A homogeneous transform found between clouds moved by ``-c`` (:func:`_centred`), in their own
-    coordinates: ``T(c) M T(-c)``."""
-    d = len(c)
-    shift = np.eye(d + 1)
-    shift[:d, d] = c
-    back = np.eye(d + 1)
-    back[:d, d] = -c
-    return shift @ M @ back
 
 
 class PyCpd(_Probabilistic):
@@ -377,7 +367,7 @@ class PyCpd(_Probabilistic):
         M = np.eye(d + 1)
         M[:d, :d] = s * np.asarray(R).T  # pycpd maps row vectors: y -> s y R + t
         M[:d, d] = np.ravel(t)
-        m = _uncentred(M, c) @ pinned.init
+        m = about_point(M, c) @ pinned.init
         fit, rmse, _ = score(pinned, m)
         return result(self.name, m, iterations=int(reg.iteration), fitness=fit, inlier_rmse=rmse,
                       converged=bool(reg.iteration < self.max_em_iterations), seconds=seconds,
@@ -411,7 +401,7 @@ class _Probreg(_Probabilistic):
         M = np.eye(4)
         M[:3, :3] = float(getattr(tf, "scale", 1.0)) * np.asarray(tf.rot)
         M[:3, 3] = np.asarray(tf.t)
-        M = _uncentred(M, c)
+        M = about_point(M, c)
         info = {"sigma2": float(res.sigma2)}
         if pinned.dim == 2:
             info["out_of_plane"] = out_of_plane(M)

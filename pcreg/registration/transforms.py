@@ -48,13 +48,15 @@ def rigid2d(angle_deg: float = 0.0, tx: float = 0.0, ty: float = 0.0, *, scale: 
     return np.array([[c, -s, tx], [s, c, ty], [0.0, 0.0, 1.0]])
 
 
-def about_point(matrix: np.ndarray, center_from: tuple[float, float], center_to: tuple[float, float] | None = None) -> np.ndarray:
-    """``T(center_to) @ matrix @ T(-center_from)``: apply ``matrix`` about a point (e.g. the image centre)."""
+def about_point(matrix: np.ndarray, center_from: tuple[float, ...], center_to: tuple[float, ...] | None = None) -> np.ndarray:
+    """``T(center_to) @ matrix @ T(-center_from)``: apply ``matrix`` about a point (e.g. the image centre); in
+    2-D (3x3) or 3-D (4x4), by the point's dimension."""
     center_to = center_from if center_to is None else center_to
-    a = np.eye(3)
-    a[:2, 2] = -np.asarray(center_from, dtype=np.float64)
-    b = np.eye(3)
-    b[:2, 2] = np.asarray(center_to, dtype=np.float64)
+    d = len(center_from)
+    a = np.eye(d + 1)
+    a[:d, d] = -np.asarray(center_from, dtype=np.float64)
+    b = np.eye(d + 1)
+    b[:d, d] = np.asarray(center_to, dtype=np.float64)
     return b @ np.asarray(matrix, dtype=np.float64) @ a
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..formats import resolved
+from ..formats import only_files, resolved
 
 __all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth", "check_spares_inputs",
            "check_suggest", "read_key_labels"]
@@ -176,12 +176,8 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     from ..errors import InputError
 
     table = DEFAULT_TABLE if table is None else table
-    named = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and not p.name.startswith("."))
-    files = [p for p in named if p.is_file()]
-    if len(files) < len(named):  # left out, the run would have a key frame fewer without a word
-        odd = next(p for p in named if not p.is_file())
-        raise InputError(f"{odd}: named as key labels but not a file that can be read (a folder, a link to nothing, "
-                         "a FIFO or a device)")
+    files = only_files(sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and not p.name.startswith(".")),
+                       "key labels")
     if not files:
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
     where = frame_positions(frames)

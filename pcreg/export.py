@@ -58,6 +58,7 @@ class RunLabels:
     paths: tuple[Path, ...]
     confidence: tuple[Path | None, ...]
     table: ClassTable = DEFAULT_TABLE
+    chosen: int | None = None  # the frames the run chose of its folder (None: a video, or the folder gone)
 
 
 def default_name(fmt: str) -> str:
@@ -73,7 +74,7 @@ def read_run(folder: str | Path) -> RunLabels:
     """
     from .classes.keys import run_table
     from .runs.files import CONFIDENCE, STEPS
-    from .runs.state import STATE, read_state, run_frames
+    from .runs.state import STATE, frames_chosen, read_state, run_frames
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -103,7 +104,7 @@ def read_run(folder: str | Path) -> RunLabels:
         table = run_table(state["run"])
     except InputError as exc:
         raise InputError(f"{folder / STATE}: {exc}") from None
-    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table)
+    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]))
 
 
 def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:

@@ -529,8 +529,9 @@ def check_npy_file(path: Path, limit: int) -> tuple[tuple[int, ...], np.dtype]:
             start = fh.tell()
     except NPY_HEADER_ERRORS as exc:
         raise InputError(f"{path}: not a numpy array file ({str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__})") from None
-    if dtype.hasobject or dtype.kind not in "biuf" or dtype.fields is not None or dtype.subdtype is not None:
-        raise InputError(f"{path}: points must be a numeric array, got dtype {dtype}")
+    if dtype.hasobject or dtype.kind not in "iuf" or dtype.fields is not None or dtype.subdtype is not None:
+        what = " (true/false values: a mask, not coordinates)" if dtype.kind == "b" else ""
+        raise InputError(f"{path}: points must be a numeric array, got dtype {dtype}{what}")
     if any(int(s) < 0 for s in shape):
         raise InputError(f"{path}: bad shape {shape}")
     count = math.prod(int(s) for s in shape)

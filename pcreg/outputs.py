@@ -165,13 +165,16 @@ def _same_file(a: Path, b: str | os.PathLike) -> bool:
 class OutputLock:
     """An exclusive lock on an output folder (``fcntl.flock`` on ``FOLDER/.pcreg.lock``), held while a
     command writes there and released on exit (also when the process dies). A second run on the same
-    folder gets an :class:`OutputError` at once instead of racing the first."""
+    folder gets an :class:`OutputError` at once instead of racing the first. A folder the lock made, that
+    holds nothing but the lock when it is released (a command that stopped on bad input before writing),
+    is removed again, with the parents the lock made for it."""
 
     NAME = ".pcreg.lock"
 
     def __init__(self, folder: str | os.PathLike) -> None:
         self.folder = Path(folder)
         self._fd: int | None = None
+        self._made: list[Path] = []  # the folders the lock made, the innermost first
 
     def __enter__(self) -> "OutputLock":
         import fcntl
@@ -179,6 +182,7 @@ class OutputLock:
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError(f"{self.folder} exists and is not a folder")
         try:
+            self._made = [p for p in (self.folder, *self.folder.parents) if not p.exists()]
             self.folder.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.folder / self.NAME, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
         except OSError as exc:
@@ -206,6 +210,20 @@ class OutputLock:
                 pass
             os.close(self._fd)  # closing releases the flock
             self._fd = None
+            self._remove_unused()
+
+    def _remove_unused(self) -> None:
+        """Remove the folders the lock made when nothing but the lock was written into them."""
+        if not self._made:
+            return
+        try:
+            if [e.name for e in os.scandir(self.folder)] != [self.NAME]:
+                return
+            (self.folder / self.NAME).unlink()
+            for made in self._made:
+                made.rmdir()  # an OSError (not empty: another command wrote there) stops here
+        except OSError:
+            pass
 
 
 class WriteBehind:

@@ -64,6 +64,7 @@ class RunReview:
     selection: dict | None = None
     table: ClassTable = DEFAULT_TABLE
     ious: tuple[dict | None, ...] = ()
+    chosen: int | None = None  # the frames the run chose of its folder (None: a video)
 
     def labels_path(self, t: int) -> Path:
         return self.folder / f"{self.stems[t]}.png"
@@ -156,7 +157,7 @@ def read_review(folder: str | Path) -> RunReview:
         ious.append({int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None)
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
                      _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
-                     tuple(ious))
+                     tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None)
 
 
 def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:

@@ -230,3 +230,14 @@ def test_a_stop_that_does_not_end_by_itself_is_ended_after_its_grace(tmp_path):
     _runner.restore_signals(previous)  # the command ended by itself: the watchdog stands down
     watchdog.join(timeout=120)
     assert not watchdog.is_alive() and not _runner._WATCHDOG
+
+
+def test_a_command_stopped_by_bad_input_leaves_no_folder_it_made(tmp_path, capsys):
+    out = tmp_path / "made" / "for" / "it"
+    assert main(["evaluate", "stream", "--out", str(out), "--data", f"camvid:{tmp_path / 'none'}"]) == 2
+    assert "no such folder" in capsys.readouterr().err
+    assert not (tmp_path / "made").exists()  # the folder and the parents the lock made, gone again
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    assert main(["evaluate", "stream", "--out", str(kept), "--data", f"camvid:{tmp_path / 'none'}"]) == 2
+    assert kept.is_dir()  # a folder that was there before stays

@@ -256,3 +256,25 @@ def test_a_table_of_150_classes_runs_and_exports(tmp_path, capsys):
     said = capsys.readouterr().out
     assert f"the {k - 1} labels" in said and "more" in said and len(said.splitlines()[1]) < 300
     assert zipfile.ZipFile(out / "export-cvat-mask.zip").read("labelmap.txt").decode().count("\n") >= k - 1
+
+
+def test_export_and_view_say_when_the_run_has_not_labelled_every_frame_it_chose(tmp_path, capsys):
+    frames = pcreg.synthetic("syn1a", 5, 0, width=160, height=120)
+    folder, out = tmp_path / "frames", tmp_path / "out"
+    folder.mkdir()
+    for i, f in enumerate(frames[:4]):
+        cv2.imwrite(str(folder / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    command = ["run", str(folder), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
+    assert main(command) == 0
+    assert main(["export", str(out)]) == 0
+    assert "unfinished" not in capsys.readouterr().out
+    cv2.imwrite(str(folder / "frame_004.png"), frames[4].image[:, :, ::-1])  # a frame more to label
+    assert main(["export", str(out), "--force"]) == 0
+    assert "holds 4 of the 5 frames the run chose: it is unfinished" in capsys.readouterr().out
+    assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 0
+    assert "holds 4 of the 5 frames" in capsys.readouterr().out
+    assert main(command) == 0  # the same command labels the frame left
+    assert main(["export", str(out), "--force"]) == 0
+    said = capsys.readouterr().out
+    assert "5 frame(s)" in said and "unfinished" not in said

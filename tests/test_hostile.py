@@ -147,6 +147,7 @@ def files(tmp_path_factory):
     (t / "object.npy").write_bytes(npy_bytes(np.array([{"a": 1}, None], dtype=object)))
     (t / "four_cols.npy").write_bytes(npy_bytes(np.zeros((50, 4))))
     (t / "strings.npy").write_bytes(npy_bytes(np.array(["a", "b"])))
+    (t / "mask.npy").write_bytes(npy_bytes(np.random.default_rng(4).random((300, 3)) > 0.5))
     (t / "huge_shape.npy").write_bytes(npy_bytes(np.zeros((2, 3)))
                                        .replace(b"(2, 3)", b"(10**12, 3)".replace(b"10**12", b"999999999999")))
     (t / "random.npy").write_bytes(os.urandom(300))
@@ -414,6 +415,7 @@ LIBRARY = {
     "npy_pickled_objects": (_load_cloud("object.npy"), "numeric"),
     "npy_four_columns": (_load_cloud("four_cols.npy"), "(N, 2) or (N, 3)"),
     "npy_strings": (_load_cloud("strings.npy"), "numeric"),
+    "npy_true_false_values": (_load_cloud("mask.npy"), "a mask, not coordinates"),
     "npy_huge_shape": (_load_cloud("huge_shape.npy"), "limit"),
     "npy_random_bytes": (_load_cloud("random.npy"), "not a numpy array"),
     "npy_unparsable_header": (_load_cloud("bad_header.npy"), "not a numpy array"),
@@ -639,6 +641,8 @@ CLI = {
     "crosscheck_with_nothing": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", ""], "names no implementation"),
     "stream_names_no_dataset": (["evaluate", "stream", "--data", "synthetic:,", "--out", "{t}/o"],
                                 "names no synthetic preset"),
+    "stream_names_no_dataset_after_the_colon": (["evaluate", "stream", "--data", "synthetic:", "--out", "{t}/o"],
+                                                "names no synthetic preset"),
     "sequence_scores_no_pair": (["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "6", "--size",
                                  "64x48", "--increments", "1", "--levels", "8", "--out", "{t}/o8"],
                                 "no pair was scored"),

@@ -4,6 +4,7 @@ exit 0 (frames it can label) or one line and exit 2, never an internal error."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import cv2
 import numpy as np
@@ -186,6 +187,18 @@ def test_a_rerun_with_other_key_labels_or_fewer_frames_is_refused_and_force_star
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and "counts 5 frames labelled" in err[0] and "holds 4" in err[0], err
+
+
+def test_a_frame_added_among_those_a_run_labelled_is_named_not_taken_for_a_lost_label(tmp_path, capsys):
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=5)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    written = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    shutil.copy(folder / "f1.png", folder / "f1a.png")  # between f1 and f2 in name order
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "labelled f2.png as frame 2" in err[0] and "now holds as f1a.png" in err[0], err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == written
 
 
 def test_output_paths_that_are_loops_of_symbolic_links_are_bad_input(tmp_path, capsys):

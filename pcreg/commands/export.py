@@ -32,6 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from ..export import cvat_mask_archive, default_name, labelled_frames, read_run
     from ..formats import resolved
     from ..outputs import atomic_write_bytes, check_output
+    from ..runs.state import unfinished_note
 
     from ..errors import OutputError
 
@@ -52,6 +53,9 @@ def run(args: argparse.Namespace) -> int:
     names = [c.name for c in table.known]
     print(f"CVAT: a task with the {len(names)} labels {listed(names)} of its labelmap.txt over the same frames; "
           "Upload annotations, format Segmentation mask 1.1")
+    note = unfinished_note(Path(args.folder), len(run_labels.names), run_labels.chosen)
+    if note:
+        print(note)
     return 0
 
 

@@ -212,6 +212,7 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     from ..outputs import check_output
     from ..recording.review import ReviewServer
     from ..review import read_review, write_overlay_video
+    from ..runs.state import unfinished_note
 
     if len(args.recordings) > 1:
         raise InputError(f"one run output folder at a time (got {', '.join(args.recordings)})")
@@ -229,6 +230,9 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
         if out.suffix.lower() != ".mp4":
             raise OutputError(f"{out}: the overlay is written as an MP4 video; name it .mp4")
     review = read_review(folder)
+    note = unfinished_note(folder, len(review.names), review.chosen)
+    if note:
+        print(note)
     if args.overlay:
         n = write_overlay_video(review, out, fps=args.fps)
         print(f"wrote {out}: {n} frame(s) of {folder} with their labels")

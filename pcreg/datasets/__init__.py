@@ -68,13 +68,13 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
 
     if not isinstance(spec, (str, os.PathLike)):
         raise InputError(f"spec must be a string such as 'synthetic' or 'camvid:PATH', got {type(spec).__name__}")
-    kind, _, arg = str(spec).partition(":")
+    kind, colon, arg = str(spec).partition(":")
     kind = kind.strip().lower()
     if n_frames is not None:
         n_frames = check_int(n_frames, "n_frames", lo=1)
     seed = check_int(seed, "seed", lo=0)
     if kind == "synthetic":
-        names = [n.strip().lower() for n in arg.split(",") if n.strip()] if arg else list(SYNTHETIC_PRESETS)
+        names = [n.strip().lower() for n in arg.split(",") if n.strip()] if colon else list(SYNTHETIC_PRESETS)
         if not names:
             raise InputError(f"--data {spec!r} names no synthetic preset")
         if size is not None:

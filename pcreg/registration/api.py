@@ -43,6 +43,8 @@ MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 kee
 
 def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
     """(N, 2|3) finite float64 copy of ``points`` or an :class:`InputError`."""
+    if getattr(points, "dtype", None) is not None and np.dtype(points.dtype).kind == "b":
+        raise InputError(f"{name}: true/false values are a mask, not coordinates")
     try:
         if np.iscomplexobj(points):  # numpy would drop the imaginary part with a warning
             raise TypeError

@@ -244,6 +244,7 @@ class Run:
             self.state = state
             self._check_same_inputs(int(state["done"]), state.get("key_labels", digest) != digest)
             self._cut_steps(int(state["done"]) - 1)
+            self._check_same_frames(str(state["key_frame"]))
             self._remove_partial_writes()
             check_labelled(self.out, [self.frames.stem(t) for t in range(int(state["done"]))])
             return int(state["done"])
@@ -267,6 +268,19 @@ class Run:
             raise OutputError(f"{self.out / STATE} counts {done} frames labelled, {self.frames.path} now holds "
                               f"{len(self.frames)}{' chosen' if self.frames.selection.to_dict() else ''}: the frames "
                               "changed since the run began; use --force to start over")
+
+    def _check_same_frames(self, key_frame: str) -> None:
+        """Refuse to continue a run from one label image when the frames it labelled are not, by name, the first
+        of its folder now (a frame added among them, or renamed): the labels written would not be theirs."""
+        if self.frames.kind != "folder":
+            return
+        steps = parse_steps(self.out / STEPS, read_step_lines(self.out))
+        named = [(0, key_frame), *((int(s["frame"]), s.get("name")) for s in steps)]
+        for t, name in named:
+            if isinstance(name, str) and t < len(self.frames) and self.frames.name(t) != name:
+                raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "
+                                  f"now holds as {self.frames.name(t)}: the frames changed since the run began; "
+                                  "use --force to start over")
 
     def _start_over(self) -> None:
         """Forget what an earlier run in ``out`` wrote beside its label PNGs, which a run started over

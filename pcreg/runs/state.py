@@ -16,7 +16,7 @@ from pathlib import Path
 from ..errors import InputError, OutputError
 from ..formats import load_json_object, loads_json, resolved
 
-__all__ = ["STATE", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
+__all__ = ["STATE", "frames_chosen", "unfinished_note", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
            "read_state", "run_frames"]
 
 STATE = "run.json"
@@ -182,3 +182,28 @@ def run_frames(state: dict, steps: Sequence[bytes]) -> tuple[list[str], list[str
     if len(names) != count:
         raise ValueError(f"{len(names) - 1} steps for {count - 1} labelled frames")
     return [key], names
+
+
+def frames_chosen(run: dict) -> int | None:
+    """How many frames a run's identity (run.json's ``run``) chooses of its frames folder, as it holds them
+    now; None for a video (its count is what the container declares, not a fact) or a folder gone."""
+    from ..datasets.sources import FolderFrames, Selection
+
+    folder = run.get("folder") if isinstance(run, dict) else None
+    if not isinstance(folder, str) or not Path(folder).is_dir():
+        return None
+    chosen = run.get("frames") or {}
+    try:
+        selection = Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
+        return len(FolderFrames(Path(folder), selection))
+    except (InputError, OSError, ValueError, TypeError, AttributeError):
+        return None
+
+
+def unfinished_note(folder: Path, labelled: int, chosen: int | None) -> str | None:
+    """The line that says a run is unfinished when it labelled fewer of its ``chosen`` frames than there
+    are; None when it labelled them all or the count is not known."""
+    if chosen is None or labelled >= chosen:
+        return None
+    return (f"note: {folder} holds {labelled} of the {chosen} frames the run chose: it is unfinished "
+            "(the same pcreg run command goes on from where it stopped)")

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+import pcreg
 from pcreg import transforms as tf
 
 from _images import moved, rigid_about_centre, shapes_image
@@ -75,6 +76,10 @@ def test_transparent_pixels_are_not_registered(tmp_path):
     p = run("register", tmp_path / "a.png", tmp_path / "b.png", "--json")
     assert p.returncode == 0, p.stderr
     assert tf.max_corner_error(np.array(json.loads(p.stdout)["matrix"]), T, (h, w)) < 1.0
+    p = run("register", tmp_path / "a.png", tmp_path / "b.png", "--model", "dense")  # it cannot leave them out
+    assert p.returncode == 2 and p.stderr.startswith(f"pcreg: error: {tmp_path / 'a.png'}: transparent pixels"), p.stderr
+    with pytest.raises(pcreg.errors.InputError, match="cannot leave masked pixels out"):
+        pcreg.register(scene, shifted, model="dense", moving_mask=np.ones((h, w), bool))
 
 
 def test_an_image_too_small_for_the_pyramid_is_named_by_its_file(pair, tmp_path):

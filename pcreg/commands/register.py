@@ -55,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
                                **options)
     ref, ref_mask = load_image_and_mask(args.reference)  # transparent pixels are not matched
     mov, mov_mask = load_image_and_mask(args.moving)
+    for path, mask in ((args.reference, ref_mask), (args.moving, mov_mask)):
+        if not isinstance(mask, str) and args.model == "dense":  # "auto": no transparent pixel
+            raise InputError(f"{path}: transparent pixels, which the dense model cannot leave out (it leaves black "
+                             "padding out); flatten the image or use a global --model")
     with open_recorder(args, name=f"register {args.moving} -> {args.reference}") as rec:
         rec.set_frame(0)
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})

@@ -268,6 +268,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     config = _configured(config, model=model, backend=backend, init=init)
     start_matrix = None if init is None or isinstance(init, str) else check_matrix(init, "init", 3)
     if config.model == "dense":
+        if any(m is not None and not isinstance(m, str) for m in (reference_mask, moving_mask)):
+            raise InputError("the dense model cannot leave masked pixels out (it leaves black padding out): give "
+                             "images without a mask (transparent pixels), or a global model")
         return _register_dense_model(reference_image, moving_image, config, start_matrix)
     ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")
     _check_inputs(ref_img, mov_img, config.pyramid, reference_mask, moving_mask, callback)

@@ -142,6 +142,7 @@ _ON_HELPER = threading.local()
 
 def _mark_helper() -> None:
     _ON_HELPER.value = True
+    _STATE["thread"] = threading.current_thread()
 
 
 def helper() -> ThreadPoolExecutor | None:
@@ -157,14 +158,25 @@ def helper() -> ThreadPoolExecutor | None:
         return _STATE["pool"]
 
 
-def close() -> None:
+def close(timeout: float | None = None) -> bool:
     """Let the helper finish what it holds and end it (a later use makes a new one). Commands call it
     before they return, interrupted or not, so that no helper thread is alive when the interpreter
-    shuts down, whatever the order of the interpreter's own exit hooks."""
+    shuts down, whatever the order of the interpreter's own exit hooks. ``timeout``: wait at most so long
+    (an interrupt can land while the main thread holds a lock the helper waits on, numba's while it loads
+    a compiled kernel, and the helper would wait for ever); returns whether the helper ended."""
     with _LOCK:
         pool, _STATE["pool"] = _STATE["pool"], None
-    if pool is not None:
+        thread, _STATE["thread"] = _STATE.get("thread"), None
+    if pool is None:
+        return True
+    if timeout is None:
         pool.shutdown(wait=True, cancel_futures=True)
+        return True
+    pool.shutdown(wait=False, cancel_futures=True)
+    if thread is not None:
+        thread.join(timeout)
+        return not thread.is_alive()
+    return True
 
 
 def _claim() -> Callable[[], bool]:

@@ -146,7 +146,17 @@ def _bug(exc: Exception) -> int:
     return 1
 
 
+#: The commands that write one file, atomically, and have nothing to resume: interrupted, they wrote nothing.
+ONE_SHOT = (".export", ".view")
+
+#: How long a command stopping on a signal waits for the helper thread to end (seconds; it ends in milliseconds
+#: unless it waits on a lock the interrupt left held).
+HELPER_GRACE = 5.0
+
+
 def main(argv: list[str] | None = None) -> int:
+    import os
+
     from .errors import PcregError
 
     from ._runner import forget_stray_interrupt, ignore_signals, interrupt_on_signals, interrupted, restore_signals
@@ -167,8 +177,6 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_module", None):
         restore_signals(previous)
         return _no_command(args)
-    import os
-
     from .errors import RegistrationError, StuckOutput
 
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
@@ -190,8 +198,12 @@ def main(argv: list[str] | None = None) -> int:
             os._exit(2)
         return 2
     except KeyboardInterrupt:
+        module = getattr(args, "_module", "")
+        if module.endswith(ONE_SHOT):
+            sys.stderr.write("pcreg: interrupted (nothing was written)\n")
+            return 130
         again = ("the same command with another --record file (the recording holds the frames done)"
-                 if getattr(args, "record", None) and getattr(args, "_module", "").endswith(".run") else "the same command")
+                 if getattr(args, "record", None) and module.endswith(".run") else "the same command")
         sys.stderr.write(f"pcreg: interrupted (finished units are kept; rerun {again} to resume)\n")
         return 130
     except BrokenPipeError:  # stdout closed early (`pcreg ... | head`): no message, as other tools
@@ -221,7 +233,13 @@ def main(argv: list[str] | None = None) -> int:
             os.environ["PCREG_MAX_PIXELS"] = saved_limit
         from . import _threads
 
-        _threads.close()  # the helper thread ends here (milliseconds), not in the interpreter's shutdown
+        # the helper thread ends here (milliseconds), not in the interpreter's shutdown; stopping on a signal,
+        # a helper still busy after the grace waits on a lock the interrupt left held: the outputs are whole
+        # (written atomically, the writers closed), so the process ends without it
+        if not _threads.close(HELPER_GRACE if stopping else None):
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(130)
         if not stopping:
             restore_signals(previous)
 

@@ -85,9 +85,19 @@ def check_regular_file(path: str | os.PathLike, *, what: str = "file") -> Path:
     return p
 
 
-def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "file") -> bytes:
+#: What a refusal of a file too large for the pixel limit adds: how to raise it.
+RAISE_LIMIT = " (raise --max-pixels / PCREG_MAX_PIXELS)"
+
+
+def _bytes(n: float) -> str:
+    """``n`` bytes as a person reads a size: ``64 kB``, ``3 MiB``."""
+    return f"{n / 2**20:.0f} MiB" if n >= 2**20 else f"{max(1, round(n / 1024))} kB"
+
+
+def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "file", hint: str = "") -> bytes:
     """The bytes of a regular file of at most ``max_bytes`` (opened non-blocking; FIFOs, devices and
-    folders refused; a file that grows while read is cut at the bound and refused)."""
+    folders refused; a file that grows while read is cut at the bound and refused). ``hint``: what a refusal
+    of a file too large adds (:data:`RAISE_LIMIT` where the bound follows the pixel limit)."""
     p = Path(path)
     flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
     try:
@@ -107,8 +117,7 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
         if not stat.S_ISREG(st.st_mode):
             raise InputError(f"{p}: not a regular file (a FIFO, device or socket is no {what})")
         if st.st_size > max_bytes:
-            raise InputError(f"{p}: {what} of {st.st_size / 2**20:.0f} MiB exceeds the limit of "
-                             f"{max_bytes / 2**20:.0f} MiB (raise --max-pixels / PCREG_MAX_PIXELS)")
+            raise InputError(f"{p}: {what} of {_bytes(st.st_size)} exceeds the limit of {_bytes(max_bytes)}{hint}")
         chunks, total = [], 0
         while True:
             try:
@@ -120,7 +129,7 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
             chunks.append(b)
             total += len(b)
             if total > max_bytes:
-                raise InputError(f"{p}: {what} exceeds the limit of {max_bytes / 2**20:.0f} MiB")
+                raise InputError(f"{p}: {what} exceeds the limit of {_bytes(max_bytes)}{hint}")
         return b"".join(chunks)
     finally:
         os.close(fd)
@@ -418,6 +427,8 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
         if lines < before + n:
             raise InputError(f"{path}: truncated PLY: the header declares {n} vertices, the file holds "
                              f"{max(0, lines - before)}")
+        if not vertex[3]:  # a vertex of scalar properties: each line holds as many numbers
+            _check_ascii_rows(path, body_start, before, n, len(vertex[2]), "vertex")
         return n
     need = 0
     for e in elements:
@@ -426,7 +437,9 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
         if e is vertex:
             break
     have = size - body_start
-    if vertex is elements[-1] and not any(e[3] for e in elements) and have - need >= sum(vertex[2]):
+    after = elements[elements.index(vertex) + 1:]
+    last = all(e[1] == 0 for e in after)  # nothing after the vertices (an empty face element)
+    if last and not any(e[3] for e in elements if e[1]) and have - need >= sum(vertex[2]):
         raise InputError(f"{path}: the PLY header declares {n} vertices ({need} bytes), the file holds {have} bytes "
                          "(more vertices than declared?)")
     if have < need:
@@ -434,6 +447,38 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: truncated PLY: the header declares {n} vertices "
                          f"({need} bytes), the file holds {have} bytes (about {min(got, n)} vertices)")
     return n
+
+
+#: One number as an ASCII point cloud writes it (what C's ``strtod`` reads whole): digits, a point, an exponent,
+#: or nan / inf; not ``1,0`` (a decimal comma, which a reader takes for two numbers or one and junk), not ``1_0``.
+_ASCII_NUMBER = rb"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|(?i:nan|inf|infinity))"
+
+
+def _check_ascii_rows(path: Path, start: int, skip: int, rows: int, fields: int, what: str) -> int:
+    """How many non-empty lines follow ``skip`` of them from byte ``start`` (at most ``rows`` + 1 counted), each
+    of the first ``rows`` checked to hold ``fields`` numbers (:data:`_ASCII_NUMBER`), no more and no fewer: a
+    line that does not is an :class:`InputError` naming it (Open3D reads one short line as the next one's
+    start, or fills a point with what its memory held, a junk line as a point at the origin)."""
+    row = re.compile(rb"\s*" + _ASCII_NUMBER + (rb"\s+" + _ASCII_NUMBER) * (fields - 1) + rb"\s*")
+    count = seen = 0
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        for number, line in enumerate(fh, 1):
+            if not line.strip():
+                continue
+            seen += 1
+            if seen <= skip:
+                continue
+            count += 1
+            if count > rows:
+                break
+            if row.fullmatch(line) is None:
+                text = line.decode("ascii", "replace").strip()
+                if not line.endswith(b"\n"):  # the file ends inside this line
+                    raise InputError(f"{path}: truncated: its last line ({text[:40]!r}) is cut short")
+                raise InputError(f"{path}: {what} line {count} ({text[:40]!r}) is not {fields} numbers, as the header "
+                                 "declares")
+    return count
 
 
 def _count_data_lines(path: Path, start: int, stop_after: int) -> int:
@@ -479,6 +524,11 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
     if len(counts) != len(sizes) or any(s <= 0 for s in sizes) or any(c <= 0 for c in counts):
         raise InputError(f"{path}: damaged PCD header (SIZE and COUNT disagree)")
+    types = [t.upper() for t in fields.get("TYPE", ["F"] * len(sizes))]
+    if len(types) != len(sizes) or any(t not in "FIU" or len(t) != 1 for t in types) \
+            or any(s not in ((4, 8) if t == "F" else (1, 2, 4, 8)) for s, t in zip(sizes, types)):
+        raise InputError(f"{path}: damaged PCD header (TYPE {' '.join(types)} with SIZE "
+                         f"{' '.join(map(str, sizes))}: F takes 4 or 8 bytes, I and U 1, 2, 4 or 8)")
     point_bytes = sum(s * c for s, c in zip(sizes, counts))
     have = size - pos
     coords = [sizes[i] for i, f in enumerate(fields.get("FIELDS", [])[:len(sizes)]) if f.lower() in ("x", "y", "z")]
@@ -487,13 +537,18 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: a binary PCD whose x, y, z are 8-byte numbers is not read correctly "
                          "(its points come out as zeros); save it with 4-byte floats, as ASCII PCD, PLY or .npy")
     if data_kind == "ascii":
-        lines = _count_data_lines(path, pos, n)
+        lines = _check_ascii_rows(path, pos, 0, n, sum(counts), "data")
         if lines < n:
             raise InputError(f"{path}: truncated PCD: the header declares {n} points, the file holds {lines}")
+        if lines > n:  # a count that lies low: Open3D would read the first n and drop the rest
+            raise InputError(f"{path}: the PCD header declares {n} points, the file holds more")
     elif data_kind == "binary":
         if have < n * point_bytes:
             raise InputError(f"{path}: truncated PCD: the header declares {n} points ({n * point_bytes} bytes), "
                              f"the file holds {have} bytes")
+        if have >= (n + 1) * point_bytes:  # a count that lies low: the rest would be dropped
+            raise InputError(f"{path}: the PCD header declares {n} points ({n * point_bytes} bytes), the file holds "
+                             f"{have} bytes (more points than declared?)")
     elif data_kind == "binary_compressed":
         with open(path, "rb") as fh:
             fh.seek(pos)
@@ -572,5 +627,5 @@ def read_image_file(path: str | os.PathLike, *, flags: int | None = None, limit:
     a regular file only, its size checked against the pixel ``limit`` (default
     :func:`pcreg.validation.max_pixels`) in the header before decoding."""
     limit = max_pixels(limit)
-    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image")
+    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image", hint=RAISE_LIMIT)
     return decode_image(data, str(path), flags=flags, limit=limit)

@@ -56,12 +56,26 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
+#: The longest file name a temporary file's is made from (bytes): mkstemp adds 14, and file systems take 255.
+SHORT_NAME = 200
+
+
+def _short(name: str) -> str:
+    """``name``, or its stem cut to fit :data:`SHORT_NAME` bytes with its suffix kept (a temporary file of a
+    frame's label PNG is still ``.NAME.png.*.tmp``, which a resumed run cleans up)."""
+    raw = os.fsencode(name)
+    if len(raw) <= SHORT_NAME:
+        return name
+    suffix = os.fsencode(Path(name).suffix)
+    return os.fsdecode(raw[:SHORT_NAME - len(suffix)] + suffix)
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{_short(path.name)}.", suffix=".tmp", dir=path.parent)
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
     try:

@@ -42,15 +42,17 @@ def test_a_scheduler_address_that_cannot_be_one_is_refused_before_connecting(cap
 
 def test_a_crosscheck_whose_reference_fails_says_why_on_stderr(tmp_path, capsys):
     a, b = tmp_path / "a.npy", tmp_path / "b.npy"
-    np.save(a, np.random.default_rng(0).normal(size=(200, 3)))
-    np.save(b, np.random.default_rng(1).normal(size=(2, 3)))
+    cloud = np.random.default_rng(0).normal(size=(200, 3))
+    np.save(a, cloud)
+    np.save(b, cloud[:2] + 0.01)  # two points, within reach of the target: too few for a rigid motion
     assert main(["crosscheck", str(a), str(b)]) == 3
     err = one_line_errors(capsys)
     assert len(err) == 1 and "reference ICP failed" in err[0] and "too few" in err[0]
 
 
 @pytest.mark.parametrize("body, said", [("sys.exit(0)", "called sys.exit(0)"), ("raise SystemExit(3)", "called sys.exit(3)"),
-                                        ("raise KeyboardInterrupt", "raised KeyboardInterrupt (no interrupt came)")])
+                                        ("raise KeyboardInterrupt", "raised KeyboardInterrupt (no interrupt came)"),
+                                        ("raise GeneratorExit", "raised GeneratorExit")])
 def test_a_py_function_that_exits_or_raises_an_interrupt_fails_its_row_only(tmp_path, body, said):
     """sys.exit or a KeyboardInterrupt in a py: function ended the cross-check (exit 0 with no output, exit
     3 with no message, or "interrupted"): now its row says so, and the others are reported."""

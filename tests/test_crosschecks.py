@@ -168,3 +168,73 @@ def test_crosscheck_refuses_an_image_against_a_cloud(tmp_path):
     cv2.imwrite(str(tmp_path / "b.png"), shapes_image())
     with pytest.raises(InputError, match="two images or two clouds"):
         pcreg.crosscheck(tmp_path / "b.png", tmp_path / "a.npy")
+
+
+def test_transforms_that_the_rigid_icp_cannot_hold_are_refused_as_its_start_or_truth(tmp_path, capsys):
+    """A reflection, a scale or a projection as the start of a rigid ICP came back as its "rigid" result (exit
+    0); a 3x3 truth of 3-D clouds was an internal error; a start written with three decimals, as Open3D's own
+    test of its ICP gives one, still runs."""
+    from pcreg.cli import main
+    from pcreg.implementations.suite import Case, export_suite
+
+    rng = np.random.default_rng(2)
+    target = rng.uniform(0, 1, (300, 3))
+    source = target + 0.01
+    for bad, said in ((np.diag([-1.0, 1, 1, 1]), "reflection"), (np.diag([2.0, 2, 2, 1]), "not orthonormal"),
+                      (np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0.5, 0, 0, 1]]), "last row")):
+        with pytest.raises(InputError, match=said):
+            pcreg.icp(source, target, init=bad)
+        with pytest.raises(InputError, match=said):
+            pcreg.crosscheck(source, target, init=bad)
+        with pytest.raises(InputError, match=f"truth: .*{said}"):
+            pcreg.crosscheck(source, target, truth=bad)
+    rounded = np.round(tf.rigid2d(20.0), 3)  # a 3x3 matrix: a 2-D start, its rotation to three decimals
+    assert pcreg.icp(source[:, :2], target[:, :2], init=rounded).fitness > 0
+    np.save(tmp_path / "s.npy", source)
+    np.save(tmp_path / "t.npy", target)
+    np.savetxt(tmp_path / "mirror.txt", np.diag([-1.0, 1, 1, 1]))
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "mirror.txt")]) == 2
+    assert capsys.readouterr().err.startswith(f"pcreg: error: {tmp_path / 'mirror.txt'}: it is a reflection")
+    suite = export_suite(tmp_path / "suite", [Case(source, target, np.eye(4), 0.1, name="c", truth=np.eye(4))])
+    np.savetxt(suite / "c" / "truth.txt", np.eye(3))
+    assert main(["crosscheck", "--suite", str(suite), "--out", str(tmp_path / "o"), "--with", "reference"]) == 2
+    assert f"{suite / 'c' / 'truth.txt'} must be a finite 4x4 matrix" in capsys.readouterr().err
+
+
+def test_an_icp_with_no_pair_or_with_normals_that_fix_nothing_is_refused():
+    rng = np.random.default_rng(3)
+    target = rng.uniform(0, 1, (300, 3))
+    with pytest.raises(pcreg.errors.RegistrationError, match="no source point lies within"):
+        pcreg.icp(target + 100, target, pcreg.ICPOptions(max_correspondence_distance=0.5))
+    plane = pcreg.ICPOptions(metric="point_to_plane")
+    with pytest.raises(InputError, match="300 normal.s. of length 0"):
+        pcreg.icp(target + 0.01, target, plane, target_normals=np.zeros_like(target))
+    with pytest.raises(InputError, match="span 1 of 3 directions"):
+        pcreg.icp(target + 0.01, target, plane, target_normals=np.tile([0.0, 0, 1], (300, 1)))
+
+
+def test_small_or_integer_clouds_are_cross_checked_as_clouds_and_numpy_scalars_reported_are_read(tmp_path, monkeypatch):
+    """An (N, 3) integer cloud, or one of 16 points or fewer, was taken for an image ("image too small to register");
+    a py: function's numpy scalars (np.int64 iterations, np.bool_ converged) failed its row, a complex matrix
+    lost its imaginary part with a warning, and 1e300 iterations were taken."""
+    import sys
+
+    cloud = np.random.default_rng(4).integers(0, 100, (300, 3))
+    assert pcreg.crosscheck(cloud, cloud + 1, options=pcreg.ICPOptions(max_correspondence_distance=5.0)).rows["open3d"]["agrees"]
+    few = np.random.default_rng(4).random((12, 3))
+    report = pcreg.crosscheck(few, few + 0.001, options=pcreg.ICPOptions(max_correspondence_distance=0.5))
+    assert report.rows["reference"]["error"] is None
+    (tmp_path / "scalars.py").write_text(
+        "import numpy as np\n"
+        "def numpy_types(source, target, *, init, **kw):\n"
+        "    return {'matrix': np.eye(4), 'iterations': np.int64(3), 'fitness': np.float32(0.5), 'converged': np.bool_(True)}\n"
+        "def complex_matrix(source, target, *, init, **kw):\n"
+        "    return np.eye(4) + 0j\n"
+        "def endless(source, target, *, init, **kw):\n"
+        "    return {'matrix': np.eye(4), 'iterations': 1e300}\n")
+    monkeypatch.setattr(sys, "path", [str(tmp_path), *sys.path])
+    rows = pcreg.crosscheck(cloud, cloud + 1, options=pcreg.ICPOptions(max_correspondence_distance=5.0),
+                            implementations=["py:scalars:numpy_types", "py:scalars:complex_matrix", "py:scalars:endless"]).rows
+    assert rows["py:scalars:numpy_types"]["error"] is None and rows["py:scalars:numpy_types"]["iterations"] == 3
+    assert rows["py:scalars:complex_matrix"]["error"] == "returned a matrix that is not numeric"
+    assert rows["py:scalars:endless"]["error"] == "iterations must be in 0..100000, got 1e+300"

@@ -267,3 +267,24 @@ def test_a_folder_of_labels_reads_through_the_table(clip, tmp_path, stored):
     if stored != "ids":  # lagr's table: the other table's palette and colours are not its classes
         with pytest.raises(pcreg.errors.DatasetError, match="palette colours" if stored == "palette" else "colour"):
             load_folder(tmp_path / "two", mapping=None)
+
+
+def test_masks_in_sub_folders_are_read_and_masks_that_name_frames_two_ways_refused(clip, tmp_path, capsys):
+    """A task made from nested folders puts masks in ``SegmentationClass/SUB/``: one there was left out without
+    a word. Frames numbered from 1 (``frame_000001.png``) with masks named by CVAT's frame number (from 0):
+    one mask matched a file by name, another by number, a key frame one frame off."""
+    frames, ids = clip
+    stems = list(ids)
+    keys = {stems[0]: TWO_LUT[ids[stems[0]]], f"seq/{stems[-1]}": TWO_LUT[ids[stems[-1]]]}
+    export = cvat_export(tmp_path / "nested.zip", TWO, keys)
+    rc, err = _run(["run", frames, "--labels", export, "--out", tmp_path / "out", "--model", "flow", "--scale", "0.5"], capsys)
+    assert rc == 0, err
+    assert sorted(json.loads((tmp_path / "out" / "run.json").read_text())["keys"]) == [f"{stems[0]}.png", f"{stems[-1]}.png"]
+    numbered = tmp_path / "numbered"
+    numbered.mkdir()
+    for i, s in enumerate(stems):
+        shutil.copy(frames / f"{s}.png", numbered / f"frame_{i + 1:06d}.png")  # as ffmpeg numbers them
+    export = cvat_export(tmp_path / "video.zip", TWO, {"frame_000000": TWO_LUT[ids[stems[0]]],
+                                                       "frame_000003": TWO_LUT[ids[stems[3]]]})
+    rc, err = _run(["run", numbered, "--labels", export, "--out", tmp_path / "out2"], capsys)
+    assert rc == 2 and "name frames two ways: frame_000003 the frame file of that name, frame_000000 CVAT's frame" in err[0], err

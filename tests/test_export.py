@@ -278,3 +278,15 @@ def test_export_and_view_say_when_the_run_has_not_labelled_every_frame_it_chose(
     assert main(["export", str(out), "--force"]) == 0
     said = capsys.readouterr().out
     assert "5 frame(s)" in said and "unfinished" not in said
+
+
+def test_an_interrupted_export_says_nothing_was_written_not_to_resume(run_copy, monkeypatch, capsys):
+    import pcreg.export
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pcreg.export, "cvat_mask_archive", stopped)
+    assert main(["export", str(run_copy)]) == 130
+    assert capsys.readouterr().err == "pcreg: interrupted (nothing was written)\n"
+    assert not (run_copy / "export-cvat-mask.zip").exists()

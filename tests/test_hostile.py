@@ -139,6 +139,17 @@ def files(tmp_path_factory):
     full = pcd(200, "ascii")
     (t / "trunc_ascii.pcd").write_bytes(full[: len(full) // 2])
     (t / "bad_header.pcd").write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE four\nPOINTS 10\nDATA binary\n" + b"\0" * 120)
+    lines = pcd(200, "ascii").split(b"\n")  # 11 header lines, then the points
+    (t / "short_line.pcd").write_bytes(b"\n".join(lines[:60] + [b"1.0 2.0"] + lines[61:]))
+    (t / "comma.pcd").write_bytes(b"\n".join(lines[:60] + [b"1,0 2,0 3,0"] + lines[61:]))
+    (t / "count_low.pcd").write_bytes(pcd(200, "ascii").replace(b"POINTS 200", b"POINTS 150"))
+    (t / "count_low_bin.pcd").write_bytes(pcd(200).replace(b"POINTS 200", b"POINTS 150"))
+    head, body = ply_ascii(50).split(b"end_header\n")
+    (t / "four_values.ply").write_bytes(head + b"end_header\n" + body.replace(b"\n", b" 7.0\n"))  # 3 declared
+    four = np.random.default_rng(5).normal(size=(50, 4)).astype("<f4")  # 16 bytes a vertex declared as 12
+    (t / "four_floats.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 50\nproperty float x\n"
+                                        b"property float y\nproperty float z\nelement face 0\n"
+                                        b"property list uchar int vertex_indices\nend_header\n" + four.tobytes())
     (t / "no_data.pcd").write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\n")
     (t / "double.pcd").write_bytes(pcd(200).replace(b"SIZE 4 4 4", b"SIZE 8 8 8").split(b"DATA binary\n")[0]
                                    + b"DATA binary\n" + np.random.default_rng(2).normal(size=(200, 3)).astype("<f8").tobytes())
@@ -407,8 +418,14 @@ LIBRARY = {
     "ply_is_fifo": (_load_cloud("fifo.ply"), "not a regular file"),
     "ply_is_folder": (_load_cloud("folder.ply"), "folder"),
     "pcd_truncated_binary": (_load_cloud("trunc_bin.pcd"), "truncated PCD"),
-    "pcd_truncated_ascii": (_load_cloud("trunc_ascii.pcd"), "truncated PCD"),
+    "pcd_truncated_ascii": (_load_cloud("trunc_ascii.pcd"), "truncated"),
     "pcd_damaged_header": (_load_cloud("bad_header.pcd"), "damaged PCD header"),
+    "pcd_a_line_of_two_numbers": (_load_cloud("short_line.pcd"), "data line 50 ('1.0 2.0') is not 3 numbers"),
+    "pcd_decimal_commas": (_load_cloud("comma.pcd"), "('1,0 2,0 3,0') is not 3 numbers"),
+    "pcd_count_lies_low_ascii": (_load_cloud("count_low.pcd"), "declares 150 points, the file holds more"),
+    "pcd_count_lies_low_binary": (_load_cloud("count_low_bin.pcd"), "more points than declared"),
+    "ply_four_values_a_vertex_of_three": (_load_cloud("four_values.ply"), "vertex line 1"),
+    "ply_four_floats_a_vertex_of_three_then_no_face": (_load_cloud("four_floats.ply"), "more vertices than declared"),
     "pcd_no_data_line": (_load_cloud("no_data.pcd"), "DATA"),
     "pcd_binary_doubles": (_load_cloud("double.pcd"), "8-byte numbers is not read correctly"),  # Open3D: zeros
     "npy_truncated": (_load_cloud("trunc.npy"), "truncated .npy"),
@@ -729,7 +746,7 @@ def test_crosscheck_json_stays_parseable(files):
                                           b"property float y\nproperty float z\nend_header\n1 2 3\n4 5 x\n4 5 6\n")
     p = run(["crosscheck", files / "bad_token.ply", files / "ok.ply", "--json"], timeout=60)
     assert p.returncode == 2 and p.stdout == "", (p.stdout, p.stderr)
-    assert len(p.stderr.strip().splitlines()) == 1 and "cannot read point cloud" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and "vertex line 2 ('4 5 x') is not 3 numbers" in p.stderr
     p = run(["crosscheck", files / "ok.ply", files / "ok.ply", "--json", "--iterations", "3"], timeout=120)
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["kind"] == "clouds"

@@ -185,7 +185,7 @@ def test_bad_labels_folders_and_options_are_refused(tmp_path, frames, folder, ca
         cv2.imwrite(str(ground / f"f{i}.png"), np.zeros_like(frames[i].labels))
     assert main(["run", str(folder), "--labels", str(ground), "--out", str(tmp_path / "o_ground")]) == 2
     err = _err(capsys)
-    assert len(err) == 1 and "the labels of f0.png and f2.png: training labels hold only one class (ground)" in err[0]
+    assert len(err) == 1 and "the labels of f0.png and f2.png hold one class only (ground)" in err[0]
     with pytest.raises(SystemExit) as exit_:  # argparse's own refusal, one line too
         main(["run", str(folder), "--labels", str(tmp_path / "k"), "--out", str(out), "--suggest", "0"])
     assert exit_.value.code == 2 and _err(capsys) == ["pcreg run: error: argument --suggest: expected an integer >= 1, got 0"]

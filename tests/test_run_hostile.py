@@ -253,3 +253,68 @@ def test_an_entry_named_as_a_frame_or_key_that_is_not_a_file_is_refused_not_skip
     assert main(["run", str(folder), "--labels", str(labels), "--out", str(tmp_path / "out")]) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and f"{entry.name}: named as" in err[0] and "not a file that can be read" in err[0], err
+
+
+def test_a_new_run_keeps_what_it_did_not_write_and_never_removes_its_own_inputs(tmp_path, capsys):
+    """A first run into a folder that holds a ``confidence/`` and a ``suggest.txt`` of the user's removed them (a
+    run started over forgets those of an earlier run); and a run whose frames lie in ``OUT/confidence/``
+    removed its own frames when started over."""
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=4)
+    out = tmp_path / "out"
+    (out / "confidence").mkdir(parents=True)
+    (out / "confidence" / "notes.txt").write_text("mine")
+    (out / "suggest.txt").write_text("mine too")
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    assert (out / "confidence" / "notes.txt").read_text() == "mine" and (out / "suggest.txt").read_text() == "mine too"
+    inside = tmp_path / "inside"
+    shutil.copytree(folder, inside / "confidence")
+    assert main(["run", str(inside / "confidence"), "--labels", str(key), "--out", str(inside)]) == 0
+    assert main(["run", str(inside / "confidence"), "--labels", str(key), "--out", str(inside), "--force"]) == 2
+    assert "an input of this run" in one_line_errors(capsys)[0]
+    assert sorted(p.name for p in (inside / "confidence").iterdir()) == sorted(p.name for p in folder.iterdir())
+
+
+def test_hidden_files_are_no_frames_and_numbers_of_different_widths_are_refused(tmp_path, capsys):
+    """A hidden thumbnail (``.thumb.png``) sorted first and became the key frame; ``f8 ... f13`` were read as
+    ``f10 f11 f12 f13 f8 f9``, the labels drawn on f8 given to f10."""
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=4)
+    shutil.copy(folder / "f3.png", folder / ".thumb.png")
+    (folder / "._f0.png").write_bytes(b"\0\5\26\7")  # what macOS leaves beside a file on a foreign disk
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["key_frame"] == "f0.png"
+    wide = tmp_path / "wide"
+    wide.mkdir()
+    for i in range(4):
+        shutil.copy(folder / f"f{i}.png", wide / f"f{i + 8}.png")
+    assert main(["run", str(wide), "--labels", str(key), "--out", str(tmp_path / "out2")]) == 2
+    assert "numbered with different widths (f10.png sorts before f8.png" in one_line_errors(capsys)[0]
+
+
+def test_a_key_frame_of_one_class_is_named_before_anything_is_written(tmp_path, capsys):
+    """The classifier's "training labels hold only one class" named no file, and in a run from a folder of key
+    frames came after the first stretch was labelled (a stretch's classifier is fitted on its key frames: f4
+    alone for the frame after it)."""
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=6)
+    cv2.imwrite(str(tmp_path / "ground.png"), np.zeros((48, 64), np.uint8))
+    assert main(["run", str(folder), "--labels", str(tmp_path / "ground.png"), "--out", str(tmp_path / "a")]) == 2
+    assert one_line_errors(capsys) == [f"pcreg: error: {tmp_path / 'ground.png'}: the labels hold one class only "
+                                       "(ground); the classifier of the frames it labels needs pixels of at least two classes"]
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    shutil.copy(key, keys / "f0.png")
+    shutil.copy(tmp_path / "ground.png", keys / "f4.png")
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "b")]) == 2
+    assert "the labels of f4.png hold one class only (ground)" in one_line_errors(capsys)[0]
+    assert not (tmp_path / "b").exists()
+
+
+def test_frames_with_names_near_the_file_systems_limit_are_labelled(tmp_path):
+    """A frame's stem of 249 bytes is a legal name; its label PNG's temporary file, 14 bytes longer, was not."""
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=3)
+    long = "é" * 100 + "x" * 49  # 249 bytes in UTF-8
+    for i in range(3):
+        (folder / f"f{i}.png").rename(folder / f"{long}{i}.png")
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]) == 0
+    assert sorted(p.name for p in out.glob("*.png")) == [f"{long}{i}.png" for i in range(3)]

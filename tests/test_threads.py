@@ -170,6 +170,20 @@ def test_close_ends_the_helper_after_its_work_and_a_later_use_makes_a_new_one():
     assert _threads.beside(lambda: 41 + 1)() == 42
 
 
+def test_close_with_a_grace_gives_up_on_a_helper_that_waits_on_a_lock_left_held():
+    """An interrupt can land while the main thread holds a lock the helper waits on (numba's, while a compiled
+    kernel loads): closing without a bound waited for ever; with a grace it says the helper did not end."""
+    _two_cpus()
+    held, started = threading.Lock(), threading.Event()
+    held.acquire()
+    pool = _threads.helper()
+    pool.submit(lambda: (started.set(), held.acquire(), held.release()))
+    started.wait(30)
+    assert _threads.close(timeout=0.01) is False
+    held.release()  # the helper ends now; a later use makes a new one
+    assert _threads.helper() is not pool and _threads.close(timeout=30) is True
+
+
 def test_others_busy_is_the_machines_busy_time_less_this_processs(monkeypatch):
     """The CPUs the rest of the machine kept busy between two readings: this process's own threads (a
     threaded ICP, Open3D's) do not count, as they do in the load average."""

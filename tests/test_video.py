@@ -274,3 +274,35 @@ def test_damaged_videos_decode_or_are_refused_never_crash(tmp_path, frames, suff
                 assert f.image.shape == (120, 160, 3) and f.image.dtype == np.uint8
         except InputError as exc:
             assert str(exc).startswith(f"{path}: ") or str(exc).startswith("--start"), exc
+
+
+def test_a_matroska_file_of_a_variable_frame_rate_is_whole_and_one_cut_short_is_not(tmp_path, frames, capsys):
+    """Eight frames over 5 s at a nominal 30 a second: the count its duration gives (151) called the file
+    truncated after every frame was labelled, on every run. The last frame's time against the duration tells
+    a whole file from one cut short."""
+    av = pytest.importorskip("av")
+    from fractions import Fraction
+
+    def matroska(path, times_ms):
+        with av.open(str(path), "w") as c:
+            s = c.add_stream("ffv1", rate=30)
+            s.width, s.height, s.pix_fmt = 160, 120, "yuv444p"
+            s.time_base = s.codec_context.time_base = Fraction(1, 1000)
+            for i, t in enumerate(times_ms):
+                f = av.VideoFrame.from_ndarray(frames[i % len(frames)].image, format="rgb24")
+                f.pts, f.time_base = t, Fraction(1, 1000)
+                for p in s.encode(f):
+                    c.mux(p)
+            for p in s.encode():
+                c.mux(p)
+        return path
+
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    sparse = matroska(tmp_path / "sparse.mkv", [0, 500, 1000, 1500, 2000, 3000, 4000, 5000])
+    assert main(["run", str(sparse), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "s")]) == 0
+    assert json.loads((tmp_path / "s" / "run.json").read_text())["done"] == 8
+    whole = matroska(tmp_path / "whole.mkv", [100 * i for i in range(40)]).read_bytes()
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(whole[:len(whole) // 2])
+    assert main(["run", str(cut), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "c")]) == 2
+    assert "the video is truncated or damaged" in _err(capsys)[0]

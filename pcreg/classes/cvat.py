@@ -112,12 +112,13 @@ class CvatExport(contextlib.AbstractContextManager):
         return top if inside else ""
 
     def names(self, folder: str) -> list[str]:
-        """The ``.png`` files directly in ``folder``, by relative name, in name order."""
+        """The ``.png`` files in ``folder`` and its sub-folders (a task made from nested folders of frames puts
+        its masks there), by relative name, in name order; hidden ones left out."""
         if self._zip is None:
             d = self.path / folder
-            return sorted(f"{folder}/{p.name}" for p in d.iterdir()
+            return sorted(p.relative_to(self.path).as_posix() for p in d.rglob("*")
                           if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith(".")) if d.is_dir() else []
-        return sorted(n for n in self._members if n.startswith(f"{folder}/") and n.count("/") == folder.count("/") + 1
+        return sorted(n for n in self._members if n.startswith(f"{folder}/")
                       and n.lower().endswith(".png") and not n.rsplit("/", 1)[1].startswith("."))
 
     def has(self, name: str) -> bool:
@@ -233,6 +234,25 @@ def frame_positions(frames):
     return where
 
 
+def placed(frames, stems: list[str], source) -> list[int | None]:
+    """The position of the run's frame that each label file's stem names (:func:`frame_positions`), or None;
+    an :class:`InputError` naming ``source`` when the stems name frames two ways, some ``frame_NNNNNN`` by a
+    frame file of that name and others by CVAT's frame number NNNNNN (frames numbered from 1, CVAT's from 0):
+    one export would be read two ways, and a key frame placed one frame off."""
+    where = frame_positions(frames)
+    positions = [where(stem) for stem in stems]
+    if frames.kind == "folder":
+        names = {frames.stem(t) for t in range(len(frames))}
+        by_name = [s for s, t in zip(stems, positions) if t is not None and s in names and _FRAME.fullmatch(s)]
+        by_number = [s for s, t in zip(stems, positions) if t is not None and s not in names]
+        if by_name and by_number:
+            t = positions[stems.index(by_number[0])]
+            raise InputError(f"{source}: its label files name frames two ways: {by_name[0]} the frame file of that name, "
+                             f"{by_number[0]} CVAT's frame number (the frame {frames.name(t)}), which count from "
+                             "different first numbers; rename the frames or the label files so that one way names them all")
+    return positions
+
+
 def named_frames(frames) -> str:
     """How the run's frames are named: the first and the last."""
     n = len(frames) if frames.kind == "folder" else frames.count()
@@ -260,15 +280,14 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
         if not masks:
             raise InputError(f"{export.where(CLASS_DIR)}: no class mask (a CVAT 'Segmentation mask 1.1' export holds "
                              f"{CLASS_DIR}/NAME.png)")
-        where = frame_positions(frames)
         stems = [PurePosixPath(m).stem for m in masks]
-        placed = [where(s) for s in stems]
-        if all(t is None for t in placed):
+        positions = placed(frames, stems, path)
+        if all(t is None for t in positions):
             raise InputError(f"{path}: its masks are named {stems[0]} ... {stems[-1]}, the frames of "
                              f"{frames.path} {named_frames(frames)}: no mask names a frame")
         keys: dict[int, np.ndarray] = {}
         seen: dict[int, str] = {}
-        for m, t in zip(masks, placed):
+        for m, t in zip(masks, positions):
             lab = _decode_mask(export.read(m), export.where(m), table, order, lim)
             if (lab == table.unknown).all():
                 continue  # a frame nobody drew on

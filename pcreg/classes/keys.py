@@ -154,11 +154,11 @@ def read_key_labels(path: str | Path, table: ClassTable, mapping: str = "none", 
                     limit: int | None = None) -> np.ndarray:
     """:func:`decode_key_labels` of the file at ``path`` (a regular file, no larger than the pixel limit
     allows)."""
-    from ..formats import max_file_bytes, read_regular_file
+    from ..formats import RAISE_LIMIT, max_file_bytes, read_regular_file
     from ..validation import max_pixels
 
     lim = max_pixels(limit)
-    data = read_regular_file(path, max_bytes=max_file_bytes(lim), what="image")
+    data = read_regular_file(path, max_bytes=max_file_bytes(lim), what="image", hint=RAISE_LIMIT)
     return decode_key_labels(data, str(path), table, mapping, limit=lim)
 
 

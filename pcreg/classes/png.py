@@ -122,9 +122,9 @@ def decode_label_png(data: bytes, name: str, table: ClassTable, *, limit: int | 
 def read_label_png(path: str | Path, table: ClassTable, *, limit: int | None = None) -> np.ndarray:
     """(H, W) uint8 class ids of the label image at ``path`` (:func:`decode_label_png`), a regular file
     no larger than the pixel limit allows."""
-    from ..formats import max_file_bytes, read_regular_file
+    from ..formats import RAISE_LIMIT, max_file_bytes, read_regular_file
     from ..validation import max_pixels
 
     lim = max_pixels(limit)
-    data = read_regular_file(path, max_bytes=max_file_bytes(lim), what="image")
+    data = read_regular_file(path, max_bytes=max_file_bytes(lim), what="image", hint=RAISE_LIMIT)
     return decode_label_png(data, str(path), table, limit=lim)

@@ -138,6 +138,7 @@ def _suite(args) -> dict:
 
 
 def _clouds(args) -> int:
+    from ..errors import InputError
     from ..implementations.crosscheck import crosscheck
     from ..implementations import stdout_to_stderr
     from ..registration.icp_options import ICPOptions
@@ -156,8 +157,16 @@ def _clouds(args) -> int:
         with stdout_to_stderr():
             options = ICPOptions(max_correspondence_distance=args.max_distance, max_iteration=args.iterations,
                                  relative_fitness=args.relative_fitness, relative_rmse=args.relative_rmse)
-            report = crosscheck(args.a, args.b, implementations=names, init=init, options=options,
-                                voxel_size=voxel, timeout=args.timeout, progress=_bar_wanted() and not args.json)
+            try:
+                report = crosscheck(args.a, args.b, implementations=names, init=init, options=options,
+                                    voxel_size=voxel, timeout=args.timeout, progress=_bar_wanted() and not args.json)
+            except InputError as exc:  # "init must be a finite 4x4 matrix ...": name its file
+                said = str(exc)
+                if said.startswith("init"):
+                    rest = said[len("init"):]
+                    raise InputError(f"{args.init}{rest}" if rest.startswith(":") else
+                                     f"{args.init}: the initial guess{rest}") from None
+                raise
         out = report.to_dict()
         if rec.enabled:  # the moved clouds are made for the recording alone
             log_cloud_crosscheck(rec, report)

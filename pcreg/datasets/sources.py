@@ -89,6 +89,24 @@ class SourceFrame:
     image: np.ndarray
 
 
+def _natural(name: str) -> tuple:
+    """``name``'s key in counting order: its runs of digits compared as numbers (``f9`` before ``f10``)."""
+    import re
+
+    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", name) if part)
+
+
+def _check_numbering(folder: Path, names: list[str]) -> None:
+    """An :class:`InputError` when name order (pcreg's, and an annotation tool's) is not counting order, because
+    numbered names have numbers of different widths (``f10.png`` sorts before ``f8.png``): the frames would be
+    labelled out of order, and key labels drawn on one frame carried from another."""
+    counted = sorted(names, key=_natural)
+    for named, count in zip(names, counted):
+        if named != count:
+            raise InputError(f"{folder}: frames numbered with different widths ({named} sorts before {count} by name, "
+                             "the order frames are read in); rename them with zero-padded numbers (f08.png, f10.png)")
+
+
 class FolderFrames:
     """The image files of a folder (or of its ``images/`` sub-folder) in name order, each read when the
     stream reaches it."""
@@ -102,7 +120,9 @@ class FolderFrames:
         if not self.path.is_dir():
             raise InputError(f"{self.path}: not a folder or a video file ({', '.join(VIDEO_SUFFIXES)})")
         src = self.path / "images" if (self.path / "images").is_dir() else self.path
-        files = only_files(sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), "a frame")
+        files = only_files(sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+                                  and not p.name.startswith(".")), "a frame")  # hidden: a thumbnail, macOS's ._NAME
+        _check_numbering(src, [p.name for p in files])
         names = [p.stem for p in files]
         if len(set(names)) != len(names):
             raise InputError(f"{self.path}: two frames share a name ({len(names) - len(set(names))} duplicates)")
@@ -111,7 +131,8 @@ class FolderFrames:
         self.paths = files[selection.start:selection.stop:selection.every]
         if len(self.paths) < 2:
             raise InputError(f"{src}: needs at least two frames (the key frame and one more), found {len(self.paths)}"
-                             + ("" if selection == Selection() else " of those chosen"))
+                             + ("" if selection == Selection() else " of those chosen")
+                             + ("" if files else f" (frames are image files: {', '.join(IMAGE_SUFFIXES)})"))
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -163,8 +184,11 @@ class VideoFrames:
             self.declared: int | None = declared if declared > 0 else None
             #: Without one (Matroska), the count its duration and frame rate give: an estimate.
             self.estimated: int | None = None
-            if self.declared is None and container.duration and stream.average_rate:
-                self.estimated = int(round(container.duration / 1e6 * float(stream.average_rate)))
+            #: The container's duration in seconds (None when it gives none), and the stream's mean frame rate.
+            self.duration = container.duration / 1e6 if container.duration else None
+            self.rate = float(stream.average_rate) if stream.average_rate else None
+            if self.declared is None and self.duration and self.rate:
+                self.estimated = int(round(self.duration * self.rate))
         if self.declared is not None and selection.start >= self.declared:
             raise InputError(f"--start {selection.start} is past the end of {self.path} ({self.declared} frames)")
 
@@ -215,13 +239,14 @@ class VideoFrames:
 
         s = self.selection
         target = s.index(first)
-        decoded, size, yielded = 0, None, False
+        decoded, size, yielded, last_time = 0, None, False, None
         with self._open() as container:
             stream = container.streams.video[0]
             try:
                 for frame in container.decode(stream):
                     i = decoded
                     decoded += 1
+                    last_time = frame.time if frame.time is not None else last_time
                     turns = _quarter_turns(getattr(frame, "rotation", 0), self.path)
                     shown = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)
                     if size is None:
@@ -246,18 +271,27 @@ class VideoFrames:
                                  "or damaged") from None
         if decoded == 0:
             raise InputError(f"{self.path}: no frame decodes (an empty, truncated or damaged video)")
-        self._check_length(decoded)
+        self._check_length(decoded, last_time)
         if first == 0 and not yielded:
             raise InputError(f"--start {s.start} is past the end of {self.path} ({decoded} frames)")
 
-    def _check_length(self, decoded: int) -> None:
-        """At the end of the stream: fewer frames than the container declares is a truncated file. An
-        estimate from the duration (Matroska) may be a frame or two off, or more for a variable frame
-        rate: a shortfall of more than 2 frames and 2% is refused."""
+    def _check_length(self, decoded: int, last_time: float | None) -> None:
+        """At the end of the stream: fewer frames than the container declares is a truncated file. Without a
+        count (Matroska) the last frame's time is held against the duration: a stream that stops more than two
+        mean frame intervals and 2% of the duration before it is refused (a count estimated from the duration is
+        wrong for a variable frame rate, 8 frames over 5 s at a nominal 30 per second); without times, a
+        shortfall against that estimate of more than 2 frames and 2%."""
         if self.declared is not None and decoded < self.declared:
             raise InputError(f"{self.path}: ends after {decoded} of the {self.declared} frames its container declares: "
                              "the video is truncated or damaged")
-        if self.estimated is not None and decoded < self.estimated - max(2, 0.02 * self.estimated):
+        if self.estimated is None or self.duration is None or self.rate is None:
+            return
+        if last_time is not None:
+            if last_time < self.duration - max(2.0 / self.rate, 0.02 * self.duration):
+                raise InputError(f"{self.path}: ends at {last_time:.2f} s after {decoded} frames, its duration is "
+                                 f"{self.duration:.2f} s: the video is truncated or damaged")
+            return
+        if decoded < self.estimated - max(2, 0.02 * self.estimated):
             raise InputError(f"{self.path}: ends after {decoded} frames, its duration holds about {self.estimated}: "
                              "the video is truncated or damaged")
 

@@ -190,7 +190,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
     thresholds), a
     :class:`CloudCrosscheck`.
 
-    Image arrays are (H, W, 3)/(H, W); cloud arrays (N, 2|3). Paths are read by suffix: images through
+    Image arrays are (H, W, 3)/(H, W); cloud arrays (N, 2|3), of any numeric type (an (H, W) array 2 or 3 wide
+    is a cloud). Paths are read by suffix: images through
     OpenCV, clouds (.ply/.pcd/.xyz/.pts) through Open3D, .npy through numpy.
     """
     def kind_of(x):
@@ -202,7 +203,7 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
                 return "images", load_image(x)
             raise InputError(f"{x}: unknown file type {suffix!r} (an image or a point cloud)")
         arr = np.asarray(x)
-        if arr.ndim == 2 and arr.shape[1] in (2, 3) and arr.shape[0] > 16 and np.issubdtype(arr.dtype, np.floating):
+        if arr.ndim == 2 and arr.shape[1] in (2, 3):  # an image two or three pixels wide is no image to register
             return "clouds", arr
         return "images", arr
 
@@ -363,6 +364,20 @@ def _agrees(comparability: str, cmp: dict, diag: float) -> bool:
             and cmp["translation_disagreement"] <= OBJECTIVE_TRANSLATION * diag)
 
 
+def check_truth(truth, d: int, name: str = "truth") -> np.ndarray:
+    """A ground truth ``T_target_source`` of ``d``-D clouds: a finite rigid (d+1)x(d+1) transform
+    (:func:`~pcreg.validation.check_matrix`, :func:`~pcreg.registration.transforms.rigid_problem`), or an
+    :class:`InputError` beginning with ``name``."""
+    from ..registration.transforms import rigid_problem
+    from ..validation import check_matrix
+
+    T = check_matrix(truth, name, d + 1)
+    problem = rigid_problem(T)
+    if problem is not None:
+        raise InputError(f"{name}: {problem}")
+    return T
+
+
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split()) or type(exc).__name__
     return text[:300]
@@ -396,15 +411,15 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
                                                                max_correspondence_distance=options.max_correspondence_distance,
                                                                max_iterations=max_iterations)
     d = src.shape[1]
+    truth = None if truth is None else check_truth(truth, d)
     names = list(dict.fromkeys([REFERENCE, *implementations]))
     adapters, errors = _adapters(names, timeout)
     pinned = impls.Pinned(src, tgt, T0, float(max_correspondence_distance), int(max_iterations),
                           float(relative_fitness), float(relative_rmse))
     diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
+    _check_some_correspondence(src, tgt, T0, float(max_correspondence_distance))  # anything to run on?
     outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
     ref = outcomes.get(REFERENCE)
-    if isinstance(ref, RegistrationResult):  # the reference ran: was there anything to run on?
-        _check_some_correspondence(src, tgt, T0, float(max_correspondence_distance))
     conv, conv_info = _reference_at_convergence(adapters, outcomes, pinned)
     rows, traces = {}, {}
     for name in names:
@@ -437,20 +452,23 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     """The checked (and voxel-downsampled) clouds, the initial pose and the correspondence distance
     every implementation gets."""
     from ..registration.api import voxel_downsample
-    from ..validation import check_int, check_matrix
+    from ..registration.transforms import rigid_problem
+    from ..validation import check_float, check_int, check_matrix
 
     src = check_cloud(source, "source")
     tgt = check_cloud(target, "target")
     if src.shape[1] != tgt.shape[1]:
         raise InputError(f"source is {src.shape[1]}-D but target is {tgt.shape[1]}-D")
     d = src.shape[1]
-    if voxel_size:
-        if not voxel_size > 0:
-            raise InputError("voxel_size must be > 0")
+    if voxel_size is not None and voxel_size is not False and voxel_size != 0:
+        voxel_size = check_float(voxel_size, "voxel_size", lo=0, lo_open=True)
         src, tgt = voxel_downsample(src, voxel_size), voxel_downsample(tgt, voxel_size)
     # the shared inputs are checked here, once, as the reference checks them: a bad one is the
     # caller's, not a failure of each implementation in turn
     T0 = np.eye(d + 1) if init is None else check_matrix(init, "init", d + 1)
+    problem = rigid_problem(T0)
+    if problem is not None:
+        raise InputError(f"init: {problem}, and the cross-check pins the rigid ICP")
     max_iterations = check_int(max_iterations, "max_iterations", lo=1, hi=100_000)
     if max_correspondence_distance is None:
         max_correspondence_distance = default_max_distance(tgt)

@@ -253,7 +253,7 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
         raise InputError(f"{index}: not a cross-check suite index ({' '.join(str(exc).split())[:160]})") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("cases"), list):
         raise InputError(f"{index}: expected {{\"format\": ..., \"cases\": [...]}}")
-    from .crosscheck import load_cloud
+    from .crosscheck import check_truth, load_cloud
 
     from ..validation import check_float, check_int
 
@@ -274,7 +274,10 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
             iterations = check_int(params.get("max_iterations", 30), where + "max_iterations", lo=1, hi=100_000)
             fitness, rmse = (check_float(params.get(k, 1e-6), where + k, lo=0) for k in ("relative_fitness",
                                                                                          "relative_rmse"))
-            case = Case(load_cloud(d / "source.npy"), load_cloud(d / "target.npy"), init, distance, iterations,
+            source = load_cloud(d / "source.npy")
+            if truth is not None:
+                truth = check_truth(truth, source.shape[1], str(d / "truth.txt"))
+            case = Case(source, load_cloud(d / "target.npy"), init, distance, iterations,
                         fitness, rmse, name=name, description=str(info.get("description", "")), truth=truth)
         except InputError:
             raise

@@ -60,11 +60,17 @@ def _comparability(value, where: str) -> str:
     return value
 
 
+#: The most iterations an implementation may report: the cross-check's own bound on ``max_iterations``.
+MAX_ITERATIONS = 100_000
+
+
 def _number(value, key: str, kind=float, lo: float = 0.0, hi: float = math.inf):
     """A reported number, None when not reported; an :class:`ImplementationError` for one of another type or
     outside ``lo`` .. ``hi`` (iterations and errors are not negative, a fitness is a share)."""
     if value is None:
         return None
+    if isinstance(value, (np.integer, np.floating)):  # numpy's scalars, as a Python function returns them
+        value = value.item()
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ImplementationError(f"{key} must be a finite number, got {value!r}")
     if kind is int and value != int(value):
@@ -75,6 +81,8 @@ def _number(value, key: str, kind=float, lo: float = 0.0, hi: float = math.inf):
 
 
 def _converged(value):
+    if isinstance(value, np.bool_):
+        value = bool(value)
     if value is not None and not isinstance(value, bool):
         raise ImplementationError(f"converged must be true or false, got {value!r}")
     return value
@@ -89,18 +97,15 @@ def _checked_matrix(m: np.ndarray, d: int, what: str) -> np.ndarray:
     """``m`` when it is a finite rigid (d+1)x(d+1) transform (the cross-check pins the rigid ICP); else an
     :class:`ImplementationError` naming ``what`` and how it is not (its shape, a NaN, a scale or a shear, a
     reflection, a last row of a projection)."""
+    from ..registration.transforms import rigid_problem
+
     if m.shape != (d + 1, d + 1):
         raise ImplementationError(f"{what} is {'x'.join(map(str, m.shape))}, expected {d + 1}x{d + 1}")
     if not np.all(np.isfinite(m)):
         raise ImplementationError(f"{what} holds NaN or inf")
-    R = m[:d, :d]
-    if np.abs(m[d] - np.eye(d + 1)[d]).max() > RIGID_TOLERANCE:
-        raise ImplementationError(f"{what}'s last row is {m[d].tolist()}, not a rigid transform's")
-    if np.abs(R.T @ R - np.eye(d)).max() > RIGID_TOLERANCE:
-        raise ImplementationError(f"{what}'s rotation block is not orthonormal (a scale or a shear): not a rigid "
-                                  "transform")
-    if np.linalg.det(R) < 0:
-        raise ImplementationError(f"{what} is a reflection (determinant -1), not a rigid transform")
+    problem = rigid_problem(m, tolerance=RIGID_TOLERANCE)
+    if problem is not None:
+        raise ImplementationError(f"{what}: {problem}")
     return m
 
 
@@ -161,18 +166,22 @@ class PythonCallable(Implementation):
             if interrupted() or not handles_signals():  # a real interrupt, or one nothing can tell apart
                 raise
             raise ImplementationError("raised KeyboardInterrupt (no interrupt came)") from None
+        except GeneratorExit:  # the one other BaseException a function can raise by itself
+            raise ImplementationError("raised GeneratorExit") from None
         seconds = time.perf_counter() - start
         get = (lambda k: r.get(k)) if isinstance(r, dict) else (lambda k: getattr(r, k, None))
         matrix = r if isinstance(r, (np.ndarray, list, tuple)) else get("matrix")
         if matrix is None:
             raise ImplementationError("returned neither a matrix nor an object with 'matrix'")
         try:
+            if np.iscomplexobj(matrix):  # numpy would drop the imaginary parts with a warning
+                raise TypeError
             matrix = np.array(matrix, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ImplementationError("returned a matrix that is not numeric") from None
         isarr = isinstance(r, (np.ndarray, list, tuple))
         return result(self.name, _checked_matrix(matrix, pinned.source.shape[1], "the returned matrix"),
-                      iterations=None if isarr else _number(get("iterations"), "iterations", int),
+                      iterations=None if isarr else _number(get("iterations"), "iterations", int, hi=MAX_ITERATIONS),
                       fitness=None if isarr else _number(get("fitness"), "fitness", hi=1.0),
                       inlier_rmse=None if isarr else _number(get("inlier_rmse"), "inlier_rmse"),
                       converged=None if isarr else _converged(get("converged")), seconds=seconds)
@@ -241,7 +250,9 @@ class Command(Implementation):
         if "out" not in used:
             raise InputError(f"{spec}: the command has no {{out}}: it cannot return a matrix")
         self.used = used
-        self.timeout = float(timeout)
+        from ..validation import check_float
+
+        self.timeout = check_float(timeout, "timeout", lo=0, lo_open=True)
         self.description = f"external program {self.argv[0]}"
         self._declared = STEP
 
@@ -290,7 +301,7 @@ class Command(Implementation):
                 except ValueError as exc:
                     raise ImplementationError(f"{side.name}: {exc}") from None
             self._declared = _comparability(extra.get("comparability"), self.name)
-            return result(self.name, m, iterations=_number(extra.get("iterations"), "iterations", int),
+            return result(self.name, m, iterations=_number(extra.get("iterations"), "iterations", int, hi=MAX_ITERATIONS),
                           fitness=_number(extra.get("fitness"), "fitness", hi=1.0),
                           inlier_rmse=_number(extra.get("inlier_rmse"), "inlier_rmse"),
                           converged=_converged(extra.get("converged")), seconds=seconds)

@@ -49,7 +49,7 @@ def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
         if np.iscomplexobj(points):  # numpy would drop the imaginary part with a warning
             raise TypeError
         p = np.array(points, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: a Python int beyond float64
         raise InputError(f"{name}: not a numeric array") from None
     if p.ndim != 2 or p.shape[1] not in (2, 3):
         raise InputError(f"{name}: expected an (N, 2) or (N, 3) array of points, got shape {p.shape}")
@@ -63,6 +63,36 @@ def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
         raise InputError(f"{name}: coordinates up to {big:.3g} are out of range (|x| <= {MAX_COORDINATE:g}; "
                          "shift the cloud towards the origin)")
     return p
+
+
+def _check_normals(normals: np.ndarray) -> None:
+    """An :class:`InputError` for target normals that cannot fix a motion: one of length 0 (no direction), or
+    all of them in one plane or along one line (the motion along it is free: point-to-plane or point-to-line
+    steps would stop where they start and call it converged)."""
+    lengths = np.linalg.norm(normals, axis=1)
+    if not np.all(lengths > 0):
+        raise InputError(f"target_normals: {int(np.count_nonzero(lengths == 0))} normal(s) of length 0")
+    unit = normals / lengths[:, None]
+    spread = np.linalg.svd(unit, compute_uv=False)
+    if spread[-1] <= 1e-6 * spread[0]:
+        raise InputError(f"target_normals span {int(np.count_nonzero(spread > 1e-6 * spread[0]))} of "
+                         f"{normals.shape[1]} directions: the motion along the rest is not fixed by them")
+
+
+def _check_init(T: np.ndarray, model: str) -> np.ndarray:
+    """``T``, an ICP's initial guess, when the ``model`` can hold it (every update keeps the kind of transform
+    the guess is): rigid for ``translation`` and ``rigid`` (:func:`~pcreg.registration.transforms.rigid_problem`),
+    without a projection's last row for the rest but ``projective``; else an :class:`InputError`."""
+    from .transforms import rigid_problem
+
+    d = T.shape[0] - 1
+    if model in ("translation", "rigid"):
+        problem = rigid_problem(T)
+        if problem is not None:
+            raise InputError(f"init: {problem}, and the {model} ICP would return it as one")
+    elif model != "projective" and np.abs(T[d] - np.eye(d + 1)[d]).max() > 1e-12:
+        raise InputError(f"init: its last row is {T[d].tolist()}, a projection's; the {model} ICP keeps it affine")
+    return T
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -159,7 +189,8 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
         target_normals = check_cloud(target_normals, "target_normals")
         if target_normals.shape != tgt.shape:
             raise InputError("target_normals must have the target's shape")
-    T = np.eye(dim + 1) if init is None else check_matrix(init, "init", dim + 1)
+        _check_normals(target_normals)
+    T = np.eye(dim + 1) if init is None else _check_init(check_matrix(init, "init", dim + 1), options.model)
     max_correspondence_distance = _check_distance(src, tgt, T, options.max_correspondence_distance)
     start = time.perf_counter()
     schedule = _voxel_schedule(src, tgt, options.schedule, distance=max_correspondence_distance,
@@ -177,6 +208,10 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
         T = r.matrix
         total_iter = -1 if (r.iterations < 0 or total_iter < 0) else total_iter + r.iterations
     seconds = time.perf_counter() - start
+    if r.fitness == 0:  # as Open3D, no pair moved nothing: a transform no point supports is no registration
+        raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
+                                f"{schedule[-1][2]:g} of a target point; the ICP stopped where it started (give an init "
+                                "that brings the clouds together, or a larger max_correspondence_distance)")
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
                               converged=r.converged, backend=options.backend, seconds=seconds)
 

@@ -23,6 +23,28 @@ def check_model(model: str, dim: int = 2) -> str:
     return model
 
 
+#: How far a rigid transform's rotation block may be from orthonormal (``R^T R`` from the identity) and its
+#: last row from ``(0, ..., 0, 1)``: a matrix written with three decimals (Open3D's own test of its ICP starts
+#: from one) is within 0.5%; a scale or a shear of a few percent is not.
+RIGID_TOLERANCE = 0.05
+
+
+def rigid_problem(matrix: np.ndarray, *, tolerance: float = RIGID_TOLERANCE) -> str | None:
+    """What makes a finite homogeneous (d+1)x(d+1) ``matrix`` not a rigid transform (its last row a
+    projection's, its rotation block a scale or a shear, a reflection), as a phrase about "it"; None when it
+    is one, within ``tolerance``."""
+    m = np.asarray(matrix, dtype=np.float64)
+    d = m.shape[0] - 1
+    if np.abs(m[d] - np.eye(d + 1)[d]).max() > tolerance:
+        return f"its last row is {m[d].tolist()}, not a rigid transform's"
+    R = m[:d, :d]
+    if np.linalg.det(R) < 0:
+        return "it is a reflection (determinant -1), not a rigid transform"
+    if np.abs(R.T @ R - np.eye(d)).max() > tolerance:
+        return "its rotation block is not orthonormal (a scale or a shear): not a rigid transform"
+    return None
+
+
 def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a (d+1, d+1) homogeneous transform to (N, d) points; projective rows divide through.
 

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..formats import only_files, resolved
 
 __all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth", "check_spares_inputs",
@@ -47,10 +49,38 @@ def read_inputs(request, frames) -> RunInputs:
     else:
         keys, pending = _key_image(request, frames, table, mapping)
         shape, spared = pending[0].image.shape[:2], request.labels
+    _check_fits(request, frames, keys, table)
     truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, mapping, table)
     check_spares_inputs(request.out, frames, spared, truth)
     check_suggest(request.suggest, frames, len(keys))
     return RunInputs(frames, keys, pending is None, truth, table, pending)
+
+
+def _check_fits(request, frames, keys: dict, table) -> None:
+    """An :class:`~pcreg.errors.InputError` naming the label files when the key frames a classifier is fitted on
+    hold fewer than two of the table's known classes, before anything is written: one key frame's alone for a
+    run from one label image; from a folder of key frames each stretch's (:class:`~pcreg.pipeline.keys_run.
+    KeyRun`): the two key frames around it, and the first and the last alone for the frames before and after."""
+    from ..errors import InputError
+
+    at = sorted(keys)
+    if not request.folder_of_keys:
+        groups = [(at[0],)]
+    else:
+        n = len(frames) if frames.kind == "folder" else None
+        groups = ([(at[0],)] if at[0] > 0 else []) + list(zip(at, at[1:])) + \
+            ([(at[-1],)] if n is None or at[-1] < n - 1 else [])
+    for group in groups:
+        present = set()
+        for t in group:
+            present.update(int(c) for c in np.flatnonzero(np.bincount(np.asarray(keys[t]).ravel(), minlength=256)))
+        present.discard(table.unknown)
+        if len(present) < 2:
+            only = ", ".join(table.name_of(c) for c in sorted(present)) or "none"
+            which = " and ".join(frames.name(t) for t in group)
+            where = f"{request.labels}: the labels of {which}" if request.folder_of_keys else f"{request.labels}: the labels"
+            raise InputError(f"{where} hold one class only ({only}); the classifier of the frames "
+                             f"{'they label' if request.folder_of_keys else 'it labels'} needs pixels of at least two classes")
 
 
 def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
@@ -171,7 +201,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     through ``table`` (None: ``lagr``), each checked: a frame it names, one label a frame, the frames' size,
     something known."""
     from ..classes import DEFAULT_TABLE
-    from ..classes.cvat import frame_positions, named_frames
+    from ..classes.cvat import named_frames, placed
     from ..classes.keys import all_unknown
     from ..errors import InputError
 
@@ -180,11 +210,10 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
                        "key labels")
     if not files:
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
-    where = frame_positions(frames)
+    positions = placed(frames, [f.stem for f in files], folder)
     keys: dict = {}
     seen: dict[int, Path] = {}
-    for f in files:
-        t = where(f.stem)
+    for f, t in zip(files, positions):
         if t is None:
             raise InputError(f"{f}: names no frame of {frames.path} ({named_frames(frames)})"
                              + ("" if frames.selection.to_dict() is None else " among those chosen"))

@@ -284,8 +284,25 @@ class Run:
 
     def _start_over(self) -> None:
         """Forget what an earlier run in ``out`` wrote beside its label PNGs, which a run started over
-        (``--force``, or a new run) would otherwise leave for the review and the export to read: its
-        carries, a key-frames run's passes, the confidence maps and the suggestions."""
+        (``--force``) would otherwise leave for the review and the export to read: its carries, a key-frames
+        run's passes, the confidence maps and the suggestions. Only where ``out`` holds an earlier run (its
+        run.json): a folder that was not a run's output keeps every file in it. A path that holds one of the
+        run's inputs (its frames, labels or truth) is refused, not removed."""
+        from ..formats import resolved
+
+        if not (self.out / STATE).is_file():
+            return
+        doomed = [self.out / CARRY.format(0), self.out / CARRY.format(1), self.out / HIDDEN, self.out / CONFIDENCE,
+                  self.out / SUGGEST]
+        inputs = [Path(v) for k, v in (self.identity or {}).items() if k in ("folder", "video", "labels", "truth")
+                  and isinstance(v, str)]
+        for path in doomed:
+            gone = resolved(path)
+            for given in inputs:
+                where = resolved(given)
+                if where == gone or gone in where.parents:
+                    raise OutputError(f"{path}: holds {given}, an input of this run, and a run started over in "
+                                      f"{self.out} removes it; move the input or choose another --out")
         for slot in (0, 1):
             (self.out / CARRY.format(slot)).unlink(missing_ok=True)
         shutil.rmtree(self.out / HIDDEN, ignore_errors=True)

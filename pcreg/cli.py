@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from .errors import PcregError
 
-    from ._runner import forget_stray_interrupt, ignore_signals, interrupt_on_signals, interrupted, restore_signals
+    from ._runner import interrupt_on_signals, interrupted, restore_signals
 
     if argv is None:  # the program itself, not a caller's own streams
         _usable_streams()
@@ -223,25 +223,34 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
         return _bug(exc)
     finally:
-        stopping = argv is None and interrupted()
-        if stopping:  # the program itself is stopping on a signal: let it exit 130
-            ignore_signals()
-            forget_stray_interrupt()
-        if saved_limit is None:
-            os.environ.pop("PCREG_MAX_PIXELS", None)
-        else:
-            os.environ["PCREG_MAX_PIXELS"] = saved_limit
-        from . import _threads
+        _end(argv is None and interrupted(), saved_limit, previous)
 
-        # the helper thread ends here (milliseconds), not in the interpreter's shutdown; stopping on a signal,
-        # a helper still busy after the grace waits on a lock the interrupt left held: the outputs are whole
-        # (written atomically, the writers closed), so the process ends without it
-        if not _threads.close(HELPER_GRACE if stopping else None):
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(130)
-        if not stopping:
-            restore_signals(previous)
+
+def _end(stopping: bool, saved_limit: str | None, previous) -> None:
+    """What every command does last: the pixel limit as it was, the helper thread ended, and the signal
+    handlers as they were; ``stopping``: the program itself is stopping on a signal, and exits 130."""
+    import os
+
+    from ._runner import forget_stray_interrupt, ignore_signals, restore_signals
+
+    if stopping:
+        ignore_signals()
+        forget_stray_interrupt()
+    if saved_limit is None:
+        os.environ.pop("PCREG_MAX_PIXELS", None)
+    else:
+        os.environ["PCREG_MAX_PIXELS"] = saved_limit
+    from . import _threads
+
+    # the helper thread ends here (milliseconds), not in the interpreter's shutdown; stopping on a signal, a
+    # helper still busy after the grace waits on a lock the interrupt left held: the outputs are whole (written
+    # atomically, the writers closed), so the process ends without it
+    if not _threads.close(HELPER_GRACE if stopping else None):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    if not stopping:
+        restore_signals(previous)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -222,9 +222,9 @@ class OutputLock:
                 os.ftruncate(self._fd, 0)
             except OSError:
                 pass
+            self._remove_unused()  # while the lock is held: no other command can have taken the folder
             os.close(self._fd)  # closing releases the flock
             self._fd = None
-            self._remove_unused()
 
     def _remove_unused(self) -> None:
         """Remove the folders the lock made when nothing but the lock was written into them."""

@@ -238,3 +238,17 @@ def test_small_or_integer_clouds_are_cross_checked_as_clouds_and_numpy_scalars_r
     assert rows["py:scalars:numpy_types"]["error"] is None and rows["py:scalars:numpy_types"]["iterations"] == 3
     assert rows["py:scalars:complex_matrix"]["error"] == "returned a matrix that is not numeric"
     assert rows["py:scalars:endless"]["error"] == "iterations must be in 0..100000, got 1e+300"
+
+
+def test_a_ply_whose_comment_names_end_header_or_whose_header_runs_long_is_read_and_a_wide_line_refused(tmp_path):
+    pts = np.random.default_rng(6).normal(size=(40, 3))
+    body = "".join(f"{a:.6f} {b:.6f} {c:.6f}\n" for a, b, c in pts)
+    props = "element vertex 40\nproperty float x\nproperty float y\nproperty float z\n"
+    (tmp_path / "comment.ply").write_text(f"ply\nformat ascii 1.0\ncomment ends at end_header\n{props}end_header\n{body}")
+    (tmp_path / "long.ply").write_text("ply\nformat ascii 1.0\n" + "comment x\n" * 20_000 + props + "end_header\n" + body)
+    for name in ("comment.ply", "long.ply"):
+        np.testing.assert_allclose(load_cloud(tmp_path / name), pts, atol=1e-5)
+    # one header line past 1,024 bytes: Open3D's reader overflows its buffer and aborts the whole process
+    (tmp_path / "wide.ply").write_text("ply\nformat ascii 1.0\ncomment " + "y " * 600 + "\n" + props + "end_header\n" + body)
+    with pytest.raises(InputError, match="a PLY header line of 1208 bytes"):
+        load_cloud(tmp_path / "wide.ply")

@@ -80,6 +80,21 @@ def pcd(n: int, kind: str = "binary") -> bytes:
     return head.encode() + body
 
 
+def _clouds_whose_lines_or_counts_lie(t):
+    """Point clouds whose data does not hold what their headers declare (Open3D reads them wrong, silently)."""
+    lines = pcd(200, "ascii").split(b"\n")  # 11 header lines, then the points
+    (t / "short_line.pcd").write_bytes(b"\n".join(lines[:60] + [b"1.0 2.0"] + lines[61:]))
+    (t / "comma.pcd").write_bytes(b"\n".join(lines[:60] + [b"1,0 2,0 3,0"] + lines[61:]))
+    (t / "count_low.pcd").write_bytes(pcd(200, "ascii").replace(b"POINTS 200", b"POINTS 150"))
+    (t / "count_low_bin.pcd").write_bytes(pcd(200).replace(b"POINTS 200", b"POINTS 150"))
+    head, body = ply_ascii(50).split(b"end_header\n")
+    (t / "four_values.ply").write_bytes(head + b"end_header\n" + body.replace(b"\n", b" 7.0\n"))  # 3 declared
+    four = np.random.default_rng(5).normal(size=(50, 4)).astype("<f4")  # 16 bytes a vertex declared as 12
+    (t / "four_floats.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 50\nproperty float x\n"
+                                        b"property float y\nproperty float z\nelement face 0\n"
+                                        b"property list uchar int vertex_indices\nend_header\n" + four.tobytes())
+
+
 def npy_bytes(arr: np.ndarray) -> bytes:
     import io
 
@@ -139,17 +154,7 @@ def files(tmp_path_factory):
     full = pcd(200, "ascii")
     (t / "trunc_ascii.pcd").write_bytes(full[: len(full) // 2])
     (t / "bad_header.pcd").write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE four\nPOINTS 10\nDATA binary\n" + b"\0" * 120)
-    lines = pcd(200, "ascii").split(b"\n")  # 11 header lines, then the points
-    (t / "short_line.pcd").write_bytes(b"\n".join(lines[:60] + [b"1.0 2.0"] + lines[61:]))
-    (t / "comma.pcd").write_bytes(b"\n".join(lines[:60] + [b"1,0 2,0 3,0"] + lines[61:]))
-    (t / "count_low.pcd").write_bytes(pcd(200, "ascii").replace(b"POINTS 200", b"POINTS 150"))
-    (t / "count_low_bin.pcd").write_bytes(pcd(200).replace(b"POINTS 200", b"POINTS 150"))
-    head, body = ply_ascii(50).split(b"end_header\n")
-    (t / "four_values.ply").write_bytes(head + b"end_header\n" + body.replace(b"\n", b" 7.0\n"))  # 3 declared
-    four = np.random.default_rng(5).normal(size=(50, 4)).astype("<f4")  # 16 bytes a vertex declared as 12
-    (t / "four_floats.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 50\nproperty float x\n"
-                                        b"property float y\nproperty float z\nelement face 0\n"
-                                        b"property list uchar int vertex_indices\nend_header\n" + four.tobytes())
+    _clouds_whose_lines_or_counts_lie(t)
     (t / "no_data.pcd").write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\n")
     (t / "double.pcd").write_bytes(pcd(200).replace(b"SIZE 4 4 4", b"SIZE 8 8 8").split(b"DATA binary\n")[0]
                                    + b"DATA binary\n" + np.random.default_rng(2).normal(size=(200, 3)).astype("<f8").tobytes())

@@ -288,7 +288,12 @@ def test_hidden_files_are_no_frames_and_numbers_of_different_widths_are_refused(
     for i in range(4):
         shutil.copy(folder / f"f{i}.png", wide / f"f{i + 8}.png")
     assert main(["run", str(wide), "--labels", str(key), "--out", str(tmp_path / "out2")]) == 2
-    assert "numbered with different widths (f10.png sorts before f8.png" in one_line_errors(capsys)[0]
+    assert "numbered with different widths (f11.png sorts before f8.png" in one_line_errors(capsys)[0]
+    stamps = tmp_path / "stamps"  # time stamps whose fractions differ in width are in order by name
+    stamps.mkdir()
+    for i, name in enumerate(["1612345678.15", "1612345678.2", "1612345678.25", "1612345679.1"]):
+        shutil.copy(folder / f"f{i}.png", stamps / f"{name}.png")
+    assert main(["run", str(stamps), "--labels", str(key), "--out", str(tmp_path / "out3")]) == 0
 
 
 def test_a_key_frame_of_one_class_is_named_before_anything_is_written(tmp_path, capsys):
@@ -307,6 +312,9 @@ def test_a_key_frame_of_one_class_is_named_before_anything_is_written(tmp_path, 
     assert main(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "b")]) == 2
     assert "the labels of f4.png hold one class only (ground)" in one_line_errors(capsys)[0]
     assert not (tmp_path / "b").exists()
+    shutil.copy(key, keys / "f5.png")  # key frames side by side fit no classifier together: f4 beside f5 is fine
+    shutil.copy(tmp_path / "ground.png", keys / "f3.png")
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "c")]) == 0
 
 
 def test_frames_with_names_near_the_file_systems_limit_are_labelled(tmp_path):

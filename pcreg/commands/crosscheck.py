@@ -24,12 +24,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "one); built in: reference, open3d, open3d-tensor, small_gicp, small_gicp-plane, "
                         "small_gicp-gicp, kiss-icp, pycpd, probreg-cpd, probreg-filterreg; or py:MODULE:FUNCTION, "
                         "cmd:\"PROGRAM {source} {target} {init} {out} {params}\"; may be repeated")
-    p.add_argument("--model", choices=("rigid", "similarity"), default="rigid", help="images: motion model")
+    p.add_argument("--model", choices=("rigid", "similarity"), default=None, help="images: motion model (default rigid)")
     p.add_argument("--iterations", "--max-iterations", dest="iterations", type=positive_int, default=30,
                    help="max ICP iterations (per level for images)")
     from ._common import arg_int
 
-    p.add_argument("--levels", type=arg_int(1, 8), default=4, help="images: pyramid levels")
+    p.add_argument("--levels", type=arg_int(1, 8), default=None, help="images: pyramid levels (default 4)")
     p.add_argument("--max-distance", type=positive_float, default=None,
                    help="correspondence distance: images, px at full resolution (x 2^level; default 2.5); "
                         "clouds, in their units (default 1%% of the target's bounding-box diagonal)")
@@ -106,10 +106,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _suite(args) -> dict:
     from ..errors import InputError
-    from ..implementations.suite import builtin_cases, export_suite, load_suite, run_suite, write_results
+    from ..implementations.suite import RESULT_FILES, builtin_cases, export_suite, load_suite, run_suite, write_results
 
     out: dict = {}
     if args.export:
+        there = Path(args.export)
+        if there.is_dir() and any(there.iterdir()) and not args.force:
+            raise InputError(f"--export {there}: holds files already (use --force to write the suite over them)")
         cases, skipped = builtin_cases(scans=_scans(args))
         export_suite(args.export, cases, progress=_bar_wanted())
         out["exported"] = args.export
@@ -120,6 +123,10 @@ def _suite(args) -> dict:
         for where, what in ((suite, "--suite"), (Path(args.out) if args.out else None, "--out")):
             if where is not None and where.exists() and not where.is_dir():  # refused now, not after the suite ran
                 raise InputError(f"{what} {where}: exists and is not a folder")
+        results = Path(args.out or suite)
+        earlier = [results / n for n in RESULT_FILES if (results / n).exists()]
+        if earlier and not args.force:
+            raise InputError(f"{earlier[0]}: results of an earlier run (use --force to replace them, or another --out)")
         skipped = {}
         if (suite / "index.json").exists():
             cases = load_suite(suite)
@@ -143,6 +150,10 @@ def _clouds(args) -> int:
     from ..implementations import stdout_to_stderr
     from ..registration.icp_options import ICPOptions
 
+    given = [o for o, v in (("--model", args.model), ("--levels", args.levels)) if v is not None]
+    if given:
+        raise InputError(f"{' and '.join(given)} appl{'y' if len(given) > 1 else 'ies'} to images; point clouds are "
+                         "cross-checked with the rigid ICP of every implementation")
     init = None
     if args.init:
         from ..formats import read_text_matrix
@@ -247,7 +258,7 @@ def _images(args) -> int:
     if given:
         raise InputError(f"{' and '.join(given)} appl{'y' if len(given) > 1 else 'ies'} to point clouds, not images")
     config = CrosscheckConfig(registration=CROSSCHECK_REGISTRATION.replace(
-        model=args.model, iterations=args.iterations, levels=args.levels,
+        model=args.model or "rigid", iterations=args.iterations, levels=args.levels or 4,
         max_correspondence_distance=args.max_distance if args.max_distance else 2.5))
     with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
         rec.set_frame(0)

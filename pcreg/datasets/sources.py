@@ -25,6 +25,7 @@ frames before its first and gets every frame bit for bit as an uninterrupted run
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, TypeVar
@@ -89,21 +90,30 @@ class SourceFrame:
     image: np.ndarray
 
 
-def _natural(name: str) -> tuple:
-    """``name``'s key in counting order: its runs of digits compared as numbers (``f9`` before ``f10``)."""
-    import re
+def _out_of_count(a: str, b: str) -> bool:
+    """Whether name order puts ``a`` before ``b`` where counting does not: where the two names first differ, both
+    hold a run of ASCII digits, of different widths, and ``a``'s number is the larger (``f10`` before ``f8``).
+    A run after ``<digits>.`` is a decimal fraction (a time stamp ``1612345678.15``), compared as name order does."""
+    pa, pb = _DIGITS.split(a), _DIGITS.split(b)  # text, digits, text, digits, ...
+    for i, (x, y) in enumerate(zip(pa, pb)):
+        if x == y:
+            continue
+        fraction = i >= 3 and pa[i - 1].endswith(".")  # the text before is the same: "." after a digit run
+        return i % 2 == 1 and not fraction and len(x) != len(y) and int(x) > int(y)
+    return False
 
-    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", name) if part)
+
+#: A run of ASCII digits (``str.isdigit`` takes ``²`` and other digits ``int`` does not read).
+_DIGITS = re.compile(r"([0-9]+)")
 
 
 def _check_numbering(folder: Path, names: list[str]) -> None:
     """An :class:`InputError` when name order (pcreg's, and an annotation tool's) is not counting order, because
     numbered names have numbers of different widths (``f10.png`` sorts before ``f8.png``): the frames would be
     labelled out of order, and key labels drawn on one frame carried from another."""
-    counted = sorted(names, key=_natural)
-    for named, count in zip(names, counted):
-        if named != count:
-            raise InputError(f"{folder}: frames numbered with different widths ({named} sorts before {count} by name, "
+    for a, b in zip(names, names[1:]):
+        if _out_of_count(a, b):
+            raise InputError(f"{folder}: frames numbered with different widths ({a} sorts before {b} by name, "
                              "the order frames are read in); rename them with zero-padded numbers (f08.png, f10.png)")
 
 
@@ -184,8 +194,8 @@ class VideoFrames:
             self.declared: int | None = declared if declared > 0 else None
             #: Without one (Matroska), the count its duration and frame rate give: an estimate.
             self.estimated: int | None = None
-            #: The container's duration in seconds (None when it gives none), and the stream's mean frame rate.
-            self.duration = container.duration / 1e6 if container.duration else None
+            #: The video stream's duration in seconds (None when it gives none), and its mean frame rate.
+            self.duration = _video_duration(container, stream)
             self.rate = float(stream.average_rate) if stream.average_rate else None
             if self.declared is None and self.duration and self.rate:
                 self.estimated = int(round(self.duration * self.rate))
@@ -294,6 +304,23 @@ class VideoFrames:
         if decoded < self.estimated - max(2, 0.02 * self.estimated):
             raise InputError(f"{self.path}: ends after {decoded} frames, its duration holds about {self.estimated}: "
                              "the video is truncated or damaged")
+
+
+def _video_duration(container, stream) -> float | None:
+    """The video stream's own duration in seconds: its ``duration`` in its time base, or Matroska's ``DURATION``
+    tag; the container's only when the video is its one stream (an audio track may run longer); else None."""
+    if stream.duration and stream.time_base:
+        return float(stream.duration * stream.time_base)
+    tag = str(stream.metadata.get("DURATION", ""))
+    hours, _, rest = tag.partition(":")
+    minutes, _, seconds = rest.partition(":")
+    try:
+        return int(hours) * 3600 + int(minutes) * 60 + float(seconds)
+    except ValueError:
+        pass
+    if container.duration and len(container.streams) == 1:
+        return container.duration / 1e6
+    return None
 
 
 def _quarter_turns(rotation: float, path: Path) -> int:

@@ -78,7 +78,7 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
     (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
     """
-    from ..formats import check_cloud_file, check_npy_file
+    from ..cloud_files import check_cloud_file, check_npy_file
     from ..quiet import capture_output_fds
     from ..validation import max_pixels
 
@@ -452,7 +452,7 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     """The checked (and voxel-downsampled) clouds, the initial pose and the correspondence distance
     every implementation gets."""
     from ..registration.api import voxel_downsample
-    from ..registration.transforms import rigid_problem
+    from ..registration.transforms import nearest_rigid, rigid_problem
     from ..validation import check_float, check_int, check_matrix
 
     src = check_cloud(source, "source")
@@ -469,6 +469,7 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     problem = rigid_problem(T0)
     if problem is not None:
         raise InputError(f"init: {problem}, and the cross-check pins the rigid ICP")
+    T0 = nearest_rigid(T0)  # every implementation starts from, and so returns, a rigid matrix
     max_iterations = check_int(max_iterations, "max_iterations", lo=1, hi=100_000)
     if max_correspondence_distance is None:
         max_correspondence_distance = default_max_distance(tgt)

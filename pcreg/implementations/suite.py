@@ -253,6 +253,11 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
         raise InputError(f"{index}: not a cross-check suite index ({' '.join(str(exc).split())[:160]})") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("cases"), list):
         raise InputError(f"{index}: expected {{\"format\": ..., \"cases\": [...]}}")
+    if not meta["cases"]:
+        raise InputError(f"{index}: lists no case")
+    twice = next((n for i, n in enumerate(meta["cases"]) if n in meta["cases"][:i]), None)
+    if twice is not None:
+        raise InputError(f"{index}: lists the case {twice!r} twice")
     from .crosscheck import check_truth, load_cloud
 
     from ..validation import check_float, check_int
@@ -281,7 +286,11 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
                         fitness, rmse, name=name, description=str(info.get("description", "")), truth=truth)
         except InputError:
             raise
-        except (OSError, ValueError, KeyError, TypeError, AttributeError, OverflowError) as exc:
+        except KeyError as exc:
+            raise InputError(f"{d / 'params.json'}: lacks {exc}") from None
+        except AttributeError:  # a JSON document that is not an object
+            raise InputError(f"{d}: params.json and case.json must each hold a JSON object") from None
+        except (OSError, ValueError, TypeError, OverflowError) as exc:
             raise InputError(f"{d}: unreadable case ({type(exc).__name__}: {' '.join(str(exc).split())[:160]})") from None
         cases.append(case)
     return cases
@@ -338,6 +347,10 @@ def _fmt(v) -> str:
     if isinstance(v, float):
         return f"{v:.3g}"
     return str(v)
+
+
+#: The files :func:`write_results` writes.
+RESULT_FILES = ("results.csv", "results.md", "results.json", "results.png")
 
 
 def write_results(out: str | os.PathLike, rows: list[dict], *, skipped: dict[str, str] | None = None) -> dict:

@@ -24,7 +24,7 @@ The file protocol of ``cmd:`` programs (fixed; other tools are written against i
 
 Placeholders the template does not use are not written. The program runs in the current directory
 with a time limit; a non-zero exit, a timeout, an unreadable output, a NaN, a matrix that is not a rigid
-transform (:data:`RIGID_TOLERANCE`) or a figure out of its range is that implementation's failure (a
+transform (:data:`RETURNED_TOLERANCE`) or a figure out of its range is that implementation's failure (a
 Python callable's too).
 """
 
@@ -90,7 +90,7 @@ def _converged(value):
 
 #: How far a returned matrix may be from a rigid transform (its rotation block's R^T R from the identity,
 #: its last row from (0, ..., 0, 1)): text written with six significant digits is well within it.
-RIGID_TOLERANCE = 1e-4
+RETURNED_TOLERANCE = 1e-4
 
 
 def _checked_matrix(m: np.ndarray, d: int, what: str) -> np.ndarray:
@@ -103,7 +103,7 @@ def _checked_matrix(m: np.ndarray, d: int, what: str) -> np.ndarray:
         raise ImplementationError(f"{what} is {'x'.join(map(str, m.shape))}, expected {d + 1}x{d + 1}")
     if not np.all(np.isfinite(m)):
         raise ImplementationError(f"{what} holds NaN or inf")
-    problem = rigid_problem(m, tolerance=RIGID_TOLERANCE)
+    problem = rigid_problem(m, tolerance=RETURNED_TOLERANCE, row_tolerance=RETURNED_TOLERANCE)
     if problem is not None:
         raise ImplementationError(f"{what}: {problem}")
     return m

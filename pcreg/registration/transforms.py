@@ -23,19 +23,22 @@ def check_model(model: str, dim: int = 2) -> str:
     return model
 
 
-#: How far a rigid transform's rotation block may be from orthonormal (``R^T R`` from the identity) and its
-#: last row from ``(0, ..., 0, 1)``: a matrix written with three decimals (Open3D's own test of its ICP starts
-#: from one) is within 0.5%; a scale or a shear of a few percent is not.
-RIGID_TOLERANCE = 0.05
+#: How far a rigid transform's rotation block may be from orthonormal (``R^T R`` from the identity) for it to
+#: be taken as a start: a matrix written with three decimals (Open3D's own test of its ICP starts from one) is
+#: within 0.5%; a scale or a shear of a few percent is not. Its last row must be ``(0, ..., 0, 1)`` to
+#: :data:`LAST_ROW_TOLERANCE` (a last row 0.01 off is a strong projection at 500 px).
+ROTATION_TOLERANCE = 0.05
+LAST_ROW_TOLERANCE = 1e-9
 
 
-def rigid_problem(matrix: np.ndarray, *, tolerance: float = RIGID_TOLERANCE) -> str | None:
+def rigid_problem(matrix: np.ndarray, *, tolerance: float = ROTATION_TOLERANCE,
+                  row_tolerance: float = LAST_ROW_TOLERANCE) -> str | None:
     """What makes a finite homogeneous (d+1)x(d+1) ``matrix`` not a rigid transform (its last row a
-    projection's, its rotation block a scale or a shear, a reflection), as a phrase about "it"; None when it
-    is one, within ``tolerance``."""
+    projection's, beyond ``row_tolerance``; its rotation block a scale or a shear, beyond ``tolerance``; a
+    reflection), as a phrase about "it"; None when it is one."""
     m = np.asarray(matrix, dtype=np.float64)
     d = m.shape[0] - 1
-    if np.abs(m[d] - np.eye(d + 1)[d]).max() > tolerance:
+    if np.abs(m[d] - np.eye(d + 1)[d]).max() > row_tolerance:
         return f"its last row is {m[d].tolist()}, not a rigid transform's"
     R = m[:d, :d]
     if np.linalg.det(R) < 0:
@@ -43,6 +46,20 @@ def rigid_problem(matrix: np.ndarray, *, tolerance: float = RIGID_TOLERANCE) -> 
     if np.abs(R.T @ R - np.eye(d)).max() > tolerance:
         return "its rotation block is not orthonormal (a scale or a shear): not a rigid transform"
     return None
+
+
+def nearest_rigid(matrix: np.ndarray) -> np.ndarray:
+    """The rigid transform nearest a (d+1)x(d+1) ``matrix`` that :func:`rigid_problem` accepts: its rotation
+    block's nearest rotation (SVD), its translation, and the last row ``(0, ..., 0, 1)``."""
+    m = np.array(matrix, dtype=np.float64)
+    d = m.shape[0] - 1
+    U, _, Vt = np.linalg.svd(m[:d, :d])
+    D = np.eye(d)
+    D[-1, -1] = np.sign(np.linalg.det(U @ Vt))
+    out = np.eye(d + 1)
+    out[:d, :d] = U @ D @ Vt
+    out[:d, d] = m[:d, d]
+    return out
 
 
 def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, OutputError
-from ..formats import NPY_HEADER_ERRORS, loads_json
+from ..cloud_files import NPY_HEADER_ERRORS
+from ..formats import loads_json
 
 __all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "write_confidence", "write_grey", "confidence_png",

@@ -63,15 +63,15 @@ def _check_fits(request, frames, keys: dict, table) -> None:
     KeyRun`): the two key frames around it, and the first and the last alone for the frames before and after."""
     from ..errors import InputError
 
-    at = sorted(keys)
+    from ..pipeline.engine import stretches
+
+    groups: list[tuple[int, ...]]
     if not request.folder_of_keys:
-        groups = [(at[0],)]
+        groups = [(min(keys),)]
     else:
-        n = len(frames) if frames.kind == "folder" else None
-        groups = ([(at[0],)] if at[0] > 0 else []) + list(zip(at, at[1:])) + \
-            ([(at[-1],)] if n is None or at[-1] < n - 1 else [])
+        groups = [tuple(s.keys) for s in stretches(keys, len(frames) if frames.kind == "folder" else None)]
     for group in groups:
-        present = set()
+        present: set[int] = set()
         for t in group:
             present.update(int(c) for c in np.flatnonzero(np.bincount(np.asarray(keys[t]).ravel(), minlength=256)))
         present.discard(table.unknown)

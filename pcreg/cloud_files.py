@@ -1,0 +1,316 @@
+"""Point-cloud files checked before Open3D or numpy reads them: PLY and PCD (ASCII and binary) whose headers
+are sound, whose declared counts are within the limit and match what the file holds, and whose ASCII lines
+hold the numbers the header declares; .npy whose header is a plain numeric array. Open3D pads what it cannot
+read with zeros (or what its memory held), and aborts the process on some malformed headers: each such file
+is refused here in one line naming it."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import struct
+import tokenize
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .formats import check_regular_file, max_file_bytes
+from .validation import max_pixels
+
+__all__ = ["MAX_HEADER_BYTES", "MAX_PLY_LINE", "NPY_HEADER_ERRORS", "check_npy_file", "check_cloud_file"]
+
+
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+#: The most bytes a point cloud's header is read from (a PLY's comments may run long).
+MAX_HEADER_BYTES = 1 << 20
+#: The longest PLY header line read (bytes): Open3D's reader (RPly) copies each into a buffer of 1,024 and aborts
+#: the whole process past it ("buffer overflow detected").
+MAX_PLY_LINE = 1000
+
+
+def _ply_header(path: Path) -> tuple[str, list[list], int]:
+    """``(format, elements, body_start)`` of a PLY's header, each element ``[name, count, [sizes], has_list,
+    [names]]``; a header pcreg or Open3D cannot read is an :class:`InputError` naming the file."""
+    with open(path, "rb") as fh:
+        head = fh.read(MAX_HEADER_BYTES)
+    if not head.startswith(b"ply"):
+        raise InputError(f"{path}: no points could be read (not a PLY file: no 'ply' magic)")
+    end = re.search(rb"^end_header\s*?$", head, re.MULTILINE)  # the line, not the word in a comment
+    if end is None:
+        raise InputError(f"{path}: PLY header without end_header")
+    i = end.start()
+    j = head.find(b"\n", i)
+    if j < 0:
+        raise InputError(f"{path}: truncated PLY header")
+    longest = max(len(line) for line in head[:i].split(b"\n"))
+    if longest > MAX_PLY_LINE:  # Open3D's reader (RPly) copies a header line into 1,024 bytes: it would abort
+        raise InputError(f"{path}: a PLY header line of {longest} bytes (at most {MAX_PLY_LINE} are read)")
+    fmt = None
+    elements: list[list] = []
+    for raw in head[:i].decode("ascii", "replace").splitlines():
+        t = raw.split()
+        if not t:
+            continue
+        if t[0] == "format" and len(t) >= 2:
+            fmt = t[1]
+        elif t[0] == "element" and len(t) == 3:
+            try:
+                elements.append([t[1], int(t[2]), [], False, []])
+            except ValueError:
+                raise InputError(f"{path}: bad PLY element line {raw.strip()!r}") from None
+            if elements[-1][1] < 0:
+                raise InputError(f"{path}: negative PLY element count")
+        elif t[0] == "property" and elements:
+            if len(t) >= 2 and t[1] == "list":
+                elements[-1][3] = True
+            elif len(t) >= 3 and t[1] in _PLY_SIZES:
+                elements[-1][2].append(_PLY_SIZES[t[1]])
+                elements[-1][4].append(t[2])
+            else:
+                raise InputError(f"{path}: bad PLY property line {raw.strip()!r}")
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise InputError(f"{path}: unknown PLY format {fmt!r}")
+    return fmt, elements, j + 1
+
+
+def _ply_check(path: Path, size: int, limit: int) -> int:
+    fmt, elements, body_start = _ply_header(path)
+    vertex = next((e for e in elements if e[0] == "vertex"), None)
+    if vertex is None or vertex[1] == 0:
+        raise InputError(f"{path}: no vertices in the PLY header")
+    missing = [c for c in "xyz" if c not in vertex[4]]
+    if missing:  # Open3D would fill them with whatever its memory held
+        raise InputError(f"{path}: PLY vertices without the {', '.join(missing)} propert"
+                         f"{'y' if len(missing) == 1 else 'ies'} (x, y and z are needed)")
+    n = vertex[1]
+    if n > limit:
+        raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if fmt == "ascii":
+        _ply_ascii_body(path, body_start, elements, vertex)
+        return n
+    need = 0
+    for e in elements:
+        rec = sum(e[2]) + (1 if e[3] else 0)  # a list property takes at least its count byte
+        need += e[1] * rec
+        if e is vertex:
+            break
+    have = size - body_start
+    after = elements[elements.index(vertex) + 1:]
+    last = all(e[1] == 0 for e in after)  # nothing after the vertices (an empty face element)
+    if last and not any(e[3] for e in elements if e[1]) and have - need >= sum(vertex[2]):
+        raise InputError(f"{path}: the PLY header declares {n} vertices ({need} bytes), the file holds {have} bytes "
+                         "(more vertices than declared?)")
+    if have < need:
+        got = max(0, have) // max(1, sum(vertex[2]))
+        raise InputError(f"{path}: truncated PLY: the header declares {n} vertices "
+                         f"({need} bytes), the file holds {have} bytes (about {min(got, n)} vertices)")
+    return n
+
+
+def _ply_ascii_body(path: Path, body_start: int, elements: list[list], vertex: list) -> None:
+    """An ASCII PLY's lines against its header: as many as its elements declare, and each vertex line of
+    scalar properties as many numbers as it has properties."""
+    n = vertex[1]
+    total = sum(e[1] for e in elements)
+    lines = _count_data_lines(path, body_start, total + 1)
+    if lines > total:  # a count that lies low: Open3D would read the first n rows and drop the rest
+        raise InputError(f"{path}: the PLY header declares {total} data lines ({n} vertices), the file holds more")
+    before = 0
+    for e in elements:
+        if e is vertex:
+            break
+        before += e[1]
+    if lines < before + n:
+        raise InputError(f"{path}: truncated PLY: the header declares {n} vertices, the file holds "
+                         f"{max(0, lines - before)}")
+    if not vertex[3]:  # a vertex of scalar properties: each line holds as many numbers
+        _check_ascii_rows(path, body_start, before, n, len(vertex[2]), "vertex")
+
+
+#: One number as an ASCII point cloud writes it (what C's ``strtod`` reads whole): digits, a point, an exponent,
+#: or nan / inf; not ``1,0`` (a decimal comma, which a reader takes for two numbers or one and junk), not ``1_0``.
+_ASCII_NUMBER = rb"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|(?i:nan(?:\([0-9a-z_]*\))?|inf(?:inity)?))"
+
+
+def _check_ascii_rows(path: Path, start: int, skip: int, rows: int, fields: int, what: str) -> int:
+    """How many non-empty lines follow ``skip`` of them from byte ``start`` (at most ``rows`` + 1 counted), each
+    of the first ``rows`` checked to hold ``fields`` numbers (:data:`_ASCII_NUMBER`), no more and no fewer: a
+    line that does not is an :class:`InputError` naming it (Open3D reads one short line as the next one's
+    start, or fills a point with what its memory held, a junk line as a point at the origin)."""
+    row = re.compile(rb"\s*" + _ASCII_NUMBER + (rb"\s+" + _ASCII_NUMBER) * (fields - 1) + rb"\s*")
+    count = seen = 0
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        for line in fh:
+            if not line.strip():
+                continue
+            seen += 1
+            if seen <= skip:
+                continue
+            count += 1
+            if count > rows:
+                break
+            if row.fullmatch(line) is None:
+                text = line.decode("ascii", "replace").strip()
+                if not line.endswith(b"\n"):  # the file ends inside this line
+                    raise InputError(f"{path}: truncated: its last line ({text[:40]!r}) is cut short")
+                raise InputError(f"{path}: {what} line {count} ({text[:40]!r}) is not {fields} numbers, as the header "
+                                 "declares")
+    return count
+
+
+def _holds_data(path: Path, start: int) -> bool:
+    """Whether ``path`` holds a byte other than zero from ``start`` on (PCL's binary writer pads a PCD with zeros
+    to a memory page: not points)."""
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        while chunk := fh.read(1 << 20):
+            if chunk.count(0) != len(chunk):
+                return True
+    return False
+
+
+def _count_data_lines(path: Path, start: int, stop_after: int) -> int:
+    count = 0
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        for line in fh:
+            if line.strip():
+                count += 1
+                if count >= stop_after:
+                    break
+    return count
+
+
+def _pcd_check(path: Path, size: int, limit: int) -> int:
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    fields: dict[str, list[str]] = {}
+    pos = 0
+    data_kind = None
+    for line in head.split(b"\n"):
+        pos += len(line) + 1
+        text = line.decode("ascii", "replace").strip()
+        if not text or text.startswith("#"):
+            continue
+        t = text.split()
+        fields[t[0].upper()] = t[1:]
+        if t[0].upper() == "DATA":
+            data_kind = t[1].lower() if len(t) > 1 else None
+            break
+    if data_kind is None:
+        raise InputError(f"{path}: PCD header without a DATA line")
+    try:
+        n = int(fields["POINTS"][0]) if "POINTS" in fields else \
+            int(fields["WIDTH"][0]) * int(fields["HEIGHT"][0])
+        sizes = [int(s) for s in fields["SIZE"]]
+        counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
+    except (KeyError, ValueError, IndexError, TypeError):
+        raise InputError(f"{path}: damaged PCD header (POINTS, SIZE, COUNT)") from None
+    if n <= 0:
+        raise InputError(f"{path}: no points in the PCD header")
+    if n > limit:
+        raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if len(counts) != len(sizes) or any(s <= 0 for s in sizes) or any(c <= 0 for c in counts):
+        raise InputError(f"{path}: damaged PCD header (SIZE and COUNT disagree)")
+    types = [t.upper() for t in fields.get("TYPE", ["F"] * len(sizes))]
+    if len(types) != len(sizes) or any(t not in "FIU" or len(t) != 1 for t in types) \
+            or any(s not in ((4, 8) if t == "F" else (1, 2, 4, 8)) for s, t in zip(sizes, types)):
+        raise InputError(f"{path}: damaged PCD header (TYPE {' '.join(types)} with SIZE "
+                         f"{' '.join(map(str, sizes))}: F takes 4 or 8 bytes, I and U 1, 2, 4 or 8)")
+    point_bytes = sum(s * c for s, c in zip(sizes, counts))
+    have = size - pos
+    coords = [sizes[i] for i, f in enumerate(fields.get("FIELDS", [])[:len(sizes)]) if f.lower() in ("x", "y", "z")]
+    if data_kind in ("binary", "binary_compressed") and 8 in coords:
+        # Open3D reads 8-byte (double) coordinates of a binary PCD as zeros, without a word
+        raise InputError(f"{path}: a binary PCD whose x, y, z are 8-byte numbers is not read correctly "
+                         "(its points come out as zeros); save it with 4-byte floats, as ASCII PCD, PLY or .npy")
+    if data_kind == "ascii":
+        lines = _check_ascii_rows(path, pos, 0, n, sum(counts), "data")
+        if lines < n:
+            raise InputError(f"{path}: truncated PCD: the header declares {n} points, the file holds {lines}")
+        if lines > n:  # a count that lies low: Open3D would read the first n and drop the rest
+            raise InputError(f"{path}: the PCD header declares {n} points, the file holds more")
+    elif data_kind == "binary":
+        if have < n * point_bytes:
+            raise InputError(f"{path}: truncated PCD: the header declares {n} points ({n * point_bytes} bytes), "
+                             f"the file holds {have} bytes")
+        if have >= (n + 1) * point_bytes and _holds_data(path, pos + n * point_bytes):  # a count that lies low
+            raise InputError(f"{path}: the PCD header declares {n} points ({n * point_bytes} bytes), the file holds "
+                             f"{have} bytes (more points than declared?)")
+    elif data_kind == "binary_compressed":
+        with open(path, "rb") as fh:
+            fh.seek(pos)
+            sz = fh.read(8)
+        if len(sz) < 8:
+            raise InputError(f"{path}: truncated PCD (no compressed block)")
+        comp, raw = struct.unpack("<II", sz)
+        if raw != n * point_bytes or have - 8 < comp:
+            raise InputError(f"{path}: truncated or damaged compressed PCD (block of {comp} bytes, "
+                             f"{have - 8} present; {raw} bytes unpacked for {n * point_bytes} expected)")
+    else:
+        raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r}")
+    return n
+
+
+#: What numpy raises on a damaged .npy header: its parser reads the header as a Python literal, and
+#: a header it cannot parse is tokenized again for Python 2's syntax (``tokenize.TokenError``).
+NPY_HEADER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, SyntaxError, TypeError, struct.error,
+                                                      UnicodeDecodeError, tokenize.TokenError)
+
+
+def check_npy_file(path: Path, limit: int) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype from a .npy header, with the file's size checked against them."""
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh, max_header_size=10000)
+            elif version in ((2, 0), (3, 0)):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh, max_header_size=10000)
+            else:
+                raise ValueError(f"unsupported .npy version {version}")
+            start = fh.tell()
+    except NPY_HEADER_ERRORS as exc:
+        raise InputError(f"{path}: not a numpy array file ({str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__})") from None
+    if dtype.hasobject or dtype.kind not in "iuf" or dtype.fields is not None or dtype.subdtype is not None:
+        what = " (true/false values: a mask, not coordinates)" if dtype.kind == "b" else ""
+        raise InputError(f"{path}: points must be a numeric array, got dtype {dtype}{what}")
+    if any(int(s) < 0 for s in shape):
+        raise InputError(f"{path}: bad shape {shape}")
+    count = math.prod(int(s) for s in shape)
+    if len(shape) == 2 and shape[0] > limit:
+        raise InputError(f"{path}: {shape[0]} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if count > 3 * limit:
+        raise InputError(f"{path}: {count} values exceed the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
+    size = path.stat().st_size
+    if size - start < count * dtype.itemsize:
+        raise InputError(f"{path}: truncated .npy: the header declares {shape} {dtype} "
+                         f"({count * dtype.itemsize} bytes), the file holds {size - start}")
+    return tuple(int(s) for s in shape), dtype
+
+
+def check_cloud_file(path: str | os.PathLike, *, limit: int | None = None) -> Path:
+    """A regular point-cloud file whose header's point count is within the limit and whose data is
+    all there (PLY and PCD, ASCII and binary). Other text formats (.xyz, .pts) are only size-bounded."""
+    p = check_regular_file(path, what="point cloud")
+    lim = max_pixels(limit)
+    size = p.stat().st_size
+    if size == 0:
+        raise InputError(f"{p}: empty file")
+    if size > max_file_bytes(lim) * 4:  # ASCII formats spend up to ~100 bytes a point
+        raise InputError(f"{p}: {size / 2**20:.0f} MiB exceeds the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".ply":
+            _ply_check(p, size, lim)
+        elif suffix == ".pcd":
+            _pcd_check(p, size, lim)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read point cloud ({exc.strerror or exc})") from None
+    return p

@@ -252,3 +252,40 @@ def test_a_ply_whose_comment_names_end_header_or_whose_header_runs_long_is_read_
     (tmp_path / "wide.ply").write_text("ply\nformat ascii 1.0\ncomment " + "y " * 600 + "\n" + props + "end_header\n" + body)
     with pytest.raises(InputError, match="a PLY header line of 1208 bytes"):
         load_cloud(tmp_path / "wide.ply")
+
+
+def test_a_suite_and_its_results_are_not_written_over_without_force_and_an_odd_suite_is_refused(tmp_path, capsys):
+    """--export replaced the files of a folder it did not own, and --suite the results of an earlier run; an empty
+    suite ran to exit 0, a case named twice ran twice, and a params.json without its distance said "KeyError";
+    --model and --levels, which only images take, were ignored for clouds."""
+    import json
+
+    from pcreg.cli import main
+    from pcreg.implementations.suite import Case, export_suite
+
+    rng = np.random.default_rng(7)
+    target = rng.uniform(0, 1, (200, 3))
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    assert main(["crosscheck", "--export", str(mine)]) == 2
+    assert "holds files already (use --force" in capsys.readouterr().err and (mine / "notes.txt").read_text() == "mine"
+    suite = export_suite(tmp_path / "suite", [Case(target + 0.01, target, np.eye(4), 0.1, name="c")])
+    assert main(["crosscheck", "--suite", str(suite), "--with", "reference"]) == 0
+    capsys.readouterr()
+    assert main(["crosscheck", "--suite", str(suite), "--with", "reference"]) == 2
+    assert "results.csv: results of an earlier run (use --force" in capsys.readouterr().err
+    assert main(["crosscheck", "--suite", str(suite), "--with", "reference", "--force"]) == 0
+    capsys.readouterr()
+    index = suite / "index.json"
+    for cases, said in (([], "lists no case"), (["c", "c"], "lists the case 'c' twice")):
+        index.write_text(json.dumps({"format": 1, "cases": cases}))
+        assert main(["crosscheck", "--suite", str(suite), "--out", str(tmp_path / "r"), "--force"]) == 2
+        assert said in capsys.readouterr().err
+    index.write_text(json.dumps({"format": 1, "cases": ["c"]}))
+    (suite / "c" / "params.json").write_text(json.dumps({"max_iterations": 5}))
+    assert main(["crosscheck", "--suite", str(suite), "--out", str(tmp_path / "r"), "--force"]) == 2
+    assert "params.json: lacks 'max_correspondence_distance'" in capsys.readouterr().err
+    np.save(tmp_path / "t.npy", target)
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "t.npy"), "--model", "similarity"]) == 2
+    assert "--model applies to images" in capsys.readouterr().err

@@ -89,8 +89,10 @@ def read_run(folder: str | Path) -> RunLabels:
     except (OSError, ValueError) as exc:
         raise InputError(f"{steps_path}: missing or unreadable ({exc})") from None
     stems = [Path(n).stem for n in names]
-    if any(not s or "/" in n or "\\" in n for s, n in zip(stems, names)):
-        raise InputError(f"{steps_path}: a frame name that is not a file name")
+    odd = next((n for s, n in zip(stems, names) if not s or "/" in n or "\\" in n), None)
+    if odd is not None:  # an annotation tool reads a backslash in a member's name as a folder
+        raise InputError(f"{steps_path}: the frame name {odd!r} is not a file name an archive can hold "
+                         "(a slash or a backslash); rename the frame")
     paths = [folder / f"{s}.png" for s in stems]
     if not any(p.is_file() for p in paths):
         raise InputError(f"{folder}: no label files (none of {', '.join(p.name for p in paths[:3])}"

@@ -290,3 +290,13 @@ def test_an_interrupted_export_says_nothing_was_written_not_to_resume(run_copy, 
     assert main(["export", str(run_copy)]) == 130
     assert capsys.readouterr().err == "pcreg: interrupted (nothing was written)\n"
     assert not (run_copy / "export-cvat-mask.zip").exists()
+
+
+def test_a_frame_name_an_archive_cannot_hold_is_named(run_copy, capsys):
+    steps = run_copy / "steps.jsonl"
+    lines = steps.read_text().splitlines()
+    first = json.loads(lines[0])
+    first["name"] = "x\\y.png"  # a legal Linux file name, a folder and a file to an annotation tool
+    steps.write_text("\n".join([json.dumps(first), *lines[1:]]) + "\n")
+    assert main(["export", str(run_copy)]) == 2
+    assert "the frame name 'x\\\\y.png' is not a file name an archive can hold" in capsys.readouterr().err

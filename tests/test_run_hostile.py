@@ -326,3 +326,11 @@ def test_frames_with_names_near_the_file_systems_limit_are_labelled(tmp_path):
     out = tmp_path / "out"
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]) == 0
     assert sorted(p.name for p in out.glob("*.png")) == [f"{long}{i}.png" for i in range(3)]
+
+
+def test_suggest_refuses_frame_names_that_its_lines_cannot_hold(tmp_path, capsys):
+    folder, key = _frames(tmp_path / "frames", (48, 64), n=3)
+    (folder / "f1.png").rename(folder / "f1\ta.png")
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "o"), "--suggest", "1"]) == 2
+    assert "the frame name 'f1\\ta.png' holds a tab or a line break" in one_line_errors(capsys)[0]
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "o")]) == 0

@@ -194,6 +194,12 @@ def check_suggest(count: int | None, frames, keys: int) -> None:
     n = len(frames) if frames.kind == "folder" else frames.count()
     if count is not None and n is not None and count > n - keys:
         raise InputError(f"--suggest {count}: only {n - keys} frame(s) are not key frames")
+    if count is not None and frames.kind == "folder":  # suggest.txt lists a name and a tab a line
+        odd = next((frames.name(t) for t in range(len(frames))
+                    if "\t" in frames.stem(t) or frames.stem(t).splitlines() != [frames.stem(t)]), None)
+        if odd is not None:
+            raise InputError(f"--suggest {count}: the frame name {odd!r} holds a tab or a line break, which "
+                             "suggest.txt (a name and a tab a line) cannot list; rename the frame")
 
 def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> dict:
     """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``, and

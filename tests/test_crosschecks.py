@@ -289,3 +289,19 @@ def test_a_suite_and_its_results_are_not_written_over_without_force_and_an_odd_s
     np.save(tmp_path / "t.npy", target)
     assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "t.npy"), "--model", "similarity"]) == 2
     assert "--model applies to images" in capsys.readouterr().err
+
+
+def test_exact_implementations_agree_on_clouds_a_million_metres_from_the_origin():
+    """Georeferenced clouds (1e6 m away, a metre across): Open3D's two ICPs part from the reference by their sums'
+    rounding alone (2.7e-9 and 3.7e-9 of the matrix), which the fixed 1e-9 called a disagreement."""
+    rng = np.random.default_rng(8)
+    target = rng.uniform(0, 1, (400, 3)) + 1e6
+    T = np.eye(4)
+    T[:3, :3] = tf.rigid2d(1.0)
+    T[:3, 3] = [0.01, -0.02, 0.0]
+    centre = target.mean(axis=0)
+    source = (target - centre) @ T[:3, :3] + centre - T[:3, 3]
+    rows = pcreg.crosscheck(target, source, implementations=["reference", "open3d", "open3d-tensor"],
+                            options=pcreg.ICPOptions(max_correspondence_distance=0.05)).rows
+    for name in ("open3d", "open3d-tensor"):
+        assert rows[name]["error"] is None and rows[name]["agrees"], (name, rows[name]["matrix_relative_disagreement"])

@@ -331,7 +331,8 @@ class CloudCrosscheck:
         """JSON-ready (non-finite numbers become None, so the JSON stays valid)."""
         return _finite({"kind": "clouds", "implementations": self.rows, "settings": self.settings,
                 "reference_at_convergence": self.reference_at_convergence,
-                "tolerances": {"step": f"relative matrix difference <= {STEP_TOLERANCE:g} against the reference",
+                "tolerances": {"step": f"relative matrix difference <= {STEP_TOLERANCE:g} against the reference (far "
+                                       "from the origin, 100 float64 roundings of the largest coordinate / extent)",
                                "fixed-point": f"relative matrix difference <= {FIXED_POINT_TOLERANCE:g} against the "
                                               "reference run to convergence",
                                "objective": f"rotation <= {OBJECTIVE_ROTATION_DEG:g} deg and translation <= "
@@ -355,9 +356,16 @@ def _finite(obj):
     return obj
 
 
-def _agrees(comparability: str, cmp: dict, diag: float) -> bool:
+def step_tolerance(points: np.ndarray, diag: float) -> float:
+    """The ``step`` tolerance of clouds ``points`` ``diag`` across: :data:`STEP_TOLERANCE`, or far from the origin
+    (1e6 m away, a metre across) 100 float64 roundings of their largest coordinate over their extent."""
+    far = float(np.max(np.abs(points))) / diag if diag > 0 else 0.0
+    return max(STEP_TOLERANCE, 100.0 * float(np.finfo(np.float64).eps) * far)
+
+
+def _agrees(comparability: str, cmp: dict, diag: float, step: float = STEP_TOLERANCE) -> bool:
     if comparability == "step":
-        return cmp["matrix_relative_disagreement"] <= STEP_TOLERANCE
+        return cmp["matrix_relative_disagreement"] <= step
     if comparability == "fixed-point":
         return cmp["matrix_relative_disagreement"] <= FIXED_POINT_TOLERANCE
     return (cmp["rotation_disagreement_deg"] <= OBJECTIVE_ROTATION_DEG
@@ -578,9 +586,10 @@ def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, d
         cmp = compare_matrices(base.matrix, o.matrix, src)
         row.update(cmp)
         row["compared_with"] = base_name
-        row["agrees"] = bool(_agrees(comp, cmp, diag))
+        step = step_tolerance(src, diag)
+        row["agrees"] = bool(_agrees(comp, cmp, diag, step))
         if ref is not None and name != REFERENCE and o.trace and ref.trace:
-            row["divergence"] = trace_divergence(ref.trace, o.trace)
+            row["divergence"] = trace_divergence(ref.trace, o.trace, tolerance=step)
     elif name != REFERENCE:
         row["error"] = row["error"] or None
         row["compared_with"] = None

@@ -187,12 +187,13 @@ class PythonCallable(Implementation):
                       converged=None if isarr else _converged(get("converged")), seconds=seconds)
 
 
-def _run_in_own_group(argv: list[str], timeout: float | None, stderr_path: Path) -> tuple[int, str]:
+def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]:
     """``(exit status, the last line it printed on stderr)`` of ``argv`` run to its end in a process group of
-    its own: its stdout dropped and its stderr kept in ``stderr_path`` (what it prints costs no memory); past
-    ``timeout`` the whole group is killed, and at its end what it left running (a program's own children
-    outlive a kill of the program alone, and would hold the run)."""
+    its own: its stdout dropped, and of its stderr only the last 4 kB kept (what it prints costs neither memory
+    nor disk); past ``timeout`` the whole group is killed, and at its end what it left running (a program's own
+    children outlive a kill of the program alone, and would hold the run)."""
     import signal
+    import threading
 
     def kill_group(pid: int) -> None:
         try:
@@ -200,26 +201,36 @@ def _run_in_own_group(argv: list[str], timeout: float | None, stderr_path: Path)
         except ProcessLookupError:  # the group is gone already
             pass
 
-    with open(stderr_path, "wb") as said:
-        try:
-            p = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=said,
-                                 start_new_session=True)
-        except OSError as exc:
-            raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
-        try:
-            status = p.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            kill_group(p.pid)
-            p.wait()
-            raise ImplementationError(f"timed out after {timeout:g} s") from None
-        except BaseException:  # an interrupt: the program and its children end with this run
-            kill_group(p.pid)
-            p.wait()
-            raise
+    try:
+        p = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                             start_new_session=True)
+    except OSError as exc:
+        raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
+    tail = bytearray()
+
+    def keep_tail() -> None:
+        assert p.stderr is not None  # stderr=PIPE
+        while chunk := os.read(p.stderr.fileno(), 1 << 16):
+            tail.extend(chunk)
+            del tail[:-4096]
+
+    reader = threading.Thread(target=keep_tail, name="pcreg-cmd-stderr", daemon=True)
+    reader.start()
+    try:
+        status = p.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
         kill_group(p.pid)
-    with open(stderr_path, "rb") as f:
-        f.seek(max(0, os.fstat(f.fileno()).st_size - 4096))
-        lines = f.read().decode("utf-8", "replace").strip().splitlines()
+        p.wait()
+        raise ImplementationError(f"timed out after {timeout:g} s") from None
+    except BaseException:  # an interrupt: the program and its children end with this run
+        kill_group(p.pid)
+        p.wait()
+        raise
+    finally:
+        kill_group(p.pid)  # what it left running holds its stderr open: the reader ends with the group
+        reader.join(5.0)
+        p.stderr.close()  # type: ignore[union-attr]
+    lines = bytes(tail).decode("utf-8", "replace").strip().splitlines()
     return status, lines[-1][:200] if lines else ""
 
 
@@ -278,7 +289,7 @@ class Command(Implementation):
                 paths["params"].write_text(json.dumps(pinned.params(), indent=2))
             argv = [tok.format(**{k: str(v) for k, v in paths.items()}) for tok in self.argv]
             start = time.perf_counter()
-            status, last = _run_in_own_group(argv, self.timeout, Path(tmp) / "stderr.txt")
+            status, last = _run_in_own_group(argv, self.timeout)
             seconds = time.perf_counter() - start
             if status != 0:
                 raise ImplementationError(f"exit status {status}{f': {last}' if last else ''}")

@@ -80,6 +80,10 @@ def test_transparent_pixels_are_not_registered(tmp_path):
     assert p.returncode == 2 and p.stderr.startswith(f"pcreg: error: {tmp_path / 'a.png'}: transparent pixels"), p.stderr
     with pytest.raises(pcreg.errors.InputError, match="cannot leave masked pixels out"):
         pcreg.register(scene, shifted, model="dense", moving_mask=np.ones((h, w), bool))
+    cv2.imwrite(str(tmp_path / "whole.png"), scene[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "small.png"), cv2.resize(scene, (w // 2, h // 2)))
+    p = run("register", tmp_path / "whole.png", tmp_path / "small.png", "--model", "dense")
+    assert p.returncode == 2 and p.stderr.startswith(f"pcreg: error: {tmp_path / 'small.png'}: {w // 2}x{h // 2} px"), p.stderr
 
 
 def test_an_image_too_small_for_the_pyramid_is_named_by_its_file(pair, tmp_path):

@@ -243,3 +243,28 @@ def test_a_command_stopped_by_bad_input_leaves_no_folder_it_made(tmp_path, capsy
     kept.mkdir()
     assert main(["evaluate", "stream", "--out", str(kept), "--data", f"camvid:{tmp_path / 'none'}"]) == 2
     assert kept.is_dir()  # a folder that was there before stays
+
+
+@pytest.mark.parametrize("command", [["evaluate", "stream"], ["evaluate", "classification"], ["evaluate", "sequence"]])
+def test_an_evaluation_never_writes_into_its_own_data_folder(tmp_path, capsys, command):
+    """``--out`` inside ``--data``: the report's stream.png replaced a frame of that name, and the next run read
+    the report's files as frames or labels."""
+    (tmp_path / "clip" / "images").mkdir(parents=True)
+    (tmp_path / "clip" / "images" / "stream.png").write_bytes(b"a frame")
+    assert main([*command, "--data", f"camvid:{tmp_path}", "--out", str(tmp_path / "clip" / "images")]) == 2
+    assert "inside the data folder" in capsys.readouterr().err
+    assert (tmp_path / "clip" / "images" / "stream.png").read_bytes() == b"a frame"
+
+
+def test_an_interrupted_evaluation_with_a_recording_says_to_resume_with_another(tmp_path, monkeypatch, capsys):
+    """"rerun the same command to resume" was refused: the recording exists; with another --record file the
+    finished units are kept."""
+    import pcreg.experiments.sequence
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pcreg.experiments.sequence, "evaluate", stopped)
+    assert main(["evaluate", "sequence", "--frames", "4", "--size", "160x120", "--out", str(tmp_path / "o"),
+                 "--record", str(tmp_path / "o" / "a.rrd")]) == 130
+    assert "rerun the same command with another --record file" in capsys.readouterr().err

@@ -663,6 +663,8 @@ CLI = {
     "crosscheck_with_nothing": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", ""], "names no implementation"),
     "stream_names_no_dataset": (["evaluate", "stream", "--data", "synthetic:,", "--out", "{t}/o"],
                                 "names no synthetic preset"),
+    "stream_classes_of_another_two_class_table": (["evaluate", "stream", "--classes", "davis", "--out", "{t}/o"],
+                                                  "the two-class evaluation scores ground and obstacle"),
     "stream_names_no_dataset_after_the_colon": (["evaluate", "stream", "--data", "synthetic:", "--out", "{t}/o"],
                                                 "names no synthetic preset"),
     "sequence_scores_no_pair": (["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "6", "--size",

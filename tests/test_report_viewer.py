@@ -228,7 +228,10 @@ def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
         if f.is_file() and f.suffix != ".rrd":
             (folder / f.name).write_bytes(f.read_bytes())
     (folder / "secret.txt").write_text("not part of the report")
+    (tmp_path / "elsewhere.md").write_text("a file outside the report's folder")
+    (folder / "notes.md").symlink_to(tmp_path / "elsewhere.md")  # a link out was listed and served
     report = load_report(folder)
+    assert "notes.md" not in report.files
     assert report.recordings == () and report.experiment == "rotation"
     with ReportServer(folder, page_data(report), web_port=0) as server:
         assert listening(server.port) == ["0100007F"]
@@ -237,7 +240,7 @@ def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
         assert data["recording"] is None and data["experiment"] == "rotation"
         with urllib.request.urlopen(server.url + "files/rotation.png", timeout=30) as r:
             assert r.read()[:4] == b"\x89PNG"
-        for bad in ("files/secret.txt", "rerun/", "files/", "viz/nope.js"):
+        for bad in ("files/secret.txt", "files/notes.md", "rerun/", "files/", "viz/nope.js"):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(server.url + bad, timeout=30)
             assert e.value.code == 404, bad

@@ -236,6 +236,9 @@ def test_evaluate_stream_with_key_frames_anywhere(tmp_path, capsys):
     for bad in ("every:0", "suggest:x", "0,12", "spaced:0", "a,b"):
         with pytest.raises(InputError, match="--keys"):
             key_indices(bad, 10)
+    for every in ("every:1", "spaced:10", "0,1,2,3,4,5,6,7,8,9"):  # scored nothing: a table of NaN, "met"
+        with pytest.raises(InputError, match="every one of the clip's 10 frames is a key frame"):
+            key_indices(every, 10)
     out = tmp_path / "o"
     args = ["evaluate", "stream", "--frames", "5", "--size", "160x120", "--data", "synthetic:syn1a", "--out", str(out)]
     assert main(args + ["--keys", "suggest:2"]) == 0

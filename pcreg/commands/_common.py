@@ -220,6 +220,25 @@ def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
     add_record_arguments(parser)
 
 
+def check_out_beside_data(out: Path, data: str | None) -> None:
+    """An :class:`~pcreg.errors.OutputError` when an evaluation's ``--out`` is, or lies inside, its ``--data``
+    folder: the report's files would replace a frame of the same name (``stream.png``), and the next run would
+    read them as frames or labels."""
+    from ..errors import OutputError
+    from ..formats import resolved
+
+    kind, colon, where = str(data or "").partition(":")
+    if not colon or not where or kind.strip().lower() == "synthetic":
+        return
+    folder = resolved(Path(where).expanduser())
+    if not folder.is_dir():
+        return  # the data's own check says so
+    target = resolved(out)
+    if target == folder or folder in target.parents:
+        raise OutputError(f"--out {out}: inside the data folder {where}, where the report's files would replace "
+                          "frames or labels and be read as ones; choose a folder outside it")
+
+
 def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, write_outputs) -> int:
     """The shared body of ``pcreg evaluate rotation|sequence``: run (recording in this process, else with
     ``--workers``/``--scheduler``), write the outputs, print the first backend's table and the checks."""
@@ -227,6 +246,7 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
     from ..outputs import OutputLock
 
     out = Path(args.out)
+    check_out_beside_data(out, getattr(args, "data", None))
     recording = bool(getattr(args, "record", None))
     if recording and args.workers > 1:
         print("note: --record runs every unit in this process (--workers ignored)")

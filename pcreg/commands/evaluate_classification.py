@@ -70,9 +70,11 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.reports.classification import write_outputs
 
     from ..outputs import OutputLock
+    from ._common import check_out_beside_data
 
     config = config_from_args(args)
     out = Path(args.out)
+    check_out_beside_data(out, args.data)
     with OutputLock(out):  # a second run on the same --out is refused, not raced
         with make_executor(args.workers, scheduler=args.scheduler) as executor:
             results = evaluate(config, out=out, force=args.force, executor=executor)

@@ -64,13 +64,22 @@ def config_from_args(args: argparse.Namespace) -> StreamConfig:
 
 
 def _many_classes(spec: str | None) -> str | None:
-    """``--classes``: the table's spec when it has more than two classes (checked here), else None (a
-    two-class table is the two-class evaluation)."""
+    """``--classes``: the table's spec when it has more than two classes (checked here), else None (``lagr``,
+    ground and obstacle, is the two-class evaluation); another table of two classes is an :class:`InputError`:
+    the two-class evaluation scores the data's ground and obstacle, not that table's classes."""
     if spec is None:
         return None
-    from ..classes import class_table
+    from ..classes import DEFAULT_TABLE, class_table
+    from ..errors import InputError
 
-    return spec if class_table(spec).n_known > 2 else None
+    table = class_table(spec)
+    if table.n_known > 2:
+        return spec
+    if not table.agrees(DEFAULT_TABLE):
+        raise InputError(f"--classes {spec}: a table of {table.n_known} classes; the two-class evaluation scores "
+                         "ground and obstacle (--classes lagr, the default), and a table of more classes is scored "
+                         "class by class")
+    return None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -33,7 +33,17 @@ KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", 
 
 def key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") -> list[int]:
     """The key frames of a clip of ``n`` frames by ``spec`` (the module's docstring). ``suggest:N`` runs
-    pcreg from frame 0 (``frames`` with images and frame 0's labels) and picks from its predicted errors."""
+    pcreg from frame 0 (``frames`` with images and frame 0's labels) and picks from its predicted errors.
+    Key frames that are every frame of the clip leave nothing to score: an :class:`InputError`."""
+    from ..errors import InputError
+
+    keys = _key_indices(spec, n, frames, backend=backend)
+    if len(set(keys)) >= n:
+        raise InputError(f"--keys {spec}: every one of the clip's {n} frames is a key frame: nothing is scored")
+    return keys
+
+
+def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") -> list[int]:
     from ..errors import InputError
     from ..pipeline.keyframes import label_clip, suggest
 

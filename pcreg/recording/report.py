@@ -171,7 +171,9 @@ class ReportServer:
     def _handler(self):
         server = self
         static = {f.name: f for f in self._static.iterdir() if f.is_file()}
-        files = {n: server.folder / n for n in (*server.data.get("figures", []), *server.data.get("files", []))}
+        inside = Path(server.folder).resolve()  # a name the report lists, and a file of its folder when served
+        files = {n: server.folder / n for n in (*server.data.get("figures", []), *server.data.get("files", []))
+                 if (Path(server.folder) / n).resolve().parent == inside}
 
         class Handler(QuietHandler):
             def do_GET(self) -> None:

@@ -99,7 +99,9 @@ def load_report(folder: str | Path) -> Report:
         checks = (p / "checks.md").read_text(encoding="utf-8")
     except (OSError, ValueError):
         checks = None
-    names = sorted(f.name for f in p.iterdir() if f.is_file() and not f.name.startswith("."))
+    inside = p.resolve()  # a link to a file elsewhere (/etc/passwd as notes.md) is not the report's to serve
+    names = sorted(f.name for f in p.iterdir() if f.is_file() and not f.name.startswith(".")
+                   and f.resolve().parent == inside)
     return Report(folder=p, experiment=experiment, results=results, config=config, checks=checks,
                   figures=tuple(n for n in names if n.lower().endswith(".png")),
                   files=tuple(n for n in names if n.lower().endswith(TEXT_SUFFIXES)),

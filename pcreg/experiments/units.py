@@ -76,6 +76,34 @@ def plain_config(config: Any) -> dict:
     return json.loads(json.dumps(doc, default=str))
 
 
+#: The file of ``out/units/`` that holds :func:`data_files` of the data the units were made of (a store from
+#: before it resumes).
+DATA_FILES = "data_files.txt"
+
+
+def data_files(data) -> str | None:
+    """A digest of the names, sizes and modification times of every file under a ``--data`` folder
+    (``camvid:PATH`` and the like; None for synthetic data): finished units of data that changed since are not
+    results of the data as it is."""
+    import hashlib
+    import os
+
+    kind, colon, where = str(data or "").partition(":")
+    if not colon or not where or kind.strip().lower() == "synthetic" or not Path(where).expanduser().is_dir():
+        return None
+    root = Path(where).expanduser()
+    entries = []
+    for folder, dirs, names in os.walk(root):
+        dirs.sort()
+        for name in sorted(names):
+            try:
+                st = os.stat(os.path.join(folder, name))
+            except OSError:
+                continue
+            entries.append(f"{os.path.relpath(os.path.join(folder, name), root)}\0{st.st_size}\0{st.st_mtime_ns}")
+    return hashlib.sha256("\n".join(entries).encode("utf-8", "surrogateescape")).hexdigest()[:16]
+
+
 class UnitStore:
     """Finished units of one evaluation, one JSON file each under ``out/units/``.
 
@@ -86,7 +114,7 @@ class UnitStore:
     """
 
     def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
-        from ..outputs import atomic_write_json
+        from ..outputs import atomic_write_json, atomic_write_text
         from ..errors import OutputError
 
         self.out = Path(out)
@@ -100,6 +128,9 @@ class UnitStore:
                 old = loads_json(cfg_path.read_text())
             except (OSError, ValueError):
                 old = None
+        files = data_files(config.get("data"))
+        stamp = self.dir / DATA_FILES
+        before = stamp.read_text().strip() if stamp.is_file() else None
         if force:
             if self.dir.is_dir():
                 shutil.rmtree(self.dir)
@@ -108,7 +139,12 @@ class UnitStore:
                               "(use --force to replace them, or another --out)")
         elif old is None and (self.out / "results.json").exists():
             raise OutputError(f"{self.out}/results.json exists without a readable config.json (use --force)")
+        elif before is not None and files is not None and before != files and self._holds_results():
+            raise OutputError(f"{self.out} holds results of the data in {config.get('data')} as it was: its files "
+                              "changed since (use --force to replace them, or another --out)")
         atomic_write_json(cfg_path, config)
+        if files is not None:
+            atomic_write_text(stamp, files + "\n")
 
     def _holds_results(self) -> bool:
         """Whether a finished unit or a report is here: a configuration whose run stopped before any (a bad

@@ -77,6 +77,13 @@ def test_evidence_tells_a_true_alignment_from_chance():
     assert off.inlier_ratio < 0.2 and off.inlier_ratio < 2 * off.chance_ratio + 0.05
     nowhere = alignment_evidence(tf.rigid2d(0, 5000.0, 0), mov, ref, tree, tolerance=1.0)
     assert nowhere.inlier_ratio == 0.0 and nowhere.overlap_points == 0
+    import warnings
+
+    flat = np.array([[1e-300, 0.0, 60.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # a projective search's near-singular
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # its normals overflowed, and numpy printed a warning beside the one line
+        squeezed = alignment_evidence(flat, mov, ref, tree, tolerance=1.0)
+    assert squeezed.inlier_ratio < 2 * squeezed.chance_ratio + 0.05
 
 
 def test_photometric_agreement():

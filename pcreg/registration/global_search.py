@@ -284,16 +284,18 @@ def alignment_evidence(T: np.ndarray, mov: ImageCloud, ref: ImageCloud, tree, *,
     ok = np.isfinite(dist)
     L = T[:2, :2]
     # Normals transform by the inverse transpose of the linear part; only their direction matters.
-    n_mov = mov.normals[inside][ok] @ np.linalg.inv(L)
-    n_mov /= np.maximum(np.linalg.norm(n_mov, axis=1, keepdims=True), 1e-12)
-    cos = np.einsum("ij,ij->i", n_mov, ref.normals[idx[ok]])
+    with np.errstate(over="ignore", invalid="ignore"):  # a nearly singular L: normals that agree with nothing (NaN)
+        n_mov = mov.normals[inside][ok] @ np.linalg.inv(L)
+        n_mov /= np.maximum(np.linalg.norm(n_mov, axis=1, keepdims=True), 1e-12)
+        cos = np.einsum("ij,ij->i", n_mov, ref.normals[idx[ok]])
     c_min = np.cos(np.deg2rad(max_angle_deg))
     agree = int(np.count_nonzero(cos >= c_min))
     k = int(ok.sum())
     chance = 0.0
     if k > 1:
         perm = np.random.default_rng(0).permutation(k)
-        cos_null = np.einsum("ij,ij->i", n_mov, ref.normals[idx[ok]][perm])
+        with np.errstate(invalid="ignore"):
+            cos_null = np.einsum("ij,ij->i", n_mov, ref.normals[idx[ok]][perm])
         chance = (k / n_in) * float(np.mean(cos_null >= c_min))
     return Evidence(agree / n_in, n_in, len(mov), chance)
 

@@ -203,9 +203,8 @@ def main(argv: list[str] | None = None) -> int:
             sys.stderr.write("pcreg: interrupted (nothing was written)\n")
             return 130
         again = ("the same command with another --record file (the recording holds what was done)"
-                 if getattr(args, "record", None) and module.endswith((".run", ".evaluate_classification",
-                                                                       ".evaluate_rotation", ".evaluate_sequence",
-                                                                       ".evaluate_stream")) else "the same command")
+                 if getattr(args, "record", None) and (module.endswith(".run") or ".evaluate_" in module)
+                 else "the same command")
         sys.stderr.write(f"pcreg: interrupted (finished units are kept; rerun {again} to resume)\n")
         return 130
     except BrokenPipeError:  # stdout closed early (`pcreg ... | head`): no message, as other tools

@@ -224,18 +224,16 @@ def check_out_beside_data(out: Path, data: str | None) -> None:
     """An :class:`~pcreg.errors.OutputError` when an evaluation's ``--out`` is, or lies inside, its ``--data``
     folder: the report's files would replace a frame of the same name (``stream.png``), and the next run would
     read them as frames or labels."""
+    from ..datasets import data_folder
     from ..errors import OutputError
     from ..formats import resolved
 
-    kind, colon, where = str(data or "").partition(":")
-    if not colon or not where or kind.strip().lower() == "synthetic":
+    given = data_folder(data)
+    if given is None:  # synthetic, or no folder (the data's own check says so)
         return
-    folder = resolved(Path(where).expanduser())
-    if not folder.is_dir():
-        return  # the data's own check says so
-    target = resolved(out)
+    folder, target = resolved(given), resolved(out)
     if target == folder or folder in target.parents:
-        raise OutputError(f"--out {out}: inside the data folder {where}, where the report's files would replace "
+        raise OutputError(f"--out {out}: inside the data folder {given}, where the report's files would replace "
                           "frames or labels and be read as ones; choose a folder outside it")
 
 

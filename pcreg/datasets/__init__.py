@@ -47,6 +47,16 @@ def _subfolders(path: Path, pattern) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_dir() and pattern(p))
 
 
+def data_folder(spec) -> Path | None:
+    """The folder a ``--data`` value names (``camvid:PATH``, ``folder:PATH``, ...) when it is one; None for
+    synthetic data, a value without a path, or a path that is no folder (:func:`load_dataset` says why)."""
+    kind, colon, where = str(spec or "").partition(":")
+    if not colon or not where or kind.strip().lower() == "synthetic":
+        return None
+    folder = Path(where).expanduser()
+    return folder if folder.is_dir() else None
+
+
 def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int] | None = None,
                  seed: int = 0, classes=None) -> dict[str, list[Frame]]:
     """Named sequences from a ``--data`` value.

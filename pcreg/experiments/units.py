@@ -88,10 +88,11 @@ def data_files(data) -> str | None:
     import hashlib
     import os
 
-    kind, colon, where = str(data or "").partition(":")
-    if not colon or not where or kind.strip().lower() == "synthetic" or not Path(where).expanduser().is_dir():
+    from ..datasets import data_folder
+
+    root = data_folder(data)
+    if root is None:
         return None
-    root = Path(where).expanduser()
     entries = []
     for folder, dirs, names in os.walk(root):
         dirs.sort()

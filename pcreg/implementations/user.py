@@ -219,16 +219,11 @@ def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]
     try:
         status = p.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
-        kill_group(p.pid)
-        p.wait()
         raise ImplementationError(f"timed out after {timeout:g} s") from None
-    except BaseException:  # an interrupt: the program and its children end with this run
+    finally:  # at its end, past the timeout or on an interrupt: the program and what it left running end here
         kill_group(p.pid)
         p.wait()
-        raise
-    finally:
-        kill_group(p.pid)  # what it left running holds its stderr open: the reader ends with the group
-        reader.join(5.0)
+        reader.join(5.0)  # the group's end closes its stderr, and the reader ends with it
         p.stderr.close()  # type: ignore[union-attr]
     lines = bytes(tail).decode("utf-8", "replace").strip().splitlines()
     return status, lines[-1][:200] if lines else ""

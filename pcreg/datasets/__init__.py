@@ -38,6 +38,7 @@ __all__ = [
     "SyntheticPreset",
     "CAMVID_MAPPING",
     "load_dataset",
+    "data_folder",
     "PRESETS",
     "IMAGE_SUFFIXES",
 ]

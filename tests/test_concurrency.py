@@ -255,6 +255,7 @@ def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
         read_recording,
         recordings_in,
         snapshot,
+        unfinished_note,
     )
     from pcreg.recording.recorder import Recorder
     from pcreg.recording.staging import stage
@@ -280,6 +281,10 @@ def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
         rerun.chunk.RrdReader(str(cut)).recordings()
     n = complete_length(cut)
     assert n == start
+    assert unfinished_note(path) is None
+    assert unfinished_note(cut).endswith(f"last whole message ({cut_at - start} bytes of a part one after it left out)")
+    (tmp_path / "on_a_message.rrd").write_bytes(data[:start])  # ends on a message, but not the last one
+    assert unfinished_note(tmp_path / "on_a_message.rrd").endswith("up to its last whole message")
     assert snapshot(cut, tmp_path / "snap.rrd").stat().st_size == n
     assert recordings_in(cut)[0].application_id == "pcreg"
     assert check_recording(cut)[0] == "pcreg"

@@ -44,3 +44,12 @@ def test_demo_refuses_to_overwrite_without_force(tmp_path, capsys):
     assert main(["demo", "--out", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
     assert main(["demo", "--out", str(out), "--frames", "3", "--force"]) == 2
+
+
+@pytest.mark.parametrize("extra", [["--record", "x.rrd"], ["--record-raw"]])
+def test_demo_refuses_no_record_with_a_recording(tmp_path, capsys, extra):
+    """``--no-record`` beside ``--record FILE`` wrote no recording without a word."""
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--no-record", *extra]) == 2
+    assert "choose one" in capsys.readouterr().err
+    assert not out.exists()

@@ -12,6 +12,7 @@ import pytest
 from pcreg.recording import viewer as view
 from pcreg.errors import PcregError
 from pcreg.recording.recorder import Recorder
+from pcreg.recording.readback import unfinished_note
 
 from _events import until
 from _browser import listening, stop_view, view_web
@@ -523,3 +524,18 @@ def _alive(pid: int) -> bool:
         return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
     except (OSError, IndexError):
         return False
+
+
+def test_a_cut_recording_is_drawn_with_a_note(small_recording, tmp_path, capsys):
+    """A recording cut short (or still being written) is drawn up to its last whole message, and says so:
+    a screenshot of it exited 0 without a word that part of it was missing."""
+    if sys.platform.startswith("linux") and not view.vulkan_icds():
+        pytest.skip("no Vulkan driver (ICD) on this machine: install Debian's mesa-vulkan-drivers for lavapipe")
+    data = small_recording.read_bytes()
+    cut = tmp_path / "cut.rrd"
+    cut.write_bytes(data[: len(data) * 3 // 4])
+    assert unfinished_note(small_recording) is None
+    assert pcreg_view([str(cut), "--screenshot", str(tmp_path / "shot.png")]) == 0
+    err = capsys.readouterr().err
+    assert f"pcreg: note: {cut}: the recording does not end (still being written, or cut short)" in err, err
+    assert (tmp_path / "shot.png").exists()

@@ -33,6 +33,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--frames must be at least 8 (the demo's increments go up to 7)")
     if args.frames > 10_000:
         raise InputError(f"--frames must be at most 10000, got {args.frames}")
+    if args.no_record and (args.record or args.record_raw):
+        raise InputError(f"--no-record with {'--record' if args.record else '--record-raw'}: choose one")
     out = Path(args.out)
     config = DemoConfig(frames=args.frames)
     check_output(out / "report.md", force=args.force)

@@ -94,6 +94,7 @@ def _parse_time(text: str | None) -> tuple[str, int] | None:
 def run(args: argparse.Namespace) -> int:
     from ..outputs import check_output
     from ..recording import viewer as V
+    from ..recording.readback import unfinished_note
     from ..recording.staging import stage
 
     from ..review import is_run
@@ -127,10 +128,12 @@ def run(args: argparse.Namespace) -> int:
             raise OutputError(f"{out}: the screenshot is written as PNG; name it .png")
     with tempfile.TemporaryDirectory(prefix="pcreg-view-") as tmp:
         staged = _stage(stage, args.recordings, Path(tmp))
+        if out is not None and not staged.logged:  # the headless viewer would wait its whole --timeout for it
+            raise InputError(f"{', '.join(args.recordings)}: nothing to draw (nothing logged, or the file ends "
+                             "before its first data)")
+        for note in filter(None, map(unfinished_note, args.recordings)):
+            sys.stderr.write(f"pcreg: note: {note}\n")
         if out is not None:
-            if not staged.logged:  # the headless viewer would wait its whole --timeout for it to load
-                raise InputError(f"{', '.join(args.recordings)}: nothing to draw (nothing logged, or the file ends "
-                                 "before its first data)")
             path = V.screenshot(staged.path, out, time_cursor=time_cursor, view=args.view, size=args.size,
                                 viewer=binary, timeout=args.timeout)
             print(path)

@@ -52,6 +52,13 @@ def complete_length(path: str | os.PathLike) -> int | None:
     """Bytes of ``path`` that are whole messages: its size when it is finished or ends on a message, less
     when a writer is half-way through one (rerun's writer appends messages as they come). None when it
     does not start as an .rrd file (the reader's own error then says why)."""
+    scan = _scan(path)
+    return None if scan is None else (scan[1] if scan[2] else scan[0])
+
+
+def _scan(path: str | os.PathLike) -> tuple[int, int, bool] | None:
+    """(bytes of whole messages, size, whether the end-of-stream message was among them) of ``path``; None
+    when it does not start as an .rrd file."""
     with open(path, "rb") as fh:
         size = os.fstat(fh.fileno()).st_size  # what is there now; a writer only appends after it
         if fh.read(len(_RRD_MAGIC)) != _RRD_MAGIC or size < _STREAM_HEADER:
@@ -64,8 +71,20 @@ def complete_length(path: str | os.PathLike) -> int | None:
                 break
             end += _MESSAGE_HEADER.size + length
             if kind == _END:
-                return size
-        return end
+                return end, size, True
+        return end, size, False
+
+
+def unfinished_note(path: str | os.PathLike) -> str | None:
+    """A one-line note when ``path`` lacks the end of stream a finished recording has (a writer still at
+    it, or a file cut short): it is read up to its last whole message. None for a finished file."""
+    scan = _scan(path)
+    if scan is None or scan[2]:
+        return None
+    end, size, _ = scan
+    cut = f" ({size - end} bytes of a part one after it left out)" if size > end else ""
+    return (f"{path}: the recording does not end (still being written, or cut short): read up to its last "
+            f"whole message{cut}")
 
 
 def snapshot(path: str | os.PathLike, dest: str | os.PathLike) -> Path:

@@ -45,6 +45,25 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert cv2.imread(str(out)).shape == (240, 320, 3)
 
 
+def test_warped_output_keeps_the_moving_files_depth_and_channels(pair, tmp_path):
+    """A 16-bit grey moving image is written warped as 16-bit grey, an RGBA one keeps its alpha (transparent
+    outside the moving image): both were written as 8-bit RGB."""
+    d, T = pair
+    grey = cv2.cvtColor(cv2.imread(str(d / "mov.png")), cv2.COLOR_BGR2GRAY)
+    cv2.imwrite(str(tmp_path / "mov16.png"), grey.astype(np.uint16) * 257)
+    cv2.imwrite(str(tmp_path / "mova.png"), cv2.cvtColor(cv2.imread(str(d / "mov.png")), cv2.COLOR_BGR2BGRA))
+    expected = cv2.imread(str(d / "ref.png"), cv2.IMREAD_GRAYSCALE).astype(float) * 257
+    for name in ("mov16", "mova"):
+        p = run("register", d / "ref.png", tmp_path / f"{name}.png", "--out", tmp_path / f"{name}_w.png")
+        assert p.returncode == 0, p.stderr
+    w16 = cv2.imread(str(tmp_path / "mov16_w.png"), cv2.IMREAD_UNCHANGED)
+    assert w16.dtype == np.uint16 and w16.shape == (240, 320)
+    inside = cv2.erode((w16 > 0).astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    assert np.median(np.abs(w16[inside] - expected[inside])) < 3 * 257  # the reference, in 16-bit units
+    wa = cv2.imread(str(tmp_path / "mova_w.png"), cv2.IMREAD_UNCHANGED)
+    assert wa.shape == (240, 320, 4) and wa[..., 3].min() == 0 and wa[..., 3].max() == 255
+
+
 def test_register_never_writes_over_its_inputs_even_with_force(pair, tmp_path):
     d, _ = pair
     ref, mov = tmp_path / "ref.png", tmp_path / "mov.png"

@@ -88,8 +88,11 @@ def run(args: argparse.Namespace) -> int:
         rec.log_images(warped=warped, valid_mask=valid)
         rec.log_text(repr(result))
     if args.out:
-        ok, buf = cv2.imencode(".png" if not args.out.lower().endswith((".jpg", ".jpeg")) else ".jpg",
-                               warped[:, :, ::-1])
+        png = not args.out.lower().endswith((".jpg", ".jpeg"))
+        stored = _as_stored(args.moving, mov.shape) if png else None
+        if stored is not None:  # a 16-bit, grey or transparent PNG keeps its depth and channels
+            warped = warp(stored, getattr(result, "field", result.matrix), shape=ref.shape)[0]
+        ok, buf = cv2.imencode(".png" if png else ".jpg", warped if stored is not None else warped[:, :, ::-1])
         if not ok:
             raise OutputError(f"cannot encode {args.out}")
         atomic_write_bytes(args.out, buf.tobytes())
@@ -98,3 +101,20 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(result)
     return 0
+
+
+def _as_stored(path: str, shape: tuple[int, ...]):
+    """The moving image's pixels as its file stores them (OpenCV's channel order), when that is not the 8-bit
+    colour the registration read (16 bits, grey, an alpha channel); None otherwise."""
+    import cv2
+    import numpy as np
+
+    try:
+        raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        return None
+    if raw is None or raw.shape[:2] != shape[:2] or raw.dtype not in (np.uint8, np.uint16):
+        return None
+    if raw.dtype == np.uint8 and raw.ndim == 3 and raw.shape[2] == 3:
+        return None
+    return raw

@@ -5,7 +5,8 @@ Generators (each returns candidate ``T_ref_mov`` matrices in full-resolution pix
 - :func:`edge_fft_hypotheses`: the edge clouds rasterised, the moving one rotated every few degrees over
   the full circle, each rotation's translation found by FFT cross-correlation (geometry only);
 - :func:`orb_hypotheses`: ORB binary features (Rublee et al. 2011) matched across the images at a reduced
-  pyramid level, a similarity fitted by RANSAC (``cv2.estimateAffinePartial2D``): intensity patterns,
+  pyramid level, a similarity fitted by RANSAC (``cv2.estimateAffinePartial2D``; an affine or a homography
+  for those models): intensity patterns,
   which tell apart places whose edges look alike (repetitive textures);
 - :func:`fourier_mellin_hypotheses`: rotation (and scale) from the phase correlation of the log-polar
   magnitude spectra, translation from the phase correlation of the de-rotated intensity images
@@ -134,7 +135,8 @@ def orb_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, lev
                    moving_valid: np.ndarray | None = None) -> list[np.ndarray]:
     """At most one hypothesis: ORB features at pyramid ``level``, cross-checked Hamming matches, a
     similarity by RANSAC (``cv2.estimateAffinePartial2D``, threshold ``ransac_px`` at that level; for an
-    ``affine`` ``model`` a full affine, ``cv2.estimateAffine2D``).
+    ``affine`` ``model`` a full affine, ``cv2.estimateAffine2D``; for ``projective`` a homography,
+    ``cv2.findHomography``, from at least 8 inliers).
 
     Black padding is masked out of the detection. Returns [] when fewer than 6 matches survive.
     """
@@ -151,8 +153,15 @@ def orb_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, lev
     p_mov = _to_full(np.float32([k2[m.queryIdx].pt for m in matches]), level)
     p_ref = _to_full(np.float32([k1[m.trainIdx].pt for m in matches]), level)
     cv2.setRNGSeed(int(seed))
-    # an affine registration gets a full affine (a shear and two scales, which its ICP from a similarity start
-    # often did not reach: docs/algorithms.md); the others a similarity
+    # an affine registration gets a full affine, a projective one a homography (a shear and two scales, or a
+    # perspective, which their ICP from a similarity start often did not reach: docs/algorithms.md); the
+    # others a similarity
+    if model == "projective":
+        H, inliers = cv2.findHomography(p_mov.astype(np.float32), p_ref.astype(np.float32), cv2.RANSAC,
+                                        ransac_px * 2**level, maxIters=2000, confidence=0.995)
+        if H is None or inliers is None or int(inliers.sum()) < 8 or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+            return []
+        return [H / H[2, 2]]
     fit = cv2.estimateAffine2D if model == "affine" else cv2.estimateAffinePartial2D
     M, inliers = fit(p_mov.astype(np.float32), p_ref.astype(np.float32), method=cv2.RANSAC,
                      ransacReprojThreshold=ransac_px * 2**level, maxIters=2000, confidence=0.995)

@@ -37,6 +37,12 @@ def _total(total: int, r: RegistrationResult) -> int:
     return -1 if (r.iterations < 0 or total < 0) else total + r.iterations
 
 
+FINISH_ITERATIONS = 100
+"""Iterations an affine or projective model's full-resolution level may run until its stopping rule holds:
+their extra parameters settle slowly (a projective term of 1e-5 moves a corner of a 500 px image by pixels),
+and the levels' 14 left them pixels off, not converged (docs/algorithms.md)."""
+
+
 class CoarseToFine:
     """Coarse-to-fine ICP onto ``reference`` with ``step`` (one backend's) at every level.
 
@@ -64,11 +70,12 @@ class CoarseToFine:
         return self._trees[level]
 
     def at_level(self, moving: CloudPyramid, T: np.ndarray, level: int, *, dist: float, model: str | None = None,
-                 callback: Callable[[IcpIteration], None] | None = None, final: bool = True) -> RegistrationResult:
+                 callback: Callable[[IcpIteration], None] | None = None, final: bool = True,
+                 iterations: int | None = None) -> RegistrationResult:
         """One ICP step at ``level`` from ``T`` with correspondence distance ``dist`` (``model`` overrides
-        the settings' model)."""
+        the settings' model, ``iterations`` the iterations per level)."""
         settings = self.settings if model is None else replace(self.settings, model=model)
-        call = StepCall(max_correspondence_distance=dist, max_iteration=self.iterations,
+        call = StepCall(max_correspondence_distance=dist, max_iteration=iterations or self.iterations,
                         relative_rmse=self.relative_rmse * 2**level, level=level, callback=callback, final=final,
                         target_index=lambda: self.tree(level), open3d_clouds=self._open3d_clouds)
         return self.step(moving[level].points, self.reference[level].points, T, settings, call)
@@ -89,8 +96,10 @@ class CoarseToFine:
             if len(moving[level]) < 3 or len(self.reference[level]) < 3:
                 continue
             check_rank(moving[level].points, self.settings.model)
+            finish = level == 0 and self.settings.model in ("affine", "projective")
             r = self.at_level(moving, out.matrix, level, dist=self.max_correspondence_distance * 2**level,
-                              callback=callback, final=level == 0)
+                              callback=callback, final=level == 0,
+                              iterations=max(self.iterations, FINISH_ITERATIONS) if finish else None)
             out = Refinement(r.matrix, r.fitness, r.inlier_rmse, _total(out.iterations, r), r.converged)
         if self.point_to_line:
             out = self._point_to_line(moving, out, callback)

@@ -183,13 +183,16 @@ class GlobalSearch:
         # for smaller or larger ones (its cost grows with the canvas area, its precision with the resolution).
         big = max(ref.image.shape[:2] + mov.image.shape[:2])
         fm_level = int(min(self.levels - 1, max(0, np.ceil(np.log2(big / 320.0)))))
+        # ORB at level 1 for a motion of four parameters or fewer; an affine or projective fit of every
+        # parameter at full resolution, where its matches measure a shear or a perspective term best
+        orb_level = 0 if self.model in ("affine", "projective") else min(1, self.levels - 1)
         if generator == "fourier_mellin":
             hyps = fourier_mellin_hypotheses(ref.image, mov.image, level=fm_level,
                                              model=self.model if self.model in ("translation", "rigid") else "similarity",
                                              reference_valid=ref.valid, moving_valid=mov.valid)
         else:
-            hyps = orb_hypotheses(ref.image, mov.image, level=min(1, self.levels - 1),
-                                  model="affine" if self.model == "affine" else self.search_model,
+            hyps = orb_hypotheses(ref.image, mov.image, level=orb_level,
+                                  model=self.model if self.model in ("affine", "projective") else self.search_model,
                                   seed=self.seed, reference_valid=ref.valid, moving_valid=mov.valid)
         hyps = unseen(hyps, seen, mov.image.shape, min_px=2.0)
         if not hyps:
@@ -198,5 +201,10 @@ class GlobalSearch:
         # The start level follows the hypothesis's precision: Fourier-Mellin's is about a cell of the
         # level it ran at (its rotation step is one row of its log-polar image).
         start = max(START_LEVEL, fm_level - 1) if generator == "fourier_mellin" else START_LEVEL
-        top = min(start, self.levels - 1) if self.model in ("translation", "rigid") else None
+        if self.model in ("translation", "rigid"):
+            top: int | None = min(start, self.levels - 1)
+        elif generator == "orb" and self.model in ("affine", "projective"):
+            top = min(1, self.levels - 1)  # a fit of every parameter: the coarsest levels pulled it onto lines of text
+        else:  # a scale, or more, coarse to fine
+            top = None
         return Hypothesis(generator, h, top)

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 from typing import NoReturn
 
 # name -> (module, one-line help). "evaluate" has sub-commands of its own.
 COMMANDS: dict[str, tuple[str, str]] = {
     "register": ("pcreg.commands.register", "register a moving image to a reference image"),
-    "crosscheck": ("pcreg.commands.crosscheck", "run both ICP backends on the same input and compare them"),
+    "crosscheck": ("pcreg.commands.crosscheck", "run ICP implementations (up to ten) on the same input and compare them"),
     "demo": ("pcreg.commands.demo", "the whole story on the built-in synthetic data (what `make demo` runs)"),
     "run": ("pcreg.commands.run", "label a folder of frames or a video file from a labelled key frame (streaming propagation)"),
     "export": ("pcreg.commands.export", "write a pcreg run's labels as an archive an annotation tool imports (CVAT)"),
@@ -40,11 +41,18 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+#: Words whose full stop ends no sentence ("thesis Ch. 4").
+_ABBREVIATIONS = ("Ch", "Sec", "Fig", "Eq", "e.g", "i.e", "cf", "vs", "al")
+
+
 def _first_sentence(doc: str) -> str:
-    """The first sentence of a docstring's first paragraph, on one line (a command's description)."""
-    para = " ".join(doc.strip().split("\n\n")[0].split())
-    end = para.find(". ")
-    return para if end < 0 else para[:end + 1]
+    """The first sentence of a docstring's first paragraph, on one line, without reST's code marks (a
+    command's description)."""
+    para = " ".join(doc.strip().split("\n\n")[0].split()).replace("``", "")
+    for stop in re.finditer(r"\. ", para):
+        if para[:stop.start()].rsplit(" ", 1)[-1] not in _ABBREVIATIONS:
+            return para[:stop.start() + 1]
+    return para
 
 
 def _add(sub, name: str, module: str, help_: str) -> None:
@@ -73,6 +81,9 @@ def _add_limits(p: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="pcreg", description="Register images as point clouds; classify terrain per pixel.")
+    from . import __version__
+
+    parser.add_argument("--version", action="version", version=f"pcreg {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, (module, help_) in COMMANDS.items():
         _add(sub, name, module, help_)
@@ -205,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
         again = ("the same command with another --record file (the recording holds what was done)"
                  if getattr(args, "record", None) and (module.endswith(".run") or ".evaluate_" in module)
                  else "the same command")
-        sys.stderr.write(f"pcreg: interrupted (finished units are kept; rerun {again} to resume)\n")
+        kept = "the frames labelled are kept" if module.endswith(".run") else "finished units are kept"
+        sys.stderr.write(f"pcreg: interrupted ({kept}; rerun {again} to resume)\n")
         return 130
     except BrokenPipeError:  # stdout closed early (`pcreg ... | head`): no message, as other tools
         try:

@@ -338,6 +338,19 @@ def test_python_dash_m_pcreg_is_the_command(tmp_path):
     """``python -m pcreg`` runs the same command line: its help, and a bad input's exit 2 and one line."""
     ok = subprocess.run([sys.executable, "-m", "pcreg", "--help"], capture_output=True, text=True, timeout=120)
     assert ok.returncode == 0 and ok.stdout.startswith("usage: pcreg"), ok.stderr
+    version = subprocess.run([sys.executable, "-m", "pcreg", "--version"], capture_output=True, text=True, timeout=120)
+    assert version.returncode == 0 and version.stdout == f"pcreg {pcreg.__version__}\n", version.stderr
     bad = subprocess.run([sys.executable, "-m", "pcreg", "register", str(tmp_path / "a.png"), str(tmp_path / "b.png")],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and bad.stderr.strip().splitlines() == [f"pcreg: error: {tmp_path / 'a.png'}: no such file"]
+
+
+def test_a_commands_description_is_its_first_sentence():
+    """"thesis Ch. 4, ..." was cut at "Ch.", and reST's code marks were printed."""
+    from pcreg.cli import build_parser
+
+    evaluations = next(a for a in build_parser()._actions if getattr(a, "choices", None) and "evaluate" in a.choices)
+    classification = next(a for a in evaluations.choices["evaluate"]._actions
+                           if getattr(a, "choices", None) and "classification" in a.choices).choices["classification"]
+    assert classification.description == ("pcreg evaluate classification: thesis Ch. 4, naive Bayes alone (cases I-III "
+                                          "and the weight search).")

@@ -133,3 +133,15 @@ def test_results_of_data_that_changed_since_are_not_resumed(tmp_path, capsys):
     assert main(args) == 2
     assert "its files changed since (use --force" in capsys.readouterr().err
     assert main(args + ["--force"]) == 0
+
+
+def test_the_checks_name_only_the_methods_that_ran():
+    """``--methods plain,pcreg`` reported "pcreg never worse than unregistered on any clip: met", though the
+    unregistered key frame never ran."""
+    from pcreg.experiments.reports.stream import checks
+    from pcreg.experiments.stream import StreamConfig, evaluate
+
+    res = evaluate(StreamConfig(data="synthetic:syn1a", frames=3, size=(96, 72), methods=("plain", "pcreg")),
+                   show_progress=False).to_dict()
+    said = checks(res)
+    assert "never worse than plain" in said and "unregistered" not in said, said

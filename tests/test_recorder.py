@@ -229,6 +229,26 @@ def test_exception_in_with_block_is_logged_as_failure(tmp_path):
     assert rec.closed
 
 
+def test_bad_input_before_any_frame_leaves_no_recording(tmp_path, capsys):
+    """``evaluate sequence --data camvid:nowhere --record bad.rrd`` refused the folder and left ``bad.rrd``
+    (holding only the refusal), which then refused the corrected command ("exists"). Bad input found after
+    work began is logged in the recording, which is kept."""
+    from pcreg.cli import main
+    from pcreg.errors import InputError
+
+    bad = tmp_path / "bad.rrd"
+    assert main(["evaluate", "sequence", "--data", f"camvid:{tmp_path / 'nowhere'}", "--record", str(bad),
+                 "--out", str(tmp_path / "out")]) == 2
+    assert "no such folder" in capsys.readouterr().err
+    assert not bad.exists() and not (tmp_path / "out").exists()
+    later = tmp_path / "later.rrd"
+    with pytest.raises(InputError):
+        with Recorder(later) as rec:
+            rec.set_frame(0)
+            raise InputError("frame 1: not an image")
+    assert "not an image" in text(list(read_recording(later).get(E.LOG))[-1])
+
+
 def test_interrupted_recording_is_readable_up_to_where_it_stopped(tmp_path):
     path = tmp_path / "killed.rrd"
     child = textwrap.dedent(f"""

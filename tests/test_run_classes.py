@@ -155,7 +155,8 @@ def _case(tmp_path, synthetic, how: str):
     if how == "a value not in the table":
         lab[3, 4] = 7
         cv2.imwrite(str(key), lab)
-        return [], key, "label value 7 is not a class id"
+        return [], key, "label value 7 is not a class id (0 ground, 1 obstacle, 2 unknown); labels of other classes " \
+            "need their table: --classes camvid11"
     if how == "a colour not in the table":
         rgb = LAGR.paint(lab)
         rgb[3, 4] = (1, 2, 3)

@@ -229,7 +229,7 @@ def test_an_interrupted_recorded_run_says_how_to_resume_and_that_resumes(tmp_pat
     kill_before_commit(monkeypatch, 2)
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--record", str(tmp_path / "a.rrd")]) == 130
     said = capsys.readouterr().err
-    assert "rerun the same command with another --record file" in said, said
+    assert "(the frames labelled are kept; rerun the same command with another --record file" in said, said
     monkeypatch.undo()
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--record", str(tmp_path / "b.rrd")]) == 0
     assert json.loads((out / "run.json").read_text())["done"] == 5

@@ -61,9 +61,12 @@ DAVIS_MAPPING: dict[int, int] = {0: 0, **{v: 1 for v in range(1, 256)}}
 
 
 def mask_hint(raw: np.ndarray) -> str:
-    """What to say of label values that are not pcreg's: when ``raw`` holds a 0/255 object mask, which
-    mapping reads it ("" otherwise)."""
+    """What to say of label values that are not the default table's: when ``raw`` holds a 0/255 object mask,
+    which mapping reads it; when it holds more classes, how to name their table."""
     values = np.unique(np.asarray(raw))
     if values.size <= 2 and set(values.tolist()) <= {0, 255}:
         return "; it is a 0/255 object mask (DAVIS): --mapping davis reads it (0 the background, 255 the object)"
+    if values.size and int(values.max()) > 2:
+        return ("; labels of other classes need their table: --classes camvid11 (CamVid's ids), --classes FILE (a "
+                "CVAT labelmap.txt or a JSON table), or --mapping camvid (CamVid's ids as ground and obstacle)")
     return ""

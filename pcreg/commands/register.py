@@ -11,7 +11,8 @@ from ._common import add_record_arguments, open_recorder, positive_float, positi
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("reference", help="reference image (png, jpg, ...)")
     p.add_argument("moving", help="moving image, registered onto the reference")
-    p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
+    p.add_argument("--backend", choices=("reference", "open3d"), default="reference",
+                   help="the ICP: pcreg's own (reference, the default) or Open3D's; the same algorithm")
     p.add_argument("--model", choices=MODELS + ("dense",), default="rigid",
                    help="motion model (default rigid); dense: the similarity refined by a dense field")
     p.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")

@@ -49,7 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "eleven classes and void), davis (background and object), or a labelmap.txt or JSON file")
     p.add_argument("--truth", metavar="LABELS_DIR", default=None,
                    help="score every frame against LABELS_DIR/NAME.png and keep the error in run.json")
-    p.add_argument("--backend", choices=("reference", "open3d"), default="reference")
+    p.add_argument("--backend", choices=("reference", "open3d"), default="reference",
+                   help="the ICP: pcreg's own (reference, the default) or Open3D's; the same algorithm")
     p.add_argument("--model", choices=("dense", "flow") + MODELS, default="dense",
                    help="dense (default: a dense field), flow (DIS optical flow at --preset: the fast choice) or a "
                         "global motion model")

@@ -193,6 +193,14 @@ class Recorder(RecorderProtocol):
         return self
 
     def __exit__(self, exc_type, exc, tb) -> Literal[False]:
+        from ..errors import PcregError
+
+        if isinstance(exc, PcregError) and self.sink.frame is None and not self.closed:
+            # bad input found before any work (a --data folder that is not there): the recording would hold
+            # nothing but the refusal and stand in the way of the corrected command
+            self.close()
+            self.path.unlink(missing_ok=True)
+            return False
         if exc is not None and not self.closed:
             text = "".join(traceback.format_exception_only(exc_type, exc)).strip()
             self.log_failure(text)

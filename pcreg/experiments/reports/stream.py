@@ -70,6 +70,8 @@ def checks(results: dict) -> str:
         lines.append(f"- pcreg lowers plain's error at least as much as the better DIS baseline on average over "
                      f"the clips: {'met' if ok else 'NOT met'} ({avg['pcreg']:.1f}% vs {best} {avg[best]:.1f}%)")
     for other in ("plain", "unregistered"):
+        if other not in results["methods"]:  # not run: nothing to check
+            continue
         worse = [f"{n} ({c['means']['pcreg']:.2f} vs {c['means'][other]:.2f})" for n, c in clips.items()
                  if other in c["means"] and c["means"]["pcreg"] > c["means"][other]]
         lines.append(f"- pcreg never worse than {other} on any clip ({len(clips)} clips): "

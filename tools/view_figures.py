@@ -53,7 +53,8 @@ def main() -> int:
         sys.exit(f"no CamVid clip at {clip} (give --data)")
     camvid = ["--data", f"camvid:{clip}"]
     runs = {
-        "register": [["register", str(ref), str(mov), "--record", str(out / "register.rrd"), "--force"]],
+        "register": [["register", str(ref), str(mov), "--model", "similarity", "--record", str(out / "register.rrd"),
+                      "--force"]],
         "crosscheck": [["crosscheck", str(ref), str(mov), "--record", str(out / "crosscheck.rrd"), "--force"]],
         "crosscheck_clouds": [["crosscheck", str(Path(args.data) / "scans" / "target.ply"),
                                str(Path(args.data) / "scans" / "source.ply"), "--with", "reference,open3d,small_gicp,kiss-icp",
@@ -66,7 +67,8 @@ def main() -> int:
         "demo": [["demo", "--frames", "8", "--out", str(out / "demo"), "--record", str(out / "demo.rrd"), "--force"]],
         "dense": [["evaluate", "sequence", *camvid, "--frames", "8", "-k", "1", "--model", "dense",
                    "--out", str(out / "dense"), "--record", str(out / "dense.rrd"), "--force"]],
-        "compare": [["register", str(ref), str(mov), "--backend", b, "--record", str(out / f"{b}.rrd"), "--force"]
+        "compare": [["register", str(ref), str(mov), "--model", "similarity", "--backend", b,
+                     "--record", str(out / f"{b}.rrd"), "--force"]
                     for b in ("reference", "open3d")],
     }
     for kind in args.kinds.split(","):

@@ -83,6 +83,12 @@ class Plausibility:
             while self.level < len(reference) - 1 and len(reference[self.level]) >= reference_max_points:
                 self.level += 1
 
+    def _motion(self) -> str:
+        """The motion a refusal names; for the models without a scale, the model that has one."""
+        if self.model in ("translation", "rigid"):
+            return f"{self.model} motion (the similarity model also allows a change of scale, as a camera moving forward makes)"
+        return f"{self.model} motion"
+
     @property
     def convincing(self) -> float:
         """The inlier ratio at which the search stops early: max(0.6, 2 x ``min_inlier_ratio``)."""
@@ -136,7 +142,7 @@ class Plausibility:
             raise RegistrationError(
                 f"registration refused: the best alignment's {100 * ratio:.1f}% of tight, direction-consistent edge "
                 f"points is under {CHANCE_FACTOR:g}x chance ({100 * chance:.1f}% expected from unrelated content at "
-                f"the same distances); the images do not show the same scene under a {self.model} motion")
+                f"the same distances); the images do not show the same scene under a {self._motion()}")
         n = ev.overlap_points
         sd = float(np.sqrt(n * chance * (1.0 - chance)))
         if mir is not None and mir > 0 and ratio * n - chance * n < SIGNIFICANCE * sd:
@@ -148,5 +154,5 @@ class Plausibility:
             raise RegistrationError(
                 f"registration refused: the best alignment puts only {100 * ratio:.1f}% of the overlapping edge "
                 f"points within {self.inlier_tolerance:g} px of a reference edge of the same direction "
-                f"(min_inlier_ratio {mir:g}); the images do not show the same scene under a {self.model} motion")
+                f"(min_inlier_ratio {mir:g}); the images do not show the same scene under a {self._motion()}")
         return ev

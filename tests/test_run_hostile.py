@@ -334,3 +334,18 @@ def test_suggest_refuses_frame_names_that_its_lines_cannot_hold(tmp_path, capsys
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "o"), "--suggest", "1"]) == 2
     assert "the frame name 'f1\\ta.png' holds a tab or a line break" in one_line_errors(capsys)[0]
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "o")]) == 0
+
+
+def test_a_runs_recording_draws_each_frame_over_its_key_frame(tmp_path):
+    """The Registration view of a ``pcreg run`` recording was empty: only the moving frames were logged. The key
+    frame is now the reference of every frame registered to it."""
+    from pcreg.recording.readback import image, read_recording
+
+    folder, key = _frames(tmp_path / "frames", (96, 128), n=4)
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out"),
+                 "--record", str(tmp_path / "run.rrd"), "--record-raw"]) == 0
+    rec = read_recording(tmp_path / "run.rrd")
+    first = cv2.imread(str(folder / "f0.png"))[:, :, ::-1]
+    for frame in (1, 3):
+        np.testing.assert_array_equal(image(rec.reference(frame)), first)
+        np.testing.assert_array_equal(image(rec.moving(frame)), cv2.imread(str(folder / f"f{frame}.png"))[:, :, ::-1])

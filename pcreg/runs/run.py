@@ -177,11 +177,14 @@ class Run:
             prepared = ((f.position, PreparedFrame.of(f.image, name="frame")) for f in read_ahead(todo))
             # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
             # reads the features the step made
+            seen = {0: pending[0].image}  # the images a step may be registered to: the key frame, the previous
             for t, image, labels in propagate(prop, prepared, check=check_interrupted, where=frames.where):
                 plain = prop.classifier.predict(image) if self.truth is not None else None
                 writer.submit(self.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),
                               confidence=prop.last.confidence if request.confidence else None)
-                log_frame(rec, t, image.rgb, labels, prop.last, frames.name(t), prop.working_size)
+                log_frame(rec, t, image.rgb, labels, prop.last, frames.name(t), prop.working_size,
+                          reference=seen.get(prop.last.reference))
+                seen = {0: seen[0], t: image.rgb}
                 done = t + 1
                 bar.update(1)
         self._say_done(request, done - start, [0], start=start)
@@ -481,11 +484,12 @@ class Run:
         return state, keys, names
 
 
-def log_frame(rec, t: int, image, labels, report, name: str, size) -> None:
+def log_frame(rec, t: int, image, labels, report, name: str, size, *, reference=None) -> None:
     """One frame into the recording ``rec``; ``size``: the propagator's working size (its motion is logged
-    in the frames' pixels)."""
+    in the frames' pixels); ``reference``: the image the frame was registered to, when known (the
+    Registration view draws the frame over it)."""
     rec.set_frame(t)
-    rec.log_images(moving=image)
+    rec.log_images(reference=reference, moving=image)
     rec.log_labels(predicted=labels)
     reg = report.registration
     if reg is None:

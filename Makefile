@@ -10,7 +10,8 @@ APT_PACKAGES := libusb-1.0-0 mesa-vulkan-drivers libgomp1 gcc libc6-dev chromium
 # OPEN3D=cuda installs the CUDA build of Open3D (907 MB) instead of the CPU build (312 MB).
 OPEN3D ?= cpu
 # One test process per CPU, each taking whole files (so a module's fixtures are built once): on 2 CPUs the
-# suite takes 5-7 minutes (7 when measured against 10-11 in one process). PYTEST_ARGS= runs it in one process.
+# suite of 1,335 tests took 16 min 44 s at a load average of 6-9 (18 CPU-minutes: 9 or more on 2 idle CPUs);
+# when it was smaller, 7 minutes against 10-11 in one process. PYTEST_ARGS= runs it in one process.
 PYTEST_ARGS ?= -n auto --dist loadfile
 
 .PHONY: setup sysdeps warm demo test check lint docs bench clean

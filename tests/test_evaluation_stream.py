@@ -145,3 +145,19 @@ def test_the_checks_name_only_the_methods_that_ran():
                    show_progress=False).to_dict()
     said = checks(res)
     assert "never worse than plain" in said and "unregistered" not in said, said
+
+
+def test_a_stream_recording_draws_each_frame_over_its_key_frame(tmp_path):
+    """The Registration view of an ``evaluate stream --record`` recording was empty; it shows the key frame
+    every method carries, under each frame."""
+    import pcreg
+    from pcreg.recording.readback import image, read_recording
+
+    rrd = tmp_path / "stream.rrd"
+    assert main(["evaluate", "stream", "--data", "synthetic:syn1a", "--frames", "4", "--size", "96x72",
+                 "--methods", "plain,pcreg", "--out", str(tmp_path / "out"), "--record", str(rrd), "--record-raw"]) == 0
+    rec = read_recording(rrd)
+    frames = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
+    for counter, t in enumerate((1, 2, 3)):  # the recording's frames count the scored frames
+        np.testing.assert_array_equal(image(rec.reference(counter)), frames[0].image)
+        np.testing.assert_array_equal(image(rec.moving(counter)), frames[t].image)

@@ -1,4 +1,4 @@
-"""The whole story on small built-in synthetic data (what ``make demo`` runs), in a few minutes.
+"""The whole story on small built-in synthetic data (what ``make demo`` runs), in under a minute on 2 cores once set up.
 
 1. Ch. 4 - naive Bayes alone (cases I-III, the thesis feature and RGB+HSV+row);
 2. Ch. 5 - rotated frames classified before and after registering them back, both ICP backends;

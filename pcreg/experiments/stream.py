@@ -126,7 +126,7 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
     """Every method on one clip: ``{"frames": [{index, name, key, since_key, errors}], "means", "seconds"}``.
     Each stretch from a key frame to the next is one pass of each method
     (:func:`pcreg.pipeline.engine.propagate`), forwards from its key frame. ``on_frame(index, frame,
-    predictions)`` is called after every scored frame (a recording hook)."""
+    predictions, key_frame)`` is called after every scored frame (a recording hook)."""
     from ..classification.bayes import fit_classifier
     from ..classification.metrics import error_rate
     from ..pipeline.engine import propagate, stretches
@@ -157,7 +157,7 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
         for t in s.frames:
             rows.append({"index": t, "name": frames[t].name, "key": key, "since_key": t - key, "errors": errors[t]})
             if on_frame is not None:
-                on_frame(t, frames[t], preds.pop(t))
+                on_frame(t, frames[t], preds.pop(t), frames[key])
     means = {m: float(np.nanmean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods}
     per_frame_ms = {m: 1000.0 * s / max(1, len(rows)) for m, s in seconds.items()}
     return {"frames": rows, "means": means, "ms_per_frame": per_frame_ms, "key_frames": keys,
@@ -211,11 +211,11 @@ def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], record
         return None
     rec.log_text(f"stream {clip}: start")
 
-    def on_frame(t, frame, preds) -> None:
+    def on_frame(t, frame, preds, key_frame) -> None:
         rec.set_frame(counter[0])
         recorded[str(t)] = counter[0]
         counter[0] += 1
-        rec.log_images(moving=frame.image)
+        rec.log_images(reference=key_frame.image, moving=frame.image)  # every method carries the key frame
         rec.log_labels(truth=frame.labels)
         for m in ("plain", "pcreg", "flow_key"):
             if m in preds:

@@ -47,7 +47,7 @@ class DavisScores:
         self.frames: list[int] = []
         self.values: dict[str, dict[str, list[float]]] = {k: {} for k in MEASURES}
 
-    def on_frame(self, t: int, frame, predictions: dict) -> None:
+    def on_frame(self, t: int, frame, predictions: dict, key_frame=None) -> None:
         from ..classification.davis_measures import boundary_f, jaccard, scored_frames
 
         if t not in scored_frames(self.n):

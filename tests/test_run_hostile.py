@@ -349,3 +349,22 @@ def test_a_runs_recording_draws_each_frame_over_its_key_frame(tmp_path):
     for frame in (1, 3):
         np.testing.assert_array_equal(image(rec.reference(frame)), first)
         np.testing.assert_array_equal(image(rec.moving(frame)), cv2.imread(str(folder / f"f{frame}.png"))[:, :, ::-1])
+
+
+def test_a_recording_of_a_run_from_two_key_frames_draws_each_frame_over_its_reference(tmp_path):
+    """Each pass registers its frames to its key frame (the later one between two key frames, the last one after
+    it; a chained step to the frame before in the pass): the Registration view of such runs was empty."""
+    from pcreg.recording.readback import image, read_recording
+
+    folder, key = _frames(tmp_path / "frames", (96, 128), n=6)
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for name in ("f0.png", "f3.png"):
+        (keys / name).write_bytes(key.read_bytes())
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out"),
+                 "--record", str(tmp_path / "run.rrd"), "--record-raw"]) == 0
+    rec = read_recording(tmp_path / "run.rrd")
+    frame = {i: cv2.imread(str(folder / f"f{i}.png"))[:, :, ::-1] for i in range(6)}
+    for t in (1, 2, 4, 5):
+        np.testing.assert_array_equal(image(rec.reference(t)), frame[3])
+        np.testing.assert_array_equal(image(rec.moving(t)), frame[t])

@@ -108,7 +108,9 @@ class KeyRun:
 
     def run(self, on_frame: Callable | None = None, check: Callable[[], None] = lambda: None) -> int:
         """Label every stretch not done yet; returns how many frames this call labelled. ``on_frame(t,
-        image, labels, report, name, size)`` after each frame (``size``: the propagator's working size); ``check()`` before each step (an interruption)."""
+        image, labels, report, name, size, reference=IMAGE)`` after each frame (``size``: the propagator's working
+        size; ``reference``: the image the frame was registered to, the pass's key frame or the frame before it
+        in the pass, None when not at hand); ``check()`` before each step (an interruption)."""
         self.on_frame, self.check = on_frame, check
         done = {e["fingerprint"] for e in self.state["stretches"]}
         for s in self.plan:
@@ -262,6 +264,7 @@ class KeyRun:
         prop = self._propagator(clf, keys[b], self.keys[b], learning=not both)
         self._resume(prop, s, cur)
         start = b - 1 if cur["next"] is None else cur["next"]
+        seen = {0: keys[b]}  # the images a step may be registered to, by step: the key frame, the previous
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             for t, image, labels in propagate(prop, self._images(s, range(start, s.start - 1, -1)), check=self.check):
                 report = prop.last
@@ -277,7 +280,9 @@ class KeyRun:
                     labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
                                                 size=prop.working_size, classes=prop.class_read, weights=weights)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
-                self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1)
+                self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1,
+                             reference=seen.get(report.reference))
+                seen = {0: keys[b], report.frame: image}
 
     def _forward(self, s: Stretch, cur: dict) -> None:
         """From the last key frame to the end, as a run from one key frame."""
@@ -294,13 +299,15 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
         todo = ((f.position, f.image) for f in frames if f.position >= start)
+        seen = {0: key.image}  # the images a step may be registered to, by step: the key frame, the previous
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             for t, image, labels in propagate(prop, todo, check=self.check, where=self.frames.where):
                 self._record(writer, s, cur, t, image, labels, prop.last.confidence, prop.last.to_dict(), prop,
-                             clf, after=t + 1)
+                             clf, after=t + 1, reference=seen.get(prop.last.reference))
+                seen = {0: key.image, prop.last.frame: image}
 
     def _record(self, writer, s: Stretch, cur: dict, t: int, image, labels, conf, step: dict, prop, clf, *,
-                after: int) -> None:
+                after: int, reference=None) -> None:
         """Frame ``t``'s outputs, its step line and the commit (the next frame to label: ``after``), written by
         ``writer`` (a :class:`~pcreg.outputs.WriteBehind`) while the next frame is labelled; naive Bayes
         alone (for the truth) and the propagator's carry are taken here, as they are now."""
@@ -316,7 +323,7 @@ class KeyRun:
         writer.submit(self._write_frame, cur, t, labels, conf, step, (truth, plain), prop.carry, prop.learned_later(),
                       after=after)
         if self.on_frame is not None:
-            self.on_frame(t, image, labels, prop.last, self.frames.name(t), prop.working_size)
+            self.on_frame(t, image, labels, prop.last, self.frames.name(t), prop.working_size, reference=reference)
 
     def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, scored: tuple, carry, learned, *,
                      after: int) -> None:

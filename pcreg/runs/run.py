@@ -203,8 +203,8 @@ class Run:
             n = len(frames) if frames.kind == "folder" else frames.count()
             left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run
             with progress(total=left, desc="frames", disable=None) as bar:
-                def on_frame(t, image, labels, report, name, size) -> None:
-                    log_frame(rec, t, image, labels, report, name, size)
+                def on_frame(t, image, labels, report, name, size, reference=None) -> None:
+                    log_frame(rec, t, image, labels, report, name, size, reference=reference)
                     bar.update(1)
 
                 done = job.run(on_frame=on_frame, check=check_interrupted)

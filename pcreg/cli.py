@@ -42,7 +42,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 #: Words whose full stop ends no sentence ("thesis Ch. 4").
-_ABBREVIATIONS = ("Ch", "Sec", "Fig", "Eq", "e.g", "i.e", "cf", "vs", "al")
+_ABBREVIATIONS = ("ch", "sec", "fig", "eq", "e.g", "i.e", "cf", "vs", "al")
 
 
 def _first_sentence(doc: str) -> str:
@@ -50,7 +50,7 @@ def _first_sentence(doc: str) -> str:
     command's description)."""
     para = " ".join(doc.strip().split("\n\n")[0].split()).replace("``", "")
     for stop in re.finditer(r"\. ", para):
-        if para[:stop.start()].rsplit(" ", 1)[-1] not in _ABBREVIATIONS:
+        if para[:stop.start()].rsplit(" ", 1)[-1].lstrip("(").lower() not in _ABBREVIATIONS:
             return para[:stop.start() + 1]
     return para
 

@@ -313,3 +313,15 @@ def test_runs_label_files_and_palette_pngs_read_back_the_same(tmp_path):
     np.testing.assert_array_equal(today, labels)
     np.testing.assert_array_equal(palette, labels)
     assert today.dtype == palette.dtype == np.uint8
+
+
+def test_the_hint_for_values_beyond_the_table_follows_what_they_look_like():
+    """A soft-edged object mask (resized, or saved as JPEG) holds values between 0 and 255: its hint was
+    CamVid's table, which refuses it too; it is the object mask's mapping."""
+    from pcreg.classes.mappings import mask_hint
+
+    soft = np.array([[0, 4, 128, 255]], np.uint8)
+    assert "--mapping davis" in mask_hint(soft) and "camvid11" not in mask_hint(soft)
+    assert "--mapping davis" in mask_hint(np.array([[0, 255]], np.uint8))
+    assert "--classes camvid11" in mask_hint(np.array([[0, 3, 11]], np.uint8))
+    assert mask_hint(np.array([[0, 1, 2]], np.uint8)) == ""

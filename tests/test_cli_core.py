@@ -354,3 +354,6 @@ def test_a_commands_description_is_its_first_sentence():
                            if getattr(a, "choices", None) and "classification" in a.choices).choices["classification"]
     assert classification.description == ("pcreg evaluate classification: thesis Ch. 4, naive Bayes alone (cases I-III "
                                           "and the weight search).")
+    from pcreg.cli import _first_sentence
+
+    assert _first_sentence("Run it (e.g. here) and see. Next.") == "Run it (e.g. here) and see."

@@ -282,7 +282,7 @@ def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
     n = complete_length(cut)
     assert n == start
     assert unfinished_note(path) is None
-    assert unfinished_note(cut).endswith(f"last whole message ({cut_at - start} bytes of a part one after it left out)")
+    assert unfinished_note(cut).endswith(f"last whole message (the {cut_at - start} bytes of an unfinished one after it left out)")
     (tmp_path / "on_a_message.rrd").write_bytes(data[:start])  # ends on a message, but not the last one
     assert unfinished_note(tmp_path / "on_a_message.rrd").endswith("up to its last whole message")
     assert snapshot(cut, tmp_path / "snap.rrd").stat().st_size == n

@@ -66,6 +66,10 @@ def mask_hint(raw: np.ndarray) -> str:
     values = np.unique(np.asarray(raw))
     if values.size <= 2 and set(values.tolist()) <= {0, 255}:
         return "; it is a 0/255 object mask (DAVIS): --mapping davis reads it (0 the background, 255 the object)"
+    if values.size and int(values.max()) > 11:  # beyond CamVid's ids: a soft-edged (resized, JPEG) object mask?
+        return (f"; it holds values up to {int(values.max())}: an object mask, soft-edged or not, reads with "
+                "--mapping davis (0 the background, anything else the object), a table of that many classes with "
+                "--classes FILE (a CVAT labelmap.txt or a JSON table)")
     if values.size and int(values.max()) > 2:
         return ("; labels of other classes need their table: --classes camvid11 (CamVid's ids), --classes FILE (a "
                 "CVAT labelmap.txt or a JSON table), or --mapping camvid (CamVid's ids as ground and obstacle)")

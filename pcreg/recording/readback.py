@@ -82,7 +82,7 @@ def unfinished_note(path: str | os.PathLike) -> str | None:
     if scan is None or scan[2]:
         return None
     end, size, _ = scan
-    cut = f" ({size - end} bytes of a part one after it left out)" if size > end else ""
+    cut = f" (the {size - end} bytes of an unfinished one after it left out)" if size > end else ""
     return (f"{path}: the recording does not end (still being written, or cut short): read up to its last "
             f"whole message{cut}")
 

@@ -85,8 +85,10 @@ class Plausibility:
 
     def _motion(self) -> str:
         """The motion a refusal names; for the models without a scale, the model that has one."""
-        if self.model in ("translation", "rigid"):
-            return f"{self.model} motion (the similarity model also allows a change of scale, as a camera moving forward makes)"
+        if self.model == "rigid":
+            return "rigid motion (the similarity model also allows a change of scale, as a camera moving forward makes)"
+        if self.model == "translation":
+            return "translation (the rigid and similarity models also allow a rotation and a change of scale)"
         return f"{self.model} motion"
 
     @property

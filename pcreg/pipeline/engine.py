@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Labeller", "Stretch", "stretches", "propagate", "two_sided", "PRIOR_STORE_DTYPE"]
+__all__ = ["Labeller", "Stretch", "stretches", "propagate", "References", "two_sided", "PRIOR_STORE_DTYPE"]
 
 #: How a forward pass keeps each frame's prior term for the backward pass between two key frames
 #: (``pcreg run`` keeps it on disk between its two passes; :func:`pcreg.pipeline.keyframes.label_clip`
@@ -111,6 +111,22 @@ def propagate(labeller: Labeller, frames: Iterable[tuple[int, Image]], *,
                 raise
             raise InputError(f"{where(t)}: {exc}") from None
         yield t, image, labels
+
+
+class References:
+    """The images a pass's steps are registered to, for a recording: its key frame (step 0) and the frame of
+    the last step (a chained step's reference). :meth:`of` is a step's (None when not at hand: the first step
+    after a resume); :meth:`stepped` keeps the frame a step labelled."""
+
+    def __init__(self, key: np.ndarray) -> None:
+        self._key = key
+        self._images: dict[int, np.ndarray] = {0: key}
+
+    def of(self, report) -> np.ndarray | None:
+        return self._images.get(report.reference)
+
+    def stepped(self, report, image: np.ndarray) -> None:
+        self._images = {0: self._key, report.frame: image}
 
 
 def two_sided(log_odds: np.ndarray, earlier: np.ndarray, later: np.ndarray, rule, *,

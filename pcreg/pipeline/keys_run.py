@@ -41,7 +41,7 @@ from ..errors import InputError, OutputError
 from ..runs.files import HIDDEN, UNREADABLE_CARRY, label_digest
 from ..runs.truth import empty_counts
 
-from .engine import PRIOR_STORE_DTYPE, Stretch, propagate, stretches, two_sided
+from .engine import PRIOR_STORE_DTYPE, References, Stretch, propagate, stretches, two_sided
 from .multiclass import weight_sum
 
 __all__ = ["KeyRun", "HIDDEN"]  # HIDDEN: pcreg.runs.files.HIDDEN, named here as before
@@ -264,7 +264,7 @@ class KeyRun:
         prop = self._propagator(clf, keys[b], self.keys[b], learning=not both)
         self._resume(prop, s, cur)
         start = b - 1 if cur["next"] is None else cur["next"]
-        seen = {0: keys[b]}  # the images a step may be registered to, by step: the key frame, the previous
+        references = References(keys[b])
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             for t, image, labels in propagate(prop, self._images(s, range(start, s.start - 1, -1)), check=self.check):
                 report = prop.last
@@ -281,8 +281,8 @@ class KeyRun:
                                                 size=prop.working_size, classes=prop.class_read, weights=weights)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1,
-                             reference=seen.get(report.reference))
-                seen = {0: keys[b], report.frame: image}
+                             reference=references.of(report))
+                references.stepped(report, image)
 
     def _forward(self, s: Stretch, cur: dict) -> None:
         """From the last key frame to the end, as a run from one key frame."""
@@ -299,12 +299,12 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
         todo = ((f.position, f.image) for f in frames if f.position >= start)
-        seen = {0: key.image}  # the images a step may be registered to, by step: the key frame, the previous
+        references = References(key.image)
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             for t, image, labels in propagate(prop, todo, check=self.check, where=self.frames.where):
                 self._record(writer, s, cur, t, image, labels, prop.last.confidence, prop.last.to_dict(), prop,
-                             clf, after=t + 1, reference=seen.get(prop.last.reference))
-                seen = {0: key.image, prop.last.frame: image}
+                             clf, after=t + 1, reference=references.of(prop.last))
+                references.stepped(prop.last, image)
 
     def _record(self, writer, s: Stretch, cur: dict, t: int, image, labels, conf, step: dict, prop, clf, *,
                 after: int, reference=None) -> None:

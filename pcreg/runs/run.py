@@ -147,7 +147,7 @@ class Run:
         from ..datasets.sources import read_ahead
         from ..frame import PreparedFrame
         from ..outputs import WriteBehind
-        from ..pipeline.engine import propagate
+        from ..pipeline.engine import References, propagate
         from ..recording.recorder import open_recording
 
         frames, out = self.frames, self.out
@@ -177,14 +177,14 @@ class Run:
             prepared = ((f.position, PreparedFrame.of(f.image, name="frame")) for f in read_ahead(todo))
             # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
             # reads the features the step made
-            seen = {0: pending[0].image}  # the images a step may be registered to: the key frame, the previous
+            references = References(pending[0].image)
             for t, image, labels in propagate(prop, prepared, check=check_interrupted, where=frames.where):
                 plain = prop.classifier.predict(image) if self.truth is not None else None
                 writer.submit(self.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),
                               confidence=prop.last.confidence if request.confidence else None)
                 log_frame(rec, t, image.rgb, labels, prop.last, frames.name(t), prop.working_size,
-                          reference=seen.get(prop.last.reference))
-                seen = {0: seen[0], t: image.rgb}
+                          reference=references.of(prop.last))
+                references.stepped(prop.last, image.rgb)
                 done = t + 1
                 bar.update(1)
         self._say_done(request, done - start, [0], start=start)

@@ -41,7 +41,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import InputError, OutputError
     from ..outputs import atomic_write_bytes, check_output
-    from ..registration.clouds import cloud_pyramid, load_image_and_mask
+    from ..formats import read_image_file
+    from ..registration.clouds import cloud_pyramid, image_and_mask, load_image_and_mask
     from ..registration.api import register
     from ..registration.config import RegisterConfig
     from ..registration.warp import warp
@@ -55,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
                                init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,
                                **options)
     ref, ref_mask = load_image_and_mask(args.reference)  # transparent pixels are not matched
-    mov, mov_mask = load_image_and_mask(args.moving)
+    stored = read_image_file(args.moving)  # decoded once: registered, and warped as stored by --out
+    mov, mov_mask = image_and_mask(stored, args.moving)
     for path, mask in ((args.reference, ref_mask), (args.moving, mov_mask)):
         if not isinstance(mask, str) and args.model == "dense":  # "auto": no transparent pixel
             raise InputError(f"{path}: transparent pixels, which the dense model cannot leave out (it leaves black "
@@ -90,10 +92,10 @@ def run(args: argparse.Namespace) -> int:
         rec.log_text(repr(result))
     if args.out:
         png = not args.out.lower().endswith((".jpg", ".jpeg"))
-        stored = _as_stored(args.moving, mov.shape) if png else None
-        if stored is not None:  # a 16-bit, grey or transparent PNG keeps its depth and channels
+        keep = png and _keeps_its_form(stored)
+        if keep:  # a 16-bit, grey or transparent PNG keeps its depth and channels
             warped = warp(stored, getattr(result, "field", result.matrix), shape=ref.shape)[0]
-        ok, buf = cv2.imencode(".png" if png else ".jpg", warped if stored is not None else warped[:, :, ::-1])
+        ok, buf = cv2.imencode(".png" if png else ".jpg", warped if keep else warped[:, :, ::-1])
         if not ok:
             raise OutputError(f"cannot encode {args.out}")
         atomic_write_bytes(args.out, buf.tobytes())
@@ -104,18 +106,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _as_stored(path: str, shape: tuple[int, ...]):
-    """The moving image's pixels as its file stores them (OpenCV's channel order), when that is not the 8-bit
-    colour the registration read (16 bits, grey, an alpha channel); None otherwise."""
-    import cv2
+def _keeps_its_form(stored) -> bool:
+    """Whether the moving image, as its file stores it (OpenCV's channel order), is not the 8-bit colour the
+    registration read (16 bits, grey, an alpha channel), so that a PNG of it warped keeps that form."""
     import numpy as np
 
-    try:
-        raw = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        return None
-    if raw is None or raw.shape[:2] != shape[:2] or raw.dtype not in (np.uint8, np.uint16):
-        return None
-    if raw.dtype == np.uint8 and raw.ndim == 3 and raw.shape[2] == 3:
-        return None
-    return raw
+    if stored.dtype not in (np.uint8, np.uint16):
+        return False
+    return not (stored.dtype == np.uint8 and stored.ndim == 3 and stored.shape[2] == 3)

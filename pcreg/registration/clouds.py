@@ -62,13 +62,18 @@ def load_image_and_mask(path: str | os.PathLike, *, max_pixels: int | None = Non
     from ..formats import read_image_file
 
     path = check_path(path, "path")
-    img = read_image_file(path, limit=max_pixels)
+    return image_and_mask(read_image_file(path, limit=max_pixels), str(path))
+
+
+def image_and_mask(img: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray | str]:
+    """:func:`load_image_and_mask` of an image already decoded as the file stores it (OpenCV's
+    ``IMREAD_UNCHANGED``, BGR order); ``name`` names it in errors."""
     alpha = None
     if img.ndim == 3 and img.shape[2] == 4:
         img, alpha = img[:, :, :3], img[:, :, 3]
     if img.ndim == 3:
         img = img[:, :, ::-1]  # BGR -> RGB
-    rgb = as_rgb_uint8(img, name=str(path))
+    rgb = as_rgb_uint8(img, name=name)
     if alpha is None or np.all(alpha > 0):
         return rgb, "auto"
     return rgb, (alpha > 0) & valid_region(rgb)

@@ -368,3 +368,28 @@ def test_a_recording_of_a_run_from_two_key_frames_draws_each_frame_over_its_refe
     for t in (1, 2, 4, 5):
         np.testing.assert_array_equal(image(rec.reference(t)), frame[3])
         np.testing.assert_array_equal(image(rec.moving(t)), frame[t])
+
+
+def test_a_resumed_chained_run_records_the_reference_of_its_first_step(tmp_path, capsys):
+    """A run with many classes registers each frame to the one before; resumed, its first step's reference
+    (the frame the stopped run labelled last) was not at hand and the Registration view had none there. The
+    propagator's carry holds it."""
+    from pcreg.recording.readback import image, read_recording
+
+    folder, _ = _frames(tmp_path / "frames", (96, 128), n=6)
+    labels = np.repeat(np.array([1, 3, 4], np.uint8), 32)[:, None] * np.ones((1, 128), np.uint8)
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    bad = folder / "f4.png"
+    good = bad.read_bytes()
+    bad.write_bytes(good[:100])
+    args = ["run", str(folder), "--labels", str(tmp_path / "key.png"), "--classes", "camvid11",
+            "--out", str(tmp_path / "out"), "--record-raw"]
+    assert main([*args, "--record", str(tmp_path / "first.rrd")]) == 2  # stops at the broken frame
+    capsys.readouterr()
+    bad.write_bytes(good)
+    assert main([*args, "--record", str(tmp_path / "again.rrd")]) == 0
+    rec = read_recording(tmp_path / "again.rrd")
+    frame = {i: cv2.imread(str(folder / f"f{i}.png"))[:, :, ::-1] for i in range(6)}
+    for t in (4, 5):
+        np.testing.assert_array_equal(image(rec.reference(t)), frame[t - 1])
+        np.testing.assert_array_equal(image(rec.moving(t)), frame[t])

@@ -115,12 +115,21 @@ def propagate(labeller: Labeller, frames: Iterable[tuple[int, Image]], *,
 
 class References:
     """The images a pass's steps are registered to, for a recording: its key frame (step 0) and the frame of
-    the last step (a chained step's reference). :meth:`of` is a step's (None when not at hand: the first step
-    after a resume); :meth:`stepped` keeps the frame a step labelled."""
+    the last step (a chained step's reference). :meth:`of` is a step's (None when not at hand);
+    :meth:`stepped` keeps the frame a step labelled. ``carry``: a resumed pass's propagator's
+    :attr:`~pcreg.pipeline.stream.Propagator.carry`; a chained one holds the frame its next step is registered
+    to (at the working size: brought to the key frame's size)."""
 
-    def __init__(self, key: np.ndarray) -> None:
+    def __init__(self, key: np.ndarray, carry=None) -> None:
         self._key = key
         self._images: dict[int, np.ndarray] = {0: key}
+        image = getattr(carry, "rgb", None)
+        if image is not None and carry.frame > 0:
+            if image.shape[:2] != key.shape[:2]:
+                import cv2
+
+                image = cv2.resize(image, (key.shape[1], key.shape[0]), interpolation=cv2.INTER_LINEAR)
+            self._images[int(carry.frame)] = image
 
     def of(self, report) -> np.ndarray | None:
         return self._images.get(report.reference)

@@ -264,7 +264,7 @@ class KeyRun:
         prop = self._propagator(clf, keys[b], self.keys[b], learning=not both)
         self._resume(prop, s, cur)
         start = b - 1 if cur["next"] is None else cur["next"]
-        references = References(keys[b])
+        references = References(keys[b], prop.carry)
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             for t, image, labels in propagate(prop, self._images(s, range(start, s.start - 1, -1)), check=self.check):
                 report = prop.last
@@ -299,7 +299,7 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
         todo = ((f.position, f.image) for f in frames if f.position >= start)
-        references = References(key.image)
+        references = References(key.image, prop.carry)
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             for t, image, labels in propagate(prop, todo, check=self.check, where=self.frames.where):
                 self._record(writer, s, cur, t, image, labels, prop.last.confidence, prop.last.to_dict(), prop,

@@ -177,7 +177,7 @@ class Run:
             prepared = ((f.position, PreparedFrame.of(f.image, name="frame")) for f in read_ahead(todo))
             # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
             # reads the features the step made
-            references = References(pending[0].image)
+            references = References(pending[0].image, prop.carry)
             for t, image, labels in propagate(prop, prepared, check=check_interrupted, where=frames.where):
                 plain = prop.classifier.predict(image) if self.truth is not None else None
                 writer.submit(self.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),

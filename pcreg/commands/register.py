@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..registration.transforms import MODELS
 from ._common import add_record_arguments, open_recorder, positive_float, positive_int, print_json
@@ -103,7 +104,22 @@ def run(args: argparse.Namespace) -> int:
         print_json({"ok": True, **result.to_dict()})
     else:
         print(result)
+    _say_if_the_model_does_not_fit(result, args.model)
     return 0
+
+
+def _say_if_the_model_does_not_fit(result, model: str) -> None:
+    """A note on stderr when a projective refinement of the result aligns significantly more edge points
+    (:attr:`~pcreg.registration.result.RegistrationResult.model_fits` False): the transform is the model's best
+    approximation of a view it cannot make."""
+    evidence = getattr(result, "evidence", None)  # a dense result has none: a field follows its similarity
+    fit = None if evidence is None else evidence.model_fit
+    if fit is None or fit.fits:
+        return
+    sys.stderr.write(f"pcreg: note: the images differ by more than a {model} motion: a {fit.model} refinement of "
+                     f"this result aligns {100 * fit.inlier_ratio:.1f}% of the edge points against "
+                     f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} px; this is the "
+                     f"best {model} approximation (--model {fit.model} registers such a view)\n")
 
 
 def _keeps_its_form(stored) -> bool:

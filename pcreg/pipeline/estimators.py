@@ -211,7 +211,8 @@ class GlobalEstimator:
     def __init__(self, config: RegisterConfig, *, callback: Callable | None = None) -> None:
         if not isinstance(config, RegisterConfig):
             raise InputError("config must be a pcreg.RegisterConfig")
-        self.config, self.callback = config, callback
+        # a stream's motion is followed by its trust rule, not by a person reading a note
+        self.config, self.callback = config.replace(model_check=False), callback
         self.name = f"{config.model} registration"
 
     def prepare(self, reference: np.ndarray) -> None:
@@ -247,7 +248,8 @@ class DenseEstimator:
 
     def __init__(self, config: RegisterConfig, step: "DenseStep", cold: "DenseOptions", warm: "DenseOptions", *,
                  callback: Callable | None = None) -> None:
-        self.config, self.step, self.cold, self.warm, self.callback = config, step, cold, warm, callback
+        self.config, self.step, self.cold, self.warm = config.replace(model_check=False), step, cold, warm
+        self.callback = callback
 
     def check_size(self, shape: tuple[int, int]) -> None:
         self.cold.check_shape(shape)

@@ -21,7 +21,7 @@ from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
                     GlobalStep, InitialGrid, finest_grid_shape, refine_field)
 from .dense.levels import check_prepared
-from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, Plausibility
+from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule
 from .reference import check_rank
@@ -321,8 +321,25 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
         for iteration in best.iterations:
             callback(iteration)
     evidence = test.check(best, mirror=mirror, shape=mov_img.shape, moving=moving)
+    fit = _model_fit(reference, moving, config, best, test, mov_img.shape)
     return _result(best, evidence, tried, mirror, backend=config.backend, seconds=time.perf_counter() - start,
-                   points=(len(moving[0]), len(reference[0])))
+                   points=(len(moving[0]), len(reference[0])), fit=fit)
+
+
+def _model_fit(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, best: Candidate,
+               test: Plausibility, shape: tuple[int, ...]):
+    """:func:`~pcreg.registration.plausibility.model_fit` of a model narrower than the projective one, the
+    check and the test on (None otherwise)."""
+    if (config.model not in NARROWER or not config.plausibility.model_check
+            or config.plausibility.min_inlier_ratio is None):
+        return None
+    icp = config.icp
+    richer = CoarseToFine(reference, icp_step("reference"),  # pcreg's own step: Open3D's has no projective model
+                          settings=IcpSettings(model=RICHER_MODEL, relative_fitness=icp.relative_fitness,
+                                               weights=icp.weights),
+                          max_correspondence_distance=icp.max_correspondence_distance, iterations=icp.iterations,
+                          relative_rmse=icp.relative_rmse)
+    return model_fit(best, moving, richer, test, shape)
 
 
 def _configured(config: RegisterConfig, *, model: str | None, backend: str | None, init) -> RegisterConfig:
@@ -339,7 +356,8 @@ def _configured(config: RegisterConfig, *, model: str | None, backend: str | Non
 def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix):
     """``model="dense"``: the global similarity (this function, with the rest of ``config``), refined by a
     dense field (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult`."""
-    start = register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL), init=start_matrix)
+    start = register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL, model_check=False),
+                     init=start_matrix)
     return register_dense(reference_image, moving_image, global_result=start,
                           options=DenseOptions(seed=config.search.seed, global_step=GlobalStep(backend=config.backend)))
 
@@ -443,14 +461,14 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
 
 
 def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate | None, *, backend: str,
-            seconds: float, points: tuple[int, int]) -> RegistrationResult:
+            seconds: float, points: tuple[int, int], fit=None) -> RegistrationResult:
     """The winner as a :class:`RegistrationResult`; ``info`` lists every hypothesis tried."""
     r = best.refined
     return RegistrationResult(
         matrix=r.matrix, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=r.iterations,
         converged=r.converged, backend=backend, seconds=seconds, frames="T_ref_mov",
         evidence=ImageEvidence(inlier_ratio=evidence.inlier_ratio, chance_ratio=evidence.chance_ratio,
-                               overlap=evidence.overlap, generator=best.generator),
+                               overlap=evidence.overlap, generator=best.generator, model_fit=fit),
         info={"moving_points": points[0], "reference_points": points[1],
               "hypotheses": [{"generator": c.generator, "inlier_ratio": c.inlier_ratio,
                               "photometric_ncc": c.photometric_ncc} for c in tried],

@@ -163,15 +163,21 @@ class IcpConfig:
 class PlausibilityConfig:
     """The test (:mod:`pcreg.registration.plausibility`). min_inlier_ratio : the share of moving points
     that must land within ``inlier_tolerance`` px of a reference point (:data:`DEFAULT_MIN_INLIER_RATIO`;
-    None turns the test off)."""
+    None turns the test off). model_check : whether a result of a model narrower than the projective one
+    is checked against a projective refinement of it (:func:`pcreg.registration.plausibility.model_fit`:
+    the result's ``model_fit``); the streams and evaluations, whose registrations a richer motion follows
+    or which the check would only slow, turn it off."""
 
     min_inlier_ratio: float | None = DEFAULT_MIN_INLIER_RATIO
     inlier_tolerance: float = 1.0
+    model_check: bool = True
 
     def __post_init__(self) -> None:
         if self.min_inlier_ratio is not None:
             _set(self, "min_inlier_ratio", check_float(self.min_inlier_ratio, "min_inlier_ratio", lo=0, hi=1))
         _set(self, "inlier_tolerance", check_float(self.inlier_tolerance, "inlier_tolerance", lo=0, lo_open=True))
+        if not isinstance(self.model_check, bool):
+            raise InputError(f"model_check must be True or False, got {short_repr(self.model_check)}")
 
 
 _PARTS: dict[str, Any] = {"pyramid": PyramidConfig, "search": SearchConfig, "icp": IcpConfig,

@@ -96,10 +96,12 @@ class Plausibility:
         """The inlier ratio at which the search stops early: max(0.6, 2 x ``min_inlier_ratio``)."""
         return 0.6 if self.min_inlier_ratio is None else max(0.6, 2.0 * self.min_inlier_ratio)
 
-    def measure(self, moving: CloudPyramid, T: np.ndarray) -> Evidence:
-        """The evidence of ``T`` (``T_ref_mov``) aligning ``moving``'s cloud with the reference's."""
-        return alignment_evidence(T, moving[self.level], self.reference[self.level], self.tree(self.level),
-                                  tolerance=self.inlier_tolerance * 2**self.level)
+    def measure(self, moving: CloudPyramid, T: np.ndarray, level: int | None = None) -> Evidence:
+        """The evidence of ``T`` (``T_ref_mov``) aligning ``moving``'s cloud with the reference's (at the test's
+        level, or at ``level``, the tolerance scaled to it)."""
+        level = self.level if level is None else level
+        return alignment_evidence(T, moving[level], self.reference[level], self.tree(level),
+                                  tolerance=self.inlier_tolerance * 2**level)
 
     def worth_a_mirror(self, tried: list[Candidate], convincing: bool) -> bool:
         """Whether the search ended unconvinced though above the threshold: then the moving image may be a
@@ -158,3 +160,54 @@ class Plausibility:
                 f"points within {self.inlier_tolerance:g} px of a reference edge of the same direction "
                 f"(min_inlier_ratio {mir:g}); the images do not show the same scene under a {self._motion()}")
         return ev
+
+
+#: The model a registration's result is checked against (:func:`model_fit`), and the models narrower than it.
+RICHER_MODEL = "projective"
+NARROWER = ("translation", "rigid", "similarity", "affine")
+
+SHIFT_PX = 3.0
+"""A result is marked when the richer model, aligning significantly more edge points, moves some of them by
+more than this (px at full size): the distance within which ``tools/bench_warped_photos.py`` counts a
+registration right. The refinement runs at half size, where the tolerance is 2 px: the richer model moved the
+edges of views the model makes by up to 2.1 px there (5 of 73 such results marked at 2 px, none at 2.5 or 3;
+docs/algorithms.md)."""
+
+
+def model_fit(best: Candidate, moving: CloudPyramid, richer, test: Plausibility, shape: tuple[int, ...]):
+    """Whether ``best``'s model fits the images: its transform refined by ``richer`` (a
+    :class:`~pcreg.registration.refine.CoarseToFine` of :data:`RICHER_MODEL`) at pyramid level 1 (twice its
+    gate, then its gate, as a start is refined there) and both transforms measured there as ``test`` measures
+    (:meth:`Plausibility.measure`, the tolerance scaled to the level). The model does not fit when the richer
+    transform's inlier ratio exceeds the result's by :data:`SIGNIFICANCE` standard deviations of it (binomial,
+    over the result's overlapping edge points there) and moves some of the moving edge points that land on
+    the reference by more than :data:`SHIFT_PX`: a perspective view registered by a similarity, whose best
+    similarity leaves its far side pixels off. Views that the model makes gain nothing (docs/algorithms.md).
+    Returns a :class:`~pcreg.registration.result.ModelFit`, or None where the richer refinement fails or
+    degenerates (nothing is said then)."""
+    from .result import ModelFit
+    from .transforms import apply, degeneracy
+
+    level = min(1, len(moving) - 1, len(test.reference) - 1)
+    if len(moving[level]) < 3 or len(test.reference[level]) < 3:
+        return None
+    T = R = best.refined.matrix
+    gate = richer.max_correspondence_distance * 2**level
+    try:
+        for dist in (2 * gate, gate):
+            R = richer.at_level(moving, R, level, dist=dist, final=False).matrix
+    except (RegistrationError, np.linalg.LinAlgError):
+        return None
+    if degeneracy(R, shape) is not None:
+        return None
+    own, other = test.measure(moving, T, level), test.measure(moving, R, level)
+    p, n = own.inlier_ratio, max(1, own.overlap_points)
+    points = moving[level].points
+    here = apply(T, points)
+    h, w = test.reference.image.shape[:2]
+    lands = (here[:, 0] >= 0) & (here[:, 0] <= w - 1) & (here[:, 1] >= 0) & (here[:, 1] <= h - 1)
+    moved = np.linalg.norm(apply(R, points[lands]) - here[lands], axis=1)
+    shift = float(np.max(moved, initial=0.0, where=np.isfinite(moved)))
+    gain = other.inlier_ratio - p > SIGNIFICANCE * np.sqrt(p * (1.0 - p) / n)
+    fits = not (gain and shift > SHIFT_PX)
+    return ModelFit(RICHER_MODEL, float(other.inlier_ratio), float(p), shift, fits=fits)

@@ -41,6 +41,34 @@ class ImageEvidence:
     chance_ratio: float
     overlap: float
     generator: str
+    model_fit: "ModelFit | None" = None
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """Whether a registration's model fits the images (:attr:`ImageEvidence.model_fit`), from a refinement of
+    its transform by a richer model (:func:`pcreg.registration.plausibility.model_fit`).
+
+    model : the richer model (``"projective"``).
+    inlier_ratio, result_inlier_ratio : the richer transform's inlier ratio and the result's, both measured
+        where the check measures (pyramid level 1, the tolerance doubled).
+    largest_shift_px : how far the richer transform moves the moving edge points that land on the reference
+        from where the result puts them (px, the largest).
+    fits : False when the richer model aligns significantly more edge points and moves some by more than 3 px
+        (:data:`~pcreg.registration.plausibility.SHIFT_PX`): the images differ by more than the model allows, and the result is the model's
+        best approximation, not their alignment.
+    """
+
+    model: str
+    inlier_ratio: float
+    result_inlier_ratio: float
+    largest_shift_px: float
+    fits: bool
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "inlier_ratio": float(self.inlier_ratio),
+                "result_inlier_ratio": float(self.result_inlier_ratio),
+                "largest_shift_px": float(self.largest_shift_px), "fits": bool(self.fits)}
 
 
 @dataclass(frozen=True, repr=False)
@@ -123,6 +151,13 @@ class RegistrationResult:
         return None if self.evidence is None else self.evidence.generator
 
     @property
+    def model_fits(self) -> bool | None:
+        """Whether the model fits the images (``evidence.model_fit``, :class:`ModelFit`); None where it was not
+        checked (clouds, the projective model, the check turned off)."""
+        fit = None if self.evidence is None else self.evidence.model_fit
+        return None if fit is None else fit.fits
+
+    @property
     def T_ref_mov(self) -> np.ndarray:
         """(3, 3) moving image -> reference image: the ``matrix`` of an image registration."""
         return _named(self, "T_ref_mov")
@@ -142,7 +177,8 @@ class RegistrationResult:
         )
 
     def to_dict(self) -> dict:
-        """JSON-ready dict (``matrix`` as a list of rows)."""
+        """JSON-ready dict (``matrix`` as a list of rows; ``model_fit`` where the model was checked)."""
+        fit = None if self.evidence is None else self.evidence.model_fit
         return {
             "matrix": self.matrix.tolist(),
             "fitness": float(self.fitness),
@@ -156,6 +192,7 @@ class RegistrationResult:
             "overlap": None if np.isnan(self.overlap) else float(self.overlap),
             "generator": self.generator,
             "frames": self.frames,
+            **({} if fit is None else {"model_fit": fit.to_dict()}),
         }
 
 

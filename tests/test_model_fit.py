@@ -1,0 +1,91 @@
+"""A registration whose model is narrower than the view: a similarity of a perspective view returned its best
+similarity, pixels off at the far side, with nothing said. The result is now checked against a projective
+refinement of it (``RegistrationResult.model_fits``, ``evidence.model_fit``) and ``pcreg register`` says so."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg import RegisterConfig, register
+from pcreg.cli import main
+
+
+def _view(image: np.ndarray, perspective: tuple[float, float]) -> np.ndarray:
+    """A turn of 35 degrees and a scale of 1.1 about the centre, a shift, then a perspective row."""
+    h, w = image.shape[:2]
+    M = np.vstack([cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), 35.0, 1.1), [0, 0, 1]])
+    M[:2, 2] += (20.0, -15.0)
+    M = np.array([[1, 0, 0], [0, 1, 0], [*perspective, 1.0]]) @ M
+    return M
+
+
+def _pair(shared_data, perspective):
+    img = cv2.imread(str(shared_data / "photos" / "coins.png"))[:, :, ::-1].copy()
+    M = _view(img, perspective)
+    return img, cv2.warpPerspective(img, M, img.shape[1::-1]), M
+
+
+def _worst(T: np.ndarray, M: np.ndarray, shape) -> float:
+    """The largest distance (px) between ``T`` and ``inv(M)`` over a 16 px grid that lands in the image."""
+    h, w = shape[:2]
+    ys, xs = np.mgrid[0:h:16, 0:w:16]
+    pts = np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])
+    truth = np.linalg.inv(M) @ pts
+    truth = truth[:2] / truth[2]
+    inside = (truth[0] >= 0) & (truth[0] < w) & (truth[1] >= 0) & (truth[1] < h)
+    got = T @ pts[:, inside]
+    return float(np.linalg.norm(got[:2] / got[2] - truth[:, inside], axis=0).max())
+
+
+@pytest.mark.parametrize("model", ["similarity", "affine"])
+def test_a_perspective_view_registered_by_a_narrower_model_is_marked(shared_data, model):
+    ref, mov, M = _pair(shared_data, (1.5e-4, -1e-4))
+    r = register(ref, mov, model=model)
+    assert _worst(r.matrix, M, mov.shape) > 5.0  # the model's best approximation, pixels off
+    fit = r.evidence.model_fit
+    assert r.model_fits is False and fit.model == "projective"
+    assert fit.inlier_ratio > fit.result_inlier_ratio + 0.1 and fit.largest_shift_px > 2.0
+    assert r.to_dict()["model_fit"]["fits"] is False
+    off = register(ref, mov, config=RegisterConfig(model=model).replace(model_check=False))
+    np.testing.assert_array_equal(off.matrix, r.matrix)  # the check marks, it does not change the answer
+    assert off.model_fits is None and "model_fit" not in off.to_dict()
+
+
+@pytest.mark.parametrize("model", ["rigid", "similarity", "affine"])
+def test_a_view_the_model_makes_is_not_marked(shared_data, model):
+    ref, mov, M = _pair(shared_data, (0.0, 0.0))
+    if model == "rigid":  # no change of scale for a rigid motion
+        ref = cv2.resize(ref, None, fx=1.1, fy=1.1, interpolation=cv2.INTER_LINEAR)[:ref.shape[0], :ref.shape[1]].copy()
+        h, w = mov.shape[:2]
+        M = np.vstack([cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), 35.0, 1.0), [0, 0, 1]])
+        mov = cv2.warpPerspective(ref, M, (w, h))
+    r = register(ref, mov, model=model)
+    assert _worst(r.matrix, M, mov.shape) < 2.0
+    assert r.model_fits is True, r.evidence.model_fit
+
+
+def test_a_projective_registration_is_not_checked(shared_data):
+    ref, mov, M = _pair(shared_data, (1.5e-4, -1e-4))
+    r = register(ref, mov, model="projective")
+    assert _worst(r.matrix, M, mov.shape) < 3.0 and r.model_fits is None
+
+
+def test_pcreg_register_says_the_model_does_not_fit_and_exits_0(shared_data, tmp_path, capsys):
+    ref, mov, _ = _pair(shared_data, (1.5e-4, -1e-4))
+    for name, image in (("ref.png", ref), ("mov.png", mov)):
+        cv2.imwrite(str(tmp_path / name), image[:, :, ::-1])
+    assert main(["register", str(tmp_path / "ref.png"), str(tmp_path / "mov.png"), "--model", "similarity",
+                 "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["model_fit"]["fits"] is False
+    note = err.strip().splitlines()[-1]
+    assert note.startswith("pcreg: note: the images differ by more than a similarity motion: a projective ")
+    assert "--model projective" in note
+    assert main(["register", str(tmp_path / "ref.png"), str(tmp_path / "mov.png"), "--model", "projective",
+                 "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert "model_fit" not in json.loads(out) and "note" not in err

@@ -78,6 +78,22 @@ def test_register_never_writes_over_its_inputs_even_with_force(pair, tmp_path):
     assert (ref.read_bytes(), mov.read_bytes()) == before
 
 
+def test_register_given_point_clouds_says_which_command_registers_them(pair, tmp_path, capsys):
+    """A first try with another project's test clouds (PCL's test/bun4.pcd test/bun0.pcd): register said
+    'not an image pcreg reads (PNG, JPEG, ...)' and no more."""
+    from pcreg.cli import main
+
+    d, _ = pair
+    np.save(tmp_path / "target.npy", np.random.default_rng(0).normal(size=(50, 3)))
+    for first, second in ((tmp_path / "target.npy", tmp_path / "bun0.pcd"), (d / "ref.png", tmp_path / "fish.TXT")):
+        assert main(["register", str(first), str(second), "--json"]) == 2
+        out, err = capsys.readouterr()
+        cloud = first if first.suffix == ".npy" else second
+        assert err == (f"pcreg: error: {cloud}: a point cloud; pcreg register takes two images. Register two clouds "
+                       "with pcreg crosscheck TARGET SOURCE (its reference row is pcreg's ICP) or pcreg.icp\n")
+        assert out == ""
+
+
 def test_transparent_pixels_are_not_registered(tmp_path):
     """Two RGBA images whose visible parts are one scene shifted by (-20, 15) and whose transparent parts
     hold one same picture: the transparent parts aligned (a shift of 0, exit 0); a viewer shows nothing
@@ -199,14 +215,16 @@ def test_crosscheck_clouds_json(tmp_path):
     (lambda d, t: ["crosscheck", t / "c.npy", d / "mov.png"], "two images or two clouds"),
     (lambda d, t: ["crosscheck", t / "c.npy", t / "nan.npy"], "NaN"),
     (lambda d, t: ["crosscheck", t / "c.npy", t / "c2d.npy"], "source is 2-D but target is 3-D"),
-    (lambda d, t: ["crosscheck", t / "c.npy", t / "c.txt"], "unknown file type"),
+    (lambda d, t: ["crosscheck", t / "c.npy", t / "c.vtk"], "unknown file type"),
+    (lambda d, t: ["crosscheck", t / "c.npy", t / "c.txt"], "c.txt: 4 numbers a line and no first line naming"),
 ])
 def test_bad_input_is_one_line_and_exit_2(pair, tmp_path, make_args, message):
     d, _ = pair
     (tmp_path / "text.png").write_text("hello")
     (tmp_path / "empty.png").write_bytes(b"")
     (tmp_path / "exists.png").write_bytes(b"keep")
-    (tmp_path / "c.txt").write_text("1 2 3")
+    (tmp_path / "c.vtk").write_text("1 2 3")
+    (tmp_path / "c.txt").write_text("1 2 3 4")
     cv2.imwrite(str(tmp_path / "flat.png"), np.full((240, 320, 3), 77, np.uint8))
     cv2.imwrite(str(tmp_path / "tiny.png"), np.full((12, 12, 3), 77, np.uint8))
     pts = np.random.default_rng(0).normal(size=(100, 3))

@@ -132,9 +132,9 @@ def test_load_cloud_formats_and_errors(tmp_path):
     (tmp_path / "bad.ply").write_text("not a ply")
     with pytest.raises(InputError, match="no points"):
         load_cloud(tmp_path / "bad.ply")
-    (tmp_path / "a.txt").write_text("1 2 3\n")
+    (tmp_path / "a.las").write_text("1 2 3\n")
     with pytest.raises(InputError, match="unknown point-cloud format"):
-        load_cloud(tmp_path / "a.txt")
+        load_cloud(tmp_path / "a.las")
     bad = pts.copy()
     bad[3, 1] = np.nan
     np.save(tmp_path / "nan.npy", bad)

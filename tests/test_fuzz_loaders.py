@@ -1,5 +1,6 @@
 """Property-based fuzzing of every file loader: random bytes and mutated real files as PNG, JPEG, PLY,
-PCD, NPY and MAT. A loader returns a valid result or raises PcregError; nothing else, and never hangs."""
+PCD (an organised one too), NPY, text columns (CSV, TXT) and MAT. A loader returns a valid result or raises
+PcregError; nothing else, and never hangs."""
 
 from __future__ import annotations
 
@@ -42,6 +43,13 @@ def _seeds() -> dict[str, bytes]:
                 "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 40\nDATA {}\n")
     out["pcd"] = pcd_head.format("binary").encode() + pts.tobytes()
     out["pcd_ascii"] = (pcd_head.format("ascii") + "".join(f"{a} {b} {c}\n" for a, b, c in pts)).encode()
+    organised = pcd_head.replace("WIDTH 40\nHEIGHT 1", "WIDTH 8\nHEIGHT 5").format("ascii")
+    out["pcd_organised"] = (organised + "".join("nan nan nan\n" if i % 7 == 3 else f"{a} {b} {c}\n"
+                                                for i, (a, b, c) in enumerate(pts))).encode()
+    normals = rng.normal(size=(40, 3))
+    out["csv"] = ("x,y,z,nx,ny,nz\n" + "".join(f"{a} , {b} , {c} , {d},{e},{f}\n"
+                                               for (a, b, c), (d, e, f) in zip(pts, normals))).encode()
+    out["txt"] = "".join(f"{a:.18e} {b:.18e}\n" for a, b in pts[:, :2]).encode()
     buf = io.BytesIO()
     np.save(buf, pts.astype(np.float64))
     out["npy"] = buf.getvalue()
@@ -57,7 +65,7 @@ def _seeds() -> dict[str, bytes]:
 
 SEEDS = _seeds()
 SUFFIX = {"png": ".png", "jpg": ".jpg", "ply": ".ply", "ply_ascii": ".ply", "pcd": ".pcd", "pcd_ascii": ".pcd",
-          "npy": ".npy", "mat": ".mat", "mat_compressed": ".mat"}
+          "pcd_organised": ".pcd", "csv": ".csv", "txt": ".txt", "npy": ".npy", "mat": ".mat", "mat_compressed": ".mat"}
 
 
 def _load(kind: str, path: Path):
@@ -67,7 +75,7 @@ def _load(kind: str, path: Path):
         img = load_image(path)
         assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
         return img
-    if kind.startswith(("ply", "pcd", "npy")):
+    if kind.startswith(("ply", "pcd", "npy", "csv", "txt")):
         from pcreg.implementations.crosscheck import load_cloud
 
         pts = load_cloud(path)

@@ -434,3 +434,28 @@ def test_command_json_is_the_only_thing_on_stdout(tmp_path):
         if name != "small_gicp":  # small_gicp reports its final pose only
             assert sorted(err) == list(range(row["iterations"] + 1)), name
         assert err[max(err)] < 1e-6  # every one ends where the reference ends
+
+
+def test_kiss_icp_keeps_a_target_that_repeats_points_and_refuses_a_map_it_cannot_hold():
+    """A target that repeats points (small_gicp's LiDAR target.ply holds 5,032 repeats) asked KISS-ICP's map for
+    10**6 points a voxel, which it reserves in every voxel it fills: the row ended in std::bad_alloc (28 GiB
+    there). A repeat is dropped by the map and changes no nearest distance, so the map is sized from the
+    closest distinct points; a map that would still exceed its memory is refused with the reason."""
+    pytest.importorskip("kiss_icp")
+    rng = np.random.default_rng(5)
+    target = rng.uniform(0, 10, (400, 3))
+    target = np.vstack([target, target[:50]])
+    source = target[:400] + [0.05, -0.03, 0.02]
+    pinned = Pinned(source, target, np.eye(4), 1.0)
+    assert get("kiss-icp").settings(pinned)["max_points_per_voxel"] < 10**4
+    options = ICPOptions(max_correspondence_distance=1.0, max_iteration=50)
+    report = crosscheck_implementations(source, target, implementations=("reference", "kiss-icp"), options=options)
+    row = report.rows["kiss-icp"]
+    assert row["agrees"], row["error"]
+    assert row["info"]["map_dropped_points"] == 50
+    close = np.vstack([target[:400], target[0] + [1e-5, 0, 0]])  # 4e10 points a voxel to keep both
+    report = crosscheck_implementations(source, close, implementations=("reference", "kiss-icp"), options=options)
+    assert report.rows["reference"]["status"] == "ok"
+    row = report.rows["kiss-icp"]
+    assert row["status"] == "failed" and "GiB to keep every target point" in row["error"], row["error"]
+    assert "--voxel-size" in row["error"]

@@ -17,7 +17,7 @@ from ._common import add_record_arguments, float_list, open_recorder, positive_f
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("a", metavar="A", nargs="?", help="reference image, or target point cloud (.ply/.pcd/.xyz/.npy)")
+    p.add_argument("a", metavar="A", nargs="?", help="reference image, or target point cloud (.ply/.pcd/.xyz/.npy/.txt/.csv)")
     p.add_argument("b", metavar="B", nargs="?", help="moving image, or source point cloud")
     p.add_argument("--with", dest="implementations", action="append", metavar="LIST",
                    help="clouds: comma-separated implementations (default reference,open3d; 'all' = every built-in "
@@ -97,8 +97,14 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not (args.a and args.b):
         raise InputError("give two images or two clouds A B (or --export DIR / --suite DIR)")
-    from ..implementations.crosscheck import CLOUD_SUFFIXES
+    from ..cloud_reader import CLOUD_SUFFIXES
+    from ..formats import IMAGE_SUFFIXES
 
+    for path in (args.a, args.b):  # as pcreg.crosscheck reads paths; said first, not "--with applies to point clouds"
+        suffix = Path(path).suffix.lower()
+        if suffix and suffix not in IMAGE_SUFFIXES + CLOUD_SUFFIXES:
+            raise InputError(f"{path}: unknown file type {suffix!r} (an image: {', '.join(IMAGE_SUFFIXES)}; or a point "
+                             f"cloud: {', '.join(CLOUD_SUFFIXES)})")
     if args.a.lower().endswith(CLOUD_SUFFIXES) or args.b.lower().endswith(CLOUD_SUFFIXES):
         return _clouds(args)
     return _images(args)

@@ -47,7 +47,12 @@ def run(args: argparse.Namespace) -> int:
     from ..registration.api import register
     from ..registration.config import RegisterConfig
     from ..registration.warp import warp
+    from ..cloud_reader import CLOUD_SUFFIXES
 
+    for path in (args.reference, args.moving):
+        if Path(path).suffix.lower() in CLOUD_SUFFIXES:  # before "not an image", which leaves a cloud's user stuck
+            raise InputError(f"{path}: a point cloud; pcreg register takes two images. Register two clouds with "
+                             "pcreg crosscheck TARGET SOURCE (its reference row is pcreg's ICP) or pcreg.icp")
     if args.out is not None:
         if args.out.endswith(("/", os.sep)) or Path(args.out).suffix.lower() not in (".png", ".jpg", ".jpeg"):
             raise InputError(f"--out {args.out!r}: the warped image is written as PNG or JPEG; name it .png or .jpg")

@@ -215,24 +215,29 @@ class KissIcp(Implementation):
     description = ("KISS-ICP's registration step (Registration.align_points_to_map) on a voxel hash map of the "
                    "target, for a single pair")
     requires = ("kiss_icp",)
-    max_points_per_voxel_cap = 10**6
+    #: The most bytes KISS-ICP's map may reserve: it reserves room for max_points_per_voxel points (24 bytes
+    #: each) in every voxel it fills, so a dense cloud under a wide gate asks for gigabytes (28 GiB for a
+    #: 70k-point LiDAR scan at a 0.95 m gate) and the row would end in std::bad_alloc instead of its reason.
+    max_map_bytes = 1 << 30
 
-    def _points_per_voxel(self, pinned) -> int:
-        """Enough points per voxel that the map's minimum spacing, voxel / sqrt(max_points_per_voxel), is
-        half the target's closest pair: then the map keeps every target point (capped: memory)."""
+    def _map_size(self, pinned) -> tuple[int, int, float]:
+        """``(max_points_per_voxel, voxels, closest)``: enough points per voxel that the map's minimum spacing,
+        voxel / sqrt(max_points_per_voxel), is half the distance ``closest`` between the target's closest
+        distinct points, so that the map keeps every target point but repeats (a point given twice is
+        dropped, and changes no nearest distance); and how many voxels the target fills."""
         from scipy.spatial import cKDTree
 
-        t = pinned.target
-        d, _ = cKDTree(t).query(t, k=2)
-        dmin = float(d[:, 1].min()) if len(t) > 1 else 1.0
+        t = np.unique(lift(pinned.target), axis=0)
         v = float(pinned.max_correspondence_distance)
-        need = (v / (0.5 * dmin)) ** 2 + 1 if dmin > 0 else float("inf")
-        return int(min(np.ceil(need), self.max_points_per_voxel_cap))
+        closest = float(cKDTree(t).query(t, k=2)[0][:, 1].min()) if len(t) > 1 else v
+        voxels = len(np.unique(np.floor(t / v).astype(np.int64), axis=0))
+        return int(np.ceil((v / (0.5 * closest)) ** 2 + 1)), voxels, closest
 
     def settings(self, pinned):
         v = float(pinned.max_correspondence_distance)
-        n = self._points_per_voxel(pinned)
+        n, voxels, _ = self._map_size(pinned)
         return {"voxel_size": v, "max_points_per_voxel": n, "map_resolution": v / np.sqrt(n),
+                "map_reserved_bytes": 24 * n * voxels,
                 "kernel": self._kernel(pinned), "max_num_iterations": _converged_iterations(pinned),
                 "convergence_criterion": 1e-12, "max_num_threads": 1,
                 "max_correspondance_distance": v, "map": "target added once with add_points (no range cropping)",
@@ -254,6 +259,13 @@ class KissIcp(Implementation):
             # Sophus (inside KISS-ICP) aborts the whole process on a rotation that is not orthonormal to 1e-10.
             raise ImplementationError("the initial guess's rotation is not orthonormal to 1e-11; KISS-ICP (Sophus) "
                                       "would abort the process")
+        n, voxels, closest = self._map_size(pinned)
+        if 24 * n * voxels > self.max_map_bytes:
+            raise ImplementationError(
+                f"its map would reserve {24 * n * voxels / 2**30:.3g} GiB to keep every target point ({voxels} voxels "
+                f"of {n} points: the closest distinct target points are {closest:.3g} apart, the gate "
+                f"{float(pinned.max_correspondence_distance):.3g}); voxel-downsample the clouds (--voxel-size) or "
+                "narrow the gate")
         s = self.settings(pinned)
         vmap = VoxelHashMap(voxel_size=s["voxel_size"], max_distance=np.inf,
                             max_points_per_voxel=s["max_points_per_voxel"])

@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..cloud_reader import CLOUD_SUFFIXES, load_cloud
 from ..errors import InputError, RegistrationError
 from ..formats import IMAGE_SUFFIXES
 from ..registration.clouds import as_rgb_uint8, load_image
@@ -25,8 +26,6 @@ from ..registration.icp_options import ICPOptions
 from ..registration.result import IcpIteration, RegistrationResult
 from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
 from .base import reported
-
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy")
 
 
 #: The registration both backends run in a cross-check of two images: 30 ICP iterations a level and
@@ -69,81 +68,6 @@ class CrosscheckReport:
         out["config"] = asdict(self.config)
         out.update(self.extra)
         return out
-
-
-def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.ndarray:
-    """Points (N, 3) (or (N, 2) from a .npy) from .ply/.pcd/.xyz/.pts via Open3D, or .npy via numpy.
-
-    Regular files only; the point count a PLY/PCD/NPY header declares must be within ``max_points``
-    (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
-    (Open3D would pad it with zeros). Open3D's messages go to stderr, never stdout.
-    """
-    from ..cloud_files import check_cloud_file, check_npy_file
-    from ..quiet import capture_output_fds
-    from ..validation import max_pixels
-
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in CLOUD_SUFFIXES:
-        raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
-    limit = max_pixels(max_points)
-    check_cloud_file(path, limit=limit)
-    if suffix == ".npy":
-        shape, _ = check_npy_file(path, limit)
-        if len(shape) != 2 or shape[1] not in (2, 3):
-            raise InputError(f"{path}: expected an (N, 2) or (N, 3) array of points, got shape {shape}")
-        try:
-            pts = np.load(path, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as exc:
-            raise InputError(f"{path}: not a numpy array file ({str(exc)[:120]})") from None
-    else:
-        import open3d as o3d
-
-        with capture_output_fds() as said:  # Open3D prints its warnings on stdout (fd 1)
-            try:
-                pcd = o3d.io.read_point_cloud(str(path), format="auto", remove_nan_points=False,
-                                              remove_infinite_points=False)
-            except (RuntimeError, ValueError, MemoryError) as exc:
-                raise InputError(f"{path}: cannot read point cloud ({str(exc)[:120]})") from None
-        warning = _open3d_warning(said[0] if said else "")
-        if warning:  # Open3D fills what it could not read with zeros and only prints a warning
-            raise InputError(f"{path}: cannot read point cloud (Open3D: {warning})")
-        pts = np.asarray(pcd.points)
-        if pts.size == 0:
-            raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
-        if len(pts) > limit:
-            raise InputError(f"{path}: {len(pts)} points exceed the limit of {limit} (raise --max-pixels)")
-        if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
-            _check_text_cloud(path, suffix, len(pts))
-    return check_cloud(pts, str(path))
-
-
-def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
-    """Open3D skips the lines of a text cloud it cannot parse, silently: refuse a file where it did.
-    Every non-empty line is a point (``.pts``: after a first line with the point count)."""
-    first, count = None, 0
-    with open(path, "rb") as fh:
-        for line in fh:  # streamed: the file may be large
-            if line.strip():
-                first = line.strip() if first is None else first
-                count += 1
-    expected = count
-    if suffix == ".pts" and first is not None and first.isdigit():
-        expected = count - 1
-        if int(first) != expected:
-            raise InputError(f"{path}: the first line declares {int(first)} points, the file holds {expected} lines")
-    if n_read != expected:
-        raise InputError(f"{path}: {expected - n_read} of {expected} lines are not points (damaged {suffix} file)")
-
-
-def _open3d_warning(text: str) -> str:
-    """The first warning or error line Open3D printed (ANSI colours removed), or ''."""
-    import re
-
-    for line in re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines():
-        if "[Open3D WARNING]" in line or "[Open3D ERROR]" in line or "RPly: " in line:
-            return line.split("]", 1)[1].strip()[:200] if "[Open3D" in line else line.strip()[:200]
-    return ""
 
 
 def _relative(A: np.ndarray, B: np.ndarray) -> float:
@@ -192,7 +116,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
 
     Image arrays are (H, W, 3)/(H, W); cloud arrays (N, 2|3), of any numeric type (an (H, W) array 2 or 3 wide
     is a cloud). Paths are read by suffix: images through
-    OpenCV, clouds (.ply/.pcd/.xyz/.pts) through Open3D, .npy through numpy.
+    OpenCV, clouds by :func:`pcreg.cloud_reader.load_cloud` (.ply/.pcd/.xyz/.pts through Open3D, .npy through
+    numpy, .txt/.csv as columns of numbers).
     """
     def kind_of(x):
         if isinstance(x, (str, os.PathLike)):

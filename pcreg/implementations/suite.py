@@ -161,7 +161,7 @@ def builtin_cases(*, scans: str | os.PathLike | None = None, seed: int = 0) -> t
     skipped: dict[str, str] = {}
     scans_dir = Path(scans) if scans is not None else None
     if scans_dir is not None and all((scans_dir / f).exists() for f in ("source.ply", "target.ply", "T_target_source.txt")):
-        from .crosscheck import load_cloud
+        from ..cloud_reader import load_cloud
         from ..registration.api import voxel_downsample
 
         s = voxel_downsample(load_cloud(scans_dir / "source.ply"), 0.5)
@@ -258,7 +258,8 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
     twice = next((n for i, n in enumerate(meta["cases"]) if n in meta["cases"][:i]), None)
     if twice is not None:
         raise InputError(f"{index}: lists the case {twice!r} twice")
-    from .crosscheck import check_truth, load_cloud
+    from ..cloud_reader import load_cloud
+    from .crosscheck import check_truth
 
     from ..validation import check_float, check_int
 

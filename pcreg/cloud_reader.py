@@ -1,0 +1,189 @@
+"""Reading a point cloud from a file, by suffix: PLY, PCD and Open3D's text formats (.xyz, .xyzn, .xyzrgb, .pts)
+through Open3D once :mod:`pcreg.cloud_files` has checked them, .npy through numpy, and a text file of columns
+(.txt, .csv: what ``numpy.savetxt``, pycpd's, probreg's and libpointmatcher's data and most exports hold)
+through :func:`read_columns`. Whatever a reader would fill with zeros or skip is refused in one line naming the
+file (:class:`~pcreg.errors.InputError`)."""
+
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .cloud_files import _ASCII_NUMBER, check_cloud_file, check_npy_file
+from .errors import InputError
+from .registration.api import check_cloud
+from .validation import max_pixels
+
+__all__ = ["CLOUD_SUFFIXES", "TEXT_COLUMN_SUFFIXES", "load_cloud", "read_columns"]
+
+#: The suffixes read as columns of numbers by :func:`read_columns`.
+TEXT_COLUMN_SUFFIXES = (".txt", ".csv")
+#: Every suffix :func:`load_cloud` reads (any case).
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts", ".npy") + TEXT_COLUMN_SUFFIXES
+
+
+def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.ndarray:
+    """Points (N, 3), or (N, 2) from a .npy or a text file of two columns, read by suffix (:data:`CLOUD_SUFFIXES`).
+
+    Regular files only; the point count a PLY/PCD/NPY header declares must be within ``max_points``
+    (default :func:`pcreg.validation.max_pixels`) and present in the file: a truncated file is refused
+    (Open3D would pad it with zeros). A PCD's points whose coordinates are all NaN are left out: PCL marks so
+    the pixels of an organised cloud (a depth camera's, HEIGHT > 1) that measured nothing. Open3D's messages go
+    to stderr, never stdout.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
+    limit = max_pixels(max_points)
+    check_cloud_file(path, limit=limit)
+    if suffix == ".npy":
+        shape, _ = check_npy_file(path, limit)
+        if len(shape) != 2 or shape[1] not in (2, 3):
+            raise InputError(f"{path}: expected an (N, 2) or (N, 3) array of points, got shape {shape}")
+        try:
+            pts = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(f"{path}: not a numpy array file ({str(exc)[:120]})") from None
+    elif suffix in TEXT_COLUMN_SUFFIXES:
+        pts = read_columns(path, limit)
+    else:
+        pts = _read_open3d(path, suffix, limit)
+        if suffix == ".pcd":
+            unmeasured = np.isnan(pts).all(axis=1)
+            if unmeasured.all():
+                raise InputError(f"{path}: every point's coordinates are NaN (no point was measured)")
+            pts = pts[~unmeasured]
+    return check_cloud(pts, str(path))
+
+
+def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:
+    import open3d as o3d
+
+    from .quiet import capture_output_fds
+
+    with capture_output_fds() as said:  # Open3D prints its warnings on stdout (fd 1)
+        try:
+            pcd = o3d.io.read_point_cloud(str(path), format="auto", remove_nan_points=False,
+                                          remove_infinite_points=False)
+        except (RuntimeError, ValueError, MemoryError) as exc:
+            raise InputError(f"{path}: cannot read point cloud ({str(exc)[:120]})") from None
+    warning = _open3d_warning(said[0] if said else "")
+    if warning:  # Open3D fills what it could not read with zeros and only prints a warning
+        raise InputError(f"{path}: cannot read point cloud (Open3D: {warning})")
+    pts = np.asarray(pcd.points)
+    if pts.size == 0:
+        raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
+    if len(pts) > limit:
+        raise InputError(f"{path}: {len(pts)} points exceed the limit of {limit} (raise --max-pixels)")
+    if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
+        _check_text_cloud(path, suffix, len(pts))
+    return pts
+
+
+def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
+    """Open3D skips the lines of a text cloud it cannot parse, silently: refuse a file where it did.
+    Every non-empty line is a point (``.pts``: after a first line with the point count)."""
+    first, count = None, 0
+    with open(path, "rb") as fh:
+        for line in fh:  # streamed: the file may be large
+            if line.strip():
+                first = line.strip() if first is None else first
+                count += 1
+    expected = count
+    if suffix == ".pts" and first is not None and first.isdigit():
+        expected = count - 1
+        if int(first) != expected:
+            raise InputError(f"{path}: the first line declares {int(first)} points, the file holds {expected} lines")
+    if n_read != expected:
+        raise InputError(f"{path}: {expected - n_read} of {expected} lines are not points (damaged {suffix} file)")
+
+
+def _open3d_warning(text: str) -> str:
+    """The first warning or error line Open3D printed (ANSI colours removed), or ''."""
+    for line in re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines():
+        if "[Open3D WARNING]" in line or "[Open3D ERROR]" in line or "RPly: " in line:
+            return line.split("]", 1)[1].strip()[:200] if "[Open3D" in line else line.strip()[:200]
+    return ""
+
+
+_NUMBER = re.compile(_ASCII_NUMBER)
+
+
+def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarray:
+    """The points of a text file of columns: one point a line, its fields separated by commas, by semicolons
+    or by spaces and tabs (which of them, the first line says); blank lines and lines starting with ``#``
+    skipped. Two or three numbers a line are x, y (and z); a first line of names (``x,y,z,nx,ny,nz`` as
+    libpointmatcher writes, ``//X,Y,Z,R,G,B`` as CloudCompare does) says which columns are x, y and z, in any
+    number of columns. Every line must hold as many numbers as the first: a line that does not is an
+    :class:`InputError` naming it (a reader that skipped it would register a cloud the file does not hold)."""
+    path = Path(path)
+    lim = max_pixels(limit)
+    first, line_number = _first_line(path)
+    if first is None:
+        raise InputError(f"{path}: no points could be read (no line of numbers)")
+    separator = next((s for s in (b",", b";") if s in first), None)
+    fields = _split(first, separator)
+    columns = _columns(path, fields)
+    try:  # numpy's parser: strict (no "1_0", no "1,0" between spaces), and many times faster than a loop here
+        with warnings.catch_warnings():  # blank lines not counted in max_rows, no data: said here, not on stderr
+            warnings.simplefilter("ignore", UserWarning)
+            data = np.loadtxt(path, dtype=np.float64, comments="#", delimiter=None if separator is None else
+                              separator.decode(), skiprows=line_number if columns else 0, ndmin=2, max_rows=lim + 1,
+                              encoding="latin-1")
+    except ValueError as exc:
+        _bad_line(path, separator, len(fields), line_number + (1 if columns else 0))
+        raise InputError(f"{path}: cannot read its columns ({str(exc).split(';')[0][:120]})") from None
+    if len(data) > lim:
+        raise InputError(f"{path}: more than {lim} points exceed the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if len(data) == 0:
+        raise InputError(f"{path}: no points could be read (a first line of names and no line of numbers)")
+    if data.shape[1] != len(fields):
+        raise InputError(f"{path}: {data.shape[1]} numbers a line under a first line of {len(fields)} names")
+    return np.ascontiguousarray(data[:, columns]) if columns else data
+
+
+def _first_line(path: Path) -> tuple[bytes | None, int]:
+    """The first line that is neither blank nor a ``#`` comment, stripped, and its number (from 1)."""
+    with open(path, "rb") as fh:
+        for number, raw in enumerate(fh, 1):
+            line = raw.strip()
+            if line and not line.startswith(b"#"):
+                return line, number
+    return None, 0
+
+
+def _split(line: bytes, separator: bytes | None) -> list[bytes]:
+    return [f.strip() for f in line.split(separator)] if separator else line.split()
+
+
+def _bad_line(path: Path, separator: bytes | None, width: int, start: int) -> None:
+    """An :class:`InputError` naming the first line from line ``start`` on that is not ``width`` numbers."""
+    with open(path, "rb") as fh:
+        for number, raw in enumerate(fh, 1):
+            line = raw.strip()
+            if number < start or not line or line.startswith(b"#"):
+                continue
+            fields = _split(line, separator)
+            if len(fields) != width or not all(_NUMBER.fullmatch(f) for f in fields):
+                what = "is cut short" if not raw.endswith(b"\n") else f"is not {width} numbers, as the first"
+                raise InputError(f"{path}: line {number} ({line[:40].decode('ascii', 'replace')!r}) {what}")
+
+
+def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
+    """None for a first line of numbers with two or three of them; the x, y (and z) columns of a first line of
+    names; an :class:`InputError` otherwise (numbers in other counts say nothing of which are coordinates)."""
+    if all(_NUMBER.fullmatch(f) for f in fields):
+        if len(fields) in (2, 3):
+            return None
+        raise InputError(f"{path}: {len(fields)} number{'s' if len(fields) > 1 else ''} a line and no first line naming the x, y and z columns "
+                         "(give one, as 'x y z ...', or keep two or three columns)")
+    names = [f.decode("ascii", "replace").strip("\"'").lstrip("/").strip().lower() for f in fields]
+    if "x" not in names or "y" not in names:
+        text = b",".join(fields)[:60].decode("ascii", "replace")
+        raise InputError(f"{path}: its first line ({text!r}) names no x and y columns")
+    return [names.index(a) for a in "xyz" if a in names]

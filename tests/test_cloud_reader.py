@@ -1,0 +1,133 @@
+"""Point-cloud files in the layouts other ICP projects ship their test data in: columns of numbers in .txt and
+.csv (pycpd, probreg, libpointmatcher, libnabo, CloudCompare's export), PCL's organised PCDs whose pixels
+without a measurement are NaN. Each file here is built in the layout of the project's own file."""
+
+import struct
+
+import numpy as np
+import pytest
+
+from pcreg.cloud_reader import load_cloud, read_columns
+from pcreg.errors import InputError
+
+
+@pytest.fixture
+def pts():
+    return np.random.default_rng(0).normal(size=(40, 3))
+
+
+def test_text_columns_as_numpy_pycpd_and_libnabo_write_them(tmp_path, pts):
+    np.savetxt(tmp_path / "bunny.txt", pts)  # pycpd data/bunny_*.txt: "%.18e" and one space
+    np.testing.assert_array_equal(load_cloud(tmp_path / "bunny.txt"), pts)
+    np.savetxt(tmp_path / "fish.txt", pts[:, :2])  # pycpd data/fish_*.txt: a 2-D cloud
+    assert load_cloud(tmp_path / "fish.txt").shape == (40, 2)
+    # libpointmatcher 2D_twoBoxes.csv, libnabo scan.2d.txt: columns padded with spaces
+    (tmp_path / "boxes.csv").write_text("".join(f"   {x:.7e}   {y:.7e}\n" for x, y in pts[:, :2]))
+    np.testing.assert_allclose(load_cloud(tmp_path / "boxes.csv"), pts[:, :2], rtol=1e-7)
+    (tmp_path / "tabs.txt").write_text("# exported\n\n" + "".join(f"{x}\t{y}\t{z}\r\n" for x, y, z in pts))
+    np.testing.assert_array_equal(load_cloud(tmp_path / "tabs.txt"), pts)
+
+
+def test_a_first_line_of_names_says_which_columns_are_x_y_z(tmp_path, pts):
+    normals = np.random.default_rng(1).normal(size=(40, 3))
+    # libpointmatcher car_cloud400.csv: "x,y,z,nx,ny,nz", then "a , b , c , d,e,f"
+    rows = "".join(f"{a} , {b} , {c} , {d},{e},{f}\n" for (a, b, c), (d, e, f) in zip(pts, normals))
+    (tmp_path / "car.csv").write_text("x,y,z,nx,ny,nz\n" + rows)
+    np.testing.assert_array_equal(load_cloud(tmp_path / "car.csv"), pts)
+    # CloudCompare's ASCII export: "//X,Y,Z,R,G,B", colour first here
+    rows = "".join(f"255;0;7;{a};{b};{c}\n" for a, b, c in pts)
+    (tmp_path / "cc.txt").write_text("//R;G;B;X;Y;Z\n" + rows)
+    np.testing.assert_array_equal(load_cloud(tmp_path / "cc.txt"), pts)
+    (tmp_path / "xy.csv").write_text("id,x,y\n" + "".join(f"{i},{a},{b}\n" for i, (a, b, _) in enumerate(pts)))
+    np.testing.assert_array_equal(load_cloud(tmp_path / "xy.csv"), pts[:, :2])
+
+
+@pytest.mark.parametrize("text, match", [
+    ("1 2 3\n4 5\n6 7 8\n", r"line 2 \('4 5'\) is not 3 numbers"),
+    ("1 2 3\n4 5 6 7\n", r"line 2 \('4 5 6 7'\) is not 3 numbers"),
+    ("1 2 3\n4 5_0 6\n", r"line 2 \('4 5_0 6'\) is not 3 numbers"),
+    ("1 2 3\n4,5 6 7\n", r"line 2"),
+    ("1 2 3\n4 5 6\n7 8", r"line 3 \('7 8'\) is cut short"),
+    ("1 2 3 4\n5 6 7 8\n", r"4 numbers a line and no first line naming the x, y and z columns"),
+    ("7\n8\n", r"1 number a line"),
+    ("a,b,c\n1,2,3\n", r"its first line \('a,b,c'\) names no x and y columns"),
+    ("x,y,z\n", r"no points could be read \(a first line of names and no line of numbers\)"),
+    ("# nothing\n\n", r"no points could be read"),
+    ("x,y,z\n1,2,3\n4,5\n", r"line 3 \('4,5'\) is not 3 numbers"),
+])
+def test_a_text_cloud_that_is_not_columns_of_numbers_is_refused_naming_the_line(tmp_path, text, match):
+    path = tmp_path / "c.txt"
+    path.write_text(text)
+    with pytest.raises(InputError, match=f"{path.name}: {match}"):
+        load_cloud(path)
+
+
+def test_a_text_cloud_over_the_point_limit_is_refused(tmp_path, pts):
+    np.savetxt(tmp_path / "c.csv", pts, delimiter=",")
+    assert read_columns(tmp_path / "c.csv", limit=40).shape == (40, 3)
+    with pytest.raises(InputError, match="more than 39 points exceed the limit"):
+        read_columns(tmp_path / "c.csv", limit=39)
+
+
+def _organised_pcd(path, grid, kind):
+    """An organised PCD as PCL writes a depth camera's cloud: WIDTH x HEIGHT, NaN where nothing was measured."""
+    h, w, _ = grid.shape
+    head = (f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\n"
+            f"COUNT 1 1 1 1\nWIDTH {w}\nHEIGHT {h}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {w * h}\nDATA {kind}\n")
+    flat = grid.reshape(-1, 3)
+    if kind == "ascii":
+        body = "".join(f"{x} {y} {z} 4.2108e+06\n" for x, y, z in flat).encode()
+    else:
+        body = b"".join(struct.pack("<4f", x, y, z, 1.0) for x, y, z in flat)
+    path.write_bytes(head.encode() + body)
+
+
+@pytest.mark.parametrize("kind", ["ascii", "binary"])
+def test_an_organised_pcd_is_read_without_its_unmeasured_points(tmp_path, kind):
+    grid = np.random.default_rng(2).uniform(0.5, 3.0, (6, 8, 3)).astype(np.float32)
+    grid[0, :] = np.nan  # a row of the depth image with no return, and scattered holes
+    grid[3, 2] = grid[5, 7] = np.nan
+    path = tmp_path / "office.pcd"
+    _organised_pcd(path, grid, kind)
+    measured = grid.reshape(-1, 3)[~np.isnan(grid.reshape(-1, 3)).all(axis=1)]
+    np.testing.assert_array_equal(load_cloud(path), measured.astype(np.float64))
+    grid[4, 4, 1] = np.nan  # one coordinate of a point: damaged, not unmeasured
+    _organised_pcd(path, grid, kind)
+    with pytest.raises(InputError, match="1 point\\(s\\) have NaN or inf coordinates"):
+        load_cloud(path)
+    _organised_pcd(path, np.full((2, 3, 3), np.nan, np.float32), kind)
+    with pytest.raises(InputError, match="every point's coordinates are NaN"):
+        load_cloud(path)
+
+
+def test_two_dimensional_text_clouds_are_cross_checked_from_the_command_line(tmp_path, capsys):
+    """pycpd's 2-D rigid test: the fish turned by 30 degrees and moved by (0.5, 1.0), here by less, so that an
+    ICP from the identity reaches it."""
+    import json
+
+    from pcreg.cli import main
+
+    fish = np.random.default_rng(3).uniform(-1, 1, (91, 2))
+    a = np.radians(3.0)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    np.savetxt(tmp_path / "fish_target.txt", fish @ R + [0.02, 0.01])
+    np.savetxt(tmp_path / "fish_source.txt", fish)
+    assert main(["crosscheck", str(tmp_path / "fish_target.txt"), str(tmp_path / "fish_source.txt"),
+                 "--max-distance", "0.5", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    T = np.array(out["implementations"]["reference"]["matrix"])
+    np.testing.assert_allclose(T[:2, :2], R.T, atol=1e-9)
+    np.testing.assert_allclose(T[:2, 2], [0.02, 0.01], atol=1e-9)
+
+
+def test_crosscheck_of_files_of_an_unknown_type_says_so(tmp_path, capsys):
+    """libpointmatcher's cloud.00000.vtk and cloud.00001.vtk with --with: the command took them for images and
+    said '--with applies to point clouds'."""
+    from pcreg.cli import main
+
+    for name in ("cloud.00000.vtk", "cloud.00001.vtk"):
+        (tmp_path / name).write_text("# vtk DataFile Version 3.0\ndata\nASCII\nDATASET POLYDATA\nPOINTS 1 float\n1 2 3\n")
+    assert main(["crosscheck", str(tmp_path / "cloud.00000.vtk"), str(tmp_path / "cloud.00001.vtk"), "--with", "all"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pcreg: error: {tmp_path / 'cloud.00000.vtk'}: unknown file type '.vtk' (an image: .png")
+    assert ".txt, .csv)" in err

@@ -19,7 +19,7 @@ from .errors import InputError
 from .formats import check_regular_file, max_file_bytes
 from .validation import max_pixels
 
-__all__ = ["MAX_HEADER_BYTES", "MAX_PLY_LINE", "NPY_HEADER_ERRORS", "check_npy_file", "check_cloud_file"]
+__all__ = ["LZF_MOST_UNPACKED", "MAX_HEADER_BYTES", "MAX_PLY_LINE", "NPY_HEADER_ERRORS", "check_npy_file", "check_cloud_file"]
 
 
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
@@ -28,6 +28,10 @@ _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort"
 
 #: The most bytes a point cloud's header is read from (a PLY's comments may run long).
 MAX_HEADER_BYTES = 1 << 20
+#: The most bytes LZF (a compressed PCD's codec) unpacks from one byte: its longest item, a back reference of
+#: 3 bytes, copies 264 (a length of 7 + 255, plus 2); a literal run of k bytes takes k + 1. A block that claims
+#: more is damaged, or a bomb: a few hundred bytes declaring gigabytes that Open3D would reserve first.
+LZF_MOST_UNPACKED = 264 // 3
 #: The longest PLY header line read (bytes): Open3D's reader (RPly) copies each into a buffer of 1,024 and aborts
 #: the whole process past it ("buffer overflow detected").
 MAX_PLY_LINE = 1000
@@ -253,6 +257,10 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
         if raw != n * point_bytes or have - 8 < comp:
             raise InputError(f"{path}: truncated or damaged compressed PCD (block of {comp} bytes, "
                              f"{have - 8} present; {raw} bytes unpacked for {n * point_bytes} expected)")
+        if raw > LZF_MOST_UNPACKED * comp:  # Open3D reserves the points and the unpacked block before unpacking
+            raise InputError(f"{path}: damaged compressed PCD: its block of {comp} bytes cannot unpack to the {raw} "
+                             f"bytes ({n} points) its header declares (LZF unpacks a byte to {LZF_MOST_UNPACKED} at "
+                             "most)")
     else:
         raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r}")
     return n

@@ -1,0 +1,93 @@
+"""pcreg.cloud_files: the checks a PLY or PCD passes before Open3D reads it. A damaged file is refused in one
+line naming it before anything proportional to what its header declares is reserved; a sound file reads as
+Open3D wrote it. (The many hostile files of every loader are in test_hostile.py.)"""
+
+from __future__ import annotations
+
+import re
+import struct
+
+import numpy as np
+import pytest
+
+from pcreg.cloud_files import LZF_MOST_UNPACKED, check_cloud_file
+from pcreg.errors import InputError
+
+
+def pcd_head(n: int, kind: str, *, fields: str = "x y z", size: str = "4 4 4", type_: str = "F F F",
+             count: str = "1 1 1") -> bytes:
+    return (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {fields}\nSIZE {size}\nTYPE {type_}\nCOUNT {count}\nWIDTH {n}\n"
+            f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {kind}\n").encode()
+
+
+def compressed(head: bytes, raw: int, block: bytes) -> bytes:
+    """A binary_compressed PCD whose block of ``len(block)`` bytes declares ``raw`` bytes unpacked."""
+    return head + struct.pack("<II", len(block), raw) + block
+
+
+def _bombs(t):
+    """A few hundred bytes declaring 50 million points (600 MB unpacked), and 1,000 points of 4 MB each."""
+    (t / "bomb_points.pcd").write_bytes(compressed(pcd_head(50_000_000, "binary_compressed"), 600_000_000,
+                                                   bytes(200)))
+    head = pcd_head(1000, "binary_compressed", fields="x y z w", size="4 4 4 4", type_="F F F F",
+                    count="1 1 1 1000000")
+    (t / "bomb_count.pcd").write_bytes(compressed(head, 1000 * (12 + 4_000_000), bytes(200)))
+
+
+@pytest.fixture
+def clouds(tmp_path):
+    _bombs(tmp_path)
+    pts = np.random.default_rng(2).normal(size=(400, 3)).astype("<f4")
+    (tmp_path / "ok.pcd").write_bytes(pcd_head(400, "binary") + pts.tobytes())
+    return tmp_path
+
+
+def _reader_not_reached(monkeypatch):
+    import open3d as o3d
+
+    def read(*args, **kwargs):
+        raise AssertionError("the bomb reached Open3D's reader")
+
+    monkeypatch.setattr(o3d.io, "read_point_cloud", read)
+
+
+@pytest.mark.parametrize("name, declared", [("bomb_points.pcd", "600000000 bytes (50000000 points)"),
+                                            ("bomb_count.pcd", "4000012000 bytes (1000 points)")])
+def test_a_compressed_pcd_bomb_is_refused_before_open3d_reserves_it(clouds, monkeypatch, name, declared):
+    """Open3D reserves the declared points and the unpacked block before it unpacks (1.7 and 3.8 GiB of
+    address space for these files, std::bad_alloc under a memory limit): the block's own size refuses them."""
+    from pcreg.implementations.crosscheck import load_cloud
+
+    _reader_not_reached(monkeypatch)
+    with pytest.raises(InputError, match=re.escape(f"block of 200 bytes cannot unpack to the {declared}")) as err:
+        load_cloud(clouds / name)
+    assert str(err.value).startswith(str(clouds / name)) and "\n" not in str(err.value)
+
+
+def test_a_compressed_pcd_bomb_is_one_line_and_exit_2(clouds, capsys):
+    from pcreg.cli import main
+
+    rc = main(["crosscheck", str(clouds / "bomb_points.pcd"), str(clouds / "ok.pcd")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert "bomb_points.pcd: damaged compressed PCD" in err[0] and "Traceback" not in err[0]
+
+
+@pytest.mark.parametrize("zeros", [False, True])
+def test_compressed_pcds_open3d_writes_still_read(tmp_path, zeros):
+    """Open3D's own compressed PCDs pass, all-zero points too: LZF's best ratio, just under the bound."""
+    import open3d as o3d
+
+    from pcreg.implementations.crosscheck import load_cloud
+
+    n = 100_000 if zeros else 500
+    pts = np.zeros((n, 3)) if zeros else np.random.default_rng(3).normal(size=(n, 3)) * 10
+    path = tmp_path / "written.pcd"
+    o3d.io.write_point_cloud(str(path), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)), compressed=True)
+    data = path.read_bytes()
+    comp, raw = struct.unpack("<II", data[data.index(b"binary_compressed\n") + 18:][:8])
+    assert raw == 12 * n and (raw / comp > 80) == zeros  # zeros: near LZF_MOST_UNPACKED
+    assert raw <= LZF_MOST_UNPACKED * comp
+    assert check_cloud_file(path) == path
+    if not zeros:  # (an all-zero cloud is a registration input pcreg refuses further on)
+        np.testing.assert_array_equal(load_cloud(path), pts.astype(np.float32).astype(np.float64))

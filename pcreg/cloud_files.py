@@ -117,23 +117,24 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
 
 
 def _ply_ascii_body(path: Path, body_start: int, elements: list[list], vertex: list) -> None:
-    """An ASCII PLY's lines against its header: as many as its elements declare, and each vertex line of
-    scalar properties as many numbers as it has properties."""
+    """An ASCII PLY's lines against its header, read once: as many as its elements declare, and each vertex line
+    of scalar properties as many numbers as it has properties."""
     n = vertex[1]
     total = sum(e[1] for e in elements)
-    lines = _count_data_lines(path, body_start, total + 1)
-    if lines > total:  # a count that lies low: Open3D would read the first n rows and drop the rest
-        raise InputError(f"{path}: the PLY header declares {total} data lines ({n} vertices), the file holds more")
     before = 0
     for e in elements:
         if e is vertex:
             break
         before += e[1]
+    fields = None if vertex[3] else len(vertex[2])  # a vertex of scalar properties: each line holds as many numbers
+    lines, bad = _scan_rows(path, body_start, stop=total + 1, rows=(before, before + n), fields=fields)
+    if lines > total:  # a count that lies low: Open3D would read the first n rows and drop the rest
+        raise InputError(f"{path}: the PLY header declares {total} data lines ({n} vertices), the file holds more")
     if lines < before + n:
         raise InputError(f"{path}: truncated PLY: the header declares {n} vertices, the file holds "
                          f"{max(0, lines - before)}")
-    if not vertex[3]:  # a vertex of scalar properties: each line holds as many numbers
-        _check_ascii_rows(path, body_start, before, n, len(vertex[2]), "vertex")
+    if bad is not None:
+        raise _row_error(path, bad, fields or 0, "vertex")
 
 
 #: One number as an ASCII point cloud writes it (what C's ``strtod`` reads whole): digits, a point, an exponent,
@@ -141,31 +142,41 @@ def _ply_ascii_body(path: Path, body_start: int, elements: list[list], vertex: l
 _ASCII_NUMBER = rb"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|(?i:nan(?:\([0-9a-z_]*\))?|inf(?:inity)?))"
 
 
-def _check_ascii_rows(path: Path, start: int, skip: int, rows: int, fields: int, what: str) -> int:
-    """How many non-empty lines follow ``skip`` of them from byte ``start`` (at most ``rows`` + 1 counted), each
-    of the first ``rows`` checked to hold ``fields`` numbers (:data:`_ASCII_NUMBER`), no more and no fewer: a
-    line that does not is an :class:`InputError` naming it (Open3D reads one short line as the next one's
-    start, or fills a point with what its memory held, a junk line as a point at the origin)."""
-    row = re.compile(rb"\s*" + _ASCII_NUMBER + (rb"\s+" + _ASCII_NUMBER) * (fields - 1) + rb"\s*")
-    count = seen = 0
+def _row_pattern(fields: int) -> re.Pattern[bytes]:
+    """A data line of ``fields`` numbers (:data:`_ASCII_NUMBER`), no more and no fewer, between white space."""
+    return re.compile(rb"\s*" + _ASCII_NUMBER + (rb"\s+" + _ASCII_NUMBER) * (fields - 1) + rb"\s*")
+
+
+def _scan_rows(path: Path, start: int, *, stop: int, rows: tuple[int, int],
+               fields: int | None) -> tuple[int, tuple[int, bytes] | None]:
+    """One pass over the lines from byte ``start``: how many are not blank (at most ``stop`` counted), and the
+    first of the non-blank lines numbered ``rows[0]`` to ``rows[1] - 1`` (from 0) that does not hold ``fields``
+    numbers (:func:`_row_pattern`), as (its number among those rows from 1, its bytes), or None (``fields``
+    None: not checked)."""
+    row = None if fields is None else _row_pattern(fields)
+    count = 0
+    bad = None
     with open(path, "rb") as fh:
         fh.seek(start)
         for line in fh:
             if not line.strip():
                 continue
-            seen += 1
-            if seen <= skip:
-                continue
+            if row is not None and bad is None and rows[0] <= count < rows[1] and row.fullmatch(line) is None:
+                bad = (count - rows[0] + 1, line)
             count += 1
-            if count > rows:
+            if count >= stop:
                 break
-            if row.fullmatch(line) is None:
-                text = line.decode("ascii", "replace").strip()
-                if not line.endswith(b"\n"):  # the file ends inside this line
-                    raise InputError(f"{path}: truncated: its last line ({text[:40]!r}) is cut short")
-                raise InputError(f"{path}: {what} line {count} ({text[:40]!r}) is not {fields} numbers, as the header "
-                                 "declares")
-    return count
+    return count, bad
+
+
+def _row_error(path: Path, bad: tuple[int, bytes], fields: int, what: str) -> InputError:
+    """The refusal of a data line that is not ``fields`` numbers (Open3D reads one short line as the next one's
+    start, or fills a point with what its memory held, a junk line as a point at the origin)."""
+    number, line = bad
+    text = line.decode("ascii", "replace").strip()
+    if not line.endswith(b"\n"):  # the file ends inside this line
+        return InputError(f"{path}: truncated: its last line ({text[:40]!r}) is cut short")
+    return InputError(f"{path}: {what} line {number} ({text[:40]!r}) is not {fields} numbers, as the header declares")
 
 
 def _holds_data(path: Path, start: int) -> bool:
@@ -177,18 +188,6 @@ def _holds_data(path: Path, start: int) -> bool:
             if chunk.count(0) != len(chunk):
                 return True
     return False
-
-
-def _count_data_lines(path: Path, start: int, stop_after: int) -> int:
-    count = 0
-    with open(path, "rb") as fh:
-        fh.seek(start)
-        for line in fh:
-            if line.strip():
-                count += 1
-                if count >= stop_after:
-                    break
-    return count
 
 
 def _pcd_check(path: Path, size: int, limit: int) -> int:
@@ -235,7 +234,9 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: a binary PCD whose x, y, z are 8-byte numbers is not read correctly "
                          "(its points come out as zeros); save it with 4-byte floats, as ASCII PCD, PLY or .npy")
     if data_kind == "ascii":
-        lines = _check_ascii_rows(path, pos, 0, n, sum(counts), "data")
+        lines, bad = _scan_rows(path, pos, stop=n + 1, rows=(0, n), fields=sum(counts))
+        if bad is not None:
+            raise _row_error(path, bad, sum(counts), "data")
         if lines < n:
             raise InputError(f"{path}: truncated PCD: the header declares {n} points, the file holds {lines}")
         if lines > n:  # a count that lies low: Open3D would read the first n and drop the rest

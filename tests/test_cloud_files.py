@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -91,3 +92,59 @@ def test_compressed_pcds_open3d_writes_still_read(tmp_path, zeros):
     assert check_cloud_file(path) == path
     if not zeros:  # (an all-zero cloud is a registration input pcreg refuses further on)
         np.testing.assert_array_equal(load_cloud(path), pts.astype(np.float32).astype(np.float64))
+
+
+def ply_ascii(n: int, *, faces: int = 0, vertices: list[str] | None = None) -> bytes:
+    """An ASCII PLY declaring ``n`` vertices and ``faces`` faces; ``vertices``: its vertex lines (n random ones)."""
+    pts = np.random.default_rng(1).normal(size=(n, 3))
+    lines = [f"{a:.5f} {b:.5f} {c:.5f}\n" for a, b, c in pts] if vertices is None else vertices
+    head = (f"ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+            f"element face {faces}\nproperty list uchar int vertex_indices\nend_header\n")
+    return (head + "".join(lines) + "3 0 1 2\n" * faces).encode()
+
+
+def test_an_ascii_ply_is_read_once(tmp_path, monkeypatch):
+    """Its header, then its lines once: counted and checked in one pass (they were read twice)."""
+    import builtins
+
+    import pcreg.cloud_files as cloud_files
+
+    path = tmp_path / "ascii.ply"
+    path.write_bytes(ply_ascii(300, faces=2))
+    opened = []
+
+    def counting_open(file, *args, **kwargs):
+        opened.append(Path(file))
+        return builtins.open(file, *args, **kwargs)
+
+    monkeypatch.setattr(cloud_files, "open", counting_open, raising=False)
+    assert check_cloud_file(path) == path
+    assert opened == [path, path]  # the header, the lines
+
+
+GOOD = ["1 2 3\n"] * 5
+BAD = ["1 2 3\n", "1 2 3 7\n", "1 2 3\n", "1 2 3\n", "1 2 3\n"]
+
+
+@pytest.mark.parametrize("name, data, message", [
+    ("sound", ply_ascii(5, faces=2, vertices=GOOD), None),
+    ("a vertex line of four numbers", ply_ascii(5, faces=2, vertices=BAD), "vertex line 2 ('1 2 3 7') is not 3 numbers"),
+    ("that, and more lines than declared", ply_ascii(5, faces=2, vertices=BAD + ["1 2 3\n"]),
+     "the PLY header declares 7 data lines (5 vertices), the file holds more"),
+    ("that, and too few lines", ply_ascii(5, faces=0, vertices=BAD[:4]),
+     "truncated PLY: the header declares 5 vertices, the file holds 4"),
+    ("a face line where a vertex was", ply_ascii(5, faces=2, vertices=GOOD[:4] + ["3 0 1 2\n"]),
+     "vertex line 5 ('3 0 1 2') is not 3 numbers"),
+    ("blank lines between", ply_ascii(5, faces=2, vertices=["\n", "1 2 3\n", " \t\r\n"] + BAD[1:] + ["\n"]),
+     "vertex line 2 ('1 2 3 7') is not 3 numbers"),
+    ("the last vertex cut short", ply_ascii(5, faces=0, vertices=GOOD[:4] + ["1 2"]), "truncated: its last line ('1 2')"),
+])
+def test_an_ascii_ply_read_once_says_what_it_said(tmp_path, name, data, message):
+    """The count of lines is checked before the lines' numbers, as when they were two passes."""
+    path = tmp_path / "edited.ply"
+    path.write_bytes(data)
+    if message is None:
+        assert check_cloud_file(path) == path
+        return
+    with pytest.raises(InputError, match=re.escape(message)):
+        check_cloud_file(path)

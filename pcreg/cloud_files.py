@@ -12,6 +12,7 @@ import re
 import struct
 import tokenize
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -147,26 +148,113 @@ def _row_pattern(fields: int) -> re.Pattern[bytes]:
     return re.compile(rb"\s*" + _ASCII_NUMBER + (rb"\s+" + _ASCII_NUMBER) * (fields - 1) + rb"\s*")
 
 
+#: Classes of a data line's bytes in the vectorised check of plain numbers (:func:`_plain_rows`).
+_DIGIT, _WS, _POINT, _SIGN, _EXP, _OTHER = 0, 1, 2, 3, 4, 5
+_BYTE_CLASS = np.full(256, _OTHER, np.uint8)
+_BYTE_CLASS[list(b" \t\n\r\x0b\x0c")] = _WS  # what ``bytes.strip`` and the pattern's \s take for white space
+_BYTE_CLASS[list(b"0123456789")] = _DIGIT
+_BYTE_CLASS[ord(".")] = _POINT
+_BYTE_CLASS[list(b"+-")] = _SIGN
+_BYTE_CLASS[list(b"eE")] = _EXP
+#: Bytes read and checked at a time (whole lines: a longer line is read whole, and its block checked line by line).
+_SCAN_BYTES = 1 << 20
+
+
 def _scan_rows(path: Path, start: int, *, stop: int, rows: tuple[int, int],
                fields: int | None) -> tuple[int, tuple[int, bytes] | None]:
     """One pass over the lines from byte ``start``: how many are not blank (at most ``stop`` counted), and the
     first of the non-blank lines numbered ``rows[0]`` to ``rows[1] - 1`` (from 0) that does not hold ``fields``
     numbers (:func:`_row_pattern`), as (its number among those rows from 1, its bytes), or None (``fields``
-    None: not checked)."""
+    None: not checked). The lines are checked a block at a time (:func:`_plain_rows`); the pattern reads only
+    those that are not plain decimal numbers (nan, inf, damage), and decides."""
     row = None if fields is None else _row_pattern(fields)
+    numbers = max(1, fields or 0)  # the pattern's count of numbers (fields 0 gives one)
     count = 0
     bad = None
     with open(path, "rb") as fh:
         fh.seek(start)
-        for line in fh:
-            if not line.strip():
-                continue
-            if row is not None and bad is None and rows[0] <= count < rows[1] and row.fullmatch(line) is None:
-                bad = (count - rows[0] + 1, line)
-            count += 1
+        for buf in _blocks_of_lines(fh):
+            ends, filled, plain = _plain_rows(buf, numbers)
+            lines = np.flatnonzero(filled)[:stop - count]  # the block's non-blank lines, count + 0, 1, ...
+            if row is not None and bad is None:
+                lo, hi = max(0, rows[0] - count), max(0, rows[1] - count)
+                for j in np.flatnonzero(~plain[lines[lo:hi]]):
+                    i = lines[lo + j]
+                    line = buf[ends[i - 1] + 1 if i else 0:ends[i] + 1]
+                    if row.fullmatch(line) is None:
+                        bad = (count + lo + int(j) - rows[0] + 1, line)
+                        break
+            count += len(lines)
             if count >= stop:
                 break
     return count, bad
+
+
+def _blocks_of_lines(fh) -> Iterator[bytes]:
+    """The rest of ``fh`` in blocks of whole lines of about :data:`_SCAN_BYTES` each (after each newline, as a
+    file's lines are split), the last one as the file ends."""
+    pieces: list[bytes] = []
+    while block := fh.read(_SCAN_BYTES):
+        cut = block.rfind(b"\n") + 1
+        if cut == 0:  # inside a line longer than a block
+            pieces.append(block)
+            continue
+        yield b"".join(pieces) + block[:cut]
+        pieces = [block[cut:]]
+    if any(pieces):
+        yield b"".join(pieces)
+
+
+def _plain_rows(buf: bytes, numbers: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each line of ``buf`` ends (its newline, or the last byte), which lines are not blank, and which are
+    certainly ``numbers`` plain decimal numbers: :data:`_ASCII_NUMBER` without nan and inf, decided from each
+    sign's, point's and exponent's neighbours and from one point and one exponent a number at most, the point
+    before the exponent. A line not found plain may still be numbers: the pattern decides. A block longer than
+    two of :data:`_SCAN_BYTES` (a line longer than one) is left to the pattern, line by line: its arrays would
+    take several times its size."""
+    if len(buf) > 2 * _SCAN_BYTES:
+        ends = np.array([m.start() for m in re.finditer(rb"\n", buf)] + ([] if buf.endswith(b"\n") else [len(buf) - 1]),
+                        dtype=np.int64)
+        filled = np.array([bool(buf[e0 + 1:e1 + 1].strip()) for e0, e1 in zip(np.r_[-1, ends[:-1]], ends)], dtype=bool)
+        return ends, filled, np.zeros(len(ends), bool)
+    raw = np.frombuffer(buf, np.uint8)
+    c = np.take(_BYTE_CLASS, raw)
+    ws = c == _WS
+    white = np.flatnonzero(ws)
+    ends = white[raw[white] == 10]
+    if not buf.endswith(b"\n"):
+        ends = np.append(ends, len(buf) - 1)
+    begins = np.r_[-1, white] + 1  # the first byte of each number (or of anything else)
+    begins = begins[begins < len(c)]
+    begins = begins[c[begins] != _WS]
+    tokens = np.diff(np.searchsorted(begins, ends, side="right"), prepend=0)
+    spaces = np.cumsum(ws, dtype=np.int32)  # bytes p < q, not white, are in one token iff spaces[p] == spaces[q]
+
+    def near(at: np.ndarray, k: int) -> np.ndarray:  # the class of the byte k after each of ``at`` (white off buf)
+        q = at + k
+        out = np.full(len(at), _WS, np.uint8)
+        inside = (q >= 0) & (q < len(c))
+        out[inside] = c[q[inside]]
+        return out
+
+    marks = np.flatnonzero(c > _WS)
+    kinds = c[marks]
+    sign, point, exp = (marks[kinds == k] for k in (_SIGN, _POINT, _EXP))
+    before, after = near(sign, -1), near(sign, 1)
+    wrong = [marks[kinds == _OTHER],
+             sign[~(((before == _WS) & ((after == _DIGIT) | (after == _POINT))) | ((before == _EXP) & (after == _DIGIT)))],
+             point[(near(point, -1) != _DIGIT) & (near(point, 1) != _DIGIT)]]
+    before, after = near(exp, -1), near(exp, 1)
+    mantissa = (before == _DIGIT) | ((before == _POINT) & (near(exp, -2) == _DIGIT))
+    wrong.append(exp[~mantissa | ((after != _DIGIT) & (after != _SIGN))])
+    in_point, in_exp = spaces[point], spaces[exp]
+    for at, token in ((point, in_point), (exp, in_exp)):  # a second point, or a second exponent, in one number
+        wrong.append(at[1:][token[1:] == token[:-1]])
+    last = np.searchsorted(exp, point) - 1  # a point after its number's exponent
+    wrong.append(point[last >= 0][in_point[last >= 0] == in_exp[last[last >= 0]]])
+    damaged = np.zeros(len(ends), bool)
+    damaged[np.searchsorted(ends, np.concatenate(wrong))] = True
+    return ends, tokens > 0, ~damaged & (tokens == numbers)
 
 
 def _row_error(path: Path, bad: tuple[int, bytes], fields: int, what: str) -> InputError:

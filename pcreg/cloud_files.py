@@ -143,9 +143,10 @@ def _ply_ascii_body(path: Path, body_start: int, elements: list[list], vertex: l
 _ASCII_NUMBER = rb"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|(?i:nan(?:\([0-9a-z_]*\))?|inf(?:inity)?))"
 
 
-def _row_pattern(fields: int) -> re.Pattern[bytes]:
-    """A data line of ``fields`` numbers (:data:`_ASCII_NUMBER`), no more and no fewer, between white space."""
-    return re.compile(rb"\s*" + _ASCII_NUMBER + (rb"\s+" + _ASCII_NUMBER) * (fields - 1) + rb"\s*")
+def _row_pattern(numbers: int) -> re.Pattern[bytes]:
+    """A data line of ``numbers`` numbers (:data:`_ASCII_NUMBER`) between white space, no more and no fewer (a
+    counted repeat: its size does not follow the header's COUNT, which may declare a billion)."""
+    return re.compile(rb"\s*" + _ASCII_NUMBER + rb"(?:\s+" + _ASCII_NUMBER + rb"){%d}\s*" % (numbers - 1))
 
 
 #: Classes of a data line's bytes in the vectorised check of plain numbers (:func:`_plain_rows`).
@@ -167,21 +168,22 @@ def _scan_rows(path: Path, start: int, *, stop: int, rows: tuple[int, int],
     numbers (:func:`_row_pattern`), as (its number among those rows from 1, its bytes), or None (``fields``
     None: not checked). The lines are checked a block at a time (:func:`_plain_rows`); the pattern reads only
     those that are not plain decimal numbers (nan, inf, damage), and decides."""
-    row = None if fields is None else _row_pattern(fields)
-    numbers = max(1, fields or 0)  # the pattern's count of numbers (fields 0 gives one)
+    numbers = max(1, fields or 0)  # as the line's pattern counted them: fields 0 took one number
     count = 0
     bad = None
     with open(path, "rb") as fh:
+        fits = 2 * numbers - 1 <= os.fstat(fh.fileno()).st_size - start  # else no line can hold them
+        row = _row_pattern(numbers) if fits else None
         fh.seek(start)
         for buf in _blocks_of_lines(fh):
             ends, filled, plain = _plain_rows(buf, numbers)
             lines = np.flatnonzero(filled)[:stop - count]  # the block's non-blank lines, count + 0, 1, ...
-            if row is not None and bad is None:
+            if fields is not None and bad is None:
                 lo, hi = max(0, rows[0] - count), max(0, rows[1] - count)
                 for j in np.flatnonzero(~plain[lines[lo:hi]]):
                     i = lines[lo + j]
                     line = buf[ends[i - 1] + 1 if i else 0:ends[i] + 1]
-                    if row.fullmatch(line) is None:
+                    if row is None or row.fullmatch(line) is None:
                         bad = (count + lo + int(j) - rows[0] + 1, line)
                         break
             count += len(lines)

@@ -156,10 +156,16 @@ def test_an_ascii_ply_read_once_says_what_it_said(tmp_path, name, data, message)
 # the lines of ASCII clouds, checked a block at a time
 # ------------------------------------------------------------------------------------------------
 
-def _line_by_line(path, start, *, stop, rows, fields):
-    """What _scan_rows must give: each line read and matched by the pattern in turn (the check as it was)."""
-    from pcreg.cloud_files import _row_pattern
+def _row_pattern(fields: int) -> re.Pattern[bytes]:
+    """A whole line of ``fields`` numbers (one if 0), as the check matched each line (the number written out
+    ``fields`` times)."""
+    from pcreg.cloud_files import _ASCII_NUMBER
 
+    return re.compile(rb"\s*" + _ASCII_NUMBER + (rb"\s+" + _ASCII_NUMBER) * (fields - 1) + rb"\s*")
+
+
+def _line_by_line(path, start, *, stop, rows, fields):
+    """What _scan_rows must give: each line read and matched by the line's pattern in turn (the check as it was)."""
     row = None if fields is None else _row_pattern(fields)
     count, bad = 0, None
     with open(path, "rb") as fh:
@@ -207,7 +213,7 @@ def test_plain_lines_are_exactly_the_patterns_own(numbers):
     every line the pattern takes is found plain."""
     import itertools
 
-    from pcreg.cloud_files import _plain_rows, _row_pattern
+    from pcreg.cloud_files import _plain_rows
 
     row = _row_pattern(numbers)
 
@@ -253,3 +259,16 @@ def test_the_pattern_reads_only_lines_that_are_not_plain_numbers(tmp_path, monke
     path.write_bytes(pcd_head(1000, "ascii") + "".join(rows[:700] + ["1 2 3,5\n"] + rows[701:]).encode())
     with pytest.raises(InputError, match=re.escape("data line 701 ('1 2 3,5') is not 3 numbers, as the header")):
         check_cloud_file(path)
+
+
+def test_a_count_of_a_billion_is_checked_line_by_line_in_bounded_memory(tmp_path):
+    """COUNT 1 1 100000 in a 10 kB ASCII PCD took 64 s and 1.2 GB (a pattern repeating the number 100,002 times),
+    a million more than 300 s, and a billion ran out of memory naming no file: the pattern counts its repeats."""
+    pts = np.random.default_rng(2).normal(size=(300, 3)).astype("<f4")
+    body = "".join(f"{a} {b} {c}\n" for a, b, c in pts).encode()
+    for count in (100_000, 1_000_000_000):
+        path = tmp_path / f"count_{count}.pcd"
+        path.write_bytes(pcd_head(300, "ascii", count=f"1 1 {count}") + body)
+        with pytest.raises(InputError, match=re.escape(f"count_{count}.pcd: data line 1 (")) as err:
+            check_cloud_file(path)
+        assert f"is not {count + 2} numbers, as the header declares" in str(err.value)

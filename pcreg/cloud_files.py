@@ -150,13 +150,14 @@ def _row_pattern(numbers: int) -> re.Pattern[bytes]:
 
 
 #: Classes of a data line's bytes in the vectorised check of plain numbers (:func:`_plain_rows`).
-_DIGIT, _WS, _POINT, _SIGN, _EXP, _OTHER = 0, 1, 2, 3, 4, 5
+_DIGIT, _WS, _POINT, _SIGN, _EXP, _LETTER, _OTHER = 0, 1, 2, 3, 4, 5, 6
 _BYTE_CLASS = np.full(256, _OTHER, np.uint8)
 _BYTE_CLASS[list(b" \t\n\r\x0b\x0c")] = _WS  # what ``bytes.strip`` and the pattern's \s take for white space
 _BYTE_CLASS[list(b"0123456789")] = _DIGIT
 _BYTE_CLASS[ord(".")] = _POINT
 _BYTE_CLASS[list(b"+-")] = _SIGN
 _BYTE_CLASS[list(b"eE")] = _EXP
+_BYTE_CLASS[list(b"nNaAiIfFtTyY")] = _LETTER  # of nan, inf and infinity
 #: Bytes read and checked at a time (whole lines: a longer line is read whole, and its block checked line by line).
 _SCAN_BYTES = 1 << 20
 
@@ -167,7 +168,7 @@ def _scan_rows(path: Path, start: int, *, stop: int, rows: tuple[int, int],
     first of the non-blank lines numbered ``rows[0]`` to ``rows[1] - 1`` (from 0) that does not hold ``fields``
     numbers (:func:`_row_pattern`), as (its number among those rows from 1, its bytes), or None (``fields``
     None: not checked). The lines are checked a block at a time (:func:`_plain_rows`); the pattern reads only
-    those that are not plain decimal numbers (nan, inf, damage), and decides."""
+    those that are not found plain numbers (``nan(...)``, damage), and decides."""
     numbers = max(1, fields or 0)  # as the line's pattern counted them: fields 0 took one number
     count = 0
     bad = None
@@ -180,12 +181,14 @@ def _scan_rows(path: Path, start: int, *, stop: int, rows: tuple[int, int],
             lines = np.flatnonzero(filled)[:stop - count]  # the block's non-blank lines, count + 0, 1, ...
             if fields is not None and bad is None:
                 lo, hi = max(0, rows[0] - count), max(0, rows[1] - count)
-                for j in np.flatnonzero(~plain[lines[lo:hi]]):
-                    i = lines[lo + j]
-                    line = buf[ends[i - 1] + 1 if i else 0:ends[i] + 1]
-                    if row is None or row.fullmatch(line) is None:
-                        bad = (count + lo + int(j) - rows[0] + 1, line)
-                        break
+                doubt = np.flatnonzero(~plain[lines[lo:hi]])  # the lines (of those checked) the pattern decides
+                at = lines[lo:hi][doubt]
+                firsts, lasts = np.where(at > 0, ends[at - 1] + 1, 0).tolist(), (ends[at] + 1).tolist()
+                failed = (k for k, (first, last) in enumerate(zip(firsts, lasts))
+                          if row is None or row.fullmatch(buf, first, last) is None)
+                k = next(failed, None)
+                if k is not None:
+                    bad = (count + lo + int(doubt[k]) - rows[0] + 1, buf[firsts[k]:lasts[k]])
             count += len(lines)
             if count >= stop:
                 break
@@ -209,9 +212,8 @@ def _blocks_of_lines(fh) -> Iterator[bytes]:
 
 def _plain_rows(buf: bytes, numbers: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where each line of ``buf`` ends (its newline, or the last byte), which lines are not blank, and which are
-    certainly ``numbers`` plain decimal numbers: :data:`_ASCII_NUMBER` without nan and inf, decided from each
-    sign's, point's and exponent's neighbours and from one point and one exponent a number at most, the point
-    before the exponent. A line not found plain may still be numbers: the pattern decides. A block longer than
+    certainly ``numbers`` plain numbers: :data:`_ASCII_NUMBER` but ``nan(...)``, each byte judged in its place
+    (:func:`_misplaced`). A line not found plain may still be numbers: the pattern decides. A block longer than
     two of :data:`_SCAN_BYTES` (a line longer than one) is left to the pattern, line by line: its arrays would
     take several times its size."""
     if len(buf) > 2 * _SCAN_BYTES:
@@ -221,8 +223,7 @@ def _plain_rows(buf: bytes, numbers: int) -> tuple[np.ndarray, np.ndarray, np.nd
         return ends, filled, np.zeros(len(ends), bool)
     raw = np.frombuffer(buf, np.uint8)
     c = np.take(_BYTE_CLASS, raw)
-    ws = c == _WS
-    white = np.flatnonzero(ws)
+    white = np.flatnonzero(c == _WS)
     ends = white[raw[white] == 10]
     if not buf.endswith(b"\n"):
         ends = np.append(ends, len(buf) - 1)
@@ -230,9 +231,19 @@ def _plain_rows(buf: bytes, numbers: int) -> tuple[np.ndarray, np.ndarray, np.nd
     begins = begins[begins < len(c)]
     begins = begins[c[begins] != _WS]
     tokens = np.diff(np.searchsorted(begins, ends, side="right"), prepend=0)
-    spaces = np.cumsum(ws, dtype=np.int32)  # bytes p < q, not white, are in one token iff spaces[p] == spaces[q]
+    damaged = np.logical_or.reduceat(c == _OTHER, np.r_[0, ends[:-1] + 1])  # a byte of no number
+    if not damaged.all():  # (every line of a block of nan(ind) has one)
+        damaged[np.searchsorted(ends, _misplaced(raw, c))] = True
+    return ends, tokens > 0, ~damaged & (tokens == numbers)
 
-    def near(at: np.ndarray, k: int) -> np.ndarray:  # the class of the byte k after each of ``at`` (white off buf)
+
+def _misplaced(raw: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Where a sign, point, exponent or letter of ``raw`` (classes ``c``) stands where no number
+    (:data:`_ASCII_NUMBER`) has it: a sign first or after the exponent, before a digit (or a point or a word,
+    first); a point beside a digit; an exponent after a digit (or a point after one), before a digit or a sign;
+    one point and one exponent a number, the point first; a word of letters nan, inf or infinity, alone or after
+    a sign."""
+    def near(at: np.ndarray, k: int) -> np.ndarray:  # the class of the byte k after each of ``at`` (white off raw)
         q = at + k
         out = np.full(len(at), _WS, np.uint8)
         inside = (q >= 0) & (q < len(c))
@@ -241,22 +252,30 @@ def _plain_rows(buf: bytes, numbers: int) -> tuple[np.ndarray, np.ndarray, np.nd
 
     marks = np.flatnonzero(c > _WS)
     kinds = c[marks]
-    sign, point, exp = (marks[kinds == k] for k in (_SIGN, _POINT, _EXP))
+    sign, point, exp, letter = (marks[kinds == k] for k in (_SIGN, _POINT, _EXP, _LETTER))
     before, after = near(sign, -1), near(sign, 1)
-    wrong = [marks[kinds == _OTHER],
-             sign[~(((before == _WS) & ((after == _DIGIT) | (after == _POINT))) | ((before == _EXP) & (after == _DIGIT)))],
+    first = (before == _WS) & ((after == _DIGIT) | (after == _POINT) | (after == _LETTER))
+    wrong = [sign[~(first | ((before == _EXP) & (after == _DIGIT)))],
              point[(near(point, -1) != _DIGIT) & (near(point, 1) != _DIGIT)]]
     before, after = near(exp, -1), near(exp, 1)
     mantissa = (before == _DIGIT) | ((before == _POINT) & (near(exp, -2) == _DIGIT))
     wrong.append(exp[~mantissa | ((after != _DIGIT) & (after != _SIGN))])
+    spaces = np.cumsum(c == _WS, dtype=np.int32)  # bytes p < q, not white, are in one number iff spaces[p] == spaces[q]
     in_point, in_exp = spaces[point], spaces[exp]
-    for at, token in ((point, in_point), (exp, in_exp)):  # a second point, or a second exponent, in one number
-        wrong.append(at[1:][token[1:] == token[:-1]])
+    for at, number in ((point, in_point), (exp, in_exp)):  # a second point, or a second exponent, in one number
+        wrong.append(at[1:][number[1:] == number[:-1]])
     last = np.searchsorted(exp, point) - 1  # a point after its number's exponent
     wrong.append(point[last >= 0][in_point[last >= 0] == in_exp[last[last >= 0]]])
-    damaged = np.zeros(len(ends), bool)
-    damaged[np.searchsorted(ends, np.concatenate(wrong))] = True
-    return ends, tokens > 0, ~damaged & (tokens == numbers)
+    starts, stops = letter[near(letter, -1) != _LETTER], letter[near(letter, 1) != _LETTER]  # words of letters
+    word = np.zeros(len(starts), bool)
+    for spelt in (b"nan", b"inf", b"infinity"):
+        match = stops - starts + 1 == len(spelt)
+        for k, byte in enumerate(spelt):  # (| 0x20: in lower case)
+            match &= (raw[np.minimum(starts + k, len(raw) - 1)] | 0x20) == byte
+        word |= match
+    placed = ((near(starts, -1) == _WS) | (near(starts, -1) == _SIGN)) & (near(stops, 1) == _WS)
+    wrong.append(starts[~(word & placed)])
+    return np.concatenate(wrong)
 
 
 def _row_error(path: Path, bad: tuple[int, bytes], fields: int, what: str) -> InputError:

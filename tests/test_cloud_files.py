@@ -277,3 +277,56 @@ def test_a_count_of_a_billion_is_checked_line_by_line_in_bounded_memory(tmp_path
         with pytest.raises(InputError, match=re.escape(f"count_{count}.pcd: data line 1 (")) as err:
             check_cloud_file(path)
         assert f"is not {count + 2} numbers, as the header declares" in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------------
+# hostile PCD and PLY files on the command line: one line, exit 2
+# ------------------------------------------------------------------------------------------------
+
+def _points_text() -> bytes:
+    pts = np.random.default_rng(2).normal(size=(300, 3)).astype("<f4")
+    return "".join(f"{a} {b} {c}\n" for a, b, c in pts).encode()
+
+
+PLY_HEAD = b"ply\nformat ascii 1.0\nelement vertex 300\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+HOSTILE = {
+    "header_only_ascii.pcd": (lambda: pcd_head(300, "ascii"), "truncated PCD: the header declares 300 points, the file holds 0"),
+    "header_only_binary.pcd": (lambda: pcd_head(300, "binary"), "the file holds 0 bytes"),
+    "header_only_compressed.pcd": (lambda: pcd_head(300, "binary_compressed"), "truncated PCD (no compressed block)"),
+    "header_only.ply": (lambda: PLY_HEAD, "truncated PLY: the header declares 300 vertices, the file holds 0"),
+    "points_negative.pcd": (lambda: pcd_head(300, "ascii").replace(b"POINTS 300", b"POINTS -300") + _points_text(),
+                            "no points in the PCD header"),
+    "points_not_an_integer.pcd": (lambda: pcd_head(300, "ascii").replace(b"POINTS 300", b"POINTS 300.0") + _points_text(),
+                                  "damaged PCD header (POINTS, SIZE, COUNT)"),
+    "count_short.pcd": (lambda: pcd_head(300, "ascii", count="1 1") + _points_text(), "SIZE and COUNT disagree"),
+    "count_a_billion.pcd": (lambda: pcd_head(300, "ascii", count="1 1 1000000000") + _points_text(),
+                            "is not 1000000002 numbers"),
+    "nan_coordinate.pcd": (lambda: pcd_head(300, "ascii") + b"nan 1 2\n" + _points_text().split(b"\n", 1)[1],
+                           "1 point(s) have NaN or inf coordinates"),
+    "cut_inside_its_last_line.pcd": (lambda: pcd_head(300, "ascii") + _points_text()[:_points_text().rindex(b" ") - 2],
+                                     "is cut short"),
+    "compressed_junk.pcd": (lambda: compressed(pcd_head(300, "binary_compressed"), 3600, bytes(range(100))),
+                            "Uncompression failed"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(HOSTILE))
+def test_hostile_clouds_are_one_line_and_exit_2(tmp_path, capsys, name):
+    from pcreg.cli import main
+
+    make, message = HOSTILE[name]
+    (tmp_path / name).write_bytes(make())
+    (tmp_path / "ok.ply").write_bytes(PLY_HEAD + _points_text())
+    rc = main(["crosscheck", str(tmp_path / name), str(tmp_path / "ok.ply")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "Traceback" not in err[0], err
+    assert f"{name}: " in err[0] and message in err[0], err
+
+
+def test_crlf_clouds_read_as_their_lf_twins(tmp_path):
+    from pcreg.implementations.crosscheck import load_cloud
+
+    for name, text in (("c.pcd", pcd_head(300, "ascii") + _points_text()), ("c.ply", PLY_HEAD + _points_text())):
+        (tmp_path / f"lf_{name}").write_bytes(text)
+        (tmp_path / f"crlf_{name}").write_bytes(text.replace(b"\n", b"\r\n"))
+        np.testing.assert_array_equal(load_cloud(tmp_path / f"crlf_{name}"), load_cloud(tmp_path / f"lf_{name}"))

@@ -12,6 +12,7 @@ import re
 import struct
 import tokenize
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from .errors import InputError
 from .formats import check_regular_file, max_file_bytes
 from .validation import max_pixels
 
-__all__ = ["MAX_HEADER_BYTES", "MAX_PLY_LINE", "NPY_HEADER_ERRORS", "check_npy_file", "check_cloud_file"]
+__all__ = ["LZF_MOST_UNPACKED", "MAX_HEADER_BYTES", "MAX_PLY_LINE", "NPY_HEADER_ERRORS", "check_npy_file", "check_cloud_file"]
 
 
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
@@ -28,6 +29,10 @@ _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort"
 
 #: The most bytes a point cloud's header is read from (a PLY's comments may run long).
 MAX_HEADER_BYTES = 1 << 20
+#: The most bytes LZF (a compressed PCD's codec) unpacks from one byte: its longest item, a back reference of
+#: 3 bytes, copies 264 (a length of 7 + 255, plus 2); a literal run of k bytes takes k + 1. A block that claims
+#: more is damaged, or a bomb: a few hundred bytes declaring gigabytes that Open3D would reserve first.
+LZF_MOST_UNPACKED = 264 // 3
 #: The longest PLY header line read (bytes): Open3D's reader (RPly) copies each into a buffer of 1,024 and aborts
 #: the whole process past it ("buffer overflow detected").
 MAX_PLY_LINE = 1000
@@ -113,23 +118,24 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
 
 
 def _ply_ascii_body(path: Path, body_start: int, elements: list[list], vertex: list) -> None:
-    """An ASCII PLY's lines against its header: as many as its elements declare, and each vertex line of
-    scalar properties as many numbers as it has properties."""
+    """An ASCII PLY's lines against its header, read once: as many as its elements declare, and each vertex line
+    of scalar properties as many numbers as it has properties."""
     n = vertex[1]
     total = sum(e[1] for e in elements)
-    lines = _count_data_lines(path, body_start, total + 1)
-    if lines > total:  # a count that lies low: Open3D would read the first n rows and drop the rest
-        raise InputError(f"{path}: the PLY header declares {total} data lines ({n} vertices), the file holds more")
     before = 0
     for e in elements:
         if e is vertex:
             break
         before += e[1]
+    fields = None if vertex[3] else len(vertex[2])  # a vertex of scalar properties: each line holds as many numbers
+    lines, bad = _scan_rows(path, body_start, stop=total + 1, rows=(before, before + n), fields=fields)
+    if lines > total:  # a count that lies low: Open3D would read the first n rows and drop the rest
+        raise InputError(f"{path}: the PLY header declares {total} data lines ({n} vertices), the file holds more")
     if lines < before + n:
         raise InputError(f"{path}: truncated PLY: the header declares {n} vertices, the file holds "
                          f"{max(0, lines - before)}")
-    if not vertex[3]:  # a vertex of scalar properties: each line holds as many numbers
-        _check_ascii_rows(path, body_start, before, n, len(vertex[2]), "vertex")
+    if bad is not None:
+        raise _row_error(path, bad, fields or 0, "vertex")
 
 
 #: One number as an ASCII point cloud writes it (what C's ``strtod`` reads whole): digits, a point, an exponent,
@@ -137,31 +143,149 @@ def _ply_ascii_body(path: Path, body_start: int, elements: list[list], vertex: l
 _ASCII_NUMBER = rb"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|(?i:nan(?:\([0-9a-z_]*\))?|inf(?:inity)?))"
 
 
-def _check_ascii_rows(path: Path, start: int, skip: int, rows: int, fields: int, what: str) -> int:
-    """How many non-empty lines follow ``skip`` of them from byte ``start`` (at most ``rows`` + 1 counted), each
-    of the first ``rows`` checked to hold ``fields`` numbers (:data:`_ASCII_NUMBER`), no more and no fewer: a
-    line that does not is an :class:`InputError` naming it (Open3D reads one short line as the next one's
-    start, or fills a point with what its memory held, a junk line as a point at the origin)."""
-    row = re.compile(rb"\s*" + _ASCII_NUMBER + (rb"\s+" + _ASCII_NUMBER) * (fields - 1) + rb"\s*")
-    count = seen = 0
+def _row_pattern(numbers: int) -> re.Pattern[bytes]:
+    """A data line of ``numbers`` numbers (:data:`_ASCII_NUMBER`) between white space, no more and no fewer (a
+    counted repeat: its size does not follow the header's COUNT, which may declare a billion)."""
+    return re.compile(rb"\s*" + _ASCII_NUMBER + rb"(?:\s+" + _ASCII_NUMBER + rb"){%d}\s*" % (numbers - 1))
+
+
+#: Classes of a data line's bytes in the vectorised check of plain numbers (:func:`_plain_rows`).
+_DIGIT, _WS, _POINT, _SIGN, _EXP, _LETTER, _OTHER = 0, 1, 2, 3, 4, 5, 6
+_BYTE_CLASS = np.full(256, _OTHER, np.uint8)
+_BYTE_CLASS[list(b" \t\n\r\x0b\x0c")] = _WS  # what ``bytes.strip`` and the pattern's \s take for white space
+_BYTE_CLASS[list(b"0123456789")] = _DIGIT
+_BYTE_CLASS[ord(".")] = _POINT
+_BYTE_CLASS[list(b"+-")] = _SIGN
+_BYTE_CLASS[list(b"eE")] = _EXP
+_BYTE_CLASS[list(b"nNaAiIfFtTyY")] = _LETTER  # of nan, inf and infinity
+#: Bytes read and checked at a time (whole lines: a longer line is read whole, and its block checked line by line).
+_SCAN_BYTES = 1 << 20
+
+
+def _scan_rows(path: Path, start: int, *, stop: int, rows: tuple[int, int],
+               fields: int | None) -> tuple[int, tuple[int, bytes] | None]:
+    """One pass over the lines from byte ``start``: how many are not blank (at most ``stop`` counted), and the
+    first of the non-blank lines numbered ``rows[0]`` to ``rows[1] - 1`` (from 0) that does not hold ``fields``
+    numbers (:func:`_row_pattern`), as (its number among those rows from 1, its bytes), or None (``fields``
+    None: not checked). The lines are checked a block at a time (:func:`_plain_rows`); the pattern reads only
+    those that are not found plain numbers (``nan(...)``, damage), and decides."""
+    numbers = max(1, fields or 0)  # as the line's pattern counted them: fields 0 took one number
+    count = 0
+    bad = None
     with open(path, "rb") as fh:
+        fits = 2 * numbers - 1 <= os.fstat(fh.fileno()).st_size - start  # else no line can hold them
+        row = _row_pattern(numbers) if fits else None
         fh.seek(start)
-        for line in fh:
-            if not line.strip():
-                continue
-            seen += 1
-            if seen <= skip:
-                continue
-            count += 1
-            if count > rows:
+        for buf in _blocks_of_lines(fh):
+            ends, filled, plain = _plain_rows(buf, numbers)
+            lines = np.flatnonzero(filled)[:stop - count]  # the block's non-blank lines, count + 0, 1, ...
+            if fields is not None and bad is None:
+                lo, hi = max(0, rows[0] - count), max(0, rows[1] - count)
+                doubt = np.flatnonzero(~plain[lines[lo:hi]])  # the lines (of those checked) the pattern decides
+                at = lines[lo:hi][doubt]
+                firsts, lasts = np.where(at > 0, ends[at - 1] + 1, 0).tolist(), (ends[at] + 1).tolist()
+                failed = (k for k, (first, last) in enumerate(zip(firsts, lasts))
+                          if row is None or row.fullmatch(buf, first, last) is None)
+                k = next(failed, None)
+                if k is not None:
+                    bad = (count + lo + int(doubt[k]) - rows[0] + 1, buf[firsts[k]:lasts[k]])
+            count += len(lines)
+            if count >= stop:
                 break
-            if row.fullmatch(line) is None:
-                text = line.decode("ascii", "replace").strip()
-                if not line.endswith(b"\n"):  # the file ends inside this line
-                    raise InputError(f"{path}: truncated: its last line ({text[:40]!r}) is cut short")
-                raise InputError(f"{path}: {what} line {count} ({text[:40]!r}) is not {fields} numbers, as the header "
-                                 "declares")
-    return count
+    return count, bad
+
+
+def _blocks_of_lines(fh) -> Iterator[bytes]:
+    """The rest of ``fh`` in blocks of whole lines of about :data:`_SCAN_BYTES` each (after each newline, as a
+    file's lines are split), the last one as the file ends."""
+    pieces: list[bytes] = []
+    while block := fh.read(_SCAN_BYTES):
+        cut = block.rfind(b"\n") + 1
+        if cut == 0:  # inside a line longer than a block
+            pieces.append(block)
+            continue
+        yield b"".join(pieces) + block[:cut]
+        pieces = [block[cut:]]
+    if any(pieces):
+        yield b"".join(pieces)
+
+
+def _plain_rows(buf: bytes, numbers: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each line of ``buf`` ends (its newline, or the last byte), which lines are not blank, and which are
+    certainly ``numbers`` plain numbers: :data:`_ASCII_NUMBER` but ``nan(...)``, each byte judged in its place
+    (:func:`_misplaced`). A line not found plain may still be numbers: the pattern decides. A block longer than
+    two of :data:`_SCAN_BYTES` (a line longer than one) is left to the pattern, line by line: its arrays would
+    take several times its size."""
+    if len(buf) > 2 * _SCAN_BYTES:
+        ends = np.array([m.start() for m in re.finditer(rb"\n", buf)] + ([] if buf.endswith(b"\n") else [len(buf) - 1]),
+                        dtype=np.int64)
+        filled = np.array([bool(buf[e0 + 1:e1 + 1].strip()) for e0, e1 in zip(np.r_[-1, ends[:-1]], ends)], dtype=bool)
+        return ends, filled, np.zeros(len(ends), bool)
+    raw = np.frombuffer(buf, np.uint8)
+    c = np.take(_BYTE_CLASS, raw)
+    white = np.flatnonzero(c == _WS)
+    ends = white[raw[white] == 10]
+    if not buf.endswith(b"\n"):
+        ends = np.append(ends, len(buf) - 1)
+    begins = np.r_[-1, white] + 1  # the first byte of each number (or of anything else)
+    begins = begins[begins < len(c)]
+    begins = begins[c[begins] != _WS]
+    tokens = np.diff(np.searchsorted(begins, ends, side="right"), prepend=0)
+    damaged = np.logical_or.reduceat(c == _OTHER, np.r_[0, ends[:-1] + 1])  # a byte of no number
+    if not damaged.all():  # (every line of a block of nan(ind) has one)
+        damaged[np.searchsorted(ends, _misplaced(raw, c))] = True
+    return ends, tokens > 0, ~damaged & (tokens == numbers)
+
+
+def _misplaced(raw: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Where a sign, point, exponent or letter of ``raw`` (classes ``c``) stands where no number
+    (:data:`_ASCII_NUMBER`) has it: a sign first or after the exponent, before a digit (or a point or a word,
+    first); a point beside a digit; an exponent after a digit (or a point after one), before a digit or a sign;
+    one point and one exponent a number, the point first; a word of letters nan, inf or infinity, alone or after
+    a sign."""
+    def near(at: np.ndarray, k: int) -> np.ndarray:  # the class of the byte k after each of ``at`` (white off raw)
+        q = at + k
+        out = np.full(len(at), _WS, np.uint8)
+        inside = (q >= 0) & (q < len(c))
+        out[inside] = c[q[inside]]
+        return out
+
+    marks = np.flatnonzero(c > _WS)
+    kinds = c[marks]
+    sign, point, exp, letter = (marks[kinds == k] for k in (_SIGN, _POINT, _EXP, _LETTER))
+    before, after = near(sign, -1), near(sign, 1)
+    first = (before == _WS) & ((after == _DIGIT) | (after == _POINT) | (after == _LETTER))
+    wrong = [sign[~(first | ((before == _EXP) & (after == _DIGIT)))],
+             point[(near(point, -1) != _DIGIT) & (near(point, 1) != _DIGIT)]]
+    before, after = near(exp, -1), near(exp, 1)
+    mantissa = (before == _DIGIT) | ((before == _POINT) & (near(exp, -2) == _DIGIT))
+    wrong.append(exp[~mantissa | ((after != _DIGIT) & (after != _SIGN))])
+    spaces = np.cumsum(c == _WS, dtype=np.int32)  # bytes p < q, not white, are in one number iff spaces[p] == spaces[q]
+    in_point, in_exp = spaces[point], spaces[exp]
+    for at, number in ((point, in_point), (exp, in_exp)):  # a second point, or a second exponent, in one number
+        wrong.append(at[1:][number[1:] == number[:-1]])
+    last = np.searchsorted(exp, point) - 1  # a point after its number's exponent
+    wrong.append(point[last >= 0][in_point[last >= 0] == in_exp[last[last >= 0]]])
+    starts, stops = letter[near(letter, -1) != _LETTER], letter[near(letter, 1) != _LETTER]  # words of letters
+    word = np.zeros(len(starts), bool)
+    for spelt in (b"nan", b"inf", b"infinity"):
+        match = stops - starts + 1 == len(spelt)
+        for k, byte in enumerate(spelt):  # (| 0x20: in lower case)
+            match &= (raw[np.minimum(starts + k, len(raw) - 1)] | 0x20) == byte
+        word |= match
+    placed = ((near(starts, -1) == _WS) | (near(starts, -1) == _SIGN)) & (near(stops, 1) == _WS)
+    wrong.append(starts[~(word & placed)])
+    return np.concatenate(wrong)
+
+
+def _row_error(path: Path, bad: tuple[int, bytes], fields: int, what: str) -> InputError:
+    """The refusal of a data line that is not ``fields`` numbers (Open3D reads one short line as the next one's
+    start, or fills a point with what its memory held, a junk line as a point at the origin)."""
+    number, line = bad
+    text = line.decode("ascii", "replace").strip()
+    if not line.endswith(b"\n"):  # the file ends inside this line
+        return InputError(f"{path}: truncated: its last line ({text[:40]!r}) is cut short")
+    return InputError(f"{path}: {what} line {number} ({text[:40]!r}) is not {fields} numbers, as the header declares")
 
 
 def _holds_data(path: Path, start: int) -> bool:
@@ -173,18 +297,6 @@ def _holds_data(path: Path, start: int) -> bool:
             if chunk.count(0) != len(chunk):
                 return True
     return False
-
-
-def _count_data_lines(path: Path, start: int, stop_after: int) -> int:
-    count = 0
-    with open(path, "rb") as fh:
-        fh.seek(start)
-        for line in fh:
-            if line.strip():
-                count += 1
-                if count >= stop_after:
-                    break
-    return count
 
 
 def _pcd_check(path: Path, size: int, limit: int) -> int:
@@ -231,7 +343,9 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: a binary PCD whose x, y, z are 8-byte numbers is not read correctly "
                          "(its points come out as zeros); save it with 4-byte floats, as ASCII PCD, PLY or .npy")
     if data_kind == "ascii":
-        lines = _check_ascii_rows(path, pos, 0, n, sum(counts), "data")
+        lines, bad = _scan_rows(path, pos, stop=n + 1, rows=(0, n), fields=sum(counts))
+        if bad is not None:
+            raise _row_error(path, bad, sum(counts), "data")
         if lines < n:
             raise InputError(f"{path}: truncated PCD: the header declares {n} points, the file holds {lines}")
         if lines > n:  # a count that lies low: Open3D would read the first n and drop the rest
@@ -253,6 +367,10 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
         if raw != n * point_bytes or have - 8 < comp:
             raise InputError(f"{path}: truncated or damaged compressed PCD (block of {comp} bytes, "
                              f"{have - 8} present; {raw} bytes unpacked for {n * point_bytes} expected)")
+        if raw > LZF_MOST_UNPACKED * comp:  # Open3D reserves the points and the unpacked block before unpacking
+            raise InputError(f"{path}: damaged compressed PCD: its block of {comp} bytes cannot unpack to the {raw} "
+                             f"bytes ({n} points) its header declares (LZF unpacks a byte to {LZF_MOST_UNPACKED} at "
+                             "most)")
     else:
         raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r}")
     return n

@@ -333,13 +333,18 @@ def _model_fit(reference: CloudPyramid, moving: CloudPyramid, config: RegisterCo
     if (config.model not in NARROWER or not config.plausibility.model_check
             or config.plausibility.min_inlier_ratio is None):
         return None
-    icp = config.icp
-    richer = CoarseToFine(reference, icp_step("reference"),  # pcreg's own step: Open3D's has no projective model
-                          settings=IcpSettings(model=RICHER_MODEL, relative_fitness=icp.relative_fitness,
-                                               weights=icp.weights),
-                          max_correspondence_distance=icp.max_correspondence_distance, iterations=icp.iterations,
-                          relative_rmse=icp.relative_rmse)
+    richer = _refiner(reference, config, RICHER_MODEL, "reference")  # pcreg's own step: Open3D's has no projective model
     return model_fit(best, moving, richer, test, shape)
+
+
+def _refiner(reference: CloudPyramid, config: RegisterConfig, model: str, backend: str, *,
+             point_to_line: bool = False) -> CoarseToFine:
+    """The coarse-to-fine ICP of ``model`` with ``backend``'s step onto ``reference``, with ``config``'s ICP options."""
+    icp = config.icp
+    return CoarseToFine(reference, icp_step(backend),
+                        settings=IcpSettings(model=model, relative_fitness=icp.relative_fitness, weights=icp.weights),
+                        max_correspondence_distance=icp.max_correspondence_distance, iterations=icp.iterations,
+                        relative_rmse=icp.relative_rmse, point_to_line=point_to_line)
 
 
 def _configured(config: RegisterConfig, *, model: str | None, backend: str | None, init) -> RegisterConfig:
@@ -519,11 +524,7 @@ def _search(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfi
     candidate keeps its ICP iterations (a callback reports the best's, instead of refining it a second
     time)."""
     icp, plausibility, s = config.icp, config.plausibility, config.search
-    refiner = CoarseToFine(reference, icp_step(icp.backend),
-                           settings=IcpSettings(model=config.model, relative_fitness=icp.relative_fitness,
-                                                weights=icp.weights),
-                           max_correspondence_distance=icp.max_correspondence_distance, iterations=icp.iterations,
-                           relative_rmse=icp.relative_rmse, point_to_line=icp.refine == "point_to_line")
+    refiner = _refiner(reference, config, config.model, icp.backend, point_to_line=icp.refine == "point_to_line")
     test = Plausibility(reference, refiner.tree, model=config.model, min_inlier_ratio=plausibility.min_inlier_ratio,
                         inlier_tolerance=plausibility.inlier_tolerance,
                         reference_max_points=config.pyramid.reference_max_points)

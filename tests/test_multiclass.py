@@ -321,7 +321,10 @@ def test_the_confidence_kernels_give_numpys_numbers():
     with np.errstate(invalid="ignore"):
         expected_lm = np.log1p(np.maximum(margin, np.float32(0)))
     lm = log_margins(margin)
-    assert np.array_equal(lm, expected_lm, equal_nan=True)
+    # numpy's float32 log1p is its own SIMD routine where the CPU has AVX-512, and it differs from the C
+    # library's, which the compiled kernel calls, by one or two units in the last place (6% of these values there)
+    assert np.array_equal(np.isnan(lm), np.isnan(expected_lm))
+    np.testing.assert_array_max_ulp(np.nan_to_num(lm), np.nan_to_num(expected_lm), maxulp=2)
     lm = np.nan_to_num(lm)
     z0, piece = (rng.normal(0.0, 20.0, (h, w)).astype(np.float32) for _ in range(2))
     a, b, c, least = -1.131, -1.38, 0.834, 0.25

@@ -82,6 +82,25 @@ def test_a_crosscheck_with_no_correspondence_at_the_initial_pose_is_refused(tmp_
     assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "init.txt")]) == 0
 
 
+def test_a_crosscheck_whose_pairs_at_the_initial_pose_do_not_determine_a_rotation_is_refused(tmp_path, capsys):
+    """One source point within the gate of a 3-D target: pcreg's reference stopped where it started while
+    Open3D moved by a rotation one pair cannot determine, and the command exited 0; it is refused (exit 3),
+    naming how many points were within the gate and how many a rigid motion needs."""
+    from pcreg.cli import main
+
+    rng = np.random.default_rng(0)
+    target = rng.random((400, 3))
+    t = np.radians(30)
+    source = target @ np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]]).T + [0.3, 0.1, 0]
+    np.savetxt(tmp_path / "s.xyz", source)
+    np.savetxt(tmp_path / "t.xyz", target)
+    assert main(["crosscheck", str(tmp_path / "t.xyz"), str(tmp_path / "s.xyz")]) == 3
+    err = capsys.readouterr().err
+    assert "registration refused: 1 source point of 400 lies within the correspondence distance" in err
+    assert "a rigid motion in 3-D needs 3" in err
+    assert main(["crosscheck", str(tmp_path / "t.xyz"), str(tmp_path / "s.xyz"), "--max-distance", "0.05"]) == 0
+
+
 def test_a_suite_case_with_no_correspondence_is_a_refused_row_and_the_others_run():
     from pcreg.implementations.suite import Case, run_suite
 

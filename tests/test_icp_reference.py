@@ -179,11 +179,28 @@ def test_a_similarity_of_coinciding_points_is_refused_in_the_compiled_loop():
         icp_reference(source, target, ICPOptions(model="similarity", max_correspondence_distance=5.0))
 
 
-def test_no_correspondences_means_no_motion():
+def test_no_correspondences_means_no_motion_and_not_converged():
     a = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     r = icp_reference(a, a + 100, ICPOptions(max_correspondence_distance=1.0))
     np.testing.assert_array_equal(r.matrix, np.eye(3))
-    assert r.fitness == 0.0 and r.inlier_rmse == 0.0 and r.converged
+    assert r.fitness == 0.0 and r.inlier_rmse == 0.0 and not r.converged and r.iterations == 0
+
+
+@pytest.mark.parametrize("weights", ["none", "huber"])  # the compiled loop, and the loop with weights
+def test_too_few_pairs_for_the_model_stop_the_run_not_converged(weights):
+    """One pair within the gate in 3-D does not determine a rotation: the run stops where it started, and
+    does not say it converged (it said so before, from an identity step that changed nothing)."""
+    rng = np.random.default_rng(0)
+    source = rng.random((400, 3))
+    t = np.radians(30)
+    rot = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    target = source @ rot.T + [0.3, 0.1, 0]
+    r = icp_reference(source, target, ICPOptions(max_correspondence_distance=0.0172, weights=weights))
+    assert r.fitness * len(source) < 3
+    np.testing.assert_array_equal(r.matrix, np.eye(4))
+    assert not r.converged and r.iterations == 0
+    near = icp_reference(source, source + 0.01, ICPOptions(max_correspondence_distance=0.05, weights=weights))
+    assert near.converged and near.iterations > 0
 
 
 @pytest.mark.parametrize("pts, model, message", [

@@ -350,7 +350,7 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     pinned = impls.Pinned(src, tgt, T0, float(max_correspondence_distance), int(max_iterations),
                           float(relative_fitness), float(relative_rmse))
     diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
-    _check_some_correspondence(src, tgt, T0, float(max_correspondence_distance))  # anything to run on?
+    _check_enough_correspondences(src, tgt, T0, float(max_correspondence_distance))  # anything to run on?
     outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
     ref = outcomes.get(REFERENCE)
     conv, conv_info = _reference_at_convergence(adapters, outcomes, pinned)
@@ -411,18 +411,31 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     return src, tgt, T0, max_correspondence_distance
 
 
-def _check_some_correspondence(src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, distance: float) -> None:
-    """A :class:`RegistrationError` when no source point, at the initial pose, has a target point within
-    ``distance``: every ICP stops where it started (fitness 0), and a cross-check of identities would read as
-    implementations that agree and converged."""
+def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, distance: float) -> None:
+    """A :class:`RegistrationError` when fewer source points, at the initial pose, have a target point within
+    ``distance`` than a rigid motion needs (2 in 2-D, 3 in 3-D). With none, every ICP stops where it started
+    (fitness 0), and a cross-check of identities would read as implementations that agree and converged;
+    with one or two in 3-D the rotation is not determined: pcreg's reference stops where it started, others
+    (Open3D's step takes any non-empty set) move by a rotation the pairs do not determine."""
     from scipy.spatial import cKDTree
 
+    from ..registration.reference import MIN_POINTS
+
+    d = src.shape[1]
+    need = MIN_POINTS["rigid"] if d == 2 else 3
     moved = src @ T0[:-1, :-1].T + T0[:-1, -1]
     near, _ = cKDTree(tgt).query(moved, k=1, distance_upper_bound=distance)
-    if not np.isfinite(near).any():
+    found = int(np.count_nonzero(np.isfinite(near)))
+    if found == 0:
         raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
                                 f"{distance:g} of a target point at the initial pose; every ICP would stop where it "
                                 "started (give --init, or a larger --max-distance)")
+    if found < need:
+        raise RegistrationError(f"registration refused: {found} source point{'s' if found > 1 else ''} of "
+                                f"{len(src)} lie{'' if found > 1 else 's'} within the correspondence distance "
+                                f"{distance:g} of a target point at the initial pose, and a rigid motion in {d}-D "
+                                f"needs {need}: the pairs do not determine the rotation (give --init, or a larger "
+                                "--max-distance)")
 
 
 def _adapters(names: list[str], timeout: float | None) -> tuple[dict, dict]:

@@ -370,8 +370,8 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
         p, q = pts[ok], target[idx[ok]]
         w = robust_weights(np.sqrt(d2[ok]), weights, scale=robust_scale, trim_fraction=options.trim_fraction)
         if int(np.count_nonzero(w)) < need:
-            update = np.eye(d + 1)  # as Open3D: no usable correspondences, no motion; the rule then stops
-        elif metric == "point_to_line":
+            break  # too few pairs for the model: the run stops where it is, not converged
+        if metric == "point_to_line":
             update = estimate_point_to_line(p, q, target_normals[idx[ok]], w, model)
         elif metric == "point_to_plane":
             update = estimate_point_to_plane(p, q, target_normals[idx[ok]], w)
@@ -435,6 +435,8 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: KD
             raise RegistrationError("ICP update is not finite (degenerate correspondences)")
         if state[4] == 2:
             raise RegistrationError("degenerate correspondences: all source points coincide")
+        if state[4] == 3:
+            break
         report()
     return _finished(T, float(state[0]), float(state[1]), int(state[2]), bool(state[3]), start)
 
@@ -444,32 +446,35 @@ def _next_update(k, sd2, sp, sq, spp, sqp, center, model, need, T, state):
     """One iteration's update from the matched pairs' moments (:func:`pcreg.registration._nn_kernels._moments`,
     relative to ``center``; ``sd2`` unused), in the original coordinates; model 0, 1, 2 = translation,
     rigid, similarity. Applies it to ``T`` and counts the iteration in ``state`` (:func:`_moment_loop`);
-    on error (1: not finite; 2: a similarity's source points all coincide) sets ``state[4]`` instead."""
+    on error (1: not finite; 2: a similarity's source points all coincide; 3: fewer pairs than the model
+    needs, ``need``) sets ``state[4]`` instead."""
     d = sp.shape[0]
     update = np.eye(d + 1)
-    if k >= need:  # else as Open3D: no usable correspondences, no motion; the rule then stops
-        mp = sp / k
-        mq = sq / k
-        if model == 0:
-            for a in range(d):
-                update[a, d] = mq[a] - mp[a]
-        else:
-            cov = np.empty((d, d))  # Umeyama's Eq. 38
-            var_p = spp / k  # Eq. 36
-            for a in range(d):
-                var_p -= mp[a] * mp[a]
-                for b in range(d):
-                    cov[a, b] = sqp[a, b] / k - mq[a] * mp[b]
-            update, ok = _umeyama(cov, var_p, mp, mq, model == 2)
-            if not ok:
-                state[4] = 2
-                return update
-        # back from centred coordinates: x -> A (x - c) + t + c
+    if k < need:  # too few pairs for the model: the run stops where it is, not converged
+        state[4] = 3
+        return update
+    mp = sp / k
+    mq = sq / k
+    if model == 0:
         for a in range(d):
-            acc = 0.0
+            update[a, d] = mq[a] - mp[a]
+    else:
+        cov = np.empty((d, d))  # Umeyama's Eq. 38
+        var_p = spp / k  # Eq. 36
+        for a in range(d):
+            var_p -= mp[a] * mp[a]
             for b in range(d):
-                acc += update[a, b] * center[b]
-            update[a, d] += center[a] - acc
+                cov[a, b] = sqp[a, b] / k - mq[a] * mp[b]
+        update, ok = _umeyama(cov, var_p, mp, mq, model == 2)
+        if not ok:
+            state[4] = 2
+            return update
+    # back from centred coordinates: x -> A (x - c) + t + c
+    for a in range(d):
+        acc = 0.0
+        for b in range(d):
+            acc += update[a, b] * center[b]
+        update[a, d] += center[a] - acc
     if not np.isfinite(update).all():
         state[4] = 1
         return update

@@ -125,6 +125,7 @@ class Run:
         if request.config.follow == "object" and table.n_known > 2:
             raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
                              f"object), not {table.n_known} classes; use --follow scene (the default) for them")
+        _note_memory(keys, table, request.config.scale)
         prop = None if pending is None else request.config.from_key_frame(
             pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
         identity = with_classes(run_identity(inputs.frames, request.frames, request.labels, request.config,
@@ -482,6 +483,19 @@ class Run:
         lines = steps.read_bytes().splitlines() if steps.is_file() else []
         keys, names = run_frames(state, [ln for ln in lines if ln.strip()])
         return state, keys, names
+
+
+def _note_memory(keys: dict, table, scale: float) -> None:
+    """A note on stderr before the first frame when the run is expected to need more memory than the
+    system has available (:func:`~pcreg.runs.memory.memory_note`); nothing else changes."""
+    import sys
+
+    from .memory import available_bytes, memory_note
+
+    h, w = next(iter(keys.values())).shape[:2]  # the key labels are the frames' size
+    note = memory_note(w, h, table.n_known, scale, available_bytes())
+    if note:
+        sys.stderr.write(f"pcreg: note: {note}\n")
 
 
 def log_frame(rec, t: int, image, labels, report, name: str, size, *, reference=None) -> None:

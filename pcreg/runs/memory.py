@@ -1,0 +1,62 @@
+"""How much memory ``pcreg run`` needs for its frames' size and classes, and a note before it starts when the
+machine has less to give: a process that asks for more than there is is killed by the system without a word
+(the run resumes, but the user learns nothing of why).
+
+The step keeps maps of the working size, several of them one value a class (the scores, the carried priors,
+their blur), so its memory grows with the pixels times the classes. Measured with ``/usr/bin/time -f %M`` on
+``pcreg run`` over eight CamVid frames brought to 1280x720 (resident peak: 603 MB with two classes, 1031 MB with
+eleven, 620 MB with eleven at ``--scale 0.5``), and on the step alone at 640x480, 1280x720 and 1920x1080
+(docs/operations.md, "Memory")."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["BASE_BYTES", "FRAME_BYTES", "WORK_BYTES", "CLASS_BYTES", "run_bytes", "available_bytes", "memory_note"]
+
+#: What the process holds before the first frame: the interpreter, the libraries and the compiled kernels.
+BASE_BYTES = 400 * 2**20
+#: Bytes a pixel of the frames' own size: the frame decoded, the next one read ahead, the labels and the
+#: confidence written behind.
+FRAME_BYTES = 100
+#: Bytes a pixel of the working size besides the classes' maps: the registration's pyramids and field, DIS.
+WORK_BYTES = 30
+#: Bytes a pixel of the working size for each class: the class scores, the carried priors, the fused scores and
+#: their blur.
+CLASS_BYTES = 54
+#: The smaller working sizes the note proposes, in order.
+SCALES = (0.75, 0.5, 0.25)
+
+
+def run_bytes(width: int, height: int, classes: int, scale: float = 1.0) -> int:
+    """The resident memory (bytes) a run over frames of ``width`` x ``height`` with ``classes`` classes (two for
+    ground and obstacle) at ``scale`` is expected to reach."""
+    work = max(1, round(width * scale)) * max(1, round(height * scale))
+    return int(BASE_BYTES + FRAME_BYTES * width * height + work * (WORK_BYTES + CLASS_BYTES * max(2, classes)))
+
+
+def available_bytes(meminfo: Path = Path("/proc/meminfo")) -> int | None:
+    """The memory the system can give without swapping (``MemAvailable``), or None where it does not say."""
+    try:
+        for line in meminfo.read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def memory_note(width: int, height: int, classes: int, scale: float, available: int | None) -> str | None:
+    """A one-line note when a run is expected to need more than ``available`` bytes (None: unknown, no note),
+    naming the largest of :data:`SCALES` below ``scale`` that fits; None when it fits."""
+    need = run_bytes(width, height, classes, scale)
+    if available is None or need <= available:
+        return None
+    gb = 2.0**30
+    said = (f"a run over {width}x{height} frames with {max(2, classes)} classes"
+            f"{f' at --scale {scale:g}' if scale != 1 else ''} is expected to need about {need / gb:.1f} GB, and "
+            f"{available / gb:.1f} GB is available: the system may stop it without a message (it resumes)")
+    fits = next((s for s in SCALES if s < scale and run_bytes(width, height, classes, s) <= available), None)
+    if fits is None:
+        return said + "; free memory or give smaller frames"
+    return said + f"; --scale {fits:g} needs about {run_bytes(width, height, classes, fits) / gb:.1f} GB"

@@ -1,0 +1,45 @@
+"""The memory a run is expected to need, and the note before it starts when the machine has less."""
+
+import pytest
+
+from pcreg.runs.memory import available_bytes, memory_note, run_bytes
+
+GB = 2**30
+
+
+def test_the_expected_memory_grows_with_the_classes_and_falls_with_the_scale():
+    two, eleven = run_bytes(1280, 720, 2), run_bytes(1280, 720, 11)
+    assert two < eleven
+    assert run_bytes(1280, 720, 11, 0.5) < eleven
+    # what pcreg run reached over eight 1280x720 frames (603 MB, 1031 MB, and 620 MB at --scale 0.5): each
+    # expectation above it, by no more than a fifth
+    for expected, measured in ((two, 603), (eleven, 1031), (run_bytes(1280, 720, 11, 0.5), 620)):
+        assert measured * 2**20 <= expected <= 1.2 * measured * 2**20
+    assert run_bytes(3840, 2160, 11) > 5.5 * GB  # 4K frames, eleven classes
+
+
+def test_no_note_when_the_run_fits_or_the_system_does_not_say():
+    assert memory_note(640, 480, 11, 1.0, 8 * GB) is None
+    assert memory_note(3840, 2160, 11, 1.0, None) is None
+
+
+def test_the_note_names_the_largest_scale_that_fits():
+    need = run_bytes(3840, 2160, 11)
+    note = memory_note(3840, 2160, 11, 1.0, run_bytes(3840, 2160, 11, 0.5) + 1)
+    assert note is not None and f"about {need / GB:.1f} GB" in note and "3840x2160 frames with 11 classes" in note
+    assert note.endswith(f"--scale 0.5 needs about {run_bytes(3840, 2160, 11, 0.5) / GB:.1f} GB")
+    assert "--scale 0.75" not in note
+    tight = memory_note(3840, 2160, 11, 0.5, 100 * 2**20)
+    assert tight is not None and "at --scale 0.5" in tight and tight.endswith("free memory or give smaller frames")
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("MemTotal:       16000000 kB\nMemAvailable:    2048 kB\n", 2048 * 1024),
+    ("MemTotal:       16000000 kB\n", None),  # an old kernel: no MemAvailable
+    ("MemAvailable: lots\n", None),
+])
+def test_the_available_memory_is_read_from_meminfo(tmp_path, text, expected):
+    path = tmp_path / "meminfo"
+    path.write_text(text)
+    assert available_bytes(path) == expected
+    assert available_bytes(tmp_path / "absent") is None

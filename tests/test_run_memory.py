@@ -4,7 +4,7 @@ import pytest
 
 from pcreg.runs.memory import available_bytes, memory_note, run_bytes
 
-GB = 2**30
+GIB = 2**30
 
 
 def test_the_expected_memory_grows_with_the_classes_and_falls_with_the_scale():
@@ -15,19 +15,19 @@ def test_the_expected_memory_grows_with_the_classes_and_falls_with_the_scale():
     # expectation above it, by no more than a fifth
     for expected, measured in ((two, 603), (eleven, 1031), (run_bytes(1280, 720, 11, 0.5), 620)):
         assert measured * 2**20 <= expected <= 1.2 * measured * 2**20
-    assert run_bytes(3840, 2160, 11) > 5.5 * GB  # 4K frames, eleven classes
+    assert run_bytes(3840, 2160, 11) > 5.5 * GIB  # 4K frames, eleven classes
 
 
 def test_no_note_when_the_run_fits_or_the_system_does_not_say():
-    assert memory_note(640, 480, 11, 1.0, 8 * GB) is None
+    assert memory_note(640, 480, 11, 1.0, 8 * GIB) is None
     assert memory_note(3840, 2160, 11, 1.0, None) is None
 
 
 def test_the_note_names_the_largest_scale_that_fits():
     need = run_bytes(3840, 2160, 11)
     note = memory_note(3840, 2160, 11, 1.0, run_bytes(3840, 2160, 11, 0.5) + 1)
-    assert note is not None and f"about {need / GB:.1f} GB" in note and "3840x2160 frames with 11 classes" in note
-    assert note.endswith(f"--scale 0.5 needs about {run_bytes(3840, 2160, 11, 0.5) / GB:.1f} GB")
+    assert note is not None and f"about {need / GIB:.1f} GiB" in note and "3840x2160 frames with 11 classes" in note
+    assert note.endswith(f"--scale 0.5 needs about {run_bytes(3840, 2160, 11, 0.5) / GIB:.1f} GiB")
     assert "--scale 0.75" not in note
     tight = memory_note(3840, 2160, 11, 0.5, 100 * 2**20)
     assert tight is not None and "at --scale 0.5" in tight and tight.endswith("free memory or give smaller frames")

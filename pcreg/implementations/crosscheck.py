@@ -419,10 +419,10 @@ def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarr
     (Open3D's step takes any non-empty set) move by a rotation the pairs do not determine."""
     from scipy.spatial import cKDTree
 
-    from ..registration.reference import MIN_POINTS
+    from ..registration.reference import pairs_needed
 
     d = src.shape[1]
-    need = MIN_POINTS["rigid"] if d == 2 else 3
+    need = pairs_needed("rigid", d)
     moved = src @ T0[:-1, :-1].T + T0[:-1, -1]
     near, _ = cKDTree(tgt).query(moved, k=1, distance_upper_bound=distance)
     found = int(np.count_nonzero(np.isfinite(near)))

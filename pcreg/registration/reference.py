@@ -35,6 +35,12 @@ from .transforms import apply
 MIN_POINTS = {"translation": 1, "rigid": 2, "similarity": 2, "affine": 3, "projective": 4}
 
 
+def pairs_needed(model: str, d: int) -> int:
+    """The fewest matched pairs an ICP step of ``model`` takes in ``d`` dimensions (:data:`MIN_POINTS` in 2-D, 3
+    in 3-D): with fewer, a run stops where it is, not converged."""
+    return MIN_POINTS[model] if d == 2 else 3
+
+
 # ---------------------------------------------------------------------------------------------------
 # Closed-form estimators: weighted least squares of sum_i w_i |T(p_i) - q_i|^2
 # ---------------------------------------------------------------------------------------------------
@@ -366,7 +372,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
 
     report(0)
     for i in range(max_iteration):
-        need = MIN_POINTS[model] if d == 2 else 3
+        need = pairs_needed(model, d)
         p, q = pts[ok], target[idx[ok]]
         w = robust_weights(np.sqrt(d2[ok]), weights, scale=robust_scale, trim_fraction=options.trim_fraction)
         if int(np.count_nonzero(w)) < need:
@@ -412,7 +418,7 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: KD
     n = source.shape[0]
     pts = np.ascontiguousarray(apply(T, source))
     T = np.array(T, dtype=np.float64)
-    code, need = _MOMENT_MODELS.index(model), MIN_POINTS[model] if d == 2 else 3
+    code, need = _MOMENT_MODELS.index(model), pairs_needed(model, d)
     r2 = nn.squared_bound(max_distance)  # the bound move_and_match uses
     rel_fitness, rel_rmse = float(relative_fitness), float(relative_rmse)  # one compiled signature
     d2, idx, mom = tree.move_and_match(pts, None, max_distance)

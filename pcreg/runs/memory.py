@@ -4,8 +4,8 @@ machine has less to give: a process that asks for more than there is is killed b
 
 The step keeps maps of the working size, several of them one value a class (the scores, the carried priors,
 their blur), so its memory grows with the pixels times the classes. Measured with ``/usr/bin/time -f %M`` on
-``pcreg run`` over eight CamVid frames brought to 1280x720 (resident peak: 603 MB with two classes, 1031 MB with
-eleven, 620 MB with eleven at ``--scale 0.5``), and on the step alone at 640x480, 1280x720 and 1920x1080
+``pcreg run`` over eight CamVid frames brought to 1280x720 (resident peak: 603 MiB with two classes, 1031 MiB with
+eleven, 620 MiB with eleven at ``--scale 0.5``), and on the step alone at 640x480, 1280x720 and 1920x1080
 (docs/operations.md, "Memory")."""
 
 from __future__ import annotations
@@ -52,11 +52,11 @@ def memory_note(width: int, height: int, classes: int, scale: float, available: 
     need = run_bytes(width, height, classes, scale)
     if available is None or need <= available:
         return None
-    gb = 2.0**30
+    gib = 2.0**30
     said = (f"a run over {width}x{height} frames with {max(2, classes)} classes"
-            f"{f' at --scale {scale:g}' if scale != 1 else ''} is expected to need about {need / gb:.1f} GB, and "
-            f"{available / gb:.1f} GB is available: the system may stop it without a message (it resumes)")
+            f"{f' at --scale {scale:g}' if scale != 1 else ''} is expected to need about {need / gib:.1f} GiB, and "
+            f"{available / gib:.1f} GiB is available: the system may stop it without a message (it resumes)")
     fits = next((s for s in SCALES if s < scale and run_bytes(width, height, classes, s) <= available), None)
     if fits is None:
         return said + "; free memory or give smaller frames"
-    return said + f"; --scale {fits:g} needs about {run_bytes(width, height, classes, fits) / gb:.1f} GB"
+    return said + f"; --scale {fits:g} needs about {run_bytes(width, height, classes, fits) / gib:.1f} GiB"

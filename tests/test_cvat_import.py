@@ -288,3 +288,23 @@ def test_masks_in_sub_folders_are_read_and_masks_that_name_frames_two_ways_refus
                                                        "frame_000003": TWO_LUT[ids[stems[3]]]})
     rc, err = _run(["run", numbered, "--labels", export, "--out", tmp_path / "out2"], capsys)
     assert rc == 2 and "name frames two ways: frame_000003 the frame file of that name, frame_000000 CVAT's frame" in err[0], err
+
+
+def test_an_export_zipped_by_macos_finder_is_read_inside_its_folder(clip, tmp_path):
+    """Finder zips a folder with its ``__MACOSX/FOLDER/._NAME`` metadata beside it: the export inside the folder
+    is read, the metadata left out (it was "labelmap.txt: missing")."""
+    from pcreg.classes.cvat import read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+
+    frames, ids = clip
+    stems = list(ids)
+    export = cvat_export(tmp_path / "task.zip", CAMVID11, {stems[1]: ids[stems[1]]})
+    finder = tmp_path / "finder.zip"
+    with zipfile.ZipFile(export) as z, zipfile.ZipFile(finder, "w") as w:
+        for name in z.namelist():
+            w.writestr(f"task_7/{name}", z.read(name))
+            folder, _, base = name.rpartition("/")
+            w.writestr(f"__MACOSX/task_7/{folder + '/' if folder else ''}._{base}", b"\0\5\26\7 AppleDouble")
+    table, keys = read_cvat_keys(finder, open_frames(frames, Selection()), ids[stems[0]].shape)
+    assert table.agrees(CAMVID11) and sorted(keys) == [1]
+    np.testing.assert_array_equal(keys[1], ids[stems[1]])

@@ -21,7 +21,8 @@ An archive is read in memory, never unpacked: members are looked up by name, a n
 the archive (``..``, an absolute path) or two members of one name are refused, and every member's size is
 bounded before it is read (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class
 table's). An archive whose members all lie in one folder holding the export (an export zipped with its
-folder around it) is read inside that folder.
+folder around it) is read inside that folder; the ``__MACOSX/`` folder that macOS's Finder adds to an
+archive it makes is left out.
 """
 
 from __future__ import annotations
@@ -45,6 +46,9 @@ CLASS_DIR = "SegmentationClass"
 #: The most members an archive may list.
 MAX_MEMBERS = 200_000
 _FRAME = re.compile(r"frame_(\d{1,9})")
+#: The folder of file metadata macOS's Finder adds to an archive it makes (``__MACOSX/FOLDER/._NAME``): no
+#: part of the export, and left out.
+_MACOS_FORKS = "__MACOSX"
 _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError, ValueError, OSError)
 
 
@@ -89,7 +93,7 @@ class CvatExport(contextlib.AbstractContextManager):
             if name is None:
                 self.close()
                 raise InputError(f"{self.path}: member {info.filename!r} names a path outside the archive")
-            if not info.is_dir():
+            if not info.is_dir() and name.split("/", 1)[0] != _MACOS_FORKS:
                 if name in self._members:  # which one a reader takes is its own choice: no silent winner
                     self.close()
                     raise InputError(f"{self.path}: two members named {name!r}")

@@ -175,7 +175,7 @@ def _datumaro_reads(archive: Path, where: Path, labels: dict[str, np.ndarray]) -
 
 @pytest.mark.parametrize("how", ["names match no frame", "a member climbs out", "not a zip", "a colour not in labelmap",
                                  "labelmap with two names", "--classes disagrees", "all background", "a huge labelmap",
-                                 "two members of one name", "a transparent mask"])
+                                 "two members of one name", "a transparent mask", "a JPEG mask"])
 def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
     frames, ids = clip
     stems = list(ids)
@@ -222,6 +222,11 @@ def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
         with zipfile.ZipFile(export, "a") as z:
             z.writestr(f"SegmentationClass/{stems[1]}.png", cv2.imencode(".png", rgba)[1].tobytes())
         said = f"SegmentationClass/{stems[1]}.png: a class mask with transparent pixels"
+    elif how == "a JPEG mask":  # saved as .png by an editor: its colours at every edge are no class's
+        cvat_export(export, TWO, good)
+        with zipfile.ZipFile(export, "a") as z:
+            z.writestr(f"SegmentationClass/{stems[1]}.png", cv2.imencode(".jpg", TWO.paint(good[stems[0]]))[1].tobytes())
+        said = f"SegmentationClass/{stems[1]}.png: a JPEG, which changes the values at every edge"
     elif how == "--classes disagrees":
         cvat_export(export, TWO, good)
         args, said = ["--classes", "lagr"], "its class table disagrees with --classes lagr's"

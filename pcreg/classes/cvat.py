@@ -188,9 +188,10 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
     """A CVAT class mask's class ids: colours (RGB, or a palette's) through the table, one channel as
     labelmap lines."""
     from ..formats import check_image_bytes, decode_image
-    from .png import is_palette_png, palette_image
+    from .png import check_lossless, is_palette_png, palette_image
 
     check_image_bytes(data, name, limit=limit)
+    check_lossless(data, name)  # a JPEG's colours at every edge are no class's: say so, not which colour
     if is_palette_png(data):
         idx, pal = palette_image(data, name)
         return table.ids_from_colours(pal[idx], name)

@@ -313,3 +313,21 @@ def test_an_export_zipped_by_macos_finder_is_read_inside_its_folder(clip, tmp_pa
     table, keys = read_cvat_keys(finder, open_frames(frames, Selection()), ids[stems[0]].shape)
     assert table.agrees(CAMVID11) and sorted(keys) == [1]
     np.testing.assert_array_equal(keys[1], ids[stems[1]])
+
+
+def test_the_export_of_a_run_whose_unknown_is_not_black_is_refused_naming_its_run_json(clip, tmp_path, capsys):
+    """A task whose ``background`` label is not black labels a run; its export back is refused (CVAT would take
+    another class for the unlabelled pixels) in a line naming the run's run.json, not "run.json's classes"."""
+    frames, ids = clip
+    stems = list(ids)
+    grey = ClassTable((*TWO.known, LabelClass(2, "background", (10, 10, 10))), 2, "grey")
+    export = tmp_path / "task.zip"
+    with zipfile.ZipFile(export, "w") as z:
+        z.writestr("labelmap.txt", "background:10,10,10::\ndrivable:128,64,128::\nother:64,0,128::\n")
+        z.writestr(f"SegmentationClass/{stems[0]}.png", cv2.imencode(".png", grey.paint(TWO_LUT[ids[stems[0]]])[:, :, ::-1])[1])
+    out = tmp_path / "out"
+    rc, err = _run(["run", frames, "--labels", export, "--out", out, "--model", "flow", "--scale", "0.5"], capsys)
+    assert rc == 0, err
+    rc, err = _run(["export", out], capsys)
+    assert rc == 2 and len(err) == 1 and f"{out / 'run.json'}: the unknown class 'background' is (10, 10, 10)" in err[0], err
+    assert not (out / "export-cvat-mask.zip").exists()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import shutil
 import warnings
 import zipfile
@@ -331,3 +332,29 @@ def test_the_export_of_a_run_whose_unknown_is_not_black_is_refused_naming_its_ru
     rc, err = _run(["export", out], capsys)
     assert rc == 2 and len(err) == 1 and f"{out / 'run.json'}: the unknown class 'background' is (10, 10, 10)" in err[0], err
     assert not (out / "export-cvat-mask.zip").exists()
+
+
+def test_a_one_channel_mask_of_16_bits_holds_labelmap_lines_as_one_of_8(clip, tmp_path):
+    """A one-channel class mask holds each pixel's line of labelmap.txt, in 8 bits or 16 (a 16-bit one was
+    refused as "not a class mask (... or one channel)"); a value past the last line is refused, naming it."""
+    from pcreg.classes.cvat import read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+
+    frames, ids = clip
+    stems = list(ids)
+    lines = np.array([1, 2, 0], np.uint16)[TWO_LUT[ids[stems[0]]]]  # the line of each id: background, drivable, other
+    source = open_frames(frames, Selection())
+    for value, said in ((None, ""), (300, "value 300 is no line of the labelmap.txt (3 classes)")):
+        mask = lines.copy()
+        if value is not None:
+            mask[4, 6] = value
+        export = tmp_path / f"grey{value}.zip"
+        with zipfile.ZipFile(export, "w") as z:
+            z.writestr("labelmap.txt", labelmap_text(TWO))
+            z.writestr(f"SegmentationClass/{stems[0]}.png", cv2.imencode(".png", mask)[1].tobytes())
+        if value is None:
+            table, keys = read_cvat_keys(export, source, mask.shape)
+            np.testing.assert_array_equal(keys[0], TWO_LUT[ids[stems[0]]])
+        else:
+            with pytest.raises(InputError, match=re.escape(said)):
+                read_cvat_keys(export, source, mask.shape)

@@ -200,15 +200,13 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
         if img.shape[2] == 4 and (img[:, :, 3] != 255).any():  # as a key label image: no colour to read there
             raise InputError(f"{name}: a class mask with transparent pixels (an alpha channel below 255)")
         return table.ids_from_colours(np.ascontiguousarray(img[:, :, 2::-1]), name)
-    if img.ndim == 2 and img.dtype == np.uint8:
-        lut = np.full(256, 255, np.uint8)
-        lut[: len(order)] = order
-        ids = lut[img]
-        if (ids == 255).any():
-            bad = int(img[ids == 255][0])
-            raise InputError(f"{name}: value {bad} is no line of the labelmap.txt ({len(order)} classes)")
-        return ids
-    raise InputError(f"{name}: not a class mask (RGB colours of labelmap.txt, or one channel)")
+    if img.ndim == 2 and img.dtype in (np.uint8, np.uint16):  # 16-bit too, as a key label image's ids
+        beyond = img[img >= len(order)]
+        if beyond.size:
+            raise InputError(f"{name}: value {int(beyond[0])} is no line of the labelmap.txt ({len(order)} classes)")
+        return np.asarray(order, np.uint8)[img]
+    raise InputError(f"{name}: not a class mask ({img.shape[2] if img.ndim == 3 else 1} channel(s) of {img.dtype}; "
+                     "a mask is 8-bit RGB colours of labelmap.txt, or one channel of its lines)")
 
 
 def frame_positions(frames):

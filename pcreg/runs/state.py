@@ -178,11 +178,11 @@ def _first_difference(name: str, before: dict, now: dict) -> tuple[str, dict, di
     fits = not short_repr(a).endswith("...") and not short_repr(b).endswith("...")
     if name not in before or name not in now or type(a) is not type(b) or fits:
         return name, ({"v": a} if name in before else {}), ({"v": b} if name in now else {})
-    if isinstance(a, dict):
+    if isinstance(a, dict) and isinstance(b, dict):
         k = next(k for k in sorted({*a, *b}, key=str) if (k in a, a.get(k)) != (k in b, b.get(k)))
         inner, then, latest = _first_difference(k, a, b)
         return f"{name}.{inner}", then, latest
-    if isinstance(a, list) and len(a) == len(b):
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
         i = next(i for i, (x, y) in enumerate(zip(a, b)) if x != y)
         inner, then, latest = _first_difference(f"[{i}]", {f"[{i}]": a[i]}, {f"[{i}]": b[i]})
         return f"{name}{inner}", then, latest

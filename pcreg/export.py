@@ -102,10 +102,7 @@ def read_run(folder: str | Path) -> RunLabels:
             raise InputError(f"{p}: missing (a labelled frame's label file)")
     conf_dir = folder / CONFIDENCE
     confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
-    try:
-        table = run_table(state["run"])
-    except InputError as exc:
-        raise InputError(f"{folder / STATE}: {exc}") from None
+    table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]))
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import shutil
 import warnings
 import zipfile
@@ -175,7 +176,7 @@ def _datumaro_reads(archive: Path, where: Path, labels: dict[str, np.ndarray]) -
 
 @pytest.mark.parametrize("how", ["names match no frame", "a member climbs out", "not a zip", "a colour not in labelmap",
                                  "labelmap with two names", "--classes disagrees", "all background", "a huge labelmap",
-                                 "two members of one name", "a transparent mask"])
+                                 "two members of one name", "a transparent mask", "a JPEG mask"])
 def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
     frames, ids = clip
     stems = list(ids)
@@ -222,6 +223,11 @@ def test_bad_cvat_exports_end_in_one_line(clip, tmp_path, capsys, how):
         with zipfile.ZipFile(export, "a") as z:
             z.writestr(f"SegmentationClass/{stems[1]}.png", cv2.imencode(".png", rgba)[1].tobytes())
         said = f"SegmentationClass/{stems[1]}.png: a class mask with transparent pixels"
+    elif how == "a JPEG mask":  # saved as .png by an editor: its colours at every edge are no class's
+        cvat_export(export, TWO, good)
+        with zipfile.ZipFile(export, "a") as z:
+            z.writestr(f"SegmentationClass/{stems[1]}.png", cv2.imencode(".jpg", TWO.paint(good[stems[0]]))[1].tobytes())
+        said = f"SegmentationClass/{stems[1]}.png: a JPEG, which changes the values at every edge"
     elif how == "--classes disagrees":
         cvat_export(export, TWO, good)
         args, said = ["--classes", "lagr"], "its class table disagrees with --classes lagr's"
@@ -288,3 +294,67 @@ def test_masks_in_sub_folders_are_read_and_masks_that_name_frames_two_ways_refus
                                                        "frame_000003": TWO_LUT[ids[stems[3]]]})
     rc, err = _run(["run", numbered, "--labels", export, "--out", tmp_path / "out2"], capsys)
     assert rc == 2 and "name frames two ways: frame_000003 the frame file of that name, frame_000000 CVAT's frame" in err[0], err
+
+
+def test_an_export_zipped_by_macos_finder_is_read_inside_its_folder(clip, tmp_path):
+    """Finder zips a folder with its ``__MACOSX/FOLDER/._NAME`` metadata beside it: the export inside the folder
+    is read, the metadata left out (it was "labelmap.txt: missing")."""
+    from pcreg.classes.cvat import read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+
+    frames, ids = clip
+    stems = list(ids)
+    export = cvat_export(tmp_path / "task.zip", CAMVID11, {stems[1]: ids[stems[1]]})
+    finder = tmp_path / "finder.zip"
+    with zipfile.ZipFile(export) as z, zipfile.ZipFile(finder, "w") as w:
+        for name in z.namelist():
+            w.writestr(f"task_7/{name}", z.read(name))
+            folder, _, base = name.rpartition("/")
+            w.writestr(f"__MACOSX/task_7/{folder + '/' if folder else ''}._{base}", b"\0\5\26\7 AppleDouble")
+    table, keys = read_cvat_keys(finder, open_frames(frames, Selection()), ids[stems[0]].shape)
+    assert table.agrees(CAMVID11) and sorted(keys) == [1]
+    np.testing.assert_array_equal(keys[1], ids[stems[1]])
+
+
+def test_the_export_of_a_run_whose_unknown_is_not_black_is_refused_naming_its_run_json(clip, tmp_path, capsys):
+    """A task whose ``background`` label is not black labels a run; its export back is refused (CVAT would take
+    another class for the unlabelled pixels) in a line naming the run's run.json, not "run.json's classes"."""
+    frames, ids = clip
+    stems = list(ids)
+    grey = ClassTable((*TWO.known, LabelClass(2, "background", (10, 10, 10))), 2, "grey")
+    export = tmp_path / "task.zip"
+    with zipfile.ZipFile(export, "w") as z:
+        z.writestr("labelmap.txt", "background:10,10,10::\ndrivable:128,64,128::\nother:64,0,128::\n")
+        z.writestr(f"SegmentationClass/{stems[0]}.png", cv2.imencode(".png", grey.paint(TWO_LUT[ids[stems[0]]])[:, :, ::-1])[1])
+    out = tmp_path / "out"
+    rc, err = _run(["run", frames, "--labels", export, "--out", out, "--model", "flow", "--scale", "0.5"], capsys)
+    assert rc == 0, err
+    rc, err = _run(["export", out], capsys)
+    assert rc == 2 and len(err) == 1 and f"{out / 'run.json'}: the unknown class 'background' is (10, 10, 10)" in err[0], err
+    assert not (out / "export-cvat-mask.zip").exists()
+
+
+def test_a_one_channel_mask_of_16_bits_holds_labelmap_lines_as_one_of_8(clip, tmp_path):
+    """A one-channel class mask holds each pixel's line of labelmap.txt, in 8 bits or 16 (a 16-bit one was
+    refused as "not a class mask (... or one channel)"); a value past the last line is refused, naming it."""
+    from pcreg.classes.cvat import read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+
+    frames, ids = clip
+    stems = list(ids)
+    lines = np.array([1, 2, 0], np.uint16)[TWO_LUT[ids[stems[0]]]]  # the line of each id: background, drivable, other
+    source = open_frames(frames, Selection())
+    for value, said in ((None, ""), (300, "value 300 is no line of the labelmap.txt (3 classes)")):
+        mask = lines.copy()
+        if value is not None:
+            mask[4, 6] = value
+        export = tmp_path / f"grey{value}.zip"
+        with zipfile.ZipFile(export, "w") as z:
+            z.writestr("labelmap.txt", labelmap_text(TWO))
+            z.writestr(f"SegmentationClass/{stems[0]}.png", cv2.imencode(".png", mask)[1].tobytes())
+        if value is None:
+            table, keys = read_cvat_keys(export, source, mask.shape)
+            np.testing.assert_array_equal(keys[0], TWO_LUT[ids[stems[0]]])
+        else:
+            with pytest.raises(InputError, match=re.escape(said)):
+                read_cvat_keys(export, source, mask.shape)

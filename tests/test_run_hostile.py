@@ -393,3 +393,24 @@ def test_a_resumed_chained_run_records_the_reference_of_its_first_step(tmp_path,
     for t in (4, 5):
         np.testing.assert_array_equal(image(rec.reference(t)), frame[t - 1])
         np.testing.assert_array_equal(image(rec.moving(t)), frame[t])
+
+
+def test_a_resume_after_a_class_of_the_table_was_renamed_says_which_class(tmp_path, capsys):
+    """A class table's file edited between a run and its resume: refused, naming the class that differs (the
+    line said only "other options" when the difference lay past the first 60 characters of the table)."""
+    folder, key = _frames(tmp_path / "frames", (48, 64))
+    labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
+    labels[:, 40:] = 2
+    cv2.imwrite(str(key), labels)
+    labelmap = tmp_path / "labelmap.txt"
+    labelmap.write_text("background:0,0,0::\nroad:128,64,128::\nsky:128,128,128::\ncar:64,0,128::\n")
+    out = tmp_path / "out"
+    args = ["run", str(folder), "--labels", str(key), "--classes", str(labelmap), "--out", str(out)]
+    assert main(args) == 0
+    written = {p.name: p.read_bytes() for p in out.iterdir()}
+    labelmap.write_text("background:0,0,0::\nroad:128,64,128::\nsky:128,128,128::\nvehicle:64,0,128::\n")
+    assert main(args) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "classes.classes[2]: {'id': 2, 'name': 'car', 'colour': [64, 0, 128]} then, " \
+        "{'id': 2, 'name': 'vehicle', 'colour': [64, 0, 128]} now" in err[0], err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == written

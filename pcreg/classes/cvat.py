@@ -21,7 +21,8 @@ An archive is read in memory, never unpacked: members are looked up by name, a n
 the archive (``..``, an absolute path) or two members of one name are refused, and every member's size is
 bounded before it is read (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class
 table's). An archive whose members all lie in one folder holding the export (an export zipped with its
-folder around it) is read inside that folder.
+folder around it) is read inside that folder; the ``__MACOSX/`` folder that macOS's Finder adds to an
+archive it makes is left out.
 """
 
 from __future__ import annotations
@@ -45,6 +46,9 @@ CLASS_DIR = "SegmentationClass"
 #: The most members an archive may list.
 MAX_MEMBERS = 200_000
 _FRAME = re.compile(r"frame_(\d{1,9})")
+#: The folder of file metadata macOS's Finder adds to an archive it makes (``__MACOSX/FOLDER/._NAME``): no
+#: part of the export, and left out.
+_MACOS_FORKS = "__MACOSX"
 _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError, ValueError, OSError)
 
 
@@ -89,7 +93,7 @@ class CvatExport(contextlib.AbstractContextManager):
             if name is None:
                 self.close()
                 raise InputError(f"{self.path}: member {info.filename!r} names a path outside the archive")
-            if not info.is_dir():
+            if not info.is_dir() and name.split("/", 1)[0] != _MACOS_FORKS:
                 if name in self._members:  # which one a reader takes is its own choice: no silent winner
                     self.close()
                     raise InputError(f"{self.path}: two members named {name!r}")
@@ -184,9 +188,10 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
     """A CVAT class mask's class ids: colours (RGB, or a palette's) through the table, one channel as
     labelmap lines."""
     from ..formats import check_image_bytes, decode_image
-    from .png import is_palette_png, palette_image
+    from .png import check_lossless, is_palette_png, palette_image
 
     check_image_bytes(data, name, limit=limit)
+    check_lossless(data, name)  # a JPEG's colours at every edge are no class's: say so, not which colour
     if is_palette_png(data):
         idx, pal = palette_image(data, name)
         return table.ids_from_colours(pal[idx], name)
@@ -195,15 +200,13 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
         if img.shape[2] == 4 and (img[:, :, 3] != 255).any():  # as a key label image: no colour to read there
             raise InputError(f"{name}: a class mask with transparent pixels (an alpha channel below 255)")
         return table.ids_from_colours(np.ascontiguousarray(img[:, :, 2::-1]), name)
-    if img.ndim == 2 and img.dtype == np.uint8:
-        lut = np.full(256, 255, np.uint8)
-        lut[: len(order)] = order
-        ids = lut[img]
-        if (ids == 255).any():
-            bad = int(img[ids == 255][0])
-            raise InputError(f"{name}: value {bad} is no line of the labelmap.txt ({len(order)} classes)")
-        return ids
-    raise InputError(f"{name}: not a class mask (RGB colours of labelmap.txt, or one channel)")
+    if img.ndim == 2 and img.dtype in (np.uint8, np.uint16):  # 16-bit too, as a key label image's ids
+        beyond = img[img >= len(order)]
+        if beyond.size:
+            raise InputError(f"{name}: value {int(beyond[0])} is no line of the labelmap.txt ({len(order)} classes)")
+        return np.asarray(order, np.uint8)[img]
+    raise InputError(f"{name}: not a class mask ({img.shape[2] if img.ndim == 3 else 1} channel(s) of {img.dtype}; "
+                     "a mask is 8-bit RGB colours of labelmap.txt, or one channel of its lines)")
 
 
 def frame_positions(frames):

@@ -185,17 +185,17 @@ def with_classes(identity: dict, table: ClassTable, mapping: str) -> dict:
     return dict(identity) if named is None else {**identity, "classes": named}
 
 
-def run_table(identity: dict | None) -> ClassTable:
+def run_table(identity: dict | None, where: str = "run.json's classes") -> ClassTable:
     """The class table of a run whose identity (``run.json``'s ``run``) is ``identity``: the one it names
-    (:func:`identity_classes`), else the one its mapping implies. A table there that is not one is an
-    :class:`InputError`."""
+    (:func:`identity_classes`), its source ``where`` (the run.json's path, for messages), else the one its
+    mapping implies. A table there that is not one is an :class:`InputError` naming ``where``."""
     from .files import parse_table_json
 
     identity = identity or {}
     named = identity.get("classes")
     if named is None:
         return DAVIS if identity.get("mapping") == "davis" else DEFAULT_TABLE
-    return parse_table_json(json.dumps(named), "run.json's classes")
+    return parse_table_json(json.dumps(named), where)
 
 
 def check_labels(labels, shape, table=None) -> np.ndarray:

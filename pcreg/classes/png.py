@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import InputError
 from .table import ClassTable
 
-__all__ = ["encode_label_png", "write_label_png", "decode_label_png", "read_label_png", "is_palette_png"]
+__all__ = ["encode_label_png", "write_label_png", "decode_label_png", "read_label_png", "is_palette_png", "check_lossless"]
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PALETTE = 3  # IHDR colour type of an indexed PNG
@@ -58,6 +58,15 @@ def write_label_png(path: str | Path, labels: np.ndarray, table: ClassTable) -> 
     from ..outputs import atomic_write_bytes
 
     return atomic_write_bytes(path, encode_label_png(labels, table))
+
+
+def check_lossless(data: bytes, name: str) -> None:
+    """An :class:`InputError` naming ``name`` when ``data`` is a JPEG or a lossy WebP: its compression changes
+    the values (and colours) at every edge, which a label image cannot have."""
+    lossy = "JPEG" if data[:3] == b"\xff\xd8\xff" else "lossy WebP" if data[:4] == b"RIFF" and data[8:16] == b"WEBPVP8 " \
+        else None
+    if lossy is not None:
+        raise InputError(f"{name}: a {lossy}, which changes the values at every edge; label images must be lossless (PNG)")
 
 
 def palette_image(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -101,10 +110,7 @@ def decode_label_png(data: bytes, name: str, table: ClassTable, *, limit: int | 
     from ..formats import check_image_bytes, decode_image
 
     check_image_bytes(data, name, limit=limit)
-    lossy = "JPEG" if data[:3] == b"\xff\xd8\xff" else "lossy WebP" if data[:4] == b"RIFF" and data[8:16] == b"WEBPVP8 " \
-        else None
-    if lossy is not None:
-        raise InputError(f"{name}: a {lossy}, which changes the values at every edge; label images must be lossless (PNG)")
+    check_lossless(data, name)
     if is_palette_png(data):
         return _decode_palette(data, name, table)
     img = decode_image(data, name, limit=limit)  # IMREAD_UNCHANGED: as the file stores it, BGR(A)

@@ -159,9 +159,34 @@ def _differences(before: object, now: dict) -> str:
     def shown(d: dict, k: str) -> str:
         return short_repr(d[k]) if k in d else "not set"
 
-    names = sorted(k for k in set(before) | set(now) if shown(before, k) != shown(now, k))
-    said = [f"{k}: {shown(before, k)} then, {shown(now, k)} now" for k in names[:3]]
+    names = sorted(k for k in set(before) | set(now) if (k in before, before.get(k)) != (k in now, now.get(k)))
+    said = []
+    for k in names[:3]:
+        name, then, latest = _first_difference(k, before, now)
+        said.append(f"{name}: {shown(then, 'v')} then, {shown(latest, 'v')} now")
     return f" ({'; '.join(said)}{'; ...' if len(names) > 3 else ''})" if said else ""
+
+
+def _first_difference(name: str, before: dict, now: dict) -> tuple[str, dict, dict]:
+    """Where two JSON values ``before[name]`` and ``now[name]`` first differ: the path to the first part
+    that differs and is short enough to show whole (``classes.classes[3]``) and its value in each, as
+    ``{"v": value}`` (``{}`` where it is not set), so that a difference past what a short repr shows (a
+    class renamed in a table) is named."""
+    from ..validation import short_repr
+
+    a, b = before.get(name), now.get(name)
+    fits = not short_repr(a).endswith("...") and not short_repr(b).endswith("...")
+    if name not in before or name not in now or type(a) is not type(b) or fits:
+        return name, ({"v": a} if name in before else {}), ({"v": b} if name in now else {})
+    if isinstance(a, dict) and isinstance(b, dict):
+        k = next(k for k in sorted({*a, *b}, key=str) if (k in a, a.get(k)) != (k in b, b.get(k)))
+        inner, then, latest = _first_difference(k, a, b)
+        return f"{name}.{inner}", then, latest
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        i = next(i for i, (x, y) in enumerate(zip(a, b)) if x != y)
+        inner, then, latest = _first_difference(f"[{i}]", {f"[{i}]": a[i]}, {f"[{i}]": b[i]})
+        return f"{name}{inner}", then, latest
+    return name, {"v": a}, {"v": b}
 
 
 def run_frames(state: dict, steps: Sequence[bytes]) -> tuple[list[str], list[str]]:

@@ -14,6 +14,7 @@ from typing import Callable, Hashable, TypeVar
 import numpy as np
 
 from .errors import InputError
+from .validation import plain_array
 
 __all__ = ["PreparedFrame", "as_rgb_uint8"]
 
@@ -85,13 +86,14 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     C-contiguous one; the input is never changed); a :class:`PreparedFrame` gives its checked, read-only
     ``rgb`` as it is.
 
-    Accepts (H, W) grayscale, (H, W, 1|3|4), uint8, uint16 (scaled by 1/257) and float in [0, 1].
+    Accepts (H, W) grayscale, (H, W, 1|3|4), uint8, uint16 (scaled by 1/257) and float in [0, 1], in either
+    byte order; an ndarray subclass (``np.matrix``, a masked array with nothing masked) as its data.
     """
     if isinstance(image, PreparedFrame):
         return image.rgb
     if not isinstance(image, np.ndarray):
         raise InputError(f"{name}: expected a numpy array, got {type(image).__name__}")
-    img = image
+    img = plain_array(image, name)
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 2:

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import InputError, RegistrationError
-from ..validation import (check_callable, check_int, check_matrix, short_repr)
+from ..validation import check_callable, check_int, check_matrix, check_unmasked, short_repr
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
@@ -45,6 +45,7 @@ def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
     """(N, 2|3) finite float64 copy of ``points`` or an :class:`InputError`."""
     if getattr(points, "dtype", None) is not None and np.dtype(points.dtype).kind == "b":
         raise InputError(f"{name}: true/false values are a mask, not coordinates")
+    check_unmasked(points, name)
     try:
         if np.iscomplexobj(points):  # numpy would drop the imaginary part with a warning
             raise TypeError

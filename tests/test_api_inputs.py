@@ -1,0 +1,85 @@
+"""Arrays as users pass them to the public API: another byte order, an ndarray subclass, a masked array. Each is
+read as the plain array it holds, or refused with an InputError naming the argument; never misread, never a
+numpy error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.classes.keys import check_labels
+from pcreg.errors import InputError
+from pcreg.frame import PreparedFrame, as_rgb_uint8
+
+
+def _image(h=48, w=64, seed=0):
+    """A smooth colour image with edges (a few discs on a gradient), uint8 RGB."""
+    y, x = np.mgrid[:h, :w]
+    img = np.dstack([x * 3, y * 4, (x + y) * 2]).astype(np.float64)
+    rng = np.random.default_rng(seed)
+    for cx, cy, r in zip(rng.integers(8, w - 8, 4), rng.integers(8, h - 8, 4), rng.integers(4, 9, 4)):
+        img[(x - cx) ** 2 + (y - cy) ** 2 < r * r] = rng.integers(0, 256, 3)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+T = np.array([[1.0, 0.0, 2.5], [0.0, 1.0, -1.5], [0.0, 0.0, 1.0]])
+
+
+@pytest.mark.parametrize("dtype, scale", [(">u2", 257), (">f4", 1 / 255), (">f8", 1 / 255)], ids=[">u2", ">f4", ">f8"])
+def test_a_big_endian_image_is_read_as_the_same_image_in_the_machines_byte_order(dtype, scale):
+    """A FITS reader or a raw file gives ``>u2``; every image entry point reads it as it reads ``<u2``
+    (it was "unsupported image dtype >u2", and warp refused ``>f4``)."""
+    img = _image()
+    native = (img * float(scale)).astype(np.dtype(dtype).newbyteorder("="))
+    big = native.astype(dtype)
+    assert not big.dtype.isnative
+    np.testing.assert_array_equal(as_rgb_uint8(big), as_rgb_uint8(native))
+    np.testing.assert_array_equal(pcreg.image_cloud(big).points, pcreg.image_cloud(native).points)
+    warped, valid = pcreg.warp(big, T)
+    expected, expected_valid = pcreg.warp(native, T)
+    assert warped.dtype == native.dtype and warped.dtype.isnative
+    np.testing.assert_array_equal(warped, expected)
+    np.testing.assert_array_equal(valid, expected_valid)
+
+
+@pytest.mark.filterwarnings("ignore:the matrix subclass:PendingDeprecationWarning")
+def test_an_np_matrix_is_read_as_the_grey_image_it_holds():
+    """``np.matrix`` cannot grow a third axis: turning it into RGB raised numpy's "shape too large to be a matrix"."""
+    grey = _image()[:, :, 1]
+    np.testing.assert_array_equal(as_rgb_uint8(np.matrix(grey)), as_rgb_uint8(grey))
+    assert PreparedFrame.of(np.matrix(grey)).shape == grey.shape
+    np.testing.assert_array_equal(pcreg.image_cloud(np.matrix(grey)).points, pcreg.image_cloud(grey).points)
+
+
+def test_a_masked_array_is_refused_where_something_is_masked_and_read_where_nothing_is():
+    """numpy gives the values stored under a mask; reading them as an image, a cloud or labels would use what the
+    user masked out, so such an array is refused, naming the argument. With nothing masked it is its data."""
+    img = _image()
+    hidden = np.ma.masked_array(img, mask=np.zeros(img.shape, bool))
+    hidden.mask[:10] = True
+    for call, name in ((lambda: pcreg.image_cloud(hidden), "image"), (lambda: pcreg.warp(hidden, T), "warp"),
+                       (lambda: PreparedFrame.of(hidden, name="key frame"), "key frame")):
+        with pytest.raises(InputError, match=f"^{name}: a masked array with 1920 masked value"):
+            call()
+    points = np.random.default_rng(1).normal(size=(50, 2)) * 10
+    gone = np.zeros(points.shape, bool)
+    gone[7, 1] = True
+    with pytest.raises(InputError, match="^source: a masked array with 1 masked value"):
+        pcreg.icp(np.ma.masked_array(points, mask=gone), points)
+    labels = np.zeros(img.shape[:2], np.uint8)
+    with pytest.raises(InputError, match="^labels: a masked array"):
+        check_labels(np.ma.masked_array(labels, mask=labels == 0), labels.shape)
+    clear = np.ma.masked_array(img)
+    np.testing.assert_array_equal(as_rgb_uint8(clear), img)
+    np.testing.assert_array_equal(pcreg.warp(clear, T)[0], pcreg.warp(img, T)[0])
+    assert pcreg.icp(np.ma.masked_array(points), points).fitness == 1.0
+
+
+@pytest.mark.parametrize("dtype", [np.int8, np.int64])
+def test_a_negative_label_is_named_in_the_refusal(dtype):
+    """The refusal named the largest value (0 or 1, both valid) when the bad one was negative."""
+    labels = np.zeros((16, 16), dtype)
+    labels[3, 4] = -1
+    with pytest.raises(InputError, match="found -1$"):
+        check_labels(labels, labels.shape)

@@ -83,3 +83,13 @@ def test_a_negative_label_is_named_in_the_refusal(dtype):
     labels[3, 4] = -1
     with pytest.raises(InputError, match="found -1$"):
         check_labels(labels, labels.shape)
+
+
+@pytest.mark.parametrize("dtype, fill", [(np.float32, 1e300), (np.float32, -1e39), (np.float16, 1e6)])
+def test_a_fill_beyond_a_float_arrays_range_is_refused(dtype, fill):
+    """The border was filled with NaN (float32, 1e300) or inf (float16), silently."""
+    with pytest.raises(InputError, match=f"^warp: fill .* is beyond the range of the {np.dtype(dtype)} array"):
+        pcreg.warp(np.zeros((20, 20), dtype), T, fill=fill)
+    largest = float(np.finfo(dtype).max)
+    warped, valid = pcreg.warp(np.zeros((20, 20), dtype), T, fill=largest, interpolation="nearest")
+    assert np.all(warped[~valid] == largest)

@@ -35,7 +35,8 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     T_ref_mov : (3, 3) maps moving pixel coordinates into reference pixel coordinates (affine or projective).
     shape : (H, W) of the reference grid (default: the moving image's).
     Returns ``(warped, valid)``: ``warped`` has the reference's size and ``moving``'s dtype and channels,
-    ``fill`` outside; ``valid`` (H, W) bool marks pixels that came from inside the moving image.
+    ``fill`` outside (saturated to an integer dtype's range; beyond a float dtype's, refused); ``valid`` (H, W)
+    bool marks pixels that came from inside the moving image.
     """
     moving = plain_array(moving, "warp")
     if moving.ndim not in (2, 3) or moving.shape[0] == 0 or moving.shape[1] == 0:
@@ -108,9 +109,12 @@ def _check_remap_input(src: np.ndarray, interpolation: str, fill) -> float:
     if src.dtype not in _DTYPES:
         raise InputError(f"warp: unsupported dtype {src.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
     try:
-        return check_float(fill, "warp: fill")
+        value = check_float(fill, "warp: fill")
     except InputError:
         raise InputError(f"warp: fill must be a finite number, got {short_repr(fill)}") from None
+    if src.dtype.kind == "f" and abs(value) > float(np.finfo(src.dtype).max):  # it would fill with inf, or NaN
+        raise InputError(f"warp: fill {value:g} is beyond the range of the {src.dtype} array")
+    return value
 
 
 def _resample(src: np.ndarray, one, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:

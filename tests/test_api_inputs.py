@@ -93,3 +93,18 @@ def test_a_fill_beyond_a_float_arrays_range_is_refused(dtype, fill):
     largest = float(np.finfo(dtype).max)
     warped, valid = pcreg.warp(np.zeros((20, 20), dtype), T, fill=largest, interpolation="nearest")
     assert np.all(warped[~valid] == largest)
+
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_a_schedule_whose_last_voxel_size_leaves_too_few_points_is_refused(backend):
+    """A voxel as large as the cloud leaves one point at the scale that gives the result: the reference ICP
+    returned the identity, Open3D's the centroids' shift with no rotation, both with a fitness of 1."""
+    angle = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    source = np.c_[30 * np.cos(angle) + 5 * np.cos(3 * angle), 20 * np.sin(angle)]
+    target = source @ np.array([[0.999, -0.035], [0.035, 0.999]]).T + [0.5, -0.3]
+    for sizes in ((1e6,), (1.0, 1e6)):
+        with pytest.raises(InputError, match=r"^voxel_sizes: at the last size, 1e\+06, the source is downsampled to 1 "
+                                             r"point\(s\): 1 point\(s\) are too few for the rigid model"):
+            pcreg.icp(source, target, pcreg.ICPOptions(backend=backend, schedule=pcreg.VoxelSchedule(sizes)))
+    coarse_first = pcreg.icp(source, target, pcreg.ICPOptions(backend=backend, schedule=pcreg.VoxelSchedule((1e6, 1.0))))
+    assert coarse_first.converged and coarse_first.fitness == 1.0

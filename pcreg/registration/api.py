@@ -196,6 +196,8 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     start = time.perf_counter()
     schedule = _voxel_schedule(src, tgt, options.schedule, distance=max_correspondence_distance,
                                max_iteration=options.max_iteration)
+    if options.schedule is not None:
+        _check_last_scale(schedule[-1], options.schedule.voxel_sizes[-1], options.model)
     step = icp_step(options.backend)
     settings = IcpSettings(model=options.model, relative_fitness=options.relative_fitness, weights=options.weights,
                            trim_fraction=options.trim_fraction, metric=options.metric, rotation=options.rotation,
@@ -258,6 +260,18 @@ def _voxel_schedule(src: np.ndarray, tgt: np.ndarray, schedule: VoxelSchedule | 
     dists = list(schedule.max_correspondence_distances or [2.0 * v for v in sizes])
     iters = list(schedule.max_iterations or [max_iteration] * len(sizes))
     return [(voxel_downsample(src, v), voxel_downsample(tgt, v), d, n) for v, d, n in zip(sizes, dists, iters)]
+
+
+def _check_last_scale(scale: tuple, voxel: float, model: str) -> None:
+    """An :class:`InputError` when the schedule's last voxel size, the one whose ICP gives the result, leaves
+    either cloud too few or too degenerate points for the ``model`` (the reference ICP returned the last
+    transform unchanged, Open3D's one with an arbitrary rotation, both with a fitness of 1)."""
+    for name, points in (("source", scale[0]), ("target", scale[1])):
+        try:
+            check_rank(points, model)
+        except RegistrationError as exc:
+            raise InputError(f"voxel_sizes: at the last size, {voxel:g}, the {name} is downsampled to {len(points)} "
+                             f"point(s): {exc}") from None
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -108,3 +108,21 @@ def test_a_schedule_whose_last_voxel_size_leaves_too_few_points_is_refused(backe
             pcreg.icp(source, target, pcreg.ICPOptions(backend=backend, schedule=pcreg.VoxelSchedule(sizes)))
     coarse_first = pcreg.icp(source, target, pcreg.ICPOptions(backend=backend, schedule=pcreg.VoxelSchedule((1e6, 1.0))))
     assert coarse_first.converged and coarse_first.fitness == 1.0
+
+
+@pytest.mark.parametrize("n", [2, 50])
+def test_points_on_one_line_are_refused_by_the_open3d_backend_and_registered_by_the_reference(n):
+    """Lifted to 3-D, a line leaves Open3D's ICP the rotation about it: it turned the plane over under some
+    motions (a RegistrationError, "mirrors the image plane") and not under others, so the backend refuses the line
+    at once; the reference ICP, in 2-D, recovers the rotation (the shift along the line is up to a point's spacing)."""
+    from pcreg import transforms as tf
+
+    line = np.c_[np.linspace(0, 49, n), np.linspace(0, 24.5, n)]
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        T_true = tf.rigid2d(rng.uniform(-5, 5), *rng.uniform(-1, 1, 2))
+        target = tf.apply(T_true, line)
+        with pytest.raises(InputError, match="^source: its points lie on one line.*use backend='reference'"):
+            pcreg.icp(line, target, pcreg.ICPOptions(backend="open3d", max_correspondence_distance=5))
+        fit = pcreg.icp(line, target, pcreg.ICPOptions(max_correspondence_distance=5))
+        np.testing.assert_allclose(fit.matrix[:2, :2], T_true[:2, :2], atol=1e-9)

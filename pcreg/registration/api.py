@@ -186,6 +186,8 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     check_callable(callback, "callback")
     check_rank(src, options.model)
     check_rank(tgt, options.model)
+    if options.backend == "open3d" and dim == 2:
+        _refuse_a_line_for_open3d(src, tgt)
     if target_normals is not None:
         target_normals = check_cloud(target_normals, "target_normals")
         if target_normals.shape != tgt.shape:
@@ -217,6 +219,18 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
                               converged=r.converged, backend=options.backend, seconds=seconds)
+
+
+def _refuse_a_line_for_open3d(src: np.ndarray, tgt: np.ndarray) -> None:
+    """An :class:`InputError` for 2-D clouds whose points lie on one line (two points, a scan line) with the open3d
+    backend: its ICP runs on the clouds lifted to z = 0, where the rotation about that line is free, and it turned
+    the image plane over for some motions and not others (refused as "mirrored" under 10 of 20 rigid motions of a line
+    of 50 points); the reference ICP solves the 2-D problem, which the line fixes."""
+    for name, points in (("source", src), ("target", tgt)):
+        spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+        if spread[-1] <= 1e-9 * spread[0]:
+            raise InputError(f"{name}: its points lie on one line, about which the open3d backend's 3-D ICP can turn "
+                             "the image plane over; use backend='reference'")
 
 
 def _check_icp_options(options: ICPOptions, dim: int, target_normals) -> None:

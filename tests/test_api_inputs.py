@@ -126,3 +126,18 @@ def test_points_on_one_line_are_refused_by_the_open3d_backend_and_registered_by_
             pcreg.icp(line, target, pcreg.ICPOptions(backend="open3d", max_correspondence_distance=5))
         fit = pcreg.icp(line, target, pcreg.ICPOptions(max_correspondence_distance=5))
         np.testing.assert_allclose(fit.matrix[:2, :2], T_true[:2, :2], atol=1e-9)
+
+
+def test_a_float_image_off_by_a_rounding_error_is_read_and_one_beyond_half_a_level_is_refused():
+    """``np.nextafter(img, 2)`` holds 1.0000000000000002: it was refused as "got 4.94066e-324..1", values that
+    read as in range. Within half an 8-bit level of [0, 1] a value rounds to 0 or 255; beyond it is refused."""
+    img = _image()
+    unit = img / 255.0
+    for near in (np.nextafter(unit, 2), np.nextafter(unit, -1), (unit + 0.49 / 255).astype(np.float32),
+                 unit - 0.49 / 255):
+        np.testing.assert_array_equal(as_rgb_uint8(near), img)
+    for value, said in ((1.003, r"0\.\.1\.003"), (-0.003, r"-0\.003\.\.1")):
+        far = np.zeros(img.shape)
+        far[0, 0, 0], far[1, 0, 0] = value, 1.0
+        with pytest.raises(InputError, match=f"^image: a float image must hold values in \\[0, 1\\], got {said} "):
+            as_rgb_uint8(far)

@@ -141,3 +141,18 @@ def test_a_float_image_off_by_a_rounding_error_is_read_and_one_beyond_half_a_lev
         far[0, 0, 0], far[1, 0, 0] = value, 1.0
         with pytest.raises(InputError, match=f"^image: a float image must hold values in \\[0, 1\\], got {said} "):
             as_rgb_uint8(far)
+
+
+def test_a_pyramid_of_another_image_of_the_same_size_is_refused():
+    """Only the size was checked: the moving image's pyramid given as the reference's registered the moving image to
+    itself (the identity, fitness 1, every plausibility figure perfect)."""
+    from pcreg.registration.clouds import image_pyramid
+
+    frames = pcreg.synthetic("syn2a", n_frames=2, width=160, height=120)
+    a, b = frames[0].image, frames[1].image
+    with pytest.raises(InputError, match="^reference pyramid was built for another image of this size"):
+        pcreg.register(a, b, reference_pyramid=image_pyramid(b))
+    with pytest.raises(InputError, match="^moving pyramid was built for another image of this size"):
+        pcreg.register(a, b, moving_pyramid=image_pyramid(a))
+    same = pcreg.register(a, b, reference_pyramid=image_pyramid(a.copy()), moving_pyramid=image_pyramid(b / 255.0))
+    np.testing.assert_allclose(same.matrix, pcreg.register(a, b).matrix, atol=1e-9)

@@ -316,7 +316,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
         :class:`~pcreg.registration.dense.DenseRegistrationResult`.
     model, backend : shorthands for ``config.replace(model=..., backend=...)``; None keeps the config's.
     init : None keeps the config's ``search.init``; one of its names replaces it; a 3x3 ``T_ref_mov``
-        is the one hypothesis, refined instead of searching.
+        is the one hypothesis, refined instead of searching (a transform the model can hold, as :func:`icp`'s).
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
     reference_pyramid, moving_pyramid : the images' :func:`~pcreg.registration.clouds.image_pyramid` (same ``levels``,
         ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
@@ -331,6 +331,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     """
     config = _configured(config, model=model, backend=backend, init=init)
     start_matrix = None if init is None or isinstance(init, str) else check_matrix(init, "init", 3)
+    if start_matrix is not None and config.model != "dense":  # dense: its global step's model checks it
+        _check_init(start_matrix, config.model)
     if config.model == "dense":
         if any(m is not None and not isinstance(m, str) for m in (reference_mask, moving_mask)):
             raise InputError("the dense model cannot leave masked pixels out (it leaves black padding out): give "

@@ -160,10 +160,17 @@ def test_a_pyramid_of_another_image_of_the_same_size_is_refused():
 
 @pytest.mark.parametrize("model, start, said", [
     ("rigid", np.diag([1.1, 1.1, 1.0]), "not orthonormal"), ("rigid", np.diag([-1.0, 1.0, 1.0]), "a reflection"),
-    ("similarity", np.array([[1, 0, 0], [0, 1, 0], [2e-4, 0, 1.0]]), "a projection's")])
+    ("similarity", np.array([[1, 0, 0], [0, 1, 0], [2e-4, 0, 1.0]]), "a projection's"),
+    ("similarity", np.array([[1, 0.1, 0], [0, 1, 0], [0, 0, 1.0]]), "not a rotation times a scale")])
 def test_register_refuses_an_init_its_model_cannot_hold(model, start, said):
     """The ICP keeps the kind of transform its start is: a scaled start under the rigid model came back scaled
-    (6 px off at the corners with the test off), a projective one under the similarity model projective."""
+    (6 px off at the corners with the test off), a projective or sheared one under the similarity model projective
+    or sheared. :func:`pcreg.icp` refuses the same starts."""
     ref = _image(120, 160)
     with pytest.raises(InputError, match=f"^init: .*{said}.* the {model} ICP"):
         pcreg.register(ref, ref, model=model, init=T @ start)
+    points = np.random.default_rng(2).normal(size=(100, 2)) * 20
+    with pytest.raises(InputError, match=f"^init: .*{said}.* the {model} ICP"):
+        pcreg.icp(points, points, pcreg.ICPOptions(model=model), init=T @ start)
+    held = T @ np.diag([2.0, 2.0, 1.0]) if model == "similarity" else T  # a scale is a similarity's
+    assert pcreg.icp(points, points, pcreg.ICPOptions(model=model), init=held).fitness > 0

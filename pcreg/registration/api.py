@@ -83,8 +83,9 @@ def _check_normals(normals: np.ndarray) -> None:
 def _check_init(T: np.ndarray, model: str) -> np.ndarray:
     """``T``, an ICP's initial guess, when the ``model`` can hold it (every update keeps the kind of transform
     the guess is): rigid for ``translation`` and ``rigid`` (:func:`~pcreg.registration.transforms.rigid_problem`),
-    without a projection's last row for the rest but ``projective``; else an :class:`InputError`."""
-    from .transforms import rigid_problem
+    without a projection's last row for the rest but ``projective``, a rotation times a scale for ``similarity``;
+    else an :class:`InputError`."""
+    from .transforms import ROTATION_TOLERANCE, rigid_problem
 
     d = T.shape[0] - 1
     if model in ("translation", "rigid"):
@@ -93,6 +94,12 @@ def _check_init(T: np.ndarray, model: str) -> np.ndarray:
             raise InputError(f"init: {problem}, and the {model} ICP would return it as one")
     elif model != "projective" and np.abs(T[d] - np.eye(d + 1)[d]).max() > 1e-12:
         raise InputError(f"init: its last row is {T[d].tolist()}, a projection's; the {model} ICP keeps it affine")
+    if model == "similarity":
+        det = float(np.linalg.det(T[:d, :d]))  # not 0: the init is checked invertible
+        R = T[:d, :d] / abs(det) ** (1 / d)
+        if det < 0 or np.abs(R.T @ R - np.eye(d)).max() > ROTATION_TOLERANCE:
+            raise InputError("init: its linear block is not a rotation times a scale (a reflection, a shear or unequal "
+                             "scales), and the similarity ICP would return it as one")
     return T
 
 

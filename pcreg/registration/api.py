@@ -285,8 +285,8 @@ def _voxel_schedule(src: np.ndarray, tgt: np.ndarray, schedule: VoxelSchedule | 
 
 def _check_last_scale(scale: tuple, voxel: float, model: str) -> None:
     """An :class:`InputError` when the schedule's last voxel size, the one whose ICP gives the result, leaves
-    either cloud too few or too degenerate points for the ``model`` (the reference ICP returned the last
-    transform unchanged, Open3D's one with an arbitrary rotation, both with a fitness of 1)."""
+    either cloud too few or too degenerate points for the ``model`` (one point: the reference ICP returned the
+    start unchanged, Open3D's a shift with no rotation, both with a fitness of 1)."""
     for name, points in (("source", scale[0]), ("target", scale[1])):
         try:
             check_rank(points, model)

@@ -14,6 +14,7 @@ from typing import Callable, Hashable, TypeVar
 import numpy as np
 
 from .errors import InputError
+from .validation import plain_array
 
 __all__ = ["PreparedFrame", "as_rgb_uint8"]
 
@@ -85,13 +86,15 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     C-contiguous one; the input is never changed); a :class:`PreparedFrame` gives its checked, read-only
     ``rgb`` as it is.
 
-    Accepts (H, W) grayscale, (H, W, 1|3|4), uint8, uint16 (scaled by 1/257) and float in [0, 1].
+    Accepts (H, W) grayscale, (H, W, 1|3|4), uint8, uint16 (scaled by 1/257) and float in [0, 1] (rounded to
+    the nearest of 256 levels: values within half a level outside, rounding errors, are 0 or 255), in either
+    byte order; an ndarray subclass (``np.matrix``, a masked array with nothing masked) as its data.
     """
     if isinstance(image, PreparedFrame):
         return image.rgb
     if not isinstance(image, np.ndarray):
         raise InputError(f"{name}: expected a numpy array, got {type(image).__name__}")
-    img = image
+    img = plain_array(image, name)
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 2:
@@ -111,7 +114,7 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
         if not np.all(np.isfinite(img)):
             raise InputError(f"{name}: image has NaN or inf values")
         lo, hi = float(img.min()), float(img.max())
-        if lo < 0.0 or hi > 1.0:
+        if lo < -0.5 / 255 or hi > 1.0 + 0.5 / 255:  # within half a level: rounds to 0 or 255
             raise InputError(f"{name}: a float image must hold values in [0, 1], got {lo:g}..{hi:g} "
                              "(divide by 255 for 8-bit values)")
         return np.ascontiguousarray(np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))

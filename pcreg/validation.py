@@ -154,6 +154,23 @@ def short_repr(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def check_unmasked(value, name: str) -> None:
+    """An :class:`InputError` for a numpy masked array with masked values: numpy hands pcreg the values stored
+    under its mask, which pcreg would read as data."""
+    if isinstance(value, np.ma.MaskedArray) and np.ma.is_masked(value):
+        raise InputError(f"{name}: a masked array with {int(np.ma.count_masked(value))} masked value(s), whose "
+                         "stored values would be read as data; give np.ma.filled(...) or the unmasked part")
+
+
+def plain_array(value, name: str) -> np.ndarray:
+    """``value`` as a plain ndarray in the machine's byte order (itself when it already is one): a subclass
+    (``np.matrix``, a masked array with nothing masked: :func:`check_unmasked`) as its data, a big-endian
+    array (``>u2``, as FITS files and some TIFF readers give) converted."""
+    check_unmasked(value, name)
+    arr = np.asarray(value)
+    return arr if arr.dtype.isnative else arr.astype(arr.dtype.newbyteorder("="))
+
+
 def check_matrix(value, name: str, dim: int) -> np.ndarray:
     """A finite, invertible, well-conditioned (dim x dim) float64 copy of ``value`` (a homogeneous
     transform such as an initial guess)."""

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..validation import check_unmasked
 from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
 
 __all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "identity_classes", "with_classes",
@@ -201,6 +202,7 @@ def run_table(identity: dict | None, where: str = "run.json's classes") -> Class
 def check_labels(labels, shape, table=None) -> np.ndarray:
     """(H, W) uint8 key labels, checked: of ``shape`` (when given), and each value a class of ``table``
     (a :class:`~pcreg.classes.ClassTable`; None: 0 ground, 1 obstacle, 2 unknown)."""
+    check_unmasked(labels, "labels")
     lab = np.asarray(labels)
     if lab.ndim == 3 and lab.shape[2] in (1, 3, 4):
         lab = lab[:, :, 0]
@@ -213,5 +215,6 @@ def check_labels(labels, shape, table=None) -> np.ndarray:
     if table is not None and table.n_known > 2:
         return table.check_labels(lab, "the key frame's labels")
     if lab.size and (lab.min() < 0 or lab.max() > 2):
-        raise InputError(f"labels must be 0 (ground), 1 (obstacle) or 2 (unknown); found {int(lab.max())}")
+        bad = int(lab.min()) if lab.min() < 0 else int(lab.max())
+        raise InputError(f"labels must be 0 (ground), 1 (obstacle) or 2 (unknown); found {bad}")
     return lab.astype(np.uint8)

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import InputError, RegistrationError
-from ..validation import (check_callable, check_int, check_matrix, short_repr)
+from ..validation import check_callable, check_int, check_matrix, check_unmasked, short_repr
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
@@ -45,6 +45,7 @@ def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
     """(N, 2|3) finite float64 copy of ``points`` or an :class:`InputError`."""
     if getattr(points, "dtype", None) is not None and np.dtype(points.dtype).kind == "b":
         raise InputError(f"{name}: true/false values are a mask, not coordinates")
+    check_unmasked(points, name)
     try:
         if np.iscomplexobj(points):  # numpy would drop the imaginary part with a warning
             raise TypeError
@@ -82,8 +83,9 @@ def _check_normals(normals: np.ndarray) -> None:
 def _check_init(T: np.ndarray, model: str) -> np.ndarray:
     """``T``, an ICP's initial guess, when the ``model`` can hold it (every update keeps the kind of transform
     the guess is): rigid for ``translation`` and ``rigid`` (:func:`~pcreg.registration.transforms.rigid_problem`),
-    without a projection's last row for the rest but ``projective``; else an :class:`InputError`."""
-    from .transforms import rigid_problem
+    without a projection's last row for the rest but ``projective``, a rotation times a scale for ``similarity``;
+    else an :class:`InputError`."""
+    from .transforms import ROTATION_TOLERANCE, rigid_problem
 
     d = T.shape[0] - 1
     if model in ("translation", "rigid"):
@@ -92,6 +94,12 @@ def _check_init(T: np.ndarray, model: str) -> np.ndarray:
             raise InputError(f"init: {problem}, and the {model} ICP would return it as one")
     elif model != "projective" and np.abs(T[d] - np.eye(d + 1)[d]).max() > 1e-12:
         raise InputError(f"init: its last row is {T[d].tolist()}, a projection's; the {model} ICP keeps it affine")
+    if model == "similarity":
+        det = float(np.linalg.det(T[:d, :d]))  # not 0: the init is checked invertible
+        R = T[:d, :d] / abs(det) ** (1 / d)
+        if det < 0 or np.abs(R.T @ R - np.eye(d)).max() > ROTATION_TOLERANCE:
+            raise InputError("init: its linear block is not a rotation times a scale (a reflection, a shear or unequal "
+                             "scales), and the similarity ICP would return it as one")
     return T
 
 
@@ -185,6 +193,8 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     check_callable(callback, "callback")
     check_rank(src, options.model)
     check_rank(tgt, options.model)
+    if options.backend == "open3d" and dim == 2:
+        _refuse_a_line_for_open3d(src, tgt)
     if target_normals is not None:
         target_normals = check_cloud(target_normals, "target_normals")
         if target_normals.shape != tgt.shape:
@@ -195,6 +205,8 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     start = time.perf_counter()
     schedule = _voxel_schedule(src, tgt, options.schedule, distance=max_correspondence_distance,
                                max_iteration=options.max_iteration)
+    if options.schedule is not None:
+        _check_last_scale(schedule[-1], options.schedule.voxel_sizes[-1], options.model)
     step = icp_step(options.backend)
     settings = IcpSettings(model=options.model, relative_fitness=options.relative_fitness, weights=options.weights,
                            trim_fraction=options.trim_fraction, metric=options.metric, rotation=options.rotation,
@@ -214,6 +226,18 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
                               converged=r.converged, backend=options.backend, seconds=seconds)
+
+
+def _refuse_a_line_for_open3d(src: np.ndarray, tgt: np.ndarray) -> None:
+    """An :class:`InputError` for 2-D clouds whose points lie on one line (two points, a scan line) with the open3d
+    backend: its ICP runs on the clouds lifted to z = 0, where the rotation about that line is free, and it turned
+    the image plane over for some motions and not others (refused as "mirrored" under 10 of 20 rigid motions of a line
+    of 50 points); the reference ICP solves the 2-D problem, which the line fixes."""
+    for name, points in (("source", src), ("target", tgt)):
+        spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+        if spread[-1] <= 1e-9 * spread[0]:
+            raise InputError(f"{name}: its points lie on one line, about which the open3d backend's 3-D ICP can turn "
+                             "the image plane over; use backend='reference'")
 
 
 def _check_icp_options(options: ICPOptions, dim: int, target_normals) -> None:
@@ -259,6 +283,18 @@ def _voxel_schedule(src: np.ndarray, tgt: np.ndarray, schedule: VoxelSchedule | 
     return [(voxel_downsample(src, v), voxel_downsample(tgt, v), d, n) for v, d, n in zip(sizes, dists, iters)]
 
 
+def _check_last_scale(scale: tuple, voxel: float, model: str) -> None:
+    """An :class:`InputError` when the schedule's last voxel size, the one whose ICP gives the result, leaves
+    either cloud too few or too degenerate points for the ``model`` (one point: the reference ICP returned the
+    start unchanged, Open3D's a shift with no rotation, both with a fitness of 1)."""
+    for name, points in (("source", scale[0]), ("target", scale[1])):
+        try:
+            check_rank(points, model)
+        except RegistrationError as exc:
+            raise InputError(f"voxel_sizes: at the last size, {voxel:g}, the {name} is downsampled to {len(points)} "
+                             f"point(s): {exc}") from None
+
+
 # ---------------------------------------------------------------------------------------------------
 # Images
 # ---------------------------------------------------------------------------------------------------
@@ -287,7 +323,7 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
         :class:`~pcreg.registration.dense.DenseRegistrationResult`.
     model, backend : shorthands for ``config.replace(model=..., backend=...)``; None keeps the config's.
     init : None keeps the config's ``search.init``; one of its names replaces it; a 3x3 ``T_ref_mov``
-        is the one hypothesis, refined instead of searching.
+        is the one hypothesis, refined instead of searching (a transform the model can hold, as :func:`icp`'s).
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
     reference_pyramid, moving_pyramid : the images' :func:`~pcreg.registration.clouds.image_pyramid` (same ``levels``,
         ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
@@ -302,6 +338,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     """
     config = _configured(config, model=model, backend=backend, init=init)
     start_matrix = None if init is None or isinstance(init, str) else check_matrix(init, "init", 3)
+    if start_matrix is not None and config.model != "dense":  # dense: its global step's model checks it
+        _check_init(start_matrix, config.model)
     if config.model == "dense":
         if any(m is not None and not isinstance(m, str) for m in (reference_mask, moving_mask)):
             raise InputError("the dense model cannot leave masked pixels out (it leaves black padding out): give "

@@ -448,6 +448,8 @@ def check_pyramid(image: np.ndarray, pyramid: ImagePyramid, *, levels: int, samp
         raise InputError(f"{name} pyramid: expected an ImagePyramid (pcreg.registration.clouds.image_pyramid), got {type(pyramid).__name__}")
     if tuple(pyramid.shape) != tuple(image.shape[:2]):
         raise InputError(f"{name} pyramid was built for a {pyramid.shape} image, not {tuple(image.shape[:2])}")
+    if not np.array_equal(pyramid.detections[0].image, image):  # every byte: 0.1 ms at 640x480
+        raise InputError(f"{name} pyramid was built for another image of this size, not the {name} image given")
     if len(pyramid) < levels:
         raise InputError(f"{name} pyramid has {len(pyramid)} levels, {levels} needed")
     opts = dict(pyramid.options)

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..validation import check_float, short_repr
+from ..validation import check_float, plain_array, short_repr
 from .motion import Motion
 
 # OpenCV's remap supports these (float16 is warped as float32; bool as uint8).
@@ -31,13 +31,14 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     ``valid`` then also requires the inversion to have converged there (folds and occlusions do not).
 
     moving : (H, W) or (H, W, C) array (uint8 images, uint8 labels with ``interpolation="nearest"``,
-        float32 posteriors, ...).
+        float32 posteriors, ...), in either byte order (a big-endian one is warped in the machine's).
     T_ref_mov : (3, 3) maps moving pixel coordinates into reference pixel coordinates (affine or projective).
     shape : (H, W) of the reference grid (default: the moving image's).
     Returns ``(warped, valid)``: ``warped`` has the reference's size and ``moving``'s dtype and channels,
-    ``fill`` outside; ``valid`` (H, W) bool marks pixels that came from inside the moving image.
+    ``fill`` outside (saturated to an integer dtype's range; beyond a float dtype's, refused); ``valid`` (H, W)
+    bool marks pixels that came from inside the moving image.
     """
-    moving = np.asarray(moving)
+    moving = plain_array(moving, "warp")
     if moving.ndim not in (2, 3) or moving.shape[0] == 0 or moving.shape[1] == 0:
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {moving.shape}")
     fill = _check_remap_input(moving, interpolation, fill)
@@ -108,9 +109,12 @@ def _check_remap_input(src: np.ndarray, interpolation: str, fill) -> float:
     if src.dtype not in _DTYPES:
         raise InputError(f"warp: unsupported dtype {src.dtype} (use {', '.join(str(np.dtype(d)) for d in _DTYPES)})")
     try:
-        return check_float(fill, "warp: fill")
+        value = check_float(fill, "warp: fill")
     except InputError:
         raise InputError(f"warp: fill must be a finite number, got {short_repr(fill)}") from None
+    if src.dtype.kind == "f" and abs(value) > float(np.finfo(src.dtype).max):  # it would fill with inf, or NaN
+        raise InputError(f"warp: fill {value:g} is beyond the range of the {src.dtype} array")
+    return value
 
 
 def _resample(src: np.ndarray, one, *, interpolation: str, fill: float) -> tuple[np.ndarray, np.ndarray]:
@@ -162,7 +166,7 @@ def warp_to_moving(reference: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] |
     shape : (H, W) of the moving grid (a field's own size; default the reference's).
     Returns ``(out, valid)`` with the semantics of :func:`warp`.
     """
-    reference = np.asarray(reference)
+    reference = plain_array(reference, "warp")
     if reference.ndim not in (2, 3) or reference.shape[0] == 0 or reference.shape[1] == 0:
         raise InputError(f"warp: expected an (H, W) or (H, W, C) array, got shape {reference.shape}")
     motion = _motion(T_ref_mov)

@@ -358,3 +358,31 @@ def test_a_one_channel_mask_of_16_bits_holds_labelmap_lines_as_one_of_8(clip, tm
         else:
             with pytest.raises(InputError, match=re.escape(said)):
                 read_cvat_keys(export, source, mask.shape)
+
+
+def test_an_unpacked_export_in_its_folder_is_read_as_its_zip(clip, tmp_path, capsys):
+    """An export unzipped with its folder around it (``FOLDER/task_7/labelmap.txt``, Finder's ``__MACOSX/`` and a
+    ``.DS_Store`` beside it) is read inside that folder, as its zip is (it was "holds no label PNG"); errors name
+    the file where it lies."""
+    from pcreg.classes.cvat import is_cvat_export, read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+
+    frames, ids = clip
+    stems = list(ids)
+    folder = tmp_path / "unzipped"
+    (folder / "task_7").mkdir(parents=True)
+    cvat_export(folder / "task_7", TWO, {stems[0]: TWO_LUT[ids[stems[0]]]}, as_zip=False)
+    (folder / "__MACOSX" / "task_7").mkdir(parents=True)
+    (folder / "__MACOSX" / "task_7" / "._labelmap.txt").write_bytes(b"\0\5\26\7 AppleDouble")
+    (folder / ".DS_Store").write_bytes(b"\0\0\0\1Bud1")
+    assert is_cvat_export(folder)
+    rc, err = _run(["run", frames, "--labels", folder, "--out", tmp_path / "out", "--model", "flow", "--scale", "0.5"],
+                   capsys)
+    assert rc == 0, err
+    run = json.loads((tmp_path / "out" / "run.json").read_text())["run"]
+    assert [c["name"] for c in run["classes"]["classes"]] == ["drivable", "other", "background"]
+    (folder / "task_7" / "SegmentationClass" / "x.png").write_bytes(b"")
+    with pytest.raises(InputError, match=re.escape(str(folder / "task_7" / "SegmentationClass" / "x.png"))):
+        read_cvat_keys(folder, open_frames(frames, Selection()), ids[stems[0]].shape)
+    (folder / "notes.txt").write_text("two things in the folder: not an export wrapped in it\n")
+    assert not is_cvat_export(folder)

@@ -21,8 +21,8 @@ An archive is read in memory, never unpacked: members are looked up by name, a n
 the archive (``..``, an absolute path) or two members of one name are refused, and every member's size is
 bounded before it is read (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class
 table's). An archive whose members all lie in one folder holding the export (an export zipped with its
-folder around it) is read inside that folder; the ``__MACOSX/`` folder that macOS's Finder adds to an
-archive it makes is left out.
+folder around it) is read inside that folder, and so is such an archive unpacked (a folder holding only
+the folder of the export); the ``__MACOSX/`` folder that macOS's Finder adds to an archive it makes is left out.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from ..errors import InputError
 from .files import LABELMAP_FILE
 from .table import ClassTable
 
-__all__ = ["CLASS_DIR", "MAX_MEMBERS", "is_cvat_export", "CvatExport", "read_cvat_keys"]
+__all__ = ["CLASS_DIR", "MAX_MEMBERS", "is_cvat_export", "wrapped_export", "CvatExport", "read_cvat_keys"]
 
 #: The folder of class masks in the export.
 CLASS_DIR = "SegmentationClass"
@@ -54,9 +54,23 @@ _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, Ru
 
 def is_cvat_export(path: Path) -> bool:
     """Whether ``--labels path`` names a CVAT export: a ``.zip`` file, or a folder holding a
-    ``SegmentationClass/`` folder."""
+    ``SegmentationClass/`` folder, itself or in its one folder (:func:`wrapped_export`)."""
     p = Path(path)
-    return (p.is_file() and p.suffix.lower() == ".zip") or (p.is_dir() and (p / CLASS_DIR).is_dir())
+    return (p.is_file() and p.suffix.lower() == ".zip") or (p.is_dir() and (
+        (p / CLASS_DIR).is_dir() or wrapped_export(p) is not None))
+
+
+def wrapped_export(folder: Path) -> Path | None:
+    """The one folder in ``folder`` that holds an export (its ``SegmentationClass/``), when ``folder`` holds
+    no export of its own and nothing else (hidden files and ``__MACOSX/`` left out): an archive of an export
+    with its folder around it, unpacked, read as the archive is; else None."""
+    if (folder / LABELMAP_FILE).exists() or (folder / CLASS_DIR).exists():
+        return None
+    try:
+        inside = [p for p in folder.iterdir() if not p.name.startswith(".") and p.name != _MACOS_FORKS]
+    except OSError:
+        return None
+    return inside[0] if len(inside) == 1 and (inside[0] / CLASS_DIR).is_dir() else None
 
 
 def _safe_name(name: str) -> str | None:
@@ -78,7 +92,9 @@ class CvatExport(contextlib.AbstractContextManager):
         self._zip: zipfile.ZipFile | None = None
         self._members: dict[str, zipfile.ZipInfo] = {}
         self._prefix = ""
-        if self.path.is_dir():
+        self._root = self.path
+        if self.path.is_dir():  # an unpacked export, read inside its one folder as an archive is
+            self._root = wrapped_export(self.path) or self.path
             return
         try:
             self._zip = zipfile.ZipFile(self.path)
@@ -119,18 +135,18 @@ class CvatExport(contextlib.AbstractContextManager):
         """The ``.png`` files in ``folder`` and its sub-folders (a task made from nested folders of frames puts
         its masks there), by relative name, in name order; hidden ones left out."""
         if self._zip is None:
-            d = self.path / folder
-            return sorted(p.relative_to(self.path).as_posix() for p in d.rglob("*")
+            d = self._root / folder
+            return sorted(p.relative_to(self._root).as_posix() for p in d.rglob("*")
                           if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith(".")) if d.is_dir() else []
         return sorted(n for n in self._members if n.startswith(f"{folder}/")
                       and n.lower().endswith(".png") and not n.rsplit("/", 1)[1].startswith("."))
 
     def has(self, name: str) -> bool:
-        return (self.path / name).is_file() if self._zip is None else name in self._members
+        return (self._root / name).is_file() if self._zip is None else name in self._members
 
     def where(self, name: str) -> str:
         """How an error names a member: ``EXPORT.zip:NAME`` or the file's path."""
-        return str(self.path / name) if self._zip is None else f"{self.path}:{self._prefix}{name}"
+        return str(self._root / name) if self._zip is None else f"{self.path}:{self._prefix}{name}"
 
     def read(self, name: str, *, max_bytes: int | None = None, what: str = "a label image") -> bytes:
         """The bytes of ``name``, no more than ``max_bytes`` (default the export's; read so, whatever the
@@ -139,7 +155,7 @@ class CvatExport(contextlib.AbstractContextManager):
 
         limit = self.max_bytes if max_bytes is None else max_bytes
         if self._zip is None:
-            return read_regular_file(self.path / name, max_bytes=limit, what="CVAT export file")
+            return read_regular_file(self._root / name, max_bytes=limit, what="CVAT export file")
         info = self._members[name]
         if info.file_size > limit:
             raise InputError(f"{self.where(name)}: {info.file_size} bytes, more than the {limit} {what} may have")

@@ -122,6 +122,21 @@ def test_transparent_pixels_are_not_registered(tmp_path):
     assert p.returncode == 2 and p.stderr.startswith(f"pcreg: error: {tmp_path / 'small.png'}: {w // 2}x{h // 2} px"), p.stderr
 
 
+def test_an_image_transparent_everywhere_is_bad_input_naming_its_file(pair, tmp_path):
+    """A PNG whose alpha is 0 everywhere shows nothing: refused as bad input naming the file (exit 2), as
+    either image; it was a refused registration (exit 3, "no usable edges") that named neither. Read as an
+    image (``pcreg.load_image``) it keeps its colours, alpha dropped."""
+    d, _ = pair
+    ref = cv2.imread(str(d / "ref.png"))
+    cv2.imwrite(str(tmp_path / "clear.png"), np.dstack([ref, np.zeros(ref.shape[:2], np.uint8)]))
+    for args in ((d / "ref.png", tmp_path / "clear.png"), (tmp_path / "clear.png", d / "mov.png")):
+        p = run("register", *args)
+        assert p.returncode == 2 and p.stderr.splitlines() == [
+            f"pcreg: error: {tmp_path / 'clear.png'}: every pixel is transparent (alpha 0 everywhere): nothing to "
+            "register"], p.stderr
+    np.testing.assert_array_equal(pcreg.load_image(tmp_path / "clear.png"), ref[:, :, ::-1])
+
+
 def test_an_image_too_small_for_the_pyramid_is_named_by_its_file(pair, tmp_path):
     d, _ = pair
     cv2.imwrite(str(tmp_path / "tiny.png"), np.full((16, 16, 3), 128, np.uint8))

@@ -51,7 +51,10 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
     Only regular files are read (a FIFO or device is refused, never waited on); the size in the header
     is checked against ``max_pixels`` (default :func:`pcreg.validation.max_pixels`) before decoding.
     """
-    return load_image_and_mask(path, max_pixels=max_pixels)[0]
+    from ..formats import read_image_file
+
+    path = check_path(path, "path")
+    return _rgb_and_alpha(read_image_file(path, limit=max_pixels), str(path))[0]
 
 
 def load_image_and_mask(path: str | os.PathLike, *, max_pixels: int | None = None
@@ -67,16 +70,25 @@ def load_image_and_mask(path: str | os.PathLike, *, max_pixels: int | None = Non
 
 def image_and_mask(img: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray | str]:
     """:func:`load_image_and_mask` of an image already decoded as the file stores it (OpenCV's
-    ``IMREAD_UNCHANGED``, BGR order); ``name`` names it in errors."""
+    ``IMREAD_UNCHANGED``, BGR order); ``name`` names it in errors. An image transparent everywhere (alpha 0)
+    has no pixel to register: an :class:`InputError`."""
+    rgb, alpha = _rgb_and_alpha(img, name)
+    if alpha is None or np.all(alpha > 0):
+        return rgb, "auto"
+    if not alpha.any():
+        raise InputError(f"{name}: every pixel is transparent (alpha 0 everywhere): nothing to register")
+    return rgb, (alpha > 0) & valid_region(rgb)
+
+
+def _rgb_and_alpha(img: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """An image decoded as the file stores it (BGR order) as (H, W, 3) uint8 RGB, and its alpha channel
+    (None without one)."""
     alpha = None
     if img.ndim == 3 and img.shape[2] == 4:
         img, alpha = img[:, :, :3], img[:, :, 3]
     if img.ndim == 3:
         img = img[:, :, ::-1]  # BGR -> RGB
-    rgb = as_rgb_uint8(img, name=name)
-    if alpha is None or np.all(alpha > 0):
-        return rgb, "auto"
-    return rgb, (alpha > 0) & valid_region(rgb)
+    return as_rgb_uint8(img, name=name), alpha
 
 
 def valid_region(image: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 from .errors import InputError
 from .validation import plain_array
 
-__all__ = ["PreparedFrame", "as_rgb_uint8"]
+__all__ = ["PreparedFrame", "as_rgb_uint8", "low_bits_note"]
 
 T = TypeVar("T")
 
@@ -121,3 +121,19 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
     if img.dtype == np.bool_:
         return np.ascontiguousarray(img.astype(np.uint8) * 255)
     raise InputError(f"{name}: unsupported image dtype {img.dtype}")
+
+
+def low_bits_note(image) -> str:
+    """Why an image may read as nearly black, for a refusal of it: a 16-bit image whose values use only the
+    lowest bits (at most 12 of its 16: 8-bit values stored in 16 bits, a 10- or 12-bit camera's), which
+    :func:`as_rgb_uint8`'s scaling by 1/257 (documented, kept) makes 0..16 of 255 or darker:
+    ``"its 16-bit values lie in 3..255, only the lowest 8 of its 16 bits, ..."``; else ``""``."""
+    if not isinstance(image, np.ndarray) or image.dtype.kind != "u" or image.dtype.itemsize != 2 or image.size == 0:
+        return ""
+    lo, hi = int(image.min()), int(image.max())
+    bits = max(1, hi.bit_length())
+    if bits > 12:
+        return ""
+    return (f"its 16-bit values lie in {lo}..{hi}, only the lowest {bits} of its 16 bits, which read as "
+            f"{(lo * 255 + 32767) // 65535}..{(hi * 255 + 32767) // 65535} of 255 (nearly black); stretch them over "
+            "the 16 bits or store the image as 8-bit")

@@ -137,6 +137,31 @@ def test_an_image_transparent_everywhere_is_bad_input_naming_its_file(pair, tmp_
     np.testing.assert_array_equal(pcreg.load_image(tmp_path / "clear.png"), ref[:, :, ::-1])
 
 
+def test_a_16_bit_image_of_8_bit_values_is_refused_saying_so(pair, tmp_path):
+    """A 16-bit PNG whose values lie in 0..255 reads nearly black (16 bits are scaled by 1/257, as documented):
+    its refusal names the file and says its values use only the lowest 8 of its 16 bits, with their range
+    (it said "no usable edges (a flat or empty image?)", naming neither). A flat 8-bit image is still "flat or
+    empty", now named by its file."""
+    d, _ = pair
+    ref = cv2.imread(str(d / "ref.png"))
+    cv2.imwrite(str(tmp_path / "low.png"), ref.astype(np.uint16))
+    said = (f"{tmp_path / 'low.png'}: the {{}} image has no usable edges: its 16-bit values lie in {ref.min()}..{ref.max()}, "
+            "only the lowest 8 of its 16 bits, which read as 0..1 of 255 (nearly black); stretch them over the 16 bits "
+            "or store the image as 8-bit")
+    for args, role in (((d / "ref.png", tmp_path / "low.png"), "moving"), ((tmp_path / "low.png", d / "mov.png"), "reference")):
+        p = run("register", *args, "--json")
+        assert p.returncode == 3 and p.stderr.splitlines() == [f"pcreg: registration refused: {said.format(role)}"], p.stderr
+        assert json.loads(p.stdout) == {"ok": False, "reason": said.format(role)}
+    cv2.imwrite(str(tmp_path / "flat.png"), np.full(ref.shape, 77, np.uint8))
+    p = run("register", d / "ref.png", tmp_path / "flat.png")
+    assert p.returncode == 3 and p.stderr.splitlines() == [
+        f"pcreg: registration refused: {tmp_path / 'flat.png'}: the moving image has no usable edges (a flat or empty "
+        "image?)"], p.stderr
+    with pytest.raises(pcreg.errors.RegistrationError, match=r"^the moving image has no usable edges: its 16-bit values "
+                       r"lie in \d+\.\.\d+, only the lowest 8 of its 16 bits"):
+        pcreg.register(ref[:, :, ::-1], ref[:, :, ::-1].astype(np.uint16))
+
+
 def test_an_image_too_small_for_the_pyramid_is_named_by_its_file(pair, tmp_path):
     d, _ = pair
     cv2.imwrite(str(tmp_path / "tiny.png"), np.full((16, 16, 3), 128, np.uint8))

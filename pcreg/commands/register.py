@@ -40,10 +40,10 @@ def run(args: argparse.Namespace) -> int:
 
     import cv2
 
-    from ..errors import InputError, OutputError
+    from ..errors import InputError, OutputError, RegistrationError
     from ..outputs import atomic_write_bytes, check_output
     from ..formats import read_image_file
-    from ..registration.clouds import cloud_pyramid, image_and_mask, load_image_and_mask
+    from ..registration.clouds import cloud_pyramid, image_and_mask
     from ..registration.api import register
     from ..registration.config import RegisterConfig
     from ..registration.warp import warp
@@ -61,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
                                init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,
                                **options)
-    ref, ref_mask = load_image_and_mask(args.reference)  # transparent pixels are not matched
+    ref_stored = read_image_file(args.reference)
+    ref, ref_mask = image_and_mask(ref_stored, args.reference)  # transparent pixels are not matched
     stored = read_image_file(args.moving)  # decoded once: registered, and warped as stored by --out
     mov, mov_mask = image_and_mask(stored, args.moving)
     for path, mask in ((args.reference, ref_mask), (args.moving, mov_mask)):
@@ -82,12 +83,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend), reference_mask=ref_mask,
                               moving_mask=mov_mask)
-        except InputError as exc:  # "the reference image (16x16) is too small ...": name its file
-            said = str(exc)
-            for role, path in (("the reference image", args.reference), ("the moving image", args.moving)):
-                if said.startswith(role):
-                    raise InputError(f"{path}: {said}") from None
-            raise
+        except (InputError, RegistrationError) as exc:  # "the reference image (16x16) is too small ...": name its file
+            raise _naming_its_file(exc, ((args.reference, ref_stored), (args.moving, stored))) from None
         warped = valid = None
         if args.out or rec.enabled:
             warped, valid = warp(mov, getattr(result, "field", result.matrix), shape=ref.shape)
@@ -111,6 +108,20 @@ def run(args: argparse.Namespace) -> int:
         print(result)
     _say_if_the_model_does_not_fit(result, args.model)
     return 0
+
+
+def _naming_its_file(exc: Exception, images) -> Exception:
+    """``exc`` of the same type with the file named, when it names "the reference image" or "the moving image"
+    (``images``: each one's path and array as its file stores it); an image refused for having no edges says
+    when its 16-bit values use only the lowest bits (:func:`pcreg.frame.low_bits_note`)."""
+    from ..frame import low_bits_note
+
+    said = str(exc)
+    for role, (path, stored) in zip(("the reference image", "the moving image"), images):
+        if said.startswith(role):
+            dark = low_bits_note(stored) if said.startswith(f"{role} has no usable edges") else ""
+            return type(exc)(f"{path}: {role} has no usable edges: {dark}" if dark else f"{path}: {said}")
+    return exc
 
 
 def _say_if_the_model_does_not_fit(result, model: str) -> None:

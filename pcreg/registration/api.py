@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import InputError, RegistrationError
+from ..frame import low_bits_note
 from ..validation import check_callable, check_int, check_matrix, check_unmasked, short_repr
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
@@ -351,7 +352,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     p = config.pyramid
     reference, moving = _pyramids(ref_img, mov_img, reference_pyramid, moving_pyramid, levels=p.levels,
                                   sampler=p.sampler, canny_percentile=p.canny_percentile, seed=config.search.seed,
-                                  masks=(reference_mask, moving_mask), max_points=(p.reference_max_points, p.max_points))
+                                  masks=(reference_mask, moving_mask), max_points=(p.reference_max_points, p.max_points),
+                                  given=(reference_image, moving_image))
     best, tried, mirror, test = _search(reference, moving, config,
                                         config.search.init if start_matrix is None else start_matrix,
                                         keep_iterations=callback is not None)
@@ -533,10 +535,11 @@ def _check_inputs(ref_img: np.ndarray, mov_img: np.ndarray, pyramid: PyramidConf
 
 def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: ImagePyramid | None,
               moving_pyramid: ImagePyramid | None, *, levels: int, sampler: str, canny_percentile: float, seed: int,
-              masks: tuple, max_points: tuple) -> tuple[CloudPyramid, CloudPyramid]:
+              masks: tuple, max_points: tuple, given: tuple = (None, None)) -> tuple[CloudPyramid, CloudPyramid]:
     """The reference's and the moving image's cloud pyramids (seeds ``seed`` and ``seed + 1``), each level
     built when first used (a search that ends at level 1 never builds levels 2-3), drawn from the caller's
-    :func:`~pcreg.registration.clouds.image_pyramid` where given."""
+    :func:`~pcreg.registration.clouds.image_pyramid` where given. ``given``: the two images as the caller
+    gave them, whose 16-bit values a refusal describes (:func:`~pcreg.frame.low_bits_note`)."""
     out = []
     for name, image, kept, mask, n, s in (("reference", ref_img, reference_pyramid, masks[0], max_points[0], seed),
                                           ("moving", mov_img, moving_pyramid, masks[1], max_points[1], seed + 1)):
@@ -547,9 +550,11 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
             kept = check_pyramid(image, kept, levels=levels, sampler=sampler, canny_percentile=canny_percentile,
                                  name=name)
             out.append(CloudPyramid.from_detections(image, kept, levels=levels, max_points=n, seed=s))
-    for name, pyramid in zip(("reference", "moving"), out):
+    for name, pyramid, image in zip(("reference", "moving"), out, given):
         if len(pyramid[0]) < 3:
-            raise RegistrationError(f"the {name} image has no usable edges (a flat or empty image?)")
+            dark = low_bits_note(image)
+            raise RegistrationError(f"the {name} image has no usable edges" + (f": {dark}" if dark else
+                                                                                " (a flat or empty image?)"))
     return out[0], out[1]
 
 

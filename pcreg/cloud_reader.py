@@ -58,7 +58,7 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
             if unmeasured.all():
                 raise InputError(f"{path}: every point's coordinates are NaN (no point was measured)")
             pts = pts[~unmeasured]
-    return check_cloud(pts, str(path))
+    return check_cloud(pts, str(path), limit=limit)
 
 
 def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:

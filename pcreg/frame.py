@@ -14,7 +14,7 @@ from typing import Callable, Hashable, TypeVar
 import numpy as np
 
 from .errors import InputError
-from .validation import plain_array
+from .validation import check_pixels, plain_array
 
 __all__ = ["PreparedFrame", "as_rgb_uint8", "low_bits_note"]
 
@@ -81,14 +81,15 @@ class PreparedFrame:
         return f"PreparedFrame({w}x{h})"
 
 
-def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
+def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None) -> np.ndarray:
     """Validate and convert an image array to (H, W, 3) uint8 RGB (no copy when it already is a
     C-contiguous one; the input is never changed); a :class:`PreparedFrame` gives its checked, read-only
     ``rgb`` as it is.
 
     Accepts (H, W) grayscale, (H, W, 1|3|4), uint8, uint16 (scaled by 1/257) and float in [0, 1] (rounded to
     the nearest of 256 levels: values within half a level outside, rounding errors, are 0 or 255), in either
-    byte order; an ndarray subclass (``np.matrix``, a masked array with nothing masked) as its data.
+    byte order; an ndarray subclass (``np.matrix``, a masked array with nothing masked) as its data; no more
+    pixels than the pixel limit (:func:`pcreg.validation.check_pixels` of ``limit``), as a file.
     """
     if isinstance(image, PreparedFrame):
         return image.rgb
@@ -106,6 +107,7 @@ def as_rgb_uint8(image, *, name: str = "image") -> np.ndarray:
         raise InputError(f"{name}: empty image (shape {image.shape})")
     if img.shape[0] < 8 or img.shape[1] < 8:
         raise InputError(f"{name}: image too small to register ({img.shape[1]}x{img.shape[0]} px)")
+    check_pixels(img.shape, name, limit=limit)
     if img.dtype == np.uint8:
         return np.ascontiguousarray(img)
     if img.dtype == np.uint16:

@@ -4,7 +4,9 @@ Limits
     ``max_pixels`` bounds the pixels of an image and the points of a cloud. The default,
     :data:`DEFAULT_MAX_PIXELS` (50 million: a 48-megapixel photo fits, a decoded RGB image of that size
     is 150 MB), can be raised per call, for a whole process (and its worker processes) with the
-    environment variable ``PCREG_MAX_PIXELS``, or on the command line with ``--max-pixels``.
+    environment variable ``PCREG_MAX_PIXELS``, or on the command line with ``--max-pixels``. Files are
+    checked before they are decoded (:mod:`pcreg.formats`), arrays where the library converts them
+    (:func:`check_pixels`, :func:`check_point_count`).
 
 Numbers
     :func:`check_int`, :func:`check_float` (and their argparse twins in :mod:`pcreg.commands._common`)
@@ -216,6 +218,23 @@ def max_pixels(value: int | None = None) -> int:
             return v
         raise InputError(f"{_ENV} must be a positive integer, got {env!r}")
     return DEFAULT_MAX_PIXELS
+
+
+def check_pixels(shape: tuple, name: str, *, limit: int | None = None) -> None:
+    """An :class:`InputError` for an image array of ``shape`` (H, W, ...) with more pixels than the limit
+    (:func:`max_pixels` of ``limit``), in the words of a file's refusal (:func:`pcreg.formats.check_image_bytes`)."""
+    lim = max_pixels(limit)
+    h, w = int(shape[0]), int(shape[1])
+    if h * w > lim:
+        raise InputError(f"{name}: {w}x{h} px exceeds the limit of {lim} pixels (raise it with {_ENV} or --max-pixels)")
+
+
+def check_point_count(n: int, name: str, *, limit: int | None = None) -> None:
+    """An :class:`InputError` for a cloud array of ``n`` points, more than the limit (:func:`max_pixels` of
+    ``limit``), in the words of a file's refusal (:func:`pcreg.cloud_reader.load_cloud`)."""
+    lim = max_pixels(limit)
+    if n > lim:
+        raise InputError(f"{name}: {n} points exceed the limit of {lim} points (raise it with {_ENV} or --max-pixels)")
 
 
 def set_max_pixels(value: int) -> None:

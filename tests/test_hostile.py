@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import resource
 import struct
 import subprocess
@@ -577,6 +578,30 @@ def test_pixel_limit_can_be_raised(files, monkeypatch):
     monkeypatch.setenv("PCREG_MAX_PIXELS", "100")
     with pytest.raises(InputError, match="limit of 100"):
         load_image(files / "good.png")
+
+
+def test_arrays_are_held_to_the_pixel_limit_as_files_are(files, monkeypatch):
+    """Images and clouds given as arrays to register, register_dense, image_cloud and icp are refused past the
+    pixel (point) limit in the words of a file's refusal (they were taken whatever their size); a file read
+    with its own higher limit is converted under that limit."""
+    import pcreg
+    from pcreg.cloud_reader import load_cloud
+    from pcreg.registration.clouds import load_image
+
+    image, points = np.zeros((64, 80, 3), np.uint8), np.random.default_rng(0).normal(size=(400, 2))
+    monkeypatch.setenv("PCREG_MAX_PIXELS", "100")
+    said = "exceeds the limit of 100 pixels (raise it with PCREG_MAX_PIXELS or --max-pixels)"
+    for call in (lambda: pcreg.register(image, image), lambda: pcreg.register_dense(image, image),
+                 lambda: pcreg.image_cloud(image)):
+        with pytest.raises(InputError, match=re.escape(f"image: 80x64 px {said}")):
+            call()
+    with pytest.raises(InputError, match=re.escape("source: 400 points exceed the limit of 100 points (raise it with "
+                                                   "PCREG_MAX_PIXELS or --max-pixels)")):
+        pcreg.icp(points, points)
+    assert load_image(files / "good.png", max_pixels=64 * 80).shape == (64, 80, 3)
+    assert load_cloud(files / "ok.ply", max_points=400).shape == (400, 3)
+    monkeypatch.setenv("PCREG_MAX_PIXELS", str(64 * 80))
+    assert pcreg.image_cloud(image).shape[:2] == (64, 80) and pcreg.icp(points, points).fitness == 1.0
 
 
 def test_a_complete_ply_still_loads(files):

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import InputError, RegistrationError
 from ..frame import low_bits_note
-from ..validation import check_callable, check_int, check_matrix, check_unmasked, short_repr
+from ..validation import check_callable, check_int, check_matrix, check_point_count, check_unmasked, short_repr
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
@@ -42,8 +42,8 @@ MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 kee
 # Point clouds
 # ---------------------------------------------------------------------------------------------------
 
-def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
-    """(N, 2|3) finite float64 copy of ``points`` or an :class:`InputError`."""
+def check_cloud(points: np.ndarray, name: str, *, limit: int | None = None) -> np.ndarray:
+    """(N, 2|3) finite float64 copy of ``points`` within the point limit (``limit``) or an :class:`InputError`."""
     if getattr(points, "dtype", None) is not None and np.dtype(points.dtype).kind == "b":
         raise InputError(f"{name}: true/false values are a mask, not coordinates")
     check_unmasked(points, name)
@@ -57,6 +57,7 @@ def check_cloud(points: np.ndarray, name: str) -> np.ndarray:
         raise InputError(f"{name}: expected an (N, 2) or (N, 3) array of points, got shape {p.shape}")
     if p.shape[0] == 0:
         raise InputError(f"{name}: the cloud is empty")
+    check_point_count(p.shape[0], name, limit=limit)
     if not np.all(np.isfinite(p)):
         bad = int((~np.isfinite(p)).any(axis=1).sum())
         raise InputError(f"{name}: {bad} point(s) have NaN or inf coordinates")
@@ -553,8 +554,7 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
     for name, pyramid, image in zip(("reference", "moving"), out, given):
         if len(pyramid[0]) < 3:
             dark = low_bits_note(image)
-            raise RegistrationError(f"the {name} image has no usable edges" + (f": {dark}" if dark else
-                                                                                " (a flat or empty image?)"))
+            raise RegistrationError(f"the {name} image has no usable edges" + (f": {dark}" if dark else " (a flat or empty image?)"))
     return out[0], out[1]
 
 

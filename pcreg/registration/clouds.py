@@ -54,7 +54,7 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
     from ..formats import read_image_file
 
     path = check_path(path, "path")
-    return _rgb_and_alpha(read_image_file(path, limit=max_pixels), str(path))[0]
+    return _rgb_and_alpha(read_image_file(path, limit=max_pixels), str(path), max_pixels)[0]
 
 
 def load_image_and_mask(path: str | os.PathLike, *, max_pixels: int | None = None
@@ -65,14 +65,14 @@ def load_image_and_mask(path: str | os.PathLike, *, max_pixels: int | None = Non
     from ..formats import read_image_file
 
     path = check_path(path, "path")
-    return image_and_mask(read_image_file(path, limit=max_pixels), str(path))
+    return image_and_mask(read_image_file(path, limit=max_pixels), str(path), limit=max_pixels)
 
 
-def image_and_mask(img: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray | str]:
+def image_and_mask(img: np.ndarray, name: str, *, limit: int | None = None) -> tuple[np.ndarray, np.ndarray | str]:
     """:func:`load_image_and_mask` of an image already decoded as the file stores it (OpenCV's
-    ``IMREAD_UNCHANGED``, BGR order); ``name`` names it in errors. An image transparent everywhere (alpha 0)
-    has no pixel to register: an :class:`InputError`."""
-    rgb, alpha = _rgb_and_alpha(img, name)
+    ``IMREAD_UNCHANGED``, BGR order; ``limit`` the pixel limit it was read with); ``name`` names it in errors.
+    An image transparent everywhere (alpha 0) has no pixel to register: an :class:`InputError`."""
+    rgb, alpha = _rgb_and_alpha(img, name, limit)
     if alpha is None or np.all(alpha > 0):
         return rgb, "auto"
     if not alpha.any():
@@ -80,7 +80,7 @@ def image_and_mask(img: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray |
     return rgb, (alpha > 0) & valid_region(rgb)
 
 
-def _rgb_and_alpha(img: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+def _rgb_and_alpha(img: np.ndarray, name: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """An image decoded as the file stores it (BGR order) as (H, W, 3) uint8 RGB, and its alpha channel
     (None without one)."""
     alpha = None
@@ -88,7 +88,7 @@ def _rgb_and_alpha(img: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray |
         img, alpha = img[:, :, :3], img[:, :, 3]
     if img.ndim == 3:
         img = img[:, :, ::-1]  # BGR -> RGB
-    return as_rgb_uint8(img, name=name), alpha
+    return as_rgb_uint8(img, name=name, limit=limit), alpha
 
 
 def valid_region(image: np.ndarray) -> np.ndarray:

@@ -133,13 +133,28 @@ def read_regular_file(path: str | os.PathLike, *, max_bytes: int, what: str = "f
         os.close(fd)
 
 
-def loads_json(text: str | bytes):
+class KeyWrittenTwice(ValueError):
+    """A JSON object that holds one key twice, which :func:`json.loads` reads as the last one, silently."""
+
+
+def _keys_once(pairs: list) -> dict:
+    """An object's ``(key, value)`` pairs as a dict; :class:`KeyWrittenTwice` naming a key written twice."""
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise KeyWrittenTwice(f"the key {key!r} is written twice in one object (JSON would keep the last)")
+        out[key] = value
+    return out
+
+
+def loads_json(text: str | bytes, *, keys_once: bool = False):
     """:func:`json.loads` of a file's text, where a document nested deeper than Python's recursion limit is a
-    ValueError like any other malformed one (json raises RecursionError for it: a hostile file, not a bug)."""
+    ValueError like any other malformed one (json raises RecursionError for it: a hostile file, not a bug);
+    ``keys_once``: an object that holds a key twice is a :class:`KeyWrittenTwice` (a ValueError)."""
     import json
 
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=_keys_once if keys_once else None)
     except RecursionError:
         raise ValueError("JSON nested too deeply") from None
 

@@ -167,6 +167,19 @@ def test_json_round_trip_and_errors(tmp_path):
         class_table("")
 
 
+def test_a_json_table_with_a_key_written_twice_is_refused_naming_the_key(tmp_path):
+    """json keeps the last of a key written twice, silently: a table whose "unknown" (or a class's "name") is
+    written twice was read as the last one. Refused, naming the key, as .json and under another name."""
+    three = '[{"name": "a", "colour": [1,2,3]}, {"name": "b", "colour": [4,5,6]}, {"name": "u", "colour": [0,0,0]}]'
+    for text, key in [(f'{{"classes": {three}, "unknown": "u", "unknown": "a"}}', "unknown"),
+                      ('{"classes": [{"name": "a", "name": "z", "colour": [1,2,3]}], "unknown": 0}', "name")]:
+        for name in ("t.json", "classes.txt"):
+            (tmp_path / name).write_text(text)
+            with pytest.raises(InputError) as exc:
+                class_table(str(tmp_path / name))
+            _one_line(exc, str(tmp_path / name), f"the key {key!r} is written twice in one object")
+
+
 def test_tables_agree():
     assert check_tables_agree([("a.png", LAGR), ("b.png", LAGR)]) is LAGR
     with pytest.raises(InputError) as exc:

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import InputError
 from .table import TABLES, ClassTable, LabelClass
-from ..formats import loads_json
+from ..formats import KeyWrittenTwice, loads_json
 
 __all__ = ["LABELMAP_FILE", "LABELMAP_HEADER", "parse_labelmap", "read_labelmap", "labelmap_text", "write_labelmap",
            "parse_table_json", "table_json", "read_table_file", "class_table", "voc_colormap"]
@@ -160,9 +160,11 @@ def table_json(table: ClassTable) -> str:
 
 def parse_table_json(text: str | dict, where: str) -> ClassTable:
     """The class table of :func:`table_json`'s text (or of the document already read from it); a class's
-    ``id`` may be left out (its position)."""
+    ``id`` may be left out (its position); a key written twice in one object is refused, naming it."""
     try:
-        doc = text if isinstance(text, dict) else loads_json(text)
+        doc = text if isinstance(text, dict) else loads_json(text, keys_once=True)
+    except KeyWrittenTwice as exc:
+        raise InputError(f"{where}: {exc}") from None
     except ValueError as exc:
         raise InputError(f"{where}: not JSON ({exc})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("classes"), list) or "unknown" not in doc:
@@ -191,16 +193,19 @@ def read_table_file(path: str | Path) -> ClassTable:
     if p.suffix.lower() == ".json":
         return parse_table_json(_read_text(p, "class table"), str(p))
     text = _read_text(p, "label map")
-    doc = _json_object(text)
+    doc = _json_object(text, str(p))
     return parse_labelmap(text, str(p)) if doc is None else parse_table_json(doc, str(p))
 
 
-def _json_object(text: str) -> dict | None:
-    """The JSON object ``text`` holds (a JSON table under another name than ``.json``), or None."""
+def _json_object(text: str, where: str) -> dict | None:
+    """The JSON object ``text`` holds (a JSON table under another name than ``.json``), or None; an
+    :class:`InputError` naming ``where`` for one that holds a key twice."""
     if not text.lstrip().startswith("{"):
         return None
     try:
-        doc = loads_json(text)
+        doc = loads_json(text, keys_once=True)
+    except KeyWrittenTwice as exc:
+        raise InputError(f"{where}: {exc}") from None
     except ValueError:
         return None
     return doc if isinstance(doc, dict) else None

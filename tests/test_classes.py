@@ -3,6 +3,7 @@ written and read back to the same ids, and every bad input refused in one line n
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -178,6 +179,20 @@ def test_a_json_table_with_a_key_written_twice_is_refused_naming_the_key(tmp_pat
             with pytest.raises(InputError) as exc:
                 class_table(str(tmp_path / name))
             _one_line(exc, str(tmp_path / name), f"the key {key!r} is written twice in one object")
+
+
+def test_a_huge_number_in_a_json_table_is_echoed_short():
+    """An id, unknown or colour of 10**400 in a JSON table is refused with its first digits, not all 401 of them."""
+    big = str(10**400)
+    three = [{"name": "a", "colour": [1, 2, 3]}, {"name": "b", "colour": [4, 5, 6]}, {"name": "u", "colour": [0, 0, 0]}]
+    for text, needle in [(f'{{"classes": [{{"id": {big}, "name": "a", "colour": [1,2,3]}}], "unknown": 0}}', "class id 1000"),
+                         (json.dumps({"classes": three, "unknown": 0}).replace(': 0}', f': {big}}}'), "the unknown id 1000"),
+                         (json.dumps({"classes": three, "unknown": "u"}).replace("[1, 2, 3]", f"[{big}, 2, 3]"),
+                          "class 'a' has colour (1000")]:
+        with pytest.raises(InputError) as exc:
+            parse_table_json(text, "t.json")
+        _one_line(exc, "t.json", needle, "...")
+        assert len(str(exc.value)) < 160, str(exc.value)
 
 
 def test_tables_agree():

@@ -36,6 +36,7 @@ import numpy as np
 from ..errors import InputError
 from .table import TABLES, ClassTable, LabelClass
 from ..formats import KeyWrittenTwice, loads_json
+from ..validation import short_repr
 
 __all__ = ["LABELMAP_FILE", "LABELMAP_HEADER", "parse_labelmap", "read_labelmap", "labelmap_text", "write_labelmap",
            "parse_table_json", "table_json", "read_table_file", "class_table", "voc_colormap"]
@@ -175,7 +176,7 @@ def parse_table_json(text: str | dict, where: str) -> ClassTable:
             raise InputError(f"{where}: class {i} is not {{\"id\", \"name\", \"colour\"}}")
         colour = c["colour"]
         if not isinstance(colour, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in colour):
-            raise InputError(f"{where}: class {c.get('name')!r} has colour {colour!r}, not [R, G, B] integers")
+            raise InputError(f"{where}: class {short_repr(c.get('name'))} has colour {short_repr(colour)}, not [R, G, B] integers")
         classes.append(LabelClass(c.get("id", i), c["name"], tuple(colour)))
     unknown = doc["unknown"]
     if isinstance(unknown, str):  # the unknown class by name

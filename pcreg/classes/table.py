@@ -29,6 +29,7 @@ from typing import Iterable
 import numpy as np
 
 from ..errors import InputError
+from ..validation import short_repr
 
 __all__ = ["LabelClass", "ClassTable", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree"]
 
@@ -50,7 +51,7 @@ class LabelClass:
 def _check_class(c: LabelClass, where: str) -> LabelClass:
     ok_id = isinstance(c.id, (int, np.integer)) and not isinstance(c.id, bool) and 0 <= int(c.id) <= 254
     if not ok_id:
-        raise InputError(f"{where}: class id {c.id!r} is not an integer 0..254")
+        raise InputError(f"{where}: class id {short_repr(c.id)} is not an integer 0..254")
     if not isinstance(c.name, str) or not c.name.strip() or c.name != c.name.strip():
         raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it)")
     if any(ch in ":#\x85\u2028\u2029" or ord(ch) < 32 or 0xD800 <= ord(ch) <= 0xDFFF for ch in c.name):
@@ -63,7 +64,7 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
         colour = ()
     if len(colour) != 3 or any(v < 0 or v > 255 for v in colour) or \
             any(isinstance(v, bool) or float(v) != int(v) for v in c.colour):
-        raise InputError(f"{where}: class {c.name!r} has colour {c.colour!r}, not three integers 0..255")
+        raise InputError(f"{where}: class {c.name!r} has colour {short_repr(c.colour)}, not three integers 0..255")
     return LabelClass(int(c.id), c.name, (colour[0], colour[1], colour[2]))
 
 
@@ -101,7 +102,7 @@ class ClassTable:
                 seen[k] = c
         if not isinstance(self.unknown, (int, np.integer)) or isinstance(self.unknown, bool) \
                 or self.unknown not in [c.id for c in classes]:
-            raise InputError(f"{where}: the unknown id {self.unknown!r} is not one of the classes' ids")
+            raise InputError(f"{where}: the unknown id {short_repr(self.unknown)} is not one of the classes' ids")
         if len(classes) - 1 < 2:
             raise InputError(f"{where}: {len(classes) - 1} known class(es); a class table needs at least two")
         object.__setattr__(self, "classes", classes)

@@ -1,0 +1,258 @@
+"""The reference ICP's step: the closed forms of each motion model from weighted pairs, the pairs' robust
+weights, and what the points must hold for a model (:func:`check_rank`, :func:`pairs_needed`).
+:mod:`pcreg.registration.reference` runs the loop around them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jit import njit
+from ..errors import RegistrationError
+from .icp_options import WEIGHTS
+from .transforms import apply
+
+MIN_POINTS = {"translation": 1, "rigid": 2, "similarity": 2, "affine": 3, "projective": 4}
+
+
+def pairs_needed(model: str, d: int) -> int:
+    """The fewest matched pairs an ICP step of ``model`` takes in ``d`` dimensions (:data:`MIN_POINTS` in 2-D, 3
+    in 3-D): with fewer, a run stops where it is, not converged."""
+    return MIN_POINTS[model] if d == 2 else 3
+
+
+# ---------------------------------------------------------------------------------------------------
+# Closed-form estimators: weighted least squares of sum_i w_i |T(p_i) - q_i|^2
+# ---------------------------------------------------------------------------------------------------
+
+def _weighted_means(p: np.ndarray, q: np.ndarray, w: np.ndarray):
+    ws = w.sum()
+    mp = (w @ p) / ws
+    mq = (w @ q) / ws
+    return ws, mp, mq
+
+
+def estimate_translation(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted mean displacement."""
+    d = p.shape[1]
+    _, mp, mq = _weighted_means(p, q, w)
+    T = np.eye(d + 1)
+    T[:d, d] = mq - mp
+    return T
+
+
+def estimate_umeyama(p: np.ndarray, q: np.ndarray, w: np.ndarray, *, with_scale: bool) -> np.ndarray:
+    """Rigid or similarity transform by SVD (Umeyama 1991).
+
+    Σ = Σ_i w_i (q_i - μ_q)(p_i - μ_p)^T / Σ w  (Eq. 38); σ_p² = Σ_i w_i |p_i - μ_p|² / Σ w (Eq. 36);
+    the rest in :func:`umeyama_from_moments`.
+    """
+    ws, mp, mq = _weighted_means(p, q, w)
+    pc = p - mp
+    qc = q - mq
+    cov = (qc * w[:, None]).T @ pc / ws
+    var_p = float((w * np.einsum("ij,ij->i", pc, pc)).sum() / ws) if with_scale else 1.0
+    return umeyama_from_moments(cov, var_p, mp, mq, with_scale=with_scale)
+
+
+def umeyama_from_moments(cov: np.ndarray, var_p: float, mp: np.ndarray, mq: np.ndarray, *,
+                         with_scale: bool) -> np.ndarray:
+    """Umeyama's closed form from the cross-covariance Σ (d, d), the source variance σ_p² and the means.
+
+    Σ = U D V^T; S = diag(1, …, 1, det(U) det(V)) (Eq. 43, the reflection guard); R = U S V^T (Eq. 40);
+    c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41). In 2-D without the SVD (same result, no
+    LAPACK call): for Σ = [[a, b], [c, d]] the rotation maximising tr(R^T Σ) is θ = atan2(c - b, a + d)
+    and tr(D S) = hypot(a + d, c - b). Compiled (:func:`_umeyama`), the same code the ICP loop runs.
+    """
+    T, ok = _umeyama(np.ascontiguousarray(cov, dtype=np.float64), float(var_p),
+                     np.ascontiguousarray(mp, dtype=np.float64), np.ascontiguousarray(mq, dtype=np.float64),
+                     bool(with_scale))
+    if not ok:
+        raise RegistrationError("degenerate correspondences: all source points coincide")
+    return T
+
+
+@njit(cache=True)
+def _det_sign(M: np.ndarray) -> float:
+    """The sign of the determinant of an orthogonal matrix (+-1 up to rounding, so a 3x3's cofactor
+    expansion has the sign of ``np.linalg.det``'s LU, without a LAPACK call)."""
+    if M.shape[0] != 3:
+        return 1.0 if np.linalg.det(M) >= 0 else -1.0
+    a, b, c = M[0, 0], M[0, 1], M[0, 2]
+    d, e, f = M[1, 0], M[1, 1], M[1, 2]
+    g, h, i = M[2, 0], M[2, 1], M[2, 2]
+    return 1.0 if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0 else -1.0
+
+
+@njit(cache=True)
+def _umeyama(cov, var_p, mp, mq, with_scale):
+    """:func:`umeyama_from_moments`, compiled: (T, True), or (identity, False) when ``with_scale`` and
+    the source variance is not positive (every source point in one place)."""
+    d = cov.shape[0]
+    T = np.eye(d + 1)
+    if with_scale and not var_p > 0:
+        return T, False
+    R = np.empty((d, d))
+    k = 1.0
+    if d == 2:
+        a, b, c, e = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
+        th = math.atan2(c - b, a + e)
+        cos, sin = math.cos(th), math.sin(th)
+        R[0, 0], R[0, 1], R[1, 0], R[1, 1] = cos, -sin, sin, cos
+        if with_scale:
+            k = math.hypot(a + e, c - b) / var_p
+    else:
+        U, D, Vt = np.linalg.svd(cov)
+        S = np.ones(d)
+        # U and V are orthogonal: their determinants are +-1, and only the sign of the product is used
+        if _det_sign(U) * _det_sign(Vt) < 0:
+            S[d - 1] = -1.0
+        for i in range(d):
+            for j in range(d):
+                acc = 0.0
+                for m in range(d):
+                    acc += U[i, m] * S[m] * Vt[m, j]
+                R[i, j] = acc
+        if with_scale:
+            k = (D * S).sum() / var_p
+    for i in range(d):
+        acc = 0.0
+        for j in range(d):
+            T[i, j] = k * R[i, j]
+            acc += T[i, j] * mp[j]
+        T[i, d] = mq[i] - acc
+    return T, True
+
+
+def estimate_horn_quaternion(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """3-D rigid transform by the unit quaternion of Horn (1987), as used by Besl & McKay (1992).
+
+    N (Horn's Eq. 26 / Besl-McKay's Q(Σ)) is the symmetric 4x4 matrix built from the cross-covariance
+    M = Σ w (p - μ_p)(q - μ_q)^T; the eigenvector of its largest eigenvalue is the rotation quaternion.
+    """
+    if p.shape[1] != 3:
+        raise RegistrationError("the quaternion closed form is for 3-D clouds")
+    ws, mp, mq = _weighted_means(p, q, w)
+    M = ((p - mp) * w[:, None]).T @ (q - mq) / ws
+    Sxx, Sxy, Sxz = M[0]
+    Syx, Syy, Syz = M[1]
+    Szx, Szy, Szz = M[2]
+    N = np.array([
+        [Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
+        [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
+        [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
+        [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz],
+    ])
+    vals, vecs = np.linalg.eigh(N)
+    q0, qx, qy, qz = vecs[:, np.argmax(vals)]
+    R = np.array([
+        [q0 * q0 + qx * qx - qy * qy - qz * qz, 2 * (qx * qy - q0 * qz), 2 * (qx * qz + q0 * qy)],
+        [2 * (qy * qx + q0 * qz), q0 * q0 - qx * qx + qy * qy - qz * qz, 2 * (qy * qz - q0 * qx)],
+        [2 * (qz * qx - q0 * qy), 2 * (qz * qy + q0 * qx), q0 * q0 - qx * qx - qy * qy + qz * qz],
+    ])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = mq - R @ mp
+    return T
+
+
+def estimate_affine(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted linear least squares of [A | t] (p - μ_p centred for conditioning)."""
+    d = p.shape[1]
+    _, mp, mq = _weighted_means(p, q, w)
+    pc, qc = p - mp, q - mq
+    sw = np.sqrt(w)[:, None]
+    X, *_ = np.linalg.lstsq(pc * sw, qc * sw, rcond=None)
+    A = X.T
+    T = np.eye(d + 1)
+    T[:d, :d] = A
+    T[:d, d] = mq - A @ mp
+    return T
+
+
+def _normalising(p: np.ndarray) -> np.ndarray:
+    m = p.mean(axis=0)
+    s = np.sqrt(2.0) / max(np.mean(np.linalg.norm(p - m, axis=1)), 1e-12)
+    return np.array([[s, 0, -s * m[0]], [0, s, -s * m[1]], [0, 0, 1.0]])
+
+
+def estimate_projective(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Homography by the normalised weighted DLT (Hartley & Zisserman 2003, Alg. 4.2)."""
+    Np, Nq = _normalising(p), _normalising(q)
+    pn, qn = apply(Np, p), apply(Nq, q)
+    x, y = pn[:, 0], pn[:, 1]
+    u, v = qn[:, 0], qn[:, 1]
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    A1 = np.column_stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u])
+    A2 = np.column_stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v])
+    sw = np.sqrt(w)[:, None]
+    A = np.vstack([A1 * sw, A2 * sw])
+    _, _, Vt = np.linalg.svd(A, full_matrices=False)
+    H = Vt[-1].reshape(3, 3)
+    H = np.linalg.inv(Nq) @ H @ Np
+    if abs(H[2, 2]) < 1e-12:
+        raise RegistrationError("degenerate homography")
+    return H / H[2, 2]
+
+
+def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotation: str = "svd") -> np.ndarray:
+    """Closed-form update for one motion model from weighted correspondences p_i -> q_i."""
+    if model == "translation":
+        return estimate_translation(p, q, w)
+    if model == "rigid":
+        if rotation == "quaternion" and p.shape[1] == 3:
+            return estimate_horn_quaternion(p, q, w)
+        return estimate_umeyama(p, q, w, with_scale=False)
+    if model == "similarity":
+        return estimate_umeyama(p, q, w, with_scale=True)
+    if model == "affine":
+        return estimate_affine(p, q, w)
+    if model == "projective":
+        return estimate_projective(p, q, w)
+    raise RegistrationError(f"unknown model {model!r}")
+
+
+def robust_weights(dist: np.ndarray, kind: str, *, scale: float | None = None, trim_fraction: float = 0.9) -> np.ndarray:
+    """Weights of correspondences from their distances.
+
+    ``trimmed`` keeps the closest ``trim_fraction`` (Chetverikov et al. 2002, trimmed ICP); ``huber``
+    (k = 1.345 σ) and ``tukey`` (c = 4.685 σ) are the M-estimators with the usual 95%-efficiency
+    constants, σ = 1.4826 MAD of the distances unless ``scale`` is given.
+    """
+    if kind == "none" or dist.size == 0:
+        return np.ones_like(dist)
+    if kind == "trimmed":
+        if not 0 < trim_fraction <= 1:
+            raise RegistrationError(f"trim_fraction must be in (0, 1], got {trim_fraction}")
+        k = max(1, int(np.ceil(trim_fraction * dist.size)))
+        w = np.zeros_like(dist)
+        w[np.argsort(dist, kind="stable")[:k]] = 1.0
+        return w
+    sigma = scale if scale is not None else 1.4826 * float(np.median(np.abs(dist)))
+    sigma = max(sigma, 1e-12)
+    if kind == "huber":
+        cut = 1.345 * sigma
+        return np.where(dist <= cut, 1.0, cut / np.maximum(dist, 1e-300))
+    if kind == "tukey":
+        c = 4.685 * sigma
+        return np.where(dist < c, (1.0 - (dist / c) ** 2) ** 2, 0.0)
+    raise RegistrationError(f"unknown robust weight {kind!r}; choose one of {', '.join(WEIGHTS)}")
+
+
+def check_rank(points: np.ndarray, model: str) -> None:
+    """Raise when the points cannot determine the model (too few, coincident or collinear)."""
+    n, d = points.shape
+    need = MIN_POINTS[model] if d == 2 else {"translation": 1, "rigid": 3, "similarity": 3, "affine": 4}.get(model, 4)
+    if n < need:
+        raise RegistrationError(f"{n} point(s) are too few for the {model} model (needs at least {need})")
+    if model == "translation":
+        return
+    c = points - points.mean(axis=0)
+    sv = np.linalg.svd(c, compute_uv=False)
+    extent = sv[0] if sv.size else 0.0
+    rank = int(np.sum(sv > 1e-9 * max(extent, 1e-300))) if extent > 0 else 0
+    needed_rank = {"rigid": d - 1, "similarity": d - 1, "affine": d, "projective": 2}[model]
+    if rank < needed_rank:
+        what = "coincident" if rank == 0 else ("collinear" if rank == 1 else "coplanar")
+        raise RegistrationError(f"the points are {what}: they cannot determine a {model} transform")

@@ -113,8 +113,10 @@ def read_review(folder: str | Path) -> RunReview:
             steps_file = folder / STEPS
             lines = steps_file.read_bytes().splitlines() if steps_file.is_file() else []
             named, labelled = run_frames(state, [ln for ln in lines if ln.strip()])
+            counted = int(state["lines"])
         else:
             named, count = [str(state["key_frame"])], int(state["done"])
+            counted = count - 1
         named = [*named, *map(str, state.get("key_frames") or [])]
         chosen = run.get("frames") or {}
         selection = Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
@@ -136,11 +138,10 @@ def read_review(folder: str | Path) -> RunReview:
     steps: dict[str, dict] = {}
     steps_path = folder / STEPS
     if steps_path.is_file():
-        try:
-            for line in steps_path.read_bytes().splitlines():
-                if line.strip():
-                    step = loads_json(line)
-                    steps[str(step["name"])] = step
+        try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
+            for line in [ln for ln in steps_path.read_bytes().splitlines() if ln.strip()][:counted]:
+                step = loads_json(line)
+                steps[str(step["name"])] = step
         except (OSError, ValueError, KeyError, TypeError):
             raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
     legacy = "key_frames" in state  # a run.json that lists its key frames leaves their steps out
@@ -154,7 +155,10 @@ def read_review(folder: str | Path) -> RunReview:
         e = None if t in keys else steps[n].get("predicted_error")
         errors.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
         iou = None if t in keys else steps[n].get("predicted_iou")
-        ious.append({int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None)
+        try:
+            ious.append({int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None)
+        except (ValueError, TypeError):
+            raise InputError(f"{steps_path}: the step of {n} has a predicted_iou pcreg run did not write") from None
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
                      _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
                      tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None)

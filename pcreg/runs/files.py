@@ -12,8 +12,10 @@ one pair of functions here, and nowhere else:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import zipfile
 import zlib
 from collections.abc import Sequence
@@ -87,11 +89,26 @@ def confidence_png(confidence: np.ndarray) -> np.ndarray:
 
 
 def append_step(out: Path, step: dict) -> None:
-    """One line of ``out``'s steps.jsonl: ``step`` as strict JSON (NaN and infinities as null)."""
+    """One line of ``out``'s steps.jsonl: ``step`` as strict JSON (NaN and infinities as null). A write the
+    file system refuses (a full disk) is an :class:`~pcreg.errors.OutputError` naming the file, and the
+    part of the line written is cut off again where the file system lets it be."""
     from ..outputs import to_json
 
-    with open(out / STEPS, "ab") as fh:
-        fh.write((json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode())
+    path = out / STEPS
+    line = (json.dumps(json.loads(to_json(step, strict=True))) + "\n").encode()
+    try:
+        with open(path, "ab", buffering=0) as fh:
+            size = fh.seek(0, os.SEEK_END)
+            try:
+                written = 0
+                while written < len(line):
+                    written += fh.write(line[written:])
+            except OSError:
+                with contextlib.suppress(OSError):
+                    fh.truncate(size)
+                raise
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
 def read_step_lines(out: Path) -> list[bytes]:
@@ -167,6 +184,8 @@ def read_carry(path: Path, t: int, unreadable: str):
         raise bad
     if int(frame) != t:
         raise OutputError(f"{path} holds frame {int(frame)}'s carry, not frame {t}'s; use --force to start over")
+    if learned is not None and learned.dtype.kind not in "fiu":
+        raise bad
     learned = None if learned is None or learned.size == 0 else learned
     if chain:
         return _chain_carry(chain, bad), learned

@@ -111,7 +111,7 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
         raise OutputError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
-    if force or not state_path.is_file():
+    if force or not (state_path.exists() or state_path.is_symlink()):  # a folder or a link in its place is no fresh start
         return None
     try:
         state = load_json_object(state_path)

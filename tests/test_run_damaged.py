@@ -1,0 +1,125 @@
+"""A `pcreg run` output folder damaged after the run, or left by a run a full disk stopped: the resume,
+`pcreg export` and `pcreg view` each end in exit 0 with the run's own output, or in one line naming the
+file and exit 2, and nothing already written is lost."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from _runs import one_line_errors
+
+
+def _frames(folder, shape=(48, 64), n=4, seed=0):
+    """``n`` frames of a textured scene drifting right by 1 px a frame, and the key frame's labels."""
+    h, w = shape
+    rng = np.random.default_rng(seed)
+    scene = cv2.GaussianBlur(rng.integers(0, 256, (h, w + n, 3), dtype=np.uint8), (0, 0), 1.5)
+    folder.mkdir()
+    for i in range(n):
+        cv2.imwrite(str(folder / f"f{i}.png"), np.ascontiguousarray(scene[:, n - i:n - i + w]))
+    labels = (np.arange(h)[:, None] * np.ones((1, w)) > h / 2).astype(np.uint8)
+    cv2.imwrite(str(folder.parent / "key.png"), labels)
+    return folder, folder.parent / "key.png"
+
+
+def _contents(out) -> dict:
+    return {p.name: p.read_bytes() for p in out.iterdir() if p.is_file() and not p.is_symlink()}
+
+
+@pytest.mark.parametrize("odd", ["folder", "loop", "device"])
+def test_a_run_json_that_is_not_a_file_is_refused_not_taken_for_a_fresh_folder(tmp_path, capsys, odd):
+    """A run.json that is a folder, a loop of links or a link to a device is no folder without a run: the
+    resume would start over, emptying steps.jsonl (or labelling every frame again without a word)."""
+    folder, key = _frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    assert main(run) == 0
+    (out / "run.json").unlink()
+    if odd == "folder":
+        (out / "run.json").mkdir()
+    else:
+        os.symlink("run.json" if odd == "loop" else os.devnull, out / "run.json")
+    before = _contents(out)
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "run.json: unreadable" in err[0] and "--force" in err[0], err
+    assert _contents(out) == before
+
+
+def test_a_carry_whose_learned_histogram_is_not_numbers_is_refused(tmp_path, capsys):
+    folder, key = _frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    assert main(run) == 0
+    state = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**state, "done": 3}))  # as a run stopped after frame 2
+    with np.load(out / "carry-0.npz") as z:
+        members = {k: z[k] for k in z.files}
+    assert int(members["frame"]) == 2
+    np.savez(out / "carry-0.npz", **{**members, "learned": np.array(["a", "b"])})
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "carry-0.npz: missing or unreadable" in err[0], err
+
+
+def test_a_full_disk_while_a_step_is_appended_names_steps_jsonl(tmp_path, capsys):
+    """/dev/full refuses every write with ENOSPC, as a full disk does."""
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full on this system")
+    folder, key = _frames(tmp_path / "frames")
+    whole = tmp_path / "whole"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(whole)]) == 0
+    out = tmp_path / "out"
+    out.mkdir()
+    os.symlink("/dev/full", out / "steps.jsonl")
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"cannot write {out / 'steps.jsonl'}: No space left on device" in err[0], err
+    # with space again, the resume writes what the whole run wrote
+    (out / "steps.jsonl").unlink()
+    (out / "steps.jsonl").write_bytes(b"")
+    assert main(run) == 0
+    assert all(_contents(out)[f"f{i}.png"] == _contents(whole)[f"f{i}.png"] for i in range(4))
+
+
+def test_a_part_of_a_step_after_the_counted_ones_is_not_read_by_the_readers(tmp_path, capsys):
+    """A run stopped by a full disk while it appended a step leaves part of a line after the steps run.json
+    counts: the review, the export and the resume read only the counted ones."""
+    folder, key = _frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]
+    assert main(run) == 0
+    whole = _contents(out)
+    state = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**state, "done": 3}))
+    lines = (out / "steps.jsonl").read_bytes().splitlines(keepends=True)
+    (out / "steps.jsonl").write_bytes(b"".join(lines[:2]) + lines[2][:40])
+    assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 0
+    assert main(["export", str(out), "--to", str(tmp_path / "x.zip")]) == 0
+    assert main(run) == 0
+    assert _contents(out)["f3.png"] == whole["f3.png"]
+    assert (out / "steps.jsonl").read_bytes().count(b"\n") == 3
+
+
+def test_a_predicted_iou_pcreg_did_not_write_is_named_by_the_review(tmp_path, capsys):
+    folder, key = _frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    lines = (out / "steps.jsonl").read_text().splitlines(keepends=True)
+    lines[0] = json.dumps({**json.loads(lines[0]), "predicted_iou": {"road": "high"}}) + "\n"
+    (out / "steps.jsonl").write_text("".join(lines))
+    capsys.readouterr()
+    assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "steps.jsonl: the step of f1.png has a predicted_iou" in err[0], err
+    assert not (tmp_path / "o.mp4").exists()

@@ -1,6 +1,6 @@
 """What the tests of `pcreg run` share: its one-line errors, its steps without their clocks, a run killed
 after a frame's files were written but before run.json counted it, a run killed at its n-th commit, and a
-folder of frames to run on."""
+folder of frames to run on, and small drifting frames with their key labels."""
 
 from __future__ import annotations
 
@@ -80,3 +80,20 @@ def assert_same_run(whole, cut, frames: int) -> None:
             assert (whole / name).read_bytes() == (cut / name).read_bytes(), name
     steps = [[timeless(line) for line in (run / "steps.jsonl").read_text().splitlines()] for run in (whole, cut)]
     assert steps[0] == steps[1]
+
+
+def drifting_frames(folder, shape=(48, 64), n=4, seed=0):
+    """``n`` frames of a textured scene drifting right by 1 px a frame, written into ``folder`` (made here),
+    and the key frame's labels beside it: ``(folder, key.png)``."""
+    import cv2
+    import numpy as np
+
+    h, w = shape
+    rng = np.random.default_rng(seed)
+    scene = cv2.GaussianBlur(rng.integers(0, 256, (h, w + n, 3), dtype=np.uint8), (0, 0), 1.5)
+    folder.mkdir()
+    for i in range(n):
+        cv2.imwrite(str(folder / f"f{i}.png"), np.ascontiguousarray(scene[:, n - i:n - i + w]))
+    labels = (np.arange(h)[:, None] * np.ones((1, w)) > h / 2).astype(np.uint8)
+    cv2.imwrite(str(folder.parent / "key.png"), labels)
+    return folder, folder.parent / "key.png"

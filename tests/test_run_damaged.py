@@ -7,25 +7,11 @@ from __future__ import annotations
 import json
 import os
 
-import cv2
 import numpy as np
 import pytest
 
 from pcreg.cli import main
-from _runs import one_line_errors
-
-
-def _frames(folder, shape=(48, 64), n=4, seed=0):
-    """``n`` frames of a textured scene drifting right by 1 px a frame, and the key frame's labels."""
-    h, w = shape
-    rng = np.random.default_rng(seed)
-    scene = cv2.GaussianBlur(rng.integers(0, 256, (h, w + n, 3), dtype=np.uint8), (0, 0), 1.5)
-    folder.mkdir()
-    for i in range(n):
-        cv2.imwrite(str(folder / f"f{i}.png"), np.ascontiguousarray(scene[:, n - i:n - i + w]))
-    labels = (np.arange(h)[:, None] * np.ones((1, w)) > h / 2).astype(np.uint8)
-    cv2.imwrite(str(folder.parent / "key.png"), labels)
-    return folder, folder.parent / "key.png"
+from _runs import drifting_frames, one_line_errors
 
 
 def _contents(out) -> dict:
@@ -36,7 +22,7 @@ def _contents(out) -> dict:
 def test_a_run_json_that_is_not_a_file_is_refused_not_taken_for_a_fresh_folder(tmp_path, capsys, odd):
     """A run.json that is a folder, a loop of links or a link to a device is no folder without a run: the
     resume would start over, emptying steps.jsonl (or labelling every frame again without a word)."""
-    folder, key = _frames(tmp_path / "frames")
+    folder, key = drifting_frames(tmp_path / "frames")
     out = tmp_path / "out"
     run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
     assert main(run) == 0
@@ -54,7 +40,7 @@ def test_a_run_json_that_is_not_a_file_is_refused_not_taken_for_a_fresh_folder(t
 
 
 def test_a_carry_whose_learned_histogram_is_not_numbers_is_refused(tmp_path, capsys):
-    folder, key = _frames(tmp_path / "frames")
+    folder, key = drifting_frames(tmp_path / "frames")
     out = tmp_path / "out"
     run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
     assert main(run) == 0
@@ -74,7 +60,7 @@ def test_a_full_disk_while_a_step_is_appended_names_steps_jsonl(tmp_path, capsys
     """/dev/full refuses every write with ENOSPC, as a full disk does."""
     if not os.path.exists("/dev/full"):
         pytest.skip("no /dev/full on this system")
-    folder, key = _frames(tmp_path / "frames")
+    folder, key = drifting_frames(tmp_path / "frames")
     whole = tmp_path / "whole"
     assert main(["run", str(folder), "--labels", str(key), "--out", str(whole)]) == 0
     out = tmp_path / "out"
@@ -95,7 +81,7 @@ def test_a_full_disk_while_a_step_is_appended_names_steps_jsonl(tmp_path, capsys
 def test_a_part_of_a_step_after_the_counted_ones_is_not_read_by_the_readers(tmp_path, capsys):
     """A run stopped by a full disk while it appended a step leaves part of a line after the steps run.json
     counts: the review, the export and the resume read only the counted ones."""
-    folder, key = _frames(tmp_path / "frames")
+    folder, key = drifting_frames(tmp_path / "frames")
     out = tmp_path / "out"
     run = ["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]
     assert main(run) == 0
@@ -112,7 +98,7 @@ def test_a_part_of_a_step_after_the_counted_ones_is_not_read_by_the_readers(tmp_
 
 
 def test_a_predicted_iou_pcreg_did_not_write_is_named_by_the_review(tmp_path, capsys):
-    folder, key = _frames(tmp_path / "frames")
+    folder, key = drifting_frames(tmp_path / "frames")
     out = tmp_path / "out"
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
     lines = (out / "steps.jsonl").read_text().splitlines(keepends=True)

@@ -12,26 +12,13 @@ import pytest
 
 from pcreg.cli import main
 from pcreg.errors import InputError
-from _runs import one_line_errors
+from _runs import drifting_frames, one_line_errors
 from pcreg.export import read_labels
-
-
-def _frames(folder, shape, n=4, seed=0):
-    """``n`` frames of a textured scene drifting right by 1 px a frame, and the key frame's labels."""
-    h, w = shape
-    rng = np.random.default_rng(seed)
-    scene = cv2.GaussianBlur(rng.integers(0, 256, (h, w + n, 3), dtype=np.uint8), (0, 0), 1.5)
-    folder.mkdir()
-    for i in range(n):
-        cv2.imwrite(str(folder / f"f{i}.png"), np.ascontiguousarray(scene[:, n - i:n - i + w]))
-    labels = (np.arange(h)[:, None] * np.ones((1, w)) > h / 2).astype(np.uint8)
-    cv2.imwrite(str(folder.parent / "key.png"), labels)
-    return folder, folder.parent / "key.png"
 
 
 @pytest.mark.parametrize("shape", [(8, 8), (8, 1000), (20, 1200), (12, 16)])
 def test_frames_too_small_for_dis_are_labelled_without_the_second_motion(tmp_path, shape, capsys):
-    folder, key = _frames(tmp_path / "frames", shape)
+    folder, key = drifting_frames(tmp_path / "frames", shape)
     out = tmp_path / "out"
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]) == 0
     for i in range(1, 4):
@@ -45,7 +32,7 @@ def test_frames_too_small_for_dis_are_labelled_without_the_second_motion(tmp_pat
 
 
 def test_an_output_folder_whose_files_are_in_the_way_is_refused_in_one_line(tmp_path, capsys):
-    folder, key = _frames(tmp_path / "frames", (48, 64))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     out = tmp_path / "out"
     out.mkdir()
     (out / "confidence").write_text("a file where the confidence folder goes")
@@ -66,7 +53,7 @@ CORRUPT_STATES = {
 
 @pytest.mark.parametrize("change", sorted(CORRUPT_STATES))
 def test_a_run_json_pcreg_did_not_write_is_refused_by_name(tmp_path, capsys, change):
-    folder, key = _frames(tmp_path / "frames", (48, 64))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     out = tmp_path / "out"
     run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
     assert main(run) == 0
@@ -83,7 +70,7 @@ def test_a_run_json_pcreg_did_not_write_is_refused_by_name(tmp_path, capsys, cha
                                   b'{"frame": 1, "predicted_error": "high"}', b'{"frame": 1, "predicted_error": 1e999}',
                                   b"[" * 100_000 + b"]" * 100_000])
 def test_a_steps_line_pcreg_did_not_write_is_refused_by_line(tmp_path, capsys, line):
-    folder, key = _frames(tmp_path / "frames", (48, 64))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     out = tmp_path / "out"
     run = ["run", str(folder), "--labels", str(key), "--out", str(out), "--suggest", "1"]
     assert main(run) == 0
@@ -98,7 +85,7 @@ def test_a_steps_line_pcreg_did_not_write_is_refused_by_line(tmp_path, capsys, l
 def test_json_nested_beyond_the_recursion_limit_is_bad_input(tmp_path, capsys):
     """json raises RecursionError for a document nested deeper than Python's recursion limit: a class table,
     a run.json resumed and a run.json exported are each refused in one line, exit 2, not a bug."""
-    folder, key = _frames(tmp_path / "frames", (48, 64))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     nested = "[" * 100_000 + "]" * 100_000
     (tmp_path / "table.json").write_text(nested)
     out = tmp_path / "out"
@@ -115,7 +102,7 @@ def test_json_nested_beyond_the_recursion_limit_is_bad_input(tmp_path, capsys):
 
 
 def test_a_key_frames_run_with_a_damaged_state_or_step_is_refused(tmp_path, capsys):
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=5)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
     keys = tmp_path / "keys"
     keys.mkdir()
     labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
@@ -139,7 +126,7 @@ def test_a_key_frames_run_with_a_damaged_state_or_step_is_refused(tmp_path, caps
 
 
 def test_a_full_disk_or_a_folder_in_the_way_is_bad_input_not_a_bug(tmp_path, capsys):
-    folder, key = _frames(tmp_path / "frames", (48, 64))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     out = tmp_path / "out"
     out.mkdir()
     (out / "steps.jsonl").mkdir()  # a folder where the run writes its steps
@@ -153,7 +140,7 @@ def test_the_program_runs_with_an_ascii_terminal_and_a_closed_stdout(tmp_path):
     import subprocess
     import sys
 
-    folder, key = _frames(tmp_path / "кадры", (96, 128), n=2)
+    folder, key = drifting_frames(tmp_path / "кадры", (96, 128), n=2)
     env = {**os.environ, "PYTHONIOENCODING": "ascii"}
     out = tmp_path / "выход"
     p = subprocess.run([sys.executable, "-m", "pcreg", "run", str(folder), "--labels", str(key), "--out", str(out)],
@@ -170,7 +157,7 @@ def test_a_rerun_with_other_key_labels_or_fewer_frames_is_refused_and_force_star
     """A run from one label image is not continued from key labels edited since it began, nor over a frames
     folder that lost frames (it was an internal error); ``--force`` starts over without the confidence maps
     and suggestions the earlier run wrote (the review and the export read them)."""
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=5)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
     out = tmp_path / "out"
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence", "--suggest", "1"]) == 0
     assert (out / "confidence").is_dir() and (out / "suggest.txt").is_file()
@@ -190,7 +177,7 @@ def test_a_rerun_with_other_key_labels_or_fewer_frames_is_refused_and_force_star
 
 
 def test_a_frame_added_among_those_a_run_labelled_is_named_not_taken_for_a_lost_label(tmp_path, capsys):
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=5)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
     out = tmp_path / "out"
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
     written = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
@@ -202,7 +189,7 @@ def test_a_frame_added_among_those_a_run_labelled_is_named_not_taken_for_a_lost_
 
 
 def test_output_paths_that_are_loops_of_symbolic_links_are_bad_input(tmp_path, capsys):
-    folder, key = _frames(tmp_path / "frames", (48, 64))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     loop = tmp_path / "loop"
     loop.symlink_to(loop)
     assert main(["run", str(folder), "--labels", str(key), "--out", str(loop)]) == 2
@@ -224,7 +211,7 @@ def test_an_interrupted_recorded_run_says_how_to_resume_and_that_resumes(tmp_pat
     so the interrupt says to give another recording file; that rerun finishes the run."""
     from _runs import kill_before_commit
 
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=5)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
     out = tmp_path / "out"
     kill_before_commit(monkeypatch, 2)
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--record", str(tmp_path / "a.rrd")]) == 130
@@ -240,7 +227,7 @@ def test_an_interrupted_recorded_run_says_how_to_resume_and_that_resumes(tmp_pat
 def test_an_entry_named_as_a_frame_or_key_that_is_not_a_file_is_refused_not_skipped(tmp_path, capsys, where, odd):
     """A dangling link or a folder named like a frame (or key labels) was left out without a word: the
     run labelled a frame fewer (or had a key frame fewer)."""
-    folder, key = _frames(tmp_path / "frames", (48, 64))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     keys = tmp_path / "keys"
     keys.mkdir()
     (keys / "f0.png").write_bytes(key.read_bytes())
@@ -259,7 +246,7 @@ def test_a_new_run_keeps_what_it_did_not_write_and_never_removes_its_own_inputs(
     """A first run into a folder that holds a ``confidence/`` and a ``suggest.txt`` of the user's removed them (a
     run started over forgets those of an earlier run); and a run whose frames lie in ``OUT/confidence/``
     removed its own frames when started over."""
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=4)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=4)
     out = tmp_path / "out"
     (out / "confidence").mkdir(parents=True)
     (out / "confidence" / "notes.txt").write_text("mine")
@@ -277,7 +264,7 @@ def test_a_new_run_keeps_what_it_did_not_write_and_never_removes_its_own_inputs(
 def test_hidden_files_are_no_frames_and_numbers_of_different_widths_are_refused(tmp_path, capsys):
     """A hidden thumbnail (``.thumb.png``) sorted first and became the key frame; ``f8 ... f13`` were read as
     ``f10 f11 f12 f13 f8 f9``, the labels drawn on f8 given to f10."""
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=4)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=4)
     shutil.copy(folder / "f3.png", folder / ".thumb.png")
     (folder / "._f0.png").write_bytes(b"\0\5\26\7")  # what macOS leaves beside a file on a foreign disk
     out = tmp_path / "out"
@@ -300,7 +287,7 @@ def test_a_key_frame_of_one_class_is_named_before_anything_is_written(tmp_path, 
     """The classifier's "training labels hold only one class" named no file, and in a run from a folder of key
     frames came after the first stretch was labelled (a stretch's classifier is fitted on its key frames: f4
     alone for the frame after it)."""
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=6)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
     cv2.imwrite(str(tmp_path / "ground.png"), np.zeros((48, 64), np.uint8))
     assert main(["run", str(folder), "--labels", str(tmp_path / "ground.png"), "--out", str(tmp_path / "a")]) == 2
     assert one_line_errors(capsys) == [f"pcreg: error: {tmp_path / 'ground.png'}: the labels hold one class only "
@@ -319,7 +306,7 @@ def test_a_key_frame_of_one_class_is_named_before_anything_is_written(tmp_path, 
 
 def test_frames_with_names_near_the_file_systems_limit_are_labelled(tmp_path):
     """A frame's stem of 249 bytes is a legal name; its label PNG's temporary file, 14 bytes longer, was not."""
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=3)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=3)
     long = "é" * 100 + "x" * 49  # 249 bytes in UTF-8
     for i in range(3):
         (folder / f"f{i}.png").rename(folder / f"{long}{i}.png")
@@ -329,7 +316,7 @@ def test_frames_with_names_near_the_file_systems_limit_are_labelled(tmp_path):
 
 
 def test_suggest_refuses_frame_names_that_its_lines_cannot_hold(tmp_path, capsys):
-    folder, key = _frames(tmp_path / "frames", (48, 64), n=3)
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=3)
     (folder / "f1.png").rename(folder / "f1\ta.png")
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "o"), "--suggest", "1"]) == 2
     assert "the frame name 'f1\\ta.png' holds a tab or a line break" in one_line_errors(capsys)[0]
@@ -341,7 +328,7 @@ def test_a_runs_recording_draws_each_frame_over_its_key_frame(tmp_path):
     frame is now the reference of every frame registered to it."""
     from pcreg.recording.readback import image, read_recording
 
-    folder, key = _frames(tmp_path / "frames", (96, 128), n=4)
+    folder, key = drifting_frames(tmp_path / "frames", (96, 128), n=4)
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out"),
                  "--record", str(tmp_path / "run.rrd"), "--record-raw"]) == 0
     rec = read_recording(tmp_path / "run.rrd")
@@ -356,7 +343,7 @@ def test_a_recording_of_a_run_from_two_key_frames_draws_each_frame_over_its_refe
     it; a chained step to the frame before in the pass): the Registration view of such runs was empty."""
     from pcreg.recording.readback import image, read_recording
 
-    folder, key = _frames(tmp_path / "frames", (96, 128), n=6)
+    folder, key = drifting_frames(tmp_path / "frames", (96, 128), n=6)
     keys = tmp_path / "keys"
     keys.mkdir()
     for name in ("f0.png", "f3.png"):
@@ -376,7 +363,7 @@ def test_a_resumed_chained_run_records_the_reference_of_its_first_step(tmp_path,
     propagator's carry holds it."""
     from pcreg.recording.readback import image, read_recording
 
-    folder, _ = _frames(tmp_path / "frames", (96, 128), n=6)
+    folder, _ = drifting_frames(tmp_path / "frames", (96, 128), n=6)
     labels = np.repeat(np.array([1, 3, 4], np.uint8), 32)[:, None] * np.ones((1, 128), np.uint8)
     cv2.imwrite(str(tmp_path / "key.png"), labels)
     bad = folder / "f4.png"
@@ -398,7 +385,7 @@ def test_a_resumed_chained_run_records_the_reference_of_its_first_step(tmp_path,
 def test_a_resume_after_a_class_of_the_table_was_renamed_says_which_class(tmp_path, capsys):
     """A class table's file edited between a run and its resume: refused, naming the class that differs (the
     line said only "other options" when the difference lay past the first 60 characters of the table)."""
-    folder, key = _frames(tmp_path / "frames", (48, 64))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
     labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
     labels[:, 40:] = 2
     cv2.imwrite(str(key), labels)

@@ -306,3 +306,41 @@ def test_a_matroska_file_of_a_variable_frame_rate_is_whole_and_one_cut_short_is_
     cut.write_bytes(whole[:len(whole) // 2])
     assert main(["run", str(cut), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "c")]) == 2
     assert "the video is truncated or damaged" in _err(capsys)[0]
+
+
+def test_an_mp4_trimmed_by_an_edit_list_is_whole(tmp_path, frames, capsys):
+    """A trim without re-encoding (``ffmpeg -ss T -c copy``, a phone's trim) keeps the frames before the cut as
+    references and an edit list that hides them: the container counts 8 frames, 6 are shown. It was called
+    truncated after every frame was labelled, on every run."""
+    av = pytest.importorskip("av")
+    whole = tmp_path / "whole.mp4"
+    with av.open(str(whole), "w") as c:
+        s = c.add_stream("mpeg4", rate=10)
+        s.width, s.height, s.pix_fmt = 160, 120, "yuv420p"
+        for f in frames:
+            for p in s.encode(av.VideoFrame.from_ndarray(f.image, format="rgb24")):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    trimmed = tmp_path / "trimmed.mp4"
+    with av.open(str(whole)) as inp, av.open(str(trimmed), "w") as out:
+        src = inp.streams.video[0]
+        dst = out.add_stream_from_template(src)
+        step = int(round(1 / (src.average_rate * src.time_base)))
+        for p in inp.demux(src):
+            if p.dts is not None:  # the first two frames before the edit list's start
+                p.pts, p.dts, p.stream = p.pts - 2 * step, p.dts - 2 * step, dst
+                out.mux(p)
+    video = VideoFrames(trimmed)
+    assert video.declared == 8
+    got = list(video.frames())
+    shown = cv2.VideoCapture(str(trimmed), cv2.CAP_FFMPEG)
+    assert [f.name for f in got] == [f"{i:06d}" for i in range(6)]
+    for f, truth in zip(got, frames[2:]):  # frame 000000 is the third frame written, as players show it
+        ok, bgr = shown.read()
+        assert ok and np.abs(f.image.astype(int) - bgr[:, :, ::-1]).mean() < 1
+        assert np.abs(f.image.astype(int) - truth.image).mean() < 8
+    cv2.imwrite(str(tmp_path / "key.png"), frames[2].labels)
+    assert main(["run", str(trimmed), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "o")]) == 0, \
+        _err(capsys)
+    assert json.loads((tmp_path / "o" / "run.json").read_text())["done"] == 6

@@ -249,11 +249,11 @@ class VideoFrames:
 
         s = self.selection
         target = s.index(first)
-        decoded, size, yielded, last_time = 0, None, False, None
+        decoded, size, yielded, last_time, hidden = 0, None, False, None, [0]
         with self._open() as container:
             stream = container.streams.video[0]
             try:
-                for frame in container.decode(stream):
+                for frame in _shown_frames(container, stream, hidden):
                     i = decoded
                     decoded += 1
                     last_time = frame.time if frame.time is not None else last_time
@@ -281,17 +281,18 @@ class VideoFrames:
                                  "or damaged") from None
         if decoded == 0:
             raise InputError(f"{self.path}: no frame decodes (an empty, truncated or damaged video)")
-        self._check_length(decoded, last_time)
+        self._check_length(decoded, last_time, hidden[0])
         if first == 0 and not yielded:
             raise InputError(f"--start {s.start} is past the end of {self.path} ({decoded} frames)")
 
-    def _check_length(self, decoded: int, last_time: float | None) -> None:
-        """At the end of the stream: fewer frames than the container declares is a truncated file. Without a
+    def _check_length(self, decoded: int, last_time: float | None, hidden: int = 0) -> None:
+        """At the end of the stream: fewer frames than the container declares is a truncated file, the ``hidden``
+        ones (before an edit list's start, as a trim without re-encoding leaves them) counted. Without a
         count (Matroska) the last frame's time is held against the duration: a stream that stops more than two
         mean frame intervals and 2% of the duration before it is refused (a count estimated from the duration is
         wrong for a variable frame rate, 8 frames over 5 s at a nominal 30 per second); without times, a
         shortfall against that estimate of more than 2 frames and 2%."""
-        if self.declared is not None and decoded < self.declared:
+        if self.declared is not None and decoded + hidden < self.declared:
             raise InputError(f"{self.path}: ends after {decoded} of the {self.declared} frames its container declares: "
                              "the video is truncated or damaged")
         if self.estimated is None or self.duration is None or self.rate is None:
@@ -304,6 +305,15 @@ class VideoFrames:
         if decoded < self.estimated - max(2, 0.02 * self.estimated):
             raise InputError(f"{self.path}: ends after {decoded} frames, its duration holds about {self.estimated}: "
                              "the video is truncated or damaged")
+
+
+def _shown_frames(container, stream, hidden: list[int]) -> Iterator:
+    """The video stream's frames as ``container.decode(stream)`` gives them, counting in ``hidden[0]`` the packets
+    the demuxer marks to discard: an MP4's edit list that starts after its first frames (``ffmpeg -ss T -c copy``,
+    a phone's trim) keeps them as references, decoded and never shown, though the container's count holds them."""
+    for packet in container.demux(stream):
+        hidden[0] += bool(getattr(packet, "is_discard", False))
+        yield from packet.decode()
 
 
 def _video_duration(container, stream) -> float | None:

@@ -131,3 +131,23 @@ def test_a_broken_sequence_is_refused_naming_the_file(tmp_path, how):
     with pytest.raises(DatasetError) as err:
         load_dataset(f"davis:{seq}")
     assert str(err.value).startswith(f"{path}: ") and what in str(err.value)
+
+
+def test_hidden_files_are_left_out_and_unpadded_numbers_refused_as_pcreg_run_does(tmp_path):
+    """A folder copied from a Mac (``._00000.jpg`` beside each frame) was refused, which ``pcreg run`` reads; frames
+    numbered ``0.jpg ... 11.jpg`` were scored in name order (``10.jpg`` after ``1.jpg``), which it refuses."""
+    pairs = frames_and_masks(4)
+    seq = write_pcreg_layout(tmp_path / "mac", pairs)
+    for sub, suffix in (("images", ".jpg"), ("labels", ".png")):
+        for i in range(4):
+            (seq / sub / f"._{i:05d}{suffix}").write_bytes(b"\x00\x05\x16\x07" + bytes(60))  # AppleDouble
+    plain = write_pcreg_layout(tmp_path / "plain", pairs)
+    _same({"s": load_dataset(f"davis:{seq}")["mac"]}, {"s": load_dataset(f"davis:{plain}")["plain"]})
+    unpadded = tmp_path / "unpadded"
+    write_pcreg_layout(unpadded, frames_and_masks(11))
+    for sub, suffix in (("images", ".jpg"), ("labels", ".png")):
+        for i in range(11):
+            (unpadded / sub / f"{i:05d}{suffix}").rename(unpadded / sub / f"{i}{suffix}")
+    with pytest.raises(DatasetError) as err:
+        load_dataset(f"davis:{unpadded}")
+    assert str(err.value).startswith(f"{unpadded / 'images'}: frames numbered with different widths (10.jpg sorts")

@@ -27,6 +27,7 @@ import numpy as np
 from ..errors import DatasetError, InputError
 from ..classes.mappings import DAVIS_MAPPING, mask_hint
 from .frame import Frame
+from .sources import _check_numbering
 
 __all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "check_key_mask",
            "mask_hint", "load_sequence", "load_davis", "published"]
@@ -129,8 +130,12 @@ def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None
     """
     frames, masks = Path(frames), Path(masks)
     name = name or frames.name
-    files = sorted(f for f in frames.iterdir() if f.is_file() and f.suffix.lower() in _IMAGE_SUFFIXES) \
-        if frames.is_dir() else []
+    files = sorted(f for f in frames.iterdir() if f.is_file() and f.suffix.lower() in _IMAGE_SUFFIXES
+                   and not f.name.startswith(".")) if frames.is_dir() else []  # hidden: macOS's ._NAME, as pcreg run
+    try:  # frames in name order, as pcreg run reads them: 10.jpg before 9.jpg is refused
+        _check_numbering(frames, [f.name for f in files])
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
     if not files:
         raise DatasetError(f"{frames}: no frames (.jpg, .png) in sequence {name}")
     files = files[:n_frames] if n_frames is not None else files

@@ -81,11 +81,16 @@ def _run_case(tmp_path, how: str):
     if how == "no first mask":
         key.unlink()
         return ["--mapping", "davis"], key, "no such file"
+    if how == "a JPEG mask":  # its edge is values 1, 2, ...: read as object, around the object
+        key = key.with_suffix(".jpg")
+        cv2.imwrite(str(key), pairs[0][1])
+        return ["--mapping", "davis"], key, "a JPEG, which changes the values at every edge"
     cv2.imwrite(str(key), np.zeros((48, 64), np.uint8))
     return ["--mapping", "davis"], key, "the object's mask on the key frame is empty"
 
 
-RUN_CASES = ("a 0/255 mask without --mapping davis", "a mask of another size", "no first mask", "an empty key mask")
+RUN_CASES = ("a 0/255 mask without --mapping davis", "a mask of another size", "no first mask", "an empty key mask",
+             "a JPEG mask")
 
 
 @pytest.mark.parametrize("how", RUN_CASES)

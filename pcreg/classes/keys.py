@@ -82,9 +82,10 @@ def _raw_values(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
     """The values an object mask stores: a palette PNG's indices, a grey image's values, a colour
     image's pixels that are not black as 1."""
     from ..formats import check_image_bytes, decode_image
-    from .png import is_palette_png
+    from .png import check_lossless, is_palette_png
 
     check_image_bytes(data, name, limit=limit)
+    check_lossless(data, name)  # a JPEG's edge is values 1, 2, ...: object pixels around the object
     if is_palette_png(data):
         import io
 

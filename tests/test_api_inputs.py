@@ -174,3 +174,19 @@ def test_register_refuses_an_init_its_model_cannot_hold(model, start, said):
         pcreg.icp(points, points, pcreg.ICPOptions(model=model), init=T @ start)
     held = T @ np.diag([2.0, 2.0, 1.0]) if model == "similarity" else T  # a scale is a similarity's
     assert pcreg.icp(points, points, pcreg.ICPOptions(model=model), init=held).fitness > 0
+
+
+@pytest.mark.parametrize("which", ["reference_mask", "moving_mask"])
+def test_a_mask_with_no_usable_pixel_or_a_nan_is_refused_as_the_mask(which):
+    """An all-false mask ended in a refused registration ("the moving image has no usable edges", exit 3), which
+    named neither the mask nor why; a float mask with NaN counted NaN as usable."""
+    ref = pcreg.synthetic("syn2a", n_frames=1, width=160, height=120)[0].image
+    with pytest.raises(InputError, match=f"^{which} marks no pixel usable"):
+        pcreg.register(ref, ref, **{which: np.zeros((120, 160), bool)})
+    nan = np.ones((120, 160), np.float32)
+    nan[0, 0] = np.nan
+    with pytest.raises(InputError, match=f"^{which} holds NaN or inf"):
+        pcreg.register(ref, ref, **{which: nan})
+    some = np.zeros((120, 160), bool)
+    some[20:100, 30:130] = True
+    assert pcreg.register(ref, ref, **{which: some}).inlier_ratio > 0.5

@@ -323,7 +323,8 @@ def usable_mask(mask, image: np.ndarray, *, name: str = "mask") -> np.ndarray | 
 
 
 def check_mask(mask, shape: tuple[int, int], *, name: str = "mask") -> None:
-    """An :class:`InputError` unless ``mask`` is ``"auto"``, None or an array of ``shape`` (H, W)."""
+    """An :class:`InputError` unless ``mask`` is ``"auto"``, None or an array of ``shape`` (H, W), finite, with at
+    least one usable (true or nonzero) pixel."""
     if isinstance(mask, str) or mask is None:
         if mask not in ("auto", None):
             raise InputError(f"{name} must be an array, 'auto' or None, got {mask!r}")
@@ -333,6 +334,10 @@ def check_mask(mask, shape: tuple[int, int], *, name: str = "mask") -> None:
         raise InputError(f"{name} must be an array of booleans, 'auto' or None, got {type(mask).__name__}")
     if arr.shape != tuple(shape[:2]):
         raise InputError(f"{name} shape {arr.shape} does not match image shape {tuple(shape[:2])}")
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise InputError(f"{name} holds NaN or inf: a mask says which pixels are usable (true or nonzero)")
+    if not np.any(arr):
+        raise InputError(f"{name} marks no pixel usable (all false or 0): nothing to register")
 
 
 _OPTIONS = ("sampler", "grid_step", "top_k", "subpixel", "canny_percentile")

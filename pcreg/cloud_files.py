@@ -18,7 +18,7 @@ import numpy as np
 
 from .errors import InputError
 from .formats import check_regular_file, max_file_bytes
-from .validation import max_pixels
+from .validation import check_point_count, max_pixels
 
 __all__ = ["LZF_MOST_UNPACKED", "MAX_HEADER_BYTES", "MAX_PLY_LINE", "NPY_HEADER_ERRORS", "check_npy_file", "check_cloud_file"]
 
@@ -93,8 +93,7 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: PLY vertices without the {', '.join(missing)} propert"
                          f"{'y' if len(missing) == 1 else 'ies'} (x, y and z are needed)")
     n = vertex[1]
-    if n > limit:
-        raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    check_point_count(n, str(path), limit=limit)
     if fmt == "ascii":
         _ply_ascii_body(path, body_start, elements, vertex)
         return n
@@ -326,8 +325,7 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
         raise InputError(f"{path}: damaged PCD header (POINTS, SIZE, COUNT)") from None
     if n <= 0:
         raise InputError(f"{path}: no points in the PCD header")
-    if n > limit:
-        raise InputError(f"{path}: {n} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    check_point_count(n, str(path), limit=limit)
     if len(counts) != len(sizes) or any(s <= 0 for s in sizes) or any(c <= 0 for c in counts):
         raise InputError(f"{path}: damaged PCD header (SIZE and COUNT disagree)")
     types = [t.upper() for t in fields.get("TYPE", ["F"] * len(sizes))]
@@ -402,8 +400,8 @@ def check_npy_file(path: Path, limit: int) -> tuple[tuple[int, ...], np.dtype]:
     if any(int(s) < 0 for s in shape):
         raise InputError(f"{path}: bad shape {shape}")
     count = math.prod(int(s) for s in shape)
-    if len(shape) == 2 and shape[0] > limit:
-        raise InputError(f"{path}: {shape[0]} points exceed the limit of {limit} (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if len(shape) == 2:
+        check_point_count(int(shape[0]), str(path), limit=limit)
     if count > 3 * limit:
         raise InputError(f"{path}: {count} values exceed the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
     size = path.stat().st_size

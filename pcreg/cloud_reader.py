@@ -16,7 +16,7 @@ import numpy as np
 from .cloud_files import _ASCII_NUMBER, check_cloud_file, check_npy_file
 from .errors import InputError
 from .registration.api import check_cloud
-from .validation import max_pixels
+from .validation import check_point_count, max_pixels
 
 __all__ = ["CLOUD_SUFFIXES", "TEXT_COLUMN_SUFFIXES", "load_cloud", "read_columns"]
 
@@ -78,8 +78,7 @@ def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:
     pts = np.asarray(pcd.points)
     if pts.size == 0:
         raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
-    if len(pts) > limit:
-        raise InputError(f"{path}: {len(pts)} points exceed the limit of {limit} (raise --max-pixels)")
+    check_point_count(len(pts), str(path), limit=limit)
     if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
         _check_text_cloud(path, suffix, len(pts))
     return pts

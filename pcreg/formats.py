@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import InputError
 from .quiet import capture_output_fds
-from .validation import max_pixels
+from .validation import check_pixels, max_pixels
 
 #: The image files pcreg reads from a folder (by suffix, any case); what decodes is checked by header.
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
@@ -319,11 +319,8 @@ def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tu
     fmt, size = found
     if size is None or size[0] <= 0 or size[1] <= 0:
         raise InputError(f"{name}: cannot decode image (damaged {fmt} header)")
-    lim = max_pixels(limit)
     w, h = size
-    if w * h > lim:
-        raise InputError(f"{name}: {w}x{h} px exceeds the limit of {lim} pixels "
-                         "(raise it with --max-pixels or PCREG_MAX_PIXELS)")
+    check_pixels((h, w), name, limit=limit)
     return w, h
 
 

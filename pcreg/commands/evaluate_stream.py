@@ -85,6 +85,13 @@ def _many_classes(spec: str | None) -> str | None:
 def run(args: argparse.Namespace) -> int:
     from ..experiments.reports.stream import write_outputs
     from ..experiments.stream import evaluate
+    from ..experiments.stream_davis import is_davis
     from ._common import run_command
 
+    if is_davis(args.data):  # which of a download's sequences, said before the run (and in its tables)
+        from ..datasets.davis import select_sequences
+        from ..datasets.davis_splits import parse_davis_arg
+
+        path, split = parse_davis_arg(args.data.partition(":")[2])
+        print(f"DAVIS: {select_sequences(path, split=split)[2].describe()}")
     return run_command(args, config_from_args(args), name="stream", evaluate=evaluate, write_outputs=write_outputs)

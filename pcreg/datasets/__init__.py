@@ -22,6 +22,7 @@ from pathlib import Path
 
 from ..errors import DatasetError, InputError
 from .davis import load_davis
+from .davis_splits import parse_davis_arg
 from .folder import CAMVID_MAPPING, IMAGE_SUFFIXES, load_folder
 from .frame import Frame, relative_transform
 from .lagr import load_lagr
@@ -54,6 +55,11 @@ def data_folder(spec) -> Path | None:
     kind, colon, where = str(spec or "").partition(":")
     if not colon or not where or kind.strip().lower() == "synthetic":
         return None
+    if kind.strip().lower() == "davis":  # davis:PATH:SPLIT
+        try:
+            where = parse_davis_arg(where)[0]
+        except InputError:
+            return None
     folder = Path(where).expanduser()
     return folder if folder.is_dir() else None
 
@@ -69,6 +75,8 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     - ``"folder:PATH"``: the same layout with labels already in {0, 1, 2}.
     - ``"davis:PATH"``: DAVIS 2016 sequences, PATH one sequence or a folder of them, pcreg's layout or
       the official one (:func:`pcreg.datasets.davis.find_sequences`); labels 0 background, 1 the object.
+      At an official root, DAVIS 2016 val when its ``ImageSets`` names it; ``"davis:PATH:train"`` or
+      ``"davis:PATH:all"`` for another split (:mod:`pcreg.datasets.davis_splits`).
     - ``"lagr:PATH"``: every ``labeled_lagr_data_*`` folder under PATH (or PATH itself if it holds
       .mat frames).
 
@@ -100,11 +108,14 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         raise InputError(f"--data {spec!r}: expected synthetic, synthetic:NAMES, camvid:PATH, folder:PATH, davis:PATH or lagr:PATH")
     if kind not in ("camvid", "folder", "davis", "lagr"):
         raise InputError(f"--data {spec!r}: unknown kind {kind!r} (synthetic, camvid, folder, davis or lagr)")
+    split = None
+    if kind == "davis":
+        arg, split = parse_davis_arg(arg)
     path = Path(arg).expanduser()
     if not path.is_dir():
         raise DatasetError(f"{path}: no such folder")
     if kind == "davis":
-        return load_davis(path, n_frames=n_frames)
+        return load_davis(path, n_frames=n_frames, split=split)
     out: dict[str, list[Frame]] = {}
     if kind in ("camvid", "folder"):
         # with a class table the label files hold its ids (CamVid's own with ``camvid11``), read through it

@@ -11,6 +11,9 @@ a folder of them:
   PATH being ``ROOT``, ``ROOT/JPEGImages/480p`` or ``ROOT/JPEGImages/480p/SEQ`` (another resolution
   folder, ``1080p`` or ``Full-Resolution``, where ``480p`` is absent).
 
+At an official root only the split its ``ImageSets`` names is read, DAVIS 2016 val by default
+(``davis:ROOT:train`` or ``davis:ROOT:all`` for others; :mod:`pcreg.datasets.davis_splits`).
+
 The benchmark's published per-sequence results (:func:`published`) come from a ``published_*.csv``
 beside the sequences when there is one, else from the figures pcreg ships
 (:data:`PUBLISHED_CSV`: the twenty sequences of DAVIS 2016 val, for users of the official layout, whose
@@ -26,10 +29,12 @@ import numpy as np
 
 from ..errors import DatasetError, InputError
 from ..classes.mappings import DAVIS_MAPPING, mask_hint
+from .davis_splits import DavisSplit, choose_split
 from .frame import Frame
 from .sources import _check_numbering
 
-__all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "check_key_mask",
+__all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "select_sequences",
+           "check_key_mask",
            "mask_hint", "load_sequence", "load_davis", "published"]
 
 #: The official layout's resolution folders, the one read first first.
@@ -56,32 +61,52 @@ def _official_root(path: Path) -> tuple[Path, str] | None:
     return None
 
 
-def find_sequences(path: str | Path) -> tuple[dict[str, tuple[Path, Path]], Path]:
-    """The sequences at ``path`` (the module's layouts): ``{name: (frames folder, masks folder)}`` in name
-    order, and the folder they lie in (where :func:`published` looks for a ``published_*.csv``)."""
-    p = Path(path).expanduser()
-    if not p.is_dir():
-        raise DatasetError(f"{p}: no such folder")
+def _locate(p: Path) -> tuple[dict[str, tuple[Path, Path]], Path, Path | None, str | None]:
+    """Every sequence at ``p`` (as :func:`find_sequences`), the folder beside them, and the official root and
+    resolution when ``p`` is ``ROOT`` or ``ROOT/JPEGImages/RES`` (else None, None)."""
     if (p / "images").is_dir():  # pcreg's layout, one sequence
-        return {p.name: (p / "images", p / "labels")}, p.parent
+        return {p.name: (p / "images", p / "labels")}, p.parent, None, None
     root = _official_root(p)
     if root is not None:  # ROOT
         img_root, ann_root, beside = p / "JPEGImages" / root[1], p / "Annotations" / root[1], p
     elif p.name in RESOLUTIONS and p.parent.name == "JPEGImages":  # ROOT/JPEGImages/480p
         img_root, ann_root, beside = p, p.parent.parent / "Annotations" / p.name, p.parent.parent
+        root = (p.parent.parent, p.name)
     elif p.parent.name in RESOLUTIONS and p.parent.parent.name == "JPEGImages":  # ROOT/JPEGImages/480p/SEQ
         ann = p.parent.parent.parent / "Annotations" / p.parent.name / p.name
-        return {p.name: (p, ann)}, p.parent.parent.parent
+        return {p.name: (p, ann)}, p.parent.parent.parent, None, None
     else:  # pcreg's layout, a folder of sequences
         seqs = [d for d in _dirs(p) if (d / "images").is_dir()]
         if not seqs:
             raise DatasetError(f"{p}: no DAVIS sequence (no SEQ/images/ folder, and no JPEGImages/480p/ of the "
                                "official layout)")
-        return {d.name: (d / "images", d / "labels") for d in seqs}, p
+        return {d.name: (d / "images", d / "labels") for d in seqs}, p, None, None
     seqs = _dirs(img_root)
     if not seqs:
         raise DatasetError(f"{img_root}: no sequence folder")
-    return {d.name: (d, ann_root / d.name) for d in seqs}, beside
+    return {d.name: (d, ann_root / d.name) for d in seqs}, beside, root[0], root[1]
+
+
+def select_sequences(path: str | Path, *, split: str | None = None
+                     ) -> tuple[dict[str, tuple[Path, Path]], Path, DavisSplit]:
+    """:func:`find_sequences`, and which split they are (:class:`~pcreg.datasets.davis_splits.DavisSplit`):
+    at an official root (``ROOT`` or ``ROOT/JPEGImages/480p``) the ``split`` named (``val``, ``train`` or
+    ``all``; None: ``val`` when ``ImageSets`` has its list, else all), elsewhere all of them."""
+    p = Path(path).expanduser()
+    if not p.is_dir():
+        raise DatasetError(f"{p}: no such folder")
+    seqs, beside, root, res = _locate(p)
+    chosen = choose_split(list(seqs), root=root, resolution=res, split=split, where=p)
+    return {n: seqs[n] for n in chosen.sequences}, beside, chosen
+
+
+def find_sequences(path: str | Path, *, split: str | None = None) -> tuple[dict[str, tuple[Path, Path]], Path]:
+    """The sequences at ``path`` (the module's layouts): ``{name: (frames folder, masks folder)}`` in name
+    order, and the folder they lie in (where :func:`published` looks for a ``published_*.csv``). At an
+    official root, those of ``split`` (:func:`select_sequences`: DAVIS 2016 val by default when the download's
+    ``ImageSets`` names it)."""
+    seqs, beside, _ = select_sequences(path, split=split)
+    return seqs, beside
 
 
 def _read(path: Path, *, color: bool) -> np.ndarray:
@@ -154,10 +179,11 @@ def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None
     return out
 
 
-def load_davis(path: str | Path, *, n_frames: int | None = None) -> dict[str, list[Frame]]:
-    """Every sequence at ``path`` (:func:`find_sequences`), ``{name: frames}``; ``n_frames`` keeps each
-    sequence's first frames."""
-    seqs, _ = find_sequences(path)
+def load_davis(path: str | Path, *, n_frames: int | None = None, split: str | None = None) -> dict[str, list[Frame]]:
+    """Every sequence at ``path`` (:func:`find_sequences`; at an official root those of ``split``, DAVIS 2016
+    val by default when ``ImageSets`` names it), ``{name: frames}``; ``n_frames`` keeps each sequence's first
+    frames."""
+    seqs, _ = find_sequences(path, split=split)
     return {n: load_sequence(f, m, n_frames=n_frames, name=n) for n, (f, m) in seqs.items()}
 
 
@@ -191,7 +217,7 @@ def published(path: str | Path) -> dict:
     beside the sequences whose figures are those (within 0.0005) on every method and sequence both hold;
     else the file itself, saying that it names no source.
     """
-    _, beside = find_sequences(path)
+    _, beside, _ = select_sequences(path, split="all")  # where they lie, whichever split is evaluated
     files = sorted(beside.glob("published_*.csv"))
     rows = [r for f in files for r in _read_published(f)] if files else _read_published(PUBLISHED_CSV)
     source = PUBLISHED_SOURCE

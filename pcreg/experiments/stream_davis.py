@@ -84,23 +84,38 @@ def chain(*hooks: Callable | None) -> Callable | None:
 
 
 def summarise_davis(config, unit_results: list[dict]) -> dict:
-    """The ``davis`` section of the stream evaluation's results: per sequence each method's mean J and F
-    over its scored frames (``sequences``), their means over the sequences (``mean``), and the
+    """The ``davis`` section of the stream evaluation's results: which sequences (``split``: name, split
+    file, sequences, how many folders there were, one line describing it), per sequence each method's mean
+    J and F over its scored frames (``sequences``), their means over the sequences (``mean``), and the
     published methods' figures on the same sequences (``published``: source, file, methods, J and F per
-    method and sequence, and ``mean`` over the sequences, NaN where a sequence has no published figure)."""
+    method and sequence, NaN where it has none; ``mean`` over the sequences that have a figure and ``counted``,
+    how many those are). Where the published figures cover some sequences only, ``covered`` names those
+    with a figure of every published method, and ``mean_covered`` gives every method's mean, pcreg's and
+    the published ones, over them alone: the means that compare."""
     from ..classification.davis_measures import benchmark_mean
-    from ..datasets.davis import published
+    from ..datasets.davis import published, select_sequences
+    from ..datasets.davis_splits import parse_davis_arg
 
     units = [u for u in unit_results if "davis" in u]
     seqs = {u["dataset"]: {"frames": len(u["davis"]["frames"]), **{k: u["davis"]["means"][k] for k in MEASURES}}
             for u in units}
     methods = [m for m in config.methods if all(m in s["J"] for s in seqs.values())]
     mean = {k: {m: benchmark_mean(s[k][m] for s in seqs.values()) for m in methods} for k in MEASURES}
-    pub = published(config.data.partition(":")[2])
+    path, split = parse_davis_arg(config.data.partition(":")[2])
+    chosen = select_sequences(path, split=split)[2]
+    pub = published(path)
     names = list(seqs)
     table = {k: {p: {n: pub[k][p].get(n, float("nan")) for n in names} for p in pub["methods"]} for k in MEASURES}
-    pub_mean = {k: {p: float(np.mean(list(v.values()))) if v else float("nan") for p, v in table[k].items()}
-                for k in MEASURES}
-    return {"sequences": seqs, "methods": methods, "mean": mean,
-            "published": {"source": pub["source"], "file": pub["file"], "methods": pub["methods"], **table,
-                          "mean": pub_mean}}
+    given = {k: {p: [v for v in table[k][p].values() if np.isfinite(v)] for p in pub["methods"]} for k in MEASURES}
+    pub_mean = {k: {p: float(np.mean(v)) if v else float("nan") for p, v in given[k].items()} for k in MEASURES}
+    counted = {k: {p: len(v) for p, v in given[k].items()} for k in MEASURES}
+    covered = [n for n in names if pub["methods"] and all(np.isfinite(table[k][p][n]) for k in MEASURES
+                                                           for p in pub["methods"])]
+    doc = {"split": chosen.to_dict(), "sequences": seqs, "methods": methods, "mean": mean,
+           "published": {"source": pub["source"], "file": pub["file"], "methods": pub["methods"], **table,
+                         "mean": pub_mean, "counted": counted, "covered": covered}}
+    if covered and len(covered) < len(names):
+        doc["mean_covered"] = {k: {**{m: benchmark_mean(seqs[n][k][m] for n in covered) for m in methods},
+                                   **{p: float(np.mean([table[k][p][n] for n in covered])) for p in pub["methods"]}}
+                               for k in MEASURES}
+    return doc

@@ -19,6 +19,10 @@ def table(results: dict) -> tuple[list, list, str]:
     rows.append(["reduction vs plain, mean over clips (%)", "", *[avg[m] for m in methods]])
     footer = ("\n(error %, unknown truth left out; the last row: how much lower than plain, in percent of "
               "plain, averaged over the clips)\n")
+    from .stream_davis import split_line
+
+    if split_line(results):  # which of a DAVIS download's sequences, J and F in davis_J.md, davis_F.md
+        footer += f"\n{split_line(results)}; J and F beside the published methods in davis_J.md and davis_F.md.\n"
     return header, rows, footer
 
 

@@ -18,9 +18,17 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
             for n, s in d["sequences"].items()]
     rows.append(["mean over sequences", sum(s["frames"] for s in d["sequences"].values()),
                  *[d["mean"][measure][m] for m in ours], *[pub["mean"][measure][p] for p in pub["methods"]]])
+    covered = pub.get("covered", [])
+    if d.get("mean_covered"):
+        rows.append([f"mean over the {len(covered)} with published figures",
+                     sum(d["sequences"][n]["frames"] for n in covered),
+                     *[d["mean_covered"][measure][m] for m in [*ours, *pub["methods"]]]])
     footer = (f"\n({_WHAT[measure]}; frames 1 to n-2 of each sequence of n, averaged per sequence, then over the "
               f"sequences, as the DAVIS 2016 benchmark's evaluation does. Upper case: the methods the benchmark "
               f"published, from {pub['source']}; nan where it has no figure for the sequence)\n")
+    if d.get("split"):
+        footer += f"\nSequences: {d['split']['described']}.\n"
+    footer += _published_note(d, measure)
     if results["config"].get("frames"):
         footer += (f"\nOnly the first {results['config']['frames']} frames of each sequence were run (--frames): the "
                    "published figures are over whole sequences, and the two do not compare.\n")
@@ -28,6 +36,29 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
         footer += (f"\nA key frame every {results['config']['key_every']} frames (--key-every): those frames' masks "
                    "were given, and they are not scored.\n")
     return header, rows, footer
+
+
+def _published_note(d: dict, measure: str) -> str:
+    """What the published means are over: every sequence, some (how many), or none."""
+    pub, n = d["published"], len(d["sequences"])
+    counted = pub.get("counted", {}).get(measure)
+    if not pub["methods"] or counted is None:
+        return ""
+    if not any(counted.values()):
+        return f"\nThe published methods have no figure for any of these {n} sequences: their means are nan.\n"
+    if all(c == n for c in counted.values()):
+        return ""
+    each = ", ".join(f"{p.upper()} {c}" for p, c in counted.items())
+    return (f"\nThe published means are over the sequences with a figure only ({each} of {n}); the row of the "
+            f"{len(pub.get('covered', []))} with every published figure compares pcreg's methods with them on the same "
+            "sequences.\n" if d.get("mean_covered") else
+            f"\nThe published means are over the sequences with a figure only ({each} of {n}).\n")
+
+
+def split_line(results: dict) -> str:
+    """One line naming the DAVIS sequences evaluated (empty without a ``davis`` section or its split)."""
+    split = (results.get("davis") or {}).get("split")
+    return f"DAVIS sequences evaluated: {split['described']}" if split else ""
 
 
 def davis_tables(results: dict) -> dict:

@@ -216,7 +216,7 @@ def test_a_similarity_icp_that_shrinks_the_source_to_a_point_is_refused(backend)
     T = np.eye(4)
     T[:3, :3] = 2.5 * Rotation.from_euler("z", 30, degrees=True).as_matrix()
     T[:3, 3] = [0.5, 1.0, -2.0]
-    with pytest.raises(RegistrationError, match=r"shrank the source \(scale .*\) onto 1 target point"):
+    with pytest.raises(RegistrationError, match=r"reach 1 target point.*shrank the source onto them"):
         pcreg.icp(source, tf.apply(T, source), ICPOptions(backend=backend, model="similarity", max_iteration=200))
 
 
@@ -224,8 +224,15 @@ def test_a_2d_similarity_collapse_is_refused_and_a_near_one_is_not():
     source = np.random.default_rng(5).normal(size=(100, 2))
     with pytest.raises(RegistrationError, match="shrank the source"):
         pcreg.icp(source, 0.3 * source + 3.0, ICPOptions(model="similarity", max_iteration=200))
+    with pytest.raises(RegistrationError, match="shrank the source"):  # stopped by max_iteration, not converged
+        pcreg.icp(source, 0.3 * source + 3.0, ICPOptions(model="similarity", max_iteration=12))
     r = pcreg.icp(source, 0.3 * source + 0.05, ICPOptions(model="similarity", max_iteration=200))
     assert np.sqrt(np.linalg.det(r.matrix[:2, :2])) == pytest.approx(0.3)
+    # one pair from the start: the run stops where it is, not converged, and is returned as such (as for rigid)
+    grid = np.stack(np.meshgrid(np.arange(10.0), np.arange(10.0)), axis=-1).reshape(-1, 2)
+    far = np.vstack([grid[:1] + 0.01, grid[1:] + 100.0])
+    r = pcreg.icp(grid, far, ICPOptions(model="similarity", max_correspondence_distance=0.5))
+    assert not r.converged and r.iterations == 0 and r.fitness == pytest.approx(0.01)
 
 
 @pytest.mark.parametrize("d", [2, 3])

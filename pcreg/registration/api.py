@@ -226,7 +226,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
         raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
                                 f"{schedule[-1][2]:g} of a target point; the ICP stopped where it started (give an init "
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
-    check_support(T, schedule[-1][0], schedule[-1][1], options.model, schedule[-1][2])
+    check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
                               converged=r.converged, backend=options.backend, seconds=seconds)
 

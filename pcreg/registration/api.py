@@ -25,7 +25,7 @@ from .dense.levels import check_prepared
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule
-from .reference import check_rank
+from .reference import check_rank, check_support
 from .refine import CoarseToFine
 from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
@@ -226,6 +226,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
         raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
                                 f"{schedule[-1][2]:g} of a target point; the ICP stopped where it started (give an init "
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
+    check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
                               converged=r.converged, backend=options.backend, seconds=seconds)
 
@@ -503,7 +504,6 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
         return given, float(given.seconds)
     step = options.global_step
     return register(ref, mov, config=step.config(options.seed), init=step.start), 0.0
-
 
 
 def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate | None, *, backend: str,

@@ -256,3 +256,46 @@ def check_rank(points: np.ndarray, model: str) -> None:
     if rank < needed_rank:
         what = "coincident" if rank == 0 else ("collinear" if rank == 1 else "coplanar")
         raise RegistrationError(f"the points are {what}: they cannot determine a {model} transform")
+
+
+#: The models whose steps can shrink the source (their linear part is not a rotation).
+SHRINKING_MODELS = ("similarity", "affine", "projective")
+#: Below this scale a refused result is said to have shrunk the source (a collapse runs to 1e-30 and less).
+SHRUNK = 1e-3
+
+
+def check_support(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_distance: float, model: str, *,
+                  converged: bool) -> None:
+    """Raise when an ICP's result ``T`` (``T_target_source``) of a ``model`` that can shrink the source
+    (:data:`SHRINKING_MODELS`) is held by pairs that cannot determine it: the target points its moved source
+    points match (nearest, closer than ``max_distance``) are too few or coincident, collinear or coplanar
+    for the model (:func:`check_rank`), and the run says it ``converged`` or shrank the source below
+    :data:`SHRUNK`. (A run that had too few pairs from its start stops there, not converged, and is not
+    refused here.)
+
+    That is the fixed point a similarity (or affine) ICP falls into when it shrinks the source onto one target
+    point: each step matches every source point to that point, and the least-squares step shrinks it further
+    (a random 3-D cloud scaled by 2.5, turned 30 degrees and moved by (0.5, 1, -2) ended with a determinant
+    of 1e-102, a fitness of 1, an inlier RMSE of 0 and converged, with either backend's step)."""
+    if model not in SHRINKING_MODELS:
+        return
+    from .kdtree import KDTreeIndex
+    from .transforms import apply as move
+
+    with np.errstate(all="ignore"):  # a projective T may send a point through infinity: no match for it
+        moved = move(T, source)
+    finite = np.all(np.isfinite(moved), axis=1)
+    _, idx = KDTreeIndex(target).nearest(moved[finite], max_distance)
+    matched = target[np.unique(idx[idx >= 0])]
+    try:
+        check_rank(matched, model)
+    except RegistrationError as exc:
+        d = T.shape[0] - 1
+        scale = abs(float(np.linalg.det(T[:d, :d]))) ** (1 / d)
+        if not converged and not scale < SHRUNK:
+            return
+        shrank = "; the ICP shrank the source onto them" if scale < SHRUNK else ""
+        raise RegistrationError(
+            f"registration refused: at the result (scale {scale:.3g}) the source's pairs reach {len(matched)} target "
+            f"point(s), which cannot determine a {model} transform ({exc}){shrank}; give an init nearer the answer, or "
+            "another max_correspondence_distance") from None

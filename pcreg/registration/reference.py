@@ -26,8 +26,8 @@ from .._jit import njit, prange
 from ..errors import InputError, RegistrationError
 from . import _kd_kernels, _nn_kernels, nn
 from .closed_forms import (MIN_POINTS, _umeyama, check_rank, estimate, estimate_affine,  # noqa: F401  (named here too)
-                           estimate_horn_quaternion, estimate_projective, estimate_translation, estimate_umeyama,
-                           pairs_needed, robust_weights, umeyama_from_moments)
+                           check_support, estimate_horn_quaternion, estimate_projective, estimate_translation,
+                           estimate_umeyama, pairs_needed, robust_weights, umeyama_from_moments)
 from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, WEIGHTS: named here too)
 from .kdtree import KDTreeIndex
 from .nn import GridIndex

@@ -1,0 +1,308 @@
+"""Cases other ICP projects test their own ICP with, run through pcreg's ICP (:func:`pcreg.icp`, the reference
+closed forms). Each test names the project and file whose case it mirrors; the numbers are theirs where they
+publish expected values, and Open3D's own answer on the same input where they compare against it."""
+
+import numpy as np
+import open3d as o3d
+import pytest
+from scipy.spatial.transform import Rotation
+
+import pcreg
+from pcreg import ICPOptions
+from pcreg import transforms as tf
+from pcreg.errors import InputError, RegistrationError
+from pcreg.registration.closed_forms import estimate_umeyama
+from pcreg.registration.normal_steps import estimate_point_to_plane
+
+reg = o3d.pipelines.registration
+
+# Open3D python/test/t/registration/test_transformation_estimation.py: get_pcds_and_correspondences
+O3D_EST_SOURCE = np.array([
+    [1.15495, 2.40671, 1.15061], [1.81481, 2.06281, 1.71927], [0.888322, 2.05068, 2.04879],
+    [3.78842, 1.70788, 1.30246], [1.8437, 2.22894, 0.986237], [2.95706, 2.2018, 0.987878],
+    [1.72644, 1.24356, 1.93486], [0.922024, 1.14872, 2.34317], [3.70293, 1.85134, 1.15357],
+    [3.06505, 1.30386, 1.55279], [0.634826, 1.04995, 2.47046], [1.40107, 1.37469, 1.09687],
+    [2.93002, 1.96242, 1.48532], [3.74384, 1.30258, 1.30244]])
+O3D_EST_TARGET = np.array([
+    [2.41766, 2.05397, 1.74994], [1.37848, 2.19793, 1.66553], [2.24325, 2.27183, 1.33708],
+    [3.09898, 1.98482, 1.77401], [1.81615, 1.48337, 1.49697], [3.01758, 2.20312, 1.51502],
+    [2.38836, 1.39096, 1.74914], [1.30911, 1.4252, 1.37429], [3.16847, 1.39194, 1.90959],
+    [1.59412, 1.53304, 1.5804], [1.34342, 2.19027, 1.30075]])
+O3D_EST_NORMALS = np.array([
+    [-0.0085016, -0.22355, -0.519574], [0.257463, -0.0738755, -0.698319], [0.0574301, -0.484248, -0.409929],
+    [-0.0123503, -0.230172, -0.52072], [0.355904, -0.142007, -0.720467], [0.0674038, -0.418757, -0.458602],
+    [0.226091, 0.258253, -0.874024], [0.43979, 0.122441, -0.574998], [0.109144, 0.180992, -0.762368],
+    [0.273325, 0.292013, -0.903111], [0.385407, -0.212348, -0.277818]])
+O3D_EST_CORRESPONDENCES = np.array([10, 1, 1, 3, 2, 5, 9, 7, 5, 8, 7, 7, 5, 8])
+
+# Open3D python/test/t/registration/test_registration.py: get_pcds (a voxel grid at 0.5 spacing) and the init
+O3D_ICP_SOURCE = np.array([
+    [1.0, 0.5, 2.0], [0.5, 0.5, 2.0], [0.5, 0.5, 2.5], [3.0, 1.0, 1.5], [3.5, 1.0, 1.0], [0.5, 1.0, 2.0],
+    [1.5, 1.0, 1.5], [2.0, 1.0, 1.5], [1.0, 1.0, 2.0], [2.5, 1.0, 1.5], [3.0, 1.0, 1.0], [0.5, 1.0, 2.5],
+    [1.0, 1.0, 1.0], [1.5, 1.0, 1.0], [1.0, 1.5, 1.0], [3.0, 1.5, 1.0], [3.5, 1.5, 1.0], [3.0, 1.5, 1.5],
+    [0.5, 1.5, 1.5], [0.5, 1.5, 2.0], [1.0, 1.5, 2.0], [2.5, 1.5, 1.5], [1.5, 1.5, 1.0], [1.5, 1.5, 1.5],
+    [2.0, 1.5, 1.5], [3.0, 1.5, 0.5], [2.5, 1.5, 1.0], [2.0, 1.5, 1.0], [3.0, 2.0, 0.5], [0.5, 2.0, 1.5],
+    [3.0, 2.0, 1.0], [1.0, 2.0, 1.0], [2.0, 1.5, 0.5], [0.5, 2.0, 2.0], [2.5, 2.0, 1.0], [2.5, 2.0, 0.5],
+    [2.0, 2.0, 0.5], [2.5, 1.5, 0.5], [3.0, 2.0, 1.5], [2.0, 2.0, 1.0], [1.0, 2.0, 2.0], [1.5, 2.0, 1.0],
+    [1.5, 2.0, 1.5], [2.5, 2.0, 1.5], [2.0, 2.0, 1.5], [1.0, 2.0, 0.5], [0.5, 2.0, 1.0], [1.5, 2.0, 0.5],
+    [1.0, 2.0, 1.5]])
+O3D_ICP_TARGET = np.array([
+    [1.5, 1.0, 1.5], [2.5, 1.0, 1.5], [1.5, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 1.0, 1.5], [3.0, 1.0, 1.5],
+    [1.0, 1.0, 0.5], [1.0, 1.5, 1.0], [1.0, 1.5, 0.5], [1.0, 1.0, 1.5], [3.0, 1.0, 2.0], [3.0, 1.5, 2.0],
+    [3.0, 1.5, 1.5], [1.0, 1.5, 1.5], [1.5, 1.5, 1.5], [2.5, 1.5, 1.5], [2.0, 1.5, 1.5], [1.5, 1.5, 1.0],
+    [2.5, 1.5, 2.0], [1.0, 2.0, 1.0], [1.0, 2.0, 0.5], [2.5, 1.5, 1.0], [3.0, 2.0, 1.5], [2.5, 2.0, 1.0],
+    [2.5, 2.0, 1.5], [1.5, 2.0, 1.0], [2.0, 1.5, 1.0], [1.0, 2.0, 1.5], [2.0, 2.0, 1.0], [1.5, 2.0, 1.5],
+    [1.5, 2.0, 0.5], [2.0, 2.0, 1.5], [2.0, 2.0, 0.5], [1.5, 2.5, 1.0], [1.0, 2.5, 1.0], [3.0, 2.0, 1.0],
+    [2.0, 2.5, 1.0], [2.5, 2.5, 1.0]])
+O3D_ICP_NORMALS = np.array([
+    [0.15597, -0.0463812, -0.986672], [-0.213545, 0.887963, 0.407334], [0.423193, -0.121977, -0.897792],
+    [0.202251, 0.27611, -0.939605], [0.275452, 0.207216, -0.938716], [0.326146, 0.0385317, -0.944534],
+    [0.983129, -0.174668, -0.0543011], [0.898665, -0.0602029, 0.434485], [0.711325, 0.193223, -0.675783],
+    [0.346158, 0.198724, -0.916888], [0.302085, 0.28938, -0.908297], [0.341044, 0.414138, -0.843907],
+    [0.212191, 0.213068, -0.953717], [0.239759, 0.313187, -0.918929], [0.302290, 0.27265, -0.913391],
+    [0.209796, 0.402747, -0.890944], [0.267025, 0.218226, -0.938656], [0.00126928, -0.976587, -0.21512],
+    [0.321912, 0.194736, -0.926526], [0.831227, 0.236675, -0.503037], [0.987006, -0.155324, 0.0411639],
+    [0.103384, -0.808796, -0.57893], [0.181245, 0.66226, -0.727023], [0.235471, 0.525053, -0.817846],
+    [0.231954, 0.446165, -0.864369], [-0.261931, -0.725542, -0.636381], [0.120953, -0.864985, -0.487003],
+    [0.858345, -0.227847, 0.459706], [-0.416259, -0.367408, -0.831709], [-0.476652, 0.206048, -0.854604],
+    [-0.211959, -0.523378, -0.825317], [-0.964914, 0.0541031, -0.256931], [-0.0653566, -0.913961, -0.400504],
+    [-0.846868, -0.170805, -0.503628], [0.0366971, 0.515834, -0.855902], [-0.0714554, -0.855019, -0.513651],
+    [-0.0217377, -0.957744, -0.286799], [-0.0345231, -0.947096, -0.319088]])
+O3D_ICP_INIT = np.array([[0.862, 0.011, -0.507, 0.5], [-0.139, 0.967, -0.215, 0.7], [0.487, 0.255, 0.835, -1.4],
+                         [0.0, 0.0, 0.0, 1.0]])
+
+
+def _cloud(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    if normals is not None:
+        pcd.normals = o3d.utility.Vector3dVector(normals)
+    return pcd
+
+
+def test_open3d_point_to_point_step_and_rmse_on_given_correspondences():
+    """Open3D test_transformation_estimation.py: the RMSE of the given pairs, 0.706437, and after one
+    point-to-point step, 0.578255 (Umeyama's closed form here; Open3D's legacy estimation gives the same
+    matrix)."""
+    q = O3D_EST_TARGET[O3D_EST_CORRESPONDENCES]
+    rmse = lambda p: float(np.sqrt(np.mean(np.sum((p - q) ** 2, axis=1))))  # noqa: E731
+    assert rmse(O3D_EST_SOURCE) == pytest.approx(0.706437, rel=1e-4)
+    T = estimate_umeyama(O3D_EST_SOURCE, q, np.ones(len(q)), with_scale=False)
+    assert rmse(tf.apply(T, O3D_EST_SOURCE)) == pytest.approx(0.578255, rel=1e-4)
+    pairs = o3d.utility.Vector2iVector(np.column_stack([np.arange(len(q)), O3D_EST_CORRESPONDENCES]))
+    theirs = reg.TransformationEstimationPointToPoint().compute_transformation(
+        _cloud(O3D_EST_SOURCE), _cloud(O3D_EST_TARGET), pairs)
+    np.testing.assert_allclose(T, theirs, atol=1e-12)
+
+
+def test_open3d_point_to_plane_step_with_normals_that_are_not_unit():
+    """Open3D test_transformation_estimation.py, point-to-plane: its normals are not of unit length, and
+    Open3D takes them as given; pcreg's step takes them as given too, and gives Open3D's matrix."""
+    q = O3D_EST_TARGET[O3D_EST_CORRESPONDENCES]
+    n = O3D_EST_NORMALS[O3D_EST_CORRESPONDENCES]
+    T = estimate_point_to_plane(O3D_EST_SOURCE, q, n, np.ones(len(q)))
+    pairs = o3d.utility.Vector2iVector(np.column_stack([np.arange(len(q)), O3D_EST_CORRESPONDENCES]))
+    theirs = reg.TransformationEstimationPointToPlane().compute_transformation(
+        _cloud(O3D_EST_SOURCE), _cloud(O3D_EST_TARGET, O3D_EST_NORMALS), pairs)
+    np.testing.assert_allclose(T, theirs, atol=1e-11)
+    assert abs(np.linalg.det(T[:3, :3]) - 1) < 1e-12
+
+
+def test_open3d_evaluate_registration_fitness_and_inlier_rmse():
+    """Open3D test_registration.py test_evaluate_registration: at distance 3.0 and the identity, pcreg's
+    fitness (pairs / source points) and inlier RMSE are Open3D's legacy evaluate_registration's."""
+    theirs = reg.evaluate_registration(_cloud(O3D_ICP_SOURCE), _cloud(O3D_ICP_TARGET), 3.0, np.eye(4))
+    ours = pcreg.icp(O3D_ICP_SOURCE, O3D_ICP_TARGET, ICPOptions(max_correspondence_distance=3.0, max_iteration=0))
+    assert ours.fitness == pytest.approx(theirs.fitness, abs=1e-15)
+    assert ours.inlier_rmse == pytest.approx(theirs.inlier_rmse, rel=1e-12)
+    np.testing.assert_array_equal(ours.matrix, np.eye(4))
+
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_open3d_icp_point_to_point_two_iterations_from_their_init(backend):
+    """Open3D test_registration.py test_icp_point_to_point: two iterations from their init (rounded to three
+    decimals, so not quite a rotation: det 1.00013, which pcreg takes as Open3D does): Open3D's matrix,
+    fitness and inlier RMSE."""
+    criteria = reg.ICPConvergenceCriteria(max_iteration=2)
+    theirs = reg.registration_icp(_cloud(O3D_ICP_SOURCE), _cloud(O3D_ICP_TARGET), 3.0, O3D_ICP_INIT,
+                                  reg.TransformationEstimationPointToPoint(), criteria)
+    ours = pcreg.icp(O3D_ICP_SOURCE, O3D_ICP_TARGET,
+                     ICPOptions(backend=backend, max_correspondence_distance=3.0, max_iteration=2), init=O3D_ICP_INIT)
+    np.testing.assert_allclose(ours.matrix, theirs.transformation, atol=1e-10)
+    assert ours.fitness == pytest.approx(theirs.fitness) and ours.inlier_rmse == pytest.approx(theirs.inlier_rmse)
+    assert ours.iterations == 2 and not ours.converged
+
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_open3d_icp_point_to_plane_two_iterations_from_their_init(backend):
+    """Open3D test_registration.py test_icp_point_to_plane: the same clouds with the target's normals,
+    point-to-plane, two iterations: Open3D's matrix, fitness and inlier RMSE (a point distance, as Open3D's)."""
+    criteria = reg.ICPConvergenceCriteria(max_iteration=2)
+    theirs = reg.registration_icp(_cloud(O3D_ICP_SOURCE), _cloud(O3D_ICP_TARGET, O3D_ICP_NORMALS), 3.0, O3D_ICP_INIT,
+                                  reg.TransformationEstimationPointToPlane(), criteria)
+    ours = pcreg.icp(O3D_ICP_SOURCE, O3D_ICP_TARGET, ICPOptions(backend=backend, metric="point_to_plane",
+                                                                max_correspondence_distance=3.0, max_iteration=2),
+                     init=O3D_ICP_INIT, target_normals=O3D_ICP_NORMALS)
+    np.testing.assert_allclose(ours.matrix, theirs.transformation, atol=1e-10)
+    assert ours.fitness == pytest.approx(theirs.fitness) and ours.inlier_rmse == pytest.approx(theirs.inlier_rmse)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_the_correspondence_distance_is_a_strict_bound_as_open3d_s(d):
+    """Open3D's ICP pairs a point with a target strictly closer than max_correspondence_distance: a source
+    point exactly at the distance has no pair (evaluate_registration: fitness 0), a hair beyond it has."""
+    target = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 4.0, 0.0], [0.0, 0.0, 4.0]])[:, :d]
+    source = target + np.eye(d)[0] * 0.5
+    lifted = lambda p: np.column_stack([p, np.zeros(len(p))]) if d == 2 else p  # noqa: E731
+    for distance, pairs in ((0.5, 0), (np.nextafter(0.5, 1.0), len(source))):
+        theirs = reg.evaluate_registration(_cloud(lifted(source)), _cloud(lifted(target)), distance, np.eye(4))
+        assert len(theirs.correspondence_set) == pairs
+        for backend in ("reference", "open3d"):
+            options = ICPOptions(backend=backend, max_correspondence_distance=distance, max_iteration=0)
+            if pairs == 0:
+                with pytest.raises(RegistrationError, match="no source point lies within"):
+                    pcreg.icp(source, target, options)
+            else:
+                r = pcreg.icp(source, target, options)
+                assert r.fitness == theirs.fitness == 1.0 and r.inlier_rmse == pytest.approx(0.5)
+
+
+def test_umeyama_1991_worked_example_similarity_and_no_reflection():
+    """Umeyama (1991), section IV's example (also imagingbook's ProcrustesExample "Umeyama-Test"):
+    (0,0), (1,0), (0,2) onto (0,0), (-1,0), (0,2), a mirror image. The similarity is c = 0.721,
+    R = [[0.832, 0.555], [-0.555, 0.832]], t = (-0.8, 0.4); the rigid fit is a rotation (det +1), never the
+    reflection that maps the points exactly."""
+    p = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]])
+    q = np.array([[0.0, 0.0], [-1.0, 0.0], [0.0, 2.0]])
+    T = estimate_umeyama(p, q, np.ones(3), with_scale=True)
+    c = np.sqrt(np.linalg.det(T[:2, :2]))
+    assert c == pytest.approx(0.721, abs=5e-4)
+    np.testing.assert_allclose(T[:2, :2] / c, [[0.832, 0.555], [-0.555, 0.832]], atol=5e-4)
+    np.testing.assert_allclose(T[:2, 2], [-0.8, 0.4], atol=1e-12)
+    rigid = estimate_umeyama(p, q, np.ones(3), with_scale=False)
+    assert np.linalg.det(rigid[:2, :2]) == pytest.approx(1.0)
+    for model in ("rigid", "similarity"):
+        assert np.linalg.det(pcreg.icp(p, q, ICPOptions(model=model)).matrix[:2, :2]) > 0
+
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_a_mirrored_3d_cloud_gives_a_rotation_not_a_reflection(backend):
+    rng = np.random.default_rng(0)
+    source = rng.normal(size=(50, 3)) * [3.0, 2.0, 1.0]
+    r = pcreg.icp(source, source * [1.0, 1.0, -1.0], ICPOptions(backend=backend))
+    assert np.linalg.det(r.matrix[:3, :3]) == pytest.approx(1.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("d, backend", [(2, "reference"), (3, "reference"), (3, "open3d")])
+def test_pycpd_rigid_case_with_a_known_scale(d, backend):
+    """pycpd testing/rigid_test.py (test_2D, test_3D: a rotation about z and a shift, s, R and t recovered),
+    here with a scale of 1.2, a 10-degree turn and a small shift, within ICP's basin from the identity (for
+    some other random 2-D clouds it is not: ICP stops in a local minimum there, as it does)."""
+    source = np.random.default_rng(1).normal(size=(100, d))
+    R = Rotation.from_euler("z", 10, degrees=True).as_matrix()[:d, :d]
+    T = np.eye(d + 1)
+    T[:d, :d] = 1.2 * R
+    T[:d, d] = [0.05, 0.1, -0.02][:d]
+    r = pcreg.icp(source, tf.apply(T, source), ICPOptions(backend=backend, model="similarity", max_iteration=100))
+    np.testing.assert_allclose(r.matrix, T, atol=1e-9)
+    assert r.converged and r.fitness == 1.0
+
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_a_similarity_icp_that_shrinks_the_source_to_a_point_is_refused(backend):
+    """pycpd's 3-D rigid case taken further (scale 2.5, 30 degrees, shift (0.5, 1, -2)), where CPD recovers
+    the motion: a similarity ICP from the identity shrank the source onto one target point, and both backends'
+    steps returned that (determinant 1e-102) as converged with a fitness of 1 and an inlier RMSE of 0."""
+    source = np.random.default_rng(0).normal(size=(100, 3))
+    T = np.eye(4)
+    T[:3, :3] = 2.5 * Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    T[:3, 3] = [0.5, 1.0, -2.0]
+    with pytest.raises(RegistrationError, match=r"reach 1 target point.*shrank the source onto them"):
+        pcreg.icp(source, tf.apply(T, source), ICPOptions(backend=backend, model="similarity", max_iteration=200))
+
+
+def test_a_2d_similarity_collapse_is_refused_and_a_near_one_is_not():
+    source = np.random.default_rng(5).normal(size=(100, 2))
+    with pytest.raises(RegistrationError, match="shrank the source"):
+        pcreg.icp(source, 0.3 * source + 3.0, ICPOptions(model="similarity", max_iteration=200))
+    with pytest.raises(RegistrationError, match="shrank the source"):  # stopped by max_iteration, not converged
+        pcreg.icp(source, 0.3 * source + 3.0, ICPOptions(model="similarity", max_iteration=12))
+    r = pcreg.icp(source, 0.3 * source + 0.05, ICPOptions(model="similarity", max_iteration=200))
+    assert np.sqrt(np.linalg.det(r.matrix[:2, :2])) == pytest.approx(0.3)
+    # one pair from the start: the run stops where it is, not converged, and is returned as such (as for rigid)
+    grid = np.stack(np.meshgrid(np.arange(10.0), np.arange(10.0)), axis=-1).reshape(-1, 2)
+    far = np.vstack([grid[:1] + 0.01, grid[1:] + 100.0])
+    r = pcreg.icp(grid, far, ICPOptions(model="similarity", max_correspondence_distance=0.5))
+    assert not r.converged and r.iterations == 0 and r.fitness == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_a_million_units_from_the_origin_keeps_float64_precision(d, backend):
+    """Georeferenced clouds (KISS-ICP's and small_gicp's scans sit far from their origin): a small rigid
+    motion of a 20-unit cloud moved 1e6 from the origin is recovered to 1e-8."""
+    rng = np.random.default_rng(d)
+    source = rng.uniform(-10, 10, (200, d))
+    T = np.eye(d + 1)
+    T[:d, :d] = Rotation.from_euler("xyz", [2, -1, 3], degrees=True).as_matrix()[:d, :d] if d == 3 else tf.rigid2d(3)[:2, :2]
+    T[:d, d] = [0.2, -0.1, 0.05][:d]
+    target = tf.apply(T, source)
+    r = pcreg.icp(source + 1e6, target + 1e6, ICPOptions(backend=backend, max_correspondence_distance=2.0,
+                                                          max_iteration=100))
+    assert np.abs(tf.apply(r.matrix, source + 1e6) - (target + 1e6)).max() < 1e-8
+    assert r.converged
+
+
+def test_tiny_clouds_stop_on_open3d_s_absolute_thresholds_unless_scaled():
+    """A cloud 1e-6 across: Open3D's stopping rule compares absolute changes (1e-6 by default), which any step
+    on such a cloud meets, so both backends stop after the same first step, short of the motion; thresholds
+    in the clouds' units recover it."""
+    rng = np.random.default_rng(1)
+    source = rng.uniform(-1, 1, (200, 2)) * 1e-6
+    T = tf.rigid2d(5.0, 0.05e-6, 0.02e-6)
+    target = tf.apply(T, source)
+    first = [pcreg.icp(source, target, ICPOptions(backend=b)) for b in ("reference", "open3d")]
+    assert all(r.iterations == 1 for r in first)
+    np.testing.assert_allclose(first[0].matrix, first[1].matrix, atol=1e-12)
+    scaled = pcreg.icp(source, target, ICPOptions(relative_fitness=0.0, relative_rmse=1e-18, max_iteration=100))
+    assert np.abs(tf.apply(scaled.matrix, source) - target).max() < 1e-18
+
+
+def test_duplicated_points_change_nothing():
+    rng = np.random.default_rng(2)
+    source = rng.uniform(-5, 5, (60, 2))
+    target = tf.apply(tf.rigid2d(3, 0.1, 0), source)
+    once = pcreg.icp(source, target, ICPOptions())
+    for s, t in ((np.vstack([source, source]), target), (source, np.repeat(target, 3, axis=0))):
+        r = pcreg.icp(s, t, ICPOptions())
+        np.testing.assert_allclose(r.matrix, once.matrix, atol=1e-12)
+        assert r.fitness == 1.0
+
+
+def test_one_point():
+    one, there = np.array([[1.0, 2.0]]), np.array([[1.5, 2.5]])
+    r = pcreg.icp(one, there, ICPOptions(model="translation"))
+    np.testing.assert_allclose(r.matrix[:2, 2], [0.5, 0.5])
+    with pytest.raises(RegistrationError, match="too few"):
+        pcreg.icp(one, there, ICPOptions(model="rigid"))
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_nan_and_inf_are_bad_input(bad):
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    broken = points.copy()
+    broken[1, 1] = bad
+    for s, t in ((broken, points), (points, broken)):
+        with pytest.raises(InputError, match="NaN or inf"):
+            pcreg.icp(s, t)
+
+
+def test_pairs_of_zero_weight_count_for_nothing():
+    """Weighted closed form: pairs of weight 0 change nothing (the same step as without them)."""
+    rng = np.random.default_rng(4)
+    p = rng.normal(size=(30, 3))
+    q = tf.apply(np.array([[0.0, -1, 0, 1], [1, 0, 0, 2], [0, 0, 1, 3], [0, 0, 0, 1]]), p)
+    wild = np.vstack([q[:20], rng.normal(size=(10, 3)) * 50])
+    w = np.r_[np.ones(20), np.zeros(10)]
+    for scale in (False, True):
+        np.testing.assert_allclose(estimate_umeyama(p, wild, w, with_scale=scale),
+                                   estimate_umeyama(p[:20], q[:20], np.ones(20), with_scale=scale), atol=1e-12)

@@ -1,5 +1,6 @@
 """pcreg.registration.global_search: the hypothesis generators and the evidence; pcreg.datasets.textures."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -188,3 +189,20 @@ def test_a_projective_registration_of_a_photograph_reaches_its_view(shared_data,
     img, mov, truth = _viewed(shared_data, name, view)
     r = pcreg.register(img, mov, model="projective")
     assert r.converged and tf.max_corner_error(r.matrix, truth, mov.shape) < 1.0, (r.generator, r.matrix)
+
+
+def test_a_hypothesis_whose_refinement_collapses_is_left_out_not_the_registration(shared_data):
+    """A CamVid frame at a scale of 0.4 (beyond the search's range): ORB's hypothesis refined by the similarity
+    shrank the moving image to a point, and its error ended the whole registration ('degenerate
+    correspondences: all source points coincide', no evidence); it is left out and the evidence test judges
+    the other hypotheses."""
+    folder = shared_data / "camvid" / "0016E5" / "images"
+    img = cv2.imread(str(sorted(folder.glob("*.png"))[20]))[:, :, ::-1].copy()
+    h, w = img.shape[:2]
+    M = np.vstack([cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), 30.0, 0.4), [0, 0, 1]])
+    corners = M @ np.array([[0, w, 0, w], [0, 0, h, h], [1, 1, 1, 1]], float)
+    M[:2, 2] -= corners[:2].min(axis=1)
+    size = np.ceil(corners[:2].max(axis=1) - corners[:2].min(axis=1)).astype(int)
+    mov = cv2.warpPerspective(img, M, (int(size[0]), int(size[1])))
+    with pytest.raises(pcreg.RegistrationError, match="^registration refused: the best alignment"):
+        pcreg.register(img, mov, model="similarity")

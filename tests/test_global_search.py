@@ -1,5 +1,6 @@
 """pcreg.registration.global_search: the hypothesis generators and the evidence; pcreg.datasets.textures."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -188,3 +189,35 @@ def test_a_projective_registration_of_a_photograph_reaches_its_view(shared_data,
     img, mov, truth = _viewed(shared_data, name, view)
     r = pcreg.register(img, mov, model="projective")
     assert r.converged and tf.max_corner_error(r.matrix, truth, mov.shape) < 1.0, (r.generator, r.matrix)
+
+
+
+def _camvid_view(shared_data, index: int, angle: float, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``index`` of CamVid's 0016E5 clip and the same turned by ``angle`` and scaled by ``scale`` about
+    its centre, on the canvas that holds it whole (RGB)."""
+    folder = shared_data / "camvid" / "0016E5" / "images"
+    img = cv2.imread(str(sorted(folder.glob("*.png"))[index]))[:, :, ::-1].copy()
+    h, w = img.shape[:2]
+    M = np.vstack([cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), angle, scale), [0, 0, 1]])
+    corners = M @ np.array([[0, w, 0, w], [0, 0, h, h], [1, 1, 1, 1]], float)
+    M[:2, 2] -= corners[:2].min(axis=1)
+    size = np.ceil(corners[:2].max(axis=1) - corners[:2].min(axis=1)).astype(int)
+    return img, cv2.warpPerspective(img, M, (int(size[0]), int(size[1])))
+
+
+def test_a_hypothesis_whose_refinement_collapses_is_left_out_not_the_registration(shared_data):
+    """A CamVid frame at a scale of 0.4 (beyond the search's range): ORB's hypothesis refined by the similarity
+    shrank the moving image to a point, and its error ended the whole registration ('degenerate
+    correspondences: all source points coincide', no evidence); it is left out and the evidence test judges
+    the other hypotheses."""
+    img, mov = _camvid_view(shared_data, 20, 30.0, 0.4)
+    with pytest.raises(pcreg.RegistrationError, match="^registration refused: the best alignment"):
+        pcreg.register(img, mov, model="similarity")
+
+
+def test_a_refusal_of_views_far_apart_in_scale_says_the_search_does_not_reach_them(shared_data):
+    """A view of a frame at a scale of 0.4 is refused (the search finds scales within about 0.5-2); the
+    refusal said only that the images do not show the same scene."""
+    img, mov = _camvid_view(shared_data, 20, 30.0, 0.4)
+    with pytest.raises(pcreg.RegistrationError, match="more than about 2x apart, which the search does not reach"):
+        pcreg.register(img, mov, model="similarity")

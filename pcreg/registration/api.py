@@ -576,7 +576,7 @@ def _search(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfi
                           keep_iterations=keep_iterations)
     tried, mirror = _candidates(init, moving, refiner, test, search)
     if not tried:
-        raise RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
+        raise search.nothing_refined()
     best = max(tried, key=lambda c: c.score)  # edges rank the hypotheses; intensities break repetitive ties
     return best, tried, mirror, test
 

@@ -25,6 +25,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..errors import RegistrationError
 from .global_search import (Evidence, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
                             gray_level, orb_hypotheses, photometric_agreement)
 from .pyramid import CloudPyramid
@@ -107,15 +108,19 @@ class GlobalSearch:
         self.keep_iterations = keep_iterations
         self.model, self.generators, self.seed, self.convincing = model, tuple(generators), seed, convincing
         self.angle_step, self.n_candidates = angle_step, n_candidates
+        self.collapsed: list[str] = []  # the last run's hypotheses whose refinement failed, and why
         self.search_model = "translation" if model == "translation" else "rigid"
         self.levels = len(self.reference)
         self.p_level = min(2, self.levels - 1)
         self.reference_gray, _ = gray_level(self.reference.image, self.p_level, valid=self.reference.valid)
 
     def run(self, moving: CloudPyramid) -> list[Candidate]:
-        """Every generator in turn until one is convincing: the refined hypotheses, in the order tried."""
+        """Every generator in turn until one is convincing: the refined hypotheses, in the order tried. A
+        hypothesis whose refinement fails (a similarity that shrinks the moving image to a point) is left
+        out, its reason kept in ``collapsed`` (this run's), and the next generator tried."""
         gray = gray_level(moving.image, self.p_level, valid=moving.valid)
         tried: list[Candidate] = []
+        self.collapsed = []
         for generator in self.generators:
             if generator == "edges":
                 h = self.edge_hypothesis(moving)
@@ -123,10 +128,22 @@ class GlobalSearch:
                 h = self.intensity_hypothesis(generator, moving, gray, seen=[c.refined.matrix for c in tried])
             if h is None:
                 continue
-            tried.append(self.evaluate(h, moving, gray))
+            try:
+                tried.append(self.evaluate(h, moving, gray))
+            except RegistrationError as exc:  # its refinement collapsed: no alignment, the next generator's may be
+                self.collapsed.append(f"{generator}'s: {exc}")
+                continue
             if self.is_convincing(tried[-1]):
                 break
         return tried
+
+    def nothing_refined(self) -> RegistrationError:
+        """Why the last run (or the one hypothesis ``init`` gave, which raises itself) left no candidate: every
+        hypothesis's refinement failed, or the generators made none."""
+        if self.collapsed:
+            return RegistrationError(f"registration refused: every hypothesis's refinement failed "
+                                     f"({'; '.join(self.collapsed)})")
+        return RegistrationError("no hypothesis could be generated (too few edges and features in the images)")
 
     def is_convincing(self, c: Candidate) -> bool:
         return c.inlier_ratio >= self.convincing and c.photometric_ncc >= CONVINCING_NCC

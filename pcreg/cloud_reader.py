@@ -1,5 +1,6 @@
-"""Reading a point cloud from a file, by suffix: PLY, PCD and Open3D's text formats (.xyz, .xyzn, .xyzrgb, .pts)
-through Open3D once :mod:`pcreg.cloud_files` has checked them, .npy through numpy, and a text file of columns
+"""Reading a point cloud from a file, by suffix: PLY, binary PCD and Open3D's text formats (.xyz, .xyzn, .xyzrgb,
+.pts) through Open3D once :mod:`pcreg.cloud_files` has checked them, ASCII PCD from its checked lines, .npy
+through numpy, and a text file of columns
 (.txt, .csv: what ``numpy.savetxt``, pycpd's, probreg's and libpointmatcher's data and most exports hold)
 through :func:`read_columns`. Whatever a reader would fill with zeros or skip is refused in one line naming the
 file (:class:`~pcreg.errors.InputError`)."""
@@ -10,10 +11,11 @@ import os
 import re
 import warnings
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
-from .cloud_files import _ASCII_NUMBER, check_cloud_file, check_npy_file
+from .cloud_files import _ASCII_NUMBER, PcdHeader, check_cloud_file, check_npy_file, pcd_header
 from .errors import InputError
 from .registration.api import check_cloud
 from .validation import check_point_count, max_pixels
@@ -52,7 +54,9 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     elif suffix in TEXT_COLUMN_SUFFIXES:
         pts = read_columns(path, limit)
     else:
-        pts = _read_open3d(path, suffix, limit)
+        header = pcd_header(path) if suffix == ".pcd" else None
+        pts = _read_pcd_ascii(path, header) if header is not None and header.data == "ascii" else \
+            _read_open3d(path, suffix, limit)
         if suffix == ".pcd":
             unmeasured = np.isnan(pts).all(axis=1)
             if unmeasured.all():
@@ -82,6 +86,42 @@ def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:
     if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
         _check_text_cloud(path, suffix, len(pts))
     return pts
+
+
+def _read_pcd_ascii(path: Path, header: PcdHeader) -> np.ndarray:
+    """The x, y, z of an ASCII PCD (its lines checked against its header by :mod:`pcreg.cloud_files`), read here:
+    Open3D's reader takes a line in pieces of 1,023 bytes (a point with a histogram of 125 numbers is read as
+    several, or none) and leaves the points it did not fill as its memory held them, and reads an integer field
+    (TYPE I or U) with C's ``strtol`` of base 0 (``010`` is 8, ``1.5`` is 1). An integer field that holds a
+    number with a fraction is refused."""
+    columns = [c for c in (header.column(axis) for axis in "xyz") if c is not None]
+    if len(columns) < 3:
+        raise InputError(f"{path}: PCD fields {' '.join(header.fields)} lack x, y or z")
+    try:
+        pts = _pcd_columns(path, header, columns, None)
+    except ValueError:  # nan(ind) and its kind, as C's printf writes a NaN on some systems
+        pts = _pcd_columns(path, header, columns, lambda word: float(word.split("(")[0]))
+    for k, axis in enumerate("xyz"):
+        kind = header.types[header.fields.index(axis)]
+        values = pts[:, k]
+        whole = np.isnan(values) | (values == np.round(values))
+        if kind != "F" and not whole.all():
+            row = int(np.flatnonzero(~whole)[0])
+            raise InputError(f"{path}: its field {axis} holds whole numbers (TYPE {kind}), point {row + 1} has "
+                             f"{axis} = {float(values[row])!r}")
+    return pts
+
+
+def _pcd_columns(path: Path, header: PcdHeader, columns: list[int],
+                 converter: Callable[[str], float] | None) -> np.ndarray:
+    """The ``columns`` of an ASCII PCD's data lines, split at newlines only (as its check and Open3D do: a CR is
+    white space between numbers)."""
+    with open(path, "rb") as fh, warnings.catch_warnings():  # blank lines are not counted in max_rows: no warning
+        warnings.simplefilter("ignore", UserWarning)
+        fh.seek(header.start)
+        lines = (line.decode("latin-1").replace("\r", " ") for line in fh)
+        return np.loadtxt(lines, dtype=np.float64, comments=None, usecols=columns, ndmin=2, max_rows=header.points,
+                          converters=converter)
 
 
 def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:

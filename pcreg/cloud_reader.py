@@ -7,6 +7,7 @@ file (:class:`~pcreg.errors.InputError`)."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import warnings
@@ -15,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from .cloud_files import _ASCII_NUMBER, PcdHeader, check_cloud_file, check_npy_file, pcd_header
+from .cloud_files import _ASCII_NUMBER, PcdHeader, _scan_rows, check_cloud_file, check_npy_file, pcd_header
 from .errors import InputError
 from .registration.api import check_cloud
 from .validation import check_point_count, max_pixels
@@ -125,19 +126,22 @@ def _pcd_columns(path: Path, header: PcdHeader, columns: list[int],
 
 
 def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
-    """Open3D skips the lines of a text cloud it cannot parse, silently: refuse a file where it did.
-    Every non-empty line is a point (``.pts``: after a first line with the point count)."""
-    first, count = None, 0
-    with open(path, "rb") as fh:
-        for line in fh:  # streamed: the file may be large
-            if line.strip():
-                first = line.strip() if first is None else first
-                count += 1
-    expected = count
-    if suffix == ".pts" and first is not None and first.isdigit():
-        expected = count - 1
-        if int(first) != expected:
-            raise InputError(f"{path}: the first line declares {int(first)} points, the file holds {expected} lines")
+    """Open3D reads a text cloud's line with C's ``sscanf``: it skips a line it cannot parse, and reads what a
+    line starts with (``3,5`` as 3, ``3abc`` as 3, ``0x10`` as 16). Refuse a file where it did either: every
+    non-empty line is a point of as many plain numbers as the first (``.pts``: after a first line with the point
+    count), and Open3D read as many points."""
+    with open(path, "rb") as fh:  # streamed: the file may be large
+        firsts = list(itertools.islice((line.strip() for line in fh if line.strip()), 2))
+    header = 1 if suffix == ".pts" and firsts and firsts[0].isdigit() else 0
+    width = len(firsts[header].split()) if len(firsts) > header else 1
+    count, bad = _scan_rows(path, 0, stop=1 << 62, rows=(header, 1 << 62), fields=width)
+    expected = count - header
+    if header and int(firsts[0]) != expected:
+        raise InputError(f"{path}: the first line declares {int(firsts[0])} points, the file holds {expected} lines")
+    if bad is not None:
+        number, line = bad
+        raise InputError(f"{path}: point line {number} ({line.decode('ascii', 'replace').strip()[:40]!r}) is not "
+                         f"{width} numbers, as the first is (damaged {suffix} file)")
     if n_read != expected:
         raise InputError(f"{path}: {expected - n_read} of {expected} lines are not points (damaged {suffix} file)")
 

@@ -5,6 +5,8 @@ is read as Open3D reads it where Open3D reads it right, and refused in one line 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -143,3 +145,16 @@ def test_header_spellings_open3d_misreads_are_one_line_and_exit_2(tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "Traceback" not in err[0], err
     assert f"{name}: " in err[0] and message in err[0], err
+
+
+@pytest.mark.parametrize("line, shown", [("100 200 3,5", "100 200 3,5"), ("1 2 3abc", "1 2 3abc"),
+                                         ("0x10 1 2", "0x10 1 2"), ("1 2 3 4", "1 2 3 4")])
+def test_a_text_cloud_line_open3d_reads_in_part_is_refused_naming_it(tmp_path, line, shown):
+    """Open3D reads an .xyz line with sscanf: ``100 200 3,5`` (a decimal comma) came back as (100, 200, 3),
+    ``3abc`` as 3 and ``0x10`` as 16, without a word; every line is now as many plain numbers as the first."""
+    path = tmp_path / "scan.xyz"
+    path.write_text("".join(f"{a} {b} {c}\n" for a, b, c in POINTS[:10]) + line + "\n")
+    with pytest.raises(InputError, match=f"scan.xyz: point line 11 \\('{re.escape(shown)}'\\) is not 3 numbers"):
+        load_cloud(path)
+    path.write_text("".join(f"{a} {b} {c} 10 20 30\n" for a, b, c in POINTS))  # colour columns after x y z
+    np.testing.assert_array_equal(load_cloud(path), POINTS.astype(np.float64))

@@ -444,7 +444,7 @@ LIBRARY = {
     "npy_unparsable_header": (_load_cloud("bad_header.npy"), "not a numpy array"),
     "npy_is_fifo": (_load_cloud("fifo.npy"), "not a regular file"),
     "xyz_coordinates_1e300": (_load_cloud("far.xyz"), "out of range"),
-    "xyz_lines_that_are_not_points": (_load_cloud("garbage.xyz"), "not points"),
+    "xyz_lines_that_are_not_points": (_load_cloud("garbage.xyz"), "point line 2 ('foo bar') is not 3 numbers"),
     "pts_count_mismatch": (_load_cloud("short.pts"), "declares 4 points"),
     "folder_two_images_one_frame": (lambda t: __import__("pcreg.datasets", fromlist=["x"]).load_folder(t / "twice"),
                                     "share a frame name"),

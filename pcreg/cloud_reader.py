@@ -155,6 +155,8 @@ def _open3d_warning(text: str) -> str:
 
 
 _NUMBER = re.compile(_ASCII_NUMBER)
+#: What a spreadsheet's "CSV UTF-8" export starts with (Excel's): no part of the first line's names or numbers.
+UTF8_BOM = b"\xef\xbb\xbf"
 
 
 def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarray:
@@ -175,9 +177,11 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
     try:  # numpy's parser: strict (no "1_0", no "1,0" between spaces), and many times faster than a loop here
         with warnings.catch_warnings():  # blank lines not counted in max_rows, no data: said here, not on stderr
             warnings.simplefilter("ignore", UserWarning)
-            data = np.loadtxt(path, dtype=np.float64, comments="#", delimiter=None if separator is None else
-                              separator.decode(), skiprows=line_number if columns else 0, ndmin=2, max_rows=lim + 1,
-                              encoding="latin-1")
+            with open(path, "rb") as fh:
+                fh.seek(len(UTF8_BOM) if fh.read(len(UTF8_BOM)) == UTF8_BOM else 0)
+                data = np.loadtxt(fh, dtype=np.float64, comments="#", delimiter=None if separator is None else
+                                  separator.decode(), skiprows=line_number if columns else 0, ndmin=2,
+                                  max_rows=lim + 1, encoding="latin-1")
     except ValueError as exc:
         _bad_line(path, separator, len(fields), line_number + (1 if columns else 0))
         raise InputError(f"{path}: cannot read its columns ({str(exc).split(';')[0][:120]})") from None
@@ -191,10 +195,11 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
 
 
 def _first_line(path: Path) -> tuple[bytes | None, int]:
-    """The first line that is neither blank nor a ``#`` comment, stripped, and its number (from 1)."""
+    """The first line that is neither blank nor a ``#`` comment, stripped (of a byte-order mark too), and its
+    number (from 1)."""
     with open(path, "rb") as fh:
         for number, raw in enumerate(fh, 1):
-            line = raw.strip()
+            line = (raw.removeprefix(UTF8_BOM) if number == 1 else raw).strip()
             if line and not line.startswith(b"#"):
                 return line, number
     return None, 0
@@ -208,7 +213,7 @@ def _bad_line(path: Path, separator: bytes | None, width: int, start: int) -> No
     """An :class:`InputError` naming the first line from line ``start`` on that is not ``width`` numbers."""
     with open(path, "rb") as fh:
         for number, raw in enumerate(fh, 1):
-            line = raw.strip()
+            line = (raw.removeprefix(UTF8_BOM) if number == 1 else raw).strip()
             if number < start or not line or line.startswith(b"#"):
                 continue
             fields = _split(line, separator)

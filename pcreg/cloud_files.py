@@ -368,10 +368,13 @@ def pcd_header(path: Path) -> PcdHeader:
             int(fields["WIDTH"][0]) * int(fields["HEIGHT"][0])
         sizes = [int(s) for s in fields["SIZE"]]
         counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
+        grid = (int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])) if "WIDTH" in fields and "HEIGHT" in fields else None
     except (KeyError, ValueError, IndexError, TypeError):
         raise InputError(f"{path}: damaged PCD header (POINTS, SIZE, COUNT)") from None
     if n <= 0:
         raise InputError(f"{path}: no points in the PCD header")
+    if grid is not None and grid[0] * grid[1] != n:  # PCL refuses it; Open3D takes the count of the later line
+        raise InputError(f"{path}: damaged PCD header: WIDTH {grid[0]} x HEIGHT {grid[1]} is not its POINTS {n}")
     if len(counts) != len(sizes) or any(s <= 0 for s in sizes) or any(c <= 0 for c in counts):
         raise InputError(f"{path}: damaged PCD header (SIZE and COUNT disagree)")
     types = [t.upper() for t in fields.get("TYPE", ["F"] * len(sizes))]

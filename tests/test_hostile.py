@@ -86,8 +86,8 @@ def _clouds_whose_lines_or_counts_lie(t):
     lines = pcd(200, "ascii").split(b"\n")  # 11 header lines, then the points
     (t / "short_line.pcd").write_bytes(b"\n".join(lines[:60] + [b"1.0 2.0"] + lines[61:]))
     (t / "comma.pcd").write_bytes(b"\n".join(lines[:60] + [b"1,0 2,0 3,0"] + lines[61:]))
-    (t / "count_low.pcd").write_bytes(pcd(200, "ascii").replace(b"POINTS 200", b"POINTS 150"))
-    (t / "count_low_bin.pcd").write_bytes(pcd(200).replace(b"POINTS 200", b"POINTS 150"))
+    (t / "count_low.pcd").write_bytes(pcd(200, "ascii").replace(b"POINTS 200", b"POINTS 150").replace(b"WIDTH 200", b"WIDTH 150"))
+    (t / "count_low_bin.pcd").write_bytes(pcd(200).replace(b"POINTS 200", b"POINTS 150").replace(b"WIDTH 200", b"WIDTH 150"))
     head, body = ply_ascii(50).split(b"end_header\n")
     (t / "four_values.ply").write_bytes(head + b"end_header\n" + body.replace(b"\n", b" 7.0\n"))  # 3 declared
     four = np.random.default_rng(5).normal(size=(50, 4)).astype("<f4")  # 16 bytes a vertex declared as 12

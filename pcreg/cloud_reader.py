@@ -133,6 +133,9 @@ def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
     with open(path, "rb") as fh:  # streamed: the file may be large
         firsts = list(itertools.islice((line.strip() for line in fh if line.strip()), 2))
     header = 1 if suffix == ".pts" and firsts and firsts[0].isdigit() else 0
+    if suffix == ".pts" and firsts and not header:  # Open3D read its number as the count: one point, or none
+        raise InputError(f"{path}: its first line ({firsts[0][:40].decode('ascii', 'replace')!r}) is not the point "
+                         "count a .pts file starts with")
     width = len(firsts[header].split()) if len(firsts) > header else 1
     count, bad = _scan_rows(path, 0, stop=1 << 62, rows=(header, 1 << 62), fields=width)
     expected = count - header

@@ -161,3 +161,14 @@ def test_a_text_cloud_line_open3d_reads_in_part_is_refused_naming_it(tmp_path, l
         load_cloud(path)
     path.write_text("".join(f"{a} {b} {c} 10 20 30\n" for a, b, c in POINTS))  # colour columns after x y z
     np.testing.assert_array_equal(load_cloud(path), POINTS.astype(np.float64))
+
+
+def test_a_pts_cloud_without_its_count_line_is_refused_saying_so(tmp_path):
+    """Open3D read the first point's x as the count of a .pts file without one: one point, said as '19 of 20
+    lines are not points'."""
+    rows = "".join(f"{a} {b} {c} 10 20 30\n" for a, b, c in POINTS)
+    (tmp_path / "counted.pts").write_text(f"{len(POINTS)}\n" + rows)
+    np.testing.assert_array_equal(load_cloud(tmp_path / "counted.pts"), POINTS.astype(np.float64))
+    (tmp_path / "bare.pts").write_text(rows)
+    with pytest.raises(InputError, match="bare.pts: its first line \\('1.83.*'\\) is not the point count a .pts file"):
+        load_cloud(tmp_path / "bare.pts")

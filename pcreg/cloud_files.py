@@ -308,7 +308,7 @@ def _holds_data(path: Path, start: int) -> bool:
 
 #: The keywords of a PCD header, in the order PCL writes them. PCL's and Open3D's readers match them in upper
 #: case only: a line that spells one otherwise is skipped, so that ``data ascii`` never ends the header.
-PCD_KEYWORDS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
+PCD_KEYWORDS = ("VERSION", "FIELDS", "COLUMNS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
 
 
 @dataclass(frozen=True)
@@ -384,7 +384,8 @@ def pcd_header(path: Path) -> PcdHeader:
                          f"{' '.join(map(str, sizes))}: F takes 4 or 8 bytes, I and U 1, 2, 4 or 8)")
     if data_kind not in ("ascii", "binary", "binary_compressed"):  # PCL and Open3D read any other as ASCII
         raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r} (ascii, binary or binary_compressed)")
-    return PcdHeader(n, tuple(fields.get("FIELDS", [])), tuple(sizes), tuple(types), tuple(counts), data_kind, pos,
+    names = fields.get("FIELDS", fields.get("COLUMNS", []))  # COLUMNS: the word of PCD v0.5 (PCL reads both)
+    return PcdHeader(n, tuple(names), tuple(sizes), tuple(types), tuple(counts), data_kind, pos,
                      tuple(order))
 
 

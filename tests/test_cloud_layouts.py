@@ -67,7 +67,12 @@ def _spaced():
     return pcd("ascii").replace(b"FIELDS x y z", b"FIELDS\tx  y\tz ") + body
 
 
-LAYOUTS = {"xyzrgb": _xyzrgb, "fpfh_before_zyx": _fpfh, "rgba_padded": _rgba_padded, "int16": _int16,
+def _v05_columns():
+    head = pcd("ascii").replace(b"FIELDS", b"COLUMNS").replace(b"VERSION 0.7", b"VERSION .5")
+    return head.replace(b"VIEWPOINT 0 0 0 1 0 0 0\n", b"") + lines(POINTS)
+
+
+LAYOUTS = {"v05_columns": _v05_columns, "xyzrgb": _xyzrgb, "fpfh_before_zyx": _fpfh, "rgba_padded": _rgba_padded, "int16": _int16,
            "organised_viewpoint_crlf": _organised, "spaced_exponents": _spaced}
 
 

@@ -385,6 +385,8 @@ def pcd_header(path: Path) -> PcdHeader:
     if data_kind not in ("ascii", "binary", "binary_compressed"):  # PCL and Open3D read any other as ASCII
         raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r} (ascii, binary or binary_compressed)")
     names = fields.get("FIELDS", fields.get("COLUMNS", []))  # COLUMNS: the word of PCD v0.5 (PCL reads both)
+    if len(names) != len(sizes):  # PCL and Open3D refuse it
+        raise InputError(f"{path}: damaged PCD header (FIELDS names {len(names)} fields, SIZE gives {len(sizes)})")
     return PcdHeader(n, tuple(names), tuple(sizes), tuple(types), tuple(counts), data_kind, pos,
                      tuple(order))
 

@@ -137,6 +137,8 @@ HOSTILE = {
                             "its keyword must be upper case, DATA"),
     "upper_case_binary.pcd": (lambda: pcd("BINARY") + POINTS.tobytes(), "unknown PCD DATA kind 'BINARY'"),
     # Open3D places the fields of a binary PCD by the SIZE line alone when COUNT comes before it
+    "fields_more_than_sizes.pcd": (lambda: pcd("ascii", fields="w x y z") + lines(POINTS),
+                                   "damaged PCD header (FIELDS names 4 fields, SIZE gives 3)"),
     "count_before_size.pcd": (_count_before_size, "its COUNT line comes before SIZE"),
     # PCL refuses WIDTH x HEIGHT other than POINTS; Open3D read the count of the later line (here 25 of 50 points)
     "points_before_width.pcd": (lambda: pcd("binary").replace(b"POINTS 50\n", b"").replace(b"WIDTH 50", b"POINTS 50\nWIDTH 25")

@@ -71,6 +71,9 @@ def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:
 
     from .quiet import capture_output_fds
 
+    text = suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts")
+    expected = _check_text_cloud(path, suffix, limit) if text else 0  # before Open3D reserves a .pts's count
+
     with capture_output_fds() as said:  # Open3D prints its warnings on stdout (fd 1)
         try:
             pcd = o3d.io.read_point_cloud(str(path), format="auto", remove_nan_points=False,
@@ -84,8 +87,8 @@ def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:
     if pts.size == 0:
         raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
     check_point_count(len(pts), str(path), limit=limit)
-    if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
-        _check_text_cloud(path, suffix, len(pts))
+    if text and len(pts) != expected:
+        raise InputError(f"{path}: {expected - len(pts)} of {expected} lines are not points (damaged {suffix} file)")
     return pts
 
 
@@ -125,11 +128,12 @@ def _pcd_columns(path: Path, header: PcdHeader, columns: list[int],
                           converters=converter)
 
 
-def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
-    """Open3D reads a text cloud's line with C's ``sscanf``: it skips a line it cannot parse, and reads what a
-    line starts with (``3,5`` as 3, ``3abc`` as 3, ``0x10`` as 16). Refuse a file where it did either: every
-    non-empty line is a point of as many plain numbers as the first (``.pts``: after a first line with the point
-    count), and Open3D read as many points."""
+def _check_text_cloud(path: Path, suffix: str, limit: int) -> int:
+    """How many points a text cloud holds, checked before Open3D reads it: Open3D reads a line with C's
+    ``sscanf``, skipping a line it cannot parse and reading what a line starts with (``3,5`` as 3, ``3abc`` as
+    3, ``0x10`` as 16), and reserves the points a .pts file's first line declares (a count of 20 million in a
+    file of three lines took 800 MB). Every non-empty line is a point of as many plain numbers as the first
+    (``.pts``: after a first line with the point count, which must be theirs); else an :class:`InputError`."""
     with open(path, "rb") as fh:  # streamed: the file may be large
         firsts = list(itertools.islice((line.strip() for line in fh if line.strip()), 2))
     header = 1 if suffix == ".pts" and firsts and firsts[0].isdigit() else 0
@@ -143,10 +147,14 @@ def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
         raise InputError(f"{path}: the first line declares {int(firsts[0])} points, the file holds {expected} lines")
     if bad is not None:
         number, line = bad
-        raise InputError(f"{path}: point line {number} ({line.decode('ascii', 'replace').strip()[:40]!r}) is not "
-                         f"{width} numbers, as the first is (damaged {suffix} file)")
-    if n_read != expected:
-        raise InputError(f"{path}: {expected - n_read} of {expected} lines are not points (damaged {suffix} file)")
+        text = line.decode("ascii", "replace").strip()[:40]
+        if number == 1:
+            raise InputError(f"{path}: its first point line ({text!r}) is not numbers between white space "
+                             f"(damaged {suffix} file)")
+        raise InputError(f"{path}: point line {number} ({text!r}) is not {width} numbers, as the first is "
+                         f"(damaged {suffix} file)")
+    check_point_count(expected, str(path), limit=limit)
+    return expected
 
 
 def _open3d_warning(text: str) -> str:

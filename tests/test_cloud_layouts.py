@@ -179,3 +179,19 @@ def test_a_pts_cloud_without_its_count_line_is_refused_saying_so(tmp_path):
     (tmp_path / "bare.pts").write_text(rows)
     with pytest.raises(InputError, match="bare.pts: its first line \\('1.83.*'\\) is not the point count a .pts file"):
         load_cloud(tmp_path / "bare.pts")
+
+
+def test_a_pts_count_is_checked_before_open3d_reserves_it(tmp_path, monkeypatch):
+    """Open3D reserved the points a .pts file's first line declares before reading them: a count of 20 million
+    in a file of three lines took 800 MB, and came back as 20 million points, all but two at the origin."""
+    (tmp_path / "lying.pts").write_text("20000000\n1 2 3\n4 5 6\n")
+
+    def read(*args, **kwargs):
+        raise AssertionError("the count reached Open3D's reader")
+
+    monkeypatch.setattr(o3d.io, "read_point_cloud", read)
+    with pytest.raises(InputError, match="lying.pts: the first line declares 20000000 points, the file holds 2 lines"):
+        load_cloud(tmp_path / "lying.pts")
+    (tmp_path / "comma.xyz").write_text("1,2,3\n4,5,6\n")
+    with pytest.raises(InputError, match="comma.xyz: its first point line \\('1,2,3'\\) is not numbers between"):
+        load_cloud(tmp_path / "comma.xyz")

@@ -11,6 +11,7 @@ import os
 import re
 import struct
 import tokenize
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -80,6 +81,13 @@ def _ply_header(path: Path) -> tuple[str, list[list], int]:
                 raise InputError(f"{path}: bad PLY property line {raw.strip()!r}")
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(f"{path}: unknown PLY format {fmt!r}")
+    rply = end.start() + len(b"end_header") + (2 if head.startswith(b"ply\r\n") else 1)
+    if fmt != "ascii" and rply != j + 1:  # RPly's data starts one byte after end_header (two after a first ply\r\n)
+        ending = head[end.start() + len(b"end_header"):j + 1].decode("ascii", "replace")
+        raise InputError(f"{path}: its end_header line ends in {ending!r}, its first line in "
+                         f"{head[3:head.find(bytes([10])) + 1].decode('ascii', 'replace')!r}: Open3D's reader takes "
+                         "them to end alike and would read the binary data from the wrong byte (end every header "
+                         "line alike, without trailing blanks)")
     return fmt, elements, j + 1
 
 
@@ -298,22 +306,61 @@ def _holds_data(path: Path, start: int) -> bool:
     return False
 
 
-def _pcd_check(path: Path, size: int, limit: int) -> int:
+#: The keywords of a PCD header, in the order PCL writes them. PCL's and Open3D's readers match them in upper
+#: case only: a line that spells one otherwise is skipped, so that ``data ascii`` never ends the header.
+PCD_KEYWORDS = ("VERSION", "FIELDS", "COLUMNS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
+
+
+@dataclass(frozen=True)
+class PcdHeader:
+    """What a PCD's header declares: its ``points``, the ``fields`` with their ``sizes``, ``types`` (upper
+    case) and ``counts``, the ``data`` kind (``ascii``, ``binary`` or ``binary_compressed``), where its data
+    starts (``start``, bytes) and the order of its keyword lines (``keywords``)."""
+
+    points: int
+    fields: tuple[str, ...]
+    sizes: tuple[int, ...]
+    types: tuple[str, ...]
+    counts: tuple[int, ...]
+    data: str
+    start: int
+    keywords: tuple[str, ...]
+
+    def column(self, name: str) -> int | None:
+        """The first number of field ``name`` among an ASCII line's numbers, or None (no such field)."""
+        if name not in self.fields:
+            return None
+        return sum(self.counts[:self.fields.index(name)])
+
+
+def _pcd_lines(path: Path) -> tuple[dict[str, list[str]], list[str], str | None, int]:
+    """The keyword lines of a PCD's header (``{keyword: words}``, the keywords in order), its DATA kind as
+    written (None: no DATA line) and where its data starts."""
     with open(path, "rb") as fh:
         head = fh.read(1 << 16)
     fields: dict[str, list[str]] = {}
+    order: list[str] = []
     pos = 0
-    data_kind = None
     for line in head.split(b"\n"):
         pos += len(line) + 1
         text = line.decode("ascii", "replace").strip()
         if not text or text.startswith("#"):
             continue
         t = text.split()
-        fields[t[0].upper()] = t[1:]
-        if t[0].upper() == "DATA":
-            data_kind = t[1].lower() if len(t) > 1 else None
-            break
+        if t[0] != t[0].upper() and t[0].upper() in PCD_KEYWORDS:
+            raise InputError(f"{path}: PCD header line {text[:40]!r}: its keyword must be upper case, "
+                             f"{t[0].upper()} (PCL's and Open3D's readers pass over it)")
+        fields[t[0]] = t[1:]
+        order.append(t[0])
+        if t[0] == "DATA":
+            return fields, order, t[1] if len(t) > 1 else "", pos
+    return fields, order, None, pos
+
+
+def pcd_header(path: Path) -> PcdHeader:
+    """The header of the PCD at ``path``, its numbers parsed and consistent, or an :class:`InputError` naming
+    the file (no DATA line, numbers that are not, SIZE and COUNT of other lengths, a TYPE of no size)."""
+    fields, order, data_kind, pos = _pcd_lines(path)
     if data_kind is None:
         raise InputError(f"{path}: PCD header without a DATA line")
     try:
@@ -321,11 +368,13 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
             int(fields["WIDTH"][0]) * int(fields["HEIGHT"][0])
         sizes = [int(s) for s in fields["SIZE"]]
         counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
+        grid = (int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])) if "WIDTH" in fields and "HEIGHT" in fields else None
     except (KeyError, ValueError, IndexError, TypeError):
         raise InputError(f"{path}: damaged PCD header (POINTS, SIZE, COUNT)") from None
     if n <= 0:
         raise InputError(f"{path}: no points in the PCD header")
-    check_point_count(n, str(path), limit=limit)
+    if grid is not None and grid[0] * grid[1] != n:  # PCL refuses it; Open3D takes the count of the later line
+        raise InputError(f"{path}: damaged PCD header: WIDTH {grid[0]} x HEIGHT {grid[1]} is not its POINTS {n}")
     if len(counts) != len(sizes) or any(s <= 0 for s in sizes) or any(c <= 0 for c in counts):
         raise InputError(f"{path}: damaged PCD header (SIZE and COUNT disagree)")
     types = [t.upper() for t in fields.get("TYPE", ["F"] * len(sizes))]
@@ -333,13 +382,31 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
             or any(s not in ((4, 8) if t == "F" else (1, 2, 4, 8)) for s, t in zip(sizes, types)):
         raise InputError(f"{path}: damaged PCD header (TYPE {' '.join(types)} with SIZE "
                          f"{' '.join(map(str, sizes))}: F takes 4 or 8 bytes, I and U 1, 2, 4 or 8)")
+    if data_kind not in ("ascii", "binary", "binary_compressed"):  # PCL and Open3D read any other as ASCII
+        raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r} (ascii, binary or binary_compressed)")
+    names = fields.get("FIELDS", fields.get("COLUMNS", []))  # COLUMNS: the word of PCD v0.5 (PCL reads both)
+    if len(names) != len(sizes):  # PCL and Open3D refuse it
+        raise InputError(f"{path}: damaged PCD header (FIELDS names {len(names)} fields, SIZE gives {len(sizes)})")
+    return PcdHeader(n, tuple(names), tuple(sizes), tuple(types), tuple(counts), data_kind, pos,
+                     tuple(order))
+
+
+def _pcd_check(path: Path, size: int, limit: int) -> int:
+    h = pcd_header(path)
+    n, sizes, counts, data_kind, pos = h.points, h.sizes, h.counts, h.data, h.start
+    check_point_count(n, str(path), limit=limit)
     point_bytes = sum(s * c for s, c in zip(sizes, counts))
     have = size - pos
-    coords = [sizes[i] for i, f in enumerate(fields.get("FIELDS", [])[:len(sizes)]) if f.lower() in ("x", "y", "z")]
+    coords = [sizes[i] for i, f in enumerate(h.fields[:len(sizes)]) if f.lower() in ("x", "y", "z")]
     if data_kind in ("binary", "binary_compressed") and 8 in coords:
         # Open3D reads 8-byte (double) coordinates of a binary PCD as zeros, without a word
         raise InputError(f"{path}: a binary PCD whose x, y, z are 8-byte numbers is not read correctly "
                          "(its points come out as zeros); save it with 4-byte floats, as ASCII PCD, PLY or .npy")
+    late = data_kind != "ascii" and "COUNT" in h.keywords and h.keywords.index("COUNT") < h.keywords.index("SIZE")
+    if late and max(counts) > 1:  # Open3D places the fields by the SIZE line alone when it comes last
+        raise InputError(f"{path}: its COUNT line comes before SIZE, and a field holds {max(counts)} numbers: "
+                         "Open3D's reader would take the fields' bytes from the wrong places (write SIZE first, "
+                         "as PCL does)")
     if data_kind == "ascii":
         lines, bad = _scan_rows(path, pos, stop=n + 1, rows=(0, n), fields=sum(counts))
         if bad is not None:
@@ -369,8 +436,6 @@ def _pcd_check(path: Path, size: int, limit: int) -> int:
             raise InputError(f"{path}: damaged compressed PCD: its block of {comp} bytes cannot unpack to the {raw} "
                              f"bytes ({n} points) its header declares (LZF unpacks a byte to {LZF_MOST_UNPACKED} at "
                              "most)")
-    else:
-        raise InputError(f"{path}: unknown PCD DATA kind {data_kind!r}")
     return n
 
 

@@ -1,19 +1,22 @@
-"""Reading a point cloud from a file, by suffix: PLY, PCD and Open3D's text formats (.xyz, .xyzn, .xyzrgb, .pts)
-through Open3D once :mod:`pcreg.cloud_files` has checked them, .npy through numpy, and a text file of columns
+"""Reading a point cloud from a file, by suffix: PLY, binary PCD and Open3D's text formats (.xyz, .xyzn, .xyzrgb,
+.pts) through Open3D once :mod:`pcreg.cloud_files` has checked them, ASCII PCD from its checked lines, .npy
+through numpy, and a text file of columns
 (.txt, .csv: what ``numpy.savetxt``, pycpd's, probreg's and libpointmatcher's data and most exports hold)
 through :func:`read_columns`. Whatever a reader would fill with zeros or skip is refused in one line naming the
 file (:class:`~pcreg.errors.InputError`)."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import warnings
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
-from .cloud_files import _ASCII_NUMBER, check_cloud_file, check_npy_file
+from .cloud_files import _ASCII_NUMBER, PcdHeader, _scan_rows, check_cloud_file, check_npy_file, pcd_header
 from .errors import InputError
 from .registration.api import check_cloud
 from .validation import check_point_count, max_pixels
@@ -52,7 +55,9 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     elif suffix in TEXT_COLUMN_SUFFIXES:
         pts = read_columns(path, limit)
     else:
-        pts = _read_open3d(path, suffix, limit)
+        header = pcd_header(path) if suffix == ".pcd" else None
+        pts = _read_pcd_ascii(path, header) if header is not None and header.data == "ascii" else \
+            _read_open3d(path, suffix, limit)
         if suffix == ".pcd":
             unmeasured = np.isnan(pts).all(axis=1)
             if unmeasured.all():
@@ -65,6 +70,9 @@ def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:
     import open3d as o3d
 
     from .quiet import capture_output_fds
+
+    text = suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts")
+    expected = _check_text_cloud(path, suffix, limit) if text else 0  # before Open3D reserves a .pts's count
 
     with capture_output_fds() as said:  # Open3D prints its warnings on stdout (fd 1)
         try:
@@ -79,27 +87,74 @@ def _read_open3d(path: Path, suffix: str, limit: int) -> np.ndarray:
     if pts.size == 0:
         raise InputError(f"{path}: no points could be read (empty or not a {suffix} point cloud)")
     check_point_count(len(pts), str(path), limit=limit)
-    if suffix in (".xyz", ".xyzn", ".xyzrgb", ".pts"):
-        _check_text_cloud(path, suffix, len(pts))
+    if text and len(pts) != expected:
+        raise InputError(f"{path}: {expected - len(pts)} of {expected} lines are not points (damaged {suffix} file)")
     return pts
 
 
-def _check_text_cloud(path: Path, suffix: str, n_read: int) -> None:
-    """Open3D skips the lines of a text cloud it cannot parse, silently: refuse a file where it did.
-    Every non-empty line is a point (``.pts``: after a first line with the point count)."""
-    first, count = None, 0
-    with open(path, "rb") as fh:
-        for line in fh:  # streamed: the file may be large
-            if line.strip():
-                first = line.strip() if first is None else first
-                count += 1
-    expected = count
-    if suffix == ".pts" and first is not None and first.isdigit():
-        expected = count - 1
-        if int(first) != expected:
-            raise InputError(f"{path}: the first line declares {int(first)} points, the file holds {expected} lines")
-    if n_read != expected:
-        raise InputError(f"{path}: {expected - n_read} of {expected} lines are not points (damaged {suffix} file)")
+def _read_pcd_ascii(path: Path, header: PcdHeader) -> np.ndarray:
+    """The x, y, z of an ASCII PCD (its lines checked against its header by :mod:`pcreg.cloud_files`), read here:
+    Open3D's reader takes a line in pieces of 1,023 bytes (a point with a histogram of 125 numbers is read as
+    several, or none) and leaves the points it did not fill as its memory held them, and reads an integer field
+    (TYPE I or U) with C's ``strtol`` of base 0 (``010`` is 8, ``1.5`` is 1). An integer field that holds a
+    number with a fraction is refused."""
+    columns = [c for c in (header.column(axis) for axis in "xyz") if c is not None]
+    if len(columns) < 3:
+        raise InputError(f"{path}: PCD fields {' '.join(header.fields)} lack x, y or z")
+    try:
+        pts = _pcd_columns(path, header, columns, None)
+    except ValueError:  # nan(ind) and its kind, as C's printf writes a NaN on some systems
+        pts = _pcd_columns(path, header, columns, lambda word: float(word.split("(")[0]))
+    for k, axis in enumerate("xyz"):
+        kind = header.types[header.fields.index(axis)]
+        values = pts[:, k]
+        whole = np.isnan(values) | (values == np.round(values))
+        if kind != "F" and not whole.all():
+            row = int(np.flatnonzero(~whole)[0])
+            raise InputError(f"{path}: its field {axis} holds whole numbers (TYPE {kind}), point {row + 1} has "
+                             f"{axis} = {float(values[row])!r}")
+    return pts
+
+
+def _pcd_columns(path: Path, header: PcdHeader, columns: list[int],
+                 converter: Callable[[str], float] | None) -> np.ndarray:
+    """The ``columns`` of an ASCII PCD's data lines, split at newlines only (as its check and Open3D do: a CR is
+    white space between numbers)."""
+    with open(path, "rb") as fh, warnings.catch_warnings():  # blank lines are not counted in max_rows: no warning
+        warnings.simplefilter("ignore", UserWarning)
+        fh.seek(header.start)
+        lines = (line.decode("latin-1").replace("\r", " ") for line in fh)
+        return np.loadtxt(lines, dtype=np.float64, comments=None, usecols=columns, ndmin=2, max_rows=header.points,
+                          converters=converter)
+
+
+def _check_text_cloud(path: Path, suffix: str, limit: int) -> int:
+    """How many points a text cloud holds, checked before Open3D reads it: Open3D reads a line with C's
+    ``sscanf``, skipping a line it cannot parse and reading what a line starts with (``3,5`` as 3, ``3abc`` as
+    3, ``0x10`` as 16), and reserves the points a .pts file's first line declares (a count of 20 million in a
+    file of three lines took 800 MB). Every non-empty line is a point of as many plain numbers as the first
+    (``.pts``: after a first line with the point count, which must be theirs); else an :class:`InputError`."""
+    with open(path, "rb") as fh:  # streamed: the file may be large
+        firsts = list(itertools.islice((line.strip() for line in fh if line.strip()), 2))
+    header = 1 if suffix == ".pts" and firsts and firsts[0].isdigit() else 0
+    if suffix == ".pts" and firsts and not header:  # Open3D read its number as the count: one point, or none
+        raise InputError(f"{path}: its first line ({firsts[0][:40].decode('ascii', 'replace')!r}) is not the point "
+                         "count a .pts file starts with")
+    width = len(firsts[header].split()) if len(firsts) > header else 1
+    count, bad = _scan_rows(path, 0, stop=1 << 62, rows=(header, 1 << 62), fields=width)
+    expected = count - header
+    if header and int(firsts[0]) != expected:
+        raise InputError(f"{path}: the first line declares {int(firsts[0])} points, the file holds {expected} lines")
+    if bad is not None:
+        number, line = bad
+        text = line.decode("ascii", "replace").strip()[:40]
+        if number == 1:
+            raise InputError(f"{path}: its first point line ({text!r}) is not numbers between white space "
+                             f"(damaged {suffix} file)")
+        raise InputError(f"{path}: point line {number} ({text!r}) is not {width} numbers, as the first is "
+                         f"(damaged {suffix} file)")
+    check_point_count(expected, str(path), limit=limit)
+    return expected
 
 
 def _open3d_warning(text: str) -> str:
@@ -111,6 +166,8 @@ def _open3d_warning(text: str) -> str:
 
 
 _NUMBER = re.compile(_ASCII_NUMBER)
+#: What a spreadsheet's "CSV UTF-8" export starts with (Excel's): no part of the first line's names or numbers.
+UTF8_BOM = b"\xef\xbb\xbf"
 
 
 def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarray:
@@ -131,9 +188,11 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
     try:  # numpy's parser: strict (no "1_0", no "1,0" between spaces), and many times faster than a loop here
         with warnings.catch_warnings():  # blank lines not counted in max_rows, no data: said here, not on stderr
             warnings.simplefilter("ignore", UserWarning)
-            data = np.loadtxt(path, dtype=np.float64, comments="#", delimiter=None if separator is None else
-                              separator.decode(), skiprows=line_number if columns else 0, ndmin=2, max_rows=lim + 1,
-                              encoding="latin-1")
+            with open(path, "rb") as fh:
+                fh.seek(len(UTF8_BOM) if fh.read(len(UTF8_BOM)) == UTF8_BOM else 0)
+                data = np.loadtxt(fh, dtype=np.float64, comments="#", delimiter=None if separator is None else
+                                  separator.decode(), skiprows=line_number if columns else 0, ndmin=2,
+                                  max_rows=lim + 1, encoding="latin-1")
     except ValueError as exc:
         _bad_line(path, separator, len(fields), line_number + (1 if columns else 0))
         raise InputError(f"{path}: cannot read its columns ({str(exc).split(';')[0][:120]})") from None
@@ -147,10 +206,11 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
 
 
 def _first_line(path: Path) -> tuple[bytes | None, int]:
-    """The first line that is neither blank nor a ``#`` comment, stripped, and its number (from 1)."""
+    """The first line that is neither blank nor a ``#`` comment, stripped (of a byte-order mark too), and its
+    number (from 1)."""
     with open(path, "rb") as fh:
         for number, raw in enumerate(fh, 1):
-            line = raw.strip()
+            line = (raw.removeprefix(UTF8_BOM) if number == 1 else raw).strip()
             if line and not line.startswith(b"#"):
                 return line, number
     return None, 0
@@ -164,7 +224,7 @@ def _bad_line(path: Path, separator: bytes | None, width: int, start: int) -> No
     """An :class:`InputError` naming the first line from line ``start`` on that is not ``width`` numbers."""
     with open(path, "rb") as fh:
         for number, raw in enumerate(fh, 1):
-            line = raw.strip()
+            line = (raw.removeprefix(UTF8_BOM) if number == 1 else raw).strip()
             if number < start or not line or line.startswith(b"#"):
                 continue
             fields = _split(line, separator)

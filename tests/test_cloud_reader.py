@@ -42,6 +42,18 @@ def test_a_first_line_of_names_says_which_columns_are_x_y_z(tmp_path, pts):
     np.testing.assert_array_equal(load_cloud(tmp_path / "xy.csv"), pts[:, :2])
 
 
+def test_a_csv_that_starts_with_a_byte_order_mark_is_read(tmp_path, pts):
+    """A spreadsheet's "CSV UTF-8" export (Excel's) starts with the bytes EF BB BF: its first line was taken for
+    names that name no x and y ('\ufffd\ufffd\ufffdx,y,z'), a first line of numbers too."""
+    rows = "".join(f"{a},{b},{c}\r\n" for a, b, c in pts)
+    for name, text in (("names.csv", "X,Y,Z\r\n" + rows), ("numbers.csv", rows)):
+        (tmp_path / name).write_bytes(b"\xef\xbb\xbf" + text.encode())
+        np.testing.assert_array_equal(load_cloud(tmp_path / name), pts)
+    (tmp_path / "bad.csv").write_bytes(b"\xef\xbb\xbf1,2,3\n4,5\n")
+    with pytest.raises(InputError, match="bad.csv: line 2 \\('4,5'\\) is not 3 numbers"):
+        load_cloud(tmp_path / "bad.csv")
+
+
 @pytest.mark.parametrize("text, match", [
     ("1 2 3\n4 5\n6 7 8\n", r"line 2 \('4 5'\) is not 3 numbers"),
     ("1 2 3\n4 5 6 7\n", r"line 2 \('4 5 6 7'\) is not 3 numbers"),

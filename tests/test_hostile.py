@@ -86,8 +86,8 @@ def _clouds_whose_lines_or_counts_lie(t):
     lines = pcd(200, "ascii").split(b"\n")  # 11 header lines, then the points
     (t / "short_line.pcd").write_bytes(b"\n".join(lines[:60] + [b"1.0 2.0"] + lines[61:]))
     (t / "comma.pcd").write_bytes(b"\n".join(lines[:60] + [b"1,0 2,0 3,0"] + lines[61:]))
-    (t / "count_low.pcd").write_bytes(pcd(200, "ascii").replace(b"POINTS 200", b"POINTS 150"))
-    (t / "count_low_bin.pcd").write_bytes(pcd(200).replace(b"POINTS 200", b"POINTS 150"))
+    (t / "count_low.pcd").write_bytes(pcd(200, "ascii").replace(b"POINTS 200", b"POINTS 150").replace(b"WIDTH 200", b"WIDTH 150"))
+    (t / "count_low_bin.pcd").write_bytes(pcd(200).replace(b"POINTS 200", b"POINTS 150").replace(b"WIDTH 200", b"WIDTH 150"))
     head, body = ply_ascii(50).split(b"end_header\n")
     (t / "four_values.ply").write_bytes(head + b"end_header\n" + body.replace(b"\n", b" 7.0\n"))  # 3 declared
     four = np.random.default_rng(5).normal(size=(50, 4)).astype("<f4")  # 16 bytes a vertex declared as 12
@@ -444,7 +444,7 @@ LIBRARY = {
     "npy_unparsable_header": (_load_cloud("bad_header.npy"), "not a numpy array"),
     "npy_is_fifo": (_load_cloud("fifo.npy"), "not a regular file"),
     "xyz_coordinates_1e300": (_load_cloud("far.xyz"), "out of range"),
-    "xyz_lines_that_are_not_points": (_load_cloud("garbage.xyz"), "not points"),
+    "xyz_lines_that_are_not_points": (_load_cloud("garbage.xyz"), "point line 2 ('foo bar') is not 3 numbers"),
     "pts_count_mismatch": (_load_cloud("short.pts"), "declares 4 points"),
     "folder_two_images_one_frame": (lambda t: __import__("pcreg.datasets", fromlist=["x"]).load_folder(t / "twice"),
                                     "share a frame name"),

@@ -82,10 +82,13 @@ class PyramidConfig:
     def check_shape(self, shape: tuple[int, ...], name: str = "images") -> None:
         """Refuse images of ``shape`` too small for the levels: the coarsest under 8 px a side (``name``: which
         image, for the message)."""
-        if min(shape[:2]) >> (self.levels - 1) < 8:
+        side = min(shape[:2])
+        if side >> (self.levels - 1) < 8:
             said = "images are" if name == "images" else f"{name} ({shape[1]}x{shape[0]}) is"
+            fits = max((n for n in range(1, self.levels) if side >> (n - 1) >= 8), default=0)
+            hint = f"; {fits} level{'s' * (fits > 1)} take{'s' * (fits == 1)} it: levels={fits}, --levels {fits}" if fits else ""
             raise InputError(f"{said} too small for {self.levels} pyramid levels (the shorter side needs at least "
-                             f"{8 << (self.levels - 1)} px)")
+                             f"{8 << (self.levels - 1)} px{hint})")
 
 
 @dataclass(frozen=True)

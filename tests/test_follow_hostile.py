@@ -1,0 +1,39 @@
+"""Hostile sequences for ``pcreg run --follow object``: key masks the follower cannot take are refused in one
+line naming the file, before anything is written."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from pcreg.errors import InputError
+from pcreg.pipeline.follow import ObjectFollower
+from _runs import one_line_errors
+from test_follow_objects import moving_object
+
+
+@pytest.mark.parametrize("pixels", [1, 4])
+def test_a_key_object_too_small_for_the_working_size_is_refused(tmp_path, capsys, pixels):
+    # a few px at the frames' size cover no pixel at half size: every frame read 'no object' at confidence 1
+    pairs = moving_object(3)
+    key = np.zeros_like(pairs[0][1])
+    side = 2 if pixels == 4 else 1
+    key[61:61 + side, 71:71 + side] = 1  # across half-size pixels: a quarter of each
+    with pytest.raises(InputError, match=f"object \\({pixels} px\\) covers no pixel .* too small to follow"):
+        ObjectFollower.from_key_frame(pairs[0][0], key)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, (img, _) in enumerate(pairs):
+        cv2.imwrite(str(folder / f"f{i}.png"), img[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "key.png"), key)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(tmp_path / "key.png"), "--follow", "object",
+                 "--out", str(out)]) == 2
+    lines = one_line_errors(capsys)
+    assert len(lines) == 1 and str(tmp_path / "key.png") in lines[0] and "too small to follow" in lines[0]
+    assert not out.exists()
+    big = key.copy()
+    big[60:64, 70:74] = 1  # 16 px: 4 at half size, followed
+    assert ObjectFollower.from_key_frame(pairs[0][0], big).step(pairs[1][0]).shape == key.shape

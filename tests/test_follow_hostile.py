@@ -10,6 +10,7 @@ import pytest
 from pcreg.cli import main
 from pcreg.errors import InputError
 from pcreg.pipeline.follow import ObjectFollower
+from _davis import write_pcreg_layout
 from _runs import one_line_errors
 from test_follow_objects import moving_object
 
@@ -34,6 +35,12 @@ def test_a_key_object_too_small_for_the_working_size_is_refused(tmp_path, capsys
     lines = one_line_errors(capsys)
     assert len(lines) == 1 and str(tmp_path / "key.png") in lines[0] and "too small to follow" in lines[0]
     assert not out.exists()
+    seq = tmp_path / "davis" / "speck"  # the evaluation names the clip
+    write_pcreg_layout(seq, [(img[:, :, ::-1], 255 * (key if i == 0 else truth)) for i, (img, truth) in enumerate(pairs)])
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "pcreg_object",
+                 "--out", str(tmp_path / "ev")]) == 2
+    lines = one_line_errors(capsys)
+    assert len(lines) == 1 and "clip speck:" in lines[0] and "too small to follow" in lines[0]
     big = key.copy()
     big[60:64, 70:74] = 1  # 16 px: 4 at half size, followed
     assert ObjectFollower.from_key_frame(pairs[0][0], big).step(pairs[1][0]).shape == key.shape

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from ..recording.interface import RecorderProtocol
 from ..recording.null import NULL_RECORDER
 from .results import Results
@@ -196,7 +197,10 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
         keys = key_indices(cfg.keys, len(frames), frames, backend=unit.backend)
         out = run_clip_keys(frames, keys, methods=cfg.methods, backend=unit.backend)
     else:
-        out = run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=unit.backend, on_frame=hook)
+        try:
+            out = run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=unit.backend, on_frame=hook)
+        except InputError as exc:  # what a method cannot take of the clip (a key object too small to follow)
+            raise InputError(f"clip {unit.dataset}: {exc}") from None
     out.update(dataset=unit.dataset, backend=unit.backend, n_frames=len(frames), seconds=time.perf_counter() - t0,
                width=frames[0].shape[1], height=frames[0].shape[0])
     if recorded:

@@ -29,7 +29,9 @@ A label is the sign of their sum at the frame's size (:func:`_read`): the carrie
 bilinearly, plus the colour term looked up on the full-size frame, so that thin parts the working size
 blurs away (a kite's bar, a hand) keep their colour's say; then only the largest component and those
 within :data:`NEAR` px of it are kept, which drops far-off blobs of the object's colours. Its confidence
-is a logistic of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENCE_OFFSET`). The hard
+is a logistic of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENCE_OFFSET`); once the
+labels hold no object (it left the frame), the colour term's alone, since the carried 'nowhere' saw nothing
+(a lost object is not searched for again; the five DAVIS sequences never lose theirs). The hard
 labels at the working size and the frame's grey levels are all a step hands to the next
 (:class:`FollowCarry`), which ``pcreg run`` saves with every frame, so a stopped run resumes exactly. The
 two flows are independent: one runs on pcreg's helper thread (``pcreg._threads``).
@@ -189,17 +191,31 @@ def _near_largest(mask: np.ndarray, reach: float) -> np.ndarray:
     return keep[parts]
 
 
-def _read(prior: np.ndarray, colour: np.ndarray, size: WorkingSize) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _sure(log_odds: np.ndarray) -> np.ndarray:
+    """The confidence of the label ``log_odds``'s sign: ``sigmoid(CONFIDENCE_SLOPE * |L| + CONFIDENCE_OFFSET)``."""
+    return 1.0 / (1.0 + np.exp(-(CONFIDENCE_SLOPE * np.abs(log_odds) + CONFIDENCE_OFFSET)))
+
+
+def _read(prior: np.ndarray, colour: np.ndarray, size: WorkingSize, *,
+          lost: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(labels, confidence, log_odds)`` at the frames' size from the carried terms ``prior`` (h, w) at the
     working size and the colour term ``colour`` (H, W) at the frames' size: ``L`` = the carried terms
     brought to the frames' size bilinearly plus the colour term; the labels are its sign, less the
     components farther than :data:`NEAR` px from the largest (their ``L`` negated); the confidence is
-    ``sigmoid(CONFIDENCE_SLOPE * |L| + CONFIDENCE_OFFSET)``."""
+    ``sigmoid(CONFIDENCE_SLOPE * |L| + CONFIDENCE_OFFSET)``.
+
+    ``lost``: the previous labels held no object, so the carried terms say 'nowhere' without having seen
+    it (it left the frame, or was lost, and may come back): the labels are still ``L``'s sign, but their
+    confidence is the colour term's alone, ``1 -`` its confidence where the colours say the other label."""
     full = size.grow(prior) + colour
     positive = (full > 0).astype(np.uint8)
     labels = _near_largest(positive, NEAR)
     full = np.where(labels < positive, -full, full)
-    confidence = 1.0 / (1.0 + np.exp(-(CONFIDENCE_SLOPE * np.abs(full) + CONFIDENCE_OFFSET)))
+    if lost:
+        agree = (colour > 0) == (labels == 1)
+        confidence = np.where(agree, _sure(colour), 1.0 - _sure(colour))
+    else:
+        confidence = _sure(full)
     return labels, confidence.astype(np.float32), full
 
 
@@ -261,6 +277,9 @@ class ObjectFollower:
         obj = cv2.resize((lab == 1).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
         # the object's share where known; unknown: 0.5, no evidence either way
         self._share = np.where(known > 0.5, obj / np.maximum(known, 1e-6), 0.5).astype(np.float32)
+        if not (self._share > 0.5).any():  # nothing to carry: every frame would read 'no object', confidently
+            raise InputError(f"the key frame's object ({int((lab == 1).sum())} px) covers no pixel at the size the "
+                             f"follower works at ({w}x{h}): too small to follow")
         self._key_logit = _logit(self._share, 1e-3)
         self._colours = _colour_table(rgb, self._share, known > 0.5)
         self._key_rgb = rgb.astype(np.float32)
@@ -299,7 +318,7 @@ class ObjectFollower:
         prior += (KEY_WEIGHT * gate ** GATE_POWER) * trust * _warp(self._key_logit, key_field)
         fused = colour + prior
         labels, confidence, self.log_odds = _read(prior, COLOUR_WEIGHT * self._colours[_colour_index(frame.rgb)],
-                                                  size)
+                                                  size, lost=not carry.labels.any())
         self._carry = FollowCarry((fused > 0).astype(np.uint8), grey)
         self._frame += 1
         t3 = time.perf_counter()

@@ -126,8 +126,13 @@ class Run:
             raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
                              f"object), not {table.n_known} classes; use --follow scene (the default) for them")
         _note_memory(keys, table, request.config.scale)
-        prop = None if pending is None else request.config.from_key_frame(
-            pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
+        try:
+            prop = None if pending is None else request.config.from_key_frame(
+                pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
+        except InputError as exc:  # what the follower cannot take of the key mask: name the file
+            if request.config.follow != "object":
+                raise
+            raise InputError(f"{request.labels}: {exc}") from None
         identity = with_classes(run_identity(inputs.frames, request.frames, request.labels, request.config,
                                              mapping=request.coding.mapping, truth=request.truth,
                                              confidence=request.confidence), table, request.coding.mapping)

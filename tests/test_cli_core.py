@@ -46,6 +46,26 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert cv2.imread(str(out)).shape == (240, 320, 3)
 
 
+def test_register_says_the_motion_and_its_evidence_in_a_line(pair):
+    """Beside the result, one line a person reads: the rotation and shift of the transform printed, and the share of
+    edge points that line up against chance's."""
+    import re
+
+    d, T = pair
+    p = run("register", d / "ref.png", d / "mov.png")
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert len(lines) == 2 and lines[0].startswith("RegistrationResult(")
+    said = re.fullmatch(r"rigid motion: rotation (\S+) deg, shift \((\S+), (\S+)\) px; (\S+)% of the moving edge points "
+                        r"line up with the reference's, (\S+)x the (\S+)% unrelated content would give \(refused under 2x\)",
+                        lines[1])
+    assert said is not None, lines[1]
+    angle, x, y, share, times, chance = map(float, said.groups())
+    assert abs(angle - np.degrees(np.arctan2(T[1, 0], T[0, 0]))) < 0.1
+    assert abs(x - T[0, 2]) < 0.5 and abs(y - T[1, 2]) < 0.5
+    assert share > 50 and abs(times - share / chance) < 0.1
+
+
 def test_warped_output_keeps_the_moving_files_depth_and_channels(pair, tmp_path):
     """A 16-bit grey moving image is written warped as 16-bit grey, an RGBA one keeps its alpha (transparent
     outside the moving image): both were written as 8-bit RGB."""

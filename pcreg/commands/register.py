@@ -106,6 +106,9 @@ def run(args: argparse.Namespace) -> int:
         print_json({"ok": True, **result.to_dict()})
     else:
         print(result)
+        summary = _summary(result, args.model)
+        if summary:
+            print(summary)
     _say_if_the_model_does_not_fit(result, args.model)
     return 0
 
@@ -122,6 +125,30 @@ def _naming_its_file(exc: Exception, images) -> Exception:
             dark = low_bits_note(stored) if said.startswith(f"{role} has no usable edges") else ""
             return type(exc)(f"{path}: {role} has no usable edges: {dark}" if dark else f"{path}: {said}")
     return exc
+
+
+def _summary(result, model: str) -> str:
+    """One line a person reads beside the result: the motion (rotation, scale, shift of the moving image's
+    origin; the matrix alone for affine and projective) and the evidence, the share of edge points that line up
+    against the share unrelated content would give (a registration is refused under
+    :data:`~pcreg.registration.plausibility.CHANCE_FACTOR` times it). Empty for a result without evidence."""
+    import math
+
+    from ..registration.plausibility import CHANCE_FACTOR
+
+    if getattr(result, "evidence", None) is None or getattr(result, "field", None) is not None:
+        return ""
+    m = result.matrix
+    motion = f"{model} motion"
+    if model in ("translation", "rigid", "similarity"):
+        angle = math.degrees(math.atan2(m[1, 0], m[0, 0]))
+        scale = math.sqrt(abs(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]))
+        motion += (f": rotation {angle:.2f} deg" + (f", scale {scale:.4f}" if model == "similarity" else "")
+                   + f", shift ({m[0, 2]:.2f}, {m[1, 2]:.2f}) px")
+    ratio, chance = result.inlier_ratio, result.chance_ratio
+    times = f"{ratio / chance:.1f}x" if chance > 0 else "far above"
+    return (f"{motion}; {100 * ratio:.1f}% of the moving edge points line up with the reference's, {times} the "
+            f"{100 * chance:.1f}% unrelated content would give (refused under {CHANCE_FACTOR:g}x)")
 
 
 def _say_if_the_model_does_not_fit(result, model: str) -> None:

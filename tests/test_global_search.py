@@ -221,3 +221,18 @@ def test_a_refusal_of_views_far_apart_in_scale_says_the_search_does_not_reach_th
     img, mov = _camvid_view(shared_data, 20, 30.0, 0.4)
     with pytest.raises(pcreg.RegistrationError, match="more than about 2x apart, which the search does not reach"):
         pcreg.register(img, mov, model="similarity")
+
+
+@pytest.mark.parametrize("model", ["rigid", "similarity"])
+def test_a_refusal_of_images_of_sizes_far_apart_names_their_sizes(shared_data, model):
+    """A frame against its thumbnail a twentieth of its size, either way round: refused (no scale the search
+    reaches relates them), and the refusal names the sizes and what to do; it said 'no overlap' or that the images
+    do not show the same scene."""
+    import cv2
+
+    frame = _camvid_view(shared_data, 20, 0.0, 1.0)[0]
+    big, small = cv2.resize(frame, (4000, 3000)), cv2.resize(frame, (200, 150))
+    for ref, mov in ((big, small), (small, big)):
+        with pytest.raises(pcreg.RegistrationError, match=r"\(the images are \d+x\d+ and \d+x\d+ px, 20\.0x apart: .*"
+                                                          r"resize the larger image first\)"):
+            pcreg.register(ref, mov, model=model)

@@ -83,16 +83,33 @@ class Plausibility:
             while self.level < len(reference) - 1 and len(reference[self.level]) >= reference_max_points:
                 self.level += 1
 
-    def _motion(self) -> str:
+    def _motion(self, shape: tuple[int, ...] | None = None) -> str:
         """The motion a refusal names; for the models without a scale, the model that has one; for those with one,
         the scales the search reaches (Fourier-Mellin's 0.5-2: views of CamVid frames at 0.55-1.8 registered, at
-        0.3-0.45 and 2.2-3 refused)."""
+        0.3-0.45 and 2.2-3 refused); for images of sizes further apart than that (``shape``: the moving
+        image's), their sizes (:meth:`_sizes`)."""
+        sizes = self._sizes(shape)
         if self.model == "rigid":
-            return "rigid motion (the similarity model also allows a change of scale, as a camera moving forward makes)"
+            return ("rigid motion (the similarity model also allows a change of scale, as a camera moving forward makes)"
+                    + sizes)
         if self.model == "translation":
-            return "translation (the rigid and similarity models also allow a rotation and a change of scale)"
+            return "translation (the rigid and similarity models also allow a rotation and a change of scale)" + sizes
+        if sizes:
+            return f"{self.model} motion{sizes}"
         return (f"{self.model} motion, or show it at scales more than about 2x apart, which the search does not "
                 f"reach (resize the larger image first)")
+
+    def _sizes(self, shape: tuple[int, ...] | None) -> str:
+        """A note for a refusal of images whose sizes differ by more than the search's scales reach (about 2x a
+        side, :meth:`_motion`), else ''."""
+        if shape is None:
+            return ""
+        (hr, wr), (hm, wm) = self.reference.image.shape[:2], shape[:2]
+        apart = max(hr / hm, hm / hr, wr / wm, wm / wr)
+        if apart <= 2.0:
+            return ""
+        return (f" (the images are {wr}x{hr} and {wm}x{hm} px, {apart:.1f}x apart: one scene at scales more than about "
+                f"2x apart, which the search does not reach, is refused; resize the larger image first)")
 
     @property
     def convincing(self) -> float:
@@ -130,10 +147,11 @@ class Plausibility:
         need = max(10, int(np.ceil(0.02 * ev.moving_points)))
         if best.refined.fitness != 0.0 and ev.moving_points < need:
             raise RegistrationError(f"registration refused: the moving image has only {ev.moving_points} edge points "
-                                    f"(at least {need} needed)")
+                                    f"(at least {need} needed){self._sizes(shape)}")
         if best.refined.fitness == 0.0 or ev.overlap_points < need:
             raise RegistrationError(f"registration found no overlap between the images: {ev.overlap_points} of "
-                                    f"{ev.moving_points} moving edge points land on the reference (at least {need} needed)")
+                                    f"{ev.moving_points} moving edge points land on the reference (at least {need} needed)"
+                                   f"{self._sizes(shape)}")
         if mirror is not None and mirror.score > MIRROR_FACTOR * best.score and mirror.inlier_ratio > ratio:
             raise RegistrationError(
                 f"registration refused: the moving image is a mirror image of the reference (its mirror aligns "
@@ -149,7 +167,7 @@ class Plausibility:
             raise RegistrationError(
                 f"registration refused: the best alignment's {100 * ratio:.1f}% of tight, direction-consistent edge "
                 f"points is under {CHANCE_FACTOR:g}x chance ({100 * chance:.1f}% expected from unrelated content at "
-                f"the same distances); the images do not show the same scene under a {self._motion()}")
+                f"the same distances); the images do not show the same scene under a {self._motion(shape)}")
         n = ev.overlap_points
         sd = float(np.sqrt(n * chance * (1.0 - chance)))
         if mir is not None and mir > 0 and ratio * n - chance * n < SIGNIFICANCE * sd:
@@ -161,7 +179,7 @@ class Plausibility:
             raise RegistrationError(
                 f"registration refused: the best alignment puts only {100 * ratio:.1f}% of the overlapping edge "
                 f"points within {self.inlier_tolerance:g} px of a reference edge of the same direction "
-                f"(min_inlier_ratio {mir:g}); the images do not show the same scene under a {self._motion()}")
+                f"(min_inlier_ratio {mir:g}); the images do not show the same scene under a {self._motion(shape)}")
         return ev
 
 

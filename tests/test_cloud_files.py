@@ -301,7 +301,7 @@ HOSTILE = {
     "count_short.pcd": (lambda: pcd_head(300, "ascii", count="1 1") + _points_text(), "SIZE and COUNT disagree"),
     "count_a_billion.pcd": (lambda: pcd_head(300, "ascii", count="1 1 1000000000") + _points_text(),
                             "is not 1000000002 numbers"),
-    "nan_coordinate.pcd": (lambda: pcd_head(300, "ascii") + b"nan 1 2\n" + _points_text().split(b"\n", 1)[1],
+    "inf_coordinate.pcd": (lambda: pcd_head(300, "ascii") + b"inf 1 2\n" + _points_text().split(b"\n", 1)[1],
                            "1 point(s) have NaN or inf coordinates"),
     "cut_inside_its_last_line.pcd": (lambda: pcd_head(300, "ascii") + _points_text()[:_points_text().rindex(b" ") - 2],
                                      "is cut short"),

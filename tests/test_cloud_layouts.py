@@ -181,6 +181,32 @@ def test_a_pts_cloud_without_its_count_line_is_refused_saying_so(tmp_path):
         load_cloud(tmp_path / "bare.pts")
 
 
+@pytest.mark.parametrize("columns", ["{a} {b} {c} -1204 83 91 77", "{a} {b} {c} 0.4521",
+                                     "{a} {b} {c} 0.325 0.31 0.298", "{a}\t{b}\t{c}\t-87\t12\t200\t255\r",
+                                     "{a} {b} {c}"])
+def test_a_pts_cloud_as_cyclone_and_cloudcompare_write_it_is_read(tmp_path, columns):
+    """Leica Cyclone's and CloudCompare's .pts: the count, then x y z intensity r g b (or x y z intensity, or x y z
+    and colours as fractions); x y z are each line's first three numbers. Open3D refused the intensity ('only
+    points and colors attributes are supported') and fractional colours ('Read PTS failed at line')."""
+    path = tmp_path / "scan.pts"
+    path.write_text(f"{len(POINTS)}\n" + "".join(columns.format(a=a, b=b, c=c) + "\n" for a, b, c in POINTS))
+    np.testing.assert_array_equal(load_cloud(path), POINTS.astype(np.float64))
+
+
+def test_a_damaged_pts_line_is_still_refused(tmp_path):
+    rows = [f"{a} {b} {c} -1204 83 91 77" for a, b, c in POINTS]
+    rows[7] = rows[7].rsplit(" ", 1)[0]
+    (tmp_path / "short.pts").write_text(f"{len(rows)}\n" + "\n".join(rows) + "\n")
+    with pytest.raises(InputError, match="short.pts: point line 8 .* is not 7 numbers, as the first is"):
+        load_cloud(tmp_path / "short.pts")
+    (tmp_path / "flat.pts").write_text("2\n1 2\n3 4\n")
+    with pytest.raises(InputError, match="flat.pts: its point lines hold 2 numbers \\(x, y and z are needed\\)"):
+        load_cloud(tmp_path / "flat.pts")
+    (tmp_path / "none.pts").write_text("0\n")
+    with pytest.raises(InputError, match="none.pts: no points could be read"):
+        load_cloud(tmp_path / "none.pts")
+
+
 def test_a_pts_count_is_checked_before_open3d_reserves_it(tmp_path, monkeypatch):
     """Open3D reserved the points a .pts file's first line declares before reading them: a count of 20 million
     in a file of three lines took 800 MB, and came back as 20 million points, all but two at the origin."""

@@ -42,6 +42,36 @@ def test_a_first_line_of_names_says_which_columns_are_x_y_z(tmp_path, pts):
     np.testing.assert_array_equal(load_cloud(tmp_path / "xy.csv"), pts[:, :2])
 
 
+def test_named_x_y_z_columns_are_read_beside_a_column_of_text(tmp_path, pts):
+    """A labelled export (``x,y,z,label``, text labels): the named columns are read and the others left out; it
+    was refused ('line 2 ... is not 4 numbers, as the first'). A line of other fields, or text where x, y or z
+    is, stays refused, naming it; without a first line of names, text is refused as before."""
+    labels = ["car", "tree", "road"]
+    rows = "".join(f"{a},{b},{c},{labels[i % 3]}\n" for i, (a, b, c) in enumerate(pts))
+    (tmp_path / "labelled.csv").write_text("x,y,z,label\n" + rows)
+    np.testing.assert_array_equal(load_cloud(tmp_path / "labelled.csv"), pts)
+    rows = "".join(f"{labels[i % 3]}\t{i}\t{c}\t{b}\t{a}\n" for i, (a, b, c) in enumerate(pts))
+    (tmp_path / "spaced.txt").write_text("class id Z Y X\n" + rows)
+    np.testing.assert_array_equal(load_cloud(tmp_path / "spaced.txt"), pts)
+    (tmp_path / "last.csv").write_text("x,y,label\n1,2,car\n3,4,tree")  # no newline after the last line
+    np.testing.assert_array_equal(load_cloud(tmp_path / "last.csv"), [[1, 2], [3, 4]])
+    (tmp_path / "oops.csv").write_text("x,y,z,label\n1,2,3,car\n4,oops,6,tree\n")
+    with pytest.raises(InputError, match="oops.csv: line 3 \\('4,oops,6,tree'\\): its y, 'oops', is not a number"):
+        load_cloud(tmp_path / "oops.csv")
+    (tmp_path / "short.csv").write_text("x,y,z,label\n1,2,3,car\n4,5,6\n")
+    with pytest.raises(InputError, match="short.csv: line 3 \\('4,5,6'\\) has 3 fields, the first line names 4"):
+        load_cloud(tmp_path / "short.csv")
+    (tmp_path / "long.csv").write_text("x,y,z,label\n1,2,3,car\n4,5,6,tree,7\n")
+    with pytest.raises(InputError, match="long.csv: line 3 .* has 5 fields, the first line names 4"):
+        load_cloud(tmp_path / "long.csv")
+    (tmp_path / "cut.csv").write_text("x,y,z,label\n1,2,3,car\n4,5")
+    with pytest.raises(InputError, match="cut.csv: line 3 \\('4,5'\\) is cut short"):
+        load_cloud(tmp_path / "cut.csv")
+    (tmp_path / "bare.csv").write_text("1,2,car\n3,4,tree\n")
+    with pytest.raises(InputError, match="bare.csv: its first line \\('1,2,car'\\) names no x and y columns"):
+        load_cloud(tmp_path / "bare.csv")
+
+
 def test_a_csv_that_starts_with_a_byte_order_mark_is_read(tmp_path, pts):
     """A spreadsheet's "CSV UTF-8" export (Excel's) starts with the bytes EF BB BF: its first line was taken for
     names that name no x and y ('\ufffd\ufffd\ufffdx,y,z'), a first line of numbers too."""
@@ -103,12 +133,33 @@ def test_an_organised_pcd_is_read_without_its_unmeasured_points(tmp_path, kind):
     _organised_pcd(path, grid, kind)
     measured = grid.reshape(-1, 3)[~np.isnan(grid.reshape(-1, 3)).all(axis=1)]
     np.testing.assert_array_equal(load_cloud(path), measured.astype(np.float64))
-    grid[4, 4, 1] = np.nan  # one coordinate of a point: damaged, not unmeasured
+    _organised_pcd(path, np.full((2, 3, 3), np.nan, np.float32), kind)
+    with pytest.raises(InputError, match="every point's coordinates are NaN \\(no point was measured\\)"):
+        load_cloud(path)
+
+
+@pytest.mark.parametrize("kind", ["ascii", "binary"])
+def test_a_pcd_point_with_some_coordinates_nan_is_left_out_as_pcl_leaves_it(tmp_path, kind):
+    """PCL's removeNaNFromPointCloud leaves out a point whose x, y or z is NaN (pcl::isFinite of each); such a
+    point was refused ('1 point(s) have NaN or inf coordinates'), the whole file with it."""
+    grid = np.random.default_rng(3).uniform(0.5, 3.0, (4, 5, 3)).astype(np.float32)
+    grid[1, 2] = np.nan
+    grid[2, 3, 0] = grid[3, 0, 1] = grid[0, 4, 2] = np.nan  # "nan 1 2", "1 nan 2", "1 2 nan"
+    grid[0, 0, :2] = np.nan
+    path = tmp_path / "holes.pcd"
+    _organised_pcd(path, grid, kind)
+    flat = grid.reshape(-1, 3)
+    kept = flat[~np.isnan(flat).any(axis=1)]
+    assert len(kept) == 20 - 5
+    np.testing.assert_array_equal(load_cloud(path), kept.astype(np.float64))
+    grid = np.ones((1, 3, 3), np.float32)
+    grid[0, :, 1] = np.nan  # every point with a NaN y
+    _organised_pcd(path, grid, kind)
+    with pytest.raises(InputError, match="holes.pcd: every point's coordinates are NaN \\(some of them"):
+        load_cloud(path)
+    grid[0, 0, 1] = np.inf  # inf is not NaN: a damaged point, as before
     _organised_pcd(path, grid, kind)
     with pytest.raises(InputError, match="1 point\\(s\\) have NaN or inf coordinates"):
-        load_cloud(path)
-    _organised_pcd(path, np.full((2, 3, 3), np.nan, np.float32), kind)
-    with pytest.raises(InputError, match="every point's coordinates are NaN"):
         load_cloud(path)
 
 

@@ -116,8 +116,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
 
     Image arrays are (H, W, 3)/(H, W); cloud arrays (N, 2|3), of any numeric type (an (H, W) array 2 or 3 wide
     is a cloud). Paths are read by suffix: images through
-    OpenCV, clouds by :func:`pcreg.cloud_reader.load_cloud` (.ply/.pcd/.xyz/.pts through Open3D, .npy through
-    numpy, .txt/.csv as columns of numbers).
+    OpenCV, clouds by :func:`pcreg.cloud_reader.load_cloud` (.ply/binary .pcd/.xyz through Open3D, .npy through
+    numpy, ASCII .pcd, .pts and .txt/.csv by pcreg).
     """
     def kind_of(x):
         if isinstance(x, (str, os.PathLike)):

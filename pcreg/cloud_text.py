@@ -1,0 +1,199 @@
+"""Text clouds read by pcreg itself: a text file of columns (.txt, .csv: what ``numpy.savetxt``, pycpd's,
+probreg's and libpointmatcher's data and most exports hold) through :func:`read_columns`, and a .pts cloud as
+Leica Cyclone and CloudCompare write it through :func:`read_pts`; and the check of the text clouds Open3D reads
+(.xyz, .xyzn, .xyzrgb). Whatever a reader would skip or read in part is refused in one line naming the file
+(:class:`~pcreg.errors.InputError`)."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+import warnings
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .cloud_files import _ASCII_NUMBER, _scan_rows
+from .errors import InputError
+from .validation import check_point_count, max_pixels
+
+__all__ = ["UTF8_BOM", "check_text_cloud", "read_columns", "read_pts"]
+
+
+def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
+    """How many points a text cloud holds, and how many numbers a line, checked before it is read: Open3D reads
+    a line with C's ``sscanf``, skipping a line it cannot parse and reading what a line starts with (``3,5`` as
+    3, ``3abc`` as 3, ``0x10`` as 16), and a .pts file's first line declares its count (a count of 20 million in
+    a file of three lines took 800 MB in Open3D's reader). Every non-empty line is a point of as many plain
+    numbers as the first (``.pts``: after a first line with the point count, which must be theirs), and their
+    count within ``limit``; else an :class:`InputError`."""
+    with open(path, "rb") as fh:  # streamed: the file may be large
+        firsts = list(itertools.islice((line.strip() for line in fh if line.strip()), 2))
+    header = 1 if suffix == ".pts" and firsts and firsts[0].isdigit() else 0
+    if suffix == ".pts" and firsts and not header:  # Open3D read its number as the count: one point, or none
+        raise InputError(f"{path}: its first line ({firsts[0][:40].decode('ascii', 'replace')!r}) is not the point "
+                         "count a .pts file starts with")
+    width = len(firsts[header].split()) if len(firsts) > header else 1
+    count, bad = _scan_rows(path, 0, stop=1 << 62, rows=(header, 1 << 62), fields=width)
+    expected = count - header
+    if header and int(firsts[0]) != expected:
+        raise InputError(f"{path}: the first line declares {int(firsts[0])} points, the file holds {expected} lines")
+    if bad is not None:
+        number, line = bad
+        text = line.decode("ascii", "replace").strip()[:40]
+        if number == 1:
+            raise InputError(f"{path}: its first point line ({text!r}) is not numbers between white space "
+                             f"(damaged {suffix} file)")
+        raise InputError(f"{path}: point line {number} ({text!r}) is not {width} numbers, as the first is "
+                         f"(damaged {suffix} file)")
+    check_point_count(expected, str(path), limit=limit)
+    return expected, width
+
+
+def read_pts(path: Path, limit: int) -> np.ndarray:
+    """The x, y, z (N, 3) of a .pts cloud as Leica Cyclone and CloudCompare write it: a first line with the point
+    count, then a point a line, its first three numbers x, y and z and the rest what the scanner adds (``x y z
+    intensity r g b``, ``x y z intensity``, ``x y z r g b``, colours whole or fractions), left out. Its lines are
+    checked first (:func:`check_text_cloud`: the count there and theirs, every line as many plain numbers as the
+    first, within the limit). Open3D's reader refuses an intensity ("only points and colors attributes are
+    supported") and fractional colours."""
+    count, width = check_text_cloud(path, ".pts", limit)
+    if count == 0:
+        raise InputError(f"{path}: no points could be read (a point count of 0)")
+    if width < 3:
+        raise InputError(f"{path}: its point lines hold {width} number{'s' if width > 1 else ''} (x, y and z are "
+                         "needed)")
+    try:
+        return _pts_columns(path, count, None)
+    except ValueError:  # nan(ind) and its kind, as C's printf writes a NaN on some systems
+        return _pts_columns(path, count, lambda word: float(word.split("(")[0]))
+
+
+def _pts_columns(path: Path, count: int, converter: Callable[[str], float] | None) -> np.ndarray:
+    """The first three numbers of the ``count`` lines after a .pts file's first, split at newlines only (as its
+    check does: a CR is white space between numbers)."""
+    with open(path, "rb") as fh, warnings.catch_warnings():  # blank lines are not counted in max_rows: no warning
+        warnings.simplefilter("ignore", UserWarning)
+        lines = (line.decode("latin-1").replace("\r", " ") for line in fh)
+        next(line for line in lines if line.strip())  # the point count
+        return np.loadtxt(lines, dtype=np.float64, comments=None, usecols=(0, 1, 2), ndmin=2, max_rows=count,
+                          converters=converter)
+
+
+_NUMBER = re.compile(_ASCII_NUMBER)
+#: What a spreadsheet's "CSV UTF-8" export starts with (Excel's): no part of the first line's names or numbers.
+UTF8_BOM = b"\xef\xbb\xbf"
+
+
+def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarray:
+    """The points of a text file of columns: one point a line, its fields separated by commas, by semicolons
+    or by spaces and tabs (which of them, the first line says); blank lines and lines starting with ``#``
+    skipped. Two or three numbers a line are x, y (and z); a first line of names (``x,y,z,nx,ny,nz`` as
+    libpointmatcher writes, ``//X,Y,Z,R,G,B`` as CloudCompare does) says which columns are x, y and z, in any
+    number of columns, the others read or not (a column of text, ``x,y,z,label``, is left out). Every line must
+    hold as many fields as the first, and numbers where x, y and z are: a line that does not is an
+    :class:`InputError` naming it (a reader that skipped it would register a cloud the file does not hold)."""
+    path = Path(path)
+    lim = max_pixels(limit)
+    first, line_number = _first_line(path)
+    if first is None:
+        raise InputError(f"{path}: no points could be read (no line of numbers)")
+    separator = next((s for s in (b",", b";") if s in first), None)
+    fields = _split(first, separator)
+    columns = _columns(path, fields)
+    skip = line_number if columns else 0
+    try:  # numpy's parser: strict (no "1_0", no "1,0" between spaces), and many times faster than a loop here
+        data = _load_columns(path, separator, skip, lim, None)
+        named = False
+    except ValueError as exc:
+        if columns is None:
+            _bad_line(path, separator, len(fields), skip + 1, None)
+            raise InputError(f"{path}: cannot read its columns ({str(exc).split(';')[0][:120]})") from None
+        # named columns, others not numbers (text): each line's fields counted here, x, y and z read alone
+        _bad_line(path, separator, len(fields), skip + 1, columns)
+        try:
+            data = _load_columns(path, separator, skip, lim, columns)
+        except ValueError as again:
+            raise InputError(f"{path}: cannot read its columns ({str(again).split(';')[0][:120]})") from None
+        named = True
+    if len(data) > lim:
+        raise InputError(f"{path}: more than {lim} points exceed the limit (raise --max-pixels or PCREG_MAX_PIXELS)")
+    if len(data) == 0:
+        raise InputError(f"{path}: no points could be read (a first line of names and no line of numbers)")
+    if named:
+        return data
+    if data.shape[1] != len(fields):
+        raise InputError(f"{path}: {data.shape[1]} numbers a line under a first line of {len(fields)} names")
+    return np.ascontiguousarray(data[:, columns]) if columns else data
+
+
+def _load_columns(path: Path, separator: bytes | None, skip: int, lim: int, usecols: list[int] | None) -> np.ndarray:
+    """The numbers of the lines after the first ``skip`` (at most ``lim`` + 1 of them), the ``usecols`` columns
+    (None: all); a ValueError where a line is not numbers there."""
+    with warnings.catch_warnings():  # blank lines not counted in max_rows, no data: said here, not on stderr
+        warnings.simplefilter("ignore", UserWarning)
+        with open(path, "rb") as fh:
+            fh.seek(len(UTF8_BOM) if fh.read(len(UTF8_BOM)) == UTF8_BOM else 0)
+            return np.loadtxt(fh, dtype=np.float64, comments="#", delimiter=None if separator is None else
+                              separator.decode(), skiprows=skip, ndmin=2, max_rows=lim + 1, encoding="latin-1",
+                              usecols=usecols)
+
+
+def _first_line(path: Path) -> tuple[bytes | None, int]:
+    """The first line that is neither blank nor a ``#`` comment, stripped (of a byte-order mark too), and its
+    number (from 1)."""
+    with open(path, "rb") as fh:
+        for number, raw in enumerate(fh, 1):
+            line = (raw.removeprefix(UTF8_BOM) if number == 1 else raw).strip()
+            if line and not line.startswith(b"#"):
+                return line, number
+    return None, 0
+
+
+def _split(line: bytes, separator: bytes | None) -> list[bytes]:
+    return [f.strip() for f in line.split(separator)] if separator else line.split()
+
+
+def _bad_line(path: Path, separator: bytes | None, width: int, start: int, numeric: list[int] | None) -> None:
+    """An :class:`InputError` naming the first line from line ``start`` on that is not ``width`` fields, numbers
+    in the ``numeric`` columns (None: in every column); a line of other fields is said to be so once a line has
+    held text beside them, else not as many numbers as the first."""
+    text_seen = False
+    with open(path, "rb") as fh:
+        for number, raw in enumerate(fh, 1):
+            line = (raw.removeprefix(UTF8_BOM) if number == 1 else raw).strip()
+            if number < start or not line or line.startswith(b"#"):
+                continue
+            fields = _split(line, separator)
+            checked = range(len(fields)) if numeric is None else numeric
+            wrong = next((k for k in checked if k >= len(fields) or not _NUMBER.fullmatch(fields[k])), None)
+            if len(fields) == width and wrong is None:
+                text_seen = text_seen or not all(_NUMBER.fullmatch(f) for f in fields)
+                continue
+            text = line[:40].decode("ascii", "replace")
+            if not raw.endswith(b"\n"):
+                raise InputError(f"{path}: line {number} ({text!r}) is cut short")
+            if numeric is None or (len(fields) != width and not text_seen):
+                raise InputError(f"{path}: line {number} ({text!r}) is not {width} numbers, as the first")
+            if len(fields) != width or wrong is None:
+                raise InputError(f"{path}: line {number} ({text!r}) has {len(fields)} fields, the first line names "
+                                 f"{width}")
+            raise InputError(f"{path}: line {number} ({text!r}): its {'xyz'[numeric.index(wrong)]}, "
+                             f"{fields[wrong][:20].decode('ascii', 'replace')!r}, is not a number")
+
+
+def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
+    """None for a first line of numbers with two or three of them; the x, y (and z) columns of a first line of
+    names; an :class:`InputError` otherwise (numbers in other counts say nothing of which are coordinates)."""
+    if all(_NUMBER.fullmatch(f) for f in fields):
+        if len(fields) in (2, 3):
+            return None
+        raise InputError(f"{path}: {len(fields)} number{'s' if len(fields) > 1 else ''} a line and no first line naming the x, y and z columns "
+                         "(give one, as 'x y z ...', or keep two or three columns)")
+    names = [f.decode("ascii", "replace").strip("\"'").lstrip("/").strip().lower() for f in fields]
+    if "x" not in names or "y" not in names:
+        text = b",".join(fields)[:60].decode("ascii", "replace")
+        raise InputError(f"{path}: its first line ({text!r}) names no x and y columns")
+    return [names.index(a) for a in "xyz" if a in names]

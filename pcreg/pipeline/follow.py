@@ -40,7 +40,7 @@ carried labels say nothing of the new frame: they are dropped, the frame is read
 reach 0.145 (DAVIS) and, at one frame a second, 0.63 with colour changes of at most 0.401 (CamVid); 146
 of 148 cuts built between those clips are found (DAVIS's all: residual at least 0.435, colour change at
 least 0.5; docs/results.md, "Scene cuts"). The hard
-labels at the working size and the frame's grey levels are all a step hands to the next
+labels at the working size, the frame's grey levels and its colour histogram are all a step hands to the next
 (:class:`FollowCarry`), which ``pcreg run`` saves with every frame, so a stopped run resumes exactly. The
 two flows are independent: one runs on pcreg's helper thread (``pcreg._threads``).
 

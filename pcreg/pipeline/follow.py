@@ -31,8 +31,16 @@ blurs away (a kite's bar, a hand) keep their colour's say; then only the largest
 within :data:`NEAR` px of it are kept, which drops far-off blobs of the object's colours. Its confidence
 is a logistic of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENCE_OFFSET`); once the
 labels hold no object (it left the frame), the colour term's alone, since the carried 'nowhere' saw nothing
-(a lost object is not searched for again; the five DAVIS sequences never lose theirs). The hard
-labels at the working size and the frame's grey levels are all a step hands to the next
+(a lost object is not searched for again; the five DAVIS sequences never lose theirs).
+
+**A scene cut loses the object** (:func:`_cut_evidence`): where the previous frame, carried by the flow
+just found, leaves a mean grey residual above :data:`CUT_RESIDUAL` (0.3) of chance's (two unrelated
+pixels') and the two frames' colour histograms share less than 1 - :data:`CUT_COLOUR_CHANGE` (0.55), the
+carried labels say nothing of the new frame: they are dropped, the frame is read as lost. Real frames
+reach 0.145 (DAVIS) and, at one frame a second, 0.63 with colour changes of at most 0.401 (CamVid); 146
+of 148 cuts built between those clips are found (DAVIS's all: residual at least 0.435, colour change at
+least 0.5; docs/results.md, "Scene cuts"). The hard
+labels at the working size, the frame's grey levels and its colour histogram are all a step hands to the next
 (:class:`FollowCarry`), which ``pcreg run`` saves with every frame, so a stopped run resumes exactly. The
 two flows are independent: one runs on pcreg's helper thread (``pcreg._threads``).
 
@@ -64,7 +72,8 @@ if TYPE_CHECKING:
     from .stream import StepReport
 
 __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
-           "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "NEAR", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET"]
+           "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "NEAR", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET",
+           "CUT_RESIDUAL", "CUT_COLOUR_CHANGE"]
 
 #: The working size, a share of the frames' sides (427x240 for 854x480): DIS at full size carried the
 #: true mask one step only 0.008-0.023 IoU better, in four times the time.
@@ -104,15 +113,31 @@ _BIN_BITS = BINS.bit_length() - 1  # a channel's bin is its top _BIN_BITS bits (
 #: docs/results.md).
 CONFIDENCE_SLOPE = 1.663
 CONFIDENCE_OFFSET = -0.194
+# A scene cut (:func:`_cut_evidence`) is both of the two below. Measured at the working size on every pair of
+# consecutive frames of the five shared DAVIS sequences and the eight shared CamVid clips (566 pairs) and on
+# 148 cuts built from them (the last frame of one clip, the first of another of a different place;
+# docs/results.md, "Scene cuts"):
+#: The new frame's mean grey-level residual against the previous frame carried by the flow just found, as a
+#: share of chance (the mean difference of two unrelated pixels, one from each frame's grey levels) above
+#: which the flow does not explain the new frame: DAVIS's frames at most 0.145, CamVid's (one frame a second,
+#: wide parallax) up to 0.63; every cut built at least 0.378.
+CUT_RESIDUAL = 0.3
+#: One minus the intersection of the two frames' colour histograms (the colour term's YCrCb bins) above which
+#: the new frame shows other colours: the frames of the 36 real pairs above CUT_RESIDUAL (all CamVid's) at
+#: most 0.401; the cuts built at least 0.367 (146 of 148 above this).
+CUT_COLOUR_CHANGE = 0.45
 
 
 @dataclass(frozen=True)
 class FollowCarry:
     """What a step hands to the next: the hard labels (h, w) uint8 (1 the object) and the grey levels
-    (h, w) uint8 of its frame, both at the working size."""
+    (h, w) uint8 of its frame, both at the working size, and its colour histogram ``colours``
+    (:data:`BINS` ^ 3,) float32 summing to 1, which the cut test reads (None in a carry saved before there
+    was one: that step's cut test then reads the residual alone, never a cut)."""
 
     labels: np.ndarray
     grey: np.ndarray
+    colours: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("labels", "grey"):
@@ -121,6 +146,39 @@ class FollowCarry:
                 raise InputError(f"a follower's carried {name} must be an (h, w) uint8 array")
         if self.labels.shape != self.grey.shape:
             raise InputError("a follower's carried labels and grey levels differ in size")
+        c = self.colours
+        if c is not None and not (isinstance(c, np.ndarray) and c.shape == (BINS ** 3,) and c.dtype == np.float32):
+            raise InputError(f"a follower's carried colour histogram must be a ({BINS ** 3},) float32 array")
+
+
+def _histogram(index: np.ndarray) -> np.ndarray:
+    """(BINS^3,) float32: the share of the pixels in each colour bin (``index`` from :func:`_colour_index`)."""
+    return (np.bincount(index.ravel(), minlength=BINS ** 3) / index.size).astype(np.float32)
+
+
+def _chance_residual(a: np.ndarray, b: np.ndarray) -> float:
+    """The mean |difference| of a pixel of grey image ``a`` and an unrelated pixel of ``b`` (their
+    histograms' independent draws): what a motion that explains nothing leaves."""
+    ha = np.bincount(a.ravel(), minlength=256) / a.size
+    hb = np.bincount(b.ravel(), minlength=256) / b.size
+    v = np.arange(256, dtype=np.float64)
+    return float(ha @ np.abs(v[:, None] - v[None, :]) @ hb)
+
+
+def _cut_evidence(grey: np.ndarray, colours: np.ndarray, carry: "FollowCarry", field: np.ndarray) -> dict:
+    """Whether the new frame (``grey``, its colour histogram ``colours``) is a scene cut from the previous
+    one (``carry``), whose motion to it the flow ``field`` was found to be: ``residual``, the new frame's mean
+    grey residual against the previous frame carried by the flow, as a share of chance
+    (:func:`_chance_residual`); ``colour_change``, one minus the intersection of the two colour histograms
+    (None without the previous one); ``cut``, both above their limits (:data:`CUT_RESIDUAL`,
+    :data:`CUT_COLOUR_CHANGE`): the flow explains the new frame little better than chance, and its colours
+    changed. A cut that keeps the colours (two views of one place) or a frame the flow cannot follow (a
+    wide, fast motion) is not one."""
+    warped = _warp(carry.grey.astype(np.float32), field)
+    residual = float(np.abs(grey.astype(np.float32) - warped).mean()) / max(_chance_residual(grey, carry.grey), 1e-6)
+    change = None if carry.colours is None else 1.0 - float(np.minimum(colours, carry.colours).sum())
+    cut = change is not None and residual > CUT_RESIDUAL and change > CUT_COLOUR_CHANGE
+    return {"residual": residual, "colour_change": change, "cut": cut}
 
 
 def _logit(p: np.ndarray, eps: float) -> np.ndarray:
@@ -286,7 +344,8 @@ class ObjectFollower:
         self._key_grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         self._size, self._key_labels = size, lab
         self._grid = pixel_grid((h, w))
-        self._carry = FollowCarry((self._share > 0.5).astype(np.uint8), self._key_grey)
+        self._carry = FollowCarry((self._share > 0.5).astype(np.uint8), self._key_grey,
+                                  _histogram(_colour_index(rgb)))
         self._frame = 0
         self.last = self.log_odds = None
 
@@ -302,13 +361,18 @@ class ObjectFollower:
         t0 = time.perf_counter()
         frame = PreparedFrame.of(image, name="frame", shape=size.frame)
         rgb = size.shrunk(frame).rgb
-        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        grey, previous_grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), carry.grey
         to_key, to_previous = both(lambda: dis_flow(grey, self._key_grey, FLOW_PRESET),
-                                   lambda: dis_flow(grey, carry.grey, FLOW_PRESET))
+                                   lambda: dis_flow(grey, previous_grey, FLOW_PRESET))
         key_field, previous_field = flow_field(to_key, self._grid), flow_field(to_previous, self._grid)
         t1 = time.perf_counter()
+        index = _colour_index(rgb)
+        histogram = _histogram(index)
+        cut = _cut_evidence(grey, histogram, carry, previous_field)
+        if cut["cut"]:  # the carried labels say nothing of this frame: the object is lost
+            carry = FollowCarry(np.zeros_like(carry.labels), carry.grey, carry.colours)
         carried = _warp(carry.labels.astype(np.float32), previous_field)
-        colour = COLOUR_WEIGHT * self._colours[_colour_index(rgb)]
+        colour = COLOUR_WEIGHT * self._colours[index]
         t2 = time.perf_counter()
         residual = np.abs(rgb.astype(np.float32) - _warp(self._key_rgb, key_field)).mean(axis=2)
         trust = np.exp(-(cv2.GaussianBlur(residual, (0, 0), RESIDUAL_BLUR) / RESIDUAL_SIGMA) ** 2)
@@ -319,14 +383,14 @@ class ObjectFollower:
         fused = colour + prior
         labels, confidence, self.log_odds = _read(prior, COLOUR_WEIGHT * self._colours[_colour_index(frame.rgb)],
                                                   size, lost=not carry.labels.any())
-        self._carry = FollowCarry((fused > 0).astype(np.uint8), grey)
+        self._carry = FollowCarry((fused > 0).astype(np.uint8), grey, histogram)
         self._frame += 1
         t3 = time.perf_counter()
         times = {"register": t1 - t0, "classify": t2 - t1, "fuse": t3 - t2, "total": t3 - t0}
         self.last = StepReport(frame=self._frame, registration=_flow_result(key_field, t1 - t0), reason=None,
                                fallback=False, reference=0, times=times, confidence=confidence,
                                predicted_error=float(100.0 * (1.0 - confidence).mean()),
-                               trust=FollowTerms(prior), trust_summary={"gate": gate}, log_odds=colour)
+                               trust=FollowTerms(prior), trust_summary={"gate": gate, **cut}, log_odds=colour)
         return labels
 
     @property

@@ -141,7 +141,7 @@ def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) ->
     :class:`~pcreg.pipeline.estimators.ChainCarry`, an object follower's
     :class:`~pcreg.pipeline.follow.FollowCarry`, or None, and what the classifier has ``learned``, or
     None), atomically at ``path``. A follower's carry is the ``follow`` member: its labels and grey
-    levels, (2, h, w) uint8; a chained stream's the ``chain_*`` members (:func:`_chain_members`)."""
+    levels, (2, h, w) uint8, and ``follow_colours``, its colour histogram; a chained stream's the ``chain_*`` members (:func:`_chain_members`)."""
     import io
 
     from ..outputs import atomic_write_bytes
@@ -159,6 +159,8 @@ def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) ->
                                       "learned": learned}
     if follow:
         members["follow"] = np.stack([carry.labels, carry.grey])
+        if carry.colours is not None:
+            members["follow_colours"] = carry.colours
     np.savez(buf, **members, **chain)
     atomic_write_bytes(path, buf.getvalue())
 
@@ -177,6 +179,7 @@ def read_carry(path: Path, t: int, unreadable: str):
             frame, grid, evidence = np.array(z["frame"]), np.array(z["grid"]), np.array(z["evidence"])
             learned = np.array(z["learned"]) if "learned" in z.files else None
             follow = np.array(z["follow"]) if "follow" in z.files else None
+            colours = np.array(z["follow_colours"]) if "follow_colours" in z.files else None
             chain = {k: np.array(z[k]) for k in z.files if k.startswith("chain_")}
     except UNREADABLE_CARRY:
         raise bad from None
@@ -192,7 +195,10 @@ def read_carry(path: Path, t: int, unreadable: str):
     if follow is not None:
         if follow.ndim != 3 or follow.shape[0] != 2 or follow.dtype != np.uint8:
             raise bad
-        return FollowCarry(follow[0], follow[1]), learned
+        try:
+            return FollowCarry(follow[0], follow[1], colours), learned
+        except InputError:
+            raise bad from None
     if grid.shape == (0, 0, 2) and np.isnan(evidence):  # that step left none
         return None, learned
     try:

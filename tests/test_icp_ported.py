@@ -14,62 +14,10 @@ from pcreg.errors import InputError, RegistrationError
 from pcreg.registration.closed_forms import estimate_umeyama
 from pcreg.registration.normal_steps import estimate_point_to_plane
 
+from _open3d_cases import (EST_CORRESPONDENCES, EST_SOURCE, EST_TARGET, EST_TARGET_NORMALS, GRID_INIT,
+                           GRID_SOURCE, GRID_TARGET, GRID_TARGET_NORMALS)
+
 reg = o3d.pipelines.registration
-
-# Open3D python/test/t/registration/test_transformation_estimation.py: get_pcds_and_correspondences
-O3D_EST_SOURCE = np.array([
-    [1.15495, 2.40671, 1.15061], [1.81481, 2.06281, 1.71927], [0.888322, 2.05068, 2.04879],
-    [3.78842, 1.70788, 1.30246], [1.8437, 2.22894, 0.986237], [2.95706, 2.2018, 0.987878],
-    [1.72644, 1.24356, 1.93486], [0.922024, 1.14872, 2.34317], [3.70293, 1.85134, 1.15357],
-    [3.06505, 1.30386, 1.55279], [0.634826, 1.04995, 2.47046], [1.40107, 1.37469, 1.09687],
-    [2.93002, 1.96242, 1.48532], [3.74384, 1.30258, 1.30244]])
-O3D_EST_TARGET = np.array([
-    [2.41766, 2.05397, 1.74994], [1.37848, 2.19793, 1.66553], [2.24325, 2.27183, 1.33708],
-    [3.09898, 1.98482, 1.77401], [1.81615, 1.48337, 1.49697], [3.01758, 2.20312, 1.51502],
-    [2.38836, 1.39096, 1.74914], [1.30911, 1.4252, 1.37429], [3.16847, 1.39194, 1.90959],
-    [1.59412, 1.53304, 1.5804], [1.34342, 2.19027, 1.30075]])
-O3D_EST_NORMALS = np.array([
-    [-0.0085016, -0.22355, -0.519574], [0.257463, -0.0738755, -0.698319], [0.0574301, -0.484248, -0.409929],
-    [-0.0123503, -0.230172, -0.52072], [0.355904, -0.142007, -0.720467], [0.0674038, -0.418757, -0.458602],
-    [0.226091, 0.258253, -0.874024], [0.43979, 0.122441, -0.574998], [0.109144, 0.180992, -0.762368],
-    [0.273325, 0.292013, -0.903111], [0.385407, -0.212348, -0.277818]])
-O3D_EST_CORRESPONDENCES = np.array([10, 1, 1, 3, 2, 5, 9, 7, 5, 8, 7, 7, 5, 8])
-
-# Open3D python/test/t/registration/test_registration.py: get_pcds (a voxel grid at 0.5 spacing) and the init
-O3D_ICP_SOURCE = np.array([
-    [1.0, 0.5, 2.0], [0.5, 0.5, 2.0], [0.5, 0.5, 2.5], [3.0, 1.0, 1.5], [3.5, 1.0, 1.0], [0.5, 1.0, 2.0],
-    [1.5, 1.0, 1.5], [2.0, 1.0, 1.5], [1.0, 1.0, 2.0], [2.5, 1.0, 1.5], [3.0, 1.0, 1.0], [0.5, 1.0, 2.5],
-    [1.0, 1.0, 1.0], [1.5, 1.0, 1.0], [1.0, 1.5, 1.0], [3.0, 1.5, 1.0], [3.5, 1.5, 1.0], [3.0, 1.5, 1.5],
-    [0.5, 1.5, 1.5], [0.5, 1.5, 2.0], [1.0, 1.5, 2.0], [2.5, 1.5, 1.5], [1.5, 1.5, 1.0], [1.5, 1.5, 1.5],
-    [2.0, 1.5, 1.5], [3.0, 1.5, 0.5], [2.5, 1.5, 1.0], [2.0, 1.5, 1.0], [3.0, 2.0, 0.5], [0.5, 2.0, 1.5],
-    [3.0, 2.0, 1.0], [1.0, 2.0, 1.0], [2.0, 1.5, 0.5], [0.5, 2.0, 2.0], [2.5, 2.0, 1.0], [2.5, 2.0, 0.5],
-    [2.0, 2.0, 0.5], [2.5, 1.5, 0.5], [3.0, 2.0, 1.5], [2.0, 2.0, 1.0], [1.0, 2.0, 2.0], [1.5, 2.0, 1.0],
-    [1.5, 2.0, 1.5], [2.5, 2.0, 1.5], [2.0, 2.0, 1.5], [1.0, 2.0, 0.5], [0.5, 2.0, 1.0], [1.5, 2.0, 0.5],
-    [1.0, 2.0, 1.5]])
-O3D_ICP_TARGET = np.array([
-    [1.5, 1.0, 1.5], [2.5, 1.0, 1.5], [1.5, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 1.0, 1.5], [3.0, 1.0, 1.5],
-    [1.0, 1.0, 0.5], [1.0, 1.5, 1.0], [1.0, 1.5, 0.5], [1.0, 1.0, 1.5], [3.0, 1.0, 2.0], [3.0, 1.5, 2.0],
-    [3.0, 1.5, 1.5], [1.0, 1.5, 1.5], [1.5, 1.5, 1.5], [2.5, 1.5, 1.5], [2.0, 1.5, 1.5], [1.5, 1.5, 1.0],
-    [2.5, 1.5, 2.0], [1.0, 2.0, 1.0], [1.0, 2.0, 0.5], [2.5, 1.5, 1.0], [3.0, 2.0, 1.5], [2.5, 2.0, 1.0],
-    [2.5, 2.0, 1.5], [1.5, 2.0, 1.0], [2.0, 1.5, 1.0], [1.0, 2.0, 1.5], [2.0, 2.0, 1.0], [1.5, 2.0, 1.5],
-    [1.5, 2.0, 0.5], [2.0, 2.0, 1.5], [2.0, 2.0, 0.5], [1.5, 2.5, 1.0], [1.0, 2.5, 1.0], [3.0, 2.0, 1.0],
-    [2.0, 2.5, 1.0], [2.5, 2.5, 1.0]])
-O3D_ICP_NORMALS = np.array([
-    [0.15597, -0.0463812, -0.986672], [-0.213545, 0.887963, 0.407334], [0.423193, -0.121977, -0.897792],
-    [0.202251, 0.27611, -0.939605], [0.275452, 0.207216, -0.938716], [0.326146, 0.0385317, -0.944534],
-    [0.983129, -0.174668, -0.0543011], [0.898665, -0.0602029, 0.434485], [0.711325, 0.193223, -0.675783],
-    [0.346158, 0.198724, -0.916888], [0.302085, 0.28938, -0.908297], [0.341044, 0.414138, -0.843907],
-    [0.212191, 0.213068, -0.953717], [0.239759, 0.313187, -0.918929], [0.302290, 0.27265, -0.913391],
-    [0.209796, 0.402747, -0.890944], [0.267025, 0.218226, -0.938656], [0.00126928, -0.976587, -0.21512],
-    [0.321912, 0.194736, -0.926526], [0.831227, 0.236675, -0.503037], [0.987006, -0.155324, 0.0411639],
-    [0.103384, -0.808796, -0.57893], [0.181245, 0.66226, -0.727023], [0.235471, 0.525053, -0.817846],
-    [0.231954, 0.446165, -0.864369], [-0.261931, -0.725542, -0.636381], [0.120953, -0.864985, -0.487003],
-    [0.858345, -0.227847, 0.459706], [-0.416259, -0.367408, -0.831709], [-0.476652, 0.206048, -0.854604],
-    [-0.211959, -0.523378, -0.825317], [-0.964914, 0.0541031, -0.256931], [-0.0653566, -0.913961, -0.400504],
-    [-0.846868, -0.170805, -0.503628], [0.0366971, 0.515834, -0.855902], [-0.0714554, -0.855019, -0.513651],
-    [-0.0217377, -0.957744, -0.286799], [-0.0345231, -0.947096, -0.319088]])
-O3D_ICP_INIT = np.array([[0.862, 0.011, -0.507, 0.5], [-0.139, 0.967, -0.215, 0.7], [0.487, 0.255, 0.835, -1.4],
-                         [0.0, 0.0, 0.0, 1.0]])
 
 
 def _cloud(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
@@ -83,26 +31,26 @@ def test_open3d_point_to_point_step_and_rmse_on_given_correspondences():
     """Open3D test_transformation_estimation.py: the RMSE of the given pairs, 0.706437, and after one
     point-to-point step, 0.578255 (Umeyama's closed form here; Open3D's legacy estimation gives the same
     matrix)."""
-    q = O3D_EST_TARGET[O3D_EST_CORRESPONDENCES]
+    q = EST_TARGET[EST_CORRESPONDENCES]
     rmse = lambda p: float(np.sqrt(np.mean(np.sum((p - q) ** 2, axis=1))))  # noqa: E731
-    assert rmse(O3D_EST_SOURCE) == pytest.approx(0.706437, rel=1e-4)
-    T = estimate_umeyama(O3D_EST_SOURCE, q, np.ones(len(q)), with_scale=False)
-    assert rmse(tf.apply(T, O3D_EST_SOURCE)) == pytest.approx(0.578255, rel=1e-4)
-    pairs = o3d.utility.Vector2iVector(np.column_stack([np.arange(len(q)), O3D_EST_CORRESPONDENCES]))
+    assert rmse(EST_SOURCE) == pytest.approx(0.706437, rel=1e-4)
+    T = estimate_umeyama(EST_SOURCE, q, np.ones(len(q)), with_scale=False)
+    assert rmse(tf.apply(T, EST_SOURCE)) == pytest.approx(0.578255, rel=1e-4)
+    pairs = o3d.utility.Vector2iVector(np.column_stack([np.arange(len(q)), EST_CORRESPONDENCES]))
     theirs = reg.TransformationEstimationPointToPoint().compute_transformation(
-        _cloud(O3D_EST_SOURCE), _cloud(O3D_EST_TARGET), pairs)
+        _cloud(EST_SOURCE), _cloud(EST_TARGET), pairs)
     np.testing.assert_allclose(T, theirs, atol=1e-12)
 
 
 def test_open3d_point_to_plane_step_with_normals_that_are_not_unit():
     """Open3D test_transformation_estimation.py, point-to-plane: its normals are not of unit length, and
     Open3D takes them as given; pcreg's step takes them as given too, and gives Open3D's matrix."""
-    q = O3D_EST_TARGET[O3D_EST_CORRESPONDENCES]
-    n = O3D_EST_NORMALS[O3D_EST_CORRESPONDENCES]
-    T = estimate_point_to_plane(O3D_EST_SOURCE, q, n, np.ones(len(q)))
-    pairs = o3d.utility.Vector2iVector(np.column_stack([np.arange(len(q)), O3D_EST_CORRESPONDENCES]))
+    q = EST_TARGET[EST_CORRESPONDENCES]
+    n = EST_TARGET_NORMALS[EST_CORRESPONDENCES]
+    T = estimate_point_to_plane(EST_SOURCE, q, n, np.ones(len(q)))
+    pairs = o3d.utility.Vector2iVector(np.column_stack([np.arange(len(q)), EST_CORRESPONDENCES]))
     theirs = reg.TransformationEstimationPointToPlane().compute_transformation(
-        _cloud(O3D_EST_SOURCE), _cloud(O3D_EST_TARGET, O3D_EST_NORMALS), pairs)
+        _cloud(EST_SOURCE), _cloud(EST_TARGET, EST_TARGET_NORMALS), pairs)
     np.testing.assert_allclose(T, theirs, atol=1e-11)
     assert abs(np.linalg.det(T[:3, :3]) - 1) < 1e-12
 
@@ -110,8 +58,8 @@ def test_open3d_point_to_plane_step_with_normals_that_are_not_unit():
 def test_open3d_evaluate_registration_fitness_and_inlier_rmse():
     """Open3D test_registration.py test_evaluate_registration: at distance 3.0 and the identity, pcreg's
     fitness (pairs / source points) and inlier RMSE are Open3D's legacy evaluate_registration's."""
-    theirs = reg.evaluate_registration(_cloud(O3D_ICP_SOURCE), _cloud(O3D_ICP_TARGET), 3.0, np.eye(4))
-    ours = pcreg.icp(O3D_ICP_SOURCE, O3D_ICP_TARGET, ICPOptions(max_correspondence_distance=3.0, max_iteration=0))
+    theirs = reg.evaluate_registration(_cloud(GRID_SOURCE), _cloud(GRID_TARGET), 3.0, np.eye(4))
+    ours = pcreg.icp(GRID_SOURCE, GRID_TARGET, ICPOptions(max_correspondence_distance=3.0, max_iteration=0))
     assert ours.fitness == pytest.approx(theirs.fitness, abs=1e-15)
     assert ours.inlier_rmse == pytest.approx(theirs.inlier_rmse, rel=1e-12)
     np.testing.assert_array_equal(ours.matrix, np.eye(4))
@@ -123,10 +71,10 @@ def test_open3d_icp_point_to_point_two_iterations_from_their_init(backend):
     decimals, so not quite a rotation: det 1.00013, which pcreg takes as Open3D does): Open3D's matrix,
     fitness and inlier RMSE."""
     criteria = reg.ICPConvergenceCriteria(max_iteration=2)
-    theirs = reg.registration_icp(_cloud(O3D_ICP_SOURCE), _cloud(O3D_ICP_TARGET), 3.0, O3D_ICP_INIT,
+    theirs = reg.registration_icp(_cloud(GRID_SOURCE), _cloud(GRID_TARGET), 3.0, GRID_INIT,
                                   reg.TransformationEstimationPointToPoint(), criteria)
-    ours = pcreg.icp(O3D_ICP_SOURCE, O3D_ICP_TARGET,
-                     ICPOptions(backend=backend, max_correspondence_distance=3.0, max_iteration=2), init=O3D_ICP_INIT)
+    ours = pcreg.icp(GRID_SOURCE, GRID_TARGET,
+                     ICPOptions(backend=backend, max_correspondence_distance=3.0, max_iteration=2), init=GRID_INIT)
     np.testing.assert_allclose(ours.matrix, theirs.transformation, atol=1e-10)
     assert ours.fitness == pytest.approx(theirs.fitness) and ours.inlier_rmse == pytest.approx(theirs.inlier_rmse)
     assert ours.iterations == 2 and not ours.converged
@@ -137,11 +85,11 @@ def test_open3d_icp_point_to_plane_two_iterations_from_their_init(backend):
     """Open3D test_registration.py test_icp_point_to_plane: the same clouds with the target's normals,
     point-to-plane, two iterations: Open3D's matrix, fitness and inlier RMSE (a point distance, as Open3D's)."""
     criteria = reg.ICPConvergenceCriteria(max_iteration=2)
-    theirs = reg.registration_icp(_cloud(O3D_ICP_SOURCE), _cloud(O3D_ICP_TARGET, O3D_ICP_NORMALS), 3.0, O3D_ICP_INIT,
+    theirs = reg.registration_icp(_cloud(GRID_SOURCE), _cloud(GRID_TARGET, GRID_TARGET_NORMALS), 3.0, GRID_INIT,
                                   reg.TransformationEstimationPointToPlane(), criteria)
-    ours = pcreg.icp(O3D_ICP_SOURCE, O3D_ICP_TARGET, ICPOptions(backend=backend, metric="point_to_plane",
+    ours = pcreg.icp(GRID_SOURCE, GRID_TARGET, ICPOptions(backend=backend, metric="point_to_plane",
                                                                 max_correspondence_distance=3.0, max_iteration=2),
-                     init=O3D_ICP_INIT, target_normals=O3D_ICP_NORMALS)
+                     init=GRID_INIT, target_normals=GRID_TARGET_NORMALS)
     np.testing.assert_allclose(ours.matrix, theirs.transformation, atol=1e-10)
     assert ours.fitness == pytest.approx(theirs.fitness) and ours.inlier_rmse == pytest.approx(theirs.inlier_rmse)
 

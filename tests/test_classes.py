@@ -127,6 +127,8 @@ def test_labelmap_forms_datumaro_accepts():
     ("# nothing\n", "no class"),
     ("background:0,0,0::\nroad:1_0,2,3::\ncar:4,5,6::\n", "not R,G,B"),  # int() would read 10
     ("background:0,0,0::\nroad:\u0661,2,3::\ncar:4,5,6::\n", "not R,G,B"),  # an Arabic-Indic 1
+    ("".join(f"c{i}:{i},{i},{i + 1}::\n" for i in range(255)), "256 classes (its background among them); a class "
+     "table holds at most 255"),  # a background added: no line holds an id to name
 ])
 def test_bad_labelmaps(tmp_path, text, needle):
     p = tmp_path / "labelmap.txt"

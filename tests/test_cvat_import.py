@@ -386,3 +386,45 @@ def test_an_unpacked_export_in_its_folder_is_read_as_its_zip(clip, tmp_path, cap
         read_cvat_keys(folder, open_frames(frames, Selection()), ids[stems[0]].shape)
     (folder / "notes.txt").write_text("two things in the folder: not an export wrapped in it\n")
     assert not is_cvat_export(folder)
+
+
+def test_an_export_read_with_classes_whose_unknown_is_0_and_ids_have_gaps_keeps_their_ids(clip, tmp_path, capsys):
+    """A label map holds no ids: an export of a table whose unknown is 0 (as ADE20K's) and whose ids have gaps,
+    read with that table as --classes, gives its ids back, whatever the label map's order; pcreg export of
+    the run writes the same label map. A class the two do not share is still refused, naming it."""
+    from pcreg.classes import table_json
+    from pcreg.classes.cvat import read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+
+    gaps = ClassTable((LabelClass(0, "void", (0, 0, 0)), LabelClass(5, "road", (128, 64, 128)),
+                       LabelClass(7, "sky", (128, 128, 128)), LabelClass(200, "other", (64, 0, 128))), 0, "gaps")
+    lut = np.array([7, 200, 200, 5, 5, 200, 200, 200, 200, 200, 200, 0], np.uint8)
+    frames, ids = clip
+    masks = {s: lut[v] for s, v in ids.items()}
+    spec = tmp_path / "gaps.json"
+    spec.write_text(table_json(gaps))
+    export = cvat_export(tmp_path / "task.zip", gaps, masks)
+    table, keys = read_cvat_keys(export, open_frames(frames, Selection()), lut[ids[next(iter(ids))]].shape, str(spec))
+    assert table.agrees(gaps) and sorted(keys) == list(range(N))
+    for t, s in enumerate(masks):
+        np.testing.assert_array_equal(keys[t], masks[s])
+    with zipfile.ZipFile(export) as z, zipfile.ZipFile(tmp_path / "shuffled.zip", "w") as w:
+        for name in z.namelist():
+            data = z.read(name)
+            if name == "labelmap.txt":  # its lines in another order
+                data = b"\n".join(reversed(data.splitlines()))
+            w.writestr(name, data)
+    _, again = read_cvat_keys(tmp_path / "shuffled.zip", open_frames(frames, Selection()), keys[0].shape, str(spec))
+    np.testing.assert_array_equal(again[2], keys[2])
+    out = tmp_path / "out"
+    rc, err = _run(["run", frames, "--labels", export, "--classes", spec, "--out", out], capsys)
+    assert rc == 0, err
+    np.testing.assert_array_equal(read_labels(out / f"{next(iter(ids))}.png", gaps), keys[0])
+    rc, err = _run(["export", out, "--to", tmp_path / "back.zip"], capsys)
+    assert rc == 0, err
+    with zipfile.ZipFile(tmp_path / "back.zip") as back, zipfile.ZipFile(export) as z:
+        assert back.read("labelmap.txt") == z.read("labelmap.txt")
+    other = ClassTable((*gaps.classes[:3], LabelClass(200, "car", (64, 0, 128))), 0, "other")
+    spec.write_text(table_json(other))
+    rc, err = _run(["run", frames, "--labels", export, "--classes", spec, "--out", tmp_path / "out2"], capsys)
+    assert rc == 2 and "its class table disagrees with --classes" in err[0] and "'car' (64, 0, 128)" in err[0], err

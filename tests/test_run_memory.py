@@ -2,7 +2,10 @@
 
 import pytest
 
-from pcreg.runs.memory import available_bytes, memory_note, run_bytes
+import numpy as np
+
+from pcreg.classes import ClassTable, LabelClass
+from pcreg.runs.memory import available_bytes, memory_note, run_bytes, run_note
 
 GIB = 2**30
 
@@ -43,3 +46,18 @@ def test_the_available_memory_is_read_from_meminfo(tmp_path, text, expected):
     path.write_text(text)
     assert available_bytes(path) == expected
     assert available_bytes(tmp_path / "absent") is None
+
+
+def test_a_large_table_counts_the_classes_its_key_frames_show():
+    """A table of 254 classes whose key frames show thirteen needs what thirteen classes need (the step's maps are
+    the learned classes'): no note where eleven fit; a note when they show every class."""
+    table = ClassTable(tuple(LabelClass(i, f"c{i}", (i + 1, 0, 0)) for i in range(254))
+                       + (LabelClass(254, "void", (0, 0, 0)),), 254, "t.json")
+    keys = [np.full((720, 1280), 254, np.uint8), np.zeros((720, 1280), np.uint8)]
+    keys[0][:11] = np.arange(240, 251, dtype=np.uint8)[:, None]
+    keys[1][:, :3] = 7
+    available = run_bytes(1280, 720, 13) + 1
+    assert run_note(keys, table, 1.0, available) is None  # thirteen: 240..250, 0 and 7
+    keys[1][:1, :254] = np.arange(254, dtype=np.uint8)
+    note = run_note(keys, table, 1.0, available)
+    assert note is not None and "1280x720 frames with 254 classes" in note

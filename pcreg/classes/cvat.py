@@ -10,8 +10,9 @@ written by Datumaro's VOC exporter)::
     ├── SegmentationClass/NAME.png          # each pixel in its class's colour (RGB), black unlabelled
     └── SegmentationObject/NAME.png         # instances (not read)
 
-The class table is the ``labelmap.txt``'s (:func:`pcreg.classes.files.parse_labelmap`; with ``--classes``
-too, the two must agree). A mask is read through the table's colours (RGB, or a palette PNG's colours);
+The class table is the ``labelmap.txt``'s (:func:`pcreg.classes.files.parse_labelmap`); with ``--classes``
+too, the two must list the same classes (names and colours) and the ids are ``--classes``'s: a label map holds
+no ids. A mask is read through the table's colours (RGB, or a palette PNG's colours);
 a one-channel mask holds each pixel's line in ``labelmap.txt``. A mask names its frame by its file's stem:
 the frame of that stem, else ``frame_NNNNNN`` (CVAT's name of a video's frame N, and of the N-th image of a
 task) the source's frame N, where the run chose it (``--start``, ``--every``). A mask that is all
@@ -180,8 +181,6 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
     """The export's table (``labelmap.txt``; with ``--classes`` too, they must agree) and each labelmap
     line's class id, in the file's order (for one-channel masks)."""
     from .files import MAX_TABLE_BYTES, class_table, parse_labelmap
-    from .table import check_tables_agree
-
     if not export.has(LABELMAP_FILE):
         if classes is None:
             raise InputError(f"{export.where(LABELMAP_FILE)}: missing (the export's class table; or name one with "
@@ -192,12 +191,31 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
         text = export.read(LABELMAP_FILE, max_bytes=MAX_TABLE_BYTES, what="a class table").decode("utf-8-sig")
     except UnicodeDecodeError:
         raise InputError(f"{export.where(LABELMAP_FILE)}: not UTF-8 text") from None
-    table = parse_labelmap(text, export.where(LABELMAP_FILE))
-    if classes is not None:
-        check_tables_agree([(f"--classes {classes}", class_table(classes)), (export.where(LABELMAP_FILE), table)])
-    order = [table.id_of(ln.split(":")[0].strip()) for ln in text.splitlines()
+    read = parse_labelmap(text, export.where(LABELMAP_FILE))
+    table = read if classes is None else _named_table(class_table(classes), f"--classes {classes}", read,
+                                                      export.where(LABELMAP_FILE))
+    colour_of = {c.name: c.colour for c in read.classes}
+    id_of = {c.colour: c.id for c in table.classes}  # a colour is one class's in both tables
+    order = [id_of[colour_of[ln.split(":")[0].strip()]] for ln in text.splitlines()
              if ln.strip() and not ln.strip().startswith("#")]
     return table, order
+
+
+def _named_table(given: ClassTable, given_where: str, read: ClassTable, where: str) -> ClassTable:
+    """``given`` (``--classes``) when the export's label map ``read`` lists the same classes by name and colour
+    and the same colour for the unknown, whatever their order: a label map holds no ids, so the ids are
+    ``given``'s (a table whose unknown is 0, as ADE20K's, or whose ids have gaps, reads back as itself).
+    Else an :class:`InputError` naming ``where`` and a class that one of them lacks."""
+    mine = {(c.name, c.colour) for c in given.known}
+    theirs = {(c.name, c.colour) for c in read.known}
+    if mine == theirs and given.unknown_class.colour == read.unknown_class.colour:
+        return given
+    if mine == theirs:
+        how = f"the unknown is {given.unknown_class.colour} in one and {read.unknown_class.colour} in the other"
+    else:
+        name, colour = min(mine ^ theirs)
+        how = f"class {name!r} {colour} is in {where if (name, colour) in theirs else given_where} only"
+    raise InputError(f"{where}: its class table disagrees with {given_where}'s ({how})")
 
 
 def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], limit: int) -> np.ndarray:

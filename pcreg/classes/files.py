@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .table import TABLES, ClassTable, LabelClass
+from .table import MAX_CLASSES, TABLES, ClassTable, LabelClass
 from ..formats import KeyWrittenTwice, loads_json
 from ..validation import short_repr
 
@@ -110,6 +110,9 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
     if background is None:
         entries.append(BACKGROUND)
         background = len(entries) - 1
+    if len(entries) > MAX_CLASSES:  # the lines hold no ids: say how many classes, not which id is too large
+        raise InputError(f"{where}: {len(entries)} classes (its background among them); a class table holds at most "
+                         f"{MAX_CLASSES}, ids 0..{MAX_CLASSES - 1} of 8-bit labels")
     known = [e for i, e in enumerate(entries) if i != background]
     classes = [LabelClass(k, name, colour) for k, (name, colour) in enumerate(known)]  # type: ignore[arg-type]
     name, colour = entries[background]

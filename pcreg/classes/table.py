@@ -31,9 +31,11 @@ import numpy as np
 from ..errors import InputError
 from ..validation import short_repr
 
-__all__ = ["LabelClass", "ClassTable", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree"]
+__all__ = ["MAX_CLASSES", "LabelClass", "ClassTable", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree"]
 
 RGB = tuple[int, int, int]
+#: The most classes a table holds, the unknown among them: ids 0..254 of 8-bit labels.
+MAX_CLASSES = 255
 
 
 @dataclass(frozen=True)
@@ -49,7 +51,7 @@ class LabelClass:
 
 
 def _check_class(c: LabelClass, where: str) -> LabelClass:
-    ok_id = isinstance(c.id, (int, np.integer)) and not isinstance(c.id, bool) and 0 <= int(c.id) <= 254
+    ok_id = isinstance(c.id, (int, np.integer)) and not isinstance(c.id, bool) and 0 <= int(c.id) < MAX_CLASSES
     if not ok_id:
         raise InputError(f"{where}: class id {short_repr(c.id)} is not an integer 0..254")
     if not isinstance(c.name, str) or not c.name.strip() or c.name != c.name.strip():

@@ -495,10 +495,9 @@ def _note_memory(keys: dict, table, scale: float) -> None:
     system has available (:func:`~pcreg.runs.memory.memory_note`); nothing else changes."""
     import sys
 
-    from .memory import available_bytes, memory_note
+    from .memory import available_bytes, run_note
 
-    h, w = next(iter(keys.values())).shape[:2]  # the key labels are the frames' size
-    note = memory_note(w, h, table.n_known, scale, available_bytes())
+    note = run_note(keys.values(), table, scale, available_bytes())  # the key labels are the frames' size
     if note:
         sys.stderr.write(f"pcreg: note: {note}\n")
 

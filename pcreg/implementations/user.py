@@ -30,6 +30,7 @@ Python callable's too).
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import io
 import json
@@ -71,13 +72,20 @@ def _number(value, key: str, kind=float, lo: float = 0.0, hi: float = math.inf):
         return None
     if isinstance(value, (np.integer, np.floating)):  # numpy's scalars, as a Python function returns them
         value = value.item()
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ImplementationError(f"{key} must be a finite number, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (isinstance(value, float)
+                                                                          and not math.isfinite(value)):
+        raise ImplementationError(f"{key} must be a finite number, got {_shown(value)}")
     if kind is int and value != int(value):
-        raise ImplementationError(f"{key} must be a whole number, got {value!r}")
-    if not lo <= value <= hi:
-        raise ImplementationError(f"{key} must be in {lo:g}..{hi:g}, got {value!r}")
+        raise ImplementationError(f"{key} must be a whole number, got {_shown(value)}")
+    if not lo <= value <= hi:  # a whole number of 400 digits is compared as it is: float() would overflow
+        raise ImplementationError(f"{key} must be in {lo:g}..{hi:g}, got {_shown(value)}")
     return kind(value)
+
+
+def _shown(value) -> str:
+    """``value``'s repr, at most 40 characters (a 400-digit number, a long string)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _converged(value):
@@ -109,6 +117,41 @@ def _checked_matrix(m: np.ndarray, d: int, what: str) -> np.ndarray:
     return m
 
 
+@contextlib.contextmanager
+def _user_code(what: str):
+    """Run a ``py:`` implementation's own code (its import, its call, the reading of what it returned): what
+    it raises, ``sys.exit`` and a KeyboardInterrupt no signal sent included, becomes an
+    :class:`ImplementationError` (its row's one line), and the working directory it changed is put back
+    (the next implementation's relative paths, and the command's outputs, are the caller's)."""
+    try:
+        cwd: int | None = os.open(".", getattr(os, "O_PATH", os.O_RDONLY))
+    except OSError:  # a working directory gone or unreadable: none to put back
+        cwd = None
+    try:
+        yield
+    except ImplementationError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a user function's failure is its row's error
+        said = {"import": "", "call": "raised ", "result": "its result raised "}[what]
+        raise ImplementationError(f"{said}{type(exc).__name__}: {exc}") from None
+    except SystemExit as exc:  # sys.exit in a function would end the cross-check with its status
+        raise ImplementationError(f"called sys.exit({exc.code!r}){'' if what == 'import' else '; a function returns its matrix'}") from None
+    except KeyboardInterrupt:  # raised by the code itself, not by Ctrl-C or SIGTERM
+        from .._runner import handles_signals, interrupted
+
+        if interrupted() or not handles_signals():  # a real interrupt, or one nothing can tell apart
+            raise
+        raise ImplementationError("raised KeyboardInterrupt (no interrupt came)") from None
+    except GeneratorExit:  # the one other BaseException code can raise by itself
+        raise ImplementationError("raised GeneratorExit") from None
+    finally:
+        if cwd is not None:
+            try:
+                os.fchdir(cwd)
+            finally:
+                os.close(cwd)
+
+
 class PythonCallable(Implementation):
     """``py:MODULE:FUNCTION``."""
 
@@ -129,9 +172,10 @@ class PythonCallable(Implementation):
                 sys.path.insert(0, os.getcwd())
                 added = True
             try:
-                mod = importlib.import_module(self.module)
-            except Exception as exc:  # noqa: BLE001 - any import failure is this implementation's
-                raise ImplementationError(f"cannot import {self.module}: {type(exc).__name__}: {exc}") from None
+                with _user_code("import"):
+                    mod = importlib.import_module(self.module)
+            except ImplementationError as exc:
+                raise ImplementationError(f"cannot import {self.module}: {exc}") from None
             finally:
                 if added:
                     sys.path.remove(os.getcwd())
@@ -154,21 +198,13 @@ class PythonCallable(Implementation):
     def _run(self, pinned, *, trace):
         func = self._load()
         start = time.perf_counter()
-        try:
+        with _user_code("call"):
             r = func(pinned.source.copy(), pinned.target.copy(), init=pinned.init.copy(), **pinned.params())
-        except Exception as exc:  # noqa: BLE001 - a user function's failure is its row's error
-            raise ImplementationError(f"raised {type(exc).__name__}: {exc}") from None
-        except SystemExit as exc:  # sys.exit in a function would end the cross-check with its status
-            raise ImplementationError(f"called sys.exit({exc.code!r}); a function returns its matrix") from None
-        except KeyboardInterrupt:  # raised by the function itself, not by Ctrl-C or SIGTERM
-            from .._runner import handles_signals, interrupted
-
-            if interrupted() or not handles_signals():  # a real interrupt, or one nothing can tell apart
-                raise
-            raise ImplementationError("raised KeyboardInterrupt (no interrupt came)") from None
-        except GeneratorExit:  # the one other BaseException a function can raise by itself
-            raise ImplementationError("raised GeneratorExit") from None
         seconds = time.perf_counter() - start
+        with _user_code("result"):  # its properties and __array__ are the function's code too
+            return self._result(r, pinned.source.shape[1], seconds)
+
+    def _result(self, r, d: int, seconds: float):
         get = (lambda k: r.get(k)) if isinstance(r, dict) else (lambda k: getattr(r, k, None))
         matrix = r if isinstance(r, (np.ndarray, list, tuple)) else get("matrix")
         if matrix is None:
@@ -180,7 +216,7 @@ class PythonCallable(Implementation):
         except (TypeError, ValueError, OverflowError):
             raise ImplementationError("returned a matrix that is not numeric") from None
         isarr = isinstance(r, (np.ndarray, list, tuple))
-        return result(self.name, _checked_matrix(matrix, pinned.source.shape[1], "the returned matrix"),
+        return result(self.name, _checked_matrix(matrix, d, "the returned matrix"),
                       iterations=None if isarr else _number(get("iterations"), "iterations", int, hi=MAX_ITERATIONS),
                       fitness=None if isarr else _number(get("fitness"), "fitness", hi=1.0),
                       inlier_rmse=None if isarr else _number(get("inlier_rmse"), "inlier_rmse"),

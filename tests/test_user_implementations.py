@@ -1,0 +1,83 @@
+"""A researcher's own ICP that misbehaves (``py:`` and ``cmd:``): its row says what went wrong in one line,
+the other implementations still report, and the command neither ends with another status nor hangs."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from pcreg import ICPOptions
+from pcreg.implementations.crosscheck import crosscheck_implementations
+
+
+def _clouds(d: int = 2):
+    tgt = np.random.default_rng(0).uniform(-5, 5, (100, d))
+    return tgt + 0.1, tgt
+
+
+@pytest.fixture
+def on_path(tmp_path, monkeypatch):
+    """tmp_path on sys.path (the modules written there importable), as the working directory."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_a_module_that_exits_or_changes_directory_is_its_row_and_the_next_one_runs(on_path):
+    """sys.exit at a module's import, or in a property of what a function returned, ended the cross-check with
+    that status (3 read as "registration refused"); a function that changed directory made the next
+    implementation's relative program path and module unfindable."""
+    (on_path / "exits_on_import.py").write_text("import sys\nsys.exit(3)\n")
+    (on_path / "mine.py").write_text(
+        "import os, sys\n"
+        "def wanders(source, target, *, init, **kw):\n"
+        "    os.chdir(os.sep)\n"
+        "    return init\n"
+        "class Result:\n"
+        "    @property\n"
+        "    def matrix(self):\n"
+        "        sys.exit(4)\n"
+        "def exits_late(source, target, *, init, **kw):\n"
+        "    return Result()\n"
+        "def identity(source, target, *, init, **kw):\n"
+        "    return init\n")
+    (on_path / "ident.py").write_text("import sys\nopen(sys.argv[1], 'w').write('1 0 0\\n0 1 0\\n0 0 1\\n')\n")
+    program = f'cmd:"{sys.executable} ident.py {{out}}"'
+    specs = ["py:exits_on_import:f", "py:mine:exits_late", "py:mine:wanders", program, "py:mine:identity"]
+    src, tgt = _clouds()
+    r = crosscheck_implementations(src, tgt, implementations=["reference", *specs],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    rows = r.rows
+    assert rows["py:exits_on_import:f"]["error"] == "cannot import exits_on_import: called sys.exit(3)"
+    assert rows["py:mine:exits_late"]["error"] == "called sys.exit(4); a function returns its matrix"
+    for name in ("py:mine:wanders", program, "py:mine:identity"):
+        assert rows[name]["status"] == "ok" and not rows[name]["agrees"], rows[name]
+    assert rows["reference"]["error"] is None
+
+
+def test_a_module_that_raises_keyboardinterrupt_on_import_is_its_row_not_an_interrupt(tmp_path):
+    """No signal came: the command printed "interrupted" and exited 130 with no report."""
+    (tmp_path / "stops.py").write_text("raise KeyboardInterrupt\n")
+    src, tgt = _clouds(3)
+    np.save(tmp_path / "t.npy", tgt)
+    np.save(tmp_path / "s.npy", src)
+    p = subprocess.run([sys.executable, "-m", "pcreg.cli", "crosscheck", "t.npy", "s.npy", "--with",
+                        "reference,py:stops:align", "--max-distance", "1", "--json"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    row = json.loads(p.stdout)["implementations"]["py:stops:align"]
+    assert row["error"] == "cannot import stops: raised KeyboardInterrupt (no interrupt came)"
+
+
+def test_a_reported_count_of_400_digits_is_refused_in_a_short_line(on_path):
+    """float() of it overflowed: the row said "int too large to convert to float", naming nothing."""
+    (on_path / "counts.py").write_text(
+        "def align(source, target, *, init, **kw):\n"
+        "    return {'matrix': init, 'iterations': 10 ** 400}\n")
+    src, tgt = _clouds()
+    r = crosscheck_implementations(src, tgt, implementations=["reference", "py:counts:align"],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    error = r.rows["py:counts:align"]["error"]
+    assert error.startswith("iterations must be in 0..100000, got 1000") and len(error) < 100, error

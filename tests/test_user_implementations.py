@@ -81,3 +81,23 @@ def test_a_reported_count_of_400_digits_is_refused_in_a_short_line(on_path):
                                    options=ICPOptions(max_correspondence_distance=1.0))
     error = r.rows["py:counts:align"]["error"]
     assert error.startswith("iterations must be in 0..100000, got 1000") and len(error) < 100, error
+
+
+@pytest.mark.parametrize("template, said", [
+    ("sh -c 'echo {' {out}", "cannot read the placeholders of 'echo {'"),
+    ("sh -c 'echo }' {out}", "cannot read the placeholders of 'echo }'"),
+    ("awk '{print}' {out}", "unknown placeholder {print}"),
+    ("prog {out!r}", "unknown placeholder {out!r}"),
+    ("prog {out:>40}", "unknown placeholder {out:>40}"),
+])
+def test_a_template_with_a_lone_brace_or_a_formatted_placeholder_is_bad_input(tmp_path, template, said):
+    """A lone brace was a ValueError (exit 1, "a bug in pcreg"); {out!r} ran the program with a quoted path."""
+    src, tgt = _clouds(3)
+    np.save(tmp_path / "t.npy", tgt)
+    np.save(tmp_path / "s.npy", src)
+    p = subprocess.run([sys.executable, "-m", "pcreg.cli", "crosscheck", "t.npy", "s.npy", "--with",
+                        f'reference,cmd:"{template}"', "--json"], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 2, p.stderr
+    assert p.stdout == "" and said in p.stderr and "a literal brace is written {{ or }}" in p.stderr, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr

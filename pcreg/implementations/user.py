@@ -22,7 +22,7 @@ The file protocol of ``cmd:`` programs (fixed; other tools are written against i
   the format of ``{init}``; it may also write ``{out}.json`` with ``iterations`` (whole, at least 0),
   ``fitness`` (0..1), ``inlier_rmse`` (at least 0), ``converged`` (true or false) and ``comparability``.
 
-Placeholders the template does not use are not written. The program runs in the current directory
+Placeholders the template does not use are not written; a literal brace is written ``{{`` or ``}}``. The program runs in the current directory
 with a time limit; a non-zero exit, a timeout, an unreadable output, a NaN, a matrix that is not a rigid
 transform (:data:`RETURNED_TOLERANCE`) or a figure out of its range is that implementation's failure (a
 Python callable's too).
@@ -282,12 +282,19 @@ class Command(Implementation):
         import string
 
         used = set()
+        braces = "; a literal brace is written {{ or }}"
         for tok in self.argv:
-            for _, field, _, _ in string.Formatter().parse(tok):
+            try:
+                parsed = list(string.Formatter().parse(tok))
+            except ValueError as exc:  # a lone brace: "expected '}' before end of string"
+                raise InputError(f"{spec}: cannot read the placeholders of {tok!r}: {exc}{braces}") from None
+            for _, field, format_spec, conversion in parsed:
                 if field is None:
                     continue
-                if field not in PLACEHOLDERS:
-                    raise InputError(f"{spec}: unknown placeholder {{{field}}} (use {', '.join('{'+p+'}' for p in PLACEHOLDERS)})")
+                if field not in PLACEHOLDERS or format_spec or conversion:
+                    shown = field + (f"!{conversion}" if conversion else "") + (f":{format_spec}" if format_spec else "")
+                    raise InputError(f"{spec}: unknown placeholder {{{shown}}} (use "
+                                     f"{', '.join('{'+p+'}' for p in PLACEHOLDERS)}){braces}")
                 used.add(field)
         if "out" not in used:
             raise InputError(f"{spec}: the command has no {{out}}: it cannot return a matrix")

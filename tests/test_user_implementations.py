@@ -2,8 +2,11 @@
 the other implementations still report, and the command neither ends with another status nor hangs."""
 
 import json
+import os
 import subprocess
 import sys
+import threading
+import warnings
 
 import numpy as np
 import pytest
@@ -101,3 +104,48 @@ def test_a_template_with_a_lone_brace_or_a_formatted_placeholder_is_bad_input(tm
     assert p.returncode == 2, p.stderr
     assert p.stdout == "" and said in p.stderr and "a literal brace is written {{ or }}" in p.stderr, p.stderr
     assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_an_empty_output_file_is_said_so_without_a_warning(tmp_path):
+    """It was "output matrix is 0x1, expected 3x3", after numpy's warning printed with its source line."""
+    (tmp_path / "empty.py").write_text("import sys\nopen(sys.argv[1], 'w').write('# nothing\\n')\n")
+    spec = f'cmd:"{sys.executable} {tmp_path / "empty.py"} {{out}}"'
+    src, tgt = _clouds()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = crosscheck_implementations(src, tgt, implementations=["reference", spec],
+                                       options=ICPOptions(max_correspondence_distance=1.0))
+    assert r.rows[spec]["error"] == "wrote an empty output matrix"
+
+
+@pytest.mark.skipif(not hasattr(os, "setsid") or not hasattr(os, "mkfifo"), reason="needs setsid and FIFOs")
+def test_a_process_left_outside_the_group_holding_stderr_is_no_traceback(tmp_path, monkeypatch):
+    """A program's child that left its process group (setsid) kept the stderr pipe; the pipe was closed under
+    the reader thread, which printed a traceback ("I/O operation on closed file") when the child wrote."""
+    fifo = tmp_path / "go"
+    os.mkfifo(fifo)
+    (tmp_path / "escape.py").write_text(
+        "import os, sys\n"
+        "r, w = os.pipe()\n"
+        "if os.fork() == 0:\n"
+        "    os.setsid()\n"
+        "    os.write(w, b'x')\n"
+        f"    open({str(fifo)!r}).read()\n"
+        "    sys.stderr.write('late\\n')\n"
+        "    sys.stderr.flush()\n"
+        "    os._exit(0)\n"
+        "os.read(r, 1)\n"
+        "open(sys.argv[1], 'w').write('1 0 0\\n0 1 0\\n0 0 1\\n')\n")
+    failures = []
+    monkeypatch.setattr(threading, "excepthook", failures.append)
+    spec = f'cmd:"{sys.executable} {tmp_path / "escape.py"} {{out}}"'
+    src, tgt = _clouds()
+    r = crosscheck_implementations(src, tgt, implementations=["reference", spec],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    readers = [t for t in threading.enumerate() if t.name == "pcreg-cmd-stderr"]
+    with open(fifo, "w") as go:  # the child writes on the stderr it kept, and ends
+        go.write("go")
+    for t in readers:
+        t.join()
+    assert r.rows[spec]["status"] == "ok", r.rows[spec]
+    assert readers and not failures, [f.exc_value for f in failures]

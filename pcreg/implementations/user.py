@@ -41,6 +41,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -243,12 +244,16 @@ def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]
     except OSError as exc:
         raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
     tail = bytearray()
+    assert p.stderr is not None  # stderr=PIPE
+    stderr = p.stderr
 
-    def keep_tail() -> None:
-        assert p.stderr is not None  # stderr=PIPE
-        while chunk := os.read(p.stderr.fileno(), 1 << 16):
-            tail.extend(chunk)
-            del tail[:-4096]
+    def keep_tail() -> None:  # the pipe is the reader's: a process left outside the group may hold it open
+        try:
+            while chunk := os.read(stderr.fileno(), 1 << 16):
+                tail.extend(chunk)
+                del tail[:-4096]
+        finally:
+            stderr.close()
 
     reader = threading.Thread(target=keep_tail, name="pcreg-cmd-stderr", daemon=True)
     reader.start()
@@ -259,8 +264,9 @@ def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]
     finally:  # at its end, past the timeout or on an interrupt: the program and what it left running end here
         kill_group(p.pid)
         p.wait()
-        reader.join(5.0)  # the group's end closes its stderr, and the reader ends with it
-        p.stderr.close()  # type: ignore[union-attr]
+        # The group's end closes its stderr, and the reader ends with it; a process that left the group (setsid)
+        # and holds it keeps the reader until it ends, not the run.
+        reader.join(5.0)
     lines = bytes(tail).decode("utf-8", "replace").strip().splitlines()
     return status, lines[-1][:200] if lines else ""
 
@@ -336,11 +342,15 @@ class Command(Implementation):
                 raise ImplementationError("wrote no output matrix")
             try:  # a regular file of at most 64 kB: a FIFO left at {out} would block the read forever
                 text = read_regular_file(out, max_bytes=1 << 16, what="output matrix")
-                m = np.loadtxt(io.BytesIO(text), dtype=np.float64, ndmin=2)
+                with warnings.catch_warnings():  # "input contained no data": said below, in the row
+                    warnings.simplefilter("ignore")
+                    m = np.loadtxt(io.BytesIO(text), dtype=np.float64, ndmin=2)
             except InputError as exc:
                 raise ImplementationError(str(exc).removeprefix(f"{out}: ")) from None
             except ValueError as exc:
                 raise ImplementationError(f"unreadable output matrix ({str(exc).splitlines()[0][:120]})") from None
+            if m.size == 0:
+                raise ImplementationError("wrote an empty output matrix")
             m = _checked_matrix(m, d, "output matrix")
             extra = {}
             side = Path(str(out) + ".json")

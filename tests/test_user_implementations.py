@@ -149,3 +149,23 @@ def test_a_process_left_outside_the_group_holding_stderr_is_no_traceback(tmp_pat
         t.join()
     assert r.rows[spec]["status"] == "ok", r.rows[spec]
     assert readers and not failures, [f.exc_value for f in failures]
+
+
+def test_a_tensor_returned_is_read_as_its_array(on_path):
+    """An object numpy reads through __array__ (a torch tensor) was "returned neither a matrix nor an object
+    with 'matrix'"."""
+    (on_path / "tensors.py").write_text(
+        "import numpy as np\n"
+        "class Tensor:\n"
+        "    def __init__(self, a):\n"
+        "        self.a = a\n"
+        "    def __array__(self, dtype=None, copy=None):\n"
+        "        return np.asarray(self.a, dtype=dtype)\n"
+        "def align(source, target, *, init, **kw):\n"
+        "    return Tensor(init + [[0, 0, 0.1], [0, 0, 0], [0, 0, 0]])\n")
+    src, tgt = _clouds()
+    r = crosscheck_implementations(src, tgt, implementations=["reference", "py:tensors:align"],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    row = r.rows["py:tensors:align"]
+    assert row["status"] == "ok" and row["matrix"][0][2] == pytest.approx(0.1), row
+    assert row["iterations"] is None and not row["agrees"]

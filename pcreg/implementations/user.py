@@ -7,7 +7,7 @@ Python callables are called as::
              relative_rmse)
 
 with ``source`` (N, d), ``target`` (M, d) float64 arrays, ``init`` the (d+1, d+1) guess, and return the
-(d+1, d+1) matrix ``T_target_source``, or a dict / object with ``matrix`` and optionally ``iterations``,
+(d+1, d+1) matrix ``T_target_source`` (an array, nested lists, or what numpy reads: a tensor), or a dict / object with ``matrix`` and optionally ``iterations``,
 ``fitness``, ``inlier_rmse``, ``converged``. A function attribute ``comparability`` ("step",
 "fixed-point", "objective"; default "step") says which tolerance applies.
 
@@ -207,7 +207,9 @@ class PythonCallable(Implementation):
 
     def _result(self, r, d: int, seconds: float):
         get = (lambda k: r.get(k)) if isinstance(r, dict) else (lambda k: getattr(r, k, None))
-        matrix = r if isinstance(r, (np.ndarray, list, tuple)) else get("matrix")
+        # a matrix itself: an array, nested lists, or what numpy reads as one (a torch or jax tensor)
+        isarr = isinstance(r, (np.ndarray, list, tuple)) or (hasattr(r, "__array__") and not hasattr(r, "matrix"))
+        matrix = r if isarr else get("matrix")
         if matrix is None:
             raise ImplementationError("returned neither a matrix nor an object with 'matrix'")
         try:
@@ -216,7 +218,6 @@ class PythonCallable(Implementation):
             matrix = np.array(matrix, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):
             raise ImplementationError("returned a matrix that is not numeric") from None
-        isarr = isinstance(r, (np.ndarray, list, tuple))
         return result(self.name, _checked_matrix(matrix, d, "the returned matrix"),
                       iterations=None if isarr else _number(get("iterations"), "iterations", int, hi=MAX_ITERATIONS),
                       fitness=None if isarr else _number(get("fitness"), "fitness", hi=1.0),

@@ -169,3 +169,13 @@ def test_a_tensor_returned_is_read_as_its_array(on_path):
     row = r.rows["py:tensors:align"]
     assert row["status"] == "ok" and row["matrix"][0][2] == pytest.approx(0.1), row
     assert row["iterations"] is None and not row["agrees"]
+
+
+def test_a_long_last_line_on_stderr_is_shortened_with_a_mark(tmp_path):
+    """Its first 200 characters read as the whole line."""
+    (tmp_path / "talks.py").write_text("import sys\nsys.stderr.write('solver: ' + 'e' * 1000 + '\\n')\nsys.exit(5)\n")
+    spec = f'cmd:"{sys.executable} {tmp_path / "talks.py"} {{out}}"'
+    src, tgt = _clouds()
+    r = crosscheck_implementations(src, tgt, implementations=["reference", spec],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    assert r.rows[spec]["error"] == "exit status 5: solver: " + "e" * 189 + "..."

@@ -269,7 +269,8 @@ def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]
         # and holds it keeps the reader until it ends, not the run.
         reader.join(5.0)
     lines = bytes(tail).decode("utf-8", "replace").strip().splitlines()
-    return status, lines[-1][:200] if lines else ""
+    last = lines[-1] if lines else ""
+    return status, last if len(last) <= 200 else last[:197] + "..."  # shortened, and marked so
 
 
 class Command(Implementation):

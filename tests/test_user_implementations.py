@@ -179,3 +179,21 @@ def test_a_long_last_line_on_stderr_is_shortened_with_a_mark(tmp_path):
     r = crosscheck_implementations(src, tgt, implementations=["reference", spec],
                                    options=ICPOptions(max_correspondence_distance=1.0))
     assert r.rows[spec]["error"] == "exit status 5: solver: " + "e" * 189 + "..."
+
+
+def test_a_thread_a_function_leaves_running_does_not_hold_the_command_at_exit(tmp_path):
+    """Python's exit waited for the function's thread: the report printed, the command never ended."""
+    (tmp_path / "spawns.py").write_text(
+        "import threading\n"
+        "def align(source, target, *, init, **kw):\n"
+        "    threading.Thread(target=threading.Event().wait, name='solver-pool').start()\n"
+        "    return init\n")
+    src, tgt = _clouds(3)
+    np.save(tmp_path / "t.npy", tgt)
+    np.save(tmp_path / "s.npy", src)
+    p = subprocess.run([sys.executable, "-m", "pcreg.cli", "crosscheck", "t.npy", "s.npy", "--with",
+                        "reference,py:spawns:align", "--max-distance", "1", "--json"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=120)  # without the fix: never ends
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["implementations"]["py:spawns:align"]["status"] == "ok"
+    assert "(solver-pool): ended with the process" in p.stderr

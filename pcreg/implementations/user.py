@@ -40,6 +40,7 @@ import shlex
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -123,11 +124,13 @@ def _user_code(what: str):
     """Run a ``py:`` implementation's own code (its import, its call, the reading of what it returned): what
     it raises, ``sys.exit`` and a KeyboardInterrupt no signal sent included, becomes an
     :class:`ImplementationError` (its row's one line), and the working directory it changed is put back
-    (the next implementation's relative paths, and the command's outputs, are the caller's)."""
+    (the next implementation's relative paths, and the command's outputs, are the caller's); threads it
+    left running are marked ``pcreg_user_code`` (:mod:`pcreg.cli` ends the process without them)."""
     try:
         cwd: int | None = os.open(".", getattr(os, "O_PATH", os.O_RDONLY))
     except OSError:  # a working directory gone or unreadable: none to put back
         cwd = None
+    before = set(threading.enumerate())
     try:
         yield
     except ImplementationError:
@@ -146,6 +149,9 @@ def _user_code(what: str):
     except GeneratorExit:  # the one other BaseException code can raise by itself
         raise ImplementationError("raised GeneratorExit") from None
     finally:
+        for t in set(threading.enumerate()) - before:  # marked for pcreg.cli, whose exit would wait for them
+            if not t.daemon:
+                t.pcreg_user_code = True  # type: ignore[attr-defined]
         if cwd is not None:
             try:
                 os.fchdir(cwd)
@@ -231,7 +237,6 @@ def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]
     nor disk); past ``timeout`` the whole group is killed, and at its end what it left running (a program's own
     children outlive a kill of the program alone, and would hold the run)."""
     import signal
-    import threading
 
     def kill_group(pid: int) -> None:
         try:

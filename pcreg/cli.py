@@ -166,6 +166,29 @@ HELPER_GRACE = 5.0
 
 
 def main(argv: list[str] | None = None) -> int:
+    code = _main(argv)
+    if argv is None:  # the program itself
+        _leave_without_user_threads(code)
+    return code
+
+
+def _leave_without_user_threads(code: int) -> None:
+    """End the process with ``code`` now when threads a ``py:`` implementation started are still running:
+    Python's exit would wait for them, for ever if they never end, with the report already printed."""
+    import os
+    import threading
+
+    held = [t.name for t in threading.enumerate() if getattr(t, "pcreg_user_code", False) and t.is_alive()]
+    if not held:
+        return
+    sys.stderr.write(f"pcreg: {len(held)} thread{'s' if len(held) > 1 else ''} a py: implementation started "
+                     f"{'are' if len(held) > 1 else 'is'} still running ({', '.join(held[:3])}): ended with the process\n")
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def _main(argv: list[str] | None) -> int:
     import os
 
     from .errors import PcregError

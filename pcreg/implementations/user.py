@@ -7,7 +7,7 @@ Python callables are called as::
              relative_rmse)
 
 with ``source`` (N, d), ``target`` (M, d) float64 arrays, ``init`` the (d+1, d+1) guess, and return the
-(d+1, d+1) matrix ``T_target_source``, or a dict / object with ``matrix`` and optionally ``iterations``,
+(d+1, d+1) matrix ``T_target_source`` (an array, nested lists, or what numpy reads: a tensor), or a dict / object with ``matrix`` and optionally ``iterations``,
 ``fitness``, ``inlier_rmse``, ``converged``. A function attribute ``comparability`` ("step",
 "fixed-point", "objective"; default "step") says which tolerance applies.
 
@@ -22,7 +22,7 @@ The file protocol of ``cmd:`` programs (fixed; other tools are written against i
   the format of ``{init}``; it may also write ``{out}.json`` with ``iterations`` (whole, at least 0),
   ``fitness`` (0..1), ``inlier_rmse`` (at least 0), ``converged`` (true or false) and ``comparability``.
 
-Placeholders the template does not use are not written. The program runs in the current directory
+Placeholders the template does not use are not written; a literal brace is written ``{{`` or ``}}``. The program runs in the current directory
 with a time limit; a non-zero exit, a timeout, an unreadable output, a NaN, a matrix that is not a rigid
 transform (:data:`RETURNED_TOLERANCE`) or a figure out of its range is that implementation's failure (a
 Python callable's too).
@@ -30,6 +30,7 @@ Python callable's too).
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import io
 import json
@@ -39,7 +40,9 @@ import shlex
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -71,13 +74,20 @@ def _number(value, key: str, kind=float, lo: float = 0.0, hi: float = math.inf):
         return None
     if isinstance(value, (np.integer, np.floating)):  # numpy's scalars, as a Python function returns them
         value = value.item()
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ImplementationError(f"{key} must be a finite number, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (isinstance(value, float)
+                                                                          and not math.isfinite(value)):
+        raise ImplementationError(f"{key} must be a finite number, got {_shown(value)}")
     if kind is int and value != int(value):
-        raise ImplementationError(f"{key} must be a whole number, got {value!r}")
-    if not lo <= value <= hi:
-        raise ImplementationError(f"{key} must be in {lo:g}..{hi:g}, got {value!r}")
+        raise ImplementationError(f"{key} must be a whole number, got {_shown(value)}")
+    if not lo <= value <= hi:  # a whole number of 400 digits is compared as it is: float() would overflow
+        raise ImplementationError(f"{key} must be in {lo:g}..{hi:g}, got {_shown(value)}")
     return kind(value)
+
+
+def _shown(value) -> str:
+    """``value``'s repr, at most 40 characters (a 400-digit number, a long string)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _converged(value):
@@ -109,6 +119,46 @@ def _checked_matrix(m: np.ndarray, d: int, what: str) -> np.ndarray:
     return m
 
 
+@contextlib.contextmanager
+def _user_code(what: str):
+    """Run a ``py:`` implementation's own code (its import, its call, the reading of what it returned): what
+    it raises, ``sys.exit`` and a KeyboardInterrupt no signal sent included, becomes an
+    :class:`ImplementationError` (its row's one line), and the working directory it changed is put back
+    (the next implementation's relative paths, and the command's outputs, are the caller's); threads it
+    left running are marked ``pcreg_user_code`` (:mod:`pcreg.cli` ends the process without them)."""
+    try:
+        cwd: int | None = os.open(".", getattr(os, "O_PATH", os.O_RDONLY))
+    except OSError:  # a working directory gone or unreadable: none to put back
+        cwd = None
+    before = set(threading.enumerate())
+    try:
+        yield
+    except ImplementationError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a user function's failure is its row's error
+        said = {"import": "", "call": "raised ", "result": "its result raised "}[what]
+        raise ImplementationError(f"{said}{type(exc).__name__}: {exc}") from None
+    except SystemExit as exc:  # sys.exit in a function would end the cross-check with its status
+        raise ImplementationError(f"called sys.exit({exc.code!r}){'' if what == 'import' else '; a function returns its matrix'}") from None
+    except KeyboardInterrupt:  # raised by the code itself, not by Ctrl-C or SIGTERM
+        from .._runner import handles_signals, interrupted
+
+        if interrupted() or not handles_signals():  # a real interrupt, or one nothing can tell apart
+            raise
+        raise ImplementationError("raised KeyboardInterrupt (no interrupt came)") from None
+    except GeneratorExit:  # the one other BaseException code can raise by itself
+        raise ImplementationError("raised GeneratorExit") from None
+    finally:
+        for t in set(threading.enumerate()) - before:  # marked for pcreg.cli, whose exit would wait for them
+            if not t.daemon:
+                t.pcreg_user_code = True  # type: ignore[attr-defined]
+        if cwd is not None:
+            try:
+                os.fchdir(cwd)
+            finally:
+                os.close(cwd)
+
+
 class PythonCallable(Implementation):
     """``py:MODULE:FUNCTION``."""
 
@@ -129,9 +179,10 @@ class PythonCallable(Implementation):
                 sys.path.insert(0, os.getcwd())
                 added = True
             try:
-                mod = importlib.import_module(self.module)
-            except Exception as exc:  # noqa: BLE001 - any import failure is this implementation's
-                raise ImplementationError(f"cannot import {self.module}: {type(exc).__name__}: {exc}") from None
+                with _user_code("import"):
+                    mod = importlib.import_module(self.module)
+            except ImplementationError as exc:
+                raise ImplementationError(f"cannot import {self.module}: {exc}") from None
             finally:
                 if added:
                     sys.path.remove(os.getcwd())
@@ -154,23 +205,17 @@ class PythonCallable(Implementation):
     def _run(self, pinned, *, trace):
         func = self._load()
         start = time.perf_counter()
-        try:
+        with _user_code("call"):
             r = func(pinned.source.copy(), pinned.target.copy(), init=pinned.init.copy(), **pinned.params())
-        except Exception as exc:  # noqa: BLE001 - a user function's failure is its row's error
-            raise ImplementationError(f"raised {type(exc).__name__}: {exc}") from None
-        except SystemExit as exc:  # sys.exit in a function would end the cross-check with its status
-            raise ImplementationError(f"called sys.exit({exc.code!r}); a function returns its matrix") from None
-        except KeyboardInterrupt:  # raised by the function itself, not by Ctrl-C or SIGTERM
-            from .._runner import handles_signals, interrupted
-
-            if interrupted() or not handles_signals():  # a real interrupt, or one nothing can tell apart
-                raise
-            raise ImplementationError("raised KeyboardInterrupt (no interrupt came)") from None
-        except GeneratorExit:  # the one other BaseException a function can raise by itself
-            raise ImplementationError("raised GeneratorExit") from None
         seconds = time.perf_counter() - start
+        with _user_code("result"):  # its properties and __array__ are the function's code too
+            return self._result(r, pinned.source.shape[1], seconds)
+
+    def _result(self, r, d: int, seconds: float):
         get = (lambda k: r.get(k)) if isinstance(r, dict) else (lambda k: getattr(r, k, None))
-        matrix = r if isinstance(r, (np.ndarray, list, tuple)) else get("matrix")
+        # a matrix itself: an array, nested lists, or what numpy reads as one (a torch or jax tensor)
+        isarr = isinstance(r, (np.ndarray, list, tuple)) or (hasattr(r, "__array__") and not hasattr(r, "matrix"))
+        matrix = r if isarr else get("matrix")
         if matrix is None:
             raise ImplementationError("returned neither a matrix nor an object with 'matrix'")
         try:
@@ -179,8 +224,7 @@ class PythonCallable(Implementation):
             matrix = np.array(matrix, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):
             raise ImplementationError("returned a matrix that is not numeric") from None
-        isarr = isinstance(r, (np.ndarray, list, tuple))
-        return result(self.name, _checked_matrix(matrix, pinned.source.shape[1], "the returned matrix"),
+        return result(self.name, _checked_matrix(matrix, d, "the returned matrix"),
                       iterations=None if isarr else _number(get("iterations"), "iterations", int, hi=MAX_ITERATIONS),
                       fitness=None if isarr else _number(get("fitness"), "fitness", hi=1.0),
                       inlier_rmse=None if isarr else _number(get("inlier_rmse"), "inlier_rmse"),
@@ -193,7 +237,6 @@ def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]
     nor disk); past ``timeout`` the whole group is killed, and at its end what it left running (a program's own
     children outlive a kill of the program alone, and would hold the run)."""
     import signal
-    import threading
 
     def kill_group(pid: int) -> None:
         try:
@@ -207,12 +250,16 @@ def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]
     except OSError as exc:
         raise ImplementationError(f"cannot run {argv[0]}: {exc.strerror or exc}") from None
     tail = bytearray()
+    assert p.stderr is not None  # stderr=PIPE
+    stderr = p.stderr
 
-    def keep_tail() -> None:
-        assert p.stderr is not None  # stderr=PIPE
-        while chunk := os.read(p.stderr.fileno(), 1 << 16):
-            tail.extend(chunk)
-            del tail[:-4096]
+    def keep_tail() -> None:  # the pipe is the reader's: a process left outside the group may hold it open
+        try:
+            while chunk := os.read(stderr.fileno(), 1 << 16):
+                tail.extend(chunk)
+                del tail[:-4096]
+        finally:
+            stderr.close()
 
     reader = threading.Thread(target=keep_tail, name="pcreg-cmd-stderr", daemon=True)
     reader.start()
@@ -223,10 +270,12 @@ def _run_in_own_group(argv: list[str], timeout: float | None) -> tuple[int, str]
     finally:  # at its end, past the timeout or on an interrupt: the program and what it left running end here
         kill_group(p.pid)
         p.wait()
-        reader.join(5.0)  # the group's end closes its stderr, and the reader ends with it
-        p.stderr.close()  # type: ignore[union-attr]
+        # The group's end closes its stderr, and the reader ends with it; a process that left the group (setsid)
+        # and holds it keeps the reader until it ends, not the run.
+        reader.join(5.0)
     lines = bytes(tail).decode("utf-8", "replace").strip().splitlines()
-    return status, lines[-1][:200] if lines else ""
+    last = lines[-1] if lines else ""
+    return status, last if len(last) <= 200 else last[:197] + "..."  # shortened, and marked so
 
 
 class Command(Implementation):
@@ -246,12 +295,19 @@ class Command(Implementation):
         import string
 
         used = set()
+        braces = "; a literal brace is written {{ or }}"
         for tok in self.argv:
-            for _, field, _, _ in string.Formatter().parse(tok):
+            try:
+                parsed = list(string.Formatter().parse(tok))
+            except ValueError as exc:  # a lone brace: "expected '}' before end of string"
+                raise InputError(f"{spec}: cannot read the placeholders of {tok!r}: {exc}{braces}") from None
+            for _, field, format_spec, conversion in parsed:
                 if field is None:
                     continue
-                if field not in PLACEHOLDERS:
-                    raise InputError(f"{spec}: unknown placeholder {{{field}}} (use {', '.join('{'+p+'}' for p in PLACEHOLDERS)})")
+                if field not in PLACEHOLDERS or format_spec or conversion:
+                    shown = field + (f"!{conversion}" if conversion else "") + (f":{format_spec}" if format_spec else "")
+                    raise InputError(f"{spec}: unknown placeholder {{{shown}}} (use "
+                                     f"{', '.join('{'+p+'}' for p in PLACEHOLDERS)}){braces}")
                 used.add(field)
         if "out" not in used:
             raise InputError(f"{spec}: the command has no {{out}}: it cannot return a matrix")
@@ -293,11 +349,15 @@ class Command(Implementation):
                 raise ImplementationError("wrote no output matrix")
             try:  # a regular file of at most 64 kB: a FIFO left at {out} would block the read forever
                 text = read_regular_file(out, max_bytes=1 << 16, what="output matrix")
-                m = np.loadtxt(io.BytesIO(text), dtype=np.float64, ndmin=2)
+                with warnings.catch_warnings():  # "input contained no data": said below, in the row
+                    warnings.simplefilter("ignore")
+                    m = np.loadtxt(io.BytesIO(text), dtype=np.float64, ndmin=2)
             except InputError as exc:
                 raise ImplementationError(str(exc).removeprefix(f"{out}: ")) from None
             except ValueError as exc:
                 raise ImplementationError(f"unreadable output matrix ({str(exc).splitlines()[0][:120]})") from None
+            if m.size == 0:
+                raise ImplementationError("wrote an empty output matrix")
             m = _checked_matrix(m, d, "output matrix")
             extra = {}
             side = Path(str(out) + ".json")

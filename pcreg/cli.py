@@ -236,9 +236,11 @@ def _main(argv: list[str] | None) -> int:
         if module.endswith(ONE_SHOT):
             sys.stderr.write("pcreg: interrupted (nothing was written)\n")
             return 130
+        if not (module.endswith(".run") or ".evaluate_" in module):  # nothing it could resume (or not yet parsed)
+            sys.stderr.write("pcreg: interrupted\n")
+            return 130
         again = ("the same command with another --record file (the recording holds what was done)"
-                 if getattr(args, "record", None) and (module.endswith(".run") or ".evaluate_" in module)
-                 else "the same command")
+                 if getattr(args, "record", None) else "the same command")
         kept = "the frames labelled are kept" if module.endswith(".run") else "finished units are kept"
         sys.stderr.write(f"pcreg: interrupted ({kept}; rerun {again} to resume)\n")
         return 130

@@ -272,3 +272,20 @@ def test_an_interrupted_evaluation_with_a_recording_says_to_resume_with_another(
     assert main(["evaluate", "sequence", "--frames", "4", "--size", "160x120", "--out", str(tmp_path / "o"),
                  "--record", str(tmp_path / "o" / "a.rrd")]) == 130
     assert "rerun the same command with another --record file" in capsys.readouterr().err
+
+
+def test_an_interrupted_command_with_nothing_to_resume_says_only_that_it_was_interrupted(tmp_path, monkeypatch, capsys):
+    """``register`` (and ``crosscheck``, ``demo``, or any command stopped before its arguments were read) said
+    "finished units are kept; rerun the same command to resume", the evaluations' words: nothing of it resumes."""
+    import pcreg.registration.api
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pcreg.registration.api, "register", stopped)
+    image = np.zeros((64, 64, 3), np.uint8)
+    image[16:48, 16:48] = 255
+    for name in ("a.png", "b.png"):
+        cv2.imwrite(str(tmp_path / name), image)
+    assert main(["register", str(tmp_path / "a.png"), str(tmp_path / "b.png")]) == 130
+    assert capsys.readouterr().err == "pcreg: interrupted\n"

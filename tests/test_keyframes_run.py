@@ -261,3 +261,13 @@ def test_the_old_stream_run_name_warns_and_still_opens_a_run(tmp_path, frames):
     run = old(open_frames(folder), frames[0].labels, tmp_path / "out", None, identity={"x": 1})
     assert isinstance(run, Run) and run.start() == 1
     assert (tmp_path / "out" / "f0.png").is_file() and json.loads((tmp_path / "out" / "run.json").read_text())["done"] == 1
+
+
+def test_a_run_whose_every_frame_is_a_key_frame_says_so(tmp_path, frames, folder, capsys):
+    """Every frame given labels (a CVAT export of a fully drawn task): the run wrote their labels and said "all
+    frames already done", as if an earlier run had labelled them."""
+    keys = _keys(tmp_path / "keys", frames, range(len(frames)))
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(out)]) == 0
+    assert f"every frame is a key frame ({len(frames)})" in capsys.readouterr().out
+    np.testing.assert_array_equal(_labels(out, "f3"), frames[3].labels)

@@ -223,7 +223,10 @@ class Run:
 
         out, s = self.out, self.state
         if done == 0:
-            print(f"{out}: all frames already done" if start is None else f"{out}: all {start} frames already done")
+            if start is None and not s.get("lines"):  # no step ever: every frame is a key frame
+                print(f"{out}: every frame is a key frame ({len(keys)}): their labels are written as given, none carried")
+            else:
+                print(f"{out}: all frames already done" if start is None else f"{out}: all {start} frames already done")
             self.suggest(request.suggest, keys)
             return
         if start is not None:

@@ -236,3 +236,23 @@ def test_a_refusal_of_images_of_sizes_far_apart_names_their_sizes(shared_data, m
         with pytest.raises(pcreg.RegistrationError, match=r"\(the images are \d+x\d+ and \d+x\d+ px, 20\.0x apart: .*"
                                                           r"resize the larger image first\)"):
             pcreg.register(ref, mov, model=model)
+
+
+@pytest.mark.parametrize("flip", [0, 1])
+def test_a_mirrored_photograph_is_refused_as_a_mirror_image(shared_data, flip):
+    """A frame flipped left-right or upside down: its own best alignment is under the threshold, so the mirror was
+    not searched and the refusal said the images do not show the same scene; its mirror aligns every edge."""
+    frame = _camvid_view(shared_data, 20, 0.0, 1.0)[0]
+    with pytest.raises(pcreg.RegistrationError, match=r"a mirror image of the reference \(its mirror aligns (9\d|100)\.\d% "):
+        pcreg.register(frame, np.ascontiguousarray(cv2.flip(frame, 1 - flip)))
+
+
+def test_unrelated_photographs_are_not_called_mirror_images(shared_data):
+    """Searching the mirror below the threshold must not name as mirrors two frames of different streets, whose
+    mirrored alignment is as poor as their own."""
+    a = _camvid_view(shared_data, 0, 0.0, 1.0)[0]
+    folder = shared_data / "camvid" / "0001TP" / "images"
+    b = cv2.imread(str(sorted(folder.glob("*.png"))[0]))[:, :, ::-1].copy()
+    with pytest.raises(pcreg.RegistrationError) as info:
+        pcreg.register(a, b)
+    assert "mirror" not in str(info.value)

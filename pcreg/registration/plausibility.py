@@ -10,7 +10,8 @@ agrees within 30° (measured at full resolution; on images whose full-resolution
 ``chance_ratio`` or within :data:`SIGNIFICANCE` standard deviations of it, when the moving image's edges run
 one way (:data:`ONE_DIRECTION`), with fewer than 2% of the points on the reference (no overlap), or when the moving
 image's mirror aligns clearly better (a score :data:`MIRROR_FACTOR` times as high, and more of its edge
-points; asked of every model when the search ended unconvinced), :class:`~pcreg.errors.RegistrationError`
+points; asked of every model when the search ended unconvinced; under ``min_inlier_ratio``, the mirror's
+alignment passes where the image's does not), :class:`~pcreg.errors.RegistrationError`
 is raised with a one-line reason. Unrelated images, noise and mirror images are refused this way.
 """
 
@@ -124,14 +125,26 @@ class Plausibility:
                                   tolerance=self.inlier_tolerance * 2**level)
 
     def worth_a_mirror(self, tried: list[Candidate], convincing: bool) -> bool:
-        """Whether the search ended unconvinced though above the threshold: then the moving image may be a
-        mirror image of the reference (its mirror, if so, aligns better). Every model is asked: a rigid or
+        """Whether the search ended unconvinced (below the threshold too: a mirror image's own best alignment
+        may be no better than unrelated content's): then the moving image may be a mirror image of the reference
+        (its mirror, if so, aligns better, :meth:`check`). Every model is asked: a rigid or
         similarity motion cannot mirror, and an affine or projective one, which could, starts from the
         search's rotations and refines to one, never to a mirror (a mirrored transform is refused anyway,
         :func:`~pcreg.registration.transforms.degeneracy`): a photograph's round outline or frame lines up
         rotated while its content does not."""
-        best_ratio = max((c.inlier_ratio for c in tried), default=0.0)
-        return self.min_inlier_ratio is not None and best_ratio >= self.min_inlier_ratio and not convincing
+        return self.min_inlier_ratio is not None and not convincing
+
+    def _mirrored(self, mirror: Candidate, best: Candidate) -> bool:
+        """Whether the moving image is a mirror image of the reference, its mirror's best alignment ``mirror``
+        against its own ``best``: above the threshold, the mirror scores :data:`MIRROR_FACTOR` times as high and
+        aligns more edge points; below it (where both may be no better than unrelated content), the mirror's
+        alignment would pass the threshold and the chance test, the image's would not."""
+        mir = self.min_inlier_ratio
+        if mir is None:
+            return False
+        if best.inlier_ratio >= mir:
+            return mirror.score > MIRROR_FACTOR * best.score and mirror.inlier_ratio > best.inlier_ratio
+        return mirror.inlier_ratio >= mir and mirror.inlier_ratio >= CHANCE_FACTOR * mirror.evidence.chance_ratio
 
     def check(self, best: Candidate, *, mirror: Candidate | None = None, shape: tuple[int, ...] | None = None,
               moving: CloudPyramid | None = None) -> Evidence:
@@ -152,11 +165,12 @@ class Plausibility:
             raise RegistrationError(f"registration found no overlap between the images: {ev.overlap_points} of "
                                     f"{ev.moving_points} moving edge points land on the reference (at least {need} needed)"
                                    f"{self._sizes(shape)}")
-        if mirror is not None and mirror.score > MIRROR_FACTOR * best.score and mirror.inlier_ratio > ratio:
+        if mirror is not None and self._mirrored(mirror, best):
             raise RegistrationError(
                 f"registration refused: the moving image is a mirror image of the reference (its mirror aligns "
                 f"{100 * mirror.inlier_ratio:.1f}% of the edge points within {self.inlier_tolerance:g} px, the image "
-                f"itself {100 * ratio:.1f}%, with intensities agreeing less)")
+                f"itself {100 * ratio:.1f}%" + (", with intensities agreeing less)" if ratio >= (self.min_inlier_ratio or 0.0)
+                                                 else ")"))
         mir, chance = self.min_inlier_ratio, ev.chance_ratio
         spread = None if moving is None or mir is None or mir <= 0 else edge_spread(moving)
         if spread is not None and spread < ONE_DIRECTION:

@@ -8,14 +8,12 @@ from __future__ import annotations
 
 import os
 import re
-import warnings
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from .cloud_files import PcdHeader, check_cloud_file, check_npy_file, pcd_header
-from .cloud_text import check_text_cloud, read_columns, read_pts
+from .cloud_text import check_text_cloud, number_columns, read_columns, read_pts
 from .errors import InputError
 from .registration.api import check_cloud
 from .validation import check_point_count, max_pixels
@@ -104,10 +102,7 @@ def _read_pcd_ascii(path: Path, header: PcdHeader) -> np.ndarray:
     columns = [c for c in (header.column(axis) for axis in "xyz") if c is not None]
     if len(columns) < 3:
         raise InputError(f"{path}: PCD fields {' '.join(header.fields)} lack x, y or z")
-    try:
-        pts = _pcd_columns(path, header, columns, None)
-    except ValueError:  # nan(ind) and its kind, as C's printf writes a NaN on some systems
-        pts = _pcd_columns(path, header, columns, lambda word: float(word.split("(")[0]))
+    pts = number_columns(path, columns, header.points, start=header.start)
     for k, axis in enumerate("xyz"):
         kind = header.types[header.fields.index(axis)]
         values = pts[:, k]
@@ -117,18 +112,6 @@ def _read_pcd_ascii(path: Path, header: PcdHeader) -> np.ndarray:
             raise InputError(f"{path}: its field {axis} holds whole numbers (TYPE {kind}), point {row + 1} has "
                              f"{axis} = {float(values[row])!r}")
     return pts
-
-
-def _pcd_columns(path: Path, header: PcdHeader, columns: list[int],
-                 converter: Callable[[str], float] | None) -> np.ndarray:
-    """The ``columns`` of an ASCII PCD's data lines, split at newlines only (as its check and Open3D do: a CR is
-    white space between numbers)."""
-    with open(path, "rb") as fh, warnings.catch_warnings():  # blank lines are not counted in max_rows: no warning
-        warnings.simplefilter("ignore", UserWarning)
-        fh.seek(header.start)
-        lines = (line.decode("latin-1").replace("\r", " ") for line in fh)
-        return np.loadtxt(lines, dtype=np.float64, comments=None, usecols=columns, ndmin=2, max_rows=header.points,
-                          converters=converter)
 
 
 def _open3d_warning(text: str) -> str:

@@ -19,7 +19,7 @@ from .cloud_files import _ASCII_NUMBER, _scan_rows
 from .errors import InputError
 from .validation import check_point_count, max_pixels
 
-__all__ = ["UTF8_BOM", "check_text_cloud", "read_columns", "read_pts"]
+__all__ = ["UTF8_BOM", "check_text_cloud", "number_columns", "read_columns", "read_pts"]
 
 
 def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
@@ -65,20 +65,29 @@ def read_pts(path: Path, limit: int) -> np.ndarray:
     if width < 3:
         raise InputError(f"{path}: its point lines hold {width} number{'s' if width > 1 else ''} (x, y and z are "
                          "needed)")
+    return number_columns(path, (0, 1, 2), count, after_first_line=True)
+
+
+def number_columns(path: Path, columns, count: int, *, start: int = 0, after_first_line: bool = False) -> np.ndarray:
+    """(count, len(columns)) float64: the ``columns`` of the ``count`` point lines of a checked text cloud, from
+    byte ``start`` (an ASCII PCD's data) or after its first non-blank line (a .pts file's count), split at
+    newlines only (as the checks do: a CR is white space between numbers); ``nan(ind)`` and its kind, as C's
+    printf writes a NaN on some systems, read as NaN."""
     try:
-        return _pts_columns(path, count, None)
-    except ValueError:  # nan(ind) and its kind, as C's printf writes a NaN on some systems
-        return _pts_columns(path, count, lambda word: float(word.split("(")[0]))
+        return _number_columns(path, columns, count, start, after_first_line, None)
+    except ValueError:
+        return _number_columns(path, columns, count, start, after_first_line, lambda word: float(word.split("(")[0]))
 
 
-def _pts_columns(path: Path, count: int, converter: Callable[[str], float] | None) -> np.ndarray:
-    """The first three numbers of the ``count`` lines after a .pts file's first, split at newlines only (as its
-    check does: a CR is white space between numbers)."""
+def _number_columns(path: Path, columns, count: int, start: int, after_first_line: bool,
+                    converter: Callable[[str], float] | None) -> np.ndarray:
     with open(path, "rb") as fh, warnings.catch_warnings():  # blank lines are not counted in max_rows: no warning
         warnings.simplefilter("ignore", UserWarning)
+        fh.seek(start)
         lines = (line.decode("latin-1").replace("\r", " ") for line in fh)
-        next(line for line in lines if line.strip())  # the point count
-        return np.loadtxt(lines, dtype=np.float64, comments=None, usecols=(0, 1, 2), ndmin=2, max_rows=count,
+        if after_first_line:
+            next(line for line in lines if line.strip())
+        return np.loadtxt(lines, dtype=np.float64, comments=None, usecols=columns, ndmin=2, max_rows=count,
                           converters=converter)
 
 

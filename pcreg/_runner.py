@@ -28,27 +28,66 @@ _SHIELDED = [0]
 #: kept, exit 130); past them the process is ended with exit 130 all the same, so that a stop never waits
 #: without end, wherever the signal landed (a lock or a thread left waiting for work that will not come).
 STOP_GRACE_SECONDS = 60.0
-#: The armed watchdog's cancel event (:func:`_arm_watchdog`; set by :func:`restore_signals`).
+#: The running watchdog's ``(process id, pipe's write end)`` (:func:`_start_watchdog`; put away by
+#: :func:`restore_signals`).
 _WATCHDOG: list = []
 
 
-def _arm_watchdog() -> None:
-    """After the first signal: a daemon thread that ends the process with exit 130 once
-    :data:`STOP_GRACE_SECONDS` have passed without :func:`restore_signals` or the process's own exit."""
+def _start_watchdog() -> None:
+    """A daemon thread that, once armed by the first signal (:func:`_arm_watchdog`), ends the process with
+    exit 130 if :data:`STOP_GRACE_SECONDS` pass without :func:`restore_signals` or the process's own exit.
+
+    It is started here, before any signal, and armed through a pipe: a signal handler runs wherever the main
+    thread was, possibly inside ``threading``'s own bookkeeping of a thread being started, so the handler
+    itself starts no thread and takes no lock; it writes one byte."""
     import os
+    import select
     import threading
 
-    cancel = threading.Event()
-    _WATCHDOG.append(cancel)
+    read_end, write_end = os.pipe()
 
     def watch() -> None:
-        if not cancel.wait(STOP_GRACE_SECONDS):
-            sys.stderr.write(f"pcreg: interrupted; still stopping after {STOP_GRACE_SECONDS:g} s, so ended now "
-                             "(finished units are kept)\n")
-            sys.stderr.flush()
-            os._exit(130)
+        try:
+            if os.read(read_end, 1) != b"a":  # put away (or the write end closed) before any signal
+                return
+            ready, _, _ = select.select([read_end], [], [], STOP_GRACE_SECONDS)
+            if not ready:
+                sys.stderr.write(f"pcreg: interrupted; still stopping after {STOP_GRACE_SECONDS:g} s, so ended now "
+                                 "(finished units are kept)\n")
+                sys.stderr.flush()
+                os._exit(130)
+        finally:
+            os.close(read_end)
 
     threading.Thread(target=watch, name="pcreg-stop-watchdog", daemon=True).start()
+    _WATCHDOG.append((os.getpid(), write_end))
+
+
+def _arm_watchdog() -> None:
+    """After the first signal: start the watchdog's grace (a byte down its pipe; in a forked child, which
+    inherited the pipe but not the thread, nothing)."""
+    import os
+
+    for pid, write_end in list(_WATCHDOG):
+        if pid == os.getpid():
+            try:
+                os.write(write_end, b"a")
+            except OSError:  # put away meanwhile
+                pass
+
+
+def _put_watchdog_away() -> None:
+    """Stand the watchdog down (a byte it reads as the end; then the pipe's write end closed)."""
+    import os
+
+    while _WATCHDOG:
+        pid, write_end = _WATCHDOG.pop()
+        if pid == os.getpid():
+            try:
+                os.write(write_end, b"c")
+            except OSError:
+                pass
+        os.close(write_end)
 
 
 def _on_signal(signum, frame) -> None:
@@ -72,8 +111,7 @@ def interrupt_on_signals() -> dict:
     import signal
 
     _RECEIVED.clear()
-    while _WATCHDOG:  # one armed by an earlier command in this process, and never put back
-        _WATCHDOG.pop().set()
+    _put_watchdog_away()  # one started by an earlier command in this process, and never put back
     _SHIELDED[0] = 0
     previous: dict = {}
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -81,6 +119,8 @@ def interrupt_on_signals() -> dict:
             previous[signum] = signal.signal(signum, _on_signal)
         except (ValueError, OSError):  # not the main thread
             pass
+    if previous:
+        _start_watchdog()
     return previous
 
 
@@ -89,8 +129,7 @@ def restore_signals(previous: dict) -> None:
     import signal
 
     _RECEIVED.clear()
-    while _WATCHDOG:
-        _WATCHDOG.pop().set()
+    _put_watchdog_away()
     for signum, handler in previous.items():
         try:
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)

@@ -238,6 +238,25 @@ def test_a_stop_that_does_not_end_by_itself_is_ended_after_its_grace(tmp_path):
     assert not watchdog.is_alive() and not _runner._WATCHDOG
 
 
+def test_the_signal_handler_starts_no_thread():
+    """A signal lands wherever the main thread is, even inside ``threading``'s bookkeeping of a thread being
+    started (where starting another one in the handler broke that bookkeeping: a KeyError from
+    ``del _limbo[self]``): the watchdog runs before any signal, and the handler only arms it."""
+    import threading
+
+    from pcreg import _runner
+
+    previous = _runner.interrupt_on_signals()
+    try:
+        before = {t.ident for t in threading.enumerate()}
+        assert any(t.name == "pcreg-stop-watchdog" for t in threading.enumerate())
+        with pytest.raises(KeyboardInterrupt):
+            _runner._on_signal(2, None)
+        assert {t.ident for t in threading.enumerate()} <= before
+    finally:
+        _runner.restore_signals(previous)
+
+
 def test_a_command_stopped_by_bad_input_leaves_no_folder_it_made(tmp_path, capsys):
     out = tmp_path / "made" / "for" / "it"
     assert main(["evaluate", "stream", "--out", str(out), "--data", f"camvid:{tmp_path / 'none'}"]) == 2

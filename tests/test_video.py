@@ -402,3 +402,27 @@ def test_webm_and_m4v_videos_are_read(tmp_path, frames, capsys):
         assert main(["run", str(tmp_path / name), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0, \
             _err(capsys)
         assert sorted(p.name for p in out.glob("*.png")) == [f"{i:06d}.png" for i in range(4)]
+
+
+def test_an_avi_frame_whose_chunk_is_damaged_is_refused_where_it_is_missed(tmp_path, frames, capsys):
+    """The AVI demuxer passes over a chunk whose header is damaged without a word: frame 7 was read as frame 6 and
+    every later frame one place early, all labelled and kept, and the run refused only at the end (one frame short)."""
+    av = pytest.importorskip("av")
+    images = [frames[i % 8].image for i in range(12)]
+    video = _write_video(tmp_path / "v.avi", images, "MJPG")
+    with av.open(str(video)) as c:
+        entries = getattr(c.streams.video[0], "index_entries", None)
+        if entries is None:
+            pytest.skip("this PyAV does not give a stream's index")
+        at = int(entries[6].pos)  # frame 6's chunk header
+    data = bytearray(video.read_bytes())
+    data[at:at + 12] = b"\xff" * 12
+    damaged = tmp_path / "damaged.avi"
+    damaged.write_bytes(bytes(data))
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    out = tmp_path / "o"
+    assert main(["run", str(damaged), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 2
+    assert _err(capsys) == [f"pcreg: error: {damaged}: frame 6 does not read (its chunk at byte {at} is damaged; "
+                            "1 frame(s) passed over): the video is truncated or damaged"]
+    assert json.loads((out / "run.json").read_text())["done"] == 6
+    assert sorted(p.name for p in out.glob("*.png")) == [f"{i:06d}.png" for i in range(6)]

@@ -382,7 +382,7 @@ def _display_turn(frame, path: Path) -> _Turn:
 
 
 def _as_shown(image: np.ndarray, turn: _Turn) -> np.ndarray:
-    """``image`` (H, W, C) turned as :func:`_display_turn` says the frame is shown (players' and CVAT's view)."""
+    """``image`` (H, W, C) turned as :func:`_display_turn` says the frame is shown."""
     transposed, rows, columns = turn
     if not (transposed or rows or columns):
         return image

@@ -344,3 +344,85 @@ def test_an_mp4_trimmed_by_an_edit_list_is_whole(tmp_path, frames, capsys):
     assert main(["run", str(trimmed), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "o")]) == 0, \
         _err(capsys)
     assert json.loads((tmp_path / "o" / "run.json").read_text())["done"] == 6
+
+
+def _oriented(path, image, degrees, hflip=False, vflip=False):
+    """A one-frame MP4 of ``image`` whose display matrix turns it ``degrees`` counter-clockwise, then mirrors it."""
+    av = pytest.importorskip("av")
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = image.shape[1], image.shape[0], "yuv420p"
+        if not hasattr(stream, "set_display_rotation"):
+            pytest.skip("this PyAV cannot write a display matrix")
+        stream.set_display_rotation(degrees, hflip=hflip, vflip=vflip)
+        for packet in [*stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")), *stream.encode()]:
+            container.mux(packet)
+    return path
+
+
+@pytest.mark.parametrize("degrees", [0, 90, 180, -90])
+def test_a_mirrored_display_matrix_is_shown_mirrored(tmp_path, frames, degrees):
+    """A display matrix that mirrors (a selfie camera's; FFmpeg's players apply it) was read by its angle alone:
+    a frame mirrored left-right came out upside down, and the key frame's labels were drawn on another image."""
+    image = frames[0].image
+    for hflip, vflip in ((True, False), (False, True), (True, True)):
+        path = _oriented(tmp_path / f"m{degrees}{hflip:d}{vflip:d}.mp4", image, degrees, hflip, vflip)
+        shown = np.rot90(image, degrees // 90)[::-1 if vflip else 1, ::-1 if hflip else 1].astype(int)
+        got = next(VideoFrames(path).frames()).image
+        assert got.shape == shown.shape, (hflip, vflip)
+        wrong = np.rot90(image, degrees // 90 + 2 * (hflip != vflip)).astype(int)  # the angle alone
+        assert np.abs(got - shown).mean() < 8 < np.abs(got - wrong).mean(), (hflip, vflip)
+
+
+def test_a_display_matrix_of_no_quarter_turn_is_refused(tmp_path, frames):
+    path = _oriented(tmp_path / "tilted.mp4", frames[0].image, 45)
+    with pytest.raises(InputError, match=f"{path}: a display rotation of 45 degrees; pcreg turns frames by quarter turns only"):
+        next(VideoFrames(path).frames())
+
+
+def test_webm_and_m4v_videos_are_read(tmp_path, frames, capsys):
+    """A browser's or a screen recorder's WebM (VP9) and an iPhone's export (.m4v) were refused as 'not a folder or a
+    video file' by their suffix, though FFmpeg reads them with the Matroska and MP4 demuxers pcreg takes."""
+    av = pytest.importorskip("av")
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    for name, codec, fmt in (("clip.webm", "libvpx-vp9", "webm"), ("clip.M4V", "mpeg4", "mp4")):
+        try:
+            av.codec.Codec(codec, "w")
+        except (av.FFmpegError, ValueError):
+            pytest.skip(f"this FFmpeg has no {codec} encoder")
+        with av.open(str(tmp_path / name), "w", format=fmt) as c:
+            s = c.add_stream(codec, rate=10)
+            s.width, s.height, s.pix_fmt = 160, 120, "yuv420p"
+            for f in frames[:4]:
+                for p in s.encode(av.VideoFrame.from_ndarray(f.image, format="rgb24")):
+                    c.mux(p)
+            for p in s.encode():
+                c.mux(p)
+        out = tmp_path / name.replace(".", "_")
+        assert main(["run", str(tmp_path / name), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0, \
+            _err(capsys)
+        assert sorted(p.name for p in out.glob("*.png")) == [f"{i:06d}.png" for i in range(4)]
+
+
+def test_an_avi_frame_whose_chunk_is_damaged_is_refused_where_it_is_missed(tmp_path, frames, capsys):
+    """The AVI demuxer passes over a chunk whose header is damaged without a word: frame 7 was read as frame 6 and
+    every later frame one place early, all labelled and kept, and the run refused only at the end (one frame short)."""
+    av = pytest.importorskip("av")
+    images = [frames[i % 8].image for i in range(12)]
+    video = _write_video(tmp_path / "v.avi", images, "MJPG")
+    with av.open(str(video)) as c:
+        entries = getattr(c.streams.video[0], "index_entries", None)
+        if entries is None:
+            pytest.skip("this PyAV does not give a stream's index")
+        at = int(entries[6].pos)  # frame 6's chunk header
+    data = bytearray(video.read_bytes())
+    data[at:at + 12] = b"\xff" * 12
+    damaged = tmp_path / "damaged.avi"
+    damaged.write_bytes(bytes(data))
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    out = tmp_path / "o"
+    assert main(["run", str(damaged), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 2
+    assert _err(capsys) == [f"pcreg: error: {damaged}: frame 6 does not read (its chunk at byte {at} is damaged; "
+                            "1 frame(s) passed over): the video is truncated or damaged"]
+    assert json.loads((out / "run.json").read_text())["done"] == 6
+    assert sorted(p.name for p in out.glob("*.png")) == [f"{i:06d}.png" for i in range(6)]

@@ -33,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..registration.transforms import MODELS
 
     p.add_argument("folder", metavar="FRAMES",
-                   help="a video file (.mp4, .avi, .mkv, .mov) or a folder of frames (image files, or an images/ "
+                   help="a video file (.mp4, .m4v, .mov, .avi, .mkv, .webm) or a folder of frames (image files, or an images/ "
                         "sub-folder, read in name order)")
     p.add_argument("--labels", required=True, metavar="KEYFRAME.png|DIR",
                    help="label image of the first frame (class ids of --classes, a palette PNG, or the table's colours); or a "

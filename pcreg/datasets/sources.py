@@ -15,8 +15,8 @@ Videos are decoded with PyAV (FFmpeg's libraries, called directly), not with Ope
 - the container: PyAV names the demuxer FFmpeg chose (an image renamed ``.mp4`` opens as a one-frame
   ``png_pipe`` in both) and the frame count the container's index declares.
 
-A frame's display rotation (a phone's portrait video) is applied by quarter turns, as players and
-OpenCV's capture show the frame: the key frame's labels are drawn on what the annotator saw.
+A frame's display matrix (a phone's portrait video, a mirrored selfie camera) is applied by quarter turns and
+mirrors, as FFmpeg's players show the frame: the key frame's labels are drawn on what the annotator saw.
 
 Frames are read in decoding order and never by seeking: a seek lands on a key frame near the target and
 is exact only where the container's timestamps are, so a resumed run decodes (without converting) the
@@ -37,7 +37,7 @@ from ..errors import InputError
 __all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES"]
 
 #: The video files pcreg reads (by suffix, any case); what the file holds is checked by FFmpeg's demuxer.
-VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".avi", ".mkv", ".mov")
+VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm")
 # FFmpeg's demuxers for those containers, by the name PyAV reports.
 _CONTAINERS = {"mov,mp4,m4a,3gp,3g2,mj2": "MP4/QuickTime", "avi": "AVI", "matroska,webm": "Matroska"}
 
@@ -253,12 +253,12 @@ class VideoFrames:
         with self._open() as container:
             stream = container.streams.video[0]
             try:
-                for frame in _shown_frames(container, stream, hidden):
+                for frame in _shown_frames(container, stream, hidden, self.path):
                     i = decoded
                     decoded += 1
                     last_time = frame.time if frame.time is not None else last_time
-                    turns = _quarter_turns(getattr(frame, "rotation", 0), self.path)
-                    shown = (frame.height, frame.width) if turns % 2 else (frame.width, frame.height)
+                    turn = _display_turn(frame, self.path)
+                    shown = (frame.height, frame.width) if turn[0] else (frame.width, frame.height)
                     if size is None:
                         size = shown
                     elif shown != size:
@@ -271,9 +271,7 @@ class VideoFrames:
                     position = (i - s.start) // s.every
                     name = f"{i:06d}"
                     yielded = True
-                    image = frame.to_ndarray(format="rgb24")
-                    if turns:  # shown as players show it (and as OpenCV's capture turns it)
-                        image = np.ascontiguousarray(np.rot90(image, turns))
+                    image = _as_shown(frame.to_ndarray(format="rgb24"), turn)
                     yield SourceFrame(position, i, name, name, image)
             except av.FFmpegError as exc:
                 reason = getattr(exc, "strerror", None) or str(exc)
@@ -307,13 +305,39 @@ class VideoFrames:
                              "the video is truncated or damaged")
 
 
-def _shown_frames(container, stream, hidden: list[int]) -> Iterator:
+def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
     """The video stream's frames as ``container.decode(stream)`` gives them, counting in ``hidden[0]`` the packets
     the demuxer marks to discard: an MP4's edit list that starts after its first frames (``ffmpeg -ss T -c copy``,
-    a phone's trim) keeps them as references, decoded and never shown, though the container's count holds them."""
+    a phone's trim) keeps them as references, decoded and never shown, though the container's count holds them.
+    In an AVI whose index places every frame, a frame the demuxer passes over is refused where it is missed."""
+    places = _frame_places(container, stream)
+    read = 0
     for packet in container.demux(stream):
         hidden[0] += bool(getattr(packet, "is_discard", False))
+        if places is not None and packet.pos is not None:
+            _check_place(places, read, int(packet.pos), path)
+            read += 1
         yield from packet.decode()
+
+
+def _frame_places(container, stream) -> list[int] | None:
+    """Where an AVI's index (``idx1``, or OpenDML's) puts each video frame, in bytes from the file's start, when it
+    places as many as the header declares; else None. The AVI demuxer reads chunk after chunk and passes over one
+    whose header is damaged without a word: every later frame would be read one place early, and labelled so."""
+    entries = getattr(stream, "index_entries", None)
+    if container.format.name != "avi" or entries is None or not stream.frames or len(entries) != stream.frames:
+        return None
+    return [int(e.pos) for e in entries]
+
+
+def _check_place(places: list[int], read: int, pos: int, path: Path) -> None:
+    """An :class:`InputError` when the ``read``-th packet (from 0) lies at or past the index's place of the next frame
+    (``pos``: the packet's data, a chunk header after its index entry): the frames between were passed over."""
+    if read + 1 >= len(places) or pos < places[read + 1]:
+        return
+    skipped = sum(1 for p in places[read + 1:] if p <= pos)
+    raise InputError(f"{path}: frame {read} does not read (its chunk at byte {places[read]} is damaged; {skipped} "
+                     f"frame(s) passed over): the video is truncated or damaged")
 
 
 def _video_duration(container, stream) -> float | None:
@@ -333,13 +357,37 @@ def _video_duration(container, stream) -> float | None:
     return None
 
 
-def _quarter_turns(rotation: float, path: Path) -> int:
-    """The counter-clockwise quarter turns (0-3) of a frame's display rotation (degrees, FFmpeg's display
-    matrix, as PyAV's ``VideoFrame.rotation``); one that is not a multiple of 90 degrees is refused."""
-    turns = round(float(rotation) / 90.0)
-    if abs(float(rotation) - 90.0 * turns) > 0.5:
-        raise InputError(f"{path}: a display rotation of {rotation:g} degrees; pcreg turns frames by quarter turns only")
-    return turns % 4
+#: How a frame is turned to be shown: (transposed, rows reversed, columns reversed), in that order.
+_Turn = tuple[bool, bool, bool]
+
+
+def _display_turn(frame, path: Path) -> _Turn:
+    """How the frame's display matrix (FFmpeg's ``DISPLAYMATRIX`` side data, as a phone writes it) shows it: a
+    pixel ``(p, q)`` is shown at ``(a p + c q, b p + d q)``, with ``a, b, c, d`` the matrix's entries 0, 1, 3 and 4,
+    so a matrix of quarter turns and mirrors moves the pixel grid by a transpose and reversals, as FFmpeg's
+    autorotation does. PyAV's ``VideoFrame.rotation`` gives the angle alone: a mirrored matrix (a selfie camera's)
+    read as a rotation is shown upside down. A matrix that is not quarter turns is refused."""
+    matrix = next((bytes(sd) for sd in getattr(frame, "side_data", ()) if sd.type.name == "DISPLAYMATRIX"), None)
+    if matrix is None or len(matrix) != 36:
+        return False, False, False
+    a, b, _, c, d = np.frombuffer(matrix, dtype=np.int32)[:5].astype(float)
+    big = max(abs(a), abs(b), abs(c), abs(d))
+    small = 0.0087 * big  # sin(0.5 degrees): the tolerance a rotation has of a quarter turn
+    if big > 0 and max(abs(b), abs(c)) <= small < min(abs(a), abs(d)):
+        return False, d < 0, a < 0
+    if big > 0 and max(abs(a), abs(d)) <= small < min(abs(b), abs(c)):
+        return True, b < 0, c < 0
+    rotation = float(getattr(frame, "rotation", 0) or 0)
+    raise InputError(f"{path}: a display rotation of {rotation:g} degrees; pcreg turns frames by quarter turns only")
+
+
+def _as_shown(image: np.ndarray, turn: _Turn) -> np.ndarray:
+    """``image`` (H, W, C) turned as :func:`_display_turn` says the frame is shown."""
+    transposed, rows, columns = turn
+    if not (transposed or rows or columns):
+        return image
+    shown = image.transpose(1, 0, 2) if transposed else image
+    return np.ascontiguousarray(shown[::-1 if rows else 1, ::-1 if columns else 1])
 
 
 def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderFrames | VideoFrames:

@@ -493,3 +493,40 @@ def test_hostile_names_and_a_damaged_label_image_on_the_page(synthetic, tmp_path
             assert ev(SHOWN_JS) == "/overlay/4.jpg"
     finally:
         stop_view(proc)
+
+
+def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path):
+    """A run of 254 classes (and its unknown): the legend lists them all and scrolls, the frame stays in
+    view at a good size (the legend pushed it off the page)."""
+    import json as _json
+
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, f in enumerate(synthetic[:3]):
+        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    classes = [{"id": i, "name": f"class {i}", "colour": [i, 255 - i, (37 * i) % 256]} for i in range(254)]
+    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [*classes, {"id": 254, "name": "void",
+                                                                               "colour": [0, 0, 1]}], "unknown": 254}))
+    cv2.imwrite(str(tmp_path / "key.png"), (np.arange(160)[None, :] * 254 // 160).repeat(120, 0).astype(np.uint8))
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
+                     "--classes", str(tmp_path / "classes.json")]) == 0
+    proc, url = view_web(str(out))
+    try:
+        with Browser(width=1400, height=800) as browser:
+            browser.open(url)
+
+            def ev(expr):
+                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+
+            until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
+            assert ev("document.querySelectorAll('#legend > span').length") == 254 + 2  # the unknown, the key frame
+            x, y, w, h = ev(IMG_JS)
+            assert h >= 0.4 * 800 and y + h <= 800, (y, h)
+    finally:
+        stop_view(proc)

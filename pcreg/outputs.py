@@ -125,9 +125,9 @@ def _fmt_cell(v: Any) -> Any:
     return v
 
 
-#: Characters a table cell's text would be read as Markdown by (a column break, HTML, an entity,
-#: emphasis, code, a link), each written after a backslash.
-_MARKDOWN_SPECIAL = frozenset("\\|<>&*`[]")
+#: Characters a table cell's text would be read as Markdown by (a column break, emphasis, code, a link),
+#: each written after a backslash; also ``<`` and ``&`` where they would open an HTML tag or an entity.
+_MARKDOWN_SPECIAL = frozenset("\\|*`[]")
 
 
 def markdown_text(text: Any) -> str:
@@ -135,8 +135,20 @@ def markdown_text(text: Any) -> str:
     backslash (``a|b`` stays one cell, ``<script>`` and ``&amp;`` show as written; ``_`` only where it could
     be emphasis) and each line break a space."""
     text = " ".join(str(text).splitlines())
-    return "".join("\\" + ch if ch in _MARKDOWN_SPECIAL or (ch == "_" and not _inside_word(text, i)) else ch
-                   for i, ch in enumerate(text))
+    return "".join("\\" + ch if _special(text, i) else ch for i, ch in enumerate(text))
+
+
+def _special(text: str, i: int) -> bool:
+    """Whether ``text[i]`` would be read as Markdown or HTML: ``<`` before a letter, ``/``, ``!`` or ``?`` (a
+    tag; ``<= 1`` is text), ``&`` before a letter, digit or ``#`` (an entity), ``_`` outside a word."""
+    ch, after = text[i], text[i + 1:i + 2]
+    if ch == "<":
+        return after.isalpha() or after in ("/", "!", "?")
+    if ch == "&":
+        return after.isalnum() or after == "#"
+    if ch == "_":
+        return not _inside_word(text, i)
+    return ch in _MARKDOWN_SPECIAL
 
 
 def _inside_word(text: str, i: int) -> bool:

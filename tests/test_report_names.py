@@ -11,11 +11,11 @@ import pytest
 
 import pcreg
 from pcreg.cli import main
-from pcreg.outputs import markdown_table
+from pcreg.outputs import markdown_table, markdown_text
 
 CLIP = "clip <b>|x&amp; *ü* `c`"
 HOSTILE = ["a|b", "<script>alert(1)</script>", "&amp;", '"quotes"', "*em* _u_ [l](u)", "line\nbreak",
-           "مرحبا 😀", "back\\slash", "L" * 300]
+           "مرحبا 😀", "back\\slash", "L" * 300, "a <= 1 & b > 2", "<!-- c -->", "&#60;x", "_lead", "pcreg_half"]
 
 
 def _cells(md: str) -> list[list[str]]:
@@ -56,6 +56,8 @@ def test_a_markdown_table_cell_reads_as_its_text():
     assert rows[0] == ["name", "error %"]
     assert [r[0] for r in rows[1:]] == [" ".join(n.splitlines()) for n in HOSTILE]
     assert all(r[1] == "1.50" for r in rows[1:])
+    # a comparison, and a name with '_' inside, are written as they are (they read the same in the raw file)
+    assert markdown_text("DIS fast <= 1 & > 0") == "DIS fast <= 1 & > 0" and markdown_text("pcreg_half") == "pcreg_half"
 
 
 def test_an_evaluations_tables_name_a_hostile_clip_as_it_is(tmp_path):

@@ -125,15 +125,46 @@ def _fmt_cell(v: Any) -> Any:
     return v
 
 
+#: Characters a table cell's text would be read as Markdown by (a column break, emphasis, code, a link),
+#: each written after a backslash; also ``<`` and ``&`` where they would open an HTML tag or an entity.
+_MARKDOWN_SPECIAL = frozenset("\\|*`[]")
+
+
+def markdown_text(text: Any) -> str:
+    """``text`` as it reads, for one cell of a Markdown table: each Markdown or HTML character after a
+    backslash (``a|b`` stays one cell, ``<script>`` and ``&amp;`` show as written; ``_`` only where it could
+    be emphasis) and each line break a space."""
+    text = " ".join(str(text).splitlines())
+    return "".join("\\" + ch if _special(text, i) else ch for i, ch in enumerate(text))
+
+
+def _special(text: str, i: int) -> bool:
+    """Whether ``text[i]`` would be read as Markdown or HTML: ``<`` before a letter, ``/``, ``!`` or ``?`` (a
+    tag; ``<= 1`` is text), ``&`` before a letter, digit or ``#`` (an entity), ``_`` outside a word."""
+    ch, after = text[i], text[i + 1:i + 2]
+    if ch == "<":
+        return after.isalpha() or after in ("/", "!", "?")
+    if ch == "&":
+        return after.isalnum() or after == "#"
+    if ch == "_":
+        return not _inside_word(text, i)
+    return ch in _MARKDOWN_SPECIAL
+
+
+def _inside_word(text: str, i: int) -> bool:
+    """Whether ``text[i]`` has a letter or digit on both sides (an ``_`` there is no emphasis: ``pcreg_half``)."""
+    return 0 < i < len(text) - 1 and text[i - 1].isalnum() and text[i + 1].isalnum()
+
+
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]], *, digits: int = 2) -> str:
-    """A GitHub-flavoured Markdown table; floats rounded to ``digits``."""
+    """A GitHub-flavoured Markdown table; floats rounded to ``digits``; text as it reads (:func:`markdown_text`)."""
 
     def cell(v: Any) -> str:
         if isinstance(v, (float, np.floating)):
             return "nan" if not np.isfinite(v) else f"{float(v):.{digits}f}"
-        return str(v)
+        return markdown_text(v)
 
-    lines = ["| " + " | ".join(map(str, header)) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines = ["| " + " | ".join(map(markdown_text, header)) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
     return "\n".join(lines) + "\n"
 

@@ -248,6 +248,34 @@ def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
             assert b"report.js" in r.read()
 
 
+def test_files_with_any_name_are_served_at_the_pages_links(evaluations, tmp_path):
+    """The page links a file as /files/ + encodeURIComponent(name): a name with spaces, '#', '?', '%',
+    markup or letters beyond ASCII is served there (it was not found)."""
+    import urllib.parse
+
+    from pcreg.experiments.reports.page import load_report, page_data
+    from pcreg.recording.report import ReportServer
+
+    folder = tmp_path / "rot"
+    folder.mkdir()
+    for f in evaluations["rotation"].iterdir():
+        if f.is_file() and f.suffix != ".rrd":
+            (folder / f.name).write_bytes(f.read_bytes())
+    odd = ["a b ü#1%20?.png", "<script>alert(1)<script> & \"q\".md", "مرحبا 😀.csv"]
+    for name in odd:
+        (folder / name).write_bytes((folder / "rotation.png").read_bytes())
+    data = page_data(load_report(folder))
+    assert set(odd) <= set(data["figures"]) | set(data["files"])
+    with ReportServer(folder, data, web_port=0) as server:
+        for name in odd:
+            with urllib.request.urlopen(server.url + "files/" + urllib.parse.quote(name, safe=""), timeout=30) as r:
+                assert r.read()[:4] == b"\x89PNG", name
+        for bad in ("files/%ff", "files/..%2Fsecret.txt", "files/rotation.png%00"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(server.url + bad, timeout=30)
+            assert e.value.code == 404, bad
+
+
 def test_out_dir_needs_web(evaluations, capsys):
     assert pcreg_view([str(evaluations["rotation"])]) == 2
     assert "--web" in one_line_error(capsys)

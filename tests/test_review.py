@@ -434,3 +434,99 @@ def test_the_review_draws_the_runs_class_table(synthetic, tmp_path):
             assert shown == pytest.approx(100.0 * np.mean(labels0 == 0), abs=0.06)
     finally:
         stop_view(proc)
+
+
+HOSTILE_CLASS = '"quotes" &amp; | <b>pipe</b> 😀 مرحبا ' + "L" * 300
+
+
+def test_hostile_names_and_a_damaged_label_image_on_the_page(synthetic, tmp_path):
+    """Frames and classes named with markup, entities, '#', '%', '?', spaces, right-to-left letters and
+    emoji, one class name 300 letters long: the page shows each as written, injects nothing, and fits
+    its width (the long name ran off the page); a label image cut short shows pcreg's one line naming it
+    where the frame would be (it said only that the frame could not be read)."""
+    import json as _json
+
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    frames = tmp_path / "fr ämes #1"
+    frames.mkdir()
+    names = ['a#b%20c?', "spa ce", "ünï😀", "<script>alert(1)<script>", '&amp;"q"|x']
+    for i, f in enumerate(synthetic):
+        cv2.imwrite(str(frames / f"{i}_{names[i]}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "key.png"), synthetic[0].labels)
+    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [
+        {"id": 0, "name": "<script>alert(1)</script>", "colour": [0, 200, 0]},
+        {"id": 1, "name": HOSTILE_CLASS, "colour": [200, 0, 0]},
+        {"id": 2, "name": "<img src=x onerror=alert(2)>", "colour": [0, 0, 0]}], "unknown": 2}))
+    out = tmp_path / "out <b>&amp; #?%20"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out),
+                     "--classes", str(tmp_path / "classes.json")]) == 0
+    cut = out / f"2_{names[2]}.png"
+    cut.write_bytes(cut.read_bytes()[:200])
+    proc, url = view_web(str(out))
+    try:
+        with Browser(width=1200, height=700) as browser:
+            browser.open(url)
+
+            def ev(expr):
+                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+
+            until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
+            assert ev("document.querySelectorAll('script').length") == 2  # the page's own
+            assert ev("document.querySelectorAll('main img').length") == 1
+            legend = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => s.childNodes[1].textContent)")
+            assert legend[:3] == ["<script>alert(1)</script>", HOSTILE_CLASS, "<img src=x onerror=alert(2)>"]
+            assert ev("Array.from(document.querySelectorAll('#keys a')).map(a => a.textContent)") == [f"0_{names[0]}.png"]
+            assert ev("document.getElementById('frame-name').textContent").startswith(f"0_{names[0]}.png")
+            assert ev("document.title") == f"pcreg review: {out.name}"
+            assert ev("document.documentElement.scrollWidth <= document.documentElement.clientWidth"), "runs off the page"
+            for t in (1, 3, 4):
+                ev(f"(() => {{ const s = document.getElementById('slider'); s.value = '{t}'; s.dispatchEvent(new Event('input')); }})()")
+                until(lambda: ev(SHOWN_JS) == f"/overlay/{t}.jpg", what=f"frame {t} shown", alive=proc, bound=60)
+                assert ev("document.getElementById('frame-name').textContent").startswith(f"{t}_{names[t]}.png")
+            ev("(() => { const s = document.getElementById('slider'); s.value = '2'; s.dispatchEvent(new Event('input')); })()")
+            error = "document.getElementById('frame-error').textContent"
+            until(lambda: cut.name in (ev(error) or ""), what="the cut label image named", alive=proc, bound=60)
+            assert ev(SHOWN_JS) == "/overlay/4.jpg"
+    finally:
+        stop_view(proc)
+
+
+def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path):
+    """A run of 254 classes (and its unknown): the legend lists them all and scrolls, the frame stays in
+    view at a good size (the legend pushed it off the page)."""
+    import json as _json
+
+    from _browser import Browser, find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, f in enumerate(synthetic[:3]):
+        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    classes = [{"id": i, "name": f"class {i}", "colour": [i, 255 - i, (37 * i) % 256]} for i in range(254)]
+    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [*classes, {"id": 254, "name": "void",
+                                                                               "colour": [0, 0, 1]}], "unknown": 254}))
+    cv2.imwrite(str(tmp_path / "key.png"), (np.arange(160)[None, :] * 254 // 160).repeat(120, 0).astype(np.uint8))
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
+                     "--classes", str(tmp_path / "classes.json")]) == 0
+    proc, url = view_web(str(out))
+    try:
+        with Browser(width=1400, height=800) as browser:
+            browser.open(url)
+
+            def ev(expr):
+                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+
+            until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
+            assert ev("document.querySelectorAll('#legend > span').length") == 254 + 2  # the unknown, the key frame
+            x, y, w, h = ev(IMG_JS)
+            assert h >= 0.4 * 800 and y + h <= 800, (y, h)
+    finally:
+        stop_view(proc)

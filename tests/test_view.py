@@ -432,6 +432,36 @@ def test_a_screenshot_of_nothing_is_refused_at_once(tmp_path, capsys):
     assert not (tmp_path / "x.png").exists()
 
 
+def test_a_damaged_recording_is_one_line(small_recording, tmp_path, capsys):
+    """A recording whose header names a rerun version this one does not read, or whose messages are
+    damaged half way, is one line naming the file and exit 2 (it was an internal error, exit 1), for
+    --screenshot, --web and the report page alike; no screenshot is left."""
+    whole = small_recording.read_bytes()
+    old = tmp_path / "old version.rrd"
+    old.write_bytes(whole[:4] + bytes([0, 9, 0, 0]) + whole[8:])  # RRF2, then the writer's version 0.9.0
+    damaged = tmp_path / "damaged.rrd"
+    middle = bytearray(whole)
+    for i in range(len(whole) // 2, len(whole) // 2 + 2000):
+        middle[i] ^= 0x5A
+    damaged.write_bytes(bytes(middle))
+    for bad in (old, damaged):
+        assert pcreg_view([str(bad), "--screenshot", str(tmp_path / "x.png")]) == 2
+        assert str(bad) in one_line_error(capsys)
+        assert pcreg_view([str(small_recording), str(bad), "--web", "--web-port", "0", "--grpc-port", "0"]) == 2
+        assert str(bad) in one_line_error(capsys)
+    assert not (tmp_path / "x.png").exists()
+    assert "version" in (pcreg_view([str(old), "--web"]), one_line_error(capsys))[1]
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc, a folder nothing can be made in")
+def test_a_screenshot_where_no_file_can_be_made_is_refused_at_once(small_recording, capsys):
+    """A screenshot into a folder that takes no file (even for root, whom os.access lets write anywhere)
+    is refused before the viewer starts, naming the screenshot (not a temporary file of the viewer's)."""
+    for out in ("/proc/shot.png", "/proc/no/such/folder/shot.png"):
+        assert pcreg_view([str(small_recording), "--screenshot", out]) == 2
+        assert one_line_error(capsys).startswith(f"pcreg: error: cannot write {out}: no file can be made in /proc")
+
+
 def test_native_viewer_without_a_display_points_to_web(small_recording, monkeypatch, capsys):
     if not sys.platform.startswith("linux"):
         pytest.skip("DISPLAY/WAYLAND_DISPLAY decide only on Linux")

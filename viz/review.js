@@ -43,7 +43,7 @@ function show(t) {
   const url = imageUrl(t);
   img.dataset.wanted = url;
   img.onload = () => { if (img.dataset.wanted === url) document.body.dataset.shown = url; };
-  img.onerror = () => { if (img.dataset.wanted === url) $("frame-error").textContent = "this frame could not be read"; };
+  img.onerror = () => { if (img.dataset.wanted === url) frameError(url); };
   img.src = url;
   $("frame-name").textContent = `${f.name}  (${t + 1}/${frames.length})`;
   const tag = $("frame-tag");
@@ -56,6 +56,16 @@ function show(t) {
   drawCursor();
   preload(t);
   drawClassFigures(t);
+}
+
+// why a frame's picture did not come: pcreg's one line naming the file (a label image cut short, say)
+async function frameError(url) {
+  let why = "this frame could not be read";
+  try {
+    const r = await fetch(url);
+    if (!r.ok) why = (await r.text()).trim() || why;
+  } catch (e) { /* the server is gone: the plain message */ }
+  if ($("overlay").dataset.wanted === url) $("frame-error").textContent = why;
 }
 
 // each class's share of the frame and, with many classes, its predicted IoU, beside its name in the legend

@@ -126,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
         out = check_output(args.screenshot, force=args.force, inputs=tuple(args.recordings))
         if out.suffix.lower() != ".png":
             raise OutputError(f"{out}: the screenshot is written as PNG; name it .png")
+        _can_write(out)
     with tempfile.TemporaryDirectory(prefix="pcreg-view-") as tmp:
         staged = _stage(stage, args.recordings, Path(tmp))
         if out is not None and not staged.logged:  # the headless viewer would wait its whole --timeout for it
@@ -154,6 +155,20 @@ def run(args: argparse.Namespace) -> int:
                 raise V.ViewerError(f"the web viewer stopped (exit code {proc.returncode})")
             return 0
         return subprocess.call([binary, str(staged.path)])
+
+
+def _can_write(out: Path) -> None:
+    """Refuse ``out`` before the viewer starts when its folder (or the nearest one of it that exists; the
+    screenshot makes the rest) takes no file: a file is made there and removed (``os.access`` says yes to
+    root even where nothing can be written, as in ``/proc``)."""
+    folder = out.absolute().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        with tempfile.NamedTemporaryFile(prefix=f".{out.name}.", suffix=".png", dir=folder):
+            pass
+    except OSError as exc:
+        raise OutputError(f"cannot write {out}: no file can be made in {folder} ({exc.strerror or exc})") from None
 
 
 def _stage(stage, recordings: list[str], tmp: Path):

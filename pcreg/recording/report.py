@@ -20,6 +20,7 @@ import socket
 import subprocess
 import threading
 import urllib.error
+import urllib.parse
 import urllib.request
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -185,8 +186,9 @@ class ReportServer:
                         return self._file(static[path[5:]])
                     if path == "/report.json":
                         return self._send(200, "application/json", server.report_json())
-                    if path.startswith("/files/") and path[7:] in files:
-                        return self._file(files[path[7:]])
+                    name = urllib.parse.unquote(path[7:]) if path.startswith("/files/") else None
+                    if name in files:  # the page asks for encodeURIComponent(name)
+                        return self._file(files[name])
                     if path.startswith("/rerun/") and server._viewer_port is not None:
                         return self._send(*server._viewer_file("/" + path[7:]))
                     self._send(404, "text/plain", b"not found\n")

@@ -58,6 +58,13 @@ def stage(paths: list[str | os.PathLike], out: str | os.PathLike) -> Staged:
         return _stage(paths, copies, out)
 
 
+def _reader_error(exc: Exception, copy: Path) -> str:
+    """rerun's reading error, its first line, without the name of the copy it read."""
+    text = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    prefix = f"Failed to read RRD file at {copy}: "
+    return text[len(prefix):] if text.startswith(prefix) else text.replace(str(copy), "the file")
+
+
 def _stage(paths: list[str | os.PathLike], copies: list[Path], out: Path) -> Staged:
     import rerun as rr
     from rerun.chunk import RrdReader
@@ -69,7 +76,12 @@ def _stage(paths: list[str | os.PathLike], copies: list[Path], out: Path) -> Sta
         if not recs:
             raise ValueError(f"{p}: no recording in this file")
         stores.append(recs[0])
-    everything = [read_entities(c) for c in copies]
+    everything = []
+    for p, c in zip(paths, copies):
+        try:
+            everything.append(read_entities(c))
+        except RuntimeError as exc:  # rerun's reader: a damaged message, a version it does not read
+            raise ValueError(f"{p}: unreadable ({_reader_error(exc, c)})") from None
     kinds = [read_kind(c) or B.infer_kind(e) for c, e in zip(copies, everything)]
     logged = any(entity != "/" for e in everything for entity in e)
     # only what the viewer shows on the timeline the layout opens on (no view without data there)

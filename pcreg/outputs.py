@@ -271,6 +271,28 @@ class OutputLock:
             pass
 
 
+def writer_of(folder: str | os.PathLike) -> str | None:
+    """Who holds :class:`OutputLock` on ``folder`` now: the process id as text ("" when it wrote none), or None
+    when no command is writing there (no lock file, or one nobody holds: a finished or killed command's)."""
+    import fcntl
+
+    try:
+        fd = os.open(Path(folder) / OutputLock.NAME, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        try:
+            pid = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
+        except OSError:
+            pid = ""
+        return pid if pid.isdigit() else ""
+    finally:
+        os.close(fd)  # a shared lock taken is released with it
+    return None
+
+
 class WriteBehind:
     """Calls run in order on a thread of their own, at most ``depth`` waiting, while the caller goes on:
     ``pcreg run`` writes a frame's outputs (its label PNG, its line of steps.jsonl, the carry and the

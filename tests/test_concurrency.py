@@ -298,3 +298,24 @@ def test_a_recording_cut_in_the_middle_of_a_message_reads_up_to_it(tmp_path):
     assert complete_length(bad) is None
     with pytest.raises(InputError, match="not a rerun recording"):
         check_recording(bad)
+
+
+def test_an_unfinished_run_says_whether_a_command_is_writing_it_now(tmp_path):
+    """A run viewed or exported half way: while its `pcreg run` holds the folder, the note says so (and which
+    process), not that the same command would go on from where it stopped; once it ends, it says that."""
+    import os
+
+    from pcreg.outputs import OutputLock, writer_of
+    from pcreg.runs.state import unfinished_note
+
+    folder = tmp_path / "run"
+    assert writer_of(folder) is None  # no folder, no lock file
+    with OutputLock(folder):
+        assert writer_of(folder) == str(os.getpid())
+        note = unfinished_note(folder, 3, 10)
+        assert note is not None and f"a pcreg run (pid {os.getpid()}) is writing it now" in note
+    assert writer_of(folder) is None  # released: the lock file left behind is nobody's
+    folder.mkdir(exist_ok=True)
+    (folder / "x").write_text("")  # the folder is kept when the lock is released with something in it
+    note = unfinished_note(folder, 3, 10)
+    assert note is not None and "goes on from where it stopped" in note

@@ -258,7 +258,8 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     with ReviewServer(review, bind=args.bind, web_port=args.web_port) as server:
         _note_bind(args.bind)
         try:
-            print(f"serving the review of {folder} ({len(review.names)} frames of {review.source}) on {args.bind} "
+            n = len(review.names)
+            print(f"serving the review of {folder} ({n} frame{'' if n == 1 else 's'} of {review.source}) on {args.bind} "
                   "(Ctrl-C stops)")
             print(server.url, flush=True)
             server.wait()

@@ -82,15 +82,17 @@ def test_identical_clouds_give_the_identity_everywhere():
 
 def test_a_2d_line_lifted_to_3d_that_an_implementation_turns_over_is_its_refused_row():
     """A 2-D cloud on one line (a scan line): the reference ICP solves the 2-D problem. Open3D's tensor ICP, on the
-    cloud lifted to z = 0, turned the plane over about the line, and its row reported the mirrored in-plane block
-    (determinant -1) as its converged result; such a row is now a failure that says why."""
+    cloud lifted to z = 0, turns the plane over about the line for some motions (this one, a 6-degree turn, in one
+    thread and in two), and its row reported the mirrored in-plane block (determinant -1) as its converged result;
+    such a row is now a failure that says why, and every row that reports a matrix reports a rotation."""
     L = np.column_stack([np.linspace(0, 10, 50), np.zeros(50)])
-    T = tf.rigid2d(3, 0.1, 0.05)
+    T = tf.rigid2d(6, 0.1, 0.05)
     report = crosscheck_implementations(tf.apply(np.linalg.inv(T), L), L, implementations=EXACT,
                                         options=ICPOptions(max_correspondence_distance=1.0), truth=T)
     for name, row in report.rows.items():
         if row["error"] is None:
             assert np.linalg.det(np.asarray(row["matrix"])[:2, :2]) > 0, name
+            assert row.get("info", {}).get("out_of_plane", 0.0) < 1e-6, name
     assert "turned the plane over" in report.rows["open3d-tensor"]["error"]
     assert report.rows["reference"]["converged"] and report.rows["kiss-icp"]["agrees"]
 

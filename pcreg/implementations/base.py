@@ -115,6 +115,8 @@ class Implementation:
             raise ImplementationError(f"returned a {m.shape} matrix, expected {d + 1}x{d + 1}")
         if not np.all(np.isfinite(m)):
             raise ImplementationError("returned a matrix with NaN or inf")
+        if d == 2:
+            _check_in_plane(m, (out.info or {}).get("out_of_plane"))
         return replace(out, matrix=m, seconds=out.seconds or seconds, backend=self.name, frames="T_target_source")
 
     def _run(self, pinned: Pinned, *, trace: bool) -> RegistrationResult:  # pragma: no cover - abstract
@@ -181,6 +183,24 @@ def project(m: np.ndarray) -> np.ndarray:
     out[:2, :2] = m[:2, :2]
     out[:2, 2] = m[:2, 3]
     return out
+
+
+#: How far (relative to the linear part) the 3-D result of a 2-D cloud lifted to z = 0 may leave that plane
+#: before there is no 2-D transform to report (as :func:`~pcreg.registration.transforms.project_to_2d`).
+PLANE_TOLERANCE = 1e-6
+
+
+def _check_in_plane(m: np.ndarray, leaves: float | None) -> None:
+    """An :class:`ImplementationError` when a 2-D result ``m`` comes from a 3-D result that left the plane z = 0
+    (``leaves``, :func:`out_of_plane`; None: the implementation ran in 2-D) or mirrors the plane. A 3-D ICP on
+    2-D clouds lifted to z = 0 is free to turn the plane over about a line the points lie along (Open3D's tensor
+    ICP did, on 50 points on a line): its in-plane block is then a reflection, and reporting it as a 2-D
+    transform would show a mirror image as that implementation's converged result."""
+    if leaves is not None and leaves > PLANE_TOLERANCE * max(1.0, float(np.abs(m[:2, :2]).max())):
+        raise ImplementationError(f"its 3-D result leaves the plane z = 0 of the lifted 2-D clouds (out-of-plane "
+                                  f"part {leaves:.2g}): it turned the plane over, which no 2-D transform describes")
+    if np.linalg.det(m[:2, :2]) <= 0:
+        raise ImplementationError("returned a 2-D transform that mirrors the plane (its determinant is not positive)")
 
 
 def out_of_plane(m: np.ndarray) -> float:

@@ -69,17 +69,13 @@ def check_cloud(points: np.ndarray, name: str, *, limit: int | None = None) -> n
 
 
 def _check_normals(normals: np.ndarray) -> None:
-    """An :class:`InputError` for target normals that cannot fix a motion: one of length 0 (no direction), or
-    all of them in one plane or along one line (the motion along it is free: point-to-plane or point-to-line
-    steps would stop where they start and call it converged)."""
-    lengths = np.linalg.norm(normals, axis=1)
-    if not np.all(lengths > 0):
-        raise InputError(f"target_normals: {int(np.count_nonzero(lengths == 0))} normal(s) of length 0")
-    unit = normals / lengths[:, None]
-    spread = np.linalg.svd(unit, compute_uv=False)
-    if spread[-1] <= 1e-6 * spread[0]:
-        raise InputError(f"target_normals span {int(np.count_nonzero(spread > 1e-6 * spread[0]))} of "
-                         f"{normals.shape[1]} directions: the motion along the rest is not fixed by them")
+    """An :class:`InputError` for target normals that cannot fix a motion
+    (:func:`~pcreg.registration.normal_steps.normals_problem`)."""
+    from .normal_steps import normals_problem
+
+    problem = normals_problem(normals)
+    if problem is not None:
+        raise InputError(f"target_normals: {problem}")
 
 
 def _check_init(T: np.ndarray, model: str) -> np.ndarray:

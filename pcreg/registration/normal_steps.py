@@ -7,7 +7,21 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["estimate_point_to_line", "estimate_point_to_plane"]
+__all__ = ["estimate_point_to_line", "estimate_point_to_plane", "normals_problem"]
+
+
+def normals_problem(normals: np.ndarray) -> str | None:
+    """Why ``normals`` (M, d) cannot fix a motion, or None: one of length 0 (no direction), or all of them in
+    one plane or along one line (the motion along the rest is free: point-to-plane or point-to-line steps
+    would stop where they start, or drift there, and call it converged)."""
+    lengths = np.linalg.norm(normals, axis=1)
+    if not np.all(lengths > 0):
+        return f"{int(np.count_nonzero(lengths == 0))} normal(s) of length 0"
+    spread = np.linalg.svd(normals / lengths[:, None], compute_uv=False)
+    if spread[-1] <= 1e-6 * spread[0]:
+        return (f"the normals span {int(np.count_nonzero(spread > 1e-6 * spread[0]))} of {normals.shape[1]} "
+                "directions: the motion along the rest is not fixed by them")
+    return None
 
 
 def estimate_point_to_line(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray, model: str) -> np.ndarray:

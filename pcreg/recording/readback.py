@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "BlueprintView", "read_blueprint", "tensor",
-           "image", "segmentation", "scalar", "text", "points", "complete_length", "snapshot", "recordings_in"]
+           "image", "segmentation", "scalar", "text", "points", "complete_length", "ended", "snapshot", "recordings_in"]
 
 _SKIP_TIMELINES = {"log_time", "log_tick"}
 
@@ -73,6 +73,13 @@ def _scan(path: str | os.PathLike) -> tuple[int, int, bool] | None:
             if kind == _END:
                 return end, size, True
         return end, size, False
+
+
+def ended(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a recording whose writer finished it (its end of stream is there); False for one
+    cut short (a writer killed before it closed the file, which may have left it empty) or not a recording."""
+    scan = _scan(path)
+    return scan is not None and scan[2]
 
 
 def unfinished_note(path: str | os.PathLike) -> str | None:

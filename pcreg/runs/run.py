@@ -138,6 +138,8 @@ class Run:
                                              confidence=request.confidence), table, request.coding.mapping)
         run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence)
         with OutputLock(request.out):  # a second run on the same --out is refused, not raced
+            if request.record is not None and not request.force:
+                run.check_recording(Path(request.record))
             if pending is None:
                 run._label_from_keys(request, keys)
             else:
@@ -180,6 +182,7 @@ class Run:
                             force=request.force) as rec, \
                 progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
                 WriteBehind() as writer:  # a frame's outputs written while the next is labelled
+            self.name_recording(request.record)
             prepared = ((f.position, PreparedFrame.of(f.image, name="frame")) for f in read_ahead(todo))
             # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
             # reads the features the step made
@@ -206,6 +209,7 @@ class Run:
                             force=request.force) as rec:
             job = KeyRun(self, keys, request.config)
             job.start(force=request.force)
+            self.name_recording(request.record)
             n = len(frames) if frames.kind == "folder" else frames.count()
             left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run
             with progress(total=left, desc="frames", disable=None) as bar:
@@ -261,12 +265,46 @@ class Run:
             check_labelled(self.out, [self.frames.stem(t) for t in range(int(state["done"]))])
             return int(state["done"])
         self._start_over()
+        self._remove_partial_writes()  # those of a killed run started over (--force) too
         self.state = {"run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None, "key_labels": digest}
         write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
         (self.out / STEPS).write_bytes(b"")
         write_state(self.out, self.state)
         return 1
+
+    def check_recording(self, record: Path) -> None:
+        """An :class:`OutputError` when ``record`` is the recording of the run in ``out`` (run.json names it) and
+        was cut short (the run was killed before it closed it), saying the two ways on: another ``--record``
+        file resumes the labels (it holds the frames from there on), ``--force`` labels again from the key frame
+        so that one recording holds every frame. A choice the person makes: the second costs the time spent."""
+        from ..formats import load_json_object, resolved
+        from ..recording.readback import ended
+
+        try:
+            if not record.is_file():
+                return
+            state = load_json_object(self.out / STATE)
+            if state.get("run") != self.identity or state.get("recording") != str(resolved(record)) or ended(record):
+                return
+        except (OSError, ValueError):
+            return
+        done = state.get("done")
+        counted = f" after {done} frames" if isinstance(done, int) else ""
+        raise OutputError(f"{record}: the recording of this run, cut short when the run was killed{counted}; to go "
+                          "on from there, give another --record file (it holds the frames from there on); to record "
+                          "every frame in this one, add --force (the run starts over from the key frame, same labels)")
+
+    def name_recording(self, record) -> None:
+        """Name in run.json the recording (``record``, a path or None) that the run has opened and writes."""
+        from ..formats import resolved
+
+        if record is None:
+            return
+        path = str(resolved(Path(record)))
+        if self.state.get("recording") != path:
+            self.state["recording"] = path
+            self.commit()
 
     def _check_same_inputs(self, done: int, labels_changed: bool) -> None:
         """Refuse to continue a run from one label image whose key labels changed since it began (run.json's
@@ -323,10 +361,13 @@ class Run:
 
     def _remove_partial_writes(self) -> None:
         """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
-        PNG or run.json, :func:`pcreg.outputs.atomic_write_bytes`); the caller holds the folder's lock."""
+        PNG, a carry, run.json or suggest.txt, and of a ``confidence/NAME.png``,
+        :func:`pcreg.outputs.atomic_write_bytes`); the caller holds the folder's lock."""
         for f in self.out.glob(".*.tmp"):
-            if f.name.startswith((f".{STATE}.", ".carry-")) or ".png." in f.name:
+            if f.name.startswith((f".{STATE}.", ".carry-", f".{SUGGEST}.")) or ".png." in f.name:
                 f.unlink(missing_ok=True)
+        for f in (self.out / CONFIDENCE).glob(".*.png.*.tmp"):
+            f.unlink(missing_ok=True)
 
     def _cut_steps(self, n: int) -> None:
         """Keep the first ``n`` lines of steps.jsonl (a step appended after the last commit is dropped)."""
@@ -351,6 +392,7 @@ class Run:
             (self.out / STEPS).write_bytes(b"")
         for f in self.out.glob(".*.tmp"):  # writes a killed run left half done
             f.unlink(missing_ok=True)
+        self._remove_partial_writes()
         kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan]
         cursor = self.state["cursor"]
         if cursor is not None and cursor["fingerprint"] not in plan:

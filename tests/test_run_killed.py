@@ -1,0 +1,72 @@
+"""`pcreg run` killed outright (SIGKILL: the system out of memory, a power cut) at an event, then the same
+command run again: it finishes (exit 0) and leaves what an uninterrupted run leaves."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+from _events import until
+from _interrupting import start
+from _runs import assert_same_run, drifting_frames
+
+from pcreg.cli import main
+
+N = 10
+
+
+def _killed_at(args: list, out, pngs: int) -> None:
+    """Run ``pcreg run ARGS`` in a process and SIGKILL it once ``out`` holds ``pngs`` label PNGs."""
+    p = start(["run", *args])
+    try:
+        until(lambda: len(list(out.glob("f*.png"))) >= pngs, what=f"{pngs} label PNGs", alive=p)
+    finally:
+        if p.poll() is None:
+            os.kill(p.pid, signal.SIGKILL)
+        p.communicate()
+
+
+def _frames(tmp_path):
+    return drifting_frames(tmp_path / "frames", (180, 240), n=N)
+
+
+def test_a_confidence_map_half_written_when_killed_is_removed_by_the_rerun(tmp_path):
+    """A kill while ``confidence/NAME.png`` was written left its temporary file there for good: the rerun
+    cleaned up the top folder's, not the confidence folder's."""
+    folder, key = _frames(tmp_path)
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(whole), "--confidence"]) == 0
+    _killed_at([folder, "--labels", key, "--out", cut, "--confidence"], cut, 4)
+    (cut / "confidence").mkdir(exist_ok=True)
+    (cut / "confidence" / ".f5.png.k1ll3d.tmp").write_bytes(b"\x89PNG\r\n")  # what a kill mid-write leaves
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(cut), "--confidence"]) == 0
+    assert sorted(p.name for p in (cut / "confidence").iterdir()) == sorted(p.name for p in (whole / "confidence").iterdir())
+    assert_same_run(whole, cut, N)
+
+
+def test_a_recorded_run_killed_says_how_to_go_on_and_force_records_every_frame(tmp_path, capsys):
+    """The same command after a kill of a run with ``--record`` was refused (the recording exists) with
+    advice (--force) that seemed to throw the labels away and did not say that another recording resumes.
+    Now the refusal names both ways on, loses nothing, and ``--force`` records every frame, with the same
+    labels as an uninterrupted run and no temporary file of the killed run left."""
+    from pcreg.recording.readback import read_recording, unfinished_files_allowed
+
+    folder, key = _frames(tmp_path)
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(whole), "--record", str(tmp_path / "w.rrd"),
+                 "--confidence"]) == 0
+    args = [folder, "--labels", key, "--out", cut, "--record", tmp_path / "c.rrd", "--confidence"]
+    _killed_at(args, cut, 5)
+    (cut / ".carry-1.npz.k1ll3d.tmp").write_bytes(b"PK")  # a carry half written when it was killed
+    labelled = sorted(p.name for p in cut.glob("f*.png"))
+    assert main(["run", *map(str, args)]) == 2
+    err = capsys.readouterr().err
+    assert "cut short when the run was killed" in err and "another --record file" in err and "--force" in err
+    assert sorted(p.name for p in cut.glob("f*.png")) == labelled  # nothing lost
+    assert main(["run", *map(str, args), "--force"]) == 0
+    assert_same_run(whole, cut, N)
+    assert not list(cut.glob(".*.tmp"))
+    with unfinished_files_allowed():
+        frames = [{r.times.get("frame") for r in read_recording(p).get("labels/predicted")}
+                  for p in (tmp_path / "w.rrd", tmp_path / "c.rrd")]
+    assert frames[0] == frames[1] and set(range(1, N)) <= frames[1]

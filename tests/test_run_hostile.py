@@ -357,6 +357,23 @@ def test_a_recording_of_a_run_from_two_key_frames_draws_each_frame_over_its_refe
         np.testing.assert_array_equal(image(rec.moving(t)), frame[t])
 
 
+def test_a_finished_run_from_key_frames_run_again_with_its_recording_says_it_is_done(tmp_path, capsys):
+    """As a finished run from one label image does: the same command again is "all frames already done", exit 0,
+    and the recording is left as it is (it was refused as "exists (use --force to overwrite)")."""
+    folder, key = drifting_frames(tmp_path / "frames", (96, 128), n=5)
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for name in ("f0.png", "f3.png"):
+        (keys / name).write_bytes(key.read_bytes())
+    args = ["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out"), "--record", str(tmp_path / "run.rrd")]
+    assert main(args) == 0
+    recorded = (tmp_path / "run.rrd").read_bytes()
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "all frames already done" in capsys.readouterr().out
+    assert (tmp_path / "run.rrd").read_bytes() == recorded
+
+
 def test_a_resumed_chained_run_records_the_reference_of_its_first_step(tmp_path, capsys):
     """A run with many classes registers each frame to the one before; resumed, its first step's reference
     (the frame the stopped run labelled last) was not at hand and the Registration view had none there. The

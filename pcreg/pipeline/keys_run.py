@@ -104,6 +104,12 @@ class KeyRun:
         in the plan forgotten, the key frames' labels written where they changed."""
         self.owner.open_keys(self.keys, {self.fingerprint(s): s for s in self.plan}, force=force)
 
+    @property
+    def finished(self) -> bool:
+        """Whether every stretch of the plan is labelled (after :meth:`start`)."""
+        done = {e["fingerprint"] for e in self.state["stretches"]}
+        return all(self.fingerprint(s) in done for s in self.plan)
+
     # -- the run ---------------------------------------------------------------------------------------
 
     def run(self, on_frame: Callable | None = None, check: Callable[[], None] = lambda: None) -> int:

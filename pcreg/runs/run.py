@@ -205,10 +205,13 @@ class Run:
         from ..recording.recorder import open_recording
 
         frames = self.frames
+        job = KeyRun(self, keys, request.config)
+        job.start(force=request.force)
+        if job.finished and request.record is not None and Path(request.record).exists() and not request.force:
+            self._say_done(request, 0, sorted(keys))  # the recording is this finished run's: nothing to add to it
+            return
         with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
                             force=request.force) as rec:
-            job = KeyRun(self, keys, request.config)
-            job.start(force=request.force)
             self.name_recording(request.record)
             n = len(frames) if frames.kind == "folder" else frames.count()
             left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run

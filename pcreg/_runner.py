@@ -178,6 +178,20 @@ def _worker_init(workers: int = 1) -> None:
     _threads.set_enabled(_threads.usable_cpus() >= 2 * workers)
 
 
+def _how_workers_ended(pool: ProcessPoolExecutor) -> str:
+    """``" (killed by SIGKILL: ...)"``: how the pool's dead worker processes ended, as far as it is known."""
+    import signal
+
+    codes = sorted({p.exitcode for p in (getattr(pool, "_processes", None) or {}).values()
+                    if p.exitcode not in (None, 0)})
+    if not codes:
+        return ""
+    if -signal.SIGKILL in codes:
+        return " (killed by SIGKILL: the system's out-of-memory killer ends processes so)"
+    names = [signal.Signals(-c).name if c < 0 and -c in signal.valid_signals() else f"exit code {c}" for c in codes]
+    return f" ({', '.join(names)})"
+
+
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """Cancel pending units and end the worker processes now (``shutdown(wait=True)`` would wait for
     the running units to finish, which can take minutes). A second Ctrl-C meanwhile does not cut it short."""
@@ -224,6 +238,79 @@ def _check_scheduler_address(scheduler: str) -> None:
         raise PcregError(f"--scheduler {scheduler!r} is not a dask scheduler address (tcp://HOST:PORT): {exc}") from None
 
 
+def _connect_timeout() -> float:
+    """Seconds a connection to the scheduler may take: dask's ``distributed.comm.timeouts.connect`` (30 s)."""
+    import dask
+    from dask.utils import parse_timedelta
+
+    return float(parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), default="seconds"))
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:300] or type(exc).__name__
+
+
+def _probe_scheduler(scheduler: str, timeout: float) -> None:
+    """Ask ``scheduler`` who it is, on a connection of its own, within ``timeout`` seconds (and a few more for
+    the reply), before a client is made: a client that fails while it is made waits 60 s more for its own
+    close at exit, a server that is not a dask scheduler (an HTTP server, a proxy) can leave dask's handshake
+    waiting without end or reading its reply as a message gigabytes long, and the client retries a refused
+    connection until the timeout. Raises :class:`~pcreg.errors.PcregError` naming the address."""
+    import asyncio
+    import threading
+
+    from .errors import PcregError
+
+    async def ask() -> Any:
+        from distributed.comm import connect
+
+        comm = await connect(scheduler, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    answer: list = []
+
+    def run() -> None:
+        try:
+            answer.append(asyncio.run(asyncio.wait_for(ask(), timeout + 5)))
+        except BaseException as exc:  # noqa: BLE001 - whatever the far end made of it, reported below
+            answer.append(exc)
+
+    probe = threading.Thread(target=run, name="pcreg-scheduler-probe", daemon=True)
+    probe.start()
+    deadline = timeout + 10  # asyncio's own deadline, and a margin should the loop not honour it
+    while probe.is_alive() and deadline > 0:
+        probe.join(0.25)
+        deadline -= 0.25
+        check_interrupted()
+    got = answer[0] if answer else TimeoutError()
+    if isinstance(got, dict) and got.get("type") == "Scheduler":
+        return
+    if isinstance(got, OSError) and "Timed out trying to connect" in str(got):
+        why = ("connection refused: nothing listens at that port" if _refused(got) else
+               "the host is unreachable, or a firewall drops the connection")
+        raise PcregError(f"cannot connect to the dask scheduler {scheduler!r} within {timeout:g} s: {why} "
+                         "(dask's distributed.comm.timeouts.connect sets the wait)")
+    if isinstance(got, BaseException) and not isinstance(got, Exception):
+        raise got  # KeyboardInterrupt
+    what = ("no reply to its greeting" if isinstance(got, (TimeoutError, asyncio.TimeoutError)) else
+            type(got).__name__ if isinstance(got, BaseException) else "an answer of another kind")
+    raise PcregError(f"{scheduler!r} answered, but not as a dask scheduler ({what}): is it the address a "
+                     "`dask scheduler` printed?")
+
+
+def _refused(exc: BaseException | None) -> bool:
+    """Whether a connection refused lies in ``exc``'s chain of causes."""
+    while exc is not None:
+        if isinstance(exc, ConnectionRefusedError):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 @contextmanager
 def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator[Executor]:
     """An executor for ``workers`` local processes, or for a dask.distributed scheduler address.
@@ -241,10 +328,12 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         from .errors import PcregError
 
         _check_scheduler_address(scheduler)
+        timeout = _connect_timeout()
+        _probe_scheduler(scheduler, timeout)
         try:
-            client = Client(scheduler, set_as_default=False)  # timeout: distributed.comm.timeouts.connect
-        except (OSError, TimeoutError, ValueError, TypeError) as exc:
-            raise PcregError(f"cannot connect to the dask scheduler {scheduler!r}: {exc}") from None
+            client = Client(scheduler, set_as_default=False, timeout=timeout)
+        except Exception as exc:  # noqa: BLE001 - it answered the probe a moment ago: gone since
+            raise PcregError(f"cannot connect to the dask scheduler {scheduler!r}: {_one_line(exc)}") from None
         executor = client.get_executor()
         try:
             yield executor
@@ -263,9 +352,21 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             from .errors import PcregError
 
             raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here")
+        from concurrent.futures.process import BrokenProcessPool
+
         pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(workers,))
         try:
             yield pool
+        except BrokenProcessPool:
+            how = _how_workers_ended(pool)
+            _stop_pool(pool)
+            if interrupted():  # the workers died of the same signal as the parent
+                raise KeyboardInterrupt from None
+            from .errors import PcregError
+
+            raise PcregError(f"a worker process ended abruptly{how}; the units that were running are lost, the finished ones "
+                             "are kept: rerun the same command to resume (with fewer --workers if memory is short)"
+                             ) from None
         except BaseException:
             _stop_pool(pool)
             raise

@@ -311,6 +311,64 @@ def _refused(exc: BaseException | None) -> bool:
     return False
 
 
+def _quiet_dask_logs() -> Callable[[], None]:
+    """Keep dask.distributed's own log records below CRITICAL off stderr; returns what puts them back."""
+    import logging
+
+    names = ["distributed"] + [n for n in logging.root.manager.loggerDict if n.startswith("distributed.")]
+    levels = {n: logging.getLogger(n).level for n in names}  # dask's configuration sets some of its own
+    for n in names:
+        logging.getLogger(n).setLevel(logging.CRITICAL)
+
+    def restore() -> None:
+        for n, level in levels.items():
+            logging.getLogger(n).setLevel(level)
+
+    return restore
+
+
+#: Seconds a ``--scheduler`` run goes on with no worker on the cluster, or without its scheduler, before it
+#: stops (exit 2, finished units kept): dask would keep the units waiting for a worker without end.
+NO_WORKER_SECONDS = 60.0
+
+
+class _ClusterExecutor(Executor):
+    """A dask client's executor, and :meth:`check`: whether the cluster can still run the units."""
+
+    def __init__(self, client: Any, scheduler: str) -> None:
+        self._client, self._scheduler = client, scheduler
+        self._executor = client.get_executor()
+        self._idle_since: float | None = None
+
+    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Future:
+        return self._executor.submit(fn, *args, **kwargs)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._executor.shutdown(wait=wait)
+
+    def check(self) -> None:
+        """Raise :class:`~pcreg.errors.PcregError` once the scheduler has been out of reach, or without a
+        worker, for :data:`NO_WORKER_SECONDS` (from the client's own view, refreshed every 2 s)."""
+        import time
+
+        from .errors import PcregError
+
+        connected = getattr(self._client, "status", "running") == "running"
+        identity = getattr(self._client, "_scheduler_identity", None) or {}
+        workers = identity.get("n_workers", len(identity.get("workers") or {}))
+        if connected and workers:
+            self._idle_since = None
+            return
+        now = time.monotonic()
+        if self._idle_since is None:
+            self._idle_since = now
+        elif now - self._idle_since > NO_WORKER_SECONDS:
+            what = ("has had no worker" if connected else "has been out of reach")
+            raise PcregError(f"the dask scheduler {self._scheduler!r} {what} for {NO_WORKER_SECONDS:g} s: the finished "
+                             f"units are kept; start {'workers' if connected else 'it'} and rerun the same command "
+                             "to resume")
+
+
 @contextmanager
 def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator[Executor]:
     """An executor for ``workers`` local processes, or for a dask.distributed scheduler address.
@@ -334,14 +392,25 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             client = Client(scheduler, set_as_default=False, timeout=timeout)
         except Exception as exc:  # noqa: BLE001 - it answered the probe a moment ago: gone since
             raise PcregError(f"cannot connect to the dask scheduler {scheduler!r}: {_one_line(exc)}") from None
-        executor = client.get_executor()
+        from concurrent.futures import CancelledError
+
+        executor = _ClusterExecutor(client, scheduler)
+        quiet = _quiet_dask_logs()  # a lost scheduler or worker is reported in one line, not dask's tracebacks
         try:
             yield executor
+            client.close(timeout=5)
+            quiet()  # on a failure dask's threads may still log while the process ends: kept quiet
+        except CancelledError:  # not by pcreg: the client cancels every unit when it loses the scheduler
+            executor.shutdown(wait=False)
+            if interrupted():
+                raise KeyboardInterrupt from None
+            raise PcregError(f"lost the dask scheduler {scheduler!r} mid-run (it ended, or the network failed): the "
+                             "finished units are kept; rerun the same command to resume once it is back") from None
         except BaseException:
             executor.shutdown(wait=False)  # cancels the units not finished
             raise
         finally:
-            client.close()
+            client.close(timeout=5)
     elif workers <= 1:
         yield InlineExecutor()
     else:
@@ -391,12 +460,23 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
     futures: dict = {}
     results: list = [None] * len(units)
     inline = isinstance(executor, InlineExecutor)
+    health = getattr(executor, "check", None)  # a cluster's: raises once it cannot run the units any more
     try:
         with progress(total=len(units), desc=desc, disable=None if show_progress is None else not show_progress) as bar:
 
             def land(fut: Future) -> None:
                 i = futures[fut]
-                results[i] = fut.result()
+                try:
+                    results[i] = fut.result()
+                except Exception as exc:
+                    if type(exc).__name__ != "KilledWorker":  # dask's, after a unit's workers died again and again
+                        raise
+                    from .errors import PcregError
+
+                    key = getattr(units[i], "key", i)
+                    raise PcregError(f"unit {key}: every dask worker that ran it ended abruptly (out of memory?), "
+                                     "so dask gave it up; the finished units are kept: rerun the same command to "
+                                     "resume") from None
                 if on_result is not None:
                     on_result(units[i], results[i])
                 bar.update(1)
@@ -415,6 +495,8 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
             while pending:
                 done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
                 check_interrupted()  # also when no unit finished: the wait itself is where Ctrl-C lands
+                if health is not None:
+                    health()
                 for fut in done:
                     land(fut)
     except BaseException:

@@ -109,3 +109,64 @@ def test_a_closed_port_says_refused(capsys, tmp_path):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and f"127.0.0.1:{port}" in err[0] and "refused" in err[0], err
 
+
+
+def test_a_cluster_without_workers_stops_with_one_line(monkeypatch, capsys, tmp_path):
+    """dask keeps units waiting for a worker without end: the command stops once there has been none for
+    NO_WORKER_SECONDS (here shortened), exit 2."""
+    distributed = pytest.importorskip("distributed", reason="pcreg[distributed] (dask.distributed) is not installed")
+    from pcreg import _runner
+    from pcreg.cli import main
+
+    monkeypatch.setattr(_runner, "NO_WORKER_SECONDS", 1.0)
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=":0", silence_logs=50) as cluster:
+        rc: list[int] = []
+        runner = threading.Thread(target=lambda: rc.append(
+            main([*ROTATION, "--scheduler", cluster.scheduler_address, "--out", str(tmp_path / "rot")])), daemon=True)
+        runner.start()
+        runner.join(timeout=HANG)  # without the stop, the units wait for a worker without end
+        assert not runner.is_alive(), f"still waiting for a worker after {HANG} s"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == [2] and len(err) == 1 and "no worker" in err[0] and cluster.scheduler_address in err[0], err
+
+
+@pytest.mark.slow
+def test_the_scheduler_lost_mid_run_is_one_line_and_the_rerun_resumes(tmp_path):
+    distributed = pytest.importorskip("distributed", reason="pcreg[distributed] (dask.distributed) is not installed")
+    out = tmp_path / "rot"
+    with distributed.LocalCluster(n_workers=1, processes=True, threads_per_worker=1, host="127.0.0.1",
+                                  dashboard_address=":0", silence_logs=50) as cluster:
+        p = start([*ROTATION, "--scheduler", cluster.scheduler_address, "--out", out])
+        try:
+            wait_for(p, lambda: units(out), "a unit written")
+            cluster.sync(cluster.scheduler.close)
+            _, err = p.communicate(timeout=HANG)
+        finally:
+            if p.poll() is None:
+                p.kill()
+    lines = err.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1, err
+    assert "lost the dask scheduler" in lines[0] and "rerun" in lines[0], lines[0]
+    kept = len(units(out))
+    again = start([*ROTATION, "--workers", "2", "--out", out])
+    _, err = again.communicate(timeout=HANG)
+    assert again.returncode == 0, err
+    assert json.loads((out / "results.json").read_text())["resumed_units"] == kept >= 1
+
+
+@pytest.mark.slow
+def test_a_unit_dask_gives_up_on_is_named():
+    """A unit whose worker dies each time (here: it ends its process) is given up by dask (KilledWorker): a
+    PcregError naming the unit, not a bug."""
+    distributed = pytest.importorskip("distributed", reason="pcreg[distributed] (dask.distributed) is not installed")
+    import dask
+
+    from pcreg._runner import make_executor, run_units
+    from pcreg.errors import PcregError
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with distributed.LocalCluster(n_workers=1, processes=True, threads_per_worker=1, host="127.0.0.1",
+                                      dashboard_address=":0", silence_logs=50) as cluster:
+            with pytest.raises(PcregError, match="unit 0: every dask worker that ran it ended abruptly"):
+                with make_executor(scheduler=cluster.scheduler_address) as ex:
+                    run_units(os._exit, [3], executor=ex)  # os._exit(3) in the worker

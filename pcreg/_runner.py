@@ -290,7 +290,7 @@ def _probe_scheduler(scheduler: str, timeout: float) -> None:
     if isinstance(got, dict) and got.get("type") == "Scheduler":
         return
     if isinstance(got, OSError) and "Timed out trying to connect" in str(got):
-        why = ("connection refused: nothing listens at that port" if _refused(got) else
+        why = ("connection refused: nothing listens at that port" if _refused(scheduler) else
                "the host is unreachable, or a firewall drops the connection")
         raise PcregError(f"cannot connect to the dask scheduler {scheduler!r} within {timeout:g} s: {why} "
                          "(dask's distributed.comm.timeouts.connect sets the wait)")
@@ -302,12 +302,20 @@ def _probe_scheduler(scheduler: str, timeout: float) -> None:
                      "`dask scheduler` printed?")
 
 
-def _refused(exc: BaseException | None) -> bool:
-    """Whether a connection refused lies in ``exc``'s chain of causes."""
-    while exc is not None:
-        if isinstance(exc, ConnectionRefusedError):
-            return True
-        exc = exc.__cause__ or exc.__context__
+def _refused(scheduler: str) -> bool:
+    """Whether a connection to ``scheduler``'s host and port is refused at once (one plain TCP attempt: the last
+    of dask's attempts, cut short by its deadline, may say only that it timed out)."""
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        host, port = parse_host_port(parse_address(scheduler)[1])
+        socket.create_connection((host, port), timeout=2).close()
+    except ConnectionRefusedError:
+        return True
+    except (OSError, ValueError, TypeError):
+        return False
     return False
 
 
@@ -353,8 +361,10 @@ class _ClusterExecutor(Executor):
 
         from .errors import PcregError
 
+        if not hasattr(self._client, "_scheduler_identity"):  # the client's view as dask keeps it: unknown here
+            return
         connected = getattr(self._client, "status", "running") == "running"
-        identity = getattr(self._client, "_scheduler_identity", None) or {}
+        identity = self._client._scheduler_identity or {}
         workers = identity.get("n_workers", len(identity.get("workers") or {}))
         if connected and workers:
             self._idle_since = None

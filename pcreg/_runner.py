@@ -217,6 +217,21 @@ def _worker_init(workers: int = 1) -> None:
     _threads.set_enabled(_threads.usable_cpus() >= 2 * workers)
 
 
+def _how_workers_ended(pool: ProcessPoolExecutor) -> str:
+    """``" (killed by SIGKILL: ...)"``: how the pool's dead worker processes ended, as far as it is known (their
+    exit codes, when the pool has not yet reaped them)."""
+    import signal
+
+    codes = sorted({p.exitcode for p in (getattr(pool, "_processes", None) or {}).values()
+                    if p.exitcode not in (None, 0)})
+    if not codes:  # the pool may have reaped them before this reads them
+        return " (by a signal or a crash: the system's out-of-memory killer ends processes so)"
+    if -signal.SIGKILL in codes:
+        return " (killed by SIGKILL: the system's out-of-memory killer ends processes so)"
+    names = [signal.Signals(-c).name if c < 0 and -c in signal.valid_signals() else f"exit code {c}" for c in codes]
+    return f" ({', '.join(names)})"
+
+
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """Cancel pending units and end the worker processes now (``shutdown(wait=True)`` would wait for
     the running units to finish, which can take minutes). A second Ctrl-C meanwhile does not cut it short."""
@@ -263,6 +278,147 @@ def _check_scheduler_address(scheduler: str) -> None:
         raise PcregError(f"--scheduler {scheduler!r} is not a dask scheduler address (tcp://HOST:PORT): {exc}") from None
 
 
+def _connect_timeout() -> float:
+    """Seconds a connection to the scheduler may take: dask's ``distributed.comm.timeouts.connect`` (30 s)."""
+    import dask
+    from dask.utils import parse_timedelta
+
+    return float(parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), default="seconds"))
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:300] or type(exc).__name__
+
+
+def _probe_scheduler(scheduler: str, timeout: float) -> None:
+    """Ask ``scheduler`` who it is, on a connection of its own, within ``timeout`` seconds (and a few more for
+    the reply), before a client is made: a client that fails while it is made waits 60 s more for its own
+    close at exit, a server that is not a dask scheduler (an HTTP server, a proxy) can leave dask's handshake
+    waiting without end or reading its reply as a message gigabytes long, and the client retries a refused
+    connection until the timeout. Raises :class:`~pcreg.errors.PcregError` naming the address."""
+    import asyncio
+    import threading
+
+    from .errors import PcregError
+
+    async def ask() -> Any:
+        from distributed.comm import connect
+
+        comm = await connect(scheduler, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    answer: list = []
+
+    def run() -> None:
+        try:
+            answer.append(asyncio.run(asyncio.wait_for(ask(), timeout + 5)))
+        except BaseException as exc:  # noqa: BLE001 - whatever the far end made of it, reported below
+            answer.append(exc)
+
+    probe = threading.Thread(target=run, name="pcreg-scheduler-probe", daemon=True)
+    probe.start()
+    deadline = timeout + 10  # asyncio's own deadline, and a margin should the loop not honour it
+    while probe.is_alive() and deadline > 0:
+        probe.join(0.25)
+        deadline -= 0.25
+        check_interrupted()
+    got = answer[0] if answer else TimeoutError()
+    if isinstance(got, dict) and got.get("type") == "Scheduler":
+        return
+    if isinstance(got, OSError) and "Timed out trying to connect" in str(got):
+        why = ("connection refused: nothing listens at that port" if _refused(scheduler) else
+               "the host is unreachable, or a firewall drops the connection")
+        raise PcregError(f"cannot connect to the dask scheduler {scheduler!r} within {timeout:g} s: {why} "
+                         "(dask's distributed.comm.timeouts.connect sets the wait)")
+    if isinstance(got, BaseException) and not isinstance(got, Exception):
+        raise got  # KeyboardInterrupt
+    what = ("no reply to its greeting" if isinstance(got, (TimeoutError, asyncio.TimeoutError)) else
+            type(got).__name__ if isinstance(got, BaseException) else "an answer of another kind")
+    raise PcregError(f"{scheduler!r} answered, but not as a dask scheduler ({what}): is it the address a "
+                     "`dask scheduler` printed?")
+
+
+def _refused(scheduler: str) -> bool:
+    """Whether a connection to ``scheduler``'s host and port is refused at once (one plain TCP attempt: the last
+    of dask's attempts, cut short by its deadline, may say only that it timed out)."""
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        host, port = parse_host_port(parse_address(scheduler)[1])
+        socket.create_connection((host, port), timeout=2).close()
+    except ConnectionRefusedError:
+        return True
+    except (OSError, ValueError, TypeError):
+        return False
+    return False
+
+
+def _quiet_dask_logs() -> Callable[[], None]:
+    """Keep dask.distributed's own log records below CRITICAL off stderr; returns what puts them back."""
+    import logging
+
+    names = ["distributed"] + [n for n in logging.root.manager.loggerDict if n.startswith("distributed.")]
+    levels = {n: logging.getLogger(n).level for n in names}  # dask's configuration sets some of its own
+    for n in names:
+        logging.getLogger(n).setLevel(logging.CRITICAL)
+
+    def restore() -> None:
+        for n, level in levels.items():
+            logging.getLogger(n).setLevel(level)
+
+    return restore
+
+
+#: Seconds a ``--scheduler`` run goes on with no worker on the cluster, or without its scheduler, before it
+#: stops (exit 2, finished units kept): dask would keep the units waiting for a worker without end.
+NO_WORKER_SECONDS = 60.0
+
+
+class _ClusterExecutor(Executor):
+    """A dask client's executor, and :meth:`check`: whether the cluster can still run the units."""
+
+    def __init__(self, client: Any, scheduler: str) -> None:
+        self._client, self._scheduler = client, scheduler
+        self._executor = client.get_executor()
+        self._idle_since: float | None = None
+
+    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Future:
+        return self._executor.submit(fn, *args, **kwargs)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._executor.shutdown(wait=wait)
+
+    def check(self) -> None:
+        """Raise :class:`~pcreg.errors.PcregError` once the scheduler has been out of reach, or without a
+        worker, for :data:`NO_WORKER_SECONDS` (from the client's own view, refreshed every 2 s)."""
+        import time
+
+        from .errors import PcregError
+
+        if not hasattr(self._client, "_scheduler_identity"):  # the client's view as dask keeps it: unknown here
+            return
+        connected = getattr(self._client, "status", "running") == "running"
+        identity = self._client._scheduler_identity or {}
+        workers = identity.get("n_workers", len(identity.get("workers") or {}))
+        if connected and workers:
+            self._idle_since = None
+            return
+        now = time.monotonic()
+        if self._idle_since is None:
+            self._idle_since = now
+        elif now - self._idle_since > NO_WORKER_SECONDS:
+            what = ("has had no worker" if connected else "has been out of reach")
+            raise PcregError(f"the dask scheduler {self._scheduler!r} {what} for {NO_WORKER_SECONDS:g} s: the finished "
+                             f"units are kept; start {'workers' if connected else 'it'} and rerun the same command "
+                             "to resume")
+
+
 @contextmanager
 def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator[Executor]:
     """An executor for ``workers`` local processes, or for a dask.distributed scheduler address.
@@ -280,18 +436,31 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         from .errors import PcregError
 
         _check_scheduler_address(scheduler)
+        timeout = _connect_timeout()
+        _probe_scheduler(scheduler, timeout)
         try:
-            client = Client(scheduler, set_as_default=False)  # timeout: distributed.comm.timeouts.connect
-        except (OSError, TimeoutError, ValueError, TypeError) as exc:
-            raise PcregError(f"cannot connect to the dask scheduler {scheduler!r}: {exc}") from None
-        executor = client.get_executor()
+            client = Client(scheduler, set_as_default=False, timeout=timeout)
+        except Exception as exc:  # noqa: BLE001 - it answered the probe a moment ago: gone since
+            raise PcregError(f"cannot connect to the dask scheduler {scheduler!r}: {_one_line(exc)}") from None
+        from concurrent.futures import CancelledError
+
+        executor = _ClusterExecutor(client, scheduler)
+        quiet = _quiet_dask_logs()  # a lost scheduler or worker is reported in one line, not dask's tracebacks
         try:
             yield executor
+            client.close(timeout=5)
+            quiet()  # on a failure dask's threads may still log while the process ends: kept quiet
+        except CancelledError:  # not by pcreg: the client cancels every unit when it loses the scheduler
+            executor.shutdown(wait=False)
+            if interrupted():
+                raise KeyboardInterrupt from None
+            raise PcregError(f"lost the dask scheduler {scheduler!r} mid-run (it ended, or the network failed): the "
+                             "finished units are kept; rerun the same command to resume once it is back") from None
         except BaseException:
             executor.shutdown(wait=False)  # cancels the units not finished
             raise
         finally:
-            client.close()
+            client.close(timeout=5)
     elif workers <= 1:
         yield InlineExecutor()
     else:
@@ -302,9 +471,21 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             from .errors import PcregError
 
             raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here")
+        from concurrent.futures.process import BrokenProcessPool
+
         pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(workers,))
         try:
             yield pool
+        except BrokenProcessPool:
+            how = _how_workers_ended(pool)
+            _stop_pool(pool)
+            if interrupted():  # the workers died of the same signal as the parent
+                raise KeyboardInterrupt from None
+            from .errors import PcregError
+
+            raise PcregError(f"a worker process ended abruptly{how}; the units that were running are lost, the finished ones "
+                             "are kept: rerun the same command to resume (with fewer --workers if memory is short)"
+                             ) from None
         except BaseException:
             _stop_pool(pool)
             raise
@@ -329,12 +510,23 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
     futures: dict = {}
     results: list = [None] * len(units)
     inline = isinstance(executor, InlineExecutor)
+    health = getattr(executor, "check", None)  # a cluster's: raises once it cannot run the units any more
     try:
         with progress(total=len(units), desc=desc, disable=None if show_progress is None else not show_progress) as bar:
 
             def land(fut: Future) -> None:
                 i = futures[fut]
-                results[i] = fut.result()
+                try:
+                    results[i] = fut.result()
+                except Exception as exc:
+                    if type(exc).__name__ != "KilledWorker":  # dask's, after a unit's workers died again and again
+                        raise
+                    from .errors import PcregError
+
+                    key = getattr(units[i], "key", i)
+                    raise PcregError(f"unit {key}: every dask worker that ran it ended abruptly (out of memory?), "
+                                     "so dask gave it up; the finished units are kept: rerun the same command to "
+                                     "resume") from None
                 if on_result is not None:
                     on_result(units[i], results[i])
                 bar.update(1)
@@ -353,6 +545,8 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
             while pending:
                 done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
                 check_interrupted()  # also when no unit finished: the wait itself is where Ctrl-C lands
+                if health is not None:
+                    health()
                 for fut in done:
                     land(fut)
     except BaseException:

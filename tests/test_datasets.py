@@ -267,6 +267,20 @@ def test_load_folder_errors(tmp_path, damage, message):
     assert "\n" not in str(err.value)
 
 
+def test_load_folder_refuses_frames_whose_name_order_is_not_their_count(tmp_path):
+    """f10.png sorts before f9.png: read in name order, the key frame would be f10 and f9 scored after f11."""
+    clip = tmp_path / "clip"
+    _write_clip(clip, 3, rng=np.random.default_rng(8))
+    for sub in ("images", "labels"):
+        for old, new in (("f00", "f9"), ("f01", "f10"), ("f02", "f11")):
+            (clip / sub / f"{old}.png").rename(clip / sub / f"{new}.png")
+    with pytest.raises(DatasetError, match="numbered with different widths") as err:
+        load_folder(clip)
+    assert str(clip / "images") in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(DatasetError, match="numbered with different widths"):
+        load_dataset(f"camvid:{clip}")
+
+
 def test_load_dataset_specs(tmp_path):
     with pytest.raises(InputError, match="unknown kind 'nonsense'"):
         load_dataset("nonsense:/x")

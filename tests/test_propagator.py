@@ -353,7 +353,7 @@ def test_run_truth_bad_input(tmp_path, frames, capsys):
     cv2.imwrite(str(truth / "f001.png"), frames[1].labels)
     args = ["run", str(src), "--labels", str(tmp_path / "key.png"), "--truth", str(truth), "--out", str(tmp_path / "o")]
     assert main(args) == 2
-    assert "no truth labels for frame f002.png" in capsys.readouterr().err
+    assert f"{truth / 'f002.png'}: no truth labels for frame f002.png" in capsys.readouterr().err
     cv2.imwrite(str(truth / "f002.png"), frames[2].labels[:100])
     assert main(args) == 2
     assert "truth labels of f002.png are" in capsys.readouterr().err

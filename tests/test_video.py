@@ -204,7 +204,8 @@ def test_a_video_is_scored_against_truth_maps_named_by_index(tmp_path, frames, c
     assert state["truth"]["frames"] == 2 and state["truth"]["error"] < state["truth"]["plain_error"]
     # a video's length is known once decoded: a missing map stops the run at its frame, the frames before kept
     assert main(args[:-1] + [str(tmp_path / "p")]) == 2
-    assert _err(capsys) == ["pcreg: error: no truth labels for frame 000003"]
+    assert _err(capsys) == [f"pcreg: error: {truth / '000003.png'}: no truth labels for frame 000003 (--truth {truth} "
+                            "holds NAME.png for each frame NAME)"]
     assert json.loads((tmp_path / "p" / "run.json").read_text())["done"] == 3
 
 

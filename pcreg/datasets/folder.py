@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import DatasetError, InputError
 from .frame import Frame
+from .sources import _check_numbering
 
 from ..formats import IMAGE_SUFFIXES
 
@@ -73,6 +74,10 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
     if not img_dir.is_dir():
         raise DatasetError(f"{folder}: no images/ folder")
     files = [p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()]
+    try:  # frames in name order, as pcreg run reads them: f10.png before f9.png is refused, never scored out of order
+        _check_numbering(img_dir, [p.name for p in files])
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
     images = {p.stem: p for p in files}
     if len(images) != len(files):  # X.png and X.jpg: which one is frame X?
         twice = sorted({p.name for p in files if sum(q.stem == p.stem for q in files) > 1})

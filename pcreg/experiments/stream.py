@@ -184,23 +184,19 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     if is_davis(cfg.data):  # the benchmark's J and F, frame by frame (:mod:`.stream_davis`)
         davis = DavisScores(len(frames))
         hook = chain(hook, davis.on_frame)
-    if cfg.classes is not None:
-        from ..classes import class_table
-        from .stream_classes import run_clip_classes
-        from .stream_keys import key_indices
+    try:  # what the keys or a method cannot take of the clip (a key object too small to follow), naming the clip
+        out = _run_methods(cfg, frames, unit.backend, hook)
+    except InputError as exc:
+        raise InputError(str(exc) if str(exc).startswith(f"clip {unit.dataset}:") else f"clip {unit.dataset}: {exc}") from None
+    out["frames"], unscored = _scored_rows(out["frames"])
+    if not out["frames"]:
+        from ..errors import DatasetError
 
-        keys = key_indices(cfg.keys or "first", len(frames), frames, backend=unit.backend)
-        out = run_clip_classes(frames, keys, class_table(cfg.classes), methods=cfg.methods, backend=unit.backend)
-    elif cfg.keys is not None:
-        from .stream_keys import key_indices, run_clip_keys
-
-        keys = key_indices(cfg.keys, len(frames), frames, backend=unit.backend)
-        out = run_clip_keys(frames, keys, methods=cfg.methods, backend=unit.backend)
-    else:
-        try:
-            out = run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=unit.backend, on_frame=hook)
-        except InputError as exc:  # what a method cannot take of the clip (a key object too small to follow)
-            raise InputError(f"clip {unit.dataset}: {exc}") from None
+        raise DatasetError(f"clip {unit.dataset}: the truth of every frame that is not a key frame is all unknown "
+                           f"({', '.join(unscored[:4])}): nothing to score")
+    out["means"] = {m: float(np.mean([r["errors"][m] for r in out["frames"]])) for m in cfg.methods}
+    if unscored:
+        out["unscored"] = unscored
     out.update(dataset=unit.dataset, backend=unit.backend, n_frames=len(frames), seconds=time.perf_counter() - t0,
                width=frames[0].shape[1], height=frames[0].shape[0])
     if recorded:
@@ -208,6 +204,31 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     if davis is not None:
         out["davis"] = davis.result()
     return out
+
+
+def _run_methods(cfg: StreamConfig, frames, backend: str, hook) -> dict:
+    """The clip's result by the protocol ``cfg`` chooses: many classes, key frames anywhere, or key frames
+    every ``key_every`` frames."""
+    if cfg.classes is not None:
+        from ..classes import class_table
+        from .stream_classes import run_clip_classes
+        from .stream_keys import key_indices
+
+        keys = key_indices(cfg.keys or "first", len(frames), frames, backend=backend)
+        return run_clip_classes(frames, keys, class_table(cfg.classes), methods=cfg.methods, backend=backend)
+    if cfg.keys is not None:
+        from .stream_keys import key_indices, run_clip_keys
+
+        keys = key_indices(cfg.keys, len(frames), frames, backend=backend)
+        return run_clip_keys(frames, keys, methods=cfg.methods, backend=backend)
+    return run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=backend, on_frame=hook)
+
+
+def _scored_rows(rows: list[dict]) -> tuple[list[dict], list[str]]:
+    """The rows of frames with known truth, and the names of those whose truth is all unknown (void), whose
+    error is NaN for every method: they are left out of the means, and the report names them."""
+    scored = [r for r in rows if not all(np.isnan(v) for v in r["errors"].values())]
+    return scored, [r["name"] for r in rows if r not in scored]
 
 
 def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], recorded: dict[str, int]):
@@ -243,6 +264,13 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed, classes=config.classes)
     for name, frames in datasets.items():
         check_clip(name, frames, config.classes)
+        if config.keys is not None:  # each clip's key frames checked before any clip runs
+            from .stream_keys import check_key_spec
+
+            try:
+                check_key_spec(config.keys, len(frames))
+            except InputError as exc:
+                raise InputError(f"clip {name}: {exc}") from None
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                           force=force, executor=executor, recorder=recorder, desc="stream",
                           show_progress=show_progress)
@@ -266,6 +294,7 @@ def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
                                "reduction": {m: reduction(means["plain"], v) for m, v in means.items()},
                                "ms_per_frame": r["ms_per_frame"],
                                "calibration": calibration(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS)))),
+                               **({"unscored": r["unscored"]} if r.get("unscored") else {}),
                                **({"miou": r["miou"], "iou": r["iou"]} if "miou" in r else {})}
     pooled = sum((np.asarray(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS))), np.int64) for r in unit_results),
                  np.zeros((2, CONFIDENCE_LEVELS), np.int64))

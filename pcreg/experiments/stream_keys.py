@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-__all__ = ["KEY_METHODS", "key_indices", "run_clip_keys"]
+__all__ = ["KEY_METHODS", "key_indices", "check_key_spec", "run_clip_keys"]
 
 #: Methods of the key-frame protocol, in table order.
 KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "flow_key",
@@ -41,6 +41,25 @@ def key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") -
     if len(set(keys)) >= n:
         raise InputError(f"--keys {spec}: every one of the clip's {n} frames is a key frame: nothing is scored")
     return keys
+
+
+def check_key_spec(spec: str, n: int) -> None:
+    """Refuse ``spec`` on a clip of ``n`` frames as :func:`key_indices` would, without running anything
+    (``suggest:N`` has its N checked, its frames chosen only when the clip runs)."""
+    from ..errors import InputError
+
+    kind, _, arg = spec.strip().partition(":")
+    if kind != "suggest":
+        key_indices(spec, n)
+        return
+    try:
+        k = int(arg)
+    except ValueError:
+        raise InputError(f"--keys {spec}: suggest:N takes a whole number") from None
+    if not 1 <= k <= n:
+        raise InputError(f"--keys {spec}: suggest:N needs 1 <= N <= {n} (the clip's frames)")
+    if k >= n:
+        raise InputError(f"--keys {spec}: every one of the clip's {n} frames is a key frame: nothing is scored")
 
 
 def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") -> list[int]:

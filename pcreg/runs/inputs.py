@@ -143,8 +143,13 @@ class TruthMaps:
     def __getitem__(self, t: int):
         from .truth import check_truth
 
+        from ..errors import InputError
+
         f = self.path(t)
-        lab = read_labels(f, self.mapping, self.table) if f.is_file() else None
+        if not f.is_file():  # the file named, as every other input check names it
+            raise InputError(f"{f}: no truth labels for frame {self.frames.name(t)} (--truth {self.root} holds "
+                             "NAME.png for each frame NAME)")
+        lab = read_labels(f, self.mapping, self.table)
         check_truth([lab], self.shape, [self.frames.name(t)])
         return lab
 

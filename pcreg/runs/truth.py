@@ -20,8 +20,10 @@ def count_frame(counts: dict, labels: np.ndarray, truth: np.ndarray, plain: np.n
                 unknown: int = 2) -> None:
     """Add one frame to ``counts`` (in place): its pixels of known truth (``truth`` not ``unknown``, the
     class table's unknown id), how many of them ``labels`` has wrong, and how many naive Bayes alone
-    (``plain``, when given) has wrong."""
+    (``plain``, when given) has wrong. A frame whose truth is all unknown is not counted: no pixel of it is scored."""
     known = truth != unknown
+    if not known.any():
+        return
     counts["frames"] += 1
     counts["wrong"] += int(np.count_nonzero(labels[known] != truth[known]))
     counts["known"] += int(known.sum())

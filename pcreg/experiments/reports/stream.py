@@ -19,6 +19,10 @@ def table(results: dict) -> tuple[list, list, str]:
     rows.append(["reduction vs plain, mean over clips (%)", "", *[avg[m] for m in methods]])
     footer = ("\n(error %, unknown truth left out; the last row: how much lower than plain, in percent of "
               "plain, averaged over the clips)\n")
+    for name, c in results["datasets"].items():
+        if c.get("unscored"):  # frames whose truth is all unknown: no error to take
+            footer += (f"\n{name}: {len(c['unscored'])} frame(s) not scored, their truth all unknown (void): "
+                       f"{', '.join(c['unscored'][:6])}{', ...' if len(c['unscored']) > 6 else ''}\n")
     from .stream_davis import split_line
 
     if split_line(results):  # which of a DAVIS download's sequences, J and F in davis_J.md, davis_F.md

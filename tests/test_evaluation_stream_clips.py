@@ -1,0 +1,86 @@
+"""``pcreg evaluate stream`` on clips unlike the shared ones: frames whose truth is all void, key frames that
+leave nothing to score, too few classes on a key frame; each a table without NaN or one line naming the clip."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+
+#: pcreg's labels (0 ground, 1 obstacle, 2 unknown) as CamVid ids: road, building, void.
+CAMVID_ID = np.array([3, 1, 11], np.uint8)
+
+
+def _clip(folder: Path, n: int, *, void: tuple[int, ...] = (), seed: int = 0) -> Path:
+    """A CamVid-layout clip of ``n`` synthetic frames (96x72), the frames in ``void`` labelled void all over."""
+    import cv2
+
+    import pcreg
+
+    (folder / "images").mkdir(parents=True)
+    (folder / "labels").mkdir()
+    for i, f in enumerate(pcreg.synthetic("syn1a", n, seed, width=96, height=72)):
+        lab = np.full(f.labels.shape, 11, np.uint8) if i in void else CAMVID_ID[f.labels]
+        cv2.imwrite(str(folder / "images" / f"f{i:02d}.png"), f.image[:, :, ::-1])
+        cv2.imwrite(str(folder / "labels" / f"f{i:02d}.png"), lab)
+    return folder
+
+
+@pytest.mark.parametrize("classes", [[], ["--classes", "camvid11"]], ids=["two_classes", "camvid11"])
+def test_a_frame_whose_truth_is_all_void_is_left_out_and_named(tmp_path, capsys, classes):
+    """With --classes camvid11 a frame labelled void all over made the clip's mean error NaN in every table
+    (and its check 'NOT met (nan% vs nan%)'); with two classes it was counted as scored."""
+    _clip(tmp_path / "data" / "clip", 4, void=(2,))
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", *classes, "--methods", "plain",
+                 "--out", str(out)]) == 0
+    capsys.readouterr()
+    res = json.loads((out / "results.json").read_text())
+    clip = res["datasets"]["clip"]
+    assert clip["scored"] == 2 and clip["unscored"] == ["f02"]
+    rows = res["units"][0]["frames"]
+    assert [r["name"] for r in rows] == ["f01", "f03"]
+    assert np.isfinite(clip["means"]["plain"])
+    assert clip["means"]["plain"] == pytest.approx(np.mean([r["errors"]["plain"] for r in rows]))
+    table = (out / "stream_reference.md").read_text()
+    assert "nan" not in table and "clip: 1 frame(s) not scored, their truth all unknown (void): f02" in table
+
+
+def test_a_clip_whose_frames_to_score_are_all_void_is_refused(tmp_path, capsys):
+    _clip(tmp_path / "data" / "clip", 3, void=(1, 2))
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--classes", "camvid11",
+                 "--methods", "plain", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "clip clip: the truth of every frame that is not a key frame is all unknown" in err
+
+
+@pytest.mark.parametrize("keys, message", [
+    ("spaced:3", "clip a: --keys spaced:3: spaced:N needs 1 <= N <= 2"),
+    ("every:1", "clip a: --keys every:1: every one of the clip's 2 frames is a key frame"),
+    ("suggest:2", "clip a: --keys suggest:2: every one of the clip's 2 frames is a key frame"),
+])
+def test_key_frames_a_clip_cannot_take_are_refused_naming_it_before_any_clip_runs(tmp_path, capsys, keys, message):
+    """The refusal named no clip (which of a folder's?), and came when that clip's turn came."""
+    _clip(tmp_path / "data" / "a", 2)
+    _clip(tmp_path / "data" / "b", 5, seed=1)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--keys", keys, "--methods", "plain",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+    assert not (out / "units").is_dir() or not any((out / "units").iterdir())  # no clip ran
+
+
+def test_a_key_frame_of_one_class_names_its_clip(tmp_path, capsys):
+    import cv2
+
+    clip = _clip(tmp_path / "data" / "clip", 3)
+    cv2.imwrite(str(clip / "labels" / "f00.png"), np.full((72, 96), 3, np.uint8))  # road only
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--classes", "camvid11",
+                 "--methods", "plain", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "clip clip: training labels hold only one class (road)" in err

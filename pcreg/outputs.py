@@ -235,12 +235,9 @@ class OutputLock:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            try:
-                other = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
-            except OSError:
-                other = ""
+            other = _pid_in(fd)
             os.close(fd)
-            who = f" (pid {other})" if other.isdigit() else ""
+            who = f" (pid {other})" if other else ""
             raise OutputError(f"{self.folder} is in use by another pcreg run{who}; wait for it or use another --out") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, str(os.getpid()).encode(), 0)
@@ -283,14 +280,19 @@ def writer_of(folder: str | os.PathLike) -> str | None:
     try:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
     except OSError:
-        try:
-            pid = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
-        except OSError:
-            pid = ""
-        return pid if pid.isdigit() else ""
+        return _pid_in(fd)
     finally:
         os.close(fd)  # a shared lock taken is released with it
     return None
+
+
+def _pid_in(fd: int) -> str:
+    """The process id an :class:`OutputLock` holder wrote in its lock file (open as ``fd``), "" when none."""
+    try:
+        text = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
+    except OSError:
+        return ""
+    return text if text.isdigit() else ""
 
 
 class WriteBehind:

@@ -91,6 +91,10 @@ class Browser:
                 raise RuntimeError("chromium closed its DevTools pipe")
             self._buf += chunk
 
+    def value(self, expr: str):
+        """The value of the JavaScript expression ``expr`` on the open page (returned by value)."""
+        return self.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+
     def open(self, url: str) -> None:
         self.call("Page.navigate", session=True, url=url)
 

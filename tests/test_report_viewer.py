@@ -159,8 +159,7 @@ def test_report_page_in_a_browser(evaluations, kind, tmp_path):
         with Browser(width=1600, height=900) as browser:
             browser.open(url)
 
-            def ev(expr):
-                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+            ev = browser.value
 
             assert until(lambda: ev("document.body && document.body.dataset.loaded"), what="the page loading",
                          alive=proc, bound=120) == "1"

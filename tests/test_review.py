@@ -227,6 +227,22 @@ SHOWN_JS = "document.body.dataset.shown || ''"
 IMG_JS = "(() => { const r = document.getElementById('overlay').getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()"
 
 
+@contextlib.contextmanager
+def _review_page(out, *, width: int, height: int):
+    """The review page of the run in ``out`` open in a headless browser, its first frame shown: ``(the view's
+    process, a function giving the value of a JavaScript expression on the page)``; the view stopped after."""
+    from _browser import Browser
+
+    proc, url = view_web(str(out))
+    try:
+        with Browser(width=width, height=height) as browser:
+            browser.open(url)
+            until(lambda: browser.value(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
+            yield proc, browser.value
+    finally:
+        stop_view(proc)
+
+
 @pytest.mark.slow
 def test_the_review_page_in_a_browser(run_copy, tmp_path):
     from _browser import Browser, find_chromium
@@ -242,8 +258,7 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
         with Browser(width=1400, height=800) as browser:
             browser.open(url)
 
-            def ev(expr):
-                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
+            ev = browser.value
 
             def picture():
                 x, y, w, h = (int(v) for v in ev(IMG_JS))
@@ -389,7 +404,7 @@ def test_a_videos_frames_are_decoded_where_asked_and_all_kept(tmp_path, monkeypa
 def test_the_review_draws_the_runs_class_table(synthetic, tmp_path):
     """A run whose classes come from a labelmap.txt: the overlay paints each class in its table colour, the
     page's legend lists the table's names (in headless Chromium)."""
-    from _browser import Browser, find_chromium
+    from _browser import find_chromium
     from pcreg.review import ALPHA, read_overlay, read_review
 
     frames = tmp_path / "frames"
@@ -414,26 +429,16 @@ def test_the_review_draws_the_runs_class_table(synthetic, tmp_path):
     assert (drawn[labels == 2] == 128).all()  # unknown left clear
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
-    proc, url = view_web(str(out))
-    try:
-        with Browser(width=1200, height=700) as browser:
-            browser.open(url)
-
-            def ev(expr):
-                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
-
-            until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
-            items = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => [s.childNodes[1].textContent, "
-                       "s.querySelector('.swatch').style.background])")
-            assert items[:3] == [["floor", "rgb(0, 0, 255)"], ["wall", "rgb(255, 255, 0)"], ["background", ""]], items
-            # beside each class its share of the frame shown, as the run's labels have it
-            share = "document.querySelector('#legend span[data-class=\"0\"]').textContent"
-            until(lambda: "%" in (ev(share) or ""), what="the classes' shares shown", alive=proc, bound=60)
-            shown = float(ev(share).strip().split()[0])
-            labels0 = pcreg.export.read_labels(out / "frame_000.png", review.table)
-            assert shown == pytest.approx(100.0 * np.mean(labels0 == 0), abs=0.06)
-    finally:
-        stop_view(proc)
+    with _review_page(out, width=1200, height=700) as (proc, ev):
+        items = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => [s.childNodes[1].textContent, "
+                   "s.querySelector('.swatch').style.background])")
+        assert items[:3] == [["floor", "rgb(0, 0, 255)"], ["wall", "rgb(255, 255, 0)"], ["background", ""]], items
+        # beside each class its share of the frame shown, as the run's labels have it
+        share = "document.querySelector('#legend span[data-class=\"0\"]').textContent"
+        until(lambda: "%" in (ev(share) or ""), what="the classes' shares shown", alive=proc, bound=60)
+        shown = float(ev(share).strip().split()[0])
+        labels0 = pcreg.export.read_labels(out / "frame_000.png", review.table)
+        assert shown == pytest.approx(100.0 * np.mean(labels0 == 0), abs=0.06)
 
 
 HOSTILE_CLASS = '"quotes" &amp; | <b>pipe</b> 😀 مرحبا ' + "L" * 300
@@ -446,7 +451,7 @@ def test_hostile_names_and_a_damaged_label_image_on_the_page(synthetic, tmp_path
     where the frame would be (it said only that the frame could not be read)."""
     import json as _json
 
-    from _browser import Browser, find_chromium
+    from _browser import find_chromium
 
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
@@ -466,33 +471,23 @@ def test_hostile_names_and_a_damaged_label_image_on_the_page(synthetic, tmp_path
                      "--classes", str(tmp_path / "classes.json")]) == 0
     cut = out / f"2_{names[2]}.png"
     cut.write_bytes(cut.read_bytes()[:200])
-    proc, url = view_web(str(out))
-    try:
-        with Browser(width=1200, height=700) as browser:
-            browser.open(url)
-
-            def ev(expr):
-                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
-
-            until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
-            assert ev("document.querySelectorAll('script').length") == 2  # the page's own
-            assert ev("document.querySelectorAll('main img').length") == 1
-            legend = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => s.childNodes[1].textContent)")
-            assert legend[:3] == ["<script>alert(1)</script>", HOSTILE_CLASS, "<img src=x onerror=alert(2)>"]
-            assert ev("Array.from(document.querySelectorAll('#keys a')).map(a => a.textContent)") == [f"0_{names[0]}.png"]
-            assert ev("document.getElementById('frame-name').textContent").startswith(f"0_{names[0]}.png")
-            assert ev("document.title") == f"pcreg review: {out.name}"
-            assert ev("document.documentElement.scrollWidth <= document.documentElement.clientWidth"), "runs off the page"
-            for t in (1, 3, 4):
-                ev(f"(() => {{ const s = document.getElementById('slider'); s.value = '{t}'; s.dispatchEvent(new Event('input')); }})()")
-                until(lambda: ev(SHOWN_JS) == f"/overlay/{t}.jpg", what=f"frame {t} shown", alive=proc, bound=60)
-                assert ev("document.getElementById('frame-name').textContent").startswith(f"{t}_{names[t]}.png")
-            ev("(() => { const s = document.getElementById('slider'); s.value = '2'; s.dispatchEvent(new Event('input')); })()")
-            error = "document.getElementById('frame-error').textContent"
-            until(lambda: cut.name in (ev(error) or ""), what="the cut label image named", alive=proc, bound=60)
-            assert ev(SHOWN_JS) == "/overlay/4.jpg"
-    finally:
-        stop_view(proc)
+    with _review_page(out, width=1200, height=700) as (proc, ev):
+        assert ev("document.querySelectorAll('script').length") == 2  # the page's own
+        assert ev("document.querySelectorAll('main img').length") == 1
+        legend = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => s.childNodes[1].textContent)")
+        assert legend[:3] == ["<script>alert(1)</script>", HOSTILE_CLASS, "<img src=x onerror=alert(2)>"]
+        assert ev("Array.from(document.querySelectorAll('#keys a')).map(a => a.textContent)") == [f"0_{names[0]}.png"]
+        assert ev("document.getElementById('frame-name').textContent").startswith(f"0_{names[0]}.png")
+        assert ev("document.title") == f"pcreg review: {out.name}"
+        assert ev("document.documentElement.scrollWidth <= document.documentElement.clientWidth"), "runs off the page"
+        for t in (1, 3, 4):
+            ev(f"(() => {{ const s = document.getElementById('slider'); s.value = '{t}'; s.dispatchEvent(new Event('input')); }})()")
+            until(lambda: ev(SHOWN_JS) == f"/overlay/{t}.jpg", what=f"frame {t} shown", alive=proc, bound=60)
+            assert ev("document.getElementById('frame-name').textContent").startswith(f"{t}_{names[t]}.png")
+        ev("(() => { const s = document.getElementById('slider'); s.value = '2'; s.dispatchEvent(new Event('input')); })()")
+        error = "document.getElementById('frame-error').textContent"
+        until(lambda: cut.name in (ev(error) or ""), what="the cut label image named", alive=proc, bound=60)
+        assert ev(SHOWN_JS) == "/overlay/4.jpg"
 
 
 def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path):
@@ -500,7 +495,7 @@ def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path
     view at a good size (the legend pushed it off the page)."""
     import json as _json
 
-    from _browser import Browser, find_chromium
+    from _browser import find_chromium
 
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
@@ -516,17 +511,7 @@ def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
                      "--classes", str(tmp_path / "classes.json")]) == 0
-    proc, url = view_web(str(out))
-    try:
-        with Browser(width=1400, height=800) as browser:
-            browser.open(url)
-
-            def ev(expr):
-                return browser.call("Runtime.evaluate", session=True, expression=expr, returnByValue=True)["result"].get("value")
-
-            until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
-            assert ev("document.querySelectorAll('#legend > span').length") == 254 + 2  # the unknown, the key frame
-            x, y, w, h = ev(IMG_JS)
-            assert h >= 0.4 * 800 and y + h <= 800, (y, h)
-    finally:
-        stop_view(proc)
+    with _review_page(out, width=1400, height=800) as (proc, ev):
+        assert ev("document.querySelectorAll('#legend > span').length") == 254 + 2  # the unknown, the key frame
+        x, y, w, h = ev(IMG_JS)
+        assert h >= 0.4 * 800 and y + h <= 800, (y, h)

@@ -20,22 +20,32 @@ ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "8"
             "--angles", "0:180:10", "--samples", "8"]  # 8 units: the first lands with more to run
 
 
-def test_a_pool_worker_killed_is_one_line_and_the_rerun_resumes(tmp_path):
-    out = tmp_path / "rot"
-    p = start([*ROTATION, "--workers", "2", "--out", out])
+def _one_line_after(args: list, out, act) -> list[str]:
+    """Run ``pcreg ARGS`` in a process, ``act(process)`` once a unit is written in ``out``; its stderr's lines,
+    checked to be one, after exit 2."""
+    p = start(args)
     try:
         wait_for(p, lambda: units(out), "a unit written")
-        os.killpg(p.pid, signal.SIGSTOP)  # the command and its workers held mid-run
-        workers = [pid for pid in group_members(p.pid) if pid != p.pid]
-        assert workers, "no worker process in the command's group"
-        os.kill(workers[0], signal.SIGKILL)
-        os.killpg(p.pid, signal.SIGCONT)
+        act(p)
         _, err = p.communicate(timeout=HANG)
     finally:
         if p.poll() is None:
             p.kill()
     lines = err.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1, err
+    return lines
+
+
+def test_a_pool_worker_killed_is_one_line_and_the_rerun_resumes(tmp_path):
+    out = tmp_path / "rot"
+    def kill_a_worker(p) -> None:
+        os.killpg(p.pid, signal.SIGSTOP)  # the command and its workers held mid-run
+        workers = [pid for pid in group_members(p.pid) if pid != p.pid]
+        assert workers, "no worker process in the command's group"
+        os.kill(workers[0], signal.SIGKILL)
+        os.killpg(p.pid, signal.SIGCONT)
+
+    lines = _one_line_after([*ROTATION, "--workers", "2", "--out", out], out, kill_a_worker)
     # how it ended is said as far as the pool still knows its workers' exit codes (SIGKILL), else in general words
     assert "out-of-memory killer" in lines[0] and "rerun" in lines[0] and "bug" not in lines[0], lines[0]
     kept = len(units(out))
@@ -137,16 +147,8 @@ def test_the_scheduler_lost_mid_run_is_one_line_and_the_rerun_resumes(tmp_path):
     out = tmp_path / "rot"
     with distributed.LocalCluster(n_workers=1, processes=True, threads_per_worker=1, host="127.0.0.1",
                                   dashboard_address=":0", silence_logs=50) as cluster:
-        p = start([*ROTATION, "--scheduler", cluster.scheduler_address, "--out", out])
-        try:
-            wait_for(p, lambda: units(out), "a unit written")
-            cluster.sync(cluster.scheduler.close)
-            _, err = p.communicate(timeout=HANG)
-        finally:
-            if p.poll() is None:
-                p.kill()
-    lines = err.strip().splitlines()
-    assert p.returncode == 2 and len(lines) == 1, err
+        lines = _one_line_after([*ROTATION, "--scheduler", cluster.scheduler_address, "--out", out], out,
+                                lambda p: cluster.sync(cluster.scheduler.close))
     assert "lost the dask scheduler" in lines[0] and "rerun" in lines[0], lines[0]
     kept = len(units(out))
     again = start([*ROTATION, "--workers", "2", "--out", out])

@@ -227,8 +227,8 @@ def _run_methods(cfg: StreamConfig, frames, backend: str, hook) -> dict:
 def _scored_rows(rows: list[dict]) -> tuple[list[dict], list[str]]:
     """The rows of frames with known truth, and the names of those whose truth is all unknown (void), whose
     error is NaN for every method: they are left out of the means, and the report names them."""
-    scored = [r for r in rows if not all(np.isnan(v) for v in r["errors"].values())]
-    return scored, [r["name"] for r in rows if r not in scored]
+    void = [all(np.isnan(v) for v in r["errors"].values()) for r in rows]
+    return [r for r, v in zip(rows, void) if not v], [r["name"] for r, v in zip(rows, void) if v]
 
 
 def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], recorded: dict[str, int]):

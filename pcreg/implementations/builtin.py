@@ -175,7 +175,7 @@ class SmallGicp(Implementation):
             small_gicp.estimate_normals_covariances(tgt, tree, num_neighbors=self.num_neighbors)
             small_gicp.estimate_normals_covariances(src, small_gicp.KdTree(src), num_neighbors=self.num_neighbors)
         if self.kind == "PLANE_ICP":
-            self._check_normals(np.asarray(tgt.normals())[:, :3])
+            _check_plane_normals(np.asarray(tgt.normals())[:, :3])
         start = time.perf_counter()
         r = small_gicp.align(tgt, src, tree, init_T_target_source=lift_matrix(pinned.init),
                              registration_type=self.kind, max_correspondence_distance=pinned.max_correspondence_distance,
@@ -193,6 +193,18 @@ class SmallGicp(Implementation):
                       converged=bool(r.converged), seconds=seconds, info=info)
 
 
+def _check_plane_normals(normals: np.ndarray) -> None:
+    """An :class:`ImplementationError` when the target's estimated normals cannot fix a motion (all along one
+    line or in one plane: a planar target), as pcreg's own point-to-plane ICP refuses such normals: on a plane
+    small_gicp's point-to-plane ICP slid along it and reported a transform 3 degrees off as converged."""
+    from ..registration.normal_steps import normals_problem
+
+    problem = normals_problem(normals)
+    if problem is not None:
+        raise ImplementationError(f"point-to-plane cannot register this target (normals estimated from its "
+                                  f"neighbours): {problem}")
+
+
 class _SmallGicpSurface(SmallGicp):
     """small_gicp's surface objectives: they need normals or covariances, so 3-D only, and they minimise
     another objective than point-to-point ICP (compared by objective, not by fixed point)."""
@@ -204,19 +216,6 @@ class _SmallGicpSurface(SmallGicp):
 class SmallGicpPlane(_SmallGicpSurface):
     name, kind = "small_gicp-plane", "PLANE_ICP"
     description = "small_gicp align(), registration_type='PLANE_ICP' (point-to-plane)"
-
-
-    @staticmethod
-    def _check_normals(normals: np.ndarray) -> None:
-        """An :class:`ImplementationError` when the target's estimated normals cannot fix a motion (all along one
-        line or in one plane: a planar target), as pcreg's own point-to-plane ICP refuses such normals: on a plane
-        small_gicp's point-to-plane ICP slid along it and reported a transform 3 degrees off as converged."""
-        from ..registration.normal_steps import normals_problem
-
-        problem = normals_problem(normals)
-        if problem is not None:
-            raise ImplementationError(f"point-to-plane cannot register this target (normals estimated from its "
-                                      f"neighbours): {problem}")
 
 
 class SmallGicpGicp(_SmallGicpSurface):

@@ -48,6 +48,9 @@ def test_a_frame_whose_truth_is_all_void_is_left_out_and_named(tmp_path, capsys,
     assert clip["means"]["plain"] == pytest.approx(np.mean([r["errors"]["plain"] for r in rows]))
     table = (out / "stream_reference.md").read_text()
     assert "nan" not in table and "clip: 1 frame(s) not scored, their truth all unknown (void): f02" in table
+    # the count is of the frames scored (2), not of the clip's (4, in results.json)
+    head, row = (out / "stream_reference.csv").read_text().splitlines()[:2]
+    assert head == "clip,frames scored,plain" and row.startswith("clip,2,") and clip["frames"] == 4
 
 
 def test_a_clip_whose_frames_to_score_are_all_void_is_refused(tmp_path, capsys):
@@ -84,3 +87,55 @@ def test_a_key_frame_of_one_class_names_its_clip(tmp_path, capsys):
                  "--methods", "plain", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "clip clip: training labels hold only one class (road)" in err
+
+
+def test_classes_no_key_frame_shows_are_named_under_the_class_tables(tmp_path, capsys):
+    """Sky only in frames after the key frame: its IoU was 0.00 for every method with no word why."""
+    import cv2
+
+    clip = _clip(tmp_path / "data" / "clip", 4)
+    for name in ("f02", "f03"):  # sky (0) and a pole (2) in the top corner, after the key frame f00
+        lab = cv2.imread(str(clip / "labels" / f"{name}.png"), cv2.IMREAD_UNCHANGED)
+        lab[:8, :16], lab[:8, 16:20] = 0, 2
+        cv2.imwrite(str(clip / "labels" / f"{name}.png"), lab)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--classes", "camvid11",
+                 "--methods", "plain,unregistered", "--out", str(out)]) == 0
+    capsys.readouterr()
+    res = json.loads((out / "results.json").read_text())
+    clip_res = res["datasets"]["clip"]
+    assert clip_res["classes_not_in_keys"] == [0, 2] and clip_res["iou"]["plain"]["0"] == 0.0
+    line = "clip: no key frame shows sky, pole: no method can label them"
+    for table in ("stream_iou.md", "stream_miou.md"):
+        assert line in (out / table).read_text()
+    assert res["datasets"]["clip"]["scored"] == 3 and "miou" in clip_res  # the numbers as before, one line more
+
+
+def test_a_clip_whose_key_frames_show_every_class_names_none(tmp_path, capsys):
+    _clip(tmp_path / "data" / "clip", 3)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--classes", "camvid11",
+                 "--methods", "plain", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert "classes_not_in_keys" not in json.loads((out / "results.json").read_text())["datasets"]["clip"]
+    assert "no key frame shows" not in (out / "stream_iou.md").read_text()
+
+
+@pytest.mark.parametrize("classes", [[], ["--classes", "camvid11"]], ids=["two_classes", "camvid11"])
+def test_hidden_files_in_a_clip_folder_are_skipped(tmp_path, capsys, classes):
+    """macOS leaves ``._NAME.png`` (resource forks, not images) and ``.DS_Store`` beside the frames on a USB drive:
+    read as frames, they stopped the evaluation; pcreg run already skipped them."""
+    runs = {}
+    for case in ("clean", "hidden"):
+        clip = _clip(tmp_path / case / "clip", 3)
+        if case == "hidden":
+            for sub in ("images", "labels"):
+                (clip / sub / "._f00.png").write_bytes(b"\x00\x05\x16\x07 not an image")
+                (clip / sub / ".DS_Store").write_bytes(b"\x00\x00\x00\x01Bud1")
+        out = tmp_path / f"out_{case}"
+        assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / case}", *classes, "--methods", "plain",
+                     "--out", str(out)]) == 0, capsys.readouterr().err
+        res = json.loads((out / "results.json").read_text())
+        runs[case] = ([(r["name"], r["errors"]) for r in res["units"][0]["frames"]], res["datasets"]["clip"]["frames"])
+    capsys.readouterr()
+    assert runs["hidden"] == runs["clean"] and runs["clean"][1] == 3

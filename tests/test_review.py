@@ -515,3 +515,26 @@ def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path
         assert ev("document.querySelectorAll('#legend > span').length") == 254 + 2  # the unknown, the key frame
         x, y, w, h = ev(IMG_JS)
         assert h >= 0.4 * 800 and y + h <= 800, (y, h)
+
+
+def test_a_frame_without_its_confidence_map_says_so_on_the_page(run_copy):
+    """A run with --confidence whose confidence/NAME.png for one frame is gone: the frame was drawn without
+    the hatching and nothing said why."""
+    from _browser import find_chromium
+
+    (run_copy / "confidence" / "frame_002.png").unlink()
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    with ReviewServer(read_review(run_copy), web_port=0) as server:
+        frames = json.loads(_get(server.url + "review.json")[1])["frames"]
+    assert [f["no_confidence"] for f in frames] == [None, None, "confidence/frame_002.png", None, None]
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    error = "document.getElementById('frame-error').textContent"
+    with _review_page(run_copy, width=1200, height=700) as (proc, ev):
+        for t in (1, 2):
+            ev(f"(() => {{ const s = document.getElementById('slider'); s.value = '{t}'; s.dispatchEvent(new Event('input')); }})()")
+            until(lambda: ev(SHOWN_JS) == f"/overlay/{t}.jpg", what=f"frame {t} shown", alive=proc, bound=60)
+            missing = "no confidence map (confidence/frame_002.png is missing): drawn without the hatching"
+            assert (missing in ev(error)) is (t == 2), ev(error)

@@ -51,7 +51,8 @@ function show(t) {
   tag.hidden = !(f.key || suggested !== undefined);
   tag.textContent = f.key ? "key frame" : "suggested";
   tag.className = f.key ? "tag" : "tag suggested";
-  $("frame-error").textContent = f.key ? "labelled by a person" : `predicted error ${pct(f.error)}`;
+  $("frame-error").textContent = f.key ? "labelled by a person" : `predicted error ${pct(f.error)}` +
+    (f.no_confidence ? `; no confidence map (${f.no_confidence} is missing): drawn without the hatching` : "");
   for (const li of document.querySelectorAll("li[data-frame]")) li.classList.toggle("current", Number(li.dataset.frame) === t);
   drawCursor();
   preload(t);

@@ -73,7 +73,8 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
     img_dir, lab_dir = folder / "images", folder / "labels"
     if not img_dir.is_dir():
         raise DatasetError(f"{folder}: no images/ folder")
-    files = [p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()]
+    files = [p for p in sorted(img_dir.iterdir())  # hidden files left out: macOS's ._NAME, as pcreg run
+             if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file() and not p.name.startswith(".")]
     try:  # frames in name order, as pcreg run reads them: f10.png before f9.png is refused, never scored out of order
         _check_numbering(img_dir, [p.name for p in files])
     except InputError as exc:
@@ -86,7 +87,8 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
         raise DatasetError(f"{img_dir}: no image frames ({', '.join(IMAGE_SUFFIXES)})")
     labels: dict[str, Path] | None = None
     if lab_dir.is_dir():
-        labels = {p.stem: p for p in sorted(lab_dir.iterdir()) if p.suffix.lower() == ".png" and p.is_file()}
+        labels = {p.stem: p for p in sorted(lab_dir.iterdir())
+                  if p.suffix.lower() == ".png" and p.is_file() and not p.name.startswith(".")}
         no_label = sorted(set(images) - set(labels))
         if no_label:
             raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')}")

@@ -295,7 +295,9 @@ def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
                                "ms_per_frame": r["ms_per_frame"],
                                "calibration": calibration(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS)))),
                                **({"unscored": r["unscored"]} if r.get("unscored") else {}),
-                               **({"miou": r["miou"], "iou": r["iou"]} if "miou" in r else {})}
+                               **({"miou": r["miou"], "iou": r["iou"]} if "miou" in r else {}),
+                               **({"classes_not_in_keys": r["classes_not_in_keys"]}
+                                  if r.get("classes_not_in_keys") else {})}
     pooled = sum((np.asarray(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS))), np.int64) for r in unit_results),
                  np.zeros((2, CONFIDENCE_LEVELS), np.int64))
     average = {m: float(np.mean([c["reduction"][m] for c in clips.values()])) for m in config.methods} if clips else {}

@@ -138,12 +138,20 @@ def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, b
     for t in sorted(errors):
         key = min(keys, key=lambda k: (abs(t - k), k))
         rows.append({"index": t, "name": frames[t].name, "key": key, "since_key": abs(t - key), "errors": errors[t]})
-    return {"frames": rows, "key_frames": sorted(keys),
+    return {"frames": rows, "key_frames": sorted(keys), "classes_not_in_keys": _not_in_keys(frames, keys, rows, unknown),
             "means": {m: float(np.mean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods},
             "miou": {m: mean_iou(conf_m[m]) for m in methods},
             "iou": {m: class_iou(conf_m[m]) for m in methods},
             "calibration": counts.tolist(),
             "ms_per_frame": {m: 1000.0 * sec / max(1, len(rows)) for m, sec in seconds.items()}}
+
+
+def _not_in_keys(frames, keys: list[int], rows: list[dict], unknown: int) -> list[int]:
+    """The ids of the classes that the scored frames' truth has and no key frame's labels show: no method
+    can label them (each learns or carries its classes from the key frames), so their IoU is 0."""
+    shown = set().union(*(np.unique(frames[k].labels).tolist() for k in keys))
+    truth = set().union(*(np.unique(frames[r["index"]].labels).tolist() for r in rows))
+    return sorted(int(c) for c in truth - shown - {unknown})
 
 
 def _error(labels: np.ndarray, truth: np.ndarray, unknown: int) -> float:

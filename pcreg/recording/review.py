@@ -83,7 +83,8 @@ class ReviewServer:
         from ..review import LOW_CONFIDENCE
 
         r = self.review
-        frames = [{"name": n, "key": t in r.keys, "error": r.errors[t]} for t, n in enumerate(r.names)]
+        frames = [{"name": n, "key": t in r.keys, "error": r.errors[t], "no_confidence": self._no_confidence(t)}
+                  for t, n in enumerate(r.names)]
         suggested = [{"frame": t, "name": r.names[t], "error": e} for t, e in r.suggested]
         return json.dumps({
             "folder": str(r.folder), "source": str(r.source), "kind": r.kind, "frames": frames,
@@ -91,6 +92,16 @@ class ReviewServer:
             "classes": [{"id": c.id, "name": c.name, "colour": list(c.colour)} for c in r.table.known],
             "unknown": {"id": r.table.unknown, "name": r.table.unknown_class.name},
         }, allow_nan=False).encode()
+
+    def _no_confidence(self, t: int) -> str | None:
+        """The confidence map that frame ``t`` lacks in a run with ``--confidence`` (``confidence/STEM.png``,
+        drawn without the hatching), None when it has one or needs none."""
+        from ..runs.files import CONFIDENCE
+
+        r = self.review
+        if not r.confidence or t in r.keys or r.confidence_path(t) is not None:
+            return None
+        return f"{CONFIDENCE}/{r.stems[t]}.png"
 
     def class_json(self, t: int) -> bytes:
         """Frame ``t``'s classes: each one's share of the frame and predicted IoU

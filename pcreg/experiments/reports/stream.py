@@ -11,9 +11,10 @@ from .stream_classes import classes_checks, classes_tables, is_many_classes
 
 
 def table(results: dict) -> tuple[list, list, str]:
-    """One row per clip: mean error % of every method, and the average reduction against plain."""
+    """One row per clip: the frames scored (not the key frames, nor those of void truth), the mean error % of
+    every method, and the average reduction against plain."""
     methods = results["methods"]
-    header = ["clip", "frames", *methods]
+    header = ["clip", "frames scored", *methods]
     rows = [[name, c["scored"], *[c["means"][m] for m in methods]] for name, c in results["datasets"].items()]
     avg = results["average_reduction"]
     rows.append(["reduction vs plain, mean over clips (%)", "", *[avg[m] for m in methods]])

@@ -38,10 +38,22 @@ def classes_tables(results: dict) -> dict:
         vals = [[c["iou"][m].get(str(k), c["iou"][m].get(k)) for c in clips.values()] for m in methods]
         per_class.append([table.name_of(k), *[100.0 * float(np.mean([v for v in vs if v is not None]))
                                               if any(v is not None for v in vs) else float("nan") for vs in vals]])
+    unseen = _not_in_keys(clips, table)
     return {"stream_miou": ("Every class: mIoU % per clip", ["clip", *methods], rows,
-                            "\n(the mean over the classes that the clip's truth or labels have of each class's IoU)\n"),
+                            "\n(the mean over the classes that the clip's truth or labels have of each class's IoU)\n"
+                            + unseen),
             "stream_iou": ("Every class: IoU % per class, the mean over the clips that have it", ["class", *methods],
-                           per_class, "")}
+                           per_class, unseen)}
+
+
+def _not_in_keys(clips: dict, table) -> str:
+    """One line per clip naming the classes its truth has that none of its key frames shows: no method learns
+    or carries them from the key frames, so each method's IoU of them is 0 on that clip."""
+    lines = [f"\n{name}: no key frame shows {', '.join(table.name_of(k) for k in c['classes_not_in_keys'])}: "
+             f"no method can label {'it' if len(c['classes_not_in_keys']) == 1 else 'them'} (each learns or "
+             f"carries its classes from the key frames), an IoU of 0 on this clip\n"
+             for name, c in clips.items() if c.get("classes_not_in_keys")]
+    return "".join(lines)
 
 
 def classes_checks(results: dict) -> list[str]:

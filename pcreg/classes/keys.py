@@ -32,7 +32,8 @@ from ..errors import InputError
 from ..validation import check_unmasked
 from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
 
-__all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "identity_classes", "with_classes",
+__all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "object_values",
+           "read_object_mask", "identity_classes", "with_classes",
            "run_table", "all_unknown"]
 
 #: ``--mapping``'s values.
@@ -78,9 +79,10 @@ class LabelCoding:
         object.__setattr__(self, "mapping", mapping)
 
 
-def _raw_values(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
-    """The values an object mask stores: a palette PNG's indices, a grey image's values, a colour
-    image's pixels that are not black as 1."""
+def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[np.ndarray, bool]:
+    """The values an object mask stores, and whether they are a palette PNG's indices: a palette PNG's
+    indices (DAVIS 2017's object ids, :func:`pcreg.classes.mappings.palette_objects`), a grey image's
+    values, a colour image's pixels that are not black as 1."""
     from ..formats import check_image_bytes, decode_image
     from .png import check_lossless, is_palette_png
 
@@ -94,15 +96,47 @@ def _raw_values(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
         try:
             with Image.open(io.BytesIO(data)) as im:
                 im.load()
-                return np.asarray(im.convert("P") if im.mode != "P" else im, dtype=np.uint8).copy()
+                return np.asarray(im.convert("P") if im.mode != "P" else im, dtype=np.uint8).copy(), True
         except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
             raise InputError(f"{name}: cannot decode image ({exc})") from None
     img = decode_image(data, name, limit=limit)
     if img.ndim == 3:
-        return (img[:, :, :3] != 0).any(axis=2).astype(np.uint8)
+        return (img[:, :, :3] != 0).any(axis=2).astype(np.uint8), False
     if img.dtype != np.uint8:
         raise InputError(f"{name}: an object mask must be an 8-bit image, got {img.dtype}")
-    return img
+    return img, False
+
+
+def read_object_mask(path: str | Path, *, limit: int | None = None) -> tuple[np.ndarray, bool]:
+    """:func:`object_values` of the file at ``path`` (a regular file, no larger than the pixel limit allows)."""
+    from ..formats import RAISE_LIMIT, max_file_bytes, read_regular_file
+    from ..validation import max_pixels
+
+    lim = max_pixels(limit)
+    data = read_regular_file(path, max_bytes=max_file_bytes(lim), what="image", hint=RAISE_LIMIT)
+    return object_values(data, str(path), limit=lim)
+
+
+def _raw_values(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
+    """The values an object mask stores (:func:`object_values`)."""
+    return object_values(data, name, limit=limit)[0]
+
+
+def _one_object(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
+    """pcreg's labels of a one-object mask (``--mapping davis``): 1 the object, 0 the background, 2 a
+    palette's void (255 beside other indices). A palette mask of several objects (DAVIS 2017's) is an
+    :class:`InputError` naming the file and its object ids: merging them would follow none of them."""
+    from .mappings import object_labels, palette_objects
+
+    values, palette = object_values(data, name, limit=limit)
+    if not palette:
+        return object_labels(values)
+    ids, void = palette_objects(values)
+    if len(ids) > 1:
+        raise InputError(f"{name}: a mask of {len(ids)} objects (palette indices {', '.join(map(str, ids))}, as DAVIS "
+                         "2017 stores them); --classes davis follows one object and would merge them: save one mask "
+                         "per object (0 the background, 255 the object) and run once for each")
+    return object_labels(values, ids[0] if ids else None, void)
 
 
 def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | None) -> np.ndarray:
@@ -127,12 +161,10 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
                       limit: int | None = None) -> np.ndarray:
     """(H, W) uint8 class ids of ``table`` of an encoded label image ``name`` coded as ``mapping`` says
     (the module's docstring); one line naming ``name`` for a value or colour that is no class."""
-    from .mappings import DAVIS_MAPPING, mapping_lut, mask_hint
+    from .mappings import mapping_lut, mask_hint
 
     if mapping == "davis":
-        lut = mapping_lut(DAVIS_MAPPING)
-        assert lut is not None
-        return lut[_raw_values(data, name, limit=limit)]
+        return _one_object(data, name, limit=limit)
     if mapping == "camvid":
         raw = _through_table(data, name, CAMVID11, limit=limit)
         lut = mapping_lut("camvid")

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["CAMVID_MAPPING", "DAVIS_MAPPING", "mapping_lut", "mask_hint"]
+__all__ = ["CAMVID_MAPPING", "DAVIS_MAPPING", "VOID_INDEX", "mapping_lut", "palette_objects", "object_labels", "mask_hint"]
 
 # CamVid's 12 class ids -> LAGR labels (0 ground, 1 obstacle, 2 unknown); ../shared/data/README.md.
 CAMVID_MAPPING: dict[int, int] = {
@@ -58,6 +58,30 @@ def mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
 
 #: A DAVIS mask's values as pcreg's labels: 0 the background (0), anything else the object (1).
 DAVIS_MAPPING: dict[int, int] = {0: 0, **{v: 1 for v in range(1, 256)}}
+
+
+#: A palette mask's void index (DAVIS 2017, VOC): pixels neither an object nor the background.
+VOID_INDEX = 255
+
+
+def palette_objects(values: np.ndarray) -> tuple[tuple[int, ...], int | None]:
+    """``(object ids, void index)`` of a palette mask's indices (H, W): DAVIS 2017's objects 1..254 in
+    increasing order, 0 the background and :data:`VOID_INDEX` void (None when the mask holds no void); a mask
+    of 0 and 255 alone is DAVIS 2016's one object, 255 (void None)."""
+    present = set(np.unique(np.asarray(values)).tolist()) - {0}
+    if present <= {VOID_INDEX}:
+        return tuple(sorted(present)), None
+    return tuple(sorted(present - {VOID_INDEX})), (VOID_INDEX if VOID_INDEX in present else None)
+
+
+def object_labels(values: np.ndarray, obj: int | None = None, void: int | None = None) -> np.ndarray:
+    """pcreg's labels (H, W) uint8 of one object of a mask's ``values``: 1 where the value is ``obj`` (None:
+    any value but 0), 2 where it is ``void``, 0 elsewhere (the background, and every other object)."""
+    v = np.asarray(values)
+    labels = ((v != 0) if obj is None else (v == obj)).astype(np.uint8)
+    if void is not None:
+        labels[v == void] = 2
+    return labels
 
 
 def mask_hint(raw: np.ndarray) -> str:

@@ -1,10 +1,12 @@
-"""DAVIS 2016 sequences (``--data davis:PATH``): video frames with the object's mask on every frame.
+"""DAVIS sequences (``--data davis:PATH``): video frames with the objects' masks on every frame.
 
 The benchmark (Perazzi et al., "A Benchmark Dataset and Evaluation Methodology for Video Object
 Segmentation", CVPR 2016) gives the first frame's mask and asks for the object in every later frame. A
-mask's value 0 is the background, anything else the object: pcreg's labels 0 and 1 (:data:`DAVIS_MAPPING`,
-``pcreg run --mapping davis``). Two layouts are read (:func:`find_sequences`), PATH naming one sequence or
-a folder of them:
+DAVIS 2016 mask's value 0 is the background, anything else the object: pcreg's labels 0 and 1
+(:data:`DAVIS_MAPPING`, ``pcreg run --mapping davis``). DAVIS 2017 stores several objects in one palette
+PNG, indices 1..N the objects, 0 the background, 255 void: each object of the first frame is a clip of its
+own, ``SEQ_K``, scored on its own as the DAVIS 2017 evaluation does (:func:`load_objects`). Two layouts are
+read (:func:`find_sequences`), PATH naming one sequence or a folder of them:
 
 - pcreg's (as in ``../shared/data/davis``): ``SEQ/images/NNNNN.jpg`` with ``SEQ/labels/NNNNN.png``;
 - the official one: ``ROOT/JPEGImages/480p/SEQ/NNNNN.jpg`` with ``ROOT/Annotations/480p/SEQ/NNNNN.png``,
@@ -34,8 +36,8 @@ from .frame import Frame
 from .sources import _check_numbering
 
 __all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "select_sequences",
-           "check_key_mask",
-           "mask_hint", "load_sequence", "load_davis", "published"]
+           "check_key_mask", "mask_hint", "object_name", "load_objects", "load_sequence", "load_davis", "objects_of",
+           "published"]
 
 #: The official layout's resolution folders, the one read first first.
 RESOLUTIONS: tuple[str, ...] = ("480p", "1080p", "Full-Resolution")
@@ -121,21 +123,20 @@ def _read(path: Path, *, color: bool) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if color else img
 
 
-def _mask(path: Path, frame: Path, shape: tuple[int, int]) -> np.ndarray:
-    """The object's mask as pcreg's labels (H, W) uint8: 1 wherever the file is not 0 (a palette PNG's
-    index, as DAVIS 2017 and VOC store masks; a grey value; a colour in any channel), read through the
-    ``davis`` table (:func:`pcreg.classes.keys.read_key_labels`)."""
-    from ..classes import DAVIS
-    from ..classes.keys import read_key_labels
+def _mask(path: Path, frame: Path, shape: tuple[int, int]) -> tuple[np.ndarray, bool]:
+    """The mask's values (H, W) uint8 and whether they are a palette PNG's indices (DAVIS 2017's object ids,
+    as VOC stores masks), else a grey value or a colour in any channel, nonzero the object
+    (:func:`pcreg.classes.keys.read_object_mask`)."""
+    from ..classes.keys import read_object_mask
 
     try:
-        obj = read_key_labels(path, DAVIS, "davis")
+        values, palette = read_object_mask(path)
     except InputError as exc:
         raise DatasetError(str(exc)) from None
-    if obj.shape[:2] != shape:
-        raise DatasetError(f"{path}: the mask is {obj.shape[1]}x{obj.shape[0]}, its frame {frame.name} "
+    if values.shape[:2] != shape:
+        raise DatasetError(f"{path}: the mask is {values.shape[1]}x{values.shape[0]}, its frame {frame.name} "
                            f"{shape[1]}x{shape[0]}")
-    return obj
+    return values, palette
 
 
 def check_key_mask(labels: np.ndarray, path: str | Path) -> None:
@@ -144,17 +145,7 @@ def check_key_mask(labels: np.ndarray, path: str | Path) -> None:
         raise DatasetError(f"{path}: the object's mask on the key frame is empty: there is no object to follow")
 
 
-def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None = None,
-                  name: str | None = None) -> list[Frame]:
-    """One sequence: every image of ``frames`` (.jpg, .jpeg or .png, in name order; the first ``n_frames``)
-    with its mask ``masks/STEM.png`` as labels (0 background, 1 the object).
-
-    Refused with a :class:`~pcreg.errors.DatasetError` naming the file: no frame, no mask for the first
-    frame, an empty object on it, a missing mask of a later frame, a mask of another size than its frame,
-    a frame or mask that does not decode.
-    """
-    frames, masks = Path(frames), Path(masks)
-    name = name or frames.name
+def _frame_files(frames: Path, name: str, n_frames: int | None) -> list[Path]:
     files = sorted(f for f in frames.iterdir() if f.is_file() and f.suffix.lower() in _IMAGE_SUFFIXES
                    and not f.name.startswith(".")) if frames.is_dir() else []  # hidden: macOS's ._NAME, as pcreg run
     try:  # frames in name order, as pcreg run reads them: 10.jpg before 9.jpg is refused
@@ -163,8 +154,39 @@ def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None
         raise DatasetError(str(exc)) from None
     if not files:
         raise DatasetError(f"{frames}: no frames (.jpg, .png) in sequence {name}")
-    files = files[:n_frames] if n_frames is not None else files
-    out = []
+    return files[:n_frames] if n_frames is not None else files
+
+
+def object_name(sequence: str, obj: int) -> str:
+    """The clip name of object ``obj`` of a multi-object sequence: ``SEQ_K``, as davis2017-evaluation names
+    its per-object rows."""
+    return f"{sequence}_{obj}"
+
+
+def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None = None,
+                 name: str | None = None) -> dict[str, list[Frame]]:
+    """One sequence, one clip per object: every image of ``frames`` (.jpg, .jpeg or .png, in name order; the
+    first ``n_frames``) with its mask ``masks/STEM.png`` as labels (0 background, 1 the object, 2 void).
+
+    A mask of one object (DAVIS 2016's 0/255, a grey or colour mask: nonzero the object; a palette of one
+    index) gives ``{name: frames}``. A palette mask whose first frame holds several object ids (DAVIS 2017:
+    indices 1..254, 0 the background, 255 void) gives one clip per id, ``{name_K: frames}``
+    (:func:`object_name`), each with object K as 1 and every other object as background, as the DAVIS 2017
+    evaluation scores each object on its own (davis2017-evaluation ``davis2017/davis.py``
+    ``get_all_masks``: the objects are those of the first frame). A void index is label 2 (unknown).
+
+    Refused with a :class:`~pcreg.errors.DatasetError` naming the file: no frame, no mask for the first
+    frame, an empty object on it, a missing mask of a later frame, a mask of another size than its frame,
+    a frame or mask that does not decode.
+    """
+    from ..classes.mappings import object_labels, palette_objects
+
+    frames, masks = Path(frames), Path(masks)
+    name = name or frames.name
+    files = _frame_files(frames, name, n_frames)
+    objects: tuple[int | None, ...] = (None,)
+    void = None
+    out: dict[int | None, list[Frame]] = {}
     for t, f in enumerate(files):
         m = masks / f"{f.stem}.png"
         if not m.is_file():
@@ -172,19 +194,59 @@ def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None
                 f"no mask of frame {f.name}: every frame is scored"
             raise DatasetError(f"{m}: {what}")
         image = _read(f, color=True)
-        labels = _mask(m, f, image.shape[:2])
-        if t == 0:
-            check_key_mask(labels, m)
-        out.append(Frame(image=image, labels=labels, name=f.stem))
-    return out
+        values, palette = _mask(m, f, image.shape[:2])
+        if t == 0 and palette:  # the objects are the first frame's (its palette's indices)
+            ids, void = palette_objects(values)
+            objects = ids if ids else (None,)
+        for k in objects:
+            labels = object_labels(values, k, void)
+            if t == 0:
+                check_key_mask(labels, m if len(objects) == 1 else f"{m} (object {k})")
+            out.setdefault(k, []).append(Frame(image=image, labels=labels, name=f.stem))
+    if len(objects) == 1:
+        return {name: out[objects[0]]}
+    return {object_name(name, int(k)): out[k] for k in objects if k is not None}
+
+
+def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None = None,
+                  name: str | None = None) -> list[Frame]:
+    """One sequence of one object (:func:`load_objects`): its frames with labels 0 background, 1 the object.
+    A sequence of several objects (DAVIS 2017's palette masks) is refused naming the first frame's mask and
+    its object ids: :func:`load_objects` (and ``--data davis:PATH``) reads each object on its own."""
+    clips = load_objects(frames, masks, n_frames=n_frames, name=name)
+    if len(clips) > 1:
+        first = Path(masks) / f"{next(iter(clips.values()))[0].name}.png"
+        ids = ", ".join(c.rpartition("_")[2] for c in clips)
+        raise DatasetError(f"{first}: a mask of {len(clips)} objects (palette indices {ids}); load_objects "
+                           "reads each object as a sequence of its own")
+    return next(iter(clips.values()))
 
 
 def load_davis(path: str | Path, *, n_frames: int | None = None, split: str | None = None) -> dict[str, list[Frame]]:
     """Every sequence at ``path`` (:func:`find_sequences`; at an official root those of ``split``, DAVIS 2016
     val by default when ``ImageSets`` names it), ``{name: frames}``; ``n_frames`` keeps each sequence's first
-    frames."""
+    frames. A sequence of several objects (DAVIS 2017) is one clip per object, ``SEQ_K``
+    (:func:`load_objects`); a clip name that another sequence's name takes is refused."""
     seqs, _ = find_sequences(path, split=split)
-    return {n: load_sequence(f, m, n_frames=n_frames, name=n) for n, (f, m) in seqs.items()}
+    out: dict[str, list[Frame]] = {}
+    for n, (f, m) in seqs.items():
+        for clip, frames in load_objects(f, m, n_frames=n_frames, name=n).items():
+            if clip in out or (clip != n and clip in seqs):
+                raise DatasetError(f"{f}: object clip {clip} of sequence {n} has the name of another sequence; "
+                                   "rename one of them")
+            out[clip] = frames
+    return out
+
+
+def objects_of(clips, sequences) -> dict[str, list[str]]:
+    """``{sequence: [clip per object]}`` of the multi-object sequences among ``clips`` (names :func:`load_davis`
+    gave), ``sequences`` being the sequence names they came from (:func:`find_sequences`)."""
+    out: dict[str, list[str]] = {}
+    for c in clips:
+        base, _, k = str(c).rpartition("_")
+        if c not in sequences and base in sequences and k.isdigit():
+            out.setdefault(base, []).append(c)
+    return out
 
 
 def _read_published(path: Path) -> list[dict]:

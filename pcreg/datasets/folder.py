@@ -46,6 +46,27 @@ def _read_table_labels(path: Path, image: np.ndarray, table, mapping) -> np.ndar
     return lab
 
 
+#: The suffix of CamVid's own label files: ``NAME_L.png`` is the label image of frame ``NAME.png``.
+LABEL_SUFFIX = "_L"
+
+
+def _label_files(lab_dir: Path, images: dict[str, Path]) -> dict[str, Path]:
+    """``{frame name: label file}`` of ``lab_dir``'s PNGs: ``NAME.png``, or ``NAME_L.png`` as CamVid's own
+    download names them (``LabeledApproved_full/``) when ``NAME`` is a frame and ``NAME_L`` is not. A frame
+    with both is refused naming them."""
+    out: dict[str, Path] = {}
+    for p in sorted(lab_dir.iterdir()):
+        if p.suffix.lower() != ".png" or not p.is_file() or p.name.startswith("."):
+            continue
+        name = p.stem
+        if name.endswith(LABEL_SUFFIX) and name not in images and name[: -len(LABEL_SUFFIX)] in images:
+            name = name[: -len(LABEL_SUFFIX)]
+        if name in out:
+            raise DatasetError(f"{p}: a second label file of frame {name} (beside {out[name].name}); keep one")
+        out[name] = p
+    return out
+
+
 def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None = "camvid",
                 classes=None) -> list[Frame]:
     """Load ``folder/images/NAME.png`` (or another image suffix) with ``folder/labels/NAME.png`` in name order.
@@ -58,7 +79,8 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
         ``"camvid"`` reads CamVid's ids, or ``camvid11``'s palette or colours, before mapping them.
 
     Without a ``labels/`` folder the frames load unlabelled. With one, every image needs its label
-    file and every label file its image, of the same size.
+    file and every label file its image, of the same size; frame ``NAME`` is labelled by ``labels/NAME.png``
+    or, as CamVid's own download names them, ``labels/NAME_L.png``.
     Returns frames with image (H, W, 3) uint8 RGB and labels (H, W) uint8.
     """
     from ..validation import check_path
@@ -87,11 +109,11 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
         raise DatasetError(f"{img_dir}: no image frames ({', '.join(IMAGE_SUFFIXES)})")
     labels: dict[str, Path] | None = None
     if lab_dir.is_dir():
-        labels = {p.stem: p for p in sorted(lab_dir.iterdir())
-                  if p.suffix.lower() == ".png" and p.is_file() and not p.name.startswith(".")}
+        labels = _label_files(lab_dir, images)
         no_label = sorted(set(images) - set(labels))
         if no_label:
-            raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')}")
+            raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')} (or "
+                               f"{no_label[0]}{LABEL_SUFFIX}.png, as CamVid names them)")
         no_image = sorted(set(labels) - set(images))
         if no_image:
             raise DatasetError(f"{labels[no_image[0]]}: label file without an image in {img_dir}")

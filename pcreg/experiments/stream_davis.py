@@ -89,11 +89,14 @@ def summarise_davis(config, unit_results: list[dict]) -> dict:
     J and F over its scored frames (``sequences``), their means over the sequences (``mean``), and the
     published methods' figures on the same sequences (``published``: source, file, methods, J and F per
     method and sequence, NaN where it has none; ``mean`` over the sequences that have a figure and ``counted``,
-    how many those are). Where the published figures cover some sequences only, ``covered`` names those
+    how many those are). With sequences of several objects (DAVIS 2017), each object is a row ``SEQ_K`` of its
+    own and ``objects`` names them per sequence: the means are then over objects, as davis2017-evaluation's
+    ``J-Mean`` and ``F-Mean`` are (``evaluation_method.py``: ``np.mean(J["M"])``, one entry per object).
+    Where the published figures cover some sequences only, ``covered`` names those
     with a figure of every published method, and ``mean_covered`` gives every method's mean, pcreg's and
     the published ones, over them alone: the means that compare."""
     from ..classification.davis_measures import benchmark_mean
-    from ..datasets.davis import published, select_sequences
+    from ..datasets.davis import objects_of, published, select_sequences
     from ..datasets.davis_splits import parse_davis_arg
 
     units = [u for u in unit_results if "davis" in u]
@@ -102,7 +105,7 @@ def summarise_davis(config, unit_results: list[dict]) -> dict:
     methods = [m for m in config.methods if all(m in s["J"] for s in seqs.values())]
     mean = {k: {m: benchmark_mean(s[k][m] for s in seqs.values()) for m in methods} for k in MEASURES}
     path, split = parse_davis_arg(config.data.partition(":")[2])
-    chosen = select_sequences(path, split=split)[2]
+    found, _, chosen = select_sequences(path, split=split)
     pub = published(path)
     names = list(seqs)
     table = {k: {p: {n: pub[k][p].get(n, float("nan")) for n in names} for p in pub["methods"]} for k in MEASURES}
@@ -114,6 +117,9 @@ def summarise_davis(config, unit_results: list[dict]) -> dict:
     doc = {"split": chosen.to_dict(), "sequences": seqs, "methods": methods, "mean": mean,
            "published": {"source": pub["source"], "file": pub["file"], "methods": pub["methods"], **table,
                          "mean": pub_mean, "counted": counted, "covered": covered}}
+    objects = objects_of(names, found)
+    if objects:  # DAVIS 2017: a row per object, the means over objects
+        doc["objects"] = objects
     if covered and len(covered) < len(names):
         doc["mean_covered"] = {k: {**{m: benchmark_mean(seqs[n][k][m] for n in covered) for m in methods},
                                    **{p: float(np.mean([table[k][p][n] for n in covered])) for p in pub["methods"]}}

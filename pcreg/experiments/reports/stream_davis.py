@@ -16,7 +16,8 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
     header = ["sequence", "frames scored", *ours, *[p.upper() for p in pub["methods"]]]
     rows = [[n, s["frames"], *[s[measure][m] for m in ours], *[pub[measure][p][n] for p in pub["methods"]]]
             for n, s in d["sequences"].items()]
-    rows.append(["mean over sequences", sum(s["frames"] for s in d["sequences"].values()),
+    objects = d.get("objects") or {}
+    rows.append(["mean over objects" if objects else "mean over sequences", sum(s["frames"] for s in d["sequences"].values()),
                  *[d["mean"][measure][m] for m in ours], *[pub["mean"][measure][p] for p in pub["methods"]]])
     covered = pub.get("covered", [])
     if d.get("mean_covered"):
@@ -28,6 +29,12 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
               f"published, from {pub['source']}; nan where it has no figure for the sequence)\n")
     if d.get("split"):
         footer += f"\nSequences: {d['split']['described']}.\n"
+    if objects:
+        each = "; ".join(f"{seq}: {', '.join(clips)}" for seq, clips in objects.items())
+        footer += (f"\nSequences of several objects (DAVIS 2017): a row SEQ_K is object K, followed from its own mask on "
+                   f"the first frame and scored on its own, every other object background ({each}). The means are over "
+                   "objects, a sequence with one object counting once, as the DAVIS 2017 evaluation "
+                   "(davis2017-evaluation) averages.\n")
     footer += _published_note(d, measure)
     if results["config"].get("frames"):
         footer += (f"\nOnly the first {results['config']['frames']} frames of each sequence were run (--frames): the "

@@ -1,0 +1,173 @@
+"""DAVIS 2017's multi-object masks: a palette PNG whose indices are the objects (0 the background, 255
+void). ``--data davis:PATH`` follows and scores each object on its own (a clip ``SEQ_K`` each, the means
+over objects, as davis2017-evaluation does); ``pcreg run --classes davis`` refuses such a key mask in one
+line naming its objects instead of merging them."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+
+from pcreg.classes import DAVIS
+from pcreg.classes.keys import read_key_labels
+from pcreg.cli import main
+from pcreg.datasets import load_dataset
+from pcreg.datasets.davis import load_davis, load_objects, load_sequence
+from pcreg.errors import DatasetError
+from _davis import frames_and_masks, shared_sequence
+from _runs import one_line_errors
+
+#: DAVIS's palette: index 1 dark red, 2 dark green, 255 (void) white.
+_PALETTE = [0, 0, 0, 128, 0, 0, 0, 128, 0] + [0, 0, 0] * 252 + [255, 255, 255]
+
+
+def write_palette(path: Path, ids: np.ndarray) -> Path:
+    im = Image.fromarray(ids.astype(np.uint8), mode="P")
+    im.putpalette(_PALETTE)
+    im.save(path)
+    return path
+
+
+def halves(mask: np.ndarray, *, void: bool = False) -> np.ndarray:
+    """A one-object mask split into two objects: its left half index 1, its right half index 2 (and with
+    ``void`` a band of 255 along the image's top rows)."""
+    ids = np.zeros(mask.shape, np.uint8)
+    cols = np.nonzero((mask > 0).any(axis=0))[0]
+    mid = (cols.min() + cols.max() + 1) // 2 if cols.size else mask.shape[1] // 2
+    obj = mask > 0
+    ids[:, :mid][obj[:, :mid]] = 1
+    ids[:, mid:][obj[:, mid:]] = 2
+    if void:
+        ids[:2] = 255
+    return ids
+
+
+def two_object_sequence(seq: Path, images, masks, *, void: bool = False) -> list[np.ndarray]:
+    """``seq/images/NNNNN.jpg`` with ``seq/labels/NNNNN.png`` palette masks of two objects; the ids written."""
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    out = []
+    for i, (img, mask) in enumerate(zip(images, masks)):
+        cv2.imwrite(str(seq / "images" / f"{i:05d}.jpg"), img)
+        out.append(halves(mask, void=void))
+        write_palette(seq / "labels" / f"{i:05d}.png", out[-1])
+    return out
+
+
+def _synthetic(tmp_path: Path, n: int = 5, **kw) -> tuple[Path, list[np.ndarray]]:
+    pairs = frames_and_masks(n)
+    seq = tmp_path / "disc"
+    return seq, two_object_sequence(seq, [p[0] for p in pairs], [p[1] for p in pairs], **kw)
+
+
+def test_each_object_of_a_palette_mask_is_a_clip_of_its_own(tmp_path):
+    seq, ids = _synthetic(tmp_path, void=True)
+    clips = load_davis(seq)
+    assert list(clips) == ["disc_1", "disc_2"]  # davis2017-evaluation's per-object names
+    for k in (1, 2):
+        for f, v in zip(clips[f"disc_{k}"], ids):
+            want = (v == k).astype(np.uint8)
+            want[v == 255] = 2  # void: unknown, neither object nor background
+            np.testing.assert_array_equal(f.labels, want)
+    assert clips["disc_1"][0].image is clips["disc_2"][0].image or \
+        np.array_equal(clips["disc_1"][0].image, clips["disc_2"][0].image)
+    assert list(load_dataset(f"davis:{seq}", n_frames=2)) == ["disc_1", "disc_2"]
+
+
+def test_a_one_object_sequence_keeps_its_name_and_a_0_255_palette_is_one_object(tmp_path):
+    pairs = frames_and_masks(3)
+    seq = tmp_path / "one"
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    for i, (img, mask) in enumerate(pairs):
+        cv2.imwrite(str(seq / "images" / f"{i:05d}.jpg"), img)
+        write_palette(seq / "labels" / f"{i:05d}.png", mask)  # DAVIS 2016's 0/255 saved as a palette
+    frames = load_davis(seq)["one"]
+    np.testing.assert_array_equal(frames[2].labels, pairs[2][1] > 0)
+    assert load_sequence(seq / "images", seq / "labels")[0].name == "00000"
+
+
+def test_load_sequence_refuses_several_objects_naming_the_mask_and_its_ids(tmp_path):
+    seq, _ = _synthetic(tmp_path, n=3)
+    with pytest.raises(DatasetError) as err:
+        load_sequence(seq / "images", seq / "labels")
+    assert str(seq / "labels" / "00000.png") in str(err.value) and "palette indices 1, 2" in str(err.value)
+    assert list(load_objects(seq / "images", seq / "labels", name="disc")) == ["disc_1", "disc_2"]
+
+
+def test_an_object_clip_that_takes_another_sequences_name_is_refused(tmp_path):
+    seq, _ = _synthetic(tmp_path / "root", n=3)
+    other = tmp_path / "root" / "disc_1"
+    (other / "images").mkdir(parents=True)
+    (other / "labels").mkdir()
+    for i, (img, mask) in enumerate(frames_and_masks(3)):
+        cv2.imwrite(str(other / "images" / f"{i:05d}.jpg"), img)
+        cv2.imwrite(str(other / "labels" / f"{i:05d}.png"), mask)
+    with pytest.raises(DatasetError, match="has the name of another sequence"):
+        load_davis(tmp_path / "root")
+
+
+def test_evaluate_stream_scores_each_object_and_means_over_objects(tmp_path, capsys):
+    seq, ids = _synthetic(tmp_path, n=5)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "unregistered", "--out", str(out)]) == 0
+    d = json.loads((out / "results.json").read_text())["davis"]
+    assert list(d["sequences"]) == ["disc_1", "disc_2"] and d["objects"] == {"disc": ["disc_1", "disc_2"]}
+    units = {u["dataset"]: u["davis"] for u in json.loads((out / "results.json").read_text())["units"]}
+    for k in (1, 2):  # each object scored on frames 1 to n-2 against its own mask
+        assert units[f"disc_{k}"]["frames"] == [1, 2, 3]
+        assert d["sequences"][f"disc_{k}"]["J"]["unregistered"] == pytest.approx(np.mean(units[f"disc_{k}"]["J"]["unregistered"]))
+    assert units["disc_1"]["J"] != units["disc_2"]["J"]
+    assert d["mean"]["J"]["unregistered"] == pytest.approx(
+        np.mean([d["sequences"][c]["J"]["unregistered"] for c in ("disc_1", "disc_2")]))
+    table = (out / "davis_J.md").read_text()
+    assert "| disc_1 | 3 |" in table and "| disc_2 | 3 |" in table and "mean over objects" in table
+    assert "disc: disc_1, disc_2" in table
+
+
+@pytest.mark.data
+def test_a_shared_sequence_split_into_two_objects_is_scored_per_object(shared_data, tmp_path, capsys):
+    src = shared_sequence(shared_data, "blackswan")
+    n = 4
+    images = [cv2.imread(str(src / "images" / f"{i:05d}.jpg")) for i in range(n)]
+    masks = [cv2.imread(str(src / "labels" / f"{i:05d}.png"), cv2.IMREAD_GRAYSCALE) for i in range(n)]
+    ids = two_object_sequence(tmp_path / "blackswan", images, masks)
+    clips = load_davis(tmp_path / "blackswan")
+    assert list(clips) == ["blackswan_1", "blackswan_2"]
+    for k in (1, 2):
+        assert (clips[f"blackswan_{k}"][0].labels == 1).sum() == (ids[0] == k).sum() > 1000
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{tmp_path / 'blackswan'}", "--methods", "unregistered",
+                 "--out", str(out)]) == 0
+    d = json.loads((out / "results.json").read_text())["davis"]
+    assert {c: d["sequences"][c]["frames"] for c in d["sequences"]} == {"blackswan_1": 2, "blackswan_2": 2}
+    assert all(0.5 < d["sequences"][c]["J"]["unregistered"] <= 1 for c in d["sequences"])
+    # the published figures are of DAVIS 2016's one object, not of these halves
+    assert all(v is None or np.isnan(v) for v in d["published"]["J"]["osvos"].values())
+
+
+def test_pcreg_run_refuses_a_multi_object_key_mask_naming_it_and_its_objects(tmp_path, capsys):
+    seq, _ = _synthetic(tmp_path, n=3)
+    key = seq / "labels" / "00000.png"
+    for args in (["--classes", "davis"], ["--mapping", "davis"]):
+        out = tmp_path / f"out{len(args[0])}"
+        assert main(["run", str(seq / "images"), "--labels", str(key), "--out", str(out), *args]) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and str(key) in err[0] and "2 objects (palette indices 1, 2" in err[0]
+        assert "one mask per object" in err[0]
+        assert not out.exists()
+
+
+def test_a_palettes_void_index_is_unknown_beside_one_object(tmp_path):
+    ids = np.zeros((8, 10), np.uint8)
+    ids[2:5, 2:6] = 1
+    ids[0] = 255
+    labels = read_key_labels(write_palette(tmp_path / "k.png", ids), DAVIS, "davis")
+    want = (ids == 1).astype(np.uint8)
+    want[0] = 2
+    np.testing.assert_array_equal(labels, want)

@@ -18,6 +18,11 @@ Videos are decoded with PyAV (FFmpeg's libraries, called directly), not with Ope
 A frame's display matrix (a phone's portrait video, a mirrored selfie camera) is applied by quarter turns and
 mirrors, as FFmpeg's players show the frame: the key frame's labels are drawn on what the annotator saw.
 
+An MPEG transport stream (``.ts``; a camcorder's AVCHD ``.mts``/``.m2ts``) has no index: its count is
+estimated from its duration and frame rate (the progress bar's size, never where a run stops), and a file cut
+short at a frame's end reads as a shorter recording. A frame the decoder had to conceal (cut short in the
+middle, or damaged) is refused in any container, where decoding meets it.
+
 Frames are read in decoding order and never by seeking: a seek lands on a key frame near the target and
 is exact only where the container's timestamps are, so a resumed run decodes (without converting) the
 frames before its first and gets every frame bit for bit as an uninterrupted run does.
@@ -37,9 +42,10 @@ from ..errors import InputError
 __all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES"]
 
 #: The video files pcreg reads (by suffix, any case); what the file holds is checked by FFmpeg's demuxer.
-VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm")
-# FFmpeg's demuxers for those containers, by the name PyAV reports.
-_CONTAINERS = {"mov,mp4,m4a,3gp,3g2,mj2": "MP4/QuickTime", "avi": "AVI", "matroska,webm": "Matroska"}
+VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".m4v", ".mov", ".3gp", ".avi", ".mkv", ".webm", ".ts", ".mts", ".m2ts")
+# FFmpeg's demuxers for those containers, by the name PyAV reports (MPEG-TS also for a camcorder's AVCHD .mts/.m2ts).
+_CONTAINERS = {"mov,mp4,m4a,3gp,3g2,mj2": "MP4/QuickTime", "avi": "AVI", "matroska,webm": "Matroska",
+               "mpegts": "MPEG-TS"}
 
 
 @dataclass(frozen=True)
@@ -173,7 +179,7 @@ class FolderFrames:
 class VideoFrames:
     """The frames of a video file, decoded one at a time with PyAV; frame ``i`` (from 0) is named
     ``{i:06d}``. Opening reads the container's header: a file FFmpeg cannot open, that is not an MP4,
-    QuickTime, AVI or Matroska file, or that holds no video stream is refused here; a truncated or
+    QuickTime (3GP), AVI, Matroska or MPEG-TS file, or that holds no video stream is refused here; a truncated or
     damaged file, a frame of another size, or a ``start`` past the end is refused where decoding meets it."""
 
     kind = "video"
@@ -192,7 +198,7 @@ class VideoFrames:
             declared = int(stream.frames or 0)
             #: The frame count the container's index declares (MP4, QuickTime, AVI): exact; else None.
             self.declared: int | None = declared if declared > 0 else None
-            #: Without one (Matroska), the count its duration and frame rate give: an estimate.
+            #: Without one (Matroska, MPEG-TS), the count its duration and frame rate give: an estimate.
             self.estimated: int | None = None
             #: The video stream's duration in seconds (None when it gives none), and its mean frame rate.
             self.duration = _video_duration(container, stream)
@@ -266,6 +272,9 @@ class VideoFrames:
                                          f"{size[0]}x{size[1]}; pcreg needs one frame size")
                     if s.stop is not None and i >= s.stop:
                         return
+                    if frame.is_corrupt:  # concealed by the decoder: a frame cut short or damaged, drawn in part
+                        raise InputError(f"{self.path}: frame {i} decodes with errors (part of it is missing): the "
+                                         "video is truncated or damaged")
                     if i < target or not s.chosen(i):
                         continue
                     position = (i - s.start) // s.every

@@ -510,3 +510,23 @@ def test_a_frame_cut_in_the_middle_is_refused_not_concealed(tmp_path, frames, ca
                    "or damaged"], err
     assert json.loads((tmp_path / "c" / "run.json").read_text())["done"] == 5
     assert main(["run", str(whole), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "w")]) == 0
+
+
+def test_transport_streams_joined_with_cat_are_read_whole(tmp_path, frames, capsys):
+    """A camcorder's recordings joined with ``cat`` (its split .MTS files, or two clips): the second one's time stamps
+    start again, and the run refused the whole as truncated ('ends at 0.50 s after 20 frames, its duration is
+    1.60 s'). Its frames are read in order, every one of both."""
+    images = [frames[i % 8].image for i in range(16)]
+    first = _pyav_video(tmp_path / "a.ts", images, "mpegts").read_bytes()
+    second = _pyav_video(tmp_path / "b.ts", images[:4], "mpegts").read_bytes()
+    joined = tmp_path / "joined.MTS"
+    joined.write_bytes(first + second)
+    got = list(VideoFrames(joined).frames())
+    assert len(got) == 20
+    for i, f in enumerate(got):
+        errors = [np.abs(f.image.astype(int) - other.image).mean() for other in frames]
+        assert int(np.argmin(errors)) == (i if i < 16 else i - 16) % 8, i
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    assert main(["run", str(joined), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "j")]) == 0, \
+        _err(capsys)
+    assert json.loads((tmp_path / "j" / "run.json").read_text())["done"] == 20

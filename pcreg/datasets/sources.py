@@ -203,6 +203,9 @@ class VideoFrames:
             #: The video stream's duration in seconds (None when it gives none), and its mean frame rate.
             self.duration = _video_duration(container, stream)
             self.rate = float(stream.average_rate) if stream.average_rate else None
+            #: A transport stream's time stamps may restart (recordings joined with ``cat``, as a camcorder's
+            #: files are): its duration is no measure of where its frames end.
+            self.timed = container.format.name != "mpegts"
             if self.declared is None and self.duration and self.rate:
                 self.estimated = int(round(self.duration * self.rate))
         if self.declared is not None and selection.start >= self.declared:
@@ -298,11 +301,12 @@ class VideoFrames:
         count (Matroska) the last frame's time is held against the duration: a stream that stops more than two
         mean frame intervals and 2% of the duration before it is refused (a count estimated from the duration is
         wrong for a variable frame rate, 8 frames over 5 s at a nominal 30 per second); without times, a
-        shortfall against that estimate of more than 2 frames and 2%."""
+        shortfall against that estimate of more than 2 frames and 2%. A transport stream is not checked so: its
+        duration is estimated from its own last packets, and its time stamps restart where two were joined."""
         if self.declared is not None and decoded + hidden < self.declared:
             raise InputError(f"{self.path}: ends after {decoded} of the {self.declared} frames its container declares: "
                              "the video is truncated or damaged")
-        if self.estimated is None or self.duration is None or self.rate is None:
+        if self.estimated is None or self.duration is None or self.rate is None or not self.timed:
             return
         if last_time is not None:
             if last_time < self.duration - max(2.0 / self.rate, 0.02 * self.duration):

@@ -441,7 +441,7 @@ def _pyav_video(path, images, fmt, options=None, codec="h264"):
     with av.open(str(path), "w", format=fmt, options=options or {}) as c:
         s = c.add_stream(codec, rate=10)
         s.width, s.height, s.pix_fmt = w, h, "yuv420p"
-        s.options = {"crf": "12", "bf": "2", "g": "5"} if codec == "libx264" or codec == "h264" else {}
+        s.options = {"crf": "12", "bf": "2", "g": "5"} if codec == "h264" else {}
         for im in images:
             for p in s.encode(av.VideoFrame.from_ndarray(im, format="rgb24")):
                 c.mux(p)
@@ -530,3 +530,23 @@ def test_transport_streams_joined_with_cat_are_read_whole(tmp_path, frames, caps
     assert main(["run", str(joined), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "j")]) == 0, \
         _err(capsys)
     assert json.loads((tmp_path / "j" / "run.json").read_text())["done"] == 20
+
+
+def test_a_video_in_another_container_is_refused_with_the_command_that_converts_it(tmp_path, frames, capsys):
+    """An MPEG program stream (a DVD's .vob, a camera's .mpg) was refused as 'not a folder or a video file', or, named
+    .mp4, as 'not a video': neither said that it is a video, nor how to make one pcreg reads."""
+    images = [f.image for f in frames[:3]]
+    mpg = _pyav_video(tmp_path / "old camera.mpg", images, "mpeg", codec="mpeg2video")
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    args = ["--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "o")]
+    assert main(["run", str(mpg), *args]) == 2
+    assert _err(capsys) == [f"pcreg: error: {mpg}: pcreg does not read .mpg videos (it reads .mp4, .m4v, .mov, .3gp, "
+                            ".avi, .mkv, .webm, .ts, .mts, .m2ts); convert it with: ffmpeg -i "
+                            f"'{mpg}' -map 0:v:0 -c:v libx264 -crf 18 '{tmp_path / 'old camera.mp4'}'"]
+    named = tmp_path / "named.mp4"
+    named.write_bytes(mpg.read_bytes())
+    assert main(["run", str(named), *args]) == 2
+    assert _err(capsys) == [f"pcreg: error: {named}: a video in a container pcreg does not read (FFmpeg reads it as "
+                            "mpeg, not as MP4/QuickTime, AVI, Matroska, MPEG-TS); convert it with: ffmpeg -i "
+                            f"{named} -map 0:v:0 -c:v libx264 -crf 18 {tmp_path / 'named-converted.mp4'}"]
+    assert not (tmp_path / "o").exists()

@@ -31,6 +31,7 @@ frames before its first and gets every frame bit for bit as an uninterrupted run
 from __future__ import annotations
 
 import re
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, TypeVar
@@ -39,10 +40,14 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES"]
+__all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES",
+           "OTHER_VIDEO_SUFFIXES", "convert_hint"]
 
 #: The video files pcreg reads (by suffix, any case); what the file holds is checked by FFmpeg's demuxer.
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".m4v", ".mov", ".3gp", ".avi", ".mkv", ".webm", ".ts", ".mts", ".m2ts")
+#: Video files pcreg does not read (their demuxers untested here): refused with the command that converts them.
+OTHER_VIDEO_SUFFIXES: tuple[str, ...] = (".mpg", ".mpeg", ".vob", ".m2v", ".flv", ".f4v", ".wmv", ".asf", ".ogv",
+                                         ".dv", ".mxf", ".rm", ".rmvb", ".3g2", ".divx", ".y4m")
 # FFmpeg's demuxers for those containers, by the name PyAV reports (MPEG-TS also for a camcorder's AVCHD .mts/.m2ts).
 _CONTAINERS = {"mov,mp4,m4a,3gp,3g2,mj2": "MP4/QuickTime", "avi": "AVI", "matroska,webm": "Matroska",
                "mpegts": "MPEG-TS"}
@@ -222,7 +227,11 @@ class VideoFrames:
                              "damaged") from None
         fmt = container.format.name
         if fmt not in _CONTAINERS:
+            video = bool(container.streams.video) and not fmt.endswith("_pipe")  # an image renamed: no video
             container.close()
+            if video:
+                raise InputError(f"{self.path}: a video in a container pcreg does not read (FFmpeg reads it as {fmt}, "
+                                 f"not as {', '.join(_CONTAINERS.values())}); {convert_hint(self.path)}")
             raise InputError(f"{self.path}: not a video (FFmpeg reads it as {fmt}, not as {', '.join(_CONTAINERS.values())})")
         if not container.streams.video:
             container.close()
@@ -403,11 +412,22 @@ def _as_shown(image: np.ndarray, turn: _Turn) -> np.ndarray:
     return np.ascontiguousarray(shown[::-1 if rows else 1, ::-1 if columns else 1])
 
 
+def convert_hint(path: Path) -> str:
+    """How to convert the video at ``path`` to one pcreg reads: FFmpeg's command, its first video stream to H.264
+    in MP4 (at a quality where labels drawn on it stay where they were)."""
+    out = path.with_name(path.stem + ("-converted" if path.suffix.lower() == ".mp4" else "") + ".mp4")
+    return f"convert it with: ffmpeg -i {shlex.quote(str(path))} -map 0:v:0 -c:v libx264 -crf 18 {shlex.quote(str(out))}"
+
+
 def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderFrames | VideoFrames:
-    """The frame source at ``path``: a video file (:data:`VIDEO_SUFFIXES`) or a folder of images."""
+    """The frame source at ``path``: a video file (:data:`VIDEO_SUFFIXES`) or a folder of images; a video in
+    another container (:data:`OTHER_VIDEO_SUFFIXES`) is refused with the command that converts it."""
     p = Path(path)
     if p.suffix.lower() in VIDEO_SUFFIXES and not p.is_dir():
         return VideoFrames(p, selection)
+    if p.suffix.lower() in OTHER_VIDEO_SUFFIXES and p.is_file():
+        raise InputError(f"{p}: pcreg does not read {p.suffix} videos (it reads {', '.join(VIDEO_SUFFIXES)}); "
+                         f"{convert_hint(p)}")
     if p.exists() and not p.is_dir():
         raise InputError(f"{p}: not a folder or a video file ({', '.join(VIDEO_SUFFIXES)})")
     return FolderFrames(p, selection)

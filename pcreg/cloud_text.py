@@ -175,20 +175,24 @@ def _unquoted(line: bytes) -> bytes:
 def _separator(first: bytes, second: bytes | None) -> bytes | None:
     """The fields' separator the first line says (outside quotes): a semicolon; a tab between numbers with decimal
     commas; a comma; else white space (None). Under a first line of names apart by white space, the next line
-    says whether tabs separate numbers with decimal commas."""
-    for line in (first, second):
-        bare = _unquoted(line) if line is not None else b""
-        if b";" in bare:
-            return b";"
-        words = bare.split()
-        tabs = [w.strip() for w in bare.split(b"\t")]
-        if b"," in bare and len(tabs) > 1 and all(_COMMA_NUMBER.fullmatch(w) or _NUMBER.fullmatch(w) for w in tabs):
-            return b"\t"
-        if b"," in bare:
-            return b","
-        if line is first and all(_NUMBER.fullmatch(w) for w in words):
-            return None  # a first line of numbers says it all
+    says whether tabs separate numbers with decimal commas (its other commas are a text column's)."""
+    bare = _unquoted(first)
+    if b";" in bare:
+        return b";"
+    if _tabbed_commas(bare):
+        return b"\t"
+    if b"," in bare:
+        return b","
+    if second is not None and not all(_NUMBER.fullmatch(w) for w in bare.split()) and _tabbed_commas(_unquoted(second)):
+        return b"\t"
     return None
+
+
+def _tabbed_commas(line: bytes) -> bool:
+    """Whether ``line`` is numbers between tabs, one with a decimal comma or more."""
+    tabs = [w.strip() for w in line.split(b"\t")]
+    return (b"," in line and len(tabs) > 1
+            and all(_COMMA_NUMBER.fullmatch(w) or _NUMBER.fullmatch(w) for w in tabs))
 
 
 def _next_line(path: Path, after: int) -> bytes | None:

@@ -134,6 +134,8 @@ def test_decimal_commas_between_semicolons_or_tabs_are_read(tmp_path, pts):
     for name, text in (("tabs.txt", tabs), ("named_tabs.txt", "x\ty\tz\n" + tabs)):
         (tmp_path / name).write_text(text)
         np.testing.assert_array_equal(load_cloud(tmp_path / name), pts)
+    (tmp_path / "text.txt").write_text("x y z label\n1.5 2 3 a,b\n")  # a comma in text between spaces: no decimal
+    np.testing.assert_array_equal(load_cloud(tmp_path / "text.txt"), [[1.5, 2, 3]])
     (tmp_path / "points.csv").write_text("x;y;z\n1.5;2;3\n")  # a point between semicolons stays a point
     np.testing.assert_array_equal(load_cloud(tmp_path / "points.csv"), [[1.5, 2, 3]])
     (tmp_path / "thousands.csv").write_text("x;y;z\n1,5;2,0;3,0\n1.234,5;2,0;3,0\n")

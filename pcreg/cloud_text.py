@@ -6,6 +6,7 @@ Leica Cyclone and CloudCompare write it through :func:`read_pts`; and the check 
 
 from __future__ import annotations
 
+import csv
 import itertools
 import os
 import re
@@ -98,7 +99,9 @@ UTF8_BOM = b"\xef\xbb\xbf"
 
 def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarray:
     """The points of a text file of columns: one point a line, its fields separated by commas, by semicolons
-    or by spaces and tabs (which of them, the first line says); blank lines and lines starting with ``#``
+    or by spaces and tabs (which of them, the first line says), a field in double quotes read as what they
+    enclose (as csv writers and spreadsheets quote), a comma between semicolons or tabs read as the decimal mark
+    (``1,5;2,25``, as spreadsheets in European locales write); blank lines and lines starting with ``#``
     skipped. Two or three numbers a line are x, y (and z); a first line of names (``x,y,z,nx,ny,nz`` as
     libpointmatcher writes, ``//X,Y,Z,R,G,B`` as CloudCompare does) says which columns are x, y and z, in any
     number of columns, the others read or not (a column of text, ``x,y,z,label``, is left out). Every line must
@@ -109,8 +112,8 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
     first, line_number = _first_line(path)
     if first is None:
         raise InputError(f"{path}: no points could be read (no line of numbers)")
-    separator = next((s for s in (b",", b";") if s in first), None)
-    fields = _split(first, separator)
+    separator = _separator(first, _next_line(path, line_number))
+    fields = _split(first, separator, path, line_number)
     columns = _columns(path, fields)
     skip = line_number if columns else 0
     try:  # numpy's parser: strict (no "1_0", no "1,0" between spaces), and many times faster than a loop here
@@ -140,14 +143,66 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
 
 def _load_columns(path: Path, separator: bytes | None, skip: int, lim: int, usecols: list[int] | None) -> np.ndarray:
     """The numbers of the lines after the first ``skip`` (at most ``lim`` + 1 of them), the ``usecols`` columns
-    (None: all); a ValueError where a line is not numbers there."""
+    (None: all), a field in double quotes read as its content (as a spreadsheet or ``csv.QUOTE_ALL`` writes it) and,
+    between semicolons or tabs, a comma as the decimal mark; a ValueError where a line is not numbers there."""
+    options: dict = {} if separator is None else {"delimiter": separator.decode(), "quotechar": '"'}
+    if separator in _DECIMAL_COMMA_SEPARATORS:
+        options["converters"] = _decimal_comma_float
     with warnings.catch_warnings():  # blank lines not counted in max_rows, no data: said here, not on stderr
         warnings.simplefilter("ignore", UserWarning)
         with open(path, "rb") as fh:
             fh.seek(len(UTF8_BOM) if fh.read(len(UTF8_BOM)) == UTF8_BOM else 0)
-            return np.loadtxt(fh, dtype=np.float64, comments="#", delimiter=None if separator is None else
-                              separator.decode(), skiprows=skip, ndmin=2, max_rows=lim + 1, encoding="latin-1",
-                              usecols=usecols)
+            return np.loadtxt(fh, dtype=np.float64, comments="#", skiprows=skip, ndmin=2, max_rows=lim + 1,
+                              encoding="latin-1", usecols=usecols, **options)
+
+
+#: The separators between which a comma is a decimal mark, as spreadsheets in most European locales write
+#: (``1,5;2,25;-3,0``; Excel's CSV there separates with semicolons, its text export with tabs).
+_DECIMAL_COMMA_SEPARATORS = (b";", b"\t")
+#: A number with a decimal comma.
+_COMMA_NUMBER = re.compile(rb"[+-]?(?:\d+,\d*|,\d+)(?:[eE][+-]?\d+)?")
+
+
+def _decimal_comma_float(text: str) -> float:
+    return float(text.replace(",", ".", 1) if "." not in text else text)
+
+
+def _unquoted(line: bytes) -> bytes:
+    """``line`` without what its double quotes enclose (where a separator is looked for)."""
+    return re.sub(rb'"[^"]*"', b"", line)
+
+
+def _separator(first: bytes, second: bytes | None) -> bytes | None:
+    """The fields' separator the first line says (outside quotes): a semicolon; a tab between numbers with decimal
+    commas; a comma; else white space (None). Under a first line of names apart by white space, the next line
+    says whether tabs separate numbers with decimal commas (its other commas are a text column's)."""
+    bare = _unquoted(first)
+    if b";" in bare:
+        return b";"
+    if _tabbed_commas(bare):
+        return b"\t"
+    if b"," in bare:
+        return b","
+    if second is not None and not all(_NUMBER.fullmatch(w) for w in bare.split()) and _tabbed_commas(_unquoted(second)):
+        return b"\t"
+    return None
+
+
+def _tabbed_commas(line: bytes) -> bool:
+    """Whether ``line`` is numbers between tabs, one with a decimal comma or more."""
+    tabs = [w.strip() for w in line.split(b"\t")]
+    return (b"," in line and len(tabs) > 1
+            and all(_COMMA_NUMBER.fullmatch(w) or _NUMBER.fullmatch(w) for w in tabs))
+
+
+def _next_line(path: Path, after: int) -> bytes | None:
+    """The first line after line ``after`` that is neither blank nor a ``#`` comment, stripped."""
+    with open(path, "rb") as fh:
+        for raw in itertools.islice(fh, after, None):
+            line = raw.strip()
+            if line and not line.startswith(b"#"):
+                return line
+    return None
 
 
 def _first_line(path: Path) -> tuple[bytes | None, int]:
@@ -161,8 +216,24 @@ def _first_line(path: Path) -> tuple[bytes | None, int]:
     return None, 0
 
 
-def _split(line: bytes, separator: bytes | None) -> list[bytes]:
-    return [f.strip() for f in line.split(separator)] if separator else line.split()
+def _split(line: bytes, separator: bytes | None, path: Path, number: int) -> list[bytes]:
+    """The fields of ``line`` (its ``number``), as :func:`_load_columns` reads them: a field in double quotes as its
+    content, and a decimal comma between semicolons or tabs as a point; an unclosed quote is an :class:`InputError`."""
+    if separator is None:
+        fields = line.split()
+    elif b'"' not in line:
+        fields = [f.strip() for f in line.split(separator)]
+    else:
+        try:
+            row = next(csv.reader([line.decode("latin-1")], delimiter=separator.decode(), skipinitialspace=True,
+                                  strict=True))
+        except csv.Error:
+            text = line[:40].decode("ascii", "replace")
+            raise InputError(f"{path}: line {number} ({text!r}) has a quote that does not close on that line") from None
+        fields = [f.strip().encode("latin-1") for f in row]
+    if separator in _DECIMAL_COMMA_SEPARATORS:
+        fields = [f.replace(b",", b".") if _COMMA_NUMBER.fullmatch(f) else f for f in fields]
+    return fields
 
 
 def _bad_line(path: Path, separator: bytes | None, width: int, start: int, numeric: list[int] | None) -> None:
@@ -175,7 +246,7 @@ def _bad_line(path: Path, separator: bytes | None, width: int, start: int, numer
             line = (raw.removeprefix(UTF8_BOM) if number == 1 else raw).strip()
             if number < start or not line or line.startswith(b"#"):
                 continue
-            fields = _split(line, separator)
+            fields = _split(line, separator, path, number)
             checked = range(len(fields)) if numeric is None else numeric
             wrong = next((k for k in checked if k >= len(fields) or not _NUMBER.fullmatch(fields[k])), None)
             if len(fields) == width and wrong is None:

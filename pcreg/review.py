@@ -212,6 +212,25 @@ def class_figures(review: RunReview, t: int) -> list[dict]:
              "iou": None if iou is None else iou.get(c.id)} for c in review.table.known]
 
 
+def shown_classes(review: RunReview) -> list[int]:
+    """The ids of the known classes the run's frames show (a pixel or more in a frame's labels), in the table's
+    order: what the review's legend lists, where a table of 150 classes labels a few in a run. The label files
+    are read until every known class has been seen; one that cannot be read is passed over (its frame says why
+    when it is shown)."""
+    from .export import read_labels
+
+    known = [c.id for c in review.table.known]
+    seen = np.zeros(256, bool)
+    for t in range(len(review.names)):
+        try:
+            seen |= np.bincount(read_labels(review.labels_path(t), review.table).ravel(), minlength=256) > 0
+        except InputError:
+            continue
+        if seen[known].all():
+            break
+    return [k for k in known if seen[k]]
+
+
 def read_overlay(review: RunReview, t: int, image: np.ndarray) -> np.ndarray:
     """Frame ``t`` of ``review`` (its ``image``, RGB) with its labels and confidence drawn over it."""
     import cv2

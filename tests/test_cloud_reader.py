@@ -84,6 +84,65 @@ def test_a_csv_that_starts_with_a_byte_order_mark_is_read(tmp_path, pts):
         load_cloud(tmp_path / "bad.csv")
 
 
+def test_quoted_fields_as_csv_writers_quote_them_are_read(tmp_path, pts):
+    """Python's csv module and pandas with ``quoting=QUOTE_ALL`` (``"1.0","2.0","3.0"``), or a header quoted alone
+    (``QUOTE_NONNUMERIC``), or a text column quoted because it holds the separator (``"car, red"``): refused as
+    'is not a number', or as naming no x and y columns."""
+    import csv
+
+    def written(name, rows, header=None, **options):
+        with open(tmp_path / name, "w", newline="") as fh:
+            out = csv.writer(fh, **options)
+            if header:
+                out.writerow(header)
+            out.writerows(rows)
+        return tmp_path / name
+
+    every = written("all.csv", pts.tolist(), ("x", "y", "z"), quoting=csv.QUOTE_ALL)
+    assert every.read_bytes().startswith(b'"x","y","z"\r\n"')  # Excel's dialect: CRLF
+    np.testing.assert_array_equal(load_cloud(every), pts)
+    np.testing.assert_array_equal(load_cloud(written("bare.csv", pts.tolist(), quoting=csv.QUOTE_ALL)), pts)
+    np.testing.assert_array_equal(load_cloud(written("names.csv", pts.tolist(), ("x", "y", "z"),
+                                                     quoting=csv.QUOTE_NONNUMERIC)), pts)
+    labels = ["car, red", 'the "big" tree', "road # 3"]
+    rows = [[*p, labels[i % 3]] for i, p in enumerate(pts.tolist())]
+    np.testing.assert_array_equal(load_cloud(written("labels.csv", rows, ("x", "y", "z", "label"))), pts)
+    (tmp_path / "oops.csv").write_text('"x","y","z"\n"1.0","2.0","3.0"\n"4.0","oops","6.0"\n')
+    with pytest.raises(InputError, match="oops.csv: line 3 .*: its y, 'oops', is not a number"):
+        load_cloud(tmp_path / "oops.csv")
+    (tmp_path / "open.csv").write_text('"1.0","2.0","3.0"\n"4.0","5.0","6.0\n"7.0","8.0","9.0"\n')
+    with pytest.raises(InputError, match="open.csv: line 2 .* has a quote that does not close on that line"):
+        load_cloud(tmp_path / "open.csv")
+
+
+def test_decimal_commas_between_semicolons_or_tabs_are_read(tmp_path, pts):
+    """A spreadsheet in a German or French locale saves CSV as ``1,5;2,25;-3`` (Excel: with a byte-order mark and
+    CRLF; quoted where asked) and text as tab-separated ``1,5\t2,25``; all were refused. A number that is not one
+    in either mark (``1.234,5``, a thousands separator) is refused naming its line."""
+    def comma(v):
+        return repr(float(v)).replace(".", ",")
+
+    rows = "".join(";".join(comma(v) for v in p) + "\r\n" for p in pts)
+    (tmp_path / "excel.csv").write_bytes(b"\xef\xbb\xbf" + ("X;Y;Z\r\n" + rows).encode())
+    np.testing.assert_array_equal(load_cloud(tmp_path / "excel.csv"), pts)
+    (tmp_path / "bare.csv").write_text(rows)
+    np.testing.assert_array_equal(load_cloud(tmp_path / "bare.csv"), pts)
+    quoted = "".join(";".join(f'"{comma(v)}"' for v in p) + "\n" for p in pts)
+    (tmp_path / "quoted.csv").write_text('"x";"y";"z"\n' + quoted)
+    np.testing.assert_array_equal(load_cloud(tmp_path / "quoted.csv"), pts)
+    tabs = "".join("\t".join(comma(v) for v in p) + "\n" for p in pts)
+    for name, text in (("tabs.txt", tabs), ("named_tabs.txt", "x\ty\tz\n" + tabs)):
+        (tmp_path / name).write_text(text)
+        np.testing.assert_array_equal(load_cloud(tmp_path / name), pts)
+    (tmp_path / "text.txt").write_text("x y z label\n1.5 2 3 a,b\n")  # a comma in text between spaces: no decimal
+    np.testing.assert_array_equal(load_cloud(tmp_path / "text.txt"), [[1.5, 2, 3]])
+    (tmp_path / "points.csv").write_text("x;y;z\n1.5;2;3\n")  # a point between semicolons stays a point
+    np.testing.assert_array_equal(load_cloud(tmp_path / "points.csv"), [[1.5, 2, 3]])
+    (tmp_path / "thousands.csv").write_text("x;y;z\n1,5;2,0;3,0\n1.234,5;2,0;3,0\n")
+    with pytest.raises(InputError, match="thousands.csv: line 3 .*: its x, '1.234,5', is not a number"):
+        load_cloud(tmp_path / "thousands.csv")
+
+
 @pytest.mark.parametrize("text, match", [
     ("1 2 3\n4 5\n6 7 8\n", r"line 2 \('4 5'\) is not 3 numbers"),
     ("1 2 3\n4 5 6 7\n", r"line 2 \('4 5 6 7'\) is not 3 numbers"),

@@ -229,6 +229,40 @@ def test_a_summary_names_a_dozen_labels_and_counts_the_rest():
     assert listed(many) == ", ".join(many[:MOST_NAMED]) + f" and {150 - MOST_NAMED} more"
 
 
+def test_class_names_that_hold_a_comma_or_a_list_word_are_quoted_in_the_summary(tmp_path, capsys):
+    """CVAT names such as 'car, red' or 'rock and gravel' were listed bare: 'labels car, red in 5, rock and gravel in
+    5 and road in 5' reads as five classes. A name holding a comma, a quote or a word of the list is quoted."""
+    from pcreg.classes.table import listed_name as quoted
+    from pcreg.commands.export import listed
+
+    assert [quoted(n) for n in ("road", "car, red", "rock and gravel", "none", "it's", "Person In Car")] == \
+        ["road", "'car, red'", "'rock and gravel'", "'none'", '"it\'s"', "'Person In Car'"]
+    assert listed([quoted("car, red"), quoted("road")]) == "'car, red' and road"
+    names = ["background", "car, red", "rock and gravel", "road"]
+    (tmp_path / "labelmap.txt").write_text("\n".join(
+        ["# label:color_rgb:parts:actions"] + [f"{n}:{i * 60},{i * 30},{255 - i * 60}::" for i, n in enumerate(names)]
+    ).replace("background:0,0,255", "background:0,0,0"))
+    frames = pcreg.synthetic("syn1a", 3, 0, width=96, height=64)
+    (tmp_path / "frames").mkdir()
+    for t, f in enumerate(frames):
+        cv2.imwrite(str(tmp_path / "frames" / f"f{t}.png"), f.image[:, :, ::-1])
+    key = np.zeros((64, 96), np.uint8)  # ids in the labelmap's order, background (0, 0, 0) the unknown
+    key[:, 32:64], key[:, 64:] = 1, 2
+    cv2.imwrite(str(tmp_path / "key.png"), key)
+    out = tmp_path / "out"
+    assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "key.png"), "--classes",
+                 str(tmp_path / "labelmap.txt"), "--out", str(out)]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    assert main(["export", str(out)]) == 0
+    wrote, cvat = capsys.readouterr().out.splitlines()[:2]
+    assert "(labels 'car, red' in " in wrote and ", 'rock and gravel' in " in wrote and " and road in " in wrote, wrote
+    assert "the 3 labels 'car, red', 'rock and gravel' and road of its labelmap.txt" in cvat, cvat
+    cv2.imwrite(str(tmp_path / "one.png"), np.zeros((64, 96), np.uint8))
+    assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "one.png"), "--classes",
+                 str(tmp_path / "labelmap.txt"), "--out", str(tmp_path / "one")]) == 2
+    assert "hold one class only ('car, red')" in capsys.readouterr().err
+
+
 def test_a_table_of_150_classes_runs_and_exports(tmp_path, capsys):
     # more classes than OpenCV takes channels in one array (128): every map of the step is filtered in parts
     from pcreg.classes.files import voc_colormap

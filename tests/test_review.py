@@ -496,6 +496,8 @@ def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path
     import json as _json
 
     from _browser import find_chromium
+    from pcreg.export import read_labels
+    from pcreg.review import read_review
 
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
@@ -511,10 +513,51 @@ def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
                      "--classes", str(tmp_path / "classes.json")]) == 0
+    table = read_review(out).table
+    shown = sorted({int(v) for f in out.glob("frame_*.png") for v in np.unique(read_labels(f, table))} - {254})
+    assert 100 < len(shown) < 254
     with _review_page(out, width=1400, height=800) as (proc, ev):
-        assert ev("document.querySelectorAll('#legend > span').length") == 254 + 2  # the unknown, the key frame
+        # the classes the frames show, the unknown, the others counted, the key frame
+        assert ev("document.querySelectorAll('#legend > span').length") == len(shown) + 3
         x, y, w, h = ev(IMG_JS)
         assert h >= 0.4 * 800 and y + h <= 800, (y, h)
+
+
+def test_the_legend_lists_the_classes_the_runs_frames_show_in_the_tables_order(synthetic, tmp_path):
+    """A table of 150 classes of which the key frame labels three: the legend listed all 150, the three the run
+    shows among them. It lists those three in the table's order, then the unknown, then how many others the
+    table holds (named on hover)."""
+    import json as _json
+
+    from _browser import find_chromium
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review, shown_classes
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, f in enumerate(synthetic[:3]):
+        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    classes = [{"id": i, "name": f"class {i}", "colour": [i, 255 - i, (37 * i) % 256]} for i in range(150)]
+    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [*classes, {"id": 150, "name": "void",
+                                                                               "colour": [0, 0, 1]}], "unknown": 150}))
+    key = np.full((120, 160), 120, np.uint8)  # stripes of classes 120, 7 and 64, in no order of the table
+    key[:, 50:100], key[:, 100:] = 7, 64
+    cv2.imwrite(str(tmp_path / "key.png"), key)
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
+                     "--classes", str(tmp_path / "classes.json")]) == 0
+    review = read_review(out)
+    assert shown_classes(review) == [7, 64, 120]
+    with ReviewServer(review, web_port=0) as server:
+        listed = json.loads(_get(server.url + "review.json")[1])["classes"]
+    assert len(listed) == 150 and [c["id"] for c in listed if c["shown"]] == [7, 64, 120]
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    with _review_page(out, width=1200, height=700) as (proc, ev):
+        legend = ev("Array.from(document.querySelectorAll('#legend > span')).map(s => s.textContent)")
+        assert [t.split(" ")[0] + " " + t.split(" ")[1] for t in legend[:3]] == ["class 7", "class 64", "class 120"]
+        assert legend[3:5] == ["void", "147 other classes of the table in no frame"], legend
 
 
 def test_a_frame_without_its_confidence_map_says_so_on_the_page(run_copy):

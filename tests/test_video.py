@@ -427,3 +427,126 @@ def test_an_avi_frame_whose_chunk_is_damaged_is_refused_where_it_is_missed(tmp_p
                             "1 frame(s) passed over): the video is truncated or damaged"]
     assert json.loads((out / "run.json").read_text())["done"] == 6
     assert sorted(p.name for p in out.glob("*.png")) == [f"{i:06d}.png" for i in range(6)]
+
+
+def _pyav_video(path, images, fmt, options=None, codec="h264"):
+    """``images`` encoded with PyAV into the container ``fmt`` (H.264 with B-frames: decoding order is not display
+    order); skipped where this FFmpeg has no such encoder."""
+    av = pytest.importorskip("av")
+    try:
+        av.codec.Codec(codec, "w")
+    except (av.FFmpegError, ValueError):
+        pytest.skip(f"this FFmpeg has no {codec} encoder")
+    h, w = images[0].shape[:2]
+    with av.open(str(path), "w", format=fmt, options=options or {}) as c:
+        s = c.add_stream(codec, rate=10)
+        s.width, s.height, s.pix_fmt = w, h, "yuv420p"
+        s.options = {"crf": "12", "bf": "2", "g": "5"} if codec == "h264" else {}
+        for im in images:
+            for p in s.encode(av.VideoFrame.from_ndarray(im, format="rgb24")):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    return path
+
+
+@pytest.mark.parametrize("name, fmt, options", [("clip.ts", "mpegts", None),
+                                                ("00001.MTS", "mpegts", {"mpegts_m2ts_mode": "1"}),
+                                                ("clip.m2ts", "mpegts", {"mpegts_m2ts_mode": "1"}),
+                                                ("phone.3gp", "3gp", None)])
+def test_transport_streams_and_3gp_are_read_in_order_and_resume_exactly(tmp_path, frames, capsys, monkeypatch,
+                                                                        name, fmt, options):
+    """A broadcast or camcorder recording (MPEG-TS, AVCHD's .mts/.m2ts) and a phone's 3GP were refused by their
+    suffix. A transport stream has no index: its count is estimated from its duration (the progress bar's size),
+    its frames are read from the start in order, and a resumed run gives what an uninterrupted one does."""
+    images = [frames[i % 8].image for i in range(10)]
+    video = _pyav_video(tmp_path / name, images, fmt, options)
+    src = open_frames(video)
+    assert isinstance(src, VideoFrames) and src.count() == 10
+    got = list(src.frames())
+    assert [f.name for f in got] == [f"{i:06d}" for i in range(10)]
+    for i, f in enumerate(got):  # in display order, each frame its own and no other (H.264 is lossy: close)
+        errors = [np.abs(f.image.astype(int) - other.image).mean() for other in frames]
+        assert errors[i % 8] < 6 and int(np.argmin(errors)) == i % 8, (i, errors)
+    np.testing.assert_array_equal(list(VideoFrames(video).frames(6))[0].image, got[6].image)
+
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--confidence"]
+    assert main(args + ["--out", str(tmp_path / "whole")]) == 0, _err(capsys)
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert sorted(p.name for p in whole.glob("*.png")) == [f"{i:06d}.png" for i in range(10)]
+    kill_before_commit(monkeypatch, 6)  # killed after frame 6's files were written, before run.json counted it
+    assert main(args + ["--out", str(cut)]) == 130
+    monkeypatch.undo()
+    assert json.loads((cut / "run.json").read_text())["done"] == 6
+    assert main(args + ["--out", str(cut)]) == 0
+    names = [f"{i:06d}.png" for i in range(10)] + [f"confidence/{i:06d}.png" for i in range(1, 10)]
+    for file in ["run.json", *names]:
+        assert (whole / file).read_bytes() == (cut / file).read_bytes(), file
+    assert ([_timeless(x) for x in (whole / "steps.jsonl").read_text().splitlines()]
+            == [_timeless(x) for x in (cut / "steps.jsonl").read_text().splitlines()])
+
+
+def test_a_frame_cut_in_the_middle_is_refused_not_concealed(tmp_path, frames, capsys):
+    """A transport stream copied in part ends in the middle of a frame: FFmpeg decodes what arrived and conceals the
+    rest, without an error, and the run labelled that half-grey frame. The decoder marks it corrupt: refused there,
+    the frames before kept; a stream cut at a frame's end is a shorter recording."""
+    av = pytest.importorskip("av")
+    rng = np.random.default_rng(0)
+    images = [np.roll(rng.integers(0, 256, (120, 160, 3), dtype=np.uint8), 3 * i, axis=1) for i in range(6)]
+    whole = _pyav_video(tmp_path / "whole.ts", images, "mpegts")
+    with av.open(str(whole)) as c:
+        last = [(p.pos, p.size) for p in c.demux(video=0) if p.size][-1]
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.ts"
+    cut.write_bytes(data[:last[0] + last[1] // 2])  # within the last frame's packet (its payload on later TS packets)
+    labels = np.zeros((120, 160), np.uint8)
+    labels[:, 80:] = 1
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    args = ["run", str(cut), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "c")]
+    assert main(args) == 2
+    err = _err(capsys)
+    assert err == [f"pcreg: error: {cut}: frame 5 decodes with errors (part of it is missing): the video is truncated "
+                   "or damaged"], err
+    assert json.loads((tmp_path / "c" / "run.json").read_text())["done"] == 5
+    assert main(["run", str(whole), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "w")]) == 0
+
+
+def test_transport_streams_joined_with_cat_are_read_whole(tmp_path, frames, capsys):
+    """A camcorder's recordings joined with ``cat`` (its split .MTS files, or two clips): the second one's time stamps
+    start again, and the run refused the whole as truncated ('ends at 0.50 s after 20 frames, its duration is
+    1.60 s'). Its frames are read in order, every one of both."""
+    images = [frames[i % 8].image for i in range(16)]
+    first = _pyav_video(tmp_path / "a.ts", images, "mpegts").read_bytes()
+    second = _pyav_video(tmp_path / "b.ts", images[:4], "mpegts").read_bytes()
+    joined = tmp_path / "joined.MTS"
+    joined.write_bytes(first + second)
+    got = list(VideoFrames(joined).frames())
+    assert len(got) == 20
+    for i, f in enumerate(got):
+        errors = [np.abs(f.image.astype(int) - other.image).mean() for other in frames]
+        assert int(np.argmin(errors)) == (i if i < 16 else i - 16) % 8, i
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    assert main(["run", str(joined), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "j")]) == 0, \
+        _err(capsys)
+    assert json.loads((tmp_path / "j" / "run.json").read_text())["done"] == 20
+
+
+def test_a_video_in_another_container_is_refused_with_the_command_that_converts_it(tmp_path, frames, capsys):
+    """An MPEG program stream (a DVD's .vob, a camera's .mpg) was refused as 'not a folder or a video file', or, named
+    .mp4, as 'not a video': neither said that it is a video, nor how to make one pcreg reads."""
+    images = [f.image for f in frames[:3]]
+    mpg = _pyav_video(tmp_path / "old camera.mpg", images, "mpeg", codec="mpeg2video")
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    args = ["--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "o")]
+    assert main(["run", str(mpg), *args]) == 2
+    assert _err(capsys) == [f"pcreg: error: {mpg}: pcreg does not read .mpg videos (it reads .mp4, .m4v, .mov, .3gp, "
+                            ".avi, .mkv, .webm, .ts, .mts, .m2ts); convert it with: ffmpeg -i "
+                            f"'{mpg}' -map 0:v:0 -c:v libx264 -crf 18 '{tmp_path / 'old camera.mp4'}'"]
+    named = tmp_path / "named.mp4"
+    named.write_bytes(mpg.read_bytes())
+    assert main(["run", str(named), *args]) == 2
+    assert _err(capsys) == [f"pcreg: error: {named}: a video in a container pcreg does not read (FFmpeg reads it as "
+                            "mpeg, not as MP4/QuickTime, AVI, Matroska, MPEG-TS); convert it with: ffmpeg -i "
+                            f"{named} -map 0:v:0 -c:v libx264 -crf 18 {tmp_path / 'named-converted.mp4'}"]
+    assert not (tmp_path / "o").exists()

@@ -200,13 +200,21 @@ function drawLegend() {
     if (style) s.style.background = style;
     return el("span", {}, s, text);
   };
-  // each class of the run's table in its colour, then its unknown (left clear)
-  const items = d.classes.map((c) => {
+  // each class the run's frames show, in the table's order and colours, then its unknown (left clear); the
+  // table's other classes (a table of 150 labels a few in a run) counted, named on hover
+  const shown = d.classes.filter((c) => c.shown !== false);
+  const items = shown.map((c) => {
     const it = item("", rgb(c.colour), c.name);
     it.append(el("span", { class: "muted", "data-class": c.id }));
     return it;
   });
   items.push(item("clear", null, d.unknown.name));
+  const absent = d.classes.filter((c) => c.shown === false);
+  if (absent.length) {
+    const more = el("span", { class: "muted", text: `${absent.length} other class${absent.length > 1 ? "es" : ""} of the table in no frame` });
+    more.title = absent.map((c) => c.name).join("\n");
+    items.push(more);
+  }
   if (d.confidence) items.push(item("hatch", null, `confidence below ${Math.round(d.low_confidence * 100)} %`));
   items.push(item("key", null, "key frame"));
   $("legend").replaceChildren(...items);

@@ -31,9 +31,23 @@ import numpy as np
 from ..errors import InputError
 from ..validation import short_repr
 
-__all__ = ["MAX_CLASSES", "LabelClass", "ClassTable", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree"]
+__all__ = ["MAX_CLASSES", "LabelClass", "ClassTable", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree",
+           "listed_name"]
 
 RGB = tuple[int, int, int]
+
+#: The words of a message's lists of classes (``a in 3, b in 2 and 4 more``, ``none``), which a name holding one blurs.
+_LIST_WORDS = frozenset({"and", "in", "more", "none"})
+
+
+def listed_name(name: str) -> str:
+    """A class ``name`` as a message lists it: in (Python's) quotes when it holds a comma, a semicolon, a quote or one
+    of a list's own words (``car, red``, ``rock and gravel``, ``none``), so that where one name ends is never in doubt;
+    else as it is."""
+    if any(ch in name for ch in ",;'\"") or _LIST_WORDS & set(name.lower().split()):
+        return repr(name)
+    return name
+
 #: The most classes a table holds, the unknown among them: ids 0..254 of 8-bit labels.
 MAX_CLASSES = 255
 
@@ -111,9 +125,9 @@ class ClassTable:
         object.__setattr__(self, "unknown", int(self.unknown))
 
     def __repr__(self) -> str:
-        known = ", ".join(f"{c.id} {c.name}" for c in self.known)
+        known = ", ".join(f"{c.id} {listed_name(c.name)}" for c in self.known)
         src = f"{self.source}: " if self.source else ""
-        return f"ClassTable({src}{known}; unknown {self.unknown} {self.unknown_class.name})"
+        return f"ClassTable({src}{known}; unknown {self.unknown} {listed_name(self.unknown_class.name)})"
 
     # -- views -------------------------------------------------------------------------------------
     @property
@@ -158,7 +172,7 @@ class ClassTable:
 
     def describe(self) -> str:
         """``"0 ground, 1 obstacle, 2 unknown"``: the table in a line, for messages."""
-        return ", ".join(f"{c.id} {c.name}" for c in self.classes)
+        return ", ".join(f"{c.id} {listed_name(c.name)}" for c in self.classes)
 
     def valid(self) -> np.ndarray:
         """(256,) bool: which 8-bit values are class ids."""

@@ -29,6 +29,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..classes import DEFAULT_TABLE, ClassTable
+from ..classes.table import listed_name
 from ..errors import InputError
 from .features import (
     DEFAULT_FEATURES,
@@ -292,7 +293,7 @@ class NaiveBayesPixelClassifier:
         present = counts[:, 0, :].sum(axis=1) > 0
         classes = np.flatnonzero(present).astype(np.uint8)
         if len(classes) < 2:
-            only = ", ".join(table.name_of(int(c)) for c in classes) or "none"
+            only = ", ".join(listed_name(table.name_of(int(c))) for c in classes) or "none"
             need = "both ground and obstacle" if table.agrees(DEFAULT_TABLE) else "at least two classes'"
             raise InputError(f"training labels hold only one class ({only}); need {need} pixels")
         p = _gaussian_params(counts, classes, var_smoothing=self.var_smoothing, priors=self.priors)

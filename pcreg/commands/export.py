@@ -29,6 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..classes.table import listed_name
     from ..export import cvat_mask_archive, default_name, labelled_frames, read_run
     from ..formats import resolved
     from ..outputs import atomic_write_bytes, check_output
@@ -46,11 +47,11 @@ def run(args: argparse.Namespace) -> int:
                           "of the run's files (choose a .zip name or another folder)")
     data, counts = cvat_mask_archive(labelled_frames(run_labels, args.min_confidence), table)  # every file read and checked before anything is written
     atomic_write_bytes(dest, data)
-    shown = [f"{c.name} in {counts[c.name]}" for c in table.known if counts[c.name]]
+    shown = [f"{listed_name(c.name)} in {counts[c.name]}" for c in table.known if counts[c.name]]
     absent = sum(1 for c in table.known if not counts[c.name])
     print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {listed(shown)}"
           f"{f'; {absent} in none' if absent else ''}; unknown left unlabelled in {counts[table.unknown_class.name]})")
-    names = [c.name for c in table.known]
+    names = [listed_name(c.name) for c in table.known]
     print(f"CVAT: a task with the {len(names)} labels {listed(names)} of its labelmap.txt over the same frames; "
           "Upload annotations, format Segmentation mask 1.1")
     note = unfinished_note(Path(args.folder), len(run_labels.names), run_labels.chosen)

@@ -33,8 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..registration.transforms import MODELS
 
     p.add_argument("folder", metavar="FRAMES",
-                   help="a video file (.mp4, .m4v, .mov, .avi, .mkv, .webm) or a folder of frames (image files, or an images/ "
-                        "sub-folder, read in name order)")
+                   help="a video file (.mp4, .m4v, .mov, .3gp, .avi, .mkv, .webm, .ts, .mts, .m2ts) or a folder of frames "
+                        "(image files, or an images/ sub-folder, read in name order)")
     p.add_argument("--labels", required=True, metavar="KEYFRAME.png|DIR",
                    help="label image of the first frame (class ids of --classes, a palette PNG, or the table's colours); or a "
                         "folder of key frames' labels, NAME.png for the frame NAME, every frame labelled from those "

@@ -18,6 +18,11 @@ Videos are decoded with PyAV (FFmpeg's libraries, called directly), not with Ope
 A frame's display matrix (a phone's portrait video, a mirrored selfie camera) is applied by quarter turns and
 mirrors, as FFmpeg's players show the frame: the key frame's labels are drawn on what the annotator saw.
 
+An MPEG transport stream (``.ts``; a camcorder's AVCHD ``.mts``/``.m2ts``) has no index: its count is
+estimated from its duration and frame rate (the progress bar's size, never where a run stops), and a file cut
+short at a frame's end reads as a shorter recording. A frame the decoder had to conceal (cut short in the
+middle, or damaged) is refused in any container, where decoding meets it.
+
 Frames are read in decoding order and never by seeking: a seek lands on a key frame near the target and
 is exact only where the container's timestamps are, so a resumed run decodes (without converting) the
 frames before its first and gets every frame bit for bit as an uninterrupted run does.
@@ -26,6 +31,7 @@ frames before its first and gets every frame bit for bit as an uninterrupted run
 from __future__ import annotations
 
 import re
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, TypeVar
@@ -34,12 +40,17 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES"]
+__all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES",
+           "OTHER_VIDEO_SUFFIXES", "convert_hint"]
 
 #: The video files pcreg reads (by suffix, any case); what the file holds is checked by FFmpeg's demuxer.
-VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm")
-# FFmpeg's demuxers for those containers, by the name PyAV reports.
-_CONTAINERS = {"mov,mp4,m4a,3gp,3g2,mj2": "MP4/QuickTime", "avi": "AVI", "matroska,webm": "Matroska"}
+VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".m4v", ".mov", ".3gp", ".avi", ".mkv", ".webm", ".ts", ".mts", ".m2ts")
+#: Video files pcreg does not read (their demuxers untested here): refused with the command that converts them.
+OTHER_VIDEO_SUFFIXES: tuple[str, ...] = (".mpg", ".mpeg", ".vob", ".m2v", ".flv", ".f4v", ".wmv", ".asf", ".ogv",
+                                         ".dv", ".mxf", ".rm", ".rmvb", ".3g2", ".divx", ".y4m")
+# FFmpeg's demuxers for those containers, by the name PyAV reports (MPEG-TS also for a camcorder's AVCHD .mts/.m2ts).
+_CONTAINERS = {"mov,mp4,m4a,3gp,3g2,mj2": "MP4/QuickTime", "avi": "AVI", "matroska,webm": "Matroska",
+               "mpegts": "MPEG-TS"}
 
 
 @dataclass(frozen=True)
@@ -173,7 +184,7 @@ class FolderFrames:
 class VideoFrames:
     """The frames of a video file, decoded one at a time with PyAV; frame ``i`` (from 0) is named
     ``{i:06d}``. Opening reads the container's header: a file FFmpeg cannot open, that is not an MP4,
-    QuickTime, AVI or Matroska file, or that holds no video stream is refused here; a truncated or
+    QuickTime (3GP), AVI, Matroska or MPEG-TS file, or that holds no video stream is refused here; a truncated or
     damaged file, a frame of another size, or a ``start`` past the end is refused where decoding meets it."""
 
     kind = "video"
@@ -192,11 +203,14 @@ class VideoFrames:
             declared = int(stream.frames or 0)
             #: The frame count the container's index declares (MP4, QuickTime, AVI): exact; else None.
             self.declared: int | None = declared if declared > 0 else None
-            #: Without one (Matroska), the count its duration and frame rate give: an estimate.
+            #: Without one (Matroska, MPEG-TS), the count its duration and frame rate give: an estimate.
             self.estimated: int | None = None
             #: The video stream's duration in seconds (None when it gives none), and its mean frame rate.
             self.duration = _video_duration(container, stream)
             self.rate = float(stream.average_rate) if stream.average_rate else None
+            #: A transport stream's time stamps may restart (recordings joined with ``cat``, as a camcorder's
+            #: files are): its duration is no measure of where its frames end.
+            self.timed = container.format.name != "mpegts"
             if self.declared is None and self.duration and self.rate:
                 self.estimated = int(round(self.duration * self.rate))
         if self.declared is not None and selection.start >= self.declared:
@@ -213,7 +227,11 @@ class VideoFrames:
                              "damaged") from None
         fmt = container.format.name
         if fmt not in _CONTAINERS:
+            video = bool(container.streams.video) and not fmt.endswith("_pipe")  # an image renamed: no video
             container.close()
+            if video:
+                raise InputError(f"{self.path}: a video in a container pcreg does not read (FFmpeg reads it as {fmt}, "
+                                 f"not as {', '.join(_CONTAINERS.values())}); {convert_hint(self.path)}")
             raise InputError(f"{self.path}: not a video (FFmpeg reads it as {fmt}, not as {', '.join(_CONTAINERS.values())})")
         if not container.streams.video:
             container.close()
@@ -266,6 +284,9 @@ class VideoFrames:
                                          f"{size[0]}x{size[1]}; pcreg needs one frame size")
                     if s.stop is not None and i >= s.stop:
                         return
+                    if frame.is_corrupt:  # concealed by the decoder: a frame cut short or damaged, drawn in part
+                        raise InputError(f"{self.path}: frame {i} decodes with errors (part of it is missing): the "
+                                         "video is truncated or damaged")
                     if i < target or not s.chosen(i):
                         continue
                     position = (i - s.start) // s.every
@@ -289,11 +310,12 @@ class VideoFrames:
         count (Matroska) the last frame's time is held against the duration: a stream that stops more than two
         mean frame intervals and 2% of the duration before it is refused (a count estimated from the duration is
         wrong for a variable frame rate, 8 frames over 5 s at a nominal 30 per second); without times, a
-        shortfall against that estimate of more than 2 frames and 2%."""
+        shortfall against that estimate of more than 2 frames and 2%. A transport stream is not checked so: its
+        duration is estimated from its own last packets, and its time stamps restart where two were joined."""
         if self.declared is not None and decoded + hidden < self.declared:
             raise InputError(f"{self.path}: ends after {decoded} of the {self.declared} frames its container declares: "
                              "the video is truncated or damaged")
-        if self.estimated is None or self.duration is None or self.rate is None:
+        if self.estimated is None or self.duration is None or self.rate is None or not self.timed:
             return
         if last_time is not None:
             if last_time < self.duration - max(2.0 / self.rate, 0.02 * self.duration):
@@ -390,11 +412,22 @@ def _as_shown(image: np.ndarray, turn: _Turn) -> np.ndarray:
     return np.ascontiguousarray(shown[::-1 if rows else 1, ::-1 if columns else 1])
 
 
+def convert_hint(path: Path) -> str:
+    """How to convert the video at ``path`` to one pcreg reads: FFmpeg's command, its first video stream to H.264
+    in MP4 (at a quality where labels drawn on it stay where they were)."""
+    out = path.with_name(path.stem + ("-converted" if path.suffix.lower() == ".mp4" else "") + ".mp4")
+    return f"convert it with: ffmpeg -i {shlex.quote(str(path))} -map 0:v:0 -c:v libx264 -crf 18 {shlex.quote(str(out))}"
+
+
 def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderFrames | VideoFrames:
-    """The frame source at ``path``: a video file (:data:`VIDEO_SUFFIXES`) or a folder of images."""
+    """The frame source at ``path``: a video file (:data:`VIDEO_SUFFIXES`) or a folder of images; a video in
+    another container (:data:`OTHER_VIDEO_SUFFIXES`) is refused with the command that converts it."""
     p = Path(path)
     if p.suffix.lower() in VIDEO_SUFFIXES and not p.is_dir():
         return VideoFrames(p, selection)
+    if p.suffix.lower() in OTHER_VIDEO_SUFFIXES and p.is_file():
+        raise InputError(f"{p}: pcreg does not read {p.suffix} videos (it reads {', '.join(VIDEO_SUFFIXES)}); "
+                         f"{convert_hint(p)}")
     if p.exists() and not p.is_dir():
         raise InputError(f"{p}: not a folder or a video file ({', '.join(VIDEO_SUFFIXES)})")
     return FolderFrames(p, selection)

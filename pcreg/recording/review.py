@@ -4,8 +4,8 @@
 
 - ``/``: the page (``viz/review.html`` with its CSS and JavaScript under ``/viz/``; no build step);
 - ``/review.json``: the frames (name, key frame or not, predicted error), the suggested frames, whether
-  there is a confidence, the class table (each known class's name and colour, for the legend) and the
-  frames' size;
+  there is a confidence, the class table (each known class's name, colour and whether the run's frames show it,
+  for the legend) and the frames' size;
 - ``/overlay/T.jpg``: frame ``T`` (its position in the run) with its labels drawn over it
   (:func:`pcreg.review.overlay`), rendered when asked for and kept for the next time (a few hundred);
 - ``/frame/T.jpg``: frame ``T`` as it is.
@@ -71,6 +71,7 @@ class ReviewServer:
         self._static = viz_dir()
         self._rendered: OrderedDict[tuple[str, int], bytes] = OrderedDict()
         self._lock = threading.Lock()
+        self._shown: frozenset[int] | None = None
         try:
             self._httpd, self._thread, self.port, self.url = listen(bind, web_port, self._handler(), name="pcreg-review")
         except InputError:
@@ -80,16 +81,21 @@ class ReviewServer:
     # -- what the page asks for -------------------------------------------------------------------
 
     def review_json(self) -> bytes:
-        from ..review import LOW_CONFIDENCE
+        from ..review import LOW_CONFIDENCE, shown_classes
 
         r = self.review
+        with self._lock:
+            if self._shown is None:  # the label files read once, when the page first asks
+                self._shown = frozenset(shown_classes(r))
+            shown = self._shown
         frames = [{"name": n, "key": t in r.keys, "error": r.errors[t], "no_confidence": self._no_confidence(t)}
                   for t, n in enumerate(r.names)]
         suggested = [{"frame": t, "name": r.names[t], "error": e} for t, e in r.suggested]
         return json.dumps({
             "folder": str(r.folder), "source": str(r.source), "kind": r.kind, "frames": frames,
             "suggested": suggested, "confidence": r.confidence, "low_confidence": LOW_CONFIDENCE,
-            "classes": [{"id": c.id, "name": c.name, "colour": list(c.colour)} for c in r.table.known],
+            "classes": [{"id": c.id, "name": c.name, "colour": list(c.colour), "shown": c.id in shown}
+                        for c in r.table.known],
             "unknown": {"id": r.table.unknown, "name": r.table.unknown_class.name},
         }, allow_nan=False).encode()
 

@@ -61,6 +61,7 @@ def _check_fits(request, frames, keys: dict, table) -> None:
     hold fewer than two of the table's known classes, before anything is written: one key frame's alone for a
     run from one label image; from a folder of key frames each stretch's (:class:`~pcreg.pipeline.keys_run.
     KeyRun`): the two key frames around it, and the first and the last alone for the frames before and after."""
+    from ..classes.table import listed_name
     from ..errors import InputError
 
     from ..pipeline.engine import stretches
@@ -76,7 +77,7 @@ def _check_fits(request, frames, keys: dict, table) -> None:
             present.update(int(c) for c in np.flatnonzero(np.bincount(np.asarray(keys[t]).ravel(), minlength=256)))
         present.discard(table.unknown)
         if len(present) < 2:
-            only = ", ".join(table.name_of(c) for c in sorted(present)) or "none"
+            only = ", ".join(listed_name(table.name_of(c)) for c in sorted(present)) or "none"
             which = " and ".join(frames.name(t) for t in group)
             where = f"{request.labels}: the labels of {which}" if request.folder_of_keys else f"{request.labels}: the labels"
             raise InputError(f"{where} hold one class only ({only}); the classifier of the frames "

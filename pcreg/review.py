@@ -214,20 +214,30 @@ def class_figures(review: RunReview, t: int) -> list[dict]:
 
 def shown_classes(review: RunReview) -> list[int]:
     """The ids of the known classes the run's frames show (a pixel or more in a frame's labels), in the table's
-    order: what the review's legend lists, where a table of 150 classes labels a few in a run. The label files
-    are read until every known class has been seen; one that cannot be read is passed over (its frame says why
-    when it is shown)."""
+    order: what the review's legend lists, where a table of 150 classes labels a few in a run.
+
+    A step's predicted IoU names exactly the classes its labels hold, so only the label files of the frames
+    without one are read (the key frames; every frame of a two-class run or of a run from before the predicted
+    IoU, until every known class has been seen): a run of thousands of frames is not read whole before its page
+    shows. A label file that cannot be read is passed over (its frame says why when it is shown)."""
     from .export import read_labels
 
     known = [c.id for c in review.table.known]
     seen = np.zeros(256, bool)
+    unread = []
     for t in range(len(review.names)):
+        iou = review.ious[t] if t < len(review.ious) else None
+        if iou is None or t in review.keys:
+            unread.append(t)
+        else:
+            seen[[k for k in iou if 0 <= k < 256]] = True
+    for t in unread:
+        if seen[known].all():
+            break
         try:
             seen |= np.bincount(read_labels(review.labels_path(t), review.table).ravel(), minlength=256) > 0
         except InputError:
             continue
-        if seen[known].all():
-            break
     return [k for k in known if seen[k]]
 
 

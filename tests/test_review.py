@@ -560,6 +560,36 @@ def test_the_legend_lists_the_classes_the_runs_frames_show_in_the_tables_order(s
         assert legend[3:5] == ["void", "147 other classes of the table in no frame"], legend
 
 
+def test_the_legend_reads_the_classes_of_a_step_from_its_predicted_iou_not_its_label_file(synthetic, tmp_path):
+    """A run of thousands of frames in many classes is not read whole before its review page shows: a step's
+    predicted IoU names the classes its labels hold, and only the key frames' label files are read. Here the
+    later frames' label files are overwritten after the run with a class the run never wrote: the legend
+    still lists what the steps say (it listed the overwritten class when it read every file)."""
+    import json as _json
+
+    from pcreg.review import read_review, shown_classes
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, f in enumerate(synthetic[:3]):
+        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    classes = [{"id": i, "name": f"class {i}", "colour": [i, 255 - i, (37 * i) % 256]} for i in range(20)]
+    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [*classes, {"id": 20, "name": "void",
+                                                                               "colour": [0, 0, 1]}], "unknown": 20}))
+    key = np.full((120, 160), 12, np.uint8)
+    key[:, 80:] = 7
+    cv2.imwrite(str(tmp_path / "key.png"), key)
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
+                     "--classes", str(tmp_path / "classes.json")]) == 0
+    review = read_review(out)
+    assert review.ious[1] is not None and set(review.ious[1]) <= {7, 12}
+    for t in (1, 2):
+        cv2.imwrite(str(review.labels_path(t)), np.full((120, 160), 5, np.uint8))
+    assert shown_classes(review) == [7, 12]
+
+
 def test_a_frame_without_its_confidence_map_says_so_on_the_page(run_copy):
     """A run with --confidence whose confidence/NAME.png for one frame is gone: the frame was drawn without
     the hatching and nothing said why."""

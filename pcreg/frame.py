@@ -81,6 +81,10 @@ class PreparedFrame:
         return f"PreparedFrame({w}x{h})"
 
 
+#: The smallest image side, in pixels, there is anything to register on.
+MIN_SIDE = 8
+
+
 def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None) -> np.ndarray:
     """Validate and convert an image array to (H, W, 3) uint8 RGB (no copy when it already is a
     C-contiguous one; the input is never changed); a :class:`PreparedFrame` gives its checked, read-only
@@ -105,7 +109,7 @@ def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None) -> np.
     img = img[:, :, :3]
     if img.shape[0] == 0 or img.shape[1] == 0:
         raise InputError(f"{name}: empty image (shape {image.shape})")
-    if img.shape[0] < 8 or img.shape[1] < 8:
+    if img.shape[0] < MIN_SIDE or img.shape[1] < MIN_SIDE:
         raise InputError(f"{name}: image too small to register ({img.shape[1]}x{img.shape[0]} px)")
     check_pixels(img.shape, name, limit=limit)
     if img.dtype == np.uint8:

@@ -242,6 +242,9 @@ def format_table(out: dict) -> str:
                      f"{f(r['inlier_rmse']):>9s} {f(r['rotation_disagreement_deg']):>9s} "
                      f"{f(r['translation_disagreement']):>9s} {f(r['matrix_relative_disagreement']):>9s} "
                      f"{f(r['agrees']):>6s} {r['seconds']:6.2f}")
+        if r.get("unconstrained"):
+            lines.append(f"{'':24s} unconstrained, not trusted: {r['unconstrained']} (this pose is one of many "
+                         "that fit as well)")
         if r.get("divergence"):
             lines.append(f"{'':24s} first divergence at iteration {r['divergence']['iteration']}: "
                          f"{r['divergence']['cause']}")
@@ -250,6 +253,8 @@ def format_table(out: dict) -> str:
                  f"{s['source_points']} source / {s['target_points']} target points; rotation/translation/rel "
                  "are disagreements with the reference (fixed-point and objective rows: with the reference run "
                  "to convergence)")
+    if s.get("unconstrained"):
+        lines.append(f"unconstrained: {s['unconstrained']}; no row's pose can be trusted")
     return "\n".join(lines)
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from ..cloud_reader import CLOUD_SUFFIXES, load_cloud
 from ..errors import InputError, RegistrationError
 from ..formats import IMAGE_SUFFIXES
+from ..frame import MIN_SIDE
 from ..registration.clouds import as_rgb_uint8, load_image
 from ..registration.api import check_cloud, register
 from ..registration.config import RegisterConfig
@@ -119,7 +120,7 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
     OpenCV, clouds by :func:`pcreg.cloud_reader.load_cloud` (.ply/binary .pcd/.xyz through Open3D, .npy through
     numpy, ASCII .pcd, .pts and .txt/.csv by pcreg).
     """
-    def kind_of(x):
+    def kind_of(x, name):
         if isinstance(x, (str, os.PathLike)):
             suffix = Path(x).suffix.lower()
             if suffix in CLOUD_SUFFIXES:
@@ -130,6 +131,9 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
         arr = np.asarray(x)
         if arr.ndim == 2 and arr.shape[1] in (2, 3):  # an image two or three pixels wide is no image to register
             return "clouds", arr
+        if arr.ndim == 2 and 0 < arr.shape[1] < MIN_SIDE:  # (N, 4) x, y, z, intensity: no image either (too narrow)
+            raise InputError(f"{name}: expected an (N, 2) or (N, 3) array of points (or an image at least {MIN_SIDE} "
+                             f"px wide), got shape {arr.shape}")
         return "images", arr
 
     from ..validation import short_repr
@@ -143,8 +147,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
             implementations = (implementations,)
         if not isinstance(implementations, (tuple, list)) or not all(isinstance(n, str) for n in implementations):
             raise InputError(f"implementations must be a sequence of names, got {short_repr(implementations)}")
-    ka, A = kind_of(reference)
-    kb, B = kind_of(moving)
+    ka, A = kind_of(reference, "reference")
+    kb, B = kind_of(moving, "moving")
     if ka != kb:
         raise InputError(f"cannot cross-check {ka[:-1]} against {kb[:-1]}: give two images or two clouds")
     if ka == "clouds":
@@ -193,9 +197,9 @@ def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
     the largest displacement of the source's bounding-box corners (px for image edge clouds)."""
     d = A.shape[0] - 1
     RA, RB = rotation_part(A[:d, :d]), rotation_part(B[:d, :d])
-    # The angle of RA^T RB from its chord, ||RA - RB||_F = 2 sqrt(2) sin(angle / 2) (2 sin(angle / 2) in
-    # 2-D): unlike the arccos of the trace it keeps full precision for tiny angles.
-    chord = float(np.linalg.norm(RA - RB)) / (2.0 * np.sqrt(2.0) if d == 3 else 2.0)
+    # The angle of RA^T RB from its chord, ||RA - RB||_F = 2 sqrt(2) sin(angle / 2) in 2-D as in 3-D (in 2-D
+    # both columns move by 2 sin(angle / 2)): unlike the arccos of the trace it keeps full precision for tiny angles.
+    chord = float(np.linalg.norm(RA - RB)) / (2.0 * np.sqrt(2.0))
     out = {"rotation_disagreement_deg": float(np.degrees(2.0 * np.arcsin(min(1.0, chord)))),
            "translation_disagreement": float(np.linalg.norm(A[:d, d] - B[:d, d])),
            "matrix_relative_disagreement": _relative(A, B)}
@@ -350,6 +354,7 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     pinned = impls.Pinned(src, tgt, T0, float(max_correspondence_distance), int(max_iterations),
                           float(relative_fitness), float(relative_rmse))
     diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
+    problem = unconstrained(src, tgt)
     _check_enough_correspondences(src, tgt, T0, float(max_correspondence_distance))  # anything to run on?
     outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
     ref = outcomes.get(REFERENCE)
@@ -358,15 +363,31 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     for name in names:
         o = outcomes.get(name)
         rows[name] = _row(name, o, adapters.get(name), errors, pinned, ref=ref, conv=conv, src=src, diag=diag,
-                          truth=truth)
+                          truth=truth, problem=problem)
         if isinstance(o, RegistrationResult):
             traces[name] = o.trace
     settings = {**pinned.params(), "init": T0.tolist(), "voxel_size": voxel_size, "dimension": d,
-                "source_points": len(src), "target_points": len(tgt), "target_diagonal": diag}
+                "source_points": len(src), "target_points": len(tgt), "target_diagonal": diag,
+                "unconstrained": problem}
     if ref is None:
         settings["reference_error"] = errors.get(REFERENCE)
     return CloudCrosscheck(rows=rows, settings=settings, reference_at_convergence=conv_info, traces=traces,
                            source=src, target=tgt)
+
+
+def unconstrained(source: np.ndarray, target: np.ndarray) -> str | None:
+    """Why the clouds leave the rigid transform undetermined, or None: either cloud too few, coincident
+    points, or (3-D) points on one line, about which any rotation fits as well. In the words of the
+    reference ICP's refusal (:func:`~pcreg.registration.closed_forms.rank_problem`), the cloud named; the
+    cross-check marks every row that returns a pose on such clouds ``"status": "unconstrained"``: its pose
+    is one of many, whatever its ``converged`` says."""
+    from ..registration.closed_forms import rank_problem
+
+    for name, points in (("source", source), ("target", target)):
+        problem = rank_problem(points, "rigid")
+        if problem is not None:
+            return f"{name}: {problem}"
+    return None
 
 
 def _check_pinned_options(options: ICPOptions) -> None:
@@ -495,16 +516,18 @@ def _reference_at_convergence(adapters: dict, outcomes: dict, pinned) -> tuple:
                   "settings": converged_settings(pinned).params()}
 
 
-def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float, truth) -> dict:
+def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float, truth,
+         problem: str | None = None) -> dict:
     """One implementation's row: its outcome, compared with the reference (step for step, or at
-    convergence) and with ``truth``."""
+    convergence) and with ``truth``; on clouds that leave the transform free (``problem``,
+    :func:`unconstrained`) a pose is marked so, never agreeing."""
     comp = a.comparability if a is not None else "step"
     row = {"matrix": None, "iterations": None, "fitness": None, "inlier_rmse": None, "converged": None,
            "seconds": 0.0, "comparability": comp, "rotation_disagreement_deg": None,
            "translation_disagreement": None, "matrix_relative_disagreement": None, "agrees": False,
            "error": errors.get(name), "status": "missing" if o == "missing" else ("failed" if name in errors else "ok"),
            "compared_with": None, "divergence": None, "trace": False,
-           "description": getattr(a, "description", ""), "settings": None}
+           "description": getattr(a, "description", ""), "settings": None, "unconstrained": None}
     if a is not None:
         try:
             row["settings"] = a.settings(pinned)
@@ -517,6 +540,9 @@ def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, d
                 "trace": bool(o.trace)})
     if o.info:
         row["info"] = o.info
+    if problem is not None:  # one pose of many that fit as well: marked, compared with nothing
+        row.update(status="unconstrained", unconstrained=problem, agrees=False,
+                   info={**(o.info or {}), "unconstrained": problem})
     base, base_name = (ref, "reference") if comp == "step" else (conv, "reference at convergence")
     if name == REFERENCE:
         base, base_name = o, "reference"
@@ -525,7 +551,7 @@ def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, d
         row.update(cmp)
         row["compared_with"] = base_name
         step = step_tolerance(src, diag)
-        row["agrees"] = bool(_agrees(comp, cmp, diag, step))
+        row["agrees"] = problem is None and bool(_agrees(comp, cmp, diag, step))
         if ref is not None and name != REFERENCE and o.trace and ref.trace:
             row["divergence"] = trace_divergence(ref.trace, o.trace, tolerance=step)
     elif name != REFERENCE:

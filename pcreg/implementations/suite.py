@@ -404,6 +404,8 @@ def _figure(path: Path, rows: list[dict]) -> None:
         elif status == "failed":
             code[i, j] = 2
             text[i][j] = "fail"
+        elif status == "unconstrained":  # the clouds leave the transform free: a pose, but one of many
+            text[i][j] = "unconstr."
         elif status == "refused":  # nothing to compare: no correspondence at the initial pose
             text[i][j] = "refused"
         else:

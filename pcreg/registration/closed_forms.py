@@ -1,5 +1,5 @@
 """The reference ICP's step: the closed forms of each motion model from weighted pairs, the pairs' robust
-weights, and what the points must hold for a model (:func:`check_rank`, :func:`pairs_needed`).
+weights, and what the points must hold for a model (:func:`check_rank`, :func:`rank_problem`, :func:`pairs_needed`).
 :mod:`pcreg.registration.reference` runs the loop around them."""
 
 from __future__ import annotations
@@ -240,14 +240,16 @@ def robust_weights(dist: np.ndarray, kind: str, *, scale: float | None = None, t
     raise RegistrationError(f"unknown robust weight {kind!r}; choose one of {', '.join(WEIGHTS)}")
 
 
-def check_rank(points: np.ndarray, model: str) -> None:
-    """Raise when the points cannot determine the model (too few, coincident or collinear)."""
+def rank_problem(points: np.ndarray, model: str) -> str | None:
+    """Why ``points`` (N, d) cannot determine the ``model``, or None: too few, or coincident, collinear (3-D:
+    the rotation about their line is free) or coplanar where the model needs more. The reason
+    :func:`check_rank` raises, and the cross-check marks its rows with."""
     n, d = points.shape
     need = MIN_POINTS[model] if d == 2 else {"translation": 1, "rigid": 3, "similarity": 3, "affine": 4}.get(model, 4)
     if n < need:
-        raise RegistrationError(f"{n} point(s) are too few for the {model} model (needs at least {need})")
+        return f"{n} point(s) are too few for the {model} model (needs at least {need})"
     if model == "translation":
-        return
+        return None
     c = points - points.mean(axis=0)
     sv = np.linalg.svd(c, compute_uv=False)
     extent = sv[0] if sv.size else 0.0
@@ -255,7 +257,15 @@ def check_rank(points: np.ndarray, model: str) -> None:
     needed_rank = {"rigid": d - 1, "similarity": d - 1, "affine": d, "projective": 2}[model]
     if rank < needed_rank:
         what = "coincident" if rank == 0 else ("collinear" if rank == 1 else "coplanar")
-        raise RegistrationError(f"the points are {what}: they cannot determine a {model} transform")
+        return f"the points are {what}: they cannot determine a {model} transform"
+    return None
+
+
+def check_rank(points: np.ndarray, model: str) -> None:
+    """Raise :class:`RegistrationError` when the points cannot determine the model (:func:`rank_problem`)."""
+    problem = rank_problem(points, model)
+    if problem is not None:
+        raise RegistrationError(problem)
 
 
 #: The models whose steps can shrink the source (their linear part is not a rotation).

@@ -14,7 +14,8 @@ follower tests; after one every frame is still tested against the last frame bef
 of the other shot is found (a test against the key frame itself is not one: on a shared clip at one
 frame a second the frames of a turn a few seconds on differ from the key frame as much as a cut does,
 and are labelled 97% right). A frame found so is marked (:func:`~pcreg.pipeline.trust.least_confident`): its report's trust
-summary says ``cut`` (and gives ``residual`` and ``colour_change``), every label's confidence is the
+summary says ``cut`` (the evidence's numbers are not kept: a resumed run writes its steps as the
+uninterrupted one did), every label's confidence is the
 least the stream gives (1/2 with two classes; with K classes the larger of 1/K and
 :data:`~pcreg.pipeline.multiclass.CLASS_MIN_CONFIDENCE`). Its labels are left as they are: the trust
 rule has already faded the carried priors there, and what remains is naive Bayes' best guess, marked as

@@ -166,8 +166,8 @@ class StepReport:
     trust : the step's trust map (:class:`~pcreg.pipeline.trust.TrustMaps`: each carried prior, its
         evidence and its weight per pixel; an object follower's: its carried terms,
         :class:`~pcreg.pipeline.follow.FollowTerms`), None without a trust rule; ``to_dict`` gives its summary
-        (``trust``: each prior's mean weight as a share of the most the rule gives it; with the cut test,
-        :mod:`pcreg.pipeline.cuts`, its ``residual``, ``colour_change`` and ``cut``).
+        (``trust``: each prior's mean weight as a share of the most the rule gives it; ``cut``, the cut test's
+        finding, :mod:`pcreg.pipeline.cuts`; ``degenerate``, the classifier's classes fitted as spikes).
     log_odds : (H, W) float32 naive Bayes' own log-odds of the frame (the classifier as learned so
         far); ``log_odds > 0`` are its labels alone, and ``log_odds`` plus the trust map's
         :meth:`~pcreg.pipeline.trust.TrustMaps.prior_term` the fused log-odds. With more than two classes
@@ -438,7 +438,8 @@ class Propagator:
         self.last = StepReport(frame=self._frame, registration=result, reason=est.reason, fallback=motion is None,
                                reference=ref_frame, times=times, start=est.start, log_odds=c.d,
                                **({} if trusted is None else trusted.report(self.trust, self._prior_weight,
-                                                                           {**(c.cut or {}), "degenerate": c.degenerate})))
+                                                                           {**({} if c.cut is None else {"cut": c.cut["cut"]}),
+                                                                            "degenerate": c.degenerate})))
         return labels
 
     def _classify(self, frame: PreparedFrame) -> "_Classified":

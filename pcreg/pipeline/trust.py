@@ -378,8 +378,8 @@ class Trusted:
 
     def report(self, rule: TrustRule, weight: float, cut: dict | None = None) -> dict:
         """What a step's report (:class:`~pcreg.pipeline.stream.StepReport`) gives of it: the confidence,
-        the predicted error, the trust map and its summary (with the cut test's evidence, ``cut``, when it
-        ran: :mod:`pcreg.pipeline.cuts`); with K classes each class's predicted IoU."""
+        the predicted error, the trust map and its summary (with what the step adds to it, ``cut``: the cut
+        test's finding, :mod:`pcreg.pipeline.cuts`); with K classes each class's predicted IoU."""
         summary: dict = {**self.maps.summary(rule, weight), **(cut or {})}
         if self.second is not None:
             from .multiclass import predicted_iou

@@ -76,3 +76,17 @@ def test_a_clip_turning_a_corner_is_not_a_cut(shared_data):
         prop.step(f.image)
         assert not prop.last.trust_summary["cut"], prop.last.trust_summary
         assert prop.last.trust_summary["degenerate"] == []
+
+
+def test_the_cut_test_measures_no_flow_where_the_colours_rule_a_cut_out(shared_data):
+    """A cut is a flow that explains the frame little better than chance and colours that changed: on the
+    frames of one clip the colours alone rule it out, and the flow (DIS medium, about 25 ms a 640x480 step)
+    is not measured; across a cut it is."""
+    from pcreg.pipeline.cuts import SceneCheck
+
+    a, b = _clip(shared_data, "0001TP", 2), _clip(shared_data, "0016E5", 1)
+    check = SceneCheck(a[0].image)
+    same = check.test(a[1].image)
+    assert same["residual"] is None and not same["cut"] and same["colour_change"] < 0.45
+    other = check.test(b[0].image)
+    assert other["residual"] is not None and other["cut"]

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .follow import FLOW_PRESET, cut_evidence, frame_colours
+from .follow import CUT_COLOUR_CHANGE, FLOW_PRESET, colour_change, cut_evidence, frame_colours
 
 __all__ = ["SceneCheck"]
 
@@ -58,7 +58,10 @@ class SceneCheck:
     def test(self, rgb: np.ndarray) -> dict:
         """The cut evidence of the next frame ((h, w, 3) uint8 at the working size) against the last frame of
         the key frame's scene (:func:`~pcreg.pipeline.follow.cut_evidence`'s ``residual``, ``colour_change``
-        and ``cut``); a frame that is no cut becomes that frame."""
+        and ``cut``); a frame that is no cut becomes that frame. The flow is measured only where the colours
+        changed beyond :data:`~pcreg.pipeline.follow.CUT_COLOUR_CHANGE` (``residual`` None elsewhere): a cut
+        is both, and on every pair of frames of the shared CamVid clips the colours alone rule one out (DIS
+        medium at half of 640x480 takes about 25 ms, the colours about 1)."""
         from ..registration.flow import DIS_MIN_SIDE, dis_flow, flow_field
 
         grey, colours = _small(rgb)
@@ -66,6 +69,10 @@ class SceneCheck:
             self._scene = (grey, colours)
             return {"residual": None, "colour_change": None, "cut": False}
         last_grey, last_colours = self._scene
+        change = colour_change(colours, last_colours)
+        if change <= CUT_COLOUR_CHANGE:
+            self._scene = (grey, colours)
+            return {"residual": None, "colour_change": change, "cut": False}
         field = flow_field(dis_flow(grey, last_grey, FLOW_PRESET))
         evidence = cut_evidence(grey, colours, last_grey, last_colours, field)
         if not evidence["cut"]:

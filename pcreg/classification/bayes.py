@@ -47,6 +47,7 @@ __all__ = [
     "NaiveBayesPixelClassifier",
     "DENSITIES",
     "HISTOGRAM_BANDWIDTH",
+    "DEGENERATE_VARIANCE",
     "WeightSearch",
     "thesis_weight_search",
     "class_histograms",
@@ -183,6 +184,12 @@ HISTOGRAM_BANDWIDTH = 2.0
 #: The share of a uniform density mixed into each smoothed histogram, so that a level no training pixel
 #: had is unlikely, never impossible (log 0).
 HISTOGRAM_UNIFORM = 0.01
+#: A class whose training pixels vary less than this (8-bit levels squared; 1/12, the variance of the 8-bit
+#: rounding itself) in every feature is one point of the features' space, fitted as a spike narrower than a
+#: level: its log-likelihoods elsewhere are set by ``var_smoothing`` alone (a key frame of one class and a
+#: single pixel of another read every later pixel with log-odds of -1e5 to -1e9, and a confidence of 1). One
+#: feature alone is not enough to say so: an overexposed sky of 13,635 px has a hue variance of 0.014.
+DEGENERATE_VARIANCE = 1.0 / 12.0
 
 
 def _histogram_tables(counts: np.ndarray) -> np.ndarray:
@@ -313,6 +320,13 @@ class NaiveBayesPixelClassifier:
         self._diff32 = (tables[1] - tables[0]).astype(np.float32) if len(classes) == 2 else None
         self._tables32 = tables.astype(np.float32)
         return self
+
+    def degenerate_classes(self) -> list[int]:
+        """The ids of the fitted classes whose training pixels vary less than :data:`DEGENERATE_VARIANCE` in
+        every feature (a class of one pixel, always): the model cannot tell how such a class spreads."""
+        self._check_fitted()
+        raw = np.asarray(self.var_) - self.epsilon_
+        return [int(c) for c in self.classes_[(raw < DEGENERATE_VARIANCE).all(axis=1)]]
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "classes_"):

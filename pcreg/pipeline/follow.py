@@ -33,7 +33,7 @@ is a logistic of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENC
 labels hold no object (it left the frame), the colour term's alone, since the carried 'nowhere' saw nothing
 (a lost object is not searched for again; the five DAVIS sequences never lose theirs).
 
-**A scene cut loses the object** (:func:`_cut_evidence`): where the previous frame, carried by the flow
+**A scene cut loses the object** (:func:`cut_evidence`): where the previous frame, carried by the flow
 just found, leaves a mean grey residual above :data:`CUT_RESIDUAL` (0.3) of chance's (two unrelated
 pixels') and the two frames' colour histograms share less than 1 - :data:`CUT_COLOUR_CHANGE` (0.55), the
 carried labels say nothing of the new frame: they are dropped, the frame is read as lost. Real frames
@@ -73,7 +73,7 @@ if TYPE_CHECKING:
 
 __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
            "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "NEAR", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET",
-           "CUT_RESIDUAL", "CUT_COLOUR_CHANGE"]
+           "CUT_RESIDUAL", "CUT_COLOUR_CHANGE", "colour_change", "cut_evidence", "frame_colours"]
 
 #: The working size, a share of the frames' sides (427x240 for 854x480): DIS at full size carried the
 #: true mask one step only 0.008-0.023 IoU better, in four times the time.
@@ -113,7 +113,7 @@ _BIN_BITS = BINS.bit_length() - 1  # a channel's bin is its top _BIN_BITS bits (
 #: docs/results.md).
 CONFIDENCE_SLOPE = 1.663
 CONFIDENCE_OFFSET = -0.194
-# A scene cut (:func:`_cut_evidence`) is both of the two below. Measured at the working size on every pair of
+# A scene cut (:func:`cut_evidence`) is both of the two below. Measured at the working size on every pair of
 # consecutive frames of the five shared DAVIS sequences and the eight shared CamVid clips (566 pairs) and on
 # 148 cuts built from them (the last frame of one clip, the first of another of a different place;
 # docs/results.md, "Scene cuts"):
@@ -165,18 +165,33 @@ def _chance_residual(a: np.ndarray, b: np.ndarray) -> float:
     return float(ha @ np.abs(v[:, None] - v[None, :]) @ hb)
 
 
-def _cut_evidence(grey: np.ndarray, colours: np.ndarray, carry: "FollowCarry", field: np.ndarray) -> dict:
-    """Whether the new frame (``grey``, its colour histogram ``colours``) is a scene cut from the previous
-    one (``carry``), whose motion to it the flow ``field`` was found to be: ``residual``, the new frame's mean
-    grey residual against the previous frame carried by the flow, as a share of chance
-    (:func:`_chance_residual`); ``colour_change``, one minus the intersection of the two colour histograms
-    (None without the previous one); ``cut``, both above their limits (:data:`CUT_RESIDUAL`,
+def frame_colours(rgb: np.ndarray) -> np.ndarray:
+    """(:data:`BINS` ^ 3,) float32 summing to 1: an (h, w, 3) uint8 RGB frame's colour histogram, the colour
+    term's YCrCb bins, as the cut test (:func:`cut_evidence`) compares two frames'."""
+    return _histogram(_colour_index(rgb))
+
+
+def colour_change(colours: np.ndarray, reference_colours: np.ndarray) -> float:
+    """One minus the intersection of two frames' colour histograms (:func:`frame_colours`): the cut test's
+    colour term (:func:`cut_evidence`)."""
+    return 1.0 - float(np.minimum(colours, reference_colours).sum())
+
+
+def cut_evidence(grey: np.ndarray, colours: np.ndarray, reference_grey: np.ndarray,
+                 reference_colours: np.ndarray | None, field: np.ndarray) -> dict:
+    """Whether the new frame (``grey`` (h, w) uint8, its colour histogram ``colours``, :func:`frame_colours`)
+    shows another scene than the reference frame (``reference_grey``, ``reference_colours``), whose motion to
+    it the flow ``field`` ((h, w, 2) float32, reference coordinates of every new pixel) was found to be:
+    ``residual``, the new frame's mean grey residual against the reference carried by the flow, as a share of
+    chance (:func:`_chance_residual`); ``colour_change``, one minus the intersection of the two colour
+    histograms (None without the reference's); ``cut``, both above their limits (:data:`CUT_RESIDUAL`,
     :data:`CUT_COLOUR_CHANGE`): the flow explains the new frame little better than chance, and its colours
     changed. A cut that keeps the colours (two views of one place) or a frame the flow cannot follow (a
-    wide, fast motion) is not one."""
-    warped = _warp(carry.grey.astype(np.float32), field)
-    residual = float(np.abs(grey.astype(np.float32) - warped).mean()) / max(_chance_residual(grey, carry.grey), 1e-6)
-    change = None if carry.colours is None else 1.0 - float(np.minimum(colours, carry.colours).sum())
+    wide, fast motion) is not one. The follower tests each frame against the previous one; a scene stream
+    (:class:`pcreg.Propagator`) against its key frame."""
+    warped = _warp(reference_grey.astype(np.float32), field)
+    residual = float(np.abs(grey.astype(np.float32) - warped).mean()) / max(_chance_residual(grey, reference_grey), 1e-6)
+    change = None if reference_colours is None else colour_change(colours, reference_colours)
     cut = change is not None and residual > CUT_RESIDUAL and change > CUT_COLOUR_CHANGE
     return {"residual": residual, "colour_change": change, "cut": cut}
 
@@ -368,7 +383,7 @@ class ObjectFollower:
         t1 = time.perf_counter()
         index = _colour_index(rgb)
         histogram = _histogram(index)
-        cut = _cut_evidence(grey, histogram, carry, previous_field)
+        cut = cut_evidence(grey, histogram, carry.grey, carry.colours, previous_field)
         if cut["cut"]:  # the carried labels say nothing of this frame: the object is lost
             carry = FollowCarry(np.zeros_like(carry.labels), carry.grey, carry.colours)
         carried = _warp(carry.labels.astype(np.float32), previous_field)

@@ -24,7 +24,14 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Learning", "STREAM_LEARNING", "Learner"]
+__all__ = ["Learning", "STREAM_LEARNING", "Learner", "learns"]
+
+
+def learns(classifier) -> bool:
+    """Whether a stream can teach ``classifier``: a fitted pcreg naive Bayes (it keeps its histograms)."""
+    from ..classification.bayes import NaiveBayesPixelClassifier
+
+    return isinstance(classifier, NaiveBayesPixelClassifier) and hasattr(classifier, "counts_")
 
 
 @dataclass(frozen=True)

@@ -92,11 +92,12 @@ import numpy as np
 from .._threads import alongside
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
+from .cuts import SceneCheck
 from .estimators import STREAM_DENSE, Carry, ChainCarry, chain_after, DenseStep, FlowEstimator, StreamMotion, motion_model, stream_motion
-from .learning import STREAM_LEARNING, Learner, Learning
+from .learning import STREAM_LEARNING, Learner, Learning, learns
 from .multiclass import CLASS_ANCHOR, CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, ClassRead, fused_class_labels, class_prior_maps, class_priors, prior_log_probs
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
-from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule
+from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustMaps, TrustRule, least_confident
 from .working import WorkingSize
 from ..classes.keys import check_labels
 from ..errors import InputError
@@ -136,8 +137,6 @@ STREAM_WEIGHT = 2.0
 STREAM_REGISTRATION = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None)
 
 
-
-
 class PriorTerms(Protocol):
     """A step's carried priors as a report gives them (:class:`~pcreg.pipeline.trust.TrustMaps`, or an
     object follower's :class:`~pcreg.pipeline.follow.FollowTerms`): their part of the fused log-odds."""
@@ -167,7 +166,8 @@ class StepReport:
     trust : the step's trust map (:class:`~pcreg.pipeline.trust.TrustMaps`: each carried prior, its
         evidence and its weight per pixel; an object follower's: its carried terms,
         :class:`~pcreg.pipeline.follow.FollowTerms`), None without a trust rule; ``to_dict`` gives its summary
-        (``trust``: each prior's mean weight as a share of the most the rule gives it).
+        (``trust``: each prior's mean weight as a share of the most the rule gives it; ``cut``, the cut test's
+        finding, :mod:`pcreg.pipeline.cuts`; ``degenerate``, the classifier's classes fitted as spikes).
     log_odds : (H, W) float32 naive Bayes' own log-odds of the frame (the classifier as learned so
         far); ``log_odds > 0`` are its labels alone, and ``log_odds`` plus the trust map's
         :meth:`~pcreg.pipeline.trust.TrustMaps.prior_term` the fused log-odds. With more than two classes
@@ -299,7 +299,7 @@ class Propagator:
             trust = CLASS_TRUST
         self.fusion = fusion
         self.trust = trust
-        self.learning = learning if trust is not None and _learns(classifier) else None
+        self.learning = learning if trust is not None and learns(classifier) else None
         self._learner: Learner | None = None
         self._flow = FlowEstimator("ultrafast" if trust is None else trust.preset)
         self._pi = class_prior(classifier) if self._classes is None else class_priors(classifier)
@@ -310,6 +310,7 @@ class Propagator:
         self._key_prior: np.ndarray | None = None
         self._key_trusted: TrustedKey | None = None  # its prior and colours as the trust rule reads them
         self._key_flow: tuple | None = None  # its grey levels and grid for the second motion's DIS
+        self._key_scene: SceneCheck | None = None  # the cut test (:mod:`pcreg.pipeline.cuts`)
         self._key_prepared: DenseReference | tuple | None = None  # its pyramid (dense) or grey levels (flow)
         self._chain: tuple[PreparedFrame, Motion | None, int] | None = None  # (frame, motion to the key frame, frame)
         self._carry: Carry | None = None
@@ -347,7 +348,7 @@ class Propagator:
             self._check_working_size(size)
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
-        self._key_trusted = self._key_flow = None
+        self._key_trusted = self._key_flow = self._key_scene = None
         small = size.labels(lab)
         if self._classes is not None:  # K classes: the prior's evidence per class, what every motion carries
             fusion = replace(self.fusion, sigma=CLASS_PRIOR_SIGMA) if self.fusion == FusionConfig() else self.fusion
@@ -360,6 +361,7 @@ class Propagator:
                                            classes=self.class_read, labels=small)
             if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # DIS takes no smaller frames
                 self._key_flow = self._flow.prepare(key)
+                self._key_scene = SceneCheck(key.rgb)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         # every frame registers to the key frame: what the motion needs of it, prepared once
         self._key_prepared = self._estimator.prepare(key) if self.anchor == "key" else None
@@ -405,7 +407,7 @@ class Propagator:
         c = classified[-1]
         times.update(c.times)
         if len(classified) > 1:
-            c.frame_blurred, c.flow, times["classify.flow"] = classified[0]
+            c.frame_blurred, c.flow, c.cut, times["classify.flow"] = classified[0]
             times["classify"] += times["classify.flow"]
         result, motion = est.result, est.motion
         if motion is not None and self.anchor == "previous" and self._chain[1] is not None:
@@ -422,6 +424,8 @@ class Propagator:
             moved = motion if motion is not None else Motion(matrix=np.eye(3))
             trusted = self._key_trusted.fuse(c.d, c.frame_blurred, moved.as_field(frame.shape), moved.confidence,
                                              c.flow, times)
+            if c.degenerate or (c.cut is not None and c.cut["cut"]):  # a spike of a class, another scene: marked
+                trusted = least_confident(trusted, 2 if self._classes is None else len(self._classes))
             labels = trusted.labels
             if self._learner is not None:
                 t0 = time.perf_counter()
@@ -433,7 +437,9 @@ class Propagator:
         times["total"] = time.perf_counter() - t_start
         self.last = StepReport(frame=self._frame, registration=result, reason=est.reason, fallback=motion is None,
                                reference=ref_frame, times=times, start=est.start, log_odds=c.d,
-                               **({} if trusted is None else trusted.report(self.trust, self._prior_weight)))
+                               **({} if trusted is None else trusted.report(self.trust, self._prior_weight,
+                                                                           {**({} if c.cut is None else {"cut": c.cut["cut"]}),
+                                                                            "degenerate": c.degenerate})))
         return labels
 
     def _classify(self, frame: PreparedFrame) -> "_Classified":
@@ -448,19 +454,23 @@ class Propagator:
         d = np.asarray(clf.decision_function(image) if self._classes is None else clf.class_scores(image),
                        dtype=np.float32)
         t2 = time.perf_counter()
-        return _Classified(d, times={"classify": t2 - t0, "classify.learn": t1 - t0, "classify.bayes": t2 - t1})
+        degenerate = clf.degenerate_classes() if isinstance(clf, NaiveBayesPixelClassifier) else []
+        return _Classified(d, times={"classify": t2 - t0, "classify.learn": t1 - t0, "classify.bayes": t2 - t1},
+                           degenerate=degenerate)
 
-    def _second_motion(self, frame: PreparedFrame) -> tuple[np.ndarray, tuple | None, float]:
-        """``(frame_blurred, flow, seconds)``: the frame as residuals compare it (:func:`~pcreg.pipeline.trust.
-        blurred`) and the key frame's prior and residual carried along the DIS flow to it (None without)."""
+    def _second_motion(self, frame: PreparedFrame) -> tuple[np.ndarray, tuple | None, dict | None, float]:
+        """``(frame_blurred, flow, cut, seconds)``: the frame as residuals compare it (:func:`~pcreg.pipeline.trust.
+        blurred`), the key frame's prior and residual carried along the DIS flow to it and the cut test
+        (:class:`~pcreg.pipeline.cuts.SceneCheck`; both None without the flow)."""
         from .trust import blurred
 
         t0 = time.perf_counter()
-        frame_blurred, flow = blurred(frame.rgb), None
+        frame_blurred, flow, cut = blurred(frame.rgb), None, None
         if self._key_flow is not None and self._key_trusted is not None and self._key_trusted.rule.flow > 0:
             field = self._flow.estimate(self._key, frame, prepared=self._key_flow).result.field
             flow = self._key_trusted.carried(frame_blurred, field)
-        return frame_blurred, flow, time.perf_counter() - t0
+            cut = None if self._key_scene is None else self._key_scene.test(frame.rgb)
+        return frame_blurred, flow, cut, time.perf_counter() - t0
 
     def _fuse(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:
         """The labels without a trust rule: the key frame's prior along ``motion`` at :attr:`weight`, by
@@ -546,6 +556,8 @@ class Propagator:
                                  f"these frames has {want[0]}x{want[1]}: it comes from another stream")
         self._frame = frame
         self._carry = carry if self.warm_starts else None
+        if self._key_scene is not None:  # the last frame of the key frame's scene is not saved
+            self._key_scene.restart()
         if self._learner is not None:
             self._learner.restore(learned)
 
@@ -582,10 +594,7 @@ class _Classified:
     d: np.ndarray
     frame_blurred: np.ndarray | None = None
     flow: tuple[np.ndarray, np.ndarray] | None = None  # the key frame's prior and residual along the DIS flow
+    cut: dict | None = None  # the cut test (:class:`~pcreg.pipeline.cuts.SceneCheck`)
+    degenerate: list = field(default_factory=list)  # the classifier's classes fitted as spikes
     times: dict = field(default_factory=dict)
 
-
-def _learns(classifier) -> bool:
-    from ..classification.bayes import NaiveBayesPixelClassifier
-
-    return isinstance(classifier, NaiveBayesPixelClassifier) and hasattr(classifier, "counts_")

@@ -44,7 +44,7 @@ from .working import WorkingSize
 
 __all__ = ["TrustRule", "STREAM_TRUST", "CLASS_TRUST", "CONFIDENCE_COEFFICIENTS", "TrustMaps", "carried_residual", "carried_log_odds",
            "residual_trust", "TrustedKey", "Trusted", "smoothed", "read_labels",
-           "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error"]
+           "trust_maps", "fused_log_odds", "confidence_features", "label_confidence", "predicted_error", "least_confident"]
 
 #: Blurs (px at :data:`BASE_WIDTH`): of both images before comparing, and of the residual after.
 IMAGE_SIGMA, RESIDUAL_SIGMA = 1.5, 3.0
@@ -344,6 +344,18 @@ def label_confidence(fused: np.ndarray, log_odds: np.ndarray, prior_term: np.nda
     return conf
 
 
+def least_confident(trusted: "Trusted", n_classes: int) -> "Trusted":
+    """``trusted`` with the same labels and every confidence the least a stream of ``n_classes`` classes gives
+    (:data:`MIN_CONFIDENCE`; with more classes the larger of 1/K and
+    :data:`~pcreg.pipeline.multiclass.CLASS_MIN_CONFIDENCE`): a step whose confidence model does not hold
+    (a scene cut, :mod:`pcreg.pipeline.cuts`; a degenerate classifier,
+    :meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.degenerate_classes`) vouches for nothing."""
+    from .multiclass import CLASS_MIN_CONFIDENCE
+
+    least = MIN_CONFIDENCE if n_classes <= 2 else max(1.0 / n_classes, CLASS_MIN_CONFIDENCE)
+    return replace(trusted, confidence=np.full(trusted.confidence.shape, least, np.float32))
+
+
 def predicted_error(confidence: np.ndarray) -> float:
     """A frame's predicted error in percent: the mean of 1 - confidence over its pixels."""
     return float(100.0 * (1.0 - np.mean(confidence, dtype=np.float64)))
@@ -364,10 +376,11 @@ class Trusted:
     prior: np.ndarray
     second: np.ndarray | None = None
 
-    def report(self, rule: TrustRule, weight: float) -> dict:
+    def report(self, rule: TrustRule, weight: float, cut: dict | None = None) -> dict:
         """What a step's report (:class:`~pcreg.pipeline.stream.StepReport`) gives of it: the confidence,
-        the predicted error, the trust map and its summary; with K classes each class's predicted IoU."""
-        summary: dict = self.maps.summary(rule, weight)
+        the predicted error, the trust map and its summary (with what the step adds to it, ``cut``: the cut
+        test's finding, :mod:`pcreg.pipeline.cuts`); with K classes each class's predicted IoU."""
+        summary: dict = {**self.maps.summary(rule, weight), **(cut or {})}
         if self.second is not None:
             from .multiclass import predicted_iou
 

@@ -493,26 +493,14 @@ def test_hostile_names_and_a_damaged_label_image_on_the_page(synthetic, tmp_path
 def test_a_legend_of_many_classes_leaves_the_frame_its_place(synthetic, tmp_path):
     """A run of 254 classes (and its unknown): the legend lists them all and scrolls, the frame stays in
     view at a good size (the legend pushed it off the page)."""
-    import json as _json
-
     from _browser import find_chromium
     from pcreg.export import read_labels
     from pcreg.review import read_review
 
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for i, f in enumerate(synthetic[:3]):
-        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
-    classes = [{"id": i, "name": f"class {i}", "colour": [i, 255 - i, (37 * i) % 256]} for i in range(254)]
-    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [*classes, {"id": 254, "name": "void",
-                                                                               "colour": [0, 0, 1]}], "unknown": 254}))
-    cv2.imwrite(str(tmp_path / "key.png"), (np.arange(160)[None, :] * 254 // 160).repeat(120, 0).astype(np.uint8))
-    out = tmp_path / "out"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
-                     "--classes", str(tmp_path / "classes.json")]) == 0
+    key = (np.arange(160)[None, :] * 254 // 160).repeat(120, 0).astype(np.uint8)  # 254 stripes
+    out = _many_class_run(synthetic, tmp_path, 254, key)
     table = read_review(out).table
     shown = sorted({int(v) for f in out.glob("frame_*.png") for v in np.unique(read_labels(f, table))} - {254})
     assert 100 < len(shown) < 254
@@ -527,26 +515,13 @@ def test_the_legend_lists_the_classes_the_runs_frames_show_in_the_tables_order(s
     """A table of 150 classes of which the key frame labels three: the legend listed all 150, the three the run
     shows among them. It lists those three in the table's order, then the unknown, then how many others the
     table holds (named on hover)."""
-    import json as _json
-
     from _browser import find_chromium
     from pcreg.recording.review import ReviewServer
     from pcreg.review import read_review, shown_classes
 
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for i, f in enumerate(synthetic[:3]):
-        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
-    classes = [{"id": i, "name": f"class {i}", "colour": [i, 255 - i, (37 * i) % 256]} for i in range(150)]
-    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [*classes, {"id": 150, "name": "void",
-                                                                               "colour": [0, 0, 1]}], "unknown": 150}))
     key = np.full((120, 160), 120, np.uint8)  # stripes of classes 120, 7 and 64, in no order of the table
     key[:, 50:100], key[:, 100:] = 7, 64
-    cv2.imwrite(str(tmp_path / "key.png"), key)
-    out = tmp_path / "out"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
-                     "--classes", str(tmp_path / "classes.json")]) == 0
+    out = _many_class_run(synthetic, tmp_path, 150, key)
     review = read_review(out)
     assert shown_classes(review) == [7, 64, 120]
     with ReviewServer(review, web_port=0) as server:
@@ -565,24 +540,11 @@ def test_the_legend_reads_the_classes_of_a_step_from_its_predicted_iou_not_its_l
     predicted IoU names the classes its labels hold, and only the key frames' label files are read. Here the
     later frames' label files are overwritten after the run with a class the run never wrote: the legend
     still lists what the steps say (it listed the overwritten class when it read every file)."""
-    import json as _json
-
     from pcreg.review import read_review, shown_classes
 
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for i, f in enumerate(synthetic[:3]):
-        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
-    classes = [{"id": i, "name": f"class {i}", "colour": [i, 255 - i, (37 * i) % 256]} for i in range(20)]
-    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [*classes, {"id": 20, "name": "void",
-                                                                               "colour": [0, 0, 1]}], "unknown": 20}))
     key = np.full((120, 160), 12, np.uint8)
     key[:, 80:] = 7
-    cv2.imwrite(str(tmp_path / "key.png"), key)
-    out = tmp_path / "out"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
-                     "--classes", str(tmp_path / "classes.json")]) == 0
+    out = _many_class_run(synthetic, tmp_path, 20, key)
     review = read_review(out)
     assert review.ious[1] is not None and set(review.ious[1]) <= {7, 12}
     for t in (1, 2):
@@ -611,3 +573,23 @@ def test_a_frame_without_its_confidence_map_says_so_on_the_page(run_copy):
             until(lambda: ev(SHOWN_JS) == f"/overlay/{t}.jpg", what=f"frame {t} shown", alive=proc, bound=60)
             missing = "no confidence map (confidence/frame_002.png is missing): drawn without the hatching"
             assert (missing in ev(error)) is (t == 2), ev(error)
+
+
+def _many_class_run(synthetic, tmp_path, n_classes: int, key: np.ndarray):
+    """A run (DIS's flow, for speed) of three synthetic frames from the label image ``key``, in a table of
+    ``n_classes`` classes named ``class i`` and a void, its unknown: the run's folder."""
+    import json as _json
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, f in enumerate(synthetic[:3]):
+        cv2.imwrite(str(frames / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+    classes = [{"id": i, "name": f"class {i}", "colour": [i, 255 - i, (37 * i) % 256]} for i in range(n_classes)]
+    void = {"id": n_classes, "name": "void", "colour": [0, 0, 1]}
+    (tmp_path / "classes.json").write_text(_json.dumps({"classes": [*classes, void], "unknown": n_classes}))
+    cv2.imwrite(str(tmp_path / "key.png"), key)
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
+                     "--classes", str(tmp_path / "classes.json")]) == 0
+    return out

@@ -68,6 +68,27 @@ def test_umeyama_never_returns_a_reflection():
     assert np.linalg.det(T[:2, :2]) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("direction", [[1.0, 2.0, 2.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+def test_pairs_along_one_line_take_the_least_rotation_that_fits_them(direction):
+    """Umeyama's rotation is unique only when the cross-covariance has rank d - 1 or more. Pairs whose source
+    points lie on one line (or whose targets do: every source point nearest to two target points, as ICP's
+    first step from far away) fix one direction and leave the turn about it free; the step takes the least
+    rotation that maps the one direction onto the other, not what the SVD's null space happens to hold (a
+    93 degree turn for a 48 degree fit before), and no rotation when the pairs fix nothing."""
+    t = np.linspace(-1.0, 1.0, 7)
+    d = np.asarray(direction) / np.linalg.norm(direction)
+    p, q = np.outer(t, d) + [1.0, 2.0, 3.0], np.outer(t, [0.0, 0.0, 1.0]) - [0.5, 0.0, 0.0]
+    for with_scale in (False, True):
+        T = estimate_umeyama(p, q, np.ones(len(p)), with_scale=with_scale)
+        R = T[:3, :3] / np.cbrt(np.linalg.det(T[:3, :3]))
+        np.testing.assert_allclose(R @ d, [0.0, 0.0, 1.0], atol=1e-12)
+        angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
+        assert angle == pytest.approx(np.degrees(np.arccos(d[2])), abs=1e-9)
+        np.testing.assert_allclose(tf.apply(T, p.mean(axis=0)[None]), q.mean(axis=0)[None], atol=1e-12)
+    T = estimate_umeyama(p, np.tile([1.0, 1.0, 1.0], (len(p), 1)), np.ones(len(p)), with_scale=False)
+    np.testing.assert_allclose(T[:3, :3], np.eye(3), atol=0)
+
+
 @pytest.mark.parametrize("model", ["translation", "rigid", "similarity", "affine", "projective"])
 def test_point_to_line_converges_on_lines(model):
     # Points on a closed curve with normals: point-to-line steps recover a small motion.

@@ -200,6 +200,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
         _check_normals(target_normals)
     T = np.eye(dim + 1) if init is None else _check_init(check_matrix(init, "init", dim + 1), options.model)
     max_correspondence_distance = _check_distance(src, tgt, T, options.max_correspondence_distance)
+    start_pose = T
     start = time.perf_counter()
     schedule = _voxel_schedule(src, tgt, options.schedule, distance=max_correspondence_distance,
                                max_iteration=options.max_iteration)
@@ -219,8 +220,10 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
         total_iter = -1 if (r.iterations < 0 or total_iter < 0) else total_iter + r.iterations
     seconds = time.perf_counter() - start
     if r.fitness == 0:  # as Open3D, no pair moved nothing: a transform no point supports is no registration
+        where = ("the ICP stopped where it started" if np.array_equal(T, start_pose) else
+                 "the ICP moved the source away from the target (its steps diverged)")
         raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
-                                f"{schedule[-1][2]:g} of a target point; the ICP stopped where it started (give an init "
+                                f"{schedule[-1][2]:g} of a target point; {where} (give an init "
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
     check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,

@@ -61,7 +61,8 @@ def umeyama_from_moments(cov: np.ndarray, var_p: float, mp: np.ndarray, mq: np.n
     """Umeyama's closed form from the cross-covariance Σ (d, d), the source variance σ_p² and the means.
 
     Σ = U D V^T; S = diag(1, …, 1, det(U) det(V)) (Eq. 43, the reflection guard); R = U S V^T (Eq. 40);
-    c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41). In 2-D without the SVD (same result, no
+    c = tr(D S) / σ_p² (Eq. 42); t = μ_q - c R μ_p (Eq. 41). In 3-D, where rank Σ < 2 leaves R free about one
+    direction, the least rotation that fits (:func:`_least_rotation`). In 2-D without the SVD (same result, no
     LAPACK call): for Σ = [[a, b], [c, d]] the rotation maximising tr(R^T Σ) is θ = atan2(c - b, a + d)
     and tr(D S) = hypot(a + d, c - b). Compiled (:func:`_umeyama`), the same code the ICP loop runs.
     """
@@ -83,6 +84,42 @@ def _det_sign(M: np.ndarray) -> float:
     d, e, f = M[1, 0], M[1, 1], M[1, 2]
     g, h, i = M[2, 0], M[2, 1], M[2, 2]
     return 1.0 if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) >= 0 else -1.0
+
+
+#: Σ's second singular value at or below this share of its first counts as zero (:func:`_umeyama`).
+RANK_TOLERANCE = 1e-12
+
+
+@njit(cache=True)
+def _least_rotation(u: np.ndarray, v: np.ndarray, determined: bool, R: np.ndarray) -> None:
+    """Write into ``R`` (3, 3) the rotation of least angle that maps the unit vector ``v`` onto ``u``
+    (Rodrigues: R = I + K + K² / (1 + v·u), K the cross-product matrix of v × u); a half turn about an axis
+    perpendicular to ``v`` when they are opposite; the identity when not ``determined``.
+
+    Umeyama's rotation maximises tr(R^T Σ); it is unique only when rank Σ >= d - 1 (Umeyama 1991, section
+    III). With rank Σ = 1, Σ = σ u v^T, every rotation with R v = u attains the maximum and the SVD's null
+    space picks one at random (pairs whose source or target points lie on one line; ICP's first step from far
+    away, where every source point is nearest to two target points). The least of them moves the source no
+    more than the pairs ask, as the 2-D closed form's atan2 does; with Σ = 0 that is no rotation."""
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = 1.0 if i == j else 0.0
+    if not determined:
+        return
+    c = u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+    a = np.array([v[1] * u[2] - v[2] * u[1], v[2] * u[0] - v[0] * u[2], v[0] * u[1] - v[1] * u[0]])
+    if 1.0 + c > 1e-12:
+        K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+        R += K + (K @ K) / (1.0 + c)
+        return
+    m = np.argmin(np.abs(v))  # opposite: a half turn about the axis perpendicular to v nearest a coordinate axis
+    e = np.zeros(3)
+    e[m] = 1.0
+    n = e - (e @ v) * v
+    n /= math.sqrt(n @ n)
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = 2.0 * n[i] * n[j] - (1.0 if i == j else 0.0)
 
 
 @njit(cache=True)
@@ -108,12 +145,16 @@ def _umeyama(cov, var_p, mp, mq, with_scale):
         # U and V are orthogonal: their determinants are +-1, and only the sign of the product is used
         if _det_sign(U) * _det_sign(Vt) < 0:
             S[d - 1] = -1.0
-        for i in range(d):
-            for j in range(d):
-                acc = 0.0
-                for m in range(d):
-                    acc += U[i, m] * S[m] * Vt[m, j]
-                R[i, j] = acc
+        if d == 3 and not D[1] > RANK_TOLERANCE * D[0]:  # rank < d - 1: the turn about one direction is free
+            _least_rotation(U[:, 0], Vt[0], D[0] > 0, R)
+            S[:] = 1.0
+        else:
+            for i in range(d):
+                for j in range(d):
+                    acc = 0.0
+                    for m in range(d):
+                        acc += U[i, m] * S[m] * Vt[m, j]
+                    R[i, j] = acc
         if with_scale:
             k = (D * S).sum() / var_p
     for i in range(d):

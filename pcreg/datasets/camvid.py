@@ -184,11 +184,11 @@ def load_official(frames_dir: Path, labels_dir: Path, *, mapping, classes, n_fra
     if odd:
         raise DatasetError(f"{odd[0]}: not named SEQ_NNNNNN.png as CamVid's frames are (the sequence, an "
                            "underscore, the frame's number)")
-    images = frame_names(frames_dir, files)  # every name once (X.png and X.jpg refused)
-    labels = label_files(labels_dir, images)
+    clips = {seq: frame_names(frames_dir, [p for p in files if sequence_of(p.stem) == seq])  # numbered alike
+             for seq in sorted({sequence_of(p.stem) for p in files})}
+    labels = label_files(labels_dir, {n: p for clip in clips.values() for n, p in clip.items()})
     out: dict = {}
-    for seq in sorted({sequence_of(n) for n in images}):
-        clip = frame_names(frames_dir, [p for p in files if sequence_of(p.stem) == seq])
+    for seq, clip in clips.items():
         keep = sorted(clip)[:n_frames]
         out[seq] = read_frames({n: clip[n] for n in keep}, {n: labels[n] for n in keep}, mapping=mapping,
                                table=table, lut=lut)

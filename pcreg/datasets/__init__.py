@@ -7,6 +7,7 @@ pcreg's convention: 0 ground (traversable), 1 obstacle, 2 unknown.
   ``manual_human_labeling_mask`` stored transposed, 640x480).
 - :func:`load_folder` reads ``images/*.png|jpg`` with ``labels/*.png`` and maps raw label ids to
   {0, 1, 2}; CamVid's mapping (``../shared/data/README.md``) is built in.
+- :func:`pcreg.datasets.camvid.load_official` reads CamVid's own download (one clip per sequence).
 - :func:`load_davis` reads DAVIS 2016 sequences (the object's mask on every frame: 0 background,
   1 the object), in pcreg's layout or the official one (:mod:`pcreg.datasets.davis`).
 - :func:`synthetic` renders LAGR-like forward-looking terrain sequences with exact labels and exact
@@ -21,6 +22,7 @@ import re
 from pathlib import Path
 
 from ..errors import DatasetError, InputError
+from .camvid import FRAMES_FOLDER, LABELS_FOLDER, find_official, load_official
 from .davis import load_davis
 from .davis_splits import parse_davis_arg
 from .folder import CAMVID_MAPPING, IMAGE_SUFFIXES, load_folder
@@ -71,7 +73,9 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     - ``"synthetic"``: the six presets; ``"synthetic:syn1a,syn2b"``: some of them
       (``n_frames`` (default 100), ``size`` = (width, height) (default 640x480) and ``seed`` apply).
     - ``"camvid:PATH"``: every clip folder of PATH holding ``images/`` (or PATH itself if it does),
-      with CamVid's label mapping.
+      with CamVid's label mapping; or, PATH holding CamVid's download (``701_StillsRaw_full/`` and
+      ``LabeledApproved_full/``, or its frames and ``NAME_L.png`` labels in two folders named otherwise), one
+      clip per sequence, its 32 classes' colours grouped as ``camvid11``'s (:mod:`pcreg.datasets.camvid`).
     - ``"folder:PATH"``: the same layout with labels already in {0, 1, 2}.
     - ``"davis:PATH"``: DAVIS 2016 sequences, PATH one sequence or a folder of them, pcreg's layout or
       the official one (:func:`pcreg.datasets.davis.find_sequences`); labels 0 background, 1 the object.
@@ -121,8 +125,12 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         # with a class table the label files hold its ids (CamVid's own with ``camvid11``), read through it
         mapping = "camvid" if kind == "camvid" and classes is None else None
         clips = [path] if (path / "images").is_dir() else _subfolders(path, lambda p: (p / "images").is_dir())
-        if not clips:
-            raise DatasetError(f"{path}: no frames (no images/ folder in it or in its sub-folders)")
+        official = find_official(path) if kind == "camvid" and not clips else None
+        if official is not None:  # CamVid's download: one clip per sequence
+            out = load_official(*official, mapping=mapping, classes=classes, n_frames=n_frames)
+        elif not clips:
+            also = f", nor CamVid's {FRAMES_FOLDER}/ and {LABELS_FOLDER}/" if kind == "camvid" else ""
+            raise DatasetError(f"{path}: no frames (no images/ folder in it or in its sub-folders{also})")
         for clip in clips:
             out[clip.name] = load_folder(clip, mapping=mapping, classes=classes)
     else:  # lagr

@@ -33,13 +33,20 @@ def _read_png(path: Path, *, color: bool) -> np.ndarray:
 
 def _read_table_labels(path: Path, image: np.ndarray, table, mapping) -> np.ndarray:
     """A label file read through ``table`` (``mapping`` None or ``"camvid"``), of its image's size; a
-    :class:`DatasetError` naming it otherwise."""
+    :class:`DatasetError` naming it otherwise. CamVid's ids and ``camvid11``'s tables also read CamVid's own 32
+    classes' colours (:func:`pcreg.datasets.camvid.read_camvid_labels`)."""
     from ..classes.keys import read_key_labels
+    from ..classes.table import CAMVID11
 
-    try:
-        lab = read_key_labels(path, table, "none" if mapping is None else "camvid")
-    except InputError as exc:
-        raise DatasetError(str(exc)) from None
+    if mapping == "camvid" or table.agrees(CAMVID11):  # CamVid's own 32 classes' colours too
+        from .camvid import read_camvid_labels
+
+        lab = read_camvid_labels(path, table, mapping)
+    else:
+        try:
+            lab = read_key_labels(path, table, "none" if mapping is None else "camvid")
+        except InputError as exc:
+            raise DatasetError(str(exc)) from None
     if lab.shape != image.shape[:2]:
         raise DatasetError(f"{path}: labels are {lab.shape[1]}x{lab.shape[0]} but the image is "
                            f"{image.shape[1]}x{image.shape[0]}")
@@ -95,8 +102,20 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
     img_dir, lab_dir = folder / "images", folder / "labels"
     if not img_dir.is_dir():
         raise DatasetError(f"{folder}: no images/ folder")
-    files = [p for p in sorted(img_dir.iterdir())  # hidden files left out: macOS's ._NAME, as pcreg run
-             if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file() and not p.name.startswith(".")]
+    images = frame_names(img_dir, image_files(img_dir))
+    labels = label_files(lab_dir, images) if lab_dir.is_dir() else None
+    return read_frames(images, labels, mapping=mapping, table=table, lut=lut)
+
+
+def image_files(img_dir: Path) -> list[Path]:
+    """The image files of ``img_dir`` in name order; hidden files left out (macOS's ``._NAME``, as pcreg run)."""
+    return [p for p in sorted(img_dir.iterdir())
+            if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file() and not p.name.startswith(".")]
+
+
+def frame_names(img_dir: Path, files: list[Path]) -> dict[str, Path]:
+    """``{frame name: image file}`` of one clip's ``files`` (of ``img_dir``, which messages name), in name order;
+    refused: none, two files of one name (``X.png`` and ``X.jpg``), numbers of different widths."""
     try:  # frames in name order, as pcreg run reads them: f10.png before f9.png is refused, never scored out of order
         _check_numbering(img_dir, [p.name for p in files])
     except InputError as exc:
@@ -107,16 +126,26 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
         raise DatasetError(f"{img_dir}: two images share a frame name ({', '.join(twice[:4])})")
     if not images:
         raise DatasetError(f"{img_dir}: no image frames ({', '.join(IMAGE_SUFFIXES)})")
-    labels: dict[str, Path] | None = None
-    if lab_dir.is_dir():
-        labels = _label_files(lab_dir, images)
-        no_label = sorted(set(images) - set(labels))
-        if no_label:
-            raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')} (or "
-                               f"{no_label[0]}{LABEL_SUFFIX}.png, as CamVid names them)")
-        no_image = sorted(set(labels) - set(images))
-        if no_image:
-            raise DatasetError(f"{labels[no_image[0]]}: label file without an image in {img_dir}")
+    return images
+
+
+def label_files(lab_dir: Path, images: dict[str, Path]) -> dict[str, Path]:
+    """``{frame name: label file}`` of ``lab_dir`` (:func:`_label_files`), one for every frame of ``images`` and a
+    frame for every one; a :class:`DatasetError` naming the first file that has none."""
+    labels = _label_files(lab_dir, images)
+    no_label = sorted(set(images) - set(labels))
+    if no_label:
+        raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')} (or "
+                           f"{no_label[0]}{LABEL_SUFFIX}.png, as CamVid names them)")
+    no_image = sorted(set(labels) - set(images))
+    if no_image:
+        raise DatasetError(f"{labels[no_image[0]]}: label file without an image in {next(iter(images.values())).parent}")
+    return labels
+
+
+def read_frames(images: dict[str, Path], labels: dict[str, Path] | None, *, mapping, table, lut) -> list[Frame]:
+    """The frames of ``images`` in name order, each labelled by its file of ``labels`` (None: unlabelled), read
+    through ``table`` (``mapping`` None or ``"camvid"``) or mapped by ``lut`` (:func:`load_folder`)."""
     frames = []
     for name in sorted(images):
         image = _read_png(images[name], color=True)

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 import pcreg
 from pcreg import transforms as tf
@@ -126,3 +127,36 @@ def test_the_command_on_a_3d_line_exits_3_and_its_table_and_json_mark_the_poses(
     assert main([*args, "--json"]) == 3
     row = json.loads(capsys.readouterr().out)["implementations"]["open3d"]
     assert row["status"] == "unconstrained" and "collinear" in row["unconstrained"] and not row["agrees"]
+
+
+def _turned_at_step_one(trace, degrees):
+    """``trace`` with the pose after its first step turned by ``degrees`` about z through the origin: another step
+    from the same correspondences."""
+    from dataclasses import replace
+
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_rotvec([0.0, 0.0, np.radians(degrees)]).as_matrix()
+    return (trace[0], replace(trace[1], matrix=turn @ trace[1].matrix), *trace[2:])
+
+
+def test_a_step_that_parts_where_the_pairs_leave_the_rotation_free_says_so():
+    """Two rows that part at a step whose pairs leave the rotation undetermined (from far away every source point is
+    nearest to one target corner: any turn fits those pairs as well) are told apart from a step that differs on pairs
+    that fix the rotation: the cause says the pairs leave the rotation undetermined, and why, only in the first."""
+    from pcreg.implementations.base import Pinned
+    from pcreg.implementations.builtin import Reference
+    from pcreg.implementations.crosscheck import trace_divergence
+
+    grid = np.stack(np.meshgrid(*[np.arange(5.0)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    for shift, free in ((60.0, "their target points are coincident"), (0.2, None)):
+        target = _shifted(grid, shift, shift, shift)
+        pinned = Pinned(grid, target, np.eye(4), 1000.0, 30)
+        ref = Reference().run(pinned, trace=True).trace
+        other = _turned_at_step_one(ref, 5.0)
+        cause = trace_divergence(ref, other, source=grid, target=target)["cause"]
+        assert cause.startswith("different step from the same correspondences")
+        if free is None:
+            assert "undetermined" not in cause
+        else:
+            assert f"which leave the rotation undetermined ({free}" in cause
+        assert "undetermined" not in trace_divergence(ref, other)["cause"]  # without the clouds: not known

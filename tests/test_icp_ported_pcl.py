@@ -7,6 +7,7 @@ of its cross-check of implementations. Each test names the PCL case it mirrors; 
 
 import ctypes
 import ctypes.util
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ from pcreg.errors import RegistrationError
 from pcreg.implementations.crosscheck import crosscheck_implementations
 from pcreg.registration.closed_forms import estimate_horn_quaternion, estimate_umeyama
 from pcreg.registration.normal_steps import estimate_point_to_plane
+from pcreg.registration.reference import icp_reference
 
 DATA = Path(__file__).parent / "data" / "pcl"
 ICP_ROWS = ["reference", "open3d", "open3d-tensor", "small_gicp", "kiss-icp"]
@@ -208,7 +210,8 @@ def test_gicp6d_milk_carton_voxel_grid_fitness():
     points, so the first step's pairs fix one direction and leave the turn about it free: the reference takes the
     least turn, and lands where small_gicp's ICP and KISS-ICP do (1.41 degrees from the motion, to 1e-9); it used to
     take what the SVD's null space held and ended 179 degrees off. Open3D takes its own arbitrary turn there (the
-    tensor API's changes from run to run: 1.41 or 83 degrees), and the cross-check says they part at iteration 1."""
+    tensor API's changes from run to run: 1.41 or 83 degrees), and the cross-check says they part at iteration 1,
+    from pairs that leave the rotation undetermined."""
     milk = load_cloud(DATA / "milk_color.pcd")
     delta = _sample_random_transform(0.25 * np.pi, 0.03)
     src, tgt = _pcl_voxel_grid(milk, 0.02), _pcl_voxel_grid(tf.apply(delta, milk), 0.02)
@@ -224,6 +227,8 @@ def test_gicp6d_milk_carton_voxel_grid_fitness():
     assert rows["small_gicp-gicp"]["truth_rotation_deg"] < 0.5
     for name in ("open3d", "open3d-tensor"):
         assert rows[name]["error"] is None and rows[name]["divergence"]["iteration"] == 1, name
+        assert "which leave the rotation undetermined (their target points are collinear" in \
+            rows[name]["divergence"]["cause"], rows[name]["divergence"]
 
 
 def test_fast_robust_icp_bun0_onto_bun4_and_a_noisy_turned_copy(bunny):
@@ -298,9 +303,11 @@ def test_transformation_estimation_point_to_plane_lls_and_lm_on_their_surface():
 
 def test_point_to_plane_icp_on_their_surface_diverges_as_open3d_s():
     """The same surface through point-to-plane ICP with nearest neighbours instead of PCL's given pairs: on this
-    curved grid the linearised steps overshoot and the ICP walks off (RMSE 0.34, 0.47, 0.51, ... 2.1 after 10
-    steps). The reference and Open3D's point-to-plane ICP take the same steps (1e-12); Open3D ends with no pair
-    left, and the refusal says the ICP moved the source away rather than that it stopped where it started."""
+    curved grid the linearised steps overshoot and the ICP walks off (RMSE 0.46 at the start, 0.34, 0.47, 0.51, ...
+    2.1 after 10 steps). The reference's loop and Open3D's point-to-plane ICP take the same steps (1e-12); Open3D
+    ends with no pair left, and the refusal says the ICP moved the source away rather than that it stopped where
+    it started. Keeping every pair, the run was returned (fitness 1, RMSE 2.1; 16 after 22 steps); it is refused as
+    diverged, with either backend: its result fits worse than the start."""
     import open3d as o3d
 
     reg = o3d.pipelines.registration
@@ -310,10 +317,17 @@ def test_point_to_plane_icp_on_their_surface_diverges_as_open3d_s():
     target.normals = o3d.utility.Vector3dVector(NQ)
     theirs = reg.registration_icp(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P)), target, 100.0, np.eye(4),
                                   reg.TransformationEstimationPointToPlane(), reg.ICPConvergenceCriteria(max_iteration=10))
-    ours = pcreg.icp(P, Q, ICPOptions(metric="point_to_plane", max_correspondence_distance=100.0, max_iteration=10,
-                                      relative_fitness=0, relative_rmse=0), target_normals=NQ)
+    options = ICPOptions(metric="point_to_plane", max_correspondence_distance=100.0, max_iteration=10,
+                         relative_fitness=0, relative_rmse=0)
+    ours = icp_reference(P, Q, options, target_normals=NQ)
     np.testing.assert_allclose(ours.matrix, theirs.transformation, atol=1e-12)
-    assert ours.inlier_rmse > 2.0 and np.abs(ours.matrix - G).max() > 1.0
+    assert ours.fitness == 1.0 and ours.inlier_rmse > 2.0 and np.abs(ours.matrix - G).max() > 1.0
+    for backend, iterations in (("reference", 10), ("reference", 50), ("open3d", 10)):
+        with pytest.raises(RegistrationError, match=r"point-to-plane ICP diverged.*0\.4555 at the start.*"
+                                                    "metric='point_to_point'"):
+            pcreg.icp(P, Q, replace(options, backend=backend, max_iteration=iterations), target_normals=NQ)
+    with pytest.raises(RegistrationError, match="diverged"):  # pairs lost and found again: worse than the start
+        pcreg.icp(P, Q, replace(options, max_correspondence_distance=1.0, max_iteration=50), target_normals=NQ)
     with pytest.raises(RegistrationError, match="moved the source away from the target") as caught:
         pcreg.icp(P, Q, ICPOptions(backend="open3d", metric="point_to_plane", max_correspondence_distance=100.0,
                                    max_iteration=50), target_normals=NQ)

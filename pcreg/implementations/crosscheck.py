@@ -209,12 +209,16 @@ def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
     return out
 
 
-def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE) -> dict | None:
+def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE, source: np.ndarray | None = None,
+                     target: np.ndarray | None = None) -> dict | None:
     """First iteration at which ``trace`` leaves ``ref_trace`` and the likely cause; None when they agree.
 
     The pose after iteration k comes from the correspondences at the pose after k-1: when poses k-1
     agree and poses k do not, the correspondences at k-1 decide the cause (different ones: the
     neighbour search or gate; the same ones, or exact nearest neighbours of agreeing poses: the step).
+    Given the pinned ``source`` and ``target``, a different step from pairs that leave the rotation
+    undetermined (:func:`~pcreg.registration.closed_forms.rotation_problem`) says so: each implementation
+    takes one of the rotations that fit them as well.
     """
     n = min(len(ref_trace), len(trace))
     if n == 0:
@@ -231,8 +235,10 @@ def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE) -> 
                 return {"iteration": k, "cause": f"different correspondences at iteration {k - 1} "
                                                  f"({diff} source points matched differently)"}
             known = pb.target_indices is not None
+            free = _free_rotation(pa, source, target)
             return {"iteration": k, "cause": "different step from the same correspondences"
                     + ("" if known else " (the poses before agree, so exact nearest neighbours are the same)")
+                    + ("" if free is None else f", which leave the rotation undetermined ({free})")
                     + f": relative matrix difference {_relative(a.matrix, b.matrix):.1e}"}
         if b.target_indices is not None and a.target_indices is not None and \
                 not np.array_equal(a.target_indices, b.target_indices):
@@ -243,6 +249,17 @@ def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE) -> 
         return {"iteration": n, "cause": f"different stopping rule: the same poses, but {len(trace) - 1} iterations "
                                          f"against the reference's {len(ref_trace) - 1}"}
     return None
+
+
+def _free_rotation(at, source: np.ndarray | None, target: np.ndarray | None) -> str | None:
+    """Why the pairs of the trace step ``at`` (its pose and target indices) leave the rotation undetermined, or None
+    (also when the clouds or the indices are not known)."""
+    if source is None or target is None or at.target_indices is None:
+        return None
+    from ..registration.closed_forms import rotation_problem
+
+    ok = np.asarray(at.target_indices) >= 0
+    return rotation_problem(apply(at.matrix, source)[ok], target[np.asarray(at.target_indices)[ok]])
 
 
 @dataclass(frozen=True)
@@ -553,7 +570,8 @@ def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, d
         step = step_tolerance(src, diag)
         row["agrees"] = problem is None and bool(_agrees(comp, cmp, diag, step))
         if ref is not None and name != REFERENCE and o.trace and ref.trace:
-            row["divergence"] = trace_divergence(ref.trace, o.trace, tolerance=step)
+            row["divergence"] = trace_divergence(ref.trace, o.trace, tolerance=step, source=src,
+                                                 target=pinned.target)
     elif name != REFERENCE:
         row["error"] = row["error"] or None
         row["compared_with"] = None

@@ -24,8 +24,8 @@ from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseRefer
 from .dense.levels import check_prepared
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
-from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule
-from .reference import check_rank, check_support
+from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule, refuse_a_line_for_open3d
+from .reference import LINEARISED_METRICS, check_progress, check_rank, check_support, scores_at
 from .refine import CoarseToFine
 from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
@@ -192,7 +192,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     check_rank(src, options.model)
     check_rank(tgt, options.model)
     if options.backend == "open3d" and dim == 2:
-        _refuse_a_line_for_open3d(src, tgt)
+        refuse_a_line_for_open3d(src, tgt)
     if target_normals is not None:
         target_normals = check_cloud(target_normals, "target_normals")
         if target_normals.shape != tgt.shape:
@@ -202,6 +202,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     max_correspondence_distance = _check_distance(src, tgt, T, options.max_correspondence_distance)
     start_pose = T
     start = time.perf_counter()
+    first = scores_at(src, tgt, T, max_correspondence_distance) if options.metric in LINEARISED_METRICS else None
     schedule = _voxel_schedule(src, tgt, options.schedule, distance=max_correspondence_distance,
                                max_iteration=options.max_iteration)
     if options.schedule is not None:
@@ -226,20 +227,10 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
                                 f"{schedule[-1][2]:g} of a target point; {where} (give an init "
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
     check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
+    if first is not None:  # one scale: a linearised metric takes no schedule
+        check_progress(first, r, d, options.metric)
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
                               converged=r.converged, backend=options.backend, seconds=seconds)
-
-
-def _refuse_a_line_for_open3d(src: np.ndarray, tgt: np.ndarray) -> None:
-    """An :class:`InputError` for 2-D clouds whose points lie on one line (two points, a scan line) with the open3d
-    backend: its ICP runs on the clouds lifted to z = 0, where the rotation about that line is free, and it turned
-    the image plane over for some motions and not others (refused as "mirrored" under 10 of 20 rigid motions of a line
-    of 50 points); the reference ICP solves the 2-D problem, which the line fixes."""
-    for name, points in (("source", src), ("target", tgt)):
-        spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-        if spread[-1] <= 1e-9 * spread[0]:
-            raise InputError(f"{name}: its points lie on one line, about which the open3d backend's 3-D ICP can turn "
-                             "the image plane over; use backend='reference'")
 
 
 def _check_icp_options(options: ICPOptions, dim: int, target_normals) -> None:

@@ -171,11 +171,20 @@ def estimate_horn_quaternion(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.
 
     N (Horn's Eq. 26 / Besl-McKay's Q(Σ)) is the symmetric 4x4 matrix built from the cross-covariance
     M = Σ w (p - μ_p)(q - μ_q)^T; the eigenvector of its largest eigenvalue is the rotation quaternion.
+    That eigenvector is unique only when rank M >= 2: where the pairs fix one direction only (rank M = 1, as
+    :data:`RANK_TOLERANCE` decides for Umeyama's step), the largest eigenvalue is double and any turn about that
+    direction fits as well; the step then takes the least rotation that fits, as Umeyama's does
+    (:func:`_least_rotation`), and none when M = 0.
     """
     if p.shape[1] != 3:
         raise RegistrationError("the quaternion closed form is for 3-D clouds")
     ws, mp, mq = _weighted_means(p, q, w)
     M = ((p - mp) * w[:, None]).T @ (q - mq) / ws
+    U, D, Vt = np.linalg.svd(M.T)  # Umeyama's Σ = M^T
+    if not D[1] > RANK_TOLERANCE * D[0]:
+        R = np.empty((3, 3))
+        _least_rotation(np.ascontiguousarray(U[:, 0]), np.ascontiguousarray(Vt[0]), bool(D[0] > 0), R)
+        return _rigid(R, mp, mq)
     Sxx, Sxy, Sxz = M[0]
     Syx, Syy, Syz = M[1]
     Szx, Szy, Szz = M[2]
@@ -192,6 +201,11 @@ def estimate_horn_quaternion(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.
         [2 * (qy * qx + q0 * qz), q0 * q0 - qx * qx + qy * qy - qz * qz, 2 * (qy * qz - q0 * qx)],
         [2 * (qz * qx - q0 * qy), 2 * (qz * qy + q0 * qx), q0 * q0 - qx * qx - qy * qy + qz * qz],
     ])
+    return _rigid(R, mp, mq)
+
+
+def _rigid(R: np.ndarray, mp: np.ndarray, mq: np.ndarray) -> np.ndarray:
+    """The 3-D rigid transform of rotation ``R`` that maps the mean ``mp`` onto ``mq``."""
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = mq - R @ mp
@@ -299,6 +313,23 @@ def rank_problem(points: np.ndarray, model: str) -> str | None:
     if rank < needed_rank:
         what = "coincident" if rank == 0 else ("collinear" if rank == 1 else "coplanar")
         return f"the points are {what}: they cannot determine a {model} transform"
+    return None
+
+
+def rotation_problem(p: np.ndarray, q: np.ndarray) -> str | None:
+    """Why the pairs ``p_i -> q_i`` (K, d) leave a rigid step's rotation undetermined, or None: the source or the
+    target points are too few, coincident or (3-D) on one line (:func:`rank_problem`), or their cross-covariance
+    has rank below d - 1 (:data:`RANK_TOLERANCE`, where the reference's step takes the least rotation): the pairs
+    fix one direction, or none, and every turn about it fits them as well."""
+    for name, points in (("source", p), ("target", q)):
+        problem = rank_problem(points, "rigid")
+        if problem is not None:
+            return (f"their {name} points {problem.removeprefix('the points ')}" if problem.startswith("the points ")
+                    else f"their {name} points: {problem}")
+    d = p.shape[1]
+    sv = np.linalg.svd((q - q.mean(axis=0)).T @ (p - p.mean(axis=0)), compute_uv=False)
+    if d == 3 and not sv[1] > RANK_TOLERANCE * sv[0]:
+        return "their cross-covariance has rank 1: they fix one direction and any turn about it fits as well"
     return None
 
 

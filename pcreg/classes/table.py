@@ -32,7 +32,7 @@ from ..errors import InputError
 from ..validation import short_repr
 
 __all__ = ["MAX_CLASSES", "LabelClass", "ClassTable", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree",
-           "listed_name"]
+           "listed_name", "colour_ids"]
 
 RGB = tuple[int, int, int]
 
@@ -62,6 +62,29 @@ class LabelClass:
 
     def __repr__(self) -> str:
         return f"{self.id} {self.name} {self.colour}"
+
+
+def _packed(rgb: np.ndarray) -> np.ndarray:
+    """(...) int32: each (R, G, B) of an (..., 3) array as one number, R << 16 | G << 8 | B."""
+    rgb = np.asarray(rgb)
+    return (rgb[..., 0].astype(np.int32) << 16) | (rgb[..., 1].astype(np.int32) << 8) | rgb[..., 2].astype(np.int32)
+
+
+def colour_ids(rgb: np.ndarray, colours: Iterable[RGB], ids: Iterable[int]) -> tuple[np.ndarray, tuple | None]:
+    """``(labels, miss)``: (H, W) uint8, the id of each pixel's colour of an (H, W, 3) uint8 RGB image, where
+    ``colours`` (distinct) have ``ids``; and the first pixel whose colour is none of them, ``(x, y, (R, G, B))``
+    (None when every pixel's is one; its label is then some id), for the caller to name in its own words."""
+    keys = _packed(np.array(list(colours), np.uint8).reshape(-1, 3))
+    order = np.argsort(keys)
+    keys, values = keys[order], np.array(list(ids), np.uint8)[order]
+    packed = _packed(rgb)
+    pos = np.minimum(np.searchsorted(keys, packed), len(keys) - 1)
+    hit = keys[pos] == packed
+    miss = None
+    if not hit.all():
+        y, x = np.argwhere(~hit)[0]
+        miss = (int(x), int(y), tuple(int(v) for v in rgb[y, x]))
+    return values[pos], miss
 
 
 def _check_class(c: LabelClass, where: str) -> LabelClass:
@@ -218,18 +241,11 @@ class ClassTable:
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise InputError(f"{where}: not an 8-bit RGB image")
-        packed = (rgb[:, :, 0].astype(np.int32) << 16) | (rgb[:, :, 1].astype(np.int32) << 8) | rgb[:, :, 2]
-        keys = np.array([(r << 16) | (g << 8) | b for r, g, b in (c.colour for c in self.classes)], np.int32)
-        ids = np.array([c.id for c in self.classes], np.uint8)
-        order = np.argsort(keys)
-        pos = np.searchsorted(keys[order], packed)
-        pos = np.minimum(pos, len(keys) - 1)
-        hit = keys[order][pos] == packed
-        if not hit.all():
-            y, x = np.argwhere(~hit)[0]
-            colour = tuple(int(v) for v in rgb[y, x])
+        labels, miss = colour_ids(rgb, (c.colour for c in self.classes), (c.id for c in self.classes))
+        if miss is not None:
+            x, y, colour = miss
             raise InputError(f"{where}: colour {colour} (at x={x}, y={y}) is no class's colour ({self.describe()})")
-        return ids[order][pos]
+        return labels
 
     # -- comparing ---------------------------------------------------------------------------------
     def agrees(self, other: "ClassTable") -> bool:

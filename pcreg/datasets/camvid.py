@@ -67,35 +67,28 @@ CAMVID32: tuple[tuple[str, tuple[int, int, int], int], ...] = (
 )
 
 
-def _pack(rgb: np.ndarray) -> np.ndarray:
-    return (rgb[..., 0].astype(np.int32) << 16) | (rgb[..., 1].astype(np.int32) << 8) | rgb[..., 2].astype(np.int32)
-
-
-def _colour_ids() -> tuple[np.ndarray, np.ndarray]:
-    """(sorted packed colours, their camvid11 ids): the 32 classes', and camvid11's own (its pavement is SegNet's
-    colour, not CamVid's); where both name a colour, they name the same class."""
+def _colour_ids() -> tuple[list[tuple[int, int, int]], list[int]]:
+    """(colours, their camvid11 ids): the 32 classes', and camvid11's own (its pavement is SegNet's colour, not
+    CamVid's); where both name a colour, they name the same class."""
     from ..classes.table import CAMVID11
 
-    pairs = {int(_pack(np.array(c, np.uint8))): i for _, c, i in CAMVID32}
+    pairs = {c: i for _, c, i in CAMVID32}
     for c in CAMVID11.classes:
-        assert pairs.setdefault(int(_pack(np.array(c.colour, np.uint8))), c.id) == c.id
-    keys = np.array(sorted(pairs), np.int32)
-    return keys, np.array([pairs[int(k)] for k in keys], np.uint8)
+        assert pairs.setdefault(c.colour, c.id) == c.id
+    return list(pairs), list(pairs.values())
 
 
 def camvid32_ids(rgb: np.ndarray, where: str) -> np.ndarray:
     """(H, W) uint8 ``camvid11`` ids of an (H, W, 3) uint8 RGB label image in CamVid's 32 classes' colours
     (or ``camvid11``'s); a :class:`DatasetError` naming ``where`` and the first colour of neither."""
-    keys, ids = _colour_ids()
-    packed = _pack(np.asarray(rgb))
-    pos = np.minimum(np.searchsorted(keys, packed), len(keys) - 1)
-    hit = keys[pos] == packed
-    if not hit.all():
-        y, x = np.argwhere(~hit)[0]
-        colour = tuple(int(v) for v in rgb[y, x])
+    from ..classes.table import colour_ids
+
+    labels, miss = colour_ids(np.asarray(rgb), *_colour_ids())
+    if miss is not None:
+        x, y, colour = miss
         raise DatasetError(f"{where}: colour {colour} (at x={x}, y={y}) is none of CamVid's 32 classes' colours "
                            f"(label_colors.txt) nor camvid11's")
-    return ids[pos]
+    return labels
 
 
 def read_camvid_labels(path: Path, table, mapping: str | None) -> np.ndarray:

@@ -115,8 +115,8 @@ def _least_rotation(u: np.ndarray, v: np.ndarray, determined: bool, R: np.ndarra
     m = np.argmin(np.abs(v))  # opposite: a half turn about the axis perpendicular to v nearest a coordinate axis
     e = np.zeros(3)
     e[m] = 1.0
-    n = e - (e @ v) * v
-    n /= math.sqrt(n @ n)
+    n = e - v[m] * v  # e minus its part along v (e @ v is v[m]: e is one-hot)
+    n /= math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
     for i in range(3):
         for j in range(3):
             R[i, j] = 2.0 * n[i] * n[j] - (1.0 if i == j else 0.0)

@@ -69,7 +69,7 @@ from ..frame import PreparedFrame
 from .working import WorkingSize
 
 if TYPE_CHECKING:
-    from .stream import StepReport
+    from .report import StepReport
 
 __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
            "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "NEAR", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET",
@@ -320,7 +320,7 @@ class ObjectFollower:
         """A follower reset to the key frame, with naive Bayes fitted on it (:attr:`classifier`)."""
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
-        from .stream import check_labels
+        from ..classes.keys import check_labels
 
         key = PreparedFrame.of(image, name="key frame")
         lab = check_labels(labels, key.shape)
@@ -335,7 +335,7 @@ class ObjectFollower:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB (or a PreparedFrame), labels (H, W)
         uint8 with 0 background, 1 the object, 2 unknown."""
         from ..registration.flow import DIS_MIN_SIDE, pixel_grid
-        from .stream import check_labels
+        from ..classes.keys import check_labels
 
         full = PreparedFrame.of(image, name="key frame")
         lab = check_labels(labels, full.shape)
@@ -368,7 +368,7 @@ class ObjectFollower:
         """Labels (H, W) uint8 (1 the object) of the next frame, an image or a PreparedFrame; see :attr:`last`."""
         from .._threads import both
         from ..registration.flow import dis_flow, flow_field
-        from .stream import StepReport
+        from .report import StepReport
 
         size, carry = self._size, self._carry
         if size is None or carry is None:

@@ -39,7 +39,7 @@ def _read_table_labels(path: Path, image: np.ndarray, table, mapping) -> np.ndar
     from ..classes.table import CAMVID11
 
     if mapping == "camvid" or table.agrees(CAMVID11):  # CamVid's own 32 classes' colours too
-        from .camvid import read_camvid_labels
+        from .camvid_colours import read_camvid_labels
 
         lab = read_camvid_labels(path, table, mapping)
     else:

@@ -261,7 +261,18 @@ def _bad_line(path: Path, separator: bytes | None, width: int, start: int, numer
                 raise InputError(f"{path}: line {number} ({text!r}) has {len(fields)} fields, the first line names "
                                  f"{width}")
             raise InputError(f"{path}: line {number} ({text!r}): its {'xyz'[numeric.index(wrong)]}, "
-                             f"{fields[wrong][:20].decode('ascii', 'replace')!r}, is not a number")
+                             f"{fields[wrong][:20].decode('ascii', 'replace')!r}, is not a number{_comma_hint(line)}")
+
+
+#: Said of a line of numbers with decimal commas between spaces (``1,5 2,5``), which is refused.
+DECIMAL_COMMA_HINT = (" (decimal commas are read between semicolons or tabs, as a spreadsheet saves them; between "
+                      "spaces a comma is taken for a separator: save with ';' or tabs between the numbers)")
+
+
+def _comma_hint(line: bytes) -> str:
+    """:data:`DECIMAL_COMMA_HINT` when a word of ``line`` (split at white space) is a number with a decimal
+    comma, else ""."""
+    return DECIMAL_COMMA_HINT if any(_COMMA_NUMBER.fullmatch(w) for w in line.split()) else ""
 
 
 def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
@@ -274,6 +285,7 @@ def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
                          "(give one, as 'x y z ...', or keep two or three columns)")
     names = [f.decode("ascii", "replace").strip("\"'").lstrip("/").strip().lower() for f in fields]
     if "x" not in names or "y" not in names:
-        text = b",".join(fields)[:60].decode("ascii", "replace")
-        raise InputError(f"{path}: its first line ({text!r}) names no x and y columns")
+        line = b",".join(fields)
+        text = line[:60].decode("ascii", "replace")
+        raise InputError(f"{path}: its first line ({text!r}) names no x and y columns{_comma_hint(line)}")
     return [names.index(a) for a in "xyz" if a in names]

@@ -143,6 +143,15 @@ def test_decimal_commas_between_semicolons_or_tabs_are_read(tmp_path, pts):
         load_cloud(tmp_path / "thousands.csv")
 
 
+@pytest.mark.parametrize("text", ["1,5 2,5 3,5\n4,5 5,5 6,5\n", "x y z\n1,5 2,5 3,5\n"])
+def test_decimal_commas_between_spaces_are_refused_saying_so(tmp_path, text):
+    """``1,5 2,5 3,5`` is ambiguous (a comma is also a separator) and refused; the refusal named a line of no x and
+    y columns, or an x that is not a number, and not the decimal commas or how to save the file so it is read."""
+    (tmp_path / "commas.txt").write_text(text)
+    with pytest.raises(InputError, match="commas.txt: .*decimal commas are read between semicolons or tabs"):
+        load_cloud(tmp_path / "commas.txt")
+
+
 @pytest.mark.parametrize("text, match", [
     ("1 2 3\n4 5\n6 7 8\n", r"line 2 \('4 5'\) is not 3 numbers"),
     ("1 2 3\n4 5 6 7\n", r"line 2 \('4 5 6 7'\) is not 3 numbers"),

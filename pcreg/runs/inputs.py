@@ -207,11 +207,23 @@ def check_suggest(count: int | None, frames, keys: int) -> None:
             raise InputError(f"--suggest {count}: the frame name {odd!r} holds a tab or a line break, which "
                              "suggest.txt (a name and a tab a line) cannot list; rename the frame")
 
+def _frame_stems(frames, files: list[Path]) -> list[str]:
+    """The frame each label file names by its stem: ``NAME_L.png``, as CamVid's download names its labels, the
+    frame ``NAME`` when ``NAME_L`` names none and ``NAME`` does; else the stem as it is."""
+    from ..classes.cvat import frame_positions
+    from ..datasets.folder import LABEL_SUFFIX
+
+    where = frame_positions(frames)
+    return [f.stem[: -len(LABEL_SUFFIX)] if f.stem.endswith(LABEL_SUFFIX) and where(f.stem) is None
+            and where(f.stem[: -len(LABEL_SUFFIX)]) is not None else f.stem for f in files]
+
+
 def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> dict:
-    """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``, and
-    ``frame_NNNNNN.png`` the source frame NNNNNN, as CVAT names them: :func:`~pcreg.classes.cvat.frame_positions`), read
-    through ``table`` (None: ``lagr``), each checked: a frame it names, one label a frame, the frames' size,
-    something known."""
+    """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``, or
+    ``NAME_L.png`` as CamVid's download names it (:func:`_frame_stems`), and ``frame_NNNNNN.png`` the source
+    frame NNNNNN, as CVAT names them: :func:`~pcreg.classes.cvat.frame_positions`), read through
+    ``table`` (None: ``lagr``), each checked: a frame it names, one label a frame, the frames' size, something
+    known."""
     from ..classes import DEFAULT_TABLE
     from ..classes.cvat import named_frames, placed
     from ..classes.keys import all_unknown
@@ -222,7 +234,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
                        "key labels")
     if not files:
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
-    positions = placed(frames, [f.stem for f in files], folder)
+    positions = placed(frames, _frame_stems(frames, files), folder)
     keys: dict = {}
     seen: dict[int, Path] = {}
     for f, t in zip(files, positions):

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 
 def frames_and_masks(n: int = 5, shape=(48, 64), seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -53,3 +54,28 @@ def shared_sequence(shared_data: Path, name: str) -> Path:
     if not seq.is_dir():
         pytest.skip(f"{seq} is absent")
     return seq
+
+
+#: DAVIS's palette: index 1 dark red, 2 dark green, 255 (void) white.
+_PALETTE = [0, 0, 0, 128, 0, 0, 0, 128, 0] + [0, 0, 0] * 252 + [255, 255, 255]
+
+
+def write_palette(path: Path, ids: np.ndarray) -> Path:
+    im = Image.fromarray(ids.astype(np.uint8), mode="P")
+    im.putpalette(_PALETTE)
+    im.save(path)
+    return path
+
+
+def halves(mask: np.ndarray, *, void: bool = False) -> np.ndarray:
+    """A one-object mask split into two objects: its left half index 1, its right half index 2 (and with
+    ``void`` a band of 255 along the image's top rows)."""
+    ids = np.zeros(mask.shape, np.uint8)
+    cols = np.nonzero((mask > 0).any(axis=0))[0]
+    mid = (cols.min() + cols.max() + 1) // 2 if cols.size else mask.shape[1] // 2
+    obj = mask > 0
+    ids[:, :mid][obj[:, :mid]] = 1
+    ids[:, mid:][obj[:, mid:]] = 2
+    if void:
+        ids[:2] = 255
+    return ids

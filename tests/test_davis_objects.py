@@ -11,7 +11,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from PIL import Image
 
 from pcreg.classes import DAVIS
 from pcreg.classes.keys import read_key_labels
@@ -19,33 +18,8 @@ from pcreg.cli import main
 from pcreg.datasets import load_dataset
 from pcreg.datasets.davis import load_davis, load_objects, load_sequence
 from pcreg.errors import DatasetError
-from _davis import frames_and_masks, shared_sequence
+from _davis import frames_and_masks, halves, shared_sequence, write_palette
 from _runs import one_line_errors
-
-#: DAVIS's palette: index 1 dark red, 2 dark green, 255 (void) white.
-_PALETTE = [0, 0, 0, 128, 0, 0, 0, 128, 0] + [0, 0, 0] * 252 + [255, 255, 255]
-
-
-def write_palette(path: Path, ids: np.ndarray) -> Path:
-    im = Image.fromarray(ids.astype(np.uint8), mode="P")
-    im.putpalette(_PALETTE)
-    im.save(path)
-    return path
-
-
-def halves(mask: np.ndarray, *, void: bool = False) -> np.ndarray:
-    """A one-object mask split into two objects: its left half index 1, its right half index 2 (and with
-    ``void`` a band of 255 along the image's top rows)."""
-    ids = np.zeros(mask.shape, np.uint8)
-    cols = np.nonzero((mask > 0).any(axis=0))[0]
-    mid = (cols.min() + cols.max() + 1) // 2 if cols.size else mask.shape[1] // 2
-    obj = mask > 0
-    ids[:, :mid][obj[:, :mid]] = 1
-    ids[:, mid:][obj[:, mid:]] = 2
-    if void:
-        ids[:2] = 255
-    return ids
-
 
 def two_object_sequence(seq: Path, images, masks, *, void: bool = False) -> list[np.ndarray]:
     """``seq/images/NNNNN.jpg`` with ``seq/labels/NNNNN.png`` palette masks of two objects; the ids written."""

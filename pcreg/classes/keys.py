@@ -82,9 +82,11 @@ class LabelCoding:
 
 
 def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[np.ndarray, bool]:
-    """The values an object mask stores, and whether they are a palette PNG's indices: a palette PNG's
-    indices (DAVIS 2017's object ids, :func:`pcreg.classes.mappings.palette_objects`), a grey image's
-    values, a colour image's pixels that are not black as 1."""
+    """The values an object mask stores, and whether they are object ids, each object on its own (DAVIS 2017's,
+    :func:`pcreg.classes.mappings.palette_objects`): a palette PNG's indices; a grey image's values, ids when it
+    holds several values below 255 (:func:`_grey_ids`); a colour image's palette indices when its colours are
+    several of DAVIS's palette (:func:`_colour_objects`), else its pixels that are not black as 1. A grey image
+    saved in colour (three equal channels) is read as grey."""
     from ..formats import check_image_bytes, decode_image
     from .png import check_lossless, is_palette_png
 
@@ -102,11 +104,62 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
         except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
             raise InputError(f"{name}: cannot decode image ({exc})") from None
     img = decode_image(data, name, limit=limit)
+    if img.ndim == 3 and img.dtype == np.uint8 and (img[:, :, 1:3] == img[:, :, :1]).all():
+        img = img[:, :, 0]  # grey saved in colour
     if img.ndim == 3:
-        return (img[:, :, :3] != 0).any(axis=2).astype(np.uint8), False
+        return _colour_objects(img, name)
     if img.dtype != np.uint8:
         raise InputError(f"{name}: an object mask must be an 8-bit image, got {img.dtype}")
-    return img, False
+    return img, _grey_ids(img, name)
+
+
+#: How to save several objects so that no reader guesses: DAVIS 2017's way.
+_SAVE_OBJECTS = ("save several objects as a palette PNG (indices 1..N the objects, 0 the background, as DAVIS "
+                 "2017), or one object as 0 and 255")
+
+
+def _listed(values) -> str:
+    values = [str(v) for v in values]
+    return ", ".join(values[:6]) + (f" and {len(values) - 6} more" if len(values) > 6 else "")
+
+
+def _grey_ids(values: np.ndarray, name: str) -> bool:
+    """Whether a grey mask's values are object ids, as a palette PNG's indices: when it holds two or more
+    values between 1 and 254 (DAVIS 2017's objects saved as grey). One value (DAVIS 2016's 255, or another)
+    is one object, as before. Several values below 255 beside 255 is refused, naming them: DAVIS 2017's
+    objects with 255 void, or a 0/255 mask whose edges were smoothed (resized), cannot be told apart."""
+    present = np.flatnonzero(np.bincount(values.ravel(), minlength=256))
+    below = [int(v) for v in present if 0 < v < 255]
+    if len(below) < 2:
+        return False
+    if present[-1] == 255:
+        raise InputError(f"{name}: a grey mask of values 0, {_listed(below)} and 255: objects {_listed(below)} with "
+                         "255 void, or one object (255) with smoothed edges? Neither is assumed; " + _SAVE_OBJECTS)
+    return True
+
+
+def _colour_objects(img: np.ndarray, name: str) -> tuple[np.ndarray, bool]:
+    """``(values, ids)`` of a colour mask (BGR(A), as decoded): colours all of DAVIS's palette (VOC's colour map,
+    whose 255 (224, 224, 192) and white are void) are the palette's indices, read as a palette PNG's, so that
+    a frame showing one of several objects still names it; else one colour besides black is one object (its
+    pixels 1, as before), and several colours, one of them not of the palette, are refused naming it: one
+    object drawn in several colours, or several objects?"""
+    from .files import voc_colormap
+    from .table import colour_ids
+
+    union = (img[:, :, :3] != 0).any(axis=2).astype(np.uint8)
+    if img.dtype != np.uint8:
+        return union, False
+    rgb = np.ascontiguousarray(img[:, :, 2::-1])
+    colours = [(int(r), int(g), int(b)) for r, g, b in voc_colormap(256)] + [(255, 255, 255)]
+    ids, miss = colour_ids(rgb, colours, [*range(256), 255])
+    if miss is None:
+        return ids, True
+    if len(np.unique(rgb[union > 0], axis=0)) < 2:
+        return union, False
+    x, y, colour = miss
+    raise InputError(f"{name}: a colour mask of several colours, {colour} (at x={x}, y={y}) none of DAVIS's "
+                     "palette (VOC's colour map): one object or several? Neither is assumed; " + _SAVE_OBJECTS)
 
 
 def read_object_mask(path: str | Path, *, limit: int | None = None) -> tuple[np.ndarray, bool]:
@@ -126,17 +179,20 @@ def _raw_values(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
 
 def _one_object(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
     """pcreg's labels of a one-object mask (``--mapping davis``): 1 the object, 0 the background, 2 a
-    palette's void (255 beside other indices). A palette mask of several objects (DAVIS 2017's) is an
-    :class:`InputError` naming the file and its object ids: merging them would follow none of them."""
+    palette's void (255 beside other indices). A mask of several objects (DAVIS 2017's: a palette PNG, or its
+    ids as grey values or its palette's colours, :func:`object_values`) is an :class:`InputError` naming the
+    file and its object ids: merging them would follow none of them."""
     from .mappings import object_labels, palette_objects
+    from .png import is_palette_png
 
-    values, palette = object_values(data, name, limit=limit)
-    if not palette:
+    values, by_id = object_values(data, name, limit=limit)
+    if not by_id:
         return object_labels(values)
     ids, void = palette_objects(values)
     if len(ids) > 1:
-        raise InputError(f"{name}: a mask of {len(ids)} objects (palette indices {', '.join(map(str, ids))}, as DAVIS "
-                         "2017 stores them); --classes davis follows one object and would merge them: save one mask "
+        kind = "palette indices" if is_palette_png(data) else "object ids"
+        raise InputError(f"{name}: a mask of {len(ids)} objects ({kind} {', '.join(map(str, ids))}, as DAVIS 2017 "
+                         "stores them); --classes davis follows one object and would merge them: save one mask "
                          "per object (0 the background, 255 the object) and run once for each")
     return object_labels(values, ids[0] if ids else None, void)
 

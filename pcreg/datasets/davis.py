@@ -5,7 +5,8 @@ Segmentation", CVPR 2016) gives the first frame's mask and asks for the object i
 DAVIS 2016 mask's value 0 is the background, anything else the object: pcreg's labels 0 and 1
 (:data:`DAVIS_MAPPING`, ``pcreg run --mapping davis``). DAVIS 2017 stores several objects in one palette
 PNG, indices 1..N the objects, 0 the background, 255 void: each object of the first frame is a clip of its
-own, ``SEQ_K``, scored on its own as the DAVIS 2017 evaluation does (:func:`load_objects`). Two layouts are
+own, ``SEQ_K``, scored on its own as the DAVIS 2017 evaluation does (:func:`load_objects`); so is a grey mask
+of those ids, or an RGB mask in the palette's colours. Two layouts are
 read (:func:`find_sequences`), PATH naming one sequence or a folder of them:
 
 - pcreg's (as in ``../shared/data/davis``): ``SEQ/images/NNNNN.jpg`` with ``SEQ/labels/NNNNN.png``;
@@ -124,9 +125,9 @@ def _read(path: Path, *, color: bool) -> np.ndarray:
 
 
 def _mask(path: Path, frame: Path, shape: tuple[int, int]) -> tuple[np.ndarray, bool]:
-    """The mask's values (H, W) uint8 and whether they are a palette PNG's indices (DAVIS 2017's object ids,
-    as VOC stores masks), else a grey value or a colour in any channel, nonzero the object
-    (:func:`pcreg.classes.keys.read_object_mask`)."""
+    """The mask's values (H, W) uint8 and whether they are object ids (DAVIS 2017's: a palette PNG's indices, as
+    VOC stores masks, or those ids as grey values or as the palette's colours), else a grey value or a colour,
+    nonzero the object (:func:`pcreg.classes.keys.read_object_mask`)."""
     from ..classes.keys import read_object_mask
 
     try:
@@ -169,8 +170,9 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
     first ``n_frames``) with its mask ``masks/STEM.png`` as labels (0 background, 1 the object, 2 void).
 
     A mask of one object (DAVIS 2016's 0/255, a grey or colour mask: nonzero the object; a palette of one
-    index) gives ``{name: frames}``. A palette mask whose first frame holds several object ids (DAVIS 2017:
-    indices 1..254, 0 the background, 255 void) gives one clip per id, ``{name_K: frames}``
+    index) gives ``{name: frames}``. A mask whose first frame holds several object ids (DAVIS 2017: a palette
+    PNG's indices 1..254, 0 the background, 255 void; or those ids saved as grey values or as the palette's
+    colours, :func:`pcreg.classes.keys.object_values`) gives one clip per id, ``{name_K: frames}``
     (:func:`object_name`), each with object K as 1 and every other object as background, as the DAVIS 2017
     evaluation scores each object on its own (davis2017-evaluation ``davis2017/davis.py``
     ``get_all_masks``: the objects are those of the first frame). A void index is label 2 (unknown).
@@ -194,8 +196,8 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
                 f"no mask of frame {f.name}: every frame is scored"
             raise DatasetError(f"{m}: {what}")
         image = _read(f, color=True)
-        values, palette = _mask(m, f, image.shape[:2])
-        if t == 0 and palette:  # the objects are the first frame's (its palette's indices)
+        values, by_id = _mask(m, f, image.shape[:2])
+        if t == 0 and by_id:  # the objects are the first frame's (its palette's indices)
             ids, void = palette_objects(values)
             objects = ids if ids else (None,)
         for k in objects:

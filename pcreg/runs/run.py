@@ -151,7 +151,7 @@ class Run:
         the key frame, the frame after it and the decoder it came from, which a fresh run continues."""
         import itertools
 
-        from .._runner import check_interrupted, progress
+        from .._runner import check_interrupted, progress, tick
         from ..datasets.sources import read_ahead
         from ..frame import PreparedFrame
         from ..outputs import WriteBehind
@@ -195,12 +195,12 @@ class Run:
                           reference=references.of(prop.last))
                 references.stepped(prop.last, image.rgb)
                 done = t + 1
-                bar.update(1)
+                tick(bar)
         self._say_done(request, done - start, [0], start=start)
 
     def _label_from_keys(self, request: RunRequest, keys: dict) -> None:
         """Every frame labelled from the key frames around it (:class:`pcreg.pipeline.keys_run.KeyRun`)."""
-        from .._runner import check_interrupted, progress
+        from .._runner import check_interrupted, progress, tick
         from ..pipeline.keys_run import KeyRun
         from ..recording.recorder import open_recording
 
@@ -218,7 +218,7 @@ class Run:
             with progress(total=left, desc="frames", disable=None) as bar:
                 def on_frame(t, image, labels, report, name, size, reference=None) -> None:
                     log_frame(rec, t, image, labels, report, name, size, reference=reference)
-                    bar.update(1)
+                    tick(bar)
 
                 done = job.run(on_frame=on_frame, check=check_interrupted)
             self._say_done(request, done, sorted(keys))

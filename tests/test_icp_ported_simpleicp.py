@@ -110,9 +110,18 @@ def test_bunny_partial_overlap_point_to_plane_near_their_h(bunny, offset):
 
 
 def _students(name: str) -> np.ndarray:
-    """data_students' CSV ("Points_0,Points_1,Points_2[,...]"): x, y, z. pcreg's reader refuses that first line
-    (no x, y, z names), so numpy reads them here."""
-    return np.loadtxt(STUDENTS / name, delimiter=",", skiprows=1, usecols=(0, 1, 2))
+    """data_students' CSV: a first line ``Points_0,Points_1,Points_2`` (cow_tr2: then ``Points_Magnitude,Point ID``)."""
+    return load_cloud(STUDENTS / name)
+
+
+def test_students_csv_reads_as_numpy_reads_it():
+    """data_students names its columns as VTK's writers do, ``Points_0,Points_1,Points_2`` (ParaView's CSV
+    export: ``"Points:0","Points:1","Points:2"``): pcreg's reader takes them for x, y and z (it refused the first
+    line as naming no x and y), and leaves the other columns out."""
+    for name in ("cow_ref.txt", "cow_tr2.txt", "horse_ref_every100.txt"):
+        np.testing.assert_array_equal(_students(name), np.loadtxt(STUDENTS / name, delimiter=",", skiprows=1,
+                                                                  usecols=(0, 1, 2)))
+    assert _students("cow_tr2.txt").shape == (2903, 3) and _students("horse_tr1_every100.txt").shape == (485, 3)
 
 
 @pytest.mark.parametrize("name", ["cow_tr1.txt", "cow_tr2.txt", "horse_tr1_every100.txt",

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 import pcreg
 from pcreg import ICPOptions
 from pcreg.cloud_reader import load_cloud
+from pcreg.errors import RegistrationError
 from pcreg.implementations.crosscheck import crosscheck_implementations
 from pcreg.registration.closed_forms import estimate_umeyama
 
@@ -150,3 +151,67 @@ def test_students_cow_through_every_cross_check_row():
                                       options=ICPOptions(max_correspondence_distance=0.5, max_iteration=100)).rows
     for name in names:
         assert rows[name]["error"] is None and np.abs(np.asarray(rows[name]["matrix"]) - known).max() < 1e-9, name
+
+
+def _clay_rotation(axis: np.ndarray, theta: float) -> np.ndarray:
+    """ClayFlannigan/icp test.py rotation_matrix (a quaternion's matrix; axis normalised, sign as theirs)."""
+    axis = axis / np.linalg.norm(axis)
+    a = np.cos(theta / 2.0)
+    b, c, d = -axis * np.sin(theta / 2.0)
+    return np.array([[a * a + b * b - c * c - d * d, 2 * (b * c - a * d), 2 * (b * d + a * c)],
+                     [2 * (b * c + a * d), a * a + c * c - b * b - d * d, 2 * (c * d - a * b)],
+                     [2 * (b * d - a * c), 2 * (c * d + a * b), a * a + d * d - b * b - c * c]])
+
+
+def _clay_trials(rotation: float, trials: int = 100, seed: int = 0) -> int:
+    """ClayFlannigan/icp (commit 167cc4adc442487d2b1b331e18818a6f4d779d49) test.py test_icp: N = 10 random points
+    in the unit cube, each trial translated by up to 0.1, turned by up to ``rotation`` rad about a random axis,
+    noise sigma 0.01, shuffled; their icp.icp (20 iterations) must give a mean nearest distance, R^T and -t within
+    6 sigma. Returns how many trials pcreg's ICP (20 iterations, every nearest neighbour) fails."""
+    rng = np.random.default_rng(seed)
+    A = rng.random((10, 3))
+    failed = 0
+    for _ in range(trials):
+        t = rng.random(3) * 0.1
+        R = _clay_rotation(rng.random(3), rng.random() * rotation)
+        B = (R @ (A + t).T).T + rng.standard_normal((10, 3)) * 0.01
+        rng.shuffle(B)
+        T = pcreg.icp(B, A, ICPOptions(max_iteration=20)).matrix
+        moved = pcreg.transforms.apply(T, B)
+        mean = np.linalg.norm(moved[:, None] - A[None], axis=2).min(axis=1).mean()
+        failed += not (mean < 0.06 and np.allclose(T[:3, :3].T, R, atol=0.06) and np.allclose(-T[:3, 3], t, atol=0.06))
+    return failed
+
+
+def test_clayflannigan_random_points_protocol():
+    """ClayFlannigan/icp test.py test_icp, 100 trials (rotations up to 0.1 rad): every trial within their
+    tolerance of 6 sigma. With rotations up to 1.5 rad the same protocol fails trials (nearest neighbours of 10
+    points that far apart pair them wrongly), so the check bites."""
+    assert _clay_trials(0.1) == 0
+    assert _clay_trials(1.5, trials=30) > 0
+
+
+def test_bunny_far_from_the_origin_through_the_cross_check(bunny):
+    """The bunny pair 5e6 from the origin through the cross-check (gate 0.5, 100 iterations): the point-to-point
+    rows (the reference, Open3D legacy and tensor, small_gicp, KISS-ICP) agree with each other to 1e-6 and stop
+    0.73 degrees from simpleICP's H, as pcreg's point to point does at the origin; small_gicp's GICP, which fits
+    the surfaces, lands within 0.2 degrees of it."""
+    fixed, movable = bunny
+    names = ["reference", "open3d", "open3d-tensor", "small_gicp", "kiss-icp", "small_gicp-gicp"]
+    rows = crosscheck_implementations(movable + FAR, fixed + FAR, implementations=names,
+                                      options=ICPOptions(max_correspondence_distance=0.5, max_iteration=100)).rows
+    M = {name: _about(np.asarray(rows[name]["matrix"]), -FAR) for name in names}
+    for name in names[:5]:
+        assert rows[name]["error"] is None and _apart(M[name], M["reference"], movable)[1] < 1e-6, name
+    assert 0.5 < _apart(H_BUNNY, M["reference"], movable)[0] < 1.0
+    assert _apart(H_BUNNY, M["small_gicp-gicp"], movable)[0] < 0.2
+
+
+def test_open3d_backend_point_to_plane_far_from_the_origin_is_refused(dragon):
+    """The dragon pair 5e6 from the origin with ``backend="open3d"``: Open3D linearises the point-to-plane step
+    about the origin, whose rotation there overshoots by its angle squared times 5e6; the run diverges and pcreg
+    refuses it rather than return it. The reference backend reaches the motion (the test above)."""
+    fixed, movable = dragon
+    with pytest.raises(RegistrationError, match="diverged"):
+        pcreg.icp(movable + FAR, fixed + FAR, ICPOptions(backend="open3d", metric="point_to_plane", max_iteration=100),
+                  target_normals=_normals(fixed))

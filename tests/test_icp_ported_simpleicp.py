@@ -3,7 +3,8 @@ yassram/iterative-closest-point's ``data_students/``, run through pcreg's ICP an
 Each test names the file it mirrors; the data are subsampled as ``tests/data/simpleicp/README.md`` and
 ``tests/data/icp_students/README.md`` say. simpleICP is point-to-plane with normals from 10 neighbours, 1000
 correspondences, a MAD rejection and a planarity filter, and a rotation linearised per step; pcreg's nearest
-equivalents are named in each test."""
+equivalents are named in each test. ClayFlannigan/icp's random-points protocol (test.py) runs at the end, on
+points it draws."""
 
 from pathlib import Path
 

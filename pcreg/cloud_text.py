@@ -275,15 +275,23 @@ def _comma_hint(line: bytes) -> str:
     return DECIMAL_COMMA_HINT if any(_COMMA_NUMBER.fullmatch(w) for w in line.split()) else ""
 
 
+#: ParaView's CSV export names the coordinates ``Points:0``, ``Points:1``, ``Points:2``, and VTK-derived writers
+#: ``Points_0``, ...: read as x, y and z in a first line that names no x and y.
+_POINTS_COLUMNS = {f"points{sep}{k}": a for k, a in enumerate("xyz") for sep in (":", "_")}
+
+
 def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
     """None for a first line of numbers with two or three of them; the x, y (and z) columns of a first line of
-    names; an :class:`InputError` otherwise (numbers in other counts say nothing of which are coordinates)."""
+    names (:data:`_POINTS_COLUMNS` stand for them); an :class:`InputError` otherwise (numbers in other counts say
+    nothing of which are coordinates)."""
     if all(_NUMBER.fullmatch(f) for f in fields):
         if len(fields) in (2, 3):
             return None
         raise InputError(f"{path}: {len(fields)} number{'s' if len(fields) > 1 else ''} a line and no first line naming the x, y and z columns "
                          "(give one, as 'x y z ...', or keep two or three columns)")
     names = [f.decode("ascii", "replace").strip("\"'").lstrip("/").strip().lower() for f in fields]
+    if "x" not in names and "y" not in names:
+        names = [_POINTS_COLUMNS.get(n, n) for n in names]
     if "x" not in names or "y" not in names:
         line = b",".join(fields)
         text = line[:60].decode("ascii", "replace")

@@ -72,6 +72,18 @@ def test_named_x_y_z_columns_are_read_beside_a_column_of_text(tmp_path, pts):
         load_cloud(tmp_path / "bare.csv")
 
 
+def test_paraview_and_vtk_point_columns_are_x_y_z(tmp_path):
+    """ParaView's CSV export names the coordinates "Points:0","Points:1","Points:2" (and VTK-derived writers
+    Points_0, ...): read as x, y and z, the other columns left out; they were refused as naming no x and y. A first
+    line that names x or y keeps them: Points:0 is then a column like any other."""
+    (tmp_path / "paraview.csv").write_text('"vtkOriginalIndices","Points:0","Points:1","Points:2"\n0,1.5,2,3\n1,4,5,6\n')
+    np.testing.assert_array_equal(load_cloud(tmp_path / "paraview.csv"), [[1.5, 2, 3], [4, 5, 6]])
+    (tmp_path / "vtk.csv").write_text("Points_0,Points_1,Points_2,Point ID\n1,2,3,0\n4,5,6,1\n")
+    np.testing.assert_array_equal(load_cloud(tmp_path / "vtk.csv"), [[1, 2, 3], [4, 5, 6]])
+    (tmp_path / "both.csv").write_text("Points_0,x,y\n9,1,2\n9,3,4\n")
+    np.testing.assert_array_equal(load_cloud(tmp_path / "both.csv"), [[1, 2], [3, 4]])
+
+
 def test_a_csv_that_starts_with_a_byte_order_mark_is_read(tmp_path, pts):
     """A spreadsheet's "CSV UTF-8" export (Excel's) starts with the bytes EF BB BF: its first line was taken for
     names that name no x and y ('\ufffd\ufffd\ufffdx,y,z'), a first line of numbers too."""

@@ -216,3 +216,16 @@ def test_open3d_backend_point_to_plane_far_from_the_origin_is_refused(dragon):
     with pytest.raises(RegistrationError, match="diverged"):
         pcreg.icp(movable + FAR, fixed + FAR, ICPOptions(backend="open3d", metric="point_to_plane", max_iteration=100),
                   target_normals=_normals(fixed))
+
+
+@pytest.mark.parametrize("offset", [0.0, 5e6])
+def test_point_to_plane_step_without_weight_is_no_motion(offset):
+    """Pairs all weighted 0 (every residual beyond a robust cut-off) have no mean to linearise about: the step is
+    no motion, as the singular system about the origin gives, not NaN."""
+    from pcreg.registration.normal_steps import estimate_point_to_plane
+
+    rng = np.random.default_rng(3)
+    p = rng.random((40, 3)) + offset
+    n = rng.normal(size=(40, 3))
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    assert np.array_equal(estimate_point_to_plane(p, p + 0.01, n, np.zeros(40)), np.eye(4))

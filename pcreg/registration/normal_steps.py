@@ -81,8 +81,11 @@ def estimate_point_to_plane(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.n
     then builds the rotation Rz(ω_z) Ry(ω_y) Rx(ω_x). A singular system gives no motion (the identity),
     as Open3D's solver does when it fails. Pairs whose mean lies more than :data:`FAR` spreads from the origin
     are linearised about that mean instead (the rotation turns about it): clouds in real-world coordinates."""
-    c = (w @ p) / w.sum()
-    spread2 = float(w @ np.sum((p - c) ** 2, axis=1)) / w.sum()
+    total = float(w.sum())
+    if not total > 0:  # no weight: the system is singular about any point, the identity
+        return _point_to_plane_about_origin(p, q, n, w)
+    c = (w @ p) / total
+    spread2 = float(w @ np.sum((p - c) ** 2, axis=1)) / total
     if float(c @ c) <= FAR * FAR * spread2:
         return _point_to_plane_about_origin(p, q, n, w)
     C = np.eye(4)

@@ -328,7 +328,9 @@ def test_point_to_plane_icp_on_their_surface_diverges_as_open3d_s():
             pcreg.icp(P, Q, replace(options, backend=backend, max_iteration=iterations), target_normals=NQ)
     with pytest.raises(RegistrationError, match="diverged"):  # pairs lost and found again: worse than the start
         pcreg.icp(P, Q, replace(options, max_correspondence_distance=1.0, max_iteration=50), target_normals=NQ)
-    with pytest.raises(RegistrationError, match="moved the source away from the target") as caught:
+    # Open3D's own 50 steps end either with no pair left or every pair 2.8 away (its sums' order is its threads',
+    # and the diverging steps magnify the last bits): refused either way, never as stopped where it started
+    with pytest.raises(RegistrationError, match="moved the source away from the target|diverged") as caught:
         pcreg.icp(P, Q, ICPOptions(backend="open3d", metric="point_to_plane", max_correspondence_distance=100.0,
                                    max_iteration=50), target_normals=NQ)
     assert "stopped where it started" not in str(caught.value)

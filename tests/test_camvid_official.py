@@ -113,6 +113,24 @@ def test_frames_and_labels_folders_named_otherwise_beside_each_other(tmp_path):
             np.testing.assert_array_equal(x.labels, y.labels)
 
 
+def test_the_download_as_matlabs_example_unpacks_it(tmp_path):
+    """MATLAB's CamVid example unzips the frames into ``CamVid/images/701_StillsRaw_full/`` and the labels into
+    ``CamVid/labels/``: an ``images/`` of no frame, read as the download, from ``CamVid`` or the folder above it."""
+    plain = load_dataset(f"camvid:{_official(tmp_path / 'a')}", classes="camvid11")
+    root = tmp_path / "m" / "CamVid"
+    (root / "images").mkdir(parents=True)
+    shutil.copytree(tmp_path / "a" / "701_StillsRaw_full", root / "images" / "701_StillsRaw_full")
+    shutil.copytree(tmp_path / "a" / "LabeledApproved_full", root / "labels")
+    for where in (root, root.parent):
+        data = load_dataset(f"camvid:{where}", classes="camvid11")
+        assert list(data) == list(plain)
+        for seq in plain:
+            for x, y in zip(plain[seq], data[seq]):
+                assert x.name == y.name
+                np.testing.assert_array_equal(x.image, y.image)
+                np.testing.assert_array_equal(x.labels, y.labels)
+
+
 def test_a_colour_of_none_of_the_32_is_one_line_naming_the_file_and_the_colour(tmp_path, capsys):
     root = _official(tmp_path / "CamVid")
     bad = root / "LabeledApproved_full" / "0016E5_07961_L.png"

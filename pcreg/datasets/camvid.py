@@ -65,6 +65,24 @@ def find_official(root: Path) -> tuple[Path, Path] | None:
     return frames[0], labels[0]
 
 
+def find_matlab(root: Path) -> tuple[Path, Path] | None:
+    """``(frames folder, labels folder)`` of CamVid as MATLAB's CamVid example unpacks its download, in ``root`` or
+    ``root/CamVid``: ``images/701_StillsRaw_full/`` (the one sub-folder of frames of an ``images/`` that holds no
+    frame itself) beside ``labels/`` of ``NAME_L.png`` files; None otherwise (an ``images/`` of frames is
+    pcreg's own clip)."""
+    from .folder import LABEL_SUFFIX, image_files
+
+    for base in (root, root / "CamVid"):
+        images, labels = base / "images", base / "labels"
+        if not (images.is_dir() and labels.is_dir()) or image_files(images):
+            continue
+        subs = [p for p in sorted(images.iterdir()) if p.is_dir() and not p.name.startswith(".") and image_files(p)]
+        stems = [f.stem for f in image_files(labels)]
+        if len(subs) == 1 and stems and all(s.endswith(LABEL_SUFFIX) for s in stems):
+            return subs[0], labels
+    return None
+
+
 def sequence_of(name: str) -> str:
     """The sequence a CamVid frame ``SEQ_NNNNNN`` belongs to: ``SEQ``."""
     return name.split("_", 1)[0]

@@ -137,16 +137,17 @@ def _run_command(args: argparse.Namespace) -> int:
     return code
 
 
-def _bug(exc: Exception) -> int:
+def _bug(exc: Exception, args) -> int:
     """An exception pcreg did not raise on purpose: exit 1 with one line (the traceback with
     ``PCREG_TRACEBACK=1``), or 130 when the process was being stopped by a signal anyway."""
     import os
 
     from ._runner import interrupted
 
-    if interrupted():  # e.g. the workers died of the same SIGTERM before the parent's handler ran
-        sys.stderr.write("pcreg: interrupted (finished units are kept; rerun the same command to resume)\n")
-        return 130
+    # e.g. the workers died of the same SIGTERM before the parent's handler ran, or the signal landed inside
+    # a compiled kernel, which returns it as a SystemError: the same words as a KeyboardInterrupt's
+    if interrupted():
+        return _interrupted(args)
     if os.environ.get("PCREG_TRACEBACK", "") not in ("", "0"):
         import traceback
 
@@ -232,18 +233,7 @@ def _main(argv: list[str] | None) -> int:
             os._exit(2)
         return 2
     except KeyboardInterrupt:
-        module = getattr(args, "_module", "")
-        if module.endswith(ONE_SHOT):
-            sys.stderr.write("pcreg: interrupted (nothing was written)\n")
-            return 130
-        if not (module.endswith(".run") or ".evaluate_" in module):  # nothing it could resume (or not yet parsed)
-            sys.stderr.write("pcreg: interrupted\n")
-            return 130
-        again = ("the same command with another --record file (the recording holds what was done)"
-                 if getattr(args, "record", None) else "the same command")
-        kept = "the frames labelled are kept" if module.endswith(".run") else "finished units are kept"
-        sys.stderr.write(f"pcreg: interrupted ({kept}; rerun {again} to resume)\n")
-        return 130
+        return _interrupted(args)
     except BrokenPipeError:  # stdout closed early (`pcreg ... | head`): no message, as other tools
         try:
             devnull = os.open(os.devnull, os.O_WRONLY)
@@ -259,9 +249,25 @@ def _main(argv: list[str] | None) -> int:
         sys.stderr.write(f"pcreg: error: {exc.strerror or _one_line(exc)}{where}\n")
         return 2
     except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
-        return _bug(exc)
+        return _bug(exc, args)
     finally:
         _end(argv is None and interrupted(), saved_limit, previous)
+
+
+def _interrupted(args) -> int:
+    """Exit 130 with one line that says what the interrupted command kept and how it resumes."""
+    module = getattr(args, "_module", "")
+    if module.endswith(ONE_SHOT):
+        sys.stderr.write("pcreg: interrupted (nothing was written)\n")
+        return 130
+    if not (module.endswith(".run") or ".evaluate_" in module):  # nothing it could resume (or not yet parsed)
+        sys.stderr.write("pcreg: interrupted\n")
+        return 130
+    again = ("the same command with another --record file (the recording holds what was done)"
+             if getattr(args, "record", None) else "the same command")
+    kept = "the frames labelled are kept" if module.endswith(".run") else "finished units are kept"
+    sys.stderr.write(f"pcreg: interrupted ({kept}; rerun {again} to resume)\n")
+    return 130
 
 
 def _end(stopping: bool, saved_limit: str | None, previous) -> None:

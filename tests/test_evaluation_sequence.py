@@ -141,3 +141,19 @@ def test_bad_options_exit_2_with_one_line(tmp_path, capsys, bad):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "error" in err[0]
+
+
+def test_augmented_above_plain_reads_higher_not_a_negative_lower(tmp_path, shared_data):
+    """On CamVid 0006R0_b's first frames augmented is worse than plain: the column read "-175.9% lower"."""
+    clip = shared_data / "camvid" / "0006R0_b"
+    if not clip.is_dir():
+        pytest.skip(f"{clip} not found")
+    out = tmp_path / "seq"
+    assert main(["evaluate", "sequence", "--data", f"camvid:{clip}", "--frames", "3", "--increments", "1",
+                 "--out", str(out)]) == 0
+    means = json.loads((out / "results.json").read_text())["datasets"]["0006R0_b"]["increments"]["1"]
+    assert means["augmented"] > means["plain"]
+    row = next(line for line in (out / "sequence_reference.md").read_text().splitlines() if "| 0006R0_b |" in line)
+    rel = 100.0 * (means["augmented"] - means["plain"]) / means["plain"]
+    assert row.endswith(f"| {rel:.1f}% higher |"), row
+    assert "-" not in row.split("|")[-2]

@@ -35,6 +35,15 @@ def test_evaluate_stream_writes_every_table_and_resumes(tmp_path, capsys):
     assert main(args) == 0  # resumed: no unit is run again
     assert {p.name: p.stat().st_mtime_ns for p in (out / "units").iterdir()} == before
     assert json.loads((out / "results.json").read_text())["resumed_units"] == 2
+    assert (out / "stream_reference.md").read_text().startswith("### Labelling a stream from its key frame: ")
+
+
+def test_a_stream_with_several_key_frames_says_so_in_its_table(tmp_path):
+    """``--keys`` (and ``--key-every``) label each clip from several key frames; the table's title said one."""
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--frames", "5", "--size", "160x120", "--data", "synthetic:syn1a",
+                 "--methods", "pcreg", "--keys", "first,last", "--out", str(out)]) == 0
+    assert (out / "stream_reference.md").read_text().startswith("### Labelling a stream from its key frames: ")
 
 
 def test_evaluate_returns_typed_results_and_the_report_writes_exactly_them(tmp_path):

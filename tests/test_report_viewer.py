@@ -293,3 +293,38 @@ def test_the_wheel_lists_every_package_and_the_page():
 
     shipped = [p.name for p in (REPO / "viz").iterdir() if any(fnmatch(p.name, g) for g in cfg["package-data"]["pcreg._viz"])]
     assert {"index.html", "report.css", "report.js", "review.html", "review.css", "review.js"} <= set(shipped)
+
+
+def test_a_page_stopped_after_answering_serves_again_on_its_port_at_once(tmp_path):
+    """The server closes each answered connection first, which leaves it waiting (TIME_WAIT, a minute) on the
+    port: `pcreg view OUT --web` stopped and started again said "the port is in use" for that minute."""
+    import functools
+    import urllib.request
+    from http.server import SimpleHTTPRequestHandler
+
+    from pcreg.recording.report import listen
+    from pcreg.recording.viewer import port_free
+
+    (tmp_path / "index.html").write_text("<p>page</p>")
+    class Quiet(SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    handler = functools.partial(Quiet, directory=str(tmp_path))
+    httpd, thread, port, url = listen("127.0.0.1", 0, handler, name="page-once")
+    with urllib.request.urlopen(url) as answer:
+        assert answer.read() == b"<p>page</p>"
+    assert not port_free("127.0.0.1", port)  # a server listening there still holds it
+    httpd.shutdown()
+    httpd.server_close()
+    thread.join()
+    assert port_free("127.0.0.1", port)
+    httpd, thread, again, url = listen("127.0.0.1", port, handler, name="page-again")
+    try:
+        assert again == port
+        with urllib.request.urlopen(url) as answer:
+            assert answer.read() == b"<p>page</p>"
+    finally:
+        httpd.shutdown()
+        httpd.server_close()
+        thread.join()

@@ -418,3 +418,33 @@ def test_a_resume_after_a_class_of_the_table_was_renamed_says_which_class(tmp_pa
     assert len(err) == 1 and "classes.classes[2]: {'id': 2, 'name': 'car', 'colour': [64, 0, 128]} then, " \
         "{'id': 2, 'name': 'vehicle', 'colour': [64, 0, 128]} now" in err[0], err
     assert {p.name: p.read_bytes() for p in out.iterdir()} == written
+
+
+def test_a_run_interrupted_inside_a_compiled_kernel_says_its_frames_are_kept(tmp_path, capsys, monkeypatch):
+    """Ctrl-C landing inside a numba kernel surfaces as a SystemError ("returned a result with an exception
+    set"), not a KeyboardInterrupt: the run said the evaluations' "finished units are kept"."""
+    import signal
+
+    from pcreg.pipeline.stream import Propagator
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
+    real = Propagator.step
+    steps = []
+
+    def kernel_interrupted(self, image, *args, **kwargs):
+        steps.append(1)
+        if len(steps) == 2:
+            try:
+                signal.raise_signal(signal.SIGINT)  # the command line's own handler notes it and raises
+            except KeyboardInterrupt as exc:
+                raise SystemError("CPUDispatcher(...) returned a result with an exception set") from exc
+        return real(self, image, *args, **kwargs)
+
+    monkeypatch.setattr(Propagator, "step", kernel_interrupted)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 130
+    said = capsys.readouterr().err
+    assert "pcreg: interrupted (the frames labelled are kept; rerun the same command to resume)" in said, said
+    monkeypatch.undo()
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["done"] == 5

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from ..errors import InputError, PcregError
 from .entities import FRAME_TIMELINE
-from .viewer import ViewerError, check_bind, free_port, port_free, serve_web, stop, url_host
+from .viewer import REUSE_ADDRESS, ViewerError, check_bind, free_port, port_free, serve_web, stop, url_host
 
 __all__ = ["ReportServer", "viz_dir"]
 
@@ -78,7 +78,7 @@ def viz_dir() -> Path:
 
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
-    allow_reuse_address = False
+    allow_reuse_address = REUSE_ADDRESS
 
 
 class _Server6(_Server):

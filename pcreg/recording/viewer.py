@@ -267,9 +267,18 @@ def free_port(host: str) -> int:
         return int(s.getsockname()[1])
 
 
+#: Whether a server may listen on a port whose closed connections still wait there (TIME_WAIT, a minute after a
+#: page was served), as Python's own HTTP servers and rerun's do. Not on Windows, where the option lets a
+#: second server take a port another listens on.
+REUSE_ADDRESS = os.name != "nt"
+
+
 def port_free(host: str, port: int) -> bool:
+    """Whether a server can listen on ``host``:``port`` (another one listening there: no)."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     with socket.socket(family, socket.SOCK_STREAM) as s:
+        if REUSE_ADDRESS:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind((host, port))
         except OSError:

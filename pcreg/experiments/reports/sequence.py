@@ -13,6 +13,14 @@ def _label(name: str, info: dict) -> str:
     return f"{name} ({m})" if m else name
 
 
+def _relative(plain, augmented) -> str:
+    """How much lower augmented's error is than plain's, in words ("12.3% lower", or "4.5% higher")."""
+    if not plain or augmented is None or plain != plain or augmented != augmented:
+        return "n/a"
+    change = 100.0 * (plain - augmented) / plain
+    return f"{change:.1f}% lower" if change >= 0 else f"{-change:.1f}% higher"
+
+
 def table(results: dict, backend: str) -> tuple[list, list]:
     """Header and rows: one row per dataset and k, error % per method, relative reduction of augmented."""
     header = ["dataset", "k", "pairs", "failed", "w", *METHODS, "augmented vs plain"]
@@ -22,7 +30,7 @@ def table(results: dict, backend: str) -> tuple[list, list]:
         for k, means in d["increments"].items():
             st = d["pairs"][k]
             p, a = means.get("plain"), means.get("augmented")
-            rel = f"{100.0 * (p - a) / p:.1f}% lower" if (p and a is not None and p == p and a == a) else "n/a"
+            rel = _relative(p, a)
             w = st.get("weight")
             rows.append([_label(name, info), int(k), st["pairs"], st["failed_pairs"],
                          "n/a" if w is None else f"{w:g}", *[means.get(m, float("nan")) for m in METHODS], rel])

@@ -198,7 +198,10 @@ def write_outputs(results: Results, out: str | Path) -> list[Path]:
     h, rows, footer = table(doc)
     ph, prows = per_frame(doc)
     ch, crows, cfooter = calibration_table(doc)
-    tables = {f"stream_{b}": ("Labelling a stream from its key frame: mean error % per clip", h, rows, footer),
+    config = doc.get("config", {})
+    several = config.get("keys") or config.get("key_every")  # --keys, --key-every: more than the first frame
+    title = f"Labelling a stream from its key frame{'s' if several else ''}: mean error % per clip"
+    tables = {f"stream_{b}": (title, h, rows, footer),
               "stream_frames": ("Error % per frame", ph, prows),
               "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter),
               **davis_tables(doc), **classes_tables(doc)}

@@ -11,7 +11,7 @@ when its colours are not the table's.
 
 - ``none``: the table's ids (or its colours, or a palette in its colours); with ``camvid11``, also CamVid's
   own 32 classes' colours (its download's ``NAME_L.png``), grouped as ``camvid11``'s eleven
-  (:data:`pcreg.datasets.camvid_colours.CAMVID32`) when a colour is not the table's;
+  (:data:`pcreg.classes.camvid32.CAMVID32`) when a colour is not the table's;
 - ``camvid``: CamVid's twelve ids (or ``camvid11``'s colours, or CamVid's 32 classes'), mapped to ``lagr``'s ground, obstacle and
   unknown (:data:`pcreg.datasets.folder.CAMVID_MAPPING`); the table stays ``lagr``;
 - ``davis``: an object mask, 0 the background and any other value (or palette index) the object: the
@@ -233,14 +233,13 @@ def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | No
 
 def _camvid32(img: np.ndarray, name: str) -> np.ndarray:
     """``camvid11`` ids of a colour label image (BGR(A), opaque) whose colours are CamVid's 32 classes' or
-    ``camvid11``'s (:func:`pcreg.datasets.camvid_colours.camvid32_ids`: what ``camvid11`` names is read as it
+    ``camvid11``'s (:func:`pcreg.classes.camvid32.camvid32_ids`: what ``camvid11`` names is read as it
     names it); an :class:`InputError` naming ``name``, the first colour of neither and its pixel."""
-    from ..datasets.camvid_colours import camvid32_ids
-    from ..errors import DatasetError
+    from .camvid32 import camvid32_ids
 
     try:
         return camvid32_ids(np.ascontiguousarray(img[:, :, 2::-1]), name)
-    except DatasetError as exc:
+    except InputError as exc:
         raise InputError(f"{exc}; labels are class ids in a single-channel image, a palette PNG, or the class "
                          "table's colours") from None
 

@@ -123,35 +123,48 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         raise DatasetError(f"{path}: no such folder")
     if kind == "davis":
         return load_davis(path, n_frames=n_frames, split=split)
-    out: dict[str, list[Frame]] = {}
-    if kind in ("camvid", "folder"):
-        # with a class table the label files hold its ids (CamVid's own with ``camvid11``), read through it
-        mapping = "camvid" if kind == "camvid" and classes is None else None
-        matlab = find_matlab(path) if kind == "camvid" else None  # images/701_StillsRaw_full/ beside labels/
-        clips = [] if matlab is not None else [path] if (path / "images").is_dir() else \
-            _subfolders(path, lambda p: (p / "images").is_dir())
-        official = matlab or (find_official(path) if kind == "camvid" and not clips else None)
-        segnet = find_segnet(path) if kind == "camvid" and not clips and official is None else None
-        if official is not None:  # CamVid's download: one clip per sequence
-            out = load_official(*official, mapping=mapping, classes=classes, n_frames=n_frames)
-        elif segnet is not None:  # SegNet's split folders: one clip per split and sequence
-            out = load_segnet(segnet, mapping=mapping, classes=classes, n_frames=n_frames)
-        elif not clips:
-            also = f", nor CamVid's {FRAMES_FOLDER}/ and {LABELS_FOLDER}/, nor SegNet's train/ and trainannot/" \
-                if kind == "camvid" else ""
-            raise DatasetError(f"{path}: no frames (no images/ folder in it or in its sub-folders{also})")
-        for clip in clips:
-            out[clip.name] = load_folder(clip, mapping=mapping, classes=classes)
-    else:  # lagr
-        if any(path.glob("*.mat")):
-            sets = [path]
-        else:
-            sets = _subfolders(path, lambda p: p.name.startswith("labeled_lagr_data") or any(p.glob("*.mat")))
-        if not sets:
-            raise DatasetError(f"{path}: no LAGR frames (no .mat files and no labeled_lagr_data_* folders)")
-        for s in sets:
-            m = re.search(r"(DS\w+?)$", s.name)
-            out[m.group(1) if m else s.name] = load_lagr(s)
+    out = _clips(path, kind, classes, n_frames) if kind in ("camvid", "folder") else _lagr_sets(path)
     if n_frames is not None:
         out = {k: v[: int(n_frames)] for k, v in out.items()}
+    return out
+
+
+def _clips(path: Path, kind: str, classes, n_frames: int | None) -> dict[str, list[Frame]]:
+    """``{clip: frames}`` of a ``camvid:`` or ``folder:`` PATH: CamVid's download as MATLAB's example unpacks it,
+    pcreg's clip folders (``images/`` beside ``labels/``), CamVid's download, or SegNet's split folders, the
+    first layout found."""
+    # with a class table the label files hold its ids (CamVid's own with ``camvid11``), read through it
+    mapping = "camvid" if kind == "camvid" and classes is None else None
+    matlab = find_matlab(path) if kind == "camvid" else None  # images/701_StillsRaw_full/ beside labels/
+    clips = [] if matlab is not None else [path] if (path / "images").is_dir() else \
+        _subfolders(path, lambda p: (p / "images").is_dir())
+    official = matlab or (find_official(path) if kind == "camvid" and not clips else None)
+    segnet = find_segnet(path) if kind == "camvid" and not clips and official is None else None
+    out: dict[str, list[Frame]] = {}
+    if official is not None:  # CamVid's download: one clip per sequence
+        out = load_official(*official, mapping=mapping, classes=classes, n_frames=n_frames)
+    elif segnet is not None:  # SegNet's split folders: one clip per split and sequence
+        out = load_segnet(segnet, mapping=mapping, classes=classes, n_frames=n_frames)
+    elif not clips:
+        also = f", nor CamVid's {FRAMES_FOLDER}/ and {LABELS_FOLDER}/, nor SegNet's train/ and trainannot/" \
+            if kind == "camvid" else ""
+        raise DatasetError(f"{path}: no frames (no images/ folder in it or in its sub-folders{also})")
+    for clip in clips:
+        out[clip.name] = load_folder(clip, mapping=mapping, classes=classes)
+    return out
+
+
+def _lagr_sets(path: Path) -> dict[str, list[Frame]]:
+    """``{set: frames}`` of a ``lagr:`` PATH: PATH itself if it holds .mat frames, else every
+    ``labeled_lagr_data_*`` folder (or folder of .mat frames) under it, each named by its ``DS...`` suffix."""
+    if any(path.glob("*.mat")):
+        sets = [path]
+    else:
+        sets = _subfolders(path, lambda p: p.name.startswith("labeled_lagr_data") or any(p.glob("*.mat")))
+    if not sets:
+        raise DatasetError(f"{path}: no LAGR frames (no .mat files and no labeled_lagr_data_* folders)")
+    out: dict[str, list[Frame]] = {}
+    for s in sets:
+        m = re.search(r"(DS\w+?)$", s.name)
+        out[m.group(1) if m else s.name] = load_lagr(s)
     return out

@@ -52,8 +52,9 @@ def _start_watchdog() -> None:
                 return
             ready, _, _ = select.select([read_end], [], [], STOP_GRACE_SECONDS)
             if not ready:
+                # any command's last word: a run keeps its frames, an evaluation its units, a one-shot nothing
                 sys.stderr.write(f"pcreg: interrupted; still stopping after {STOP_GRACE_SECONDS:g} s, so ended now "
-                                 "(finished units are kept)\n")
+                                 "(what was finished is kept)\n")
                 sys.stderr.flush()
                 os._exit(130)
         finally:

@@ -1,7 +1,7 @@
 """CamVid's 32 classes (its download's ``label_colors.txt``) and the ``camvid11`` class each is read as
 (:data:`CAMVID32`, :func:`camvid32_ids`): the grouping SegNet's eleven classes were made with
-(:mod:`pcreg.datasets.camvid`), read by the key-label reader (:mod:`pcreg.classes.keys`) and the datasets'
-(:mod:`pcreg.datasets.camvid_colours`)."""
+(:mod:`pcreg.datasets.camvid`), read by the key-label reader (:mod:`pcreg.classes.keys`), which the datasets'
+label files are read with too."""
 
 from __future__ import annotations
 

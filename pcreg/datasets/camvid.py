@@ -26,11 +26,11 @@ from __future__ import annotations
 from pathlib import Path
 
 
+from ..classes.camvid32 import CAMVID32
 from ..errors import DatasetError
-from .camvid_colours import CAMVID32, camvid32_ids, read_camvid_labels
 
-__all__ = ["CAMVID32", "FRAMES_FOLDER", "LABELS_FOLDER", "SEGNET_SPLITS", "camvid32_ids", "read_camvid_labels",
-           "find_official", "load_official", "find_segnet", "load_segnet"]
+__all__ = ["CAMVID32", "FRAMES_FOLDER", "LABELS_FOLDER", "SEGNET_SPLITS",
+           "find_official", "find_matlab", "load_official", "find_segnet", "load_segnet"]
 
 #: The folders of CamVid's download: the frames, and their labels in the 32 classes' colours.
 FRAMES_FOLDER, LABELS_FOLDER = "701_StillsRaw_full", "LabeledApproved_full"

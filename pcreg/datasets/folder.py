@@ -32,21 +32,15 @@ def _read_png(path: Path, *, color: bool) -> np.ndarray:
 
 
 def _read_table_labels(path: Path, image: np.ndarray, table, mapping) -> np.ndarray:
-    """A label file read through ``table`` (``mapping`` None or ``"camvid"``), of its image's size; a
-    :class:`DatasetError` naming it otherwise. CamVid's ids and ``camvid11``'s tables also read CamVid's own 32
-    classes' colours (:func:`pcreg.datasets.camvid.read_camvid_labels`)."""
+    """A label file read through ``table`` (``mapping`` None or ``"camvid"``) as key labels are
+    (:func:`pcreg.classes.keys.read_key_labels`: CamVid's ids and ``camvid11``'s table also read CamVid's own 32
+    classes' colours), of its image's size; a :class:`DatasetError` naming it otherwise."""
     from ..classes.keys import read_key_labels
-    from ..classes.table import CAMVID11
 
-    if mapping == "camvid" or table.agrees(CAMVID11):  # CamVid's own 32 classes' colours too
-        from .camvid_colours import read_camvid_labels
-
-        lab = read_camvid_labels(path, table, mapping)
-    else:
-        try:
-            lab = read_key_labels(path, table, "none" if mapping is None else "camvid")
-        except InputError as exc:
-            raise DatasetError(str(exc)) from None
+    try:
+        lab = read_key_labels(path, table, "none" if mapping is None else "camvid")
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
     if lab.shape != image.shape[:2]:
         raise DatasetError(f"{path}: labels are {lab.shape[1]}x{lab.shape[0]} but the image is "
                            f"{image.shape[1]}x{image.shape[0]}")

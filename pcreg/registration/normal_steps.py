@@ -66,12 +66,13 @@ def estimate_point_to_line(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.nd
     return np.linalg.inv(N) @ U @ N
 
 
-#: A point-to-plane step is linearised about the origin (as Open3D's) unless the pairs' weighted mean lies more than
-#: this many of their spreads (RMS radius) from it; then about that mean (the rule of the reference ICP's moments,
-#: :data:`~pcreg.registration.reference.RECENTRE`). About an origin 5e6 away, the 6x6 system's condition number
-#: passed 1e12 and the step was the identity (the run stopped where it started); solved better, the rotation about
-#: that far origin overshot by the square of its angle times the distance, and the run diverged.
-FAR = 100.0
+#: Pairs whose mean lies more than this many of their spreads (RMS radius) from the point a step is taken about
+#: are taken about that mean instead, the one rule of far clouds (real-world coordinates): here a point-to-plane
+#: step is linearised about the origin (as Open3D's) unless the pairs lie that far from it (about an origin 5e6
+#: away the 6x6 system's condition number passed 1e12 and the step was the identity; solved better, the rotation
+#: about that far origin overshot by the square of its angle times the distance, and the run diverged); the
+#: reference ICP's moments are summed about their mean past it (:func:`~pcreg.registration.reference.icp_reference`).
+RECENTRE = 100.0
 
 
 def estimate_point_to_plane(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -79,14 +80,14 @@ def estimate_point_to_plane(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.n
     ``TransformationEstimationPointToPlane``: minimises Σ w ((p - q) · n + ω · (p × n) + t · n)^2 over the
     small rotation ω and the translation t (the 6x6 normal equations, in the clouds' own coordinates),
     then builds the rotation Rz(ω_z) Ry(ω_y) Rx(ω_x). A singular system gives no motion (the identity),
-    as Open3D's solver does when it fails. Pairs whose mean lies more than :data:`FAR` spreads from the origin
+    as Open3D's solver does when it fails. Pairs whose mean lies more than :data:`RECENTRE` spreads from the origin
     are linearised about that mean instead (the rotation turns about it): clouds in real-world coordinates."""
     total = float(w.sum())
     if not total > 0:  # no weight: the system is singular about any point, the identity
         return _point_to_plane_about_origin(p, q, n, w)
     c = (w @ p) / total
     spread2 = float(w @ np.sum((p - c) ** 2, axis=1)) / total
-    if float(c @ c) <= FAR * FAR * spread2:
+    if float(c @ c) <= RECENTRE * RECENTRE * spread2:
         return _point_to_plane_about_origin(p, q, n, w)
     C = np.eye(4)
     C[:3, 3] = c

@@ -31,7 +31,7 @@ from .closed_forms import (MIN_POINTS, _umeyama, check_rank, estimate, estimate_
 from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, WEIGHTS: named here too)
 from .kdtree import KDTreeIndex
 from .nn import GridIndex
-from .normal_steps import estimate_point_to_line, estimate_point_to_plane
+from .normal_steps import RECENTRE, estimate_point_to_line, estimate_point_to_plane
 from .result import IcpIteration, RegistrationResult
 from .transforms import apply
 
@@ -305,12 +305,11 @@ def _scored(k, sd2, n, relative_fitness, relative_rmse, state):
     return settled
 
 
-#: When the matched pairs' mean lies more than this many of their spreads (standard deviation) from the centre
-#: their moments are summed about (the target's bounding box's), the moments are summed again about that mean:
-#: moments summed in one pass far from their points lose their precision (a stray target point 1e5 away put
-#: the box's centre among nothing, and the rotation came out 0.2 degrees off; at 1e6, 47). Near, the sums are
-#: kept as they are (the same numbers as before the rule).
-RECENTRE = 100.0
+# When the matched pairs' mean lies more than RECENTRE (:mod:`~pcreg.registration.normal_steps`) of their
+# spreads (standard deviation) from the centre their moments are summed about (the target's bounding box's), the
+# moments are summed again about that mean: moments summed in one pass far from their points lose their precision
+# (a stray target point 1e5 away put the box's centre among nothing, and the rotation came out 0.2 degrees off; at
+# 1e6, 47). Near, the sums are kept as they are (the same numbers as before the rule).
 
 
 @njit(cache=True)

@@ -197,3 +197,36 @@ def test_a_thread_a_function_leaves_running_does_not_hold_the_command_at_exit(tm
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["implementations"]["py:spawns:align"]["status"] == "ok"
     assert "(solver-pool): ended with the process" in p.stderr
+
+
+@pytest.mark.parametrize("spec, said", [
+    ("py:nosuchmodule:align", "no module named 'nosuchmodule' in the current directory or on Python's path"),
+    ("py:mypkg.nosuch:align", "no module named 'mypkg.nosuch'"),
+    ("py:mypkg:nosuch", "mypkg has no callable 'nosuch'"),
+    ("cmd:nosuch-icp-program {source} {target} {out}", "no program 'nosuch-icp-program' on PATH"),
+    ("cmd:./nosuch {out}", "no program './nosuch'"),
+    ("cmd:./plain.txt {out}", "'./plain.txt' is not executable"),
+])
+def test_a_misspelt_module_function_or_program_is_bad_input_before_anything_runs(tmp_path, spec, said):
+    """They were rows that failed, and the cross-check exited 0 after running every other implementation: a
+    CI job with a misspelt name passed. A module that exists but fails in its own imports is still its row."""
+    (tmp_path / "mypkg").mkdir()
+    (tmp_path / "mypkg" / "__init__.py").write_text("")
+    (tmp_path / "mypkg" / "broken.py").write_text("import nosuch_dependency_of_it\n")
+    (tmp_path / "plain.txt").write_text("")
+    src, tgt = _clouds(3)
+    np.save(tmp_path / "t.npy", tgt)
+    np.save(tmp_path / "s.npy", src)
+    base = [sys.executable, "-m", "pcreg.cli", "crosscheck", "t.npy", "s.npy", "--max-distance", "1", "--json"]
+    p = subprocess.run([*base, "--with", f"reference,{spec}"], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 2 and p.stdout == "", p.stderr
+    assert p.stderr.strip() == f"pcreg: error: {spec}: {said}" + (
+        " (run pcreg from the folder that holds it, or install it)" if "current directory" in said else
+        " (the path is read from the current directory)" if "'./nosuch'" in said else
+        " (chmod +x it, or name its interpreter first)" if "executable" in said else "")
+    p = subprocess.run([*base, "--with", "reference,py:mypkg.broken:align"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    row = json.loads(p.stdout)["implementations"]["py:mypkg.broken:align"]
+    assert row["error"] == "cannot import mypkg.broken: ModuleNotFoundError: No module named 'nosuch_dependency_of_it'"

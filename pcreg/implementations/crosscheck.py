@@ -478,14 +478,18 @@ def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarr
 
 def _adapters(names: list[str], timeout: float | None) -> tuple[dict, dict]:
     """{name: adapter} and {name: one-line error} for the user implementations that cannot be loaded
-    (an unknown built-in name, or the reference, is an :class:`InputError`)."""
+    (an unknown built-in name, the reference, or a ``py:`` module, function or ``cmd:`` program that does
+    not exist, is an :class:`InputError`)."""
     from .. import implementations as impls
 
     adapters, errors = {}, {}
     for name in names:
         try:
-            adapters[name] = impls.get(name, timeout=timeout)
+            adapter = adapters[name] = impls.get(name, timeout=timeout)
+            if isinstance(adapter, impls.PythonCallable):  # imported before any runs: no such function
+                adapter.load()                             # is bad input, not a row
         except impls.ImplementationError as exc:
+            adapters.pop(name, None)
             if name == REFERENCE or not (name.startswith("py:") or name.startswith("cmd:")):
                 raise InputError(_one_line(exc)) from None
             errors[name] = _one_line(exc)

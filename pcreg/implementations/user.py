@@ -159,6 +159,42 @@ def _user_code(what: str):
                 os.close(cwd)
 
 
+def _check_module_exists(spec: str, module: str) -> None:
+    """An :class:`InputError` when ``module``'s top-level package is neither in the current directory nor on
+    Python's path: a misspelt name, found before any implementation runs. Finding it runs none of its code;
+    whatever its import raises later is that implementation's failure, its row's one line."""
+    import importlib.util
+
+    top = module.split(".")[0]
+    added = os.getcwd() not in sys.path
+    if added:
+        sys.path.insert(0, os.getcwd())
+    try:
+        found = importlib.util.find_spec(top)
+    except (ImportError, ValueError):  # a name Python cannot look up: left to the import, which says why
+        return
+    finally:
+        if added:
+            sys.path.remove(os.getcwd())
+    if found is None:
+        raise InputError(f"{spec}: no module named {top!r} in the current directory or on Python's path "
+                         "(run pcreg from the folder that holds it, or install it)")
+
+
+def _check_program_exists(spec: str, program: str) -> None:
+    """An :class:`InputError` when ``program`` is neither a path to an executable file nor a command on
+    ``PATH``: a misspelt name, found before any implementation runs."""
+    import shutil
+
+    if os.sep in program or (os.altsep and os.altsep in program):
+        if not os.path.isfile(program):
+            raise InputError(f"{spec}: no program {program!r} (the path is read from the current directory)")
+        if not os.access(program, os.X_OK):
+            raise InputError(f"{spec}: {program!r} is not executable (chmod +x it, or name its interpreter first)")
+    elif shutil.which(program) is None:
+        raise InputError(f"{spec}: no program {program!r} on PATH")
+
+
 class PythonCallable(Implementation):
     """``py:MODULE:FUNCTION``."""
 
@@ -171,31 +207,43 @@ class PythonCallable(Implementation):
         self.module, self.function = module, func
         self.description = f"Python callable {module}.{func}"
         self._func = None
+        _check_module_exists(spec, module)
 
-    def _load(self):
+    def load(self):
+        """The function, imported at the first call: what its import raises is an
+        :class:`ImplementationError` (its row's one line); no such module, or a module without the
+        function, is an :class:`InputError`, as a misspelt name is."""
         if self._func is None:
             added = False
             if os.getcwd() not in sys.path:
                 sys.path.insert(0, os.getcwd())
                 added = True
+            missing = None
             try:
                 with _user_code("import"):
-                    mod = importlib.import_module(self.module)
+                    try:
+                        mod = importlib.import_module(self.module)
+                    except ModuleNotFoundError as exc:  # the named module itself, not one it imports
+                        if exc.name is None or not (self.module + ".").startswith(exc.name + "."):
+                            raise
+                        missing = exc.name
             except ImplementationError as exc:
                 raise ImplementationError(f"cannot import {self.module}: {exc}") from None
             finally:
                 if added:
                     sys.path.remove(os.getcwd())
+            if missing is not None:
+                raise InputError(f"{self.name}: no module named {missing!r}")
             func = getattr(mod, self.function, None)
             if not callable(func):
-                raise ImplementationError(f"{self.module} has no callable {self.function!r}")
+                raise InputError(f"{self.name}: {self.module} has no callable {self.function!r}")
             self._func = func
         return self._func
 
     @property
     def comparability(self) -> str:  # type: ignore[override]
         try:
-            return _comparability(getattr(self._load(), "comparability", None), self.name)
+            return _comparability(getattr(self.load(), "comparability", None), self.name)
         except ImplementationError:
             return STEP
 
@@ -203,7 +251,7 @@ class PythonCallable(Implementation):
         return pinned.params()
 
     def _run(self, pinned, *, trace):
-        func = self._load()
+        func = self.load()
         start = time.perf_counter()
         with _user_code("call"):
             r = func(pinned.source.copy(), pinned.target.copy(), init=pinned.init.copy(), **pinned.params())
@@ -311,6 +359,7 @@ class Command(Implementation):
                 used.add(field)
         if "out" not in used:
             raise InputError(f"{spec}: the command has no {{out}}: it cannot return a matrix")
+        _check_program_exists(spec, self.argv[0])
         self.used = used
         from ..validation import check_float
 

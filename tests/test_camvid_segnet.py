@@ -68,8 +68,14 @@ def test_renamed_copies_and_missing_labels(tmp_path):
     assert {k: [f.name for f in v] for k, v in data.items()} == {
         "train": ["train_00001", "train_00002", "train_00003"], "test": ["test_00001", "test_00002", "test_00003"]}
     np.testing.assert_array_equal(data["test"][1].labels, (ids + 2) % 12)
+    stray = root / "testannot" / "testannot_00009.png"
+    cv2.imwrite(str(stray), ids)
+    with pytest.raises(DatasetError, match=rf"{stray}: label file without an image in {root / 'test'}$"):
+        load_dataset(f"camvid:{tmp_path}", classes="camvid11")
+    stray.unlink()
     (root / "testannot" / "testannot_00002.png").unlink()
-    with pytest.raises(DatasetError, match=r"test_00002.png: no label file"):
+    with pytest.raises(DatasetError, match=r"test_00002.png: no label file \S+/testannot/test_00002.png "
+                                           r"\(or testannot_00002.png\)$"):
         load_dataset(f"camvid:{tmp_path}", classes="camvid11")
     shutil.rmtree(root / "testannot")
     with pytest.raises(DatasetError, match=r"testannot: no such folder, beside train/, test/"):

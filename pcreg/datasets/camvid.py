@@ -131,26 +131,21 @@ def find_segnet(root: Path) -> dict[str, tuple[Path, Path]] | None:
     return None
 
 
-def _annot_files(labels_dir: Path, split: str, images: dict[str, Path]) -> dict[str, Path]:
-    """``{frame name: label file}`` of a split's labels folder: ``NAME.png`` for the frame ``NAME``, or
-    ``SPLITannot_N.png`` for ``SPLIT_N``; every frame its label file, every label file its frame."""
-    out: dict[str, Path] = {}
-    for p in sorted(labels_dir.iterdir()):
-        if p.suffix.lower() != ".png" or not p.is_file() or p.name.startswith("."):
-            continue
-        name, renamed = p.stem, f"{split}{ANNOT}_"
-        if name not in images and name.startswith(renamed) and f"{split}_{name[len(renamed):]}" in images:
-            name = f"{split}_{name[len(renamed):]}"
-        if name in out:
-            raise DatasetError(f"{p}: a second label file of frame {name} (beside {out[name].name}); keep one")
-        out[name] = p
-    missing = sorted(set(images) - set(out))
-    if missing:
-        raise DatasetError(f"{images[missing[0]]}: no label file {labels_dir / (missing[0] + '.png')}")
-    extra = sorted(set(out) - set(images))
-    if extra:
-        raise DatasetError(f"{out[extra[0]]}: label file without a frame in {labels_dir.parent / split}")
-    return out
+def _segnet_naming(split: str):
+    """The label files' naming of SegNet's ``split`` as :func:`pcreg.datasets.folder.label_files` takes it:
+    ``NAME.png`` for the frame ``NAME``, or ``SPLITannot_N.png`` for ``SPLIT_N`` (copies renamed so)."""
+    renamed = f"{split}{ANNOT}_"
+
+    def frame_of(stem: str, images: dict[str, Path]) -> str:
+        number = stem[len(renamed):]
+        if stem not in images and stem.startswith(renamed) and f"{split}_{number}" in images:
+            return f"{split}_{number}"
+        return stem
+
+    def other_name(frame: str) -> str | None:
+        return f"{renamed}{frame[len(split) + 1:]}.png" if frame.startswith(f"{split}_") else None
+
+    return {"frame_of": frame_of, "other_name": other_name}
 
 
 def load_segnet(splits: dict[str, tuple[Path, Path]], *, mapping, classes, n_frames: int | None = None) -> dict:
@@ -161,7 +156,7 @@ def load_segnet(splits: dict[str, tuple[Path, Path]], *, mapping, classes, n_fra
     of each clip read. ``mapping`` and ``classes`` as :func:`pcreg.datasets.load_folder` takes them."""
     from ..classes import class_table
     from ..classes.mappings import mapping_lut
-    from .folder import frame_names, image_files, read_frames
+    from .folder import frame_names, image_files, label_files, read_frames
 
     table, lut = class_table(classes), mapping_lut(mapping)
     out: dict = {}
@@ -172,7 +167,8 @@ def load_segnet(splits: dict[str, tuple[Path, Path]], *, mapping, classes, n_fra
         seqs = [sequence_of(p.stem) if "_" in p.stem.strip("_") else split for p in files]
         clips = {seq: frame_names(frames_dir, [p for p, s in zip(files, seqs) if s == seq])  # numbered alike
                  for seq in sorted(set(seqs))}
-        labels = _annot_files(labels_dir, split, {n: p for clip in clips.values() for n, p in clip.items()})
+        labels = label_files(labels_dir, {n: p for clip in clips.values() for n, p in clip.items()},
+                             **_segnet_naming(split))
         for seq, clip in clips.items():
             keep = sorted(clip)[:n_frames]
             out[split if seq == split else f"{split}_{seq}"] = read_frames(

@@ -51,17 +51,27 @@ def _read_table_labels(path: Path, image: np.ndarray, table, mapping) -> np.ndar
 LABEL_SUFFIX = "_L"
 
 
-def _label_files(lab_dir: Path, images: dict[str, Path]) -> dict[str, Path]:
-    """``{frame name: label file}`` of ``lab_dir``'s PNGs: ``NAME.png``, or ``NAME_L.png`` as CamVid's own
-    download names them (``LabeledApproved_full/``) when ``NAME`` is a frame and ``NAME_L`` is not. A frame
-    with both is refused naming them."""
+def download_frame(stem: str, images: dict[str, Path]) -> str:
+    """The frame a label file ``stem`` labels: ``NAME`` for ``NAME_L`` as CamVid's own download names them
+    (``LabeledApproved_full/``) when ``NAME`` is a frame and ``NAME_L`` is not; else ``stem``."""
+    if stem.endswith(LABEL_SUFFIX) and stem not in images and stem[: -len(LABEL_SUFFIX)] in images:
+        return stem[: -len(LABEL_SUFFIX)]
+    return stem
+
+
+def download_name(frame: str) -> str | None:
+    """The other name :func:`download_frame` reads for ``frame``'s label file, as a refusal says it."""
+    return f"{frame}{LABEL_SUFFIX}.png, as CamVid names them"
+
+
+def _label_files(lab_dir: Path, images: dict[str, Path], frame_of) -> dict[str, Path]:
+    """``{frame name: label file}`` of ``lab_dir``'s PNGs, each the label file of frame ``frame_of(stem,
+    images)``. A frame with two is refused naming them."""
     out: dict[str, Path] = {}
     for p in sorted(lab_dir.iterdir()):
         if p.suffix.lower() != ".png" or not p.is_file() or p.name.startswith("."):
             continue
-        name = p.stem
-        if name.endswith(LABEL_SUFFIX) and name not in images and name[: -len(LABEL_SUFFIX)] in images:
-            name = name[: -len(LABEL_SUFFIX)]
+        name = frame_of(p.stem, images)
         if name in out:
             raise DatasetError(f"{p}: a second label file of frame {name} (beside {out[name].name}); keep one")
         out[name] = p
@@ -123,14 +133,18 @@ def frame_names(img_dir: Path, files: list[Path]) -> dict[str, Path]:
     return images
 
 
-def label_files(lab_dir: Path, images: dict[str, Path]) -> dict[str, Path]:
-    """``{frame name: label file}`` of ``lab_dir`` (:func:`_label_files`), one for every frame of ``images`` and a
-    frame for every one; a :class:`DatasetError` naming the first file that has none."""
-    labels = _label_files(lab_dir, images)
+def label_files(lab_dir: Path, images: dict[str, Path], *, frame_of=download_frame,
+                other_name=download_name) -> dict[str, Path]:
+    """``{frame name: label file}`` of ``lab_dir``: ``NAME.png`` for the frame ``NAME``, or the file
+    ``frame_of(stem, images)`` reads as its (default :func:`download_frame`); one for every frame of ``images``
+    and a frame for every one. A :class:`DatasetError` names the first file that has none, and the other name
+    it could have had (``other_name(frame)``, None for none)."""
+    labels = _label_files(lab_dir, images, frame_of)
     no_label = sorted(set(images) - set(labels))
     if no_label:
-        raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')} (or "
-                           f"{no_label[0]}{LABEL_SUFFIX}.png, as CamVid names them)")
+        other = other_name(no_label[0])
+        raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')}"
+                           + (f" (or {other})" if other else ""))
     no_image = sorted(set(labels) - set(images))
     if no_image:
         raise DatasetError(f"{labels[no_image[0]]}: label file without an image in {next(iter(images.values())).parent}")

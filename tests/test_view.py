@@ -569,3 +569,29 @@ def test_a_cut_recording_is_drawn_with_a_note(small_recording, tmp_path, capsys)
     err = capsys.readouterr().err
     assert f"pcreg: note: {cut}: the recording does not end (still being written, or cut short)" in err, err
     assert (tmp_path / "shot.png").exists()
+
+
+def test_default_ports_held_by_another_server_give_way_to_free_ones(monkeypatch, capsys):
+    """Two users of one machine, or a second `pcreg view --web`: the default port 9090 was refused as in use,
+    and the user had to find --web-port 0. Ports the user gives are kept (and refused later when in use)."""
+    import argparse
+    import socket
+
+    from pcreg.commands import view as command
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        busy, free = held.getsockname()[1], view.free_port("127.0.0.1")
+        monkeypatch.setattr(command, "WEB_PORT", busy)
+        monkeypatch.setattr(command, "GRPC_PORT", free)
+        args = argparse.Namespace(bind="127.0.0.1", web=True, web_port=None, grpc_port=None)
+        command._choose_ports(args)
+        assert (args.web_port, args.grpc_port) == (0, free)
+        assert capsys.readouterr().err == (f"pcreg: note: port {busy} is in use on 127.0.0.1; serving on a free "
+                                           "port instead (--web-port chooses one)\n")
+        args = argparse.Namespace(bind="127.0.0.1", web=True, web_port=busy, grpc_port=None)
+        command._choose_ports(args, grpc=False)
+        assert (args.web_port, args.grpc_port) == (busy, None) and capsys.readouterr().err == ""
+        with pytest.raises(PcregError, match=rf"--web-port {busy}: the port is in use on 127.0.0.1"):
+            view.serve_web(Path("unused.rrd"), web_port=busy, grpc_port=free)

@@ -38,6 +38,28 @@ from pathlib import Path
 from ..errors import InputError, OutputError
 
 
+#: The ports ``--web`` serves on when none is given, each taken when free; when another server holds one (a second
+#: user of the machine, another ``pcreg view``) any free port is taken instead, and the URL printed names it.
+WEB_PORT, GRPC_PORT = 9090, 9876
+
+
+def _choose_ports(args: argparse.Namespace, *, grpc: bool = True) -> None:
+    """``args.web_port`` and ``args.grpc_port`` (with ``grpc``) not given: :data:`WEB_PORT` and :data:`GRPC_PORT`
+    when free on ``--bind``, else 0 (any free port), said on stderr. A port given is kept, and refused later
+    when in use."""
+    from ..recording.viewer import check_bind, port_free
+
+    probe = check_bind(args.bind) if args.web else None
+    for attr, default, flag in (("web_port", WEB_PORT, "--web-port"), ("grpc_port", GRPC_PORT, "--grpc-port")):
+        if getattr(args, attr) is not None or (attr == "grpc_port" and not grpc):
+            continue
+        taken = probe is not None and not port_free(probe, default)
+        setattr(args, attr, 0 if taken else default)
+        if taken:
+            sys.stderr.write(f"pcreg: note: port {default} is in use on {args.bind}; serving on a free port "
+                             f"instead ({flag} chooses one)\n")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recordings", metavar="FILE.rrd|OUT_DIR", nargs="+",
                         help="the recording to show; several are shown side by side (a comparison); or an "
@@ -49,8 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "instead of opening a window")
     parser.add_argument("--bind", metavar="ADDRESS", default="127.0.0.1",
                         help="address the web viewer and its data server listen on (default 127.0.0.1: this machine only)")
-    parser.add_argument("--web-port", type=_port, default=9090, help="web page's HTTP port (default 9090; 0: any free port)")
-    parser.add_argument("--grpc-port", type=_port, default=9876, help="recording server's port (default 9876; 0: any free port)")
+    parser.add_argument("--web-port", type=_port, default=None,
+                        help=f"web page's HTTP port (default {WEB_PORT}, or any free port when another server holds it; "
+                             "0: any free port)")
+    parser.add_argument("--grpc-port", type=_port, default=None,
+                        help=f"recording server's port (default {GRPC_PORT}, or any free port when another server "
+                             "holds it; 0: any free port)")
     parser.add_argument("--screenshot", metavar="OUT.png", help="render to this PNG headless instead of opening a window")
     parser.add_argument("--time", metavar="TIMELINE=N", help="put the time cursor here before the screenshot, e.g. frame=3")
     parser.add_argument("--view", metavar="NAME", help="screenshot only the view with this name (e.g. Registration)")
@@ -100,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
     from ..review import is_run
 
     runs = [p for p in args.recordings if Path(p).is_dir() and is_run(p)]
+    _choose_ports(args, grpc=not runs)  # a run's review page has no recording server
     if runs:
         return _review(args, runs)
     if args.overlay:

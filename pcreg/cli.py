@@ -94,12 +94,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Whether the program's caller closed its stdout (:func:`_usable_streams`): ``--json`` is then refused, since
+#: what it prints would be lost.
+_STDOUT_CLOSED = False
+
+
 def _usable_streams() -> None:
     """The program's stdout and stderr as the command writes them: a stream its caller closed
     (``exec 1>&-``) goes to the null device, and what the terminal's encoding cannot show (a path's
     letters under ``PYTHONIOENCODING=ascii``) is written escaped instead of failing the command."""
     import os
 
+    global _STDOUT_CLOSED
+    _STDOUT_CLOSED = sys.stdout is None
     for name in ("stdout", "stderr"):
         stream = getattr(sys, name)
         if stream is None:
@@ -212,6 +219,11 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "_module", None):
         restore_signals(previous)
         return _no_command(args)
+    if getattr(args, "json", False) and _STDOUT_CLOSED:
+        restore_signals(previous)
+        sys.stderr.write("pcreg: error: --json prints to standard output, which is closed: the result would be "
+                         "lost (redirect it to a file: > result.json)\n")
+        return 2
     from .errors import RegistrationError, StuckOutput
 
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")

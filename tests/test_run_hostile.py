@@ -147,10 +147,18 @@ def test_the_program_runs_with_an_ascii_terminal_and_a_closed_stdout(tmp_path):
                        capture_output=True, env=env)
     assert p.returncode == 0, p.stderr
     assert b"\\u0432\\u044b" in p.stdout and (out / "f1.png").is_file()  # the path escaped, not a failure
-    # stdout closed by the caller: the JSON goes nowhere, and the command still succeeds
-    p = subprocess.run([sys.executable, "-m", "pcreg", "register", str(folder / "f0.png"), str(folder / "f1.png"),
-                        "--json"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=lambda: os.close(1))
+    # stdout closed by the caller: a command that prints only progress succeeds; --json, whose result would go
+    # nowhere (it exited 0 with the result lost), is refused before any work
+    command = [sys.executable, "-m", "pcreg", "register", str(folder / "f0.png"), str(folder / "f1.png")]
+    p = subprocess.run(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=lambda: os.close(1))
     assert p.returncode in (0, 3) and b"internal error" not in p.stderr, p.stderr
+    p = subprocess.run([*command, "--json"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                       preexec_fn=lambda: os.close(1))
+    assert p.returncode == 2 and p.stderr.decode().startswith(
+        "pcreg: error: --json prints to standard output, which is closed"), p.stderr
+    out = tmp_path / "result.json"
+    p = subprocess.run([*command, "--json"], stdout=out.open("w"), stderr=subprocess.PIPE)
+    assert p.returncode in (0, 3) and json.loads(out.read_text())["ok"] is (p.returncode == 0), p.stderr
 
 
 def test_a_rerun_with_other_key_labels_or_fewer_frames_is_refused_and_force_starts_clean(tmp_path, capsys):

@@ -50,8 +50,9 @@ def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:
 class RunLabels:
     """The labelled frames of a run: ``names`` (the frames' file names, the key frame first) and
     ``paths`` (each frame's label PNG, ``OUT/STEM.png``), ``confidence`` (each frame's confidence PNG,
-    or None: the key frame, or a run without ``--confidence``), ``table`` the run's class table
-    (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``)."""
+    or None: a key frame, or a run without ``--confidence``), ``table`` the run's class table
+    (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``), ``keys`` the key
+    frames' names (a person's labels, kept as they are by ``--min-confidence``)."""
 
     folder: Path
     names: tuple[str, ...]
@@ -59,6 +60,7 @@ class RunLabels:
     confidence: tuple[Path | None, ...]
     table: ClassTable = DEFAULT_TABLE
     chosen: int | None = None  # the frames the run chose of its folder (None: a video, or the folder gone)
+    keys: frozenset[str] = frozenset()
 
 
 def default_name(fmt: str) -> str:
@@ -103,7 +105,8 @@ def read_run(folder: str | Path) -> RunLabels:
     conf_dir = folder / CONFIDENCE
     confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
     table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file
-    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]))
+    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]),
+                     frozenset(keys))
 
 
 def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
@@ -131,13 +134,13 @@ def labelled_frames(run: RunLabels, min_confidence: float | None = None):
 def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None,
                            table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
     """Frame ``t``'s labels; with ``min_confidence``, the pixels whose confidence is below it set to
-    unknown (the table's). The key frame's labels (a person's) are kept as they are."""
+    unknown (the table's). The key frames' labels (a person's) are kept as they are, wherever they lie."""
     import cv2
 
     from .formats import read_image_file
 
     lab = read_labels(run.paths[t], table)
-    if min_confidence is None or t == 0:
+    if min_confidence is None or run.names[t] in run.keys:
         return lab
     path = run.confidence[t]
     if path is None:

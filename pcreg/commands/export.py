@@ -24,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--to", metavar="FILE.zip", default=None, help="the archive (default OUT/export-FORMAT.zip)")
     p.add_argument("--min-confidence", type=arg_float(0, 1), default=None, metavar="P",
                    help="leave unlabelled every pixel whose confidence is below P (needs a run made with --confidence; "
-                        "the key frame's labels are kept)")
+                        "the key frames' labels are kept)")
     p.add_argument("--force", action="store_true", help="overwrite the archive")
 
 

@@ -23,6 +23,7 @@ import io
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -30,7 +31,7 @@ from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
 
 __all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labelled_frames", "labels_with_confidence", "instance_colours",
-           "cvat_mask_archive", "default_name"]
+           "cvat_mask_archive", "write_cvat_mask", "write_cvat_mask_archive", "default_name"]
 
 #: The formats ``pcreg export`` writes.
 FORMATS: tuple[str, ...] = ("cvat-mask",)
@@ -174,19 +175,38 @@ def _paint(labels: np.ndarray, colours: dict[int, tuple[int, int, int]]) -> np.n
 def cvat_mask_archive(frames, table: ClassTable = DEFAULT_TABLE) -> tuple[bytes, dict[str, int]]:
     """The bytes of a "Segmentation mask 1.1" zip of ``frames`` (pairs of a frame's file name and its
     (H, W) uint8 class ids of ``table``), and how many frames show each class (by name, every class of
-    the table).
+    the table): :func:`write_cvat_mask` in memory.
+    """
+    buf = io.BytesIO()
+    counts = write_cvat_mask(buf, frames, table)
+    return buf.getvalue(), counts
+
+
+def write_cvat_mask_archive(path: str | Path, frames, table: ClassTable = DEFAULT_TABLE) -> dict[str, int]:
+    """Write the "Segmentation mask 1.1" zip of ``frames`` to ``path`` atomically as the frames come
+    (:func:`pcreg.outputs.atomic_file`: one frame's masks in memory at a time, however long the run), and
+    return how many frames show each class. A frame refused (an :class:`InputError`) or an interruption
+    leaves nothing at ``path``."""
+    from .outputs import atomic_file
+
+    with atomic_file(path) as fh:
+        return write_cvat_mask(fh, frames, table)
+
+
+def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) -> dict[str, int]:
+    """Write a "Segmentation mask 1.1" zip of ``frames`` (as :func:`cvat_mask_archive`) to the seekable
+    binary file ``out``, each frame's masks as it comes; how many frames show each class.
 
     Members are stored in a fixed order with a fixed date, so the same labels give the same bytes.
     """
     from .classes import labelmap_text
 
-    buf = io.BytesIO()
     counts = {c.name: 0 for c in table.classes}
     stems: list[str] = []
     class_colours = {c.id: c.colour for c in table.classes}
     instances = instance_colours(table)
     labelmap = labelmap_text(table)
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as z:  # PNGs are compressed already
+    with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_STORED) as z:  # PNGs are compressed already
         def add(name: str, data: bytes | str) -> None:
             # a frame name that is not UTF-8 (os.fsdecode's escapes) stored with its bad bytes replaced, in
             # the members' names and in the list of them alike: a zip's names are UTF-8
@@ -215,4 +235,4 @@ def cvat_mask_archive(frames, table: ClassTable = DEFAULT_TABLE) -> tuple[bytes,
             add(f"SegmentationClass/{stem}.png", _png(_paint(labels, class_colours), stem))
             add(f"SegmentationObject/{stem}.png", _png(_paint(labels, instances), stem))
         add("ImageSets/Segmentation/default.txt", "".join(f"{s}\n" for s in stems))
-    return buf.getvalue(), counts
+    return counts

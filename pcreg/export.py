@@ -23,6 +23,7 @@ import io
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -30,7 +31,7 @@ from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
 
 __all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labelled_frames", "labels_with_confidence", "instance_colours",
-           "cvat_mask_archive", "default_name"]
+           "cvat_mask_archive", "write_cvat_mask", "write_cvat_mask_archive", "default_name"]
 
 #: The formats ``pcreg export`` writes.
 FORMATS: tuple[str, ...] = ("cvat-mask",)
@@ -50,8 +51,9 @@ def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:
 class RunLabels:
     """The labelled frames of a run: ``names`` (the frames' file names, the key frame first) and
     ``paths`` (each frame's label PNG, ``OUT/STEM.png``), ``confidence`` (each frame's confidence PNG,
-    or None: the key frame, or a run without ``--confidence``), ``table`` the run's class table
-    (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``)."""
+    or None: a key frame, or a run without ``--confidence``), ``table`` the run's class table
+    (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``), ``keys`` the key
+    frames' names (a person's labels, kept as they are by ``--min-confidence``)."""
 
     folder: Path
     names: tuple[str, ...]
@@ -59,6 +61,7 @@ class RunLabels:
     confidence: tuple[Path | None, ...]
     table: ClassTable = DEFAULT_TABLE
     chosen: int | None = None  # the frames the run chose of its folder (None: a video, or the folder gone)
+    keys: frozenset[str] = frozenset()
 
 
 def default_name(fmt: str) -> str:
@@ -103,7 +106,8 @@ def read_run(folder: str | Path) -> RunLabels:
     conf_dir = folder / CONFIDENCE
     confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
     table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file
-    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]))
+    return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]),
+                     frozenset(keys))
 
 
 def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
@@ -131,13 +135,13 @@ def labelled_frames(run: RunLabels, min_confidence: float | None = None):
 def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None,
                            table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
     """Frame ``t``'s labels; with ``min_confidence``, the pixels whose confidence is below it set to
-    unknown (the table's). The key frame's labels (a person's) are kept as they are."""
+    unknown (the table's). The key frames' labels (a person's) are kept as they are, wherever they lie."""
     import cv2
 
     from .formats import read_image_file
 
     lab = read_labels(run.paths[t], table)
-    if min_confidence is None or t == 0:
+    if min_confidence is None or run.names[t] in run.keys:
         return lab
     path = run.confidence[t]
     if path is None:
@@ -171,19 +175,38 @@ def _paint(labels: np.ndarray, colours: dict[int, tuple[int, int, int]]) -> np.n
 def cvat_mask_archive(frames, table: ClassTable = DEFAULT_TABLE) -> tuple[bytes, dict[str, int]]:
     """The bytes of a "Segmentation mask 1.1" zip of ``frames`` (pairs of a frame's file name and its
     (H, W) uint8 class ids of ``table``), and how many frames show each class (by name, every class of
-    the table).
+    the table): :func:`write_cvat_mask` in memory.
+    """
+    buf = io.BytesIO()
+    counts = write_cvat_mask(buf, frames, table)
+    return buf.getvalue(), counts
+
+
+def write_cvat_mask_archive(path: str | Path, frames, table: ClassTable = DEFAULT_TABLE) -> dict[str, int]:
+    """Write the "Segmentation mask 1.1" zip of ``frames`` to ``path`` atomically as the frames come
+    (:func:`pcreg.outputs.atomic_file`: one frame's masks in memory at a time, however long the run), and
+    return how many frames show each class. A frame refused (an :class:`InputError`) or an interruption
+    leaves nothing at ``path``."""
+    from .outputs import atomic_file
+
+    with atomic_file(path) as fh:
+        return write_cvat_mask(fh, frames, table)
+
+
+def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) -> dict[str, int]:
+    """Write a "Segmentation mask 1.1" zip of ``frames`` (as :func:`cvat_mask_archive`) to the seekable
+    binary file ``out``, each frame's masks as it comes; how many frames show each class.
 
     Members are stored in a fixed order with a fixed date, so the same labels give the same bytes.
     """
     from .classes import labelmap_text
 
-    buf = io.BytesIO()
     counts = {c.name: 0 for c in table.classes}
     stems: list[str] = []
     class_colours = {c.id: c.colour for c in table.classes}
     instances = instance_colours(table)
     labelmap = labelmap_text(table)
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as z:  # PNGs are compressed already
+    with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_STORED) as z:  # PNGs are compressed already
         def add(name: str, data: bytes | str) -> None:
             # a frame name that is not UTF-8 (os.fsdecode's escapes) stored with its bad bytes replaced, in
             # the members' names and in the list of them alike: a zip's names are UTF-8
@@ -212,4 +235,4 @@ def cvat_mask_archive(frames, table: ClassTable = DEFAULT_TABLE) -> tuple[bytes,
             add(f"SegmentationClass/{stem}.png", _png(_paint(labels, class_colours), stem))
             add(f"SegmentationObject/{stem}.png", _png(_paint(labels, instances), stem))
         add("ImageSets/Segmentation/default.txt", "".join(f"{s}\n" for s in stems))
-    return buf.getvalue(), counts
+    return counts

@@ -7,8 +7,9 @@ import io
 import json
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, BinaryIO, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -72,6 +73,17 @@ def _short(name: str) -> str:
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    with atomic_file(path) as fh:
+        fh.write(data)
+    return Path(path)
+
+
+@contextmanager
+def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
+    """A binary file, temporary and beside ``path``, that takes its place (``os.replace``) once the block ends
+    without an exception and is removed otherwise: a file too large to hold in memory (an archive of
+    thousands of frames) written as it is made, yet appearing whole or not at all. A write that fails (a
+    full disk, a folder in the way) is an :class:`~pcreg.errors.OutputError` naming ``path``."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -80,7 +92,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            yield fh
             fh.flush()
             os.fsync(fh.fileno())
         publish(tmp, path)
@@ -89,10 +101,10 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
             os.unlink(tmp)
         except OSError:
             pass
-        if isinstance(exc, OSError):  # a folder in the way, disk full, ...: one line, not a traceback
+        # a write to the file or its publishing (no file named, or the temporary one), not an input the block read
+        if isinstance(exc, OSError) and exc.filename in (None, tmp, str(path)):
             raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
-    return path
 
 
 def publish(tmp: str | os.PathLike, path: str | os.PathLike) -> None:

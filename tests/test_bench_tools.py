@@ -237,3 +237,18 @@ def test_bench_run_times_pcreg_run_and_slows_its_disk(tmp_path, shared_data):
     assert 0 < report["median_whole_fps"] < report["median_loop_fps"]  # start-up is in the whole command only
     assert "15 frames a second or more" in (out / "bench_run.md").read_text()
     assert bench.main(["--out", str(out), "--data", str(tmp_path / "nowhere")]) == 2
+
+
+def test_make_long_video_writes_the_frames_and_the_key_labels_of_the_frames_shown(tmp_path, shared_data):
+    from pcreg.datasets.sources import Selection, open_frames
+
+    tool = _load("make_long_video")
+    video, keys = tmp_path / "long.mp4", tmp_path / "keys"
+    assert tool.main(["--data", str(shared_data / "camvid"), "--out", str(video), "--keys", str(keys),
+                      "--frames", "45", "--hold", "20", "--key-at", "0,30"]) == 0
+    frames = open_frames(video, Selection(0, None, 1))
+    assert sum(1 for _ in frames.frames(0)) == 45 and sorted(p.name for p in keys.iterdir()) == ["000000.png", "000030.png"]
+    import cv2
+
+    labels = cv2.imread(str(keys / "000030.png"), cv2.IMREAD_UNCHANGED)
+    assert labels.shape == (120, 160) and labels.max() <= 11  # the clip's ids, at the frames' size

@@ -314,16 +314,47 @@ def test_export_and_view_say_when_the_run_has_not_labelled_every_frame_it_chose(
     assert "5 frame(s)" in said and "unfinished" not in said
 
 
-def test_an_interrupted_export_says_nothing_was_written_not_to_resume(run_copy, monkeypatch, capsys):
+def _frames_then(monkeypatch, then):
+    """pcreg.export.labelled_frames, each frame passed on after ``then(index)`` is called."""
     import pcreg.export
 
-    def stopped(*args, **kwargs):
-        raise KeyboardInterrupt
+    real = pcreg.export.labelled_frames
 
-    monkeypatch.setattr(pcreg.export, "cvat_mask_archive", stopped)
+    def frames(*args, **kwargs):
+        for t, item in enumerate(real(*args, **kwargs)):
+            then(t)
+            yield item
+
+    monkeypatch.setattr(pcreg.export, "labelled_frames", frames)
+
+
+def test_an_interrupted_export_says_nothing_was_written_not_to_resume(run_copy, monkeypatch, capsys):
+    def stop_at_the_third(t):
+        if t == 2:
+            raise KeyboardInterrupt
+
+    _frames_then(monkeypatch, stop_at_the_third)
     assert main(["export", str(run_copy)]) == 130
     assert capsys.readouterr().err == "pcreg: interrupted (nothing was written)\n"
-    assert not (run_copy / "export-cvat-mask.zip").exists()
+    assert not (run_copy / "export-cvat-mask.zip").exists() and not list(run_copy.glob(".*.tmp"))
+
+
+def test_the_archive_is_written_as_the_frames_are_read_not_held_whole(run_copy, monkeypatch, tmp_path):
+    """Each frame's masks reach the disk (the archive's temporary file, beside it) before the next frame is
+    read: a run of thousands of frames is never held in memory whole; the archive appears once complete."""
+    dest = tmp_path / "a.zip"
+    sizes: list[int] = []
+
+    def measure(t):
+        tmp = list(tmp_path.glob(".a.zip.*.tmp"))
+        assert not dest.exists() and len(tmp) == 1
+        sizes.append(tmp[0].stat().st_size)
+
+    _frames_then(monkeypatch, measure)
+    assert main(["export", str(run_copy), "--to", str(dest)]) == 0
+    assert len(sizes) == 4 and all(a < b for a, b in zip(sizes, sizes[1:]))  # grew with every frame
+    assert dest.is_file() and not list(tmp_path.glob(".*.tmp"))
+    _check_archive(dest, run_copy, _labels(run_copy))
 
 
 def test_a_frame_name_an_archive_cannot_hold_is_named(run_copy, capsys):

@@ -4,6 +4,7 @@ labels folders and options refused in one line (exit 2), nothing already written
 
 import json
 import os
+import zipfile
 
 import cv2
 import numpy as np
@@ -243,6 +244,33 @@ def test_a_key_frames_run_is_exported_and_reviewed_like_a_one_key_run(tmp_path, 
     r = read_review(out)
     assert r.names == tuple(f"f{i}.png" for i in range(6)) and r.keys == frozenset({0, 5})
     assert all((e is None) == (t in (0, 5)) for t, e in enumerate(r.errors))
+
+
+def test_min_confidence_keeps_every_key_frames_labels_and_thresholds_the_first_frame_when_not_a_key(
+        tmp_path, folder, frames):
+    """export --min-confidence of a run from a folder of key frames: each key frame's labels (a person's) are
+    kept, wherever it lies, and every other frame, the first one included when it is not a key frame, is
+    thresholded on its own confidence map."""
+    from pcreg.export import read_run
+
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "keys", frames, (1, 4))),
+                 "--out", str(out), "--confidence"]) == 0
+    assert read_run(out).names[0] == "f0.png"  # the first frame is labelled backwards from f1, not a key frame
+    archive = tmp_path / "sure.zip"
+    assert main(["export", str(out), "--min-confidence", "1", "--to", str(archive)]) == 0
+    unknown = 2  # lagr's
+    with zipfile.ZipFile(archive) as z:
+        for i in range(6):
+            inst = cv2.imdecode(np.frombuffer(z.read(f"SegmentationObject/f{i}.png"), np.uint8), cv2.IMREAD_COLOR)
+            unlabelled = (inst == 0).all(axis=2)
+            labels = _labels(out, f"f{i}")
+            if i in (1, 4):  # a key frame: its labels as they are
+                np.testing.assert_array_equal(unlabelled, labels == unknown)
+            else:
+                conf = cv2.imread(str(out / "confidence" / f"f{i}.png"), cv2.IMREAD_UNCHANGED)
+                assert ((conf < 255) & (labels != unknown)).any()  # a frame the threshold changes
+                np.testing.assert_array_equal(unlabelled, (labels == unknown) | (conf < 255))
 
 
 def test_the_old_stream_run_name_warns_and_still_opens_a_run(tmp_path, frames):

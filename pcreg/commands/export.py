@@ -3,8 +3,9 @@
 ``--format cvat-mask``: CVAT's "Segmentation mask 1.1" (the Pascal VOC segmentation layout; see
 :mod:`pcreg.export`), one mask per labelled frame, the key frame included, named as the frames are.
 Unknown pixels, and with ``--min-confidence P`` every pixel whose confidence (``OUT/confidence/``) is
-below P, are left unlabelled in the tool. Everything is read and checked before the archive is written
-(atomically) to ``OUT/export-cvat-mask.zip`` or ``--to FILE``.
+below P, are left unlabelled in the tool. The archive is written as the frames are read and checked, one
+frame in memory at a time, into a temporary file that takes the place of ``OUT/export-cvat-mask.zip`` (or
+``--to FILE``) once every frame is in: a refused frame or a stop leaves nothing there.
 """
 
 from __future__ import annotations
@@ -24,15 +25,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--to", metavar="FILE.zip", default=None, help="the archive (default OUT/export-FORMAT.zip)")
     p.add_argument("--min-confidence", type=arg_float(0, 1), default=None, metavar="P",
                    help="leave unlabelled every pixel whose confidence is below P (needs a run made with --confidence; "
-                        "the key frame's labels are kept)")
+                        "the key frames' labels are kept)")
     p.add_argument("--force", action="store_true", help="overwrite the archive")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..classes.table import listed_name
-    from ..export import cvat_mask_archive, default_name, labelled_frames, read_run
+    from ..export import default_name, labelled_frames, read_run, write_cvat_mask_archive
     from ..formats import resolved
-    from ..outputs import atomic_write_bytes, check_output
+    from ..outputs import check_output
     from ..runs.state import unfinished_note
 
     from ..errors import OutputError
@@ -45,8 +46,8 @@ def run(args: argparse.Namespace) -> int:
     if to != resolved(default) and folder in to.parents and dest.suffix.lower() != ".zip":
         raise OutputError(f"--to {dest}: inside the run's own folder and not a .zip; the archive would replace one "
                           "of the run's files (choose a .zip name or another folder)")
-    data, counts = cvat_mask_archive(labelled_frames(run_labels, args.min_confidence), table)  # every file read and checked before anything is written
-    atomic_write_bytes(dest, data)
+    # written as the frames are read and checked, in a temporary file that takes dest's place once all are
+    counts = write_cvat_mask_archive(dest, labelled_frames(run_labels, args.min_confidence), table)
     shown = [f"{listed_name(c.name)} in {counts[c.name]}" for c in table.known if counts[c.name]]
     absent = sum(1 for c in table.known if not counts[c.name])
     print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {listed(shown)}"

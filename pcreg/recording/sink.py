@@ -99,6 +99,10 @@ def _create_empty(path: Path) -> None:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
+#: How many pending jobs :meth:`Sink.later` keeps before it forgets the ones done.
+REAP_AT = 256
+
+
 class Sink:
     """One rerun recording file being written: see the module.
 
@@ -317,7 +321,9 @@ class Sink:
         The calling thread only checks and copies what it is given: building rerun's archetypes costs
         0.05-0.3 ms each in Python, and a recorded sequence pair logs about twenty, which the pipeline's
         thread would otherwise wait for (docs/benchmarks.md#recording). Errors surface on the calling
-        thread at the next :meth:`wait`, :meth:`flush` or :meth:`close`. Rerun's time cursor is per
+        thread at the next :meth:`wait`, :meth:`flush` or :meth:`close`, or once :data:`REAP_AT` jobs are
+        pending, when the jobs done are forgotten (a run of thousands of frames that never waits keeps no
+        record of every job it asked for). Rerun's time cursor is per
         thread, so the job sets the frame on its own thread.
         """
         self.check_open()
@@ -328,7 +334,24 @@ class Sink:
                 self._at_frame(frame)
             log()
 
+        if len(self._pending) >= REAP_AT:
+            self._reap()
         self._pending.append(self._worker.submit(job))
+
+    def _reap(self) -> None:
+        """Forget the jobs that are done, raising the first one's error here, on the caller's thread."""
+        keep: list[Future] = []
+        done: list[Future] = []
+        for f in self._pending:
+            (done if f.done() else keep).append(f)
+        self._pending = keep
+        for f in done:
+            f.result()
+
+    @property
+    def pending_jobs(self) -> int:
+        """How many jobs asked for (:meth:`later`) are still kept: those not known to be done."""
+        return len(self._pending)
 
     def log_later(self, path: str, make: Callable[[], Any]) -> None:
         """Build an archetype with ``make`` on the sink's thread and log it at ``path`` (:meth:`later`)."""

@@ -1,0 +1,58 @@
+"""The recording sink over a long run: the jobs it hands its thread are not all kept until the end, and a
+job's error surfaces before the recording is closed."""
+
+from __future__ import annotations
+
+import gc
+import threading
+from concurrent.futures import Future
+
+import pytest
+
+from pcreg.recording.sink import Sink
+
+JOBS_PER_FRAME = 20  # about what a recorded pair logs
+FRAMES = 200
+
+
+def _frame(sink: Sink, jobs: int, last=lambda: None) -> None:
+    """Ask for ``jobs`` jobs, the last one ``last``, and return once the sink's thread has run them all."""
+    ran = threading.Event()
+    for _ in range(jobs - 1):
+        sink.later(lambda: None)
+
+    def final() -> None:
+        try:
+            last()
+        finally:
+            ran.set()
+
+    sink.later(final)
+    assert ran.wait(timeout=120)
+
+
+def test_a_long_recording_keeps_a_bounded_number_of_jobs(tmp_path):
+    sink = Sink(tmp_path / "long.rrd")
+    try:
+        for _ in range(FRAMES):  # 4,000 jobs; every one run before the next frame's
+            _frame(sink, JOBS_PER_FRAME)
+        kept = sum(isinstance(o, Future) for o in gc.get_objects())  # what stays in memory for them
+        assert kept <= FRAMES * JOBS_PER_FRAME // 10, kept
+    finally:
+        sink.close()
+    assert sink.pending_jobs == 0 and (tmp_path / "long.rrd").stat().st_size > 0
+
+
+def test_a_jobs_error_surfaces_while_the_run_goes_on(tmp_path):
+    sink = Sink(tmp_path / "failing.rrd")
+
+    def fail() -> None:
+        raise ValueError("a job's error")
+
+    try:
+        _frame(sink, 1, fail)
+        with pytest.raises(ValueError, match="a job's error"):
+            for _ in range(FRAMES * JOBS_PER_FRAME):  # a long run's worth of jobs: not only at the end
+                sink.later(lambda: None)
+    finally:
+        sink.close()

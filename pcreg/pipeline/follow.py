@@ -31,7 +31,7 @@ blurs away (a kite's bar, a hand) keep their colour's say; then only the largest
 within :data:`NEAR` px of it are kept, which drops far-off blobs of the object's colours. Its confidence
 is a logistic of the sum's magnitude (:data:`CONFIDENCE_SLOPE`, :data:`CONFIDENCE_OFFSET`); once the
 labels hold no object (it left the frame), the colour term's alone, since the carried 'nowhere' saw nothing
-(a lost object is not searched for again; the five DAVIS sequences never lose theirs).
+(an object that left the frame is not searched for again; the five DAVIS sequences never lose theirs).
 
 **A scene cut loses the object** (:func:`cut_evidence`): where the previous frame, carried by the flow
 just found, leaves a mean grey residual above :data:`CUT_RESIDUAL` (0.3) of chance's (two unrelated
@@ -39,10 +39,20 @@ pixels') and the two frames' colour histograms share less than 1 - :data:`CUT_CO
 carried labels say nothing of the new frame: they are dropped, the frame is read as lost. Real frames
 reach 0.145 (DAVIS) and, at one frame a second, 0.63 with colour changes of at most 0.401 (CamVid); 146
 of 148 cuts built between those clips are found (DAVIS's all: residual at least 0.435, colour change at
-least 0.5; docs/results.md, "Scene cuts"). The hard
+least 0.5; docs/results.md, "Scene cuts").
+
+**An object lost at a cut is searched for where its shot returns** (shot, other shot, the first shot again):
+the last frame that held it is kept, and each later frame is tested against it with the cut test's two
+signals, on a DIS flow from the new frame to it (a third flow, run only while the object is lost at a cut).
+Where neither signal says another scene (residual at most :data:`CUT_RESIDUAL`, colour change at most
+:data:`CUT_COLOUR_CHANGE`) the frame is back in that shot, and that frame's labels carried by the flow
+replace the lost ones. A return to where the shot was left gives the labels an uncut run gives; a return
+to a later moment of it is found only while the flow still explains it (docs/results.md, "A shot that
+returns": 1 of 5 at 20 frames later); no frame of another clip was ever taken for the lost shot. The hard
 labels at the working size, the frame's grey levels and its colour histogram are all a step hands to the next
-(:class:`FollowCarry`), which ``pcreg run`` saves with every frame, so a stopped run resumes exactly. The
-two flows are independent: one runs on pcreg's helper thread (``pcreg._threads``).
+(:class:`FollowCarry`, with the last frame that held an object lost at a cut), which ``pcreg run`` saves
+with every frame, so a stopped run resumes exactly. The
+step's two flows are independent: one runs on pcreg's helper thread (``pcreg._threads``).
 
 Measured (docs/results.md, "Following one moving object"): on the five shared DAVIS 2016 sequences, the two
 weights, the residual's width, the carry's blur and the read-out's reach chosen leaving one sequence out
@@ -138,6 +148,10 @@ class FollowCarry:
     labels: np.ndarray
     grey: np.ndarray
     colours: np.ndarray | None = None
+    #: The last frame that held the object before a cut lost it (its labels, grey levels and colours), which
+    #: each later frame is tested against until one is back in its shot (:meth:`ObjectFollower.step`); None
+    #: while the object is followed, and once it has been found again.
+    held: FollowCarry | None = None
 
     def __post_init__(self) -> None:
         for name in ("labels", "grey"):
@@ -149,6 +163,11 @@ class FollowCarry:
         c = self.colours
         if c is not None and not (isinstance(c, np.ndarray) and c.shape == (BINS ** 3,) and c.dtype == np.float32):
             raise InputError(f"a follower's carried colour histogram must be a ({BINS ** 3},) float32 array")
+        held = self.held
+        if held is not None and not (isinstance(held, FollowCarry) and held.held is None and held.colours is not None
+                                     and held.labels.shape == self.labels.shape):
+            raise InputError("a follower's carried frame before a cut must be a FollowCarry of the same size, "
+                             "with its colour histogram")
 
 
 def _histogram(index: np.ndarray) -> np.ndarray:
@@ -384,9 +403,13 @@ class ObjectFollower:
         index = _colour_index(rgb)
         histogram = _histogram(index)
         cut = cut_evidence(grey, histogram, carry.grey, carry.colours, previous_field)
+        held, lost_here = carry.held, cut["cut"] and bool(carry.labels.any())
+        if lost_here:  # the shot it is lost from: searched for again in the frames to come
+            held = FollowCarry(carry.labels, carry.grey, carry.colours)
         if cut["cut"]:  # the carried labels say nothing of this frame: the object is lost
             carry = FollowCarry(np.zeros_like(carry.labels), carry.grey, carry.colours)
-        carried = _warp(carry.labels.astype(np.float32), previous_field)
+        back, held = (None, held) if lost_here else self._search(grey, histogram, held)
+        carried = _warp(carry.labels.astype(np.float32), previous_field) if back is None else back
         colour = COLOUR_WEIGHT * self._colours[index]
         t2 = time.perf_counter()
         residual = np.abs(rgb.astype(np.float32) - _warp(self._key_rgb, key_field)).mean(axis=2)
@@ -397,16 +420,38 @@ class ObjectFollower:
         prior += (KEY_WEIGHT * gate ** GATE_POWER) * trust * _warp(self._key_logit, key_field)
         fused = colour + prior
         labels, confidence, self.log_odds = _read(prior, COLOUR_WEIGHT * self._colours[_colour_index(frame.rgb)],
-                                                  size, lost=not carry.labels.any())
-        self._carry = FollowCarry((fused > 0).astype(np.uint8), grey, histogram)
+                                                  size, lost=back is None and not carry.labels.any())
+        self._carry = FollowCarry((fused > 0).astype(np.uint8), grey, histogram, held)
         self._frame += 1
         t3 = time.perf_counter()
         times = {"register": t1 - t0, "classify": t2 - t1, "fuse": t3 - t2, "total": t3 - t0}
         self.last = StepReport(frame=self._frame, registration=_flow_result(key_field, t1 - t0), reason=None,
                                fallback=False, reference=0, times=times, confidence=confidence,
                                predicted_error=float(100.0 * (1.0 - confidence).mean()),
-                               trust=FollowTerms(prior), trust_summary={"gate": gate, **cut}, log_odds=colour)
+                               trust=FollowTerms(prior), trust_summary={"gate": gate, **cut, "back": back is not None},
+                               log_odds=colour)
         return labels
+
+    def _search(self, grey: np.ndarray, colours: np.ndarray,
+                held: FollowCarry | None) -> tuple[np.ndarray | None, FollowCarry | None]:
+        """``(carried, held)``: whether the new frame (``grey``, ``colours``) is back in the shot where a cut
+        lost the object, whose last frame holding it is ``held`` (None: the object is not lost at a cut).
+        The new frame is tested against that frame with the cut test's two signals (:func:`cut_evidence`, on
+        a DIS flow from the new frame to it): where neither says another scene (the residual at most
+        :data:`CUT_RESIDUAL`, the colour change at most :data:`CUT_COLOUR_CHANGE`), the frame is back in that
+        shot: that frame's labels carried by the flow are the new frame's carried labels (float32 (h, w)),
+        and nothing is held any more. Otherwise ``(None, held)``: one signal alone keeps the object lost, so
+        that a frame of another place in like colours (a CamVid street against breakdance's: colour change
+        0.441, residual 0.888) is not taken for the lost shot."""
+        from ..registration.flow import dis_flow, flow_field
+
+        if held is None:
+            return None, None
+        field = flow_field(dis_flow(grey, held.grey, FLOW_PRESET), self._grid)
+        test = cut_evidence(grey, colours, held.grey, held.colours, field)
+        if test["residual"] > CUT_RESIDUAL or test["colour_change"] > CUT_COLOUR_CHANGE:
+            return None, held
+        return _warp(held.labels.astype(np.float32), field), None
 
     @property
     def carry(self) -> FollowCarry | None:

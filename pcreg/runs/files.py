@@ -141,7 +141,8 @@ def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) ->
     :class:`~pcreg.pipeline.estimators.ChainCarry`, an object follower's
     :class:`~pcreg.pipeline.follow.FollowCarry`, or None, and what the classifier has ``learned``, or
     None), atomically at ``path``. A follower's carry is the ``follow`` member: its labels and grey
-    levels, (2, h, w) uint8, and ``follow_colours``, its colour histogram; a chained stream's the ``chain_*`` members (:func:`_chain_members`)."""
+    levels, (2, h, w) uint8, ``follow_colours``, its colour histogram, and while a cut has lost the object
+    ``follow_held`` and ``follow_held_colours``, the same of the last frame that held it; a chained stream's the ``chain_*`` members (:func:`_chain_members`)."""
     import io
 
     from ..outputs import atomic_write_bytes
@@ -161,6 +162,9 @@ def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) ->
         members["follow"] = np.stack([carry.labels, carry.grey])
         if carry.colours is not None:
             members["follow_colours"] = carry.colours
+        if carry.held is not None:
+            members["follow_held"] = np.stack([carry.held.labels, carry.held.grey])
+            members["follow_held_colours"] = carry.held.colours
     np.savez(buf, **members, **chain)
     atomic_write_bytes(path, buf.getvalue())
 
@@ -170,7 +174,6 @@ def read_carry(path: Path, t: int, unreadable: str):
     :class:`~pcreg.pipeline.stream.Carry`, a :class:`~pcreg.pipeline.follow.FollowCarry` or None, and an
     array or None. A missing or damaged file, or
     one of another step, is an :class:`~pcreg.errors.OutputError`: ``unreadable`` says what it stops."""
-    from ..pipeline.follow import FollowCarry
     from ..pipeline.stream import Carry
 
     bad = OutputError(f"{path}: missing or unreadable{unreadable}; use --force to start over")
@@ -180,6 +183,7 @@ def read_carry(path: Path, t: int, unreadable: str):
             learned = np.array(z["learned"]) if "learned" in z.files else None
             follow = np.array(z["follow"]) if "follow" in z.files else None
             colours = np.array(z["follow_colours"]) if "follow_colours" in z.files else None
+            held = [np.array(z[k]) for k in ("follow_held", "follow_held_colours") if k in z.files]
             chain = {k: np.array(z[k]) for k in z.files if k.startswith("chain_")}
     except UNREADABLE_CARRY:
         raise bad from None
@@ -193,18 +197,30 @@ def read_carry(path: Path, t: int, unreadable: str):
     if chain:
         return _chain_carry(chain, bad), learned
     if follow is not None:
-        if follow.ndim != 3 or follow.shape[0] != 2 or follow.dtype != np.uint8:
-            raise bad
-        try:
-            return FollowCarry(follow[0], follow[1], colours), learned
-        except InputError:
-            raise bad from None
+        return _follow_carry(follow, colours, held, bad), learned
     if grid.shape == (0, 0, 2) and np.isnan(evidence):  # that step left none
         return None, learned
     try:
         return Carry(grid, float(evidence)), learned
     except InputError as exc:
         raise OutputError(f"{path}: {exc}; use --force to start over") from None
+
+
+def _follow_carry(follow: np.ndarray, colours: np.ndarray | None, held: list, bad: OutputError):
+    """A follower's :class:`~pcreg.pipeline.follow.FollowCarry` from its members (:func:`write_carry`):
+    ``follow`` (2, h, w) uint8, ``colours`` or None, ``held`` [] or the frame before a cut's two members."""
+    from ..pipeline.follow import FollowCarry
+
+    for pair in [follow] + held[:1]:
+        if pair.ndim != 3 or pair.shape[0] != 2 or pair.dtype != np.uint8:
+            raise bad
+    if len(held) == 1:
+        raise bad
+    try:
+        before = FollowCarry(held[0][0], held[0][1], held[1]) if held else None
+        return FollowCarry(follow[0], follow[1], colours, before)
+    except InputError:
+        raise bad from None
 
 
 def _chain_members(carry) -> dict:

@@ -159,28 +159,6 @@ def _user_code(what: str):
                 os.close(cwd)
 
 
-def _check_module_exists(spec: str, module: str) -> None:
-    """An :class:`InputError` when ``module``'s top-level package is neither in the current directory nor on
-    Python's path: a misspelt name, found before any implementation runs. Finding it runs none of its code;
-    whatever its import raises later is that implementation's failure, its row's one line."""
-    import importlib.util
-
-    top = module.split(".")[0]
-    added = os.getcwd() not in sys.path
-    if added:
-        sys.path.insert(0, os.getcwd())
-    try:
-        found = importlib.util.find_spec(top)
-    except (ImportError, ValueError):  # a name Python cannot look up: left to the import, which says why
-        return
-    finally:
-        if added:
-            sys.path.remove(os.getcwd())
-    if found is None:
-        raise InputError(f"{spec}: no module named {top!r} in the current directory or on Python's path "
-                         "(run pcreg from the folder that holds it, or install it)")
-
-
 def _check_program_exists(spec: str, program: str) -> None:
     """An :class:`InputError` when ``program`` is neither a path to an executable file nor a command on
     ``PATH``: a misspelt name, found before any implementation runs."""
@@ -207,7 +185,6 @@ class PythonCallable(Implementation):
         self.module, self.function = module, func
         self.description = f"Python callable {module}.{func}"
         self._func = None
-        _check_module_exists(spec, module)
 
     def load(self):
         """The function, imported at the first call: what its import raises is an
@@ -233,7 +210,9 @@ class PythonCallable(Implementation):
                 if added:
                     sys.path.remove(os.getcwd())
             if missing is not None:
-                raise InputError(f"{self.name}: no module named {missing!r}")
+                where = "" if "." in missing else (" in the current directory or on Python's path (run pcreg from "
+                                                   "the folder that holds it, or install it)")
+                raise InputError(f"{self.name}: no module named {missing!r}{where}")
             func = getattr(mod, self.function, None)
             if not callable(func):
                 raise InputError(f"{self.name}: {self.module} has no callable {self.function!r}")

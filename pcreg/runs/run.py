@@ -207,6 +207,7 @@ class Run:
         frames = self.frames
         job = KeyRun(self, keys, request.config)
         job.start(force=request.force)
+        _note_disk(job.kept_bytes(), self.out)
         if job.finished and request.record is not None and Path(request.record).exists() and not request.force:
             self._say_done(request, 0, sorted(keys))  # the recording is this finished run's: nothing to add to it
             return
@@ -546,6 +547,18 @@ def _note_memory(keys: dict, table, scale: float) -> None:
     from .memory import available_bytes, run_note
 
     note = run_note(keys.values(), table, scale, available_bytes())  # the key labels are the frames' size
+    if note:
+        sys.stderr.write(f"pcreg: note: {note}\n")
+
+
+def _note_disk(need: float, out: Path) -> None:
+    """A note on stderr before the first frame when the stretches are expected to keep more under ``out`` than
+    its filesystem has free (:func:`~pcreg.runs.disk.disk_note`); nothing else changes."""
+    import sys
+
+    from .disk import disk_note, free_bytes
+
+    note = disk_note(need, free_bytes(out), out)
     if note:
         sys.stderr.write(f"pcreg: note: {note}\n")
 

@@ -1,7 +1,7 @@
 """What a stretch between two key frames keeps under ``OUT/.keys/`` for its backward pass: compressed without
-loss (every bit back), read back from an earlier version's uncompressed files so that its interrupted run
-resumes, refused in one line when damaged; and the note before a run whose longest stretch will not fit on
-OUT's disk."""
+loss (every bit back) when the disk needs it and kept as it is otherwise, the run's outputs the same either
+way; read back from an earlier version's uncompressed files so that its interrupted run resumes, refused in one
+line when damaged; and the note before a run whose longest stretch will not fit on OUT's disk."""
 
 import io
 import shutil
@@ -99,16 +99,66 @@ def test_a_run_stopped_by_the_previous_version_resumes_to_the_same_bytes(tmp_pat
     assert not (tmp_path / "cut" / ".keys").exists()
 
 
-def test_a_stretch_keeps_its_frames_and_priors_compressed(tmp_path, frames, monkeypatch):
+def test_not_compressing_keeps_every_bit_as_it_is():
+    rng = np.random.default_rng(1)
+    arrays = {"prior": rng.normal(0, 4, (30, 40, 9)).astype(np.float16), "fallback": np.asarray(False),
+              "image": rng.integers(0, 256, (30, 40, 3), dtype=np.uint8), "empty": np.zeros((0, 4), np.float16)}
+    data = kept.pack(arrays, compress=False)
+    assert len(data) - sum(a.nbytes for a in arrays.values()) < 600  # the header only
+    back = kept.unpack(data)
+    for name, a in arrays.items():
+        assert back[name].dtype == a.dtype and back[name].shape == a.shape, name
+        assert back[name].tobytes() == a.tobytes(), name
+    assert back["prior"].flags.writeable
+    assert arrays["prior"].tobytes() in data  # as it is: no difference taken, no shuffle, no zlib
+
+
+def _free(monkeypatch, free):
+    """The free space :func:`pcreg.runs.disk.free_bytes` reports, for the runs that follow."""
+    monkeypatch.setattr(disk, "free_bytes", lambda path: free)
+
+
+@pytest.mark.parametrize("free, compressed", [(None, True), (0, True), (2**62, False)])
+def test_a_stretch_keeps_its_files_compressed_only_when_the_disk_needs_it(tmp_path, frames, monkeypatch, free,
+                                                                          compressed):
+    """Free space unknown or scarce: compressed; plenty: the arrays' bytes as they are."""
     video = _video(tmp_path, frames)
     keys = _keys(tmp_path / "keys", frames, [0, 5], name="{:06d}")
+    _free(monkeypatch, free)
     kill_at_commit(monkeypatch, 15, "backward")
     assert main(["run", str(video), "--labels", str(keys), "--out", str(tmp_path / "cut")]) == 130
     (stretch,) = (tmp_path / "cut" / ".keys").iterdir()
     priors, images = sorted(stretch.glob("prior-*.kept")), sorted(stretch.glob("frame-*.kept"))
     assert len(priors) == 4 and len(images) == 6
-    assert all(p.stat().st_size < 160 * 120 * 2 for p in priors)
-    assert all(p.stat().st_size < 160 * 120 * 3 for p in images)
+    for paths, nbytes in [(priors, 160 * 120 * 2 + 1), (images, 160 * 120 * 3)]:
+        for p in paths:
+            size = p.stat().st_size
+            assert (size < 0.7 * nbytes) if compressed else (nbytes <= size < nbytes + 600), (p.name, size)
+
+
+def test_a_run_kept_compressed_or_not_writes_the_same_bytes(tmp_path, frames, monkeypatch):
+    """The same run with its stretch kept compressed, kept uncompressed, and stopped in its forward pass
+    compressed then resumed uncompressed (a resumed run decides again; its stretch keeps files of both kinds):
+    the same labels, confidence and run.json."""
+    video = _video(tmp_path, frames)
+    keys = _keys(tmp_path / "keys", frames, [1, 4], name="{:06d}")
+    args = ["run", str(video), "--labels", str(keys), "--confidence", "--out"]
+    _free(monkeypatch, 0)
+    assert main(args + [str(tmp_path / "packed")]) == 0
+    kill_at_commit(monkeypatch, 14, "between")
+    assert main(args + [str(tmp_path / "mixed")]) == 130
+    monkeypatch.undo()
+    (stretch,) = (tmp_path / "mixed" / ".keys").iterdir()
+    assert sorted(p.name for p in stretch.glob("prior-*.kept")) == ["prior-2.kept"]  # prior-3.kept written uncompressed
+    assert b'"zlib": true' in (stretch / "prior-2.kept").read_bytes()[:400]
+    _free(monkeypatch, 2**62)
+    assert main(args + [str(tmp_path / "plain")]) == 0
+    assert main(args + [str(tmp_path / "mixed")]) == 0
+    whole = _outputs(tmp_path / "packed")
+    assert any("conf" in name for name in whole)
+    for other in ("plain", "mixed"):
+        assert _outputs(tmp_path / other) == whole, other
+        assert (tmp_path / other / "run.json").read_bytes() == (tmp_path / "packed" / "run.json").read_bytes()
 
 
 GIB = 2**30
@@ -117,6 +167,9 @@ GIB = 2**30
 def test_the_longest_stretch_decides_what_a_run_keeps():
     frame, prior = disk.frame_bytes(1920, 1080), disk.prior_bytes(1920, 1080, 11)
     assert disk.prior_bytes(1920, 1080, 2) < prior
+    assert disk.frame_bytes(1920, 1080, compressed=False) == 3 * 1920 * 1080 > frame
+    assert disk.prior_bytes(1920, 1080, 11, compressed=False) == 2 * 11 * 1920 * 1080 > prior
+    assert disk.prior_bytes(1920, 1080, 2, compressed=False) == 2 * 1920 * 1080
     assert disk.stretch_bytes(0, 801, video=True, frame=frame, prior=prior) == 800 * prior + 802 * frame
     assert disk.stretch_bytes(0, 801, video=False, frame=frame, prior=prior) == 800 * prior
     assert disk.stretch_bytes(None, 10, video=True, frame=frame, prior=prior) == 11 * frame  # before the first key
@@ -130,6 +183,13 @@ def test_a_note_names_what_the_stretch_needs_and_what_is_free(tmp_path):
     note = disk.disk_note(5 * GIB, 2 * GIB, tmp_path / "out")
     assert note is not None and "about 5.0 GiB" in note and "2.0 GiB is free" in note and str(tmp_path / "out") in note
     assert disk.free_bytes(tmp_path / "not" / "yet") == shutil.disk_usage(tmp_path).free
+
+
+def test_compressed_only_when_uncompressed_would_take_more_than_half_the_free_space():
+    assert not disk.compress_kept(5 * GIB, 10 * GIB)
+    assert disk.compress_kept(5 * GIB + 1, 10 * GIB)
+    assert disk.compress_kept(1, None)  # unknown: compressed
+    assert disk.compress_kept(1, 0)
 
 
 def test_pcreg_run_notes_a_disk_too_small_and_nothing_when_it_fits(tmp_path, frames, monkeypatch, capsys):

@@ -16,8 +16,9 @@ next frame on a thread of its own and writes a frame's outputs and commit on ano
 A stretch between two key frames needs its forward pass before its backward pass: the forward pass
 keeps each frame's prior term (:meth:`~pcreg.pipeline.trust.TrustMaps.prior_term`, float16) in
 ``OUT/.keys/STRETCH/`` (and, for a video, the decoded frames of the stretch, which the backward pass
-reads in reverse), compressed without loss (:mod:`pcreg.runs.kept`), removed when the stretch is done;
-memory does not grow with the stretch's length.
+reads in reverse), removed when the stretch is done; memory does not grow with the stretch's length.
+They are compressed without loss (:mod:`pcreg.runs.kept`) when :attr:`KeyRun.compress` says so, which the
+run decides when it opens from the free space of its disk (:func:`pcreg.runs.disk.compress_kept`).
 A run that stops anywhere resumes at its first step not committed, from the carry that step's
 propagator left (``carry-{0,1}.npz`` beside the stretch's files), and writes what an uninterrupted
 run writes.
@@ -59,6 +60,8 @@ class KeyRun:
         self.n = len(self.frames) if self.frames.kind == "folder" else None
         self.plan = stretches(self.keys, self.n)
         self.labelled = 0
+        #: Whether the stretches' kept files are compressed (:mod:`pcreg.runs.kept`), for the whole run.
+        self.compress = True
         self._fingerprints: dict[Stretch, str] = {}
 
     @property
@@ -97,16 +100,16 @@ class KeyRun:
         done = {e["fingerprint"] for e in self.state["stretches"]}
         return all(self.fingerprint(s) in done for s in self.plan)
 
-    def kept_bytes(self) -> float:
-        """The most bytes a stretch not labelled yet is expected to keep in the hidden folder while it is labelled
-        (:mod:`pcreg.runs.disk`; after :meth:`start`): its frames' size, the working size, the classes its key
-        frames show."""
+    def kept_bytes(self, *, compressed: bool = True) -> float:
+        """The most bytes a stretch not labelled yet is expected to keep in the hidden folder while it is labelled,
+        ``compressed`` or not (:mod:`pcreg.runs.disk`; after :meth:`start`): its frames' size, the working size,
+        the classes its key frames show."""
         from ..runs.disk import frame_bytes, prior_bytes, stretch_bytes
 
         done = {e["fingerprint"] for e in self.state["stretches"]}
         h, w = next(iter(self.keys.values())).shape[:2]
         scale = self.config.scale
-        frame = frame_bytes(w, h)
+        frame = frame_bytes(w, h, compressed=compressed)
         table = getattr(self.owner, "table", None)
         known = list(table.known_ids) if table is not None and table.n_known > 2 else []  # none: two classes
         shown = {k: np.bincount(lab.ravel(), minlength=256) > 0 for k, lab in self.keys.items()} if known else {}
@@ -115,7 +118,7 @@ class KeyRun:
             if self.fingerprint(s) in done:
                 continue
             classes = max(2, sum(1 for c in known if any(shown[k][c] for k in s.keys)))
-            prior = prior_bytes(max(1, round(w * scale)), max(1, round(h * scale)), classes)
+            prior = prior_bytes(max(1, round(w * scale)), max(1, round(h * scale)), classes, compressed=compressed)
             need = max(need, stretch_bytes(s.first, s.last, video=self.frames.kind == "video", frame=frame,
                                            prior=prior))
         return need
@@ -226,7 +229,7 @@ class KeyRun:
             if frame.position > hi:
                 break
             self.check()
-            write_frame(self._hidden(cur["fingerprint"]), frame.position, frame.image)
+            write_frame(self._hidden(cur["fingerprint"]), frame.position, frame.image, compress=self.compress)
             cur["next"] = frame.position + 1
             self._commit()
         if cur["next"] is None or cur["next"] <= hi:
@@ -257,7 +260,7 @@ class KeyRun:
         summed trust weight, for the class window) kept for the backward pass as :data:`PRIOR_STORE_DTYPE`, the
         propagator's carry, and the commit (:func:`~pcreg.runs.kept.write_prior`)."""
         write_prior(self._hidden(cur["fingerprint"]), t, prior.astype(PRIOR_STORE_DTYPE), fallback,
-                    None if weight is None else weight.astype(PRIOR_STORE_DTYPE))
+                    None if weight is None else weight.astype(PRIOR_STORE_DTYPE), compress=self.compress)
         self._keep_carry(cur, carry, learned)
         cur["next"] = t + 1
         cur["fallbacks"] += int(fallback)

@@ -4,11 +4,15 @@
 - each frame's prior term, ``prior-N.kept``: :func:`write_prior`, :func:`read_prior`;
 - a video's decoded frames, ``frame-N.kept``: :func:`write_frame`, :func:`read_frame`.
 
-Both are lossless, and smaller than the arrays (:func:`pack`): each value's bits are replaced by their
-difference from the pixel's before it in its row (PNG's "Sub" filter), a prior term's (float16) bytes
-shuffled, as blosc does (every value's low byte, then every high byte: the high bytes of neighbouring pixels
-are much alike), and the whole compressed with zlib at level 1. A run of an earlier version kept
-them uncompressed (``prior-N.npz``, ``frame-N.npy``): they are read as well, so that such a run resumes.
+Both are lossless, and compressed only when the run's disk needs it (``compress``; the run decides when it
+opens, :func:`pcreg.runs.disk.compress_kept`): compressing costs time (at 640x480 with ``camvid11`` zlib takes
+100-160 ms a frame, against a step of 150-330 ms), so a run whose stretches fit twice over in the free space
+keeps the arrays' bytes as they are. Compressed (:func:`pack`), each value's bits are replaced by their difference from the pixel's
+before it in its row (PNG's "Sub" filter), a prior term's (float16) bytes shuffled, as blosc does (every
+value's low byte, then every high byte: the high bytes of neighbouring pixels are much alike), and the whole
+compressed with zlib at level 1. Both kinds are the same format, each member's header saying what was done to
+it, so reading needs no choice. A run of an earlier version kept them uncompressed (``prior-N.npz``,
+``frame-N.npy``): they are read as well, so that such a run resumes.
 
 Sizes and times at 640x480 and 1920x1080 are in docs/benchmarks.md ("What a stretch keeps on disk").
 """
@@ -47,32 +51,35 @@ def _bits(a: np.ndarray) -> np.ndarray:
     return a.view(np.dtype(f"u{a.dtype.itemsize}"))
 
 
-def pack(arrays: dict[str, np.ndarray], *, delta: bool = True) -> bytes:
-    """``arrays`` (numeric, any shape) as bytes: a header naming each one's dtype and shape, then each one's
-    bytes, compressed with zlib at :data:`LEVEL`. Before that, an array of two dimensions or more has each
-    value's bits (as an unsigned integer) replaced by their difference, modulo 2**bits, from the value of the
-    pixel before it in its row, the same channel (``delta``; PNG's "Sub" filter), and its bytes shuffled (the
-    first byte of every value, then the second, ...)."""
+def pack(arrays: dict[str, np.ndarray], *, compress: bool = True, delta: bool = True) -> bytes:
+    """``arrays`` (numeric, any shape) as bytes: a header naming each one's dtype and shape and what was done to
+    it, then each one's bytes. Not ``compress``: the bytes as they are (C order). ``compress``: compressed with
+    zlib at :data:`LEVEL`; before that, an array of two dimensions or more has each value's bits (as an unsigned
+    integer) replaced by their difference, modulo 2**bits, from the value of the pixel before it in its row, the
+    same channel (``delta``; PNG's "Sub" filter), and its bytes shuffled (the first byte of every value, then
+    the second, ...)."""
     header, blobs = [], []
     for name, a in arrays.items():
         a = np.asarray(a, order="C")  # (np.ascontiguousarray makes a 0-d array 1-d)
-        diff = delta and a.ndim >= 2 and a.shape[1] > 1 and a.dtype.kind in "iuf"
+        diff = compress and delta and a.ndim >= 2 and a.shape[1] > 1 and a.dtype.kind in "iuf"
         if diff:
             bits = _bits(a)
             a = bits.copy()
             a[:, 1:] -= bits[:, :-1]
         size = a.dtype.itemsize
-        raw = a.reshape(-1).view(np.uint8).reshape(-1, size).T.tobytes() if size > 1 and a.size else a.tobytes()
-        blob = zlib.compress(raw, LEVEL)
+        shuffle = compress and size > 1 and a.size > 0
+        raw = a.reshape(-1).view(np.uint8).reshape(-1, size).T.tobytes() if shuffle else a.tobytes()
+        blob = zlib.compress(raw, LEVEL) if compress else raw
         header.append({"name": name, "dtype": np.asarray(arrays[name]).dtype.str, "shape": list(a.shape),
-                       "delta": diff, "bytes": len(blob)})
+                       "delta": diff, "shuffle": shuffle, "zlib": compress, "bytes": len(blob)})
         blobs.append(blob)
     head = json.dumps(header).encode()
     return b"".join([MAGIC, struct.pack("<I", len(head)), head, *blobs])
 
 
 def unpack(data: bytes) -> dict[str, np.ndarray]:
-    """The arrays :func:`pack` wrote. Bytes of anything else, or damaged, raise ValueError or zlib.error."""
+    """The arrays :func:`pack` wrote, compressed or not. Bytes of anything else, or damaged, raise ValueError or
+    zlib.error."""
     if not data.startswith(MAGIC):
         raise ValueError("not a kept file")
     at = len(MAGIC) + 4
@@ -84,14 +91,17 @@ def unpack(data: bytes) -> dict[str, np.ndarray]:
         dtype, shape = np.dtype(m["dtype"]), tuple(int(s) for s in m["shape"])
         if dtype.kind not in "biuf":
             raise ValueError("not a numeric array")
-        raw = zlib.decompress(data[at:at + m["bytes"]])
+        blob = data[at:at + m["bytes"]]
+        raw = zlib.decompress(blob) if m.get("zlib", True) else blob
         at += m["bytes"]
         count = int(np.prod(shape, dtype=np.int64))
         if len(raw) != count * dtype.itemsize:
             raise ValueError("a member of the wrong size")
         a = np.frombuffer(raw, np.uint8)
-        if dtype.itemsize > 1 and count:
+        if m.get("shuffle", dtype.itemsize > 1 and count > 0):
             a = a.reshape(dtype.itemsize, count).T.copy()
+        elif dtype.itemsize > 1:
+            a = a.copy()  # writable, as a shuffled member's is
         a = a.view(dtype).reshape(shape)
         if m["delta"]:
             bits = _bits(a)
@@ -111,15 +121,16 @@ def _reading(path: Path) -> Iterator[None]:
         raise OutputError(f"{path}: missing or unreadable; use --force to start over") from None
 
 
-def write_prior(folder: Path, t: int, prior: np.ndarray, fallback: bool, weight: np.ndarray | None = None) -> None:
+def write_prior(folder: Path, t: int, prior: np.ndarray, fallback: bool, weight: np.ndarray | None = None, *,
+                compress: bool = True) -> None:
     """Frame ``t``'s prior term (float16; with many classes also its summed trust weight, float16) and whether
-    its step fell back, atomically in ``folder``."""
+    its step fell back, atomically in ``folder``, compressed or not (:func:`pack`)."""
     from ..outputs import atomic_write_bytes
 
     kept = {"prior": prior, "fallback": np.asarray(fallback)}
     if weight is not None:
         kept["weight"] = weight
-    atomic_write_bytes(folder / PRIOR.format(t), pack(kept))
+    atomic_write_bytes(folder / PRIOR.format(t), pack(kept, compress=compress))
 
 
 def read_prior(folder: Path, t: int) -> tuple[np.ndarray, bool, np.ndarray | None]:
@@ -134,11 +145,12 @@ def read_prior(folder: Path, t: int) -> tuple[np.ndarray, bool, np.ndarray | Non
         return z["prior"], bool(z["fallback"]), z.get("weight")
 
 
-def write_frame(folder: Path, t: int, image: np.ndarray) -> None:
-    """A video's decoded frame ``t`` ((H, W, 3) uint8), atomically in ``folder``."""
+def write_frame(folder: Path, t: int, image: np.ndarray, *, compress: bool = True) -> None:
+    """A video's decoded frame ``t`` ((H, W, 3) uint8), atomically in ``folder``, compressed or not
+    (:func:`pack`)."""
     from ..outputs import atomic_write_bytes
 
-    atomic_write_bytes(folder / FRAME.format(t), pack({"image": image}))
+    atomic_write_bytes(folder / FRAME.format(t), pack({"image": image}, compress=compress))
 
 
 def read_frame(folder: Path, t: int) -> np.ndarray:

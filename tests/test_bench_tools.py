@@ -252,3 +252,15 @@ def test_make_long_video_writes_the_frames_and_the_key_labels_of_the_frames_show
 
     labels = cv2.imread(str(keys / "000030.png"), cv2.IMREAD_UNCHANGED)
     assert labels.shape == (120, 160) and labels.max() <= 11  # the clip's ids, at the frames' size
+
+
+def test_bench_keys_disk_reads_back_every_way_and_reports_its_size(tmp_path, shared_data):
+    bench = _load("bench_keys_disk")
+    out = tmp_path / "bench"
+    assert bench.main(["--out", str(out), "--size", "96x72", "--frames", "3", "--tmp", str(tmp_path)]) == 0
+    report = json.loads((out / "bench_keys_disk.json").read_text())
+    for what in (report["two"]["prior"], report["camvid11"]["prior"], report["frame"]):
+        sizes = {way: size for way, (size, _) in what.items()}
+        chosen = next(size for way, size in sizes.items() if "chosen" in way)
+        assert chosen < next(size for way, size in sizes.items() if "before" in way)
+    assert "the rule: the smallest" in (out / "bench_keys_disk.md").read_text()

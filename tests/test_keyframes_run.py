@@ -108,11 +108,11 @@ def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypa
 
         lost = shutil.copytree(tmp_path / "cut", tmp_path / "lost")
         capsys.readouterr()
-        for f in lost.glob(".keys/*/prior-*.npz"):
+        for f in lost.glob(".keys/*/prior-*.kept"):
             f.unlink()
         assert main(args + ["--out", str(lost)]) == 2
-        assert _err(capsys) == [f"pcreg: error: {next(lost.glob('.keys/*'))}/prior-2.npz: missing or unreadable; use --force "
-                                "to start over"]
+        assert _err(capsys) == [f"pcreg: error: {next(lost.glob('.keys/*'))}/prior-2.kept: missing or unreadable; use "
+                                "--force to start over"]
         assert main(args + ["--out", str(lost), "--force"]) == 0
         assert _outputs(tmp_path / "whole") == _outputs(lost)
     assert main(args + ["--out", str(tmp_path / "cut")]) == 0

@@ -17,6 +17,8 @@ A stretch between two key frames needs its forward pass before its backward pass
 keeps each frame's prior term (:meth:`~pcreg.pipeline.trust.TrustMaps.prior_term`, float16) in
 ``OUT/.keys/STRETCH/`` (and, for a video, the decoded frames of the stretch, which the backward pass
 reads in reverse), removed when the stretch is done; memory does not grow with the stretch's length.
+They are compressed without loss (:mod:`pcreg.runs.kept`) when :attr:`KeyRun.compress` says so, which the
+run decides when it opens from the free space of its disk (:func:`pcreg.runs.disk.compress_kept`).
 A run that stops anywhere resumes at its first step not committed, from the carry that step's
 propagator left (``carry-{0,1}.npz`` beside the stretch's files), and writes what an uninterrupted
 run writes.
@@ -31,34 +33,20 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-from contextlib import contextmanager
 from pathlib import Path
-from typing import BinaryIO, Callable, Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
-from ..errors import InputError, OutputError
-from ..runs.files import HIDDEN, UNREADABLE_CARRY, label_digest
+from ..errors import InputError
+from ..runs.files import HIDDEN, label_digest
+from ..runs.kept import read_frame, read_prior, write_frame, write_prior
 from ..runs.truth import empty_counts
 
 from .engine import PRIOR_STORE_DTYPE, References, Stretch, propagate, stretches, two_sided
 from .multiclass import weight_sum
 
 __all__ = ["KeyRun", "HIDDEN"]  # HIDDEN: pcreg.runs.files.HIDDEN, named here as before
-
-
-#: What reading a missing or damaged file of that folder raises.
-_UNREADABLE_KEPT: tuple[type[BaseException], ...] = (OSError, *UNREADABLE_CARRY)
-
-
-@contextmanager
-def _kept(path: Path) -> Iterator[BinaryIO]:
-    """A file a pass kept for the next one, open; missing or damaged, one line saying how to start over."""
-    try:
-        with open(path, "rb") as f:
-            yield f
-    except _UNREADABLE_KEPT:
-        raise OutputError(f"{path}: missing or unreadable; use --force to start over") from None
 
 
 class KeyRun:
@@ -72,6 +60,8 @@ class KeyRun:
         self.n = len(self.frames) if self.frames.kind == "folder" else None
         self.plan = stretches(self.keys, self.n)
         self.labelled = 0
+        #: Whether the stretches' kept files are compressed (:mod:`pcreg.runs.kept`), for the whole run.
+        self.compress = True
         self._fingerprints: dict[Stretch, str] = {}
 
     @property
@@ -109,6 +99,29 @@ class KeyRun:
         """Whether every stretch of the plan is labelled (after :meth:`start`)."""
         done = {e["fingerprint"] for e in self.state["stretches"]}
         return all(self.fingerprint(s) in done for s in self.plan)
+
+    def kept_bytes(self, *, compressed: bool = True) -> float:
+        """The most bytes a stretch not labelled yet is expected to keep in the hidden folder while it is labelled,
+        ``compressed`` or not (:mod:`pcreg.runs.disk`; after :meth:`start`): its frames' size, the working size,
+        the classes its key frames show."""
+        from ..runs.disk import frame_bytes, prior_bytes, stretch_bytes
+
+        done = {e["fingerprint"] for e in self.state["stretches"]}
+        h, w = next(iter(self.keys.values())).shape[:2]
+        scale = self.config.scale
+        frame = frame_bytes(w, h, compressed=compressed)
+        table = getattr(self.owner, "table", None)
+        known = list(table.known_ids) if table is not None and table.n_known > 2 else []  # none: two classes
+        shown = {k: np.bincount(lab.ravel(), minlength=256) > 0 for k, lab in self.keys.items()} if known else {}
+        need = 0.0
+        for s in self.plan:
+            if self.fingerprint(s) in done:
+                continue
+            classes = max(2, sum(1 for c in known if any(shown[k][c] for k in s.keys)))
+            prior = prior_bytes(max(1, round(w * scale)), max(1, round(h * scale)), classes, compressed=compressed)
+            need = max(need, stretch_bytes(s.first, s.last, video=self.frames.kind == "video", frame=frame,
+                                           prior=prior))
+        return need
 
     # -- the run ---------------------------------------------------------------------------------------
 
@@ -157,15 +170,24 @@ class KeyRun:
 
         if self.frames.kind == "folder":
             return load_image(self.frames.paths[t])
-        with _kept(self._hidden(self.fingerprint(s)) / f"frame-{t}.npy") as f:
-            return np.load(f, allow_pickle=False)
+        return read_frame(self._hidden(self.fingerprint(s)), t)
 
-    def _images(self, s: Stretch, positions: range) -> Iterator[tuple[int, np.ndarray]]:
+    def _images(self, s: Stretch, positions: range, priors: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
         """``(t, image)`` for the frames at ``positions``, in that order, the next one read on a thread of
-        its own while the caller labels this one (:func:`~pcreg.datasets.sources.read_ahead`)."""
+        its own while the caller labels this one (:func:`~pcreg.datasets.sources.read_ahead`); with ``priors``,
+        what the forward pass kept for frame ``t`` (:func:`~pcreg.runs.kept.read_prior`) put in it at ``t``
+        on that thread too, before the frame comes out."""
         from ..datasets.sources import read_ahead
 
-        return read_ahead((t, self._image(s, t)) for t in positions)
+        folder = self._hidden(self.fingerprint(s))
+
+        def read() -> Iterator[tuple[int, np.ndarray]]:
+            for t in positions:
+                if priors is not None:
+                    priors[t] = read_prior(folder, t)
+                yield t, self._image(s, t)
+
+        return read_ahead(read())
 
     def _classifier(self, s: Stretch, images: dict):
         from ..classification.bayes import fit_classifier
@@ -200,9 +222,6 @@ class KeyRun:
 
     def _store(self, s: Stretch, cur: dict) -> None:
         """A video's frames of the stretch and its key frames, decoded in order into the hidden folder."""
-        from ..outputs import atomic_write_bytes
-        import io
-
         lo, hi = s.start if s.first is None else s.first, s.last
         assert hi is not None
         first = lo if cur["next"] is None else cur["next"]
@@ -210,9 +229,7 @@ class KeyRun:
             if frame.position > hi:
                 break
             self.check()
-            buf = io.BytesIO()
-            np.save(buf, frame.image, allow_pickle=False)
-            atomic_write_bytes(self._hidden(cur["fingerprint"]) / f"frame-{frame.position}.npy", buf.getvalue())
+            write_frame(self._hidden(cur["fingerprint"]), frame.position, frame.image, compress=self.compress)
             cur["next"] = frame.position + 1
             self._commit()
         if cur["next"] is None or cur["next"] <= hi:
@@ -241,16 +258,9 @@ class KeyRun:
                     weight: np.ndarray | None = None) -> None:
         """Frame ``t`` of a forward pass between two key frames: its prior term (with many classes also its
         summed trust weight, for the class window) kept for the backward pass as :data:`PRIOR_STORE_DTYPE`, the
-        propagator's carry, and the commit."""
-        from ..outputs import atomic_write_bytes
-        import io
-
-        buf = io.BytesIO()
-        kept: dict[str, np.ndarray] = {"prior": prior.astype(PRIOR_STORE_DTYPE), "fallback": np.asarray(fallback)}
-        if weight is not None:
-            kept["weight"] = weight.astype(PRIOR_STORE_DTYPE)
-        np.savez(buf, **kept)  # type: ignore[arg-type]  # (numpy's stub types a keyword as allow_pickle)
-        atomic_write_bytes(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz", buf.getvalue())
+        propagator's carry, and the commit (:func:`~pcreg.runs.kept.write_prior`)."""
+        write_prior(self._hidden(cur["fingerprint"]), t, prior.astype(PRIOR_STORE_DTYPE), fallback,
+                    None if weight is None else weight.astype(PRIOR_STORE_DTYPE), compress=self.compress)
         self._keep_carry(cur, carry, learned)
         cur["next"] = t + 1
         cur["fallbacks"] += int(fallback)
@@ -271,18 +281,17 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = b - 1 if cur["next"] is None else cur["next"]
         references = References(keys[b], prop.carry)
+        priors: dict[int, tuple] | None = {} if both else None  # each frame's, read with the frame
+        todo = self._images(s, range(start, s.start - 1, -1), priors)
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
-            for t, image, labels in propagate(prop, self._images(s, range(start, s.start - 1, -1)), check=self.check):
+            for t, image, labels in propagate(prop, todo, check=self.check):
                 report = prop.last
                 step = report.to_dict()
                 conf = report.confidence
-                if both:
-                    with _kept(self._hidden(cur["fingerprint"]) / f"prior-{t}.npz") as f, \
-                            np.load(f, allow_pickle=False) as z:
-                        p_a, fallback = z["prior"], bool(z["fallback"])
-                        w_a = z["weight"].astype(np.float32) if "weight" in z.files else None
+                if priors is not None:
+                    p_a, fallback, w_a = priors.pop(t)
                     d = report.log_odds
-                    weights = None if w_a is None else (w_a, weight_sum(report.trust))
+                    weights = None if w_a is None else (w_a.astype(np.float32), weight_sum(report.trust))
                     labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
                                                 size=prop.working_size, classes=prop.class_read, weights=weights)
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})

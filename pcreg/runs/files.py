@@ -8,6 +8,9 @@ one pair of functions here, and nowhere else:
 - the carry, ``carry-{0,1}.npz`` (and a key-frames stretch's own, under :data:`HIDDEN`): :func:`write_carry`,
   :func:`read_carry`;
 - the frames to label next, ``suggest.txt``: :func:`write_suggestions`, :func:`read_suggestions`.
+
+What a key-frames stretch's forward pass keeps for its backward pass (its prior terms, a video's frames) is
+:mod:`pcreg.runs.kept`'s.
 """
 
 from __future__ import annotations

@@ -207,6 +207,7 @@ class Run:
         frames = self.frames
         job = KeyRun(self, keys, request.config)
         job.start(force=request.force)
+        _choose_kept(job, self.out)
         if job.finished and request.record is not None and Path(request.record).exists() and not request.force:
             self._say_done(request, 0, sorted(keys))  # the recording is this finished run's: nothing to add to it
             return
@@ -546,6 +547,22 @@ def _note_memory(keys: dict, table, scale: float) -> None:
     from .memory import available_bytes, run_note
 
     note = run_note(keys.values(), table, scale, available_bytes())  # the key labels are the frames' size
+    if note:
+        sys.stderr.write(f"pcreg: note: {note}\n")
+
+
+def _choose_kept(job, out: Path) -> None:
+    """Whether ``job`` (a :class:`~pcreg.pipeline.keys_run.KeyRun`) keeps its stretches' files compressed, for
+    the whole run: only when, uncompressed, they would take more than half of what is free under ``out``
+    (:func:`~pcreg.runs.disk.compress_kept`); and a note on stderr before the first frame when even compressed
+    they are expected to take more than is free (:func:`~pcreg.runs.disk.disk_note`)."""
+    import sys
+
+    from .disk import compress_kept, disk_note, free_bytes
+
+    free = free_bytes(out)
+    job.compress = compress_kept(job.kept_bytes(compressed=False), free)
+    note = disk_note(job.kept_bytes(), free, out) if job.compress else None
     if note:
         sys.stderr.write(f"pcreg: note: {note}\n")
 

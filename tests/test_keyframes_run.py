@@ -91,10 +91,9 @@ def test_one_key_frame_at_the_first_frame_labels_as_a_single_label_image(tmp_pat
     assert suggested == (tmp_path / "a" / "suggest.txt").read_text() and len(suggested.splitlines()) == 2
 
 
-@pytest.mark.parametrize("kill_at, phase", [(10, "store"), (15, "between"), (18, "backward"), (21, "forward")])
-def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypatch, capsys, kill_at, phase):
-    """A video with key frames 1 and 4, killed at a commit of the stretch between them (its frames being
-    kept, its forward pass, its backward pass) or of the one after, then run again."""
+def run_whole_and_stopped(tmp_path, frames, monkeypatch, kill_at: int, phase: str) -> list[str]:
+    """A video with key frames 1 and 4 run whole into ``tmp_path/whole``, and into ``tmp_path/cut`` stopped at
+    commit ``kill_at`` of ``phase`` (:func:`kill_at_commit`): the command's arguments but ``--out``."""
     video = _video(tmp_path, frames)
     keys = _keys(tmp_path / "keys", frames, [1, 4], name="{:06d}")
     args = ["run", str(video), "--labels", str(keys), "--confidence"]
@@ -102,6 +101,14 @@ def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypa
     kill_at_commit(monkeypatch, kill_at, phase)
     assert main(args + ["--out", str(tmp_path / "cut")]) == 130
     monkeypatch.undo()
+    return args
+
+
+@pytest.mark.parametrize("kill_at, phase", [(10, "store"), (15, "between"), (18, "backward"), (21, "forward")])
+def test_an_interrupted_run_resumes_to_the_same_bytes(tmp_path, frames, monkeypatch, capsys, kill_at, phase):
+    """A video with key frames 1 and 4, killed at a commit of the stretch between them (its frames being
+    kept, its forward pass, its backward pass) or of the one after, then run again."""
+    args = run_whole_and_stopped(tmp_path, frames, monkeypatch, kill_at, phase)
     assert any((tmp_path / "cut" / ".keys").iterdir())  # what the stretch's passes hand on, in the hidden folder
     if phase == "backward":  # what the forward pass kept, lost: refused in one line, --force starts over
         import shutil

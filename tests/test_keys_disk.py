@@ -14,7 +14,7 @@ from pcreg.cli import main
 from pcreg.errors import OutputError
 from pcreg.runs import disk, kept
 from _runs import kill_at_commit
-from test_keyframes_run import _keys, _outputs, _video
+from test_keyframes_run import _keys, _outputs, _video, run_whole_and_stopped
 
 
 @pytest.fixture(scope="module")
@@ -84,13 +84,7 @@ def test_a_run_stopped_by_the_previous_version_resumes_to_the_same_bytes(tmp_pat
                                                                            phase):
     """A video with key frames 1 and 4 stopped while its stretch kept its frames, ran its forward pass or its
     backward pass, its kept files in the previous version's form: run again, the same outputs."""
-    video = _video(tmp_path, frames)
-    keys = _keys(tmp_path / "keys", frames, [1, 4], name="{:06d}")
-    args = ["run", str(video), "--labels", str(keys), "--confidence"]
-    assert main(args + ["--out", str(tmp_path / "whole")]) == 0
-    kill_at_commit(monkeypatch, kill_at, phase)
-    assert main(args + ["--out", str(tmp_path / "cut")]) == 130
-    monkeypatch.undo()
+    args = run_whole_and_stopped(tmp_path, frames, monkeypatch, kill_at, phase)
     (stretch,) = (tmp_path / "cut" / ".keys").iterdir()
     assert _as_before(stretch) > 0
     assert main(args + ["--out", str(tmp_path / "cut")]) == 0

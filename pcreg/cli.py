@@ -231,11 +231,16 @@ def _main(argv: list[str] | None) -> int:
         return _run_command(args)
     except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)
         reason = _one_line(exc)
+        sys.stderr.write(f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n")
         if getattr(args, "json", False):
             from .commands._common import print_json
 
-            print_json({"ok": False, "reason": reason})
-        sys.stderr.write(f"pcreg: registration refused: {reason.removeprefix('registration refused: ')}\n")
+            try:
+                print_json({"ok": False, "reason": reason})
+            except BrokenPipeError:
+                return 3
+            except OSError as exc:  # stdout on a full disk: said, the refusal's status kept
+                sys.stderr.write(f"pcreg: error: {exc.strerror}: {exc.filename}\n")
         return 3
     except PcregError as exc:
         sys.stderr.write(f"pcreg: error: {_one_line(exc)}\n")

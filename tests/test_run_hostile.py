@@ -159,6 +159,18 @@ def test_the_program_runs_with_an_ascii_terminal_and_a_closed_stdout(tmp_path):
     out = tmp_path / "result.json"
     p = subprocess.run([*command, "--json"], stdout=out.open("w"), stderr=subprocess.PIPE)
     assert p.returncode in (0, 3) and json.loads(out.read_text())["ok"] is (p.returncode == 0), p.stderr
+    if os.path.exists("/dev/full"):  # a stdout on a full disk: the line said "No space left on device", naming nothing
+        with open("/dev/full", "w") as full:
+            p = subprocess.run([*command, "--json"], stdout=full, stderr=subprocess.PIPE)
+        assert p.returncode == 2 and p.stderr.decode().splitlines() == [
+            "pcreg: error: No space left on device: standard output"], p.stderr
+        cv2.imwrite(str(tmp_path / "flat.png"), np.full((96, 128, 3), 128, np.uint8))  # nothing to register on
+        with open("/dev/full", "w") as full:  # refused, its JSON to a full disk: it ended in a traceback
+            p = subprocess.run([*command[:-1], str(tmp_path / "flat.png"), "--json"], stdout=full,
+                               stderr=subprocess.PIPE)
+        said = p.stderr.decode().splitlines()
+        assert p.returncode == 3 and len(said) == 2 and said[0].startswith("pcreg: registration refused: "), said
+        assert said[1] == "pcreg: error: No space left on device: standard output"
 
 
 def test_a_rerun_with_other_key_labels_or_fewer_frames_is_refused_and_force_starts_clean(tmp_path, capsys):

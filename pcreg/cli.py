@@ -113,6 +113,36 @@ def _usable_streams() -> None:
             setattr(sys, name, open(os.devnull, "w"))
         elif hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="backslashreplace")
+    if not _STDOUT_CLOSED:
+        sys.stdout = _NamedStdout(sys.stdout)
+
+
+class _NamedStdout:
+    """The program's stdout, whose refused write (``> /dev/full``) names standard output: the failure
+    said "No space left on device" naming nothing, as if a file of the command's had failed. A closed pipe
+    stays a BrokenPipeError (the command ends quietly, as other tools)."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, "standard output") from None
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, "standard output") from None
 
 
 def _no_command(args: argparse.Namespace) -> int:

@@ -164,6 +164,10 @@ def test_the_program_runs_with_an_ascii_terminal_and_a_closed_stdout(tmp_path):
             p = subprocess.run([*command, "--json"], stdout=full, stderr=subprocess.PIPE)
         assert p.returncode == 2 and p.stderr.decode().splitlines() == [
             "pcreg: error: No space left on device: standard output"], p.stderr
+        with open("/dev/full", "w") as full:  # the table, not --json: the same line (it named nothing)
+            p = subprocess.run(command, stdout=full, stderr=subprocess.PIPE)
+        assert p.returncode in (2, 3) and p.stderr.decode().splitlines()[-1] == (
+            "pcreg: error: No space left on device: standard output"), p.stderr
         cv2.imwrite(str(tmp_path / "flat.png"), np.full((96, 128, 3), 128, np.uint8))  # nothing to register on
         with open("/dev/full", "w") as full:  # refused, its JSON to a full disk: it ended in a traceback
             p = subprocess.run([*command[:-1], str(tmp_path / "flat.png"), "--json"], stdout=full,

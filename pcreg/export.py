@@ -76,7 +76,7 @@ def read_run(folder: str | Path) -> RunLabels:
     that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
     """
     from .classes.keys import run_table
-    from .runs.files import CONFIDENCE, STEPS
+    from .runs.files import CONFIDENCE, STEPS, step_lines
     from .runs.state import STATE, frames_chosen, read_state, run_frames
 
     folder = Path(folder)
@@ -85,8 +85,7 @@ def read_run(folder: str | Path) -> RunLabels:
     state = read_state(folder)
     steps_path = folder / STEPS
     try:
-        lines = steps_path.read_bytes().splitlines() if steps_path.is_file() else []
-        keys, names = run_frames(state, [ln for ln in lines if ln.strip()])
+        keys, names = run_frames(state, (ln for ln in step_lines(folder) if ln.strip()))
     except (KeyError, TypeError, AttributeError):
         raise InputError(f"{folder / STATE}: unreadable (not a run.json that pcreg run wrote)") from None
     except (OSError, ValueError) as exc:

@@ -16,6 +16,7 @@ frames between), and at once the next time the run is reviewed.
 
 from __future__ import annotations
 
+import itertools
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,7 +99,7 @@ def read_review(folder: str | Path) -> RunReview:
     """
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, Selection, open_frames
-    from .runs.files import CONFIDENCE, STEPS
+    from .runs.files import CONFIDENCE, STEPS, step_lines
     from .runs.state import STATE, read_state, run_frames
 
     folder = Path(folder)
@@ -110,9 +111,7 @@ def read_review(folder: str | Path) -> RunReview:
         source = Path(run[kind])
         labelled: list[str] | None = None
         if "stretches" in state:  # a run from a folder of key frames: its keys and the steps it counted
-            steps_file = folder / STEPS
-            lines = steps_file.read_bytes().splitlines() if steps_file.is_file() else []
-            named, labelled = run_frames(state, [ln for ln in lines if ln.strip()])
+            named, labelled = run_frames(state, (ln for ln in step_lines(folder) if ln.strip()))
             counted = int(state["lines"])
         else:
             named, count = [str(state["key_frame"])], int(state["done"])
@@ -135,15 +134,14 @@ def read_review(folder: str | Path) -> RunReview:
             done += 1
     names = [frames.name(t) for t in range(done)]
     stems = [frames.stem(t) for t in range(done)]
-    steps: dict[str, dict] = {}
+    steps: dict[str, dict] = {}  # of each step what the review shows: an hour's steps whole take about a GB
     steps_path = folder / STEPS
-    if steps_path.is_file():
-        try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
-            for line in [ln for ln in steps_path.read_bytes().splitlines() if ln.strip()][:counted]:
-                step = loads_json(line)
-                steps[str(step["name"])] = step
-        except (OSError, ValueError, KeyError, TypeError):
-            raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
+    try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
+        for line in itertools.islice((ln for ln in step_lines(folder) if ln.strip()), max(counted, 0)):
+            step = loads_json(line)
+            steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou")}
+    except (OSError, ValueError, KeyError, TypeError):
+        raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
     legacy = "key_frames" in state  # a run.json that lists its key frames leaves their steps out
     keys = frozenset(t for t, n in enumerate(names) if n in named or (legacy and n not in steps))
     stepless = [n for t, n in enumerate(names) if t not in keys and n not in steps]

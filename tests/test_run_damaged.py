@@ -109,3 +109,22 @@ def test_a_predicted_iou_pcreg_did_not_write_is_named_by_the_review(tmp_path, ca
     err = one_line_errors(capsys)
     assert len(err) == 1 and "steps.jsonl: the step of f1.png has a predicted_iou" in err[0], err
     assert not (tmp_path / "o.mp4").exists()
+
+
+def test_the_readers_take_steps_jsonl_a_line_at_a_time_and_no_further_than_run_json_counts(tmp_path):
+    """An hour's run at 30 frames/s holds about 108,000 steps (190 MB): readers that held the file and every
+    step parsed took about 1 GB for it."""
+    from pcreg.runs.files import STEPS, parse_steps, step_lines
+    from pcreg.runs.state import read_state, run_frames
+
+    folder, key = drifting_frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+
+    def steps_then_more():
+        yield from step_lines(out)
+        raise AssertionError("read past the steps run.json counts")
+
+    assert run_frames(read_state(out), steps_then_more()) == (["f0.png"], [f"f{i}.png" for i in range(4)])
+    steps = parse_steps(out / STEPS, steps_then_more())
+    assert next(steps)["name"] == "f1.png"  # given before the rest of the file is read

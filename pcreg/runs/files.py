@@ -4,7 +4,7 @@ one pair of functions here, and nowhere else:
 - labels, ``NAME.png``: :func:`write_labels`, a palette PNG in the class table's colours (and a run's
   readers read them back through :func:`pcreg.export.read_labels`);
 - confidence, ``confidence/NAME.png``: :func:`write_confidence` (:func:`confidence_png`, a grey PNG);
-- steps, ``steps.jsonl``: :func:`append_step`, :func:`read_step_lines` and :func:`parse_steps`;
+- steps, ``steps.jsonl``: :func:`append_step`, :func:`step_lines` and :func:`parse_steps`;
 - the carry, ``carry-{0,1}.npz`` (and a key-frames stretch's own, under :data:`HIDDEN`): :func:`write_carry`,
   :func:`read_carry`;
 - the frames to label next, ``suggest.txt``: :func:`write_suggestions`, :func:`read_suggestions`.
@@ -21,7 +21,7 @@ import math
 import os
 import zipfile
 import zlib
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +32,7 @@ from ..formats import loads_json
 
 __all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "write_confidence", "write_grey", "confidence_png",
-           "append_step", "read_step_lines", "parse_steps", "write_carry", "read_carry", "check_labelled",
+           "append_step", "step_lines", "parse_steps", "write_carry", "read_carry", "check_labelled",
            "write_suggestions", "read_suggestions"]
 
 STEPS = "steps.jsonl"
@@ -114,17 +114,21 @@ def append_step(out: Path, step: dict) -> None:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
-def read_step_lines(out: Path) -> list[bytes]:
-    """The lines of ``out``'s steps.jsonl (none when there is no such file)."""
+def step_lines(out: Path) -> Iterator[bytes]:
+    """The lines of ``out``'s steps.jsonl one at a time, as written (none when there is no such file): an
+    hour's run at 30 frames a second holds about a hundred thousand (some 190 MB), which no reader holds at
+    once."""
     path = out / STEPS
-    return path.read_bytes().splitlines(keepends=True) if path.is_file() else []
+    if not path.is_file():
+        return
+    with open(path, "rb") as fh:
+        yield from fh
 
 
-def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:
-    """The steps of ``lines`` of a run's steps.jsonl (``path``), each a dict whose ``frame`` is an int and
-    whose ``predicted_error`` is a finite number or None; a line that is not one pcreg run wrote is an
-    :class:`~pcreg.errors.OutputError` naming it."""
-    steps = []
+def parse_steps(path: Path, lines: Iterable[bytes]) -> Iterator[dict]:
+    """The steps of ``lines`` of a run's steps.jsonl (``path``), one at a time, each a dict whose ``frame`` is
+    an int and whose ``predicted_error`` is a finite number or None; a line that is not one pcreg run wrote is
+    an :class:`~pcreg.errors.OutputError` naming it."""
     for i, line in enumerate(lines):
         try:
             step = loads_json(line)
@@ -135,8 +139,7 @@ def parse_steps(path: Path, lines: Sequence[bytes]) -> list[dict]:
             ok = False
         if not ok:
             raise OutputError(f"{path}: line {i + 1} is not a step pcreg run wrote; use --force to start over")
-        steps.append(step)
-    return steps
+        yield step
 
 
 def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:

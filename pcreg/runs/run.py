@@ -34,6 +34,8 @@ resumed run writes exactly what an uninterrupted run writes.
 
 from __future__ import annotations
 
+import itertools
+import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,8 +45,9 @@ import numpy as np
 
 from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
+from ..outputs import atomic_file
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest, parse_steps,
-                    read_carry, read_step_lines, write_carry, write_confidence, write_labels)
+                    read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .state import STATE, open_state, read_state, run_frames, write_state
 from .truth import add_rates, count_frame, empty_counts
 
@@ -328,9 +331,8 @@ class Run:
         of its folder now (a frame added among them, or renamed): the labels written would not be theirs."""
         if self.frames.kind != "folder":
             return
-        steps = parse_steps(self.out / STEPS, read_step_lines(self.out))
-        named = [(0, key_frame), *((int(s["frame"]), s.get("name")) for s in steps)]
-        for t, name in named:
+        named = ((int(s["frame"]), s.get("name")) for s in parse_steps(self.out / STEPS, step_lines(self.out)))
+        for t, name in itertools.chain([(0, key_frame)], named):
             if isinstance(name, str) and t < len(self.frames) and self.frames.name(t) != name:
                 raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "
                                   f"now holds as {self.frames.name(t)}: the frames changed since the run began; "
@@ -376,11 +378,31 @@ class Run:
     def _cut_steps(self, n: int) -> None:
         """Keep the first ``n`` lines of steps.jsonl (a step appended after the last commit is dropped)."""
         path = self.out / STEPS
-        lines = path.read_bytes().splitlines(keepends=True) if path.is_file() else []
-        if len(lines) < n:
-            raise OutputError(f"{path}: {len(lines)} steps for {n} finished frames; use --force to start over")
-        if len(lines) != n:
-            path.write_bytes(b"".join(lines[:n]))
+        count = end = 0
+        for line in itertools.islice(step_lines(self.out), n):
+            count, end = count + 1, end + len(line)
+        if count < n:
+            raise OutputError(f"{path}: {count} steps for {n} finished frames; use --force to start over")
+        if path.is_file() and path.stat().st_size != end:
+            os.truncate(path, end)
+
+    def _keep_steps(self, live: list) -> int:
+        """Keep the lines of steps.jsonl that run.json counts and whose frames are in a stretch still to label
+        (``live``), their label files checked; rewritten as it is read, whole or not at all. Returns how many
+        it kept."""
+        path, counted = self.out / STEPS, int(self.state["lines"])
+        with atomic_file(path) as fh:
+            count, stems = 0, []
+            lines, parsed = itertools.tee(itertools.islice(step_lines(self.out), counted))
+            for line, step in zip(lines, parse_steps(path, parsed)):
+                count, t = count + 1, step["frame"]
+                if any(t in s for s in live):
+                    fh.write(line)
+                    stems.append(self.frames.stem(t))
+            if count < counted:
+                raise OutputError(f"{path}: {count} steps for {counted} finished frames; use --force to start over")
+            check_labelled(self.out, stems)
+        return len(stems)
 
     def open_keys(self, keys: dict[int, np.ndarray], plan: dict, *, force: bool = False) -> None:
         """Open (or resume) a run from a folder of key frames (``keys``, {position: labels}) whose stretches
@@ -402,15 +424,7 @@ class Run:
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
-        lines = read_step_lines(self.out)
-        if len(lines) < self.state["lines"]:
-            raise OutputError(f"{self.out / STEPS}: {len(lines)} steps for {self.state['lines']} finished frames; "
-                              "use --force to start over")
-        steps = parse_steps(self.out / STEPS, lines[:self.state["lines"]])
-        kept_steps = [(ln, st["frame"]) for ln, st in zip(lines, steps) if any(st["frame"] in s for s in live)]
-        lines = [ln for ln, _ in kept_steps]
-        check_labelled(self.out, [self.frames.stem(t) for _, t in kept_steps])
-        (self.out / STEPS).write_bytes(b"".join(lines))
+        lines = self._keep_steps(live)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
         if (self.out / HIDDEN).is_dir():
             for d in (self.out / HIDDEN).iterdir():
@@ -421,7 +435,7 @@ class Run:
             f = self.out / f"{self.frames.stem(k)}.png"
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
                 write_labels(f, lab, self.table)
-        self.state.update(keys=names, stretches=kept, cursor=cursor, lines=len(lines))
+        self.state.update(keys=names, stretches=kept, cursor=cursor, lines=lines)
         self.totals()
         self.commit()
 
@@ -516,7 +530,7 @@ class Run:
 
         if count is None:
             return
-        steps = parse_steps(self.out / STEPS, [ln for ln in read_step_lines(self.out) if ln.strip()])
+        steps = parse_steps(self.out / STEPS, (ln for ln in step_lines(self.out) if ln.strip()))
         predicted = {s["frame"]: float(s["predicted_error"]) for s in steps if s.get("predicted_error") is not None}
         try:
             chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
@@ -533,9 +547,7 @@ class Run:
         :class:`~pcreg.errors.InputError`; a steps.jsonl that does not match it raises OSError, KeyError,
         TypeError or ValueError."""
         state = read_state(folder)
-        steps = folder / STEPS
-        lines = steps.read_bytes().splitlines() if steps.is_file() else []
-        keys, names = run_frames(state, [ln for ln in lines if ln.strip()])
+        keys, names = run_frames(state, (ln for ln in step_lines(folder) if ln.strip()))
         return state, keys, names
 
 

@@ -10,7 +10,8 @@ either for a run that writes (resume or start over); :func:`read_state` reads ei
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import itertools
+from collections.abc import Iterable
 from pathlib import Path
 
 from ..errors import InputError, OutputError
@@ -189,9 +190,9 @@ def _first_difference(name: str, before: dict, now: dict) -> tuple[str, dict, di
     return name, {"v": a}, {"v": b}
 
 
-def run_frames(state: dict, steps: Sequence[bytes]) -> tuple[list[str], list[str]]:
+def run_frames(state: dict, steps: Iterable[bytes]) -> tuple[list[str], list[str]]:
     """``(key frames, every labelled frame)`` of a run, by name, in frame order, from its run.json
-    (``state``) and the lines of its steps.jsonl: a run from one label image (its key frame, then the
+    (``state``) and the lines of its steps.jsonl (read as far as run.json counts): a run from one label image (its key frame, then the
     frames it counted done) or from a folder of key frames (:mod:`pcreg.pipeline.keys_run`: its key
     frames and the steps it counted, in name order, which is a folder's and a video's frame order).
     Raises KeyError, TypeError or ValueError for a state or a line pcreg run did not write."""
@@ -200,10 +201,10 @@ def run_frames(state: dict, steps: Sequence[bytes]) -> tuple[list[str], list[str
         raise ValueError(f"run.json's {field!r} is not as pcreg run writes it")
     if "stretches" in state:
         keys = sorted(str(k) for k in state["keys"])
-        done = [str(loads_json(line)["name"]) for line in steps[:int(state["lines"])]]
+        done = [str(loads_json(line)["name"]) for line in itertools.islice(steps, int(state["lines"]))]
         return keys, sorted(set(keys) | set(done))
     key, count = str(state["key_frame"]), int(state["done"])
-    names = [key] + [str(loads_json(line)["name"]) for line in steps[:count - 1]]
+    names = [key] + [str(loads_json(line)["name"]) for line in itertools.islice(steps, count - 1)]
     if len(names) != count:
         raise ValueError(f"{len(names) - 1} steps for {count - 1} labelled frames")
     return [key], names

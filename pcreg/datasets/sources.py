@@ -264,9 +264,14 @@ class VideoFrames:
         """The chosen frames from position ``first`` on, decoded in order: every frame before is decoded
         too (never converted), so frame ``i`` is the same however the stream got there."""
         import av
+        from av.video.reformatter import VideoReformatter
 
         s = self.selection
         target = s.index(first)
+        # One converter to RGB for the stream: ``frame.to_ndarray(format=...)`` makes a new one (an FFmpeg scaler
+        # context) for every frame, which costs more than decoding the frame, and a long run's memory grew with
+        # them (about 10 kB a frame at 160x120; docs/benchmarks.md).
+        rgb = VideoReformatter()
         decoded, size, yielded, last_time, hidden = 0, None, False, None, [0]
         with self._open() as container:
             stream = container.streams.video[0]
@@ -292,7 +297,7 @@ class VideoFrames:
                     position = (i - s.start) // s.every
                     name = f"{i:06d}"
                     yielded = True
-                    image = _as_shown(frame.to_ndarray(format="rgb24"), turn)
+                    image = _as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
                     yield SourceFrame(position, i, name, name, image)
             except av.FFmpegError as exc:
                 reason = getattr(exc, "strerror", None) or str(exc)

@@ -121,7 +121,7 @@ def test_labelmap_forms_datumaro_accepts():
     ("background:0,0,0::\nroad:1,2,3::\ncar:1,2,3::\n", "share the colour (1, 2, 3)"),
     ("background:0,0,0::\nroad:1,2::\ncar:4,5,6::\n", "not R,G,B"),
     ("background:0,0,0::\nroad:1,2,300::\n", "not R,G,B"),
-    ("background:0,0,0::\nroad:1,2,3::\n", "1 known class"),
+    ("background:0,0,0::\nroad:1,2,3::\n", "1 class(es) besides 'background'"),
     ("background:0,0,0::\nroad:1,2,3::\ncar:::\n", "has no colour"),
     ("background:0,0,0::\nroad:1,2,3::x:y\n", "fields"),
     ("# nothing\n", "no class"),

@@ -172,7 +172,7 @@ def _case(tmp_path, synthetic, how: str):
         return ["--classes", lm], lm, "share the colour (1, 1, 1)"
     if how == "one class":
         lm.write_text("background:0,0,0::\nroad:1,1,1::\n")
-        return ["--classes", lm], lm, "1 known class(es); a class table needs at least two"
+        return ["--classes", lm], lm, "1 class(es) besides 'background' (the pixels nobody labelled, not a class)"
     keys = tmp_path / "keys"  # key frames that disagree: palettes of two tables (frames_folder made it)
     write_label_png(keys / "f0.png", lab, LAGR)
     write_label_png(keys / "f3.png", synthetic[3].labels, DAVIS)

@@ -114,6 +114,10 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
         raise InputError(f"{where}: {len(entries)} classes (its background among them); a class table holds at most "
                          f"{MAX_CLASSES}, ids 0..{MAX_CLASSES - 1} of 8-bit labels")
     known = [e for i, e in enumerate(entries) if i != background]
+    if len(known) < 2:  # a task of one label: its background is where nobody drew, no class of its own
+        raise InputError(f"{where}: {len(known)} class(es) besides {entries[background][0]!r} (the pixels nobody "
+                         "labelled, not a class); pcreg labels two or more: add a label for the rest (e.g. 'other') "
+                         "and draw it on the key frames")
     classes = [LabelClass(k, name, colour) for k, (name, colour) in enumerate(known)]  # type: ignore[arg-type]
     name, colour = entries[background]
     classes.append(LabelClass(len(known), name, colour))  # type: ignore[arg-type]

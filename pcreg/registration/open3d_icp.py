@@ -66,6 +66,18 @@ def _estimation(options: ICPOptions, target: np.ndarray, target_pcd, target_norm
     return reg.TransformationEstimationPointToPoint(with_scaling=(options.model == "similarity")), tgt
 
 
+def _check_finite(T4: np.ndarray, start: np.ndarray) -> None:
+    """A :class:`RegistrationError` when Open3D's ICP, started at ``start``, returned a transform with NaN or inf
+    entries: its similarity estimation divides by the spread of the pairs' target points, which is 0 once a scale
+    of 0 has put every source point on one target point."""
+    if np.all(np.isfinite(T4)):
+        return
+    scale = abs(float(np.linalg.det(start[:3, :3]))) ** (1 / 3) if np.all(np.isfinite(start)) else float("nan")
+    raise RegistrationError(f"registration refused: Open3D's ICP returned a transform with NaN entries, from a pose "
+                            f"of scale {scale:.3g} (a similarity scale that collapsed to 0 leaves the pairs one "
+                            "target point, from which no transform follows)")
+
+
 def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, init: np.ndarray | None = None,
                callback: Callable[[IcpIteration], None] | None = None, level: int = 0, clouds: tuple | None = None,
                check_convergence: bool = True, target_normals: np.ndarray | None = None) -> RegistrationResult:
@@ -102,7 +114,9 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, i
     def step(T4, n_iter):
         crit = reg.ICPConvergenceCriteria(relative_fitness=relative_fitness, relative_rmse=relative_rmse,
                                           max_iteration=n_iter)
-        return reg.registration_icp(src, tgt, max_correspondence_distance, T4, est, crit)
+        r = reg.registration_icp(src, tgt, max_correspondence_distance, T4, est, crit)
+        _check_finite(np.asarray(r.transformation), T4)
+        return r
 
     def report(i, r, T4):
         if callback is None:

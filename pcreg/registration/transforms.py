@@ -166,7 +166,12 @@ def project_to_2d(matrix: np.ndarray, *, tol: float = 1e-6) -> np.ndarray:
     m = np.asarray(matrix, dtype=np.float64)
     scale = max(1.0, float(np.abs(m[:3, :3]).max()))
     out_of_plane = max(abs(m[2, 0]), abs(m[2, 1]), abs(m[0, 2]), abs(m[1, 2]))
-    if np.linalg.det(m[:2, :2]) <= 0:
+    if not np.all(np.isfinite(m)):
+        raise RegistrationError("the 3-D ICP result has NaN or inf entries")
+    det = float(np.linalg.det(m[:2, :2]))
+    if det == 0:
+        raise RegistrationError("the 3-D ICP result collapses the image plane (a scale of 0)")
+    if det < 0:
         raise RegistrationError("the 3-D ICP result mirrors the image plane")
     if out_of_plane > tol * scale or abs(m[2, 3]) > tol * max(1.0, float(np.abs(m[:2, 3]).max())):
         raise RegistrationError(

@@ -32,9 +32,9 @@ from __future__ import annotations
 
 import re
 import shlex
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator, TypeVar
+from typing import Any, Iterator, TypeVar
 
 import numpy as np
 
@@ -164,6 +164,10 @@ class FolderFrames:
     def stem(self, position: int) -> str:
         return self.paths[position].stem
 
+    def note(self) -> str | None:
+        """A line for the user before the first frame: none for images."""
+        return None
+
     def where(self, position: int) -> Path:
         """The file of the frame at ``position``, as a message names it."""
         return self.paths[position]
@@ -213,6 +217,9 @@ class VideoFrames:
             self.timed = container.format.name != "mpegts"
             if self.declared is None and self.duration and self.rate:
                 self.estimated = int(round(self.duration * self.rate))
+            #: Whether the first frame is flagged interlaced (its two fields taken apart in time): every frame so
+            #: flagged is deinterlaced as it is read (:meth:`frames`); this only says so (:meth:`note`).
+            self.interlaced = _first_interlaced(container, stream)
         if self.declared is not None and selection.start >= self.declared:
             raise InputError(f"--start {selection.start} is past the end of {self.path} ({self.declared} frames)")
 
@@ -238,6 +245,15 @@ class VideoFrames:
             raise InputError(f"{self.path}: holds no video stream (an empty or damaged {_CONTAINERS[fmt]} file)")
         return container
 
+    def note(self) -> str | None:
+        """A line for the user before the first frame, when the video is interlaced."""
+        if not self.interlaced:
+            return None
+        from .deinterlace import FILTER
+
+        return (f"{self.path} is interlaced (two fields a frame, taken apart in time): its frames are deinterlaced "
+                f"with FFmpeg's {FILTER[0]} as they are read")
+
     def count(self) -> int | None:
         """How many frames the stream chooses, from the container's count (None if it gives none)."""
         n = self.declared or self.estimated
@@ -262,24 +278,68 @@ class VideoFrames:
 
     def frames(self, first: int = 0) -> Iterator[SourceFrame]:
         """The chosen frames from position ``first`` on, decoded in order: every frame before is decoded
-        too (never converted), so frame ``i`` is the same however the stream got there."""
-        import av
+        too (never converted), so frame ``i`` is the same however the stream got there. From the first frame flagged
+        interlaced on, the frames beside a chosen one pass through a
+        :class:`~pcreg.datasets.deinterlace.Deinterlacer` (a frame not so flagged comes out as it went in), and a
+        chosen frame is handed on once the frame after it is decoded."""
         from av.video.reformatter import VideoReformatter
 
-        s = self.selection
+        from .deinterlace import Deinterlacer
+
+        s, reading = self.selection, _Reading()
         target = s.index(first)
         # One converter to RGB for the stream: ``frame.to_ndarray(format=...)`` makes a new one (an FFmpeg scaler
         # context) for every frame, which costs more than decoding the frame, and a long run's memory grew with
         # them (about 10 kB a frame at 160x120; docs/benchmarks.md).
         rgb = VideoReformatter()
-        decoded, size, yielded, last_time, hidden = 0, None, False, None, [0]
+        fields: Deinterlacer | None = None
+        previous, stopped = None, False
+
+        def wanted(i: int) -> bool:
+            return i >= target and s.chosen(i)
+
+        def made(i: int, frame, turn: _Turn) -> SourceFrame:
+            reading.yielded = True
+            name = f"{i:06d}"
+            image = _as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
+            return SourceFrame((i - s.start) // s.every, i, name, name, image)
+
+        for i, frame, turn in self._decoded(reading):
+            stopped = s.stop is not None and i >= s.stop  # the frame after the last: only the next of the one before
+            if fields is None and frame.interlaced_frame and not stopped:
+                fields = Deinterlacer()
+                if previous is not None and wanted(i):  # the frame before it, as this frame's neighbour
+                    fields.push(previous, None)
+            if fields is None:
+                if wanted(i):
+                    yield made(i, frame, turn)
+            elif (wanted(i - 1) or wanted(i) or wanted(i + 1)) and not (stopped and frame.is_corrupt):
+                yield from [made(j, f, t) for (j, t), f in fields.push(frame, (i, turn) if wanted(i) else None)]
+            previous = frame
+        if fields is not None:  # the last frame pushed, its next field taken from itself
+            yield from [made(j, f, t) for (j, t), f in fields.flush()]
+        if stopped:
+            return
+        if reading.decoded == 0:
+            raise InputError(f"{self.path}: no frame decodes (an empty, truncated or damaged video)")
+        self._check_length(reading.decoded, reading.last_time, reading.hidden[0])
+        if first == 0 and not reading.yielded:
+            raise InputError(f"--start {s.start} is past the end of {self.path} ({reading.decoded} frames)")
+
+    def _decoded(self, reading: _Reading) -> Iterator[tuple[int, Any, _Turn]]:
+        """Every frame of the video in decoding order, as (index, ``av.VideoFrame``, how it is shown), up to the
+        first past the selection's ``stop``; ``reading`` counts them. A frame of another size, or one before ``stop``
+        that decodes with errors, is refused where it is met."""
+        import av
+
+        s, size = self.selection, None
         with self._open() as container:
             stream = container.streams.video[0]
             try:
-                for frame in _shown_frames(container, stream, hidden, self.path):
-                    i = decoded
-                    decoded += 1
-                    last_time = frame.time if frame.time is not None else last_time
+                for frame in _shown_frames(container, stream, reading.hidden, self.path):
+                    i = reading.decoded
+                    reading.decoded += 1
+                    reading.last_time = frame.time if frame.time is not None else reading.last_time
                     turn = _display_turn(frame, self.path)
                     shown = (frame.height, frame.width) if turn[0] else (frame.width, frame.height)
                     if size is None:
@@ -288,26 +348,16 @@ class VideoFrames:
                         raise InputError(f"{self.path}: frame {i} is {shown[0]}x{shown[1]}, the frames before it "
                                          f"{size[0]}x{size[1]}; pcreg needs one frame size")
                     if s.stop is not None and i >= s.stop:
+                        yield i, frame, turn
                         return
                     if frame.is_corrupt:  # concealed by the decoder: a frame cut short or damaged, drawn in part
                         raise InputError(f"{self.path}: frame {i} decodes with errors (part of it is missing): the "
                                          "video is truncated or damaged")
-                    if i < target or not s.chosen(i):
-                        continue
-                    position = (i - s.start) // s.every
-                    name = f"{i:06d}"
-                    yielded = True
-                    image = _as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
-                    yield SourceFrame(position, i, name, name, image)
+                    yield i, frame, turn
             except av.FFmpegError as exc:
                 reason = getattr(exc, "strerror", None) or str(exc)
-                raise InputError(f"{self.path}: frame {decoded} does not decode ({reason}): the video is truncated "
-                                 "or damaged") from None
-        if decoded == 0:
-            raise InputError(f"{self.path}: no frame decodes (an empty, truncated or damaged video)")
-        self._check_length(decoded, last_time, hidden[0])
-        if first == 0 and not yielded:
-            raise InputError(f"--start {s.start} is past the end of {self.path} ({decoded} frames)")
+                raise InputError(f"{self.path}: frame {reading.decoded} does not decode ({reason}): the video is "
+                                 "truncated or damaged") from None
 
     def _check_length(self, decoded: int, last_time: float | None, hidden: int = 0) -> None:
         """At the end of the stream: fewer frames than the container declares is a truncated file, the ``hidden``
@@ -330,6 +380,17 @@ class VideoFrames:
         if decoded < self.estimated - max(2, 0.02 * self.estimated):
             raise InputError(f"{self.path}: ends after {decoded} frames, its duration holds about {self.estimated}: "
                              "the video is truncated or damaged")
+
+
+@dataclass
+class _Reading:
+    """What reading a video met: frames ``decoded``, the last one's time, the ``hidden`` ones (a one-item list, as
+    :func:`_shown_frames` counts them), whether a frame was handed on."""
+
+    decoded: int = 0
+    last_time: float | None = None
+    hidden: list[int] = field(default_factory=lambda: [0])
+    yielded: bool = False
 
 
 def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
@@ -365,6 +426,18 @@ def _check_place(places: list[int], read: int, pos: int, path: Path) -> None:
     skipped = sum(1 for p in places[read + 1:] if p <= pos)
     raise InputError(f"{path}: frame {read} does not read (its chunk at byte {places[read]} is damaged; {skipped} "
                      f"frame(s) passed over): the video is truncated or damaged")
+
+
+def _first_interlaced(container, stream) -> bool:
+    """Whether the video's first frame is flagged interlaced; False when it does not decode (refused where
+    :meth:`VideoFrames.frames` meets it)."""
+    import av
+
+    try:
+        frame = next(iter(container.decode(stream)), None)
+    except av.FFmpegError:
+        return False
+    return frame is not None and bool(frame.interlaced_frame)
 
 
 def _video_duration(container, stream) -> float | None:

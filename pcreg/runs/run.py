@@ -128,7 +128,7 @@ class Run:
         if request.config.follow == "object" and table.n_known > 2:
             raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
                              f"object), not {table.n_known} classes; use --follow scene (the default) for them")
-        _note_memory(keys, table, request.config.scale)
+        _note_memory(keys, table, request.config.scale, inputs.frames)
         try:
             prop = None if pending is None else request.config.from_key_frame(
                 pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
@@ -551,15 +551,15 @@ class Run:
         return state, keys, names
 
 
-def _note_memory(keys: dict, table, scale: float) -> None:
-    """A note on stderr before the first frame when the run is expected to need more memory than the
-    system has available (:func:`~pcreg.runs.memory.memory_note`); nothing else changes."""
+def _note_memory(keys: dict, table, scale: float, frames) -> None:
+    """Notes on stderr before the first frame: the ``frames``' own (an interlaced video, read deinterlaced), and
+    when the run is expected to need more memory than the system has available (:func:`~pcreg.runs.memory.memory_note`)."""
     import sys
 
     from .memory import available_bytes, run_note
 
-    note = run_note(keys.values(), table, scale, available_bytes())  # the key labels are the frames' size
-    if note:
+    notes = frames.note(), run_note(keys.values(), table, scale, available_bytes())  # the key labels: the frames' size
+    for note in filter(None, notes):
         sys.stderr.write(f"pcreg: note: {note}\n")
 
 

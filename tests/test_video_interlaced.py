@@ -1,0 +1,155 @@
+"""Interlaced video (a camcorder's AVCHD, broadcast MPEG-2 or H.264 coded as fields) is read deinterlaced: each
+frame's two fields are taken half a frame interval apart, and whatever moves showed combing. The videos here are
+encoded with PyAV from two fields of a moving picture (even rows at time t, odd rows at t + 1/2, flagged top field
+first), so the true picture at each frame's time is known."""
+
+import json
+from fractions import Fraction
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from pcreg.datasets.sources import Selection, VideoFrames, open_frames
+from _runs import kill_before_commit, one_line_errors, timeless
+
+av = pytest.importorskip("av")
+
+H, W, N, SPEED = 144, 192, 12, 6  # SPEED: pixels the picture moves right in a frame interval
+
+
+def _picture(t: float) -> np.ndarray:
+    """The true picture at time ``t`` (in frame intervals): vertical bars and smooth texture moving right."""
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur(rng.random((H, 2 * W, 3)).astype(np.float32), (0, 0), 3)
+    texture = (texture - texture.min()) / (texture.max() - texture.min())
+    bars = (np.sin(np.arange(2 * W) / 3.0) * 0.5 + 0.5)[None, :, None]
+    scene = 255 * (0.5 * texture + 0.5 * bars)
+    shift = SPEED * t
+    whole, part = int(np.floor(shift)), shift - np.floor(shift)
+    moved = (1 - part) * np.roll(scene, whole, axis=1) + part * np.roll(scene, whole + 1, axis=1)
+    return np.round(moved[:, :W]).clip(0, 255).astype(np.uint8)
+
+
+def _encoder(codec):
+    try:
+        av.codec.Codec(codec, "w")
+    except (av.FFmpegError, ValueError):
+        pytest.skip(f"this FFmpeg has no {codec} encoder")
+
+
+def _write(path, *, interlaced=True, codec="libx264", fmt=None, n=N):
+    """An ``n``-frame video at ``path``; interlaced: each frame woven from two fields of the moving picture and
+    flagged so (FFmpeg's ``setfield``, as a camcorder's encoder flags them); else the picture at each frame's time."""
+    _encoder(codec)
+    with av.open(str(path), "w", format=fmt) as c:
+        s = c.add_stream(codec, rate=25)
+        s.width, s.height, s.pix_fmt = W, H, "yuv420p"
+        if codec == "libx264":
+            s.options = {"crf": "12", **({"flags": "+ildct+ilme", "x264-params": "interlaced=1"} if interlaced else {})}
+        else:
+            s.bit_rate = 8_000_000
+            s.options = {"flags": "+ildct+ilme"} if interlaced else {}
+        graph = av.filter.Graph()
+        source = graph.add_buffer(width=W, height=H, format="yuv420p", time_base=Fraction(1, 25))
+        setfield, sink = graph.add("setfield", "mode=tff"), graph.add("buffersink")
+        source.link_to(setfield)
+        setfield.link_to(sink)
+        graph.configure()
+        for k in range(n):
+            image = _picture(k)
+            if interlaced:
+                image[1::2] = _picture(k + 0.5)[1::2]
+            frame = av.VideoFrame.from_ndarray(image, format="rgb24").reformat(format="yuv420p")
+            if interlaced:
+                graph.vpush(frame)
+                frame = graph.vpull()
+            for p in s.encode(frame):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    return path
+
+
+def _decoded(path):
+    """The frames as decoded (converted to RGB, nothing else), and whether each is flagged interlaced."""
+    with av.open(str(path)) as c:
+        got = [(f.to_ndarray(format="rgb24"), bool(f.interlaced_frame)) for f in c.decode(video=0)]
+    return [g[0] for g in got], [g[1] for g in got]
+
+
+def _combing(image) -> float:
+    """Mean absolute difference between adjacent rows (0-255)."""
+    return float(np.abs(np.diff(image.astype(np.float64), axis=0)).mean())
+
+
+@pytest.mark.parametrize("name, codec, fmt", [("00001.MTS", "libx264", "mpegts"), ("clip.mp4", "libx264", None),
+                                              ("broadcast.mkv", "mpeg2video", None)])
+def test_interlaced_frames_are_read_without_combing(tmp_path, name, codec, fmt):
+    video = _write(tmp_path / name, codec=codec, fmt=fmt)
+    raw, flagged = _decoded(video)
+    assert len(raw) == N and all(flagged)
+    src = open_frames(video)
+    assert src.interlaced and "interlaced" in src.note()
+    got = list(src.frames())
+    assert [f.name for f in got] == [f"{i:06d}" for i in range(N)] and [f.index for f in got] == list(range(N))
+    truth = [_picture(k) for k in range(N)]
+    for k, f in enumerate(got):  # the first field's time (top field first): the true picture at t = k
+        assert _combing(raw[k]) > 30 > 5 > _combing(f.image), k
+        assert np.abs(f.image.astype(int) - truth[k]).mean() < 7 < 15 < np.abs(raw[k].astype(int) - truth[k]).mean(), k
+
+
+def test_a_deinterlaced_frame_is_the_same_however_the_stream_got_there(tmp_path):
+    video = _write(tmp_path / "clip.mkv", codec="mpeg2video")
+    whole = {f.index: f.image for f in VideoFrames(video).frames()}
+    assert sorted(whole) == list(range(N))
+    for sel in [Selection(start=3), Selection(every=3), Selection(start=2, stop=7, every=2), Selection(stop=5),
+                Selection(start=1, stop=N - 1, every=5)]:
+        src = VideoFrames(video, sel)
+        got = list(src.frames())
+        assert [f.index for f in got] == list(range(N))[sel.start:sel.stop:sel.every], sel
+        assert [f.position for f in got] == list(range(len(got)))
+        for f in got:
+            np.testing.assert_array_equal(f.image, whole[f.index], err_msg=f"{sel} frame {f.index}")
+        for first in range(1, len(got)):  # resumed at each position
+            again = list(src.frames(first))
+            assert [f.index for f in again] == [f.index for f in got[first:]], (sel, first)
+            np.testing.assert_array_equal(again[0].image, got[first].image, err_msg=f"{sel} from {first}")
+
+
+@pytest.mark.parametrize("codec", ["libx264", "mpeg2video"])
+def test_progressive_video_is_read_as_decoded_byte_for_byte(tmp_path, codec):
+    video = _write(tmp_path / "clip.mkv", interlaced=False, codec=codec)
+    raw, flagged = _decoded(video)
+    assert not any(flagged)
+    src = VideoFrames(video)
+    assert not src.interlaced and src.note() is None
+    got = list(src.frames())
+    assert len(got) == len(raw) == N
+    for f, image in zip(got, raw):
+        assert f.image.dtype == image.dtype and f.image.tobytes() == image.tobytes(), f.name
+    picked = list(VideoFrames(video, Selection(start=1, every=4)).frames(1))
+    assert [f.index for f in picked] == [5, 9] and picked[0].image.tobytes() == raw[5].tobytes()
+
+
+def test_run_on_an_interlaced_video_says_so_and_resumes_exactly(tmp_path, capsys, monkeypatch):
+    video = _write(tmp_path / "00001.MTS", fmt="mpegts", n=8)
+    key = np.zeros((H, W), np.uint8)
+    key[H // 2:] = 1
+    cv2.imwrite(str(tmp_path / "key.png"), key)
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png")]
+    assert main(args + ["--out", str(tmp_path / "whole")]) == 0, one_line_errors(capsys)
+    err = capsys.readouterr().err
+    assert f"pcreg: note: {video} is interlaced" in err and "deinterlaced" in err
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert sorted(p.name for p in whole.glob("*.png")) == [f"{i:06d}.png" for i in range(8)]
+    kill_before_commit(monkeypatch, 4)  # killed after frame 4's files were written, before run.json counted it
+    assert main(args + ["--out", str(cut)]) == 130
+    monkeypatch.undo()
+    assert json.loads((cut / "run.json").read_text())["done"] == 4
+    assert main(args + ["--out", str(cut)]) == 0
+    for file in ["run.json", *[f"{i:06d}.png" for i in range(8)]]:
+        assert (whole / file).read_bytes() == (cut / file).read_bytes(), file
+    assert ([timeless(x) for x in (whole / "steps.jsonl").read_text().splitlines()]
+            == [timeless(x) for x in (cut / "steps.jsonl").read_text().splitlines()])

@@ -128,7 +128,7 @@ class Run:
         if request.config.follow == "object" and table.n_known > 2:
             raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
                              f"object), not {table.n_known} classes; use --follow scene (the default) for them")
-        _note_memory(keys, table, request.config.scale, inputs.frames)
+        _notes_before_the_first_frame(keys, table, request.config.scale, inputs.frames)
         try:
             prop = None if pending is None else request.config.from_key_frame(
                 pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
@@ -551,7 +551,7 @@ class Run:
         return state, keys, names
 
 
-def _note_memory(keys: dict, table, scale: float, frames) -> None:
+def _notes_before_the_first_frame(keys: dict, table, scale: float, frames) -> None:
     """Notes on stderr before the first frame: the ``frames``' own (an interlaced video, read deinterlaced), and
     when the run is expected to need more memory than the system has available (:func:`~pcreg.runs.memory.memory_note`)."""
     import sys

@@ -274,7 +274,7 @@ def test_crosscheck_clouds_json(tmp_path):
     (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--record", t / "nodir" / "x" / "r.txt"], ".rrd"),
     (lambda d, t: ["crosscheck", t / "c.npy", d / "mov.png"], "two images or two clouds"),
     (lambda d, t: ["crosscheck", t / "c.npy", t / "nan.npy"], "NaN"),
-    (lambda d, t: ["crosscheck", t / "c.npy", t / "c2d.npy"], "source is 2-D but target is 3-D"),
+    (lambda d, t: ["crosscheck", t / "c.npy", t / "c2d.npy"], "c2d.npy: a 2-D cloud, and "),  # named neither file
     (lambda d, t: ["crosscheck", t / "c.npy", t / "c.vtk"], "unknown file type"),
     (lambda d, t: ["crosscheck", t / "c.npy", t / "c.txt"], "c.txt: 4 numbers a line and no first line naming"),
 ])

@@ -152,6 +152,10 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
     if ka != kb:
         raise InputError(f"cannot cross-check {ka[:-1]} against {kb[:-1]}: give two images or two clouds")
     if ka == "clouds":
+        if np.ndim(A) == np.ndim(B) == 2 and np.shape(A)[1] != np.shape(B)[1]:  # named as given: files or roles
+            named = [str(x) if isinstance(x, (str, os.PathLike)) else n for x, n in ((moving, "moving"), (reference, "reference"))]
+            raise InputError(f"{named[0]}: a {np.shape(B)[1]}-D cloud, and {named[1]} is {np.shape(A)[1]}-D (the two "
+                             "clouds need the same dimension)")
         icp = config.registration.icp
         cloud_options.setdefault("options", ICPOptions(max_iteration=icp.iterations, relative_fitness=icp.relative_fitness,
                                                        relative_rmse=icp.relative_rmse))

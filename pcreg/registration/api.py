@@ -46,6 +46,8 @@ def check_cloud(points: np.ndarray, name: str, *, limit: int | None = None) -> n
     """(N, 2|3) finite float64 copy of ``points`` within the point limit (``limit``) or an :class:`InputError`."""
     if getattr(points, "dtype", None) is not None and np.dtype(points.dtype).kind == "b":
         raise InputError(f"{name}: true/false values are a mask, not coordinates")
+    if getattr(points, "dtype", None) is not None and np.dtype(points.dtype).kind in "USV":  # numpy parses "1.5"
+        raise InputError(f"{name}: text or bytes ({np.dtype(points.dtype)}), not numeric coordinates (convert them first)")
     check_unmasked(points, name)
     try:
         if np.iscomplexobj(points):  # numpy would drop the imaginary part with a warning

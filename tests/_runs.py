@@ -57,6 +57,24 @@ def kill_before_commit(monkeypatch, frame: int) -> None:
     monkeypatch.setattr(Run, "record", crash)
 
 
+def stopped_and_resumed(monkeypatch, args: list, tmp_path, frame: int):
+    """``(whole, cut)``: a one-key run's command ``args`` (without ``--out``) run whole into ``tmp_path/whole``, and
+    into ``tmp_path/cut`` stopped after ``frame``'s files were written, before run.json counted them
+    (:func:`kill_before_commit`), then run again there."""
+    import json
+
+    from pcreg.cli import main
+
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main([*args, "--out", str(whole)]) == 0
+    kill_before_commit(monkeypatch, frame)
+    assert main([*args, "--out", str(cut)]) == 130
+    monkeypatch.undo()
+    assert json.loads((cut / "run.json").read_text())["done"] == frame
+    assert main([*args, "--out", str(cut)]) == 0
+    return whole, cut
+
+
 def frames_folder(path, frames, keys=(0, 4)):
     """``(folder, keys)``: ``frames`` written as PNGs ``f0.png``, ``f1.png``, ... into ``path / "frames"``, and
     the labels of the frames ``keys`` under the same names into ``path / "keys"``."""

@@ -14,7 +14,8 @@ import pcreg
 from pcreg.cli import main
 from pcreg.datasets.sources import Selection, VideoFrames, open_frames
 from pcreg.errors import InputError
-from _runs import kill_before_commit, one_line_errors, timeless
+from _runs import kill_before_commit, one_line_errors, stopped_and_resumed, timeless
+from _videos import mux_all
 
 
 @pytest.fixture(scope="module")
@@ -247,11 +248,7 @@ def test_a_rotated_video_is_read_as_it_is_shown(tmp_path, frames):
             if not hasattr(stream, "set_display_rotation"):
                 pytest.skip("this PyAV cannot write a display rotation")
             stream.set_display_rotation(degrees)
-            for _ in range(2):
-                for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
-                    container.mux(packet)
-            for packet in stream.encode():
-                container.mux(packet)
+            mux_all(container, stream, [image, image])
         got = next(VideoFrames(path).frames()).image
         shown = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG).read()[1][:, :, ::-1]
         assert got.shape == shown.shape == np.rot90(image, degrees // 90).shape
@@ -289,13 +286,10 @@ def test_a_matroska_file_of_a_variable_frame_rate_is_whole_and_one_cut_short_is_
             s = c.add_stream("ffv1", rate=30)
             s.width, s.height, s.pix_fmt = 160, 120, "yuv444p"
             s.time_base = s.codec_context.time_base = Fraction(1, 1000)
-            for i, t in enumerate(times_ms):
-                f = av.VideoFrame.from_ndarray(frames[i % len(frames)].image, format="rgb24")
+            timed = [av.VideoFrame.from_ndarray(frames[i % len(frames)].image, format="rgb24") for i in range(len(times_ms))]
+            for f, t in zip(timed, times_ms):
                 f.pts, f.time_base = t, Fraction(1, 1000)
-                for p in s.encode(f):
-                    c.mux(p)
-            for p in s.encode():
-                c.mux(p)
+            mux_all(c, s, timed)
         return path
 
     cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
@@ -318,11 +312,7 @@ def test_an_mp4_trimmed_by_an_edit_list_is_whole(tmp_path, frames, capsys):
     with av.open(str(whole), "w") as c:
         s = c.add_stream("mpeg4", rate=10)
         s.width, s.height, s.pix_fmt = 160, 120, "yuv420p"
-        for f in frames:
-            for p in s.encode(av.VideoFrame.from_ndarray(f.image, format="rgb24")):
-                c.mux(p)
-        for p in s.encode():
-            c.mux(p)
+        mux_all(c, s, [f.image for f in frames])
     trimmed = tmp_path / "trimmed.mp4"
     with av.open(str(whole)) as inp, av.open(str(trimmed), "w") as out:
         src = inp.streams.video[0]
@@ -356,8 +346,7 @@ def _oriented(path, image, degrees, hflip=False, vflip=False):
         if not hasattr(stream, "set_display_rotation"):
             pytest.skip("this PyAV cannot write a display matrix")
         stream.set_display_rotation(degrees, hflip=hflip, vflip=vflip)
-        for packet in [*stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")), *stream.encode()]:
-            container.mux(packet)
+        mux_all(container, stream, [image])
     return path
 
 
@@ -394,11 +383,7 @@ def test_webm_and_m4v_videos_are_read(tmp_path, frames, capsys):
         with av.open(str(tmp_path / name), "w", format=fmt) as c:
             s = c.add_stream(codec, rate=10)
             s.width, s.height, s.pix_fmt = 160, 120, "yuv420p"
-            for f in frames[:4]:
-                for p in s.encode(av.VideoFrame.from_ndarray(f.image, format="rgb24")):
-                    c.mux(p)
-            for p in s.encode():
-                c.mux(p)
+            mux_all(c, s, [f.image for f in frames[:4]])
         out = tmp_path / name.replace(".", "_")
         assert main(["run", str(tmp_path / name), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0, \
             _err(capsys)
@@ -442,11 +427,7 @@ def _pyav_video(path, images, fmt, options=None, codec="h264"):
         s = c.add_stream(codec, rate=10)
         s.width, s.height, s.pix_fmt = w, h, "yuv420p"
         s.options = {"crf": "12", "bf": "2", "g": "5"} if codec == "h264" else {}
-        for im in images:
-            for p in s.encode(av.VideoFrame.from_ndarray(im, format="rgb24")):
-                c.mux(p)
-        for p in s.encode():
-            c.mux(p)
+        mux_all(c, s, images)
     return path
 
 
@@ -472,14 +453,8 @@ def test_transport_streams_and_3gp_are_read_in_order_and_resume_exactly(tmp_path
 
     cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
     args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--confidence"]
-    assert main(args + ["--out", str(tmp_path / "whole")]) == 0, _err(capsys)
-    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    whole, cut = stopped_and_resumed(monkeypatch, args, tmp_path, 6)
     assert sorted(p.name for p in whole.glob("*.png")) == [f"{i:06d}.png" for i in range(10)]
-    kill_before_commit(monkeypatch, 6)  # killed after frame 6's files were written, before run.json counted it
-    assert main(args + ["--out", str(cut)]) == 130
-    monkeypatch.undo()
-    assert json.loads((cut / "run.json").read_text())["done"] == 6
-    assert main(args + ["--out", str(cut)]) == 0
     names = [f"{i:06d}.png" for i in range(10)] + [f"confidence/{i:06d}.png" for i in range(1, 10)]
     for file in ["run.json", *names]:
         assert (whole / file).read_bytes() == (cut / file).read_bytes(), file

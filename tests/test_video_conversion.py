@@ -7,6 +7,7 @@ import pytest
 
 import pcreg
 from pcreg.datasets.sources import VideoFrames
+from _videos import mux_all
 
 av = pytest.importorskip("av")
 
@@ -29,11 +30,7 @@ def _write(path, images, codec, pix_fmt, degrees=None):
             if not hasattr(stream, "set_display_rotation"):
                 pytest.skip("this PyAV cannot write a display rotation")
             stream.set_display_rotation(degrees)
-        for image in images:
-            for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
+        mux_all(container, stream, images)
     return path
 
 

@@ -3,16 +3,15 @@ frame's two fields are taken half a frame interval apart, and whatever moves sho
 encoded with PyAV from two fields of a moving picture (even rows at time t, odd rows at t + 1/2, flagged top field
 first), so the true picture at each frame's time is known."""
 
-import json
 from fractions import Fraction
 
 import cv2
 import numpy as np
 import pytest
 
-from pcreg.cli import main
 from pcreg.datasets.sources import Selection, VideoFrames, open_frames
-from _runs import kill_before_commit, one_line_errors, timeless
+from _runs import stopped_and_resumed, timeless
+from _videos import mux_all
 
 av = pytest.importorskip("av")
 
@@ -57,18 +56,16 @@ def _write(path, *, interlaced=True, codec="libx264", fmt=None, n=N):
         source.link_to(setfield)
         setfield.link_to(sink)
         graph.configure()
-        for k in range(n):
+
+        def frame(k: int):
             image = _picture(k)
-            if interlaced:
-                image[1::2] = _picture(k + 0.5)[1::2]
-            frame = av.VideoFrame.from_ndarray(image, format="rgb24").reformat(format="yuv420p")
-            if interlaced:
-                graph.vpush(frame)
-                frame = graph.vpull()
-            for p in s.encode(frame):
-                c.mux(p)
-        for p in s.encode():
-            c.mux(p)
+            if not interlaced:
+                return av.VideoFrame.from_ndarray(image, format="rgb24").reformat(format="yuv420p")
+            image[1::2] = _picture(k + 0.5)[1::2]
+            graph.vpush(av.VideoFrame.from_ndarray(image, format="rgb24").reformat(format="yuv420p"))
+            return graph.vpull()
+
+        mux_all(c, s, (frame(k) for k in range(n)))
     return path
 
 
@@ -139,16 +136,10 @@ def test_run_on_an_interlaced_video_says_so_and_resumes_exactly(tmp_path, capsys
     key[H // 2:] = 1
     cv2.imwrite(str(tmp_path / "key.png"), key)
     args = ["run", str(video), "--labels", str(tmp_path / "key.png")]
-    assert main(args + ["--out", str(tmp_path / "whole")]) == 0, one_line_errors(capsys)
+    whole, cut = stopped_and_resumed(monkeypatch, args, tmp_path, 4)
     err = capsys.readouterr().err
     assert f"pcreg: note: {video} is interlaced" in err and "deinterlaced" in err
-    whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert sorted(p.name for p in whole.glob("*.png")) == [f"{i:06d}.png" for i in range(8)]
-    kill_before_commit(monkeypatch, 4)  # killed after frame 4's files were written, before run.json counted it
-    assert main(args + ["--out", str(cut)]) == 130
-    monkeypatch.undo()
-    assert json.loads((cut / "run.json").read_text())["done"] == 4
-    assert main(args + ["--out", str(cut)]) == 0
     for file in ["run.json", *[f"{i:06d}.png" for i in range(8)]]:
         assert (whole / file).read_bytes() == (cut / file).read_bytes(), file
     assert ([timeless(x) for x in (whole / "steps.jsonl").read_text().splitlines()]

@@ -115,17 +115,12 @@ def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = T
 
 
 def print_json(obj) -> None:
-    """``obj`` as one JSON object on stdout; a stdout that refuses it (``> /dev/full``) is an OSError naming
-    standard output (a closed pipe stays a BrokenPipeError: :mod:`pcreg.cli` ends quietly on it)."""
+    """``obj`` as one JSON object on stdout, flushed: a stdout that refuses it (``> /dev/full``) fails here, in
+    the command, and the program's stdout names itself in the error (:mod:`pcreg.cli`)."""
     from ..outputs import to_json
 
-    try:
-        sys.stdout.write(to_json(obj, strict=True) + "\n")  # NaN -> null: valid JSON for any reader
-        sys.stdout.flush()
-    except BrokenPipeError:
-        raise
-    except OSError as exc:
-        raise OSError(exc.errno, exc.strerror, "standard output") from None
+    sys.stdout.write(to_json(obj, strict=True) + "\n")  # NaN -> null: valid JSON for any reader
+    sys.stdout.flush()
 
 
 # ---------------------------------------------------------------------------------------------

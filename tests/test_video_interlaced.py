@@ -3,12 +3,14 @@ frame's two fields are taken half a frame interval apart, and whatever moves sho
 encoded with PyAV from two fields of a moving picture (even rows at time t, odd rows at t + 1/2, flagged top field
 first), so the true picture at each frame's time is known."""
 
+import json
 from fractions import Fraction
 
 import cv2
 import numpy as np
 import pytest
 
+from pcreg.cli import main
 from pcreg.datasets.sources import Selection, VideoFrames, open_frames
 from _runs import stopped_and_resumed, timeless
 from _videos import mux_all
@@ -144,3 +146,12 @@ def test_run_on_an_interlaced_video_says_so_and_resumes_exactly(tmp_path, capsys
         assert (whole / file).read_bytes() == (cut / file).read_bytes(), file
     assert ([timeless(x) for x in (whole / "steps.jsonl").read_text().splitlines()]
             == [timeless(x) for x in (cut / "steps.jsonl").read_text().splitlines()])
+    # a run begun on its frames as decoded (its run.json names no deinterlacing, as before it was done) is not
+    # continued on deinterlaced ones: the labels would change kind at the frame it resumed from
+    state = json.loads((cut / "run.json").read_text())
+    assert state["run"]["deinterlaced"] == "bwdif"
+    del state["run"]["deinterlaced"]
+    (cut / "run.json").write_text(json.dumps({**state, "done": 4}))
+    capsys.readouterr()
+    assert main([*args, "--out", str(cut)]) == 2
+    assert "holds a run with other options" in capsys.readouterr().err

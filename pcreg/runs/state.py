@@ -88,9 +88,10 @@ def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, tr
     folder or a video, and which of them: ``frames.selection``), its ``labels`` (a label image or a folder
     of key frames), how labels are coded (``mapping``), the ``truth`` folder, the propagators' options
     (``config``, a :class:`~pcreg.pipeline.config.PropagatorConfig`), how labels are read from the fused
-    log-odds (the trust rule's blur: a run begun when they were read otherwise is not continued), and
-    ``--confidence``. ``confidence`` and the selection are named only when on (runs from before them
-    still resume)."""
+    log-odds (the trust rule's blur: a run begun when they were read otherwise is not continued),
+    ``--confidence``, and the deinterlacing filter of an interlaced video (a run begun when its frames were read
+    as decoded is not continued on deinterlaced ones). ``confidence``, the selection and the filter are named only
+    when on (runs from before them still resume)."""
     from ..pipeline.trust import STREAM_TRUST
 
     identity = {frames.kind: str(resolved(source)), "labels": str(resolved(labels)), "mapping": mapping,
@@ -100,6 +101,10 @@ def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, tr
         identity["confidence"] = True
     if frames.selection.to_dict() is not None:
         identity["frames"] = frames.selection.to_dict()
+    if getattr(frames, "interlaced", False):
+        from ..datasets.deinterlace import FILTER
+
+        identity["deinterlaced"] = FILTER[0]
     return identity
 
 

@@ -76,6 +76,8 @@ def _check_fits(request, frames, keys: dict, table) -> None:
         for t in group:
             present.update(int(c) for c in np.flatnonzero(np.bincount(np.asarray(keys[t]).ravel(), minlength=256)))
         present.discard(table.unknown)
+        if not present and not request.folder_of_keys:  # as a folder's all-unknown key file is named
+            raise InputError(f"{request.labels}: the labels are all unknown ({table.unknown}): nothing to fit or propagate")
         if len(present) < 2:
             only = ", ".join(listed_name(table.name_of(c)) for c in sorted(present)) or "none"
             which = " and ".join(frames.name(t) for t in group)

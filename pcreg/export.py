@@ -123,23 +123,27 @@ def labelled_frames(run: RunLabels, min_confidence: float | None = None):
     run's frames: an :class:`InputError` naming it)."""
     shape = None
     for t, name in enumerate(run.names):
-        lab = labels_with_confidence(run, t, min_confidence, run.table)
-        if shape is not None and lab.shape != shape:
+        lab = read_labels(run.paths[t], run.table)
+        if shape is not None and lab.shape != shape:  # before its confidence, which is of the frame's size
             raise InputError(f"{run.paths[t]}: labels of {lab.shape[1]}x{lab.shape[0]}, the key frame's are "
                              f"{shape[1]}x{shape[0]} (not a label image this run wrote)")
         shape = lab.shape
-        yield name, lab
+        yield name, _confident(run, t, lab, min_confidence, run.table)
 
 
 def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None,
                            table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
     """Frame ``t``'s labels; with ``min_confidence``, the pixels whose confidence is below it set to
     unknown (the table's). The key frames' labels (a person's) are kept as they are, wherever they lie."""
+    return _confident(run, t, read_labels(run.paths[t], table), min_confidence, table)
+
+
+def _confident(run: RunLabels, t: int, lab: np.ndarray, min_confidence: float | None, table: ClassTable) -> np.ndarray:
+    """:func:`labels_with_confidence` of frame ``t``'s labels ``lab``, already read."""
     import cv2
 
     from .formats import read_image_file
 
-    lab = read_labels(run.paths[t], table)
     if min_confidence is None or run.names[t] in run.keys:
         return lab
     path = run.confidence[t]

@@ -170,6 +170,32 @@ def test_an_exif_orientation_is_never_applied_so_frames_and_labels_share_a_grid(
     assert frames[0].image.shape == (48, 80, 3) and frames[0].labels.shape == (48, 80)
 
 
+def test_labels_drawn_on_the_view_an_exif_orientation_shows_are_refused_saying_so(tmp_path, capsys):
+    """A phone's portrait photograph is stored landscape with orientation 6: labels drawn on it as a viewer
+    shows it are its size turned, which the refusal explains (pcreg reads the pixels as stored)."""
+    from pcreg.errors import DatasetError
+    from pcreg.datasets import load_dataset
+
+    rng = np.random.default_rng(0)
+    clip = tmp_path / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i in range(2):
+        (clip / "images" / f"f{i}.jpg").write_bytes(_jpeg_turned(rng.integers(0, 256, (48, 80, 3), dtype=np.uint8)))
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), (np.arange(80 * 48).reshape(80, 48) % 2).astype(np.uint8))
+    said = "f0.jpg's EXIF orientation 6 has viewers show it turned by a quarter; pcreg reads the pixels as stored"
+    assert main(["run", str(clip / "images"), "--labels", str(clip / "labels" / "f0.png"), "--out", str(tmp_path / "o")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "labels are 48x80, the key frame f0.jpg is 80x48" in err[0] and said in err[0], err
+    assert main(["run", str(clip / "images"), "--labels", str(clip / "labels"), "--out", str(tmp_path / "o")]) == 2
+    assert said in one_line_errors(capsys)[0]
+    with pytest.raises(DatasetError, match=said):
+        load_dataset(f"folder:{clip}")
+    cv2.imwrite(str(clip / "labels" / "f0.png"), np.zeros((40, 80), np.uint8))  # another size, not the turned one
+    assert main(["run", str(clip / "images"), "--labels", str(clip / "labels" / "f0.png"), "--out", str(tmp_path / "o")]) == 2
+    assert "EXIF" not in one_line_errors(capsys)[0]
+
+
 def test_a_signal_while_the_commands_load_is_an_interruption(monkeypatch, capsys):
     """Ctrl-C or SIGTERM (made a KeyboardInterrupt from the start of main) while the commands' modules load."""
     import signal

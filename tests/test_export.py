@@ -365,3 +365,12 @@ def test_a_frame_name_an_archive_cannot_hold_is_named(run_copy, capsys):
     steps.write_text("\n".join([json.dumps(first), *lines[1:]]) + "\n")
     assert main(["export", str(run_copy)]) == 2
     assert "the frame name 'x\\\\y.png' is not a file name an archive can hold" in capsys.readouterr().err
+
+
+def test_a_label_file_of_another_size_is_named_with_min_confidence_not_its_confidence_map(run_copy, capsys):
+    """The confidence map is of the frame's size; the label file beside it was replaced."""
+    out = run_copy
+    cv2.imwrite(str(out / "frame_002.png"), np.zeros((60, 80), np.uint8))
+    err = _refused([str(out), "--min-confidence", "0.5"], capsys, "labels of 80x60, the key frame's are")
+    assert f"{out / 'frame_002.png'}:" in err and "confidence" not in err, err
+    assert not (out / "export-cvat-mask.zip").exists()

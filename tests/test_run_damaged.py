@@ -128,3 +128,17 @@ def test_the_readers_take_steps_jsonl_a_line_at_a_time_and_no_further_than_run_j
     assert run_frames(read_state(out), steps_then_more()) == (["f0.png"], [f"f{i}.png" for i in range(4)])
     steps = parse_steps(out / STEPS, steps_then_more())
     assert next(steps)["name"] == "f1.png"  # given before the rest of the file is read
+
+
+@pytest.mark.parametrize("damage", ["cut", "empty"])
+def test_an_overlay_of_a_run_whose_run_json_is_damaged_names_the_run_json(tmp_path, capsys, damage):
+    """Not "--overlay takes a run's folder (one with a run.json)" of a folder that holds one."""
+    folder, key = drifting_frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    state = (out / "run.json").read_bytes()
+    (out / "run.json").write_bytes(state[: len(state) // 2] if damage == "cut" else b"")
+    capsys.readouterr()
+    assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 2
+    assert one_line_errors(capsys) == [f"pcreg: error: {out / 'run.json'}: unreadable (not a run.json that pcreg run wrote)"]
+    assert not (tmp_path / "o.mp4").exists()

@@ -316,6 +316,11 @@ def test_a_key_frame_of_one_class_is_named_before_anything_is_written(tmp_path, 
     assert main(["run", str(folder), "--labels", str(tmp_path / "ground.png"), "--out", str(tmp_path / "a")]) == 2
     assert one_line_errors(capsys) == [f"pcreg: error: {tmp_path / 'ground.png'}: the labels hold one class only "
                                        "(ground); the classifier of the frames it labels needs pixels of at least two classes"]
+    cv2.imwrite(str(tmp_path / "unknown.png"), np.full((48, 64), 2, np.uint8))  # no class at all: not "one class (none)"
+    assert main(["run", str(folder), "--labels", str(tmp_path / "unknown.png"), "--out", str(tmp_path / "u")]) == 2
+    assert one_line_errors(capsys) == [f"pcreg: error: {tmp_path / 'unknown.png'}: the labels are all unknown (2): "
+                                       "nothing to fit or propagate"]
+    assert not (tmp_path / "u").exists()
     keys = tmp_path / "keys"
     keys.mkdir()
     shutil.copy(key, keys / "f0.png")

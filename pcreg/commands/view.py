@@ -130,6 +130,9 @@ def run(args: argparse.Namespace) -> int:
     if runs:
         return _review(args, runs)
     if args.overlay:
+        damaged = next((Path(p) / "run.json" for p in args.recordings if (Path(p) / "run.json").is_file()), None)
+        if damaged is not None:  # a run's folder whose run.json is damaged: named, as the review names it
+            raise InputError(f"{damaged}: unreadable (not a run.json that pcreg run wrote)")
         raise InputError("--overlay takes a pcreg run output folder (one with a run.json)")
     folders = [p for p in args.recordings if Path(p).is_dir() or Path(p).name == "results.json"]
     if folders:

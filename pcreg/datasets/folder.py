@@ -31,7 +31,7 @@ def _read_png(path: Path, *, color: bool) -> np.ndarray:
     return img
 
 
-def _read_table_labels(path: Path, image: np.ndarray, table, mapping) -> np.ndarray:
+def _read_table_labels(path: Path, image: np.ndarray, table, mapping, image_path: Path) -> np.ndarray:
     """A label file read through ``table`` (``mapping`` None or ``"camvid"``) as key labels are
     (:func:`pcreg.classes.keys.read_key_labels`: CamVid's ids and ``camvid11``'s table also read CamVid's own 32
     classes' colours), of its image's size; a :class:`DatasetError` naming it otherwise."""
@@ -42,8 +42,10 @@ def _read_table_labels(path: Path, image: np.ndarray, table, mapping) -> np.ndar
     except InputError as exc:
         raise DatasetError(str(exc)) from None
     if lab.shape != image.shape[:2]:
+        from ..formats import turned_note
+
         raise DatasetError(f"{path}: labels are {lab.shape[1]}x{lab.shape[0]} but the image is "
-                           f"{image.shape[1]}x{image.shape[0]}")
+                           f"{image.shape[1]}x{image.shape[0]}{turned_note(image_path, lab.shape, image.shape)}")
     return lab
 
 
@@ -160,8 +162,8 @@ def read_frames(images: dict[str, Path], labels: dict[str, Path] | None, *, mapp
         lab = None
         if labels is not None:
             if mapping is None or mapping == "camvid":
-                frames.append(Frame(image=image, labels=_read_table_labels(labels[name], image, table, mapping),
-                                    name=name))
+                lab = _read_table_labels(labels[name], image, table, mapping, images[name])
+                frames.append(Frame(image=image, labels=lab, name=name))
                 continue
             raw = _read_png(labels[name], color=False)
             if raw.ndim != 2 or raw.dtype != np.uint8:

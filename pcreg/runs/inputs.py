@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..formats import only_files, resolved
+from ..formats import only_files, resolved, turned_note
 
 __all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth", "check_spares_inputs",
            "check_suggest", "read_key_labels"]
@@ -76,6 +76,8 @@ def _check_fits(request, frames, keys: dict, table) -> None:
         for t in group:
             present.update(int(c) for c in np.flatnonzero(np.bincount(np.asarray(keys[t]).ravel(), minlength=256)))
         present.discard(table.unknown)
+        if not present and not request.folder_of_keys:  # as a folder's all-unknown key file is named
+            raise InputError(f"{request.labels}: the labels are all unknown ({table.unknown}): nothing to fit or propagate")
         if len(present) < 2:
             only = ", ".join(listed_name(table.name_of(c)) for c in sorted(present)) or "none"
             which = " and ".join(frames.name(t) for t in group)
@@ -100,8 +102,9 @@ def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
     if second is None:
         raise InputError(f"{request.frames}: needs at least two frames (the key frame and one more), found 1")
     if key_labels.shape != key.image.shape[:2]:
+        turned = turned_note(frames.where(0), key_labels.shape, key.image.shape) if frames.kind == "folder" else ""
         raise InputError(f"{request.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
-                         f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}")
+                         f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}{turned}")
     return {0: key_labels}, (key, second, decoded)
 
 
@@ -246,7 +249,8 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
             raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
         lab = read_labels(f, mapping, table)
         if lab.shape != shape:
-            raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}")
+            turned = turned_note(frames.where(t), lab.shape, shape) if frames.kind == "folder" else ""
+            raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}{turned}")
         if all_unknown(lab, table):
             raise InputError(f"{f}: the labels are all unknown ({table.unknown}): nothing to fit or propagate")
         keys[t], seen[t] = lab, f

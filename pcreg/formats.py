@@ -273,50 +273,20 @@ def _pnm_size(data: bytes) -> tuple[int, int] | None:
         return None
 
 
-def jpeg_orientation(data: bytes) -> int | None:
-    """The EXIF orientation (1..8) a JPEG's APP1 ``Exif`` segment declares; None without one."""
-    i, n = 2, len(data)
-    if data[:2] != b"\xff\xd8":
-        return None
-    while i + 4 <= n and data[i] == 0xFF:
-        marker = data[i + 1]
-        if marker in (0xD9, 0xDA):  # the end, or the pixels: no EXIF after them
-            return None
-        (seg,) = struct.unpack(">H", data[i + 2:i + 4])
-        if marker == 0xE1 and data[i + 4:i + 10] == b"Exif\x00\x00":
-            return _tiff_orientation(data[i + 10:i + 2 + seg])
-        i += 2 + seg
-    return None
-
-
-def _tiff_orientation(tiff: bytes) -> int | None:
-    end = "<" if tiff[:2] == b"II" else ">"
-    try:
-        (off,) = struct.unpack(end + "I", tiff[4:8])
-        (count,) = struct.unpack(end + "H", tiff[off:off + 2])
-        for k in range(min(count, 1024)):
-            e = off + 2 + 12 * k
-            tag, typ = struct.unpack(end + "HH", tiff[e:e + 4])
-            if tag == 0x0112 and typ == 3:
-                value = struct.unpack(end + "H", tiff[e + 8:e + 10])[0]
-                return value if 1 <= value <= 8 else None
-    except struct.error:
-        return None
-    return None
-
-
 def turned_note(frame: str | os.PathLike, labels_shape: tuple, frame_shape: tuple) -> str:
     """What a refusal of labels of ``labels_shape`` (H, W) for the frame file ``frame`` of ``frame_shape`` adds
     when the labels are the frame's size turned by a quarter and the frame's EXIF orientation (5..8) has viewers
     show it so: they were drawn on the view shown, and pcreg reads the pixels as stored; else ``""``."""
     if tuple(labels_shape[:2]) != tuple(frame_shape[:2])[::-1] or labels_shape[0] == labels_shape[1]:
         return ""
+    from PIL import Image, UnidentifiedImageError
+
     try:
-        with open(frame, "rb") as f:
-            orientation = jpeg_orientation(f.read(1 << 16))
-    except OSError:
+        with Image.open(frame) as image:
+            orientation = image.getexif().get(0x0112)  # EXIF's Orientation tag
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError):
         return ""
-    if orientation is None or orientation < 5:
+    if not isinstance(orientation, int) or not 5 <= orientation <= 8:
         return ""
     return (f" ({Path(frame).name}'s EXIF orientation {orientation} has viewers show it turned by a quarter; pcreg "
             "reads the pixels as stored: turn the frames first, e.g. exiftran -a, or draw the labels on them as stored)")

@@ -477,3 +477,16 @@ def test_a_run_interrupted_inside_a_compiled_kernel_says_its_frames_are_kept(tmp
     monkeypatch.undo()
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
     assert json.loads((out / "run.json").read_text())["done"] == 5
+
+
+def test_images_among_the_frames_in_a_format_pcreg_does_not_read_are_named_in_a_note(tmp_path, capsys):
+    """A GIF or a phone's HEIC among the frames was passed over without a word: the run had a frame fewer."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=4)
+    (folder / "f1b.gif").write_bytes(b"GIF89a")
+    (folder / "IMG_0001.HEIC").write_bytes(b"\x00\x00\x00\x18ftypheic")
+    capsys.readouterr()
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out")]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if "does not read" in ln]
+    assert notes == [f"pcreg: note: {folder}: 2 images in a format pcreg does not read, not labelled (IMG_0001.HEIC, "
+                     "f1b.gif); convert them to PNG to label them with the others"], notes
+    assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == [f"f{i}.png" for i in range(4)]

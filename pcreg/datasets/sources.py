@@ -45,6 +45,10 @@ __all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_fram
 
 #: The video files pcreg reads (by suffix, any case); what the file holds is checked by FFmpeg's demuxer.
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".m4v", ".mov", ".3gp", ".avi", ".mkv", ".webm", ".ts", ".mts", ".m2ts")
+#: Image files pcreg does not read as frames (OpenCV's reader takes none of them, or not as a frame).
+OTHER_IMAGE_SUFFIXES: tuple[str, ...] = (".gif", ".heic", ".heif", ".avif", ".jxl", ".jp2", ".j2k", ".psd", ".dng",
+                                         ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".exr", ".hdr",
+                                         ".ico", ".svg", ".jfif")
 #: Video files pcreg does not read (their demuxers untested here): refused with the command that converts them.
 OTHER_VIDEO_SUFFIXES: tuple[str, ...] = (".mpg", ".mpeg", ".vob", ".m2v", ".flv", ".f4v", ".wmv", ".asf", ".ogv",
                                          ".dv", ".mxf", ".rm", ".rmvb", ".3g2", ".divx", ".y4m")
@@ -141,8 +145,11 @@ class FolderFrames:
         if not self.path.is_dir():
             raise InputError(f"{self.path}: not a folder or a video file ({', '.join(VIDEO_SUFFIXES)})")
         src = self.path / "images" if (self.path / "images").is_dir() else self.path
-        files = only_files(sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
-                                  and not p.name.startswith(".")), "a frame")  # hidden: a thumbnail, macOS's ._NAME
+        shown = sorted(p for p in src.iterdir() if not p.name.startswith("."))  # hidden: a thumbnail, macOS's ._NAME
+        files = only_files([p for p in shown if p.suffix.lower() in IMAGE_SUFFIXES], "a frame")
+        #: Images among the frames in a format pcreg does not read (a GIF, a phone's HEIC): not frames, said in a note.
+        self.unread = [p.name for p in shown if p.suffix.lower() in OTHER_IMAGE_SUFFIXES]
+        self.source = src
         _check_numbering(src, [p.name for p in files])
         names = [p.stem for p in files]
         if len(set(names)) != len(names):
@@ -165,8 +172,13 @@ class FolderFrames:
         return self.paths[position].stem
 
     def note(self) -> str | None:
-        """A line for the user before the first frame: none for images."""
-        return None
+        """A line for the user before the first frame, when the folder holds images pcreg does not read: the run
+        passes over them, one frame fewer each."""
+        if not self.unread:
+            return None
+        n, some = len(self.unread), ", ".join(self.unread[:3]) + (", ..." if len(self.unread) > 3 else "")
+        return (f"{self.source}: {n} image{'s' if n > 1 else ''} in a format pcreg does not read, not labelled ({some}); "
+                f"convert {'them' if n > 1 else 'it'} to PNG to label {'them' if n > 1 else 'it'} with the others")
 
     def where(self, position: int) -> Path:
         """The file of the frame at ``position``, as a message names it."""

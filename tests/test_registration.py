@@ -93,6 +93,7 @@ def test_result_is_frozen_and_readable():
     (np.array([[0.0, 0.0], [1, 1], [2, 2], [3, 3]]), structured_cloud(), RegistrationError, "collinear"),
     ("text", np.ones((5, 2)), InputError, "not a numeric array"),
     (np.full((5, 2), "1.5"), np.ones((5, 2)), InputError, "text or bytes"),  # numpy parsed the numbers in it
+    (np.full((50, 3), 0.1), np.random.default_rng(0).random((50, 3)), RegistrationError, "coincident"),  # its mean's rounding: "collinear"
     (np.ones((5, 3), bool), np.ones((5, 3)), InputError, "a mask, not coordinates"),
 ])
 def test_icp_bad_input(source, target, error, message):

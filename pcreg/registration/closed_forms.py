@@ -308,11 +308,13 @@ def rank_problem(points: np.ndarray, model: str) -> str | None:
     c = points - points.mean(axis=0)
     sv = np.linalg.svd(c, compute_uv=False)
     extent = sv[0] if sv.size else 0.0
-    rank = int(np.sum(sv > 1e-9 * max(extent, 1e-300))) if extent > 0 else 0
+    same = bool(np.all(points == points[:1]))  # equal points: their mean's rounding (0.1 - 0.1000...01) is no line
+    rank = int(np.sum(sv > 1e-9 * max(extent, 1e-300))) if extent > 0 and not same else 0
     needed_rank = {"rigid": d - 1, "similarity": d - 1, "affine": d, "projective": 2}[model]
     if rank < needed_rank:
         what = "coincident" if rank == 0 else ("collinear" if rank == 1 else "coplanar")
-        return f"the points are {what}: they cannot determine a {model} transform"
+        article = "an" if model[0] in "aeiou" else "a"
+        return f"the points are {what}: they cannot determine {article} {model} transform"
     return None
 
 

@@ -148,6 +148,20 @@ def check_frames(value, name: str = "frames", *, labelled: bool = False):
     return value
 
 
+#: The most items a summary line names before it counts the rest.
+MOST_NAMED = 12
+
+
+def listed(items: list[str]) -> str:
+    """``a, b and c``; beyond :data:`MOST_NAMED` items the first of them and how many more (a table of 150
+    classes is not printed on one line)."""
+    if not items:
+        return "none"
+    if len(items) > MOST_NAMED:
+        return f"{', '.join(items[:MOST_NAMED])} and {len(items) - MOST_NAMED} more"
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"
+
+
 def short_repr(value) -> str:
     """A one-line repr of an argument for an error message (arrays by shape)."""
     if isinstance(value, np.ndarray):

@@ -222,7 +222,7 @@ def test_a_frame_name_with_a_line_break_is_refused_not_split_in_default_txt(name
 
 
 def test_a_summary_names_a_dozen_labels_and_counts_the_rest():
-    from pcreg.commands.export import MOST_NAMED, listed
+    from pcreg.validation import MOST_NAMED, listed
 
     assert listed([]) == "none" and listed(["road"]) == "road" and listed(["road", "car"]) == "road and car"
     many = [f"c{i}" for i in range(150)]
@@ -233,7 +233,7 @@ def test_class_names_that_hold_a_comma_or_a_list_word_are_quoted_in_the_summary(
     """CVAT names such as 'car, red' or 'rock and gravel' were listed bare: 'labels car, red in 5, rock and gravel in
     5 and road in 5' reads as five classes. A name holding a comma, a quote or a word of the list is quoted."""
     from pcreg.classes.table import listed_name as quoted
-    from pcreg.commands.export import listed
+    from pcreg.validation import listed
 
     assert [quoted(n) for n in ("road", "car, red", "rock and gravel", "none", "it's", "Person In Car")] == \
         ["road", "'car, red'", "'rock and gravel'", "'none'", '"it\'s"', "'Person In Car'"]

@@ -487,6 +487,6 @@ def test_images_among_the_frames_in_a_format_pcreg_does_not_read_are_named_in_a_
     capsys.readouterr()
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out")]) == 0
     notes = [ln for ln in capsys.readouterr().err.splitlines() if "does not read" in ln]
-    assert notes == [f"pcreg: note: {folder}: 2 images in a format pcreg does not read, not labelled (IMG_0001.HEIC, "
-                     "f1b.gif); convert them to PNG to label them with the others"], notes
+    assert notes == [f"pcreg: note: {folder}: 2 images in a format pcreg does not read, not labelled (IMG_0001.HEIC "
+                     "and f1b.gif); convert them to PNG to label them with the others"], notes
     assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == [f"f{i}.png" for i in range(4)]

@@ -35,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from ..formats import resolved
     from ..outputs import check_output
     from ..runs.state import unfinished_note
+    from ..validation import listed
 
     from ..errors import OutputError
 
@@ -59,17 +60,3 @@ def run(args: argparse.Namespace) -> int:
     if note:
         print(note)
     return 0
-
-
-#: The most items a summary line names before it counts the rest.
-MOST_NAMED = 12
-
-
-def listed(items: list[str]) -> str:
-    """``a, b and c``; beyond :data:`MOST_NAMED` items the first of them and how many more (a table of 150
-    classes is not printed on one line)."""
-    if not items:
-        return "none"
-    if len(items) > MOST_NAMED:
-        return f"{', '.join(items[:MOST_NAMED])} and {len(items) - MOST_NAMED} more"
-    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"

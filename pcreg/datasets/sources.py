@@ -176,8 +176,11 @@ class FolderFrames:
         passes over them, one frame fewer each."""
         if not self.unread:
             return None
-        n, some = len(self.unread), ", ".join(self.unread[:3]) + (", ..." if len(self.unread) > 3 else "")
-        return (f"{self.source}: {n} image{'s' if n > 1 else ''} in a format pcreg does not read, not labelled ({some}); "
+        from ..validation import listed
+
+        n = len(self.unread)
+        return (f"{self.source}: {n} image{'s' if n > 1 else ''} in a format pcreg does not read, not labelled "
+                f"({listed(self.unread)}); "
                 f"convert {'them' if n > 1 else 'it'} to PNG to label {'them' if n > 1 else 'it'} with the others")
 
     def where(self, position: int) -> Path:

@@ -76,8 +76,6 @@ def _check_fits(request, frames, keys: dict, table) -> None:
         for t in group:
             present.update(int(c) for c in np.flatnonzero(np.bincount(np.asarray(keys[t]).ravel(), minlength=256)))
         present.discard(table.unknown)
-        if not present and not request.folder_of_keys:  # as a folder's all-unknown key file is named
-            raise InputError(f"{request.labels}: the labels are all unknown ({table.unknown}): nothing to fit or propagate")
         if len(present) < 2:
             only = ", ".join(listed_name(table.name_of(c)) for c in sorted(present)) or "none"
             which = " and ".join(frames.name(t) for t in group)
@@ -105,7 +103,17 @@ def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
         turned = turned_note(frames.where(0), key_labels.shape, key.image.shape) if frames.kind == "folder" else ""
         raise InputError(f"{request.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
                          f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}{turned}")
+    _check_known(request.labels, key_labels, table)
     return {0: key_labels}, (key, second, decoded)
+
+
+def _check_known(path, labels: np.ndarray, table) -> None:
+    """An :class:`~pcreg.errors.InputError` naming the key label file ``path`` whose ``labels`` are all unknown."""
+    from ..classes.keys import all_unknown
+    from ..errors import InputError
+
+    if all_unknown(labels, table):
+        raise InputError(f"{path}: the labels are all unknown ({table.unknown}): nothing to fit or propagate")
 
 
 def _key_folder(request, frames, table, mapping: str) -> tuple:
@@ -230,7 +238,6 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     known."""
     from ..classes import DEFAULT_TABLE
     from ..classes.cvat import named_frames, placed
-    from ..classes.keys import all_unknown
     from ..errors import InputError
 
     table = DEFAULT_TABLE if table is None else table
@@ -251,8 +258,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
         if lab.shape != shape:
             turned = turned_note(frames.where(t), lab.shape, shape) if frames.kind == "folder" else ""
             raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}{turned}")
-        if all_unknown(lab, table):
-            raise InputError(f"{f}: the labels are all unknown ({table.unknown}): nothing to fit or propagate")
+        _check_known(f, lab, table)
         keys[t], seen[t] = lab, f
     return {t: keys[t] for t in sorted(keys)}
 

@@ -124,25 +124,40 @@ class _NamedStdout:
 
     def __init__(self, stream) -> None:
         self._stream = stream
+        #: the last refused write, kept for a caller that drops the error (argparse's ``--help``)
+        self.refused: OSError | None = None
 
     def __getattr__(self, name: str):
         return getattr(self._stream, name)
 
     def write(self, text: str) -> int:
-        try:
-            return self._stream.write(text)
-        except BrokenPipeError:
-            raise
-        except OSError as exc:
-            raise OSError(exc.errno, exc.strerror, "standard output") from None
+        return self._named(self._stream.write, text)
 
     def flush(self) -> None:
+        self._named(self._stream.flush)
+
+    def _named(self, call, *args):
         try:
-            self._stream.flush()
+            return call(*args)
         except BrokenPipeError:
             raise
         except OSError as exc:
-            raise OSError(exc.errno, exc.strerror, "standard output") from None
+            self.refused = OSError(exc.errno, exc.strerror, "standard output")
+            raise self.refused from None
+
+
+def _help_written() -> int:
+    """``--help`` or ``--version`` printed: exit 0 once it is out, 2 naming standard output where it was
+    refused (``> /dev/full``): argparse drops a failed write of its own, and the help was lost with exit 0."""
+    try:
+        sys.stdout.flush()
+    except OSError:
+        pass
+    refused = getattr(sys.stdout, "refused", None)
+    if isinstance(refused, OSError):
+        sys.stderr.write(f"pcreg: error: {refused.strerror}: {refused.filename}\n")
+        return 2
+    return 0
 
 
 def _no_command(args: argparse.Namespace) -> int:
@@ -243,7 +258,12 @@ def _main(argv: list[str] | None) -> int:
         restore_signals(previous)
         sys.stderr.write("pcreg: interrupted before the command started\n")
         return 130
-    except BaseException:  # the parser's own exit (a bad option: 2; --help: 0)
+    except SystemExit as exc:  # the parser's own exit (a bad option: 2; --help: 0)
+        restore_signals(previous)
+        if exc.code == 0 and argv is None:
+            return _help_written()
+        raise
+    except BaseException:
         restore_signals(previous)
         raise
     if not getattr(args, "_module", None):

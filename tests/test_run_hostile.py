@@ -168,6 +168,11 @@ def test_the_program_runs_with_an_ascii_terminal_and_a_closed_stdout(tmp_path):
             p = subprocess.run(command, stdout=full, stderr=subprocess.PIPE)
         assert p.returncode in (2, 3) and p.stderr.decode().splitlines()[-1] == (
             "pcreg: error: No space left on device: standard output"), p.stderr
+        for asked in (["--help"], ["run", "--help"], ["--version"]):  # argparse dropped the failed write: exit 0
+            with open("/dev/full", "w") as full:
+                p = subprocess.run([sys.executable, "-m", "pcreg", *asked], stdout=full, stderr=subprocess.PIPE)
+            assert p.returncode == 2 and p.stderr.decode().splitlines() == [
+                "pcreg: error: No space left on device: standard output"], (asked, p.stderr)
         cv2.imwrite(str(tmp_path / "flat.png"), np.full((96, 128, 3), 128, np.uint8))  # nothing to register on
         with open("/dev/full", "w") as full:  # refused, its JSON to a full disk: it ended in a traceback
             p = subprocess.run([*command[:-1], str(tmp_path / "flat.png"), "--json"], stdout=full,

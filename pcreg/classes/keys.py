@@ -114,7 +114,7 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
 
 
 #: How to save several objects so that no reader guesses: DAVIS 2017's way.
-_SAVE_OBJECTS = ("save several objects as a palette PNG (indices 1..N the objects, 0 the background, as DAVIS "
+_SAVE_OBJECTS = ("save several objects as a palette PNG (indices 1..N the objects, 0 the background, 255 void, as DAVIS "
                  "2017), or one object as 0 and 255")
 
 
@@ -133,11 +133,12 @@ def _grey_ids(values: np.ndarray, name: str) -> bool:
     values between 1 and 254 (DAVIS 2017's objects saved as grey). One value (DAVIS 2016's 255, or another)
     is one object, as before; so is a 0/255 mask whose values between lie only on its edge, within
     :data:`SOFT_EDGE` px of a 255 pixel (resized: a smoothed edge, read as the object as before). Values below
-    255 beyond that edge, beside 255, are refused, naming them: DAVIS 2017's objects with 255 void, or a mask
-    of other making, cannot be told apart."""
+    255 beyond that edge, beside 255, are refused, naming them, one such value as several: DAVIS 2017's
+    objects with 255 void (one object's 1 with its void border, saved as grey), or a mask of other making,
+    cannot be told apart."""
     present = np.flatnonzero(np.bincount(values.ravel(), minlength=256))
     below = [int(v) for v in present if 0 < v < 255]
-    if len(below) < 2:
+    if not below:
         return False
     if present[-1] == 255:
         import cv2
@@ -147,9 +148,10 @@ def _grey_ids(values: np.ndarray, name: str) -> bool:
         if not np.any((values > 0) & (values < 255) & (near == 0)):
             return False  # a smoothed edge: one object
         raise InputError(f"{name}: a grey mask of values 0, {_listed(below)} and 255, the values between beyond "
-                         f"{SOFT_EDGE} px of the 255s (not a smoothed edge): objects {_listed(below)} with 255 void? "
+                         f"{SOFT_EDGE} px of the 255s (not a smoothed edge): "
+                         f"object{'s' if len(below) > 1 else ''} {_listed(below)} with 255 void? "
                          "It is not assumed; " + _SAVE_OBJECTS)
-    return True
+    return len(below) > 1
 
 
 def _colour_objects(img: np.ndarray, name: str) -> tuple[np.ndarray, bool]:

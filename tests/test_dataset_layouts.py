@@ -1,0 +1,43 @@
+"""Other public datasets' layouts given to ``--data davis:`` and ``--data camvid:``: each is read as pcreg reads
+its own, or refused in one line that names the path and says how to give it (exit 2), never read otherwise."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from pcreg.datasets.davis import load_davis
+from pcreg.errors import DatasetError
+from _davis import frames_and_masks, write_palette
+from _runs import one_line_errors
+
+
+def _youtube_vos(root: Path, n: int = 6) -> Path:
+    """YouTube-VOS's layout: ``JPEGImages/SEQ/NNNNN.jpg``, ``Annotations/SEQ/NNNNN.png`` on every fifth frame
+    (palette PNGs), ``meta.json``."""
+    for i, (img, mask) in enumerate(frames_and_masks(n)):
+        (root / "JPEGImages" / "a1b2c3").mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(root / "JPEGImages" / "a1b2c3" / f"{i:05d}.jpg"), img)
+        if i % 5 == 0:
+            (root / "Annotations" / "a1b2c3").mkdir(parents=True, exist_ok=True)
+            write_palette(root / "Annotations" / "a1b2c3" / f"{i:05d}.png", (mask > 0).astype(np.uint8))
+    meta = {"videos": {"a1b2c3": {"objects": {"1": {"category": "disc", "frames": ["00000", "00005"]}}}}}
+    (root / "meta.json").write_text(json.dumps(meta))
+    return root
+
+
+def test_youtube_vos_layout_is_refused_saying_how_to_give_its_sequences(tmp_path, capsys):
+    root = _youtube_vos(tmp_path / "train")
+    for where in (root, root / "JPEGImages", root / "JPEGImages" / "a1b2c3"):
+        with pytest.raises(DatasetError, match=r"YouTube-VOS's layout .* SEQ/images/ and SEQ/labels/"):
+            load_davis(where)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{root}", "--methods", "plain", "--out", str(out)]) == 2
+    (line,) = one_line_errors(capsys)
+    assert str(root) in line and "YouTube-VOS" in line and "a mask for every frame" in line
+    assert not out.exists()

@@ -41,3 +41,32 @@ def test_youtube_vos_layout_is_refused_saying_how_to_give_its_sequences(tmp_path
     (line,) = one_line_errors(capsys)
     assert str(root) in line and "YouTube-VOS" in line and "a mask for every frame" in line
     assert not out.exists()
+
+
+def _ignore_255_clip(clip: Path, n: int = 3) -> Path:
+    """``clip/images`` and ``clip/labels`` of CamVid's eleven classes as some loaders give them: ids 0..10 and
+    255 for the pixels to ignore (void), where pcreg's ``camvid11`` has void 11."""
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(n):
+        cv2.imwrite(str(clip / "images" / f"f{i:02d}.png"), rng.integers(0, 256, (40, 48, 3), dtype=np.uint8))
+        ids = np.full((40, 48), 255, np.uint8)
+        ids[:, :44] = np.repeat(np.arange(11, dtype=np.uint8), 4)[None, :]
+        cv2.imwrite(str(clip / "labels" / f"f{i:02d}.png"), ids)
+    return clip
+
+
+def test_labels_whose_void_is_255_are_refused_saying_how_to_give_them(tmp_path, capsys):
+    clip = _ignore_255_clip(tmp_path / "data" / "c")
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{clip.parent}", "--classes", "camvid11", "--methods",
+                 "plain", "--out", str(out)]) == 2
+    (line,) = one_line_errors(capsys)
+    assert str(clip / "labels" / "f00.png") in line and "label value 255 is not a class id" in line
+    assert "write those pixels as its unknown, 11 (void)" in line
+    assert main(["run", str(clip / "images"), "--labels", str(clip / "labels" / "f00.png"), "--classes", "camvid11",
+                 "--out", str(out)]) == 2
+    (line,) = one_line_errors(capsys)
+    assert "Cityscapes' trainIds" in line and "write those pixels as its unknown, 11 (void)" in line
+    assert not out.exists()

@@ -70,3 +70,22 @@ def test_labels_whose_void_is_255_are_refused_saying_how_to_give_them(tmp_path, 
     (line,) = one_line_errors(capsys)
     assert "Cityscapes' trainIds" in line and "write those pixels as its unknown, 11 (void)" in line
     assert not out.exists()
+
+
+def test_key_labels_named_as_cityscapes_names_them_are_refused_saying_how_to_name_them(tmp_path, capsys):
+    """Cityscapes names a frame's labels otherwise than the frame (``X_gtFine_labelTrainIds.png`` for
+    ``X_leftImg8bit.png``): not matched by a guess; the line says how a key label is named."""
+    frames, keys = tmp_path / "leftImg8bit", tmp_path / "gtFine"
+    frames.mkdir()
+    keys.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        cv2.imwrite(str(frames / f"aachen_000000_{i:06d}_leftImg8bit.png"),
+                    rng.integers(0, 256, (40, 48, 3), dtype=np.uint8))
+    cv2.imwrite(str(keys / "aachen_000000_000000_gtFine_labelTrainIds.png"), np.arange(40 * 48).reshape(40, 48) % 2)
+    out = tmp_path / "out"
+    assert main(["run", str(frames), "--labels", str(keys), "--out", str(out)]) == 2
+    (line,) = one_line_errors(capsys)
+    assert "aachen_000000_000000_gtFine_labelTrainIds.png: names no frame" in line
+    assert "NAME.png labels the frame NAME" in line
+    assert not out.exists()

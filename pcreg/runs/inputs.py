@@ -251,7 +251,9 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     for f, t in zip(files, positions):
         if t is None:
             raise InputError(f"{f}: names no frame of {frames.path} ({named_frames(frames)})"
-                             + ("" if frames.selection.to_dict() is None else " among those chosen"))
+                             + ("" if frames.selection.to_dict() is None else " among those chosen")
+                             + "; a key label is named as its frame: NAME.png labels the frame NAME (as do "
+                               "NAME_L.png and CVAT's frame_NNNNNN.png)")
         if t in seen:
             raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
         lab = read_labels(f, mapping, table)

@@ -227,12 +227,15 @@ class ClassTable:
         if bad_values:
             raise InputError(f"{where}: label value {bad_values[0]} is not a class id ({self.describe()})"
                              + (self._ignore_hint(bad_values[0] != 255)
-                                if bad_values[-1] == 255 and set(present.tolist()) - {0, 255} else ""))
+                                if bad_values[-1] == 255 and self.n_known > 2 and set(present.tolist()) - {0, 255}
+                                else ""))
         return a8
 
     def _ignore_hint(self, also: bool) -> str:
-        """What a refusal of label value 255 (``also``: of another value, 255 among the file's too) adds: the value
-        many datasets mark pixels to ignore with, which no table can hold; how to give those pixels."""
+        """What a refusal of label value 255 (``also``: of another value, 255 among the file's too) adds with a table
+        of more than two known classes: the value many datasets mark pixels to ignore with, which no table can hold;
+        how to give those pixels. (With two, ``lagr``'s, :func:`pcreg.classes.mappings.mask_hint` says what such a
+        file may be.)"""
         return (f"; {'it also holds 255, ' if also else '255 is '}"
                 f"the value many datasets ignore (Cityscapes' trainIds, CamVid or VOC as some loaders give "
                 f"them), and a table's ids are 0..254: write those pixels as its unknown, "

@@ -89,3 +89,15 @@ def test_key_labels_named_as_cityscapes_names_them_are_refused_saying_how_to_nam
     assert "aachen_000000_000000_gtFine_labelTrainIds.png: names no frame" in line
     assert "NAME.png labels the frame NAME" in line
     assert not out.exists()
+
+
+def test_an_object_mask_in_vocs_palette_given_without_its_table_is_refused_naming_it(tmp_path, capsys):
+    """YouTube-VOS's (and DAVIS's) palette mask given to ``pcreg run`` without ``--classes davis``: refused, the
+    line naming the palette and the table that reads it."""
+    root = _youtube_vos(tmp_path / "train")
+    key = root / "Annotations" / "a1b2c3" / "00000.png"
+    out = tmp_path / "out"
+    assert main(["run", str(root / "JPEGImages" / "a1b2c3"), "--labels", str(key), "--out", str(out)]) == 2
+    (line,) = one_line_errors(capsys)
+    assert str(key) in line and "VOC's colour map" in line and "--classes davis reads one object's mask" in line
+    assert not out.exists()

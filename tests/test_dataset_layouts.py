@@ -101,3 +101,23 @@ def test_an_object_mask_in_vocs_palette_given_without_its_table_is_refused_namin
     (line,) = one_line_errors(capsys)
     assert str(key) in line and "VOC's colour map" in line and "--classes davis reads one object's mask" in line
     assert not out.exists()
+
+
+def test_key_masks_of_two_objects_in_one_folder_are_refused_not_carried_into_each_other(tmp_path, capsys):
+    """YouTube-VOS's valid split gives an object's mask on the frame it enters, with its own index: a key folder
+    whose first mask shows object 1 and a later one object 2 alone would follow object 1 into object 2."""
+    root = _youtube_vos(tmp_path / "valid", n=6)
+    keys = root / "Annotations" / "a1b2c3"
+    ids = np.zeros((48, 64), np.uint8)
+    ids[30:40, 40:60] = 2  # object 2 enters on frame 5, alone in its mask
+    write_palette(keys / "00005.png", ids)
+    out = tmp_path / "out"
+    args = ["run", str(root / "JPEGImages" / "a1b2c3"), "--labels", str(keys), "--classes", "davis", "--out", str(out)]
+    assert main(args) == 2
+    (line,) = one_line_errors(capsys)
+    assert str(keys / "00005.png") in line and "object 2, where 00000.png shows object 1" in line
+    assert not out.exists()
+    ids[ids == 2] = 1  # the same object on both key frames: labelled from both
+    write_palette(keys / "00005.png", ids)
+    assert main(args) == 0
+    assert sorted(p.name for p in out.glob("*.png")) == [f"{i:05d}.png" for i in range(6)]

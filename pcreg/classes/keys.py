@@ -35,7 +35,7 @@ from ..validation import check_unmasked
 from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
 
 __all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "object_values",
-           "read_object_mask", "identity_classes", "with_classes",
+           "read_object_mask", "check_one_object", "identity_classes", "with_classes",
            "run_table", "all_unknown"]
 
 #: ``--mapping``'s values.
@@ -211,6 +211,27 @@ def _one_object(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
                          "stores them); --classes davis follows one object and would merge them: save one mask "
                          "per object (0 the background, 255 the object) and run once for each")
     return object_labels(values, ids[0] if ids else None, void)
+
+
+def check_one_object(paths) -> None:
+    """An :class:`InputError` when the object masks at ``paths`` (a folder of key frames' masks, ``--classes davis``)
+    name different objects by their ids (palette indices, or the palette's colours: YouTube-VOS saves a mask of an
+    object that enters later with its own index, and DAVIS 2017 each object with its own): the run follows one
+    object, and masks of two would be carried into each other. A mask that names no id (0/255, one grey value,
+    one colour of no palette) is any object's."""
+    from .mappings import VOID_INDEX, palette_objects
+
+    named: dict[int, Path] = {}
+    for path in paths:
+        values, by_id = read_object_mask(path)
+        ids = palette_objects(values)[0] if by_id else ()
+        for k in (int(k) for k in ids if k != VOID_INDEX):  # a palette's 0/255 is DAVIS 2016's one object
+            if named and k not in named:
+                a, first = next(iter(named.items()))
+                raise InputError(f"{path}: object {k}, where {first.name} shows object {a}: the key frames' masks "
+                                 "follow one object; give each object's masks in a folder of their own (0 the "
+                                 "background, 255 the object) and run once for each")
+            named.setdefault(k, Path(path))
 
 
 def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | None) -> np.ndarray:

@@ -262,5 +262,9 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
             raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}{turned}")
         _check_known(f, lab, table)
         keys[t], seen[t] = lab, f
+    if mapping == "davis":
+        from ..classes.keys import check_one_object
+
+        check_one_object(seen[t] for t in sorted(seen))
     return {t: keys[t] for t in sorted(keys)}
 

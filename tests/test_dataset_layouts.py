@@ -121,3 +121,25 @@ def test_key_masks_of_two_objects_in_one_folder_are_refused_not_carried_into_eac
     write_palette(keys / "00005.png", ids)
     assert main(args) == 0
     assert sorted(p.name for p in out.glob("*.png")) == [f"{i:05d}.png" for i in range(6)]
+
+
+def test_camvids_colour_labels_given_without_their_table_are_refused_naming_it(tmp_path, capsys):
+    """CamVid's ``NAME_L.png`` (its 32 classes' colours) given to ``pcreg run`` with the default table: refused,
+    the line naming the options that read it."""
+    from pcreg.classes.camvid32 import CAMVID32
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(2):
+        cv2.imwrite(str(frames / f"0001TP_{i:06d}.png"), rng.integers(0, 256, (40, 48, 3), dtype=np.uint8))
+    colours = {name: c for name, c, _ in CAMVID32}
+    rgb = np.zeros((40, 48, 3), np.uint8)
+    rgb[:20], rgb[20:, :30], rgb[20:, 30:] = colours["Sky"], colours["Road"], colours["LaneMkgsDriv"]
+    key = tmp_path / "0001TP_000000_L.png"
+    cv2.imwrite(str(key), rgb[:, :, ::-1])
+    out = tmp_path / "out"
+    assert main(["run", str(frames), "--labels", str(key), "--out", str(out)]) == 2
+    (line,) = one_line_errors(capsys)
+    assert str(key) in line and "its colours are CamVid's: --classes camvid11 reads its classes" in line
+    assert main(["run", str(frames), "--labels", str(key), "--classes", "camvid11", "--out", str(out)]) == 0

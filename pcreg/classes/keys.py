@@ -251,7 +251,18 @@ def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | No
         if table.agrees(CAMVID11):  # CamVid's own 32 classes' colours (its download's NAME_L.png), as camvid11's
             return _camvid32(img, name)
         raise InputError(f"{exc}; labels are class ids in a single-channel image, a palette PNG, or the class "
-                         "table's colours") from None
+                         f"table's colours{_camvid_colours_hint(img, name)}") from None
+
+
+def _camvid_colours_hint(img: np.ndarray, name: str) -> str:
+    """What a refusal of a colour label image adds when its colours are CamVid's (its 32 classes', as its download's
+    ``NAME_L.png``, or ``camvid11``'s): the options that read them."""
+    try:
+        _camvid32(img, name)
+    except InputError:
+        return ""
+    return ("; its colours are CamVid's: --classes camvid11 reads its classes (pcreg run's --mapping camvid, and "
+            "--data camvid:, read them as ground and obstacle)")
 
 
 def _camvid32(img: np.ndarray, name: str) -> np.ndarray:

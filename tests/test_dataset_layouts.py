@@ -143,3 +143,44 @@ def test_camvids_colour_labels_given_without_their_table_are_refused_naming_it(t
     (line,) = one_line_errors(capsys)
     assert str(key) in line and "its colours are CamVid's: --classes camvid11 reads its classes" in line
     assert main(["run", str(frames), "--labels", str(key), "--classes", "camvid11", "--out", str(out)]) == 0
+
+
+def test_cityscapes_colour_labels_with_an_opaque_alpha_channel_read_through_their_table(tmp_path):
+    """Cityscapes' ``_color.png`` is RGBA, opaque everywhere: read through a table of its colours as RGB; a label
+    image with transparent pixels is refused naming it."""
+    from pcreg.classes import class_table
+    from pcreg.classes.keys import read_key_labels
+    from pcreg.errors import InputError
+
+    table = {"classes": [{"id": 0, "name": "road", "colour": [128, 64, 128]},
+                         {"id": 1, "name": "sidewalk", "colour": [244, 35, 232]},
+                         {"id": 2, "name": "car", "colour": [0, 0, 142]},
+                         {"id": 3, "name": "unlabeled", "colour": [0, 0, 0]}], "unknown": 3}
+    (tmp_path / "cityscapes.json").write_text(json.dumps(table))
+    ids = np.zeros((20, 30), np.uint8)
+    ids[10:, :15], ids[10:, 15:], ids[0, 0] = 1, 2, 3
+    rgba = np.dstack([np.array([c["colour"] for c in table["classes"]], np.uint8)[ids], np.full(ids.shape, 255, np.uint8)])
+    path = tmp_path / "aachen_000000_000019_gtFine_color.png"
+    cv2.imwrite(str(path), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
+    np.testing.assert_array_equal(read_key_labels(path, class_table(str(tmp_path / "cityscapes.json"))), ids)
+    rgba[:5, :, 3] = 0
+    cv2.imwrite(str(path), cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
+    with pytest.raises(InputError, match="gtFine_color.png: colour labels with transparent pixels"):
+        read_key_labels(path, class_table(str(tmp_path / "cityscapes.json")))
+
+
+def test_frames_with_upper_case_suffixes_are_frames(tmp_path):
+    """A camera's ``IMG_0001.JPG``: frames of ``pcreg run`` and of ``--data davis:`` as ``.jpg`` are, in name
+    order, each output named after its frame."""
+    seq = tmp_path / "cam"
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    for i, (img, mask) in enumerate(frames_and_masks(4)):
+        cv2.imwrite(str(seq / "images" / f"IMG_{i + 1:04d}.JPG"), img)
+        cv2.imwrite(str(seq / "labels" / f"IMG_{i + 1:04d}.png"), mask)
+    clip = load_davis(seq)["cam"]
+    assert [f.name for f in clip] == ["IMG_0001", "IMG_0002", "IMG_0003", "IMG_0004"]
+    out = tmp_path / "out"
+    assert main(["run", str(seq / "images"), "--labels", str(seq / "labels" / "IMG_0001.png"), "--classes", "davis",
+                 "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.glob("*.png")) == [f"IMG_{i:04d}.png" for i in range(1, 5)]

@@ -131,3 +131,27 @@ def test_a_shared_sequence_as_grey_and_rgb_ids_reads_as_its_palette_png(shared_d
     assert list(palette) == ["blackswan_1", "blackswan_2"]
     _same_clips(load_davis(tmp_path / "grey"), palette)
     _same_clips(load_davis(tmp_path / "rgb"), palette)
+
+
+def test_one_objects_grey_ids_with_a_void_border_are_refused_not_read_as_object(tmp_path):
+    """DAVIS 2017's one object saved as grey ids: 1 the object, 255 its void border. Read as one object, the
+    border would be object pixels; it is refused as the mask of several objects with void is, and the same
+    mask as a palette PNG reads the border as unknown."""
+    image, mask = frames_and_masks(1, shape=(96, 128))[0]
+    ids = (mask > 0).astype(np.uint8)
+    ids[cv2.dilate(ids, np.ones((5, 5), np.uint8)) > ids] = 255  # a void band around the object, as DAVIS 2017
+    assert (ids == 1).any() and (ids == 255).any()
+    cv2.imwrite(str(tmp_path / "grey.png"), ids)
+    with pytest.raises(InputError, match=r"grey.png: a grey mask of values 0, 1 and 255, .*object 1 with 255 void"
+                                         r".*255 void, as DAVIS 2017"):
+        read_key_labels(tmp_path / "grey.png", DAVIS, "davis")
+    want = (ids == 1).astype(np.uint8)
+    want[ids == 255] = 2
+    np.testing.assert_array_equal(read_key_labels(write_palette(tmp_path / "p.png", ids), DAVIS, "davis"), want)
+    seq = tmp_path / "seq"
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    cv2.imwrite(str(seq / "images" / "00000.jpg"), image)
+    shutil.copy(tmp_path / "grey.png", seq / "labels" / "00000.png")
+    with pytest.raises(DatasetError, match="00000.png: a grey mask of values 0, 1 and 255"):
+        load_dataset(f"davis:{seq}")

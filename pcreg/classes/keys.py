@@ -35,7 +35,7 @@ from ..validation import check_unmasked
 from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
 
 __all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "object_values",
-           "read_object_mask", "identity_classes", "with_classes",
+           "read_object_mask", "check_one_object", "identity_classes", "with_classes",
            "run_table", "all_unknown"]
 
 #: ``--mapping``'s values.
@@ -114,7 +114,7 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
 
 
 #: How to save several objects so that no reader guesses: DAVIS 2017's way.
-_SAVE_OBJECTS = ("save several objects as a palette PNG (indices 1..N the objects, 0 the background, as DAVIS "
+_SAVE_OBJECTS = ("save several objects as a palette PNG (indices 1..N the objects, 0 the background, 255 void, as DAVIS "
                  "2017), or one object as 0 and 255")
 
 
@@ -133,11 +133,12 @@ def _grey_ids(values: np.ndarray, name: str) -> bool:
     values between 1 and 254 (DAVIS 2017's objects saved as grey). One value (DAVIS 2016's 255, or another)
     is one object, as before; so is a 0/255 mask whose values between lie only on its edge, within
     :data:`SOFT_EDGE` px of a 255 pixel (resized: a smoothed edge, read as the object as before). Values below
-    255 beyond that edge, beside 255, are refused, naming them: DAVIS 2017's objects with 255 void, or a mask
-    of other making, cannot be told apart."""
+    255 beyond that edge, beside 255, are refused, naming them, one such value as several: DAVIS 2017's
+    objects with 255 void (one object's 1 with its void border, saved as grey), or a mask of other making,
+    cannot be told apart."""
     present = np.flatnonzero(np.bincount(values.ravel(), minlength=256))
     below = [int(v) for v in present if 0 < v < 255]
-    if len(below) < 2:
+    if not below:
         return False
     if present[-1] == 255:
         import cv2
@@ -147,9 +148,10 @@ def _grey_ids(values: np.ndarray, name: str) -> bool:
         if not np.any((values > 0) & (values < 255) & (near == 0)):
             return False  # a smoothed edge: one object
         raise InputError(f"{name}: a grey mask of values 0, {_listed(below)} and 255, the values between beyond "
-                         f"{SOFT_EDGE} px of the 255s (not a smoothed edge): objects {_listed(below)} with 255 void? "
+                         f"{SOFT_EDGE} px of the 255s (not a smoothed edge): "
+                         f"object{'s' if len(below) > 1 else ''} {_listed(below)} with 255 void? "
                          "It is not assumed; " + _SAVE_OBJECTS)
-    return True
+    return len(below) > 1
 
 
 def _colour_objects(img: np.ndarray, name: str) -> tuple[np.ndarray, bool]:
@@ -211,6 +213,27 @@ def _one_object(data: bytes, name: str, *, limit: int | None) -> np.ndarray:
     return object_labels(values, ids[0] if ids else None, void)
 
 
+def check_one_object(paths) -> None:
+    """An :class:`InputError` when the object masks at ``paths`` (a folder of key frames' masks, ``--classes davis``)
+    name different objects by their ids (palette indices, or the palette's colours: YouTube-VOS saves a mask of an
+    object that enters later with its own index, and DAVIS 2017 each object with its own): the run follows one
+    object, and masks of two would be carried into each other. A mask that names no id (0/255, one grey value,
+    one colour of no palette) is any object's."""
+    from .mappings import VOID_INDEX, palette_objects
+
+    named: dict[int, Path] = {}
+    for path in paths:
+        values, by_id = read_object_mask(path)
+        ids = palette_objects(values)[0] if by_id else ()
+        for k in (int(k) for k in ids if k != VOID_INDEX):  # a palette's 0/255 is DAVIS 2016's one object
+            if named and k not in named:
+                a, first = next(iter(named.items()))
+                raise InputError(f"{path}: object {k}, where {first.name} shows object {a}: the key frames' masks "
+                                 "follow one object; give each object's masks in a folder of their own (0 the "
+                                 "background, 255 the object) and run once for each")
+            named.setdefault(k, Path(path))
+
+
 def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | None) -> np.ndarray:
     """Class ids of ``table`` (:func:`~pcreg.classes.png.decode_label_png`), a grey image saved in colour
     read as grey, a photograph refused with what labels are."""
@@ -228,7 +251,18 @@ def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | No
         if table.agrees(CAMVID11):  # CamVid's own 32 classes' colours (its download's NAME_L.png), as camvid11's
             return _camvid32(img, name)
         raise InputError(f"{exc}; labels are class ids in a single-channel image, a palette PNG, or the class "
-                         "table's colours") from None
+                         f"table's colours{_camvid_colours_hint(img, name)}") from None
+
+
+def _camvid_colours_hint(img: np.ndarray, name: str) -> str:
+    """What a refusal of a colour label image adds when its colours are CamVid's (its 32 classes', as its download's
+    ``NAME_L.png``, or ``camvid11``'s): the options that read them."""
+    try:
+        _camvid32(img, name)
+    except InputError:
+        return ""
+    return ("; its colours are CamVid's: --classes camvid11 reads its classes (pcreg run's --mapping camvid, and "
+            "--data camvid:, read them as ground and obstacle)")
 
 
 def _camvid32(img: np.ndarray, name: str) -> np.ndarray:

@@ -92,6 +92,18 @@ def palette_image(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     return idx, pal
 
 
+def _voc_palette_hint(idx: np.ndarray, pal: np.ndarray) -> str:
+    """What a refusal of a palette PNG adds when the colours of its indices are VOC's colour map, as DAVIS,
+    YouTube-VOS and VOC save masks: which table reads an object mask, and that classes need theirs."""
+    from .files import voc_colormap
+
+    present = np.flatnonzero(np.bincount(idx.ravel(), minlength=256))
+    if len(present) < 2 or not np.array_equal(pal[present], voc_colormap(256)[present]):
+        return ""
+    return ("; its colours are VOC's colour map, as DAVIS and YouTube-VOS save object masks: --classes davis reads "
+            "one object's mask, and a table of the classes its indices stand for (--classes FILE) reads classes")
+
+
 def _decode_palette(data: bytes, name: str, table: ClassTable) -> np.ndarray:
     idx, pal = palette_image(data, name)
     lab = table.check_labels(idx, name)
@@ -100,7 +112,8 @@ def _decode_palette(data: bytes, name: str, table: ClassTable) -> np.ndarray:
         said = tuple(int(x) for x in pal[v])
         if said != colours[int(v)]:
             raise InputError(f"{name}: its palette colours index {v} {said}, the class table "
-                             f"{table.name_of(int(v))!r} {colours[int(v)]} (another class table?)")
+                             f"{table.name_of(int(v))!r} {colours[int(v)]} (another class table?)"
+                             + _voc_palette_hint(idx, pal))
     return lab
 
 

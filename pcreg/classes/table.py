@@ -225,8 +225,21 @@ class ClassTable:
         valid = self.valid()
         bad_values = [int(v) for v in present if not valid[v]]
         if bad_values:
-            raise InputError(f"{where}: label value {bad_values[0]} is not a class id ({self.describe()})")
+            raise InputError(f"{where}: label value {bad_values[0]} is not a class id ({self.describe()})"
+                             + (self._ignore_hint(bad_values[0] != 255)
+                                if bad_values[-1] == 255 and self.n_known > 2 and set(present.tolist()) - {0, 255}
+                                else ""))
         return a8
+
+    def _ignore_hint(self, also: bool) -> str:
+        """What a refusal of label value 255 (``also``: of another value, 255 among the file's too) adds with a table
+        of more than two known classes: the value many datasets mark pixels to ignore with, which no table can hold;
+        how to give those pixels. (With two, ``lagr``'s, :func:`pcreg.classes.mappings.mask_hint` says what such a
+        file may be.)"""
+        return (f"; {'it also holds 255, ' if also else '255 is '}"
+                f"the value many datasets ignore (Cityscapes' trainIds, CamVid or VOC as some loaders give "
+                f"them), and a table's ids are 0..254: write those pixels as its unknown, "
+                f"{self.unknown} ({listed_name(self.unknown_class.name)}), and the other values as its ids")
 
     def paint(self, labels: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8 RGB: each pixel in its class's colour (``labels`` checked first)."""

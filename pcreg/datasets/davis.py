@@ -81,6 +81,7 @@ def _locate(p: Path) -> tuple[dict[str, tuple[Path, Path]], Path, Path | None, s
     else:  # pcreg's layout, a folder of sequences
         seqs = [d for d in _dirs(p) if (d / "images").is_dir()]
         if not seqs:
+            _refuse_youtube_vos(p)
             raise DatasetError(f"{p}: no DAVIS sequence (no SEQ/images/ folder, and no JPEGImages/480p/ of the "
                                "official layout)")
         return {d.name: (d / "images", d / "labels") for d in seqs}, p, None, None
@@ -88,6 +89,21 @@ def _locate(p: Path) -> tuple[dict[str, tuple[Path, Path]], Path, Path | None, s
     if not seqs:
         raise DatasetError(f"{img_root}: no sequence folder")
     return {d.name: (d, ann_root / d.name) for d in seqs}, beside, root[0], root[1]
+
+
+def _refuse_youtube_vos(p: Path) -> None:
+    """A :class:`DatasetError` when ``p`` is laid out as YouTube-VOS is (``ROOT/JPEGImages/SEQ/`` beside
+    ``ROOT/Annotations/SEQ/``, no resolution folder; ``p`` the root or a folder of it): its masks are not DAVIS's
+    (every fifth frame, objects that enter after the first frame, ``meta.json`` naming them), so it is not read
+    as DAVIS's official layout. The line says how to give its sequences."""
+    for root in (p, p.parent, p.parent.parent):
+        if root.name in ("JPEGImages", "Annotations") or not (root / "JPEGImages").is_dir() \
+                or not (root / "Annotations").is_dir() or _official_root(root) is not None:
+            continue
+        raise DatasetError(f"{p}: YouTube-VOS's layout (JPEGImages/SEQ/ beside Annotations/SEQ/, no 480p/ folder) is "
+                           "not read as DAVIS's, whose masks cover every frame and the first frame's objects: give "
+                           "each sequence as SEQ/images/ and SEQ/labels/, a mask for every frame (0 the background, "
+                           "1..N the objects of the first frame)")
 
 
 def select_sequences(path: str | Path, *, split: str | None = None

@@ -251,7 +251,9 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     for f, t in zip(files, positions):
         if t is None:
             raise InputError(f"{f}: names no frame of {frames.path} ({named_frames(frames)})"
-                             + ("" if frames.selection.to_dict() is None else " among those chosen"))
+                             + ("" if frames.selection.to_dict() is None else " among those chosen")
+                             + "; a key label is named as its frame: NAME.png labels the frame NAME (as do "
+                               "NAME_L.png and CVAT's frame_NNNNNN.png)")
         if t in seen:
             raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
         lab = read_labels(f, mapping, table)
@@ -260,5 +262,9 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
             raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}{turned}")
         _check_known(f, lab, table)
         keys[t], seen[t] = lab, f
+    if mapping == "davis":
+        from ..classes.keys import check_one_object
+
+        check_one_object(seen[t] for t in sorted(seen))
     return {t: keys[t] for t in sorted(keys)}
 

@@ -89,6 +89,26 @@ def test_scipy_small_and_small_nonleaf(leaf):
 
 
 @pytest.mark.parametrize("index_type", INDEXES)
+def test_scipy_minkowski_norms_other_than_2_are_refused_and_eps_is_met(index_type):
+    """test_points_near_l1 / test_points_near_linf and test_approx: pcreg searches Euclidean distances only,
+    so p=1 and p=inf are refused (they were answered with Euclidean distances, unasked); eps=0.1 allows an answer
+    up to 1.1 times the nearest, and the exact answer is given."""
+    rng = np.random.RandomState(1234)
+    data = rng.randn(100, 3)
+    index = index_type(data)
+    x = rng.randn(3)
+    for p in (1, np.inf, 3):
+        with pytest.raises(ValueError, match=r"Euclidean distances \(p=2\) only"):
+            index.query(x, p=p, distance_upper_bound=0.2)
+    assert index.query(x, p=2) == cKDTree(data).query(x, p=2)
+    d_real, i_real = index.query(x)
+    d, i = index.query(x, eps=0.1)
+    assert d <= d_real * 1.1 and (d, i) == (d_real, i_real)
+    with pytest.raises(TypeError):
+        index.query(x, distance_upper_bond=0.2)  # a misspelt option is an error, not an unbounded search
+
+
+@pytest.mark.parametrize("index_type", INDEXES)
 def test_scipy_vectorization_shapes_and_k(index_type):
     """Test_vectorization_cKDTree: a single query gives a float and an integer; queries (2, 4, 3) and k = n + 23
     are cKDTree's, refused here with what pcreg answers instead ((K, d) queries, k = 1); non-contiguous queries

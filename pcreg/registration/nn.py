@@ -226,12 +226,18 @@ class NearestIndex:
         search(q, squared_bound(max_distance), *self.search_arrays, out_d2, out_i)
         return out_d2, out_i
 
-    def query(self, x: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf, workers: int = 1, **_ignored
-              ) -> tuple[np.ndarray, np.ndarray]:
+    def query(self, x: np.ndarray, k: int = 1, *, eps: float = 0.0, p: float = 2.0,
+              distance_upper_bound: float = np.inf, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """As ``cKDTree.query(x, k=1, distance_upper_bound=...)``: (distances, indices), ``inf`` and ``n``
-        where no point is closer than the bound."""
+        where no point is closer than the bound. ``x`` is one point (d,) or (K, d) points.
+
+        eps : accepted for cKDTree's interface; the answer is exact, so within any ``1 + eps``.
+        p : the Minkowski norm; only 2 (Euclidean) is searched, any other is refused.
+        """
         if k != 1:
             raise ValueError(f"{type(self).__name__} answers k=1 queries only")
+        if p != 2:
+            raise ValueError(f"{type(self).__name__} searches Euclidean distances (p=2) only, got p={p}")
         x = np.asarray(x, dtype=np.float64)
         single = x.ndim == 1
         d2, idx = self.nearest(x[None] if single else x, distance_upper_bound,

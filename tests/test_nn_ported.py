@@ -142,6 +142,25 @@ def test_scipy_build_modes_give_the_same_answers():
         np.testing.assert_array_equal(KDTreeIndex(points, leaf=leaf).nearest(q)[1], want[1])
 
 
+@pytest.mark.parametrize("index_type", INDEXES)
+def test_scipy_copy_data_an_index_ignores_later_changes_to_its_points(index_type):
+    """test_kdtree_copy_data: the index answers the same after the caller overwrites the array it was built
+    from. The searches kept their own sorted copy, but the ICP step's moments (:meth:`move_and_match`) read the
+    caller's array: overwritten, they summed the new coordinates with the old neighbours."""
+    rng = np.random.RandomState(0)
+    points = rng.randn(500, 3)
+    index = index_type(points)
+    q = np.ascontiguousarray(points[:200] + 0.01)
+    before_nn = index.nearest(q, 0.5)
+    before = index.move_and_match(q.copy(), None, 0.5)
+    points[...] = rng.randn(500, 3)
+    np.testing.assert_array_equal(index.nearest(q, 0.5)[1], before_nn[1])
+    after = index.move_and_match(q.copy(), None, 0.5)
+    np.testing.assert_array_equal(after[1], before[1])
+    for a, b in zip(after[2], before[2]):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("m", [2, 3])
 def test_scipy_duplicated_inputs(m):
     """test_kdtree_duplicated_inputs: 1024 points, the first half all ones, the second all twos, leafsize 1:
@@ -175,6 +194,43 @@ def test_scipy_empty_input_is_refused(index_type):
         index_type(np.empty((0, 3)))
     with pytest.raises(InputError, match="target: the cloud is empty"):
         pcreg.icp(np.ones((2, 3)), np.empty((0, 3)))
+
+
+@pytest.mark.parametrize("index_type", INDEXES)
+def test_scipy_complex_data_is_refused(index_type):
+    """test_kdtree_complex_data (gh-9108): complex points and queries are refused; they were cut to their real
+    parts with a ComplexWarning."""
+    points = np.random.default_rng(0).random((10, 4)).view(complex)
+    with pytest.raises(ValueError, match="points must be real coordinates, got complex"):
+        index_type(points)
+    index = index_type(points.real)
+    for search in (index.query, index.nearest):
+        with pytest.raises(ValueError, match="queries must be real coordinates, got complex"):
+            search(points)
+    with pytest.raises(InputError, match="not a numeric array"):
+        pcreg.icp(points, points.real)
+
+
+@pytest.mark.parametrize("index_type", INDEXES)
+def test_scipy_nonfinite_points_are_refused_and_nonfinite_queries_have_no_neighbour(index_type):
+    """test_kdtree_nan and test_nonfinite_inputs_gh_18223: a NaN among the points is refused (the grid took it
+    silently, and put it in a cell of its own making); a NaN or inf query scipy refuses, pcreg answers "no
+    neighbour" (the ICP refuses NaN and inf at its door)."""
+    vals = [1, 5, -10, 7, -4, -16, -6, 6, 3, -11]
+    data = np.column_stack([np.concatenate([vals, np.full(10, np.nan)]), np.zeros(20)])
+    coords = np.random.default_rng(12345).uniform(size=(100, 3), low=0.0, high=0.1)
+    index = index_type(coords)
+    for bad in (np.nan, np.inf):
+        broken = coords.copy()
+        broken[0, :] = bad
+        with pytest.raises(ValueError, match="needs finite points"):
+            index_type(broken)
+        with pytest.raises(ValueError, match="needs finite points"):
+            index_type(data)
+        d, i = index.query([bad] * 3)
+        assert (d, i) == (np.inf, 100)
+        with pytest.raises(InputError, match="NaN or inf"):
+            pcreg.icp(broken, coords)
 
 
 def test_scipy_gh_18800_array_likes():

@@ -194,6 +194,24 @@ def squared_bound(max_distance: float) -> float:
     return r * r if np.isfinite(r) else np.inf
 
 
+def _real_array(a, what: str) -> np.ndarray:
+    """``a`` as float64; complex numbers are refused rather than cut to their real parts."""
+    if np.iscomplexobj(a):
+        raise ValueError(f"{what} must be real coordinates, got complex numbers")
+    return np.asarray(a, dtype=np.float64)
+
+
+def index_points(points, name: str) -> np.ndarray:
+    """The points of an index: a C-contiguous float64 copy of (M, 2|3) finite real coordinates, M >= 1 (a copy:
+    the index answers the same after its caller changes ``points``)."""
+    pts = np.array(_real_array(points, f"{name}'s points"), dtype=np.float64, order="C")
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3) or pts.shape[0] < 1:
+        raise ValueError(f"{name} needs an (M, 2|3) array with M >= 1, got shape {pts.shape}")
+    if not np.isfinite(pts).all():  # a NaN has no side of a cut, nor a cell
+        raise ValueError(f"{name} needs finite points")
+    return pts
+
+
 class NearestIndex:
     """What the reference ICP's searches share: :meth:`nearest` over the search's own compiled kernels
     (``_query_kernels``: serial, parallel; each takes the queries, the squared bound, the search's
@@ -216,7 +234,7 @@ class NearestIndex:
         workers : threads (None: all of numba's where :func:`threaded` says so, else 1; 1 where
             :func:`can_thread` says no).
         """
-        q = np.ascontiguousarray(queries, dtype=np.float64)
+        q = np.ascontiguousarray(_real_array(queries, "queries"))
         if q.ndim != 2 or q.shape[1] != self.dim:
             raise ValueError(f"queries must be (K, {self.dim}), got shape {q.shape}")
         out_d2 = np.empty(q.shape[0], np.float64)
@@ -238,7 +256,7 @@ class NearestIndex:
             raise ValueError(f"{type(self).__name__} answers k=1 queries only")
         if p != 2:
             raise ValueError(f"{type(self).__name__} searches Euclidean distances (p=2) only, got p={p}")
-        x = np.asarray(x, dtype=np.float64)
+        x = _real_array(x, "queries")
         single = x.ndim == 1
         d2, idx = self.nearest(x[None] if single else x, distance_upper_bound,
                                workers=None if workers in (-1, None) else workers)
@@ -264,9 +282,7 @@ class GridIndex(NearestIndex):
     _query_kernels = (_query_serial, _query_parallel)
 
     def __init__(self, points: np.ndarray, *, cell: float | None = None, max_distance: float | None = None) -> None:
-        pts = np.ascontiguousarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] not in (2, 3) or pts.shape[0] < 1:
-            raise ValueError(f"GridIndex needs an (M, 2|3) array with M >= 1, got shape {pts.shape}")
+        pts = index_points(points, "GridIndex")
         m, d = pts.shape
         lo, hi = _bounds(pts)
         extent = hi - lo

@@ -271,6 +271,24 @@ def test_scipy_large_and_tiny_coordinates_answer_as_cKDTree():
 
 
 
+@pytest.mark.parametrize("scale", [1e300, 1e150, 5e-324, 1e-300, 1e12])
+@pytest.mark.parametrize("d", [2, 3])
+def test_points_spread_over_any_float_range_are_indexed(scale, d):
+    """The same large- and small-coordinate cases over a cloud: points spread over 1e150 or 1e300 (their volume
+    beyond float range) or over a few subnormal numbers (a volume of 0). The grid chose a cell of inf or 0 for them and
+    refused its own choice ("cell size must be a positive number", a cell it was not given); it answers now.
+    Points more than the largest float apart along an axis it refuses, saying so; the KD-tree takes them."""
+    rng = np.random.default_rng(d)
+    data = rng.integers(-50, 50, (300, d)) * scale
+    q = np.concatenate([data[:50], rng.integers(-60, 60, (50, d)) * scale])
+    for index_type in INDEXES:
+        _assert_brute_force(index_type(data), q, data)
+    far = np.array([[-1e308] + [0.0] * (d - 1), [1e308] + [0.0] * (d - 1), [0.0] * (d - 1) + [1.0]] * 20)
+    with pytest.raises(ValueError, match="less than the largest float apart"):
+        GridIndex(far)
+    assert KDTreeIndex(far).nearest(far[:3])[1].tolist() == [0, 1, 2]
+
+
 # --- nanoflann tests/test_kdtree_basic.cpp, tests/test_helpers.h ------------------------------------------------
 
 def _nanoflann_cloud(rng, n: int, dim: int, dtype) -> np.ndarray:

@@ -267,6 +267,20 @@ class NearestIndex:
         return (dist[0], idx[0]) if single else (dist, idx)
 
 
+def _density_cell(extent: np.ndarray, m: int) -> float:
+    """The side of cubic cells that share the occupied dimensions' volume among ``m`` points,
+    :data:`POINTS_PER_CELL` a cell (1 where all points are one; summed in logarithms where the volume leaves
+    float range: extents of 1e300, or of a few subnormal numbers)."""
+    pos = extent[extent > 0]
+    if pos.size == 0:
+        return 1.0
+    with np.errstate(over="ignore", under="ignore"):
+        cell = float((np.prod(pos) * POINTS_PER_CELL / m) ** (1.0 / pos.size))
+    if not 0.0 < cell < np.inf:
+        cell = float(np.exp((np.log(pos).sum() + np.log(POINTS_PER_CELL / m)) / pos.size))
+    return max(cell, float(pos.max()) / 2**20)
+
+
 class GridIndex(NearestIndex):
     """Exact nearest-neighbour index of (M, 2|3) points on a uniform grid.
 
@@ -285,16 +299,13 @@ class GridIndex(NearestIndex):
         pts = index_points(points, "GridIndex")
         m, d = pts.shape
         lo, hi = _bounds(pts)
-        extent = hi - lo
+        with np.errstate(over="ignore"):
+            extent = hi - lo
+        if not np.isfinite(extent).all():
+            raise ValueError("GridIndex needs points less than the largest float apart along each axis "
+                             "(KDTreeIndex takes any finite points)")
         if cell is None:
-            span = np.maximum(extent, 0.0)
-            pos = span[span > 0]
-            if pos.size == 0:
-                cell = 1.0
-            else:
-                # cells of the occupied dimensions' volume shared among the points
-                cell = float((np.prod(pos) * POINTS_PER_CELL / m) ** (1.0 / pos.size))
-                cell = max(cell, float(pos.max()) / 2**20)
+            cell = _density_cell(extent, m)
             if max_distance is not None and np.isfinite(max_distance) and max_distance > 0:
                 cell = max(min(cell, float(max_distance)), cell * MIN_CELL_OF_DENSITY)
         cell = float(cell)

@@ -196,6 +196,18 @@ def test_scipy_empty_input_is_refused(index_type):
         pcreg.icp(np.ones((2, 3)), np.empty((0, 3)))
 
 
+@pytest.mark.parametrize("m", [1, 4, 7])
+def test_scipy_and_nanoflann_other_dimensions_are_refused(m):
+    """scipy's trees and nanoflann's take any dimension (test_kdtree_nan is 1-D, _Test_random 4-D, nanoflann's
+    clouds 7-D): pcreg's indexes and its ICP take 2-D and 3-D points, and refuse others naming the shape."""
+    points = np.random.default_rng(m).random((20, m))
+    for index_type in INDEXES:
+        with pytest.raises(ValueError, match=rf"needs an \(M, 2\|3\) array with M >= 1, got shape \(20, {m}\)"):
+            index_type(points)
+    with pytest.raises(InputError, match=rf"expected an \(N, 2\) or \(N, 3\) array of points, got shape \(20, {m}\)"):
+        pcreg.icp(points, points)
+
+
 @pytest.mark.parametrize("index_type", INDEXES)
 def test_scipy_complex_data_is_refused(index_type):
     """test_kdtree_complex_data (gh-9108): complex points and queries are refused; they were cut to their real

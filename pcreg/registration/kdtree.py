@@ -34,7 +34,7 @@ import numpy as np
 
 from ._kd_kernels import _build, _move_query_parallel, _move_query_serial, _query_parallel, _query_serial
 from ._nn_kernels import _bounds, _moments
-from .nn import NearestIndex, can_thread, squared_bound, threaded
+from .nn import NearestIndex, can_thread, index_points, squared_bound, threaded
 
 #: Points a leaf holds at most: a leaf's points are read in a row, faster than the nodes above them. The
 #: index built and searched 15 times (the bench's ICP clouds, one thread, medians of 7 alternating
@@ -63,13 +63,9 @@ class KDTreeIndex(NearestIndex):
     _query_kernels = (_query_serial, _query_parallel)
 
     def __init__(self, points: np.ndarray, *, leaf: int = LEAF_SIZE, max_distance: float | None = None) -> None:
-        pts = np.ascontiguousarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] not in (2, 3) or pts.shape[0] < 1:
-            raise ValueError(f"KDTreeIndex needs an (M, 2|3) array with M >= 1, got shape {pts.shape}")
+        pts = index_points(points, "KDTreeIndex")
         if int(leaf) < 1:
             raise ValueError(f"leaf must hold at least one point, got {leaf}")
-        if not np.isfinite(pts).all():  # a NaN would have no side of a cut: refused, not split for ever
-            raise ValueError("KDTreeIndex needs finite points")
         lo, hi = _bounds(pts)
         self.dim = pts.shape[1]
         self.n = pts.shape[0]

@@ -194,6 +194,24 @@ def squared_bound(max_distance: float) -> float:
     return r * r if np.isfinite(r) else np.inf
 
 
+def _real_array(a, what: str) -> np.ndarray:
+    """``a`` as float64; complex numbers are refused rather than cut to their real parts."""
+    if np.iscomplexobj(a):
+        raise ValueError(f"{what} must be real coordinates, got complex numbers")
+    return np.asarray(a, dtype=np.float64)
+
+
+def index_points(points, name: str) -> np.ndarray:
+    """The points of an index: a C-contiguous float64 copy of (M, 2|3) finite real coordinates, M >= 1 (a copy:
+    the index answers the same after its caller changes ``points``)."""
+    pts = np.array(_real_array(points, f"{name}'s points"), dtype=np.float64, order="C")
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3) or pts.shape[0] < 1:
+        raise ValueError(f"{name} needs an (M, 2|3) array with M >= 1, got shape {pts.shape}")
+    if not np.isfinite(pts).all():  # a NaN has no side of a cut, nor a cell
+        raise ValueError(f"{name} needs finite points")
+    return pts
+
+
 class NearestIndex:
     """What the reference ICP's searches share: :meth:`nearest` over the search's own compiled kernels
     (``_query_kernels``: serial, parallel; each takes the queries, the squared bound, the search's
@@ -216,7 +234,7 @@ class NearestIndex:
         workers : threads (None: all of numba's where :func:`threaded` says so, else 1; 1 where
             :func:`can_thread` says no).
         """
-        q = np.ascontiguousarray(queries, dtype=np.float64)
+        q = np.ascontiguousarray(_real_array(queries, "queries"))
         if q.ndim != 2 or q.shape[1] != self.dim:
             raise ValueError(f"queries must be (K, {self.dim}), got shape {q.shape}")
         out_d2 = np.empty(q.shape[0], np.float64)
@@ -226,13 +244,19 @@ class NearestIndex:
         search(q, squared_bound(max_distance), *self.search_arrays, out_d2, out_i)
         return out_d2, out_i
 
-    def query(self, x: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf, workers: int = 1, **_ignored
-              ) -> tuple[np.ndarray, np.ndarray]:
+    def query(self, x: np.ndarray, k: int = 1, *, eps: float = 0.0, p: float = 2.0,
+              distance_upper_bound: float = np.inf, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """As ``cKDTree.query(x, k=1, distance_upper_bound=...)``: (distances, indices), ``inf`` and ``n``
-        where no point is closer than the bound."""
+        where no point is closer than the bound. ``x`` is one point (d,) or (K, d) points.
+
+        eps : accepted for cKDTree's interface; the answer is exact, so within any ``1 + eps``.
+        p : the Minkowski norm; only 2 (Euclidean) is searched, any other is refused.
+        """
         if k != 1:
             raise ValueError(f"{type(self).__name__} answers k=1 queries only")
-        x = np.asarray(x, dtype=np.float64)
+        if p != 2:
+            raise ValueError(f"{type(self).__name__} searches Euclidean distances (p=2) only, got p={p}")
+        x = _real_array(x, "queries")
         single = x.ndim == 1
         d2, idx = self.nearest(x[None] if single else x, distance_upper_bound,
                                workers=None if workers in (-1, None) else workers)
@@ -241,6 +265,20 @@ class NearestIndex:
         dist[miss] = np.inf
         idx[miss] = self.n
         return (dist[0], idx[0]) if single else (dist, idx)
+
+
+def _density_cell(extent: np.ndarray, m: int) -> float:
+    """The side of cubic cells that share the occupied dimensions' volume among ``m`` points,
+    :data:`POINTS_PER_CELL` a cell (1 where all points are one; summed in logarithms where the volume leaves
+    float range: extents of 1e300, or of a few subnormal numbers)."""
+    pos = extent[extent > 0]
+    if pos.size == 0:
+        return 1.0
+    with np.errstate(over="ignore", under="ignore"):
+        cell = float((np.prod(pos) * POINTS_PER_CELL / m) ** (1.0 / pos.size))
+    if not 0.0 < cell < np.inf:
+        cell = float(np.exp((np.log(pos).sum() + np.log(POINTS_PER_CELL / m)) / pos.size))
+    return max(cell, float(pos.max()) / 2**20)
 
 
 class GridIndex(NearestIndex):
@@ -258,21 +296,16 @@ class GridIndex(NearestIndex):
     _query_kernels = (_query_serial, _query_parallel)
 
     def __init__(self, points: np.ndarray, *, cell: float | None = None, max_distance: float | None = None) -> None:
-        pts = np.ascontiguousarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] not in (2, 3) or pts.shape[0] < 1:
-            raise ValueError(f"GridIndex needs an (M, 2|3) array with M >= 1, got shape {pts.shape}")
+        pts = index_points(points, "GridIndex")
         m, d = pts.shape
         lo, hi = _bounds(pts)
-        extent = hi - lo
+        with np.errstate(over="ignore"):
+            extent = hi - lo
+        if not np.isfinite(extent).all():
+            raise ValueError("GridIndex needs points less than the largest float apart along each axis "
+                             "(KDTreeIndex takes any finite points)")
         if cell is None:
-            span = np.maximum(extent, 0.0)
-            pos = span[span > 0]
-            if pos.size == 0:
-                cell = 1.0
-            else:
-                # cells of the occupied dimensions' volume shared among the points
-                cell = float((np.prod(pos) * POINTS_PER_CELL / m) ** (1.0 / pos.size))
-                cell = max(cell, float(pos.max()) / 2**20)
+            cell = _density_cell(extent, m)
             if max_distance is not None and np.isfinite(max_distance) and max_distance > 0:
                 cell = max(min(cell, float(max_distance)), cell * MIN_CELL_OF_DENSITY)
         cell = float(cell)

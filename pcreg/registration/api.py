@@ -22,6 +22,7 @@ from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
                     GlobalStep, InitialGrid, finest_grid_shape, refine_field)
 from .dense.levels import check_prepared
+from .global_search import orb_hypotheses
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule, refuse_a_line_for_open3d
@@ -363,12 +364,15 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
 def _model_fit(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, best: Candidate,
                test: Plausibility, shape: tuple[int, ...]):
     """:func:`~pcreg.registration.plausibility.model_fit` of a model narrower than the projective one, the
-    check and the test on (None otherwise)."""
+    check and the test on (None otherwise); ORB's homography of the pair is a second start of its projective
+    refinement (a wrong result is not near the projective fit that shows it)."""
     if (config.model not in NARROWER or not config.plausibility.model_check
             or config.plausibility.min_inlier_ratio is None):
         return None
     richer = _refiner(reference, config, RICHER_MODEL, "reference")  # pcreg's own step: Open3D's has no projective model
-    return model_fit(best, moving, richer, test, shape)
+    orb = orb_hypotheses(reference.image, moving.image, level=1, model=RICHER_MODEL, seed=config.search.seed,
+                         reference_valid=reference.valid, moving_valid=moving.valid)
+    return model_fit(best, moving, richer, test, shape, starts=tuple(orb))
 
 
 def _refiner(reference: CloudPyramid, config: RegisterConfig, model: str, backend: str, *,

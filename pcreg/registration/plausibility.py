@@ -209,7 +209,8 @@ edges of views the model makes by up to 2.1 px there (5 of 73 such results marke
 docs/algorithms.md)."""
 
 
-def model_fit(best: Candidate, moving: CloudPyramid, richer, test: Plausibility, shape: tuple[int, ...]):
+def model_fit(best: Candidate, moving: CloudPyramid, richer, test: Plausibility, shape: tuple[int, ...], *,
+              starts: tuple[np.ndarray, ...] = ()):
     """Whether ``best``'s model fits the images: its transform refined by ``richer`` (a
     :class:`~pcreg.registration.refine.CoarseToFine` of :data:`RICHER_MODEL`) at pyramid level 1 (twice its
     gate, then its gate, as a start is refined there) and both transforms measured there as ``test`` measures
@@ -218,24 +219,30 @@ def model_fit(best: Candidate, moving: CloudPyramid, richer, test: Plausibility,
     over the result's overlapping edge points there) and moves some of the moving edge points that land on
     the reference by more than :data:`SHIFT_PX`: a perspective view registered by a similarity, whose best
     similarity leaves its far side pixels off. Views that the model makes gain nothing (docs/algorithms.md).
-    Returns a :class:`~pcreg.registration.result.ModelFit`, or None where the richer refinement fails or
+
+    starts : further starts of the richer refinement, T_ref_mov of the richer model (ORB's homography): a
+        result far from the alignment (a wrong one) is not near the richer fit that would show it; the richer
+        transform that aligns the most edge points is the one compared.
+    Returns a :class:`~pcreg.registration.result.ModelFit`, or None where every richer refinement fails or
     degenerates (nothing is said then)."""
     from .result import ModelFit
-    from .transforms import apply, degeneracy
+    from .transforms import apply
 
     level = min(1, len(moving) - 1, len(test.reference) - 1)
     if len(moving[level]) < 3 or len(test.reference[level]) < 3:
         return None
-    T = R = best.refined.matrix
-    gate = richer.max_correspondence_distance * 2**level
-    try:
-        for dist in (2 * gate, gate):
-            R = richer.at_level(moving, R, level, dist=dist, final=False).matrix
-    except (RegistrationError, np.linalg.LinAlgError):
+    T = best.refined.matrix
+    richest = None
+    for start in (T, *starts):
+        R = _richer_fit(richer, moving, start, level, shape)
+        if R is not None:
+            ev = test.measure(moving, R, level)
+            if richest is None or ev.inlier_ratio > richest[1].inlier_ratio:
+                richest = (R, ev)
+    if richest is None:
         return None
-    if degeneracy(R, shape) is not None:
-        return None
-    own, other = test.measure(moving, T, level), test.measure(moving, R, level)
+    R, other = richest
+    own = test.measure(moving, T, level)
     p, n = own.inlier_ratio, max(1, own.overlap_points)
     points = moving[level].points
     here = apply(T, points)
@@ -246,3 +253,18 @@ def model_fit(best: Candidate, moving: CloudPyramid, richer, test: Plausibility,
     gain = other.inlier_ratio - p > SIGNIFICANCE * np.sqrt(p * (1.0 - p) / n)
     fits = not (gain and shift > SHIFT_PX)
     return ModelFit(RICHER_MODEL, float(other.inlier_ratio), float(p), shift, fits=fits)
+
+
+def _richer_fit(richer, moving: CloudPyramid, start: np.ndarray, level: int, shape: tuple[int, ...]):
+    """``start`` refined by ``richer`` at ``level`` (twice its gate, then its gate); None where the
+    refinement fails or degenerates."""
+    from .transforms import degeneracy
+
+    R = start
+    gate = richer.max_correspondence_distance * 2**level
+    try:
+        for dist in (2 * gate, gate):
+            R = richer.at_level(moving, R, level, dist=dist, final=False).matrix
+    except (RegistrationError, np.linalg.LinAlgError):
+        return None
+    return None if degeneracy(R, shape) is not None else R

@@ -66,6 +66,16 @@ def test_register_says_the_motion_and_its_evidence_in_a_line(pair):
     assert share > 50 and abs(times - share / chance) < 0.1
 
 
+def test_the_evidence_line_names_no_refusal_when_the_test_is_off(pair):
+    """With ``--min-inlier-ratio 0`` nothing is refused, so the line says the test is off instead of the
+    factor under which a registration would have been refused."""
+    d, _ = pair
+    p = run("register", d / "ref.png", d / "mov.png", "--min-inlier-ratio", "0")
+    assert p.returncode == 0, p.stderr
+    said = p.stdout.splitlines()[1]
+    assert "refused under" not in said and said.endswith("(no plausibility test: --min-inlier-ratio 0)"), said
+
+
 def test_warped_output_keeps_the_moving_files_depth_and_channels(pair, tmp_path):
     """A 16-bit grey moving image is written warped as 16-bit grey, an RGBA one keeps its alpha (transparent
     outside the moving image): both were written as 8-bit RGB."""

@@ -129,6 +129,7 @@ def test_the_default_identity_does_not_name_follow():
 @pytest.mark.parametrize("extra, message", [
     (["--model", "flow"], "--model: the scene stream's, not --follow object's"),
     (["--scale", "0.5", "--weight", "1"], "--weight, --scale: the scene stream's"),
+    (["--preset", "fast"], "--preset: the scene stream's, not --follow object's"),
     ("keys", "--follow object follows one key frame's mask, not a folder"),
 ])
 def test_bad_follow_options_are_one_line_and_exit_2(tmp_path, capsys, extra, message):

@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         print_json({"ok": True, **result.to_dict()})
     else:
         print(result)
-        summary = _summary(result, args.model)
+        summary = _summary(result, args.model, tested=config.plausibility.min_inlier_ratio is not None)
         if summary:
             print(summary)
     _say_if_the_model_does_not_fit(result, args.model)
@@ -127,11 +127,12 @@ def _naming_its_file(exc: Exception, images) -> Exception:
     return exc
 
 
-def _summary(result, model: str) -> str:
+def _summary(result, model: str, *, tested: bool = True) -> str:
     """One line a person reads beside the result: the motion (rotation, scale, shift of the moving image's
     origin; the matrix alone for affine and projective) and the evidence, the share of edge points that line up
     against the share unrelated content would give (a registration is refused under
-    :data:`~pcreg.registration.plausibility.CHANCE_FACTOR` times it). Empty for a result without evidence."""
+    :data:`~pcreg.registration.plausibility.CHANCE_FACTOR` times it, unless ``tested`` is False: the test is off).
+    Empty for a result without evidence."""
     import math
 
     from ..registration.plausibility import CHANCE_FACTOR
@@ -147,8 +148,9 @@ def _summary(result, model: str) -> str:
                    + f", shift ({m[0, 2]:.2f}, {m[1, 2]:.2f}) px")
     ratio, chance = result.inlier_ratio, result.chance_ratio
     times = f"{ratio / chance:.1f}x" if chance > 0 else "far above"
+    limit = f"refused under {CHANCE_FACTOR:g}x" if tested else "no plausibility test: --min-inlier-ratio 0"
     return (f"{motion}; {100 * ratio:.1f}% of the moving edge points line up with the reference's, {times} the "
-            f"{100 * chance:.1f}% unrelated content would give (refused under {CHANCE_FACTOR:g}x)")
+            f"{100 * chance:.1f}% unrelated content would give ({limit})")
 
 
 def _say_if_the_model_does_not_fit(result, model: str) -> None:

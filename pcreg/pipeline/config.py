@@ -34,7 +34,7 @@ class PropagatorConfig:
     follow : ``"scene"`` (default: the options above) or ``"object"``: one moving object followed from its
         key-frame mask (:class:`~pcreg.pipeline.follow.ObjectFollower`, its own motion and working size, so
         the options above keep their defaults). On the five shared DAVIS sequences it takes J from 0.552 to
-        0.742; on CamVid's scenes it is worse than plain naive Bayes on three clips of eight.
+        0.752; on CamVid's scenes it is worse than plain naive Bayes on three clips of eight.
     """
 
     model: str = "dense"
@@ -51,6 +51,15 @@ class PropagatorConfig:
         from ..registration.flow import PRESETS
         from ..validation import check_float, short_repr
 
+        if self.follow not in FOLLOWS:
+            raise InputError(f"unknown --follow {short_repr(self.follow)}; choose one of {', '.join(FOLLOWS)}")
+        if self.follow == "object":
+            default = PropagatorConfig()  # before the scene's own checks: they name options it refuses
+            changed = [f"--{name}" for name in ("model", "preset", "backend", "init", "weight", "scale")
+                       if getattr(self, name) != getattr(default, name)]
+            if changed:
+                raise InputError(f"{', '.join(changed)}: the scene stream's, not --follow object's (it has its own "
+                                 "motion and working size)")
         if self.backend not in BACKENDS:
             raise InputError(f"unknown backend {short_repr(self.backend)}; choose one of {', '.join(BACKENDS)}")
         if self.preset is not None and self.model != "flow":
@@ -61,15 +70,6 @@ class PropagatorConfig:
             raise InputError(f"--weight must be a number in 0..{MAX_WEIGHT:g}, got {self.weight}")
         object.__setattr__(self, "weight", float(self.weight))
         object.__setattr__(self, "scale", check_float(self.scale, "--scale", lo=0, lo_open=True, hi=1))
-        if self.follow not in FOLLOWS:
-            raise InputError(f"unknown --follow {short_repr(self.follow)}; choose one of {', '.join(FOLLOWS)}")
-        if self.follow == "object":
-            default = PropagatorConfig()
-            changed = [f"--{name}" for name in ("model", "preset", "backend", "init", "weight", "scale")
-                       if getattr(self, name) != getattr(default, name)]
-            if changed:
-                raise InputError(f"{', '.join(changed)}: the scene stream's, not --follow object's (it has its own "
-                                 "motion and working size)")
 
     def options(self) -> dict:
         """The options as :class:`pcreg.Propagator` takes them and as a run's identity names them: a flow's

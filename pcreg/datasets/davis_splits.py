@@ -53,7 +53,7 @@ class DavisSplit:
         n = len(self.sequences)
         if self.file is not None:
             return f"DAVIS 2016 {self.name} ({self.file}): {n} of {self.available} sequences"
-        return f"all {n} sequence{'s' if n != 1 else ''}" + (f" ({self.why})" if self.why else "")
+        return (f"all {n} sequences" if n != 1 else "its one sequence") + (f" ({self.why})" if self.why else "")
 
     def to_dict(self) -> dict:
         return {"name": self.name, "file": self.file, "sequences": list(self.sequences),

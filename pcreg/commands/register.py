@@ -172,8 +172,10 @@ def _say_if_the_features_disagree(result) -> None:
     (:attr:`~pcreg.registration.result.RegistrationResult.features_agree` False), unless the model check's note
     says why (the model's best approximation is not where the features put the images either)."""
     evidence = getattr(result, "evidence", None)
-    check = None if evidence is None else evidence.features
-    if check is None or check.agree is not False or (evidence.model_fit is not None and not evidence.model_fit.fits):
+    if evidence is None or evidence.features is None or evidence.features.agree is not False:
+        return
+    check, fit = evidence.features, evidence.model_fit
+    if fit is not None and not fit.fits:
         return
     sys.stderr.write(f"pcreg: note: the result disagrees with the images' feature matches: their homography ("
                      f"{check.inliers} of {check.matches} SIFT matches, far more than chance gives) puts points where "

@@ -110,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         if summary:
             print(summary)
     _say_if_the_model_does_not_fit(result, args.model)
+    _say_if_the_features_disagree(result)
     return 0
 
 
@@ -165,6 +166,23 @@ def _say_if_the_model_does_not_fit(result, model: str) -> None:
                      f"this result aligns {100 * fit.inlier_ratio:.1f}% of the edge points against "
                      f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} px; this is the "
                      f"best {model} approximation (--model {fit.model} registers such a view)\n")
+
+
+def _say_if_the_features_disagree(result) -> None:
+    """A note on stderr when the homography of the images' SIFT matches, strongly supported, puts points of the
+    moving image more than 3 px from where the result does
+    (:attr:`~pcreg.registration.result.RegistrationResult.features_agree` False), unless the model check's note
+    says why (the model's best approximation is not where the features put the images either)."""
+    evidence = getattr(result, "evidence", None)
+    if evidence is None or evidence.features is None or evidence.features.agree is not False:
+        return
+    check, fit = evidence.features, evidence.model_fit
+    if fit is not None and not fit.fits:
+        return
+    sys.stderr.write(f"pcreg: note: the result disagrees with the images' feature matches: their homography ("
+                     f"{check.inliers} of {check.matches} SIFT matches, far more than chance gives) puts points where "
+                     f"the matches are up to {check.largest_shift_px:.1f} px from where the result does; the result "
+                     f"may be wrong\n")
 
 
 def _keeps_its_form(stored) -> bool:

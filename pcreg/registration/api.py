@@ -22,6 +22,7 @@ from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
                     GlobalStep, InitialGrid, finest_grid_shape, refine_field)
 from .dense.levels import check_prepared
+from .features import feature_check
 from .global_search import orb_hypotheses
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
@@ -356,23 +357,26 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
         for iteration in best.iterations:
             callback(iteration)
     evidence = test.check(best, mirror=mirror, shape=mov_img.shape, moving=moving)
-    fit = _model_fit(reference, moving, config, best, test, mov_img.shape)
+    checks = _checks(reference, moving, config, best, test, mov_img.shape)
     return _result(best, evidence, tried, mirror, backend=config.backend, seconds=time.perf_counter() - start,
-                   points=(len(moving[0]), len(reference[0])), fit=fit)
+                   points=(len(moving[0]), len(reference[0])), checks=checks)
 
 
-def _model_fit(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, best: Candidate,
-               test: Plausibility, shape: tuple[int, ...]):
-    """:func:`~pcreg.registration.plausibility.model_fit` of a model narrower than the projective one, the
-    check and the test on (None otherwise); ORB's homography of the pair is a second start of its projective
-    refinement (a wrong result is not near the projective fit that shows it)."""
-    if (config.model not in NARROWER or not config.plausibility.model_check
-            or config.plausibility.min_inlier_ratio is None):
-        return None
-    richer = _refiner(reference, config, RICHER_MODEL, "reference")  # pcreg's own step: Open3D's has no projective model
-    orb = orb_hypotheses(reference.image, moving.image, level=1, model=RICHER_MODEL, seed=config.search.seed,
-                         reference_valid=reference.valid, moving_valid=moving.valid)
-    return model_fit(best, moving, richer, test, shape, starts=tuple(orb))
+def _checks(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, best: Candidate,
+            test: Plausibility, shape: tuple[int, ...]) -> tuple:
+    """With the test and ``model_check`` on ((None, None) otherwise): :func:`~.plausibility.model_fit` of a model
+    narrower than the projective one (ORB's homography a second start: a wrong result is not near the projective
+    fit that shows it) and :func:`~.features.feature_check` of every model."""
+    if not config.plausibility.model_check or config.plausibility.min_inlier_ratio is None:
+        return None, None
+    fit = None
+    if config.model in NARROWER:
+        richer = _refiner(reference, config, RICHER_MODEL, "reference")  # pcreg's own step: Open3D's has no projective model
+        orb = orb_hypotheses(reference.image, moving.image, level=1, model=RICHER_MODEL, seed=config.search.seed,
+                             reference_valid=reference.valid, moving_valid=moving.valid)
+        fit = model_fit(best, moving, richer, test, shape, starts=tuple(orb))
+    return fit, feature_check(reference.image, moving.image, best.refined.matrix, reference_valid=reference.valid,
+                              moving_valid=moving.valid, seed=config.search.seed)
 
 
 def _refiner(reference: CloudPyramid, config: RegisterConfig, model: str, backend: str, *,
@@ -503,14 +507,13 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
 
 
 def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate | None, *, backend: str,
-            seconds: float, points: tuple[int, int], fit=None) -> RegistrationResult:
+            seconds: float, points: tuple[int, int], checks: tuple = (None, None)) -> RegistrationResult:
     """The winner as a :class:`RegistrationResult`; ``info`` lists every hypothesis tried."""
     r = best.refined
     return RegistrationResult(
         matrix=r.matrix, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=r.iterations,
         converged=r.converged, backend=backend, seconds=seconds, frames="T_ref_mov",
-        evidence=ImageEvidence(inlier_ratio=evidence.inlier_ratio, chance_ratio=evidence.chance_ratio,
-                               overlap=evidence.overlap, generator=best.generator, model_fit=fit),
+        evidence=ImageEvidence(evidence.inlier_ratio, evidence.chance_ratio, evidence.overlap, best.generator, *checks),
         info={"moving_points": points[0], "reference_points": points[1],
               "hypotheses": [{"generator": c.generator, "inlier_ratio": c.inlier_ratio,
                               "photometric_ncc": c.photometric_ncc} for c in tried],

@@ -166,10 +166,11 @@ class IcpConfig:
 class PlausibilityConfig:
     """The test (:mod:`pcreg.registration.plausibility`). min_inlier_ratio : the share of moving points
     that must land within ``inlier_tolerance`` px of a reference point (:data:`DEFAULT_MIN_INLIER_RATIO`;
-    None turns the test off). model_check : whether a result of a model narrower than the projective one
-    is checked against a projective refinement of it (:func:`pcreg.registration.plausibility.model_fit`:
-    the result's ``model_fit``); the streams and evaluations, whose registrations a richer motion follows
-    or which the check would only slow, turn it off."""
+    None turns the test off). model_check : whether the result is checked: a result of a model narrower than
+    the projective one against a projective refinement of it (:func:`pcreg.registration.plausibility.model_fit`:
+    the result's ``model_fit``), every result against the homography of SIFT matches
+    (:func:`pcreg.registration.features.feature_check`: its ``features``); the streams and evaluations, whose
+    registrations a richer motion follows or which the checks would only slow, turn them off."""
 
     min_inlier_ratio: float | None = DEFAULT_MIN_INLIER_RATIO
     inlier_tolerance: float = 1.0

@@ -35,6 +35,8 @@ class ImageEvidence:
     overlap : share of the moving edge points that land on the reference image.
     generator : which hypothesis generator's candidate won (``"edges"``, ``"fourier_mellin"``, ``"orb"``,
         or ``"init"`` for a given initial guess).
+    model_fit : the result against a projective refinement of it (:class:`ModelFit`), or None.
+    features : the result against the homography of SIFT matches (:class:`FeatureCheck`), or None.
     """
 
     inlier_ratio: float
@@ -42,6 +44,7 @@ class ImageEvidence:
     overlap: float
     generator: str
     model_fit: "ModelFit | None" = None
+    features: "FeatureCheck | None" = None
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,31 @@ class ModelFit:
         return {"model": self.model, "inlier_ratio": float(self.inlier_ratio),
                 "result_inlier_ratio": float(self.result_inlier_ratio),
                 "largest_shift_px": float(self.largest_shift_px), "fits": bool(self.fits)}
+
+
+@dataclass(frozen=True)
+class FeatureCheck:
+    """A registration against the homography of the images' SIFT matches (:attr:`ImageEvidence.features`,
+    :func:`pcreg.registration.features.feature_check`).
+
+    matches : ratio-tested matches whose moving point the homography puts on the reference.
+    inliers : the homography's inliers (MAGSAC, 3 px).
+    largest_shift_px : how far the result puts a point of a 16 px grid of the moving image, inside the inliers'
+        hull, from where the homography puts it (px, the largest).
+    agree : None where the homography is not strongly supported (at most ``8 + 0.3 matches`` inliers, what chance
+        matches reach: :data:`~pcreg.registration.features.SUPPORT`); else False when ``largest_shift_px``
+        exceeds 3 px (:data:`~pcreg.registration.features.AGREE_PX`): the result is not where the features put
+        the images.
+    """
+
+    matches: int
+    inliers: int
+    largest_shift_px: float
+    agree: bool | None
+
+    def to_dict(self) -> dict:
+        return {"matches": int(self.matches), "inliers": int(self.inliers),
+                "largest_shift_px": float(self.largest_shift_px), "agree": self.agree}
 
 
 @dataclass(frozen=True, repr=False)
@@ -158,6 +186,19 @@ class RegistrationResult:
         return None if fit is None else fit.fits
 
     @property
+    def features_agree(self) -> bool | None:
+        """Whether the result agrees with the homography of the images' SIFT matches (``evidence.features``,
+        :class:`FeatureCheck`); None where it was not checked (clouds, the check turned off) or the features are
+        too weak to say."""
+        check = None if self.evidence is None else self.evidence.features
+        return None if check is None else check.agree
+
+    @property
+    def trusted(self) -> bool:
+        """False where a check of the result marked it (:attr:`model_fits` or :attr:`features_agree` False)."""
+        return self.model_fits is not False and self.features_agree is not False
+
+    @property
     def T_ref_mov(self) -> np.ndarray:
         """(3, 3) moving image -> reference image: the ``matrix`` of an image registration."""
         return _named(self, "T_ref_mov")
@@ -177,8 +218,10 @@ class RegistrationResult:
         )
 
     def to_dict(self) -> dict:
-        """JSON-ready dict (``matrix`` as a list of rows; ``model_fit`` where the model was checked)."""
+        """JSON-ready dict (``matrix`` as a list of rows; ``model_fit`` where the model was checked, ``features``
+        where the result was checked against features)."""
         fit = None if self.evidence is None else self.evidence.model_fit
+        check = None if self.evidence is None else self.evidence.features
         return {
             "matrix": self.matrix.tolist(),
             "fitness": float(self.fitness),
@@ -193,6 +236,7 @@ class RegistrationResult:
             "generator": self.generator,
             "frames": self.frames,
             **({} if fit is None else {"model_fit": fit.to_dict()}),
+            **({} if check is None else {"features": check.to_dict()}),
         }
 
 

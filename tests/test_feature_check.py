@@ -1,0 +1,70 @@
+"""A projective registration that edge ICP settled off the alignment was returned with nothing said: there is no
+richer model to check it against, and its edges line up all the same. The result is now also checked against the
+homography of the images' SIFT matches (``RegistrationResult.features_agree``, ``evidence.features``), and
+``pcreg register`` says so."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+
+from pcreg import RegisterConfig, register
+from pcreg.cli import main
+from pcreg.registration.features import strong
+
+
+def _retina_view(shared_data):
+    """retina.jpg under the benchmark's projective view 7 of seed 500 (``tools/bench_warped_photos.py``): the
+    projective registration lines its round outline up, 43 px off."""
+    from test_bench_tools import _load
+
+    bench = _load("bench_warped_photos")
+    img, mov, M, _ = bench.view(7, 500, "projective", shared_data / "photos")
+    return img[:, :, ::-1].copy(), mov[:, :, ::-1].copy(), M, bench.grid_error
+
+
+def test_a_wrong_projective_result_is_marked_by_the_features(shared_data):
+    ref, mov, M, grid_error = _retina_view(shared_data)
+    r = register(ref, mov, model="projective")
+    assert grid_error(r.matrix, M, mov.shape) > 10.0
+    assert r.model_fits is None  # no richer model to check a projective result against
+    check = r.evidence.features
+    assert r.features_agree is False and r.trusted is False, check
+    assert strong(check.inliers, check.matches) and check.largest_shift_px > 3.0
+    assert r.to_dict()["features"]["agree"] is False
+    off = register(ref, mov, config=RegisterConfig(model="projective").replace(model_check=False))
+    np.testing.assert_array_equal(off.matrix, r.matrix)  # the check marks, it does not change the answer
+    assert off.features_agree is None and off.trusted and "features" not in off.to_dict()
+
+
+def test_a_right_result_agrees_with_the_features(shared_data):
+    img = cv2.imread(str(shared_data / "photos" / "coins.png"))[:, :, ::-1].copy()
+    h, w = img.shape[:2]
+    M = np.vstack([cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), 35.0, 1.1), [0, 0, 1]])
+    M[:2, 2] += (20.0, -15.0)
+    M = np.array([[1, 0, 0], [0, 1, 0], [1.5e-4, -1e-4, 1.0]]) @ M
+    mov = cv2.warpPerspective(img, M, (w, h))
+    for model in ("projective", "similarity"):  # right, and the model's best approximation (the model check's)
+        r = register(img, mov, model=model)
+        check = r.evidence.features
+        assert check is not None and strong(check.inliers, check.matches)
+        assert r.features_agree is (model == "projective"), check
+
+
+def test_chance_matches_are_not_strong_support():
+    assert not strong(8, 0) and strong(9, 0)
+    assert not strong(38, 100) and strong(39, 100)
+
+
+def test_pcreg_register_says_the_features_disagree_and_exits_0(shared_data, tmp_path, capsys):
+    ref, mov, _, _ = _retina_view(shared_data)
+    for name, image in (("ref.png", ref), ("mov.png", mov)):
+        cv2.imwrite(str(tmp_path / name), image[:, :, ::-1])
+    assert main(["register", str(tmp_path / "ref.png"), str(tmp_path / "mov.png"), "--model", "projective",
+                 "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["features"]["agree"] is False
+    note = err.strip().splitlines()[-1]
+    assert note.startswith("pcreg: note: the result disagrees with the images' feature matches")

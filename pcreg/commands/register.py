@@ -155,17 +155,17 @@ def _summary(result, model: str, *, tested: bool = True) -> str:
 
 
 def _say_if_the_model_does_not_fit(result, model: str) -> None:
-    """A note on stderr when a projective refinement of the result aligns significantly more edge points
-    (:attr:`~pcreg.registration.result.RegistrationResult.model_fits` False): the transform is the model's best
-    approximation of a view it cannot make."""
+    """A note on stderr when a projective fit (refined from the result or from ORB's homography of the pair)
+    aligns significantly more edge points (:attr:`~pcreg.registration.result.RegistrationResult.model_fits`
+    False): the transform is the model's best approximation of a view it cannot make, or off the alignment."""
     evidence = getattr(result, "evidence", None)  # a dense result has none: a field follows its similarity
     fit = None if evidence is None else evidence.model_fit
     if fit is None or fit.fits:
         return
-    sys.stderr.write(f"pcreg: note: the images differ by more than a {model} motion: a {fit.model} refinement of "
-                     f"this result aligns {100 * fit.inlier_ratio:.1f}% of the edge points against "
-                     f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} px; this is the "
-                     f"best {model} approximation (--model {fit.model} registers such a view)\n")
+    sys.stderr.write(f"pcreg: note: the images differ by more than a {model} motion, or this result is off: a "
+                     f"{fit.model} fit aligns {100 * fit.inlier_ratio:.1f}% of the edge points against this result's "
+                     f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} "
+                     f"px (--model {fit.model} registers such a view)\n")
 
 
 def _say_if_the_features_disagree(result) -> None:

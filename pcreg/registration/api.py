@@ -366,17 +366,17 @@ def _checks(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfi
             test: Plausibility, shape: tuple[int, ...]) -> tuple:
     """With the test and ``model_check`` on ((None, None) otherwise): :func:`~.plausibility.model_fit` of a model
     narrower than the projective one (ORB's homography a second start: a wrong result is not near the projective
-    fit that shows it) and :func:`~.features.feature_check` of every model."""
+    fit that shows it), :func:`~.features.feature_check` of a projective result, which no richer model checks
+    (run on every model it took two to four times the registration's time: docs/benchmarks.md)."""
     if not config.plausibility.model_check or config.plausibility.min_inlier_ratio is None:
         return None, None
-    fit = None
     if config.model in NARROWER:
         richer = _refiner(reference, config, RICHER_MODEL, "reference")  # pcreg's own step: Open3D's has no projective model
         orb = orb_hypotheses(reference.image, moving.image, level=1, model=RICHER_MODEL, seed=config.search.seed,
                              reference_valid=reference.valid, moving_valid=moving.valid)
-        fit = model_fit(best, moving, richer, test, shape, starts=tuple(orb))
-    return fit, feature_check(reference.image, moving.image, best.refined.matrix, reference_valid=reference.valid,
-                              moving_valid=moving.valid, seed=config.search.seed)
+        return model_fit(best, moving, richer, test, shape, starts=tuple(orb)), None
+    return None, feature_check(reference.image, moving.image, best.refined.matrix, reference_valid=reference.valid,
+                               moving_valid=moving.valid, seed=config.search.seed)
 
 
 def _refiner(reference: CloudPyramid, config: RegisterConfig, model: str, backend: str, *,

@@ -168,7 +168,7 @@ class PlausibilityConfig:
     that must land within ``inlier_tolerance`` px of a reference point (:data:`DEFAULT_MIN_INLIER_RATIO`;
     None turns the test off). model_check : whether the result is checked: a result of a model narrower than
     the projective one against a projective refinement of it (:func:`pcreg.registration.plausibility.model_fit`:
-    the result's ``model_fit``), every result against the homography of SIFT matches
+    the result's ``model_fit``), a projective result against the homography of SIFT matches
     (:func:`pcreg.registration.features.feature_check`: its ``features``); the streams and evaluations, whose
     registrations a richer motion follows or which the checks would only slow, turn them off."""
 

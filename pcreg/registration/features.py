@@ -1,6 +1,6 @@
-"""A check of :func:`~pcreg.registration.api.register`'s result that does not read its edges: SIFT features of
-both images, matched and fitted by a homography (MAGSAC), and the result compared with that homography where
-the matches are.
+"""A check of :func:`~pcreg.registration.api.register`'s projective result (which no richer model checks) that
+does not read its edges: SIFT features of both images, matched and fitted by a homography (MAGSAC), and the
+result compared with that homography where the matches are.
 
 Edge ICP can settle off the alignment with edges that line up all the same (a zoom, a scene that is not one
 plane, a whiteboard's lines), and its own evidence cannot tell; a homography of feature matches is found

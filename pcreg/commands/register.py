@@ -170,15 +170,12 @@ def _say_if_the_model_does_not_fit(result, model: str) -> None:
 
 def _say_if_the_features_disagree(result) -> None:
     """A note on stderr when the homography of the images' SIFT matches, strongly supported, puts points of the
-    moving image more than 3 px from where the result does
-    (:attr:`~pcreg.registration.result.RegistrationResult.features_agree` False), unless the model check's note
-    says why (the model's best approximation is not where the features put the images either)."""
+    moving image more than 3 px from where a projective result does
+    (:attr:`~pcreg.registration.result.RegistrationResult.features_agree` False)."""
     evidence = getattr(result, "evidence", None)
     if evidence is None or evidence.features is None or evidence.features.agree is not False:
         return
-    check, fit = evidence.features, evidence.model_fit
-    if fit is not None and not fit.fits:
-        return
+    check = evidence.features
     sys.stderr.write(f"pcreg: note: the result disagrees with the images' feature matches: their homography ("
                      f"{check.inliers} of {check.matches} SIFT matches, far more than chance gives) puts points where "
                      f"the matches are up to {check.largest_shift_px:.1f} px from where the result does; the result "

@@ -1,4 +1,4 @@
-"""pcreg: register images as 2-D/colour point clouds, then classify terrain per pixel.
+"""pcreg: register images as 2-D/colour point clouds, then label images and video per pixel.
 
 The public API is the names in ``__all__``: what a user of the three uses (register, label a stream,
 cross-check) needs. Everything else is importable from its sub-package (``pcreg.registration``,

@@ -23,9 +23,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "register": ("pcreg.commands.register", "register a moving image to a reference image"),
     "crosscheck": ("pcreg.commands.crosscheck", "run ICP implementations (up to ten) on the same input and compare them"),
     "demo": ("pcreg.commands.demo", "the whole story on the built-in synthetic data (what `make demo` runs)"),
-    "run": ("pcreg.commands.run", "label a folder of frames or a video file from a labelled key frame (streaming propagation)"),
+    "run": ("pcreg.commands.run", "label a folder of frames or a video from labelled key frames, in two classes or a table's"),
     "export": ("pcreg.commands.export", "write a pcreg run's labels as an archive an annotation tool imports (CVAT)"),
-    "view": ("pcreg.commands.view", "open a rerun recording, render a screenshot of it, or serve an evaluation's report page"),
+    "view": ("pcreg.commands.view", "open a rerun recording or render a screenshot of it, serve an evaluation's report, review a run's labels"),
 }
 EVALUATIONS: dict[str, tuple[str, str]] = {
     "classification": ("pcreg.commands.evaluate_classification", "thesis Ch. 4: naive Bayes cases I-III"),
@@ -80,14 +80,14 @@ def _add_limits(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="pcreg", description="Register images as point clouds; classify terrain per pixel.")
+    parser = _Parser(prog="pcreg", description="Register images as point clouds; label video per pixel from a few labelled frames.")
     from . import __version__
 
     parser.add_argument("--version", action="version", version=f"pcreg {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, (module, help_) in COMMANDS.items():
         _add(sub, name, module, help_)
-    ev = sub.add_parser("evaluate", help="run one of the thesis's experiments")
+    ev = sub.add_parser("evaluate", help="score pcreg beside baselines: the thesis's experiments, a labelled stream, DAVIS")
     ev_sub = ev.add_subparsers(dest="evaluation", metavar="EXPERIMENT", parser_class=_Parser)
     for name, (module, help_) in EVALUATIONS.items():
         _add(ev_sub, name, module, help_)
@@ -367,7 +367,7 @@ def _end(stopping: bool, saved_limit: str | None, previous) -> None:
 def _one_line(exc: BaseException) -> str:
     # a path that is not UTF-8 holds the file system's escapes (os.fsdecode): shown as \udcXX on any stream
     text = " ".join(str(exc).split()).encode("utf-8", "backslashreplace").decode("utf-8")
-    return text[:500] if text else type(exc).__name__
+    return (text if len(text) <= 500 else text[:497] + "...") if text else type(exc).__name__
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -99,9 +99,11 @@ def read_run(folder: str | Path) -> RunLabels:
     if not any(p.is_file() for p in paths):
         raise InputError(f"{folder}: no label files (none of {', '.join(p.name for p in paths[:3])}"
                          f"{', ...' if len(paths) > 3 else ''})")
-    for p in paths:
+    for p, n in zip(paths, names):
         if not p.is_file():
-            raise InputError(f"{p}: missing (a labelled frame's label file)")
+            raise InputError(f"{p}: missing (the label file of a key frame {folder / STATE} names: the file was "
+                             f"removed, or run.json edited)" if n in keys else f"{p}: missing (a labelled frame's "
+                             "label file)")
     conf_dir = folder / CONFIDENCE
     confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
     table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file

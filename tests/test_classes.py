@@ -63,7 +63,7 @@ def test_camvid_mapping_agrees_with_the_table():
     (((0, "a", (1, 2, 3)), (0, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "share the id"),
     (((0, "a", (1, 2, 3)), (1, "a", (4, 5, 6)), (2, "c", (0, 0, 0))), "share the name"),
     (((0, "a", (1, 2, 3)), (1, "b", (1, 2, 3)), (2, "c", (0, 0, 0))), "share the colour"),
-    (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 6)), (255, "c", (0, 0, 0))), "0..254"),
+    (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 6)), (256, "c", (0, 0, 0))), "0..255"),
     (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 256)), (2, "c", (0, 0, 0))), "three integers"),
     (((0, "a:b", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "holds ':'"),
     # what would break a labelmap.txt line or cannot be written as UTF-8: every line break str.splitlines
@@ -127,8 +127,8 @@ def test_labelmap_forms_datumaro_accepts():
     ("# nothing\n", "no class"),
     ("background:0,0,0::\nroad:1_0,2,3::\ncar:4,5,6::\n", "not R,G,B"),  # int() would read 10
     ("background:0,0,0::\nroad:\u0661,2,3::\ncar:4,5,6::\n", "not R,G,B"),  # an Arabic-Indic 1
-    ("".join(f"c{i}:{i},{i},{i + 1}::\n" for i in range(255)), "256 classes (its background among them); a class "
-     "table holds at most 255"),  # a background added: no line holds an id to name
+    ("".join(f"c{i}:{i},{255 - i},1::\n" for i in range(256)), "257 classes (its background among them); a class "
+     "table holds at most 256"),  # a background added: no line holds an id to name
 ])
 def test_bad_labelmaps(tmp_path, text, needle):
     p = tmp_path / "labelmap.txt"

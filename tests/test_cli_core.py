@@ -461,3 +461,20 @@ def test_a_frames_bar_past_its_estimated_total_counts_on_without_it(capsys):
         assert (bar.n, bar.total) == (3, None)
     err = capsys.readouterr().err
     assert "2/2" in err and "3/2" not in err and "150%" not in err, err
+
+
+def test_an_error_longer_than_a_line_is_cut_saying_so(tmp_path, capsys):
+    """A message past 500 characters (here one listing a table of 200 classes) ends with ``...``, not in the middle
+    of a word."""
+    from pcreg.cli import main
+
+    (tmp_path / "labelmap.txt").write_text("".join(f"class{i}:{i},7,7::\n" for i in range(200)))
+    (tmp_path / "frames").mkdir()
+    for i in range(2):
+        cv2.imwrite(str(tmp_path / "frames" / f"f{i}.png"), np.zeros((8, 8, 3), np.uint8))
+    cv2.imwrite(str(tmp_path / "key.png"), np.full((8, 8), 250, np.uint8))
+    assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "key.png"), "--classes",
+                 str(tmp_path / "labelmap.txt"), "--out", str(tmp_path / "out")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "label value 250 is not a class id" in line
+    assert len(line) == len("pcreg: error: ") + 500 and line.endswith("...")

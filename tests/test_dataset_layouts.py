@@ -64,12 +64,40 @@ def test_labels_whose_void_is_255_are_refused_saying_how_to_give_them(tmp_path, 
                  "plain", "--out", str(out)]) == 2
     (line,) = one_line_errors(capsys)
     assert str(clip / "labels" / "f00.png") in line and "label value 255 is not a class id" in line
-    assert "write those pixels as its unknown, 11 (void)" in line
+    assert "write those pixels as this table's unknown, 11 (void)" in line
     assert main(["run", str(clip / "images"), "--labels", str(clip / "labels" / "f00.png"), "--classes", "camvid11",
                  "--out", str(out)]) == 2
     (line,) = one_line_errors(capsys)
-    assert "Cityscapes' trainIds" in line and "write those pixels as its unknown, 11 (void)" in line
+    assert "Cityscapes' trainIds" in line and "write those pixels as this table's unknown, 11 (void)" in line
     assert not out.exists()
+
+
+def test_labels_whose_void_is_255_run_and_score_through_a_table_whose_unknown_is_255(tmp_path, capsys):
+    """A JSON table whose unknown is 255 reads such labels as they are: the run's labels and scores are those of
+    the same labels with void written as 11 under ``camvid11``."""
+    from pcreg.classes import CAMVID11, read_label_png
+    from pcreg.classes.files import read_table_file, table_json
+
+    clip = _ignore_255_clip(tmp_path / "data" / "c")
+    table = json.loads(table_json(CAMVID11))
+    table["classes"][-1]["id"] = table["unknown"] = 255
+    (tmp_path / "t255.json").write_text(json.dumps(table))
+    eleven = _ignore_255_clip(tmp_path / "data11" / "c")
+    for f in (eleven / "labels").glob("*.png"):
+        ids = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(f), np.where(ids == 255, 11, ids).astype(np.uint8))
+    runs = {}
+    for name, where, classes in (("255", clip, str(tmp_path / "t255.json")), ("11", eleven, "camvid11")):
+        runs[name] = tmp_path / f"run{name}"
+        assert main(["run", str(where / "images"), "--labels", str(where / "labels" / "f00.png"), "--classes",
+                     classes, "--truth", str(where / "labels"), "--out", str(runs[name])]) == 0
+    scored = {k: json.loads((v / "run.json").read_text())["truth"] for k, v in runs.items()}
+    assert scored["255"] == scored["11"] and scored["255"]["known"] == 2 * 40 * 44
+    t255 = read_table_file(tmp_path / "t255.json")
+    assert t255.unknown == 255 and t255.n_known == 11
+    for f in sorted(runs["11"].glob("f*.png")):
+        want = read_label_png(f, CAMVID11)
+        assert np.array_equal(read_label_png(runs["255"] / f.name, t255), np.where(want == 11, 255, want))
 
 
 def test_key_labels_named_as_cityscapes_names_them_are_refused_saying_how_to_name_them(tmp_path, capsys):

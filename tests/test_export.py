@@ -197,6 +197,16 @@ def test_bad_input_one_line_exit_2_nothing_written(run_copy, tmp_path, capsys):
     assert not (out / "export-cvat-mask.zip").exists()
 
 
+def test_a_key_frame_edited_in_run_json_is_said_to_be_run_json_s(run_copy, capsys):
+    """A key frame that run.json names and that has no label file: the file was removed or run.json edited,
+    and the line says both, naming run.json, not only the label file."""
+    state = json.loads((run_copy / "run.json").read_text())
+    state["key_frame"] = "frame_099.png"
+    (run_copy / "run.json").write_text(json.dumps(state))
+    _refused([str(run_copy)], capsys, "frame_099.png: missing", str(run_copy / "run.json"), "run.json edited")
+    assert not (run_copy / "export-cvat-mask.zip").exists()
+
+
 def test_only_the_frames_the_run_counted(run_copy):
     """A step appended after run.json's last commit (a run killed there) is not exported."""
     out = run_copy

@@ -1,7 +1,7 @@
 """A class table: each class's id, name and colour, and which id means unknown (void).
 
 Label arrays hold class ids (uint8). The unknown id marks pixels that belong to no class (unlabelled,
-void): they are never trained on or scored. Every other id is a *known* class. Ids are 0..254.
+void): they are never trained on or scored. Every other id is a *known* class. Ids are 0..255.
 
 Built-in tables (:data:`TABLES`):
 
@@ -48,13 +48,13 @@ def listed_name(name: str) -> str:
         return repr(name)
     return name
 
-#: The most classes a table holds, the unknown among them: ids 0..254 of 8-bit labels.
-MAX_CLASSES = 255
+#: The most classes a table holds, the unknown among them: ids 0..255 of 8-bit labels.
+MAX_CLASSES = 256
 
 
 @dataclass(frozen=True)
 class LabelClass:
-    """One class: ``id`` (0..254, the value in label arrays), ``name``, ``colour`` (R, G, B) 0..255."""
+    """One class: ``id`` (0..255, the value in label arrays), ``name``, ``colour`` (R, G, B) 0..255."""
 
     id: int
     name: str
@@ -90,7 +90,7 @@ def colour_ids(rgb: np.ndarray, colours: Iterable[RGB], ids: Iterable[int]) -> t
 def _check_class(c: LabelClass, where: str) -> LabelClass:
     ok_id = isinstance(c.id, (int, np.integer)) and not isinstance(c.id, bool) and 0 <= int(c.id) < MAX_CLASSES
     if not ok_id:
-        raise InputError(f"{where}: class id {short_repr(c.id)} is not an integer 0..254")
+        raise InputError(f"{where}: class id {short_repr(c.id)} is not an integer 0..255")
     if not isinstance(c.name, str) or not c.name.strip() or c.name != c.name.strip():
         raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it)")
     if any(ch in ":#\x85\u2028\u2029" or ord(ch) < 32 or 0xD800 <= ord(ch) <= 0xDFFF for ch in c.name):
@@ -115,7 +115,7 @@ class ClassTable:
     unknown : the id that means unknown / void (no class): never trained on, never scored.
     source : where the table came from (``"lagr"``, a file's path); not compared.
 
-    Validated on construction (:class:`~pcreg.errors.InputError` naming ``source``): ids 0..254, unique ids,
+    Validated on construction (:class:`~pcreg.errors.InputError` naming ``source``): ids 0..255, unique ids,
     names and colours, the unknown id among them, at least two known classes.
     """
 
@@ -233,13 +233,12 @@ class ClassTable:
 
     def _ignore_hint(self, also: bool) -> str:
         """What a refusal of label value 255 (``also``: of another value, 255 among the file's too) adds with a table
-        of more than two known classes: the value many datasets mark pixels to ignore with, which no table can hold;
-        how to give those pixels. (With two, ``lagr``'s, :func:`pcreg.classes.mappings.mask_hint` says what such a
-        file may be.)"""
-        return (f"; {'it also holds 255, ' if also else '255 is '}"
-                f"the value many datasets ignore (Cityscapes' trainIds, CamVid or VOC as some loaders give "
-                f"them), and a table's ids are 0..254: write those pixels as its unknown, "
-                f"{self.unknown} ({listed_name(self.unknown_class.name)}), and the other values as its ids")
+        of more than two known classes: the value many datasets mark pixels to ignore with, which this table does not
+        hold; how to give those pixels. (With two, ``lagr``'s, :func:`pcreg.classes.mappings.mask_hint` says what
+        such a file may be.)"""
+        return (f"; {'it also holds 255, which' if also else '255'} marks pixels to ignore in many datasets "
+                f"(Cityscapes' trainIds, some CamVid and VOC loaders): a table whose unknown is 255 reads them, or "
+                f"write those pixels as this table's unknown, {self.unknown} ({listed_name(self.unknown_class.name)})")
 
     def paint(self, labels: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8 RGB: each pixel in its class's colour (``labels`` checked first)."""

@@ -347,9 +347,12 @@ class VideoFrames:
         that decodes with errors, is refused where it is met."""
         import av
 
+        from .damage import Timing
+
         s, size = self.selection, None
         with self._open() as container:
             stream = container.streams.video[0]
+            timing = Timing(self.path, checked=container.format.name == "matroska,webm")
             try:
                 for frame in _shown_frames(container, stream, reading.hidden, self.path):
                     i = reading.decoded
@@ -365,6 +368,7 @@ class VideoFrames:
                     if s.stop is not None and i >= s.stop:
                         yield i, frame, turn
                         return
+                    timing.check(i, frame)
                     if frame.is_corrupt:  # concealed by the decoder: a frame cut short or damaged, drawn in part
                         raise InputError(f"{self.path}: frame {i} decodes with errors (part of it is missing): the "
                                          "video is truncated or damaged")
@@ -413,34 +417,16 @@ def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
     the demuxer marks to discard: an MP4's edit list that starts after its first frames (``ffmpeg -ss T -c copy``,
     a phone's trim) keeps them as references, decoded and never shown, though the container's count holds them.
     In an AVI whose index places every frame, a frame the demuxer passes over is refused where it is missed."""
-    places = _frame_places(container, stream)
+    from .damage import check_place, frame_places
+
+    places = frame_places(container, stream)
     read = 0
     for packet in container.demux(stream):
         hidden[0] += bool(getattr(packet, "is_discard", False))
         if places is not None and packet.pos is not None:
-            _check_place(places, read, int(packet.pos), path)
+            check_place(places, read, int(packet.pos), path)
             read += 1
         yield from packet.decode()
-
-
-def _frame_places(container, stream) -> list[int] | None:
-    """Where an AVI's index (``idx1``, or OpenDML's) puts each video frame, in bytes from the file's start, when it
-    places as many as the header declares; else None. The AVI demuxer reads chunk after chunk and passes over one
-    whose header is damaged without a word: every later frame would be read one place early, and labelled so."""
-    entries = getattr(stream, "index_entries", None)
-    if container.format.name != "avi" or entries is None or not stream.frames or len(entries) != stream.frames:
-        return None
-    return [int(e.pos) for e in entries]
-
-
-def _check_place(places: list[int], read: int, pos: int, path: Path) -> None:
-    """An :class:`InputError` when the ``read``-th packet (from 0) lies at or past the index's place of the next frame
-    (``pos``: the packet's data, a chunk header after its index entry): the frames between were passed over."""
-    if read + 1 >= len(places) or pos < places[read + 1]:
-        return
-    skipped = sum(1 for p in places[read + 1:] if p <= pos)
-    raise InputError(f"{path}: frame {read} does not read (its chunk at byte {places[read]} is damaged; {skipped} "
-                     f"frame(s) passed over): the video is truncated or damaged")
 
 
 def _first_interlaced(container, stream) -> bool:

@@ -1,62 +1,82 @@
-"""How a damaged video is told where decoding meets it, before a frame after the damage is numbered wrong.
+"""Where decoding meets a video whose frames may be numbered otherwise than its maker numbered them.
 
 pcreg numbers a video's frames by their count in presentation order (frame ``i`` is the ``i``-th frame shown,
-as an annotation tool that decodes the video numbers it). A frame lost without an error would number every
-later frame one early, and a key frame's labels would be drawn on the frame before the one they were made on:
+as an annotation tool that decodes the video numbers it). A frame lost without an error numbers every later
+frame one early against another copy of the video:
 
-- an AVI's damaged chunk header: its demuxer passes over the chunk; the index tells where every frame lies
-  (:func:`frame_places`, :func:`check_place`);
-- a Matroska file's damaged block header: its demuxer passes over the element and resynchronises at the next
-  it recognises, losing whole blocks (a cluster's frames) without an error. Each frame's time and duration tell
-  it (:class:`Timing`). An MP4's demuxer reads every frame from the index, and its decoder raises on a frame it
-  cannot decode; an MP4's durations are decoding steps, which with B-frames are not the presentation steps.
+- an AVI's damaged chunk header: its demuxer passes over the chunk; the index tells where every frame lies, so
+  a frame passed over is certainly damage and refused (:func:`frame_places`, :func:`check_place`);
+- a Matroska file whose frames' times skip a whole number of frame durations (:class:`Timing`, :class:`Gap`):
+  a damaged block header its demuxer passed over (it resynchronises at the next element it recognises, losing
+  whole blocks without an error), or frames a live capture dropped under load, or a variable frame rate's still
+  stretch. The times cannot tell those apart: the frames go on numbered by count, and the gap is told to the
+  reader of the frames (:attr:`~pcreg.datasets.sources.SourceFrame.gaps`). An MP4's demuxer reads every frame
+  from the index, and its decoder raises on a frame it cannot decode; an MP4's durations are decoding steps,
+  which with B-frames are not the presentation steps.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["Timing", "frame_places", "check_place"]
+__all__ = ["Gap", "Timing", "frame_places", "check_place"]
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Frames missing by the times before frame ``index`` (from 0, as decoded): it comes ``step`` seconds after
+    the frame before, the frames before that one ``every`` seconds apart, so about ``missing`` frames would fill
+    the step."""
+
+    index: int
+    step: float
+    every: float
+    missing: int
+
+    def note(self, path: Path) -> str:
+        """What a reader says of the gap in the video at ``path``."""
+        return (f"{path}: frame {self.index} comes {self.step:.3g} s after the frame before, the frames before it "
+                f"every {self.every:.3g} s: about {self.missing} frame(s) missing there (dropped as it was recorded, "
+                "or a damaged block passed over); frames numbered by count, as annotation tools do; if the key "
+                "labels were drawn on another copy of the video, the frames after this one are numbered early")
 
 
 class Timing:
     """The frames' presentation times held against their durations (a Matroska block's, or the track's default
     duration): in a stream whose frames have so far followed each other one duration apart, a frame that comes a
-    whole number of durations (two or more) after the one before is refused, the frames between missing. A stream
-    whose steps differ from the durations (a variable frame rate: the default duration is the nominal rate) is not
-    checked from that step on."""
+    whole number of durations (two or more) after the one before is a :class:`Gap`, the frames between missing.
+    A stream whose steps differ from the durations (a variable frame rate: the default duration is the nominal
+    rate) is not checked from that step on."""
 
-    #: Steps of one duration that must come before a longer step is taken for a loss (a variable frame rate's first
+    #: Steps of one duration that must come before a longer step is taken for a gap (a variable frame rate's first
     #: step is often longer; a frame lost between the first two is not told).
     REGULAR = 1
 
-    def __init__(self, path: Path, *, checked: bool) -> None:
-        self.path, self.regular = path, 0 if checked else -1
+    def __init__(self, *, checked: bool) -> None:
+        self.regular = 0 if checked else -1
         self.previous: tuple[int, int, float] | None = None  # pts, duration, time base of the frame before
 
-    def check(self, index: int, frame) -> None:
-        """Frame ``index`` (from 0, as decoded), an ``av.VideoFrame``: an :class:`InputError` when frames are
-        missing before it."""
+    def check(self, index: int, frame) -> Gap | None:
+        """Frame ``index`` (from 0, as decoded), an ``av.VideoFrame``: the :class:`Gap` before it, if frames are
+        missing there."""
         if self.regular < 0:
-            return
+            return None
         pts, duration, base = frame.pts, getattr(frame, "duration", 0) or 0, frame.time_base
         previous, self.previous = self.previous, (pts, duration, base) if pts is not None and duration > 0 else None
         if previous is None or self.previous is None or base != previous[2]:
-            return
+            return None
         step, interval = pts - previous[0], previous[1]
         slots = round(step / interval)  # the frame intervals the step spans
         if 4 * abs(step - interval) <= interval:
             self.regular += 1
         elif self.regular >= self.REGULAR and slots >= 2 and 4 * abs(step - slots * interval) <= interval:
-            missing, seconds = slots - 1, float(step * base)
-            raise InputError(f"{self.path}: frame {index} comes {seconds:.3g} s after the frame before, the frames "
-                             f"before it every {float(interval * base):.3g} s: about {missing} frame(s) are missing "
-                             f"there and every later frame would be numbered early; the video is damaged (if its frame "
-                             f"rate changes there, remux it to MP4 to read it as it is: ffmpeg -i IN -c copy OUT.mp4)")
+            return Gap(index, float(step * base), float(interval * base), slots - 1)
         else:
             self.regular = -1
+        return None
 
 
 def frame_places(container, stream) -> list[int] | None:

@@ -96,13 +96,16 @@ class Selection:
 class SourceFrame:
     """One frame of a stream: its ``position`` (0 is the key frame), its ``index`` in the source, its
     ``name`` (a folder's file name; ``{index:06d}`` in a video), the ``stem`` its outputs are named
-    after, and the ``image`` (H, W, 3) uint8 RGB."""
+    after, and the ``image`` (H, W, 3) uint8 RGB. ``gaps``: a video's places where frames are missing by its
+    times (:class:`~pcreg.datasets.damage.Gap`), after the stream's frame before this one and up to this one,
+    told with the frame to whoever reads it (the frames are still numbered by count)."""
 
     position: int
     index: int
     name: str
     stem: str
     image: np.ndarray
+    gaps: tuple = ()
 
 
 def _out_of_count(a: str, b: str) -> bool:
@@ -296,7 +299,8 @@ class VideoFrames:
         too (never converted), so frame ``i`` is the same however the stream got there. From the first frame flagged
         interlaced on, the frames beside a chosen one pass through a
         :class:`~pcreg.datasets.deinterlace.Deinterlacer` (a frame not so flagged comes out as it went in), and a
-        chosen frame is handed on once the frame after it is decoded."""
+        chosen frame is handed on once the frame after it is decoded. Frames missing by the times (a Matroska
+        file's) are handed on with the chosen frame after them, in its ``gaps``."""
         from av.video.reformatter import VideoReformatter
 
         from .deinterlace import Deinterlacer
@@ -313,11 +317,16 @@ class VideoFrames:
         def wanted(i: int) -> bool:
             return i >= target and s.chosen(i)
 
+        before = target - s.every if first > 0 else -1  # the gaps up to the frame before were the earlier frames'
+
         def made(i: int, frame, turn: _Turn) -> SourceFrame:
+            nonlocal before
             reading.yielded = True
             name = f"{i:06d}"
             image = _as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
-            return SourceFrame((i - s.start) // s.every, i, name, name, image)
+            gaps = tuple(g for g in reading.gaps if before < g.index <= i)
+            reading.gaps, before = [g for g in reading.gaps if g.index > i], i
+            return SourceFrame((i - s.start) // s.every, i, name, name, image, gaps)
 
         for i, frame, turn in self._decoded(reading):
             stopped = s.stop is not None and i >= s.stop  # the frame after the last: only the next of the one before
@@ -343,13 +352,16 @@ class VideoFrames:
 
     def _decoded(self, reading: _Reading) -> Iterator[tuple[int, Any, _Turn]]:
         """Every frame of the video in decoding order, as (index, ``av.VideoFrame``, how it is shown), up to the
-        first past the selection's ``stop``; ``reading`` counts them. A frame of another size, or one before ``stop``
-        that decodes with errors, is refused where it is met."""
+        first past the selection's ``stop``; ``reading`` counts them and keeps the gaps in their times. A frame of
+        another size, or one before ``stop`` that decodes with errors, is refused where it is met."""
         import av
+
+        from .damage import Timing
 
         s, size = self.selection, None
         with self._open() as container:
             stream = container.streams.video[0]
+            timing = Timing(checked=container.format.name == "matroska,webm")
             try:
                 for frame in _shown_frames(container, stream, reading.hidden, self.path):
                     i = reading.decoded
@@ -365,6 +377,9 @@ class VideoFrames:
                     if s.stop is not None and i >= s.stop:
                         yield i, frame, turn
                         return
+                    gap = timing.check(i, frame)
+                    if gap is not None:
+                        reading.gaps.append(gap)
                     if frame.is_corrupt:  # concealed by the decoder: a frame cut short or damaged, drawn in part
                         raise InputError(f"{self.path}: frame {i} decodes with errors (part of it is missing): the "
                                          "video is truncated or damaged")
@@ -400,12 +415,13 @@ class VideoFrames:
 @dataclass
 class _Reading:
     """What reading a video met: frames ``decoded``, the last one's time, the ``hidden`` ones (a one-item list, as
-    :func:`_shown_frames` counts them), whether a frame was handed on."""
+    :func:`_shown_frames` counts them), whether a frame was handed on, the gaps in the times not handed on yet."""
 
     decoded: int = 0
     last_time: float | None = None
     hidden: list[int] = field(default_factory=lambda: [0])
     yielded: bool = False
+    gaps: list = field(default_factory=list)
 
 
 def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
@@ -413,34 +429,16 @@ def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
     the demuxer marks to discard: an MP4's edit list that starts after its first frames (``ffmpeg -ss T -c copy``,
     a phone's trim) keeps them as references, decoded and never shown, though the container's count holds them.
     In an AVI whose index places every frame, a frame the demuxer passes over is refused where it is missed."""
-    places = _frame_places(container, stream)
+    from .damage import check_place, frame_places
+
+    places = frame_places(container, stream)
     read = 0
     for packet in container.demux(stream):
         hidden[0] += bool(getattr(packet, "is_discard", False))
         if places is not None and packet.pos is not None:
-            _check_place(places, read, int(packet.pos), path)
+            check_place(places, read, int(packet.pos), path)
             read += 1
         yield from packet.decode()
-
-
-def _frame_places(container, stream) -> list[int] | None:
-    """Where an AVI's index (``idx1``, or OpenDML's) puts each video frame, in bytes from the file's start, when it
-    places as many as the header declares; else None. The AVI demuxer reads chunk after chunk and passes over one
-    whose header is damaged without a word: every later frame would be read one place early, and labelled so."""
-    entries = getattr(stream, "index_entries", None)
-    if container.format.name != "avi" or entries is None or not stream.frames or len(entries) != stream.frames:
-        return None
-    return [int(e.pos) for e in entries]
-
-
-def _check_place(places: list[int], read: int, pos: int, path: Path) -> None:
-    """An :class:`InputError` when the ``read``-th packet (from 0) lies at or past the index's place of the next frame
-    (``pos``: the packet's data, a chunk header after its index entry): the frames between were passed over."""
-    if read + 1 >= len(places) or pos < places[read + 1]:
-        return
-    skipped = sum(1 for p in places[read + 1:] if p <= pos)
-    raise InputError(f"{path}: frame {read} does not read (its chunk at byte {places[read]} is damaged; {skipped} "
-                     f"frame(s) passed over): the video is truncated or damaged")
 
 
 def _first_interlaced(container, stream) -> bool:

@@ -229,6 +229,7 @@ class KeyRun:
             if frame.position > hi:
                 break
             self.check()
+            self.owner.gaps.mark(frame)  # where the video skips frames: said, and committed with the frame
             write_frame(self._hidden(cur["fingerprint"]), frame.position, frame.image, compress=self.compress)
             cur["next"] = frame.position + 1
             self._commit()
@@ -309,13 +310,14 @@ class KeyRun:
         key = next(frames, None)
         if key is None:
             raise InputError(f"{self.frames.path}: the video ends before key frame {self.frames.name(a)}")
+        self.owner.gaps.mark(key)
         clf = self._classifier(s, {a: key.image})
         prop = self._propagator(clf, key.image, self.keys[a], learning=True)
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
-        todo = ((f.position, f.image) for f in frames if f.position >= start)
         references = References(key.image, prop.carry)
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
+            todo = ((f.position, f.image) for f in self.owner.gaps.marked(frames, writer) if f.position >= start)
             for t, image, labels in propagate(prop, todo, check=self.check, where=self.frames.where):
                 self._record(writer, s, cur, t, image, labels, prop.last.confidence, prop.last.to_dict(), prop,
                              clf, after=t + 1, reference=references.of(prop.last))

@@ -18,7 +18,7 @@ import shutil
 from pathlib import Path
 
 __all__ = ["FRAME_SHARE", "PRIOR_SHARE", "CLASSES_SHARE", "frame_bytes", "prior_bytes", "stretch_bytes",
-           "free_bytes", "compress_kept", "disk_note"]
+           "free_bytes", "compress_kept", "disk_note", "choose_kept"]
 
 #: The share of a video frame's bytes (3 a pixel) kept: 446 kB of 922 kB at 640x480, 1.90 MB of 6.22 MB at
 #: 1920x1080.
@@ -87,3 +87,17 @@ def disk_note(need: float, free: int | None, out: Path) -> str | None:
             f"{Path(out) / '.keys'} while it is labelled, and {free / gib:.1f} GiB is free there: the run would "
             "stop when the disk fills (it resumes); free space, add a key frame within the stretch, or give "
             "--out on a larger disk")
+
+
+def choose_kept(job, out: Path) -> None:
+    """Whether ``job`` (a :class:`~pcreg.pipeline.keys_run.KeyRun`) keeps its stretches' files compressed, for
+    the whole run: only when, uncompressed, they would take more than half of what is free under ``out``
+    (:func:`~pcreg.runs.disk.compress_kept`); and a note on stderr before the first frame when even compressed
+    they are expected to take more than is free (:func:`~pcreg.runs.disk.disk_note`)."""
+    import sys
+
+    free = free_bytes(out)
+    job.compress = compress_kept(job.kept_bytes(compressed=False), free)
+    note = disk_note(job.kept_bytes(), free, out) if job.compress else None
+    if note:
+        sys.stderr.write(f"pcreg: note: {note}\n")

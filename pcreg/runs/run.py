@@ -16,8 +16,9 @@ Outputs in ``out``, each written atomically (:mod:`pcreg.runs.files`, :mod:`pcre
   1 obstacle; a key frame's own labels as given);
 - ``steps.jsonl``: one line per labelled frame (:meth:`pcreg.Propagator.step`'s report, and the frame's
   error against the truth when there is one), appended;
-- ``run.json``: the run's identity, how far it has come, how many registrations fell back and the running
-  error against the truth: rewritten after every frame, it is the commit point;
+- ``run.json``: the run's identity, how far it has come, how many registrations fell back, the running
+  error against the truth and the places a video skips frames by its times (``gaps``, :mod:`pcreg.runs.gaps`):
+  rewritten after every frame, it is the commit point;
 - ``carry-0.npz`` and ``carry-1.npz``: what each step handed to the next (:class:`pcreg.pipeline.stream.Carry`,
   the dense field's control grid, and what naive Bayes has learned from the stream), frame t's in
   ``carry-{t % 2}.npz``, so the one of the last frame counted is always there (a folder of key frames
@@ -105,10 +106,13 @@ class Run:
     the identity names (:func:`pcreg.classes.keys.run_table`)."""
 
     def __init__(self, frames, out: Path, identity: dict | None, *, truth=None, confidence: bool = False) -> None:
+        from .gaps import GapMarks
+
         self.frames, self.out, self.identity = frames, Path(out), identity
         self.table = run_table(identity)
         self.truth, self.confidence = truth, confidence
         self.state: dict = {}
+        self.gaps = GapMarks(self)  # where the video skips frames by its times: said, and counted in run.json
 
     # -- labelling ----------------------------------------------------------------------------------
 
@@ -164,6 +168,8 @@ class Run:
         frames, out = self.frames, self.out
         _, second, decoded = pending
         start = self.open_key(labels, force=request.force)
+        if self.gaps.mark(pending[0]):  # frames missing before the key frame
+            self.commit()
         # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
         # never where the run stops (decoding finds the end)
         total = len(frames) if frames.kind == "folder" else frames.count()
@@ -186,7 +192,8 @@ class Run:
                 progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
                 WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             self.name_recording(request.record)
-            prepared = ((f.position, PreparedFrame.of(f.image, name="frame")) for f in read_ahead(todo))
+            prepared = ((f.position, PreparedFrame.of(f.image, name="frame"))
+                        for f in self.gaps.marked(read_ahead(todo), writer))
             # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
             # reads the features the step made
             references = References(pending[0].image, prop.carry)
@@ -206,11 +213,12 @@ class Run:
         from .._runner import check_interrupted, progress, tick
         from ..pipeline.keys_run import KeyRun
         from ..recording.recorder import open_recording
+        from .disk import choose_kept
 
         frames = self.frames
         job = KeyRun(self, keys, request.config)
         job.start(force=request.force)
-        _choose_kept(job, self.out)
+        choose_kept(job, self.out)
         if job.finished and request.record is not None and Path(request.record).exists() and not request.force:
             self._say_done(request, 0, sorted(keys))  # the recording is this finished run's: nothing to add to it
             return
@@ -233,6 +241,7 @@ class Run:
         import sys
 
         out, s = self.out, self.state
+        self.gaps.summary()
         if done == 0:
             if start is None and not s.get("lines"):  # no step ever: every frame is a key frame
                 print(f"{out}: every frame is a key frame ({len(keys)}): their labels are written as given, none carried")
@@ -560,22 +569,6 @@ def _notes_before_the_first_frame(keys: dict, table, scale: float, frames) -> No
 
     notes = frames.note(), run_note(keys.values(), table, scale, available_bytes())  # the key labels: the frames' size
     for note in filter(None, notes):
-        sys.stderr.write(f"pcreg: note: {note}\n")
-
-
-def _choose_kept(job, out: Path) -> None:
-    """Whether ``job`` (a :class:`~pcreg.pipeline.keys_run.KeyRun`) keeps its stretches' files compressed, for
-    the whole run: only when, uncompressed, they would take more than half of what is free under ``out``
-    (:func:`~pcreg.runs.disk.compress_kept`); and a note on stderr before the first frame when even compressed
-    they are expected to take more than is free (:func:`~pcreg.runs.disk.disk_note`)."""
-    import sys
-
-    from .disk import compress_kept, disk_note, free_bytes
-
-    free = free_bytes(out)
-    job.compress = compress_kept(job.kept_bytes(compressed=False), free)
-    note = disk_note(job.kept_bytes(), free, out) if job.compress else None
-    if note:
         sys.stderr.write(f"pcreg: note: {note}\n")
 
 

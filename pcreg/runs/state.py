@@ -1,5 +1,6 @@
 """A run's ``run.json``: what a run of ``pcreg run`` is (its identity: inputs and options), how far it
-has come, and its running error against the truth. Rewritten atomically after every frame, it is the
+has come, its running error against the truth, and where its video skips frames by its times (``gaps``,
+:mod:`pcreg.runs.gaps`; only when it does). Rewritten atomically after every frame, it is the
 commit point: a frame counts once run.json counts it.
 
 Two kinds: a run from one label image (``key_frame``, ``done``) and a run from a folder of key frames
@@ -77,9 +78,12 @@ def _keys_state_problem(state: dict) -> str | None:
 
 def state_problem(state) -> str | None:
     """What in a run.json (one key frame's, or a folder of key frames') is not as pcreg run writes it."""
+    from .gaps import gaps_problem
+
     if not isinstance(state, dict):
         return "its top level"
-    return (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
+    problem = (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
+    return "gaps" if problem is None and gaps_problem(state.get("gaps")) else problem
 
 
 def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | Path | None,

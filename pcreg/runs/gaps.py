@@ -1,0 +1,103 @@
+"""Where a run's video skips frames by its times (:class:`~pcreg.datasets.damage.Gap`: frames dropped as it was
+recorded, a variable frame rate's still stretch, or a damaged block its demuxer passed over): the run goes on,
+its frames numbered by count as annotation tools number them, and says so.
+
+Each place is said on stderr by the run loop that reads the frame after it (never by the thread that decodes
+ahead), the first :data:`SAID` one by one and then once that more are counted, and counted in run.json's
+``gaps``, committed with the frames: ``{"places": N, "missing": K, "last": NAME, "listed": {NAME: k, ...}}``,
+``listed`` naming the frame after each of the first :data:`LISTED` places and about how many frames are missing
+before it, ``last`` the frame after the last place counted (a pass or a resumed run that decodes the frames again
+counts none twice). A run without such a place has no ``gaps``.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Iterable, Iterator
+
+from .state import STATE
+
+__all__ = ["GapMarks", "LISTED", "SAID", "gaps_problem"]
+
+#: The places run.json's ``gaps`` lists by name (the rest counted): run.json is rewritten at every frame.
+LISTED = 100
+#: The places a run says on stderr one by one; the rest are counted, and the count is said at the end.
+SAID = 3
+
+
+def _name(index: int) -> str:
+    return f"{index:06d}"  # a video's frame's name (:meth:`~pcreg.datasets.sources.VideoFrames.name`)
+
+
+def _say(line: str) -> None:
+    """A note on stderr, above a progress bar when one is drawn there."""
+    from tqdm.auto import tqdm
+
+    tqdm.write(f"pcreg: note: {line}", file=sys.stderr)
+
+
+def gaps_problem(gaps) -> bool:
+    """Whether run.json's ``gaps`` (None when there is none) is not as :class:`GapMarks` writes it."""
+    if gaps is None:
+        return False
+    if not isinstance(gaps, dict) or not isinstance(gaps.get("listed"), dict) or not isinstance(gaps.get("last"), str):
+        return True
+    counts = [gaps.get("places"), gaps.get("missing"), *gaps["listed"].values()]
+    return not all(type(c) is int and c >= 1 for c in counts) or not gaps["last"].isdigit()
+
+
+class GapMarks:
+    """The places a run's video skips frames, for ``run`` (a :class:`~pcreg.runs.run.Run`: its frames' path, its
+    ``out`` and its ``state``, run.json's content)."""
+
+    def __init__(self, run) -> None:
+        self.run, self.said, self.last = run, 0, -1
+
+    def mark(self, frame, writer=None) -> bool:
+        """Say and count the gaps ``frame`` (a :class:`~pcreg.datasets.sources.SourceFrame`) comes after, those not
+        counted yet; counted in the run's state by ``writer`` (a :class:`~pcreg.outputs.WriteBehind` that commits
+        it) when one is given, else at once (the caller commits). Whether there were any."""
+        counted = self.run.state.get("gaps")
+        last = max(self.last, -1 if counted is None else int(counted["last"]))
+        gaps = [g for g in getattr(frame, "gaps", ()) if g.index > last]
+        if not gaps:
+            return False
+        self.last = gaps[-1].index
+        path = self.run.frames.path
+        for g in gaps:
+            self.said += 1
+            if self.said <= SAID:
+                _say(g.note(path))
+            elif self.said == SAID + 1:
+                _say(f"{path}: frames missing before frame {g.index} too; further places are not said one by one but "
+                     f"counted in {self.run.out / STATE} (\"gaps\")")
+        if writer is None:
+            self._count(gaps)
+        else:
+            writer.submit(self._count, gaps)
+        return True
+
+    def marked(self, frames: Iterable, writer=None) -> Iterator:
+        """``frames`` as they come, each one's gaps marked (:meth:`mark`) as it is taken."""
+        for frame in frames:
+            self.mark(frame, writer)
+            yield frame
+
+    def _count(self, gaps: list) -> None:
+        state = self.run.state
+        old = state.get("gaps") or {"places": 0, "missing": 0, "last": "", "listed": {}}
+        listed = dict(old["listed"])
+        for g in gaps[:max(0, LISTED - len(listed))]:
+            listed[_name(g.index)] = g.missing
+        state["gaps"] = {"places": old["places"] + len(gaps), "missing": old["missing"] + sum(g.missing for g in gaps),
+                         "last": _name(gaps[-1].index), "listed": listed}
+
+    def summary(self) -> None:
+        """At the end of the run: how many places skip frames, and where they are counted; nothing without one."""
+        gaps = self.run.state.get("gaps")
+        if not gaps:
+            return
+        first = min(gaps["listed"], default=gaps["last"])
+        _say(f"{self.run.frames.path}: about {gaps['missing']} frame(s) missing by its times at {gaps['places']} "
+             f"place(s), the first before frame {int(first)}; counted in {self.run.out / STATE} (\"gaps\"), the "
+             "frames numbered by count")

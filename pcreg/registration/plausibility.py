@@ -224,8 +224,8 @@ def model_fit(best: Candidate, moving: CloudPyramid, richer, test: Plausibility,
         result far from the alignment (a wrong one) is not near the richer fit that would show it; the richer
         transform that aligns the most edge points is the one compared. A start that moves none of those edge
         points by more than :data:`SHIFT_PX` from the result is the result to the check's own tolerance: it is
-        not refined again (refined, it ended within 1.5 px of the result's refinement on the registration
-        benchmark's pairs, docs/benchmarks.md).
+        not refined again (refined, it ended within 1.1 px of the result's refinement on the 33 such pairs of
+        the registration benchmark, docs/benchmarks.md).
     Returns a :class:`~pcreg.registration.result.ModelFit`, or None where every richer refinement fails or
     degenerates (nothing is said then)."""
     from .result import ModelFit

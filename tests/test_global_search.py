@@ -11,7 +11,7 @@ from pcreg.datasets.textures import KINDS, texture
 from pcreg.errors import InputError
 from pcreg.registration.clouds import cloud_pyramid
 from pcreg.registration.global_search import (alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
-                                              orb_hypotheses, photometric_agreement)
+                                              orb_fit, orb_hypotheses, orb_matches, photometric_agreement)
 from pcreg.registration.reference import build_tree
 
 from _images import moved, rigid_about_centre
@@ -256,3 +256,27 @@ def test_unrelated_photographs_are_not_called_mirror_images(shared_data):
     with pytest.raises(pcreg.RegistrationError) as info:
         pcreg.register(a, b)
     assert "mirror" not in str(info.value)
+
+
+def test_the_search_matches_orb_features_once_per_moving_pyramid_and_level():
+    """The ORB generator's matches are the model check's at the same level (same images, same masks): computed
+    once, and the same as matching afresh; the mirrored image's are its own."""
+    from pcreg import RegisterConfig
+    from pcreg.registration.api import _pyramids, _search
+
+    T = rigid_about_centre(TEX.shape, 40.0, 6.0, -4.0)
+    mov = moved(TEX, T)
+    config = RegisterConfig()
+    p = config.pyramid
+    ref_p, mov_p = _pyramids(TEX, mov, None, None, levels=p.levels, sampler=p.sampler, canny_percentile=p.canny_percentile,
+                             seed=0, masks=("auto", "auto"), max_points=(p.reference_max_points, p.max_points))
+    *_, search = _search(ref_p, mov_p, config, "auto", keep_iterations=False)
+    kept = search.orb_matches(mov_p, 1)
+    assert search.orb_matches(mov_p, 1) is kept
+    fresh = orb_matches(TEX, mov, level=1, reference_valid=ref_p.valid, moving_valid=mov_p.valid)
+    np.testing.assert_array_equal(kept.moving, fresh.moving)
+    np.testing.assert_array_equal(kept.reference, fresh.reference)
+    for model in ("similarity", "projective"):
+        np.testing.assert_array_equal(orb_fit(kept, model=model), orb_hypotheses(TEX, mov, level=1, model=model))
+    mirrored = mov_p.mirrored()
+    assert search.orb_matches(mirrored, 1) is not kept and search.orb_matches(mirrored, 1) is search.orb_matches(mirrored, 1)

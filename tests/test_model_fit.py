@@ -77,6 +77,27 @@ def test_a_result_far_from_the_projective_fit_is_marked(shared_data):
     fit = r.evidence.model_fit
     assert r.model_fits is False, fit
     assert fit.inlier_ratio > fit.result_inlier_ratio and fit.largest_shift_px > 3.0
+    assert fit.starts == 2  # ORB's homography, far from the result, refined too
+
+
+@pytest.mark.parametrize("model", ["similarity", "affine"])
+def test_an_orb_homography_that_agrees_with_the_result_is_not_refined_again(shared_data, model):
+    """Where ORB's homography moves no edge point that lands on the reference more than 3 px from the result,
+    refining it would repeat the refinement from the result: the check refines the result alone."""
+    from pcreg.registration.global_search import orb_hypotheses
+    from pcreg.registration.transforms import apply
+
+    ref, mov, M = _pair(shared_data, (0.0, 0.0))
+    r = register(ref, mov, model=model)
+    (H,) = orb_hypotheses(ref, mov, level=1, model="projective")
+    ys, xs = np.mgrid[8:mov.shape[0]:16, 8:mov.shape[1]:16]
+    grid = np.column_stack([xs.ravel(), ys.ravel()]).astype(float)
+    here = apply(r.matrix, grid)
+    inside = (here[:, 0] >= 0) & (here[:, 0] <= ref.shape[1] - 1) & (here[:, 1] >= 0) & (here[:, 1] <= ref.shape[0] - 1)
+    assert np.max(np.linalg.norm(apply(H, grid[inside]) - here[inside], axis=1)) < 3.0  # the two starts agree
+    fit = r.evidence.model_fit
+    assert r.model_fits is True and fit.starts == 1, fit
+    assert r.to_dict()["model_fit"]["starts"] == 1
 
 def test_a_projective_registration_is_not_checked(shared_data):
     ref, mov, M = _pair(shared_data, (1.5e-4, -1e-4))

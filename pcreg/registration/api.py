@@ -23,7 +23,7 @@ from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseRefer
                     GlobalStep, InitialGrid, finest_grid_shape, refine_field)
 from .dense.levels import check_prepared
 from .features import feature_check
-from .global_search import orb_hypotheses
+from .global_search import orb_fit
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule, refuse_a_line_for_open3d
@@ -350,43 +350,45 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
                                   sampler=p.sampler, canny_percentile=p.canny_percentile, seed=config.search.seed,
                                   masks=(reference_mask, moving_mask), max_points=(p.reference_max_points, p.max_points),
                                   given=(reference_image, moving_image))
-    best, tried, mirror, test = _search(reference, moving, config,
+    best, tried, mirror, test, search = _search(reference, moving, config,
                                         config.search.init if start_matrix is None else start_matrix,
                                         keep_iterations=callback is not None)
     if callback is not None:
         for iteration in best.iterations:
             callback(iteration)
     evidence = test.check(best, mirror=mirror, shape=mov_img.shape, moving=moving)
-    checks = _checks(reference, moving, config, best, test, mov_img.shape)
+    checks = _checks(reference, moving, config, best, test, search, mov_img.shape)
     return _result(best, evidence, tried, mirror, backend=config.backend, seconds=time.perf_counter() - start,
                    points=(len(moving[0]), len(reference[0])), checks=checks)
 
 
 def _checks(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, best: Candidate,
-            test: Plausibility, shape: tuple[int, ...]) -> tuple:
+            test: Plausibility, search: GlobalSearch, shape: tuple[int, ...]) -> tuple:
     """With the test and ``model_check`` on ((None, None) otherwise): :func:`~.plausibility.model_fit` of a model
     narrower than the projective one (ORB's homography a second start: a wrong result is not near the projective
     fit that shows it), :func:`~.features.feature_check` of a projective result, which no richer model checks
-    (run on every model it took two to four times the registration's time: docs/benchmarks.md)."""
+    (run on every model it took two to four times the registration's time: docs/benchmarks.md). The model check
+    shares the search's KD-trees of the reference and its ORB matches at level 1, where the search made them."""
     if not config.plausibility.model_check or config.plausibility.min_inlier_ratio is None:
         return None, None
     if config.model in NARROWER:
-        richer = _refiner(reference, config, RICHER_MODEL, "reference")  # pcreg's own step: Open3D's has no projective model
-        orb = orb_hypotheses(reference.image, moving.image, level=1, model=RICHER_MODEL, seed=config.search.seed,
-                             reference_valid=reference.valid, moving_valid=moving.valid)
+        # pcreg's own step (Open3D's has no projective model) onto the search's reference trees
+        richer = _refiner(reference, config, RICHER_MODEL, "reference", trees=search.refiner.trees)
+        orb = orb_fit(search.orb_matches(moving, 1), model=RICHER_MODEL, seed=config.search.seed)
         return model_fit(best, moving, richer, test, shape, starts=tuple(orb)), None
     return None, feature_check(reference.image, moving.image, best.refined.matrix, reference_valid=reference.valid,
                                moving_valid=moving.valid, seed=config.search.seed)
 
 
 def _refiner(reference: CloudPyramid, config: RegisterConfig, model: str, backend: str, *,
-             point_to_line: bool = False) -> CoarseToFine:
-    """The coarse-to-fine ICP of ``model`` with ``backend``'s step onto ``reference``, with ``config``'s ICP options."""
+             point_to_line: bool = False, trees: dict | None = None) -> CoarseToFine:
+    """The coarse-to-fine ICP of ``model`` with ``backend``'s step onto ``reference``, with ``config``'s ICP options
+    (``trees``: another refinement's KD-trees of ``reference``, shared)."""
     icp = config.icp
     return CoarseToFine(reference, icp_step(backend),
                         settings=IcpSettings(model=model, relative_fitness=icp.relative_fitness, weights=icp.weights),
                         max_correspondence_distance=icp.max_correspondence_distance, iterations=icp.iterations,
-                        relative_rmse=icp.relative_rmse, point_to_line=point_to_line)
+                        relative_rmse=icp.relative_rmse, point_to_line=point_to_line, trees=trees)
 
 
 def _configured(config: RegisterConfig, *, model: str | None, backend: str | None, init) -> RegisterConfig:
@@ -558,11 +560,12 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
 
 
 def _search(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, init, *,
-            keep_iterations: bool) -> tuple[Candidate, list[Candidate], Candidate | None, Plausibility]:
+            keep_iterations: bool) -> tuple[Candidate, list[Candidate], Candidate | None, Plausibility, GlobalSearch]:
     """:func:`register`'s search: the coarse-to-fine ICP, the plausibility test and the hypotheses'
     search, each built from its part of ``config`` on the two pyramids, then the candidates refined from
     ``init`` (a name or a 3x3 start, :func:`_candidates`). Returns the best candidate, every one tried,
-    the mirrored image's best (or None) and the test, which judges the best. ``keep_iterations``: each
+    the mirrored image's best (or None), the test, which judges the best, and the search (whose ORB matches and
+    reference trees the checks share). ``keep_iterations``: each
     candidate keeps its ICP iterations (a callback reports the best's, instead of refining it a second
     time)."""
     icp, plausibility, s = config.icp, config.plausibility, config.search
@@ -577,7 +580,7 @@ def _search(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfi
     if not tried:
         raise search.nothing_refined()
     best = max(tried, key=lambda c: c.score)  # edges rank the hypotheses; intensities break repetitive ties
-    return best, tried, mirror, test
+    return best, tried, mirror, test, search
 
 
 def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausibility,

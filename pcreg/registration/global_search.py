@@ -129,45 +129,74 @@ def _fix_model(T: np.ndarray, model: str) -> np.ndarray:
     return out
 
 
-def orb_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, level: int = 1,
-                   n_features: int = 1000, model: str = "rigid", ransac_px: float = 2.0,
-                   seed: int = 0, reference_valid: np.ndarray | None = None,
-                   moving_valid: np.ndarray | None = None) -> list[np.ndarray]:
-    """At most one hypothesis: ORB features at pyramid ``level``, cross-checked Hamming matches, a
-    similarity by RANSAC (``cv2.estimateAffinePartial2D``, threshold ``ransac_px`` at that level; for an
-    ``affine`` ``model`` a full affine, ``cv2.estimateAffine2D``; for ``projective`` a homography,
-    ``cv2.findHomography``, from at least 8 inliers).
+@dataclass(frozen=True)
+class OrbMatches:
+    """ORB's cross-checked matches of a pair at one pyramid ``level`` (:func:`orb_matches`): ``moving`` and
+    ``reference`` (N, 2) float32, the matched keypoints in full-resolution pixel coordinates, row by row."""
 
-    Black padding is masked out of the detection. Returns [] when fewer than 6 matches survive.
-    """
+    level: int
+    moving: np.ndarray
+    reference: np.ndarray
+
+
+def orb_matches(reference_image: np.ndarray, moving_image: np.ndarray, *, level: int = 1, n_features: int = 1000,
+                reference_valid: np.ndarray | None = None, moving_valid: np.ndarray | None = None
+                ) -> OrbMatches | None:
+    """ORB features at pyramid ``level`` (black padding masked out of the detection), matched by cross-checked
+    Hamming distance; None when either image has fewer than 6 features or fewer than 6 matches survive."""
     g1, m1 = gray_level(reference_image, level, valid=reference_valid)
     g2, m2 = gray_level(moving_image, level, valid=moving_valid)
     orb = cv2.ORB_create(nfeatures=int(n_features))
     k1, d1 = orb.detectAndCompute(g1, m1)
     k2, d2 = orb.detectAndCompute(g2, m2)
     if d1 is None or d2 is None or len(k1) < 6 or len(k2) < 6:
-        return []
+        return None
     matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d2, d1)
     if len(matches) < 6:
-        return []
+        return None
     p_mov = _to_full(np.float32([k2[m.queryIdx].pt for m in matches]), level)
     p_ref = _to_full(np.float32([k1[m.trainIdx].pt for m in matches]), level)
+    return OrbMatches(level, p_mov.astype(np.float32), p_ref.astype(np.float32))
+
+
+def orb_fit(matches: OrbMatches | None, *, model: str = "rigid", ransac_px: float = 2.0, seed: int = 0
+            ) -> list[np.ndarray]:
+    """At most one hypothesis from ``matches`` (:func:`orb_matches`): a similarity by RANSAC
+    (``cv2.estimateAffinePartial2D``, threshold ``ransac_px`` at the matches' level; for an ``affine`` ``model``
+    a full affine, ``cv2.estimateAffine2D``; for ``projective`` a homography, ``cv2.findHomography``, from at
+    least 8 inliers). Returns [] without matches or a model."""
+    if matches is None:
+        return []
+    p_mov, p_ref, level = matches.moving, matches.reference, matches.level
     cv2.setRNGSeed(int(seed))
     # an affine registration gets a full affine, a projective one a homography (a shear and two scales, or a
     # perspective, which their ICP from a similarity start often did not reach: docs/algorithms.md); the
     # others a similarity
     if model == "projective":
-        H, inliers = cv2.findHomography(p_mov.astype(np.float32), p_ref.astype(np.float32), cv2.RANSAC,
-                                        ransac_px * 2**level, maxIters=2000, confidence=0.995)
+        H, inliers = cv2.findHomography(p_mov, p_ref, cv2.RANSAC, ransac_px * 2**level, maxIters=2000, confidence=0.995)
         if H is None or inliers is None or int(inliers.sum()) < 8 or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
             return []
         return [H / H[2, 2]]
     fit = cv2.estimateAffine2D if model == "affine" else cv2.estimateAffinePartial2D
-    M, inliers = fit(p_mov.astype(np.float32), p_ref.astype(np.float32), method=cv2.RANSAC,
-                     ransacReprojThreshold=ransac_px * 2**level, maxIters=2000, confidence=0.995)
+    M, inliers = fit(p_mov, p_ref, method=cv2.RANSAC, ransacReprojThreshold=ransac_px * 2**level, maxIters=2000,
+                     confidence=0.995)
     if M is None or inliers is None or int(inliers.sum()) < 6 or not np.all(np.isfinite(M)):
         return []
     return [_fix_model(np.vstack([M, [0.0, 0.0, 1.0]]), model)]
+
+
+def orb_hypotheses(reference_image: np.ndarray, moving_image: np.ndarray, *, level: int = 1,
+                   n_features: int = 1000, model: str = "rigid", ransac_px: float = 2.0,
+                   seed: int = 0, reference_valid: np.ndarray | None = None,
+                   moving_valid: np.ndarray | None = None) -> list[np.ndarray]:
+    """At most one hypothesis: :func:`orb_matches` at pyramid ``level`` fitted by :func:`orb_fit` (a similarity
+    by RANSAC, threshold ``ransac_px`` at that level; an affine or a homography for those models).
+
+    Black padding is masked out of the detection. Returns [] when fewer than 6 matches survive.
+    """
+    matches = orb_matches(reference_image, moving_image, level=level, n_features=n_features,
+                          reference_valid=reference_valid, moving_valid=moving_valid)
+    return orb_fit(matches, model=model, ransac_px=ransac_px, seed=seed)
 
 
 def _canvas(gray: np.ndarray, mask: np.ndarray | None, size: int) -> np.ndarray:

@@ -51,23 +51,26 @@ class CoarseToFine:
     iterations : ICP iterations per level. relative_rmse : the stopping rule's RMSE change at full
         resolution (scaled by 2^level). point_to_line : finish with the reference backend's point-to-line
         iterations (Tukey weights, unless ``settings`` names others) at full resolution.
+    trees : the reference's KD-trees by level (:meth:`tree`) of another refinement onto the same ``reference``,
+        shared with it (a tree depends on the reference's points only, not on the model or the distance);
+        None: this one builds its own.
     """
 
     def __init__(self, reference: CloudPyramid, step: IcpStep, *, settings: IcpSettings,
                  max_correspondence_distance: float, iterations: int, relative_rmse: float,
-                 point_to_line: bool = False):
+                 point_to_line: bool = False, trees: dict[int, object] | None = None):
         self.reference, self.step, self.settings = reference, step, settings
         self.max_correspondence_distance, self.iterations = max_correspondence_distance, iterations
         self.relative_rmse, self.point_to_line = relative_rmse, point_to_line
-        self._trees: dict[int, object] = {}
+        self.trees: dict[int, object] = {} if trees is None else trees
         self._open3d_clouds: dict = {}
 
     def tree(self, level: int):
         """The reference points' KD-tree at one level, built once (search, ICP and evidence share it)."""
-        if level not in self._trees:
-            self._trees[level] = build_tree(self.reference[level].points,
-                                            max_distance=self.max_correspondence_distance * 2**level)
-        return self._trees[level]
+        if level not in self.trees:
+            self.trees[level] = build_tree(self.reference[level].points,
+                                           max_distance=self.max_correspondence_distance * 2**level)
+        return self.trees[level]
 
     def at_level(self, moving: CloudPyramid, T: np.ndarray, level: int, *, dist: float, model: str | None = None,
                  callback: Callable[[IcpIteration], None] | None = None, final: bool = True,

@@ -60,6 +60,8 @@ class ModelFit:
     fits : False when the richer model aligns significantly more edge points and moves some by more than 3 px
         (:data:`~pcreg.registration.plausibility.SHIFT_PX`): the images differ by more than the model allows, and the result is the model's
         best approximation, not their alignment.
+    starts : the richer refinement's starts refined: 1, the result; 2, ORB's homography of the pair too, where it
+        moved some of those edge points by more than 3 px from the result.
     """
 
     model: str
@@ -67,11 +69,12 @@ class ModelFit:
     result_inlier_ratio: float
     largest_shift_px: float
     fits: bool
+    starts: int = 1
 
     def to_dict(self) -> dict:
         return {"model": self.model, "inlier_ratio": float(self.inlier_ratio),
                 "result_inlier_ratio": float(self.result_inlier_ratio),
-                "largest_shift_px": float(self.largest_shift_px), "fits": bool(self.fits)}
+                "largest_shift_px": float(self.largest_shift_px), "fits": bool(self.fits), "starts": int(self.starts)}
 
 
 @dataclass(frozen=True)

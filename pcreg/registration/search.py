@@ -26,8 +26,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import RegistrationError
-from .global_search import (Evidence, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
-                            gray_level, orb_hypotheses, photometric_agreement)
+from .global_search import (Evidence, OrbMatches, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
+                            gray_level, orb_fit, orb_matches, photometric_agreement)
 from .pyramid import CloudPyramid
 from .refine import CoarseToFine, Refinement
 from .result import IcpIteration
@@ -113,6 +113,19 @@ class GlobalSearch:
         self.levels = len(self.reference)
         self.p_level = min(2, self.levels - 1)
         self.reference_gray, _ = gray_level(self.reference.image, self.p_level, valid=self.reference.valid)
+        self._matched: list[tuple[CloudPyramid, int, OrbMatches | None]] = []
+
+    def orb_matches(self, moving: CloudPyramid, level: int) -> OrbMatches | None:
+        """ORB's matches of ``moving``'s image with the reference's at pyramid ``level``
+        (:func:`~pcreg.registration.global_search.orb_matches`), computed once per moving pyramid and level: the
+        ORB generator's, and a check's of the same pair at the same level."""
+        for pyramid, at, matches in self._matched:
+            if pyramid is moving and at == level:
+                return matches
+        matches = orb_matches(self.reference.image, moving.image, level=level, reference_valid=self.reference.valid,
+                              moving_valid=moving.valid)
+        self._matched.append((moving, level, matches))
+        return matches
 
     def run(self, moving: CloudPyramid) -> list[Candidate]:
         """Every generator in turn until one is convincing: the refined hypotheses, in the order tried. A
@@ -208,9 +221,8 @@ class GlobalSearch:
                                              model=self.model if self.model in ("translation", "rigid") else "similarity",
                                              reference_valid=ref.valid, moving_valid=mov.valid)
         else:
-            hyps = orb_hypotheses(ref.image, mov.image, level=orb_level,
-                                  model=self.model if self.model in ("affine", "projective") else self.search_model,
-                                  seed=self.seed, reference_valid=ref.valid, moving_valid=mov.valid)
+            hyps = orb_fit(self.orb_matches(mov, orb_level),
+                           model=self.model if self.model in ("affine", "projective") else self.search_model, seed=self.seed)
         hyps = unseen(hyps, seen, mov.image.shape, min_px=2.0)
         if not hyps:
             return None

@@ -350,9 +350,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
                                   sampler=p.sampler, canny_percentile=p.canny_percentile, seed=config.search.seed,
                                   masks=(reference_mask, moving_mask), max_points=(p.reference_max_points, p.max_points),
                                   given=(reference_image, moving_image))
-    best, tried, mirror, test, search = _search(reference, moving, config,
-                                        config.search.init if start_matrix is None else start_matrix,
-                                        keep_iterations=callback is not None)
+    best, tried, mirror, test, search = _search(reference, moving, config, config.search.init if start_matrix is None
+                                                else start_matrix, keep_iterations=callback is not None)
     if callback is not None:
         for iteration in best.iterations:
             callback(iteration)
@@ -561,13 +560,12 @@ def _pyramids(ref_img: np.ndarray, mov_img: np.ndarray, reference_pyramid: Image
 
 def _search(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, init, *,
             keep_iterations: bool) -> tuple[Candidate, list[Candidate], Candidate | None, Plausibility, GlobalSearch]:
-    """:func:`register`'s search: the coarse-to-fine ICP, the plausibility test and the hypotheses'
-    search, each built from its part of ``config`` on the two pyramids, then the candidates refined from
-    ``init`` (a name or a 3x3 start, :func:`_candidates`). Returns the best candidate, every one tried,
-    the mirrored image's best (or None), the test, which judges the best, and the search (whose ORB matches and
-    reference trees the checks share). ``keep_iterations``: each
-    candidate keeps its ICP iterations (a callback reports the best's, instead of refining it a second
-    time)."""
+    """:func:`register`'s search: the coarse-to-fine ICP, the plausibility test and the hypotheses' search, each
+    built from its part of ``config`` on the two pyramids, then the candidates refined from ``init`` (a name or a
+    3x3 start, :func:`_candidates`). Returns the best candidate, every one tried, the mirrored image's best (or
+    None), the test, which judges the best, and the search (whose ORB matches and reference trees the checks
+    share). ``keep_iterations``: each candidate keeps its ICP iterations (a callback reports the best's, instead of
+    refining it a second time)."""
     icp, plausibility, s = config.icp, config.plausibility, config.search
     refiner = _refiner(reference, config, config.model, icp.backend, point_to_line=icp.refine == "point_to_line")
     test = Plausibility(reference, refiner.tree, model=config.model, min_inlier_ratio=plausibility.min_inlier_ratio,

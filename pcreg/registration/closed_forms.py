@@ -232,27 +232,62 @@ def _normalising(p: np.ndarray) -> np.ndarray:
     return np.array([[s, 0, -s * m[0]], [0, s, -s * m[1]], [0, 0, 1.0]])
 
 
-def estimate_projective(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Homography by the normalised weighted DLT (Hartley & Zisserman 2003, Alg. 4.2)."""
+#: How :func:`estimate_projective` solves the DLT: ``"svd"``, the right singular vector of the weighted 2N x 9 matrix
+#: (every registration of the projective model); ``"normal"``, the eigenvector of its 9 x 9 normal matrix (the model
+#: check's refinement, :func:`~pcreg.registration.plausibility.model_fit`).
+DLT_SOLVES = ("svd", "normal")
+
+
+def estimate_projective(p: np.ndarray, q: np.ndarray, w: np.ndarray, *, solve: str = "svd") -> np.ndarray:
+    """Homography by the normalised weighted DLT (Hartley & Zisserman 2003, Alg. 4.2).
+
+    solve : ``"svd"``, the smallest right singular vector of the 2N x 9 matrix A; ``"normal"``, the smallest
+        eigenvector of AᵀA (9 x 9, from the moments of the normalised points: a fraction of the SVD's time on
+        thousands of pairs). The same vector: on Hartley-normalised points AᵀA is well conditioned, and the two
+        agree to about 1e-13 relative."""
     Np, Nq = _normalising(p), _normalising(q)
     pn, qn = apply(Np, p), apply(Nq, q)
-    x, y = pn[:, 0], pn[:, 1]
-    u, v = qn[:, 0], qn[:, 1]
-    one, zero = np.ones_like(x), np.zeros_like(x)
-    A1 = np.column_stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u])
-    A2 = np.column_stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v])
-    sw = np.sqrt(w)[:, None]
-    A = np.vstack([A1 * sw, A2 * sw])
-    _, _, Vt = np.linalg.svd(A, full_matrices=False)
-    H = Vt[-1].reshape(3, 3)
-    H = np.linalg.inv(Nq) @ H @ Np
+    if solve == "normal":
+        h = _dlt_normal(pn, qn, np.sqrt(w))
+    else:
+        x, y = pn[:, 0], pn[:, 1]
+        u, v = qn[:, 0], qn[:, 1]
+        one, zero = np.ones_like(x), np.zeros_like(x)
+        A1 = np.column_stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u])
+        A2 = np.column_stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v])
+        sw = np.sqrt(w)[:, None]
+        A = np.vstack([A1 * sw, A2 * sw])
+        _, _, Vt = np.linalg.svd(A, full_matrices=False)
+        h = Vt[-1]
+    H = np.linalg.inv(Nq) @ h.reshape(3, 3) @ Np
     if abs(H[2, 2]) < 1e-12:
         raise RegistrationError("degenerate homography")
     return H / H[2, 2]
 
 
-def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotation: str = "svd") -> np.ndarray:
-    """Closed-form update for one motion model from weighted correspondences p_i -> q_i."""
+def _dlt_normal(pn: np.ndarray, qn: np.ndarray, sw: np.ndarray) -> np.ndarray:
+    """The DLT's solution from its normal matrix AᵀA: with a = √w (x, y, 1), a row pair of A is (aᵀ, 0, -u aᵀ)
+    and (0, aᵀ, -v aᵀ), so AᵀA's 3 x 3 blocks are the moments S = Σ a aᵀ, Σ u a aᵀ, Σ v a aᵀ and
+    Σ (u² + v²) a aᵀ, all in one product of the N x 9 matrix (a, u a, v a) with itself."""
+    K = np.empty((len(pn), 9))
+    K[:, 0], K[:, 1], K[:, 2] = pn[:, 0] * sw, pn[:, 1] * sw, sw
+    K[:, 3:6] = K[:, :3] * qn[:, :1]
+    K[:, 6:9] = K[:, :3] * qn[:, 1:2]
+    G = K.T @ K
+    S, Su, Sv = G[:3, :3], G[:3, 3:6], G[:3, 6:9]
+    M = np.zeros((9, 9))
+    M[:3, :3] = M[3:6, 3:6] = S
+    M[:3, 6:], M[3:6, 6:] = -Su, -Sv
+    M[6:, :3], M[6:, 3:6] = -Su.T, -Sv.T
+    M[6:, 6:] = G[3:6, 3:6] + G[6:9, 6:9]
+    _, vecs = np.linalg.eigh(M)
+    return vecs[:, 0]
+
+
+def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotation: str = "svd",
+             dlt: str = "svd") -> np.ndarray:
+    """Closed-form update for one motion model from weighted correspondences p_i -> q_i (``dlt``: how the
+    projective model's DLT is solved, :data:`DLT_SOLVES`)."""
     if model == "translation":
         return estimate_translation(p, q, w)
     if model == "rigid":
@@ -264,7 +299,7 @@ def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotatio
     if model == "affine":
         return estimate_affine(p, q, w)
     if model == "projective":
-        return estimate_projective(p, q, w)
+        return estimate_projective(p, q, w, solve=dlt)
     raise RegistrationError(f"unknown model {model!r}")
 
 

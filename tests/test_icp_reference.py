@@ -104,6 +104,27 @@ def test_horn_s_step_on_pairs_along_one_line_takes_the_least_rotation_as_umeyama
     np.testing.assert_allclose(T[:3, :3], np.eye(3), atol=0)
 
 
+
+def test_the_dlt_normal_solve_is_the_svd_solve():
+    # The model check's projective step solves the DLT from its 9 x 9 normal matrix; on Hartley-normalised points
+    # it is the SVD's homography to rounding, with noise, unequal weights and pairs weighted out.
+    rng = np.random.default_rng(7)
+    H = np.array([[1.05, -0.2, 30.0], [0.15, 0.95, -12.0], [3e-4, -2e-4, 1.0]])
+    p = rng.uniform(0, 500, (3000, 2))
+    q = tf.apply(H, p) + rng.normal(0, 0.7, p.shape)
+    w = rng.uniform(0.2, 1.0, len(p))
+    w[::5] = 0.0
+    svd = estimate(p, q, w, "projective")
+    normal = estimate(p, q, w, "projective", dlt="normal")
+    np.testing.assert_allclose(normal, svd, rtol=1e-9, atol=1e-12)
+    assert tf.max_corner_error(normal, H, (500, 500)) < 0.5
+    target = rng.uniform(0, 200, (800, 2))
+    source = tf.apply(np.linalg.inv(np.array([[1.01, 0.01, 1.0], [-0.01, 0.99, -0.5], [1e-4, 5e-5, 1.0]])), target)
+    runs = [icp_reference(source, target, ICPOptions(model="projective", max_correspondence_distance=5,
+                                                     max_iteration=30), dlt=dlt) for dlt in ("svd", "normal")]
+    np.testing.assert_allclose(runs[1].matrix, runs[0].matrix, rtol=1e-9, atol=1e-12)
+    assert runs[1].iterations == runs[0].iterations and runs[1].fitness == runs[0].fitness
+
 @pytest.mark.parametrize("model", ["translation", "rigid", "similarity", "affine", "projective"])
 def test_point_to_line_converges_on_lines(model):
     # Points on a closed curve with normals: point-to-line steps recover a small motion.

@@ -372,7 +372,7 @@ def _checks(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfi
         return None, None
     if config.model in NARROWER:
         # pcreg's own step (Open3D's has no projective model) onto the search's reference trees
-        richer = _refiner(reference, config, RICHER_MODEL, "reference", trees=search.refiner.trees)
+        richer = _refiner(reference, config, RICHER_MODEL, "reference", trees=search.refiner.trees, dlt="normal")
         orb = orb_fit(search.orb_matches(moving, 1), model=RICHER_MODEL, seed=config.search.seed)
         return model_fit(best, moving, richer, test, shape, starts=tuple(orb)), None
     return None, feature_check(reference.image, moving.image, best.refined.matrix, reference_valid=reference.valid,
@@ -380,12 +380,12 @@ def _checks(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfi
 
 
 def _refiner(reference: CloudPyramid, config: RegisterConfig, model: str, backend: str, *,
-             point_to_line: bool = False, trees: dict | None = None) -> CoarseToFine:
+             point_to_line: bool = False, trees: dict | None = None, dlt: str = "svd") -> CoarseToFine:
     """The coarse-to-fine ICP of ``model`` with ``backend``'s step onto ``reference``, with ``config``'s ICP options
-    (``trees``: another refinement's KD-trees of ``reference``, shared)."""
+    (``trees``: another refinement's KD-trees of ``reference``, shared; ``dlt``: the projective step's solve)."""
     icp = config.icp
     return CoarseToFine(reference, icp_step(backend),
-                        settings=IcpSettings(model=model, relative_fitness=icp.relative_fitness, weights=icp.weights),
+                        settings=IcpSettings(model=model, relative_fitness=icp.relative_fitness, weights=icp.weights, dlt=dlt),
                         max_correspondence_distance=icp.max_correspondence_distance, iterations=icp.iterations,
                         relative_rmse=icp.relative_rmse, point_to_line=point_to_line, trees=trees)
 

@@ -81,7 +81,7 @@ def _finished(T: np.ndarray, fitness: float, rmse: float, iterations: int, conve
 def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, init: np.ndarray | None = None,
                   target_normals: np.ndarray | None = None, tree: KDTreeIndex | GridIndex | None = None,
                   callback: Callable[[IcpIteration], None] | None = None, level: int = 0,
-                  robust_scale: float | None = None) -> RegistrationResult:
+                  robust_scale: float | None = None, dlt: str = "svd") -> RegistrationResult:
     """One ICP run at one scale: a :class:`RegistrationResult` whose ``matrix`` is ``T_target_source``.
 
     source : (N, d), target : (M, d) float64, finite; d = 2 or 3.
@@ -93,6 +93,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
     tree : a prebuilt index of ``target`` (:func:`build_tree`, or a ``scipy.spatial.cKDTree``), reused
         across calls on the same target.
     robust_scale : the robust weights' scale (None: estimated from each iteration's distances).
+    dlt : how the projective model's step is solved (:data:`~pcreg.registration.closed_forms.DLT_SOLVES`).
     """
     if options.max_correspondence_distance is None:
         raise InputError("icp_reference needs options.max_correspondence_distance (pcreg.icp chooses one)")
@@ -137,7 +138,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
         elif metric == "point_to_plane":
             update = estimate_point_to_plane(p, q, target_normals[idx[ok]], w)
         else:
-            update = estimate(p, q, w, model, rotation=rotation)
+            update = estimate(p, q, w, model, rotation=rotation, dlt=dlt)
         if not np.all(np.isfinite(update)):
             raise RegistrationError("ICP update is not finite (degenerate correspondences)")
         T = update @ T

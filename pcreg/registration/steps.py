@@ -25,8 +25,9 @@ class IcpSettings:
     """The options every step of one registration shares (distances, limits and levels vary per call).
 
     weights, trim_fraction, metric, rotation : the reference backend's (Open3D's step refuses any other
-        than the default). stepwise : Open3D's step runs one iteration at a time even without a
-        callback, so that ``iterations`` and ``converged`` are exact.
+        than the default). dlt : how the reference backend solves the projective model's step
+        (:data:`~pcreg.registration.closed_forms.DLT_SOLVES`). stepwise : Open3D's step runs one iteration at a
+        time even without a callback, so that ``iterations`` and ``converged`` are exact.
     """
 
     model: str
@@ -35,6 +36,7 @@ class IcpSettings:
     trim_fraction: float = 0.9
     metric: str = "point_to_point"
     rotation: str = "svd"
+    dlt: str = "svd"
     stepwise: bool = False
 
 
@@ -81,7 +83,7 @@ def reference_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, set
     """The reference ICP (:func:`~pcreg.registration.reference.icp_reference`)."""
     return icp_reference(source, target, step_options("reference", settings, call), init=init,
                          target_normals=call.target_normals, callback=call.callback, level=call.level,
-                         tree=None if call.target_index is None else call.target_index())
+                         tree=None if call.target_index is None else call.target_index(), dlt=settings.dlt)
 
 
 def open3d_step(source: np.ndarray, target: np.ndarray, init: np.ndarray, settings: IcpSettings,

@@ -155,3 +155,27 @@ def test_run_on_an_interlaced_video_says_so_and_resumes_exactly(tmp_path, capsys
     capsys.readouterr()
     assert main([*args, "--out", str(cut)]) == 2
     assert "holds a run with other options" in capsys.readouterr().err
+
+
+def test_a_stream_that_turns_interlaced_part_way_is_deinterlaced_from_there(tmp_path, capsys):
+    """Two MPEG-TS files joined (progressive, then interlaced: a broadcast recording across a programme change):
+    the progressive frames are read as decoded, byte for byte; the interlaced ones deinterlaced; every frame
+    numbered in order and ``pcreg run`` labels them all."""
+    first = _write(tmp_path / "a.ts", interlaced=False, codec="mpeg2video", fmt="mpegts", n=6)
+    second = _write(tmp_path / "b.ts", codec="mpeg2video", fmt="mpegts", n=6)
+    video = tmp_path / "joined.ts"
+    video.write_bytes(first.read_bytes() + second.read_bytes())
+    raw, flagged = _decoded(video)  # FFmpeg itself decodes 11: one frame is lost at the seam
+    turn = flagged.index(True)
+    assert 3 <= turn <= 6 and all(flagged[turn:]) and len(raw) >= 10
+    got = list(open_frames(video).frames())
+    assert [f.index for f in got] == list(range(len(raw)))
+    for k, f in enumerate(got):
+        if k < turn:
+            np.testing.assert_array_equal(f.image, raw[k], err_msg=f"frame {k}")
+        else:
+            assert _combing(raw[k]) > 30 > 5 > _combing(f.image), k
+    key = tmp_path / "key.png"
+    cv2.imwrite(str(key), (np.arange(W)[None, :] >= W // 2).astype(np.uint8).repeat(H, axis=0))
+    assert main(["run", str(video), "--labels", str(key), "--out", str(tmp_path / "out")]) == 0
+    assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == [f"{i:06d}.png" for i in range(len(raw))]

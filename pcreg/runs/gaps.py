@@ -17,7 +17,7 @@ from typing import Iterable, Iterator
 
 from .state import STATE
 
-__all__ = ["GapMarks", "LISTED", "SAID", "gaps_problem"]
+__all__ = ["GapMarks", "LISTED", "SAID"]
 
 #: The places run.json's ``gaps`` lists by name (the rest counted): run.json is rewritten at every frame.
 LISTED = 100
@@ -34,16 +34,6 @@ def _say(line: str) -> None:
     from tqdm.auto import tqdm
 
     tqdm.write(f"pcreg: note: {line}", file=sys.stderr)
-
-
-def gaps_problem(gaps) -> bool:
-    """Whether run.json's ``gaps`` (None when there is none) is not as :class:`GapMarks` writes it."""
-    if gaps is None:
-        return False
-    if not isinstance(gaps, dict) or not isinstance(gaps.get("listed"), dict) or not isinstance(gaps.get("last"), str):
-        return True
-    counts = [gaps.get("places"), gaps.get("missing"), *gaps["listed"].values()]
-    return not all(type(c) is int and c >= 1 for c in counts) or not gaps["last"].isdigit()
 
 
 class GapMarks:

@@ -76,14 +76,22 @@ def _keys_state_problem(state: dict) -> str | None:
     return None
 
 
+def _gaps_problem(gaps) -> bool:
+    """Whether run.json's ``gaps`` (None when there is none) is not as :class:`~pcreg.runs.gaps.GapMarks` writes it."""
+    if gaps is None:
+        return False
+    if not isinstance(gaps, dict) or not isinstance(gaps.get("listed"), dict) or not isinstance(gaps.get("last"), str):
+        return True
+    counts = [gaps.get("places"), gaps.get("missing"), *gaps["listed"].values()]
+    return not all(type(c) is int and c >= 1 for c in counts) or not gaps["last"].isdigit()
+
+
 def state_problem(state) -> str | None:
     """What in a run.json (one key frame's, or a folder of key frames') is not as pcreg run writes it."""
-    from .gaps import gaps_problem
-
     if not isinstance(state, dict):
         return "its top level"
     problem = (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
-    return "gaps" if problem is None and gaps_problem(state.get("gaps")) else problem
+    return "gaps" if problem is None and _gaps_problem(state.get("gaps")) else problem
 
 
 def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | Path | None,

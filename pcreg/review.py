@@ -51,7 +51,8 @@ class RunReview:
     predicted error in % (None for a key frame or a step without one); ``suggested`` the positions listed in
     ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
-    IoU per class id (``steps.jsonl``'s ``predicted_iou``, with more than two classes; None otherwise)."""
+    IoU per class id (``steps.jsonl``'s ``predicted_iou``, with more than two classes; None otherwise); ``gaps``
+    run.json's places where the video skips frames by its times (:mod:`pcreg.runs.gaps`; None without one)."""
 
     folder: Path
     source: Path
@@ -66,6 +67,13 @@ class RunReview:
     table: ClassTable = DEFAULT_TABLE
     ious: tuple[dict | None, ...] = ()
     chosen: int | None = None  # the frames the run chose of its folder (None: a video)
+    gaps: dict | None = None
+
+    def gaps_note(self) -> str | None:
+        """What the review says of the places the run's video skips frames (:func:`pcreg.runs.gaps.gaps_note`)."""
+        from .runs.gaps import gaps_note
+
+        return gaps_note(self.gaps, self.source)
 
     def labels_path(self, t: int) -> Path:
         return self.folder / f"{self.stems[t]}.png"
@@ -159,7 +167,7 @@ def read_review(folder: str | Path) -> RunReview:
             raise InputError(f"{steps_path}: the step of {n} has a predicted_iou pcreg run did not write") from None
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
                      _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
-                     tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None)
+                     tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None, state.get("gaps"))
 
 
 def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:
@@ -432,7 +440,8 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     """Every frame of ``review`` with its labels drawn over it (:func:`overlay`) as an MP4 at ``path``
     (H.264; written to a temporary file beside it, then renamed); frames of odd size are padded by a
     pixel. ``fps``: frames per second (default: a video's own rate, divided by the run's ``--every``;
-    10 for a folder). The source is read straight through, once. Returns the number of frames written."""
+    10 for a folder). The source is read straight through, once. A run whose video skips frames by its times says
+    so in the video's comment (:meth:`RunReview.gaps_note`). Returns the number of frames written."""
     import os
     import tempfile
     from fractions import Fraction
@@ -453,6 +462,8 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     try:
         with av.open(tmp, "w", format="mp4") as container, \
                 progress(total=len(review.names), desc="frames", disable=None) as bar:
+            if review.gaps_note():
+                container.metadata["comment"] = review.gaps_note()
             stream = None
             for t, image in images.frames():
                 drawn = read_overlay(review, t, image)

@@ -83,7 +83,7 @@ def test_a_matroska_block_passed_over_is_told_with_the_frame_after_it(tmp_path, 
         assert gap.index == at and gap.missing == 12 - n, (k, gap)
     damaged = tmp_path / "d4.mkv"
     (at, gap), = _gaps(VideoFrames(damaged).frames())
-    assert (at, gap) == (4, Gap(4, 0.5, 0.1, 4))
+    assert (at, gap) == (4, Gap(4, 0.5, 0.1, 4, 0.8))
     assert gap.note(damaged) == (f"{damaged}: frame 4 comes 0.5 s after the frame before, the frames before it every "
                                  "0.1 s: about 4 frame(s) missing there (dropped as it was recorded, or a damaged "
                                  f"block passed over); {SAID}")
@@ -105,7 +105,7 @@ def test_a_run_on_a_video_that_skips_frames_goes_on_says_so_once_and_counts_it(t
                      f"over); {SAID}"], err
     assert err[-1] == (f"pcreg: note: {damaged}: about 4 frame(s) missing by its times at 1 place(s), the first before "
                        f"frame 4; counted in {out / 'run.json'} (\"gaps\"), the frames numbered by count"), err
-    record = {"places": 1, "missing": 4, "last": "000004", "listed": {"000004": 4}}
+    record = {"places": 1, "missing": 4, "last": "000004", "listed": {"000004": 4}, "times": {"000004": 0.8}}
     assert _state(out)["gaps"] == record
     assert sorted(p.stem for p in out.glob("*.png")) == [f"{i:06d}" for i in range(8)]
     keys = tmp_path / "keys"
@@ -149,11 +149,13 @@ def test_a_live_capture_that_dropped_frames_is_said_in_few_lines_and_counted_onc
     monkeypatch.undo()
     monkeypatch.setattr(gaps, "LISTED", 2)
     one_line_errors(capsys)  # what it said depends on how far it had read ahead when it stopped
-    assert _state(cut)["gaps"] == {"places": 2, "missing": 2, "last": "000005", "listed": {"000003": 1, "000005": 1}}
+    assert _state(cut)["gaps"] == {"places": 2, "missing": 2, "last": "000005", "listed": {"000003": 1, "000005": 1},
+                                   "times": {"000003": 0.4, "000005": 0.7}}
     assert main([*args, "--out", str(cut)]) == 0
     assert [line.split(" (dropped")[0] for line in said()] == [  # frames 3 and 5 were said and counted before
         f"frame 7 {step}", f"frame 9 {step}", f"frame 11 {step}", count.format(cut / "run.json")]
-    record = {"places": 5, "missing": 5, "last": "000011", "listed": {"000003": 1, "000005": 1}}
+    record = {"places": 5, "missing": 5, "last": "000011", "listed": {"000003": 1, "000005": 1},
+              "times": {"000003": 0.4, "000005": 0.7}}
     assert _state(whole)["gaps"] == _state(cut)["gaps"] == record
     for i in range(12):
         assert (whole / f"{i:06d}.png").read_bytes() == (cut / f"{i:06d}.png").read_bytes()
@@ -166,3 +168,88 @@ def test_matroska_of_a_variable_frame_rate_with_b_frames_is_read_whole(tmp_path,
     assert [f.index for f in VideoFrames(sparse).frames()] == list(range(8))
     slowing = _matroska(tmp_path / "slowing.mkv", images[:8], [0, 100, 200, 300, 450, 650, 900, 1200])
     assert [f.index for f in VideoFrames(slowing).frames()] == list(range(8))
+
+
+def _gaps_note(video) -> str:
+    return (f"pcreg: note: {video} skips frames by its times: about 4 frame(s) missing at 1 place(s), before frame 4 "
+            "(at 0.8 s, 4 missing); the run numbers its frames by count, as annotation tools do, so from frame 4 on "
+            "the run's frame N is not frame N of the file's timeline (run.json's \"gaps\")")
+
+
+@pytest.fixture(scope="module")
+def gap_runs(tmp_path_factory, images):
+    """Runs of a whole Matroska file and of the same with a block passed over before frame 4 (4 frames lost)."""
+    tmp = tmp_path_factory.mktemp("gap_runs")
+    whole = _matroska(tmp / "whole.mkv", images)
+    damaged = _block_header_damaged(whole, tmp / "d4.mkv", 4)
+    key = _label(tmp / "key.png")
+    runs = {}
+    for video in (whole, damaged):
+        runs[video.stem] = out = tmp / f"run_{video.stem}"
+        assert main(["run", str(video), "--labels", str(key), "--out", str(out), "--model", "flow"]) == 0
+    return {"whole": (whole, runs["whole"]), "damaged": (damaged, runs["d4"])}
+
+
+@pytest.mark.parametrize("which", ["damaged", "whole"])
+def test_the_review_says_where_the_runs_video_skips_frames(which, gap_runs, tmp_path, capsys):
+    """The overlay video's note on stderr (once), its comment and the review page's data say that frames are
+    numbered by count from the gap on; of a whole video, nothing."""
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    video, out = gap_runs[which]
+    capsys.readouterr()
+    said = [_gaps_note(video)] if which == "damaged" else []
+    assert main(["view", str(out), "--overlay", str(tmp_path / "overlay.mp4")]) == 0
+    assert [line for line in one_line_errors(capsys) if "skips frames" in line] == said
+    with av.open(str(tmp_path / "overlay.mp4")) as c:
+        assert c.metadata.get("comment") == (said[0].removeprefix("pcreg: note: ") if said else None)
+    with ReviewServer(read_review(out), web_port=0) as server:
+        gaps = json.loads(server.review_json())["gaps"]
+    assert gaps == ({"note": said[0].removeprefix("pcreg: note: "), "places": 1, "missing": 4} if said else None)
+
+
+def test_the_review_page_shows_where_the_runs_video_skips_frames(gap_runs):
+    from _browser import Browser, find_chromium, stop_view, view_web
+    from _events import until
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    for which in ("damaged", "whole"):
+        video, out = gap_runs[which]
+        proc, url = view_web(str(out))
+        try:
+            with Browser(width=1400, height=800) as browser:
+                browser.open(url)
+                ev = browser.value
+                until(lambda: ev("document.body.dataset.loaded") == "1", what="the page loaded", alive=proc, bound=120)
+                shown = ev("(() => { const p = document.getElementById('gaps'); return p.hidden ? null : "
+                           "[p.textContent, p.getBoundingClientRect().height > 0]; })()")
+                facts = ev("document.getElementById('facts').textContent")
+        finally:
+            stop_view(proc)
+        if which == "damaged":
+            assert shown == [_gaps_note(video).removeprefix("pcreg: note: "), True]
+            assert "frames missing by the video's timesabout 4 at 1 place(s)" in facts
+        else:
+            assert shown is None and "missing" not in facts
+
+
+def test_a_run_json_from_before_the_places_times_is_read_and_said_without_them(tmp_path):
+    from pcreg.runs.gaps import gaps_note
+    from pcreg.runs.state import state_problem
+
+    old = {"places": 5, "missing": 9, "last": "000011", "listed": {"000003": 1, "000005": 2, "000007": 1,
+                                                                   "000009": 5}}
+    assert gaps_note(old, "v.mkv") == (
+        "v.mkv skips frames by its times: about 9 frame(s) missing at 5 place(s), before frames 3 (1 missing), 5 (2 "
+        "missing), 7 (1 missing) and 2 more; the run numbers its frames by count, as annotation tools do, so from "
+        "frame 3 on the run's frame N is not frame N of the file's timeline (run.json's \"gaps\")")
+    timed = {**old, "times": {"000003": 0.4, "000005": 75.25, "000009": 3725.5}}
+    assert "before frames 3 (at 0.4 s, 1 missing), 5 (at 1:15.2, 2 missing), 7 (1 missing) and 2 more" \
+        in gaps_note(timed, "v.mkv")
+    assert gaps_note(None, "v.mkv") is None
+    state = {"run": {}, "key_frame": "000000", "done": 12, "fallbacks": 0}
+    for record, problem in ((old, None), (timed, None), ({**old, "times": {"000004": 0.5}}, "gaps"),
+                            ({**old, "times": {"000003": "0.4"}}, "gaps"), ({**old, "times": [0.4]}, "gaps")):
+        assert state_problem({**state, "gaps": record}) == problem, record

@@ -230,7 +230,11 @@ function drawHeader() {
   const facts = [["folder", d.folder], ["source", d.source], ["frames", String(d.frames.length)],
     ["key frames", String(d.frames.filter((f) => f.key).length)],
     ["mean predicted error", pct(mean)], ["confidence", d.confidence ? "yes" : "not recorded (run --confidence)"]];
+  if (d.gaps) facts.push(["frames missing by the video's times", `about ${d.gaps.missing} at ${d.gaps.places} place(s)`]);
   $("facts").replaceChildren(...facts.map(([k, v]) => el("span", { class: "fact" }, el("em", { text: k }), v)));
+  // a video that skips frames: the run's frames are numbered by count, not by the file's timeline
+  $("gaps").hidden = !d.gaps;
+  $("gaps").textContent = d.gaps ? d.gaps.note : "";
 }
 
 // -- start -----------------------------------------------------------------------------------------

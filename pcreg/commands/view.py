@@ -21,6 +21,8 @@ headless (:func:`pcreg.recording.viewer.screenshot`) and saves the picture.
 (:mod:`pcreg.recording.review`): every frame of the run with its labels drawn over it, the unsure
 labels hatched, the key frames marked, the predicted error per frame and the suggested frames.
 ``pcreg view RUN_OUT --overlay FILE.mp4`` writes the same frames as a video (:func:`pcreg.review.write_overlay_video`).
+A run whose video skips frames by its times (run.json's ``gaps``) is said on stderr, on the page and in the
+overlay video's comment: its frames are numbered by count, so the run's frame N is not frame N of the file.
 
 The viewer processes themselves are managed in :mod:`pcreg.recording.viewer` and
 :mod:`pcreg.recording.report`.
@@ -281,6 +283,9 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     note = unfinished_note(folder, len(review.names), review.chosen)
     if note:
         print(note)
+    gaps = review.gaps_note()  # the video skips frames by its times: the run's frame N is not the file's
+    if gaps:
+        sys.stderr.write(f"pcreg: note: {gaps}\n")
     if args.overlay:
         n = write_overlay_video(review, out, fps=args.fps)
         print(f"wrote {out}: {n} frame(s) of {folder} with their labels")

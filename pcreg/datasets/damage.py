@@ -29,12 +29,14 @@ __all__ = ["Gap", "Timing", "frame_places", "check_place"]
 class Gap:
     """Frames missing by the times before frame ``index`` (from 0, as decoded): it comes ``step`` seconds after
     the frame before, the frames before that one ``every`` seconds apart, so about ``missing`` frames would fill
-    the step."""
+    the step; ``time``: its presentation time in seconds, as the file gives it (where a player's timeline shows
+    it, the count of frames before it not)."""
 
     index: int
     step: float
     every: float
     missing: int
+    time: float = 0.0
 
     def note(self, path: Path) -> str:
         """What a reader says of the gap in the video at ``path``."""
@@ -73,7 +75,7 @@ class Timing:
         if 4 * abs(step - interval) <= interval:
             self.regular += 1
         elif self.regular >= self.REGULAR and slots >= 2 and 4 * abs(step - slots * interval) <= interval:
-            return Gap(index, float(step * base), float(interval * base), slots - 1)
+            return Gap(index, float(step * base), float(interval * base), slots - 1, float(pts * base))
         else:
             self.regular = -1
         return None

@@ -4,7 +4,8 @@
 
 - ``/``: the page (``viz/review.html`` with its CSS and JavaScript under ``/viz/``; no build step);
 - ``/review.json``: the frames (name, key frame or not, predicted error), the suggested frames, whether
-  there is a confidence, the class table (each known class's name, colour and whether the run's frames show it,
+  there is a confidence, where the video skips frames by its times (``gaps``: the note, the places and frames
+  missing; None without one), the class table (each known class's name, colour and whether the run's frames show it,
   for the legend) and the frames' size;
 - ``/overlay/T.jpg``: frame ``T`` (its position in the run) with its labels drawn over it
   (:func:`pcreg.review.overlay`), rendered when asked for and kept for the next time (a few hundred);
@@ -97,6 +98,8 @@ class ReviewServer:
             "classes": [{"id": c.id, "name": c.name, "colour": list(c.colour), "shown": c.id in shown}
                         for c in r.table.known],
             "unknown": {"id": r.table.unknown, "name": r.table.unknown_class.name},
+            "gaps": None if r.gaps is None else {"note": r.gaps_note(), "places": r.gaps["places"],
+                                                 "missing": r.gaps["missing"]},
         }, allow_nan=False).encode()
 
     def _no_confidence(self, t: int) -> str | None:

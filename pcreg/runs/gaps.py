@@ -6,8 +6,12 @@ Each place is said on stderr by the run loop that reads the frame after it (neve
 ahead), the first :data:`SAID` one by one and then once that more are counted, and counted in run.json's
 ``gaps``, committed with the frames: ``{"places": N, "missing": K, "last": NAME, "listed": {NAME: k, ...}}``,
 ``listed`` naming the frame after each of the first :data:`LISTED` places and about how many frames are missing
-before it, ``last`` the frame after the last place counted (a pass or a resumed run that decodes the frames again
-counts none twice). A run without such a place has no ``gaps``.
+before it, ``times`` that frame's presentation time in seconds (runs from before it have none), ``last`` the frame
+after the last place counted (a pass or a resumed run that decodes the frames again counts none twice). A run
+without such a place has no ``gaps``.
+
+What reads a run afterwards (``pcreg view``, ``pcreg export``) says it with :func:`gaps_note`: from the first place
+on, the run's frame N is not frame N of the file's timeline.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from typing import Iterable, Iterator
 
 from .state import STATE
 
-__all__ = ["GapMarks", "LISTED", "SAID"]
+__all__ = ["GapMarks", "LISTED", "SAID", "gaps_note"]
 
 #: The places run.json's ``gaps`` lists by name (the rest counted): run.json is rewritten at every frame.
 LISTED = 100
@@ -76,11 +80,12 @@ class GapMarks:
     def _count(self, gaps: list) -> None:
         state = self.run.state
         old = state.get("gaps") or {"places": 0, "missing": 0, "last": "", "listed": {}}
-        listed = dict(old["listed"])
+        listed, times = dict(old["listed"]), dict(old.get("times") or {})
         for g in gaps[:max(0, LISTED - len(listed))]:
             listed[_name(g.index)] = g.missing
+            times[_name(g.index)] = round(g.time, 3)
         state["gaps"] = {"places": old["places"] + len(gaps), "missing": old["missing"] + sum(g.missing for g in gaps),
-                         "last": _name(gaps[-1].index), "listed": listed}
+                         "last": _name(gaps[-1].index), "listed": listed, "times": times}
 
     def summary(self) -> None:
         """At the end of the run: how many places skip frames, and where they are counted; nothing without one."""
@@ -91,3 +96,37 @@ class GapMarks:
         _say(f"{self.run.frames.path}: about {gaps['missing']} frame(s) missing by its times at {gaps['places']} "
              f"place(s), the first before frame {int(first)}; counted in {self.run.out / STATE} (\"gaps\"), the "
              "frames numbered by count")
+
+
+def _clock(seconds: float) -> str:
+    """A time in a video as a player shows it: ``0.9 s``, ``12.04 s``, ``1:02:05.4``."""
+    if seconds < 60:
+        return f"{seconds:.3f}".rstrip("0").rstrip(".") + " s"
+    minutes, s = divmod(seconds, 60)
+    hours, minutes = divmod(int(minutes), 60)
+    return (f"{hours}:{minutes:02d}" if hours else f"{minutes}") + f":{s:04.1f}"
+
+
+def gaps_note(gaps: dict | None, source) -> str | None:
+    """What a reader of a run says of the places its video ``source`` skips frames by its times (run.json's ``gaps``,
+    as :class:`GapMarks` counts them): how many places, about how many frames missing, the first :data:`SAID` places
+    (the run's frame after each, its time in the file, the frames missing before it), and that the run's frame N is
+    not frame N of the file's timeline from the first on. None without a place."""
+    if not gaps:
+        return None
+    listed, times = sorted(gaps["listed"].items()), gaps.get("times") or {}
+
+    def place(name: str, missing: int) -> str:
+        at = f"at {_clock(float(times[name]))}, " if name in times else ""
+        return f"{int(name)} ({at}{missing} missing)"
+
+    shown = [place(n, k) for n, k in listed[:SAID]]
+    more = gaps["places"] - len(shown)
+    if more:
+        shown.append(f"{more} more")
+    first = int(listed[0][0]) if listed else int(gaps["last"])
+    places = shown[0] if len(shown) == 1 else f"{', '.join(shown[:-1])} and {shown[-1]}"
+    return (f"{source} skips frames by its times: about {gaps['missing']} frame(s) missing at {gaps['places']} "
+            f"place(s), before frame{'' if len(shown) == 1 else 's'} {places}; the run numbers its frames by count, as "
+            f"annotation tools do, so from frame {first} on the run's frame N is not frame N of the file's timeline "
+            f"(run.json's \"gaps\")")

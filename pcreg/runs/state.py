@@ -12,6 +12,7 @@ either for a run that writes (resume or start over); :func:`read_state` reads ei
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -83,6 +84,10 @@ def _gaps_problem(gaps) -> bool:
     if not isinstance(gaps, dict) or not isinstance(gaps.get("listed"), dict) or not isinstance(gaps.get("last"), str):
         return True
     counts = [gaps.get("places"), gaps.get("missing"), *gaps["listed"].values()]
+    times = gaps.get("times", {})  # runs from before the places' times have none
+    if not isinstance(times, dict) or not set(times) <= set(gaps["listed"]) \
+            or not all(type(t) in (int, float) and math.isfinite(t) for t in times.values()):
+        return True
     return not all(type(c) is int and c >= 1 for c in counts) or not gaps["last"].isdigit()
 
 

@@ -53,7 +53,9 @@ class RunLabels:
     ``paths`` (each frame's label PNG, ``OUT/STEM.png``), ``confidence`` (each frame's confidence PNG,
     or None: a key frame, or a run without ``--confidence``), ``table`` the run's class table
     (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``), ``keys`` the key
-    frames' names (a person's labels, kept as they are by ``--min-confidence``)."""
+    frames' names (a person's labels, kept as they are by ``--min-confidence``), ``gaps`` what is said of the places
+    its video skips frames by its times (:func:`pcreg.runs.gaps.gaps_note`; None without one): the frames are
+    numbered by count all the same, as CVAT numbers them."""
 
     folder: Path
     names: tuple[str, ...]
@@ -62,6 +64,7 @@ class RunLabels:
     table: ClassTable = DEFAULT_TABLE
     chosen: int | None = None  # the frames the run chose of its folder (None: a video, or the folder gone)
     keys: frozenset[str] = frozenset()
+    gaps: str | None = None
 
 
 def default_name(fmt: str) -> str:
@@ -77,6 +80,7 @@ def read_run(folder: str | Path) -> RunLabels:
     """
     from .classes.keys import run_table
     from .runs.files import CONFIDENCE, STEPS, step_lines
+    from .runs.gaps import gaps_note
     from .runs.state import STATE, frames_chosen, read_state, run_frames
 
     folder = Path(folder)
@@ -108,7 +112,7 @@ def read_run(folder: str | Path) -> RunLabels:
     confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
     table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]),
-                     frozenset(keys))
+                     frozenset(keys), gaps_note(state.get("gaps"), state["run"].get("video")))
 
 
 def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:

@@ -191,9 +191,9 @@ def gap_runs(tmp_path_factory, images):
 
 
 @pytest.mark.parametrize("which", ["damaged", "whole"])
-def test_the_review_says_where_the_runs_video_skips_frames(which, gap_runs, tmp_path, capsys):
-    """The overlay video's note on stderr (once), its comment and the review page's data say that frames are
-    numbered by count from the gap on; of a whole video, nothing."""
+def test_the_review_and_the_export_say_where_the_runs_video_skips_frames(which, gap_runs, tmp_path, capsys):
+    """The overlay video's and the export's notes on stderr (once each), the overlay's comment and the review page's
+    data say that frames are numbered by count from the gap on; of a whole video, nothing."""
     from pcreg.recording.review import ReviewServer
     from pcreg.review import read_review
 
@@ -204,6 +204,8 @@ def test_the_review_says_where_the_runs_video_skips_frames(which, gap_runs, tmp_
     assert [line for line in one_line_errors(capsys) if "skips frames" in line] == said
     with av.open(str(tmp_path / "overlay.mp4")) as c:
         assert c.metadata.get("comment") == (said[0].removeprefix("pcreg: note: ") if said else None)
+    assert main(["export", str(out), "--to", str(tmp_path / "cvat.zip")]) == 0
+    assert [line for line in one_line_errors(capsys) if "skips frames" in line] == said
     with ReviewServer(read_review(out), web_port=0) as server:
         gaps = json.loads(server.review_json())["gaps"]
     assert gaps == ({"note": said[0].removeprefix("pcreg: note: "), "places": 1, "missing": 4} if said else None)

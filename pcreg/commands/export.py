@@ -6,11 +6,16 @@ Unknown pixels, and with ``--min-confidence P`` every pixel whose confidence (``
 below P, are left unlabelled in the tool. The archive is written as the frames are read and checked, one
 frame in memory at a time, into a temporary file that takes the place of ``OUT/export-cvat-mask.zip`` (or
 ``--to FILE``) once every frame is in: a refused frame or a stop leaves nothing there.
+
+A run whose video skips frames by its times (run.json's ``gaps``) is exported with its frames numbered by count,
+as CVAT numbers a video's frames; a note on stderr says so once (where, and that the run's frame N is not frame N
+of the file's timeline). The archive is the layout CVAT imports, with no readme or manifest to say it in.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ._common import arg_float
@@ -59,4 +64,6 @@ def run(args: argparse.Namespace) -> int:
     note = unfinished_note(Path(args.folder), len(run_labels.names), run_labels.chosen)
     if note:
         print(note)
+    if run_labels.gaps:  # the video skips frames by its times: the run's frame N is not the file's
+        sys.stderr.write(f"pcreg: note: {run_labels.gaps}\n")
     return 0

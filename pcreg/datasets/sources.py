@@ -98,7 +98,9 @@ class SourceFrame:
     ``name`` (a folder's file name; ``{index:06d}`` in a video), the ``stem`` its outputs are named
     after, and the ``image`` (H, W, 3) uint8 RGB. ``gaps``: a video's places where frames are missing by its
     times (:class:`~pcreg.datasets.damage.Gap`), after the stream's frame before this one and up to this one,
-    told with the frame to whoever reads it (the frames are still numbered by count)."""
+    told with the frame to whoever reads it (the frames are still numbered by count). ``notes``: what reading met
+    at this frame, as ``(kind, line)`` pairs, for the reader to say once a run for each kind (a frame with
+    transparent pixels, :data:`TRANSPARENT`)."""
 
     position: int
     index: int
@@ -106,6 +108,25 @@ class SourceFrame:
     stem: str
     image: np.ndarray
     gaps: tuple = ()
+    notes: tuple[tuple[str, str], ...] = ()
+
+
+#: The kind of note of a frame with transparent pixels (alpha below 255), whose alpha pcreg does not read.
+TRANSPARENT = "transparent"
+
+
+def transparent_notes(where: str, alpha: np.ndarray | None) -> tuple[tuple[str, str], ...]:
+    """The note of a frame (``where`` names it) whose ``alpha`` (H, W) uint8 (None: the frame has none) is below 255
+    (or 65535) somewhere: its colours are read as stored, without alpha; else none."""
+    if alpha is None:
+        return ()
+    opaque = np.iinfo(alpha.dtype).max  # 255, or 65535 in a 16-bit file
+    n = np.count_nonzero(alpha < opaque)
+    if n == 0:
+        return ()
+    return ((TRANSPARENT, f"{where} has transparent pixels ({n} of its {alpha.size}, alpha below opaque): pcreg reads a frame's "
+             "colours as stored, without alpha, and labels a transparent pixel by the colour it holds; flatten the "
+             "frames onto their background first if that colour is not the scene (later such frames not said)"),)
 
 
 def _out_of_count(a: str, b: str) -> bool:
@@ -196,11 +217,13 @@ class FolderFrames:
 
     def frames(self, first: int = 0) -> Iterator[SourceFrame]:
         """The chosen frames from position ``first`` on, each read as it is asked for."""
-        from ..registration.clouds import load_image
+        from ..registration.clouds import load_image_and_alpha
 
         for t in range(first, len(self.paths)):
             p = self.paths[t]
-            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, load_image(p))
+            image, alpha = load_image_and_alpha(p)
+            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, image,
+                              notes=transparent_notes(str(p), alpha))
 
 
 class VideoFrames:
@@ -310,7 +333,7 @@ class VideoFrames:
         # One converter to RGB for the stream: ``frame.to_ndarray(format=...)`` makes a new one (an FFmpeg scaler
         # context) for every frame, which costs more than decoding the frame, and a long run's memory grew with
         # them (about 10 kB a frame at 160x120; docs/benchmarks.md).
-        rgb = VideoReformatter()
+        rgb, rgba = VideoReformatter(), VideoReformatter()  # rgba: the alpha of a pixel format that has one
         fields: Deinterlacer | None = None
         previous, stopped = None, False
 
@@ -324,9 +347,11 @@ class VideoFrames:
             reading.yielded = True
             name = f"{i:06d}"
             image = _as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
+            alpha = rgba.reformat(frame, format="rgba").to_ndarray()[:, :, 3] if _has_alpha(frame) else None
             gaps = tuple(g for g in reading.gaps if before < g.index <= i)
             reading.gaps, before = [g for g in reading.gaps if g.index > i], i
-            return SourceFrame((i - s.start) // s.every, i, name, name, image, gaps)
+            return SourceFrame((i - s.start) // s.every, i, name, name, image, gaps,
+                               transparent_notes(f"{self.path} frame {name}", alpha))
 
         for i, frame, turn in self._decoded(reading):
             stopped = s.stop is not None and i >= s.stop  # the frame after the last: only the next of the one before
@@ -439,6 +464,11 @@ def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
             check_place(places, read, int(packet.pos), path)
             read += 1
         yield from packet.decode()
+
+
+def _has_alpha(frame) -> bool:
+    """Whether a decoded ``av.VideoFrame``'s pixel format has an alpha channel (``rgba``, ``argb``, ``yuva420p``)."""
+    return any(c.is_alpha for c in frame.format.components)
 
 
 def _first_interlaced(container, stream) -> bool:

@@ -8,6 +8,9 @@ ahead), the first :data:`SAID` one by one and then once that more are counted, a
 ``listed`` naming the frame after each of the first :data:`LISTED` places and about how many frames are missing
 before it, ``last`` the frame after the last place counted (a pass or a resumed run that decodes the frames again
 counts none twice). A run without such a place has no ``gaps``.
+
+What else reading met at a frame (:attr:`~pcreg.datasets.sources.SourceFrame.notes`: a frame with transparent
+pixels) is said the same way, the first of each kind once a run, and not counted.
 """
 
 from __future__ import annotations
@@ -42,11 +45,17 @@ class GapMarks:
 
     def __init__(self, run) -> None:
         self.run, self.said, self.last = run, 0, -1
+        self.noted: set[str] = set()  # the kinds of the frames' notes said
 
     def mark(self, frame, writer=None) -> bool:
         """Say and count the gaps ``frame`` (a :class:`~pcreg.datasets.sources.SourceFrame`) comes after, those not
         counted yet; counted in the run's state by ``writer`` (a :class:`~pcreg.outputs.WriteBehind` that commits
-        it) when one is given, else at once (the caller commits). Whether there were any."""
+        it) when one is given, else at once (the caller commits). Whether there were any. The frame's notes of a
+        kind not said yet are said."""
+        for kind, line in getattr(frame, "notes", ()):
+            if kind not in self.noted:
+                self.noted.add(kind)
+                _say(line)
         counted = self.run.state.get("gaps")
         last = max(self.last, -1 if counted is None else int(counted["last"]))
         gaps = [g for g in getattr(frame, "gaps", ()) if g.index > last]

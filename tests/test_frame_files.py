@@ -79,3 +79,40 @@ def test_a_video_with_transparent_pixels_is_said_once(tmp_path, capsys):
     assert main(["run", str(video), "--labels", str(_key(tmp_path / "key.png")), "--out", str(tmp_path / "out")]) == 0
     notes = [ln for ln in capsys.readouterr().err.splitlines() if "transparent pixels" in ln]
     assert len(notes) == 1 and f"{video} frame 000002 has transparent pixels" in notes[0], notes
+
+
+def _tiff_with_thumbnail(path, image, thumbnail):
+    """A TIFF whose second IFD is a reduced-resolution copy (NewSubfileType 1), as a scanner or camera writes one."""
+    from PIL import Image, TiffImagePlugin
+
+    with TiffImagePlugin.AppendingTiffWriter(str(path)) as tf:
+        Image.fromarray(image).save(tf, format="TIFF")
+        tf.newFrame()
+        info = TiffImagePlugin.ImageFileDirectory_v2()
+        info[254] = 1
+        Image.fromarray(thumbnail).save(tf, format="TIFF", tiffinfo=info)
+        tf.newFrame()
+
+
+def test_a_multi_page_tiff_frame_or_key_is_refused_naming_its_pages(tmp_path, capsys):
+    frames = _folder(tmp_path / "frames")
+    key = _key(tmp_path / "key.png")
+    cv2.imwritemulti(str(frames / "f02.tif"), [_scene(2), _scene(9), _scene(11)])
+    (frames / "f02.png").unlink()
+    assert main(["run", str(frames), "--labels", str(key), "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"pcreg: error: {frames / 'f02.tif'}: a TIFF of 3 pages") and "\n" not in err, err
+    (frames / "f02.tif").unlink()
+    labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
+    cv2.imwritemulti(str(tmp_path / "key.tif"), [labels, 1 - labels])
+    assert main(["run", str(frames), "--labels", str(tmp_path / "key.tif"), "--out", str(tmp_path / "b")]) == 2
+    assert f"{tmp_path / 'key.tif'}: a TIFF of 2 pages" in capsys.readouterr().err
+
+
+def test_a_one_page_tiff_and_one_with_a_thumbnail_read_as_their_image(tmp_path):
+    from pcreg.registration.clouds import load_image
+
+    cv2.imwrite(str(tmp_path / "one.tif"), _scene(0))
+    _tiff_with_thumbnail(tmp_path / "thumb.tif", _scene(0)[:, :, ::-1], _scene(5)[::4, ::4, ::-1].copy())
+    for name in ("one.tif", "thumb.tif"):
+        np.testing.assert_array_equal(load_image(tmp_path / name), _scene(0)[:, :, ::-1], err_msg=name)

@@ -100,7 +100,7 @@ class SourceFrame:
     times (:class:`~pcreg.datasets.damage.Gap`), after the stream's frame before this one and up to this one,
     told with the frame to whoever reads it (the frames are still numbered by count). ``notes``: what reading met
     at this frame, as ``(kind, line)`` pairs, for the reader to say once a run for each kind (a frame with
-    transparent pixels, :data:`TRANSPARENT`)."""
+    transparent pixels, :mod:`~pcreg.datasets.frame_notes`; a video's frames turning interlaced after the first)."""
 
     position: int
     index: int
@@ -109,24 +109,6 @@ class SourceFrame:
     image: np.ndarray
     gaps: tuple = ()
     notes: tuple[tuple[str, str], ...] = ()
-
-
-#: The kind of note of a frame with transparent pixels (alpha below 255), whose alpha pcreg does not read.
-TRANSPARENT = "transparent"
-
-
-def transparent_notes(where: str, alpha: np.ndarray | None) -> tuple[tuple[str, str], ...]:
-    """The note of a frame (``where`` names it) whose ``alpha`` (H, W) uint8 (None: the frame has none) is below 255
-    (or 65535) somewhere: its colours are read as stored, without alpha; else none."""
-    if alpha is None:
-        return ()
-    opaque = np.iinfo(alpha.dtype).max  # 255, or 65535 in a 16-bit file
-    n = np.count_nonzero(alpha < opaque)
-    if n == 0:
-        return ()
-    return ((TRANSPARENT, f"{where} has transparent pixels ({n} of its {alpha.size}, alpha below opaque): pcreg reads a frame's "
-             "colours as stored, without alpha, and labels a transparent pixel by the colour it holds; flatten the "
-             "frames onto their background first if that colour is not the scene (later such frames not said)"),)
 
 
 def _out_of_count(a: str, b: str) -> bool:
@@ -218,6 +200,7 @@ class FolderFrames:
     def frames(self, first: int = 0) -> Iterator[SourceFrame]:
         """The chosen frames from position ``first`` on, each read as it is asked for."""
         from ..registration.clouds import load_image_and_alpha
+        from .frame_notes import transparent_notes
 
         for t in range(first, len(self.paths)):
             p = self.paths[t]
@@ -327,6 +310,7 @@ class VideoFrames:
         from av.video.reformatter import VideoReformatter
 
         from .deinterlace import Deinterlacer
+        from .frame_notes import has_alpha, transparent_notes, turn_note
 
         s, reading = self.selection, _Reading()
         target = s.index(first)
@@ -347,16 +331,19 @@ class VideoFrames:
             reading.yielded = True
             name = f"{i:06d}"
             image = _as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
-            alpha = rgba.reformat(frame, format="rgba").to_ndarray()[:, :, 3] if _has_alpha(frame) else None
+            notes, reading.notes = tuple(reading.notes), []
+            alpha = rgba.reformat(frame, format="rgba").to_ndarray()[:, :, 3] if has_alpha(frame) else None
             gaps = tuple(g for g in reading.gaps if before < g.index <= i)
             reading.gaps, before = [g for g in reading.gaps if g.index > i], i
             return SourceFrame((i - s.start) // s.every, i, name, name, image, gaps,
-                               transparent_notes(f"{self.path} frame {name}", alpha))
+                               notes + transparent_notes(f"{self.path} frame {name}", alpha))
 
         for i, frame, turn in self._decoded(reading):
             stopped = s.stop is not None and i >= s.stop  # the frame after the last: only the next of the one before
             if fields is None and frame.interlaced_frame and not stopped:
                 fields = Deinterlacer()
+                if i > 0:  # the turn, told with the next frame handed on (the first flagged: :meth:`note` says it)
+                    reading.notes.append(turn_note(self.path, i))
                 if previous is not None and wanted(i):  # the frame before it, as this frame's neighbour
                     fields.push(previous, None)
             if fields is None:
@@ -440,13 +427,15 @@ class VideoFrames:
 @dataclass
 class _Reading:
     """What reading a video met: frames ``decoded``, the last one's time, the ``hidden`` ones (a one-item list, as
-    :func:`_shown_frames` counts them), whether a frame was handed on, the gaps in the times not handed on yet."""
+    :func:`_shown_frames` counts them), whether a frame was handed on, the gaps in the times and the notes
+    (:attr:`SourceFrame.notes`) not handed on yet."""
 
     decoded: int = 0
     last_time: float | None = None
     hidden: list[int] = field(default_factory=lambda: [0])
     yielded: bool = False
     gaps: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
 
 
 def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
@@ -464,11 +453,6 @@ def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
             check_place(places, read, int(packet.pos), path)
             read += 1
         yield from packet.decode()
-
-
-def _has_alpha(frame) -> bool:
-    """Whether a decoded ``av.VideoFrame``'s pixel format has an alpha channel (``rgba``, ``argb``, ``yuva420p``)."""
-    return any(c.is_alpha for c in frame.format.components)
 
 
 def _first_interlaced(container, stream) -> bool:

@@ -116,3 +116,14 @@ def test_a_one_page_tiff_and_one_with_a_thumbnail_read_as_their_image(tmp_path):
     _tiff_with_thumbnail(tmp_path / "thumb.tif", _scene(0)[:, :, ::-1], _scene(5)[::4, ::4, ::-1].copy())
     for name in ("one.tif", "thumb.tif"):
         np.testing.assert_array_equal(load_image(tmp_path / name), _scene(0)[:, :, ::-1], err_msg=name)
+
+
+def test_a_transparent_frame_between_two_key_frames_is_said_once(tmp_path, capsys):
+    frames = _folder(tmp_path / "frames", n=6, alpha=255, transparent=(2, 3))
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in (0, 5):
+        _key(keys / f"f{i:02d}.png")
+    assert main(["run", str(frames), "--labels", str(keys), "--out", str(tmp_path / "out")]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if "transparent pixels" in ln]
+    assert len(notes) == 1 and f"{frames / 'f02.png'} has transparent pixels" in notes[0], notes

@@ -34,7 +34,7 @@ import re
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, TypeVar
+from typing import Any, Generator, Iterator, TypeVar
 
 import numpy as np
 
@@ -542,7 +542,7 @@ def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderF
 _Item = TypeVar("_Item")
 
 
-def read_ahead(frames: Iterator[_Item]) -> Iterator[_Item]:
+def read_ahead(frames: Iterator[_Item]) -> Generator[_Item, None, None]:
     """``frames`` as they come, the next one read and decoded on a thread of its own while the caller
     works on this one (a 640x480 PNG takes about 14 ms to decode; PyAV and OpenCV release the GIL while
     they decode). An error reading a frame comes out where that frame would have; closing this

@@ -51,11 +51,8 @@ class GapMarks:
         """Say and count the gaps ``frame`` (a :class:`~pcreg.datasets.sources.SourceFrame`) comes after, those not
         counted yet; counted in the run's state by ``writer`` (a :class:`~pcreg.outputs.WriteBehind` that commits
         it) when one is given, else at once (the caller commits). Whether there were any. The frame's notes of a
-        kind not said yet are said."""
-        for kind, line in getattr(frame, "notes", ()):
-            if kind not in self.noted:
-                self.noted.add(kind)
-                _say(line)
+        kind not said yet are said (:meth:`say`)."""
+        self.say(getattr(frame, "notes", ()))
         counted = self.run.state.get("gaps")
         last = max(self.last, -1 if counted is None else int(counted["last"]))
         gaps = [g for g in getattr(frame, "gaps", ()) if g.index > last]
@@ -75,6 +72,14 @@ class GapMarks:
         else:
             writer.submit(self._count, gaps)
         return True
+
+    def say(self, notes: Iterable[tuple[str, str]]) -> None:
+        """Say each of a frame's ``notes`` (:attr:`~pcreg.datasets.sources.SourceFrame.notes`, ``(kind, line)``) whose
+        kind this run has not said yet."""
+        for kind, line in notes:
+            if kind not in self.noted:
+                self.noted.add(kind)
+                _say(line)
 
     def marked(self, frames: Iterable, writer=None) -> Iterator:
         """``frames`` as they come, each one's gaps marked (:meth:`mark`) as it is taken."""

@@ -250,6 +250,31 @@ def _tiff_size(data: bytes) -> tuple[int, int] | None:
         return None
 
 
+def _tiff_pages(data: bytes) -> int:
+    """The images a TIFF file's chain of IFDs holds, those that are a reduced-resolution copy (a thumbnail) or a
+    transparency mask of another (NewSubfileType bits 0 and 2) left out; a chain that loops or leaves the file ends
+    the count. OpenCV decodes the first IFD alone."""
+    end = "<" if data[:2] == b"II" else ">"
+    seen: set[int] = set()
+    pages = 0
+    try:
+        (off,) = struct.unpack(end + "I", data[4:8])
+        while off and off not in seen:
+            seen.add(off)
+            (count,) = struct.unpack(end + "H", data[off:off + 2])
+            kind = 0
+            for k in range(count):
+                e = off + 2 + 12 * k
+                tag, typ = struct.unpack(end + "HH", data[e:e + 4])
+                if tag == 254:  # NewSubfileType
+                    kind = struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + (10 if typ == 3 else 12)])[0]
+            pages += not kind & 0b101
+            (off,) = struct.unpack(end + "I", data[off + 2 + 12 * count:off + 6 + 12 * count])
+    except struct.error:
+        pass
+    return pages
+
+
 def _pnm_size(data: bytes) -> tuple[int, int] | None:
     tokens: list[bytes] = []
     i = 2
@@ -328,8 +353,8 @@ def image_size(data: bytes) -> tuple[str, tuple[int, int] | None] | None:
 
 
 def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tuple[int, int]:
-    """(width, height) declared by an encoded image, refused when empty, of an unknown format, damaged
-    or larger than the pixel limit."""
+    """(width, height) declared by an encoded image, refused when empty, of an unknown format, damaged,
+    larger than the pixel limit, or a TIFF of several pages (read, its first page would be taken for the file)."""
     if not data:
         raise InputError(f"{name}: empty file")
     found = image_size(data)
@@ -340,6 +365,9 @@ def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tu
         raise InputError(f"{name}: cannot decode image (damaged {fmt} header)")
     w, h = size
     check_pixels((h, w), name, limit=limit)
+    if fmt == "TIFF" and (pages := _tiff_pages(data)) > 1:
+        raise InputError(f"{name}: a TIFF of {pages} pages, of which pcreg would read the first alone; split it into "
+                         "one file a page (tiffsplit, or OpenCV's cv2.imreadmulti and cv2.imwrite)")
     return w, h
 
 

@@ -92,6 +92,30 @@ def test_one_object_reads_as_before(tmp_path):
         np.testing.assert_array_equal(read_key_labels(tmp_path / "k.png", DAVIS, "davis"), mask > 0)
 
 
+def test_a_smoothed_grey_mask_without_255_is_one_object(tmp_path):
+    """A 0/M object mask (M below 255: a tool that saves 0/1 scaled, 0/200) resized, its edge smoothed: one object as
+    the 0/255 one, never one object per value of its edge; grey ids of objects 1, 2, 3 stay three objects."""
+    image, mask = frames_and_masks(1)[0]
+    seq = tmp_path / "seq"
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    cv2.imwrite(str(seq / "images" / "00000.jpg"), image)
+    for peak in (255, 200):
+        soft = cv2.resize(cv2.resize(np.where(mask > 0, peak, 0).astype(np.uint8), None, fx=0.5, fy=0.5,
+                                     interpolation=cv2.INTER_AREA), mask.shape[::-1], interpolation=cv2.INTER_LINEAR)
+        assert len(np.unique(soft)) > 4 and soft.max() == peak
+        cv2.imwrite(str(tmp_path / f"soft{peak}.png"), soft)
+        labels = read_key_labels(tmp_path / f"soft{peak}.png", DAVIS, "davis")
+        np.testing.assert_array_equal(labels, (soft > 0).astype(np.uint8))
+        shutil.copy(tmp_path / f"soft{peak}.png", seq / "labels" / "00000.png")
+        clips = load_dataset(f"davis:{seq}")
+        assert [len(frames) for frames in clips.values()] == [1], list(clips)
+    ids = halves(mask)
+    ids[(ids == 2) & (np.arange(mask.shape[0])[:, None] > mask.shape[0] // 2)] = 3
+    cv2.imwrite(str(seq / "labels" / "00000.png"), ids)
+    assert len(load_dataset(f"davis:{seq}")) == 3
+
+
 def test_masks_that_read_two_ways_are_refused_saying_what_they_hold(tmp_path):
     mask = frames_and_masks(1)[0][1]
     soft = cv2.resize(cv2.resize(mask, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA), mask.shape[::-1],

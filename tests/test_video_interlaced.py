@@ -177,5 +177,10 @@ def test_a_stream_that_turns_interlaced_part_way_is_deinterlaced_from_there(tmp_
             assert _combing(raw[k]) > 30 > 5 > _combing(f.image), k
     key = tmp_path / "key.png"
     cv2.imwrite(str(key), (np.arange(W)[None, :] >= W // 2).astype(np.uint8).repeat(H, axis=0))
+    capsys.readouterr()
     assert main(["run", str(video), "--labels", str(key), "--out", str(tmp_path / "out")]) == 0
     assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == [f"{i:06d}.png" for i in range(len(raw))]
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if "interlaced" in ln]  # the turn said once, where it is
+    assert notes == [f"pcreg: note: {video}: frames flagged interlaced from frame {turn:06d} on, the frames before it "
+                     "progressive (recordings joined, a programme change): they are deinterlaced with FFmpeg's bwdif as "
+                     "they are read"], notes

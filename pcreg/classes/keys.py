@@ -135,23 +135,33 @@ def _grey_ids(values: np.ndarray, name: str) -> bool:
     :data:`SOFT_EDGE` px of a 255 pixel (resized: a smoothed edge, read as the object as before). Values below
     255 beyond that edge, beside 255, are refused, naming them, one such value as several: DAVIS 2017's
     objects with 255 void (one object's 1 with its void border, saved as grey), or a mask of other making,
-    cannot be told apart."""
+    cannot be told apart. Without 255, a mask whose values below its largest, M, are three or more and lie only
+    within :data:`SOFT_EDGE` px of M's pixels is a 0/M mask smoothed (blurred, or resized from a mask of 0 and
+    M): one object, as with 255. Objects saved as grey ids 1..N would need three of them wholly within that edge of
+    the last."""
     present = np.flatnonzero(np.bincount(values.ravel(), minlength=256))
     below = [int(v) for v in present if 0 < v < 255]
     if not below:
         return False
+    if present[-1] < 255 and len(below) >= 4 and _edge_only(values, int(present[-1])):
+        return False  # a 0/M mask smoothed (three or more values below M, on M's edge): one object, as with 255
     if present[-1] == 255:
-        import cv2
-
-        side = 2 * SOFT_EDGE + 1
-        near = cv2.dilate((values == 255).astype(np.uint8), np.ones((side, side), np.uint8))
-        if not np.any((values > 0) & (values < 255) & (near == 0)):
+        if _edge_only(values, 255):
             return False  # a smoothed edge: one object
         raise InputError(f"{name}: a grey mask of values 0, {_listed(below)} and 255, the values between beyond "
                          f"{SOFT_EDGE} px of the 255s (not a smoothed edge): "
                          f"object{'s' if len(below) > 1 else ''} {_listed(below)} with 255 void? "
                          "It is not assumed; " + _SAVE_OBJECTS)
     return len(below) > 1
+
+
+def _edge_only(values: np.ndarray, top: int) -> bool:
+    """Whether every value of ``values`` between 0 and ``top`` lies within :data:`SOFT_EDGE` px of a ``top`` pixel."""
+    import cv2
+
+    side = 2 * SOFT_EDGE + 1
+    near = cv2.dilate((values == top).astype(np.uint8), np.ones((side, side), np.uint8))
+    return not np.any((values > 0) & (values < top) & (near == 0))
 
 
 def _colour_objects(img: np.ndarray, name: str) -> tuple[np.ndarray, bool]:

@@ -34,7 +34,7 @@ import re
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, TypeVar
+from typing import Any, Generator, Iterator, TypeVar
 
 import numpy as np
 
@@ -98,7 +98,9 @@ class SourceFrame:
     ``name`` (a folder's file name; ``{index:06d}`` in a video), the ``stem`` its outputs are named
     after, and the ``image`` (H, W, 3) uint8 RGB. ``gaps``: a video's places where frames are missing by its
     times (:class:`~pcreg.datasets.damage.Gap`), after the stream's frame before this one and up to this one,
-    told with the frame to whoever reads it (the frames are still numbered by count)."""
+    told with the frame to whoever reads it (the frames are still numbered by count). ``notes``: what reading met
+    at this frame, as ``(kind, line)`` pairs, for the reader to say once a run for each kind (a frame with
+    transparent pixels, :mod:`~pcreg.datasets.frame_notes`; a video's frames turning interlaced after the first)."""
 
     position: int
     index: int
@@ -106,6 +108,7 @@ class SourceFrame:
     stem: str
     image: np.ndarray
     gaps: tuple = ()
+    notes: tuple[tuple[str, str], ...] = ()
 
 
 def _out_of_count(a: str, b: str) -> bool:
@@ -196,11 +199,14 @@ class FolderFrames:
 
     def frames(self, first: int = 0) -> Iterator[SourceFrame]:
         """The chosen frames from position ``first`` on, each read as it is asked for."""
-        from ..registration.clouds import load_image
+        from ..registration.clouds import load_image_and_alpha
+        from .frame_notes import transparent_notes
 
         for t in range(first, len(self.paths)):
             p = self.paths[t]
-            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, load_image(p))
+            image, alpha = load_image_and_alpha(p)
+            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, image,
+                              notes=transparent_notes(str(p), alpha))
 
 
 class VideoFrames:
@@ -304,13 +310,14 @@ class VideoFrames:
         from av.video.reformatter import VideoReformatter
 
         from .deinterlace import Deinterlacer
+        from .frame_notes import has_alpha, transparent_notes, turn_note
 
         s, reading = self.selection, _Reading()
         target = s.index(first)
         # One converter to RGB for the stream: ``frame.to_ndarray(format=...)`` makes a new one (an FFmpeg scaler
         # context) for every frame, which costs more than decoding the frame, and a long run's memory grew with
         # them (about 10 kB a frame at 160x120; docs/benchmarks.md).
-        rgb = VideoReformatter()
+        rgb, rgba = VideoReformatter(), VideoReformatter()  # rgba: the alpha of a pixel format that has one
         fields: Deinterlacer | None = None
         previous, stopped = None, False
 
@@ -324,14 +331,19 @@ class VideoFrames:
             reading.yielded = True
             name = f"{i:06d}"
             image = _as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
+            notes, reading.notes = tuple(reading.notes), []
+            alpha = rgba.reformat(frame, format="rgba").to_ndarray()[:, :, 3] if has_alpha(frame) else None
             gaps = tuple(g for g in reading.gaps if before < g.index <= i)
             reading.gaps, before = [g for g in reading.gaps if g.index > i], i
-            return SourceFrame((i - s.start) // s.every, i, name, name, image, gaps)
+            return SourceFrame((i - s.start) // s.every, i, name, name, image, gaps,
+                               notes + transparent_notes(f"{self.path} frame {name}", alpha))
 
         for i, frame, turn in self._decoded(reading):
             stopped = s.stop is not None and i >= s.stop  # the frame after the last: only the next of the one before
             if fields is None and frame.interlaced_frame and not stopped:
                 fields = Deinterlacer()
+                if i > 0:  # the turn, told with the next frame handed on (the first flagged: :meth:`note` says it)
+                    reading.notes.append(turn_note(self.path, i))
                 if previous is not None and wanted(i):  # the frame before it, as this frame's neighbour
                     fields.push(previous, None)
             if fields is None:
@@ -415,13 +427,15 @@ class VideoFrames:
 @dataclass
 class _Reading:
     """What reading a video met: frames ``decoded``, the last one's time, the ``hidden`` ones (a one-item list, as
-    :func:`_shown_frames` counts them), whether a frame was handed on, the gaps in the times not handed on yet."""
+    :func:`_shown_frames` counts them), whether a frame was handed on, the gaps in the times and the notes
+    (:attr:`SourceFrame.notes`) not handed on yet."""
 
     decoded: int = 0
     last_time: float | None = None
     hidden: list[int] = field(default_factory=lambda: [0])
     yielded: bool = False
     gaps: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
 
 
 def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
@@ -528,7 +542,7 @@ def open_frames(path: str | Path, selection: Selection = Selection()) -> FolderF
 _Item = TypeVar("_Item")
 
 
-def read_ahead(frames: Iterator[_Item]) -> Iterator[_Item]:
+def read_ahead(frames: Iterator[_Item]) -> Generator[_Item, None, None]:
     """``frames`` as they come, the next one read and decoded on a thread of its own while the caller
     works on this one (a 640x480 PNG takes about 14 ms to decode; PyAV and OpenCV release the GIL while
     they decode). An error reading a frame comes out where that frame would have; closing this

@@ -166,28 +166,44 @@ class KeyRun:
         return (["store"] if video else []) + (["between"] if s.first is not None else []) + ["backward"]
 
     def _image(self, s: Stretch, t: int) -> np.ndarray:
-        from ..registration.clouds import load_image
+        """Frame ``t``'s image, its notes said (on the caller's thread: the run loop's)."""
+        image, notes = self._image_and_notes(s, t)
+        self.owner.gaps.say(notes)
+        return image
+
+    def _image_and_notes(self, s: Stretch, t: int) -> tuple[np.ndarray, tuple]:
+        """Frame ``t``'s image and what reading it met (:attr:`~pcreg.datasets.sources.SourceFrame.notes`: a folder's
+        frame with transparent pixels; a video's were met where the store phase decoded it)."""
+        from ..datasets.frame_notes import transparent_notes
+        from ..registration.clouds import load_image_and_alpha
 
         if self.frames.kind == "folder":
-            return load_image(self.frames.paths[t])
-        return read_frame(self._hidden(self.fingerprint(s)), t)
+            image, alpha = load_image_and_alpha(self.frames.paths[t])
+            return image, transparent_notes(str(self.frames.paths[t]), alpha)
+        return read_frame(self._hidden(self.fingerprint(s)), t), ()
 
     def _images(self, s: Stretch, positions: range, priors: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
         """``(t, image)`` for the frames at ``positions``, in that order, the next one read on a thread of
         its own while the caller labels this one (:func:`~pcreg.datasets.sources.read_ahead`); with ``priors``,
         what the forward pass kept for frame ``t`` (:func:`~pcreg.runs.kept.read_prior`) put in it at ``t``
-        on that thread too, before the frame comes out."""
+        on that thread too, before the frame comes out. A frame's notes are said as it comes out, by the caller's
+        thread."""
+        from contextlib import closing
+
         from ..datasets.sources import read_ahead
 
         folder = self._hidden(self.fingerprint(s))
 
-        def read() -> Iterator[tuple[int, np.ndarray]]:
+        def read() -> Iterator[tuple[int, np.ndarray, tuple]]:
             for t in positions:
                 if priors is not None:
                     priors[t] = read_prior(folder, t)
-                yield t, self._image(s, t)
+                yield t, *self._image_and_notes(s, t)
 
-        return read_ahead(read())
+        with closing(read_ahead(read())) as frames:
+            for t, image, notes in frames:
+                self.owner.gaps.say(notes)
+                yield t, image
 
     def _classifier(self, s: Stretch, images: dict):
         from ..classification.bayes import fit_classifier

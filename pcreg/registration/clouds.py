@@ -57,6 +57,16 @@ def load_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.
     return _rgb_and_alpha(read_image_file(path, limit=max_pixels), str(path), max_pixels)[0]
 
 
+def load_image_and_alpha(path: str | os.PathLike, *, max_pixels: int | None = None
+                         ) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(image, alpha)``: :func:`load_image`'s image, and the file's alpha channel as stored ((H, W) uint8 or uint16),
+    None without one."""
+    from ..formats import read_image_file
+
+    path = check_path(path, "path")
+    return _rgb_and_alpha(read_image_file(path, limit=max_pixels), str(path), max_pixels)
+
+
 def load_image_and_mask(path: str | os.PathLike, *, max_pixels: int | None = None
                         ) -> tuple[np.ndarray, np.ndarray | str]:
     """``(image, mask)``: :func:`load_image`'s image, and the pixels to register: ``"auto"`` (every pixel

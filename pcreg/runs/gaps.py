@@ -12,6 +12,9 @@ without such a place has no ``gaps``.
 
 What reads a run afterwards (``pcreg view``, ``pcreg export``) says it with :func:`gaps_note`: from the first place
 on, the run's frame N is not frame N of the file's timeline.
+
+What else reading met at a frame (:attr:`~pcreg.datasets.sources.SourceFrame.notes`: a frame with transparent
+pixels) is said the same way, the first of each kind once a run, and not counted.
 """
 
 from __future__ import annotations
@@ -46,11 +49,14 @@ class GapMarks:
 
     def __init__(self, run) -> None:
         self.run, self.said, self.last = run, 0, -1
+        self.noted: set[str] = set()  # the kinds of the frames' notes said
 
     def mark(self, frame, writer=None) -> bool:
         """Say and count the gaps ``frame`` (a :class:`~pcreg.datasets.sources.SourceFrame`) comes after, those not
         counted yet; counted in the run's state by ``writer`` (a :class:`~pcreg.outputs.WriteBehind` that commits
-        it) when one is given, else at once (the caller commits). Whether there were any."""
+        it) when one is given, else at once (the caller commits). Whether there were any. The frame's notes of a
+        kind not said yet are said (:meth:`say`)."""
+        self.say(getattr(frame, "notes", ()))
         counted = self.run.state.get("gaps")
         last = max(self.last, -1 if counted is None else int(counted["last"]))
         gaps = [g for g in getattr(frame, "gaps", ()) if g.index > last]
@@ -70,6 +76,14 @@ class GapMarks:
         else:
             writer.submit(self._count, gaps)
         return True
+
+    def say(self, notes: Iterable[tuple[str, str]]) -> None:
+        """Say each of a frame's ``notes`` (:attr:`~pcreg.datasets.sources.SourceFrame.notes`, ``(kind, line)``) whose
+        kind this run has not said yet."""
+        for kind, line in notes:
+            if kind not in self.noted:
+                self.noted.add(kind)
+                _say(line)
 
     def marked(self, frames: Iterable, writer=None) -> Iterator:
         """``frames`` as they come, each one's gaps marked (:meth:`mark`) as it is taken."""

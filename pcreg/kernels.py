@@ -4,7 +4,7 @@
 
 The kernels: the exact correspondence search (:mod:`pcreg.registration.kdtree`; the grid of
 :mod:`pcreg.registration.nn`), the reference ICP's
-point-to-point loop (:mod:`pcreg.registration.reference`), the sub-pixel edges of the image pyramids
+point-to-point and projective loops (:mod:`pcreg.registration.reference`), the sub-pixel edges of the image pyramids
 (:mod:`pcreg.registration.clouds`), the dense registration's window search, assembly, solver and
 full-size field (:mod:`pcreg.registration.dense`), the field of a transform
 (:mod:`pcreg.registration.motion`) and the stream's one-pass fusions (:mod:`pcreg.pipeline.prior`,

@@ -4,6 +4,7 @@ import pytest
 from pcreg import ICPOptions
 from pcreg import transforms as tf
 from pcreg.errors import RegistrationError
+from pcreg.registration.kdtree import KDTreeIndex
 from pcreg.registration.reference import (
     check_rank,
     estimate,
@@ -124,6 +125,62 @@ def test_the_dlt_normal_solve_is_the_svd_solve():
                                                      max_iteration=30), dlt=dlt) for dlt in ("svd", "normal")]
     np.testing.assert_allclose(runs[1].matrix, runs[0].matrix, rtol=1e-9, atol=1e-12)
     assert runs[1].iterations == runs[0].iterations and runs[1].fitness == runs[0].fitness
+
+def test_the_compiled_dlt_is_the_numpy_dlt():
+    # The compiled projective loop's DLT sums the normal matrix one pair at a time over the matched pairs: the
+    # NumPy normal solve's homography to rounding, with noise, unequal weights, pairs weighted out and unmatched.
+    from pcreg.registration.closed_forms import _dlt_normal_pairs, estimate_projective
+
+    rng = np.random.default_rng(11)
+    H = np.array([[0.97, 0.12, -25.0], [-0.08, 1.04, 14.0], [-2e-4, 3e-4, 1.0]])
+    p = rng.uniform(0, 400, (2500, 2))
+    q = tf.apply(H, p) + rng.normal(0, 0.5, p.shape)
+    order = rng.permutation(len(p))  # the matches point anywhere in the target
+    target = np.empty_like(q)
+    target[order] = q
+    match = order.copy()
+    match[::7] = -1
+    w = rng.uniform(0.1, 2.0, len(p))
+    w[::5] = 0.0
+    kept = match >= 0
+    numpy = estimate_projective(p[kept], target[match[kept]], w[kept], solve="normal")
+    compiled, error = _dlt_normal_pairs(p, target, match, w)
+    assert error == 0
+    np.testing.assert_allclose(compiled, numpy, rtol=1e-9, atol=1e-15)
+    assert tf.max_corner_error(compiled, H, (400, 400)) < 0.5
+    assert _dlt_normal_pairs(np.zeros((6, 2)), np.zeros((6, 2)), np.arange(6), np.ones(6))[1] != 0
+
+
+def test_the_compiled_projective_icp_is_the_numpy_loop():
+    # The model check's refinement (projective, dlt="normal", no weights, a KD-tree) runs compiled; the NumPy loop
+    # (here through scipy's cKDTree, which it takes as it is) gives the same iterations, fitness and homography.
+    from scipy.spatial import cKDTree
+
+    from pcreg.registration.reference import _icp_projective
+
+    rng = np.random.default_rng(5)
+    t = np.linspace(0, 2 * np.pi, 1500, endpoint=False)
+    curve = np.column_stack([200 + 120 * np.cos(t) + 30 * np.cos(5 * t), 150 + 90 * np.sin(3 * t)])
+    target = np.vstack([curve + rng.normal(0, 0.3, curve.shape), rng.uniform(0, 400, (500, 2))])
+    H = np.array([[1.02, 0.03, 2.0], [-0.02, 0.99, -1.5], [4e-5, -3e-5, 1.0]])
+    source = tf.apply(np.linalg.inv(H), target[::2]) + rng.normal(0, 0.4, (1000, 2))
+    options = ICPOptions(model="projective", max_correspondence_distance=5, max_iteration=40)
+    numpy = icp_reference(source, target, options, dlt="normal", tree=cKDTree(target))
+    steps = []
+    compiled = _icp_projective(source, target, np.eye(3), KDTreeIndex(target), max_distance=5.0, max_iteration=40,
+                               relative_fitness=options.relative_fitness, relative_rmse=options.relative_rmse,
+                               callback=steps.append, level=0, start=0.0)
+    assert numpy.iterations > 5 and compiled.iterations == numpy.iterations and len(steps) == numpy.iterations + 1
+    assert compiled.converged == numpy.converged and compiled.fitness == numpy.fitness
+    np.testing.assert_allclose(compiled.inlier_rmse, numpy.inlier_rmse, rtol=1e-12)
+    np.testing.assert_allclose(compiled.matrix, numpy.matrix, rtol=1e-9, atol=1e-15)
+    np.testing.assert_array_equal(steps[-1].matrix, compiled.matrix)
+    assert tf.max_corner_error(compiled.matrix, H, (300, 400)) < 0.5
+    # without a callback, in one call, and as icp_reference runs it
+    once = icp_reference(source, target, options, dlt="normal")
+    np.testing.assert_array_equal(once.matrix, compiled.matrix)
+    assert once.iterations == compiled.iterations
+
 
 @pytest.mark.parametrize("model", ["translation", "rigid", "similarity", "affine", "projective"])
 def test_point_to_line_converges_on_lines(model):

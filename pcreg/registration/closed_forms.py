@@ -296,6 +296,67 @@ def _dlt_normal(p: np.ndarray, q: np.ndarray, sw: np.ndarray) -> tuple[np.ndarra
     return vecs[:, 0], Np, Nq
 
 
+@njit(cache=True, error_model="numpy")
+def _dlt_normal_pairs(p, q, match, w):
+    """:func:`estimate_projective`'s ``solve="normal"``, compiled: ``(H, 0)``, or ``(H, 4)`` for a degenerate
+    homography (``|h33|`` < 1e-12) and ``(H, 1)`` for a normal matrix that is not finite. The pairs are
+    ``p[t] -> q[match[t]]`` weighted ``w[t]`` where ``match[t] >= 0``, in ``p``'s order (the compiled projective
+    ICP's matches, :func:`~pcreg.registration.reference._projective_loop`); the same sums as :func:`_dlt_normal`
+    (the normalisations unweighted, the blocks of AᵀA weighted), summed one pair at a time."""
+    k, mp0, mp1, mq0, mq1 = 0, 0.0, 0.0, 0.0, 0.0
+    for t in range(p.shape[0]):
+        j = match[t]
+        if j >= 0:
+            k += 1
+            mp0 += p[t, 0]
+            mp1 += p[t, 1]
+            mq0 += q[j, 0]
+            mq1 += q[j, 1]
+    mp0, mp1, mq0, mq1 = mp0 / k, mp1 / k, mq0 / k, mq1 / k
+    rp, rq = 0.0, 0.0
+    for t in range(p.shape[0]):
+        j = match[t]
+        if j >= 0:
+            rp += math.sqrt((p[t, 0] - mp0) ** 2 + (p[t, 1] - mp1) ** 2)
+            rq += math.sqrt((q[j, 0] - mq0) ** 2 + (q[j, 1] - mq1) ** 2)
+    sp, sq = math.sqrt(2.0) / max(rp / k, 1e-12), math.sqrt(2.0) / max(rq / k, 1e-12)
+    S = np.zeros((4, 3, 3))  # the blocks Σ a aᵀ, Σ u a aᵀ, Σ v a aᵀ, Σ (u² + v²) a aᵀ
+    a = np.empty(3)
+    for t in range(p.shape[0]):
+        j = match[t]
+        if j >= 0:
+            sw = math.sqrt(w[t])
+            a[0], a[1], a[2] = (p[t, 0] - mp0) * (sp * sw), (p[t, 1] - mp1) * (sp * sw), sw
+            u, v = (q[j, 0] - mq0) * sq, (q[j, 1] - mq1) * sq
+            for r in range(3):
+                for c in range(3):
+                    aa = a[r] * a[c]
+                    S[0, r, c] += aa
+                    S[1, r, c] += (a[r] * u) * a[c]
+                    S[2, r, c] += (a[r] * v) * a[c]
+                    S[3, r, c] += (u * a[r]) * (u * a[c]) + (v * a[r]) * (v * a[c])
+    M = np.zeros((9, 9))
+    for r in range(3):
+        for c in range(3):
+            M[r, c] = M[3 + r, 3 + c] = S[0, r, c]
+            M[r, 6 + c] = M[6 + c, r] = -S[1, r, c]
+            M[3 + r, 6 + c] = M[6 + c, 3 + r] = -S[2, r, c]
+            M[6 + r, 6 + c] = S[3, r, c]
+    H = np.eye(3)
+    if not np.isfinite(M).all():
+        return H, 1
+    h = np.linalg.eigh(M)[1][:, 0]
+    # H = Nq⁻¹ h Np, with Np = [[sp, 0, -sp mp], [0, sp, ...], [0, 0, 1]] and Nq⁻¹ = [[1/sq, 0, mq], ...]
+    for r in range(3):
+        g0, g1, g2 = h[3 * r], h[3 * r + 1], h[3 * r + 2]
+        H[r, 0], H[r, 1], H[r, 2] = g0 * sp, g1 * sp, g2 - sp * (g0 * mp0 + g1 * mp1)
+    for c in range(3):
+        H[0, c], H[1, c] = H[0, c] / sq + mq0 * H[2, c], H[1, c] / sq + mq1 * H[2, c]
+    if abs(H[2, 2]) < 1e-12:
+        return H, 4
+    return H / H[2, 2], 0
+
+
 def estimate(p: np.ndarray, q: np.ndarray, w: np.ndarray, model: str, *, rotation: str = "svd",
              dlt: str = "svd") -> np.ndarray:
     """Closed-form update for one motion model from weighted correspondences p_i -> q_i (``dlt``: how the

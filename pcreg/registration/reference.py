@@ -25,7 +25,7 @@ from .._jit import njit, prange
 
 from ..errors import InputError, RegistrationError
 from . import _kd_kernels, _nn_kernels, nn
-from .closed_forms import (MIN_POINTS, _umeyama, check_rank, estimate, estimate_affine,  # noqa: F401  (named here too)
+from .closed_forms import (MIN_POINTS, _dlt_normal_pairs, _umeyama, check_rank, estimate, estimate_affine,  # noqa: F401  (named here too)
                            check_support, estimate_horn_quaternion, estimate_projective, estimate_translation,
                            estimate_umeyama, pairs_needed, robust_weights, umeyama_from_moments)
 from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, WEIGHTS: named here too)
@@ -114,6 +114,11 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
         return _icp_moments(source, target, T, tree, model=model, max_distance=max_correspondence_distance,
                             max_iteration=max_iteration, relative_fitness=relative_fitness,
                             relative_rmse=relative_rmse, callback=callback, level=level, start=start)
+    if (metric == "point_to_point" and weights == "none" and model == "projective" and dlt == "normal" and d == 2
+            and isinstance(tree, KDTreeIndex)):
+        return _icp_projective(source, target, T, tree, max_distance=max_correspondence_distance,
+                               max_iteration=max_iteration, relative_fitness=relative_fitness,
+                               relative_rmse=relative_rmse, callback=callback, level=level, start=start)
     pts = apply(T, source)
     n = source.shape[0]
     d2, idx, ok = _correspond(tree, pts, max_correspondence_distance)
@@ -375,6 +380,85 @@ def _moment_loop_threads(pts, T, steps, model, need, relative_fitness, relative_
             return
 
 
+def _icp_projective(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: KDTreeIndex, *, max_distance: float,
+                    max_iteration: int, relative_fitness: float, relative_rmse: float, callback, level: int,
+                    start: float) -> RegistrationResult:
+    """The same loop as :func:`icp_reference` for point-to-point projective steps without weights whose DLT is
+    solved from its normal matrix (``dlt="normal"``, the model check's refinement), compiled: each iteration's
+    DLT (:func:`~pcreg.registration.closed_forms._dlt_normal_pairs`), move, correspondence search and stopping
+    rule run in :func:`_projective_loop` without returning to Python (one iteration a call with a ``callback``).
+    The same homographies as the NumPy loop to rounding (the sums are taken one pair at a time)."""
+    n = source.shape[0]
+    pts = np.ascontiguousarray(apply(T, source))
+    T = np.array(T, dtype=np.float64)
+    d2, idx = tree.nearest(pts, max_distance)
+    state = np.zeros(5)  # fitness, inlier RMSE, iterations, converged, error (see _moment_loop)
+    ok = idx >= 0
+    _scored(int(ok.sum()), float(d2[ok].sum()), n, 0.0, 0.0, state)  # thresholds 0: the rule cannot hold
+
+    def report() -> None:
+        if callback is not None:
+            callback(IcpIteration(backend="reference", level=level, iteration=int(state[2]), matrix=T.copy(),
+                                  fitness=float(state[0]), inlier_rmse=float(state[1]), source_points=pts.copy(),
+                                  target_points=target, target_indices=idx.copy()))
+
+    report()
+    need, ones = pairs_needed("projective", 2), np.ones(n)
+    while state[2] < max_iteration and not state[3]:
+        steps = 1 if callback is not None else max_iteration - int(state[2])
+        _projective_loop(pts, T, steps, need, float(relative_fitness), float(relative_rmse),
+                         nn.squared_bound(max_distance), *tree.search_arrays, d2, idx, tree.data, ones, state)
+        if state[4] == 1:
+            raise RegistrationError("ICP update is not finite (degenerate correspondences)")
+        if state[4] == 4:
+            raise RegistrationError("degenerate homography")
+        if state[4] == 3:
+            break
+        report()
+    return _finished(T, float(state[0]), float(state[1]), int(state[2]), bool(state[3]), start)
+
+
+@njit(cache=True, error_model="numpy")
+def _projective_loop(pts, T, steps, need, relative_fitness, relative_rmse, r2, nodes, spts, sidx, depth, out_d2,
+                     out_i, target, w, state):
+    """Up to ``steps`` projective point-to-point iterations, in place: ``pts`` (the moved source, 2-D), ``T``,
+    the matches ``out_d2`` / ``out_i`` (on entry, those of ``pts``) and ``state`` as :func:`_moment_loop`'s
+    (errors: 1, not finite; 3, fewer pairs of nonzero weight ``w`` than ``need``; 4, a degenerate
+    homography). A point the update sends to infinity comes out inf or NaN, as :func:`~.transforms.apply`
+    makes it, and matches nothing."""
+    stack_node, stack_gap = _kd_kernels._stacks(depth)
+    n = pts.shape[0]
+    for _ in range(steps):
+        pairs = 0
+        for t in range(n):
+            if out_i[t] >= 0 and w[t] != 0.0:
+                pairs += 1
+        if pairs < need:  # too few pairs for the model: the run stops where it is, not converged
+            state[4] = 3
+            return
+        H, error = _dlt_normal_pairs(pts, target, out_i, w)
+        if error == 0 and not np.isfinite(H).all():
+            error = 1
+        if error != 0:
+            state[4] = error
+            return
+        T[:, :] = H @ T
+        state[2] += 1
+        k, sd2 = 0, 0.0
+        for t in range(n):
+            x, y = pts[t, 0], pts[t, 1]
+            h = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+            pts[t, 0] = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / h
+            pts[t, 1] = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / h
+            out_d2[t], out_i[t] = _kd_kernels._nearest(pts[t], r2, np.int64(-1), nodes, spts, sidx, stack_node,
+                                                       stack_gap)
+            if out_i[t] >= 0:
+                k += 1
+                sd2 += out_d2[t]
+        if _scored(k, sd2, n, relative_fitness, relative_rmse, state):
+            return
+
+
 def warm_up() -> None:
     """Run the ICP once in 2-D and 3-D, and each of its compiled parts that Python calls directly, so
     that every compiled kernel it uses is loaded (or compiled)."""
@@ -384,6 +468,8 @@ def warm_up() -> None:
         options = ICPOptions(max_correspondence_distance=1.0, max_iteration=2)
         icp_reference(target + 0.05, target, options)
         icp_reference(target + 0.05, target, replace(options, weights="huber"))
+        if d == 2:  # the model check's compiled projective loop
+            icp_reference(target + 0.05, target, replace(options, model="projective"), dlt="normal")
         estimate_umeyama(target + 0.05, target, np.ones(50), with_scale=True)
         # the threaded loop (clouds of nn.PARALLEL_MIN_QUERIES points and more, or from
         # nn.PARALLEL_MIN_QUERIES_IDLE on an idle machine), and the steps other callers use

@@ -380,3 +380,82 @@ def test_point_to_plane_refuses_what_it_cannot_do(options, dims, with_normals):
         options = {**options, "schedule": VoxelSchedule(voxel_sizes=(0.1,), max_iterations=(10,))}
     with pytest.raises(pcreg.InputError):
         pcreg.icp(pts[:, :dims], pts[:, :dims], ICPOptions(**options), target_normals=normals[:, :dims] if with_normals else None)
+
+
+def _hostile_backend_input(case: str, source: np.ndarray, target: np.ndarray):
+    """``(source, target, init)`` of one bad call of a backend's ICP, made from two good 3-D clouds."""
+    init = None
+    if case == "nan source":
+        source = source.copy()
+        source[3, 1] = np.nan
+    elif case == "inf target":
+        target = target.copy()
+        target[0, 0] = np.inf
+    elif case == "2-D source, 3-D target":
+        source = source[:, :2]
+    elif case == "3-D source, 2-D target":
+        target = target[:, :2]
+    elif case == "(3, N) arrays":
+        source, target = source.T, target.T
+    elif case == "empty target":
+        target = target[:0]
+    elif case == "open3d cloud":
+        import open3d as o3d
+
+        source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source))
+    elif case == "3x3 init":
+        init = np.eye(3)
+    elif case == "5x5 init":
+        init = np.eye(5)
+    elif case == "nan init":
+        init = np.full((4, 4), np.nan)
+    return source, target, init
+
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+@pytest.mark.parametrize("case, said", [
+    ("nan source", "source: 1 point"), ("inf target", "target: 1 point"),
+    ("2-D source, 3-D target", "source is 2-D but target is 3-D"),
+    ("3-D source, 2-D target", "source is 3-D but target is 2-D"), ("(3, N) arrays", "got shape"),
+    ("empty target", "empty"), ("open3d cloud", "np.asarray"), ("3x3 init", "4x4"), ("5x5 init", "4x4"),
+    ("nan init", "NaN"),
+])
+def test_each_backends_icp_refuses_bad_clouds_and_inits_at_its_door(backend, case, said):
+    """Each backend's ICP, called directly as researchers do, refuses what it cannot register with an InputError
+    that says why. Before: a 2-D source against a 3-D target, a NaN source point or a NaN init came back as a
+    result (fitness 1, 0.995, and a NaN matrix); the rest were numpy's IndexError, Open3D's TypeError or
+    RuntimeError, an AttributeError, or the KD-tree's plain ValueError."""
+    from pcreg.errors import InputError
+    from pcreg.registration.open3d_icp import icp_open3d
+
+    rng = np.random.default_rng(0)
+    source = rng.uniform(-1, 1, (200, 3))
+    target = source + [0.05, -0.02, 0.03]
+    source, target, init = _hostile_backend_input(case, source, target)
+    run = icp_reference if backend == "reference" else icp_open3d
+    with pytest.raises(InputError, match=said):
+        run(source, target, ICPOptions(max_correspondence_distance=1.0), init=init)
+
+
+def test_the_reference_icp_refuses_a_projective_model_in_3d():
+    from pcreg.errors import InputError
+
+    cloud = np.random.default_rng(0).uniform(-1, 1, (50, 3))
+    with pytest.raises(InputError, match="2-D clouds only"):
+        icp_reference(cloud, cloud + 0.01, ICPOptions(model="projective", max_correspondence_distance=1.0))
+
+
+@pytest.mark.parametrize("backend", ["reference", "open3d"])
+def test_each_backends_icp_takes_lists_float32_and_fortran_order_as_the_float64_array(backend):
+    from pcreg.registration.open3d_icp import icp_open3d
+
+    rng = np.random.default_rng(2)
+    source = rng.uniform(-1, 1, (200, 3))
+    target = source + [0.03, -0.02, 0.01]
+    run = icp_reference if backend == "reference" else icp_open3d
+    options = ICPOptions(max_correspondence_distance=1.0)
+    plain = run(source, target, options)
+    for s, t in ((source.tolist(), target.tolist()), (np.asfortranarray(source), np.asfortranarray(target)),
+                 (source.astype(np.float32).astype(np.float64), target.astype(np.float32))):
+        r = run(s, t, options)
+        np.testing.assert_allclose(r.matrix, plain.matrix, atol=1e-6)

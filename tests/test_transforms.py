@@ -41,6 +41,25 @@ def test_rotation_disagreement():
     assert tf.rotation_disagreement_deg(tf.rigid2d(10.0), tf.rigid2d(13.0)) == pytest.approx(3.0)
 
 
+@pytest.mark.parametrize("angle", [1e-9, 1e-7, 1e-4, 0.5, 2.0, np.pi - 1e-6])
+def test_rotation_angle_of_a_3d_rotation_keeps_full_precision_at_every_angle(angle):
+    """Known-answer ICP tests measure the angle of R_estimate^T R_truth, which is tiny: the arccos of the trace
+    returned 0 for 1e-9 rad and 9.9e-8 for 1e-7 rad."""
+    from scipy.spatial.transform import Rotation
+
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    R = Rotation.from_rotvec(angle * axis).as_matrix()
+    assert tf.rotation_angle_deg(R) == pytest.approx(np.degrees(angle), rel=1e-6)
+    T = np.eye(4)
+    T[:3, :3] = R
+    assert tf.rotation_disagreement_deg(np.eye(4), T) == pytest.approx(np.degrees(angle), rel=1e-6)
+
+
+def test_rotation_angle_of_a_2d_homogeneous_transform_is_its_rotations():
+    assert tf.rotation_angle_deg(tf.rigid2d(75.0, 30.0, -12.0)) == pytest.approx(75.0)
+    assert tf.rotation_angle_deg(tf.rigid2d(-170.0)[:2, :2]) == pytest.approx(170.0)
+
+
 def test_unknown_model():
     with pytest.raises(InputError, match="unknown motion model"):
         tf.check_model("warp")

@@ -4,6 +4,7 @@
 - :mod:`.reference`: pcreg's reference ICP (Besl & McKay; Umeyama/Horn closed forms);
 - :mod:`.open3d_icp`: Open3D's point-to-point ICP on clouds lifted to z = 0;
 - :mod:`.icp_options`: :class:`~.icp_options.ICPOptions`, one ICP's options (``icp`` and each backend's ICP);
+- :mod:`.inputs`: the checks of the clouds and initial guesses that enter ``icp`` and each backend's ICP;
 - :mod:`.global_search`: hypotheses for images (edge FFT search, Fourier-Mellin, ORB + RANSAC) and the
   evidence that tells a true alignment from chance;
 - :mod:`.api`: ``icp`` (clouds), ``register`` (images: hypotheses, ICP, plausibility test) and

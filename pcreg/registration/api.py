@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import InputError, RegistrationError
 from ..frame import low_bits_note
-from ..validation import check_callable, check_int, check_matrix, check_point_count, check_unmasked, short_repr
+from ..validation import check_callable, check_int, check_matrix, short_repr
 from .clouds import ImagePyramid, as_rgb_uint8, check_pyramid
 from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import (DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult,
@@ -27,6 +27,7 @@ from .global_search import orb_fit
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule, refuse_a_line_for_open3d
+from .inputs import check_cloud
 from .reference import LINEARISED_METRICS, check_progress, check_rank, check_support, scores_at
 from .refine import CoarseToFine
 from .result import IcpIteration, ImageEvidence, RegistrationResult
@@ -37,40 +38,10 @@ from .transforms import about_point, apply, check_model, image_center
 __all__ = ["CHANCE_FACTOR", "CONVINCING_NCC", "DEFAULT_MIN_INLIER_RATIO", "MIRROR_FACTOR", "START_LEVEL",
            "check_cloud", "icp", "register", "register_dense", "voxel_downsample"]
 
-MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 keeps sub-mm steps at 1e6 m
-
 
 # ---------------------------------------------------------------------------------------------------
 # Point clouds
 # ---------------------------------------------------------------------------------------------------
-
-def check_cloud(points: np.ndarray, name: str, *, limit: int | None = None) -> np.ndarray:
-    """(N, 2|3) finite float64 copy of ``points`` within the point limit (``limit``) or an :class:`InputError`."""
-    if getattr(points, "dtype", None) is not None and np.dtype(points.dtype).kind == "b":
-        raise InputError(f"{name}: true/false values are a mask, not coordinates")
-    if getattr(points, "dtype", None) is not None and np.dtype(points.dtype).kind in "USV":  # numpy parses "1.5"
-        raise InputError(f"{name}: text or bytes ({np.dtype(points.dtype)}), not numeric coordinates (convert them first)")
-    check_unmasked(points, name)
-    try:
-        if np.iscomplexobj(points):  # numpy would drop the imaginary part with a warning
-            raise TypeError
-        p = np.array(points, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):  # OverflowError: a Python int beyond float64
-        raise InputError(f"{name}: not a numeric array") from None
-    if p.ndim != 2 or p.shape[1] not in (2, 3):
-        raise InputError(f"{name}: expected an (N, 2) or (N, 3) array of points, got shape {p.shape}")
-    if p.shape[0] == 0:
-        raise InputError(f"{name}: the cloud is empty")
-    check_point_count(p.shape[0], name, limit=limit)
-    if not np.all(np.isfinite(p)):
-        bad = int((~np.isfinite(p)).any(axis=1).sum())
-        raise InputError(f"{name}: {bad} point(s) have NaN or inf coordinates")
-    big = float(np.max(np.abs(p)))
-    if big > MAX_COORDINATE:
-        raise InputError(f"{name}: coordinates up to {big:.3g} are out of range (|x| <= {MAX_COORDINATE:g}; "
-                         "shift the cloud towards the origin)")
-    return p
-
 
 def _check_normals(normals: np.ndarray) -> None:
     """An :class:`InputError` for target normals that cannot fix a motion

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InputError, RegistrationError
 from .choices import OPEN3D_MODELS, check_open3d_model
+from .inputs import backend_inputs
 from .result import IcpIteration, RegistrationResult
 from .transforms import lift_to_3d, project_to_2d
 
@@ -102,10 +103,10 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, i
     source_pcd, target_pcd = (None, None) if clouds is None else clouds
     start = time.perf_counter()
     check_model(model)
+    source, target, T = backend_inputs(source, target, init, who="icp_open3d")
     o3d = _o3d()
     reg = o3d.pipelines.registration
     d = source.shape[1]
-    T = np.eye(d + 1) if init is None else np.asarray(init, dtype=np.float64)
     T4 = lift_to_3d(T) if d == 2 else T.copy()
     src = source_pcd if source_pcd is not None else to_pointcloud(source)
     est, tgt = _estimation(options, target, target_pcd, target_normals)

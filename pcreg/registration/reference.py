@@ -29,11 +29,12 @@ from .closed_forms import (MIN_POINTS, _dlt_normal_pairs, _umeyama, check_rank, 
                            check_support, estimate_horn_quaternion, estimate_projective, estimate_translation,
                            estimate_umeyama, pairs_needed, robust_weights, umeyama_from_moments)
 from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, WEIGHTS: named here too)
+from .inputs import backend_inputs
 from .kdtree import KDTreeIndex
 from .nn import GridIndex
 from .normal_steps import RECENTRE, estimate_point_to_line, estimate_point_to_plane
 from .result import IcpIteration, RegistrationResult
-from .transforms import apply
+from .transforms import apply, check_model
 
 
 def build_tree(target: np.ndarray, *, queries: int | None = None, max_distance: float | None = None) -> KDTreeIndex:
@@ -98,11 +99,12 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
     if options.max_correspondence_distance is None:
         raise InputError("icp_reference needs options.max_correspondence_distance (pcreg.icp chooses one)")
     start = time.perf_counter()
+    source, target, T = backend_inputs(source, target, init, who="icp_reference")
     model, weights, metric, rotation = options.model, options.weights, options.metric, options.rotation
     max_correspondence_distance, max_iteration = options.max_correspondence_distance, options.max_iteration
     relative_fitness, relative_rmse = options.relative_fitness, options.relative_rmse
     d = source.shape[1]
-    T = np.eye(d + 1) if init is None else np.array(init, dtype=np.float64)
+    check_model(model, d)
     if tree is None:
         tree = build_tree(target, max_distance=max_correspondence_distance)
     if metric == "point_to_line" and (d != 2 or target_normals is None):

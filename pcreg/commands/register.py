@@ -162,7 +162,8 @@ def _say_if_the_model_does_not_fit(result, model: str) -> None:
     fit = None if evidence is None else evidence.model_fit
     if fit is None or fit.fits:
         return
-    sys.stderr.write(f"pcreg: note: the images differ by more than a {model} motion, or this result is off: a "
+    article = "an" if model[0] in "aeiou" else "a"  # an affine motion
+    sys.stderr.write(f"pcreg: note: the images differ by more than {article} {model} motion, or this result is off: a "
                      f"{fit.model} fit aligns {100 * fit.inlier_ratio:.1f}% of the edge points against this result's "
                      f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} "
                      f"px (--model {fit.model} registers such a view)\n")

@@ -304,17 +304,29 @@ def turned_note(frame: str | os.PathLike, labels_shape: tuple, frame_shape: tupl
     show it so: they were drawn on the view shown, and pcreg reads the pixels as stored; else ``""``."""
     if tuple(labels_shape[:2]) != tuple(frame_shape[:2])[::-1] or labels_shape[0] == labels_shape[1]:
         return ""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(frame) as image:
-            orientation = image.getexif().get(0x0112)  # EXIF's Orientation tag
-    except (OSError, UnidentifiedImageError, SyntaxError, ValueError):
-        return ""
-    if not isinstance(orientation, int) or not 5 <= orientation <= 8:
+    orientation = exif_orientation(frame)
+    if orientation is None or not 5 <= orientation <= 8:
         return ""
     return (f" ({Path(frame).name}'s EXIF orientation {orientation} has viewers show it turned by a quarter; pcreg "
             "reads the pixels as stored: turn the frames first, e.g. exiftran -a, or draw the labels on them as stored)")
+
+
+def exif_orientation(path: str | os.PathLike) -> int | None:
+    """The EXIF Orientation tag (2..8: viewers show the image turned or mirrored) of an image file, or None
+    where it has none, 1 (shown as stored), or cannot be read."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            orientation = image.getexif().get(0x0112)
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError):
+        return None
+    return orientation if isinstance(orientation, int) and 2 <= orientation <= 8 else None
+
+
+#: How viewers show an image of each EXIF orientation (2..8) against its pixels as stored.
+ORIENTATION_VIEWS = {2: "mirrored", 3: "turned by a half", 4: "mirrored upside down", 5: "mirrored and turned by a quarter",
+                     6: "turned by a quarter", 7: "mirrored and turned by a quarter", 8: "turned by a quarter"}
 
 
 def image_size(data: bytes) -> tuple[str, tuple[int, int] | None] | None:

@@ -196,6 +196,24 @@ def test_labels_drawn_on_the_view_an_exif_orientation_shows_are_refused_saying_s
     assert "EXIF" not in one_line_errors(capsys)[0]
 
 
+def test_pcreg_register_says_when_a_photograph_is_shown_turned_by_its_exif_orientation(tmp_path, capsys):
+    """A phone's photograph stored landscape with orientation 6 is registered as stored (T_ref_mov maps its
+    stored pixels), and the command says so, naming the file; a JPEG without the tag gets no note."""
+    import pcreg
+
+    img = pcreg.synthetic("syn2a", n_frames=1)[0].image[:, :, ::-1]
+    turned, plain = tmp_path / "phone shot.jpg", tmp_path / "plain.jpg"
+    turned.write_bytes(_jpeg_turned(img))
+    cv2.imwrite(str(plain), img)
+    assert main(["register", str(plain), str(turned)]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "EXIF" in line]
+    assert notes == [f"pcreg: note: {turned}'s EXIF orientation 6 has viewers show it turned by a quarter; pcreg "
+                     "registers the pixels as stored, and T_ref_mov maps them, not the view shown (turn the image "
+                     "first to register the view, e.g. exiftran -a)"], notes
+    assert main(["register", str(plain), str(plain)]) == 0
+    assert "EXIF" not in capsys.readouterr().err
+
+
 def test_a_signal_while_the_commands_load_is_an_interruption(monkeypatch, capsys):
     """Ctrl-C or SIGTERM (made a KeyboardInterrupt from the start of main) while the commands' modules load."""
     import signal

@@ -10,7 +10,8 @@ from ._common import add_record_arguments, open_recorder, positive_float, positi
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("reference", help="reference image (png, jpg, ...)")
+    p.add_argument("reference", help="reference image (png, jpg, ...), its pixels as stored: an EXIF orientation "
+                                     "is not applied")
     p.add_argument("moving", help="moving image, registered onto the reference")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference",
                    help="the ICP: pcreg's own (reference, the default) or Open3D's; the same algorithm")
@@ -111,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
             print(summary)
     _say_if_the_model_does_not_fit(result, args.model)
     _say_if_the_features_disagree(result)
+    _say_if_shown_turned((args.reference, args.moving))
     return 0
 
 
@@ -181,6 +183,20 @@ def _say_if_the_features_disagree(result) -> None:
                      f"{check.inliers} of {check.matches} SIFT matches, far more than chance gives) puts points where "
                      f"the matches are up to {check.largest_shift_px:.1f} px from where the result does; the result "
                      f"may be wrong\n")
+
+
+def _say_if_shown_turned(paths) -> None:
+    """A note on stderr for each image file whose EXIF orientation has viewers show it turned or mirrored:
+    ``T_ref_mov`` maps the pixels as stored, not the view a person sees."""
+    from ..formats import ORIENTATION_VIEWS, exif_orientation
+
+    for path in dict.fromkeys(paths):
+        orientation = exif_orientation(path)
+        if orientation is not None:
+            sys.stderr.write(f"pcreg: note: {path}'s EXIF orientation {orientation} has viewers show it "
+                             f"{ORIENTATION_VIEWS[orientation]}; pcreg registers the pixels as stored, and T_ref_mov "
+                             "maps them, not the view shown (turn the image first to register the view, e.g. "
+                             "exiftran -a)\n")
 
 
 def _keeps_its_form(stored) -> bool:

@@ -388,6 +388,11 @@ def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int
     stores them, whatever the flags: an EXIF orientation is never applied (``IMREAD_UNCHANGED`` ignores
     it, and other flags get ``IMREAD_IGNORE_ORIENTATION``), so a frame and its labels share one grid
     however each is read."""
+    return _decoded(data, name, flags=flags, limit=limit)[0]
+
+
+def _decoded(data: bytes, name: str, *, flags: int | None, limit: int | None) -> tuple[np.ndarray, str]:
+    """:func:`decode_image`, and the last line its codec printed ("" for none)."""
     import cv2
 
     w, h = check_image_bytes(data, name, limit=limit)
@@ -400,7 +405,7 @@ def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int
         raise InputError(f"{name}: cannot decode image ({said or 'corrupt or truncated'})")
     if img.shape[0] != h or img.shape[1] != w:
         raise InputError(f"{name}: decoded {img.shape[1]}x{img.shape[0]} px but the header says {w}x{h}")
-    return img
+    return img, said
 
 
 def imdecode_quietly(data: bytes, flags: int) -> tuple:
@@ -435,3 +440,18 @@ def read_image_file(path: str | os.PathLike, *, flags: int | None = None, limit:
     limit = max_pixels(limit)
     data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image", hint=RAISE_LIMIT)
     return decode_image(data, str(path), flags=flags, limit=limit)
+
+
+#: The beginnings of what libjpeg prints when it decoded around damaged data (a byte changed in the scan, the
+#: file cut short): it returns an image whose pixels after the damage are its guesses. Other codecs' warnings
+#: (libpng's on an sRGB profile, libtiff's on an unknown tag) are about metadata, not pixels.
+_DAMAGED_DATA = ("Corrupt JPEG data", "Premature end of JPEG file")
+
+
+def read_image_file_and_damage(path: str | os.PathLike, *, limit: int | None = None) -> tuple[np.ndarray, str]:
+    """:func:`read_image_file` as the file stores it, and what its decoder said of damaged pixel data it
+    decoded around (libjpeg's ``Corrupt JPEG data: premature end of data segment``), or ``""``."""
+    limit = max_pixels(limit)
+    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image", hint=RAISE_LIMIT)
+    img, said = _decoded(data, str(path), flags=None, limit=limit)
+    return img, said if said.startswith(_DAMAGED_DATA) else ""

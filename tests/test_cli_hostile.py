@@ -214,6 +214,30 @@ def test_pcreg_register_says_when_a_photograph_is_shown_turned_by_its_exif_orien
     assert "EXIF" not in capsys.readouterr().err
 
 
+def test_pcreg_register_says_when_a_jpeg_decoded_around_damaged_data(tmp_path, capsys):
+    """Bytes changed in a JPEG's scan: libjpeg decodes around them ("Corrupt JPEG data: ...") and returns an
+    image whose pixels after the damage are its guesses; the registration is returned, and marked."""
+    import pcreg
+
+    img = pcreg.synthetic("syn2a", n_frames=1)[0].image[:, :, ::-1]
+    intact = cv2.imencode(".jpg", img)[1].tobytes()
+    damaged = bytearray(intact)
+    middle = len(damaged) // 2
+    damaged[middle:middle + 64] = bytes(range(64))
+    ref, good, bad = tmp_path / "ref.png", tmp_path / "good.jpg", tmp_path / "bad.jpg"
+    cv2.imwrite(str(ref), img)
+    good.write_bytes(intact)
+    bad.write_bytes(bytes(damaged))
+    assert cv2.imread(str(bad)) is not None  # OpenCV returns it as an image
+    assert main(["register", str(ref), str(bad)]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "damaged" in line]
+    assert len(notes) == 1 and notes[0].startswith(f"pcreg: note: {bad}: its decoder reports damaged data (Corrupt "
+                                                   "JPEG data: "), notes
+    assert notes[0].endswith("part of the image is the decoder's guess, and the result may be off")
+    assert main(["register", str(ref), str(good)]) == 0
+    assert "damaged" not in capsys.readouterr().err
+
+
 def test_a_signal_while_the_commands_load_is_an_interruption(monkeypatch, capsys):
     """Ctrl-C or SIGTERM (made a KeyboardInterrupt from the start of main) while the commands' modules load."""
     import signal

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import InputError, OutputError, RegistrationError
     from ..outputs import atomic_write_bytes, check_output
-    from ..formats import read_image_file
+    from ..formats import read_image_file_and_damage
     from ..registration.clouds import cloud_pyramid, image_and_mask
     from ..registration.api import register
     from ..registration.config import RegisterConfig
@@ -62,9 +62,9 @@ def run(args: argparse.Namespace) -> int:
     config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
                                init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,
                                **options)
-    ref_stored = read_image_file(args.reference)
+    ref_stored, ref_damage = read_image_file_and_damage(args.reference)
     ref, ref_mask = image_and_mask(ref_stored, args.reference)  # transparent pixels are not matched
-    stored = read_image_file(args.moving)  # decoded once: registered, and warped as stored by --out
+    stored, damage = read_image_file_and_damage(args.moving)  # decoded once: registered, and warped as stored by --out
     mov, mov_mask = image_and_mask(stored, args.moving)
     for path, mask in ((args.reference, ref_mask), (args.moving, mov_mask)):
         if not isinstance(mask, str) and args.model == "dense":  # "auto": no transparent pixel
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
             print(summary)
     _say_if_the_model_does_not_fit(result, args.model)
     _say_if_the_features_disagree(result)
-    _say_if_shown_turned((args.reference, args.moving))
+    _say_what_the_files_hold(((args.reference, ref_damage), (args.moving, damage)))
     return 0
 
 
@@ -185,12 +185,16 @@ def _say_if_the_features_disagree(result) -> None:
                      f"may be wrong\n")
 
 
-def _say_if_shown_turned(paths) -> None:
-    """A note on stderr for each image file whose EXIF orientation has viewers show it turned or mirrored:
-    ``T_ref_mov`` maps the pixels as stored, not the view a person sees."""
+def _say_what_the_files_hold(files) -> None:
+    """Notes on stderr for each image file (``files``: its path, and what its decoder said of damaged data it
+    decoded around, or ""): such damage, and an EXIF orientation that has viewers show the image turned or
+    mirrored (``T_ref_mov`` maps the pixels as stored, not the view a person sees)."""
     from ..formats import ORIENTATION_VIEWS, exif_orientation
 
-    for path in dict.fromkeys(paths):
+    for path, damage in dict(files).items():
+        if damage:
+            sys.stderr.write(f"pcreg: note: {path}: its decoder reports damaged data ({damage}): part of the image "
+                             "is the decoder's guess, and the result may be off\n")
         orientation = exif_orientation(path)
         if orientation is not None:
             sys.stderr.write(f"pcreg: note: {path}'s EXIF orientation {orientation} has viewers show it "

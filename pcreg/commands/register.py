@@ -113,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
     _say_if_the_model_does_not_fit(result, args.model)
     _say_if_the_features_disagree(result)
     _say_what_the_files_hold(((args.reference, ref_damage), (args.moving, damage)))
+    _say_if_one_repeats(((args.reference, ref), (args.moving, mov)))
     return 0
 
 
@@ -201,6 +202,22 @@ def _say_what_the_files_hold(files) -> None:
                              f"{ORIENTATION_VIEWS[orientation]}; pcreg registers the pixels as stored, and T_ref_mov "
                              "maps them, not the view shown (turn the image first to register the view, e.g. "
                              "exiftran -a)\n")
+
+
+def _say_if_one_repeats(images) -> None:
+    """A note on stderr when one of the images (``images``: each one's path and array) repeats itself under a
+    shift (:func:`~pcreg.registration.repetition.repeat_shift`): a motion that differs from the result by it
+    aligns the images as well, so the result may be a period off."""
+    from ..registration.repetition import repeat_shift
+
+    for path, image in images:
+        found = repeat_shift(image)
+        if found is not None:
+            dx, dy, ncc = found
+            sys.stderr.write(f"pcreg: note: {path} repeats itself: shifted by about ({dx:.0f}, {dy:.0f}) px it matches "
+                             f"itself (correlation {ncc:.2f}), so a motion that differs by such a shift aligns the "
+                             "images as well as this one, and the result may be a period off\n")
+            return
 
 
 def _keeps_its_form(stored) -> bool:

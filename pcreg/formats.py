@@ -314,12 +314,18 @@ def turned_note(frame: str | os.PathLike, labels_shape: tuple, frame_shape: tupl
 def exif_orientation(path: str | os.PathLike) -> int | None:
     """The EXIF Orientation tag (2..8: viewers show the image turned or mirrored) of an image file, or None
     where it has none, 1 (shown as stored), or cannot be read."""
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as image:
-            orientation = image.getexif().get(0x0112)
-    except (OSError, UnidentifiedImageError, SyntaxError, ValueError):
+        with warnings.catch_warnings():  # pcreg's pixel limit holds; Pillow's lower one is for its own decoding
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                if image.format == "PNG" and "exif" not in image.info:
+                    return None  # Pillow would decode every pixel to look for an eXIf chunk after them
+                orientation = image.getexif().get(0x0112)
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError, Image.DecompressionBombError):
         return None
     return orientation if isinstance(orientation, int) and 2 <= orientation <= 8 else None
 

@@ -214,6 +214,29 @@ def test_pcreg_register_says_when_a_photograph_is_shown_turned_by_its_exif_orien
     assert "EXIF" not in capsys.readouterr().err
 
 
+def test_the_exif_note_reads_headers_alone_and_passes_images_over_pillows_own_limit(tmp_path, monkeypatch, capsys):
+    """The orientation is read from the header: a PNG's eXIf chunk before its pixels is found, a PNG without
+    one is not decoded by Pillow to look for one after them, and an image over Pillow's own pixel limit
+    (DecompressionBombError; pcreg's limit is checked on reading) gets no note rather than an internal error."""
+    import PIL.Image
+
+    import pcreg
+    from pcreg.formats import exif_orientation
+
+    img = pcreg.synthetic("syn2a", n_frames=1)[0].image
+    exif = PIL.Image.Exif()
+    exif[0x0112] = 6
+    shown, plain = tmp_path / "shown.png", tmp_path / "plain.png"
+    PIL.Image.fromarray(img).save(shown, exif=exif)
+    PIL.Image.fromarray(img).save(plain)
+    assert exif_orientation(shown) == 6 and exif_orientation(plain) is None
+    turned = tmp_path / "turned.jpg"
+    turned.write_bytes(_jpeg_turned(img[:, :, ::-1]))
+    monkeypatch.setattr(PIL.Image, "MAX_IMAGE_PIXELS", img.shape[0] * img.shape[1] // 4)
+    assert main(["register", str(plain), str(turned)]) == 0
+    assert "EXIF" not in capsys.readouterr().err
+
+
 def test_pcreg_register_says_when_a_jpeg_decoded_around_damaged_data(tmp_path, capsys):
     """Bytes changed in a JPEG's scan: libjpeg decodes around them ("Corrupt JPEG data: ...") and returns an
     image whose pixels after the damage are its guesses; the registration is returned, and marked."""

@@ -237,6 +237,19 @@ def test_the_exif_note_reads_headers_alone_and_passes_images_over_pillows_own_li
     assert "EXIF" not in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("dtype", [np.int16, np.int32])
+def test_a_signed_or_32_bit_tiff_is_refused_saying_what_pcreg_reads(tmp_path, capsys, dtype):
+    """A scientific camera's signed 16-bit TIFF, or Pillow's 32-bit integer mode "I": exit 2, one line that
+    names the file and the kinds of image pcreg reads."""
+    ref, mov = tmp_path / "ref.png", tmp_path / "signed.tif"
+    cv2.imwrite(str(ref), np.zeros((64, 64), np.uint8))
+    assert cv2.imwrite(str(mov), (np.arange(64 * 64).reshape(64, 64) - 2000).astype(dtype))
+    assert main(["register", str(ref), str(mov)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {mov}: unsupported image dtype "), err
+    assert "pcreg reads 8- and 16-bit unsigned integers, true/false, and floats in [0, 1]" in err[0]
+
+
 def test_pcreg_register_says_when_a_jpeg_decoded_around_damaged_data(tmp_path, capsys):
     """Bytes changed in a JPEG's scan: libjpeg decodes around them ("Corrupt JPEG data: ...") and returns an
     image whose pixels after the damage are its guesses; the registration is returned, and marked."""

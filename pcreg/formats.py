@@ -304,17 +304,35 @@ def turned_note(frame: str | os.PathLike, labels_shape: tuple, frame_shape: tupl
     show it so: they were drawn on the view shown, and pcreg reads the pixels as stored; else ``""``."""
     if tuple(labels_shape[:2]) != tuple(frame_shape[:2])[::-1] or labels_shape[0] == labels_shape[1]:
         return ""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(frame) as image:
-            orientation = image.getexif().get(0x0112)  # EXIF's Orientation tag
-    except (OSError, UnidentifiedImageError, SyntaxError, ValueError):
-        return ""
-    if not isinstance(orientation, int) or not 5 <= orientation <= 8:
+    orientation = exif_orientation(frame)
+    if orientation is None or not 5 <= orientation <= 8:
         return ""
     return (f" ({Path(frame).name}'s EXIF orientation {orientation} has viewers show it turned by a quarter; pcreg "
             "reads the pixels as stored: turn the frames first, e.g. exiftran -a, or draw the labels on them as stored)")
+
+
+def exif_orientation(path: str | os.PathLike) -> int | None:
+    """The EXIF Orientation tag (2..8: viewers show the image turned or mirrored) of an image file, or None
+    where it has none, 1 (shown as stored), or cannot be read."""
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with warnings.catch_warnings():  # pcreg's pixel limit holds; Pillow's lower one is for its own decoding
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                if image.format == "PNG" and "exif" not in image.info:
+                    return None  # Pillow would decode every pixel to look for an eXIf chunk after them
+                orientation = image.getexif().get(0x0112)
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError, Image.DecompressionBombError):
+        return None
+    return orientation if isinstance(orientation, int) and 2 <= orientation <= 8 else None
+
+
+#: How viewers show an image of each EXIF orientation (2..8) against its pixels as stored.
+ORIENTATION_VIEWS = {2: "mirrored", 3: "turned by a half", 4: "mirrored upside down", 5: "mirrored and turned by a quarter",
+                     6: "turned by a quarter", 7: "mirrored and turned by a quarter", 8: "turned by a quarter"}
 
 
 def image_size(data: bytes) -> tuple[str, tuple[int, int] | None] | None:
@@ -376,6 +394,11 @@ def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int
     stores them, whatever the flags: an EXIF orientation is never applied (``IMREAD_UNCHANGED`` ignores
     it, and other flags get ``IMREAD_IGNORE_ORIENTATION``), so a frame and its labels share one grid
     however each is read."""
+    return _decoded(data, name, flags=flags, limit=limit)[0]
+
+
+def _decoded(data: bytes, name: str, *, flags: int | None, limit: int | None) -> tuple[np.ndarray, str]:
+    """:func:`decode_image`, and the last line its codec printed ("" for none)."""
     import cv2
 
     w, h = check_image_bytes(data, name, limit=limit)
@@ -388,7 +411,7 @@ def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int
         raise InputError(f"{name}: cannot decode image ({said or 'corrupt or truncated'})")
     if img.shape[0] != h or img.shape[1] != w:
         raise InputError(f"{name}: decoded {img.shape[1]}x{img.shape[0]} px but the header says {w}x{h}")
-    return img
+    return img, said
 
 
 def imdecode_quietly(data: bytes, flags: int) -> tuple:
@@ -423,3 +446,18 @@ def read_image_file(path: str | os.PathLike, *, flags: int | None = None, limit:
     limit = max_pixels(limit)
     data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image", hint=RAISE_LIMIT)
     return decode_image(data, str(path), flags=flags, limit=limit)
+
+
+#: The beginnings of what libjpeg prints when it decoded around damaged data (a byte changed in the scan, the
+#: file cut short): it returns an image whose pixels after the damage are its guesses. Other codecs' warnings
+#: (libpng's on an sRGB profile, libtiff's on an unknown tag) are about metadata, not pixels.
+_DAMAGED_DATA = ("Corrupt JPEG data", "Premature end of JPEG file")
+
+
+def read_image_file_and_damage(path: str | os.PathLike, *, limit: int | None = None) -> tuple[np.ndarray, str]:
+    """:func:`read_image_file` as the file stores it, and what its decoder said of damaged pixel data it
+    decoded around (libjpeg's ``Corrupt JPEG data: premature end of data segment``), or ``""``."""
+    limit = max_pixels(limit)
+    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image", hint=RAISE_LIMIT)
+    img, said = _decoded(data, str(path), flags=None, limit=limit)
+    return img, said if said.startswith(_DAMAGED_DATA) else ""

@@ -126,7 +126,8 @@ def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None) -> np.
         return np.ascontiguousarray(np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
     if img.dtype == np.bool_:
         return np.ascontiguousarray(img.astype(np.uint8) * 255)
-    raise InputError(f"{name}: unsupported image dtype {img.dtype}")
+    raise InputError(f"{name}: unsupported image dtype {img.dtype} (pcreg reads 8- and 16-bit unsigned integers, "
+                     "true/false, and floats in [0, 1]; convert a signed or 32-bit image first)")
 
 
 def low_bits_note(image) -> str:

@@ -196,6 +196,84 @@ def test_labels_drawn_on_the_view_an_exif_orientation_shows_are_refused_saying_s
     assert "EXIF" not in one_line_errors(capsys)[0]
 
 
+def test_pcreg_register_says_when_a_photograph_is_shown_turned_by_its_exif_orientation(tmp_path, capsys):
+    """A phone's photograph stored landscape with orientation 6 is registered as stored (T_ref_mov maps its
+    stored pixels), and the command says so, naming the file; a JPEG without the tag gets no note."""
+    import pcreg
+
+    img = pcreg.synthetic("syn2a", n_frames=1)[0].image[:, :, ::-1]
+    turned, plain = tmp_path / "phone shot.jpg", tmp_path / "plain.jpg"
+    turned.write_bytes(_jpeg_turned(img))
+    cv2.imwrite(str(plain), img)
+    assert main(["register", str(plain), str(turned)]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "EXIF" in line]
+    assert notes == [f"pcreg: note: {turned}'s EXIF orientation 6 has viewers show it turned by a quarter; pcreg "
+                     "registers the pixels as stored, and T_ref_mov maps them, not the view shown (turn the image "
+                     "first to register the view, e.g. exiftran -a)"], notes
+    assert main(["register", str(plain), str(plain)]) == 0
+    assert "EXIF" not in capsys.readouterr().err
+
+
+def test_the_exif_note_reads_headers_alone_and_passes_images_over_pillows_own_limit(tmp_path, monkeypatch, capsys):
+    """The orientation is read from the header: a PNG's eXIf chunk before its pixels is found, a PNG without
+    one is not decoded by Pillow to look for one after them, and an image over Pillow's own pixel limit
+    (DecompressionBombError; pcreg's limit is checked on reading) gets no note rather than an internal error."""
+    import PIL.Image
+
+    import pcreg
+    from pcreg.formats import exif_orientation
+
+    img = pcreg.synthetic("syn2a", n_frames=1)[0].image
+    exif = PIL.Image.Exif()
+    exif[0x0112] = 6
+    shown, plain = tmp_path / "shown.png", tmp_path / "plain.png"
+    PIL.Image.fromarray(img).save(shown, exif=exif)
+    PIL.Image.fromarray(img).save(plain)
+    assert exif_orientation(shown) == 6 and exif_orientation(plain) is None
+    turned = tmp_path / "turned.jpg"
+    turned.write_bytes(_jpeg_turned(img[:, :, ::-1]))
+    monkeypatch.setattr(PIL.Image, "MAX_IMAGE_PIXELS", img.shape[0] * img.shape[1] // 4)
+    assert main(["register", str(plain), str(turned)]) == 0
+    assert "EXIF" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32])
+def test_a_signed_or_32_bit_tiff_is_refused_saying_what_pcreg_reads(tmp_path, capsys, dtype):
+    """A scientific camera's signed 16-bit TIFF, or Pillow's 32-bit integer mode "I": exit 2, one line that
+    names the file and the kinds of image pcreg reads."""
+    ref, mov = tmp_path / "ref.png", tmp_path / "signed.tif"
+    cv2.imwrite(str(ref), np.zeros((64, 64), np.uint8))
+    assert cv2.imwrite(str(mov), (np.arange(64 * 64).reshape(64, 64) - 2000).astype(dtype))
+    assert main(["register", str(ref), str(mov)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {mov}: unsupported image dtype "), err
+    assert "pcreg reads 8- and 16-bit unsigned integers, true/false, and floats in [0, 1]" in err[0]
+
+
+def test_pcreg_register_says_when_a_jpeg_decoded_around_damaged_data(tmp_path, capsys):
+    """Bytes changed in a JPEG's scan: libjpeg decodes around them ("Corrupt JPEG data: ...") and returns an
+    image whose pixels after the damage are its guesses; the registration is returned, and marked."""
+    import pcreg
+
+    img = pcreg.synthetic("syn2a", n_frames=1)[0].image[:, :, ::-1]
+    intact = cv2.imencode(".jpg", img)[1].tobytes()
+    damaged = bytearray(intact)
+    middle = len(damaged) // 2
+    damaged[middle:middle + 64] = bytes(range(64))
+    ref, good, bad = tmp_path / "ref.png", tmp_path / "good.jpg", tmp_path / "bad.jpg"
+    cv2.imwrite(str(ref), img)
+    good.write_bytes(intact)
+    bad.write_bytes(bytes(damaged))
+    assert cv2.imread(str(bad)) is not None  # OpenCV returns it as an image
+    assert main(["register", str(ref), str(bad)]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "damaged" in line]
+    assert len(notes) == 1 and notes[0].startswith(f"pcreg: note: {bad}: its decoder reports damaged data (Corrupt "
+                                                   "JPEG data: "), notes
+    assert notes[0].endswith("part of the image is the decoder's guess, and the result may be off")
+    assert main(["register", str(ref), str(good)]) == 0
+    assert "damaged" not in capsys.readouterr().err
+
+
 def test_a_signal_while_the_commands_load_is_an_interruption(monkeypatch, capsys):
     """Ctrl-C or SIGTERM (made a KeyboardInterrupt from the start of main) while the commands' modules load."""
     import signal

@@ -121,3 +121,12 @@ def test_pcreg_register_says_the_model_does_not_fit_and_exits_0(shared_data, tmp
                  "--json"]) == 0
     out, err = capsys.readouterr()
     assert "model_fit" not in json.loads(out) and "note" not in err
+
+
+def test_the_note_on_an_affine_registration_reads_an_affine_motion(shared_data, tmp_path, capsys):
+    ref, mov, _ = _pair(shared_data, (1.5e-4, -1e-4))
+    for name, image in (("ref.png", ref), ("mov.png", mov)):
+        cv2.imwrite(str(tmp_path / name), image[:, :, ::-1])
+    assert main(["register", str(tmp_path / "ref.png"), str(tmp_path / "mov.png"), "--model", "affine"]) == 0
+    note = capsys.readouterr().err.strip().splitlines()[-1]
+    assert note.startswith("pcreg: note: the images differ by more than an affine motion, or this result is off: ")

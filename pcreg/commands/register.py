@@ -10,7 +10,8 @@ from ._common import add_record_arguments, open_recorder, positive_float, positi
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("reference", help="reference image (png, jpg, ...)")
+    p.add_argument("reference", help="reference image (png, jpg, ...), its pixels as stored: an EXIF orientation "
+                                     "is not applied")
     p.add_argument("moving", help="moving image, registered onto the reference")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference",
                    help="the ICP: pcreg's own (reference, the default) or Open3D's; the same algorithm")
@@ -42,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import InputError, OutputError, RegistrationError
     from ..outputs import atomic_write_bytes, check_output
-    from ..formats import read_image_file
+    from ..formats import read_image_file_and_damage
     from ..registration.clouds import cloud_pyramid, image_and_mask
     from ..registration.api import register
     from ..registration.config import RegisterConfig
@@ -61,9 +62,9 @@ def run(args: argparse.Namespace) -> int:
     config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
                                init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,
                                **options)
-    ref_stored = read_image_file(args.reference)
+    ref_stored, ref_damage = read_image_file_and_damage(args.reference)
     ref, ref_mask = image_and_mask(ref_stored, args.reference)  # transparent pixels are not matched
-    stored = read_image_file(args.moving)  # decoded once: registered, and warped as stored by --out
+    stored, damage = read_image_file_and_damage(args.moving)  # decoded once: registered, and warped as stored by --out
     mov, mov_mask = image_and_mask(stored, args.moving)
     for path, mask in ((args.reference, ref_mask), (args.moving, mov_mask)):
         if not isinstance(mask, str) and args.model == "dense":  # "auto": no transparent pixel
@@ -111,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
             print(summary)
     _say_if_the_model_does_not_fit(result, args.model)
     _say_if_the_features_disagree(result)
+    _say_what_the_files_hold(((args.reference, ref_damage), (args.moving, damage)))
+    _say_if_one_repeats(((args.reference, ref), (args.moving, mov)))
     return 0
 
 
@@ -162,7 +165,8 @@ def _say_if_the_model_does_not_fit(result, model: str) -> None:
     fit = None if evidence is None else evidence.model_fit
     if fit is None or fit.fits:
         return
-    sys.stderr.write(f"pcreg: note: the images differ by more than a {model} motion, or this result is off: a "
+    article = "an" if model[0] in "aeiou" else "a"  # an affine motion
+    sys.stderr.write(f"pcreg: note: the images differ by more than {article} {model} motion, or this result is off: a "
                      f"{fit.model} fit aligns {100 * fit.inlier_ratio:.1f}% of the edge points against this result's "
                      f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} "
                      f"px (--model {fit.model} registers such a view)\n")
@@ -180,6 +184,40 @@ def _say_if_the_features_disagree(result) -> None:
                      f"{check.inliers} of {check.matches} SIFT matches, far more than chance gives) puts points where "
                      f"the matches are up to {check.largest_shift_px:.1f} px from where the result does; the result "
                      f"may be wrong\n")
+
+
+def _say_what_the_files_hold(files) -> None:
+    """Notes on stderr for each image file (``files``: its path, and what its decoder said of damaged data it
+    decoded around, or ""): such damage, and an EXIF orientation that has viewers show the image turned or
+    mirrored (``T_ref_mov`` maps the pixels as stored, not the view a person sees)."""
+    from ..formats import ORIENTATION_VIEWS, exif_orientation
+
+    for path, damage in dict(files).items():
+        if damage:
+            sys.stderr.write(f"pcreg: note: {path}: its decoder reports damaged data ({damage}): part of the image "
+                             "is the decoder's guess, and the result may be off\n")
+        orientation = exif_orientation(path)
+        if orientation is not None:
+            sys.stderr.write(f"pcreg: note: {path}'s EXIF orientation {orientation} has viewers show it "
+                             f"{ORIENTATION_VIEWS[orientation]}; pcreg registers the pixels as stored, and T_ref_mov "
+                             "maps them, not the view shown (turn the image first to register the view, e.g. "
+                             "exiftran -a)\n")
+
+
+def _say_if_one_repeats(images) -> None:
+    """A note on stderr when one of the images (``images``: each one's path and array) repeats itself under a
+    shift (:func:`~pcreg.registration.repetition.repeat_shift`): a motion that differs from the result by it
+    aligns the images as well, so the result may be a period off."""
+    from ..registration.repetition import repeat_shift
+
+    for path, image in images:
+        found = repeat_shift(image)
+        if found is not None:
+            dx, dy, ncc = found
+            sys.stderr.write(f"pcreg: note: {path} repeats itself: shifted by about ({dx:.0f}, {dy:.0f}) px it matches "
+                             f"itself (correlation {ncc:.2f}), so a motion that differs by such a shift aligns the "
+                             "images as well as this one, and the result may be a period off\n")
+            return
 
 
 def _keeps_its_form(stored) -> bool:

@@ -1,0 +1,57 @@
+"""An image that repeats itself under a shift (tiles, a checkerboard): a registration of it may be a period off
+with nothing in its evidence to tell, so ``pcreg register`` says so; photographs do not repeat."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.registration.repetition import repeat_shift
+
+
+def _tiles(period: int = 48) -> np.ndarray:
+    """A floor of one (period x period) patch of a synthetic frame, 10 x 8 times."""
+    patch = pcreg.synthetic("syn2a", n_frames=1)[0].image[100:100 + period, 200:200 + period]
+    return np.tile(patch, (8, 10, 1))
+
+
+@pytest.mark.parametrize("period", [24, 48])
+def test_the_shift_of_tiles_is_one_period(period):
+    dx, dy, ncc = repeat_shift(_tiles(period))
+    assert abs(np.hypot(dx, dy) - period) <= 2 and min(abs(dx), abs(dy)) <= 2 and ncc > 0.9, (dx, dy, ncc)
+
+
+def test_a_checkerboard_repeats_and_flat_or_random_images_do_not():
+    yy, xx = np.mgrid[:360, :480]
+    board = ((yy // 20 + xx // 20) % 2 * 255).astype(np.uint8)
+    dx, dy, _ = repeat_shift(board)
+    assert abs(abs(dx) - 20) <= 2 and abs(abs(dy) - 20) <= 2  # the diagonal neighbour of a square
+    assert repeat_shift(np.full((360, 480), 128, np.uint8)) is None
+    assert repeat_shift(np.random.default_rng(0).integers(0, 256, (360, 480, 3), dtype=np.uint8)) is None
+    assert repeat_shift(board[:10, :10]) is None
+
+
+def test_photographs_do_not_repeat(shared_data):
+    paths = sorted((shared_data / "photos").glob("*.png")) + sorted((shared_data / "camvid").glob("*/images/*0.png"))
+    assert len(paths) > 20
+    found = {p.name: repeat_shift(cv2.imread(str(p))) for p in paths}
+    assert not {name: shift for name, shift in found.items() if shift is not None}
+
+
+def test_pcreg_register_says_when_the_images_repeat(tmp_path, capsys):
+    tiles = _tiles()
+    ref, mov = tmp_path / "tiles.png", tmp_path / "moved.png"
+    cv2.imwrite(str(ref), tiles)
+    cv2.imwrite(str(mov), np.roll(tiles, (30, 29), axis=(0, 1)))  # registered a period off: (19, 18), not (-29, -30)
+    assert main(["register", str(ref), str(mov)]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "repeats itself" in line]
+    assert len(notes) == 1 and notes[0].startswith(f"pcreg: note: {ref} repeats itself: shifted by about ("), notes
+    assert notes[0].endswith("the result may be a period off")
+    frame = pcreg.synthetic("syn2a", n_frames=1)[0].image
+    cv2.imwrite(str(ref), frame)
+    cv2.imwrite(str(mov), np.roll(frame, (3, 5), axis=(0, 1)))
+    assert main(["register", str(ref), str(mov)]) == 0
+    assert "repeats itself" not in capsys.readouterr().err

@@ -19,9 +19,11 @@ task) the source's frame N, where the run chose it (``--start``, ``--every``). A
 background is a frame nobody drew on, not a key frame.
 
 An archive is read in memory, never unpacked: members are looked up by name, a name that climbs out of
-the archive (``..``, an absolute path) or two members of one name are refused, and every member's size is
-bounded before it is read (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class
-table's). An archive whose members all lie in one folder holding the export (an export zipped with its
+the archive (``..``, an absolute path), two members of one name, or two whose data overlap (a zip bomb that
+inflates one block of data under many names) are refused, and every member's size is bounded before it is read
+(:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class table's); a mask's first bytes are
+read first, so that a member that is no image, or a PNG larger than the pixel limit, is refused before the
+rest is inflated, and a PNG is read to no more bytes than its pixels can take. An archive whose members all lie in one folder holding the export (an export zipped with its
 folder around it) is read inside that folder, and so is such an archive unpacked (a folder holding only
 the folder of the export); the ``__MACOSX/`` folder that macOS's Finder adds to an archive it makes is left out.
 """
@@ -50,6 +52,10 @@ _FRAME = re.compile(r"frame_(\d{1,9})")
 #: The folder of file metadata macOS's Finder adds to an archive it makes (``__MACOSX/FOLDER/._NAME``): no
 #: part of the export, and left out.
 _MACOS_FORKS = "__MACOSX"
+#: The fewest bytes of a member's local header (zip's APPNOTE 4.3.7: 30 and its name).
+_LOCAL_HEADER = 30
+#: The bytes of a member read first, to know from its header what it is.
+_HEAD = 1 << 16
 _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError, ValueError, OSError)
 
 
@@ -88,8 +94,8 @@ class CvatExport(contextlib.AbstractContextManager):
     """The files of an export, a zip archive or a folder, by relative name (``labelmap.txt``,
     ``SegmentationClass/NAME.png``); a context manager."""
 
-    def __init__(self, path: str | Path, *, max_bytes: int) -> None:
-        self.path, self.max_bytes = Path(path), max_bytes
+    def __init__(self, path: str | Path, *, max_bytes: int, max_pixels: int | None = None) -> None:
+        self.path, self.max_bytes, self.max_pixels = Path(path), max_bytes, max_pixels
         self._zip: zipfile.ZipFile | None = None
         self._members: dict[str, zipfile.ZipInfo] = {}
         self._prefix = ""
@@ -115,9 +121,20 @@ class CvatExport(contextlib.AbstractContextManager):
                     self.close()
                     raise InputError(f"{self.path}: two members named {name!r}")
                 self._members[name] = info
+        self._check_overlaps(infos)
         self._prefix = self._wrapping_folder()
         if self._prefix:  # an export zipped with its folder around it: read inside that folder
             self._members = {n[len(self._prefix):]: info for n, info in self._members.items() if n.startswith(self._prefix)}
+
+    def _check_overlaps(self, infos: list[zipfile.ZipInfo]) -> None:
+        """An :class:`InputError` when a member's compressed data runs into the next member's header: members
+        that share their data inflate it again under each name, a bomb of a small archive."""
+        assert self._zip is not None
+        members = sorted(infos, key=lambda i: i.header_offset)
+        for info, end in zip(members, [i.header_offset for i in members[1:]] + [self._zip.start_dir]):
+            if info.header_offset + _LOCAL_HEADER + info.compress_size > end:  # its header and data, at the least
+                self.close()
+                raise InputError(f"{self.path}: member {info.filename!r} overlaps the next member's data (a zip bomb?)")
 
     def _wrapping_folder(self) -> str:
         """``"NAME/"`` when every member lies in one folder NAME that holds the export (its ``labelmap.txt``
@@ -162,12 +179,28 @@ class CvatExport(contextlib.AbstractContextManager):
             raise InputError(f"{self.where(name)}: {info.file_size} bytes, more than the {limit} {what} may have")
         try:
             with self._zip.open(info) as fh:
-                data = fh.read(limit + 1)
+                data = fh.read(min(_HEAD, limit + 1))
+                if max_bytes is None and len(data) == _HEAD:  # an image: its header first
+                    limit = self._image_bound(data, name, limit)
+                data += fh.read(limit + 1 - len(data))
+        except InputError:
+            raise
         except _ZIP_ERRORS as exc:
             raise InputError(f"{self.where(name)}: unreadable in the archive ({exc})") from None
         if len(data) > limit:
             raise InputError(f"{self.where(name)}: larger than the {limit} bytes {what} may have")
         return data
+
+    def _image_bound(self, head: bytes, name: str, limit: int) -> int:
+        """The most bytes a member whose first bytes are ``head`` may have: a PNG's for its declared pixels
+        (a PNG larger than the pixel limit, or a member that is no image, refused before it is inflated)."""
+        from ..formats import check_image_bytes, image_size, max_file_bytes
+
+        found = image_size(head)
+        if found is None or found[0] == "PNG":
+            w, h = check_image_bytes(head, self.where(name), limit=self.max_pixels)
+            return min(limit, max_file_bytes(w * h))
+        return limit
 
     def close(self) -> None:
         if self._zip is not None:
@@ -311,7 +344,7 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
     if mapping != "none":
         raise InputError(f"--mapping {mapping}: the masks of a CVAT export ({path}) are read through its labelmap.txt")
     lim = max_pixels(limit)
-    with CvatExport(path, max_bytes=max_file_bytes(lim)) as export:
+    with CvatExport(path, max_bytes=max_file_bytes(lim), max_pixels=lim) as export:
         table, order = _table(export, classes)
         masks = export.names(CLASS_DIR)
         if not masks:

@@ -1,0 +1,89 @@
+"""Hostile CVAT "Segmentation mask 1.1" archives and label PNGs, built here byte by byte: each is refused in
+one line naming the file (an :class:`InputError`), or read as the export it stands for."""
+
+from __future__ import annotations
+
+import struct
+import zipfile
+import zlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.classes.cvat import CvatExport
+from pcreg.errors import InputError
+from pcreg.formats import max_file_bytes
+
+LIMIT = 50_000_000
+MASK = "SegmentationClass/f0.png"
+
+
+def _export(path: Path) -> CvatExport:
+    return CvatExport(path, max_bytes=max_file_bytes(LIMIT), max_pixels=LIMIT)
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def _mask_png(h: int = 48, w: int = 64) -> bytes:
+    rgb = np.zeros((h, w, 3), np.uint8)
+    rgb[: h // 2] = (128, 64, 128)
+    return cv2.imencode(".png", rgb)[1].tobytes()
+
+
+def test_members_sharing_their_data_are_refused(tmp_path):
+    """A member whose data runs over the next member's (Fifield's overlapping zip bomb: one block inflated under
+    many names) is refused when the archive is opened; Python's zipfile reads it."""
+    png = _mask_png()
+    second = zipfile.ZipInfo("SegmentationClass/f1.png")
+    second.CRC, second.compress_size, second.file_size = zlib.crc32(png), len(png), len(png)
+    header = second.FileHeader()  # the second member's local header, which the first member's data quotes
+    path = tmp_path / "overlap.zip"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as z:
+        z.writestr(MASK, header + png)
+    raw = bytearray(path.read_bytes())
+    with zipfile.ZipFile(path) as z:
+        first = z.getinfo(MASK)
+    data_at = first.header_offset + 30 + len(MASK)
+    cd_at = raw.index(b"PK\x01\x02")
+    first_entry = bytes(raw[cd_at:raw.index(b"PK\x05\x06")])
+    # the second member's central entry: its header inside the first member's data, its data the PNG
+    info = zipfile.ZipInfo("SegmentationClass/f1.png")
+    info.header_offset, info.CRC, info.compress_size, info.file_size = data_at, zlib.crc32(png), len(png), len(png)
+    entry = struct.pack("<4s4B4HL2L5H2L", b"PK\x01\x02", 20, 0, 20, 0, 0, 0, 0, 0, info.CRC, len(png), len(png),
+                        len(info.filename), 0, 0, 0, 0, 0, data_at) + info.filename.encode()
+    directory = first_entry + entry
+    end = struct.pack("<4s4H2LH", b"PK\x05\x06", 0, 0, 2, 2, len(directory), cd_at, 0)
+    path.write_bytes(bytes(raw[:cd_at]) + directory + end)
+    with zipfile.ZipFile(path) as z:  # the archive reads: both members, one inside the other
+        assert z.read("SegmentationClass/f1.png") == png and z.read(MASK) == header + png
+    with pytest.raises(InputError, match=r"overlap\.zip: member 'SegmentationClass/f\d\.png' overlaps the next"):
+        _export(path)
+
+
+def test_a_mask_is_read_to_no_more_bytes_than_its_pixels_take(tmp_path):
+    """A 64x48 mask with 18 MB of ancillary chunks (18 kB in the archive) is refused before it is inflated
+    whole; the mask without it reads."""
+    png = _mask_png()
+    bloated = png[:33] + _chunk(b"zzZz", bytes(2 << 20)) * 9 + png[33:]
+    assert cv2.imdecode(np.frombuffer(bloated, np.uint8), cv2.IMREAD_UNCHANGED) is not None  # a PNG libpng reads
+    path = tmp_path / "bloated.zip"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr(MASK, bloated)
+        z.writestr("SegmentationClass/f1.png", png)
+    with _export(path) as export:
+        assert export.read("SegmentationClass/f1.png") == png
+        with pytest.raises(InputError, match=r"bloated\.zip:SegmentationClass/f0\.png: larger than the \d+ bytes"):
+            export.read(MASK)
+
+
+def test_a_member_that_is_no_image_is_refused_from_its_first_bytes(tmp_path):
+    """A member of 64 MB of zeros under a mask's name is refused as no image (as before), from its first bytes."""
+    path = tmp_path / "zeros.zip"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr(MASK, bytes(64 << 20))
+    with _export(path) as export, pytest.raises(InputError, match=r"zeros\.zip:SegmentationClass/f0\.png: not an image"):
+        export.read(MASK)

@@ -87,3 +87,30 @@ def test_a_member_that_is_no_image_is_refused_from_its_first_bytes(tmp_path):
         z.writestr(MASK, bytes(64 << 20))
     with _export(path) as export, pytest.raises(InputError, match=r"zeros\.zip:SegmentationClass/f0\.png: not an image"):
         export.read(MASK)
+
+
+def _renamed(path: Path, names: dict[str, bytes]) -> Path:
+    """An archive of a mask under each of ``names`` (an ASCII placeholder -> the bytes the archive stores as its
+    name; the UTF-8 flag clear, as ASCII names leave it)."""
+    with zipfile.ZipFile(path, "w") as z:
+        for placeholder in names:
+            z.writestr(placeholder, _mask_png())
+    raw = path.read_bytes()
+    for placeholder, stored in names.items():
+        assert len(stored) == len(placeholder)
+        raw = raw.replace(placeholder.encode(), stored)
+    path.write_bytes(raw)
+    return path
+
+
+def test_windows_separators_are_folders(tmp_path):
+    """``SegmentationClass\\f0.png`` (Windows PowerShell's Compress-Archive) is the mask ``f0``, not a path outside
+    the archive; ``..\\x.png`` still is."""
+    path = _renamed(tmp_path / "win.zip", {"SegmentationClass_f0.png": b"SegmentationClass\\f0.png",
+                                           "ImageSets_Segmentation_default.txt": b"ImageSets\\Segmentation\\default.txt"})
+    with _export(path) as export:
+        assert export.names("SegmentationClass") == [MASK]
+        assert export.read(MASK) == _mask_png()
+    path = _renamed(tmp_path / "climbs.zip", {"__/x.png": b"..\\x.png"})
+    with pytest.raises(InputError, match=r"climbs\.zip: member '\.\.\\\\x\.png' names a path outside the archive"):
+        _export(path)

@@ -18,7 +18,8 @@ the frame of that stem, else ``frame_NNNNNN`` (CVAT's name of a video's frame N,
 task) the source's frame N, where the run chose it (``--start``, ``--every``). A mask that is all
 background is a frame nobody drew on, not a key frame.
 
-An archive is read in memory, never unpacked: members are looked up by name, a name that climbs out of
+An archive is read in memory, never unpacked: members are looked up by name (Windows's ``\\`` separators
+read as ``/``), a name that climbs out of
 the archive (``..``, an absolute path), two members of one name, or two whose data overlap (a zip bomb that
 inflates one block of data under many names) are refused, and every member's size is bounded before it is read
 (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class table's); a mask's first bytes are
@@ -80,9 +81,15 @@ def wrapped_export(folder: Path) -> Path | None:
     return inside[0] if len(inside) == 1 and (inside[0] / CLASS_DIR).is_dir() else None
 
 
+def _member_name(info: zipfile.ZipInfo) -> str:
+    """A member's name as its maker meant it: Windows's ``\\`` separators (Windows PowerShell's Compress-Archive
+    writes them) as ``/``."""
+    return info.filename.replace("\\", "/")
+
+
 def _safe_name(name: str) -> str | None:
     """A member's name as a relative POSIX path, or None when it climbs out (``..``, absolute, a drive)."""
-    if "\\" in name or name.startswith("/") or re.match(r"[A-Za-z]:", name) or "\0" in name:
+    if name.startswith("/") or re.match(r"[A-Za-z]:", name) or "\0" in name:
         return None
     parts = PurePosixPath(name).parts
     if any(p in ("..", "") for p in parts):
@@ -112,11 +119,12 @@ class CvatExport(contextlib.AbstractContextManager):
             self.close()
             raise InputError(f"{self.path}: {len(infos)} members; a CVAT export of at most {MAX_MEMBERS} is read")
         for info in infos:
-            name = _safe_name(info.filename)
+            given = _member_name(info)
+            name = _safe_name(given)
             if name is None:
                 self.close()
                 raise InputError(f"{self.path}: member {info.filename!r} names a path outside the archive")
-            if not info.is_dir() and name.split("/", 1)[0] != _MACOS_FORKS:
+            if not given.endswith("/") and name.split("/", 1)[0] != _MACOS_FORKS:
                 if name in self._members:  # which one a reader takes is its own choice: no silent winner
                     self.close()
                     raise InputError(f"{self.path}: two members named {name!r}")

@@ -114,3 +114,16 @@ def test_windows_separators_are_folders(tmp_path):
     path = _renamed(tmp_path / "climbs.zip", {"__/x.png": b"..\\x.png"})
     with pytest.raises(InputError, match=r"climbs\.zip: member '\.\.\\\\x\.png' names a path outside the archive"):
         _export(path)
+
+
+def test_utf8_names_without_the_utf8_flag_are_utf8(tmp_path):
+    """A name stored as UTF-8 bytes without the archive's UTF-8 flag is the UTF-8 name (Python's zipfile reads
+    cp437: ``fé0`` as ``f├⌐0``); a cp437 name, flag clear, is read as cp437."""
+    path = _renamed(tmp_path / "utf8.zip", {"SegmentationClass/fQQ0.png": "SegmentationClass/fé0.png".encode()})
+    with zipfile.ZipFile(path) as z:
+        assert not z.infolist()[0].flag_bits & 0x800 and z.namelist() == ["SegmentationClass/f├⌐0.png"]
+    with _export(path) as export:
+        assert export.names("SegmentationClass") == ["SegmentationClass/fé0.png"]
+    path = _renamed(tmp_path / "cp437.zip", {"SegmentationClass/fQ0.png": b"SegmentationClass/f\x820.png"})
+    with _export(path) as export:
+        assert export.names("SegmentationClass") == ["SegmentationClass/fé0.png"]

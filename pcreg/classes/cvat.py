@@ -19,7 +19,7 @@ task) the source's frame N, where the run chose it (``--start``, ``--every``). A
 background is a frame nobody drew on, not a key frame.
 
 An archive is read in memory, never unpacked: members are looked up by name (Windows's ``\\`` separators
-read as ``/``), a name that climbs out of
+read as ``/``, UTF-8 names read as UTF-8 whether or not the archive flags them so), a name that climbs out of
 the archive (``..``, an absolute path), two members of one name, or two whose data overlap (a zip bomb that
 inflates one block of data under many names) are refused, and every member's size is bounded before it is read
 (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class table's); a mask's first bytes are
@@ -53,6 +53,8 @@ _FRAME = re.compile(r"frame_(\d{1,9})")
 #: The folder of file metadata macOS's Finder adds to an archive it makes (``__MACOSX/FOLDER/._NAME``): no
 #: part of the export, and left out.
 _MACOS_FORKS = "__MACOSX"
+#: A member's general purpose flag that says its name is UTF-8 (zip's APPNOTE 4.4.4, bit 11).
+_UTF8_FLAG = 0x800
 #: The fewest bytes of a member's local header (zip's APPNOTE 4.3.7: 30 and its name).
 _LOCAL_HEADER = 30
 #: The bytes of a member read first, to know from its header what it is.
@@ -82,9 +84,14 @@ def wrapped_export(folder: Path) -> Path | None:
 
 
 def _member_name(info: zipfile.ZipInfo) -> str:
-    """A member's name as its maker meant it: Windows's ``\\`` separators (Windows PowerShell's Compress-Archive
-    writes them) as ``/``."""
-    return info.filename.replace("\\", "/")
+    """A member's name as its maker meant it: UTF-8 bytes that the archive does not flag as UTF-8 (as many tools
+    write them; Python's zipfile decodes them as cp437, and no frame's name would match) read as UTF-8, and
+    Windows's ``\\`` separators (Windows PowerShell's Compress-Archive writes them) as ``/``."""
+    name = info.filename
+    if not info.flag_bits & _UTF8_FLAG and not name.isascii():
+        with contextlib.suppress(UnicodeError):
+            name = name.encode("cp437").decode("utf-8")
+    return name.replace("\\", "/")
 
 
 def _safe_name(name: str) -> str | None:

@@ -3,6 +3,7 @@ one line naming the file (an :class:`InputError`), or read as the export it stan
 
 from __future__ import annotations
 
+import stat
 import struct
 import zipfile
 import zlib
@@ -127,3 +128,18 @@ def test_utf8_names_without_the_utf8_flag_are_utf8(tmp_path):
     path = _renamed(tmp_path / "cp437.zip", {"SegmentationClass/fQ0.png": b"SegmentationClass/f\x820.png"})
     with _export(path) as export:
         assert export.names("SegmentationClass") == ["SegmentationClass/fé0.png"]
+
+
+def test_a_symbolic_link_member_is_refused_as_one(tmp_path):
+    """A member stored as a symbolic link (its data the path it points to) is refused as a link: read as the
+    file, ``labelmap.txt`` -> ``/etc/passwd`` was a label map of one class named '/etc/passwd'."""
+    path = tmp_path / "link.zip"
+    info = zipfile.ZipInfo("labelmap.txt")
+    info.create_system, info.external_attr = 3, (stat.S_IFLNK | 0o777) << 16
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr(info, "/etc/passwd")
+        z.writestr(MASK, _mask_png())
+    with _export(path) as export:
+        assert export.read(MASK) == _mask_png()
+        with pytest.raises(InputError, match=r"link\.zip:labelmap\.txt: a symbolic link in the archive, not a file"):
+            export.read("labelmap.txt", max_bytes=1 << 20, what="a class table")

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+import stat
 import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
@@ -190,6 +191,8 @@ class CvatExport(contextlib.AbstractContextManager):
         if self._zip is None:
             return read_regular_file(self._root / name, max_bytes=limit, what="CVAT export file")
         info = self._members[name]
+        if stat.S_ISLNK(info.external_attr >> 16):  # its data is the path it points to, which is not followed
+            raise InputError(f"{self.where(name)}: a symbolic link in the archive, not a file; zip the export's files")
         if info.file_size > limit:
             raise InputError(f"{self.where(name)}: {info.file_size} bytes, more than the {limit} {what} may have")
         try:

@@ -143,3 +143,18 @@ def test_a_symbolic_link_member_is_refused_as_one(tmp_path):
         assert export.read(MASK) == _mask_png()
         with pytest.raises(InputError, match=r"link\.zip:labelmap\.txt: a symbolic link in the archive, not a file"):
             export.read("labelmap.txt", max_bytes=1 << 20, what="a class table")
+
+
+def test_an_encrypted_member_is_refused_in_a_line(tmp_path):
+    """A member encrypted with a password (its flag bit 0) is refused saying so, in one short line; Python's zipfile
+    says so with the member's whole ZipInfo."""
+    path = tmp_path / "secret.zip"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr(MASK, _mask_png())
+    raw = bytearray(path.read_bytes())
+    for signature, flag_at in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+        raw[raw.index(signature) + flag_at] |= 1
+    path.write_bytes(bytes(raw))
+    with _export(path) as export, pytest.raises(InputError) as refused:
+        export.read(MASK)
+    assert str(refused.value) == f"{path}:{MASK}: encrypted (the archive has a password); zip the export without one"

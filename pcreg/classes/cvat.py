@@ -56,6 +56,8 @@ _FRAME = re.compile(r"frame_(\d{1,9})")
 _MACOS_FORKS = "__MACOSX"
 #: A member's general purpose flag that says its name is UTF-8 (zip's APPNOTE 4.4.4, bit 11).
 _UTF8_FLAG = 0x800
+#: A member's general purpose flag that says its data is encrypted (bit 0).
+_ENCRYPTED = 0x1
 #: The fewest bytes of a member's local header (zip's APPNOTE 4.3.7: 30 and its name).
 _LOCAL_HEADER = 30
 #: The bytes of a member read first, to know from its header what it is.
@@ -193,6 +195,8 @@ class CvatExport(contextlib.AbstractContextManager):
         info = self._members[name]
         if stat.S_ISLNK(info.external_attr >> 16):  # its data is the path it points to, which is not followed
             raise InputError(f"{self.where(name)}: a symbolic link in the archive, not a file; zip the export's files")
+        if info.flag_bits & _ENCRYPTED:
+            raise InputError(f"{self.where(name)}: encrypted (the archive has a password); zip the export without one")
         if info.file_size > limit:
             raise InputError(f"{self.where(name)}: {info.file_size} bytes, more than the {limit} {what} may have")
         try:

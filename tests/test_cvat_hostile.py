@@ -3,6 +3,8 @@ one line naming the file (an :class:`InputError`), or read as the export it stan
 
 from __future__ import annotations
 
+import os
+import re
 import stat
 import struct
 import zipfile
@@ -158,3 +160,20 @@ def test_an_encrypted_member_is_refused_in_a_line(tmp_path):
     with _export(path) as export, pytest.raises(InputError) as refused:
         export.read(MASK)
     assert str(refused.value) == f"{path}:{MASK}: encrypted (the archive has a password); zip the export without one"
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+def test_an_unpacked_export_entry_that_is_no_file_is_refused(tmp_path, kind):
+    """In an unpacked export, a ``labelmap.txt`` or a mask that is a folder or a FIFO is refused saying what it is:
+    the label map was said to be missing, and the mask was left out without a word."""
+    root = tmp_path / "export"
+    (root / "SegmentationClass").mkdir(parents=True)
+    (root / MASK).write_bytes(_mask_png())
+    for name in ("labelmap.txt", "SegmentationClass/f1.png"):
+        (root / name).mkdir() if kind == "folder" else os.mkfifo(root / name)
+    said = "is a folder, not a file" if kind == "folder" else "not a regular file"
+    with _export(root) as export:
+        assert export.has("labelmap.txt") and export.names("SegmentationClass") == [MASK, "SegmentationClass/f1.png"]
+        for name in ("labelmap.txt", "SegmentationClass/f1.png"):
+            with pytest.raises(InputError, match=f"{re.escape(str(root / name))}: {said}"):
+                export.read(name)

@@ -169,16 +169,20 @@ class CvatExport(contextlib.AbstractContextManager):
 
     def names(self, folder: str) -> list[str]:
         """The ``.png`` files in ``folder`` and its sub-folders (a task made from nested folders of frames puts
-        its masks there), by relative name, in name order; hidden ones left out."""
+        its masks there), by relative name, in name order; hidden ones left out. In a folder, every entry of such a
+        name, a file or not (a folder, a FIFO, a link to a device), for :meth:`read` to refuse those that are not."""
         if self._zip is None:
             d = self._root / folder
             return sorted(p.relative_to(self._root).as_posix() for p in d.rglob("*")
-                          if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith(".")) if d.is_dir() else []
+                          if p.suffix.lower() == ".png" and not p.name.startswith(".")) if d.is_dir() else []
         return sorted(n for n in self._members if n.startswith(f"{folder}/")
                       and n.lower().endswith(".png") and not n.rsplit("/", 1)[1].startswith("."))
 
     def has(self, name: str) -> bool:
-        return (self._root / name).is_file() if self._zip is None else name in self._members
+        """Whether the export holds ``name``: in a folder, any entry of that name (:meth:`read` refuses one that
+        is no regular file, saying what it is)."""
+        p = self._root / name
+        return (p.exists() or p.is_symlink()) if self._zip is None else name in self._members
 
     def where(self, name: str) -> str:
         """How an error names a member: ``EXPORT.zip:NAME`` or the file's path."""

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from pcreg.classes.cvat import CvatExport
+from pcreg.cli import main
 from pcreg.errors import InputError
 from pcreg.formats import max_file_bytes
 
@@ -177,3 +178,23 @@ def test_an_unpacked_export_entry_that_is_no_file_is_refused(tmp_path, kind):
         for name in ("labelmap.txt", "SegmentationClass/f1.png"):
             with pytest.raises(InputError, match=f"{re.escape(str(root / name))}: {said}"):
                 export.read(name)
+
+
+def test_an_export_zipped_again_is_named(tmp_path, capsys):
+    """``pcreg run --labels`` of an archive that holds the export's archive (zipped again) says which member is the
+    archive inside, after what is missing."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for name in ("f0.png", "f1.png"):
+        cv2.imwrite(str(frames / name), np.full((48, 64, 3), 90, np.uint8))
+    inner = tmp_path / "task.zip"
+    with zipfile.ZipFile(inner, "w") as z:
+        z.writestr("labelmap.txt", "background:0,0,0::\nroad:128,64,128::\ncar:64,0,128::\n")
+        z.writestr(MASK, _mask_png())
+    outer = tmp_path / "outer.zip"
+    with zipfile.ZipFile(outer, "w") as z:
+        z.write(inner, "downloads/task_export.zip")
+    assert main(["run", str(frames), "--labels", str(outer), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"pcreg: error: {outer}:labelmap.txt: missing (the export's class table; or name one with --classes); it holds "
+        "downloads/task_export.zip, an archive in the archive: take the export out and give it to --labels"]

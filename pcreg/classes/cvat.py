@@ -178,6 +178,13 @@ class CvatExport(contextlib.AbstractContextManager):
         return sorted(n for n in self._members if n.startswith(f"{folder}/")
                       and n.lower().endswith(".png") and not n.rsplit("/", 1)[1].startswith("."))
 
+    def inner_archive(self) -> str:
+        """What a refusal of an archive with no export in it adds when it holds a zip archive (an export zipped
+        again, or with others): which one, to give ``--labels`` once taken out; else ``""``."""
+        inner = sorted(n for n in self._members if n.lower().endswith(".zip"))
+        return (f"; it holds {inner[0]}{f' and {len(inner) - 1} more archive(s)' if len(inner) > 1 else ''}, an "
+                "archive in the archive: take the export out and give it to --labels") if inner else ""
+
     def has(self, name: str) -> bool:
         """Whether the export holds ``name``: in a folder, any entry of that name (:meth:`read` refuses one that
         is no regular file, saying what it is)."""
@@ -243,7 +250,7 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
     if not export.has(LABELMAP_FILE):
         if classes is None:
             raise InputError(f"{export.where(LABELMAP_FILE)}: missing (the export's class table; or name one with "
-                             "--classes)")
+                             f"--classes){export.inner_archive()}")
         table = class_table(classes)
         return table, [table.unknown, *table.known_ids]
     try:
@@ -375,7 +382,7 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
         masks = export.names(CLASS_DIR)
         if not masks:
             raise InputError(f"{export.where(CLASS_DIR)}: no class mask (a CVAT 'Segmentation mask 1.1' export holds "
-                             f"{CLASS_DIR}/NAME.png)")
+                             f"{CLASS_DIR}/NAME.png){export.inner_archive()}")
         stems = [PurePosixPath(m).stem for m in masks]
         positions = placed(frames, stems, path)
         if all(t is None for t in positions):

@@ -198,3 +198,23 @@ def test_an_export_zipped_again_is_named(tmp_path, capsys):
     assert capsys.readouterr().err.strip().splitlines() == [
         f"pcreg: error: {outer}:labelmap.txt: missing (the export's class table; or name one with --classes); it holds "
         "downloads/task_export.zip, an archive in the archive: take the export out and give it to --labels"]
+
+
+def test_a_mask_of_another_size_is_refused_drawn_on_or_not(tmp_path, capsys):
+    """A mask of another size than the frames is refused from its header even when nothing is drawn on it: a
+    black 7000x7000 mask (a 1.2 kB member) was inflated, 1.4 GB, to find it background and skip it."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("f0.png", "f1.png"):
+        cv2.imwrite(str(frames / name), cv2.GaussianBlur(rng.integers(0, 255, (48, 64, 3), np.uint8), (5, 5), 2))
+    path = tmp_path / "export.zip"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("labelmap.txt", "background:0,0,0::\nroad:128,64,128::\ncar:64,0,128::\n")
+        drawn = np.zeros((48, 64, 3), np.uint8)
+        drawn[:24], drawn[24:, :32] = (128, 64, 128), (128, 0, 64)  # BGR of road and car
+        z.writestr(MASK, cv2.imencode(".png", drawn)[1].tobytes())
+        z.writestr("SegmentationClass/f1.png", cv2.imencode(".png", np.zeros((60, 80, 3), np.uint8))[1].tobytes())
+    assert main(["run", str(frames), "--labels", str(path), "--out", str(tmp_path / "out"), "--model", "flow"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"pcreg: error: {path}:SegmentationClass/f1.png: the mask is 80x60, the frames 64x48"]

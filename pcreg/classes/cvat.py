@@ -16,7 +16,8 @@ no ids. A mask is read through the table's colours (RGB, or a palette PNG's colo
 a one-channel mask holds each pixel's line in ``labelmap.txt``. A mask names its frame by its file's stem:
 the frame of that stem, else ``frame_NNNNNN`` (CVAT's name of a video's frame N, and of the N-th image of a
 task) the source's frame N, where the run chose it (``--start``, ``--every``). A mask that is all
-background is a frame nobody drew on, not a key frame.
+background is a frame nobody drew on, not a key frame; every mask has the frames' size, drawn on or not (told
+from its header, before its pixels are inflated: a small archive of large black masks is no burden).
 
 An archive is read in memory, never unpacked: members are looked up by name (Windows's ``\\`` separators
 read as ``/``, UTF-8 names read as UTF-8 whether or not the archive flags them so), a name that climbs out of
@@ -369,9 +370,10 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
                    mapping: str = "none", limit: int | None = None) -> tuple[ClassTable, dict[int, np.ndarray]]:
     """``(table, {position: labels})`` of the CVAT export at ``path`` (the module's docstring) for the run's
     ``frames`` (:mod:`pcreg.datasets.sources`), every key frame of ``shape`` (H, W). One line naming the
-    file: a malformed archive or mask, a colour not in ``labelmap.txt``, masks whose names match no frame
-    (saying how both are named), a labelled mask of no chosen frame, two masks of one frame, none drawn on."""
-    from ..formats import max_file_bytes
+    file: a malformed archive or mask, a mask of another size than the frames (from its header, drawn on or not:
+    its pixels are not inflated), a colour not in ``labelmap.txt``, masks whose names match no frame (saying how
+    both are named), a labelled mask of no chosen frame, two masks of one frame, none drawn on."""
+    from ..formats import check_image_bytes, max_file_bytes
     from ..validation import max_pixels
 
     if mapping != "none":
@@ -391,7 +393,11 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
         keys: dict[int, np.ndarray] = {}
         seen: dict[int, str] = {}
         for m, t in zip(masks, positions):
-            lab = _decode_mask(export.read(m), export.where(m), table, order, lim)
+            data = export.read(m)
+            w, h = check_image_bytes(data, export.where(m), limit=lim)
+            if (h, w) != shape:  # said from its header, before its pixels are inflated, drawn on or not
+                raise InputError(f"{export.where(m)}: the mask is {w}x{h}, the frames {shape[1]}x{shape[0]}")
+            lab = _decode_mask(data, export.where(m), table, order, lim)
             if (lab == table.unknown).all():
                 continue  # a frame nobody drew on
             if t is None:
@@ -399,9 +405,6 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
                                  + ("" if frames.selection.to_dict() is None else " among those chosen"))
             if t in seen:
                 raise InputError(f"{export.where(m)}: a second mask of the frame {frames.name(t)} (also {seen[t]})")
-            if lab.shape != shape:
-                raise InputError(f"{export.where(m)}: the mask is {lab.shape[1]}x{lab.shape[0]}, the frames "
-                                 f"{shape[1]}x{shape[0]}")
             keys[t], seen[t] = lab, m
     if not keys:
         raise InputError(f"{path}: every mask is background only: no key frame drawn")

@@ -16,12 +16,16 @@ no ids. A mask is read through the table's colours (RGB, or a palette PNG's colo
 a one-channel mask holds each pixel's line in ``labelmap.txt``. A mask names its frame by its file's stem:
 the frame of that stem, else ``frame_NNNNNN`` (CVAT's name of a video's frame N, and of the N-th image of a
 task) the source's frame N, where the run chose it (``--start``, ``--every``). A mask that is all
-background is a frame nobody drew on, not a key frame.
+background is a frame nobody drew on, not a key frame; every mask has the frames' size, drawn on or not (told
+from its header, before its pixels are inflated: a small archive of large black masks is no burden).
 
-An archive is read in memory, never unpacked: members are looked up by name, a name that climbs out of
-the archive (``..``, an absolute path) or two members of one name are refused, and every member's size is
-bounded before it is read (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class
-table's). An archive whose members all lie in one folder holding the export (an export zipped with its
+An archive is read in memory, never unpacked: members are looked up by name (Windows's ``\\`` separators
+read as ``/``, UTF-8 names read as UTF-8 whether or not the archive flags them so), a name that climbs out of
+the archive (``..``, an absolute path), two members of one name, or two whose data overlap (a zip bomb that
+inflates one block of data under many names) are refused, and every member's size is bounded before it is read
+(:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class table's); a mask's first bytes are
+read first, so that a member that is no image, or a PNG larger than the pixel limit, is refused before the
+rest is inflated, and a PNG is read to no more bytes than its pixels can take. An archive whose members all lie in one folder holding the export (an export zipped with its
 folder around it) is read inside that folder, and so is such an archive unpacked (a folder holding only
 the folder of the export); the ``__MACOSX/`` folder that macOS's Finder adds to an archive it makes is left out.
 """
@@ -30,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+import stat
 import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
@@ -50,6 +55,14 @@ _FRAME = re.compile(r"frame_(\d{1,9})")
 #: The folder of file metadata macOS's Finder adds to an archive it makes (``__MACOSX/FOLDER/._NAME``): no
 #: part of the export, and left out.
 _MACOS_FORKS = "__MACOSX"
+#: A member's general purpose flag that says its name is UTF-8 (zip's APPNOTE 4.4.4, bit 11).
+_UTF8_FLAG = 0x800
+#: A member's general purpose flag that says its data is encrypted (bit 0).
+_ENCRYPTED = 0x1
+#: The fewest bytes of a member's local header (zip's APPNOTE 4.3.7: 30 and its name).
+_LOCAL_HEADER = 30
+#: The bytes of a member read first, to know from its header what it is.
+_HEAD = 1 << 16
 _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError, ValueError, OSError)
 
 
@@ -74,9 +87,20 @@ def wrapped_export(folder: Path) -> Path | None:
     return inside[0] if len(inside) == 1 and (inside[0] / CLASS_DIR).is_dir() else None
 
 
+def _member_name(info: zipfile.ZipInfo) -> str:
+    """A member's name as its maker meant it: UTF-8 bytes that the archive does not flag as UTF-8 (as many tools
+    write them; Python's zipfile decodes them as cp437, and no frame's name would match) read as UTF-8, and
+    Windows's ``\\`` separators (Windows PowerShell's Compress-Archive writes them) as ``/``."""
+    name = info.filename
+    if not info.flag_bits & _UTF8_FLAG and not name.isascii():
+        with contextlib.suppress(UnicodeError):
+            name = name.encode("cp437").decode("utf-8")
+    return name.replace("\\", "/")
+
+
 def _safe_name(name: str) -> str | None:
     """A member's name as a relative POSIX path, or None when it climbs out (``..``, absolute, a drive)."""
-    if "\\" in name or name.startswith("/") or re.match(r"[A-Za-z]:", name) or "\0" in name:
+    if name.startswith("/") or re.match(r"[A-Za-z]:", name) or "\0" in name:
         return None
     parts = PurePosixPath(name).parts
     if any(p in ("..", "") for p in parts):
@@ -88,8 +112,8 @@ class CvatExport(contextlib.AbstractContextManager):
     """The files of an export, a zip archive or a folder, by relative name (``labelmap.txt``,
     ``SegmentationClass/NAME.png``); a context manager."""
 
-    def __init__(self, path: str | Path, *, max_bytes: int) -> None:
-        self.path, self.max_bytes = Path(path), max_bytes
+    def __init__(self, path: str | Path, *, max_bytes: int, max_pixels: int | None = None) -> None:
+        self.path, self.max_bytes, self.max_pixels = Path(path), max_bytes, max_pixels
         self._zip: zipfile.ZipFile | None = None
         self._members: dict[str, zipfile.ZipInfo] = {}
         self._prefix = ""
@@ -106,18 +130,30 @@ class CvatExport(contextlib.AbstractContextManager):
             self.close()
             raise InputError(f"{self.path}: {len(infos)} members; a CVAT export of at most {MAX_MEMBERS} is read")
         for info in infos:
-            name = _safe_name(info.filename)
+            given = _member_name(info)
+            name = _safe_name(given)
             if name is None:
                 self.close()
                 raise InputError(f"{self.path}: member {info.filename!r} names a path outside the archive")
-            if not info.is_dir() and name.split("/", 1)[0] != _MACOS_FORKS:
+            if not given.endswith("/") and name.split("/", 1)[0] != _MACOS_FORKS:
                 if name in self._members:  # which one a reader takes is its own choice: no silent winner
                     self.close()
                     raise InputError(f"{self.path}: two members named {name!r}")
                 self._members[name] = info
+        self._check_overlaps(infos)
         self._prefix = self._wrapping_folder()
         if self._prefix:  # an export zipped with its folder around it: read inside that folder
             self._members = {n[len(self._prefix):]: info for n, info in self._members.items() if n.startswith(self._prefix)}
+
+    def _check_overlaps(self, infos: list[zipfile.ZipInfo]) -> None:
+        """An :class:`InputError` when a member's compressed data runs into the next member's header: members
+        that share their data inflate it again under each name, a bomb of a small archive."""
+        assert self._zip is not None
+        members = sorted(infos, key=lambda i: i.header_offset)
+        for info, end in zip(members, [i.header_offset for i in members[1:]] + [self._zip.start_dir]):
+            if info.header_offset + _LOCAL_HEADER + info.compress_size > end:  # its header and data, at the least
+                self.close()
+                raise InputError(f"{self.path}: member {info.filename!r} overlaps the next member's data (a zip bomb?)")
 
     def _wrapping_folder(self) -> str:
         """``"NAME/"`` when every member lies in one folder NAME that holds the export (its ``labelmap.txt``
@@ -134,16 +170,27 @@ class CvatExport(contextlib.AbstractContextManager):
 
     def names(self, folder: str) -> list[str]:
         """The ``.png`` files in ``folder`` and its sub-folders (a task made from nested folders of frames puts
-        its masks there), by relative name, in name order; hidden ones left out."""
+        its masks there), by relative name, in name order; hidden ones left out. In a folder, every entry of such a
+        name, a file or not (a folder, a FIFO, a link to a device), for :meth:`read` to refuse those that are not."""
         if self._zip is None:
             d = self._root / folder
             return sorted(p.relative_to(self._root).as_posix() for p in d.rglob("*")
-                          if p.is_file() and p.suffix.lower() == ".png" and not p.name.startswith(".")) if d.is_dir() else []
+                          if p.suffix.lower() == ".png" and not p.name.startswith(".")) if d.is_dir() else []
         return sorted(n for n in self._members if n.startswith(f"{folder}/")
                       and n.lower().endswith(".png") and not n.rsplit("/", 1)[1].startswith("."))
 
+    def inner_archive(self) -> str:
+        """What a refusal of an archive with no export in it adds when it holds a zip archive (an export zipped
+        again, or with others): which one, to give ``--labels`` once taken out; else ``""``."""
+        inner = sorted(n for n in self._members if n.lower().endswith(".zip"))
+        return (f"; it holds {inner[0]}{f' and {len(inner) - 1} more archive(s)' if len(inner) > 1 else ''}, an "
+                "archive in the archive: take the export out and give it to --labels") if inner else ""
+
     def has(self, name: str) -> bool:
-        return (self._root / name).is_file() if self._zip is None else name in self._members
+        """Whether the export holds ``name``: in a folder, any entry of that name (:meth:`read` refuses one that
+        is no regular file, saying what it is)."""
+        p = self._root / name
+        return (p.exists() or p.is_symlink()) if self._zip is None else name in self._members
 
     def where(self, name: str) -> str:
         """How an error names a member: ``EXPORT.zip:NAME`` or the file's path."""
@@ -158,16 +205,36 @@ class CvatExport(contextlib.AbstractContextManager):
         if self._zip is None:
             return read_regular_file(self._root / name, max_bytes=limit, what="CVAT export file")
         info = self._members[name]
+        if stat.S_ISLNK(info.external_attr >> 16):  # its data is the path it points to, which is not followed
+            raise InputError(f"{self.where(name)}: a symbolic link in the archive, not a file; zip the export's files")
+        if info.flag_bits & _ENCRYPTED:
+            raise InputError(f"{self.where(name)}: encrypted (the archive has a password); zip the export without one")
         if info.file_size > limit:
             raise InputError(f"{self.where(name)}: {info.file_size} bytes, more than the {limit} {what} may have")
         try:
             with self._zip.open(info) as fh:
-                data = fh.read(limit + 1)
+                data = fh.read(min(_HEAD, limit + 1))
+                if max_bytes is None and len(data) == _HEAD:  # an image: its header first
+                    limit = self._image_bound(data, name, limit)
+                data += fh.read(limit + 1 - len(data))
+        except InputError:
+            raise
         except _ZIP_ERRORS as exc:
             raise InputError(f"{self.where(name)}: unreadable in the archive ({exc})") from None
         if len(data) > limit:
             raise InputError(f"{self.where(name)}: larger than the {limit} bytes {what} may have")
         return data
+
+    def _image_bound(self, head: bytes, name: str, limit: int) -> int:
+        """The most bytes a member whose first bytes are ``head`` may have: a PNG's for its declared pixels
+        (a PNG larger than the pixel limit, or a member that is no image, refused before it is inflated)."""
+        from ..formats import check_image_bytes, image_size, max_file_bytes
+
+        found = image_size(head)
+        if found is None or found[0] == "PNG":
+            w, h = check_image_bytes(head, self.where(name), limit=self.max_pixels)
+            return min(limit, max_file_bytes(w * h))
+        return limit
 
     def close(self) -> None:
         if self._zip is not None:
@@ -184,7 +251,7 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
     if not export.has(LABELMAP_FILE):
         if classes is None:
             raise InputError(f"{export.where(LABELMAP_FILE)}: missing (the export's class table; or name one with "
-                             "--classes)")
+                             f"--classes){export.inner_archive()}")
         table = class_table(classes)
         return table, [table.unknown, *table.known_ids]
     try:
@@ -303,20 +370,21 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
                    mapping: str = "none", limit: int | None = None) -> tuple[ClassTable, dict[int, np.ndarray]]:
     """``(table, {position: labels})`` of the CVAT export at ``path`` (the module's docstring) for the run's
     ``frames`` (:mod:`pcreg.datasets.sources`), every key frame of ``shape`` (H, W). One line naming the
-    file: a malformed archive or mask, a colour not in ``labelmap.txt``, masks whose names match no frame
-    (saying how both are named), a labelled mask of no chosen frame, two masks of one frame, none drawn on."""
-    from ..formats import max_file_bytes
+    file: a malformed archive or mask, a mask of another size than the frames (from its header, drawn on or not:
+    its pixels are not inflated), a colour not in ``labelmap.txt``, masks whose names match no frame (saying how
+    both are named), a labelled mask of no chosen frame, two masks of one frame, none drawn on."""
+    from ..formats import check_image_bytes, max_file_bytes
     from ..validation import max_pixels
 
     if mapping != "none":
         raise InputError(f"--mapping {mapping}: the masks of a CVAT export ({path}) are read through its labelmap.txt")
     lim = max_pixels(limit)
-    with CvatExport(path, max_bytes=max_file_bytes(lim)) as export:
+    with CvatExport(path, max_bytes=max_file_bytes(lim), max_pixels=lim) as export:
         table, order = _table(export, classes)
         masks = export.names(CLASS_DIR)
         if not masks:
             raise InputError(f"{export.where(CLASS_DIR)}: no class mask (a CVAT 'Segmentation mask 1.1' export holds "
-                             f"{CLASS_DIR}/NAME.png)")
+                             f"{CLASS_DIR}/NAME.png){export.inner_archive()}")
         stems = [PurePosixPath(m).stem for m in masks]
         positions = placed(frames, stems, path)
         if all(t is None for t in positions):
@@ -325,7 +393,11 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
         keys: dict[int, np.ndarray] = {}
         seen: dict[int, str] = {}
         for m, t in zip(masks, positions):
-            lab = _decode_mask(export.read(m), export.where(m), table, order, lim)
+            data = export.read(m)
+            w, h = check_image_bytes(data, export.where(m), limit=lim)
+            if (h, w) != shape:  # said from its header, before its pixels are inflated, drawn on or not
+                raise InputError(f"{export.where(m)}: the mask is {w}x{h}, the frames {shape[1]}x{shape[0]}")
+            lab = _decode_mask(data, export.where(m), table, order, lim)
             if (lab == table.unknown).all():
                 continue  # a frame nobody drew on
             if t is None:
@@ -333,9 +405,6 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
                                  + ("" if frames.selection.to_dict() is None else " among those chosen"))
             if t in seen:
                 raise InputError(f"{export.where(m)}: a second mask of the frame {frames.name(t)} (also {seen[t]})")
-            if lab.shape != shape:
-                raise InputError(f"{export.where(m)}: the mask is {lab.shape[1]}x{lab.shape[0]}, the frames "
-                                 f"{shape[1]}x{shape[0]}")
             keys[t], seen[t] = lab, m
     if not keys:
         raise InputError(f"{path}: every mask is background only: no key frame drawn")

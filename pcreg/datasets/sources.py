@@ -494,7 +494,14 @@ def _display_turn(frame, path: Path) -> _Turn:
     so a matrix of quarter turns and mirrors moves the pixel grid by a transpose and reversals, as FFmpeg's
     autorotation does. PyAV's ``VideoFrame.rotation`` gives the angle alone: a mirrored matrix (a selfie camera's)
     read as a rotation is shown upside down. A matrix that is not quarter turns is refused."""
-    matrix = next((bytes(sd) for sd in getattr(frame, "side_data", ()) if sd.type.name == "DISPLAYMATRIX"), None)
+    from av.sidedata.sidedata import SideDataContainer
+
+    # Read through a container of its own, not ``frame.side_data``: that property keeps its container on the frame,
+    # which refers back to the frame, so the frame (and its picture, FFmpeg's memory) would be freed only by
+    # Python's cycle collector, and one that outlived a collection only by a full one, rare in a long run: decoding's
+    # memory grew with them, about 2.5 kB a frame at 320x240 (docs/benchmarks.md).
+    side = SideDataContainer(frame)  # type: ignore[call-arg]  # PyAV's stub leaves out its constructor
+    matrix = next((bytes(sd) for sd in side if sd.type.name == "DISPLAYMATRIX"), None)
     if matrix is None or len(matrix) != 36:
         return False, False, False
     a, b, _, c, d = np.frombuffer(matrix, dtype=np.int32)[:5].astype(float)

@@ -228,7 +228,26 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: KD
     d2, idx, mom = tree.move_and_match(pts, None, max_distance)
     state = np.zeros(5)  # fitness, inlier RMSE, iterations, converged, error (see _moment_loop)
     _scored(mom[0], mom[1], n, 0.0, 0.0, state)  # thresholds 0: the rule cannot hold (|x| < 0)
+    loop = _moment_loop_threads if nn.threaded(n) else _moment_loop
 
+    def run_steps(steps: int) -> None:
+        loop(pts, T, steps, code, need, rel_fitness, rel_rmse, r2, *tree.search_arrays, d2, idx, tree.data,
+             tree.center, state)
+
+    return _drive(run_steps, state, T, pts, idx, target, max_iteration=max_iteration, callback=callback, level=level,
+                  start=start)
+
+
+#: What a compiled loop's error code (``state[4]``) means; 3 (too few pairs) ends the run where it is.
+_LOOP_ERRORS = {1: "ICP update is not finite (degenerate correspondences)",
+                2: "degenerate correspondences: all source points coincide", 4: "degenerate homography"}
+
+
+def _drive(run_steps, state: np.ndarray, T: np.ndarray, pts: np.ndarray, idx: np.ndarray, target: np.ndarray, *,
+           max_iteration: int, callback, level: int, start: float) -> RegistrationResult:
+    """A compiled loop run to its end: ``run_steps(k)`` runs up to k iterations in place on ``T``, ``pts``, ``idx``
+    and ``state`` (:func:`_moment_loop`'s), all at once, or one a call with a ``callback``, which sees the start and
+    each iteration; an error code (:data:`_LOOP_ERRORS`) is a :class:`RegistrationError`."""
     def report() -> None:
         if callback is not None:
             callback(IcpIteration(backend="reference", level=level, iteration=int(state[2]), matrix=T.copy(),
@@ -236,15 +255,10 @@ def _icp_moments(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree: KD
                                   target_points=target, target_indices=idx.copy()))
 
     report()
-    loop = _moment_loop_threads if nn.threaded(n) else _moment_loop
     while state[2] < max_iteration and not state[3]:
-        steps = 1 if callback is not None else max_iteration - int(state[2])
-        loop(pts, T, steps, code, need, rel_fitness, rel_rmse, r2, *tree.search_arrays, d2, idx, tree.data,
-             tree.center, state)
-        if state[4] == 1:
-            raise RegistrationError("ICP update is not finite (degenerate correspondences)")
-        if state[4] == 2:
-            raise RegistrationError("degenerate correspondences: all source points coincide")
+        run_steps(1 if callback is not None else max_iteration - int(state[2]))
+        if int(state[4]) in _LOOP_ERRORS:
+            raise RegistrationError(_LOOP_ERRORS[int(state[4])])
         if state[4] == 3:
             break
         report()
@@ -397,27 +411,14 @@ def _icp_projective(source: np.ndarray, target: np.ndarray, T: np.ndarray, tree:
     state = np.zeros(5)  # fitness, inlier RMSE, iterations, converged, error (see _moment_loop)
     ok = idx >= 0
     _scored(int(ok.sum()), float(d2[ok].sum()), n, 0.0, 0.0, state)  # thresholds 0: the rule cannot hold
+    need, ones, r2 = pairs_needed("projective", 2), np.ones(n), nn.squared_bound(max_distance)
 
-    def report() -> None:
-        if callback is not None:
-            callback(IcpIteration(backend="reference", level=level, iteration=int(state[2]), matrix=T.copy(),
-                                  fitness=float(state[0]), inlier_rmse=float(state[1]), source_points=pts.copy(),
-                                  target_points=target, target_indices=idx.copy()))
+    def run_steps(steps: int) -> None:
+        _projective_loop(pts, T, steps, need, float(relative_fitness), float(relative_rmse), r2, *tree.search_arrays,
+                         d2, idx, tree.data, ones, state)
 
-    report()
-    need, ones = pairs_needed("projective", 2), np.ones(n)
-    while state[2] < max_iteration and not state[3]:
-        steps = 1 if callback is not None else max_iteration - int(state[2])
-        _projective_loop(pts, T, steps, need, float(relative_fitness), float(relative_rmse),
-                         nn.squared_bound(max_distance), *tree.search_arrays, d2, idx, tree.data, ones, state)
-        if state[4] == 1:
-            raise RegistrationError("ICP update is not finite (degenerate correspondences)")
-        if state[4] == 4:
-            raise RegistrationError("degenerate homography")
-        if state[4] == 3:
-            break
-        report()
-    return _finished(T, float(state[0]), float(state[1]), int(state[2]), bool(state[3]), start)
+    return _drive(run_steps, state, T, pts, idx, target, max_iteration=max_iteration, callback=callback, level=level,
+                  start=start)
 
 
 @njit(cache=True, error_model="numpy")

@@ -3,6 +3,7 @@ code, quickly, never an internal error or a wait."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -210,6 +211,8 @@ def test_pcreg_register_says_when_a_photograph_is_shown_turned_by_its_exif_orien
     assert notes == [f"pcreg: note: {turned}'s EXIF orientation 6 has viewers show it turned by a quarter; pcreg "
                      "registers the pixels as stored, and T_ref_mov maps them, not the view shown (turn the image "
                      "first to register the view, e.g. exiftran -a)"], notes
+    assert main(["register", str(plain), str(turned), "--json"]) == 0  # and in --json's notes
+    assert [n for n in json.loads(capsys.readouterr().out)["notes"] if "EXIF" in n] == [notes[0][len("pcreg: note: "):]]
     assert main(["register", str(plain), str(plain)]) == 0
     assert "EXIF" not in capsys.readouterr().err
 

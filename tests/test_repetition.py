@@ -3,6 +3,8 @@ with nothing in its evidence to tell, so ``pcreg register`` says so; photographs
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -50,8 +52,12 @@ def test_pcreg_register_says_when_the_images_repeat(tmp_path, capsys):
     notes = [line for line in capsys.readouterr().err.splitlines() if "repeats itself" in line]
     assert len(notes) == 1 and notes[0].startswith(f"pcreg: note: {ref} repeats itself: shifted by about ("), notes
     assert notes[0].endswith("the result may be a period off")
+    assert main(["register", str(ref), str(mov), "--json"]) == 0  # a script reading --json sees the same note
+    out = capsys.readouterr()
+    assert json.loads(out.out)["notes"] == [n.removeprefix("pcreg: note: ") for n in out.err.splitlines()] != []
     frame = pcreg.synthetic("syn2a", n_frames=1)[0].image
     cv2.imwrite(str(ref), frame)
     cv2.imwrite(str(mov), np.roll(frame, (3, 5), axis=(0, 1)))
-    assert main(["register", str(ref), str(mov)]) == 0
-    assert "repeats itself" not in capsys.readouterr().err
+    assert main(["register", str(ref), str(mov), "--json"]) == 0
+    out = capsys.readouterr()
+    assert "repeats itself" not in out.err and json.loads(out.out)["notes"] == []

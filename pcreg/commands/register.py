@@ -103,17 +103,16 @@ def run(args: argparse.Namespace) -> int:
         if not ok:
             raise OutputError(f"cannot encode {args.out}")
         atomic_write_bytes(args.out, buf.tobytes())
+    notes = _notes(result, args.model, ((args.reference, ref_damage, ref), (args.moving, damage, mov)))
     if args.json:
-        print_json({"ok": True, **result.to_dict()})
+        print_json({"ok": True, **result.to_dict(), "notes": notes})
     else:
         print(result)
         summary = _summary(result, args.model, tested=config.plausibility.min_inlier_ratio is not None)
         if summary:
             print(summary)
-    _say_if_the_model_does_not_fit(result, args.model)
-    _say_if_the_features_disagree(result)
-    _say_what_the_files_hold(((args.reference, ref_damage), (args.moving, damage)))
-    _say_if_one_repeats(((args.reference, ref), (args.moving, mov)))
+    for note in notes:
+        sys.stderr.write(f"pcreg: note: {note}\n")
     return 0
 
 
@@ -157,55 +156,65 @@ def _summary(result, model: str, *, tested: bool = True) -> str:
             f"{100 * chance:.1f}% unrelated content would give ({limit})")
 
 
-def _say_if_the_model_does_not_fit(result, model: str) -> None:
-    """A note on stderr when a projective fit (refined from the result or from ORB's homography of the pair)
+def _notes(result, model: str, images) -> list[str]:
+    """What ``pcreg register`` notes of a result it returns (on stderr, and in ``--json``'s ``"notes"``): the
+    model check's and the features' disagreement, then of each image (``images``: its path, what its decoder said
+    of damaged data, its array) damage, an EXIF orientation, and a pattern that repeats under a shift."""
+    return [*_model_fit_notes(result, model), *_feature_notes(result),
+            *_file_notes([(path, damage) for path, damage, _ in images]),
+            *_repeat_notes([(path, image) for path, _, image in images])]
+
+
+def _model_fit_notes(result, model: str) -> list[str]:
+    """A note when a projective fit (refined from the result or from ORB's homography of the pair)
     aligns significantly more edge points (:attr:`~pcreg.registration.result.RegistrationResult.model_fits`
     False): the transform is the model's best approximation of a view it cannot make, or off the alignment."""
     evidence = getattr(result, "evidence", None)  # a dense result has none: a field follows its similarity
     fit = None if evidence is None else evidence.model_fit
     if fit is None or fit.fits:
-        return
+        return []
     article = "an" if model[0] in "aeiou" else "a"  # an affine motion
-    sys.stderr.write(f"pcreg: note: the images differ by more than {article} {model} motion, or this result is off: a "
-                     f"{fit.model} fit aligns {100 * fit.inlier_ratio:.1f}% of the edge points against this result's "
-                     f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} "
-                     f"px (--model {fit.model} registers such a view)\n")
+    return [f"the images differ by more than {article} {model} motion, or this result is off: a {fit.model} fit "
+            f"aligns {100 * fit.inlier_ratio:.1f}% of the edge points against this result's "
+            f"{100 * fit.result_inlier_ratio:.1f}% (at half size) and moves some by {fit.largest_shift_px:.1f} px "
+            f"(--model {fit.model} registers such a view)"]
 
 
-def _say_if_the_features_disagree(result) -> None:
-    """A note on stderr when the homography of the images' SIFT matches, strongly supported, puts points of the
+def _feature_notes(result) -> list[str]:
+    """A note when the homography of the images' SIFT matches, strongly supported, puts points of the
     moving image more than 3 px from where a projective result does
     (:attr:`~pcreg.registration.result.RegistrationResult.features_agree` False)."""
     evidence = getattr(result, "evidence", None)
     if evidence is None or evidence.features is None or evidence.features.agree is not False:
-        return
+        return []
     check = evidence.features
-    sys.stderr.write(f"pcreg: note: the result disagrees with the images' feature matches: their homography ("
-                     f"{check.inliers} of {check.matches} SIFT matches, far more than chance gives) puts points where "
-                     f"the matches are up to {check.largest_shift_px:.1f} px from where the result does; the result "
-                     f"may be wrong\n")
+    return [f"the result disagrees with the images' feature matches: their homography ({check.inliers} of "
+            f"{check.matches} SIFT matches, far more than chance gives) puts points where the matches are up to "
+            f"{check.largest_shift_px:.1f} px from where the result does; the result may be wrong"]
 
 
-def _say_what_the_files_hold(files) -> None:
-    """Notes on stderr for each image file (``files``: its path, and what its decoder said of damaged data it
+def _file_notes(files) -> list[str]:
+    """Notes for each image file (``files``: its path, and what its decoder said of damaged data it
     decoded around, or ""): such damage, and an EXIF orientation that has viewers show the image turned or
     mirrored (``T_ref_mov`` maps the pixels as stored, not the view a person sees)."""
     from ..formats import ORIENTATION_VIEWS, exif_orientation
 
+    notes = []
     for path, damage in dict(files).items():
         if damage:
-            sys.stderr.write(f"pcreg: note: {path}: its decoder reports damaged data ({damage}): part of the image "
-                             "is the decoder's guess, and the result may be off\n")
+            notes.append(f"{path}: its decoder reports damaged data ({damage}): part of the image "
+                         "is the decoder's guess, and the result may be off")
         orientation = exif_orientation(path)
         if orientation is not None:
-            sys.stderr.write(f"pcreg: note: {path}'s EXIF orientation {orientation} has viewers show it "
-                             f"{ORIENTATION_VIEWS[orientation]}; pcreg registers the pixels as stored, and T_ref_mov "
-                             "maps them, not the view shown (turn the image first to register the view, e.g. "
-                             "exiftran -a)\n")
+            notes.append(f"{path}'s EXIF orientation {orientation} has viewers show it "
+                         f"{ORIENTATION_VIEWS[orientation]}; pcreg registers the pixels as stored, and T_ref_mov "
+                         "maps them, not the view shown (turn the image first to register the view, e.g. "
+                         "exiftran -a)")
+    return notes
 
 
-def _say_if_one_repeats(images) -> None:
-    """A note on stderr when one of the images (``images``: each one's path and array) repeats itself under a
+def _repeat_notes(images) -> list[str]:
+    """A note when one of the images (``images``: each one's path and array) repeats itself under a
     shift (:func:`~pcreg.registration.repetition.repeat_shift`): a motion that differs from the result by it
     aligns the images as well, so the result may be a period off."""
     from ..registration.repetition import repeat_shift
@@ -214,10 +223,10 @@ def _say_if_one_repeats(images) -> None:
         found = repeat_shift(image)
         if found is not None:
             dx, dy, ncc = found
-            sys.stderr.write(f"pcreg: note: {path} repeats itself: shifted by about ({dx:.0f}, {dy:.0f}) px it matches "
-                             f"itself (correlation {ncc:.2f}), so a motion that differs by such a shift aligns the "
-                             "images as well as this one, and the result may be a period off\n")
-            return
+            return [f"{path} repeats itself: shifted by about ({dx:.0f}, {dy:.0f}) px it matches itself "
+                    f"(correlation {ncc:.2f}), so a motion that differs by such a shift aligns the images as well "
+                    "as this one, and the result may be a period off"]
+    return []
 
 
 def _keeps_its_form(stored) -> bool:

@@ -37,7 +37,8 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert p.returncode == 0, p.stderr
     result = json.loads(p.stdout)
     assert set(result) == {"ok", "matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds",
-                           "inlier_ratio", "chance_ratio", "overlap", "generator", "frames", "model_fit"}
+                           "inlier_ratio", "chance_ratio", "overlap", "generator", "frames", "model_fit", "notes"}
+    assert result["notes"] == [] and "note" not in p.stderr  # a plain photograph's rigid view: nothing to say
     assert result["frames"] == "T_ref_mov"  # the name of ``matrix``: moving image -> reference image
     assert result["model_fit"]["model"] == "projective" and result["model_fit"]["fits"] is True  # a rigid view
     assert "features" not in result  # a rigid result: the model check's (the features check a projective one)

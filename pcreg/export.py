@@ -76,10 +76,11 @@ def read_run(folder: str | Path) -> RunLabels:
     """The frames a ``pcreg run`` output in ``folder`` has labelled (counted in its ``run.json``), in order.
 
     Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json`` (not a run's output), one
-    that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
+    that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted or holds a line pcreg run did not
+    write (:func:`pcreg.runs.files.counted_steps`), a label file missing.
     """
     from .classes.keys import run_table
-    from .runs.files import CONFIDENCE, STEPS, step_lines
+    from .runs.files import CONFIDENCE, STEPS
     from .runs.gaps import gaps_note
     from .runs.state import STATE, frames_chosen, read_state, run_frames
 
@@ -89,7 +90,9 @@ def read_run(folder: str | Path) -> RunLabels:
     state = read_state(folder)
     steps_path = folder / STEPS
     try:
-        keys, names = run_frames(state, (ln for ln in step_lines(folder) if ln.strip()))
+        keys, names = run_frames(state, folder)
+    except InputError:  # steps.jsonl's, named
+        raise
     except (KeyError, TypeError, AttributeError):
         raise InputError(f"{folder / STATE}: unreadable (not a run.json that pcreg run wrote)") from None
     except (OSError, ValueError) as exc:

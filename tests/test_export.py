@@ -410,3 +410,21 @@ def test_a_step_cut_off_by_a_kill_after_the_counted_steps_is_left_out(run_copy):
         fh.write('{"frame": 4, "na')
     assert main(["export", str(run_copy)]) == 0
     assert len(read_review(run_copy).names) == 4
+
+
+@pytest.mark.parametrize("odd", ["device", "fifo", "folder"])
+def test_a_label_file_that_is_no_regular_file_is_said_to_be_one_not_missing(run_copy, capsys, odd):
+    import os
+
+    path = run_copy / "frame_002.png"
+    path.unlink()
+    if odd == "device":
+        path.symlink_to("/dev/zero")
+    elif odd == "fifo":
+        os.mkfifo(path)
+    else:
+        path.mkdir()
+    said = "is a folder, not a file (label image)" if odd == "folder" else "not a regular file"
+    err = _refused([str(run_copy)], capsys, f"{path}: {said}")
+    assert "missing" not in err
+    assert not (run_copy / "export-cvat-mask.zip").exists()

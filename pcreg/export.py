@@ -29,6 +29,7 @@ import numpy as np
 
 from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
+from .formats import check_regular_file
 
 __all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labelled_frames", "labels_with_confidence", "instance_colours",
            "cvat_mask_archive", "write_cvat_mask", "write_cvat_mask_archive", "default_name"]
@@ -76,10 +77,11 @@ def read_run(folder: str | Path) -> RunLabels:
     """The frames a ``pcreg run`` output in ``folder`` has labelled (counted in its ``run.json``), in order.
 
     Raises :class:`~pcreg.errors.InputError` naming the file: no ``run.json`` (not a run's output), one
-    that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted, a label file missing.
+    that cannot be read, a ``steps.jsonl`` that lists fewer frames than counted or holds a line pcreg run did not
+    write (:func:`pcreg.runs.files.counted_steps`), a label file missing or not a regular file.
     """
     from .classes.keys import run_table
-    from .runs.files import CONFIDENCE, STEPS, step_lines
+    from .runs.files import CONFIDENCE, STEPS
     from .runs.gaps import gaps_note
     from .runs.state import STATE, frames_chosen, read_state, run_frames
 
@@ -89,7 +91,9 @@ def read_run(folder: str | Path) -> RunLabels:
     state = read_state(folder)
     steps_path = folder / STEPS
     try:
-        keys, names = run_frames(state, (ln for ln in step_lines(folder) if ln.strip()))
+        keys, names = run_frames(state, folder)
+    except InputError:  # steps.jsonl's, named
+        raise
     except (KeyError, TypeError, AttributeError):
         raise InputError(f"{folder / STATE}: unreadable (not a run.json that pcreg run wrote)") from None
     except (OSError, ValueError) as exc:
@@ -100,11 +104,13 @@ def read_run(folder: str | Path) -> RunLabels:
         raise InputError(f"{steps_path}: the frame name {odd!r} is not a file name an archive can hold "
                          "(a slash or a backslash); rename the frame")
     paths = [folder / f"{s}.png" for s in stems]
-    if not any(p.is_file() for p in paths):
+    if not any(p.exists() for p in paths):
         raise InputError(f"{folder}: no label files (none of {', '.join(p.name for p in paths[:3])}"
                          f"{', ...' if len(paths) > 3 else ''})")
     for p, n in zip(paths, names):
-        if not p.is_file():
+        if p.exists():  # a folder, a FIFO or a device named like a label file is said to be one
+            check_regular_file(p, what="label image")
+        else:
             raise InputError(f"{p}: missing (the label file of a key frame {folder / STATE} names: the file was "
                              f"removed, or run.json edited)" if n in keys else f"{p}: missing (a labelled frame's "
                              "label file)")

@@ -83,9 +83,15 @@ class PreparedFrame:
 
 #: The smallest image side, in pixels, there is anything to register on.
 MIN_SIDE = 8
+#: What the refusal of a float image with values outside [0, 1] adds: for an array, and for an image file,
+#: which a command-line user cannot divide.
+FLOAT_ARRAY_HINT = "divide an array of 8-bit values by 255"
+FLOAT_FILE_HINT = ("save it as an 8- or 16-bit unsigned integer image (a PNG, or a TIFF of integers), which pcreg "
+                   "reads as it is, or with floats scaled to [0, 1]")
 
 
-def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None) -> np.ndarray:
+def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None,
+                 float_hint: str = FLOAT_ARRAY_HINT) -> np.ndarray:
     """Validate and convert an image array to (H, W, 3) uint8 RGB (no copy when it already is a
     C-contiguous one; the input is never changed); a :class:`PreparedFrame` gives its checked, read-only
     ``rgb`` as it is.
@@ -93,7 +99,8 @@ def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None) -> np.
     Accepts (H, W) grayscale, (H, W, 1|3|4), uint8, uint16 (scaled by 1/257) and float in [0, 1] (rounded to
     the nearest of 256 levels: values within half a level outside, rounding errors, are 0 or 255), in either
     byte order; an ndarray subclass (``np.matrix``, a masked array with nothing masked) as its data; no more
-    pixels than the pixel limit (:func:`pcreg.validation.check_pixels` of ``limit``), as a file.
+    pixels than the pixel limit (:func:`pcreg.validation.check_pixels` of ``limit``), as a file. ``float_hint``:
+    what the refusal of a float image outside [0, 1] says to do (:data:`FLOAT_FILE_HINT` for a file's).
     """
     if isinstance(image, PreparedFrame):
         return image.rgb
@@ -121,8 +128,7 @@ def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None) -> np.
             raise InputError(f"{name}: image has NaN or inf values")
         lo, hi = float(img.min()), float(img.max())
         if lo < -0.5 / 255 or hi > 1.0 + 0.5 / 255:  # within half a level: rounds to 0 or 255
-            raise InputError(f"{name}: a float image must hold values in [0, 1], got {lo:g}..{hi:g} "
-                             "(divide by 255 for 8-bit values)")
+            raise InputError(f"{name}: a float image must hold values in [0, 1], got {lo:g}..{hi:g}; {float_hint}")
         return np.ascontiguousarray(np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8))
     if img.dtype == np.bool_:
         return np.ascontiguousarray(img.astype(np.uint8) * 255)

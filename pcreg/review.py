@@ -16,7 +16,6 @@ frames between), and at once the next time the run is reviewed.
 
 from __future__ import annotations
 
-import itertools
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -107,7 +106,7 @@ def read_review(folder: str | Path) -> RunReview:
     """
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, Selection, open_frames
-    from .runs.files import CONFIDENCE, STEPS, step_lines
+    from .runs.files import CONFIDENCE, STEPS, counted_steps
     from .runs.state import STATE, read_state, run_frames
 
     folder = Path(folder)
@@ -119,7 +118,7 @@ def read_review(folder: str | Path) -> RunReview:
         source = Path(run[kind])
         labelled: list[str] | None = None
         if "stretches" in state:  # a run from a folder of key frames: its keys and the steps it counted
-            named, labelled = run_frames(state, (ln for ln in step_lines(folder) if ln.strip()))
+            named, labelled = run_frames(state, folder)
             counted = int(state["lines"])
         else:
             named, count = [str(state["key_frame"])], int(state["done"])
@@ -127,6 +126,8 @@ def read_review(folder: str | Path) -> RunReview:
         named = [*named, *map(str, state.get("key_frames") or [])]
         chosen = run.get("frames") or {}
         selection = Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
+    except InputError:  # steps.jsonl's, named
+        raise
     except (OSError, ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
     table = run_table(run)
@@ -145,9 +146,10 @@ def read_review(folder: str | Path) -> RunReview:
     steps: dict[str, dict] = {}  # of each step what the review shows: an hour's steps whole take about a GB
     steps_path = folder / STEPS
     try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
-        for line in itertools.islice((ln for ln in step_lines(folder) if ln.strip()), max(counted, 0)):
-            step = loads_json(line)
+        for step in counted_steps(folder, counted):
             steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou")}
+    except InputError:  # a line named
+        raise
     except (OSError, ValueError, KeyError, TypeError):
         raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
     legacy = "key_frames" in state  # a run.json that lists its key frames leaves their steps out

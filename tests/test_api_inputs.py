@@ -139,7 +139,8 @@ def test_a_float_image_off_by_a_rounding_error_is_read_and_one_beyond_half_a_lev
     for value, said in ((1.003, r"0\.\.1\.003"), (-0.003, r"-0\.003\.\.1")):
         far = np.zeros(img.shape)
         far[0, 0, 0], far[1, 0, 0] = value, 1.0
-        with pytest.raises(InputError, match=f"^image: a float image must hold values in \\[0, 1\\], got {said} "):
+        with pytest.raises(InputError,
+                           match=f"^image: a float image must hold values in \\[0, 1\\], got {said}; divide an array "):
             as_rgb_uint8(far)
 
 

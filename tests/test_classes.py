@@ -127,6 +127,10 @@ def test_labelmap_forms_datumaro_accepts():
     ("# nothing\n", "no class"),
     ("background:0,0,0::\nroad:1_0,2,3::\ncar:4,5,6::\n", "not R,G,B"),  # int() would read 10
     ("background:0,0,0::\nroad:\u0661,2,3::\ncar:4,5,6::\n", "not R,G,B"),  # an Arabic-Indic 1
+    # a line break str.splitlines takes and a text file does not: the name named, not "class 'ro' has no colour"
+    ("background:0,0,0::\nro\u2028ad:1,2,3::\ncar:4,5,6::\n", "line 2: the class name 'ro\\u2028ad' holds U+2028"),
+    ("background:0,0,0::\nro\u2029ad:1,2,3::\ncar:4,5,6::\n", "line 2: the class name 'ro\\u2029ad' holds U+2029"),
+    ("background:0,0,0::\r\nro\x85ad:1,2,3::\r\ncar:4,5,6::\r\n", "line 2: the class name 'ro\\x85ad' holds U+0085"),
     ("".join(f"c{i}:{i},{255 - i},1::\n" for i in range(256)), "257 classes (its background among them); a class "
      "table holds at most 256"),  # a background added: no line holds an id to name
 ])

@@ -415,3 +415,15 @@ def test_an_interrupted_command_with_nothing_to_resume_says_only_that_it_was_int
         cv2.imwrite(str(tmp_path / name), image)
     assert main(["register", str(tmp_path / "a.png"), str(tmp_path / "b.png")]) == 130
     assert capsys.readouterr().err == "pcreg: interrupted\n"
+
+
+def test_a_float_tiff_outside_0_1_is_refused_saying_what_to_save_it_as_not_to_divide(tmp_path, capsys):
+    """A float TIFF of 8-bit values (0..255): a command-line user cannot divide an array by 255; the line says
+    what file pcreg reads instead."""
+    ref, mov = tmp_path / "ref.png", tmp_path / "float.tif"
+    cv2.imwrite(str(ref), np.zeros((64, 64), np.uint8))
+    assert cv2.imwrite(str(mov), np.random.default_rng(0).uniform(0, 255, (64, 64)).astype(np.float32))
+    assert main(["register", str(ref), str(mov)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {mov}: a float image must hold values in [0, 1]"), err
+    assert "divide" not in err[0] and "save it as an 8- or 16-bit unsigned integer image" in err[0], err

@@ -384,3 +384,47 @@ def test_a_label_file_of_another_size_is_named_with_min_confidence_not_its_confi
     err = _refused([str(out), "--min-confidence", "0.5"], capsys, "labels of 80x60, the key frame's are")
     assert f"{out / 'frame_002.png'}:" in err and "confidence" not in err, err
     assert not (out / "export-cvat-mask.zip").exists()
+
+
+@pytest.mark.parametrize("damage, line", [
+    (lambda s: s + "garbage\n", 4),  # a whole line after the counted steps that is no step
+    (lambda s: s + '{"note": 1}\n', 4),  # JSON, but no step
+    (lambda s: s + s.splitlines(keepends=True)[-1] * 2, 5),  # two lines after them: a stopped run leaves one
+    (lambda s: s.replace("\n", "\n[]\n", 1), 2),  # a line among them that is no step: not run.json's
+])
+def test_a_steps_jsonl_line_pcreg_run_did_not_write_is_named_by_export_and_view(run_copy, capsys, damage, line):
+    from pcreg.review import read_review
+
+    path = run_copy / "steps.jsonl"
+    path.write_text(damage(path.read_text()))
+    _refused([str(run_copy)], capsys, f"{path}: line {line}")
+    with pytest.raises(pcreg.errors.InputError, match=f"steps.jsonl: line {line}"):
+        read_review(run_copy)
+
+
+def test_a_step_cut_off_by_a_kill_after_the_counted_steps_is_left_out(run_copy):
+    """A run killed while it appended a step leaves it without its line break: not counted, not exported."""
+    from pcreg.review import read_review
+
+    with open(run_copy / "steps.jsonl", "a") as fh:
+        fh.write('{"frame": 4, "na')
+    assert main(["export", str(run_copy)]) == 0
+    assert len(read_review(run_copy).names) == 4
+
+
+@pytest.mark.parametrize("odd", ["device", "fifo", "folder"])
+def test_a_label_file_that_is_no_regular_file_is_said_to_be_one_not_missing(run_copy, capsys, odd):
+    import os
+
+    path = run_copy / "frame_002.png"
+    path.unlink()
+    if odd == "device":
+        path.symlink_to("/dev/zero")
+    elif odd == "fifo":
+        os.mkfifo(path)
+    else:
+        path.mkdir()
+    said = "is a folder, not a file (label image)" if odd == "folder" else "not a regular file"
+    err = _refused([str(run_copy)], capsys, f"{path}: {said}")
+    assert "missing" not in err
+    assert not (run_copy / "export-cvat-mask.zip").exists()

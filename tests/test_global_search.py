@@ -227,13 +227,15 @@ def test_a_refusal_of_views_far_apart_in_scale_says_the_search_does_not_reach_th
 def test_a_refusal_of_images_of_sizes_far_apart_names_their_sizes(shared_data, model):
     """A frame against its thumbnail a twentieth of its size, either way round: refused (no scale the search
     reaches relates them), and the refusal names the sizes and what to do; it said 'no overlap' or that the images
-    do not show the same scene."""
+    do not show the same scene. The ratio is of the images' sizes, said as such: the scene's scale between them may
+    differ from it (a crop)."""
     import cv2
 
     frame = _camvid_view(shared_data, 20, 0.0, 1.0)[0]
     big, small = cv2.resize(frame, (4000, 3000)), cv2.resize(frame, (200, 150))
     for ref, mov in ((big, small), (small, big)):
-        with pytest.raises(pcreg.RegistrationError, match=r"\(the images are \d+x\d+ and \d+x\d+ px, 20\.0x apart: .*"
+        with pytest.raises(pcreg.RegistrationError, match=r"\(the images are \d+x\d+ and \d+x\d+ px, their sizes 20\.0x "
+                                                          r"apart: if the scene's scale differs as much between them, .*"
                                                           r"resize the larger image first\)"):
             pcreg.register(ref, mov, model=model)
 

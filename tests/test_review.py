@@ -133,7 +133,7 @@ def test_bad_run_folders_are_one_line(run_copy, tmp_path, capsys):
     (run_copy / "run.json").write_text(json.dumps(state))
     (run_copy / "steps.jsonl").write_text("{not json\n")
     assert pcreg_view([str(run_copy), "--web"]) == 2
-    assert "steps.jsonl: unreadable" in one_line_error(capsys)
+    assert "steps.jsonl: line 1 is not a step pcreg run wrote" in one_line_error(capsys)
     assert pcreg_view([str(run_copy)]) == 2
     assert "--web" in one_line_error(capsys)
     assert pcreg_view([str(run_copy), "--web", "--overlay", str(tmp_path / "o.mp4")]) == 2

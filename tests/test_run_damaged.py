@@ -111,7 +111,7 @@ def test_a_predicted_iou_pcreg_did_not_write_is_named_by_the_review(tmp_path, ca
     assert not (tmp_path / "o.mp4").exists()
 
 
-def test_the_readers_take_steps_jsonl_a_line_at_a_time_and_no_further_than_run_json_counts(tmp_path):
+def test_the_readers_take_steps_jsonl_a_line_at_a_time_and_no_further_than_a_line_past_run_json_s_count(tmp_path):
     """An hour's run at 30 frames/s holds about 108,000 steps (190 MB): readers that held the file and every
     step parsed took about 1 GB for it."""
     from pcreg.runs.files import STEPS, parse_steps, step_lines
@@ -125,7 +125,7 @@ def test_the_readers_take_steps_jsonl_a_line_at_a_time_and_no_further_than_run_j
         yield from step_lines(out)
         raise AssertionError("read past the steps run.json counts")
 
-    assert run_frames(read_state(out), steps_then_more()) == (["f0.png"], [f"f{i}.png" for i in range(4)])
+    assert run_frames(read_state(out), out) == (["f0.png"], [f"f{i}.png" for i in range(4)])
     steps = parse_steps(out / STEPS, steps_then_more())
     assert next(steps)["name"] == "f1.png"  # given before the rest of the file is read
 

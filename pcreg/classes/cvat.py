@@ -247,7 +247,7 @@ class CvatExport(contextlib.AbstractContextManager):
 def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[int]]:
     """The export's table (``labelmap.txt``; with ``--classes`` too, they must agree) and each labelmap
     line's class id, in the file's order (for one-channel masks)."""
-    from .files import MAX_TABLE_BYTES, class_table, parse_labelmap
+    from .files import MAX_TABLE_BYTES, class_table, labelmap_lines, parse_labelmap
     if not export.has(LABELMAP_FILE):
         if classes is None:
             raise InputError(f"{export.where(LABELMAP_FILE)}: missing (the export's class table; or name one with "
@@ -263,7 +263,7 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
                                                       export.where(LABELMAP_FILE))
     colour_of = {c.name: c.colour for c in read.classes}
     id_of = {c.colour: c.id for c in table.classes}  # a colour is one class's in both tables
-    order = [id_of[colour_of[ln.split(":")[0].strip()]] for ln in text.splitlines()
+    order = [id_of[colour_of[ln.split(":")[0].strip()]] for ln in labelmap_lines(text)
              if ln.strip() and not ln.strip().startswith("#")]
     return table, order
 

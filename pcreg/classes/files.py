@@ -29,6 +29,7 @@ The JSON form (:func:`table_json`) keeps the ids::
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,7 @@ from .table import MAX_CLASSES, TABLES, ClassTable, LabelClass
 from ..formats import KeyWrittenTwice, loads_json
 from ..validation import short_repr
 
-__all__ = ["LABELMAP_FILE", "LABELMAP_HEADER", "parse_labelmap", "read_labelmap", "labelmap_text", "write_labelmap",
+__all__ = ["LABELMAP_FILE", "LABELMAP_HEADER", "labelmap_lines", "parse_labelmap", "read_labelmap", "labelmap_text", "write_labelmap",
            "parse_table_json", "table_json", "read_table_file", "class_table", "voc_colormap"]
 
 #: The label map's file name in a VOC / CVAT "Segmentation mask" archive.
@@ -72,12 +73,24 @@ def _colour(text: str, name: str, where: str) -> tuple[int, int, int]:
     return rgb[0], rgb[1], rgb[2]
 
 
+def labelmap_lines(text: str) -> list[str]:
+    """A labelmap.txt's lines as Datumaro reads the file (a text file's line breaks: ``\\n``, ``\\r\\n``,
+    ``\\r``), not as :meth:`str.splitlines` splits, which also breaks at U+0085, U+2028, U+2029 and a few
+    control characters: a class name holding one would be read as two lines."""
+    return re.split(r"\r\n|\r|\n", text)
+
+
+#: What :meth:`str.splitlines` takes for a line break besides a text file's: a class name holding one is
+#: refused, as pcreg never writes such a name (:class:`~pcreg.classes.table.ClassTable`).
+_OTHER_BREAKS = "\v\f\x1c\x1d\x1e\x85\u2028\u2029"
+
+
 def parse_labelmap(text: str, where: str) -> ClassTable:
     """The class table of a ``labelmap.txt``'s text (the module's rules); ``where`` names the file in
     errors: a line of more than four fields, a bad colour, two classes of one name or one colour, some
     classes with a colour and some without, fewer than two known classes."""
     entries: list[tuple[str, tuple[int, int, int] | None]] = []
-    for n, raw in enumerate(text.splitlines(), start=1):
+    for n, raw in enumerate(labelmap_lines(text), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
@@ -87,6 +100,10 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
         name = fields[0].strip()
         if not name:
             raise InputError(f"{where}: line {n} names no class")
+        odd = next((ch for ch in name if ch in _OTHER_BREAKS), None)
+        if odd is not None:
+            raise InputError(f"{where}: line {n}: the class name {name!r} holds U+{ord(odd):04X}, a line break to "
+                             "some readers; rename the label")
         if any(name == e[0] for e in entries):
             raise InputError(f"{where}: two classes named {name!r} (line {n})")
         colour = _colour(fields[1], name, where) if len(fields) > 1 and fields[1].strip() else None

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..frame import as_rgb_uint8
+from ..frame import FLOAT_FILE_HINT, as_rgb_uint8
 from ..validation import check_bool, check_choice, check_count, check_counts, check_float, check_int, check_path
 
 SAMPLERS = ("canny", "gradient", "grid")
@@ -98,7 +98,7 @@ def _rgb_and_alpha(img: np.ndarray, name: str, limit: int | None = None) -> tupl
         img, alpha = img[:, :, :3], img[:, :, 3]
     if img.ndim == 3:
         img = img[:, :, ::-1]  # BGR -> RGB
-    return as_rgb_uint8(img, name=name, limit=limit), alpha
+    return as_rgb_uint8(img, name=name, limit=limit, float_hint=FLOAT_FILE_HINT), alpha
 
 
 def valid_region(image: np.ndarray) -> np.ndarray:

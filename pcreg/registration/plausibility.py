@@ -102,15 +102,17 @@ class Plausibility:
 
     def _sizes(self, shape: tuple[int, ...] | None) -> str:
         """A note for a refusal of images whose sizes differ by more than the search's scales reach (about 2x a
-        side, :meth:`_motion`), else ''."""
+        side, :meth:`_motion`), else ''. It names the ratio of the images' sizes, which is the scene's scale between
+        them only when both show all of it (not when one is a crop of the other)."""
         if shape is None:
             return ""
         (hr, wr), (hm, wm) = self.reference.image.shape[:2], shape[:2]
         apart = max(hr / hm, hm / hr, wr / wm, wm / wr)
         if apart <= 2.0:
             return ""
-        return (f" (the images are {wr}x{hr} and {wm}x{hm} px, {apart:.1f}x apart: one scene at scales more than about "
-                f"2x apart, which the search does not reach, is refused; resize the larger image first)")
+        return (f" (the images are {wr}x{hr} and {wm}x{hm} px, their sizes {apart:.1f}x apart: if the scene's scale "
+                f"differs as much between them, more than about 2x apart, which the search does not reach, resize the "
+                f"larger image first)")
 
     @property
     def convincing(self) -> float:

@@ -4,7 +4,7 @@ one pair of functions here, and nowhere else:
 - labels, ``NAME.png``: :func:`write_labels`, a palette PNG in the class table's colours (and a run's
   readers read them back through :func:`pcreg.export.read_labels`);
 - confidence, ``confidence/NAME.png``: :func:`write_confidence` (:func:`confidence_png`, a grey PNG);
-- steps, ``steps.jsonl``: :func:`append_step`, :func:`step_lines` and :func:`parse_steps`;
+- steps, ``steps.jsonl``: :func:`append_step`, :func:`step_lines`, :func:`parse_steps` and :func:`counted_steps`;
 - the carry, ``carry-{0,1}.npz`` (and a key-frames stretch's own, under :data:`HIDDEN`): :func:`write_carry`,
   :func:`read_carry`;
 - the frames to label next, ``suggest.txt``: :func:`write_suggestions`, :func:`read_suggestions`.
@@ -16,6 +16,7 @@ What a key-frames stretch's forward pass keeps for its backward pass (its prior 
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -32,7 +33,7 @@ from ..formats import loads_json
 
 __all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "write_confidence", "write_grey", "confidence_png",
-           "append_step", "step_lines", "parse_steps", "write_carry", "read_carry", "check_labelled",
+           "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "check_labelled",
            "write_suggestions", "read_suggestions"]
 
 STEPS = "steps.jsonl"
@@ -130,16 +131,45 @@ def parse_steps(path: Path, lines: Iterable[bytes]) -> Iterator[dict]:
     an int and whose ``predicted_error`` is a finite number or None; a line that is not one pcreg run wrote is
     an :class:`~pcreg.errors.OutputError` naming it."""
     for i, line in enumerate(lines):
-        try:
-            step = loads_json(line)
-            ok = (isinstance(step, dict) and type(step.get("frame")) is int and step["frame"] >= 0
-                  and (step.get("predicted_error") is None
-                       or (type(step["predicted_error"]) in (int, float) and math.isfinite(step["predicted_error"]))))
-        except ValueError:  # not JSON, or not UTF-8
-            ok = False
-        if not ok:
+        step = _step(line)
+        if step is None:
             raise OutputError(f"{path}: line {i + 1} is not a step pcreg run wrote; use --force to start over")
         yield step
+
+
+def counted_steps(out: Path, count: int) -> Iterator[dict]:
+    """For a reader of a finished or stopped run (the export, the review): the ``count`` steps of ``out``'s
+    steps.jsonl that its run.json counts, one at a time, as :func:`parse_steps` reads them (blank lines
+    skipped; fewer when the file holds fewer). After them the file may hold only the step of a run stopped
+    between writing it and committing it (:func:`append_step`), whole or cut off before its line break; a
+    line among them that is not a step, or anything else after them, is an :class:`~pcreg.errors.InputError`
+    naming the line, raised when the last step has been read."""
+    path = out / STEPS
+    numbered = ((i + 1, line) for i, line in enumerate(step_lines(out)) if line.strip())
+    for n, line in itertools.islice(numbered, max(count, 0)):
+        step = _step(line)
+        if step is None:
+            raise InputError(f"{path}: line {n} is not a step pcreg run wrote")
+        yield step
+    after = list(itertools.islice(numbered, 2))
+    if len(after) > 1:
+        raise InputError(f"{path}: line {after[1][0]} follows the {count} step(s) run.json counts and the one a "
+                         "stopped run may leave after them (not a steps.jsonl pcreg run wrote)")
+    if after and after[0][1].endswith(b"\n") and _step(after[0][1]) is None:  # whole, so not cut off by a kill
+        raise InputError(f"{path}: line {after[0][0]} is not a step pcreg run wrote")
+
+
+def _step(line: bytes) -> dict | None:
+    """A line of steps.jsonl as a step (a dict whose ``frame`` is an int and whose ``predicted_error`` is a
+    finite number or None), or None: not one pcreg run wrote."""
+    try:
+        step = loads_json(line)
+    except ValueError:  # not JSON, or not UTF-8
+        return None
+    ok = (isinstance(step, dict) and type(step.get("frame")) is int and step["frame"] >= 0
+          and (step.get("predicted_error") is None
+               or (type(step["predicted_error"]) in (int, float) and math.isfinite(step["predicted_error"]))))
+    return step if ok else None
 
 
 def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:

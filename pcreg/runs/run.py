@@ -553,10 +553,10 @@ class Run:
         """A finished or stopped run in ``folder``, for a reader: ``(run.json, key frames, every labelled
         frame)``, by name, in frame order (:func:`pcreg.runs.state.read_state`,
         :func:`pcreg.runs.state.run_frames`). No run.json, or one pcreg run did not write, is an
-        :class:`~pcreg.errors.InputError`; a steps.jsonl that does not match it raises OSError, KeyError,
-        TypeError or ValueError."""
+        :class:`~pcreg.errors.InputError`, and so is a steps.jsonl pcreg run did not write; one that does not
+        match run.json raises OSError, KeyError, TypeError or ValueError."""
         state = read_state(folder)
-        keys, names = run_frames(state, (ln for ln in step_lines(folder) if ln.strip()))
+        keys, names = run_frames(state, folder)
         return state, keys, names
 
 

@@ -11,9 +11,7 @@ either for a run that writes (resume or start over); :func:`read_state` reads ei
 
 from __future__ import annotations
 
-import itertools
 import math
-from collections.abc import Iterable
 from pathlib import Path
 
 from ..errors import InputError, OutputError
@@ -212,21 +210,32 @@ def _first_difference(name: str, before: dict, now: dict) -> tuple[str, dict, di
     return name, {"v": a}, {"v": b}
 
 
-def run_frames(state: dict, steps: Iterable[bytes]) -> tuple[list[str], list[str]]:
+def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
     """``(key frames, every labelled frame)`` of a run, by name, in frame order, from its run.json
-    (``state``) and the lines of its steps.jsonl (read as far as run.json counts): a run from one label image (its key frame, then the
+    (``state``) and the steps of its steps.jsonl in ``folder`` that run.json counts
+    (:func:`pcreg.runs.files.counted_steps`): a run from one label image (its key frame, then the
     frames it counted done) or from a folder of key frames (:mod:`pcreg.pipeline.keys_run`: its key
     frames and the steps it counted, in name order, which is a folder's and a video's frame order).
-    Raises KeyError, TypeError or ValueError for a state or a line pcreg run did not write."""
+    Raises KeyError, TypeError or ValueError for a state pcreg run did not write, an
+    :class:`~pcreg.errors.InputError` naming steps.jsonl for a file pcreg run did not write, ValueError for
+    fewer steps than counted."""
+    from .files import STEPS, counted_steps
+
     field = state_problem(state)
     if field is not None:
         raise ValueError(f"run.json's {field!r} is not as pcreg run writes it")
-    if "stretches" in state:
+    stretches = "stretches" in state
+    done = []  # the names alone: an hour's steps whole take about a GB
+    for step in counted_steps(folder, int(state["lines"]) if stretches else int(state["done"]) - 1):
+        if "name" not in step:
+            raise InputError(f"{folder / STEPS}: the step of frame {step['frame']} has no name (not a steps.jsonl "
+                             "pcreg run wrote)")
+        done.append(str(step["name"]))
+    if stretches:
         keys = sorted(str(k) for k in state["keys"])
-        done = [str(loads_json(line)["name"]) for line in itertools.islice(steps, int(state["lines"]))]
         return keys, sorted(set(keys) | set(done))
     key, count = str(state["key_frame"]), int(state["done"])
-    names = [key] + [str(loads_json(line)["name"]) for line in itertools.islice(steps, count - 1)]
+    names = [key] + done
     if len(names) != count:
         raise ValueError(f"{len(names) - 1} steps for {count - 1} labelled frames")
     return [key], names

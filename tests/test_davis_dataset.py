@@ -151,3 +151,16 @@ def test_hidden_files_are_left_out_and_unpadded_numbers_refused_as_pcreg_run_doe
     with pytest.raises(DatasetError) as err:
         load_dataset(f"davis:{unpadded}")
     assert str(err.value).startswith(f"{unpadded / 'images'}: frames numbered with different widths (10.jpg sorts")
+
+
+def test_a_hidden_folder_beside_the_sequences_is_no_sequence(tmp_path):
+    """A hidden folder among an official root's sequences (``.ipynb_checkpoints``, left by a notebook) was taken
+    as a sequence and the root refused (no frames in it); hidden folders are left out as hidden files are."""
+    pairs = frames_and_masks(4)
+    root = write_official_layout(tmp_path / "root", "seq", pairs)
+    plain = write_official_layout(tmp_path / "plain", "seq", pairs)
+    (root / "JPEGImages" / "480p" / ".ipynb_checkpoints").mkdir()
+    write_pcreg_layout(tmp_path / "folder" / ".trash", pairs)
+    write_pcreg_layout(tmp_path / "folder" / "seq", pairs)
+    _same(load_dataset(f"davis:{root}"), load_dataset(f"davis:{plain}"))
+    _same(load_dataset(f"davis:{tmp_path / 'folder'}"), load_dataset(f"davis:{plain}"))

@@ -53,7 +53,8 @@ _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 
 
 def _dirs(path: Path) -> list[Path]:
-    return sorted(p for p in path.iterdir() if p.is_dir())
+    """The sub-folders of ``path`` in name order; hidden ones left out (``.ipynb_checkpoints``, as hidden files)."""
+    return sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
 def _official_root(path: Path) -> tuple[Path, str] | None:

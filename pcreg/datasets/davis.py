@@ -26,6 +26,7 @@ copy has none).
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -117,6 +118,9 @@ def select_sequences(path: str | Path, *, split: str | None = None
         raise DatasetError(f"{p}: no such folder")
     seqs, beside, root, res = _locate(p)
     chosen = choose_split(list(seqs), root=root, resolution=res, split=split, where=p)
+    frames = next(iter(seqs.values()))[0]  # the official layout's ROOT/JPEGImages/RES/SEQ, whichever PATH named
+    if frames.parent.name in RESOLUTIONS and frames.parent.parent.name == "JPEGImages":
+        chosen = replace(chosen, resolution=frames.parent.name)
     return {n: seqs[n] for n in chosen.sequences}, beside, chosen
 
 

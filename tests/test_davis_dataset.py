@@ -164,3 +164,15 @@ def test_a_hidden_folder_beside_the_sequences_is_no_sequence(tmp_path):
     write_pcreg_layout(tmp_path / "folder" / "seq", pairs)
     _same(load_dataset(f"davis:{root}"), load_dataset(f"davis:{plain}"))
     _same(load_dataset(f"davis:{tmp_path / 'folder'}"), load_dataset(f"davis:{plain}"))
+
+
+def test_a_frame_saved_both_as_jpg_and_png_is_refused_naming_it(tmp_path):
+    """A sequence whose frames were converted to PNG beside their JPEGs was read with every frame twice
+    (00000.jpg, 00000.png, 00001.jpg, ...): twice the frames, half of them no motion, scored silently."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(3))
+    for i in range(3):
+        jpg = seq / "images" / f"{i:05d}.jpg"
+        cv2.imwrite(str(jpg.with_suffix(".png")), cv2.imread(str(jpg)))
+    with pytest.raises(DatasetError) as err:
+        load_dataset(f"davis:{seq}")
+    assert str(err.value) == f"{seq / 'images' / '00000.jpg'}: a second frame of this name beside it, 00000.png; keep one"

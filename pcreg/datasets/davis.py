@@ -176,6 +176,9 @@ def _frame_files(frames: Path, name: str, n_frames: int | None) -> list[Path]:
         raise DatasetError(str(exc)) from None
     if not files:
         raise DatasetError(f"{frames}: no frames (.jpg, .png) in sequence {name}")
+    twice = [(f, g) for f, g in zip(files, files[1:]) if f.stem == g.stem]  # 00000.jpg and 00000.png: which one?
+    if twice:
+        raise DatasetError(f"{twice[0][0]}: a second frame of this name beside it, {twice[0][1].name}; keep one")
     return files[:n_frames] if n_frames is not None else files
 
 

@@ -176,3 +176,14 @@ def test_a_frame_saved_both_as_jpg_and_png_is_refused_naming_it(tmp_path):
     with pytest.raises(DatasetError) as err:
         load_dataset(f"davis:{seq}")
     assert str(err.value) == f"{seq / 'images' / '00000.jpg'}: a second frame of this name beside it, 00000.png; keep one"
+
+
+def test_masks_with_an_upper_case_suffix_are_masks(tmp_path):
+    """Masks saved as ``00000.PNG`` were refused as missing ('no mask of the first frame', naming ``00000.png``)
+    while frames' upper-case suffixes were read."""
+    pairs = frames_and_masks(3)
+    seq = write_pcreg_layout(tmp_path / "upper", pairs)
+    for p in (seq / "labels").iterdir():
+        p.rename(p.with_suffix(".PNG"))
+    plain = write_pcreg_layout(tmp_path / "plain", pairs)
+    _same({"s": load_dataset(f"davis:{seq}")["upper"]}, {"s": load_dataset(f"davis:{plain}")["plain"]})

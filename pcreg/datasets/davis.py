@@ -182,6 +182,14 @@ def _frame_files(frames: Path, name: str, n_frames: int | None) -> list[Path]:
     return files[:n_frames] if n_frames is not None else files
 
 
+def _mask_file(masks: Path, stem: str) -> Path:
+    """``masks/STEM.png``, or ``STEM.PNG`` where only that is (masks saved on Windows), as frames' suffixes are read
+    in any case."""
+    m = masks / f"{stem}.png"
+    upper = m.with_suffix(".PNG")
+    return upper if not m.is_file() and upper.is_file() else m
+
+
 def object_name(sequence: str, obj: int) -> str:
     """The clip name of object ``obj`` of a multi-object sequence: ``SEQ_K``, as davis2017-evaluation names
     its per-object rows."""
@@ -214,7 +222,7 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
     void = None
     out: dict[int | None, list[Frame]] = {}
     for t, f in enumerate(files):
-        m = masks / f"{f.stem}.png"
+        m = _mask_file(masks, f.stem)
         if not m.is_file():
             what = "no mask of the first frame: DAVIS gives the object on frame 0" if t == 0 else \
                 f"no mask of frame {f.name}: every frame is scored"

@@ -212,3 +212,16 @@ def test_frames_with_upper_case_suffixes_are_frames(tmp_path):
     assert main(["run", str(seq / "images"), "--labels", str(seq / "labels" / "IMG_0001.png"), "--classes", "davis",
                  "--out", str(out)]) == 0
     assert sorted(p.name for p in out.glob("*.png")) == [f"IMG_{i:04d}.png" for i in range(1, 5)]
+
+
+def test_a_clip_whose_labels_folder_is_named_otherwise_is_refused_naming_it(tmp_path, capsys):
+    """CamVid's colour labels in ``LabelsColor/`` beside ``images/`` were read as no labels at all: the clip loaded
+    unlabelled and the evaluation refused it in a line naming no file."""
+    clip = _ignore_255_clip(tmp_path / "data" / "c")
+    (clip / "labels").rename(clip / "LabelsColor")
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{clip.parent}", "--classes", "camvid11", "--methods",
+                 "plain", "--out", str(out)]) == 2
+    (line,) = one_line_errors(capsys)
+    assert line.startswith(f"pcreg: error: {clip / 'labels'}: no such folder") and "if LabelsColor/ holds them" in line
+    assert not out.exists()

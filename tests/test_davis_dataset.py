@@ -151,3 +151,39 @@ def test_hidden_files_are_left_out_and_unpadded_numbers_refused_as_pcreg_run_doe
     with pytest.raises(DatasetError) as err:
         load_dataset(f"davis:{unpadded}")
     assert str(err.value).startswith(f"{unpadded / 'images'}: frames numbered with different widths (10.jpg sorts")
+
+
+def test_a_hidden_folder_beside_the_sequences_is_no_sequence(tmp_path):
+    """A hidden folder among an official root's sequences (``.ipynb_checkpoints``, left by a notebook) was taken
+    as a sequence and the root refused (no frames in it); hidden folders are left out as hidden files are."""
+    pairs = frames_and_masks(4)
+    root = write_official_layout(tmp_path / "root", "seq", pairs)
+    plain = write_official_layout(tmp_path / "plain", "seq", pairs)
+    (root / "JPEGImages" / "480p" / ".ipynb_checkpoints").mkdir()
+    write_pcreg_layout(tmp_path / "folder" / ".trash", pairs)
+    write_pcreg_layout(tmp_path / "folder" / "seq", pairs)
+    _same(load_dataset(f"davis:{root}"), load_dataset(f"davis:{plain}"))
+    _same(load_dataset(f"davis:{tmp_path / 'folder'}"), load_dataset(f"davis:{plain}"))
+
+
+def test_a_frame_saved_both_as_jpg_and_png_is_refused_naming_it(tmp_path):
+    """A sequence whose frames were converted to PNG beside their JPEGs was read with every frame twice
+    (00000.jpg, 00000.png, 00001.jpg, ...): twice the frames, half of them no motion, scored silently."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(3))
+    for i in range(3):
+        jpg = seq / "images" / f"{i:05d}.jpg"
+        cv2.imwrite(str(jpg.with_suffix(".png")), cv2.imread(str(jpg)))
+    with pytest.raises(DatasetError) as err:
+        load_dataset(f"davis:{seq}")
+    assert str(err.value) == f"{seq / 'images' / '00000.jpg'}: a second frame of this name beside it, 00000.png; keep one"
+
+
+def test_masks_with_an_upper_case_suffix_are_masks(tmp_path):
+    """Masks saved as ``00000.PNG`` were refused as missing ('no mask of the first frame', naming ``00000.png``)
+    while frames' upper-case suffixes were read."""
+    pairs = frames_and_masks(3)
+    seq = write_pcreg_layout(tmp_path / "upper", pairs)
+    for p in (seq / "labels").iterdir():
+        p.rename(p.with_suffix(".PNG"))
+    plain = write_pcreg_layout(tmp_path / "plain", pairs)
+    _same({"s": load_dataset(f"davis:{seq}")["upper"]}, {"s": load_dataset(f"davis:{plain}")["plain"]})

@@ -142,3 +142,17 @@ def test_a_bad_split_is_one_line_and_exit_2_naming_it(tmp_path, capsys, how):
     err = one_line_errors(capsys)
     assert len(err) == 1 and all(n in err[0] for n in named), err
     assert (out / "results.json").read_text() == "{}"
+
+
+def test_frames_of_another_resolution_than_the_published_figures_are_said(tmp_path):
+    """An official root with Full-Resolution/ only was evaluated beside the published figures (of 480p frames)
+    with nothing saying the frames were another resolution's."""
+    pairs = frames_and_masks(3)
+    full = write_official_layout(tmp_path / "full", "seq", pairs, resolution="Full-Resolution")
+    small = write_official_layout(tmp_path / "small", "seq", pairs)
+    for where in (full, full / "JPEGImages" / "Full-Resolution", full / "JPEGImages" / "Full-Resolution" / "seq"):
+        chosen = select_sequences(where)[2]
+        assert chosen.resolution == "Full-Resolution"
+        assert chosen.describe().endswith("; frames of Full-Resolution/, where the published figures are of 480p/")
+    assert "published" not in select_sequences(small)[2].describe()
+    assert select_sequences(small)[2].to_dict()["resolution"] == "480p"

@@ -151,7 +151,21 @@ def _clips(path: Path, kind: str, classes, n_frames: int | None) -> dict[str, li
         raise DatasetError(f"{path}: no frames (no images/ folder in it or in its sub-folders{also})")
     for clip in clips:
         out[clip.name] = load_folder(clip, mapping=mapping, classes=classes)
+        _check_labels_folder(clip)  # after load_folder's own refusals (no frames, ...)
     return out
+
+
+def _check_labels_folder(clip: Path) -> None:
+    """Refuse a clip folder without ``labels/`` (every use of ``--data`` scores its frames' labels), naming the
+    folder and any other sub-folder of PNGs beside ``images/`` that may be its labels under another name
+    (CamVid's ``LabelsColor/``, ``annot/``)."""
+    if (clip / "labels").is_dir():
+        return
+    others = [p.name for p in sorted(clip.iterdir()) if p.is_dir() and p.name != "images"
+              and not p.name.startswith(".") and any(p.glob("*.png"))]
+    hint = f"; if {others[0]}/ holds them, name it labels/" if others else ""
+    raise DatasetError(f"{clip / 'labels'}: no such folder: every frame of clip {clip.name} needs its label file, "
+                       f"labels/NAME.png or NAME_L.png{hint}")
 
 
 def _lagr_sets(path: Path) -> dict[str, list[Frame]]:

@@ -26,6 +26,7 @@ copy has none).
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +54,8 @@ _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 
 
 def _dirs(path: Path) -> list[Path]:
-    return sorted(p for p in path.iterdir() if p.is_dir())
+    """The sub-folders of ``path`` in name order; hidden ones left out (``.ipynb_checkpoints``, as hidden files)."""
+    return sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
 def _official_root(path: Path) -> tuple[Path, str] | None:
@@ -116,6 +118,9 @@ def select_sequences(path: str | Path, *, split: str | None = None
         raise DatasetError(f"{p}: no such folder")
     seqs, beside, root, res = _locate(p)
     chosen = choose_split(list(seqs), root=root, resolution=res, split=split, where=p)
+    frames = next(iter(seqs.values()))[0]  # the official layout's ROOT/JPEGImages/RES/SEQ, whichever PATH named
+    if frames.parent.name in RESOLUTIONS and frames.parent.parent.name == "JPEGImages":
+        chosen = replace(chosen, resolution=frames.parent.name)
     return {n: seqs[n] for n in chosen.sequences}, beside, chosen
 
 
@@ -171,7 +176,18 @@ def _frame_files(frames: Path, name: str, n_frames: int | None) -> list[Path]:
         raise DatasetError(str(exc)) from None
     if not files:
         raise DatasetError(f"{frames}: no frames (.jpg, .png) in sequence {name}")
+    twice = [(f, g) for f, g in zip(files, files[1:]) if f.stem == g.stem]  # 00000.jpg and 00000.png: which one?
+    if twice:
+        raise DatasetError(f"{twice[0][0]}: a second frame of this name beside it, {twice[0][1].name}; keep one")
     return files[:n_frames] if n_frames is not None else files
+
+
+def _mask_file(masks: Path, stem: str) -> Path:
+    """``masks/STEM.png``, or ``STEM.PNG`` where only that is (masks saved on Windows), as frames' suffixes are read
+    in any case."""
+    m = masks / f"{stem}.png"
+    upper = m.with_suffix(".PNG")
+    return upper if not m.is_file() and upper.is_file() else m
 
 
 def object_name(sequence: str, obj: int) -> str:
@@ -206,7 +222,7 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
     void = None
     out: dict[int | None, list[Frame]] = {}
     for t, f in enumerate(files):
-        m = masks / f"{f.stem}.png"
+        m = _mask_file(masks, f.stem)
         if not m.is_file():
             what = "no mask of the first frame: DAVIS gives the object on frame 0" if t == 0 else \
                 f"no mask of frame {f.name}: every frame is scored"

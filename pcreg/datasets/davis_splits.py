@@ -47,17 +47,23 @@ class DavisSplit:
     sequences: tuple[str, ...]
     available: int
     why: str = ""  #: why every sequence (with ``all``): asked for, or no split file at the root
+    resolution: str | None = None  #: the official layout's resolution folder read (None: pcreg's layout)
 
     def describe(self) -> str:
-        """One line: ``DAVIS 2016 val (ImageSets/480p/val.txt): 20 of 50 sequences``."""
+        """One line: ``DAVIS 2016 val (ImageSets/480p/val.txt): 20 of 50 sequences``, and the frames' resolution
+        folder when it is not ``480p``, the one the published figures are of."""
         n = len(self.sequences)
         if self.file is not None:
-            return f"DAVIS 2016 {self.name} ({self.file}): {n} of {self.available} sequences"
-        return (f"all {n} sequences" if n != 1 else "its one sequence") + (f" ({self.why})" if self.why else "")
+            line = f"DAVIS 2016 {self.name} ({self.file}): {n} of {self.available} sequences"
+        else:
+            line = (f"all {n} sequences" if n != 1 else "its one sequence") + (f" ({self.why})" if self.why else "")
+        if self.resolution not in (None, "480p"):
+            line += f"; frames of {self.resolution}/, where the published figures are of 480p/"
+        return line
 
     def to_dict(self) -> dict:
         return {"name": self.name, "file": self.file, "sequences": list(self.sequences),
-                "available": self.available, "described": self.describe()}
+                "available": self.available, "resolution": self.resolution, "described": self.describe()}
 
 
 def parse_davis_arg(arg: str) -> tuple[str, str | None]:

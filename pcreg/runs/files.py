@@ -31,11 +31,12 @@ from ..errors import InputError, OutputError
 from ..cloud_files import NPY_HEADER_ERRORS
 from ..formats import loads_json
 
-__all__ = ["STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
+__all__ = ["STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "check_labelled",
            "write_suggestions", "read_suggestions"]
 
+STATE = "run.json"  #: the run's record (pcreg.runs.state reads and writes it), the commit point of its steps
 STEPS = "steps.jsonl"
 CARRY = "carry-{}.npz"
 CONFIDENCE = "confidence"
@@ -304,8 +305,6 @@ def check_labelled(out: Path, stems: list[str]) -> None:
     """The label PNG of every frame run.json counts labelled (``stems``) is in ``out``; one gone (deleted
     or moved since) is an :class:`~pcreg.errors.OutputError`: the run cannot make it again where it
     stands, and "all frames done" would not be true."""
-    from .state import STATE
-
     for stem in stems:
         if not (out / f"{stem}.png").is_file():
             raise OutputError(f"{out / stem}.png is missing, though {out / STATE} counts that frame labelled; "

@@ -16,11 +16,11 @@ from pathlib import Path
 
 from ..errors import InputError, OutputError
 from ..formats import load_json_object, loads_json, resolved
+from .files import STATE
 
 __all__ = ["STATE", "frames_chosen", "unfinished_note", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
            "read_state", "run_frames"]
 
-STATE = "run.json"
 #: The counters of a run's running error (run.json's ``truth``, and each key-frame stretch's).
 TRUTH_COUNTS = ("frames", "wrong", "known", "plain_wrong")
 

@@ -251,26 +251,24 @@ def _tiff_size(data: bytes) -> tuple[int, int] | None:
 
 
 def _tiff_pages(data: bytes) -> int:
-    """The images a TIFF file's chain of IFDs holds, those that are a reduced-resolution copy (a thumbnail) or a
-    transparency mask of another (NewSubfileType bits 0 and 2) left out; a chain that loops or leaves the file ends
-    the count. OpenCV decodes the first IFD alone."""
-    end = "<" if data[:2] == b"II" else ">"
-    seen: set[int] = set()
+    """The images a TIFF file holds (Pillow's frames: the chain of its IFDs), those that are a reduced-resolution
+    copy (a thumbnail) or a transparency mask of another (NewSubfileType bits 0 and 2) left out; a file Pillow
+    cannot follow counts what it read, and one past Pillow's own pixel limit (about 179 Mpx a page, above pcreg's
+    default) none. OpenCV decodes the first IFD alone."""
+    import io
+    import warnings
+
+    from PIL import Image
+
     pages = 0
     try:
-        (off,) = struct.unpack(end + "I", data[4:8])
-        while off and off not in seen:
-            seen.add(off)
-            (count,) = struct.unpack(end + "H", data[off:off + 2])
-            kind = 0
-            for k in range(count):
-                e = off + 2 + 12 * k
-                tag, typ = struct.unpack(end + "HH", data[e:e + 4])
-                if tag == 254:  # NewSubfileType
-                    kind = struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + (10 if typ == 3 else 12)])[0]
-            pages += not kind & 0b101
-            (off,) = struct.unpack(end + "I", data[off + 2 + 12 * count:off + 6 + 12 * count])
-    except struct.error:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pillow's words on a damaged tag: OpenCV's refusal says it
+            with Image.open(io.BytesIO(data)) as tiff:
+                for k in range(getattr(tiff, "n_frames", 1)):
+                    tiff.seek(k)
+                    pages += not int(tiff.tag_v2.get(254, 0)) & 0b101  # NewSubfileType
+    except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError):
         pass
     return pages
 

@@ -56,7 +56,8 @@ class RunLabels:
     (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``), ``keys`` the key
     frames' names (a person's labels, kept as they are by ``--min-confidence``), ``gaps`` what is said of the places
     its video skips frames by its times (:func:`pcreg.runs.gaps.gaps_note`; None without one): the frames are
-    numbered by count all the same, as CVAT numbers them."""
+    numbered by count all the same, as CVAT numbers them; ``damaged`` what is said of its frames that decode with errors
+    (:func:`pcreg.runs.gaps.damaged_note`; None without one)."""
 
     folder: Path
     names: tuple[str, ...]
@@ -66,6 +67,7 @@ class RunLabels:
     chosen: int | None = None  # the frames the run chose of its folder (None: a video, or the folder gone)
     keys: frozenset[str] = frozenset()
     gaps: str | None = None
+    damaged: str | None = None
 
 
 def default_name(fmt: str) -> str:
@@ -82,7 +84,7 @@ def read_run(folder: str | Path) -> RunLabels:
     """
     from .classes.keys import run_table
     from .runs.files import CONFIDENCE, STEPS
-    from .runs.gaps import gaps_note
+    from .runs.gaps import damaged_note, gaps_note
     from .runs.state import STATE, frames_chosen, read_state, run_frames
 
     folder = Path(folder)
@@ -118,7 +120,8 @@ def read_run(folder: str | Path) -> RunLabels:
     confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
     table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]),
-                     frozenset(keys), gaps_note(state.get("gaps"), state["run"].get("video")))
+                     frozenset(keys), gaps_note(state.get("gaps"), state["run"].get("video")),
+                     damaged_note(state.get("damaged"), state["run"].get("video")))
 
 
 def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:

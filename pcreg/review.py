@@ -51,7 +51,8 @@ class RunReview:
     ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
     IoU per class id (``steps.jsonl``'s ``predicted_iou``, with more than two classes; None otherwise); ``gaps``
-    run.json's places where the video skips frames by its times (:mod:`pcreg.runs.gaps`; None without one)."""
+    run.json's places where the video skips frames by its times (:mod:`pcreg.runs.gaps`; None without one),
+    ``damaged`` its frames that decode with errors (the same module's; None without one)."""
 
     folder: Path
     source: Path
@@ -67,6 +68,13 @@ class RunReview:
     ious: tuple[dict | None, ...] = ()
     chosen: int | None = None  # the frames the run chose of its folder (None: a video)
     gaps: dict | None = None
+    damaged: dict | None = None
+
+    def damaged_note(self) -> str | None:
+        """What the review says of the run's video's frames that decode with errors (:func:`pcreg.runs.gaps.damaged_note`)."""
+        from .runs.gaps import damaged_note
+
+        return damaged_note(self.damaged, self.source)
 
     def gaps_note(self) -> str | None:
         """What the review says of the places the run's video skips frames (:func:`pcreg.runs.gaps.gaps_note`)."""
@@ -169,7 +177,8 @@ def read_review(folder: str | Path) -> RunReview:
             raise InputError(f"{steps_path}: the step of {n} has a predicted_iou pcreg run did not write") from None
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
                      _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
-                     tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None, state.get("gaps"))
+                     tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None, state.get("gaps"),
+                     state.get("damaged"))
 
 
 def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:

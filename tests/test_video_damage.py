@@ -1,6 +1,7 @@
 """A video whose frames' times skip frames (a Matroska block the demuxer passed over, frames a live capture dropped)
 is read on, its frames numbered by count as annotation tools number them, and the run says where and counts it in
-run.json, once a place; a whole video, of a variable frame rate or with B-frames, is read whole and in order."""
+run.json, once a place; a whole video, of a variable frame rate or with B-frames, is read whole and in order. A frame the
+decoder flags as decoded with errors is labelled, said once, counted in run.json and its step marked."""
 
 import json
 from fractions import Fraction
@@ -255,3 +256,83 @@ def test_a_run_json_from_before_the_places_times_is_read_and_said_without_them(t
     for record, problem in ((old, None), (timed, None), ({**old, "times": {"000004": 0.5}}, "gaps"),
                             ({**old, "times": {"000003": "0.4"}}, "gaps"), ({**old, "times": [0.4]}, "gaps")):
         assert state_problem({**state, "gaps": record}) == problem, record
+
+
+def _mp4(path, images, codec="libx264"):
+    """An MP4 file of ``images`` at 10 a second (H.264 with x264's default B-frames, or MPEG-4 Part 2)."""
+    with av.open(str(path), "w") as c:
+        s = c.add_stream(codec, rate=10)
+        s.width, s.height, s.pix_fmt = 160, 120, "yuv420p"
+        mux_all(c, s, images)
+    return path
+
+
+def _payload_flipped(whole, damaged, k, at):
+    """``whole`` with 4 bytes at ``at`` within the ``k``-th video packet's payload inverted: the slice data damaged,
+    the container whole."""
+    with av.open(str(whole)) as c:
+        pos = [p.pos for p in c.demux(video=0) if p.size][k]
+    data = bytearray(whole.read_bytes())
+    data[pos + at:pos + at + 4] = bytes(255 - b for b in data[pos + at:pos + at + 4])
+    damaged.write_bytes(bytes(data))
+    return damaged
+
+
+@pytest.mark.parametrize("codec, k, at, frame", [("libx264", 3, 30, 1), ("libx264", 6, 30, 6), ("mpeg4", 3, 30, 3)])
+def test_frames_that_decode_with_errors_are_labelled_said_once_and_counted(tmp_path, images, capsys, codec, k, at,
+                                                                           frame):
+    """Bytes flipped inside a packet's slice data: FFmpeg conceals the frame (grey or smeared) without an error, and
+    with its slice threads did not flag an H.264 frame at all; the run labelled it and said nothing. The frame is
+    flagged, labelled, said once at the end, counted in run.json and its step marked; view and export say it."""
+    whole = _mp4(tmp_path / "whole.mp4", images, codec)
+    damaged = _payload_flipped(whole, tmp_path / "damaged.mp4", k, at)
+    clean = list(VideoFrames(whole).frames())
+    read = list(VideoFrames(damaged).frames())
+    assert not any(f.damaged for f in clean) and [f.index for f in read if f.damaged] == [frame]
+    assert not np.array_equal(read[frame].image, clean[frame].image)
+    key, out = _label(tmp_path / "key.png"), tmp_path / "run"
+    assert main(["run", str(damaged), "--labels", str(key), "--out", str(out), "--model", "flow"]) == 0
+    said = (f"{damaged}: 1 frame(s) decode with errors (damaged or cut short), frame {frame}: FFmpeg filled in their "
+            "missing parts from nearby pictures, so their labels (and those of the frames decoded from them up to the "
+            "next key frame) may come from grey or smeared pictures")
+    err = [line for line in one_line_errors(capsys) if "decode with errors" in line]
+    assert err == [f"pcreg: note: {said}; counted in {out / 'run.json'} (\"damaged\"), their steps marked \"damaged\""]
+    assert _state(out)["damaged"] == {"frames": 1, "last": f"{frame:06d}", "listed": [f"{frame:06d}"]}
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    assert [s["frame"] for s in steps if s.get("damaged")] == [frame]
+    assert main(["view", str(out), "--overlay", str(tmp_path / "overlay.mp4")]) == 0
+    assert [line for line in one_line_errors(capsys) if "decode with errors" in line] == [f"pcreg: note: {said}"]
+    assert main(["export", str(out), "--to", str(tmp_path / "cvat.zip")]) == 0
+    assert [line for line in one_line_errors(capsys) if "decode with errors" in line] == [f"pcreg: note: {said}"]
+
+
+def test_a_clean_h264_file_says_nothing_and_decodes_as_with_slice_threads(tmp_path, images, capsys):
+    """Frame threads (which let H.264's decoder flag a concealed frame) decode a whole file to the same pixels as the
+    slice threads it was read with; nothing is said or counted."""
+    whole = _mp4(tmp_path / "whole.mp4", images)
+    with av.open(str(whole)) as c:
+        assert c.streams.video[0].codec_context.thread_type.name == "SLICE"  # PyAV's default
+        sliced = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    read = list(VideoFrames(whole).frames())
+    assert len(read) == len(sliced) and all(np.array_equal(f.image, s) for f, s in zip(read, sliced))
+    out = tmp_path / "run"
+    assert main(["run", str(whole), "--labels", str(_label(tmp_path / "key.png")), "--out", str(out), "--model",
+                 "flow"]) == 0
+    assert not any("decode with errors" in line for line in one_line_errors(capsys))
+    assert "damaged" not in _state(out)
+    assert not any("damaged" in line for line in (out / "steps.jsonl").read_text().splitlines())
+
+
+def test_a_run_json_with_a_malformed_damaged_record_is_refused(tmp_path):
+    from pcreg.runs.gaps import damaged_note
+    from pcreg.runs.state import state_problem
+
+    state = {"run": {}, "key_frame": "000000", "done": 12, "fallbacks": 0}
+    good = {"frames": 5, "last": "000011", "listed": ["000003", "000005", "000007", "000009"]}
+    assert damaged_note(good, "v.mp4").startswith("v.mp4: 5 frame(s) decode with errors (damaged or cut short), "
+                                                  "frames 3, 5, 7 and 2 more: ")
+    assert damaged_note(None, "v.mp4") is None
+    for record, problem in ((None, None), (good, None), ({**good, "frames": 0}, "damaged"),
+                            ({**good, "frames": 3}, "damaged"), ({**good, "listed": {"000003": 1}}, "damaged"),
+                            ({**good, "listed": [3]}, "damaged"), ({**good, "last": 11}, "damaged"), ([1], "damaged")):
+        assert state_problem(state if record is None else {**state, "damaged": record}) == problem, record

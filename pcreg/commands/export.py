@@ -66,4 +66,6 @@ def run(args: argparse.Namespace) -> int:
         print(note)
     if run_labels.gaps:  # the video skips frames by its times: the run's frame N is not the file's
         sys.stderr.write(f"pcreg: note: {run_labels.gaps}\n")
+    if run_labels.damaged:  # frames that decode with errors: labelled from concealed pictures
+        sys.stderr.write(f"pcreg: note: {run_labels.damaged}\n")
     return 0

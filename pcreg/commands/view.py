@@ -286,6 +286,9 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     gaps = review.gaps_note()  # the video skips frames by its times: the run's frame N is not the file's
     if gaps:
         sys.stderr.write(f"pcreg: note: {gaps}\n")
+    damaged = review.damaged_note()  # frames that decode with errors: labelled from concealed pictures
+    if damaged:
+        sys.stderr.write(f"pcreg: note: {damaged}\n")
     if args.overlay:
         n = write_overlay_video(review, out, fps=args.fps)
         print(f"wrote {out}: {n} frame(s) of {folder} with their labels")

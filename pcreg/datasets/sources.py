@@ -100,7 +100,8 @@ class SourceFrame:
     times (:class:`~pcreg.datasets.damage.Gap`), after the stream's frame before this one and up to this one,
     told with the frame to whoever reads it (the frames are still numbered by count). ``notes``: what reading met
     at this frame, as ``(kind, line)`` pairs, for the reader to say once a run for each kind (a frame with
-    transparent pixels, :mod:`~pcreg.datasets.frame_notes`; a video's frames turning interlaced after the first)."""
+    transparent pixels, :mod:`~pcreg.datasets.frame_notes`; a video's frames turning interlaced after the first).
+    ``damaged``: the decoder flags the frame as decoded with errors, its missing part concealed (:mod:`pcreg.runs.gaps`)."""
 
     position: int
     index: int
@@ -109,6 +110,7 @@ class SourceFrame:
     image: np.ndarray
     gaps: tuple = ()
     notes: tuple[tuple[str, str], ...] = ()
+    damaged: bool = False  # a video's frame that decodes with errors, the decoder's concealment filling it in
 
 
 def _out_of_count(a: str, b: str) -> bool:
@@ -336,7 +338,7 @@ class VideoFrames:
             gaps = tuple(g for g in reading.gaps if before < g.index <= i)
             reading.gaps, before = [g for g in reading.gaps if g.index > i], i
             return SourceFrame((i - s.start) // s.every, i, name, name, image, gaps,
-                               notes + transparent_notes(f"{self.path} frame {name}", alpha))
+                               notes + transparent_notes(f"{self.path} frame {name}", alpha), i in reading.damaged)
 
         for i, frame, turn in self._decoded(reading):
             stopped = s.stop is not None and i >= s.stop  # the frame after the last: only the next of the one before
@@ -364,8 +366,8 @@ class VideoFrames:
 
     def _decoded(self, reading: _Reading) -> Iterator[tuple[int, Any, _Turn]]:
         """Every frame of the video in decoding order, as (index, ``av.VideoFrame``, how it is shown), up to the
-        first past the selection's ``stop``; ``reading`` counts them and keeps the gaps in their times. A frame of
-        another size, or one before ``stop`` that decodes with errors, is refused where it is met."""
+        first past the selection's ``stop``; ``reading`` counts them and keeps the gaps in their times and the frames
+        that decode with errors (flagged by the decoder, concealed). A frame of another size is refused where met."""
         import av
 
         from .damage import Timing
@@ -373,6 +375,8 @@ class VideoFrames:
         s, size = self.selection, None
         with self._open() as container:
             stream = container.streams.video[0]
+            if stream.codec_context.name == "h264":  # its slice threads leave a concealed frame unflagged
+                stream.codec_context.thread_type = "FRAME"
             timing = Timing(checked=container.format.name == "matroska,webm")
             try:
                 for frame in _shown_frames(container, stream, reading.hidden, self.path):
@@ -393,8 +397,7 @@ class VideoFrames:
                     if gap is not None:
                         reading.gaps.append(gap)
                     if frame.is_corrupt:  # concealed by the decoder: a frame cut short or damaged, drawn in part
-                        raise InputError(f"{self.path}: frame {i} decodes with errors (part of it is missing): the "
-                                         "video is truncated or damaged")
+                        reading.damaged.add(i)
                     yield i, frame, turn
             except av.FFmpegError as exc:
                 reason = getattr(exc, "strerror", None) or str(exc)
@@ -428,7 +431,7 @@ class VideoFrames:
 class _Reading:
     """What reading a video met: frames ``decoded``, the last one's time, the ``hidden`` ones (a one-item list, as
     :func:`_shown_frames` counts them), whether a frame was handed on, the gaps in the times and the notes
-    (:attr:`SourceFrame.notes`) not handed on yet."""
+    (:attr:`SourceFrame.notes`) not handed on yet, and the frames that decode with errors."""
 
     decoded: int = 0
     last_time: float | None = None
@@ -436,6 +439,7 @@ class _Reading:
     yielded: bool = False
     gaps: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    damaged: set[int] = field(default_factory=set)
 
 
 def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:

@@ -347,6 +347,8 @@ class KeyRun:
         from ..classification.metrics import error_rate
 
         step = dict(step, frame=t, name=self.frames.name(t), keys=[self.frames.name(k) for k in s.keys])
+        if self.owner.gaps.is_damaged(t):  # decoded with errors: labelled from a concealed picture
+            step["damaged"] = True
         truth = None if self.truth is None else self.truth[t]
         plain = None
         if truth is not None:

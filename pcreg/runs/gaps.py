@@ -15,6 +15,13 @@ on, the run's frame N is not frame N of the file's timeline.
 
 What else reading met at a frame (:attr:`~pcreg.datasets.sources.SourceFrame.notes`: a frame with transparent
 pixels) is said the same way, the first of each kind once a run, and not counted.
+
+A video's frames that decode with errors (:attr:`~pcreg.datasets.sources.SourceFrame.damaged`: flagged by the
+decoder, a damaged or cut-short frame whose missing part FFmpeg's error concealment fills in from nearby pictures)
+are labelled, counted in run.json's ``damaged``, ``{"frames": N, "last": NAME, "listed": [NAME, ...]}`` (the first
+:data:`LISTED` named), their steps marked ``"damaged": true``, and said once at the end of the run and by what reads
+it afterwards (:func:`damaged_note`). The frames decoded from a damaged one up to the next key frame may carry its
+damage unflagged; a bit flipped where the bitstream still parses is not flagged at all.
 """
 
 from __future__ import annotations
@@ -24,7 +31,7 @@ from typing import Iterable, Iterator
 
 from .state import STATE
 
-__all__ = ["GapMarks", "LISTED", "SAID", "gaps_note"]
+__all__ = ["GapMarks", "LISTED", "SAID", "damaged_note", "gaps_note"]
 
 #: The places run.json's ``gaps`` lists by name (the rest counted): run.json is rewritten at every frame.
 LISTED = 100
@@ -50,6 +57,8 @@ class GapMarks:
     def __init__(self, run) -> None:
         self.run, self.said, self.last = run, 0, -1
         self.noted: set[str] = set()  # the kinds of the frames' notes said
+        self.damaged: set[int] = set()  # the positions of the frames met that decode with errors
+        self.last_damaged = -1
 
     def mark(self, frame, writer=None) -> bool:
         """Say and count the gaps ``frame`` (a :class:`~pcreg.datasets.sources.SourceFrame`) comes after, those not
@@ -57,6 +66,7 @@ class GapMarks:
         it) when one is given, else at once (the caller commits). Whether there were any. The frame's notes of a
         kind not said yet are said (:meth:`say`)."""
         self.say(getattr(frame, "notes", ()))
+        self._mark_damaged(frame, writer)
         counted = self.run.state.get("gaps")
         last = max(self.last, -1 if counted is None else int(counted["last"]))
         gaps = [g for g in getattr(frame, "gaps", ()) if g.index > last]
@@ -76,6 +86,30 @@ class GapMarks:
         else:
             writer.submit(self._count, gaps)
         return True
+
+    def _mark_damaged(self, frame, writer) -> None:
+        """Count ``frame`` in run.json's ``damaged`` if it decodes with errors and is not counted yet."""
+        if not getattr(frame, "damaged", False):
+            return
+        self.damaged.add(frame.position)
+        counted = self.run.state.get("damaged")
+        if frame.index <= max(self.last_damaged, -1 if counted is None else int(counted["last"])):
+            return
+        self.last_damaged = frame.index
+        if writer is None:
+            self._count_damaged(frame.index)
+        else:
+            writer.submit(self._count_damaged, frame.index)
+
+    def _count_damaged(self, index: int) -> None:
+        old = self.run.state.get("damaged") or {"frames": 0, "last": "", "listed": []}
+        listed = old["listed"] + [_name(index)] if len(old["listed"]) < LISTED else old["listed"]
+        self.run.state["damaged"] = {"frames": old["frames"] + 1, "last": _name(index), "listed": listed}
+
+    def is_damaged(self, position: int) -> bool:
+        """Whether the frame at ``position`` decodes with errors, as met by this run or listed in run.json."""
+        damaged = self.run.state.get("damaged")
+        return position in self.damaged or (damaged is not None and self.run.frames.name(position) in damaged["listed"])
 
     def say(self, notes: Iterable[tuple[str, str]]) -> None:
         """Say each of a frame's ``notes`` (:attr:`~pcreg.datasets.sources.SourceFrame.notes`, ``(kind, line)``) whose
@@ -102,7 +136,12 @@ class GapMarks:
                          "last": _name(gaps[-1].index), "listed": listed, "times": times}
 
     def summary(self) -> None:
-        """At the end of the run: how many places skip frames, and where they are counted; nothing without one."""
+        """At the end of the run: how many frames decode with errors, how many places skip frames, and where they are
+        counted; nothing without one."""
+        damaged = self.run.state.get("damaged")
+        if damaged:
+            _say(f"{damaged_note(damaged, self.run.frames.path)}; counted in {self.run.out / STATE} (\"damaged\"), "
+                 "their steps marked \"damaged\"")
         gaps = self.run.state.get("gaps")
         if not gaps:
             return
@@ -144,3 +183,20 @@ def gaps_note(gaps: dict | None, source) -> str | None:
             f"place(s), before frame{'' if len(shown) == 1 else 's'} {places}; the run numbers its frames by count, as "
             f"annotation tools do, so from frame {first} on the run's frame N is not frame N of the file's timeline "
             f"(run.json's \"gaps\")")
+
+
+def damaged_note(damaged: dict | None, source) -> str | None:
+    """What is said of the frames of the video ``source`` that decode with errors (run.json's ``damaged``, as
+    :class:`GapMarks` counts them): how many, the first :data:`SAID`, and that their labels come from pictures the
+    decoder filled in. None without one."""
+    if not damaged:
+        return None
+    shown = [str(int(n)) for n in damaged["listed"][:SAID]]
+    more = damaged["frames"] - len(shown)
+    if more:
+        shown.append(f"{more} more")
+    frames = shown[0] if len(shown) == 1 else f"{', '.join(shown[:-1])} and {shown[-1]}"
+    return (f"{source}: {damaged['frames']} frame(s) decode with errors (damaged or cut short), frame"
+            f"{'' if damaged['frames'] == 1 else 's'} {frames}: FFmpeg filled in their missing parts from nearby "
+            "pictures, so their labels (and those of the frames decoded from them up to the next key frame) may "
+            "come from grey or smeared pictures")

@@ -484,6 +484,8 @@ class Run:
         report = report if isinstance(report, dict) else report.to_dict()
         learned = learned() if callable(learned) else learned
         step = dict(report, frame=t, name=self.frames.name(t))
+        if self.gaps.is_damaged(t):  # decoded with errors: labelled from a concealed picture
+            step["damaged"] = True
         truth = None if self.truth is None else self.truth[t]
         if truth is not None:
             step["error"] = error_rate(labels, truth, classes=self.table)

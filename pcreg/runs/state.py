@@ -1,7 +1,7 @@
 """A run's ``run.json``: what a run of ``pcreg run`` is (its identity: inputs and options), how far it
-has come, its running error against the truth, and where its video skips frames by its times (``gaps``,
-:mod:`pcreg.runs.gaps`; only when it does). Rewritten atomically after every frame, it is the
-commit point: a frame counts once run.json counts it.
+has come, its running error against the truth, where its video skips frames by its times (``gaps``,
+:mod:`pcreg.runs.gaps`; only when it does) and which of its frames decode with errors (``damaged``; only if
+any). Rewritten atomically after every frame, it is the commit point: a frame counts once run.json counts it.
 
 Two kinds: a run from one label image (``key_frame``, ``done``) and a run from a folder of key frames
 (``keys``, ``stretches``, ``cursor``, ``lines``, :mod:`pcreg.pipeline.keys_run`). :func:`open_state` opens
@@ -89,12 +89,26 @@ def _gaps_problem(gaps) -> bool:
     return not all(type(c) is int and c >= 1 for c in counts) or not gaps["last"].isdigit()
 
 
+def _damaged_problem(damaged) -> bool:
+    """Whether run.json's ``damaged`` (None when there is none) is not as :class:`~pcreg.runs.gaps.GapMarks` writes it."""
+    if damaged is None:
+        return False
+    if not isinstance(damaged, dict) or not isinstance(damaged.get("listed"), list) \
+            or not isinstance(damaged.get("last"), str) or not damaged["last"].isdigit():
+        return True
+    frames = damaged.get("frames")
+    return not (type(frames) is int and frames >= max(1, len(damaged["listed"]))) \
+        or not all(isinstance(n, str) and n.isdigit() for n in damaged["listed"])
+
+
 def state_problem(state) -> str | None:
     """What in a run.json (one key frame's, or a folder of key frames') is not as pcreg run writes it."""
     if not isinstance(state, dict):
         return "its top level"
     problem = (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
-    return "gaps" if problem is None and _gaps_problem(state.get("gaps")) else problem
+    if problem is None and _gaps_problem(state.get("gaps")):
+        return "gaps"
+    return "damaged" if problem is None and _damaged_problem(state.get("damaged")) else problem
 
 
 def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | Path | None,

@@ -202,7 +202,7 @@ def check_progress(start: tuple[float, float], end: RegistrationResult, max_dist
             "metric='point_to_point', or an init nearer the answer")
 
 
-def check_paired_normals(T: np.ndarray, source: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
+def check_paired_normals(T: np.ndarray, source: np.ndarray, target: np.ndarray, target_normals: np.ndarray | None,
                          max_distance: float, metric: str) -> None:
     """Raise :class:`RegistrationError` when, at the result ``T``, the normals of the target points the source is
     paired with (within ``max_distance``) leave a direction free (:func:`normals_problem`): the linearised steps
@@ -212,7 +212,7 @@ def check_paired_normals(T: np.ndarray, source: np.ndarray, target: np.ndarray, 
     A cylinder's side paired while the floor beneath it lies beyond the correspondence distance: the reference
     step's 6x6 system is singular, its step the identity, and the run "converged" after one iteration where it
     started (inlier RMSE 0.199; Open3D's moved across the axis and left the motion along it at 0)."""
-    if metric not in LINEARISED_METRICS:
+    if metric not in LINEARISED_METRICS or target_normals is None:
         return
     _, idx = KDTreeIndex(target).nearest(apply(T, source), max_distance)
     why = normals_problem(target_normals[np.unique(idx[idx >= 0])])

@@ -28,7 +28,8 @@ from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, 
 from .pyramid import CloudPyramid
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule, refuse_a_line_for_open3d
 from .inputs import check_cloud
-from .reference import LINEARISED_METRICS, check_progress, check_rank, check_support, scores_at
+from .reference import (LINEARISED_METRICS, check_paired_normals, check_progress, check_rank, check_support,
+                        scores_at)
 from .refine import CoarseToFine
 from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
@@ -204,6 +205,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
     if first is not None:  # one scale: a linearised metric takes no schedule
         check_progress(first, r, d, options.metric)
+        check_paired_normals(T, s, t, target_normals, d, options.metric)
     return RegistrationResult(matrix=T, fitness=r.fitness, inlier_rmse=r.inlier_rmse, iterations=total_iter,
                               converged=r.converged, backend=options.backend, seconds=seconds)
 

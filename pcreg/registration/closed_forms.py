@@ -487,7 +487,8 @@ def check_support(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_dis
         if not converged and not scale < SHRUNK:
             return
         shrank = "; the ICP shrank the source onto them" if scale < SHRUNK else ""
+        article = "an" if model[0] in "aeiou" else "a"
         raise RegistrationError(
             f"registration refused: at the result (scale {scale:.3g}) the source's pairs reach {len(matched)} target "
-            f"point(s), which cannot determine a {model} transform ({exc}){shrank}; give an init nearer the answer, or "
+            f"point(s), which cannot determine {article} {model} transform ({exc}){shrank}; give an init nearer the answer, or "
             "another max_correspondence_distance") from None

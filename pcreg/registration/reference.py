@@ -32,7 +32,7 @@ from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, W
 from .inputs import backend_inputs
 from .kdtree import KDTreeIndex
 from .nn import GridIndex
-from .normal_steps import RECENTRE, estimate_point_to_line, estimate_point_to_plane
+from .normal_steps import RECENTRE, estimate_point_to_line, estimate_point_to_plane, normals_problem
 from .result import IcpIteration, RegistrationResult
 from .transforms import apply, check_model
 
@@ -200,6 +200,27 @@ def check_progress(start: tuple[float, float], end: RegistrationResult, max_dist
             f"{last:.4g} at the end; fitness {end.fitness:.3g}, inlier RMSE {end.inlier_rmse:.4g}); its linearised "
             "steps overshoot where the surface curves within the correspondence distance: try "
             "metric='point_to_point', or an init nearer the answer")
+
+
+def check_paired_normals(T: np.ndarray, source: np.ndarray, target: np.ndarray, target_normals: np.ndarray | None,
+                         max_distance: float, metric: str) -> None:
+    """Raise :class:`RegistrationError` when, at the result ``T``, the normals of the target points the source is
+    paired with (within ``max_distance``) leave a direction free (:func:`normals_problem`): the linearised steps
+    cannot fix the motion along it, and where it is free they stop and call it converged. The target's normals as
+    a whole are checked when the run starts; this is for pairs that reach only part of them.
+
+    A cylinder's side paired while the floor beneath it lies beyond the correspondence distance: the reference
+    step's 6x6 system is singular, its step the identity, and the run "converged" after one iteration where it
+    started (inlier RMSE 0.199; Open3D's moved across the axis and left the motion along it at 0)."""
+    if metric not in LINEARISED_METRICS or target_normals is None:
+        return
+    _, idx = KDTreeIndex(target).nearest(apply(T, source), max_distance)
+    why = normals_problem(target_normals[np.unique(idx[idx >= 0])])
+    if why is not None:
+        raise RegistrationError(f"registration refused: at the result, the target points the source is paired with "
+                                f"have normals that cannot fix the motion ({why}); give target points whose "
+                                "normals point every way within the correspondence distance, or "
+                                "metric='point_to_point'")
 
 
 _MOMENT_MODELS = ("translation", "rigid", "similarity")

@@ -16,6 +16,7 @@ import pytest
 import pcreg
 from pcreg.cli import main
 from pcreg.export import read_labels, read_run
+from _runs import in_a_terminal
 
 NAMES = {"ground": 0, "obstacle": 1, "unknown": 2}  # the archive's names -> pcreg's class ids (LAGR's table)
 
@@ -430,39 +431,10 @@ def test_a_label_file_that_is_no_regular_file_is_said_to_be_one_not_missing(run_
     assert not (run_copy / "export-cvat-mask.zip").exists()
 
 
-def _in_a_terminal(args: list[str]) -> tuple[int, str]:
-    """``python -m pcreg ARGS`` with its stdout and stderr a terminal 100 columns wide, as a person runs it:
-    its exit code and everything the terminal received."""
-    import fcntl
-    import os
-    import pty
-    import struct
-    import subprocess
-    import sys
-    import termios
-
-    leader, follower = pty.openpty()
-    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 100, 0, 0))
-    p = subprocess.Popen([sys.executable, "-m", "pcreg", *args], stdin=subprocess.DEVNULL, stdout=follower,
-                         stderr=follower, close_fds=True)
-    os.close(follower)
-    seen = b""
-    while True:
-        try:
-            chunk = os.read(leader, 65536)
-        except OSError:  # EIO: the program ended and closed the terminal
-            break
-        if not chunk:
-            break
-        seen += chunk
-    os.close(leader)
-    return p.wait(timeout=120), seen.decode("utf-8", "replace")
-
-
 def test_an_export_shows_its_progress_on_a_terminal(run_copy):
     """An export reads and writes every frame the run labelled (minutes for hours of video): on a terminal it
     draws a frames bar, as `pcreg run` does, and says nothing more when its output is not one."""
-    rc, seen = _in_a_terminal(["export", str(run_copy), "--to", str(run_copy / "a.zip")])
+    rc, seen = in_a_terminal(["export", str(run_copy), "--to", str(run_copy / "a.zip")])
     assert rc == 0 and "frames:" in seen and "/4 [" in seen, seen  # tqdm's "frames:   0%|...| 0/4 [00:00<?"
     piped = _piped_export(run_copy)
     assert "frames" not in piped.stderr and "%|" not in piped.stderr, piped.stderr

@@ -1,6 +1,6 @@
 """What the tests of `pcreg run` share: its one-line errors, its steps without their clocks, a run killed
 after a frame's files were written but before run.json counted it, a run killed at its n-th commit, and a
-folder of frames to run on, and small drifting frames with their key labels."""
+folder of frames to run on, small drifting frames with their key labels, and a command run in a terminal."""
 
 from __future__ import annotations
 
@@ -115,3 +115,33 @@ def drifting_frames(folder, shape=(48, 64), n=4, seed=0):
     labels = (np.arange(h)[:, None] * np.ones((1, w)) > h / 2).astype(np.uint8)
     cv2.imwrite(str(folder.parent / "key.png"), labels)
     return folder, folder.parent / "key.png"
+
+
+def in_a_terminal(args: list[str]) -> tuple[int, str]:
+    """``python -m pcreg ARGS`` with its stdout and stderr a terminal 100 columns wide, as a person runs it:
+    its exit code and everything the terminal received."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import subprocess
+    import sys
+    import termios
+
+    leader, follower = pty.openpty()
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 100, 0, 0))
+    p = subprocess.Popen([sys.executable, "-m", "pcreg", *args], stdin=subprocess.DEVNULL, stdout=follower,
+                         stderr=follower, close_fds=True)
+    os.close(follower)
+    seen = b""
+    while True:
+        try:
+            chunk = os.read(leader, 65536)
+        except OSError:  # EIO: the program ended and closed the terminal
+            break
+        if not chunk:
+            break
+        seen += chunk
+    os.close(leader)
+    return p.wait(timeout=120), seen.decode("utf-8", "replace")
+

@@ -16,6 +16,7 @@ import pytest
 import pcreg
 from pcreg.cli import main
 from pcreg.export import read_labels, read_run
+from _runs import in_a_terminal
 
 NAMES = {"ground": 0, "obstacle": 1, "unknown": 2}  # the archive's names -> pcreg's class ids (LAGR's table)
 
@@ -428,3 +429,21 @@ def test_a_label_file_that_is_no_regular_file_is_said_to_be_one_not_missing(run_
     err = _refused([str(run_copy)], capsys, f"{path}: {said}")
     assert "missing" not in err
     assert not (run_copy / "export-cvat-mask.zip").exists()
+
+
+def test_an_export_shows_its_progress_on_a_terminal(run_copy):
+    """An export reads and writes every frame the run labelled (minutes for hours of video): on a terminal it
+    draws a frames bar, as `pcreg run` does, and says nothing more when its output is not one."""
+    rc, seen = in_a_terminal(["export", str(run_copy), "--to", str(run_copy / "a.zip")])
+    assert rc == 0 and "frames:" in seen and "/4 [" in seen, seen  # tqdm's "frames:   0%|...| 0/4 [00:00<?"
+    piped = _piped_export(run_copy)
+    assert "frames" not in piped.stderr and "%|" not in piped.stderr, piped.stderr
+
+
+def _piped_export(run_copy):
+    """``pcreg export`` with its stderr a pipe, as a script runs it."""
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "pcreg", "export", str(run_copy), "--to", str(run_copy / "b.zip")],
+                          capture_output=True, text=True, timeout=120)

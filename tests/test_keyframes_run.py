@@ -13,7 +13,7 @@ import pytest
 import pcreg
 from pcreg.cli import main
 from pcreg.classification.metrics import error_rate
-from _runs import kill_at_commit, one_line_errors, timeless
+from _runs import in_a_terminal, kill_at_commit, one_line_errors, timeless
 from pcreg.export import read_labels
 
 
@@ -306,3 +306,15 @@ def test_a_run_whose_every_frame_is_a_key_frame_says_so(tmp_path, frames, folder
     assert main(["run", str(folder), "--labels", str(keys), "--out", str(out)]) == 0
     assert f"every frame is a key frame ({len(frames)})" in capsys.readouterr().out
     np.testing.assert_array_equal(_labels(out, "f3"), frames[3].labels)
+
+
+def test_the_bar_counts_the_forward_pass_between_two_key_frames(folder, frames, tmp_path):
+    """Between two key frames a forward pass keeps each frame's prior before the backward pass labels any: the
+    bar sat at 0 through it (half the run: 5.6 s of 10.6 over 146 frames of CamVid) and then guessed 13 minutes
+    left. It counts the forward steps too: 4 frames between key frames 0 and 5, 8 steps."""
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for k in (0, 5):
+        cv2.imwrite(str(keys / f"f{k}.png"), frames[k].labels)
+    rc, seen = in_a_terminal(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out")])
+    assert rc == 0 and "steps:" in seen and "/8 [" in seen and "/4 [" not in seen, seen

@@ -35,6 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .._runner import progress
     from ..classes.table import listed_name
     from ..export import default_name, labelled_frames, read_run, write_cvat_mask_archive
     from ..formats import resolved
@@ -52,8 +53,11 @@ def run(args: argparse.Namespace) -> int:
     if to != resolved(default) and folder in to.parents and dest.suffix.lower() != ".zip":
         raise OutputError(f"--to {dest}: inside the run's own folder and not a .zip; the archive would replace one "
                           "of the run's files (choose a .zip name or another folder)")
-    # written as the frames are read and checked, in a temporary file that takes dest's place once all are
-    counts = write_cvat_mask_archive(dest, labelled_frames(run_labels, args.min_confidence), table)
+    # written as the frames are read and checked, in a temporary file that takes dest's place once all are;
+    # a bar on a terminal: a run of hours of video takes minutes to export
+    with progress(labelled_frames(run_labels, args.min_confidence), total=len(run_labels.names),
+                  desc="frames", disable=None) as frames:
+        counts = write_cvat_mask_archive(dest, frames, table)
     shown = [f"{listed_name(c.name)} in {counts[c.name]}" for c in table.known if counts[c.name]]
     absent = sum(1 for c in table.known if not counts[c.name])
     print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {listed(shown)}"

@@ -60,6 +60,7 @@ class KeyRun:
         self.n = len(self.frames) if self.frames.kind == "folder" else None
         self.plan = stretches(self.keys, self.n)
         self.labelled = 0
+        self.on_step: Callable[[], None] | None = None
         #: Whether the stretches' kept files are compressed (:mod:`pcreg.runs.kept`), for the whole run.
         self.compress = True
         self._fingerprints: dict[Stretch, str] = {}
@@ -125,12 +126,27 @@ class KeyRun:
 
     # -- the run ---------------------------------------------------------------------------------------
 
-    def run(self, on_frame: Callable | None = None, check: Callable[[], None] = lambda: None) -> int:
+    def forward_steps_left(self) -> int:
+        """How many steps the forward passes of the stretches between two key frames not done yet still take
+        (they label no frame: a progress bar counts them beside the frames)."""
+        done = {e["fingerprint"] for e in self.state["stretches"]}
+        cur, left = self.state["cursor"], 0
+        for s in self.plan:
+            if s.first is None or s.last is None or self.fingerprint(s) in done:
+                continue
+            left += s.last - s.first - 1
+            if cur is not None and cur["fingerprint"] == self.fingerprint(s) and cur["phase"] != "store":
+                left -= s.last - s.first - 1 if cur["phase"] == "backward" else (cur["next"] or s.first + 1) - s.first - 1
+        return left
+
+    def run(self, on_frame: Callable | None = None, check: Callable[[], None] = lambda: None,
+            on_step: Callable[[], None] | None = None) -> int:
         """Label every stretch not done yet; returns how many frames this call labelled. ``on_frame(t,
         image, labels, report, name, size, reference=IMAGE)`` after each frame (``size``: the propagator's working
         size; ``reference``: the image the frame was registered to, the pass's key frame or the frame before it
-        in the pass, None when not at hand); ``check()`` before each step (an interruption)."""
-        self.on_frame, self.check = on_frame, check
+        in the pass, None when not at hand); ``on_step()`` after each step of a forward pass between two key
+        frames (:meth:`forward_steps_left`), which labels no frame; ``check()`` before each step (an interruption)."""
+        self.on_frame, self.check, self.on_step = on_frame, check, on_step
         done = {e["fingerprint"] for e in self.state["stretches"]}
         for s in self.plan:
             fp = self.fingerprint(s)
@@ -270,6 +286,8 @@ class KeyRun:
                 weight = None if prop.classes is None else weight_sum(report.trust)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
                               prop.learned_later(), weight)
+                if self.on_step is not None:
+                    self.on_step()
 
     def _keep_prior(self, cur: dict, t: int, prior: np.ndarray, fallback: bool, carry, learned,
                     weight: np.ndarray | None = None) -> None:

@@ -227,12 +227,14 @@ class Run:
             self.name_recording(request.record)
             n = len(frames) if frames.kind == "folder" else frames.count()
             left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run
-            with progress(total=left, desc="frames", disable=None) as bar:
+            forward = job.forward_steps_left()  # the forward passes between two key frames label no frame
+            with progress(total=None if left is None else left + forward, desc="steps" if forward else "frames",
+                          disable=None) as bar:
                 def on_frame(t, image, labels, report, name, size, reference=None) -> None:
                     log_frame(rec, t, image, labels, report, name, size, reference=reference)
                     tick(bar)
 
-                done = job.run(on_frame=on_frame, check=check_interrupted)
+                done = job.run(on_frame=on_frame, check=check_interrupted, on_step=lambda: tick(bar))
             self._say_done(request, done, sorted(keys))
 
     def _say_done(self, request: RunRequest, done: int, keys: list[int], *, start: int | None = None) -> None:

@@ -264,3 +264,28 @@ def test_bench_keys_disk_reads_back_every_way_and_reports_its_size(tmp_path, sha
         chosen = next(size for way, size in sizes.items() if "chosen" in way)
         assert chosen < next(size for way, size in sizes.items() if "before" in way)
     assert "the rule: the smallest" in (out / "bench_keys_disk.md").read_text()
+
+
+def test_resize_clips_keeps_the_layout_and_the_class_ids(tmp_path):
+    import cv2
+    import numpy as np
+
+    resize = _load("resize_clips")
+    clip = tmp_path / "src" / "clip1"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (36, 48, 3), dtype=np.uint8)
+    labels = np.zeros((36, 48), np.uint8)
+    labels[:, 24:] = 3
+    labels[10:20, 5:15] = 7
+    cv2.imwrite(str(clip / "images" / "f1.png"), image)
+    cv2.imwrite(str(clip / "labels" / "f1.png"), labels)
+    assert resize.resize_root(tmp_path / "src", tmp_path / "up", (96, 72)) == 2
+    assert resize.resize_root(tmp_path / "src", tmp_path / "down", (24, 18)) == 2
+    up_image = cv2.imread(str(tmp_path / "up" / "clip1" / "images" / "f1.png"))
+    up_labels = cv2.imread(str(tmp_path / "up" / "clip1" / "labels" / "f1.png"), cv2.IMREAD_UNCHANGED)
+    down_labels = cv2.imread(str(tmp_path / "down" / "clip1" / "labels" / "f1.png"), cv2.IMREAD_UNCHANGED)
+    assert up_image.shape == (72, 96, 3) and up_labels.shape == (72, 96) and down_labels.shape == (18, 24)
+    assert set(np.unique(up_labels)) == {0, 3, 7} and set(np.unique(down_labels)) <= {0, 3, 7}  # ids, not blends
+    assert np.array_equal(up_labels[::2, ::2], labels)  # nearest: each label doubled

@@ -170,3 +170,14 @@ def test_a_stream_recording_draws_each_frame_over_its_key_frame(tmp_path):
     for counter, t in enumerate((1, 2, 3)):  # the recording's frames count the scored frames
         np.testing.assert_array_equal(image(rec.reference(counter)), frames[0].image)
         np.testing.assert_array_equal(image(rec.moving(counter)), frames[t].image)
+
+
+def test_the_confidence_check_says_the_error_rate_and_the_share_of_the_errors():
+    """The check read "carry at most a third of the error" while it compared error rates: 0.383 of the rate is
+    0.306 of the errors (80% of the pixels), which the line now says beside it."""
+    from pcreg.experiments.reports.stream import _calibration_checks
+
+    cal = {"pixels": 1000, "ece": 0.004, "error": 13.68, "error_top80": 5.24, "top80_ratio": 5.24 / 13.68}
+    line = _calibration_checks({"calibration": cal})[1]
+    assert "at most a third of the error rate of all: NOT met" in line, line
+    assert "0.383; they hold 0.306 of the errors" in line, line

@@ -59,9 +59,9 @@ def _calibration_checks(results: dict) -> list[str]:
         return ["- pcreg's confidence: no scored pixel"]
     return [f"- pcreg's confidence is calibrated (expected calibration error <= 0.02 over all known pixels): "
             f"{'met' if cal['ece'] <= 0.02 else 'NOT met'} ({cal['ece']:.4f})",
-            f"- the most confident 80% of known pixels carry at most a third of the error of all: "
+            f"- the most confident 80% of known pixels have at most a third of the error rate of all: "
             f"{'met' if cal['top80_ratio'] <= 1 / 3 else 'NOT met'} ({cal['error_top80']:.2f}% against "
-            f"{cal['error']:.2f}%, {cal['top80_ratio']:.3f})"]
+            f"{cal['error']:.2f}%, {cal['top80_ratio']:.3f}; they hold {0.8 * cal['top80_ratio']:.3f} of the errors)"]
 
 
 def checks(results: dict) -> str:

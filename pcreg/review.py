@@ -476,7 +476,7 @@ def _encoder() -> str:
 
 
 def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | None = None,
-                        note: Callable[[str], None] | None = None) -> int:
+                        note: Callable[[str], object] | None = None) -> int:
     """Every frame of ``review`` with its labels drawn over it and its legend drawn in (:func:`video_frame`) as
     an MP4 at ``path`` of the frames' size (H.264; written to a temporary file beside it, then renamed); frames
     of odd size are padded by a pixel. ``fps``: frames per second (default: a video's own rate, divided by the

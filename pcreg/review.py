@@ -5,7 +5,9 @@
 error and the frames suggested to label next. :class:`FrameImages` reads the frames themselves from the
 run's source, a folder of images or a video. :func:`overlay` draws one frame's labels over it (each
 class in its colour of the run's class table, :mod:`pcreg.classes`; unknown left clear) and, with its confidence, hatches the pixels whose label is
-less sure than :data:`LOW_CONFIDENCE`. :func:`write_overlay_video` writes every frame so drawn as a video.
+less sure than :data:`LOW_CONFIDENCE`. :func:`write_overlay_video` writes every frame so drawn as a video, of the
+frames' size, each with a legend drawn in (:func:`video_frame`, :mod:`pcreg.legend`): its name, its classes, the
+hatching.
 
 A video is read in decoding order, never by seeking (as :mod:`pcreg.datasets.sources` reads it), so
 that frame ``i`` is the run's frame ``i``. For a page that jumps about a long video,
@@ -19,15 +21,17 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
 from .formats import loads_json
+from .legend import Legend, draw_legend
 
 __all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay",
-           "FrameImages", "write_overlay_video"]
+           "FrameImages", "video_frame", "write_overlay_video"]
 
 #: A label is marked unsure where its confidence (the probability that it is right) is below this.
 LOW_CONFIDENCE = 0.7
@@ -211,9 +215,14 @@ def overlay(image: np.ndarray, labels: np.ndarray, confidence: np.ndarray | None
         hatch = ((xx + yy) % 8 < 3) & (confidence.astype(np.float32) < low * 255.0) & (labels != table.unknown)
         out[hatch] *= 0.3
     if key:
-        b = max(2, min(labels.shape) // 60)
+        b = _border(labels.shape)
         out[:b], out[-b:], out[:, :b], out[:, -b:] = (59, 130, 246), (59, 130, 246), (59, 130, 246), (59, 130, 246)
     return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+def _border(shape: tuple[int, ...]) -> int:
+    """The width in pixels of a key frame's blue frame in a frame of ``shape``."""
+    return max(2, min(shape[:2]) // 60)
 
 
 def class_figures(review: RunReview, t: int) -> list[dict]:
@@ -260,6 +269,25 @@ def shown_classes(review: RunReview) -> list[int]:
 
 def read_overlay(review: RunReview, t: int, image: np.ndarray) -> np.ndarray:
     """Frame ``t`` of ``review`` (its ``image``, RGB) with its labels and confidence drawn over it."""
+    labels, conf = _frame_labels(review, t, image)
+    return overlay(image, labels, conf, key=t in review.keys, table=review.table)
+
+
+def video_frame(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarray, Legend]:
+    """Frame ``t`` of ``review`` as the overlay video shows it: :func:`read_overlay`'s picture with its legend
+    drawn in (:func:`pcreg.legend.draw_legend`: the frame's name, the classes its labels show, the hatching
+    when a label is hatched), and where the legend went."""
+    labels, conf = _frame_labels(review, t, image)
+    drawn = overlay(image, labels, conf, key=t in review.keys, table=review.table)
+    unsure = conf is not None and bool(((conf.astype(np.float32) < LOW_CONFIDENCE * 255.0)
+                                        & (labels != review.table.unknown)).any())
+    title = review.names[t] if review.kind == "folder" else f"frame {review.names[t]}"
+    return draw_legend(drawn, labels, title=title + (" (key frame)" if t in review.keys else ""), table=review.table,
+                       hatched_below=LOW_CONFIDENCE if unsure else None, inset=_border(labels.shape))
+
+
+def _frame_labels(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Frame ``t``'s labels (H, W) and its confidence map (None: the run has none for it), read from the run."""
     import cv2
 
     from .export import read_labels
@@ -275,7 +303,7 @@ def read_overlay(review: RunReview, t: int, image: np.ndarray) -> np.ndarray:
         conf = read_image_file(conf_path, flags=cv2.IMREAD_UNCHANGED)
         if conf.ndim != 2 or conf.dtype != np.uint8 or conf.shape != labels.shape:
             raise InputError(f"{conf_path}: not a confidence map of {review.labels_path(t).name}'s size")
-    return overlay(image, labels, conf, key=t in review.keys, table=review.table)
+    return labels, conf
 
 
 class FrameImages:
@@ -447,12 +475,14 @@ def _encoder() -> str:
     return "libx264"
 
 
-def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | None = None) -> int:
-    """Every frame of ``review`` with its labels drawn over it (:func:`overlay`) as an MP4 at ``path``
-    (H.264; written to a temporary file beside it, then renamed); frames of odd size are padded by a
-    pixel. ``fps``: frames per second (default: a video's own rate, divided by the run's ``--every``;
-    10 for a folder). The source is read straight through, once. A run whose video skips frames by its times says
-    so in the video's comment (:meth:`RunReview.gaps_note`). Returns the number of frames written."""
+def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | None = None,
+                        note: Callable[[str], object] | None = None) -> int:
+    """Every frame of ``review`` with its labels drawn over it and its legend drawn in (:func:`video_frame`) as
+    an MP4 at ``path`` of the frames' size (H.264; written to a temporary file beside it, then renamed); frames
+    of odd size are padded by a pixel. ``fps``: frames per second (default: a video's own rate, divided by the
+    run's ``--every``; 10 for a folder). The source is read straight through, once. A run whose video skips frames
+    by its times says so in the video's comment (:meth:`RunReview.gaps_note`). ``note`` is told, once, when a
+    frame is too small for its classes' legend (it shows its name alone). Returns the number of frames written."""
     import os
     import tempfile
     from fractions import Fraction
@@ -476,9 +506,14 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
             if review.gaps_note():
                 container.metadata["comment"] = review.gaps_note()
             stream = None
+            small = False
             for t, image in images.frames():
-                drawn = read_overlay(review, t, image)
+                drawn, legend = video_frame(review, t, image)
                 h, w = drawn.shape[:2]
+                if not legend.complete and not small and note is not None:
+                    note(f"{path}: frame {review.names[t]} ({w}x{h}) is too small for the legend of its classes: "
+                         "such frames show their name alone")
+                small = small or not legend.complete
                 if stream is None:
                     stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1000))
                     stream.width, stream.height = w + w % 2, h + h % 2

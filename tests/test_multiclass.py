@@ -462,3 +462,26 @@ def test_an_interrupted_eleven_class_run_from_a_key_folder_resumes_to_the_same_b
     assert ([timeless(x) for x in (whole / "steps.jsonl").read_text().splitlines()]
             == [timeless(x) for x in (cut / "steps.jsonl").read_text().splitlines()])
     assert names[1] in {p.name for p in whole.glob("*.png")}
+
+
+def test_evaluate_stream_prints_the_miou_table(shared_data, tmp_path, capsys):
+    """With ``--classes`` the command prints the mIoU table (its headline) after the error table, as written to
+    OUT/stream_miou.md (three frames of a clip, two key frames)."""
+    import shutil
+
+    from pcreg.cli import main
+
+    clip = tmp_path / "data" / "0001TP"
+    source = shared_data / "camvid" / "0001TP"
+    for part in ("images", "labels"):
+        (clip / part).mkdir(parents=True)
+        for p in sorted((source / part).iterdir())[:3]:
+            shutil.copy(p, clip / part / p.name)
+    out = tmp_path / "ev"
+    assert main(["evaluate", "stream", "--data", f"camvid:{clip.parent}", "--frames", "3", "--keys", "spaced:2",
+                 "--classes", "camvid11", "--methods", "plain", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    errors, miou = (out / "stream_reference.md").read_text(), (out / "stream_miou.md").read_text()
+    assert "mIoU" in miou and "0001TP" in miou
+    assert errors in printed and miou in printed
+    assert printed.index(errors) < printed.index(miou) < printed.index((out / "checks.md").read_text())

@@ -341,12 +341,12 @@ def test_the_overlay_video_has_every_frame(which, encoder, fps, request, tmp_pat
         assert float(stream.average_rate) == float(fps or (12 if which == "video_out" else 10))  # the video's own, or 10
         frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
     assert len(frames) == N and all(f.shape == (120, 160, 3) for f in frames)
-    # what the page shows, up to the video's compression
-    from pcreg.review import FrameImages, read_overlay, read_review
+    # what the page shows, with the frame's legend drawn in, up to the video's compression
+    from pcreg.review import FrameImages, read_review, video_frame
 
     review = read_review(out)
     with FrameImages(review, tmp_path / "cache") as images:
-        drawn = read_overlay(review, 2, images[2]).astype(int)
+        drawn = video_frame(review, 2, images[2])[0].astype(int)
     assert np.abs(frames[2].astype(int) - drawn).mean() < 8
     assert pcreg_view([str(out), "--overlay", str(video)]) == 2
     assert "exists" in one_line_error(capsys)

@@ -242,9 +242,11 @@ def check_out_beside_data(out: Path, data: str | None) -> None:
                           "frames or labels and be read as ones; choose a folder outside it")
 
 
-def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, write_outputs) -> int:
-    """The shared body of ``pcreg evaluate rotation|sequence``: run (recording in this process, else with
-    ``--workers``/``--scheduler``), write the outputs, print the first backend's table and the checks."""
+def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, write_outputs,
+                also: tuple[str, ...] = ()) -> int:
+    """The shared body of ``pcreg evaluate rotation|sequence|stream``: run (recording in this process, else with
+    ``--workers``/``--scheduler``), write the outputs, print the first backend's table, then each table of ``also``
+    (``NAME`` of ``OUT/NAME.md``) that this run wrote, then the checks."""
     from .._runner import make_executor
     from ..outputs import OutputLock
 
@@ -260,5 +262,8 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
         written = write_outputs(results, out)
     print(f"wrote {len(written)} files to {out}")
     print((out / f"{name}_{config.backends[0]}.md").read_text(), end="")
+    for table in (out / f"{t}.md" for t in also):
+        if table in written:
+            print(table.read_text(), end="")
     print((out / "checks.md").read_text(), end="")
     return 0

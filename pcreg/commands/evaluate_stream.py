@@ -94,4 +94,6 @@ def run(args: argparse.Namespace) -> int:
 
         path, split = parse_davis_arg(args.data.partition(":")[2])
         print(f"DAVIS: {select_sequences(path, split=split)[2].describe()}")
-    return run_command(args, config_from_args(args), name="stream", evaluate=evaluate, write_outputs=write_outputs)
+    # with --classes the mIoU (OUT/stream_miou.md) is the headline, printed after the error table
+    return run_command(args, config_from_args(args), name="stream", evaluate=evaluate, write_outputs=write_outputs,
+                       also=("stream_miou",))

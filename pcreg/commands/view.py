@@ -20,7 +20,8 @@ headless (:func:`pcreg.recording.viewer.screenshot`) and saves the picture.
 ``pcreg view RUN_OUT --web`` (a ``pcreg run`` output, recognised by its run.json) serves the review page
 (:mod:`pcreg.recording.review`): every frame of the run with its labels drawn over it, the unsure
 labels hatched, the key frames marked, the predicted error per frame and the suggested frames.
-``pcreg view RUN_OUT --overlay FILE.mp4`` writes the same frames as a video (:func:`pcreg.review.write_overlay_video`).
+``pcreg view RUN_OUT --overlay FILE.mp4`` writes the same frames as a video of their size, each with its legend drawn
+in (:func:`pcreg.review.write_overlay_video`, :mod:`pcreg.legend`).
 A run whose video skips frames by its times (run.json's ``gaps``) is said on stderr, on the page and in the
 overlay video's comment: its frames are numbered by count, so the run's frame N is not frame N of the file.
 
@@ -88,7 +89,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--viewer", metavar="PATH", help="the rerun program (default: the one installed with rerun-sdk)")
     parser.add_argument("--timeout", type=arg_float(0, 86400, lo_open=True), default=60.0, help="seconds to wait for the viewer (default 60)")
     parser.add_argument("--overlay", metavar="FILE.mp4",
-                        help="for a pcreg run output: write its frames with their labels drawn over them as a video")
+                        help="for a pcreg run output: write its frames with their labels drawn over them as a video, "
+                             "each with a legend of its name and classes")
     parser.add_argument("--fps", type=arg_float(0, 1000, lo_open=True), default=None,
                         help="frames per second of the --overlay video (default: a video's own, 10 for a folder of frames)")
     parser.add_argument("--force", action="store_true", help="overwrite OUT.png (or the --overlay video)")
@@ -290,7 +292,7 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     if damaged:
         sys.stderr.write(f"pcreg: note: {damaged}\n")
     if args.overlay:
-        n = write_overlay_video(review, out, fps=args.fps)
+        n = write_overlay_video(review, out, fps=args.fps, note=lambda line: sys.stderr.write(f"pcreg: note: {line}\n"))
         print(f"wrote {out}: {n} frame(s) of {folder} with their labels")
         return 0
     with ReviewServer(review, bind=args.bind, web_port=args.web_port) as server:

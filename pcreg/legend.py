@@ -1,0 +1,127 @@
+"""The legend drawn inside each frame of the overlay video (``pcreg view RUN --overlay OUT.mp4``).
+
+The video is the frames' own size (runs are compared frame by frame), so the legend is drawn over the frame,
+in a box at its bottom-left corner, inside the blue frame of a key frame: the frame's name (and whether it is a
+key frame), then each class that frame's labels show (a swatch of the class's colour of the run's class table
+and its name, in the table's order) and, when the frame has unsure labels, what the hatching means. The rows'
+height follows the frame's (:func:`row_height`): a 320x240 frame's text is 9 px high. A frame where the classes
+would not fit (the box over half its height, or one entry wider than the frame) gets its name alone
+(:attr:`Legend.complete` False).
+
+Drawn with OpenCV (Hershey font: ASCII; another character is drawn as ``?``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .classes import ClassTable
+
+__all__ = ["Legend", "row_height", "draw_legend"]
+
+Box = tuple[int, int, int, int]  # x0, y0, x1, y1: the pixels x0 <= x < x1, y0 <= y < y1
+
+#: How much of the frame stays under the legend's box (the rest is black), so its white text reads on any frame.
+SHADE = 0.3
+TEXT = (240, 240, 240)
+#: The swatch of the hatching: a mid grey, hatched as :func:`pcreg.review.overlay` hatches.
+HATCH_GREY = (160, 160, 160)
+
+
+@dataclass(frozen=True)
+class Legend:
+    """Where a frame's legend was drawn: ``box`` the box it covers (the frame unchanged outside it);
+    ``swatches`` each class listed, ``(class id, box)``, in the order listed (its colour fills the box);
+    ``hatch`` the hatching's swatch (None: not listed); ``complete`` False when the frame was too small
+    for the classes and only its name is drawn."""
+
+    box: Box
+    swatches: tuple[tuple[int, Box], ...]
+    hatch: Box | None
+    complete: bool
+
+
+def row_height(shape: tuple[int, ...]) -> int:
+    """The height in pixels of a legend row in a frame of ``shape`` (H, W, ...): 1/24 of the frame's height,
+    13 at least (a 9 px text), 36 at most."""
+    return int(np.clip(shape[0] // 24, 13, 36))
+
+
+def _ascii(text: str) -> str:
+    return "".join(ch if " " <= ch <= "~" else "?" for ch in text)
+
+
+def _layout(shape: tuple[int, ...], title: str, items: list[str], *, inset: int) -> tuple[str, list, Box, bool]:
+    """Where each of ``title`` and ``items`` goes: ``(title, places, box, complete)``, the title cut to the
+    frame's width, ``places`` one ``(x, y)`` of each entry's top-left (the title's first), the items flowed into
+    rows; without room for the items, the title's place alone and ``complete`` False."""
+    import cv2
+
+    h, w = shape[:2]
+    lh = row_height(shape)
+    pad, swatch = max(2, lh // 5), round(0.7 * lh)
+    scale = cv2.getFontScaleFromHeight(cv2.FONT_HERSHEY_SIMPLEX, swatch, 1)
+    inner = w - 2 * inset - 2 * pad
+
+    def width(text: str) -> int:
+        return cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
+
+    while len(title) > 3 and width(title) > inner:  # a long name cut at its start: its end tells frames apart
+        title = ".." + title[3:]
+    places, x, y, widest = [(0, 0)], 0, 0, min(width(title), inner)
+    for text in items:
+        item = swatch + pad + width(text)
+        if x and x + item > inner:
+            x = 0
+        if x == 0:
+            y += lh
+        places.append((x, y))
+        x += item + lh // 2
+        widest = max(widest, x - lh // 2)
+    complete = widest <= inner and (y + lh + 2 * pad) <= h // 2
+    if not complete:
+        places, y, widest = places[:1], 0, min(width(title), inner)
+    x0, y1 = inset, h - inset
+    box = (x0, max(0, y1 - y - lh - 2 * pad), min(w, x0 + widest + 2 * pad), y1)
+    return title, [(box[0] + pad + px, box[1] + pad + py) for px, py in places], box, complete
+
+
+def draw_legend(image: np.ndarray, labels: np.ndarray, *, title: str, table: ClassTable,
+                hatched_below: float | None = None, inset: int = 0) -> tuple[np.ndarray, Legend]:
+    """``image`` (H, W, 3) uint8 RGB, a frame with ``labels`` (H, W) drawn over it, with its legend drawn in:
+    ``title`` (the frame's name), the known classes of ``table`` that ``labels`` holds, and, when some label
+    is hatched as unsure, what the hatching means: ``hatched_below``, the confidence below which a label is
+    hatched (None: no label is). ``inset``: pixels kept clear at the frame's edge (a key frame's border).
+    Returns a new image and where the legend went."""
+    import cv2
+
+    present = np.bincount(labels.ravel(), minlength=256) > 0
+    shown = [c for c in table.known if present[c.id]]
+    items = [_ascii(c.name) for c in shown] + (
+        [] if hatched_below is None else [f"hatched: confidence < {hatched_below:.0%}"])
+    title, places, (x0, y0, x1, y1), complete = _layout(image.shape, _ascii(title), items, inset=inset)
+    lh = row_height(image.shape)
+    swatch = round(0.7 * lh)
+    scale = cv2.getFontScaleFromHeight(cv2.FONT_HERSHEY_SIMPLEX, swatch, 1)
+    out = image.copy()
+    out[y0:y1, x0:x1] = (out[y0:y1, x0:x1] * SHADE + 0.5).astype(np.uint8)
+    swatches, hatch = [], None
+    for k, (x, y) in enumerate(places):
+        text = title if k == 0 else items[k - 1]
+        if k > 0:
+            box = (x, y + (lh - swatch) // 2, x + swatch, y + (lh - swatch) // 2 + swatch)
+            if k <= len(shown):
+                out[box[1]:box[3], box[0]:box[2]] = shown[k - 1].colour
+                swatches.append((shown[k - 1].id, box))
+            else:
+                yy, xx = np.mgrid[0:swatch, 0:swatch]
+                out[box[1]:box[3], box[0]:box[2]] = np.where(((xx + yy) % 8 < 3)[..., None],
+                                                             (np.asarray(HATCH_GREY) * 0.3).astype(np.uint8), HATCH_GREY)
+                hatch = box
+            x += swatch + max(2, lh // 5)
+        baseline = y + (lh + swatch) // 2
+        cv2.putText(out, text, (x, baseline), cv2.FONT_HERSHEY_SIMPLEX, scale, TEXT, 1, cv2.LINE_AA)
+    out[:y0], out[y1:], out[:, :x0], out[:, x1:] = image[:y0], image[y1:], image[:, :x0], image[:, x1:]
+    return out, Legend((x0, y0, x1, y1), tuple(swatches), hatch, complete)

@@ -40,6 +40,9 @@ def test_evaluate_stream_on_davis_scores_j_and_f_beside_the_published_methods(tm
     assert "davisvideochallenge.github.io" in d["published"]["source"]
     table = (out / "davis_J.md").read_text()
     assert "| blackswan | 3 |" in table and "OSVOS" in table and "davisvideochallenge.github.io" in table
+    said = capsys.readouterr().out  # the benchmark's J and F printed after the error table, before the checks
+    at = [said.find(t) for t in ("### Labelling a stream", table.splitlines()[0], "### DAVIS: F", "### Checks")]
+    assert -1 not in at and at == sorted(at), said
     header = (out / "davis_F.csv").read_text().splitlines()[0]
     assert header.startswith("sequence,frames scored,plain,unregistered,flow_key,OSVOS,MSK")
     from pcreg.experiments.reports.page import load_report, page_data  # the report page shows them too

@@ -94,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
         path, split = parse_davis_arg(args.data.partition(":")[2])
         print(f"DAVIS: {select_sequences(path, split=split)[2].describe()}")
-    # with --classes the mIoU (OUT/stream_miou.md) is the headline, printed after the error table
+    # the headlines printed after the error table: with --classes the mIoU (OUT/stream_miou.md), on DAVIS the
+    # benchmark's J and F beside its published methods
     return run_command(args, config_from_args(args), name="stream", evaluate=evaluate, write_outputs=write_outputs,
-                       also=("stream_miou",))
+                       also=("stream_miou", "davis_J", "davis_F"))

@@ -240,6 +240,22 @@ def test_a_refusal_of_images_of_sizes_far_apart_names_their_sizes(shared_data, m
             pcreg.register(ref, mov, model=model)
 
 
+def test_a_close_up_of_the_same_size_is_refused_with_advice_that_works(shared_data):
+    """A frame and its central third brought to the frame's size (a 3x close-up, both 480x360): refused, and the
+    refusal said "resize the larger image first" of two images of one size; it says to shrink the close-up by
+    about the ratio, and the close-up so shrunk registers."""
+    img = _camvid_view(shared_data, 5, 0.0, 1.0)[0]
+    h, w = img.shape[:2]
+    close = np.ascontiguousarray(cv2.resize(img[h // 3:2 * h // 3, w // 3:2 * w // 3], (w, h),
+                                            interpolation=cv2.INTER_CUBIC))
+    with pytest.raises(pcreg.RegistrationError, match=r"if one is a close-up of the other, shrink the close-up by "
+                                                      r"about that ratio first\)$"):
+        pcreg.register(img, close, model="similarity")
+    shrunk = cv2.resize(close, (w // 3, h // 3), interpolation=cv2.INTER_AREA)
+    result = pcreg.register(img, shrunk, model="similarity")
+    assert result.matrix[0, 0] == pytest.approx(1.0, abs=0.05)  # the third-size close-up at the scene's scale
+
+
 @pytest.mark.parametrize("flip", [0, 1])
 def test_a_mirrored_photograph_is_refused_as_a_mirror_image(shared_data, flip):
     """A frame flipped left-right or upside down: its own best alignment is under the threshold, so the mirror was

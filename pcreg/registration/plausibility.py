@@ -98,7 +98,7 @@ class Plausibility:
         if sizes:
             return f"{self.model} motion{sizes}"
         return (f"{self.model} motion, or show it at scales more than about 2x apart, which the search does not "
-                f"reach (resize the larger image first)")
+                f"reach (if one is a close-up of the other, shrink the close-up by about that ratio first)")
 
     def _sizes(self, shape: tuple[int, ...] | None) -> str:
         """A note for a refusal of images whose sizes differ by more than the search's scales reach (about 2x a

@@ -359,3 +359,36 @@ def test_the_hint_for_values_beyond_the_table_follows_what_they_look_like():
     assert "--mapping davis" in mask_hint(np.array([[0, 255]], np.uint8))
     assert "--classes camvid11" in mask_hint(np.array([[0, 3, 11]], np.uint8))
     assert mask_hint(np.array([[0, 1, 2]], np.uint8)) == ""
+
+
+def _damaged_png(tmp_path, how: str) -> Path:
+    """A palette PNG of two classes with its image data's CRC flipped, or cut inside its image data."""
+    labels = np.zeros((48, 64), np.uint8)
+    labels[10:30, 10:40] = 1
+    im = Image.fromarray(labels, "P")
+    im.putpalette([0, 0, 0, 128, 0, 0] + [0] * 762)
+    path = tmp_path / f"{how}.png"
+    im.save(path)
+    data = bytearray(path.read_bytes())
+    at = data.find(b"IDAT")
+    end = at + 4 + int.from_bytes(data[at - 4:at], "big")  # the chunk's CRC
+    if how == "crc":
+        data[end] ^= 0xFF
+    else:
+        data = data[:end - 5]
+    path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("how", ["crc", "cut"])
+def test_a_damaged_palette_png_is_refused_as_key_labels_and_as_an_object_mask(tmp_path, how):
+    """Pillow, which reads palette PNGs, does not check the image data's CRC: a key mask whose IDAT CRC was damaged
+    was read as labels (OpenCV's libpng refuses the same file)."""
+    from pcreg.classes.keys import read_key_labels, read_object_mask
+
+    path = _damaged_png(tmp_path, how)
+    said = "a CRC error in its 'IDAT' chunk" if how == "crc" else "its 'IDAT' chunk runs past the end of the file"
+    with pytest.raises(InputError, match=f"{path.name}: {said}"):
+        read_key_labels(path, DAVIS)
+    with pytest.raises(InputError, match=f"{path.name}: {said}"):
+        read_object_mask(path)

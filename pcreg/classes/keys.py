@@ -88,7 +88,7 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
     several of DAVIS's palette (:func:`_colour_objects`), else its pixels that are not black as 1. A grey image
     saved in colour (three equal channels) is read as grey."""
     from ..formats import check_image_bytes, decode_image
-    from .png import check_lossless, is_palette_png
+    from .png import check_lossless, check_png_chunks, is_palette_png
 
     check_image_bytes(data, name, limit=limit)
     check_lossless(data, name)  # a JPEG's edge is values 1, 2, ...: object pixels around the object
@@ -97,6 +97,7 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
 
         from PIL import Image
 
+        check_png_chunks(data, name)
         try:
             with Image.open(io.BytesIO(data)) as im:
                 im.load()

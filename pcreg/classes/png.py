@@ -19,6 +19,7 @@ A value, or a colour, that is no class of the table is refused with one line nam
 from __future__ import annotations
 
 import io
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,23 @@ _PALETTE = 3  # IHDR colour type of an indexed PNG
 def is_palette_png(data: bytes) -> bool:
     """Whether ``data`` is a PNG whose header declares a palette (indexed colour)."""
     return len(data) >= 26 and data[:8] == _PNG_SIGNATURE and data[12:16] == b"IHDR" and data[25] == _PALETTE
+
+
+def check_png_chunks(data: bytes, name: str) -> None:
+    """An :class:`InputError` naming ``name`` when a chunk of the PNG ``data`` fails its CRC or runs past the file's
+    end. libpng (OpenCV's reader) refuses such a file; Pillow, which reads palette PNGs here, does not check the
+    image data's chunks, and read a damaged key mask as labels."""
+    at = len(_PNG_SIGNATURE)
+    while at + 12 <= len(data):
+        length = int.from_bytes(data[at:at + 4], "big")
+        kind, end = data[at + 4:at + 8], at + 12 + length
+        if end > len(data):
+            raise InputError(f"{name}: its {kind.decode('latin-1')!r} chunk runs past the end of the file (cut short?)")
+        if zlib.crc32(data[at + 4:end - 4]) != int.from_bytes(data[end - 4:end], "big"):
+            raise InputError(f"{name}: a CRC error in its {kind.decode('latin-1')!r} chunk: the file is damaged")
+        if kind == b"IEND":
+            return
+        at = end
 
 
 def encode_label_png(labels: np.ndarray, table: ClassTable) -> bytes:
@@ -75,6 +93,7 @@ def palette_image(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     show, which a conversion to RGB would make black)."""
     from PIL import Image
 
+    check_png_chunks(data, name)
     try:
         with Image.open(io.BytesIO(data)) as im:
             im.load()

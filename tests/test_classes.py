@@ -392,3 +392,24 @@ def test_a_damaged_palette_png_is_refused_as_key_labels_and_as_an_object_mask(tm
         read_key_labels(path, DAVIS)
     with pytest.raises(InputError, match=f"{path.name}: {said}"):
         read_object_mask(path)
+
+
+def test_a_palette_png_with_a_damaged_text_chunk_is_refused_naming_the_chunk(tmp_path):
+    """A tEXt chunk's CRC error (a faulty tool): Pillow refused the file as "cannot identify image file
+    <_io.BytesIO object at 0x...>"; the refusal names the chunk."""
+    from PIL import PngImagePlugin
+
+    from pcreg.classes.keys import read_key_labels
+
+    im = Image.fromarray(np.zeros((48, 64), np.uint8), "P")
+    im.putpalette([0, 0, 0, 128, 0, 0] + [0] * 762)
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", "a tool")
+    path = tmp_path / "text.png"
+    im.save(path, pnginfo=info)
+    data = bytearray(path.read_bytes())
+    at = data.find(b"tEXt")
+    data[at + 4 + int.from_bytes(data[at - 4:at], "big")] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match="text.png: a CRC error in its 'tEXt' chunk: the file is damaged"):
+        read_key_labels(path, DAVIS)

@@ -24,28 +24,46 @@ from typing import Any
 import numpy as np
 
 __all__ = ["Row", "Recording", "read_recording", "read_entities", "read_kind", "BlueprintView", "read_blueprint", "tensor",
-           "image", "segmentation", "scalar", "text", "points", "complete_length", "ended", "snapshot", "recordings_in"]
+           "image", "segmentation", "scalar", "text", "points", "complete_length", "ended", "end_stream", "snapshot", "recordings_in"]
 
 _SKIP_TIMELINES = {"log_time", "log_tick"}
 
 # The framing of an .rrd file (rerun 0.41, "RRF2"): a stream header of 12 bytes (magic, version,
 # options), then messages, each a header of two little-endian u64 (kind, payload length) and its
-# payload; kind 0 ends the stream (a finished file's footer follows it).
+# payload; kind 0 ends the stream. rerun's file sink follows it with a footer (a manifest of every chunk);
+# pcreg's recorder writes none (pcreg.recording.sink) and ends the stream with an empty kind-0 message, as
+# rerun did before footers, which its readers read by scanning the file.
 _RRD_MAGIC = b"RRF2"
 _STREAM_HEADER = 12
 _MESSAGE_HEADER = struct.Struct("<QQ")
 _END = 0
-#: Reading a file that is still being written: rerun's reader notes that it has no footer (it scans it).
+#: Reading a file with no footer (still being written, or written without one): rerun's reader notes it (and
+#: scans the file).
 _NO_FOOTER = "RRD file has no footer"
 
 
 @contextmanager
 def unfinished_files_allowed():
-    """Read recordings that may still be written without rerun's note that such a file has no footer
-    (its reader then scans the file, which is what is wanted)."""
+    """Read recordings that have no footer (still being written, or written without one) without rerun's
+    note that such a file has none (its reader then scans the file, which is what is wanted)."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=_NO_FOOTER)
         yield
+
+
+def _reader(path: str | os.PathLike) -> Any:
+    """``rerun.chunk.RrdReader`` of ``path``, which may have no footer (:func:`unfinished_files_allowed`)."""
+    from rerun.chunk import RrdReader
+
+    with unfinished_files_allowed():
+        return RrdReader(str(path))
+
+
+def end_stream(path: str | os.PathLike) -> None:
+    """End the recording ``path``, which rerun has finished writing without a footer, with the end-of-stream
+    message (an empty one, as rerun wrote before footers): what :func:`ended` tells a finished file by."""
+    with open(path, "ab") as fh:
+        fh.write(_MESSAGE_HEADER.pack(_END, 0))
 
 
 def complete_length(path: str | os.PathLike) -> int | None:
@@ -250,9 +268,7 @@ _ROW_ID = "rerun.controls.RowId"
 
 def read_recording(path: str | os.PathLike) -> Recording:
     """Read every chunk of the first recording in ``path``; raises ``ValueError`` if it is not a recording."""
-    from rerun.chunk import RrdReader
-
-    reader = RrdReader(str(path))
+    reader = _reader(path)
     stores = reader.recordings()
     if not stores:
         raise ValueError(f"{path}: no recording in this file")
@@ -287,9 +303,7 @@ def read_entities(path: str | os.PathLike, *, timeline: str | None = None) -> di
 
     With ``timeline``, only what a viewer shows on that timeline: static data and rows that have a time
     on it."""
-    from rerun.chunk import RrdReader
-
-    reader = RrdReader(str(path))
+    reader = _reader(path)
     stores = reader.recordings()
     if not stores:
         raise ValueError(f"{path}: no recording in this file")
@@ -343,9 +357,7 @@ class BlueprintView:
 
 def read_blueprint(path: str | os.PathLike) -> tuple[list[BlueprintView], str | None]:
     """The views of the last blueprint stored in ``path`` and the timeline its time panel opens on."""
-    from rerun.chunk import RrdReader
-
-    reader = RrdReader(str(path))
+    reader = _reader(path)
     stores = reader.blueprints()
     if not stores:
         return [], None
@@ -384,11 +396,9 @@ def read_blueprint(path: str | os.PathLike) -> tuple[list[BlueprintView], str | 
 
 def read_kind(path: str | os.PathLike) -> str | None:
     """The kind of recording stored by the recorder (property ``pcreg.kind``), or None."""
-    from rerun.chunk import RrdReader
-
     from . import entities as E
 
-    reader = RrdReader(str(path))
+    reader = _reader(path)
     stores = reader.recordings()
     if not stores:
         raise ValueError(f"{path}: no recording in this file")

@@ -26,6 +26,7 @@ from pcreg.recording import entities as E
 
 from ..errors import OutputError, StuckOutput
 from ..outputs import check_output
+from .readback import end_stream
 
 __all__ = ["Sink", "JpegCache", "DEFAULT_JPEG_QUALITY", "BATCH_SECONDS", "BATCH_BYTES"]
 
@@ -99,6 +100,23 @@ def _create_empty(path: Path) -> None:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
+def _save_without_footer(rec: Any, path: Path) -> None:
+    """``rec.save(path)`` without rerun's footer: its file sink otherwise keeps a manifest entry of every chunk
+    in memory until the file is closed (every index column padded for every chunk: 1-3 kB a chunk, and
+    about ten chunks a second of a recorded run), which grew a long ``pcreg run --record`` by 2-16 kB a
+    frame, more the slower the run (docs/benchmarks.md). rerun's note that the file will have no manifest is
+    kept off the terminal; anything else it prints is passed on."""
+    import sys
+
+    from ..quiet import capture_output_fds
+
+    with capture_output_fds() as captured:
+        rec.save(path, write_footer=False)
+    other = [line for line in "".join(captured).splitlines() if line.strip() and "write_footer" not in line]
+    if other:
+        sys.stderr.write("\n".join(other) + "\n")
+
+
 #: How many pending jobs :meth:`Sink.later` keeps before it forgets the ones done.
 REAP_AT = 256
 
@@ -148,7 +166,7 @@ class Sink:
         self._scalar_counts: dict[str, int] = {}
         self._entities_lock = threading.Lock()
         try:
-            self._rec.save(self.path)
+            _save_without_footer(self._rec, self.path)
         except Exception as exc:  # rerun raises its own types for sink errors
             self.path.unlink(missing_ok=True)  # the empty file made above
             raise OutputError(f"cannot write {self.path}: {exc}") from None
@@ -202,6 +220,7 @@ class Sink:
             self._finish_blueprint()
             self._flush_to_file()
             self._rec.disconnect()
+            end_stream(self.path)
 
     def _flush_to_file(self) -> None:
         """rerun's flush, in waits of :data:`FLUSH_SECONDS`, until the file holds everything; a writer that

@@ -55,3 +55,13 @@ EST_TARGET_NORMALS = np.array([
     [-0.0123503, -0.230172, -0.52072], [0.355904, -0.142007, -0.720467], [0.0674038, -0.418757, -0.458602],
     [0.226091, 0.258253, -0.874024], [0.43979, 0.122441, -0.574998], [0.109144, 0.180992, -0.762368],
     [0.273325, 0.292013, -0.903111], [0.385407, -0.212348, -0.277818]])
+
+
+def open3d_cloud(points: np.ndarray, normals: np.ndarray | None = None):
+    """An Open3D PointCloud of ``points`` (and ``normals``), as Open3D's own tests build theirs."""
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    if normals is not None:
+        pcd.normals = o3d.utility.Vector3dVector(normals)
+    return pcd

@@ -22,17 +22,11 @@ from pcreg.registration.closed_forms import estimate_umeyama
 from pcreg.registration.normal_steps import estimate_point_to_plane
 
 from _open3d_cases import GRID_INIT, GRID_SOURCE, GRID_TARGET, GRID_TARGET_NORMALS
+from _open3d_cases import open3d_cloud as _cloud
 
 reg = o3d.pipelines.registration
 FISH = np.loadtxt(Path(__file__).parent / "data" / "pycpd" / "fish_target.txt")
 DECIMAL_6 = 1.5e-6  # numpy's assert_array_almost_equal, pycpd's check: |a - b| < 1.5 x 10^-6
-
-
-def _cloud(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    if normals is not None:
-        pcd.normals = o3d.utility.Vector3dVector(normals)
-    return pcd
 
 
 def test_open3d_convergence_criteria_defaults_are_pcreg_s():

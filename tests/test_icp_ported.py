@@ -16,15 +16,9 @@ from pcreg.registration.normal_steps import estimate_point_to_plane
 
 from _open3d_cases import (EST_CORRESPONDENCES, EST_SOURCE, EST_TARGET, EST_TARGET_NORMALS, GRID_INIT,
                            GRID_SOURCE, GRID_TARGET, GRID_TARGET_NORMALS)
+from _open3d_cases import open3d_cloud as _cloud
 
 reg = o3d.pipelines.registration
-
-
-def _cloud(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    if normals is not None:
-        pcd.normals = o3d.utility.Vector3dVector(normals)
-    return pcd
 
 
 def test_open3d_point_to_point_step_and_rmse_on_given_correspondences():

@@ -209,7 +209,7 @@ def check_paired_normals(T: np.ndarray, source: np.ndarray, target: np.ndarray, 
     cannot fix the motion along it, and where it is free they stop and call it converged. The target's normals as
     a whole are checked when the run starts; this is for pairs that reach only part of them.
 
-    A cylinder's side paired while the floor beneath it lies beyond the correspondence distance: the reference
+    A cylinder's side paired while the ground plane beneath it lies beyond the correspondence distance: the reference
     step's 6x6 system is singular, its step the identity, and the run "converged" after one iteration where it
     started (inlier RMSE 0.199; Open3D's moved across the axis and left the motion along it at 0)."""
     if metric not in LINEARISED_METRICS or target_normals is None:

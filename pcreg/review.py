@@ -212,12 +212,18 @@ def overlay(image: np.ndarray, labels: np.ndarray, confidence: np.ndarray | None
             raise InputError("a confidence map of another size than its labels")
         h, w = labels.shape
         yy, xx = np.mgrid[0:h, 0:w]
-        hatch = ((xx + yy) % 8 < 3) & (confidence.astype(np.float32) < low * 255.0) & (labels != table.unknown)
+        hatch = ((xx + yy) % 8 < 3) & _unsure(labels, confidence, table, low)
         out[hatch] *= 0.3
     if key:
         b = _border(labels.shape)
         out[:b], out[-b:], out[:, :b], out[:, -b:] = (59, 130, 246), (59, 130, 246), (59, 130, 246), (59, 130, 246)
     return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+def _unsure(labels: np.ndarray, confidence: np.ndarray, table: ClassTable, low: float = LOW_CONFIDENCE) -> np.ndarray:
+    """Where a known label's ``confidence`` (uint8, 255 x the probability) is below ``low``: what
+    :func:`overlay` hatches."""
+    return (confidence.astype(np.float32) < low * 255.0) & (labels != table.unknown)
 
 
 def _border(shape: tuple[int, ...]) -> int:
@@ -279,11 +285,10 @@ def video_frame(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarra
     when a label is hatched), and where the legend went."""
     labels, conf = _frame_labels(review, t, image)
     drawn = overlay(image, labels, conf, key=t in review.keys, table=review.table)
-    unsure = conf is not None and bool(((conf.astype(np.float32) < LOW_CONFIDENCE * 255.0)
-                                        & (labels != review.table.unknown)).any())
+    hatched = conf is not None and bool(_unsure(labels, conf, review.table).any())
     title = review.names[t] if review.kind == "folder" else f"frame {review.names[t]}"
     return draw_legend(drawn, labels, title=title + (" (key frame)" if t in review.keys else ""), table=review.table,
-                       hatched_below=LOW_CONFIDENCE if unsure else None, inset=_border(labels.shape))
+                       hatched_below=LOW_CONFIDENCE if hatched else None, inset=_border(labels.shape))
 
 
 def _frame_labels(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:

@@ -456,6 +456,19 @@ SHRINKING_MODELS = ("similarity", "affine", "projective")
 SHRUNK = 1e-3
 
 
+def paired_targets(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_distance: float) -> np.ndarray:
+    """The indices (sorted, each once) of the ``target`` points that ``source`` moved by ``T`` pairs with: each
+    moved point's nearest, closer than ``max_distance``."""
+    from .kdtree import KDTreeIndex
+    from .transforms import apply as move
+
+    with np.errstate(all="ignore"):  # a projective T may send a point through infinity: no match for it
+        moved = move(T, source)
+    finite = np.all(np.isfinite(moved), axis=1)
+    _, idx = KDTreeIndex(target).nearest(moved[finite], max_distance)
+    return np.unique(idx[idx >= 0])
+
+
 def check_support(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_distance: float, model: str, *,
                   converged: bool) -> None:
     """Raise when an ICP's result ``T`` (``T_target_source``) of a ``model`` that can shrink the source
@@ -471,14 +484,7 @@ def check_support(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_dis
     of 1e-102, a fitness of 1, an inlier RMSE of 0 and converged, with either backend's step)."""
     if model not in SHRINKING_MODELS:
         return
-    from .kdtree import KDTreeIndex
-    from .transforms import apply as move
-
-    with np.errstate(all="ignore"):  # a projective T may send a point through infinity: no match for it
-        moved = move(T, source)
-    finite = np.all(np.isfinite(moved), axis=1)
-    _, idx = KDTreeIndex(target).nearest(moved[finite], max_distance)
-    matched = target[np.unique(idx[idx >= 0])]
+    matched = target[paired_targets(T, source, target, max_distance)]
     try:
         check_rank(matched, model)
     except RegistrationError as exc:

@@ -27,7 +27,7 @@ from ..errors import InputError, RegistrationError
 from . import _kd_kernels, _nn_kernels, nn
 from .closed_forms import (MIN_POINTS, _dlt_normal_pairs, _umeyama, check_rank, estimate, estimate_affine,  # noqa: F401  (named here too)
                            check_support, estimate_horn_quaternion, estimate_projective, estimate_translation,
-                           estimate_umeyama, pairs_needed, robust_weights, umeyama_from_moments)
+                           estimate_umeyama, paired_targets, pairs_needed, robust_weights, umeyama_from_moments)
 from .icp_options import METRICS, WEIGHTS, ICPOptions  # noqa: F401  (METRICS, WEIGHTS: named here too)
 from .inputs import backend_inputs
 from .kdtree import KDTreeIndex
@@ -214,8 +214,7 @@ def check_paired_normals(T: np.ndarray, source: np.ndarray, target: np.ndarray, 
     started (inlier RMSE 0.199; Open3D's moved across the axis and left the motion along it at 0)."""
     if metric not in LINEARISED_METRICS or target_normals is None:
         return
-    _, idx = KDTreeIndex(target).nearest(apply(T, source), max_distance)
-    why = normals_problem(target_normals[np.unique(idx[idx >= 0])])
+    why = normals_problem(target_normals[paired_targets(T, source, target, max_distance)])
     if why is not None:
         raise RegistrationError(f"registration refused: at the result, the target points the source is paired with "
                                 f"have normals that cannot fix the motion ({why}); give target points whose "

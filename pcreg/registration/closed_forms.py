@@ -272,7 +272,8 @@ def _homography(h: np.ndarray, Np: np.ndarray, Nq: np.ndarray) -> np.ndarray:
     :class:`RegistrationError` when ``h`` is singular (:data:`SINGULAR_HOMOGRAPHY`) or sends the origin to infinity."""
     h3 = h.reshape(3, 3)
     if not abs(np.linalg.det(h3)) > SINGULAR_HOMOGRAPHY * float(np.sqrt(h @ h)) ** 3:
-        raise RegistrationError("degenerate homography: the pairs fit a singular one (their points on one line?)")
+        raise RegistrationError("registration refused: degenerate homography: the pairs fit only a singular one, which "
+                                "maps the plane onto a line (their source points on one line?)")
     H = np.linalg.inv(Nq) @ h3 @ Np
     if abs(H[2, 2]) < 1e-12:
         raise RegistrationError("degenerate homography")

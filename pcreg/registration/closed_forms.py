@@ -276,7 +276,7 @@ def _homography(h: np.ndarray, Np: np.ndarray, Nq: np.ndarray) -> np.ndarray:
                                 "maps the plane onto a line (their source points on one line?)")
     H = np.linalg.inv(Nq) @ h3 @ Np
     if abs(H[2, 2]) < 1e-12:
-        raise RegistrationError("degenerate homography")
+        raise RegistrationError("registration refused: degenerate homography: it sends the origin to infinity")
     return H / H[2, 2]
 
 

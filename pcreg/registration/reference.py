@@ -278,7 +278,7 @@ def _drive(run_steps, state: np.ndarray, T: np.ndarray, pts: np.ndarray, idx: np
     while state[2] < max_iteration and not state[3]:
         run_steps(1 if callback is not None else max_iteration - int(state[2]))
         if int(state[4]) in _LOOP_ERRORS:
-            raise RegistrationError(_LOOP_ERRORS[int(state[4])])
+            raise RegistrationError(f"registration refused: {_LOOP_ERRORS[int(state[4])]}")
         if state[4] == 3:
             break
         report()

@@ -20,7 +20,7 @@ so easy pairs pay for one. The winner has the most inliers, weighted by the inte
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -162,10 +162,21 @@ class GlobalSearch:
         return c.inlier_ratio >= self.convincing and c.photometric_ncc >= CONVINCING_NCC
 
     def evaluate(self, h: Hypothesis, moving: CloudPyramid, gray) -> Candidate:
-        """``h`` refined coarse to fine and measured (edges and intensities)."""
+        """``h`` refined coarse to fine and measured (edges and intensities). A similarity from an intensity
+        generator that the coarse levels leave unconvincing is refined once more from full resolution, as a rigid
+        one is, and the better of the two kept: on small images (a 288x216 crop has about 125 edge points at level
+        3) the coarsest levels pulled starts 2-4 px from the truth 10-18 px away, and refusals of such views."""
         refined, iterations = self.refine(moving, h.matrix, top=h.top)
         ncc = self.agreement(refined.matrix, gray)
-        return Candidate(h, refined, self.measure(moving, refined.matrix), ncc, iterations)
+        c = Candidate(h, refined, self.measure(moving, refined.matrix), ncc, iterations)
+        if (h.top is None and h.generator in ("fourier_mellin", "orb") and self.model == "similarity"
+                and not self.is_convincing(c)):
+            try:
+                fine = self.evaluate(replace(h, top=START_LEVEL), moving, gray)
+            except RegistrationError:  # its refinement collapsed: the coarse-to-fine one stands
+                return c
+            return fine if fine.score > c.score else c
+        return c
 
     def refine(self, moving: CloudPyramid, T: np.ndarray, *, top: int | None = None
                ) -> tuple[Refinement, tuple[IcpIteration, ...]]:

@@ -209,3 +209,26 @@ def test_a_run_json_without_notes_reads_as_before_and_a_malformed_one_is_refused
         assert main(command) == 2
         err = one_line_errors(capsys)
         assert len(err) == 1 and f"{out / 'run.json'}" in err[0], (command, err)
+
+
+def test_the_review_page_shows_the_notes_kept_in_run_json(tmp_path, capsys):
+    from _browser import Browser, find_chromium, stop_view, view_web
+    from _events import until
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    frames = _folder(tmp_path / "frames", alpha=255, transparent=(2,))
+    out = tmp_path / "out"
+    assert main(["run", str(frames), "--labels", str(_key(tmp_path / "key.png")), "--out", str(out)]) == 0
+    line = _kept(out)["transparent"]
+    proc, url = view_web(str(out))
+    try:
+        with Browser(width=1400, height=800) as browser:
+            browser.open(url)
+            ev = browser.value
+            until(lambda: ev("document.body.dataset.loaded") == "1", what="the page loaded", alive=proc, bound=120)
+            shown = ev("(() => { const d = document.getElementById('notes'); return d.hidden ? null : "
+                       "[...d.children].map((p) => [p.textContent, p.getBoundingClientRect().height > 0]); })()")
+    finally:
+        stop_view(proc)
+    assert shown == [[line, True]]

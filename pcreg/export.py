@@ -57,7 +57,8 @@ class RunLabels:
     frames' names (a person's labels, kept as they are by ``--min-confidence``), ``gaps`` what is said of the places
     its video skips frames by its times (:func:`pcreg.runs.gaps.gaps_note`; None without one): the frames are
     numbered by count all the same, as CVAT numbers them; ``damaged`` what is said of its frames that decode with errors
-    (:func:`pcreg.runs.gaps.damaged_note`; None without one)."""
+    (:func:`pcreg.runs.gaps.damaged_note`; None without one); ``notes`` what reading its frames met, each kind's line
+    (:func:`pcreg.runs.gaps.kept_notes`: transparent pixels, a turn to interlaced)."""
 
     folder: Path
     names: tuple[str, ...]
@@ -68,6 +69,7 @@ class RunLabels:
     keys: frozenset[str] = frozenset()
     gaps: str | None = None
     damaged: str | None = None
+    notes: tuple[str, ...] = ()
 
 
 def default_name(fmt: str) -> str:
@@ -84,7 +86,7 @@ def read_run(folder: str | Path) -> RunLabels:
     """
     from .classes.keys import run_table
     from .runs.files import CONFIDENCE, STEPS
-    from .runs.gaps import damaged_note, gaps_note
+    from .runs.gaps import damaged_note, gaps_note, kept_notes
     from .runs.state import STATE, frames_chosen, read_state, run_frames
 
     folder = Path(folder)
@@ -121,7 +123,7 @@ def read_run(folder: str | Path) -> RunLabels:
     table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]),
                      frozenset(keys), gaps_note(state.get("gaps"), state["run"].get("video")),
-                     damaged_note(state.get("damaged"), state["run"].get("video")))
+                     damaged_note(state.get("damaged"), state["run"].get("video")), kept_notes(state.get("notes")))
 
 
 def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:

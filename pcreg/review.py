@@ -56,7 +56,8 @@ class RunReview:
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
     IoU per class id (``steps.jsonl``'s ``predicted_iou``, with more than two classes; None otherwise); ``gaps``
     run.json's places where the video skips frames by its times (:mod:`pcreg.runs.gaps`; None without one),
-    ``damaged`` its frames that decode with errors (the same module's; None without one)."""
+    ``damaged`` its frames that decode with errors (the same module's; None without one), ``notes`` what else reading
+    its frames met (run.json's ``notes``: transparent pixels, a turn to interlaced; None without one)."""
 
     folder: Path
     source: Path
@@ -73,6 +74,13 @@ class RunReview:
     chosen: int | None = None  # the frames the run chose of its folder (None: a video)
     gaps: dict | None = None
     damaged: dict | None = None
+    notes: dict | None = None
+
+    def kept_notes(self) -> tuple[str, ...]:
+        """What the review says again of what reading the run's frames met (:func:`pcreg.runs.gaps.kept_notes`)."""
+        from .runs.gaps import kept_notes
+
+        return kept_notes(self.notes)
 
     def damaged_note(self) -> str | None:
         """What the review says of the run's video's frames that decode with errors (:func:`pcreg.runs.gaps.damaged_note`)."""
@@ -182,7 +190,7 @@ def read_review(folder: str | Path) -> RunReview:
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
                      _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
                      tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None, state.get("gaps"),
-                     state.get("damaged"))
+                     state.get("damaged"), state.get("notes"))
 
 
 def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:

@@ -1,11 +1,15 @@
 """Frame files whose pixels say more than three colours: frames with an alpha channel (PNG, and videos whose pixel
-format has one), read with their colours as stored and, where a pixel is transparent, said once a run."""
+format has one), read with their colours as stored and, where a pixel is transparent, said once a run, kept in
+run.json and said again by what reads the run."""
+
+import json
 
 import cv2
 import numpy as np
 import pytest
 
 from pcreg.cli import main
+from _runs import kill_before_commit, one_line_errors
 
 H, W = 48, 64
 
@@ -127,3 +131,104 @@ def test_a_transparent_frame_between_two_key_frames_is_said_once(tmp_path, capsy
     assert main(["run", str(frames), "--labels", str(keys), "--out", str(tmp_path / "out")]) == 0
     notes = [ln for ln in capsys.readouterr().err.splitlines() if "transparent pixels" in ln]
     assert len(notes) == 1 and f"{frames / 'f02.png'} has transparent pixels" in notes[0], notes
+
+
+def _kept(out) -> dict | None:
+    return json.loads((out / "run.json").read_text()).get("notes")
+
+
+def _said(capsys, what="transparent pixels") -> list[str]:
+    return [ln for ln in capsys.readouterr().err.splitlines() if what in ln]
+
+
+@pytest.mark.parametrize("stop", [2, 3])
+def test_a_transparent_frame_is_kept_in_run_json_with_its_frame_and_said_again_by_view_and_export(tmp_path, capsys,
+                                                                                                  monkeypatch, stop):
+    """The note is committed with the frame that met it (a run stopped before frame 2's commit has none; one stopped
+    after it keeps it, and the resume does not replace it with frame 3's), and what reads the run says it."""
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    frames = _folder(tmp_path / "frames", alpha=255, transparent=(2, 3))
+    args = ["run", str(frames), "--labels", str(_key(tmp_path / "key.png"))]
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main([*args, "--out", str(whole)]) == 0
+    line = _said(capsys)[0].removeprefix("pcreg: note: ")
+    assert f"{frames / 'f02.png'} has transparent pixels" in line and _kept(whole) == {"transparent": line}
+    kill_before_commit(monkeypatch, stop)
+    assert main([*args, "--out", str(cut)]) == 130
+    monkeypatch.undo()
+    assert _kept(cut) == (None if stop == 2 else {"transparent": line})
+    assert main([*args, "--out", str(cut)]) == 0
+    assert (cut / "run.json").read_bytes() == (whole / "run.json").read_bytes()
+    capsys.readouterr()
+    assert main(["view", str(whole), "--overlay", str(tmp_path / "overlay.mp4")]) == 0
+    assert _said(capsys) == [f"pcreg: note: {line}"]
+    assert main(["export", str(whole), "--to", str(tmp_path / "cvat.zip")]) == 0
+    assert _said(capsys) == [f"pcreg: note: {line}"]
+    with ReviewServer(read_review(whole), web_port=0) as server:
+        assert json.loads(server.review_json())["notes"] == [line]
+
+
+def test_a_transparent_frame_between_two_key_frames_is_kept_in_run_json(tmp_path, capsys):
+    frames = _folder(tmp_path / "frames", n=6, alpha=255, transparent=(2, 3))
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in (0, 5):
+        _key(keys / f"f{i:02d}.png")
+    assert main(["run", str(frames), "--labels", str(keys), "--out", str(tmp_path / "out")]) == 0
+    line = _said(capsys)[0].removeprefix("pcreg: note: ")
+    assert _kept(tmp_path / "out") == {"transparent": line} and f"{frames / 'f02.png'} has" in line
+    assert main(["export", str(tmp_path / "out"), "--to", str(tmp_path / "cvat.zip")]) == 0
+    assert _said(capsys) == [f"pcreg: note: {line}"]
+
+
+def test_a_run_json_without_notes_reads_as_before_and_a_malformed_one_is_refused(tmp_path, capsys):
+    from pcreg.export import read_run
+    from pcreg.runs.state import state_problem
+
+    frames = _folder(tmp_path / "frames", alpha=255, transparent=(2,))
+    out = tmp_path / "out"
+    run = ["run", str(frames), "--labels", str(_key(tmp_path / "key.png")), "--out", str(out)]
+    assert main(run) == 0
+    state = json.loads((out / "run.json").read_text())
+    line = state.pop("notes")["transparent"]
+    (out / "run.json").write_text(json.dumps(state))  # as a run from before the notes were kept
+    assert read_run(out).notes == ()
+    capsys.readouterr()
+    assert main(["export", str(out), "--to", str(tmp_path / "cvat.zip")]) == 0
+    assert main(run) == 0  # all done: the resume reads no frame, and keeps the run.json as it was
+    assert _said(capsys) == [] and "notes" not in json.loads((out / "run.json").read_text())
+    for notes, problem in ((None, None), ({"transparent": line}, None), ({"interlaced": "x", "other": "y"}, None),
+                           ({}, "notes"), ([line], "notes"), (line, "notes"), ({"transparent": 3}, "notes"),
+                           ({"transparent": ""}, "notes"), ({"": line}, "notes"), ({"transparent": [line]}, "notes")):
+        assert state_problem(state if notes is None else {**state, "notes": notes}) == problem, notes
+    (out / "run.json").write_text(json.dumps({**state, "notes": [line]}))
+    for command in (run, ["export", str(out), "--to", str(tmp_path / "x.zip"), "--force"],
+                    ["view", str(out), "--overlay", str(tmp_path / "o.mp4")]):
+        assert main(command) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and f"{out / 'run.json'}" in err[0], (command, err)
+
+
+def test_the_review_page_shows_the_notes_kept_in_run_json(tmp_path, capsys):
+    from _browser import Browser, find_chromium, stop_view, view_web
+    from _events import until
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    frames = _folder(tmp_path / "frames", alpha=255, transparent=(2,))
+    out = tmp_path / "out"
+    assert main(["run", str(frames), "--labels", str(_key(tmp_path / "key.png")), "--out", str(out)]) == 0
+    line = _kept(out)["transparent"]
+    proc, url = view_web(str(out))
+    try:
+        with Browser(width=1400, height=800) as browser:
+            browser.open(url)
+            ev = browser.value
+            until(lambda: ev("document.body.dataset.loaded") == "1", what="the page loaded", alive=proc, bound=120)
+            shown = ev("(() => { const d = document.getElementById('notes'); return d.hidden ? null : "
+                       "[...d.children].map((p) => [p.textContent, p.getBoundingClientRect().height > 0]); })()")
+    finally:
+        stop_view(proc)
+    assert shown == [[line, True]]

@@ -181,6 +181,18 @@ def test_a_stream_that_turns_interlaced_part_way_is_deinterlaced_from_there(tmp_
     assert main(["run", str(video), "--labels", str(key), "--out", str(tmp_path / "out")]) == 0
     assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == [f"{i:06d}.png" for i in range(len(raw))]
     notes = [ln for ln in capsys.readouterr().err.splitlines() if "interlaced" in ln]  # the turn said once, where it is
-    assert notes == [f"pcreg: note: {video}: frames flagged interlaced from frame {turn:06d} on, the frames before it "
-                     "progressive (recordings joined, a programme change): they are deinterlaced with FFmpeg's bwdif as "
-                     "they are read"], notes
+    line = (f"{video}: frames flagged interlaced from frame {turn:06d} on, the frames before it progressive (recordings "
+            "joined, a programme change): they are deinterlaced with FFmpeg's bwdif as they are read")
+    assert notes == [f"pcreg: note: {line}"], notes
+    # kept in run.json, and said again by what reads the run afterwards
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["notes"] == {"interlaced": line}
+    for command in (["view", str(tmp_path / "out"), "--overlay", str(tmp_path / "overlay.mp4")],
+                    ["export", str(tmp_path / "out"), "--to", str(tmp_path / "cvat.zip")]):
+        assert main(command) == 0
+        assert [ln for ln in capsys.readouterr().err.splitlines() if "interlaced" in ln] == [f"pcreg: note: {line}"]
+    keys = tmp_path / "keys"  # a run from key frames on both sides of the turn: kept by the pass that decodes it
+    keys.mkdir()
+    for k in (0, len(raw) - 1):
+        cv2.imwrite(str(keys / f"{k:06d}.png"), cv2.imread(str(key), cv2.IMREAD_UNCHANGED))
+    assert main(["run", str(video), "--labels", str(keys), "--out", str(tmp_path / "keys-out")]) == 0
+    assert json.loads((tmp_path / "keys-out" / "run.json").read_text())["notes"] == {"interlaced": line}

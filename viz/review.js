@@ -235,6 +235,10 @@ function drawHeader() {
   // a video that skips frames: the run's frames are numbered by count, not by the file's timeline
   $("gaps").hidden = !d.gaps;
   $("gaps").textContent = d.gaps ? d.gaps.note : "";
+  // what reading the frames met (transparent pixels, a turn to interlaced), each kind's line as the run said it
+  const notes = d.notes || [];
+  $("notes").hidden = !notes.length;
+  $("notes").replaceChildren(...notes.map((text) => el("p", { class: "gaps", text })));
 }
 
 // -- start -----------------------------------------------------------------------------------------

@@ -9,7 +9,8 @@ frame in memory at a time, into a temporary file that takes the place of ``OUT/e
 
 A run whose video skips frames by its times (run.json's ``gaps``) is exported with its frames numbered by count,
 as CVAT numbers a video's frames; a note on stderr says so once (where, and that the run's frame N is not frame N
-of the file's timeline). The archive is the layout CVAT imports, with no readme or manifest to say it in.
+of the file's timeline). The archive is the layout CVAT imports, with no readme or manifest to say it in. What else
+the run met reading its frames (run.json's ``notes``: transparent pixels, a turn to interlaced) is said on stderr too.
 """
 
 from __future__ import annotations
@@ -72,4 +73,6 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"pcreg: note: {run_labels.gaps}\n")
     if run_labels.damaged:  # frames that decode with errors: labelled from concealed pictures
         sys.stderr.write(f"pcreg: note: {run_labels.damaged}\n")
+    for line in run_labels.notes:  # what reading the frames met: transparent pixels, a turn to interlaced
+        sys.stderr.write(f"pcreg: note: {line}\n")
     return 0

@@ -23,7 +23,9 @@ labels hatched, the key frames marked, the predicted error per frame and the sug
 ``pcreg view RUN_OUT --overlay FILE.mp4`` writes the same frames as a video of their size, each with its legend drawn
 in (:func:`pcreg.review.write_overlay_video`, :mod:`pcreg.legend`).
 A run whose video skips frames by its times (run.json's ``gaps``) is said on stderr, on the page and in the
-overlay video's comment: its frames are numbered by count, so the run's frame N is not frame N of the file.
+overlay video's comment: its frames are numbered by count, so the run's frame N is not frame N of the file. What
+else the run met reading its frames (run.json's ``notes``: transparent pixels, a turn to interlaced) is said on
+stderr and on the page, each kind once.
 
 The viewer processes themselves are managed in :mod:`pcreg.recording.viewer` and
 :mod:`pcreg.recording.report`.
@@ -291,6 +293,8 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     damaged = review.damaged_note()  # frames that decode with errors: labelled from concealed pictures
     if damaged:
         sys.stderr.write(f"pcreg: note: {damaged}\n")
+    for line in review.kept_notes():  # what reading the frames met: transparent pixels, a turn to interlaced
+        sys.stderr.write(f"pcreg: note: {line}\n")
     if args.overlay:
         n = write_overlay_video(review, out, fps=args.fps, note=lambda line: sys.stderr.write(f"pcreg: note: {line}\n"))
         print(f"wrote {out}: {n} frame(s) of {folder} with their labels")

@@ -182,7 +182,8 @@ class KeyRun:
         return (["store"] if video else []) + (["between"] if s.first is not None else []) + ["backward"]
 
     def _image(self, s: Stretch, t: int) -> np.ndarray:
-        """Frame ``t``'s image, its notes said (on the caller's thread: the run loop's)."""
+        """Frame ``t``'s image, its notes said (on the caller's thread: the run loop's) and kept in the run's state,
+        which the pass's next commit writes."""
         image, notes = self._image_and_notes(s, t)
         self.owner.gaps.say(notes)
         return image
@@ -198,12 +199,13 @@ class KeyRun:
             return image, transparent_notes(str(self.frames.paths[t]), alpha)
         return read_frame(self._hidden(self.fingerprint(s)), t), ()
 
-    def _images(self, s: Stretch, positions: range, priors: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    def _images(self, s: Stretch, positions: range, writer, priors: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
         """``(t, image)`` for the frames at ``positions``, in that order, the next one read on a thread of
         its own while the caller labels this one (:func:`~pcreg.datasets.sources.read_ahead`); with ``priors``,
         what the forward pass kept for frame ``t`` (:func:`~pcreg.runs.kept.read_prior`) put in it at ``t``
         on that thread too, before the frame comes out. A frame's notes are said as it comes out, by the caller's
-        thread."""
+        thread, and kept in run.json by ``writer`` (the pass's :class:`~pcreg.outputs.WriteBehind`), which commits
+        them with the frame."""
         from contextlib import closing
 
         from ..datasets.sources import read_ahead
@@ -218,7 +220,7 @@ class KeyRun:
 
         with closing(read_ahead(read())) as frames:
             for t, image, notes in frames:
-                self.owner.gaps.say(notes)
+                self.owner.gaps.say(notes, writer)
                 yield t, image
 
     def _classifier(self, s: Stretch, images: dict):
@@ -280,7 +282,7 @@ class KeyRun:
         self._resume(prop, s, cur)
         start = a + 1 if cur["next"] is None else cur["next"]
         with WriteBehind() as writer:  # a frame's prior term, carry and commit written while the next is labelled
-            for t, _, _ in propagate(prop, self._images(s, range(start, b)), check=self.check):
+            for t, _, _ in propagate(prop, self._images(s, range(start, b), writer), check=self.check):
                 report = prop.last
                 prior = report.trust.prior_term(report.log_odds.shape)  # made smaller on the writer's thread
                 weight = None if prop.classes is None else weight_sum(report.trust)
@@ -317,8 +319,8 @@ class KeyRun:
         start = b - 1 if cur["next"] is None else cur["next"]
         references = References(keys[b], prop.carry)
         priors: dict[int, tuple] | None = {} if both else None  # each frame's, read with the frame
-        todo = self._images(s, range(start, s.start - 1, -1), priors)
         with WriteBehind() as writer:  # a frame's outputs written while the next is labelled
+            todo = self._images(s, range(start, s.start - 1, -1), writer, priors)
             for t, image, labels in propagate(prop, todo, check=self.check):
                 report = prop.last
                 step = report.to_dict()

@@ -5,7 +5,8 @@
 - ``/``: the page (``viz/review.html`` with its CSS and JavaScript under ``/viz/``; no build step);
 - ``/review.json``: the frames (name, key frame or not, predicted error), the suggested frames, whether
   there is a confidence, where the video skips frames by its times (``gaps``: the note, the places and frames
-  missing; None without one), the class table (each known class's name, colour and whether the run's frames show it,
+  missing; None without one), the notes of what reading the frames met (``notes``: run.json's lines, transparent
+  pixels or a turn to interlaced; ``[]`` without one), the class table (each known class's name, colour and whether the run's frames show it,
   for the legend) and the frames' size;
 - ``/overlay/T.jpg``: frame ``T`` (its position in the run) with its labels drawn over it
   (:func:`pcreg.review.overlay`), rendered when asked for and kept for the next time (a few hundred);
@@ -100,6 +101,7 @@ class ReviewServer:
             "unknown": {"id": r.table.unknown, "name": r.table.unknown_class.name},
             "gaps": None if r.gaps is None else {"note": r.gaps_note(), "places": r.gaps["places"],
                                                  "missing": r.gaps["missing"]},
+            "notes": list(r.kept_notes()),
         }, allow_nan=False).encode()
 
     def _no_confidence(self, t: int) -> str | None:

@@ -31,7 +31,7 @@ from typing import Iterable, Iterator
 
 from .state import STATE
 
-__all__ = ["GapMarks", "LISTED", "SAID", "damaged_note", "gaps_note"]
+__all__ = ["GapMarks", "LISTED", "SAID", "damaged_note", "gaps_note", "kept_notes"]
 
 #: The places run.json's ``gaps`` lists by name (the rest counted): run.json is rewritten at every frame.
 LISTED = 100
@@ -64,8 +64,8 @@ class GapMarks:
         """Say and count the gaps ``frame`` (a :class:`~pcreg.datasets.sources.SourceFrame`) comes after, those not
         counted yet; counted in the run's state by ``writer`` (a :class:`~pcreg.outputs.WriteBehind` that commits
         it) when one is given, else at once (the caller commits). Whether there were any. The frame's notes of a
-        kind not said yet are said (:meth:`say`)."""
-        self.say(getattr(frame, "notes", ()))
+        kind not said yet are said and kept the same way (:meth:`say`)."""
+        self.say(getattr(frame, "notes", ()), writer)
         self._mark_damaged(frame, writer)
         counted = self.run.state.get("gaps")
         last = max(self.last, -1 if counted is None else int(counted["last"]))
@@ -111,13 +111,24 @@ class GapMarks:
         damaged = self.run.state.get("damaged")
         return position in self.damaged or (damaged is not None and self.run.frames.name(position) in damaged["listed"])
 
-    def say(self, notes: Iterable[tuple[str, str]]) -> None:
+    def say(self, notes: Iterable[tuple[str, str]], writer=None) -> None:
         """Say each of a frame's ``notes`` (:attr:`~pcreg.datasets.sources.SourceFrame.notes`, ``(kind, line)``) whose
-        kind this run has not said yet."""
+        kind this run has not said yet, and keep it in the run's state (run.json's ``notes``) by ``writer`` when one
+        is given, else at once (the caller commits)."""
         for kind, line in notes:
-            if kind not in self.noted:
-                self.noted.add(kind)
-                _say(line)
+            if kind in self.noted:
+                continue
+            self.noted.add(kind)
+            _say(line)
+            if writer is None:
+                self._keep(kind, line)
+            else:
+                writer.submit(self._keep, kind, line)
+
+    def _keep(self, kind: str, line: str) -> None:
+        kept = self.run.state.get("notes") or {}
+        if kind not in kept:  # the first line of a kind: a resumed run keeps the one it has
+            self.run.state["notes"] = {**kept, kind: line}
 
     def marked(self, frames: Iterable, writer=None) -> Iterator:
         """``frames`` as they come, each one's gaps marked (:meth:`mark`) as it is taken."""
@@ -200,3 +211,9 @@ def damaged_note(damaged: dict | None, source) -> str | None:
             f"{'' if damaged['frames'] == 1 else 's'} {frames}: FFmpeg filled in their missing parts from nearby "
             "pictures, so their labels (and those of the frames decoded from them up to the next key frame) may "
             "come from grey or smeared pictures")
+
+
+def kept_notes(notes: dict | None) -> tuple[str, ...]:
+    """What a reader of a run says again of what reading its frames met (run.json's ``notes``, as :class:`GapMarks`
+    keeps them): each kind's line as the run said it, in the order the run met them; none without one."""
+    return tuple((notes or {}).values())

@@ -1,7 +1,8 @@
 """A run's ``run.json``: what a run of ``pcreg run`` is (its identity: inputs and options), how far it
 has come, its running error against the truth, where its video skips frames by its times (``gaps``,
-:mod:`pcreg.runs.gaps`; only when it does) and which of its frames decode with errors (``damaged``; only if
-any). Rewritten atomically after every frame, it is the commit point: a frame counts once run.json counts it.
+:mod:`pcreg.runs.gaps`; only when it does), which of its frames decode with errors (``damaged``; only if
+any) and what else reading its frames met (``notes``: transparent pixels, a turn to interlaced; only if any).
+Rewritten atomically after every frame, it is the commit point: a frame counts once run.json counts it.
 
 Two kinds: a run from one label image (``key_frame``, ``done``) and a run from a folder of key frames
 (``keys``, ``stretches``, ``cursor``, ``lines``, :mod:`pcreg.pipeline.keys_run`). :func:`open_state` opens
@@ -101,14 +102,22 @@ def _damaged_problem(damaged) -> bool:
         or not all(isinstance(n, str) and n.isdigit() for n in damaged["listed"])
 
 
+def _notes_problem(notes) -> bool:
+    """Whether run.json's ``notes`` (None when there is none) is not as :class:`~pcreg.runs.gaps.GapMarks` writes it:
+    a kind's name to its line, each a text, at least one."""
+    if notes is None:
+        return False
+    return not (isinstance(notes, dict) and notes and all(isinstance(k, str) and k and isinstance(v, str) and v
+                                                          for k, v in notes.items()))
+
+
 def state_problem(state) -> str | None:
     """What in a run.json (one key frame's, or a folder of key frames') is not as pcreg run writes it."""
     if not isinstance(state, dict):
         return "its top level"
     problem = (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
-    if problem is None and _gaps_problem(state.get("gaps")):
-        return "gaps"
-    return "damaged" if problem is None and _damaged_problem(state.get("damaged")) else problem
+    records = (("gaps", _gaps_problem), ("damaged", _damaged_problem), ("notes", _notes_problem))
+    return problem or next((name for name, bad in records if bad(state.get(name))), None)
 
 
 def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | Path | None,

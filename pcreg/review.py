@@ -494,7 +494,8 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     an MP4 at ``path`` of the frames' size (H.264; written to a temporary file beside it, then renamed); frames
     of odd size are padded by a pixel. ``fps``: frames per second (default: a video's own rate, divided by the
     run's ``--every``; 10 for a folder). The source is read straight through, once. A run whose video skips frames
-    by its times says so in the video's comment (:meth:`RunReview.gaps_note`). ``note`` is told, once, when a
+    by its times, has frames that decode with errors or met other notes reading them says so in the video's comment,
+    one line each (:meth:`RunReview.gaps_note`, :meth:`RunReview.damaged_note`, :meth:`RunReview.kept_notes`). ``note`` is told, once, when a
     frame is too small for its classes' legend (it shows its name alone). Returns the number of frames written."""
     import os
     import tempfile
@@ -516,8 +517,9 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     try:
         with av.open(tmp, "w", format="mp4") as container, \
                 progress(total=len(review.names), desc="frames", disable=None) as bar:
-            if review.gaps_note():
-                container.metadata["comment"] = review.gaps_note()
+            said = "\n".join(filter(None, (review.gaps_note(), review.damaged_note(), *review.kept_notes())))
+            if said:  # what the run's review says of its frames, one line each, in the video's comment
+                container.metadata["comment"] = said
             stream = None
             small = False
             for t, image in images.frames():

@@ -4,6 +4,7 @@ run.json and said again by what reads the run."""
 
 import json
 
+import av
 import cv2
 import numpy as np
 import pytest
@@ -68,7 +69,6 @@ def test_frames_with_transparent_pixels_are_said_once_naming_the_first(tmp_path,
 
 
 def test_a_video_with_transparent_pixels_is_said_once(tmp_path, capsys):
-    av = pytest.importorskip("av")
     video = tmp_path / "clip.mov"
     with av.open(str(video), "w") as c:  # QuickTime Animation with alpha, as a compositing tool exports it
         s = c.add_stream("qtrle", rate=10)
@@ -164,6 +164,8 @@ def test_a_transparent_frame_is_kept_in_run_json_with_its_frame_and_said_again_b
     capsys.readouterr()
     assert main(["view", str(whole), "--overlay", str(tmp_path / "overlay.mp4")]) == 0
     assert _said(capsys) == [f"pcreg: note: {line}"]
+    with av.open(str(tmp_path / "overlay.mp4")) as c:  # and in the overlay video's comment
+        assert c.metadata.get("comment") == line
     assert main(["export", str(whole), "--to", str(tmp_path / "cvat.zip")]) == 0
     assert _said(capsys) == [f"pcreg: note: {line}"]
     with ReviewServer(read_review(whole), web_port=0) as server:

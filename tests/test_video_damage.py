@@ -302,6 +302,8 @@ def test_frames_that_decode_with_errors_are_labelled_said_once_and_counted(tmp_p
     assert [s["frame"] for s in steps if s.get("damaged")] == [frame]
     assert main(["view", str(out), "--overlay", str(tmp_path / "overlay.mp4")]) == 0
     assert [line for line in one_line_errors(capsys) if "decode with errors" in line] == [f"pcreg: note: {said}"]
+    with av.open(str(tmp_path / "overlay.mp4")) as c:
+        assert c.metadata.get("comment") == said
     assert main(["export", str(out), "--to", str(tmp_path / "cvat.zip")]) == 0
     assert [line for line in one_line_errors(capsys) if "decode with errors" in line] == [f"pcreg: note: {said}"]
 

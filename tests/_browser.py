@@ -186,3 +186,22 @@ def stop_view(proc) -> int:
     proc.stdout.close()
     proc.stderr.close()
     return code
+
+
+def review_page_values(run: str, *scripts: str) -> list:
+    """What each JavaScript expression of ``scripts`` gives on ``pcreg view RUN --web``'s page once it has loaded,
+    in a headless Chromium (skipped when there is none)."""
+    import pytest
+    from _events import until
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    proc, url = view_web(run)
+    try:
+        with Browser(width=1400, height=800) as browser:
+            browser.open(url)
+            ev = browser.value
+            until(lambda: ev("document.body.dataset.loaded") == "1", what="the page loaded", alive=proc, bound=120)
+            return [ev(script) for script in scripts]
+    finally:
+        stop_view(proc)

@@ -213,24 +213,13 @@ def test_the_review_and_the_export_say_where_the_runs_video_skips_frames(which, 
 
 
 def test_the_review_page_shows_where_the_runs_video_skips_frames(gap_runs):
-    from _browser import Browser, find_chromium, stop_view, view_web
-    from _events import until
+    from _browser import review_page_values
 
-    if find_chromium() is None:
-        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
     for which in ("damaged", "whole"):
         video, out = gap_runs[which]
-        proc, url = view_web(str(out))
-        try:
-            with Browser(width=1400, height=800) as browser:
-                browser.open(url)
-                ev = browser.value
-                until(lambda: ev("document.body.dataset.loaded") == "1", what="the page loaded", alive=proc, bound=120)
-                shown = ev("(() => { const p = document.getElementById('gaps'); return p.hidden ? null : "
-                           "[p.textContent, p.getBoundingClientRect().height > 0]; })()")
-                facts = ev("document.getElementById('facts').textContent")
-        finally:
-            stop_view(proc)
+        shown, facts = review_page_values(str(out), "(() => { const p = document.getElementById('gaps'); return "
+                                          "p.hidden ? null : [p.textContent, p.getBoundingClientRect().height > 0]; })()",
+                                          "document.getElementById('facts').textContent")
         if which == "damaged":
             assert shown == [_gaps_note(video).removeprefix("pcreg: note: "), True]
             assert "frames missing by the video's timesabout 4 at 1 place(s)" in facts

@@ -132,7 +132,7 @@ class Run:
         if request.config.follow == "object" and table.n_known > 2:
             raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
                              f"object), not {table.n_known} classes; use --follow scene (the default) for them")
-        _notes_before_the_first_frame(keys, table, request.config.scale, inputs.frames)
+        _notes_before_the_first_frame(keys, table, request.config, inputs.frames, pending)
         try:
             prop = None if pending is None else request.config.from_key_frame(
                 pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
@@ -564,14 +564,18 @@ class Run:
         return state, keys, names
 
 
-def _notes_before_the_first_frame(keys: dict, table, scale: float, frames) -> None:
-    """Notes on stderr before the first frame: the ``frames``' own (an interlaced video, read deinterlaced), and
-    when the run is expected to need more memory than the system has available (:func:`~pcreg.runs.memory.memory_note`)."""
+def _notes_before_the_first_frame(keys: dict, table, config, frames, pending) -> None:
+    """Notes on stderr before the first frame: the ``frames``' own (an interlaced video, read deinterlaced), when
+    the run is expected to need more memory than the system has available (:func:`~pcreg.runs.memory.memory_note`),
+    and when the key frame of a run from one (``pending``) holds no more detail than a smaller size would
+    (:func:`~pcreg.datasets.detail.scale_note`)."""
     import sys
 
+    from ..datasets.detail import scale_note
     from .memory import available_bytes, run_note
 
-    notes = frames.note(), run_note(keys.values(), table, scale, available_bytes())  # the key labels: the frames' size
+    notes = (frames.note(), run_note(keys.values(), table, config.scale, available_bytes()),  # labels: the frames' size
+             None if pending is None else scale_note(pending[0].image, f"{frames.path}: the key frame {pending[0].name}", config))
     for note in filter(None, notes):
         sys.stderr.write(f"pcreg: note: {note}\n")
 

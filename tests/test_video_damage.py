@@ -267,7 +267,10 @@ def _payload_flipped(whole, damaged, k, at):
     return damaged
 
 
-@pytest.mark.parametrize("codec, k, at, frame", [("libx264", 3, 30, 1), ("libx264", 6, 30, 6), ("mpeg4", 3, 30, 3)])
+@pytest.mark.parametrize("codec, k, at, frame", [
+    ("libx264", 3, 30, 1), ("libx264", 6, 30, 6), ("mpeg4", 3, 30, 3),
+    pytest.param("libvpx-vp9", 3, 30, 3, marks=pytest.mark.skipif("libvpx-vp9" not in av.codecs_available,
+                                                                  reason="PyAV's FFmpeg has no libvpx-vp9"))])
 def test_frames_that_decode_with_errors_are_labelled_said_once_and_counted(tmp_path, images, capsys, codec, k, at,
                                                                            frame):
     """Bytes flipped inside a packet's slice data: FFmpeg conceals the frame (grey or smeared) without an error, and

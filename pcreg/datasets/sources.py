@@ -371,6 +371,7 @@ class VideoFrames:
         import av
 
         from .damage import Timing
+        from .vp9_check import Vp9Check
 
         s, size = self.selection, None
         with self._open() as container:
@@ -378,8 +379,9 @@ class VideoFrames:
             if stream.codec_context.name == "h264":  # its slice threads leave a concealed frame unflagged
                 stream.codec_context.thread_type = "FRAME"
             timing = Timing(checked=container.format.name == "matroska,webm")
+            check = Vp9Check(stream)  # FFmpeg's VP9 decoder flags no damaged frame: libvpx tells them
             try:
-                for frame in _shown_frames(container, stream, reading.hidden, self.path):
+                for frame in _shown_frames(container, stream, reading.hidden, self.path, check.packets):
                     i = reading.decoded
                     reading.decoded += 1
                     reading.last_time = frame.time if frame.time is not None else reading.last_time
@@ -396,7 +398,7 @@ class VideoFrames:
                     gap = timing.check(i, frame)
                     if gap is not None:
                         reading.gaps.append(gap)
-                    if frame.is_corrupt:  # concealed by the decoder: a frame cut short or damaged, drawn in part
+                    if frame.is_corrupt or check.damaged(frame):  # concealed: a frame cut short or damaged, drawn in part
                         reading.damaged.add(i)
                     yield i, frame, turn
             except av.FFmpegError as exc:
@@ -442,16 +444,16 @@ class _Reading:
     damaged: set[int] = field(default_factory=set)
 
 
-def _shown_frames(container, stream, hidden: list[int], path: Path) -> Iterator:
-    """The video stream's frames as ``container.decode(stream)`` gives them, counting in ``hidden[0]`` the packets
-    the demuxer marks to discard: an MP4's edit list that starts after its first frames (``ffmpeg -ss T -c copy``,
-    a phone's trim) keeps them as references, decoded and never shown, though the container's count holds them.
-    In an AVI whose index places every frame, a frame the demuxer passes over is refused where it is missed."""
+def _shown_frames(container, stream, hidden: list[int], path: Path, through=iter) -> Iterator:
+    """The video stream's frames as ``container.decode(stream)`` gives them, its packets passed ``through`` a function
+    (a :class:`~pcreg.datasets.vp9_check.Vp9Check`'s), counting in ``hidden[0]`` the packets the demuxer marks to discard:
+    an MP4's edit list starting after its first frames (``ffmpeg -ss T -c copy``, a phone's trim) keeps them as references,
+    decoded, never shown, though the container counts them. An AVI's indexed frame the demuxer passes over is refused where missed."""
     from .damage import check_place, frame_places
 
     places = frame_places(container, stream)
     read = 0
-    for packet in container.demux(stream):
+    for packet in through(container.demux(stream)):
         hidden[0] += bool(getattr(packet, "is_discard", False))
         if places is not None and packet.pos is not None:
             check_place(places, read, int(packet.pos), path)

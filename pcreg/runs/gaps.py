@@ -50,6 +50,15 @@ def _say(line: str) -> None:
     tqdm.write(f"pcreg: note: {line}", file=sys.stderr)
 
 
+def _change(writer, change, *args) -> None:
+    """``change(*args)``, a change of the run's state: by ``writer`` (a :class:`~pcreg.outputs.WriteBehind`, which
+    commits it with the frame) when one is given, else at once (the caller commits)."""
+    if writer is None:
+        change(*args)
+    else:
+        writer.submit(change, *args)
+
+
 class GapMarks:
     """The places a run's video skips frames, for ``run`` (a :class:`~pcreg.runs.run.Run`: its frames' path, its
     ``out`` and its ``state``, run.json's content)."""
@@ -81,10 +90,7 @@ class GapMarks:
             elif self.said == SAID + 1:
                 _say(f"{path}: frames missing before frame {g.index} too; further places are not said one by one but "
                      f"counted in {self.run.out / STATE} (\"gaps\")")
-        if writer is None:
-            self._count(gaps)
-        else:
-            writer.submit(self._count, gaps)
+        _change(writer, self._count, gaps)
         return True
 
     def _mark_damaged(self, frame, writer) -> None:
@@ -96,10 +102,7 @@ class GapMarks:
         if frame.index <= max(self.last_damaged, -1 if counted is None else int(counted["last"])):
             return
         self.last_damaged = frame.index
-        if writer is None:
-            self._count_damaged(frame.index)
-        else:
-            writer.submit(self._count_damaged, frame.index)
+        _change(writer, self._count_damaged, frame.index)
 
     def _count_damaged(self, index: int) -> None:
         old = self.run.state.get("damaged") or {"frames": 0, "last": "", "listed": []}
@@ -120,10 +123,7 @@ class GapMarks:
                 continue
             self.noted.add(kind)
             _say(line)
-            if writer is None:
-                self._keep(kind, line)
-            else:
-                writer.submit(self._keep, kind, line)
+            _change(writer, self._keep, kind, line)
 
     def _keep(self, kind: str, line: str) -> None:
         kept = self.run.state.get("notes") or {}

@@ -71,6 +71,10 @@ class RunLabels:
     damaged: str | None = None
     notes: tuple[str, ...] = ()
 
+    def said(self) -> tuple[str, ...]:
+        """Every line said of the run's frames, in order: ``gaps``, ``damaged`` and the ``notes``."""
+        return tuple(filter(None, (self.gaps, self.damaged, *self.notes)))
+
 
 def default_name(fmt: str) -> str:
     """The archive's file name in the run's folder when no destination is given."""

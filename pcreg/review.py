@@ -76,6 +76,12 @@ class RunReview:
     damaged: dict | None = None
     notes: dict | None = None
 
+    def said(self) -> tuple[str, ...]:
+        """Every line the review says of the run's frames, in order: where its video skips frames, its frames that
+        decode with errors (:meth:`gaps_note`, :meth:`damaged_note`) and what else reading them met
+        (:meth:`kept_notes`); none for a run that met nothing."""
+        return tuple(filter(None, (self.gaps_note(), self.damaged_note(), *self.kept_notes())))
+
     def kept_notes(self) -> tuple[str, ...]:
         """What the review says again of what reading the run's frames met (:func:`pcreg.runs.gaps.kept_notes`)."""
         from .runs.gaps import kept_notes
@@ -495,7 +501,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     of odd size are padded by a pixel. ``fps``: frames per second (default: a video's own rate, divided by the
     run's ``--every``; 10 for a folder). The source is read straight through, once. A run whose video skips frames
     by its times, has frames that decode with errors or met other notes reading them says so in the video's comment,
-    one line each (:meth:`RunReview.gaps_note`, :meth:`RunReview.damaged_note`, :meth:`RunReview.kept_notes`). ``note`` is told, once, when a
+    one line each (:meth:`RunReview.said`). ``note`` is told, once, when a
     frame is too small for its classes' legend (it shows its name alone). Returns the number of frames written."""
     import os
     import tempfile
@@ -517,9 +523,8 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     try:
         with av.open(tmp, "w", format="mp4") as container, \
                 progress(total=len(review.names), desc="frames", disable=None) as bar:
-            said = "\n".join(filter(None, (review.gaps_note(), review.damaged_note(), *review.kept_notes())))
-            if said:  # what the run's review says of its frames, one line each, in the video's comment
-                container.metadata["comment"] = said
+            if review.said():  # what the run's review says of its frames, one line each, in the video's comment
+                container.metadata["comment"] = "\n".join(review.said())
             stream = None
             small = False
             for t, image in images.frames():

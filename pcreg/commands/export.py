@@ -69,10 +69,8 @@ def run(args: argparse.Namespace) -> int:
     note = unfinished_note(Path(args.folder), len(run_labels.names), run_labels.chosen)
     if note:
         print(note)
-    if run_labels.gaps:  # the video skips frames by its times: the run's frame N is not the file's
-        sys.stderr.write(f"pcreg: note: {run_labels.gaps}\n")
-    if run_labels.damaged:  # frames that decode with errors: labelled from concealed pictures
-        sys.stderr.write(f"pcreg: note: {run_labels.damaged}\n")
-    for line in run_labels.notes:  # what reading the frames met: transparent pixels, a turn to interlaced
+    # where the video skips frames by its times (the run's frame N is not the file's), frames that decode with errors
+    # (labelled from concealed pictures), what else reading the frames met (transparent pixels, a turn to interlaced)
+    for line in run_labels.said():
         sys.stderr.write(f"pcreg: note: {line}\n")
     return 0

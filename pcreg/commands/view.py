@@ -287,13 +287,9 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     note = unfinished_note(folder, len(review.names), review.chosen)
     if note:
         print(note)
-    gaps = review.gaps_note()  # the video skips frames by its times: the run's frame N is not the file's
-    if gaps:
-        sys.stderr.write(f"pcreg: note: {gaps}\n")
-    damaged = review.damaged_note()  # frames that decode with errors: labelled from concealed pictures
-    if damaged:
-        sys.stderr.write(f"pcreg: note: {damaged}\n")
-    for line in review.kept_notes():  # what reading the frames met: transparent pixels, a turn to interlaced
+    # where the video skips frames by its times (the run's frame N is not the file's), frames that decode with errors
+    # (labelled from concealed pictures), what else reading the frames met (transparent pixels, a turn to interlaced)
+    for line in review.said():
         sys.stderr.write(f"pcreg: note: {line}\n")
     if args.overlay:
         n = write_overlay_video(review, out, fps=args.fps, note=lambda line: sys.stderr.write(f"pcreg: note: {line}\n"))

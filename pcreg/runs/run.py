@@ -164,6 +164,7 @@ class Run:
         from ..outputs import WriteBehind
         from ..pipeline.engine import References, propagate
         from ..recording.recorder import open_recording
+        from ..recording.stream_log import log_frame
 
         frames, out = self.frames, self.out
         _, second, decoded = pending
@@ -213,6 +214,7 @@ class Run:
         from .._runner import check_interrupted, progress, tick
         from ..pipeline.keys_run import KeyRun
         from ..recording.recorder import open_recording
+        from ..recording.stream_log import log_frame
         from .disk import choose_kept
 
         frames = self.frames
@@ -578,23 +580,3 @@ def _notes_before_the_first_frame(keys: dict, table, config, frames, pending) ->
              None if pending is None else scale_note(pending[0].image, f"{frames.path}: the key frame {pending[0].name}", config))
     for note in filter(None, notes):
         sys.stderr.write(f"pcreg: note: {note}\n")
-
-
-def log_frame(rec, t: int, image, labels, report, name: str, size, *, reference=None) -> None:
-    """One frame into the recording ``rec``; ``size``: the propagator's working size (its motion is logged
-    in the frames' pixels); ``reference``: the image the frame was registered to, when known (the
-    Registration view draws the frame over it)."""
-    rec.set_frame(t)
-    rec.log_images(reference=reference, moving=image)
-    rec.log_labels(predicted=labels)
-    reg = report.registration
-    if reg is None:
-        rec.log_failure(f"{name}: {report.reason} (the key frame's labels, unwarped)")
-        return
-    matrix = size.frame_matrix(reg.matrix)
-    if getattr(reg, "field", None) is not None:
-        rec.log_dense(size.frame_field(reg.field), matrix=matrix,
-                      confidence=None if reg.confidence is None else size.grow(reg.confidence))
-    else:
-        rec.log_transform(matrix)
-

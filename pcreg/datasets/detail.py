@@ -16,15 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["KEPT_DETAIL", "SCALES", "SET_ON", "detail_kept", "detail_scale", "scale_note"]
+__all__ = ["KEPT_DETAIL", "SCALES", "detail_kept", "detail_scale", "scale_note"]
 
 #: The share of a frame's fine detail a round trip to a smaller size must keep for the frame to be called no
 #: sharper than that size: three quarters (any limit of the loss from 0.18 to 0.30 finds the same scales on the
 #: shared clips, at their own size and brought up to 640x480 and 960x720, and on DAVIS).
 KEPT_DETAIL = 0.75
-#: The frames' longer side (pixels) the stream's dense step was set on (CamVid's 480x360): the note suggests no
-#: scale that works below it, where the step was not measured to gain (a smooth 320x240 frame is not said).
-SET_ON = 480
 #: The scales tried, smallest first (``--scale`` values). Not below a half: at larger factors the measure reads
 #: the interpolation's own ripple (CamVid frames brought up four times keep 41% at 0.5 and 70% at 0.75, and are
 #: not said; three times, 84% at 0.75, said at 0.75).
@@ -47,27 +44,38 @@ def detail_kept(image: np.ndarray, scale: float) -> float:
     return 1.0 - float(np.mean(cv2.Laplacian(grey - back, cv2.CV_32F) ** 2)) / energy
 
 
-def detail_scale(image: np.ndarray, *, longer_side: int = 16) -> float:
+def detail_scale(image: np.ndarray, *, longer_side: float = 16) -> float:
     """The smallest of :data:`SCALES` at which ``image`` keeps :data:`KEPT_DETAIL` of its fine detail and its longer
     side ``longer_side`` pixels or more, 1.0 when none does (a frame as sharp as its size)."""
+    return _scale_kept(image, longer_side)[0]
+
+
+def _scale_kept(image: np.ndarray, longer_side: float) -> tuple[float, float]:
+    """:func:`detail_scale` and the share of the detail kept there (1.0 at 1.0)."""
     h, w = image.shape[:2]
     for s in SCALES:
-        if min(h, w) * s >= 16 and max(h, w) * s >= longer_side and detail_kept(image, s) >= KEPT_DETAIL:
-            return s
-    return 1.0
+        if min(h, w) * s >= 16 and max(h, w) * s >= longer_side:
+            kept = detail_kept(image, s)
+            if kept >= KEPT_DETAIL:
+                return s, kept
+    return 1.0, 1.0
 
 
 def scale_note(image: np.ndarray, where: str, config) -> str | None:
     """The note of a key frame ``image`` (``where`` names it) that holds no more detail than a smaller size would,
-    not below :data:`SET_ON` pixels on its longer side, for a run of ``config`` (a :class:`~pcreg.pipeline.config.PropagatorConfig`) at full size with the dense
-    model, which follows a scene; None otherwise."""
+    not below :data:`~pcreg.pipeline.readout.BASE_WIDTH` (the width the stream's sizes were set at) on its longer
+    side, for a run of ``config`` (a :class:`~pcreg.pipeline.config.PropagatorConfig`) at full size with the dense
+    model, which follows a scene; None otherwise (a smooth 320x240 frame is not said: the step was not measured to
+    gain below that width)."""
+    from ..pipeline.readout import BASE_WIDTH
+
     if config.scale != 1.0 or config.model != "dense" or config.follow != "scene":
         return None
-    s = detail_scale(image, longer_side=SET_ON)
+    s, kept = _scale_kept(image, BASE_WIDTH)
     if s == 1.0:
         return None
     h, w = image.shape[:2]
     return (f"{where} holds no more detail than at {s:g} of its size ({round(w * s)}x{round(h * s)}: a round trip "
-            f"there keeps {detail_kept(image, s):.0%} of its fine detail), as frames brought up from a smaller size "
-            f"do; on such frames `--scale {s:g}` labelled the shared clips more accurately and is faster (the step's "
-            "sizes are in pixels, set on frames 480 px wide)")
+            f"there keeps {kept:.0%} of its fine detail), as frames brought up from a smaller size do; on such frames "
+            f"`--scale {s:g}` labelled the shared clips more accurately and is faster (the step's sizes are in pixels, "
+            f"set on frames {BASE_WIDTH:g} px wide)")

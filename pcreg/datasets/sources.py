@@ -39,6 +39,7 @@ from typing import Any, Generator, Iterator, TypeVar
 import numpy as np
 
 from ..errors import InputError
+from .video_shown import Turn, as_shown, display_turn, first_interlaced, shown_frames, video_duration
 
 __all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES",
            "OTHER_VIDEO_SUFFIXES", "convert_hint"]
@@ -236,7 +237,7 @@ class VideoFrames:
             #: Without one (Matroska, MPEG-TS), the count its duration and frame rate give: an estimate.
             self.estimated: int | None = None
             #: The video stream's duration in seconds (None when it gives none), and its mean frame rate.
-            self.duration = _video_duration(container, stream)
+            self.duration = video_duration(container, stream)
             self.rate = float(stream.average_rate) if stream.average_rate else None
             #: A transport stream's time stamps may restart (recordings joined with ``cat``, as a camcorder's
             #: files are): its duration is no measure of where its frames end.
@@ -245,7 +246,7 @@ class VideoFrames:
                 self.estimated = int(round(self.duration * self.rate))
             #: Whether the first frame is flagged interlaced (its two fields taken apart in time): every frame so
             #: flagged is deinterlaced as it is read (:meth:`frames`); this only says so (:meth:`note`).
-            self.interlaced = _first_interlaced(container, stream)
+            self.interlaced = first_interlaced(container, stream)
         if self.declared is not None and selection.start >= self.declared:
             raise InputError(f"--start {selection.start} is past the end of {self.path} ({self.declared} frames)")
 
@@ -328,11 +329,11 @@ class VideoFrames:
 
         before = target - s.every if first > 0 else -1  # the gaps up to the frame before were the earlier frames'
 
-        def made(i: int, frame, turn: _Turn) -> SourceFrame:
+        def made(i: int, frame, turn: Turn) -> SourceFrame:
             nonlocal before
             reading.yielded = True
             name = f"{i:06d}"
-            image = _as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
+            image = as_shown(rgb.reformat(frame, format="rgb24").to_ndarray(), turn)
             notes, reading.notes = tuple(reading.notes), []
             alpha = rgba.reformat(frame, format="rgba").to_ndarray()[:, :, 3] if has_alpha(frame) else None
             gaps = tuple(g for g in reading.gaps if before < g.index <= i)
@@ -364,7 +365,7 @@ class VideoFrames:
         if first == 0 and not reading.yielded:
             raise InputError(f"--start {s.start} is past the end of {self.path} ({reading.decoded} frames)")
 
-    def _decoded(self, reading: _Reading) -> Iterator[tuple[int, Any, _Turn]]:
+    def _decoded(self, reading: _Reading) -> Iterator[tuple[int, Any, Turn]]:
         """Every frame of the video in decoding order, as (index, ``av.VideoFrame``, how it is shown), up to the
         first past the selection's ``stop``; ``reading`` counts them and keeps the gaps in their times and the frames
         that decode with errors (flagged by the decoder, concealed). A frame of another size is refused where met."""
@@ -381,11 +382,11 @@ class VideoFrames:
             timing = Timing(checked=container.format.name == "matroska,webm")
             check = Vp9Check(stream)  # FFmpeg's VP9 decoder flags no damaged frame: libvpx tells them
             try:
-                for frame in _shown_frames(container, stream, reading.hidden, self.path, check.packets):
+                for frame in shown_frames(container, stream, reading.hidden, self.path, check.packets):
                     i = reading.decoded
                     reading.decoded += 1
                     reading.last_time = frame.time if frame.time is not None else reading.last_time
-                    turn = _display_turn(frame, self.path)
+                    turn = display_turn(frame, self.path)
                     shown = (frame.height, frame.width) if turn[0] else (frame.width, frame.height)
                     if size is None:
                         size = shown
@@ -432,8 +433,8 @@ class VideoFrames:
 @dataclass
 class _Reading:
     """What reading a video met: frames ``decoded``, the last one's time, the ``hidden`` ones (a one-item list, as
-    :func:`_shown_frames` counts them), whether a frame was handed on, the gaps in the times and the notes
-    (:attr:`SourceFrame.notes`) not handed on yet, and the frames that decode with errors."""
+    :func:`~pcreg.datasets.video_shown.shown_frames` counts them), whether a frame was handed on, the gaps in the
+    times and the notes (:attr:`SourceFrame.notes`) not handed on yet, and the frames that decode with errors."""
 
     decoded: int = 0
     last_time: float | None = None
@@ -442,92 +443,6 @@ class _Reading:
     gaps: list = field(default_factory=list)
     notes: list = field(default_factory=list)
     damaged: set[int] = field(default_factory=set)
-
-
-def _shown_frames(container, stream, hidden: list[int], path: Path, through=iter) -> Iterator:
-    """The video stream's frames as ``container.decode(stream)`` gives them, its packets passed ``through`` a function
-    (a :class:`~pcreg.datasets.vp9_check.Vp9Check`'s), counting in ``hidden[0]`` the packets the demuxer marks to discard:
-    an MP4's edit list starting after its first frames (``ffmpeg -ss T -c copy``, a phone's trim) keeps them as references,
-    decoded, never shown, though the container counts them. An AVI's indexed frame the demuxer passes over is refused where missed."""
-    from .damage import check_place, frame_places
-
-    places = frame_places(container, stream)
-    read = 0
-    for packet in through(container.demux(stream)):
-        hidden[0] += bool(getattr(packet, "is_discard", False))
-        if places is not None and packet.pos is not None:
-            check_place(places, read, int(packet.pos), path)
-            read += 1
-        yield from packet.decode()
-
-
-def _first_interlaced(container, stream) -> bool:
-    """Whether the video's first frame is flagged interlaced; False when it does not decode (refused where
-    :meth:`VideoFrames.frames` meets it)."""
-    import av
-
-    try:
-        frame = next(iter(container.decode(stream)), None)
-    except av.FFmpegError:
-        return False
-    return frame is not None and bool(frame.interlaced_frame)
-
-
-def _video_duration(container, stream) -> float | None:
-    """The video stream's own duration in seconds: its ``duration`` in its time base, or Matroska's ``DURATION``
-    tag; the container's only when the video is its one stream (an audio track may run longer); else None."""
-    if stream.duration and stream.time_base:
-        return float(stream.duration * stream.time_base)
-    tag = str(stream.metadata.get("DURATION", ""))
-    hours, _, rest = tag.partition(":")
-    minutes, _, seconds = rest.partition(":")
-    try:
-        return int(hours) * 3600 + int(minutes) * 60 + float(seconds)
-    except ValueError:
-        pass
-    if container.duration and len(container.streams) == 1:
-        return container.duration / 1e6
-    return None
-
-
-#: How a frame is turned to be shown: (transposed, rows reversed, columns reversed), in that order.
-_Turn = tuple[bool, bool, bool]
-
-
-def _display_turn(frame, path: Path) -> _Turn:
-    """How the frame's display matrix (FFmpeg's ``DISPLAYMATRIX`` side data, as a phone writes it) shows it: a
-    pixel ``(p, q)`` is shown at ``(a p + c q, b p + d q)``, with ``a, b, c, d`` the matrix's entries 0, 1, 3 and 4,
-    so a matrix of quarter turns and mirrors moves the pixel grid by a transpose and reversals, as FFmpeg's
-    autorotation does. PyAV's ``VideoFrame.rotation`` gives the angle alone: a mirrored matrix (a selfie camera's)
-    read as a rotation is shown upside down. A matrix that is not quarter turns is refused."""
-    from av.sidedata.sidedata import SideDataContainer
-
-    # Read through a container of its own, not ``frame.side_data``: that property keeps its container on the frame,
-    # which refers back to the frame, so the frame (and its picture, FFmpeg's memory) would be freed only by
-    # Python's cycle collector, and one that outlived a collection only by a full one, rare in a long run: decoding's
-    # memory grew with them, about 2.5 kB a frame at 320x240 (docs/benchmarks.md).
-    side = SideDataContainer(frame)  # type: ignore[call-arg]  # PyAV's stub leaves out its constructor
-    matrix = next((bytes(sd) for sd in side if sd.type.name == "DISPLAYMATRIX"), None)
-    if matrix is None or len(matrix) != 36:
-        return False, False, False
-    a, b, _, c, d = np.frombuffer(matrix, dtype=np.int32)[:5].astype(float)
-    big = max(abs(a), abs(b), abs(c), abs(d))
-    small = 0.0087 * big  # sin(0.5 degrees): the tolerance a rotation has of a quarter turn
-    if big > 0 and max(abs(b), abs(c)) <= small < min(abs(a), abs(d)):
-        return False, d < 0, a < 0
-    if big > 0 and max(abs(a), abs(d)) <= small < min(abs(b), abs(c)):
-        return True, b < 0, c < 0
-    rotation = float(getattr(frame, "rotation", 0) or 0)
-    raise InputError(f"{path}: a display rotation of {rotation:g} degrees; pcreg turns frames by quarter turns only")
-
-
-def _as_shown(image: np.ndarray, turn: _Turn) -> np.ndarray:
-    """``image`` (H, W, C) turned as :func:`_display_turn` says the frame is shown."""
-    transposed, rows, columns = turn
-    if not (transposed or rows or columns):
-        return image
-    shown = image.transpose(1, 0, 2) if transposed else image
-    return np.ascontiguousarray(shown[::-1 if rows else 1, ::-1 if columns else 1])
 
 
 def convert_hint(path: Path) -> str:

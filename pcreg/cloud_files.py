@@ -100,6 +100,17 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
     if missing:  # Open3D would fill them with whatever its memory held
         raise InputError(f"{path}: PLY vertices without the {', '.join(missing)} propert"
                          f"{'y' if len(missing) == 1 else 'ies'} (x, y and z are needed)")
+    twice = sorted({name for name in vertex[4] if vertex[4].count(name) > 1})
+    if twice:  # which one a reader takes is its own choice
+        raise InputError(f"{path}: PLY vertices declare the {', '.join(twice)} propert{'y' if len(twice) == 1 else 'ies'} "
+                         "twice")
+    for axes in (("x", "y", "z"), ("nx", "ny", "nz")):
+        at = [vertex[4].index(a) for a in axes if a in vertex[4]]
+        if len(at) == 3 and at[2] < max(at[:2]):  # Open3D moves to the next point after z (nz): the rest shifts
+            raise InputError(f"{path}: its vertex properties {', '.join(axes)} come in the order "
+                             f"{', '.join(sorted(axes, key=lambda a: vertex[4].index(a)))}: Open3D's reader, which "
+                             f"reads PLY, takes {axes[2]} for the last of them and fails on this order (write "
+                             f"{axes[2]} after {axes[0]} and {axes[1]})")
     n = vertex[1]
     check_point_count(n, str(path), limit=limit)
     if fmt == "ascii":
@@ -473,6 +484,10 @@ def check_npy_file(path: Path, limit: int) -> tuple[tuple[int, ...], np.dtype]:
     if size - start < count * dtype.itemsize:
         raise InputError(f"{path}: truncated .npy: the header declares {shape} {dtype} "
                          f"({count * dtype.itemsize} bytes), the file holds {size - start}")
+    if size - start > count * dtype.itemsize:  # numpy reads what the header declares and leaves the rest unread
+        raise InputError(f"{path}: the .npy header declares {shape} {dtype} ({count * dtype.itemsize} bytes), the "
+                         f"file holds {size - start} bytes after it (more points than declared, or arrays saved one "
+                         "after another into one file?)")
     return tuple(int(s) for s in shape), dtype
 
 

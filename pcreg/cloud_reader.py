@@ -16,7 +16,7 @@ from .cloud_files import PcdHeader, check_cloud_file, check_npy_file, pcd_header
 from .cloud_text import check_text_cloud, number_columns, read_columns, read_pts
 from .errors import InputError
 from .registration.api import check_cloud
-from .validation import check_point_count, max_pixels
+from .validation import check_path, check_point_count, max_pixels
 
 __all__ = ["CLOUD_SUFFIXES", "TEXT_COLUMN_SUFFIXES", "load_cloud", "read_columns"]
 
@@ -36,7 +36,7 @@ def load_cloud(path: str | os.PathLike, *, max_points: int | None = None) -> np.
     HEIGHT > 1) that measured nothing. Open3D's messages go
     to stderr, never stdout.
     """
-    path = Path(path)
+    path = check_path(path, "path")
     suffix = path.suffix.lower()
     if suffix not in CLOUD_SUFFIXES:
         raise InputError(f"{path}: unknown point-cloud format {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")

@@ -384,7 +384,34 @@ def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tu
     if fmt == "TIFF" and (pages := _tiff_pages(data)) > 1:
         raise InputError(f"{name}: a TIFF of {pages} pages, of which pcreg would read the first alone; split it into "
                          "one file a page (tiffsplit, or OpenCV's cv2.imreadmulti and cv2.imwrite)")
+    if fmt in ("PNG", "WebP") and (frames := _animation_frames(data, fmt)) > 1:
+        raise InputError(f"{name}: an animated {fmt} of {frames} images, of which pcreg would read the first alone; "
+                         "save the one meant as an image of its own (Pillow's ImageSequence, or ffmpeg)")
     return w, h
+
+
+def _animation_frames(data: bytes, fmt: str) -> int:
+    """The images an animated PNG (APNG: its acTL chunk's frame count, and its default image where that is no frame)
+    or an animated WebP (its ANMF chunks) holds; 1 for a still image. OpenCV decodes the first alone."""
+    if fmt == "PNG":  # acTL and the first fcTL come before the first IDAT
+        pos, count, frame_first = 8, None, False
+        while pos + 12 <= len(data):
+            length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+            if kind == b"IDAT":
+                break
+            if kind == b"acTL":
+                count = struct.unpack(">I", data[pos + 8:pos + 12])[0]
+            frame_first |= kind == b"fcTL"
+            pos += 12 + length
+        return 1 if count is None else count + (not frame_first)
+    if len(data) < 21 or data[12:16] != b"VP8X" or not data[20] & 0x02:  # no animation flag
+        return 1
+    pos, frames = 12, 0
+    while pos + 8 <= len(data):
+        kind, size = data[pos:pos + 4], struct.unpack("<I", data[pos + 4:pos + 8])[0]
+        frames += kind == b"ANMF"
+        pos += 8 + size + (size & 1)
+    return max(frames, 1)
 
 
 def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int | None = None) -> np.ndarray:

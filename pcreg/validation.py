@@ -189,17 +189,21 @@ def plain_array(value, name: str) -> np.ndarray:
 
 def check_matrix(value, name: str, dim: int) -> np.ndarray:
     """A finite, invertible, well-conditioned (dim x dim) float64 copy of ``value`` (a homogeneous
-    transform such as an initial guess)."""
+    transform such as an initial guess). An affine transform's conditioning is its linear block's: the whole
+    matrix's grows as its translation squared (a shift of 10^6, a georeferenced cloud's, read as singular)."""
     try:
         M = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError(f"{name} must be a {dim}x{dim} matrix of numbers") from None
-    if M.shape != (dim, dim) or not np.all(np.isfinite(M)):
+    if M.shape != (dim, dim):
         raise InputError(f"{name} must be a finite {dim}x{dim} matrix, got shape {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise InputError(f"{name} must be a finite {dim}x{dim} matrix, got NaN or inf entries")
     if np.max(np.abs(M)) > 1e12:
         raise InputError(f"{name} has entries up to {np.max(np.abs(M)):.3g} (|m| <= 1e12)")
+    affine = dim > 1 and np.array_equal(M[-1], np.eye(dim)[-1])
     try:
-        cond = np.linalg.cond(M)
+        cond = np.linalg.cond(M[:-1, :-1] if affine else M)
     except np.linalg.LinAlgError:
         cond = np.inf
     if not np.isfinite(cond) or cond > 1e12:

@@ -248,6 +248,9 @@ def format_table(out: dict) -> str:
         if r.get("divergence"):
             lines.append(f"{'':24s} first divergence at iteration {r['divergence']['iteration']}: "
                          f"{r['divergence']['cause']}")
+        said = (r.get("info") or {}).get("said")
+        if said:  # what the library printed or warned, kept off the terminal: its row says it
+            lines.append(f"{'':24s} its library said: {said[0]}" + (f" (and {len(said) - 1} more)" if len(said) > 1 else ""))
     s = out["settings"]
     lines.append(f"settings: gate {s['max_correspondence_distance']:.4g}, max {s['max_iterations']} iterations, "
                  f"{s['source_points']} source / {s['target_points']} target points; rotation/translation/rel "
@@ -288,4 +291,10 @@ def _images(args) -> int:
                     "matrix_relative_disagreement"):
             if out.get(key) is not None:
                 print(f"{key}: {out[key]:.3g}")
-    return 0
+        if report.refused:
+            print(f"refused, not trusted: {report.refused} (pcreg register refuses this pair; both poses are its search's "
+                  "best, compared all the same)")
+    if report.refused is None:
+        return 0
+    sys.stderr.write(f"pcreg: registration refused: pcreg register refuses these images: {report.refused}\n")
+    return 3

@@ -9,7 +9,7 @@
 from __future__ import annotations
 
 from .base import (COMPARABILITY, FIXED_POINT, OBJECTIVE, STEP, ImplementationError, Implementation, MissingLibrary,
-                   Pinned, reported, stdout_to_stderr)
+                   Pinned, reported, run_quietly, stdout_to_stderr)
 from .builtin import BUILTIN
 from .user import Command, PythonCallable
 
@@ -56,4 +56,4 @@ def parse_list(text: str) -> list[str]:
 
 __all__ = ["BUILTIN", "COMPARABILITY", "DEFAULT", "FIXED_POINT", "OBJECTIVE", "STEP", "Command", "Implementation",
            "ImplementationError", "MissingLibrary", "Pinned", "PythonCallable", "get",
-           "parse_list", "reported", "stdout_to_stderr"]
+           "parse_list", "reported", "run_quietly", "stdout_to_stderr"]

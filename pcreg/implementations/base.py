@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import PcregError
+from ..errors import InputError, PcregError
 from ..registration.result import IcpIteration, RegistrationResult
 
 STEP, FIXED_POINT, OBJECTIVE = "step", "fixed-point", "objective"
@@ -49,6 +49,11 @@ class Pinned:
     source, target : (N, d), (M, d) float64, d = 2 or 3; init : (d+1, d+1) ``T_target_source`` guess.
     The stopping rule is Open3D's: stop after an iteration whose |Δfitness| < relative_fitness and
     |Δinlier_rmse| < relative_rmse, or after max_iterations iterations.
+
+    Checked when made, as :func:`pcreg.icp` checks its inputs (an :class:`~pcreg.errors.InputError`): finite
+    clouds of one dimension, a finite rigid ``init`` (every implementation runs the rigid ICP; Open3D and
+    small_gicp returned a shear given as the guess as their converged result, and KISS-ICP's Sophus ended the
+    process on a NaN one), a positive correspondence distance, at least one iteration.
     """
 
     source: np.ndarray
@@ -58,6 +63,28 @@ class Pinned:
     max_iterations: int = 30
     relative_fitness: float = 1e-6
     relative_rmse: float = 1e-6
+
+    def __post_init__(self) -> None:
+        from ..registration.inputs import check_cloud
+        from ..registration.transforms import rigid_problem
+        from ..validation import check_float, check_int, check_matrix
+
+        source, target = check_cloud(self.source, "source"), check_cloud(self.target, "target")
+        d = source.shape[1]
+        if target.shape[1] != d:
+            raise InputError(f"source is {d}-D but target is {target.shape[1]}-D")
+        init = check_matrix(self.init, "init", d + 1)
+        problem = rigid_problem(init)
+        if problem is not None:
+            raise InputError(f"init: {problem}, and every implementation runs the rigid ICP")
+        checked = {"source": source, "target": target, "init": init,
+                   "max_correspondence_distance": check_float(self.max_correspondence_distance,
+                                                              "max_correspondence_distance", lo=0, lo_open=True),
+                   "max_iterations": check_int(self.max_iterations, "max_iterations", lo=1, hi=100_000),
+                   "relative_fitness": check_float(self.relative_fitness, "relative_fitness", lo=0),
+                   "relative_rmse": check_float(self.relative_rmse, "relative_rmse", lo=0)}
+        for name, value in checked.items():
+            object.__setattr__(self, name, value)
 
     @property
     def dim(self) -> int:
@@ -99,6 +126,14 @@ class Implementation:
         return {}
 
     def run(self, pinned: Pinned, *, trace: bool = False) -> RegistrationResult:
+        """This implementation's result on ``pinned``: its ``T_target_source`` (finite, of the clouds' dimension,
+        neither a mirror image nor a collapse, else an :class:`ImplementationError`). On clouds that leave the rigid
+        transform free (:func:`unconstrained`: too few, coincident or, in 3-D,
+        collinear points) pcreg's reference ICP refuses, as :func:`pcreg.icp` does; any other returns the pose its
+        library finds, one of many that fit as well, marked: ``info["unconstrained"]`` says why and
+        ``trusted`` is False."""
+        if not isinstance(pinned, Pinned):
+            raise InputError(f"pinned must be a pcreg.implementations.Pinned, got {type(pinned).__name__}")
         why = self.missing()
         if why:
             raise MissingLibrary(why)
@@ -117,10 +152,32 @@ class Implementation:
             raise ImplementationError("returned a matrix with NaN or inf")
         if d == 2:
             _check_in_plane(m, (out.info or {}).get("out_of_plane"))
-        return replace(out, matrix=m, seconds=out.seconds or seconds, backend=self.name, frames="T_target_source")
+        det = float(np.linalg.det(m[:d, :d]))
+        if not det > 1e-12:  # pycpd's scale fell to 0 on coincident points
+            raise ImplementationError(f"returned a transform whose linear block has determinant {det:.3g}: "
+                                      f"{'a mirror image' if det < 0 else 'a collapse of the cloud'}, no rigid motion")
+        info, problem = out.info or {}, unconstrained(pinned.source, pinned.target)
+        return replace(out, matrix=m, seconds=out.seconds or seconds, backend=self.name, frames="T_target_source",
+                       info=info if problem is None else {**info, "unconstrained": problem})
 
     def _run(self, pinned: Pinned, *, trace: bool) -> RegistrationResult:  # pragma: no cover - abstract
         raise NotImplementedError
+
+
+def unconstrained(source: np.ndarray, target: np.ndarray) -> str | None:
+    """Why the clouds leave the rigid transform undetermined, or None: either cloud too few, coincident
+    points, or (3-D) points on one line, about which any rotation fits as well. In the words of the
+    reference ICP's refusal (:func:`~pcreg.registration.closed_forms.rank_problem`), the cloud named. Every
+    other implementation's pose on such clouds is one of many, whatever its ``converged`` says:
+    :meth:`Implementation.run` marks it (``info["unconstrained"]``), a cross-check's row ``"status":
+    "unconstrained"``."""
+    from ..registration.closed_forms import rank_problem
+
+    for name, points in (("source", source), ("target", target)):
+        problem = rank_problem(points, "rigid")
+        if problem is not None:
+            return f"{name}: {problem}"
+    return None
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -195,12 +252,11 @@ def _check_in_plane(m: np.ndarray, leaves: float | None) -> None:
     (``leaves``, :func:`out_of_plane`; None: the implementation ran in 2-D) or mirrors the plane. A 3-D ICP on
     2-D clouds lifted to z = 0 is free to turn the plane over about a line the points lie along (Open3D's tensor
     ICP did, on 50 points on a line): its in-plane block is then a reflection, and reporting it as a 2-D
-    transform would show a mirror image as that implementation's converged result."""
+    transform would show a mirror image as that implementation's converged result (refused by :meth:`Implementation.run`,
+    as any mirror image)."""
     if leaves is not None and leaves > PLANE_TOLERANCE * max(1.0, float(np.abs(m[:2, :2]).max())):
         raise ImplementationError(f"its 3-D result leaves the plane z = 0 of the lifted 2-D clouds (out-of-plane "
                                   f"part {leaves:.2g}): it turned the plane over, which no 2-D transform describes")
-    if np.linalg.det(m[:2, :2]) <= 0:
-        raise ImplementationError("returned a 2-D transform that mirrors the plane (its determinant is not positive)")
 
 
 def out_of_plane(m: np.ndarray) -> float:
@@ -227,6 +283,27 @@ def score(pinned: Pinned, matrix: np.ndarray) -> tuple[float, float, np.ndarray]
     if k == 0:
         return 0.0, 0.0, idx
     return k / len(ok), float(np.sqrt(np.mean(dist[ok] ** 2))), idx
+
+
+def run_quietly(implementation: Implementation, pinned: Pinned) -> tuple[RegistrationResult | Exception, list[str]]:
+    """``implementation.run(pinned, trace=True)``, its result or the exception it raised, and what it said meanwhile,
+    kept off the terminal: the lines its library printed (small_gicp's and Open3D's warnings, from C++) and the
+    Python warnings it raised (pycpd's and probreg's RuntimeWarnings on coincident points), each once."""
+    import re
+    import warnings
+
+    from ..quiet import capture_output_fds
+
+    with warnings.catch_warnings(record=True) as warned:
+        warnings.simplefilter("always")
+        with capture_output_fds() as printed:
+            try:
+                outcome: RegistrationResult | Exception = implementation.run(pinned, trace=True)
+            except Exception as exc:  # noqa: BLE001 - the caller's row reports it
+                outcome = exc
+    lines = [line.strip() for line in re.sub(r"\x1b\[[0-9;]*m", "", "".join(printed)).splitlines() if line.strip()]
+    lines += [f"{w.category.__name__}: {w.message}" for w in warned]
+    return outcome, list(dict.fromkeys(line[:200] for line in lines))[:10]
 
 
 @contextlib.contextmanager

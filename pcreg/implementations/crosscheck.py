@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -26,7 +26,7 @@ from ..registration.config import RegisterConfig
 from ..registration.icp_options import ICPOptions
 from ..registration.result import IcpIteration, RegistrationResult
 from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
-from .base import reported
+from .base import reported, unconstrained
 
 
 #: The registration both backends run in a cross-check of two images: 30 ICP iterations a level and
@@ -57,10 +57,11 @@ class CrosscheckReport:
     translation_disagreement: float | None = None
     matrix_relative_disagreement: float = 0.0
     extra: dict = field(default_factory=dict)
+    refused: str | None = None  # why pcreg.register refuses the pair: neither pose is trusted
 
     def to_dict(self) -> dict:
         out = {"kind": self.kind, "reference": self.reference.to_dict(), "open3d": self.open3d.to_dict(),
-               "matrix_relative_disagreement": self.matrix_relative_disagreement,
+               "refused": self.refused, "matrix_relative_disagreement": self.matrix_relative_disagreement,
                "reference_seconds": self.reference.seconds, "open3d_seconds": self.open3d.seconds}
         if self.kind == "images":
             out["max_corner_disagreement_px"] = self.max_corner_disagreement_px
@@ -81,17 +82,26 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
     """:func:`pcreg.register`, the function users call, once with each backend and the same options.
 
     Both runs build the same clouds (same seeds), search the same hypotheses and refine each with their
-    own ICP at every step; the plausibility test is off (a cross-check reports, it does not refuse), and
-    the point-to-line finish, which only the reference backend has, is not used. Open3D is run one
-    iteration at a time so that both iteration counts are exact.
+    own ICP at every step, and the point-to-line finish, which only the reference backend has, is not used.
+    Open3D is run one iteration at a time so that both iteration counts are exact. A cross-check reports, it
+    does not refuse: where the plausibility test (on for the reference's run, with its default threshold)
+    refuses the pair (unrelated images, a mirror image), both poses are still compared, and the report's
+    ``refused`` says why neither is trusted.
     """
+    from ..registration.config import DEFAULT_MIN_INLIER_RATIO
+
     ref = as_rgb_uint8(reference_image, name="reference image")
     mov = as_rgb_uint8(moving_image, name="moving image")
-    results = {}
-    for backend in ("reference", "open3d"):
-        # A callback makes both backends report every iteration (Open3D then runs stepwise: exact counts).
-        results[backend] = register(ref, mov, config=config.registration.replace(model_check=False), backend=backend,
-                                    callback=callback or (lambda it: None))
+    results, refused = {}, None
+    untested = config.registration.replace(model_check=False)
+    report = callback or (lambda it: None)  # a callback makes both backends report every iteration (Open3D then
+    try:                                    # runs stepwise: exact counts)
+        results["reference"] = register(ref, mov, config=untested.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO),
+                                        backend="reference", callback=report)
+    except RegistrationError as exc:  # the same search without the test: the pose it refused (iterations told)
+        refused = str(exc).removeprefix("registration refused: ")
+        results["reference"] = register(ref, mov, config=untested, backend="reference", callback=lambda it: None)
+    results["open3d"] = register(ref, mov, config=untested, backend="open3d", callback=report)
     a, b = results["reference"], results["open3d"]
     c = corners(mov.shape)
     return CrosscheckReport(
@@ -101,7 +111,7 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
         translation_disagreement=float(np.linalg.norm(a.matrix[:2, 2] - b.matrix[:2, 2])),
         matrix_relative_disagreement=_relative(a.matrix, b.matrix),
         extra={"generators": [a.generator, b.generator],
-               "inlier_ratios": [a.inlier_ratio, b.inlier_ratio]})
+               "inlier_ratios": [a.inlier_ratio, b.inlier_ratio]}, refused=refused)
 
 
 def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig(), callback=None,
@@ -159,8 +169,13 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
         icp = config.registration.icp
         cloud_options.setdefault("options", ICPOptions(max_iteration=icp.iterations, relative_fitness=icp.relative_fitness,
                                                        relative_rmse=icp.relative_rmse))
-        return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
-                                          **cloud_options)
+        try:
+            return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
+                                              **cloud_options)
+        except InputError as exc:  # "target: its points coincide ...": the file's words, when a file was given
+            role, _, rest = str(exc).partition(": ")
+            given = {"source": moving, "target": reference}.get(role)
+            raise (InputError(f"{given}: {rest}") if isinstance(given, (str, os.PathLike)) else exc) from None
     return crosscheck_images(A, B, config=config, callback=callback)
 
 
@@ -180,7 +195,9 @@ def default_max_distance(target: np.ndarray) -> float:
     that much, and a gate this tight keeps points without a counterpart out of the fit."""
     diag = float(np.linalg.norm(target.max(axis=0) - target.min(axis=0)))
     if not diag > 0:
-        raise InputError("cannot derive a correspondence distance: the target's points coincide")
+        raise InputError(f"target: {'a single point' if len(target) == 1 else f'its {len(target)} points coincide'}: no "
+                         "correspondence distance can be derived from its extent (give max_correspondence_distance, "
+                         "--max-distance)")
     return diag / 100.0
 
 
@@ -396,21 +413,6 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
                            source=src, target=tgt)
 
 
-def unconstrained(source: np.ndarray, target: np.ndarray) -> str | None:
-    """Why the clouds leave the rigid transform undetermined, or None: either cloud too few, coincident
-    points, or (3-D) points on one line, about which any rotation fits as well. In the words of the
-    reference ICP's refusal (:func:`~pcreg.registration.closed_forms.rank_problem`), the cloud named; the
-    cross-check marks every row that returns a pose on such clouds ``"status": "unconstrained"``: its pose
-    is one of many, whatever its ``converged`` says."""
-    from ..registration.closed_forms import rank_problem
-
-    for name, points in (("source", source), ("target", target)):
-        problem = rank_problem(points, "rigid")
-        if problem is not None:
-            return f"{name}: {problem}"
-    return None
-
-
 def _check_pinned_options(options: ICPOptions) -> None:
     """:class:`InputError` unless ``options`` sets only what the cross-check lets vary (the correspondence
     distance and the stopping rule): every implementation runs the rigid point-to-point ICP at one scale."""
@@ -513,13 +515,13 @@ def _run_each(names: list[str], adapters: dict, errors: dict, pinned, *, progres
     for name in it:
         if name in errors:
             continue
-        try:
-            outcomes[name] = adapters[name].run(pinned, trace=True)
-        except impls.MissingLibrary as exc:
-            errors[name] = _one_line(exc)
-            outcomes[name] = "missing"
-        except Exception as exc:  # noqa: BLE001 - any failure is that implementation's, the others still run
-            errors[name] = _one_line(exc)
+        outcome, said = impls.run_quietly(adapters[name], pinned)  # a failure is that implementation's alone
+        if isinstance(outcome, Exception):
+            errors[name] = _one_line(outcome)
+            if isinstance(outcome, impls.MissingLibrary):
+                outcomes[name] = "missing"
+        else:  # what its library printed or warned goes into its row, not onto the terminal
+            outcomes[name] = replace(outcome, info={**outcome.info, "said": said}) if said else outcome
         if on_result is not None:
             on_result(name, outcomes.get(name, errors.get(name)))
     return outcomes

@@ -198,8 +198,11 @@ class RegistrationResult:
 
     @property
     def trusted(self) -> bool:
-        """False where a check of the result marked it (:attr:`model_fits` or :attr:`features_agree` False)."""
-        return self.model_fits is not False and self.features_agree is not False
+        """False where a check of the result marked it (:attr:`model_fits` or :attr:`features_agree` False), or
+        where the clouds leave the transform free (``info["unconstrained"]``, a cross-checked implementation's pose
+        on too few, coincident or collinear points: :meth:`pcreg.implementations.Implementation.run`)."""
+        return (self.model_fits is not False and self.features_agree is not False
+                and not (self.info or {}).get("unconstrained"))
 
     @property
     def T_ref_mov(self) -> np.ndarray:

@@ -1,0 +1,216 @@
+"""Hostile cloud files, init matrices and images met by the registration side: each refused in one line naming
+the file (exit 2), a registration that cannot be trusted refused (exit 3) or marked, never returned as good."""
+
+import importlib.util
+import io
+import json
+
+import cv2
+import numpy as np
+import pytest
+from _images import moved, rigid_about_centre, shapes_image
+
+import pcreg
+from pcreg.cli import main
+from pcreg.cloud_reader import load_cloud
+from pcreg.errors import InputError, RegistrationError
+from pcreg.implementations import ImplementationError, Pinned, get
+
+
+def _cloud(n=300, seed=0):
+    return np.random.default_rng(seed).uniform(0, 10, (n, 3))
+
+
+def _err_line(capfd) -> str:
+    err = capfd.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_a_text_cloud_of_many_columns_is_read_without_reserving_the_point_limit_for_each(tmp_path):
+    # numpy reserved (limit + 1) rows of every column before reading: 2,000 columns under the default limit of 50
+    # million points asked for 800 GB, and a file of 20 points was refused as "out of memory".
+    wide = np.random.default_rng(0).uniform(0, 10, (20, 2000))
+    names = ",".join(["x", "y", "z"] + [f"f{k}" for k in range(1997)])
+    np.savetxt(tmp_path / "features.csv", wide, delimiter=",", header=names, comments="")
+    np.testing.assert_array_equal(load_cloud(tmp_path / "features.csv"), wide[:, :3])
+    # a file whose rows ran together (written without newlines) under a header of three names: one line of 2,000
+    (tmp_path / "joined.csv").write_text("x,y,z\n" + ",".join(map(str, wide[0])) + "\n")
+    with pytest.raises(InputError, match=r"joined.csv: .*2000 numbers a line under a first line of 3 names"):
+        load_cloud(tmp_path / "joined.csv")
+
+
+def test_a_npy_whose_header_declares_fewer_points_than_it_holds_is_refused(tmp_path):
+    # numpy reads the points the header declares and leaves the rest unread: 400 of 500 were registered
+    data = (io.BytesIO(), _cloud(500))
+    np.save(data[0], data[1])
+    raw = data[0].getvalue()
+    (tmp_path / "fewer.npy").write_bytes(raw.replace(b"(500, 3)", b"(400, 3)"))
+    with pytest.raises(InputError, match=r"fewer.npy: the .npy header declares \(400, 3\) float64 \(9600 bytes\), "
+                                         r"the file holds 12000 bytes after it"):
+        load_cloud(tmp_path / "fewer.npy")
+    with open(tmp_path / "two.npy", "wb") as fh:  # two arrays saved one after the other
+        np.save(fh, data[1])
+        np.save(fh, data[1])
+    with pytest.raises(InputError, match="arrays saved one after another"):
+        load_cloud(tmp_path / "two.npy")
+
+
+@pytest.mark.parametrize("path", [3, None, b"cloud.npy"])
+def test_a_cloud_path_that_is_no_path_is_bad_input(path):
+    with pytest.raises(InputError, match="path must be a path"):
+        load_cloud(path)
+
+
+@pytest.mark.parametrize("points, said", [(_cloud()[:1], "a single point"), (np.ones((50, 3)), "its 50 points coincide")])
+def test_a_target_file_of_one_point_or_coincident_points_is_named(tmp_path, capfd, points, said):
+    np.save(tmp_path / "t.npy", points)
+    np.save(tmp_path / "s.npy", _cloud())
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy")]) == 2
+    assert _err_line(capfd).startswith(f"pcreg: error: {tmp_path / 't.npy'}: {said}: no correspondence distance")
+    with pytest.raises(InputError, match=f"^{tmp_path / 't.npy'}: {said}"):
+        pcreg.crosscheck(str(tmp_path / "t.npy"), str(tmp_path / "s.npy"))
+
+
+def test_a_rigid_init_far_from_the_origin_is_taken_and_a_nan_one_is_named_so(tmp_path, capfd):
+    # A georeferenced cloud's initial guess (a shift of 5e6) was refused as "singular or nearly so": the whole
+    # matrix's condition number grows as the square of its translation.
+    local = _cloud()
+    T = np.eye(4)
+    T[:3, 3] = [5e6, 3e6, 100.0]
+    utm = local + T[:3, 3] + [0.05, -0.03, 0.02]
+    r = pcreg.icp(local, utm, pcreg.ICPOptions(max_correspondence_distance=1.0), init=T)
+    np.testing.assert_allclose(r.matrix[:3, 3] - T[:3, 3], [0.05, -0.03, 0.02], atol=1e-6)
+    np.save(tmp_path / "t.npy", utm)
+    np.save(tmp_path / "s.npy", local)
+    np.savetxt(tmp_path / "init.txt", T)
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "init.txt"),
+                 "--max-distance", "1", "--json"]) == 0
+    assert json.loads(capfd.readouterr().out)["implementations"]["open3d"]["agrees"]
+    singular = np.diag([1.0, 1.0, 0.0, 1.0])
+    with pytest.raises(InputError, match="init is singular"):
+        pcreg.icp(local, utm, init=singular)
+    T[0, 0] = np.nan
+    with pytest.raises(InputError, match="init must be a finite 4x4 matrix, got NaN or inf entries"):
+        pcreg.icp(local, utm, init=T)
+
+
+def _animated(tmp_path, name, **save):
+    from PIL import Image
+
+    frames = [Image.fromarray(shapes_image(seed=k)) for k in range(3)]
+    frames[0].save(tmp_path / name, save_all=True, append_images=frames[1:], **save)
+    return tmp_path / name
+
+
+@pytest.mark.parametrize("name, save, images", [("a.png", {}, 3), ("d.png", {"default_image": True}, 3),
+                                                ("a.webp", {"lossless": True}, 3)])
+def test_an_animated_png_or_webp_is_refused_as_a_multi_page_tiff_is(tmp_path, capfd, name, save, images):
+    # OpenCV decoded its first image alone, which was registered as the file
+    animated = _animated(tmp_path, name, **save)
+    cv2.imwrite(str(tmp_path / "ref.png"), shapes_image()[:, :, ::-1])
+    assert main(["register", str(tmp_path / "ref.png"), str(animated)]) == 2
+    kind = "PNG" if name.endswith(".png") else "WebP"
+    assert _err_line(capfd) == (f"pcreg: error: {animated}: an animated {kind} of {images} images, of which pcreg would "
+                                "read the first alone; save the one meant as an image of its own (Pillow's "
+                                "ImageSequence, or ffmpeg)")
+    with pytest.raises(InputError, match="an animated"):
+        pcreg.load_image(animated)
+
+
+@pytest.mark.parametrize("name", ["open3d", "open3d-tensor", "small_gicp", "kiss-icp"])
+def test_an_implementation_called_directly_refuses_a_guess_that_is_no_rigid_transform(name):
+    # Open3D and small_gicp returned the shear they were given, moved, as their converged rigid result
+    if get(name).missing():
+        pytest.skip(get(name).missing())
+    cloud = _cloud()
+    shear = np.eye(4)
+    shear[0, 1] = 0.3
+    with pytest.raises(InputError, match="init: its rotation block is not orthonormal .*every implementation runs the "
+                                         "rigid ICP"):
+        get(name).run(Pinned(cloud + 0.05, cloud, shear, 1.0))
+
+
+@pytest.mark.parametrize("changes, said", [
+    ({"init": np.diag([np.nan, 1, 1, 1])}, "init must be a finite 4x4 matrix, got NaN or inf"),  # KISS-ICP aborted
+    ({"source": np.full((10, 3), np.nan)}, "source: 10 point"),
+    ({"source": np.zeros((10, 2)), "init": np.eye(3)}, "source is 2-D but target is 3-D"),
+    ({"max_correspondence_distance": -1.0}, "max_correspondence_distance must be > 0"),  # Open3D's RuntimeError
+    ({"max_iterations": 0}, "max_iterations must be in 1..100000"),
+])
+def test_pinned_inputs_are_checked_when_made(changes, said):
+    cloud = _cloud()
+    given = {"source": cloud + 0.05, "target": cloud, "init": np.eye(4), "max_correspondence_distance": 1.0, **changes}
+    with pytest.raises(InputError, match=said):
+        Pinned(**given)
+
+
+def test_an_implementation_on_points_that_leave_the_rotation_free_marks_its_pose_and_the_reference_refuses():
+    line = np.column_stack([np.linspace(0, 10, 200), np.zeros(200), np.zeros(200)])
+    pinned = Pinned(line + [0.1, 0.1, 0.0], line, np.eye(4), 1.0)
+    with pytest.raises(RegistrationError, match="collinear"):
+        get("reference").run(pinned)
+    r = get("open3d").run(pinned)
+    assert r.info["unconstrained"] == "source: the points are collinear: they cannot determine a rigid transform"
+    assert r.trusted is False
+    good = get("open3d").run(Pinned(_cloud() + 0.05, _cloud(), np.eye(4), 1.0))
+    assert "unconstrained" not in good.info and good.trusted
+
+
+def test_a_cpd_that_collapses_the_cloud_is_an_implementation_error():
+    # pycpd's scale fell to 0 on coincident points: a singular matrix returned as its converged result
+    if get("pycpd").missing():
+        pytest.skip(get("pycpd").missing())
+    ones = np.ones((50, 3))
+    with pytest.raises(ImplementationError, match="determinant 0: a collapse of the cloud"):
+        get("pycpd").run(Pinned(ones + 0.1, ones, np.eye(4), 1.0))
+
+
+@pytest.mark.skipif(importlib.util.find_spec("small_gicp") is None, reason="small_gicp is not installed")
+def test_what_a_library_prints_goes_into_its_row_not_onto_the_terminal(tmp_path, capfd):
+    cloud = _cloud(10)
+    np.save(tmp_path / "t.npy", cloud)
+    np.save(tmp_path / "s.npy", cloud)
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--with", "reference,small_gicp"]) == 0
+    out, err = capfd.readouterr()
+    assert err == ""
+    assert "its library said: warning: target point cloud is too small. |target|=10" in out
+
+
+def test_an_image_cross_check_of_a_mirror_image_marks_both_poses_and_exits_3(tmp_path, capfd):
+    # Both backends' poses were listed as converged and agreeing, exit 0: register refuses the pair
+    ref = shapes_image()
+    mov = moved(ref, rigid_about_centre(ref.shape, 5.0, 3.0, -2.0))
+    report = pcreg.crosscheck(ref, mov[:, ::-1].copy())
+    assert report.refused.startswith("the moving image is a mirror image of the reference")
+    assert report.to_dict()["refused"] == report.refused
+    assert pcreg.crosscheck(ref, mov).refused is None
+    cv2.imwrite(str(tmp_path / "ref.png"), ref[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "mirror.png"), mov[:, ::-1, ::-1])
+    assert main(["crosscheck", str(tmp_path / "ref.png"), str(tmp_path / "mirror.png")]) == 3
+    out, err = capfd.readouterr()
+    assert "refused, not trusted: the moving image is a mirror image" in out
+    assert err.startswith("pcreg: registration refused: pcreg register refuses these images: the moving image is a "
+                          "mirror image") and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("order, said", [
+    ("z y x", "its vertex properties x, y, z come in the order z, y, x: Open3D's reader, which reads PLY, takes z for "
+              "the last of them and fails on this order"),
+    ("x y z nz ny nx", "its vertex properties nx, ny, nz come in the order nz, ny, nx"),
+    ("x y z x", "PLY vertices declare the x property twice"),
+])
+def test_a_ply_whose_vertex_properties_open3d_reads_wrongly_is_refused_saying_why(tmp_path, order, said):
+    # Open3D's reader moves to the next point after z: "Read PLY failed: unable to read file" (a duplicate x: one of
+    # the two, its own choice)
+    names = order.split()
+    values = _cloud(50).astype("<f4")
+    columns = np.column_stack([values[:, "xyz".index(n[-1])] for n in names])
+    head = "ply\nformat binary_little_endian 1.0\nelement vertex 50\n" + "".join(f"property float {n}\n" for n in names)
+    (tmp_path / "c.ply").write_bytes((head + "end_header\n").encode() + columns.astype("<f4").tobytes())
+    with pytest.raises(InputError, match=f"c.ply: {said}"):
+        load_cloud(tmp_path / "c.ply")
+    names = ["y", "x", "z"]  # z after x and y: read, in any order of x and y
+    head = "ply\nformat binary_little_endian 1.0\nelement vertex 50\n" + "".join(f"property float {n}\n" for n in names)
+    (tmp_path / "yxz.ply").write_bytes((head + "end_header\n").encode() + values[:, [1, 0, 2]].copy().tobytes())
+    np.testing.assert_array_equal(load_cloud(tmp_path / "yxz.ply"), values.astype(np.float64))

@@ -498,29 +498,34 @@ def test_images_among_the_frames_in_a_format_pcreg_does_not_read_are_named_in_a_
     assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == [f"f{i}.png" for i in range(4)]
 
 
-@pytest.mark.parametrize("damage", ["garbage", "cut before IEND", "grey ids", "another size"])
+@pytest.mark.parametrize("damage", ["garbage", "cut before IEND", "grey ids", "another size", "confidence garbage",
+                                    "confidence gone"])
 def test_a_label_png_damaged_since_the_run_is_named_on_resume_not_taken_as_done(tmp_path, capsys, damage):
-    """A label PNG of a counted frame overwritten or cut short: the rerun said "all 5 frames already done" (exit 0)
-    and the export failed on it later; it names the file, its damage and --force, and leaves the folder as it was."""
+    """A label PNG (or a confidence PNG) of a counted frame overwritten, cut short or removed: the rerun said "all 5
+    frames already done" (exit 0) and the export failed on it later; it names the file, its damage and --force, and
+    leaves the folder as it was."""
     folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
     out = tmp_path / "out"
-    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]
     assert main(run) == 0
     good = (out / "f2.png").read_bytes()
     labels = read_labels(out / "f2.png")
     damaged = {"garbage": b"not a PNG", "cut before IEND": good[:-12],
-               "grey ids": cv2.imencode(".png", labels)[1].tobytes(),
-               "another size": encode_label_png(labels[:, :32], LAGR)}[damage]
-    (out / "f2.png").write_bytes(damaged)
-    written = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+               "grey ids": cv2.imencode(".png", labels)[1].tobytes(), "another size": encode_label_png(labels[:, :32], LAGR),
+               "confidence garbage": b"not a PNG"}
+    if damage == "confidence gone":
+        shutil.rmtree(out / "confidence")
+    else:
+        (out / ("confidence/" if damage.startswith("confidence") else "") / "f2.png").write_bytes(damaged[damage])
+    written = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
     assert main(run) == 2
     err = one_line_errors(capsys)
-    said = {"garbage": "not a PNG", "cut before IEND": "the file ends before its IEND chunk",
-            "grey ids": "not a label PNG pcreg run writes", "another size": "labels of 32x48, the frames 64x48"}[damage]
-    assert len(err) == 1 and f"f2.png: {said}" in err[0] and "counts that frame labelled" in err[0] \
-        and "--force" in err[0], err
-    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == written
+    said = {"garbage": "f2.png: not a PNG,", "cut before IEND": "f2.png: the file ends before its IEND chunk",
+            "grey ids": "f2.png: not a label PNG pcreg run writes", "another size": "f2.png: labels of 32x48, the frames 64x48",
+            "confidence garbage": "confidence/f2.png: not a PNG,", "confidence gone": "confidence/f1.png is missing"}[damage]
+    assert len(err) == 1 and said in err[0] and "counts that frame labelled" in err[0] and "--force" in err[0], err
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == written
 
 
 def test_a_key_frames_label_png_damaged_since_the_run_is_written_again_and_another_named(tmp_path, capsys):

@@ -282,7 +282,8 @@ class Run:
             self._cut_steps(int(state["done"]) - 1)
             self._check_same_frames(str(state["key_frame"]))
             self._remove_partial_writes()
-            check_labelled(self.out, [self.frames.stem(t) for t in range(int(state["done"]))], labels.shape)
+            stems = [self.frames.stem(t) for t in range(int(state["done"]))]
+            check_labelled(self.out, stems, labels.shape, stems[1:] if self.confidence else ())
             return int(state["done"])
         self._start_over()
         self._remove_partial_writes()  # those of a killed run started over (--force) too
@@ -414,7 +415,7 @@ class Run:
                     stems.append(self.frames.stem(t))
             if count < counted:
                 raise OutputError(f"{path}: {count} steps for {counted} finished frames; use --force to start over")
-            check_labelled(self.out, stems, shape)
+            check_labelled(self.out, stems, shape, stems if self.confidence else ())
         return len(stems)
 
     def open_keys(self, keys: dict[int, np.ndarray], plan: dict, *, force: bool = False) -> None:

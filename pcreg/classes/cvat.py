@@ -35,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import re
 import stat
+import unicodedata
 import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
@@ -310,12 +311,22 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
                      "a mask is 8-bit RGB colours of labelmap.txt, or one channel of its lines)")
 
 
+def _nfc(name: str) -> str:
+    """``name`` in Unicode's composed form (NFC): macOS writes names decomposed (NFD: ``e`` and a combining accent for
+    ``é``), so a zip made there, or labels copied from there, name a frame in other code points than the frame's file."""
+    return unicodedata.normalize("NFC", name)
+
+
 def frame_positions(frames):
     """A function of a label file's stem to the position of the run's frame it names, or None: a folder's
-    frame by its file's stem, any run's source frame ``i`` (counted before ``--start``/``--every``) by
-    ``frame_NNNNNN`` (CVAT's names), and a video's by its index in digits."""
+    frame by its file's stem (or, where none has that stem, by the one stem that is the same text composed otherwise,
+    :func:`_nfc`), any run's source frame ``i`` (counted before ``--start``/``--every``) by ``frame_NNNNNN`` (CVAT's
+    names), and a video's by its index in digits."""
     s = frames.selection
     by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
+    composed: dict[str, list[int]] = {}
+    for stem, t in by_stem.items():
+        composed.setdefault(_nfc(stem), []).append(t)
 
     def source_index(i: int) -> int | None:
         if not s.chosen(i):
@@ -328,6 +339,8 @@ def frame_positions(frames):
     def where(stem: str) -> int | None:
         if stem in by_stem:
             return by_stem[stem]
+        if len(composed.get(_nfc(stem), ())) == 1:
+            return composed[_nfc(stem)][0]
         m = _FRAME.fullmatch(stem)
         if m is not None:
             return source_index(int(m.group(1)))
@@ -346,9 +359,9 @@ def placed(frames, stems: list[str], source) -> list[int | None]:
     where = frame_positions(frames)
     positions = [where(stem) for stem in stems]
     if frames.kind == "folder":
-        names = {frames.stem(t) for t in range(len(frames))}
-        by_name = [s for s, t in zip(stems, positions) if t is not None and s in names and _FRAME.fullmatch(s)]
-        by_number = [s for s, t in zip(stems, positions) if t is not None and s not in names]
+        names = {_nfc(frames.stem(t)) for t in range(len(frames))}
+        by_name = [s for s, t in zip(stems, positions) if t is not None and _nfc(s) in names and _FRAME.fullmatch(s)]
+        by_number = [s for s, t in zip(stems, positions) if t is not None and _nfc(s) not in names]
         if by_name and by_number:
             t = positions[stems.index(by_number[0])]
             raise InputError(f"{source}: its label files name frames two ways: {by_name[0]} the frame file of that name, "

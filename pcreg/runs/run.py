@@ -265,6 +265,8 @@ class Run:
         if s.get("truth") and s["truth"].get("error") is not None:
             msg += (f"\nerror against the truth: {s['truth']['error']:.2f}% over {s['truth']['frames']} frames "
                     f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
+        elif s.get("truth"):  # asked for, and no figure: said, not left out
+            msg += "\nerror against the truth: none, the truth labels of the frames labelled are all unknown"
         print(msg, file=sys.stdout)
         if start is None:
             self.suggest(request.suggest, keys)

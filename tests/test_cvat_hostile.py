@@ -250,3 +250,32 @@ def test_masks_named_in_decomposed_unicode_name_the_frames_composed(tmp_path, ca
         assert main(["run", str(frames), "--labels", str(given), "--out", str(out), "--model", "flow"]) == 0, \
             capsys.readouterr().err
         assert sorted(p.name for p in out.glob("*.png")) == [f"{name}.png" for name in composed]
+
+
+def test_an_export_zipped_with_the_folders_of_its_path_is_read_inside_them(tmp_path, capsys):
+    """``zip -r task.zip home/me/export`` puts the export two folders down: it was refused as "labelmap.txt: missing"
+    (one folder around it was read); it reads as the export, zipped or unpacked. A folder beside the path is still no
+    export's."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("f0.png", "f1.png"):
+        cv2.imwrite(str(frames / name), cv2.GaussianBlur(rng.integers(0, 255, (48, 64, 3), np.uint8), (5, 5), 2))
+    drawn = np.zeros((48, 64, 3), np.uint8)
+    drawn[:24], drawn[24:, :32] = (128, 64, 128), (128, 0, 64)  # BGR of road and car
+    members = {"labelmap.txt": b"background:0,0,0::\nroad:128,64,128::\ncar:64,0,128::\n",
+               MASK: cv2.imencode(".png", drawn)[1].tobytes()}
+    path = tmp_path / "task.zip"
+    with zipfile.ZipFile(path, "w") as z:
+        for name, data in members.items():
+            z.writestr(f"home/me/export/{name}", data)
+    unpacked = tmp_path / "unpacked"
+    for name, data in members.items():
+        (unpacked / "home" / "me" / "export" / name).parent.mkdir(parents=True, exist_ok=True)
+        (unpacked / "home" / "me" / "export" / name).write_bytes(data)
+    for given in (path, unpacked):
+        assert main(["run", str(frames), "--labels", str(given), "--out", str(tmp_path / f"out_{given.stem}"),
+                     "--model", "flow"]) == 0, capsys.readouterr().err
+    (unpacked / "home" / "notes").mkdir()
+    assert main(["run", str(frames), "--labels", str(unpacked), "--out", str(tmp_path / "out_beside")]) == 2
+    assert "holds no label PNG" in capsys.readouterr().err

@@ -26,8 +26,9 @@ inflates one block of data under many names) are refused, and every member's siz
 (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class table's); a mask's first bytes are
 read first, so that a member that is no image, or a PNG larger than the pixel limit, is refused before the
 rest is inflated, and a PNG is read to no more bytes than its pixels can take. An archive whose members all lie in one folder holding the export (an export zipped with its
-folder around it) is read inside that folder, and so is such an archive unpacked (a folder holding only
-the folder of the export); the ``__MACOSX/`` folder that macOS's Finder adds to an archive it makes is left out.
+folder around it) is read inside that folder, or in the one folder inside it, and so on (an export zipped with the
+folders of its path), and so is such an archive unpacked (a folder holding only the folder of the export, or only
+a folder holding only that folder); the ``__MACOSX/`` folder that macOS's Finder adds to an archive it makes is left out.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ CLASS_DIR = "SegmentationClass"
 #: The most members an archive may list.
 MAX_MEMBERS = 200_000
 _FRAME = re.compile(r"frame_(\d{1,9})")
+#: The most folders around an export, each holding nothing but the next, that it is read inside.
+_MAX_WRAPPING = 16
 #: The folder of file metadata macOS's Finder adds to an archive it makes (``__MACOSX/FOLDER/._NAME``): no
 #: part of the export, and left out.
 _MACOS_FORKS = "__MACOSX"
@@ -76,16 +79,23 @@ def is_cvat_export(path: Path) -> bool:
 
 
 def wrapped_export(folder: Path) -> Path | None:
-    """The one folder in ``folder`` that holds an export (its ``SegmentationClass/``), when ``folder`` holds
-    no export of its own and nothing else (hidden files and ``__MACOSX/`` left out): an archive of an export
-    with its folder around it, unpacked, read as the archive is; else None."""
-    if (folder / LABELMAP_FILE).exists() or (folder / CLASS_DIR).exists():
-        return None
-    try:
-        inside = [p for p in folder.iterdir() if not p.name.startswith(".") and p.name != _MACOS_FORKS]
-    except OSError:
-        return None
-    return inside[0] if len(inside) == 1 and (inside[0] / CLASS_DIR).is_dir() else None
+    """The folder in ``folder`` that holds an export (its ``SegmentationClass/``), when ``folder`` holds no export
+    of its own and nothing but one folder, itself the export or holding nothing but one folder, and so on (hidden
+    files and ``__MACOSX/`` left out): an archive of an export with its folders around it, unpacked, read as the
+    archive is; else None."""
+    for _ in range(_MAX_WRAPPING):
+        if (folder / LABELMAP_FILE).exists() or (folder / CLASS_DIR).exists():
+            return None
+        try:
+            inside = [p for p in folder.iterdir() if not p.name.startswith(".") and p.name != _MACOS_FORKS]
+        except OSError:
+            return None
+        if len(inside) != 1 or not inside[0].is_dir():
+            return None
+        if (inside[0] / CLASS_DIR).is_dir():
+            return inside[0]
+        folder = inside[0]
+    return None
 
 
 def _member_name(info: zipfile.ZipInfo) -> str:
@@ -158,16 +168,19 @@ class CvatExport(contextlib.AbstractContextManager):
 
     def _wrapping_folder(self) -> str:
         """``"NAME/"`` when every member lies in one folder NAME that holds the export (its ``labelmap.txt``
-        or ``SegmentationClass/``) and the archive's top holds neither; else ``""``."""
-        names = self._members
-        if LABELMAP_FILE in names or any(n.startswith(f"{CLASS_DIR}/") for n in names):
-            return ""
-        tops = {n.split("/", 1)[0] + "/" if "/" in n else "" for n in names}
-        if len(tops) != 1 or "" in tops:
-            return ""
-        top = tops.pop()
-        inside = f"{top}{LABELMAP_FILE}" in names or any(n.startswith(f"{top}{CLASS_DIR}/") for n in names)
-        return top if inside else ""
+        or ``SegmentationClass/``) and the archive's top holds neither; ``"NAME/INNER/"`` when NAME holds nothing
+        but the folder INNER that holds it (an export zipped with the folders of its path, ``zip -r`` from above
+        them), and so on; else ``""``."""
+        prefix, names = "", list(self._members)
+        for _ in range(_MAX_WRAPPING + 1):
+            if LABELMAP_FILE in names or any(n.startswith(f"{CLASS_DIR}/") for n in names):
+                return prefix
+            tops = {n.split("/", 1)[0] + "/" if "/" in n else "" for n in names}
+            if len(tops) != 1 or "" in tops:
+                return ""
+            top = tops.pop()
+            prefix, names = prefix + top, [n[len(top):] for n in names]
+        return ""
 
     def names(self, folder: str) -> list[str]:
         """The ``.png`` files in ``folder`` and its sub-folders (a task made from nested folders of frames puts

@@ -201,6 +201,22 @@ def test_a_json_table_cut_short_under_another_name_is_refused_as_json(tmp_path):
     assert [c.name for c in class_table(str(braced)).classes[:2]] == ["{odd", "b"]
 
 
+def test_a_zip_or_an_image_given_as_a_class_table_is_named_as_what_it_is(tmp_path):
+    """--classes EXPORT.zip (or a label PNG) was refused as "not UTF-8 text (label map)" alone."""
+    import zipfile
+
+    export = tmp_path / "task.zip"
+    with zipfile.ZipFile(export, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("labelmap.txt", labelmap_text(CAMVID11))
+    image = tmp_path / "key.png"
+    cv2.imwrite(str(image), np.zeros((48, 64), np.uint8))
+    for path, said in ((export, "it is a zip archive (a CVAT export? its labelmap.txt is the table"),
+                       (image, "it is an image, not a class table")):
+        with pytest.raises(InputError) as exc:
+            class_table(str(path))
+        _one_line(exc, str(path), said)
+
+
 def test_a_huge_number_in_a_json_table_is_echoed_short():
     """An id, unknown or colour of 10**400 in a JSON table is refused with its first digits, not all 401 of them."""
     big = str(10**400)

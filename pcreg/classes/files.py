@@ -142,13 +142,15 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
 
 
 def _read_text(path: Path, what: str) -> str:
-    from ..formats import read_regular_file
+    from ..formats import image_size, read_regular_file
 
     data = read_regular_file(path, max_bytes=MAX_TABLE_BYTES, what=what)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError:
-        raise InputError(f"{path}: not UTF-8 text ({what})") from None
+        kind = ("; it is a zip archive (a CVAT export? its labelmap.txt is the table; --labels reads the export)"
+                if data[:4] == b"PK\x03\x04" else "; it is an image, not a class table" if image_size(data) else "")
+        raise InputError(f"{path}: not UTF-8 text ({what}){kind}") from None
 
 
 def read_labelmap(path: str | Path) -> ClassTable:

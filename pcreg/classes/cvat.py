@@ -337,7 +337,7 @@ def frame_positions(frames):
     names), and a video's by its index in digits."""
     s = frames.selection
     by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
-    composed: dict[str, list[int]] = {}
+    composed = {}  # the composed form of each stem: the frames of that text
     for stem, t in by_stem.items():
         composed.setdefault(_nfc(stem), []).append(t)
 

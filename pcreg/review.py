@@ -501,7 +501,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     of odd size are padded by a pixel. ``fps``: frames per second (default: a video's own rate, divided by the
     run's ``--every``; 10 for a folder). The source is read straight through, once. A run whose video skips frames
     by its times, has frames that decode with errors or met other notes reading them says so in the video's comment,
-    one line each (:meth:`RunReview.said`). ``note`` is told, once, when a
+    one line each (:meth:`RunReview.said`). ``note`` is told, once the video is written, when a
     frame is too small for its classes' legend (it shows its name alone). Returns the number of frames written."""
     import os
     import tempfile
@@ -519,6 +519,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.mp4", dir=path.parent)
     os.close(fd)
     n = 0
+    small: str | None = None  # told once the video is written: a video refused says one line, its refusal
     images = FrameImages(review)  # no thread: a video is read through frames()
     try:
         with av.open(tmp, "w", format="mp4") as container, \
@@ -526,14 +527,12 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
             if review.said():  # what the run's review says of its frames, one line each, in the video's comment
                 container.metadata["comment"] = "\n".join(review.said())
             stream = None
-            small = False
             for t, image in images.frames():
                 drawn, legend = video_frame(review, t, image)
                 h, w = drawn.shape[:2]
-                if not legend.complete and not small and note is not None:
-                    note(f"{path}: frame {review.names[t]} ({w}x{h}) is too small for the legend of its classes: "
-                         "such frames show their name alone")
-                small = small or not legend.complete
+                if not legend.complete and small is None:
+                    small = f"{path}: frame {review.names[t]} ({w}x{h}) is too small for the legend of its classes: " \
+                            "such frames show their name alone"
                 if stream is None:
                     stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1000))
                     stream.width, stream.height = w + w % 2, h + h % 2
@@ -559,4 +558,6 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
         raise
     finally:
         images.close()
+    if small is not None and note is not None:
+        note(small)
     return n

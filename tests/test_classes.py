@@ -187,6 +187,36 @@ def test_a_json_table_with_a_key_written_twice_is_refused_naming_the_key(tmp_pat
             _one_line(exc, str(tmp_path / name), f"the key {key!r} is written twice in one object")
 
 
+def test_a_json_table_cut_short_under_another_name_is_refused_as_json(tmp_path):
+    """A JSON table not named .json, cut short or mistyped, was read as a label map and refused for "line 1 has 5
+    ':'-separated fields"; the refusal says it is not JSON, and where. A label map whose first class is named in
+    braces still reads as one."""
+    cut = tmp_path / "classes.txt"
+    cut.write_text(table_json(CAMVID11)[:200])
+    with pytest.raises(InputError) as exc:
+        class_table(str(cut))
+    _one_line(exc, str(cut), "neither a label map nor a JSON table (not JSON: ")
+    braced = tmp_path / "labelmap.txt"
+    braced.write_text("{odd:1,2,3::\nb:4,5,6::\n")
+    assert [c.name for c in class_table(str(braced)).classes[:2]] == ["{odd", "b"]
+
+
+def test_a_zip_or_an_image_given_as_a_class_table_is_named_as_what_it_is(tmp_path):
+    """--classes EXPORT.zip (or a label PNG) was refused as "not UTF-8 text (label map)" alone."""
+    import zipfile
+
+    export = tmp_path / "task.zip"
+    with zipfile.ZipFile(export, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("labelmap.txt", labelmap_text(CAMVID11))
+    image = tmp_path / "key.png"
+    cv2.imwrite(str(image), np.zeros((48, 64), np.uint8))
+    for path, said in ((export, "it is a zip archive (a CVAT export? its labelmap.txt is the table"),
+                       (image, "it is an image, not a class table")):
+        with pytest.raises(InputError) as exc:
+            class_table(str(path))
+        _one_line(exc, str(path), said)
+
+
 def test_a_huge_number_in_a_json_table_is_echoed_short():
     """An id, unknown or colour of 10**400 in a JSON table is refused with its first digits, not all 401 of them."""
     big = str(10**400)
@@ -362,7 +392,8 @@ def test_the_hint_for_values_beyond_the_table_follows_what_they_look_like():
 
 
 def _damaged_png(tmp_path, how: str) -> Path:
-    """A palette PNG of two classes with its image data's CRC flipped, or cut inside its image data."""
+    """A palette PNG of two classes with its image data's CRC flipped, cut inside its image data, or cut before its
+    IEND chunk."""
     labels = np.zeros((48, 64), np.uint8)
     labels[10:30, 10:40] = 1
     im = Image.fromarray(labels, "P")
@@ -374,20 +405,23 @@ def _damaged_png(tmp_path, how: str) -> Path:
     end = at + 4 + int.from_bytes(data[at - 4:at], "big")  # the chunk's CRC
     if how == "crc":
         data[end] ^= 0xFF
-    else:
+    elif how == "cut":
         data = data[:end - 5]
+    else:  # cut before its IEND chunk: the image data whole, read as labels by Pillow
+        data = data[:data.find(b"IEND") - 4]
     path.write_bytes(bytes(data))
     return path
 
 
-@pytest.mark.parametrize("how", ["crc", "cut"])
+@pytest.mark.parametrize("how", ["crc", "cut", "no end"])
 def test_a_damaged_palette_png_is_refused_as_key_labels_and_as_an_object_mask(tmp_path, how):
-    """Pillow, which reads palette PNGs, does not check the image data's CRC: a key mask whose IDAT CRC was damaged
-    was read as labels (OpenCV's libpng refuses the same file)."""
+    """Pillow, which reads palette PNGs, does not check the image data's CRC: a key mask whose IDAT CRC was damaged,
+    or cut before its IEND chunk, was read as labels (OpenCV's libpng refuses the same file)."""
     from pcreg.classes.keys import read_key_labels, read_object_mask
 
     path = _damaged_png(tmp_path, how)
-    said = "a CRC error in its 'IDAT' chunk" if how == "crc" else "its 'IDAT' chunk runs past the end of the file"
+    said = {"crc": "a CRC error in its 'IDAT' chunk", "cut": "its 'IDAT' chunk runs past the end of the file",
+            "no end": "the file ends before its IEND chunk"}[how]
     with pytest.raises(InputError, match=f"{path.name}: {said}"):
         read_key_labels(path, DAVIS)
     with pytest.raises(InputError, match=f"{path.name}: {said}"):

@@ -218,3 +218,64 @@ def test_a_mask_of_another_size_is_refused_drawn_on_or_not(tmp_path, capsys):
     assert main(["run", str(frames), "--labels", str(path), "--out", str(tmp_path / "out"), "--model", "flow"]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         f"pcreg: error: {path}:SegmentationClass/f1.png: the mask is 80x60, the frames 64x48"]
+
+
+def test_masks_named_in_decomposed_unicode_name_the_frames_composed(tmp_path, capsys):
+    """macOS writes names decomposed (NFD: ``e`` and a combining accent): a CVAT export zipped there, or key labels
+    copied from there, named frames ``café_0`` that pcreg said named no frame, "the frames café_0 ... café_1"; they
+    name the frame of the same text composed."""
+    import unicodedata
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    composed = [unicodedata.normalize("NFC", f"café_{i}") for i in range(3)]
+    for name in composed:
+        cv2.imwrite(str(frames / f"{name}.png"), cv2.GaussianBlur(rng.integers(0, 255, (48, 64, 3), np.uint8), (5, 5), 2))
+    decomposed = unicodedata.normalize("NFD", composed[0])
+    assert decomposed != composed[0]
+    path = tmp_path / "export.zip"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("labelmap.txt", "background:0,0,0::\nroad:128,64,128::\ncar:64,0,128::\n")
+        drawn = np.zeros((48, 64, 3), np.uint8)
+        drawn[:24], drawn[24:, :32] = (128, 64, 128), (128, 0, 64)  # BGR of road and car
+        z.writestr(f"SegmentationClass/{decomposed}.png", cv2.imencode(".png", drawn)[1].tobytes())
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    labels = np.zeros((48, 64), np.uint8)
+    labels[24:] = 1
+    cv2.imwrite(str(keys / f"{decomposed}.png"), labels)
+    for given in (path, keys):
+        out = tmp_path / f"out_{given.name}"
+        assert main(["run", str(frames), "--labels", str(given), "--out", str(out), "--model", "flow"]) == 0, \
+            capsys.readouterr().err
+        assert sorted(p.name for p in out.glob("*.png")) == [f"{name}.png" for name in composed]
+
+
+def test_an_export_zipped_with_the_folders_of_its_path_is_read_inside_them(tmp_path, capsys):
+    """``zip -r task.zip home/me/export`` puts the export two folders down: it was refused as "labelmap.txt: missing"
+    (one folder around it was read); it reads as the export, zipped or unpacked. A folder beside the path is still no
+    export's."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for name in ("f0.png", "f1.png"):
+        cv2.imwrite(str(frames / name), cv2.GaussianBlur(rng.integers(0, 255, (48, 64, 3), np.uint8), (5, 5), 2))
+    drawn = np.zeros((48, 64, 3), np.uint8)
+    drawn[:24], drawn[24:, :32] = (128, 64, 128), (128, 0, 64)  # BGR of road and car
+    members = {"labelmap.txt": b"background:0,0,0::\nroad:128,64,128::\ncar:64,0,128::\n",
+               MASK: cv2.imencode(".png", drawn)[1].tobytes()}
+    path = tmp_path / "task.zip"
+    with zipfile.ZipFile(path, "w") as z:
+        for name, data in members.items():
+            z.writestr(f"home/me/export/{name}", data)
+    unpacked = tmp_path / "unpacked"
+    for name, data in members.items():
+        (unpacked / "home" / "me" / "export" / name).parent.mkdir(parents=True, exist_ok=True)
+        (unpacked / "home" / "me" / "export" / name).write_bytes(data)
+    for given in (path, unpacked):
+        assert main(["run", str(frames), "--labels", str(given), "--out", str(tmp_path / f"out_{given.stem}"),
+                     "--model", "flow"]) == 0, capsys.readouterr().err
+    (unpacked / "home" / "notes").mkdir()
+    assert main(["run", str(frames), "--labels", str(unpacked), "--out", str(tmp_path / "out_beside")]) == 2
+    assert "holds no label PNG" in capsys.readouterr().err

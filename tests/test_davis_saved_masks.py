@@ -179,3 +179,31 @@ def test_one_objects_grey_ids_with_a_void_border_are_refused_not_read_as_object(
     shutil.copy(tmp_path / "grey.png", seq / "labels" / "00000.png")
     with pytest.raises(DatasetError, match="00000.png: a grey mask of values 0, 1 and 255"):
         load_dataset(f"davis:{seq}")
+
+
+@pytest.mark.parametrize("peak, how", [(200, "blurred"), (200, "resized"), (255, "blurred")])
+def test_a_mask_smoothed_wider_than_its_edge_is_refused_saying_so(tmp_path, capsys, peak, how):
+    """A 0/M mask blurred, or resized more than 4 times, its values between beyond 4 px of M: without 255,
+    ``--data davis:`` read each value as an object, a clip of its own (dozens of clips, silently), and ``pcreg run
+    --classes davis`` refused "a mask of 39 objects"; with 255 it was "objects 1, 2, 4, ... with 255 void?". It is
+    refused saying what it looks like and how to save it, and ``pcreg run`` without --classes says so too."""
+    pairs = frames_and_masks(2, shape=(96, 128))
+    binary = np.where(pairs[0][1] > 0, peak, 0).astype(np.uint8)
+    soft = cv2.GaussianBlur(binary, (0, 0), 4) if how == "blurred" else \
+        cv2.resize(cv2.resize(binary, (16, 12), interpolation=cv2.INTER_AREA), (128, 96), interpolation=cv2.INTER_LINEAR)
+    assert soft.max() == peak and len(np.unique(soft)) > 20
+    seq = tmp_path / "seq"
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    for i, (image, _) in enumerate(pairs):
+        cv2.imwrite(str(seq / "images" / f"{i:05d}.jpg"), image)
+        cv2.imwrite(str(seq / "labels" / f"{i:05d}.png"), soft)
+    said = f"a grey mask of values rising gradually from 0 to {peak} over more than 4 px"
+    with pytest.raises(DatasetError, match=said):
+        load_dataset(f"davis:{seq}")
+    key = seq / "labels" / "00000.png"
+    with pytest.raises(InputError, match=f"{said}.*threshold it"):
+        read_key_labels(key, DAVIS, "davis")
+    assert main(["run", str(seq / "images"), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
+    (line,) = one_line_errors(capsys)
+    assert "is not a class id" in line and f"it holds values rising gradually from 0 to {peak}" in line, line

@@ -87,6 +87,11 @@ def test_a_key_frame_of_one_class_names_its_clip(tmp_path, capsys):
                  "--methods", "plain", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "clip clip: training labels hold only one class (road)" in err
+    void = _clip(tmp_path / "void" / "clip", 3, void=(0,))  # void only: it said "only one class (none)"
+    assert main(["evaluate", "stream", "--data", f"camvid:{void.parent}", "--classes", "camvid11",
+                 "--methods", "plain", "--out", str(tmp_path / "out2")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "clip clip: training labels hold no class (every pixel void)" in err, err
 
 
 def test_classes_no_key_frame_shows_are_named_under_the_class_tables(tmp_path, capsys):

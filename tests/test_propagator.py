@@ -356,5 +356,20 @@ def test_run_truth_bad_input(tmp_path, frames, capsys):
     assert f"{truth / 'f002.png'}: no truth labels for frame f002.png" in capsys.readouterr().err
     cv2.imwrite(str(truth / "f002.png"), frames[2].labels[:100])
     assert main(args) == 2
-    assert "truth labels of f002.png are" in capsys.readouterr().err
+    err = capsys.readouterr().err  # the file named, as every other input check names it (it named the frame alone)
+    assert err.count("\n") == 1 and f"{truth / 'f002.png'}: truth labels of {frames[2].labels.shape[1]}x100" in err, err
     assert not (tmp_path / "o").exists()  # nothing written before the input was checked
+
+
+def test_a_truth_all_unknown_says_it_measured_nothing(tmp_path, frames, capsys):
+    """--truth whose maps are all unknown: the run ended with no word of the error it was asked for."""
+    src, truth = tmp_path / "frames", tmp_path / "truth"
+    _write_frames(src, frames[:3])
+    truth.mkdir()
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    for i in range(3):
+        cv2.imwrite(str(truth / f"f{i:03d}.png"), np.full(frames[0].labels.shape, 2, np.uint8))
+    assert main(["run", str(src), "--labels", str(tmp_path / "key.png"), "--truth", str(truth), "--model", "flow",
+                 "--out", str(tmp_path / "o")]) == 0
+    assert "error against the truth: none, the truth labels of the frames labelled are all unknown" \
+        in capsys.readouterr().out

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pcreg.classes import LAGR, encode_label_png
 from pcreg.cli import main
 from pcreg.errors import InputError
 from _runs import drifting_frames, one_line_errors
@@ -495,3 +496,72 @@ def test_images_among_the_frames_in_a_format_pcreg_does_not_read_are_named_in_a_
     assert notes == [f"pcreg: note: {folder}: 2 images in a format pcreg does not read, not labelled (IMG_0001.HEIC "
                      "and f1b.gif); convert them to PNG to label them with the others"], notes
     assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == [f"f{i}.png" for i in range(4)]
+
+
+@pytest.mark.parametrize("damage", ["garbage", "cut before IEND", "grey ids", "another size", "confidence garbage",
+                                    "confidence gone"])
+def test_a_label_png_damaged_since_the_run_is_named_on_resume_not_taken_as_done(tmp_path, capsys, damage):
+    """A label PNG (or a confidence PNG) of a counted frame overwritten, cut short or removed: the rerun said "all 5
+    frames already done" (exit 0) and the export failed on it later; it names the file, its damage and --force, and
+    leaves the folder as it was."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]
+    assert main(run) == 0
+    good = (out / "f2.png").read_bytes()
+    labels = read_labels(out / "f2.png")
+    damaged = {"garbage": b"not a PNG", "cut before IEND": good[:-12],
+               "grey ids": cv2.imencode(".png", labels)[1].tobytes(), "another size": encode_label_png(labels[:, :32], LAGR),
+               "confidence garbage": b"not a PNG"}
+    if damage == "confidence gone":
+        shutil.rmtree(out / "confidence")
+    else:
+        (out / ("confidence/" if damage.startswith("confidence") else "") / "f2.png").write_bytes(damaged[damage])
+    written = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    said = {"garbage": "f2.png: not a PNG,", "cut before IEND": "f2.png: the file ends before its IEND chunk",
+            "grey ids": "f2.png: not a label PNG pcreg run writes", "another size": "f2.png: labels of 32x48, the frames 64x48",
+            "confidence garbage": "confidence/f2.png: not a PNG,", "confidence gone": "confidence/f1.png is missing"}[damage]
+    assert len(err) == 1 and said in err[0] and "counts that frame labelled" in err[0] and "--force" in err[0], err
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == written
+
+
+def test_a_key_frames_label_png_damaged_since_the_run_is_written_again_and_another_named(tmp_path, capsys):
+    """A run from a folder of key frames: a key frame's own label PNG overwritten is written again from its key
+    labels (it was left damaged); a carried frame's is named, as in a run from one label image."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in (0, 4):
+        shutil.copy(key, keys / f"f{i}.png")
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
+    assert main(run) == 0
+    good = (out / "f4.png").read_bytes()
+    (out / "f4.png").write_bytes(b"not a PNG")
+    assert main(run) == 0
+    assert (out / "f4.png").read_bytes() == good
+    (out / "f2.png").write_bytes((out / "f2.png").read_bytes()[:-12])
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "f2.png: the file ends before its IEND chunk" in err[0], err
+
+
+def test_a_review_video_refused_for_a_damaged_label_says_one_line(tmp_path, capsys):
+    """pcreg view --overlay of frames too small for their legend, one label PNG damaged: the note on the legend came
+    before the refusal, two lines for a video not written; the refusal alone now, the note once a video is written."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=4)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    video = tmp_path / "review.mp4"
+    capsys.readouterr()
+    assert main(["view", str(out), "--overlay", str(video)]) == 0
+    assert "too small for the legend" in capsys.readouterr().err
+    (out / "f2.png").write_bytes(b"not a PNG")
+    assert main(["view", str(out), "--overlay", str(video), "--force"]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "f2.png" in err[0] and "error" in err[0], err
+    assert video.is_file()  # the earlier video, kept

@@ -26,8 +26,9 @@ inflates one block of data under many names) are refused, and every member's siz
 (:data:`MAX_MEMBERS`, the pixel limit's file size; ``labelmap.txt`` a class table's); a mask's first bytes are
 read first, so that a member that is no image, or a PNG larger than the pixel limit, is refused before the
 rest is inflated, and a PNG is read to no more bytes than its pixels can take. An archive whose members all lie in one folder holding the export (an export zipped with its
-folder around it) is read inside that folder, and so is such an archive unpacked (a folder holding only
-the folder of the export); the ``__MACOSX/`` folder that macOS's Finder adds to an archive it makes is left out.
+folder around it) is read inside that folder, or in the one folder inside it, and so on (an export zipped with the
+folders of its path), and so is such an archive unpacked (a folder holding only the folder of the export, or only
+a folder holding only that folder); the ``__MACOSX/`` folder that macOS's Finder adds to an archive it makes is left out.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from __future__ import annotations
 import contextlib
 import re
 import stat
+import unicodedata
 import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
@@ -52,6 +54,8 @@ CLASS_DIR = "SegmentationClass"
 #: The most members an archive may list.
 MAX_MEMBERS = 200_000
 _FRAME = re.compile(r"frame_(\d{1,9})")
+#: The most folders around an export, each holding nothing but the next, that it is read inside.
+_MAX_WRAPPING = 16
 #: The folder of file metadata macOS's Finder adds to an archive it makes (``__MACOSX/FOLDER/._NAME``): no
 #: part of the export, and left out.
 _MACOS_FORKS = "__MACOSX"
@@ -75,16 +79,23 @@ def is_cvat_export(path: Path) -> bool:
 
 
 def wrapped_export(folder: Path) -> Path | None:
-    """The one folder in ``folder`` that holds an export (its ``SegmentationClass/``), when ``folder`` holds
-    no export of its own and nothing else (hidden files and ``__MACOSX/`` left out): an archive of an export
-    with its folder around it, unpacked, read as the archive is; else None."""
-    if (folder / LABELMAP_FILE).exists() or (folder / CLASS_DIR).exists():
-        return None
-    try:
-        inside = [p for p in folder.iterdir() if not p.name.startswith(".") and p.name != _MACOS_FORKS]
-    except OSError:
-        return None
-    return inside[0] if len(inside) == 1 and (inside[0] / CLASS_DIR).is_dir() else None
+    """The folder in ``folder`` that holds an export (its ``SegmentationClass/``), when ``folder`` holds no export
+    of its own and nothing but one folder, itself the export or holding nothing but one folder, and so on (hidden
+    files and ``__MACOSX/`` left out): an archive of an export with its folders around it, unpacked, read as the
+    archive is; else None."""
+    for _ in range(_MAX_WRAPPING):
+        if (folder / LABELMAP_FILE).exists() or (folder / CLASS_DIR).exists():
+            return None
+        try:
+            inside = [p for p in folder.iterdir() if not p.name.startswith(".") and p.name != _MACOS_FORKS]
+        except OSError:
+            return None
+        if len(inside) != 1 or not inside[0].is_dir():
+            return None
+        if (inside[0] / CLASS_DIR).is_dir():
+            return inside[0]
+        folder = inside[0]
+    return None
 
 
 def _member_name(info: zipfile.ZipInfo) -> str:
@@ -157,16 +168,19 @@ class CvatExport(contextlib.AbstractContextManager):
 
     def _wrapping_folder(self) -> str:
         """``"NAME/"`` when every member lies in one folder NAME that holds the export (its ``labelmap.txt``
-        or ``SegmentationClass/``) and the archive's top holds neither; else ``""``."""
-        names = self._members
-        if LABELMAP_FILE in names or any(n.startswith(f"{CLASS_DIR}/") for n in names):
-            return ""
-        tops = {n.split("/", 1)[0] + "/" if "/" in n else "" for n in names}
-        if len(tops) != 1 or "" in tops:
-            return ""
-        top = tops.pop()
-        inside = f"{top}{LABELMAP_FILE}" in names or any(n.startswith(f"{top}{CLASS_DIR}/") for n in names)
-        return top if inside else ""
+        or ``SegmentationClass/``) and the archive's top holds neither; ``"NAME/INNER/"`` when NAME holds nothing
+        but the folder INNER that holds it (an export zipped with the folders of its path, ``zip -r`` from above
+        them), and so on; else ``""``."""
+        prefix, names = "", list(self._members)
+        for _ in range(_MAX_WRAPPING + 1):
+            if LABELMAP_FILE in names or any(n.startswith(f"{CLASS_DIR}/") for n in names):
+                return prefix
+            tops = {n.split("/", 1)[0] + "/" if "/" in n else "" for n in names}
+            if len(tops) != 1 or "" in tops:
+                return ""
+            top = tops.pop()
+            prefix, names = prefix + top, [n[len(top):] for n in names]
+        return ""
 
     def names(self, folder: str) -> list[str]:
         """The ``.png`` files in ``folder`` and its sub-folders (a task made from nested folders of frames puts
@@ -310,12 +324,22 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
                      "a mask is 8-bit RGB colours of labelmap.txt, or one channel of its lines)")
 
 
+def _nfc(name: str) -> str:
+    """``name`` in Unicode's composed form (NFC): macOS writes names decomposed (NFD: ``e`` and a combining accent for
+    ``é``), so a zip made there, or labels copied from there, name a frame in other code points than the frame's file."""
+    return unicodedata.normalize("NFC", name)
+
+
 def frame_positions(frames):
     """A function of a label file's stem to the position of the run's frame it names, or None: a folder's
-    frame by its file's stem, any run's source frame ``i`` (counted before ``--start``/``--every``) by
-    ``frame_NNNNNN`` (CVAT's names), and a video's by its index in digits."""
+    frame by its file's stem (or, where none has that stem, by the one stem that is the same text composed otherwise,
+    :func:`_nfc`), any run's source frame ``i`` (counted before ``--start``/``--every``) by ``frame_NNNNNN`` (CVAT's
+    names), and a video's by its index in digits."""
     s = frames.selection
     by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
+    composed = {}  # the composed form of each stem: the frames of that text
+    for stem, t in by_stem.items():
+        composed.setdefault(_nfc(stem), []).append(t)
 
     def source_index(i: int) -> int | None:
         if not s.chosen(i):
@@ -328,6 +352,8 @@ def frame_positions(frames):
     def where(stem: str) -> int | None:
         if stem in by_stem:
             return by_stem[stem]
+        if len(composed.get(_nfc(stem), ())) == 1:
+            return composed[_nfc(stem)][0]
         m = _FRAME.fullmatch(stem)
         if m is not None:
             return source_index(int(m.group(1)))
@@ -346,9 +372,9 @@ def placed(frames, stems: list[str], source) -> list[int | None]:
     where = frame_positions(frames)
     positions = [where(stem) for stem in stems]
     if frames.kind == "folder":
-        names = {frames.stem(t) for t in range(len(frames))}
-        by_name = [s for s, t in zip(stems, positions) if t is not None and s in names and _FRAME.fullmatch(s)]
-        by_number = [s for s, t in zip(stems, positions) if t is not None and s not in names]
+        names = {_nfc(frames.stem(t)) for t in range(len(frames))}
+        by_name = [s for s, t in zip(stems, positions) if t is not None and _nfc(s) in names and _FRAME.fullmatch(s)]
+        by_number = [s for s, t in zip(stems, positions) if t is not None and _nfc(s) not in names]
         if by_name and by_number:
             t = positions[stems.index(by_number[0])]
             raise InputError(f"{source}: its label files name frames two ways: {by_name[0]} the frame file of that name, "

@@ -142,13 +142,15 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
 
 
 def _read_text(path: Path, what: str) -> str:
-    from ..formats import read_regular_file
+    from ..formats import image_size, read_regular_file
 
     data = read_regular_file(path, max_bytes=MAX_TABLE_BYTES, what=what)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError:
-        raise InputError(f"{path}: not UTF-8 text ({what})") from None
+        kind = ("; it is a zip archive (a CVAT export? its labelmap.txt is the table; --labels reads the export)"
+                if data[:4] == b"PK\x03\x04" else "; it is an image, not a class table" if image_size(data) else "")
+        raise InputError(f"{path}: not UTF-8 text ({what}){kind}") from None
 
 
 def read_labelmap(path: str | Path) -> ClassTable:
@@ -218,22 +220,31 @@ def read_table_file(path: str | Path) -> ClassTable:
     if p.suffix.lower() == ".json":
         return parse_table_json(_read_text(p, "class table"), str(p))
     text = _read_text(p, "label map")
-    doc = _json_object(text, str(p))
-    return parse_labelmap(text, str(p)) if doc is None else parse_table_json(doc, str(p))
+    doc, why = _json_object(text, str(p))
+    if doc is not None:
+        return parse_table_json(doc, str(p))
+    try:
+        return parse_labelmap(text, str(p))
+    except InputError:
+        if why is None:
+            raise
+        # a JSON table cut short or mistyped, not named .json: its JSON error, not a label map's
+        raise InputError(f"{p}: neither a label map nor a JSON table (not JSON: {why})") from None
 
 
-def _json_object(text: str, where: str) -> dict | None:
-    """The JSON object ``text`` holds (a JSON table under another name than ``.json``), or None; an
-    :class:`InputError` naming ``where`` for one that holds a key twice."""
+def _json_object(text: str, where: str) -> tuple[dict | None, str | None]:
+    """``(doc, why)``: the JSON object ``text`` holds (a JSON table under another name than ``.json``) or None, and
+    why a text that opens as a JSON object (``{``) is not JSON (else None); an :class:`InputError` naming ``where``
+    for one that holds a key twice."""
     if not text.lstrip().startswith("{"):
-        return None
+        return None, None
     try:
         doc = loads_json(text, keys_once=True)
     except KeyWrittenTwice as exc:
         raise InputError(f"{where}: {exc}") from None
-    except ValueError:
-        return None
-    return doc if isinstance(doc, dict) else None
+    except ValueError as exc:
+        return None, str(exc)
+    return (doc, None) if isinstance(doc, dict) else (None, None)
 
 
 def class_table(spec: str | Path | ClassTable | None) -> ClassTable:

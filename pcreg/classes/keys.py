@@ -139,21 +139,49 @@ def _grey_ids(values: np.ndarray, name: str) -> bool:
     cannot be told apart. Without 255, a mask whose values below its largest, M, are three or more and lie only
     within :data:`SOFT_EDGE` px of M's pixels is a 0/M mask smoothed (blurred, or resized from a mask of 0 and
     M): one object, as with 255. Objects saved as grey ids 1..N would need three of them wholly within that edge of
-    the last."""
+    the last. A 0/M mask smoothed wider than that edge (:func:`_smoothed`) is refused, saying so: read as one object
+    its edge would swell the object, read as ids each value of its edge would be an object of its own."""
     present = np.flatnonzero(np.bincount(values.ravel(), minlength=256))
     below = [int(v) for v in present if 0 < v < 255]
     if not below:
         return False
     if present[-1] < 255 and len(below) >= 4 and _edge_only(values, int(present[-1])):
         return False  # a 0/M mask smoothed (three or more values below M, on M's edge): one object, as with 255
+    if present[-1] == 255 and _edge_only(values, 255):
+        return False  # a smoothed edge: one object
+    if _smoothed(values, [v for v in below if v < present[-1]], int(present[-1])):
+        raise SmoothedMask(name, int(present[-1]))
     if present[-1] == 255:
-        if _edge_only(values, 255):
-            return False  # a smoothed edge: one object
         raise InputError(f"{name}: a grey mask of values 0, {_listed(below)} and 255, the values between beyond "
                          f"{SOFT_EDGE} px of the 255s (not a smoothed edge): "
                          f"object{'s' if len(below) > 1 else ''} {_listed(below)} with 255 void? "
                          "It is not assumed; " + _SAVE_OBJECTS)
     return len(below) > 1
+
+
+def _smoothed(values: np.ndarray, between: list[int], top: int) -> bool:
+    """Whether a grey mask whose values ``between`` 0 and its largest, ``top``, lie beyond :data:`SOFT_EDGE` px of
+    ``top``'s pixels is a 0/``top`` mask smoothed wider than that (blurred, or resized more than 4 times): three or more
+    values between, and no step from a pixel to the next larger than half of ``top`` (objects saved as ids 1..N step
+    from each object to the background, 0, by its whole id)."""
+    if len(between) < 3:
+        return False
+    v = values.astype(np.int16)
+    steps = max(int(np.abs(np.diff(v, axis=0)).max(initial=0)), int(np.abs(np.diff(v, axis=1)).max(initial=0)))
+    return 2 * steps <= top
+
+
+class SmoothedMask(InputError):
+    """A grey mask that is a 0/M mask smoothed wider than :data:`SOFT_EDGE` px (:func:`_smoothed`): neither one object
+    nor objects by their ids are assumed. ``hint`` says what to do, for a refusal of the same file on other grounds."""
+
+    def __init__(self, name: str, top: int) -> None:
+        said = (f"values rising gradually from 0 to {top} over more than {SOFT_EDGE} px (a 0/{top} mask blurred, or "
+                f"resized more than {SOFT_EDGE} times?)")
+        advice = f"threshold it (values of {(top + 1) // 2} and more the object) and save it as 0 and 255"
+        self.hint = f"it holds {said}: {advice}"
+        super().__init__(f"{name}: a grey mask of {said}: neither one object nor one object per value is assumed; "
+                         f"{advice}")
 
 
 def _edge_only(values: np.ndarray, top: int) -> bool:
@@ -309,6 +337,8 @@ def decode_key_labels(data: bytes, name: str, table: ClassTable, mapping: str = 
         if "label value" in str(exc):
             try:
                 hint = mask_hint(_raw_values(data, name, limit=limit))
+            except SmoothedMask as smoothed:
+                hint = f"; {smoothed.hint}"
             except InputError:
                 hint = ""
         if hint and table.agrees(DEFAULT_TABLE):

@@ -27,22 +27,26 @@ import numpy as np
 from ..errors import InputError
 from .table import ClassTable
 
-__all__ = ["encode_label_png", "write_label_png", "decode_label_png", "read_label_png", "is_palette_png", "check_lossless"]
+__all__ = ["encode_label_png", "write_label_png", "decode_label_png", "read_label_png", "is_palette_png", "check_lossless",
+           "check_png_chunks", "PNG_SIGNATURE"]
 
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The first eight bytes of every PNG.
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PALETTE = 3  # IHDR colour type of an indexed PNG
 
 
 def is_palette_png(data: bytes) -> bool:
     """Whether ``data`` is a PNG whose header declares a palette (indexed colour)."""
-    return len(data) >= 26 and data[:8] == _PNG_SIGNATURE and data[12:16] == b"IHDR" and data[25] == _PALETTE
+    return len(data) >= 26 and data[:8] == PNG_SIGNATURE and data[12:16] == b"IHDR" and data[25] == _PALETTE
 
 
 def check_png_chunks(data: bytes, name: str) -> None:
     """An :class:`InputError` naming ``name`` when a chunk of the PNG ``data`` fails its CRC or runs past the file's
-    end. libpng (OpenCV's reader) refuses such a file; Pillow, which reads palette PNGs here, does not check the
-    image data's chunks, and read a damaged key mask as labels."""
-    at = len(_PNG_SIGNATURE)
+    end, or the file ends before its IEND chunk. libpng (OpenCV's reader) refuses such a file; Pillow, which reads
+    palette PNGs here, does not check the image data's chunks, and read a damaged key mask as labels (a file cut
+    between two chunks as "cannot identify image file <_io.BytesIO object at 0x...>", or as labels when the cut
+    left its image data whole)."""
+    at = len(PNG_SIGNATURE)
     while at + 12 <= len(data):
         length = int.from_bytes(data[at:at + 4], "big")
         kind, end = data[at + 4:at + 8], at + 12 + length
@@ -53,6 +57,7 @@ def check_png_chunks(data: bytes, name: str) -> None:
         if kind == b"IEND":
             return
         at = end
+    raise InputError(f"{name}: the file ends before its IEND chunk, the end of a PNG (cut short?)")
 
 
 def encode_label_png(labels: np.ndarray, table: ClassTable) -> bytes:

@@ -300,9 +300,10 @@ class NaiveBayesPixelClassifier:
         present = counts[:, 0, :].sum(axis=1) > 0
         classes = np.flatnonzero(present).astype(np.uint8)
         if len(classes) < 2:
-            only = ", ".join(listed_name(table.name_of(int(c))) for c in classes) or "none"
+            held = f"only one class ({listed_name(table.name_of(int(classes[0])))})" if len(classes) else \
+                f"no class (every pixel {listed_name(table.unknown_class.name)})"
             need = "both ground and obstacle" if table.agrees(DEFAULT_TABLE) else "at least two classes'"
-            raise InputError(f"training labels hold only one class ({only}); need {need} pixels")
+            raise InputError(f"training labels hold {held}; need {need} pixels")
         p = _gaussian_params(counts, classes, var_smoothing=self.var_smoothing, priors=self.priors)
         self.counts_ = counts.astype(np.int64, copy=True)
         self.classes_ = classes
@@ -546,8 +547,8 @@ def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, e
     counts = colour_counts(images, labels, exclude_unknown=exclude_unknown)
     present = [c for c in range(N_LABELS) if counts[c][1].size]
     if len(present) < 2:
-        only = ", ".join(LABEL_NAMES[c] for c in present) or "none"
-        raise InputError(f"training labels hold only one class ({only}); need both ground and obstacle pixels")
+        held = f"only one class ({LABEL_NAMES[present[0]]})" if present else "no class (every pixel unknown)"
+        raise InputError(f"training labels hold {held}; need both ground and obstacle pixels")
     rng = np.random.default_rng(seed)
     raw = rng.random((n_trials, 3))
     trial_weights = np.array([normalise_weights(w if w.sum() > 0 else np.ones(3)) for w in raw])

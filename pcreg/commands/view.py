@@ -288,13 +288,15 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     if note:
         print(note)
     # where the video skips frames by its times (the run's frame N is not the file's), frames that decode with errors
-    # (labelled from concealed pictures), what else reading the frames met (transparent pixels, a turn to interlaced)
-    for line in review.said():
-        sys.stderr.write(f"pcreg: note: {line}\n")
+    # (labelled from concealed pictures), what else reading the frames met (transparent pixels, a turn to interlaced);
+    # said once the video is written (a refused one says one line, its refusal), or before the page is served
+    said = [f"pcreg: note: {line}\n" for line in review.said()]
     if args.overlay:
-        n = write_overlay_video(review, out, fps=args.fps, note=lambda line: sys.stderr.write(f"pcreg: note: {line}\n"))
+        n = write_overlay_video(review, out, fps=args.fps, note=lambda line: said.append(f"pcreg: note: {line}\n"))
+        sys.stderr.write("".join(said))
         print(f"wrote {out}: {n} frame(s) of {folder} with their labels")
         return 0
+    sys.stderr.write("".join(said))
     with ReviewServer(review, bind=args.bind, web_port=args.web_port) as server:
         _note_bind(args.bind)
         try:

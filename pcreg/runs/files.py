@@ -33,7 +33,7 @@ from ..formats import loads_json
 
 __all__ = ["STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "write_confidence", "write_grey", "confidence_png",
-           "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "check_labelled",
+           "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "check_labelled",
            "write_suggestions", "read_suggestions"]
 
 STATE = "run.json"  #: the run's record (pcreg.runs.state reads and writes it), the commit point of its steps
@@ -301,13 +301,49 @@ def _chain_carry(members: dict, bad: OutputError):
     return ChainCarry(rgb, motion, int(frame))
 
 
-def check_labelled(out: Path, stems: list[str]) -> None:
-    """The label PNG of every frame run.json counts labelled (``stems``) is in ``out``; one gone (deleted
-    or moved since) is an :class:`~pcreg.errors.OutputError`: the run cannot make it again where it
-    stands, and "all frames done" would not be true."""
-    for stem in stems:
-        if not (out / f"{stem}.png").is_file():
-            raise OutputError(f"{out / stem}.png is missing, though {out / STATE} counts that frame labelled; "
+def label_file_problem(path: Path, shape: tuple[int, int], *, confidence: bool = False) -> str | None:
+    """What keeps the file at ``path`` from being a label PNG a run wrote (:func:`write_labels`; ``confidence``: a
+    confidence PNG, :func:`write_confidence`) of frames of ``shape`` (H, W), told from its header and its chunks' CRCs
+    without decoding its pixels: ``"missing"``, why it is damaged, of another size, or not a palette (a grey) PNG;
+    None when it is one."""
+    from ..classes.png import PNG_SIGNATURE, check_png_chunks, is_palette_png
+    from ..formats import max_file_bytes, read_regular_file
+    from ..validation import max_pixels
+
+    if not path.is_file():
+        return "missing"
+    try:
+        data = read_regular_file(path, max_bytes=max_file_bytes(max_pixels()), what="label image")
+        if data.startswith(PNG_SIGNATURE):
+            check_png_chunks(data, str(path))
+    except InputError as exc:
+        return str(exc).removeprefix(f"{path}: ")
+    if not data.startswith(PNG_SIGNATURE):
+        return "not a PNG"
+    if confidence and (data[24], data[25]) != (8, 0):  # IHDR's bit depth and colour type: 8-bit grey
+        return "not a confidence PNG pcreg run writes (an 8-bit grey PNG)"
+    if not confidence and not is_palette_png(data):
+        return "not a label PNG pcreg run writes (a palette PNG)"
+    w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if (h, w) != tuple(shape):
+        return f"{'a confidence map' if confidence else 'labels'} of {w}x{h}, the frames {shape[1]}x{shape[0]}"
+    return None
+
+
+def check_labelled(out: Path, stems: list[str], shape: tuple[int, int], confidence: Iterable[str] = ()) -> None:
+    """The label PNG of every frame run.json counts labelled (``stems``) is in ``out``, whole, of the frames' ``shape``
+    (:func:`label_file_problem`), and so is the confidence PNG of each of the frames ``confidence`` (those carried, in
+    a run with ``--confidence``); one gone (deleted or moved since) or damaged (cut short, overwritten) is an
+    :class:`~pcreg.errors.OutputError`: the run cannot make it again where it stands, and "all frames done" would
+    not be true."""
+    named = [(out / f"{stem}.png", False) for stem in stems] + [(out / CONFIDENCE / f"{stem}.png", True) for stem in confidence]
+    for path, is_confidence in named:
+        problem = label_file_problem(path, shape, confidence=is_confidence)
+        if problem == "missing":
+            raise OutputError(f"{path} is missing, though {out / STATE} counts that frame labelled; "
+                              "use --force to start over")
+        if problem is not None:
+            raise OutputError(f"{path}: {problem}, though {out / STATE} counts that frame labelled; "
                               "use --force to start over")
 
 

@@ -162,7 +162,7 @@ class TruthMaps:
             raise InputError(f"{f}: no truth labels for frame {self.frames.name(t)} (--truth {self.root} holds "
                              "NAME.png for each frame NAME)")
         lab = read_labels(f, self.mapping, self.table)
-        check_truth([lab], self.shape, [self.frames.name(t)])
+        check_truth([lab], self.shape, [str(f)])
         return lab
 
 

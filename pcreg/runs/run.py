@@ -47,8 +47,8 @@ import numpy as np
 from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
 from ..outputs import atomic_file
-from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest, parse_steps,
-                    read_carry, step_lines, write_carry, write_confidence, write_labels)
+from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
+                    label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .state import STATE, open_state, read_state, run_frames, write_state
 from .truth import add_rates, count_frame, empty_counts
 
@@ -265,6 +265,8 @@ class Run:
         if s.get("truth") and s["truth"].get("error") is not None:
             msg += (f"\nerror against the truth: {s['truth']['error']:.2f}% over {s['truth']['frames']} frames "
                     f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
+        elif s.get("truth"):  # asked for, and no figure: said, not left out
+            msg += "\nerror against the truth: none, the truth labels of the frames labelled are all unknown"
         print(msg, file=sys.stdout)
         if start is None:
             self.suggest(request.suggest, keys)
@@ -282,7 +284,8 @@ class Run:
             self._cut_steps(int(state["done"]) - 1)
             self._check_same_frames(str(state["key_frame"]))
             self._remove_partial_writes()
-            check_labelled(self.out, [self.frames.stem(t) for t in range(int(state["done"]))])
+            stems = [self.frames.stem(t) for t in range(int(state["done"]))]
+            check_labelled(self.out, stems, labels.shape, stems[1:] if self.confidence else ())
             return int(state["done"])
         self._start_over()
         self._remove_partial_writes()  # those of a killed run started over (--force) too
@@ -399,10 +402,10 @@ class Run:
         if path.is_file() and path.stat().st_size != end:
             os.truncate(path, end)
 
-    def _keep_steps(self, live: list) -> int:
+    def _keep_steps(self, live: list, shape: tuple[int, int]) -> int:
         """Keep the lines of steps.jsonl that run.json counts and whose frames are in a stretch still to label
-        (``live``), their label files checked; rewritten as it is read, whole or not at all. Returns how many
-        it kept."""
+        (``live``), their label files checked (frames of ``shape``); rewritten as it is read, whole or not at all.
+        Returns how many it kept."""
         path, counted = self.out / STEPS, int(self.state["lines"])
         with atomic_file(path) as fh:
             count, stems = 0, []
@@ -414,7 +417,7 @@ class Run:
                     stems.append(self.frames.stem(t))
             if count < counted:
                 raise OutputError(f"{path}: {count} steps for {counted} finished frames; use --force to start over")
-            check_labelled(self.out, stems)
+            check_labelled(self.out, stems, shape, stems if self.confidence else ())
         return len(stems)
 
     def open_keys(self, keys: dict[int, np.ndarray], plan: dict, *, force: bool = False) -> None:
@@ -437,7 +440,7 @@ class Run:
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
-        lines = self._keep_steps(live)
+        lines = self._keep_steps(live, next(iter(keys.values())).shape)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
         if (self.out / HIDDEN).is_dir():
             for d in (self.out / HIDDEN).iterdir():
@@ -446,7 +449,8 @@ class Run:
         names = {self.frames.name(k): label_digest(lab) for k, lab in keys.items()}
         for k, lab in keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"
-            if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] or not f.is_file():
+            if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] \
+                    or label_file_problem(f, lab.shape) is not None:
                 write_labels(f, lab, self.table)
         self.state.update(keys=names, stretches=kept, cursor=cursor, lines=lines)
         self.totals()

@@ -39,10 +39,11 @@ def add_rates(counts: dict) -> dict:
 
 
 def check_truth(truth: list[np.ndarray | None], shape: tuple[int, int], names: list[str]) -> None:
-    """Every truth map present and of the frames' size, or one line naming the first that is not."""
+    """Every truth map present and of the frames' size, or one line naming the first that is not by its file
+    (``names``)."""
     for lab, name in zip(truth, names):
         if lab is None:
-            raise InputError(f"no truth labels for frame {name}")
+            raise InputError(f"{name}: no truth labels")
         if lab.shape != shape:
-            raise InputError(f"truth labels of {name} are {lab.shape[1]}x{lab.shape[0]}, the frames "
+            raise InputError(f"{name}: truth labels of {lab.shape[1]}x{lab.shape[0]}, the frames "
                              f"{shape[1]}x{shape[0]}")

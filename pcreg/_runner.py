@@ -553,14 +553,20 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
             check_interrupted()
             pending = set() if inline else set(futures)
             while pending:
-                done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
-                check_interrupted()  # also when no unit finished: the wait itself is where Ctrl-C lands
+                # Shielded too: wait() and result() take each future's lock, and a KeyboardInterrupt raised
+                # while one is held leaves it held; the pool's thread, which hands the results to the futures,
+                # then waits on it for ever, and so does Python's exit, which joins that thread. A signal is
+                # raised here instead, within the 0.25 s of a wait, the units that finished meanwhile kept.
+                with _shielded():
+                    done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        land(fut)
+                check_interrupted()
                 if health is not None:
                     health()
-                for fut in done:
-                    land(fut)
     except BaseException:
-        for fut in futures:  # nothing more starts; what finished was handed to on_result already
-            fut.cancel()
+        with _shielded():  # a second signal here: the same locks
+            for fut in futures:  # nothing more starts; what finished was handed to on_result already
+                fut.cancel()
         raise
     return results

@@ -99,6 +99,17 @@ def _on_signal(signum, frame) -> None:
         raise KeyboardInterrupt
 
 
+#: The ``sys.unraisablehook`` :func:`interrupt_on_signals` replaced (put back by :func:`restore_signals`).
+_UNRAISABLE: list = []
+
+
+def _unraisable(unraisable) -> None:
+    """Python prints an exception it cannot raise (in a finalizer, a weakref callback of the garbage collector,
+    an ``os.fork`` hook); a signal's KeyboardInterrupt raised there is noted, and raised again later, not printed."""
+    if not (_RECEIVED and issubclass(unraisable.exc_type, KeyboardInterrupt)):
+        (_UNRAISABLE[-1] if _UNRAISABLE else sys.__unraisablehook__)(unraisable)
+
+
 def interrupt_on_signals() -> dict:
     """SIGINT (Ctrl-C) and SIGTERM raise KeyboardInterrupt in the main thread; returns the handlers they
     replace (for :func:`restore_signals`). Call it from the main thread.
@@ -106,8 +117,9 @@ def interrupt_on_signals() -> dict:
     SIGINT is handled even when this process started with it ignored: a shell without job control (a
     script's ``pcreg ... &``) starts its background commands so, and Python then leaves it ignored.
     The KeyboardInterrupt is raised wherever the main thread is, and a few places swallow it (an
-    ``os.fork`` hook, run while the pool starts a worker, only prints it): :func:`check_interrupted`,
-    called between units and while waiting for them, raises it again.
+    ``os.fork`` hook, run while the pool starts a worker, a finalizer: Python can only print it, and
+    :func:`_unraisable` keeps that off stderr): :func:`check_interrupted`, called between units and while
+    waiting for them, raises it again.
     """
     import signal
 
@@ -122,6 +134,9 @@ def interrupt_on_signals() -> dict:
             pass
     if previous:
         _start_watchdog()
+        if sys.unraisablehook is not _unraisable:
+            _UNRAISABLE.append(sys.unraisablehook)
+            sys.unraisablehook = _unraisable
     return previous
 
 
@@ -131,6 +146,9 @@ def restore_signals(previous: dict) -> None:
 
     _RECEIVED.clear()
     _put_watchdog_away()
+    hook = _UNRAISABLE.pop() if _UNRAISABLE else None
+    if hook is not None and sys.unraisablehook is _unraisable:
+        sys.unraisablehook = hook
     for signum, handler in previous.items():
         try:
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
@@ -553,14 +571,20 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
             check_interrupted()
             pending = set() if inline else set(futures)
             while pending:
-                done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
-                check_interrupted()  # also when no unit finished: the wait itself is where Ctrl-C lands
+                # Shielded too: wait() and result() take each future's lock, and a KeyboardInterrupt raised
+                # while one is held leaves it held; the pool's thread, which hands the results to the futures,
+                # then waits on it for ever, and so does Python's exit, which joins that thread. A signal is
+                # raised here instead, within the 0.25 s of a wait, the units that finished meanwhile kept.
+                with _shielded():
+                    done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        land(fut)
+                check_interrupted()
                 if health is not None:
                     health()
-                for fut in done:
-                    land(fut)
     except BaseException:
-        for fut in futures:  # nothing more starts; what finished was handed to on_result already
-            fut.cancel()
+        with _shielded():  # a second signal here: the same locks
+            for fut in futures:  # nothing more starts; what finished was handed to on_result already
+                fut.cancel()
         raise
     return results

@@ -250,22 +250,24 @@ def _main(argv: list[str] | None) -> int:
 
     if argv is None:  # the program itself, not a caller's own streams
         _usable_streams()
+    saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     # Ctrl-C and SIGTERM: exit 130, finished units kept; from the start, while the commands' modules load
     previous = interrupt_on_signals()
     try:
         args = build_parser().parse_args(argv)
-    except KeyboardInterrupt:
-        restore_signals(previous)
-        sys.stderr.write("pcreg: interrupted before the command started\n")
-        return 130
     except SystemExit as exc:  # the parser's own exit (a bad option: 2; --help: 0)
         restore_signals(previous)
         if exc.code == 0 and argv is None:
             return _help_written()
         raise
-    except BaseException:
-        restore_signals(previous)
-        raise
+    except BaseException as exc:
+        if not (isinstance(exc, KeyboardInterrupt) or interrupted()):
+            restore_signals(previous)
+            raise
+        # the KeyboardInterrupt, or what a module being loaded made of it (an ImportError of numpy's)
+        _end(argv is None, saved_limit, previous)
+        sys.stderr.write("pcreg: interrupted before the command started\n")
+        return 130
     if not getattr(args, "_module", None):
         restore_signals(previous)
         return _no_command(args)
@@ -276,7 +278,6 @@ def _main(argv: list[str] | None) -> int:
         return 2
     from .errors import RegistrationError, StuckOutput
 
-    saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     try:
         return _run_command(args)
     except RegistrationError as exc:  # a refused registration: exit 3 (the JSON form goes to stdout)

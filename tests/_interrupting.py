@@ -1,6 +1,7 @@
 """What the interrupt tests share: a command started in its own process group, waits for the events
-that show it under way, and the signal with the checks of its aftermath (exit 130, one line on stderr,
-no process left, the output lock free). The tests: ``test_interrupts*.py``."""
+that show it under way, and the signal (sent from outside, or landing at a chosen moment: :data:`SIGNALLED`)
+with the checks of its aftermath (exit 130, one line on stderr, no process left, the output lock free). The
+tests: ``test_interrupts*.py``."""
 
 from __future__ import annotations
 
@@ -51,11 +52,61 @@ def group_members(pgid: int) -> dict[int, str]:
     return {p.pid: p.state for p in processes() if p.pgrp == pgid}
 
 
+#: A module: ``python -m`` it with WHERE, a file pattern, a file's path and a pcreg command: the command, as
+#: ``python -m pcreg.cli`` runs it, with SIGINT's handler called at the moment WHERE names, as the interpreter calls
+#: it for a signal arriving then (a profile hook calls it: the interpreter runs no handler inside a hook); the file
+#: tells it ran. ``wait``: inside concurrent.futures' wait(), once a file matches the pattern, just as wait() has
+#: taken the last of the futures' locks (SIGINT sent from outside within half a millisecond of the first unit's
+#: file appearing landed there 3 times in 125); ``exec``: as code made from a string (a dataclass's methods)
+#: starts, while the commands' modules load; ``import``: as a module starts loading, the KeyboardInterrupt turned
+#: into the ImportError numpy makes of one landing in its own imports.
+SIGNALLED = """
+import glob, os, runpy, signal, sys
+from concurrent.futures import _base
+
+ENTER = _base._AcquireFutures.__enter__.__code__
+where, pattern, ran = sys.argv.pop(1), sys.argv.pop(1), sys.argv.pop(1)
+
+def lands(frame, event):
+    if where == "wait":
+        return (event == "c_return" and frame.f_code is ENTER
+                and frame.f_locals["future"] is frame.f_locals["self"].futures[-1] and glob.glob(pattern))
+    handled = getattr(signal.getsignal(signal.SIGINT), "__module__", "") == "pcreg._runner"
+    name = frame.f_code.co_filename if where == "exec" else frame.f_code.co_name
+    return event == "call" and handled and name == {"exec": "<string>", "import": "<module>"}[where]
+
+def at(frame, event, arg):  # every call and return of the main thread
+    if lands(frame, event):
+        sys.setprofile(None)
+        open(ran, "w").close()
+        try:
+            signal.getsignal(signal.SIGINT)(signal.SIGINT, frame)
+        except KeyboardInterrupt as exc:
+            if where == "import":
+                raise ImportError("PyCapsule_Import could not import module") from exc
+            raise
+
+os.register_at_fork(after_in_child=lambda: sys.setprofile(None))
+sys.setprofile(at)
+runpy.run_module("pcreg.cli", run_name="__main__", alter_sys=True)
+"""
+
+
+def start_signalled(where: str, args: list, tmp: Path, pattern: str = "") -> subprocess.Popen:
+    """The command as :func:`start` starts it, SIGINT landing as :data:`SIGNALLED` says (the module written
+    in ``tmp``, and the file ``tmp/signalled`` once the handler ran)."""
+    (tmp / "signalled_at.py").write_text(SIGNALLED)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tmp), os.environ.get("PYTHONPATH")]))}
+    return subprocess.Popen([sys.executable, "-m", "signalled_at", where, pattern, str(tmp / "signalled"),
+                             *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env=env)
+
+
 def signal_and_check(p: subprocess.Popen, how: str, out: Path | None) -> str:
     """Send the signal (``group``: SIGINT to the process group, as Ctrl-C; ``parent``: SIGINT to the
-    command alone; ``term``: SIGTERM to the command alone), then check the exit and the aftermath: every
-    process of the group ends (waited for through pidfds, readable when a process exits), the output
-    lock is free. Returns stderr."""
+    command alone; ``term``: SIGTERM to the command alone; ``self``: none, the command signals itself),
+    then check the exit and the aftermath: every process of the group ends (waited for through pidfds,
+    readable when a process exits), the output lock is free. Returns stderr."""
     import select
 
     members = group_members(p.pid)
@@ -70,7 +121,7 @@ def signal_and_check(p: subprocess.Popen, how: str, out: Path | None) -> str:
             os.killpg(p.pid, signal.SIGINT)
         elif how == "parent":
             p.send_signal(signal.SIGINT)
-        else:
+        elif how == "term":
             p.send_signal(signal.SIGTERM)
         _, err = p.communicate(timeout=HANG)
         pending = list(fds)

@@ -364,6 +364,31 @@ def test_the_signal_handler_starts_no_thread():
         _runner.restore_signals(previous)
 
 
+def test_a_signal_landing_where_python_cannot_raise_is_noted_not_printed(tmp_path):
+    """A signal landing in a callback the garbage collector runs (matplotlib's, as a report's figures are
+    written) raised a KeyboardInterrupt that Python could only print: "Exception ignored in" and a traceback
+    beside the command's one line. It is noted, and raised again at the next check."""
+    import textwrap
+
+    script = tmp_path / "callback.py"
+    script.write_text(textwrap.dedent("""
+        import signal, weakref
+        from pcreg import _runner
+        _runner.interrupt_on_signals()
+        class Node:
+            pass
+        node = Node()
+        ref = weakref.ref(node, lambda _: signal.getsignal(signal.SIGINT)(signal.SIGINT, None))
+        del node  # the callback runs now, and the signal's handler in it
+        try:
+            _runner.check_interrupted()
+        except KeyboardInterrupt:
+            print("raised again")
+    """))
+    p = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert (p.returncode, p.stdout, p.stderr) == (0, "raised again\n", "")
+
+
 def test_a_command_stopped_by_bad_input_leaves_no_folder_it_made(tmp_path, capsys):
     out = tmp_path / "made" / "for" / "it"
     assert main(["evaluate", "stream", "--out", str(out), "--data", f"camvid:{tmp_path / 'none'}"]) == 2

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from _interrupting import resumed, stopped
+from _interrupting import resumed, signal_and_check, start_signalled, stopped
 
 pytestmark = pytest.mark.slow  # commands stopped by signals and run again: seconds each
 
@@ -43,3 +43,12 @@ def test_evaluate_stream_stops_and_resumes(tmp_path, how, workers):
     args = [*STREAM, "--workers", workers, "--out", out]
     results = resumed(args, out, stopped(args, out, how))
     assert set(results["datasets"]) == {"syn1a", "syn2a", "syn2b", "syn3a"}
+
+
+@pytest.mark.parametrize("where", ["exec", "import"])
+def test_a_signal_while_the_commands_modules_load_exits_130(tmp_path, where):
+    """Ctrl-C before the command starts: exit 130 and one line, also when it escaped code made from a string
+    (Python then ended the program by SIGINT at exit) or a module made an ImportError of it (a traceback)."""
+    p = start_signalled(where, [*ROTATION, "--out", tmp_path / "rot"], tmp_path)
+    assert signal_and_check(p, "self", None).strip() == "pcreg: interrupted before the command started"
+    assert (tmp_path / "signalled").exists()

@@ -11,7 +11,7 @@ import signal
 
 import pytest
 
-from _interrupting import resumed, stopped
+from _interrupting import resumed, signal_and_check, start_signalled, stopped, units
 
 pytestmark = pytest.mark.slow  # commands stopped by signals and run again: seconds each
 
@@ -36,3 +36,16 @@ def test_sigint_stops_a_command_started_with_sigint_ignored(tmp_path):
     args = [*SEQUENCE, "--workers", 2, "--out", out]
     kept = stopped(args, out, "parent", preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     resumed(args, out, kept)
+
+
+def test_sigint_landing_while_wait_holds_the_futures_locks_stops_as_anywhere_else(tmp_path):
+    """The pool's results reach the futures through a thread of the pool's, which takes each future's lock;
+    a KeyboardInterrupt raised while the main thread's wait() held those locks left them held, that thread
+    waited on them for ever and so did Python's exit, which joins it: the watchdog ended the command after
+    its grace with a second line."""
+    out = tmp_path / "seq"
+    args = [*SEQUENCE, "--workers", 2, "--out", out]
+    p = start_signalled("wait", args, tmp_path, str(out / "units" / "*" / "*.json"))
+    signal_and_check(p, "self", out)
+    assert (tmp_path / "signalled").exists()
+    resumed(args, out, units(out))

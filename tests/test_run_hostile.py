@@ -498,7 +498,7 @@ def test_images_among_the_frames_in_a_format_pcreg_does_not_read_are_named_in_a_
     assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == [f"f{i}.png" for i in range(4)]
 
 
-@pytest.mark.parametrize("damage", ["garbage", "cut before IEND", "grey ids", "another size", "confidence garbage",
+@pytest.mark.parametrize("damage", ["garbage", "cut before IEND", "colours", "another size", "confidence garbage",
                                     "confidence gone"])
 def test_a_label_png_damaged_since_the_run_is_named_on_resume_not_taken_as_done(tmp_path, capsys, damage):
     """A label PNG (or a confidence PNG) of a counted frame overwritten, cut short or removed: the rerun said "all 5
@@ -511,7 +511,8 @@ def test_a_label_png_damaged_since_the_run_is_named_on_resume_not_taken_as_done(
     good = (out / "f2.png").read_bytes()
     labels = read_labels(out / "f2.png")
     damaged = {"garbage": b"not a PNG", "cut before IEND": good[:-12],
-               "grey ids": cv2.imencode(".png", labels)[1].tobytes(), "another size": encode_label_png(labels[:, :32], LAGR),
+               "colours": cv2.imencode(".png", LAGR.paint(labels)[:, :, ::-1])[1].tobytes(),
+               "another size": encode_label_png(labels[:, :32], LAGR),
                "confidence garbage": b"not a PNG"}
     if damage == "confidence gone":
         shutil.rmtree(out / "confidence")
@@ -522,10 +523,22 @@ def test_a_label_png_damaged_since_the_run_is_named_on_resume_not_taken_as_done(
     assert main(run) == 2
     err = one_line_errors(capsys)
     said = {"garbage": "f2.png: not a PNG,", "cut before IEND": "f2.png: the file ends before its IEND chunk",
-            "grey ids": "f2.png: not a label PNG pcreg run writes", "another size": "f2.png: labels of 32x48, the frames 64x48",
+            "colours": "f2.png: not a label PNG pcreg run writes", "another size": "f2.png: labels of 32x48, the frames 64x48",
             "confidence garbage": "confidence/f2.png: not a PNG,", "confidence gone": "confidence/f1.png is missing"}[damage]
     assert len(err) == 1 and said in err[0] and "counts that frame labelled" in err[0] and "--force" in err[0], err
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == written
+
+
+def test_a_label_png_of_grey_ids_as_pcreg_0_2_wrote_is_resumed_over(tmp_path, capsys):
+    """pcreg 0.2 wrote label PNGs as 8-bit grey ids: a run of its frames is not taken for a damaged one."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=4)
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    assert main(run) == 0
+    cv2.imwrite(str(out / "f2.png"), read_labels(out / "f2.png"))
+    capsys.readouterr()
+    assert main(run) == 0
+    assert "all 4 frames already done" in capsys.readouterr().out
 
 
 def test_a_key_frames_label_png_damaged_since_the_run_is_written_again_and_another_named(tmp_path, capsys):

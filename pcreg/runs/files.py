@@ -304,8 +304,8 @@ def _chain_carry(members: dict, bad: OutputError):
 def label_file_problem(path: Path, shape: tuple[int, int], *, confidence: bool = False) -> str | None:
     """What keeps the file at ``path`` from being a label PNG a run wrote (:func:`write_labels`; ``confidence``: a
     confidence PNG, :func:`write_confidence`) of frames of ``shape`` (H, W), told from its header and its chunks' CRCs
-    without decoding its pixels: ``"missing"``, why it is damaged, of another size, or not a palette (a grey) PNG;
-    None when it is one."""
+    without decoding its pixels: ``"missing"``, why it is damaged, of another size, or not a palette PNG (nor the
+    8-bit grey one pcreg 0.2 wrote; a confidence PNG: not an 8-bit grey one); None when it is one."""
     from ..classes.png import PNG_SIGNATURE, check_png_chunks, is_palette_png
     from ..formats import max_file_bytes, read_regular_file
     from ..validation import max_pixels
@@ -322,8 +322,8 @@ def label_file_problem(path: Path, shape: tuple[int, int], *, confidence: bool =
         return "not a PNG"
     if confidence and (data[24], data[25]) != (8, 0):  # IHDR's bit depth and colour type: 8-bit grey
         return "not a confidence PNG pcreg run writes (an 8-bit grey PNG)"
-    if not confidence and not is_palette_png(data):
-        return "not a label PNG pcreg run writes (a palette PNG)"
+    if not confidence and not is_palette_png(data) and (data[24], data[25]) != (8, 0):  # or grey, as pcreg 0.2 wrote
+        return "not a label PNG pcreg run writes (a palette PNG, or 8-bit grey ids)"
     w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     if (h, w) != tuple(shape):
         return f"{'a confidence map' if confidence else 'labels'} of {w}x{h}, the frames {shape[1]}x{shape[0]}"

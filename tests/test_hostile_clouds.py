@@ -132,9 +132,10 @@ def test_an_implementation_called_directly_refuses_a_guess_that_is_no_rigid_tran
 
 
 @pytest.mark.parametrize("changes, said", [
-    ({"init": np.diag([np.nan, 1, 1, 1])}, "init must be a finite 4x4 matrix, got NaN or inf"),  # KISS-ICP aborted
+    ({"init": np.diag([np.nan, 1, 1, 1])}, "pinned: init has NaN or inf entries"),  # KISS-ICP's Sophus aborted
     ({"source": np.full((10, 3), np.nan)}, "source: 10 point"),
-    ({"source": np.zeros((10, 2)), "init": np.eye(3)}, "source is 2-D but target is 3-D"),
+    ({"source": np.zeros((10, 2)), "init": np.eye(3)}, "pinned: source is 2-D but target is 3-D"),
+    ({"init": np.eye(3)}, "pinned: init must be a 4x4 matrix for 3-D clouds, got shape \\(3, 3\\)"),
     ({"max_correspondence_distance": -1.0}, "max_correspondence_distance must be > 0"),  # Open3D's RuntimeError
     ({"max_iterations": 0}, "max_iterations must be in 1..100000"),
 ])

@@ -23,6 +23,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -65,15 +66,12 @@ class Pinned:
     relative_rmse: float = 1e-6
 
     def __post_init__(self) -> None:
-        from ..registration.inputs import check_cloud
+        from ..registration.inputs import backend_inputs
         from ..registration.transforms import rigid_problem
-        from ..validation import check_float, check_int, check_matrix
+        from ..validation import check_float, check_int
 
-        source, target = check_cloud(self.source, "source"), check_cloud(self.target, "target")
-        d = source.shape[1]
-        if target.shape[1] != d:
-            raise InputError(f"source is {d}-D but target is {target.shape[1]}-D")
-        init = check_matrix(self.init, "init", d + 1)
+        # float64 clouds are kept, not copied (a cross-check of 10^7 points pins them twice)
+        source, target, init = backend_inputs(self.source, self.target, self.init, who="pinned")
         problem = rigid_problem(init)
         if problem is not None:
             raise InputError(f"init: {problem}, and every implementation runs the rigid ICP")
@@ -89,6 +87,11 @@ class Pinned:
     @property
     def dim(self) -> int:
         return int(self.source.shape[1])
+
+    @cached_property
+    def undetermined(self) -> str | None:
+        """Why these clouds leave the rigid transform free (:func:`unconstrained`), or None; found once."""
+        return unconstrained(self.source, self.target)
 
     def params(self) -> dict:
         """The scalar settings, as written to the ``{params}`` JSON file of ``cmd:`` implementations."""
@@ -156,7 +159,7 @@ class Implementation:
         if not det > 1e-12:  # pycpd's scale fell to 0 on coincident points
             raise ImplementationError(f"returned a transform whose linear block has determinant {det:.3g}: "
                                       f"{'a mirror image' if det < 0 else 'a collapse of the cloud'}, no rigid motion")
-        info, problem = out.info or {}, unconstrained(pinned.source, pinned.target)
+        info, problem = out.info or {}, pinned.undetermined
         return replace(out, matrix=m, seconds=out.seconds or seconds, backend=self.name, frames="T_target_source",
                        info=info if problem is None else {**info, "unconstrained": problem})
 

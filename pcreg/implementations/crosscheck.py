@@ -26,7 +26,8 @@ from ..registration.config import RegisterConfig
 from ..registration.icp_options import ICPOptions
 from ..registration.result import IcpIteration, RegistrationResult
 from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
-from .base import reported, unconstrained
+from .base import reported
+from .base import unconstrained as unconstrained  # re-exported: the test that marks the cross-check's rows
 
 
 #: The registration both backends run in a cross-check of two images: 30 ICP iterations a level and
@@ -392,7 +393,7 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     pinned = impls.Pinned(src, tgt, T0, float(max_correspondence_distance), int(max_iterations),
                           float(relative_fitness), float(relative_rmse))
     diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
-    problem = unconstrained(src, tgt)
+    problem = pinned.undetermined  # every implementation's run marks its pose with it too
     _check_enough_correspondences(src, tgt, T0, float(max_correspondence_distance))  # anything to run on?
     outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
     ref = outcomes.get(REFERENCE)

@@ -121,7 +121,8 @@ def is_run(folder: str | Path) -> bool:
         state = loads_json(p.read_text(encoding="utf-8"))
     except (OSError, ValueError, UnicodeDecodeError):
         return False
-    return isinstance(state, dict) and isinstance(state.get("run"), dict) and ("key_frame" in state or "stretches" in state)
+    return isinstance(state, dict) and isinstance(state.get("run"), dict) and ("key_frame" in state or "stretches" in state
+                                                                         or "format" in state)
 
 
 def read_review(folder: str | Path) -> RunReview:

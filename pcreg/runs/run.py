@@ -49,7 +49,7 @@ from ..errors import InputError, OutputError
 from ..outputs import atomic_file
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
-from .state import STATE, open_state, read_state, run_frames, write_state
+from .state import FORMAT, STATE, open_state, read_state, run_frames, write_state
 from .truth import add_rates, count_frame, empty_counts
 
 if TYPE_CHECKING:
@@ -289,7 +289,7 @@ class Run:
             return int(state["done"])
         self._start_over()
         self._remove_partial_writes()  # those of a killed run started over (--force) too
-        self.state = {"run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
+        self.state = {"format": FORMAT, "run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None, "key_labels": digest}
         write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
         (self.out / STEPS).write_bytes(b"")
@@ -429,7 +429,7 @@ class Run:
             self.state = state
         else:
             self._start_over()
-            self.state = {"run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
+            self.state = {"format": FORMAT, "run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
                           "fallbacks": 0, "truth": None}
             (self.out / STEPS).write_bytes(b"")
         for f in self.out.glob(".*.tmp"):  # writes a killed run left half done

@@ -19,8 +19,12 @@ from ..errors import InputError, OutputError
 from ..formats import load_json_object, loads_json, resolved
 from .files import STATE
 
-__all__ = ["STATE", "frames_chosen", "unfinished_note", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
+__all__ = ["STATE", "FORMAT", "format_problem", "frames_chosen", "unfinished_note", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
            "read_state", "run_frames"]
+
+#: The layout of the run.json this pcreg writes (its ``format``; a run.json without one, from before it was
+#: written, has this layout too). A run.json of a later format is refused by name rather than misread.
+FORMAT = 1
 
 #: The counters of a run's running error (run.json's ``truth``, and each key-frame stretch's).
 TRUTH_COUNTS = ("frames", "wrong", "known", "plain_wrong")
@@ -111,10 +115,25 @@ def _notes_problem(notes) -> bool:
                                                           for k, v in notes.items()))
 
 
+def format_problem(state, path: Path) -> str | None:
+    """The message when the run.json ``state`` (read from ``path``) is of a later format than this pcreg's
+    (:data:`FORMAT`), so that its fields are not read as if this pcreg had written them; None otherwise (a
+    ``format`` that is not a count is :func:`state_problem`'s)."""
+    from .. import __version__
+
+    found = state.get("format") if isinstance(state, dict) else None
+    if not is_count(found, FORMAT + 1):
+        return None
+    return (f"{path}: written by a later pcreg (run.json format {found}; pcreg {__version__} reads format {FORMAT}): "
+            "use that pcreg or a later one")
+
+
 def state_problem(state) -> str | None:
     """What in a run.json (one key frame's, or a folder of key frames') is not as pcreg run writes it."""
     if not isinstance(state, dict):
         return "its top level"
+    if not is_count(state.get("format", FORMAT), 1):
+        return "format"
     problem = (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
     records = (("gaps", _gaps_problem), ("damaged", _damaged_problem), ("notes", _notes_problem))
     return problem or next((name for name, bad in records if bad(state.get(name))), None)
@@ -161,12 +180,16 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
         state = load_json_object(state_path)
     except ValueError as exc:
         raise OutputError(f"{state_path}: {exc}, not a run's state; use --force to start over") from None
+    newer = format_problem(state, state_path)
+    if newer is not None:
+        raise OutputError(f"{newer}, or --force to start over")
     if state.get("run") != identity:
         raise OutputError(f"{out} holds a run with other options{_differences(state.get('run'), identity or {})}; "
                           "use --force to start over or another --out")
     field = state_problem(state)
     if field is not None:
         raise OutputError(f"{state_path}: its {field!r} is not as pcreg run writes it; use --force to start over")
+    state["format"] = FORMAT  # the same layout, named from now on
     return state
 
 
@@ -188,6 +211,9 @@ def read_state(folder: Path) -> dict:
         state = loads_json(state_path.read_text(encoding="utf-8"))
     except (OSError, ValueError, UnicodeDecodeError):
         state = None
+    newer = format_problem(state, state_path)
+    if newer is not None:
+        raise InputError(newer)
     if state_problem(state) is not None or not isinstance(state.get("run"), dict):
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)")
     return state

@@ -208,3 +208,32 @@ def test_follow_object_with_more_than_two_classes_is_refused_before_anything_is_
                     "--out", out], capsys)
     assert rc == 2 and len(err) == 1 and "--classes camvid11" in err[0] and "--follow object" in err[0], err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("labels", ["folder", "file"])
+def test_colour_keys_refused_by_the_default_table_point_to_the_labelmap_beside_them(tmp_path, capsys, labels):
+    """Colour key labels with a CVAT ``labelmap.txt`` saved beside them, run without ``--classes``: the refusal
+    names that file and the option that reads it; with it, the run labels."""
+    from _runs import drifting_frames
+
+    folder, _ = drifting_frames(tmp_path / "frames", (48, 64), n=4)
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    rgb = np.zeros((48, 64, 3), np.uint8)
+    rgb[:24], rgb[24:] = (128, 64, 128), (0, 0, 192)
+    cv2.imwrite(str(keys / "f0.png"), rgb[:, :, ::-1])
+    (keys / "labelmap.txt").write_text("# label:color_rgb:parts:actions\nbackground:0,0,0::\nroad:128,64,128::\n"
+                                       "car:0,0,192::\n")
+    given = keys if labels == "folder" else keys / "f0.png"
+    run = ["run", folder, "--labels", given, "--out", tmp_path / "out"]
+    rc, err = _run(run, capsys)
+    assert rc == 2 and len(err) == 1, err
+    assert "not labels of the table in use (0 ground, 1 obstacle, 2 unknown)" in err[0] and err[0].endswith(
+        f"{keys / 'labelmap.txt'} lies beside it: --classes {keys / 'labelmap.txt'} reads them through its table"), err
+    rc, err = _run([*run, "--classes", keys / "labelmap.txt"], capsys)
+    assert rc == 0, err
+    from pcreg.classes import read_table_file
+
+    table = read_table_file(keys / "labelmap.txt")
+    assert set(np.unique(read_labels(tmp_path / "out" / "f1.png", table)).tolist()) == {table.id_of("road"),
+                                                                                          table.id_of("car")}

@@ -135,10 +135,20 @@ def _key_folder(request, frames, table, mapping: str) -> tuple:
 def read_labels(path: Path, mapping: str, table=None):
     """A key frame's (or a truth map's) labels read through the run's class ``table`` (None: ``lagr``) as
     ``mapping`` says (:func:`pcreg.classes.keys.read_key_labels`)."""
-    from ..classes import DEFAULT_TABLE
+    from ..classes import DEFAULT_TABLE, LABELMAP_FILE
     from ..classes.keys import read_key_labels as read_through
+    from ..errors import InputError
 
-    return read_through(path, DEFAULT_TABLE if table is None else table, mapping)
+    table = DEFAULT_TABLE if table is None else table
+    try:
+        return read_through(path, table, mapping)
+    except InputError as exc:
+        beside = Path(path).parent / LABELMAP_FILE  # a CVAT table saved with the labels, not named
+        if mapping != "none" or not table.agrees(DEFAULT_TABLE) or not beside.is_file() \
+                or not any(w in str(exc) for w in ("colour", "label value")):
+            raise
+        raise InputError(f"{path}: not labels of the table in use ({table.describe()}); {beside} lies "
+                         f"beside it: --classes {beside} reads them through its table") from None
 
 
 class TruthMaps:

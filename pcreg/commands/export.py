@@ -60,9 +60,10 @@ def run(args: argparse.Namespace) -> int:
                   desc="frames", disable=None) as frames:
         counts = write_cvat_mask_archive(dest, frames, table)
     shown = [f"{listed_name(c.name)} in {counts[c.name]}" for c in table.known if counts[c.name]]
-    absent = sum(1 for c in table.known if not counts[c.name])
+    absent = [listed_name(c.name) for c in table.known if not counts[c.name]]
+    none = listed(absent) if len(absent) <= 3 else f"{len(absent)} others"
     print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {listed(shown)}"
-          f"{f'; {absent} in none' if absent else ''}; unknown left unlabelled in {counts[table.unknown_class.name]})")
+          f"{f'; {none} in none' if absent else ''}; unknown left unlabelled in {counts[table.unknown_class.name]})")
     names = [listed_name(c.name) for c in table.known]
     print(f"CVAT: a task with the {len(names)} labels {listed(names)} of its labelmap.txt over the same frames; "
           "Upload annotations, format Segmentation mask 1.1")

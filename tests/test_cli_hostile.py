@@ -315,8 +315,8 @@ def test_a_stop_that_does_not_end_by_itself_is_ended_after_its_grace(tmp_path):
     script = tmp_path / "stuck.py"
     script.write_text(textwrap.dedent("""
         import os, signal, threading
-        from pcreg import _runner
-        _runner.STOP_GRACE_SECONDS = 0.5
+        from pcreg import _runner, _signals
+        _signals.STOP_GRACE_SECONDS = 0.5  # read where the watchdog lives
         _runner.interrupt_on_signals()
         try:
             os.kill(os.getpid(), signal.SIGTERM)  # handled at once: a KeyboardInterrupt here

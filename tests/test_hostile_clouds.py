@@ -195,6 +195,38 @@ def test_an_image_cross_check_of_a_mirror_image_marks_both_poses_and_exits_3(tmp
                           "mirror image") and len(err.strip().splitlines()) == 1
 
 
+def test_an_image_cross_check_of_a_refused_pair_searches_once_with_the_reference(monkeypatch):
+    """A refused pair's reference pose was the search run a second time with the test off: one search now gives
+    the pose and the refusal, the same pose ``register`` returns with the test off and the refusal it raises."""
+    from pcreg.implementations.crosscheck import CROSSCHECK_REGISTRATION
+    from pcreg.registration import api
+    from pcreg.registration.config import DEFAULT_MIN_INLIER_RATIO
+
+    ref = shapes_image()
+    mirror = moved(ref, rigid_about_centre(ref.shape, 5.0, 3.0, -2.0))[:, ::-1].copy()
+    searched = []
+    search = api._search
+
+    def counted(reference, moving, config, init, **kw):
+        searched.append(config.backend)
+        return search(reference, moving, config, init, **kw)
+
+    monkeypatch.setattr(api, "_search", counted)
+    report = pcreg.crosscheck(ref, mirror)
+    assert sorted(searched) == ["open3d", "reference"]
+    monkeypatch.setattr(api, "_search", search)
+    config = CROSSCHECK_REGISTRATION.replace(model_check=False)
+    untested = pcreg.register(ref, mirror, config=config, backend="reference")
+    assert np.array_equal(report.reference.matrix, untested.matrix)
+    assert report.reference.iterations == untested.iterations
+    with pytest.raises(RegistrationError) as refused:
+        pcreg.register(ref, mirror, config=config.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO), backend="reference")
+    assert report.refused == str(refused.value).removeprefix("registration refused: ")
+    pose, refusal = api.register_judged(ref, mirror, config=config.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO),
+                                        backend="reference")
+    assert str(refusal) == str(refused.value) and np.array_equal(pose.matrix, untested.matrix)
+
+
 @pytest.mark.parametrize("order, said", [
     ("z y x", "its vertex properties x, y, z come in the order z, y, x: Open3D's reader, which reads PLY, takes z for "
               "the last of them and fails on this order"),

@@ -98,19 +98,18 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
     refuses the pair (unrelated images, a mirror image), both poses are still compared, and the report's
     ``refused`` says why neither is trusted.
     """
+    from ..registration.api import register_judged
     from ..registration.config import DEFAULT_MIN_INLIER_RATIO
 
     ref = as_rgb_uint8(reference_image, name="reference image")
     mov = as_rgb_uint8(moving_image, name="moving image")
-    results, refused = {}, None
+    results = {}
     untested = config.registration.replace(model_check=False)
     report = callback or (lambda it: None)  # a callback makes both backends report every iteration (Open3D then
-    try:                                    # runs stepwise: exact counts)
-        results["reference"] = register(ref, mov, config=untested.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO),
-                                        backend="reference", callback=report)
-    except RegistrationError as exc:  # the same search without the test: the pose it refused (iterations told)
-        refused = str(exc).removeprefix("registration refused: ")
-        results["reference"] = register(ref, mov, config=untested, backend="reference", callback=lambda it: None)
+    # runs stepwise: exact counts). One search: the test judges its pose, which is kept where it is refused.
+    results["reference"], refusal = register_judged(ref, mov, config=untested.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO),
+                                                    backend="reference", callback=report)
+    refused = None if refusal is None else str(refusal).removeprefix("registration refused: ")
     results["open3d"] = register(ref, mov, config=untested, backend="open3d", callback=report)
     a, b = results["reference"], results["open3d"]
     c = corners(mov.shape)

@@ -72,6 +72,24 @@ def test_a_target_file_of_one_point_or_coincident_points_is_named(tmp_path, capf
         pcreg.crosscheck(str(tmp_path / "t.npy"), str(tmp_path / "s.npy"))
 
 
+def test_the_checks_of_a_cloud_cross_check_name_the_files_they_are_given():
+    """The file in a cloud's refusal was found by reading "source:" or "target:" back off the message; the checks
+    are given the files' names (None: an array, named by its role) and build their messages with them."""
+    from pcreg.implementations.crosscheck import crosscheck_implementations
+
+    coincident = np.ones((50, 3))
+    with pytest.raises(InputError, match=r"^t\.ply: its 50 points coincide: no correspondence distance"):
+        crosscheck_implementations(_cloud(), coincident, files=("s.ply", "t.ply"))
+    with pytest.raises(InputError, match="^target: its 50 points coincide"):
+        crosscheck_implementations(_cloud(), coincident, files=("s.ply", None))
+    with pytest.raises(InputError, match=r"^s\.ply: 1 point\(s\) have NaN or inf coordinates"):
+        crosscheck_implementations(np.vstack([_cloud(), [[np.nan, 0.0, 0.0]]]), _cloud(), files=("s.ply", "t.ply"))
+    with pytest.raises(RegistrationError, match=r"^registration refused: s\.ply onto the target: no source point"):
+        crosscheck_implementations(_cloud() + 1e4, _cloud(), files=("s.ply", None))
+    with pytest.raises(InputError, match="files must be two file names"):
+        crosscheck_implementations(_cloud(), _cloud(), files="s.ply")
+
+
 def test_a_rigid_init_far_from_the_origin_is_taken_and_a_nan_one_is_named_so(tmp_path, capfd):
     # A georeferenced cloud's initial guess (a shift of 5e6) was refused as "singular or nearly so": the whole
     # matrix's condition number grows as the square of its translation.

@@ -178,13 +178,9 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
         icp = config.registration.icp
         cloud_options.setdefault("options", ICPOptions(max_iteration=icp.iterations, relative_fitness=icp.relative_fitness,
                                                        relative_rmse=icp.relative_rmse))
-        try:
-            return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
-                                              **cloud_options)
-        except InputError as exc:  # "target: its points coincide ...": the file's words, when a file was given
-            role, _, rest = str(exc).partition(": ")
-            given = {"source": moving, "target": reference}.get(role)
-            raise (InputError(f"{given}: {rest}") if isinstance(given, (str, os.PathLike)) else exc) from None
+        cloud_options.setdefault("files", tuple(str(x) if isinstance(x, (str, os.PathLike)) else None for x in (moving, reference)))
+        return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
+                                          **cloud_options)
     return crosscheck_images(A, B, config=config, callback=callback)
 
 
@@ -192,12 +188,13 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
 # Clouds: every implementation of the registry on the same pinned inputs
 # ---------------------------------------------------------------------------------------------------
 
-def default_max_distance(target: np.ndarray) -> float:
+def default_max_distance(target: np.ndarray, *, name: str = "target") -> float:
     """1% of the target's bounding-box diagonal: a scan pair taken a step apart is misaligned by about
-    that much, and a gate this tight keeps points without a counterpart out of the fit."""
+    that much, and a gate this tight keeps points without a counterpart out of the fit (an :class:`InputError`
+    beginning with ``name`` when the target has no extent)."""
     diag = float(np.linalg.norm(target.max(axis=0) - target.min(axis=0)))
     if not diag > 0:
-        raise InputError(f"target: {'a single point' if len(target) == 1 else f'its {len(target)} points coincide'}: no "
+        raise InputError(f"{name}: {'a single point' if len(target) == 1 else f'its {len(target)} points coincide'}: no "
                          "correspondence distance can be derived from its extent (give max_correspondence_distance, "
                          "--max-distance)")
     return diag / 100.0
@@ -233,7 +230,8 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
                                options: ICPOptions = ICPOptions(), init: np.ndarray | None = None,
                                voxel_size: float | None = None, truth: np.ndarray | None = None,
                                timeout: float | None = None, progress: bool = False,
-                               on_result: Callable[[str, object], None] | None = None) -> CloudCrosscheck:
+                               on_result: Callable[[str, object], None] | None = None,
+                               files: tuple[str | None, str | None] = (None, None)) -> CloudCrosscheck:
     """Run each implementation (names, ``py:`` or ``cmd:`` specs) on the same pinned inputs and compare it
     with pcreg's reference ICP.
 
@@ -246,16 +244,19 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
         before any implementation sees them.
     truth : optional (d+1, d+1) ground truth; rows then also report their error against it.
     on_result : called with (name, RegistrationResult or exception) as each implementation finishes.
+    files : the files ``source`` and ``target`` were read from (None: given as an array), which the messages
+        about them name (:func:`crosscheck` of two files gives them).
 
     A failing or missing implementation becomes its row's one-line ``error``; the others still run.
     """
     from .. import implementations as impls
 
     _check_pinned_options(options)
+    files = _check_files(files)
     max_iterations, relative_fitness, relative_rmse = options.max_iteration, options.relative_fitness, options.relative_rmse
     src, tgt, T0, max_correspondence_distance = _pinned_clouds(source, target, init=init, voxel_size=voxel_size,
                                                                max_correspondence_distance=options.max_correspondence_distance,
-                                                               max_iterations=max_iterations)
+                                                               max_iterations=max_iterations, files=files)
     d = src.shape[1]
     truth = None if truth is None else check_truth(truth, d)
     names = list(dict.fromkeys([REFERENCE, *implementations]))
@@ -264,7 +265,7 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
                           float(relative_fitness), float(relative_rmse))
     diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
     problem = pinned.undetermined  # every implementation's run marks its pose with it too
-    _check_enough_correspondences(src, tgt, T0, float(max_correspondence_distance))  # anything to run on?
+    _check_enough_correspondences(src, tgt, T0, float(max_correspondence_distance), files)  # anything to run on?
     outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
     ref = outcomes.get(REFERENCE)
     conv, conv_info = _reference_at_convergence(adapters, outcomes, pinned)
@@ -296,15 +297,26 @@ def _check_pinned_options(options: ICPOptions) -> None:
                          f"{', '.join(pinned)} only, not {', '.join(changed)}")
 
 
-def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_distance, max_iterations):
+def _check_files(files) -> tuple[str | None, str | None]:
+    """``crosscheck_implementations``' ``files``: two file names (or None each), else an :class:`InputError`."""
+    from ..validation import short_repr
+
+    if not (isinstance(files, (tuple, list)) and len(files) == 2
+            and all(f is None or isinstance(f, (str, os.PathLike)) for f in files)):
+        raise InputError(f"files must be two file names (or None each), got {short_repr(files)}")
+    return (None if files[0] is None else str(files[0]), None if files[1] is None else str(files[1]))
+
+
+def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_distance, max_iterations,
+                   files: tuple = (None, None)):
     """The checked (and voxel-downsampled) clouds, the initial pose and the correspondence distance
-    every implementation gets."""
+    every implementation gets; a bad cloud's message names its file where ``files`` gives it."""
     from ..registration.api import voxel_downsample
     from ..registration.transforms import nearest_rigid, rigid_problem
     from ..validation import check_float, check_int, check_matrix
 
-    src = check_cloud(source, "source")
-    tgt = check_cloud(target, "target")
+    src = check_cloud(source, files[0] or "source")
+    tgt = check_cloud(target, files[1] or "target")
     if src.shape[1] != tgt.shape[1]:
         raise InputError(f"source is {src.shape[1]}-D but target is {tgt.shape[1]}-D")
     d = src.shape[1]
@@ -320,18 +332,20 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     T0 = nearest_rigid(T0)  # every implementation starts from, and so returns, a rigid matrix
     max_iterations = check_int(max_iterations, "max_iterations", lo=1, hi=100_000)
     if max_correspondence_distance is None:
-        max_correspondence_distance = default_max_distance(tgt)
+        max_correspondence_distance = default_max_distance(tgt, name=files[1] or "target")
     if not max_correspondence_distance > 0:
         raise InputError("max_correspondence_distance must be > 0")
     return src, tgt, T0, max_correspondence_distance
 
 
-def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, distance: float) -> None:
+def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, distance: float,
+                                  files: tuple = (None, None)) -> None:
     """A :class:`RegistrationError` when fewer source points, at the initial pose, have a target point within
     ``distance`` than a rigid motion needs (2 in 2-D, 3 in 3-D). With none, every ICP stops where it started
     (fitness 0), and a cross-check of identities would read as implementations that agree and converged;
     with one or two in 3-D the rotation is not determined: pcreg's reference stops where it started, others
-    (Open3D's step takes any non-empty set) move by a rotation the pairs do not determine."""
+    (Open3D's step takes any non-empty set) move by a rotation the pairs do not determine. The message names
+    the ``files`` the clouds were read from, where given ("S.ply onto T.ply: ...")."""
     from scipy.spatial import cKDTree
 
     from ..registration.reference import pairs_needed
@@ -341,12 +355,13 @@ def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarr
     moved = src @ T0[:-1, :-1].T + T0[:-1, -1]
     near, _ = cKDTree(tgt).query(moved, k=1, distance_upper_bound=distance)
     found = int(np.count_nonzero(np.isfinite(near)))
+    pair = "" if files == (None, None) else f"{files[0] or 'the source'} onto {files[1] or 'the target'}: "
     if found == 0:
-        raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
+        raise RegistrationError(f"registration refused: {pair}no source point lies within the correspondence distance "
                                 f"{distance:g} of a target point at the initial pose; every ICP would stop where it "
                                 "started (give --init, or a larger --max-distance)")
     if found < need:
-        raise RegistrationError(f"registration refused: {found} source point{'s' if found > 1 else ''} of "
+        raise RegistrationError(f"registration refused: {pair}{found} source point{'s' if found > 1 else ''} of "
                                 f"{len(src)} lie{'' if found > 1 else 's'} within the correspondence distance "
                                 f"{distance:g} of a target point at the initial pose, and a rigid motion in {d}-D "
                                 f"needs {need}: the pairs do not determine the rotation (give --init, or a larger "

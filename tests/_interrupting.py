@@ -71,7 +71,7 @@ def lands(frame, event):
     if where == "wait":
         return (event == "c_return" and frame.f_code is ENTER
                 and frame.f_locals["future"] is frame.f_locals["self"].futures[-1] and glob.glob(pattern))
-    handled = getattr(signal.getsignal(signal.SIGINT), "__module__", "") == "pcreg._runner"
+    handled = getattr(signal.getsignal(signal.SIGINT), "__module__", "") == "pcreg._signals"
     name = frame.f_code.co_filename if where == "exec" else frame.f_code.co_name
     return event == "call" and handled and name == {"exec": "<string>", "import": "<module>"}[where]
 

@@ -48,11 +48,11 @@ def test_a_crosscheck_whose_reference_fails_says_why_on_stderr(tmp_path, capsys)
     np.save(b, cloud[0] + np.outer(np.arange(5), [0.002, 0.001, 0.0]))  # within reach, but on a line
     assert main(["crosscheck", str(a), str(b)]) == 3
     err = one_line_errors(capsys)
-    assert len(err) == 1 and "reference ICP failed" in err[0] and "collinear" in err[0]
+    assert len(err) == 1 and f"reference ICP failed to register {b} onto {a}: " in err[0] and "collinear" in err[0]
     np.save(b, cloud[:2] + 0.01)  # two points within reach: refused before any ICP runs, in one line
     assert main(["crosscheck", str(a), str(b)]) == 3
     err = one_line_errors(capsys)
-    assert len(err) == 1 and "registration refused: 2 source points of 2" in err[0] and "needs 3" in err[0]
+    assert len(err) == 1 and f"registration refused: {b} onto {a}: 2 source points of 2" in err[0] and "needs 3" in err[0]
 
 
 @pytest.mark.parametrize("body, said", [("sys.exit(0)", "called sys.exit(0)"), ("raise SystemExit(3)", "called sys.exit(3)"),
@@ -315,8 +315,8 @@ def test_a_stop_that_does_not_end_by_itself_is_ended_after_its_grace(tmp_path):
     script = tmp_path / "stuck.py"
     script.write_text(textwrap.dedent("""
         import os, signal, threading
-        from pcreg import _runner
-        _runner.STOP_GRACE_SECONDS = 0.5
+        from pcreg import _runner, _signals
+        _signals.STOP_GRACE_SECONDS = 0.5  # read where the watchdog lives
         _runner.interrupt_on_signals()
         try:
             os.kill(os.getpid(), signal.SIGTERM)  # handled at once: a KeyboardInterrupt here

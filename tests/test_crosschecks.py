@@ -75,7 +75,7 @@ def test_a_crosscheck_with_no_correspondence_at_the_initial_pose_is_refused(tmp_
     np.save(tmp_path / "s.npy", source)
     np.save(tmp_path / "t.npy", target)
     assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy")]) == 3
-    assert "registration refused: no source point" in capsys.readouterr().err
+    assert f"registration refused: {tmp_path / 's.npy'} onto {tmp_path / 't.npy'}: no source point" in capsys.readouterr().err
     init = np.eye(4)
     init[:3, 3] = -1e5
     np.savetxt(tmp_path / "init.txt", init)
@@ -96,7 +96,8 @@ def test_a_crosscheck_whose_pairs_at_the_initial_pose_do_not_determine_a_rotatio
     np.savetxt(tmp_path / "t.xyz", target)
     assert main(["crosscheck", str(tmp_path / "t.xyz"), str(tmp_path / "s.xyz")]) == 3
     err = capsys.readouterr().err
-    assert "registration refused: 1 source point of 400 lies within the correspondence distance" in err
+    assert (f"registration refused: {tmp_path / 's.xyz'} onto {tmp_path / 't.xyz'}: 1 source point of 400 lies within "
+            "the correspondence distance") in err
     assert "a rigid motion in 3-D needs 3" in err
     assert main(["crosscheck", str(tmp_path / "t.xyz"), str(tmp_path / "s.xyz"), "--max-distance", "0.05"]) == 0
 

@@ -72,6 +72,24 @@ def test_a_target_file_of_one_point_or_coincident_points_is_named(tmp_path, capf
         pcreg.crosscheck(str(tmp_path / "t.npy"), str(tmp_path / "s.npy"))
 
 
+def test_the_checks_of_a_cloud_cross_check_name_the_files_they_are_given():
+    """The file in a cloud's refusal was found by reading "source:" or "target:" back off the message; the checks
+    are given the files' names (None: an array, named by its role) and build their messages with them."""
+    from pcreg.implementations.crosscheck import crosscheck_implementations
+
+    coincident = np.ones((50, 3))
+    with pytest.raises(InputError, match=r"^t\.ply: its 50 points coincide: no correspondence distance"):
+        crosscheck_implementations(_cloud(), coincident, files=("s.ply", "t.ply"))
+    with pytest.raises(InputError, match="^target: its 50 points coincide"):
+        crosscheck_implementations(_cloud(), coincident, files=("s.ply", None))
+    with pytest.raises(InputError, match=r"^s\.ply: 1 point\(s\) have NaN or inf coordinates"):
+        crosscheck_implementations(np.vstack([_cloud(), [[np.nan, 0.0, 0.0]]]), _cloud(), files=("s.ply", "t.ply"))
+    with pytest.raises(RegistrationError, match=r"^registration refused: s\.ply onto the target: no source point"):
+        crosscheck_implementations(_cloud() + 1e4, _cloud(), files=("s.ply", None))
+    with pytest.raises(InputError, match="files must be two file names"):
+        crosscheck_implementations(_cloud(), _cloud(), files="s.ply")
+
+
 def test_a_rigid_init_far_from_the_origin_is_taken_and_a_nan_one_is_named_so(tmp_path, capfd):
     # A georeferenced cloud's initial guess (a shift of 5e6) was refused as "singular or nearly so": the whole
     # matrix's condition number grows as the square of its translation.
@@ -193,6 +211,38 @@ def test_an_image_cross_check_of_a_mirror_image_marks_both_poses_and_exits_3(tmp
     assert "refused, not trusted: the moving image is a mirror image" in out
     assert err.startswith("pcreg: registration refused: pcreg register refuses these images: the moving image is a "
                           "mirror image") and len(err.strip().splitlines()) == 1
+
+
+def test_an_image_cross_check_of_a_refused_pair_searches_once_with_the_reference(monkeypatch):
+    """A refused pair's reference pose was the search run a second time with the test off: one search now gives
+    the pose and the refusal, the same pose ``register`` returns with the test off and the refusal it raises."""
+    from pcreg.implementations.crosscheck import CROSSCHECK_REGISTRATION
+    from pcreg.registration import api
+    from pcreg.registration.config import DEFAULT_MIN_INLIER_RATIO
+
+    ref = shapes_image()
+    mirror = moved(ref, rigid_about_centre(ref.shape, 5.0, 3.0, -2.0))[:, ::-1].copy()
+    searched = []
+    search = api._search
+
+    def counted(reference, moving, config, init, **kw):
+        searched.append(config.backend)
+        return search(reference, moving, config, init, **kw)
+
+    monkeypatch.setattr(api, "_search", counted)
+    report = pcreg.crosscheck(ref, mirror)
+    assert sorted(searched) == ["open3d", "reference"]
+    monkeypatch.setattr(api, "_search", search)
+    config = CROSSCHECK_REGISTRATION.replace(model_check=False)
+    untested = pcreg.register(ref, mirror, config=config, backend="reference")
+    assert np.array_equal(report.reference.matrix, untested.matrix)
+    assert report.reference.iterations == untested.iterations
+    with pytest.raises(RegistrationError) as refused:
+        pcreg.register(ref, mirror, config=config.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO), backend="reference")
+    assert report.refused == str(refused.value).removeprefix("registration refused: ")
+    pose, refusal = api.register_judged(ref, mirror, config=config.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO),
+                                        backend="reference")
+    assert str(refusal) == str(refused.value) and np.array_equal(pose.matrix, untested.matrix)
 
 
 @pytest.mark.parametrize("order, said", [

@@ -194,7 +194,7 @@ def _clouds(args) -> int:
     failed = out["implementations"]["reference"]["error"]
     if failed is None:
         return 0
-    sys.stderr.write(f"pcreg: registration refused: the reference ICP failed on these clouds: {failed}\n")
+    sys.stderr.write(f"pcreg: registration refused: the reference ICP failed to register {args.b} onto {args.a}: {failed}\n")
     return 3
 
 

@@ -4,6 +4,7 @@ Identical inputs: the same clouds (extracted or downsampled once), the same init
 correspondence distances, iteration limits and stopping rule (Open3D's, ``relative_fitness`` and
 ``relative_rmse`` compared as absolute changes). The reference backend runs with exact KD-tree
 correspondences, point-to-point, no robust weights — the configuration that must reproduce Open3D.
+How the results are compared (tolerances, disagreements, one row of the report): :mod:`.compare`.
 """
 
 from __future__ import annotations
@@ -25,9 +26,21 @@ from ..registration.api import check_cloud, register
 from ..registration.config import RegisterConfig
 from ..registration.icp_options import ICPOptions
 from ..registration.result import IcpIteration, RegistrationResult
-from ..registration.transforms import apply, corners, rotation_disagreement_deg, rotation_part
-from .base import reported
+from ..registration.transforms import apply, corners, rotation_disagreement_deg
 from .base import unconstrained as unconstrained  # re-exported: the test that marks the cross-check's rows
+from .compare import (  # re-exported: the comparison of the rows, imported from here by the suite, tools and tests
+    FIXED_POINT_TOLERANCE as FIXED_POINT_TOLERANCE,
+    OBJECTIVE_ROTATION_DEG as OBJECTIVE_ROTATION_DEG,
+    OBJECTIVE_TRANSLATION as OBJECTIVE_TRANSLATION,
+    REFERENCE as REFERENCE,
+    STEP_TOLERANCE as STEP_TOLERANCE,
+    CloudCrosscheck as CloudCrosscheck,
+    _relative,
+    _row,
+    compare_matrices as compare_matrices,
+    step_tolerance as step_tolerance,
+    trace_divergence as trace_divergence,
+)
 
 
 #: The registration both backends run in a cross-check of two images: 30 ICP iterations a level and
@@ -73,10 +86,6 @@ class CrosscheckReport:
         return out
 
 
-def _relative(A: np.ndarray, B: np.ndarray) -> float:
-    return float(np.max(np.abs(A - B)) / max(1.0, float(np.max(np.abs(A)))))
-
-
 def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
                       config: CrosscheckConfig = CrosscheckConfig(),
                       callback: Callable[[IcpIteration], None] | None = None) -> CrosscheckReport:
@@ -89,19 +98,18 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
     refuses the pair (unrelated images, a mirror image), both poses are still compared, and the report's
     ``refused`` says why neither is trusted.
     """
+    from ..registration.api import register_judged
     from ..registration.config import DEFAULT_MIN_INLIER_RATIO
 
     ref = as_rgb_uint8(reference_image, name="reference image")
     mov = as_rgb_uint8(moving_image, name="moving image")
-    results, refused = {}, None
+    results = {}
     untested = config.registration.replace(model_check=False)
     report = callback or (lambda it: None)  # a callback makes both backends report every iteration (Open3D then
-    try:                                    # runs stepwise: exact counts)
-        results["reference"] = register(ref, mov, config=untested.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO),
-                                        backend="reference", callback=report)
-    except RegistrationError as exc:  # the same search without the test: the pose it refused (iterations told)
-        refused = str(exc).removeprefix("registration refused: ")
-        results["reference"] = register(ref, mov, config=untested, backend="reference", callback=lambda it: None)
+    # runs stepwise: exact counts). One search: the test judges its pose, which is kept where it is refused.
+    results["reference"], refusal = register_judged(ref, mov, config=untested.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO),
+                                                    backend="reference", callback=report)
+    refused = None if refusal is None else str(refusal).removeprefix("registration refused: ")
     results["open3d"] = register(ref, mov, config=untested, backend="open3d", callback=report)
     a, b = results["reference"], results["open3d"]
     c = corners(mov.shape)
@@ -170,13 +178,9 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
         icp = config.registration.icp
         cloud_options.setdefault("options", ICPOptions(max_iteration=icp.iterations, relative_fitness=icp.relative_fitness,
                                                        relative_rmse=icp.relative_rmse))
-        try:
-            return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
-                                              **cloud_options)
-        except InputError as exc:  # "target: its points coincide ...": the file's words, when a file was given
-            role, _, rest = str(exc).partition(": ")
-            given = {"source": moving, "target": reference}.get(role)
-            raise (InputError(f"{given}: {rest}") if isinstance(given, (str, os.PathLike)) else exc) from None
+        cloud_options.setdefault("files", tuple(str(x) if isinstance(x, (str, os.PathLike)) else None for x in (moving, reference)))
+        return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
+                                          **cloud_options)
     return crosscheck_images(A, B, config=config, callback=callback)
 
 
@@ -184,19 +188,13 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
 # Clouds: every implementation of the registry on the same pinned inputs
 # ---------------------------------------------------------------------------------------------------
 
-STEP_TOLERANCE = 1e-9  # relative, on the matrix, against the reference run with the same settings
-FIXED_POINT_TOLERANCE = 1e-6  # relative, on the matrix, against the reference run to convergence
-OBJECTIVE_ROTATION_DEG = 0.5  # objective rows: rotation within 0.5 degrees ...
-OBJECTIVE_TRANSLATION = 0.005  # ... and translation within 0.5% of the target's bounding-box diagonal
-REFERENCE = "reference"
-
-
-def default_max_distance(target: np.ndarray) -> float:
+def default_max_distance(target: np.ndarray, *, name: str = "target") -> float:
     """1% of the target's bounding-box diagonal: a scan pair taken a step apart is misaligned by about
-    that much, and a gate this tight keeps points without a counterpart out of the fit."""
+    that much, and a gate this tight keeps points without a counterpart out of the fit (an :class:`InputError`
+    beginning with ``name`` when the target has no extent)."""
     diag = float(np.linalg.norm(target.max(axis=0) - target.min(axis=0)))
     if not diag > 0:
-        raise InputError(f"target: {'a single point' if len(target) == 1 else f'its {len(target)} points coincide'}: no "
+        raise InputError(f"{name}: {'a single point' if len(target) == 1 else f'its {len(target)} points coincide'}: no "
                          "correspondence distance can be derived from its extent (give max_correspondence_distance, "
                          "--max-distance)")
     return diag / 100.0
@@ -207,137 +205,6 @@ def converged_settings(pinned):
     unchanged correspondence set meets (then the closed form returns the same pose exactly)."""
     return pinned.replace(max_iterations=max(int(pinned.max_iterations), 200), relative_fitness=1e-12,
                           relative_rmse=1e-12 * max(1.0, float(pinned.max_correspondence_distance)))
-
-
-def _bbox_corners(points: np.ndarray) -> np.ndarray:
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    return np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
-
-
-def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
-    """Disagreement of B with A: rotation (degrees), translation, relative matrix difference and, in 2-D,
-    the largest displacement of the source's bounding-box corners (px for image edge clouds)."""
-    d = A.shape[0] - 1
-    RA, RB = rotation_part(A[:d, :d]), rotation_part(B[:d, :d])
-    # The angle of RA^T RB from its chord, ||RA - RB||_F = 2 sqrt(2) sin(angle / 2) in 2-D as in 3-D (in 2-D
-    # both columns move by 2 sin(angle / 2)): unlike the arccos of the trace it keeps full precision for tiny angles.
-    chord = float(np.linalg.norm(RA - RB)) / (2.0 * np.sqrt(2.0))
-    out = {"rotation_disagreement_deg": float(np.degrees(2.0 * np.arcsin(min(1.0, chord)))),
-           "translation_disagreement": float(np.linalg.norm(A[:d, d] - B[:d, d])),
-           "matrix_relative_disagreement": _relative(A, B)}
-    if d == 2:
-        c = _bbox_corners(source)
-        out["corner_disagreement"] = float(np.max(np.linalg.norm(apply(A, c) - apply(B, c), axis=1)))
-    return out
-
-
-def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE, source: np.ndarray | None = None,
-                     target: np.ndarray | None = None) -> dict | None:
-    """First iteration at which ``trace`` leaves ``ref_trace`` and the likely cause; None when they agree.
-
-    The pose after iteration k comes from the correspondences at the pose after k-1: when poses k-1
-    agree and poses k do not, the correspondences at k-1 decide the cause (different ones: the
-    neighbour search or gate; the same ones, or exact nearest neighbours of agreeing poses: the step).
-    Given the pinned ``source`` and ``target``, a different step from pairs that leave the rotation
-    undetermined (:func:`~pcreg.registration.closed_forms.rotation_problem`) says so: each implementation
-    takes one of the rotations that fit them as well.
-    """
-    n = min(len(ref_trace), len(trace))
-    if n == 0:
-        return None
-    for k in range(n):
-        a, b = ref_trace[k], trace[k]
-        if _relative(a.matrix, b.matrix) > tolerance:
-            if k == 0:
-                return {"iteration": 0, "cause": "different initial pose"}
-            pa, pb = ref_trace[k - 1], trace[k - 1]
-            if pb.target_indices is not None and pa.target_indices is not None and \
-                    not np.array_equal(pa.target_indices, pb.target_indices):
-                diff = int(np.count_nonzero(pa.target_indices != pb.target_indices))
-                return {"iteration": k, "cause": f"different correspondences at iteration {k - 1} "
-                                                 f"({diff} source points matched differently)"}
-            known = pb.target_indices is not None
-            free = _free_rotation(pa, source, target)
-            return {"iteration": k, "cause": "different step from the same correspondences"
-                    + ("" if known else " (the poses before agree, so exact nearest neighbours are the same)")
-                    + ("" if free is None else f", which leave the rotation undetermined ({free})")
-                    + f": relative matrix difference {_relative(a.matrix, b.matrix):.1e}"}
-        if b.target_indices is not None and a.target_indices is not None and \
-                not np.array_equal(a.target_indices, b.target_indices):
-            diff = int(np.count_nonzero(a.target_indices != b.target_indices))
-            return {"iteration": k, "cause": f"different correspondences at the same pose ({diff} source points; "
-                                             "ties or another neighbour search)"}
-    if len(ref_trace) != len(trace):
-        return {"iteration": n, "cause": f"different stopping rule: the same poses, but {len(trace) - 1} iterations "
-                                         f"against the reference's {len(ref_trace) - 1}"}
-    return None
-
-
-def _free_rotation(at, source: np.ndarray | None, target: np.ndarray | None) -> str | None:
-    """Why the pairs of the trace step ``at`` (its pose and target indices) leave the rotation undetermined, or None
-    (also when the clouds or the indices are not known)."""
-    if source is None or target is None or at.target_indices is None:
-        return None
-    from ..registration.closed_forms import rotation_problem
-
-    ok = np.asarray(at.target_indices) >= 0
-    return rotation_problem(apply(at.matrix, source)[ok], target[np.asarray(at.target_indices)[ok]])
-
-
-@dataclass(frozen=True)
-class CloudCrosscheck:
-    """Every requested implementation on the same pinned clouds; ``rows`` keyed by name or spec string."""
-
-    rows: dict
-    settings: dict
-    reference_at_convergence: dict | None
-    traces: dict = field(default_factory=dict, compare=False, repr=False)
-    source: np.ndarray | None = field(default=None, compare=False, repr=False)
-    target: np.ndarray | None = field(default=None, compare=False, repr=False)
-
-    def to_dict(self) -> dict:
-        """JSON-ready (non-finite numbers become None, so the JSON stays valid)."""
-        return _finite({"kind": "clouds", "implementations": self.rows, "settings": self.settings,
-                "reference_at_convergence": self.reference_at_convergence,
-                "tolerances": {"step": f"relative matrix difference <= {STEP_TOLERANCE:g} against the reference (far "
-                                       "from the origin, 100 float64 roundings of the largest coordinate / extent)",
-                               "fixed-point": f"relative matrix difference <= {FIXED_POINT_TOLERANCE:g} against the "
-                                              "reference run to convergence",
-                               "objective": f"rotation <= {OBJECTIVE_ROTATION_DEG:g} deg and translation <= "
-                                            f"{OBJECTIVE_TRANSLATION:.1%} of the target's bounding-box diagonal "
-                                            "against the reference run to convergence"}})
-
-
-def _finite(obj):
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.ndarray):
-        return _finite(obj.tolist())
-    return obj
-
-
-def step_tolerance(points: np.ndarray, diag: float) -> float:
-    """The ``step`` tolerance of clouds ``points`` ``diag`` across: :data:`STEP_TOLERANCE`, or far from the origin
-    (1e6 m away, a metre across) 100 float64 roundings of their largest coordinate over their extent."""
-    far = float(np.max(np.abs(points))) / diag if diag > 0 else 0.0
-    return max(STEP_TOLERANCE, 100.0 * float(np.finfo(np.float64).eps) * far)
-
-
-def _agrees(comparability: str, cmp: dict, diag: float, step: float = STEP_TOLERANCE) -> bool:
-    if comparability == "step":
-        return cmp["matrix_relative_disagreement"] <= step
-    if comparability == "fixed-point":
-        return cmp["matrix_relative_disagreement"] <= FIXED_POINT_TOLERANCE
-    return (cmp["rotation_disagreement_deg"] <= OBJECTIVE_ROTATION_DEG
-            and cmp["translation_disagreement"] <= OBJECTIVE_TRANSLATION * diag)
 
 
 def check_truth(truth, d: int, name: str = "truth") -> np.ndarray:
@@ -363,7 +230,8 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
                                options: ICPOptions = ICPOptions(), init: np.ndarray | None = None,
                                voxel_size: float | None = None, truth: np.ndarray | None = None,
                                timeout: float | None = None, progress: bool = False,
-                               on_result: Callable[[str, object], None] | None = None) -> CloudCrosscheck:
+                               on_result: Callable[[str, object], None] | None = None,
+                               files: tuple[str | None, str | None] = (None, None)) -> CloudCrosscheck:
     """Run each implementation (names, ``py:`` or ``cmd:`` specs) on the same pinned inputs and compare it
     with pcreg's reference ICP.
 
@@ -376,16 +244,19 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
         before any implementation sees them.
     truth : optional (d+1, d+1) ground truth; rows then also report their error against it.
     on_result : called with (name, RegistrationResult or exception) as each implementation finishes.
+    files : the files ``source`` and ``target`` were read from (None: given as an array), which the messages
+        about them name (:func:`crosscheck` of two files gives them).
 
     A failing or missing implementation becomes its row's one-line ``error``; the others still run.
     """
     from .. import implementations as impls
 
     _check_pinned_options(options)
+    files = _check_files(files)
     max_iterations, relative_fitness, relative_rmse = options.max_iteration, options.relative_fitness, options.relative_rmse
     src, tgt, T0, max_correspondence_distance = _pinned_clouds(source, target, init=init, voxel_size=voxel_size,
                                                                max_correspondence_distance=options.max_correspondence_distance,
-                                                               max_iterations=max_iterations)
+                                                               max_iterations=max_iterations, files=files)
     d = src.shape[1]
     truth = None if truth is None else check_truth(truth, d)
     names = list(dict.fromkeys([REFERENCE, *implementations]))
@@ -394,7 +265,7 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
                           float(relative_fitness), float(relative_rmse))
     diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
     problem = pinned.undetermined  # every implementation's run marks its pose with it too
-    _check_enough_correspondences(src, tgt, T0, float(max_correspondence_distance))  # anything to run on?
+    _check_enough_correspondences(src, tgt, T0, float(max_correspondence_distance), files)  # anything to run on?
     outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
     ref = outcomes.get(REFERENCE)
     conv, conv_info = _reference_at_convergence(adapters, outcomes, pinned)
@@ -426,15 +297,26 @@ def _check_pinned_options(options: ICPOptions) -> None:
                          f"{', '.join(pinned)} only, not {', '.join(changed)}")
 
 
-def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_distance, max_iterations):
+def _check_files(files) -> tuple[str | None, str | None]:
+    """``crosscheck_implementations``' ``files``: two file names (or None each), else an :class:`InputError`."""
+    from ..validation import short_repr
+
+    if not (isinstance(files, (tuple, list)) and len(files) == 2
+            and all(f is None or isinstance(f, (str, os.PathLike)) for f in files)):
+        raise InputError(f"files must be two file names (or None each), got {short_repr(files)}")
+    return (None if files[0] is None else str(files[0]), None if files[1] is None else str(files[1]))
+
+
+def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_distance, max_iterations,
+                   files: tuple = (None, None)):
     """The checked (and voxel-downsampled) clouds, the initial pose and the correspondence distance
-    every implementation gets."""
+    every implementation gets; a bad cloud's message names its file where ``files`` gives it."""
     from ..registration.api import voxel_downsample
     from ..registration.transforms import nearest_rigid, rigid_problem
     from ..validation import check_float, check_int, check_matrix
 
-    src = check_cloud(source, "source")
-    tgt = check_cloud(target, "target")
+    src = check_cloud(source, files[0] or "source")
+    tgt = check_cloud(target, files[1] or "target")
     if src.shape[1] != tgt.shape[1]:
         raise InputError(f"source is {src.shape[1]}-D but target is {tgt.shape[1]}-D")
     d = src.shape[1]
@@ -450,18 +332,20 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     T0 = nearest_rigid(T0)  # every implementation starts from, and so returns, a rigid matrix
     max_iterations = check_int(max_iterations, "max_iterations", lo=1, hi=100_000)
     if max_correspondence_distance is None:
-        max_correspondence_distance = default_max_distance(tgt)
+        max_correspondence_distance = default_max_distance(tgt, name=files[1] or "target")
     if not max_correspondence_distance > 0:
         raise InputError("max_correspondence_distance must be > 0")
     return src, tgt, T0, max_correspondence_distance
 
 
-def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, distance: float) -> None:
+def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarray, distance: float,
+                                  files: tuple = (None, None)) -> None:
     """A :class:`RegistrationError` when fewer source points, at the initial pose, have a target point within
     ``distance`` than a rigid motion needs (2 in 2-D, 3 in 3-D). With none, every ICP stops where it started
     (fitness 0), and a cross-check of identities would read as implementations that agree and converged;
     with one or two in 3-D the rotation is not determined: pcreg's reference stops where it started, others
-    (Open3D's step takes any non-empty set) move by a rotation the pairs do not determine."""
+    (Open3D's step takes any non-empty set) move by a rotation the pairs do not determine. The message names
+    the ``files`` the clouds were read from, where given ("S.ply onto T.ply: ...")."""
     from scipy.spatial import cKDTree
 
     from ..registration.reference import pairs_needed
@@ -471,12 +355,13 @@ def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarr
     moved = src @ T0[:-1, :-1].T + T0[:-1, -1]
     near, _ = cKDTree(tgt).query(moved, k=1, distance_upper_bound=distance)
     found = int(np.count_nonzero(np.isfinite(near)))
+    pair = "" if files == (None, None) else f"{files[0] or 'the source'} onto {files[1] or 'the target'}: "
     if found == 0:
-        raise RegistrationError(f"registration refused: no source point lies within the correspondence distance "
+        raise RegistrationError(f"registration refused: {pair}no source point lies within the correspondence distance "
                                 f"{distance:g} of a target point at the initial pose; every ICP would stop where it "
                                 "started (give --init, or a larger --max-distance)")
     if found < need:
-        raise RegistrationError(f"registration refused: {found} source point{'s' if found > 1 else ''} of "
+        raise RegistrationError(f"registration refused: {pair}{found} source point{'s' if found > 1 else ''} of "
                                 f"{len(src)} lie{'' if found > 1 else 's'} within the correspondence distance "
                                 f"{distance:g} of a target point at the initial pose, and a rigid motion in {d}-D "
                                 f"needs {need}: the pairs do not determine the rotation (give --init, or a larger "
@@ -542,52 +427,3 @@ def _reference_at_convergence(adapters: dict, outcomes: dict, pinned) -> tuple:
     return conv, {"matrix": conv.matrix.tolist(), "iterations": conv.iterations, "converged": conv.converged,
                   "fitness": conv.fitness, "inlier_rmse": conv.inlier_rmse,
                   "settings": converged_settings(pinned).params()}
-
-
-def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float, truth,
-         problem: str | None = None) -> dict:
-    """One implementation's row: its outcome, compared with the reference (step for step, or at
-    convergence) and with ``truth``; on clouds that leave the transform free (``problem``,
-    :func:`unconstrained`) a pose is marked so, never agreeing."""
-    comp = a.comparability if a is not None else "step"
-    row = {"matrix": None, "iterations": None, "fitness": None, "inlier_rmse": None, "converged": None,
-           "seconds": 0.0, "comparability": comp, "rotation_disagreement_deg": None,
-           "translation_disagreement": None, "matrix_relative_disagreement": None, "agrees": False,
-           "error": errors.get(name), "status": "missing" if o == "missing" else ("failed" if name in errors else "ok"),
-           "compared_with": None, "divergence": None, "trace": False,
-           "description": getattr(a, "description", ""), "settings": None, "unconstrained": None}
-    if a is not None:
-        try:
-            row["settings"] = a.settings(pinned)
-        except Exception:  # noqa: BLE001 - settings are informative only
-            row["settings"] = None
-    if not isinstance(o, RegistrationResult):
-        return row
-    row.update({"matrix": o.matrix.tolist(), "iterations": reported(o.iterations), "fitness": reported(o.fitness),
-                "inlier_rmse": reported(o.inlier_rmse), "converged": o.converged, "seconds": float(o.seconds),
-                "trace": bool(o.trace)})
-    if o.info:
-        row["info"] = o.info
-    if problem is not None:  # one pose of many that fit as well: marked, compared with nothing
-        row.update(status="unconstrained", unconstrained=problem, agrees=False,
-                   info={**(o.info or {}), "unconstrained": problem})
-    base, base_name = (ref, "reference") if comp == "step" else (conv, "reference at convergence")
-    if name == REFERENCE:
-        base, base_name = o, "reference"
-    if base is not None:
-        cmp = compare_matrices(base.matrix, o.matrix, src)
-        row.update(cmp)
-        row["compared_with"] = base_name
-        step = step_tolerance(src, diag)
-        row["agrees"] = problem is None and bool(_agrees(comp, cmp, diag, step))
-        if ref is not None and name != REFERENCE and o.trace and ref.trace:
-            row["divergence"] = trace_divergence(ref.trace, o.trace, tolerance=step, source=src,
-                                                 target=pinned.target)
-    elif name != REFERENCE:
-        row["error"] = row["error"] or None
-        row["compared_with"] = None
-    if truth is not None:
-        t = compare_matrices(np.asarray(truth, dtype=np.float64), o.matrix, src)
-        row["truth_rotation_deg"] = t["rotation_disagreement_deg"]
-        row["truth_translation"] = t["translation_disagreement"]
-    return row

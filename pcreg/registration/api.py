@@ -306,7 +306,27 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
     """
+    return _register(reference_image, moving_image, config=config, model=model, backend=backend, init=init,
+                     masks=(reference_mask, moving_mask), pyramids=(reference_pyramid, moving_pyramid), callback=callback,
+                     judged=False)[0]
+
+
+def register_judged(reference_image: np.ndarray, moving_image: np.ndarray, *, config: RegisterConfig = RegisterConfig(),
+                    backend: str | None = None, callback: Callable[[IcpIteration], None] | None = None
+                    ) -> tuple[RegistrationResult, RegistrationError | None]:
+    """:func:`register` with its plausibility test's refusal returned, from one search: ``(result, None)`` where
+    :func:`register` returns ``result``; ``(pose, refusal)`` where it raises ``refusal``, ``pose`` as it returns it with
+    the test off (``min_inlier_ratio=None``), whose refusals (a transform no view can have, too few edge points, no
+    overlap) are raised. A cross-check reports a refused pair's poses so (:func:`pcreg.crosscheck`)."""
+    return _register(reference_image, moving_image, config=config, model=None, backend=backend, init=None,
+                     masks=("auto", "auto"), pyramids=(None, None), callback=callback, judged=True)
+
+
+def _register(reference_image, moving_image, *, config: RegisterConfig, model, backend, init, masks: tuple,
+              pyramids: tuple, callback, judged: bool) -> tuple:
+    """:func:`register`'s steps: the result and, ``judged``, the plausibility test's refusal (else raised)."""
     config = _configured(config, model=model, backend=backend, init=init)
+    reference_mask, moving_mask = masks
     start_matrix = None if init is None or isinstance(init, str) else check_matrix(init, "init", 3)
     if start_matrix is not None and config.model != "dense":  # dense: its global step's model checks it
         _check_init(start_matrix, config.model)
@@ -314,13 +334,13 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
         if any(m is not None and not isinstance(m, str) for m in (reference_mask, moving_mask)):
             raise InputError("the dense model cannot leave masked pixels out (it leaves black padding out): give "
                              "images without a mask (transparent pixels), or a global model")
-        return _register_dense_model(reference_image, moving_image, config, start_matrix)
+        return _register_dense_model(reference_image, moving_image, config, start_matrix, judged=judged)
     ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")
     _check_inputs(ref_img, mov_img, config.pyramid, reference_mask, moving_mask, callback)
     start = time.perf_counter()
     p = config.pyramid
-    reference, moving = _pyramids(ref_img, mov_img, reference_pyramid, moving_pyramid, levels=p.levels,
-                                  sampler=p.sampler, canny_percentile=p.canny_percentile, seed=config.search.seed,
+    reference, moving = _pyramids(ref_img, mov_img, *pyramids, levels=p.levels, sampler=p.sampler,
+                                  canny_percentile=p.canny_percentile, seed=config.search.seed,
                                   masks=(reference_mask, moving_mask), max_points=(p.reference_max_points, p.max_points),
                                   given=(reference_image, moving_image))
     best, tried, mirror, test, search = _search(reference, moving, config, config.search.init if start_matrix is None
@@ -328,10 +348,15 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     if callback is not None:
         for iteration in best.iterations:
             callback(iteration)
-    evidence = test.check(best, mirror=mirror, shape=mov_img.shape, moving=moving)
-    checks = _checks(reference, moving, config, best, test, search, mov_img.shape)
+    try:
+        evidence, refusal = test.check(best, mirror=mirror, shape=mov_img.shape, moving=moving), None
+    except RegistrationError as exc:  # judged: the pose as the test off returns it (what that refuses is raised)
+        if not judged:
+            raise
+        evidence, refusal = test.off().check(best, shape=mov_img.shape, moving=moving), exc
+    checks = _checks(reference, moving, config, best, test, search, mov_img.shape) if refusal is None else (None, None)
     return _result(best, evidence, tried, mirror, backend=config.backend, seconds=time.perf_counter() - start,
-                   points=(len(moving[0]), len(reference[0])), checks=checks)
+                   points=(len(moving[0]), len(reference[0])), checks=checks), refusal
 
 
 def _checks(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfig, best: Candidate,
@@ -374,13 +399,15 @@ def _configured(config: RegisterConfig, *, model: str | None, backend: str | Non
     return config.replace(**changes) if changes else config
 
 
-def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix):
-    """``model="dense"``: the global similarity (this function, with the rest of ``config``), refined by a
-    dense field (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult`."""
-    start = register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL, model_check=False),
-                     init=start_matrix)
+def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix, *, judged: bool) -> tuple:
+    """``model="dense"``: the global similarity (:func:`register`, with the rest of ``config``; ``judged``: its
+    refusal returned, else raised), refined by a dense field (:func:`pcreg.register_dense`); returns its
+    :class:`~pcreg.registration.dense.DenseRegistrationResult` and the refusal."""
+    start, refusal = _register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL, model_check=False),
+                               model=None, backend=None, init=start_matrix, masks=("auto", "auto"), pyramids=(None, None),
+                               callback=None, judged=judged)
     return register_dense(reference_image, moving_image, global_result=start,
-                          options=DenseOptions(seed=config.search.seed, global_step=GlobalStep(backend=config.backend)))
+                          options=DenseOptions(seed=config.search.seed, global_step=GlobalStep(backend=config.backend))), refusal
 
 
 def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, options: DenseOptions = DenseOptions(),

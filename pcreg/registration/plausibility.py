@@ -17,6 +17,8 @@ is raised with a one-line reason. Unrelated images, noise and mirror images are 
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from ..errors import RegistrationError
@@ -113,6 +115,13 @@ class Plausibility:
         return (f" (the images are {wr}x{hr} and {wm}x{hm} px, their sizes {apart:.1f}x apart: if the scene's scale "
                 f"differs as much between them, more than about 2x apart, which the search does not reach, resize the "
                 f"larger image first)")
+
+    def off(self) -> Plausibility:
+        """This test with its threshold off (``min_inlier_ratio=None``): it refuses only what it refuses whatever
+        the threshold (a transform no view can have, too few edge points, no overlap)."""
+        off = copy.copy(self)
+        off.min_inlier_ratio = None
+        return off
 
     @property
     def convincing(self) -> float:

@@ -1,0 +1,205 @@
+"""Comparing the implementations of a cross-check: the tolerances each comparability is held to, the
+disagreement of two poses, where two runs' iterations part, and one implementation's row of the report.
+
+Pure functions of results and clouds (:mod:`pcreg.implementations.crosscheck` runs the implementations).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..registration.result import RegistrationResult
+from ..registration.transforms import apply, rotation_part
+from .base import reported
+
+STEP_TOLERANCE = 1e-9  # relative, on the matrix, against the reference run with the same settings
+FIXED_POINT_TOLERANCE = 1e-6  # relative, on the matrix, against the reference run to convergence
+OBJECTIVE_ROTATION_DEG = 0.5  # objective rows: rotation within 0.5 degrees ...
+OBJECTIVE_TRANSLATION = 0.005  # ... and translation within 0.5% of the target's bounding-box diagonal
+REFERENCE = "reference"
+
+
+def _relative(A: np.ndarray, B: np.ndarray) -> float:
+    return float(np.max(np.abs(A - B)) / max(1.0, float(np.max(np.abs(A)))))
+
+
+def _bbox_corners(points: np.ndarray) -> np.ndarray:
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+
+
+def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
+    """Disagreement of B with A: rotation (degrees), translation, relative matrix difference and, in 2-D,
+    the largest displacement of the source's bounding-box corners (px for image edge clouds)."""
+    d = A.shape[0] - 1
+    RA, RB = rotation_part(A[:d, :d]), rotation_part(B[:d, :d])
+    # The angle of RA^T RB from its chord, ||RA - RB||_F = 2 sqrt(2) sin(angle / 2) in 2-D as in 3-D (in 2-D
+    # both columns move by 2 sin(angle / 2)): unlike the arccos of the trace it keeps full precision for tiny angles.
+    chord = float(np.linalg.norm(RA - RB)) / (2.0 * np.sqrt(2.0))
+    out = {"rotation_disagreement_deg": float(np.degrees(2.0 * np.arcsin(min(1.0, chord)))),
+           "translation_disagreement": float(np.linalg.norm(A[:d, d] - B[:d, d])),
+           "matrix_relative_disagreement": _relative(A, B)}
+    if d == 2:
+        c = _bbox_corners(source)
+        out["corner_disagreement"] = float(np.max(np.linalg.norm(apply(A, c) - apply(B, c), axis=1)))
+    return out
+
+
+def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE, source: np.ndarray | None = None,
+                     target: np.ndarray | None = None) -> dict | None:
+    """First iteration at which ``trace`` leaves ``ref_trace`` and the likely cause; None when they agree.
+
+    The pose after iteration k comes from the correspondences at the pose after k-1: when poses k-1
+    agree and poses k do not, the correspondences at k-1 decide the cause (different ones: the
+    neighbour search or gate; the same ones, or exact nearest neighbours of agreeing poses: the step).
+    Given the pinned ``source`` and ``target``, a different step from pairs that leave the rotation
+    undetermined (:func:`~pcreg.registration.closed_forms.rotation_problem`) says so: each implementation
+    takes one of the rotations that fit them as well.
+    """
+    n = min(len(ref_trace), len(trace))
+    if n == 0:
+        return None
+    for k in range(n):
+        a, b = ref_trace[k], trace[k]
+        if _relative(a.matrix, b.matrix) > tolerance:
+            if k == 0:
+                return {"iteration": 0, "cause": "different initial pose"}
+            pa, pb = ref_trace[k - 1], trace[k - 1]
+            if pb.target_indices is not None and pa.target_indices is not None and \
+                    not np.array_equal(pa.target_indices, pb.target_indices):
+                diff = int(np.count_nonzero(pa.target_indices != pb.target_indices))
+                return {"iteration": k, "cause": f"different correspondences at iteration {k - 1} "
+                                                 f"({diff} source points matched differently)"}
+            known = pb.target_indices is not None
+            free = _free_rotation(pa, source, target)
+            return {"iteration": k, "cause": "different step from the same correspondences"
+                    + ("" if known else " (the poses before agree, so exact nearest neighbours are the same)")
+                    + ("" if free is None else f", which leave the rotation undetermined ({free})")
+                    + f": relative matrix difference {_relative(a.matrix, b.matrix):.1e}"}
+        if b.target_indices is not None and a.target_indices is not None and \
+                not np.array_equal(a.target_indices, b.target_indices):
+            diff = int(np.count_nonzero(a.target_indices != b.target_indices))
+            return {"iteration": k, "cause": f"different correspondences at the same pose ({diff} source points; "
+                                             "ties or another neighbour search)"}
+    if len(ref_trace) != len(trace):
+        return {"iteration": n, "cause": f"different stopping rule: the same poses, but {len(trace) - 1} iterations "
+                                         f"against the reference's {len(ref_trace) - 1}"}
+    return None
+
+
+def _free_rotation(at, source: np.ndarray | None, target: np.ndarray | None) -> str | None:
+    """Why the pairs of the trace step ``at`` (its pose and target indices) leave the rotation undetermined, or None
+    (also when the clouds or the indices are not known)."""
+    if source is None or target is None or at.target_indices is None:
+        return None
+    from ..registration.closed_forms import rotation_problem
+
+    ok = np.asarray(at.target_indices) >= 0
+    return rotation_problem(apply(at.matrix, source)[ok], target[np.asarray(at.target_indices)[ok]])
+
+
+@dataclass(frozen=True)
+class CloudCrosscheck:
+    """Every requested implementation on the same pinned clouds; ``rows`` keyed by name or spec string."""
+
+    rows: dict
+    settings: dict
+    reference_at_convergence: dict | None
+    traces: dict = field(default_factory=dict, compare=False, repr=False)
+    source: np.ndarray | None = field(default=None, compare=False, repr=False)
+    target: np.ndarray | None = field(default=None, compare=False, repr=False)
+
+    def to_dict(self) -> dict:
+        """JSON-ready (non-finite numbers become None, so the JSON stays valid)."""
+        return _finite({"kind": "clouds", "implementations": self.rows, "settings": self.settings,
+                "reference_at_convergence": self.reference_at_convergence,
+                "tolerances": {"step": f"relative matrix difference <= {STEP_TOLERANCE:g} against the reference (far "
+                                       "from the origin, 100 float64 roundings of the largest coordinate / extent)",
+                               "fixed-point": f"relative matrix difference <= {FIXED_POINT_TOLERANCE:g} against the "
+                                              "reference run to convergence",
+                               "objective": f"rotation <= {OBJECTIVE_ROTATION_DEG:g} deg and translation <= "
+                                            f"{OBJECTIVE_TRANSLATION:.1%} of the target's bounding-box diagonal "
+                                            "against the reference run to convergence"}})
+
+
+def _finite(obj):
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    return obj
+
+
+def step_tolerance(points: np.ndarray, diag: float) -> float:
+    """The ``step`` tolerance of clouds ``points`` ``diag`` across: :data:`STEP_TOLERANCE`, or far from the origin
+    (1e6 m away, a metre across) 100 float64 roundings of their largest coordinate over their extent."""
+    far = float(np.max(np.abs(points))) / diag if diag > 0 else 0.0
+    return max(STEP_TOLERANCE, 100.0 * float(np.finfo(np.float64).eps) * far)
+
+
+def _agrees(comparability: str, cmp: dict, diag: float, step: float = STEP_TOLERANCE) -> bool:
+    if comparability == "step":
+        return cmp["matrix_relative_disagreement"] <= step
+    if comparability == "fixed-point":
+        return cmp["matrix_relative_disagreement"] <= FIXED_POINT_TOLERANCE
+    return (cmp["rotation_disagreement_deg"] <= OBJECTIVE_ROTATION_DEG
+            and cmp["translation_disagreement"] <= OBJECTIVE_TRANSLATION * diag)
+
+
+def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float, truth,
+         problem: str | None = None) -> dict:
+    """One implementation's row: its outcome, compared with the reference (step for step, or at
+    convergence) and with ``truth``; on clouds that leave the transform free (``problem``,
+    :func:`~pcreg.implementations.base.unconstrained`) a pose is marked so, never agreeing."""
+    comp = a.comparability if a is not None else "step"
+    row = {"matrix": None, "iterations": None, "fitness": None, "inlier_rmse": None, "converged": None,
+           "seconds": 0.0, "comparability": comp, "rotation_disagreement_deg": None,
+           "translation_disagreement": None, "matrix_relative_disagreement": None, "agrees": False,
+           "error": errors.get(name), "status": "missing" if o == "missing" else ("failed" if name in errors else "ok"),
+           "compared_with": None, "divergence": None, "trace": False,
+           "description": getattr(a, "description", ""), "settings": None, "unconstrained": None}
+    if a is not None:
+        try:
+            row["settings"] = a.settings(pinned)
+        except Exception:  # noqa: BLE001 - settings are informative only
+            row["settings"] = None
+    if not isinstance(o, RegistrationResult):
+        return row
+    row.update({"matrix": o.matrix.tolist(), "iterations": reported(o.iterations), "fitness": reported(o.fitness),
+                "inlier_rmse": reported(o.inlier_rmse), "converged": o.converged, "seconds": float(o.seconds),
+                "trace": bool(o.trace)})
+    if o.info:
+        row["info"] = o.info
+    if problem is not None:  # one pose of many that fit as well: marked, compared with nothing
+        row.update(status="unconstrained", unconstrained=problem, agrees=False,
+                   info={**(o.info or {}), "unconstrained": problem})
+    base, base_name = (ref, "reference") if comp == "step" else (conv, "reference at convergence")
+    if name == REFERENCE:
+        base, base_name = o, "reference"
+    if base is not None:
+        cmp = compare_matrices(base.matrix, o.matrix, src)
+        row.update(cmp)
+        row["compared_with"] = base_name
+        step = step_tolerance(src, diag)
+        row["agrees"] = problem is None and bool(_agrees(comp, cmp, diag, step))
+        if ref is not None and name != REFERENCE and o.trace and ref.trace:
+            row["divergence"] = trace_divergence(ref.trace, o.trace, tolerance=step, source=src,
+                                                 target=pinned.target)
+    elif name != REFERENCE:
+        row["error"] = row["error"] or None
+        row["compared_with"] = None
+    if truth is not None:
+        t = compare_matrices(np.asarray(truth, dtype=np.float64), o.matrix, src)
+        row["truth_rotation_deg"] = t["rotation_disagreement_deg"]
+        row["truth_translation"] = t["translation_disagreement"]
+    return row

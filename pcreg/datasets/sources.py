@@ -34,12 +34,15 @@ import re
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generator, Iterator, TypeVar
+from typing import TYPE_CHECKING, Any, Generator, Iterator, TypeVar
 
 import numpy as np
 
 from ..errors import InputError
 from .video_shown import Turn, as_shown, display_turn, first_interlaced, shown_frames, video_duration
+
+if TYPE_CHECKING:
+    from .folder_view import FolderView
 
 __all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES",
            "OTHER_VIDEO_SUFFIXES", "convert_hint"]
@@ -166,6 +169,7 @@ class FolderFrames:
         if files and selection.start >= len(files):
             raise InputError(f"--start {selection.start} is past the end of {src} ({len(files)} frames)")
         self.paths = files[selection.start:selection.stop:selection.every]
+        self._view: FolderView | None = None  # the key frame's orientation and size, read with the first frame read (:meth:`read`)
         if len(self.paths) < 2:
             raise InputError(f"{src}: needs at least two frames (the key frame and one more), found {len(self.paths)}"
                              + ("" if selection == Selection() else " of those chosen")
@@ -201,15 +205,27 @@ class FolderFrames:
         return stem in {p.stem for p in self.paths}
 
     def frames(self, first: int = 0) -> Iterator[SourceFrame]:
-        """The chosen frames from position ``first`` on, each read as it is asked for."""
-        from ..registration.clouds import load_image_and_alpha
-        from .frame_notes import transparent_notes
-
+        """The chosen frames from position ``first`` on, each read as it is asked for (:meth:`read`)."""
         for t in range(first, len(self.paths)):
             p = self.paths[t]
-            image, alpha = load_image_and_alpha(p)
-            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, image,
-                              notes=transparent_notes(str(p), alpha))
+            image, notes = self.read(t)
+            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, image, notes=notes)
+
+    def read(self, position: int) -> tuple[np.ndarray, tuple[tuple[str, str], ...]]:
+        """The image at ``position`` (H, W, 3) uint8 RGB and what reading it met (:attr:`SourceFrame.notes`): a frame
+        with transparent pixels; the key frame's EXIF orientation where the labels' size cannot tell it. A frame of
+        another EXIF orientation or size than the key frame (the first chosen) is refused
+        (:class:`~pcreg.datasets.folder_view.FolderView`)."""
+        from ..registration.clouds import load_image_and_alpha
+        from .folder_view import FolderView
+        from .frame_notes import transparent_notes
+
+        if self._view is None:
+            self._view = FolderView(self.paths[0])
+        p = self.paths[position]
+        image, alpha = load_image_and_alpha(p)
+        self._view.check(p, image.shape[:2])
+        return image, (self._view.notes() if position == 0 else ()) + transparent_notes(str(p), alpha)
 
 
 class VideoFrames:

@@ -129,3 +129,79 @@ def test_the_command_as_a_process_refuses_a_turned_frame_in_one_line(tmp_path):
                         str(tmp_path / "out")], capture_output=True, text=True, timeout=600)
     lines = [line for line in p.stderr.splitlines() if line.strip() and "%|" not in line]
     assert p.returncode == 2 and len(lines) == 1 and "f2.jpg has EXIF orientation 6" in lines[0], p.stderr
+
+
+def _video_without_its_first_key_frame(tmp_path, suffix):
+    """``(whole, cut, key.png)``: an H.264 video of 8 frames, a key frame every 4, and a copy of it whose first packet,
+    the key frame, is left out (as a cut without re-encoding off a key frame leaves it)."""
+    import av
+
+    from _videos import mux_all
+
+    frames, labels = _scene((48, 64), 8)
+    whole, cut = tmp_path / f"whole{suffix}", tmp_path / f"cut{suffix}"
+    with av.open(str(whole), "w") as c:
+        s = c.add_stream("libx264", rate=10, options={"g": "4", "bf": "0"})
+        s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+        mux_all(c, s, frames)
+    with av.open(str(whole)) as src, av.open(str(cut), "w") as out:
+        stream = out.add_stream_from_template(src.streams.video[0])
+        packets = [p for p in src.demux(src.streams.video[0]) if p.dts is not None]
+        assert packets[0].is_keyframe and not packets[1].is_keyframe
+        for p in packets[1:]:
+            p.stream = stream
+            out.mux(p)
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    return whole, cut, tmp_path / "key.png"
+
+
+@pytest.mark.parametrize("suffix", [".mkv", ".mp4"])
+def test_a_video_that_begins_without_its_key_frame_is_labelled_from_its_first_frame_that_decodes(tmp_path, capsys, suffix):
+    whole, cut, key = _video_without_its_first_key_frame(tmp_path, suffix)
+    assert main(["run", str(whole), "--labels", str(key), "--out", str(tmp_path / "whole_out")]) == 0
+    assert "do not decode" not in capsys.readouterr().err
+    out = tmp_path / "out"
+    # before: the MP4 was refused as truncated ("ends after 4 of the 7 frames"), the Matroska file run without a word
+    assert main(["run", str(cut), "--labels", str(key), "--out", str(out)]) == 0
+    said = [line for line in one_line_errors(capsys) if "do not decode" in line]
+    assert len(said) == 1 and said[0].startswith(f"pcreg: note: {cut}: its first 3 frame(s) do not decode")
+    assert "at 0.4 s" in said[0]
+    assert "do not decode" in json.loads((out / "run.json").read_text())["notes"]["start"]
+    assert sorted(p.name for p in out.glob("0*.png")) == [f"{i:06d}.png" for i in range(4)]
+
+
+def _two_streams(path, sizes, frames):
+    """A Matroska file of two H.264 video streams of ``sizes`` ((W, H) each), both of ``frames`` resized."""
+    import av
+
+    with av.open(str(path), "w") as c:
+        streams = []
+        for w, h in sizes:
+            s = c.add_stream("libx264", rate=10)
+            s.width, s.height, s.pix_fmt = w, h, "yuv420p"
+            streams.append(s)
+        for rgb in frames:
+            for s in streams:
+                image = av.VideoFrame.from_ndarray(np.ascontiguousarray(cv2.resize(rgb, (s.width, s.height))), format="rgb24")
+                for packet in s.encode(image):
+                    c.mux(packet)
+        for s in streams:
+            for packet in s.encode():
+                c.mux(packet)
+
+
+def test_a_video_of_two_streams_says_which_it_reads(tmp_path, capsys):
+    frames, labels = _scene((48, 64), 4)
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    small_first = tmp_path / "small_first.mkv"
+    _two_streams(small_first, [(32, 24), (64, 48)], frames)
+    # before: "labels are 64x48, the key frame 000000 is 32x24", not a word of the other stream
+    assert main(["run", str(small_first), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "a")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "holds 2 video streams: pcreg reads the first (#0, 32x24), not #1 64x48" in err[0]
+    assert "-map 0:v:1" in err[0]
+    same = tmp_path / "same.mkv"
+    _two_streams(same, [(64, 48), (64, 48)], frames)
+    assert main(["run", str(same), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "b")]) == 0
+    said = [line for line in one_line_errors(capsys) if "video streams" in line]
+    assert len(said) == 1 and said[0].startswith(f"pcreg: note: {same} holds 2 video streams")

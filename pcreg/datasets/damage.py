@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["Gap", "Timing", "frame_places", "check_place"]
+__all__ = ["Gap", "Timing", "Start", "START", "frame_places", "check_place"]
 
 
 @dataclass(frozen=True)
@@ -79,6 +79,47 @@ class Timing:
         else:
             self.regular = -1
         return None
+
+
+#: The kind of note (run.json's ``"notes"``) of a video whose first frames do not decode.
+START = "start"
+
+
+class Start:
+    """The frames at a video's start that its decoder passes over without an error: the packets shown before the first
+    frame that comes out (their presentation time earlier than its) never decode. A file cut without re-encoding
+    (``ffmpeg -ss T -c copy`` off a key frame, a stream recorded from its middle) begins with frames that refer to a
+    key frame it no longer holds; H.264's and HEVC's decoders drop them (HEVC's leading pictures of an open GOP too),
+    so frame 0 is the first frame that decodes, as a player and an annotation tool decoding the file show it.
+    :meth:`packets` watches the packets go by; :meth:`first` the first frame out: ``lost``, how many were passed over."""
+
+    def __init__(self) -> None:
+        self.times: list[int] | None = []  # the shown packets' times up to the first frame out; None after it
+        self.lost = 0
+
+    def packets(self, packets):
+        """``packets`` as they come, the time of each shown one (not one an edit list hides) kept until the first frame
+        is out."""
+        for packet in packets:
+            if self.times is not None and packet.size and packet.pts is not None and not getattr(packet, "is_discard", False):
+                self.times.append(int(packet.pts))
+            yield packet
+
+    def first(self, frame, path: Path) -> tuple[str, str] | None:
+        """The note of the video at ``path`` whose first frame out, ``frame`` (an ``av.VideoFrame``), comes after
+        packets that never decode; None when none was passed over (or the frame has no time)."""
+        times, self.times = self.times, None
+        if not times or frame.pts is None:
+            return None
+        self.lost = sum(t < frame.pts for t in times)
+        if not self.lost:
+            return None
+        at = "" if frame.time is None else f", at {frame.time:.3g} s"
+        return START, (f"{path}: its first {self.lost} frame(s) do not decode (the video begins without the key frame "
+                       "they refer to, as a file cut without re-encoding does): frame 000000 is the first that decodes"
+                       f"{at}, and frames are numbered by count from it, as FFmpeg decodes the file (and annotation tools that "
+                       "decode with it number them); "
+                       "if the key labels were drawn on another copy of the video, re-encode it from that copy")
 
 
 def frame_places(container, stream) -> list[int] | None:

@@ -34,12 +34,15 @@ import re
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generator, Iterator, TypeVar
+from typing import TYPE_CHECKING, Any, Generator, Iterator, TypeVar
 
 import numpy as np
 
 from ..errors import InputError
 from .video_shown import Turn, as_shown, display_turn, first_interlaced, shown_frames, video_duration
+
+if TYPE_CHECKING:
+    from .folder_view import FolderView
 
 __all__ = ["Selection", "SourceFrame", "FolderFrames", "VideoFrames", "open_frames", "read_ahead", "VIDEO_SUFFIXES",
            "OTHER_VIDEO_SUFFIXES", "convert_hint"]
@@ -166,6 +169,7 @@ class FolderFrames:
         if files and selection.start >= len(files):
             raise InputError(f"--start {selection.start} is past the end of {src} ({len(files)} frames)")
         self.paths = files[selection.start:selection.stop:selection.every]
+        self._view: FolderView | None = None  # the key frame's orientation and size, read with the first frame read (:meth:`read`)
         if len(self.paths) < 2:
             raise InputError(f"{src}: needs at least two frames (the key frame and one more), found {len(self.paths)}"
                              + ("" if selection == Selection() else " of those chosen")
@@ -201,15 +205,27 @@ class FolderFrames:
         return stem in {p.stem for p in self.paths}
 
     def frames(self, first: int = 0) -> Iterator[SourceFrame]:
-        """The chosen frames from position ``first`` on, each read as it is asked for."""
-        from ..registration.clouds import load_image_and_alpha
-        from .frame_notes import transparent_notes
-
+        """The chosen frames from position ``first`` on, each read as it is asked for (:meth:`read`)."""
         for t in range(first, len(self.paths)):
             p = self.paths[t]
-            image, alpha = load_image_and_alpha(p)
-            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, image,
-                              notes=transparent_notes(str(p), alpha))
+            image, notes = self.read(t)
+            yield SourceFrame(t, self.selection.index(t), p.name, p.stem, image, notes=notes)
+
+    def read(self, position: int) -> tuple[np.ndarray, tuple[tuple[str, str], ...]]:
+        """The image at ``position`` (H, W, 3) uint8 RGB and what reading it met (:attr:`SourceFrame.notes`): a frame
+        with transparent pixels; the key frame's EXIF orientation where the labels' size cannot tell it. A frame of
+        another EXIF orientation or size than the key frame (the first chosen) is refused
+        (:class:`~pcreg.datasets.folder_view.FolderView`)."""
+        from ..registration.clouds import load_image_and_alpha
+        from .folder_view import FolderView
+        from .frame_notes import transparent_notes
+
+        if self._view is None:
+            self._view = FolderView(self.paths[0])
+        p = self.paths[position]
+        image, alpha = load_image_and_alpha(p)
+        self._view.check(p, image.shape[:2])
+        return image, (self._view.notes() if position == 0 else ()) + transparent_notes(str(p), alpha)
 
 
 class VideoFrames:
@@ -228,6 +244,9 @@ class VideoFrames:
         with self._open() as container:
             stream = container.streams.video[0]
             w, h = stream.codec_context.width, stream.codec_context.height
+            #: The video streams (index, width, height) a player may show, cover art left out: pcreg reads the first.
+            self.streams = [(int(v.index), int(v.codec_context.width), int(v.codec_context.height))
+                            for v in container.streams.video if not _attached(v)]
             if w * h > max_pixels():  # the limit images have, checked before a frame is decoded
                 raise InputError(f"{self.path}: {w}x{h} px frames exceed the limit of {max_pixels()} pixels "
                                  "(raise --max-pixels or PCREG_MAX_PIXELS)")
@@ -280,6 +299,18 @@ class VideoFrames:
 
         return (f"{self.path} is interlaced (two fields a frame, taken apart in time): its frames are deinterlaced "
                 f"with FFmpeg's {FILTER[0]} as they are read")
+
+    def streams_note(self) -> str | None:
+        """A line for the user when the file holds more than one video stream (a player may show another than the
+        first, which pcreg reads); else None."""
+        if len(self.streams) < 2:
+            return None
+        (index, w, h), others = self.streams[0], self.streams[1:]
+        listed = ", ".join(f"#{i} {ow}x{oh}" for i, ow, oh in others)
+        out = self.path.with_name(f"{self.path.stem}-stream1{self.path.suffix}")
+        return (f"{self.path} holds {len(self.streams)} video streams: pcreg reads the first (#{index}, {w}x{h}), not "
+                f"{listed}; to label another, extract it first: ffmpeg -i {shlex.quote(str(self.path))} -map 0:v:1 "
+                f"-c copy {shlex.quote(str(out))}")
 
     def count(self) -> int | None:
         """How many frames the stream chooses, from the container's count (None if it gives none)."""
@@ -361,7 +392,7 @@ class VideoFrames:
             return
         if reading.decoded == 0:
             raise InputError(f"{self.path}: no frame decodes (an empty, truncated or damaged video)")
-        self._check_length(reading.decoded, reading.last_time, reading.hidden[0])
+        self._check_length(reading.decoded, reading.last_time, reading.hidden[0] + reading.start.lost)
         if first == 0 and not reading.yielded:
             raise InputError(f"--start {s.start} is past the end of {self.path} ({reading.decoded} frames)")
 
@@ -371,7 +402,7 @@ class VideoFrames:
         that decode with errors (flagged by the decoder, concealed). A frame of another size is refused where met."""
         import av
 
-        from .damage import Timing
+        from .damage import Start, Timing
         from .vp9_check import Vp9Check
 
         s, size = self.selection, None
@@ -381,9 +412,16 @@ class VideoFrames:
                 stream.codec_context.thread_type = "FRAME"
             timing = Timing(checked=container.format.name == "matroska,webm")
             check = Vp9Check(stream)  # FFmpeg's VP9 decoder flags no damaged frame: libvpx tells them
+            start = reading.start = Start()
+
+            def through(packets):
+                return start.packets(check.packets(packets))
+
             try:
-                for frame in shown_frames(container, stream, reading.hidden, self.path, check.packets):
+                for frame in shown_frames(container, stream, reading.hidden, self.path, through):
                     i = reading.decoded
+                    if i == 0 and (note := start.first(frame, self.path)) is not None:
+                        reading.notes.append(note)
                     reading.decoded += 1
                     reading.last_time = frame.time if frame.time is not None else reading.last_time
                     turn = display_turn(frame, self.path)
@@ -443,6 +481,12 @@ class _Reading:
     gaps: list = field(default_factory=list)
     notes: list = field(default_factory=list)
     damaged: set[int] = field(default_factory=set)
+    start: Any = None  # the frames at the start that do not decode (:class:`~pcreg.datasets.damage.Start`)
+
+
+def _attached(stream) -> bool:
+    """Whether a video stream is a still picture attached to the file (cover art), not frames."""
+    return bool(int(getattr(stream, "disposition", 0) or 0) & 0x400)  # FFmpeg's AV_DISPOSITION_ATTACHED_PIC
 
 
 def convert_hint(path: Path) -> str:

@@ -191,12 +191,8 @@ class KeyRun:
     def _image_and_notes(self, s: Stretch, t: int) -> tuple[np.ndarray, tuple]:
         """Frame ``t``'s image and what reading it met (:attr:`~pcreg.datasets.sources.SourceFrame.notes`: a folder's
         frame with transparent pixels; a video's were met where the store phase decoded it)."""
-        from ..datasets.frame_notes import transparent_notes
-        from ..registration.clouds import load_image_and_alpha
-
         if self.frames.kind == "folder":
-            image, alpha = load_image_and_alpha(self.frames.paths[t])
-            return image, transparent_notes(str(self.frames.paths[t]), alpha)
+            return self.frames.read(t)
         return read_frame(self._hidden(self.fingerprint(s)), t), ()
 
     def _images(self, s: Stretch, positions: range, writer, priors: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:

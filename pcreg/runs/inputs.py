@@ -101,6 +101,8 @@ def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
         raise InputError(f"{request.frames}: needs at least two frames (the key frame and one more), found 1")
     if key_labels.shape != key.image.shape[:2]:
         turned = turned_note(frames.where(0), key_labels.shape, key.image.shape) if frames.kind == "folder" else ""
+        if frames.kind == "video" and frames.streams_note() is not None:
+            turned = f" ({frames.streams_note()})"
         raise InputError(f"{request.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
                          f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}{turned}")
     _check_known(request.labels, key_labels, table)

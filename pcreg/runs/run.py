@@ -580,7 +580,7 @@ def _notes_before_the_first_frame(keys: dict, table, config, frames, pending) ->
     from ..datasets.detail import scale_note
     from .memory import available_bytes, run_note
 
-    notes = (frames.note(), run_note(keys.values(), table, config.scale, available_bytes()),  # labels: the frames' size
+    notes = (frames.note(), getattr(frames, "streams_note", lambda: None)(), run_note(keys.values(), table, config.scale, available_bytes()),  # labels: the frames' size
              None if pending is None else scale_note(pending[0].image, f"{frames.path}: the key frame {pending[0].name}", config))
     for note in filter(None, notes):
         sys.stderr.write(f"pcreg: note: {note}\n")

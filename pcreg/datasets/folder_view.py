@@ -1,0 +1,90 @@
+"""How a folder's frames are shown against how pcreg reads them: one EXIF orientation and one size for all.
+
+pcreg reads a frame's pixels as the file stores them (an EXIF orientation is never applied), and so reads the key
+labels and writes every label PNG on that grid. That is right for every frame as long as all of them are stored
+the same way. A phone stores a photograph taken upright in the sensor's landscape grid and tags it (orientation 6):
+a folder where some frames carry another orientation than the key frame holds frames whose pixels are turned against
+the key frame's though a viewer shows them alike, and a square frame would be labelled turned without a word. Such a
+frame is refused where it is read, with the way to turn the frames first; and a key frame whose orientation the
+labels' size cannot tell (a half turn, a mirror, a square frame) is said in a note kept in run.json (``"orientation"``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+
+__all__ = ["ORIENTATION", "FolderView", "file_view"]
+
+#: The kind of note (run.json's ``"notes"``) of a key frame whose EXIF orientation its labels' size cannot tell.
+ORIENTATION = "orientation"
+
+#: What to do with frames stored otherwise than shown, said in every refusal and note of this module.
+TURN = ("turn every frame as it is shown first (exiftran -ai *.jpg, or Pillow's ImageOps.exif_transpose), then draw "
+        "the key labels on the turned key frame")
+
+
+def file_view(path: Path) -> tuple[int | None, tuple[int, int] | None]:
+    """``(orientation, (H, W))`` of an image file from its header: its EXIF orientation (2..8, None where it has none
+    or 1, :func:`pcreg.formats.exif_orientation`), and its size as stored (None where Pillow cannot read the header:
+    the frame's decoding says why)."""
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    from ..formats import exif_orientation
+
+    try:
+        with warnings.catch_warnings():  # pcreg's pixel limit holds; Pillow's lower one is for its own decoding
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                size = (int(image.height), int(image.width))
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError, Image.DecompressionBombError):
+        return None, None
+    return exif_orientation(path), size
+
+
+def _said(orientation: int | None) -> str:
+    from ..formats import ORIENTATION_VIEWS
+
+    if orientation is None:
+        return "has no EXIF orientation (shown as stored)"
+    return f"has EXIF orientation {orientation} (shown {ORIENTATION_VIEWS[orientation]})"
+
+
+class FolderView:
+    """The key frame's (a folder's first chosen frame, ``key``) orientation and size, each later frame checked
+    against them as it is read (:meth:`check`)."""
+
+    def __init__(self, key: Path) -> None:
+        self.key = key
+        self.orientation, self.shape = file_view(key)
+
+    def notes(self) -> tuple[tuple[str, str], ...]:
+        """The key frame's note: its EXIF orientation, where viewers show it of the same size as stored (a half turn, a
+        mirror, or a quarter turn of a square frame), so that labels drawn on the view fit the stored pixels as well;
+        else none (labels of the size turned are refused for their size)."""
+        o, shape = self.orientation, self.shape
+        if o is None or shape is None or (o >= 5 and shape[0] != shape[1]):
+            return ()
+        return ((ORIENTATION, f"{self.key}: the key frame {_said(o)}, at the size it is stored: pcreg reads "
+                 "the frames' pixels as stored and takes --labels as drawn on them so (the label PNGs it writes lie "
+                 f"on them so too); if the labels were drawn on the frame as a viewer shows it, {TURN}, and run again "
+                 "with --force"),)
+
+    def check(self, path: Path, shape: tuple[int, int]) -> None:
+        """An :class:`InputError` naming the frame at ``path`` (decoded of ``shape`` (H, W)) when it carries another
+        EXIF orientation than the key frame, or has another size."""
+        if path == self.key:
+            return
+        orientation = file_view(path)[0]
+        if orientation != self.orientation:
+            raise InputError(f"{path} {_said(orientation)}, the first frame {self.key.name} {_said(self.orientation)}: "
+                             "pcreg reads the pixels as stored, so this frame's are turned against the first frame's "
+                             f"where a viewer shows them alike; {TURN}")
+        if self.shape is not None and tuple(shape) != self.shape:
+            h, w = shape
+            raise InputError(f"{path}: {w}x{h} px, the first frame {self.key.name} {self.shape[1]}x{self.shape[0]}: "
+                             f"pcreg labels frames of one size; resize or crop it to {self.shape[1]}x{self.shape[0]} "
+                             "(the frames before it are labelled and kept: the same command goes on from it)")

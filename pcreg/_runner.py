@@ -68,6 +68,12 @@ def _how_workers_ended(pool: ProcessPoolExecutor) -> str:
     exit codes, when the pool has not yet reaped them)."""
     import signal
 
+    # A worker's end is seen by its pipe closing, before the system has made it a zombie whose exit code can be
+    # read; the pool's manager thread then ends the others and waits for every worker, so once it is done each
+    # exit code is known (read earlier, a loaded machine gave the others' SIGTERM alone, without the SIGKILL).
+    manager = getattr(pool, "_executor_manager_thread", None)
+    if manager is not None and manager.is_alive():
+        manager.join(timeout=5)
     codes = sorted({p.exitcode for p in (getattr(pool, "_processes", None) or {}).values()
                     if p.exitcode not in (None, 0)})
     if not codes:  # the pool may have reaped them before this reads them

@@ -117,6 +117,33 @@ def drifting_frames(folder, shape=(48, 64), n=4, seed=0):
     return folder, folder.parent / "key.png"
 
 
+def key_frames_of(key, keys, positions=(0, 4)):
+    """A folder ``keys`` (made here) of key labels: the label image ``key`` as the frames ``f{i}`` of ``positions``."""
+    import cv2
+
+    keys.mkdir()
+    labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
+    for i in positions:
+        cv2.imwrite(str(keys / f"f{i}.png"), labels)
+    return keys
+
+
+#: Two CamVid classes, as a ``labelmap.txt`` names them (``colour_keys``' colours).
+ROAD_AND_CAR = "background:0,0,0::\nroad:128,64,128::\ncar:0,0,192::\n"
+
+
+def colour_keys(keys, shape=(48, 64)):
+    """A folder ``keys`` (made here) holding ``f0.png``: colour labels, road over car in CamVid's colours."""
+    import cv2
+    import numpy as np
+
+    keys.mkdir()
+    rgb = np.zeros((*shape, 3), np.uint8)
+    rgb[: shape[0] // 2], rgb[shape[0] // 2:] = (128, 64, 128), (0, 0, 192)
+    cv2.imwrite(str(keys / "f0.png"), rgb[:, :, ::-1])
+    return keys
+
+
 def in_a_terminal(args: list[str]) -> tuple[int, str]:
     """``python -m pcreg ARGS`` with its stdout and stderr a terminal 100 columns wide, as a person runs it:
     its exit code and everything the terminal received."""

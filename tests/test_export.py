@@ -452,18 +452,13 @@ def _piped_export(run_copy):
 @pytest.mark.parametrize("absent", [("fence",), ("fence", "sign", "pole", "tree")])
 def test_the_summary_names_the_classes_in_no_frame(tmp_path, capsys, absent):
     """The line after the archive names the classes no frame holds (up to three; more are counted)."""
-    from _runs import drifting_frames
+    from _runs import ROAD_AND_CAR, colour_keys, drifting_frames
 
     folder, _ = drifting_frames(tmp_path / "frames", (48, 64), n=3)
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    rgb = np.zeros((48, 64, 3), np.uint8)
-    rgb[:24], rgb[24:] = (128, 64, 128), (0, 0, 192)
-    cv2.imwrite(str(keys / "f0.png"), rgb[:, :, ::-1])
+    keys = colour_keys(tmp_path / "keys")
     colours = ["64,64,128", "192,192,128", "128,128,128", "128,128,0"]
     table = tmp_path / "labelmap.txt"
-    table.write_text("background:0,0,0::\nroad:128,64,128::\ncar:0,0,192::\n"
-                     + "".join(f"{n}:{c}::\n" for n, c in zip(absent, colours)))
+    table.write_text(ROAD_AND_CAR + "".join(f"{n}:{c}::\n" for n, c in zip(absent, colours)))
     out = tmp_path / "out"
     assert main(["run", str(folder), "--labels", str(keys), "--classes", str(table), "--out", str(out)]) == 0
     capsys.readouterr()

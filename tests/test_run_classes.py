@@ -214,16 +214,11 @@ def test_follow_object_with_more_than_two_classes_is_refused_before_anything_is_
 def test_colour_keys_refused_by_the_default_table_point_to_the_labelmap_beside_them(tmp_path, capsys, labels):
     """Colour key labels with a CVAT ``labelmap.txt`` saved beside them, run without ``--classes``: the refusal
     names that file and the option that reads it; with it, the run labels."""
-    from _runs import drifting_frames
+    from _runs import ROAD_AND_CAR, colour_keys, drifting_frames
 
     folder, _ = drifting_frames(tmp_path / "frames", (48, 64), n=4)
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    rgb = np.zeros((48, 64, 3), np.uint8)
-    rgb[:24], rgb[24:] = (128, 64, 128), (0, 0, 192)
-    cv2.imwrite(str(keys / "f0.png"), rgb[:, :, ::-1])
-    (keys / "labelmap.txt").write_text("# label:color_rgb:parts:actions\nbackground:0,0,0::\nroad:128,64,128::\n"
-                                       "car:0,0,192::\n")
+    keys = colour_keys(tmp_path / "keys")
+    (keys / "labelmap.txt").write_text("# label:color_rgb:parts:actions\n" + ROAD_AND_CAR)
     given = keys if labels == "folder" else keys / "f0.png"
     run = ["run", folder, "--labels", given, "--out", tmp_path / "out"]
     rc, err = _run(run, capsys)

@@ -6,29 +6,19 @@ from __future__ import annotations
 
 import json
 
-import cv2
 import pytest
 
 from pcreg import __version__
 from pcreg.cli import main
 from pcreg.runs.state import FORMAT
-from _runs import drifting_frames, one_line_errors
-
-
-def _key_frames(tmp_path):
-    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
-    for i in (0, 4):
-        cv2.imwrite(str(keys / f"f{i}.png"), labels)
-    return folder, keys
+from _runs import drifting_frames, key_frames_of, one_line_errors
 
 
 @pytest.mark.parametrize("kind", ["one key frame", "key frames"])
 def test_a_run_json_names_its_format_and_a_later_one_is_refused_by_every_command(tmp_path, capsys, kind):
     if kind == "key frames":
-        folder, labels = _key_frames(tmp_path)
+        folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
+        labels = key_frames_of(key, tmp_path / "keys")
     else:
         folder, labels = drifting_frames(tmp_path / "frames", (48, 64), n=5)
     out = tmp_path / "out"

@@ -13,7 +13,7 @@ import pytest
 from pcreg.classes import LAGR, encode_label_png
 from pcreg.cli import main
 from pcreg.errors import InputError
-from _runs import drifting_frames, one_line_errors
+from _runs import drifting_frames, key_frames_of, one_line_errors
 from pcreg.export import read_labels
 
 
@@ -104,11 +104,7 @@ def test_json_nested_beyond_the_recursion_limit_is_bad_input(tmp_path, capsys):
 
 def test_a_key_frames_run_with_a_damaged_state_or_step_is_refused(tmp_path, capsys):
     folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
-    keys = tmp_path / "keys"
-    keys.mkdir()
-    labels = cv2.imread(str(key), cv2.IMREAD_UNCHANGED)
-    for i in (0, 4):
-        cv2.imwrite(str(keys / f"f{i}.png"), labels)
+    keys = key_frames_of(key, tmp_path / "keys")
     out = tmp_path / "out"
     run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
     assert main(run) == 0

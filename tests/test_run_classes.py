@@ -225,6 +225,10 @@ def test_colour_keys_refused_by_the_default_table_point_to_the_labelmap_beside_t
     assert rc == 2 and len(err) == 1, err
     assert "not labels of the table in use (0 ground, 1 obstacle, 2 unknown)" in err[0] and err[0].endswith(
         f"{keys / 'labelmap.txt'} lies beside it: --classes {keys / 'labelmap.txt'} reads them through its table"), err
+    (keys / "labelmap.txt").write_text("# label:color_rgb:parts:actions\nbackground:0,0,0::\nroad:128,64,128::\n")
+    rc, err = _run(run, capsys)  # a labelmap.txt that does not read them either: the refusal as it was
+    assert rc == 2 and "colour (128, 64, 128)" in err[0] and "lies beside" not in err[0], err
+    (keys / "labelmap.txt").write_text("# label:color_rgb:parts:actions\n" + ROAD_AND_CAR)
     rc, err = _run([*run, "--classes", keys / "labelmap.txt"], capsys)
     assert rc == 0, err
     from pcreg.classes import read_table_file

@@ -101,8 +101,9 @@ def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
         raise InputError(f"{request.frames}: needs at least two frames (the key frame and one more), found 1")
     if key_labels.shape != key.image.shape[:2]:
         turned = turned_note(frames.where(0), key_labels.shape, key.image.shape) if frames.kind == "folder" else ""
-        if frames.kind == "video" and frames.streams_note() is not None:
-            turned = f" ({frames.streams_note()})"
+        streams = frames.streams_note() if frames.kind == "video" else None
+        if streams is not None:
+            turned = f" ({streams})"
         raise InputError(f"{request.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
                          f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}{turned}")
     _check_known(request.labels, key_labels, table)
@@ -137,7 +138,7 @@ def _key_folder(request, frames, table, mapping: str) -> tuple:
 def read_labels(path: Path, mapping: str, table=None):
     """A key frame's (or a truth map's) labels read through the run's class ``table`` (None: ``lagr``) as
     ``mapping`` says (:func:`pcreg.classes.keys.read_key_labels`)."""
-    from ..classes import DEFAULT_TABLE, LABELMAP_FILE
+    from ..classes import DEFAULT_TABLE, LABELMAP_FILE, read_table_file
     from ..classes.keys import read_key_labels as read_through
     from ..errors import InputError
 
@@ -146,9 +147,12 @@ def read_labels(path: Path, mapping: str, table=None):
         return read_through(path, table, mapping)
     except InputError as exc:
         beside = Path(path).parent / LABELMAP_FILE  # a CVAT table saved with the labels, not named
-        if mapping != "none" or not table.agrees(DEFAULT_TABLE) or not beside.is_file() \
-                or not any(w in str(exc) for w in ("colour", "label value")):
+        if mapping != "none" or not table.agrees(DEFAULT_TABLE) or not beside.is_file():
             raise
+        try:  # said only when that table reads them
+            read_through(path, read_table_file(beside), mapping)
+        except InputError:
+            raise exc from None
         raise InputError(f"{path}: not labels of the table in use ({table.describe()}); {beside} lies "
                          f"beside it: --classes {beside} reads them through its table") from None
 

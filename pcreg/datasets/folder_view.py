@@ -76,9 +76,11 @@ class FolderView:
     def check(self, path: Path, shape: tuple[int, int]) -> None:
         """An :class:`InputError` naming the frame at ``path`` (decoded of ``shape`` (H, W)) when it carries another
         EXIF orientation than the key frame, or has another size."""
+        from ..formats import exif_orientation
+
         if path == self.key:
             return
-        orientation = file_view(path)[0]
+        orientation = exif_orientation(path)  # its size is the decoded frame's: the header is not read for it
         if orientation != self.orientation:
             raise InputError(f"{path} {_said(orientation)}, the first frame {self.key.name} {_said(self.orientation)}: "
                              "pcreg reads the pixels as stored, so this frame's are turned against the first frame's "

@@ -205,3 +205,45 @@ def test_a_video_of_two_streams_says_which_it_reads(tmp_path, capsys):
     assert main(["run", str(same), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "b")]) == 0
     said = [line for line in one_line_errors(capsys) if "video streams" in line]
     assert len(said) == 1 and said[0].startswith(f"pcreg: note: {same} holds 2 video streams")
+
+
+def _boxes(data: bytes) -> list[tuple[bytes, int, int]]:
+    """An MP4's top-level boxes: (kind, start, size)."""
+    import struct
+
+    found, at = [], 0
+    while at < len(data):
+        size, kind = struct.unpack(">I4s", data[at:at + 8])
+        found.append((kind, at, size))
+        at += size
+    return found
+
+
+@pytest.mark.parametrize("how", ["moov dropped", "mdat to the end"])
+def test_an_mp4_whose_recording_stopped_before_its_index_is_named_so(tmp_path, capsys, how):
+    """A recording stopped before its end (power lost) holds its frames but not the index written last: it was
+    refused as "not a video FFmpeg can read ... not a video, or truncated or damaged", with no word of what is
+    missing or how to get the frames back."""
+    whole, _, key = _video_without_its_first_key_frame(tmp_path, ".mp4")
+    data = whole.read_bytes()
+    boxes = {kind: (at, size) for kind, at, size in _boxes(data)}
+    assert b"moov" in boxes and b"mdat" in boxes
+    at, size = boxes[b"moov"]
+    cut = tmp_path / "unfinished.mp4"
+    if how == "moov dropped":
+        cut.write_bytes(data[:at] + data[at + size:])
+    else:  # as a recorder leaves it: the frames' box's size not yet written (0: to the end), no index after it
+        mdat, _ = boxes[b"mdat"]
+        body = data[:at] if at > mdat else data[:at] + data[at + size:]
+        cut.write_bytes(body[:mdat] + b"\0\0\0\0" + body[mdat + 4:])
+    out = tmp_path / "out"
+    assert main(["run", str(cut), "--labels", str(key), "--out", str(out)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {cut}: an MP4 without its index (no moov box)"), err
+    assert "untrunc" in err[0]
+    # any other file FFmpeg cannot read keeps the general words
+    junk = tmp_path / "junk.mp4"
+    junk.write_bytes(b"\0\0\0\x18ftypisom" + bytes(range(256)) * 4)
+    assert main(["run", str(junk), "--labels", str(key), "--out", str(tmp_path / "junk_out")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "not a video FFmpeg can read" in err[0] and "moov" not in err[0], err

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["Gap", "Timing", "Start", "START", "frame_places", "check_place"]
+__all__ = ["Gap", "Timing", "Start", "START", "frame_places", "check_place", "missing_index"]
 
 
 @dataclass(frozen=True)
@@ -140,3 +140,34 @@ def check_place(places: list[int], read: int, pos: int, path: Path) -> None:
     skipped = sum(1 for p in places[read + 1:] if p <= pos)
     raise InputError(f"{path}: frame {read} does not read (its chunk at byte {places[read]} is damaged; {skipped} "
                      f"frame(s) passed over): the video is truncated or damaged")
+
+
+def missing_index(path: Path) -> str | None:
+    """Why FFmpeg cannot open ``path`` when it is an MP4/MOV whose recording stopped before its end, or None.
+
+    Such a file (a camera's battery ran out, a recorder was killed) holds its frames (``mdat``) but not the index
+    written last (``moov``), which says where each frame lies; FFmpeg reads it as invalid data. Read from the
+    top-level boxes' headers alone: a file that does not start with ``ftyp`` is not told apart."""
+    import struct
+
+    seen: list[bytes] = []
+    try:
+        with open(path, "rb") as fh:
+            end = fh.seek(0, 2)
+            at = 0
+            while at + 8 <= end and len(seen) < 1000:
+                fh.seek(at)
+                size, kind = struct.unpack(">I4s", fh.read(8))
+                if size == 1 and at + 16 <= end:
+                    size = struct.unpack(">Q", fh.read(8))[0]
+                seen.append(kind)
+                if size == 0 or size < 8:  # the last box, to the file's end (or a size never written)
+                    break
+                at += size
+    except OSError:
+        return None
+    if not seen or seen[0] != b"ftyp" or b"moov" in seen or b"mdat" not in seen:
+        return None
+    return (f"{path}: an MP4 without its index (no moov box): its recording stopped before it was finished "
+            "(power lost, the recorder killed), so FFmpeg cannot tell where its frames lie; a repair tool such as "
+            "untrunc rebuilds the index from a whole recording of the same camera and settings")

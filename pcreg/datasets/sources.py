@@ -275,6 +275,11 @@ class VideoFrames:
         try:
             container = av.open(str(self.path), metadata_errors="ignore")
         except (av.FFmpegError, UnicodeDecodeError) as exc:
+            from .damage import missing_index
+
+            unfinished = missing_index(self.path)
+            if unfinished is not None:
+                raise InputError(unfinished) from None
             reason = getattr(exc, "strerror", None) or str(exc)
             raise InputError(f"{self.path}: not a video FFmpeg can read ({reason}): not a video, or truncated or "
                              "damaged") from None

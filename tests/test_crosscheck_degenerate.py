@@ -122,11 +122,17 @@ def test_the_command_on_a_3d_line_exits_3_and_its_table_and_json_mark_the_poses(
             "--with", "reference,open3d"]
     assert main(args) == 3
     out, err = capsys.readouterr()
-    assert "unconstrained, not trusted: source: the points are collinear" in out
-    assert "registration refused" in err and "collinear" in err
+    s, t = tmp_path / "s.npy", tmp_path / "t.npy"
+    # before: "source: the points ...", and the refusal did not say which of the two clouds is a line
+    assert f"unconstrained, not trusted: {s}: the points are collinear" in out
+    assert err == f"pcreg: registration refused: the reference ICP failed to register {s} onto {t}: {s}: the points are collinear: they cannot determine a rigid transform\n"
     assert main([*args, "--json"]) == 3
     row = json.loads(capsys.readouterr().out)["implementations"]["open3d"]
-    assert row["status"] == "unconstrained" and "collinear" in row["unconstrained"] and not row["agrees"]
+    assert row["status"] == "unconstrained" and row["unconstrained"].startswith(f"{s}: the points are collinear")
+    assert not row["agrees"]
+    np.save(s, np.random.default_rng(0).uniform(0, 1, (50, 3)))  # the target alone a line: named
+    assert main(args) == 3
+    assert f"onto {t}: {t}: the points are collinear" in capsys.readouterr().err
 
 
 def _turned_at_step_one(trace, degrees):

@@ -194,6 +194,7 @@ def _clouds(args) -> int:
     failed = out["implementations"]["reference"]["error"]
     if failed is None:
         return 0
+    failed = out["settings"].get("unconstrained") or failed  # the same refusal, naming the cloud it is about
     sys.stderr.write(f"pcreg: registration refused: the reference ICP failed to register {args.b} onto {args.a}: {failed}\n")
     return 3
 

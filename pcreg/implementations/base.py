@@ -167,16 +167,17 @@ class Implementation:
         raise NotImplementedError
 
 
-def unconstrained(source: np.ndarray, target: np.ndarray) -> str | None:
+def unconstrained(source: np.ndarray, target: np.ndarray, names: tuple[str, str] = ("source", "target")) -> str | None:
     """Why the clouds leave the rigid transform undetermined, or None: either cloud too few, coincident
     points, or (3-D) points on one line, about which any rotation fits as well. In the words of the
-    reference ICP's refusal (:func:`~pcreg.registration.closed_forms.rank_problem`), the cloud named. Every
+    reference ICP's refusal (:func:`~pcreg.registration.closed_forms.rank_problem`), the cloud named (``names``:
+    the source's and the target's, their files where they came from files). Every
     other implementation's pose on such clouds is one of many, whatever its ``converged`` says:
     :meth:`Implementation.run` marks it (``info["unconstrained"]``), a cross-check's row ``"status":
     "unconstrained"``."""
     from ..registration.closed_forms import rank_problem
 
-    for name, points in (("source", source), ("target", target)):
+    for name, points in zip(names, (source, target)):
         problem = rank_problem(points, "rigid")
         if problem is not None:
             return f"{name}: {problem}"

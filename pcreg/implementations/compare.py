@@ -21,7 +21,8 @@ OBJECTIVE_TRANSLATION = 0.005  # ... and translation within 0.5% of the target's
 REFERENCE = "reference"
 
 
-def _relative(A: np.ndarray, B: np.ndarray) -> float:
+def relative_difference(A: np.ndarray, B: np.ndarray) -> float:
+    """The largest entry of ``A - B`` against the largest of ``A`` (at least 1): how far two poses differ."""
     return float(np.max(np.abs(A - B)) / max(1.0, float(np.max(np.abs(A)))))
 
 
@@ -40,7 +41,7 @@ def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
     chord = float(np.linalg.norm(RA - RB)) / (2.0 * np.sqrt(2.0))
     out = {"rotation_disagreement_deg": float(np.degrees(2.0 * np.arcsin(min(1.0, chord)))),
            "translation_disagreement": float(np.linalg.norm(A[:d, d] - B[:d, d])),
-           "matrix_relative_disagreement": _relative(A, B)}
+           "matrix_relative_disagreement": relative_difference(A, B)}
     if d == 2:
         c = _bbox_corners(source)
         out["corner_disagreement"] = float(np.max(np.linalg.norm(apply(A, c) - apply(B, c), axis=1)))
@@ -63,7 +64,7 @@ def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE, sou
         return None
     for k in range(n):
         a, b = ref_trace[k], trace[k]
-        if _relative(a.matrix, b.matrix) > tolerance:
+        if relative_difference(a.matrix, b.matrix) > tolerance:
             if k == 0:
                 return {"iteration": 0, "cause": "different initial pose"}
             pa, pb = ref_trace[k - 1], trace[k - 1]
@@ -77,7 +78,7 @@ def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE, sou
             return {"iteration": k, "cause": "different step from the same correspondences"
                     + ("" if known else " (the poses before agree, so exact nearest neighbours are the same)")
                     + ("" if free is None else f", which leave the rotation undetermined ({free})")
-                    + f": relative matrix difference {_relative(a.matrix, b.matrix):.1e}"}
+                    + f": relative matrix difference {relative_difference(a.matrix, b.matrix):.1e}"}
         if b.target_indices is not None and a.target_indices is not None and \
                 not np.array_equal(a.target_indices, b.target_indices):
             diff = int(np.count_nonzero(a.target_indices != b.target_indices))
@@ -156,8 +157,8 @@ def _agrees(comparability: str, cmp: dict, diag: float, step: float = STEP_TOLER
             and cmp["translation_disagreement"] <= OBJECTIVE_TRANSLATION * diag)
 
 
-def _row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float, truth,
-         problem: str | None = None) -> dict:
+def implementation_row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float,
+                       truth, problem: str | None = None) -> dict:
     """One implementation's row: its outcome, compared with the reference (step for step, or at
     convergence) and with ``truth``; on clouds that leave the transform free (``problem``,
     :func:`~pcreg.implementations.base.unconstrained`) a pose is marked so, never agreeing."""

@@ -35,8 +35,8 @@ from .compare import (  # re-exported: the comparison of the rows, imported from
     REFERENCE as REFERENCE,
     STEP_TOLERANCE as STEP_TOLERANCE,
     CloudCrosscheck as CloudCrosscheck,
-    _relative,
-    _row,
+    implementation_row,
+    relative_difference,
     compare_matrices as compare_matrices,
     step_tolerance as step_tolerance,
     trace_divergence as trace_divergence,
@@ -118,7 +118,7 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
         max_corner_disagreement_px=float(np.max(np.linalg.norm(apply(a.matrix, c) - apply(b.matrix, c), axis=1))),
         rotation_disagreement_deg=rotation_disagreement_deg(a.matrix, b.matrix),
         translation_disagreement=float(np.linalg.norm(a.matrix[:2, 2] - b.matrix[:2, 2])),
-        matrix_relative_disagreement=_relative(a.matrix, b.matrix),
+        matrix_relative_disagreement=relative_difference(a.matrix, b.matrix),
         extra={"generators": [a.generator, b.generator],
                "inlier_ratios": [a.inlier_ratio, b.inlier_ratio]}, refused=refused)
 
@@ -264,7 +264,8 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     pinned = impls.Pinned(src, tgt, T0, float(max_correspondence_distance), int(max_iterations),
                           float(relative_fitness), float(relative_rmse))
     diag = float(np.linalg.norm(tgt.max(axis=0) - tgt.min(axis=0)))
-    problem = pinned.undetermined  # every implementation's run marks its pose with it too
+    # every implementation's run marks its pose with it too; the rows name the clouds' files
+    problem = pinned.undetermined and unconstrained(src, tgt, (files[0] or "source", files[1] or "target"))
     _check_enough_correspondences(src, tgt, T0, float(max_correspondence_distance), files)  # anything to run on?
     outcomes = _run_each(names, adapters, errors, pinned, progress=progress, on_result=on_result)
     ref = outcomes.get(REFERENCE)
@@ -272,8 +273,8 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
     rows, traces = {}, {}
     for name in names:
         o = outcomes.get(name)
-        rows[name] = _row(name, o, adapters.get(name), errors, pinned, ref=ref, conv=conv, src=src, diag=diag,
-                          truth=truth, problem=problem)
+        rows[name] = implementation_row(name, o, adapters.get(name), errors, pinned, ref=ref, conv=conv, src=src,
+                                        diag=diag, truth=truth, problem=problem)
         if isinstance(o, RegistrationResult):
             traces[name] = o.trace
     settings = {**pinned.params(), "init": T0.tolist(), "voxel_size": voxel_size, "dimension": d,

@@ -226,6 +226,10 @@ def test_open3d_refuses_the_point_to_line_finish_with_exit_2(pair):
     p = run("register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--refine", "point_to_line")
     assert p.returncode == 2 and "reference-backend finish" in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
+    # its advice is in the command's options (not the library's refine='none'), and followed it registers
+    assert "leave --refine out with --backend open3d, or give --backend reference" in p.stderr, p.stderr
+    p = run("register", d / "ref.png", d / "mov.png", "--backend", "reference", "--refine", "point_to_line")
+    assert p.returncode == 0, p.stderr
 
 
 def test_register_open3d_backend(pair):
@@ -375,7 +379,7 @@ def test_bad_input_still_exits_2_with_one_line(pair, tmp_path, capsys):
     rc, out, err = _main(["register", d / "ref.png", d / "mov.png", "--levels", "0"], capsys)  # argparse
     assert rc == 2 and len(err) == 1 and "--levels" in err[0], err
     rc, out, err = _main(["register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--refine", "point_to_line"],
-                         capsys)  # refused by the library (InputError)
+                         capsys)  # refused by the command (InputError), before the library would
     assert rc == 2 and len(err) == 1 and "reference-backend finish" in err[0], err
 
 

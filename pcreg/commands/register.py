@@ -58,6 +58,9 @@ def run(args: argparse.Namespace) -> int:
         if args.out.endswith(("/", os.sep)) or Path(args.out).suffix.lower() not in (".png", ".jpg", ".jpeg"):
             raise InputError(f"--out {args.out!r}: the warped image is written as PNG or JPEG; name it .png or .jpg")
         check_output(args.out, force=args.force, inputs=(args.reference, args.moving))
+    if args.refine == "point_to_line" and args.backend != "reference":  # the library's refusal names its keywords
+        raise InputError("--refine point_to_line is a reference-backend finish (Open3D's ICP here is point-to-point): "
+                         "leave --refine out with --backend open3d, or give --backend reference")
     options = {} if args.min_inlier_ratio is None else {"min_inlier_ratio": args.min_inlier_ratio or None}  # 0: off
     config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
                                init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,

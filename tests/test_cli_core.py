@@ -226,6 +226,10 @@ def test_open3d_refuses_the_point_to_line_finish_with_exit_2(pair):
     p = run("register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--refine", "point_to_line")
     assert p.returncode == 2 and "reference-backend finish" in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
+    # its advice is in the command's options (not the library's refine='none'), and followed it registers
+    assert "leave --refine out with --backend open3d, or give --backend reference" in p.stderr, p.stderr
+    p = run("register", d / "ref.png", d / "mov.png", "--backend", "reference", "--refine", "point_to_line")
+    assert p.returncode == 0, p.stderr
 
 
 def test_register_open3d_backend(pair):
@@ -375,7 +379,7 @@ def test_bad_input_still_exits_2_with_one_line(pair, tmp_path, capsys):
     rc, out, err = _main(["register", d / "ref.png", d / "mov.png", "--levels", "0"], capsys)  # argparse
     assert rc == 2 and len(err) == 1 and "--levels" in err[0], err
     rc, out, err = _main(["register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--refine", "point_to_line"],
-                         capsys)  # refused by the library (InputError)
+                         capsys)  # refused by the command (InputError), before the library would
     assert rc == 2 and len(err) == 1 and "reference-backend finish" in err[0], err
 
 
@@ -479,3 +483,25 @@ def test_an_error_longer_than_a_line_is_cut_saying_so(tmp_path, capsys):
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "label value 250 is not a class id" in line
     assert len(line) == len("pcreg: error: ") + 500 and line.endswith("...")
+
+
+def test_every_option_with_a_default_states_it_in_its_help():
+    """What a user reads in --help is what runs: an option whose default is a value (not None or off) says
+    "default" in its help, on every command (crosscheck's --iterations 30 and 1e-6 stopping rule were unsaid)."""
+    import argparse
+
+    from pcreg.cli import build_parser
+
+    unsaid = []
+
+    def walk(parser, name):
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for sub, sp in a.choices.items():
+                    walk(sp, f"{name} {sub}")
+            elif (a.option_strings and a.help not in (None, argparse.SUPPRESS)
+                  and a.default not in (None, False, argparse.SUPPRESS) and "default" not in a.help):
+                unsaid.append(f"{name} {a.option_strings[0]} (default {a.default!r})")
+
+    walk(build_parser(), "pcreg")
+    assert not unsaid, unsaid

@@ -29,9 +29,9 @@ def python_blocks():
 def command_lines():
     out = []
     for p in PAGES:
-        for block in blocks(p, "sh"):
+        for block in blocks(p, "(?:sh|bash)"):  # the cmd: and CI recipes are bash blocks
             for line in block.splitlines():
-                line = line.split("#", 1)[0].strip()
+                line = line.split("#", 1)[0].split(" > ", 1)[0].strip()  # the shell's redirection is not pcreg's
                 if line.startswith("pcreg "):
                     out.append(pytest.param(line, id=f"{p.relative_to(DOCS)}: {line[:60]}"))
     return out

@@ -12,6 +12,7 @@ import pytest
 import scipy.io
 
 from pcreg.classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
+from pcreg.cli import main
 from pcreg.datasets import synthetic
 from pcreg.experiments import classification
 from pcreg.classification.metrics import confusion_matrix, error_from_confusion
@@ -178,3 +179,11 @@ def test_unknown_feature_and_case_are_rejected(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         run_cli(["--cases", "IV", "--out", str(tmp_path)])
     assert exc.value.code == 2
+
+
+def test_data_help_names_davis_which_it_reads(capsys):
+    """Every evaluation reads --data davis:PATH (classification's Case I-III on DAVIS's frames and masks), and
+    classification's --help says so as the others' do."""
+    with pytest.raises(SystemExit):
+        main(["evaluate", "classification", "--help"])
+    assert "davis:PATH[:val|train|all]" in " ".join(capsys.readouterr().out.split())

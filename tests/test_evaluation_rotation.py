@@ -94,3 +94,13 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
             [res["datasets"]["syn1a"]["angles"][a][key] for a in ("0", "90")])
     assert len(rec.get("transforms/T_ref_mov")) == 2
     assert res["units"][0]["recording_frames"] == {"0": 0, "90": 1}  # each angle's frame, for the report page
+
+
+def test_checks_say_when_neither_quarter_nor_half_turn_was_run():
+    """Angles without 90 and 180 (`--angles 0,45`) leave the check nothing to compare: checks.md says so
+    rather than ending the dataset's line after its 0-degree error."""
+    from pcreg.experiments.reports.rotation import checks
+
+    cell = dict.fromkeys(KEYS, 7.9)
+    results = {"backends": {"reference": {"datasets": {"0016E5": {"angles": {"0": cell, "45": cell}}}}}}
+    assert "- 0016E5: 0 degrees 7.90; neither 90 nor 180 degrees in the angle set\n" in checks(results)

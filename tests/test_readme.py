@@ -16,9 +16,9 @@ ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()
 
 
-def sh_lines():
+def sh_lines(lang: str = "sh"):
     out = []
-    for block in re.findall(r"```sh\n(.*?)```", README, re.S):
+    for block in re.findall(rf"```{lang}\n(.*?)```", README, re.S):
         for line in block.splitlines():
             line = line.split("#", 1)[0].strip()
             if line.startswith("pcreg "):
@@ -54,3 +54,9 @@ def test_registration_commands_run(line, shared_data, tmp_path):
 def test_other_commands_parse(line):
     args = shlex.split(line)[1:]
     build_parser().parse_args(args)  # exits with code 2 on a bad option
+
+
+@pytest.mark.parametrize("line", sh_lines("bash"))
+def test_bash_recipes_parse(line):
+    """The bash block (a user's own ICP over cmd: and py:) runs on files the user makes: its lines parse."""
+    build_parser().parse_args(shlex.split(line)[1:])

@@ -201,12 +201,15 @@ def train(text: str) -> str:
     raise argparse.ArgumentTypeError(f"--train must be 'reference' or 'first:K' with K >= 1, got {text!r}")
 
 
+#: --data's help, the same on every evaluation (classification's included: every one reads every kind).
+DATA_HELP = ("synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | davis:PATH[:val|train|all] | lagr:PATH "
+             "(default synthetic; davis at an official root: DAVIS 2016 val when its ImageSets names it, :train or "
+             ":all for others)")
+
+
 def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     """--data, --frames, --size, --seed: which sequences an evaluation runs on."""
-    parser.add_argument("--data", default="synthetic",
-                        help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | davis:PATH[:val|train|all] | lagr:PATH "
-                             "(default synthetic; davis at an official root: DAVIS 2016 val when its ImageSets "
-                             "names it, :train or :all for others)")
+    parser.add_argument("--data", default="synthetic", help=DATA_HELP)
     parser.add_argument("--frames", type=arg_int(1, MAX_FRAMES), default=None,
                         help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
     parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")

@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "cmd:\"PROGRAM {source} {target} {init} {out} {params}\"; may be repeated")
     p.add_argument("--model", choices=("rigid", "similarity"), default=None, help="images: motion model (default rigid)")
     p.add_argument("--iterations", "--max-iterations", dest="iterations", type=positive_int, default=30,
-                   help="max ICP iterations (per level for images)")
+                   help="max ICP iterations (per level for images; default 30)")
     from ._common import arg_int
 
     p.add_argument("--levels", type=arg_int(1, 8), default=None, help="images: pyramid levels (default 4)")
@@ -38,9 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", metavar="FILE", help="clouds: initial guess, a (d+1)x(d+1) text matrix (default identity)")
     from ._common import arg_float
 
-    p.add_argument("--relative-fitness", type=arg_float(0, 1), default=1e-6, help="stopping rule: |Δfitness| threshold")
-    p.add_argument("--relative-rmse", type=arg_float(0), default=1e-6, help="stopping rule: |Δinlier RMSE| threshold")
-    p.add_argument("--timeout", type=positive_float, default=60.0, help="time limit of a cmd: program, s")
+    p.add_argument("--relative-fitness", type=arg_float(0, 1), default=1e-6, help="stopping rule: |Δfitness| threshold (default 1e-6)")
+    p.add_argument("--relative-rmse", type=arg_float(0), default=1e-6, help="stopping rule: |Δinlier RMSE| threshold (default 1e-6)")
+    p.add_argument("--timeout", type=positive_float, default=60.0, help="time limit of a cmd: program, s (default 60)")
     p.add_argument("--export", metavar="DIR", help="write the built-in suite as test vectors with the reference's traces")
     p.add_argument("--suite", metavar="DIR", help="run every implementation on the suite in DIR (written by --export; "
                                                   "the built-in suite when DIR holds none) and write a table + figure")

@@ -25,8 +25,7 @@ def _cases(text: str) -> tuple[str, ...]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from . import _common as c
 
-    parser.add_argument("--data", default="synthetic",
-                        help="synthetic | synthetic:syn1a,syn2b | camvid:PATH | folder:PATH | lagr:PATH (default synthetic)")
+    parser.add_argument("--data", default="synthetic", help=c.DATA_HELP)
     parser.add_argument("--cases", type=_cases, default=CASES, help="cases to run, e.g. I,III (default I,II,III)")
     parser.add_argument("--features", nargs="+", default=list(DEFAULT_FEATURE_SETS), metavar="SET",
                         help="feature sets, each names joined by + from thesis, rgb, hsv, lab, texture, row "

@@ -20,11 +20,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
     p.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
     p.add_argument("--init", choices=("auto", "identity", "center"), default="auto",
-                   help="auto: global rotation search; identity: start from no motion")
+                   help="auto (default): global rotation search; identity: start from no motion; center: from the image centres aligned")
     p.add_argument("--max-distance", type=positive_float, default=2.5,
-                   help="correspondence distance in px at full resolution (x 2^level)")
+                   help="correspondence distance in px at full resolution (x 2^level; default 2.5)")
     p.add_argument("--refine", choices=("none", "point_to_line"), default="none",
-                   help="finish: point_to_line (reference backend only) removes edge-sampling bias")
+                   help="finish: none (default) or point_to_line (reference backend only), which removes edge-sampling bias")
     from ._common import arg_float
 
     p.add_argument("--min-inlier-ratio", type=arg_float(0, 1), default=None, metavar="R",
@@ -58,6 +58,9 @@ def run(args: argparse.Namespace) -> int:
         if args.out.endswith(("/", os.sep)) or Path(args.out).suffix.lower() not in (".png", ".jpg", ".jpeg"):
             raise InputError(f"--out {args.out!r}: the warped image is written as PNG or JPEG; name it .png or .jpg")
         check_output(args.out, force=args.force, inputs=(args.reference, args.moving))
+    if args.refine == "point_to_line" and args.backend != "reference":  # the library's refusal names its keywords
+        raise InputError("--refine point_to_line is a reference-backend finish (Open3D's ICP here is point-to-point): "
+                         "leave --refine out with --backend open3d, or give --backend reference")
     options = {} if args.min_inlier_ratio is None else {"min_inlier_ratio": args.min_inlier_ratio or None}  # 0: off
     config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
                                init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,

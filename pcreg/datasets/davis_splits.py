@@ -147,8 +147,9 @@ def choose_split(names: list[str], *, root: Path | None, resolution: str | None,
         return DavisSplit("all", None, tuple(names), len(names),
                           f"no ImageSets/{resolution}/val.txt or ImageSets/2016/val.txt in {root}")
     if f is None:
-        raise DatasetError(f"{root / 'ImageSets'}: no {split}.txt under {resolution}/, 480p/ or 2016/ "
-                           f"(DAVIS 2016's split); give :all for every sequence")
+        *subs, last = dict.fromkeys((resolution, "480p", "2016"))  # as split_file looks: 480p once
+        raise DatasetError(f"{root / 'ImageSets'}: no {split}.txt under {', '.join(f'{s}/' for s in subs)} or "
+                           f"{last}/ (DAVIS 2016's split); give :all for every sequence")
     split = split or DEFAULT_SPLIT
     listed = read_split_file(f)
     have = set(names)

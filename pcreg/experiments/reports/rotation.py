@@ -42,7 +42,8 @@ def checks(results: dict) -> str:
                 for key in ("after", "after_masked"):
                     diff = c[key] - a0[key]
                     parts.append(f"{key} {a:g}: {c[key]:.2f} ({diff:+.2f}, {'met' if abs(diff) <= 2 else 'NOT met'})")
-            lines.append(f"- {name}: 0 degrees {a0['after']:.2f}; " + "; ".join(parts))
+            lines.append(f"- {name}: 0 degrees {a0['after']:.2f}; "
+                         + ("; ".join(parts) if parts else "neither 90 nor 180 degrees in the angle set"))
         lines.append("")
     return "\n".join(lines) + "\n"
 

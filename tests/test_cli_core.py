@@ -505,3 +505,20 @@ def test_every_option_with_a_default_states_it_in_its_help():
 
     walk(build_parser(), "pcreg")
     assert not unsaid, unsaid
+
+
+def test_force_says_what_it_does_on_each_command():
+    """``run`` and the evaluations resume an earlier run in --out, and --force starts them over: their help said
+    "overwrite existing output files", as it does for commands that write a file or two."""
+    from pcreg.cli import build_parser
+
+    def force_help(*path):
+        parser = build_parser()
+        for name in path:
+            parser = next(a for a in parser._actions if hasattr(a, "choices") and isinstance(a.choices, dict)
+                          and name in a.choices).choices[name]
+        return next(a.help for a in parser._actions if "--force" in a.option_strings)
+
+    for path in (("run",), ("evaluate", "stream"), ("evaluate", "rotation"), ("evaluate", "sequence")):
+        assert force_help(*path).startswith("start over: discard what an earlier run in --out finished"), path
+    assert force_help("register") == "overwrite existing output files"

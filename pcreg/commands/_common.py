@@ -95,11 +95,15 @@ def float_list(text: str) -> tuple[float, ...]:
     return vals
 
 
-def add_record_arguments(p: argparse.ArgumentParser) -> None:
+#: What ``--force`` does for a command that resumes an earlier run in its ``--out`` (the evaluations, ``run``).
+START_OVER = "start over: discard what an earlier run in --out finished, and overwrite the recording"
+
+
+def add_record_arguments(p: argparse.ArgumentParser, *, force: str = "overwrite existing output files") -> None:
     g = p.add_argument_group("recording")
     g.add_argument("--record", metavar="FILE.rrd", help="write a rerun recording of every stage")
     g.add_argument("--record-raw", action="store_true", help="log images losslessly instead of JPEG")
-    g.add_argument("--force", action="store_true", help="overwrite existing output files")
+    g.add_argument("--force", action="store_true", help=force)
 
 
 def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = True):
@@ -225,7 +229,7 @@ def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:
     parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")
     parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
     parser.add_argument("--out", default=out, help=f"output folder (default {out})")
-    add_record_arguments(parser)
+    add_record_arguments(parser, force=START_OVER)
 
 
 def check_out_beside_data(out: Path, data: str | None) -> None:

@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")
     parser.add_argument("--scheduler", default=None, help="dask.distributed scheduler address instead of local processes")
     parser.add_argument("--out", default="out/stream", help="output folder (default out/stream)")
-    c.add_record_arguments(parser)
+    c.add_record_arguments(parser, force=c.START_OVER)
 
 
 def config_from_args(args: argparse.Namespace) -> StreamConfig:

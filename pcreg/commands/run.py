@@ -26,7 +26,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_record_arguments, arg_int
+from ._common import START_OVER, add_record_arguments, arg_int
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..registration.flow import PRESETS
@@ -75,7 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--every", type=arg_int(1), default=1, metavar="N", help="every N-th frame from --start (default 1)")
     p.add_argument("--suggest", type=arg_int(1), default=None, metavar="N",
                    help="write OUT/suggest.txt: the N frames to label next, best first, with their predicted error")
-    add_record_arguments(p)
+    add_record_arguments(p, force=START_OVER)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -94,15 +94,17 @@ def assert_same_run(whole, cut, frames: int) -> None:
     """Two run folders hold the same labels and confidence PNGs, byte for byte, of frames ``f1`` ..
     ``f{frames - 1}``, and the same steps but for their clocks: an interrupted run resumed as the whole one."""
     for i in range(1, frames):
-        for name in (f"f{i}.png", f"confidence/f{i}.png"):
+        frame = f"f{i:0{len(str(frames - 1))}d}.png"  # as drifting_frames names them
+        for name in (frame, f"confidence/{frame}"):
             assert (whole / name).read_bytes() == (cut / name).read_bytes(), name
     steps = [[timeless(line) for line in (run / "steps.jsonl").read_text().splitlines()] for run in (whole, cut)]
     assert steps[0] == steps[1]
 
 
 def drifting_frames(folder, shape=(48, 64), n=4, seed=0):
-    """``n`` frames of a textured scene drifting right by 1 px a frame, written into ``folder`` (made here),
-    and the key frame's labels beside it: ``(folder, key.png)``."""
+    """``n`` frames of a textured scene drifting right by 1 px a frame, written into ``folder`` (made here) as
+    ``f0.png``, ``f1.png``, ... (numbers zero-padded from 11 frames on), and the key frame's labels beside it:
+    ``(folder, key.png)``."""
     import cv2
     import numpy as np
 
@@ -111,7 +113,7 @@ def drifting_frames(folder, shape=(48, 64), n=4, seed=0):
     scene = cv2.GaussianBlur(rng.integers(0, 256, (h, w + n, 3), dtype=np.uint8), (0, 0), 1.5)
     folder.mkdir()
     for i in range(n):
-        cv2.imwrite(str(folder / f"f{i}.png"), np.ascontiguousarray(scene[:, n - i:n - i + w]))
+        cv2.imwrite(str(folder / f"f{i:0{len(str(n - 1))}d}.png"), np.ascontiguousarray(scene[:, n - i:n - i + w]))
     labels = (np.arange(h)[:, None] * np.ones((1, w)) > h / 2).astype(np.uint8)
     cv2.imwrite(str(folder.parent / "key.png"), labels)
     return folder, folder.parent / "key.png"

@@ -24,10 +24,12 @@ import pytest
 from _events import HANG
 from _interrupting import start as start_in_own_group, units, wait_for
 
-# Small, and each long enough (two units) to be caught mid-run.
+# Small, and long enough to be caught mid-run: after the first unit, 3 more of 19 angles each (2.3 s) and the
+# report (1.2 s); the stream's 3 more clips of 11 frames (0.8 s) and its report (2.9 s). With 2 units (0.05 s and
+# 0.1 s apart) the report alone was left, 1.3 s and 1.4 s, for the pause to land before results.json.
 ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
-            "--angles", "0,20", "--samples", "2"]
-STREAM = ["evaluate", "stream", "--data", "synthetic:syn1a,syn2a", "--frames", "6", "--size", "160x120",
+            "--angles", "0:180:10", "--samples", "4"]
+STREAM = ["evaluate", "stream", "--data", "synthetic:syn1a,syn2a,syn2b,syn3a", "--frames", "12", "--size", "160x120",
           "--methods", "plain,pcreg"]
 
 

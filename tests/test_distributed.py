@@ -178,7 +178,9 @@ def test_a_signal_in_each_phase_of_a_cluster_run_stops_and_resumes(cluster, loca
     res, kept = interrupt_and_resume(monkeypatch, capsys, tmp_path, "rotation", phase,
                                      ["--scheduler", cluster.scheduler_address])
     n_units = len(_units(local_run))
-    lo, hi = {"data": (0, 0), "units": (1, n_units - 1), "report": (n_units, n_units)}[phase]
+    # the units that came back before the signal was handled are kept (every one, on a loaded machine); that
+    # none was waited for after it, interrupt_and_resume checks
+    lo, hi = {"data": (0, 0), "units": (1, n_units), "report": (n_units, n_units)}[phase]
     assert lo <= kept <= hi, f"{kept} of {n_units} units kept"
     local = json.loads((local_run / "results.json").read_text())
     assert not close(_strip_times(res), _strip_times({k: v for k, v in local.items() if k != "resumed_units"}))

@@ -12,7 +12,10 @@ from _runs import assert_same_run, drifting_frames
 
 from pcreg.cli import main
 
-N = 10
+# Frames after the kill: with 10 of 180x240 the last frame was written 0.16-0.28 s after the kill's event and the
+# run ended 0.95-1.1 s after it, less than a loaded machine may let pass before the kill (the run then finished
+# whole, unkilled); with 40 of 270x360, 1.1-1.4 s and 1.5-1.9 s.
+N = 40
 
 
 def _killed_at(args: list, out, pngs: int) -> None:
@@ -24,10 +27,11 @@ def _killed_at(args: list, out, pngs: int) -> None:
         if p.poll() is None:
             os.kill(p.pid, signal.SIGKILL)
         p.communicate()
+    assert p.returncode == -signal.SIGKILL, f"the run ended (exit {p.returncode}) before it was killed"
 
 
 def _frames(tmp_path):
-    return drifting_frames(tmp_path / "frames", (180, 240), n=N)
+    return drifting_frames(tmp_path / "frames", (270, 360), n=N)
 
 
 def test_a_confidence_map_half_written_when_killed_is_removed_by_the_rerun(tmp_path):
@@ -38,7 +42,7 @@ def test_a_confidence_map_half_written_when_killed_is_removed_by_the_rerun(tmp_p
     assert main(["run", str(folder), "--labels", str(key), "--out", str(whole), "--confidence"]) == 0
     _killed_at([folder, "--labels", key, "--out", cut, "--confidence"], cut, 4)
     (cut / "confidence").mkdir(exist_ok=True)
-    (cut / "confidence" / ".f5.png.k1ll3d.tmp").write_bytes(b"\x89PNG\r\n")  # what a kill mid-write leaves
+    (cut / "confidence" / ".f05.png.k1ll3d.tmp").write_bytes(b"\x89PNG\r\n")  # what a kill mid-write leaves
     assert main(["run", str(folder), "--labels", str(key), "--out", str(cut), "--confidence"]) == 0
     assert sorted(p.name for p in (cut / "confidence").iterdir()) == sorted(p.name for p in (whole / "confidence").iterdir())
     assert_same_run(whole, cut, N)

@@ -183,3 +183,36 @@ def test_medium_without_refinement_is_dis_medium_with_no_variational_step_and_is
     prop.reset(frames[0].image, frames[0].labels)
     labels = prop.step(frames[1].image)
     assert prop.last.registration.preset == "medium-norefine" and labels.shape == frames[1].labels.shape
+
+
+def test_a_motions_summary_is_the_same_to_the_bit_whatever_the_buffers():
+    """The largest displacement a step's summary gives (steps.jsonl's ``max_displacement``) was cv2.magnitude's,
+    whose last bit depends on where its arrays lie in memory: two runs of the same frames, or a run and its
+    resumed copy, wrote 62.10468673706055 and 62.10469055175781 for the same field."""
+    from pcreg.registration.dense import DenseRegistrationResult
+    from pcreg.registration.result import RegistrationResult
+
+    rng = np.random.default_rng(3)
+    h, w = 481, 643
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    dx, dy = rng.uniform(-80, 80, (h, w)), rng.uniform(-80, 80, (h, w))
+    # the largest displacement near the first pixel, where a vectorised loop may begin before its first aligned
+    # block: one whose length rounds to another float32 when x * x + y * y is fused (133.7161 against 133.71611)
+    dx[0, 2], dy[0, 2] = np.float32(96.36961), np.float32(92.69787)
+    field = np.dstack([xs + dx, ys + dy]).astype(np.float32)
+    sx, sy = field[..., 0] - xs, field[..., 1] - ys
+    want = float(np.sqrt(sx * sx + sy * sy).max())  # in float32, each product and the sum rounded
+    identity = RegistrationResult(matrix=np.eye(3), fitness=1.0, inlier_rmse=0.0, iterations=0, converged=True,
+                                  backend="given", seconds=0.0)
+    seen: dict[str, set] = {"flow": set(), "dense": set()}
+    held = []
+    for i in range(48):  # arrays of other sizes kept between the summaries: the next ones lie elsewhere
+        held.append(np.ones(1 + 8 * i + (i % 5) * 100_000, np.uint8))
+        at = np.empty(field.nbytes + 64, np.uint8)[4 * (i % 16):4 * (i % 16) + field.nbytes].view(np.float32)
+        at = at.reshape(field.shape)
+        at[...] = field
+        seen["flow"].add(FlowResult(field=at, preset="medium", seconds=0.0).to_dict()["max_displacement"])
+        dense = DenseRegistrationResult(matrix=np.eye(3), field=at, confidence=np.ones((h, w), np.float32),
+                                        global_result=identity, fitness=1.0, inlier_rmse=0.0, iterations=1, seconds=0.0)
+        seen["dense"].add(dense.to_dict()["max_displacement"])
+    assert seen == {"flow": {want}, "dense": {want}}

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from .clouds import as_rgb_uint8
+from .clouds import as_rgb_uint8, magnitude
 
 __all__ = ["PRESETS", "UNREFINED", "DIS_MIN_SIDE", "FlowResult", "dis_field", "dis_flow", "pixel_grid", "flow_field"]
 
@@ -103,6 +103,6 @@ class FlowResult:
         """JSON-ready summary: the model, the preset, the seconds and the displacement's median (every
         second pixel along each axis) and largest length, px."""
         xs, ys = pixel_grid(self.field.shape)
-        disp = cv2.magnitude(self.field[:, :, 0] - xs, self.field[:, :, 1] - ys)
+        disp = magnitude(self.field[:, :, 0] - xs, self.field[:, :, 1] - ys)  # the same to the bit in any buffer
         return {"model": "flow", "preset": self.preset, "seconds": float(self.seconds),
                 "median_displacement": float(np.median(disp[::2, ::2])), "max_displacement": float(disp.max())}

@@ -96,11 +96,11 @@ class DenseRegistrationResult:
         """JSON-ready summary (the arrays are left out; ``matrix`` is the global transform). The
         displacement's median is taken over every second pixel along each axis (a stream writes one such
         summary a frame: a median of a full 640x480 field took most of its time)."""
-        import cv2
+        from ..clouds import magnitude
 
         d = self.global_result.to_dict()
         shift = self.displacement
-        disp = cv2.magnitude(np.ascontiguousarray(shift[:, :, 0]), np.ascontiguousarray(shift[:, :, 1]))
+        disp = magnitude(shift[:, :, 0], shift[:, :, 1])  # not cv2.magnitude: its last bit depends on the buffers
         d.update(model="dense", dense_fitness=float(self.fitness), dense_inlier_rmse=float(self.inlier_rmse),
                  dense_iterations=int(self.iterations), seconds=float(self.seconds),
                  global_seconds=float(self.global_result.seconds),

@@ -36,31 +36,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import os
-    from pathlib import Path
-
     import cv2
 
     from ..errors import InputError, OutputError, RegistrationError
-    from ..outputs import atomic_write_bytes, check_output
+    from ..outputs import atomic_write_bytes
     from ..formats import read_image_file_and_damage
     from ..registration.clouds import cloud_pyramid, image_and_mask
     from ..registration.api import register
     from ..registration.config import RegisterConfig
     from ..registration.warp import warp
-    from ..cloud_reader import CLOUD_SUFFIXES
 
-    for path in (args.reference, args.moving):
-        if Path(path).suffix.lower() in CLOUD_SUFFIXES:  # before "not an image", which leaves a cloud's user stuck
-            raise InputError(f"{path}: a point cloud; pcreg register takes two images. Register two clouds with "
-                             "pcreg crosscheck TARGET SOURCE (its reference row is pcreg's ICP) or pcreg.icp")
-    if args.out is not None:
-        if args.out.endswith(("/", os.sep)) or Path(args.out).suffix.lower() not in (".png", ".jpg", ".jpeg"):
-            raise InputError(f"--out {args.out!r}: the warped image is written as PNG or JPEG; name it .png or .jpg")
-        check_output(args.out, force=args.force, inputs=(args.reference, args.moving))
-    if args.refine == "point_to_line" and args.backend != "reference":  # the library's refusal names its keywords
-        raise InputError("--refine point_to_line is a reference-backend finish (Open3D's ICP here is point-to-point): "
-                         "leave --refine out with --backend open3d, or give --backend reference")
+    _check_arguments(args)
     options = {} if args.min_inlier_ratio is None else {"min_inlier_ratio": args.min_inlier_ratio or None}  # 0: off
     config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
                                init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,
@@ -117,6 +103,29 @@ def run(args: argparse.Namespace) -> int:
     for note in notes:
         sys.stderr.write(f"pcreg: note: {note}\n")
     return 0
+
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """An :class:`~pcreg.errors.InputError` for a cloud given as an image, an ``--out`` that is not a free PNG or
+    JPEG name, or a finish the backend does not run, before any image is read."""
+    import os
+    from pathlib import Path
+
+    from ..cloud_reader import CLOUD_SUFFIXES
+    from ..errors import InputError
+    from ..outputs import check_output
+
+    for path in (args.reference, args.moving):
+        if Path(path).suffix.lower() in CLOUD_SUFFIXES:  # before "not an image", which leaves a cloud's user stuck
+            raise InputError(f"{path}: a point cloud; pcreg register takes two images. Register two clouds with "
+                             "pcreg crosscheck TARGET SOURCE (its reference row is pcreg's ICP) or pcreg.icp")
+    if args.out is not None:
+        if args.out.endswith(("/", os.sep)) or Path(args.out).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+            raise InputError(f"--out {args.out!r}: the warped image is written as PNG or JPEG; name it .png or .jpg")
+        check_output(args.out, force=args.force, inputs=(args.reference, args.moving))
+    if args.refine == "point_to_line" and args.backend != "reference":  # the library's refusal names its keywords
+        raise InputError("--refine point_to_line is a reference-backend finish (Open3D's ICP here is point-to-point): "
+                         "leave --refine out with --backend open3d, or give --backend reference")
 
 
 def _naming_its_file(exc: Exception, images) -> Exception:

@@ -161,7 +161,7 @@ def missing_index(path: Path) -> str | None:
                 if size == 1 and at + 16 <= end:
                     size = struct.unpack(">Q", fh.read(8))[0]
                 seen.append(kind)
-                if size == 0 or size < 8:  # the last box, to the file's end (or a size never written)
+                if size < 8:  # 0: the last box, to the file's end; below 8, a size never written
                     break
                 at += size
     except OSError:

@@ -219,19 +219,23 @@ def _boxes(data: bytes) -> list[tuple[bytes, int, int]]:
     return found
 
 
-@pytest.mark.parametrize("how", ["moov dropped", "mdat to the end"])
+@pytest.mark.parametrize("how", ["moov dropped", "mdat to the end", "QuickTime without ftyp"])
 def test_an_mp4_whose_recording_stopped_before_its_index_is_named_so(tmp_path, capsys, how):
     """A recording stopped before its end (power lost) holds its frames but not the index written last: it was
     refused as "not a video FFmpeg can read ... not a video, or truncated or damaged", with no word of what is
-    missing or how to get the frames back."""
+    missing or how to get the frames back. An old QuickTime file has no ``ftyp``: it may start with ``wide``."""
     whole, _, key = _video_without_its_first_key_frame(tmp_path, ".mp4")
     data = whole.read_bytes()
     boxes = {kind: (at, size) for kind, at, size in _boxes(data)}
     assert b"moov" in boxes and b"mdat" in boxes
     at, size = boxes[b"moov"]
-    cut = tmp_path / "unfinished.mp4"
+    cut = tmp_path / ("unfinished.mov" if how.startswith("QuickTime") else "unfinished.mp4")
     if how == "moov dropped":
         cut.write_bytes(data[:at] + data[at + size:])
+    elif how.startswith("QuickTime"):  # ftyp's place taken by an 8-byte wide box, the index dropped
+        ftyp, ftyp_size = boxes[b"ftyp"]
+        assert ftyp == 0 and at > ftyp_size
+        cut.write_bytes(b"\0\0\0\x08wide" + data[ftyp_size:at] + data[at + size:])
     else:  # as a recorder leaves it: the frames' box's size not yet written (0: to the end), no index after it
         mdat, _ = boxes[b"mdat"]
         body = data[:at] if at > mdat else data[:at] + data[at + size:]
@@ -239,7 +243,7 @@ def test_an_mp4_whose_recording_stopped_before_its_index_is_named_so(tmp_path, c
     out = tmp_path / "out"
     assert main(["run", str(cut), "--labels", str(key), "--out", str(out)]) == 2
     err = one_line_errors(capsys)
-    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {cut}: an MP4 without its index (no moov box)"), err
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {cut}: an MP4 or QuickTime file without its index (no moov box)"), err
     assert "untrunc" in err[0]
     # any other file FFmpeg cannot read keeps the general words
     junk = tmp_path / "junk.mp4"

@@ -176,7 +176,7 @@ def test_bad_videos_and_options_are_refused_in_one_line(tmp_path, frames, capsys
     assert f"{text}: not a video FFmpeg can read" in refused(text)
     assert f"{png}: not a video (FFmpeg reads it as png_pipe" in refused(png)
     assert f"{other}: not a folder or a video file" in refused(other)
-    assert f"{cut_mp4}: an MP4 without its index (no moov box)" in refused(cut_mp4)
+    assert f"{cut_mp4}: an MP4 or QuickTime file without its index (no moov box)" in refused(cut_mp4)
     assert f"{empty_avi}: no frame decodes" in refused(empty_avi)
     assert f"{empty_mp4}: holds no video stream" in refused(empty_mp4)
     assert "--every: expected an integer" in refused(good, "--every", 0)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["Gap", "Timing", "Start", "START", "frame_places", "check_place", "missing_index"]
+__all__ = ["Gap", "Timing", "Start", "START", "frame_places", "check_place", "missing_index", "FIRST_BOXES"]
 
 
 @dataclass(frozen=True)
@@ -142,12 +142,18 @@ def check_place(places: list[int], read: int, pos: int, path: Path) -> None:
                      f"frame(s) passed over): the video is truncated or damaged")
 
 
+#: The top-level boxes an MP4 or QuickTime file starts with: ``ftyp`` (every MP4), or in a QuickTime file
+#: written without it, the padding boxes ``wide``, ``free`` and ``skip``, or its frames' ``mdat`` itself.
+FIRST_BOXES = (b"ftyp", b"wide", b"free", b"skip", b"mdat")
+
+
 def missing_index(path: Path) -> str | None:
     """Why FFmpeg cannot open ``path`` when it is an MP4/MOV whose recording stopped before its end, or None.
 
     Such a file (a camera's battery ran out, a recorder was killed) holds its frames (``mdat``) but not the index
     written last (``moov``), which says where each frame lies; FFmpeg reads it as invalid data. Read from the
-    top-level boxes' headers alone: a file that does not start with ``ftyp`` is not told apart."""
+    top-level boxes' headers alone, of a file that starts as MP4 or QuickTime files do (:data:`FIRST_BOXES`: an
+    old QuickTime file has no ``ftyp``, and may start with ``wide``, ``free`` or its ``mdat``)."""
     import struct
 
     seen: list[bytes] = []
@@ -166,8 +172,8 @@ def missing_index(path: Path) -> str | None:
                 at += size
     except OSError:
         return None
-    if not seen or seen[0] != b"ftyp" or b"moov" in seen or b"mdat" not in seen:
+    if not seen or seen[0] not in FIRST_BOXES or b"moov" in seen or b"mdat" not in seen:
         return None
-    return (f"{path}: an MP4 without its index (no moov box): its recording stopped before it was finished "
+    return (f"{path}: an MP4 or QuickTime file without its index (no moov box): its recording stopped before it was finished "
             "(power lost, the recorder killed), so FFmpeg cannot tell where its frames lie; a repair tool such as "
             "untrunc rebuilds the index from a whole recording of the same camera and settings")

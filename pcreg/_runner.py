@@ -80,8 +80,21 @@ def _how_workers_ended(pool: ProcessPoolExecutor) -> str:
         return " (by a signal or a crash: the system's out-of-memory killer ends processes so)"
     if -signal.SIGKILL in codes:
         return " (killed by SIGKILL: the system's out-of-memory killer ends processes so)"
-    names = [signal.Signals(-c).name if c < 0 and -c in signal.valid_signals() else f"exit code {c}" for c in codes]
-    return f" ({', '.join(names)})"
+    return f" ({', '.join(_ending(c) for c in codes)})"
+
+
+def _ending(code: int) -> str:
+    """A process's exit code as said: ``SIGTERM`` (a signal, negative), ``SIGRTMIN+6`` (a real-time signal, which
+    :class:`signal.Signals` does not name), ``exit code 3``."""
+    import signal
+
+    if code >= 0:
+        return f"exit code {code}"
+    try:
+        return signal.Signals(-code).name
+    except ValueError:
+        low = getattr(signal, "SIGRTMIN", None)
+        return f"SIGRTMIN+{-code - low}" if low is not None and low <= -code <= signal.SIGRTMAX else f"signal {-code}"
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:

@@ -187,14 +187,25 @@ def plain_array(value, name: str) -> np.ndarray:
     return arr if arr.dtype.isnative else arr.astype(arr.dtype.newbyteorder("="))
 
 
+def real_matrix(value, refusal: str, name: str) -> np.ndarray:
+    """``value`` as a float64 array (a copy), or an :class:`InputError` saying ``refusal`` where it holds no real
+    numbers (text numpy cannot read, a Python int beyond float64's range), and naming ``name`` where it is complex
+    (numpy would drop the imaginary parts with a warning) or a masked array with masked entries
+    (:func:`check_unmasked`)."""
+    check_unmasked(value, name)
+    if np.iscomplexobj(value):
+        raise InputError(f"{name}: complex numbers; give its real matrix")
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):  # OverflowError: a Python int beyond float64
+        raise InputError(refusal) from None
+
+
 def check_matrix(value, name: str, dim: int) -> np.ndarray:
     """A finite, invertible, well-conditioned (dim x dim) float64 copy of ``value`` (a homogeneous
     transform such as an initial guess). An affine transform's conditioning is its linear block's: the whole
     matrix's grows as its translation squared (a shift of 10^6, a georeferenced cloud's, read as singular)."""
-    try:
-        M = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a {dim}x{dim} matrix of numbers") from None
+    M = real_matrix(value, f"{name} must be a {dim}x{dim} matrix of numbers", name)
     if M.shape != (dim, dim):
         raise InputError(f"{name} must be a finite {dim}x{dim} matrix, got shape {M.shape}")
     if not np.all(np.isfinite(M)):

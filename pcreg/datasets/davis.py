@@ -249,7 +249,7 @@ def load_sequence(frames: str | Path, masks: str | Path, *, n_frames: int | None
     its object ids: :func:`load_objects` (and ``--data davis:PATH``) reads each object on its own."""
     clips = load_objects(frames, masks, n_frames=n_frames, name=name)
     if len(clips) > 1:
-        first = Path(masks) / f"{next(iter(clips.values()))[0].name}.png"
+        first = _mask_file(Path(masks), next(iter(clips.values()))[0].name)  # the file read, .png or .PNG
         ids = ", ".join(c.rpartition("_")[2] for c in clips)
         raise DatasetError(f"{first}: a mask of {len(clips)} objects (palette indices {ids}); load_objects "
                            "reads each object as a sequence of its own")

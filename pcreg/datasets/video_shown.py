@@ -45,14 +45,19 @@ def first_interlaced(container, stream) -> bool:
 
 def video_duration(container, stream) -> float | None:
     """The video stream's own duration in seconds: its ``duration`` in its time base, or Matroska's ``DURATION``
-    tag; the container's only when the video is its one stream (an audio track may run longer); else None."""
+    tag (left out where it is no positive finite time: ``float`` reads ``nan`` and ``inf``); the container's only
+    when the video is its one stream (an audio track may run longer); else None."""
+    import math
+
     if stream.duration and stream.time_base:
         return float(stream.duration * stream.time_base)
     tag = str(stream.metadata.get("DURATION", ""))
     hours, _, rest = tag.partition(":")
     minutes, _, seconds = rest.partition(":")
     try:
-        return int(hours) * 3600 + int(minutes) * 60 + float(seconds)
+        tagged = int(hours) * 3600 + int(minutes) * 60 + float(seconds)
+        if math.isfinite(tagged) and tagged > 0:
+            return tagged
     except ValueError:
         pass
     if container.duration and len(container.streams) == 1:

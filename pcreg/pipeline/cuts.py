@@ -22,17 +22,40 @@ rule has already faded the carried priors there, and what remains is naive Bayes
 one (learning from its sure pixels is kept: on the cut measured it raised the two-class stream's accuracy
 after the cut from 64% to 65-68%).
 
-The last frame in the scene is the stream's own state, not part of the carry ``pcreg run`` saves: a run
-resumed after a cut tests from the frame it resumes at (:meth:`SceneCheck.restart`).
+The last frame in the scene (:class:`Scene`) is the stream's own state, handed on with the carry ``pcreg run``
+saves (:attr:`pcreg.Propagator.scene`), so that a run resumed after a cut goes on finding the other shot as the
+uninterrupted run does; a carry saved before it was kept has none, and such a run tests from the frame it resumes
+at (:meth:`SceneCheck.restore` of None).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .follow import CUT_COLOUR_CHANGE, FLOW_PRESET, colour_change, cut_evidence, frame_colours
+from ..errors import InputError
+from .follow import BINS, CUT_COLOUR_CHANGE, FLOW_PRESET, colour_change, cut_evidence, frame_colours
 
-__all__ = ["SceneCheck"]
+__all__ = ["Scene", "SceneCheck"]
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """The last frame found in the key frame's scene, as the cut test compares the next frame with it: its grey
+    levels (h, w) uint8 at half the working size and its colour histogram ``colours`` (:data:`~pcreg.pipeline.
+    follow.BINS` ^ 3,) float32 (:func:`~pcreg.pipeline.follow.frame_colours`)."""
+
+    grey: np.ndarray
+    colours: np.ndarray
+
+    def __post_init__(self) -> None:
+        g, c = self.grey, self.colours
+        if not (isinstance(g, np.ndarray) and g.ndim == 2 and g.dtype == np.uint8 and g.size):
+            raise InputError("a stream's carried scene frame must be an (h, w) uint8 array")
+        if not (isinstance(c, np.ndarray) and c.shape == (BINS ** 3,) and c.dtype == np.float32
+                and np.all(np.isfinite(c))):
+            raise InputError(f"a stream's carried scene colours must be a ({BINS ** 3},) float32 array")
 
 
 def _small(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -51,9 +74,17 @@ class SceneCheck:
     def __init__(self, key_rgb: np.ndarray) -> None:
         self._scene: tuple[np.ndarray, np.ndarray] | None = _small(key_rgb)  # the last frame in the key's scene
 
-    def restart(self) -> None:
-        """The last frame of the scene is not known (a resumed stream): the next frame is taken as one."""
-        self._scene = None
+    @property
+    def scene(self) -> Scene | None:
+        """The last frame found in the key frame's scene (None: not known, the next frame is taken as one)."""
+        return None if self._scene is None else Scene(*self._scene)
+
+    def restore(self, scene: Scene | None) -> None:
+        """Go on from ``scene`` (:attr:`scene`, as saved: a resumed stream); None, the last frame of the scene not
+        known (a carry saved before it was kept): the next frame is taken as one."""
+        if scene is not None and not isinstance(scene, Scene):
+            raise InputError("a stream's carried scene must be a pcreg.pipeline.cuts.Scene or None")
+        self._scene = None if scene is None else (scene.grey, scene.colours)
 
     def test(self, rgb: np.ndarray) -> dict:
         """The cut evidence of the next frame ((h, w, 3) uint8 at the working size) against the last frame of

@@ -468,9 +468,13 @@ class ObjectFollower:
         """Nothing is learned from the stream (the stream interface's :meth:`pcreg.Propagator.learned_later`)."""
         return lambda: None
 
-    def resume(self, frame: int, carry: FollowCarry | None, learned=None) -> None:
+    #: The stream interface's :attr:`pcreg.Propagator.scene`: the follower's cut test reads its carry instead.
+    scene = None
+
+    def resume(self, frame: int, carry: FollowCarry | None, learned=None, scene=None) -> None:
         """Continue after step ``frame`` with the ``carry`` it left (:attr:`carry`, as saved): the next step
-        does what it would have done in the uninterrupted stream."""
+        does what it would have done in the uninterrupted stream (``scene``: the stream interface's, never
+        kept for a follower)."""
         from ..validation import check_int
 
         if self._size is None:

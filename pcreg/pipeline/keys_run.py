@@ -239,16 +239,16 @@ class KeyRun:
 
     def _resume(self, prop, s: Stretch, cur: dict) -> None:
         if cur["steps"]:
-            carry, learned = self._read_carry(s, cur["steps"])
-            prop.resume(cur["steps"], carry, learned)
+            prop.resume(cur["steps"], *self._read_carry(s, cur["steps"]))
 
     def _read_carry(self, s: Stretch, steps: int):
         return self.owner.read_carry(steps, stretch=self.fingerprint(s))
 
-    def _keep_carry(self, cur: dict, carry, learned: Callable[[], np.ndarray | None]) -> None:
-        """One more step done: the carry it left and what was ``learned`` (computed now), for a resumed run."""
+    def _keep_carry(self, cur: dict, carry, learned: Callable[[], np.ndarray | None], scene=None) -> None:
+        """One more step done: the carry it left, what was ``learned`` (computed now) and the cut test's ``scene``
+        (:attr:`pcreg.Propagator.scene`), for a resumed run."""
         cur["steps"] += 1
-        self.owner.keep_carry(cur["steps"], carry, learned(), stretch=cur["fingerprint"])
+        self.owner.keep_carry(cur["steps"], carry, learned(), scene, stretch=cur["fingerprint"])
 
     def _store(self, s: Stretch, cur: dict) -> None:
         """A video's frames of the stretch and its key frames, decoded in order into the hidden folder."""
@@ -283,18 +283,18 @@ class KeyRun:
                 prior = report.trust.prior_term(report.log_odds.shape)  # made smaller on the writer's thread
                 weight = None if prop.classes is None else weight_sum(report.trust)
                 writer.submit(self._keep_prior, cur, t, prior, bool(report.fallback), prop.carry,
-                              prop.learned_later(), weight)
+                              prop.learned_later(), weight, prop.scene)
                 if self.on_step is not None:
                     self.on_step()
 
     def _keep_prior(self, cur: dict, t: int, prior: np.ndarray, fallback: bool, carry, learned,
-                    weight: np.ndarray | None = None) -> None:
+                    weight: np.ndarray | None = None, scene=None) -> None:
         """Frame ``t`` of a forward pass between two key frames: its prior term (with many classes also its
         summed trust weight, for the class window) kept for the backward pass as :data:`PRIOR_STORE_DTYPE`, the
         propagator's carry, and the commit (:func:`~pcreg.runs.kept.write_prior`)."""
         write_prior(self._hidden(cur["fingerprint"]), t, prior.astype(PRIOR_STORE_DTYPE), fallback,
                     None if weight is None else weight.astype(PRIOR_STORE_DTYPE), compress=self.compress)
-        self._keep_carry(cur, carry, learned)
+        self._keep_carry(cur, carry, learned, scene)
         cur["next"] = t + 1
         cur["fallbacks"] += int(fallback)
         self._commit()
@@ -372,16 +372,16 @@ class KeyRun:
             table = getattr(self.owner, "table", None)
             step.update(error=error_rate(labels, truth, classes=table), plain_error=error_rate(plain, truth, classes=table))
         writer.submit(self._write_frame, cur, t, labels, conf, step, (truth, plain), prop.carry, prop.learned_later(),
-                      after=after)
+                      prop.scene, after=after)
         if self.on_frame is not None:
             self.on_frame(t, image, labels, prop.last, self.frames.name(t), prop.working_size, reference=reference)
 
-    def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, scored: tuple, carry, learned, *,
+    def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, scored: tuple, carry, learned, scene=None, *,
                      after: int) -> None:
         """On the writer's thread: what :meth:`_record` hands on, in the order a resumed run reads it back
         (``scored``: the frame's truth map and naive Bayes' labels alone, or two Nones), committed by the run."""
         self.owner.write_frame(t, labels, conf if self.confidence else None, step, cur["truth"], scored)
-        self._keep_carry(cur, carry, learned)
+        self._keep_carry(cur, carry, learned, scene)
         cur["fallbacks"] += int(step.get("fallback", False)) + int(step.get("forward", {}).get("fallback", False))
         self.state["lines"] += 1
         self.owner.totals()

@@ -92,7 +92,7 @@ import numpy as np
 from .._threads import alongside
 from ..classification.features import DEFAULT_FEATURES
 from ..classification.fusion import MAX_WEIGHT, FusionConfig, label_prior, prior_log_odds
-from .cuts import SceneCheck
+from .cuts import Scene, SceneCheck
 from .report import PriorTerms, StepReport
 from .estimators import STREAM_DENSE, Carry, ChainCarry, chain_after, DenseStep, FlowEstimator, StreamMotion, motion_model, stream_motion
 from .learning import STREAM_LEARNING, Learner, Learning, learns
@@ -457,22 +457,33 @@ class Propagator:
         with every frame."""
         return None if self._learner is None else self._learner.stream.copy()
 
+    @property
+    def scene(self) -> Scene | None:
+        """The cut test's last frame of the key frame's scene (:class:`~pcreg.pipeline.cuts.Scene`), which the next
+        step's frame is tested against, or None without the cut test; ``pcreg run`` saves it with the carry."""
+        return None if self._key_scene is None else self._key_scene.scene
+
     def learned_later(self) -> Callable[[], np.ndarray | None]:
         """:attr:`learned` as it is now, computed when called, on any thread (``pcreg run`` writes it beside
         the next step); the step's own learning is left to the helper thread."""
         return (lambda: None) if self._learner is None else self._learner.stream_later()
 
-    def resume(self, frame: int, carry: "Carry | ChainCarry | None", learned: np.ndarray | None = None) -> None:
+    def resume(self, frame: int, carry: "Carry | ChainCarry | None", learned: np.ndarray | None = None,
+               scene: Scene | None = None) -> None:
         """Continue a stream after its step ``frame`` (counted from the key frame, as :attr:`StepReport.frame`)
         with the ``carry`` that step left (:attr:`carry`, as saved): the next step does what it would
         have done in the uninterrupted stream (a chained stream's is a :class:`~pcreg.pipeline.estimators.
-        ChainCarry`). ``learned``: what the classifier had learned by then (:attr:`learned`)."""
+        ChainCarry`). ``learned``: what the classifier had learned by then (:attr:`learned`); ``scene``: the cut
+        test's last frame of the key frame's scene by then (:attr:`scene`; None: not known, the next frame is
+        taken as one, and a cut before it is not found again)."""
         from ..registration.dense import finest_grid_shape
         from ..validation import check_int
 
         if self._key is None:
             raise InputError("Propagator.resume before reset: give the key frame and its labels first")
         frame = check_int(frame, "frame", lo=0)
+        if scene is not None and not isinstance(scene, Scene):
+            raise InputError("scene must be a pcreg.pipeline.cuts.Scene or None")
         if self.anchor == "previous":
             self._chain = chain_after(carry, self._key, frame)
             carry = None
@@ -485,8 +496,8 @@ class Propagator:
                                  f"these frames has {want[0]}x{want[1]}: it comes from another stream")
         self._frame = frame
         self._carry = carry if self.warm_starts else None
-        if self._key_scene is not None:  # the last frame of the key frame's scene is not saved
-            self._key_scene.restart()
+        if self._key_scene is not None:
+            self._key_scene.restore(scene)
         if self._learner is not None:
             self._learner.restore(learned)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..validation import check_point_count, check_unmasked
+from ..validation import check_point_count, check_unmasked, real_matrix
 
 MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 keeps sub-mm steps at 1e6 m
 
@@ -71,10 +71,7 @@ def backend_inputs(source, target, init, *, who: str) -> tuple[np.ndarray, np.nd
         raise InputError(f"{who}: source is {d}-D but target is {tgt.shape[1]}-D")
     if init is None:
         return src, tgt, np.eye(d + 1)
-    try:
-        T = np.array(init, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{who}: init must be a {d + 1}x{d + 1} matrix of numbers") from None
+    T = real_matrix(init, f"{who}: init must be a {d + 1}x{d + 1} matrix of numbers", f"{who}: init")
     if T.shape != (d + 1, d + 1):
         raise InputError(f"{who}: init must be a {d + 1}x{d + 1} matrix for {d}-D clouds, got shape {T.shape}")
     if not np.all(np.isfinite(T)):

@@ -173,11 +173,12 @@ def _step(line: bytes) -> dict | None:
     return step if ok else None
 
 
-def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) -> None:
+def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None, scene=None) -> None:
     """What step ``t`` hands to the next (a :class:`~pcreg.pipeline.stream.Carry`, a chained stream's
     :class:`~pcreg.pipeline.estimators.ChainCarry`, an object follower's
-    :class:`~pcreg.pipeline.follow.FollowCarry`, or None, and what the classifier has ``learned``, or
-    None), atomically at ``path``. A follower's carry is the ``follow`` member: its labels and grey
+    :class:`~pcreg.pipeline.follow.FollowCarry`, or None, what the classifier has ``learned``, or
+    None, and the cut test's last frame of the key frame's scene, a :class:`~pcreg.pipeline.cuts.Scene` or None:
+    the ``scene_grey`` and ``scene_colours`` members), atomically at ``path``. A follower's carry is the ``follow`` member: its labels and grey
     levels, (2, h, w) uint8, ``follow_colours``, its colour histogram, and while a cut has lost the object
     ``follow_held`` and ``follow_held_colours``, the same of the last frame that held it; a chained stream's the ``chain_*`` members (:func:`_chain_members`)."""
     import io
@@ -202,14 +203,17 @@ def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None) ->
         if carry.held is not None:
             members["follow_held"] = np.stack([carry.held.labels, carry.held.grey])
             members["follow_held_colours"] = carry.held.colours
+    if scene is not None:
+        members.update(scene_grey=scene.grey, scene_colours=scene.colours)
     np.savez(buf, **members, **chain)
     atomic_write_bytes(path, buf.getvalue())
 
 
-def read_carry(path: Path, t: int, unreadable: str):
+def read_carry(path: Path, t: int, unreadable: str, *, with_scene: bool = False):
     """``(carry, learned)`` that step ``t`` left at ``path`` (:func:`write_carry`): a
     :class:`~pcreg.pipeline.stream.Carry`, a :class:`~pcreg.pipeline.follow.FollowCarry` or None, and an
-    array or None. A missing or damaged file, or
+    array or None; ``with_scene``: ``(carry, learned, scene)``, the :class:`~pcreg.pipeline.cuts.Scene` or None
+    (none kept: a carry written before it was, or a stream without the cut test). A missing or damaged file, or
     one of another step, is an :class:`~pcreg.errors.OutputError`: ``unreadable`` says what it stops."""
     from ..pipeline.stream import Carry
 
@@ -222,6 +226,7 @@ def read_carry(path: Path, t: int, unreadable: str):
             colours = np.array(z["follow_colours"]) if "follow_colours" in z.files else None
             held = [np.array(z[k]) for k in ("follow_held", "follow_held_colours") if k in z.files]
             chain = {k: np.array(z[k]) for k in z.files if k.startswith("chain_")}
+            scene = [np.array(z[k]) for k in ("scene_grey", "scene_colours") if k in z.files]
     except UNREADABLE_CARRY:
         raise bad from None
     if frame.shape != () or frame.dtype.kind not in "iu" or evidence.shape != () or evidence.dtype.kind != "f":
@@ -231,16 +236,34 @@ def read_carry(path: Path, t: int, unreadable: str):
     if learned is not None and learned.dtype.kind not in "fiu":
         raise bad
     learned = None if learned is None or learned.size == 0 else learned
+    kept = _scene(scene, bad)
     if chain:
-        return _chain_carry(chain, bad), learned
-    if follow is not None:
-        return _follow_carry(follow, colours, held, bad), learned
-    if grid.shape == (0, 0, 2) and np.isnan(evidence):  # that step left none
-        return None, learned
+        carry = _chain_carry(chain, bad)
+    elif follow is not None:
+        carry = _follow_carry(follow, colours, held, bad)
+    elif grid.shape == (0, 0, 2) and np.isnan(evidence):  # that step left none
+        carry = None
+    else:
+        try:
+            carry = Carry(grid, float(evidence))
+        except InputError as exc:
+            raise OutputError(f"{path}: {exc}; use --force to start over") from None
+    return (carry, learned, kept) if with_scene else (carry, learned)
+
+
+def _scene(members: list, bad: OutputError):
+    """The :class:`~pcreg.pipeline.cuts.Scene` of a carry's ``scene_grey`` and ``scene_colours`` members
+    (:func:`write_carry`), None without them; one member alone, or a malformed one, is ``bad``."""
+    from ..pipeline.cuts import Scene
+
+    if not members:
+        return None
+    if len(members) != 2:
+        raise bad
     try:
-        return Carry(grid, float(evidence)), learned
-    except InputError as exc:
-        raise OutputError(f"{path}: {exc}; use --force to start over") from None
+        return Scene(*members)
+    except InputError:
+        raise bad from None
 
 
 def _follow_carry(follow: np.ndarray, colours: np.ndarray | None, held: list, bad: OutputError):

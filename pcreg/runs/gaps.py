@@ -156,7 +156,7 @@ class GapMarks:
         gaps = self.run.state.get("gaps")
         if not gaps:
             return
-        first = min(gaps["listed"], default=gaps["last"])
+        first = min(gaps["listed"], default=gaps["last"], key=int)  # by number: a seventh digit from frame 1000000
         _say(f"{self.run.frames.path}: about {gaps['missing']} frame(s) missing by its times at {gaps['places']} "
              f"place(s), the first before frame {int(first)}; counted in {self.run.out / STATE} (\"gaps\"), the "
              "frames numbered by count")
@@ -178,7 +178,7 @@ def gaps_note(gaps: dict | None, source) -> str | None:
     not frame N of the file's timeline from the first on. None without a place."""
     if not gaps:
         return None
-    listed, times = sorted(gaps["listed"].items()), gaps.get("times") or {}
+    listed, times = sorted(gaps["listed"].items(), key=lambda item: int(item[0])), gaps.get("times") or {}
 
     def place(name: str, missing: int) -> str:
         at = f"at {_clock(float(times[name]))}, " if name in times else ""

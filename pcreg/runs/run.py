@@ -183,8 +183,7 @@ class Run:
             todo = frames.frames(start)  # decodes (a video) or skips (a folder) the frames done
         if start > 1:
             try:
-                carry, learned = self.carry_after(start - 1)
-                prop.resume(start - 1, carry, learned)
+                prop.resume(start - 1, *self.carry_after(start - 1))
             except InputError as exc:  # a carry of another stream
                 raise OutputError(f"{out}: {exc}; use --force to start over") from None
         done = start
@@ -201,7 +200,7 @@ class Run:
             for t, image, labels in propagate(prop, prepared, check=check_interrupted, where=frames.where):
                 plain = prop.classifier.predict(image) if self.truth is not None else None
                 writer.submit(self.record, t, labels, prop.last, plain, carry=prop.carry, learned=prop.learned_later(),
-                              confidence=prop.last.confidence if request.confidence else None)
+                              confidence=prop.last.confidence if request.confidence else None, scene=prop.scene)
                 log_frame(rec, t, image.rgb, labels, prop.last, frames.name(t), prop.working_size,
                           reference=references.of(prop.last))
                 references.stepped(prop.last, image.rgb)
@@ -482,11 +481,12 @@ class Run:
         append_step(self.out, step)
 
     def record(self, t: int, labels: np.ndarray, report, plain: np.ndarray | None = None, carry=None,
-               learned=None, confidence: np.ndarray | None = None) -> None:
+               learned=None, confidence: np.ndarray | None = None, scene=None) -> None:
         """A run from one label image: write frame ``t``'s labels (and ``confidence``), step (``report``: its
         dict, or a :class:`~pcreg.pipeline.stream.StepReport`), ``carry`` (a
-        :class:`~pcreg.pipeline.stream.Carry` or None) and what the classifier has ``learned`` (an array,
-        None, or :meth:`~pcreg.pipeline.stream.Propagator.learned_later`), then commit it in run.json."""
+        :class:`~pcreg.pipeline.stream.Carry` or None), what the classifier has ``learned`` (an array,
+        None, or :meth:`~pcreg.pipeline.stream.Propagator.learned_later`) and the cut test's ``scene``
+        (:attr:`pcreg.Propagator.scene`), then commit it in run.json."""
         from ..classification.metrics import error_rate
 
         report = report if isinstance(report, dict) else report.to_dict()
@@ -502,29 +502,30 @@ class Run:
         self.write_frame(t, labels, confidence, step, self.state["truth"], (truth, plain))
         if truth is not None:
             add_rates(self.state["truth"])
-        self.keep_carry(t, carry, learned)
+        self.keep_carry(t, carry, learned, scene)
         self.state["done"] = t + 1
         self.state["fallbacks"] += int(report.get("fallback", False))
         self.commit()
 
     # -- the carry ----------------------------------------------------------------------------------
 
-    def keep_carry(self, t: int, carry, learned: np.ndarray | None, *, stretch: str | None = None) -> None:
+    def keep_carry(self, t: int, carry, learned: np.ndarray | None, scene=None, *, stretch: str | None = None) -> None:
         """What step ``t`` hands to the next (:func:`pcreg.runs.files.write_carry`), in ``carry-{t % 2}.npz``:
         the run's own, or a key-frames ``stretch``'s (its fingerprint)."""
-        write_carry(self._carry_path(t, stretch), t, carry, learned)
+        write_carry(self._carry_path(t, stretch), t, carry, learned, scene)
 
     def read_carry(self, t: int, *, stretch: str | None = None, unreadable: str = ""):
-        """``(carry, learned)`` that step ``t`` left (:meth:`keep_carry`)."""
-        return read_carry(self._carry_path(t, stretch), t, unreadable)
+        """``(carry, learned, scene)`` that step ``t`` left (:meth:`keep_carry`)."""
+        return read_carry(self._carry_path(t, stretch), t, unreadable, with_scene=True)
 
     def carry_after(self, t: int):
-        """A run from one label image: ``(carry, learned)`` frame ``t`` left (a counted frame): the
-        :class:`~pcreg.pipeline.stream.Carry` (None for the key frame, or where it left none) and what the
+        """A run from one label image: ``(carry, learned, scene)`` frame ``t`` left (a counted frame): the
+        :class:`~pcreg.pipeline.stream.Carry` (None for the key frame, or where it left none), what the
         classifier had learned from the stream, as :attr:`pcreg.Propagator.learned` saved it (None where
-        it had learned nothing)."""
+        it had learned nothing), and the cut test's last frame of the key frame's scene
+        (:attr:`pcreg.Propagator.scene`; None where none was kept)."""
         if t == 0:
-            return None, None
+            return None, None, None
         return self.read_carry(t, unreadable=f", so frame {t + 1} cannot continue where frame {t} left off")
 
     def _carry_path(self, t: int, stretch: str | None) -> Path:

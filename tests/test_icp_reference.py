@@ -459,3 +459,32 @@ def test_each_backends_icp_takes_lists_float32_and_fortran_order_as_the_float64_
                  (source.astype(np.float32).astype(np.float64), target.astype(np.float32))):
         r = run(s, t, options)
         np.testing.assert_allclose(r.matrix, plain.matrix, atol=1e-6)
+
+
+@pytest.mark.parametrize("weights", ["none", "huber"])  # the compiled loop, and the loop with weights
+@pytest.mark.parametrize("d", [2, 3])
+def test_a_translation_needs_one_pair_in_3d_as_in_2d(d, weights):
+    """A translation is fixed by one pair in any dimension: in 3-D the run asked for three, as a rotation does, so
+    one or two source points within the gate left the source where it started (the identity, fitness 1, not
+    converged) while the same clouds in 2-D were moved onto the target."""
+    shift = np.array([0.3, -0.2, 0.1])[:d]
+    for source in (np.zeros((1, d)), np.eye(d)[:2] * 5.0):
+        r = icp_reference(source, source + shift, ICPOptions(model="translation", max_correspondence_distance=1.0,
+                                                               weights=weights))
+        np.testing.assert_allclose(r.matrix[:d, d], shift, atol=1e-12)
+        assert r.converged and r.inlier_rmse < 1e-12
+
+
+def test_a_3d_affine_step_needs_four_pairs():
+    """Three pairs leave a 3-D affine step free along their plane's normal (least squares took the minimum-norm
+    solution, which flattens the source): the run stops where it is, not converged, as with too few pairs in 2-D."""
+    from pcreg.registration.closed_forms import pairs_needed, rank_problem
+
+    assert [pairs_needed(m, 3) for m in ("translation", "rigid", "similarity", "affine")] == [1, 3, 3, 4]
+    rng = np.random.default_rng(1)
+    target = rng.uniform(0, 10, (100, 3))
+    source = np.r_[target[:3] + 0.1, rng.uniform(100, 110, (10, 3))]
+    r = icp_reference(source, target, ICPOptions(model="affine", max_correspondence_distance=0.5))
+    np.testing.assert_array_equal(r.matrix, np.eye(4))
+    assert not r.converged and r.iterations == 0
+    assert "too few" in rank_problem(target[:3], "affine")

@@ -14,12 +14,14 @@ from .icp_options import WEIGHTS
 from .transforms import apply
 
 MIN_POINTS = {"translation": 1, "rigid": 2, "similarity": 2, "affine": 3, "projective": 4}
+#: The same in 3-D: a rotation needs three points off one line, an affine map four off one plane (no projective model).
+MIN_POINTS_3D = {"translation": 1, "rigid": 3, "similarity": 3, "affine": 4}
 
 
 def pairs_needed(model: str, d: int) -> int:
-    """The fewest matched pairs an ICP step of ``model`` takes in ``d`` dimensions (:data:`MIN_POINTS` in 2-D, 3
-    in 3-D): with fewer, a run stops where it is, not converged."""
-    return MIN_POINTS[model] if d == 2 else 3
+    """The fewest matched pairs an ICP step of ``model`` takes in ``d`` dimensions (:data:`MIN_POINTS` in 2-D,
+    :data:`MIN_POINTS_3D` in 3-D): with fewer, a run stops where it is, not converged."""
+    return MIN_POINTS[model] if d == 2 else MIN_POINTS_3D.get(model, 4)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -422,7 +424,7 @@ def rank_problem(points: np.ndarray, model: str) -> str | None:
     the rotation about their line is free) or coplanar where the model needs more. The reason
     :func:`check_rank` raises, and the cross-check marks its rows with."""
     n, d = points.shape
-    need = MIN_POINTS[model] if d == 2 else {"translation": 1, "rigid": 3, "similarity": 3, "affine": 4}.get(model, 4)
+    need = pairs_needed(model, d)
     if n < need:
         return f"{n} point(s) are too few for the {model} model (needs at least {need})"
     if model == "translation":

@@ -60,6 +60,25 @@ def test_rotation_angle_of_a_2d_homogeneous_transform_is_its_rotations():
     assert tf.rotation_angle_deg(tf.rigid2d(-170.0)[:2, :2]) == pytest.approx(170.0)
 
 
+def test_rotation_angle_of_a_3d_homogeneous_transform_is_its_rotations():
+    """pcreg.icp's 3-D result is 4x4: its angle was read from the trace of the whole matrix, the 1 of its last row
+    counted in (38.97 degrees for a turn of 57.3), and a similarity's scale was read as part of the turn."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.0, 0.6, 0.8]).as_matrix()
+    T[:3, 3] = [1.0, 2.0, 3.0]
+    assert tf.rotation_angle_deg(T) == pytest.approx(np.degrees(1.0), rel=1e-12)
+    T[:3, :3] *= 2.5  # a 3-D similarity: the angle of its rotation, as a 2-D similarity's
+    assert tf.rotation_angle_deg(T) == pytest.approx(np.degrees(1.0), rel=1e-12)
+    assert tf.rotation_angle_deg(tf.rigid2d(30.0, scale=2.0)) == pytest.approx(30.0)
+    projective = np.eye(4)
+    projective[3, 0] = 0.1
+    for bad in (np.eye(5), np.ones((3, 4)), projective):
+        with pytest.raises(InputError, match="rotation"):
+            tf.rotation_angle_deg(bad)
+
+
 def test_unknown_model():
     with pytest.raises(InputError, match="unknown motion model"):
         tf.check_model("warp")

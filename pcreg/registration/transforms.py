@@ -119,16 +119,27 @@ def max_corner_error(estimate: np.ndarray, truth: np.ndarray, shape: tuple[int, 
 
 def rotation_angle_deg(R: np.ndarray) -> float:
     """Angle (degrees, >= 0) of a 2x2 or 3x3 rotation matrix (a 3x3 whose last row is (0, 0, 1), a 2-D
-    homogeneous transform too: the angle of its 2x2 block).
+    homogeneous transform too: the angle of its 2x2 block; a 4x4 whose last row is (0, 0, 0, 1), a 3-D
+    homogeneous transform, as :func:`pcreg.icp` returns for 3-D clouds: the angle of its 3x3 block). A
+    similarity's scale is left out (the block divided by it). Any other shape is an :class:`InputError`.
 
     In 3-D, atan2(|axis part|, cos part) of the rotation (the skew-symmetric and the trace part of R): full
     precision at every angle. The arccos of the trace alone, as before, returned 0 for a rotation of 1e-9 rad and
     9.9e-8 for one of 1e-7 rad, and 8.5e-7 degrees for an angle of 0 one rounding off the identity."""
     R = np.asarray(R, dtype=np.float64)
+    if R.shape == (4, 4) and np.array_equal(R[3], [0.0, 0.0, 0.0, 1.0]):  # a 3-D homogeneous transform
+        R = R[:3, :3]
     if R.shape == (3, 3) and R[2, 0] == 0 and R[2, 1] == 0 and R[2, 2] == 1:  # about z, or a 2-D homogeneous matrix
         R = R[:2, :2]
     if R.shape == (2, 2):
         return float(abs(np.degrees(np.arctan2(R[1, 0], R[0, 0]))))
+    if R.shape != (3, 3):
+        raise InputError(f"a rotation is a 2x2 or 3x3 matrix, or a homogeneous 3x3 or 4x4 transform (last row "
+                         f"(0, ..., 0, 1)); got a {'x'.join(map(str, R.shape))} array"
+                         + (" whose last row is a projection's" if R.shape == (4, 4) else ""))
+    det = float(np.linalg.det(R))
+    if det > 0 and not det == 1.0:  # a similarity's block s R: its rotation's angle
+        R = R / np.cbrt(det)
     axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     return float(np.degrees(np.arctan2(np.linalg.norm(axis) / 2.0, (np.trace(R) - 1.0) / 2.0)))
 

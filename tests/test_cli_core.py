@@ -262,6 +262,23 @@ def test_crosscheck_images_json(pair):
     assert out["reference_seconds"] > 0 and out["open3d_seconds"] > 0
 
 
+def test_crosscheck_of_images_runs_the_stopping_rule_it_is_given(pair, capsys):
+    """--relative-fitness and --relative-rmse are the stopping rule of an image cross-check too: they were taken
+    and left out, both backends running Open3D's default thresholds (1e-6) under the options the report named."""
+    from pcreg.cli import main
+
+    d, _ = pair
+    runs = {}
+    for given in ((), ("--relative-fitness", "1", "--relative-rmse", "100")):
+        assert main(["crosscheck", str(d / "ref.png"), str(d / "mov.png"), "--json", "--levels", "2", *given]) == 0
+        runs[given] = json.loads(capsys.readouterr().out)
+    default, loose = runs.values()
+    assert (loose["config"]["registration"]["icp"]["relative_fitness"],
+            loose["config"]["registration"]["icp"]["relative_rmse"]) == (1.0, 100.0)
+    for backend in ("reference", "open3d"):  # one step a level: the rule holds after the first
+        assert loose[backend]["iterations"] <= 3 < default[backend]["iterations"], (backend, loose[backend])
+
+
 @pytest.mark.slow
 def test_crosscheck_clouds_json(tmp_path):
     rng = np.random.default_rng(0)

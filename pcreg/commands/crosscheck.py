@@ -274,7 +274,8 @@ def _images(args) -> int:
         raise InputError(f"{' and '.join(given)} appl{'y' if len(given) > 1 else 'ies'} to point clouds, not images")
     config = CrosscheckConfig(registration=CROSSCHECK_REGISTRATION.replace(
         model=args.model or "rigid", iterations=args.iterations, levels=args.levels or 4,
-        max_correspondence_distance=args.max_distance if args.max_distance else 2.5))
+        max_correspondence_distance=args.max_distance if args.max_distance else 2.5,
+        relative_fitness=args.relative_fitness, relative_rmse=args.relative_rmse))
     with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
         rec.set_frame(0)
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})

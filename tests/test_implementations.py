@@ -137,6 +137,28 @@ def test_an_implementation_returns_the_registration_result_that_icp_returns(tmp_
     assert "fitness=nan" in repr(bare)
 
 
+def test_a_python_function_that_declares_an_unknown_comparability_is_its_rows_error(tmp_path):
+    """A ``py:`` function's ``comparability`` other than step, fixed-point or objective (a typo) is its row's
+    error, as a ``cmd:`` program's in ``{out}.json`` is: it was read as "step" without a word, and the row compared
+    the function's pose step for step with a tolerance the function had not asked for."""
+    (tmp_path / "typoimpl.py").write_text("def run(source, target, *, init, **params):\n    return init\n"
+                                          "run.comparability = 'fixed_point'\n"
+                                          "def fine(source, target, *, init, **params):\n    return init\n"
+                                          "fine.comparability = 'fixed-point'\n")
+    tgt = np.random.default_rng(0).uniform(-5, 5, (100, 3))
+    sys.path.insert(0, str(tmp_path))
+    try:
+        r = crosscheck_implementations(tgt + 0.1, tgt, implementations=["reference", "py:typoimpl:run",
+                                                                         "py:typoimpl:fine"],
+                                       options=ICPOptions(max_correspondence_distance=1.0))
+    finally:
+        sys.path.remove(str(tmp_path))
+    typo, fine = r.rows["py:typoimpl:run"], r.rows["py:typoimpl:fine"]
+    assert typo["status"] == "failed" and "comparability must be one of" in typo["error"], typo
+    assert "'fixed_point'" in typo["error"] and not typo["agrees"]
+    assert fine["error"] is None and fine["comparability"] == "fixed-point"
+
+
 def test_parse_list_keeps_quoted_commas_and_expands_all():
     items = parse_list('reference,cmd:"prog --x=1,2 {source} {out}",py:m:f,all')
     assert items[1] == 'cmd:"prog --x=1,2 {source} {out}"' and items[2] == "py:m:f"

@@ -231,6 +231,7 @@ class PythonCallable(Implementation):
 
     def _run(self, pinned, *, trace):
         func = self.load()
+        _comparability(getattr(func, "comparability", None), self.name)  # a typo is the row's error, as a cmd:'s
         start = time.perf_counter()
         with _user_code("call"):
             r = func(pinned.source.copy(), pinned.target.copy(), init=pinned.init.copy(), **pinned.params())

@@ -159,6 +159,42 @@ def test_a_python_function_that_declares_an_unknown_comparability_is_its_rows_er
     assert fine["error"] is None and fine["comparability"] == "fixed-point"
 
 
+@pytest.mark.parametrize("offset", [0.0, 1e6])
+def test_an_objective_row_is_judged_alike_wherever_the_clouds_lie(tmp_path, offset):
+    """The same clouds, and an implementation whose pose is the reference's turned 0.1 degree about the clouds'
+    centre, agree by objective near the origin and 1e6 away (georeferenced coordinates) alike, judged by where the
+    two put the source's centroid: the matrices' translations differ by the turn times the distance to the origin
+    (2,468 units at 1e6), and the row disagreed there."""
+    (tmp_path / "turnedimpl.py").write_text(
+        "import numpy as np\n"
+        "import pcreg\n"
+        "from pcreg import transforms as tf\n"
+        "def run(source, target, *, init, max_correspondence_distance, **params):\n"
+        "    T = pcreg.icp(source, target, pcreg.ICPOptions(max_correspondence_distance=max_correspondence_distance),\n"
+        "                  init=init).matrix\n"
+        "    R = np.eye(4)\n"
+        "    R[:3, :3] = tf.rigid2d(0.1)\n"
+        "    R[2, :] = [0, 0, 1, 0]\n"
+        "    return tf.about_point(R, tuple(target.mean(axis=0))) @ T\n"
+        "run.comparability = 'objective'\n")
+    rng = np.random.default_rng(0)
+    target = rng.uniform(-10, 10, (400, 3)) + offset
+    T = tf.about_point(np.eye(4), (offset,) * 3)
+    T[:3, 3] += [0.3, -0.2, 0.1]
+    sys.path.insert(0, str(tmp_path))
+    try:
+        r = crosscheck_implementations(tf.apply(np.linalg.inv(T), target), target,
+                                       implementations=["reference", "py:turnedimpl:run"],
+                                       options=ICPOptions(max_correspondence_distance=2.0), truth=T)
+    finally:
+        sys.path.remove(str(tmp_path))
+    row = r.rows["py:turnedimpl:run"]
+    assert row["error"] is None and row["rotation_disagreement_deg"] == pytest.approx(0.1, rel=1e-6)
+    assert row["centroid_disagreement"] < 0.01 and row["agrees"], row
+    assert row["translation_disagreement"] == pytest.approx(np.linalg.norm(
+        np.subtract(row["matrix"], r.rows["reference"]["matrix"])[:3, 3]))  # the matrices' translations, as before
+
+
 def test_parse_list_keeps_quoted_commas_and_expands_all():
     items = parse_list('reference,cmd:"prog --x=1,2 {source} {out}",py:m:f,all')
     assert items[1] == 'cmd:"prog --x=1,2 {source} {out}"' and items[2] == "py:m:f"

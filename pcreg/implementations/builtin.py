@@ -41,7 +41,7 @@ def _converged_iterations(pinned: Pinned) -> int:
 class Reference(Implementation):
     name = "reference"
     comparability = STEP
-    description = "pcreg's reference ICP (numpy + scipy KD-tree, Umeyama closed form, Open3D's stopping rule)"
+    description = "pcreg's reference ICP (compiled exact KD-tree, Umeyama closed form, Open3D's stopping rule)"
 
     def settings(self, pinned):
         return {"model": "rigid", "weights": "none", "metric": "point_to_point", "rotation": "svd",

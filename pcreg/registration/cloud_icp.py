@@ -55,7 +55,10 @@ def check_init(T: np.ndarray, model: str) -> np.ndarray:
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Mean of the points in each occupied cube of side ``voxel`` (as Open3D's ``voxel_down_sample``)."""
+    """Mean of the points in each occupied cube of side ``voxel``, the cubes starting at the cloud's lowest
+    coordinates (as Open3D's ``voxel_down_sample`` averages, on another grid: its legacy one starts half a voxel
+    lower, its tensor one at the origin, so the same cloud keeps other means and counts; 988, 1254 and 987 of
+    5,000 random points in a cube of 10 at a voxel of 1)."""
     if voxel <= 0:
         return points
     extent = float(np.max(points.max(axis=0) - points.min(axis=0))) if len(points) else 0.0

@@ -248,3 +248,20 @@ def test_pairs_of_zero_weight_count_for_nothing():
     for scale in (False, True):
         np.testing.assert_allclose(estimate_umeyama(p, wild, w, with_scale=scale),
                                    estimate_umeyama(p[:20], q[:20], np.ones(20), with_scale=scale), atol=1e-12)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_a_rigid_result_held_by_too_few_pairs_to_fix_its_rotation_is_not_returned_as_converged(d):
+    """Two source points of 52 within the gate in 3-D (one in 2-D) fix no rotation about them: Open3D's step took
+    one anyway (a half turn about a skew axis, inlier RMSE 1.7e-15) and pcreg.icp returned it as converged; it is
+    refused now. The reference's step needs the pairs a rotation takes: it stops where it started, not converged,
+    and that is returned as before."""
+    rng = np.random.default_rng(0)
+    target = rng.uniform(0, 10, (200, d))
+    source = np.r_[target[:d - 1] + np.eye(d)[0] * 0.05, rng.uniform(100, 110, (50, d))]
+    with pytest.raises(RegistrationError, match=rf"^registration refused: at the result only {d - 1} source "
+                                                rf"point\(s\) of {len(source)} .* needs {d} .* rotation"):
+        pcreg.icp(source, target, ICPOptions(backend="open3d", max_correspondence_distance=0.3))
+    r = pcreg.icp(source, target, ICPOptions(max_correspondence_distance=0.3))
+    np.testing.assert_array_equal(r.matrix, np.eye(d + 1))
+    assert not r.converged and r.iterations == 0

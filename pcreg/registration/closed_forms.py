@@ -485,6 +485,24 @@ def paired_targets(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_di
     return np.unique(idx[idx >= 0])
 
 
+def check_rotation_pairs(fitness: float, source_points: int, model: str, d: int, max_distance: float, *,
+                         converged: bool) -> None:
+    """Raise when a ``rigid`` ICP that says it ``converged`` ended with fewer pairs (``fitness`` x ``source_points``
+    matched within ``max_distance``) than fix a rotation in ``d`` dimensions (:func:`pairs_needed`: 2 in 2-D, 3 in
+    3-D): about them any turn fits as well, and the result's is arbitrary. The reference's step does not take such
+    pairs (its run stops there, not converged, and is not refused here); Open3D's takes any non-empty set: two pairs
+    of 52 source points in 3-D gave a half turn about a skew axis, "converged", inlier RMSE 1.7e-15."""
+    need = pairs_needed(model, d)
+    pairs = int(round(fitness * source_points))
+    if model != "rigid" or not converged or pairs >= need:
+        return
+    raise RegistrationError(
+        f"registration refused: at the result only {pairs} source point(s) of {source_points} lie within the "
+        f"correspondence distance {max_distance:g} of a target point, and a rigid motion in {d}-D needs {need} to fix "
+        "its rotation: the turn about them is arbitrary (give an init nearer the answer, or a larger "
+        "max_correspondence_distance)")
+
+
 def check_support(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_distance: float, model: str, *,
                   converged: bool) -> None:
     """Raise when an ICP's result ``T`` (``T_target_source``) of a ``model`` that can shrink the source

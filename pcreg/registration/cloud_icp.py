@@ -13,6 +13,7 @@ from ..errors import InputError, RegistrationError
 from ..validation import check_callable, check_matrix, short_repr
 from .icp_options import METRICS, WEIGHTS, ICPOptions, VoxelSchedule, refuse_a_line_for_open3d
 from .inputs import check_cloud
+from .closed_forms import check_rotation_pairs
 from .reference import LINEARISED_METRICS, check_paired_normals, check_progress, check_rank, check_support, scores_at
 from .result import IcpIteration, RegistrationResult
 from .steps import BACKENDS, IcpSettings, StepCall, icp_step, refuse_for_open3d
@@ -183,6 +184,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
                                 f"{schedule[-1][2]:g} of a target point; {where} (give an init "
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
     check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
+    check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=r.converged is not False)
     if first is not None:  # one scale: a linearised metric takes no schedule
         check_progress(first, r, d, options.metric)
         check_paired_normals(T, s, t, target_normals, d, options.metric)

@@ -382,10 +382,11 @@ class Run:
 
     def _remove_partial_writes(self) -> None:
         """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
-        PNG, a carry, run.json or suggest.txt, and of a ``confidence/NAME.png``,
-        :func:`pcreg.outputs.atomic_write_bytes`); the caller holds the folder's lock."""
+        PNG, a carry, run.json, steps.jsonl (rewritten by a key-frames run as it resumes) or suggest.txt, and of a
+        ``confidence/NAME.png``, :func:`pcreg.outputs.atomic_write_bytes`), and no other file; the caller holds
+        the folder's lock."""
         for f in self.out.glob(".*.tmp"):
-            if f.name.startswith((f".{STATE}.", ".carry-", f".{SUGGEST}.")) or ".png." in f.name:
+            if f.name.startswith((f".{STATE}.", ".carry-", f".{SUGGEST}.", f".{STEPS}.")) or ".png." in f.name:
                 f.unlink(missing_ok=True)
         for f in (self.out / CONFIDENCE).glob(".*.png.*.tmp"):
             f.unlink(missing_ok=True)
@@ -431,9 +432,7 @@ class Run:
             self.state = {"format": FORMAT, "run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
                           "fallbacks": 0, "truth": None}
             (self.out / STEPS).write_bytes(b"")
-        for f in self.out.glob(".*.tmp"):  # writes a killed run left half done
-            f.unlink(missing_ok=True)
-        self._remove_partial_writes()
+        self._remove_partial_writes()  # writes a killed run left half done
         kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan]
         cursor = self.state["cursor"]
         if cursor is not None and cursor["fingerprint"] not in plan:

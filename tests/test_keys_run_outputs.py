@@ -1,0 +1,82 @@
+"""A run from a folder of key frames, as a person labelling hours of video meets it: the files of theirs in
+``--out`` that pcreg did not write are left alone, and a video's frames past its millionth (a seventh digit in
+their names) are exported in frame order."""
+
+from __future__ import annotations
+
+import zipfile
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return pcreg.synthetic("syn1a", 6, 0, width=96, height=72)
+
+
+def _folder(path, frames):
+    path.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(path / f"f{i}.png"), f.image[:, :, ::-1])
+    return path
+
+
+def _keys(path, frames, which, name="f{}"):
+    path.mkdir()
+    for i in which:
+        cv2.imwrite(str(path / f"{name.format(i)}.png"), frames[i].labels)
+    return path
+
+
+def test_a_users_hidden_tmp_files_in_out_are_left_alone(tmp_path, frames):
+    """open_keys removed every ``.*.tmp`` in --out, not only the temporary files of pcreg's own writes: an
+    editor's or a script's hidden file there was deleted at every start and resume."""
+    folder, keys, out = _folder(tmp_path / "frames", frames), _keys(tmp_path / "keys", frames, [0, 3]), tmp_path / "out"
+    out.mkdir()
+    mine = [out / ".notes.tmp", out / ".corrections.csv.tmp"]
+    for f in mine:
+        f.write_text("a person's file")
+    stale = out / ".steps.jsonl.k1ll3d_1.tmp"  # what a kill while steps.jsonl was rewritten leaves
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(out)]) == 0
+    stale.write_bytes(b"{")
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(out)]) == 0  # resumed: all done
+    assert [f.read_text() for f in mine] == ["a person's file"] * 2
+    assert not stale.exists()
+
+
+def _video(path, frames):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, frames[0].image.shape[1::-1])
+    for f in frames:
+        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
+    writer.release()
+    return path
+
+
+def test_a_videos_frames_past_its_millionth_are_exported_in_frame_order(tmp_path, frames, monkeypatch):
+    """run_frames sorted a key-frames run's names as text, so frame 1000000 came before 999997 in the export's
+    default.txt (the order CVAT lists the frames in) and in every reader's list. The video's frames are named
+    from 999997 on here (the names a video of more than a million frames gives them), its key frames by CVAT's
+    frame numbers."""
+    from pcreg.datasets.sources import VideoFrames
+    from pcreg.export import read_run
+
+    first = 999_997
+
+    def name(self, position):
+        return f"{self.selection.index(position) + first:06d}"
+
+    monkeypatch.setattr(VideoFrames, "name", name)
+    monkeypatch.setattr(VideoFrames, "stem", name)
+    video, out = _video(tmp_path / "clip.avi", frames), tmp_path / "out"
+    keys = _keys(tmp_path / "keys", frames, [1, 4], name="frame_{:06d}")
+    assert main(["run", str(video), "--labels", str(keys), "--out", str(out)]) == 0
+    in_order = [str(first + i) for i in range(6)]
+    assert [n for n in read_run(out).names] == in_order
+    assert main(["export", str(out)]) == 0
+    with zipfile.ZipFile(out / "export-cvat-mask.zip") as z:
+        assert z.read("ImageSets/Segmentation/default.txt").decode().split() == in_order

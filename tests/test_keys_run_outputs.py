@@ -80,3 +80,15 @@ def test_a_videos_frames_past_its_millionth_are_exported_in_frame_order(tmp_path
     assert main(["export", str(out)]) == 0
     with zipfile.ZipFile(out / "export-cvat-mask.zip") as z:
         assert z.read("ImageSets/Segmentation/default.txt").decode().split() == in_order
+
+
+def test_a_folder_that_holds_no_run_keeps_its_own_hidden_keys_folder(tmp_path, frames):
+    """A fresh run removed every folder under ``--out/.keys`` (where a run keeps its stretches' passes) though
+    ``--out`` held no run: a folder that was no run's output keeps every file in it."""
+    folder, keys, out = _folder(tmp_path / "frames", frames), _keys(tmp_path / "keys", frames, [0, 3]), tmp_path / "out"
+    theirs = out / ".keys" / "gpg"
+    theirs.mkdir(parents=True)
+    (theirs / "key.txt").write_text("a person's file")
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(out)]) == 0
+    assert (theirs / "key.txt").read_text() == "a person's file"
+    assert [p.name for p in (out / ".keys").iterdir()] == ["gpg"]  # the run's own passes removed when done

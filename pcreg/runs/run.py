@@ -440,7 +440,7 @@ class Run:
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
         lines = self._keep_steps(live, next(iter(keys.values())).shape)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
-        if (self.out / HIDDEN).is_dir():
+        if state is not None and (self.out / HIDDEN).is_dir():  # a run's (one started over lost it whole)
             for d in (self.out / HIDDEN).iterdir():
                 if d.name != keep_hidden:
                     shutil.rmtree(d, ignore_errors=True)

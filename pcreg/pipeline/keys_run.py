@@ -38,6 +38,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from ..classes.keys import binary_table
 from ..errors import InputError
 from ..runs.files import HIDDEN, label_digest
 from ..runs.kept import read_frame, read_prior, write_frame, write_prior
@@ -112,7 +113,7 @@ class KeyRun:
         scale = self.config.scale
         frame = frame_bytes(w, h, compressed=compressed)
         table = getattr(self.owner, "table", None)
-        known = list(table.known_ids) if table is not None and table.n_known > 2 else []  # none: two classes
+        known = list(table.known_ids) if table is not None and not binary_table(table) else []  # none: two classes
         shown = {k: np.bincount(lab.ravel(), minlength=256) > 0 for k, lab in self.keys.items()} if known else {}
         need = 0.0
         for s in self.plan:
@@ -226,7 +227,7 @@ class KeyRun:
         table = getattr(self.owner, "table", None)  # the run's class table; two classes keep the default
         try:
             return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys],
-                                  classes=table if table is not None and table.n_known > 2 else None)
+                                  classes=None if table is None or binary_table(table) else table)
         except InputError as exc:  # one class in these key frames' labels: say which key frames
             names = [self.frames.name(k) for k in s.keys]
             said = " and ".join(names) if len(names) < 3 else f"{names[0]} ... {names[-1]}"

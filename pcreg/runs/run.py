@@ -121,7 +121,7 @@ class Run:
         """Label what ``request`` asks into its ``out`` (resuming a run of the same identity there); the
         exit code, 0. Bad inputs are :class:`~pcreg.errors.InputError`, an ``out`` that holds another run an
         :class:`~pcreg.errors.OutputError`, each one line."""
-        from ..classes.keys import with_classes
+        from ..classes.keys import binary_table, with_classes
         from ..datasets.sources import open_frames
         from ..outputs import OutputLock
         from .inputs import read_inputs
@@ -129,13 +129,14 @@ class Run:
 
         inputs = read_inputs(request, open_frames(request.frames, request.selection))
         keys, pending, table = inputs.keys, inputs.pending, inputs.table
-        if request.config.follow == "object" and table.n_known > 2:
+        if request.config.follow == "object" and not binary_table(table):
+            what = f"{table.n_known} classes" if table.n_known > 2 else f"the ids {table.describe()}"
             raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
-                             f"object), not {table.n_known} classes; use --follow scene (the default) for them")
+                             f"object, ids 0 and 1, 2 unknown), not {what}; use --follow scene (the default) for them")
         _notes_before_the_first_frame(keys, table, request.config, inputs.frames, pending)
         try:
             prop = None if pending is None else request.config.from_key_frame(
-                pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
+                pending[0].image, keys[0], classes=None if binary_table(table) else table)
         except InputError as exc:  # what the follower cannot take of the key mask: name the file
             if request.config.follow != "object":
                 raise

@@ -226,7 +226,8 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
     from .classes import labelmap_text
 
     counts = {c.name: 0 for c in table.classes}
-    stems: list[str] = []
+    stems: list[str] = []  # in the run's order, for default.txt
+    written: set[str] = set()  # the same, to tell a name written twice in one look, however long the run
     class_colours = {c.id: c.colour for c in table.classes}
     instances = instance_colours(table)
     labelmap = labelmap_text(table)
@@ -248,12 +249,13 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
             if labels.ndim != 2 or labels.dtype != np.uint8:
                 raise InputError(f"{frame}: labels must be (H, W) uint8 class ids")
             labels = table.check_labels(labels, frame)
-            if stem in stems:
+            if stem in written:
                 raise InputError(f"{frame}: two frames named {stem}")
             if stem.splitlines() != [stem]:  # default.txt lists a name a line: a line break would make it two
                 raise InputError(f"{frame!r}: a frame name with a line break cannot be listed in the archive's "
                                  "default.txt; rename the frame")
             stems.append(stem)
+            written.add(stem)
             for k in np.unique(labels):
                 counts[table.name_of(int(k))] += 1
             add(f"SegmentationClass/{stem}.png", _png(_paint(labels, class_colours), stem))

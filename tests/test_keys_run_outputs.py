@@ -92,3 +92,34 @@ def test_a_folder_that_holds_no_run_keeps_its_own_hidden_keys_folder(tmp_path, f
     assert main(["run", str(folder), "--labels", str(keys), "--out", str(out)]) == 0
     assert (theirs / "key.txt").read_text() == "a person's file"
     assert [p.name for p in (out / ".keys").iterdir()] == ["gpg"]  # the run's own passes removed when done
+
+
+def test_frames_added_after_the_last_key_frame_are_labelled_when_the_run_goes_on(tmp_path):
+    """The stretch after the last key frame was kept as done when the frames folder gained frames at its end (its
+    fingerprint names its key frame and the options, not where it stops): the same command said "all frames already
+    done" and never labelled them, while the export said the run was unfinished. It is labelled again to the new
+    end, as a run over the larger folder labels it; a folder that lost frames there the same."""
+    import json
+
+    from _runs import timeless
+
+    more = pcreg.synthetic("syn1a", 8, 0, width=96, height=72)
+    folder, keys = tmp_path / "frames", _keys(tmp_path / "keys", more, [0, 3])
+    _folder(folder, more[:6])
+    grown, whole = tmp_path / "grown", tmp_path / "whole"
+    args = ["run", str(folder), "--labels", str(keys), "--confidence"]
+    assert main([*args, "--out", str(grown)]) == 0
+    for i in (6, 7):
+        cv2.imwrite(str(folder / f"f{i}.png"), more[i].image[:, :, ::-1])
+    assert main([*args, "--out", str(grown)]) == 0
+    assert main([*args, "--out", str(whole)]) == 0
+    for name in [f"f{i}.png" for i in range(8)] + [f"confidence/f{i}.png" for i in (1, 2, 4, 5, 6, 7)]:
+        assert (grown / name).read_bytes() == (whole / name).read_bytes(), name
+    assert [timeless(line) for line in (grown / "steps.jsonl").read_text().splitlines()] == \
+        [timeless(line) for line in (whole / "steps.jsonl").read_text().splitlines()]
+    assert json.loads((grown / "run.json").read_text()) == json.loads((whole / "run.json").read_text())
+    for i in (6, 7):
+        (folder / f"f{i}.png").unlink()
+    assert main([*args, "--out", str(grown)]) == 0
+    assert [json.loads(line)["name"] for line in (grown / "steps.jsonl").read_text().splitlines()] == \
+        ["f2.png", "f1.png", "f4.png", "f5.png"]

@@ -24,8 +24,9 @@ propagator left (``carry-{0,1}.npz`` beside the stretch's files), and writes wha
 run writes.
 
 ``run.json`` keeps each finished stretch's fingerprint (its key frames' names and labels, and the
-options): a run on a labels folder that gained, lost or changed a key frame redoes only the stretches
-whose fingerprint changed.
+options) and where it stops (``stop``, the position after its last frame; None to a video's end): a run on
+a labels folder that gained, lost or changed a key frame redoes only the stretches whose fingerprint
+changed, and a frames folder that gained or lost frames after its last key frame redoes the stretch after it.
 """
 
 from __future__ import annotations
@@ -164,7 +165,7 @@ class KeyRun:
                     cur.update(phase=phase, next=None, steps=0)
                     self._commit()
                 getattr(self, f"_{phase}")(s, cur)
-            entry = {"fingerprint": fp, "keys": [self.frames.name(k) for k in s.keys],
+            entry = {"fingerprint": fp, "keys": [self.frames.name(k) for k in s.keys], "stop": s.stop,
                      "fallbacks": cur["fallbacks"], "truth": cur["truth"]}
             self.state["stretches"].append(entry)
             self.state["cursor"] = None

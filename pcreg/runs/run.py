@@ -434,7 +434,10 @@ class Run:
                           "fallbacks": 0, "truth": None}
             (self.out / STEPS).write_bytes(b"")
         self._remove_partial_writes()  # writes a killed run left half done
-        kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan]
+        # a stretch done, of the same key frames and options, that stops where it did (the frames after the last key
+        # frame of a folder that gained frames since are not done; runs from before ``stop`` was kept do not say)
+        kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan
+                and e.get("stop", plan[e["fingerprint"]].stop) == plan[e["fingerprint"]].stop]
         cursor = self.state["cursor"]
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None

@@ -58,7 +58,7 @@ def _stream_state_problem(state: dict) -> str | None:
 def _stretch_problem(e, cursor: bool) -> bool:
     """Whether a stretch's entry in run.json (done, or the ``cursor`` under way) is not as pcreg run writes it."""
     if not (isinstance(e, dict) and isinstance(e.get("fingerprint"), str) and is_count(e.get("fallbacks"))
-            and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS))):
+            and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS)) and (e.get("stop") is None or is_count(e["stop"]))):
         return True
     return cursor and not (isinstance(e.get("phase"), str) and is_count(e.get("steps"))
                            and (e.get("next") is None or is_count(e["next"])))

@@ -94,8 +94,18 @@ class KeyRun:
 
     def start(self, *, force: bool = False) -> None:
         """Open (or resume) the run (:meth:`pcreg.runs.run.Run.open_keys`): the steps of stretches no longer
-        in the plan forgotten, the key frames' labels written where they changed."""
-        self.owner.open_keys(self.keys, {self.fingerprint(s): s for s in self.plan}, force=force)
+        in the plan forgotten, the key frames' labels written where they changed. A stretch under way in a phase it
+        has not (a run.json edited) is an :class:`~pcreg.errors.OutputError`, as any other field not as pcreg run
+        writes it."""
+        from ..errors import OutputError
+        from ..runs.files import STATE
+
+        plan = {self.fingerprint(s): s for s in self.plan}
+        self.owner.open_keys(self.keys, plan, force=force)
+        cur = self.state["cursor"]
+        if cur is not None and cur["phase"] not in self._phases(plan[cur["fingerprint"]]):
+            raise OutputError(f"{self.owner.out / STATE}: its 'cursor' is not as pcreg run writes it; use --force to "
+                              "start over")
 
     @property
     def finished(self) -> bool:

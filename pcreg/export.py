@@ -50,7 +50,8 @@ def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:
 
 @dataclass(frozen=True)
 class RunLabels:
-    """The labelled frames of a run: ``names`` (the frames' file names, the key frame first) and
+    """The labelled frames of a run: ``names`` (the frames' file names, in frame order: a run from one label image's
+    key frame first, a run from a folder of key frames' key frames where they lie) and
     ``paths`` (each frame's label PNG, ``OUT/STEM.png``), ``confidence`` (each frame's confidence PNG,
     or None: a key frame, or a run without ``--confidence``), ``table`` the run's class table
     (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``), ``keys`` the key

@@ -497,3 +497,22 @@ def test_each_frame_name_is_checked_once_not_against_every_name_before(monkeypat
     assert compared[0] <= 2 * n  # one a frame where its name is told to be one line (2,001,000 before)
     with pytest.raises(pcreg.errors.InputError, match="two frames named 000001"):
         pcreg.export.write_cvat_mask(io.BytesIO(), ((f"{i:06d}.png", labels) for i in (0, 1, 2, 1)))
+
+
+def test_the_archive_is_refused_over_an_input_of_the_run_force_or_not(tmp_path, capsys):
+    """``--to`` the run's own key labels (or its CVAT export) with ``--force`` wrote the archive over them: the person's
+    labels were lost, and the run, resumed, read the archive as new key labels."""
+    frames = pcreg.synthetic("syn1a", 3, 0, width=96, height=72)
+    (tmp_path / "frames").mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(tmp_path / "frames" / f"f{i}.png"), f.image[:, :, ::-1])
+    key = tmp_path / "key.png"
+    cv2.imwrite(str(key), frames[0].labels)
+    out = tmp_path / "out"
+    assert main(["run", str(tmp_path / "frames"), "--labels", str(key), "--out", str(out), "--model", "flow"]) == 0
+    before = key.read_bytes()
+    capsys.readouterr()
+    assert main(["export", str(out), "--to", str(key), "--force"]) == 2
+    assert capsys.readouterr().err == (f"pcreg: error: {key} is the input {key}; the output would overwrite it (choose "
+                                       "another file)\n")
+    assert key.read_bytes() == before

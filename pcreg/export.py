@@ -50,7 +50,8 @@ def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:
 
 @dataclass(frozen=True)
 class RunLabels:
-    """The labelled frames of a run: ``names`` (the frames' file names, the key frame first) and
+    """The labelled frames of a run: ``names`` (the frames' file names, in frame order: a run from one label image's
+    key frame first, a run from a folder of key frames' key frames where they lie) and
     ``paths`` (each frame's label PNG, ``OUT/STEM.png``), ``confidence`` (each frame's confidence PNG,
     or None: a key frame, or a run without ``--confidence``), ``table`` the run's class table
     (:func:`pcreg.classes.keys.run_table`: the one its ``run.json`` names, else ``lagr``), ``keys`` the key
@@ -226,7 +227,8 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
     from .classes import labelmap_text
 
     counts = {c.name: 0 for c in table.classes}
-    stems: list[str] = []
+    stems: list[str] = []  # in the run's order, for default.txt
+    written: set[str] = set()  # the same, to tell a name written twice in one look, however long the run
     class_colours = {c.id: c.colour for c in table.classes}
     instances = instance_colours(table)
     labelmap = labelmap_text(table)
@@ -248,12 +250,13 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
             if labels.ndim != 2 or labels.dtype != np.uint8:
                 raise InputError(f"{frame}: labels must be (H, W) uint8 class ids")
             labels = table.check_labels(labels, frame)
-            if stem in stems:
+            if stem in written:
                 raise InputError(f"{frame}: two frames named {stem}")
             if stem.splitlines() != [stem]:  # default.txt lists a name a line: a line break would make it two
                 raise InputError(f"{frame!r}: a frame name with a line break cannot be listed in the archive's "
                                  "default.txt; rename the frame")
             stems.append(stem)
+            written.add(stem)
             for k in np.unique(labels):
                 counts[table.name_of(int(k))] += 1
             add(f"SegmentationClass/{stem}.png", _png(_paint(labels, class_colours), stem))

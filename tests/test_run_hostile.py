@@ -574,3 +574,24 @@ def test_a_review_video_refused_for_a_damaged_label_says_one_line(tmp_path, caps
     err = one_line_errors(capsys)
     assert len(err) == 1 and "f2.png" in err[0] and "error" in err[0], err
     assert video.is_file()  # the earlier video, kept
+
+
+@pytest.mark.parametrize("phase", ["bogus", "store"])
+def test_a_key_frames_run_whose_cursor_names_no_phase_of_its_stretch_is_refused(tmp_path, capsys, monkeypatch, phase):
+    """A run.json whose stretch under way is in a phase that is none of pcreg's (or one a folder's stretch has not: a
+    video's ``store``) ended as a bug (ValueError: 'bogus' is not in list), where any other field not as pcreg run
+    writes it is one line, exit 2."""
+    from _runs import kill_at_commit
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
+    run = ["run", str(folder), "--labels", str(key_frames_of(key, tmp_path / "keys")), "--out", str(tmp_path / "out")]
+    kill_at_commit(monkeypatch, 7, "backward")
+    assert main(run) == 130
+    monkeypatch.undo()
+    state = json.loads((tmp_path / "out" / "run.json").read_text())
+    state["cursor"]["phase"] = phase
+    (tmp_path / "out" / "run.json").write_text(json.dumps(state))
+    capsys.readouterr()
+    assert main(run) == 2
+    assert one_line_errors(capsys) == [f"pcreg: error: {tmp_path / 'out' / 'run.json'}: its 'cursor' is not as pcreg run "
+                                       "writes it; use --force to start over"]

@@ -36,7 +36,7 @@ from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
 
 __all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "object_values",
            "read_object_mask", "check_one_object", "identity_classes", "with_classes",
-           "run_table", "all_unknown"]
+           "run_table", "all_unknown", "binary_table"]
 
 #: ``--mapping``'s values.
 MAPPINGS: tuple[str, ...] = ("none", "camvid", "davis")
@@ -358,6 +358,13 @@ def read_key_labels(path: str | Path, table: ClassTable, mapping: str = "none", 
     return decode_key_labels(data, str(path), table, mapping, limit=lim)
 
 
+def binary_table(table: ClassTable) -> bool:
+    """Whether ``table``'s ids are ``lagr``'s, two known classes 0 and 1 and the unknown 2 (``lagr``, ``davis``, a
+    labelmap.txt of two classes): labels the two-class step takes as they are. Any other table, two known classes
+    of other ids among them (5 and 9, or an unknown 255), is labelled by the many-class step in its own ids."""
+    return table.known_ids == (0, 1) and table.unknown == 2
+
+
 def all_unknown(labels: np.ndarray, table: ClassTable) -> bool:
     """Whether every pixel of ``labels`` is the table's unknown (nothing to fit or propagate)."""
     return bool((np.asarray(labels) == table.unknown).all())
@@ -407,7 +414,7 @@ def check_labels(labels, shape, table=None) -> np.ndarray:
         raise InputError(f"labels of shape {lab.shape} for an image of shape {tuple(shape)}")
     if not (np.issubdtype(lab.dtype, np.integer) or lab.dtype == np.bool_):
         raise InputError(f"labels must be integers (0 ground, 1 obstacle, 2 unknown), got {lab.dtype}")
-    if table is not None and table.n_known > 2:
+    if table is not None and not binary_table(table):
         return table.check_labels(lab, "the key frame's labels")
     if lab.size and (lab.min() < 0 or lab.max() > 2):
         bad = int(lab.min()) if lab.min() < 0 else int(lab.max())

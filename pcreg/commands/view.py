@@ -284,6 +284,8 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
         if out.suffix.lower() != ".mp4":
             raise OutputError(f"{out}: the overlay is written as an MP4 video; name it .mp4")
     review = read_review(folder)
+    if args.overlay:  # the run's video, which the overlay is drawn from, is no file to write over, --force or not
+        check_output(out, force=args.force, inputs=(review.source,))
     note = unfinished_note(folder, len(review.names), review.chosen)
     if note:
         print(note)

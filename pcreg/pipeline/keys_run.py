@@ -24,8 +24,9 @@ propagator left (``carry-{0,1}.npz`` beside the stretch's files), and writes wha
 run writes.
 
 ``run.json`` keeps each finished stretch's fingerprint (its key frames' names and labels, and the
-options): a run on a labels folder that gained, lost or changed a key frame redoes only the stretches
-whose fingerprint changed.
+options) and where it stops (``stop``, the position after its last frame; None to a video's end): a run on
+a labels folder that gained, lost or changed a key frame redoes only the stretches whose fingerprint
+changed, and a frames folder that gained or lost frames after its last key frame redoes the stretch after it.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from ..classes.keys import binary_table
 from ..errors import InputError
 from ..runs.files import HIDDEN, label_digest
 from ..runs.kept import read_frame, read_prior, write_frame, write_prior
@@ -92,8 +94,18 @@ class KeyRun:
 
     def start(self, *, force: bool = False) -> None:
         """Open (or resume) the run (:meth:`pcreg.runs.run.Run.open_keys`): the steps of stretches no longer
-        in the plan forgotten, the key frames' labels written where they changed."""
-        self.owner.open_keys(self.keys, {self.fingerprint(s): s for s in self.plan}, force=force)
+        in the plan forgotten, the key frames' labels written where they changed. A stretch under way in a phase it
+        has not (a run.json edited) is an :class:`~pcreg.errors.OutputError`, as any other field not as pcreg run
+        writes it."""
+        from ..errors import OutputError
+        from ..runs.files import STATE
+
+        plan = {self.fingerprint(s): s for s in self.plan}
+        self.owner.open_keys(self.keys, plan, force=force)
+        cur = self.state["cursor"]
+        if cur is not None and cur["phase"] not in self._phases(plan[cur["fingerprint"]]):
+            raise OutputError(f"{self.owner.out / STATE}: its 'cursor' is not as pcreg run writes it; use --force to "
+                              "start over")
 
     @property
     def finished(self) -> bool:
@@ -112,7 +124,7 @@ class KeyRun:
         scale = self.config.scale
         frame = frame_bytes(w, h, compressed=compressed)
         table = getattr(self.owner, "table", None)
-        known = list(table.known_ids) if table is not None and table.n_known > 2 else []  # none: two classes
+        known = list(table.known_ids) if table is not None and not binary_table(table) else []  # none: two classes
         shown = {k: np.bincount(lab.ravel(), minlength=256) > 0 for k, lab in self.keys.items()} if known else {}
         need = 0.0
         for s in self.plan:
@@ -163,7 +175,7 @@ class KeyRun:
                     cur.update(phase=phase, next=None, steps=0)
                     self._commit()
                 getattr(self, f"_{phase}")(s, cur)
-            entry = {"fingerprint": fp, "keys": [self.frames.name(k) for k in s.keys],
+            entry = {"fingerprint": fp, "keys": [self.frames.name(k) for k in s.keys], "stop": s.stop,
                      "fallbacks": cur["fallbacks"], "truth": cur["truth"]}
             self.state["stretches"].append(entry)
             self.state["cursor"] = None
@@ -226,7 +238,7 @@ class KeyRun:
         table = getattr(self.owner, "table", None)  # the run's class table; two classes keep the default
         try:
             return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys],
-                                  classes=table if table is not None and table.n_known > 2 else None)
+                                  classes=None if table is None or binary_table(table) else table)
         except InputError as exc:  # one class in these key frames' labels: say which key frames
             names = [self.frames.name(k) for k in s.keys]
             said = " and ".join(names) if len(names) < 3 else f"{names[0]} ... {names[-1]}"

@@ -100,7 +100,7 @@ from .multiclass import CLASS_ANCHOR, CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, Cla
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
 from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustRule, least_confident
 from .working import WorkingSize
-from ..classes.keys import check_labels
+from ..classes.keys import binary_table, check_labels
 from ..errors import InputError
 from ..frame import PreparedFrame
 from ..registration.config import RegisterConfig
@@ -185,7 +185,7 @@ class Propagator:
         # ground and obstacle: classes 0 and 1 of a table that has no others (a key frame that shows only the
         # first two classes of a larger table is a many-class stream that has seen two of them so far)
         table = getattr(classifier, "class_table", None)
-        binary = classes == [0, 1] and (table is None or table.n_known <= 2)
+        binary = classes == [0, 1] and (table is None or binary_table(table))
         if not binary and not (len(classes) >= 2 and hasattr(classifier, "class_scores")
                                       and hasattr(classifier, "class_table")):
             raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}; "

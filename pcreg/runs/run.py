@@ -121,7 +121,7 @@ class Run:
         """Label what ``request`` asks into its ``out`` (resuming a run of the same identity there); the
         exit code, 0. Bad inputs are :class:`~pcreg.errors.InputError`, an ``out`` that holds another run an
         :class:`~pcreg.errors.OutputError`, each one line."""
-        from ..classes.keys import with_classes
+        from ..classes.keys import binary_table, with_classes
         from ..datasets.sources import open_frames
         from ..outputs import OutputLock
         from .inputs import read_inputs
@@ -129,13 +129,14 @@ class Run:
 
         inputs = read_inputs(request, open_frames(request.frames, request.selection))
         keys, pending, table = inputs.keys, inputs.pending, inputs.table
-        if request.config.follow == "object" and table.n_known > 2:
+        if request.config.follow == "object" and not binary_table(table):
+            what = f"{table.n_known} classes" if table.n_known > 2 else f"the ids {table.describe()}"
             raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
-                             f"object), not {table.n_known} classes; use --follow scene (the default) for them")
+                             f"object, ids 0 and 1, 2 unknown), not {what}; use --follow scene (the default) for them")
         _notes_before_the_first_frame(keys, table, request.config, inputs.frames, pending)
         try:
             prop = None if pending is None else request.config.from_key_frame(
-                pending[0].image, keys[0], classes=table if table.n_known > 2 else None)
+                pending[0].image, keys[0], classes=None if binary_table(table) else table)
         except InputError as exc:  # what the follower cannot take of the key mask: name the file
             if request.config.follow != "object":
                 raise
@@ -382,10 +383,11 @@ class Run:
 
     def _remove_partial_writes(self) -> None:
         """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
-        PNG, a carry, run.json or suggest.txt, and of a ``confidence/NAME.png``,
-        :func:`pcreg.outputs.atomic_write_bytes`); the caller holds the folder's lock."""
+        PNG, a carry, run.json, steps.jsonl (rewritten by a key-frames run as it resumes) or suggest.txt, and of a
+        ``confidence/NAME.png``, :func:`pcreg.outputs.atomic_write_bytes`), and no other file; the caller holds
+        the folder's lock."""
         for f in self.out.glob(".*.tmp"):
-            if f.name.startswith((f".{STATE}.", ".carry-", f".{SUGGEST}.")) or ".png." in f.name:
+            if f.name.startswith((f".{STATE}.", ".carry-", f".{SUGGEST}.", f".{STEPS}.")) or ".png." in f.name:
                 f.unlink(missing_ok=True)
         for f in (self.out / CONFIDENCE).glob(".*.png.*.tmp"):
             f.unlink(missing_ok=True)
@@ -431,17 +433,18 @@ class Run:
             self.state = {"format": FORMAT, "run": self.identity, "keys": {}, "stretches": [], "cursor": None, "lines": 0,
                           "fallbacks": 0, "truth": None}
             (self.out / STEPS).write_bytes(b"")
-        for f in self.out.glob(".*.tmp"):  # writes a killed run left half done
-            f.unlink(missing_ok=True)
-        self._remove_partial_writes()
-        kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan]
+        self._remove_partial_writes()  # writes a killed run left half done
+        # a stretch done, of the same key frames and options, that stops where it did (the frames after the last key
+        # frame of a folder that gained frames since are not done; runs from before ``stop`` was kept do not say)
+        kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan
+                and e.get("stop", plan[e["fingerprint"]].stop) == plan[e["fingerprint"]].stop]
         cursor = self.state["cursor"]
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
         lines = self._keep_steps(live, next(iter(keys.values())).shape)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
-        if (self.out / HIDDEN).is_dir():
+        if state is not None and (self.out / HIDDEN).is_dir():  # a run's (one started over lost it whole)
             for d in (self.out / HIDDEN).iterdir():
                 if d.name != keep_hidden:
                     shutil.rmtree(d, ignore_errors=True)

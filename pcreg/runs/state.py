@@ -58,7 +58,7 @@ def _stream_state_problem(state: dict) -> str | None:
 def _stretch_problem(e, cursor: bool) -> bool:
     """Whether a stretch's entry in run.json (done, or the ``cursor`` under way) is not as pcreg run writes it."""
     if not (isinstance(e, dict) and isinstance(e.get("fingerprint"), str) and is_count(e.get("fallbacks"))
-            and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS))):
+            and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS)) and (e.get("stop") is None or is_count(e["stop"]))):
         return True
     return cursor and not (isinstance(e.get("phase"), str) and is_count(e.get("steps"))
                            and (e.get("next") is None or is_count(e["next"])))
@@ -264,7 +264,7 @@ def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
     (``state``) and the steps of its steps.jsonl in ``folder`` that run.json counts
     (:func:`pcreg.runs.files.counted_steps`): a run from one label image (its key frame, then the
     frames it counted done) or from a folder of key frames (:mod:`pcreg.pipeline.keys_run`: its key
-    frames and the steps it counted, in name order, which is a folder's and a video's frame order).
+    frames and the steps it counted, in frame order: a folder's name order, a video's frame numbers).
     Raises KeyError, TypeError or ValueError for a state pcreg run did not write, an
     :class:`~pcreg.errors.InputError` naming steps.jsonl for a file pcreg run did not write, ValueError for
     fewer steps than counted."""
@@ -281,8 +281,10 @@ def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
                              "pcreg run wrote)")
         done.append(str(step["name"]))
     if stretches:
-        keys = sorted(str(k) for k in state["keys"])
-        return keys, sorted(set(keys) | set(done))
+        # a video's names are its frames' numbers, of six digits and more from frame 1000000 on: by number
+        order = (lambda name: (len(name), name)) if "video" in state["run"] else None
+        keys = sorted((str(k) for k in state["keys"]), key=order)
+        return keys, sorted(set(keys) | set(done), key=order)
     key, count = str(state["key_frame"]), int(state["done"])
     names = [key] + done
     if len(names) != count:

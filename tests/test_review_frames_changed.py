@@ -1,0 +1,52 @@
+"""``pcreg view RUN`` of a run whose frames folder changed since (a frame added among the labelled ones, or one
+renamed): the review placed its frames by their position in the folder as it is now, found a frame the run never
+labelled there and said ``steps.jsonl: missing or unreadable (3 steps for 4 labelled frames; none for f2b.png)``,
+blaming a file that is whole. It names the folder and the frame that moved, as resuming the run does."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+
+import cv2
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.errors import InputError
+from pcreg.review import read_review
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    return pcreg.synthetic("syn1a", 6, 0, width=96, height=72)
+
+
+def _run(tmp_path, synthetic, keys: bool):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, f in enumerate(synthetic[:5]):
+        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
+    (tmp_path / "keys").mkdir()
+    for k in (0, 4) if keys else (0,):
+        cv2.imwrite(str(tmp_path / "keys" / f"f{k}.png"), synthetic[k].labels)
+    labels = tmp_path / "keys" if keys else tmp_path / "keys" / "f0.png"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(folder), "--labels", str(labels), "--out", str(tmp_path / "out")]) == 0
+    return folder, tmp_path / "out"
+
+
+@pytest.mark.parametrize("keys", [False, True], ids=["one label image", "a folder of key frames"])
+@pytest.mark.parametrize("change", ["added", "renamed"])
+def test_a_frame_added_or_renamed_since_the_run_is_named(synthetic, tmp_path, keys, change):
+    folder, out = _run(tmp_path, synthetic, keys)
+    if change == "added":
+        cv2.imwrite(str(folder / "f2b.png"), synthetic[5].image[:, :, ::-1])
+        now = "f2b.png"
+    else:
+        (folder / "f3.png").rename(folder / "f3x.png")
+        now = "f3x.png"
+    with pytest.raises(InputError) as caught:
+        read_review(out)
+    assert str(caught.value) == (f"{folder}: holds {now} as frame 3, which the run in {out} labelled as f3.png: the "
+                                 "frames changed since the run (a frame added, removed or renamed)")

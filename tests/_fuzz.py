@@ -9,12 +9,13 @@ import os
 import re
 import signal
 
-from hypothesis import HealthCheck, event, settings
+from hypothesis import HealthCheck, Phase, event, settings
 from hypothesis import strategies as st
 
 from pcreg.errors import PcregError
 
-_COMMON = dict(deadline=None, derandomize=True, database=None,
+_COMMON = dict(deadline=None, derandomize=True, database=None,  # no explain phase: it reruns a failure for minutes
+               phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target, Phase.shrink],
                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow,
                                       HealthCheck.data_too_large, HealthCheck.large_base_example])
 #: The quick suite's examples of a reader.
@@ -24,8 +25,9 @@ FUZZ_MORE = settings(max_examples=int(os.environ.get("PCREG_FUZZ_EXAMPLES", "300
 HANG_SECONDS = 20
 
 
-class Hang(Exception):
-    pass
+class Hang(BaseException):
+    """A reader ran too long: a BaseException, so that no ``except Exception`` of the reader's (the command line's
+    report of a bug among them) takes it for an error of its own."""
 
 
 def _alarm(signum, frame):
@@ -168,45 +170,61 @@ json_values = st.recursive(
     max_leaves=8)
 
 
-def _paths(doc, at=()):
-    yield at
+def _parts(doc, at=()):
+    """``(path, part)`` of every part of a JSON document, itself first."""
+    yield at, doc
     if isinstance(doc, dict):
         for k, v in doc.items():
-            yield from _paths(v, (*at, k))
+            yield from _parts(v, (*at, k))
     elif isinstance(doc, list):
         for i, v in enumerate(doc):
-            yield from _paths(v, (*at, i))
+            yield from _parts(v, (*at, i))
+
+
+def _numeric(value) -> bool:
+    return type(value) in (int, float) or (isinstance(value, str) and value.isdigit())
+
+
+#: Which parts of a JSON document each mutation applies to: the path to a part, and the part.
+_APPLIES = {"replace": lambda path, value: True, "drop": lambda path, value: bool(path),
+            "add": lambda path, value: isinstance(value, dict), "number": lambda path, value: bool(path) and _numeric(value),
+            "repeat": lambda path, value: isinstance(value, list) and bool(value),
+            "rename": lambda path, value: bool(path) and isinstance(path[-1], str)}
 
 
 @st.composite
 def mutated_json(draw, doc):
     """A copy of the JSON document ``doc`` with 1 to 3 of: a part replaced by any JSON value, a key or an item
-    dropped, a key added, a number made huge, negative or fractional, an item repeated."""
+    dropped, a key added or renamed, a number made huge, negative or fractional (or a string of digits odd, as a
+    frame's number), an item repeated; each applied to a part it fits."""
     import copy
 
     doc = copy.deepcopy(doc)
     for _ in range(draw(st.integers(1, 3))):
-        paths = list(_paths(doc))
-        path = draw(st.sampled_from(paths))
-        op = draw(st.sampled_from(["replace", "drop", "add", "number", "repeat"]))
+        op = draw(st.sampled_from(sorted(_APPLIES)))
+        fits = [(path, value) for path, value in _parts(doc) if _APPLIES[op](path, value)]
+        if not fits:
+            continue
+        path, value = draw(st.sampled_from(fits))
         if not path:
-            if op == "replace":
-                doc = draw(json_values)
+            doc = draw(json_values)
             continue
         parent = doc
         for k in path[:-1]:
             parent = parent[k]
-        last, value = path[-1], parent[path[-1]]
+        last = path[-1]
         if op == "replace":
             parent[last] = draw(json_values)
         elif op == "drop":
             del parent[last]
-        elif op == "add" and isinstance(value, dict):
+        elif op == "add":
             value[draw(st.text(max_size=8))] = draw(json_values)
-        elif op == "number" and type(value) in (int, float):
-            parent[last] = draw(st.sampled_from([-1, 256, 2**64, 10**30, 1.5, -0.0, 1e308, True, str(value)]))
-        elif op == "number" and isinstance(value, str) and value.isdigit():  # a frame's number as a name
+        elif op == "number" and isinstance(value, str):  # a frame's number as a name
             parent[last] = draw(st.sampled_from(ODD_NUMBERS))
-        elif op == "repeat" and isinstance(value, list) and value:
+        elif op == "number":
+            parent[last] = draw(st.sampled_from([-1, 0, 256, 2**64, 10**30, 1.5, -0.0, 1e308, True, str(value)]))
+        elif op == "rename":  # a key renamed; a frame's number to an odd one
+            parent[draw(st.sampled_from(ODD_NUMBERS) if last.isdigit() else st.text(max_size=8))] = parent.pop(last)
+        else:
             value.insert(draw(st.integers(0, len(value))), copy.deepcopy(draw(st.sampled_from(value))))
     return doc

@@ -115,6 +115,29 @@ def test_table_bytes(tmp_path_factory, seed, data):
     _read_table(blob, tmp_path_factory.getbasetemp() / f"tb_{seed}", name)
 
 
+@st.composite
+def damaged_table(draw) -> tuple[bytes, str]:
+    """Any of the tables above damaged any of the ways above, and the name it is saved under."""
+    how = draw(st.sampled_from(["labelmap", "json", "bytes"]))
+    if how == "labelmap":
+        text = draw(mutated_text(LABELMAPS[draw(st.sampled_from(sorted(LABELMAPS)))]))
+    elif how == "json":
+        text = json.dumps(draw(mutated_json(TABLES[draw(st.sampled_from(sorted(TABLES)))])))
+        text = draw(mutated_text(text, sep=",")) if draw(st.booleans()) else text
+    else:
+        raw = draw(st.sampled_from([*LABELMAPS.values(), table_json(CAMVID11)])).encode()
+        return draw(mutated_bytes(raw) | header_then_random(raw) | st.binary(max_size=512)), \
+            draw(st.sampled_from(["labelmap.txt", "classes.json", "classes"]))
+    return text.encode("utf-8", "surrogatepass"), draw(st.sampled_from(["labelmap.txt", "classes.json", "classes"]))
+
+
+@pytest.mark.slow
+@FUZZ_MORE
+@given(table=damaged_table())
+def test_damaged_tables_more(tmp_path_factory, table):
+    _read_table(table[0], tmp_path_factory.getbasetemp() / "tables_more", table[1])
+
+
 # -- a CVAT export, zipped -------------------------------------------------------------------------------------
 
 SHAPE = (24, 32)

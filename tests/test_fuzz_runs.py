@@ -10,7 +10,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import os
 import shutil
 from pathlib import Path
 
@@ -196,14 +195,12 @@ def _read_damaged(runs, tmp: Path, data) -> None:
         (run / name).unlink()
     else:
         (run / name).write_bytes(blob)
-    os.environ["PCREG_TRACEBACK"] = "1"  # a bug shows where it is
-    try:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("PCREG_TRACEBACK", "1")  # a bug shows where it is
         _held(*_command(["view", str(run), "--overlay", str(tmp / "overlay.mp4"), "--force"]), run, "view")
         _held(*_command(["export", str(run), "--to", str(tmp / "export.zip"), "--force", "--min-confidence", "0.5"]),
               run, "export")
         _held(*_command([*args, "--out", str(run)]), run, "resume")
-    finally:
-        del os.environ["PCREG_TRACEBACK"]
 
 
 def test_the_runs_read_whole(runs, tmp_path):

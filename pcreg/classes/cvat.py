@@ -334,7 +334,7 @@ def frame_positions(frames):
     """A function of a label file's stem to the position of the run's frame it names, or None: a folder's
     frame by its file's stem (or, where none has that stem, by the one stem that is the same text composed otherwise,
     :func:`_nfc`), any run's source frame ``i`` (counted before ``--start``/``--every``) by ``frame_NNNNNN`` (CVAT's
-    names), and a video's by its index in digits."""
+    names), and a video's by its index in digits (up to nine, as ``frame_NNNNNN``'s)."""
     s = frames.selection
     by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
     composed = {}  # the composed form of each stem: the frames of that text
@@ -357,7 +357,7 @@ def frame_positions(frames):
         m = _FRAME.fullmatch(stem)
         if m is not None:
             return source_index(int(m.group(1)))
-        if frames.kind != "folder" and stem.isascii() and stem.isdigit():
+        if frames.kind != "folder" and stem.isascii() and stem.isdigit() and len(stem) <= 9:  # as frame_NNNNNN
             return source_index(int(stem))
         return None
 

@@ -66,10 +66,12 @@ def voc_colormap(n: int) -> np.ndarray:
 
 def _colour(text: str, name: str, where: str) -> tuple[int, int, int]:
     parts = [p.strip() for p in text.split(",")]
-    # decimal digits as CVAT writes them: int() alone would also take "1_0" and other scripts' digits
-    rgb = tuple(int(p) for p in parts) if all(p.isascii() and p.isdigit() for p in parts) else ()
+    # decimal digits as CVAT writes them: int() alone would also take "1_0" and other scripts' digits, and refuse
+    # more than 4300 digits with a ValueError of its own
+    ok = all(p.isascii() and p.isdigit() and len(p.lstrip("0")) <= 3 for p in parts)
+    rgb = tuple(int(p) for p in parts) if ok else ()
     if len(rgb) != 3 or any(v < 0 or v > 255 for v in rgb):
-        raise InputError(f"{where}: class {name!r} has colour {text!r}, not R,G,B in 0..255")
+        raise InputError(f"{where}: class {short_repr(name)} has colour {short_repr(text)}, not R,G,B in 0..255")
     return rgb[0], rgb[1], rgb[2]
 
 

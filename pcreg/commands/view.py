@@ -139,7 +139,9 @@ def run(args: argparse.Namespace) -> int:
         damaged = next((Path(p) / "run.json" for p in args.recordings if (Path(p) / "run.json").is_file()), None)
         if damaged is not None:  # a run's folder whose run.json is damaged: named, as the review names it
             raise InputError(f"{damaged}: unreadable (not a run.json that pcreg run wrote)")
-        raise InputError("--overlay takes a pcreg run output folder (one with a run.json)")
+        first = Path(args.recordings[0])
+        raise InputError(f"{first}: no run.json, so not the output of pcreg run, which --overlay takes" if first.is_dir()
+                         else f"{first}: not a folder; --overlay takes the output folder of pcreg run")
     folders = [p for p in args.recordings if Path(p).is_dir() or Path(p).name == "results.json"]
     if folders:
         return _report(args, folders)

@@ -246,7 +246,7 @@ class VideoFrames:
             w, h = stream.codec_context.width, stream.codec_context.height
             #: The video streams (index, width, height) a player may show, cover art left out: pcreg reads the first.
             self.streams = [(int(v.index), int(v.codec_context.width), int(v.codec_context.height))
-                            for v in container.streams.video if not _attached(v)]
+                            for v in container.streams.video if not _attached(v) and v.codec_context is not None]
             if w * h > max_pixels():  # the limit images have, checked before a frame is decoded
                 raise InputError(f"{self.path}: {w}x{h} px frames exceed the limit of {max_pixels()} pixels "
                                  "(raise --max-pixels or PCREG_MAX_PIXELS)")
@@ -294,6 +294,10 @@ class VideoFrames:
         if not container.streams.video:
             container.close()
             raise InputError(f"{self.path}: holds no video stream (an empty or damaged {_CONTAINERS[fmt]} file)")
+        if container.streams.video[0].codec_context is None:  # PyAV opens no decoder for a codec FFmpeg does not know
+            container.close()
+            raise InputError(f"{self.path}: its video stream is in a codec FFmpeg does not know (a damaged header, or "
+                             f"a codec PyAV's FFmpeg lacks); if another FFmpeg plays it, {convert_hint(self.path)}")
         return container
 
     def note(self) -> str | None:

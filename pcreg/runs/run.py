@@ -36,6 +36,7 @@ resumed run writes exactly what an uninterrupted run writes.
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import shutil
 from dataclasses import dataclass, field
@@ -555,6 +556,13 @@ class Run:
             return
         steps = parse_steps(self.out / STEPS, (ln for ln in step_lines(self.out) if ln.strip()))
         predicted = {s["frame"]: float(s["predicted_error"]) for s in steps if s.get("predicted_error") is not None}
+        # a run labels the frames it chose, and one from a label image the first run.json counts: a step of another
+        # frame is none it wrote (its name would be looked up past the frames)
+        bound = min(len(self.frames) if self.frames.kind == "folder" else math.inf, self.state.get("done", math.inf))
+        beyond = next((t for t in predicted if t >= bound), None)
+        if beyond is not None:
+            raise OutputError(f"{self.out / STEPS}: a step of frame {beyond}, of a run of {bound} frames (not a step "
+                              "pcreg run wrote); use --force to start over")
         try:
             chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
         except InputError as exc:

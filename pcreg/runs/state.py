@@ -61,7 +61,7 @@ def _stretch_problem(e, cursor: bool) -> bool:
             and (e.get("truth") is None or has_counts(e["truth"], TRUTH_COUNTS)) and (e.get("stop") is None or is_count(e["stop"]))):
         return True
     return cursor and not (isinstance(e.get("phase"), str) and is_count(e.get("steps"))
-                           and (e.get("next") is None or is_count(e["next"])))
+                           and "next" in e and (e["next"] is None or is_count(e["next"])))
 
 
 def _keys_state_problem(state: dict) -> str | None:
@@ -80,6 +80,12 @@ def _keys_state_problem(state: dict) -> str | None:
     return None
 
 
+def _frame_number(name) -> bool:
+    """Whether ``name`` is a video frame's number as run.json names it (``{i:06d}``): ASCII digits, few enough for
+    int() (str.isdigit also takes other scripts' digits and superscripts, which int() refuses, and any length)."""
+    return isinstance(name, str) and name.isascii() and name.isdigit() and len(name) <= 18
+
+
 def _gaps_problem(gaps) -> bool:
     """Whether run.json's ``gaps`` (None when there is none) is not as :class:`~pcreg.runs.gaps.GapMarks` writes it."""
     if gaps is None:
@@ -91,19 +97,18 @@ def _gaps_problem(gaps) -> bool:
     if not isinstance(times, dict) or not set(times) <= set(gaps["listed"]) \
             or not all(type(t) in (int, float) and math.isfinite(t) for t in times.values()):
         return True
-    return not all(type(c) is int and c >= 1 for c in counts) or not gaps["last"].isdigit()
+    return not all(type(c) is int and c >= 1 for c in counts) or not all(map(_frame_number, [gaps["last"], *gaps["listed"]]))
 
 
 def _damaged_problem(damaged) -> bool:
     """Whether run.json's ``damaged`` (None when there is none) is not as :class:`~pcreg.runs.gaps.GapMarks` writes it."""
     if damaged is None:
         return False
-    if not isinstance(damaged, dict) or not isinstance(damaged.get("listed"), list) \
-            or not isinstance(damaged.get("last"), str) or not damaged["last"].isdigit():
+    if not isinstance(damaged, dict) or not isinstance(damaged.get("listed"), list) or not _frame_number(damaged.get("last")):
         return True
     frames = damaged.get("frames")
     return not (type(frames) is int and frames >= max(1, len(damaged["listed"]))) \
-        or not all(isinstance(n, str) and n.isdigit() for n in damaged["listed"])
+        or not all(map(_frame_number, damaged["listed"]))
 
 
 def _notes_problem(notes) -> bool:
@@ -266,8 +271,8 @@ def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
     frames it counted done) or from a folder of key frames (:mod:`pcreg.pipeline.keys_run`: its key
     frames and the steps it counted, in frame order: a folder's name order, a video's frame numbers).
     Raises KeyError, TypeError or ValueError for a state pcreg run did not write, an
-    :class:`~pcreg.errors.InputError` naming steps.jsonl for a file pcreg run did not write, ValueError for
-    fewer steps than counted."""
+    :class:`~pcreg.errors.InputError` naming steps.jsonl for a file pcreg run did not write (a run from one label
+    image: a frame named twice among its key frame and steps), ValueError for fewer steps than counted."""
     from .files import STEPS, counted_steps
 
     field = state_problem(state)
@@ -287,6 +292,10 @@ def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
         return keys, sorted(set(keys) | set(done), key=order)
     key, count = str(state["key_frame"]), int(state["done"])
     names = [key] + done
+    twice = next((n for i, n in enumerate(names) if n in names[:i]), None) if len(set(names)) < len(names) else None
+    if twice is not None:  # a run from one label image labels each frame once, in order
+        what = "a step of the key frame" if twice == key else "two steps of the frame"
+        raise InputError(f"{folder / STEPS}: {what} {twice} (not a steps.jsonl pcreg run wrote)")
     if len(names) != count:
         raise ValueError(f"{len(names) - 1} steps for {count - 1} labelled frames")
     return [key], names

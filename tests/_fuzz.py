@@ -30,15 +30,14 @@ class Hang(BaseException):
     report of a bug among them) takes it for an error of its own."""
 
 
-def _alarm(signum, frame):
-    raise Hang(f"a reader ran past {HANG_SECONDS} s")
-
-
 @contextlib.contextmanager
-def bounded():
-    """Raise :class:`Hang` in the body when it runs past :data:`HANG_SECONDS`."""
-    previous = signal.signal(signal.SIGALRM, _alarm)
-    signal.alarm(HANG_SECONDS)
+def bounded(seconds: int = HANG_SECONDS):
+    """Raise :class:`Hang` in the body when it runs past ``seconds``."""
+    def alarm(signum, frame):
+        raise Hang(f"a reader ran past {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, alarm)
+    signal.alarm(seconds)
     try:
         yield
     finally:

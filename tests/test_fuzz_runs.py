@@ -158,11 +158,16 @@ def damaged(draw, name: str, data: bytes) -> bytes | None:
     return draw(mutated_bytes(data))
 
 
+#: The bound of one command on a damaged run (a resume labels frames): a hang, not a slow example on a busy
+#: machine, which a bound near the commands' own time could fail at random.
+COMMAND_HANG_SECONDS = 120
+
+
 def _command(args: list[str]) -> tuple[int, list[str]]:
     """``pcreg ARGS`` in this process (bounded, :func:`_fuzz.bounded`): its exit code and the lines it wrote on
     stderr."""
     err = io.StringIO()
-    with bounded(), contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+    with bounded(COMMAND_HANG_SECONDS), contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         code = main(args)
     return code, err.getvalue().splitlines()
 

@@ -336,7 +336,7 @@ ORIENTATION_VIEWS = {2: "mirrored", 3: "turned by a half", 4: "mirrored upside d
 def image_size(data: bytes) -> tuple[str, tuple[int, int] | None] | None:
     """(format, (width, height)) from an image file's header, (format, None) for a known format whose
     header is damaged, or None for a format pcreg does not read."""
-    if data[:8] == b"\x89PNG\r\n\x1a\n":
+    if data[:8] == PNG_SIGNATURE:
         if len(data) >= 24 and data[12:16] == b"IHDR":
             return "PNG", struct.unpack(">II", data[16:24])
         return "PNG", None
@@ -390,6 +390,30 @@ def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tu
     return w, h
 
 
+#: The first eight bytes of every PNG.
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_chunks(data: bytes) -> tuple[list[tuple[bytes, int, int]], str | None]:
+    """The chunks of the whole PNG ``data`` up to its IEND, each ``(kind, start, end)`` (``data[start:end]`` the chunk:
+    its length, kind, data and CRC), and why the file is cut short: a chunk runs past its end, or it ends before its
+    IEND chunk (None: it is whole). libpng (OpenCV's reader) refuses such a file, but only after it has reserved what
+    the chunk declares: a 130-byte label PNG whose IDAT length a damaged byte made 3.6 GB took 3 s, most of it the
+    kernel's, and as much memory."""
+    chunks: list[tuple[bytes, int, int]] = []
+    at = len(PNG_SIGNATURE)
+    while at + 12 <= len(data):
+        length = int.from_bytes(data[at:at + 4], "big")
+        kind, end = data[at + 4:at + 8], at + 12 + length
+        if end > len(data):
+            return chunks, f"its {kind.decode('latin-1')!r} chunk runs past the end of the file"
+        chunks.append((kind, at, end))
+        if kind == b"IEND":
+            return chunks, None
+        at = end
+    return chunks, "the file ends before its IEND chunk, the end of a PNG"
+
+
 def _animation_frames(data: bytes, fmt: str) -> int:
     """The images an animated PNG (APNG: its acTL chunk's frame count, and its default image where that is no frame)
     or an animated WebP (its ANMF chunks) holds; 1 for a still image. OpenCV decodes the first alone."""
@@ -427,6 +451,8 @@ def _decoded(data: bytes, name: str, *, flags: int | None, limit: int | None) ->
     import cv2
 
     w, h = check_image_bytes(data, name, limit=limit)
+    if data[:8] == PNG_SIGNATURE and (cut := png_chunks(data)[1]) is not None:  # before libpng reserves what it declares
+        raise InputError(f"{name}: cannot decode image ({cut}: cut short?)")
     if flags is not None and flags != cv2.IMREAD_UNCHANGED:
         flags |= cv2.IMREAD_IGNORE_ORIENTATION
     img, said = imdecode_quietly(data, cv2.IMREAD_UNCHANGED if flags is None else flags)

@@ -214,3 +214,52 @@ def test_the_review_page_shows_the_notes_kept_in_run_json(tmp_path, capsys):
     [shown] = review_page_values(str(out), "(() => { const d = document.getElementById('notes'); return d.hidden ? "
                                  "null : [...d.children].map((p) => [p.textContent, p.getBoundingClientRect().height > 0]); })()")
     assert shown == [[line, True]]
+
+
+def _chunks(data: bytes) -> dict[bytes, int]:
+    """Where each kind of a PNG's chunks first starts."""
+    import struct
+
+    at, found = 8, {}
+    while at < len(data):
+        length, kind = struct.unpack(">I4s", data[at:at + 8])
+        found.setdefault(kind, at)
+        at += 12 + length
+    return found
+
+
+def test_a_png_whose_chunk_runs_past_its_end_is_refused_before_it_is_decoded(tmp_path, capsys):
+    """A 130-byte label PNG whose IDAT length a damaged byte made 3.6 GB: OpenCV refused it, but only after libpng
+    had reserved what the chunk declared (3 s, most of it the kernel's, and as much memory). It is refused from its
+    chunks' lengths now, naming the chunk, as palette PNGs already were; a PNG cut short anywhere is refused the
+    same way, and one of many IDAT chunks reads as before."""
+    import struct
+
+    from pcreg.errors import InputError
+    from pcreg.formats import decode_image
+
+    rng = np.random.default_rng(0)
+    labels = rng.integers(0, 3, (24, 32), dtype=np.uint8)
+    data = cv2.imencode(".png", labels)[1].tobytes()
+    idat = _chunks(data)[b"IDAT"]
+    damaged = data[:idat] + struct.pack(">I", 0xD5722CBC) + data[idat + 4:]
+    with pytest.raises(InputError, match=r"^key\.png: cannot decode image \(its 'IDAT' chunk runs past the end of the file: cut short\?\)$"):
+        decode_image(damaged, "key.png")
+    for kept, said in ((len(data) - 1, "ends before its IEND chunk"), (len(data) - 12, "ends before its IEND chunk"),
+                       (idat + 20, "'IDAT' chunk runs past")):
+        with pytest.raises(InputError, match=said):
+            decode_image(data[:kept], "key.png")
+    # a whole PNG of many IDAT chunks (libpng's writer splits at 8 kB) reads as it is
+    big = rng.integers(0, 256, (256, 320, 3), dtype=np.uint8)
+    many = cv2.imencode(".png", big, [cv2.IMWRITE_PNG_COMPRESSION, 0])[1].tobytes()
+    assert np.array_equal(decode_image(many, "big.png"), big)
+    # through the command line: one line naming the file, exit 2
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(2):
+        cv2.imwrite(str(frames / f"f{i}.png"), rng.integers(0, 256, (24, 32, 3), dtype=np.uint8))
+    key = tmp_path / "key.png"
+    key.write_bytes(damaged)
+    assert main(["run", str(frames), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"{key}: cannot decode image (its 'IDAT' chunk runs past the end of the file" in err[0], err

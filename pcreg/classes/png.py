@@ -25,13 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..formats import PNG_SIGNATURE, png_chunks
 from .table import ClassTable
 
 __all__ = ["encode_label_png", "write_label_png", "decode_label_png", "read_label_png", "is_palette_png", "check_lossless",
            "check_png_chunks", "PNG_SIGNATURE"]
 
-#: The first eight bytes of every PNG.
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PALETTE = 3  # IHDR colour type of an indexed PNG
 
 
@@ -46,18 +45,12 @@ def check_png_chunks(data: bytes, name: str) -> None:
     palette PNGs here, does not check the image data's chunks, and read a damaged key mask as labels (a file cut
     between two chunks as "cannot identify image file <_io.BytesIO object at 0x...>", or as labels when the cut
     left its image data whole)."""
-    at = len(PNG_SIGNATURE)
-    while at + 12 <= len(data):
-        length = int.from_bytes(data[at:at + 4], "big")
-        kind, end = data[at + 4:at + 8], at + 12 + length
-        if end > len(data):
-            raise InputError(f"{name}: its {kind.decode('latin-1')!r} chunk runs past the end of the file (cut short?)")
+    chunks, cut = png_chunks(data)
+    for kind, at, end in chunks:
         if zlib.crc32(data[at + 4:end - 4]) != int.from_bytes(data[end - 4:end], "big"):
             raise InputError(f"{name}: a CRC error in its {kind.decode('latin-1')!r} chunk: the file is damaged")
-        if kind == b"IEND":
-            return
-        at = end
-    raise InputError(f"{name}: the file ends before its IEND chunk, the end of a PNG (cut short?)")
+    if cut is not None:
+        raise InputError(f"{name}: {cut} (cut short?)")
 
 
 def encode_label_png(labels: np.ndarray, table: ClassTable) -> bytes:

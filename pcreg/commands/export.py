@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from ..export import default_name, labelled_frames, read_run, write_cvat_mask_archive
     from ..formats import resolved
     from ..outputs import check_output
-    from ..runs.state import read_state, unfinished_note
+    from ..runs.state import read_state, run_inputs, unfinished_note
     from ..validation import listed
 
     from ..errors import OutputError
@@ -50,8 +50,7 @@ def run(args: argparse.Namespace) -> int:
     table = run_labels.table  # the run's class table: its labelmap.txt, colours and names
     default = Path(args.folder) / default_name(args.format)
     # the run's own inputs (its key labels, a CVAT export among them) are no file to write over, --force or not
-    identity = read_state(Path(args.folder))["run"]
-    inputs = tuple(v for k, v in identity.items() if k in ("folder", "video", "labels", "truth") and isinstance(v, str))
+    inputs = run_inputs(read_state(Path(args.folder))["run"])
     dest = check_output(Path(args.to) if args.to is not None else default, force=args.force, inputs=inputs)
     folder, to = resolved(args.folder), resolved(dest)
     if to != resolved(default) and folder in to.parents and dest.suffix.lower() != ".zip":

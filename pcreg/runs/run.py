@@ -50,7 +50,7 @@ from ..errors import InputError, OutputError
 from ..outputs import atomic_file
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
-from .state import FORMAT, STATE, open_state, read_state, run_frames, write_state
+from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts
 
 if TYPE_CHECKING:
@@ -367,8 +367,7 @@ class Run:
             return
         doomed = [self.out / CARRY.format(0), self.out / CARRY.format(1), self.out / HIDDEN, self.out / CONFIDENCE,
                   self.out / SUGGEST]
-        inputs = [Path(v) for k, v in (self.identity or {}).items() if k in ("folder", "video", "labels", "truth")
-                  and isinstance(v, str)]
+        inputs = [Path(v) for v in run_inputs(self.identity)]
         for path in doomed:
             gone = resolved(path)
             for given in inputs:

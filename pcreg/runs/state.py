@@ -19,7 +19,8 @@ from ..errors import InputError, OutputError
 from ..formats import load_json_object, loads_json, resolved
 from .files import STATE
 
-__all__ = ["STATE", "FORMAT", "format_problem", "frames_chosen", "unfinished_note", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "open_state",
+__all__ = ["STATE", "FORMAT", "format_problem", "frames_chosen", "unfinished_note", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "run_inputs",
+           "open_state",
            "read_state", "run_frames"]
 
 #: The layout of the run.json this pcreg writes (its ``format``; a run.json without one, from before it was
@@ -142,6 +143,13 @@ def state_problem(state) -> str | None:
     problem = (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
     records = (("gaps", _gaps_problem), ("damaged", _damaged_problem), ("notes", _notes_problem))
     return problem or next((name for name, bad in records if bad(state.get(name))), None)
+
+
+def run_inputs(identity: dict | None) -> tuple[str, ...]:
+    """The paths a run reads, from its identity in run.json (``"run"``): its frames (a folder or a video), its key
+    labels (a CVAT export among them) and its truth; no output may be written over them, ``--force`` or not."""
+    return tuple(v for k, v in (identity or {}).items() if k in ("folder", "video", "labels", "truth")
+                 and isinstance(v, str))
 
 
 def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, truth: str | Path | None,

@@ -66,6 +66,7 @@ def test_camvid_mapping_agrees_with_the_table():
     (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 6)), (256, "c", (0, 0, 0))), "0..255"),
     (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 256)), (2, "c", (0, 0, 0))), "three integers"),
     (((0, "a:b", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "holds ':'"),
+    (((0, "#a", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "starts with '#'"),  # a comment line
     # what would break a labelmap.txt line or cannot be written as UTF-8: every line break str.splitlines
     # knows, a control character, half of a surrogate pair
     *[(((0, f"a{ch}b", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "a line break or a control")
@@ -96,6 +97,10 @@ def test_labelmap_round_trips_and_reads_cvats(tmp_path):
     assert cvat.known_ids == (0, 1) and [c.name for c in cvat.known] == ["road", "car"]
     assert cvat.unknown == 2 and cvat.unknown_class.name == "background"
     assert labelmap_text(cvat) == CVAT_LABELMAP  # written back as CVAT wrote it
+    # a '#' past a name's first character is part of the name to CVAT and Datumaro (a leading one starts a comment)
+    hashed = parse_labelmap("background:0,0,0::\nlane #1:10,20,30::\nC#:40,50,60::\n", "labelmap.txt")
+    assert [c.name for c in hashed.known] == ["lane #1", "C#"]
+    assert parse_labelmap(labelmap_text(hashed), "back") == hashed
     # LAGR's table from CVAT (its unknown called background) agrees with the built-in
     assert parse_labelmap("background:0,0,0::\nground:34,197,94::\nobstacle:255,40,40::\n", "x").agrees(LAGR)
 

@@ -212,7 +212,8 @@ def test_the_server_renders_each_frame_on_request(which, request):
         _, page = _get(server.url)
         assert b"review.js" in page
         for bad in (f"overlay/{N}.jpg", "overlay/-1.jpg", "overlay/x.jpg", "frame/../run.json", "run.json",
-                    "viz/../pcreg", "files/run.json"):
+                    "viz/../pcreg", "files/run.json",
+                    f"frame/{'9' * 5000}.jpg", f"classes/{'9' * 5000}.json"):  # past int()'s 4,300 digits
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(server.url + bad, timeout=30)
             assert e.value.code == 404, bad

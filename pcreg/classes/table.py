@@ -93,10 +93,13 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
         raise InputError(f"{where}: class id {short_repr(c.id)} is not an integer 0..255")
     if not isinstance(c.name, str) or not c.name.strip() or c.name != c.name.strip():
         raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it)")
-    if any(ch in ":#\x85\u2028\u2029" or ord(ch) < 32 or 0xD800 <= ord(ch) <= 0xDFFF for ch in c.name):
-        # a labelmap.txt line holds the name as it is: no field separator, comment, line break (any that
-        # str.splitlines splits on), control character or half of a surrogate pair (no UTF-8 for it)
-        raise InputError(f"{where}: class name {c.name!r} holds ':', '#', a line break or a control character")
+    if c.name.startswith("#") or any(ch in ":\x85\u2028\u2029" or ord(ch) < 32 or 0xD800 <= ord(ch) <= 0xDFFF
+                                     for ch in c.name):
+        # a labelmap.txt line holds the name as it is: no field separator, line break (any that str.splitlines
+        # splits on), control character or half of a surrogate pair (no UTF-8 for it), and no '#' first (a
+        # comment line to CVAT and Datumaro, which read a '#' anywhere else as part of the name)
+        raise InputError(f"{where}: class name {c.name!r} holds ':', a line break or a control character, "
+                         "or starts with '#'")
     try:
         colour = tuple(int(v) for v in c.colour)
     except (TypeError, ValueError):

@@ -44,6 +44,16 @@ def _video_key(path: Path) -> str:
     return "frames-" + hashlib.sha1(f"{path.resolve()}\0{st.st_size}\0{st.st_mtime_ns}".encode()).hexdigest()[:12]
 
 
+def _number(name: str, suffix: str, n: int) -> int | None:
+    """The frame number of a request's file name (``NUMBER`` then ``suffix``, ASCII digits only) when it is one of
+    ``n`` frames, else None: a name of thousands of digits is no frame (not ``int()``'s limit raised in the server)."""
+    digits = name[:-len(suffix)]
+    if not name.endswith(suffix) or not digits.isascii() or not digits.isdigit() or len(digits) > len(str(n)):
+        return None
+    t = int(digits)
+    return t if t < n else None
+
+
 class ReviewServer:
     """The review page of the run output ``review`` (:func:`pcreg.review.read_review`); a context
     manager. ``url`` is the page to open."""
@@ -159,17 +169,15 @@ class ReviewServer:
                     if path == "/review.json":
                         return self._send(200, "application/json", server.review_json())
                     what, _, name = path.strip("/").partition("/")
-                    if what == "classes" and name.endswith(".json") and name[:-5].isdigit() \
-                            and name[:-5].isascii() and int(name[:-5]) < n:
+                    if what == "classes" and (t := _number(name, ".json", n)) is not None:
                         try:
-                            body = server.class_json(int(name[:-5]))
+                            body = server.class_json(t)
                         except (InputError, OSError) as exc:
                             return self._send(500, "text/plain; charset=utf-8", f"{exc}\n".encode())
                         return self._send(200, "application/json", body)
-                    if what in ("overlay", "frame") and name.endswith(".jpg") and name[:-4].isdigit() \
-                            and name[:-4].isascii() and int(name[:-4]) < n:
+                    if what in ("overlay", "frame") and (t := _number(name, ".jpg", n)) is not None:
                         try:
-                            body = server.image(what, int(name[:-4]))
+                            body = server.image(what, t)
                         except (InputError, OSError) as exc:
                             return self._send(500, "text/plain; charset=utf-8", f"{exc}\n".encode())
                         return self._send(200, "image/jpeg", body, cache=True)

@@ -517,3 +517,21 @@ def test_kiss_icp_keeps_a_target_that_repeats_points_and_refuses_a_map_it_cannot
     row = report.rows["kiss-icp"]
     assert row["status"] == "failed" and "GiB to keep every target point" in row["error"], row["error"]
     assert "--voxel-size" in row["error"]
+
+
+def test_kiss_icp_that_meets_its_criterion_at_its_last_iteration_has_converged(monkeypatch):
+    """KISS-ICP's row read "not converged" when its criterion stopped it at exactly its last iteration (the
+    iterations counted, not the criterion): the same run one iteration longer said converged."""
+    pytest.importorskip("kiss_icp")
+    import pcreg.implementations.builtin as builtin
+
+    rng = np.random.default_rng(3)
+    target = rng.uniform(0, 10, (300, 3))
+    source = target + [0.2, -0.1, 0.05]
+    monkeypatch.setattr(builtin, "CONVERGED_ITERATIONS", 1)
+    first = get("kiss-icp").run(Pinned(source, target, np.eye(4), 1.0, max_iterations=200), trace=True)
+    assert first.converged and 1 < first.iterations < 200
+    k = first.iterations
+    for limit, converged in ((k, True), (k - 1, False)):
+        row = get("kiss-icp").run(Pinned(source, target, np.eye(4), 1.0, max_iterations=limit), trace=True)
+        assert (row.iterations, row.converged) == (limit, converged), limit

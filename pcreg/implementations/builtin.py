@@ -294,9 +294,9 @@ class KissIcp(Implementation):
                                     kernel=s["kernel"])
         seconds = time.perf_counter() - start
         m = np.asarray(m)
-        steps, iterations = (), None
+        steps, iterations, met = (), None, False
         if trace:
-            steps, iterations = self._trace(name=self.name, reg1=Registration(max_num_iterations=1, convergence_criterion=0.0,
+            steps, iterations, met = self._trace(name=self.name, reg1=Registration(max_num_iterations=1, convergence_criterion=0.0,
                                                               max_num_threads=1),
                                             vmap=vmap, pinned=pinned, settings=s)
         info = {"map_points": kept, "target_points": len(tgt)}
@@ -314,14 +314,15 @@ class KissIcp(Implementation):
         if iterations is not None:
             info["iterations_from"] = "a second run, one Gauss-Newton step per call (each step is stateless)"
         return result(self.name, m, iterations=iterations, fitness=fit, inlier_rmse=rmse,
-                      converged=None if iterations is None else iterations < s["max_num_iterations"],
+                      converged=None if iterations is None else met,
                       seconds=seconds, trace=steps, info=info)
 
     @staticmethod
     def _trace(*, name, reg1, vmap, pinned, settings):
         """Its iterations one call at a time: each KISS-ICP step is a Gauss-Newton step from the current
         pose with fresh correspondences, so chaining one-iteration calls replays its loop; it stops, as
-        KISS-ICP does, once the step's norm (rotation vector, translation) is below the criterion."""
+        KISS-ICP does, once the step's norm (rotation vector, translation) is below the criterion:
+        ``(steps, iterations, met)``, ``met`` whether the criterion stopped it (at the last iteration too)."""
         from scipy.spatial.transform import Rotation
 
         src = lift(pinned.source)
@@ -339,8 +340,8 @@ class KissIcp(Implementation):
             fit, rmse, idx = score(pinned, M)
             steps.append(step(name, k, M, fit, rmse, idx))
             if np.linalg.norm(dx) < settings["convergence_criterion"]:
-                break
-        return tuple(steps), len(steps) - 1
+                return tuple(steps), k, True
+        return tuple(steps), len(steps) - 1, False
 
 
 def _subsample(points: np.ndarray, n: int, seed: int) -> np.ndarray:

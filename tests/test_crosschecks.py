@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 import pytest
 
@@ -325,3 +327,22 @@ def test_exact_implementations_agree_on_clouds_a_million_metres_from_the_origin(
                             options=pcreg.ICPOptions(max_correspondence_distance=0.05)).rows
     for name in ("open3d", "open3d-tensor"):
         assert rows[name]["error"] is None and rows[name]["agrees"], (name, rows[name]["matrix_relative_disagreement"])
+
+
+def test_a_suite_exported_over_an_earlier_one_keeps_nothing_of_its_cases(tmp_path):
+    """Exported over an earlier suite (``--export DIR --force``), a case without a truth kept the earlier
+    case's truth.txt, which the suite's reader took as this case's truth, and a case the reference refuses
+    kept the earlier trace in reference/."""
+    from pcreg.implementations.suite import Case, export_suite, load_suite
+
+    rng = np.random.default_rng(7)
+    target = rng.uniform(0, 1, (200, 3))
+    far = np.eye(4)
+    far[:3, 3] = 0.5
+    suite = export_suite(tmp_path / "suite", [Case(target + 0.01, target, np.eye(4), 0.1, name="c", truth=far)])
+    assert (suite / "c" / "truth.txt").exists() and (suite / "c" / "reference" / "final.txt").exists()
+    export_suite(suite, [Case(target + 0.01, target, np.eye(4), 0.1, name="c")])
+    assert load_suite(suite)[0].truth is None
+    export_suite(suite, [Case(target[:1] + 0.01, target[:1], np.eye(4), 0.1, name="c")])  # one point: refused
+    assert "reference_error" in json.loads((suite / "c" / "case.json").read_text())
+    assert not (suite / "c" / "reference").exists()

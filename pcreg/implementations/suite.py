@@ -31,6 +31,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -217,6 +218,8 @@ def export_suite(out: str | os.PathLike, cases: Sequence[Case], *, progress: boo
         atomic_write_text(d / "params.json", to_json(_params(c)) + "\n")
         if c.truth is not None:
             atomic_write_text(d / "truth.txt", _txt(c.truth))
+        else:  # written over an earlier export (--force): no truth of another case left to be read as this one's
+            (d / "truth.txt").unlink(missing_ok=True)
         meta = {"name": c.name, "description": c.description, "dimension": int(c.source.shape[1]),
                 "source_points": len(c.source), "target_points": len(c.target), "truth": c.truth is not None}
         try:
@@ -224,6 +227,7 @@ def export_suite(out: str | os.PathLike, cases: Sequence[Case], *, progress: boo
         except Exception as exc:  # noqa: BLE001 - a refused case is exported with the refusal
             meta["reference_error"] = " ".join(str(exc).split())
             atomic_write_text(d / "case.json", to_json(meta) + "\n")
+            shutil.rmtree(d / "reference", ignore_errors=True)  # an earlier export's trace is not this case's
             continue
         atomic_write_text(d / "case.json", to_json(meta) + "\n")
         tr = r.trace

@@ -463,15 +463,20 @@ class FrameImages:
         return np.ascontiguousarray(read_image_file(path)[:, :, ::-1])
 
     def frames(self):
-        """Every frame in order, (position, RGB image): a video decoded straight through."""
+        """Every frame in order, (position, RGB image): a video decoded straight through (one that ends before the
+        run's last frame, cut since the run, an :class:`~pcreg.errors.InputError`)."""
         if self.review.kind == "folder":
             for t in range(len(self.review.names)):
                 yield t, self[t]
             return
+        n, last = len(self.review.names), -1
         for frame in self._frames.frames(0):
-            if frame.position >= len(self.review.names):
+            if frame.position >= n:
                 return
-            yield frame.position, frame.image
+            last = frame.position
+            yield last, frame.image
+        if last < n - 1:  # the video has lost frames since the run (cut, or replaced)
+            raise InputError(f"{self.review.source}: ends before the run's frame {self.review.names[last + 1]}")
 
     def close(self) -> None:
         """Stop the decoding: at once between frames; one decoding its way to a frame far into a long video

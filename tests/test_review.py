@@ -594,3 +594,22 @@ def _many_class_run(synthetic, tmp_path, n_classes: int, key: np.ndarray):
         assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(out), "--model", "flow",
                      "--classes", str(tmp_path / "classes.json")]) == 0
     return out
+
+
+def test_an_overlay_of_a_video_that_has_since_lost_frames_is_refused(synthetic, tmp_path, capsys):
+    """The overlay of a run whose video has since been cut shorter ended at the video's last frame, one line
+    saying it wrote fewer frames than the run has and nothing saying why."""
+    def video(n):
+        writer = cv2.VideoWriter(str(tmp_path / "clip.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 12, (160, 120))
+        for f in synthetic[:n]:
+            writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
+        writer.release()
+
+    video(N)
+    cv2.imwrite(str(tmp_path / "key.png"), synthetic[0].labels)
+    out = _run(tmp_path, tmp_path / "clip.mp4", tmp_path / "key.png")
+    video(N - 2)
+    overlay = tmp_path / "overlay.mp4"
+    assert pcreg_view([str(out), "--overlay", str(overlay)]) == 2
+    assert f"ends before the run's frame {N - 2:06d}" in one_line_error(capsys)
+    assert not overlay.exists() and not list(tmp_path.glob(".*.tmp*"))

@@ -288,8 +288,11 @@ class Propagator:
             evidence = self._key_prior if self._classes is not None else prior_log_odds(self._key_prior, pi=self._pi)
             self._key_trusted = TrustedKey(self.trust, self._prior_weight, key.rgb, evidence, size,
                                            classes=self.class_read, labels=small)
-            if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # DIS takes no smaller frames
-                self._key_flow = self._flow.prepare(key)
+            if min(key.shape) >= DIS_MIN_SIDE:  # DIS takes no smaller frames
+                if self._estimator.second_motion:
+                    self._key_flow = self._flow.prepare(key)
+                # the cut test, whatever the motions: a flow model carries no second motion, and a rule may give
+                # it no weight, yet a cut leaves their labels as untrustworthy
                 self._key_scene = SceneCheck(key.rgb)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         # every frame registers to the key frame: what the motion needs of it, prepared once
@@ -390,7 +393,8 @@ class Propagator:
     def _second_motion(self, frame: PreparedFrame) -> tuple[np.ndarray, tuple | None, dict | None, float]:
         """``(frame_blurred, flow, cut, seconds)``: the frame as residuals compare it (:func:`~pcreg.pipeline.trust.
         blurred`), the key frame's prior and residual carried along the DIS flow to it and the cut test
-        (:class:`~pcreg.pipeline.cuts.SceneCheck`; both None without the flow)."""
+        (:class:`~pcreg.pipeline.cuts.SceneCheck`; the flow's None without the second motion, the cut test's
+        for frames DIS does not take)."""
         from .trust import blurred
 
         t0 = time.perf_counter()
@@ -398,7 +402,8 @@ class Propagator:
         if self._key_flow is not None and self._key_trusted is not None and self._key_trusted.rule.flow > 0:
             field = self._flow.estimate(self._key, frame, prepared=self._key_flow).result.field
             flow = self._key_trusted.carried(frame_blurred, field)
-            cut = None if self._key_scene is None else self._key_scene.test(frame.rgb)
+        if self._key_scene is not None:
+            cut = self._key_scene.test(frame.rgb)
         return frame_blurred, flow, cut, time.perf_counter() - t0
 
     def _fuse(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:

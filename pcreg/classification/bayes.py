@@ -305,6 +305,12 @@ class NaiveBayesPixelClassifier:
             need = "both ground and obstacle" if table.agrees(DEFAULT_TABLE) else "at least two classes'"
             raise InputError(f"training labels hold {held}; need {need} pixels")
         p = _gaussian_params(counts, classes, var_smoothing=self.var_smoothing, priors=self.priors)
+        histogram = self.density == "histogram" or (self.density == "auto" and len(classes) > 2)
+        if not histogram and not np.all(p["var"] > 0):  # var_smoothing 0: a Gaussian of no width, NaN tables
+            c, f = np.argwhere(~(p["var"] > 0))[0]
+            raise InputError(f"class {listed_name(table.name_of(int(classes[c])))} has no variance in feature "
+                             f"{self.feature_names_[f]!r} (every training pixel of it the same value) and var_smoothing "
+                             "is 0: give var_smoothing > 0 (the default is 1e-9), or density='histogram'")
         self.counts_ = counts.astype(np.int64, copy=True)
         self.classes_ = classes
         self.class_count_ = p["class_count"]
@@ -312,7 +318,6 @@ class NaiveBayesPixelClassifier:
         self.theta_ = p["theta"]
         self.var_ = p["var"]
         self.epsilon_ = p["epsilon"]
-        histogram = self.density == "histogram" or (self.density == "auto" and len(classes) > 2)
         tables = _histogram_tables(counts[classes]) if histogram else _tables(self.theta_, self.var_)  # (n, F, 256)
         self._tables64 = tables
         with np.errstate(divide="ignore"):  # a prior of 0 given on purpose: that class is never chosen

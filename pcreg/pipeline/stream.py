@@ -267,9 +267,10 @@ class Propagator:
         return prop
 
     def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
-        """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8 with
-        0 ground, 1 obstacle, 2 unknown. A dense stream anchored to the key frame prepares it here, once
-        (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid), for every step's registration."""
+        """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8, the ids of the
+        classifier's class table (by default 0 ground, 1 obstacle, 2 unknown). A dense stream anchored to the
+        key frame prepares it here, once (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid),
+        for every step's registration."""
         full = PreparedFrame.of(image, name="key frame")
         lab = check_labels(labels, full.shape, getattr(self.classifier, "class_table", None))
         self._size = size = WorkingSize(full.shape, self.scale)
@@ -316,8 +317,8 @@ class Propagator:
                              f"{self._estimator.name} ({exc}); choose a larger scale") from None
 
     def step(self, image: "np.ndarray | PreparedFrame") -> np.ndarray:
-        """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame, an image or a
-        :class:`~pcreg.frame.PreparedFrame` (checked once here; naive Bayes, both motions and the learning
+        """Labels (H, W) uint8 (0 ground, 1 obstacle; with more classes their ids) of the next frame, an
+        image or a :class:`~pcreg.frame.PreparedFrame` (checked once here; naive Bayes, both motions and the learning
         take it as it is, and its features are kept with it); see :attr:`last` for what happened."""
         key, size = self._key, self._size
         if key is None or size is None:
@@ -457,7 +458,8 @@ class Propagator:
 
     @property
     def learned(self) -> np.ndarray | None:
-        """What naive Bayes has learned from the stream so far ((3, F, 256) float64 histograms,
+        """What naive Bayes has learned from the stream so far ((N, F, 256) float64 histograms, N the class
+        table's values (3 by default),
         :class:`~pcreg.pipeline.learning.Learner`), or None without learning; ``pcreg run`` saves it
         with every frame."""
         return None if self._learner is None else self._learner.stream.copy()

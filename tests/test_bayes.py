@@ -214,3 +214,24 @@ def test_decision_function_needs_two_classes():
     three = NaiveBayesPixelClassifier("rgb", exclude_unknown=False).fit(frames[0].image, frames[0].labels)
     with pytest.raises(InputError, match="two-class"):
         three.decision_function(frames[0].image)
+
+
+def test_no_variance_smoothing_and_a_constant_feature_is_refused_not_nan():
+    """With ``var_smoothing=0`` a class whose training pixels share one value of a feature (obstacle labelled
+    along one row: its row feature) has a variance of 0, and its Gaussian tables held inf and NaN: naive Bayes
+    gave NaN log-odds without a word, and a stream fitted on it stopped on an AssertionError ('a confidence
+    came out NaN'). It is refused, naming the class, the feature and what to do."""
+    from pcreg.pipeline.stream import Propagator
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    labels = np.zeros((48, 64), np.uint8)
+    labels[30, :] = 1
+    with pytest.raises(InputError, match=r"obstacle.*'row'.*var_smoothing"):
+        NaiveBayesPixelClassifier(var_smoothing=0).fit(image, labels)
+    with pytest.raises(InputError, match="var_smoothing"):
+        Propagator(NaiveBayesPixelClassifier("rgb+hsv+row", var_smoothing=0).fit(image, labels))
+    # the histogram density has no variance to divide by: taken as it is; and a smoothing > 0 is fitted finite
+    for clf in (NaiveBayesPixelClassifier(var_smoothing=0, density="histogram").fit(image, labels),
+                NaiveBayesPixelClassifier().fit(image, labels)):
+        assert np.all(np.isfinite(clf.decision_function(image)))

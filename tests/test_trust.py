@@ -228,6 +228,21 @@ def test_suggest_picks_far_frames_predicted_wrong_without_truth():
         suggest({1: 1.0}, [0], 2, 3)
 
 
+
+def test_suggest_never_names_a_frame_outside_the_clip_nor_takes_an_error_that_is_no_number():
+    """``suggest(predicted, keys, count, n)`` took ``n`` and never read it: a predicted error of frame 9 in a clip
+    of 3 frames made it suggest frame 9, and a NaN predicted error (no number) was suggested before every
+    finite one. Both are refused, as a key frame outside the clip is."""
+    from pcreg.pipeline.keyframes import suggest
+
+    with pytest.raises(InputError, match="frame 9 .* 3 frames"):
+        suggest({1: 5.0, 9: 3.0}, [0], 2, 3)
+    with pytest.raises(InputError, match="key frame 7 .* 3 frames"):
+        suggest({1: 5.0, 2: 3.0}, [7], 1, 3)
+    with pytest.raises(InputError, match="frame 1 .* nan"):
+        suggest({1: float("nan"), 2: 3.0, 3: 1.0}, [0], 3, 4)
+    assert suggest({1: 5.0, 2: 3.0}, [0], 2, 3) == [2, 1]
+
 def test_evaluate_stream_with_key_frames_anywhere(tmp_path, capsys):
     from pcreg.experiments.stream_keys import key_indices
 

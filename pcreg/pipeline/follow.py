@@ -207,7 +207,8 @@ def cut_evidence(grey: np.ndarray, colours: np.ndarray, reference_grey: np.ndarr
     :data:`CUT_COLOUR_CHANGE`): the flow explains the new frame little better than chance, and its colours
     changed. A cut that keeps the colours (two views of one place) or a frame the flow cannot follow (a
     wide, fast motion) is not one. The follower tests each frame against the previous one; a scene stream
-    (:class:`pcreg.Propagator`) against its key frame."""
+    (:class:`pcreg.Propagator`) against the last frame found in its key frame's scene (:mod:`pcreg.pipeline.cuts`:
+    the previous frame until a cut, the last frame before it after one)."""
     warped = _warp(reference_grey.astype(np.float32), field)
     residual = float(np.abs(grey.astype(np.float32) - warped).mean()) / max(_chance_residual(grey, reference_grey), 1e-6)
     change = None if reference_colours is None else colour_change(colours, reference_colours)

@@ -158,11 +158,22 @@ def suggest(predicted: Mapping[int, float], keys: Sequence[int], count: int, n: 
        help the frames around it as far as the next labelled frame, and most where they are predicted
        to be wrong.
 
+    ``keys``: the labelled frames; ``n``: the clip's frames (a frame of ``predicted`` or ``keys`` outside
+    0..n-1, or a predicted error that is not a finite number, is an :class:`~pcreg.errors.InputError`).
+
     Measured on the eight shared CamVid clips against as many key frames evenly spaced from frame 0
     (docs/results.md, "Several key frames")."""
     from ..validation import check_int
 
     count = check_int(count, "the number of frames to suggest", lo=1)
+    n = check_int(n, "the clip's frames", lo=1)
+    for what, frames in (("frame", predicted), ("key frame", keys)):
+        outside = next((int(t) for t in frames if not 0 <= int(t) < n), None)
+        if outside is not None:
+            raise InputError(f"{what} {outside} is outside the clip's {n} frames")
+    odd = next((t for t, e in predicted.items() if not np.isfinite(float(e))), None)
+    if odd is not None:
+        raise InputError(f"the predicted error of frame {odd} is {predicted[odd]}, not a finite number")
     keyset = set(int(k) for k in keys)
     candidates = [t for t in predicted if t not in keyset]
     if count > len(candidates):

@@ -267,9 +267,10 @@ class Propagator:
         return prop
 
     def reset(self, image: np.ndarray, labels: np.ndarray) -> None:
-        """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8 with
-        0 ground, 1 obstacle, 2 unknown. A dense stream anchored to the key frame prepares it here, once
-        (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid), for every step's registration."""
+        """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8, the ids of the
+        classifier's class table (by default 0 ground, 1 obstacle, 2 unknown). A dense stream anchored to the
+        key frame prepares it here, once (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid),
+        for every step's registration."""
         full = PreparedFrame.of(image, name="key frame")
         lab = check_labels(labels, full.shape, getattr(self.classifier, "class_table", None))
         self._size = size = WorkingSize(full.shape, self.scale)
@@ -288,8 +289,11 @@ class Propagator:
             evidence = self._key_prior if self._classes is not None else prior_log_odds(self._key_prior, pi=self._pi)
             self._key_trusted = TrustedKey(self.trust, self._prior_weight, key.rgb, evidence, size,
                                            classes=self.class_read, labels=small)
-            if min(key.shape) >= DIS_MIN_SIDE and self._estimator.second_motion:  # DIS takes no smaller frames
-                self._key_flow = self._flow.prepare(key)
+            if min(key.shape) >= DIS_MIN_SIDE:  # DIS takes no smaller frames
+                if self._estimator.second_motion:
+                    self._key_flow = self._flow.prepare(key)
+                # the cut test, whatever the motions: a flow model carries no second motion, and a rule may give
+                # it no weight, yet a cut leaves their labels as untrustworthy
                 self._key_scene = SceneCheck(key.rgb)
         self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
         # every frame registers to the key frame: what the motion needs of it, prepared once
@@ -313,8 +317,8 @@ class Propagator:
                              f"{self._estimator.name} ({exc}); choose a larger scale") from None
 
     def step(self, image: "np.ndarray | PreparedFrame") -> np.ndarray:
-        """Labels (H, W) uint8 (0 ground, 1 obstacle) of the next frame, an image or a
-        :class:`~pcreg.frame.PreparedFrame` (checked once here; naive Bayes, both motions and the learning
+        """Labels (H, W) uint8 (0 ground, 1 obstacle; with more classes their ids) of the next frame, an
+        image or a :class:`~pcreg.frame.PreparedFrame` (checked once here; naive Bayes, both motions and the learning
         take it as it is, and its features are kept with it); see :attr:`last` for what happened."""
         key, size = self._key, self._size
         if key is None or size is None:
@@ -390,7 +394,8 @@ class Propagator:
     def _second_motion(self, frame: PreparedFrame) -> tuple[np.ndarray, tuple | None, dict | None, float]:
         """``(frame_blurred, flow, cut, seconds)``: the frame as residuals compare it (:func:`~pcreg.pipeline.trust.
         blurred`), the key frame's prior and residual carried along the DIS flow to it and the cut test
-        (:class:`~pcreg.pipeline.cuts.SceneCheck`; both None without the flow)."""
+        (:class:`~pcreg.pipeline.cuts.SceneCheck`; the flow's None without the second motion, the cut test's
+        for frames DIS does not take)."""
         from .trust import blurred
 
         t0 = time.perf_counter()
@@ -398,7 +403,8 @@ class Propagator:
         if self._key_flow is not None and self._key_trusted is not None and self._key_trusted.rule.flow > 0:
             field = self._flow.estimate(self._key, frame, prepared=self._key_flow).result.field
             flow = self._key_trusted.carried(frame_blurred, field)
-            cut = None if self._key_scene is None else self._key_scene.test(frame.rgb)
+        if self._key_scene is not None:
+            cut = self._key_scene.test(frame.rgb)
         return frame_blurred, flow, cut, time.perf_counter() - t0
 
     def _fuse(self, d: np.ndarray, motion: Motion | None, times: dict) -> np.ndarray:
@@ -452,7 +458,8 @@ class Propagator:
 
     @property
     def learned(self) -> np.ndarray | None:
-        """What naive Bayes has learned from the stream so far ((3, F, 256) float64 histograms,
+        """What naive Bayes has learned from the stream so far ((N, F, 256) float64 histograms, N the class
+        table's values (3 by default),
         :class:`~pcreg.pipeline.learning.Learner`), or None without learning; ``pcreg run`` saves it
         with every frame."""
         return None if self._learner is None else self._learner.stream.copy()

@@ -187,3 +187,16 @@ def test_masks_with_an_upper_case_suffix_are_masks(tmp_path):
         p.rename(p.with_suffix(".PNG"))
     plain = write_pcreg_layout(tmp_path / "plain", pairs)
     _same({"s": load_dataset(f"davis:{seq}")["upper"]}, {"s": load_dataset(f"davis:{plain}")["plain"]})
+
+
+@pytest.mark.parametrize("missing", ["00002.jpg", "00003.jpg"])
+def test_a_mask_without_its_frame_is_refused_naming_it(tmp_path, missing):
+    """A frame missing from a sequence whose mask is there (a copy cut short) was skipped: the frames after it
+    moved up one, the benchmark's frames 1 to n-2 were not the ones scored (the last frame's mask scored, or a
+    frame's left out), and the motion between two frames doubled. DAVIS masks every frame: refused."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(4))
+    (seq / "images" / missing).unlink()
+    mask = seq / "labels" / missing.replace(".jpg", ".png")
+    with pytest.raises(DatasetError) as err:
+        load_dataset(f"davis:{seq}")
+    assert str(err.value).startswith(f"{mask}: a mask without its frame")

@@ -325,8 +325,9 @@ def published(path: str | Path) -> dict:
     starting with ``#`` skipped), else from :data:`PUBLISHED_CSV`.
 
     ``source`` cites where the figures come from: :data:`PUBLISHED_SOURCE` for pcreg's own, or for a file
-    beside the sequences whose figures are those (within 0.0005) on every method and sequence both hold;
-    else the file itself, saying that it names no source.
+    beside the sequences whose figures are those (within 0.0005) on every method and sequence both hold (the
+    file named for the figures of methods or sequences pcreg does not ship); else the file itself, saying
+    that it names no source.
     """
     _, beside, _ = select_sequences(path, split="all")  # where they lie, whichever split is evaluated
     files = sorted(beside.glob("published_*.csv"))
@@ -335,8 +336,12 @@ def published(path: str | Path) -> dict:
     if files:
         ours = {(r["method"], r["sequence"]): r for r in _read_published(PUBLISHED_CSV)}
         shared = [(r, ours[(r["method"], r["sequence"])]) for r in rows if (r["method"], r["sequence"]) in ours]
+        names = f"{', '.join(f.name for f in files)} (which names no source)"
         if not shared or any(abs(a[k] - b[k]) > 5e-4 for a, b in shared for k in ("J", "F")):
-            source = f"{', '.join(f.name for f in files)} (which names no source)"
+            source = names
+        elif len(shared) < len(rows):  # the website's figures beside others: those others are the file's own
+            own = dict.fromkeys(r["method"] for r in rows if (r["method"], r["sequence"]) not in ours)
+            source = f"{PUBLISHED_SOURCE}, except the figures of {', '.join(own)} that pcreg does not ship: {names}"
     methods = list(dict.fromkeys(r["method"] for r in rows))
     doc: dict = {"file": ", ".join(str(f) for f in files) if files else str(PUBLISHED_CSV), "source": source,
                  "methods": methods, "J": {m: {} for m in methods}, "F": {m: {} for m in methods}}

@@ -152,3 +152,39 @@ def test_evaluate_stream_on_a_shared_davis_sequence(shared_data, tmp_path, capsy
     assert d["mean"]["J"]["pcreg"] > 0.6 and d["mean"]["J"]["pcreg"] > d["mean"]["J"]["plain"]
     # the published figures beside the shared sequences: the benchmark's, over the whole sequence
     assert d["published"]["J"]["bvs"] == {"goat": 0.6612} and d["published"]["F"]["bvs"] == {"goat": 0.5839}
+
+
+def test_a_sequence_too_short_to_score_keeps_every_method_in_the_davis_tables(tmp_path):
+    """A sequence of two frames (none of frames 1 to n-2 scored) beside a longer one dropped every pcreg method
+    from davis_J and davis_F: their columns were gone, the longer sequence's J and F with them. The short one is
+    now a row of nan, left out of the means as the benchmark's nanmean leaves it."""
+    write_pcreg_layout(tmp_path / "d" / "long", frames_and_masks(5))
+    write_pcreg_layout(tmp_path / "d" / "short", frames_and_masks(2, seed=1))
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{tmp_path / 'd'}", "--methods", "unregistered",
+                 "--out", str(out)]) == 0
+    d = json.loads((out / "results.json").read_text())["davis"]
+    assert d["methods"] == ["plain", "unregistered"]
+    for k in ("J", "F"):
+        for m in d["methods"]:
+            assert d["sequences"]["short"][k][m] is None  # NaN, written as null
+            assert d["mean"][k][m] == pytest.approx(d["sequences"]["long"][k][m])
+    header, *rows = (out / "davis_J.csv").read_text().splitlines()
+    assert header.startswith("sequence,frames scored,plain,unregistered,OSVOS")
+    assert rows[1].startswith("short,0,nan,nan,")
+    assert "short: fewer than 3 frames, none scored" in (out / "davis_J.md").read_text()
+    from pcreg.experiments.reports.page import load_report, page_data  # the report page reads it back
+
+    shown = {t["name"]: t for t in page_data(load_report(out))["tables"]}
+    assert shown["davis_F"]["rows"][1]["cells"][:4] == ["short", 0, None, None]
+
+
+def test_evaluate_stream_on_davis_refuses_a_class_table(tmp_path, capsys):
+    """``--classes camvid11`` on DAVIS scored the object and its background as camvid11's building and pole (an mIoU
+    of the object's mask read as a street scene) and left no method in the J and F tables: refused in one line."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(4))
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--classes", "camvid11", "--out",
+                 str(tmp_path / "o")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "--classes with --data davis:PATH" in err[0]
+    assert not (tmp_path / "o" / "results.json").exists()

@@ -187,3 +187,31 @@ def test_masks_with_an_upper_case_suffix_are_masks(tmp_path):
         p.rename(p.with_suffix(".PNG"))
     plain = write_pcreg_layout(tmp_path / "plain", pairs)
     _same({"s": load_dataset(f"davis:{seq}")["upper"]}, {"s": load_dataset(f"davis:{plain}")["plain"]})
+
+
+@pytest.mark.parametrize("missing", ["00002.jpg", "00003.jpg"])
+def test_a_mask_without_its_frame_is_refused_naming_it(tmp_path, missing):
+    """A frame missing from a sequence whose mask is there (a copy cut short) was skipped: the frames after it
+    moved up one, the benchmark's frames 1 to n-2 were not the ones scored (the last frame's mask scored, or a
+    frame's left out), and the motion between two frames doubled. DAVIS masks every frame: refused."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(4))
+    (seq / "images" / missing).unlink()
+    mask = seq / "labels" / missing.replace(".jpg", ".png")
+    with pytest.raises(DatasetError) as err:
+        load_dataset(f"davis:{seq}")
+    assert str(err.value).startswith(f"{mask}: a mask without its frame")
+
+
+def test_a_file_beside_the_sequences_with_figures_of_its_own_does_not_cite_them_as_the_websites(tmp_path):
+    """A ``published_*.csv`` that held one row of the website's figures beside a method of its own (or a sequence
+    pcreg ships no figure for) was cited whole as the DAVIS website's data: the tables said the other figures
+    came from there. Only the figures checked against pcreg's copy carry that source."""
+    ours = tmp_path / "ours"
+    write_pcreg_layout(ours / "blackswan", frames_and_masks(3))
+    (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\nosvos,blackswan,0.9423,0.9753\n"
+                                             "mine,blackswan,0.5,0.4\nosvos,bear,0.9,0.9\n")
+    doc = published(ours)
+    assert doc["methods"] == ["osvos", "mine"]
+    assert doc["source"] != PUBLISHED_SOURCE
+    assert doc["source"] == (f"{PUBLISHED_SOURCE}, except the figures of mine, osvos that pcreg does not ship: "
+                             "published_mine.csv (which names no source)")

@@ -187,3 +187,24 @@ def test_data_help_names_davis_which_it_reads(capsys):
     with pytest.raises(SystemExit):
         main(["evaluate", "classification", "--help"])
     assert "davis:PATH[:val|train|all]" in " ".join(capsys.readouterr().out.split())
+
+
+def test_case_i_columns_of_sequences_of_different_lengths_name_the_k_of_their_cells(tmp_path):
+    """With sequences of different lengths, Case I's columns were named by the fractions (k=10% ... k=90%) while a
+    short sequence's cells, fewer after rounding (6 frames: k = 1..5), filled the first columns: its k=5 (83%) sat
+    under k=50%. Each cell now lies under the fraction that gave its k, and the other cells of its row are empty."""
+    _clip(tmp_path / "data" / "long", 10)
+    _clip(tmp_path / "data" / "short", 6, rng=np.random.default_rng(1))
+    out = tmp_path / "out"
+    assert run_cli(["--data", f"camvid:{tmp_path / 'data'}", "--cases", "I", "--features", "rgb", "--out", str(out)]) == 0
+    with open(out / "case1.csv", newline="") as fh:
+        header, *rows = list(csv.reader(fh))
+    assert header[2:] == [f"k={p}%" for p in range(10, 100, 10)]
+    frames = {"long": 10, "short": 6}
+    for row in rows:
+        for col, cell in zip(header[2:], row[2:]):
+            if cell:
+                k = int(cell.split("(k=")[1].rstrip(")"))
+                assert k == min(max(1, round(int(col[2:-1]) / 100 * frames[row[0]])), frames[row[0]] - 1), (row, col)
+    short = next(r for r in rows if r[0] == "short")
+    assert [c.split("(k=")[1] if c else "" for c in short[2:]] == ["1)", "", "2)", "", "3)", "4)", "", "5)", ""]

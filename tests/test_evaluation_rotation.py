@@ -104,3 +104,16 @@ def test_checks_say_when_neither_quarter_nor_half_turn_was_run():
     cell = dict.fromkeys(KEYS, 7.9)
     results = {"backends": {"reference": {"datasets": {"0016E5": {"angles": {"0": cell, "45": cell}}}}}}
     assert "- 0016E5: 0 degrees 7.90; neither 90 nor 180 degrees in the angle set\n" in checks(results)
+
+
+@pytest.mark.parametrize("angles", ["100.0001,100.0002", "5,5", "0,-0"])
+def test_angles_that_the_results_would_name_alike_are_refused(tmp_path, capsys, angles):
+    """Results name an angle by its 6 significant digits (``100.0001`` and ``100.0002`` are both ``100``): two such
+    angles were one row written twice, the second angle's errors under both, and ``-0`` was not the ``0`` the checks
+    read. Refused in one line before anything runs."""
+    out = tmp_path / "o"
+    assert main(["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "2", "--size", "64x48",
+                 "--samples", "1", f"--angles={angles}", "--out", str(out)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and "--angles" in err[0] and "one angle" in err[0]
+    assert not (out / "results.json").exists()

@@ -144,3 +144,30 @@ def test_hidden_files_in_a_clip_folder_are_skipped(tmp_path, capsys, classes):
         runs[case] = ([(r["name"], r["errors"]) for r in res["units"][0]["frames"]], res["datasets"]["clip"]["frames"])
     capsys.readouterr()
     assert runs["hidden"] == runs["clean"] and runs["clean"][1] == 3
+
+
+def test_a_clip_that_plain_labels_without_error_leaves_the_mean_reduction_of_the_others(tmp_path):
+    """A clip on which naive Bayes alone makes no error has no reduction against it (0 of 0): its NaN made every
+    method's mean reduction over the clips NaN, the last row of the table nan and the checks 'NOT met (nan% ...)'.
+    The mean is over the clips that have one, and the table names the clip left out."""
+    import cv2
+
+    _clip(tmp_path / "data" / "a", 4)
+    easy = tmp_path / "data" / "b"
+    (easy / "images").mkdir(parents=True)
+    (easy / "labels").mkdir()
+    image, lab = np.zeros((72, 96, 3), np.uint8), np.full((72, 96), CAMVID_ID[0], np.uint8)
+    image[:36], lab[:36] = 255, CAMVID_ID[1]  # white obstacle above a black road: no pixel in doubt
+    for i in range(4):
+        cv2.imwrite(str(easy / "images" / f"f{i:02d}.png"), image)
+        cv2.imwrite(str(easy / "labels" / f"f{i:02d}.png"), lab)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--methods", "unregistered",
+                 "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["datasets"]["b"]["means"]["plain"] == 0 and res["datasets"]["b"]["reduction"]["plain"] is None
+    for m in ("plain", "unregistered"):
+        assert res["average_reduction"][m] == pytest.approx(res["datasets"]["a"]["reduction"][m])
+    table = (out / "stream_reference.md").read_text()
+    assert "| nan |" not in table.split("reduction vs plain")[1].splitlines()[0]
+    assert "b: naive Bayes alone made no error, no reduction to take; left out of the mean" in table

@@ -182,6 +182,19 @@ def _frame_files(frames: Path, name: str, n_frames: int | None) -> list[Path]:
     return files[:n_frames] if n_frames is not None else files
 
 
+def _check_masks_have_frames(masks: Path, files: list[Path]) -> None:
+    """Refuse a mask of ``masks`` (a PNG, hidden files left out) whose frame is not among ``files``: a frame
+    missing from the sequence (a copy cut short) would move every later frame up one, and other frames than
+    the benchmark's would be scored."""
+    if not masks.is_dir():
+        return
+    stems = {f.stem for f in files}
+    for m in sorted(masks.iterdir()):
+        if m.suffix.lower() == ".png" and m.is_file() and not m.name.startswith(".") and m.stem not in stems:
+            raise DatasetError(f"{m}: a mask without its frame (no {m.stem}.jpg or .png in {files[0].parent}): "
+                               "DAVIS masks every frame, and a frame missing would shift the frames scored")
+
+
 def _mask_file(masks: Path, stem: str) -> Path:
     """``masks/STEM.png``, or ``STEM.PNG`` where only that is (masks saved on Windows), as frames' suffixes are read
     in any case."""
@@ -210,14 +223,16 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
     ``get_all_masks``: the objects are those of the first frame). A void index is label 2 (unknown).
 
     Refused with a :class:`~pcreg.errors.DatasetError` naming the file: no frame, no mask for the first
-    frame, an empty object on it, a missing mask of a later frame, a mask of another size than its frame,
-    a frame or mask that does not decode.
+    frame, an empty object on it, a missing mask of a later frame, a mask without its frame, a mask of
+    another size than its frame, a frame or mask that does not decode.
     """
     from ..classes.mappings import object_labels, palette_objects
 
     frames, masks = Path(frames), Path(masks)
     name = name or frames.name
-    files = _frame_files(frames, name, n_frames)
+    every = _frame_files(frames, name, None)
+    _check_masks_have_frames(masks, every)
+    files = every[:n_frames] if n_frames is not None else every
     objects: tuple[int | None, ...] = (None,)
     void = None
     out: dict[int | None, list[Frame]] = {}
@@ -310,8 +325,9 @@ def published(path: str | Path) -> dict:
     starting with ``#`` skipped), else from :data:`PUBLISHED_CSV`.
 
     ``source`` cites where the figures come from: :data:`PUBLISHED_SOURCE` for pcreg's own, or for a file
-    beside the sequences whose figures are those (within 0.0005) on every method and sequence both hold;
-    else the file itself, saying that it names no source.
+    beside the sequences whose figures are those (within 0.0005) on every method and sequence both hold (the
+    file named for the figures of methods or sequences pcreg does not ship); else the file itself, saying
+    that it names no source.
     """
     _, beside, _ = select_sequences(path, split="all")  # where they lie, whichever split is evaluated
     files = sorted(beside.glob("published_*.csv"))
@@ -320,8 +336,12 @@ def published(path: str | Path) -> dict:
     if files:
         ours = {(r["method"], r["sequence"]): r for r in _read_published(PUBLISHED_CSV)}
         shared = [(r, ours[(r["method"], r["sequence"])]) for r in rows if (r["method"], r["sequence"]) in ours]
+        names = f"{', '.join(f.name for f in files)} (which names no source)"
         if not shared or any(abs(a[k] - b[k]) > 5e-4 for a, b in shared for k in ("J", "F")):
-            source = f"{', '.join(f.name for f in files)} (which names no source)"
+            source = names
+        elif len(shared) < len(rows):  # the website's figures beside others: those others are the file's own
+            own = dict.fromkeys(r["method"] for r in rows if (r["method"], r["sequence"]) not in ours)
+            source = f"{PUBLISHED_SOURCE}, except the figures of {', '.join(own)} that pcreg does not ship: {names}"
     methods = list(dict.fromkeys(r["method"] for r in rows))
     doc: dict = {"file": ", ".join(str(f) for f in files) if files else str(PUBLISHED_CSV), "source": source,
                  "methods": methods, "J": {m: {} for m in methods}, "F": {m: {} for m in methods}}

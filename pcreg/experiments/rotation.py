@@ -196,12 +196,28 @@ def sample_indices(n: int, samples: int) -> list[int]:
     return sorted({int(round(v)) for v in np.linspace(0, n - 1, min(samples, n))})
 
 
+def check_angles(angles) -> None:
+    """Refuse two angles that the results name alike (:func:`~pcreg.experiments.units.angle_key`, 6 significant
+    digits): one row would hold the second's errors under both."""
+    from ..errors import InputError
+    from .units import angle_key
+
+    seen: dict[str, float] = {}
+    for a in angles:
+        key = angle_key(a)
+        if key in seen:
+            raise InputError(f"--angles: {seen[key]!r} and {a!r} are one angle in the results, which name each by 6 "
+                             f"significant digits ({key}); give each angle once")
+        seen[key] = a
+
+
 def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
     """Run every unit (resuming from ``out/units``); returns its :class:`Results`."""
     from ..errors import DatasetError
     from .units import Unit, evaluate_units, load_cached
 
+    check_angles(config.angles)
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     units = []
     for name, frames in datasets.items():

@@ -281,9 +281,17 @@ def reduction(plain: float, value: float) -> float:
     return 100.0 * (plain - value) / plain if plain else float("nan")
 
 
+def _finite_mean(values: list[float]) -> float:
+    """The mean of the finite ``values``; NaN when none is."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
 def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
     """Per clip the mean error of every method and its reduction against plain; the
-    average reduction over clips; the units (per-frame errors) themselves."""
+    average reduction over the clips that have one (plain made some error); the units (per-frame errors)
+    themselves."""
     from .units import plain_config
 
     clips = {}
@@ -300,7 +308,8 @@ def summarise(config: StreamConfig, unit_results: list[dict]) -> Results:
                                   if r.get("classes_not_in_keys") else {})}
     pooled = sum((np.asarray(r.get("calibration", np.zeros((2, CONFIDENCE_LEVELS))), np.int64) for r in unit_results),
                  np.zeros((2, CONFIDENCE_LEVELS), np.int64))
-    average = {m: float(np.mean([c["reduction"][m] for c in clips.values()])) for m in config.methods} if clips else {}
+    # a clip on which plain makes no error has no reduction (NaN): the mean is over the clips that have one
+    average = {m: _finite_mean([c["reduction"][m] for c in clips.values()]) for m in config.methods} if clips else {}
     sections = {"average_reduction": average, "calibration": calibration(pooled)}
     if is_davis(config.data):
         sections["davis"] = summarise_davis(config, unit_results)

@@ -30,12 +30,16 @@ def is_davis(data: str) -> bool:
 
 
 def check_davis_config(config) -> None:
-    """Refuse what the benchmark's protocol cannot score: ``--keys`` (key frames other than the first)."""
+    """Refuse what the benchmark's protocol cannot score: ``--keys`` (key frames other than the first), and
+    ``--classes`` (a table's classes: DAVIS's masks are one object against its background, scored by J and F)."""
     from ..errors import InputError
 
     if is_davis(config.data) and config.keys is not None:
         raise InputError("--keys with --data davis:PATH: DAVIS gives the first frame's mask only; "
                          "use the default key frame (or --key-every N)")
+    if is_davis(config.data) and getattr(config, "classes", None) is not None:
+        raise InputError(f"--classes with --data davis:PATH: DAVIS's masks are one object against its background, "
+                         f"not {config.classes}'s classes; leave --classes out (J and F score the object)")
 
 
 class DavisScores:
@@ -100,9 +104,12 @@ def summarise_davis(config, unit_results: list[dict]) -> dict:
     from ..datasets.davis_splits import parse_davis_arg
 
     units = [u for u in unit_results if "davis" in u]
-    seqs = {u["dataset"]: {"frames": len(u["davis"]["frames"]), **{k: u["davis"]["means"][k] for k in MEASURES}}
-            for u in units}
-    methods = [m for m in config.methods if all(m in s["J"] for s in seqs.values())]
+    methods = list(config.methods)
+    # a sequence with no scored frame (fewer than 3) has no value of any method: NaN, left out of the means
+    seqs: dict[str, dict] = {u["dataset"]: {"frames": len(u["davis"]["frames"]),
+                                            **{k: {m: u["davis"]["means"][k].get(m, float("nan")) for m in methods}
+                                               for k in MEASURES}}
+                             for u in units}
     mean = {k: {m: benchmark_mean(s[k][m] for s in seqs.values()) for m in methods} for k in MEASURES}
     path, split = parse_davis_arg(config.data.partition(":")[2])
     found, _, chosen = select_sequences(path, split=split)

@@ -65,8 +65,8 @@ def load_cached(data: str, *, frames: int | None, size: tuple[int, int] | None, 
 
 
 def angle_key(angle: float) -> str:
-    """JSON key of an angle: ``"90"``, ``"2.5"``."""
-    return f"{angle:g}"
+    """JSON key of an angle: ``"90"``, ``"2.5"`` (6 significant digits; -0 is ``"0"``)."""
+    return f"{angle + 0.0:g}"
 
 
 def plain_config(config: Any) -> dict:

@@ -27,10 +27,11 @@ def tables(results: dict) -> dict[str, tuple[list, list]]:
         ks = results["k"]["I"]
         cols = max(len(v) for v in ks.values())
         same = len({tuple(v) for v in ks.values()}) == 1
+        fractions = [] if same or config["case1_k"] else list(config["case1_fractions"])
         if same:
             top = [f"k={k}" for k in ks[names[0]]]
-        elif not config["case1_k"] and len(config["case1_fractions"]) == cols:
-            top = [f"k={100 * f:g}%" for f in config["case1_fractions"]]
+        elif fractions:  # each cell under the fraction that gave its k (:func:`_fraction_columns`)
+            top = [f"k={100 * f:g}%" for f in fractions]
         else:
             top = [f"k{i + 1}" for i in range(cols)]
         header = ["dataset", "features"] + top
@@ -38,11 +39,10 @@ def tables(results: dict) -> dict[str, tuple[list, list]]:
         for fs in config["features"]:
             for d in names:
                 by_k = {u["key"][2]: u for u in units if u["case"] == "I" and u["features"] == fs and u["key"][1] == d}
-                cells = []
-                for k in ks[d]:
-                    e = by_k[k]["error"]
-                    cells.append(e if same else f"{e:.2f} (k={k})")
-                rows.append([_label(d, info), fs, *cells])
+                cells = [by_k[k]["error"] if same else f"{by_k[k]['error']:.2f} (k={k})" for k in ks[d]]
+                if fractions:
+                    cells = _fraction_columns(cells, ks[d], fractions, info[d]["frames"])
+                rows.append([_label(d, info), fs, *cells, *[""] * (len(top) - len(cells))])
         out["case1"] = (header, rows)
     if "II" in config["cases"]:
         header = ["trained on", "features", *[f"test {d}" for d in names], "test all"]
@@ -64,6 +64,20 @@ def tables(results: dict) -> dict[str, tuple[list, list]]:
                              u["error"]])
         out["case3"] = (header, rows)
     return out
+
+
+def _fraction_columns(cells: list, ks: list[int], fractions: list[float], n: int) -> list:
+    """A sequence of ``n`` frames' Case I cells (one per k of ``ks``), each under the first of ``fractions`` whose
+    k it is (:func:`pcreg.experiments.classification.resolve_k`; a short sequence's fractions round to fewer k),
+    "" under the others."""
+    from ..classification import resolve_k
+
+    by_k = dict(zip(ks, cells))
+    out = []
+    for f in fractions:
+        k = resolve_k(n, (), (f,), dataset="", case="I", need_test=True)[0]
+        out.append(by_k.pop(k, ""))
+    return out if not by_k else cells  # a k of no fraction (results of other fractions): in k order, as they were
 
 
 _TITLES = {

@@ -21,6 +21,8 @@ def table(results: dict) -> tuple[list, list, str]:
     footer = ("\n(error %, unknown truth left out; the last row: how much lower than plain, in percent of "
               "plain, averaged over the clips)\n")
     for name, c in results["datasets"].items():
+        if c["means"].get("plain") == 0:  # 0 of 0: no reduction (:func:`pcreg.experiments.stream.summarise`)
+            footer += f"\n{name}: naive Bayes alone made no error, no reduction to take; left out of the mean\n"
         if c.get("unscored"):  # frames whose truth is all unknown: no error to take
             footer += (f"\n{name}: {len(c['unscored'])} frame(s) not scored, their truth all unknown (void): "
                        f"{', '.join(c['unscored'][:6])}{', ...' if len(c['unscored']) > 6 else ''}\n")

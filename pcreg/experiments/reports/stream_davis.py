@@ -36,6 +36,10 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
                    "objects, a sequence with one object counting once, as the DAVIS 2017 evaluation "
                    "(davis2017-evaluation) averages.\n")
     footer += _published_note(d, measure)
+    short = [n for n, s in d["sequences"].items() if not s["frames"]]
+    if short:
+        footer += (f"\n{', '.join(short)}: fewer than 3 frames, none scored (frames 1 to n-2): nan, left out of the "
+                   "means.\n")
     if results["config"].get("frames"):
         footer += (f"\nOnly the first {results['config']['frames']} frames of each sequence were run (--frames): the "
                    "published figures are over whole sequences, and the two do not compare.\n")

@@ -15,6 +15,15 @@ from _runs import one_line_errors
 from test_follow_objects import moving_object
 
 
+def test_a_key_mask_without_the_object_says_so():
+    """A key mask of background alone was "too small to follow (0 px)", as if an object were there to shrink."""
+    pairs = moving_object(2)
+    key = np.zeros_like(pairs[0][1])
+    key[:5] = 2  # background and unknown
+    with pytest.raises(InputError, match="has no object pixel"):
+        ObjectFollower.from_key_frame(pairs[0][0], key)
+
+
 @pytest.mark.parametrize("pixels", [1, 4])
 def test_a_key_object_too_small_for_the_working_size_is_refused(tmp_path, capsys, pixels):
     # a few px at the frames' size cover no pixel at half size: every frame read 'no object' at confidence 1

@@ -370,6 +370,8 @@ class ObjectFollower:
         obj = cv2.resize((lab == 1).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
         # the object's share where known; unknown: 0.5, no evidence either way
         self._share = np.where(known > 0.5, obj / np.maximum(known, 1e-6), 0.5).astype(np.float32)
+        if not (lab == 1).any():
+            raise InputError("the key frame's mask has no object pixel (1): nothing to follow")
         if not (self._share > 0.5).any():  # nothing to carry: every frame would read 'no object', confidently
             raise InputError(f"the key frame's object ({int((lab == 1).sum())} px) covers no pixel at the size the "
                              f"follower works at ({w}x{h}): too small to follow")

@@ -250,6 +250,31 @@ def _tiff_size(data: bytes) -> tuple[int, int] | None:
         return None
 
 
+def _tiff_as_stored(data: bytes) -> bytes | bytearray:
+    """A TIFF's ``data`` with the Orientation tag (274) of its first image set to 1 where it says another (2..8): OpenCV's
+    TIFF decoder turns and mirrors the pixels by it whatever the flags (``IMREAD_IGNORE_ORIENTATION`` and
+    ``IMREAD_UNCHANGED`` included), where it leaves a JPEG's, a PNG's and a WebP's EXIF orientation alone, so that
+    pcreg reads every file's pixels as stored. ``data`` itself where there is nothing to set (else one copy)."""
+    end = "<" if data[:2] == b"II" else ">"
+    try:
+        (off,) = struct.unpack(end + "I", data[4:8])
+        (count,) = struct.unpack(end + "H", data[off:off + 2])
+        for k in range(min(count, 4096)):
+            e = off + 2 + 12 * k
+            tag, typ = struct.unpack(end + "HH", data[e:e + 4])
+            if tag == 274 and typ in (3, 4):  # SHORT, as the standard has it; LONG read the same
+                size = 2 if typ == 3 else 4
+                (value,) = struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + 8 + size])
+                if not 2 <= value <= 8:
+                    return data
+                patched = bytearray(data)
+                patched[e + 8:e + 8 + size] = (1).to_bytes(size, "little" if end == "<" else "big")
+                return patched
+    except struct.error:
+        pass
+    return data
+
+
 def _tiff_pages(data: bytes) -> int:
     """The images a TIFF file holds (Pillow's frames: the chain of its IFDs), those that are a reduced-resolution
     copy (a thumbnail) or a transparency mask of another (NewSubfileType bits 0 and 2) left out; a file Pillow
@@ -441,12 +466,13 @@ def _animation_frames(data: bytes, fmt: str) -> int:
 def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int | None = None) -> np.ndarray:
     """``cv2.imdecode`` of checked bytes; OpenCV's errors become :class:`InputError`. The pixels as the file
     stores them, whatever the flags: an EXIF orientation is never applied (``IMREAD_UNCHANGED`` ignores
-    it, and other flags get ``IMREAD_IGNORE_ORIENTATION``), so a frame and its labels share one grid
+    it, other flags get ``IMREAD_IGNORE_ORIENTATION``, and a TIFF's Orientation tag, which OpenCV applies whatever
+    the flags, is set to 1 for the decoder: :func:`_tiff_as_stored`), so a frame and its labels share one grid
     however each is read."""
     return _decoded(data, name, flags=flags, limit=limit)[0]
 
 
-def _decoded(data: bytes, name: str, *, flags: int | None, limit: int | None) -> tuple[np.ndarray, str]:
+def _decoded(data: bytes | bytearray, name: str, *, flags: int | None, limit: int | None) -> tuple[np.ndarray, str]:
     """:func:`decode_image`, and the last line its codec printed ("" for none)."""
     import cv2
 
@@ -455,6 +481,8 @@ def _decoded(data: bytes, name: str, *, flags: int | None, limit: int | None) ->
         raise InputError(f"{name}: cannot decode image ({cut}: cut short?)")
     if flags is not None and flags != cv2.IMREAD_UNCHANGED:
         flags |= cv2.IMREAD_IGNORE_ORIENTATION
+    if data[:4] in (b"II*\x00", b"MM\x00*"):  # OpenCV turns a TIFF by its Orientation tag whatever the flags
+        data = _tiff_as_stored(data)
     img, said = imdecode_quietly(data, cv2.IMREAD_UNCHANGED if flags is None else flags)
     if isinstance(img, Exception):
         raise InputError(f"{name}: cannot decode image ({_cv2_message(img)})") from None

@@ -55,3 +55,54 @@ def test_a_tiff_with_an_orientation_tag_reads_as_stored_like_a_jpeg(tmp_path, ca
         out, err = capsys.readouterr()
         np.testing.assert_allclose(json.loads(out)["matrix"], np.eye(3), atol=1e-6)
         assert f"o{orientation}.tif's EXIF orientation {orientation} has viewers show it" in err
+
+
+def _transparent_pair(tmp_path):
+    """Two RGBA photos whose visible parts are one scene shifted by (-20, 15), and whose transparent halves hold one
+    same picture (as a cut-out exported with what was behind it); and that shift."""
+    from pcreg.datasets.textures import texture
+
+    scene = texture("leaves", height=240, width=320)
+    h, w = scene.shape[:2]
+    T = np.array([[1.0, 0, -20], [0, 1, 15], [0, 0, 1]])
+    hidden = texture("leaves", height=h, width=w // 2, seed=1)
+    for name, img in (("a.png", scene), ("b.png", moved(scene, T))):
+        rgba = np.dstack([img[:, :, ::-1], np.full((h, w), 255, np.uint8)])
+        rgba[:, : w // 2, :3], rgba[:, : w // 2, 3] = hidden[:, :, ::-1], 0
+        cv2.imwrite(str(tmp_path / name), rgba)
+    return tmp_path / "a.png", tmp_path / "b.png", T
+
+
+def test_crosscheck_leaves_transparent_pixels_out_as_register_does(tmp_path, capsys):
+    """``pcreg crosscheck`` of two photos checks what ``pcreg register`` does with them: it registered their
+    transparent parts, which ``register`` leaves out (a viewer shows nothing there), and both backends agreed on a
+    shift of 0 where ``register`` finds (-20, 15)."""
+    a, b, T = _transparent_pair(tmp_path)
+    assert main(["register", str(a), str(b), "--json"]) == 0
+    registered = np.array(json.loads(capsys.readouterr().out)["matrix"])
+    assert main(["crosscheck", str(a), str(b), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    for found in (registered, np.array(report["reference"]["matrix"]), np.array(report["open3d"]["matrix"])):
+        np.testing.assert_allclose(found[:2, 2], T[:2, 2], atol=0.5)
+    assert np.abs(np.array(pcreg.crosscheck(a, b).reference.matrix)[:2, 2] - T[:2, 2]).max() < 0.5
+
+
+def test_crosscheck_names_the_image_file_a_refusal_is_about(tmp_path, capsys):
+    """``pcreg crosscheck`` of a photo refused for its content named no file ("the moving image has no usable edges",
+    "the reference image (12x10) is too small for 4 pyramid levels"), where ``pcreg register`` names it; nor did it
+    say that a 16-bit image's values use only its lowest bits, as ``register`` does."""
+    rgb = shapes_image()
+    cv2.imwrite(str(tmp_path / "photo.png"), rgb[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "flat.png"), np.full((100, 100, 3), 128, np.uint8))
+    cv2.imwrite(str(tmp_path / "small.png"), cv2.resize(rgb, (12, 10)))
+    cv2.imwrite(str(tmp_path / "dark16.png"), rgb.astype(np.uint16))  # 8-bit values in 16 bits: nearly black
+    photo = tmp_path / "photo.png"
+    for a, b, code, said in ((photo, tmp_path / "flat.png", 3, "the moving image has no usable edges (a flat"),
+                             (tmp_path / "small.png", photo, 2, "the reference image (12x10) is too small"),
+                             (photo, tmp_path / "dark16.png", 3, "the moving image has no usable edges: its 16-bit "
+                                                                 "values lie in")):
+        for command in ("register", "crosscheck"):
+            assert main([command, str(a), str(b)]) == code, command
+            err = capsys.readouterr().err.splitlines()
+            named = b if "moving" in said else a
+            assert len(err) == 1 and f": {named}: {said}" in err[0], (command, err)

@@ -106,3 +106,23 @@ def test_crosscheck_names_the_image_file_a_refusal_is_about(tmp_path, capsys):
             err = capsys.readouterr().err.splitlines()
             named = b if "moving" in said else a
             assert len(err) == 1 and f": {named}: {said}" in err[0], (command, err)
+
+
+def test_a_dataset_folder_reads_its_frames_as_a_run_and_register_do(tmp_path):
+    """``load_folder`` (``pcreg evaluate --data folder:PATH``) decoded frames with OpenCV's 8-bit colour read where
+    ``pcreg run``, ``register`` and ``pcreg.load_image`` read the file as stored and convert it: a 16-bit photo came out
+    one level darker at some pixels (its low byte dropped, not rounded), and a TIFF of floats in [0, 1], which they
+    read, was refused ("cannot decode image (OpenCV TIFF: ... can not handle images with 32-bit samples)")."""
+    from pcreg.datasets import load_folder
+
+    rgb = shapes_image()
+    rng = np.random.default_rng(0)
+    (tmp_path / "images").mkdir()
+    deep = rgb.astype(np.uint16) * 257 + rng.integers(0, 257, rgb.shape).astype(np.uint16)
+    cv2.imwrite(str(tmp_path / "images" / "f0.png"), deep[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "images" / "f1.tif"), (rgb[:, :, ::-1] / 255.0).astype(np.float32))
+    cv2.imwrite(str(tmp_path / "images" / "f2.jpg"), rgb[:, :, ::-1])
+    frames = load_folder(tmp_path, mapping=None)
+    assert [f.name for f in frames] == ["f0", "f1", "f2"]
+    for frame, name in zip(frames, ("f0.png", "f1.tif", "f2.jpg")):
+        np.testing.assert_array_equal(frame.image, pcreg.load_image(tmp_path / "images" / name), err_msg=name)

@@ -25,7 +25,7 @@ from .quiet import capture_output_fds
 from .validation import check_pixels, max_pixels
 
 #: The image files pcreg reads from a folder (by suffix, any case); what decodes is checked by header.
-IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".jfif")
 
 
 def max_file_bytes(limit: int) -> int:

@@ -126,3 +126,24 @@ def test_a_dataset_folder_reads_its_frames_as_a_run_and_register_do(tmp_path):
     assert [f.name for f in frames] == ["f0", "f1", "f2"]
     for frame, name in zip(frames, ("f0.png", "f1.tif", "f2.jpg")):
         np.testing.assert_array_equal(frame.image, pcreg.load_image(tmp_path / "images" / name), err_msg=name)
+
+
+def test_a_jpeg_named_jfif_is_read_by_every_command(tmp_path, capsys):
+    """A JPEG saved as ``.jfif`` (as browsers save a photo) is read by its header like any JPEG: ``pcreg register``
+    read it, but ``pcreg crosscheck`` refused it as "unknown file type '.jfif'", and ``pcreg run`` passed over it as
+    "in a format pcreg does not read ... convert it to PNG"."""
+    from pcreg.datasets.sources import FolderFrames
+
+    rgb = shapes_image()
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(frames / f"f{i}.jpg"), np.roll(rgb, 2 * i, axis=1)[:, :, ::-1])
+        (frames / f"f{i}.jpg").rename(frames / f"f{i}.jfif")
+    a, b = frames / "f0.jfif", frames / "f1.jfif"
+    for command in ("register", "crosscheck"):
+        assert main([command, str(a), str(b)]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    source = FolderFrames(frames)
+    assert (len(source), source.note()) == (3, None)
+    np.testing.assert_array_equal(source.read(1)[0], pcreg.load_image(b))

@@ -490,6 +490,10 @@ def _decoded(data: bytes | bytearray, name: str, *, flags: int | None, limit: in
         raise InputError(f"{name}: cannot decode image ({said or 'corrupt or truncated'})")
     if img.shape[0] != h or img.shape[1] != w:
         raise InputError(f"{name}: decoded {img.shape[1]}x{img.shape[0]} px but the header says {w}x{h}")
+    if data[:2] == b"BM" and img.ndim == 3 and img.shape[2] == 4 and not img[:, :, 3].any():
+        # a 32-bit BMP whose fourth byte is 0 everywhere: unused (OpenCV reads it as alpha even where the file's
+        # alpha mask is 0, as Windows' screenshots have it); browsers show such a BMP opaque
+        img = img[:, :, :3]
     return img, said
 
 

@@ -147,3 +147,30 @@ def test_a_jpeg_named_jfif_is_read_by_every_command(tmp_path, capsys):
     source = FolderFrames(frames)
     assert (len(source), source.note()) == (3, None)
     np.testing.assert_array_equal(source.read(1)[0], pcreg.load_image(b))
+
+
+def _bmp32(rgb: np.ndarray, *, header: int, masks: tuple[int, int, int, int]) -> bytes:
+    """A 32-bit BI_BITFIELDS BMP of ``rgb`` (bottom-up, ``header`` 40 with its masks after it, or a 124-byte V5 header
+    holding them), the fourth byte of every pixel 0: ``masks`` (red, green, blue, alpha) say whether that byte is alpha
+    (Windows' screenshots and GDI write it so, alpha mask 0)."""
+    h, w = rgb.shape[:2]
+    pixels = np.dstack([rgb[:, :, ::-1], np.zeros((h, w), np.uint8)])[::-1].tobytes()
+    info = struct.pack("<IiiHHIIiiII", header, w, h, 1, 32, 3, len(pixels), 2835, 2835, 0, 0)
+    info += struct.pack("<4I", *masks) + bytes(header - 56 if header > 40 else 0)
+    at = 14 + len(info)
+    return b"BM" + struct.pack("<IHHI", at + len(pixels), 0, 0, at) + info + pixels
+
+
+def test_a_32_bit_bmp_whose_fourth_byte_is_0_everywhere_is_opaque(tmp_path, capsys):
+    """OpenCV decodes a 32-bit BI_BITFIELDS BMP as four channels, the fourth byte of each pixel its alpha, even where
+    the file declares no alpha (mask 0; Windows' screenshots): ``pcreg register`` refused such a photo as "every pixel
+    is transparent (alpha 0 everywhere)", a viewer shows it opaque (browsers take a BMP's alpha of 0 everywhere as none)."""
+    rgb = shapes_image()
+    cv2.imwrite(str(tmp_path / "photo.png"), rgb[:, :, ::-1])
+    (tmp_path / "screen.bmp").write_bytes(_bmp32(rgb, header=40, masks=(0xFF0000, 0xFF00, 0xFF, 0)))
+    (tmp_path / "v5.bmp").write_bytes(_bmp32(rgb, header=124, masks=(0xFF0000, 0xFF00, 0xFF, 0xFF000000)))
+    for name in ("screen.bmp", "v5.bmp"):
+        np.testing.assert_array_equal(pcreg.load_image(tmp_path / name), rgb)
+        for command in ("register", "crosscheck"):
+            assert main([command, str(tmp_path / "photo.png"), str(tmp_path / name)]) == 0, capsys.readouterr().err
+        assert "transparent" not in capsys.readouterr().err

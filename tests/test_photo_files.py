@@ -174,3 +174,17 @@ def test_a_32_bit_bmp_whose_fourth_byte_is_0_everywhere_is_opaque(tmp_path, caps
         for command in ("register", "crosscheck"):
             assert main([command, str(tmp_path / "photo.png"), str(tmp_path / name)]) == 0, capsys.readouterr().err
         assert "transparent" not in capsys.readouterr().err
+
+
+def test_a_folder_of_tiff_frames_with_an_orientation_tag_reads_every_frame(tmp_path):
+    """``pcreg run`` of a folder of TIFF frames all tagged with orientation 6 refused every frame after the first as
+    "320x240 px, the first frame f0.tif 240x320": the first frame's size was taken from Pillow, which gives a TIFF's
+    size turned by its Orientation tag, the others' from their pixels as stored."""
+    from pcreg.datasets.sources import FolderFrames
+
+    rgb = shapes_image()
+    for i in range(3):
+        (tmp_path / f"f{i}.tif").write_bytes(_tiff(np.roll(rgb, 2 * i, axis=1), 6))
+    source = FolderFrames(tmp_path)
+    for t in range(3):
+        np.testing.assert_array_equal(source.read(t)[0], np.roll(rgb, 2 * t, axis=1))

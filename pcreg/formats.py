@@ -275,6 +275,24 @@ def _tiff_as_stored(data: bytes) -> bytes | bytearray:
     return data
 
 
+def _tiff_first_reduced(data: bytes) -> bool:
+    """Whether a TIFF's first image is a reduced-resolution copy (a thumbnail: NewSubfileType, tag 254, bit 0) of
+    another, as :func:`_tiff_pages` leaves such images out of its count."""
+    end = "<" if data[:2] == b"II" else ">"
+    try:
+        (off,) = struct.unpack(end + "I", data[4:8])
+        (count,) = struct.unpack(end + "H", data[off:off + 2])
+        for k in range(min(count, 4096)):
+            e = off + 2 + 12 * k
+            tag, typ = struct.unpack(end + "HH", data[e:e + 4])
+            if tag == 254 and typ in (3, 4):
+                value = struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + (10 if typ == 3 else 12)])[0]
+                return bool(value & 1)
+    except struct.error:
+        pass
+    return False
+
+
 def _tiff_pages(data: bytes) -> int:
     """The images a TIFF file holds (Pillow's frames: the chain of its IFDs), those that are a reduced-resolution
     copy (a thumbnail) or a transparency mask of another (NewSubfileType bits 0 and 2) left out; a file Pillow
@@ -409,6 +427,10 @@ def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tu
     if fmt == "TIFF" and (pages := _tiff_pages(data)) > 1:
         raise InputError(f"{name}: a TIFF of {pages} pages, of which pcreg would read the first alone; split it into "
                          "one file a page (tiffsplit, or OpenCV's cv2.imreadmulti and cv2.imwrite)")
+    if fmt == "TIFF" and pages == 1 and _tiff_first_reduced(data):  # OpenCV decodes the first image, not the page
+        raise InputError(f"{name}: its first image is a reduced-resolution copy ({w}x{h} px), which pcreg would read, "
+                         "of the image it holds after it; save that image alone (tiffsplit, or Pillow's "
+                         "Image.seek(1) and save)")
     if fmt in ("PNG", "WebP") and (frames := _animation_frames(data, fmt)) > 1:
         raise InputError(f"{name}: an animated {fmt} of {frames} images, of which pcreg would read the first alone; "
                          "save the one meant as an image of its own (Pillow's ImageSequence, or ffmpeg)")

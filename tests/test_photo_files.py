@@ -188,3 +188,27 @@ def test_a_folder_of_tiff_frames_with_an_orientation_tag_reads_every_frame(tmp_p
     source = FolderFrames(tmp_path)
     for t in range(3):
         np.testing.assert_array_equal(source.read(t)[0], np.roll(rgb, 2 * t, axis=1))
+
+
+def test_a_tiff_whose_first_image_is_its_thumbnail_is_refused_not_read_as_the_photo(tmp_path, capsys):
+    """A TIFF whose first image is a reduced-resolution copy (NewSubfileType 1) and whose second is the photo: OpenCV
+    decodes the first alone, and ``pcreg.load_image`` gave the 80x60 thumbnail of a 320x240 photo without a word (the
+    page count left the thumbnail out, so the file passed as one page)."""
+    from PIL import Image, TiffImagePlugin
+
+    rgb = shapes_image()
+    path = tmp_path / "scan.tif"
+    with TiffImagePlugin.AppendingTiffWriter(str(path)) as tf:
+        info = TiffImagePlugin.ImageFileDirectory_v2()
+        info[254] = 1
+        Image.fromarray(np.ascontiguousarray(rgb[::4, ::4])).save(tf, format="TIFF", tiffinfo=info)
+        tf.newFrame()
+        Image.fromarray(rgb).save(tf, format="TIFF")
+        tf.newFrame()
+    with pytest.raises(pcreg.errors.InputError, match="its first image is a reduced-resolution copy"):
+        pcreg.load_image(path)
+    cv2.imwrite(str(tmp_path / "photo.png"), rgb[:, :, ::-1])
+    assert main(["register", str(tmp_path / "photo.png"), str(path)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: {path}: its first image is a reduced-resolution copy "
+                                               "(80x60 px)"), err

@@ -311,8 +311,8 @@ def _tiff_pages(data: bytes) -> int:
                 for k in range(getattr(tiff, "n_frames", 1)):
                     tiff.seek(k)
                     pages += not int(tiff.tag_v2.get(254, 0)) & 0b101  # NewSubfileType
-    except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError):
-        pass
+    except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError, TypeError):
+        pass  # TypeError: Pillow's "Missing dimensions" of an image directory without its size
     return pages
 
 

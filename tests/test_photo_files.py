@@ -212,3 +212,19 @@ def test_a_tiff_whose_first_image_is_its_thumbnail_is_refused_not_read_as_the_ph
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith(f"pcreg: error: {path}: its first image is a reduced-resolution copy "
                                                "(80x60 px)"), err
+
+
+def test_a_tiff_whose_second_image_has_no_size_is_bad_input_not_a_bug(tmp_path, capsys):
+    """A TIFF whose second image directory has no width and height (a damaged file): counting its pages, Pillow raised
+    TypeError ("Missing dimensions"), and ``pcreg register`` exited 1 as if pcreg had a bug. Its first image reads."""
+    rgb = shapes_image()
+    data = bytearray(_tiff(rgb, 1))
+    (count,) = struct.unpack("<H", data[8:10])
+    next_at = 10 + 12 * count  # where the first directory names the next one
+    second = len(data)
+    data[next_at:next_at + 4] = struct.pack("<I", second)
+    data += struct.pack("<HHHIHH", 1, 259, 3, 1, 1, 0) + struct.pack("<I", 0)  # compression alone: no size
+    (tmp_path / "damaged.tif").write_bytes(bytes(data))
+    cv2.imwrite(str(tmp_path / "photo.png"), rgb[:, :, ::-1])
+    np.testing.assert_array_equal(pcreg.load_image(tmp_path / "damaged.tif"), rgb)
+    assert main(["register", str(tmp_path / "photo.png"), str(tmp_path / "damaged.tif")]) == 0, capsys.readouterr().err

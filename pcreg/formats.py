@@ -250,47 +250,43 @@ def _tiff_size(data: bytes) -> tuple[int, int] | None:
         return None
 
 
+def _tiff_tag(data: bytes, tag: int) -> tuple[int, int, int] | None:
+    """``(value, at, size)`` of a SHORT or LONG ``tag`` of a TIFF's first image (``data[at:at + size]`` its value, in
+    the file's byte order), or None where it has none or the directory is cut short."""
+    end = "<" if data[:2] == b"II" else ">"
+    try:
+        (off,) = struct.unpack(end + "I", data[4:8])
+        (count,) = struct.unpack(end + "H", data[off:off + 2])
+        for k in range(min(count, 4096)):
+            e = off + 2 + 12 * k
+            found, typ = struct.unpack(end + "HH", data[e:e + 4])
+            if found == tag and typ in (3, 4):  # SHORT, LONG
+                size = 2 if typ == 3 else 4
+                return struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + 8 + size])[0], e + 8, size
+    except struct.error:
+        pass
+    return None
+
+
 def _tiff_as_stored(data: bytes) -> bytes | bytearray:
     """A TIFF's ``data`` with the Orientation tag (274) of its first image set to 1 where it says another (2..8): OpenCV's
     TIFF decoder turns and mirrors the pixels by it whatever the flags (``IMREAD_IGNORE_ORIENTATION`` and
     ``IMREAD_UNCHANGED`` included), where it leaves a JPEG's, a PNG's and a WebP's EXIF orientation alone, so that
     pcreg reads every file's pixels as stored. ``data`` itself where there is nothing to set (else one copy)."""
-    end = "<" if data[:2] == b"II" else ">"
-    try:
-        (off,) = struct.unpack(end + "I", data[4:8])
-        (count,) = struct.unpack(end + "H", data[off:off + 2])
-        for k in range(min(count, 4096)):
-            e = off + 2 + 12 * k
-            tag, typ = struct.unpack(end + "HH", data[e:e + 4])
-            if tag == 274 and typ in (3, 4):  # SHORT, as the standard has it; LONG read the same
-                size = 2 if typ == 3 else 4
-                (value,) = struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + 8 + size])
-                if not 2 <= value <= 8:
-                    return data
-                patched = bytearray(data)
-                patched[e + 8:e + 8 + size] = (1).to_bytes(size, "little" if end == "<" else "big")
-                return patched
-    except struct.error:
-        pass
-    return data
+    found = _tiff_tag(data, 274)
+    if found is None or not 2 <= found[0] <= 8:
+        return data
+    _, at, size = found
+    patched = bytearray(data)
+    patched[at:at + size] = (1).to_bytes(size, "little" if data[:2] == b"II" else "big")
+    return patched
 
 
 def _tiff_first_reduced(data: bytes) -> bool:
     """Whether a TIFF's first image is a reduced-resolution copy (a thumbnail: NewSubfileType, tag 254, bit 0) of
     another, as :func:`_tiff_pages` leaves such images out of its count."""
-    end = "<" if data[:2] == b"II" else ">"
-    try:
-        (off,) = struct.unpack(end + "I", data[4:8])
-        (count,) = struct.unpack(end + "H", data[off:off + 2])
-        for k in range(min(count, 4096)):
-            e = off + 2 + 12 * k
-            tag, typ = struct.unpack(end + "HH", data[e:e + 4])
-            if tag == 254 and typ in (3, 4):
-                value = struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + (10 if typ == 3 else 12)])[0]
-                return bool(value & 1)
-    except struct.error:
-        pass
-    return False
+    found = _tiff_tag(data, 254)
+    return found is not None and bool(found[0] & 1)
 
 
 def _tiff_pages(data: bytes) -> int:

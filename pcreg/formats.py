@@ -25,7 +25,7 @@ from .quiet import capture_output_fds
 from .validation import check_pixels, max_pixels
 
 #: The image files pcreg reads from a folder (by suffix, any case); what decodes is checked by header.
-IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".jfif")
 
 
 def max_file_bytes(limit: int) -> int:
@@ -250,6 +250,45 @@ def _tiff_size(data: bytes) -> tuple[int, int] | None:
         return None
 
 
+def _tiff_tag(data: bytes, tag: int) -> tuple[int, int, int] | None:
+    """``(value, at, size)`` of a SHORT or LONG ``tag`` of a TIFF's first image (``data[at:at + size]`` its value, in
+    the file's byte order), or None where it has none or the directory is cut short."""
+    end = "<" if data[:2] == b"II" else ">"
+    try:
+        (off,) = struct.unpack(end + "I", data[4:8])
+        (count,) = struct.unpack(end + "H", data[off:off + 2])
+        for k in range(min(count, 4096)):
+            e = off + 2 + 12 * k
+            found, typ = struct.unpack(end + "HH", data[e:e + 4])
+            if found == tag and typ in (3, 4):  # SHORT, LONG
+                size = 2 if typ == 3 else 4
+                return struct.unpack(end + ("H" if typ == 3 else "I"), data[e + 8:e + 8 + size])[0], e + 8, size
+    except struct.error:
+        pass
+    return None
+
+
+def _tiff_as_stored(data: bytes) -> bytes | bytearray:
+    """A TIFF's ``data`` with the Orientation tag (274) of its first image set to 1 where it says another (2..8): OpenCV's
+    TIFF decoder turns and mirrors the pixels by it whatever the flags (``IMREAD_IGNORE_ORIENTATION`` and
+    ``IMREAD_UNCHANGED`` included), where it leaves a JPEG's, a PNG's and a WebP's EXIF orientation alone, so that
+    pcreg reads every file's pixels as stored. ``data`` itself where there is nothing to set (else one copy)."""
+    found = _tiff_tag(data, 274)
+    if found is None or not 2 <= found[0] <= 8:
+        return data
+    _, at, size = found
+    patched = bytearray(data)
+    patched[at:at + size] = (1).to_bytes(size, "little" if data[:2] == b"II" else "big")
+    return patched
+
+
+def _tiff_first_reduced(data: bytes) -> bool:
+    """Whether a TIFF's first image is a reduced-resolution copy (a thumbnail: NewSubfileType, tag 254, bit 0) of
+    another, as :func:`_tiff_pages` leaves such images out of its count."""
+    found = _tiff_tag(data, 254)
+    return found is not None and bool(found[0] & 1)
+
+
 def _tiff_pages(data: bytes) -> int:
     """The images a TIFF file holds (Pillow's frames: the chain of its IFDs), those that are a reduced-resolution
     copy (a thumbnail) or a transparency mask of another (NewSubfileType bits 0 and 2) left out; a file Pillow
@@ -268,8 +307,8 @@ def _tiff_pages(data: bytes) -> int:
                 for k in range(getattr(tiff, "n_frames", 1)):
                     tiff.seek(k)
                     pages += not int(tiff.tag_v2.get(254, 0)) & 0b101  # NewSubfileType
-    except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError):
-        pass
+    except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError, TypeError):
+        pass  # TypeError: Pillow's "Missing dimensions" of an image directory without its size
     return pages
 
 
@@ -384,6 +423,10 @@ def check_image_bytes(data: bytes, name: str, *, limit: int | None = None) -> tu
     if fmt == "TIFF" and (pages := _tiff_pages(data)) > 1:
         raise InputError(f"{name}: a TIFF of {pages} pages, of which pcreg would read the first alone; split it into "
                          "one file a page (tiffsplit, or OpenCV's cv2.imreadmulti and cv2.imwrite)")
+    if fmt == "TIFF" and pages == 1 and _tiff_first_reduced(data):  # OpenCV decodes the first image, not the page
+        raise InputError(f"{name}: its first image is a reduced-resolution copy ({w}x{h} px), which pcreg would read, "
+                         "of the image it holds after it; save that image alone (tiffsplit, or Pillow's "
+                         "Image.seek(1) and save)")
     if fmt in ("PNG", "WebP") and (frames := _animation_frames(data, fmt)) > 1:
         raise InputError(f"{name}: an animated {fmt} of {frames} images, of which pcreg would read the first alone; "
                          "save the one meant as an image of its own (Pillow's ImageSequence, or ffmpeg)")
@@ -441,12 +484,13 @@ def _animation_frames(data: bytes, fmt: str) -> int:
 def decode_image(data: bytes, name: str, *, flags: int | None = None, limit: int | None = None) -> np.ndarray:
     """``cv2.imdecode`` of checked bytes; OpenCV's errors become :class:`InputError`. The pixels as the file
     stores them, whatever the flags: an EXIF orientation is never applied (``IMREAD_UNCHANGED`` ignores
-    it, and other flags get ``IMREAD_IGNORE_ORIENTATION``), so a frame and its labels share one grid
+    it, other flags get ``IMREAD_IGNORE_ORIENTATION``, and a TIFF's Orientation tag, which OpenCV applies whatever
+    the flags, is set to 1 for the decoder: :func:`_tiff_as_stored`), so a frame and its labels share one grid
     however each is read."""
     return _decoded(data, name, flags=flags, limit=limit)[0]
 
 
-def _decoded(data: bytes, name: str, *, flags: int | None, limit: int | None) -> tuple[np.ndarray, str]:
+def _decoded(data: bytes | bytearray, name: str, *, flags: int | None, limit: int | None) -> tuple[np.ndarray, str]:
     """:func:`decode_image`, and the last line its codec printed ("" for none)."""
     import cv2
 
@@ -455,6 +499,8 @@ def _decoded(data: bytes, name: str, *, flags: int | None, limit: int | None) ->
         raise InputError(f"{name}: cannot decode image ({cut}: cut short?)")
     if flags is not None and flags != cv2.IMREAD_UNCHANGED:
         flags |= cv2.IMREAD_IGNORE_ORIENTATION
+    if data[:4] in (b"II*\x00", b"MM\x00*"):  # OpenCV turns a TIFF by its Orientation tag whatever the flags
+        data = _tiff_as_stored(data)
     img, said = imdecode_quietly(data, cv2.IMREAD_UNCHANGED if flags is None else flags)
     if isinstance(img, Exception):
         raise InputError(f"{name}: cannot decode image ({_cv2_message(img)})") from None
@@ -462,6 +508,10 @@ def _decoded(data: bytes, name: str, *, flags: int | None, limit: int | None) ->
         raise InputError(f"{name}: cannot decode image ({said or 'corrupt or truncated'})")
     if img.shape[0] != h or img.shape[1] != w:
         raise InputError(f"{name}: decoded {img.shape[1]}x{img.shape[0]} px but the header says {w}x{h}")
+    if data[:2] == b"BM" and img.ndim == 3 and img.shape[2] == 4 and not img[:, :, 3].any():
+        # a 32-bit BMP whose fourth byte is 0 everywhere: unused (OpenCV reads it as alpha even where the file's
+        # alpha mask is 0, as Windows' screenshots have it); browsers show such a BMP opaque
+        img = img[:, :, :3]
     return img, said
 
 

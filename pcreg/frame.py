@@ -91,7 +91,7 @@ FLOAT_FILE_HINT = ("save it as an 8- or 16-bit unsigned integer image (a PNG, or
 
 
 def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None,
-                 float_hint: str = FLOAT_ARRAY_HINT) -> np.ndarray:
+                 float_hint: str = FLOAT_ARRAY_HINT, min_side: int = MIN_SIDE) -> np.ndarray:
     """Validate and convert an image array to (H, W, 3) uint8 RGB (no copy when it already is a
     C-contiguous one; the input is never changed); a :class:`PreparedFrame` gives its checked, read-only
     ``rgb`` as it is.
@@ -100,7 +100,8 @@ def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None,
     the nearest of 256 levels: values within half a level outside, rounding errors, are 0 or 255), in either
     byte order; an ndarray subclass (``np.matrix``, a masked array with nothing masked) as its data; no more
     pixels than the pixel limit (:func:`pcreg.validation.check_pixels` of ``limit``), as a file. ``float_hint``:
-    what the refusal of a float image outside [0, 1] says to do (:data:`FLOAT_FILE_HINT` for a file's).
+    what the refusal of a float image outside [0, 1] says to do (:data:`FLOAT_FILE_HINT` for a file's). ``min_side``:
+    the smallest side accepted (:data:`MIN_SIDE`, an image to register; a data set's frame may be smaller).
     """
     if isinstance(image, PreparedFrame):
         return image.rgb
@@ -116,7 +117,7 @@ def as_rgb_uint8(image, *, name: str = "image", limit: int | None = None,
     img = img[:, :, :3]
     if img.shape[0] == 0 or img.shape[1] == 0:
         raise InputError(f"{name}: empty image (shape {image.shape})")
-    if img.shape[0] < MIN_SIDE or img.shape[1] < MIN_SIDE:
+    if img.shape[0] < min_side or img.shape[1] < min_side:
         raise InputError(f"{name}: image too small to register ({img.shape[1]}x{img.shape[0]} px)")
     check_pixels(img.shape, name, limit=limit)
     if img.dtype == np.uint8:

@@ -263,9 +263,12 @@ def format_table(out: dict) -> str:
 
 
 def _images(args) -> int:
-    from ..implementations.crosscheck import CROSSCHECK_REGISTRATION, CrosscheckConfig, crosscheck
+    from ..implementations.crosscheck import CROSSCHECK_REGISTRATION, CrosscheckConfig, crosscheck_images
 
-    from ..errors import InputError
+    from ..errors import InputError, RegistrationError
+    from ..formats import read_image_file
+    from ..registration.clouds import image_and_mask
+    from .register import _naming_its_file
 
     if args.implementations:
         raise InputError("--with applies to point clouds; images are cross-checked with both register backends")
@@ -281,7 +284,14 @@ def _images(args) -> int:
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})
         callbacks = {b: rec.icp_callback(b) for b in ("reference", "open3d")}  # None each without a recording
         cb = (lambda it: callbacks[it.backend](it)) if callbacks["reference"] is not None else None
-        report = crosscheck(args.a, args.b, config=config, callback=cb)  # B registered onto A
+        # B registered onto A, read as pcreg register reads them: transparent pixels left out
+        stored = [read_image_file(path) for path in (args.a, args.b)]
+        (ref, ref_mask), (mov, mov_mask) = (image_and_mask(img, path) for img, path in zip(stored, (args.a, args.b)))
+        try:
+            report = crosscheck_images(ref, mov, config=config, callback=cb, reference_mask=ref_mask,
+                                       moving_mask=mov_mask)
+        except (InputError, RegistrationError) as exc:  # "the moving image has no usable edges": name its file
+            raise _naming_its_file(exc, tuple(zip((args.a, args.b), stored))) from None
         out = report.to_dict()
         rec.log_crosscheck(out)
     if args.json:

@@ -18,17 +18,20 @@ from ..classes.mappings import CAMVID_MAPPING, mapping_lut  # noqa: F401 - read 
 
 
 def _read_png(path: Path, *, color: bool) -> np.ndarray:
+    """A frame (``color``: (H, W, 3) uint8 RGB, converted from the pixels as stored as :func:`pcreg.load_image`
+    converts them for ``pcreg run`` and ``register``: 16 bits scaled by 1/257, floats in [0, 1] taken; a side of any
+    size) or a label file as stored."""
     import cv2
 
     from ..formats import read_image_file
+    from ..registration.clouds import _rgb_and_alpha
 
     try:  # regular files only, size checked in the header before decoding
-        img = read_image_file(path, flags=cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED)
+        if color:
+            return _rgb_and_alpha(read_image_file(path), str(path), min_side=1)[0]
+        return read_image_file(path, flags=cv2.IMREAD_UNCHANGED)
     except InputError as exc:
         raise DatasetError(str(exc)) from None
-    if color:
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    return img
 
 
 def _read_table_labels(path: Path, image: np.ndarray, table, mapping, image_path: Path) -> np.ndarray:

@@ -40,6 +40,8 @@ def file_view(path: Path) -> tuple[int | None, tuple[int, int] | None]:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             with Image.open(path) as image:
                 size = (int(image.height), int(image.width))
+                if image.format == "TIFF":  # Pillow gives its size turned by its Orientation tag: as stored, its tags'
+                    size = (int(image.tag_v2.get(257, size[0])), int(image.tag_v2.get(256, size[1])))
     except (OSError, UnidentifiedImageError, SyntaxError, ValueError, Image.DecompressionBombError):
         return None, None
     return exif_orientation(path), size

@@ -52,7 +52,7 @@ VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".m4v", ".mov", ".3gp", ".avi", ".mkv
 #: Image files pcreg does not read as frames (OpenCV's reader takes none of them, or not as a frame).
 OTHER_IMAGE_SUFFIXES: tuple[str, ...] = (".gif", ".heic", ".heif", ".avif", ".jxl", ".jp2", ".j2k", ".psd", ".dng",
                                          ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".exr", ".hdr",
-                                         ".ico", ".svg", ".jfif")
+                                         ".ico", ".svg")
 #: Video files pcreg does not read (their demuxers untested here): refused with the command that converts them.
 OTHER_VIDEO_SUFFIXES: tuple[str, ...] = (".mpg", ".mpeg", ".vob", ".m2v", ".flv", ".f4v", ".wmv", ".asf", ".ogv",
                                          ".dv", ".mxf", ".rm", ".rmvb", ".3g2", ".divx", ".y4m")

@@ -21,7 +21,7 @@ from ..cloud_reader import CLOUD_SUFFIXES, load_cloud
 from ..errors import InputError, RegistrationError
 from ..formats import IMAGE_SUFFIXES
 from ..frame import MIN_SIDE
-from ..registration.clouds import as_rgb_uint8, load_image
+from ..registration.clouds import as_rgb_uint8, load_image_and_mask
 from ..registration.api import check_cloud, register
 from ..registration.config import RegisterConfig
 from ..registration.icp_options import ICPOptions
@@ -88,8 +88,11 @@ class CrosscheckReport:
 
 def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
                       config: CrosscheckConfig = CrosscheckConfig(),
-                      callback: Callable[[IcpIteration], None] | None = None) -> CrosscheckReport:
-    """:func:`pcreg.register`, the function users call, once with each backend and the same options.
+                      callback: Callable[[IcpIteration], None] | None = None,
+                      reference_mask: np.ndarray | str | None = "auto",
+                      moving_mask: np.ndarray | str | None = "auto") -> CrosscheckReport:
+    """:func:`pcreg.register`, the function users call, once with each backend and the same options (the masks
+    as it takes them: an image file's transparent pixels left out, :func:`~pcreg.registration.clouds.load_image_and_mask`).
 
     Both runs build the same clouds (same seeds), search the same hypotheses and refine each with their
     own ICP at every step, and the point-to-line finish, which only the reference backend has, is not used.
@@ -108,9 +111,11 @@ def crosscheck_images(reference_image: np.ndarray, moving_image: np.ndarray, *,
     report = callback or (lambda it: None)  # a callback makes both backends report every iteration (Open3D then
     # runs stepwise: exact counts). One search: the test judges its pose, which is kept where it is refused.
     results["reference"], refusal = register_judged(ref, mov, config=untested.replace(min_inlier_ratio=DEFAULT_MIN_INLIER_RATIO),
-                                                    backend="reference", callback=report)
+                                                    backend="reference", callback=report, reference_mask=reference_mask,
+                                                    moving_mask=moving_mask)
     refused = None if refusal is None else str(refusal).removeprefix("registration refused: ")
-    results["open3d"] = register(ref, mov, config=untested, backend="open3d", callback=report)
+    results["open3d"] = register(ref, mov, config=untested, backend="open3d", callback=report,
+                                 reference_mask=reference_mask, moving_mask=moving_mask)
     a, b = results["reference"], results["open3d"]
     c = corners(mov.shape)
     return CrosscheckReport(
@@ -144,8 +149,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
             suffix = Path(x).suffix.lower()
             if suffix in CLOUD_SUFFIXES:
                 return "clouds", load_cloud(x)
-            if suffix in IMAGE_SUFFIXES or not suffix:
-                return "images", load_image(x)
+            if suffix in IMAGE_SUFFIXES or not suffix:  # its transparent pixels left out, as pcreg register does
+                return "images", load_image_and_mask(x)
             raise InputError(f"{x}: unknown file type {suffix!r} (an image or a point cloud)")
         arr = np.asarray(x)
         if arr.ndim == 2 and arr.shape[1] in (2, 3):  # an image two or three pixels wide is no image to register
@@ -153,7 +158,7 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
         if arr.ndim == 2 and 0 < arr.shape[1] < MIN_SIDE:  # (N, 4) x, y, z, intensity: no image either (too narrow)
             raise InputError(f"{name}: expected an (N, 2) or (N, 3) array of points (or an image at least {MIN_SIDE} "
                              f"px wide), got shape {arr.shape}")
-        return "images", arr
+        return "images", (arr, "auto")
 
     from ..validation import short_repr
 
@@ -181,7 +186,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
         cloud_options.setdefault("files", tuple(str(x) if isinstance(x, (str, os.PathLike)) else None for x in (moving, reference)))
         return crosscheck_implementations(B, A, implementations=tuple(implementations or ("reference", "open3d")),
                                           **cloud_options)
-    return crosscheck_images(A, B, config=config, callback=callback)
+    (A, mask_a), (B, mask_b) = A, B
+    return crosscheck_images(A, B, config=config, callback=callback, reference_mask=mask_a, moving_mask=mask_b)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -84,14 +84,16 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
 
 
 def register_judged(reference_image: np.ndarray, moving_image: np.ndarray, *, config: RegisterConfig = RegisterConfig(),
-                    backend: str | None = None, callback: Callable[[IcpIteration], None] | None = None
+                    backend: str | None = None, callback: Callable[[IcpIteration], None] | None = None,
+                    reference_mask: np.ndarray | str | None = "auto", moving_mask: np.ndarray | str | None = "auto"
                     ) -> tuple[RegistrationResult, RegistrationError | None]:
     """:func:`register` with its plausibility test's refusal returned, from one search: ``(result, None)`` where
     :func:`register` returns ``result``; ``(pose, refusal)`` where it raises ``refusal``, ``pose`` as it returns it with
     the test off (``min_inlier_ratio=None``), whose refusals (a transform no view can have, too few edge points, no
-    overlap) are raised. A cross-check reports a refused pair's poses so (:func:`pcreg.crosscheck`)."""
+    overlap) are raised. A cross-check reports a refused pair's poses so (:func:`pcreg.crosscheck`). The masks as
+    :func:`register` takes them."""
     return _register(reference_image, moving_image, config=config, model=None, backend=backend, init=None,
-                     masks=("auto", "auto"), pyramids=(None, None), callback=callback, judged=True)
+                     masks=(reference_mask, moving_mask), pyramids=(None, None), callback=callback, judged=True)
 
 
 def _register(reference_image, moving_image, *, config: RegisterConfig, model, backend, init, masks: tuple,

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..frame import FLOAT_FILE_HINT, as_rgb_uint8
+from ..frame import FLOAT_FILE_HINT, MIN_SIDE, as_rgb_uint8
 from ..validation import check_bool, check_choice, check_count, check_counts, check_float, check_int, check_path
 
 SAMPLERS = ("canny", "gradient", "grid")
@@ -90,15 +90,16 @@ def image_and_mask(img: np.ndarray, name: str, *, limit: int | None = None) -> t
     return rgb, (alpha > 0) & valid_region(rgb)
 
 
-def _rgb_and_alpha(img: np.ndarray, name: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """An image decoded as the file stores it (BGR order) as (H, W, 3) uint8 RGB, and its alpha channel
-    (None without one)."""
+def _rgb_and_alpha(img: np.ndarray, name: str, limit: int | None = None, *,
+                   min_side: int = MIN_SIDE) -> tuple[np.ndarray, np.ndarray | None]:
+    """An image decoded as the file stores it (BGR order) as (H, W, 3) uint8 RGB (:func:`as_rgb_uint8`, its sides at
+    least ``min_side``), and its alpha channel (None without one)."""
     alpha = None
     if img.ndim == 3 and img.shape[2] == 4:
         img, alpha = img[:, :, :3], img[:, :, 3]
     if img.ndim == 3:
         img = img[:, :, ::-1]  # BGR -> RGB
-    return as_rgb_uint8(img, name=name, limit=limit, float_hint=FLOAT_FILE_HINT), alpha
+    return as_rgb_uint8(img, name=name, limit=limit, float_hint=FLOAT_FILE_HINT, min_side=min_side), alpha
 
 
 def valid_region(image: np.ndarray) -> np.ndarray:

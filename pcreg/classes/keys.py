@@ -36,7 +36,7 @@ from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
 
 __all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "object_values",
            "read_object_mask", "check_one_object", "identity_classes", "with_classes",
-           "run_table", "all_unknown", "binary_table"]
+           "run_table", "all_unknown", "binary_table", "two_class_table", "lagr_ids", "TWO_CLASS_STEP"]
 
 #: ``--mapping``'s values.
 MAPPINGS: tuple[str, ...] = ("none", "camvid", "davis")
@@ -360,9 +360,32 @@ def read_key_labels(path: str | Path, table: ClassTable, mapping: str = "none", 
 
 def binary_table(table: ClassTable) -> bool:
     """Whether ``table``'s ids are ``lagr``'s, two known classes 0 and 1 and the unknown 2 (``lagr``, ``davis``, a
-    labelmap.txt of two classes): labels the two-class step takes as they are. Any other table, two known classes
-    of other ids among them (5 and 9, or an unknown 255), is labelled by the many-class step in its own ids."""
+    labelmap.txt of two classes): labels the two-class step takes as they are. A table of two known classes in other
+    ids (5 and 9, or an unknown 255) runs the same step through :func:`lagr_ids` (:func:`two_class_table`)."""
     return table.known_ids == (0, 1) and table.unknown == 2
+
+
+def two_class_table(table: ClassTable) -> bool:
+    """Whether ``table`` has two known classes, whatever their ids: its labels are propagated by the two-class step
+    (ground and obstacle), its ids mapped to ``lagr``'s on the way in and back on the way out (:func:`lagr_ids`).
+    A table of more classes is labelled by the many-class step in its own ids."""
+    return table.n_known == 2
+
+
+def lagr_ids(table: ClassTable) -> np.ndarray | None:
+    """(3,) uint8: the ids of ``table`` that the two-class step's 0, 1 and 2 stand for, its two known classes in id
+    order and its unknown (road 5, car 9, void 255: ``[5, 9, 255]``); None for a table whose ids are ``lagr``'s
+    (:func:`binary_table`) or of more than two known classes. ``lut = np.full(256, 2); lut[ids] = 0, 1, 2`` maps
+    the table's labels in."""
+    if binary_table(table) or not two_class_table(table):
+        return None
+    return np.array([*sorted(table.known_ids), table.unknown], np.uint8)
+
+
+#: What a run's identity (run.json's ``run``) says of a table of two known classes in other ids than ``lagr``'s
+#: (``"step"``): it is labelled by the two-class step. Such a run begun when the many-class step labelled it (without
+#: the field) is not continued: its label files, carry and steps would mix the two steps' outputs.
+TWO_CLASS_STEP = "two-class"
 
 
 def all_unknown(labels: np.ndarray, table: ClassTable) -> bool:
@@ -383,9 +406,13 @@ def identity_classes(table: ClassTable, mapping: str) -> dict | None:
 
 def with_classes(identity: dict, table: ClassTable, mapping: str) -> dict:
     """``identity`` (a run's, :func:`pcreg.runs.state.run_identity`) naming ``table`` as ``classes`` when
-    :func:`identity_classes` says it must; a new dict."""
+    :func:`identity_classes` says it must, and, for a table of two known classes in other ids than ``lagr``'s,
+    its step (``"step": "two-class"``, :data:`TWO_CLASS_STEP`); a new dict."""
     named = identity_classes(table, mapping)
-    return dict(identity) if named is None else {**identity, "classes": named}
+    out = dict(identity) if named is None else {**identity, "classes": named}
+    if lagr_ids(table) is not None:
+        out["step"] = TWO_CLASS_STEP
+    return out
 
 
 def run_table(identity: dict | None, where: str = "run.json's classes") -> ClassTable:

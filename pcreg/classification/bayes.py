@@ -332,6 +332,18 @@ class NaiveBayesPixelClassifier:
         self._tables32 = tables.astype(np.float32)
         return self
 
+    def in_lagr_ids(self) -> "NaiveBayesPixelClassifier":
+        """This fitted classifier of two known classes in other ids (:func:`pcreg.classes.keys.lagr_ids`) refitted from
+        its histograms in ``lagr``'s: the classifier of the same labels coded 0, 1 and 2, what the two-class step runs."""
+        from ..classes.keys import lagr_ids
+
+        ids = lagr_ids(self.class_table)
+        if ids is None or not hasattr(self, "counts_"):
+            raise InputError(f"in_lagr_ids needs a classifier fitted on two known classes in other ids than 0, 1 "
+                             f"and 2, not {self.class_table.describe()}")
+        return type(self)(self.features, weights=self.weights, exclude_unknown=self.exclude_unknown, priors=self.priors,
+                          var_smoothing=self.var_smoothing, density=self.density).fit_histograms(self.counts_[ids])
+
     def degenerate_classes(self) -> list[int]:
         """The ids of the fitted classes whose training pixels vary less than :data:`DEGENERATE_VARIANCE` in
         every feature (a class of one pixel, always), or, with the Gaussian density, in the ``row`` feature (a

@@ -39,7 +39,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..classes.keys import binary_table
+from ..classes.keys import binary_table, two_class_table
 from ..errors import InputError
 from ..runs.files import HIDDEN, label_digest
 from ..runs.kept import read_frame, read_prior, write_frame, write_prior
@@ -124,7 +124,7 @@ class KeyRun:
         scale = self.config.scale
         frame = frame_bytes(w, h, compressed=compressed)
         table = getattr(self.owner, "table", None)
-        known = list(table.known_ids) if table is not None and not binary_table(table) else []  # none: two classes
+        known = list(table.known_ids) if table is not None and not two_class_table(table) else []  # none: two classes
         shown = {k: np.bincount(lab.ravel(), minlength=256) > 0 for k, lab in self.keys.items()} if known else {}
         need = 0.0
         for s in self.plan:
@@ -235,7 +235,8 @@ class KeyRun:
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
 
-        table = getattr(self.owner, "table", None)  # the run's class table; two classes keep the default
+        table = getattr(self.owner, "table", None)  # the run's class table; lagr's ids keep the default, two known
+        # classes in other ids are fitted in theirs and run by the two-class step in lagr's (Propagator)
         try:
             return fit_classifier([Frame(images[k], self.keys[k], self.frames.name(k)) for k in s.keys],
                                   classes=None if table is None or binary_table(table) else table)
@@ -339,6 +340,7 @@ class KeyRun:
                     weights = None if w_a is None else (w_a.astype(np.float32), weight_sum(report.trust))
                     labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
                                                 size=prop.working_size, classes=prop.class_read, weights=weights)
+                    labels = prop.table_labels(labels)  # two known classes in other ids than lagr's: the table's
                     step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1,
                              reference=references.of(report))

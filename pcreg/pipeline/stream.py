@@ -100,7 +100,7 @@ from .multiclass import CLASS_ANCHOR, CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, Cla
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
 from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustRule, least_confident
 from .working import WorkingSize
-from ..classes.keys import binary_table, check_labels
+from ..classes.keys import binary_table, check_labels, lagr_ids
 from ..errors import InputError
 from ..frame import PreparedFrame
 from ..registration.config import RegisterConfig
@@ -142,7 +142,11 @@ class Propagator:
     """Propagate a key frame's labels along a stream of frames (see the module's docstring).
 
     classifier : a fitted ground/obstacle naive Bayes (:func:`pcreg.fit_classifier` on the key frame and
-        its labels is the usual choice; it needs ``decision_function`` and ``class_prior_``).
+        its labels is the usual choice; it needs ``decision_function`` and ``class_prior_``). One of a class table
+        of two known classes in other ids (0 and 1 with a void 255; road 5, car 9, void 255) runs the same step as
+        in ``lagr``'s ids (:meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.in_lagr_ids`), the key
+        labels taken and the labels given in the table's ids (:func:`~pcreg.classes.keys.lagr_ids`); one of more
+        classes the many-class step (:mod:`pcreg.pipeline.multiclass`).
     model : ``"dense"`` (default), ``"flow"`` (DIS optical flow from each frame to the key frame, medium
         preset; ``"flow:fast"``, ``"flow:ultrafast"``: another preset) or a global motion model
         (``similarity``, ``projective``, ...). With a flow the trust rule carries no second motion, and
@@ -181,11 +185,15 @@ class Propagator:
             if not hasattr(classifier, attr):
                 raise InputError(f"the classifier has no {attr}: fit a classifier first "
                                  "(pcreg.fit_classifier on the key frame and its labels)")
-        classes = list(np.asarray(getattr(classifier, "classes_", [0, 1])).tolist())
+        # a table of two known classes in other ids than lagr's: the two-class step on the same model in lagr's
+        # ids, its labels mapped back to the table's (:func:`~pcreg.classes.keys.lagr_ids`)
+        table = getattr(classifier, "class_table", None)
+        self._ids = lagr_ids(table) if table is not None and hasattr(classifier, "in_lagr_ids") else None
+        nb = classifier if self._ids is None else classifier.in_lagr_ids()
+        classes = list(np.asarray(getattr(nb, "classes_", [0, 1])).tolist())
         # ground and obstacle: classes 0 and 1 of a table that has no others (a key frame that shows only the
         # first two classes of a larger table is a many-class stream that has seen two of them so far)
-        table = getattr(classifier, "class_table", None)
-        binary = classes == [0, 1] and (table is None or binary_table(table))
+        binary = classes == [0, 1] and (table is None or binary_table(table) or self._ids is not None)
         if not binary and not (len(classes) >= 2 and hasattr(classifier, "class_scores")
                                       and hasattr(classifier, "class_table")):
             raise InputError(f"the classifier must know ground and obstacle (classes [0, 1]), got {classes}; "
@@ -205,6 +213,7 @@ class Propagator:
         if learning is not None and not isinstance(learning, Learning):
             raise InputError("learning must be a pcreg.pipeline.learning.Learning or None")
         self.classifier = classifier
+        self._nb = nb  # what the step runs: ``classifier``, or it in lagr's ids
         self.model = model
         self.anchor: str = anchor or ("key" if binary else CLASS_ANCHOR)
         self.scale = check_float(scale, "scale", lo=0, lo_open=True, hi=1)
@@ -228,10 +237,10 @@ class Propagator:
             trust = CLASS_TRUST
         self.fusion = fusion
         self.trust = trust
-        self.learning = learning if trust is not None and learns(classifier) else None
+        self.learning = learning if trust is not None and learns(nb) else None
         self._learner: Learner | None = None
         self._flow = FlowEstimator("ultrafast" if trust is None else trust.preset)
-        self._pi = class_prior(classifier) if self._classes is None else class_priors(classifier)
+        self._pi = class_prior(nb) if self._classes is None else class_priors(nb)
         # the key frame, checked once, and what every step reads of it, made once (:meth:`reset`)
         self._key: PreparedFrame | None = None  # at the working size
         self._key_labels: np.ndarray | None = None  # at the frames' size
@@ -279,6 +288,10 @@ class Propagator:
         key = size.shrunk(full) if size.scaled else full.copy()  # the caller may reuse its array for the frames
         self._key, self._key_labels = key, lab
         self._key_trusted = self._key_flow = self._key_scene = None
+        if self._ids is not None:  # the table's ids in lagr's: its known classes in id order 0 and 1, the unknown 2
+            lut = np.full(256, 2, np.uint8)
+            lut[self._ids] = (0, 1, 2)
+            lab = lut[lab]
         small = size.labels(lab)
         if self._classes is not None:  # K classes: the prior's evidence per class, what every motion carries
             fusion = replace(self.fusion, sigma=CLASS_PRIOR_SIGMA) if self.fusion == FusionConfig() else self.fusion
@@ -295,7 +308,7 @@ class Propagator:
                 # the cut test, whatever the motions: a flow model carries no second motion, and a rule may give
                 # it no weight, yet a cut leaves their labels as untrustworthy
                 self._key_scene = SceneCheck(key.rgb)
-        self._learner = None if self.learning is None else Learner(self.classifier, self.learning)
+        self._learner = None if self.learning is None else Learner(self._nb, self.learning)
         # every frame registers to the key frame: what the motion needs of it, prepared once
         self._key_prepared = self._estimator.prepare(key) if self.anchor == "key" else None
         self._chain = (key, None, 0)
@@ -373,7 +386,13 @@ class Propagator:
                                **({} if trusted is None else trusted.report(self.trust, self._prior_weight,
                                                                            {**({} if c.cut is None else {"cut": c.cut["cut"]}),
                                                                             "degenerate": c.degenerate})))
-        return labels
+        return self.table_labels(labels)
+
+    def table_labels(self, labels: np.ndarray) -> np.ndarray:
+        """The two-class step's ``labels`` (0, 1; 2 unknown) in the classifier's class table's ids: themselves, but
+        for a table of two known classes in other ids (:func:`~pcreg.classes.keys.lagr_ids`), whose labels the step
+        makes in ``lagr``'s ids; :meth:`step` returns them so."""
+        return labels if self._ids is None else self._ids[labels]
 
     def _classify(self, frame: PreparedFrame) -> "_Classified":
         """Naive Bayes' log-odds of the frame (the classifier as learned so far, what the last frame taught
@@ -381,7 +400,7 @@ class Propagator:
         from ..classification.bayes import NaiveBayesPixelClassifier
 
         t0 = time.perf_counter()
-        clf = self.classifier if self._learner is None else self._learner.classifier
+        clf = self._nb if self._learner is None else self._learner.classifier
         t1 = time.perf_counter()
         image = frame if isinstance(clf, NaiveBayesPixelClassifier) else frame.rgb
         d = np.asarray(clf.decision_function(image) if self._classes is None else clf.class_scores(image),
@@ -459,7 +478,7 @@ class Propagator:
     @property
     def learned(self) -> np.ndarray | None:
         """What naive Bayes has learned from the stream so far ((N, F, 256) float64 histograms, N the class
-        table's values (3 by default),
+        table's values (3 by default, and for two known classes in any ids, learned in ``lagr``'s),
         :class:`~pcreg.pipeline.learning.Learner`), or None without learning; ``pcreg run`` saves it
         with every frame."""
         return None if self._learner is None else self._learner.stream.copy()

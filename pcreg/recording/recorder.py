@@ -289,6 +289,11 @@ class Recorder(RecorderProtocol):
         """As :meth:`RecorderProtocol.log_labels`, by :meth:`EvaluationLogger.log_labels`."""
         self.evaluation.log_labels(truth=truth, predicted=predicted, prefix=prefix)
 
+    def log_classes(self, table: Any) -> None:
+        """As :meth:`RecorderProtocol.log_classes`, by :meth:`EvaluationLogger.log_classes`."""
+        self.sink.check_open()
+        self.evaluation.log_classes(table)
+
     def log_errors(self, errors: Mapping[str, float]) -> None:
         """As :meth:`RecorderProtocol.log_errors`, by :meth:`EvaluationLogger.log_errors`."""
         self.evaluation.log_errors(errors)

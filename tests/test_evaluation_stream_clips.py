@@ -171,3 +171,38 @@ def test_a_clip_that_plain_labels_without_error_leaves_the_mean_reduction_of_the
     table = (out / "stream_reference.md").read_text()
     assert "| nan |" not in table.split("reduction vs plain")[1].splitlines()[0]
     assert "b: naive Bayes alone made no error, no reduction to take; left out of the mean" in table
+
+
+@pytest.mark.parametrize("options", [["--keys", "first,last"], ["--classes", "camvid11"]], ids=["keys", "camvid11"])
+def test_a_recording_of_key_frames_or_classes_holds_every_scored_frame(tmp_path, capsys, options):
+    """``evaluate stream --record`` with --keys or --classes wrote a recording of its config and log alone: those
+    protocols never called the recording's hook, and nothing said so. Each scored frame is now in it, in order,
+    with its truth and the methods' labels, under the classes of the table they are ids of."""
+    from pcreg.classes import CAMVID11, LAGR
+    from pcreg.recording.readback import image, read_recording, segmentation
+
+    import pcreg
+
+    _clip(tmp_path / "data" / "clip", 5)
+    rrd, out = tmp_path / "s.rrd", tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", *options, "--methods", "plain,pcreg",
+                 "--out", str(out), "--record", str(rrd), "--record-raw"]) == 0
+    capsys.readouterr()
+    scored = [r["index"] for r in json.loads((out / "results.json").read_text())["units"][0]["frames"]]
+    assert scored == ([1, 2, 3] if options[0] == "--keys" else [1, 2, 3, 4])
+    rec = read_recording(rrd)
+    assert sorted(r.times["frame"] for r in rec.get("labels/truth")) == list(range(len(scored)))
+    frames = pcreg.synthetic("syn1a", 5, 0, width=96, height=72)
+    camvid = options[0] == "--classes"
+    for counter, t in enumerate(scored):
+        np.testing.assert_array_equal(image(rec.moving(counter)), frames[t].image)
+        truth = segmentation(rec.latest("labels/truth", frame=counter))
+        np.testing.assert_array_equal(truth, (CAMVID_ID[frames[t].labels] if camvid else frames[t].labels))
+        for m in ("plain", "pcreg"):
+            assert segmentation(rec.latest(f"labels/predicted/{m}", frame=counter)).shape == truth.shape
+    context = rec.latest("/")["AnnotationContext:context"].to_pylist()[0]
+    names = {c["class_id"]: c["class_description"]["info"]["label"] for c in context}
+    if camvid:
+        assert names == {c.id: c.name for c in CAMVID11.classes}
+    else:
+        assert names == {0: "ground", 1: "obstacle", 2: "unknown"} == {c.id: c.name for c in LAGR.classes}

@@ -602,3 +602,27 @@ def test_a_recording_whose_writer_stopped_is_refused_and_removed_not_waited_on(t
     assert not path.exists()
     # bounded waits, never rerun's default of 1e38 s; the real writer may still grow the file at first
     assert set(waits) == {sink_module.FLUSH_SECONDS} and sink_module.FLUSH_STALLS < len(waits) < 100
+
+
+def test_implementations_whose_names_differ_in_punctuation_keep_apart(tmp_path, capfd):
+    """Two ``cmd:`` implementations whose command lines differ only where an entity path takes no character
+    (``--x 1`` and ``--x=1``) were logged to one entity, ``crosscheck/cmd_._icp_--x_1``: the viewer drew both
+    clouds as one implementation's and mixed their series; and the report's numbers went to paths of the names as
+    they are, which rerun re-read with a warning on stderr for each. Each implementation now has its own entity,
+    the first one under the plain name, and rerun warns of nothing."""
+    names = ("cmd:./icp --x 1", "cmd:./icp --x=1")
+    path = tmp_path / "names.rrd"
+    with Recorder(path) as rec:
+        rec.set_frame(0)
+        for k, name in enumerate(names):
+            for it in range(3):
+                rec.log_crosscheck_iteration(name, it, np.full((4, 2), float(k)), error=float(10 * k + it))
+        rec.log_crosscheck({"implementations": {n: {"seconds": float(k + 1)} for k, n in enumerate(names)}})
+    assert "parse_path" not in capfd.readouterr().err
+    rec = read_recording(path)
+    first, second = "/crosscheck/cmd_._icp_--x_1", "/crosscheck/cmd_._icp_--x_1_2"
+    assert rec.series(f"{first}/error", timeline="crosscheck_iteration") == {0: 0.0, 1: 1.0, 2: 2.0}
+    assert rec.series(f"{second}/error", timeline="crosscheck_iteration") == {0: 10.0, 1: 11.0, 2: 12.0}
+    assert len([r for r in rec.get(f"{first}/cloud") if not r.static]) == 3
+    assert rec.series("/crosscheck/implementations/cmd_._icp_--x_1/seconds") == {0: 1.0}
+    assert rec.series("/crosscheck/implementations/cmd_._icp_--x_1_2/seconds") == {0: 2.0}

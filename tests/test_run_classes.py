@@ -236,3 +236,24 @@ def test_colour_keys_refused_by_the_default_table_point_to_the_labelmap_beside_t
     table = read_table_file(keys / "labelmap.txt")
     assert set(np.unique(read_labels(tmp_path / "out" / "f1.png", table)).tolist()) == {table.id_of("road"),
                                                                                           table.id_of("car")}
+
+
+@pytest.mark.parametrize("table", ["camvid11", "davis"])
+def test_a_runs_recording_names_and_colours_the_classes_of_its_table(synthetic, tmp_path, capsys, table):
+    """A ``pcreg run --record`` recording always named and coloured its label maps as ground, obstacle and unknown
+    in colours of no table, whatever ``--classes`` said: a camvid11 run's sky showed as green "ground", its road
+    unnamed in a colour the viewer chose. The recording now holds the run's class table, as its PNGs do."""
+    from pcreg.recording.readback import read_recording
+
+    folder, _ = frames_folder(tmp_path, synthetic, keys=())
+    ids = {"camvid11": (3, 4, 11), "davis": (0, 1, 0)}[table]  # road, pavement, void; background, object
+    key = np.choose(synthetic[0].labels, ids).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "key.png"), key)
+    rc, err = _run(["run", folder, "--labels", tmp_path / "key.png", "--classes", table, "--out", tmp_path / "out",
+                    "--model", "flow", "--record", tmp_path / "run.rrd"], capsys)
+    assert rc == 0, err
+    context = read_recording(tmp_path / "run.rrd").latest("/")["AnnotationContext:context"].to_pylist()[0]
+    shown = {c["class_id"]: (c["class_description"]["info"]["label"], c["class_description"]["info"]["color"])
+             for c in context}
+    expected = {"camvid11": CAMVID11, "davis": DAVIS}[table]
+    assert shown == {c.id: (c.name, int.from_bytes(bytes([*c.colour, 255]), "big")) for c in expected.classes}

@@ -595,3 +595,19 @@ def test_default_ports_held_by_another_server_give_way_to_free_ones(monkeypatch,
         assert (args.web_port, args.grpc_port) == (busy, None) and capsys.readouterr().err == ""
         with pytest.raises(PcregError, match=rf"--web-port {busy}: the port is in use on 127.0.0.1"):
             view.serve_web(Path("unused.rrd"), web_port=busy, grpc_port=free)
+
+
+@pytest.mark.parametrize("damage", ["old_version", "reserved_options", "unknown_message"])
+def test_a_damaged_recording_is_refused_naming_it_and_no_temporary_copy(small_recording, tmp_path, capsys, damage):
+    """A recording of an older rerun, or with a damaged header or message, was refused with rerun's error about
+    the temporary copy it was read from a second time ("Failed to read RRD file at /tmp/pcreg-rrd-.../snapshot.rrd"),
+    a file the person never named and that no longer exists. The error is now about the file given."""
+    data = small_recording.read_bytes()
+    bad = tmp_path / "bad.rrd"
+    bad.write_bytes({"old_version": data[:4] + bytes([0, 20, 0, 0]) + data[8:],
+                     "reserved_options": data[:8] + bytes([9, 9, 9, 9]) + data[12:],
+                     "unknown_message": data[:12] + (77).to_bytes(8, "little") + data[20:]}[damage])
+    assert pcreg_view([str(bad), "--screenshot", str(tmp_path / "x.png")]) == 2
+    said = one_line_error(capsys)
+    assert "not a rerun recording" in said and "snapshot" not in said and "pcreg-rrd-" not in said, said
+    assert said.count(str(bad)) == 2, said  # pcreg's and rerun's words both name it

@@ -179,7 +179,8 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     t0 = time.perf_counter()
     frames = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed, classes=cfg.classes)[unit.dataset]
     recorded: dict[str, int] = {}
-    hook = _recording_hook(recorder, unit.dataset, frame_counter if frame_counter is not None else [0], recorded)
+    hook = _recording_hook(recorder, unit.dataset, frame_counter if frame_counter is not None else [0], recorded,
+                           classes=cfg.classes)
     davis = None
     if is_davis(cfg.data):  # the benchmark's J and F, frame by frame (:mod:`.stream_davis`)
         davis = DavisScores(len(frames))
@@ -215,12 +216,13 @@ def _run_methods(cfg: StreamConfig, frames, backend: str, hook) -> dict:
         from .stream_keys import key_indices
 
         keys = key_indices(cfg.keys or "first", len(frames), frames, backend=backend)
-        return run_clip_classes(frames, keys, class_table(cfg.classes), methods=cfg.methods, backend=backend)
+        return run_clip_classes(frames, keys, class_table(cfg.classes), methods=cfg.methods, backend=backend,
+                                on_frame=hook)
     if cfg.keys is not None:
         from .stream_keys import key_indices, run_clip_keys
 
         keys = key_indices(cfg.keys, len(frames), frames, backend=backend)
-        return run_clip_keys(frames, keys, methods=cfg.methods, backend=backend)
+        return run_clip_keys(frames, keys, methods=cfg.methods, backend=backend, on_frame=hook)
     return run_clip(frames, methods=cfg.methods, key_every=cfg.key_every, backend=backend, on_frame=hook)
 
 
@@ -231,10 +233,17 @@ def _scored_rows(rows: list[dict]) -> tuple[list[dict], list[str]]:
     return [r for r, v in zip(rows, void) if not v], [r["name"] for r, v in zip(rows, void) if v]
 
 
-def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], recorded: dict[str, int]):
+def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], recorded: dict[str, int], *,
+                    classes: str | None = None):
+    """``on_frame`` of a clip that logs each scored frame at the next ``counter``; ``classes``: the table the
+    labels are ids of (None: ground, obstacle and unknown)."""
     if not rec.enabled:  # nothing to log: the clip runs without a per-frame hook
         return None
     rec.log_text(f"stream {clip}: start")
+    if classes is not None:
+        from ..classes import class_table
+
+        rec.log_classes(class_table(classes))
 
     def on_frame(t, frame, preds, key_frame) -> None:
         rec.set_frame(counter[0])

@@ -92,10 +92,13 @@ class _Baseline:
         return classes[np.argmax(smoothed_scores(fused, scaled(CLASS_TRUST.smooth, fused.shape[1])), axis=2)]
 
 
-def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, backend: str = "reference") -> dict:
+def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, backend: str = "reference",
+                     on_frame=None) -> dict:
     """Every method on one clip (``frames``: objects with ``image``, ``labels`` (ids of ``table``) and
     ``name``) with these key frames: per frame each method's error (%), per method the clip's confusion
-    matrix, mIoU and ms a frame, and pcreg's calibration counts."""
+    matrix, mIoU and ms a frame, and pcreg's calibration counts. ``on_frame(index, frame, predictions,
+    key_frame)`` is called for every scored frame once every method has labelled the clip, in the clip's order
+    (a recording hook)."""
     from ..classification.bayes import fit_classifier
     from ..pipeline.engine import propagate, stretches
     from ..pipeline.estimators import FlowEstimator
@@ -110,6 +113,7 @@ def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, b
     seconds = dict.fromkeys(methods, 0.0)
     conf_m = {m: np.zeros((256, 256), np.int64) for m in methods}
     errors: dict[int, dict] = {}
+    preds: dict[int, dict] = {}  # each method's labels by frame, kept for on_frame only
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     unknown = table.unknown
     if "pcreg" in methods:
@@ -122,6 +126,8 @@ def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, b
                 continue
             truth = frames[f.index].labels
             errors.setdefault(f.index, {})["pcreg"] = _error(f.labels, truth, unknown)
+            if on_frame is not None:
+                preds.setdefault(f.index, {})["pcreg"] = f.labels
             conf_m["pcreg"] += confusion(f.labels, truth, unknown)
             assert f.confidence is not None
             counts += calibration_counts(f.confidence, f.labels, truth, unknown)
@@ -132,12 +138,16 @@ def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, b
             for t, _, labels in propagate(timed, ((t, frames[t].image) for t in s.frames)):
                 truth = frames[t].labels
                 errors.setdefault(t, {})[m] = _error(labels, truth, unknown)
+                if on_frame is not None:
+                    preds.setdefault(t, {})[m] = labels
                 conf_m[m] += confusion(labels, truth, unknown)
             seconds[m] += timed.seconds
     rows = []
     for t in sorted(errors):
         key = min(keys, key=lambda k: (abs(t - k), k))
         rows.append({"index": t, "name": frames[t].name, "key": key, "since_key": abs(t - key), "errors": errors[t]})
+        if on_frame is not None:
+            on_frame(t, frames[t], preds.pop(t, {}), frames[key])
     return {"frames": rows, "key_frames": sorted(keys), "classes_not_in_keys": _not_in_keys(frames, keys, rows, unknown),
             "means": {m: float(np.mean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods},
             "miou": {m: mean_iou(conf_m[m]) for m in methods},

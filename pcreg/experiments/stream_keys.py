@@ -150,12 +150,13 @@ class _AroundKeys:
         return ((d + STREAM_WEIGHT * _baseline_prior(fields, self.priors, t, s.first, s.last)) > 0).astype(np.uint8)
 
 
-def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str = "reference") -> dict:
+def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str = "reference", on_frame=None) -> dict:
     """Every method on one clip with these key frames; the same result layout as
     :func:`pcreg.experiments.stream.run_clip` (``key`` of a row: the nearest key frame before it, or
     after it before the first). The pcreg methods label the clip with
     :func:`~pcreg.pipeline.keyframes.label_clip`; each baseline is a pass along each stretch
-    (:func:`~pcreg.pipeline.engine.propagate`)."""
+    (:func:`~pcreg.pipeline.engine.propagate`). ``on_frame(index, frame, predictions, key_frame)`` is called
+    for every scored frame, in the clip's order (a recording hook)."""
     from ..classification.bayes import fit_classifier
     from ..classification.fusion import label_prior
     from ..classification.metrics import error_rate
@@ -179,14 +180,19 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
     rows = []
     for s in stretches(keys, n):
         errors: dict[int, dict] = {t: {} for t in s.frames}
+        preds: dict[int, dict] = {t: {} for t in s.frames}
         for m in methods:
             if m in ours:
                 for t in s.frames:
                     errors[t][m] = error_rate(ours[m][t].labels, frames[t].labels)
+                    if on_frame is not None:
+                        preds[t][m] = ours[m][t].labels
                 continue
             timed = Timed(_AroundKeys(m, clf, frames, s, priors))
             for t, _, labels in propagate(timed, ((t, frames[t].image) for t in s.frames)):
                 errors[t][m] = error_rate(labels, frames[t].labels)
+                if on_frame is not None:
+                    preds[t][m] = labels
             seconds[m] += timed.seconds
         for t in s.frames:
             if "pcreg" in ours:
@@ -197,6 +203,10 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
             assert key is not None  # a stretch has a key frame on one side at least
             rows.append({"index": t, "name": frames[t].name, "key": key, "since_key": abs(t - key),
                          "errors": {m: errors[t][m] for m in methods}})
+        if on_frame is not None:  # the stretch's frames in the clip's order (one before the first key runs backwards)
+            key = s.first if s.first is not None else s.last
+            for t in sorted(s.frames):
+                on_frame(t, frames[t], preds.pop(t), frames[key])
     rows.sort(key=lambda r: r["index"])
     means = {m: float(np.nanmean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods}
     return {"frames": rows, "means": means, "key_frames": sorted(keys), "calibration": counts.tolist(),

@@ -13,7 +13,7 @@ from pcreg.recording import entities as E
 
 from ..outputs import to_json
 from .sink import Sink
-from .values import display_indices, numbers, plain
+from .values import display_indices, plain
 
 __all__ = ["CrosscheckLogger"]
 
@@ -25,17 +25,33 @@ class CrosscheckLogger:
     def __init__(self, sink: Sink, *, max_display_points: int = 500) -> None:
         self.sink = sink
         self.max_display_points = int(max_display_points)
+        self._parts: dict[str, str] = {}  # a name (an implementation's, a report's key) -> its entity path part
+
+    def part(self, name: str) -> str:
+        """The entity path part of ``name``: :func:`~pcreg.recording.entities.path_part`, made unique in this
+        recording (a second name with the same part, ``cmd:icp --x 1`` after ``cmd:icp --x=1``, gets ``_2``)."""
+        name = str(name)
+        if name not in self._parts:
+            base = E.path_part(name)
+            taken = set(self._parts.values())
+            part, n = base, 2
+            while part in taken:
+                part, n = f"{base}_{n}", n + 1
+            self._parts[name] = part
+        return self._parts[name]
 
     def log_crosscheck(self, report: Mapping[str, Any]) -> None:
         """The whole report as JSON text (``crosscheck/report``), a one-line summary on the text log, and
-        every finite number in it as Scalars (``crosscheck/{key}``, nested keys joined by '/')."""
+        every finite number in it as Scalars (``crosscheck/{key}``, nested keys joined by '/', each a
+        :meth:`part`)."""
         converted = plain(report)
         self.sink.log(E.CROSSCHECK_REPORT, rr.TextDocument(to_json(converted), media_type=rr.MediaType.TEXT))
-        found = numbers(converted)
-        for key, value in found.items():
+        found = _leaves(converted)
+        for keys, value in found:
             if math.isfinite(value):
-                self.sink.scalar(f"{E.CROSSCHECK}/{key}", value, key)
-        summary = ", ".join(f"{k}={v:.6g}" for k, v in found.items() if "/" not in k)
+                name = "/".join(keys)
+                self.sink.scalar("/".join((E.CROSSCHECK, *map(self.part, keys))), value, name)
+        summary = ", ".join(f"{keys[0]}={v:.6g}" for keys, v in found if len(keys) == 1)
         line = f"crosscheck: {summary}" if summary else "crosscheck logged"
         self.sink.log_later(E.LOG, lambda: rr.TextLog(line, level="INFO"))
 
@@ -59,12 +75,22 @@ class CrosscheckLogger:
         sink = self.sink
         sink.set_time(E.CROSSCHECK_TIMELINE, int(iteration))
         try:
-            sink.log(E.crosscheck_path(implementation, "cloud"), self._cloud(points, [255, 120, 0]))
+            part = self.part(implementation)
+            sink.log(f"{E.CROSSCHECK}/{part}/cloud", self._cloud(points, [255, 120, 0]))
             for what, value in (("error", error), ("fitness", fitness), ("inlier_rmse", inlier_rmse)):
                 if value is not None and math.isfinite(float(value)):
-                    sink.scalar(E.crosscheck_path(implementation, what), float(value), f"{implementation} {what}")
+                    sink.scalar(f"{E.CROSSCHECK}/{part}/{what}", float(value), f"{implementation} {what}")
         finally:
             if sink.frame is None:
                 sink.disable_timeline(E.CROSSCHECK_TIMELINE)
             else:  # back to where frame-level data sits (see Sink.set_frame)
                 sink.set_time(E.CROSSCHECK_TIMELINE, 0)
+
+
+def _leaves(obj: Any, keys: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], float]]:
+    """Every int/float leaf of a nested mapping (booleans left out) with the keys that lead to it."""
+    if isinstance(obj, Mapping):
+        return [leaf for k, v in obj.items() for leaf in _leaves(v, (*keys, str(k)))]
+    if isinstance(obj, (int, float, np.integer, np.floating)) and not isinstance(obj, (bool, np.bool_)) and keys:
+        return [(keys, float(obj))]
+    return []

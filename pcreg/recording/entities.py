@@ -142,12 +142,20 @@ def error_path(method: str) -> str:
     return f"{ERRORS}/{method}"
 
 
-def crosscheck_path(implementation: str, what: str) -> str:
-    """``crosscheck/{implementation}/{what}``; characters other than letters, digits, '-', '_' and '.'
-    in the implementation's name (a ``cmd:`` spec) become '_'."""
+def path_part(name: str) -> str:
+    """``name`` as one part of an entity path: characters other than letters, digits, '-', '_' and '.' (a
+    ``cmd:`` spec's) become '_'; '' and dots alone (which a path reads as no part, or as a step up) get a '_'
+    before them. Two names may share a part: :meth:`pcreg.recording.crosscheck_log.CrosscheckLogger.part`
+    keeps the names of one recording apart."""
     import re
 
-    return f"{CROSSCHECK}/{re.sub(r'[^A-Za-z0-9_.-]', '_', implementation)}/{what}"
+    part = re.sub(r"[^A-Za-z0-9_.-]", "_", name)
+    return part if part.strip(".") else "_" + part
+
+
+def crosscheck_path(implementation: str, what: str) -> str:
+    """``crosscheck/{implementation}/{what}``, the implementation's name as a :func:`path_part`."""
+    return f"{CROSSCHECK}/{path_part(implementation)}/{what}"
 
 
 def icp_path(backend: str, what: str) -> str:

@@ -27,10 +27,12 @@ class EvaluationLogger:
         self.sink = sink
         self.label_stride = int(label_stride)
 
-    def log_classes(self) -> None:
-        """The classes the label maps' ids name, with their colours: a static AnnotationContext at ``/``."""
+    def log_classes(self, table=None) -> None:
+        """The classes the label maps' ids name, with their colours: a static AnnotationContext at ``/``;
+        ``table`` a :class:`~pcreg.classes.ClassTable` (a run's), its classes; None, :data:`~pcreg.recording.entities.CLASSES`."""
+        classes = E.CLASSES.items() if table is None else ((c.id, (c.name, c.colour)) for c in table.classes)
         self.sink.send("/", rr.AnnotationContext(
-            [rr.AnnotationInfo(id=k, label=name, color=color) for k, (name, color) in E.CLASSES.items()]
+            [rr.AnnotationInfo(id=k, label=name, color=color) for k, (name, color) in classes]
         ), static=True)
 
     def log_labels(self, *, truth: np.ndarray | None = None, predicted: np.ndarray | None = None,

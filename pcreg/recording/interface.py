@@ -70,6 +70,10 @@ class RecorderProtocol(Protocol):
                    prefix: str = "") -> None:
         """Label maps; ``prefix`` tells several predictions apart."""
 
+    def log_classes(self, table: Any) -> None:
+        """The class table (a :class:`~pcreg.classes.ClassTable`) the label maps' ids are of: each class's name
+        and colour in the viewer, in place of 0 ground, 1 obstacle, 2 unknown."""
+
     def log_errors(self, errors: Mapping[str, float]) -> None:
         """Error rates in percent, by method; NaN is left out."""
 

@@ -60,6 +60,9 @@ class NullRecorder(RecorderProtocol):
                    prefix: str = "") -> None:
         return None
 
+    def log_classes(self, table: Any) -> None:
+        return None
+
     def log_errors(self, errors: Mapping[str, float]) -> None:
         return None
 

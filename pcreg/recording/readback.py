@@ -143,12 +143,16 @@ def recordings_in(path: str | os.PathLike) -> list:
     try:
         with unfinished_files_allowed():
             return RrdReader(str(path)).recordings()
-    except Exception:  # rerun raises its own types
+    except Exception as exc:  # rerun raises its own types
         if complete_length(path) is None:
             raise
+        first = exc
     with tempfile.TemporaryDirectory(prefix="pcreg-rrd-") as tmp:
-        with unfinished_files_allowed():
-            return RrdReader(str(snapshot(path, Path(tmp) / "snapshot.rrd"))).recordings()
+        try:
+            with unfinished_files_allowed():
+                return RrdReader(str(snapshot(path, Path(tmp) / "snapshot.rrd"))).recordings()
+        except Exception:  # damaged in its whole messages too: the error about the file itself, not the copy
+            raise first from None
 
 
 @dataclass(frozen=True)

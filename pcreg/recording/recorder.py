@@ -75,16 +75,17 @@ def _kind(kind: str | None, blueprint: bool | str) -> str | None:
 
 
 def open_recording(path: str | os.PathLike | None, *, name: str, raw: bool = False, force: bool = False,
-                   layout: bool | str = True):
+                   layout: bool | str = True, classes: Any = None):
     """A :class:`Recorder` writing ``path`` (``name``: the recording's; ``raw``: images lossless; ``force``:
-    overwrite; ``layout``: its ``blueprint``), or, with no path, the null recorder in a null context."""
+    overwrite; ``layout``: its ``blueprint``; ``classes``: its class table), or, with no path, the null recorder
+    in a null context."""
     import contextlib
 
     from .null import NULL_RECORDER
 
     if not path:
         return contextlib.nullcontext(NULL_RECORDER)
-    return Recorder(path, recording_name=name, raw_images=raw, force=force, blueprint=layout)
+    return Recorder(path, recording_name=name, raw_images=raw, force=force, blueprint=layout, classes=classes)
 
 
 #: How the :class:`Recorder` makes each of its loggers, by attribute name.
@@ -132,6 +133,9 @@ class Recorder(RecorderProtocol):
         At most this many points of each cloud are logged per frame (evenly spaced subsample).
     label_stride : int, optional
         Label maps are logged as ``labels[::s, ::s]`` for display; default 2 (1 with ``raw_images``).
+    classes : ClassTable, optional
+        The class table the label maps' ids are of (a run's ``--classes``): each class's name and colour in the
+        viewer; default :data:`pcreg.recording.entities.CLASSES` (0 ground, 1 obstacle, 2 unknown).
 
     Raises
     ------
@@ -157,6 +161,7 @@ class Recorder(RecorderProtocol):
         jpeg_quality: int = DEFAULT_JPEG_QUALITY,
         max_display_points: int = 500,
         label_stride: int | None = None,
+        classes: Any = None,
     ) -> None:
         kind = _kind(kind, blueprint)
         self.sink: Sink = Sink(path, application_id=application_id, recording_id=recording_id, recording_name=recording_name,
@@ -167,7 +172,7 @@ class Recorder(RecorderProtocol):
         self.path: Path = self.sink.path
         self.recording_id: str = self.sink.recording_id
         self.kind = kind  # None: inferred from what was logged when the recording closes
-        self.evaluation.log_classes()
+        self.evaluation.log_classes(classes)
 
     # -- the loggers, each made when first used -------------------------------------------------
 
@@ -283,6 +288,11 @@ class Recorder(RecorderProtocol):
                    prefix: str = "") -> None:
         """As :meth:`RecorderProtocol.log_labels`, by :meth:`EvaluationLogger.log_labels`."""
         self.evaluation.log_labels(truth=truth, predicted=predicted, prefix=prefix)
+
+    def log_classes(self, table: Any) -> None:
+        """As :meth:`RecorderProtocol.log_classes`, by :meth:`EvaluationLogger.log_classes`."""
+        self.sink.check_open()
+        self.evaluation.log_classes(table)
 
     def log_errors(self, errors: Mapping[str, float]) -> None:
         """As :meth:`RecorderProtocol.log_errors`, by :meth:`EvaluationLogger.log_errors`."""

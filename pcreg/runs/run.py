@@ -190,7 +190,7 @@ class Run:
                 raise OutputError(f"{out}: {exc}; use --force to start over") from None
         done = start
         with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
-                            force=request.force) as rec, \
+                            force=request.force, classes=self.table) as rec, \
                 progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
                 WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             self.name_recording(request.record)
@@ -226,7 +226,7 @@ class Run:
             self._say_done(request, 0, sorted(keys))  # the recording is this finished run's: nothing to add to it
             return
         with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
-                            force=request.force) as rec:
+                            force=request.force, classes=self.table) as rec:
             self.name_recording(request.record)
             n = len(frames) if frames.kind == "folder" else frames.count()
             left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run

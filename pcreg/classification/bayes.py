@@ -192,7 +192,7 @@ HISTOGRAM_UNIFORM = 0.01
 #: image row is, with the Gaussian density: a class under it in the ``row`` feature lies on one row (a scribble
 #: along a facade), and every pixel of every other row, whatever its colour, reads as not that class with
 #: log-odds of 1e5 and more (the next CamVid frame labelled 23% right with a predicted error of 0%). The smoothed
-#: histogram's floor keeps such a class a class (eleven CamVid classes, a pole's 4 px on one row: the next
+#: histogram, never 0 in any bin, keeps such a class a class (eleven CamVid classes, a pole's 4 px on one row: the next
 #: frame 94.1% right at a mean confidence of 0.963).
 DEGENERATE_VARIANCE = 1.0 / 12.0
 
@@ -353,7 +353,7 @@ class NaiveBayesPixelClassifier:
         flat = raw < DEGENERATE_VARIANCE
         spike = flat.all(axis=1)
         gaussian = self.density == "gaussian" or (self.density == "auto" and len(self.classes_) == 2)
-        if gaussian and "row" in self.feature_names_:  # a smoothed histogram is no spike: it keeps a floor
+        if gaussian and "row" in self.feature_names_:  # a smoothed histogram is no spike: no bin is 0
             spike |= flat[:, self.feature_names_.index("row")]
         return [int(c) for c in self.classes_[spike]]
 

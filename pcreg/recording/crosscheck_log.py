@@ -13,7 +13,7 @@ from pcreg.recording import entities as E
 
 from ..outputs import to_json
 from .sink import Sink
-from .values import display_indices, plain
+from .values import display_indices, leaves, plain
 
 __all__ = ["CrosscheckLogger"]
 
@@ -46,7 +46,7 @@ class CrosscheckLogger:
         :meth:`part`)."""
         converted = plain(report)
         self.sink.log(E.CROSSCHECK_REPORT, rr.TextDocument(to_json(converted), media_type=rr.MediaType.TEXT))
-        found = _leaves(converted)
+        found = [(keys, v) for keys, v in leaves(converted) if keys]
         for keys, value in found:
             if math.isfinite(value):
                 name = "/".join(keys)
@@ -86,11 +86,3 @@ class CrosscheckLogger:
             else:  # back to where frame-level data sits (see Sink.set_frame)
                 sink.set_time(E.CROSSCHECK_TIMELINE, 0)
 
-
-def _leaves(obj: Any, keys: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], float]]:
-    """Every int/float leaf of a nested mapping (booleans left out) with the keys that lead to it."""
-    if isinstance(obj, Mapping):
-        return [leaf for k, v in obj.items() for leaf in _leaves(v, (*keys, str(k)))]
-    if isinstance(obj, (int, float, np.integer, np.floating)) and not isinstance(obj, (bool, np.bool_)) and keys:
-        return [(keys, float(obj))]
-    return []

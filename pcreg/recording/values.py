@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["as_image", "as_points", "as_colors", "display_indices", "apply_homography", "plain", "numbers"]
+__all__ = ["as_image", "as_points", "as_colors", "display_indices", "apply_homography", "plain", "numbers", "leaves"]
 
 
 def as_image(image: Any, name: str) -> np.ndarray:
@@ -75,13 +75,15 @@ def plain(obj: Any) -> Any:
     return obj
 
 
-def numbers(obj: Any, prefix: str = "") -> dict[str, float]:
-    """Every int/float leaf of a nested dict, keyed by the path of keys joined with '/'."""
-    out: dict[str, float] = {}
+def leaves(obj: Any, keys: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], float]]:
+    """Every int/float leaf of a nested mapping (booleans left out) with the keys that lead to it."""
     if isinstance(obj, Mapping):
-        for k, v in obj.items():
-            key = f"{prefix}/{k}" if prefix else str(k)
-            out.update(numbers(v, key))
-    elif isinstance(obj, (int, float, np.integer, np.floating)) and not isinstance(obj, (bool, np.bool_)):
-        out[prefix] = float(obj)
-    return out
+        return [leaf for k, v in obj.items() for leaf in leaves(v, (*keys, str(k)))]
+    if isinstance(obj, (int, float, np.integer, np.floating)) and not isinstance(obj, (bool, np.bool_)):
+        return [(keys, float(obj))]
+    return []
+
+
+def numbers(obj: Any, prefix: str = "") -> dict[str, float]:
+    """Every int/float leaf of a nested dict, keyed by the path of keys joined with '/' (:func:`leaves`)."""
+    return {"/".join(k for k in ((prefix,) if prefix else ()) + keys): v for keys, v in leaves(obj)}

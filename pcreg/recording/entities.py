@@ -153,10 +153,5 @@ def path_part(name: str) -> str:
     return part if part.strip(".") else "_" + part
 
 
-def crosscheck_path(implementation: str, what: str) -> str:
-    """``crosscheck/{implementation}/{what}``, the implementation's name as a :func:`path_part`."""
-    return f"{CROSSCHECK}/{path_part(implementation)}/{what}"
-
-
 def icp_path(backend: str, what: str) -> str:
     return f"{ICP}/{backend}/{what}"

@@ -25,7 +25,8 @@ from .quiet import capture_output_fds
 from .validation import check_pixels, max_pixels
 
 #: The image files pcreg reads from a folder (by suffix, any case); what decodes is checked by header.
-IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".jfif")
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm", ".pnm", ".pbm",
+                                   ".jfif")
 
 
 def max_file_bytes(limit: int) -> int:
@@ -345,7 +346,7 @@ def turned_note(frame: str | os.PathLike, labels_shape: tuple, frame_shape: tupl
     if orientation is None or not 5 <= orientation <= 8:
         return ""
     return (f" ({Path(frame).name}'s EXIF orientation {orientation} has viewers show it turned by a quarter; pcreg "
-            "reads the pixels as stored: turn the frames first, e.g. exiftran -a, or draw the labels on them as stored)")
+            f"reads the pixels as stored: turn the frames first ({TURN_HINT}), or draw the labels on them as stored)")
 
 
 def exif_orientation(path: str | os.PathLike) -> int | None:
@@ -370,6 +371,20 @@ def exif_orientation(path: str | os.PathLike) -> int | None:
 #: How viewers show an image of each EXIF orientation (2..8) against its pixels as stored.
 ORIENTATION_VIEWS = {2: "mirrored", 3: "turned by a half", 4: "mirrored upside down", 5: "mirrored and turned by a quarter",
                      6: "turned by a quarter", 7: "mirrored and turned by a quarter", 8: "turned by a quarter"}
+#: How to turn an image as it is shown, said wherever pcreg notes an EXIF orientation: ``exiftran`` takes JPEGs
+#: alone; Pillow's ``ImageOps.exif_transpose`` any format that carries the tag (PNG, WebP, TIFF too).
+TURN_HINT = "exiftran -ai for a JPEG, or Pillow's ImageOps.exif_transpose for any format"
+
+
+def orientation_note(path: str | os.PathLike, what: str = "registers") -> str | None:
+    """What pcreg notes of an image file whose EXIF orientation has viewers show it otherwise than stored (pcreg
+    ``what`` the pixels as stored: ``T_ref_mov`` maps them, not the view shown); None for none, or orientation 1."""
+    orientation = exif_orientation(path)
+    if orientation is None:
+        return None
+    return (f"{path}'s EXIF orientation {orientation} has viewers show it {ORIENTATION_VIEWS[orientation]}; pcreg "
+            f"{what} the pixels as stored, and T_ref_mov maps them, not the view shown (turn the image first to "
+            f"register the view: {TURN_HINT})")
 
 
 def image_size(data: bytes) -> tuple[str, tuple[int, int] | None] | None:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -168,6 +171,23 @@ def test_weight_search_is_seeded_and_exact(frames):
     for w, e in zip(s.trial_weights[:3], s.trial_errors[:3]):
         c = NaiveBayesPixelClassifier("thesis", weights=w).fit(imgs, labs)
         assert c.score_error(imgs, labs) == pytest.approx(e, abs=0.05)
+
+
+def test_weight_search_with_no_smoothing_leaves_out_the_weights_the_fit_refuses():
+    """var_smoothing 0: a trial whose feature takes one value over a class cannot be fitted (the classifier
+    refuses it); it was scored from NaN tables (50% error for two colours any weight tells apart)."""
+    img = np.zeros((20, 20, 3), np.uint8)
+    img[:10], img[10:] = (200, 10, 10), (10, 10, 200)
+    lab = (np.arange(20)[:, None] >= 10).repeat(20, axis=1).astype(np.uint8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError, match="var_smoothing > 0"):
+            thesis_weight_search(img, lab, n_trials=5, var_smoothing=0)
+        noisy = img.copy()
+        noisy[0, :10], noisy[19, :10] = (210, 20, 10), (20, 20, 190)  # each class of two colours: a spread
+        s = thesis_weight_search(noisy, lab, n_trials=8, var_smoothing=0)
+    assert s.error == 0.0 and np.isfinite(s.trial_errors).sum() >= 1
+    assert json.loads(json.dumps(s.to_dict(), allow_nan=False))["error"] == 0.0
 
 
 # -- metrics ----------------------------------------------------------------------------------------

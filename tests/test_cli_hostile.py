@@ -210,10 +210,20 @@ def test_pcreg_register_says_when_a_photograph_is_shown_turned_by_its_exif_orien
     notes = [line for line in capsys.readouterr().err.splitlines() if "EXIF" in line]
     assert notes == [f"pcreg: note: {turned}'s EXIF orientation 6 has viewers show it turned by a quarter; pcreg "
                      "registers the pixels as stored, and T_ref_mov maps them, not the view shown (turn the image "
-                     "first to register the view, e.g. exiftran -a)"], notes
+                     "first to register the view: exiftran -ai for a JPEG, or Pillow's ImageOps.exif_transpose for "
+                     "any format)"], notes
     assert main(["register", str(plain), str(turned), "--json"]) == 0  # and in --json's notes
     assert [n for n in json.loads(capsys.readouterr().out)["notes"] if "EXIF" in n] == [notes[0][len("pcreg: note: "):]]
     assert main(["register", str(plain), str(plain)]) == 0
+    assert "EXIF" not in capsys.readouterr().err
+    # pcreg crosscheck of the same photographs says it too (it said nothing), on stderr and in --json
+    main(["crosscheck", str(plain), str(turned)])
+    assert [line for line in capsys.readouterr().err.splitlines() if "EXIF" in line] == [
+        notes[0].replace("pcreg registers", "pcreg cross-checks")]
+    main(["crosscheck", str(plain), str(turned), "--json"])
+    assert [n for n in json.loads(capsys.readouterr().out)["notes"] if "EXIF" in n] == [
+        notes[0][len("pcreg: note: "):].replace("pcreg registers", "pcreg cross-checks")]
+    main(["crosscheck", str(plain), str(plain)])
     assert "EXIF" not in capsys.readouterr().err
 
 

@@ -82,6 +82,10 @@ def test_a_carry_without_its_scene_reads_as_none_and_a_damaged_one_is_refused(tm
     prop = Propagator.from_key_frame(image, (np.arange(96)[:, None] > 48).repeat(128, axis=1).astype(np.uint8))
     with pytest.raises(InputError, match="Scene"):
         prop.resume(2, None, None, scene.grey)
+    prop.resume(2, None, None, Scene(np.full((48, 64), 7, np.uint8), scene.colours))  # half the key frame's size
+    with pytest.raises(InputError, match="scene frame is 8x6, a stream of these frames keeps 64x48"):
+        prop.resume(3, None, None, scene)  # another stream's: refused, and nothing changed
+    assert prop.scene.grey.shape == (48, 64) and prop.scene.grey[0, 0] == 7
 
 
 def test_a_run_stopped_after_a_cut_resumes_as_the_whole_one(shared_data, tmp_path, monkeypatch):

@@ -53,7 +53,11 @@ def test_the_boundary_map_is_drawn_half_a_pixel_towards_the_origin_as_seg2bmap_d
 def test_the_tolerance_is_the_ceiling_of_0_008_of_the_diagonal():
     assert boundary_tolerance((480, 854)) == math.ceil(0.008 * math.hypot(480, 854)) == 8
     assert boundary_tolerance((10, 10)) == 1
-    assert boundary_tolerance((10, 10), 3) == 3
+    assert boundary_tolerance((10, 10), 3) == 3 == boundary_tolerance((10, 10), 3.0)
+    assert boundary_tolerance((10, 10), 0) == 0  # exact matches only, as the reference takes it
+    for bad in (2.5, -0.008, float("nan"), float("inf")):  # 2.5: the benchmark's disk would be an even square
+        with pytest.raises(InputError, match="boundary tolerance"):
+            boundary_f(_band(5), _band(5), bound_th=bad)
 
 
 def test_boundary_f_matches_within_the_tolerance_and_counts_by_hand():

@@ -318,3 +318,22 @@ def test_the_bar_counts_the_forward_pass_between_two_key_frames(folder, frames, 
         cv2.imwrite(str(keys / f"f{k}.png"), frames[k].labels)
     rc, seen = in_a_terminal(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out")])
     assert rc == 0 and "steps:" in seen and "/8 [" in seen and "/4 [" not in seen, seen
+
+
+def test_a_stretch_carry_of_another_stream_is_refused_in_one_line(tmp_path, frames, monkeypatch, capsys):
+    """A carry in the hidden folder whose cut-test frame is of another size (another stream's) is refused as
+    the one-key run refuses it: one line, --force to start over, not a bare message naming no file."""
+    args = run_whole_and_stopped(tmp_path, frames, monkeypatch, 18, "backward")  # resumed after a step: its carry
+    edited = 0
+    for f in (tmp_path / "cut").glob(".keys/*/carry-*.npz"):
+        with np.load(f) as z:
+            members = {k: z[k] for k in z.files}
+        if "scene_grey" in members:
+            np.savez(f, **{**members, "scene_grey": np.zeros((5, 7), np.uint8)})
+            edited += 1
+    assert edited
+    capsys.readouterr()
+    assert main(args + ["--out", str(tmp_path / "cut")]) == 2
+    err = _err(capsys)
+    assert len(err) == 1 and "another stream" in err[0] and err[0].endswith("use --force to start over"), err
+    assert str(tmp_path / "cut") in err[0] and "carry-" in err[0]

@@ -207,6 +207,10 @@ def test_a_chained_eleven_class_stream_resumes_exactly_from_its_saved_carry(shar
         np.testing.assert_array_equal(resumed.last.confidence, expected[t][1])
     with pytest.raises(InputError, match="ChainCarry"):
         Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11, scale=0.5).resume(3, None)
+    after_key = Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11, scale=0.5)
+    after_key.resume(0, None)  # after the key frame itself: its chain is the key frame, no carry needed
+    np.testing.assert_array_equal(after_key.step(images[1]), expected[1][0])
+    np.testing.assert_array_equal(after_key.last.confidence, expected[1][1])
     with pytest.raises(InputError, match="another stream"):  # a carried frame of another size
         Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11).resume(3, back)
     keyed = Propagator.from_key_frame(images[0], labels[0], classes=CAMVID11, anchor="key")

@@ -149,6 +149,27 @@ def test_a_jpeg_named_jfif_is_read_by_every_command(tmp_path, capsys):
     np.testing.assert_array_equal(source.read(1)[0], pcreg.load_image(b))
 
 
+@pytest.mark.parametrize("suffix", [".pnm", ".pbm"])
+def test_portable_anymaps_are_read_by_every_command(tmp_path, capsys, suffix):
+    """``.pnm`` (any portable anymap) and ``.pbm`` (a bitmap) were read by ``pcreg register``, as ``.ppm`` and ``.pgm``
+    are by every command, but refused by ``pcreg crosscheck`` ("unknown file type") and passed over by ``pcreg run``."""
+    from pcreg.datasets.sources import FolderFrames
+
+    rgb = shapes_image()
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        moved = np.roll(rgb, 2 * i, axis=1)[:, :, ::-1]
+        cv2.imwrite(str(frames / f"f{i}{suffix}"), moved if suffix == ".pnm" else (moved.max(axis=2) > 127) * np.uint8(255))
+    a, b = frames / f"f0{suffix}", frames / f"f1{suffix}"
+    for command in ("register", "crosscheck"):
+        assert main([command, str(a), str(b)]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    source = FolderFrames(frames)
+    assert (len(source), source.note()) == (3, None)
+    np.testing.assert_array_equal(source.read(1)[0], pcreg.load_image(b))
+
+
 def _bmp32(rgb: np.ndarray, *, header: int, masks: tuple[int, int, int, int]) -> bytes:
     """A 32-bit BI_BITFIELDS BMP of ``rgb`` (bottom-up, ``header`` 40 with its masks after it, or a 124-byte V5 header
     holding them), the fourth byte of every pixel 0: ``masks`` (red, green, blue, alpha) say whether that byte is alpha

@@ -229,6 +229,42 @@ def test_suggest_picks_far_frames_predicted_wrong_without_truth():
 
 
 
+def _suggest_as_stated(predicted, keys, count):
+    """:func:`~pcreg.pipeline.keyframes.suggest`'s rule written as its docstring states it, one frame at a time."""
+    taken, chosen = set(keys), []
+    candidates = [t for t in predicted if t not in taken]
+    for _ in range(count):
+        near = {t: min(abs(t - k) for k in taken | set(chosen)) for t in candidates if t not in chosen}
+        ends = [t for t in (min(candidates), max(candidates)) if t in near and not min(taken) <= t <= max(taken)]
+        if ends:
+            pick = max(ends, key=lambda t: (near[t], -t))
+        else:
+            pick = max(near, key=lambda t: (predicted[t] * near[t], -t))
+        chosen.append(pick)
+        taken.add(pick)
+    return chosen
+
+
+def test_suggest_follows_its_rule_on_random_clips_ties_included():
+    """The suggestions keep each candidate's distance to the nearest labelled frame as they go (a clip of 100,000
+    frames with 200 key frames took 14.7 s, every candidate measured against every labelled frame each pick):
+    the same frames as the rule stated one frame at a time, ties (equal errors, a whole clip predicted
+    right) to the earliest frame."""
+    from pcreg.pipeline.keyframes import suggest
+
+    rng = np.random.default_rng(3)
+    for trial in range(200):
+        n = int(rng.integers(2, 60))
+        keys = sorted(set(rng.choice(n, size=int(rng.integers(1, min(n, 5) + 1)), replace=False).tolist()))
+        frames = [t for t in range(n) if t not in keys]
+        if not frames:
+            continue
+        levels = rng.choice([0.0, 1.0, 2.5], size=len(frames)) if trial % 3 == 0 else rng.random(len(frames)) * 10
+        predicted = dict(zip(frames, levels.tolist()))
+        count = int(rng.integers(1, len(frames) + 1))
+        assert suggest(predicted, keys, count, n) == _suggest_as_stated(predicted, keys, count), (predicted, keys)
+
+
 def test_suggest_never_names_a_frame_outside_the_clip_nor_takes_an_error_that_is_no_number():
     """``suggest(predicted, keys, count, n)`` took ``n`` and never read it: a predicted error of frame 9 in a clip
     of 3 frames made it suggest frame 9, and a NaN predicted error (no number) was suggested before every

@@ -507,7 +507,8 @@ class WeightSearch:
 
     weights : (w_r, w_g, w_b) with the lowest training error (sum 1).
     error : that training error, percent of training pixels (unknown excluded).
-    trial_weights : (n_trials, 3) float64; trial_errors : (n_trials,) float64 percent.
+    trial_weights : (n_trials, 3) float64; trial_errors : (n_trials,) float64 percent, NaN for a trial whose
+        classifier cannot be fitted (``var_smoothing`` 0 and a class of one value of the feature).
     seed : the seed of the trial weights.
     """
 
@@ -523,7 +524,8 @@ class WeightSearch:
 
     def to_dict(self) -> dict:
         return {"weights": list(self.weights), "error": float(self.error),
-                "trial_weights": self.trial_weights.tolist(), "trial_errors": self.trial_errors.tolist(),
+                "trial_weights": self.trial_weights.tolist(),
+                "trial_errors": [None if np.isnan(e) else float(e) for e in self.trial_errors],
                 "seed": int(self.seed)}
 
 
@@ -564,6 +566,9 @@ def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, e
     per-class counts of distinct colours, which give the same histograms as the pixels themselves.
 
     images : (H, W, 3) uint8 or a sequence; labels : (H, W) uint8 or a sequence.
+    var_smoothing : as :class:`NaiveBayesPixelClassifier`'s; at 0 a trial whose feature takes one value over a
+        class is not one the classifier can fit (a Gaussian of no width): it is left out (error NaN), and
+        an :class:`~pcreg.errors.InputError` says so when every trial is.
     """
     import cv2
 
@@ -589,12 +594,18 @@ def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, e
             v = cv2.transform(colours.reshape(-1, 1, 3), w.reshape(1, 3)).reshape(-1)
             hist[c, 0] = np.bincount(v, weights=cnt, minlength=256).astype(np.int64)
         p = _gaussian_params(hist, classes, var_smoothing=var_smoothing, priors=None)
+        if not np.all(p["var"] > 0):  # var_smoothing 0 and a class of one value: the fit refuses these weights
+            errors[t] = np.nan
+            continue
         jll = _tables(p["theta"], p["var"])[:, 0, :] + np.log(p["prior"])[:, None]  # (n, 256)
         winner = np.argmax(jll, axis=0)  # index into classes for each value
         h = hist[classes, 0, :]  # (n, 256)
         correct = h[winner, np.arange(256)].sum()
         errors[t] = 100.0 * (1.0 - correct / h.sum())
-    best = int(np.argmin(errors))
+    if np.all(np.isnan(errors)):
+        raise InputError("every trial's feature takes one value over a class and var_smoothing is 0: no Gaussian "
+                         "can be fitted; give var_smoothing > 0 (the default is 1e-9)")
+    best = int(np.nanargmin(errors))
     wb = trial_weights[best]
     return WeightSearch(weights=(float(wb[0]), float(wb[1]), float(wb[2])), error=float(errors[best]),
                         trial_weights=trial_weights, trial_errors=errors, seed=int(seed))

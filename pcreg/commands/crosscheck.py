@@ -266,7 +266,7 @@ def _images(args) -> int:
     from ..implementations.crosscheck import CROSSCHECK_REGISTRATION, CrosscheckConfig, crosscheck_images
 
     from ..errors import InputError, RegistrationError
-    from ..formats import read_image_file
+    from ..formats import orientation_note, read_image_file
     from ..registration.clouds import image_and_mask
     from .register import _naming_its_file
 
@@ -294,6 +294,9 @@ def _images(args) -> int:
             raise _naming_its_file(exc, tuple(zip((args.a, args.b), stored))) from None
         out = report.to_dict()
         rec.log_crosscheck(out)
+    notes = [n for n in (orientation_note(path, "cross-checks") for path in (args.a, args.b)) if n is not None]
+    if notes:
+        out["notes"] = notes
     if args.json:
         print_json(out)
     else:
@@ -306,6 +309,8 @@ def _images(args) -> int:
         if report.refused:
             print(f"refused, not trusted: {report.refused} (pcreg register refuses this pair; both poses are its search's "
                   "best, compared all the same)")
+    for note in notes:
+        sys.stderr.write(f"pcreg: note: {note}\n")
     if report.refused is None:
         return 0
     sys.stderr.write(f"pcreg: registration refused: pcreg register refuses these images: {report.refused}\n")

@@ -209,19 +209,16 @@ def _file_notes(files) -> list[str]:
     """Notes for each image file (``files``: its path, and what its decoder said of damaged data it
     decoded around, or ""): such damage, and an EXIF orientation that has viewers show the image turned or
     mirrored (``T_ref_mov`` maps the pixels as stored, not the view a person sees)."""
-    from ..formats import ORIENTATION_VIEWS, exif_orientation
+    from ..formats import orientation_note
 
     notes = []
     for path, damage in dict(files).items():
         if damage:
             notes.append(f"{path}: its decoder reports damaged data ({damage}): part of the image "
                          "is the decoder's guess, and the result may be off")
-        orientation = exif_orientation(path)
-        if orientation is not None:
-            notes.append(f"{path}'s EXIF orientation {orientation} has viewers show it "
-                         f"{ORIENTATION_VIEWS[orientation]}; pcreg registers the pixels as stored, and T_ref_mov "
-                         "maps them, not the view shown (turn the image first to register the view, e.g. "
-                         "exiftran -a)")
+        turned = orientation_note(path)
+        if turned is not None:
+            notes.append(turned)
     return notes
 
 

@@ -73,17 +73,28 @@ class SceneCheck:
 
     def __init__(self, key_rgb: np.ndarray) -> None:
         self._scene: tuple[np.ndarray, np.ndarray] | None = _small(key_rgb)  # the last frame in the key's scene
+        self._shape = self._scene[0].shape  # a scene frame's size: half the key frame's
 
     @property
     def scene(self) -> Scene | None:
         """The last frame found in the key frame's scene (None: not known, the next frame is taken as one)."""
         return None if self._scene is None else Scene(*self._scene)
 
-    def restore(self, scene: Scene | None) -> None:
-        """Go on from ``scene`` (:attr:`scene`, as saved: a resumed stream); None, the last frame of the scene not
-        known (a carry saved before it was kept): the next frame is taken as one."""
+    def check(self, scene: Scene | None) -> None:
+        """Refuse a ``scene`` that :meth:`restore` cannot go on from: not a :class:`Scene`, or one of another
+        size than this stream's (half the key frame's), which comes from another stream."""
         if scene is not None and not isinstance(scene, Scene):
             raise InputError("a stream's carried scene must be a pcreg.pipeline.cuts.Scene or None")
+        if scene is not None and scene.grey.shape != self._shape:
+            (h, w), (hh, ww) = scene.grey.shape, self._shape
+            raise InputError(f"the carried scene frame is {w}x{h}, a stream of these frames keeps {ww}x{hh}: "
+                             "it comes from another stream")
+
+    def restore(self, scene: Scene | None) -> None:
+        """Go on from ``scene`` (:attr:`scene`, as saved: a resumed stream); None, the last frame of the scene not
+        known (a carry saved before it was kept): the next frame is taken as one. A scene :meth:`check`
+        refuses is refused."""
+        self.check(scene)
         self._scene = None if scene is None else (scene.grey, scene.colours)
 
     def test(self, rgb: np.ndarray) -> dict:

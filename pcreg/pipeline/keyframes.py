@@ -175,22 +175,36 @@ def suggest(predicted: Mapping[int, float], keys: Sequence[int], count: int, n: 
     if odd is not None:
         raise InputError(f"the predicted error of frame {odd} is {predicted[odd]}, not a finite number")
     keyset = set(int(k) for k in keys)
-    candidates = [t for t in predicted if t not in keyset]
-    if count > len(candidates):
-        raise InputError(f"cannot suggest {count} frames: only {len(candidates)} are not key frames")
+    items = sorted((int(t), float(e)) for t, e in predicted.items() if int(t) not in keyset)
+    if count > len(items):
+        raise InputError(f"cannot suggest {count} frames: only {len(items)} are not key frames")
     if not keyset:
         raise InputError("suggesting frames needs at least one key frame")
+    candidates = np.array([t for t, _ in items], np.int64)
+    errors = np.array([e for _, e in items], np.float64)
+    labelled = np.array(sorted(keyset), np.int64)
+    distance = _nearest(candidates, labelled)  # each candidate's distance to the nearest labelled frame
+    lo, hi = int(labelled[0]), int(labelled[-1])
+    free = np.ones(len(candidates), bool)
     chosen: list[int] = []
     for _ in range(count):
-        taken = keyset | set(chosen)
-
-        ends = [t for t in (min(candidates), max(candidates)) if t not in taken and (t < min(taken) or t > max(taken))]
-        if ends:  # a stretch labelled from one side: its far end first
-            chosen.append(max(ends, key=lambda t: (min(abs(t - k) for k in taken), -t)))
-            continue
-
-        def score(t: int) -> float:
-            return float(predicted[t]) * min(abs(t - k) for k in taken)
-
-        chosen.append(max((t for t in candidates if t not in chosen), key=lambda t: (score(t), -t)))
+        # a stretch labelled from one side (before the first labelled frame, after the last): its far end first
+        ends = [i for i in (0, len(candidates) - 1) if free[i] and not lo <= candidates[i] <= hi]
+        if ends:
+            i = max(ends, key=lambda i: (int(distance[i]), -int(candidates[i])))
+        else:  # the largest predicted error times distance; ties to the earliest frame
+            i = int(np.argmax(np.where(free, errors * distance, -np.inf)))
+        t = int(candidates[i])
+        chosen.append(t)
+        free[i] = False
+        lo, hi = min(lo, t), max(hi, t)
+        np.minimum(distance, np.abs(candidates - t), out=distance)
     return chosen
+
+
+def _nearest(frames: np.ndarray, labelled: np.ndarray) -> np.ndarray:
+    """(N,) int64: each of ``frames``' distance in frames to the nearest of ``labelled`` (sorted, not empty)."""
+    at = np.searchsorted(labelled, frames)
+    after = labelled[np.minimum(at, len(labelled) - 1)]
+    before = labelled[np.maximum(at - 1, 0)]
+    return np.minimum(np.abs(frames - after), np.abs(frames - before))

@@ -41,7 +41,7 @@ import numpy as np
 
 from ..classes.keys import binary_table, two_class_table
 from ..errors import InputError
-from ..runs.files import HIDDEN, label_digest
+from ..runs.files import CARRY, HIDDEN, label_digest
 from ..runs.kept import read_frame, read_prior, write_frame, write_prior
 from ..runs.truth import empty_counts
 
@@ -251,8 +251,14 @@ class KeyRun:
         return prop
 
     def _resume(self, prop, s: Stretch, cur: dict) -> None:
+        from ..errors import OutputError
+
         if cur["steps"]:
-            prop.resume(cur["steps"], *self._read_carry(s, cur["steps"]))
+            try:
+                prop.resume(cur["steps"], *self._read_carry(s, cur["steps"]))
+            except InputError as exc:  # a carry of another stream, as a one-key run says it
+                path = self.owner.hidden(self.fingerprint(s)) / CARRY.format(cur["steps"] % 2)
+                raise OutputError(f"{path}: {exc}; use --force to start over") from None
 
     def _read_carry(self, s: Stretch, steps: int):
         return self.owner.read_carry(steps, stretch=self.fingerprint(s))

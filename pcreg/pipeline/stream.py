@@ -510,8 +510,10 @@ class Propagator:
         frame = check_int(frame, "frame", lo=0)
         if scene is not None and not isinstance(scene, Scene):
             raise InputError("scene must be a pcreg.pipeline.cuts.Scene or None")
-        if self.anchor == "previous":
-            self._chain = chain_after(carry, self._key, frame)
+        if self._key_scene is not None:
+            self._key_scene.check(scene)
+        if self.anchor == "previous":  # after the key frame itself, its own chain: no carry needed
+            self._chain = (self._key, None, 0) if frame == 0 and carry is None else chain_after(carry, self._key, frame)
             carry = None
         if carry is not None and not isinstance(carry, Carry):
             raise InputError("carry must be a pcreg.pipeline.stream.Carry or None")

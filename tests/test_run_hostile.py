@@ -403,6 +403,24 @@ def test_a_finished_run_from_key_frames_run_again_with_its_recording_says_it_is_
     assert main(args) == 0
     assert "all frames already done" in capsys.readouterr().out
     assert (tmp_path / "run.rrd").read_bytes() == recorded
+    # another recording file for the finished run: not written empty without a word (it held no frame)
+    assert main([*args[:-1], str(tmp_path / "again.rrd")]) == 0
+    said = capsys.readouterr()
+    assert "all frames already done" in said.out and not (tmp_path / "again.rrd").exists()
+    assert f"nothing is recorded and {tmp_path / 'again.rrd'} is not written (--force" in said.err
+
+
+def test_a_finished_run_from_one_key_frame_with_a_new_recording_says_none_is_written(tmp_path, capsys):
+    folder, key = drifting_frames(tmp_path / "frames", (96, 128), n=4)
+    args = ["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out")]
+    assert main(args) == 0
+    capsys.readouterr()
+    assert main([*args, "--record", str(tmp_path / "late.rrd")]) == 0
+    said = capsys.readouterr()
+    assert "already done" in said.out and not (tmp_path / "late.rrd").exists()
+    assert "nothing is recorded" in said.err
+    assert main([*args, "--record", str(tmp_path / "late.rrd"), "--force"]) == 0  # the way to a recording
+    assert (tmp_path / "late.rrd").stat().st_size > 0
 
 
 def test_a_resumed_chained_run_records_the_reference_of_its_first_step(tmp_path, capsys):

@@ -177,6 +177,7 @@ class Run:
         # never where the run stops (decoding finds the end)
         total = len(frames) if frames.kind == "folder" else frames.count()
         if frames.kind == "folder" and start >= len(frames):
+            self._nothing_to_record(request)
             return self._say_done(request, 0, [0], start=start)
         if start == 1:
             todo = itertools.chain([second], decoded)
@@ -222,8 +223,9 @@ class Run:
         job = KeyRun(self, keys, request.config)
         job.start(force=request.force)
         choose_kept(job, self.out)
-        if job.finished and request.record is not None and Path(request.record).exists() and not request.force:
-            self._say_done(request, 0, sorted(keys))  # the recording is this finished run's: nothing to add to it
+        if job.finished and request.record is not None and not request.force:
+            self._nothing_to_record(request)  # an existing recording is this finished run's: nothing to add to it
+            self._say_done(request, 0, sorted(keys))
             return
         with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
                             force=request.force, classes=self.table) as rec:
@@ -239,6 +241,16 @@ class Run:
 
                 done = job.run(on_frame=on_frame, check=check_interrupted, on_step=lambda: tick(bar))
             self._say_done(request, done, sorted(keys))
+
+    @staticmethod
+    def _nothing_to_record(request: RunRequest) -> None:
+        """Say, when ``--record`` names a file that does not exist, that a run with every frame labelled writes
+        none: a recording of no frame would look like the run's own, and ``--force`` is the way to one."""
+        import sys
+
+        if request.record is not None and not Path(request.record).exists():
+            sys.stderr.write(f"pcreg: note: every frame is already labelled, so nothing is recorded and "
+                             f"{request.record} is not written (--force labels the frames again and records them)\n")
 
     def _say_done(self, request: RunRequest, done: int, keys: list[int], *, start: int | None = None) -> None:
         """Print what the run did (``done`` frames this time; ``start``: the first of them, a run from one

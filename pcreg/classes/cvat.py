@@ -334,12 +334,16 @@ def frame_positions(frames):
     """A function of a label file's stem to the position of the run's frame it names, or None: a folder's
     frame by its file's stem (or, where none has that stem, by the one stem that is the same text composed otherwise,
     :func:`_nfc`), any run's source frame ``i`` (counted before ``--start``/``--every``) by ``frame_NNNNNN`` (CVAT's
-    names), and a video's by its index in digits (up to nine, as ``frame_NNNNNN``'s)."""
+    names), and a video's by its index in digits (up to nine, as ``frame_NNNNNN``'s). A stem that names a frame file
+    of the folder that the selection leaves out names no frame (None), never the source frame of its number: files
+    numbered from 1 (``frame_000001.png``, as ffmpeg writes them) would put its labels on the next file."""
     s = frames.selection
     by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
     composed = {}  # the composed form of each stem: the frames of that text
     for stem, t in by_stem.items():
         composed.setdefault(_nfc(stem), []).append(t)
+    # the folder's frame files that the selection leaves out: a stem naming one names that file, never a number
+    left_out = {_nfc(p.stem) for p in getattr(frames, "files", ())} - set(composed) if frames.kind == "folder" else set()
 
     def source_index(i: int) -> int | None:
         if not s.chosen(i):
@@ -354,6 +358,8 @@ def frame_positions(frames):
             return by_stem[stem]
         if len(composed.get(_nfc(stem), ())) == 1:
             return composed[_nfc(stem)][0]
+        if _nfc(stem) in left_out:
+            return None
         m = _FRAME.fullmatch(stem)
         if m is not None:
             return source_index(int(m.group(1)))

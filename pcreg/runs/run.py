@@ -344,11 +344,15 @@ class Run:
                               "changed since the run began; use --force to start over")
 
     def _check_same_frames(self, key_frame: str) -> None:
-        """Refuse to continue a run from one label image when the frames it labelled are not, by name, the first
-        of its folder now (a frame added among them, or renamed): the labels written would not be theirs."""
-        if self.frames.kind != "folder":
-            return
+        """Refuse to continue a run from one label image when a line of its steps.jsonl is not a step pcreg run
+        wrote (:func:`~pcreg.runs.files.parse_steps`: the export would refuse the folder), or the frames it
+        labelled are not, by name, the first of its folder now (a frame added among them, or renamed): the labels
+        written would not be theirs."""
         named = ((int(s["frame"]), s.get("name")) for s in parse_steps(self.out / STEPS, step_lines(self.out)))
+        if self.frames.kind != "folder":  # a video's frames are named by their index: every line read all the same
+            for _ in named:
+                pass
+            return
         for t, name in itertools.chain([(0, key_frame)], named):
             if isinstance(name, str) and t < len(self.frames) and self.frames.name(t) != name:
                 raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "

@@ -344,3 +344,8 @@ def test_a_key_label_of_a_frame_file_not_chosen_is_refused_not_moved_to_the_next
     cv2.imwrite(str(export / "SegmentationClass" / "frame_000003.png"), colours[frames[2].labels][:, :, ::-1])
     assert main(["run", str(d), "--labels", str(export), "--out", str(out), "--every", "2", "--start", "1"]) == 2
     assert "its masks are named frame_000003" in _err(capsys)[0] and not (out / "run.json").exists()
+    # labels named by CVAT's numbers of a video task over these files (frame 1 the second file) and by the files'
+    # names alike, one of them a file left out: read two ways, refused as when every file is chosen
+    cv2.imwrite(str(keys / "frame_000001.png"), frames[1].labels)  # CVAT's frame 1: frame_000002.png, chosen
+    assert main(["run", str(d), "--labels", str(keys), "--out", str(out), "--start", "1"]) == 2
+    assert "name frames two ways" in _err(capsys)[0] and not (out / "run.json").exists()

@@ -340,7 +340,7 @@ def frame_positions(frames, *, left_out: bool = True):
     ``left_out``: such a stem read as CVAT's number all the same (what :func:`placed` tells two ways of naming by)."""
     s = frames.selection
     by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
-    composed = {}  # the composed form of each stem: the frames of that text
+    composed: dict[str, list[int]] = {}  # the composed form of each stem: the frames of that text
     for stem, t in by_stem.items():
         composed.setdefault(_nfc(stem), []).append(t)
     # the folder's frame files that the selection leaves out: a stem naming one names that file, never a number

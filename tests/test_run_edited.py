@@ -40,3 +40,30 @@ def test_a_stopped_video_run_whose_steps_line_was_edited_is_refused_on_resume(tm
     err = one_line_errors(capsys)
     assert len(err) == 1 and "steps.jsonl: line 2 is not a step pcreg run wrote" in err[0], err
     assert not (out / "000005.png").exists()
+
+
+def test_a_key_frames_run_whose_frame_was_renamed_says_the_frames_changed(tmp_path, capsys):
+    """A frame between two key frames renamed after a run from a folder of key frames: the run again is refused
+    saying the frames changed (the name it labelled, the name there now), as a run from one label image says it;
+    before, it said the new name's label PNG was missing though run.json counted it labelled, and a step whose name
+    was edited went through as "all frames already done" while the export refused the folder."""
+    from _runs import key_frames_of
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 5))
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
+    assert main(run) == 0
+    (folder / "f2.png").rename(folder / "f2b.png")
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "labelled f2.png as frame 2" in err[0] and "holds as f2b.png" in err[0], err
+    (folder / "f2b.png").rename(folder / "f2.png")
+    lines = (out / "steps.jsonl").read_text().splitlines(keepends=True)
+    lines[1] = lines[1].replace('"name": "f', '"name": "g')
+    (out / "steps.jsonl").write_text("".join(lines))
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "the frames changed since the run began" in err[0], err

@@ -344,20 +344,18 @@ class Run:
                               "changed since the run began; use --force to start over")
 
     def _check_same_frames(self, key_frame: str) -> None:
-        """Refuse to continue a run from one label image when a line of its steps.jsonl is not a step pcreg run
-        wrote (:func:`~pcreg.runs.files.parse_steps`: the export would refuse the folder), or the frames it
-        labelled are not, by name, the first of its folder now (a frame added among them, or renamed): the labels
-        written would not be theirs."""
+        """Refuse to continue a run from one label image over a steps.jsonl line pcreg run did not write (the export
+        would refuse it, :func:`~pcreg.runs.files.parse_steps`) or a frame renamed (:meth:`_check_same_name`)."""
         named = ((int(s["frame"]), s.get("name")) for s in parse_steps(self.out / STEPS, step_lines(self.out)))
-        if self.frames.kind != "folder":  # a video's frames are named by their index: every line read all the same
-            for _ in named:
-                pass
-            return
-        for t, name in itertools.chain([(0, key_frame)], named):
-            if isinstance(name, str) and t < len(self.frames) and self.frames.name(t) != name:
-                raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "
-                                  f"now holds as {self.frames.name(t)}: the frames changed since the run began; "
-                                  "use --force to start over")
+        for t, name in itertools.chain([(0, key_frame)], named):  # every line read, a video's too
+            self._check_same_name(t, name)
+
+    def _check_same_name(self, t: int, name) -> None:
+        """Refuse a step that labelled ``name`` as frame ``t`` of a folder that now holds another there (renamed, added)."""
+        if self.frames.kind == "folder" and isinstance(name, str) and t < len(self.frames) and self.frames.name(t) != name:
+            raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "
+                              f"now holds as {self.frames.name(t)}: the frames changed since the run began; "
+                              "use --force to start over")
 
     def _start_over(self) -> None:
         """Forget what an earlier run in ``out`` wrote beside its label PNGs, which a run started over
@@ -418,6 +416,7 @@ class Run:
             for line, step in zip(lines, parse_steps(path, parsed)):
                 count, t = count + 1, step["frame"]
                 if any(t in s for s in live):
+                    self._check_same_name(t, step.get("name"))
                     fh.write(line)
                     stems.append(self.frames.stem(t))
             if count < counted:

@@ -255,6 +255,10 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
             if stem.splitlines() != [stem]:  # default.txt lists a name a line: a line break would make it two
                 raise InputError(f"{frame!r}: a frame name with a line break cannot be listed in the archive's "
                                  "default.txt; rename the frame")
+            if stem != stem.strip() or stem.startswith("#"):  # Datumaro strips each line, and skips a '#' line
+                raise InputError(f"{frame!r}: a frame name that starts with '#' or has spaces around it is read "
+                                 "otherwise from the archive's default.txt by CVAT's import (a comment, or the name "
+                                 "without its spaces), and its masks left out; rename the frame")
             stems.append(stem)
             written.add(stem)
             for k in np.unique(labels):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import shutil
 import zipfile
 
@@ -230,6 +231,21 @@ def test_a_frame_name_with_a_line_break_is_refused_not_split_in_default_txt(name
     data, _ = cvat_mask_archive([("f0.png", labels), ("a b é.png", labels)])
     listed = zipfile.ZipFile(io.BytesIO(data)).read("ImageSets/Segmentation/default.txt").decode()
     assert listed == "f0\na b é\n"
+
+
+@pytest.mark.parametrize("name", ["#f1.png", " f1.png", "f1 .png", "f1\u00a0.png"])
+def test_a_frame_name_default_txt_would_read_otherwise_is_refused(name):
+    """Datumaro's VOC reader (CVAT's import) strips each line of default.txt and takes one starting with '#' for a
+    comment: a frame '#f1.png' was dropped from the import and ' f1.png' looked up as f1.png, without a word,
+    while the export said it wrote every frame. Such a name is refused, naming the frame."""
+    from pcreg.errors import InputError
+    from pcreg.export import cvat_mask_archive
+
+    labels = np.zeros((4, 6), np.uint8)
+    with pytest.raises(InputError, match=f"^{re.escape(repr(name))}: .*default.txt.*rename the frame"):
+        cvat_mask_archive([("f0.png", labels), (name, labels)])
+    data, _ = cvat_mask_archive([("f0.png", labels), ("a#b c.png", labels)])  # inside a name: read as it is
+    assert zipfile.ZipFile(io.BytesIO(data)).read("ImageSets/Segmentation/default.txt").decode() == "f0\na#b c\n"
 
 
 def test_a_summary_names_a_dozen_labels_and_counts_the_rest():

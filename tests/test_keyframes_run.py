@@ -337,3 +337,34 @@ def test_a_stretch_carry_of_another_stream_is_refused_in_one_line(tmp_path, fram
     err = _err(capsys)
     assert len(err) == 1 and "another stream" in err[0] and err[0].endswith("use --force to start over"), err
     assert str(tmp_path / "cut") in err[0] and "carry-" in err[0]
+
+
+def test_a_key_label_of_a_frame_file_not_chosen_is_refused_not_moved_to_the_next(tmp_path, frames, capsys):
+    """Frames named frame_000001.png, ... (as ffmpeg numbers the files it writes, from 1) and a key label named as
+    one of them that --start/--every leave out: it names that file, not CVAT's frame number (the file after it), so
+    it is refused as a frame not chosen; before, frame_000003.png's labels became frame_000004.png's."""
+    d = tmp_path / "frames"
+    d.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(d / f"frame_{i + 1:06d}.png"), f.image[:, :, ::-1])
+    keys = tmp_path / "keys"  # --start 1 --every 2 chooses frame_000002.png, frame_000004.png, frame_000006.png
+    keys.mkdir()
+    cv2.imwrite(str(keys / "frame_000003.png"), frames[2].labels)  # frames[2]'s file, not chosen
+    out = tmp_path / "out"
+    assert main(["run", str(d), "--labels", str(keys), "--out", str(out), "--every", "2", "--start", "1"]) == 2
+    err = _err(capsys)[0]
+    assert "frame_000003.png: names no frame" in err and "among those chosen" in err
+    assert not (out / "run.json").exists()
+    # a CVAT export of such a task names its masks so too
+    export = tmp_path / "export"
+    (export / "SegmentationClass").mkdir(parents=True)
+    (export / "labelmap.txt").write_text("background:0,0,0::\nground:34,197,94::\nobstacle:255,40,40::\n")
+    colours = np.array([[34, 197, 94], [255, 40, 40], [0, 0, 0]], np.uint8)
+    cv2.imwrite(str(export / "SegmentationClass" / "frame_000003.png"), colours[frames[2].labels][:, :, ::-1])
+    assert main(["run", str(d), "--labels", str(export), "--out", str(out), "--every", "2", "--start", "1"]) == 2
+    assert "its masks are named frame_000003" in _err(capsys)[0] and not (out / "run.json").exists()
+    # labels named by CVAT's numbers of a video task over these files (frame 1 the second file) and by the files'
+    # names alike, one of them a file left out: read two ways, refused as when every file is chosen
+    cv2.imwrite(str(keys / "frame_000001.png"), frames[1].labels)  # CVAT's frame 1: frame_000002.png, chosen
+    assert main(["run", str(d), "--labels", str(keys), "--out", str(out), "--start", "1"]) == 2
+    assert "name frames two ways" in _err(capsys)[0] and not (out / "run.json").exists()

@@ -330,16 +330,21 @@ def _nfc(name: str) -> str:
     return unicodedata.normalize("NFC", name)
 
 
-def frame_positions(frames):
+def frame_positions(frames, *, left_out: bool = True):
     """A function of a label file's stem to the position of the run's frame it names, or None: a folder's
     frame by its file's stem (or, where none has that stem, by the one stem that is the same text composed otherwise,
     :func:`_nfc`), any run's source frame ``i`` (counted before ``--start``/``--every``) by ``frame_NNNNNN`` (CVAT's
-    names), and a video's by its index in digits (up to nine, as ``frame_NNNNNN``'s)."""
+    names), and a video's by its index in digits (up to nine, as ``frame_NNNNNN``'s). A stem that names a frame file
+    of the folder that the selection leaves out names no frame (None), never the source frame of its number: files
+    numbered from 1 (``frame_000001.png``, as ffmpeg writes them) would put its labels on the next file. Not
+    ``left_out``: such a stem read as CVAT's number all the same (what :func:`placed` tells two ways of naming by)."""
     s = frames.selection
     by_stem = {frames.stem(t): t for t in range(len(frames))} if frames.kind == "folder" else {}
-    composed = {}  # the composed form of each stem: the frames of that text
+    composed: dict[str, list[int]] = {}  # the composed form of each stem: the frames of that text
     for stem, t in by_stem.items():
         composed.setdefault(_nfc(stem), []).append(t)
+    # the folder's frame files that the selection leaves out: a stem naming one names that file, never a number
+    unchosen = {_nfc(p.stem) for p in getattr(frames, "files", ())} - set(composed) if frames.kind == "folder" else set()
 
     def source_index(i: int) -> int | None:
         if not s.chosen(i):
@@ -354,6 +359,8 @@ def frame_positions(frames):
             return by_stem[stem]
         if len(composed.get(_nfc(stem), ())) == 1:
             return composed[_nfc(stem)][0]
+        if left_out and _nfc(stem) in unchosen:
+            return None
         m = _FRAME.fullmatch(stem)
         if m is not None:
             return source_index(int(m.group(1)))
@@ -372,11 +379,15 @@ def placed(frames, stems: list[str], source) -> list[int | None]:
     where = frame_positions(frames)
     positions = [where(stem) for stem in stems]
     if frames.kind == "folder":
+        # a stem that names a frame file left out of the selection is none of the run's frames, yet by its number it
+        # may be one: the names are told two ways all the same
+        numbered = frame_positions(frames, left_out=False)
+        named_as = [numbered(stem) for stem in stems]
         names = {_nfc(frames.stem(t)) for t in range(len(frames))}
-        by_name = [s for s, t in zip(stems, positions) if t is not None and _nfc(s) in names and _FRAME.fullmatch(s)]
-        by_number = [s for s, t in zip(stems, positions) if t is not None and _nfc(s) not in names]
+        by_name = [s for s, t in zip(stems, named_as) if t is not None and _nfc(s) in names and _FRAME.fullmatch(s)]
+        by_number = [s for s, t in zip(stems, named_as) if t is not None and _nfc(s) not in names]
         if by_name and by_number:
-            t = positions[stems.index(by_number[0])]
+            t = named_as[stems.index(by_number[0])]
             raise InputError(f"{source}: its label files name frames two ways: {by_name[0]} the frame file of that name, "
                              f"{by_number[0]} CVAT's frame number (the frame {frames.name(t)}), which count from "
                              "different first numbers; rename the frames or the label files so that one way names them all")

@@ -169,6 +169,8 @@ class FolderFrames:
         if files and selection.start >= len(files):
             raise InputError(f"--start {selection.start} is past the end of {src} ({len(files)} frames)")
         self.paths = files[selection.start:selection.stop:selection.every]
+        #: Every frame file of the folder, those --start/--every/--stop leave out too (a key label may name one).
+        self.files = files
         self._view: FolderView | None = None  # the key frame's orientation and size, read with the first frame read (:meth:`read`)
         if len(self.paths) < 2:
             raise InputError(f"{src}: needs at least two frames (the key frame and one more), found {len(self.paths)}"

@@ -50,6 +50,7 @@ from ..errors import InputError, OutputError
 from ..outputs import atomic_file
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
+from .records import check_recording, nothing_to_record
 from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts
 
@@ -148,7 +149,7 @@ class Run:
         run = cls(inputs.frames, request.out, identity, truth=inputs.truth, confidence=request.confidence)
         with OutputLock(request.out):  # a second run on the same --out is refused, not raced
             if request.record is not None and not request.force:
-                run.check_recording(Path(request.record))
+                check_recording(run.out, run.identity, Path(request.record))
             if pending is None:
                 run._label_from_keys(request, keys)
             else:
@@ -177,7 +178,7 @@ class Run:
         # never where the run stops (decoding finds the end)
         total = len(frames) if frames.kind == "folder" else frames.count()
         if frames.kind == "folder" and start >= len(frames):
-            self._nothing_to_record(request)
+            nothing_to_record(request.record)
             return self._say_done(request, 0, [0], start=start)
         if start == 1:
             todo = itertools.chain([second], decoded)
@@ -224,7 +225,7 @@ class Run:
         job.start(force=request.force)
         choose_kept(job, self.out)
         if job.finished and request.record is not None and not request.force:
-            self._nothing_to_record(request)  # an existing recording is this finished run's: nothing to add to it
+            nothing_to_record(request.record)  # an existing recording is this finished run's: nothing to add to it
             self._say_done(request, 0, sorted(keys))
             return
         with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
@@ -241,16 +242,6 @@ class Run:
 
                 done = job.run(on_frame=on_frame, check=check_interrupted, on_step=lambda: tick(bar))
             self._say_done(request, done, sorted(keys))
-
-    @staticmethod
-    def _nothing_to_record(request: RunRequest) -> None:
-        """Say, when ``--record`` names a file that does not exist, that a run with every frame labelled writes
-        none: a recording of no frame would look like the run's own, and ``--force`` is the way to one."""
-        import sys
-
-        if request.record is not None and not Path(request.record).exists():
-            sys.stderr.write(f"pcreg: note: every frame is already labelled, so nothing is recorded and "
-                             f"{request.record} is not written (--force labels the frames again and records them)\n")
 
     def _say_done(self, request: RunRequest, done: int, keys: list[int], *, start: int | None = None) -> None:
         """Print what the run did (``done`` frames this time; ``start``: the first of them, a run from one
@@ -309,28 +300,6 @@ class Run:
         write_state(self.out, self.state)
         return 1
 
-    def check_recording(self, record: Path) -> None:
-        """An :class:`OutputError` when ``record`` is the recording of the run in ``out`` (run.json names it) and
-        was cut short (the run was killed before it closed it), saying the two ways on: another ``--record``
-        file resumes the labels (it holds the frames from there on), ``--force`` labels again from the key frame
-        so that one recording holds every frame. A choice the person makes: the second costs the time spent."""
-        from ..formats import load_json_object, resolved
-        from ..recording.readback import ended
-
-        try:
-            if not record.is_file():
-                return
-            state = load_json_object(self.out / STATE)
-            if state.get("run") != self.identity or state.get("recording") != str(resolved(record)) or ended(record):
-                return
-        except (OSError, ValueError):
-            return
-        done = state.get("done")
-        counted = f" after {done} frames" if isinstance(done, int) else ""
-        raise OutputError(f"{record}: the recording of this run, cut short when the run was killed{counted}; to go "
-                          "on from there, give another --record file (it holds the frames from there on); to record "
-                          "every frame in this one, add --force (the run starts over from the key frame, same labels)")
-
     def name_recording(self, record) -> None:
         """Name in run.json the recording (``record``, a path or None) that the run has opened and writes."""
         from ..formats import resolved
@@ -356,16 +325,18 @@ class Run:
                               "changed since the run began; use --force to start over")
 
     def _check_same_frames(self, key_frame: str) -> None:
-        """Refuse to continue a run from one label image when the frames it labelled are not, by name, the first
-        of its folder now (a frame added among them, or renamed): the labels written would not be theirs."""
-        if self.frames.kind != "folder":
-            return
+        """Refuse to continue a run from one label image over a steps.jsonl line pcreg run did not write (the export
+        would refuse it, :func:`~pcreg.runs.files.parse_steps`) or a frame renamed (:meth:`_check_same_name`)."""
         named = ((int(s["frame"]), s.get("name")) for s in parse_steps(self.out / STEPS, step_lines(self.out)))
-        for t, name in itertools.chain([(0, key_frame)], named):
-            if isinstance(name, str) and t < len(self.frames) and self.frames.name(t) != name:
-                raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "
-                                  f"now holds as {self.frames.name(t)}: the frames changed since the run began; "
-                                  "use --force to start over")
+        for t, name in itertools.chain([(0, key_frame)], named):  # every line read, a video's too
+            self._check_same_name(t, name)
+
+    def _check_same_name(self, t: int, name) -> None:
+        """Refuse a step that labelled ``name`` as frame ``t`` of a folder that now holds another there (renamed, added)."""
+        if self.frames.kind == "folder" and isinstance(name, str) and t < len(self.frames) and self.frames.name(t) != name:
+            raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "
+                              f"now holds as {self.frames.name(t)}: the frames changed since the run began; "
+                              "use --force to start over")
 
     def _start_over(self) -> None:
         """Forget what an earlier run in ``out`` wrote beside its label PNGs, which a run started over
@@ -426,6 +397,7 @@ class Run:
             for line, step in zip(lines, parse_steps(path, parsed)):
                 count, t = count + 1, step["frame"]
                 if any(t in s for s in live):
+                    self._check_same_name(t, step.get("name"))
                     fh.write(line)
                     stems.append(self.frames.stem(t))
             if count < counted:

@@ -1,0 +1,44 @@
+"""What ``pcreg run`` checks of its ``--record`` file before it labels: a recording of this run cut short (the
+run was killed before it closed it), and a recording asked of a run with nothing left to label."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ..errors import OutputError
+from .state import STATE
+
+__all__ = ["check_recording", "nothing_to_record"]
+
+
+def check_recording(out: Path, identity: dict | None, record: Path) -> None:
+    """An :class:`OutputError` when ``record`` is the recording of the run in ``out`` (of ``identity``; run.json
+    names it) and was cut short (the run was killed before it closed it), saying the two ways on: another
+    ``--record`` file resumes the labels (it holds the frames from there on), ``--force`` labels again from the
+    key frame so that one recording holds every frame. A choice the person makes: the second costs the time spent."""
+    from ..formats import load_json_object, resolved
+    from ..recording.readback import ended
+
+    try:
+        if not record.is_file():
+            return
+        state = load_json_object(out / STATE)
+        if state.get("run") != identity or state.get("recording") != str(resolved(record)) or ended(record):
+            return
+    except (OSError, ValueError):
+        return
+    done = state.get("done")
+    counted = f" after {done} frames" if isinstance(done, int) else ""
+    raise OutputError(f"{record}: the recording of this run, cut short when the run was killed{counted}; to go "
+                      "on from there, give another --record file (it holds the frames from there on); to record "
+                      "every frame in this one, add --force (the run starts over from the key frame, same labels)")
+
+
+def nothing_to_record(record) -> None:
+    """Say, when ``record`` (``--record``, a path or None) names a file that does not exist, that a run with every
+    frame labelled writes none: a recording of no frame would look like the run's own, and ``--force`` is the
+    way to one."""
+    if record is not None and not Path(record).exists():
+        sys.stderr.write(f"pcreg: note: every frame is already labelled, so nothing is recorded and {record} is not "
+                         "written (--force labels the frames again and records them)\n")

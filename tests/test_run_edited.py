@@ -1,0 +1,69 @@
+"""`pcreg run` over an output folder edited by hand between two runs: what the resumed run cannot continue is
+refused in one line naming the file (exit 2), as the export refuses it, never continued into a folder the export
+then cannot read."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from pcreg.cli import main
+from _runs import drifting_frames, kill_before_commit, one_line_errors
+
+
+def _video(folder, path):
+    """The PNG frames of ``folder`` as an MJPEG AVI at ``path``."""
+    frames = [cv2.imread(str(p)) for p in sorted(folder.glob("*.png"))]
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (w, h))
+    for f in frames:
+        writer.write(np.ascontiguousarray(f))
+    writer.release()
+    return path
+
+
+def test_a_stopped_video_run_whose_steps_line_was_edited_is_refused_on_resume(tmp_path, monkeypatch, capsys):
+    """A video's run stopped, a counted line of its steps.jsonl edited into no step, run again: refused naming the
+    line, as a folder's run is (and as the export refuses it); before, the run went on and finished (exit 0) and
+    only the export said the folder was broken."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    video = _video(folder, tmp_path / "clip.avi")
+    out = tmp_path / "out"
+    run = ["run", str(video), "--labels", str(key), "--out", str(out)]
+    kill_before_commit(monkeypatch, 4)
+    assert main(run) == 130
+    monkeypatch.undo()
+    lines = (out / "steps.jsonl").read_bytes().splitlines(keepends=True)
+    (out / "steps.jsonl").write_bytes(lines[0] + b'{"frame": "two"}\n' + b"".join(lines[2:]))
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "steps.jsonl: line 2 is not a step pcreg run wrote" in err[0], err
+    assert not (out / "000005.png").exists()
+
+
+def test_a_key_frames_run_whose_frame_was_renamed_says_the_frames_changed(tmp_path, capsys):
+    """A frame between two key frames renamed after a run from a folder of key frames: the run again is refused
+    saying the frames changed (the name it labelled, the name there now), as a run from one label image says it;
+    before, it said the new name's label PNG was missing though run.json counted it labelled, and a step whose name
+    was edited went through as "all frames already done" while the export refused the folder."""
+    from _runs import key_frames_of
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 5))
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
+    assert main(run) == 0
+    (folder / "f2.png").rename(folder / "f2b.png")
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "labelled f2.png as frame 2" in err[0] and "holds as f2b.png" in err[0], err
+    (folder / "f2b.png").rename(folder / "f2.png")
+    lines = (out / "steps.jsonl").read_text().splitlines(keepends=True)
+    lines[1] = lines[1].replace('"name": "f', '"name": "g')
+    (out / "steps.jsonl").write_text("".join(lines))
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "the frames changed since the run began" in err[0], err

@@ -8,6 +8,9 @@ under a stamp of all of pcreg's kernel sources (its files that mention ``njit``)
 them compiles every kernel again, once, and ``make setup`` (``python -m pcreg.kernels``) does that
 before a command needs it.
 
+A kernel is compiled, or loaded from the cache, on its first call in a process, with a termination signal
+shielded (:func:`_shield_first_calls`): Ctrl-C or SIGTERM landing then is raised once the kernel is ready.
+
 The cache folders are numba's own: ``NUMBA_CACHE_DIR`` when it is set, else the ``__pycache__`` folders
 beside the sources, else numba's folder in the user's cache. Kernel modules import ``njit`` and
 ``prange`` from here, so that the cache is set up before the first kernel is defined.
@@ -92,9 +95,39 @@ def _install() -> bool:
 CACHED = _install()
 
 
+def _shield_first_calls(dispatcher):
+    """``dispatcher`` with its compile-on-call (numba's ``_compile_for_args``, which its C entry looks up on the
+    instance on a call no compiled version fits) run with SIGINT and SIGTERM noted, not raised
+    (:func:`pcreg._signals._shielded`), and the KeyboardInterrupt raised as it returns.
+
+    Loading a cached kernel goes through LLVM, which calls back into Python (llvmlite's object cache, through
+    ctypes); a KeyboardInterrupt raised in such a callback is dropped by ctypes (printed as an exception it
+    could not raise, which the command line keeps off stderr), and LLVM goes on without the compiled code:
+    numba then wrote the kernel's environment through a null pointer, and the process ended by SIGSEGV
+    instead of exit 130."""
+    from ._signals import _shielded, check_interrupted
+
+    compile_for_args = dispatcher._compile_for_args
+
+    def compile_shielded(*args, **kws):
+        with _shielded():
+            entry = compile_for_args(*args, **kws)
+        check_interrupted()
+        return entry
+
+    dispatcher._compile_for_args = compile_shielded
+    return dispatcher
+
+
 def njit(*args, **options):
     """``numba.njit`` with the options given, its on-disk cache keyed to all of pcreg's kernel sources
-    (``cache=False`` where that cannot be done, :data:`CACHED`)."""
+    (``cache=False`` where that cannot be done, :data:`CACHED`), its first calls shielded from a signal's
+    KeyboardInterrupt (:func:`_shield_first_calls`)."""
+    from numba.core.dispatcher import Dispatcher
+
     if not CACHED:  # pragma: no cover - see CACHED
         options["cache"] = False
-    return numba.njit(*args, **options)
+    made = numba.njit(*args, **options)
+    if isinstance(made, Dispatcher):
+        return _shield_first_calls(made)
+    return lambda fn: _shield_first_calls(made(fn))

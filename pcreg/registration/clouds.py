@@ -14,6 +14,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
+from .._signals import _shielded, check_interrupted
 from ..errors import InputError
 from ..frame import FLOAT_FILE_HINT, MIN_SIDE, as_rgb_uint8
 from ..validation import check_bool, check_choice, check_count, check_counts, check_float, check_int, check_path
@@ -195,7 +196,12 @@ def _detect(image: np.ndarray, *, sampler: str = "canny", valid: np.ndarray | No
         # Capped below the maximum so an image whose edges all have one strength still has edges.
         high = min(float(np.partition(nz, k)[k]), 0.8 * float(nz.max()))
         high = max(high, 8.0)  # Sobel magnitude of a faint (2 grey levels) step: no edges in flat noise
-        edges = cv2.Canny(dx, dy, 0.5 * high, high, L2gradient=True)
+        # Shielded: cv2 reaches this (dx, dy) form after failing its first form, whose error it reads with
+        # PyObject_Str, which runs a pending signal's handler; the KeyboardInterrupt raised there made it NULL,
+        # which cv2 does not check (SIGSEGV instead of exit 130). Raised here instead, once Canny returns.
+        with _shielded():
+            edges = cv2.Canny(dx, dy, 0.5 * high, high, L2gradient=True)
+        check_interrupted()
         keep = edges > 0
     elif sampler == "gradient":
         k = top_k or max_points or 5000

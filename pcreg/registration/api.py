@@ -31,7 +31,7 @@ from .refine import CoarseToFine
 from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
 from .steps import IcpSettings, icp_step
-from .transforms import about_point, image_center
+from .transforms import about_point, corners, image_center
 
 __all__ = ["CHANCE_FACTOR", "CONVINCING_NCC", "DEFAULT_MIN_INLIER_RATIO", "MIRROR_FACTOR", "START_LEVEL",
            "check_cloud", "icp", "register", "register_dense", "voxel_downsample"]
@@ -194,7 +194,8 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, opt
     reference_image, moving_image : (H, W, 3) uint8 RGB of the same size (also gray, uint16, float).
     options : :class:`~pcreg.registration.dense.DenseOptions`, the dense step's and the global step's
         options (checked when made, and here against the images' size).
-    global_result : the global step's result or a 3x3 ``T_ref_mov``; None runs :func:`pcreg.register`
+    global_result : the global step's result or a 3x3 ``T_ref_mov`` (refused when its horizon line crosses
+        the images: pixels sent through infinity); None runs :func:`pcreg.register`
         with the options' :class:`~pcreg.registration.dense.GlobalStep` and ``seed`` (its :class:`~pcreg.errors.RegistrationError` propagates).
     initial : start from an earlier registration of the same reference (its result or its ``grid``),
         e.g. the previous video frame's: its displacements, added to *this* registration's global
@@ -256,9 +257,16 @@ def _initial_grid(initial, shape: tuple[int, ...], options: DenseOptions) -> Ini
     return InitialGrid(grid, level)
 
 
-def _given_global(global_result) -> RegistrationResult:
-    """A given global step (a result, or a 3x3 ``T_ref_mov``) as a :class:`RegistrationResult`."""
+def _given_global(global_result, shape: tuple[int, ...]) -> RegistrationResult:
+    """A given global step (a result, or a 3x3 ``T_ref_mov``) as a :class:`RegistrationResult`, checked
+    against images of ``shape``: a 3x3 matrix that keeps every moving pixel on this side of its horizon (a
+    pixel sent through infinity has no place in the field)."""
     if isinstance(global_result, RegistrationResult):
+        M = np.asarray(global_result.matrix, dtype=np.float64)
+        if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+            raise InputError(f"global_result: a registration of shape {M.shape} (a 3-D cloud's?); an image "
+                             "registration's T_ref_mov is a finite 3x3 matrix")
+        _check_horizon(M, shape)
         return global_result
     try:
         M = np.asarray(global_result, dtype=np.float64)
@@ -266,8 +274,18 @@ def _given_global(global_result) -> RegistrationResult:
         raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix") from None
     if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
         raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix")
+    _check_horizon(M, shape)
     return RegistrationResult(matrix=M, fitness=float("nan"), inlier_rmse=float("nan"), iterations=0,
                               converged=True, backend="given", frames="T_ref_mov")
+
+
+def _check_horizon(M: np.ndarray, shape: tuple[int, ...]) -> None:
+    """Refuse a ``T_ref_mov`` whose horizon line (homogeneous w = 0) crosses or touches the moving image:
+    the pixels beyond it would be sent through infinity, a field of inf and NaN."""
+    w = np.concatenate([corners(shape), np.ones((4, 1))], axis=1) @ M[2]
+    if not (np.all(w > 0) or np.all(w < 0)):
+        raise InputError("global_result sends part of the moving image through infinity (its horizon line crosses "
+                         "the image); no view of one scene in two images does that to a pixel seen in both")
 
 
 def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: DenseOptions
@@ -275,7 +293,7 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
     """The global step: the given one (with its seconds, counted in the dense result's), or
     :func:`pcreg.register`'s with ``options``' global step (its time is inside the dense step's own)."""
     if global_result is not None:
-        given = _given_global(global_result)
+        given = _given_global(global_result, mov.shape)
         return given, float(given.seconds)
     step = options.global_step
     return register(ref, mov, config=step.config(options.seed), init=step.start), 0.0

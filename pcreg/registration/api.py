@@ -73,7 +73,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
         clouds are the same (to OpenCV's float32 rounding of the gradient magnitude).
     callback : called with each :class:`~pcreg.registration.result.IcpIteration` of the winning
         hypothesis's refinement, in order, once the search has chosen it (before the plausibility test),
-        with the same numbers as without a callback.
+        with the same numbers as without a callback; with ``model="dense"``, its global similarity's (the
+        pyramids too are that step's).
 
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
@@ -108,7 +109,8 @@ def _register(reference_image, moving_image, *, config: RegisterConfig, model, b
         if any(m is not None and not isinstance(m, str) for m in (reference_mask, moving_mask)):
             raise InputError("the dense model cannot leave masked pixels out (it leaves black padding out): give "
                              "images without a mask (transparent pixels), or a global model")
-        return _register_dense_model(reference_image, moving_image, config, start_matrix, judged=judged)
+        return _register_dense_model(reference_image, moving_image, config, start_matrix, pyramids=pyramids,
+                                     callback=callback, judged=judged)
     ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")
     _check_inputs(ref_img, mov_img, config.pyramid, reference_mask, moving_mask, callback)
     start = time.perf_counter()
@@ -173,13 +175,15 @@ def _configured(config: RegisterConfig, *, model: str | None, backend: str | Non
     return config.replace(**changes) if changes else config
 
 
-def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix, *, judged: bool) -> tuple:
-    """``model="dense"``: the global similarity (:func:`register`, with the rest of ``config``; ``judged``: its
-    refusal returned, else raised), refined by a dense field (:func:`pcreg.register_dense`); returns its
-    :class:`~pcreg.registration.dense.DenseRegistrationResult` and the refusal."""
+def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix, *, pyramids: tuple,
+                          callback, judged: bool) -> tuple:
+    """``model="dense"``: the global similarity (:func:`register`, with the rest of ``config``, the images'
+    ``pyramids`` and the ``callback``; ``judged``: its refusal returned, else raised), refined by a dense field
+    (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult` and the
+    refusal."""
     start, refusal = _register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL, model_check=False),
-                               model=None, backend=None, init=start_matrix, masks=("auto", "auto"), pyramids=(None, None),
-                               callback=None, judged=judged)
+                               model=None, backend=None, init=start_matrix, masks=("auto", "auto"), pyramids=pyramids,
+                               callback=callback, judged=judged)
     return register_dense(reference_image, moving_image, global_result=start,
                           options=DenseOptions(seed=config.search.seed, global_step=GlobalStep(backend=config.backend))), refusal
 

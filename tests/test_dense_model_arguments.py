@@ -46,3 +46,11 @@ def test_the_dense_model_uses_the_pyramids_it_is_given(pair):
     np.testing.assert_allclose(given.matrix, built.matrix, atol=1e-6)
     with pytest.raises(InputError):  # another image's pyramid is refused, as any model's
         register(ref, mov, model="dense", reference_pyramid=kept[1])
+
+
+def test_the_dense_model_checks_its_masks_as_register_does(pair):
+    ref, mov = pair
+    with pytest.raises(InputError, match="reference_mask"):
+        register(ref, mov, model="dense", reference_mask="junk")
+    with pytest.raises(InputError, match="moving_mask"):
+        register(ref, mov, model="dense", moving_mask="everything")

@@ -66,7 +66,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     model, backend : shorthands for ``config.replace(model=..., backend=...)``; None keeps the config's.
     init : None keeps the config's ``search.init``; one of its names replaces it; a 3x3 ``T_ref_mov``
         is the one hypothesis, refined instead of searching (a transform the model can hold, as :func:`icp`'s).
-    reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
+    reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None; with
+        ``model="dense"`` its global similarity's (the field always leaves black padding out).
     reference_pyramid, moving_pyramid : the images' :func:`~pcreg.registration.clouds.image_pyramid` (same ``levels``,
         ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
         stream is the moving image once and the reference once); None builds the clouds here. The
@@ -109,8 +110,8 @@ def _register(reference_image, moving_image, *, config: RegisterConfig, model, b
         if any(m is not None and not isinstance(m, str) for m in (reference_mask, moving_mask)):
             raise InputError("the dense model cannot leave masked pixels out (it leaves black padding out): give "
                              "images without a mask (transparent pixels), or a global model")
-        return _register_dense_model(reference_image, moving_image, config, start_matrix, pyramids=pyramids,
-                                     callback=callback, judged=judged)
+        return _register_dense_model(reference_image, moving_image, config, start_matrix, masks=masks,
+                                     pyramids=pyramids, callback=callback, judged=judged)
     ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")
     _check_inputs(ref_img, mov_img, config.pyramid, reference_mask, moving_mask, callback)
     start = time.perf_counter()
@@ -175,14 +176,15 @@ def _configured(config: RegisterConfig, *, model: str | None, backend: str | Non
     return config.replace(**changes) if changes else config
 
 
-def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix, *, pyramids: tuple,
-                          callback, judged: bool) -> tuple:
-    """``model="dense"``: the global similarity (:func:`register`, with the rest of ``config``, the images'
-    ``pyramids`` and the ``callback``; ``judged``: its refusal returned, else raised), refined by a dense field
+def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix, *, masks: tuple,
+                          pyramids: tuple, callback, judged: bool) -> tuple:
+    """``model="dense"``: the global similarity (:func:`register`, with the rest of ``config``, the ``masks``
+    (``"auto"`` or None), the images' ``pyramids`` and the ``callback``; ``judged``: its refusal returned, else
+    raised), refined by a dense field
     (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult` and the
     refusal."""
     start, refusal = _register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL, model_check=False),
-                               model=None, backend=None, init=start_matrix, masks=("auto", "auto"), pyramids=pyramids,
+                               model=None, backend=None, init=start_matrix, masks=masks, pyramids=pyramids,
                                callback=callback, judged=judged)
     return register_dense(reference_image, moving_image, global_result=start,
                           options=DenseOptions(seed=config.search.seed, global_step=GlobalStep(backend=config.backend))), refusal

@@ -65,3 +65,16 @@ def test_a_three_dimensional_registration_as_the_global_step_is_refused():
     cloud = rng.random((50, 3))
     with pytest.raises(InputError, match="global_result.*3x3"):
         register_dense(ref, mov, global_result=pcreg.icp(cloud, cloud + 0.01))
+
+
+@pytest.mark.parametrize("shape, spacing", [((64, 64), 64.0), ((9, 9), 8.0), ((120, 160), 159.0)])
+def test_an_exact_solve_on_a_grid_two_nodes_wide(shape, spacing):
+    """Two nodes a row: the diagonal of the next row's first node (gw - 1) is the diagonal of the right
+    neighbour (1), which the sparse LU's matrix must hold once."""
+    ref, mov = _pair(*shape)
+    runs = {cg: register_dense(ref, mov, global_result=np.eye(3),
+                               options=DenseOptions(levels=1, finest_level=0,
+                                                    membrane=Membrane(grid_spacing=spacing, cg_iterations=cg)))
+            for cg in (0, 1000)}
+    assert runs[0].grid.shape[1] == 2
+    np.testing.assert_allclose(runs[0].grid, runs[1000].grid, atol=0.01)  # CG stops at a relative residual of 1e-4

@@ -31,7 +31,7 @@ from .refine import CoarseToFine
 from .result import IcpIteration, ImageEvidence, RegistrationResult
 from .search import CONVINCING_NCC, START_LEVEL, Candidate, GlobalSearch, Hypothesis
 from .steps import IcpSettings, icp_step
-from .transforms import about_point, image_center
+from .transforms import about_point, corners, image_center
 
 __all__ = ["CHANCE_FACTOR", "CONVINCING_NCC", "DEFAULT_MIN_INLIER_RATIO", "MIRROR_FACTOR", "START_LEVEL",
            "check_cloud", "icp", "register", "register_dense", "voxel_downsample"]
@@ -66,14 +66,16 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     model, backend : shorthands for ``config.replace(model=..., backend=...)``; None keeps the config's.
     init : None keeps the config's ``search.init``; one of its names replaces it; a 3x3 ``T_ref_mov``
         is the one hypothesis, refined instead of searching (a transform the model can hold, as :func:`icp`'s).
-    reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None.
+    reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None; with
+        ``model="dense"`` its global similarity's (the field always leaves black padding out).
     reference_pyramid, moving_pyramid : the images' :func:`~pcreg.registration.clouds.image_pyramid` (same ``levels``,
         ``sampler``, mask and ``canny_percentile``), when the caller keeps them to reuse (a frame of a
         stream is the moving image once and the reference once); None builds the clouds here. The
         clouds are the same (to OpenCV's float32 rounding of the gradient magnitude).
     callback : called with each :class:`~pcreg.registration.result.IcpIteration` of the winning
         hypothesis's refinement, in order, once the search has chosen it (before the plausibility test),
-        with the same numbers as without a callback.
+        with the same numbers as without a callback; with ``model="dense"``, its global similarity's (the
+        pyramids too are that step's).
 
     Returns a :class:`RegistrationResult` with ``inlier_ratio``, ``overlap`` and ``generator`` (which
     generator's hypothesis won, or ``"init"``) besides the ICP's own figures.
@@ -108,7 +110,8 @@ def _register(reference_image, moving_image, *, config: RegisterConfig, model, b
         if any(m is not None and not isinstance(m, str) for m in (reference_mask, moving_mask)):
             raise InputError("the dense model cannot leave masked pixels out (it leaves black padding out): give "
                              "images without a mask (transparent pixels), or a global model")
-        return _register_dense_model(reference_image, moving_image, config, start_matrix, judged=judged)
+        return _register_dense_model(reference_image, moving_image, config, start_matrix, masks=masks,
+                                     pyramids=pyramids, callback=callback, judged=judged)
     ref_img, mov_img = as_rgb_uint8(reference_image, name="reference image"), as_rgb_uint8(moving_image, name="moving image")
     _check_inputs(ref_img, mov_img, config.pyramid, reference_mask, moving_mask, callback)
     start = time.perf_counter()
@@ -173,13 +176,16 @@ def _configured(config: RegisterConfig, *, model: str | None, backend: str | Non
     return config.replace(**changes) if changes else config
 
 
-def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix, *, judged: bool) -> tuple:
-    """``model="dense"``: the global similarity (:func:`register`, with the rest of ``config``; ``judged``: its
-    refusal returned, else raised), refined by a dense field (:func:`pcreg.register_dense`); returns its
-    :class:`~pcreg.registration.dense.DenseRegistrationResult` and the refusal."""
+def _register_dense_model(reference_image, moving_image, config: RegisterConfig, start_matrix, *, masks: tuple,
+                          pyramids: tuple, callback, judged: bool) -> tuple:
+    """``model="dense"``: the global similarity (:func:`register`, with the rest of ``config``, the ``masks``
+    (``"auto"`` or None), the images' ``pyramids`` and the ``callback``; ``judged``: its refusal returned, else
+    raised), refined by a dense field
+    (:func:`pcreg.register_dense`); returns its :class:`~pcreg.registration.dense.DenseRegistrationResult` and the
+    refusal."""
     start, refusal = _register(reference_image, moving_image, config=config.replace(model=DENSE_GLOBAL_MODEL, model_check=False),
-                               model=None, backend=None, init=start_matrix, masks=("auto", "auto"), pyramids=(None, None),
-                               callback=None, judged=judged)
+                               model=None, backend=None, init=start_matrix, masks=masks, pyramids=pyramids,
+                               callback=callback, judged=judged)
     return register_dense(reference_image, moving_image, global_result=start,
                           options=DenseOptions(seed=config.search.seed, global_step=GlobalStep(backend=config.backend))), refusal
 
@@ -194,7 +200,8 @@ def register_dense(reference_image: np.ndarray, moving_image: np.ndarray, *, opt
     reference_image, moving_image : (H, W, 3) uint8 RGB of the same size (also gray, uint16, float).
     options : :class:`~pcreg.registration.dense.DenseOptions`, the dense step's and the global step's
         options (checked when made, and here against the images' size).
-    global_result : the global step's result or a 3x3 ``T_ref_mov``; None runs :func:`pcreg.register`
+    global_result : the global step's result or a 3x3 ``T_ref_mov`` (refused when its horizon line crosses
+        the images: pixels sent through infinity); None runs :func:`pcreg.register`
         with the options' :class:`~pcreg.registration.dense.GlobalStep` and ``seed`` (its :class:`~pcreg.errors.RegistrationError` propagates).
     initial : start from an earlier registration of the same reference (its result or its ``grid``),
         e.g. the previous video frame's: its displacements, added to *this* registration's global
@@ -256,9 +263,16 @@ def _initial_grid(initial, shape: tuple[int, ...], options: DenseOptions) -> Ini
     return InitialGrid(grid, level)
 
 
-def _given_global(global_result) -> RegistrationResult:
-    """A given global step (a result, or a 3x3 ``T_ref_mov``) as a :class:`RegistrationResult`."""
+def _given_global(global_result, shape: tuple[int, ...]) -> RegistrationResult:
+    """A given global step (a result, or a 3x3 ``T_ref_mov``) as a :class:`RegistrationResult`, checked
+    against images of ``shape``: a 3x3 matrix that keeps every moving pixel on this side of its horizon (a
+    pixel sent through infinity has no place in the field)."""
     if isinstance(global_result, RegistrationResult):
+        M = np.asarray(global_result.matrix, dtype=np.float64)
+        if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+            raise InputError(f"global_result: a registration of shape {M.shape} (a 3-D cloud's?); an image "
+                             "registration's T_ref_mov is a finite 3x3 matrix")
+        _check_horizon(M, shape)
         return global_result
     try:
         M = np.asarray(global_result, dtype=np.float64)
@@ -266,8 +280,18 @@ def _given_global(global_result) -> RegistrationResult:
         raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix") from None
     if M.shape != (3, 3) or not np.all(np.isfinite(M)) or abs(np.linalg.det(M)) < 1e-12:
         raise InputError("global_result must be a RegistrationResult or a finite invertible 3x3 matrix")
+    _check_horizon(M, shape)
     return RegistrationResult(matrix=M, fitness=float("nan"), inlier_rmse=float("nan"), iterations=0,
                               converged=True, backend="given", frames="T_ref_mov")
+
+
+def _check_horizon(M: np.ndarray, shape: tuple[int, ...]) -> None:
+    """Refuse a ``T_ref_mov`` whose horizon line (homogeneous w = 0) crosses or touches the moving image:
+    the pixels beyond it would be sent through infinity, a field of inf and NaN."""
+    w = np.concatenate([corners(shape), np.ones((4, 1))], axis=1) @ M[2]
+    if not (np.all(w > 0) or np.all(w < 0)):
+        raise InputError("global_result sends part of the moving image through infinity (its horizon line crosses "
+                         "the image); no view of one scene in two images does that to a pixel seen in both")
 
 
 def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: DenseOptions
@@ -275,7 +299,7 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
     """The global step: the given one (with its seconds, counted in the dense result's), or
     :func:`pcreg.register`'s with ``options``' global step (its time is inside the dense step's own)."""
     if global_result is not None:
-        given = _given_global(global_result)
+        given = _given_global(global_result, mov.shape)
         return given, float(given.seconds)
     step = options.global_step
     return register(ref, mov, config=step.config(options.seed), init=step.start), 0.0

@@ -350,9 +350,13 @@ def photometric_agreement(T: np.ndarray, reference_gray: np.ndarray, moving_gray
     S = np.array([[f, 0.0, (f - 1.0) / 2.0], [0.0, f, (f - 1.0) / 2.0], [0.0, 0.0, 1.0]])
     Tl = np.linalg.inv(S) @ T @ S
     h, w = reference_gray.shape
-    warped = cv2.warpAffine(moving_gray, Tl[:2], (w, h), flags=cv2.INTER_LINEAR)
     valid = np.full(moving_gray.shape, 255, np.uint8) if moving_valid is None else moving_valid
-    wv = cv2.warpAffine(valid, Tl[:2], (w, h), flags=cv2.INTER_NEAREST) > 0
+    if T[2, 0] == 0 and T[2, 1] == 0:
+        warped = cv2.warpAffine(moving_gray, Tl[:2], (w, h), flags=cv2.INTER_LINEAR)
+        wv = cv2.warpAffine(valid, Tl[:2], (w, h), flags=cv2.INTER_NEAREST) > 0
+    else:  # a homography's perspective part too (its affine part alone misplaced the far side)
+        warped = cv2.warpPerspective(moving_gray, Tl, (w, h), flags=cv2.INTER_LINEAR)
+        wv = cv2.warpPerspective(valid, Tl, (w, h), flags=cv2.INTER_NEAREST) > 0
     if wv.sum() < 64:
         return 0.0
     a = reference_gray[wv].astype(np.float64)

@@ -104,8 +104,10 @@ def _iterate_level(lv: _Level, pb: _Problem, U: np.ndarray, options: DenseOption
 @dataclass(frozen=True)
 class _Grid:
     """The control grid after every level: its displacements ``U`` (nodes, 2) in pixels of the finest
-    level, the nodes' data weights, the steps taken, the last step's fitness and rms, the problem of the
-    last level that took a step (``last``) and of the finest level (``finest``)."""
+    level, the finest level's nodes' data weights, the steps taken, the finest level's last fitness and
+    rms (zeros, as its weights, where the finest level took no step), the problem of the last level that
+    took a step (``last``) and its grid after its steps (``last_U``, in its own pixels), and the finest
+    level (``finest``)."""
 
     U: np.ndarray
     weights_node: np.ndarray
@@ -113,6 +115,7 @@ class _Grid:
     fitness: float
     rms: float
     last: _Problem
+    last_U: np.ndarray
     finest: _Level
 
 
@@ -121,10 +124,13 @@ def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, top
                     initial: InitialGrid | None = None) -> _Grid:
     """Every level from ``top`` to the finest, each starting from the coarser level's grid, the first
     from ``initial``'s grid or from zero (the global transform); the first level gets the wide gate
-    (``options.radius``). :class:`~pcreg.errors.RegistrationError` when no level had samples to match."""
+    (``options.radius``). :class:`~pcreg.errors.RegistrationError` when no level had samples to match; a
+    finest level without samples, or whose matches all failed, leaves no evidence at its nodes (weights,
+    fitness and rms 0) while the coarser levels' steps shape the field."""
     U: np.ndarray | None = None
     prev: _Level | None = None  # the coarser level
     last: _Problem | None = None
+    last_U: np.ndarray | None = None
     weights_node, steps, fitness, rms = None, 0, 0.0, 0.0
     levels = range(top, options.finest_level - 1, -1)
 
@@ -149,12 +155,14 @@ def _coarse_to_fine(pyr: _Pyramids, T: np.ndarray, options: DenseOptions, *, top
         done = _iterate_level(lv, lv.problem, U, options, clock=clock, callback=callback)
         U = done.U
         if done.steps:
-            weights_node, fitness, rms, last = done.weights_node, done.fitness, done.rms, lv.problem
+            weights_node, fitness, rms, last, last_U = done.weights_node, done.fitness, done.rms, lv.problem, U
             steps += done.steps
     clock.lap("solve")
-    if U is None or weights_node is None or last is None or prev is None:
+    if U is None or weights_node is None or last is None or last_U is None or prev is None:
         raise RegistrationError("dense registration found no textured samples to match")
-    return _Grid(U, weights_node, steps, fitness, rms, last, prev)
+    if last is not prev.problem:  # the finest level took no step: a coarser level's weights are not its nodes'
+        weights_node, fitness, rms = np.zeros(prev.gshape[0] * prev.gshape[1]), 0.0, 0.0
+    return _Grid(U, weights_node, steps, fitness, rms, last, last_U, prev)
 
 
 @dataclass(frozen=True)
@@ -209,7 +217,7 @@ def refine_field(ref: np.ndarray, mov: np.ndarray, global_result: RegistrationRe
     field_later = beside(lambda: _full_field(T, grid.U, grid.weights_node, grid.finest, ref.shape[:2]))
     last = grid.last
     try:
-        evidence = _plausibility(last.R, last.Mv, last.P, last.C, last.GP, last.NE, last.lam, last.radius, grid.U)
+        evidence = _plausibility(last.R, last.Mv, last.P, last.C, last.GP, last.NE, last.lam, last.radius, grid.last_U)
         clock.lap("evidence")
         _check_evidence(evidence, options.chance_factor)
     except BaseException:

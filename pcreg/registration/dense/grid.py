@@ -128,7 +128,13 @@ class _NormalEquations:
 
     def _solve(self, data: np.ndarray, rhs: np.ndarray, x0: np.ndarray | None, maxiter: int) -> np.ndarray:
         if maxiter <= 0 or x0 is None:
-            A = sp.dia_matrix((data, self.offsets), shape=(self.m, self.m)).tocsc()
+            offsets = self.offsets
+            if len(np.unique(offsets)) < len(offsets):  # two nodes a row: gw - 1 is 1, one diagonal twice
+                offsets, which = np.unique(self.offsets, return_inverse=True)
+                merged = np.zeros((len(offsets), self.m))
+                np.add.at(merged, which, data)
+                data = merged
+            A = sp.dia_matrix((data, offsets), shape=(self.m, self.m)).tocsc()
             return spla.splu(A).solve(rhs)
         out = np.empty_like(rhs)
 

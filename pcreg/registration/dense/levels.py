@@ -37,10 +37,15 @@ def _noise_sigma(gray: np.ndarray) -> float:
 
 
 def _level_matrix(T: np.ndarray, level: int) -> np.ndarray:
-    """A full-resolution 3x3 transform expressed in the coordinates of pyramid level ``level``
-    (x_l = (x_0 - (2^l - 1) / 2) / 2^l)."""
+    """A full-resolution 3x3 transform expressed in the pixels of pyramid level ``level`` as
+    :func:`_pyramid` makes them: ``cv2.pyrDown`` keeps the even pixels, so a level's pixel ``x_l`` lies on
+    full-resolution pixel ``x_0 = 2^l x_l``. (The control grid's nodes are placed by the centres of
+    ``2^l``-pixel blocks, ``x_0 = 2^l x_l + (2^l - 1) / 2``: only where the smooth displacement is read,
+    the same for both images. Here that rule put a level's samples ``(A - I)(2^l - 1) / 2`` px from their
+    content under a transform of linear part ``A``: 1 px at the finest level under a half turn, which the
+    field kept.)"""
     f = float(2 ** level)
-    S = np.array([[1 / f, 0, -(f - 1) / (2 * f)], [0, 1 / f, -(f - 1) / (2 * f)], [0, 0, 1]])
+    S = np.array([[1 / f, 0, 0], [0, 1 / f, 0], [0, 0, 1]])
     return S @ np.asarray(T, dtype=np.float64) @ np.linalg.inv(S)
 
 

@@ -3,6 +3,7 @@ its two parts, the field's :class:`Membrane` and the :class:`GlobalStep`."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,10 +14,13 @@ from ..config import BACKENDS, INITS, RegisterConfig
 from ..transforms import MODELS
 from .grid import _grid_shape
 
-__all__ = ["DENSE_GLOBAL_MODEL", "STIFFNESS_SCHEDULE", "DenseOptions", "GlobalStep", "Membrane", "finest_grid_shape"]
+__all__ = ["DENSE_GLOBAL_MODEL", "MAX_MEMBRANE_WEIGHT", "STIFFNESS_SCHEDULE", "DenseOptions", "GlobalStep", "Membrane", "finest_grid_shape"]
 
 #: Stiffness per iteration of a level (Amberg et al. 2007: stiff to relaxed); the last value repeats.
 STIFFNESS_SCHEDULE: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
+#: The largest membrane weight ``stiffness / (grid_spacing * strain)^2`` (the default's is 2): the grid's
+#: equations multiply it by the grid's displacements (px) and sum it over a node's neighbours.
+MAX_MEMBRANE_WEIGHT = 1e300
 #: The global step of the dense model: a similarity (rotation, shift and the zoom of forward motion).
 DENSE_GLOBAL_MODEL = "similarity"
 
@@ -34,7 +38,9 @@ class Membrane:
     grid_spacing : control-grid spacing in pixels of each level (at least 2; at most the images' longer
         side, checked by :meth:`DenseOptions.check_shape`).
     stiffness : the schedule multiplying the membrane weight per iteration of a level (the last value repeats).
-    strain : the largest plausible motion gradient (px per px), which sets the membrane weight.
+    strain : the largest plausible motion gradient (px per px), which sets the membrane weight
+        ``stiffness / (grid_spacing * strain)^2`` (refused beyond float64's range for the grid's equations:
+        :data:`MAX_MEMBRANE_WEIGHT`).
     edge_aware : weight each membrane edge by the moving image's colour change across it
         (:func:`~pcreg.registration.dense.grid._edge_weights`), so the field can bend at object outlines;
         False: a uniform membrane.
@@ -58,6 +64,21 @@ class Membrane:
         _put(self, "strain", check_float(self.strain, "strain", lo=0, lo_open=True, hi=100))
         _put(self, "edge_aware", check_bool(self.edge_aware, "edge_aware"))
         _put(self, "cg_iterations", check_int(self.cg_iterations, "cg_iterations", lo=0, hi=100_000))
+        self._check_weights()
+
+    def _check_weights(self) -> None:
+        """Refuse a membrane weight ``stiffness / (grid_spacing * strain)^2`` (as each level computes it) that
+        float64 cannot hold in the grid's equations: above :data:`MAX_MEMBRANE_WEIGHT` (the equations overflow
+        to inf, the field to NaN), or so small that its pull towards the global transform (``1e-4`` of it)
+        is no normal number (a node without samples makes the equations singular)."""
+        cell = (self.grid_spacing * self.strain) ** 2
+        for k in self.stiffness:
+            alpha = k * (1.0 / cell) if cell > 0 else math.inf
+            if not 1e-4 * alpha >= np.finfo(np.float64).tiny or not alpha <= MAX_MEMBRANE_WEIGHT:
+                raise InputError(f"stiffness {k:g} with strain {self.strain:g} and grid_spacing {self.grid_spacing:g} "
+                                 f"gives a membrane weight stiffness / (grid_spacing * strain)^2 of {alpha:.3g}, beyond "
+                                 f"float64's range for the grid's equations (at most {MAX_MEMBRANE_WEIGHT:g}, and its "
+                                 "ten-thousandth a normal number)")
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.naive_bayes import GaussianNB
 
-from pcreg.classification.bayes import NaiveBayesPixelClassifier, class_histograms, thesis_weight_search
+from pcreg.classification.bayes import NaiveBayesPixelClassifier, class_histograms
+from pcreg.classification.weight_search import thesis_weight_search
 from pcreg.datasets import synthetic
 from pcreg.errors import InputError
 from pcreg.classification.features import FEATURES, feature_groups, feature_matrix, feature_names, feature_planes, parse_features
@@ -188,6 +189,17 @@ def test_weight_search_with_no_smoothing_leaves_out_the_weights_the_fit_refuses(
         s = thesis_weight_search(noisy, lab, n_trials=8, var_smoothing=0)
     assert s.error == 0.0 and np.isfinite(s.trial_errors).sum() >= 1
     assert json.loads(json.dumps(s.to_dict(), allow_nan=False))["error"] == 0.0
+
+
+def test_the_weight_search_under_its_old_module_warns_and_is_the_same():
+    import pcreg.classification.bayes as bayes
+    from pcreg.classification import weight_search
+
+    for name in ("thesis_weight_search", "WeightSearch", "colour_counts"):
+        with pytest.warns(DeprecationWarning, match=f"use pcreg.classification.weight_search.{name}"):
+            assert getattr(bayes, name) is getattr(weight_search, name)
+    with pytest.raises(AttributeError):
+        bayes.no_such_name  # noqa: B018
 
 
 # -- metrics ----------------------------------------------------------------------------------------

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import scipy.io
 
-from pcreg.classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
+from pcreg.classification.bayes import NaiveBayesPixelClassifier
+from pcreg.classification.weight_search import thesis_weight_search
 from pcreg.cli import main
 from pcreg.datasets import synthetic
 from pcreg.experiments import classification

@@ -294,7 +294,7 @@ def _nb(**kw):
 
 def _weight_search(**kw):
     def f(t):
-        from pcreg.classification.bayes import thesis_weight_search
+        from pcreg.classification.weight_search import thesis_weight_search
 
         return thesis_weight_search(GOOD, np.zeros(GOOD.shape[:2], np.uint8), **kw)
     return f

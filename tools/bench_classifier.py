@@ -41,7 +41,8 @@ def _median_ms(fn, repeats: int) -> tuple[float, list[float]]:
 def bench(*, repeats: int = 30, sklearn_repeats: int = 5, width: int = 640, height: int = 480,
           seed: int = 0) -> dict:
     """Timings per feature set (milliseconds, medians) and the agreement of the two predictions."""
-    from pcreg.classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
+    from pcreg.classification.bayes import NaiveBayesPixelClassifier
+    from pcreg.classification.weight_search import thesis_weight_search
     from pcreg.datasets import synthetic
     from pcreg.classification.features import feature_matrix
 

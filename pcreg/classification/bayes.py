@@ -23,7 +23,6 @@ The thesis's weight search (30 random (w_r, w_g, w_b), lowest training error win
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -41,6 +40,7 @@ from .features import (
     normalise_weights,
     parse_features,
 )
+from ._gaussian import _as_lists, _gaussian_params, _tables
 from .metrics import LABEL_NAMES, N_LABELS, confusion_matrix, error_from_confusion, error_rate  # noqa: F401
 
 __all__ = [
@@ -48,54 +48,11 @@ __all__ = [
     "DENSITIES",
     "HISTOGRAM_BANDWIDTH",
     "DEGENERATE_VARIANCE",
-    "WeightSearch",
-    "thesis_weight_search",
     "class_histograms",
     "error_rate",
     "confusion_matrix",
     "error_from_confusion",
 ]
-
-_LEVELS = np.arange(256, dtype=np.float64)
-
-
-def _as_lists(images, labels, table: ClassTable = DEFAULT_TABLE) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Accept one image/label pair or sequences of them; check shapes, dtypes and label values (each a
-    class id of ``table``)."""
-    if isinstance(images, np.ndarray) and images.ndim == 3:
-        images = [images]
-    if isinstance(labels, np.ndarray) and labels.ndim == 2:
-        labels = [labels]
-    try:
-        images = list(images)
-        labels = list(labels)
-    except TypeError:
-        raise InputError("images and labels must be arrays or sequences of arrays") from None
-    if len(images) != len(labels):
-        raise InputError(f"{len(images)} images but {len(labels)} label arrays")
-    if not images:
-        raise InputError("no training images")
-    out_i, out_l = [], []
-    for k, (im, lab) in enumerate(zip(images, labels)):
-        im = check_image(im)
-        if lab is None:
-            raise InputError(f"training image {k} has no labels")
-        lab = np.asarray(lab)
-        if lab.shape != im.shape[:2]:
-            raise InputError(f"labels {lab.shape} do not match image {im.shape[:2]} (training pair {k})")
-        if lab.dtype != np.uint8:
-            if not np.issubdtype(lab.dtype, np.integer):
-                raise InputError(f"labels must be integers, got {lab.dtype} (training pair {k})")
-            if lab.size and (lab.min() < 0 or lab.max() > 255):
-                raise InputError(f"label values outside 0..255 in training pair {k}")
-            lab = lab.astype(np.uint8)
-        if lab.size and (lab.max() >= table.n_values or not table.valid()[np.unique(lab)].all()):
-            bad = next(int(v) for v in np.unique(lab) if not table.valid()[v])
-            raise InputError(f"label values must be {table.describe()}; got {bad} in training pair {k}")
-        out_i.append(im)
-        out_l.append(lab)
-    return out_i, out_l
-
 
 def class_histograms(images, labels, features: str | Iterable[str] = DEFAULT_FEATURES, *,
                      weights: Sequence[float] | None = None, exclude_unknown: bool = True,
@@ -137,30 +94,6 @@ def class_histograms(images, labels, features: str | Iterable[str] = DEFAULT_FEA
                 counts[:, f] += np.bincount(lab_k + col, minlength=n_labels * 256).reshape(n_labels, 256)
                 f += 1
     return counts
-
-
-def _gaussian_params(counts: np.ndarray, classes: np.ndarray, *, var_smoothing: float,
-                     priors: Sequence[float] | None) -> dict:
-    """GaussianNB's fitted parameters from (N, F, 256) histograms (scikit-learn's definitions)."""
-    h = counts[classes].astype(np.float64)  # (n, F, 256)
-    n_c = h[:, 0, :].sum(axis=1)  # (n,)
-    theta = (h * _LEVELS).sum(axis=2) / n_c[:, None]
-    var = (h * (_LEVELS[None, None, :] - theta[:, :, None]) ** 2).sum(axis=2) / n_c[:, None]
-    total = h.sum(axis=0)  # (F, 256) over the trained classes = the training matrix X
-    n = total[0].sum()
-    mu_all = (total * _LEVELS).sum(axis=1) / n
-    var_all = (total * (_LEVELS[None, :] - mu_all[:, None]) ** 2).sum(axis=1) / n
-    # scikit-learn's epsilon, but never under var_smoothing grey levels squared: features that are all
-    # constant (black frames) would otherwise have no variance at all, and no finite likelihood
-    epsilon = var_smoothing * max(float(var_all.max()), 1.0)
-    var = var + epsilon
-    if priors is None:
-        prior = n_c / n_c.sum()
-    else:
-        prior = np.asarray(priors, dtype=np.float64).reshape(-1)
-        if prior.shape != n_c.shape or np.any(prior < 0) or not np.isclose(prior.sum(), 1.0):
-            raise InputError(f"priors must be {len(n_c)} non-negative numbers summing to 1")
-    return {"class_count": n_c, "theta": theta, "var": var, "epsilon": epsilon, "prior": prior}
 
 
 def fit_classifier(frames: Sequence, *, features: Sequence[str] = DEFAULT_FEATURES,
@@ -206,12 +139,6 @@ def _histogram_tables(counts: np.ndarray) -> np.ndarray:
     smooth = gaussian_filter1d(np.asarray(counts, np.float64), HISTOGRAM_BANDWIDTH, axis=2, mode="nearest")
     density = smooth / np.maximum(smooth.sum(axis=2, keepdims=True), 1e-300)
     return np.log((1.0 - HISTOGRAM_UNIFORM) * density + HISTOGRAM_UNIFORM / 256.0)
-
-
-def _tables(theta: np.ndarray, var: np.ndarray) -> np.ndarray:
-    """(n, F, 256) float64: log N(v; theta, var) for every class, feature and 8-bit value v."""
-    return -0.5 * np.log(2.0 * np.pi * var)[:, :, None] - 0.5 * (
-        (_LEVELS[None, None, :] - theta[:, :, None]) ** 2 / var[:, :, None])
 
 
 class NaiveBayesPixelClassifier:
@@ -501,111 +428,17 @@ class NaiveBayesPixelClassifier:
         return nb
 
 
-@dataclass(frozen=True)
-class WeightSearch:
-    """The thesis's random search for the weights of its single feature (its Table 4.1).
-
-    weights : (w_r, w_g, w_b) with the lowest training error (sum 1).
-    error : that training error, percent of training pixels (unknown excluded).
-    trial_weights : (n_trials, 3) float64; trial_errors : (n_trials,) float64 percent, NaN for a trial whose
-        classifier cannot be fitted (``var_smoothing`` 0 and a class of one value of the feature).
-    seed : the seed of the trial weights.
-    """
-
-    weights: tuple[float, float, float]
-    error: float
-    trial_weights: np.ndarray
-    trial_errors: np.ndarray
-    seed: int
-
-    def __repr__(self) -> str:
-        w = ", ".join(f"{v:.3f}" for v in self.weights)
-        return f"WeightSearch(weights=({w}), error={self.error:.2f}%, trials={len(self.trial_errors)}, seed={self.seed})"
-
-    def to_dict(self) -> dict:
-        return {"weights": list(self.weights), "error": float(self.error),
-                "trial_weights": self.trial_weights.tolist(),
-                "trial_errors": [None if np.isnan(e) else float(e) for e in self.trial_errors],
-                "seed": int(self.seed)}
+#: Names moved to :mod:`pcreg.classification.weight_search`, still read here with a DeprecationWarning until 0.4.
+_MOVED = ("WeightSearch", "colour_counts", "thesis_weight_search")
 
 
-def colour_counts(images, labels, *, exclude_unknown: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
-    """For each label 0, 1, 2: the distinct colours of its pixels and how often each occurs.
+def __getattr__(name: str):
+    if name in _MOVED:
+        import warnings
 
-    Returns a list of 3 pairs ``(colours (K, 3) uint8, counts (K,) int64)``; unknown's pair is empty
-    when ``exclude_unknown``.
-    """
-    images, labels = _as_lists(images, labels)
-    out = []
-    for c in range(N_LABELS):
-        if exclude_unknown and c == 2:
-            out.append((np.zeros((0, 3), np.uint8), np.zeros(0, np.int64)))
-            continue
-        packed = []
-        for im, lab in zip(images, labels):
-            sel = im[lab == c].astype(np.int32)
-            packed.append((sel[:, 0] << 16) | (sel[:, 1] << 8) | sel[:, 2])
-        keys = np.concatenate(packed) if packed else np.zeros(0, np.int32)
-        if keys.size == 0:
-            out.append((np.zeros((0, 3), np.uint8), np.zeros(0, np.int64)))
-            continue
-        binc = np.bincount(keys, minlength=1 << 24)
-        nz = np.flatnonzero(binc)
-        colours = np.stack([(nz >> 16) & 255, (nz >> 8) & 255, nz & 255], axis=1).astype(np.uint8)
-        out.append((colours, binc[nz].astype(np.int64)))
-    return out
+        from . import weight_search
 
-
-def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, exclude_unknown: bool = True,
-                         var_smoothing: float = 1e-9) -> WeightSearch:
-    """Pick (w_r, w_g, w_b) for the thesis feature by random search (thesis Sec. 4, Table 4.1).
-
-    Draws ``n_trials`` weight triples uniformly from [0, 1)^3 (normalised to sum 1) with
-    ``numpy.random.default_rng(seed)``, fits the single-feature classifier to the training frames for
-    each, and keeps the triple with the lowest training error. Exact: each trial is scored from the
-    per-class counts of distinct colours, which give the same histograms as the pixels themselves.
-
-    images : (H, W, 3) uint8 or a sequence; labels : (H, W) uint8 or a sequence.
-    var_smoothing : as :class:`NaiveBayesPixelClassifier`'s; at 0 a trial whose feature takes one value over a
-        class is not one the classifier can fit (a Gaussian of no width): it is left out (error NaN), and
-        an :class:`~pcreg.errors.InputError` says so when every trial is.
-    """
-    import cv2
-
-    from ..validation import check_float, check_int
-
-    n_trials = check_int(n_trials, "n_trials", lo=1, hi=1_000_000)
-    seed = check_int(seed, "seed", lo=0)
-    var_smoothing = check_float(var_smoothing, "var_smoothing", lo=0)
-    counts = colour_counts(images, labels, exclude_unknown=exclude_unknown)
-    present = [c for c in range(N_LABELS) if counts[c][1].size]
-    if len(present) < 2:
-        held = f"only one class ({LABEL_NAMES[present[0]]})" if present else "no class (every pixel unknown)"
-        raise InputError(f"training labels hold {held}; need both ground and obstacle pixels")
-    rng = np.random.default_rng(seed)
-    raw = rng.random((n_trials, 3))
-    trial_weights = np.array([normalise_weights(w if w.sum() > 0 else np.ones(3)) for w in raw])
-    errors = np.empty(n_trials)
-    classes = np.array(present)
-    for t, w in enumerate(trial_weights):
-        hist = np.zeros((N_LABELS, 1, 256), dtype=np.int64)
-        for c in present:
-            colours, cnt = counts[c]
-            v = cv2.transform(colours.reshape(-1, 1, 3), w.reshape(1, 3)).reshape(-1)
-            hist[c, 0] = np.bincount(v, weights=cnt, minlength=256).astype(np.int64)
-        p = _gaussian_params(hist, classes, var_smoothing=var_smoothing, priors=None)
-        if not np.all(p["var"] > 0):  # var_smoothing 0 and a class of one value: the fit refuses these weights
-            errors[t] = np.nan
-            continue
-        jll = _tables(p["theta"], p["var"])[:, 0, :] + np.log(p["prior"])[:, None]  # (n, 256)
-        winner = np.argmax(jll, axis=0)  # index into classes for each value
-        h = hist[classes, 0, :]  # (n, 256)
-        correct = h[winner, np.arange(256)].sum()
-        errors[t] = 100.0 * (1.0 - correct / h.sum())
-    if np.all(np.isnan(errors)):
-        raise InputError("every trial's feature takes one value over a class and var_smoothing is 0: no Gaussian "
-                         "can be fitted; give var_smoothing > 0 (the default is 1e-9)")
-    best = int(np.nanargmin(errors))
-    wb = trial_weights[best]
-    return WeightSearch(weights=(float(wb[0]), float(wb[1]), float(wb[2])), error=float(errors[best]),
-                        trial_weights=trial_weights, trial_errors=errors, seed=int(seed))
+        warnings.warn(f"pcreg.classification.bayes.{name} is deprecated; use pcreg.classification.weight_search.{name}",
+                      DeprecationWarning, stacklevel=2)
+        return getattr(weight_search, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -167,7 +167,8 @@ def run_unit(unit) -> dict:
     per-process cache). Returns JSON-ready numbers."""
     import numpy as np
 
-    from ..classification.bayes import NaiveBayesPixelClassifier, thesis_weight_search
+    from ..classification.bayes import NaiveBayesPixelClassifier
+    from ..classification.weight_search import thesis_weight_search
     from ..classification.features import parse_features
     from ..classification.metrics import confusion_matrix, error_from_confusion
 
@@ -216,7 +217,7 @@ def run_unit(unit) -> dict:
 
 def run_weight_search(unit) -> dict:
     """Table 4.1 row: the 30-trial weight search on all frames of one dataset (``unit.dataset``)."""
-    from ..classification.bayes import thesis_weight_search
+    from ..classification.weight_search import thesis_weight_search
     from .units import load_cached
 
     cfg = unit.config

@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from pcreg.cli import main
@@ -209,3 +210,39 @@ def test_a_transport_stream_appended_to_goes_on(camvid, tmp_path, capsys):
     assert _state(tmp_path / "one")["video_end"] == N
     steps = [json.loads(line)["frame"] for line in (tmp_path / "many" / "steps.jsonl").read_text().splitlines()]
     assert sorted(steps) == [1, *range(3, N)]
+
+
+def test_the_fingerprint_tells_a_file_appended_to_from_one_changed(tmp_path):
+    """``keep_video`` on files of more than two MiB: the same file, one appended to (grown, goes on), one whose last
+    MiB or size changed (refused), one touched (kept anew, its end forgotten)."""
+    from types import SimpleNamespace
+
+    from pcreg.errors import OutputError
+    from pcreg.runs.video_file import MIB, fingerprint, keep_video, labelled_to_end
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "v.ts"
+    data = rng.integers(0, 256, 3 * MIB + 17, dtype=np.uint8).tobytes()
+    path.write_bytes(data)
+    frames = SimpleNamespace(path=path)
+    state = {"done": 5}
+    assert keep_video(state, frames, tmp_path) is False and state["video_file"] == fingerprint(path)
+    state["video_end"] = 5
+    assert keep_video(state, frames, tmp_path) is False and labelled_to_end(state)
+    kept = dict(state)
+
+    path.write_bytes(data + b"more")
+    assert keep_video(state, frames, tmp_path) is True and not labelled_to_end(state)
+    assert state["video_file"]["size"] == len(data) + 4
+
+    for changed in (data[:-1] + b"x", data[:-1], data[:MIB // 2] + b"x" + data[MIB // 2 + 1:]):
+        path.write_bytes(changed)
+        with pytest.raises(OutputError, match="not the video the run"):
+            keep_video(dict(kept), frames, tmp_path)
+
+    path.write_bytes(data)
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, kept["video_file"]["mtime_ns"] + 1))
+    state = dict(kept)
+    assert keep_video(state, frames, tmp_path) is False and not labelled_to_end(state)
+    assert state["video_file"]["mtime_ns"] == kept["video_file"]["mtime_ns"] + 1

@@ -53,6 +53,7 @@ from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, chec
 from .records import check_recording, nothing_to_record
 from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts
+from .video_file import keep_video, labelled_to_end, mark_end
 
 if TYPE_CHECKING:
     from ..datasets.sources import Selection
@@ -177,7 +178,8 @@ class Run:
         # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
         # never where the run stops (decoding finds the end)
         total = len(frames) if frames.kind == "folder" else frames.count()
-        if frames.kind == "folder" and start >= len(frames):
+        if frames.kind == "folder" and start >= len(frames) or frames.kind == "video" and labelled_to_end(self.state):
+            decoded.close()  # a video labelled to its end in this very file: nothing decoded, no carry read
             nothing_to_record(request.record)
             return self._say_done(request, 0, [0], start=start)
         if start == 1:
@@ -210,6 +212,9 @@ class Run:
                 references.stepped(prop.last, image.rgb)
                 done = t + 1
                 tick(bar)
+        if frames.kind == "video":  # decoding found the end of the run's frames: a rerun need not look again
+            mark_end(self.state)
+            self.commit()
         self._say_done(request, done - start, [0], start=start)
 
     def _label_from_keys(self, request: RunRequest, keys: dict) -> None:
@@ -285,6 +290,8 @@ class Run:
         if state is not None:
             self.state = state
             self._check_same_inputs(int(state["done"]), state.get("key_labels", digest) != digest)
+            if self.frames.kind == "video":
+                keep_video(state, self.frames, self.out)
             self._cut_steps(int(state["done"]) - 1)
             self._check_same_frames(str(state["key_frame"]))
             self._remove_partial_writes()
@@ -295,6 +302,8 @@ class Run:
         self._remove_partial_writes()  # those of a killed run started over (--force) too
         self.state = {"format": FORMAT, "run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None, "key_labels": digest}
+        if self.frames.kind == "video":
+            keep_video(self.state, self.frames, self.out)
         write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
         (self.out / STEPS).write_bytes(b"")
         write_state(self.out, self.state)
@@ -418,10 +427,13 @@ class Run:
                           "fallbacks": 0, "truth": None}
             (self.out / STEPS).write_bytes(b"")
         self._remove_partial_writes()  # writes a killed run left half done
+        grown = self.frames.kind == "video" and keep_video(self.state, self.frames, self.out)
         # a stretch done, of the same key frames and options, that stops where it did (the frames after the last key
-        # frame of a folder that gained frames since are not done; runs from before ``stop`` was kept do not say)
+        # frame of a folder that gained frames since are not done, nor of a video appended to; runs from before
+        # ``stop`` was kept do not say)
         kept = [e for e in self.state["stretches"] if e["fingerprint"] in plan
-                and e.get("stop", plan[e["fingerprint"]].stop) == plan[e["fingerprint"]].stop]
+                and e.get("stop", plan[e["fingerprint"]].stop) == plan[e["fingerprint"]].stop
+                and not (grown and plan[e["fingerprint"]].stop is None)]
         cursor = self.state["cursor"]
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None

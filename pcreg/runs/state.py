@@ -1,7 +1,9 @@
 """A run's ``run.json``: what a run of ``pcreg run`` is (its identity: inputs and options), how far it
 has come, its running error against the truth, where its video skips frames by its times (``gaps``,
 :mod:`pcreg.runs.gaps`; only when it does), which of its frames decode with errors (``damaged``; only if
-any) and what else reading its frames met (``notes``: transparent pixels, a turn to interlaced; only if any).
+any), what else reading its frames met (``notes``: transparent pixels, a turn to interlaced; only if any) and a
+video run's file (``video_file``, its fingerprint, and ``video_end`` once its frames were labelled to their end;
+:mod:`pcreg.runs.video_file`).
 Rewritten atomically after every frame, it is the commit point: a frame counts once run.json counts it.
 
 Two kinds: a run from one label image (``key_frame``, ``done``) and a run from a folder of key frames
@@ -140,9 +142,11 @@ def state_problem(state) -> str | None:
         return "its top level"
     if not is_count(state.get("format", FORMAT), 1):
         return "format"
+    from .video_file import video_file_problem
+
     problem = (_keys_state_problem if "stretches" in state else _stream_state_problem)(state)
     records = (("gaps", _gaps_problem), ("damaged", _damaged_problem), ("notes", _notes_problem))
-    return problem or next((name for name, bad in records if bad(state.get(name))), None)
+    return problem or next((name for name, bad in records if bad(state.get(name))), None) or video_file_problem(state)
 
 
 def run_inputs(identity: dict | None) -> tuple[str, ...]:

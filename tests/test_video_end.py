@@ -1,0 +1,248 @@
+"""A video run labelled to its end: run.json keeps the video file's fingerprint (``video_file``) and that its
+frames were labelled to their end (``video_end``), so the same command again says every frame is done without
+decoding the video or reading a carry; a video that changed since is not taken as finished, and one replaced by
+another file at the same path is refused (exit 2, ``--force`` starts over). Videos of the shared CamVid frames,
+written with PyAV."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.cli import main
+from pcreg.datasets.sources import VideoFrames
+from _runs import kill_before_commit, one_line_errors
+from _videos import mux_all
+
+N = 10
+
+
+@pytest.fixture(scope="module")
+def camvid(shared_data):
+    """``(frames, key labels)``: N CamVid frames of 0001TP at 160x120 and the first one's labels (lagr's ids)."""
+    from pcreg.classes.mappings import mapping_lut
+
+    clip = shared_data / "camvid" / "0001TP"
+    if not (clip / "images").is_dir():
+        pytest.skip(f"{clip} is absent (the shared CamVid clips)")
+    images = [cv2.resize(cv2.imread(str(p)), (160, 120), interpolation=cv2.INTER_AREA)[:, :, ::-1].copy()
+              for p in sorted((clip / "images").iterdir())[:N]]
+    labels = mapping_lut("camvid")[cv2.imread(str(sorted((clip / "labels").iterdir())[0]), cv2.IMREAD_UNCHANGED)]
+    return images, cv2.resize(labels, (160, 120), interpolation=cv2.INTER_NEAREST)
+
+
+def _video(path, images, fmt=None):
+    """``images`` as H.264 in ``path`` (its container by its suffix, or ``fmt``); skipped without the encoder."""
+    av = pytest.importorskip("av")
+    try:
+        av.codec.Codec("h264", "w")
+    except (av.FFmpegError, ValueError):
+        pytest.skip("this FFmpeg has no h264 encoder")
+    with av.open(str(path), "w", format=fmt) as c:
+        s = c.add_stream("h264", rate=10)
+        s.width, s.height, s.pix_fmt = 160, 120, "yuv420p"
+        s.options = {"crf": "18", "g": "5"}
+        mux_all(c, s, images)
+    return path
+
+
+@pytest.fixture
+def decoded(monkeypatch):
+    """How many frames the runs decode from here on (every one the decoder hands on, chosen or not)."""
+    count = [0]
+    real = VideoFrames._decoded
+
+    def counting(self, reading):
+        for item in real(self, reading):
+            count[0] += 1
+            yield item
+
+    monkeypatch.setattr(VideoFrames, "_decoded", counting)
+    return count
+
+
+def _state(out):
+    return json.loads((out / "run.json").read_text())
+
+
+def _files(out):
+    """Every file in ``out`` but the carries and the lock, with its bytes and modification time."""
+    return {p.relative_to(out): (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(out.rglob("*"))
+            if p.is_file() and not p.name.startswith(("carry-", ".pcreg.lock"))}
+
+
+def test_a_finished_video_run_is_known_done_without_decoding_or_its_carries(camvid, tmp_path, capsys, decoded):
+    images, labels = camvid
+    video = _video(tmp_path / "clip.mp4", images)
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    out = tmp_path / "out"
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
+    assert main(args) == 0
+    state = _state(out)
+    st = video.stat()
+    assert state["done"] == N and state["video_end"] == N
+    assert state["video_file"]["size"] == st.st_size and state["video_file"]["mtime_ns"] == st.st_mtime_ns
+    assert len(state["video_file"]["sha256"]) == 64
+    capsys.readouterr()
+
+    # the carries deleted: a run that resumed from the last frame's carry could not go on; this one needs none
+    for slot in (0, 1):
+        (out / f"carry-{slot}.npz").unlink()
+    before, decoded[0] = _files(out), 0
+    assert main([*args, "--suggest", "2"]) == 0
+    said = capsys.readouterr().out
+    assert f"{out}: all {N} frames already done" in said and "suggest.txt" in said
+    assert decoded[0] <= 2  # the key frame and the next, read to check the labels against: not the video
+    after = _files(out)
+    lines = after.pop(Path("suggest.txt"))[0].decode().splitlines()
+    assert after == before  # nothing rewritten
+    assert main([*args, "--record", str(tmp_path / "r.rrd")]) == 0  # nothing to record: said, no file
+    assert "nothing is recorded" in capsys.readouterr().err and not (tmp_path / "r.rrd").exists()
+    assert len(lines) == 2 and all(line.split("\t")[0] in {f"{i:06d}" for i in range(1, N)} for line in lines)
+
+
+def test_a_run_json_without_the_record_or_a_changed_file_goes_as_before(camvid, tmp_path, capsys, decoded):
+    """A run.json from before the record (or a video whose fingerprint changed: touched, copied over with the same
+    bytes) is not taken as finished: the run decodes its way to its end, as before, and keeps the record then."""
+    images, labels = camvid
+    video = _video(tmp_path / "clip.mp4", images)
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    out = tmp_path / "out"
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
+    assert main(args) == 0
+    state = _state(out)
+    older = {k: v for k, v in state.items() if k not in ("video_file", "video_end")}
+    (out / "run.json").write_text(json.dumps(older))
+    decoded[0] = 0
+    assert main(args) == 0 and f"all {N} frames already done" in capsys.readouterr().out
+    assert decoded[0] >= N  # decoded to its end to find no frame left
+    assert _state(out) == state  # and the record kept
+
+    st = video.stat()
+    os.utime(video, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # the same bytes, another time
+    decoded[0] = 0
+    assert main(args) == 0 and f"all {N} frames already done" in capsys.readouterr().out
+    assert decoded[0] >= N
+    assert _state(out)["video_file"]["mtime_ns"] == st.st_mtime_ns + 10**9 and _state(out)["video_end"] == N
+    decoded[0] = 0
+    assert main(args) == 0 and decoded[0] <= 2
+
+    for bad in ({"size": -1, "mtime_ns": 0, "sha256": "0" * 64}, {"size": 1, "mtime_ns": 0, "sha256": "x"}, [1]):
+        (out / "run.json").write_text(json.dumps(dict(state, video_file=bad)))
+        assert main(args) == 2
+        assert one_line_errors(capsys) == [f"pcreg: error: {out / 'run.json'}: its 'video_file' is not as pcreg run "
+                                           "writes it; use --force to start over"]
+
+
+def test_a_video_replaced_at_the_same_path_is_refused(camvid, tmp_path, capsys, monkeypatch):
+    """Another video at the run's path (the frames in another order, re-encoded) was labelled from the first one's
+    carry when the run resumed, and a finished run over it said every frame done. Refused, one line; --force starts
+    over."""
+    images, labels = camvid
+    video = _video(tmp_path / "clip.mp4", images)
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    out = tmp_path / "out"
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
+    kill_before_commit(monkeypatch, 4)
+    assert main(args) == 130
+    monkeypatch.undo()
+    assert _state(out)["done"] == 4
+    size = video.stat().st_size
+    _video(tmp_path / "other.mp4", images[:1] + images[:0:-1])  # the same key frame, then the others backwards
+    os.replace(tmp_path / "other.mp4", video)
+    capsys.readouterr()
+    assert main(args) == 2
+    assert one_line_errors(capsys) == [
+        f"pcreg: error: {video}: not the video the run in {out} began on (its size or bytes changed since: "
+        f"{size} bytes then, {video.stat().st_size} now); use --force to start over"]
+    assert _state(out)["done"] == 4
+    assert main([*args, "--force"]) == 0 and _state(out)["video_end"] == N
+
+    # a finished run: refused too, not said done
+    _video(tmp_path / "other.mp4", images[::-1])
+    os.replace(tmp_path / "other.mp4", video)
+    assert main(args) == 2 and "not the video the run" in one_line_errors(capsys)[0]
+
+    # a run from a folder of key frames over it as well
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    cv2.imwrite(str(keys / "000000.png"), labels)
+    cv2.imwrite(str(keys / "000006.png"), labels)
+    kout = tmp_path / "kout"
+    assert main(["run", str(video), "--labels", str(keys), "--out", str(kout)]) == 0
+    _video(tmp_path / "other.mp4", images)
+    os.replace(tmp_path / "other.mp4", video)
+    capsys.readouterr()
+    assert main(["run", str(video), "--labels", str(keys), "--out", str(kout)]) == 2
+    assert "not the video the run" in one_line_errors(capsys)[0]
+
+
+def test_a_transport_stream_appended_to_goes_on(camvid, tmp_path, capsys):
+    """A recording still growing (a transport stream with frames appended) is the same video, longer: a run from one
+    label image labels the frames added after its end, as before; a key-frames run labels its stretch to the end
+    again, as it does a folder's that gained frames after its last key frame."""
+    images, labels = camvid
+    first = _video(tmp_path / "a.ts", images[:6]).read_bytes()
+    rest = _video(tmp_path / "b.ts", images[6:]).read_bytes()
+    video = tmp_path / "clip.ts"
+    video.write_bytes(first)
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    cv2.imwrite(str(keys / "000000.png"), labels)
+    cv2.imwrite(str(keys / "000002.png"), labels)
+    runs = {tmp_path / "one": tmp_path / "key.png", tmp_path / "many": keys}
+    for out, key in runs.items():
+        assert main(["run", str(video), "--labels", str(key), "--out", str(out)]) == 0
+    assert _state(tmp_path / "one")["video_end"] == 6
+    with open(video, "ab") as fh:
+        fh.write(rest)
+    capsys.readouterr()
+    for out, key in runs.items():
+        assert main(["run", str(video), "--labels", str(key), "--out", str(out)]) == 0, one_line_errors(capsys)
+        assert sorted(p.name for p in out.glob("*.png")) == [f"{i:06d}.png" for i in range(N)]
+    assert "4 frame(s) labelled" in capsys.readouterr().out
+    assert _state(tmp_path / "one")["video_end"] == N
+    steps = [json.loads(line)["frame"] for line in (tmp_path / "many" / "steps.jsonl").read_text().splitlines()]
+    assert sorted(steps) == [1, *range(3, N)]
+
+
+def test_the_fingerprint_tells_a_file_appended_to_from_one_changed(tmp_path):
+    """``keep_video`` on files of more than two MiB: the same file, one appended to (grown, goes on), one whose last
+    MiB or size changed (refused), one touched (kept anew, its end forgotten)."""
+    from types import SimpleNamespace
+
+    from pcreg.errors import OutputError
+    from pcreg.runs.video_file import MIB, fingerprint, keep_video, labelled_to_end
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "v.ts"
+    data = rng.integers(0, 256, 3 * MIB + 17, dtype=np.uint8).tobytes()
+    path.write_bytes(data)
+    frames = SimpleNamespace(path=path)
+    state = {"done": 5}
+    assert keep_video(state, frames, tmp_path) is False and state["video_file"] == fingerprint(path)
+    state["video_end"] = 5
+    assert keep_video(state, frames, tmp_path) is False and labelled_to_end(state)
+    kept = dict(state)
+
+    path.write_bytes(data + b"more")
+    assert keep_video(state, frames, tmp_path) is True and not labelled_to_end(state)
+    assert state["video_file"]["size"] == len(data) + 4
+
+    for changed in (data[:-1] + b"x", data[:-1], data[:MIB // 2] + b"x" + data[MIB // 2 + 1:]):
+        path.write_bytes(changed)
+        with pytest.raises(OutputError, match="not the video the run"):
+            keep_video(dict(kept), frames, tmp_path)
+
+    path.write_bytes(data)
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, kept["video_file"]["mtime_ns"] + 1))
+    state = dict(kept)
+    assert keep_video(state, frames, tmp_path) is False and not labelled_to_end(state)
+    assert state["video_file"]["mtime_ns"] == kept["video_file"]["mtime_ns"] + 1

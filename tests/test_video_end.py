@@ -76,13 +76,20 @@ def _files(out):
             if p.is_file() and not p.name.startswith(("carry-", ".pcreg.lock"))}
 
 
-def test_a_finished_video_run_is_known_done_without_decoding_or_its_carries(camvid, tmp_path, capsys, decoded):
+def _finished_run(camvid, tmp_path):
+    """``(video, out, args)``: a video of the clip's frames labelled to its end from its first frame's labels into
+    ``out`` by the command ``args``."""
     images, labels = camvid
     video = _video(tmp_path / "clip.mp4", images)
     cv2.imwrite(str(tmp_path / "key.png"), labels)
     out = tmp_path / "out"
     args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
     assert main(args) == 0
+    return video, out, args
+
+
+def test_a_finished_video_run_is_known_done_without_decoding_or_its_carries(camvid, tmp_path, capsys, decoded):
+    video, out, args = _finished_run(camvid, tmp_path)
     state = _state(out)
     st = video.stat()
     assert state["done"] == N and state["video_end"] == N
@@ -109,12 +116,7 @@ def test_a_finished_video_run_is_known_done_without_decoding_or_its_carries(camv
 def test_a_run_json_without_the_record_or_a_changed_file_goes_as_before(camvid, tmp_path, capsys, decoded):
     """A run.json from before the record (or a video whose fingerprint changed: touched, copied over with the same
     bytes) is not taken as finished: the run decodes its way to its end, as before, and keeps the record then."""
-    images, labels = camvid
-    video = _video(tmp_path / "clip.mp4", images)
-    cv2.imwrite(str(tmp_path / "key.png"), labels)
-    out = tmp_path / "out"
-    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
-    assert main(args) == 0
+    video, out, args = _finished_run(camvid, tmp_path)
     state = _state(out)
     older = {k: v for k, v in state.items() if k not in ("video_file", "video_end")}
     (out / "run.json").write_text(json.dumps(older))

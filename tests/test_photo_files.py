@@ -132,35 +132,33 @@ def test_a_jpeg_named_jfif_is_read_by_every_command(tmp_path, capsys):
     """A JPEG saved as ``.jfif`` (as browsers save a photo) is read by its header like any JPEG: ``pcreg register``
     read it, but ``pcreg crosscheck`` refused it as "unknown file type '.jfif'", and ``pcreg run`` passed over it as
     "in a format pcreg does not read ... convert it to PNG"."""
-    from pcreg.datasets.sources import FolderFrames
-
     rgb = shapes_image()
     frames = tmp_path / "frames"
     frames.mkdir()
     for i in range(3):
         cv2.imwrite(str(frames / f"f{i}.jpg"), np.roll(rgb, 2 * i, axis=1)[:, :, ::-1])
         (frames / f"f{i}.jpg").rename(frames / f"f{i}.jfif")
-    a, b = frames / "f0.jfif", frames / "f1.jfif"
-    for command in ("register", "crosscheck"):
-        assert main([command, str(a), str(b)]) == 0, capsys.readouterr().err
-    capsys.readouterr()
-    source = FolderFrames(frames)
-    assert (len(source), source.note()) == (3, None)
-    np.testing.assert_array_equal(source.read(1)[0], pcreg.load_image(b))
+    _read_by_every_command(frames, ".jfif", capsys)
 
 
 @pytest.mark.parametrize("suffix", [".pnm", ".pbm"])
 def test_portable_anymaps_are_read_by_every_command(tmp_path, capsys, suffix):
     """``.pnm`` (any portable anymap) and ``.pbm`` (a bitmap) were read by ``pcreg register``, as ``.ppm`` and ``.pgm``
     are by every command, but refused by ``pcreg crosscheck`` ("unknown file type") and passed over by ``pcreg run``."""
-    from pcreg.datasets.sources import FolderFrames
-
     rgb = shapes_image()
     frames = tmp_path / "frames"
     frames.mkdir()
     for i in range(3):
         moved = np.roll(rgb, 2 * i, axis=1)[:, :, ::-1]
         cv2.imwrite(str(frames / f"f{i}{suffix}"), moved if suffix == ".pnm" else (moved.max(axis=2) > 127) * np.uint8(255))
+    _read_by_every_command(frames, suffix, capsys)
+
+
+def _read_by_every_command(frames, suffix: str, capsys) -> None:
+    """``frames`` holds f0, f1 and f2 of ``suffix``: register and crosscheck take the first two, and a run's folder
+    reads all three, the second as pcreg.load_image does."""
+    from pcreg.datasets.sources import FolderFrames
+
     a, b = frames / f"f0{suffix}", frames / f"f1{suffix}"
     for command in ("register", "crosscheck"):
         assert main([command, str(a), str(b)]) == 0, capsys.readouterr().err

@@ -40,8 +40,8 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..classes.keys import binary_table, two_class_table
-from ..errors import InputError
-from ..runs.files import CARRY, HIDDEN, label_digest
+from ..errors import InputError, OutputError
+from ..runs.files import HIDDEN, label_digest
 from ..runs.kept import read_frame, read_prior, write_frame, write_prior
 from ..runs.truth import empty_counts
 
@@ -97,7 +97,6 @@ class KeyRun:
         in the plan forgotten, the key frames' labels written where they changed. A stretch under way in a phase it
         has not (a run.json edited) is an :class:`~pcreg.errors.OutputError`, as any other field not as pcreg run
         writes it."""
-        from ..errors import OutputError
         from ..runs.files import STATE
 
         plan = {self.fingerprint(s): s for s in self.plan}
@@ -251,13 +250,11 @@ class KeyRun:
         return prop
 
     def _resume(self, prop, s: Stretch, cur: dict) -> None:
-        from ..errors import OutputError
-
         if cur["steps"]:
             try:
                 prop.resume(cur["steps"], *self._read_carry(s, cur["steps"]))
             except InputError as exc:  # a carry of another stream, as a one-key run says it
-                path = self.owner.hidden(self.fingerprint(s)) / CARRY.format(cur["steps"] % 2)
+                path = self.owner.carry_path(cur["steps"], self.fingerprint(s))
                 raise OutputError(f"{path}: {exc}; use --force to start over") from None
 
     def _read_carry(self, s: Stretch, steps: int):

@@ -511,11 +511,11 @@ class Run:
     def keep_carry(self, t: int, carry, learned: np.ndarray | None, scene=None, *, stretch: str | None = None) -> None:
         """What step ``t`` hands to the next (:func:`pcreg.runs.files.write_carry`), in ``carry-{t % 2}.npz``:
         the run's own, or a key-frames ``stretch``'s (its fingerprint)."""
-        write_carry(self._carry_path(t, stretch), t, carry, learned, scene)
+        write_carry(self.carry_path(t, stretch), t, carry, learned, scene)
 
     def read_carry(self, t: int, *, stretch: str | None = None, unreadable: str = ""):
         """``(carry, learned, scene)`` that step ``t`` left (:meth:`keep_carry`)."""
-        return read_carry(self._carry_path(t, stretch), t, unreadable, with_scene=True)
+        return read_carry(self.carry_path(t, stretch), t, unreadable, with_scene=True)
 
     def carry_after(self, t: int):
         """A run from one label image: ``(carry, learned, scene)`` frame ``t`` left (a counted frame): the
@@ -527,7 +527,8 @@ class Run:
             return None, None, None
         return self.read_carry(t, unreadable=f", so frame {t + 1} cannot continue where frame {t} left off")
 
-    def _carry_path(self, t: int, stretch: str | None) -> Path:
+    def carry_path(self, t: int, stretch: str | None = None) -> Path:
+        """The carry file step ``t`` leaves (``stretch``: the fingerprint of its stretch, in a run from key frames)."""
         return (self.out if stretch is None else self.hidden(stretch)) / CARRY.format(t % 2)
 
     # -- the truth counts, the suggestions, reading back --------------------------------------------

@@ -178,7 +178,7 @@ class Run:
         # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
         # never where the run stops (decoding finds the end)
         total = len(frames) if frames.kind == "folder" else frames.count()
-        if frames.kind == "folder" and start >= len(frames) or frames.kind == "video" and labelled_to_end(self.state):
+        if (frames.kind == "folder" and start >= len(frames)) or (frames.kind == "video" and labelled_to_end(self.state)):
             decoded.close()  # a video labelled to its end in this very file: nothing decoded, no carry read
             nothing_to_record(request.record)
             return self._say_done(request, 0, [0], start=start)

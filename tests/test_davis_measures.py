@@ -111,3 +111,15 @@ def test_j_and_f_equal_the_official_evaluations_on_the_shared_masks(shared_data,
     t = mask(*truth)
     assert jaccard(p, t) == pytest.approx(j, abs=1e-12)
     assert boundary_f(p, t) == pytest.approx(f, abs=1e-12)
+
+
+def test_a_tolerance_past_the_diagonal_matches_every_boundary_pixel():
+    """A tolerance in px wider than the image: each boundary pixel is within it of every other (F 1), as with
+    a tolerance of the diagonal itself; 10**6 px asked numpy for a 29 TiB disk (MemoryError)."""
+    mixed = _band(5)
+    mixed[5:7, 5:] = True
+    reach = math.ceil(math.hypot(9, 9))  # 13 px: from corner to corner of a 10x10 image
+    assert boundary_f(mixed, _band(2), bound_th=reach) == 1.0
+    assert boundary_f(mixed, _band(2), bound_th=3) < 1.0
+    for wide in (reach + 1, 10**6, 10.0**12):
+        assert boundary_f(mixed, _band(2), bound_th=wide) == 1.0

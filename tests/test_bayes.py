@@ -191,6 +191,23 @@ def test_weight_search_with_no_smoothing_leaves_out_the_weights_the_fit_refuses(
     assert json.loads(json.dumps(s.to_dict(), allow_nan=False))["error"] == 0.0
 
 
+def test_weight_search_with_unknown_as_a_class_scores_the_classifier_it_picks_for():
+    """exclude_unknown=False with unknown pixels: three classes, which the classifier models by their smoothed
+    histograms; each trial was scored with Gaussians instead (a class of two colours, dark and bright: the search
+    said 1.15% for weights whose classifier is 0.02% wrong)."""
+    rng = np.random.default_rng(2)
+    img, lab = np.zeros((60, 80, 3), np.uint8), np.repeat(np.arange(3, dtype=np.uint8), 20)[:, None].repeat(80, axis=1)
+    two = rng.normal([30, 30, 128], [6, 6, 30], (20, 80, 3))
+    two[:, ::2] = rng.normal([220, 220, 128], [6, 6, 30], (20, 40, 3))
+    img[:20] = two.clip(0, 255)
+    img[20:40] = rng.normal([125, 125, 128], [6, 6, 30], (20, 80, 3)).clip(0, 255)
+    img[40:] = rng.normal([128, 60, 60], [30, 6, 6], (20, 80, 3)).clip(0, 255)
+    s = thesis_weight_search(img, lab, n_trials=30, exclude_unknown=False)
+    for w, e in zip(s.trial_weights, s.trial_errors):
+        clf = NaiveBayesPixelClassifier("thesis", weights=w, exclude_unknown=False).fit(img, lab)
+        assert clf.score_error(img, lab, exclude_unknown=False) == pytest.approx(e, abs=0.05)
+
+
 def test_the_weight_search_under_its_old_module_warns_and_is_the_same():
     import pcreg.classification.bayes as bayes
     from pcreg.classification import weight_search

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from ._gaussian import _as_lists, _gaussian_params, _tables
+from .bayes import _histogram_tables
 from .features import normalise_weights
 from .metrics import LABEL_NAMES, N_LABELS
 
@@ -20,7 +21,7 @@ class WeightSearch:
     """The thesis's random search for the weights of its single feature (its Table 4.1).
 
     weights : (w_r, w_g, w_b) with the lowest training error (sum 1).
-    error : that training error, percent of training pixels (unknown excluded).
+    error : that training error, percent of training pixels (unknown excluded unless it was trained as a class).
     trial_weights : (n_trials, 3) float64; trial_errors : (n_trials,) float64 percent, NaN for a trial whose
         classifier cannot be fitted (``var_smoothing`` 0 and a class of one value of the feature).
     seed : the seed of the trial weights.
@@ -77,7 +78,10 @@ def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, e
     Draws ``n_trials`` weight triples uniformly from [0, 1)^3 (normalised to sum 1) with
     ``numpy.random.default_rng(seed)``, fits the single-feature classifier to the training frames for
     each, and keeps the triple with the lowest training error. Exact: each trial is scored from the
-    per-class counts of distinct colours, which give the same histograms as the pixels themselves.
+    per-class counts of distinct colours, which give the same histograms as the pixels themselves, with the
+    model :class:`~pcreg.classification.bayes.NaiveBayesPixelClassifier` fits them to (its ``density="auto"``:
+    a Gaussian per class with two classes, the smoothed histogram with more, as with ``exclude_unknown=False``
+    and unknown pixels in the labels).
 
     images : (H, W, 3) uint8 or a sequence; labels : (H, W) uint8 or a sequence.
     var_smoothing : as :class:`NaiveBayesPixelClassifier`'s; at 0 a trial whose feature takes one value over a
@@ -108,10 +112,14 @@ def thesis_weight_search(images, labels, *, n_trials: int = 30, seed: int = 0, e
             v = cv2.transform(colours.reshape(-1, 1, 3), w.reshape(1, 3)).reshape(-1)
             hist[c, 0] = np.bincount(v, weights=cnt, minlength=256).astype(np.int64)
         p = _gaussian_params(hist, classes, var_smoothing=var_smoothing, priors=None)
-        if not np.all(p["var"] > 0):  # var_smoothing 0 and a class of one value: the fit refuses these weights
+        if len(classes) > 2:  # the classifier's density with more than two classes: each one's smoothed histogram
+            tables = _histogram_tables(hist[classes])
+        elif np.all(p["var"] > 0):
+            tables = _tables(p["theta"], p["var"])
+        else:  # var_smoothing 0 and a class of one value: the fit refuses these weights
             errors[t] = np.nan
             continue
-        jll = _tables(p["theta"], p["var"])[:, 0, :] + np.log(p["prior"])[:, None]  # (n, 256)
+        jll = tables[:, 0, :] + np.log(p["prior"])[:, None]  # (n, 256)
         winner = np.argmax(jll, axis=0)  # index into classes for each value
         h = hist[classes, 0, :]  # (n, 256)
         correct = h[winner, np.arange(256)].sum()

@@ -220,6 +220,29 @@ def _write_frames(folder, frames):
         cv2.imwrite(str(folder / f"f{i:03d}.png"), f.image[:, :, ::-1])
 
 
+def test_a_resume_refused_for_what_was_learned_leaves_the_stream_as_it_was(frames):
+    """A learned histogram of another shape, or one that counts unknown pixels (which the classifier refuses), was
+    refused after the frame, the carry (and the learner's stream) were taken: the next step was numbered after the
+    refused frame and warm-started from the refused carry."""
+    from pcreg.pipeline.stream import Carry
+
+    whole = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    for f in frames[1:4]:
+        whole.step(f.image)
+    saved, learned = Carry(whole.carry.grid.copy(), whole.carry.reference_evidence), whole.learned
+    unknown = learned.copy()
+    unknown[2, :, 10] = 5  # the unknown class's row: no learner writes it
+    fresh = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+    expected = fresh.step(frames[1].image)
+    for bad in (learned[:, :, :100], unknown):
+        stream = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+        with pytest.raises(InputError):
+            stream.resume(3, saved, bad)
+        assert stream.carry is None and stream.learned.sum() == 0
+        np.testing.assert_array_equal(stream.step(frames[1].image), expected)
+        assert stream.last.frame == 1 and stream.last.start == fresh.last.start
+
+
 def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
     src = tmp_path / "frames"
     _write_frames(src, frames[:4])

@@ -107,16 +107,16 @@ class Learner:
         return later
 
     def restore(self, stream: np.ndarray | None) -> None:
-        """Continue from a saved :attr:`stream` histogram (None: nothing learned yet)."""
-        self._pending = None
+        """Continue from a saved :attr:`stream` histogram (None: nothing learned yet); one refused leaves the
+        learner as it was."""
         if stream is None:
-            self._stream = np.zeros_like(self._key)
+            s = np.zeros_like(self._key)
         else:
-            s = np.asarray(stream, dtype=np.float64)
+            s = np.array(stream, dtype=np.float64)
             if s.shape != self._key.shape or not np.all(np.isfinite(s)) or s.min(initial=0.0) < 0:
                 raise InputError(f"a learned histogram must be finite, >= 0 and of shape {self._key.shape}")
-            self._stream = s.copy()
-        self._classifier = self._refit()
+        classifier = self._refit(s)  # a histogram the classifier refuses (unknown pixels counted) refused here
+        self._stream, self._pending, self._classifier = s, None, classifier
 
     def update(self, image, fused: np.ndarray, prior_term: np.ndarray) -> None:
         """Learn from one labelled frame (an (H, W, 3) uint8 image or a
@@ -142,11 +142,12 @@ class Learner:
         if self._pending is None:
             return
         self._stream, self._pending = self.stream_later()(), None
-        self._classifier = self._refit()
+        self._classifier = self._refit(self._stream)
 
-    def _refit(self):
-        n = float(self._stream[:, 0].sum())
+    def _refit(self, stream: np.ndarray):
+        """The key frame's classifier refitted with ``stream`` (what was learned) added at the rule's share."""
+        n = float(stream[:, 0].sum())
         if n == 0 or self.rule.share == 0:
             return self.key_classifier
         scale = min(1.0, self.rule.share * self._key_pixels / n)
-        return self.key_classifier.unfitted().fit_histograms(np.rint(self._key + scale * self._stream).astype(np.int64))
+        return self.key_classifier.unfitted().fit_histograms(np.rint(self._key + scale * stream).astype(np.int64))

@@ -512,8 +512,9 @@ class Propagator:
             raise InputError("scene must be a pcreg.pipeline.cuts.Scene or None")
         if self._key_scene is not None:
             self._key_scene.check(scene)
+        chain = self._chain
         if self.anchor == "previous":  # after the key frame itself, its own chain: no carry needed
-            self._chain = (self._key, None, 0) if frame == 0 and carry is None else chain_after(carry, self._key, frame)
+            chain = (self._key, None, 0) if frame == 0 and carry is None else chain_after(carry, self._key, frame)
             carry = None
         if carry is not None and not isinstance(carry, Carry):
             raise InputError("carry must be a pcreg.pipeline.stream.Carry or None")
@@ -522,12 +523,12 @@ class Propagator:
             if carry.grid.shape != (*want, 2):
                 raise InputError(f"the carried grid is {carry.grid.shape[0]}x{carry.grid.shape[1]}, a stream of "
                                  f"these frames has {want[0]}x{want[1]}: it comes from another stream")
-        self._frame = frame
+        if self._learner is not None:  # the last that refuses: a refused resume leaves the stream as it was
+            self._learner.restore(learned)
+        self._chain, self._frame = chain, frame
         self._carry = carry if self.warm_starts else None
         if self._key_scene is not None:
             self._key_scene.restore(scene)
-        if self._learner is not None:
-            self._learner.restore(learned)
 
     @property
     def working_size(self) -> WorkingSize | None:

@@ -18,7 +18,8 @@ table of log-likelihood differences); K classes are scored per class
 (:meth:`NaiveBayesPixelClassifier.class_scores`, :meth:`NaiveBayesPixelClassifier.log_posteriors`).
 
 The thesis's weight search (30 random (w_r, w_g, w_b), lowest training error wins, its Table 4.1) is
-:func:`thesis_weight_search`; it scores each trial from per-class counts of distinct colours.
+:func:`pcreg.classification.weight_search.thesis_weight_search` (read here too, deprecated, until 0.4); it scores
+each trial from per-class counts of distinct colours.
 """
 
 from __future__ import annotations

@@ -133,8 +133,10 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
     from ..pipeline.engine import propagate, stretches
 
     n = len(frames)
-    # a later key frame with nothing known keeps the current one (check_clip refuses a first such)
-    keys = [k for k in key_frames(n, key_every) if k == 0 or (frames[k].labels < 2).any()]
+    # a later key frame naive Bayes cannot be fitted on (nothing known, or one class alone: a DAVIS object
+    # occluded or out of view there) keeps the current one and is scored as any other frame
+    keys = [k for k in key_frames(n, key_every) if k == 0 or ((frames[k].labels == 0).any()
+                                                               and (frames[k].labels == 1).any())]
     seconds = dict.fromkeys(methods, 0.0)
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows = []

@@ -353,7 +353,8 @@ class ObjectFollower:
 
     def reset(self, image, labels: np.ndarray) -> None:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB (or a PreparedFrame), labels (H, W)
-        uint8 with 0 background, 1 the object, 2 unknown."""
+        uint8 with 0 background, 1 the object, 2 unknown. A key frame refused (an :class:`InputError`) leaves
+        the follower as it was."""
         from ..registration.flow import DIS_MIN_SIDE, pixel_grid
         from ..classes.keys import check_labels
 
@@ -369,12 +370,13 @@ class ObjectFollower:
         known = cv2.resize((lab < 2).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
         obj = cv2.resize((lab == 1).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
         # the object's share where known; unknown: 0.5, no evidence either way
-        self._share = np.where(known > 0.5, obj / np.maximum(known, 1e-6), 0.5).astype(np.float32)
+        share = np.where(known > 0.5, obj / np.maximum(known, 1e-6), 0.5).astype(np.float32)
         if not (lab == 1).any():
             raise InputError("the key frame's mask has no object pixel (1): nothing to follow")
-        if not (self._share > 0.5).any():  # nothing to carry: every frame would read 'no object', confidently
+        if not (share > 0.5).any():  # nothing to carry: every frame would read 'no object', confidently
             raise InputError(f"the key frame's object ({int((lab == 1).sum())} px) covers no pixel at the size the "
                              f"follower works at ({w}x{h}): too small to follow")
+        self._share = share  # nothing is changed before the key frame is taken: a refused one leaves the follower
         self._key_logit = _logit(self._share, 1e-3)
         self._colours = _colour_table(rgb, self._share, known > 0.5)
         self._key_rgb = rgb.astype(np.float32)

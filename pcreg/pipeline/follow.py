@@ -333,6 +333,7 @@ class ObjectFollower:
         self._size: WorkingSize | None = None
         self._key_labels: np.ndarray | None = None
         self._carry: FollowCarry | None = None
+        self._key_carry: FollowCarry | None = None
         self._frame = 0
 
     @classmethod
@@ -383,8 +384,8 @@ class ObjectFollower:
         self._key_grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         self._size, self._key_labels = size, lab
         self._grid = pixel_grid((h, w))
-        self._carry = FollowCarry((self._share > 0.5).astype(np.uint8), self._key_grey,
-                                  _histogram(_colour_index(rgb)))
+        self._carry = self._key_carry = FollowCarry((self._share > 0.5).astype(np.uint8), self._key_grey,
+                                                    _histogram(_colour_index(rgb)))
         self._frame = 0
         self.last = self.log_odds = None
 
@@ -493,6 +494,8 @@ class ObjectFollower:
                 raise InputError(f"the carried labels are {w}x{h}, a follower of these frames works at "
                                  f"{self._size.shape[1]}x{self._size.shape[0]}: they come from another stream")
             self._carry = carry
+        else:  # right after the key frame: its own carry, whatever was stepped since
+            self._carry = self._key_carry
         self._frame = frame
 
     @property

@@ -304,7 +304,8 @@ def objects_of(clips, sequences) -> dict[str, list[str]]:
 def _read_published(path: Path) -> list[dict]:
     rows = []
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        # utf-8-sig: a byte-order mark (Excel's "CSV UTF-8") is no part of the first column's name
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             lines = [ln for ln in fh if not ln.startswith("#")]
     except (OSError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{path}: cannot read the published results ({exc})") from None

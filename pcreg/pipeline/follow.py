@@ -83,7 +83,7 @@ if TYPE_CHECKING:
 
 __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
            "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "NEAR", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET",
-           "CUT_RESIDUAL", "CUT_COLOUR_CHANGE", "colour_change", "cut_evidence", "frame_colours"]
+           "CUT_RESIDUAL", "CUT_COLOUR_CHANGE", "can_follow", "colour_change", "cut_evidence", "frame_colours"]
 
 #: The working size, a share of the frames' sides (427x240 for 854x480): DIS at full size carried the
 #: true mask one step only 0.008-0.023 IoU better, in four times the time.
@@ -312,6 +312,22 @@ def _read(prior: np.ndarray, colour: np.ndarray, size: WorkingSize, *,
     return labels, confidence.astype(np.float32), full
 
 
+def _object_share(labels: np.ndarray, size: WorkingSize) -> tuple[np.ndarray, np.ndarray]:
+    """``(known, share)`` (h, w) float32 at the working size of key labels (H, W): the known pixels' share of
+    each working pixel, and the object's share of its known part (0.5 where mostly unknown: no evidence)."""
+    h, w = size.shape
+    known = cv2.resize((labels < 2).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    obj = cv2.resize((labels == 1).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    return known, np.where(known > 0.5, obj / np.maximum(known, 1e-6), 0.5).astype(np.float32)
+
+
+def can_follow(labels: np.ndarray) -> bool:
+    """Whether key labels (H, W) (0 background, 1 the object, 2 unknown) hold an object the follower can start
+    from: one that covers a pixel at its working size (:meth:`ObjectFollower.reset` refuses any other)."""
+    lab = np.asarray(labels)
+    return bool((lab == 1).any() and (_object_share(lab, WorkingSize(lab.shape, SCALE))[1] > 0.5).any())
+
+
 def _warp(values: np.ndarray, field: np.ndarray) -> np.ndarray:
     return cv2.remap(values, field, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
@@ -368,10 +384,7 @@ class ObjectFollower:
             raise InputError(f"frames of {W}x{H} are too small to follow an object (it works at {w}x{h}, DIS "
                              f"optical flow needs {DIS_MIN_SIDE} px a side)")
         rgb = size.shrunk(full).rgb
-        known = cv2.resize((lab < 2).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
-        obj = cv2.resize((lab == 1).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
-        # the object's share where known; unknown: 0.5, no evidence either way
-        share = np.where(known > 0.5, obj / np.maximum(known, 1e-6), 0.5).astype(np.float32)
+        known, share = _object_share(lab, size)
         if not (lab == 1).any():
             raise InputError("the key frame's mask has no object pixel (1): nothing to follow")
         if not (share > 0.5).any():  # nothing to carry: every frame would read 'no object', confidently

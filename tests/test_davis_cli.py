@@ -188,3 +188,34 @@ def test_evaluate_stream_on_davis_refuses_a_class_table(tmp_path, capsys):
     err = one_line_errors(capsys)
     assert len(err) == 1 and "--classes with --data davis:PATH" in err[0]
     assert not (tmp_path / "o" / "results.json").exists()
+
+
+def test_key_every_keeps_the_current_key_frame_where_the_object_is_out_of_view(tmp_path, capsys):
+    # a later key frame whose mask has no object pixel: naive Bayes cannot be fitted on one class, and the whole
+    # evaluation was refused ("training labels hold only one class"); it is now scored as any other frame
+    pairs = frames_and_masks(7, shape=(96, 128))
+    pairs = [(img, mask if i < 3 else np.zeros_like(mask)) for i, (img, mask) in enumerate(pairs)]
+    seq = write_pcreg_layout(tmp_path / "gone", pairs)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain,pcreg_object", "--key-every", "3",
+                 "--out", str(out)]) == 0
+    unit = json.loads((out / "results.json").read_text())["units"][0]
+    assert unit["key_frames"] == [0] and unit["davis"]["frames"] == [1, 2, 3, 4, 5]
+    assert all(0 <= v <= 1 for m in ("plain", "pcreg_object") for v in unit["davis"]["J"][m])
+
+
+def test_key_every_keeps_the_current_key_frame_where_the_object_is_too_small_to_follow(tmp_path, capsys):
+    # one object pixel on a later key frame: the follower's reset refused it and the whole evaluation with it
+    pairs = frames_and_masks(7, shape=(96, 128))
+    speck = np.zeros_like(pairs[3][1])
+    speck[41, 41] = 255
+    pairs[3] = (pairs[3][0], speck)
+    seq = write_pcreg_layout(tmp_path / "hidden", pairs)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain,pcreg_object", "--key-every", "3",
+                 "--out", str(out)]) == 0
+    unit = json.loads((out / "results.json").read_text())["units"][0]
+    assert unit["key_frames"] == [0, 6] and unit["davis"]["frames"] == [1, 2, 3, 4, 5]
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain", "--key-every", "3",
+                 "--out", str(tmp_path / "plain")]) == 0  # naive Bayes alone can start there
+    assert json.loads((tmp_path / "plain" / "results.json").read_text())["units"][0]["key_frames"] == [0, 3, 6]

@@ -145,3 +145,24 @@ def test_a_palettes_void_index_is_unknown_beside_one_object(tmp_path):
     want = (ids == 1).astype(np.uint8)
     want[0] = 2
     np.testing.assert_array_equal(labels, want)
+
+
+def test_void_on_a_later_frame_is_unknown_when_the_first_frame_has_none(tmp_path):
+    # the void index was taken from the first frame only: without void there, a later frame's 255 was background,
+    # counted in the error % and fitted as background at a later key frame
+    pairs = frames_and_masks(4)
+    seq = tmp_path / "disc"
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    for i, (img, mask) in enumerate(pairs):
+        cv2.imwrite(str(seq / "images" / f"{i:05d}.jpg"), img)
+        ids = (mask > 0).astype(np.uint8)
+        if i == 2:
+            ids[:3] = 255
+        write_palette(seq / "labels" / f"{i:05d}.png", ids)
+    frames = load_sequence(seq / "images", seq / "labels")
+    assert [set(np.unique(f.labels).tolist()) for f in frames] == [{0, 1}, {0, 1}, {0, 1, 2}, {0, 1}]
+    assert (frames[2].labels[:3] == 2).all()
+    for i, (_, mask) in enumerate(pairs):  # DAVIS 2016's 0/255 in a palette: 255 stays the object on every frame
+        write_palette(seq / "labels" / f"{i:05d}.png", mask)
+    assert all(((f.labels == 1) == (m > 0)).all() for f, (_, m) in zip(load_sequence(seq / "images", seq / "labels"), pairs))

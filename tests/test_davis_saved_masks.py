@@ -92,6 +92,32 @@ def test_one_object_reads_as_before(tmp_path):
         np.testing.assert_array_equal(read_key_labels(tmp_path / "k.png", DAVIS, "davis"), mask > 0)
 
 
+def test_16_bit_masks_read_as_their_8_bit_values(tmp_path, capsys):
+    # a 16-bit grey mask was refused ("an object mask must be an 8-bit image, got uint16"), even 0/65535
+    pairs = frames_and_masks(4)
+    images, masks = [p[0] for p in pairs], [p[1] for p in pairs]
+    _sequence(tmp_path / "palette" / "disc", images, masks, "palette")
+    (tmp_path / "wide" / "disc").mkdir(parents=True)
+    shutil.copytree(tmp_path / "palette" / "disc" / "images", tmp_path / "wide" / "disc" / "images")
+    (tmp_path / "wide" / "disc" / "labels").mkdir()
+    for i, mask in enumerate(masks):  # object ids 1 and 2 in 16 bits
+        ids = halves(mask)
+        if i == len(masks) - 1:
+            ids[ids == 1] = 0
+        cv2.imwrite(str(tmp_path / "wide" / "disc" / "labels" / f"{i:05d}.png"), ids.astype(np.uint16))
+    _same_clips(load_davis(tmp_path / "wide"), load_davis(tmp_path / "palette"))
+    key = tmp_path / "k.png"
+    cv2.imwrite(str(key), (masks[0] > 0).astype(np.uint16) * 65535)  # one object, 0 and 65535
+    np.testing.assert_array_equal(read_key_labels(key, DAVIS, "davis"), masks[0] > 0)
+    assert main(["run", str(tmp_path / "palette" / "disc" / "images"), "--labels", str(key), "--classes", "davis",
+                 "--out", str(tmp_path / "out")]) == 0
+    two = np.where(masks[0] > 0, 300, 0).astype(np.uint16)
+    two[:, :5] = 301
+    cv2.imwrite(str(key), two)
+    with pytest.raises(InputError, match="16-bit mask of values 300, 301: not one object"):
+        read_key_labels(key, DAVIS, "davis")
+
+
 def test_a_smoothed_grey_mask_without_255_is_one_object(tmp_path):
     """A 0/M object mask (M below 255: a tool that saves 0/1 scaled, 0/200) resized, its edge smoothed: one object as
     the 0/255 one, never one object per value of its edge; grey ids of objects 1, 2, 3 stay three objects."""

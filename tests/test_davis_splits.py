@@ -86,6 +86,19 @@ def test_split_files_of_both_formats_parse_and_a_path_with_a_colon_is_a_path(tmp
         parse_davis_arg(f"{tmp_path}/DAVIS:test")
 
 
+def test_a_byte_order_mark_is_no_part_of_a_split_file_or_of_published_figures(tmp_path):
+    # saved by Notepad or as Excel's "CSV UTF-8": the mark began the first name, "\ufeffcamel" (no folder), and
+    # the first column, "\ufeffmethod" (the published results "need the columns ... method")
+    f = tmp_path / "val.txt"
+    f.write_text("\ufeffcamel\r\nblackswan\r\n", encoding="utf-8")
+    assert read_split_file(f) == ["camel", "blackswan"]
+    seq = write_pcreg_layout(tmp_path / "mine" / "camel", frames_and_masks(3))
+    (seq.parent / "published_mine.csv").write_text("\ufeffmethod,sequence,J_mean,F_mean\r\nmine,camel,0.5,0.4\r\n",
+                                                   encoding="utf-8")
+    doc = published(seq.parent)
+    assert doc["methods"] == ["mine"] and doc["J"]["mine"] == {"camel": 0.5} and doc["F"]["mine"] == {"camel": 0.4}
+
+
 def _stream(tmp_path, spec: str, out_name: str, capsys) -> tuple[dict, str]:
     out = tmp_path / out_name
     assert main(["evaluate", "stream", "--data", spec, "--methods", "unregistered", "--out", str(out)]) == 0

@@ -55,6 +55,19 @@ def test_a_key_object_too_small_for_the_working_size_is_refused(tmp_path, capsys
     assert ObjectFollower.from_key_frame(pairs[0][0], big).step(pairs[1][0]).shape == key.shape
 
 
+def test_a_refused_key_frame_leaves_the_follower_as_it_was():
+    # the object's share was replaced before the refusal: the next steps read the key term's gate 0
+    pairs = moving_object(4)
+    kept, refused = ObjectFollower.from_key_frame(*pairs[0]), ObjectFollower.from_key_frame(*pairs[0])
+    speck = np.zeros_like(pairs[0][1])
+    speck[61, 71] = 1
+    with pytest.raises(InputError, match="too small to follow"):
+        refused.reset(pairs[1][0], speck)
+    for image, _ in pairs[1:]:
+        np.testing.assert_array_equal(refused.step(image), kept.step(image))
+        assert refused.last.trust_summary == kept.last.trust_summary
+
+
 def _window_leaving_and_coming_back(root):
     """blackswan's frames through a 320 px wide window that drifts off the swan (frames 0-4), stays off it
     (5-7) and comes back (8-12): (RGB image, 0/1 truth) pairs."""

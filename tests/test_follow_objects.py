@@ -74,6 +74,17 @@ def test_a_follower_is_a_function_of_its_carry():
         ObjectFollower.from_key_frame(np.zeros((40, 60, 3), np.uint8), np.eye(40, 60, dtype=np.uint8))
 
 
+def test_resuming_after_the_key_frame_starts_from_the_key_frames_carry():
+    # resume(0) kept the last step's carry: the next step was carried from the stream's end, not the key frame
+    pairs = moving_object(8, step=8)
+    fresh, stepped = ObjectFollower.from_key_frame(*pairs[0]), ObjectFollower.from_key_frame(*pairs[0])
+    for image, _ in pairs[1:]:
+        stepped.step(image)
+    stepped.resume(0, None)
+    np.testing.assert_array_equal(stepped.step(pairs[1][0]), fresh.step(pairs[1][0]))
+    assert stepped.last.trust_summary == fresh.last.trust_summary
+
+
 def test_the_follower_beats_the_scene_stream_on_a_shared_davis_sequence(shared_data):
     from pcreg.datasets.davis import load_sequence
     from pcreg.pipeline.stream import Propagator

@@ -86,7 +86,7 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
     :func:`pcreg.classes.mappings.palette_objects`): a palette PNG's indices; a grey image's values, ids when it
     holds several values below 255 (:func:`_grey_ids`); a colour image's palette indices when its colours are
     several of DAVIS's palette (:func:`_colour_objects`), else its pixels that are not black as 1. A grey image
-    saved in colour (three equal channels) is read as grey."""
+    saved in colour (three equal channels) is read as grey; a 16-bit grey one as 8-bit (:func:`_eight_bit`)."""
     from ..formats import check_image_bytes, decode_image
     from .png import check_lossless, check_png_chunks, is_palette_png
 
@@ -109,9 +109,25 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
         img = img[:, :, 0]  # grey saved in colour
     if img.ndim == 3:
         return _colour_objects(img, name)
+    if img.dtype == np.uint16:
+        img = _eight_bit(img, name)
     if img.dtype != np.uint8:
         raise InputError(f"{name}: an object mask must be an 8-bit image, got {img.dtype}")
     return img, _grey_ids(img, name)
+
+
+def _eight_bit(values: np.ndarray, name: str) -> np.ndarray:
+    """A 16-bit grey mask's values as 8-bit: as they are when none is above 255 (ids, or 0/255, saved in 16
+    bits), 0 and 255 when it holds one value besides 0 (a 0/65535 mask: one object); other values above 255
+    (object ids beyond DAVIS's 254, or a smoothed 0/65535 mask) are refused naming them."""
+    top = int(values.max(initial=0))
+    if top <= 255:
+        return values.astype(np.uint8)
+    present = np.unique(values)
+    if present.size <= 2 and present[0] == 0:
+        return np.where(values > 0, 255, 0).astype(np.uint8)
+    raise InputError(f"{name}: a 16-bit mask of values {_listed(present[present > 0].tolist())}: not one object "
+                     "(0 and one value) nor object ids up to 254; " + _SAVE_OBJECTS)
 
 
 #: How to save several objects so that no reader guesses: DAVIS 2017's way.

@@ -220,13 +220,14 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
     colours, :func:`pcreg.classes.keys.object_values`) gives one clip per id, ``{name_K: frames}``
     (:func:`object_name`), each with object K as 1 and every other object as background, as the DAVIS 2017
     evaluation scores each object on its own (davis2017-evaluation ``davis2017/davis.py``
-    ``get_all_masks``: the objects are those of the first frame). A void index is label 2 (unknown).
+    ``get_all_masks``: the objects are those of the first frame). A void index is label 2 (unknown), on every
+    frame of such a sequence, whether its first frame shows void or not.
 
     Refused with a :class:`~pcreg.errors.DatasetError` naming the file: no frame, no mask for the first
     frame, an empty object on it, a missing mask of a later frame, a mask without its frame, a mask of
     another size than its frame, a frame or mask that does not decode.
     """
-    from ..classes.mappings import object_labels, palette_objects
+    from ..classes.mappings import VOID_INDEX, object_labels, palette_objects
 
     frames, masks = Path(frames), Path(masks)
     name = name or frames.name
@@ -245,8 +246,10 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
         image = _read(f, color=True)
         values, by_id = _mask(m, f, image.shape[:2])
         if t == 0 and by_id:  # the objects are the first frame's (its palette's indices)
-            ids, void = palette_objects(values)
+            ids = palette_objects(values)[0]
             objects = ids if ids else (None,)
+            # 255 is void on every frame, whether or not the first shows any (DAVIS 2016's 0/255: the object)
+            void = VOID_INDEX if ids and VOID_INDEX not in ids else None
         for k in objects:
             labels = object_labels(values, k, void)
             if t == 0:
@@ -301,7 +304,8 @@ def objects_of(clips, sequences) -> dict[str, list[str]]:
 def _read_published(path: Path) -> list[dict]:
     rows = []
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        # utf-8-sig: a byte-order mark (Excel's "CSV UTF-8") is no part of the first column's name
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             lines = [ln for ln in fh if not ln.startswith("#")]
     except (OSError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{path}: cannot read the published results ({exc})") from None

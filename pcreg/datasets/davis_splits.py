@@ -112,7 +112,7 @@ def read_split_file(path: str | Path) -> list[str]:
     format (its number said), or no sequence at all."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (Notepad's UTF-8) is no part of the first name
     except (OSError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{path}: cannot read the split file ({exc})") from None
     names: dict[str, None] = {}

@@ -50,8 +50,8 @@ from ..recording.interface import RecorderProtocol
 from ..recording.null import NULL_RECORDER
 from .results import Results
 from .stream_davis import DavisScores, chain, check_davis_config, is_davis, summarise_davis
-from .stream_methods import (BASELINES, CONFIDENCE_LEVELS, METHODS, PCREG_METHODS, PRESET_OF, Timed,  # noqa: F401
-                             calibration, calibration_counts, make_method)
+from .stream_methods import (BASELINES, CONFIDENCE_LEVELS, METHODS, OBJECT_METHOD, PCREG_METHODS, PRESET_OF,  # noqa: F401
+                             Timed, calibration, calibration_counts, make_method)
 
 @dataclass(frozen=True)
 class StreamConfig:
@@ -122,6 +122,20 @@ def check_clip(name: str, frames, classes: str | None = None) -> None:
         raise DatasetError(f"clip {name}: the key frame {frames[0].name} has no known label (all unknown)")
 
 
+def _can_start(labels: np.ndarray, methods) -> bool:
+    """Whether every method of ``methods`` can start from a later key frame of ``labels``: naive Bayes is fitted
+    on both classes (nothing known, or one class alone, as a DAVIS object occluded or out of view leaves them,
+    cannot be), and the object follower needs an object it can follow (:func:`~pcreg.pipeline.follow.can_follow`).
+    One that some method cannot keeps the current key frame, for every method, and is scored as any other frame."""
+    if not ((labels == 0).any() and (labels == 1).any()):
+        return False
+    if OBJECT_METHOD in methods:
+        from ..pipeline.follow import can_follow
+
+        return can_follow(labels)
+    return True
+
+
 def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: str = "reference",
              on_frame=None) -> dict:
     """Every method on one clip: ``{"frames": [{index, name, key, since_key, errors}], "means", "seconds"}``.
@@ -133,8 +147,7 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
     from ..pipeline.engine import propagate, stretches
 
     n = len(frames)
-    # a later key frame with nothing known keeps the current one (check_clip refuses a first such)
-    keys = [k for k in key_frames(n, key_every) if k == 0 or (frames[k].labels < 2).any()]
+    keys = [k for k in key_frames(n, key_every) if k == 0 or _can_start(frames[k].labels, methods)]
     seconds = dict.fromkeys(methods, 0.0)
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows = []

@@ -8,7 +8,8 @@ each method's labels (1 the object) against the frame's mask with the benchmark'
 sequence, then over sequences, and sets the published results on the same sequences beside them
 (:func:`pcreg.datasets.davis.published`).
 
-With ``--key-every N`` the later key frames are not scored (their mask is given); ``--keys`` is refused:
+With ``--key-every N`` the later key frames are not scored (their mask is given; one with no object pixel, no
+background, or with ``pcreg_object`` an object too small to follow, is no key frame and is scored); ``--keys`` is refused:
 the benchmark gives the first frame's mask only.
 """
 

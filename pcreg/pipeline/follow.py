@@ -83,7 +83,7 @@ if TYPE_CHECKING:
 
 __all__ = ["ObjectFollower", "FollowCarry", "FollowTerms", "SCALE", "CARRY_WEIGHT", "COLOUR_WEIGHT", "KEY_WEIGHT",
            "RESIDUAL_SIGMA", "CARRY_BLUR", "GATE_POWER", "NEAR", "CONFIDENCE_SLOPE", "CONFIDENCE_OFFSET", "FLOW_PRESET",
-           "CUT_RESIDUAL", "CUT_COLOUR_CHANGE", "colour_change", "cut_evidence", "frame_colours"]
+           "CUT_RESIDUAL", "CUT_COLOUR_CHANGE", "can_follow", "colour_change", "cut_evidence", "frame_colours"]
 
 #: The working size, a share of the frames' sides (427x240 for 854x480): DIS at full size carried the
 #: true mask one step only 0.008-0.023 IoU better, in four times the time.
@@ -312,6 +312,22 @@ def _read(prior: np.ndarray, colour: np.ndarray, size: WorkingSize, *,
     return labels, confidence.astype(np.float32), full
 
 
+def _object_share(labels: np.ndarray, size: WorkingSize) -> tuple[np.ndarray, np.ndarray]:
+    """``(known, share)`` (h, w) float32 at the working size of key labels (H, W): the known pixels' share of
+    each working pixel, and the object's share of its known part (0.5 where mostly unknown: no evidence)."""
+    h, w = size.shape
+    known = cv2.resize((labels < 2).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    obj = cv2.resize((labels == 1).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    return known, np.where(known > 0.5, obj / np.maximum(known, 1e-6), 0.5).astype(np.float32)
+
+
+def can_follow(labels: np.ndarray) -> bool:
+    """Whether key labels (H, W) (0 background, 1 the object, 2 unknown) hold an object the follower can start
+    from: one that covers a pixel at its working size (:meth:`ObjectFollower.reset` refuses any other)."""
+    lab = np.asarray(labels)
+    return bool((lab == 1).any() and (_object_share(lab, WorkingSize(lab.shape, SCALE))[1] > 0.5).any())
+
+
 def _warp(values: np.ndarray, field: np.ndarray) -> np.ndarray:
     return cv2.remap(values, field, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
@@ -333,6 +349,7 @@ class ObjectFollower:
         self._size: WorkingSize | None = None
         self._key_labels: np.ndarray | None = None
         self._carry: FollowCarry | None = None
+        self._key_carry: FollowCarry | None = None
         self._frame = 0
 
     @classmethod
@@ -353,7 +370,8 @@ class ObjectFollower:
 
     def reset(self, image, labels: np.ndarray) -> None:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB (or a PreparedFrame), labels (H, W)
-        uint8 with 0 background, 1 the object, 2 unknown."""
+        uint8 with 0 background, 1 the object, 2 unknown. A key frame refused (an :class:`InputError`) leaves
+        the follower as it was."""
         from ..registration.flow import DIS_MIN_SIDE, pixel_grid
         from ..classes.keys import check_labels
 
@@ -366,23 +384,21 @@ class ObjectFollower:
             raise InputError(f"frames of {W}x{H} are too small to follow an object (it works at {w}x{h}, DIS "
                              f"optical flow needs {DIS_MIN_SIDE} px a side)")
         rgb = size.shrunk(full).rgb
-        known = cv2.resize((lab < 2).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
-        obj = cv2.resize((lab == 1).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
-        # the object's share where known; unknown: 0.5, no evidence either way
-        self._share = np.where(known > 0.5, obj / np.maximum(known, 1e-6), 0.5).astype(np.float32)
+        known, share = _object_share(lab, size)
         if not (lab == 1).any():
             raise InputError("the key frame's mask has no object pixel (1): nothing to follow")
-        if not (self._share > 0.5).any():  # nothing to carry: every frame would read 'no object', confidently
+        if not (share > 0.5).any():  # nothing to carry: every frame would read 'no object', confidently
             raise InputError(f"the key frame's object ({int((lab == 1).sum())} px) covers no pixel at the size the "
                              f"follower works at ({w}x{h}): too small to follow")
+        self._share = share  # nothing is changed before the key frame is taken: a refused one leaves the follower
         self._key_logit = _logit(self._share, 1e-3)
         self._colours = _colour_table(rgb, self._share, known > 0.5)
         self._key_rgb = rgb.astype(np.float32)
         self._key_grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         self._size, self._key_labels = size, lab
         self._grid = pixel_grid((h, w))
-        self._carry = FollowCarry((self._share > 0.5).astype(np.uint8), self._key_grey,
-                                  _histogram(_colour_index(rgb)))
+        self._carry = self._key_carry = FollowCarry((self._share > 0.5).astype(np.uint8), self._key_grey,
+                                                    _histogram(_colour_index(rgb)))
         self._frame = 0
         self.last = self.log_odds = None
 
@@ -491,6 +507,8 @@ class ObjectFollower:
                 raise InputError(f"the carried labels are {w}x{h}, a follower of these frames works at "
                                  f"{self._size.shape[1]}x{self._size.shape[0]}: they come from another stream")
             self._carry = carry
+        else:  # right after the key frame: its own carry, whatever was stepped since
+            self._carry = self._key_carry
         self._frame = frame
 
     @property

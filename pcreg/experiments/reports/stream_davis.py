@@ -45,7 +45,8 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
                    "published figures are over whole sequences, and the two do not compare.\n")
     if results["config"].get("key_every"):
         footer += (f"\nA key frame every {results['config']['key_every']} frames (--key-every): those frames' masks "
-                   "were given, and they are not scored.\n")
+                   "were given, and they are not scored (but for one some method cannot start from, its mask of no object, no "
+                   "background, or with pcreg_object an object too small to follow: it is no key frame, and is scored).\n")
     return header, rows, footer
 
 

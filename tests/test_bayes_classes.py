@@ -92,6 +92,19 @@ def test_two_classes_scores_are_the_log_odds():
     np.testing.assert_array_equal(np.argmax(s, axis=-1).astype(np.uint8) == 1, clf.decision_function(img) > 0)
 
 
+def test_class_scores_of_the_row_feature_alone():
+    # the row is one value a row: the scores are each row's, the same along it (no image feature to read)
+    image, labels = _eleven()
+    labels = (np.arange(labels.shape[0])[:, None] * 11 // labels.shape[0]).repeat(labels.shape[1], 1).astype(np.uint8)
+    clf = NaiveBayesPixelClassifier("row", classes=CAMVID11).fit(image, labels)
+    s = clf.class_scores(image)
+    assert s.shape == image.shape[:2] + (len(clf.classes_),) and s.dtype == np.float32
+    np.testing.assert_array_equal(s, s[:, :1].repeat(s.shape[1], axis=1))
+    np.testing.assert_allclose(s - s.max(axis=2, keepdims=True), clf.log_posteriors(image)
+                               - clf.log_posteriors(image).max(axis=2, keepdims=True), atol=1e-3)
+    np.testing.assert_array_equal(clf.classes_[np.argmax(s, axis=2)], clf.predict(image))
+
+
 def test_confusion_matrix_over_a_table():
     t = np.array([[0, 3, 11], [10, 3, 3]])
     p = np.array([[0, 4, 5], [10, 3, 2]])

@@ -113,6 +113,23 @@ def test_confusion_matrix_over_a_table():
     assert confusion_matrix(p, t, classes=CAMVID11, exclude_unknown=False).sum() == 6
 
 
+def test_error_rate_takes_a_table_by_name_and_refuses_values_that_are_no_class():
+    from pcreg import error_rate
+
+    t = np.array([[0, 3, 11], [10, 3, 3]], np.uint8)
+    p = np.array([[0, 4, 5], [10, 3, 2]], np.uint8)
+    assert error_rate(p, t, classes="camvid11") == error_rate(p, t, classes=CAMVID11) == 40.0
+    gaps = ClassTable((LabelClass(0, "road", (1, 2, 3)), LabelClass(5, "car", (4, 5, 6)),
+                       LabelClass(200, "void", (0, 0, 0))), 200)
+    assert error_rate(np.array([[0, 5, 5]]), np.array([[0, 5, 200]]), classes=gaps) == 0.0
+    with pytest.raises(InputError, match="truth label 3 is not a class id"):  # was scored as a known pixel
+        error_rate(np.array([[0, 5, 5]]), np.array([[0, 3, 5]]), classes=gaps)
+    with pytest.raises(InputError, match="predicted label 7 is not a class id"):
+        error_rate(np.array([[0, 7, 5]]), np.array([[0, 5, 5]]), classes=gaps)
+    with pytest.raises(InputError, match="neither a built-in class table"):
+        error_rate(p, t, classes="no such table")
+
+
 def test_learning_refits_in_the_same_table():
     from pcreg.pipeline.learning import STREAM_LEARNING, Learner
 

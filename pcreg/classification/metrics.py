@@ -80,6 +80,25 @@ def confusion_matrix(predicted: np.ndarray, truth: np.ndarray, *, mask: np.ndarr
     return counts.reshape(n_labels, n_labels).astype(np.int64)
 
 
+def check_confidence(confidence, shape: tuple, name: str = "confidence") -> np.ndarray:
+    """``confidence`` as a float32 array of ``shape`` (the labels'), each value the probability that a label is
+    right, in [0, 1]; else an :class:`InputError` naming ``name``: a NaN, or a value outside [0, 1], would make
+    every figure read from it (a predicted IoU, a calibration error) NaN, empty or out of its range."""
+    c = np.asarray(confidence)
+    if not (np.issubdtype(c.dtype, np.floating) or np.issubdtype(c.dtype, np.integer)) or c.dtype == np.bool_:
+        raise InputError(f"{name} must be a float array of probabilities in [0, 1], got {c.dtype}")
+    if c.shape != tuple(shape):
+        raise InputError(f"{name} {c.shape} and the labels {tuple(shape)} differ in shape")
+    c = c.astype(np.float32, copy=False)
+    if c.size:
+        lo, hi = float(c.min()), float(c.max())
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            raise InputError(f"{name} holds NaN or infinite values: no probability of a label being right")
+        if lo < 0.0 or hi > 1.0:
+            raise InputError(f"{name} holds {lo if lo < 0 else hi:g}: a probability is in [0, 1]")
+    return c
+
+
 def error_from_confusion(confusion: np.ndarray) -> float:
     """Error rate in percent from a square (N, N) confusion matrix; NaN when it counts no pixel."""
     confusion = np.asarray(confusion)

@@ -58,6 +58,17 @@ def test_camvid_mapping_agrees_with_the_table():
     assert CAMVID_MAPPING[CAMVID11.id_of("road")] == 0 and CAMVID_MAPPING[CAMVID11.unknown] == 2
 
 
+def test_a_label_mapping_takes_whole_ids_each_once():
+    from pcreg.classes.mappings import mapping_lut
+
+    lut = mapping_lut({7: 0, "9": 1, 11.0: 2, np.uint8(12): 1})  # a JSON object's keys are text
+    assert lut[[7, 9, 11, 12, 13]].tolist() == [0, 1, 2, 1, 255]
+    # 1.7 was read as raw id 1, and True as 1 again, the last of the two winning without a word
+    for bad, needle in (({1.7: 1}, "1.7"), ({0: 0.5}, "0.5"), ({True: 0}, "True"), ({1: 0, "1": 1}, "twice")):
+        with pytest.raises(InputError, match=needle):
+            mapping_lut(bad)
+
+
 @pytest.mark.parametrize("bad, needle", [
     (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 6))), "1 known class"),  # fewer than two known
     (((0, "a", (1, 2, 3)), (0, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "share the id"),

@@ -197,7 +197,10 @@ def read_review(folder: str | Path) -> RunReview:
         errors.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
         iou = None if t in keys else steps[n].get("predicted_iou")
         try:
-            ious.append({int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None)
+            read = {int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None
+            if read is not None and not all(0.0 <= v <= 1.0 for v in read.values()):  # NaN too: an IoU is in [0, 1]
+                raise ValueError
+            ious.append(read)
         except (ValueError, TypeError):
             raise InputError(f"{steps_path}: the step of {n} has a predicted_iou pcreg run did not write") from None
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),

@@ -195,15 +195,23 @@ def read_review(folder: str | Path) -> RunReview:
     for t, n in enumerate(names):
         e = None if t in keys else steps[n].get("predicted_error")
         errors.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
-        iou = None if t in keys else steps[n].get("predicted_iou")
-        try:
-            ious.append({int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None)
-        except (ValueError, TypeError):
-            raise InputError(f"{steps_path}: the step of {n} has a predicted_iou pcreg run did not write") from None
+        ious.append(None if t in keys else _predicted_iou(steps[n].get("predicted_iou"), steps_path, n))
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
                      _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
                      tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None, state.get("gaps"),
                      state.get("damaged"), state.get("notes"))
+
+
+def _predicted_iou(iou, steps_path: Path, name: str) -> dict[int, float] | None:
+    """A step's ``predicted_iou`` as read from ``steps_path`` (class id: IoU in [0, 1]; None when it has none); an
+    :class:`InputError` naming the frame ``name`` for one pcreg run did not write (a NaN among them)."""
+    try:
+        read = {int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None
+        if read is not None and not all(0.0 <= v <= 1.0 for v in read.values()):  # NaN too
+            raise ValueError
+    except (ValueError, TypeError):
+        raise InputError(f"{steps_path}: the step of {name} has a predicted_iou pcreg run did not write") from None
+    return read
 
 
 def _moved(frames, t: int, name: str) -> bool:

@@ -59,6 +59,15 @@ def test_feature_planes_values(frames):
     assert np.array_equal(feature_matrix(img, "rgb+row"), feature_planes(img, "rgb+row").reshape(-1, 4))
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (1, 2), (2, 1), (1, 9)])
+def test_features_of_an_image_of_one_row_or_column(shape):
+    # OpenCV reads a 1x1 array beside a number as a scalar of 4: the texture plane of a 1x1 image came out (4, 1)
+    img = np.random.default_rng(0).integers(0, 256, shape + (3,), dtype=np.uint8)
+    planes = feature_planes(img, "rgb+hsv+lab+texture+row+thesis")
+    assert planes.shape == shape + (12,)
+    assert feature_planes(np.full(shape + (3,), 90, np.uint8), "texture").max() == 0
+
+
 def test_features_do_not_modify_the_image(frames):
     img = np.array(frames[0].image)
     before = img.copy()

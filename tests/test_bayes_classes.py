@@ -92,12 +92,42 @@ def test_two_classes_scores_are_the_log_odds():
     np.testing.assert_array_equal(np.argmax(s, axis=-1).astype(np.uint8) == 1, clf.decision_function(img) > 0)
 
 
+def test_class_scores_of_the_row_feature_alone():
+    # the row is one value a row: the scores are each row's, the same along it (no image feature to read)
+    image, labels = _eleven()
+    labels = (np.arange(labels.shape[0])[:, None] * 11 // labels.shape[0]).repeat(labels.shape[1], 1).astype(np.uint8)
+    clf = NaiveBayesPixelClassifier("row", classes=CAMVID11).fit(image, labels)
+    s = clf.class_scores(image)
+    assert s.shape == image.shape[:2] + (len(clf.classes_),) and s.dtype == np.float32
+    np.testing.assert_array_equal(s, s[:, :1].repeat(s.shape[1], axis=1))
+    np.testing.assert_allclose(s - s.max(axis=2, keepdims=True), clf.log_posteriors(image)
+                               - clf.log_posteriors(image).max(axis=2, keepdims=True), atol=1e-3)
+    np.testing.assert_array_equal(clf.classes_[np.argmax(s, axis=2)], clf.predict(image))
+
+
 def test_confusion_matrix_over_a_table():
     t = np.array([[0, 3, 11], [10, 3, 3]])
     p = np.array([[0, 4, 5], [10, 3, 2]])
     conf = confusion_matrix(p, t, classes=CAMVID11)
     assert conf.shape == (12, 12) and conf.sum() == 5 and conf[3, 4] == 1 and conf[3, 3] == 1
     assert confusion_matrix(p, t, classes=CAMVID11, exclude_unknown=False).sum() == 6
+
+
+def test_error_rate_takes_a_table_by_name_and_refuses_values_that_are_no_class():
+    from pcreg import error_rate
+
+    t = np.array([[0, 3, 11], [10, 3, 3]], np.uint8)
+    p = np.array([[0, 4, 5], [10, 3, 2]], np.uint8)
+    assert error_rate(p, t, classes="camvid11") == error_rate(p, t, classes=CAMVID11) == 40.0
+    gaps = ClassTable((LabelClass(0, "road", (1, 2, 3)), LabelClass(5, "car", (4, 5, 6)),
+                       LabelClass(200, "void", (0, 0, 0))), 200)
+    assert error_rate(np.array([[0, 5, 5]]), np.array([[0, 5, 200]]), classes=gaps) == 0.0
+    with pytest.raises(InputError, match="truth label 3 is not a class id"):  # was scored as a known pixel
+        error_rate(np.array([[0, 5, 5]]), np.array([[0, 3, 5]]), classes=gaps)
+    with pytest.raises(InputError, match="predicted label 7 is not a class id"):
+        error_rate(np.array([[0, 7, 5]]), np.array([[0, 5, 5]]), classes=gaps)
+    with pytest.raises(InputError, match="neither a built-in class table"):
+        error_rate(p, t, classes="no such table")
 
 
 def test_learning_refits_in_the_same_table():

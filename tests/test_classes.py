@@ -58,6 +58,35 @@ def test_camvid_mapping_agrees_with_the_table():
     assert CAMVID_MAPPING[CAMVID11.id_of("road")] == 0 and CAMVID_MAPPING[CAMVID11.unknown] == 2
 
 
+def test_a_class_name_holding_colour_words_leaves_a_grey_labels_refusal_one_line():
+    # the colour image's refusal was told apart by its words, "colour (": a grey label image's refusal that named
+    # a class "kerb colour (red)" was taken for a colour image's and read as one (IndexError, exit 1)
+    from pcreg.classes.keys import decode_key_labels
+
+    table = ClassTable((LabelClass(0, "kerb colour (red)", (1, 2, 3)), LabelClass(1, "road", (4, 5, 6)),
+                        LabelClass(2, "void", (0, 0, 0))), 2)
+    grey = np.zeros((4, 4), np.uint8)
+    assert decode_key_labels(cv2.imencode(".png", grey)[1].tobytes(), "k.png", table).max() == 0
+    grey[0, 0] = 7
+    with pytest.raises(InputError, match="k.png: label value 7 is not a class id"):
+        decode_key_labels(cv2.imencode(".png", grey)[1].tobytes(), "k.png", table)
+    rgb = np.zeros((4, 4, 3), np.uint8)  # a colour of no class, still read as grey when its channels agree
+    rgb[0, 0] = (9, 9, 8)
+    with pytest.raises(InputError, match=r"colour \(8, 9, 9\) \(at x=0, y=0\) is no class's colour"):
+        decode_key_labels(cv2.imencode(".png", rgb)[1].tobytes(), "k.png", table)
+
+
+def test_a_label_mapping_takes_whole_ids_each_once():
+    from pcreg.classes.mappings import mapping_lut
+
+    lut = mapping_lut({7: 0, "9": 1, 11.0: 2, np.uint8(12): 1})  # a JSON object's keys are text
+    assert lut[[7, 9, 11, 12, 13]].tolist() == [0, 1, 2, 1, 255]
+    # 1.7 was read as raw id 1, and True as 1 again, the last of the two winning without a word
+    for bad, needle in (({1.7: 1}, "1.7"), ({0: 0.5}, "0.5"), ({True: 0}, "True"), ({1: 0, "1": 1}, "twice")):
+        with pytest.raises(InputError, match=needle):
+            mapping_lut(bad)
+
+
 @pytest.mark.parametrize("bad, needle", [
     (((0, "a", (1, 2, 3)), (1, "b", (4, 5, 6))), "1 known class"),  # fewer than two known
     (((0, "a", (1, 2, 3)), (0, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "share the id"),

@@ -13,6 +13,20 @@ from pcreg.experiments.stream import run_clip
 CAMVID = Path(__file__).resolve().parents[2] / "shared" / "data" / "camvid"
 
 
+@pytest.mark.parametrize("bad", [np.nan, 1.5, -0.1])
+def test_calibration_refuses_a_confidence_that_is_no_probability(bad):
+    # NaN or -0.1 raised numpy's "'list' argument must have no negative elements"; 1.5 gave 383 levels, and
+    # calibration() an IndexError on them
+    from pcreg.errors import InputError
+    from pcreg.experiments.stream_methods import calibration, calibration_counts
+
+    labels, truth = np.zeros((2, 2), np.uint8), np.array([[0, 1], [0, 2]], np.uint8)
+    good = calibration_counts(np.full((2, 2), 0.9, np.float32), labels, truth)
+    assert good.shape == (2, 256) and good.sum() == 3 and calibration(good)["error"] == pytest.approx(100 / 3)
+    with pytest.raises(InputError, match="confidence"):
+        calibration_counts(np.array([[0.9, bad], [0.5, 1.0]], np.float32), labels, truth)
+
+
 def test_evaluate_stream_writes_every_table_and_resumes(tmp_path, capsys):
     out = tmp_path / "out"
     args = ["evaluate", "stream", "--frames", "4", "--size", "160x120", "--data", "synthetic:syn1a,syn2b",

@@ -29,6 +29,16 @@ def test_prior_from_labels_values():
         prior_from_labels(lab, pi=1.0)
 
 
+def test_prior_from_labels_refuses_values_that_are_no_label():
+    # 256 and 257 (16-bit labels) wrapped to 0 and 1, certain ground and obstacle; 0.9 was cut to 0, ground
+    np.testing.assert_array_equal(prior_from_labels(np.array([[0, 1, 2]], np.int64), pi=0.25), [[0.0, 1.0, 0.25]])
+    np.testing.assert_array_equal(prior_from_labels(np.array([[False, True]]), pi=0.25), [[0.0, 1.0]])
+    for bad, needle in ((np.array([[0, 256]], np.uint16), "256"), (np.array([[-1, 1]], np.int32), "-1"),
+                        (np.array([[0.9, 1.0]]), "float64")):
+        with pytest.raises(InputError, match=needle):
+            prior_from_labels(bad, pi=0.3)
+
+
 def test_smooth_prior_is_bounded_and_keeps_inputs():
     lab = _labels()
     q = prior_from_labels(lab, pi=0.3)

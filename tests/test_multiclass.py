@@ -91,6 +91,18 @@ def test_predicted_iou_counts_misses_by_the_runner_up():
     assert iou[1] == pytest.approx(2.0 / 2.5)  # tp 2, a miss of 0.5
 
 
+@pytest.mark.parametrize("bad", [np.nan, 1.5, -0.25, np.inf])
+def test_predicted_iou_refuses_a_confidence_that_is_no_probability(bad):
+    # a NaN gave {} (every class left out), 1.5 an IoU above 1: figures that say nothing, returned as if they did
+    labels = np.array([[0, 0, 1, 1]], np.uint8)
+    second = np.array([[1, 1, 0, 0]], np.uint8)
+    conf = np.array([[1.0, bad, 1.0, 1.0]], np.float32)
+    with pytest.raises(InputError, match="confidence"):
+        multiclass.predicted_iou(labels, conf, second, [0, 1])
+    with pytest.raises(InputError, match="differ in shape"):
+        multiclass.predicted_iou(labels, np.ones((1, 3), np.float32), second, [0, 1])
+
+
 def _camvid_folder(shared_data, tmp_path, n=5, keys=(0,)):
     import shutil
 

@@ -293,13 +293,12 @@ def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | No
     """Class ids of ``table`` (:func:`~pcreg.classes.png.decode_label_png`), a grey image saved in colour
     read as grey, a photograph refused with what labels are."""
     from ..formats import decode_image
-    from .png import decode_label_png, is_palette_png
+    from .png import decode_label_png
+    from .table import NoClassColour
 
     try:
         return decode_label_png(data, name, table, limit=limit)
-    except InputError as exc:
-        if is_palette_png(data) or "colour (" not in str(exc):
-            raise
+    except NoClassColour as exc:  # a colour image's colour that is no class's (never a palette's or a grey value)
         img = decode_image(data, name, limit=limit)
         if img.ndim == 3 and (img[:, :, 1:3] == img[:, :, :1]).all():
             return table.check_labels(img[:, :, 0], name)

@@ -45,15 +45,30 @@ def mapping_lut(mapping: str | Mapping[int, int] | None) -> np.ndarray | None:
     if not isinstance(mapping, Mapping):
         raise InputError(f"mapping must be 'camvid', 'davis', a dict raw id -> label or None, got {type(mapping).__name__}")
     lut = np.full(256, 255, dtype=np.uint8)
+    given: dict[int, object] = {}
     for raw, lab in mapping.items():
-        try:
-            r, c = int(raw), int(lab)
-        except (TypeError, ValueError, OverflowError):
-            r, c = -1, -1
-        if not (0 <= r <= 255) or c not in (0, 1, 2):
-            raise InputError(f"mapping entry {raw!r} -> {lab!r}: raw ids are 0..255, labels 0, 1 or 2")
+        r, c = _whole(raw), _whole(lab)
+        if r is None or c is None or not (0 <= r <= 255) or c not in (0, 1, 2):
+            raise InputError(f"mapping entry {raw!r} -> {lab!r}: raw ids are whole numbers 0..255, labels 0, 1 or 2")
+        if r in given:
+            raise InputError(f"mapping gives raw id {r} twice ({given[r]!r} and {raw!r})")
+        given[r] = raw
         lut[r] = c
     return lut
+
+
+def _whole(value) -> int | None:
+    """``value`` as an int when it is a whole number (an int, a float without a fraction, or its decimal digits as
+    text, as a JSON object's keys are); None otherwise (a fraction, a bool, anything else)."""
+    if isinstance(value, (bool, np.bool_)):
+        return None
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return int(value) if np.isfinite(value) and float(value).is_integer() else None
+    if isinstance(value, str) and value.strip().isascii() and value.strip().isdigit():
+        return int(value.strip()) if len(value.strip()) <= 3 else 256
+    return None
 
 
 #: A DAVIS mask's values as pcreg's labels: 0 the background (0), anything else the object (1).

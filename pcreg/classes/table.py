@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import InputError
 from ..validation import short_repr
 
-__all__ = ["MAX_CLASSES", "LabelClass", "ClassTable", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree",
+__all__ = ["MAX_CLASSES", "LabelClass", "ClassTable", "NoClassColour", "LAGR", "CAMVID11", "DAVIS", "TABLES", "DEFAULT_TABLE", "check_tables_agree",
            "listed_name", "colour_ids"]
 
 RGB = tuple[int, int, int]
@@ -108,6 +108,11 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
             any(isinstance(v, bool) or float(v) != int(v) for v in c.colour):
         raise InputError(f"{where}: class {c.name!r} has colour {short_repr(c.colour)}, not three integers 0..255")
     return LabelClass(int(c.id), c.name, (colour[0], colour[1], colour[2]))
+
+
+class NoClassColour(InputError):
+    """A colour label image holds a colour that is no class's of the table (:meth:`ClassTable.ids_from_colours`):
+    told apart from the other refusals by its type, never by its words (a class's name may hold any)."""
 
 
 @dataclass(frozen=True)
@@ -259,7 +264,7 @@ class ClassTable:
         labels, miss = colour_ids(rgb, (c.colour for c in self.classes), (c.id for c in self.classes))
         if miss is not None:
             x, y, colour = miss
-            raise InputError(f"{where}: colour {colour} (at x={x}, y={y}) is no class's colour ({self.describe()})")
+            raise NoClassColour(f"{where}: colour {colour} (at x={x}, y={y}) is no class's colour ({self.describe()})")
         return labels
 
     # -- comparing ---------------------------------------------------------------------------------

@@ -36,10 +36,11 @@ def _class_sums_py(planes, tables, row, out, first, stride):
 _class_sums = njit(cache=True, nogil=True)(_class_sums_py)
 
 
-def class_sums(groups, tables: np.ndarray, bias: np.ndarray) -> np.ndarray:
+def class_sums(groups, tables: np.ndarray, bias: np.ndarray, *, width: int | None = None) -> np.ndarray:
     """(H, W, K) float32: for each class ``k``, ``bias[k]`` plus the sum over the features of
     ``tables[k, f, x_f]`` (``tables`` (K, F, 256)), the features as :func:`~pcreg.classification.features.
-    frame_features` gives them (``groups``: ``(name, planes)``, a ``row`` feature one value per row)."""
+    frame_features` gives them (``groups``: ``(name, planes)``, a ``row`` feature one value per row). ``width``:
+    the image's, which the ``row`` feature alone does not give (each row's sums, the same along it)."""
     k = tables.shape[0]
     image_planes, image_tables = [], []
     row = None
@@ -54,8 +55,11 @@ def class_sums(groups, tables: np.ndarray, bias: np.ndarray) -> np.ndarray:
         image_planes.append(planes.reshape(planes.shape[0], planes.shape[1], c))
         image_tables.append(tables[:, f:f + c, :])
         f += c
-    if not image_planes:
-        raise ValueError("class_sums needs at least one image feature")  # a caller's bug: rgb is always there
+    if not image_planes:  # the row alone: one vector a row
+        if row is None or width is None:
+            raise ValueError("class_sums needs an image feature, or the row and the image's width")  # a caller's bug
+        base = np.ascontiguousarray(row + np.asarray(bias, np.float32), dtype=np.float32)
+        return np.ascontiguousarray(np.broadcast_to(base[:, None, :], (base.shape[0], width, k)))
     import cv2
 
     # cv2.merge, not np.concatenate: numpy copies a few bytes at a time along the last axis (4 ms at 640x480)

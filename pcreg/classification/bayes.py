@@ -375,9 +375,10 @@ class NaiveBayesPixelClassifier:
         from ._score_kernels import class_sums
 
         self._check_fitted()
+        width = check_image(image).shape[1]  # a PreparedFrame's rgb: its features stay kept with it
         if groups is None:
             groups = self.feature_groups(image)
-        return class_sums(groups, self._tables32, np.asarray(self._log_prior, np.float32))
+        return class_sums(groups, self._tables32, np.asarray(self._log_prior, np.float32), width=width)
 
     def _score_planes(self, image, groups) -> list[np.ndarray]:
         self._check_fitted()

@@ -129,7 +129,8 @@ def feature_groups(image: np.ndarray, features: str | Iterable[str] = DEFAULT_FE
             k = (TEXTURE_WINDOW, TEXTURE_WINDOW)
             mean = cv2.boxFilter(gray, cv2.CV_32F, k)
             mean_sq = cv2.sqrBoxFilter(gray, cv2.CV_32F, k)
-            var = cv2.max(cv2.subtract(mean_sq, cv2.multiply(mean, mean)), 0.0)
+            # np.maximum, not cv2.max: OpenCV reads a 1x1 array beside a number as a scalar (a (4, 1) result)
+            var = np.maximum(cv2.subtract(mean_sq, cv2.multiply(mean, mean)), np.float32(0.0))
             # 2 x std, rounded and saturated to 8 bits (values are non-negative, so abs is a no-op)
             planes = cv2.convertScaleAbs(cv2.sqrt(var), alpha=2.0).reshape(image.shape[0], image.shape[1], 1)
         else:  # row

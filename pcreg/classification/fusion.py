@@ -112,6 +112,12 @@ def prior_from_labels(labels: np.ndarray, *, pi: float) -> np.ndarray:
     labels = np.asarray(labels)
     if labels.ndim != 2:
         raise InputError(f"labels must be (H, W), got {labels.shape}")
+    if labels.dtype != np.uint8:  # cast below: a 16-bit 256 would wrap to 0 (certain ground), a 0.9 be cut to 0
+        if not (np.issubdtype(labels.dtype, np.integer) or labels.dtype == np.bool_):
+            raise InputError(f"labels must be integers (0 ground, 1 obstacle, 2 unknown), got {labels.dtype}")
+        if labels.size and (int(labels.min()) < 0 or int(labels.max()) > 255):
+            bad = int(labels.min()) if int(labels.min()) < 0 else int(labels.max())
+            raise InputError(f"label value {bad} is no label (0 ground, 1 obstacle, 2 unknown)")
     lut = np.array([0.0, 1.0, check_pi(pi)] + [check_pi(pi)] * 253, dtype=np.float32)
     return lut[labels.astype(np.uint8, copy=False)]
 

@@ -47,9 +47,11 @@ CONFIDENCE_LEVELS = 256
 def calibration_counts(confidence: np.ndarray, labels: np.ndarray, truth: np.ndarray, unknown: int = 2) -> np.ndarray:
     """(2, 256) int64: over the known pixels (truth not ``unknown``, the class table's unknown id), how many
     labels were right (row 0) and wrong (row 1) at each 8-bit level of their confidence
-    (``round(255 * confidence)``)."""
+    (``round(255 * confidence)``; a confidence NaN or outside [0, 1] is an :class:`~pcreg.errors.InputError`)."""
+    from ..classification.metrics import check_confidence
+
     known = truth != unknown
-    level = np.rint(np.asarray(confidence, np.float32)[known] * (CONFIDENCE_LEVELS - 1)).astype(np.intp)
+    level = np.rint(check_confidence(confidence, np.shape(truth))[known] * (CONFIDENCE_LEVELS - 1)).astype(np.intp)
     wrong = labels[known] != truth[known]
     return np.stack([np.bincount(level[~wrong], minlength=CONFIDENCE_LEVELS),
                      np.bincount(level[wrong], minlength=CONFIDENCE_LEVELS)]).astype(np.int64)

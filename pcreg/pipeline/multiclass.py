@@ -305,8 +305,14 @@ def predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray
     ``c``, so k's expected true positives are the sum of ``c`` over its pixels and its false positives
     the sum of ``1 - c``; a wrong label's truth is taken to be its runner-up (``second``), so k's expected
     misses are the sum of ``1 - c`` over the pixels whose runner-up is k. Classes with no pixel and no
-    miss are left out."""
-    tp, fp, fn = iou_sums(labels, confidence, second)
+    miss are left out. ``labels``, ``confidence`` (in [0, 1]) and ``second`` of one shape, else an
+    :class:`~pcreg.errors.InputError`."""
+    from ..classification.metrics import check_confidence
+
+    lab, sec = np.asarray(labels), np.asarray(second)
+    if lab.shape != sec.shape:
+        raise InputError(f"the runner-up classes {sec.shape} and the labels {lab.shape} differ in shape")
+    tp, fp, fn = iou_sums(lab, check_confidence(confidence, lab.shape), sec)
     out = {}
     for k in classes:
         denom = tp[k] + fp[k] + fn[k]

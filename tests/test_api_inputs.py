@@ -85,6 +85,25 @@ def test_a_negative_label_is_named_in_the_refusal(dtype):
         check_labels(labels, labels.shape)
 
 
+def test_colour_key_labels_given_as_an_array_are_refused_not_read_by_their_red_channel():
+    """An (H, W, 3) colour label image given to the stream was read as its red channel's values: CamVid's car
+    (64, 0, 128) and road (128, 64, 128) became ids 64 and 128, or ground where red is 0, without a word.
+    Ids saved as grey in three channels, with or without an alpha, are read as before."""
+    ids = np.zeros((16, 16), np.uint8)
+    ids[4:, :] = 1
+    colour = np.zeros((16, 16, 3), np.uint8)
+    colour[4:, :] = (0, 0, 1)
+    with pytest.raises(InputError, match=r"^labels of shape \(16, 16, 3\) whose channels differ: a colour label image"):
+        check_labels(colour, (16, 16))
+    image = np.random.default_rng(0).integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    with pytest.raises(InputError, match="whose channels differ"):
+        pcreg.Propagator.from_key_frame(image, colour)
+    grey = np.repeat(ids[:, :, None], 3, axis=2)
+    np.testing.assert_array_equal(check_labels(grey, (16, 16)), ids)
+    with_alpha = np.dstack([grey, np.full((16, 16), 255, np.uint8)])
+    np.testing.assert_array_equal(check_labels(with_alpha, (16, 16)), ids)
+
+
 @pytest.mark.parametrize("dtype, fill", [(np.float32, 1e300), (np.float32, -1e39), (np.float16, 1e6)])
 def test_a_fill_beyond_a_float_arrays_range_is_refused(dtype, fill):
     """The border was filled with NaN (float32, 1e300) or inf (float16), silently."""

@@ -58,6 +58,9 @@ def test_the_tolerance_is_the_ceiling_of_0_008_of_the_diagonal():
     for bad in (2.5, -0.008, float("nan"), float("inf")):  # 2.5: the benchmark's disk would be an even square
         with pytest.raises(InputError, match="boundary tolerance"):
             boundary_f(_band(5), _band(5), bound_th=bad)
+    for flag in (True, np.True_):  # a flag given where a tolerance goes was taken as 1 px
+        with pytest.raises(InputError, match="boundary tolerance"):
+            boundary_f(_band(5), _band(5), bound_th=flag)
 
 
 def test_boundary_f_matches_within_the_tolerance_and_counts_by_hand():

@@ -449,7 +449,10 @@ def check_labels(labels, shape, table=None) -> np.ndarray:
     check_unmasked(labels, "labels")
     lab = np.asarray(labels)
     if lab.ndim == 3 and lab.shape[2] in (1, 3, 4):
-        lab = lab[:, :, 0]
+        if lab.shape[2] > 1 and not (np.array_equal(lab[:, :, 0], lab[:, :, 1]) and np.array_equal(lab[:, :, 0], lab[:, :, 2])):
+            raise InputError(f"labels of shape {lab.shape} whose channels differ: a colour label image, not class ids; "
+                             "give (H, W) ids, or the colours' ids by the class table (ClassTable.ids_from_colours)")
+        lab = lab[:, :, 0]  # ids saved as grey in three channels (and an alpha)
     if lab.ndim != 2:
         raise InputError(f"labels must be an (H, W) array, got shape {lab.shape}")
     if shape is not None and lab.shape != tuple(shape):

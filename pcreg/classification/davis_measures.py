@@ -82,7 +82,8 @@ def boundary_tolerance(shape: tuple[int, ...], bound_th: float = BOUNDARY_TOLERA
     """The matching distance in px: ``bound_th`` itself when it is 1 or more (a whole number of px: the
     benchmark's disk of a radius like 2.5 is an even square, centred between pixels, which a dilation here
     would not reproduce, so it is refused), else ``ceil(bound_th * sqrt(H² + W²))`` (8 px at 854x480)."""
-    if not (isinstance(bound_th, (int, float, np.integer, np.floating)) and math.isfinite(bound_th) and bound_th >= 0):
+    if not (isinstance(bound_th, (int, float, np.integer, np.floating)) and not isinstance(bound_th, (bool, np.bool_))
+            and math.isfinite(bound_th) and bound_th >= 0):
         raise InputError(f"the boundary tolerance must be a number of 0 or more, got {bound_th!r}")
     if bound_th >= 1:
         if bound_th != int(bound_th):

@@ -84,6 +84,17 @@ def test_bad_images_and_weights():
         feature_planes(np.zeros((4, 4, 3), np.uint8), "thesis", weights=(0, 0, 0))
 
 
+def test_thesis_weights_whose_sum_is_beyond_float64_are_scaled_not_zeroed():
+    """Three weights of 1e308 summed to inf and became (0, 0, 0): the thesis feature of every pixel 0, silently."""
+    from pcreg.classification.features import normalise_weights
+
+    assert normalise_weights((1e308, 1e308, 1e308)) == pytest.approx((1 / 3, 1 / 3, 1 / 3))
+    assert normalise_weights((1e308, 1e308, 0)) == pytest.approx((0.5, 0.5, 0.0))
+    img = np.random.default_rng(0).integers(0, 256, (8, 8, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(feature_planes(img, "thesis", weights=(1e308,) * 3),
+                                  feature_planes(img, "thesis", weights=(1, 1, 1)))
+
+
 # -- classifier vs scikit-learn ----------------------------------------------------------------------
 
 @pytest.mark.parametrize("features", ["thesis", "rgb", "hsv", "lab", "texture", "row", "rgb+hsv+row",

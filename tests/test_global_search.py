@@ -100,6 +100,18 @@ def test_photometric_agreement():
     assert abs(photometric_agreement(np.eye(3), gray, noise, level=0)) < 0.1
 
 
+def test_photometric_agreement_of_an_affine_homography_scaled_is_the_same():
+    """A homography is the same map times any number: an affine one whose last entry is not 1 (2 T) was warped by
+    its top rows alone, twice the scale and shift, and read as no alignment (0.01 for 2 T, 1.0 for T)."""
+    gray = cv2.cvtColor(TEX, cv2.COLOR_RGB2GRAY)
+    T = rigid_about_centre(TEX.shape, 0.0, 4.0, -3.0)
+    moving = cv2.warpAffine(gray, np.linalg.inv(T)[:2], gray.shape[::-1], flags=cv2.INTER_LINEAR)
+    right = photometric_agreement(T, gray, moving, level=0)
+    assert right > 0.9
+    for c in (2.0, -1.0, 0.5):
+        assert photometric_agreement(c * T, gray, moving, level=0) == pytest.approx(right, abs=1e-6)
+
+
 @pytest.mark.parametrize("p", [2e-4, 5e-4, 1e-3])
 def test_photometric_agreement_warps_by_a_homographys_perspective_part(p):
     """The moving image is the texture under a homography: its own transform aligns the intensities (NCC near 1),

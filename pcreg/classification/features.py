@@ -67,8 +67,11 @@ def normalise_weights(weights: Sequence[float] | None) -> tuple[float, float, fl
         w = np.asarray(weights, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
         raise InputError(f"thesis weights must be 3 non-negative numbers, got {weights!r:.60}") from None
-    if w.shape != (3,) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+    if w.shape != (3,) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.max() <= 0:
         raise InputError(f"thesis weights must be 3 non-negative numbers, not all zero (got {list(np.ravel(weights))})")
+    with np.errstate(over="ignore"):
+        if not np.isfinite(w.sum()):  # each finite, their sum beyond float64: scaled by the largest first
+            w = w / w.max()
     w = w / w.sum()
     return (float(w[0]), float(w[1]), float(w[2]))
 

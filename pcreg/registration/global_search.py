@@ -351,7 +351,7 @@ def photometric_agreement(T: np.ndarray, reference_gray: np.ndarray, moving_gray
     Tl = np.linalg.inv(S) @ T @ S
     h, w = reference_gray.shape
     valid = np.full(moving_gray.shape, 255, np.uint8) if moving_valid is None else moving_valid
-    if T[2, 0] == 0 and T[2, 1] == 0:
+    if T[2, 0] == 0 and T[2, 1] == 0 and T[2, 2] == 1:  # a homography scaled by another last entry: warpPerspective
         warped = cv2.warpAffine(moving_gray, Tl[:2], (w, h), flags=cv2.INTER_LINEAR)
         wv = cv2.warpAffine(valid, Tl[:2], (w, h), flags=cv2.INTER_NEAREST) > 0
     else:  # a homography's perspective part too (its affine part alone misplaced the far side)

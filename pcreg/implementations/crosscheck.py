@@ -31,6 +31,7 @@ from .base import unconstrained as unconstrained  # re-exported: the test that m
 from .compare import (  # re-exported: the comparison of the rows, imported from here by the suite, tools and tests
     FIXED_POINT_TOLERANCE as FIXED_POINT_TOLERANCE,
     OBJECTIVE_ROTATION_DEG as OBJECTIVE_ROTATION_DEG,
+    OBJECTIVE_SCALE as OBJECTIVE_SCALE,
     OBJECTIVE_TRANSLATION as OBJECTIVE_TRANSLATION,
     REFERENCE as REFERENCE,
     STEP_TOLERANCE as STEP_TOLERANCE,

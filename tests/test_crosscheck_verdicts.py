@@ -1,0 +1,70 @@
+"""A cross-check's verdicts: the same poses of the same clouds agree, or not, in whatever unit the clouds are
+given and wherever they lie; a pose is judged by all it does to the cloud."""
+
+import numpy as np
+import pytest
+
+from pcreg.implementations.crosscheck import crosscheck_implementations
+
+
+@pytest.fixture
+def on_path(tmp_path, monkeypatch):
+    """tmp_path on sys.path (the modules written there importable), as the working directory."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_an_icp_that_never_moves_disagrees_in_every_unit(on_path):
+    """Clouds 1.7 units across, moved by 0.3% of that: an implementation that returns its initial guess disagrees.
+    The same clouds in units 1e4 times larger (1.7e-4 across: micrometres given in metres) agreed at the
+    fixed point (relative matrix difference 4e-7, the translation's error in the clouds' units), and
+    1e7 times larger at the step tolerance (4e-10)."""
+    (on_path / "lazy.py").write_text(
+        "def still(source, target, *, init, **kw):\n"
+        "    return init\n"
+        "still.comparability = 'fixed-point'\n"
+        "def still_step(source, target, *, init, **kw):\n"
+        "    return init\n")
+    tgt = np.random.default_rng(1).uniform(-0.5, 0.5, (500, 3))
+    shift = np.array([0.004, -0.003, 0.002])
+    seen = {}
+    for unit in (1.0, 1e-4, 1e-7):
+        r = crosscheck_implementations((tgt - shift) * unit, tgt * unit,
+                                       implementations=["py:lazy:still", "py:lazy:still_step"])
+        for name in ("py:lazy:still", "py:lazy:still_step"):
+            row = r.rows[name]
+            assert row["status"] == "ok" and row["agrees"] is False, (unit, name, row["matrix_relative_disagreement"])
+            seen.setdefault(name, []).append(row["matrix_relative_disagreement"])
+        assert r.rows["reference"]["agrees"] is True
+    for name, values in seen.items():  # the same poses of the same clouds differ as much in any unit
+        np.testing.assert_allclose(values, values[0], rtol=1e-6, err_msg=name)
+
+
+def test_a_step_implementation_far_from_the_origin_agrees_whatever_the_clouds_extent():
+    """Clouds 1e6 from the origin and 17 units across: Open3D's tensor ICP differs from the reference by a few
+    float64 roundings of the coordinates (2e-9 in the translation), and was judged to disagree in the step
+    tolerance, which allows 100 roundings of the largest coordinate over the extent (1.3e-9) but was
+    compared with the translation in the clouds' units."""
+    t = np.random.default_rng(0).uniform(size=(500, 3))
+    r = crosscheck_implementations(t * 10 + 1e6 + 0.01, t * 10 + 1e6, implementations=["open3d", "open3d-tensor"])
+    for name in ("open3d", "open3d-tensor"):
+        row = r.rows[name]
+        assert row["error"] is None and row["agrees"] is True, (name, row["matrix_relative_disagreement"])
+
+
+def test_an_objective_row_that_shrinks_the_cloud_disagrees():
+    """pycpd's "rigid" model fits a scale: with a cluster of extra target points about the centre it shrank the
+    cloud by 2% (points 0.37 from where the reference puts them, 1% of the diagonal), with its rotation 0.13 degrees
+    and its centroid 0.085 from the reference's, and its row agreed: the objective test saw no scale."""
+    pytest.importorskip("pycpd")
+    rng = np.random.default_rng(0)
+    src = rng.uniform(-10, 10, (400, 3))
+    tgt = np.vstack([src, rng.normal(scale=4.0, size=(300, 3))])
+    r = crosscheck_implementations(src, tgt, implementations=["pycpd"])
+    row = r.rows["pycpd"]
+    assert row["status"] == "ok" and abs(row["info"]["scale"] - 1) > 0.01, row["info"]
+    assert row["rotation_disagreement_deg"] <= 0.5 and row["centroid_disagreement"] <= 0.005 * r.settings["target_diagonal"]
+    assert row["agrees"] is False
+    assert row["scale_disagreement"] == pytest.approx(abs(row["info"]["scale"] - 1), rel=1e-9)
+    assert r.rows["reference"]["scale_disagreement"] == 0.0

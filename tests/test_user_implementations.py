@@ -230,3 +230,25 @@ def test_a_misspelt_module_function_or_program_is_bad_input_before_anything_runs
     assert p.returncode == 0, p.stderr
     row = json.loads(p.stdout)["implementations"]["py:mypkg.broken:align"]
     assert row["error"] == "cannot import mypkg.broken: ModuleNotFoundError: No module named 'nosuch_dependency_of_it'"
+
+
+def test_numpy_error_handling_and_warning_filters_a_function_sets_are_put_back(on_path):
+    """A function that called np.seterr(all="raise") (and one whose import made every warning an error) left it so:
+    pycpd, run next, failed with "underflow encountered in exp", its row blamed for the other's change, and the
+    caller's numpy raised on every underflow after the cross-check."""
+    pytest.importorskip("pycpd")
+    (on_path / "strict.py").write_text(
+        "import warnings\n"
+        "import numpy as np\n"
+        "warnings.simplefilter('error')\n"
+        "def f(source, target, *, init, **kw):\n"
+        "    np.seterr(all='raise')\n"
+        "    return init\n")
+    src, tgt = _clouds(3)
+    before = np.geterr()
+    r = crosscheck_implementations(src, tgt, implementations=["py:strict:f", "pycpd"],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    assert r.rows["py:strict:f"]["status"] == "ok"
+    assert r.rows["pycpd"]["error"] is None and r.rows["pycpd"]["status"] == "ok", r.rows["pycpd"]["error"]
+    assert np.geterr() == before
+    assert ("error", None, Warning, None, 0) not in warnings.filters  # what simplefilter("error") puts first

@@ -68,3 +68,20 @@ def test_an_objective_row_that_shrinks_the_cloud_disagrees():
     assert row["agrees"] is False
     assert row["scale_disagreement"] == pytest.approx(abs(row["info"]["scale"] - 1), rel=1e-9)
     assert r.rows["reference"]["scale_disagreement"] == 0.0
+
+
+@pytest.mark.parametrize("unit", [1.0, 1e-6])
+def test_the_reference_runs_to_convergence_in_any_unit(unit):
+    """The built-in 2-D partial-overlap case needs 137 iterations to converge. Given in units a million times larger
+    (clouds 2.4e-5 across), the reference "to convergence" stopped after 128 (an absolute 1e-12 on the inlier
+    RMSE's change, met before the pairs settled), and KISS-ICP's fixed point, the same as at unit 1, disagreed
+    with it (relative 0.003)."""
+    pytest.importorskip("kiss_icp")
+    from pcreg import ICPOptions
+    from pcreg.implementations.suite import builtin_cases
+
+    c = next(c for c in builtin_cases()[0] if c.name == "2d-partial")
+    r = crosscheck_implementations(c.source * unit, c.target * unit, implementations=["kiss-icp"],
+                                   options=ICPOptions(max_correspondence_distance=c.max_correspondence_distance * unit))
+    assert r.reference_at_convergence["iterations"] == 137
+    assert r.rows["kiss-icp"]["agrees"] is True, r.rows["kiss-icp"]["matrix_relative_disagreement"]

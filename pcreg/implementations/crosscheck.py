@@ -209,9 +209,11 @@ def default_max_distance(target: np.ndarray, *, name: str = "target") -> float:
 
 def converged_settings(pinned):
     """The reference's settings "to convergence": at least 200 iterations and thresholds that only an
-    unchanged correspondence set meets (then the closed form returns the same pose exactly)."""
+    unchanged correspondence set meets (then the closed form returns the same pose exactly): 1e-12 on the
+    fitness, and on the inlier RMSE 1e-12 of the correspondence distance (an absolute 1e-12 was met before the
+    pairs settled on clouds given in small units: 128 iterations of 137 on clouds 2.4e-5 across)."""
     return pinned.replace(max_iterations=max(int(pinned.max_iterations), 200), relative_fitness=1e-12,
-                          relative_rmse=1e-12 * max(1.0, float(pinned.max_correspondence_distance)))
+                          relative_rmse=1e-12 * float(pinned.max_correspondence_distance))
 
 
 def check_truth(truth, d: int, name: str = "truth") -> np.ndarray:

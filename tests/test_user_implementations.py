@@ -252,3 +252,24 @@ def test_numpy_error_handling_and_warning_filters_a_function_sets_are_put_back(o
     assert r.rows["pycpd"]["error"] is None and r.rows["pycpd"]["status"] == "ok", r.rows["pycpd"]["error"]
     assert np.geterr() == before
     assert ("error", None, Warning, None, 0) not in warnings.filters  # what simplefilter("error") puts first
+
+
+def test_a_function_that_closes_sys_stdout_is_its_row_and_the_report_is_printed(on_path, capsys):
+    """``sys.stdout.close()`` in a function closed the capture of what it printed: reading the capture raised
+    ValueError, and ``pcreg crosscheck --json`` ended as a bug in pcreg (exit 1) without its report."""
+    from pcreg.cli import main
+
+    (on_path / "closer.py").write_text(
+        "import sys\n"
+        "def f(source, target, *, init, **kw):\n"
+        "    print('said before closing')\n"
+        "    sys.stdout.close()\n"
+        "    return init\n")
+    src, tgt = _clouds(2)
+    np.save(on_path / "s.npy", src)
+    np.save(on_path / "t.npy", tgt)
+    rc = main(["crosscheck", "t.npy", "s.npy", "--with", "reference,py:closer:f", "--max-distance", "1", "--json"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    row = json.loads(out)["implementations"]["py:closer:f"]
+    assert row["status"] == "ok" and row["info"]["said"] == ["said before closing"]

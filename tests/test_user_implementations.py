@@ -273,3 +273,15 @@ def test_a_function_that_closes_sys_stdout_is_its_row_and_the_report_is_printed(
     assert rc == 0
     row = json.loads(out)["implementations"]["py:closer:f"]
     assert row["status"] == "ok" and row["info"]["said"] == ["said before closing"]
+
+
+@pytest.mark.parametrize("spec", ["open3D", "py:nosuch:f", "cmd:nosuchprogram {out}"])
+def test_a_misspelt_name_in_a_suite_is_bad_input_before_any_case(tmp_path, capsys, spec):
+    """``crosscheck --suite`` with a name no implementation answers to ran every case, each a row that blamed the
+    reference for it ("reference | no | py:nosuch:f: no module named ..."), exited 0 and wrote the results."""
+    from pcreg.cli import main
+
+    out = tmp_path / "suite"
+    assert main(["crosscheck", "--suite", str(out), "--with", f"reference,{spec}"]) == 2
+    assert spec.split(" ")[0].removeprefix("cmd:") in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())

@@ -378,6 +378,14 @@ def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarr
                                 "--max-distance)")
 
 
+def check_implementations(implementations: Sequence[str], *, timeout: float | None = None) -> None:
+    """An :class:`InputError` when a name of ``implementations`` is no implementation: an unknown built-in name, or a
+    ``py:`` module or function, or a ``cmd:`` program, that does not exist (as :func:`crosscheck_implementations`
+    finds before it runs any); a module that fails in its own import is its row, not bad input. A suite checks its
+    names once, before its first case (each case's one row blamed the reference for a misspelt name, exit 0)."""
+    _adapters(list(dict.fromkeys([REFERENCE, *implementations])), timeout)
+
+
 def _adapters(names: list[str], timeout: float | None) -> tuple[dict, dict]:
     """{name: adapter} and {name: one-line error} for the user implementations that cannot be loaded
     (an unknown built-in name, the reference, or a ``py:`` module, function or ``cmd:`` program that does

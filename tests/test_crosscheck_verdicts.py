@@ -104,3 +104,20 @@ def test_small_gicp_reaches_the_fixed_point_far_from_the_origin(shared_data, off
                                    options=ICPOptions(max_correspondence_distance=1.0))
     row = r.rows["small_gicp"]
     assert row["agrees"] is True, (row["matrix_relative_disagreement"], row["rotation_disagreement_deg"])
+
+
+@pytest.mark.parametrize("unit, offset", [(1.0, 0.0), (1e6, 0.0), (1.0, 1e6)])
+def test_kiss_icp_converges_in_any_unit_and_far_from_the_origin(unit, offset):
+    """KISS-ICP's stopping rule is a step's norm (translation and rotation vector) under a criterion: an absolute
+    1e-12 was never met once the translation's roundings were larger (clouds in units a million times smaller,
+    or 1e6 from the origin), and its row ran all 200 iterations and said it had not converged, at the fixed
+    point the reference reaches in 4 (its own 5 near the origin)."""
+    pytest.importorskip("kiss_icp")
+    from pcreg import ICPOptions
+    from pcreg.implementations.suite import builtin_cases
+
+    c = next(c for c in builtin_cases()[0] if c.name == "3d-random")
+    r = crosscheck_implementations(c.source * unit + offset, c.target * unit + offset, implementations=["kiss-icp"],
+                                   options=ICPOptions(max_correspondence_distance=c.max_correspondence_distance * unit))
+    row = r.rows["kiss-icp"]
+    assert row["agrees"] is True and row["converged"] is True and row["iterations"] <= 10, row["iterations"]

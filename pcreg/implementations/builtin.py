@@ -257,7 +257,7 @@ class KissIcp(Implementation):
         return {"voxel_size": v, "max_points_per_voxel": n, "map_resolution": v / np.sqrt(n),
                 "map_reserved_bytes": 24 * n * voxels,
                 "kernel": self._kernel(pinned), "max_num_iterations": _converged_iterations(pinned),
-                "convergence_criterion": 1e-12, "max_num_threads": 1,
+                "convergence_criterion": 1e-12 * max(1.0, float(np.abs(pinned.target).max())), "max_num_threads": 1,
                 "max_correspondance_distance": v, "map": "target added once with add_points (no range cropping)",
                 "why": "voxel = gate so the 27 neighbouring voxels hold every point within the gate; "
                        "a huge max_points_per_voxel keeps every target point (the map drops points closer "

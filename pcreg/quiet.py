@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import sys
 import threading
@@ -37,6 +38,15 @@ def capture_output_fds() -> Iterator[list[str]]:
             yield captured
 
 
+class _Kept(io.StringIO):
+    """The capture of Python's ``sys.stdout`` and ``sys.stderr``: code that closes them (a ``py:`` implementation's
+    ``sys.stdout.close()``) closes nothing, and what it printed is kept (closed, the capture's read raised
+    ValueError, and a cross-check ended as a bug in pcreg without its report)."""
+
+    def close(self) -> None:
+        pass
+
+
 @contextlib.contextmanager
 def _captured(python: bool) -> Iterator[list[str]]:
     import tempfile
@@ -52,10 +62,9 @@ def _captured(python: bool) -> Iterator[list[str]]:
     except OSError:
         yield captured
         return
-    import io
 
     py_out, py_err = sys.stdout, sys.stderr
-    text = io.StringIO()  # Open3D's Python module prints its log through Python's sys.stdout
+    text = _Kept()  # Open3D's Python module prints its log through Python's sys.stdout
     with tempfile.TemporaryFile() as tmp:
         try:
             os.dup2(tmp.fileno(), 1)

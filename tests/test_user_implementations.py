@@ -230,3 +230,58 @@ def test_a_misspelt_module_function_or_program_is_bad_input_before_anything_runs
     assert p.returncode == 0, p.stderr
     row = json.loads(p.stdout)["implementations"]["py:mypkg.broken:align"]
     assert row["error"] == "cannot import mypkg.broken: ModuleNotFoundError: No module named 'nosuch_dependency_of_it'"
+
+
+def test_numpy_error_handling_and_warning_filters_a_function_sets_are_put_back(on_path):
+    """A function that called np.seterr(all="raise") (and one whose import made every warning an error) left it so:
+    pycpd, run next, failed with "underflow encountered in exp", its row blamed for the other's change, and the
+    caller's numpy raised on every underflow after the cross-check."""
+    pytest.importorskip("pycpd")
+    (on_path / "strict.py").write_text(
+        "import warnings\n"
+        "import numpy as np\n"
+        "warnings.simplefilter('error')\n"
+        "def f(source, target, *, init, **kw):\n"
+        "    np.seterr(all='raise')\n"
+        "    return init\n")
+    src, tgt = _clouds(3)
+    before = np.geterr()
+    r = crosscheck_implementations(src, tgt, implementations=["py:strict:f", "pycpd"],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    assert r.rows["py:strict:f"]["status"] == "ok"
+    assert r.rows["pycpd"]["error"] is None and r.rows["pycpd"]["status"] == "ok", r.rows["pycpd"]["error"]
+    assert np.geterr() == before
+    assert ("error", None, Warning, None, 0) not in warnings.filters  # what simplefilter("error") puts first
+
+
+def test_a_function_that_closes_sys_stdout_is_its_row_and_the_report_is_printed(on_path, capsys):
+    """``sys.stdout.close()`` in a function closed the capture of what it printed: reading the capture raised
+    ValueError, and ``pcreg crosscheck --json`` ended as a bug in pcreg (exit 1) without its report."""
+    from pcreg.cli import main
+
+    (on_path / "closer.py").write_text(
+        "import sys\n"
+        "def f(source, target, *, init, **kw):\n"
+        "    print('said before closing')\n"
+        "    sys.stdout.close()\n"
+        "    return init\n")
+    src, tgt = _clouds(2)
+    np.save(on_path / "s.npy", src)
+    np.save(on_path / "t.npy", tgt)
+    rc = main(["crosscheck", "t.npy", "s.npy", "--with", "reference,py:closer:f", "--max-distance", "1", "--json"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    row = json.loads(out)["implementations"]["py:closer:f"]
+    assert row["status"] == "ok" and row["info"]["said"] == ["said before closing"]
+
+
+@pytest.mark.parametrize("spec", ["open3D", "py:nosuch:f", "cmd:nosuchprogram {out}"])
+def test_a_misspelt_name_in_a_suite_is_bad_input_before_any_case(tmp_path, capsys, spec):
+    """``crosscheck --suite`` with a name no implementation answers to ran every case, each a row that blamed the
+    reference for it ("reference | no | py:nosuch:f: no module named ..."), exited 0 and wrote the results."""
+    from pcreg.cli import main
+
+    out = tmp_path / "suite"
+    assert main(["crosscheck", "--suite", str(out), "--with", f"reference,{spec}"]) == 2
+    assert spec.split(" ")[0].removeprefix("cmd:") in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())

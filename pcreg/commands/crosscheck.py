@@ -243,6 +243,9 @@ def format_table(out: dict) -> str:
                      f"{f(r['inlier_rmse']):>9s} {f(r['rotation_disagreement_deg']):>9s} "
                      f"{f(r['translation_disagreement']):>9s} {f(r['matrix_relative_disagreement']):>9s} "
                      f"{f(r['agrees']):>6s} {r['seconds']:6.2f}")
+        if (r.get("scale_disagreement") or 0.0) > 1e-6:  # neither rot deg nor transl shows it
+            lines.append(f"{'':24s} not rigid: it scales the cloud {100 * r['scale_disagreement']:.3g}% against the "
+                         "reference")
         if r.get("unconstrained"):
             lines.append(f"{'':24s} unconstrained, not trusted: {r['unconstrained']} (this pose is one of many "
                          "that fit as well)")

@@ -152,14 +152,16 @@ class SmallGicp(Implementation):
         s = {"registration_type": self.kind, "downsampling": "none (PointCloud overload)",
              "max_correspondence_distance": pinned.max_correspondence_distance,
              "max_iterations": _converged_iterations(pinned), "rotation_epsilon": 1e-12,
-             "translation_epsilon": 1e-12 * self._scale(pinned), "num_threads": 1, "2-D": "lifted to z = 0"}
+             "translation_epsilon": 1e-12 * self._scale(pinned), "num_threads": 1, "2-D": "lifted to z = 0",
+             "centred": "both clouds moved by minus the target's centroid, the pose moved back (its Gauss-Newton "
+                        "steps about the origin stopped 0.027 degrees from the fixed point on a LiDAR pair 1e5 away)"}
         if self.kind != "ICP":
             s["normals_covariances"] = f"estimate_normals_covariances, num_neighbors={self.num_neighbors}"
         return s
 
     @staticmethod
     def _scale(pinned):
-        return max(1.0, float(np.abs(pinned.target).max()))
+        return max(1.0, float(np.abs(pinned.target - pinned.target.mean(axis=0)).max()))
 
     def _run(self, pinned, *, trace):
         import small_gicp
@@ -168,8 +170,9 @@ class SmallGicp(Implementation):
             raise ImplementationError(f"{self.kind} needs surfaces: a 2-D cloud lifted to z = 0 has every "
                                       "normal along z")
         s = self.settings(pinned)
-        src = small_gicp.PointCloud(lift(pinned.source))
-        tgt = small_gicp.PointCloud(lift(pinned.target))
+        source, target, c = _centred(pinned.source, pinned.target)
+        src = small_gicp.PointCloud(lift(source))
+        tgt = small_gicp.PointCloud(lift(target))
         tree = small_gicp.KdTree(tgt)
         if self.kind != "ICP":
             small_gicp.estimate_normals_covariances(tgt, tree, num_neighbors=self.num_neighbors)
@@ -177,7 +180,7 @@ class SmallGicp(Implementation):
         if self.kind == "PLANE_ICP":
             _check_plane_normals(np.asarray(tgt.normals())[:, :3])
         start = time.perf_counter()
-        r = small_gicp.align(tgt, src, tree, init_T_target_source=lift_matrix(pinned.init),
+        r = small_gicp.align(tgt, src, tree, init_T_target_source=lift_matrix(about_point(pinned.init, -c)),
                              registration_type=self.kind, max_correspondence_distance=pinned.max_correspondence_distance,
                              num_threads=1, max_iterations=s["max_iterations"], rotation_epsilon=s["rotation_epsilon"],
                              translation_epsilon=s["translation_epsilon"])
@@ -187,6 +190,7 @@ class SmallGicp(Implementation):
         if pinned.dim == 2:
             info["out_of_plane"] = out_of_plane(m)
             m = project(m)
+        m = about_point(m, c)
         fit, rmse, _ = score(pinned, m)
         info["fitness_from"] = "pcreg (Open3D's definition at the returned pose)"
         return result(self.name, m, iterations=int(r.iterations), fitness=fit, inlier_rmse=rmse,
@@ -253,7 +257,7 @@ class KissIcp(Implementation):
         return {"voxel_size": v, "max_points_per_voxel": n, "map_resolution": v / np.sqrt(n),
                 "map_reserved_bytes": 24 * n * voxels,
                 "kernel": self._kernel(pinned), "max_num_iterations": _converged_iterations(pinned),
-                "convergence_criterion": 1e-12, "max_num_threads": 1,
+                "convergence_criterion": 1e-12 * max(1.0, float(np.abs(pinned.target).max())), "max_num_threads": 1,
                 "max_correspondance_distance": v, "map": "target added once with add_points (no range cropping)",
                 "why": "voxel = gate so the 27 neighbouring voxels hold every point within the gate; "
                        "a huge max_points_per_voxel keeps every target point (the map drops points closer "

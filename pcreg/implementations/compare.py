@@ -18,12 +18,28 @@ STEP_TOLERANCE = 1e-9  # relative, on the matrix, against the reference run with
 FIXED_POINT_TOLERANCE = 1e-6  # relative, on the matrix, against the reference run to convergence
 OBJECTIVE_ROTATION_DEG = 0.5  # objective rows: rotation within 0.5 degrees ...
 OBJECTIVE_TRANSLATION = 0.005  # ... and the source's centroid within 0.5% of the target's bounding-box diagonal
+OBJECTIVE_SCALE = 0.005  # ... and the cloud's size within 0.5% (pycpd's "rigid" model fits a scale too)
 REFERENCE = "reference"
 
 
-def relative_difference(A: np.ndarray, B: np.ndarray) -> float:
-    """The largest entry of ``A - B`` against the largest of ``A`` (at least 1): how far two poses differ."""
+def relative_difference(A: np.ndarray, B: np.ndarray, length: float = 1.0) -> float:
+    """The largest entry of ``A - B`` against the largest of ``A`` (at least 1): how far two poses differ, their
+    translations measured in ``length`` (the clouds' extent: a cross-check's rows give the target's bounding-box
+    diagonal), so that the same poses of the same clouds differ as much in any unit. In the clouds' own units a
+    translation 0.3% of the extent off was 4e-7 for clouds 1.7e-4 across (within the fixed-point tolerance: an
+    ICP that never moved agreed) and 0.004 for the same clouds 1.7 across."""
+    A, B = np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64)
+    if length != 1.0:
+        d = A.shape[0] - 1
+        unit = np.ones_like(A)
+        unit[:d, d] = 1.0 / length
+        A, B = A * unit, B * unit
     return float(np.max(np.abs(A - B)) / max(1.0, float(np.max(np.abs(A)))))
+
+
+def _length(diag: float) -> float:
+    """The length translations are measured in: the target's diagonal, 1 for a target without extent."""
+    return float(diag) if diag > 0 and np.isfinite(diag) else 1.0
 
 
 def _bbox_corners(points: np.ndarray) -> np.ndarray:
@@ -31,15 +47,19 @@ def _bbox_corners(points: np.ndarray) -> np.ndarray:
     return np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
 
 
-def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
-    """Disagreement of B with A: rotation (degrees), translation (of the matrices), relative matrix difference,
+def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray, *, length: float = 1.0) -> dict:
+    """Disagreement of B with A: rotation (degrees), translation (of the matrices), relative matrix difference
+    (translations in ``length``, :func:`relative_difference`),
     the distance between where the two put the source's centroid and, in 2-D, the largest displacement of the
     source's bounding-box corners (px for image edge clouds).
 
     The matrices' translations differ by the rotations' difference times the distance of the clouds from the
     origin as well (2,468 units for a tenth of a degree, clouds 1e6 away): the centroid's displacement is the
     translation measured where the clouds are, the same wherever they lie, which an ``objective`` row is judged
-    by (:data:`OBJECTIVE_TRANSLATION`)."""
+    by (:data:`OBJECTIVE_TRANSLATION`). ``scale_disagreement``, the largest relative difference of the linear blocks'
+    singular values, is how much B grows or shrinks the cloud against A (0 between rigid motions; pycpd's
+    "rigid" model fits a scale), which an ``objective`` row is judged by too (:data:`OBJECTIVE_SCALE`): the
+    rotation and the centroid see no scale."""
     d = A.shape[0] - 1
     RA, RB = rotation_part(A[:d, :d]), rotation_part(B[:d, :d])
     # The angle of RA^T RB from its chord, ||RA - RB||_F = 2 sqrt(2) sin(angle / 2) in 2-D as in 3-D (in 2-D
@@ -49,15 +69,22 @@ def compare_matrices(A: np.ndarray, B: np.ndarray, source: np.ndarray) -> dict:
     out = {"rotation_disagreement_deg": float(np.degrees(2.0 * np.arcsin(min(1.0, chord)))),
            "translation_disagreement": float(np.linalg.norm(A[:d, d] - B[:d, d])),
            "centroid_disagreement": float(np.linalg.norm(apply(A, centre) - apply(B, centre))),
-           "matrix_relative_disagreement": relative_difference(A, B)}
+           "matrix_relative_disagreement": relative_difference(A, B, length),
+           "scale_disagreement": _scale_difference(A[:d, :d], B[:d, :d])}
     if d == 2:
         c = _bbox_corners(source)
         out["corner_disagreement"] = float(np.max(np.linalg.norm(apply(A, c) - apply(B, c), axis=1)))
     return out
 
 
+def _scale_difference(LA: np.ndarray, LB: np.ndarray) -> float:
+    """The largest ``|sigma_B / sigma_A - 1|`` over the linear blocks' singular values, each sorted."""
+    sa, sb = np.linalg.svd(LA, compute_uv=False), np.linalg.svd(LB, compute_uv=False)
+    return float(np.max(np.abs(sb / sa - 1.0))) if np.all(sa > 0) else float("inf")
+
+
 def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE, source: np.ndarray | None = None,
-                     target: np.ndarray | None = None) -> dict | None:
+                     target: np.ndarray | None = None, length: float = 1.0) -> dict | None:
     """First iteration at which ``trace`` leaves ``ref_trace`` and the likely cause; None when they agree.
 
     The pose after iteration k comes from the correspondences at the pose after k-1: when poses k-1
@@ -65,14 +92,15 @@ def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE, sou
     neighbour search or gate; the same ones, or exact nearest neighbours of agreeing poses: the step).
     Given the pinned ``source`` and ``target``, a different step from pairs that leave the rotation
     undetermined (:func:`~pcreg.registration.closed_forms.rotation_problem`) says so: each implementation
-    takes one of the rotations that fit them as well.
+    takes one of the rotations that fit them as well. Poses are compared with translations in ``length``
+    (:func:`relative_difference`).
     """
     n = min(len(ref_trace), len(trace))
     if n == 0:
         return None
     for k in range(n):
         a, b = ref_trace[k], trace[k]
-        if relative_difference(a.matrix, b.matrix) > tolerance:
+        if relative_difference(a.matrix, b.matrix, length) > tolerance:
             if k == 0:
                 return {"iteration": 0, "cause": "different initial pose"}
             pa, pb = ref_trace[k - 1], trace[k - 1]
@@ -86,7 +114,7 @@ def trace_divergence(ref_trace, trace, *, tolerance: float = STEP_TOLERANCE, sou
             return {"iteration": k, "cause": "different step from the same correspondences"
                     + ("" if known else " (the poses before agree, so exact nearest neighbours are the same)")
                     + ("" if free is None else f", which leave the rotation undetermined ({free})")
-                    + f": relative matrix difference {relative_difference(a.matrix, b.matrix):.1e}"}
+                    + f": relative matrix difference {relative_difference(a.matrix, b.matrix, length):.1e}"}
         if b.target_indices is not None and a.target_indices is not None and \
                 not np.array_equal(a.target_indices, b.target_indices):
             diff = int(np.count_nonzero(a.target_indices != b.target_indices))
@@ -124,13 +152,15 @@ class CloudCrosscheck:
         """JSON-ready (non-finite numbers become None, so the JSON stays valid)."""
         return _finite({"kind": "clouds", "implementations": self.rows, "settings": self.settings,
                 "reference_at_convergence": self.reference_at_convergence,
-                "tolerances": {"step": f"relative matrix difference <= {STEP_TOLERANCE:g} against the reference (far "
-                                       "from the origin, 100 float64 roundings of the largest coordinate / extent)",
-                               "fixed-point": f"relative matrix difference <= {FIXED_POINT_TOLERANCE:g} against the "
-                                              "reference run to convergence",
+                "tolerances": {"step": f"relative matrix difference (translations in target diagonals) <= "
+                                       f"{STEP_TOLERANCE:g} against the reference (far from the origin, 100 float64 "
+                                       "roundings of the largest coordinate / extent)",
+                               "fixed-point": f"relative matrix difference (translations in target diagonals) <= "
+                                              f"{FIXED_POINT_TOLERANCE:g} against the reference run to convergence",
                                "objective": f"rotation <= {OBJECTIVE_ROTATION_DEG:g} deg and the source's centroid "
                                             f"(centroid_disagreement) <= {OBJECTIVE_TRANSLATION:.1%} of the target's "
-                                            "bounding-box diagonal against the reference run to convergence"}})
+                                            f"bounding-box diagonal and the scale (scale_disagreement) <= "
+                                            f"{OBJECTIVE_SCALE:.1%} against the reference run to convergence"}})
 
 
 def _finite(obj):
@@ -162,7 +192,8 @@ def _agrees(comparability: str, cmp: dict, diag: float, step: float = STEP_TOLER
     if comparability == "fixed-point":
         return cmp["matrix_relative_disagreement"] <= FIXED_POINT_TOLERANCE
     return (cmp["rotation_disagreement_deg"] <= OBJECTIVE_ROTATION_DEG
-            and cmp["centroid_disagreement"] <= OBJECTIVE_TRANSLATION * diag)
+            and cmp["centroid_disagreement"] <= OBJECTIVE_TRANSLATION * diag
+            and cmp["scale_disagreement"] <= OBJECTIVE_SCALE)
 
 
 def implementation_row(name: str, o, a, errors: dict, pinned, *, ref, conv, src: np.ndarray, diag: float,
@@ -196,14 +227,14 @@ def implementation_row(name: str, o, a, errors: dict, pinned, *, ref, conv, src:
     if name == REFERENCE:
         base, base_name = o, "reference"
     if base is not None:
-        cmp = compare_matrices(base.matrix, o.matrix, src)
+        cmp = compare_matrices(base.matrix, o.matrix, src, length=_length(diag))
         row.update(cmp)
         row["compared_with"] = base_name
         step = step_tolerance(src, diag)
         row["agrees"] = problem is None and bool(_agrees(comp, cmp, diag, step))
         if ref is not None and name != REFERENCE and o.trace and ref.trace:
             row["divergence"] = trace_divergence(ref.trace, o.trace, tolerance=step, source=src,
-                                                 target=pinned.target)
+                                                 target=pinned.target, length=_length(diag))
     elif name != REFERENCE:
         row["error"] = row["error"] or None
         row["compared_with"] = None

@@ -314,8 +314,9 @@ def run_suite(cases: Sequence[Case], implementations: Sequence[str], *, timeout:
               progress: bool = False) -> list[dict]:
     """One row per (case, implementation): the cross-check row plus the case's name."""
     from ..registration.icp_options import ICPOptions
-    from .crosscheck import crosscheck_implementations
+    from .crosscheck import check_implementations, crosscheck_implementations
 
+    check_implementations(implementations, timeout=timeout)  # a misspelt name is bad input, not a row of each case
     rows = []
     it = cases
     if progress:

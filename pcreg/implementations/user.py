@@ -123,7 +123,8 @@ def _checked_matrix(m: np.ndarray, d: int, what: str) -> np.ndarray:
 def _user_code(what: str):
     """Run a ``py:`` implementation's own code (its import, its call, the reading of what it returned): what
     it raises, ``sys.exit`` and a KeyboardInterrupt no signal sent included, becomes an
-    :class:`ImplementationError` (its row's one line), and the working directory it changed is put back
+    :class:`ImplementationError` (its row's one line), and the working directory, numpy's error handling
+    (``np.seterr``) and the warning filters it changed are put back
     (the next implementation's relative paths, and the command's outputs, are the caller's); threads it
     left running are marked ``pcreg_user_code`` (:mod:`pcreg.cli` ends the process without them)."""
     try:
@@ -132,7 +133,10 @@ def _user_code(what: str):
         cwd = None
     before = set(threading.enumerate())
     try:
-        yield
+        # numpy's error handling and the warning filters it set are put back too: np.seterr(all="raise") in a
+        # function made the next implementation's row fail ("pycpd: underflow encountered in exp")
+        with np.errstate(), warnings.catch_warnings():
+            yield
     except ImplementationError:
         raise
     except Exception as exc:  # noqa: BLE001 - a user function's failure is its row's error

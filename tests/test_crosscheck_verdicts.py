@@ -1,0 +1,123 @@
+"""A cross-check's verdicts: the same poses of the same clouds agree, or not, in whatever unit the clouds are
+given and wherever they lie; a pose is judged by all it does to the cloud."""
+
+import numpy as np
+import pytest
+
+from pcreg.implementations.crosscheck import crosscheck_implementations
+
+
+@pytest.fixture
+def on_path(tmp_path, monkeypatch):
+    """tmp_path on sys.path (the modules written there importable), as the working directory."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_an_icp_that_never_moves_disagrees_in_every_unit(on_path):
+    """Clouds 1.7 units across, moved by 0.3% of that: an implementation that returns its initial guess disagrees.
+    The same clouds in units 1e4 times larger (1.7e-4 across: micrometres given in metres) agreed at the
+    fixed point (relative matrix difference 4e-7, the translation's error in the clouds' units), and
+    1e7 times larger at the step tolerance (4e-10)."""
+    (on_path / "lazy.py").write_text(
+        "def still(source, target, *, init, **kw):\n"
+        "    return init\n"
+        "still.comparability = 'fixed-point'\n"
+        "def still_step(source, target, *, init, **kw):\n"
+        "    return init\n")
+    tgt = np.random.default_rng(1).uniform(-0.5, 0.5, (500, 3))
+    shift = np.array([0.004, -0.003, 0.002])
+    seen = {}
+    for unit in (1.0, 1e-4, 1e-7):
+        r = crosscheck_implementations((tgt - shift) * unit, tgt * unit,
+                                       implementations=["py:lazy:still", "py:lazy:still_step"])
+        for name in ("py:lazy:still", "py:lazy:still_step"):
+            row = r.rows[name]
+            assert row["status"] == "ok" and row["agrees"] is False, (unit, name, row["matrix_relative_disagreement"])
+            seen.setdefault(name, []).append(row["matrix_relative_disagreement"])
+        assert r.rows["reference"]["agrees"] is True
+    for name, values in seen.items():  # the same poses of the same clouds differ as much in any unit
+        np.testing.assert_allclose(values, values[0], rtol=1e-6, err_msg=name)
+
+
+def test_a_step_implementation_far_from_the_origin_agrees_whatever_the_clouds_extent():
+    """Clouds 1e6 from the origin and 17 units across: Open3D's tensor ICP differs from the reference by a few
+    float64 roundings of the coordinates (2e-9 in the translation), and was judged to disagree in the step
+    tolerance, which allows 100 roundings of the largest coordinate over the extent (1.3e-9) but was
+    compared with the translation in the clouds' units."""
+    t = np.random.default_rng(0).uniform(size=(500, 3))
+    r = crosscheck_implementations(t * 10 + 1e6 + 0.01, t * 10 + 1e6, implementations=["open3d", "open3d-tensor"])
+    for name in ("open3d", "open3d-tensor"):
+        row = r.rows[name]
+        assert row["error"] is None and row["agrees"] is True, (name, row["matrix_relative_disagreement"])
+
+
+def test_an_objective_row_that_shrinks_the_cloud_disagrees():
+    """pycpd's "rigid" model fits a scale: with a cluster of extra target points about the centre it shrank the
+    cloud by 2% (points 0.37 from where the reference puts them, 1% of the diagonal), with its rotation 0.13 degrees
+    and its centroid 0.085 from the reference's, and its row agreed: the objective test saw no scale."""
+    pytest.importorskip("pycpd")
+    rng = np.random.default_rng(0)
+    src = rng.uniform(-10, 10, (400, 3))
+    tgt = np.vstack([src, rng.normal(scale=4.0, size=(300, 3))])
+    r = crosscheck_implementations(src, tgt, implementations=["pycpd"])
+    row = r.rows["pycpd"]
+    assert row["status"] == "ok" and abs(row["info"]["scale"] - 1) > 0.01, row["info"]
+    assert row["rotation_disagreement_deg"] <= 0.5 and row["centroid_disagreement"] <= 0.005 * r.settings["target_diagonal"]
+    assert row["agrees"] is False
+    assert row["scale_disagreement"] == pytest.approx(abs(row["info"]["scale"] - 1), rel=1e-9)
+    assert r.rows["reference"]["scale_disagreement"] == 0.0
+
+
+@pytest.mark.parametrize("unit", [1.0, 1e-6])
+def test_the_reference_runs_to_convergence_in_any_unit(unit):
+    """The built-in 2-D partial-overlap case needs 137 iterations to converge. Given in units a million times larger
+    (clouds 2.4e-5 across), the reference "to convergence" stopped after 128 (an absolute 1e-12 on the inlier
+    RMSE's change, met before the pairs settled), and KISS-ICP's fixed point, the same as at unit 1, disagreed
+    with it (relative 0.003)."""
+    pytest.importorskip("kiss_icp")
+    from pcreg import ICPOptions
+    from pcreg.implementations.suite import builtin_cases
+
+    c = next(c for c in builtin_cases()[0] if c.name == "2d-partial")
+    r = crosscheck_implementations(c.source * unit, c.target * unit, implementations=["kiss-icp"],
+                                   options=ICPOptions(max_correspondence_distance=c.max_correspondence_distance * unit))
+    assert r.reference_at_convergence["iterations"] == 137
+    assert r.rows["kiss-icp"]["agrees"] is True, r.rows["kiss-icp"]["matrix_relative_disagreement"]
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("offset", [0.0, 1e5])
+def test_small_gicp_reaches_the_fixed_point_far_from_the_origin(shared_data, offset):
+    """The LiDAR pair moved 1e5 m from the origin (as a pair in UTM coordinates lies): small_gicp's Gauss-Newton
+    steps about the origin stopped 0.027 degrees and 4 mm from the fixed point the reference and KISS-ICP reach
+    (relative 0.054), and its row disagreed; near the origin it agreed to 2e-11."""
+    pytest.importorskip("small_gicp")
+    from pcreg import ICPOptions
+    from pcreg.cloud_reader import load_cloud
+    from pcreg.registration.api import voxel_downsample
+
+    scans = shared_data / "scans"
+    source, target = (voxel_downsample(load_cloud(scans / f"{n}.ply"), 0.5) for n in ("source", "target"))
+    r = crosscheck_implementations(source + offset, target + offset, implementations=["small_gicp"],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    row = r.rows["small_gicp"]
+    assert row["agrees"] is True, (row["matrix_relative_disagreement"], row["rotation_disagreement_deg"])
+
+
+@pytest.mark.parametrize("unit, offset", [(1.0, 0.0), (1e6, 0.0), (1.0, 1e6)])
+def test_kiss_icp_converges_in_any_unit_and_far_from_the_origin(unit, offset):
+    """KISS-ICP's stopping rule is a step's norm (translation and rotation vector) under a criterion: an absolute
+    1e-12 was never met once the translation's roundings were larger (clouds in units a million times smaller,
+    or 1e6 from the origin), and its row ran all 200 iterations and said it had not converged, at the fixed
+    point the reference reaches in 4 (its own 5 near the origin)."""
+    pytest.importorskip("kiss_icp")
+    from pcreg import ICPOptions
+    from pcreg.implementations.suite import builtin_cases
+
+    c = next(c for c in builtin_cases()[0] if c.name == "3d-random")
+    r = crosscheck_implementations(c.source * unit + offset, c.target * unit + offset, implementations=["kiss-icp"],
+                                   options=ICPOptions(max_correspondence_distance=c.max_correspondence_distance * unit))
+    row = r.rows["kiss-icp"]
+    assert row["agrees"] is True and row["converged"] is True and row["iterations"] <= 10, row["iterations"]

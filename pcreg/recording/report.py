@@ -18,6 +18,7 @@ import json
 import mimetypes
 import socket
 import subprocess
+import sys
 import threading
 import urllib.error
 import urllib.parse
@@ -79,6 +80,13 @@ def viz_dir() -> Path:
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = REUSE_ADDRESS
+
+    def handle_error(self, request, client_address) -> None:
+        """A browser that went away (a connection reset or closed while its request was read or answered) is
+        passed over; anything else printed as :class:`ThreadingHTTPServer` prints it."""
+        if isinstance(sys.exc_info()[1], (ConnectionError, TimeoutError)):
+            return
+        super().handle_error(request, client_address)
 
 
 class _Server6(_Server):

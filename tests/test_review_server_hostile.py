@@ -1,0 +1,86 @@
+"""The review page's server (``pcreg view RUN_OUT --web``) under requests a browser would not make, and the review
+of runs at their edges: a client that resets its connection, frames named in bytes that are not UTF-8, a run
+that holds no labelled frame yet.
+
+A real ``pcreg run`` of five small synthetic frames, served in-process (:class:`pcreg.recording.review.ReviewServer`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import socket
+import struct
+import threading
+import urllib.error
+import urllib.request
+
+import cv2
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from _events import until
+
+N = 5
+
+
+def _frames(folder, names) -> None:
+    for name, f in zip(names, pcreg.synthetic("syn1a", len(names), 0, width=96, height=72)):
+        ok, buf = cv2.imencode(".png", f.image[:, :, ::-1])
+        (folder / name).write_bytes(buf.tobytes())
+
+
+def _run(root, frames, *more) -> object:
+    key = pcreg.synthetic("syn1a", 1, 0, width=96, height=72)[0].labels
+    cv2.imwrite(str(root / "key.png"), key)
+    out = root / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(root / "key.png"), "--out", str(out), *more]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def run_out(tmp_path_factory):
+    root = tmp_path_factory.mktemp("review-hostile")
+    (root / "frames").mkdir()
+    _frames(root / "frames", [f"frame_{i}.png" for i in range(N)])
+    return _run(root, root / "frames", "--confidence")
+
+
+def _handlers() -> list[threading.Thread]:
+    """The server's threads answering a connection (socketserver's ``process_request_thread``)."""
+    return [t for t in threading.enumerate() if "process_request_thread" in t.name]
+
+
+def _get(url: str) -> tuple[int, bytes]:
+    try:
+        with urllib.request.urlopen(url, timeout=60) as r:
+            return r.status, r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, e.read()
+
+
+def _reset(sock: socket.socket) -> None:
+    """Close ``sock`` with a reset (RST), as a browser that goes away with data unread."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    sock.close()
+
+
+def test_a_client_that_resets_its_connection_mid_request_is_passed_over_quietly(run_out, capfd):
+    """A browser that sends half a request and resets the connection: the server printed a traceback
+    (ConnectionResetError) on the terminal of ``pcreg view``; it passes it over and serves on."""
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    with ReviewServer(read_review(run_out), web_port=0) as server:
+        half = socket.create_connection(("127.0.0.1", server.port))
+        half.sendall(b"GET /review.json HTTP/1.1\r\nHo")
+        # a whole request answered after it: the half one was accepted first, its thread waits on the rest
+        assert _get(server.url + "review.json")[0] == 200
+        _reset(half)
+        until(lambda: not _handlers(), what="the server's answering threads done", bound=60)
+        assert _get(server.url + "overlay/1.jpg")[0] == 200
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "ConnectionResetError" not in err, err

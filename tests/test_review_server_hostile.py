@@ -84,3 +84,38 @@ def test_a_client_that_resets_its_connection_mid_request_is_passed_over_quietly(
         assert _get(server.url + "overlay/1.jpg")[0] == 200
     err = capfd.readouterr().err
     assert "Traceback" not in err and "ConnectionResetError" not in err, err
+
+
+def _undecodable_name(folder) -> str | None:
+    """A frame's name made of bytes that are not UTF-8 (as Python names it: surrogate escapes), or None where the
+    file system refuses such a name."""
+    name = os.fsdecode(b"1_fr\xff\xe9.png")
+    try:
+        (folder / name).write_bytes(b"")
+    except (OSError, UnicodeError):
+        return None
+    (folder / name).unlink()
+    return name
+
+
+def test_a_damaged_label_image_of_a_frame_named_in_bytes_not_utf8_is_named_on_the_page(tmp_path):
+    """A frame whose file name is not UTF-8 (a Latin-1 file system), its label image damaged since the run: the
+    server's one line naming the file could not be encoded, the connection was dropped with a traceback, and the
+    page said only that the frame could not be read; now that line comes, the name's bytes shown as '?'."""
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    (tmp_path / "frames").mkdir()
+    odd = _undecodable_name(tmp_path / "frames")
+    if odd is None:
+        pytest.skip("this file system takes only UTF-8 file names")
+    _frames(tmp_path / "frames", ["0_a.png", odd, "2_c.png"])
+    out = _run(tmp_path, tmp_path / "frames")
+    review = read_review(out)
+    assert review.names[1] == odd
+    review.labels_path(1).write_bytes(b"not a picture")
+    with ReviewServer(review, web_port=0) as server:
+        for what in ("overlay/1.jpg", "classes/1.json"):
+            status, body = _get(server.url + what)
+            assert status == 500, what
+            assert body.decode() == f"{out}/1_fr??.png: not an image pcreg reads (PNG, JPEG, BMP, TIFF, WebP, PNM)\n", what

@@ -119,3 +119,44 @@ def test_a_damaged_label_image_of_a_frame_named_in_bytes_not_utf8_is_named_on_th
             status, body = _get(server.url + what)
             assert status == 500, what
             assert body.decode() == f"{out}/1_fr??.png: not an image pcreg reads (PNG, JPEG, BMP, TIFF, WebP, PNM)\n", what
+
+
+def test_a_run_that_holds_no_frame_yet_is_refused_not_written_as_an_empty_video(tmp_path, monkeypatch, capsys):
+    """A run from two key frames (frames 3 and 8 of 10) stopped before it labelled frame 0: its review holds no
+    frame. ``--overlay`` wrote an MP4 of 0 bytes and said it wrote it, and ``--web`` served a page that stuck
+    saying "not found"; both are refused in one line, and nothing is written."""
+    from pcreg.review import read_review, write_overlay_video
+    from pcreg.runs.run import Run
+    from _view import one_line_error, pcreg_view
+
+    names = [f"f{i:02d}.png" for i in range(10)]
+    (tmp_path / "frames").mkdir()
+    (tmp_path / "keys").mkdir()
+    _frames(tmp_path / "frames", names)
+    for k, f in zip(range(10), pcreg.synthetic("syn1a", 10, 0, width=96, height=72)):
+        if k in (3, 8):
+            cv2.imwrite(str(tmp_path / "keys" / names[k]), f.labels)
+    real, commits = Run.commit, []
+
+    def stop_at_the_third(self):
+        commits.append(1)
+        if len(commits) == 3:
+            raise KeyboardInterrupt
+        real(self)
+
+    monkeypatch.setattr(Run, "commit", stop_at_the_third)
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "keys"), "--out", str(out)]) == 130
+    monkeypatch.undo()
+    capsys.readouterr()  # the run's own line: interrupted
+    assert read_review(out).names == ()
+    video = tmp_path / "o.mp4"
+    for args in (["--overlay", str(video)], ["--web", "--web-port", "0"]):
+        assert pcreg_view([str(out), *args]) == 2
+        assert f"{out}: holds no frame labelled from the run's first frame on: nothing to review yet" in \
+            one_line_error(capsys)
+    assert not video.exists() and not list(tmp_path.glob(".o.mp4*"))
+    with pytest.raises(pcreg.errors.InputError, match="holds no labelled frame"):
+        write_overlay_video(read_review(out), video)
+    assert not video.exists() and not list(tmp_path.glob(".o.mp4*"))

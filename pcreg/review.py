@@ -134,7 +134,7 @@ def read_review(folder: str | Path) -> RunReview:
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, Selection, open_frames
     from .runs.files import CONFIDENCE, STEPS, counted_steps
-    from .runs.state import STATE, read_state, run_frames
+    from .runs.state import STATE, read_state, run_frames, steps_counted_now
 
     folder = Path(folder)
     state_path = folder / STATE
@@ -175,7 +175,7 @@ def read_review(folder: str | Path) -> RunReview:
     # the frames that are not where the run labelled them, by (position, name): a frames folder changed since
     moved = [(0, str(state["key_frame"]))] if labelled is None and _moved(frames, 0, str(state["key_frame"])) else []
     try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
-        for step in counted_steps(folder, counted):
+        for step in counted_steps(folder, counted, recount=lambda: steps_counted_now(folder)):
             steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou")}
             if _moved(frames, step["frame"], str(step["name"])):
                 moved.append((step["frame"], str(step["name"])))

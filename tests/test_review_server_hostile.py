@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
 import socket
 import struct
@@ -47,6 +48,21 @@ def run_out(tmp_path_factory):
     (root / "frames").mkdir()
     _frames(root / "frames", [f"frame_{i}.png" for i in range(N)])
     return _run(root, root / "frames", "--confidence")
+
+
+def _stopped_at_commit(monkeypatch, n: int) -> None:
+    """Make the next ``pcreg run`` stop (as at Ctrl-C) at its ``n``-th commit of run.json."""
+    from pcreg.runs.run import Run
+
+    real, commits = Run.commit, []
+
+    def stop(self):
+        commits.append(1)
+        if len(commits) == n:
+            raise KeyboardInterrupt
+        real(self)
+
+    monkeypatch.setattr(Run, "commit", stop)
 
 
 def _handlers() -> list[threading.Thread]:
@@ -126,7 +142,6 @@ def test_a_run_that_holds_no_frame_yet_is_refused_not_written_as_an_empty_video(
     frame. ``--overlay`` wrote an MP4 of 0 bytes and said it wrote it, and ``--web`` served a page that stuck
     saying "not found"; both are refused in one line, and nothing is written."""
     from pcreg.review import read_review, write_overlay_video
-    from pcreg.runs.run import Run
     from _view import one_line_error, pcreg_view
 
     names = [f"f{i:02d}.png" for i in range(10)]
@@ -136,15 +151,7 @@ def test_a_run_that_holds_no_frame_yet_is_refused_not_written_as_an_empty_video(
     for k, f in zip(range(10), pcreg.synthetic("syn1a", 10, 0, width=96, height=72)):
         if k in (3, 8):
             cv2.imwrite(str(tmp_path / "keys" / names[k]), f.labels)
-    real, commits = Run.commit, []
-
-    def stop_at_the_third(self):
-        commits.append(1)
-        if len(commits) == 3:
-            raise KeyboardInterrupt
-        real(self)
-
-    monkeypatch.setattr(Run, "commit", stop_at_the_third)
+    _stopped_at_commit(monkeypatch, 3)
     out = tmp_path / "out"
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "keys"), "--out", str(out)]) == 130
@@ -160,3 +167,34 @@ def test_a_run_that_holds_no_frame_yet_is_refused_not_written_as_an_empty_video(
     with pytest.raises(pcreg.errors.InputError, match="holds no labelled frame"):
         write_overlay_video(read_review(out), video)
     assert not video.exists() and not list(tmp_path.glob(".o.mp4*"))
+
+
+def test_a_run_being_written_is_reviewed_as_far_as_its_run_json_counted(tmp_path, monkeypatch):
+    """``pcreg view RUN --web`` while ``pcreg run`` writes RUN: the run commits frames between the review's reading
+    run.json and its reading steps.jsonl (a folder of 20,000 frames takes the review long enough to list for the
+    run to label several), and the review refused the run as one whose steps.jsonl pcreg run did not write. The
+    frames run.json counted when read are reviewed. Here the run goes on while the review lists the frames."""
+    from pcreg.datasets import sources
+    from pcreg.review import read_review
+
+    (tmp_path / "frames").mkdir()
+    _frames(tmp_path / "frames", [f"frame_{i}.png" for i in range(7)])
+    _stopped_at_commit(monkeypatch, 3)
+    with pytest.raises(AssertionError, match="130"):  # interrupted
+        _run(tmp_path, tmp_path / "frames")
+    monkeypatch.undo()
+    state = tmp_path / "out" / "run.json"
+    then = state.read_bytes()  # run.json as the review reads it, the run going on
+    out = _run(tmp_path, tmp_path / "frames")  # the run goes on to its end
+    now = state.read_bytes()
+    state.write_bytes(then)
+    real = sources.open_frames
+
+    def frames_listed_while_the_run_commits(*args, **kwargs):
+        state.write_bytes(now)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sources, "open_frames", frames_listed_while_the_run_commits)
+    review = read_review(out)
+    assert review.names == tuple(f"frame_{i}.png" for i in range(json.loads(then)["done"]))
+    assert len(review.names) < 7 and review.errors[1] is not None

@@ -198,3 +198,28 @@ def test_a_run_being_written_is_reviewed_as_far_as_its_run_json_counted(tmp_path
     review = read_review(out)
     assert review.names == tuple(f"frame_{i}.png" for i in range(json.loads(then)["done"]))
     assert len(review.names) < 7 and review.errors[1] is not None
+
+
+def test_the_page_of_a_run_of_more_frames_than_a_call_takes_arguments(run_out):
+    """A run of 130,000 frames (72 minutes of video at 30 frames a second): the page took the highest predicted
+    error of its plot as ``Math.max(...errors)``, which throws past about 120,000 arguments, and stopped before it
+    showed a frame. It shows frame 0 and its plot reaches the highest error. (The run's own five frames, its
+    review's list of frames and their errors made long: 130,000 frames take two hours to run.)"""
+    import dataclasses
+
+    from _browser import Browser, find_chromium
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    review, n = read_review(run_out), 130_000
+    names = review.names + tuple(f"more_{t}.png" for t in range(N, n))
+    long = dataclasses.replace(review, names=names, stems=review.stems + names[N:], ious=(None,) * n,
+                               errors=(None, *((t % 1000) / 40 for t in range(1, n))))
+    with ReviewServer(long, web_port=0) as server, Browser(width=1200, height=700) as browser:
+        browser.open(server.url)
+        until(lambda: browser.value("document.body.dataset.shown || ''") == "/overlay/0.jpg", what="frame 0 shown",
+              bound=120)
+        ticks = browser.value("Array.from(document.querySelectorAll('#plot text.tick')).map(t => t.textContent)")
+        assert "25%" in ticks and "30%" not in ticks  # the highest error, 24.975 %, under the top line

@@ -223,3 +223,36 @@ def test_the_page_of_a_run_of_more_frames_than_a_call_takes_arguments(run_out):
               bound=120)
         ticks = browser.value("Array.from(document.querySelectorAll('#plot text.tick')).map(t => t.textContent)")
         assert "25%" in ticks and "30%" not in ticks  # the highest error, 24.975 %, under the top line
+
+
+def _get_as(port: int, path: str, host: str) -> tuple[int, bytes]:
+    """GET ``path`` from 127.0.0.1:``port`` as a browser does for a page at ``host`` (its ``Host`` header)."""
+    import http.client
+
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    try:
+        conn.putrequest("GET", path, skip_host=True)
+        conn.putheader("Host", host)
+        conn.endheaders()
+        answer = conn.getresponse()
+        return answer.status, answer.read()
+    finally:
+        conn.close()
+
+
+def test_a_page_elsewhere_whose_name_points_here_reads_nothing(run_out):
+    """DNS rebinding: a page at attacker.example whose name the attacker then points at 127.0.0.1 asks the review's
+    server for what it serves, as its own origin (the browser sends ``Host: attacker.example:PORT``). The server
+    answered with the run's frames, paths and labels; it answers only requests for localhost or a loopback
+    address, the names the printed URL uses."""
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    with ReviewServer(read_review(run_out), web_port=0) as server:
+        port = server.port
+        for path in ("/review.json", "/overlay/1.jpg", "/frame/0.jpg", "/"):
+            status, body = _get_as(port, path, f"attacker.example:{port}")
+            assert status == 403 and str(run_out).encode() not in body and b"JFIF" not in body, path
+            for host in (f"127.0.0.1:{port}", f"localhost:{port}", "[::1]"):
+                assert _get_as(port, path, host)[0] == 200, (path, host)
+        assert _get_as(port, "/review.json", "127.0.0.1.attacker.example")[0] == 403

@@ -256,3 +256,32 @@ def test_a_page_elsewhere_whose_name_points_here_reads_nothing(run_out):
             for host in (f"127.0.0.1:{port}", f"localhost:{port}", "[::1]"):
                 assert _get_as(port, path, host)[0] == 200, (path, host)
         assert _get_as(port, "/review.json", "127.0.0.1.attacker.example")[0] == 403
+
+
+def test_the_legend_shows_no_figures_of_another_frame_when_a_frames_labels_cannot_be_read(run_out, tmp_path):
+    """Frame 2's label image cut short since the run: stepping from frame 1 to it, the legend kept frame 1's share of
+    each class (and, with many classes, its predicted IoU) beside frame 2's name; it shows none."""
+    import shutil
+
+    from _browser import Browser, find_chromium
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    out = tmp_path / "out"
+    shutil.copytree(run_out, out)
+    review = read_review(out)
+    cut = review.labels_path(2)
+    cut.write_bytes(cut.read_bytes()[:100])
+    figures = "Array.from(document.querySelectorAll('#legend span[data-class]')).map(s => s.textContent)"
+    with ReviewServer(review, web_port=0) as server, Browser(width=1200, height=700) as browser:
+        browser.open(server.url + "#1")
+        ev = browser.value
+        until(lambda: ev("document.body.dataset.shown || ''") == "/overlay/1.jpg", what="frame 1 shown", bound=120)
+        until(lambda: all("%" in f for f in ev(figures) or [""]), what="frame 1's figures in the legend", bound=60)
+        ev("document.getElementById('next').click()")
+        until(lambda: cut.name in (ev("document.getElementById('frame-error').textContent") or ""),
+              what="frame 2's label image named", bound=60)
+        until(lambda: ev(figures) == ["", ""], what="the legend without figures", bound=60)
+        assert ev("document.getElementById('frame-name').textContent").startswith(review.names[2])

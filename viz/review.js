@@ -70,14 +70,15 @@ async function frameError(url) {
 }
 
 // each class's share of the frame and, with many classes, its predicted IoU, beside its name in the legend
+// (none when the frame's label image cannot be read: not the figures of the frame shown before)
 async function drawClassFigures(t) {
-  let figures;
+  let figures = [];
   try {
     const r = await fetch(`/classes/${t}.json`);
-    if (!r.ok) return;
-    figures = await r.json();
-  } catch (e) { return; }
+    if (r.ok) figures = await r.json();
+  } catch (e) { /* the server is gone: no figures */ }
   if (state.current !== t) return;
+  for (const span of document.querySelectorAll("#legend span[data-class]")) span.textContent = "";
   for (const f of figures) {
     const span = document.querySelector(`#legend span[data-class="${f.id}"]`);
     if (!span) continue;

@@ -134,7 +134,7 @@ def read_review(folder: str | Path) -> RunReview:
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, Selection, open_frames
     from .runs.files import CONFIDENCE, STEPS, counted_steps
-    from .runs.state import STATE, read_state, run_frames
+    from .runs.state import STATE, read_state, run_frames, steps_counted_now
 
     folder = Path(folder)
     state_path = folder / STATE
@@ -175,7 +175,7 @@ def read_review(folder: str | Path) -> RunReview:
     # the frames that are not where the run labelled them, by (position, name): a frames folder changed since
     moved = [(0, str(state["key_frame"]))] if labelled is None and _moved(frames, 0, str(state["key_frame"])) else []
     try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
-        for step in counted_steps(folder, counted):
+        for step in counted_steps(folder, counted, recount=lambda: steps_counted_now(folder)):
             steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou")}
             if _moved(frames, step["frame"], str(step["name"])):
                 moved.append((step["frame"], str(step["name"])))
@@ -536,7 +536,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     of odd size are padded by a pixel. ``fps``: frames per second (default: a video's own rate, divided by the
     run's ``--every``; 10 for a folder). The source is read straight through, once. A run whose video skips frames
     by its times, has frames that decode with errors or met other notes reading them says so in the video's comment,
-    one line each (:meth:`RunReview.said`). ``note`` is told, once the video is written, when a
+    one line each (:meth:`RunReview.said`); a review of no frame is refused. ``note`` is told, once the video is written, when a
     frame is too small for its classes' legend (it shows its name alone). Returns the number of frames written."""
     import os
     import tempfile
@@ -547,6 +547,8 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
     from ._runner import progress
     from .outputs import publish
 
+    if not review.names:  # an MP4 of no frame is no video a player opens
+        raise InputError(f"{review.folder}: holds no labelled frame: no overlay video to write")
     fps = fps or _video_rate(review) or 10.0
     codec = _encoder()
     path = Path(path)

@@ -70,14 +70,15 @@ async function frameError(url) {
 }
 
 // each class's share of the frame and, with many classes, its predicted IoU, beside its name in the legend
+// (none when the frame's label image cannot be read: not the figures of the frame shown before)
 async function drawClassFigures(t) {
-  let figures;
+  let figures = [];
   try {
     const r = await fetch(`/classes/${t}.json`);
-    if (!r.ok) return;
-    figures = await r.json();
-  } catch (e) { return; }
+    if (r.ok) figures = await r.json();
+  } catch (e) { /* the server is gone: no figures */ }
   if (state.current !== t) return;
+  for (const span of document.querySelectorAll("#legend span[data-class]")) span.textContent = "";
   for (const f of figures) {
     const span = document.querySelector(`#legend span[data-class="${f.id}"]`);
     if (!span) continue;
@@ -100,7 +101,8 @@ function drawPlot() {
   const n = frames.length;
   const W = 400, H = 220, L = 38, R = 10, T = 10, B = 26;
   const errs = frames.map((f) => (f.key ? null : f.error));
-  const highest = Math.max(0, ...errs.filter((e) => e !== null));
+  // not Math.max(...errs): past about 120,000 arguments (an hour's run at 30 frames a second) it throws
+  const highest = errs.reduce((m, e) => (e !== null && e > m ? e : m), 0);
   const yStep = niceStep(highest / 5);
   const top = Math.max(yStep, Math.ceil(highest / yStep - 1e-9) * yStep);
   const x = (t) => L + (n > 1 ? (t / (n - 1)) * (W - L - R) : (W - L - R) / 2);

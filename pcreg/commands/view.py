@@ -286,6 +286,9 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
         if out.suffix.lower() != ".mp4":
             raise OutputError(f"{out}: the overlay is written as an MP4 video; name it .mp4")
     review = read_review(folder)
+    if not review.names:  # a run from key frames stopped before it labelled its first frame
+        raise InputError(f"{folder}: holds no frame labelled from the run's first frame on: nothing to review yet "
+                         "(an unfinished run: the same pcreg run command goes on from where it stopped)")
     if args.overlay:  # the run's video, which the overlay is drawn from, is no file to write over, --force or not
         check_output(out, force=args.force, inputs=(review.source,))
     note = unfinished_note(folder, len(review.names), review.chosen)

@@ -14,10 +14,12 @@
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import mimetypes
 import socket
 import subprocess
+import sys
 import threading
 import urllib.error
 import urllib.parse
@@ -34,10 +36,30 @@ __all__ = ["ReportServer", "viz_dir"]
 
 class QuietHandler(BaseHTTPRequestHandler):
     """What pcreg's local pages share: no line per request on the terminal, one way to answer (``HEAD``
-    as ``GET`` without the body) and a file served with its type."""
+    as ``GET`` without the body), a file served with its type, and on a loopback address only the requests
+    that name it (:meth:`parse_request`)."""
 
     def log_message(self, *args) -> None:  # no line per request on the terminal
         pass
+
+    def parse_request(self) -> bool:
+        """The request's line and headers read; a server on a loopback address refuses (403) a request whose
+        ``Host`` is another name than ``localhost`` or a loopback address: a page elsewhere whose name it
+        points at 127.0.0.1 (DNS rebinding) would read the frames and files served as its own."""
+        if not super().parse_request():
+            return False
+        host = self.headers.get("Host")
+        listening = self.server.server_address  # (host, port, ...) of an IP server
+        if host is None or not isinstance(listening, tuple) or not ipaddress.ip_address(listening[0]).is_loopback:
+            return True
+        try:
+            name = (urllib.parse.urlsplit(f"//{host}").hostname or "").rstrip(".")
+            local = name == "localhost" or name.endswith(".localhost") or ipaddress.ip_address(name).is_loopback
+        except ValueError:  # not an address, or a port that is not a number
+            local = False
+        if not local:
+            self.send_error(403, "this server answers requests for localhost only")
+        return local
 
     def _send(self, status: int, ctype: str, body: bytes, headers: dict | None = None, cache: bool = False) -> None:
         self.send_response(status)
@@ -79,6 +101,13 @@ def viz_dir() -> Path:
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = REUSE_ADDRESS
+
+    def handle_error(self, request, client_address) -> None:
+        """A browser that went away (a connection reset or closed while its request was read or answered) is
+        passed over; anything else printed as :class:`ThreadingHTTPServer` prints it."""
+        if isinstance(sys.exc_info()[1], (ConnectionError, TimeoutError)):
+            return
+        super().handle_error(request, client_address)
 
 
 class _Server6(_Server):

@@ -173,17 +173,21 @@ class ReviewServer:
                         try:
                             body = server.class_json(t)
                         except (InputError, OSError) as exc:
-                            return self._send(500, "text/plain; charset=utf-8", f"{exc}\n".encode())
+                            return self._unreadable(exc)
                         return self._send(200, "application/json", body)
                     if what in ("overlay", "frame") and (t := _number(name, ".jpg", n)) is not None:
                         try:
                             body = server.image(what, t)
                         except (InputError, OSError) as exc:
-                            return self._send(500, "text/plain; charset=utf-8", f"{exc}\n".encode())
+                            return self._unreadable(exc)
                         return self._send(200, "image/jpeg", body, cache=True)
                     self._send(404, "text/plain", b"not found\n")
                 except (BrokenPipeError, ConnectionResetError):  # the browser went away
                     pass
+
+            def _unreadable(self, exc: Exception) -> None:
+                """Why a frame cannot be shown, its one line (a file name that is not UTF-8 shown with '?')."""
+                self._send(500, "text/plain; charset=utf-8", f"{exc}\n".encode(errors="replace"))
 
         return Handler
 

@@ -22,7 +22,7 @@ import math
 import os
 import zipfile
 import zlib
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -138,13 +138,15 @@ def parse_steps(path: Path, lines: Iterable[bytes]) -> Iterator[dict]:
         yield step
 
 
-def counted_steps(out: Path, count: int) -> Iterator[dict]:
+def counted_steps(out: Path, count: int, *, recount: Callable[[], int] | None = None) -> Iterator[dict]:
     """For a reader of a finished or stopped run (the export, the review): the ``count`` steps of ``out``'s
     steps.jsonl that its run.json counts, one at a time, as :func:`parse_steps` reads them (blank lines
     skipped; fewer when the file holds fewer). After them the file may hold only the step of a run stopped
     between writing it and committing it (:func:`append_step`), whole or cut off before its line break; a
     line among them that is not a step, or anything else after them, is an :class:`~pcreg.errors.InputError`
-    naming the line, raised when the last step has been read."""
+    naming the line, raised when the last step has been read. ``recount``: the count run.json gives now
+    (:func:`pcreg.runs.state.steps_counted_now`), asked when more lines follow: a run being written, which
+    counted more steps since ``count`` was read, has appended them (they are not read)."""
     path = out / STEPS
     numbered = ((i + 1, line) for i, line in enumerate(step_lines(out)) if line.strip())
     for n, line in itertools.islice(numbered, max(count, 0)):
@@ -153,6 +155,8 @@ def counted_steps(out: Path, count: int) -> Iterator[dict]:
             raise InputError(f"{path}: line {n} is not a step pcreg run wrote")
         yield step
     after = list(itertools.islice(numbered, 2))
+    if len(after) > 1 and recount is not None and recount() > count:  # the run went on since
+        return
     if len(after) > 1:
         raise InputError(f"{path}: line {after[1][0]} follows the {count} step(s) run.json counts and the one a "
                          "stopped run may leave after them (not a steps.jsonl pcreg run wrote)")

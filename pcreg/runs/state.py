@@ -23,7 +23,7 @@ from .files import STATE
 
 __all__ = ["STATE", "FORMAT", "format_problem", "frames_chosen", "unfinished_note", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "run_inputs",
            "open_state",
-           "read_state", "run_frames"]
+           "read_state", "run_frames", "steps_counted", "steps_counted_now"]
 
 #: The layout of the run.json this pcreg writes (its ``format``; a run.json without one, from before it was
 #: written, has this layout too). A run.json of a later format is refused by name rather than misread.
@@ -276,6 +276,21 @@ def _first_difference(name: str, before: dict, now: dict) -> tuple[str, dict, di
     return name, {"v": a}, {"v": b}
 
 
+def steps_counted(state: dict) -> int:
+    """How many lines of steps.jsonl a run's run.json (``state``) counts: a run from a folder of key frames its
+    ``lines``, a run from one label image a step for each frame done after its key frame."""
+    return int(state["lines"]) if "stretches" in state else int(state["done"]) - 1
+
+
+def steps_counted_now(folder: Path) -> int:
+    """:func:`steps_counted` of the run.json in ``folder`` as it is now, read again (-1 when it cannot be read): a
+    reader of a run that ``pcreg run`` is writing finds the steps it committed since it read run.json."""
+    try:
+        return steps_counted(read_state(folder))
+    except (InputError, KeyError, TypeError, ValueError):
+        return -1
+
+
 def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
     """``(key frames, every labelled frame)`` of a run, by name, in frame order, from its run.json
     (``state``) and the steps of its steps.jsonl in ``folder`` that run.json counts
@@ -292,7 +307,7 @@ def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
         raise ValueError(f"run.json's {field!r} is not as pcreg run writes it")
     stretches = "stretches" in state
     done = []  # the names alone: an hour's steps whole take about a GB
-    for step in counted_steps(folder, int(state["lines"]) if stretches else int(state["done"]) - 1):
+    for step in counted_steps(folder, steps_counted(state), recount=lambda: steps_counted_now(folder)):
         if "name" not in step:
             raise InputError(f"{folder / STEPS}: the step of frame {step['frame']} has no name (not a steps.jsonl "
                              "pcreg run wrote)")

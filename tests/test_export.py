@@ -329,16 +329,19 @@ def test_export_and_view_say_when_the_run_has_not_labelled_every_frame_it_chose(
     command = ["run", str(folder), "--labels", str(tmp_path / "key.png"), "--out", str(out)]
     assert main(command) == 0
     assert main(["export", str(out)]) == 0
-    assert "unfinished" not in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "unfinished" not in said.out + said.err
     cv2.imwrite(str(folder / "frame_004.png"), frames[4].image[:, :, ::-1])  # a frame more to label
     assert main(["export", str(out), "--force"]) == 0
-    assert "holds 4 of the 5 frames the run chose: it is unfinished" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert f"pcreg: note: {out} holds 4 of the 5 frames the run chose: it is unfinished" in said.err
+    assert "frames the run chose" not in said.out  # stdout holds what was written, as every command's does
     assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 0
-    assert "holds 4 of the 5 frames" in capsys.readouterr().out
+    assert f"pcreg: note: {out} holds 4 of the 5 frames" in capsys.readouterr().err  # the same note, on stderr
     assert main(command) == 0  # the same command labels the frame left
     assert main(["export", str(out), "--force"]) == 0
-    said = capsys.readouterr().out
-    assert "5 frame(s)" in said and "unfinished" not in said
+    said = capsys.readouterr()
+    assert "5 frame(s)" in said.out and "unfinished" not in said.out + said.err
 
 
 def _frames_then(monkeypatch, then):

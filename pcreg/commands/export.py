@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
           "Upload annotations, format Segmentation mask 1.1")
     note = unfinished_note(Path(args.folder), len(run_labels.names), run_labels.chosen)
     if note:
-        print(note)
+        sys.stderr.write(f"pcreg: note: {note}\n")
     # where the video skips frames by its times (the run's frame N is not the file's), frames that decode with errors
     # (labelled from concealed pictures), what else reading the frames met (transparent pixels, a turn to interlaced)
     for line in run_labels.said():

@@ -293,7 +293,7 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
         check_output(out, force=args.force, inputs=(review.source,))
     note = unfinished_note(folder, len(review.names), review.chosen)
     if note:
-        print(note)
+        sys.stderr.write(f"pcreg: note: {note}\n")
     # where the video skips frames by its times (the run's frame N is not the file's), frames that decode with errors
     # (labelled from concealed pictures), what else reading the frames met (transparent pixels, a turn to interlaced);
     # said once the video is written (a refused one says one line, its refusal), or before the page is served

@@ -345,7 +345,7 @@ def frames_chosen(run: dict) -> int | None:
 
 
 def unfinished_note(folder: Path, labelled: int, chosen: int | None) -> str | None:
-    """The line that says a run is unfinished when it labelled fewer of its ``chosen`` frames than there
+    """The note (said on stderr after ``pcreg: note:``) that says a run is unfinished when it labelled fewer of its ``chosen`` frames than there
     are, and whether a command is writing it now (:func:`~pcreg.outputs.writer_of`) or it stopped; None when
     it labelled them all or the count is not known."""
     from ..outputs import writer_of
@@ -355,7 +355,7 @@ def unfinished_note(folder: Path, labelled: int, chosen: int | None) -> str | No
     writer = writer_of(folder)
     if writer is not None:
         who = f" (pid {writer})" if writer else ""
-        return (f"note: {folder} holds {labelled} of the {chosen} frames the run chose: a pcreg run{who} is "
+        return (f"{folder} holds {labelled} of the {chosen} frames the run chose: a pcreg run{who} is "
                 "writing it now; what it labels later is not shown")
-    return (f"note: {folder} holds {labelled} of the {chosen} frames the run chose: it is unfinished "
+    return (f"{folder} holds {labelled} of the {chosen} frames the run chose: it is unfinished "
             "(the same pcreg run command goes on from where it stopped)")

@@ -138,8 +138,10 @@ class UnitStore:
         elif old is not None and old != config and self._holds_results():
             raise OutputError(f"{self.out} holds results of a different configuration "
                               "(use --force to replace them, or another --out)")
-        elif old is None and (self.out / "results.json").exists():
-            raise OutputError(f"{self.out}/results.json exists without a readable config.json (use --force)")
+        elif old is None and self._holds_results():
+            what = "results.json" if (self.out / "results.json").exists() else "units/ holds finished units"
+            raise OutputError(f"{self.out}: {what} without a readable config.json, of a configuration unknown "
+                              "(use --force to replace them, or another --out)")
         elif before is not None and files is not None and before != files and self._holds_results():
             raise OutputError(f"{self.out} holds results of the data in {config.get('data')} as it was: its files "
                               "changed since (use --force to replace them, or another --out)")
@@ -150,7 +152,7 @@ class UnitStore:
     def _holds_results(self) -> bool:
         """Whether a finished unit or a report is here: a configuration whose run stopped before any (a bad
         option found after it was written) is replaced without ``--force``, nothing being lost."""
-        return (self.out / "results.json").exists() or (self.dir.is_dir() and any(self.dir.glob("*.json")))
+        return (self.out / "results.json").exists() or (self.dir.is_dir() and any(self.dir.rglob("*.json")))
 
     def path(self, key: str) -> Path:
         return self.dir / f"{key}.json"

@@ -52,6 +52,22 @@ def test_evaluate_stream_writes_every_table_and_resumes(tmp_path, capsys):
     assert (out / "stream_reference.md").read_text().startswith("### Labelling a stream from its key frame: ")
 
 
+@pytest.mark.parametrize("kept", ["[1, 2]", '{"means": {}}', '{"dataset": "syn2b", "backend": "reference"}'])
+def test_a_kept_unit_edited_into_another_shape_is_run_again(tmp_path, capsys, kept):
+    """A unit file that reads as JSON but holds no clip's result (a list, a dict without its means, another clip's
+    name) ended the rerun with "internal error, a bug in pcreg" (exit 1): it is run again, as a damaged one is."""
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--frames", "3", "--size", "96x72", "--data", "synthetic:syn1a,syn2b",
+            "--methods", "unregistered", "--out", str(out)]
+    assert main(args) == 0
+    first = json.loads((out / "results.json").read_text())
+    (out / "units" / "syn1a_reference.json").write_text(kept)
+    (out / "results.json").unlink()
+    assert main(args) == 0, capsys.readouterr().err
+    again = json.loads((out / "results.json").read_text())
+    assert again["resumed_units"] == 1 and again["datasets"]["syn1a"]["means"] == first["datasets"]["syn1a"]["means"]
+
+
 def test_a_stream_with_several_key_frames_says_so_in_its_table(tmp_path):
     """``--keys`` (and ``--key-every``) label each clip from several key frames; the table's title said one."""
     out = tmp_path / "out"

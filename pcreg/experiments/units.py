@@ -16,7 +16,7 @@ import math
 import shutil
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ..recording.null import NULL_RECORDER
 from .results import Results
@@ -158,14 +158,16 @@ class UnitStore:
         return self.dir / f"{key}.json"
 
     def load(self, key: str) -> dict | None:
-        """The finished unit ``key``, or None (a damaged file counts as not finished)."""
+        """The finished unit ``key``, or None (a damaged file, or one that holds no JSON object, counts as not
+        finished)."""
         p = self.path(key)
         if not p.is_file():
             return None
         try:
-            return loads_json(p.read_text())
+            doc = loads_json(p.read_text())
         except (OSError, ValueError):
             return None
+        return doc if isinstance(doc, dict) else None
 
     def save(self, key: str, result: dict) -> None:
         from ..outputs import atomic_write_json
@@ -173,10 +175,19 @@ class UnitStore:
         atomic_write_json(self.path(key), result)
 
 
+def holds(result: dict, unit: Unit, keys: tuple[str, ...], *, same: tuple[str, ...] = ()) -> bool:
+    """Whether a kept unit's ``result`` holds each of ``keys`` and names ``unit``: each of ``same`` (``"dataset"``,
+    ``"backend"``, a parameter) equal to the unit's. A ``kept`` test of :func:`run_resumable`."""
+    return all(k in result for k in keys) and all(k in result and result[k] == getattr(unit, k) for k in same)
+
+
 def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=NULL_RECORDER,
-                  executor=None, desc: str = "", show_progress: bool | None = None) -> tuple[dict, int]:
+                  executor=None, desc: str = "", show_progress: bool | None = None,
+                  kept: Callable[[Unit, dict], bool] | None = None) -> tuple[dict, int]:
     """Run the units not finished yet (``store`` keeps each result as it lands), in this process when
-    recording (one recorder, frames in order), else through ``executor``.
+    recording (one recorder, frames in order), else through ``executor``. ``kept(unit, result)``: whether a
+    kept result is one this version's summary can read (one an earlier pcreg wrote without a section this one
+    has, or a file edited, is run again rather than read without it).
 
     Returns the results by unit key (finished and new) and how many came from an earlier run. A finished
     unit's ``recording_frames`` (where it lies on an earlier run's recording) is dropped: this run's
@@ -190,7 +201,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
     todo = []
     for u in units:
         prev = store.load(u.key) if store is not None else None
-        if prev is not None:
+        if prev is not None and (kept is None or kept(u, prev)):
             prev.pop("recording_frames", None)
             done[u.key] = prev
         else:
@@ -227,9 +238,9 @@ def nan_to_none(obj: Any) -> Any:
 
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
                    force: bool = False, executor=None, recorder=NULL_RECORDER, desc: str = "",
-                   show_progress: bool | None = None) -> Results:
+                   show_progress: bool | None = None, kept: Callable[[Unit, dict], bool] | None = None) -> Results:
     """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
-    them without ``out``), summarise their results in order (``summarise(config, results)``), and add
+    them without ``out``; ``kept``: as :func:`run_resumable`), summarise their results in order (``summarise(config, results)``), and add
     the presets' real counterparts, the number of resumed units and the wall time."""
     import time
 
@@ -239,7 +250,7 @@ def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | 
     cfg_dict = plain_config(config)
     store = UnitStore(out, cfg_dict, force=force) if out is not None else None
     done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
-                                  executor=executor, desc=desc, show_progress=show_progress)
+                                  executor=executor, desc=desc, show_progress=show_progress, kept=kept)
     results = summarise(config, [done[u.key] for u in units])
     for name, tables in results.datasets.items():
         if name in PRESETS:

@@ -113,6 +113,28 @@ def test_units_without_a_config_are_refused(tmp_path):
     assert not (out / "units" / "syn1a").exists()
 
 
+def test_starting_over_removes_the_earlier_report(tmp_path):
+    """--force over a folder whose report had a clip no longer run kept that clip's figure, which the report page
+    showed beside the new tables; and --force stopped before its report left the earlier results.json beside the
+    new config.json, the page showing the earlier numbers under the new options."""
+    from pcreg.experiments.reports.page import load_report
+    from pcreg.experiments.units import UnitStore
+
+    out = tmp_path / "s"
+    args = ["evaluate", "sequence", "--size", "160x120", "--frames", "4", "--increments", "1", "--levels", "2",
+            "--out", str(out)]
+    assert main([*args, "--data", "synthetic:syn1a,syn2b"]) == 0
+    assert (out / "sequence_syn2b.png").is_file()
+    (out / "notes.md").write_text("mine")  # not the report's: kept
+    assert main([*args, "--data", "synthetic:syn1a", "--force"]) == 0
+    assert not (out / "sequence_syn2b.png").exists() and (out / "sequence_syn1a.png").is_file()
+    assert "sequence_syn2b.png" not in load_report(out).figures and (out / "notes.md").read_text() == "mine"
+    config = json.loads((out / "config.json").read_text())
+    UnitStore(out, {**config, "frames": 5}, force=True)  # where a --force run stopped before its report
+    assert not (out / "results.json").exists() and not (out / "sequence_syn1a.png").exists()
+    assert (out / "notes.md").is_file() and not (out / "units").exists()
+
+
 def test_increment_longer_than_the_sequence_is_a_note(tmp_path):
     assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "3", "--size", "160x120",
                  "--increments", "1,5", "--out", str(tmp_path / "s")]) == 0

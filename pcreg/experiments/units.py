@@ -110,7 +110,7 @@ class UnitStore:
 
     Opening the store compares ``config`` with ``out/config.json``: the same configuration resumes
     (finished units are loaded, not rerun); a different one raises :class:`~pcreg.errors.OutputError`
-    unless ``force``, which clears the old units, or unless no unit finished and no report was written
+    unless ``force``, which clears the old units and report (:func:`~.reports.files.remove_report`), or unless no unit finished and no report was written
     (nothing is lost: it is replaced). ``force`` with the same configuration reruns all.
     """
 
@@ -132,9 +132,12 @@ class UnitStore:
         files = data_files(config.get("data"))
         stamp = self.dir / DATA_FILES
         before = stamp.read_text().strip() if stamp.is_file() else None
-        if force:
+        if force:  # start over: the earlier units and report go (its numbers are not this configuration's)
+            from .reports.files import remove_report
+
             if self.dir.is_dir():
                 shutil.rmtree(self.dir)
+            remove_report(self.out)
         elif old is not None and old != config and self._holds_results():
             raise OutputError(f"{self.out} holds results of a different configuration "
                               "(use --force to replace them, or another --out)")

@@ -68,6 +68,22 @@ def test_a_kept_unit_edited_into_another_shape_is_run_again(tmp_path, capsys, ke
     assert again["resumed_units"] == 1 and again["datasets"]["syn1a"]["means"] == first["datasets"]["syn1a"]["means"]
 
 
+def test_a_kept_unit_without_its_confidence_counts_is_run_again(tmp_path):
+    """A clip kept without ``calibration`` (by a pcreg from before pcreg's confidence was scored) was read as one of
+    no pixel: the confidence over all clips left its pixels out without a word."""
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--frames", "3", "--size", "96x72", "--data", "synthetic:syn1a,syn2b",
+            "--methods", "pcreg", "--out", str(out)]
+    assert main(args) == 0
+    first = json.loads((out / "results.json").read_text())["calibration"]
+    kept = out / "units" / "syn1a_reference.json"
+    kept.write_text(json.dumps({k: v for k, v in json.loads(kept.read_text()).items() if k != "calibration"}))
+    (out / "results.json").unlink()
+    assert main(args) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["resumed_units"] == 1 and res["calibration"]["pixels"] == first["pixels"] > 0
+
+
 def test_a_stream_with_several_key_frames_says_so_in_its_table(tmp_path):
     """``--keys`` (and ``--key-every``) label each clip from several key frames; the table's title said one."""
     out = tmp_path / "out"

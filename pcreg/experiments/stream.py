@@ -272,12 +272,13 @@ def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], record
 
 
 def kept(unit, result: dict) -> bool:
-    """Whether a clip's kept result holds what :func:`summarise` reads of it: every method's mean, and on DAVIS its
-    J and F (``davis``), with ``--classes`` its IoU; a clip kept without them is run again, not left out."""
+    """Whether a clip's kept result holds what :func:`summarise` reads of it: every method's mean, pcreg's confidence
+    counts (``calibration``), on DAVIS its J and F (``davis``), with ``--classes`` its IoU; a clip kept without them
+    is run again, not left out."""
     from .units import holds
 
     cfg = unit.config
-    needs = ("frames", "means", "ms_per_frame", "key_frames", "n_frames", "width", "height",
+    needs = ("frames", "means", "ms_per_frame", "key_frames", "n_frames", "width", "height", "calibration",
              *(("davis",) if is_davis(cfg.data) else ()), *(("miou", "iou") if cfg.classes is not None else ()))
     return (holds(result, unit, needs, same=("dataset", "backend")) and isinstance(result["means"], dict)
             and all(m in result["means"] for m in cfg.methods))

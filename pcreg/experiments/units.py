@@ -110,8 +110,9 @@ class UnitStore:
 
     Opening the store compares ``config`` with ``out/config.json``: the same configuration resumes
     (finished units are loaded, not rerun); a different one raises :class:`~pcreg.errors.OutputError`
-    unless ``force``, which clears the old units and report (:func:`~.reports.files.remove_report`), or unless no unit finished and no report was written
-    (nothing is lost: it is replaced). ``force`` with the same configuration reruns all.
+    unless ``force``, which clears the old units and report (:func:`~.reports.files.remove_report`), or unless
+    no unit finished and no report was written (nothing is lost: it is replaced). ``force`` with the same
+    configuration reruns all. Finished units without a readable config.json are refused as well.
     """
 
     def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:

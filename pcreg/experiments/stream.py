@@ -81,12 +81,19 @@ class StreamConfig:
 
     def to_dict(self) -> dict:
         """The fields, ``classes`` only when a table is chosen (the config of a two-class evaluation is
-        what it was before tables)."""
+        what it was before tables); with a table from a file, ``class_table``, the table the file held
+        (:func:`pcreg.classes.table_json`): the file edited since is another configuration, and the report
+        names the classes that were scored."""
+        import json
         from dataclasses import asdict
+
+        from ..classes import TABLES, class_table, table_json
 
         doc = asdict(self)
         if self.classes is None:
             doc.pop("classes")
+        elif self.classes not in TABLES:
+            doc["class_table"] = json.loads(table_json(class_table(self.classes)))
         return doc
 
 

@@ -190,6 +190,33 @@ def test_results_of_data_that_changed_since_are_not_resumed(tmp_path, capsys):
     assert main(args + ["--force"]) == 0
 
 
+def test_data_in_a_linked_folder_that_changed_since_is_not_resumed(tmp_path, capsys):
+    """A clip linked into the --data folder (a subset of a dataset made of links) was left out of the data's
+    digest: its frames changed and the rerun gave the old units' numbers with exit 0. A link to a folder above
+    is walked once, not for ever."""
+    import os
+
+    import cv2
+
+    import pcreg
+
+    clip = tmp_path / "elsewhere" / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i, f in enumerate(pcreg.synthetic("syn1a", 4, 0, width=96, height=72)):
+        cv2.imwrite(str(clip / "images" / f"f{i}.png"), f.image[:, :, ::-1])
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), f.labels)
+    (tmp_path / "data").mkdir()
+    os.symlink(clip, tmp_path / "data" / "clip")
+    os.symlink(tmp_path / "elsewhere", clip / "loop")  # a loop of links
+    args = ["evaluate", "stream", "--data", f"folder:{tmp_path / 'data'}", "--methods", "plain", "--out", str(tmp_path / "o")]
+    assert main(args) == 0 and main(args) == 0  # the same data resumes
+    cv2.imwrite(str(clip / "images" / "f2.png"), cv2.imread(str(clip / "images" / "f3.png")))
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "its files changed since (use --force" in capsys.readouterr().err
+
+
 def test_the_checks_name_only_the_methods_that_ran():
     """``--methods plain,pcreg`` reported "pcreg never worse than unregistered on any clip: met", though the
     unregistered key frame never ran."""

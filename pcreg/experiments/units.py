@@ -83,8 +83,8 @@ DATA_FILES = "data_files.txt"
 
 def data_files(data) -> str | None:
     """A digest of the names, sizes and modification times of every file under a ``--data`` folder
-    (``camvid:PATH`` and the like; None for synthetic data): finished units of data that changed since are not
-    results of the data as it is."""
+    (``camvid:PATH`` and the like; None for synthetic data), folders linked into it followed (each once):
+    finished units of data that changed since are not results of the data as it is."""
     import hashlib
     import os
 
@@ -94,7 +94,16 @@ def data_files(data) -> str | None:
     if root is None:
         return None
     entries = []
-    for folder, dirs, names in os.walk(root):
+    seen: set[tuple[int, int]] = set()  # folders walked, by device and inode: a link to a folder above is no loop
+    for folder, dirs, names in os.walk(root, followlinks=True):  # a clip linked into the folder is its data too
+        try:
+            st = os.stat(folder)
+        except OSError:
+            continue
+        if (st.st_dev, st.st_ino) in seen:
+            dirs.clear()
+            continue
+        seen.add((st.st_dev, st.st_ino))
         dirs.sort()
         for name in sorted(names):
             try:

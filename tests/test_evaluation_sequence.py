@@ -135,6 +135,24 @@ def test_starting_over_removes_the_earlier_report(tmp_path):
     assert (out / "notes.md").is_file() and not (out / "units").exists()
 
 
+def test_a_kept_unit_without_a_methods_mean_is_run_again(tmp_path):
+    """A unit kept without one method's mean (an earlier pcreg's, or edited) was read back, the method nan in its
+    row of the table without a word."""
+    out = tmp_path / "s"
+    args = ["evaluate", "sequence", "--data", "synthetic:syn1a", "--size", "96x72", "--frames", "4", "--increments",
+            "1,2", "--levels", "2", "--out", str(out)]
+    assert main(args) == 0
+    first = json.loads((out / "results.json").read_text())["datasets"]["syn1a"]["increments"]
+    kept = out / "units" / "syn1a" / "k1_reference.json"
+    doc = json.loads(kept.read_text())
+    del doc["means"]["augmented_flow"]
+    kept.write_text(json.dumps(doc))
+    (out / "results.json").unlink()
+    assert main(args) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["resumed_units"] == 1 and res["datasets"]["syn1a"]["increments"] == first
+
+
 def test_increment_longer_than_the_sequence_is_a_note(tmp_path):
     assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "3", "--size", "160x120",
                  "--increments", "1,5", "--out", str(tmp_path / "s")]) == 0

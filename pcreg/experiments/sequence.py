@@ -177,11 +177,14 @@ def plan_units(config: SequenceConfig, names: list[str]) -> list:
 
 
 def kept(unit, result: dict) -> bool:
-    """Whether a kept unit holds what :func:`summarise` reads of it (else it is run again)."""
+    """Whether a kept unit holds what :func:`summarise` reads of it, every method's mean among it unless the unit
+    failed (else it is run again: a method an earlier pcreg did not have would read nan)."""
+    from ..pipeline import METHODS
     from .units import holds
 
-    return holds(result, unit, ("pairs", "means", "failures", "notes", "frames", "width", "height"),
-                 same=("dataset", "k", "backend"))
+    return (holds(result, unit, ("pairs", "means", "failures", "notes", "frames", "width", "height"),
+                  same=("dataset", "k", "backend")) and isinstance(result["means"], dict)
+            and (bool(result.get("error")) or all(m in result["means"] for m in METHODS)))
 
 
 def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bool = False, executor=None,

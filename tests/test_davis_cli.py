@@ -51,6 +51,25 @@ def test_evaluate_stream_on_davis_scores_j_and_f_beside_the_published_methods(tm
     assert shown["davis_J"]["better"] == "higher" and shown["davis_J"]["columns"] == header.split(",")
 
 
+def test_a_kept_davis_unit_without_its_j_and_f_is_run_again_not_left_out(tmp_path):
+    """A sequence's kept unit without its ``davis`` section (as a pcreg from before J and F kept it) was read back
+    and silently left out of the DAVIS tables: the mean over sequences was one sequence's."""
+    root = write_official_layout(tmp_path / "DAVIS", "blackswan", frames_and_masks(5))
+    write_official_layout(root, "goat", frames_and_masks(5, seed=1))
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--data", f"davis:{root}", "--methods", "unregistered", "--out", str(out)]
+    assert main(args) == 0
+    first = json.loads((out / "results.json").read_text())["davis"]
+    kept = out / "units" / "goat_reference.json"
+    kept.write_text(json.dumps({k: v for k, v in json.loads(kept.read_text()).items() if k != "davis"}))
+    (out / "results.json").unlink()  # stopped before its report
+    assert main(args) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["resumed_units"] == 1 and set(res["davis"]["sequences"]) == {"blackswan", "goat"}
+    assert res["davis"]["mean"] == first["mean"]
+    assert "| goat | 3 |" in (out / "davis_J.md").read_text()
+
+
 def test_evaluate_stream_on_davis_refuses_other_key_frames(tmp_path, capsys):
     seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(4))
     assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--keys", "first,last", "--out",

@@ -55,6 +55,16 @@ def test_outputs_are_complete(small_run):
     assert (small_run / "case1.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_table_4_1_says_how_many_trials_found_its_weights(small_run):
+    """Its title said "30 random trials" whatever --trials was (4 here)."""
+    from pcreg.experiments.reports.page import load_report, page_data
+
+    assert (small_run / "table41_weights.md").read_text().startswith(
+        "### Table 4.1: thesis feature weights, 4 random trials (lowest training error)")
+    shown = {t["name"]: t["title"] for t in page_data(load_report(small_run))["tables"]}
+    assert shown["table41_weights"].startswith("Table 4.1: thesis feature weights, 4 random trials")
+
+
 def test_case_i_numbers_are_recomputed_exactly(small_run):
     """One Case I unit redone by hand: weight search on the training frames, fit, pooled error."""
     results = json.loads((small_run / "results.json").read_text())

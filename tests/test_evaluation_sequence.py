@@ -80,6 +80,79 @@ def test_a_config_that_finished_nothing_is_replaced_without_force(tmp_path, caps
         UnitStore(out, {"keys": [1]}, force=False)
 
 
+def test_units_of_another_config_are_not_reused_before_the_report(tmp_path, capsys):
+    """A run stopped after a unit finished and before its report keeps the unit in units/NAME/: the same --out
+    with other options was taken as holding nothing (only units/*.json was looked at), and the unit of the
+    first options was read back as one of the second."""
+    args = ["evaluate", "sequence", "--data", "synthetic:syn1a", "--size", "160x120", "--increments", "1",
+            "--levels", "2", "--out", str(tmp_path / "s")]
+    assert main([*args, "--frames", "4"]) == 0
+    (tmp_path / "s" / "results.json").unlink()  # stopped before the report: the finished unit is kept
+    capsys.readouterr()
+    assert main([*args, "--frames", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "different configuration" in err[0], err
+    assert main([*args, "--frames", "5", "--force"]) == 0
+    res = json.loads((tmp_path / "s" / "results.json").read_text())
+    assert res["resumed_units"] == 0 and res["datasets"]["syn1a"]["pairs"]["1"]["pairs"] > 2
+
+
+def test_units_without_a_config_are_refused(tmp_path):
+    """Finished units whose config.json is gone are of a configuration unknown: refused, not taken as this one's."""
+    from pcreg.errors import OutputError
+    from pcreg.experiments.units import UnitStore
+
+    out = tmp_path / "e"
+    UnitStore(out, {"frames": 4}, force=False)
+    (out / "units" / "syn1a").mkdir(parents=True)
+    (out / "units" / "syn1a" / "k1_reference.json").write_text("{}")
+    (out / "config.json").unlink()
+    with pytest.raises(OutputError, match="without a readable config.json"):
+        UnitStore(out, {"frames": 5}, force=False)
+    UnitStore(out, {"frames": 5}, force=True)
+    assert not (out / "units" / "syn1a").exists()
+
+
+def test_starting_over_removes_the_earlier_report(tmp_path):
+    """--force over a folder whose report had a clip no longer run kept that clip's figure, which the report page
+    showed beside the new tables; and --force stopped before its report left the earlier results.json beside the
+    new config.json, the page showing the earlier numbers under the new options."""
+    from pcreg.experiments.reports.page import load_report
+    from pcreg.experiments.units import UnitStore
+
+    out = tmp_path / "s"
+    args = ["evaluate", "sequence", "--size", "160x120", "--frames", "4", "--increments", "1", "--levels", "2",
+            "--out", str(out)]
+    assert main([*args, "--data", "synthetic:syn1a,syn2b"]) == 0
+    assert (out / "sequence_syn2b.png").is_file()
+    (out / "notes.md").write_text("mine")  # not the report's: kept
+    assert main([*args, "--data", "synthetic:syn1a", "--force"]) == 0
+    assert not (out / "sequence_syn2b.png").exists() and (out / "sequence_syn1a.png").is_file()
+    assert "sequence_syn2b.png" not in load_report(out).figures and (out / "notes.md").read_text() == "mine"
+    config = json.loads((out / "config.json").read_text())
+    UnitStore(out, {**config, "frames": 5}, force=True)  # where a --force run stopped before its report
+    assert not (out / "results.json").exists() and not (out / "sequence_syn1a.png").exists()
+    assert (out / "notes.md").is_file() and not (out / "units").exists()
+
+
+def test_a_kept_unit_without_a_methods_mean_is_run_again(tmp_path):
+    """A unit kept without one method's mean (an earlier pcreg's, or edited) was read back, the method nan in its
+    row of the table without a word."""
+    out = tmp_path / "s"
+    args = ["evaluate", "sequence", "--data", "synthetic:syn1a", "--size", "96x72", "--frames", "4", "--increments",
+            "1,2", "--levels", "2", "--out", str(out)]
+    assert main(args) == 0
+    first = json.loads((out / "results.json").read_text())["datasets"]["syn1a"]["increments"]
+    kept = out / "units" / "syn1a" / "k1_reference.json"
+    doc = json.loads(kept.read_text())
+    del doc["means"]["augmented_flow"]
+    kept.write_text(json.dumps(doc))
+    (out / "results.json").unlink()
+    assert main(args) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["resumed_units"] == 1 and res["datasets"]["syn1a"]["increments"] == first
+
+
 def test_increment_longer_than_the_sequence_is_a_note(tmp_path):
     assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "3", "--size", "160x120",
                  "--increments", "1,5", "--out", str(tmp_path / "s")]) == 0

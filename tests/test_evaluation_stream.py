@@ -52,6 +52,38 @@ def test_evaluate_stream_writes_every_table_and_resumes(tmp_path, capsys):
     assert (out / "stream_reference.md").read_text().startswith("### Labelling a stream from its key frame: ")
 
 
+@pytest.mark.parametrize("kept", ["[1, 2]", '{"means": {}}', '{"dataset": "syn2b", "backend": "reference"}'])
+def test_a_kept_unit_edited_into_another_shape_is_run_again(tmp_path, capsys, kept):
+    """A unit file that reads as JSON but holds no clip's result (a list, a dict without its means, another clip's
+    name) ended the rerun with "internal error, a bug in pcreg" (exit 1): it is run again, as a damaged one is."""
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--frames", "3", "--size", "96x72", "--data", "synthetic:syn1a,syn2b",
+            "--methods", "unregistered", "--out", str(out)]
+    assert main(args) == 0
+    first = json.loads((out / "results.json").read_text())
+    (out / "units" / "syn1a_reference.json").write_text(kept)
+    (out / "results.json").unlink()
+    assert main(args) == 0, capsys.readouterr().err
+    again = json.loads((out / "results.json").read_text())
+    assert again["resumed_units"] == 1 and again["datasets"]["syn1a"]["means"] == first["datasets"]["syn1a"]["means"]
+
+
+def test_a_kept_unit_without_its_confidence_counts_is_run_again(tmp_path):
+    """A clip kept without ``calibration`` (by a pcreg from before pcreg's confidence was scored) was read as one of
+    no pixel: the confidence over all clips left its pixels out without a word."""
+    out = tmp_path / "out"
+    args = ["evaluate", "stream", "--frames", "3", "--size", "96x72", "--data", "synthetic:syn1a,syn2b",
+            "--methods", "pcreg", "--out", str(out)]
+    assert main(args) == 0
+    first = json.loads((out / "results.json").read_text())["calibration"]
+    kept = out / "units" / "syn1a_reference.json"
+    kept.write_text(json.dumps({k: v for k, v in json.loads(kept.read_text()).items() if k != "calibration"}))
+    (out / "results.json").unlink()
+    assert main(args) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["resumed_units"] == 1 and res["calibration"]["pixels"] == first["pixels"] > 0
+
+
 def test_a_stream_with_several_key_frames_says_so_in_its_table(tmp_path):
     """``--keys`` (and ``--key-every``) label each clip from several key frames; the table's title said one."""
     out = tmp_path / "out"
@@ -156,6 +188,33 @@ def test_results_of_data_that_changed_since_are_not_resumed(tmp_path, capsys):
     assert main(args) == 2
     assert "its files changed since (use --force" in capsys.readouterr().err
     assert main(args + ["--force"]) == 0
+
+
+def test_data_in_a_linked_folder_that_changed_since_is_not_resumed(tmp_path, capsys):
+    """A clip linked into the --data folder (a subset of a dataset made of links) was left out of the data's
+    digest: its frames changed and the rerun gave the old units' numbers with exit 0. A link to a folder above
+    is walked once, not for ever."""
+    import os
+
+    import cv2
+
+    import pcreg
+
+    clip = tmp_path / "elsewhere" / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i, f in enumerate(pcreg.synthetic("syn1a", 4, 0, width=96, height=72)):
+        cv2.imwrite(str(clip / "images" / f"f{i}.png"), f.image[:, :, ::-1])
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), f.labels)
+    (tmp_path / "data").mkdir()
+    os.symlink(clip, tmp_path / "data" / "clip")
+    os.symlink(tmp_path / "elsewhere", clip / "loop")  # a loop of links
+    args = ["evaluate", "stream", "--data", f"folder:{tmp_path / 'data'}", "--methods", "plain", "--out", str(tmp_path / "o")]
+    assert main(args) == 0 and main(args) == 0  # the same data resumes
+    cv2.imwrite(str(clip / "images" / "f2.png"), cv2.imread(str(clip / "images" / "f3.png")))
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "its files changed since (use --force" in capsys.readouterr().err
 
 
 def test_the_checks_name_only_the_methods_that_ran():

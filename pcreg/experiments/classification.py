@@ -227,6 +227,16 @@ def run_weight_search(unit) -> dict:
     return {"dataset": unit.dataset, **s.to_dict()}
 
 
+def _kept(unit, result: dict) -> bool:
+    """Whether a kept unit holds what the report reads of it (else it is run again)."""
+    from .units import holds
+
+    if not unit.params:  # a weight search
+        return holds(result, unit, ("weights", "error"), same=("dataset",))
+    return (holds(result, unit, ("error", "tests", "train_frames", "training_error", "key"), same=("case", "features"))
+            and result["key"] == list(unit.result_key))
+
+
 # ---------------------------------------------------------------------------------------------
 # the evaluation
 # ---------------------------------------------------------------------------------------------
@@ -252,10 +262,10 @@ def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, for
     if any("thesis" in fs.split("+") for fs in config.features):
         jobs = [Unit(f"weights/{d}", d, (), config) for d in datasets]
         done, _ = run_resumable(jobs, run_weight_search, store=store, cfg_dict=cfg_dict, executor=executor,
-                                desc="weight search", show_progress=show_progress)
+                                desc="weight search", show_progress=show_progress, kept=_kept)
         searches = [done[u.key] for u in jobs]
     done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, executor=executor,
-                                  desc="classification", show_progress=show_progress)
+                                  desc="classification", show_progress=show_progress, kept=_kept)
     results = [done[u.key] for u in units]
     notes = []
     scaled = [d for d, n in lengths.items() if n != 100]

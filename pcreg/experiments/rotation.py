@@ -211,6 +211,14 @@ def check_angles(angles) -> None:
         seen[key] = a
 
 
+def kept(unit, result: dict) -> bool:
+    """Whether a kept unit holds a row of every angle of the run (else it is run again)."""
+    from .units import angle_key, holds
+
+    return (holds(result, unit, ("angles", "name"), same=("dataset", "index", "backend"))
+            and isinstance(result["angles"], dict) and all(angle_key(a) in result["angles"] for a in unit.config.angles))
+
+
 def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
     """Run every unit (resuming from ``out/units``); returns its :class:`Results`."""
@@ -227,7 +235,7 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
             for b in config.backends:
                 units.append(Unit(f"{name}/frame{i}_{b}", name, (("index", i), ("backend", b)), config))
     return evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
-                          recorder=recorder, desc="rotation", show_progress=show_progress)
+                          recorder=recorder, desc="rotation", show_progress=show_progress, kept=kept)
 
 
 def summarise(config: RotationConfig, unit_results: list[dict]) -> Results:

@@ -176,6 +176,17 @@ def plan_units(config: SequenceConfig, names: list[str]) -> list:
             for d in names for k in config.increments for b in config.backends]
 
 
+def kept(unit, result: dict) -> bool:
+    """Whether a kept unit holds what :func:`summarise` reads of it, every method's mean among it unless the unit
+    failed (else it is run again: a method an earlier pcreg did not have would read nan)."""
+    from ..pipeline import METHODS
+    from .units import holds
+
+    return (holds(result, unit, ("pairs", "means", "failures", "notes", "frames", "width", "height"),
+                  same=("dataset", "k", "backend")) and isinstance(result["means"], dict)
+            and (bool(result.get("error")) or all(m in result["means"] for m in METHODS)))
+
+
 def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bool = False, executor=None,
              recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
     """Run every unit (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
@@ -188,7 +199,7 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
             raise DatasetError(f"dataset {name} has unlabelled frames; the sequence evaluation scores every frame")
     results = evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                              force=force, executor=executor, recorder=recorder, desc="sequence",
-                             show_progress=show_progress)
+                             show_progress=show_progress, kept=kept)
     units = results.units
     if units and not any(u["pairs"] for u in units):  # a report without a number is the input's fault
         u = next((u for u in units if u["notes"]), units[0])

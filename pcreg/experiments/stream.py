@@ -81,12 +81,19 @@ class StreamConfig:
 
     def to_dict(self) -> dict:
         """The fields, ``classes`` only when a table is chosen (the config of a two-class evaluation is
-        what it was before tables)."""
+        what it was before tables); with a table from a file, ``class_table``, the table the file held
+        (:func:`pcreg.classes.table_json`): the file edited since is another configuration, and the report
+        names the classes that were scored."""
+        import json
         from dataclasses import asdict
+
+        from ..classes import TABLES, class_table, table_json
 
         doc = asdict(self)
         if self.classes is None:
             doc.pop("classes")
+        elif self.classes not in TABLES:
+            doc["class_table"] = json.loads(table_json(class_table(self.classes)))
         return doc
 
 
@@ -271,6 +278,19 @@ def _recording_hook(rec: RecorderProtocol, clip: str, counter: list[int], record
     return on_frame
 
 
+def kept(unit, result: dict) -> bool:
+    """Whether a clip's kept result holds what :func:`summarise` reads of it: every method's mean, pcreg's confidence
+    counts (``calibration``), on DAVIS its J and F (``davis``), with ``--classes`` its IoU; a clip kept without them
+    is run again, not left out."""
+    from .units import holds
+
+    cfg = unit.config
+    needs = ("frames", "means", "ms_per_frame", "key_frames", "n_frames", "width", "height", "calibration",
+             *(("davis",) if is_davis(cfg.data) else ()), *(("miou", "iou") if cfg.classes is not None else ()))
+    return (holds(result, unit, needs, same=("dataset", "backend")) and isinstance(result["means"], dict)
+            and all(m in result["means"] for m in cfg.methods))
+
+
 def plan_units(config: StreamConfig, names: list[str]) -> list:
     from .units import Unit
 
@@ -295,7 +315,7 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
                 raise InputError(f"clip {name}: {exc}") from None
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                           force=force, executor=executor, recorder=recorder, desc="stream",
-                          show_progress=show_progress)
+                          show_progress=show_progress, kept=kept)
 
 
 def reduction(plain: float, value: float) -> float:

@@ -16,7 +16,7 @@ import math
 import shutil
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ..recording.null import NULL_RECORDER
 from .results import Results
@@ -83,8 +83,8 @@ DATA_FILES = "data_files.txt"
 
 def data_files(data) -> str | None:
     """A digest of the names, sizes and modification times of every file under a ``--data`` folder
-    (``camvid:PATH`` and the like; None for synthetic data): finished units of data that changed since are not
-    results of the data as it is."""
+    (``camvid:PATH`` and the like; None for synthetic data), folders linked into it followed (each once):
+    finished units of data that changed since are not results of the data as it is."""
     import hashlib
     import os
 
@@ -94,7 +94,16 @@ def data_files(data) -> str | None:
     if root is None:
         return None
     entries = []
-    for folder, dirs, names in os.walk(root):
+    seen: set[tuple[int, int]] = set()  # folders walked, by device and inode: a link to a folder above is no loop
+    for folder, dirs, names in os.walk(root, followlinks=True):  # a clip linked into the folder is its data too
+        try:
+            st = os.stat(folder)
+        except OSError:
+            continue
+        if (st.st_dev, st.st_ino) in seen:
+            dirs.clear()
+            continue
+        seen.add((st.st_dev, st.st_ino))
         dirs.sort()
         for name in sorted(names):
             try:
@@ -110,8 +119,9 @@ class UnitStore:
 
     Opening the store compares ``config`` with ``out/config.json``: the same configuration resumes
     (finished units are loaded, not rerun); a different one raises :class:`~pcreg.errors.OutputError`
-    unless ``force``, which clears the old units, or unless no unit finished and no report was written
-    (nothing is lost: it is replaced). ``force`` with the same configuration reruns all.
+    unless ``force``, which clears the old units and report (:func:`~.reports.files.remove_report`), or unless
+    no unit finished and no report was written (nothing is lost: it is replaced). ``force`` with the same
+    configuration reruns all. Finished units without a readable config.json are refused as well.
     """
 
     def __init__(self, out: str | Path, config: dict, *, force: bool) -> None:
@@ -132,14 +142,19 @@ class UnitStore:
         files = data_files(config.get("data"))
         stamp = self.dir / DATA_FILES
         before = stamp.read_text().strip() if stamp.is_file() else None
-        if force:
+        if force:  # start over: the earlier units and report go (its numbers are not this configuration's)
+            from .reports.files import remove_report
+
             if self.dir.is_dir():
                 shutil.rmtree(self.dir)
+            remove_report(self.out)
         elif old is not None and old != config and self._holds_results():
             raise OutputError(f"{self.out} holds results of a different configuration "
                               "(use --force to replace them, or another --out)")
-        elif old is None and (self.out / "results.json").exists():
-            raise OutputError(f"{self.out}/results.json exists without a readable config.json (use --force)")
+        elif old is None and self._holds_results():
+            what = "results.json" if (self.out / "results.json").exists() else "units/ holds finished units"
+            raise OutputError(f"{self.out}: {what} without a readable config.json, of a configuration unknown "
+                              "(use --force to replace them, or another --out)")
         elif before is not None and files is not None and before != files and self._holds_results():
             raise OutputError(f"{self.out} holds results of the data in {config.get('data')} as it was: its files "
                               "changed since (use --force to replace them, or another --out)")
@@ -150,20 +165,22 @@ class UnitStore:
     def _holds_results(self) -> bool:
         """Whether a finished unit or a report is here: a configuration whose run stopped before any (a bad
         option found after it was written) is replaced without ``--force``, nothing being lost."""
-        return (self.out / "results.json").exists() or (self.dir.is_dir() and any(self.dir.glob("*.json")))
+        return (self.out / "results.json").exists() or (self.dir.is_dir() and any(self.dir.rglob("*.json")))
 
     def path(self, key: str) -> Path:
         return self.dir / f"{key}.json"
 
     def load(self, key: str) -> dict | None:
-        """The finished unit ``key``, or None (a damaged file counts as not finished)."""
+        """The finished unit ``key``, or None (a damaged file, or one that holds no JSON object, counts as not
+        finished)."""
         p = self.path(key)
         if not p.is_file():
             return None
         try:
-            return loads_json(p.read_text())
+            doc = loads_json(p.read_text())
         except (OSError, ValueError):
             return None
+        return doc if isinstance(doc, dict) else None
 
     def save(self, key: str, result: dict) -> None:
         from ..outputs import atomic_write_json
@@ -171,10 +188,19 @@ class UnitStore:
         atomic_write_json(self.path(key), result)
 
 
+def holds(result: dict, unit: Unit, keys: tuple[str, ...], *, same: tuple[str, ...] = ()) -> bool:
+    """Whether a kept unit's ``result`` holds each of ``keys`` and names ``unit``: each of ``same`` (``"dataset"``,
+    ``"backend"``, a parameter) equal to the unit's. A ``kept`` test of :func:`run_resumable`."""
+    return all(k in result for k in keys) and all(k in result and result[k] == getattr(unit, k) for k in same)
+
+
 def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict: dict, recorder=NULL_RECORDER,
-                  executor=None, desc: str = "", show_progress: bool | None = None) -> tuple[dict, int]:
+                  executor=None, desc: str = "", show_progress: bool | None = None,
+                  kept: Callable[[Unit, dict], bool] | None = None) -> tuple[dict, int]:
     """Run the units not finished yet (``store`` keeps each result as it lands), in this process when
-    recording (one recorder, frames in order), else through ``executor``.
+    recording (one recorder, frames in order), else through ``executor``. ``kept(unit, result)``: whether a
+    kept result is one this version's summary can read (one an earlier pcreg wrote without a section this one
+    has, or a file edited, is run again rather than read without it).
 
     Returns the results by unit key (finished and new) and how many came from an earlier run. A finished
     unit's ``recording_frames`` (where it lies on an earlier run's recording) is dropped: this run's
@@ -188,7 +214,7 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
     todo = []
     for u in units:
         prev = store.load(u.key) if store is not None else None
-        if prev is not None:
+        if prev is not None and (kept is None or kept(u, prev)):
             prev.pop("recording_frames", None)
             done[u.key] = prev
         else:
@@ -225,9 +251,9 @@ def nan_to_none(obj: Any) -> Any:
 
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
                    force: bool = False, executor=None, recorder=NULL_RECORDER, desc: str = "",
-                   show_progress: bool | None = None) -> Results:
+                   show_progress: bool | None = None, kept: Callable[[Unit, dict], bool] | None = None) -> Results:
     """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
-    them without ``out``), summarise their results in order (``summarise(config, results)``), and add
+    them without ``out``; ``kept``: as :func:`run_resumable`), summarise their results in order (``summarise(config, results)``), and add
     the presets' real counterparts, the number of resumed units and the wall time."""
     import time
 
@@ -237,7 +263,7 @@ def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | 
     cfg_dict = plain_config(config)
     store = UnitStore(out, cfg_dict, force=force) if out is not None else None
     done, resumed = run_resumable(units, run_unit, store=store, cfg_dict=cfg_dict, recorder=recorder,
-                                  executor=executor, desc=desc, show_progress=show_progress)
+                                  executor=executor, desc=desc, show_progress=show_progress, kept=kept)
     results = summarise(config, [done[u.key] for u in units])
     for name, tables in results.datasets.items():
         if name in PRESETS:

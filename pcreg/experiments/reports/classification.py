@@ -81,11 +81,17 @@ def _fraction_columns(cells: list, ks: list[int], fractions: list[float], n: int
 
 
 _TITLES = {
-    "table41_weights": "Table 4.1: thesis feature weights, 30 random trials (lowest training error)",
+    "table41_weights": "Table 4.1: thesis feature weights, {trials} random trials (lowest training error)",
     "case1": "Table 4.2 (Case I): error % when training on the first k frames, testing on the rest",
     "case2": "Table 4.3 (Case II): error % when training on all of one dataset, testing on each",
     "case3": "Table 4.4 (Case III): error % when training on k frames of every dataset, testing on all",
 }
+
+
+def title(name: str, results: dict) -> str:
+    """The title of table ``name`` (the thesis's 30 trials of the weight search as many as this run's ``--trials``)."""
+    trials = results["config"].get("n_trials")
+    return _TITLES.get(name, name).replace("{trials}", "the" if trials is None else str(trials))
 
 
 def _figures(results: dict) -> dict:
@@ -148,5 +154,5 @@ def write_outputs(results: Results, out: str | Path) -> list[Path]:
         notes = [n for n in doc["notes"] if (name == "case1" and n.startswith("Case I:"))
                  or (name == "case3" and n.startswith("Case III:"))]
         footer = "\n" + "\n".join(f"Note: {n}." for n in notes) + "\n" if notes else ""
-        specs[name] = (_TITLES[name], header, rows, footer)
+        specs[name] = (title(name, doc), header, rows, footer)
     return write_files(out, doc, tables=specs, figures=_figures(doc))

@@ -1,21 +1,60 @@
-"""Writing a report's files: Markdown and CSV tables, PNG figures, config.json and, last, results.json."""
+"""Writing a report's files: Markdown and CSV tables, PNG figures, config.json and, last, results.json.
+
+Beside them, :data:`MANIFEST` names the files the report wrote, so that the next report, or a run that starts
+over (``--force``), removes those it does not write again: a table or figure of a clip, backend or option no
+longer run is not left in the folder (and on the report page) beside the new numbers.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
+
+#: The file of an output folder that names, one a line, the files its report wrote besides results.json.
+MANIFEST = ".report_files"
+
+
+def _listed(out: Path) -> list[str]:
+    """The files :data:`MANIFEST` names: plain names in ``out`` only (none for a missing or unreadable one)."""
+    try:
+        text = (out / MANIFEST).read_text(encoding="utf-8")
+    except (OSError, ValueError):
+        return []
+    return [n for n in text.splitlines() if n and Path(n).name == n and not n.startswith(".")
+            and n not in ("config.json", "results.json")]
+
+
+def _remove(out: Path, names) -> None:
+    from ...errors import OutputError
+
+    for name in names:
+        try:
+            (out / name).unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            raise OutputError(f"cannot remove {out / name}, a file of the earlier report: {exc.strerror or exc}") from None
+
+
+def remove_report(out: str | Path) -> None:
+    """Remove the report an earlier run wrote in ``out``: its results.json and every file its :data:`MANIFEST`
+    names (config.json and the units are the caller's)."""
+    out = Path(out)
+    _remove(out, ["results.json", *_listed(out), MANIFEST])
 
 
 def write_files(out: str | Path, results: dict, *, tables: dict | None = None, texts: dict | None = None,
                 figures: dict | None = None) -> list[Path]:
     """Write, each atomically: ``tables`` {name: (title, header, rows[, footer])} as NAME.csv and NAME.md
     (title above the table, the optional Markdown footer below), ``texts`` {file name: Markdown}, ``figures`` {name: matplotlib figure} as NAME.png
-    (closed after), then config.json and results.json (NaN written as null). Returns the paths."""
+    (closed after), then config.json, :data:`MANIFEST` and results.json (NaN written as null); the files the
+    earlier report's manifest names and this one does not write are removed. Returns the paths."""
     import matplotlib.pyplot as plt
 
     from ...outputs import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
     from ..units import nan_to_none
 
     out = Path(out)
+    earlier = _listed(out)
     written = []
     for name, (title, header, rows, *footer) in (tables or {}).items():
         written.append(atomic_write_csv(out / f"{name}.csv", header, rows))
@@ -28,6 +67,9 @@ def write_files(out: str | Path, results: dict, *, tables: dict | None = None, t
             continue
         written.append(atomic_save_figure(fig, out / f"{name}.png"))
         plt.close(fig)
+    names = [p.name for p in written]
+    _remove(out, [n for n in earlier if n not in names])
     written.append(atomic_write_json(out / "config.json", results["config"]))
+    atomic_write_text(out / MANIFEST, "".join(f"{n}\n" for n in names))
     written.append(atomic_write_json(out / "results.json", nan_to_none(results)))
     return written

@@ -26,12 +26,14 @@ def classes_tables(results: dict) -> dict:
     none without ``--classes``."""
     if not is_many_classes(results):
         return {}
-    from ...classes import class_table
+    from ...classes import class_table, parse_table_json
 
     methods, clips = results["methods"], results["datasets"]
     rows = [[name, *[c["miou"][m] for m in methods]] for name, c in clips.items()]
     rows.append(["mean over clips", *[float(np.mean([c["miou"][m] for c in clips.values()])) for m in methods]])
-    table = class_table(results["config"]["classes"])
+    config = results["config"]  # a file's table as the run read it (the file may have changed, or gone, since)
+    table = (parse_table_json(config["class_table"], config["classes"]) if config.get("class_table")
+             else class_table(config["classes"]))
     ids = sorted({int(k) for c in clips.values() for m in methods for k in c["iou"][m]})
     per_class = []
     for k in ids:

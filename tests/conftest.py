@@ -19,3 +19,11 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"../shared/data is absent: {SHARED_DATA} not found (real-data tests need it)")
     return SHARED_DATA
+
+
+@pytest.fixture
+def on_path(tmp_path, monkeypatch):
+    """tmp_path on sys.path (the modules written there importable), as the working directory."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    return tmp_path

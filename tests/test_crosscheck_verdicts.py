@@ -7,14 +7,6 @@ import pytest
 from pcreg.implementations.crosscheck import crosscheck_implementations
 
 
-@pytest.fixture
-def on_path(tmp_path, monkeypatch):
-    """tmp_path on sys.path (the modules written there importable), as the working directory."""
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
-
 def test_an_icp_that_never_moves_disagrees_in_every_unit(on_path):
     """Clouds 1.7 units across, moved by 0.3% of that: an implementation that returns its initial guess disagrees.
     The same clouds in units 1e4 times larger (1.7e-4 across: micrometres given in metres) agreed at the

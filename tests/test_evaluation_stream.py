@@ -168,25 +168,39 @@ def test_pcreg_flow_is_pcreg_run_with_the_flow_model_at_half_size():
     np.testing.assert_allclose([f["errors"]["pcreg_flow"] for f in r["frames"]], direct)
 
 
-def test_results_of_data_that_changed_since_are_not_resumed(tmp_path, capsys):
-    """A finished evaluation rerun over the same --out after its frames changed gave the old units' numbers
-    (8.41% where a fresh run gives 33.4%) with exit 0."""
+def _synthetic_clip(clip):
+    """``clip``: a folder of four synthetic 96x72 frames and their labels (images/, labels/), made and returned."""
     import cv2
 
     import pcreg
 
-    clip = tmp_path / "data" / "clip"
     (clip / "images").mkdir(parents=True)
     (clip / "labels").mkdir()
     for i, f in enumerate(pcreg.synthetic("syn1a", 4, 0, width=96, height=72)):
         cv2.imwrite(str(clip / "images" / f"f{i}.png"), f.image[:, :, ::-1])
         cv2.imwrite(str(clip / "labels" / f"f{i}.png"), f.labels)
-    args = ["evaluate", "stream", "--data", f"folder:{tmp_path / 'data'}", "--methods", "plain", "--out", str(tmp_path / "o")]
+    return clip
+
+
+def _refused_once_a_frame_changed(data, clip, out, capsys) -> list[str]:
+    """The arguments of an evaluation of ``data`` into ``out``, run and resumed, then refused once a frame of ``clip``
+    changed."""
+    import cv2
+
+    args = ["evaluate", "stream", "--data", f"folder:{data}", "--methods", "plain", "--out", str(out)]
     assert main(args) == 0 and main(args) == 0  # the same data resumes
     cv2.imwrite(str(clip / "images" / "f2.png"), cv2.imread(str(clip / "images" / "f3.png")))
     capsys.readouterr()
     assert main(args) == 2
     assert "its files changed since (use --force" in capsys.readouterr().err
+    return args
+
+
+def test_results_of_data_that_changed_since_are_not_resumed(tmp_path, capsys):
+    """A finished evaluation rerun over the same --out after its frames changed gave the old units' numbers
+    (8.41% where a fresh run gives 33.4%) with exit 0."""
+    clip = _synthetic_clip(tmp_path / "data" / "clip")
+    args = _refused_once_a_frame_changed(tmp_path / "data", clip, tmp_path / "o", capsys)
     assert main(args + ["--force"]) == 0
 
 
@@ -196,25 +210,11 @@ def test_data_in_a_linked_folder_that_changed_since_is_not_resumed(tmp_path, cap
     is walked once, not for ever."""
     import os
 
-    import cv2
-
-    import pcreg
-
-    clip = tmp_path / "elsewhere" / "clip"
-    (clip / "images").mkdir(parents=True)
-    (clip / "labels").mkdir()
-    for i, f in enumerate(pcreg.synthetic("syn1a", 4, 0, width=96, height=72)):
-        cv2.imwrite(str(clip / "images" / f"f{i}.png"), f.image[:, :, ::-1])
-        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), f.labels)
+    clip = _synthetic_clip(tmp_path / "elsewhere" / "clip")
     (tmp_path / "data").mkdir()
     os.symlink(clip, tmp_path / "data" / "clip")
     os.symlink(tmp_path / "elsewhere", clip / "loop")  # a loop of links
-    args = ["evaluate", "stream", "--data", f"folder:{tmp_path / 'data'}", "--methods", "plain", "--out", str(tmp_path / "o")]
-    assert main(args) == 0 and main(args) == 0  # the same data resumes
-    cv2.imwrite(str(clip / "images" / "f2.png"), cv2.imread(str(clip / "images" / "f3.png")))
-    capsys.readouterr()
-    assert main(args) == 2
-    assert "its files changed since (use --force" in capsys.readouterr().err
+    _refused_once_a_frame_changed(tmp_path / "data", clip, tmp_path / "o", capsys)
 
 
 def test_the_checks_name_only_the_methods_that_ran():

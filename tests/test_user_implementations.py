@@ -20,14 +20,6 @@ def _clouds(d: int = 2):
     return tgt + 0.1, tgt
 
 
-@pytest.fixture
-def on_path(tmp_path, monkeypatch):
-    """tmp_path on sys.path (the modules written there importable), as the working directory."""
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
-
 def test_a_module_that_exits_or_changes_directory_is_its_row_and_the_next_one_runs(on_path):
     """sys.exit at a module's import, or in a property of what a function returned, ended the cross-check with
     that status (3 read as "registration refused"); a function that changed directory made the next

@@ -96,7 +96,7 @@ def test_evaluate_returns_typed_results_and_the_report_writes_exactly_them(tmp_p
     from pcreg.experiments.reports.stream import write_outputs
     from pcreg.experiments.results import Results
     from pcreg.experiments.stream import StreamConfig, evaluate
-    from pcreg.experiments.units import nan_to_none
+    from pcreg.experiments.reports.files import nan_to_none
 
     config = StreamConfig(data="synthetic:syn1a", frames=3, size=(96, 72), methods=("plain", "unregistered"))
     res = evaluate(config, show_progress=False)

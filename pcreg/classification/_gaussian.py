@@ -1,5 +1,6 @@
 """What naive Bayes and the thesis's weight search share: the training pairs checked, GaussianNB's parameters from
-per-class histograms, and the log-likelihood tables of every 8-bit value."""
+per-class histograms, and the log-likelihood tables of every 8-bit value, of Gaussians or of smoothed histograms
+(their constants read from :mod:`pcreg.classification.bayes` too)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,12 @@ from ..errors import InputError
 from .features import check_image
 
 _LEVELS = np.arange(256, dtype=np.float64)
+#: The smoothed histogram's Gaussian kernel (8-bit levels): chosen between 2 and 3 with each CamVid clip
+#: left out (docs/results.md, "Many classes"); 4 and 8 were worse on all eight clips.
+HISTOGRAM_BANDWIDTH = 2.0
+#: The share of a uniform density mixed into each smoothed histogram, so that a level no training pixel
+#: had is unlikely, never impossible (log 0).
+HISTOGRAM_UNIFORM = 0.01
 
 
 def _as_lists(images, labels, table: ClassTable = DEFAULT_TABLE) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -80,3 +87,14 @@ def _tables(theta: np.ndarray, var: np.ndarray) -> np.ndarray:
     """(n, F, 256) float64: log N(v; theta, var) for every class, feature and 8-bit value v."""
     return -0.5 * np.log(2.0 * np.pi * var)[:, :, None] - 0.5 * (
         (_LEVELS[None, None, :] - theta[:, :, None]) ** 2 / var[:, :, None])
+
+
+def _histogram_tables(counts: np.ndarray) -> np.ndarray:
+    """(n, F, 256) float64: log of each class's and feature's histogram (``counts`` (n, F, 256)) smoothed by a
+    Gaussian of :data:`HISTOGRAM_BANDWIDTH` levels, normalised, and mixed with
+    :data:`HISTOGRAM_UNIFORM` of a uniform density."""
+    from scipy.ndimage import gaussian_filter1d
+
+    smooth = gaussian_filter1d(np.asarray(counts, np.float64), HISTOGRAM_BANDWIDTH, axis=2, mode="nearest")
+    density = smooth / np.maximum(smooth.sum(axis=2, keepdims=True), 1e-300)
+    return np.log((1.0 - HISTOGRAM_UNIFORM) * density + HISTOGRAM_UNIFORM / 256.0)

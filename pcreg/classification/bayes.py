@@ -41,7 +41,7 @@ from .features import (
     normalise_weights,
     parse_features,
 )
-from ._gaussian import _as_lists, _gaussian_params, _tables
+from ._gaussian import HISTOGRAM_BANDWIDTH, _as_lists, _gaussian_params, _histogram_tables, _tables
 from .metrics import LABEL_NAMES, N_LABELS, confusion_matrix, error_from_confusion, error_rate  # noqa: F401
 
 __all__ = [
@@ -112,12 +112,6 @@ def fit_classifier(frames: Sequence, *, features: Sequence[str] = DEFAULT_FEATUR
 #: How a class's feature density is modelled (:class:`NaiveBayesPixelClassifier`'s ``density``): ``"auto"``
 #: (a Gaussian with two classes, a smoothed histogram with more), ``"gaussian"`` or ``"histogram"``.
 DENSITIES: tuple[str, ...] = ("auto", "gaussian", "histogram")
-#: The smoothed histogram's Gaussian kernel (8-bit levels): chosen between 2 and 3 with each CamVid clip
-#: left out (docs/results.md, "Many classes"); 4 and 8 were worse on all eight clips.
-HISTOGRAM_BANDWIDTH = 2.0
-#: The share of a uniform density mixed into each smoothed histogram, so that a level no training pixel
-#: had is unlikely, never impossible (log 0).
-HISTOGRAM_UNIFORM = 0.01
 #: A class whose training pixels vary less than this (8-bit levels squared; 1/12, the variance of the 8-bit
 #: rounding itself) in every feature is one point of the features' space, fitted as a spike narrower than a
 #: level: its log-likelihoods elsewhere are set by ``var_smoothing`` alone (a key frame of one class and a
@@ -129,17 +123,6 @@ HISTOGRAM_UNIFORM = 0.01
 #: histogram, never 0 in any bin, keeps such a class a class (eleven CamVid classes, a pole's 4 px on one row: the next
 #: frame 94.1% right at a mean confidence of 0.963).
 DEGENERATE_VARIANCE = 1.0 / 12.0
-
-
-def _histogram_tables(counts: np.ndarray) -> np.ndarray:
-    """(n, F, 256) float64: log of each class's and feature's histogram (``counts`` (n, F, 256)) smoothed by a
-    Gaussian of :data:`HISTOGRAM_BANDWIDTH` levels, normalised, and mixed with
-    :data:`HISTOGRAM_UNIFORM` of a uniform density."""
-    from scipy.ndimage import gaussian_filter1d
-
-    smooth = gaussian_filter1d(np.asarray(counts, np.float64), HISTOGRAM_BANDWIDTH, axis=2, mode="nearest")
-    density = smooth / np.maximum(smooth.sum(axis=2, keepdims=True), 1e-300)
-    return np.log((1.0 - HISTOGRAM_UNIFORM) * density + HISTOGRAM_UNIFORM / 256.0)
 
 
 class NaiveBayesPixelClassifier:

@@ -8,8 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ._gaussian import _as_lists, _gaussian_params, _tables
-from .bayes import _histogram_tables
+from ._gaussian import _as_lists, _gaussian_params, _histogram_tables, _tables
 from .features import normalise_weights
 from .metrics import LABEL_NAMES, N_LABELS
 

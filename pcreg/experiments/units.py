@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import json
-import math
 import shutil
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -236,17 +235,6 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
         run_units(run_unit, todo, executor=executor or InlineExecutor(), desc=desc, on_result=keep,
                   show_progress=show_progress)
     return done, len(units) - len(todo)
-
-
-def nan_to_none(obj: Any) -> Any:
-    """Replace float NaN/inf with None (strict JSON for results.json)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: nan_to_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [nan_to_none(v) for v in obj]
-    return obj
 
 
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,

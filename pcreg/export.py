@@ -211,9 +211,11 @@ def write_cvat_mask_archive(path: str | Path, frames, table: ClassTable = DEFAUL
     """Write the "Segmentation mask 1.1" zip of ``frames`` to ``path`` atomically as the frames come
     (:func:`pcreg.outputs.atomic_file`: one frame's masks in memory at a time, however long the run), and
     return how many frames show each class. A frame refused (an :class:`InputError`) or an interruption
-    leaves nothing at ``path``."""
-    from .outputs import atomic_file
+    leaves nothing at ``path``; what an export of ``path`` killed mid-archive left beside it (its temporary
+    file, as large as the frames it held) is removed first, and another's still being written is not."""
+    from .outputs import atomic_file, remove_leftovers
 
+    remove_leftovers(Path(path).parent, [Path(path).name])
     with atomic_file(path) as fh:
         return write_cvat_mask(fh, frames, table)
 

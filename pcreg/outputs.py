@@ -6,10 +6,11 @@ import csv
 import io
 import json
 import os
+import re
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, BinaryIO, Iterable, Iterator, Sequence
+from typing import Any, BinaryIO, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -87,7 +88,7 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{_short(path.name)}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = _held_temporary(path)
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
     try:
@@ -95,7 +96,7 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
-        publish(tmp, path)
+            publish(tmp, path)  # while the lock is held: a cleaner does not take a file about to be published
     except BaseException as exc:
         try:
             os.unlink(tmp)
@@ -105,6 +106,67 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
         if isinstance(exc, OSError) and exc.filename in (None, tmp, str(path)):
             raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
+
+
+def _temporary_prefix(path: Path) -> str:
+    return f".{_short(path.name)}."
+
+
+def _held_temporary(path: Path) -> tuple[int, str]:
+    """A new temporary file beside ``path`` (``.NAME.XXXXXXXX.tmp``, open as the returned descriptor) with an
+    exclusive ``flock`` held on it until it is closed, which the writer's death releases too: what tells
+    :func:`remove_leftovers` a file being written from one a killed writer left. Made again when a cleaner
+    removed it before the lock was taken."""
+    import fcntl
+
+    while True:
+        fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(path), suffix=".tmp", dir=path.parent)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # waits while a cleaner holds it, for as long as an unlink takes
+            if os.fstat(fd).st_nlink:
+                return fd, tmp
+        except BaseException:
+            os.close(fd)
+            os.unlink(tmp)
+            raise
+        os.close(fd)  # a cleaner took it between its making and the lock
+
+
+#: A temporary file of :func:`atomic_file`: the name it takes the place of, and mkstemp's random part.
+_TEMPORARY = re.compile(r"\.(?P<name>.+)\.[a-z0-9_]{8}\.tmp")
+
+
+def remove_leftovers(folder: str | os.PathLike, names: Iterable[str] | Callable[[str], bool]) -> list[Path]:
+    """Remove the temporary files in ``folder`` of :func:`atomic_file` writes of ``names`` (file names, or a
+    test of one) that no process is writing any more: left by a writer killed or powered off, the ``flock`` it
+    held gone with it. A write under way (its lock held) is left alone. Returns the files removed."""
+    import fcntl
+
+    folder = Path(folder)
+    wanted = names if callable(names) else {_short(n) for n in names}.__contains__
+    try:
+        found = [e.name for e in os.scandir(folder) if e.name.endswith(".tmp")]
+    except OSError:
+        return []
+    removed = []
+    for name in found:
+        match = _TEMPORARY.fullmatch(name)
+        if match is None or not wanted(match["name"]):
+            continue
+        tmp = folder / name
+        try:
+            fd = os.open(tmp, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0))
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            tmp.unlink()
+            removed.append(tmp)
+        except OSError:
+            pass  # being written (its lock held), or gone meanwhile
+        finally:
+            os.close(fd)
+    return removed
 
 
 def publish(tmp: str | os.PathLike, path: str | os.PathLike) -> None:

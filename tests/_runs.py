@@ -174,3 +174,27 @@ def in_a_terminal(args: list[str]) -> tuple[int, str]:
     os.close(leader)
     return p.wait(timeout=120), seen.decode("utf-8", "replace")
 
+
+
+
+def killed_mid_write(path):
+    """The temporary file a process killed (SIGKILL) while writing ``path`` through
+    :func:`pcreg.outputs.atomic_file` leaves beside it: a real writer, killed once it has written a part."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path = Path(path)
+    before = set(path.parent.glob(f".{path.name}.*.tmp"))
+    code = ("import sys; from pcreg.outputs import atomic_file\n"
+            "with atomic_file(sys.argv[1]) as fh:\n"
+            "    fh.write(b'PK' * 4096); fh.flush(); print('written', flush=True); sys.stdin.read()\n")
+    with subprocess.Popen([sys.executable, "-c", code, str(path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                          text=True) as proc:
+        assert proc.stdout.readline() == "written\n"
+        proc.send_signal(signal.SIGKILL)
+        assert proc.wait() == -signal.SIGKILL
+    [tmp] = set(path.parent.glob(f".{path.name}.*.tmp")) - before
+    assert tmp.stat().st_size == 8192
+    return tmp

@@ -17,7 +17,7 @@ import pytest
 import pcreg
 from pcreg.cli import main
 from pcreg.export import read_labels, read_run
-from _runs import in_a_terminal
+from _runs import in_a_terminal, killed_mid_write
 
 NAMES = {"ground": 0, "obstacle": 1, "unknown": 2}  # the archive's names -> pcreg's class ids (LAGR's table)
 
@@ -118,6 +118,24 @@ def test_export_decodes_back_to_the_runs_labels(run_copy, capsys):
     assert main(["export", str(out), "--force"]) == 0 and archive.read_bytes() == first
     assert not list(out.glob(".*.tmp"))
 
+
+
+def test_what_a_killed_export_left_is_removed_and_one_being_written_kept(run_copy):
+    """An export killed mid-archive (kill -9, power lost) leaves its temporary file, as large as the frames it
+    held, beside the archive: the next export of that archive removes it, but not the temporary file of
+    another export of it still under way, nor one of another file."""
+    from pcreg.outputs import atomic_file
+
+    archive = run_copy / "export-cvat-mask.zip"
+    killed = killed_mid_write(archive)
+    other = killed_mid_write(run_copy / "export-cvat-mask.zip.zip")  # another archive's, not this one's
+    with atomic_file(archive) as fh:  # an export of the same archive under way
+        fh.write(b"PK")
+        [writing] = set(run_copy.glob(".export-cvat-mask.zip.*.tmp")) - {killed, other}
+        assert main(["export", str(run_copy)]) == 0
+        assert not killed.exists() and writing.is_file() and other.is_file()
+        _check_archive(archive, run_copy, _labels(run_copy))
+    assert archive.read_bytes() == b"PK" and not writing.exists()  # the one under way took its place once done
 
 def test_export_to_a_file_elsewhere(run_copy, tmp_path):
     dest = tmp_path / "for" / "cvat.zip"

@@ -96,6 +96,23 @@ def test_recording_holds_the_error_series_of_results_json(tmp_path):
     assert res["units"][0]["recording_frames"] == {"0": 0, "90": 1}  # each angle's frame, for the report page
 
 
+
+def test_a_rerun_removes_what_a_killed_run_left_half_written(tmp_path):
+    """A run killed (kill -9, power lost) while it wrote a unit's file or the report leaves their temporary
+    files in OUT/units and OUT: the next run, which writes those files, removes them, and no other file."""
+    from _runs import killed_mid_write
+
+    out = tmp_path / "r"
+    args = ["evaluate", "rotation", *SMALL, "--angles", "0,90", "--out", str(out)]
+    assert main(args) == 0
+    unit = out / "units" / "syn1a" / "frame0_reference.json"
+    unit.unlink()  # killed as it wrote the unit: not finished
+    left = [killed_mid_write(p) for p in (unit, out / "results.json", out / "config.json", out / "rotation.png")]
+    theirs = killed_mid_write(out / "notes.txt")  # not a file the evaluation writes
+    assert main(args) == 0
+    assert unit.is_file() and not any(p.exists() for p in left) and theirs.is_file()
+    assert sorted(p.name for p in out.rglob(".*.tmp")) == [theirs.name]
+
 def test_checks_say_when_neither_quarter_nor_half_turn_was_run():
     """Angles without 90 and 180 (`--angles 0,45`) leave the check nothing to compare: checks.md says so
     rather than ending the dataset's line after its 0-degree error."""

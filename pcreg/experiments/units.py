@@ -160,6 +160,20 @@ class UnitStore:
         atomic_write_json(cfg_path, config)
         if files is not None:
             atomic_write_text(stamp, files + "\n")
+        self._remove_partial_writes()
+
+    def _remove_partial_writes(self) -> None:
+        """Delete the temporary files of writes a run killed mid-write left (``.NAME.*.tmp`` of config.json, of a
+        unit's JSON file or of :data:`DATA_FILES`, :func:`pcreg.outputs.atomic_file`); one still being written
+        is kept."""
+        import os
+
+        from ..outputs import remove_leftovers
+
+        remove_leftovers(self.out, ["config.json"])
+        for folder, _, names in os.walk(self.dir):
+            if any(n.endswith(".tmp") for n in names):
+                remove_leftovers(folder, lambda n: n.endswith(".json") or n == DATA_FILES)
 
     def _holds_results(self) -> bool:
         """Whether a finished unit or a report is here: a configuration whose run stopped before any (a bad

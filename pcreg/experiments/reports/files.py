@@ -60,10 +60,12 @@ def write_files(out: str | Path, results: dict, *, tables: dict | None = None, t
     """Write, each atomically: ``tables`` {name: (title, header, rows[, footer])} as NAME.csv and NAME.md
     (title above the table, the optional Markdown footer below), ``texts`` {file name: Markdown}, ``figures`` {name: matplotlib figure} as NAME.png
     (closed after), then config.json, :data:`MANIFEST` and results.json (NaN written as null); the files the
-    earlier report's manifest names and this one does not write are removed. Returns the paths."""
+    earlier report's manifest names and this one does not write are removed, and the temporary files a report
+    killed mid-write left of those it writes. Returns the paths."""
     import matplotlib.pyplot as plt
 
-    from ...outputs import atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table
+    from ...outputs import (atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table,
+                           remove_leftovers)
 
     out = Path(out)
     earlier = _listed(out)
@@ -84,4 +86,5 @@ def write_files(out: str | Path, results: dict, *, tables: dict | None = None, t
     written.append(atomic_write_json(out / "config.json", results["config"]))
     atomic_write_text(out / MANIFEST, "".join(f"{n}\n" for n in names))
     written.append(atomic_write_json(out / "results.json", nan_to_none(results)))
+    remove_leftovers(out, [*names, *earlier, "config.json", MANIFEST, "results.json"])  # those of a report killed mid-write
     return written

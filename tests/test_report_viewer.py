@@ -216,6 +216,27 @@ def test_report_page_in_a_browser(evaluations, kind, tmp_path):
     assert not [p for p in ports if listening(p)]
 
 
+
+def test_a_recording_an_earlier_run_left_is_not_shown_beside_new_numbers(tmp_path):
+    """``--record OUT/x.rrd``, then a run of other angles started over without --record: the page showed x.rrd,
+    a recording of the first run's angles, beside the second's numbers. The recording shown is the one the run
+    that wrote the report made; the file an earlier run left is kept (the user named it), and given after the
+    folder it is still shown."""
+    from pcreg import cli
+    from pcreg.experiments.reports.page import load_report
+
+    out = tmp_path / "rot"
+    argv = [*RUNS["rotation"], "--out", str(out)]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert cli.main([*argv, "--record", str(out / "x.rrd")]) == 0
+        assert load_report(out).recordings == (out / "x.rrd",)
+        assert cli.main([*argv, "--angles", "0,90"]) == 0
+        assert load_report(out).recordings == () and (out / "x.rrd").is_file()
+        assert cli.main([*argv, "--angles", "0,90", "--record", str(out / "y.rrd")]) == 0
+        assert load_report(out).recordings == (out / "y.rrd",)
+        assert cli.main([*argv, "--angles", "0,90", "--record", str(tmp_path / "elsewhere.rrd")]) == 0
+        assert load_report(out).recordings == ()
+
 def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
     """A folder without .rrd: the page's data says so; only the report's own files are served."""
     from pcreg.experiments.reports.page import load_report, page_data

@@ -13,7 +13,7 @@ URL to open and serves until Ctrl-C: no display and no GPU needed on the machine
 both ports, e.g. ``ssh -L 9090:localhost:9090 -L 9876:localhost:9876 HOST``).
 ``pcreg view OUT_DIR --web`` serves the report page of an evaluation's output folder (``evaluate
 sequence|rotation|stream|classification --out OUT_DIR``) on the same ports: its tables (from
-results.json), figures and checks, with the run's recording (the .rrd files in OUT_DIR, or the
+results.json), figures and checks, with the run's recording (the .rrd file its ``--record`` wrote in OUT_DIR, or the
 recordings given after it) embedded beside them; choosing a row of a table moves the recording to that row's frame.
 ``pcreg view FILE.rrd --screenshot OUT.png [--time frame=N] [--view NAME]`` renders the recording
 headless (:func:`pcreg.recording.viewer.screenshot`) and saves the picture.
@@ -68,8 +68,8 @@ def _choose_ports(args: argparse.Namespace, *, grpc: bool = True) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recordings", metavar="FILE.rrd|OUT_DIR", nargs="+",
                         help="the recording to show; several are shown side by side (a comparison); or an "
-                             "evaluation's output folder, shown with --web (its recording: the .rrd files in it, "
-                             "or the recordings given after it); or a pcreg run output, reviewed with --web or "
+                             "evaluation's output folder, shown with --web (its recording: the .rrd file the run "
+                             "recorded in it, or the recordings given after it); or a pcreg run output, reviewed with --web or "
                              "written with --overlay FILE.mp4")
     parser.add_argument("--web", action="store_true",
                         help="serve the web viewer (for OUT_DIR: the report page, or a run's review page) and print its URL "

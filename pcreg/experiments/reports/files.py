@@ -15,14 +15,32 @@ from typing import Any
 MANIFEST = ".report_files"
 
 
-def _listed(out: Path) -> list[str]:
-    """The files :data:`MANIFEST` names: plain names in ``out`` only (none for a missing or unreadable one)."""
+def _manifest(out: Path) -> list[str] | None:
+    """The files :data:`MANIFEST` names: plain names in ``out`` only (None for a missing or unreadable one)."""
     try:
         text = (out / MANIFEST).read_text(encoding="utf-8")
     except (OSError, ValueError):
-        return []
+        return None
     return [n for n in text.splitlines() if n and Path(n).name == n and not n.startswith(".")
             and n not in ("config.json", "results.json")]
+
+
+def _listed(out: Path) -> list[str]:
+    """The files the report wrote that the next one removes unless it writes them again: :data:`MANIFEST`'s but
+    the recording (``--record FILE.rrd``), a file the command was told to write, never removed."""
+    return [n for n in _manifest(out) or () if not _is_recording(n)]
+
+
+def _is_recording(name: str) -> bool:
+    return name.lower().endswith(".rrd")
+
+
+def recordings(out: str | Path) -> list[str] | None:
+    """The recordings in ``out`` of the run whose report is there (the ``--record`` file it wrote in ``out``), as
+    :data:`MANIFEST` names them; None for a folder without one (a report of pcreg 0.2 or earlier): a recording an
+    earlier run left in the folder is not this report's."""
+    listed = _manifest(Path(out))
+    return None if listed is None else [n for n in listed if _is_recording(n)]
 
 
 def _remove(out: Path, names) -> None:
@@ -56,12 +74,13 @@ def remove_report(out: str | Path) -> None:
 
 
 def write_files(out: str | Path, results: dict, *, tables: dict | None = None, texts: dict | None = None,
-                figures: dict | None = None) -> list[Path]:
+                figures: dict | None = None, recording: str | Path | None = None) -> list[Path]:
     """Write, each atomically: ``tables`` {name: (title, header, rows[, footer])} as NAME.csv and NAME.md
     (title above the table, the optional Markdown footer below), ``texts`` {file name: Markdown}, ``figures`` {name: matplotlib figure} as NAME.png
     (closed after), then config.json, :data:`MANIFEST` and results.json (NaN written as null); the files the
     earlier report's manifest names and this one does not write are removed, and the temporary files a report
-    killed mid-write left of those it writes. Returns the paths."""
+    killed mid-write left of those it writes. ``recording``: the run's ``--record`` file, which the manifest names
+    when it lies in ``out`` (:func:`recordings`). Returns the paths."""
     import matplotlib.pyplot as plt
 
     from ...outputs import (atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table,
@@ -84,7 +103,15 @@ def write_files(out: str | Path, results: dict, *, tables: dict | None = None, t
     names = [p.name for p in written]
     _remove(out, [n for n in earlier if n not in names])
     written.append(atomic_write_json(out / "config.json", results["config"]))
-    atomic_write_text(out / MANIFEST, "".join(f"{n}\n" for n in names))
+    ours = [Path(recording).name] if recording is not None and _inside(Path(recording), out) else []
+    atomic_write_text(out / MANIFEST, "".join(f"{n}\n" for n in names + ours))
     written.append(atomic_write_json(out / "results.json", nan_to_none(results)))
     remove_leftovers(out, [*names, *earlier, "config.json", MANIFEST, "results.json"])  # those of a report killed mid-write
     return written
+
+
+def _inside(path: Path, out: Path) -> bool:
+    """Whether ``path`` is a file directly in the folder ``out`` (links followed)."""
+    from ...formats import resolved
+
+    return resolved(path.parent) == resolved(out)

@@ -15,6 +15,7 @@ from typing import Any, Callable, Iterable
 
 from ...errors import InputError
 from ...formats import loads_json
+from .files import recordings
 
 __all__ = ["Report", "load_report", "page_data", "EXPERIMENTS"]
 
@@ -33,7 +34,7 @@ TEXT_SUFFIXES = (".md", ".csv", ".json")
 @dataclass(frozen=True)
 class Report:
     """An output folder, read: which experiment, its results and config, checks.md, its figures' and
-    other files' names, and the recordings (.rrd) in it."""
+    other files' names, and the recording (.rrd) its run wrote in it."""
 
     folder: Path
     experiment: str
@@ -102,10 +103,11 @@ def load_report(folder: str | Path) -> Report:
     inside = p.resolve()  # a link to a file elsewhere (/etc/passwd as notes.md) is not the report's to serve
     names = sorted(f.name for f in p.iterdir() if f.is_file() and not f.name.startswith(".")
                    and f.resolve().parent == inside)
+    ours = recordings(p)  # an earlier run's recording left in the folder is not shown beside these numbers
     return Report(folder=p, experiment=experiment, results=results, config=config, checks=checks,
                   figures=tuple(n for n in names if n.lower().endswith(".png")),
                   files=tuple(n for n in names if n.lower().endswith(TEXT_SUFFIXES)),
-                  recordings=tuple(p / n for n in names if n.lower().endswith(".rrd")))
+                  recordings=tuple(p / n for n in names if n.lower().endswith(".rrd") and (ours is None or n in ours)))
 
 
 # -- tables --------------------------------------------------------------------------------------

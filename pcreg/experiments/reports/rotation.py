@@ -94,12 +94,13 @@ def _figure(results: dict):
     return fig
 
 
-def write_outputs(results: Results, out: str | Path) -> list[Path]:
-    """rotation_BACKEND.csv/.md, checks.md, rotation.png, config.json and results.json."""
+def write_outputs(results: Results, out: str | Path, *, recording: str | Path | None = None) -> list[Path]:
+    """rotation_BACKEND.csv/.md, checks.md, rotation.png, config.json and results.json; ``recording``: the run's
+    ``--record`` file (:func:`.files.write_files`)."""
     from .files import write_files
 
     doc = results.to_dict()
     tables = {f"rotation_{b}": (f"Rotation (thesis Ch. 5), backend {b}: error % (mean over sampled frames)",
                                 *table(doc, b)) for b in doc["backends"]}
-    return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
+    return write_files(out, doc, recording=recording, tables=tables, texts={"checks.md": checks(doc)},
                        figures={"rotation": _figure(doc)})

@@ -147,11 +147,12 @@ def _figures(results: dict) -> dict:
     return figs
 
 
-def write_outputs(results: Results, out: str | Path) -> list[Path]:
-    """sequence_BACKEND.csv/.md, checks.md, the figures, config.json and results.json."""
+def write_outputs(results: Results, out: str | Path, *, recording: str | Path | None = None) -> list[Path]:
+    """sequence_BACKEND.csv/.md, checks.md, the figures, config.json and results.json; ``recording``: the run's
+    ``--record`` file (:func:`.files.write_files`)."""
     from .files import write_files
 
     doc = results.to_dict()
     tables = {f"sequence_{b}": (f"Sequence (thesis Ch. 6-7), backend {b}: mean error % over pairs (i, i+k)",
                                 *table(doc, b)) for b in doc["backends"]}
-    return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)}, figures=_figures(doc))
+    return write_files(out, doc, recording=recording, tables=tables, texts={"checks.md": checks(doc)}, figures=_figures(doc))

@@ -189,9 +189,10 @@ def _accuracy_time(results: dict):
 BASELINE_NAMES = ("flow_key", "flow_previous", "flowfast_key", "flowultrafast_key")
 
 
-def write_outputs(results: Results, out: str | Path) -> list[Path]:
+def write_outputs(results: Results, out: str | Path, *, recording: str | Path | None = None) -> list[Path]:
     """stream_<backend>.csv/.md (means), stream_frames.csv/.md, checks.md, stream.png, config and results; on
-    DAVIS also davis_J and davis_F (:mod:`.stream_davis`)."""
+    DAVIS also davis_J and davis_F (:mod:`.stream_davis`). ``recording``: the run's ``--record`` file
+    (:func:`.files.write_files`)."""
     from .files import write_files
     from .stream_davis import davis_tables
 
@@ -207,6 +208,6 @@ def write_outputs(results: Results, out: str | Path) -> list[Path]:
               "stream_frames": ("Error % per frame", ph, prows),
               "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter),
               **davis_tables(doc), **classes_tables(doc)}
-    return write_files(out, doc, tables=tables, texts={"checks.md": checks(doc)},
+    return write_files(out, doc, recording=recording, tables=tables, texts={"checks.md": checks(doc)},
                        figures={"stream": _figure(doc), "stream_reliability": _reliability(doc),
                                 "stream_speed": _accuracy_time(doc)})

@@ -116,19 +116,22 @@ def _held_temporary(path: Path) -> tuple[int, str]:
     """A new temporary file beside ``path`` (``.NAME.XXXXXXXX.tmp``, open as the returned descriptor) with an
     exclusive ``flock`` held on it until it is closed, which the writer's death releases too: what tells
     :func:`remove_leftovers` a file being written from one a killed writer left. Made again when a cleaner
-    removed it before the lock was taken."""
+    removed it before the lock was taken. On a file system without ``flock`` it is written unlocked (a
+    cleaner there cannot take a lock either, and removes nothing)."""
     import fcntl
 
     while True:
         fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(path), suffix=".tmp", dir=path.parent)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)  # waits while a cleaner holds it, for as long as an unlink takes
-            if os.fstat(fd).st_nlink:
-                return fd, tmp
+        except OSError:
+            return fd, tmp
         except BaseException:
             os.close(fd)
             os.unlink(tmp)
             raise
+        if os.fstat(fd).st_nlink:
+            return fd, tmp
         os.close(fd)  # a cleaner took it between its making and the lock
 
 

@@ -285,3 +285,23 @@ def test_the_legend_shows_no_figures_of_another_frame_when_a_frames_labels_canno
               what="frame 2's label image named", bound=60)
         until(lambda: ev(figures) == ["", ""], what="the legend without figures", bound=60)
         assert ev("document.getElementById('frame-name').textContent").startswith(review.names[2])
+
+
+def test_a_connection_left_idle_is_closed_by_the_server_and_its_thread_ends(run_out, monkeypatch, capfd):
+    """A client that opens connections and sends nothing: each held a thread of the server for good; each is closed
+    after ``IDLE_TIMEOUT`` (lowered here: the test waits for the close, not for the time), and the server serves on."""
+    from pcreg.recording import report
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    monkeypatch.setattr(report, "IDLE_TIMEOUT", 0.2)
+    with ReviewServer(read_review(run_out), web_port=0) as server:
+        idle = [socket.create_connection(("127.0.0.1", server.port)) for _ in range(3)]
+        for sock in idle:
+            sock.settimeout(60)  # a bound for a hung test only: the server's close ends the wait
+            with sock:
+                assert sock.recv(1) == b""  # closed by the server, nothing sent
+        until(lambda: not _handlers(), what="the idle connections' threads done", bound=60)
+        assert _get(server.url + "overlay/1.jpg")[0] == 200
+    err = capfd.readouterr().err
+    assert "Traceback" not in err, err

@@ -33,6 +33,12 @@ from .viewer import REUSE_ADDRESS, ViewerError, check_bind, free_port, port_free
 
 __all__ = ["ReportServer", "viz_dir"]
 
+#: Seconds a connection to a local page is kept while the client sends nothing of its request, or reads nothing of
+#: an answer (a MiB of it at a time, :data:`_PIECE`): each open connection holds a thread, and one that a client opens
+#: and leaves idle is closed after this.
+IDLE_TIMEOUT = 60.0
+_PIECE = 1 << 20  # an answer is written a MiB at a time, each within IDLE_TIMEOUT (a large file over a slow link)
+
 
 class QuietHandler(BaseHTTPRequestHandler):
     """What pcreg's local pages share: no line per request on the terminal, one way to answer (``HEAD``
@@ -41,6 +47,12 @@ class QuietHandler(BaseHTTPRequestHandler):
 
     def log_message(self, *args) -> None:  # no line per request on the terminal
         pass
+
+    def setup(self) -> None:
+        """The connection's reads and writes bounded by :data:`IDLE_TIMEOUT` (read now, when it is accepted): one
+        idle past it is closed (http.server passes the timeout over, and the thread ends)."""
+        super().setup()
+        self.connection.settimeout(IDLE_TIMEOUT)
 
     def parse_request(self) -> bool:
         """The request's line and headers read; a server on a loopback address refuses (403) a request whose
@@ -70,7 +82,8 @@ class QuietHandler(BaseHTTPRequestHandler):
             self.send_header(k, v)
         self.end_headers()
         if self.command != "HEAD":
-            self.wfile.write(body)
+            for i in range(0, len(body), _PIECE):  # each piece within IDLE_TIMEOUT, not the whole of a large file
+                self.wfile.write(body[i:i + _PIECE])
 
     def do_HEAD(self) -> None:
         self.do_GET()

@@ -305,3 +305,43 @@ def test_a_connection_left_idle_is_closed_by_the_server_and_its_thread_ends(run_
         assert _get(server.url + "overlay/1.jpg")[0] == 200
     err = capfd.readouterr().err
     assert "Traceback" not in err, err
+
+
+def _get_headers(url: str, headers: dict) -> tuple[int, bytes, object]:
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, headers=headers), timeout=60) as r:
+            return r.status, r.read(), r.headers
+    except urllib.error.HTTPError as e:
+        return e.code, e.read(), e.headers
+
+
+def test_a_label_image_replaced_while_the_page_is_served_is_drawn_again(run_out, tmp_path):
+    """A frame's label PNG replaced while ``pcreg view RUN_OUT --web`` serves: its overlay was kept as first drawn (and
+    the browser kept it 60 s); now the server draws it again, and the browser, which asks again each time with the
+    ETag it holds, gets the new picture (a 304 while nothing changed)."""
+    import shutil
+
+    import numpy as np
+
+    from pcreg.export import read_labels
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+    from pcreg.runs.files import write_labels
+
+    out = tmp_path / "out"
+    shutil.copytree(run_out, out)
+    review = read_review(out)
+    with ReviewServer(review, web_port=0) as server:
+        status, before, first = _get_headers(server.url + "overlay/2.jpg", {})
+        path = review.labels_path(2)
+        labels = read_labels(path, review.table)
+        write_labels(path, np.where(labels == 2, 2, 1 - np.minimum(labels, 1)).astype(np.uint8), review.table)  # 0 <-> 1
+        st = path.stat()
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # written a second later, as a file replaced is
+        assert _get(server.url + "overlay/2.jpg") != (200, before)
+        # the browser asks again with what it holds: the new picture for the old ETag, a 304 for the new one
+        status, after, now = _get_headers(server.url + "overlay/2.jpg", {"If-None-Match": first["ETag"]})
+        assert status == 200 and now["ETag"] != first["ETag"] and "no-cache" in now["Cache-Control"]
+        assert _get_headers(server.url + "overlay/2.jpg", {"If-None-Match": now["ETag"]})[0] == 304
+    with ReviewServer(read_review(out), web_port=0) as fresh:  # what a server started now draws
+        assert _get(fresh.url + "overlay/2.jpg") == (200, after)

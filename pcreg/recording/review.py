@@ -16,13 +16,15 @@
 
 Nothing is rendered ahead: the page asks for the frame shown and its neighbours, so a long run opens at
 once. A video's frames come from :class:`pcreg.review.FrameImages` (decoded once into the run's
-``.pcreg-review/`` folder, under a name of the video's path, size and time).
+``.pcreg-review/`` folder, under a name of the video's path, size and time; the folders of the video's earlier
+versions removed).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import re
 import threading
 from collections import OrderedDict
 from pathlib import Path
@@ -43,6 +45,32 @@ def _video_key(path: Path) -> str:
     made again on another video never shows the frames decoded from the first."""
     st = path.stat()
     return "frames-" + hashlib.sha1(f"{path.resolve()}\0{st.st_size}\0{st.st_mtime_ns}".encode()).hexdigest()[:12]
+
+
+_KEYED = re.compile(r"frames-[0-9a-f]{12}")  # a folder _video_key names
+_DECODED = re.compile(r"[0-9]+\.jpg|\.[0-9]+\.jpg\.[0-9]+\.tmp")  # a frame FrameImages wrote there, or was writing
+
+
+def _remove_others(cache: Path) -> None:
+    """Remove the folders beside ``cache`` that the review decoded earlier versions of the run's video into: named as
+    :func:`_video_key` names them and holding nothing but the frames :class:`pcreg.review.FrameImages` writes (a
+    folder holding anything else, or that cannot be removed, is left as it is). Never read again, each would
+    keep a whole video's frames as JPEG."""
+    try:
+        others = list(cache.parent.iterdir())
+    except OSError:
+        return
+    for other in others:
+        if other.name == cache.name or not _KEYED.fullmatch(other.name) or other.is_symlink() or not other.is_dir():
+            continue
+        try:
+            files = list(other.iterdir())
+            if all(_DECODED.fullmatch(f.name) and not f.is_symlink() and f.is_file() for f in files):
+                for f in files:
+                    f.unlink()
+                other.rmdir()
+        except OSError:  # gone meanwhile, or not ours to remove: left
+            continue
 
 
 def _stat(path: Path | None) -> tuple[int, int] | None:
@@ -89,6 +117,8 @@ class ReviewServer:
 
                 self._tmp = tempfile.TemporaryDirectory(prefix="pcreg-review-")
                 cache = Path(self._tmp.name)
+            else:
+                _remove_others(cache)
         self.images = FrameImages(review, cache)
         self._static = viz_dir()
         self._rendered: OrderedDict[tuple[str, int, tuple], bytes] = OrderedDict()

@@ -285,3 +285,63 @@ def test_the_legend_shows_no_figures_of_another_frame_when_a_frames_labels_canno
               what="frame 2's label image named", bound=60)
         until(lambda: ev(figures) == ["", ""], what="the legend without figures", bound=60)
         assert ev("document.getElementById('frame-name').textContent").startswith(review.names[2])
+
+
+def test_a_connection_left_idle_is_closed_by_the_server_and_its_thread_ends(run_out, monkeypatch, capfd):
+    """A client that opens connections and sends nothing: each held a thread of the server for good; each is closed
+    after ``IDLE_TIMEOUT`` (lowered here: the test waits for the close, not for the time), and the server serves on."""
+    from pcreg.recording import report
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    monkeypatch.setattr(report, "IDLE_TIMEOUT", 0.2)
+    with ReviewServer(read_review(run_out), web_port=0) as server:
+        idle = [socket.create_connection(("127.0.0.1", server.port)) for _ in range(3)]
+        for sock in idle:
+            sock.settimeout(60)  # a bound for a hung test only: the server's close ends the wait
+            with sock:
+                assert sock.recv(1) == b""  # closed by the server, nothing sent
+        until(lambda: not _handlers(), what="the idle connections' threads done", bound=60)
+        assert _get(server.url + "overlay/1.jpg")[0] == 200
+    err = capfd.readouterr().err
+    assert "Traceback" not in err, err
+
+
+def _get_headers(url: str, headers: dict) -> tuple[int, bytes, object]:
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, headers=headers), timeout=60) as r:
+            return r.status, r.read(), r.headers
+    except urllib.error.HTTPError as e:
+        return e.code, e.read(), e.headers
+
+
+def test_a_label_image_replaced_while_the_page_is_served_is_drawn_again(run_out, tmp_path):
+    """A frame's label PNG replaced while ``pcreg view RUN_OUT --web`` serves: its overlay was kept as first drawn (and
+    the browser kept it 60 s); now the server draws it again, and the browser, which asks again each time with the
+    ETag it holds, gets the new picture (a 304 while nothing changed)."""
+    import shutil
+
+    import numpy as np
+
+    from pcreg.export import read_labels
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+    from pcreg.runs.files import write_labels
+
+    out = tmp_path / "out"
+    shutil.copytree(run_out, out)
+    review = read_review(out)
+    with ReviewServer(review, web_port=0) as server:
+        status, before, first = _get_headers(server.url + "overlay/2.jpg", {})
+        path = review.labels_path(2)
+        labels = read_labels(path, review.table)
+        write_labels(path, np.where(labels == 2, 2, 1 - np.minimum(labels, 1)).astype(np.uint8), review.table)  # 0 <-> 1
+        st = path.stat()
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # written a second later, as a file replaced is
+        assert _get(server.url + "overlay/2.jpg") != (200, before)
+        # the browser asks again with what it holds: the new picture for the old ETag, a 304 for the new one
+        status, after, now = _get_headers(server.url + "overlay/2.jpg", {"If-None-Match": first["ETag"]})
+        assert status == 200 and now["ETag"] != first["ETag"] and "no-cache" in now["Cache-Control"]
+        assert _get_headers(server.url + "overlay/2.jpg", {"If-None-Match": now["ETag"]})[0] == 304
+    with ReviewServer(read_review(out), web_port=0) as fresh:  # what a server started now draws
+        assert _get(fresh.url + "overlay/2.jpg") == (200, after)

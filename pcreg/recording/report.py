@@ -33,6 +33,12 @@ from .viewer import REUSE_ADDRESS, ViewerError, check_bind, free_port, port_free
 
 __all__ = ["ReportServer", "viz_dir"]
 
+#: Seconds a connection to a local page is kept while the client sends nothing of its request, or reads nothing of
+#: an answer (a MiB of it at a time, :data:`_PIECE`): each open connection holds a thread, and one that a client opens
+#: and leaves idle is closed after this.
+IDLE_TIMEOUT = 60.0
+_PIECE = 1 << 20  # an answer is written a MiB at a time, each within IDLE_TIMEOUT (a large file over a slow link)
+
 
 class QuietHandler(BaseHTTPRequestHandler):
     """What pcreg's local pages share: no line per request on the terminal, one way to answer (``HEAD``
@@ -41,6 +47,12 @@ class QuietHandler(BaseHTTPRequestHandler):
 
     def log_message(self, *args) -> None:  # no line per request on the terminal
         pass
+
+    def setup(self) -> None:
+        """The connection's reads and writes bounded by :data:`IDLE_TIMEOUT` (read now, when it is accepted): one
+        idle past it is closed (http.server passes the timeout over, and the thread ends)."""
+        super().setup()
+        self.connection.settimeout(IDLE_TIMEOUT)
 
     def parse_request(self) -> bool:
         """The request's line and headers read; a server on a loopback address refuses (403) a request whose
@@ -61,16 +73,31 @@ class QuietHandler(BaseHTTPRequestHandler):
             self.send_error(403, "this server answers requests for localhost only")
         return local
 
-    def _send(self, status: int, ctype: str, body: bytes, headers: dict | None = None, cache: bool = False) -> None:
+    def _send(self, status: int, ctype: str, body: bytes, headers: dict | None = None, etag: str | None = None) -> None:
+        """An answer; with ``etag`` (what the body was made from), one the browser keeps and asks again for each time
+        (``no-cache``: a ``304`` when its ``If-None-Match`` names the same, :meth:`_unchanged`), else one it keeps not."""
         self.send_response(status)
         self.send_header("Content-Type", ctype)
         self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "max-age=60" if cache else "no-store")
+        self.send_header("Cache-Control", "no-cache" if etag else "no-store")
+        if etag:
+            self.send_header("ETag", etag)
         for k, v in (headers or {}).items():
             self.send_header(k, v)
         self.end_headers()
         if self.command != "HEAD":
-            self.wfile.write(body)
+            for i in range(0, len(body), _PIECE):  # each piece within IDLE_TIMEOUT, not the whole of a large file
+                self.wfile.write(body[i:i + _PIECE])
+
+    def _unchanged(self, etag: str) -> bool:
+        """Whether the browser holds the answer made as ``etag`` says (its ``If-None-Match``): then a ``304``, sent."""
+        if etag not in (t.strip() for t in self.headers.get("If-None-Match", "").split(",")):
+            return False
+        self.send_response(304)
+        self.send_header("Cache-Control", "no-cache")
+        self.send_header("ETag", etag)
+        self.end_headers()
+        return True
 
     def do_HEAD(self) -> None:
         self.do_GET()

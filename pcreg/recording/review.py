@@ -9,17 +9,22 @@
   pixels or a turn to interlaced; ``[]`` without one), the class table (each known class's name, colour and whether the run's frames show it,
   for the legend) and the frames' size;
 - ``/overlay/T.jpg``: frame ``T`` (its position in the run) with its labels drawn over it
-  (:func:`pcreg.review.overlay`), rendered when asked for and kept for the next time (a few hundred);
+  (:func:`pcreg.review.overlay`), rendered when asked for and kept for the next time (a few hundred), drawn again
+  when its label image or confidence map changes (by their time and size; the browser asks again each time with the
+  picture's ETag, answered 304 while they are the same);
 - ``/frame/T.jpg``: frame ``T`` as it is.
 
 Nothing is rendered ahead: the page asks for the frame shown and its neighbours, so a long run opens at
 once. A video's frames come from :class:`pcreg.review.FrameImages` (decoded once into the run's
-``.pcreg-review/`` folder, under a name of the video's path, size and time).
+``.pcreg-review/`` folder, under a name of the video's path, size and time; the folders of the video's earlier
+versions removed).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 import threading
 from collections import OrderedDict
 from pathlib import Path
@@ -38,10 +43,43 @@ _KEEP = 256  # rendered JPEGs kept in memory
 def _video_key(path: Path) -> str:
     """The cache folder's name for a video: its file's path, size and time of change, so that a run
     made again on another video never shows the frames decoded from the first."""
-    import hashlib
-
     st = path.stat()
     return "frames-" + hashlib.sha1(f"{path.resolve()}\0{st.st_size}\0{st.st_mtime_ns}".encode()).hexdigest()[:12]
+
+
+_KEYED = re.compile(r"frames-[0-9a-f]{12}")  # a folder _video_key names
+_DECODED = re.compile(r"[0-9]+\.jpg|\.[0-9]+\.jpg\.[0-9]+\.tmp")  # a frame FrameImages wrote there, or was writing
+
+
+def _remove_others(cache: Path) -> None:
+    """Remove the folders beside ``cache`` that the review decoded earlier versions of the run's video into: named as
+    :func:`_video_key` names them and holding nothing but the frames :class:`pcreg.review.FrameImages` writes (a
+    folder holding anything else, or that cannot be removed, is left as it is). Never read again, each would
+    keep a whole video's frames as JPEG."""
+    try:
+        others = list(cache.parent.iterdir())
+    except OSError:
+        return
+    for other in others:
+        if other.name == cache.name or not _KEYED.fullmatch(other.name) or other.is_symlink() or not other.is_dir():
+            continue
+        try:
+            files = list(other.iterdir())
+            if all(_DECODED.fullmatch(f.name) and not f.is_symlink() and f.is_file() for f in files):
+                for f in files:
+                    f.unlink()
+                other.rmdir()
+        except OSError:  # gone meanwhile, or not ours to remove: left
+            continue
+
+
+def _stat(path: Path | None) -> tuple[int, int] | None:
+    """``path``'s (mtime_ns, size); None when there is no such file."""
+    try:
+        st = path.stat() if path is not None else None
+    except OSError:
+        return None
+    return None if st is None else (st.st_mtime_ns, st.st_size)
 
 
 def _number(name: str, suffix: str, n: int) -> int | None:
@@ -79,9 +117,11 @@ class ReviewServer:
 
                 self._tmp = tempfile.TemporaryDirectory(prefix="pcreg-review-")
                 cache = Path(self._tmp.name)
+            else:
+                _remove_others(cache)
         self.images = FrameImages(review, cache)
         self._static = viz_dir()
-        self._rendered: OrderedDict[tuple[str, int], bytes] = OrderedDict()
+        self._rendered: OrderedDict[tuple[str, int, tuple], bytes] = OrderedDict()
         self._lock = threading.Lock()
         self._shown: frozenset[int] | None = None
         try:
@@ -131,16 +171,25 @@ class ReviewServer:
 
         return json.dumps(class_figures(self.review, t), allow_nan=False).encode()
 
-    def image(self, what: str, t: int) -> bytes:
-        """Frame ``t`` as JPEG: ``what`` is ``overlay`` (its labels drawn over it) or ``frame``."""
+    def stamp(self, what: str, t: int) -> tuple:
+        """What frame ``t``'s picture ``what`` is drawn from, as it is now: for an overlay its label image's and
+        confidence map's (mtime_ns, size) (None: no such file), so that one replaced while the page is served is
+        drawn again; nothing for the frame as it is."""
+        r = self.review
+        return (_stat(r.labels_path(t)), _stat(r.confidence_path(t))) if what == "overlay" else ()
+
+    def image(self, what: str, t: int, stamp: tuple | None = None) -> bytes:
+        """Frame ``t`` as JPEG: ``what`` is ``overlay`` (its labels drawn over it) or ``frame``; kept, and drawn
+        again when its files change (``stamp``: :meth:`stamp`, taken before they are read)."""
         import cv2
 
         from ..review import read_overlay
 
+        key = (what, t, self.stamp(what, t) if stamp is None else stamp)
         with self._lock:
-            if (what, t) in self._rendered:
-                self._rendered.move_to_end((what, t))
-                return self._rendered[(what, t)]
+            if key in self._rendered:
+                self._rendered.move_to_end(key)
+                return self._rendered[key]
         image = self.images[t]
         drawn = read_overlay(self.review, t, image) if what == "overlay" else image
         ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(drawn[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 90])
@@ -148,7 +197,7 @@ class ReviewServer:
             raise PcregError(f"frame {self.review.names[t]} does not encode as JPEG")
         body = buf.tobytes()
         with self._lock:
-            self._rendered[(what, t)] = body
+            self._rendered[key] = body
             while len(self._rendered) > _KEEP:
                 self._rendered.popitem(last=False)
         return body
@@ -176,11 +225,15 @@ class ReviewServer:
                             return self._unreadable(exc)
                         return self._send(200, "application/json", body)
                     if what in ("overlay", "frame") and (t := _number(name, ".jpg", n)) is not None:
+                        stamp = server.stamp(what, t)
+                        etag = '"' + hashlib.sha1(repr((what, t, stamp)).encode()).hexdigest()[:16] + '"'
+                        if self._unchanged(etag):
+                            return None
                         try:
-                            body = server.image(what, t)
+                            body = server.image(what, t, stamp)
                         except (InputError, OSError) as exc:
                             return self._unreadable(exc)
-                        return self._send(200, "image/jpeg", body, cache=True)
+                        return self._send(200, "image/jpeg", body, etag=etag)
                     self._send(404, "text/plain", b"not found\n")
                 except (BrokenPipeError, ConnectionResetError):  # the browser went away
                     pass

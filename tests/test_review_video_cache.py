@@ -1,0 +1,57 @@
+"""``pcreg view RUN --web`` of a run on a video keeps the frames it decoded in ``RUN/.pcreg-review/frames-KEY``, KEY
+of the video's path, size and time. A video changed since (re-encoded, touched) gets a folder of its own, and the
+folders of its earlier versions, never read again, were left there for good (a whole video's frames as JPEG each).
+The review removes them when it makes the folder of the video as it is now, and only them: a folder holding
+anything else is left."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import urllib.request
+
+import cv2
+import numpy as np
+
+import pcreg
+from pcreg.cli import main
+
+
+def _get(url: str) -> int:
+    with urllib.request.urlopen(url, timeout=60) as r:
+        r.read()
+        return r.status
+
+
+def test_the_frames_decoded_from_an_earlier_version_of_the_video_are_removed(tmp_path):
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import CACHE, read_review
+
+    synthetic = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
+    video = tmp_path / "clip.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (96, 72))
+    for f in synthetic:
+        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
+    writer.release()
+    cv2.imwrite(str(tmp_path / "key.png"), synthetic[0].labels)
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0
+    with ReviewServer(read_review(out), web_port=0) as server:
+        assert _get(server.url + "frame/3.jpg") == 200
+    [first] = (out / CACHE).iterdir()
+    assert first.name.startswith("frames-") and any(first.iterdir())
+    foreign = out / CACHE / "frames-0123456789ab"  # named as the review names its folders, holding another file
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine\n")
+    other = out / CACHE / "frames-mine"
+    other.mkdir()
+    (other / "000000.jpg").write_bytes(b"")
+    st = video.stat()
+    os.utime(video, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # the video changed since (as re-encoded in place)
+    with ReviewServer(read_review(out), web_port=0) as server:
+        assert _get(server.url + "frame/3.jpg") == 200
+    now = {p.name for p in (out / CACHE).iterdir()}
+    assert first.name not in now and {foreign.name, other.name} < now and len(now) == 3, now
+    assert (foreign / "notes.txt").read_text() == "mine\n"

@@ -86,8 +86,9 @@ class QuietHandler(BaseHTTPRequestHandler):
             self.send_header(k, v)
         self.end_headers()
         if self.command != "HEAD":
+            view = memoryview(body)  # its pieces written without a copy of each
             for i in range(0, len(body), _PIECE):  # each piece within IDLE_TIMEOUT, not the whole of a large file
-                self.wfile.write(body[i:i + _PIECE])
+                self.wfile.write(view[i:i + _PIECE])
 
     def _unchanged(self, etag: str) -> bool:
         """Whether the browser holds the answer made as ``etag`` says (its ``If-None-Match``): then a ``304``, sent."""

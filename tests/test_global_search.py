@@ -181,7 +181,8 @@ def test_orb_gives_an_affine_registration_a_full_affine(shared_data):
 
     (affine,) = orb_hypotheses(img, mov, model="affine")
     (similarity,) = orb_hypotheses(img, mov, model="similarity")
-    assert worst(affine) < 3.0 < 20.0 < worst(similarity), (worst(affine), worst(similarity))
+    # with the moving image's grey levels moved by -1, 0 or +1 at random (11 draws): 1.0-4.7 px and 75-83 px
+    assert worst(affine) < 8.0 < 20.0 < worst(similarity), (worst(affine), worst(similarity))
 
 
 # page.png (384x191) and ihc.png (512x512) under a half turn, a scale and a perspective term
@@ -202,11 +203,16 @@ def _viewed(shared_data, name: str, M: np.ndarray) -> tuple[np.ndarray, np.ndarr
 def test_orb_gives_a_projective_registration_a_homography(shared_data):
     """ORB's hypothesis for ``model="projective"`` is a homography (``cv2.findHomography``): a similarity
     fitted to the matches of this view (a scale of 0.62 and a perspective term) is 140 px off at a corner, and
-    the search asked ORB for a rigid motion (470 px off); the registration was refused."""
+    the search asked ORB for a rigid motion (470 px off); the registration was refused.
+
+    Where a corner lands is sensitive to ORB's keypoints: with the moving image's grey levels moved by -1, 0 or
+    +1 at random (20 draws) the homography is 2-70 px off and the similarity 105-171 px, the homography at most
+    0.48 of the similarity's error (another processor's ORB gave 31 and 110 px), hence the margins."""
     img, mov, truth = _viewed(shared_data, "ihc.png", IHC_VIEW)
-    error = [tf.max_corner_error(T, truth, mov.shape)
-             for model in ("projective", "similarity") for T in orb_hypotheses(img, mov, model=model)]
-    assert len(error) == 2 and error[0] < 30.0 < 100.0 < error[1], error
+    hypotheses = [T for model in ("projective", "similarity") for T in orb_hypotheses(img, mov, model=model)]
+    assert len(hypotheses) == 2 and np.abs(hypotheses[0][2, :2]).max() > 0.0, hypotheses
+    error = [tf.max_corner_error(T, truth, mov.shape) for T in hypotheses]
+    assert error[0] < 80.0 < 100.0 < error[1] and error[0] < 0.6 * error[1], error
 
 
 @pytest.mark.parametrize(("name", "view"), [("page.png", PAGE_VIEW), ("ihc.png", IHC_VIEW)])

@@ -41,20 +41,23 @@ def to_json(obj: Any, *, strict: bool = False) -> str:
     """JSON text with numpy values converted. NaN/inf are written as Python's ``NaN`` (read back by
     :func:`json.loads`), or as ``null`` with ``strict`` (valid JSON for any reader)."""
     if strict:
-        return json.dumps(_finite(obj), indent=2, default=_jsonable, sort_keys=False, allow_nan=False)
+        return json.dumps(finite(obj), indent=2, default=_jsonable, sort_keys=False, allow_nan=False)
     return json.dumps(obj, indent=2, default=_jsonable, sort_keys=False)
 
 
-def _finite(obj: Any) -> Any:
-    """``obj`` with float NaN/inf (Python or numpy) replaced by None, containers rebuilt."""
+def finite(obj: Any) -> Any:
+    """``obj`` ready for strict JSON: float NaN/inf (Python or numpy) replaced by None, numpy numbers and arrays
+    made Python's, containers rebuilt."""
     if isinstance(obj, (float, np.floating)):
         return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, (np.integer, np.bool_)):
+        return obj.item()
     if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: finite(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, np.ndarray) and obj.dtype.kind == "f":
-        return _finite(obj.tolist())
+        return [finite(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite(obj.tolist())
     return obj
 
 

@@ -96,7 +96,7 @@ def test_evaluate_returns_typed_results_and_the_report_writes_exactly_them(tmp_p
     from pcreg.experiments.reports.stream import write_outputs
     from pcreg.experiments.results import Results
     from pcreg.experiments.stream import StreamConfig, evaluate
-    from pcreg.experiments.reports.files import nan_to_none
+    from pcreg.outputs import finite
 
     config = StreamConfig(data="synthetic:syn1a", frames=3, size=(96, 72), methods=("plain", "unregistered"))
     res = evaluate(config, show_progress=False)
@@ -106,7 +106,7 @@ def test_evaluate_returns_typed_results_and_the_report_writes_exactly_them(tmp_p
     assert set(res.average_reduction) == {"plain", "unregistered"} and res.k is None and res.backends is None
     write_outputs(res, tmp_path)
     on_disk = json.loads((tmp_path / "results.json").read_text())
-    assert on_disk == json.loads(json.dumps(nan_to_none(res.to_dict())))
+    assert on_disk == json.loads(json.dumps(finite(res.to_dict())))
     assert list(on_disk) == ["config", "primary_backend", "methods", "datasets", "average_reduction", "calibration",
                              "units", "resumed_units", "seconds"]  # what an evaluation does not have is left out
     with pytest.raises(ValueError, match="kind must be one of"):
@@ -254,3 +254,18 @@ def test_the_confidence_check_says_the_error_rate_and_the_share_of_the_errors():
     line = _calibration_checks({"calibration": cal})[1]
     assert "at most a third of the error rate of all: NOT met" in line, line
     assert "0.383; they hold 0.306 of the errors" in line, line
+
+
+def test_a_report_writes_numpy_float32_nan_and_inf_as_null(tmp_path):
+    """results.json is strict JSON: a float32 NaN (a mean of no pixel in float32) was written as ``NaN``, which
+    a browser's or jq's JSON reader refuses; float64 ones were already null."""
+    import json
+
+    from pcreg.experiments.reports.files import write_files
+
+    results = {"config": {"clips": 1}, "mean": np.float32("nan"), "rows": [np.float32(np.inf), np.float32(0.5)],
+               "counts": np.arange(3, dtype=np.int64)}
+    write_files(tmp_path, results)
+    text = (tmp_path / "results.json").read_text()
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"results.json holds {c}")) == {
+        "config": {"clips": 1}, "mean": None, "rows": [None, 0.5], "counts": [0, 1, 2]}

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..outputs import finite
 from ..registration.result import RegistrationResult
 from ..registration.transforms import apply, rotation_part
 from .base import reported
@@ -150,7 +151,7 @@ class CloudCrosscheck:
 
     def to_dict(self) -> dict:
         """JSON-ready (non-finite numbers become None, so the JSON stays valid)."""
-        return _finite({"kind": "clouds", "implementations": self.rows, "settings": self.settings,
+        return finite({"kind": "clouds", "implementations": self.rows, "settings": self.settings,
                 "reference_at_convergence": self.reference_at_convergence,
                 "tolerances": {"step": f"relative matrix difference (translations in target diagonals) <= "
                                        f"{STEP_TOLERANCE:g} against the reference (far from the origin, 100 float64 "
@@ -163,20 +164,6 @@ class CloudCrosscheck:
                                             f"{OBJECTIVE_SCALE:.1%} against the reference run to convergence"}})
 
 
-def _finite(obj):
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.ndarray):
-        return _finite(obj.tolist())
-    return obj
 
 
 def step_tolerance(points: np.ndarray, diag: float) -> float:

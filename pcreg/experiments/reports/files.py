@@ -7,9 +7,7 @@ longer run is not left in the folder (and on the report page) beside the new num
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
-from typing import Any
 
 #: The file of an output folder that names, one a line, the files its report wrote besides results.json.
 MANIFEST = ".report_files"
@@ -55,17 +53,6 @@ def _remove(out: Path, names) -> None:
             raise OutputError(f"cannot remove {out / name}, a file of the earlier report: {exc.strerror or exc}") from None
 
 
-def nan_to_none(obj: Any) -> Any:
-    """Replace float NaN/inf with None (strict JSON for results.json)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: nan_to_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [nan_to_none(v) for v in obj]
-    return obj
-
-
 def remove_report(out: str | Path) -> None:
     """Remove the report an earlier run wrote in ``out``: its results.json and every file its :data:`MANIFEST`
     names (config.json and the units are the caller's)."""
@@ -83,8 +70,8 @@ def write_files(out: str | Path, results: dict, *, tables: dict | None = None, t
     when it lies in ``out`` (:func:`recordings`). Returns the paths."""
     import matplotlib.pyplot as plt
 
-    from ...outputs import (atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, markdown_table,
-                           remove_leftovers)
+    from ...outputs import (atomic_save_figure, atomic_write_csv, atomic_write_json, atomic_write_text, finite,
+                           markdown_table, remove_leftovers)
 
     out = Path(out)
     earlier = _listed(out)
@@ -105,7 +92,7 @@ def write_files(out: str | Path, results: dict, *, tables: dict | None = None, t
     written.append(atomic_write_json(out / "config.json", results["config"]))
     ours = [Path(recording).name] if recording is not None and _inside(Path(recording), out) else []
     atomic_write_text(out / MANIFEST, "".join(f"{n}\n" for n in names + ours))
-    written.append(atomic_write_json(out / "results.json", nan_to_none(results)))
+    written.append(atomic_write_json(out / "results.json", finite(results)))
     remove_leftovers(out, [*names, *earlier, "config.json", MANIFEST, "results.json"])  # those of a report killed mid-write
     return written
 

@@ -532,34 +532,30 @@ def _encoder() -> str:
 def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | None = None,
                         note: Callable[[str], object] | None = None) -> int:
     """Every frame of ``review`` with its labels drawn over it and its legend drawn in (:func:`video_frame`) as
-    an MP4 at ``path`` of the frames' size (H.264; written to a temporary file beside it, then renamed); frames
-    of odd size are padded by a pixel. ``fps``: frames per second (default: a video's own rate, divided by the
+    an MP4 at ``path`` of the frames' size (H.264; written to a temporary file beside it, then renamed: what an
+    overlay of that name killed mid-write left is removed first); frames of odd size are padded by a pixel. ``fps``: frames per second (default: a video's own rate, divided by the
     run's ``--every``; 10 for a folder). The source is read straight through, once. A run whose video skips frames
     by its times, has frames that decode with errors or met other notes reading them says so in the video's comment,
     one line each (:meth:`RunReview.said`); a review of no frame is refused. ``note`` is told, once the video is written, when a
     frame is too small for its classes' legend (it shows its name alone). Returns the number of frames written."""
-    import os
-    import tempfile
     from fractions import Fraction
 
     import av
 
     from ._runner import progress
-    from .outputs import publish
+    from .outputs import atomic_file, remove_leftovers
 
     if not review.names:  # an MP4 of no frame is no video a player opens
         raise InputError(f"{review.folder}: holds no labelled frame: no overlay video to write")
     fps = fps or _video_rate(review) or 10.0
     codec = _encoder()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.mp4", dir=path.parent)
-    os.close(fd)
+    remove_leftovers(path.parent, [path.name])  # of an overlay of this name killed mid-write
     n = 0
     small: str | None = None  # told once the video is written: a video refused says one line, its refusal
     images = FrameImages(review)  # no thread: a video is read through frames()
     try:
-        with av.open(tmp, "w", format="mp4") as container, \
+        with atomic_file(path) as fh, av.open(fh, "w", format="mp4") as container, \
                 progress(total=len(review.names), desc="frames", disable=None) as bar:
             if review.said():  # what the run's review says of its frames, one line each, in the video's comment
                 container.metadata["comment"] = "\n".join(review.said())
@@ -589,10 +585,6 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
             if stream is not None:
                 for packet in stream.encode():
                     container.mux(packet)
-        publish(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     finally:
         images.close()
     if small is not None and note is not None:

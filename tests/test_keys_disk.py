@@ -177,6 +177,9 @@ def test_a_note_names_what_the_stretch_needs_and_what_is_free(tmp_path):
     note = disk.disk_note(5 * GIB, 2 * GIB, tmp_path / "out")
     assert note is not None and "about 5.0 GiB" in note and "2.0 GiB is free" in note and str(tmp_path / "out") in note
     assert disk.free_bytes(tmp_path / "not" / "yet") == shutil.disk_usage(tmp_path).free
+    small = disk.disk_note(60 * 2**20, 40 * 2**20, tmp_path)  # both read "0.0 GiB"
+    assert small is not None and "about 60.0 MiB" in small and "40.0 MiB is free" in small
+    assert "about 700 kB" in disk.disk_note(700 * 1024, 100 * 1024, tmp_path)
 
 
 def test_compressed_only_when_uncompressed_would_take_more_than_half_the_free_space():
@@ -196,7 +199,7 @@ def test_pcreg_run_notes_a_disk_too_small_and_nothing_when_it_fits(tmp_path, fra
     monkeypatch.setattr(disk, "free_bytes", lambda path: int(need) - 1)
     assert main(args + ["--out", str(tmp_path / "small")]) == 0
     err = capsys.readouterr().err
-    assert err.count("pcreg: note: the longest stretch") == 1 and f"{(int(need) - 1) / GIB:.1f} GiB is free" in err
+    assert err.count("pcreg: note: the longest stretch") == 1 and f"{disk._size(int(need) - 1)} is free" in err
     monkeypatch.setattr(disk, "free_bytes", lambda path: int(need))
     assert main(args + ["--out", str(tmp_path / "exact")]) == 0
     assert "note" not in capsys.readouterr().err

@@ -309,6 +309,22 @@ def test_hidden_files_are_no_frames_and_numbers_of_different_widths_are_refused(
     assert main(["run", str(stamps), "--labels", str(key), "--out", str(tmp_path / "out3")]) == 0
 
 
+def test_out_in_the_images_folder_frames_would_be_read_from_is_refused_before_anything_is_written(tmp_path, capsys):
+    """``--out FRAMES/images`` for frames read from FRAMES itself: the run wrote its label PNGs there, and the next
+    run read them as the frames (a folder's ``images/`` sub-folder is read in its place once there is one)."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=4)
+    out = folder / "images"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "images/ sub-folder of the frames' folder" in err[0], err
+    assert not out.exists()
+    for keys in (key, key_frames_of(key, tmp_path / "keys", (0, 3))):  # a folder of key frames' labels too
+        assert main(["run", str(folder), "--labels", str(keys), "--out", str(out / ".")]) == 2
+        assert "images/ sub-folder" in one_line_errors(capsys)[0]
+        assert not out.exists()
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(folder / "labelled")]) == 0
+
+
 def test_a_key_frame_of_one_class_is_named_before_anything_is_written(tmp_path, capsys):
     """The classifier's "training labels hold only one class" named no file, and in a run from a folder of key
     frames came after the first stretch was labelled (a stretch's classifier is fitted on its key frames: f4

@@ -77,14 +77,21 @@ def compress_kept(raw: float, free: int | None) -> bool:
     return free is None or raw > free / 2
 
 
+def _size(n: float) -> str:
+    """``n`` bytes as the note says them: ``5.0 GiB``, ``3.2 MiB``, ``64 kB`` (in GiB alone, a disk with 40 MB free
+    and a stretch that needs 60 both read ``0.0 GiB``)."""
+    from ..formats import _bytes
+
+    return f"{n / 2**30:.1f} GiB" if n >= 2**30 else _bytes(n)
+
+
 def disk_note(need: float, free: int | None, out: Path) -> str | None:
     """A one-line note when a run is expected to need ``need`` bytes under ``out``/.keys/ and ``free`` (None:
     unknown, no note) are free there; None when it fits."""
     if free is None or need <= free:
         return None
-    gib = 2.0**30
-    return (f"the longest stretch between key frames is expected to keep about {need / gib:.1f} GiB under "
-            f"{Path(out) / '.keys'} while it is labelled, and {free / gib:.1f} GiB is free there: the run would "
+    return (f"the longest stretch between key frames is expected to keep about {_size(need)} under "
+            f"{Path(out) / '.keys'} while it is labelled, and {_size(free)} is free there: the run would "
             "stop when the disk fills (it resumes); free space, add a key frame within the stretch, or give "
             "--out on a larger disk")
 

@@ -214,6 +214,11 @@ def check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
         if not clobbered and frames.paths and resolved(out) == resolved(frames.paths[0].parent):
             raise InputError(f"--out {out} is the frames' own folder; its label PNGs would be read as frames "
                              "beside them; choose another folder")
+        # a folder read from itself reads its images/ sub-folder once there is one: the label PNGs, next time
+        if not clobbered and frames.source == frames.path and resolved(out) == resolved(frames.path / "images"):
+            raise InputError(f"--out {out} is the images/ sub-folder of the frames' folder, which pcreg reads frames "
+                             "from once it exists: the next run would read the label PNGs as the frames; choose "
+                             "another folder")
     else:  # a video's outputs are OUT/{i:06d}.png, as many as it has frames
         clobbered = [labels] if frames.writes(labels.stem) and resolved(out / f"{labels.stem}.png") == resolved(labels) else []
     if clobbered:

@@ -120,7 +120,7 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
     or by spaces and tabs (which of them, the first line says), a field in double quotes read as what they
     enclose (as csv writers and spreadsheets quote), a comma between semicolons or tabs read as the decimal mark
     (``1,5;2,25``, as spreadsheets in European locales write); blank lines and lines starting with ``#``
-    skipped. Two or three numbers a line are x, y (and z); a first line of names (``x,y,z,nx,ny,nz`` as
+    skipped. Two or three numbers a line are x, y (and z); a first line of names (each of x, y, z once; ``x,y,z,nx,ny,nz`` as
     libpointmatcher writes, ``//X,Y,Z,R,G,B`` as CloudCompare does) says which columns are x, y and z, in any
     number of columns, the others read or not (a column of text, ``x,y,z,label``, is left out). Every line must
     hold as many fields as the first, and numbers where x, y and z are: a line that does not is an
@@ -325,4 +325,9 @@ def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
         line = b",".join(fields)
         text = line[:60].decode("ascii", "replace")
         raise InputError(f"{path}: its first line ({text!r}) names no x and y columns{_comma_hint(line)}")
+    twice = next((a for a in "xyz" if names.count(a) > 1), None)
+    if twice is not None:  # which of them holds the coordinate, the file does not say
+        first, second = [k for k, name in enumerate(names) if name == twice][:2]
+        raise InputError(f"{path}: its first line names {twice} twice (columns {first + 1} and {second + 1}); keep "
+                         "one of them")
     return [names.index(a) for a in "xyz" if a in names]

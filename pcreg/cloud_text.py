@@ -28,10 +28,17 @@ def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
     a line with C's ``sscanf``, skipping a line it cannot parse and reading what a line starts with (``3,5`` as
     3, ``3abc`` as 3, ``0x10`` as 16), and a .pts file's first line declares its count (a count of 20 million in
     a file of three lines took 800 MB in Open3D's reader). Every non-empty line is a point of as many plain
-    numbers as the first (``.pts``: after a first line with the point count, which must be theirs), and their
-    count within ``limit``; else an :class:`InputError`."""
+    numbers as the first (``.pts``: after a first line with the point count, which must be theirs), as many as
+    the format needs, and their count within ``limit``; no byte-order mark, and no line end that is a carriage
+    return alone (Open3D reads such a file as one line: its first point); else an :class:`InputError`."""
     with open(path, "rb") as fh:  # streamed: the file may be large
         firsts = list(itertools.islice((line.strip() for line in fh if line.strip()), 2))
+    if firsts and firsts[0].startswith(UTF8_BOM):  # Open3D's reader takes it for the start of the first number
+        raise InputError(f"{path}: it starts with a UTF-8 byte-order mark, which the {suffix} reader does not "
+                         "read past; save the file without it")
+    if firsts and b"\r" in firsts[0]:  # one line to Open3D, which reads its first point and drops the rest
+        raise InputError(f"{path}: its lines end in a carriage return alone (as classic Mac OS wrote them), which "
+                         f"the {suffix} reader takes for one line (one point); save it with LF or CR LF line ends")
     header = 1 if suffix == ".pts" and firsts and firsts[0].isdigit() else 0
     if suffix == ".pts" and firsts and not header:  # Open3D read its number as the count: one point, or none
         raise InputError(f"{path}: its first line ({firsts[0][:40].decode('ascii', 'replace')!r}) is not the point "
@@ -50,7 +57,18 @@ def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
         raise InputError(f"{path}: point line {number} ({text!r}) is not {width} numbers, as the first is "
                          f"(damaged {suffix} file)")
     check_point_count(expected, str(path), limit=limit)
+    need, what = _TEXT_NUMBERS.get(suffix, (0, ""))
+    if expected and width < need:  # Open3D's reader skips every such line: no point read
+        raise InputError(f"{path}: its point lines hold {width} number{'s' if width > 1 else ''} ({what} are "
+                         f"needed{_TWO_D if width == 2 else ''})")
     return expected, width
+
+
+#: How many numbers a line of each text cloud Open3D reads needs, and what they are.
+_TEXT_NUMBERS = {".xyz": (3, "x, y and z"), ".xyzn": (6, "x, y, z and a normal"),
+                 ".xyzrgb": (6, "x, y, z and a colour")}
+#: Said of a text cloud of two numbers a line that needs three.
+_TWO_D = "; a 2-D cloud is read from a .csv or .txt file of two columns, or an (N, 2) .npy"
 
 
 def read_pts(path: Path, limit: int) -> np.ndarray:
@@ -102,7 +120,7 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
     or by spaces and tabs (which of them, the first line says), a field in double quotes read as what they
     enclose (as csv writers and spreadsheets quote), a comma between semicolons or tabs read as the decimal mark
     (``1,5;2,25``, as spreadsheets in European locales write); blank lines and lines starting with ``#``
-    skipped. Two or three numbers a line are x, y (and z); a first line of names (``x,y,z,nx,ny,nz`` as
+    skipped. Two or three numbers a line are x, y (and z); a first line of names (each of x, y, z once; ``x,y,z,nx,ny,nz`` as
     libpointmatcher writes, ``//X,Y,Z,R,G,B`` as CloudCompare does) says which columns are x, y and z, in any
     number of columns, the others read or not (a column of text, ``x,y,z,label``, is left out). Every line must
     hold as many fields as the first, and numbers where x, y and z are: a line that does not is an
@@ -307,4 +325,9 @@ def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
         line = b",".join(fields)
         text = line[:60].decode("ascii", "replace")
         raise InputError(f"{path}: its first line ({text!r}) names no x and y columns{_comma_hint(line)}")
+    twice = next((a for a in "xyz" if names.count(a) > 1), None)
+    if twice is not None:  # which of them holds the coordinate, the file does not say
+        first, second = [k for k, name in enumerate(names) if name == twice][:2]
+        raise InputError(f"{path}: its first line names {twice} twice (columns {first + 1} and {second + 1}); keep "
+                         "one of them")
     return [names.index(a) for a in "xyz" if a in names]

@@ -221,3 +221,35 @@ def test_a_pts_count_is_checked_before_open3d_reserves_it(tmp_path, monkeypatch)
     (tmp_path / "comma.xyz").write_text("1,2,3\n4,5,6\n")
     with pytest.raises(InputError, match="comma.xyz: its first point line \\('1,2,3'\\) is not numbers between"):
         load_cloud(tmp_path / "comma.xyz")
+
+
+@pytest.mark.parametrize("suffix", [".xyz", ".xyzn", ".xyzrgb"])
+def test_a_text_cloud_whose_lines_end_in_a_lone_cr_is_refused(tmp_path, suffix):
+    """A file whose lines end in a carriage return alone (as classic Mac OS and some exporters write them) is one
+    line to Open3D's reader, which read its first point and dropped every other without a word."""
+    rows = np.c_[POINTS, np.zeros((len(POINTS), 3))] if suffix != ".xyz" else POINTS
+    path = tmp_path / f"mac{suffix}"
+    path.write_bytes(lines(rows).replace(b"\n", b"\r"))
+    with pytest.raises(InputError, match=f"mac{re.escape(suffix)}: its lines end in a carriage return alone"):
+        load_cloud(path)
+    path.write_bytes(lines(rows).replace(b"\n", b"\r\n"))  # Windows' line ends are read
+    np.testing.assert_array_equal(load_cloud(path).astype(np.float32), POINTS)
+
+
+@pytest.mark.parametrize("suffix, numbers, need", [(".xyz", 2, "x, y and z"), (".xyzn", 3, "x, y, z and a normal"),
+                                                   (".xyzrgb", 4, "x, y, z and a colour")])
+def test_a_text_cloud_of_too_few_numbers_a_line_says_so(tmp_path, suffix, numbers, need):
+    """Open3D's reader reads no point of such a file; it was said to be 'empty or not a .xyz point cloud'."""
+    path = tmp_path / f"short{suffix}"
+    path.write_bytes(lines(np.c_[POINTS, POINTS][:, :numbers]))
+    with pytest.raises(InputError, match=f"short{re.escape(suffix)}: its point lines hold {numbers} numbers \\({need}"):
+        load_cloud(path)
+
+
+@pytest.mark.parametrize("suffix, head", [(".xyz", b""), (".pts", b"50\n")])
+def test_a_text_cloud_that_starts_with_a_byte_order_mark_says_so(tmp_path, suffix, head):
+    """A UTF-8 byte-order mark was shown as three replacement characters before the first line's numbers."""
+    path = tmp_path / f"marked{suffix}"
+    path.write_bytes(b"\xef\xbb\xbf" + head + lines(POINTS))
+    with pytest.raises(InputError, match=f"marked{re.escape(suffix)}: it starts with a UTF-8 byte-order mark"):
+        load_cloud(path)

@@ -274,3 +274,14 @@ def test_crosscheck_of_files_of_an_unknown_type_says_so(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith(f"pcreg: error: {tmp_path / 'cloud.00000.vtk'}: unknown file type '.vtk' (an image: .png")
     assert ".txt, .csv)" in err
+
+
+@pytest.mark.parametrize("names", ["x,x,y,z", "X,Y,Z,x,y,z", "x,y,z,Points:0,z"])
+def test_a_first_line_that_names_a_coordinate_twice_is_refused(tmp_path, names):
+    """The first column of the name was taken, without a word: another file's join, or a ParaView export with
+    its own x, may hold the coordinates in the second."""
+    width = len(names.split(","))
+    path = tmp_path / "twice.csv"
+    path.write_text(names + "\n" + "\n".join(",".join(str(k + r) for k in range(width)) for r in range(4)) + "\n")
+    with pytest.raises(InputError, match="twice.csv: its first line names [xyz] twice \\(columns [0-9]+ and [0-9]+\\)"):
+        load_cloud(path)

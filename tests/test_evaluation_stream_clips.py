@@ -206,3 +206,15 @@ def test_a_recording_of_key_frames_or_classes_holds_every_scored_frame(tmp_path,
         assert names == {c.id: c.name for c in CAMVID11.classes}
     else:
         assert names == {0: "ground", 1: "obstacle", 2: "unknown"} == {c.id: c.name for c in LAGR.classes}
+
+
+def test_key_frames_suggested_for_a_table_of_many_classes_are_chosen_in_its_classes(tmp_path, capsys):
+    """``--classes camvid11 --keys suggest:2`` ran its first pass in ground and obstacle: 'label values must be
+    0 ground, 1 obstacle, 2 unknown; got 3', exit 2, for a clip the same run takes with ``--keys first,last``."""
+    _clip(tmp_path / "data" / "clip", 5)
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--classes", "camvid11",
+                 "--keys", "suggest:2", "--methods", "plain", "--out", str(out)]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    keys = json.loads((out / "results.json").read_text())["units"][0]["key_frames"]
+    assert len(keys) == 2 and keys[0] == 0 and 0 < keys[1] < 5

@@ -235,7 +235,7 @@ def _run_methods(cfg: StreamConfig, frames, backend: str, hook) -> dict:
         from .stream_classes import run_clip_classes
         from .stream_keys import key_indices
 
-        keys = key_indices(cfg.keys or "first", len(frames), frames, backend=backend)
+        keys = key_indices(cfg.keys or "first", len(frames), frames, backend=backend, classes=cfg.classes)
         return run_clip_classes(frames, keys, class_table(cfg.classes), methods=cfg.methods, backend=backend,
                                 on_frame=hook)
     if cfg.keys is not None:

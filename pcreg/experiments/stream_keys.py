@@ -31,13 +31,14 @@ KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", 
                                  "flowultrafast_key")
 
 
-def key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") -> list[int]:
+def key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", classes=None) -> list[int]:
     """The key frames of a clip of ``n`` frames by ``spec`` (the module's docstring). ``suggest:N`` runs
-    pcreg from frame 0 (``frames`` with images and frame 0's labels) and picks from its predicted errors.
+    pcreg from frame 0 (``frames`` with images and frame 0's labels, ids of the class table ``classes``:
+    :func:`pcreg.classes.class_table`'s spec, None for ``lagr``) and picks from its predicted errors.
     Key frames that are every frame of the clip leave nothing to score: an :class:`InputError`."""
     from ..errors import InputError
 
-    keys = _key_indices(spec, n, frames, backend=backend)
+    keys = _key_indices(spec, n, frames, backend=backend, classes=classes)
     if len(set(keys)) >= n:
         raise InputError(f"--keys {spec}: every one of the clip's {n} frames is a key frame: nothing is scored")
     return keys
@@ -62,7 +63,7 @@ def check_key_spec(spec: str, n: int) -> None:
         raise InputError(f"--keys {spec}: every one of the clip's {n} frames is a key frame: nothing is scored")
 
 
-def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") -> list[int]:
+def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", classes=None) -> list[int]:
     from ..errors import InputError
     from ..pipeline.keyframes import label_clip, suggest
 
@@ -91,7 +92,7 @@ def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference") 
             return [0]
         if frames is None:
             raise InputError("--keys suggest:N needs the clip's frames")
-        first = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels}, backend=backend)
+        first = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels}, backend=backend, classes=classes)
         predicted = {f.index: f.predicted_error for f in first if f.index != 0}
         return sorted([0] + suggest(predicted, [0], k - 1, n))
     try:

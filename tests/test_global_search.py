@@ -206,13 +206,13 @@ def test_orb_gives_a_projective_registration_a_homography(shared_data):
     the search asked ORB for a rigid motion (470 px off); the registration was refused.
 
     Where a corner lands is sensitive to ORB's keypoints: with the moving image's grey levels moved by -1, 0 or
-    +1 at random (20 draws) the homography is 2-70 px off and the similarity 105-171 px, the homography at most
+    +1 at random (22 draws) the homography is 2-70 px off and the similarity 96-171 px, the homography at most
     0.48 of the similarity's error (another processor's ORB gave 31 and 110 px), hence the margins."""
     img, mov, truth = _viewed(shared_data, "ihc.png", IHC_VIEW)
     hypotheses = [T for model in ("projective", "similarity") for T in orb_hypotheses(img, mov, model=model)]
     assert len(hypotheses) == 2 and np.abs(hypotheses[0][2, :2]).max() > 0.0, hypotheses
     error = [tf.max_corner_error(T, truth, mov.shape) for T in hypotheses]
-    assert error[0] < 80.0 < 100.0 < error[1] and error[0] < 0.6 * error[1], error
+    assert error[0] < 80.0 < error[1] and error[0] < 0.6 * error[1], error
 
 
 @pytest.mark.parametrize(("name", "view"), [("page.png", PAGE_VIEW), ("ihc.png", IHC_VIEW)])

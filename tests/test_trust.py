@@ -280,13 +280,23 @@ def test_suggest_never_names_a_frame_outside_the_clip_nor_takes_an_error_that_is
     assert suggest({1: 5.0, 2: 3.0}, [0], 2, 3) == [2, 1]
 
 def test_evaluate_stream_with_key_frames_anywhere(tmp_path, capsys):
-    from pcreg.experiments.stream_keys import key_indices
+    from pcreg.experiments.stream_keys import check_key_spec, key_indices
 
     assert key_indices("first,last", 10) == [0, 9] and key_indices("every:4", 10) == [0, 4, 8]
     assert key_indices("spaced:3", 9) == [0, 3, 6] and key_indices("2,5", 10) == [2, 5]
     for bad in ("every:0", "suggest:x", "0,12", "spaced:0", "a,b"):
         with pytest.raises(InputError, match="--keys"):
             key_indices(bad, 10)
+    # as typed by hand: spaces around the commas and colons read; 1_0 and other digits Python's int takes do not
+    assert key_indices(" first, last ", 10) == [0, 9] and key_indices("spaced: 3", 9) == [0, 3, 6]
+    assert key_indices("2 , 5", 10) == [2, 5] and key_indices("every : 4", 10) == [0, 4, 8]
+    for bad in ("1_0", "every:1_0", "\u0662,5", "spaced:\u0663"):
+        with pytest.raises(InputError, match="whole number|spaced:N, suggest:N or frame indices"):
+            key_indices(bad, 12)
+    for bad in ("suggest: 1_0", "suggest:x"):
+        with pytest.raises(InputError, match="suggest:N takes a whole number"):
+            check_key_spec(bad, 12)
+    check_key_spec("suggest : 3", 12)
     for every in ("every:1", "spaced:10", "0,1,2,3,4,5,6,7,8,9"):  # scored nothing: a table of NaN, "met"
         with pytest.raises(InputError, match="every one of the clip's 10 frames is a key frame"):
             key_indices(every, 10)

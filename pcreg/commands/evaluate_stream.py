@@ -49,7 +49,7 @@ def config_from_args(args: argparse.Namespace) -> StreamConfig:
     if args.keys is not None and args.key_every is not None:
         raise InputError("--keys and --key-every choose the key frames two ways: give one")
     if args.keys is not None and not args.keys.strip():
-        raise InputError("--keys: give first, first,last, every:N, suggest:N or frame indices")
+        raise InputError("--keys: give first, first,last, every:N, spaced:N, suggest:N or frame indices")
     given = ",".join(allowed) if args.methods is None else args.methods
     methods = tuple(m.strip() for m in given.split(",") if m.strip())
     unknown = [m for m in methods if m not in allowed]

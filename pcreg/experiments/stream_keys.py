@@ -20,11 +20,16 @@ stream's weight 2.
 
 from __future__ import annotations
 
+import re
 import time
 
 import numpy as np
 
 __all__ = ["KEY_METHODS", "key_indices", "check_key_spec", "run_clip_keys"]
+
+#: A frame index or N as SPEC writes it: ASCII digits, a sign allowed (refused later as out of range); not
+#: ``1_0`` or other digits Python's ``int`` reads.
+_WHOLE = re.compile(r"[+-]?[0-9]+")
 
 #: Methods of the key-frame protocol, in table order.
 KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "flow_key",
@@ -49,35 +54,38 @@ def check_key_spec(spec: str, n: int) -> None:
     (``suggest:N`` has its N checked, its frames chosen only when the clip runs)."""
     from ..errors import InputError
 
-    kind, _, arg = spec.strip().partition(":")
+    kind, _, arg = _normal(spec).partition(":")
     if kind != "suggest":
         key_indices(spec, n)
         return
-    try:
-        k = int(arg)
-    except ValueError:
-        raise InputError(f"--keys {spec}: suggest:N takes a whole number") from None
+    if not _WHOLE.fullmatch(arg):
+        raise InputError(f"--keys {spec}: suggest:N takes a whole number")
+    k = int(arg)
     if not 1 <= k <= n:
         raise InputError(f"--keys {spec}: suggest:N needs 1 <= N <= {n} (the clip's frames)")
     if k >= n:
         raise InputError(f"--keys {spec}: every one of the clip's {n} frames is a key frame: nothing is scored")
 
 
+def _normal(spec: str) -> str:
+    """``spec`` without the spaces around its commas and colons (``first, last``, ``spaced: 3``)."""
+    return re.sub(r"\s*([,:])\s*", r"\1", spec.strip())
+
+
 def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", classes=None) -> list[int]:
     from ..errors import InputError
     from ..pipeline.keyframes import label_clip, suggest
 
-    s = spec.strip()
+    s = _normal(spec)
     if s == "first":
         return [0]
     if s in ("first,last", "last,first"):
         return sorted({0, n - 1})
     kind, _, arg = s.partition(":")
     if kind in ("every", "suggest", "spaced"):
-        try:
-            k = int(arg)
-        except ValueError:
-            raise InputError(f"--keys {spec}: {kind}:N takes a whole number") from None
+        if not _WHOLE.fullmatch(arg):
+            raise InputError(f"--keys {spec}: {kind}:N takes a whole number")
+        k = int(arg)
         if kind == "every":
             if k < 1:
                 raise InputError(f"--keys {spec}: every:N needs N >= 1")
@@ -95,10 +103,10 @@ def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", 
         first = label_clip(lambda t: frames[t].image, n, {0: frames[0].labels}, backend=backend, classes=classes)
         predicted = {f.index: f.predicted_error for f in first if f.index != 0}
         return sorted([0] + suggest(predicted, [0], k - 1, n))
-    try:
-        idx = sorted({int(v) for v in s.split(",")})
-    except ValueError:
-        raise InputError(f"--keys {spec}: not first, first,last, every:N, suggest:N or frame indices") from None
+    values = s.split(",")
+    if not all(_WHOLE.fullmatch(v) for v in values):
+        raise InputError(f"--keys {spec}: not first, first,last, every:N, spaced:N, suggest:N or frame indices")
+    idx = sorted({int(v) for v in values})
     if not idx or idx[0] < 0 or idx[-1] >= n:
         raise InputError(f"--keys {spec}: frame indices must lie in 0..{n - 1}")
     return idx

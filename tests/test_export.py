@@ -578,3 +578,19 @@ def test_the_archive_is_refused_over_a_frame_of_the_run_force_or_not(tmp_path, c
     assert main(["export", str(out), "--force"]) == 0  # its own archive, inside the folder of frames
     assert main(["export", str(out), "--to", str(src / "new.zip")]) == 0  # a new file there replaces nothing
     assert zipfile.is_zipfile(src / "new.zip")
+
+
+def test_two_frame_names_one_in_the_archive_once_not_utf8_are_refused():
+    """Frames ``f\\xff.png`` and ``f\\xfe.png`` (names that are not UTF-8, as a Linux file system holds them) are both
+    stored as ``f\\ufffd``: the archive held two members of one name (Python's "Duplicate name" warning on the
+    terminal) and default.txt the name twice, and the tool took one frame's masks for both, with exit code 0."""
+    labels = np.zeros((4, 6), np.uint8)
+    frames = [("f\udcff.png", labels), ("f\udcfe.png", labels + 1)]
+    with pytest.raises(pcreg.errors.InputError, match=re.escape(
+            "'f\\udcfe.png': a frame name that is not UTF-8, stored in the archive as 'f\ufffd' as is the frame "
+            "'f\\udcff'; the two would be one frame in the tool: rename them")):
+        pcreg.export.write_cvat_mask(io.BytesIO(), frames)
+    # one such name, or the same bytes twice, as before
+    pcreg.export.write_cvat_mask(io.BytesIO(), frames[:1] + [("g.png", labels)])
+    with pytest.raises(pcreg.errors.InputError, match="two frames named f\udcff"):
+        pcreg.export.write_cvat_mask(io.BytesIO(), frames[:1] * 2)

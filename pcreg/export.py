@@ -197,6 +197,12 @@ def _paint(labels: np.ndarray, colours: dict[int, tuple[int, int, int]]) -> np.n
     return lut[labels]
 
 
+def _utf8(text: str) -> str:
+    """``text`` as a zip stores it (its names are UTF-8): a name that is not UTF-8 (os.fsdecode's escapes) with each
+    bad byte replaced (U+FFFD)."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
 def cvat_mask_archive(frames, table: ClassTable = DEFAULT_TABLE) -> tuple[bytes, dict[str, int]]:
     """The bytes of a "Segmentation mask 1.1" zip of ``frames`` (pairs of a frame's file name and its
     (H, W) uint8 class ids of ``table``), and how many frames show each class (by name, every class of
@@ -230,7 +236,7 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
 
     counts = {c.name: 0 for c in table.classes}
     stems: list[str] = []  # in the run's order, for default.txt
-    written: set[str] = set()  # the same, to tell a name written twice in one look, however long the run
+    written: dict[str, str] = {}  # each name as the archive stores it -> the frame's, to tell one written twice
     class_colours = {c.id: c.colour for c in table.classes}
     instances = instance_colours(table)
     labelmap = labelmap_text(table)
@@ -238,9 +244,9 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
         def add(name: str, data: bytes | str) -> None:
             # a frame name that is not UTF-8 (os.fsdecode's escapes) stored with its bad bytes replaced, in
             # the members' names and in the list of them alike: a zip's names are UTF-8
-            name = name.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+            name = _utf8(name)
             if isinstance(data, str):
-                data = data.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+                data = _utf8(data)
             info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
             info.external_attr = 0o644 << 16  # rw-r--r-- once unpacked (0 would be no permission at all)
             z.writestr(info, data)
@@ -252,8 +258,11 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
             if labels.ndim != 2 or labels.dtype != np.uint8:
                 raise InputError(f"{frame}: labels must be (H, W) uint8 class ids")
             labels = table.check_labels(labels, frame)
-            if stem in written:
-                raise InputError(f"{frame}: two frames named {stem}")
+            stored = _utf8(stem)
+            if stored in written:
+                raise InputError(f"{frame}: two frames named {stem}" if written[stored] == stem else
+                                 f"{frame!r}: a frame name that is not UTF-8, stored in the archive as {stored!r} as is "
+                                 f"the frame {written[stored]!r}; the two would be one frame in the tool: rename them")
             if stem.splitlines() != [stem]:  # default.txt lists a name a line: a line break would make it two
                 raise InputError(f"{frame!r}: a frame name with a line break cannot be listed in the archive's "
                                  "default.txt; rename the frame")
@@ -262,7 +271,7 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
                                  "otherwise from the archive's default.txt by CVAT's import (a comment, or the name "
                                  "without its spaces), and its masks left out; rename the frame")
             stems.append(stem)
-            written.add(stem)
+            written[stored] = stem
             for k in np.unique(labels):
                 counts[table.name_of(int(k))] += 1
             add(f"SegmentationClass/{stem}.png", _png(_paint(labels, class_colours), stem))

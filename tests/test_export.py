@@ -553,3 +553,44 @@ def test_the_archive_is_refused_over_an_input_of_the_run_force_or_not(tmp_path, 
     assert capsys.readouterr().err == (f"pcreg: error: {key} is the input {key}; the output would overwrite it (choose "
                                        "another file)\n")
     assert key.read_bytes() == before
+
+
+def test_the_archive_is_refused_over_a_frame_of_the_run_force_or_not(tmp_path, capsys):
+    """``--to FRAMES/f1.png --force`` (a file of the folder of frames the run read, not the folder itself) wrote the
+    archive over the frame: the video's frame was lost, and the run, resumed or run again, refused the folder. A run's
+    output folder inside its folder of frames is still exported over its own archive with --force."""
+    frames = pcreg.synthetic("syn1a", 3, 0, width=96, height=72)
+    src = tmp_path / "frames"
+    src.mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(src / f"f{i}.png"), f.image[:, :, ::-1])
+    key = tmp_path / "key.png"
+    cv2.imwrite(str(key), frames[0].labels)
+    out = src / "labelled"  # a folder is no frame: the run's output may lie among its frames
+    assert main(["run", str(src), "--labels", str(key), "--out", str(out), "--model", "flow"]) == 0
+    before = (src / "f1.png").read_bytes()
+    capsys.readouterr()
+    assert main(["export", str(out), "--to", str(src / "f1.png"), "--force"]) == 2
+    assert capsys.readouterr().err == (f"pcreg: error: --to {src / 'f1.png'}: a file of the folder {src} the run "
+                                       "reads; the archive would replace it (choose another name or folder)\n")
+    assert (src / "f1.png").read_bytes() == before
+    assert main(["export", str(out)]) == 0
+    assert main(["export", str(out), "--force"]) == 0  # its own archive, inside the folder of frames
+    assert main(["export", str(out), "--to", str(src / "new.zip")]) == 0  # a new file there replaces nothing
+    assert zipfile.is_zipfile(src / "new.zip")
+
+
+def test_two_frame_names_one_in_the_archive_once_not_utf8_are_refused():
+    """Frames ``f\\xff.png`` and ``f\\xfe.png`` (names that are not UTF-8, as a Linux file system holds them) are both
+    stored as ``f\\ufffd``: the archive held two members of one name (Python's "Duplicate name" warning on the
+    terminal) and default.txt the name twice, and the tool took one frame's masks for both, with exit code 0."""
+    labels = np.zeros((4, 6), np.uint8)
+    frames = [("f\udcff.png", labels), ("f\udcfe.png", labels + 1)]
+    with pytest.raises(pcreg.errors.InputError, match=re.escape(
+            "'f\\udcfe.png': a frame name that is not UTF-8, stored in the archive as 'f\ufffd' as is the frame "
+            "'f\\udcff'; the two would be one frame in the tool: rename them")):
+        pcreg.export.write_cvat_mask(io.BytesIO(), frames)
+    # one such name, or the same bytes twice, as before
+    pcreg.export.write_cvat_mask(io.BytesIO(), frames[:1] + [("g.png", labels)])
+    with pytest.raises(pcreg.errors.InputError, match="two frames named f\udcff"):
+        pcreg.export.write_cvat_mask(io.BytesIO(), frames[:1] * 2)

@@ -56,6 +56,13 @@ def run(args: argparse.Namespace) -> int:
     if to != resolved(default) and folder in to.parents and dest.suffix.lower() != ".zip":
         raise OutputError(f"--to {dest}: inside the run's own folder and not a .zip; the archive would replace one "
                           "of the run's files (choose a .zip name or another folder)")
+    # a file of a folder the run reads (a frame, a key frame's labels, a truth file), which a run's output folder
+    # inside it (checked above) is not: the archive would take its place, --force or not
+    read_from = next((p for p in inputs if folder not in to.parents and to.is_file() and Path(p).is_dir()
+                      and resolved(p) in to.parents), None)
+    if read_from is not None:
+        raise OutputError(f"--to {dest}: a file of the folder {read_from} the run reads; the archive would replace "
+                          "it (choose another name or folder)")
     # written as the frames are read and checked, in a temporary file that takes dest's place once all are;
     # a bar on a terminal: a run of hours of video takes minutes to export
     with progress(labelled_frames(run_labels, args.min_confidence), total=len(run_labels.names),

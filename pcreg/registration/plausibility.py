@@ -199,7 +199,8 @@ class Plausibility:
             raise RegistrationError(
                 f"registration refused: the best alignment's {ratio * n:.0f} tight, direction-consistent edge points "
                 f"of {n} are within {SIGNIFICANCE:g} standard deviations of chance ({chance * n:.0f} ± {sd:.0f} "
-                f"expected from unrelated content): too few edges to tell the same scene from another")
+                f"expected from unrelated content): too few edges to tell the same scene from another"
+                f"{self._sizes(shape)}")
         if mir is not None and ratio < mir:
             raise RegistrationError(
                 f"registration refused: the best alignment puts only {100 * ratio:.1f}% of the overlapping edge "

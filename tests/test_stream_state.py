@@ -1,0 +1,36 @@
+"""A stream's state is its own: it keeps no array its caller may write into afterwards (the key labels, a
+frame, a resumed carry), and what it gives out to be saved (its scene, a follower's carry) cannot be written
+into to change the steps that follow."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.classes import CAMVID11
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return pcreg.synthetic("syn1a", 4, 0, width=160, height=120)
+
+
+def _eleven(labels: np.ndarray) -> np.ndarray:
+    """The synthetic ground, obstacle and unknown as camvid11's road, sidewalk and void."""
+    return np.array([3, 4, CAMVID11.unknown], np.uint8)[labels]
+
+
+def test_many_class_key_labels_written_after_reset_leave_the_stream_as_it_was(frames):
+    """With more than two classes the stream kept the caller's label array itself (the class table's check
+    returns a uint8 array as it is): a caller who reused it (the next clip's key labels read into the same
+    buffer) changed every later step's labels, and ``key_labels``, without a word."""
+    def labels_after(write: bool) -> list[np.ndarray]:
+        labels = _eleven(frames[0].labels)
+        prop = pcreg.Propagator.from_key_frame(frames[0].image, labels, classes=CAMVID11)
+        if write:
+            labels[:] = 3
+        return [prop.step(f.image) for f in frames[1:]] + [prop.key_labels]
+
+    for kept, written in zip(labels_after(False), labels_after(True)):
+        assert np.array_equal(kept, written)

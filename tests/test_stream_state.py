@@ -34,3 +34,44 @@ def test_many_class_key_labels_written_after_reset_leave_the_stream_as_it_was(fr
 
     for kept, written in zip(labels_after(False), labels_after(True)):
         assert np.array_equal(kept, written)
+
+
+def _steps(prop, frames) -> list:
+    out = []
+    for f in frames:
+        out += [prop.step(f.image), prop.last.confidence, prop.last.trust_summary.get("cut")]
+    return out
+
+
+def _same(a: list, b: list) -> bool:
+    return all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def _zeroed(scene) -> None:
+    for a in (scene.grey, scene.colours):
+        if a.flags.writeable:
+            a[...] = 0
+
+
+def test_the_scene_a_stream_gives_or_resumes_from_is_not_written_through(frames):
+    """``Propagator.scene`` gave the cut test's own arrays, and ``resume`` kept the caller's: a caller who wrote
+    into them (a buffer reused for saving) made every later frame a cut, its confidence the least the stream
+    gives."""
+    def steps(write) -> list:
+        prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels)
+        out = []
+        for f in frames[1:]:
+            out += _steps(prop, [f])
+            write(prop)
+        return out
+
+    def resumed(prop) -> None:  # resumed from a scene of the caller's, then the caller's array written
+        scene = prop.scene
+        own = type(scene)(scene.grey.copy(), scene.colours.copy())
+        prop.resume(prop.last.frame, prop.carry, prop.learned, own)
+        _zeroed(own)
+
+    untouched = steps(lambda prop: None)
+    assert not any(untouched[2::3])
+    assert _same(untouched, steps(lambda prop: _zeroed(prop.scene)))
+    assert _same(untouched, steps(resumed))

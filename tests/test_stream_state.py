@@ -75,3 +75,37 @@ def test_the_scene_a_stream_gives_or_resumes_from_is_not_written_through(frames)
     assert not any(untouched[2::3])
     assert _same(untouched, steps(lambda prop: _zeroed(prop.scene)))
     assert _same(untouched, steps(resumed))
+
+
+def _zero_carry(carry) -> None:
+    for a in (carry.labels, carry.grey):
+        if a.flags.writeable:
+            a[...] = 0
+
+
+def test_the_carry_a_follower_gives_or_resumes_from_is_not_written_through():
+    """``ObjectFollower.carry`` gave the follower's own labels and grey levels, and ``resume`` kept the caller's: a
+    caller who wrote into them lost the object (every later frame read against 'nowhere') without a word."""
+    from pcreg.pipeline.follow import FollowCarry, ObjectFollower
+    from test_follow_objects import moving_object
+
+    pairs = moving_object(5)
+
+    def steps(write) -> list:
+        follower = ObjectFollower.from_key_frame(*pairs[0])
+        out = []
+        for image, _ in pairs[1:]:
+            out += [follower.step(image), follower.last.confidence]
+            write(follower)
+        return out
+
+    def resumed(follower) -> None:  # resumed from a carry of the caller's, then the caller's arrays written
+        c = follower.carry
+        own = FollowCarry(c.labels.copy(), c.grey.copy(), c.colours.copy())
+        follower.resume(follower.last.frame, own)
+        _zero_carry(own)
+
+    untouched = steps(lambda follower: None)
+    assert untouched[-2].any()  # the object followed to the last frame
+    assert _same(untouched, steps(lambda follower: _zero_carry(follower.carry)))
+    assert _same(untouched, steps(resumed))

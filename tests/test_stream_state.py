@@ -109,3 +109,25 @@ def test_the_carry_a_follower_gives_or_resumes_from_is_not_written_through():
     assert untouched[-2].any()  # the object followed to the last frame
     assert _same(untouched, steps(lambda follower: _zero_carry(follower.carry)))
     assert _same(untouched, steps(resumed))
+
+
+@pytest.mark.parametrize("stride", [1, 3])
+def test_a_frame_written_after_its_step_is_not_learned_from(frames, stride):
+    """With ``Learning(stride=1)`` the learner kept the frame itself (a one-in-one sample of it is a view) until the
+    next step counted it: a caller who decodes every frame into one buffer taught naive Bayes the next frame's
+    colours with this frame's labels."""
+    from pcreg.pipeline.learning import Learning
+
+    def steps(buffered: bool) -> list:
+        prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, learning=Learning(stride=stride))
+        buffer = np.empty_like(frames[0].image)
+        out = []
+        for f in frames[1:]:
+            buffer[...] = f.image
+            out.append(prop.step(buffer if buffered else f.image.copy()))
+            buffer[...] = 0
+        return out + [prop.learned]
+
+    learned = steps(False)
+    assert learned[-1].any()
+    assert _same(learned, steps(True))

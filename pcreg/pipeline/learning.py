@@ -136,7 +136,8 @@ class Learner:
         else:
             sure = (np.abs(P) > self.rule.sure) & ((P > 0) == (F > 0))
             labels = np.where(sure, (F > 0).astype(np.uint8), np.uint8(2)).astype(np.uint8)
-        self._pending = (np.ascontiguousarray(as_rgb_uint8(image, name="frame")[::s, ::s]), labels)
+        # a copy of its own (a one-in-one sample is the frame itself): the caller may write the next frame into it
+        self._pending = (np.array(as_rgb_uint8(image, name="frame")[::s, ::s], order="C"), labels)
 
     def _learn_pending(self) -> None:
         if self._pending is None:

@@ -131,3 +131,22 @@ def test_a_frame_written_after_its_step_is_not_learned_from(frames, stride):
     learned = steps(False)
     assert learned[-1].any()
     assert _same(learned, steps(True))
+
+
+def test_a_chained_stream_resumed_from_a_callers_frame_keeps_its_own(frames):
+    """A chained stream (``anchor="previous"``) resumed from a :class:`ChainCarry` of the caller's registered the next
+    frame to the caller's array itself: written afterwards (the buffer it was read into), the next step's reference
+    was whatever the caller wrote there."""
+    from pcreg.pipeline.estimators import ChainCarry
+
+    def steps(write: bool) -> list:
+        prop = pcreg.Propagator.from_key_frame(frames[0].image, frames[0].labels, anchor="previous")
+        prop.step(frames[1].image)
+        c = prop.carry
+        own = ChainCarry(c.rgb.copy(), c.motion, c.frame)
+        prop.resume(prop.last.frame, own, prop.learned, prop.scene)
+        if write:
+            own.rgb[...] = 0
+        return _steps(prop, frames[2:])
+
+    assert _same(steps(False), steps(True))

@@ -150,3 +150,42 @@ def test_a_chained_stream_resumed_from_a_callers_frame_keeps_its_own(frames):
         return _steps(prop, frames[2:])
 
     assert _same(steps(False), steps(True))
+
+
+class _FailsOnce:
+    """A caller's classifier that fails on its ``fail_at``-th frame (out of memory on a GPU, say), else pcreg's."""
+
+    def __init__(self, nb, fail_at: int | None) -> None:
+        self.nb, self.calls, self.fail_at = nb, 0, fail_at
+        self.classes_, self.class_prior_ = nb.classes_, nb.class_prior_
+
+    def decision_function(self, image):
+        self.calls += 1
+        if self.calls == self.fail_at:
+            raise MemoryError("out of memory")
+        return self.nb.decision_function(image)
+
+
+@pytest.mark.parametrize("anchor", ["key", "previous"])
+def test_a_step_that_raises_leaves_the_stream_as_it_was(anchor):
+    """A step that raised after its frame was checked had counted the frame and kept its warm start and its cut
+    test's frame: the steps after it were numbered one on, and their labels and confidence were not those of the
+    stream that was never given that frame."""
+    frames = pcreg.synthetic("syn1a", 5, 0, width=160, height=120)
+    nb = pcreg.fit_classifier([frames[0]])
+
+    def steps(fail: bool) -> list:
+        prop = pcreg.Propagator(_FailsOnce(nb, 2 if fail else None), anchor=anchor)
+        prop.reset(frames[0].image, frames[0].labels)
+        prop.step(frames[1].image)
+        if fail:
+            with pytest.raises(MemoryError):
+                prop.step(frames[2].image)
+        out = []
+        for f in frames[3:]:
+            out += [prop.step(f.image), prop.last.confidence, prop.last.frame]
+        return out
+
+    never_given = steps(False)
+    assert never_given[2::3] == [2, 3]
+    assert _same(never_given, steps(True))

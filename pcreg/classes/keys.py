@@ -445,7 +445,8 @@ def run_table(identity: dict | None, where: str = "run.json's classes") -> Class
 
 def check_labels(labels, shape, table=None) -> np.ndarray:
     """(H, W) uint8 key labels, checked: of ``shape`` (when given), and each value a class of ``table``
-    (a :class:`~pcreg.classes.ClassTable`; None: 0 ground, 1 obstacle, 2 unknown)."""
+    (a :class:`~pcreg.classes.ClassTable`; None: 0 ground, 1 obstacle, 2 unknown). Always an array of its own,
+    never ``labels`` itself: a stream keeps it, and its caller may write the next labels into the same array."""
     check_unmasked(labels, "labels")
     lab = np.asarray(labels)
     if lab.ndim == 3 and lab.shape[2] in (1, 3, 4):
@@ -460,7 +461,7 @@ def check_labels(labels, shape, table=None) -> np.ndarray:
     if not (np.issubdtype(lab.dtype, np.integer) or lab.dtype == np.bool_):
         raise InputError(f"labels must be integers (0 ground, 1 obstacle, 2 unknown), got {lab.dtype}")
     if table is not None and not binary_table(table):
-        return table.check_labels(lab, "the key frame's labels")
+        return np.array(table.check_labels(lab, "the key frame's labels"))  # the table's check keeps a uint8 array
     if lab.size and (lab.min() < 0 or lab.max() > 2):
         bad = int(lab.min()) if lab.min() < 0 else int(lab.max())
         raise InputError(f"labels must be 0 (ground), 1 (obstacle) or 2 (unknown); found {bad}")

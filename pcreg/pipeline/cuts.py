@@ -44,7 +44,8 @@ __all__ = ["Scene", "SceneCheck"]
 class Scene:
     """The last frame found in the key frame's scene, as the cut test compares the next frame with it: its grey
     levels (h, w) uint8 at half the working size and its colour histogram ``colours`` (:data:`~pcreg.pipeline.
-    follow.BINS` ^ 3,) float32 (:func:`~pcreg.pipeline.follow.frame_colours`)."""
+    follow.BINS` ^ 3,) float32 (:func:`~pcreg.pipeline.follow.frame_colours`). Both are kept read-only, a
+    writeable array given as a copy: the stream goes on from it, and its caller may write into its own."""
 
     grey: np.ndarray
     colours: np.ndarray
@@ -56,6 +57,16 @@ class Scene:
         if not (isinstance(c, np.ndarray) and c.shape == (BINS ** 3,) and c.dtype == np.float32
                 and np.all(np.isfinite(c))):
             raise InputError(f"a stream's carried scene colours must be a ({BINS ** 3},) float32 array")
+        object.__setattr__(self, "grey", _read_only(g))
+        object.__setattr__(self, "colours", _read_only(c))
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """``a`` itself when it is read-only (the stream's own), else a read-only copy (a caller's array)."""
+    if a.flags.writeable:
+        a = a.copy()
+        a.setflags(write=False)
+    return a
 
 
 def _small(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -64,7 +75,10 @@ def _small(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     h, w = rgb.shape[:2]
     small = cv2.resize(rgb, (max(1, w // 2), max(1, h // 2)), interpolation=cv2.INTER_AREA)
-    return cv2.cvtColor(small, cv2.COLOR_RGB2GRAY), frame_colours(small)
+    grey, colours = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY), frame_colours(small)
+    grey.setflags(write=False)  # handed out as they are (:attr:`SceneCheck.scene`)
+    colours.setflags(write=False)
+    return grey, colours
 
 
 class SceneCheck:

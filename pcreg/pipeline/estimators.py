@@ -142,7 +142,8 @@ def chain_after(carry, key, frame: int) -> tuple:
         return (key, None, 0)
     if carry.motion is None:
         raise InputError("a chained stream's carried frame after the key frame needs its motion to the key frame")
-    return (PreparedFrame(np.ascontiguousarray(rgb)), carry.motion, int(carry.frame))
+    # a copy of its own: the next step is registered to it, and the caller may write into its array
+    return (PreparedFrame(np.array(rgb, order="C")), carry.motion, int(carry.frame))
 
 
 STREAM_DENSE = DenseStep()

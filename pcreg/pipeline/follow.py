@@ -143,7 +143,8 @@ class FollowCarry:
     """What a step hands to the next: the hard labels (h, w) uint8 (1 the object) and the grey levels
     (h, w) uint8 of its frame, both at the working size, and its colour histogram ``colours``
     (:data:`BINS` ^ 3,) float32 summing to 1, which the cut test reads (None in a carry saved before there
-    was one: that step's cut test then reads the residual alone, never a cut)."""
+    was one: that step's cut test then reads the residual alone, never a cut). Its arrays are kept read-only, a
+    writeable array given as a copy: the next step goes on from them, and a caller may write into its own."""
 
     labels: np.ndarray
     grey: np.ndarray
@@ -163,6 +164,12 @@ class FollowCarry:
         c = self.colours
         if c is not None and not (isinstance(c, np.ndarray) and c.shape == (BINS ** 3,) and c.dtype == np.float32):
             raise InputError(f"a follower's carried colour histogram must be a ({BINS ** 3},) float32 array")
+        for name in ("labels", "grey", "colours"):
+            a = getattr(self, name)
+            if a is not None and a.flags.writeable:
+                a = a.copy()
+                a.setflags(write=False)
+                object.__setattr__(self, name, a)
         held = self.held
         if held is not None and not (isinstance(held, FollowCarry) and held.held is None and held.colours is not None
                                      and held.labels.shape == self.labels.shape):

@@ -118,6 +118,15 @@ class Learner:
         classifier = self._refit(s)  # a histogram the classifier refuses (unknown pixels counted) refused here
         self._stream, self._pending, self._classifier = s, None, classifier
 
+    def snapshot(self) -> tuple:
+        """The learner as it is now, for :meth:`rewind` (its histograms and classifier are replaced, never written
+        into)."""
+        return self._stream, self._pending, self._classifier
+
+    def rewind(self, snapshot: tuple) -> None:
+        """Go back to a :meth:`snapshot` (a stream's step that raised: what it taught is forgotten)."""
+        self._stream, self._pending, self._classifier = snapshot
+
     def update(self, image, fused: np.ndarray, prior_term: np.ndarray) -> None:
         """Learn from one labelled frame (an (H, W, 3) uint8 image or a
         :class:`~pcreg.frame.PreparedFrame`): ``fused`` (H, W) log-odds, ``prior_term`` (H, W) the trusted
@@ -136,7 +145,8 @@ class Learner:
         else:
             sure = (np.abs(P) > self.rule.sure) & ((P > 0) == (F > 0))
             labels = np.where(sure, (F > 0).astype(np.uint8), np.uint8(2)).astype(np.uint8)
-        self._pending = (np.ascontiguousarray(as_rgb_uint8(image, name="frame")[::s, ::s]), labels)
+        # a copy of its own (a one-in-one sample is the frame itself): the caller may write the next frame into it
+        self._pending = (np.array(as_rgb_uint8(image, name="frame")[::s, ::s], order="C"), labels)
 
     def _learn_pending(self) -> None:
         if self._pending is None:

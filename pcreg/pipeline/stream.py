@@ -332,12 +332,28 @@ class Propagator:
     def step(self, image: "np.ndarray | PreparedFrame") -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle; with more classes their ids) of the next frame, an
         image or a :class:`~pcreg.frame.PreparedFrame` (checked once here; naive Bayes, both motions and the learning
-        take it as it is, and its features are kept with it); see :attr:`last` for what happened."""
+        take it as it is, and its features are kept with it); see :attr:`last` for what happened. A step that raises
+        (an error of its classifier, Ctrl-C) leaves the stream as it was: the next step is the one it would have
+        been without that frame."""
         key, size = self._key, self._size
         if key is None or size is None:
             raise InputError("Propagator.step before reset: give the key frame and its labels first")
         t_start = time.perf_counter()
         frame = size.shrunk(PreparedFrame.of(image, name="frame", shape=size.frame))
+        before = (self._frame, self._carry, self._chain, self.scene,
+                  None if self._learner is None else self._learner.snapshot())
+        try:
+            return self._step(key, frame, t_start)
+        except BaseException:
+            self._frame, self._carry, self._chain = before[:3]
+            if self._key_scene is not None:
+                self._key_scene.restore(before[3])
+            if self._learner is not None:
+                self._learner.rewind(before[4])
+            raise
+
+    def _step(self, key: PreparedFrame, frame: PreparedFrame, t_start: float) -> np.ndarray:
+        """:meth:`step` of a checked ``frame`` (at the working size), begun at ``t_start``."""
         self._frame += 1
         times = dict.fromkeys(STEP_STAGES, 0.0)
         times.update({f"{stage}.{part}": 0.0 for stage, parts in STEP_PARTS.items() if stage != "register"

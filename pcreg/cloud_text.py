@@ -318,6 +318,14 @@ def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
             return None
         raise InputError(f"{path}: {len(fields)} number{'s' if len(fields) > 1 else ''} a line and no first line naming the x, y and z columns "
                          "(give one, as 'x y z ...', or keep two or three columns)")
+    filled = len(fields)
+    while filled and not fields[filled - 1].strip():
+        filled -= 1
+    if 0 < filled < len(fields) and all(_NUMBER.fullmatch(f) for f in fields[:filled]):
+        raise InputError(f"{path}: its first line is {filled} numbers and then an empty field (a separator at the "
+                         f"end of the line, as some spreadsheets save): which columns are x, y and z is not said "
+                         f"(remove the separators at the ends of the lines, or add a first line naming the columns, "
+                         f"as 'x,y,z,')")
     names = [f.decode("ascii", "replace").strip("\"'").lstrip("/").strip().lower() for f in fields]
     if "x" not in names and "y" not in names:
         names = [_POINTS_COLUMNS.get(n, n) for n in names]

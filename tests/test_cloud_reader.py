@@ -285,3 +285,22 @@ def test_a_first_line_that_names_a_coordinate_twice_is_refused(tmp_path, names):
     path.write_text(names + "\n" + "\n".join(",".join(str(k + r) for k in range(width)) for r in range(4)) + "\n")
     with pytest.raises(InputError, match="twice.csv: its first line names [xyz] twice \\(columns [0-9]+ and [0-9]+\\)"):
         load_cloud(path)
+
+
+@pytest.mark.parametrize("separator", [",", ";", " "])
+def test_lines_of_numbers_ending_in_a_separator_are_read_with_names_and_refused_without(tmp_path, separator):
+    """``1,2,3,`` a line (a spreadsheet's trailing separator) without a first line of names was refused as naming
+    "no x and y columns", though it names none; it says what the file holds and the two ways out. With names
+    (``x,y,z,``) the lines are read."""
+    rows = [[1, 2, 3], [4, 5, 6], [7, 8, 9]]
+    bare = tmp_path / "bare.csv"
+    bare.write_text("".join(separator.join(map(str, r)) + separator + "\n" for r in rows))
+    if separator != " ":  # a space at the end of a line is white space, not a field
+        with pytest.raises(InputError, match=r"bare\.csv: its first line is 3 numbers and then an empty field .* add "
+                                             r"a first line naming the columns, as 'x,y,z,'\)$"):
+            load_cloud(bare)
+    else:
+        np.testing.assert_array_equal(load_cloud(bare), rows)
+    named = tmp_path / "named.csv"
+    named.write_text(separator.join("xyz") + separator + "\n" + bare.read_text())
+    np.testing.assert_array_equal(load_cloud(named), rows)

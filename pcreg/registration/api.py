@@ -23,7 +23,7 @@ from .config import DEFAULT_MIN_INLIER_RATIO, PyramidConfig, RegisterConfig
 from .dense import DENSE_GLOBAL_MODEL, DenseIteration, DenseOptions, DenseReference, DenseRegistrationResult, GlobalStep, InitialGrid, finest_grid_shape, refine_field
 from .dense.levels import check_prepared
 from .features import feature_check
-from .global_search import orb_fit
+from .global_search import gray_level, orb_fit
 from .inputs import check_cloud
 from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
@@ -65,7 +65,9 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
         :class:`~pcreg.registration.dense.DenseRegistrationResult`.
     model, backend : shorthands for ``config.replace(model=..., backend=...)``; None keeps the config's.
     init : None keeps the config's ``search.init``; one of its names replaces it; a 3x3 ``T_ref_mov``
-        is the one hypothesis, refined instead of searching (a transform the model can hold, as :func:`icp`'s).
+        is the one hypothesis, refined instead of searching (a transform the model can hold, as :func:`icp`'s):
+        coarse to fine and, where the coarse levels leave it unconvincing, again from full resolution, the better
+        kept (as the search's own starts are), so that a start at the answer is not pulled off it.
     reference_mask, moving_mask : usable pixels, ``"auto"`` (ignore black padding) or None; with
         ``model="dense"`` its global similarity's (the field always leaves black padding out).
     reference_pyramid, moving_pyramid : the images' :func:`~pcreg.registration.clouds.image_pyramid` (same ``levels``,
@@ -393,6 +395,10 @@ def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausib
         ref_shape = refiner.reference.image.shape
         init = (about_point(np.eye(3), image_center(moving.image.shape), image_center(ref_shape))
                 if init == "center" else np.eye(3))
-    refined, iterations = search.refine(moving, init)
-    return [Candidate(Hypothesis("init", init), refined, test.measure(moving, refined.matrix),
-                      iterations=iterations)], None
+        refined, iterations = search.refine(moving, init)
+        return [Candidate(Hypothesis("init", init), refined, test.measure(moving, refined.matrix),
+                          iterations=iterations)], None
+    # a start given as a matrix: refined as the search's own starts are (again from full resolution where the
+    # coarse levels leave it unconvincing, the better kept), so a start at the answer is not pulled off it
+    gray = gray_level(moving.image, search.p_level, valid=moving.valid)
+    return [search.evaluate(Hypothesis("init", init), moving, gray, again=True)], None

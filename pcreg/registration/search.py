@@ -161,16 +161,17 @@ class GlobalSearch:
     def is_convincing(self, c: Candidate) -> bool:
         return c.inlier_ratio >= self.convincing and c.photometric_ncc >= CONVINCING_NCC
 
-    def evaluate(self, h: Hypothesis, moving: CloudPyramid, gray) -> Candidate:
+    def evaluate(self, h: Hypothesis, moving: CloudPyramid, gray, *, again: bool = False) -> Candidate:
         """``h`` refined coarse to fine and measured (edges and intensities). A similarity from an intensity
-        generator that the coarse levels leave unconvincing is refined once more from full resolution, as a rigid
-        one is, and the better of the two kept: on small images (a 288x216 crop has about 125 edge points at level
-        3) the coarsest levels pulled starts 2-4 px from the truth 10-18 px away, and refusals of such views."""
+        generator (or, ``again``, any start) that the coarse levels leave unconvincing is refined once more from
+        full resolution, as a rigid one is, and the better of the two kept: on small images (a 288x216 crop has
+        about 125 edge points at level 3) the coarsest levels pulled starts 2-4 px from the truth 10-18 px away,
+        and refusals of such views."""
         refined, iterations = self.refine(moving, h.matrix, top=h.top)
         ncc = self.agreement(refined.matrix, gray)
         c = Candidate(h, refined, self.measure(moving, refined.matrix), ncc, iterations)
-        if (h.top is None and h.generator in ("fourier_mellin", "orb") and self.model == "similarity"
-                and not self.is_convincing(c)):
+        again = again or (h.generator in ("fourier_mellin", "orb") and self.model == "similarity")
+        if h.top is None and again and not self.is_convincing(c):
             try:
                 fine = self.evaluate(replace(h, top=START_LEVEL), moving, gray)
             except RegistrationError:  # its refinement collapsed: the coarse-to-fine one stands

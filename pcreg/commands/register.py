@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from ..registration.transforms import MODELS
-from ._common import add_record_arguments, open_recorder, positive_float, positive_int, print_json
+from ._common import add_record_arguments, arg_float, arg_int, open_recorder, positive_int, print_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -17,16 +17,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the ICP: pcreg's own (reference, the default) or Open3D's; the same algorithm")
     p.add_argument("--model", choices=MODELS + ("dense",), default="rigid",
                    help="motion model (default rigid); dense: the similarity refined by a dense field")
-    p.add_argument("--levels", type=positive_int, default=4, help="pyramid levels (default 4)")
+    p.add_argument("--levels", type=arg_int(1, 8), default=4, help="pyramid levels, 1..8 (default 4)")
     p.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
     p.add_argument("--init", choices=("auto", "identity", "center"), default="auto",
                    help="auto (default): global rotation search; identity: start from no motion; center: from the image centres aligned")
-    p.add_argument("--max-distance", type=positive_float, default=2.5,
+    p.add_argument("--max-distance", type=arg_float(0, 1e6, lo_open=True), default=2.5,
                    help="correspondence distance in px at full resolution (x 2^level; default 2.5)")
     p.add_argument("--refine", choices=("none", "point_to_line"), default="none",
                    help="finish: none (default) or point_to_line (reference backend only), which removes edge-sampling bias")
-    from ._common import arg_float
-
     p.add_argument("--min-inlier-ratio", type=arg_float(0, 1), default=None, metavar="R",
                    help="refuse (exit 3) below this share of tight inliers (default: the library's, 0.15); "
                         "0 turns the test off")

@@ -27,6 +27,7 @@ import numpy as np
 
 from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
+from .validation import check_float
 from .formats import loads_json
 from .legend import Legend, draw_legend
 
@@ -529,6 +530,11 @@ def _encoder() -> str:
     return "libx264"
 
 
+#: The overlay video's rates (frames per second): its stream stores the rate as a fraction of denominator at
+#: most 1000, so a rate below 1/1000 would be stored as 0, which the muxer replaced by 24 fps.
+MIN_FPS, MAX_FPS = 0.001, 1000.0
+
+
 def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | None = None,
                         note: Callable[[str], object] | None = None) -> int:
     """Every frame of ``review`` with its labels drawn over it and its legend drawn in (:func:`video_frame`) as
@@ -547,7 +553,10 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
 
     if not review.names:  # an MP4 of no frame is no video a player opens
         raise InputError(f"{review.folder}: holds no labelled frame: no overlay video to write")
-    fps = fps or _video_rate(review) or 10.0
+    if fps is None:  # a rate below the finest step the stream stores (1/1000) would be stored as 0: 24 fps
+        fps = max(_video_rate(review) or 10.0, MIN_FPS)
+    else:
+        fps = check_float(fps, "fps", lo=MIN_FPS, hi=MAX_FPS)
     codec = _encoder()
     path = Path(path)
     remove_leftovers(path.parent, [path.name])  # of an overlay of this name killed mid-write

@@ -3,14 +3,21 @@ before anything is read or run."""
 
 from __future__ import annotations
 
+import contextlib
+import io
+
+import cv2
+import numpy as np
 import pytest
 
 from pcreg.cli import main
+from pcreg.errors import InputError
 
 
 @pytest.mark.parametrize("argv, option", [
     (["register", "a.png", "b.png", "--levels", "100"], "--levels"),
     (["register", "a.png", "b.png", "--max-distance", "1e7"], "--max-distance"),
+    (["view", "run", "--overlay", "o.mp4", "--fps", "0.0004"], "--fps"),
 ])
 def test_an_option_value_out_of_range_is_refused_naming_the_option(tmp_path, monkeypatch, capsys, argv, option):
     monkeypatch.chdir(tmp_path)
@@ -19,3 +26,28 @@ def test_an_option_value_out_of_range_is_refused_naming_the_option(tmp_path, mon
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"argument {option}" in err[0]
+
+
+def test_an_overlay_rate_the_video_cannot_store_is_refused_not_replaced_by_24_fps(tmp_path):
+    """A rate below 1/1000 was stored as 0, which the muxer replaced by 24 fps: a video of the wrong speed."""
+    import av
+
+    from pcreg.review import read_review, write_overlay_video
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    base = cv2.GaussianBlur((np.random.default_rng(0).random((48, 64, 3)) * 255).astype(np.uint8), (5, 5), 0)
+    for i in range(3):
+        cv2.imwrite(str(frames / f"{i:03d}.png"), np.roll(base, i, axis=1))
+    labels = np.zeros((48, 64), np.uint8)
+    labels[24:] = 1
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(frames), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "out")]) == 0
+    review = read_review(tmp_path / "out")
+    with pytest.raises(InputError, match="fps must be >= 0.001"):
+        write_overlay_video(review, tmp_path / "slow.mp4", fps=0.0004)
+    assert not (tmp_path / "slow.mp4").exists()
+    write_overlay_video(review, tmp_path / "o.mp4", fps=0.001)
+    with av.open(str(tmp_path / "o.mp4")) as container:
+        assert str(container.streams.video[0].average_rate) == "1/1000"

@@ -93,8 +93,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overlay", metavar="FILE.mp4",
                         help="for a pcreg run output: write its frames with their labels drawn over them as a video, "
                              "each with a legend of its name and classes")
-    parser.add_argument("--fps", type=arg_float(0, 1000, lo_open=True), default=None,
-                        help="frames per second of the --overlay video (default: a video's own, 10 for a folder of frames)")
+    parser.add_argument("--fps", type=arg_float(0.001, 1000), default=None,
+                        help="frames per second of the --overlay video, 0.001..1000 (default: a video's own, 10 for a "
+                             "folder of frames)")
     parser.add_argument("--force", action="store_true", help="overwrite OUT.png (or the --overlay video)")
 
 

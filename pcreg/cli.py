@@ -65,6 +65,7 @@ def _add(sub, name: str, module: str, help_: str) -> None:
     p = sub.add_parser(name, help=help_, description=_first_sentence(mod.__doc__ or help_))
     mod.add_arguments(p)
     _add_limits(p)
+    _refuse_empty_values(p)
     p.set_defaults(_module=module)
 
 
@@ -77,6 +78,20 @@ def _add_limits(p: argparse.ArgumentParser) -> None:
         p.add_argument("--max-pixels", type=arg_int(1), default=None, metavar="N",
                        help=f"largest image (pixels) or cloud (points) accepted (default {DEFAULT_MAX_PIXELS}, "
                             "or $PCREG_MAX_PIXELS)")
+
+
+def _not_empty(text: str) -> str:
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"expected a value, got {text!r}")
+    return text
+
+
+def _refuse_empty_values(p: argparse.ArgumentParser) -> None:
+    """Every option and argument given as text (no ``type=`` of its own) refuses an empty value: a path ``''`` is
+    the current folder (``--out ''`` wrote a run's files there), and other options took it for not given."""
+    for action in p._actions:
+        if action.type is None and action.nargs != 0 and not isinstance(action, argparse._SubParsersAction):
+            action.type = _not_empty
 
 
 def build_parser() -> argparse.ArgumentParser:

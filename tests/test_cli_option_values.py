@@ -18,8 +18,17 @@ from pcreg.errors import InputError
     (["register", "a.png", "b.png", "--levels", "100"], "--levels"),
     (["register", "a.png", "b.png", "--max-distance", "1e7"], "--max-distance"),
     (["view", "run", "--overlay", "o.mp4", "--fps", "0.0004"], "--fps"),
+    # an empty path is the current folder: --out '' wrote a run's or the demo's files there
+    (["run", "frames", "--labels", "key.png", "--out", ""], "--out"),
+    (["run", "", "--labels", "key.png", "--out", "o"], "FRAMES"),
+    (["demo", "--out", ""], "--out"),
+    (["evaluate", "stream", "--out", ""], "--out"),
+    (["export", ""], "OUT"),
+    # and an empty option was taken for one not given: --init '' ran from the identity
+    (["crosscheck", "a.npy", "b.npy", "--init", ""], "--init"),
+    (["crosscheck", "a.npy", "b.npy", "--record", ""], "--record"),
 ])
-def test_an_option_value_out_of_range_is_refused_naming_the_option(tmp_path, monkeypatch, capsys, argv, option):
+def test_an_option_value_that_cannot_be_meant_is_refused_naming_the_option(tmp_path, monkeypatch, capsys, argv, option):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit) as exc:
         main(argv)

@@ -189,7 +189,7 @@ def test_bad_input_one_line_exit_2_nothing_written(run_copy, tmp_path, capsys):
     _refused([str(out), "--min-confidence", "1.5"], capsys, "--min-confidence")
     # an unwritable destination: a folder, a path under a file
     _refused([str(out), "--to", str(tmp_path)], capsys, str(tmp_path), "is a folder")
-    _refused([str(out), "--to", ""], capsys, "is a folder")
+    _refused([str(out), "--to", ""], capsys, "argument --to: expected a value")
     _refused([str(out), "--to", str(out / "run.json" / "x.zip")], capsys, "run.json", "not a folder")
     assert sorted(p.name for p in out.rglob("*")) == before
     # --min-confidence on a run made without --confidence

@@ -685,7 +685,7 @@ CLI = {
                                               "py:MODULE:FUNCTION"),
     "crosscheck_with_an_unclosed_quote": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", 'cmd:"x {out}'],
                                           "cannot parse"),
-    "crosscheck_with_nothing": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", ""], "names no implementation"),
+    "crosscheck_with_nothing": (["crosscheck", "{t}/ok.ply", "{t}/ok.ply", "--with", ""], "argument --with: expected a value"),
     "stream_names_no_dataset": (["evaluate", "stream", "--data", "synthetic:,", "--out", "{t}/o"],
                                 "names no synthetic preset"),
     "stream_classes_of_another_two_class_table": (["evaluate", "stream", "--classes", "davis", "--out", "{t}/o"],

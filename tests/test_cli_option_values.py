@@ -60,3 +60,15 @@ def test_an_overlay_rate_the_video_cannot_store_is_refused_not_replaced_by_24_fp
     write_overlay_video(review, tmp_path / "o.mp4", fps=0.001)
     with av.open(str(tmp_path / "o.mp4")) as container:
         assert str(container.streams.video[0].average_rate) == "1/1000"
+
+
+@pytest.mark.parametrize("extra", [[], ["--max-distance", "1"]])
+def test_a_voxel_size_that_merges_a_cloud_into_too_few_points_names_the_voxel_size(tmp_path, capsys, extra):
+    """It said "a.npy: a single point", of a file of 200 points, or failed inside the implementations."""
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    cloud = np.random.default_rng(0).random((200, 3))
+    np.save(a, cloud)
+    np.save(b, cloud + 0.01)
+    assert main(["crosscheck", str(a), str(b), "--voxel-size", "1e308", *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "(--voxel-size) merges its 200 points into 1, and the ICP needs 3" in err[0]

@@ -332,7 +332,12 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     d = src.shape[1]
     if voxel_size is not None and voxel_size is not False and voxel_size != 0:
         voxel_size = check_float(voxel_size, "voxel_size", lo=0, lo_open=True)
-        src, tgt = voxel_downsample(src, voxel_size), voxel_downsample(tgt, voxel_size)
+        kept = voxel_downsample(src, voxel_size), voxel_downsample(tgt, voxel_size)
+        for cloud, left, name in zip((src, tgt), kept, (files[0] or "source", files[1] or "target")):
+            if len(left) < 3 <= len(cloud):  # the message would blame the file for the points the voxels merged
+                raise InputError(f"{name}: voxel_size {voxel_size:g} (--voxel-size) merges its {len(cloud)} points "
+                                 f"into {len(left)}, and the ICP needs 3; give a smaller voxel size")
+        src, tgt = kept
     # the shared inputs are checked here, once, as the reference checks them: a bad one is the
     # caller's, not a failure of each implementation in turn
     T0 = np.eye(d + 1) if init is None else check_matrix(init, "init", d + 1)

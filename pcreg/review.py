@@ -530,8 +530,7 @@ def _encoder() -> str:
     return "libx264"
 
 
-#: The overlay video's rates (frames per second): its stream stores the rate as a fraction of denominator at
-#: most 1000, so a rate below 1/1000 would be stored as 0, which the muxer replaced by 24 fps.
+#: The overlay's rates, frames per second: its stream stores a fraction of denominator <= 1000 (less: 0, then 24 fps).
 MIN_FPS, MAX_FPS = 0.001, 1000.0
 
 
@@ -553,10 +552,7 @@ def write_overlay_video(review: RunReview, path: str | Path, *, fps: float | Non
 
     if not review.names:  # an MP4 of no frame is no video a player opens
         raise InputError(f"{review.folder}: holds no labelled frame: no overlay video to write")
-    if fps is None:  # a rate below the finest step the stream stores (1/1000) would be stored as 0: 24 fps
-        fps = max(_video_rate(review) or 10.0, MIN_FPS)
-    else:
-        fps = check_float(fps, "fps", lo=MIN_FPS, hi=MAX_FPS)
+    fps = max(_video_rate(review) or 10.0, MIN_FPS) if fps is None else check_float(fps, "fps", lo=MIN_FPS, hi=MAX_FPS)
     codec = _encoder()
     path = Path(path)
     remove_leftovers(path.parent, [path.name])  # of an overlay of this name killed mid-write

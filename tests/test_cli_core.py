@@ -299,7 +299,7 @@ def test_crosscheck_clouds_json(tmp_path):
     (lambda d, t: ["register", t / "empty.png", d / "mov.png"], "empty file"),
     (lambda d, t: ["register", d / "ref.png", t / "flat.png"], "no usable edges"),
     (lambda d, t: ["register", d / "ref.png", t / "tiny.png"], "too small"),
-    (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--levels", "0"], "positive integer"),
+    (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--levels", "0"], "argument --levels: expected an integer in 1..8"),
     (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--model", "warp"], "invalid choice"),
     (lambda d, t: ["register", d / "ref.png", d / "mov.png", "--backend", "open3d", "--model", "affine"],
      "supports the rigid and similarity"),

@@ -198,3 +198,28 @@ def killed_mid_write(path):
     [tmp] = set(path.parent.glob(f".{path.name}.*.tmp")) - before
     assert tmp.stat().st_size == 8192
     return tmp
+
+
+def video_run(tmp_path, frames: int = 3):
+    """``pcreg run`` of a synthetic ``frames``-frame 96x72 MP4 in ``tmp_path`` from its first frame's labels:
+    (the video, the run's folder)."""
+    import contextlib
+    import io
+
+    import cv2
+    import numpy as np
+
+    import pcreg
+    from pcreg.cli import main
+
+    synthetic = pcreg.synthetic("syn1a", frames, 0, width=96, height=72)
+    video = tmp_path / "clip.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (96, 72))
+    for f in synthetic:
+        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
+    writer.release()
+    cv2.imwrite(str(tmp_path / "key.png"), synthetic[0].labels)
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0
+    return video, out

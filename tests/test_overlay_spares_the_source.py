@@ -4,34 +4,12 @@ mid-write left beside it is removed by the next."""
 
 from __future__ import annotations
 
-import contextlib
-import io
-
-import cv2
-import numpy as np
-
-import pcreg
-from pcreg.cli import main
+from _runs import video_run
 from _view import one_line_error, pcreg_view
 
 
-def _run(tmp_path):
-    """A run of a 3-frame video in ``tmp_path``: (the video, the run's folder)."""
-    frames = pcreg.synthetic("syn1a", 3, 0, width=96, height=72)
-    video = tmp_path / "clip.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (96, 72))
-    for f in frames:
-        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
-    writer.release()
-    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
-    out = tmp_path / "out"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0
-    return video, out
-
-
 def test_the_overlay_is_refused_over_the_runs_own_video(tmp_path, capsys):
-    video, out = _run(tmp_path)
+    video, out = video_run(tmp_path)
     before = video.read_bytes()
     capsys.readouterr()
     assert pcreg_view([str(out), "--overlay", str(video), "--force"]) == 2
@@ -49,7 +27,7 @@ def test_what_a_killed_overlay_left_is_removed_and_one_being_written_kept(tmp_pa
     from pcreg.outputs import atomic_file
     from _runs import killed_mid_write
 
-    _, out = _run(tmp_path)
+    _, out = video_run(tmp_path)
     overlay = tmp_path / "overlay.mp4"
     killed = killed_mid_write(overlay)
     with atomic_file(overlay) as fh:  # another overlay of that name under way

@@ -6,16 +6,10 @@ anything else is left."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import urllib.request
 
-import cv2
-import numpy as np
-
-import pcreg
-from pcreg.cli import main
+from _runs import video_run
 
 
 def _get(url: str) -> int:
@@ -28,16 +22,7 @@ def test_the_frames_decoded_from_an_earlier_version_of_the_video_are_removed(tmp
     from pcreg.recording.review import ReviewServer
     from pcreg.review import CACHE, read_review
 
-    synthetic = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
-    video = tmp_path / "clip.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10, (96, 72))
-    for f in synthetic:
-        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
-    writer.release()
-    cv2.imwrite(str(tmp_path / "key.png"), synthetic[0].labels)
-    out = tmp_path / "out"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0
+    video, out = video_run(tmp_path, 4)
     with ReviewServer(read_review(out), web_port=0) as server:
         assert _get(server.url + "frame/3.jpg") == 200
     [first] = (out / CACHE).iterdir()

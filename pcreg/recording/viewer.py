@@ -184,7 +184,7 @@ def screenshot(
         out_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.png")
         try:
-            client.save_screenshot(str(tmp), view_id=view_id)
+            _save_screenshot(client, tmp, view_id, timeout)
             if not tmp.is_file() or tmp.stat().st_size == 0:
                 raise ViewerError("the viewer saved no screenshot")
             os.replace(tmp, out_path)
@@ -192,6 +192,21 @@ def screenshot(
             if tmp.exists():
                 tmp.unlink()
     return out_path
+
+
+def _save_screenshot(client, path: Path, view_id: str | None, timeout: float) -> None:
+    """``client.save_screenshot`` to ``path``, asked again while it runs out of the viewer's own wait for a
+    painted frame (15 s: a software renderer on a loaded machine can take longer), until ``timeout`` seconds
+    have passed; then a :class:`ViewerError`."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            client.save_screenshot(str(path), view_id=view_id)
+            return
+        except TimeoutError:
+            if time.monotonic() > deadline:
+                raise ViewerError(f"the viewer did not paint the screenshot within {timeout:.0f} s; "
+                                  "try a longer --timeout or a smaller --size") from None
 
 
 def _ends_with_us() -> Any:

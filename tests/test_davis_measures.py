@@ -126,3 +126,20 @@ def test_a_tolerance_past_the_diagonal_matches_every_boundary_pixel():
     assert boundary_f(mixed, _band(2), bound_th=3) < 1.0
     for wide in (reach + 1, 10**6, 10.0**12):
         assert boundary_f(mixed, _band(2), bound_th=wide) == 1.0
+
+
+def test_void_truth_is_scored_as_background_as_davis2017_evaluations_figures_are():
+    """davis2017-evaluation (commit 30b698a) takes its void mask from masks already cast to bool: no pixel is void,
+    so a prediction over a void pixel counts against it, in J and in F. The DAVIS scores of the stream evaluation
+    read void (label 2) the same way."""
+    from pcreg.datasets import Frame
+    from pcreg.experiments.stream_davis import DavisScores
+
+    labels = np.zeros((20, 30), np.uint8)
+    labels[5:12, 8:20] = 1
+    labels[12:15, 8:20] = 2  # a void band under the object
+    over_void = (labels > 0).astype(np.uint8)  # the object and the void band
+    hook = DavisScores(3)
+    hook.on_frame(1, Frame(np.zeros((20, 30, 3), np.uint8), labels, "1"), {"m": over_void})
+    assert hook.values["J"]["m"] == [pytest.approx(7 / 10)]  # 84 of 120 px: the void band is in the union only
+    assert hook.values["F"]["m"] == [boundary_f(over_void, labels == 1)] and hook.values["F"]["m"][0] < 1

@@ -18,7 +18,10 @@ and Evaluation Methodology for Video Object Segmentation", CVPR 2016):
   mean), then over sequences (``db_eval_view``'s average).
 
 Masks are any (H, W) arrays; nonzero is the object (the benchmark reads its annotations as grey and
-casts them to bool). pcreg's labels qualify as they are (1 the object, 0 the background).
+casts them to bool). pcreg's labels qualify as ``labels == 1``: as they are, their 2 (unknown, or a DAVIS 2017
+void pixel) would be read as the object. Void is background here, as in davis2017-evaluation's figures: its
+``_evaluate_semisupervised`` passes ``void_pixels`` of ``mask == 255`` taken from masks already cast to bool
+(``get_all_masks``), which hold no pixel, so no pixel is left out of J or F (checked at its commit 30b698a).
 """
 
 from __future__ import annotations

@@ -216,8 +216,20 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", default="synthetic", help=DATA_HELP)
     parser.add_argument("--frames", type=arg_int(1, MAX_FRAMES), default=None,
                         help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
-    parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
+    parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480; not with real --data, run at its own size)")
     parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the synthetic data (default 0)")
+
+
+def synthetic_size(args: argparse.Namespace) -> tuple[int, int] | None:
+    """``--size``, which sizes synthetic frames: refused beside a real ``--data``, whose frames are run at their own
+    size (it was ignored there, and written to the evaluation's config.json as if they had been run at it)."""
+    from ..errors import InputError
+
+    if args.size is not None and str(args.data).partition(":")[0].strip().lower() != "synthetic":
+        w, h = args.size
+        raise InputError(f"--size {w}x{h} sizes synthetic frames; those of --data {args.data} are run at their own "
+                         "size: leave --size out")
+    return args.size
 
 
 def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:

@@ -49,6 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace) -> ClassificationConfig:
     from ..errors import InputError
+    from . import _common as c
     from ..classification.features import parse_features
 
     feats = tuple("+".join(parse_features(f)) for f in args.features)
@@ -60,7 +61,7 @@ def config_from_args(args: argparse.Namespace) -> ClassificationConfig:
         raise InputError("--frames must be at least 1")
     return ClassificationConfig(data=args.data, cases=tuple(args.cases), features=feats,
                                 case1_k=tuple(args.case1_k), case3_k=tuple(args.case3_k), n_trials=args.trials,
-                                seed=args.seed, frames=args.frames, size=args.size)
+                                seed=args.seed, frames=args.frames, size=c.synthetic_size(args))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -41,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace) -> StreamConfig:
     from ..errors import InputError
+    from . import _common as c
 
     classes = _many_classes(getattr(args, "classes", None))
     allowed = CLASS_METHODS if classes is not None else METHODS if args.keys is None else KEY_METHODS
@@ -58,7 +59,7 @@ def config_from_args(args: argparse.Namespace) -> StreamConfig:
     if "plain" not in methods:
         methods = ("plain",) + methods  # every reduction is against plain
     frames = args.frames if args.frames is not None else (40 if args.data == "synthetic" else None)
-    return StreamConfig(data=args.data, frames=frames, size=args.size, seed=args.seed, key_every=args.key_every,
+    return StreamConfig(data=args.data, frames=frames, size=c.synthetic_size(args), seed=args.seed, key_every=args.key_every,
                         keys=args.keys, backends=(args.backend,), methods=tuple(m for m in allowed if m in methods),
                         classes=classes)
 

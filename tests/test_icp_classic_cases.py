@@ -239,3 +239,23 @@ def test_point_to_plane_with_normals_of_very_different_lengths_is_open3d_s():
         r = pcreg.icp(tf.apply(np.linalg.inv(T), target), target,
                       ICPOptions(backend=backend, metric="point_to_plane", max_iteration=60), target_normals=normals)
         np.testing.assert_allclose(r.matrix, T, atol=1e-12)
+
+
+@pytest.mark.parametrize("model", ["translation", "rigid", "similarity", "affine"])
+@pytest.mark.parametrize("length", [1e-6, 1.0, 1e6])
+def test_point_to_line_with_normals_of_any_length_recovers_the_motion(model, length):
+    """The outline of a 1 x 1.5 rectangle moved by 3 degrees and (0.02, -0.01), its normals 1e-6, 1 or 1e6 long:
+    the motion to 1e-12 (measured at most 2.5e-16) in at most 10 iterations (measured 3 or 4). With normals 1e-6
+    long the step's damping, 1e-9 of the system's trace but at least 1e-9, outweighed the system: every step fell
+    short, 60 iterations ended 2e-4 (similarity) to 1e-2 (affine) off, and the translation model's run called that
+    converged."""
+    rng = np.random.default_rng(2)
+    t, side = rng.uniform(0, 1, 400), rng.integers(0, 4, 400)
+    target = np.where(side[:, None] < 2, np.c_[t, side == 1], np.c_[side == 3, t]) * [1.0, 1.5]
+    normals = np.where(side[:, None] < 2, [[0.0, 1.0]], [[1.0, 0.0]]) * length
+    T = tf.rigid2d(0.0 if model == "translation" else 3.0, 0.02, -0.01)
+    r = pcreg.icp(tf.apply(np.linalg.inv(T), target), target,
+                  ICPOptions(metric="point_to_line", model=model, max_iteration=60, relative_rmse=1e-7,
+                             relative_fitness=1e-9), target_normals=normals)
+    np.testing.assert_allclose(r.matrix, T, atol=1e-12)
+    assert r.converged and r.iterations <= 10

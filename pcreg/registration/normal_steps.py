@@ -49,7 +49,8 @@ def estimate_point_to_line(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.nd
             "projective": [x * nx, y * nx, nx, x * ny, y * ny, ny, -x * radial, -y * radial]}
     J = np.column_stack(cols[model])
     JTJ = (J * w[:, None]).T @ J
-    JTJ += np.eye(J.shape[1]) * 1e-9 * max(np.trace(JTJ), 1.0)
+    trace = float(np.trace(JTJ))  # the damping relative to it: normals of any length (their residuals' unit) alike
+    JTJ += np.eye(J.shape[1]) * 1e-9 * (trace if trace > 0 else 1.0)
     v = np.linalg.solve(JTJ, -(J * w[:, None]).T @ r0)
     U = np.eye(3)
     if model == "translation":

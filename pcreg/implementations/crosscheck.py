@@ -359,7 +359,8 @@ def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarr
     ``distance`` than a rigid motion needs (2 in 2-D, 3 in 3-D). With none, every ICP stops where it started
     (fitness 0), and a cross-check of identities would read as implementations that agree and converged;
     with one or two in 3-D the rotation is not determined: pcreg's reference stops where it started, others
-    (Open3D's step takes any non-empty set) move by a rotation the pairs do not determine. The message names
+    (Open3D's step takes any non-empty set) move by a rotation the pairs do not determine; a source of fewer
+    points than that is refused as such (no init or distance helps). The message names
     the ``files`` the clouds were read from, where given ("S.ply onto T.ply: ...")."""
     from scipy.spatial import cKDTree
 
@@ -367,6 +368,9 @@ def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarr
 
     d = src.shape[1]
     need = pairs_needed("rigid", d)
+    if len(src) < need:  # no init or distance makes them enough: the file, not the pose, is short
+        raise RegistrationError(f"registration refused: {files[0] or 'source'}: {len(src)} point(s) are too few for a "
+                                f"rigid motion in {d}-D (it needs {need})")
     moved = src @ T0[:-1, :-1].T + T0[:-1, -1]
     near, _ = cKDTree(tgt).query(moved, k=1, distance_upper_bound=distance)
     found = int(np.count_nonzero(np.isfinite(near)))

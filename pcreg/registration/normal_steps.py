@@ -49,7 +49,8 @@ def estimate_point_to_line(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.nd
             "projective": [x * nx, y * nx, nx, x * ny, y * ny, ny, -x * radial, -y * radial]}
     J = np.column_stack(cols[model])
     JTJ = (J * w[:, None]).T @ J
-    JTJ += np.eye(J.shape[1]) * 1e-9 * max(np.trace(JTJ), 1.0)
+    trace = float(np.trace(JTJ))  # the damping relative to it: normals of any length (their residuals' unit) alike
+    JTJ += np.eye(J.shape[1]) * 1e-9 * (trace if trace > 0 else 1.0)
     v = np.linalg.solve(JTJ, -(J * w[:, None]).T @ r0)
     U = np.eye(3)
     if model == "translation":
@@ -94,6 +95,17 @@ def estimate_point_to_plane(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.n
     return C @ _point_to_plane_about_origin(p - c, q - c, n, w) @ np.linalg.inv(C)
 
 
+def _equilibrated_cond(JTJ: np.ndarray) -> float:
+    """Condition number of ``JTJ`` with its rows and columns scaled to a unit diagonal (Jacobi), so that it does
+    not depend on the clouds' units: the rotation's columns scale with the coordinates and the translation's do
+    not (a cloud 1e-6 across had a condition number of 1e12 and more, well posed); inf for a zero diagonal."""
+    diagonal = np.diag(JTJ)
+    if not np.all(diagonal > 0):
+        return float("inf")
+    s = 1.0 / np.sqrt(diagonal)
+    return float(np.linalg.cond(JTJ * np.outer(s, s)))
+
+
 def _point_to_plane_about_origin(p: np.ndarray, q: np.ndarray, n: np.ndarray, w: np.ndarray) -> np.ndarray:
     r = np.einsum("ij,ij->i", p - q, n)
     J = np.hstack([np.cross(p, n), n])
@@ -103,7 +115,7 @@ def _point_to_plane_about_origin(p: np.ndarray, q: np.ndarray, n: np.ndarray, w:
         x = np.linalg.solve(JTJ, -JTr)
     except np.linalg.LinAlgError:
         return np.eye(4)
-    if not np.all(np.isfinite(x)) or np.linalg.cond(JTJ) > 1e12:
+    if not np.all(np.isfinite(x)) or _equilibrated_cond(JTJ) > 1e12:
         return np.eye(4)
     (cx, cy, cz), (sx, sy, sz) = np.cos(x[:3]), np.sin(x[:3])
     Rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])

@@ -184,6 +184,20 @@ def test_k_larger_than_a_synthetic_sequence(tmp_path, capsys):
     assert not (tmp_path / "results.json").exists()
 
 
+def test_case_i_on_a_one_frame_sequence_names_it_before_any_unit_runs(tmp_path, capsys):
+    """A sequence of one frame gave Case I k = 0: a unit trained on no frame and the run stopped with "no training
+    images", naming neither the sequence nor the case, after writing config.json and units/. It is refused
+    before anything is written, naming both; Cases II and III still run on it."""
+    _clip(tmp_path / "data" / "clip", 1)
+    out = tmp_path / "out"
+    assert run_cli(["--data", f"camvid:{tmp_path / 'data'}", "--features", "rgb", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "dataset clip has 1 frame(s): Case I" in err and "--cases" in err and err.count("\n") == 1, err
+    assert not out.exists()
+    assert run_cli(["--data", f"camvid:{tmp_path / 'data'}", "--features", "rgb", "--cases", "II,III",
+                    "--out", str(out)]) == 0
+
+
 def test_unknown_feature_and_case_are_rejected(tmp_path, capsys):
     assert run_cli(["--features", "rgb+nope", "--out", str(tmp_path)]) == 2
     assert "unknown feature" in capsys.readouterr().err

@@ -104,6 +104,9 @@ def resolve_k(n: int, explicit: tuple[int, ...], fractions: tuple[float, ...], *
     """Training-frame counts for one sequence of ``n`` frames (explicit counts, else fractions of n)."""
     from ..errors import DatasetError
 
+    if need_test and n < 2:  # k = 0 would train on no frame
+        raise DatasetError(f"dataset {dataset} has {n} frame(s): Case {case} trains on its first frames and tests on "
+                           "the rest, which needs at least 2 (leave it out with --cases, or give more frames)")
     if explicit:
         ks = list(explicit)
     else:

@@ -216,7 +216,7 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", default="synthetic", help=DATA_HELP)
     parser.add_argument("--frames", type=arg_int(1, MAX_FRAMES), default=None,
                         help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
-    parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
+    parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480; real frames keep their own)")
     parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the synthetic data (default 0)")
 
 

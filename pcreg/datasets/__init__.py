@@ -71,7 +71,8 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
     """Named sequences from a ``--data`` value.
 
     - ``"synthetic"``: the six presets; ``"synthetic:syn1a,syn2b"``: some of them
-      (``n_frames`` (default 100), ``size`` = (width, height) (default 640x480) and ``seed`` apply).
+      (``n_frames`` (default 100), ``size`` = (width, height) (default 640x480) and ``seed`` apply; ``size`` is
+      refused for the other kinds, whose frames keep their own size).
     - ``"camvid:PATH"``: every clip folder of PATH holding ``images/`` (or PATH itself if it does),
       with CamVid's label mapping; or, PATH holding CamVid's download (``701_StillsRaw_full/`` and
       ``LabeledApproved_full/``, or its frames and ``NAME_L.png`` labels in two folders named otherwise, or
@@ -115,6 +116,9 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         raise InputError(f"--data {spec!r}: expected synthetic, synthetic:NAMES, camvid:PATH, folder:PATH, davis:PATH or lagr:PATH")
     if kind not in ("camvid", "folder", "davis", "lagr"):
         raise InputError(f"--data {spec!r}: unknown kind {kind!r} (synthetic, camvid, folder, davis or lagr)")
+    if size is not None:  # taken and not applied, it would stand in config.json beside numbers of another size
+        raise InputError(f"--size sets synthetic frames' size only; --data {spec!r} is read at its frames' own size "
+                         "(leave --size out)")
     split = None
     if kind == "davis":
         arg, split = parse_davis_arg(arg)

@@ -79,6 +79,28 @@ def test_bad_values_exit_2_with_one_line(tmp_path, capsys):
     assert len(err) == 1 and "--samples" in err[0]
 
 
+@pytest.mark.parametrize("size, ids, what", [((3, 3), (3, 5), "too small to register"),
+                                              ((24, 20), (3, 3), "only one class")])
+def test_a_frame_it_cannot_evaluate_is_named(tmp_path, capsys, size, ids, what):
+    """A sampled frame too small to register, or whose labels hold one class, stopped the run with
+    "reference image: image too small to register (3x3 px)", naming no dataset nor frame among all those run."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    clip = tmp_path / "data" / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i in range(2):
+        cv2.imwrite(str(clip / "images" / f"f{i}.png"), rng.integers(0, 256, (size[1], size[0], 3), np.uint8))
+        lab = np.full((size[1], size[0]), ids[0], np.uint8)
+        lab[: size[1] // 2 + 1] = ids[1]
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), lab)
+    assert main(["evaluate", "rotation", "--data", f"camvid:{tmp_path / 'data'}", "--angles", "0,10",
+                 "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pcreg: error: dataset clip, frame f0: ") and what in err and err.count("\n") == 1, err
+
+
 def test_recording_holds_the_error_series_of_results_json(tmp_path):
     from pcreg.recording.readback import read_recording
 

@@ -101,6 +101,22 @@ def test_a_frame_it_cannot_evaluate_is_named(tmp_path, capsys, size, ids, what):
     assert err.startswith("pcreg: error: dataset clip, frame f0: ") and what in err and err.count("\n") == 1, err
 
 
+def test_the_figure_spans_the_angles_run(done, tmp_path):
+    """rotation.png's axis had fixed ticks at 0, 30, ..., 180: --angles -30:30:15 drew its curves on an axis from
+    -30 to 180 with no tick below 0, and --angles 0:10:5 squeezed them into its first 20th."""
+    from pcreg.experiments.reports.rotation import _figure
+
+    ax = _figure(json.loads((done / "results.json").read_text())).axes[0]
+    lo, hi = ax.get_xlim()
+    assert [t for t in ax.get_xticks() if lo <= t <= hi] == [0, 30, 60, 90, 120, 150, 180]  # the thesis's ticks
+    out = tmp_path / "r"
+    assert main(["evaluate", "rotation", *SMALL, "--angles=-30:30:15", "--levels", "2", "--out", str(out)]) == 0
+    ax = _figure(json.loads((out / "results.json").read_text())).axes[0]
+    lo, hi = ax.get_xlim()
+    assert -40 < lo < -30 and 30 < hi < 40, (lo, hi)
+    assert any(t < 0 for t in ax.get_xticks() if lo <= t <= hi)
+
+
 def test_recording_holds_the_error_series_of_results_json(tmp_path):
     from pcreg.recording.readback import read_recording
 

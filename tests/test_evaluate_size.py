@@ -18,7 +18,7 @@ def test_size_beside_real_data_is_refused_in_one_line(tmp_path, capsys, command)
     out = tmp_path / "out"
     assert main(["evaluate", command, "--data", f"davis:{seq}", "--size", "32x24", "--out", str(out)]) == 2
     lines = one_line_errors(capsys)
-    assert len(lines) == 1 and "--size 32x24 sizes synthetic frames" in lines[0] and f"davis:{seq}" in lines[0]
+    assert len(lines) == 1 and "--size 32x24 sets synthetic frames' size only" in lines[0] and f"davis:{seq}" in lines[0]
     assert not out.exists()
 
 

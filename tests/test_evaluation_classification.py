@@ -184,6 +184,36 @@ def test_k_larger_than_a_synthetic_sequence(tmp_path, capsys):
     assert not (tmp_path / "results.json").exists()
 
 
+def test_case_i_on_a_one_frame_sequence_names_it_before_any_unit_runs(tmp_path, capsys):
+    """A sequence of one frame gave Case I k = 0: a unit trained on no frame and the run stopped with "no training
+    images", naming neither the sequence nor the case, after writing config.json and units/. It is refused
+    before anything is written, naming both; Cases II and III still run on it."""
+    _clip(tmp_path / "data" / "clip", 1)
+    out = tmp_path / "out"
+    assert run_cli(["--data", f"camvid:{tmp_path / 'data'}", "--features", "rgb", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "dataset clip has 1 frame(s): Case I" in err and "--cases" in err and err.count("\n") == 1, err
+    assert not out.exists()
+    assert run_cli(["--data", f"camvid:{tmp_path / 'data'}", "--features", "rgb", "--cases", "II,III",
+                    "--out", str(out)]) == 0
+
+
+def test_case_iii_keeps_each_fraction_of_a_long_sequence_beside_a_short_one(tmp_path):
+    """Case III's levels are 10% and 20% of each sequence. Beside a sequence of 3 frames, where both round to
+    k = 1, a sequence of 10 lost its 20% level (k = 2) without a word: each sequence's levels were deduplicated on
+    their own and cut to the shortest list. A level is dropped only when it is the same in every sequence."""
+    _clip(tmp_path / "data" / "long", 10)
+    _clip(tmp_path / "data" / "short", 3, rng=np.random.default_rng(1))
+    out = tmp_path / "out"
+    assert run_cli(["--data", f"camvid:{tmp_path / 'data'}", "--cases", "III", "--features", "rgb",
+                    "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["k"]["III"] == {"long": [1, 2], "short": [1, 1]}
+    assert [u["train_frames"] for u in res["units"]] == [2, 3]
+    with open(out / "case3.csv", newline="") as fh:
+        assert [r[:3] for r in list(csv.reader(fh))[1:]] == [["1", "rgb", "2"], ["1,2", "rgb", "3"]]
+
+
 def test_unknown_feature_and_case_are_rejected(tmp_path, capsys):
     assert run_cli(["--features", "rgb+nope", "--out", str(tmp_path)]) == 2
     assert "unknown feature" in capsys.readouterr().err

@@ -79,6 +79,44 @@ def test_bad_values_exit_2_with_one_line(tmp_path, capsys):
     assert len(err) == 1 and "--samples" in err[0]
 
 
+@pytest.mark.parametrize("size, ids, what", [((3, 3), (3, 5), "too small to register"),
+                                              ((24, 20), (3, 3), "only one class")])
+def test_a_frame_it_cannot_evaluate_is_named(tmp_path, capsys, size, ids, what):
+    """A sampled frame too small to register, or whose labels hold one class, stopped the run with
+    "reference image: image too small to register (3x3 px)", naming no dataset nor frame among all those run."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    clip = tmp_path / "data" / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i in range(2):
+        cv2.imwrite(str(clip / "images" / f"f{i}.png"), rng.integers(0, 256, (size[1], size[0], 3), np.uint8))
+        lab = np.full((size[1], size[0]), ids[0], np.uint8)
+        lab[: size[1] // 2 + 1] = ids[1]
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), lab)
+    assert main(["evaluate", "rotation", "--data", f"camvid:{tmp_path / 'data'}", "--angles", "0,10",
+                 "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pcreg: error: dataset clip, frame f0: ") and what in err and err.count("\n") == 1, err
+
+
+def test_the_figure_spans_the_angles_run(done, tmp_path):
+    """rotation.png's axis had fixed ticks at 0, 30, ..., 180: --angles -30:30:15 drew its curves on an axis from
+    -30 to 180 with no tick below 0, and --angles 0:10:5 squeezed them into its first 20th."""
+    from pcreg.experiments.reports.rotation import _figure
+
+    ax = _figure(json.loads((done / "results.json").read_text())).axes[0]
+    lo, hi = ax.get_xlim()
+    assert [t for t in ax.get_xticks() if lo <= t <= hi] == [0, 30, 60, 90, 120, 150, 180]  # the thesis's ticks
+    out = tmp_path / "r"
+    assert main(["evaluate", "rotation", *SMALL, "--angles=-30:30:15", "--levels", "2", "--out", str(out)]) == 0
+    ax = _figure(json.loads((out / "results.json").read_text())).axes[0]
+    lo, hi = ax.get_xlim()
+    assert -40 < lo < -30 and 30 < hi < 40, (lo, hi)
+    assert any(t < 0 for t in ax.get_xticks() if lo <= t <= hi)
+
+
 def test_recording_holds_the_error_series_of_results_json(tmp_path):
     from pcreg.recording.readback import read_recording
 

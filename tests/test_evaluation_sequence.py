@@ -176,6 +176,18 @@ def test_a_run_that_scores_no_pair_is_bad_input(tmp_path, capsys):
     assert res["datasets"]["syn1a"]["pairs"]["10"]["pairs"] == 0 and res["datasets"]["syn1a"]["pairs"]["1"]["pairs"]
 
 
+def test_the_corrected_command_runs_where_a_run_scored_no_pair(tmp_path, capsys):
+    """A run refused for scoring no pair (--train first:9 of 5 frames) kept its unit in units/, so the corrected
+    command on the same --out was refused as "a different configuration" though nothing had been scored."""
+    args = ["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "5", "--size", "160x120",
+            "--increments", "1", "--levels", "2", "--out", str(tmp_path / "s")]
+    assert main([*args, "--train", "first:9"]) == 2
+    assert "no pair was scored" in capsys.readouterr().err
+    assert main([*args, "--train", "first:2"]) == 0, capsys.readouterr().err
+    res = json.loads((tmp_path / "s" / "results.json").read_text())
+    assert res["config"]["train"] == "first:2" and res["datasets"]["syn1a"]["pairs"]["1"]["pairs"] == 3
+
+
 def test_recording_holds_the_error_series_of_results_json(tmp_path):
     from pcreg.recording.readback import read_recording
 

@@ -38,7 +38,8 @@ def measure(data: str, pairs: int, repeats: int, backend: str) -> dict:
 
     # The first 10% of a sequence choose the fusion weight and are not scored (nor recorded).
     frames = int(round(pairs / 0.9)) + 2
-    config = sequence.SequenceConfig(data=data, increments=(1,), backends=(backend,), frames=frames, size=(640, 480))
+    size = (640, 480) if data.startswith("synthetic") else None  # real frames keep their own size
+    config = sequence.SequenceConfig(data=data, increments=(1,), backends=(backend,), frames=frames, size=size)
     name = next(iter(load_cached(data, frames=config.frames, size=config.size, seed=0)))
     unit = Unit(f"{name}/k1_{backend}", name, (("k", 1), ("backend", backend)), config)
     sequence.run_unit(unit)  # warm-up: imports, caches, compiled kernels

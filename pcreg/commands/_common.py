@@ -216,19 +216,16 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", default="synthetic", help=DATA_HELP)
     parser.add_argument("--frames", type=arg_int(1, MAX_FRAMES), default=None,
                         help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
-    parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480; not with real --data, run at its own size)")
+    parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480; real frames keep their own)")
     parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the synthetic data (default 0)")
 
 
 def synthetic_size(args: argparse.Namespace) -> tuple[int, int] | None:
-    """``--size``, which sizes synthetic frames: refused beside a real ``--data``, whose frames are run at their own
-    size (it was ignored there, and written to the evaluation's config.json as if they had been run at it)."""
-    from ..errors import InputError
+    """``--size``, which sizes synthetic frames: refused beside a real ``--data`` before anything is written
+    (:func:`~pcreg.datasets.check_data_size`)."""
+    from ..datasets import check_data_size
 
-    if args.size is not None and str(args.data).partition(":")[0].strip().lower() != "synthetic":
-        w, h = args.size
-        raise InputError(f"--size {w}x{h} sizes synthetic frames; those of --data {args.data} are run at their own "
-                         "size: leave --size out")
+    check_data_size(args.data, args.size)
     return args.size
 
 

@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--frames", type=arg_int(1, c.MAX_FRAMES), default=None, help="frames per synthetic sequence (default 100); "
                         "first frames of real sequences (default all)")
-    parser.add_argument("--size", type=c.size, default=None, metavar="WxH", help="synthetic frame size (default 640x480)")
+    parser.add_argument("--size", type=c.size, default=None, metavar="WxH", help="synthetic frame size (default 640x480; real frames keep their own)")
     parser.add_argument("--trials", type=arg_int(1, 100_000), default=30, help="weight-search trials for the thesis feature (default 30)")
     parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the weight search and synthetic data (default 0)")
     parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")

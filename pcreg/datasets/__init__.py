@@ -36,6 +36,7 @@ __all__ = [
     "load_lagr",
     "load_folder",
     "load_davis",
+    "check_data_size",
     "synthetic",
     "SYNTHETIC_PRESETS",
     "SyntheticPreset",
@@ -66,12 +67,24 @@ def data_folder(spec) -> Path | None:
     return folder if folder.is_dir() else None
 
 
+def check_data_size(spec: str, size) -> None:
+    """An :class:`~pcreg.errors.InputError` when a frame ``size`` is given with ``--data`` ``spec`` of real frames:
+    ``size`` sets synthetic frames' size only, and taken and not applied it would stand in an evaluation's
+    config.json beside numbers of another size."""
+    if size is None or str(spec).partition(":")[0].strip().lower() == "synthetic":
+        return
+    shown = "x".join(str(v) for v in size) if isinstance(size, (tuple, list)) else repr(size)
+    raise InputError(f"--size {shown} sets synthetic frames' size only; --data {spec} is read at its frames' own "
+                     "size (leave --size out)")
+
+
 def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int] | None = None,
                  seed: int = 0, classes=None) -> dict[str, list[Frame]]:
     """Named sequences from a ``--data`` value.
 
     - ``"synthetic"``: the six presets; ``"synthetic:syn1a,syn2b"``: some of them
-      (``n_frames`` (default 100), ``size`` = (width, height) (default 640x480) and ``seed`` apply).
+      (``n_frames`` (default 100), ``size`` = (width, height) (default 640x480) and ``seed`` apply; ``size`` is
+      refused for the other kinds, whose frames keep their own size).
     - ``"camvid:PATH"``: every clip folder of PATH holding ``images/`` (or PATH itself if it does),
       with CamVid's label mapping; or, PATH holding CamVid's download (``701_StillsRaw_full/`` and
       ``LabeledApproved_full/``, or its frames and ``NAME_L.png`` labels in two folders named otherwise, or
@@ -115,6 +128,7 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         raise InputError(f"--data {spec!r}: expected synthetic, synthetic:NAMES, camvid:PATH, folder:PATH, davis:PATH or lagr:PATH")
     if kind not in ("camvid", "folder", "davis", "lagr"):
         raise InputError(f"--data {spec!r}: unknown kind {kind!r} (synthetic, camvid, folder, davis or lagr)")
+    check_data_size(spec, size)
     split = None
     if kind == "davis":
         arg, split = parse_davis_arg(arg)

@@ -104,6 +104,9 @@ def resolve_k(n: int, explicit: tuple[int, ...], fractions: tuple[float, ...], *
     """Training-frame counts for one sequence of ``n`` frames (explicit counts, else fractions of n)."""
     from ..errors import DatasetError
 
+    if need_test and n < 2:  # k = 0 would train on no frame
+        raise DatasetError(f"dataset {dataset} has {n} frame(s): Case {case} trains on its first frames and tests on "
+                           "the rest, which needs at least 2 (leave it out with --cases, or give more frames)")
     if explicit:
         ks = list(explicit)
     else:
@@ -133,10 +136,16 @@ def plan_units(config: ClassificationConfig, lengths: dict[str, int]) -> tuple[l
         ks["I"] = {d: resolve_k(n, config.case1_k, config.case1_fractions, dataset=d, case="I", need_test=True)
                    for d, n in lengths.items()}
     if "III" in config.cases:
-        per = {d: resolve_k(n, config.case3_k, config.case3_fractions, dataset=d, case="III", need_test=False)
-               for d, n in lengths.items()}
-        n_levels = min(len(v) for v in per.values())
-        ks["III"] = {d: v[:n_levels] for d, v in per.items()}
+        if config.case3_k:
+            ks["III"] = {d: resolve_k(n, config.case3_k, (), dataset=d, case="III", need_test=False)
+                         for d, n in lengths.items()}
+        else:  # a level per fraction, each dataset's k that fraction of its length; levels alike everywhere run once
+            levels: list[dict[str, int]] = []
+            for f in config.case3_fractions:
+                level = {d: resolve_k(n, (), (f,), dataset=d, case="III", need_test=False)[0] for d, n in lengths.items()}
+                if level not in levels:
+                    levels.append(level)
+            ks["III"] = {d: [level[d] for level in levels] for d in lengths}
     everything = tuple((d, 0, lengths[d]) for d in names)
     for fs in config.features:
         if "I" in config.cases:

@@ -93,7 +93,20 @@ def rotate_frame(image, labels, angle: float, *, canvas: str = "loose"):
 def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = None) -> dict:
     """Every angle for one sampled frame with one backend: a pure function of ``unit``. With a
     recorder, each angle is logged at the next index of the ``frame`` timeline (``frame_counter[0]``), and
-    the result's ``recording_frames`` maps each angle to that index."""
+    the result's ``recording_frames`` maps each angle to that index. An :class:`~pcreg.errors.InputError` (a frame
+    too small to register, labels of one class) names the dataset and frame."""
+    from ..errors import InputError
+    from .units import load_cached
+
+    try:
+        return _run_unit(unit, recorder=recorder, frame_counter=frame_counter)
+    except InputError as exc:
+        cfg = unit.config
+        frame = load_cached(cfg.data, frames=cfg.frames, size=cfg.size, seed=cfg.seed)[unit.dataset][unit.index]
+        raise InputError(f"dataset {unit.dataset}, frame {frame.name}: {exc}") from None
+
+
+def _run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = None) -> dict:
     import numpy as np
 
     from ..registration.api import register

@@ -191,17 +191,19 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
              recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
     """Run every unit (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
     from ..errors import DatasetError, InputError
-    from .units import evaluate_units, load_cached
+    from .units import discard_units, evaluate_units, load_cached
 
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     for name, frames in datasets.items():
         if frames and any(f.labels is None for f in frames):
             raise DatasetError(f"dataset {name} has unlabelled frames; the sequence evaluation scores every frame")
-    results = evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
-                             force=force, executor=executor, recorder=recorder, desc="sequence",
-                             show_progress=show_progress, kept=kept)
+    plan = plan_units(config, list(datasets))
+    results = evaluate_units(plan, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
+                             recorder=recorder, desc="sequence", show_progress=show_progress, kept=kept)
     units = results.units
     if units and not any(u["pairs"] for u in units):  # a report without a number is the input's fault
+        if out is not None:  # nothing kept: the corrected command resumes nothing and is not refused
+            discard_units(out, plan)
         u = next((u for u in units if u["notes"]), units[0])
         why = u["notes"][0] if u["notes"] else "no pairs"
         raise InputError(f"no pair was scored ({u['dataset']} k={u['k']}: {why})")

@@ -181,7 +181,7 @@ class UnitStore:
         return (self.out / "results.json").exists() or (self.dir.is_dir() and any(self.dir.rglob("*.json")))
 
     def path(self, key: str) -> Path:
-        return self.dir / f"{key}.json"
+        return unit_path(self.out, key)
 
     def load(self, key: str) -> dict | None:
         """The finished unit ``key``, or None (a damaged file, or one that holds no JSON object, counts as not
@@ -199,6 +199,18 @@ class UnitStore:
         from ..outputs import atomic_write_json
 
         atomic_write_json(self.path(key), result)
+
+
+def unit_path(out: str | Path, key: str) -> Path:
+    """The file of ``out/units/`` that keeps the finished unit ``key``."""
+    return Path(out) / "units" / f"{key}.json"
+
+
+def discard_units(out: str | Path, units: list) -> None:
+    """Delete the kept results of ``units`` from ``out/units/``: those of a run refused as bad input for what they hold
+    (no number), which would make the corrected command's folder one of "a different configuration"."""
+    for u in units:
+        unit_path(out, u.key).unlink(missing_ok=True)
 
 
 def holds(result: dict, unit: Unit, keys: tuple[str, ...], *, same: tuple[str, ...] = ()) -> bool:

@@ -55,6 +55,7 @@ def _figure(results: dict):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     names = list(results["datasets"])
     if not names:
@@ -80,7 +81,7 @@ def _figure(results: dict):
         ax.set_title(f"{name} ({m})" if m else name, fontsize=10)
         ax.set_xlabel("rotation (degrees)")
         ax.grid(alpha=0.3)
-        ax.set_xticks(range(0, 181, 30))
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=7, steps=[1, 1.5, 3, 5, 10]))  # 0, 30, ... 180 by default
     for ax in axes.flat[len(names):]:
         ax.axis("off")
     for r in range(rows_n):

@@ -36,6 +36,13 @@ EVALUATIONS: dict[str, tuple[str, str]] = {
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # a value that begins with a minus and a digit is a value (``--angles -30,0,30``, ``--init -1,0,...``), not an
+        # option: Python 3.11's argparse takes only a lone negative number so, and refused these as "expected one
+        # argument"; no option of pcreg's is spelled so
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
     def error(self, message: str) -> NoReturn:  # one line, exit 2 (argparse's default prints usage too)
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)

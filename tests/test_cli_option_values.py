@@ -72,3 +72,19 @@ def test_a_voxel_size_that_merges_a_cloud_into_too_few_points_names_the_voxel_si
     assert main(["crosscheck", str(a), str(b), "--voxel-size", "1e308", *extra]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "(--voxel-size) merges its 200 points into 1, and the ICP needs 3" in err[0]
+
+
+@pytest.mark.parametrize("value, angles", [("-30,0,30", (-30.0, 0.0, 30.0)), ("-90:90:45", (-90.0, -45.0, 0.0, 45.0, 90.0)),
+                                           ("-.5,0.5", (-0.5, 0.5))])
+def test_a_value_that_begins_with_a_minus_and_a_digit_is_the_option_s_value(value, angles):
+    # argparse took "-30,0,30" for an option: "argument --angles: expected one argument"
+    from pcreg.cli import build_parser
+
+    args = build_parser().parse_args(["evaluate", "rotation", "--angles", value])
+    assert tuple(args.angles) == angles
+
+
+def test_an_option_that_pcreg_has_not_is_still_refused(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "rotation", "-x", "--angles", "0,5"])
+    assert exc.value.code == 2 and "unrecognized arguments: -x" in capsys.readouterr().err

@@ -49,9 +49,10 @@ class InlineExecutor(Executor):
         return fut
 
 
-def _worker_init(workers: int = 1) -> None:
+def _worker_init(workers: int = 1, parent: int | None = None) -> None:
     """In a local worker process of a pool of ``workers``: the parent handles Ctrl-C (the terminal sends
-    SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once. The
+    SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once, and so
+    does the end of ``parent`` (its process id), however it ended (:func:`_end_with_parent`). The
     helper thread (:mod:`pcreg._threads`) is used only where the CPUs leave two to each worker: the
     pool already gives the others theirs."""
     import signal
@@ -60,7 +61,31 @@ def _worker_init(workers: int = 1) -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if parent is not None:
+        _end_with_parent(parent)
     _threads.set_enabled(_threads.usable_cpus() >= 2 * workers)
+
+
+def _end_with_parent(parent: int) -> None:
+    """Have the system kill this worker when its parent ends (Linux's ``PR_SET_PDEATHSIG``; elsewhere nothing).
+    A parent killed outright (SIGKILL, the out-of-memory killer) stops no worker itself: they would wait for
+    units without end, holding the output folder's lock, and the rerun would be refused as if still running.
+    The system ties the request to the thread that forked the worker: the one that submits the units."""
+    import ctypes
+    import os
+    import signal
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) != 0:  # 1: PR_SET_PDEATHSIG
+            return
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # it ended before the request was made
+        os._exit(1)
 
 
 def _how_workers_ended(pool: ProcessPoolExecutor) -> str:
@@ -338,7 +363,8 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here")
         from concurrent.futures.process import BrokenProcessPool
 
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(workers,))
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
+                                   initargs=(workers, os.getpid()))
         try:
             yield pool
         except BrokenProcessPool:

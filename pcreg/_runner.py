@@ -49,17 +49,20 @@ class InlineExecutor(Executor):
         return fut
 
 
-def _worker_init(workers: int = 1) -> None:
+def _worker_init(workers: int = 1, parent: int | None = None) -> None:
     """In a local worker process of a pool of ``workers``: the parent handles Ctrl-C (the terminal sends
-    SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once. The
+    SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once, and so
+    does the end of ``parent`` (its process id), however it ended (:func:`~pcreg._signals.end_with_parent`). The
     helper thread (:mod:`pcreg._threads`) is used only where the CPUs leave two to each worker: the
     pool already gives the others theirs."""
     import signal
 
-    from . import _threads
+    from . import _signals, _threads
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if parent is not None:
+        _signals.end_with_parent(_signals.parent_death_signal(), parent, signal.SIGKILL)
     _threads.set_enabled(_threads.usable_cpus() >= 2 * workers)
 
 
@@ -338,7 +341,8 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here")
         from concurrent.futures.process import BrokenProcessPool
 
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(workers,))
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
+                                   initargs=(workers, os.getpid()))
         try:
             yield pool
         except BrokenProcessPool:

@@ -7,9 +7,10 @@ command line (:mod:`pcreg.cli`) and by the runner of evaluation units (:mod:`pcr
 
 from __future__ import annotations
 
+import os
 import sys
 from contextlib import contextmanager
-from typing import Iterator
+from typing import Any, Iterator
 
 #: Termination signals received since :func:`interrupt_on_signals` (cleared by each call).
 _RECEIVED: list[int] = []
@@ -199,3 +200,30 @@ def _shielded() -> Iterator[None]:
         yield
     finally:
         _SHIELDED[0] -= 1
+
+
+def parent_death_signal() -> Any:
+    """The C library's ``prctl`` where Linux can send a process a signal when its parent ends
+    (``PR_SET_PDEATHSIG``), None elsewhere: looked up before a fork, so that :func:`end_with_parent` in the child
+    needs no lookup (between fork and exec nothing may take a lock)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):  # pragma: no cover - every Linux C library has prctl
+        return None
+
+
+def end_with_parent(prctl: Any, parent: int, signum: int) -> None:
+    """In a child process: have the system send it ``signum`` when its parent ends, however the parent ends (a
+    SIGKILL or the out-of-memory killer lets it stop nothing itself), and exit at once if ``parent`` (the
+    parent's process id, taken before the fork) ended before the request was made. ``prctl``:
+    :func:`parent_death_signal`'s (None: nothing is done). The system ties the request to the thread that
+    forked the child, so the parent's side forks from a thread that lives as long as it needs the child."""
+    pr_set_pdeathsig = 1
+    if prctl is None or prctl(pr_set_pdeathsig, int(signum), 0, 0, 0) != 0:
+        return
+    if os.getppid() != parent:
+        os._exit(1)

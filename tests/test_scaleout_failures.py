@@ -56,6 +56,39 @@ def test_a_pool_worker_killed_is_one_line_and_the_rerun_resumes(tmp_path):
     assert json.loads((out / "results.json").read_text())["resumed_units"] == kept
 
 
+def test_a_pool_command_killed_takes_its_workers_with_it(tmp_path):
+    """The command itself killed (SIGKILL: the out-of-memory killer's choice, ``kill -9``, a job scheduler's
+    hard stop): its ``--workers`` processes end too, instead of idling without end and holding the output
+    folder's lock, and the rerun resumes. Waited for through pidfds, readable when a process exits."""
+    import select
+
+    out = tmp_path / "rot"
+    p = start([*ROTATION, "--workers", "2", "--out", out])
+    wait_for(p, lambda: units(out), "a unit written")
+    workers = [pid for pid in group_members(p.pid) if pid != p.pid]
+    assert workers, "no worker process in the command's group"
+    fds = [os.pidfd_open(pid) for pid in workers]
+    try:
+        p.kill()
+        p.wait(timeout=HANG)  # not communicate(): workers left behind would hold its pipes open
+        pending = list(fds)
+        while pending:
+            ready, _, _ = select.select(pending, [], [], HANG)
+            assert ready, f"worker processes still running {HANG} s after the command was killed"
+            pending = [fd for fd in pending if fd not in ready]
+    finally:
+        for fd in fds:
+            os.close(fd)
+        for pid, state in group_members(p.pid).items():
+            if state != "Z":
+                os.kill(pid, signal.SIGKILL)
+    kept = len(units(out))
+    again = start([*ROTATION, "--workers", "1", "--out", out])
+    _, err = again.communicate(timeout=HANG)
+    assert again.returncode == 0, err
+    assert json.loads((out / "results.json").read_text())["resumed_units"] == kept >= 1
+
+
 class _Server:
     """A TCP server on 127.0.0.1 that is not a dask scheduler: ``reply`` is sent to each connection as soon as it
     has read something (``b""``: it reads and never answers)."""

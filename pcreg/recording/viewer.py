@@ -218,24 +218,15 @@ def _ends_with_us() -> Any:
     the kernel's parent-death signal ends it instead. That signal follows the thread that started the
     child, so it is asked for only from the main thread, which lives as long as the process. None
     elsewhere (no such signal, or another thread)."""
-    if not sys.platform.startswith("linux") or threading.current_thread() is not threading.main_thread():
-        return None
-    import ctypes
     import signal
 
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):  # pragma: no cover - every Linux C library has prctl
+    from .._signals import end_with_parent, parent_death_signal
+
+    prctl = parent_death_signal()
+    if prctl is None or threading.current_thread() is not threading.main_thread():
         return None
     parent = os.getpid()
-    pr_set_pdeathsig = 1
-
-    def tie() -> None:  # in the child, between fork and exec: no locks, no allocation to speak of
-        prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0)
-        if os.getppid() != parent:  # the parent died before the signal was asked for
-            os._exit(1)
-
-    return tie
+    return lambda: end_with_parent(prctl, parent, signal.SIGTERM)  # in the child, between fork and exec
 
 
 def _stop(proc: subprocess.Popen) -> None:

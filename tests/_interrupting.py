@@ -92,6 +92,18 @@ runpy.run_module("pcreg.cli", run_name="__main__", alter_sys=True)
 """
 
 
+def wait_until_ended(fds: list[int], said: str) -> None:
+    """Wait until every process of ``fds`` (pidfds, readable once their process exits) has ended; ``said``
+    (``{HANG}`` in it: the seconds waited) fails the test when one has not after :data:`HANG` seconds."""
+    import select
+
+    pending = list(fds)
+    while pending:
+        ready, _, _ = select.select(pending, [], [], HANG)
+        assert ready, said.format(HANG=HANG)
+        pending = [fd for fd in pending if fd not in ready]
+
+
 def start_signalled(where: str, args: list, tmp: Path, pattern: str = "") -> subprocess.Popen:
     """The command as :func:`start` starts it, SIGINT landing as :data:`SIGNALLED` says (the module written
     in ``tmp``, and the file ``tmp/signalled`` once the handler ran)."""
@@ -107,7 +119,6 @@ def signal_and_check(p: subprocess.Popen, how: str, out: Path | None) -> str:
     command alone; ``term``: SIGTERM to the command alone; ``self``: none, the command signals itself),
     then check the exit and the aftermath: every process of the group ends (waited for through pidfds,
     readable when a process exits), the output lock is free. Returns stderr."""
-    import select
 
     members = group_members(p.pid)
     fds = []
@@ -124,11 +135,7 @@ def signal_and_check(p: subprocess.Popen, how: str, out: Path | None) -> str:
         elif how == "term":
             p.send_signal(signal.SIGTERM)
         _, err = p.communicate(timeout=HANG)
-        pending = list(fds)
-        while pending:
-            ready, _, _ = select.select(pending, [], [], HANG)
-            assert ready, f"processes of the command still running {HANG} s after it exited"
-            pending = [fd for fd in pending if fd not in ready]
+        wait_until_ended(fds, "processes of the command still running {HANG} s after it exited")
     finally:
         for fd in fds:
             os.close(fd)

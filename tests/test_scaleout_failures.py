@@ -14,7 +14,7 @@ import threading
 import pytest
 
 from _events import HANG
-from _interrupting import group_members, start, units, wait_for
+from _interrupting import group_members, start, units, wait_for, wait_until_ended
 
 ROTATION = ["evaluate", "rotation", "--data", "synthetic:syn1a", "--frames", "8", "--size", "160x120",
             "--angles", "0:180:10", "--samples", "8"]  # 8 units: the first lands with more to run
@@ -60,8 +60,6 @@ def test_a_pool_command_killed_takes_its_workers_with_it(tmp_path):
     """The command itself killed (SIGKILL: the out-of-memory killer's choice, ``kill -9``, a job scheduler's
     hard stop): its ``--workers`` processes end too, instead of idling without end and holding the output
     folder's lock, and the rerun resumes. Waited for through pidfds, readable when a process exits."""
-    import select
-
     out = tmp_path / "rot"
     p = start([*ROTATION, "--workers", "2", "--out", out])
     wait_for(p, lambda: units(out), "a unit written")
@@ -71,11 +69,7 @@ def test_a_pool_command_killed_takes_its_workers_with_it(tmp_path):
     try:
         p.kill()
         p.wait(timeout=HANG)  # not communicate(): workers left behind would hold its pipes open
-        pending = list(fds)
-        while pending:
-            ready, _, _ = select.select(pending, [], [], HANG)
-            assert ready, f"worker processes still running {HANG} s after the command was killed"
-            pending = [fd for fd in pending if fd not in ready]
+        wait_until_ended(fds, "worker processes still running {HANG} s after the command was killed")
     finally:
         for fd in fds:
             os.close(fd)

@@ -295,26 +295,11 @@ def test_load_dataset_specs(tmp_path):
     assert list(load_dataset("synthetic", n_frames=1, size=(32, 24))) == list(SYNTHETIC_PRESETS)
 
 
-@pytest.mark.parametrize("command", ["rotation", "sequence", "classification"])
-def test_a_frame_size_for_real_frames_is_refused_not_ignored(tmp_path, capsys, command):
-    """``pcreg evaluate ... --data camvid:PATH --size 640x480`` ran on the clips' own 12x10 frames and wrote
-    ``"size": [640, 480]`` in config.json beside their numbers (a rerun with another --size was refused as a
-    different configuration). --size is synthetic frames' size: with real frames it is bad input."""
-    from pcreg.cli import main
-
-    rng = np.random.default_rng(0)
+def test_a_frame_size_for_real_frames_is_refused_not_ignored(tmp_path):
+    """``size`` sets synthetic frames' size only: given for real frames (which keep their own) it is bad input,
+    not ignored (the commands' side: tests/test_evaluate_size.py)."""
     (tmp_path / "data" / "clip" / "images").mkdir(parents=True)
-    (tmp_path / "data" / "clip" / "labels").mkdir()
-    for i in range(3):
-        cv2.imwrite(str(tmp_path / "data" / "clip" / "images" / f"f{i}.png"), rng.integers(0, 256, (10, 12, 3), np.uint8))
-        cv2.imwrite(str(tmp_path / "data" / "clip" / "labels" / f"f{i}.png"), rng.choice(np.uint8([3, 5]), (10, 12)))
-    out = tmp_path / "out"
-    assert main(["evaluate", command, "--data", f"camvid:{tmp_path / 'data'}", "--size", "640x480",
-                 "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("pcreg: error: --size 640x480 sets synthetic frames' size only") and err.count("\n") == 1, err
-    assert not out.exists()
-    with pytest.raises(InputError, match="--size"):
+    with pytest.raises(InputError, match="--size 12x10 sets synthetic frames' size only"):
         load_dataset(f"folder:{tmp_path / 'data'}", size=(12, 10))
 
 

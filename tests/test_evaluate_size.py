@@ -11,14 +11,32 @@ from _davis import frames_and_masks, write_pcreg_layout
 from _runs import one_line_errors
 
 
+def _camvid(root):
+    """A CamVid-layout clip of three 12x10 frames (ids 3 and 5) in ``root``; ``root``."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    (root / "clip" / "images").mkdir(parents=True)
+    (root / "clip" / "labels").mkdir()
+    for i in range(3):
+        cv2.imwrite(str(root / "clip" / "images" / f"f{i}.png"), rng.integers(0, 256, (10, 12, 3), np.uint8))
+        cv2.imwrite(str(root / "clip" / "labels" / f"f{i}.png"), rng.choice(np.uint8([3, 5]), (10, 12)))
+    return root
+
+
+@pytest.mark.parametrize("kind", ["davis", "camvid"])
 @pytest.mark.parametrize("command", ["stream", "sequence", "rotation", "classification"])
-def test_size_beside_real_data_is_refused_in_one_line(tmp_path, capsys, command):
-    # it was ignored: the frames ran at their own 64x48 while config.json said 32x24
-    seq = write_pcreg_layout(tmp_path / "davis" / "disc", frames_and_masks(4))
+def test_size_beside_real_data_is_refused_in_one_line(tmp_path, capsys, command, kind):
+    """It was ignored: the frames ran at their own 64x48 (12x10) while config.json said the --size, and a rerun with
+    another --size was refused as a different configuration."""
+    data = (f"davis:{write_pcreg_layout(tmp_path / 'davis' / 'disc', frames_and_masks(4))}" if kind == "davis"
+            else f"camvid:{_camvid(tmp_path / 'data')}")
     out = tmp_path / "out"
-    assert main(["evaluate", command, "--data", f"davis:{seq}", "--size", "32x24", "--out", str(out)]) == 2
+    assert main(["evaluate", command, "--data", data, "--size", "32x24", "--out", str(out)]) == 2
     lines = one_line_errors(capsys)
-    assert len(lines) == 1 and "--size 32x24 sets synthetic frames' size only" in lines[0] and f"davis:{seq}" in lines[0]
+    assert len(lines) == 1 and lines[0].startswith("pcreg: error: --size 32x24 sets synthetic frames' size only")
+    assert data in lines[0]
     assert not out.exists()
 
 

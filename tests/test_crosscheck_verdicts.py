@@ -113,3 +113,25 @@ def test_kiss_icp_converges_in_any_unit_and_far_from_the_origin(unit, offset):
                                    options=ICPOptions(max_correspondence_distance=c.max_correspondence_distance * unit))
     row = r.rows["kiss-icp"]
     assert row["agrees"] is True and row["converged"] is True and row["iterations"] <= 10, row["iterations"]
+
+
+def test_the_table_shows_how_far_the_poses_put_the_cloud_wherever_it_lies():
+    """Clouds 5e6 from the origin, 2 units across, turned 3 degrees: Open3D's row agrees with the reference step
+    for step. The matrices' translations still differ by 5e-4 (their rotations' 3e-9 degrees times 5e6), which the
+    table showed as `transl`; where the two poses put the source's centroid differs by 2e-9 (measured)."""
+    from scipy.spatial.transform import Rotation
+
+    from pcreg.commands.crosscheck import format_table
+    from pcreg.registration.icp_options import ICPOptions
+
+    tgt = np.random.default_rng(0).uniform(-1, 1, (500, 3)) + 5e6
+    c = tgt.mean(axis=0)
+    src = (tgt - c) @ Rotation.from_euler("z", 3, degrees=True).as_matrix().T + c + 0.01
+    r = crosscheck_implementations(src, tgt, implementations=["reference", "open3d"],
+                                   options=ICPOptions(max_correspondence_distance=0.5))
+    row = r.rows["open3d"]
+    assert row["agrees"] and row["translation_disagreement"] > 1e-5, row  # the matrices' translations differ
+    head, ref_line, o3d_line = format_table(r.to_dict()).splitlines()[:3]
+    end = head.index("centroid") + len("centroid")  # the columns are right-aligned, 9 wide
+    shown = float(o3d_line[end - 9:end])
+    assert shown == pytest.approx(row["centroid_disagreement"], rel=1e-2) and shown < 1e-6  # measured 1.9e-9

@@ -250,14 +250,18 @@ def _colour_index(rgb: np.ndarray) -> np.ndarray:
 
 def _colour_table(rgb: np.ndarray, share: np.ndarray, known: np.ndarray) -> np.ndarray:
     """(BINS^3,) float32: log p(colour | object) - log p(colour | background) of the key frame's known
-    pixels (``share`` > 0.5 the object), each histogram blurred and normalised, clipped to +-CLIP."""
+    pixels (``share`` > 0.5 the object), each histogram blurred and normalised, clipped to +-CLIP. The
+    pseudo-counts (0.002 a bin in all) are shared in proportion to the classes' pixels, so a colour neither
+    histogram holds has a log-odds of 0: with the same pseudo-count for each, it leaned towards the smaller class."""
     idx = _colour_index(rgb).ravel()
     n = BINS ** 3
     k = known.ravel()
     fg, bg = ((share.ravel() > 0.5) & k).astype(np.float64), ((share.ravel() <= 0.5) & k).astype(np.float64)
     h1 = _blur_bins(np.bincount(idx, fg, n).reshape((BINS,) * 3)).ravel()
     h0 = _blur_bins(np.bincount(idx, bg, n).reshape((BINS,) * 3)).ravel()
-    p1, p0 = (h1 + 1e-3) / (h1.sum() + 1e-3 * n), (h0 + 1e-3) / (h0.sum() + 1e-3 * n)
+    n1, n0 = h1.sum(), h0.sum()
+    a1, a0 = 2e-3 * n1 / (n1 + n0), 2e-3 * n0 / (n1 + n0)
+    p1, p0 = (h1 + a1) / (n1 + a1 * n), (h0 + a0) / (n0 + a0 * n)
     return np.clip(np.log(p1) - np.log(p0), -CLIP, CLIP).astype(np.float32)
 
 

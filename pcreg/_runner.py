@@ -132,18 +132,26 @@ def _terminate_workers(pool: ProcessPoolExecutor) -> None:
 
 
 def _check_scheduler_address(scheduler: str) -> None:
-    """Refuse a dask scheduler address that cannot be one (no port, an unknown form) before a client is
-    made: a client refused while it is made still waits for its own close at exit (60 s)."""
+    """Refuse a dask scheduler address that cannot be one (no port, a port outside 1-65535, a scheme dask does not
+    speak) before a client is made: a client refused while it is made still waits for its own close at exit
+    (60 s), and one given a port past 65535 waited dask's whole connect time (30 s) to say it timed out."""
     from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import backends
 
     from .errors import PcregError
 
+    def refuse(why: str) -> PcregError:
+        return PcregError(f"--scheduler {scheduler!r} is not a dask scheduler address (tcp://HOST:PORT): {why}")
+
     try:
         protocol, location = parse_address(scheduler)
-        if protocol in ("tcp", "tls"):
-            parse_host_port(location)
+        port = int(parse_host_port(location)[1]) if protocol in ("tcp", "tls") else 1
     except (ValueError, TypeError) as exc:
-        raise PcregError(f"--scheduler {scheduler!r} is not a dask scheduler address (tcp://HOST:PORT): {exc}") from None
+        raise refuse(str(exc)) from None
+    if protocol not in backends:
+        raise refuse(f"dask speaks {', '.join(f'{b}://' for b in sorted(backends))}, not {protocol}://")
+    if not 1 <= port <= 65535:
+        raise refuse(f"its port {port} is not in 1-65535")
 
 
 def _connect_timeout() -> float:
@@ -338,7 +346,8 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         if workers > 4 * cpus:  # each worker holds its own copy of the data and libraries
             from .errors import PcregError
 
-            raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here")
+            raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here: give {4 * cpus} or fewer "
+                             "(each worker holds its own copy of the data and libraries)")
         from concurrent.futures.process import BrokenProcessPool
 
         pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,

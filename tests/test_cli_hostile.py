@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 
 import cv2
+
 import numpy as np
 import pytest
 
@@ -32,12 +34,31 @@ def test_an_unknown_numba_threading_layer_is_bad_input(tmp_path, monkeypatch, ca
     assert len(err) == 1 and "NUMBA_THREADING_LAYER='bogus'" in err[0] and "workqueue" in err[0]
 
 
-def test_a_scheduler_address_that_cannot_be_one_is_refused_before_connecting(capsys):
+@pytest.mark.parametrize("address, said", [
+    ("notanaddress", "missing port"),
+    ("foo://bar:1", "dask speaks .*tcp://.*, not foo://"),  # read "answered, but not as a dask scheduler"
+    ("127.0.0.1:99999", "its port 99999 is not in 1-65535"),  # waited dask's connect time, 30 s
+    ("tcp://127.0.0.1:0", "its port 0 is not in 1-65535"),
+])
+def test_a_scheduler_address_that_cannot_be_one_is_refused_before_connecting(address, said):
     from pcreg._runner import make_executor
     from pcreg.errors import PcregError
 
-    with pytest.raises(PcregError, match="not a dask scheduler address .* missing port"):
-        with make_executor(scheduler="notanaddress"):
+    with pytest.raises(PcregError, match=f"^--scheduler '{re.escape(address)}' is not a dask scheduler address .*{said}") \
+            as refused:
+        with make_executor(scheduler=address):
+            pass
+    assert str(refused.value).count("is not a dask scheduler address") == 1
+
+
+def test_too_many_workers_are_refused_saying_how_many_may_be_given():
+    from pcreg._runner import make_executor
+    from pcreg.errors import PcregError
+
+    cpus = len(os.sched_getaffinity(0))
+    with pytest.raises(PcregError, match=f"--workers {4 * cpus + 1} is more than 4x the {cpus} CPUs here: give "
+                                         f"{4 * cpus} or fewer"):
+        with make_executor(4 * cpus + 1):
             pass
 
 

@@ -242,3 +242,11 @@ def test_augmented_above_plain_reads_higher_not_a_negative_lower(tmp_path, share
     rel = 100.0 * (means["augmented"] - means["plain"]) / means["plain"]
     assert row.endswith(f"| {rel:.1f}% higher |"), row
     assert "-" not in row.split("|")[-2]
+
+
+def test_a_recorded_run_says_it_leaves_the_scheduler_aside(tmp_path, capsys):
+    """--record runs every unit in this process: it said so of --workers, and dropped --scheduler without a word."""
+    assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
+                 "--increments", "2", "--out", str(tmp_path / "s"), "--record", str(tmp_path / "s.rrd"),
+                 "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 0
+    assert "note: --record runs every unit in this process (--workers and --scheduler ignored)" in capsys.readouterr().out

@@ -269,8 +269,9 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
     out = Path(args.out)
     check_out_beside_data(out, getattr(args, "data", None))
     recording = bool(getattr(args, "record", None))
-    if recording and args.workers > 1:
-        print("note: --record runs every unit in this process (--workers ignored)")
+    dropped = [o for o, given in (("--workers", args.workers > 1), ("--scheduler", args.scheduler)) if given]
+    if recording and dropped:
+        print(f"note: --record runs every unit in this process ({' and '.join(dropped)} ignored)")
     with OutputLock(out):  # a second run on the same --out is refused, not raced
         with open_recorder(args, name=f"pcreg evaluate {name}", layout=name) as rec:
             with make_executor(1 if recording else args.workers, scheduler=None if recording else args.scheduler) as ex:

@@ -1,4 +1,4 @@
-"""``--size`` sizes synthetic frames only: beside real ``--data`` it is refused, not ignored."""
+"""``--size`` and ``--seed`` make synthetic frames only: beside real ``--data`` they are refused, not ignored."""
 
 from __future__ import annotations
 
@@ -46,3 +46,29 @@ def test_size_with_synthetic_data_is_still_the_frames_size(tmp_path):
                  "--methods", "plain", "--out", str(out)]) == 0
     results = json.loads((out / "results.json").read_text())
     assert results["config"]["size"] == [48, 36] and results["units"][0]["width"] == 48
+
+
+@pytest.mark.parametrize("command", ["stream", "sequence", "rotation"])
+def test_seed_beside_real_data_is_refused_in_one_line(tmp_path, capsys, command):
+    """It was ignored but written in config.json, so that the same command with another --seed was refused as a
+    different configuration though nothing differed. (``evaluate classification``'s --seed seeds its weight search
+    too, and stays.)"""
+    data = f"camvid:{_camvid(tmp_path / 'data')}"
+    out = tmp_path / "out"
+    assert main(["evaluate", command, "--data", data, "--seed", "7", "--out", str(out)]) == 2
+    lines = one_line_errors(capsys)
+    assert len(lines) == 1 and lines[0].startswith("pcreg: error: --seed 7 seeds synthetic frames only")
+    assert data in lines[0]
+    assert not out.exists()
+
+
+def test_seed_with_synthetic_data_is_the_frames_seed_and_real_data_keeps_0_in_its_configuration(tmp_path):
+    """Runs from before keep resuming: a real --data's config.json still holds seed 0."""
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", "synthetic:syn1a", "--frames", "2", "--size", "48x36", "--seed", "7",
+                 "--methods", "plain", "--out", str(out)]) == 0
+    assert json.loads((out / "results.json").read_text())["config"]["seed"] == 7
+    real = tmp_path / "real"
+    assert main(["evaluate", "stream", "--data", f"camvid:{_camvid(tmp_path / 'data')}", "--methods", "plain",
+                 "--out", str(real)]) == 0
+    assert json.loads((real / "results.json").read_text())["config"]["seed"] == 0

@@ -217,7 +217,8 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=arg_int(1, MAX_FRAMES), default=None,
                         help="frames per synthetic sequence (default 100); first frames of real ones (default all)")
     parser.add_argument("--size", type=size, default=None, metavar="WxH", help="synthetic frame size (default 640x480; real frames keep their own)")
-    parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=0, help="seed of the synthetic data (default 0)")
+    parser.add_argument("--seed", type=arg_int(0, 2**32 - 1), default=None,
+                        help="seed of the synthetic data (default 0; real frames take none)")
 
 
 def synthetic_size(args: argparse.Namespace) -> tuple[int, int] | None:
@@ -227,6 +228,15 @@ def synthetic_size(args: argparse.Namespace) -> tuple[int, int] | None:
 
     check_data_size(args.data, args.size)
     return args.size
+
+
+def synthetic_seed(args: argparse.Namespace) -> int:
+    """``--seed`` (0 when not given), which seeds synthetic frames: refused beside a real ``--data`` before anything
+    is written (:func:`~pcreg.datasets.check_data_seed`)."""
+    from ..datasets import check_data_seed
+
+    check_data_seed(args.data, args.seed)
+    return 0 if args.seed is None else args.seed
 
 
 def add_run_arguments(parser: argparse.ArgumentParser, *, out: str) -> None:

@@ -37,7 +37,7 @@ def config_from_args(args: argparse.Namespace) -> RotationConfig:
     if args.workers < 1:
         raise InputError("--workers must be at least 1")
     return RotationConfig(data=args.data, angles=tuple(args.angles), samples=args.samples, canvas=args.canvas,
-                          backends=c.backends(args.backend), frames=args.frames, size=c.synthetic_size(args), seed=args.seed,
+                          backends=c.backends(args.backend), frames=args.frames, size=c.synthetic_size(args), seed=c.synthetic_seed(args),
                           registration=RegisterConfig.of(levels=args.levels, iterations=args.iterations))
 
 

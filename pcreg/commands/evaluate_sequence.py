@@ -59,7 +59,7 @@ def config_from_args(args: argparse.Namespace) -> SequenceConfig:
     for backend in c.backends(args.backend):  # a model a backend cannot fit is refused before any unit runs
         registration.replace(backend=backend)
     return SequenceConfig(data=args.data, increments=tuple(sorted(set(args.increments))),
-                          backends=c.backends(args.backend), frames=args.frames, size=c.synthetic_size(args), seed=args.seed,
+                          backends=c.backends(args.backend), frames=args.frames, size=c.synthetic_size(args), seed=c.synthetic_seed(args),
                           train=args.train, fusion=SequenceFusion(frames=args.fusion_frames, weight=args.fusion_weight),
                           registration=registration)
 

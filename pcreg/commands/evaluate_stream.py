@@ -59,7 +59,7 @@ def config_from_args(args: argparse.Namespace) -> StreamConfig:
     if "plain" not in methods:
         methods = ("plain",) + methods  # every reduction is against plain
     frames = args.frames if args.frames is not None else (40 if args.data == "synthetic" else None)
-    return StreamConfig(data=args.data, frames=frames, size=c.synthetic_size(args), seed=args.seed, key_every=args.key_every,
+    return StreamConfig(data=args.data, frames=frames, size=c.synthetic_size(args), seed=c.synthetic_seed(args), key_every=args.key_every,
                         keys=args.keys, backends=(args.backend,), methods=tuple(m for m in allowed if m in methods),
                         classes=classes)
 

@@ -36,6 +36,7 @@ __all__ = [
     "load_lagr",
     "load_folder",
     "load_davis",
+    "check_data_seed",
     "check_data_size",
     "synthetic",
     "SYNTHETIC_PRESETS",
@@ -67,11 +68,25 @@ def data_folder(spec) -> Path | None:
     return folder if folder.is_dir() else None
 
 
+def _synthetic(spec: str) -> bool:
+    return str(spec).partition(":")[0].strip().lower() == "synthetic"
+
+
+def check_data_seed(spec: str, seed: int | None) -> None:
+    """An :class:`~pcreg.errors.InputError` when a ``seed`` is given with ``--data`` ``spec`` of real frames: it
+    seeds synthetic frames only, and taken and not applied it would stand in an evaluation's config.json, so that
+    a rerun with another seed was refused as another configuration."""
+    if seed is None or _synthetic(spec):
+        return
+    raise InputError(f"--seed {seed} seeds synthetic frames only; --data {spec} is real frames, which no seed "
+                     "changes (leave --seed out)")
+
+
 def check_data_size(spec: str, size) -> None:
     """An :class:`~pcreg.errors.InputError` when a frame ``size`` is given with ``--data`` ``spec`` of real frames:
     ``size`` sets synthetic frames' size only, and taken and not applied it would stand in an evaluation's
     config.json beside numbers of another size."""
-    if size is None or str(spec).partition(":")[0].strip().lower() == "synthetic":
+    if size is None or _synthetic(spec):
         return
     shown = "x".join(str(v) for v in size) if isinstance(size, (tuple, list)) else repr(size)
     raise InputError(f"--size {shown} sets synthetic frames' size only; --data {spec} is read at its frames' own "

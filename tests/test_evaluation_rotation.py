@@ -172,3 +172,25 @@ def test_angles_that_the_results_would_name_alike_are_refused(tmp_path, capsys, 
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and "--angles" in err[0] and "one angle" in err[0]
     assert not (out / "results.json").exists()
+
+
+def test_angles_whose_registration_was_refused_are_marked_not_passed_off_as_registered():
+    """A refused registration is scored on the unregistered frame. checks.md judged those numbers "met" or "NOT met"
+    as if registered, and rotation.png drew them on the registered curves unmarked."""
+    from pcreg.experiments.reports.rotation import _figure, checks
+
+    def cell(after, failed, frames=2):
+        return {**dict.fromkeys(KEYS, after), "failed": failed, "frames": frames, "corner_error_median": None}
+
+    angles = {"0": cell(8.0, 0), "90": cell(8.5, 2), "180": cell(9.0, 1)}
+    results = {"primary_backend": "reference", "datasets": {"clip": {}},
+               "backends": {"reference": {"datasets": {"clip": {"angles": angles}}}}}
+    said = checks(results)
+    assert "90: not measured, registration refused on every frame at 90 degrees" in said
+    assert "after 90" not in said and "after 180: 9.00 (+1.00, met)" in said
+    assert "(registration refused on 2 of 2 frames at 90 degrees, 1 of 2 frames at 180 degrees: those frames are " \
+           "scored unregistered)" in said
+    ax = _figure(results).axes[0]
+    marked = [line for line in ax.get_lines() if line.get_label() == "registration refused (scored unregistered)"]
+    assert len(marked) == 1 and list(marked[0].get_xdata()) == [90.0, 180.0]
+    assert list(marked[0].get_ydata()) == [8.5, 9.0]

@@ -39,11 +39,19 @@ def checks(results: dict) -> str:
                 c = d["angles"].get(angle_key(a))
                 if c is None:
                     continue
+                every = [x for x, cc in ((a, c), (0.0, a0)) if cc.get("frames") and cc.get("failed") == cc["frames"]]
+                if every:
+                    parts.append(f"{a:g}: not measured, registration refused on every frame at {every[0]:g} degrees")
+                    continue
                 for key in ("after", "after_masked"):
                     diff = c[key] - a0[key]
                     parts.append(f"{key} {a:g}: {c[key]:.2f} ({diff:+.2f}, {'met' if abs(diff) <= 2 else 'NOT met'})")
+            refused = [f"{c['failed']} of {c['frames']} frames at {float(a):g} degrees" for a, c in d["angles"].items()
+                       if c.get("failed")]
             lines.append(f"- {name}: 0 degrees {a0['after']:.2f}; "
-                         + ("; ".join(parts) if parts else "neither 90 nor 180 degrees in the angle set"))
+                         + ("; ".join(parts) if parts else "neither 90 nor 180 degrees in the angle set")
+                         + (f" (registration refused on {', '.join(refused)}: those frames are scored unregistered)"
+                            if refused else ""))
         lines.append("")
     return "\n".join(lines) + "\n"
 
@@ -77,6 +85,11 @@ def _figure(results: dict):
                 ax.plot(xs, [d["angles"][a][key] for a in d["angles"]], ls if b == results["primary_backend"] else "-.",
                         color=colour, marker="o" if b == results["primary_backend"] else "x", ms=3, lw=1.2,
                         alpha=1.0 if b == results["primary_backend"] else 0.6, label=lab)
+        refused = [(float(a), c) for a, c in results["backends"][results["primary_backend"]]["datasets"][name]["angles"].items()
+                   if c.get("failed")]
+        if refused:  # scored unregistered there: marked, not passed off as a registration's result
+            ax.plot([a for a, _ in refused], [c["after"] for _, c in refused], "s", mfc="none", mec="black", ms=8,
+                    label="registration refused (scored unregistered)")
         m = results["datasets"][name].get("mirrors")
         ax.set_title(f"{name} ({m})" if m else name, fontsize=10)
         ax.set_xlabel("rotation (degrees)")

@@ -250,3 +250,42 @@ def test_a_recorded_run_says_it_leaves_the_scheduler_aside(tmp_path, capsys):
                  "--increments", "2", "--out", str(tmp_path / "s"), "--record", str(tmp_path / "s.rrd"),
                  "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 0
     assert "note: --record runs every unit in this process (--workers and --scheduler ignored)" in capsys.readouterr().out
+
+
+def test_a_mean_over_fewer_pairs_than_the_row_counts_says_so(tmp_path):
+    """A pair whose moving frame's labels are all unknown has no score against them: each such method's mean is
+    taken over the other pairs, while the row's `pairs` counted them all, without a word."""
+    import cv2
+
+    from pcreg.datasets import load_dataset
+
+    clip = tmp_path / "data" / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i, f in enumerate(load_dataset("synthetic:syn1a", n_frames=6, size=(160, 120))["syn1a"]):
+        cv2.imwrite(str(clip / "images" / f"f{i}.png"), f.image[:, :, ::-1])
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), f.labels if i < 5 else np.full_like(f.labels, 2))
+    out = tmp_path / "s"
+    assert main(["evaluate", "sequence", "--data", f"folder:{tmp_path / 'data'}", "--increments", "1,4",
+                 "--out", str(out)]) == 0
+    pairs = json.loads((out / "results.json").read_text())["datasets"]["clip"]["pairs"]
+    assert pairs["4"]["pairs"] == 2 and pairs["4"]["scored_pairs"]["plain"] == 1  # (1, 5) has no score
+    assert pairs["4"]["scored_pairs"]["thesis_before"] == 2  # scored against the reference frame's labels
+    table = (out / "sequence_reference.md").read_text()
+    assert "Means over fewer pairs than `pairs`" in table and "clip k=4: plain 1," in table
+    assert "augmented_flow 1 of 2" in table and "thesis_before" not in table.split("Means over")[1]
+
+
+def test_a_temporal_weight_that_no_frame_could_choose_is_said_so(tmp_path, shared_data):
+    """0001TP at one frame a second: on the first 2 frames the chain carries no label into a frame (its gate ends
+    it), so every weight scores the same (10.33% measured) and the smallest, 0, was taken without a word, which
+    makes augmented_temporal naive Bayes alone. The run now says so in results.json and checks.md."""
+    out = tmp_path / "s"
+    assert main(["evaluate", "sequence", "--data", f"camvid:{shared_data / 'camvid' / '0001TP'}", "--frames", "5",
+                 "--fusion-frames", "2", "--increments", "1", "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    said = "temporal fusion weight not determined: every weight scored the same on the first 2 frames"
+    assert any(said in n for n in res["notes"]), res["notes"]
+    assert res["units"][0]["temporal_weight"]["weight"] == 0.0
+    checks = (out / "checks.md").read_text()
+    assert "### Notes" in checks and said in checks and "augmented_temporal is naive Bayes alone" in checks

@@ -169,6 +169,18 @@ def _recording_hooks(rec: RecorderProtocol, unit, counter: list[int], recorded: 
 # the evaluation
 # ---------------------------------------------------------------------------------------------
 
+def _scored_pairs(pairs: list, methods) -> dict:
+    """{method: how many of ``pairs`` (their dicts) have a finite error}: the pairs its mean is taken over (a pair
+    whose labels are all unknown, or whose valid region is empty for the cropped score, has none)."""
+    return {m: sum(1 for p in pairs if _finite(p["errors"].get(m))) for m in methods}
+
+
+def _finite(v) -> bool:
+    import math
+
+    return v is not None and math.isfinite(float(v))
+
+
 def plan_units(config: SequenceConfig, names: list[str]) -> list:
     from .units import Unit
 
@@ -225,6 +237,7 @@ def summarise(config: SequenceConfig, unit_results: list[dict]) -> Results:
         d = out_datasets.setdefault(name, {"frames": r["frames"], "width": r["width"], "height": r["height"],
                                            "increments": {}, "pairs": {}})
         stats = {"pairs": len(r["pairs"]), "failed_pairs": len(r["failures"]),
+                 "scored_pairs": _scored_pairs(r["pairs"], METHODS),
                  "weight": r.get("weight", {}).get("weight") if r.get("weight") else None,
                  "temporal_weight": (r.get("temporal_weight") or {}).get("weight"),
                  "fusion_frames": r.get("fusion_frames"), "notes": r["notes"]}

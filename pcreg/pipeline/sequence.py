@@ -274,6 +274,12 @@ def _choose_weights(frames: Sequence, *, k: int, C: int, fusion: FusionConfig, c
                  f"w = {choice.weight} used",)
     elif kc != k:
         notes = (f"fusion weight chosen at increment {kc} (the first {C} frames hold no pair {k} apart)",)
+    errors = np.asarray(temporal_choice.errors, dtype=np.float64)
+    if temporal_choice.pairs and np.isfinite(errors).all() and np.ptp(errors) == 0:
+        notes += (f"temporal fusion weight not determined: every weight scored the same on the first {C} frames "
+                  f"({errors[0]:.2f}% error; no label the chain carried reached a frame there), w = "
+                  f"{temporal_choice.weight:g} used" + (": augmented_temporal is naive Bayes alone"
+                                                         if temporal_choice.weight == 0 else ""),)
     registration.keep_increment(k)
     return _Weights(choice, temporal_choice, flow_choice, notes)
 

@@ -37,6 +37,19 @@ def table(results: dict, backend: str) -> tuple[list, list]:
     return header, rows
 
 
+def fewer_pairs(results: dict, backend: str) -> str:
+    """The table's footer: each mean taken over fewer pairs than its row's ``pairs`` (those with no score: labels all
+    unknown, an empty valid region for the cropped score, no fused frame yet for the temporal one); "" when none."""
+    said = []
+    for name, d in results["backends"][backend]["datasets"].items():
+        for k, st in d["pairs"].items():
+            scored = st.get("scored_pairs") or {}
+            short = [f"{m} {n}" for m, n in scored.items() if n < st["pairs"]]
+            if short:
+                said.append(f"{name} k={k}: {', '.join(short)} of {st['pairs']}")
+    return ("\n\nMeans over fewer pairs than `pairs` (the others have no score): " + "; ".join(said) + "\n") if said else ""
+
+
 def checks(results: dict) -> str:
     """What registration-augmented classification should achieve, checked on this run (Markdown)."""
     import numpy as np
@@ -79,6 +92,8 @@ def checks(results: dict) -> str:
         lines.append(f"- thesis_after_masked < thesis_before where thesis_after lost to thesis_before "
                      f"({n_mask} cells): {ok(fails_mask, n_mask) if n_mask else 'no such cell'}")
         lines.append("")
+    if results.get("notes"):  # how a weight was chosen, or could not be: what the numbers above rest on
+        lines += ["### Notes\n", *[f"- {n}" for n in results["notes"]], ""]
     return "\n".join(lines) + "\n"
 
 
@@ -154,5 +169,5 @@ def write_outputs(results: Results, out: str | Path, *, recording: str | Path | 
 
     doc = results.to_dict()
     tables = {f"sequence_{b}": (f"Sequence (thesis Ch. 6-7), backend {b}: mean error % over pairs (i, i+k)",
-                                *table(doc, b)) for b in doc["backends"]}
+                                *table(doc, b), fewer_pairs(doc, b)) for b in doc["backends"]}
     return write_files(out, doc, recording=recording, tables=tables, texts={"checks.md": checks(doc)}, figures=_figures(doc))

@@ -222,6 +222,19 @@ def test_unknown_feature_and_case_are_rejected(tmp_path, capsys):
     assert exc.value.code == 2
 
 
+@pytest.mark.parametrize("sets, said", [
+    (["rgb+hsv", "hsv+rgb"], "lists one feature set twice (rgb+hsv and hsv+rgb: the order of a set's features"),
+    (["rgb", "RGB"], "lists rgb twice"),
+])
+def test_one_feature_set_given_twice_is_refused_in_any_order(tmp_path, capsys, sets, said):
+    """rgb+hsv and hsv+rgb are one naive Bayes (it multiplies its features' likelihoods): both ran, as two rows of
+    the same numbers."""
+    assert run_cli(["--features", *sets, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and said in err, err
+    assert not (tmp_path / "out").exists()
+
+
 def test_data_help_names_davis_which_it_reads(capsys):
     """Every evaluation reads --data davis:PATH (classification's Case I-III on DAVIS's frames and masks), and
     classification's --help says so as the others' do."""

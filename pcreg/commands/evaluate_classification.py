@@ -53,8 +53,15 @@ def config_from_args(args: argparse.Namespace) -> ClassificationConfig:
     from ..classification.features import parse_features
 
     feats = tuple("+".join(parse_features(f)) for f in args.features)
-    if len(set(feats)) != len(feats):
-        raise InputError("a feature set is listed twice in --features")
+    seen: dict[frozenset, str] = {}
+    for f in feats:  # naive Bayes multiplies its features' likelihoods: their order changes nothing
+        same = seen.get(frozenset(f.split("+")))
+        if same == f:
+            raise InputError(f"--features lists {f} twice")
+        if same is not None:
+            raise InputError(f"--features lists one feature set twice ({same} and {f}: the order of a set's features "
+                             "changes nothing)")
+        seen[frozenset(f.split("+"))] = f
     if args.trials < 1:
         raise InputError("--trials must be at least 1")
     if args.frames is not None and args.frames < 1:

@@ -289,3 +289,28 @@ def test_a_temporal_weight_that_no_frame_could_choose_is_said_so(tmp_path, share
     assert res["units"][0]["temporal_weight"]["weight"] == 0.0
     checks = (out / "checks.md").read_text()
     assert "### Notes" in checks and said in checks and "augmented_temporal is naive Bayes alone" in checks
+
+
+def test_a_reference_frame_that_cannot_train_fails_its_own_pairs_only(tmp_path):
+    """Each pair trains naive Bayes on its reference frame: one frame labelled all unknown failed the whole
+    increment (`pairs` 0 at k = 1, and only a note in results.json), where it is the reference of one pair."""
+    import cv2
+
+    from pcreg.datasets import load_dataset
+
+    clip = tmp_path / "data" / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i, f in enumerate(load_dataset("synthetic:syn1a", n_frames=6, size=(160, 120))["syn1a"]):
+        cv2.imwrite(str(clip / "images" / f"f{i}.png"), f.image[:, :, ::-1])
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), f.labels if i != 2 else np.full_like(f.labels, 2))
+    out = tmp_path / "s"
+    assert main(["evaluate", "sequence", "--data", f"folder:{tmp_path / 'data'}", "--increments", "1",
+                 "--fusion-frames", "2", "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    stats = res["datasets"]["clip"]["pairs"]["1"]
+    assert stats["pairs"] == 3 and stats["failed_pairs"] == 1  # (1, 2), (3, 4), (4, 5) scored; (2, 3) failed
+    (failure,) = res["units"][0]["failures"]
+    assert (failure["reference"], failure["moving"]) == (2, 3)
+    assert failure["reason"].startswith("reference frame f2 cannot train naive Bayes: training labels hold no class")
+    assert np.isfinite(res["datasets"]["clip"]["increments"]["1"]["augmented"])

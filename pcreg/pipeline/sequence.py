@@ -157,6 +157,7 @@ class _Classifiers:
         self._frames, self._features = frames, features
         self._shared = None
         self._cache: dict[int, object] = {}
+        self.refused: dict[int, str] = {}
         if train.startswith("first:"):
             K = int(train.split(":", 1)[1])
             if K >= len(frames):
@@ -164,11 +165,17 @@ class _Classifiers:
             self._shared = fit_classifier(frames[:K], features=features)
 
     def __call__(self, i: int):
+        """Frame ``i``'s model; None when its labels cannot train one (each frame's own model: all unknown, or one
+        class only), its reason in :attr:`refused`: that frame's pairs fail, not the sequence."""
         if self._shared is not None:
             return self._shared
         if i not in self._cache:
             self._cache.clear()
-            self._cache[i] = fit_classifier([self._frames[i]], features=self._features)
+            try:
+                self._cache[i] = fit_classifier([self._frames[i]], features=self._features)
+            except InputError as exc:
+                self._cache[i] = None
+                self.refused[i] = f"reference frame {self._frames[i].name} cannot train naive Bayes: {exc}"
         return self._cache[i]
 
 
@@ -263,7 +270,8 @@ def _choose_weights(frames: Sequence, *, k: int, C: int, fusion: FusionConfig, c
             if i in odd or j in odd:
                 continue
             clf = classifier(i)
-            calib.append((i, j, registration(i, j).motion, log_odds(clf, frames[j].image), class_prior(clf)))
+            if clf is not None:
+                calib.append((i, j, registration(i, j).motion, log_odds(clf, frames[j].image), class_prior(clf)))
     choice = choose_weight(_prior_samples(calib, frames, fusion, lambda i, j, T: T, weighed=True), grid=fusion.grid)
     flow_samples = _prior_samples(calib, frames, fusion, lambda i, j, T: flow_field(frames[i].image, frames[j].image))
     flow_choice = choose_weight(flow_samples, grid=fusion.grid)
@@ -301,16 +309,17 @@ def _walk_pairs(frames: Sequence, *, k: int, C: int, config: PipelineConfig, wei
     failures: list[dict] = []
     for i, j in pair_indices(len(frames), k):
         chain = chains.popleft() if i >= k else None
-        if i in odd or j in odd:
+        clf = None if i in odd or j in odd else classifier(i)
+        if clf is None:
             if j >= C:
-                failures.append({"reference": i, "moving": j, "reason": odd[i if i in odd else j]})
+                failures.append({"reference": i, "moving": j,
+                                 "reason": odd[i] if i in odd else odd[j] if j in odd else classifier.refused[i]})
             chains.append(None)  # the chain restarts after the odd frame
             continue
         if chain is None:
             chain = TemporalFusion(frames[i].labels, weight=weights.temporal.weight, fusion=config.fusion)
         score = j >= C
         reg = registration.take(i, j, icp_callback if score else None)
-        clf = classifier(i)
         if score:
             done = process_pair(frames[i], frames[j], clf, weight=weights.one_step.weight, config=config,
                                 registration=reg, temporal=chain, indices=(i, j), keep_arrays=on_pair is not None,

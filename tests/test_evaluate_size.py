@@ -25,17 +25,25 @@ def _camvid(root):
     return root
 
 
+SYNTHETIC_ONLY = {"--size": ("32x24", "--size 32x24 sets synthetic frames' size only"),
+                  "--seed": ("7", "--seed 7 seeds synthetic frames only")}
+
+
 @pytest.mark.parametrize("kind", ["davis", "camvid"])
-@pytest.mark.parametrize("command", ["stream", "sequence", "rotation", "classification"])
-def test_size_beside_real_data_is_refused_in_one_line(tmp_path, capsys, command, kind):
-    """It was ignored: the frames ran at their own 64x48 (12x10) while config.json said the --size, and a rerun with
-    another --size was refused as a different configuration."""
+@pytest.mark.parametrize("command, option", [(c, o) for o in SYNTHETIC_ONLY for c in ("stream", "sequence", "rotation",
+                                                                                       "classification")
+                                             if (c, o) != ("classification", "--seed")])
+def test_an_option_of_synthetic_data_beside_real_data_is_refused_in_one_line(tmp_path, capsys, command, option, kind):
+    """--size was ignored: the frames ran at their own 64x48 (12x10) while config.json said the --size, and a rerun
+    with another --size was refused as a different configuration. --seed was ignored but written in config.json
+    too. (``evaluate classification``'s --seed seeds its weight search as well, and stays.)"""
     data = (f"davis:{write_pcreg_layout(tmp_path / 'davis' / 'disc', frames_and_masks(4))}" if kind == "davis"
             else f"camvid:{_camvid(tmp_path / 'data')}")
     out = tmp_path / "out"
-    assert main(["evaluate", command, "--data", data, "--size", "32x24", "--out", str(out)]) == 2
+    value, said = SYNTHETIC_ONLY[option]
+    assert main(["evaluate", command, "--data", data, option, value, "--out", str(out)]) == 2
     lines = one_line_errors(capsys)
-    assert len(lines) == 1 and lines[0].startswith("pcreg: error: --size 32x24 sets synthetic frames' size only")
+    assert len(lines) == 1 and lines[0].startswith(f"pcreg: error: {said}")
     assert data in lines[0]
     assert not out.exists()
 
@@ -46,20 +54,6 @@ def test_size_with_synthetic_data_is_still_the_frames_size(tmp_path):
                  "--methods", "plain", "--out", str(out)]) == 0
     results = json.loads((out / "results.json").read_text())
     assert results["config"]["size"] == [48, 36] and results["units"][0]["width"] == 48
-
-
-@pytest.mark.parametrize("command", ["stream", "sequence", "rotation"])
-def test_seed_beside_real_data_is_refused_in_one_line(tmp_path, capsys, command):
-    """It was ignored but written in config.json, so that the same command with another --seed was refused as a
-    different configuration though nothing differed. (``evaluate classification``'s --seed seeds its weight search
-    too, and stays.)"""
-    data = f"camvid:{_camvid(tmp_path / 'data')}"
-    out = tmp_path / "out"
-    assert main(["evaluate", command, "--data", data, "--seed", "7", "--out", str(out)]) == 2
-    lines = one_line_errors(capsys)
-    assert len(lines) == 1 and lines[0].startswith("pcreg: error: --seed 7 seeds synthetic frames only")
-    assert data in lines[0]
-    assert not out.exists()
 
 
 def test_seed_with_synthetic_data_is_the_frames_seed_and_real_data_keeps_0_in_its_configuration(tmp_path):

@@ -257,9 +257,9 @@ def format_table(out: dict) -> str:
             lines.append(f"{'':24s} its library said: {said[0]}" + (f" (and {len(said) - 1} more)" if len(said) > 1 else ""))
     s = out["settings"]
     lines.append(f"settings: gate {s['max_correspondence_distance']:.4g}, max {s['max_iterations']} iterations, "
-                 f"{s['source_points']} source / {s['target_points']} target points; rot deg, centroid (how far apart the "
-                 "two poses put the source's centroid) and rel are disagreements with the reference (fixed-point and objective rows: with the reference run "
-                 "to convergence)")
+                 f"{s['source_points']} source / {s['target_points']} target points; rot deg, centroid (how far "
+                 "apart the two poses put the source's centroid) and rel are disagreements with the reference "
+                 "(fixed-point and objective rows: with the reference run to convergence)")
     if s.get("unconstrained"):
         lines.append(f"unconstrained: {s['unconstrained']}; no row's pose can be trusted")
     return "\n".join(lines)

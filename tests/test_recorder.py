@@ -248,6 +248,12 @@ def test_bad_input_before_any_frame_leaves_no_recording(tmp_path, capsys):
                  "--out", str(tmp_path / "out")]) == 2
     assert "no such folder" in capsys.readouterr().err
     assert not bad.exists() and not (tmp_path / "out").exists()
+    # the folders the recording's path made go with it (they were left, empty); a folder already there stays
+    (tmp_path / "kept").mkdir()
+    for made in (tmp_path / "new" / "sub" / "bad.rrd", tmp_path / "kept" / "sub" / "bad.rrd"):
+        assert main(["evaluate", "sequence", "--data", f"camvid:{tmp_path / 'nowhere'}", "--record", str(made),
+                     "--out", str(tmp_path / "out")]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"] and not any((tmp_path / "kept").iterdir())
     later = tmp_path / "later.rrd"
     with pytest.raises(InputError):
         with Recorder(later) as rec:

@@ -55,7 +55,7 @@ from .evaluation_log import EvaluationLogger
 from .icp_log import IcpLogger
 from .interface import RecorderProtocol
 from .pair_log import PairLogger
-from .sink import BATCH_SECONDS, DEFAULT_JPEG_QUALITY, Sink
+from .sink import BATCH_SECONDS, DEFAULT_JPEG_QUALITY, Sink, remove_made_folders
 from .text_log import TextLogger
 
 __all__ = ["Recorder", "open_recording", "DEFAULT_JPEG_QUALITY", "BATCH_SECONDS"]
@@ -205,6 +205,7 @@ class Recorder(RecorderProtocol):
             # nothing but the refusal and stand in the way of the corrected command
             self.close()
             self.path.unlink(missing_ok=True)
+            remove_made_folders(self.sink.made_folders)
             return False
         if exc is not None and not self.closed:
             text = "".join(traceback.format_exception_only(exc_type, exc)).strip()

@@ -86,18 +86,32 @@ def _check_path(path: Path, force: bool) -> None:
     check_output(path, force=force)
 
 
-def _create_empty(path: Path) -> None:
-    """Create ``path`` empty, or refuse it with the reason (rerun's own error would come from its thread)."""
+def _create_empty(path: Path) -> list[Path]:
+    """Create ``path`` empty, or refuse it with the reason (rerun's own error would come from its thread); the
+    folders made for it, deepest first (:func:`remove_made_folders`)."""
     try:
         str(path).encode("utf-8")
     except UnicodeEncodeError:  # rerun takes the path as UTF-8 text
         raise OutputError(f"cannot write {path}: a recording's path must be valid UTF-8") from None
+    made = [p for p in path.absolute().parents if not p.exists()]
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "wb"):  # fail here, with our message, rather than in rerun's sink thread
             pass
     except OSError as exc:
+        remove_made_folders(made)
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return made
+
+
+def remove_made_folders(folders: list[Path]) -> None:
+    """Remove ``folders`` (deepest first) that a recording's path made and that are still empty: a run refused
+    before its recording held anything leaves no trace of it."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:  # not empty (something else was written there), or gone: kept as it is
+            return
 
 
 def _save_without_footer(rec: Any, path: Path) -> None:
@@ -154,7 +168,7 @@ class Sink:
         self.path = Path(path)
         _check_path(self.path, force)
         self._jpegs = JpegCache(jpeg_quality)
-        _create_empty(self.path)
+        self.made_folders = _create_empty(self.path)
         self.raw_images = bool(raw_images)
         self.application_id = application_id
         self.recording_id = recording_id or str(uuid.uuid4())
@@ -169,6 +183,7 @@ class Sink:
             _save_without_footer(self._rec, self.path)
         except Exception as exc:  # rerun raises its own types for sink errors
             self.path.unlink(missing_ok=True)  # the empty file made above
+            remove_made_folders(self.made_folders)
             raise OutputError(f"cannot write {self.path}: {exc}") from None
         if recording_name:  # a name from a path that is not UTF-8 (os.fsdecode's escapes) shown escaped
             self._rec.send_recording_name(recording_name.encode("utf-8", "backslashreplace").decode("utf-8"))

@@ -135,3 +135,23 @@ def test_the_table_shows_how_far_the_poses_put_the_cloud_wherever_it_lies():
     end = head.index("centroid") + len("centroid")  # the columns are right-aligned, 9 wide
     shown = float(o3d_line[end - 9:end])
     assert shown == pytest.approx(row["centroid_disagreement"], rel=1e-2) and shown < 1e-6  # measured 1.9e-9
+
+
+def test_a_mixture_that_ends_wider_than_the_gate_says_so_on_its_row():
+    """A uniform square of 500 points shifted by 1% of its side: probreg's CPD stops with its mixture's sigma
+    at 0.26, 19x the gate (the same with 10x the iterations and no tolerance), 0.7 degrees from the reference, and
+    its row read only "no". Its row now says how wide the mixture ended; a row that agrees says nothing of it."""
+    pytest.importorskip("probreg")
+    from pcreg.commands.crosscheck import format_table
+
+    rng = np.random.default_rng(0)
+    a = np.c_[rng.random((500, 2)), np.zeros(500)]
+    r = crosscheck_implementations(a + [0.01, 0.01, 0.0], a, implementations=["reference", "probreg-cpd"])
+    row, gate = r.rows["probreg-cpd"], r.settings["max_correspondence_distance"]
+    assert row["agrees"] is False and np.sqrt(row["info"]["sigma2"]) > 5 * gate, (row["info"], gate)
+    lines = format_table(r.to_dict()).splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("probreg-cpd"))
+    sigma = np.sqrt(row["info"]["sigma2"])
+    assert lines[at + 1].split()[:5] == ["its", "mixture", "ended", "wide:", "sigma"]
+    assert f"{sigma:.3g}" in lines[at + 1] and f"{sigma / gate:.3g}x the gate" in lines[at + 1]
+    assert sum("mixture ended wide" in line for line in lines) == 1  # the reference's row: none

@@ -9,6 +9,7 @@ a suite and writes a table and a figure.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -228,6 +229,21 @@ def log_cloud_crosscheck(rec: RecorderProtocol, report) -> None:
     rec.log_crosscheck(slim)
 
 
+def _mixture_width(row: dict, gate: float) -> str | None:
+    """Why a Gaussian mixture's row (pycpd, probreg) that disagrees may do so, in its table's words: the mixture's
+    width at its end (its sigma2) against the gate, when wider. A mixture that ends wider than the gate still
+    weighs each point against many of the other cloud's, so its optimum is not nearest-point ICP's (a uniform
+    square of points, shifted 1% of its side: probreg's CPD ends at sigma 0.26, 19x the gate, 0.7 degrees off)."""
+    sigma2 = (row.get("info") or {}).get("sigma2")
+    if row.get("agrees") is not False or not isinstance(sigma2, float) or not math.isfinite(sigma2) or gate <= 0:
+        return None
+    sigma = math.sqrt(max(sigma2, 0.0))
+    if sigma <= gate:
+        return None
+    return (f"its mixture ended wide: sigma {sigma:.3g}, {sigma / gate:.3g}x the gate (each point still weighed "
+            "against many, not its nearest: not ICP's optimum)")
+
+
 def format_table(out: dict) -> str:
     def f(v, spec=".3g"):
         return "-" if v is None else (("yes" if v else "no") if isinstance(v, bool) else format(v, spec))
@@ -252,6 +268,9 @@ def format_table(out: dict) -> str:
         if r.get("divergence"):
             lines.append(f"{'':24s} first divergence at iteration {r['divergence']['iteration']}: "
                          f"{r['divergence']['cause']}")
+        wide = _mixture_width(r, out["settings"]["max_correspondence_distance"])
+        if wide:
+            lines.append(f"{'':24s} {wide}")
         said = (r.get("info") or {}).get("said")
         if said:  # what the library printed or warned, kept off the terminal: its row says it
             lines.append(f"{'':24s} its library said: {said[0]}" + (f" (and {len(said) - 1} more)" if len(said) > 1 else ""))

@@ -181,16 +181,23 @@ def load_json_object(path: str | os.PathLike) -> dict:
     return value
 
 
-def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:
-    """A small whitespace-separated text matrix (an initial guess, a ground truth) from a regular file of
-    at most 64 kB, as a finite 2-D float64 array."""
+def text_matrix(data: bytes) -> np.ndarray:
+    """The 2-D float64 matrix a small text holds, its numbers separated by whitespace, or by commas as a CSV
+    file and ``numpy.savetxt(..., delimiter=",")`` write them (spaces beside the commas allowed); '#' starts a
+    comment. A ValueError (numpy's) when it holds another text."""
     import io
 
+    return np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2, delimiter="," if b"," in data else None)
+
+
+def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:
+    """A small text matrix (an initial guess, a ground truth) from a regular file of at most 64 kB, as a finite
+    2-D float64 array (:func:`text_matrix`: spaces or commas between the numbers)."""
     data = read_regular_file(path, max_bytes=1 << 16, what=what)
     if not data.strip():  # numpy would warn of it and give an empty array
         raise InputError(f"{path}: the {what} file is empty")
     try:
-        m = np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2)
+        m = text_matrix(data)
     except (ValueError, IndexError, TypeError) as exc:
         raise InputError(f"{path}: not a text matrix ({' '.join(str(exc).split())[:160]})") from None
     if m.size == 0 or not np.all(np.isfinite(m)):

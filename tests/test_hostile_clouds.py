@@ -113,6 +113,31 @@ def test_a_rigid_init_far_from_the_origin_is_taken_and_a_nan_one_is_named_so(tmp
         pcreg.icp(local, utm, init=T)
 
 
+
+def test_an_init_matrix_written_with_commas_is_read_and_a_missing_number_is_refused(tmp_path, capfd):
+    """A 4x4 initial guess saved as CSV (``numpy.savetxt(..., delimiter=",")``, a spreadsheet, ", " between the
+    numbers) was refused as "not a text matrix"; it is read as the same matrix written with spaces. An empty field
+    between two commas is still refused, naming the file."""
+    from pcreg.formats import read_text_matrix
+
+    T = np.eye(4)
+    T[:3, 3] = [0.5, -0.25, 1e-3]
+    np.savetxt(tmp_path / "spaces.txt", T)
+    np.savetxt(tmp_path / "commas.csv", T, delimiter=",")
+    (tmp_path / "spaced.txt").write_text("\n".join(", ".join(repr(float(v)) for v in row) for row in T) + "\n")
+    for name in ("commas.csv", "spaced.txt"):
+        np.testing.assert_array_equal(read_text_matrix(tmp_path / name), read_text_matrix(tmp_path / "spaces.txt"))
+    target = _cloud()
+    np.save(tmp_path / "t.npy", target)
+    np.save(tmp_path / "s.npy", target - T[:3, 3])
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "commas.csv"),
+                 "--max-distance", "1", "--json"]) == 0
+    assert json.loads(capfd.readouterr().out)["implementations"]["open3d"]["agrees"]
+    (tmp_path / "gap.csv").write_text("1,,0,0\n0,1,0,0\n0,0,1,0\n0,0,0,1\n")
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "gap.csv")]) == 2
+    line = _err_line(capfd)
+    assert "gap.csv: not a text matrix" in line, line
+
 def _animated(tmp_path, name, **save):
     from PIL import Image
 

@@ -247,6 +247,27 @@ def test_external_c_icp_agrees_step_for_step_and_a_wrong_one_disagrees(icp_min, 
     assert w["error"] is None and not w["agrees"] and w["rotation_disagreement_deg"] > 1.0
 
 
+
+def test_a_program_that_writes_its_matrix_as_csv_is_read(tmp_path):
+    """A cmd: program that writes {out} with commas (``numpy.savetxt(..., delimiter=",")``): its row read
+    "unreadable output matrix". It is read as the same matrix with spaces: one that returns the reference's own
+    answer agrees with it, and an empty field between two commas is still that row's error."""
+    tgt = np.random.default_rng(0).uniform(-5, 5, (200, 2))
+    src = tgt - [0.2, 0.1]
+    ref = crosscheck_implementations(src, tgt, implementations=["reference"],
+                                     options=ICPOptions(max_correspondence_distance=1.0)).rows["reference"]["matrix"]
+    script = tmp_path / "csv_icp.py"
+    script.write_text("import sys, numpy as np\n"
+                      f"np.savetxt(sys.argv[1], np.array({np.asarray(ref).tolist()!r}), delimiter=',')\n")
+    gap = tmp_path / "gap.py"
+    gap.write_text("import sys\nopen(sys.argv[1], 'w').write('1,,0\\n0,1,0\\n0,0,1\\n')\n")
+    csv, bad = f'cmd:"{sys.executable} {script} {{out}}"', f'cmd:"{sys.executable} {gap} {{out}}"'
+    r = crosscheck_implementations(src, tgt, implementations=["reference", csv, bad],
+                                   options=ICPOptions(max_correspondence_distance=1.0))
+    assert r.rows[csv]["error"] is None and r.rows[csv]["agrees"], r.rows[csv]
+    np.testing.assert_array_equal(r.rows[csv]["matrix"], ref)
+    assert "unreadable output matrix" in r.rows[bad]["error"], r.rows[bad]
+
 def _ended(pid: int) -> bool:
     """Whether process ``pid`` is gone or a zombie (killed, not reaped yet)."""
     try:

@@ -36,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "clouds, in their units (default 1%% of the target's bounding-box diagonal)")
     p.add_argument("--voxel-size", type=positive_float, default=None,
                    help="clouds: voxel-downsample both clouds once, before every implementation")
-    p.add_argument("--init", metavar="FILE", help="clouds: initial guess, a (d+1)x(d+1) text matrix (default identity)")
+    p.add_argument("--init", metavar="FILE", help="clouds: initial guess, a (d+1)x(d+1) text matrix, its numbers separated by spaces or commas (default identity)")
     from ._common import arg_float
 
     p.add_argument("--relative-fitness", type=arg_float(0, 1), default=1e-6, help="stopping rule: |Δfitness| threshold (default 1e-6)")

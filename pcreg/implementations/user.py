@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import contextlib
 import importlib
-import io
 import json
 import math
 import os
@@ -47,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..formats import load_json_object, read_regular_file
+from ..formats import load_json_object, read_regular_file, text_matrix
 from ..errors import InputError
 from .base import COMPARABILITY, STEP, ImplementationError, Implementation, result
 
@@ -384,7 +383,7 @@ class Command(Implementation):
                 text = read_regular_file(out, max_bytes=1 << 16, what="output matrix")
                 with warnings.catch_warnings():  # "input contained no data": said below, in the row
                     warnings.simplefilter("ignore")
-                    m = np.loadtxt(io.BytesIO(text), dtype=np.float64, ndmin=2)
+                    m = text_matrix(text)
             except InputError as exc:
                 raise ImplementationError(str(exc).removeprefix(f"{out}: ")) from None
             except ValueError as exc:

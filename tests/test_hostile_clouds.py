@@ -290,3 +290,17 @@ def test_a_ply_whose_vertex_properties_open3d_reads_wrongly_is_refused_saying_wh
     head = "ply\nformat binary_little_endian 1.0\nelement vertex 50\n" + "".join(f"property float {n}\n" for n in names)
     (tmp_path / "yxz.ply").write_bytes((head + "end_header\n").encode() + values[:, [1, 0, 2]].copy().tobytes())
     np.testing.assert_array_equal(load_cloud(tmp_path / "yxz.ply"), values.astype(np.float64))
+
+
+@pytest.mark.parametrize("text, said", [("1 0 0 0\n0 1 0 0\n0 0 1 0\n", "a 3x4 pose without its last row (add the row 0 0 0 1)"),
+                                        ("1 0 0 0 0 1 0 0 0 0 1 0\n", "one line of 12 numbers, as KITTI writes a pose?")])
+def test_an_init_pose_without_its_last_row_says_what_to_add(tmp_path, capfd, text, said):
+    """A 3-D pose written as its top 3x4 (KITTI's poses, many tools' outputs), in rows or on one line: refused as
+    "must be a finite 4x4 matrix, got shape (3, 4)", which left the user to guess what the shape was missing."""
+    target = _cloud()
+    np.save(tmp_path / "t.npy", target)
+    np.save(tmp_path / "s.npy", target + 0.01)
+    (tmp_path / "pose.txt").write_text(text)
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "pose.txt")]) == 2
+    line = _err_line(capfd)
+    assert "pose.txt: the initial guess must be a finite 4x4 matrix" in line and said in line, line

@@ -184,10 +184,11 @@ def load_json_object(path: str | os.PathLike) -> dict:
 def text_matrix(data: bytes) -> np.ndarray:
     """The 2-D float64 matrix a small text holds, its numbers separated by whitespace, or by commas as a CSV
     file and ``numpy.savetxt(..., delimiter=",")`` write them (spaces beside the commas allowed); '#' starts a
-    comment. A ValueError (numpy's) when it holds another text."""
+    comment, whose commas say nothing of the numbers'. A ValueError (numpy's) when it holds another text."""
     import io
 
-    return np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2, delimiter="," if b"," in data else None)
+    commas = any(b"," in line.partition(b"#")[0] for line in data.splitlines())
+    return np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2, delimiter="," if commas else None)
 
 
 def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:

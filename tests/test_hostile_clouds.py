@@ -125,7 +125,9 @@ def test_an_init_matrix_written_with_commas_is_read_and_a_missing_number_is_refu
     np.savetxt(tmp_path / "spaces.txt", T)
     np.savetxt(tmp_path / "commas.csv", T, delimiter=",")
     (tmp_path / "spaced.txt").write_text("\n".join(", ".join(repr(float(v)) for v in row) for row in T) + "\n")
-    for name in ("commas.csv", "spaced.txt"):
+    # a comment's commas say nothing of how the numbers are separated
+    (tmp_path / "noted.txt").write_text("# x, y, z and 1\n" + (tmp_path / "spaces.txt").read_text())
+    for name in ("commas.csv", "spaced.txt", "noted.txt"):
         np.testing.assert_array_equal(read_text_matrix(tmp_path / name), read_text_matrix(tmp_path / "spaces.txt"))
     target = _cloud()
     np.save(tmp_path / "t.npy", target)

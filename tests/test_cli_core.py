@@ -48,6 +48,24 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert cv2.imread(str(out)).shape == (240, 320, 3)
 
 
+
+def test_register_starts_from_a_prior_pose_given_as_a_file(pair, tmp_path):
+    """``--init FILE``: a 3x3 T_ref_mov (odometry's prior, a degree and a few px off) is refined instead of searched
+    from (the library's ``init=``, which the command could not pass); the view turned 60 degrees is registered from
+    it, where ``--init identity`` is refused. A file that is no 3x3 transform is refused naming it, exit 2."""
+    d, T = pair
+    off = rigid_about_centre((240, 320), 1.0, 3.0, -2.0)
+    np.savetxt(tmp_path / "prior.txt", off @ T)
+    p = run("register", d / "ref.png", d / "mov.png", "--json", "--init", tmp_path / "prior.txt")
+    assert p.returncode == 0, p.stderr
+    result = json.loads(p.stdout)
+    assert result["generator"] == "init" and tf.max_corner_error(np.array(result["matrix"]), T, (240, 320)) < 0.5
+    assert run("register", d / "ref.png", d / "mov.png", "--init", "identity").returncode == 3
+    np.savetxt(tmp_path / "cloud_pose.txt", np.eye(4))
+    p = run("register", d / "ref.png", d / "mov.png", "--init", tmp_path / "cloud_pose.txt")
+    assert p.returncode == 2 and p.stderr.strip().splitlines() == [
+        f"pcreg: error: {tmp_path / 'cloud_pose.txt'}: the initial guess must be a finite 3x3 matrix, got shape (4, 4)"]
+
 def test_register_says_the_motion_and_its_evidence_in_a_line(pair):
     """Beside the result, one line a person reads: the rotation and shift of the transform printed, and the share of
     edge points that line up against chance's."""

@@ -81,16 +81,13 @@ def test_chance_matches_are_not_strong_support():
     assert not strong(38, 100) and strong(39, 100)
 
 
-def test_pcreg_register_says_the_features_disagree_and_exits_0(shared_data, tmp_path, capsys, monkeypatch):
-    import pcreg.registration.api as api
-
+def test_pcreg_register_says_the_features_disagree_and_exits_0(shared_data, tmp_path, capsys):
     ref, mov, _, _ = _retina_view(shared_data)
     for name, image in (("ref.png", ref), ("mov.png", mov)):
         cv2.imwrite(str(tmp_path / name), image[:, :, ::-1])
-    registered = api.register  # the command's registration, started from the wrong matrix (no option gives one)
-    monkeypatch.setattr(api, "register", lambda *a, **k: registered(*a, init=WRONG, **k))
+    np.savetxt(tmp_path / "wrong.txt", WRONG)  # the command's registration, started from the wrong matrix
     assert main(["register", str(tmp_path / "ref.png"), str(tmp_path / "mov.png"), "--model", "projective",
-                 "--levels", "1", "--json"]) == 0
+                 "--levels", "1", "--json", "--init", str(tmp_path / "wrong.txt")]) == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["features"]["agree"] is False
     note = err.strip().splitlines()[-1]

@@ -19,8 +19,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="motion model (default rigid); dense: the similarity refined by a dense field")
     p.add_argument("--levels", type=arg_int(1, 8), default=4, help="pyramid levels, 1..8 (default 4)")
     p.add_argument("--iterations", type=positive_int, default=14, help="ICP iterations per level (default 14)")
-    p.add_argument("--init", choices=("auto", "identity", "center"), default="auto",
-                   help="auto (default): global rotation search; identity: start from no motion; center: from the image centres aligned")
+    p.add_argument("--init", default="auto", metavar="{auto,identity,center,FILE}",
+                   help="auto (default): global rotation search; identity: start from no motion; center: from the image "
+                        "centres aligned; FILE: a 3x3 text matrix T_ref_mov (a prior pose, odometry's), refined "
+                        "instead of searching")
     p.add_argument("--max-distance", type=arg_float(0, 1e6, lo_open=True), default=2.5,
                    help="correspondence distance in px at full resolution (x 2^level; default 2.5)")
     p.add_argument("--refine", choices=("none", "point_to_line"), default="none",
@@ -45,10 +47,11 @@ def run(args: argparse.Namespace) -> int:
     from ..registration.warp import warp
 
     _check_arguments(args)
+    start = _start(args.init)
     options = {} if args.min_inlier_ratio is None else {"min_inlier_ratio": args.min_inlier_ratio or None}  # 0: off
     config = RegisterConfig.of(backend=args.backend, model=args.model, levels=args.levels, iterations=args.iterations,
-                               init=args.init, max_correspondence_distance=args.max_distance, refine=args.refine,
-                               **options)
+                               init=args.init if start is None else "auto", max_correspondence_distance=args.max_distance,
+                               refine=args.refine, **options)
     ref_stored, ref_damage = read_image_file_and_damage(args.reference)
     ref, ref_mask = image_and_mask(ref_stored, args.reference)  # transparent pixels are not matched
     stored, damage = read_image_file_and_damage(args.moving)  # decoded once: registered, and warped as stored by --out
@@ -70,8 +73,10 @@ def run(args: argparse.Namespace) -> int:
                            moving_colors=mc.colors)
         try:
             result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend), reference_mask=ref_mask,
-                              moving_mask=mov_mask)
+                              moving_mask=mov_mask, init=start)
         except (InputError, RegistrationError) as exc:  # "the reference image (16x16) is too small ...": name its file
+            if start is not None and isinstance(exc, InputError) and str(exc).startswith("init"):
+                raise InputError(f"{args.init}: the initial guess{str(exc)[len('init'):]}") from None
             raise _naming_its_file(exc, ((args.reference, ref_stored), (args.moving, stored))) from None
         warped = valid = None
         if args.out or rec.enabled:
@@ -101,6 +106,16 @@ def run(args: argparse.Namespace) -> int:
     for note in notes:
         sys.stderr.write(f"pcreg: note: {note}\n")
     return 0
+
+
+def _start(init: str):
+    """``--init``'s 3x3 matrix when it names a file (None for ``auto``, ``identity`` and ``center``): a text matrix,
+    refused naming the file when it is not a 3x3 transform the model can hold."""
+    from ..formats import read_text_matrix
+
+    if init in ("auto", "identity", "center"):
+        return None
+    return read_text_matrix(init, what="initial guess")
 
 
 def _check_arguments(args: argparse.Namespace) -> None:

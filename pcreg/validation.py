@@ -207,10 +207,12 @@ def check_matrix(value, name: str, dim: int) -> np.ndarray:
     matrix's grows as its translation squared (a shift of 10^6, a georeferenced cloud's, read as singular)."""
     M = real_matrix(value, f"{name} must be a {dim}x{dim} matrix of numbers", name)
     if M.shape != (dim, dim):
-        last = " ".join(["0"] * (dim - 1) + ["1"])
-        hint = (f": a {dim - 1}x{dim} pose without its last row (add the row {last})" if M.shape == (dim - 1, dim) else
-                f": one line of {dim * (dim - 1)} numbers, as KITTI writes a pose? Write its {dim - 1} rows of {dim}, then "
-                f"the row {last}" if M.shape == (1, dim * (dim - 1)) else "")
+        last, hint = " ".join(["0"] * (dim - 1) + ["1"]), ""
+        if M.shape == (dim - 1, dim):  # a pose written without its last row
+            hint = f": a {dim - 1}x{dim} pose without its last row (add the row {last})"
+        elif M.shape == (1, dim * (dim - 1)):  # the same on one line
+            hint = (f": one line of {dim * (dim - 1)} numbers, as KITTI writes a pose? Write its {dim - 1} rows of "
+                    f"{dim}, then the row {last}")
         raise InputError(f"{name} must be a finite {dim}x{dim} matrix, got shape {M.shape}{hint}")
     if not np.all(np.isfinite(M)):
         raise InputError(f"{name} must be a finite {dim}x{dim} matrix, got NaN or inf entries")

@@ -37,7 +37,8 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert p.returncode == 0, p.stderr
     result = json.loads(p.stdout)
     assert set(result) == {"ok", "matrix", "fitness", "inlier_rmse", "iterations", "converged", "backend", "seconds",
-                           "inlier_ratio", "chance_ratio", "overlap", "generator", "frames", "model_fit", "notes"}
+                           "inlier_ratio", "chance_ratio", "overlap", "generator", "frames", "model_fit", "settling", "notes"}
+    assert result["settling"]["shift_px"] == 0.0 and result["settling"]["taken"] is False  # refined again, it came back
     assert result["notes"] == [] and "note" not in p.stderr  # a plain photograph's rigid view: nothing to say
     assert result["frames"] == "T_ref_mov"  # the name of ``matrix``: moving image -> reference image
     assert result["model_fit"]["model"] == "projective" and result["model_fit"]["fits"] is True  # a rigid view
@@ -65,6 +66,15 @@ def test_register_starts_from_a_prior_pose_given_as_a_file(pair, tmp_path):
     p = run("register", d / "ref.png", d / "mov.png", "--init", tmp_path / "cloud_pose.txt")
     assert p.returncode == 2 and p.stderr.strip().splitlines() == [
         f"pcreg: error: {tmp_path / 'cloud_pose.txt'}: the initial guess must be a finite 3x3 matrix, got shape (4, 4)"]
+
+
+def test_register_takes_global_as_the_library_does_for_auto(pair):
+    """``--init global``, the library's other name of ``auto`` (``RegisterConfig.init``), is the global search, not a
+    file named "global" (refused as "global: no such file")."""
+    from pcreg.cli import main
+
+    d, T = pair
+    assert main(["register", str(d / "ref.png"), str(d / "mov.png"), "--init", "global", "--json"]) == 0
 
 def test_register_says_the_motion_and_its_evidence_in_a_line(pair):
     """Beside the result, one line a person reads: the rotation and shift of the transform printed, and the share of

@@ -216,7 +216,7 @@ def test_transforms_that_the_rigid_icp_cannot_hold_are_refused_as_its_start_or_t
     np.save(tmp_path / "t.npy", target)
     np.savetxt(tmp_path / "mirror.txt", np.diag([-1.0, 1, 1, 1]))
     assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "mirror.txt")]) == 2
-    assert capsys.readouterr().err.startswith(f"pcreg: error: {tmp_path / 'mirror.txt'}: it is a reflection")
+    assert capsys.readouterr().err.startswith(f"pcreg: error: {tmp_path / 'mirror.txt'}: the initial guess: it is a reflection")
     suite = export_suite(tmp_path / "suite", [Case(source, target, np.eye(4), 0.1, name="c", truth=np.eye(4))])
     np.savetxt(suite / "c" / "truth.txt", np.eye(3))
     assert main(["crosscheck", "--suite", str(suite), "--out", str(tmp_path / "o"), "--with", "reference"]) == 2

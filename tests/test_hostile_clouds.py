@@ -306,3 +306,21 @@ def test_an_init_pose_without_its_last_row_says_what_to_add(tmp_path, capfd, tex
     assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "pose.txt")]) == 2
     line = _err_line(capfd)
     assert "pose.txt: the initial guess must be a finite 4x4 matrix" in line and said in line, line
+
+
+def test_an_init_pose_that_is_a_reflection_is_said_of_its_file_as_register_says_it(tmp_path, capfd):
+    """``crosscheck --init FILE`` and ``register --init FILE`` refuse a reflection in one wording: the file, then what it
+    was for (crosscheck's read "pose.txt: it is a reflection", register's "pose.txt: the initial guess: it is ...")."""
+    target = _cloud()
+    np.save(tmp_path / "t.npy", target)
+    np.save(tmp_path / "s.npy", target + 0.01)
+    np.savetxt(tmp_path / "pose.txt", np.diag([-1.0, 1.0, 1.0, 1.0]))
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "pose.txt")]) == 2
+    assert _err_line(capfd).startswith(f"pcreg: error: {tmp_path / 'pose.txt'}: the initial guess: it is a reflection")
+    image = shapes_image(96, 128, seed=3)
+    cv2.imwrite(str(tmp_path / "ref.png"), image)
+    cv2.imwrite(str(tmp_path / "mov.png"), image)
+    np.savetxt(tmp_path / "pose2.txt", np.diag([-1.0, 1.0, 1.0]))
+    assert main(["register", str(tmp_path / "ref.png"), str(tmp_path / "mov.png"), "--model", "rigid",
+                 "--init", str(tmp_path / "pose2.txt")]) == 2
+    assert _err_line(capfd).startswith(f"pcreg: error: {tmp_path / 'pose2.txt'}: the initial guess: it is a reflection")

@@ -6,7 +6,8 @@ centre, a shift within +-15% of the size, then for ``projective`` a perspective 
 +-3e-4 per px), for ``affine`` a shear (+-0.2) and a second scale (0.8-1.2). ``pcreg register --model MODEL``
 is run on it as a user runs it (the command line); a result is right when every point of a 16 px grid of the
 moving image that lands inside the reference lies within 3 px of where ``inv(M)`` puts it, wrong (exit 0)
-otherwise; exit 3 is a refusal. Pair ``k`` of a run uses the random seed ``--seed + k`` and photograph
+otherwise: marked when the result carries a note (a user is told it may be wrong), unmarked when it does not;
+exit 3 is a refusal. Pair ``k`` of a run uses the random seed ``--seed + k`` and photograph
 ``k`` modulo ten, so a set is named by its seed. ``--moving jpeg:Q`` saves the view as a JPEG of quality ``Q``
 (a photograph warped and saved by an editor: its padding smeared by the JPEG's blocks) instead of a PNG; the
 last line gives the mean and median error of the pairs not refused.
@@ -78,7 +79,7 @@ def main() -> int:
     photos = args.data / "photos"
     if not photos.is_dir():
         sys.exit(f"{photos}: no such folder (the shared photographs)")
-    counts = {"right": 0, "wrong": 0, "refused": 0}
+    counts = {"right": 0, "marked": 0, "wrong": 0, "refused": 0}
     errors = []
     with tempfile.TemporaryDirectory(prefix="pcreg-views-") as tmp:
         for k in range(args.pairs):
@@ -94,14 +95,15 @@ def main() -> int:
                 result = json.loads(p.stdout)
                 error = grid_error(np.array(result["matrix"]), M, moved.shape)
                 errors.append(error)
-                outcome = "right" if error <= 3.0 else "wrong"
-                said = f"{error:.2f} px, inlier ratio {result['inlier_ratio']:.3f}, {result['generator']}"
+                outcome = "right" if error <= 3.0 else "marked" if result.get("notes") else "wrong"
+                said = (f"{error:.2f} px, inlier ratio {result['inlier_ratio']:.3f}, {result['generator']}"
+                        + (f"; note: {result['notes'][0][:60]}" if result.get("notes") else ""))
             else:
                 raise SystemExit(f"pair {k} ({name}): exit {p.returncode}: {p.stderr.strip()}")
             counts[outcome] += 1
             print(f"{k:3d} {name:22s} {outcome:8s} {said}", flush=True)
-    print(f"{args.model}, {args.pairs} pairs from seed {args.seed}: {counts['right']} right, {counts['wrong']} wrong "
-          f"(exit 0), {counts['refused']} refused; grid error of those not refused: mean {np.mean(errors):.2f} px, "
+    print(f"{args.model}, {args.pairs} pairs from seed {args.seed}: {counts['right']} right, {counts['marked']} wrong "
+          f"but marked (exit 0 with a note), {counts['wrong']} wrong and unmarked, {counts['refused']} refused; grid error of those not refused: mean {np.mean(errors):.2f} px, "
           f"median {np.median(errors):.2f} px (view saved as {args.moving})")
     return 0
 

@@ -118,6 +118,18 @@ def open_recorder(args: argparse.Namespace, *, name: str, layout: bool | str = T
     return open_recording(args.record, name=name, raw=args.record_raw, force=args.force, layout=layout)
 
 
+def init_refusal(exc: Exception, path: str):
+    """An ``init ...`` refusal (``pcreg.icp``'s, ``pcreg.register``'s, ``pcreg.crosscheck``'s) of a matrix read from
+    ``path`` (``--init FILE``), said of the file as one :class:`~pcreg.errors.InputError`: ``init must be ...`` as
+    ``PATH: the initial guess must be ...``, ``init: WHY`` as ``PATH: the initial guess: WHY``; None for any other."""
+    from ..errors import InputError
+
+    said = str(exc)
+    if not isinstance(exc, InputError) or not said.startswith("init"):
+        return None
+    return InputError(f"{path}: the initial guess{said[len('init'):]}")
+
+
 def print_json(obj) -> None:
     """``obj`` as one JSON object on stdout, flushed: a stdout that refuses it (``> /dev/full``) fails here, in
     the command, and the program's stdout names itself in the error (:mod:`pcreg.cli`)."""

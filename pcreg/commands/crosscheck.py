@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from ..recording.interface import RecorderProtocol
-from ._common import add_record_arguments, float_list, open_recorder, positive_float, positive_int, print_json
+from ._common import add_record_arguments, float_list, init_refusal, open_recorder, positive_float, positive_int, print_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -179,11 +179,9 @@ def _clouds(args) -> int:
                 report = crosscheck(args.a, args.b, implementations=names, init=init, options=options,
                                     voxel_size=voxel, timeout=args.timeout, progress=_bar_wanted() and not args.json)
             except InputError as exc:  # "init must be a finite 4x4 matrix ...": name its file
-                said = str(exc)
-                if said.startswith("init"):
-                    rest = said[len("init"):]
-                    raise InputError(f"{args.init}{rest}" if rest.startswith(":") else
-                                     f"{args.init}: the initial guess{rest}") from None
+                named = init_refusal(exc, args.init) if args.init else None
+                if named is not None:
+                    raise named from None
                 raise
         out = report.to_dict()
         if rec.enabled:  # the moved clouds are made for the recording alone

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from ..registration.transforms import MODELS
-from ._common import add_record_arguments, arg_float, arg_int, open_recorder, positive_int, print_json
+from ._common import add_record_arguments, arg_float, arg_int, init_refusal, open_recorder, positive_int, print_json
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -75,8 +75,9 @@ def run(args: argparse.Namespace) -> int:
             result = register(ref, mov, config=config, callback=rec.icp_callback(args.backend), reference_mask=ref_mask,
                               moving_mask=mov_mask, init=start)
         except (InputError, RegistrationError) as exc:  # "the reference image (16x16) is too small ...": name its file
-            if start is not None and isinstance(exc, InputError) and str(exc).startswith("init"):
-                raise InputError(f"{args.init}: the initial guess{str(exc)[len('init'):]}") from None
+            named = None if start is None else init_refusal(exc, args.init)
+            if named is not None:
+                raise named from None
             raise _naming_its_file(exc, ((args.reference, ref_stored), (args.moving, stored))) from None
         warped = valid = None
         if args.out or rec.enabled:
@@ -109,11 +110,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _start(init: str):
-    """``--init``'s 3x3 matrix when it names a file (None for ``auto``, ``identity`` and ``center``): a text matrix,
-    refused naming the file when it is not a 3x3 transform the model can hold."""
+    """``--init``'s 3x3 matrix when it names a file (None for a start the configuration names: ``auto``, ``identity``,
+    ``center``, and ``global``, the library's other name of ``auto``): a text matrix, refused naming the file when it is
+    not a 3x3 transform the model can hold."""
     from ..formats import read_text_matrix
+    from ..registration.config import INITS
 
-    if init in ("auto", "identity", "center"):
+    if init in INITS:
         return None
     return read_text_matrix(init, what="initial guess")
 

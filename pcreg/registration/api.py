@@ -124,16 +124,24 @@ def _register(reference_image, moving_image, *, config: RegisterConfig, model, b
                                   given=(reference_image, moving_image))
     best, tried, mirror, test, search = _search(reference, moving, config, config.search.init if start_matrix is None
                                                 else start_matrix, keep_iterations=callback is not None)
+    settling, unsettled = None, None
+    if _checked(config):  # refined again from starts a few px off: a better alignment taken, a valley refused
+        from .settling import settle
+
+        best, settling, unsettled = settle(best, moving, search, test, mov_img.shape)
     if callback is not None:
         for iteration in best.iterations:
             callback(iteration)
     try:
         evidence, refusal = test.check(best, mirror=mirror, shape=mov_img.shape, moving=moving), None
+        if unsettled is not None:
+            raise unsettled
     except RegistrationError as exc:  # judged: the pose as the test off returns it (what that refuses is raised)
         if not judged:
             raise
         evidence, refusal = test.off().check(best, shape=mov_img.shape, moving=moving), exc
     checks = _checks(reference, moving, config, best, test, search, mov_img.shape) if refusal is None else (None, None)
+    checks = (*checks, settling)
     return _result(best, evidence, tried, mirror, backend=config.backend, seconds=time.perf_counter() - start,
                    points=(len(moving[0]), len(reference[0])), checks=checks), refusal
 
@@ -145,7 +153,7 @@ def _checks(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfi
     fit that shows it), :func:`~.features.feature_check` of a projective result, which no richer model checks
     (run on every model it took two to four times the registration's time: docs/benchmarks.md). The model check
     shares the search's KD-trees of the reference and its ORB matches at level 1, where the search made them."""
-    if not config.plausibility.model_check or config.plausibility.min_inlier_ratio is None:
+    if not _checked(config):
         return None, None
     if config.model in NARROWER:
         # pcreg's own step (Open3D's has no projective model) onto the search's reference trees
@@ -154,6 +162,11 @@ def _checks(reference: CloudPyramid, moving: CloudPyramid, config: RegisterConfi
         return model_fit(best, moving, richer, test, shape, starts=tuple(orb)), None
     return None, feature_check(reference.image, moving.image, best.refined.matrix, reference_valid=reference.valid,
                                moving_valid=moving.valid, seed=config.search.seed)
+
+
+def _checked(config: RegisterConfig) -> bool:
+    """Whether a result is checked beyond the plausibility test (the test and ``model_check`` on)."""
+    return config.plausibility.model_check and config.plausibility.min_inlier_ratio is not None
 
 
 def _refiner(reference: CloudPyramid, config: RegisterConfig, model: str, backend: str, *,
@@ -308,7 +321,7 @@ def _global_step(ref: np.ndarray, mov: np.ndarray, global_result, options: Dense
 
 
 def _result(best: Candidate, evidence, tried: list[Candidate], mirror: Candidate | None, *, backend: str,
-            seconds: float, points: tuple[int, int], checks: tuple = (None, None)) -> RegistrationResult:
+            seconds: float, points: tuple[int, int], checks: tuple = (None, None, None)) -> RegistrationResult:
     """The winner as a :class:`RegistrationResult`; ``info`` lists every hypothesis tried."""
     r = best.refined
     return RegistrationResult(
@@ -402,3 +415,4 @@ def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausib
     # coarse levels leave it unconvincing, the better kept), so a start at the answer is not pulled off it
     gray = gray_level(moving.image, search.p_level, valid=moving.valid)
     return [search.evaluate(Hypothesis("init", init), moving, gray, again=True)], None
+

@@ -4,8 +4,12 @@ both backends hand to a callback, and what every cross-checked implementation re
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .settling import Settling
 
 
 FRAMES = ("T_ref_mov", "T_target_source")  # images, clouds
@@ -37,6 +41,8 @@ class ImageEvidence:
         or ``"init"`` for a given initial guess).
     model_fit : the result against a projective refinement of it (:class:`ModelFit`), or None.
     features : the result against the homography of SIFT matches (:class:`FeatureCheck`), or None.
+    settling : the result refined again from starts a few px off (:class:`~pcreg.registration.settling.Settling`),
+        or None.
     """
 
     inlier_ratio: float
@@ -45,6 +51,7 @@ class ImageEvidence:
     generator: str
     model_fit: "ModelFit | None" = None
     features: "FeatureCheck | None" = None
+    settling: "Settling | None" = None
 
 
 @dataclass(frozen=True)
@@ -225,9 +232,11 @@ class RegistrationResult:
 
     def to_dict(self) -> dict:
         """JSON-ready dict (``matrix`` as a list of rows; ``model_fit`` where the model was checked, ``features``
-        where the result was checked against features)."""
+        where the result was checked against features, ``settling`` where it was refined again from starts a few
+        px off)."""
         fit = None if self.evidence is None else self.evidence.model_fit
         check = None if self.evidence is None else self.evidence.features
+        settling = None if self.evidence is None else self.evidence.settling
         return {
             "matrix": self.matrix.tolist(),
             "fitness": float(self.fitness),
@@ -243,6 +252,7 @@ class RegistrationResult:
             "frames": self.frames,
             **({} if fit is None else {"model_fit": fit.to_dict()}),
             **({} if check is None else {"features": check.to_dict()}),
+            **({} if settling is None else {"settling": settling.to_dict()}),
         }
 
 

@@ -1,0 +1,167 @@
+"""Whether the images pin :func:`~pcreg.registration.api.register`'s result down: the result refined again from
+two starts a few pixels off.
+
+A right result is where the refinement comes back to: its edges hold it from every side. A result on a blurred,
+featureless or repetitive picture can sit in a valley of alignments as good as one another (a motion-blurred
+clock's outline fits many scales and turns), or on a ledge the refinement left too early, beside a clearly better
+alignment. Edge ICP's own evidence (the share of edge points lined up, :mod:`.plausibility`) cannot tell either
+from the result alone: a wrong rigid result at 87 px and right ones had the same inlier ratios.
+
+So the result is refined again (:meth:`~pcreg.registration.search.GlobalSearch.refine`, from pyramid level 1) from
+two starts that move the moving image's corners by :data:`NUDGE_PX`: turned about the image's centre, and scaled
+about it (a shift where the model has no turn or no scale). Each alternative that moves some moving edge point
+landing on the reference (at level 1, as :func:`~.plausibility.model_fit` reads them) by more than
+:data:`~.plausibility.SHIFT_PX` from the result is then measured as the result was:
+
+- one that lines up more edge points by :data:`~.plausibility.SIGNIFICANCE` standard deviations of the result's
+  count (binomial over its overlapping points) is a better alignment the result fell short of: it is taken;
+- one that lines up as many (not fewer by that margin) means the images do not determine the motion: the result
+  is refused.
+
+Refining again from the result itself ends where it is, so the check reads only how the result's neighbourhood
+behaves. The rules are stated, not fitted: twice the distance within which a result counts as right, and the
+significance that the model check and the chance test use. Measured on docs/algorithms.md's views and held-out
+photographs ("Does the refinement come back?").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import RegistrationError
+from .plausibility import SHIFT_PX, SIGNIFICANCE
+from .search import Candidate
+
+__all__ = ["NUDGE_PX", "Settling", "nudges", "settle"]
+
+NUDGE_PX = 2 * SHIFT_PX
+"""How far the check's starts move the moving image's corners from the result (px at full size): twice the
+distance within which a result counts right, so that a start is off by more than a right result may be, and
+within the gate of pyramid level 1 (twice the correspondence distance of 2.5 px, doubled for the first pass)."""
+
+TOP_LEVEL = 1
+"""The pyramid level the alternatives are refined from: the starts lie a few px off, within level 1's first
+gate; from the coarsest level, lines of text pulled right results of a page 17-255 px away."""
+
+
+@dataclass(frozen=True)
+class Settling:
+    """What the check found: the largest move of the landing edge points from the result to an alternative
+    (px, 0 when every alternative came back), that alternative's inlier ratio and the result's (at the test's
+    level), and whether a better alternative was taken (``inlier_ratio`` is then the replaced result's)."""
+
+    shift_px: float
+    inlier_ratio: float
+    result_inlier_ratio: float
+    taken: bool = False
+
+    def to_dict(self) -> dict:
+        return {"shift_px": self.shift_px, "inlier_ratio": self.inlier_ratio,
+                "result_inlier_ratio": self.result_inlier_ratio, "taken": self.taken}
+
+
+def nudges(model: str, shape: tuple[int, ...]) -> list[np.ndarray]:
+    """The two 3x3 moves of the moving image (of ``shape``) that the check starts from, each moving its farthest
+    corner by :data:`NUDGE_PX`: a turn about its centre and a scale about it; a shift along the diagonal in place
+    of the scale for ``rigid``, two shifts (along x, then y) for ``translation``."""
+    h, w = shape[:2]
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    radius = max(float(np.hypot(cx, cy)), 1.0)
+    centre, back = np.array([[1, 0, cx], [0, 1, cy], [0, 0, 1.0]]), np.array([[1, 0, -cx], [0, 1, -cy], [0, 0, 1.0]])
+
+    def shift(x: float, y: float) -> np.ndarray:
+        return np.array([[1, 0, x], [0, 1, y], [0, 0, 1.0]])
+
+    if model == "translation":
+        return [shift(NUDGE_PX, 0.0), shift(0.0, NUDGE_PX)]
+    a = NUDGE_PX / radius  # a turn of a radians moves a corner by about radius * a
+    turn = centre @ np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]]) @ back
+    if model == "rigid":
+        return [turn, shift(NUDGE_PX / np.sqrt(2.0), NUDGE_PX / np.sqrt(2.0))]
+    s = 1.0 + NUDGE_PX / radius
+    return [turn, centre @ np.diag([s, s, 1.0]) @ back]
+
+
+def settle(best: Candidate, moving, search, test, shape: tuple[int, ...]
+           ) -> tuple[Candidate, Settling | None, RegistrationError | None]:
+    """``(result, settling, refusal)``: ``best`` (a :class:`~pcreg.registration.search.Candidate` of ``search``'s
+    refinement, measured by ``test``, a :class:`~.plausibility.Plausibility`) or the better alternative that
+    replaces it, what the check found (None where no alternative could be refined or measured), and the refusal
+    when an alternative as good lies elsewhere (None otherwise). A better alternative taken is checked as the
+    result was: from its own nudged starts, any alternative as good or better elsewhere refuses it (a result that
+    keeps improving has not settled). See the module's description."""
+    from .global_search import gray_level
+
+    check = _Around(moving, search, test, shape)
+    pool = check.alternatives(best)
+    if not pool:
+        return best, None, None
+    better = [c for c in pool if c.inlier_ratio - best.inlier_ratio > check.margin(best) and check.moved(best, c) > SHIFT_PX]
+    chosen = best
+    if better:
+        top = max(better, key=lambda c: c.inlier_ratio)
+        gray = gray_level(moving.image, search.p_level, valid=moving.valid)
+        chosen = Candidate(best.hypothesis, top.refined, top.evidence, search.agreement(top.refined.matrix, gray),
+                           top.iterations)
+        pool = [best, *check.alternatives(chosen)]
+    far = max(pool, key=lambda c: check.moved(chosen, c))
+    shift = check.moved(chosen, far)
+    found = Settling(shift if shift > SHIFT_PX else 0.0, float(far.inlier_ratio), float(chosen.inlier_ratio),
+                     taken=chosen is not best)
+    rivals = [c for c in pool if c is not best and check.moved(chosen, c) > SHIFT_PX
+              and c.inlier_ratio >= chosen.inlier_ratio - check.margin(chosen)]
+    if not rivals:
+        return chosen, found, None
+    rival = max(rivals, key=lambda c: check.moved(chosen, c))
+    return chosen, found, RegistrationError(
+        f"registration refused: the images do not pin the motion down: refined again from a start {NUDGE_PX:g} px off, "
+        f"the alignment settled {check.moved(chosen, rival):.1f} px from the result with as many edge points lined up "
+        f"({100 * rival.inlier_ratio:.1f}% against {100 * chosen.inlier_ratio:.1f}%): blurred, featureless or repetitive "
+        "content fits many motions")
+
+
+class _Around:
+    """The check's refinements and measures around a result: the moving cloud, the search whose refinement it
+    repeats, the test that measures, the moving image's shape."""
+
+    def __init__(self, moving, search, test, shape: tuple[int, ...]) -> None:
+        self.moving, self.search, self.test, self.shape = moving, search, test, shape
+        level = min(1, len(moving) - 1, len(test.reference) - 1)
+        self.points = moving[level].points  # the edge points whose moves are read, at level 1 as the model check reads them
+        self.size = test.reference.image.shape[:2]
+
+    def alternatives(self, result: Candidate) -> list[Candidate]:
+        """``result`` refined again from each of :func:`nudges`'s starts and measured; a refinement that fails or
+        degenerates is left out."""
+        from .search import Hypothesis
+        from .transforms import degeneracy
+
+        T, out = result.refined.matrix, []
+        for move in nudges(self.search.model, self.shape):
+            try:
+                refined, iterations = self.search.refine(self.moving, T @ move, top=min(TOP_LEVEL, len(self.moving) - 1))
+            except (RegistrationError, np.linalg.LinAlgError):
+                continue
+            if degeneracy(refined.matrix, self.shape) is None:
+                out.append(Candidate(Hypothesis(result.generator, T @ move), refined,
+                                     self.test.measure(self.moving, refined.matrix), float("nan"), iterations))
+        return out
+
+    def moved(self, a: Candidate, b: Candidate) -> float:
+        """The largest move, from ``a`` to ``b``, of the moving edge points that ``a`` lands on the reference (px)."""
+        from .transforms import apply
+
+        h, w = self.size
+        here = apply(a.refined.matrix, self.points)
+        lands = (here[:, 0] >= 0) & (here[:, 0] <= w - 1) & (here[:, 1] >= 0) & (here[:, 1] <= h - 1)
+        d = np.linalg.norm(apply(b.refined.matrix, self.points[lands]) - here[lands], axis=1)
+        return float(np.max(d, initial=0.0)) if np.all(np.isfinite(d)) else float("inf")
+
+    @staticmethod
+    def margin(c: Candidate) -> float:
+        """:data:`~.plausibility.SIGNIFICANCE` standard deviations of ``c``'s inlier ratio (binomial over its
+        overlapping edge points)."""
+        p, n = c.inlier_ratio, max(1, c.evidence.overlap_points)
+        return SIGNIFICANCE * float(np.sqrt(p * (1.0 - p) / n))

@@ -4,12 +4,8 @@ both backends hand to a callback, and what every cross-checked implementation re
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from .settling import Settling
 
 
 FRAMES = ("T_ref_mov", "T_target_source")  # images, clouds
@@ -41,8 +37,7 @@ class ImageEvidence:
         or ``"init"`` for a given initial guess).
     model_fit : the result against a projective refinement of it (:class:`ModelFit`), or None.
     features : the result against the homography of SIFT matches (:class:`FeatureCheck`), or None.
-    settling : the result refined again from starts a few px off (:class:`~pcreg.registration.settling.Settling`),
-        or None.
+    settling : the result refined again from starts a few px off (:class:`Settling`), or None.
     """
 
     inlier_ratio: float
@@ -107,6 +102,23 @@ class FeatureCheck:
     def to_dict(self) -> dict:
         return {"matches": int(self.matches), "inliers": int(self.inliers),
                 "largest_shift_px": float(self.largest_shift_px), "agree": self.agree}
+
+
+@dataclass(frozen=True)
+class Settling:
+    """What :func:`pcreg.registration.settling.settle` found (:attr:`ImageEvidence.settling`): the largest move of
+    the landing edge points from the result to an alternative (px, 0 when every alternative came back), that
+    alternative's inlier ratio and the result's (at the test's level), and whether a better alternative was taken
+    (the replaced result is then one of the alternatives)."""
+
+    shift_px: float
+    inlier_ratio: float
+    result_inlier_ratio: float
+    taken: bool = False
+
+    def to_dict(self) -> dict:
+        return {"shift_px": self.shift_px, "inlier_ratio": self.inlier_ratio,
+                "result_inlier_ratio": self.result_inlier_ratio, "taken": self.taken}
 
 
 @dataclass(frozen=True, repr=False)

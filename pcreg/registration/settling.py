@@ -26,12 +26,11 @@ photographs ("Does the refinement come back?").
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import RegistrationError
 from .plausibility import SHIFT_PX, SIGNIFICANCE
+from .result import Settling
 from .search import Candidate
 
 __all__ = ["NUDGE_PX", "Settling", "nudges", "settle"]
@@ -44,22 +43,6 @@ within the gate of pyramid level 1 (twice the correspondence distance of 2.5 px,
 TOP_LEVEL = 1
 """The pyramid level the alternatives are refined from: the starts lie a few px off, within level 1's first
 gate; from the coarsest level, lines of text pulled right results of a page 17-255 px away."""
-
-
-@dataclass(frozen=True)
-class Settling:
-    """What the check found: the largest move of the landing edge points from the result to an alternative
-    (px, 0 when every alternative came back), that alternative's inlier ratio and the result's (at the test's
-    level), and whether a better alternative was taken (``inlier_ratio`` is then the replaced result's)."""
-
-    shift_px: float
-    inlier_ratio: float
-    result_inlier_ratio: float
-    taken: bool = False
-
-    def to_dict(self) -> dict:
-        return {"shift_px": self.shift_px, "inlier_ratio": self.inlier_ratio,
-                "result_inlier_ratio": self.result_inlier_ratio, "taken": self.taken}
 
 
 def nudges(model: str, shape: tuple[int, ...]) -> list[np.ndarray]:

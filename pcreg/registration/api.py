@@ -54,7 +54,10 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
     fine (:class:`~pcreg.registration.search.GlobalSearch`); ``init="identity"``, ``"center"`` (image
     centres aligned) or a 3x3 matrix replaces the search by that one hypothesis. The winner must pass the
     plausibility test (:mod:`pcreg.registration.plausibility`): unrelated images, noise and mirror images
-    raise :class:`~pcreg.errors.RegistrationError` with a one-line reason.
+    raise :class:`~pcreg.errors.RegistrationError` with a one-line reason. With the test and ``model_check`` on
+    (the defaults), the winner is also refined again from two starts 6 px off (:mod:`pcreg.registration.settling`):
+    a clearly better alignment beside it is taken in its place, and one as good elsewhere (the images do not
+    determine the motion) raises :class:`~pcreg.errors.RegistrationError`.
 
     reference_image, moving_image : (H, W, 3) uint8 RGB (also gray, uint16, float in [0, 1]); the
         sizes may differ.
@@ -75,7 +78,8 @@ def register(reference_image: np.ndarray, moving_image: np.ndarray, *, config: R
         stream is the moving image once and the reference once); None builds the clouds here. The
         clouds are the same (to OpenCV's float32 rounding of the gradient magnitude).
     callback : called with each :class:`~pcreg.registration.result.IcpIteration` of the winning
-        hypothesis's refinement, in order, once the search has chosen it (before the plausibility test),
+        hypothesis's refinement (the better alignment's, where the refine-again check took one), in order, once
+        the search has chosen it (before the plausibility test),
         with the same numbers as without a callback; with ``model="dense"``, its global similarity's (the
         pyramids too are that step's).
 

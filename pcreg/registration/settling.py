@@ -5,7 +5,8 @@ A right result is where the refinement comes back to: its edges hold it from eve
 featureless or repetitive picture can sit in a valley of alignments as good as one another (a motion-blurred
 clock's outline fits many scales and turns), or on a ledge the refinement left too early, beside a clearly better
 alignment. Edge ICP's own evidence (the share of edge points lined up, :mod:`.plausibility`) cannot tell either
-from the result alone: a wrong rigid result at 87 px and right ones had the same inlier ratios.
+from the result alone: on the shared photographs' views, wrong results lined up 3.1-4.3 times what chance gives,
+right ones 3.4 times and more.
 
 So the result is refined again (:meth:`~pcreg.registration.search.GlobalSearch.refine`, from pyramid level 1) from
 two starts that move the moving image's corners by :data:`NUDGE_PX`: turned about the image's centre, and scaled
@@ -14,7 +15,8 @@ landing on the reference (at level 1, as :func:`~.plausibility.model_fit` reads 
 :data:`~.plausibility.SHIFT_PX` from the result is then measured as the result was:
 
 - one that lines up more edge points by :data:`~.plausibility.SIGNIFICANCE` standard deviations of the result's
-  count (binomial over its overlapping points) is a better alignment the result fell short of: it is taken;
+  count (binomial over its overlapping points) is a better alignment the result fell short of: it is taken, and
+  checked the same way from its own starts;
 - one that lines up as many (not fewer by that margin) means the images do not determine the motion: the result
   is refused.
 
@@ -38,7 +40,8 @@ __all__ = ["NUDGE_PX", "Settling", "nudges", "settle"]
 NUDGE_PX = 2 * SHIFT_PX
 """How far the check's starts move the moving image's corners from the result (px at full size): twice the
 distance within which a result counts right, so that a start is off by more than a right result may be, and
-within the gate of pyramid level 1 (twice the correspondence distance of 2.5 px, doubled for the first pass)."""
+within the first pass's gate at pyramid level 1 (10 px: the 2.5 px correspondence distance, doubled at level 1
+and doubled again for a start's first pass)."""
 
 TOP_LEVEL = 1
 """The pyramid level the alternatives are refined from: the starts lie a few px off, within level 1's first

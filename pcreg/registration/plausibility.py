@@ -266,11 +266,23 @@ def model_fit(best: Candidate, moving: CloudPyramid, richer, test: Plausibility,
     R, other = richest
     own = test.measure(moving, T, level)
     p, n = own.inlier_ratio, max(1, own.overlap_points)
-    moved = np.linalg.norm(apply(R, points) - here, axis=1)
-    shift = float(np.max(moved, initial=0.0, where=np.isfinite(moved)))
+    shift = largest_move(T, R, points, (h, w))
     gain = other.inlier_ratio - p > SIGNIFICANCE * np.sqrt(p * (1.0 - p) / n)
     fits = not (gain and shift > SHIFT_PX)
     return ModelFit(RICHER_MODEL, float(other.inlier_ratio), float(p), shift, fits=fits, starts=1 + len(further))
+
+
+def largest_move(T: np.ndarray, R: np.ndarray, points: np.ndarray, size: tuple[int, int]) -> float:
+    """The largest distance (px) between where ``T`` and ``R`` put those of ``points`` that ``T`` lands on an image of
+    ``size`` (H, W): how far ``R`` moves the edge points that ``T`` aligns (0 without such points; a move that is not
+    finite is left out)."""
+    from .transforms import apply
+
+    h, w = size
+    here = apply(T, points)
+    lands = (here[:, 0] >= 0) & (here[:, 0] <= w - 1) & (here[:, 1] >= 0) & (here[:, 1] <= h - 1)
+    moved = np.linalg.norm(apply(R, points[lands]) - here[lands], axis=1)
+    return float(np.max(moved, initial=0.0, where=np.isfinite(moved)))
 
 
 def _richer_fit(richer, moving: CloudPyramid, start: np.ndarray, level: int, shape: tuple[int, ...]):

@@ -31,9 +31,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import RegistrationError
-from .plausibility import SHIFT_PX, SIGNIFICANCE
+from .global_search import gray_level
+from .plausibility import SHIFT_PX, SIGNIFICANCE, largest_move
 from .result import Settling
-from .search import Candidate
+from .search import Candidate, Hypothesis
+from .transforms import about_point, degeneracy, image_center, rigid2d
 
 __all__ = ["NUDGE_PX", "Settling", "nudges", "settle"]
 
@@ -52,22 +54,14 @@ def nudges(model: str, shape: tuple[int, ...]) -> list[np.ndarray]:
     """The two 3x3 moves of the moving image (of ``shape``) that the check starts from, each moving its farthest
     corner by :data:`NUDGE_PX`: a turn about its centre and a scale about it; a shift along the diagonal in place
     of the scale for ``rigid``, two shifts (along x, then y) for ``translation``."""
-    h, w = shape[:2]
-    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-    radius = max(float(np.hypot(cx, cy)), 1.0)
-    centre, back = np.array([[1, 0, cx], [0, 1, cy], [0, 0, 1.0]]), np.array([[1, 0, -cx], [0, 1, -cy], [0, 0, 1.0]])
-
-    def shift(x: float, y: float) -> np.ndarray:
-        return np.array([[1, 0, x], [0, 1, y], [0, 0, 1.0]])
-
+    centre = image_center(shape)
+    radius = max(float(np.hypot(*centre)), 1.0)
     if model == "translation":
-        return [shift(NUDGE_PX, 0.0), shift(0.0, NUDGE_PX)]
-    a = NUDGE_PX / radius  # a turn of a radians moves a corner by about radius * a
-    turn = centre @ np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]]) @ back
+        return [rigid2d(tx=NUDGE_PX), rigid2d(ty=NUDGE_PX)]
+    turn = about_point(rigid2d(np.degrees(NUDGE_PX / radius)), centre)  # a turn of a radians moves a corner by about radius * a
     if model == "rigid":
-        return [turn, shift(NUDGE_PX / np.sqrt(2.0), NUDGE_PX / np.sqrt(2.0))]
-    s = 1.0 + NUDGE_PX / radius
-    return [turn, centre @ np.diag([s, s, 1.0]) @ back]
+        return [turn, rigid2d(tx=NUDGE_PX / np.sqrt(2.0), ty=NUDGE_PX / np.sqrt(2.0))]
+    return [turn, about_point(rigid2d(scale=1.0 + NUDGE_PX / radius), centre)]
 
 
 def settle(best: Candidate, moving, search, test, shape: tuple[int, ...]
@@ -78,8 +72,6 @@ def settle(best: Candidate, moving, search, test, shape: tuple[int, ...]
     when an alternative as good lies elsewhere (None otherwise). A better alternative taken is checked as the
     result was: from its own nudged starts, any alternative as good or better elsewhere refuses it (a result that
     keeps improving has not settled). See the module's description."""
-    from .global_search import gray_level
-
     check = _Around(moving, search, test, shape)
     pool = check.alternatives(best)
     if not pool:
@@ -92,18 +84,18 @@ def settle(best: Candidate, moving, search, test, shape: tuple[int, ...]
         chosen = Candidate(best.hypothesis, top.refined, top.evidence, search.agreement(top.refined.matrix, gray),
                            top.iterations)
         pool = [best, *check.alternatives(chosen)]
-    far = max(pool, key=lambda c: check.moved(chosen, c))
-    shift = check.moved(chosen, far)
+    moves = [(check.moved(chosen, c), c) for c in pool]
+    shift, far = max(moves, key=lambda m: m[0])
     found = Settling(shift if shift > SHIFT_PX else 0.0, float(far.inlier_ratio), float(chosen.inlier_ratio),
                      taken=chosen is not best)
-    rivals = [c for c in pool if c is not best and check.moved(chosen, c) > SHIFT_PX
+    rivals = [(d, c) for d, c in moves if c is not best and d > SHIFT_PX
               and c.inlier_ratio >= chosen.inlier_ratio - check.margin(chosen)]
     if not rivals:
         return chosen, found, None
-    rival = max(rivals, key=lambda c: check.moved(chosen, c))
+    d, rival = max(rivals, key=lambda m: m[0])
     return chosen, found, RegistrationError(
         f"registration refused: the images do not pin the motion down: refined again from a start {NUDGE_PX:g} px off, "
-        f"the alignment settled {check.moved(chosen, rival):.1f} px from the result with as many edge points lined up "
+        f"the alignment settled {d:.1f} px from the result with as many edge points lined up "
         f"({100 * rival.inlier_ratio:.1f}% against {100 * chosen.inlier_ratio:.1f}%): blurred, featureless or repetitive "
         "content fits many motions")
 
@@ -121,9 +113,6 @@ class _Around:
     def alternatives(self, result: Candidate) -> list[Candidate]:
         """``result`` refined again from each of :func:`nudges`'s starts and measured; a refinement that fails or
         degenerates is left out."""
-        from .search import Hypothesis
-        from .transforms import degeneracy
-
         T, out = result.refined.matrix, []
         for move in nudges(self.search.model, self.shape):
             try:
@@ -136,14 +125,9 @@ class _Around:
         return out
 
     def moved(self, a: Candidate, b: Candidate) -> float:
-        """The largest move, from ``a`` to ``b``, of the moving edge points that ``a`` lands on the reference (px)."""
-        from .transforms import apply
-
-        h, w = self.size
-        here = apply(a.refined.matrix, self.points)
-        lands = (here[:, 0] >= 0) & (here[:, 0] <= w - 1) & (here[:, 1] >= 0) & (here[:, 1] <= h - 1)
-        d = np.linalg.norm(apply(b.refined.matrix, self.points[lands]) - here[lands], axis=1)
-        return float(np.max(d, initial=0.0)) if np.all(np.isfinite(d)) else float("inf")
+        """The largest move, from ``a`` to ``b``, of the moving edge points that ``a`` lands on the reference (px;
+        :func:`~.plausibility.largest_move`)."""
+        return largest_move(a.refined.matrix, b.refined.matrix, self.points, self.size)
 
     @staticmethod
     def margin(c: Candidate) -> float:

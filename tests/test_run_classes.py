@@ -257,3 +257,33 @@ def test_a_runs_recording_names_and_colours_the_classes_of_its_table(synthetic, 
              for c in context}
     expected = {"camvid11": CAMVID11, "davis": DAVIS}[table]
     assert shown == {c.id: (c.name, int.from_bytes(bytes([*c.colour, 255]), "big")) for c in expected.classes}
+
+
+def test_the_closing_message_gives_the_predicted_error_the_class_predicted_worst_and_the_review(synthetic, tmp_path,
+                                                                                              capsys):
+    """A run ends with its predicted error (the mean of steps.jsonl's, its worst frame), with more than two
+    classes the class of the lowest mean predicted IoU, and the command that shows the labels on the frames."""
+    folder, keys = frames_folder(tmp_path, synthetic, keys=(0,))
+    camvid = np.where(synthetic[0].labels == 2, 11, synthetic[0].labels + 3).astype(np.uint8)  # road, pavement, void
+    cv2.imwrite(str(tmp_path / "camvid.png"), camvid)
+    out = tmp_path / "out dir"
+    assert main(["run", str(folder), "--labels", str(tmp_path / "camvid.png"), "--classes", "camvid11",
+                 "--out", str(out)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    errors = {s["name"]: s["predicted_error"] for s in steps}
+    worst = max(errors, key=lambda n: errors[n])
+    ious: dict[int, list[float]] = {}
+    for s in steps:
+        for c, v in s["predicted_iou"].items():
+            ious.setdefault(int(c), []).append(v)
+    low = min(ious, key=lambda c: np.mean(ious[c]))
+    assert said[1] == (f"predicted error: {np.mean(list(errors.values())):.2f}% of a frame's pixels on average over "
+                       f"{N - 1} frame(s), {errors[worst]:.2f}% at most ({worst.removesuffix('.png')}); the class "
+                       f"predicted worst: {CAMVID11.name_of(low)}, IoU {np.mean(ious[low]):.2f} on average over the "
+                       f"{len(ious[low])} frame(s) that show it")
+    assert said[2] == f"to review the labels on the frames: pcreg view '{out}' --web"
+    two = tmp_path / "two"  # two classes: no IoU per class in the steps, none in the message
+    assert main(["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(two), "--model", "flow"]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert said[1].startswith("predicted error: ") and "the class predicted worst" not in said[1]

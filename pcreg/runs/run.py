@@ -276,6 +276,7 @@ class Run:
                     f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
         elif s.get("truth"):  # asked for, and no figure: said, not left out
             msg += "\nerror against the truth: none, the truth labels of the frames labelled are all unknown"
+        msg += self.predicted_summary()
         print(msg, file=sys.stdout)
         if start is None:
             self.suggest(request.suggest, keys)
@@ -550,8 +551,24 @@ class Run:
 
         if count is None:
             return
+        predicted = self.predicted()
+        try:
+            chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
+        except InputError as exc:
+            raise InputError(f"--suggest {count}: {exc}") from None
+        path = write_suggestions(self.out, [(self.frames.stem(t), predicted[t]) for t in chosen])
+        print(f"the {count} frame(s) to label next, best first: {path}")
+
+    def predicted(self) -> dict[int, float]:
+        """{frame: its predicted error, % of its pixels} of every step in steps.jsonl that has one (a key frame has
+        none). A step of a frame past the run's frames is an :class:`~pcreg.errors.OutputError`: not one pcreg run
+        wrote."""
+        return {t: float(s["predicted_error"]) for t, s in self._predicting_steps().items()}
+
+    def _predicting_steps(self) -> dict[int, dict]:
+        """{frame: its step} of the steps in steps.jsonl with a predicted error, as :meth:`predicted` checks them."""
         steps = parse_steps(self.out / STEPS, (ln for ln in step_lines(self.out) if ln.strip()))
-        predicted = {s["frame"]: float(s["predicted_error"]) for s in steps if s.get("predicted_error") is not None}
+        predicted = {s["frame"]: s for s in steps if s.get("predicted_error") is not None}
         # a run labels the frames it chose, and one from a label image the first run.json counts: a step of another
         # frame is none it wrote (its name would be looked up past the frames)
         bound = min(len(self.frames) if self.frames.kind == "folder" else math.inf, self.state.get("done", math.inf))
@@ -559,12 +576,29 @@ class Run:
         if beyond is not None:
             raise OutputError(f"{self.out / STEPS}: a step of frame {beyond}, of a run of {bound} frames (not a step "
                               "pcreg run wrote); use --force to start over")
-        try:
-            chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
-        except InputError as exc:
-            raise InputError(f"--suggest {count}: {exc}") from None
-        path = write_suggestions(self.out, [(self.frames.stem(t), predicted[t]) for t in chosen])
-        print(f"the {count} frame(s) to label next, best first: {path}")
+        return predicted
+
+    def predicted_summary(self) -> str:
+        """The run's predicted error as a line of its closing message ("" when no step predicted one): the mean
+        over the frames labelled, the frame predicted worst, and the command that shows the labels on the frames."""
+        import shlex
+
+        steps = self._predicting_steps()
+        if not steps:
+            return ""
+        predicted = {t: float(s["predicted_error"]) for t, s in steps.items()}
+        worst = max(predicted, key=lambda t: predicted[t])
+        line = (f"\npredicted error: {sum(predicted.values()) / len(predicted):.2f}% of a frame's pixels on average "
+                f"over {len(predicted)} frame(s), {predicted[worst]:.2f}% at most ({self.frames.stem(worst)})")
+        ious: dict[int, list[float]] = {}
+        for step in steps.values():  # a class a frame does not show has no IoU there
+            for c, v in _class_ious(step.get("predicted_iou"), self.table):
+                ious.setdefault(c, []).append(v)
+        if ious:  # a small class can be half wrong while the frame's error reads a few %
+            c = min(ious, key=lambda c: float(np.mean(ious[c])))
+            line += (f"; the class predicted worst: {self.table.name_of(c)}, IoU {np.mean(ious[c]):.2f} on average "
+                     f"over the {len(ious[c])} frame(s) that show it")
+        return line + f"\nto review the labels on the frames: pcreg view {shlex.quote(str(self.out))} --web"
 
     @staticmethod
     def read(folder: Path) -> tuple[dict, list[str], list[str]]:
@@ -576,6 +610,21 @@ class Run:
         state = read_state(folder)
         keys, names = run_frames(state, folder)
         return state, keys, names
+
+
+def _class_ious(iou, table) -> list[tuple[int, float]]:
+    """``(class id, IoU)`` of a step's ``predicted_iou`` (with more than two classes; else none) for the classes of
+    ``table``; an entry pcreg run did not write (not a class of the table, not an IoU in [0, 1]) is left out: a
+    summary's figure, not a reader's."""
+    if not isinstance(iou, dict):
+        return []
+    ids = {c.id for c in table.classes}
+    read = []
+    for k, v in iou.items():
+        c = int(k) if isinstance(k, str) and k.isdigit() else None
+        if c is not None and c in ids and type(v) in (int, float) and 0.0 <= v <= 1.0:
+            read.append((c, float(v)))
+    return read
 
 
 def _notes_before_the_first_frame(keys: dict, table, config, frames, pending) -> None:

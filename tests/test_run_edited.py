@@ -67,3 +67,66 @@ def test_a_key_frames_run_whose_frame_was_renamed_says_the_frames_changed(tmp_pa
     assert main(run) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and "the frames changed since the run began" in err[0], err
+
+
+def _written_again(path):
+    """The frame at ``path`` written again with its top rows darkened (a frame re-extracted or edited: its bytes change)."""
+    image = cv2.imread(str(path))
+    image[:4] = 0
+    cv2.imwrite(str(path), image)
+
+
+def _without_sizes(out):
+    """``out``'s run as a run from before the frames' sizes were kept: no ``bytes`` in its steps, no ``key_bytes``."""
+    import json
+
+    lines = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    (out / "steps.jsonl").write_text("".join(json.dumps({k: v for k, v in s.items() if k != "bytes"}) + "\n"
+                                             for s in lines))
+    state = json.loads((out / "run.json").read_text())
+    state.pop("key_bytes")
+    (out / "run.json").write_text(json.dumps(state))
+
+
+def test_a_frame_written_again_after_it_was_labelled_is_refused_on_resume(tmp_path, capsys):
+    """A folder's frame written again (re-extracted, edited) after a run from one label image labelled it: the run
+    again is refused naming the file and its sizes then and now; before, it said "all frames already done" (or went
+    on from the old frames' carry) and kept labels of frames that are no longer there. The key frame too. Its file
+    put back, the run is done again; a run begun before the sizes were kept resumes unchecked."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    assert main(run) == 0
+    for name, said in (("f2.png", "labelled it ("), ("f0.png", "labelled from it (")):
+        kept = (folder / name).read_bytes()
+        _written_again(folder / name)
+        capsys.readouterr()
+        assert main(run) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and f"{folder / name}: changed since the run in {out} {said}{len(kept)} bytes then" in err[0], err
+        (folder / name).write_bytes(kept)
+        assert main(run) == 0 and "already done" in capsys.readouterr().out
+    _without_sizes(out)
+    _written_again(folder / "f2.png")
+    assert main(run) == 0
+
+
+def test_a_key_frames_run_refuses_a_frame_or_key_frame_written_again(tmp_path, capsys):
+    """A run from a folder of key frames: a frame between them, or a key frame it was labelled from, written again
+    since is refused on the run again, naming the file; put back, the run is done."""
+    from _runs import key_frames_of
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 5))
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
+    assert main(run) == 0
+    for name in ("f3.png", "f5.png"):
+        kept = (folder / name).read_bytes()
+        _written_again(folder / name)
+        capsys.readouterr()
+        assert main(run) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and f"{folder / name}: changed since the run in {out}" in err[0], err
+        (folder / name).write_bytes(kept)
+        assert main(run) == 0

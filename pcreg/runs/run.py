@@ -303,6 +303,8 @@ class Run:
         self._remove_partial_writes()  # those of a killed run started over (--force) too
         self.state = {"format": FORMAT, "run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None, "key_labels": digest}
+        if self.frames.kind == "folder":
+            self.state["key_bytes"] = self._frame_bytes(0)
         if self.frames.kind == "video":
             keep_video(self.state, self.frames, self.out)
         write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
@@ -336,17 +338,37 @@ class Run:
 
     def _check_same_frames(self, key_frame: str) -> None:
         """Refuse to continue a run from one label image over a steps.jsonl line pcreg run did not write (the export
-        would refuse it, :func:`~pcreg.runs.files.parse_steps`) or a frame renamed (:meth:`_check_same_name`)."""
-        named = ((int(s["frame"]), s.get("name")) for s in parse_steps(self.out / STEPS, step_lines(self.out)))
-        for t, name in itertools.chain([(0, key_frame)], named):  # every line read, a video's too
-            self._check_same_name(t, name)
+        would refuse it, :func:`~pcreg.runs.files.parse_steps`), a frame renamed or a frame's file changed
+        (:meth:`_check_same_frame`): the key frame against run.json's ``key_bytes``, each labelled frame against its
+        line's ``bytes``."""
+        steps = parse_steps(self.out / STEPS, step_lines(self.out))
+        self._check_same_frame(0, {"name": key_frame, "bytes": self.state.get("key_bytes")}, key=True)
+        for step in steps:  # every line read, a video's too
+            self._check_same_frame(int(step["frame"]), step)
 
-    def _check_same_name(self, t: int, name) -> None:
-        """Refuse a step that labelled ``name`` as frame ``t`` of a folder that now holds another there (renamed, added)."""
-        if self.frames.kind == "folder" and isinstance(name, str) and t < len(self.frames) and self.frames.name(t) != name:
+    def _check_same_frame(self, t: int, step: dict, *, key: bool = False) -> None:
+        """Refuse a step that labelled ``step["name"]`` as frame ``t`` of a folder that now holds another there (renamed,
+        added), or whose file is no longer the size in bytes it was (``step["bytes"]``, where the step kept it:
+        the frame was written again, its labels are of the frame as it was). ``key``: frame ``t`` is a key frame,
+        which the run labelled others from."""
+        if self.frames.kind != "folder" or t >= len(self.frames):
+            return
+        name, before = step.get("name"), step.get("bytes")
+        if isinstance(name, str) and self.frames.name(t) != name:
             raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "
                               f"now holds as {self.frames.name(t)}: the frames changed since the run began; "
                               "use --force to start over")
+        now = self._frame_bytes(t)
+        if type(before) is int and now != before:
+            what = "labelled from it" if key else "labelled it"
+            whose = "the labels carried from it are" if key else "its labels are"
+            raise OutputError(f"{self.frames.where(t)}: changed since the run in {self.out} {what} ({before} bytes "
+                              f"then, {now} now): {whose} of the frame as it was; use --force to start over")
+
+    def _frame_bytes(self, t: int) -> int | None:
+        """The size in bytes of frame ``t``'s file, for a folder's frames (None for a video's, whose file is
+        checked whole: :func:`~pcreg.runs.video_file.keep_video`)."""
+        return self.frames.where(t).stat().st_size if self.frames.kind == "folder" else None
 
     def _start_over(self) -> None:
         """Forget what an earlier run in ``out`` wrote beside its label PNGs, which a run started over
@@ -407,7 +429,7 @@ class Run:
             for line, step in zip(lines, parse_steps(path, parsed)):
                 count, t = count + 1, step["frame"]
                 if any(t in s for s in live):
-                    self._check_same_name(t, step.get("name"))
+                    self._check_same_frame(t, step)
                     fh.write(line)
                     stems.append(self.frames.stem(t))
             if count < counted:
@@ -446,6 +468,11 @@ class Run:
                 if d.name != keep_hidden:
                     shutil.rmtree(d, ignore_errors=True)
         names = {self.frames.name(k): label_digest(lab) for k, lab in keys.items()}
+        if self.frames.kind == "folder":  # the file of a key frame that kept steps were labelled from, written again since
+            before = self.state.get("key_bytes") or {}
+            for k in sorted({k for s in live for k in s.keys}):
+                self._check_same_frame(k, {"name": self.frames.name(k), "bytes": before.get(self.frames.name(k))}, key=True)
+            self.state["key_bytes"] = {self.frames.name(k): self._frame_bytes(k) for k in keys}
         for k, lab in keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] \
@@ -471,6 +498,8 @@ class Run:
         counted into ``counts`` (``scored``: its truth map and naive Bayes' labels alone, or two Nones) and
         its ``step`` line; the caller commits."""
         stem = self.frames.stem(t)
+        if self.frames.kind == "folder":  # what a resumed run checks the frame's file against
+            step = dict(step, bytes=self._frame_bytes(t))
         write_labels(self.out / f"{stem}.png", labels, self.table)
         if confidence is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)

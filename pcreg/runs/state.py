@@ -53,6 +53,8 @@ def _stream_state_problem(state: dict) -> str | None:
         return "key_frame"
     if not isinstance(state.get("key_labels", ""), str):  # runs begun before it was kept have none
         return "key_labels"
+    if state.get("key_bytes") is not None and not is_count(state["key_bytes"]):  # a folder's key frame's file size
+        return "key_bytes"
     if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
         return "truth"
     return None
@@ -71,6 +73,9 @@ def _keys_state_problem(state: dict) -> str | None:
     """What in a key-frames run's run.json is not as pcreg run writes it (the first field), or None."""
     if not isinstance(state.get("keys"), dict):
         return "keys"
+    sizes = state.get("key_bytes")  # a folder's key frames' file sizes (runs begun before they were kept have none)
+    if sizes is not None and not (isinstance(sizes, dict) and all(is_count(v) for v in sizes.values())):
+        return "key_bytes"
     if not isinstance(state.get("stretches"), list) or any(_stretch_problem(e, False) for e in state["stretches"]):
         return "stretches"
     if state.get("cursor") is not None and _stretch_problem(state["cursor"], True):

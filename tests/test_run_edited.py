@@ -76,6 +76,19 @@ def _written_again(path):
     cv2.imwrite(str(path), image)
 
 
+def _refused_while_written_again(run, path, said, capsys):
+    """``path`` written again: ``run`` refused in one line naming it and its size then (``said`` before the
+    sizes); put back, ``run`` is done (exit 0)."""
+    kept = path.read_bytes()
+    _written_again(path)
+    capsys.readouterr()
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"{path}: changed since the run in {run[-1]} {said}{len(kept)} bytes then" in err[0], err
+    path.write_bytes(kept)
+    assert main(run) == 0
+
+
 def _without_sizes(out):
     """``out``'s run as a run from before the frames' sizes were kept: no ``bytes`` in its steps, no ``key_bytes``."""
     import json
@@ -98,14 +111,8 @@ def test_a_frame_written_again_after_it_was_labelled_is_refused_on_resume(tmp_pa
     run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
     assert main(run) == 0
     for name, said in (("f2.png", "labelled it ("), ("f0.png", "labelled from it (")):
-        kept = (folder / name).read_bytes()
-        _written_again(folder / name)
-        capsys.readouterr()
-        assert main(run) == 2
-        err = one_line_errors(capsys)
-        assert len(err) == 1 and f"{folder / name}: changed since the run in {out} {said}{len(kept)} bytes then" in err[0], err
-        (folder / name).write_bytes(kept)
-        assert main(run) == 0 and "already done" in capsys.readouterr().out
+        _refused_while_written_again(run, folder / name, said, capsys)
+        assert "already done" in capsys.readouterr().out
     _without_sizes(out)
     _written_again(folder / "f2.png")
     assert main(run) == 0
@@ -121,12 +128,5 @@ def test_a_key_frames_run_refuses_a_frame_or_key_frame_written_again(tmp_path, c
     out = tmp_path / "out"
     run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
     assert main(run) == 0
-    for name in ("f3.png", "f5.png"):
-        kept = (folder / name).read_bytes()
-        _written_again(folder / name)
-        capsys.readouterr()
-        assert main(run) == 2
-        err = one_line_errors(capsys)
-        assert len(err) == 1 and f"{folder / name}: changed since the run in {out}" in err[0], err
-        (folder / name).write_bytes(kept)
-        assert main(run) == 0
+    for name, said in (("f3.png", "labelled it ("), ("f5.png", "labelled from it (")):
+        _refused_while_written_again(run, folder / name, said, capsys)

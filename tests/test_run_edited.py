@@ -130,3 +130,21 @@ def test_a_key_frames_run_refuses_a_frame_or_key_frame_written_again(tmp_path, c
     assert main(run) == 0
     for name, said in (("f3.png", "labelled it ("), ("f5.png", "labelled from it (")):
         _refused_while_written_again(run, folder / name, said, capsys)
+
+
+def test_a_key_frame_written_again_is_refused_before_the_run_forgets_a_stretch(tmp_path, capsys):
+    """A key-frames run whose labels folder changed a key frame (its stretches to be labelled again) while another
+    key frame's file was written again: refused before anything is written, so that the file put back, the run goes
+    on (the stretches' steps were not cut from steps.jsonl while run.json still counted them)."""
+    import cv2
+    from _runs import key_frames_of
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 3, 5))
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
+    assert main(run) == 0
+    labels = cv2.imread(str(keys / "f5.png"), cv2.IMREAD_UNCHANGED)
+    labels[:8] = 1 - labels[:8].clip(0, 1)
+    cv2.imwrite(str(keys / "f5.png"), labels)
+    _refused_while_written_again(run, folder / "f0.png", "labelled from it (", capsys)

@@ -461,6 +461,10 @@ class Run:
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
+        if self.frames.kind == "folder":  # the file of a key frame that kept steps were labelled from, written again
+            before = self.state.get("key_bytes") or {}  # since: refused before anything is written
+            for k in sorted({k for s in live for k in s.keys}):
+                self._check_same_frame(k, {"name": self.frames.name(k), "bytes": before.get(self.frames.name(k))}, key=True)
         lines = self._keep_steps(live, next(iter(keys.values())).shape)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
         if state is not None and (self.out / HIDDEN).is_dir():  # a run's (one started over lost it whole)
@@ -468,10 +472,7 @@ class Run:
                 if d.name != keep_hidden:
                     shutil.rmtree(d, ignore_errors=True)
         names = {self.frames.name(k): label_digest(lab) for k, lab in keys.items()}
-        if self.frames.kind == "folder":  # the file of a key frame that kept steps were labelled from, written again since
-            before = self.state.get("key_bytes") or {}
-            for k in sorted({k for s in live for k in s.keys}):
-                self._check_same_frame(k, {"name": self.frames.name(k), "bytes": before.get(self.frames.name(k))}, key=True)
+        if self.frames.kind == "folder":
             self.state["key_bytes"] = {self.frames.name(k): self._frame_bytes(k) for k in keys}
         for k, lab in keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"

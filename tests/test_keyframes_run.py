@@ -368,3 +368,22 @@ def test_a_key_label_of_a_frame_file_not_chosen_is_refused_not_moved_to_the_next
     cv2.imwrite(str(keys / "frame_000001.png"), frames[1].labels)  # CVAT's frame 1: frame_000002.png, chosen
     assert main(["run", str(d), "--labels", str(keys), "--out", str(out), "--start", "1"]) == 2
     assert "name frames two ways" in _err(capsys)[0] and not (out / "run.json").exists()
+
+
+def test_a_key_label_saved_as_a_jpeg_or_tiff_is_said_not_passed_over(tmp_path, frames, folder, capsys):
+    """A labels folder holding a key frame's labels saved as a JPEG or a TIFF (no NAME.png beside it): the run says, on
+    stderr before the first frame, that those files are not read, naming them (before, they were passed over without
+    a word and their frames labelled as if nobody had drawn them); a folder with no PNG at all names them in its
+    refusal. A JPEG with its PNG beside it, or one that names no frame, is not mentioned."""
+    keys = _keys(tmp_path / "keys", frames, [0])
+    cv2.imwrite(str(keys / "f3.jpg"), frames[3].labels)
+    cv2.imwrite(str(keys / "f4.tif"), frames[4].labels)
+    cv2.imwrite(str(keys / "f0.jpg"), frames[0].labels)
+    cv2.imwrite(str(keys / "thumbnail.jpg"), frames[0].labels)
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out")]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "not read as key labels" in line]
+    assert len(notes) == 1 and "2 images named as frames but not PNG" in notes[0] and "(f3.jpg and f4.tif)" in notes[0], notes
+    (keys / "f0.png").unlink()
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out2")]) == 2
+    err = _err(capsys)
+    assert len(err) == 1 and "holds no label PNG" in err[0] and "(f0.jpg, f3.jpg and f4.tif)" in err[0], err

@@ -27,7 +27,8 @@ class RunInputs:
     ``folder`` of key frames (or a CVAT export; else one label image, at position 0), the ``truth`` maps
     (:class:`TruthMaps`, or None), the class ``table`` the labels are ids of (the request's, or a CVAT
     export's ``labelmap.txt``) and, from one label image, the frames ``pending``: the frame after the key
-    frame and the decoder it came from, which a fresh run continues (None from a folder)."""
+    frame and the decoder it came from, which a fresh run continues (None from a folder); ``notes``, what reading
+    them met that the run says before the first frame (:func:`other_labels_note`)."""
 
     frames: Any
     keys: dict
@@ -35,6 +36,7 @@ class RunInputs:
     truth: "TruthMaps | None"
     table: Any
     pending: tuple | None = None
+    notes: tuple[str, ...] = ()
 
 
 def read_inputs(request, frames) -> RunInputs:
@@ -53,7 +55,8 @@ def read_inputs(request, frames) -> RunInputs:
     truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, mapping, table)
     check_spares_inputs(request.out, frames, spared, truth)
     check_suggest(request.suggest, frames, len(keys))
-    return RunInputs(frames, keys, pending is None, truth, table, pending)
+    notes = (other_labels_note(request.labels, frames),) if request.folder_of_keys and request.labels.is_dir() else ()
+    return RunInputs(frames, keys, pending is None, truth, table, pending, tuple(filter(None, notes)))
 
 
 def _check_fits(request, frames, keys: dict, table) -> None:
@@ -251,6 +254,28 @@ def _frame_stems(frames, files: list[Path]) -> list[str]:
             and where(f.stem[: -len(LABEL_SUFFIX)]) is not None else f.stem for f in files]
 
 
+def other_labels_note(folder: Path, frames) -> str | None:
+    """A note naming the image files of ``folder`` (a folder of key frames' labels) in another format than PNG that
+    name a frame as a key label does (:func:`_frame_stems`) with no ``NAME.png`` beside them: they are not read, and a
+    key frame someone drew and saved as a JPEG (which changes the values at every edge) or a TIFF would otherwise be
+    passed over without a word (they may also be copies of the frames, kept beside their labels); None when there are none."""
+    from ..classes.cvat import frame_positions
+    from ..formats import IMAGE_SUFFIXES
+    from ..validation import listed
+
+    shown = [p for p in sorted(folder.iterdir()) if not p.name.startswith(".")]
+    pngs = {p.stem for p in shown if p.suffix.lower() == ".png"}
+    other = [p for p in shown if p.suffix.lower() in IMAGE_SUFFIXES and p.suffix.lower() != ".png" and p.stem not in pngs]
+    where = frame_positions(frames)
+    named = [p.name for p, stem in zip(other, _frame_stems(frames, other)) if where(stem) is not None]
+    if not named:
+        return None
+    n = len(named)
+    return (f"--labels {folder}: {n} image{'s' if n > 1 else ''} named as {'frames' if n > 1 else 'a frame'} but not PNG, "
+            f"not read as key labels ({listed(named)}); a key label is NAME.png (lossless: a JPEG changes the values "
+            "at every edge)")
+
+
 def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> dict:
     """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``, or
     ``NAME_L.png`` as CamVid's download names it (:func:`_frame_stems`), and ``frame_NNNNNN.png`` the source
@@ -265,7 +290,9 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     files = only_files(sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and not p.name.startswith(".")),
                        "key labels")
     if not files:
-        raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)")
+        other = other_labels_note(folder, frames)
+        raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)"
+                         + ("" if other is None else f"; {other.split(': ', 1)[1]}"))
     positions = placed(frames, _frame_stems(frames, files), folder)
     keys: dict = {}
     seen: dict[int, Path] = {}

@@ -136,7 +136,7 @@ class Run:
             what = f"{table.n_known} classes" if table.n_known > 2 else f"the ids {table.describe()}"
             raise InputError(f"--classes {table.source or 'table'}: --follow object follows one object (background and "
                              f"object, ids 0 and 1, 2 unknown), not {what}; use --follow scene (the default) for them")
-        _notes_before_the_first_frame(keys, table, request.config, inputs.frames, pending)
+        _notes_before_the_first_frame(keys, table, request.config, inputs.frames, pending, inputs.notes)
         try:
             prop = None if pending is None else request.config.from_key_frame(
                 pending[0].image, keys[0], classes=None if binary_table(table) else table)
@@ -657,8 +657,9 @@ def _class_ious(iou, table) -> list[tuple[int, float]]:
     return read
 
 
-def _notes_before_the_first_frame(keys: dict, table, config, frames, pending) -> None:
-    """Notes on stderr before the first frame: the ``frames``' own (an interlaced video, read deinterlaced), when
+def _notes_before_the_first_frame(keys: dict, table, config, frames, pending, read: tuple[str, ...] = ()) -> None:
+    """Notes on stderr before the first frame: what reading the inputs met (``read``, :attr:`~pcreg.runs.inputs.
+    RunInputs.notes`), the ``frames``' own (an interlaced video, read deinterlaced), when
     the run is expected to need more memory than the system has available (:func:`~pcreg.runs.memory.memory_note`),
     and when the key frame of a run from one (``pending``) holds no more detail than a smaller size would
     (:func:`~pcreg.datasets.detail.scale_note`)."""
@@ -667,7 +668,7 @@ def _notes_before_the_first_frame(keys: dict, table, config, frames, pending) ->
     from ..datasets.detail import scale_note
     from .memory import available_bytes, run_note
 
-    notes = (frames.note(), getattr(frames, "streams_note", lambda: None)(), run_note(keys.values(), table, config.scale, available_bytes()),  # labels: the frames' size
+    notes = (*read, frames.note(), getattr(frames, "streams_note", lambda: None)(), run_note(keys.values(), table, config.scale, available_bytes()),  # labels: the frames' size
              None if pending is None else scale_note(pending[0].image, f"{frames.path}: the key frame {pending[0].name}", config))
     for note in filter(None, notes):
         sys.stderr.write(f"pcreg: note: {note}\n")

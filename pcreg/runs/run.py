@@ -48,6 +48,7 @@ import numpy as np
 from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
 from ..outputs import atomic_file
+from .edited import check_same_frame, check_same_frames, check_same_inputs, frame_bytes
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_recording, nothing_to_record
@@ -290,11 +291,12 @@ class Run:
         digest = label_digest(labels)
         if state is not None:
             self.state = state
-            self._check_same_inputs(int(state["done"]), state.get("key_labels", digest) != digest)
+            check_same_inputs(self.frames, self.out, self.identity, int(state["done"]),
+                              state.get("key_labels", digest) != digest)
             if self.frames.kind == "video":
                 keep_video(state, self.frames, self.out)
             self._cut_steps(int(state["done"]) - 1)
-            self._check_same_frames(str(state["key_frame"]))
+            check_same_frames(self.frames, self.out, str(state["key_frame"]), state.get("key_bytes"))
             self._remove_partial_writes()
             stems = [self.frames.stem(t) for t in range(int(state["done"]))]
             check_labelled(self.out, stems, labels.shape, stems[1:] if self.confidence else ())
@@ -304,7 +306,7 @@ class Run:
         self.state = {"format": FORMAT, "run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None, "key_labels": digest}
         if self.frames.kind == "folder":
-            self.state["key_bytes"] = self._frame_bytes(0)
+            self.state["key_bytes"] = frame_bytes(self.frames, 0)
         if self.frames.kind == "video":
             keep_video(self.state, self.frames, self.out)
         write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
@@ -322,53 +324,6 @@ class Run:
         if self.state.get("recording") != path:
             self.state["recording"] = path
             self.commit()
-
-    def _check_same_inputs(self, done: int, labels_changed: bool) -> None:
-        """Refuse to continue a run from one label image whose key labels changed since it began (run.json's
-        ``key_labels``, their :func:`~pcreg.runs.files.label_digest`), or whose frames folder now holds fewer
-        frames than it labelled: its frames would mix two runs."""
-        labels = self.identity.get("labels") if self.identity else None
-        if labels_changed:
-            raise OutputError(f"{labels}: the key frame's labels changed since the run in {self.out} began; "
-                              "use --force to start over")
-        if self.frames.kind == "folder" and done > len(self.frames):
-            raise OutputError(f"{self.out / STATE} counts {done} frames labelled, {self.frames.path} now holds "
-                              f"{len(self.frames)}{' chosen' if self.frames.selection.to_dict() else ''}: the frames "
-                              "changed since the run began; use --force to start over")
-
-    def _check_same_frames(self, key_frame: str) -> None:
-        """Refuse to continue a run from one label image over a steps.jsonl line pcreg run did not write (the export
-        would refuse it, :func:`~pcreg.runs.files.parse_steps`), a frame renamed or a frame's file changed
-        (:meth:`_check_same_frame`): the key frame against run.json's ``key_bytes``, each labelled frame against its
-        line's ``bytes``."""
-        steps = parse_steps(self.out / STEPS, step_lines(self.out))
-        self._check_same_frame(0, {"name": key_frame, "bytes": self.state.get("key_bytes")}, key=True)
-        for step in steps:  # every line read, a video's too
-            self._check_same_frame(int(step["frame"]), step)
-
-    def _check_same_frame(self, t: int, step: dict, *, key: bool = False) -> None:
-        """Refuse a step that labelled ``step["name"]`` as frame ``t`` of a folder that now holds another there (renamed,
-        added), or whose file is no longer the size in bytes it was (``step["bytes"]``, where the step kept it:
-        the frame was written again, its labels are of the frame as it was). ``key``: frame ``t`` is a key frame,
-        which the run labelled others from."""
-        if self.frames.kind != "folder" or t >= len(self.frames):
-            return
-        name, before = step.get("name"), step.get("bytes")
-        if isinstance(name, str) and self.frames.name(t) != name:
-            raise OutputError(f"{self.out / STATE}: the run labelled {name} as frame {t}, which {self.frames.path} "
-                              f"now holds as {self.frames.name(t)}: the frames changed since the run began; "
-                              "use --force to start over")
-        now = self._frame_bytes(t)
-        if type(before) is int and now != before:
-            what = "labelled from it" if key else "labelled it"
-            whose = "the labels carried from it are" if key else "its labels are"
-            raise OutputError(f"{self.frames.where(t)}: changed since the run in {self.out} {what} ({before} bytes "
-                              f"then, {now} now): {whose} of the frame as it was; use --force to start over")
-
-    def _frame_bytes(self, t: int) -> int | None:
-        """The size in bytes of frame ``t``'s file, for a folder's frames (None for a video's, whose file is
-        checked whole: :func:`~pcreg.runs.video_file.keep_video`)."""
-        return self.frames.where(t).stat().st_size if self.frames.kind == "folder" else None
 
     def _start_over(self) -> None:
         """Forget what an earlier run in ``out`` wrote beside its label PNGs, which a run started over
@@ -429,7 +384,7 @@ class Run:
             for line, step in zip(lines, parse_steps(path, parsed)):
                 count, t = count + 1, step["frame"]
                 if any(t in s for s in live):
-                    self._check_same_frame(t, step)
+                    check_same_frame(self.frames, self.out, t, step)
                     fh.write(line)
                     stems.append(self.frames.stem(t))
             if count < counted:
@@ -464,7 +419,7 @@ class Run:
         if self.frames.kind == "folder":  # the file of a key frame that kept steps were labelled from, written again
             before = self.state.get("key_bytes") or {}  # since: refused before anything is written
             for k in sorted({k for s in live for k in s.keys}):
-                self._check_same_frame(k, {"name": self.frames.name(k), "bytes": before.get(self.frames.name(k))}, key=True)
+                check_same_frame(self.frames, self.out, k, {"name": self.frames.name(k), "bytes": before.get(self.frames.name(k))}, key=True)
         lines = self._keep_steps(live, next(iter(keys.values())).shape)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
         if state is not None and (self.out / HIDDEN).is_dir():  # a run's (one started over lost it whole)
@@ -473,7 +428,7 @@ class Run:
                     shutil.rmtree(d, ignore_errors=True)
         names = {self.frames.name(k): label_digest(lab) for k, lab in keys.items()}
         if self.frames.kind == "folder":
-            self.state["key_bytes"] = {self.frames.name(k): self._frame_bytes(k) for k in keys}
+            self.state["key_bytes"] = {self.frames.name(k): frame_bytes(self.frames, k) for k in keys}
         for k, lab in keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] \
@@ -500,7 +455,7 @@ class Run:
         its ``step`` line; the caller commits."""
         stem = self.frames.stem(t)
         if self.frames.kind == "folder":  # what a resumed run checks the frame's file against
-            step = dict(step, bytes=self._frame_bytes(t))
+            step = dict(step, bytes=frame_bytes(self.frames, t))
         write_labels(self.out / f"{stem}.png", labels, self.table)
         if confidence is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)
@@ -609,26 +564,11 @@ class Run:
         return predicted
 
     def predicted_summary(self) -> str:
-        """The run's predicted error as a line of its closing message ("" when no step predicted one): the mean
-        over the frames labelled, the frame predicted worst, and the command that shows the labels on the frames."""
-        import shlex
+        """The run's predicted error as lines of its closing message (:func:`pcreg.runs.summary.predicted_summary`);
+        "" when no step predicted one."""
+        from .summary import predicted_summary
 
-        steps = self._predicting_steps()
-        if not steps:
-            return ""
-        predicted = {t: float(s["predicted_error"]) for t, s in steps.items()}
-        worst = max(predicted, key=lambda t: predicted[t])
-        line = (f"\npredicted error: {sum(predicted.values()) / len(predicted):.2f}% of a frame's pixels on average "
-                f"over {len(predicted)} frame(s), {predicted[worst]:.2f}% at most ({self.frames.stem(worst)})")
-        ious: dict[int, list[float]] = {}
-        for step in steps.values():  # a class a frame does not show has no IoU there
-            for c, v in _class_ious(step.get("predicted_iou"), self.table):
-                ious.setdefault(c, []).append(v)
-        if ious:  # a small class can be half wrong while the frame's error reads a few %
-            c = min(ious, key=lambda c: float(np.mean(ious[c])))
-            line += (f"; the class predicted worst: {self.table.name_of(c)}, IoU {np.mean(ious[c]):.2f} on average "
-                     f"over the {len(ious[c])} frame(s) that show it")
-        return line + f"\nto review the labels on the frames: pcreg view {shlex.quote(str(self.out))} --web"
+        return predicted_summary(self._predicting_steps(), self.frames.stem, self.table, self.out)
 
     @staticmethod
     def read(folder: Path) -> tuple[dict, list[str], list[str]]:
@@ -640,21 +580,6 @@ class Run:
         state = read_state(folder)
         keys, names = run_frames(state, folder)
         return state, keys, names
-
-
-def _class_ious(iou, table) -> list[tuple[int, float]]:
-    """``(class id, IoU)`` of a step's ``predicted_iou`` (with more than two classes; else none) for the classes of
-    ``table``; an entry pcreg run did not write (not a class of the table, not an IoU in [0, 1]) is left out: a
-    summary's figure, not a reader's."""
-    if not isinstance(iou, dict):
-        return []
-    ids = {c.id for c in table.classes}
-    read = []
-    for k, v in iou.items():
-        c = int(k) if isinstance(k, str) and k.isdigit() else None
-        if c is not None and c in ids and type(v) in (int, float) and 0.0 <= v <= 1.0:
-            read.append((c, float(v)))
-    return read
 
 
 def _notes_before_the_first_frame(keys: dict, table, config, frames, pending, read: tuple[str, ...] = ()) -> None:

@@ -1,0 +1,49 @@
+"""The closing lines of ``pcreg run``: the run's predicted error over the frames it labelled, the frame predicted
+worst, with more than two classes the class predicted worst, and the command that shows the labels on the frames."""
+
+from __future__ import annotations
+
+import shlex
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["predicted_summary"]
+
+
+def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table, out: Path) -> str:
+    """The run's predicted error as lines of its closing message ("" when no step predicted one): the mean over the
+    frames labelled, the frame predicted worst (``stem``: a frame's name by its position), with more than two classes
+    the class of ``table`` of the lowest mean predicted IoU, and the command that shows the labels in ``out`` on the
+    frames. ``steps``: {frame: its step} of the steps with a predicted error (:meth:`pcreg.runs.run.Run.predicted`)."""
+    if not steps:
+        return ""
+    predicted = {t: float(s["predicted_error"]) for t, s in steps.items()}
+    worst = max(predicted, key=lambda t: predicted[t])
+    line = (f"\npredicted error: {sum(predicted.values()) / len(predicted):.2f}% of a frame's pixels on average "
+            f"over {len(predicted)} frame(s), {predicted[worst]:.2f}% at most ({stem(worst)})")
+    ious: dict[int, list[float]] = {}
+    for step in steps.values():  # a class a frame does not show has no IoU there
+        for c, v in _class_ious(step.get("predicted_iou"), table):
+            ious.setdefault(c, []).append(v)
+    if ious:  # a small class can be half wrong while the frame's error reads a few %
+        c = min(ious, key=lambda c: float(np.mean(ious[c])))
+        line += (f"; the class predicted worst: {table.name_of(c)}, IoU {np.mean(ious[c]):.2f} on average "
+                 f"over the {len(ious[c])} frame(s) that show it")
+    return line + f"\nto review the labels on the frames: pcreg view {shlex.quote(str(out))} --web"
+
+
+def _class_ious(iou, table) -> list[tuple[int, float]]:
+    """``(class id, IoU)`` of a step's ``predicted_iou`` (with more than two classes; else none) for the classes of
+    ``table``; an entry pcreg run did not write (not a class of the table, not an IoU in [0, 1]) is left out: a
+    summary's figure, not a reader's."""
+    if not isinstance(iou, dict):
+        return []
+    ids = {c.id for c in table.classes}
+    read = []
+    for k, v in iou.items():
+        c = int(k) if isinstance(k, str) and k.isdigit() else None
+        if c is not None and c in ids and type(v) in (int, float) and 0.0 <= v <= 1.0:
+            read.append((c, float(v)))
+    return read

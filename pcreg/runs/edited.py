@@ -56,8 +56,7 @@ def check_same_frame(frames, out: Path, t: int, step: dict, *, key: bool = False
         raise OutputError(f"{out / STATE}: the run labelled {name} as frame {t}, which {frames.path} "
                           f"now holds as {frames.name(t)}: the frames changed since the run began; "
                           "use --force to start over")
-    now = frame_bytes(frames, t)
-    if type(before) is int and now != before:
+    if type(before) is int and (now := frame_bytes(frames, t)) != before:
         what = "labelled from it" if key else "labelled it"
         whose = "the labels carried from it are" if key else "its labels are"
         raise OutputError(f"{frames.where(t)}: changed since the run in {out} {what} ({before} bytes "

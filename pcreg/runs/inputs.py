@@ -259,6 +259,12 @@ def other_labels_note(folder: Path, frames) -> str | None:
     name a frame as a key label does (:func:`_frame_stems`) with no ``NAME.png`` beside them: they are not read, and a
     key frame someone drew and saved as a JPEG (which changes the values at every edge) or a TIFF would otherwise be
     passed over without a word (they may also be copies of the frames, kept beside their labels); None when there are none."""
+    said = _other_labels(folder, frames)
+    return None if said is None else f"--labels {folder}: {said}"
+
+
+def _other_labels(folder: Path, frames) -> str | None:
+    """What :func:`other_labels_note` says of ``folder``'s files, without naming the folder; None when there are none."""
     from ..classes.cvat import frame_positions
     from ..formats import IMAGE_SUFFIXES
     from ..validation import listed
@@ -271,9 +277,8 @@ def other_labels_note(folder: Path, frames) -> str | None:
     if not named:
         return None
     n = len(named)
-    return (f"--labels {folder}: {n} image{'s' if n > 1 else ''} named as {'frames' if n > 1 else 'a frame'} but not PNG, "
-            f"not read as key labels ({listed(named)}); a key label is NAME.png (lossless: a JPEG changes the values "
-            "at every edge)")
+    return (f"{n} image{'s' if n > 1 else ''} named as {'frames' if n > 1 else 'a frame'} but not PNG, not read as key "
+            f"labels ({listed(named)}); a key label is NAME.png (lossless: a JPEG changes the values at every edge)")
 
 
 def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> dict:
@@ -290,9 +295,9 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     files = only_files(sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and not p.name.startswith(".")),
                        "key labels")
     if not files:
-        other = other_labels_note(folder, frames)
+        other = _other_labels(folder, frames)
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)"
-                         + ("" if other is None else f"; {other.split(': ', 1)[1]}"))
+                         + ("" if other is None else f"; {other}"))
     positions = placed(frames, _frame_stems(frames, files), folder)
     keys: dict = {}
     seen: dict[int, Path] = {}

@@ -55,7 +55,8 @@ class RunReview:
     predicted error in % (None for a key frame or a step without one); ``suggested`` the positions listed in
     ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
-    IoU per class id (``steps.jsonl``'s ``predicted_iou``, with more than two classes; None otherwise); ``gaps``
+    IoU per class id (``steps.jsonl``'s ``predicted_iou``; None where a step has none: a key frame, a run of pcreg
+    0.4 or before with two classes); ``gaps``
     run.json's places where the video skips frames by its times (:mod:`pcreg.runs.gaps`; None without one),
     ``damaged`` its frames that decode with errors (the same module's; None without one), ``notes`` what else reading
     its frames met (run.json's ``notes``: transparent pixels, a turn to interlaced; None without one)."""
@@ -278,8 +279,8 @@ def _border(shape: tuple[int, ...]) -> int:
 
 def class_figures(review: RunReview, t: int) -> list[dict]:
     """Frame ``t``'s classes as the review's legend shows them: each known class's share of the frame's
-    pixels (%) and, with more than two classes, its predicted IoU from the confidence (None for a key
-    frame, or a class the step did not label)."""
+    pixels (%) and its predicted IoU from the confidence (None for a key frame, or a class the step did
+    not label)."""
     from .export import read_labels
 
     labels = read_labels(review.labels_path(t), review.table)

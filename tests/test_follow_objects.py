@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pcreg.classes import DAVIS
 from pcreg.classification.davis_measures import jaccard
 from pcreg.cli import main
 from pcreg.errors import InputError
@@ -208,3 +209,36 @@ def test_the_labels_are_the_sign_of_the_full_size_log_odds():
     from pcreg.pipeline.follow import CONFIDENCE_OFFSET, CONFIDENCE_SLOPE
     want = 1 / (1 + np.exp(-(CONFIDENCE_SLOPE * np.abs(f.log_odds) + CONFIDENCE_OFFSET)))
     np.testing.assert_allclose(f.last.confidence, want, rtol=1e-5)
+
+
+def test_a_run_following_an_object_predicts_its_iou_and_scores_it_against_the_truth(tmp_path, capsys):
+    """The object's IoU, the figure a follower is judged by (DAVIS's J), is predicted from the confidence in every
+    step (the background the runner-up of every object pixel and the object of every background one) and, with
+    --truth, measured: each step's ``iou`` is the Jaccard of its label file against the truth, and the closing
+    message gives each class's mean beside its mean predicted IoU."""
+    pairs = moving_object(6)
+    follower = ObjectFollower.from_key_frame(*pairs[0])
+    labels = follower.step(pairs[1][0])
+    c = follower.last.confidence.astype(np.float64)
+    tp, fp, fn = c[labels == 1].sum(), (1 - c[labels == 1]).sum(), (1 - c[labels == 0]).sum()
+    assert follower.last.predicted_iou[1] == pytest.approx(tp / (tp + fp + fn), rel=1e-6)
+    assert set(follower.last.predicted_iou) == {0, 1}
+    folder, key = _folder(tmp_path, pairs)
+    truth = tmp_path / "truth"
+    truth.mkdir()
+    for i, (_, lab) in enumerate(pairs):
+        cv2.imwrite(str(truth / f"f{i}.png"), lab)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--follow", "object", "--classes", "davis",
+                 "--truth", str(truth), "--out", str(out)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    for s in steps:
+        written = read_labels(out / s["name"], DAVIS)
+        assert s["iou"]["1"] == pytest.approx(jaccard(written == 1, pairs[s["frame"]][1] == 1))
+        assert s["iou"]["0"] == pytest.approx(jaccard(written == 0, pairs[s["frame"]][1] == 0))
+    mean = {c: np.mean([s["iou"][c] for s in steps]) for c in ("0", "1")}
+    predicted = {c: np.mean([s["predicted_iou"][c] for s in steps]) for c in ("0", "1")}
+    assert said[2] == ("IoU against the truth, each class's mean over the frames that show it (predicted from the "
+                       f"confidence in brackets): background {mean['0']:.2f} ({predicted['0']:.2f}), object "
+                       f"{mean['1']:.2f} ({predicted['1']:.2f}); their mean {(mean['0'] + mean['1']) / 2:.2f}")

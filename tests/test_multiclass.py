@@ -52,14 +52,20 @@ def test_eleven_classes_follow_the_clip(shared_data, scale):
     assert np.mean(errors) < np.mean(unmoved)
 
 
-def test_two_classes_stay_log_odds(shared_data):
-    """A LAGR key frame keeps the two-class step: (H, W) log-odds, no per-class IoU."""
+def test_two_classes_stay_log_odds_and_predict_each_class_iou_with_the_other_as_runner_up(shared_data):
+    """A LAGR key frame keeps the two-class step: (H, W) log-odds. Each class's predicted IoU is that of the
+    confidence with the other class as every pixel's runner-up: ground's expected hits are the confidence
+    summed over its pixels, its false alarms one minus it there, its misses one minus it over obstacle's."""
     images, labels = _clip(shared_data, 2)
     lut = np.array([2, 1, 1, 0, 0, 1, 1, 1, 1, 1, 1, 2] + [2] * 244, np.uint8)
     prop = Propagator.from_key_frame(images[0], lut[labels[0]], classes=LAGR)
-    prop.step(images[1])
-    assert prop.last.log_odds.ndim == 2 and prop.last.predicted_iou is None
-    assert "predicted_iou" not in prop.last.to_dict()
+    out = prop.step(images[1])
+    assert prop.last.log_odds.ndim == 2
+    c = prop.last.confidence.astype(np.float64)
+    for k in (0, 1):
+        tp, fp, fn = c[out == k].sum(), (1 - c[out == k]).sum(), (1 - c[out == 1 - k]).sum()
+        assert prop.last.predicted_iou[k] == pytest.approx(tp / (tp + fp + fn), rel=1e-6)
+    assert prop.last.to_dict()["predicted_iou"] == {str(k): v for k, v in prop.last.predicted_iou.items()}
 
 
 def test_a_label_outside_the_table_is_refused(shared_data):

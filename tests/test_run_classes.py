@@ -261,8 +261,8 @@ def test_a_runs_recording_names_and_colours_the_classes_of_its_table(synthetic, 
 
 def test_the_closing_message_gives_the_predicted_error_the_class_predicted_worst_and_the_review(synthetic, tmp_path,
                                                                                               capsys):
-    """A run ends with its predicted error (the mean of steps.jsonl's, its worst frame), with more than two
-    classes the class of the lowest mean predicted IoU, and the command that shows the labels on the frames."""
+    """A run ends with its predicted error (the mean of steps.jsonl's, its worst frame), the class of the lowest
+    mean predicted IoU (with two classes too), and the command that shows the labels on the frames."""
     folder, keys = frames_folder(tmp_path, synthetic, keys=(0,))
     camvid = np.where(synthetic[0].labels == 2, 11, synthetic[0].labels + 3).astype(np.uint8)  # road, pavement, void
     cv2.imwrite(str(tmp_path / "camvid.png"), camvid)
@@ -283,7 +283,44 @@ def test_the_closing_message_gives_the_predicted_error_the_class_predicted_worst
                        f"predicted worst: {CAMVID11.name_of(low)}, IoU {np.mean(ious[low]):.2f} on average over the "
                        f"{len(ious[low])} frame(s) that show it")
     assert said[2] == f"to review the labels on the frames: pcreg view '{out}' --web"
-    two = tmp_path / "two"  # two classes: no IoU per class in the steps, none in the message
+    two = tmp_path / "two"  # two classes: the same, ground's and obstacle's IoU
     assert main(["run", str(folder), "--labels", str(keys / "f0.png"), "--out", str(two), "--model", "flow"]) == 0
     said = capsys.readouterr().out.splitlines()
-    assert said[1].startswith("predicted error: ") and "the class predicted worst" not in said[1]
+    steps = [json.loads(line) for line in (two / "steps.jsonl").read_text().splitlines()]
+    ious = {c: [s["predicted_iou"][str(c)] for s in steps if str(c) in s["predicted_iou"]] for c in (0, 1)}
+    low = min((c for c in ious if ious[c]), key=lambda c: np.mean(ious[c]))
+    assert said[1].endswith(f"; the class predicted worst: {LAGR.name_of(low)}, IoU {np.mean(ious[low]):.2f} on "
+                            f"average over the {len(ious[low])} frame(s) that show it")
+
+
+def test_a_key_frames_run_scored_against_the_truth_gives_each_class_iou_beside_the_predicted(synthetic, tmp_path,
+                                                                                               capsys):
+    """--truth in eleven classes from a folder of key frames: each step's ``iou`` is its classes' IoU against the
+    truth (a class the truth or the labels hold; void truth left out), and the closing message gives each class's
+    mean over the frames that show it, its mean predicted IoU in brackets, and their mean."""
+    from pcreg.classification.metrics import class_iou, confusion_matrix
+
+    camvid = [np.where(f.labels == 2, 11, f.labels + 3).astype(np.uint8) for f in synthetic]  # road, pavement, void
+    folder, keys = frames_folder(tmp_path, synthetic, keys=())
+    truth = tmp_path / "truth"
+    truth.mkdir()
+    for i, lab in enumerate(camvid):
+        cv2.imwrite(str(truth / f"f{i}.png"), lab)
+        if i in (0, N - 1):
+            cv2.imwrite(str(keys / f"f{i}.png"), lab)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(keys), "--classes", "camvid11", "--truth", str(truth),
+                 "--out", str(out)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    assert len(steps) == N - 2
+    for s in steps:
+        iou = class_iou(confusion_matrix(read_labels(out / s["name"], CAMVID11), camvid[s["frame"]], classes=CAMVID11))
+        assert s["iou"] == {str(c): v for c, v in iou.items()} and set(iou) <= {3, 4}
+    ious = {c: [s["iou"][c] for s in steps if c in s["iou"]] for c in ("3", "4")}
+    predicted = {c: [s["predicted_iou"][c] for s in steps if c in s["predicted_iou"]] for c in ("3", "4")}
+    line = next(x for x in said if x.startswith("IoU against the truth"))
+    assert line == ("IoU against the truth, each class's mean over the frames that show it (predicted from the confidence "
+                    f"in brackets): road {np.mean(ious['3']):.2f} ({np.mean(predicted['3']):.2f}), pavement "
+                    f"{np.mean(ious['4']):.2f} ({np.mean(predicted['4']):.2f}); their mean "
+                    f"{(np.mean(ious['3']) + np.mean(ious['4'])) / 2:.2f}")

@@ -108,6 +108,14 @@ def error_from_confusion(confusion: np.ndarray) -> float:
     return 100.0 * (total - int(np.trace(confusion))) / total
 
 
+def class_iou(conf: np.ndarray) -> dict[int, float]:
+    """Each class's IoU of a (truth, label) confusion matrix (:func:`confusion_matrix`), for the classes that the
+    truth or the labels have."""
+    tp = np.diag(conf).astype(np.float64)
+    union = conf.sum(0) + conf.sum(1) - tp
+    return {int(c): float(tp[c] / union[c]) for c in np.flatnonzero(union)}
+
+
 def error_rate(predicted: np.ndarray, truth: np.ndarray, *, mask: np.ndarray | None = None,
                exclude_unknown: bool = True, classes=None) -> float:
     """Percentage of scored pixels whose predicted label differs from the truth.

@@ -25,6 +25,8 @@ import time
 
 import numpy as np
 
+from ..classification.metrics import class_iou
+
 __all__ = ["CLASS_METHODS", "run_clip_classes", "class_iou", "mean_iou"]
 
 #: Methods of the many-class protocol, in table order.
@@ -36,14 +38,6 @@ def confusion(labels: np.ndarray, truth: np.ndarray, unknown: int) -> np.ndarray
     keep = truth != unknown
     idx = truth[keep].astype(np.int64) * 256 + labels[keep].astype(np.int64)
     return np.bincount(idx, minlength=256 * 256).reshape(256, 256)
-
-
-def class_iou(conf: np.ndarray) -> dict[int, float]:
-    """Each class's IoU of a (truth, label) confusion matrix, for the classes that the truth or the labels
-    have."""
-    tp = np.diag(conf).astype(np.float64)
-    union = conf.sum(0) + conf.sum(1) - tp
-    return {int(c): float(tp[c] / union[c]) for c in np.flatnonzero(union)}
 
 
 def mean_iou(conf: np.ndarray) -> float:

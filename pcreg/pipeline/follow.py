@@ -418,6 +418,7 @@ class ObjectFollower:
         from .._threads import both
         from ..registration.flow import dis_flow, flow_field
         from .report import StepReport
+        from .trust import class_predicted_iou
 
         size, carry = self._size, self._carry
         if size is None or carry is None:
@@ -458,7 +459,8 @@ class ObjectFollower:
         self.last = StepReport(frame=self._frame, registration=_flow_result(key_field, t1 - t0), reason=None,
                                fallback=False, reference=0, times=times, confidence=confidence,
                                predicted_error=float(100.0 * (1.0 - confidence).mean()),
-                               trust=FollowTerms(prior), trust_summary={"gate": gate, **cut, "back": back is not None},
+                               trust=FollowTerms(prior), trust_summary={"gate": gate, **cut, "back": back is not None,
+                                              "predicted_iou": class_predicted_iou(labels, confidence, None)},
                                log_odds=colour)
         return labels
 

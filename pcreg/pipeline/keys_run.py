@@ -377,7 +377,7 @@ class KeyRun:
         """Frame ``t``'s outputs, its step line and the commit (the next frame to label: ``after``), written by
         ``writer`` (a :class:`~pcreg.outputs.WriteBehind`) while the next frame is labelled; naive Bayes
         alone (for the truth) and the propagator's carry are taken here, as they are now."""
-        from ..classification.metrics import error_rate
+        from ..runs.truth import scored_step
 
         step = dict(step, frame=t, name=self.frames.name(t), keys=[self.frames.name(k) for k in s.keys])
         if self.owner.gaps.is_damaged(t):  # decoded with errors: labelled from a concealed picture
@@ -387,7 +387,7 @@ class KeyRun:
         if truth is not None:
             plain = clf.predict(image)
             table = getattr(self.owner, "table", None)
-            step.update(error=error_rate(labels, truth, classes=table), plain_error=error_rate(plain, truth, classes=table))
+            step.update(scored_step(labels, truth, plain, table))
         writer.submit(self._write_frame, cur, t, labels, conf, step, (truth, plain), prop.carry, prop.learned_later(),
                       prop.scene, after=after)
         if self.on_frame is not None:

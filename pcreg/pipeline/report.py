@@ -56,8 +56,9 @@ class StepReport:
         far); ``log_odds > 0`` are its labels alone, and ``log_odds`` plus the trust map's
         :meth:`~pcreg.pipeline.trust.TrustMaps.prior_term` the fused log-odds. With more than two classes
         (H, W, K) float32 class scores (:meth:`~pcreg.classification.bayes.NaiveBayesPixelClassifier.class_scores`).
-    predicted_iou : (a property) with more than two classes and a trust rule, each class's predicted IoU
-        from the confidence (:func:`~pcreg.pipeline.multiclass.predicted_iou`), by class id; else None.
+    predicted_iou : (a property) with a trust rule or an object follower, each class's predicted IoU from the
+        confidence (:func:`~pcreg.pipeline.trust.class_predicted_iou`), by class id, for the classes the labels
+        hold; else None.
     """
 
     frame: int

@@ -401,7 +401,8 @@ class Propagator:
                                reference=ref_frame, times=times, start=est.start, log_odds=c.d,
                                **({} if trusted is None else trusted.report(self.trust, self._prior_weight,
                                                                            {**({} if c.cut is None else {"cut": c.cut["cut"]}),
-                                                                            "degenerate": c.degenerate})))
+                                                                            "degenerate": c.degenerate},
+                                                                           self._ids)))
         return self.table_labels(labels)
 
     def table_labels(self, labels: np.ndarray) -> np.ndarray:

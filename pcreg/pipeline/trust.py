@@ -356,6 +356,20 @@ def least_confident(trusted: "Trusted", n_classes: int) -> "Trusted":
     return replace(trusted, confidence=np.full(trusted.confidence.shape, least, np.float32))
 
 
+def class_predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray | None,
+                        ids: np.ndarray | None = None) -> dict[int, float]:
+    """Each class's predicted IoU (:func:`~pcreg.pipeline.multiclass.predicted_iou`) for the classes ``labels``
+    hold, by class id: with K classes ``second`` is each pixel's runner-up; with two (``second`` None) it is the
+    other class, and ``ids`` (when given) the table's ids of the labels' 0 and 1."""
+    from .multiclass import predicted_iou
+
+    if second is None:  # two classes: a wrong label's truth is the other one
+        second = np.uint8(1) - labels
+    present = np.flatnonzero(np.bincount(labels.ravel(), minlength=256))  # the classes the labels hold (np.unique sorts)
+    iou = predicted_iou(labels, confidence, second, present)
+    return iou if ids is None else {int(ids[k]): v for k, v in iou.items()}
+
+
 def predicted_error(confidence: np.ndarray) -> float:
     """A frame's predicted error in percent: the mean of 1 - confidence over its pixels."""
     return float(100.0 * (1.0 - np.mean(confidence, dtype=np.float64)))
@@ -376,16 +390,13 @@ class Trusted:
     prior: np.ndarray
     second: np.ndarray | None = None
 
-    def report(self, rule: TrustRule, weight: float, cut: dict | None = None) -> dict:
+    def report(self, rule: TrustRule, weight: float, cut: dict | None = None, ids: np.ndarray | None = None) -> dict:
         """What a step's report (:class:`~pcreg.pipeline.stream.StepReport`) gives of it: the confidence,
         the predicted error, the trust map and its summary (with what the step adds to it, ``cut``: the cut
-        test's finding, :mod:`pcreg.pipeline.cuts`); with K classes each class's predicted IoU."""
-        summary: dict = {**self.maps.summary(rule, weight), **(cut or {})}
-        if self.second is not None:
-            from .multiclass import predicted_iou
-
-            present = np.flatnonzero(np.bincount(self.labels.ravel(), minlength=256))  # the classes the labels hold (np.unique sorts)
-            summary["predicted_iou"] = predicted_iou(self.labels, self.confidence, self.second, present)
+        test's finding, :mod:`pcreg.pipeline.cuts`) and each class's predicted IoU
+        (:func:`class_predicted_iou`; ``ids``: the table's ids of the two-class step's 0 and 1, when they are others)."""
+        summary: dict = {**self.maps.summary(rule, weight), **(cut or {}),
+                         "predicted_iou": class_predicted_iou(self.labels, self.confidence, self.second, ids)}
         return {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence),
                 "trust": self.maps, "trust_summary": summary}
 

@@ -4,7 +4,7 @@
 
 - ``/``: the page (``viz/review.html`` with its CSS and JavaScript under ``/viz/``; no build step);
 - ``/review.json``: the frames (name, key frame or not, predicted error), the suggested frames, whether
-  there is a confidence, where the video skips frames by its times (``gaps``: the note, the places and frames
+  there is a confidence, whether any step predicts its classes' IoU (``ious``), where the video skips frames by its times (``gaps``: the note, the places and frames
   missing; None without one), the notes of what reading the frames met (``notes``: run.json's lines, transparent
   pixels or a turn to interlaced; ``[]`` without one), the class table (each known class's name, colour and whether the run's frames show it,
   for the legend) and the frames' size;
@@ -146,6 +146,7 @@ class ReviewServer:
         return json.dumps({
             "folder": str(r.folder), "source": str(r.source), "kind": r.kind, "frames": frames,
             "suggested": suggested, "confidence": r.confidence, "low_confidence": LOW_CONFIDENCE,
+            "ious": any(i is not None for i in r.ious),
             "classes": [{"id": c.id, "name": c.name, "colour": list(c.colour), "shown": c.id in shown}
                         for c in r.table.known],
             "unknown": {"id": r.table.unknown, "name": r.table.unknown_class.name},

@@ -53,7 +53,7 @@ from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, chec
                     label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_recording, nothing_to_record
 from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
-from .truth import add_rates, count_frame, empty_counts
+from .truth import add_rates, count_frame, empty_counts, scored_step
 from .video_file import keep_video, labelled_to_end, mark_end
 
 if TYPE_CHECKING:
@@ -277,7 +277,7 @@ class Run:
                     f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
         elif s.get("truth"):  # asked for, and no figure: said, not left out
             msg += "\nerror against the truth: none, the truth labels of the frames labelled are all unknown"
-        msg += self.predicted_summary()
+        msg += self.predicted_summary(truth=bool(s.get("truth")))
         print(msg, file=sys.stdout)
         if start is None:
             self.suggest(request.suggest, keys)
@@ -472,8 +472,6 @@ class Run:
         :class:`~pcreg.pipeline.stream.Carry` or None), what the classifier has ``learned`` (an array,
         None, or :meth:`~pcreg.pipeline.stream.Propagator.learned_later`) and the cut test's ``scene``
         (:attr:`pcreg.Propagator.scene`), then commit it in run.json."""
-        from ..classification.metrics import error_rate
-
         report = report if isinstance(report, dict) else report.to_dict()
         learned = learned() if callable(learned) else learned
         step = dict(report, frame=t, name=self.frames.name(t))
@@ -481,9 +479,7 @@ class Run:
             step["damaged"] = True
         truth = None if self.truth is None else self.truth[t]
         if truth is not None:
-            step["error"] = error_rate(labels, truth, classes=self.table)
-            if plain is not None:
-                step["plain_error"] = error_rate(plain, truth, classes=self.table)
+            step.update(scored_step(labels, truth, plain, self.table))
         self.write_frame(t, labels, confidence, step, self.state["truth"], (truth, plain))
         if truth is not None:
             add_rates(self.state["truth"])
@@ -563,12 +559,15 @@ class Run:
                               "pcreg run wrote); use --force to start over")
         return predicted
 
-    def predicted_summary(self) -> str:
+    def predicted_summary(self, *, truth: bool = False) -> str:
         """The run's predicted error as lines of its closing message (:func:`pcreg.runs.summary.predicted_summary`);
-        "" when no step predicted one."""
-        from .summary import predicted_summary
+        "" when no step predicted one. ``truth``: a run scored against the truth, whose classes' IoU comes first
+        (:func:`pcreg.runs.summary.truth_summary`)."""
+        from .summary import predicted_summary, truth_summary
 
-        return predicted_summary(self._predicting_steps(), self.frames.stem, self.table, self.out)
+        steps = self._predicting_steps()
+        return (truth_summary(steps, self.table) if truth else "") + predicted_summary(steps, self.frames.stem, self.table,
+                                                                                      self.out)
 
     @staticmethod
     def read(folder: Path) -> tuple[dict, list[str], list[str]]:

@@ -1,5 +1,5 @@
 """The closing lines of ``pcreg run``: the run's predicted error over the frames it labelled, the frame predicted
-worst, with more than two classes the class predicted worst, and the command that shows the labels on the frames."""
+worst, the class predicted worst, and the command that shows the labels on the frames."""
 
 from __future__ import annotations
 
@@ -9,33 +9,54 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["predicted_summary"]
+__all__ = ["predicted_summary", "truth_summary"]
 
 
 def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table, out: Path) -> str:
     """The run's predicted error as lines of its closing message ("" when no step predicted one): the mean over the
-    frames labelled, the frame predicted worst (``stem``: a frame's name by its position), with more than two classes
-    the class of ``table`` of the lowest mean predicted IoU, and the command that shows the labels in ``out`` on the
-    frames. ``steps``: {frame: its step} of the steps with a predicted error (:meth:`pcreg.runs.run.Run.predicted`)."""
+    frames labelled, the frame predicted worst (``stem``: a frame's name by its position), the class of ``table`` of
+    the lowest mean predicted IoU, and the command that shows the labels in ``out`` on the frames. ``steps``:
+    {frame: its step} of the steps with a predicted error (:meth:`pcreg.runs.run.Run.predicted`)."""
     if not steps:
         return ""
     predicted = {t: float(s["predicted_error"]) for t, s in steps.items()}
     worst = max(predicted, key=lambda t: predicted[t])
     line = (f"\npredicted error: {sum(predicted.values()) / len(predicted):.2f}% of a frame's pixels on average "
             f"over {len(predicted)} frame(s), {predicted[worst]:.2f}% at most ({stem(worst)})")
-    ious: dict[int, list[float]] = {}
-    for step in steps.values():  # a class a frame does not show has no IoU there
-        for c, v in _class_ious(step.get("predicted_iou"), table):
-            ious.setdefault(c, []).append(v)
+    ious = _mean_ious(steps, "predicted_iou", table)
     if ious:  # a small class can be half wrong while the frame's error reads a few %
-        c = min(ious, key=lambda c: float(np.mean(ious[c])))
-        line += (f"; the class predicted worst: {table.name_of(c)}, IoU {np.mean(ious[c]):.2f} on average "
-                 f"over the {len(ious[c])} frame(s) that show it")
+        c = min(ious, key=lambda c: ious[c][0])
+        line += (f"; the class predicted worst: {table.name_of(c)}, IoU {ious[c][0]:.2f} on average "
+                 f"over the {ious[c][1]} frame(s) that show it")
     return line + f"\nto review the labels on the frames: pcreg view {shlex.quote(str(out))} --web"
 
 
+def truth_summary(steps: dict[int, dict], table) -> str:
+    """The line of the closing message on each class's IoU against the truth (``pcreg run --truth``; "" when no step
+    has one): its mean over the frames whose truth or labels show it (``steps.jsonl``'s ``iou``), beside its mean
+    predicted IoU (in brackets, over the frames whose labels show it), and the mean over the classes."""
+    truth = _mean_ious(steps, "iou", table)
+    if not truth:
+        return ""
+    predicted = _mean_ious(steps, "predicted_iou", table)
+    each = ", ".join(f"{table.name_of(c)} {v:.2f}" + (f" ({predicted[c][0]:.2f})" if c in predicted else "")
+                     for c, (v, _) in sorted(truth.items()))
+    return (f"\nIoU against the truth, each class's mean over the frames that show it (predicted from the confidence "
+            f"in brackets): {each}; their mean {np.mean([v for v, _ in truth.values()]):.2f}")
+
+
+def _mean_ious(steps: dict[int, dict], field: str, table) -> dict[int, tuple[float, int]]:
+    """{class id: (mean IoU, frames)} of the steps' ``field`` (``predicted_iou`` or ``iou``), each class's over the
+    steps that give it one (a class a frame does not show has no IoU there)."""
+    ious: dict[int, list[float]] = {}
+    for step in steps.values():
+        for c, v in _class_ious(step.get(field), table):
+            ious.setdefault(c, []).append(v)
+    return {c: (float(np.mean(v)), len(v)) for c, v in ious.items()}
+
+
 def _class_ious(iou, table) -> list[tuple[int, float]]:
-    """``(class id, IoU)`` of a step's ``predicted_iou`` (with more than two classes; else none) for the classes of
+    """``(class id, IoU)`` of a step's ``predicted_iou`` or ``iou`` for the classes of
     ``table``; an entry pcreg run did not write (not a class of the table, not an IoU in [0, 1]) is left out: a
     summary's figure, not a reader's."""
     if not isinstance(iou, dict):

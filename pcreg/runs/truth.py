@@ -8,7 +8,7 @@ import numpy as np
 from ..errors import InputError
 from .state import TRUTH_COUNTS
 
-__all__ = ["empty_counts", "count_frame", "add_rates", "check_truth"]
+__all__ = ["empty_counts", "count_frame", "add_rates", "check_truth", "scored_step"]
 
 
 def empty_counts() -> dict:
@@ -36,6 +36,24 @@ def add_rates(counts: dict) -> dict:
     counts["error"] = 100.0 * counts["wrong"] / counts["known"] if counts["known"] else None
     counts["plain_error"] = 100.0 * counts["plain_wrong"] / counts["known"] if counts["known"] else None
     return counts
+
+
+def scored_step(labels: np.ndarray, truth: np.ndarray, plain: np.ndarray | None, table=None) -> dict:
+    """What a step's line keeps of frame's ``truth`` (ids of ``table``, a :class:`~pcreg.classes.ClassTable`;
+    None: ``lagr``): ``error``, the % of its pixels of known truth that ``labels`` has wrong, ``plain_error`` the
+    same of naive Bayes alone (``plain``, when given), and ``iou``, each known class's IoU (by class id, a string
+    as JSON keeps it) for the classes that the truth or the labels hold there (none when no pixel is scored)."""
+    from ..classification.metrics import class_iou, confusion_matrix, error_from_confusion, error_rate
+
+    conf = confusion_matrix(labels, truth, classes=table)
+    step: dict = {"error": error_from_confusion(conf)}
+    if plain is not None:
+        step["plain_error"] = error_rate(plain, truth, classes=table)
+    known = {0, 1} if table is None else set(table.known_ids)
+    iou = {str(c): v for c, v in class_iou(conf).items() if c in known}
+    if iou:
+        step["iou"] = iou
+    return step
 
 
 def check_truth(truth: list[np.ndarray | None], shape: tuple[int, int], names: list[str]) -> None:

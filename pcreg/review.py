@@ -55,8 +55,8 @@ class RunReview:
     predicted error in % (None for a key frame or a step without one); ``suggested`` the positions listed in
     ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
-    IoU per class id (``steps.jsonl``'s ``predicted_iou``; None where a step has none: a key frame, a run of pcreg
-    0.4 or before with two classes); ``gaps``
+    IoU per class id (``steps.jsonl``'s ``predicted_iou``; None where a step has none: a key frame, a two-class
+    step of an earlier pcreg); ``gaps``
     run.json's places where the video skips frames by its times (:mod:`pcreg.runs.gaps`; None without one),
     ``damaged`` its frames that decode with errors (the same module's; None without one), ``notes`` what else reading
     its frames met (run.json's ``notes``: transparent pixels, a turn to interlaced; None without one)."""

@@ -135,6 +135,7 @@ def read_review(folder: str | Path) -> RunReview:
     """
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, Selection, open_frames
+    from .runs.edited import frame_moved, moved_error
     from .runs.files import CONFIDENCE, STEPS, counted_steps
     from .runs.state import STATE, read_state, run_frames, steps_counted_now
 
@@ -175,18 +176,18 @@ def read_review(folder: str | Path) -> RunReview:
     steps: dict[str, dict] = {}  # of each step what the review shows: an hour's steps whole take about a GB
     steps_path = folder / STEPS
     # the frames that are not where the run labelled them, by (position, name): a frames folder changed since
-    moved = [(0, str(state["key_frame"]))] if labelled is None and _moved(frames, 0, str(state["key_frame"])) else []
+    moved = [(0, str(state["key_frame"]))] if labelled is None and frame_moved(frames, 0, str(state["key_frame"])) else []
     try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
         for step in counted_steps(folder, counted, recount=lambda: steps_counted_now(folder)):
             steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou")}
-            if _moved(frames, step["frame"], str(step["name"])):
+            if frame_moved(frames, step["frame"], str(step["name"])):
                 moved.append((step["frame"], str(step["name"])))
     except InputError:  # a line named
         raise
     except (OSError, ValueError, KeyError, TypeError):
         raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
     if moved:
-        raise _moved_error(frames, folder, *min(moved))
+        raise moved_error(frames, folder, *min(moved))
     legacy = "key_frames" in state  # a run.json that lists its key frames leaves their steps out
     keys = frozenset(t for t, n in enumerate(names) if n in named or (legacy and n not in steps))
     stepless = [n for t, n in enumerate(names) if t not in keys and n not in steps]
@@ -214,21 +215,6 @@ def _predicted_iou(iou, steps_path: Path, name: str) -> dict[int, float] | None:
     except (ValueError, TypeError):
         raise InputError(f"{steps_path}: the step of {name} has a predicted_iou pcreg run did not write") from None
     return read
-
-
-def _moved(frames, t: int, name: str) -> bool:
-    """Whether the frame the run labelled as ``name`` at position ``t`` is no longer there in its frames folder (a
-    frame added, removed or renamed since: the review would draw one frame's labels over another, or call a frame
-    never labelled one whose step is lost); never for a video, whose frames are named by their number."""
-    from .datasets.sources import FolderFrames
-
-    return isinstance(frames, FolderFrames) and t < len(frames) and frames.name(t) != name
-
-
-def _moved_error(frames, folder: Path, t: int, name: str) -> InputError:
-    """What the review says of a frame the run in ``folder`` labelled as ``name`` at position ``t`` (:func:`_moved`)."""
-    return InputError(f"{frames.path}: holds {frames.name(t)} as frame {t}, which the run in {folder} labelled as "
-                      f"{name}: the frames changed since the run (a frame added, removed or renamed)")
 
 
 def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import OutputError
+from ..errors import InputError, OutputError
 from .files import STEPS, parse_steps, step_lines
 from .state import STATE
 
-__all__ = ["check_same_inputs", "check_same_frames", "check_same_frame", "frame_bytes"]
+__all__ = ["check_same_inputs", "check_same_frames", "check_same_frame", "frame_bytes", "frame_moved", "moved_error"]
 
 
 def check_same_inputs(frames, out: Path, identity: dict | None, done: int, labels_changed: bool) -> None:
@@ -61,3 +61,18 @@ def check_same_frame(frames, out: Path, t: int, step: dict, *, key: bool = False
         whose = "the labels carried from it are" if key else "its labels are"
         raise OutputError(f"{frames.where(t)}: changed since the run in {out} {what} ({before} bytes "
                           f"then, {now} now): {whose} of the frame as it was; use --force to start over")
+
+
+def frame_moved(frames, t: int, name: str) -> bool:
+    """Whether the frame a run labelled as ``name`` at position ``t`` is no longer there in its frames folder (a
+    frame added, removed or renamed since: the review would draw one frame's labels over another, or call a frame
+    never labelled one whose step is lost); never for a video, whose frames are named by their number."""
+    from ..datasets.sources import FolderFrames
+
+    return isinstance(frames, FolderFrames) and t < len(frames) and frames.name(t) != name
+
+
+def moved_error(frames, folder: Path, t: int, name: str) -> InputError:
+    """What the review says of a frame the run in ``folder`` labelled as ``name`` at position ``t`` (:func:`frame_moved`)."""
+    return InputError(f"{frames.path}: holds {frames.name(t)} as frame {t}, which the run in {folder} labelled as "
+                      f"{name}: the frames changed since the run (a frame added, removed or renamed)")

@@ -56,7 +56,8 @@ class RunReview:
     ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
     IoU per class id (``steps.jsonl``'s ``predicted_iou``; None where a step has none: a key frame, a two-class
-    step of an earlier pcreg); ``gaps``
+    step of an earlier pcreg); ``truth_errors`` each frame's error in % against the truth (a run with ``--truth``;
+    None where its step has none); ``gaps``
     run.json's places where the video skips frames by its times (:mod:`pcreg.runs.gaps`; None without one),
     ``damaged`` its frames that decode with errors (the same module's; None without one), ``notes`` what else reading
     its frames met (run.json's ``notes``: transparent pixels, a turn to interlaced; None without one)."""
@@ -73,6 +74,7 @@ class RunReview:
     selection: dict | None = None
     table: ClassTable = DEFAULT_TABLE
     ious: tuple[dict | None, ...] = ()
+    truth_errors: tuple[float | None, ...] = ()
     chosen: int | None = None  # the frames the run chose of its folder (None: a video)
     gaps: dict | None = None
     damaged: dict | None = None
@@ -179,7 +181,7 @@ def read_review(folder: str | Path) -> RunReview:
     moved = [(0, str(state["key_frame"]))] if labelled is None and frame_moved(frames, 0, str(state["key_frame"])) else []
     try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
         for step in counted_steps(folder, counted, recount=lambda: steps_counted_now(folder)):
-            steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou")}
+            steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou", "error")}
             if frame_moved(frames, step["frame"], str(step["name"])):
                 moved.append((step["frame"], str(step["name"])))
     except InputError:  # a line named
@@ -194,15 +196,18 @@ def read_review(folder: str | Path) -> RunReview:
     if stepless:  # as the export refuses it: such a frame would be shown as a key frame
         raise InputError(f"{steps_path}: missing or unreadable ({len(names) - len(keys) - len(stepless)} steps for "
                          f"{len(names) - len(keys)} labelled frames; none for {stepless[0]})")
-    errors, ious = [], []
+    errors: list[float | None] = []
+    truth: list[float | None] = []
+    ious = []
     for t, n in enumerate(names):
-        e = None if t in keys else steps[n].get("predicted_error")
-        errors.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
+        for kept, field in ((errors, "predicted_error"), (truth, "error")):
+            e = None if t in keys else steps[n].get(field)
+            kept.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
         ious.append(None if t in keys else _predicted_iou(steps[n].get("predicted_iou"), steps_path, n))
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
                      _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
-                     tuple(ious), len(frames) if isinstance(frames, FolderFrames) else None, state.get("gaps"),
-                     state.get("damaged"), state.get("notes"))
+                     tuple(ious), tuple(truth), len(frames) if isinstance(frames, FolderFrames) else None,
+                     state.get("gaps"), state.get("damaged"), state.get("notes"))
 
 
 def _predicted_iou(iou, steps_path: Path, name: str) -> dict[int, float] | None:

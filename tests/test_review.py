@@ -613,3 +613,43 @@ def test_an_overlay_of_a_video_that_has_since_lost_frames_is_refused(synthetic, 
     assert pcreg_view([str(out), "--overlay", str(overlay)]) == 2
     assert f"ends before the run's frame {N - 2:06d}" in one_line_error(capsys)
     assert not overlay.exists() and not list(tmp_path.glob(".*.tmp*"))
+
+
+def test_a_run_scored_against_the_truth_shows_the_error_against_it_beside_the_predicted(synthetic, tmp_path):
+    """pcreg run --truth: each frame's error against the truth (its step's ``error``) is served with the frame, said
+    beside the predicted error, drawn dashed in the plot with a key under it, and its mean is among the facts; a run
+    without the truth (the other tests' run) draws no such line and hides the key."""
+    from _browser import find_chromium
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    root = tmp_path / "run"
+    (root / "frames").mkdir(parents=True)
+    (root / "truth").mkdir()
+    for i, f in enumerate(synthetic):
+        cv2.imwrite(str(root / "frames" / f"frame_{i:03d}.png"), f.image[:, :, ::-1])
+        cv2.imwrite(str(root / "truth" / f"frame_{i:03d}.png"), f.labels)
+    out = root / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(root / "frames"), "--labels", str(root / "truth" / "frame_000.png"), "--out", str(out),
+                     "--truth", str(root / "truth"), "--model", "flow"]) == 0
+    steps = _steps(out)
+    with ReviewServer(read_review(out), web_port=0) as server:
+        frames = json.loads(_get(server.url + "review.json")[1])["frames"]
+    assert [f["truth_error"] for f in frames] == [None, *(s["error"] for s in steps)]
+    if find_chromium() is None:
+        pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
+    with _review_page(out, width=1200, height=700) as (proc, ev):
+        ev("(() => { const s = document.getElementById('slider'); s.value = '2'; s.dispatchEvent(new Event('input')); })()")
+        until(lambda: ev(SHOWN_JS) == "/overlay/2.jpg", what="frame 2 shown", alive=proc, bound=60)
+        assert ev("document.getElementById('frame-error').textContent") == (
+            f"predicted error {steps[1]['predicted_error']:.1f} %, against the truth {steps[1]['error']:.1f} %")
+        assert ev("document.querySelectorAll('#plot path.series.truth').length") == 1
+        assert ev("document.getElementById('plot-key').hidden") is False
+        mean = np.mean([s["error"] for s in steps])
+        assert f"mean error against the truth{mean:.1f} %" in ev("document.getElementById('facts').textContent")
+    (tmp_path / "other").mkdir()
+    with _review_page(_many_class_run(synthetic, tmp_path / "other", 3, synthetic[0].labels), width=1200,
+                      height=700) as (proc, ev):
+        assert ev("document.querySelectorAll('#plot path.series.truth').length") == 0
+        assert ev("document.getElementById('plot-key').hidden") is True

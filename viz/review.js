@@ -1,6 +1,7 @@
 // The review page of `pcreg view RUN_OUT --web`: a run's frames with their labels drawn over them
 // (/overlay/T.jpg, rendered by pcreg when asked for), a slider and the arrow keys to move, the key frames
-// marked, the predicted error per frame as a plot (click a point to go there) and the suggested frames.
+// marked, the predicted error per frame as a plot (click a point to go there; with the truth, the error against it
+// beside it, dashed) and the suggested frames.
 "use strict";
 
 // $ and el: viz/common.js
@@ -51,7 +52,8 @@ function show(t) {
   tag.hidden = !(f.key || suggested !== undefined);
   tag.textContent = f.key ? "key frame" : "suggested";
   tag.className = f.key ? "tag" : "tag suggested";
-  $("frame-error").textContent = f.key ? "labelled by a person" : `predicted error ${pct(f.error)}` +
+  const truth = f.truth_error === null || f.truth_error === undefined ? "" : `, against the truth ${pct(f.truth_error)}`;
+  $("frame-error").textContent = f.key ? "labelled by a person" : `predicted error ${pct(f.error)}${truth}` +
     (f.no_confidence ? `; no confidence map (${f.no_confidence} is missing): drawn without the hatching` : "");
   for (const li of document.querySelectorAll("li[data-frame]")) li.classList.toggle("current", Number(li.dataset.frame) === t);
   drawCursor();
@@ -108,8 +110,10 @@ function drawPlot() {
   const n = frames.length;
   const W = 400, H = 220, L = 38, R = 10, T = 10, B = 26;
   const errs = frames.map((f) => (f.key ? null : f.error));
+  const truths = frames.map((f) => (f.key || f.truth_error === undefined ? null : f.truth_error));
+  const scored = truths.some((e) => e !== null);
   // not Math.max(...errs): past about 120,000 arguments (an hour's run at 30 frames a second) it throws
-  const highest = errs.reduce((m, e) => (e !== null && e > m ? e : m), 0);
+  const highest = errs.concat(truths).reduce((m, e) => (e !== null && e > m ? e : m), 0);
   const yStep = niceStep(highest / 5);
   const top = Math.max(yStep, Math.ceil(highest / yStep - 1e-9) * yStep);
   const x = (t) => L + (n > 1 ? (t / (n - 1)) * (W - L - R) : (W - L - R) / 2);
@@ -129,14 +133,18 @@ function drawPlot() {
     label.textContent = String(t);
     root.append(label);
   }
-  let d = "";
-  let pen = false;
-  errs.forEach((e, t) => {
-    if (e === null) { pen = false; return; }
-    d += `${pen ? "L" : "M"}${x(t).toFixed(1)},${y(e).toFixed(1)}`;
-    pen = true;
-  });
-  root.append(svg("path", { class: "series", d }));
+  const line = (values) => {
+    let d = "";
+    let pen = false;
+    values.forEach((e, t) => {
+      if (e === null) { pen = false; return; }
+      d += `${pen ? "L" : "M"}${x(t).toFixed(1)},${y(e).toFixed(1)}`;
+      pen = true;
+    });
+    return d;
+  };
+  if (scored) root.append(svg("path", { class: "series truth", d: line(truths) }));
+  root.append(svg("path", { class: "series", d: line(errs) }));
   frames.forEach((f, t) => {
     if (!f.key) return;
     const mark = svg("path", { class: "keymark", d: `M${x(t)},${H - B - 9}l5,9h-10z`, "data-frame": t });
@@ -166,6 +174,7 @@ function drawPlot() {
     show(Math.round(n > 1 ? ((px - L) / (W - L - R)) * (n - 1) : 0));
   });
   $("plot").replaceChildren(root);
+  $("plot-key").hidden = !scored;
   state.plot = { x, cursor, points };
 }
 
@@ -229,6 +238,11 @@ function drawLegend() {
   $("legend").replaceChildren(...items);
 }
 
+function truthFact(frames) { // a run scored against the truth (--truth): its frames' mean error against it
+  const errs = frames.filter((f) => !f.key && f.truth_error !== null && f.truth_error !== undefined).map((f) => f.truth_error);
+  return errs.length ? [["mean error against the truth", pct(errs.reduce((a, b) => a + b, 0) / errs.length)]] : [];
+}
+
 function drawHeader() {
   const d = state.data;
   const folder = d.folder.split("/").filter(Boolean).pop() || d.folder;
@@ -238,7 +252,7 @@ function drawHeader() {
   const mean = errs.length ? errs.reduce((a, b) => a + b, 0) / errs.length : null;
   const facts = [["folder", d.folder], ["source", d.source], ["frames", String(d.frames.length)],
     ["key frames", String(d.frames.filter((f) => f.key).length)],
-    ["mean predicted error", pct(mean)], ["confidence", d.confidence ? "yes" : "not recorded (run --confidence)"]];
+    ["mean predicted error", pct(mean)], ...truthFact(d.frames), ["confidence", d.confidence ? "yes" : "not recorded (run --confidence)"]];
   if (d.gaps) facts.push(["frames missing by the video's times", `about ${d.gaps.missing} at ${d.gaps.places} place(s)`]);
   $("facts").replaceChildren(...facts.map(([k, v]) => el("span", { class: "fact" }, el("em", { text: k }), v)));
   // a video that skips frames: the run's frames are numbered by count, not by the file's timeline

@@ -3,7 +3,7 @@
 :class:`ReviewServer` serves, on one address and port (127.0.0.1 unless told otherwise):
 
 - ``/``: the page (``viz/review.html`` with its CSS and JavaScript under ``/viz/``; no build step);
-- ``/review.json``: the frames (name, key frame or not, predicted error), the suggested frames, whether
+- ``/review.json``: the frames (name, key frame or not, predicted error, error against the truth), the suggested frames, whether
   there is a confidence, whether any step predicts its classes' IoU (``ious``), where the video skips frames by its times (``gaps``: the note, the places and frames
   missing; None without one), the notes of what reading the frames met (``notes``: run.json's lines, transparent
   pixels or a turn to interlaced; ``[]`` without one), the class table (each known class's name, colour and whether the run's frames show it,
@@ -140,8 +140,8 @@ class ReviewServer:
             if self._shown is None:  # the label files read once, when the page first asks
                 self._shown = frozenset(shown_classes(r))
             shown = self._shown
-        frames = [{"name": n, "key": t in r.keys, "error": r.errors[t], "no_confidence": self._no_confidence(t)}
-                  for t, n in enumerate(r.names)]
+        frames = [{"name": n, "key": t in r.keys, "error": r.errors[t], "no_confidence": self._no_confidence(t),
+                   "truth_error": r.truth_errors[t] if t < len(r.truth_errors) else None} for t, n in enumerate(r.names)]
         suggested = [{"frame": t, "name": r.names[t], "error": e} for t, e in r.suggested]
         return json.dumps({
             "folder": str(r.folder), "source": str(r.source), "kind": r.kind, "frames": frames,

@@ -629,3 +629,19 @@ def test_a_key_frames_run_whose_cursor_names_no_phase_of_its_stretch_is_refused(
     assert main(run) == 2
     assert one_line_errors(capsys) == [f"pcreg: error: {tmp_path / 'out' / 'run.json'}: its 'cursor' is not as pcreg run "
                                        "writes it; use --force to start over"]
+
+
+def test_a_runs_recording_plots_each_frames_predicted_error(tmp_path):
+    """A ``pcreg run`` recording held the frames, labels and motions but not how well the run expected to do: each
+    step's predicted error (its ``steps.jsonl`` figure) is now a series of the Errors view, on the frame timeline."""
+    import json
+
+    from pcreg.recording.readback import read_recording
+
+    folder, key = drifting_frames(tmp_path / "frames", (96, 128), n=4)
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out"),
+                 "--record", str(tmp_path / "run.rrd")]) == 0
+    rec = read_recording(tmp_path / "run.rrd")
+    steps = [json.loads(line) for line in (tmp_path / "out" / "steps.jsonl").read_text().splitlines()]
+    series = rec.series("/errors/predicted")
+    assert series == pytest.approx({s["frame"]: s["predicted_error"] for s in steps}, rel=1e-6)

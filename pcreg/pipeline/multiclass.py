@@ -300,13 +300,13 @@ def class_confidence(margin: np.ndarray, best: np.ndarray, scores: np.ndarray, p
     return conf
 
 
-def predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray, classes) -> dict[int, float]:
+def predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray, classes=None) -> dict[int, float]:
     """Each class's predicted IoU from the confidence alone: a label of class k is right with probability
     ``c``, so k's expected true positives are the sum of ``c`` over its pixels and its false positives
     the sum of ``1 - c``; a wrong label's truth is taken to be its runner-up (``second``), so k's expected
-    misses are the sum of ``1 - c`` over the pixels whose runner-up is k. Classes with no pixel and no
-    miss are left out. ``labels``, ``confidence`` (in [0, 1]) and ``second`` of one shape, else an
-    :class:`~pcreg.errors.InputError`."""
+    misses are the sum of ``1 - c`` over the pixels whose runner-up is k. Of ``classes`` (None: those the labels
+    hold), those with no pixel and no miss are left out. ``labels``, ``confidence`` (in [0, 1]) and ``second`` of
+    one shape, else an :class:`~pcreg.errors.InputError`."""
     from ..classification.metrics import check_confidence
 
     lab, sec = np.asarray(labels), np.asarray(second)
@@ -314,7 +314,7 @@ def predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.ndarray
         raise InputError(f"the runner-up classes {sec.shape} and the labels {lab.shape} differ in shape")
     tp, fp, fn = iou_sums(lab, check_confidence(confidence, lab.shape), sec)
     out = {}
-    for k in classes:
+    for k in np.flatnonzero(tp + fp) if classes is None else classes:  # tp + fp: each class's count of pixels
         denom = tp[k] + fp[k] + fn[k]
         if denom > 0:
             out[int(k)] = float(tp[k] / denom)

@@ -365,8 +365,7 @@ def class_predicted_iou(labels: np.ndarray, confidence: np.ndarray, second: np.n
 
     if second is None:  # two classes: a wrong label's truth is the other one
         second = np.uint8(1) - labels
-    present = np.flatnonzero(np.bincount(labels.ravel(), minlength=256))  # the classes the labels hold (np.unique sorts)
-    iou = predicted_iou(labels, confidence, second, present)
+    iou = predicted_iou(labels, confidence, second)
     return iou if ids is None else {int(ids[k]): v for k, v in iou.items()}
 
 

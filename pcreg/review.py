@@ -29,6 +29,7 @@ from .classes import DEFAULT_TABLE, ClassTable
 from .errors import InputError
 from .validation import check_float
 from .formats import loads_json
+from .runs.files import StepTruth, finite_figure, step_class_iou
 from .legend import Legend, draw_legend
 
 __all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay",
@@ -56,8 +57,8 @@ class RunReview:
     ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
     IoU per class id (``steps.jsonl``'s ``predicted_iou``; None where a step has none: a key frame, a two-class
-    step of an earlier pcreg); ``truth_errors`` each frame's error in % against the truth (a run with ``--truth``;
-    None where its step has none); ``gaps``
+    step of an earlier pcreg); ``truths`` each frame's figures against the truth (a run with ``--truth``: a
+    :class:`~pcreg.runs.files.StepTruth`; None for a key frame); ``gaps``
     run.json's places where the video skips frames by its times (:mod:`pcreg.runs.gaps`; None without one),
     ``damaged`` its frames that decode with errors (the same module's; None without one), ``notes`` what else reading
     its frames met (run.json's ``notes``: transparent pixels, a turn to interlaced; None without one)."""
@@ -74,7 +75,7 @@ class RunReview:
     selection: dict | None = None
     table: ClassTable = DEFAULT_TABLE
     ious: tuple[dict | None, ...] = ()
-    truth_errors: tuple[float | None, ...] = ()
+    truths: tuple[StepTruth | None, ...] = ()
     chosen: int | None = None  # the frames the run chose of its folder (None: a video)
     gaps: dict | None = None
     damaged: dict | None = None
@@ -181,7 +182,7 @@ def read_review(folder: str | Path) -> RunReview:
     moved = [(0, str(state["key_frame"]))] if labelled is None and frame_moved(frames, 0, str(state["key_frame"])) else []
     try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
         for step in counted_steps(folder, counted, recount=lambda: steps_counted_now(folder)):
-            steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou", "error")}
+            steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou", "error", "iou")}
             if frame_moved(frames, step["frame"], str(step["name"])):
                 moved.append((step["frame"], str(step["name"])))
     except InputError:  # a line named
@@ -197,29 +198,17 @@ def read_review(folder: str | Path) -> RunReview:
         raise InputError(f"{steps_path}: missing or unreadable ({len(names) - len(keys) - len(stepless)} steps for "
                          f"{len(names) - len(keys)} labelled frames; none for {stepless[0]})")
     errors: list[float | None] = []
-    truth: list[float | None] = []
+    truth: list[StepTruth | None] = []
     ious = []
     for t, n in enumerate(names):
-        for kept, field in ((errors, "predicted_error"), (truth, "error")):
-            e = None if t in keys else steps[n].get(field)
-            kept.append(float(e) if isinstance(e, (int, float)) and np.isfinite(e) else None)
-        ious.append(None if t in keys else _predicted_iou(steps[n].get("predicted_iou"), steps_path, n))
+        error, scored = (None, None) if t in keys else (finite_figure(steps[n].get("predicted_error")), finite_figure(steps[n].get("error")))
+        errors.append(error)
+        ious.append(None if t in keys else step_class_iou(steps[n].get("predicted_iou"), steps_path, n))
+        truth.append(None if t in keys else StepTruth(scored, step_class_iou(steps[n].get("iou"), steps_path, n, "iou")))
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
                      _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
                      tuple(ious), tuple(truth), len(frames) if isinstance(frames, FolderFrames) else None,
                      state.get("gaps"), state.get("damaged"), state.get("notes"))
-
-
-def _predicted_iou(iou, steps_path: Path, name: str) -> dict[int, float] | None:
-    """A step's ``predicted_iou`` as read from ``steps_path`` (class id: IoU in [0, 1]; None when it has none); an
-    :class:`InputError` naming the frame ``name`` for one pcreg run did not write (a NaN among them)."""
-    try:
-        read = {int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None
-        if read is not None and not all(0.0 <= v <= 1.0 for v in read.values()):  # NaN too
-            raise ValueError
-    except (ValueError, TypeError):
-        raise InputError(f"{steps_path}: the step of {name} has a predicted_iou pcreg run did not write") from None
-    return read
 
 
 def _suggested(folder: Path, names: list[str], stems: list[str]) -> tuple[tuple[int, float | None], ...]:
@@ -270,15 +259,18 @@ def _border(shape: tuple[int, ...]) -> int:
 
 def class_figures(review: RunReview, t: int) -> list[dict]:
     """Frame ``t``'s classes as the review's legend shows them: each known class's share of the frame's
-    pixels (%) and its predicted IoU from the confidence (None for a key frame, or a class the step did
-    not label)."""
+    pixels (%), its predicted IoU from the confidence (None for a key frame, or a class the step did not label) and,
+    in a run scored with ``--truth``, its IoU against the truth (``truth_iou``; None where the step has none)."""
     from .export import read_labels
 
     labels = read_labels(review.labels_path(t), review.table)
     counts = np.bincount(labels.ravel(), minlength=256)
     iou = review.ious[t] if t < len(review.ious) else None
+    truth = review.truths[t] if t < len(review.truths) else None
+    scored = None if truth is None else truth.iou
     return [{"id": c.id, "share": 100.0 * float(counts[c.id]) / max(1, labels.size),
-             "iou": None if iou is None else iou.get(c.id)} for c in review.table.known]
+             "iou": None if iou is None else iou.get(c.id), "truth_iou": None if scored is None else scored.get(c.id)}
+            for c in review.table.known]
 
 
 def shown_classes(review: RunReview) -> list[int]:
@@ -286,8 +278,8 @@ def shown_classes(review: RunReview) -> list[int]:
     order: what the review's legend lists, where a table of 150 classes labels a few in a run.
 
     A step's predicted IoU names exactly the classes its labels hold, so only the label files of the frames
-    without one are read (the key frames; every frame of a two-class run or of a run from before the predicted
-    IoU, until every known class has been seen): a run of thousands of frames is not read whole before its page
+    without one are read (the key frames; every frame of a two-class run of an earlier pcreg, until every known
+    class has been seen): a run of thousands of frames is not read whole before its page
     shows. A label file that cannot be read is passed over (its frame says why when it is shown)."""
     from .export import read_labels
 

@@ -637,6 +637,10 @@ def test_a_run_scored_against_the_truth_shows_the_error_against_it_beside_the_pr
     with ReviewServer(read_review(out), web_port=0) as server:
         frames = json.loads(_get(server.url + "review.json")[1])["frames"]
     assert [f["truth_error"] for f in frames] == [None, *(s["error"] for s in steps)]
+    for t in (1, 2):  # each class's IoU against the truth beside its predicted one, as the step has them
+        with ReviewServer(read_review(out), web_port=0) as server:
+            figures = json.loads(_get(server.url + f"classes/{t}.json")[1])
+        assert {f["id"]: f["truth_iou"] for f in figures} == {c: steps[t - 1]["iou"].get(str(c)) for c in (0, 1)}
     if find_chromium() is None:
         pytest.skip("chromium is not installed (Debian's `chromium`, installed by `make setup`)")
     with _review_page(out, width=1200, height=700) as (proc, ev):
@@ -644,6 +648,10 @@ def test_a_run_scored_against_the_truth_shows_the_error_against_it_beside_the_pr
         until(lambda: ev(SHOWN_JS) == "/overlay/2.jpg", what="frame 2 shown", alive=proc, bound=60)
         assert ev("document.getElementById('frame-error').textContent") == (
             f"predicted error {steps[1]['predicted_error']:.1f} %, against the truth {steps[1]['error']:.1f} %")
+        legend = "document.querySelector('#legend span[data-class=\"1\"]').textContent"
+        iou, predicted = steps[1]["iou"]["1"], steps[1]["predicted_iou"]["1"]  # obstacle, in frame 2's truth and labels
+        said = f", predicted IoU {predicted:.2f}, IoU {iou:.2f} against the truth"
+        assert until(lambda: ev(legend).endswith(said), what="frame 2's class figures", alive=proc, bound=60)
         assert ev("document.querySelectorAll('#plot path.series.truth').length") == 1
         assert ev("document.getElementById('plot-key').hidden") is False
         mean = np.mean([s["error"] for s in steps])

@@ -71,7 +71,8 @@ async function frameError(url) {
   if ($("overlay").dataset.wanted === url) $("frame-error").textContent = why;
 }
 
-// each class's share of the frame and its predicted IoU, beside its name in the legend (none when the frame's
+// each class's share of the frame and its predicted IoU (with --truth, its IoU against the truth after it), beside
+// its name in the legend (none when the frame's
 // label image cannot be read: not the figures of the frame shown before); a frame without an IoU (a key frame)
 // keeps its room, unseen, so that the legend does not wrap anew and move the frame from one frame to the next
 async function drawClassFigures(t) {
@@ -85,12 +86,14 @@ async function drawClassFigures(t) {
   for (const f of figures) {
     const span = document.querySelector(`#legend span[data-class="${f.id}"]`);
     if (!span) continue;
-    const iou = f.iou === null || f.iou === undefined ? null : `, predicted IoU ${f.iou.toFixed(2)}`;
+    const scored = f.truth_iou === null || f.truth_iou === undefined ? "" : `, IoU ${f.truth_iou.toFixed(2)} against the truth`;
+    const iou = f.iou === null || f.iou === undefined ? null : `, predicted IoU ${f.iou.toFixed(2)}${scored}`;
     span.textContent = ` ${f.share.toFixed(1)} %${iou === null ? "" : iou}`;
     if (iou === null && state.data.ious) {
       const room = document.createElement("span");
       room.className = "room";
-      room.textContent = ", predicted IoU 0.00";
+      const truthRun = state.data.frames.some((g) => g.truth_error !== null && g.truth_error !== undefined);
+      room.textContent = ", predicted IoU 0.00" + (truthRun ? ", IoU 0.00 against the truth" : "");
       span.append(room);
     }
   }

@@ -24,6 +24,7 @@ import zipfile
 import zlib
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from ..errors import InputError, OutputError
 from ..cloud_files import NPY_HEADER_ERRORS
 from ..formats import loads_json
 
-__all__ = ["STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
+__all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "check_labelled",
            "write_suggestions", "read_suggestions"]
@@ -408,3 +409,29 @@ def read_suggestions(out: Path, known: set[str]) -> list[tuple[str, float | None
             error = None
         found.append((name, error if error is None or math.isfinite(error) else None))
     return found
+
+
+class StepTruth(NamedTuple):
+    """A frame's figures against the truth (``pcreg run --truth``): its ``error`` in % and each class's ``iou`` by
+    class id (``steps.jsonl``'s ``error`` and ``iou``; None where the step has none)."""
+
+    error: float | None
+    iou: dict[int, float] | None
+
+
+def finite_figure(value) -> float | None:
+    """A figure of a step as a float, None where it is none or not a finite number."""
+    return float(value) if isinstance(value, (int, float)) and np.isfinite(value) else None
+
+
+def step_class_iou(iou, steps_path: Path, name: str, field: str = "predicted_iou") -> dict[int, float] | None:
+    """A step's ``predicted_iou`` (or ``field``) as read from ``steps_path`` (class id: IoU in [0, 1]; None when it
+    has none); an :class:`InputError` naming the frame ``name`` for one pcreg run did not write (a NaN among them)."""
+    try:
+        read = {int(k): float(v) for k, v in iou.items()} if isinstance(iou, dict) else None
+        if read is not None and not all(0.0 <= v <= 1.0 for v in read.values()):  # NaN too
+            raise ValueError
+    except (ValueError, TypeError):
+        raise InputError(f"{steps_path}: the step of {name} has a{'n' if field == 'iou' else ''} {field} pcreg run did "
+                         "not write") from None
+    return read

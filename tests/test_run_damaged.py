@@ -97,20 +97,23 @@ def test_a_part_of_a_step_after_the_counted_ones_is_not_read_by_the_readers(tmp_
     assert (out / "steps.jsonl").read_bytes().count(b"\n") == 3
 
 
+@pytest.mark.parametrize("field", ["predicted_iou", "iou"])
 @pytest.mark.parametrize("iou", [{"road": "high"}, {"1": float("nan")}, {"1": "nan"}, {"1": 1.5}, {"1": -0.5}])
-def test_a_predicted_iou_pcreg_did_not_write_is_named_by_the_review(tmp_path, capsys, iou):
+def test_a_predicted_iou_pcreg_did_not_write_is_named_by_the_review(tmp_path, capsys, iou, field):
     # a NaN (json's NaN, or "nan") was read as a number: the review page's classes of that frame then failed on
-    # json.dumps(allow_nan=False), the connection dropped with a traceback on the server's terminal
+    # json.dumps(allow_nan=False), the connection dropped with a traceback on the server's terminal; the same of the
+    # IoU against the truth (pcreg run --truth), which the legend shows too
     folder, key = drifting_frames(tmp_path / "frames")
     out = tmp_path / "out"
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
     lines = (out / "steps.jsonl").read_text().splitlines(keepends=True)
-    lines[0] = json.dumps({**json.loads(lines[0]), "predicted_iou": iou}) + "\n"
+    lines[0] = json.dumps({**json.loads(lines[0]), field: iou}) + "\n"
     (out / "steps.jsonl").write_text("".join(lines))
     capsys.readouterr()
     assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 2
     err = one_line_errors(capsys)
-    assert len(err) == 1 and "steps.jsonl: the step of f1.png has a predicted_iou" in err[0], err
+    said = "a predicted_iou" if field == "predicted_iou" else "an iou"
+    assert len(err) == 1 and f"steps.jsonl: the step of f1.png has {said} pcreg run did not write" in err[0], err
     assert not (tmp_path / "o.mp4").exists()
 
 

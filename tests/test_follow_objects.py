@@ -241,4 +241,5 @@ def test_a_run_following_an_object_predicts_its_iou_and_scores_it_against_the_tr
     predicted = {c: np.mean([s["predicted_iou"][c] for s in steps]) for c in ("0", "1")}
     assert said[2] == ("IoU against the truth, each class's mean over the frames that show it (predicted from the "
                        f"confidence in brackets): background {mean['0']:.2f} ({predicted['0']:.2f}), object "
-                       f"{mean['1']:.2f} ({predicted['1']:.2f}); their mean {(mean['0'] + mean['1']) / 2:.2f}")
+                       f"{mean['1']:.2f} ({predicted['1']:.2f}); the mean over all 2 classes "
+                       f"{(mean['0'] + mean['1']) / 2:.2f}")

@@ -297,7 +297,7 @@ def test_a_key_frames_run_scored_against_the_truth_gives_each_class_iou_beside_t
                                                                                                capsys):
     """--truth in eleven classes from a folder of key frames: each step's ``iou`` is its classes' IoU against the
     truth (a class the truth or the labels hold; void truth left out), and the closing message gives each class's
-    mean over the frames that show it, its mean predicted IoU in brackets, and their mean."""
+    mean over the frames that show it, its mean predicted IoU in brackets, and the mean over the classes."""
     from pcreg.classification.metrics import class_iou, confusion_matrix
 
     camvid = [np.where(f.labels == 2, 11, f.labels + 3).astype(np.uint8) for f in synthetic]  # road, pavement, void
@@ -322,5 +322,24 @@ def test_a_key_frames_run_scored_against_the_truth_gives_each_class_iou_beside_t
     line = next(x for x in said if x.startswith("IoU against the truth"))
     assert line == ("IoU against the truth, each class's mean over the frames that show it (predicted from the confidence "
                     f"in brackets): road {np.mean(ious['3']):.2f} ({np.mean(predicted['3']):.2f}), pavement "
-                    f"{np.mean(ious['4']):.2f} ({np.mean(predicted['4']):.2f}); their mean "
+                    f"{np.mean(ious['4']):.2f} ({np.mean(predicted['4']):.2f}); the mean over all 2 classes "
                     f"{(np.mean(ious['3']) + np.mean(ious['4'])) / 2:.2f}")
+
+
+def test_the_truth_line_of_a_large_table_lists_its_lowest_classes_and_how_many_more():
+    """Up to twelve classes against the truth are listed in the table's order; more (a table of 150), the twelve of
+    the lowest IoU, lowest first, then how many more steps.jsonl holds, and the mean over them all."""
+    from pcreg.runs.summary import LISTED, truth_summary
+
+    table = pcreg.classes.parse_table_json(json.dumps(
+        {"classes": [{"id": i, "name": f"c{i}", "colour": [i, 0, 0]} for i in range(21)], "unknown": 20}), "t")
+    iou = {str(c): round(1.0 - c / 40, 3) for c in range(20)}  # c0 the highest
+    steps = {1: {"iou": iou, "predicted_iou": {"19": 0.25}}, 2: {"iou": {"19": 0.5}}}
+    line = truth_summary(steps, table)
+    lowest = [f"c{c} {float(np.mean([iou[str(c)]] + ([0.5] if c == 19 else []))):.2f}" for c in range(19, 7, -1)]
+    lowest[0] += " (0.25)"
+    assert line == ("\nIoU against the truth, each class's mean over the frames that show it (predicted from the confidence "
+                    f"in brackets) (the {LISTED} lowest): " + ", ".join(lowest) + ", and 8 more classes in steps.jsonl; "
+                    f"the mean over all 20 classes {np.mean([float(iou[str(c)]) for c in range(19)] + [(iou['19'] + 0.5) / 2]):.2f}")
+    small = truth_summary({1: {"iou": {"3": 0.5, "1": 0.25}}}, table)
+    assert small.endswith(": c1 0.25, c3 0.50; the mean over all 2 classes 0.38")

@@ -9,7 +9,11 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["predicted_summary", "truth_summary"]
+__all__ = ["predicted_summary", "truth_summary", "LISTED"]
+
+#: The closing message lists each class's IoU against the truth up to this many classes (CamVid's eleven and a
+#: void fit); beyond, the lowest this many: a line a person reads, not a table.
+LISTED = 12
 
 
 def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table, out: Path) -> str:
@@ -34,15 +38,21 @@ def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table,
 def truth_summary(steps: dict[int, dict], table) -> str:
     """The line of the closing message on each class's IoU against the truth (``pcreg run --truth``; "" when no step
     has one): its mean over the frames whose truth or labels show it (``steps.jsonl``'s ``iou``), beside its mean
-    predicted IoU (in brackets, over the frames whose labels show it), and the mean over the classes."""
+    predicted IoU (in brackets, over the frames whose labels show it), and the mean over the classes. Every class in
+    the table's order, up to :data:`LISTED`; more (a large table's), the :data:`LISTED` lowest, lowest first, and how
+    many more steps.jsonl holds."""
     truth = _mean_ious(steps, "iou", table)
     if not truth:
         return ""
     predicted = _mean_ious(steps, "predicted_iou", table)
-    each = ", ".join(f"{table.name_of(c)} {v:.2f}" + (f" ({predicted[c][0]:.2f})" if c in predicted else "")
-                     for c, (v, _) in sorted(truth.items()))
+    shown = sorted(truth) if len(truth) <= LISTED else sorted(truth, key=lambda c: (truth[c][0], c))[:LISTED]
+    each = ", ".join(f"{table.name_of(c)} {truth[c][0]:.2f}" + (f" ({predicted[c][0]:.2f})" if c in predicted else "")
+                     for c in shown)
+    more = "" if len(shown) == len(truth) else f", and {len(truth) - len(shown)} more classes in steps.jsonl"
+    lowest = "" if len(shown) == len(truth) else f" (the {LISTED} lowest)"
     return (f"\nIoU against the truth, each class's mean over the frames that show it (predicted from the confidence "
-            f"in brackets): {each}; their mean {np.mean([v for v, _ in truth.values()]):.2f}")
+            f"in brackets){lowest}: {each}{more}; the mean over all {len(truth)} classes "
+            f"{np.mean([v for v, _ in truth.values()]):.2f}")
 
 
 def _mean_ious(steps: dict[int, dict], field: str, table) -> dict[int, tuple[float, int]]:

@@ -13,7 +13,7 @@ const svg = (tag, attrs = {}) => {
 };
 const MAX_POINTS = 2000; // beyond this many frames the plot draws the line only (a click still picks the frame)
 
-const state = { data: null, current: -1, labels: true, suggested: new Map(), plot: null, preloaded: new Map() };
+const state = { data: null, current: -1, labels: true, suggested: new Map(), plot: null, preloaded: new Map(), scored: false };
 
 function rgb(c) { return `rgb(${c[0]}, ${c[1]}, ${c[2]})`; }
 function pct(v) { return v === null || v === undefined ? "n/a" : `${v.toFixed(1)} %`; }
@@ -92,8 +92,7 @@ async function drawClassFigures(t) {
     if (iou === null && state.data.ious) {
       const room = document.createElement("span");
       room.className = "room";
-      const truthRun = state.data.frames.some((g) => g.truth_error !== null && g.truth_error !== undefined);
-      room.textContent = ", predicted IoU 0.00" + (truthRun ? ", IoU 0.00 against the truth" : "");
+      room.textContent = ", predicted IoU 0.00" + (state.scored ? ", IoU 0.00 against the truth" : "");
       span.append(room);
     }
   }
@@ -279,6 +278,7 @@ async function main() {
     return;
   }
   state.data = data;
+  state.scored = data.frames.some((f) => f.truth_error !== null && f.truth_error !== undefined); // run --truth
   for (const s of data.suggested) state.suggested.set(s.frame, s.error);
   const slider = $("slider");
   slider.max = String(data.frames.length - 1);

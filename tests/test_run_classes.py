@@ -343,3 +343,47 @@ def test_the_truth_line_of_a_large_table_lists_its_lowest_classes_and_how_many_m
                     f"the mean over all 20 classes {np.mean([float(iou[str(c)]) for c in range(19)] + [(iou['19'] + 0.5) / 2]):.2f}")
     small = truth_summary({1: {"iou": {"3": 0.5, "1": 0.25}}}, table)
     assert small.endswith(": c1 0.25, c3 0.50; the mean over all 2 classes 0.38")
+
+
+def test_the_closing_message_names_the_key_frames_classes_the_labels_lost(synthetic, tmp_path, capsys):
+    """A class the key frame holds that a frame's labels do not has no predicted IoU there and nothing the confidence
+    can be unsure of: the run ends naming it, in how many frames and from which. Here a one-pixel sign symbol in the
+    key frame, which the step does not carry (each step's labels hold it or not, as its predicted IoU says)."""
+    folder, _ = frames_folder(tmp_path, synthetic, keys=())
+    camvid = np.where(synthetic[0].labels == 2, 11, synthetic[0].labels + 3).astype(np.uint8)  # road, pavement, void
+    camvid[60, 80] = 6  # sign symbol, one pixel
+    cv2.imwrite(str(tmp_path / "camvid.png"), camvid)
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(tmp_path / "camvid.png"), "--classes", "camvid11",
+                 "--out", str(out), "--model", "flow"]) == 0
+    said = capsys.readouterr().out.splitlines()
+    steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+    lost = [s["name"] for s in steps if "6" not in s["predicted_iou"]]
+    assert lost, "the step carried the one-pixel class: the test needs it lost"
+    line = next(x for x in said if x.startswith("classes the key frame(s) hold that the labels lost: "))
+    assert line.startswith(f"classes the key frame(s) hold that the labels lost: sign symbol in {len(lost)} frame(s) "
+                           f"from {lost[0].removesuffix('.png')}")
+    assert all("3" in s["predicted_iou"] and "4" in s["predicted_iou"] for s in steps)  # road and pavement kept: not named
+    assert "road in" not in line and "pavement in" not in line
+
+
+def test_the_lost_classes_of_a_key_frames_run_are_those_of_each_steps_own_key_frames(tmp_path):
+    """In a run from several key frames a step is labelled from the key frames around it (its ``keys``): a class only
+    a later key frame holds is not lost before it; a key frame's label file that cannot be read says nothing."""
+    from pcreg.runs.files import write_labels
+    from pcreg.runs.summary import key_classes, lost_summary
+
+    road = np.full((8, 8), 3, np.uint8)
+    car = road.copy()
+    car[:2, :2] = 8
+    write_labels(tmp_path / "k0.png", road, CAMVID11)
+    write_labels(tmp_path / "k9.png", car, CAMVID11)
+    steps = {1: {"keys": ["k0.png"], "predicted_iou": {"3": 0.9}},
+             5: {"keys": ["k0.png", "k9.png"], "predicted_iou": {"3": 0.9}},
+             6: {"keys": ["k0.png", "k9.png"], "predicted_iou": {"3": 0.9, "8": 0.5}},
+             7: {"keys": ["k9.png"], "predicted_iou": {"3": 0.9}},
+             8: {"keys": ["gone.png"], "predicted_iou": {}}}
+    line = lost_summary(steps, key_classes(tmp_path, CAMVID11, None), lambda t: f"f{t}", CAMVID11)
+    assert line == ("\nclasses the key frame(s) hold that the labels lost: car in 2 frame(s) from f5 (a class that left "
+                    "the view, or one the labels missed: the predicted error cannot tell)")
+    assert lost_summary({1: steps[1]}, key_classes(tmp_path, CAMVID11, None), str, CAMVID11) == ""

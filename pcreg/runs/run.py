@@ -563,11 +563,12 @@ class Run:
         """The run's predicted error as lines of its closing message (:func:`pcreg.runs.summary.predicted_summary`);
         "" when no step predicted one. ``truth``: a run scored against the truth, whose classes' IoU comes first
         (:func:`pcreg.runs.summary.truth_summary`)."""
-        from .summary import predicted_summary, truth_summary
+        from .summary import key_classes, lost_summary, predicted_summary, truth_summary
 
         steps = self._predicting_steps()
+        lost = lost_summary(steps, key_classes(self.out, self.table, self.state.get("key_frame")), self.frames.stem, self.table)
         return (truth_summary(steps, self.table) if truth else "") + predicted_summary(steps, self.frames.stem, self.table,
-                                                                                      self.out)
+                                                                                      self.out, lost)
 
     @staticmethod
     def read(folder: Path) -> tuple[dict, list[str], list[str]]:

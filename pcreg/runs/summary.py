@@ -1,5 +1,5 @@
 """The closing lines of ``pcreg run``: the run's predicted error over the frames it labelled, the frame predicted
-worst, the class predicted worst, and the command that shows the labels on the frames."""
+worst, the class predicted worst, the classes the labels lost, and the command that shows the labels on the frames."""
 
 from __future__ import annotations
 
@@ -9,17 +9,18 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["predicted_summary", "truth_summary", "LISTED"]
+__all__ = ["predicted_summary", "truth_summary", "lost_summary", "key_classes", "LISTED"]
 
 #: The closing message lists each class's IoU against the truth up to this many classes (CamVid's eleven and a
 #: void fit); beyond, the lowest this many: a line a person reads, not a table.
 LISTED = 12
 
 
-def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table, out: Path) -> str:
+def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table, out: Path, lost: str = "") -> str:
     """The run's predicted error as lines of its closing message ("" when no step predicted one): the mean over the
     frames labelled, the frame predicted worst (``stem``: a frame's name by its position), the class of ``table`` of
-    the lowest mean predicted IoU, and the command that shows the labels in ``out`` on the frames. ``steps``:
+    the lowest mean predicted IoU, ``lost`` (:func:`lost_summary`'s line) and the command that shows the labels in
+    ``out`` on the frames. ``steps``:
     {frame: its step} of the steps with a predicted error (:meth:`pcreg.runs.run.Run.predicted`)."""
     if not steps:
         return ""
@@ -32,7 +33,7 @@ def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table,
         c = min(ious, key=lambda c: ious[c][0])
         line += (f"; the class predicted worst: {table.name_of(c)}, IoU {ious[c][0]:.2f} on average "
                  f"over the {ious[c][1]} frame(s) that show it")
-    return line + f"\nto review the labels on the frames: pcreg view {shlex.quote(str(out))} --web"
+    return line + lost + f"\nto review the labels on the frames: pcreg view {shlex.quote(str(out))} --web"
 
 
 def truth_summary(steps: dict[int, dict], table) -> str:
@@ -78,3 +79,54 @@ def _class_ious(iou, table) -> list[tuple[int, float]]:
         if c is not None and c in ids and type(v) in (int, float) and 0.0 <= v <= 1.0:
             read.append((c, float(v)))
     return read
+
+
+def lost_summary(steps: dict[int, dict], keys_of: Callable[[dict], set[int] | None], stem: Callable[[int], str],
+                 table) -> str:
+    """The line of the closing message naming the classes that a step's key frame(s) hold and its labels do not
+    (``keys_of``: a step's key frames' known classes, None where they cannot be read; a step's labels' classes are
+    its ``predicted_iou``'s), in how many frames and from which (``stem``: a frame's name by its position); "" when
+    none. The confidence cannot see such a class (it has no pixel to be unsure of), and on the shared clips the
+    truth still held it in most such frames (docs/results.md)."""
+    lost: dict[int, list[int]] = {}
+    for t, step in sorted(steps.items()):
+        held, keys = step.get("predicted_iou"), keys_of(step)
+        if not isinstance(held, dict) or not keys:
+            continue
+        for c in keys - {int(k) for k in held if isinstance(k, str) and k.isdigit()}:
+            lost.setdefault(c, []).append(t)
+    if not lost:
+        return ""
+    shown = sorted(lost, key=lambda c: (-len(lost[c]), c))[:LISTED]
+    each = ", ".join(f"{table.name_of(c)} in {len(lost[c])} frame(s) from {stem(lost[c][0])}" for c in shown)
+    more = "" if len(shown) == len(lost) else f", and {len(lost) - len(shown)} more"
+    return (f"\nclasses the key frame(s) hold that the labels lost: {each}{more} (a class that left the view, or one the "
+            "labels missed: the predicted error cannot tell)")
+
+
+def key_classes(out: Path, table, key_frame: str | None) -> Callable[[dict], set[int] | None]:
+    """A step's key frames' known classes, read from their label files in the run's ``out`` (each once): the step's
+    ``keys`` (a key-frames run's), else ``key_frame`` (a run from one label image); None where a file cannot be
+    read (the line is then not said of that step)."""
+    from ..errors import InputError
+    from ..export import read_labels
+
+    known = set(table.known_ids)
+    read: dict[str, set[int] | None] = {}
+
+    def classes(name: str) -> set[int] | None:
+        if name not in read:
+            try:
+                read[name] = set(np.unique(read_labels(out / f"{Path(name).stem}.png", table)).tolist()) & known
+            except (InputError, OSError):
+                read[name] = None
+        return read[name]
+
+    def of(step: dict) -> set[int] | None:
+        names = step.get("keys") or ([] if key_frame is None else [key_frame])
+        found = [classes(str(n)) for n in names]
+        if not found or any(f is None for f in found):
+            return None
+        return {c for f in found if f is not None for c in f}
+
+    return of

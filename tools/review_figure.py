@@ -2,7 +2,8 @@
 
     python tools/review_figure.py --data ../shared/data --out out/review_figure
 
-The run labels every frame from the first one's CamVid labels (``--mapping camvid --confidence``);
+The run labels every frame from the first one's CamVid labels (``--mapping camvid --confidence``), scored against
+the clip's truth (``--truth``: the dashed line of the plot, the IoU against the truth in the legend);
 ``--suggest 3`` writes suggest.txt, the three frames :func:`pcreg.pipeline.keyframes.suggest` picks from the predicted
 errors; the page (``pcreg view OUT --web``) is shown at frame 29 in headless Chromium (tests/_browser.py)
 and stored with a palette (small).
@@ -46,7 +47,7 @@ def main() -> int:
     run = out / "0016E5"
     subprocess.run([sys.executable, "-m", "pcreg.cli", "run", str(clip / "images"), "--labels",
                     str(clip / "labels" / images[0].name), "--mapping", "camvid", "--out", str(run), "--confidence",
-                    "--suggest", "3", "--force"], check=True, env=env)
+                    "--truth", str(clip / "labels"), "--suggest", "3", "--force"], check=True, env=env)
 
     sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
     from _browser import Browser
@@ -57,10 +58,12 @@ def main() -> int:
     with ReviewServer(read_review(run), web_port=0) as server, Browser(width=1400, height=760) as browser:
         browser.open(server.url + "#29")
 
-        def shown() -> bool:
+        def shown() -> bool:  # the frame's picture, and its classes' figures in the legend
             answer = browser.call("Runtime.evaluate", session=True, returnByValue=True,
-                                  expression="document.body && document.body.dataset.shown")
-            return answer["result"].get("value") == "/overlay/29.jpg"
+                                  expression="document.body && document.body.dataset.shown === '/overlay/29.jpg' && "
+                                             "Array.from(document.querySelectorAll('#legend span[data-class]'))"
+                                             ".some((s) => s.textContent.includes('IoU'))")
+            return answer["result"].get("value") is True
 
         for _ in range(600):  # the page draws the frame it opens on
             if shown():

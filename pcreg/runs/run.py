@@ -263,8 +263,9 @@ class Run:
                 print(f"{out}: all frames already done" if start is None else f"{out}: all {start} frames already done")
             self.suggest(request.suggest, keys)
             return
+        steps = self._predicting_steps()  # read once, for the suggestions and the closing lines
         if start is not None:
-            self.suggest(request.suggest, keys)
+            self.suggest(request.suggest, keys, steps)
             msg = f"{done} frame(s) labelled into {out}"
             failed = "those frames fuse the key frame's labels unwarped; "
         else:
@@ -277,10 +278,10 @@ class Run:
                     f"(naive Bayes alone {s['truth']['plain_error']:.2f}%; in {out / STATE})")
         elif s.get("truth"):  # asked for, and no figure: said, not left out
             msg += "\nerror against the truth: none, the truth labels of the frames labelled are all unknown"
-        msg += self.predicted_summary(truth=bool(s.get("truth")))
+        msg += self.predicted_summary(truth=bool(s.get("truth")), steps=steps)
         print(msg, file=sys.stdout)
         if start is None:
-            self.suggest(request.suggest, keys)
+            self.suggest(request.suggest, keys, steps)
 
     # -- opening and resuming -----------------------------------------------------------------------
 
@@ -523,16 +524,16 @@ class Run:
             return
         self.state["truth"] = add_rates({k: sum(p["truth"][k] for p in parts) for k in empty_counts()})
 
-    def suggest(self, count: int | None, keys: list[int]) -> None:
+    def suggest(self, count: int | None, keys: list[int], steps: dict[int, dict] | None = None) -> None:
         """``OUT/suggest.txt``: the ``count`` frames to label next, best first, with their predicted error
-        (:func:`pcreg.runs.files.write_suggestions`), from the predicted errors in steps.jsonl
-        (:func:`pcreg.pipeline.keyframes.suggest`); ``keys``: the key frames' positions."""
+        (:func:`pcreg.runs.files.write_suggestions`), from the predicted errors in steps.jsonl (:meth:`predicted` of
+        ``steps``; :func:`pcreg.pipeline.keyframes.suggest`); ``keys``: the key frames' positions."""
         from ..pipeline.keyframes import suggest
         from .files import write_suggestions
 
         if count is None:
             return
-        predicted = self.predicted()
+        predicted = self.predicted(steps)
         try:
             chosen = suggest(predicted, keys, count, max([*predicted, *keys]) + 1)
         except InputError as exc:
@@ -540,11 +541,11 @@ class Run:
         path = write_suggestions(self.out, [(self.frames.stem(t), predicted[t]) for t in chosen])
         print(f"the {count} frame(s) to label next, best first: {path}")
 
-    def predicted(self) -> dict[int, float]:
+    def predicted(self, steps: dict[int, dict] | None = None) -> dict[int, float]:
         """{frame: its predicted error, % of its pixels} of every step in steps.jsonl that has one (a key frame has
-        none). A step of a frame past the run's frames is an :class:`~pcreg.errors.OutputError`: not one pcreg run
-        wrote."""
-        return {t: float(s["predicted_error"]) for t, s in self._predicting_steps().items()}
+        none; ``steps``: as :meth:`_predicting_steps` read them, when already read). A step of a frame past the run's
+        frames is an :class:`~pcreg.errors.OutputError`: not one pcreg run wrote."""
+        return {t: float(s["predicted_error"]) for t, s in (self._predicting_steps() if steps is None else steps).items()}
 
     def _predicting_steps(self) -> dict[int, dict]:
         """{frame: its step} of the steps in steps.jsonl with a predicted error, as :meth:`predicted` checks them."""
@@ -559,13 +560,13 @@ class Run:
                               "pcreg run wrote); use --force to start over")
         return predicted
 
-    def predicted_summary(self, *, truth: bool = False) -> str:
+    def predicted_summary(self, *, truth: bool = False, steps: dict[int, dict] | None = None) -> str:
         """The run's predicted error as lines of its closing message (:func:`pcreg.runs.summary.predicted_summary`);
         "" when no step predicted one. ``truth``: a run scored against the truth, whose classes' IoU comes first
-        (:func:`pcreg.runs.summary.truth_summary`)."""
+        (:func:`pcreg.runs.summary.truth_summary`); ``steps``: as :meth:`suggest` takes them."""
         from .summary import key_classes, lost_summary, predicted_summary, truth_summary
 
-        steps = self._predicting_steps()
+        steps = self._predicting_steps() if steps is None else steps
         lost = lost_summary(steps, key_classes(self.out, self.table, self.state.get("key_frame")), self.frames.stem, self.table)
         return (truth_summary(steps, self.table) if truth else "") + predicted_summary(steps, self.frames.stem, self.table,
                                                                                       self.out, lost)

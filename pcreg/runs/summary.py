@@ -93,7 +93,7 @@ def lost_summary(steps: dict[int, dict], keys_of: Callable[[dict], set[int] | No
         held, keys = step.get("predicted_iou"), keys_of(step)
         if not isinstance(held, dict) or not keys:
             continue
-        for c in keys - {int(k) for k in held if isinstance(k, str) and k.isdigit()}:
+        for c in keys - {c for c, _ in _class_ious(held, table)}:
             lost.setdefault(c, []).append(t)
     if not lost:
         return ""

@@ -108,6 +108,10 @@ class RunReview:
     def labels_path(self, t: int) -> Path:
         return self.folder / f"{self.stems[t]}.png"
 
+    def truth_at(self, t: int) -> StepTruth | None:
+        """Frame ``t``'s figures against the truth (:attr:`truths`), None where it has none."""
+        return self.truths[t] if t < len(self.truths) else None
+
     def confidence_path(self, t: int) -> Path | None:
         from .runs.files import CONFIDENCE
 
@@ -266,7 +270,7 @@ def class_figures(review: RunReview, t: int) -> list[dict]:
     labels = read_labels(review.labels_path(t), review.table)
     counts = np.bincount(labels.ravel(), minlength=256)
     iou = review.ious[t] if t < len(review.ious) else None
-    truth = review.truths[t] if t < len(review.truths) else None
+    truth = review.truth_at(t)
     scored = None if truth is None else truth.iou
     return [{"id": c.id, "share": 100.0 * float(counts[c.id]) / max(1, labels.size),
              "iou": None if iou is None else iou.get(c.id), "truth_iou": None if scored is None else scored.get(c.id)}

@@ -113,7 +113,7 @@ function drawPlot() {
   const W = 400, H = 220, L = 38, R = 10, T = 10, B = 26;
   const errs = frames.map((f) => (f.key ? null : f.error));
   const truths = frames.map((f) => (f.key || f.truth_error === undefined ? null : f.truth_error));
-  const scored = truths.some((e) => e !== null);
+  const scored = state.scored;
   // not Math.max(...errs): past about 120,000 arguments (an hour's run at 30 frames a second) it throws
   const highest = errs.concat(truths).reduce((m, e) => (e !== null && e > m ? e : m), 0);
   const yStep = niceStep(highest / 5);

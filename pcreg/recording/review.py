@@ -141,7 +141,7 @@ class ReviewServer:
                 self._shown = frozenset(shown_classes(r))
             shown = self._shown
         frames = [{"name": n, "key": t in r.keys, "error": r.errors[t], "no_confidence": self._no_confidence(t),
-                   "truth_error": _truth_error(r, t)} for t, n in enumerate(r.names)]
+                   "truth_error": None if (truth := r.truth_at(t)) is None else truth.error} for t, n in enumerate(r.names)]
         suggested = [{"frame": t, "name": r.names[t], "error": e} for t, e in r.suggested]
         return json.dumps({
             "folder": str(r.folder), "source": str(r.source), "kind": r.kind, "frames": frames,
@@ -265,9 +265,3 @@ class ReviewServer:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def _truth_error(review, t: int) -> float | None:
-    """Frame ``t``'s error against the truth in % (a run with ``--truth``), None where it has none."""
-    truth = review.truths[t] if t < len(review.truths) else None
-    return None if truth is None else truth.error

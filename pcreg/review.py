@@ -6,8 +6,8 @@ error and the frames suggested to label next. :class:`FrameImages` reads the fra
 run's source, a folder of images or a video. :func:`overlay` draws one frame's labels over it (each
 class in its colour of the run's class table, :mod:`pcreg.classes`; unknown left clear) and, with its confidence, hatches the pixels whose label is
 less sure than :data:`LOW_CONFIDENCE`. :func:`write_overlay_video` writes every frame so drawn as a video, of the
-frames' size, each with a legend drawn in (:func:`video_frame`, :mod:`pcreg.legend`): its name, its classes, the
-hatching.
+frames' size, each with a legend drawn in (:func:`video_frame`, :mod:`pcreg.legend`): its name, its figures, its
+classes, the hatching.
 
 A video is read in decoding order, never by seeking (as :mod:`pcreg.datasets.sources` reads it), so
 that frame ``i`` is the run's frame ``i``. For a page that jumps about a long video,
@@ -30,7 +30,7 @@ from .errors import InputError
 from .validation import check_float
 from .formats import loads_json
 from .runs.files import StepTruth, finite_figure, step_class_iou
-from .legend import Legend, draw_legend
+from .legend import Legend, draw_legend, legend_figures
 
 __all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay",
            "FrameImages", "video_frame", "write_overlay_video"]
@@ -314,14 +314,25 @@ def read_overlay(review: RunReview, t: int, image: np.ndarray) -> np.ndarray:
 
 def video_frame(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarray, Legend]:
     """Frame ``t`` of ``review`` as the overlay video shows it: :func:`read_overlay`'s picture with its legend
-    drawn in (:func:`pcreg.legend.draw_legend`: the frame's name, the classes its labels show, the hatching
-    when a label is hatched), and where the legend went."""
+    drawn in (:func:`pcreg.legend.draw_legend`: the frame's name, its figures, the classes its labels show, the
+    hatching when a label is hatched), and where the legend went."""
     labels, conf = _frame_labels(review, t, image)
     drawn = overlay(image, labels, conf, key=t in review.keys, table=review.table)
     hatched = conf is not None and bool(_unsure(labels, conf, review.table).any())
     title = review.names[t] if review.kind == "folder" else f"frame {review.names[t]}"
     return draw_legend(drawn, labels, title=title + (" (key frame)" if t in review.keys else ""), table=review.table,
-                       hatched_below=LOW_CONFIDENCE if hatched else None, inset=_border(labels.shape))
+                       hatched_below=LOW_CONFIDENCE if hatched else None, inset=_border(labels.shape),
+                       **frame_figures(review, t))
+
+
+def frame_figures(review: RunReview, t: int) -> dict:
+    """Frame ``t``'s figures as its legend in the overlay video gives them (:func:`pcreg.legend.legend_figures`: its
+    predicted error and each class's predicted IoU, and against the truth in a run scored with ``--truth``)."""
+    truth = review.truth_at(t)
+    return legend_figures(review.errors[t] if t < len(review.errors) else None,
+                          review.ious[t] if t < len(review.ious) else None,
+                          None if truth is None else truth.error, None if truth is None else truth.iou)
+
 
 
 def _frame_labels(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:

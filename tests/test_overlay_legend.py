@@ -143,3 +143,62 @@ def test_a_frame_too_small_for_its_legend_shows_its_name_alone(tmp_path, capsys)
     assert err.count("too small for the legend") == 1 and str(video) in err
     frames = _decoded(video)
     assert len(frames) == N and all(f.shape == (72, 96, 3) for f in frames)
+
+
+def test_a_labelled_frames_legend_gives_its_predicted_error_and_each_classs_predicted_iou(run_out):
+    import json
+
+    from pcreg.review import FrameImages, frame_figures, read_review, video_frame
+
+    review = read_review(run_out)
+    steps = [json.loads(line) for line in (run_out / "steps.jsonl").read_text().splitlines()]
+    assert frame_figures(review, 0) == {}  # the key frame: nothing predicted
+    with FrameImages(review) as images:
+        assert not video_frame(review, 0, images[0])[1].figures
+        for t in range(1, N):
+            step = steps[t - 1]
+            got = frame_figures(review, t)
+            assert got["figures"] == f"predicted error {step['predicted_error']:.1f}%"  # in % there
+            assert got["scores"] == {int(k): f"{v:.2f}" for k, v in step["predicted_iou"].items()}
+            assert got["scores_key"] == "after each class its predicted IoU"
+            legend = video_frame(review, t, images[t])[1]
+            assert legend.complete and legend.figures and legend.scored, t  # two classes fit at 320x240
+            assert [k for k, _ in legend.swatches] == sorted(got["scores"])
+
+
+def test_what_does_not_fit_goes_first_the_scores_then_the_figures_then_the_classes():
+    from pcreg.classes import CAMVID11
+    from pcreg.legend import draw_legend
+
+    labels = np.repeat((np.arange(640) * 11 // 640).astype(np.uint8)[None], 480, axis=0)  # all eleven classes
+    figures = "predicted error 12.3% (truth 10.1%)"
+    scores = {k: "0.55 (0.61)" for k in range(11)}
+    key = "after each class its IoU, predicted (truth)"
+    legends = {}
+    for w, h in ((960, 720), (640, 480), (320, 240), (160, 120)):
+        image = np.full((h, w, 3), 90, np.uint8)
+        lab = cv2.resize(labels, (w, h), interpolation=cv2.INTER_NEAREST)
+        drawn, legend = draw_legend(image, lab, title="0001TP_006690.png", table=CAMVID11, figures=figures,
+                                    scores=scores, scores_key=key)
+        assert (drawn[_outside(image.shape, legend.box)] == 90).all()
+        legends[w] = legend
+        # with nothing to score the same frame's legend is that of before, figures or not
+        bare = draw_legend(image, lab, title="0001TP_006690.png", table=CAMVID11)[1]
+        assert not bare.figures and not bare.scored and bare.complete == (w >= 320)
+    assert [(g.complete, g.figures, g.scored) for g in legends.values()] == [
+        (True, True, True), (True, True, True), (True, True, False), (False, False, False)]
+    assert [k for k, _ in legends[960].swatches] == list(range(11)) == [k for k, _ in legends[320].swatches]
+
+
+def test_a_frames_figures_read_predicted_then_against_the_truth_in_brackets():
+    from pcreg.legend import legend_figures
+
+    assert legend_figures(None, {1: 0.5}, 3.0, {1: 0.4}) == {}  # a key frame
+    assert legend_figures(5.66, None) == {"figures": "predicted error 5.7%"}  # a step of an earlier pcreg
+    assert legend_figures(5.66, {0: 0.981, 8: 0.7749}) == {
+        "figures": "predicted error 5.7%", "scores": {0: "0.98", 8: "0.77"},
+        "scores_key": "after each class its predicted IoU"}
+    # the truth's IoU where it has the class (it names every class its truth or the labels hold)
+    assert legend_figures(5.66, {0: 0.981, 8: 0.7749}, 2.94, {0: 0.99, 3: 0.2, 8: 0.0}) == {
+        "figures": "predicted error 5.7% (truth 2.9%)", "scores": {0: "0.98 (0.99)", 8: "0.77 (0.00)"},
+        "scores_key": "after each class its IoU, predicted (truth)"}

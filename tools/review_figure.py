@@ -7,6 +7,11 @@ the clip's truth (``--truth``: the dashed line of the plot, the IoU against the 
 ``--suggest 3`` writes suggest.txt, the three frames :func:`pcreg.pipeline.keyframes.suggest` picks from the predicted
 errors; the page (``pcreg view OUT --web``) is shown at frame 29 in headless Chromium (tests/_browser.py)
 and stored with a palette (small).
+
+docs/figures/overlay_frame.png: frame 29 of ``pcreg view OUT --overlay OUT.mp4`` (:func:`pcreg.review.video_frame`, before
+the video's compression) of a run over the same clip's first 30 frames in CamVid's eleven classes (``--classes
+camvid11 --confidence --truth``): the legend gives the frame's predicted error beside its error against the truth, and
+each class's predicted IoU beside its IoU against the truth.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ def main() -> int:
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--out", default="out/review_figure")
     ap.add_argument("--figure", default=str(ROOT / "docs" / "figures" / "review_page.png"))
+    ap.add_argument("--overlay-figure", default=str(ROOT / "docs" / "figures" / "overlay_frame.png"))
     args = ap.parse_args()
     clip = Path(args.data) / "camvid" / "0016E5"
     images = sorted((clip / "images").glob("*.png"))
@@ -76,7 +82,28 @@ def main() -> int:
         cv2.imwrite(str(shot), browser.screenshot())
     small_png(shot, Path(args.figure))
     print(f"{args.figure}: {Path(args.figure).stat().st_size // 1024} kB", flush=True)
+    overlay_figure(clip, images, out / "0016E5_eleven", Path(args.overlay_figure), env)
     return 0
+
+
+def overlay_figure(clip: Path, images: list[Path], run: Path, figure: Path, env: dict) -> None:
+    """``figure``: frame 29 of the overlay video of an eleven-class run over the first 30 frames of ``clip``."""
+    import cv2
+
+    from pcreg.review import FrameImages, read_review, video_frame
+
+    subprocess.run([sys.executable, "-m", "pcreg.cli", "run", str(clip / "images"), "--labels",
+                    str(clip / "labels" / images[0].name), "--classes", "camvid11", "--stop", "30", "--out", str(run),
+                    "--confidence", "--truth", str(clip / "labels"), "--force"], check=True, env=env)
+    review = read_review(run)
+    with FrameImages(review) as frames:
+        drawn, legend = video_frame(review, 29, frames[29])
+    if not (legend.figures and legend.scored):
+        sys.exit("frame 29's legend holds no figures")
+    shot = run.parent / "overlay_frame.png"
+    cv2.imwrite(str(shot), drawn[:, :, ::-1])
+    small_png(shot, figure)
+    print(f"{figure}: {figure.stat().st_size // 1024} kB", flush=True)
 
 
 if __name__ == "__main__":

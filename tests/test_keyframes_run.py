@@ -387,3 +387,53 @@ def test_a_key_label_saved_as_a_jpeg_or_tiff_is_said_not_passed_over(tmp_path, f
     assert main(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out2")]) == 2
     err = _err(capsys)
     assert len(err) == 1 and "holds no label PNG" in err[0] and "(f0.jpg, f3.jpg and f4.tif)" in err[0], err
+
+
+def test_key_labels_of_frames_outside_start_and_stop_are_left_out_with_a_note(tmp_path, frames, folder, capsys):
+    """One folder of key labels (or one CVAT export) for a whole video, run a stretch at a time: the labels of frames
+    before --start or from --stop on are left out, said in one note, and the run is the one the labels inside the
+    stretch give; a frame --every steps over inside the stretch is still refused (its labels would be lost)."""
+    stretch = ["--start", "1", "--stop", "5"]  # f1 .. f4
+    whole = _keys(tmp_path / "whole", frames, [0, 2, 5])
+    inside = _keys(tmp_path / "inside", frames, [2])
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["run", str(folder), "--labels", str(inside), "--out", str(a), *stretch]) == 0
+    capsys.readouterr()
+    assert main(["run", str(folder), "--labels", str(whole), "--out", str(b), *stretch]) == 0
+    err = capsys.readouterr().err
+    assert err.count("pcreg: note:") == 1
+    assert f"--labels {whole}: 2 key labels of frames outside those chosen left out (--start 1 --stop 5): f0.png and " \
+           "f5.png" in err
+    assert _outputs(a) == _outputs(b) and sorted(_outputs(b)) == ["f1.png", "f2.png", "f3.png", "f4.png"]
+    assert [_timeless(line) for line in (a / "steps.jsonl").read_text().splitlines()] == [
+        _timeless(line) for line in (b / "steps.jsonl").read_text().splitlines()]
+    # every label outside the stretch: refused in one line, nothing written
+    out = tmp_path / "none"
+    assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "ends", frames, [0, 5])), "--out", str(out),
+                 *stretch]) == 2
+    assert "every key label names a frame outside those chosen (--start 1 --stop 5): f0.png and f5.png" \
+        in _err(capsys)[0] and not out.exists()
+    # inside the stretch but not chosen (--every 2 chooses f1, f3): refused as before
+    assert main(["run", str(folder), "--labels", str(whole), "--out", str(out), *stretch, "--every", "2"]) == 2
+    assert "f2.png: names no frame" in _err(capsys)[0] and not out.exists()
+    # a CVAT export of the whole task: its masks of frames outside the stretch drawn on, left out alike
+    export = tmp_path / "export"
+    (export / "SegmentationClass").mkdir(parents=True)
+    (export / "labelmap.txt").write_text("background:0,0,0::\nground:34,197,94::\nobstacle:255,40,40::\n")
+    colours = np.array([[34, 197, 94], [255, 40, 40], [0, 0, 0]], np.uint8)
+    for i, f in enumerate(frames):
+        drawn = f.labels if i in (0, 2) else np.full_like(f.labels, 2)  # f0 and f2 drawn on, the rest background
+        cv2.imwrite(str(export / "SegmentationClass" / f"f{i}.png"), colours[drawn][:, :, ::-1])
+    c = tmp_path / "c"
+    assert main(["run", str(folder), "--labels", str(export), "--out", str(c), *stretch]) == 0
+    err = capsys.readouterr().err
+    assert f"--labels {export}: 1 key label of frames outside those chosen left out (--start 1 --stop 5): f0.png" in err
+    assert _outputs(c).keys() == _outputs(a).keys()
+    # a video's frames named by index: the key label of frame 0 left out of a run from frame 2
+    video = _video(tmp_path, frames)
+    vkeys = _keys(tmp_path / "vk", frames, [0, 3], name="{:06d}")
+    v = tmp_path / "v"
+    assert main(["run", str(video), "--labels", str(vkeys), "--out", str(v), "--start", "2"]) == 0
+    assert "1 key label of frames outside those chosen left out (--start 2): 000000.png" in capsys.readouterr().err
+    steps = [json.loads(line) for line in (v / "steps.jsonl").read_text().splitlines()]
+    assert {k for s in steps for k in s["keys"]} == {"000003"}

@@ -47,7 +47,8 @@ from ..errors import InputError
 from .files import LABELMAP_FILE
 from .table import ClassTable
 
-__all__ = ["CLASS_DIR", "MAX_MEMBERS", "is_cvat_export", "wrapped_export", "CvatExport", "read_cvat_keys"]
+__all__ = ["CLASS_DIR", "MAX_MEMBERS", "is_cvat_export", "wrapped_export", "CvatExport", "read_cvat_keys",
+           "outside_chosen", "left_out_note", "outside_text"]
 
 #: The folder of class masks in the export.
 CLASS_DIR = "SegmentationClass"
@@ -394,6 +395,51 @@ def placed(frames, stems: list[str], source) -> list[int | None]:
     return positions
 
 
+def outside_chosen(frames):
+    """A function of a label file's stem (naming no chosen frame) to whether it names a frame of the run's source
+    before ``--start`` or at or after ``--stop``: a folder's frame file, CVAT's ``frame_NNNNNN`` or a video's index in
+    digits, within the source. A run of one stretch of a long video leaves out such key labels (one folder or export
+    holds the whole video's); a frame ``--every`` steps over, inside the stretch, is not outside it (its labels would
+    be lost). The folder's file names are looked up once, here."""
+    s = frames.selection
+    total = len(frames.files) if frames.kind == "folder" else frames.declared
+    files: dict[str, int] = {}
+    if frames.kind == "folder":
+        for i, p in enumerate(frames.files):
+            files.setdefault(_nfc(p.stem), i)
+
+    def outside(stem: str) -> bool:
+        index = files.get(_nfc(stem))
+        if index is None:
+            m = _FRAME.fullmatch(stem)
+            if m is not None:
+                index = int(m.group(1))
+            elif frames.kind != "folder" and stem.isascii() and stem.isdigit() and len(stem) <= 9:
+                index = int(stem)
+        if index is None or (total is not None and index >= total):
+            return False
+        return index < s.start or (s.stop is not None and index >= s.stop)
+
+    return outside
+
+
+def left_out_note(source, names: list[str], selection) -> str | None:
+    """The note of a run that leaves out the key labels ``names`` of ``source`` (:func:`outside_chosen`); None
+    for none."""
+    if not names:
+        return None
+    n = len(names)
+    return f"{source}: {n} key label{'s' if n > 1 else ''} of frames outside those chosen left out {outside_text(names, selection)}"
+
+
+def outside_text(names: list[str], selection) -> str:
+    """``(--start S --stop E): NAMES``, how the notes and refusals of key labels outside the chosen stretch end."""
+    from ..validation import listed
+
+    chosen = f"--start {selection.start}" + ("" if selection.stop is None else f" --stop {selection.stop}")
+    return f"({chosen}): {listed(names)}"
+
+
 def named_frames(frames) -> str:
     """How the run's frames are named: the first and the last."""
     n = len(frames) if frames.kind == "folder" else frames.count()
@@ -404,12 +450,15 @@ def named_frames(frames) -> str:
 
 
 def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | None = None, *,
-                   mapping: str = "none", limit: int | None = None) -> tuple[ClassTable, dict[int, np.ndarray]]:
+                   mapping: str = "none", limit: int | None = None,
+                   left_out: list[str] | None = None) -> tuple[ClassTable, dict[int, np.ndarray]]:
     """``(table, {position: labels})`` of the CVAT export at ``path`` (the module's docstring) for the run's
     ``frames`` (:mod:`pcreg.datasets.sources`), every key frame of ``shape`` (H, W). One line naming the
     file: a malformed archive or mask, a mask of another size than the frames (from its header, drawn on or not:
     its pixels are not inflated), a colour not in ``labelmap.txt``, masks whose names match no frame (saying how
-    both are named), a labelled mask of no chosen frame, two masks of one frame, none drawn on."""
+    both are named), a labelled mask of no chosen frame, two masks of one frame, none drawn on. Given a ``left_out``
+    list, a drawn mask of a frame outside the chosen stretch (:func:`outside_chosen`) is left out, its name added to
+    the list, not refused."""
     from ..formats import check_image_bytes, max_file_bytes
     from ..validation import max_pixels
 
@@ -429,6 +478,7 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
                              f"{frames.path} {named_frames(frames)}: no mask names a frame")
         keys: dict[int, np.ndarray] = {}
         seen: dict[int, str] = {}
+        outside = outside_chosen(frames)
         for m, t in zip(masks, positions):
             data = export.read(m)
             w, h = check_image_bytes(data, export.where(m), limit=lim)
@@ -437,12 +487,18 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
             lab = _decode_mask(data, export.where(m), table, order, lim)
             if (lab == table.unknown).all():
                 continue  # a frame nobody drew on
+            if t is None and left_out is not None and outside(PurePosixPath(m).stem):
+                left_out.append(PurePosixPath(m).name)
+                continue
             if t is None:
                 raise InputError(f"{export.where(m)}: names no frame of {frames.path}"
                                  + ("" if frames.selection.to_dict() is None else " among those chosen"))
             if t in seen:
                 raise InputError(f"{export.where(m)}: a second mask of the frame {frames.name(t)} (also {seen[t]})")
             keys[t], seen[t] = lab, m
+    if not keys and left_out:
+        raise InputError(f"{path}: every mask drawn on names a frame outside those chosen "
+                         f"{outside_text(left_out, frames.selection)}")
     if not keys:
         raise InputError(f"{path}: every mask is background only: no key frame drawn")
     return table, {t: keys[t] for t in sorted(keys)}

@@ -43,9 +43,12 @@ def read_inputs(request, frames) -> RunInputs:
     """The inputs of ``request`` (a :class:`~pcreg.runs.run.RunRequest`) whose ``frames`` are open, read and
     checked in the order a run meets them: the key frames' labels (through the request's class table, or a
     CVAT export's), the truth, ``--out`` and ``--suggest``."""
+    from ..classes.cvat import left_out_note
+
     table, mapping = request.coding.table, request.coding.mapping
+    left: list[str] = []  # key labels of frames outside --start/--stop, left out
     if request.folder_of_keys:
-        (table, keys), shape, pending = _key_folder(request, frames, table, mapping), None, None
+        (table, keys), shape, pending = _key_folder(request, frames, table, mapping, left), None, None
         # the key files sit in the labels folder, which is not --out: only a frame or a truth map could be overwritten
         spared = request.labels / f"{frames.stem(next(iter(keys)))}.png"
     else:
@@ -55,7 +58,8 @@ def read_inputs(request, frames) -> RunInputs:
     truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, mapping, table)
     check_spares_inputs(request.out, frames, spared, truth)
     check_suggest(request.suggest, frames, len(keys))
-    notes = (other_labels_note(request.labels, frames),) if request.folder_of_keys and request.labels.is_dir() else ()
+    notes = (other_labels_note(request.labels, frames) if request.folder_of_keys and request.labels.is_dir() else None,
+             left_out_note(f"--labels {request.labels}", left, frames.selection))
     return RunInputs(frames, keys, pending is None, truth, table, pending, tuple(filter(None, notes)))
 
 
@@ -122,10 +126,11 @@ def _check_known(path, labels: np.ndarray, table) -> None:
         raise InputError(f"{path}: the labels are all unknown ({table.unknown}): nothing to fit or propagate")
 
 
-def _key_folder(request, frames, table, mapping: str) -> tuple:
+def _key_folder(request, frames, table, mapping: str, left: list[str]) -> tuple:
     """``(table, keys)``: a folder of key frames' labels, ``NAME.png`` for the frame ``NAME``, read through
     ``table``, or a CVAT export read through its ``labelmap.txt`` (:func:`pcreg.classes.cvat.read_cvat_keys`,
-    whose table it is); each of the frames' size."""
+    whose table it is); each of the frames' size. The names of those of frames outside the chosen stretch, left
+    out, are added to ``left``."""
     from ..classes.cvat import is_cvat_export, read_cvat_keys
     from ..errors import InputError
 
@@ -134,8 +139,9 @@ def _key_folder(request, frames, table, mapping: str) -> tuple:
     if resolved(folder) == resolved(out):
         raise InputError(f"--out {out} would overwrite the key frames' labels in {folder}; choose another folder")
     if is_cvat_export(folder):
-        return read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping)
-    return table, read_key_labels(folder, frames, mapping, first.image.shape[:2], table)
+        return read_cvat_keys(folder, frames, first.image.shape[:2], request.coding.classes, mapping=mapping,
+                              left_out=left)
+    return table, read_key_labels(folder, frames, mapping, first.image.shape[:2], table, left_out=left)
 
 
 def read_labels(path: Path, mapping: str, table=None):
@@ -281,14 +287,16 @@ def _other_labels(folder: Path, frames) -> str | None:
             f"labels ({listed(named)}); a key label is NAME.png (lossless: a JPEG changes the values at every edge)")
 
 
-def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> dict:
+def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], table=None, *,
+                    left_out: list[str] | None = None) -> dict:
     """``{position: labels}`` of the label PNGs in ``folder`` (``NAME.png`` labels the frame ``NAME``, or
     ``NAME_L.png`` as CamVid's download names it (:func:`_frame_stems`), and ``frame_NNNNNN.png`` the source
     frame NNNNNN, as CVAT names them: :func:`~pcreg.classes.cvat.frame_positions`), read through
     ``table`` (None: ``lagr``), each checked: a frame it names, one label a frame, the frames' size, something
-    known."""
+    known. Given a ``left_out`` list, a label of a frame outside the chosen stretch
+    (:func:`~pcreg.classes.cvat.outside_chosen`) is left out, its name added to the list, not refused."""
     from ..classes import DEFAULT_TABLE
-    from ..classes.cvat import named_frames, placed
+    from ..classes.cvat import named_frames, outside_chosen, outside_text, placed
     from ..errors import InputError
 
     table = DEFAULT_TABLE if table is None else table
@@ -301,7 +309,11 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     positions = placed(frames, _frame_stems(frames, files), folder)
     keys: dict = {}
     seen: dict[int, Path] = {}
-    for f, t in zip(files, positions):
+    outside = outside_chosen(frames)
+    for f, stem, t in zip(files, _frame_stems(frames, files), positions):
+        if t is None and left_out is not None and outside(stem):
+            left_out.append(f.name)
+            continue
         if t is None:
             raise InputError(f"{f}: names no frame of {frames.path} ({named_frames(frames)})"
                              + ("" if frames.selection.to_dict() is None else " among those chosen")
@@ -315,6 +327,9 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
             raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}{turned}")
         _check_known(f, lab, table)
         keys[t], seen[t] = lab, f
+    if not keys:  # every label of a frame outside the stretch
+        raise InputError(f"--labels {folder}: every key label names a frame outside those chosen "
+                         f"{outside_text(left_out or [], frames.selection)}")
     if mapping == "davis":
         from ..classes.keys import check_one_object
 

@@ -415,7 +415,8 @@ def test_key_labels_of_frames_outside_start_and_stop_are_left_out_with_a_note(tm
         in _err(capsys)[0] and not out.exists()
     # inside the stretch but not chosen (--every 2 chooses f1, f3): refused as before
     assert main(["run", str(folder), "--labels", str(whole), "--out", str(out), *stretch, "--every", "2"]) == 2
-    assert "f2.png: names no frame" in _err(capsys)[0] and not out.exists()
+    err = _err(capsys)[0]
+    assert "f2.png: names no frame" in err and "--every 2 chooses f1 and f3 around it" in err and not out.exists()
     # a CVAT export of the whole task: its masks of frames outside the stretch drawn on, left out alike
     export = tmp_path / "export"
     (export / "SegmentationClass").mkdir(parents=True)

@@ -48,7 +48,8 @@ from .files import LABELMAP_FILE
 from .table import ClassTable
 
 __all__ = ["CLASS_DIR", "MAX_MEMBERS", "is_cvat_export", "wrapped_export", "CvatExport", "read_cvat_keys",
-           "outside_chosen", "left_out_note", "outside_text"]
+           "outside_chosen", "left_out_note", "outside_text", "source_indices",
+           "chosen_around"]
 
 #: The folder of class masks in the export.
 CLASS_DIR = "SegmentationClass"
@@ -395,20 +396,17 @@ def placed(frames, stems: list[str], source) -> list[int | None]:
     return positions
 
 
-def outside_chosen(frames):
-    """A function of a label file's stem (naming no chosen frame) to whether it names a frame of the run's source
-    before ``--start`` or at or after ``--stop``: a folder's frame file, CVAT's ``frame_NNNNNN`` or a video's index in
-    digits, within the source. A run of one stretch of a long video leaves out such key labels (one folder or export
-    holds the whole video's); a frame ``--every`` steps over, inside the stretch, is not outside it (its labels would
-    be lost). The folder's file names are looked up once, here."""
-    s = frames.selection
+def source_indices(frames):
+    """A function of a label file's stem to the index of the source frame it names (before ``--start`` and ``--every``),
+    None where it names none: a folder's frame file, CVAT's ``frame_NNNNNN`` or a video's index in digits, within
+    the source. The folder's file names are looked up once, here."""
     total = len(frames.files) if frames.kind == "folder" else frames.declared
     files: dict[str, int] = {}
     if frames.kind == "folder":
         for i, p in enumerate(frames.files):
             files.setdefault(_nfc(p.stem), i)
 
-    def outside(stem: str) -> bool:
+    def index_of(stem: str) -> int | None:
         index = files.get(_nfc(stem))
         if index is None:
             m = _FRAME.fullmatch(stem)
@@ -416,11 +414,37 @@ def outside_chosen(frames):
                 index = int(m.group(1))
             elif frames.kind != "folder" and stem.isascii() and stem.isdigit() and len(stem) <= 9:
                 index = int(stem)
-        if index is None or (total is not None and index >= total):
-            return False
-        return index < s.start or (s.stop is not None and index >= s.stop)
+        return None if index is None or (total is not None and index >= total) else index
+
+    return index_of
+
+
+def outside_chosen(frames):
+    """A function of a label file's stem (naming no chosen frame) to whether it names a frame of the run's source
+    (:func:`source_indices`) before ``--start`` or at or after ``--stop``. A run of one stretch of a long video leaves
+    out such key labels (one folder or export holds the whole video's); a frame ``--every`` steps over, inside the
+    stretch, is not outside it (its labels would be lost)."""
+    s, index_of = frames.selection, source_indices(frames)
+
+    def outside(stem: str) -> bool:
+        index = index_of(stem)
+        return index is not None and (index < s.start or (s.stop is not None and index >= s.stop))
 
     return outside
+
+
+def chosen_around(frames, stem: str) -> str:
+    """Where ``stem`` names a source frame inside the chosen stretch that ``--every`` steps over, ``; --every N
+    chooses A and B around it`` (the chosen frames before and after it), for the refusal to say; else ``""``."""
+    s = frames.selection
+    index = source_indices(frames)(stem)
+    if index is None or s.every == 1 or index < s.start or (s.stop is not None and index >= s.stop):
+        return ""
+    first = (index - s.start) // s.every
+    n = len(frames) if frames.kind == "folder" else frames.count()
+    around = [frames.stem(p) for p in (first, first + 1) if n is None or p < n]
+    return (f"; --every {s.every} chooses {' and '.join(around)} around it: label one of those, or choose --start and "
+            "--every so that it is chosen") if around else ""
 
 
 def left_out_note(source, names: list[str], selection) -> str | None:
@@ -492,7 +516,8 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
                 continue
             if t is None:
                 raise InputError(f"{export.where(m)}: names no frame of {frames.path}"
-                                 + ("" if frames.selection.to_dict() is None else " among those chosen"))
+                                 + ("" if frames.selection.to_dict() is None else " among those chosen")
+                                 + chosen_around(frames, PurePosixPath(m).stem))
             if t in seen:
                 raise InputError(f"{export.where(m)}: a second mask of the frame {frames.name(t)} (also {seen[t]})")
             keys[t], seen[t] = lab, m

@@ -296,7 +296,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     known. Given a ``left_out`` list, a label of a frame outside the chosen stretch
     (:func:`~pcreg.classes.cvat.outside_chosen`) is left out, its name added to the list, not refused."""
     from ..classes import DEFAULT_TABLE
-    from ..classes.cvat import named_frames, outside_chosen, outside_text, placed
+    from ..classes.cvat import chosen_around, named_frames, outside_chosen, outside_text, placed
     from ..errors import InputError
 
     table = DEFAULT_TABLE if table is None else table
@@ -315,10 +315,11 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
             left_out.append(f.name)
             continue
         if t is None:
+            around = chosen_around(frames, stem)  # a frame of the stretch --every steps over: its name is right
             raise InputError(f"{f}: names no frame of {frames.path} ({named_frames(frames)})"
                              + ("" if frames.selection.to_dict() is None else " among those chosen")
-                             + "; a key label is named as its frame: NAME.png labels the frame NAME (as do "
-                               "NAME_L.png and CVAT's frame_NNNNNN.png)")
+                             + (around or "; a key label is named as its frame: NAME.png labels the frame NAME (as do "
+                                          "NAME_L.png and CVAT's frame_NNNNNN.png)"))
         if t in seen:
             raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
         lab = read_labels(f, mapping, table)

@@ -13,9 +13,10 @@ def one_line_errors(capsys) -> list[str]:
 
 
 def timeless(line: str) -> dict:
-    """A steps.jsonl line without what differs from run to run (its clocks)."""
+    """A steps.jsonl line without what differs from run to run (its clocks, and the frame file's modification time)."""
     step = json.loads(line)
     step.pop("times")
+    step.pop("mtime_ns", None)
     step["registration"].pop("seconds")
     return step
 

@@ -89,16 +89,63 @@ def _refused_while_written_again(run, path, said, capsys):
     assert main(run) == 0
 
 
-def _without_sizes(out):
-    """``out``'s run as a run from before the frames' sizes were kept: no ``bytes`` in its steps, no ``key_bytes``."""
+def _without_sizes(out, kept=("bytes", "mtime_ns", "digest"), state_kept=("key_bytes", "key_contents")):
+    """``out``'s run as a run from before the frames' sizes were kept: none of ``kept`` in its steps, none of
+    ``state_kept`` in its run.json (by default no ``bytes``, ``mtime_ns`` or ``digest``; no ``key_bytes`` or
+    ``key_contents``)."""
     import json
 
     lines = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
-    (out / "steps.jsonl").write_text("".join(json.dumps({k: v for k, v in s.items() if k != "bytes"}) + "\n"
+    (out / "steps.jsonl").write_text("".join(json.dumps({k: v for k, v in s.items() if k not in kept}) + "\n"
                                              for s in lines))
     state = json.loads((out / "run.json").read_text())
-    state.pop("key_bytes")
+    for name in state_kept:
+        state.pop(name)
     (out / "run.json").write_text(json.dumps(state))
+
+
+def _same_size_other_frame(path, other):
+    """The frame at ``path`` written again as ``other``'s picture, to the same size (an uncompressed BMP)."""
+    before = path.stat().st_size
+    cv2.imwrite(str(path), cv2.imread(str(other)))
+    assert path.stat().st_size == before
+
+
+def test_a_frame_written_again_to_the_same_size_is_refused_and_one_only_touched_resumes(tmp_path, capsys):
+    """Uncompressed frames (BMP) of one size: a frame written again as another frame's picture keeps its size in
+    bytes, which alone was checked: the run again went on as "all frames already done" with labels of a frame no
+    longer there. Its modification time changed, so the digest of its bytes is read and told apart: refused, the key
+    frame too, a run from one label image and from key frames alike. A frame touched (its time changed, its bytes
+    not) resumes; a run from before the digests were kept resumes unchecked, as before."""
+    import os
+
+    from _runs import key_frames_of
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    for p in sorted(folder.glob("*.png")):
+        cv2.imwrite(str(p.with_suffix(".bmp")), cv2.imread(str(p)))
+        p.unlink()
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 5))
+    for labels, out in ((key, tmp_path / "one"), (keys, tmp_path / "keyed")):
+        run = ["run", str(folder), "--labels", str(labels), "--out", str(out)]
+        assert main(run) == 0
+        for name, said in (("f2.bmp", "labelled it"), ("f0.bmp", "labelled from it")):
+            path = folder / name
+            kept = path.read_bytes()
+            _same_size_other_frame(path, folder / "f4.bmp")
+            capsys.readouterr()
+            assert main(run) == 2
+            err = one_line_errors(capsys)
+            assert len(err) == 1 and f"{path}: changed since the run in {out} {said} (the same size, other contents)" \
+                in err[0], err
+            path.write_bytes(kept)  # put back (its time changed again): done
+            assert main(run) == 0
+        for p in folder.iterdir():  # every frame touched, its bytes kept
+            os.utime(p, ns=(p.stat().st_atime_ns, p.stat().st_mtime_ns + 10**9))
+        assert main(run) == 0
+    _without_sizes(tmp_path / "one", kept=("mtime_ns", "digest"), state_kept=("key_contents",))
+    _same_size_other_frame(folder / "f2.bmp", folder / "f4.bmp")
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "one")]) == 0
 
 
 def test_a_frame_written_again_after_it_was_labelled_is_refused_on_resume(tmp_path, capsys):

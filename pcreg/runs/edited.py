@@ -1,6 +1,7 @@
 """What a resumed ``pcreg run`` checks of its frames against what it labelled: a folder's frame renamed, added or
-written again since (its file's size in bytes), so that a run never goes on from, or keeps labels of, frames that are no
-longer there. A video's file is checked whole (:func:`pcreg.runs.video_file.keep_video`)."""
+written again since (its file's size in bytes and, where its modification time changed, a digest of its bytes:
+:func:`frame_stamp`), so that a run never goes on from, or keeps labels of, frames that are no longer there. A video's
+file is checked whole (:func:`pcreg.runs.video_file.keep_video`)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ from ..errors import InputError, OutputError
 from .files import STEPS, parse_steps, step_lines
 from .state import STATE
 
-__all__ = ["check_same_inputs", "check_same_frames", "check_same_frame", "frame_bytes", "frame_moved", "moved_error"]
+__all__ = ["check_same_inputs", "check_same_frames", "check_same_frame", "check_key_files", "frame_bytes",
+           "frame_stamp", "file_digest", "key_contents", "frame_moved", "moved_error"]
 
 
 def check_same_inputs(frames, out: Path, identity: dict | None, done: int, labels_changed: bool) -> None:
@@ -28,15 +30,31 @@ def check_same_inputs(frames, out: Path, identity: dict | None, done: int, label
                           "changed since the run began; use --force to start over")
 
 
-def check_same_frames(frames, out: Path, key_frame: str, key_bytes) -> None:
+def check_same_frames(frames, out: Path, key_frame: str, key_bytes, contents=None) -> None:
     """Refuse to continue the run from one label image in ``out`` over a steps.jsonl line pcreg run did not write (the
     export would refuse it, :func:`~pcreg.runs.files.parse_steps`), a frame renamed or a frame's file changed
-    (:func:`check_same_frame`): the key frame against run.json's ``key_bytes``, each labelled frame against its
-    line's ``bytes``."""
+    (:func:`check_same_frame`): the key frame against run.json's ``key_bytes`` and ``key_contents`` (``contents``),
+    each labelled frame against its line's ``bytes``, ``mtime_ns`` and ``digest``."""
     steps = parse_steps(out / STEPS, step_lines(out))
-    check_same_frame(frames, out, 0, {"name": key_frame, "bytes": key_bytes}, key=True)
+    check_same_frame(frames, out, 0, {"name": key_frame, "bytes": key_bytes, **_contents(contents, key_frame)}, key=True)
     for step in steps:  # every line read, a video's too
         check_same_frame(frames, out, int(step["frame"]), step)
+
+
+def check_key_files(frames, out: Path, state: dict, keys) -> None:
+    """Refuse to continue the key-frames run in ``out`` whose key frames ``keys`` (positions) changed since they were
+    labelled from (:func:`check_same_frame`, against run.json's ``key_bytes`` and ``key_contents`` in ``state``)."""
+    sizes = state.get("key_bytes") or {}
+    for k in sorted(keys):
+        name = frames.name(k)
+        check_same_frame(frames, out, k, {"name": name, "bytes": sizes.get(name), **_contents(state.get("key_contents"), name)},
+                         key=True)
+
+
+def _contents(contents, name: str) -> dict:
+    """run.json's ``key_contents`` entry of the key frame ``name`` (``mtime_ns`` and ``digest``), or {}."""
+    entry = contents.get(name) if isinstance(contents, dict) else None
+    return entry if isinstance(entry, dict) else {}
 
 
 def frame_bytes(frames, t: int) -> int | None:
@@ -44,10 +62,36 @@ def frame_bytes(frames, t: int) -> int | None:
     return frames.where(t).stat().st_size if frames.kind == "folder" else None
 
 
+def file_digest(path: Path) -> str:
+    """A digest of the file's bytes (BLAKE2b, 16 bytes, in hex)."""
+    import hashlib
+
+    return hashlib.blake2b(Path(path).read_bytes(), digest_size=16).hexdigest()
+
+
+def frame_stamp(frames, t: int) -> dict:
+    """What a resumed run checks frame ``t``'s file against, for a folder's ``frames``: its size in ``bytes``, its
+    modification time (``mtime_ns``) and a ``digest`` of its bytes ({} for a video's). The size alone misses a frame
+    written again to the same size (uncompressed BMP or PPM frames of another clip); the digest is read again on a
+    resume only where the modification time changed (a copied folder: once for every frame)."""
+    if frames.kind != "folder":
+        return {}
+    path = frames.where(t)
+    st = path.stat()
+    return {"bytes": st.st_size, "mtime_ns": st.st_mtime_ns, "digest": file_digest(path)}
+
+
+def key_contents(frames, keys) -> dict:
+    """run.json's ``key_contents``: each key frame's (positions ``keys``) ``mtime_ns`` and ``digest``, by name."""
+    stamps = {frames.name(k): frame_stamp(frames, k) for k in keys}
+    return {name: {"mtime_ns": s["mtime_ns"], "digest": s["digest"]} for name, s in stamps.items() if s}
+
+
 def check_same_frame(frames, out: Path, t: int, step: dict, *, key: bool = False) -> None:
     """An :class:`~pcreg.errors.OutputError` when the run in ``out`` labelled ``step["name"]`` as frame ``t`` of a folder
     that now holds another there (renamed, added), or when the frame's file is no longer the size in bytes it was
-    (``step["bytes"]``, where the step kept it: the frame was written again, its labels are of the frame as it was).
+    (``step["bytes"]``, where the step kept it: the frame was written again, its labels are of the frame as it was), or,
+    its modification time changed (``step["mtime_ns"]``), no longer holds the bytes it did (``step["digest"]``).
     ``key``: frame ``t`` is a key frame, which the run labelled others from."""
     if frames.kind != "folder" or t >= len(frames):
         return
@@ -56,11 +100,16 @@ def check_same_frame(frames, out: Path, t: int, step: dict, *, key: bool = False
         raise OutputError(f"{out / STATE}: the run labelled {name} as frame {t}, which {frames.path} "
                           f"now holds as {frames.name(t)}: the frames changed since the run began; "
                           "use --force to start over")
+    what = "labelled from it" if key else "labelled it"
+    whose = "the labels carried from it are" if key else "its labels are"
     if type(before) is int and (now := frame_bytes(frames, t)) != before:
-        what = "labelled from it" if key else "labelled it"
-        whose = "the labels carried from it are" if key else "its labels are"
         raise OutputError(f"{frames.where(t)}: changed since the run in {out} {what} ({before} bytes "
                           f"then, {now} now): {whose} of the frame as it was; use --force to start over")
+    mtime, digest = step.get("mtime_ns"), step.get("digest")
+    if type(mtime) is int and isinstance(digest, str) and frames.where(t).stat().st_mtime_ns != mtime \
+            and file_digest(frames.where(t)) != digest:
+        raise OutputError(f"{frames.where(t)}: changed since the run in {out} {what} (the same size, other "
+                          f"contents): {whose} of the frame as it was; use --force to start over")
 
 
 def frame_moved(frames, t: int, name: str) -> bool:

@@ -48,7 +48,8 @@ import numpy as np
 from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
 from ..outputs import atomic_file
-from .edited import check_same_frame, check_same_frames, check_same_inputs, frame_bytes
+from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, frame_bytes, frame_stamp,
+                     key_contents)
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_recording, nothing_to_record
@@ -297,7 +298,7 @@ class Run:
             if self.frames.kind == "video":
                 keep_video(state, self.frames, self.out)
             self._cut_steps(int(state["done"]) - 1)
-            check_same_frames(self.frames, self.out, str(state["key_frame"]), state.get("key_bytes"))
+            check_same_frames(self.frames, self.out, str(state["key_frame"]), state.get("key_bytes"), state.get("key_contents"))
             self._remove_partial_writes()
             stems = [self.frames.stem(t) for t in range(int(state["done"]))]
             check_labelled(self.out, stems, labels.shape, stems[1:] if self.confidence else ())
@@ -307,7 +308,7 @@ class Run:
         self.state = {"format": FORMAT, "run": self.identity, "key_frame": self.frames.name(0), "done": 1, "fallbacks": 0,
                       "truth": empty_counts() if self.truth else None, "key_labels": digest}
         if self.frames.kind == "folder":
-            self.state["key_bytes"] = frame_bytes(self.frames, 0)
+            self.state.update(key_bytes=frame_bytes(self.frames, 0), key_contents=key_contents(self.frames, [0]))
         if self.frames.kind == "video":
             keep_video(self.state, self.frames, self.out)
         write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
@@ -417,10 +418,8 @@ class Run:
         if cursor is not None and cursor["fingerprint"] not in plan:
             cursor = None
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
-        if self.frames.kind == "folder":  # the file of a key frame that kept steps were labelled from, written again
-            before = self.state.get("key_bytes") or {}  # since: refused before anything is written
-            for k in sorted({k for s in live for k in s.keys}):
-                check_same_frame(self.frames, self.out, k, {"name": self.frames.name(k), "bytes": before.get(self.frames.name(k))}, key=True)
+        if self.frames.kind == "folder":  # a key frame that kept steps were labelled from, written again since: refused
+            check_key_files(self.frames, self.out, self.state, {k for s in live for k in s.keys})  # before anything is written
         lines = self._keep_steps(live, next(iter(keys.values())).shape)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
         if state is not None and (self.out / HIDDEN).is_dir():  # a run's (one started over lost it whole)
@@ -429,7 +428,8 @@ class Run:
                     shutil.rmtree(d, ignore_errors=True)
         names = {self.frames.name(k): label_digest(lab) for k, lab in keys.items()}
         if self.frames.kind == "folder":
-            self.state["key_bytes"] = {self.frames.name(k): frame_bytes(self.frames, k) for k in keys}
+            self.state.update(key_bytes={self.frames.name(k): frame_bytes(self.frames, k) for k in keys},
+                              key_contents=key_contents(self.frames, keys))
         for k, lab in keys.items():
             f = self.out / f"{self.frames.stem(k)}.png"
             if self.state["keys"].get(self.frames.name(k)) != names[self.frames.name(k)] \
@@ -455,8 +455,7 @@ class Run:
         counted into ``counts`` (``scored``: its truth map and naive Bayes' labels alone, or two Nones) and
         its ``step`` line; the caller commits."""
         stem = self.frames.stem(t)
-        if self.frames.kind == "folder":  # what a resumed run checks the frame's file against
-            step = dict(step, bytes=frame_bytes(self.frames, t))
+        step = dict(step, **frame_stamp(self.frames, t))  # what a resumed run checks a folder's frame file against
         write_labels(self.out / f"{stem}.png", labels, self.table)
         if confidence is not None:
             (self.out / CONFIDENCE).mkdir(exist_ok=True)

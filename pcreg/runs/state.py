@@ -55,9 +55,19 @@ def _stream_state_problem(state: dict) -> str | None:
         return "key_labels"
     if state.get("key_bytes") is not None and not is_count(state["key_bytes"]):  # a folder's key frame's file size
         return "key_bytes"
+    if not _key_contents_ok(state.get("key_contents")):
+        return "key_contents"
     if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
         return "truth"
     return None
+
+
+def _key_contents_ok(contents) -> bool:
+    """Whether run.json's ``key_contents`` (each key frame's file's modification time and digest, by name; runs begun
+    before they were kept have none) is as pcreg run writes it."""
+    return contents is None or (isinstance(contents, dict) and all(
+        isinstance(e, dict) and type(e.get("mtime_ns")) is int and isinstance(e.get("digest"), str)
+        for e in contents.values()))
 
 
 def _stretch_problem(e, cursor: bool) -> bool:
@@ -76,6 +86,8 @@ def _keys_state_problem(state: dict) -> str | None:
     sizes = state.get("key_bytes")  # a folder's key frames' file sizes (runs begun before they were kept have none)
     if sizes is not None and not (isinstance(sizes, dict) and all(is_count(v) for v in sizes.values())):
         return "key_bytes"
+    if not _key_contents_ok(state.get("key_contents")):
+        return "key_contents"
     if not isinstance(state.get("stretches"), list) or any(_stretch_problem(e, False) for e in state["stretches"]):
         return "stretches"
     if state.get("cursor") is not None and _stretch_problem(state["cursor"], True):

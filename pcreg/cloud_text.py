@@ -51,6 +51,11 @@ def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
     if bad is not None:
         number, line = bad
         text = line.decode("ascii", "replace").strip()[:40]
+        if text.startswith(("#", "//")):  # numpy.savetxt's header, CloudCompare's //X Y Z: not a damaged point
+            where = "its first point line" if number == 1 else f"point line {number}"
+            raise InputError(f"{path}: {where} ({text!r}) is a comment, which a {suffix} file does not hold (Open3D's "
+                             "reader passes over it); save the points without comment lines, or as .txt or .csv, "
+                             "whose lines starting with # pcreg skips")
         if number == 1:
             raise InputError(f"{path}: its first point line ({text!r}) is not numbers between white space "
                              f"(damaged {suffix} file)")

@@ -324,3 +324,19 @@ def test_an_init_pose_that_is_a_reflection_is_said_of_its_file_as_register_says_
     assert main(["register", str(tmp_path / "ref.png"), str(tmp_path / "mov.png"), "--model", "rigid",
                  "--init", str(tmp_path / "pose2.txt")]) == 2
     assert _err_line(capfd).startswith(f"pcreg: error: {tmp_path / 'pose2.txt'}: the initial guess: it is a reflection")
+
+
+@pytest.mark.parametrize("text, where", [("# x y z\n1 2 3\n4 5 6\n7 8 10\n", "its first point line ('# x y z')"),
+                                         ("1 2 3\n//scan 2\n4 5 6\n7 8 10\n", "point line 2 ('//scan 2')")])
+def test_a_text_cloud_with_comment_lines_is_told_apart_from_a_damaged_one(tmp_path, text, where):
+    """A .xyz file whose lines include a comment (numpy.savetxt's header, CloudCompare's //): refused saying it is a
+    comment and where pcreg reads one, not "damaged"; the same points as a .txt file are read, the comment skipped."""
+    path = tmp_path / "c.xyz"
+    path.write_text(text)
+    with pytest.raises(InputError) as err:
+        load_cloud(path)
+    assert f"{where} is a comment" in str(err.value) and "damaged" not in str(err.value)
+    if text.startswith("#"):
+        txt = tmp_path / "c.txt"
+        txt.write_text(text)
+        np.testing.assert_array_equal(load_cloud(txt), [[1, 2, 3], [4, 5, 6], [7, 8, 10]])

@@ -54,7 +54,7 @@ def check_key_files(frames, out: Path, state: dict, keys) -> None:
 def _contents(contents, name: str) -> dict:
     """run.json's ``key_contents`` entry of the key frame ``name`` (``mtime_ns`` and ``digest``), or {}."""
     entry = contents.get(name) if isinstance(contents, dict) else None
-    return entry if isinstance(entry, dict) else {}
+    return {k: entry.get(k) for k in ("mtime_ns", "digest")} if isinstance(entry, dict) else {}
 
 
 def frame_bytes(frames, t: int) -> int | None:

@@ -363,14 +363,21 @@ def frame_positions(frames, *, left_out: bool = True):
             return composed[_nfc(stem)][0]
         if left_out and _nfc(stem) in unchosen:
             return None
-        m = _FRAME.fullmatch(stem)
-        if m is not None:
-            return source_index(int(m.group(1)))
-        if frames.kind != "folder" and stem.isascii() and stem.isdigit() and len(stem) <= 9:  # as frame_NNNNNN
-            return source_index(int(stem))
-        return None
+        number = _frame_number(stem, frames.kind)
+        return None if number is None else source_index(number)
 
     return where
+
+
+def _frame_number(stem: str, kind: str) -> int | None:
+    """The source frame a stem names by its number: CVAT's ``frame_NNNNNN``, or a video's (``kind``) index in digits
+    (up to nine, as ``frame_NNNNNN``'s); None for another stem."""
+    m = _FRAME.fullmatch(stem)
+    if m is not None:
+        return int(m.group(1))
+    if kind != "folder" and stem.isascii() and stem.isdigit() and len(stem) <= 9:
+        return int(stem)
+    return None
 
 
 def placed(frames, stems: list[str], source) -> list[int | None]:
@@ -409,11 +416,7 @@ def source_indices(frames):
     def index_of(stem: str) -> int | None:
         index = files.get(_nfc(stem))
         if index is None:
-            m = _FRAME.fullmatch(stem)
-            if m is not None:
-                index = int(m.group(1))
-            elif frames.kind != "folder" and stem.isascii() and stem.isdigit() and len(stem) <= 9:
-                index = int(stem)
+            index = _frame_number(stem, frames.kind)
         return None if index is None or (total is not None and index >= total) else index
 
     return index_of

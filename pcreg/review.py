@@ -334,7 +334,6 @@ def frame_figures(review: RunReview, t: int) -> dict:
                           None if truth is None else truth.error, None if truth is None else truth.iou)
 
 
-
 def _frame_labels(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """Frame ``t``'s labels (H, W) and its confidence map (None: the run has none for it), read from the run."""
     import cv2

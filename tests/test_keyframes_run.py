@@ -362,7 +362,9 @@ def test_a_key_label_of_a_frame_file_not_chosen_is_refused_not_moved_to_the_next
     colours = np.array([[34, 197, 94], [255, 40, 40], [0, 0, 0]], np.uint8)
     cv2.imwrite(str(export / "SegmentationClass" / "frame_000003.png"), colours[frames[2].labels][:, :, ::-1])
     assert main(["run", str(d), "--labels", str(export), "--out", str(out), "--every", "2", "--start", "1"]) == 2
-    assert "its masks are named frame_000003" in _err(capsys)[0] and not (out / "run.json").exists()
+    err = _err(capsys)[0]  # as the folder's: the file it names is not chosen, and which are around it
+    assert "frame_000003.png: names no frame" in err and "--every 2 chooses frame_000002 and frame_000004 around it" \
+        in err and not (out / "run.json").exists()
     # labels named by CVAT's numbers of a video task over these files (frame 1 the second file) and by the files'
     # names alike, one of them a file left out: read two ways, refused as when every file is chosen
     cv2.imwrite(str(keys / "frame_000001.png"), frames[1].labels)  # CVAT's frame 1: frame_000002.png, chosen
@@ -430,6 +432,20 @@ def test_key_labels_of_frames_outside_start_and_stop_are_left_out_with_a_note(tm
     err = capsys.readouterr().err
     assert f"--labels {export}: 1 key label of frames outside those chosen left out (--start 1 --stop 5): f0.png" in err
     assert _outputs(c).keys() == _outputs(a).keys()
+    # the same export run on a stretch none of its drawn masks is in: refused saying so, not that no mask names a frame
+    assert main(["run", str(folder), "--labels", str(export), "--out", str(out), "--start", "3", "--stop", "5"]) == 2
+    assert f"{export}: every mask drawn on names a frame outside those chosen (--start 3 --stop 5): f0.png and " \
+           "f2.png" in _err(capsys)[0] and not out.exists()
+    # labels named as CamVid's download names them (NAME_L.png): left out, and stepped over, alike
+    camvid = _keys(tmp_path / "camvid", frames, [0, 2, 5], name="f{}_L")
+    d = tmp_path / "d"
+    assert main(["run", str(folder), "--labels", str(camvid), "--out", str(d), *stretch]) == 0
+    assert "2 key labels of frames outside those chosen left out (--start 1 --stop 5): f0_L.png and f5_L.png" \
+        in capsys.readouterr().err
+    assert _outputs(d) == _outputs(a)
+    assert main(["run", str(folder), "--labels", str(camvid), "--out", str(out), *stretch, "--every", "2"]) == 2
+    err = _err(capsys)[0]
+    assert "f2_L.png: names no frame" in err and "--every 2 chooses f1 and f3 around it" in err and not out.exists()
     # a video's frames named by index: the key label of frame 0 left out of a run from frame 2
     video = _video(tmp_path, frames)
     vkeys = _keys(tmp_path / "vk", frames, [0, 3], name="{:06d}")

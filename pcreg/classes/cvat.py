@@ -500,7 +500,8 @@ def read_cvat_keys(path: Path, frames, shape: tuple[int, int], classes: str | No
                              f"{CLASS_DIR}/NAME.png){export.inner_archive()}")
         stems = [PurePosixPath(m).stem for m in masks]
         positions = placed(frames, stems, path)
-        if all(t is None for t in positions):
+        index_of = source_indices(frames)
+        if all(t is None for t in positions) and all(index_of(stem) is None for stem in stems):
             raise InputError(f"{path}: its masks are named {stems[0]} ... {stems[-1]}, the frames of "
                              f"{frames.path} {named_frames(frames)}: no mask names a frame")
         keys: dict[int, np.ndarray] = {}

@@ -251,13 +251,19 @@ def check_suggest(count: int | None, frames, keys: int) -> None:
 
 def _frame_stems(frames, files: list[Path]) -> list[str]:
     """The frame each label file names by its stem: ``NAME_L.png``, as CamVid's download names its labels, the
-    frame ``NAME`` when ``NAME_L`` names none and ``NAME`` does; else the stem as it is."""
-    from ..classes.cvat import frame_positions
+    frame ``NAME`` when ``NAME_L`` names none and ``NAME`` does (a chosen frame, or one of the source that
+    ``--start``, ``--stop`` or ``--every`` leaves out, so that its label is told apart as any other); else the stem
+    as it is."""
+    from ..classes.cvat import frame_positions, source_indices
     from ..datasets.folder import LABEL_SUFFIX
 
-    where = frame_positions(frames)
-    return [f.stem[: -len(LABEL_SUFFIX)] if f.stem.endswith(LABEL_SUFFIX) and where(f.stem) is None
-            and where(f.stem[: -len(LABEL_SUFFIX)]) is not None else f.stem for f in files]
+    where, index_of = frame_positions(frames), source_indices(frames)
+
+    def names(stem: str) -> bool:
+        return where(stem) is not None or index_of(stem) is not None
+
+    return [f.stem[: -len(LABEL_SUFFIX)] if f.stem.endswith(LABEL_SUFFIX) and not names(f.stem)
+            and names(f.stem[: -len(LABEL_SUFFIX)]) else f.stem for f in files]
 
 
 def other_labels_note(folder: Path, frames) -> str | None:

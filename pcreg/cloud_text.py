@@ -46,16 +46,16 @@ def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
     width = len(firsts[header].split()) if len(firsts) > header else 1
     count, bad = _scan_rows(path, 0, stop=1 << 62, rows=(header, 1 << 62), fields=width)
     expected = count - header
+    text = "" if bad is None else bad[1].decode("ascii", "replace").strip()[:40]
+    if bad is not None and text.startswith(("#", "//")):  # numpy.savetxt's header, CloudCompare's //X Y Z: not a damaged point
+        where = "its first point line" if bad[0] == 1 else f"point line {bad[0]}"
+        passed = " (Open3D's reader passes over it)" if suffix != ".pts" else ""
+        raise InputError(f"{path}: {where} ({text!r}) is a comment, which a {suffix} file does not hold{passed}; save "
+                         "the points without comment lines, or as .txt or .csv, whose lines starting with # pcreg skips")
     if header and int(firsts[0]) != expected:
         raise InputError(f"{path}: the first line declares {int(firsts[0])} points, the file holds {expected} lines")
     if bad is not None:
-        number, line = bad
-        text = line.decode("ascii", "replace").strip()[:40]
-        if text.startswith(("#", "//")):  # numpy.savetxt's header, CloudCompare's //X Y Z: not a damaged point
-            where = "its first point line" if number == 1 else f"point line {number}"
-            raise InputError(f"{path}: {where} ({text!r}) is a comment, which a {suffix} file does not hold (Open3D's "
-                             "reader passes over it); save the points without comment lines, or as .txt or .csv, "
-                             "whose lines starting with # pcreg skips")
+        number = bad[0]
         if number == 1:
             raise InputError(f"{path}: its first point line ({text!r}) is not numbers between white space "
                              f"(damaged {suffix} file)")

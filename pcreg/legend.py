@@ -157,7 +157,7 @@ def legend_figures(error: float | None, iou: dict[int, float] | None, truth_erro
                    truth_iou: dict[int, float] | None = None) -> dict:
     """:func:`draw_legend`'s ``figures``, ``scores`` and ``scores_key`` of a frame whose predicted ``error`` (%) and each
     class's predicted ``iou`` (class id -> IoU; None: the step has none) are given, and, scored against the truth,
-    its error (``truth_error``, %) and each class's IoU (``truth_iou``) in brackets after them. None of them where
+    its error (``truth_error``, %) and each class's IoU (``truth_iou``; None or empty: none) in brackets after them. None of them where
     ``error`` is None (a key frame: nothing predicted there)."""
     if error is None:
         return {}
@@ -166,5 +166,5 @@ def legend_figures(error: float | None, iou: dict[int, float] | None, truth_erro
         return {"figures": figures}
     scores = {k: f"{v:.2f}" + ("" if truth_iou is None or k not in truth_iou else f" ({truth_iou[k]:.2f})")
               for k, v in iou.items()}
-    key = "after each class its " + ("predicted IoU" if truth_iou is None else "IoU, predicted (truth)")
+    key = "after each class its " + ("IoU, predicted (truth)" if truth_iou else "predicted IoU")
     return {"figures": figures, "scores": scores, "scores_key": key}

@@ -340,3 +340,9 @@ def test_a_text_cloud_with_comment_lines_is_told_apart_from_a_damaged_one(tmp_pa
         txt = tmp_path / "c.txt"
         txt.write_text(text)
         np.testing.assert_array_equal(load_cloud(txt), [[1, 2, 3], [4, 5, 6], [7, 8, 10]])
+    # a .pts file (read by pcreg, not Open3D): the comment said before its count, which the comment line throws off
+    pts = tmp_path / "c.pts"
+    pts.write_text("3\n" + text)
+    with pytest.raises(InputError) as err:
+        load_cloud(pts)
+    assert f"{where} is a comment, which a .pts file does not hold;" in str(err.value)

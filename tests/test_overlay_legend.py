@@ -202,3 +202,7 @@ def test_a_frames_figures_read_predicted_then_against_the_truth_in_brackets():
     assert legend_figures(5.66, {0: 0.981, 8: 0.7749}, 2.94, {0: 0.99, 3: 0.2, 8: 0.0}) == {
         "figures": "predicted error 5.7% (truth 2.9%)", "scores": {0: "0.98 (0.99)", 8: "0.77 (0.00)"},
         "scores_key": "after each class its IoU, predicted (truth)"}
+    # a truth that holds no known class (void all over): no class's IoU against it, the key says predicted alone
+    assert legend_figures(5.66, {0: 0.981}, None, {}) == {
+        "figures": "predicted error 5.7%", "scores": {0: "0.98"},
+        "scores_key": "after each class its predicted IoU"}

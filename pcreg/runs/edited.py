@@ -73,7 +73,8 @@ def frame_stamp(frames, t: int) -> dict:
     """What a resumed run checks frame ``t``'s file against, for a folder's ``frames``: its size in ``bytes``, its
     modification time (``mtime_ns``) and a ``digest`` of its bytes ({} for a video's). The size alone misses a frame
     written again to the same size (uncompressed BMP or PPM frames of another clip); the digest is read again on a
-    resume only where the modification time changed (a copied folder: once for every frame)."""
+    resume only where the modification time changed (in a folder copied without its times, every frame, on each
+    resume: the steps keep the times the run saw)."""
     if frames.kind != "folder":
         return {}
     path = frames.where(t)

@@ -317,3 +317,38 @@ def test_camvid_clips_load(shared_data):
     assert set(np.unique(lab)) == {0, 1, 2}
     one = load_dataset(f"camvid:{camvid / '0006R0'}")
     assert list(one) == ["0006R0"]
+
+
+@pytest.mark.parametrize("kind", ["camvid", "folder", "davis"])
+def test_a_clip_whose_frames_folder_is_missing_is_refused_not_passed_over(tmp_path, kind):
+    """A folder of clips (or DAVIS sequences) one of which holds labels/ but its frames under another name, or behind a
+    link to nowhere: refused naming its images/ (before, it was passed over and the others scored without a word)."""
+    rng = np.random.default_rng(3)
+    ids = {"davis": (0, 1), "folder": (0, 1, 2)}.get(kind, tuple(range(12)))
+    for name in ("a", "b"):
+        _write_clip(tmp_path / "root" / name, 3, rng=rng, ids=ids)
+    assert sorted(load_dataset(f"{kind}:{tmp_path / 'root'}")) == ["a", "b"]
+    (tmp_path / "root" / "b" / "images").rename(tmp_path / "root" / "b" / "frames")
+    with pytest.raises(DatasetError) as err:
+        load_dataset(f"{kind}:{tmp_path / 'root'}")
+    assert str(err.value).startswith(f"{tmp_path / 'root' / 'b' / 'images'}: no such folder, beside ") \
+        and "if frames/ holds them, name it images/" in str(err.value)
+    (tmp_path / "root" / "b" / "images").symlink_to(tmp_path / "gone")
+    with pytest.raises(DatasetError, match="images: a link to nowhere, beside "):
+        load_dataset(f"{kind}:{tmp_path / 'root'}")
+
+
+@pytest.mark.parametrize("kind", ["camvid", "davis"])
+def test_a_downloads_archive_given_as_the_folder_is_told_to_be_unpacked(tmp_path, kind):
+    import zipfile
+
+    archive = tmp_path / "download.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        z.writestr("clip/images/f00.png", b"")
+    with pytest.raises(DatasetError, match=r"download\.zip: an archive, not a folder: unpack it and give the folder"):
+        load_dataset(f"{kind}:{archive}")
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(DatasetError, match=r"notes\.txt: a file, not a folder of frames"):
+        load_dataset(f"{kind}:{tmp_path / 'notes.txt'}")
+    with pytest.raises(DatasetError, match=r"nothing: no such folder"):
+        load_dataset(f"{kind}:{tmp_path / 'nothing'}")

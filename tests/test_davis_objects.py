@@ -66,6 +66,24 @@ def test_a_one_object_sequence_keeps_its_name_and_a_0_255_palette_is_one_object(
     assert load_sequence(seq / "images", seq / "labels")[0].name == "00000"
 
 
+def test_a_palette_first_mask_then_0_255_masks_reads_every_frames_object(tmp_path):
+    """One frame's mask saved again in an editor as a palette of ids 0/1, the others DAVIS 2016's 0/255: each mask
+    reads as it is stored (255 was read as void on the later frames, every object pixel unscored: J 0 without a
+    word)."""
+    pairs = frames_and_masks(4)
+    seq = tmp_path / "mixed"
+    (seq / "images").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    for i, (img, mask) in enumerate(pairs):
+        cv2.imwrite(str(seq / "images" / f"{i:05d}.jpg"), img)
+        if i == 0:
+            write_palette(seq / "labels" / f"{i:05d}.png", (mask > 0).astype(np.uint8))
+        else:
+            cv2.imwrite(str(seq / "labels" / f"{i:05d}.png"), mask)
+    for f, (_, mask) in zip(load_davis(seq)["mixed"], pairs):
+        np.testing.assert_array_equal(f.labels, (mask > 0).astype(np.uint8))
+
+
 def test_load_sequence_refuses_several_objects_naming_the_mask_and_its_ids(tmp_path):
     seq, _ = _synthetic(tmp_path, n=3)
     with pytest.raises(DatasetError) as err:

@@ -25,7 +25,7 @@ from ..errors import DatasetError, InputError
 from .camvid import FRAMES_FOLDER, LABELS_FOLDER, find_matlab, find_official, find_segnet, load_official, load_segnet
 from .davis import load_davis
 from .davis_splits import parse_davis_arg
-from .folder import CAMVID_MAPPING, IMAGE_SUFFIXES, load_folder
+from .folder import CAMVID_MAPPING, IMAGE_SUFFIXES, load_folder, no_folder, refuse_frameless
 from .frame import Frame, relative_transform
 from .lagr import load_lagr
 from .synthetic import PRESETS, SYNTHETIC_PRESETS, SyntheticPreset, check_synthetic_size, synthetic
@@ -149,7 +149,7 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
         arg, split = parse_davis_arg(arg)
     path = Path(arg).expanduser()
     if not path.is_dir():
-        raise DatasetError(f"{path}: no such folder")
+        raise no_folder(path)
     if kind == "davis":
         return load_davis(path, n_frames=n_frames, split=split)
     out = _clips(path, kind, classes, n_frames) if kind in ("camvid", "folder") else _lagr_sets(path)
@@ -167,6 +167,8 @@ def _clips(path: Path, kind: str, classes, n_frames: int | None) -> dict[str, li
     matlab = find_matlab(path) if kind == "camvid" else None  # images/701_StillsRaw_full/ beside labels/
     clips = [] if matlab is not None else [path] if (path / "images").is_dir() else \
         _subfolders(path, lambda p: (p / "images").is_dir())
+    if matlab is None and not (path / "images").is_dir():
+        refuse_frameless(path, "clip")
     official = matlab or (find_official(path) if kind == "camvid" and not clips else None)
     segnet = find_segnet(path) if kind == "camvid" and not clips and official is None else None
     out: dict[str, list[Frame]] = {}

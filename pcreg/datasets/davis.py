@@ -35,6 +35,7 @@ from ..errors import DatasetError, InputError
 from ..classes.mappings import DAVIS_MAPPING, mask_hint
 from .davis_splits import DavisSplit, choose_split
 from .frame import Frame
+from .folder import no_folder, refuse_frameless
 from .sources import _check_numbering
 
 __all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "select_sequences",
@@ -81,6 +82,7 @@ def _locate(p: Path) -> tuple[dict[str, tuple[Path, Path]], Path, Path | None, s
         ann = p.parent.parent.parent / "Annotations" / p.parent.name / p.name
         return {p.name: (p, ann)}, p.parent.parent.parent, None, None
     else:  # pcreg's layout, a folder of sequences
+        refuse_frameless(p, "sequence")
         seqs = [d for d in _dirs(p) if (d / "images").is_dir()]
         if not seqs:
             _refuse_youtube_vos(p)
@@ -115,7 +117,7 @@ def select_sequences(path: str | Path, *, split: str | None = None
     ``all``; None: ``val`` when ``ImageSets`` has its list, else all), elsewhere all of them."""
     p = Path(path).expanduser()
     if not p.is_dir():
-        raise DatasetError(f"{p}: no such folder")
+        raise no_folder(p)
     seqs, beside, root, res = _locate(p)
     chosen = choose_split(list(seqs), root=root, resolution=res, split=split, where=p)
     frames = next(iter(seqs.values()))[0]  # the official layout's ROOT/JPEGImages/RES/SEQ, whichever PATH named
@@ -250,8 +252,11 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
             objects = ids if ids else (None,)
             # 255 is void on every frame, whether or not the first shows any (DAVIS 2016's 0/255: the object)
             void = VOID_INDEX if ids and VOID_INDEX not in ids else None
+        # DAVIS 2016's 0/255 after a first mask of one object by its id (saved again as a palette): 255 the object
+        grey_object = t > 0 and not by_id and void is not None and len(objects) == 1 \
+            and set(np.unique(values).tolist()) == {0, VOID_INDEX}
         for k in objects:
-            labels = object_labels(values, k, void)
+            labels = object_labels(values) if grey_object else object_labels(values, k, void)
             if t == 0:
                 check_key_mask(labels, m if len(objects) == 1 else f"{m} (object {k})")
             out.setdefault(k, []).append(Frame(image=image, labels=labels, name=f.stem))

@@ -180,3 +180,30 @@ def read_frames(images: dict[str, Path], labels: dict[str, Path] | None, *, mapp
                 raise DatasetError(f"{labels[name]}: label ids {bad} are outside the mapping")
         frames.append(Frame(image=image, labels=lab, name=name))
     return frames
+
+
+def refuse_frameless(parent: Path, what: str) -> None:
+    """A :class:`DatasetError` naming the first sub-folder of ``parent`` (a folder of clips or sequences) that holds
+    ``labels/`` without an ``images/`` folder beside it (its frames missing, renamed, or behind a link to nowhere):
+    passed over, the evaluation would score the others alone without a word. ``what``: ``clip`` or ``sequence``."""
+    for d in sorted(p for p in parent.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        images = d / "images"
+        if not (d / "labels").is_dir() or images.is_dir():
+            continue
+        why = "a link to nowhere" if images.is_symlink() else "not a folder" if images.exists() else "no such folder"
+        others = [p.name for p in sorted(d.iterdir()) if p.is_dir() and p.name != "labels" and not p.name.startswith(".")]
+        hint = f"; if {others[0]}/ holds them, name it images/" if others else ""
+        raise DatasetError(f"{images}: {why}, beside {d / 'labels'}: {what} {d.name}'s frames go in images/{hint}")
+
+
+def no_folder(path: Path) -> DatasetError:
+    """What ``--data KIND:PATH`` says of a ``path`` that is no folder: an archive to unpack (a download's zip or
+    tar), a file, or nothing there."""
+    import tarfile
+    import zipfile
+
+    if path.is_file():
+        archive = zipfile.is_zipfile(path) or tarfile.is_tarfile(path)
+        return DatasetError(f"{path}: an archive, not a folder: unpack it and give the folder" if archive else
+                            f"{path}: a file, not a folder of frames")
+    return DatasetError(f"{path}: no such folder")

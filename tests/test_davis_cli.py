@@ -75,7 +75,7 @@ def test_evaluate_stream_on_davis_refuses_other_key_frames(tmp_path, capsys):
     assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--keys", "first,last", "--out",
                  str(tmp_path / "o")]) == 2
     err = one_line_errors(capsys)
-    assert len(err) == 1 and "DAVIS gives the first frame's mask only" in err[0]
+    assert len(err) == 1 and "DAVIS's benchmark keys the first frame's mask alone, as the default does: leave --keys out" in err[0]
 
 
 @pytest.mark.parametrize("how", BROKEN)

@@ -170,6 +170,11 @@ def test_a_run_that_scores_no_pair_is_bad_input(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no pair was scored" in err[0] and "no pairs" in err[0], err
     assert not (tmp_path / "s" / "results.json").exists()
+    # two frames, both choosing the fusion weight: said so, not the weight's own note
+    assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "2", "--size", "160x120",
+                 "--increments", "1", "--levels", "2", "--out", str(tmp_path / "s")]) == 2
+    assert "no pair was scored (syn1a k=1: no pair with its moving frame after the 2 fusion frames)" \
+        in capsys.readouterr().err
     assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
                  "--increments", "1,10", "--levels", "2", "--out", str(tmp_path / "t")]) == 0
     res = json.loads((tmp_path / "t" / "results.json").read_text())

@@ -894,6 +894,12 @@ def test_one_odd_sized_frame_fails_only_its_own_pairs():
     assert all(f"frame {odd.name} is 90x72 px" in r for r in failed.values())
     scored = {(p.reference, p.moving) for p in res.pairs}
     assert scored == {(1, 2), (2, 3), (5, 6), (6, 7)}
+    # every pair after the fusion frames touching it (a clip of three, the last of another size): the note gives
+    # the failures' reason, not that no pair's moving frame comes after the fusion frames
+    res = run_sequence(frames[2:5], k=1, fusion_frames=2)
+    assert not res.pairs and len(res.failures) == 1
+    assert res.notes[-1] == f"no pair scored: 1 pair(s) failed, the first (1, 2): frame {odd.name} is 90x72 px, " \
+        "the sequence's frames are 96x72"
 
 
 def test_view_time_beyond_64_bits_is_bad_input():

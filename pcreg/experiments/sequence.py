@@ -217,7 +217,7 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
         if out is not None:  # nothing kept: the corrected command resumes nothing and is not refused
             discard_units(out, plan)
         u = next((u for u in units if u["notes"]), units[0])
-        why = u["notes"][0] if u["notes"] else "no pairs"
+        why = u["notes"][-1] if u["notes"] else "no pairs"  # why no pair was scored comes last (before: the weights')
         raise InputError(f"no pair was scored ({u['dataset']} k={u['k']}: {why})")
     return results
 

@@ -36,8 +36,9 @@ def check_davis_config(config) -> None:
     from ..errors import InputError
 
     if is_davis(config.data) and config.keys is not None:
-        raise InputError("--keys with --data davis:PATH: DAVIS gives the first frame's mask only; "
-                         "use the default key frame (or --key-every N)")
+        raise InputError("--keys with --data davis:PATH: DAVIS's benchmark keys the first frame's mask alone, as "
+                         "the default does: leave --keys out (--key-every N keys later masks too, outside the "
+                         "benchmark's protocol)")
     if is_davis(config.data) and getattr(config, "classes", None) is not None:
         raise InputError(f"--classes with --data davis:PATH: DAVIS's masks are one object against its background, "
                          f"not {config.classes}'s classes; leave --classes out (J and F score the object)")

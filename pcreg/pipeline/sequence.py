@@ -378,7 +378,11 @@ def run_sequence(frames: Sequence, *, k: int, config: PipelineConfig = PipelineC
     walk = _walk_pairs(frames, k=k, C=C, config=config, weights=weights, classifier=classifier,
                        registration=registration, odd=odd, on_pair=on_pair, icp_callback=icp_callback)
     notes = weights.notes
-    if not walk.scored:
+    if not walk.scored and walk.failures:  # the pairs were there: each failed, the first's reason says why
+        first = walk.failures[0]
+        notes += (f"no pair scored: {len(walk.failures)} pair(s) failed, the first ({first['reference']}, "
+                  f"{first['moving']}): {first['reason']}",)
+    elif not walk.scored:
         notes += (f"no pair with its moving frame after the {C} fusion frames",)
     return SequenceResult(k, config.backend, C, weights.one_step, walk.scored, _means(walk.scored), walk.failures,
                           notes, time.perf_counter() - t_start, temporal_weight=weights.temporal,

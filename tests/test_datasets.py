@@ -352,3 +352,14 @@ def test_a_downloads_archive_given_as_the_folder_is_told_to_be_unpacked(tmp_path
         load_dataset(f"{kind}:{tmp_path / 'notes.txt'}")
     with pytest.raises(DatasetError, match=r"nothing: no such folder"):
         load_dataset(f"{kind}:{tmp_path / 'nothing'}")
+
+
+@pytest.mark.parametrize("kind", ["camvid", "davis"])
+def test_a_label_saved_as_a_jpeg_is_named_in_the_refusal_of_its_missing_png(tmp_path, kind):
+    rng = np.random.default_rng(4)
+    _write_clip(tmp_path / "root" / "a", 3, rng=rng, ids=(0, 1) if kind == "davis" else tuple(range(12)))
+    label = tmp_path / "root" / "a" / "labels" / "f01.png"
+    cv2.imwrite(str(label.with_suffix(".jpg")), cv2.imread(str(label)))
+    label.unlink()
+    with pytest.raises(DatasetError, match=r"; labels/f01\.jpg is there, but a label is read from a PNG only"):
+        load_dataset(f"{kind}:{tmp_path / 'root'}")

@@ -35,7 +35,7 @@ from ..errors import DatasetError, InputError
 from ..classes.mappings import DAVIS_MAPPING, mask_hint
 from .davis_splits import DavisSplit, choose_split
 from .frame import Frame
-from .folder import no_folder, refuse_frameless
+from .folder import no_folder, not_png_note, refuse_frameless
 from .sources import _check_numbering
 
 __all__ = ["DAVIS_MAPPING", "RESOLUTIONS", "PUBLISHED_CSV", "PUBLISHED_SOURCE", "find_sequences", "select_sequences",
@@ -244,7 +244,7 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
         if not m.is_file():
             what = "no mask of the first frame: DAVIS gives the object on frame 0" if t == 0 else \
                 f"no mask of frame {f.name}: every frame is scored"
-            raise DatasetError(f"{m}: {what}")
+            raise DatasetError(f"{m}: {what}{not_png_note(masks, f.stem)}")
         image = _read(f, color=True)
         values, by_id = _mask(m, f, image.shape[:2])
         if t == 0 and by_id:  # the objects are the first frame's (its palette's indices)

@@ -149,7 +149,7 @@ def label_files(lab_dir: Path, images: dict[str, Path], *, frame_of=download_fra
     if no_label:
         other = other_name(no_label[0])
         raise DatasetError(f"{images[no_label[0]]}: no label file {lab_dir / (no_label[0] + '.png')}"
-                           + (f" (or {other})" if other else ""))
+                           + (f" (or {other})" if other else "") + not_png_note(lab_dir, no_label[0]))
     no_image = sorted(set(labels) - set(images))
     if no_image:
         raise DatasetError(f"{labels[no_image[0]]}: label file without an image in {next(iter(images.values())).parent}")
@@ -207,3 +207,14 @@ def no_folder(path: Path) -> DatasetError:
         return DatasetError(f"{path}: an archive, not a folder: unpack it and give the folder" if archive else
                             f"{path}: a file, not a folder of frames")
     return DatasetError(f"{path}: no such folder")
+
+
+def not_png_note(folder: Path, stem: str) -> str:
+    """``; NAME.jpg is there, ...`` when ``folder`` holds an image named ``stem`` in another format than PNG (a
+    label or mask saved as a JPEG or TIFF, which is not read), for the refusal of its missing PNG to say; else ``""``."""
+    import glob
+
+    other = sorted(p.name for p in folder.glob(f"{glob.escape(stem)}.*")
+                   if p.suffix.lower() in IMAGE_SUFFIXES and p.suffix.lower() != ".png") if folder.is_dir() else []
+    return (f"; {folder.name}/{other[0]} is there, but a label is read from a PNG only (lossless: a JPEG changes the "
+            "values at every edge)") if other else ""

@@ -53,14 +53,20 @@ def test_each_object_of_a_palette_mask_is_a_clip_of_its_own(tmp_path):
     assert list(load_dataset(f"davis:{seq}", n_frames=2)) == ["disc_1", "disc_2"]
 
 
-def test_a_one_object_sequence_keeps_its_name_and_a_0_255_palette_is_one_object(tmp_path):
-    pairs = frames_and_masks(3)
-    seq = tmp_path / "one"
+def one_object_sequence(seq: Path, pairs, write_mask) -> Path:
+    """``seq/images/NNNNN.jpg`` of ``pairs`` (image, 0/255 mask), each mask written by ``write_mask(i, path, mask)``."""
     (seq / "images").mkdir(parents=True)
     (seq / "labels").mkdir()
     for i, (img, mask) in enumerate(pairs):
         cv2.imwrite(str(seq / "images" / f"{i:05d}.jpg"), img)
-        write_palette(seq / "labels" / f"{i:05d}.png", mask)  # DAVIS 2016's 0/255 saved as a palette
+        write_mask(i, seq / "labels" / f"{i:05d}.png", mask)
+    return seq
+
+
+def test_a_one_object_sequence_keeps_its_name_and_a_0_255_palette_is_one_object(tmp_path):
+    pairs = frames_and_masks(3)
+    # DAVIS 2016's 0/255 saved as a palette
+    seq = one_object_sequence(tmp_path / "one", pairs, lambda i, path, mask: write_palette(path, mask))
     frames = load_davis(seq)["one"]
     np.testing.assert_array_equal(frames[2].labels, pairs[2][1] > 0)
     assert load_sequence(seq / "images", seq / "labels")[0].name == "00000"
@@ -71,15 +77,11 @@ def test_a_palette_first_mask_then_0_255_masks_reads_every_frames_object(tmp_pat
     reads as it is stored (255 was read as void on the later frames, every object pixel unscored: J 0 without a
     word)."""
     pairs = frames_and_masks(4)
-    seq = tmp_path / "mixed"
-    (seq / "images").mkdir(parents=True)
-    (seq / "labels").mkdir()
-    for i, (img, mask) in enumerate(pairs):
-        cv2.imwrite(str(seq / "images" / f"{i:05d}.jpg"), img)
-        if i == 0:
-            write_palette(seq / "labels" / f"{i:05d}.png", (mask > 0).astype(np.uint8))
-        else:
-            cv2.imwrite(str(seq / "labels" / f"{i:05d}.png"), mask)
+
+    def write_mask(i, path, mask):
+        return write_palette(path, (mask > 0).astype(np.uint8)) if i == 0 else cv2.imwrite(str(path), mask)
+
+    seq = one_object_sequence(tmp_path / "mixed", pairs, write_mask)
     for f, (_, mask) in zip(load_davis(seq)["mixed"], pairs):
         np.testing.assert_array_equal(f.labels, (mask > 0).astype(np.uint8))
 

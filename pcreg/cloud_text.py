@@ -47,7 +47,7 @@ def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
     count, bad = _scan_rows(path, 0, stop=1 << 62, rows=(header, 1 << 62), fields=width)
     expected = count - header
     text = "" if bad is None else bad[1].decode("ascii", "replace").strip()[:40]
-    if bad is not None and text.startswith(("#", "//")):  # numpy.savetxt's header, CloudCompare's //X Y Z: not a damaged point
+    if bad is not None and text.startswith(("#", "//")):  # numpy.savetxt's header, CloudCompare's //X Y Z: no damage
         where = "its first point line" if bad[0] == 1 else f"point line {bad[0]}"
         passed = " (Open3D's reader passes over it)" if suffix != ".pts" else ""
         raise InputError(f"{path}: {where} ({text!r}) is a comment, which a {suffix} file does not hold{passed}; save "

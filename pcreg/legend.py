@@ -157,8 +157,8 @@ def legend_figures(error: float | None, iou: dict[int, float] | None, truth_erro
                    truth_iou: dict[int, float] | None = None) -> dict:
     """:func:`draw_legend`'s ``figures``, ``scores`` and ``scores_key`` of a frame whose predicted ``error`` (%) and each
     class's predicted ``iou`` (class id -> IoU; None: the step has none) are given, and, scored against the truth,
-    its error (``truth_error``, %) and each class's IoU (``truth_iou``; None or empty: none) in brackets after them. None of them where
-    ``error`` is None (a key frame: nothing predicted there)."""
+    its error (``truth_error``, %) and each class's IoU (``truth_iou``; None or empty: none) in brackets after them.
+    None of them where ``error`` is None (a key frame: nothing predicted there)."""
     if error is None:
         return {}
     figures = f"predicted error {error:.1f}%" + ("" if truth_error is None else f" (truth {truth_error:.1f}%)")

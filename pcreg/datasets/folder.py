@@ -191,7 +191,8 @@ def refuse_frameless(parent: Path, what: str) -> None:
         if not (d / "labels").is_dir() or images.is_dir():
             continue
         why = "a link to nowhere" if images.is_symlink() else "not a folder" if images.exists() else "no such folder"
-        others = [p.name for p in sorted(d.iterdir()) if p.is_dir() and p.name != "labels" and not p.name.startswith(".")]
+        others = [p.name for p in sorted(d.iterdir())
+                  if p.is_dir() and p.name != "labels" and not p.name.startswith(".")]
         hint = f"; if {others[0]}/ holds them, name it images/" if others else ""
         raise DatasetError(f"{images}: {why}, beside {d / 'labels'}: {what} {d.name}'s frames go in images/{hint}")
 
@@ -211,7 +212,8 @@ def no_folder(path: Path) -> DatasetError:
 
 def not_png_note(folder: Path, stem: str) -> str:
     """``; NAME.jpg is there, ...`` when ``folder`` holds an image named ``stem`` in another format than PNG (a
-    label or mask saved as a JPEG or TIFF, which is not read), for the refusal of its missing PNG to say; else ``""``."""
+    label or mask saved as a JPEG or TIFF, which is not read), for the refusal of its missing PNG to say; else
+    ``""``."""
     import glob
 
     other = sorted(p.name for p in folder.glob(f"{glob.escape(stem)}.*")

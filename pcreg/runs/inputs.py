@@ -312,11 +312,12 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
         other = _other_labels(folder, frames)
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)"
                          + ("" if other is None else f"; {other}"))
-    positions = placed(frames, _frame_stems(frames, files), folder)
+    stems = _frame_stems(frames, files)
+    positions = placed(frames, stems, folder)
     keys: dict = {}
     seen: dict[int, Path] = {}
     outside = outside_chosen(frames)
-    for f, stem, t in zip(files, _frame_stems(frames, files), positions):
+    for f, stem, t in zip(files, stems, positions):
         if t is None and left_out is not None and outside(stem):
             left_out.append(f.name)
             continue

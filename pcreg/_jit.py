@@ -119,15 +119,47 @@ def _shield_first_calls(dispatcher):
     return dispatcher
 
 
+#: numba's refusal for the first kernel that found no writable cache folder (then every kernel is compiled
+#: anew in each process, and a warning said so once); empty while the cache works.
+_UNCACHED: list[str] = []
+
+
+def _uncached(made, options: dict, error: RuntimeError):
+    """``made`` compiled without the on-disk cache, after numba found no cache folder it can write (``error``):
+    numba's ``RuntimeError`` there ended every command at import (exit 1), even ``--help``, where pcreg is
+    installed in a folder its user cannot write and ``$HOME`` is not writable either (a read-only container,
+    a service's user). Warned once, with how to keep the kernels."""
+    import warnings
+
+    if "no locator available" not in str(error):
+        raise error
+    if not _UNCACHED:
+        _UNCACHED.append(str(error))
+        warnings.warn("pcreg: no folder is writable for the compiled kernels' cache (neither beside pcreg's "
+                      "sources nor in the user's cache folder), so each process compiles them again, adding "
+                      "up to a minute to its first registration; set NUMBA_CACHE_DIR to a writable folder to keep them",
+                      RuntimeWarning, stacklevel=4)
+    return numba.njit(**{**options, "cache": False})(made)
+
+
 def njit(*args, **options):
     """``numba.njit`` with the options given, its on-disk cache keyed to all of pcreg's kernel sources
-    (``cache=False`` where that cannot be done, :data:`CACHED`), its first calls shielded from a signal's
-    KeyboardInterrupt (:func:`_shield_first_calls`)."""
-    from numba.core.dispatcher import Dispatcher
-
+    (``cache=False`` where that cannot be done, :data:`CACHED`, or where no cache folder is writable,
+    :func:`_uncached`), its first calls shielded from a signal's KeyboardInterrupt
+    (:func:`_shield_first_calls`)."""
     if not CACHED:  # pragma: no cover - see CACHED
         options["cache"] = False
-    made = numba.njit(*args, **options)
-    if isinstance(made, Dispatcher):
+
+    def compiled(fn):
+        try:
+            made = numba.njit(**options)(fn)
+        except RuntimeError as error:
+            if not options.get("cache"):
+                raise
+            made = _uncached(fn, options, error)
         return _shield_first_calls(made)
-    return lambda fn: _shield_first_calls(made(fn))
+
+    if args:  # ``@njit`` bare (pcreg's kernels give no signatures)
+        (fn,) = args
+        return compiled(fn)
+    return compiled

@@ -87,8 +87,11 @@ def _textured_pair(size: int = 96, shift: int = 2) -> tuple[np.ndarray, np.ndarr
 def main() -> int:  # pragma: no cover - run by the Makefile
     t0 = time.perf_counter()
     warm_up()
-    print(f"pcreg: compiled kernels ready in {time.perf_counter() - t0:.1f} s "
-          f"(cache: the __pycache__ folders beside pcreg's modules, or NUMBA_CACHE_DIR)")
+    from ._jit import _UNCACHED
+
+    where = ("not cached: no folder was writable, so each process compiles them again; set NUMBA_CACHE_DIR"
+             if _UNCACHED else "cache: the __pycache__ folders beside pcreg's modules, or NUMBA_CACHE_DIR")
+    print(f"pcreg: compiled kernels ready in {time.perf_counter() - t0:.1f} s ({where})")
     return 0
 
 

@@ -51,3 +51,39 @@ def test_a_kernel_is_compiled_again_when_a_kernel_it_calls_changes(tmp_path):
     assert _outer(tmp_path) == "2"  # loaded back
     callee.write_text(CALLEE.format(value=10))
     assert _outer(tmp_path) == "11"  # numba alone would load the caller's old code and print 2
+
+
+UNWRITABLE = """
+import os, tempfile, warnings
+from numba.core import caching
+
+def unwritable(self):  # what a folder the user cannot write gives numba's check: PermissionError
+    raise PermissionError(13, "Permission denied", self.get_cache_path())
+
+caching._CacheLocator.ensure_cache_path = unwritable
+warnings.simplefilter("always")
+with warnings.catch_warnings(record=True) as caught:
+    import numpy as np
+    from pcreg.registration.motion import field_from_matrix
+    from pcreg.pipeline import prior  # more kernels, no second warning
+    field = field_from_matrix(np.eye(3), (4, 5))
+print(field[3, 4].tolist())
+print(len(caught), caught[0].category.__name__, caught[0].message)
+"""
+
+
+def test_kernels_compile_uncached_with_one_warning_where_no_cache_folder_is_writable(tmp_path):
+    """pcreg installed in a folder its user cannot write, ``$HOME`` not writable either: numba refused every
+    cached kernel as it was defined, and every command ended at import (exit 1), ``--help`` included."""
+    package = tmp_path / "pcreg"
+    shutil.copytree(Path(pcreg.__file__).parent, package, ignore=shutil.ignore_patterns("__pycache__"))
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    env.pop("NUMBA_CACHE_DIR", None)
+    run = subprocess.run([sys.executable, "-c", UNWRITABLE], env=env, cwd=tmp_path, capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr
+    value, warned = run.stdout.strip().splitlines()
+    assert value == "[4.0, 3.0]"
+    assert warned.startswith("1 RuntimeWarning pcreg: no folder is writable for the compiled kernels' cache")
+    assert "NUMBA_CACHE_DIR" in warned
+    assert not (package / "__pycache__").exists() or not any((package / "__pycache__").glob("*.nbi"))

@@ -228,6 +228,15 @@ def test_load_folder_maps_camvid_ids(tmp_path):
         np.testing.assert_array_equal(f.labels, lut[raw])
 
 
+def test_a_folder_of_camvid_ids_is_refused_naming_the_data_spelling_that_reads_them(tmp_path):
+    """``--data folder:`` of CamVid's ids: the refusal named ``--mapping camvid``, which ``evaluate`` does not take;
+    it names ``--data camvid:`` too, and says whose option ``--mapping`` is."""
+    _write_clip(tmp_path / "data" / "clip", 2, rng=np.random.default_rng(7))
+    with pytest.raises(DatasetError, match=r"f00\.png: label value \d+ is not a class id .* pcreg run's --mapping "
+                       r"camvid, and --data camvid:, read CamVid's ids as ground and obstacle"):
+        load_dataset(f"folder:{tmp_path / 'data'}")
+
+
 def test_load_folder_with_dict_mapping_and_without_labels(tmp_path):
     truth = _write_clip(tmp_path / "c", 2, rng=np.random.default_rng(6), ids=(7, 9))
     frames = load_folder(tmp_path / "c", mapping={7: 0, 9: 1})

@@ -98,7 +98,7 @@ def _run_case(tmp_path, how: str):
     if how == "a 0/255 mask without --mapping davis":
         return [], key, "--mapping davis reads it"
     if how == "a mask of another size":
-        cv2.imwrite(str(key), np.full((24, 32), 255, np.uint8))
+        cv2.imwrite(str(key), np.repeat(np.array([[0, 255]], np.uint8), 16, axis=1).repeat(24, axis=0))
         return ["--mapping", "davis"], key, "labels are 32x24, the key frame 00000.jpg is 64x48"
     if how == "no first mask":
         key.unlink()

@@ -186,3 +186,16 @@ def test_void_on_a_later_frame_is_unknown_when_the_first_frame_has_none(tmp_path
     for i, (_, mask) in enumerate(pairs):  # DAVIS 2016's 0/255 in a palette: 255 stays the object on every frame
         write_palette(seq / "labels" / f"{i:05d}.png", mask)
     assert all(((f.labels == 1) == (m > 0)).all() for f, (_, m) in zip(load_sequence(seq / "images", seq / "labels"), pairs))
+
+
+def test_a_first_mask_all_object_is_refused_naming_its_file(tmp_path, capsys):
+    """A first mask all object: refused as the sequence is read, in one line naming the mask (it was the classifier's
+    fit, in ground and obstacle, naming no file: "training labels hold only one class (obstacle)")."""
+    pairs = frames_and_masks(3)
+    seq = one_object_sequence(tmp_path / "whole", pairs, lambda i, path, mask: cv2.imwrite(
+        str(path), np.full_like(mask, 255) if i == 0 else mask))
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--out", str(tmp_path / "out")]) == 2
+    assert one_line_errors(capsys) == [f"pcreg: error: {seq / 'labels' / '00000.png'}: the object's mask on the key "
+                                       "frame covers the whole frame: no background pixel, which the classifier "
+                                       "needs beside the object's"]
+    assert not (tmp_path / "out" / "units").exists()

@@ -145,6 +145,12 @@ def test_evaluate_stream_bad_input(tmp_path, capsys):
     assert main(["evaluate", "stream", "--data", f"folder:{clip}", "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no known label" in err
+    # a key frame of obstacle alone, in the same process: the clip is read again, not taken from the last run's
+    cv2.imwrite(str(clip / "labels" / "f0.png"), np.full((40, 60), 1, np.uint8))
+    assert main(["evaluate", "stream", "--data", f"folder:{clip}", "--out", str(tmp_path / "o3")]) == 2
+    assert capsys.readouterr().err == (f"pcreg: error: clip {clip.name}: the labels of the key frame f0 hold one class "
+                                       "only, obstacle; the classifier that starts the stream needs pixels of both "
+                                       "ground and obstacle\n")
 
 
 @pytest.mark.skipif(not CAMVID.is_dir(), reason="needs ../shared/data/camvid (real CamVid clips)")

@@ -257,6 +257,29 @@ def test_a_rotated_video_is_read_as_it_is_shown(tmp_path, frames):
         assert np.abs(got.astype(int) - np.rot90(image, degrees // 90)).mean() < 8
 
 
+def test_key_labels_drawn_on_a_rotated_videos_frames_as_stored_are_refused_naming_the_turn(tmp_path, frames, capsys):
+    """Key labels of a portrait phone video drawn on its frames as stored (extracted by a tool that does not turn
+    them): the refusal named the two sizes alone; it says the display matrix turns the frames, as players do."""
+    av = pytest.importorskip("av")
+    path = tmp_path / "phone.mp4"
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 160, 120, "yuv420p"
+        if not hasattr(stream, "set_display_rotation"):
+            pytest.skip("this PyAV cannot write a display rotation")
+        stream.set_display_rotation(90)
+        mux_all(container, stream, [f.image for f in frames[:3]])
+    key = tmp_path / "key.png"
+    cv2.imwrite(str(key), frames[0].labels)  # 160x120: the frame as stored
+    assert main(["run", str(path), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
+    assert one_line_errors(capsys) == [
+        f"pcreg: error: {key}: labels are 160x120, the key frame 000000 is 120x160 (phone.mp4's display matrix has "
+        "players show its frames turned by a quarter, 120x160, and pcreg reads them so: the labels were drawn on the "
+        "frames as stored; draw them on the frames as shown, or turn them the same way)"]
+    cv2.imwrite(str(key), np.rot90(frames[0].labels).copy())  # drawn on the frame as shown: labelled
+    assert main(["run", str(path), "--labels", str(key), "--out", str(tmp_path / "out")]) == 0
+
+
 @pytest.mark.parametrize("suffix, fourcc", [(".avi", "MJPG"), (".mp4", "mp4v"), (".mkv", "MJPG")])
 def test_damaged_videos_decode_or_are_refused_never_crash(tmp_path, frames, suffix, fourcc):
     """Seeded damage (bytes changed, the file cut anywhere): every frame decodes, or InputError says why."""

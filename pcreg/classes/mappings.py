@@ -104,12 +104,14 @@ def mask_hint(raw: np.ndarray) -> str:
     which mapping reads it; when it holds more classes, how to name their table."""
     values = np.unique(np.asarray(raw))
     if values.size <= 2 and set(values.tolist()) <= {0, 255}:
-        return "; it is a 0/255 object mask (DAVIS): --mapping davis reads it (0 the background, 255 the object)"
+        return ("; it is a 0/255 object mask (DAVIS): pcreg run's --mapping davis reads it (0 the background, 255 the "
+                "object), as --data davis: does")
     if values.size and int(values.max()) > 11:  # beyond CamVid's ids: a soft-edged (resized, JPEG) object mask?
-        return (f"; it holds values up to {int(values.max())}: an object mask, soft-edged or not, reads with "
-                "--mapping davis (0 the background, anything else the object), a table of that many classes with "
-                "--classes FILE (a CVAT labelmap.txt or a JSON table)")
+        return (f"; it holds values up to {int(values.max())}: an object mask, soft-edged or not, reads with pcreg "
+                "run's --mapping davis (0 the background, anything else the object), a table of that many classes "
+                "with --classes FILE (a CVAT labelmap.txt or a JSON table)")
     if values.size and int(values.max()) > 2:
         return ("; labels of other classes need their table: --classes camvid11 (CamVid's ids), --classes FILE (a "
-                "CVAT labelmap.txt or a JSON table), or --mapping camvid (CamVid's ids as ground and obstacle)")
+                "CVAT labelmap.txt or a JSON table); pcreg run's --mapping camvid, and --data camvid:, read CamVid's "
+                "ids as ground and obstacle")
     return ""

@@ -164,9 +164,14 @@ def _mask(path: Path, frame: Path, shape: tuple[int, int]) -> tuple[np.ndarray, 
 
 
 def check_key_mask(labels: np.ndarray, path: str | Path) -> None:
-    """Refuse a key frame's mask (pcreg's labels) with no object pixel, naming its file ``path``."""
-    if not (np.asarray(labels) == 1).any():
+    """Refuse a key frame's mask (pcreg's labels) with no object pixel, or no background pixel, naming its file
+    ``path``."""
+    labels = np.asarray(labels)
+    if not (labels == 1).any():
         raise DatasetError(f"{path}: the object's mask on the key frame is empty: there is no object to follow")
+    if not (labels == 0).any():
+        raise DatasetError(f"{path}: the object's mask on the key frame covers the whole frame: no background pixel, "
+                           "which the classifier needs beside the object's")
 
 
 def _frame_files(frames: Path, name: str, n_frames: int | None) -> list[Path]:

@@ -202,6 +202,13 @@ class FolderFrames:
         """The file of the frame at ``position``, as a message names it."""
         return self.paths[position]
 
+    def turned_note(self, position: int, labels_shape: tuple, frame_shape: tuple) -> str:
+        """What a refusal of labels of ``labels_shape`` for the frame at ``position`` adds when its EXIF
+        orientation turns it (:func:`pcreg.formats.turned_note`)."""
+        from ..formats import turned_note
+
+        return turned_note(self.where(position), labels_shape, frame_shape)
+
     def writes(self, stem: str) -> bool:
         """Whether a stream over this source writes an output named ``stem`` (``OUT/STEM.png``)."""
         return stem in {p.stem for p in self.paths}
@@ -340,6 +347,29 @@ class VideoFrames:
     def where(self, position: int) -> str:
         """The video and the frame at ``position``, as a message names it."""
         return f"{self.path} frame {self.name(position)}"
+
+    def turned_note(self, position: int, labels_shape: tuple, frame_shape: tuple) -> str:
+        """What a refusal of labels of ``labels_shape`` (H, W) for frames of ``frame_shape`` adds when the labels
+        are the frames turned by a quarter and the video's display matrix turns them so (as a phone's portrait
+        video): pcreg reads the frames as players show them, the labels were drawn on them as stored; else the
+        note on the video's other streams (:meth:`streams_note`), or ``""``."""
+        import av
+
+        streams = self.streams_note()
+        other = f" ({streams})" if streams is not None else ""
+        if tuple(labels_shape[:2]) != tuple(frame_shape[:2])[::-1] or labels_shape[0] == labels_shape[1]:
+            return other
+        with self._open() as container:
+            try:
+                frame = next(container.decode(container.streams.video[0]), None)
+                turned = frame is not None and display_turn(frame, self.path)[0]
+            except (av.FFmpegError, InputError):
+                turned = False
+        if not turned:
+            return other
+        return (f" ({self.path.name}'s display matrix has players show its frames turned by a quarter, "
+                f"{frame_shape[1]}x{frame_shape[0]}, and pcreg reads them so: the labels were drawn on the frames as "
+                "stored; draw them on the frames as shown, or turn them the same way)")
 
     def writes(self, stem: str) -> bool:
         """Whether a stream over this video writes an output named ``stem`` (``OUT/{i:06d}.png``)."""

@@ -104,7 +104,7 @@ def key_frames(n: int, key_every: int | None) -> list[int]:
 
 def check_clip(name: str, frames, classes: str | None = None) -> None:
     """Refuse a clip the protocol cannot score, with one line: fewer than two frames, a frame without
-    labels, labels of another size than their image, or a key frame with no known label."""
+    labels, labels of another size than their image, or a key frame with no known label or of one class alone."""
     from ..errors import DatasetError
 
     if len(frames) < 2:
@@ -127,6 +127,11 @@ def check_clip(name: str, frames, classes: str | None = None) -> None:
         return
     if not (frames[0].labels < 2).any():
         raise DatasetError(f"clip {name}: the key frame {frames[0].name} has no known label (all unknown)")
+    held = np.unique(frames[0].labels[frames[0].labels < 2])
+    if held.size == 1:  # naive Bayes is fitted on both (a DAVIS mask's are refused as it is read, naming its file)
+        raise DatasetError(f"clip {name}: the labels of the key frame {frames[0].name} hold one class only, "
+                           f"{('ground', 'obstacle')[int(held[0])]}; the classifier that starts the stream needs pixels "
+                           "of both ground and obstacle")
 
 
 def _can_start(labels: np.ndarray, methods) -> bool:

@@ -52,8 +52,10 @@ class Unit:
 
 def load_cached(data: str, *, frames: int | None, size: tuple[int, int] | None, seed: int,
                 classes: str | None = None) -> dict:
-    """:func:`pcreg.datasets.load_dataset`, cached per process (one data set at a time)."""
-    key = (data, frames, tuple(size) if size else None, seed, classes)
+    """:func:`pcreg.datasets.load_dataset`, cached per process (one data set at a time), under :func:`data_files`' digest
+    of its files too: an evaluation run again in the same process (a notebook, a long-lived worker) after a label was
+    mended reads the data as it is now, not as it was."""
+    key = (data, data_files(data), frames, tuple(size) if size else None, seed, classes)
     if key not in _DATA_CACHE:
         from ..datasets import load_dataset
 

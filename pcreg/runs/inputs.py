@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..formats import only_files, resolved, turned_note
+from ..formats import only_files, resolved
 
 __all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth", "check_spares_inputs",
            "check_suggest", "read_key_labels"]
@@ -107,10 +107,7 @@ def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
     if second is None:
         raise InputError(f"{request.frames}: needs at least two frames (the key frame and one more), found 1")
     if key_labels.shape != key.image.shape[:2]:
-        turned = turned_note(frames.where(0), key_labels.shape, key.image.shape) if frames.kind == "folder" else ""
-        streams = frames.streams_note() if frames.kind == "video" else None
-        if streams is not None:
-            turned = f" ({streams})"
+        turned = frames.turned_note(0, key_labels.shape, key.image.shape)
         raise InputError(f"{request.labels}: labels are {key_labels.shape[1]}x{key_labels.shape[0]}, the key frame "
                          f"{key.name} is {key.image.shape[1]}x{key.image.shape[0]}{turned}")
     _check_known(request.labels, key_labels, table)
@@ -331,7 +328,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
             raise InputError(f"{f}: a second label for the frame {frames.name(t)} (also {seen[t].name})")
         lab = read_labels(f, mapping, table)
         if lab.shape != shape:
-            turned = turned_note(frames.where(t), lab.shape, shape) if frames.kind == "folder" else ""
+            turned = frames.turned_note(t, lab.shape, shape)
             raise InputError(f"{f}: labels are {lab.shape[1]}x{lab.shape[0]}, the frames {shape[1]}x{shape[0]}{turned}")
         _check_known(f, lab, table)
         keys[t], seen[t] = lab, f

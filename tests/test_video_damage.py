@@ -301,8 +301,8 @@ def test_frames_that_decode_with_errors_are_labelled_said_once_and_counted(tmp_p
 
 
 def test_a_clean_h264_file_says_nothing_and_decodes_as_with_slice_threads(tmp_path, images, capsys):
-    """Frame threads (which let H.264's decoder flag a concealed frame) decode a whole file to the same pixels as the
-    slice threads it was read with; nothing is said or counted."""
+    """One thread (on which H.264's decoder flags every concealed frame) decodes a whole file to the same pixels as
+    the slice threads it was read with; nothing is said or counted."""
     whole = _mp4(tmp_path / "whole.mp4", images)
     with av.open(str(whole)) as c:
         assert c.streams.video[0].codec_context.thread_type.name == "SLICE"  # PyAV's default

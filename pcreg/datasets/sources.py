@@ -449,8 +449,8 @@ class VideoFrames:
         s, size = self.selection, None
         with self._open() as container:
             stream = container.streams.video[0]
-            if stream.codec_context.name == "h264":  # its slice threads leave a concealed frame unflagged
-                stream.codec_context.thread_type = "FRAME"
+            if stream.codec_context.name == "h264":  # on one thread, so that it flags every concealed frame
+                stream.codec_context.thread_count = 1  # (slice threads flag none; frame threads lose some: usage.md)
             timing = Timing(checked=container.format.name == "matroska,webm")
             check = Vp9Check(stream)  # FFmpeg's VP9 decoder flags no damaged frame: libvpx tells them
             start = reading.start = Start()

@@ -249,6 +249,36 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]], *, digi
     return "\n".join(lines) + "\n"
 
 
+#: Installed fonts that hold the scripts matplotlib's DejaVu Sans lacks (Chinese, Japanese, Korean, Arabic, Hebrew,
+#: Devanagari, Thai): a figure's text falls back to them glyph by glyph, so that a clip's or a class's name in
+#: those scripts is drawn, not as boxes.
+OTHER_SCRIPT_FONTS = ("Noto Sans CJK JP", "Noto Sans CJK SC", "Noto Sans CJK TC", "Noto Sans CJK KR", "Source Han Sans",
+                      "WenQuanYi Zen Hei", "WenQuanYi Micro Hei", "Droid Sans Fallback", "IPAexGothic", "IPAGothic",
+                      "Noto Sans Arabic", "Noto Sans Hebrew", "Noto Sans Devanagari", "Noto Sans Thai")
+
+
+def pyplot() -> Any:
+    """matplotlib's ``pyplot``, drawing off screen (Agg). While the font family is still matplotlib's default, the
+    installed fonts of :data:`OTHER_SCRIPT_FONTS` are added after DejaVu Sans, as matplotlib's fallback; a
+    character no font holds is drawn as matplotlib's placeholder, and its warning (two lines a character on
+    stderr, for each figure drawn) is not printed: the reports' tables give the names as text."""
+    import warnings
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib import font_manager
+
+    if list(matplotlib.rcParams["font.family"]) == ["sans-serif"]:
+        installed = {f.name for f in font_manager.fontManager.ttflist}
+        others = [name for name in OTHER_SCRIPT_FONTS if name in installed]
+        if others:
+            matplotlib.rcParams["font.family"] = ["DejaVu Sans", *others, "sans-serif"]
+    warnings.filterwarnings("ignore", message=r"Glyph \d+ .*missing from font", category=UserWarning)
+    return plt
+
+
 def atomic_save_figure(fig: Any, path: str | os.PathLike, *, dpi: int = 110) -> Path:
     """Save a matplotlib figure atomically as PNG."""
     buf = io.BytesIO()

@@ -76,3 +76,24 @@ def test_an_evaluations_tables_name_a_hostile_clip_as_it_is(tmp_path):
     per_frame = _cells((out / "stream_frames.md").read_text(encoding="utf-8"))
     assert all(len(r) == len(per_frame[0]) for r in per_frame)
     assert {r[0] for r in per_frame[1:]} == {CLIP}
+
+
+def test_a_clip_named_in_a_script_no_font_holds_draws_its_figures_without_a_warning(tmp_path, capfd):
+    """A clip named in Chinese (no font of this machine holds it): each figure drawn printed matplotlib's warning,
+    two lines a character, on stderr. The figures are written, and no such warning is given."""
+    import warnings
+
+    frames = tmp_path / "data" / "道路"
+    (frames / "images").mkdir(parents=True)
+    (frames / "labels").mkdir()
+    for i, f in enumerate(pcreg.synthetic("syn1a", 3, 0, width=96, height=72)):
+        cv2.imwrite(str(frames / "images" / f"f{i}.png"), f.image[:, :, ::-1])
+        cv2.imwrite(str(frames / "labels" / f"f{i}.png"), f.labels)
+    out = tmp_path / "out"
+    with warnings.catch_warnings(record=True) as shown:
+        warnings.simplefilter("always")
+        assert main(["evaluate", "stream", "--data", f"folder:{tmp_path / 'data'}", "--frames", "3",
+                     "--methods", "plain,unregistered", "--out", str(out)]) == 0
+    assert not [w for w in shown if "missing from font" in str(w.message)]
+    assert "missing from font" not in capfd.readouterr().err
+    assert (out / "stream.png").stat().st_size > 0

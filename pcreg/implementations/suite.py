@@ -387,10 +387,9 @@ def write_results(out: str | os.PathLike, rows: list[dict], *, skipped: dict[str
 
 
 def _figure(path: Path, rows: list[dict]) -> None:
-    import matplotlib
+    from ..outputs import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.colors import ListedColormap
 
     cases = list(dict.fromkeys(r["case"] for r in rows))

@@ -96,10 +96,9 @@ def title(name: str, results: dict) -> str:
 
 def _figures(results: dict) -> dict:
     """matplotlib figures for case1/case2/case3 (like the thesis's Figures 4.1-4.2)."""
-    import matplotlib
+    from ...outputs import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     info = results["datasets"]

@@ -7,10 +7,9 @@ from pathlib import Path
 def pair_figure(frames, *, k: int, weight: float, out: Path, title: str) -> None:
     """Reference, moving, warped, truth and the predictions of one pair (a figure to look at); the
     pixels that are not scored (unknown truth) are grey in the predictions too."""
-    import matplotlib
+    from ...outputs import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     from ...outputs import atomic_save_figure

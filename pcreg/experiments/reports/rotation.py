@@ -59,10 +59,9 @@ def checks(results: dict) -> str:
 def _figure(results: dict):
     import math
 
-    import matplotlib
+    from ...outputs import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     names = list(results["datasets"])

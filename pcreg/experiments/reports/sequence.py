@@ -98,10 +98,9 @@ def checks(results: dict) -> str:
 
 
 def _figures(results: dict) -> dict:
-    import matplotlib
+    from ...outputs import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     from .style import METHOD_STYLE

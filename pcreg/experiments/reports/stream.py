@@ -102,10 +102,9 @@ def checks(results: dict) -> str:
 
 def _figure(results: dict):
     """Error against frames since the key frame, one panel per clip, one line per method."""
-    import matplotlib
+    from ...outputs import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     units = results["units"]
     if not units:
@@ -133,10 +132,9 @@ def _figure(results: dict):
 
 def _reliability(results: dict):
     """The reliability figure: accuracy against confidence per bin, and the share of pixels per bin."""
-    import matplotlib
+    from ...outputs import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     curve = (results.get("calibration") or {}).get("curve")
     if not curve:
@@ -161,10 +159,9 @@ def _reliability(results: dict):
 def _accuracy_time(results: dict):
     """Each method's reduction of plain's error (mean over clips) against its time a frame (median over
     clips), classification and fusion included: what each costs for what it gains."""
-    import matplotlib
+    from ...outputs import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     clips, avg = results["datasets"], results["average_reduction"]
     points = [(m, float(np.median([c["ms_per_frame"][m] for c in clips.values()])), avg[m]) for m in results["methods"]

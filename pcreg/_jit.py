@@ -124,8 +124,8 @@ def _shield_first_calls(dispatcher):
 _UNCACHED: list[str] = []
 
 
-def _uncached(made, options: dict, error: RuntimeError):
-    """``made`` compiled without the on-disk cache, after numba found no cache folder it can write (``error``):
+def _uncached(fn, options: dict, error: RuntimeError):
+    """``fn`` compiled without the on-disk cache, after numba found no cache folder it can write (``error``):
     numba's ``RuntimeError`` there ended every command at import (exit 1), even ``--help``, where pcreg is
     installed in a folder its user cannot write and ``$HOME`` is not writable either (a read-only container,
     a service's user). Warned once, with how to keep the kernels."""
@@ -139,7 +139,7 @@ def _uncached(made, options: dict, error: RuntimeError):
                       "sources nor in the user's cache folder), so each process compiles them again, adding "
                       "up to a minute to its first registration; set NUMBA_CACHE_DIR to a writable folder to keep them",
                       RuntimeWarning, stacklevel=4)
-    return numba.njit(**{**options, "cache": False})(made)
+    return numba.njit(**{**options, "cache": False})(fn)
 
 
 def njit(*args, **options):

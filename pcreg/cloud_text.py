@@ -334,13 +334,13 @@ def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
     names = [f.decode("ascii", "replace").strip("\"'").lstrip("/").strip().lower() for f in fields]
     if "x" not in names and "y" not in names:
         names = [_POINTS_COLUMNS.get(n, n) for n in names]
+    twice = next((a for a in "xyz" if names.count(a) > 1), None)
+    if twice is not None:  # which of them holds the coordinate, the file does not say ('x,x,z': y is not the matter)
+        first, second = [k for k, name in enumerate(names) if name == twice][:2]
+        raise InputError(f"{path}: its first line names {twice} twice (columns {first + 1} and {second + 1}); keep "
+                         "one of them")
     if "x" not in names or "y" not in names:
         line = b",".join(fields)
         text = line[:60].decode("ascii", "replace")
         raise InputError(f"{path}: its first line ({text!r}) names no x and y columns{_comma_hint(line)}")
-    twice = next((a for a in "xyz" if names.count(a) > 1), None)
-    if twice is not None:  # which of them holds the coordinate, the file does not say
-        first, second = [k for k, name in enumerate(names) if name == twice][:2]
-        raise InputError(f"{path}: its first line names {twice} twice (columns {first + 1} and {second + 1}); keep "
-                         "one of them")
     return [names.index(a) for a in "xyz" if a in names]

@@ -78,9 +78,10 @@ def test_a_crosscheck_whose_reference_fails_says_why_on_stderr(tmp_path, capsys)
 
 @pytest.mark.parametrize("body, said", [("sys.exit(0)", "called sys.exit(0)"), ("raise SystemExit(3)", "called sys.exit(3)"),
                                         ("raise KeyboardInterrupt", "raised KeyboardInterrupt (no interrupt came)"),
-                                        ("raise GeneratorExit", "raised GeneratorExit")])
+                                        ("raise GeneratorExit", "raised GeneratorExit"),
+                                        ("import os; os._exit(0)", "called os._exit(0)")])
 def test_a_py_function_that_exits_or_raises_an_interrupt_fails_its_row_only(tmp_path, body, said):
-    """sys.exit or a KeyboardInterrupt in a py: function ended the cross-check (exit 0 with no output, exit
+    """sys.exit, os._exit or a KeyboardInterrupt in a py: function ended the cross-check (exit 0 with no output, exit
     3 with no message, or "interrupted"): now its row says so, and the others are reported."""
     import json
 
@@ -306,6 +307,11 @@ def test_pcreg_register_says_when_a_jpeg_decoded_around_damaged_data(tmp_path, c
     assert notes[0].endswith("part of the image is the decoder's guess, and the result may be off")
     assert main(["register", str(ref), str(good)]) == 0
     assert "damaged" not in capsys.readouterr().err
+    # pcreg crosscheck of the same images says it too (it said nothing), on stderr and in --json
+    assert main(["crosscheck", str(ref), str(bad)]) == 0
+    assert [line for line in capsys.readouterr().err.splitlines() if "damaged" in line] == notes
+    assert main(["crosscheck", str(ref), str(bad), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["notes"] == [notes[0].removeprefix("pcreg: note: ")]
 
 
 def test_a_signal_while_the_commands_load_is_an_interruption(monkeypatch, capsys):
@@ -483,3 +489,18 @@ def test_a_float_tiff_outside_0_1_is_refused_saying_what_to_save_it_as_not_to_di
     err = one_line_errors(capsys)
     assert len(err) == 1 and err[0].startswith(f"pcreg: error: {mov}: a float image must hold values in [0, 1]"), err
     assert "divide" not in err[0] and "save it as an 8- or 16-bit unsigned integer image" in err[0], err
+
+
+def test_a_correspondence_distance_too_small_to_match_is_named_not_called_no_overlap(tmp_path, capsys):
+    """An image against itself with ``--max-distance 1e-300``: refused as "no overlap between the images: 2000 of 2000
+    moving edge points land on the reference", which contradicts itself; the refusal names the distance."""
+    import pcreg
+
+    path = tmp_path / "frame.png"
+    cv2.imwrite(str(path), pcreg.synthetic("syn2a", n_frames=1)[0].image[:, :, ::-1])
+    assert main(["register", str(path), str(path), "--max-distance", "1e-300"]) == 3
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "no overlap" not in err[0], err
+    assert "no moving edge point came within the correspondence distance of a reference edge point" in err[0]
+    assert err[0].endswith("the images do not match there, or the distance is too small (--max-distance, "
+                           "max_correspondence_distance)")

@@ -173,6 +173,7 @@ def test_decimal_commas_between_spaces_are_refused_saying_so(tmp_path, text):
     ("1 2 3 4\n5 6 7 8\n", r"4 numbers a line and no first line naming the x, y and z columns"),
     ("7\n8\n", r"1 number a line"),
     ("a,b,c\n1,2,3\n", r"its first line \('a,b,c'\) names no x and y columns"),
+    ("x,x,z\n1,2,3\n", r"its first line names x twice \(columns 1 and 2\); keep one of them"),  # not "no x and y"
     ("x,y,z\n", r"no points could be read \(a first line of names and no line of numbers\)"),
     ("# nothing\n\n", r"no points could be read"),
     ("x,y,z\n1,2,3\n4,5\n", r"line 3 \('4,5'\) is not 3 numbers"),

@@ -77,8 +77,14 @@ def test_a_crosscheck_with_no_correspondence_at_the_initial_pose_is_refused(tmp_
     np.save(tmp_path / "s.npy", source)
     np.save(tmp_path / "t.npy", target)
     assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy")]) == 3
-    assert f"registration refused: {tmp_path / 's.npy'} onto {tmp_path / 't.npy'}: no source point" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"registration refused: {tmp_path / 's.npy'} onto {tmp_path / 't.npy'}: no source point" in err
+    assert err.rstrip().endswith("(give --init, or a larger --max-distance)")
     init = np.eye(4)
+    init[:3, 3] = -1e3  # an --init still far off: another one is asked for, not "give --init"
+    np.savetxt(tmp_path / "init.txt", init)
+    assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "init.txt")]) == 3
+    assert capsys.readouterr().err.rstrip().endswith("(another --init, or a larger --max-distance)")
     init[:3, 3] = -1e5
     np.savetxt(tmp_path / "init.txt", init)
     assert main(["crosscheck", str(tmp_path / "t.npy"), str(tmp_path / "s.npy"), "--init", str(tmp_path / "init.txt")]) == 0
@@ -346,3 +352,21 @@ def test_a_suite_exported_over_an_earlier_one_keeps_nothing_of_its_cases(tmp_pat
     export_suite(suite, [Case(target[:1] + 0.01, target[:1], np.eye(4), 0.1, name="c")])  # one point: refused
     assert "reference_error" in json.loads((suite / "c" / "case.json").read_text())
     assert not (suite / "c" / "reference").exists()
+
+
+@pytest.mark.parametrize("extra", [[], ["--export", "SUITE"]])
+def test_out_without_suite_is_refused_not_ignored(tmp_path, capsys, extra):
+    """``--out`` is where ``--suite`` writes: given for two clouds (or with ``--export``) it was taken, nothing was
+    written there, and the command exited 0."""
+    from pcreg.cli import main
+
+    rng = np.random.default_rng(3)
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    np.save(a, rng.uniform(0, 1, (200, 3)))
+    np.save(b, np.load(a) + 0.01)
+    given = [str(tmp_path / "suite") if x == "SUITE" else x for x in extra] or [str(a), str(b)]
+    assert main(["crosscheck", *given, "--out", str(tmp_path / "res")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pcreg: error: --out {tmp_path / 'res'}: where --suite writes its "
+                                               "results; "), err
+    assert not (tmp_path / "res").exists() and not (tmp_path / "suite").exists()

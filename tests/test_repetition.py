@@ -55,6 +55,8 @@ def test_pcreg_register_says_when_the_images_repeat(tmp_path, capsys):
     assert main(["register", str(ref), str(mov), "--json"]) == 0  # a script reading --json sees the same note
     out = capsys.readouterr()
     assert json.loads(out.out)["notes"] == [n.removeprefix("pcreg: note: ") for n in out.err.splitlines()] != []
+    main(["crosscheck", str(ref), str(mov)])  # the backends cross-checked on the same images: the same note
+    assert [line for line in capsys.readouterr().err.splitlines() if "repeats itself" in line] == notes
     frame = pcreg.synthetic("syn2a", n_frames=1)[0].image
     cv2.imwrite(str(ref), frame)
     cv2.imwrite(str(mov), np.roll(frame, (3, 5), axis=(0, 1)))

@@ -85,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import InputError
     from ..implementations import stdout_to_stderr
 
+    if args.out and not args.suite:  # it was taken and ignored: nothing written, exit 0
+        raise InputError(f"--out {args.out}: where --suite writes its results; "
+                         + ("--export DIR is where the suite goes" if args.export else
+                            "two images or clouds are compared on the terminal, or in one JSON object with --json "
+                            f"(pcreg crosscheck A B --json > {Path(args.out) / 'crosscheck.json'})"))
     if args.export or args.suite:
         if args.a or args.b:
             raise InputError("--export and --suite take no A B clouds")
@@ -286,9 +291,9 @@ def _images(args) -> int:
     from ..implementations.crosscheck import CROSSCHECK_REGISTRATION, CrosscheckConfig, crosscheck_images
 
     from ..errors import InputError, RegistrationError
-    from ..formats import orientation_note, read_image_file
+    from ..formats import read_image_file_and_damage
     from ..registration.clouds import image_and_mask
-    from .register import _naming_its_file
+    from .register import _file_notes, _naming_its_file, _repeat_notes
 
     if args.implementations:
         raise InputError("--with applies to point clouds; images are cross-checked with both register backends")
@@ -305,7 +310,8 @@ def _images(args) -> int:
         callbacks = {b: rec.icp_callback(b) for b in ("reference", "open3d")}  # None each without a recording
         cb = (lambda it: callbacks[it.backend](it)) if callbacks["reference"] is not None else None
         # B registered onto A, read as pcreg register reads them: transparent pixels left out
-        stored = [read_image_file(path) for path in (args.a, args.b)]
+        read = [read_image_file_and_damage(path) for path in (args.a, args.b)]
+        stored = [image for image, _ in read]
         (ref, ref_mask), (mov, mov_mask) = (image_and_mask(img, path) for img, path in zip(stored, (args.a, args.b)))
         try:
             report = crosscheck_images(ref, mov, config=config, callback=cb, reference_mask=ref_mask,
@@ -314,7 +320,10 @@ def _images(args) -> int:
             raise _naming_its_file(exc, tuple(zip((args.a, args.b), stored))) from None
         out = report.to_dict()
         rec.log_crosscheck(out)
-    notes = [n for n in (orientation_note(path, "cross-checks") for path in (args.a, args.b)) if n is not None]
+    # what pcreg register notes of the files (damage, an EXIF orientation) and of a pattern that repeats; its model
+    # check's notes are its own (the cross-check compares the backends on the search's pose, unchecked)
+    notes = [*_file_notes([(path, damage) for path, (_, damage) in zip((args.a, args.b), read)], "cross-checks"),
+             *_repeat_notes([(args.a, ref), (args.b, mov)])]
     if notes:
         out["notes"] = notes
     if args.json:

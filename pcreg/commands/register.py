@@ -221,10 +221,11 @@ def _feature_notes(result) -> list[str]:
             f"{check.largest_shift_px:.1f} px from where the result does; the result may be wrong"]
 
 
-def _file_notes(files) -> list[str]:
+def _file_notes(files, command: str = "registers") -> list[str]:
     """Notes for each image file (``files``: its path, and what its decoder said of damaged data it
     decoded around, or ""): such damage, and an EXIF orientation that has viewers show the image turned or
-    mirrored (``T_ref_mov`` maps the pixels as stored, not the view a person sees)."""
+    mirrored (``T_ref_mov`` maps the pixels as stored, not the view a person sees; ``command``, what pcreg does
+    with them, as the note says it)."""
     from ..formats import orientation_note
 
     notes = []
@@ -232,7 +233,7 @@ def _file_notes(files) -> list[str]:
         if damage:
             notes.append(f"{path}: its decoder reports damaged data ({damage}): part of the image "
                          "is the decoder's guess, and the result may be off")
-        turned = orientation_note(path)
+        turned = orientation_note(path, command)
         if turned is not None:
             notes.append(turned)
     return notes

@@ -375,15 +375,16 @@ def _check_enough_correspondences(src: np.ndarray, tgt: np.ndarray, T0: np.ndarr
     near, _ = cKDTree(tgt).query(moved, k=1, distance_upper_bound=distance)
     found = int(np.count_nonzero(np.isfinite(near)))
     pair = "" if files == (None, None) else f"{files[0] or 'the source'} onto {files[1] or 'the target'}: "
+    started = "give --init" if np.array_equal(T0, np.eye(d + 1)) else "another --init"  # one was given: not "give"
     if found == 0:
         raise RegistrationError(f"registration refused: {pair}no source point lies within the correspondence distance "
                                 f"{distance:g} of a target point at the initial pose; every ICP would stop where it "
-                                "started (give --init, or a larger --max-distance)")
+                                f"started ({started}, or a larger --max-distance)")
     if found < need:
         raise RegistrationError(f"registration refused: {pair}{found} source point{'s' if found > 1 else ''} of "
                                 f"{len(src)} lie{'' if found > 1 else 's'} within the correspondence distance "
                                 f"{distance:g} of a target point at the initial pose, and a rigid motion in {d}-D "
-                                f"needs {need}: the pairs do not determine the rotation (give --init, or a larger "
+                                f"needs {need}: the pairs do not determine the rotation ({started}, or a larger "
                                 "--max-distance)")
 
 

@@ -43,6 +43,7 @@ import threading
 import time
 import warnings
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -118,6 +119,10 @@ def _checked_matrix(m: np.ndarray, d: int, what: str) -> np.ndarray:
     return m
 
 
+class _ProcessExit(BaseException):
+    """``os._exit`` called by a ``py:`` implementation's own code, on the thread that runs it (:func:`_user_code`)."""
+
+
 @contextlib.contextmanager
 def _user_code(what: str):
     """Run a ``py:`` implementation's own code (its import, its call, the reading of what it returned): what
@@ -131,6 +136,17 @@ def _user_code(what: str):
     except OSError:  # a working directory gone or unreadable: none to put back
         cwd = None
     before = set(threading.enumerate())
+    # os._exit in the function ended pcreg at once, with its status (0: a cross-check that printed nothing and
+    # exited as if it had succeeded); on the thread that runs it, it is the row's error (another thread's, pcreg's
+    # own stop watchdog's included, exits)
+    real_exit, caller = os._exit, threading.get_ident()
+
+    def exit_refused(status: int) -> NoReturn:
+        if threading.get_ident() == caller:
+            raise _ProcessExit(status)
+        real_exit(status)
+
+    os._exit = exit_refused
     try:
         # numpy's error handling and the warning filters it set are put back too: np.seterr(all="raise") in a
         # function made the next implementation's row fail ("pycpd: underflow encountered in exp")
@@ -151,7 +167,10 @@ def _user_code(what: str):
         raise ImplementationError("raised KeyboardInterrupt (no interrupt came)") from None
     except GeneratorExit:  # the one other BaseException code can raise by itself
         raise ImplementationError("raised GeneratorExit") from None
+    except _ProcessExit as exc:
+        raise ImplementationError(f"called os._exit({exc.args[0]!r}){'' if what == 'import' else '; a function returns its matrix'}") from None
     finally:
+        os._exit = real_exit
         for t in set(threading.enumerate()) - before:  # marked for pcreg.cli, whose exit would wait for them
             if not t.daemon:
                 t.pcreg_user_code = True  # type: ignore[attr-defined]

@@ -172,6 +172,11 @@ class Plausibility:
         if best.refined.fitness != 0.0 and ev.moving_points < need:
             raise RegistrationError(f"registration refused: the moving image has only {ev.moving_points} edge points "
                                     f"(at least {need} needed){self._sizes(shape)}")
+        if best.refined.fitness == 0.0 and ev.overlap_points >= need:  # on the reference, matched to nothing
+            raise RegistrationError(f"registration refused: no moving edge point came within the correspondence distance "
+                                    f"of a reference edge point, though {ev.overlap_points} of {ev.moving_points} land "
+                                    "on the reference: the images do not match there, or the distance is too small "
+                                    "(--max-distance, max_correspondence_distance)")
         if best.refined.fitness == 0.0 or ev.overlap_points < need:
             raise RegistrationError(f"registration found no overlap between the images: {ev.overlap_points} of "
                                     f"{ev.moving_points} moving edge points land on the reference (at least {need} needed)"

@@ -60,13 +60,17 @@ def test_a_markdown_table_cell_reads_as_its_text():
     assert markdown_text("DIS fast <= 1 & > 0") == "DIS fast <= 1 & > 0" and markdown_text("pcreg_half") == "pcreg_half"
 
 
-def test_an_evaluations_tables_name_a_hostile_clip_as_it_is(tmp_path):
-    frames = tmp_path / "data" / CLIP
-    (frames / "images").mkdir(parents=True)
-    (frames / "labels").mkdir()
+def _clip(folder, frame_name):
+    """A clip of three synthetic frames and their labels in ``folder``, each named ``frame_name(i)``."""
+    (folder / "images").mkdir(parents=True)
+    (folder / "labels").mkdir()
     for i, f in enumerate(pcreg.synthetic("syn1a", 3, 0, width=96, height=72)):
-        cv2.imwrite(str(frames / "images" / f"f|{i} <i>.png"), f.image[:, :, ::-1])
-        cv2.imwrite(str(frames / "labels" / f"f|{i} <i>.png"), f.labels)
+        cv2.imwrite(str(folder / "images" / frame_name(i)), f.image[:, :, ::-1])
+        cv2.imwrite(str(folder / "labels" / frame_name(i)), f.labels)
+
+
+def test_an_evaluations_tables_name_a_hostile_clip_as_it_is(tmp_path):
+    _clip(tmp_path / "data" / CLIP, lambda i: f"f|{i} <i>.png")
     out = tmp_path / "out"
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["evaluate", "stream", "--data", f"folder:{tmp_path / 'data'}", "--frames", "3",
@@ -83,12 +87,7 @@ def test_a_clip_named_in_a_script_no_font_holds_draws_its_figures_without_a_warn
     two lines a character, on stderr. The figures are written, and no such warning is given."""
     import warnings
 
-    frames = tmp_path / "data" / "道路"
-    (frames / "images").mkdir(parents=True)
-    (frames / "labels").mkdir()
-    for i, f in enumerate(pcreg.synthetic("syn1a", 3, 0, width=96, height=72)):
-        cv2.imwrite(str(frames / "images" / f"f{i}.png"), f.image[:, :, ::-1])
-        cv2.imwrite(str(frames / "labels" / f"f{i}.png"), f.labels)
+    _clip(tmp_path / "data" / "道路", lambda i: f"f{i}.png")
     out = tmp_path / "out"
     with warnings.catch_warnings(record=True) as shown:
         warnings.simplefilter("always")

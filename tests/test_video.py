@@ -257,18 +257,24 @@ def test_a_rotated_video_is_read_as_it_is_shown(tmp_path, frames):
         assert np.abs(got.astype(int) - np.rot90(image, degrees // 90)).mean() < 8
 
 
-def test_key_labels_drawn_on_a_rotated_videos_frames_as_stored_are_refused_naming_the_turn(tmp_path, frames, capsys):
-    """Key labels of a portrait phone video drawn on its frames as stored (extracted by a tool that does not turn
-    them): the refusal named the two sizes alone; it says the display matrix turns the frames, as players do."""
+def _turned_mp4(path, images):
+    """An MPEG-4 file of ``images`` (160x120) whose display matrix turns them by a quarter, as a phone's portrait
+    video; skipped where this PyAV cannot write one."""
     av = pytest.importorskip("av")
-    path = tmp_path / "phone.mp4"
     with av.open(str(path), "w") as container:
         stream = container.add_stream("mpeg4", rate=10)
         stream.width, stream.height, stream.pix_fmt = 160, 120, "yuv420p"
         if not hasattr(stream, "set_display_rotation"):
             pytest.skip("this PyAV cannot write a display rotation")
         stream.set_display_rotation(90)
-        mux_all(container, stream, [f.image for f in frames[:3]])
+        mux_all(container, stream, images)
+    return path
+
+
+def test_key_labels_drawn_on_a_rotated_videos_frames_as_stored_are_refused_naming_the_turn(tmp_path, frames, capsys):
+    """Key labels of a portrait phone video drawn on its frames as stored (extracted by a tool that does not turn
+    them): the refusal named the two sizes alone; it says the display matrix turns the frames, as players do."""
+    path = _turned_mp4(tmp_path / "phone.mp4", [f.image for f in frames[:3]])
     key = tmp_path / "key.png"
     cv2.imwrite(str(key), frames[0].labels)  # 160x120: the frame as stored
     assert main(["run", str(path), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
@@ -380,14 +386,7 @@ def test_decoded_frames_are_freed_without_the_cycle_collector(tmp_path, frames):
     in a cycle waits for Python's cycle collector, one that outlived a collection for a full one (rare in a long
     run), its picture (FFmpeg's memory) with it: a long run's memory grew about 2.5 kB a frame so."""
     av = pytest.importorskip("av")
-    path = tmp_path / "r.mp4"
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("mpeg4", rate=10)
-        stream.width, stream.height, stream.pix_fmt = 160, 120, "yuv420p"
-        if not hasattr(stream, "set_display_rotation"):
-            pytest.skip("this PyAV cannot write a display rotation")
-        stream.set_display_rotation(90)
-        mux_all(container, stream, [f.image for f in frames])
+    path = _turned_mp4(tmp_path / "r.mp4", [f.image for f in frames])
     enabled = gc.isenabled()
     gc.collect()
     gc.disable()

@@ -160,6 +160,14 @@ def test_export_never_replaces_a_file_of_the_run_and_a_suite_that_is_a_file_is_r
     assert "would replace one of the run's files" in one_line_errors(capsys)[-1]
     assert (out / "f1.png").read_bytes() == before
     assert main(["export", str(out), "--to", str(out / "mine.zip")]) == 0  # a zip of its own there is fine
+    other = tmp_path / "other" / "f0.png"  # another run's frame (a folder this run does not read): not over it either
+    other.parent.mkdir()
+    cv2.imwrite(str(other), scene)
+    kept = other.read_bytes()
+    assert main(["export", str(out), "--to", str(other), "--force"]) == 2
+    assert one_line_errors(capsys)[-1] == (f"pcreg: error: --to {other}: not a .zip name; the archive CVAT imports is "
+                                           "a .zip (name it NAME.zip)")
+    assert other.read_bytes() == kept
     capsys.readouterr()
     assert main(["crosscheck", "--suite", str(out / "f1.png")]) == 2
     assert "exists and is not a folder" in one_line_errors(capsys)[-1]

@@ -74,3 +74,26 @@ def test_a_recorded_run_killed_says_how_to_go_on_and_force_records_every_frame(t
         frames = [{r.times.get("frame") for r in read_recording(p).get("labels/predicted")}
                   for p in (tmp_path / "w.rrd", tmp_path / "c.rrd")]
     assert frames[0] == frames[1] and set(range(1, N)) <= frames[1]
+
+
+def test_a_recorded_run_stopped_by_ctrl_c_says_how_to_go_on_too(tmp_path, monkeypatch, capsys):
+    """A run with ``--record`` stopped cleanly (Ctrl-C: the recording closed): the same command was refused as
+    "c.rrd exists (use --force to overwrite)", naming only the way that labels every frame again. It names both
+    ways on, as after a kill, and another --record file resumes to the same labels."""
+    from _runs import kill_before_commit
+
+    folder, key = _frames(tmp_path)
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(whole), "--confidence"]) == 0
+    args = [str(folder), "--labels", str(key), "--out", str(cut), "--confidence"]
+    kill_before_commit(monkeypatch, 6)
+    assert main(["run", *args, "--record", str(tmp_path / "c.rrd")]) == 130
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert main(["run", *args, "--record", str(tmp_path / "c.rrd")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"pcreg: error: {tmp_path / 'c.rrd'} exists (the recording of this run as it stopped, or another "
+                   "file); to go on from there, give another --record file (it holds the frames from there on); to "
+                   "record every frame in this one, add --force (the run starts over from the key frame, same labels)"]
+    assert main(["run", *args, "--record", str(tmp_path / "c2.rrd")]) == 0
+    assert_same_run(whole, cut, N)

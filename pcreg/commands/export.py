@@ -63,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
     if read_from is not None:
         raise OutputError(f"--to {dest}: a file of the folder {read_from} the run reads; the archive would replace "
                           "it (choose another name or folder)")
+    if dest.suffix.lower() != ".zip":  # --force took an image's name (another run's frame), and made it a zip
+        raise OutputError(f"--to {dest}: not a .zip name; the archive CVAT imports is a .zip (name it NAME.zip)")
     # written as the frames are read and checked, in a temporary file that takes dest's place once all are;
     # a bar on a terminal: a run of hours of video takes minutes to export
     with progress(labelled_frames(run_labels, args.min_confidence), total=len(run_labels.names),

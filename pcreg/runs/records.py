@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import OutputError
 from .state import STATE
 
-__all__ = ["check_recording", "nothing_to_record"]
+__all__ = ["check_recording", "nothing_to_record", "run_recording"]
 
 
 def check_recording(out: Path, identity: dict | None, record: Path) -> None:
@@ -33,6 +33,22 @@ def check_recording(out: Path, identity: dict | None, record: Path) -> None:
     raise OutputError(f"{record}: the recording of this run, cut short when the run was killed{counted}; to go "
                       "on from there, give another --record file (it holds the frames from there on); to record "
                       "every frame in this one, add --force (the run starts over from the key frame, same labels)")
+
+
+def run_recording(request, table):
+    """The run's recording (:func:`pcreg.recording.recorder.open_recording` of ``request.record``, None for none),
+    opened once the run knows it has frames to label: a file there already (the recording of the run as Ctrl-C
+    stopped it, which the same command resumes) is refused saying the two ways on, not "exists, use --force"
+    alone, which labels every frame again."""
+    from ..errors import OutputError
+    from ..recording.recorder import open_recording
+
+    if request.record is not None and not request.force and Path(request.record).is_file():
+        raise OutputError(f"{request.record} exists (the recording of this run as it stopped, or another file); to go "
+                          "on from there, give another --record file (it holds the frames from there on); to record "
+                          "every frame in this one, add --force (the run starts over from the key frame, same labels)")
+    return open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw, force=request.force,
+                          classes=table)
 
 
 def nothing_to_record(record) -> None:

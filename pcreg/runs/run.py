@@ -52,7 +52,7 @@ from .edited import (check_key_files, check_same_frame, check_same_frames, check
                      key_contents)
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
-from .records import check_recording, nothing_to_record
+from .records import check_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
 from .video_file import keep_video, labelled_to_end, mark_end
@@ -169,7 +169,6 @@ class Run:
         from ..frame import PreparedFrame
         from ..outputs import WriteBehind
         from ..pipeline.engine import References, propagate
-        from ..recording.recorder import open_recording
         from ..recording.stream_log import log_frame
 
         frames, out = self.frames, self.out
@@ -195,8 +194,7 @@ class Run:
             except InputError as exc:  # a carry of another stream
                 raise OutputError(f"{out}: {exc}; use --force to start over") from None
         done = start
-        with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
-                            force=request.force, classes=self.table) as rec, \
+        with run_recording(request, self.table) as rec, \
                 progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
                 WriteBehind() as writer:  # a frame's outputs written while the next is labelled
             self.name_recording(request.record)
@@ -223,7 +221,6 @@ class Run:
         """Every frame labelled from the key frames around it (:class:`pcreg.pipeline.keys_run.KeyRun`)."""
         from .._runner import check_interrupted, progress, tick
         from ..pipeline.keys_run import KeyRun
-        from ..recording.recorder import open_recording
         from ..recording.stream_log import log_frame
         from .disk import choose_kept
 
@@ -235,8 +232,7 @@ class Run:
             nothing_to_record(request.record)  # an existing recording is this finished run's: nothing to add to it
             self._say_done(request, 0, sorted(keys))
             return
-        with open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw,
-                            force=request.force, classes=self.table) as rec:
+        with run_recording(request, self.table) as rec:
             self.name_recording(request.record)
             n = len(frames) if frames.kind == "folder" else frames.count()
             left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run

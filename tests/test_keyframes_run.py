@@ -454,3 +454,26 @@ def test_key_labels_of_frames_outside_start_and_stop_are_left_out_with_a_note(tm
     assert "1 key label of frames outside those chosen left out (--start 2): 000000.png" in capsys.readouterr().err
     steps = [json.loads(line) for line in (v / "steps.jsonl").read_text().splitlines()]
     assert {k for s in steps for k in s["keys"]} == {"000003"}
+
+
+def test_a_key_frames_run_json_counting_more_steps_than_written_is_refused_by_export_and_view(
+        tmp_path, folder, frames, capsys):
+    """run.json of a run from key frames counting more steps than steps.jsonl holds: ``pcreg run`` refused it, while
+    ``export`` and ``view --overlay`` read the steps there were and said nothing (a run from one label image was
+    refused by all three)."""
+    import json
+
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(_keys(tmp_path / "keys", frames, (1, 4))), "--out", str(out)]) == 0
+    state = json.loads((out / "run.json").read_text())
+    state["lines"] += 100
+    (out / "run.json").write_text(json.dumps(state))
+    capsys.readouterr()
+    said = {"export": f"pcreg: error: {out / 'steps.jsonl'}: missing or unreadable (4 steps for {state['lines']} "
+                      "finished frames)",
+            "view": f"pcreg: error: {out / 'run.json'}: unreadable (not a run.json that pcreg run wrote)"}
+    for args in (["export", str(out), "--to", str(tmp_path / "a.zip")],
+                 ["view", str(out), "--overlay", str(tmp_path / "o.mp4")]):
+        assert main(args) == 2
+        assert capsys.readouterr().err.splitlines() == [said[args[0]]]
+    assert not (tmp_path / "a.zip").exists() and not (tmp_path / "o.mp4").exists()

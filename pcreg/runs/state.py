@@ -324,12 +324,15 @@ def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
         raise ValueError(f"run.json's {field!r} is not as pcreg run writes it")
     stretches = "stretches" in state
     done = []  # the names alone: an hour's steps whole take about a GB
-    for step in counted_steps(folder, steps_counted(state), recount=lambda: steps_counted_now(folder)):
+    counted = steps_counted(state)
+    for step in counted_steps(folder, counted, recount=lambda: steps_counted_now(folder)):
         if "name" not in step:
             raise InputError(f"{folder / STEPS}: the step of frame {step['frame']} has no name (not a steps.jsonl "
                              "pcreg run wrote)")
         done.append(str(step["name"]))
     if stretches:
+        if len(done) < counted:  # a run appends a step before run.json counts it: never fewer (as pcreg run refuses)
+            raise ValueError(f"{len(done)} steps for {counted} finished frames")
         # a video's names are its frames' numbers, of six digits and more from frame 1000000 on: by number
         order = (lambda name: (len(name), name)) if "video" in state["run"] else None
         keys = sorted((str(k) for k in state["keys"]), key=order)

@@ -203,3 +203,25 @@ def test_pcreg_run_notes_a_disk_too_small_and_nothing_when_it_fits(tmp_path, fra
     monkeypatch.setattr(disk, "free_bytes", lambda path: int(need))
     assert main(args + ["--out", str(tmp_path / "exact")]) == 0
     assert "note" not in capsys.readouterr().err
+
+
+def test_a_key_frames_run_resumed_into_another_recording_says_where_it_starts(tmp_path, frames, monkeypatch, capsys):
+    """A key-frames run with ``--record`` stopped, then resumed with another ``--record`` file: the second file holds
+    the run from where it resumed, said on stderr, and run.json names both files in turn."""
+    import json
+
+    video = _video(tmp_path, frames)
+    keys = _keys(tmp_path / "keys", frames, [1, 4], name="{:06d}")
+    args = ["run", str(video), "--labels", str(keys), "--out", str(tmp_path / "cut"), "--record"]
+    kill_at_commit(monkeypatch, 14, "between")
+    assert main(args + [str(tmp_path / "a.rrd")]) == 130
+    monkeypatch.undo()
+    lines = json.loads((tmp_path / "cut" / "run.json").read_text())["lines"]
+    assert lines > 0
+    capsys.readouterr()
+    assert main(args + [str(tmp_path / "b.rrd")]) == 0
+    assert (f"pcreg: note: {tmp_path / 'b.rrd'} records this run from steps.jsonl line {lines + 1} on: what was labelled "
+            "before it stopped is not in it") in capsys.readouterr().err
+    state = json.loads((tmp_path / "cut" / "run.json").read_text())
+    assert state["recordings"] == [{"file": str(tmp_path / "a.rrd"), "from": "the start"},
+                                   {"file": str(tmp_path / "b.rrd"), "from": f"steps.jsonl line {lines + 1} on"}]

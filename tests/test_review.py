@@ -225,12 +225,13 @@ def test_the_server_renders_each_frame_on_request(which, request):
 # -- the page in a browser -----------------------------------------------------------------------------
 
 SHOWN_JS = "document.body.dataset.shown || ''"
+FIGURES_JS = "document.body.dataset.figures || ''"
 IMG_JS = "(() => { const r = document.getElementById('overlay').getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; })()"
 
 
 @contextlib.contextmanager
 def _review_page(out, *, width: int, height: int):
-    """The review page of the run in ``out`` open in a headless browser, its first frame shown: ``(the view's
+    """The review page of the run in ``out`` open in a headless browser, its first frame and its legend shown: ``(the view's
     process, a function giving the value of a JavaScript expression on the page)``; the view stopped after."""
     from _browser import Browser
 
@@ -239,6 +240,7 @@ def _review_page(out, *, width: int, height: int):
         with Browser(width=width, height=height) as browser:
             browser.open(url)
             until(lambda: browser.value(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
+            until(lambda: browser.value(FIGURES_JS) == "0", what="frame 0's class figures", alive=proc, bound=60)
             yield proc, browser.value
     finally:
         stop_view(proc)
@@ -272,6 +274,8 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
 
             # frame 0, the key frame, marked as one
             until(lambda: ev(SHOWN_JS) == "/overlay/0.jpg", what="frame 0 shown", alive=proc, bound=120)
+            # the legend's figures come after the picture and may wrap it anew: the picture is taken after them
+            until(lambda: ev(FIGURES_JS) == "0", what="frame 0's class figures", alive=proc, bound=60)
             assert ev("document.body.dataset.loaded") == "1"
             assert ev("document.getElementById('frame-tag').hidden") is False
             assert ev("document.getElementById('frame-tag').textContent") == "key frame"
@@ -281,6 +285,7 @@ def test_the_review_page_in_a_browser(run_copy, tmp_path):
             # the slider moves to frame 2: its picture and the plot's cursor follow
             ev("(() => { const s = document.getElementById('slider'); s.value = '2'; s.dispatchEvent(new Event('input')); })()")
             until(lambda: ev(SHOWN_JS) == "/overlay/2.jpg", what="frame 2 shown", alive=proc, bound=60)
+            until(lambda: ev(FIGURES_JS) == "2", what="frame 2's class figures", alive=proc, bound=60)
             picked = [t for t, _ in suggested]
             assert ev("document.getElementById('frame-tag').hidden") is (2 not in picked)  # tagged only if suggested
             steps = _steps(run_copy)

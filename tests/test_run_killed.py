@@ -97,3 +97,37 @@ def test_a_recorded_run_stopped_by_ctrl_c_says_how_to_go_on_too(tmp_path, monkey
                    "record every frame in this one, add --force (the run starts over from the key frame, same labels)"]
     assert main(["run", *args, "--record", str(tmp_path / "c2.rrd")]) == 0
     assert_same_run(whole, cut, N)
+    _assert_recordings(cut, capsys, [("c.rrd", "the start"), ("c2.rrd", "f06.png on")], tmp_path)
+
+
+def _assert_recordings(out, capsys, files: list, folder) -> None:
+    """The resumed run said that its recording starts where it resumed, and run.json names each file in turn."""
+    import json
+
+    last, start = files[-1]
+    said = capsys.readouterr().err
+    assert (f"pcreg: note: {folder / last} records this run from {start}: what was labelled before it stopped is not in "
+            "it (--force labels and records every frame)") in said, said
+    state = json.loads((out / "run.json").read_text())
+    assert state["recordings"] == [{"file": str(folder / f), "from": s} for f, s in files]
+    assert state["recording"] == str(folder / last)
+
+
+def test_a_recording_removed_after_a_stop_is_written_again_saying_what_it_holds(tmp_path, monkeypatch, capsys):
+    """A run with ``--record`` stopped by Ctrl-C, its recording removed, and the same command run again: it
+    resumed into a new file of the same name holding only the frames from there on, and said nothing, so that the
+    file looked like the whole run's recording."""
+    from _runs import kill_before_commit
+
+    from pcreg.recording.readback import read_recording
+
+    folder, key = _frames(tmp_path)
+    args = [str(folder), "--labels", str(key), "--out", str(tmp_path / "cut"), "--record", str(tmp_path / "c.rrd")]
+    kill_before_commit(monkeypatch, 6)
+    assert main(["run", *args]) == 130
+    monkeypatch.undo()
+    (tmp_path / "c.rrd").unlink()
+    capsys.readouterr()
+    assert main(["run", *args]) == 0
+    _assert_recordings(tmp_path / "cut", capsys, [("c.rrd", "the start"), ("c.rrd", "f06.png on")], tmp_path)
+    assert min(r.times.get("frame") for r in read_recording(tmp_path / "c.rrd").get("labels/predicted")) == 6

@@ -96,6 +96,7 @@ async function drawClassFigures(t) {
       span.append(room);
     }
   }
+  document.body.dataset.figures = String(t); // the legend filled in for this frame: the layout stands
 }
 
 // -- the plot --------------------------------------------------------------------------------------

@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import OutputError
 from .state import STATE
 
-__all__ = ["check_recording", "nothing_to_record", "run_recording"]
+__all__ = ["check_recording", "name_recording", "nothing_to_record", "run_recording"]
 
 
 def check_recording(out: Path, identity: dict | None, record: Path) -> None:
@@ -49,6 +49,30 @@ def run_recording(request, table):
                           "every frame in this one, add --force (the run starts over from the key frame, same labels)")
     return open_recording(request.record, name=f"run {request.frames}", raw=request.record_raw, force=request.force,
                           classes=table)
+
+
+def name_recording(state: dict, record, resumed: str | None) -> bool:
+    """Name in ``state`` (run.json) the recording ``record`` (a path or None) that the run has opened: ``"recording"``
+    the file written now, ``"recordings"`` each file in turn with where it starts (``resumed``: the run resumed,
+    said as ``"FRAME on"`` or ``"steps.jsonl line N on"``; None: from the key frames). A resumed run's recording holds only what
+    is labelled from there on, which is said on stderr: a recording removed after a stop, written again by the same
+    command, would otherwise look like the whole run's. True when ``state`` changed (the caller commits it)."""
+    from ..formats import resolved
+
+    if record is None:
+        return False
+    if resumed is not None:
+        sys.stderr.write(f"pcreg: note: {record} records this run from {resumed}: what was labelled before it "
+                         "stopped is not in it (--force labels and records every frame)\n")
+    path = str(resolved(Path(record)))
+    kept = state.get("recordings")
+    recordings: list = kept if isinstance(kept, list) else []  # a run.json from before "recordings": none named
+    entry = {"file": path, "from": resumed or "the start"}
+    if state.get("recording") == path and recordings and recordings[-1] == entry:
+        return False
+    state["recording"] = path
+    state["recordings"] = [*recordings, entry]
+    return True
 
 
 def nothing_to_record(record) -> None:

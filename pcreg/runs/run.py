@@ -52,7 +52,7 @@ from .edited import (check_key_files, check_same_frame, check_same_frames, check
                      key_contents)
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
-from .records import check_recording, nothing_to_record, run_recording
+from .records import check_recording, name_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
 from .video_file import keep_video, labelled_to_end, mark_end
@@ -197,7 +197,7 @@ class Run:
         with run_recording(request, self.table) as rec, \
                 progress(total=None if total is None or total <= start else total - start, desc="frames", disable=None) as bar, \
                 WriteBehind() as writer:  # a frame's outputs written while the next is labelled
-            self.name_recording(request.record)
+            self.name_recording(request.record, f"{frames.name(start)} on" if start > 1 else None)
             prepared = ((f.position, PreparedFrame.of(f.image, name="frame"))
                         for f in self.gaps.marked(read_ahead(todo), writer))
             # the next frame decoded while this one is labelled; checked once: naive Bayes alone (with --truth)
@@ -233,7 +233,7 @@ class Run:
             self._say_done(request, 0, sorted(keys))
             return
         with run_recording(request, self.table) as rec:
-            self.name_recording(request.record)
+            self.name_recording(request.record, f"steps.jsonl line {self.state['lines'] + 1} on" if self.state["lines"] else None)
             n = len(frames) if frames.kind == "folder" else frames.count()
             left = None if n is None else max(0, n - len(keys) - self.state["lines"])  # what the bar counts, not the run
             forward = job.forward_steps_left()  # the forward passes between two key frames label no frame
@@ -312,15 +312,10 @@ class Run:
         write_state(self.out, self.state)
         return 1
 
-    def name_recording(self, record) -> None:
-        """Name in run.json the recording (``record``, a path or None) that the run has opened and writes."""
-        from ..formats import resolved
-
-        if record is None:
-            return
-        path = str(resolved(Path(record)))
-        if self.state.get("recording") != path:
-            self.state["recording"] = path
+    def name_recording(self, record, resumed: str | None = None) -> None:
+        """Name in run.json the recording (``record``, a path or None) that the run has opened and writes
+        (:func:`pcreg.runs.records.name_recording`; ``resumed``: where a resumed run starts)."""
+        if name_recording(self.state, record, resumed):
             self.commit()
 
     def _start_over(self) -> None:

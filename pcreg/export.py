@@ -124,7 +124,8 @@ def read_run(folder: str | Path) -> RunLabels:
                              f"removed, or run.json edited)" if n in keys else f"{p}: missing (a labelled frame's "
                              "label file)")
     conf_dir = folder / CONFIDENCE
-    confidence = [None if n in keys or not conf_dir.is_dir() else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
+    kept = state["run"].get("confidence") is True or conf_dir.is_dir()  # run with --confidence: its maps, removed or not
+    confidence = [None if n in keys or not kept else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
     table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]),
                      frozenset(keys), gaps_note(state.get("gaps"), state["run"].get("video")),

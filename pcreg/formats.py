@@ -155,9 +155,24 @@ def loads_json(text: str | bytes, *, keys_once: bool = False):
     import json
 
     try:
-        return json.loads(text, object_pairs_hook=_keys_once if keys_once else None)
+        return json.loads(text, object_pairs_hook=_keys_once if keys_once else None, parse_int=_json_int)
     except RecursionError:
         raise ValueError("JSON nested too deeply") from None
+
+
+#: The most digits of an integer in a JSON file pcreg reads: its largest are nanosecond times and byte counts
+#: (19 digits); a longer one is no count or time, and beyond a float's range it breaks what compares it as one.
+JSON_INT_DIGITS = 20
+
+
+class NumberTooLong(ValueError):
+    """A JSON integer of more than :data:`JSON_INT_DIGITS` digits."""
+
+
+def _json_int(text: str) -> int:
+    if len(text.lstrip("-")) > JSON_INT_DIGITS:
+        raise NumberTooLong(f"an integer of {len(text.lstrip('-'))} digits, longer than any pcreg writes")
+    return int(text)
 
 
 #: The largest JSON file pcreg reads (a run's run.json, a suite's index, a cross-check's side file).
@@ -174,6 +189,8 @@ def load_json_object(path: str | os.PathLike) -> dict:
         raise ValueError(f"unreadable ({str(exc).removeprefix(f'{Path(path)}: ')})") from None
     try:
         value = loads_json(data.decode("utf-8"))
+    except NumberTooLong as exc:
+        raise ValueError(f"unreadable ({exc})") from None
     except ValueError:  # UnicodeDecodeError too
         raise ValueError("unreadable (not JSON)") from None
     if not isinstance(value, dict):
@@ -578,10 +595,11 @@ def read_image_file(path: str | os.PathLike, *, flags: int | None = None, limit:
 _DAMAGED_DATA = ("Corrupt JPEG data", "Premature end of JPEG file")
 
 
-def read_image_file_and_damage(path: str | os.PathLike, *, limit: int | None = None) -> tuple[np.ndarray, str]:
-    """:func:`read_image_file` as the file stores it, and what its decoder said of damaged pixel data it
-    decoded around (libjpeg's ``Corrupt JPEG data: premature end of data segment``), or ``""``."""
+def read_image_file_and_damage(path: str | os.PathLike, *, limit: int | None = None,
+                               flags: int | None = None) -> tuple[np.ndarray, str]:
+    """:func:`read_image_file` (as the file stores it, or as ``flags`` say), and what its decoder said of damaged
+    pixel data it decoded around (libjpeg's ``Corrupt JPEG data: premature end of data segment``), or ``""``."""
     limit = max_pixels(limit)
     data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image", hint=RAISE_LIMIT)
-    img, said = _decoded(data, str(path), flags=None, limit=limit)
+    img, said = _decoded(data, str(path), flags=flags, limit=limit)
     return img, said if said.startswith(_DAMAGED_DATA) else ""

@@ -54,7 +54,8 @@ class RunReview:
     of key frames (named in ``run.json``; with its ``key_frames`` list, also those without a line in
     ``steps.jsonl``); ``errors`` each frame's
     predicted error in % (None for a key frame or a step without one); ``suggested`` the positions listed in
-    ``suggest.txt`` with the error given there (or None); ``confidence`` whether ``OUT/confidence/`` exists;
+    ``suggest.txt`` with the error given there (or None); ``confidence`` whether the run was asked for its confidence
+    (run.json) or ``OUT/confidence/`` exists (its frames without their map each marked, the folder removed too);
     ``table`` the run's class table (:func:`pcreg.classes.keys.run_table`); ``ious`` each frame's predicted
     IoU per class id (``steps.jsonl``'s ``predicted_iou``; None where a step has none: a key frame, a two-class
     step of an earlier pcreg); ``truths`` each frame's figures against the truth (a run with ``--truth``: a
@@ -141,10 +142,10 @@ def read_review(folder: str | Path) -> RunReview:
     a source that is gone, an unreadable ``steps.jsonl`` or ``suggest.txt``.
     """
     from .classes.keys import run_table
-    from .datasets.sources import FolderFrames, Selection, open_frames
+    from .datasets.sources import FolderFrames, open_frames
     from .runs.edited import frame_moved, moved_error
     from .runs.files import CONFIDENCE, STEPS, counted_steps
-    from .runs.state import STATE, read_state, run_frames, steps_counted_now
+    from .runs.state import STATE, chosen_selection, read_state, run_frames, steps_counted_now
 
     folder = Path(folder)
     state_path = folder / STATE
@@ -161,13 +162,12 @@ def read_review(folder: str | Path) -> RunReview:
             named, count = [str(state["key_frame"])], int(state["done"])
             counted = count - 1
         named = [*named, *map(str, state.get("key_frames") or [])]
-        chosen = run.get("frames") or {}
-        selection = Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
-    except InputError:  # steps.jsonl's, named
+        selection = chosen_selection(run, state_path)
+    except InputError:  # steps.jsonl's or run.json's, named
         raise
     except (OSError, ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
-    table = run_table(run)
+    table = run_table(run, str(state_path))
     if not source.exists():
         raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there)")
     frames = open_frames(source, selection)
@@ -210,7 +210,8 @@ def read_review(folder: str | Path) -> RunReview:
         ious.append(None if t in keys else step_class_iou(steps[n].get("predicted_iou"), steps_path, n))
         truth.append(None if t in keys else StepTruth(scored, step_class_iou(steps[n].get("iou"), steps_path, n, "iou")))
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
-                     _suggested(folder, names, stems), (folder / CONFIDENCE).is_dir(), selection.to_dict(), table,
+                     _suggested(folder, names, stems), run.get("confidence") is True or (folder / CONFIDENCE).is_dir(),
+                     selection.to_dict(), table,
                      tuple(ious), tuple(truth), len(frames) if isinstance(frames, FolderFrames) else None,
                      state.get("gaps"), state.get("damaged"), state.get("notes"))
 

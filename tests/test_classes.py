@@ -251,18 +251,20 @@ def test_a_zip_or_an_image_given_as_a_class_table_is_named_as_what_it_is(tmp_pat
         _one_line(exc, str(path), said)
 
 
-def test_a_huge_number_in_a_json_table_is_echoed_short():
-    """An id, unknown or colour of 10**400 in a JSON table is refused with its first digits, not all 401 of them."""
-    big = str(10**400)
+def test_a_huge_number_in_a_json_table_is_refused_short():
+    """An id, unknown or colour of 10**400 in a JSON table is refused in one short line, not all 401 digits echoed:
+    read as JSON, an integer longer than any pcreg writes is refused; one of 20 digits is echoed by its first."""
+    big, long = str(10**400), str(10**19)
     three = [{"name": "a", "colour": [1, 2, 3]}, {"name": "b", "colour": [4, 5, 6]}, {"name": "u", "colour": [0, 0, 0]}]
-    for text, needle in [(f'{{"classes": [{{"id": {big}, "name": "a", "colour": [1,2,3]}}], "unknown": 0}}', "class id 1000"),
-                         (json.dumps({"classes": three, "unknown": 0}).replace(': 0}', f': {big}}}'), "the unknown id 1000"),
-                         (json.dumps({"classes": three, "unknown": "u"}).replace("[1, 2, 3]", f"[{big}, 2, 3]"),
-                          "class 'a' has colour (1000")]:
-        with pytest.raises(InputError) as exc:
-            parse_table_json(text, "t.json")
-        _one_line(exc, "t.json", needle, "...")
-        assert len(str(exc.value)) < 160, str(exc.value)
+    for n, needle in ((big, "an integer of 401 digits, longer than any pcreg writes"), (long, "1000")):
+        for text, where in [(f'{{"classes": [{{"id": {n}, "name": "a", "colour": [1,2,3]}}], "unknown": 0}}', "class id "),
+                            (json.dumps({"classes": three, "unknown": 0}).replace(': 0}', f': {n}}}'), "the unknown id "),
+                            (json.dumps({"classes": three, "unknown": "u"}).replace("[1, 2, 3]", f"[{n}, 2, 3]"),
+                             "class 'a' has colour (")]:
+            with pytest.raises(InputError) as exc:
+                parse_table_json(text, "t.json")
+            _one_line(exc, "t.json", needle if n == big else where + needle)
+            assert len(str(exc.value)) < 160, str(exc.value)
 
 
 def test_tables_agree():

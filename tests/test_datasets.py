@@ -228,6 +228,25 @@ def test_load_folder_maps_camvid_ids(tmp_path):
         np.testing.assert_array_equal(f.labels, lut[raw])
 
 
+def test_a_folder_frame_decoded_around_damaged_data_is_marked(tmp_path):
+    """A CamVid-like clip whose JPEG frame is cut short (its end marker put back): the frame is the decoder's
+    guess in part; the frame says so (:attr:`Frame.damage`), as ``pcreg register`` does of such an image."""
+    from pcreg.datasets.frame import damage_notes
+
+    _write_clip(tmp_path / "data" / "clip", 2, rng=np.random.default_rng(5), ids=(0, 1, 2), size=(64, 48))
+    for i in range(2):
+        png = tmp_path / "data" / "clip" / "images" / f"f{i:02d}.png"
+        cv2.imwrite(str(png.with_suffix(".jpg")), cv2.imread(str(png)))
+        png.unlink()
+    jpg = tmp_path / "data" / "clip" / "images" / "f01.jpg"
+    data = jpg.read_bytes()
+    jpg.write_bytes(data[:len(data) * 2 // 3] + b"\xff\xd9")
+    data = load_dataset(f"folder:{tmp_path / 'data'}")
+    assert [f.damage[:17] for f in data["clip"]] == ["", "Corrupt JPEG data"]
+    (line,) = damage_notes(data)
+    assert line.startswith("clip clip, frame f01: its decoder reports damaged data (Corrupt JPEG data")
+
+
 def test_a_folder_of_camvid_ids_is_refused_naming_the_data_spelling_that_reads_them(tmp_path):
     """``--data folder:`` of CamVid's ids: the refusal named ``--mapping camvid``, which ``evaluate`` does not take;
     it names ``--data camvid:`` too, and says whose option ``--mapping`` is."""

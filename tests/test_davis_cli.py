@@ -40,6 +40,10 @@ def test_evaluate_stream_on_davis_scores_j_and_f_beside_the_published_methods(tm
     assert "davisvideochallenge.github.io" in d["published"]["source"]
     table = (out / "davis_J.md").read_text()
     assert "| blackswan | 3 |" in table and "OSVOS" in table and "davisvideochallenge.github.io" in table
+    # a sequence of 5 frames where the benchmark's has 50: its figures beside the published ones were said nothing of
+    assert d["published"]["frames"] == {"blackswan": 48}
+    assert ("Scored over other frames than the published figures are (blackswan 3 against 48 frames): the sequence "
+            "does not hold the benchmark's frames, and its figures and the published ones do not compare.") in table
     said = capsys.readouterr().out  # the benchmark's J and F printed after the error table, before the checks
     at = [said.find(t) for t in ("### Labelling a stream", table.splitlines()[0], "### DAVIS: F", "### Checks")]
     assert -1 not in at and at == sorted(at), said
@@ -238,3 +242,17 @@ def test_key_every_keeps_the_current_key_frame_where_the_object_is_too_small_to_
     assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "plain", "--key-every", "3",
                  "--out", str(tmp_path / "plain")]) == 0  # naive Bayes alone can start there
     assert json.loads((tmp_path / "plain" / "results.json").read_text())["units"][0]["key_frames"] == [0, 3, 6]
+
+
+def test_a_damaged_jpeg_frame_is_said_when_evaluated(tmp_path, capsys):
+    """A frame whose JPEG decodes around damaged data (cut short, its end marker put back): scored without a word,
+    where ``pcreg register`` of the same image says so."""
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(5))
+    path = seq / "images" / "00002.jpg"
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) * 2 // 3] + b"\xff\xd9")
+    assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "unregistered", "--out",
+                 str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err
+    assert "pcreg: note: clip seq, frame 00002: its decoder reports damaged data (Corrupt JPEG data" in err, err
+    assert err.count("damaged data") == 1

@@ -10,7 +10,7 @@ import pytest
 from pcreg.datasets import load_dataset
 from pcreg.datasets.davis import PUBLISHED_CSV, PUBLISHED_SOURCE, find_sequences, load_davis, published
 from pcreg.errors import DatasetError
-from _davis import frames_and_masks, shared_sequence, write_official_layout, write_pcreg_layout
+from _davis import frames_and_masks, shared_sequence, write_official_layout, write_palette, write_pcreg_layout
 
 
 def _same(a, b) -> None:
@@ -118,11 +118,18 @@ def _broken(tmp_path, how: str):
         path = seq / "images" / "00001.jpg"
         path.write_bytes(path.read_bytes()[:200])
         return seq, path, "cannot decode image"
+    if how == "masks read two ways":  # a first mask of two objects by palette index, later ones DAVIS 2016's 0/255
+        first = cv2.imread(str(seq / "labels" / "00000.png"), cv2.IMREAD_GRAYSCALE)
+        ids = (first > 0).astype(np.uint8)
+        ids[:6, :6] = 2
+        write_palette(seq / "labels" / "00000.png", ids)
+        return seq, seq / "labels" / "00001.png", "a grey mask of one object (0 and 255, DAVIS 2016's) after a first mask of 2"
     (seq / "labels" / "00003.png").unlink()  # a later mask missing
     return seq, seq / "labels" / "00003.png", "no mask of frame 00003.jpg"
 
 
-BROKEN = ("a mask of another size", "no first mask", "an empty key mask", "an unreadable JPEG", "a later mask missing")
+BROKEN = ("a mask of another size", "no first mask", "an empty key mask", "an unreadable JPEG", "masks read two ways",
+          "a later mask missing")
 
 
 @pytest.mark.parametrize("how", BROKEN)

@@ -196,6 +196,9 @@ def test_bad_input_one_line_exit_2_nothing_written(run_copy, tmp_path, capsys):
     no_conf = tmp_path / "no_conf"
     shutil.copytree(out, no_conf)
     shutil.rmtree(no_conf / "confidence")
+    state = json.loads((no_conf / "run.json").read_text())
+    state["run"].pop("confidence", None)
+    (no_conf / "run.json").write_text(json.dumps(state))
     _refused([str(no_conf), "--min-confidence", "0.5"], capsys, "--min-confidence", "--confidence")
     assert not (no_conf / "export-cvat-mask.zip").exists()
     # a label file that is missing, or holds a value that is not a label: named, nothing written

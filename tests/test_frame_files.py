@@ -68,6 +68,25 @@ def test_frames_with_transparent_pixels_are_said_once_naming_the_first(tmp_path,
     assert notes[0].startswith("pcreg: note: ") and f"{frames / 'f02.png'} has transparent pixels (640 of its 3072" in notes[0]
 
 
+def test_a_jpeg_frame_decoded_around_damaged_data_is_said_once(tmp_path, capsys):
+    """A folder of JPEG frames, two cut short (their end marker put back): labelled from the decoder's guesses
+    without a word, where ``pcreg register`` of the same image says so. The first is named, kept in run.json."""
+    import json
+
+    frames = _folder(tmp_path / "frames")
+    for png in sorted(frames.glob("*.png")):
+        cv2.imwrite(str(png.with_suffix(".jpg")), cv2.imread(str(png)))
+        png.unlink()
+    for name in ("f02.jpg", "f03.jpg"):
+        data = (frames / name).read_bytes()
+        (frames / name).write_bytes(data[:len(data) * 2 // 3] + b"\xff\xd9")
+    assert main(["run", str(frames), "--labels", str(_key(tmp_path / "key.png")), "--out", str(tmp_path / "out")]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if "damaged data" in ln]
+    assert len(notes) == 1, notes
+    assert notes[0].startswith(f"pcreg: note: {frames / 'f02.jpg'}: its decoder reports damaged data (Corrupt JPEG data")
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["notes"]["damaged"] == notes[0].removeprefix("pcreg: note: ")
+
+
 def test_a_video_with_transparent_pixels_is_said_once(tmp_path, capsys):
     video = tmp_path / "clip.mov"
     with av.open(str(video), "w") as c:  # QuickTime Animation with alpha, as a compositing tool exports it

@@ -636,6 +636,10 @@ CLI = {
     "view_size_negative": (["view", "{t}/x.rrd", "--size", "0x-5"], "--size"),
     "view_timeout_nan": (["view", "{t}/x.rrd", "--timeout", "nan"], "--timeout"),
     "angles_nan": (["evaluate", "rotation", "--angles", "nan"], "--angles"),
+    # the refusal said "choose a larger scale", which evaluate stream has no option for
+    "stream_method_frames_too_small": (["evaluate", "stream", "--data", "synthetic:syn1a", "--size", "64x48", "--frames",
+                                        "3", "--methods", "plain,pcreg_flow", "--out", "{t}/o"],
+                                       "--methods pcreg_flow: scale 0.5 works at 32x24"),
     "angles_inf": (["evaluate", "rotation", "--angles", "0,inf"], "--angles"),
     "angles_step_tiny": (["evaluate", "rotation", "--angles", "0:360:1e-9"], "limit"),
     "angles_range_nan": (["evaluate", "rotation", "--angles", "0:nan:1"], "--angles"),

@@ -11,6 +11,8 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
+import socket
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -155,6 +157,10 @@ def test_report_page_in_a_browser(evaluations, kind, tmp_path):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(url.rstrip("/") + bad, timeout=30)
             assert e.value.code == 404, bad
+        for raw in (b"/rerun/\x01x", b"/rerun/\xe9", b"/rerun/a\x00b", b"/rerun/\x7f"):  # no answer, a traceback, before
+            with socket.create_connection(("127.0.0.1", page_port), timeout=30) as s:
+                s.sendall(b"GET " + raw + b" HTTP/1.0\r\n\r\n")
+                assert s.recv(64).startswith(b"HTTP/1.0 404"), raw
 
         with Browser(width=1600, height=900) as browser:
             browser.open(url)
@@ -236,6 +242,27 @@ def test_a_recording_an_earlier_run_left_is_not_shown_beside_new_numbers(tmp_pat
         assert load_report(out).recordings == (out / "y.rrd",)
         assert cli.main([*argv, "--angles", "0,90", "--record", str(tmp_path / "elsewhere.rrd")]) == 0
         assert load_report(out).recordings == ()
+
+def test_a_reports_recording_cut_short_is_said(evaluations, tmp_path):
+    """An evaluation's folder whose recording was cut short (copied while the run wrote it, a disk filled):
+    served without a word, where the same recording viewed alone is said to be cut short."""
+    import shutil
+    import signal
+
+    folder = tmp_path / "rot"
+    shutil.copytree(evaluations["rotation"], folder)
+    (rrd,) = folder.glob("*.rrd")
+    data = rrd.read_bytes()
+    rrd.write_bytes(data[:len(data) * 2 // 3])
+    proc, _ = view_web(str(folder), "--grpc-port", "0")
+    try:
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=60) == 130
+        said = proc.stderr.read()
+    finally:
+        stop_view(proc)
+    assert f"pcreg: note: {rrd}: the recording does not end (still being written, or cut short)" in said, said
+
 
 def test_report_without_a_recording_and_its_files(evaluations, tmp_path):
     """A folder without .rrd: the page's data says so; only the report's own files are served."""

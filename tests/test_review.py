@@ -134,6 +134,23 @@ def test_bad_run_folders_are_one_line(run_copy, tmp_path, capsys):
     (run_copy / "steps.jsonl").write_text("{not json\n")
     assert pcreg_view([str(run_copy), "--web"]) == 2
     assert "steps.jsonl: line 1 is not a step pcreg run wrote" in one_line_error(capsys)
+    lines = steps.splitlines(keepends=True)
+    for bad in ("1" * 400, "-50", "1e308", "NaN"):  # a figure in % no run writes: the 400 digits were exit 1 (a bug)
+        step = json.loads(lines[1])
+        (run_copy / "steps.jsonl").write_text("".join([lines[0], json.dumps(step).replace(
+            f'"predicted_error": {json.dumps(step["predicted_error"])}', f'"predicted_error": {bad}'), *lines[2:]]))
+        assert pcreg_view([str(run_copy), "--web"]) == 2, bad
+        assert "steps.jsonl: line 2 is not a step pcreg run wrote" in one_line_error(capsys), bad
+    (run_copy / "steps.jsonl").write_text(steps)
+    gaps = {"places": 1, "missing": 2, "listed": {"000003": 2}, "last": "000003", "times": {"000003": int("9" * 400)}}
+    (run_copy / "run.json").write_text(json.dumps({**state, "gaps": gaps}))
+    assert pcreg_view([str(run_copy), "--web"]) == 2
+    assert f"{run_copy / 'run.json'}: unreadable (" in one_line_error(capsys)  # exit 1 before
+    for frames in ({"every": 0}, {"start": -3}, "all"):  # said as options never given (--every must be 1 or more)
+        (run_copy / "run.json").write_text(json.dumps({**state, "run": {**state["run"], "frames": frames}}))
+        assert pcreg_view([str(run_copy), "--web"]) == 2
+        assert f"{run_copy / 'run.json'}: unreadable (its frames chosen, " in one_line_error(capsys), frames
+    (run_copy / "run.json").write_text(json.dumps(state))
     assert pcreg_view([str(run_copy)]) == 2
     assert "--web" in one_line_error(capsys)
     assert pcreg_view([str(run_copy), "--web", "--overlay", str(tmp_path / "o.mp4")]) == 2
@@ -579,6 +596,24 @@ def test_a_frame_without_its_confidence_map_says_so_on_the_page(run_copy):
             until(lambda: ev(SHOWN_JS) == f"/overlay/{t}.jpg", what=f"frame {t} shown", alive=proc, bound=60)
             missing = "no confidence map (confidence/frame_002.png is missing): drawn without the hatching"
             assert (missing in ev(error)) is (t == 2), ev(error)
+
+
+def test_a_run_whose_confidence_folder_is_gone_marks_every_frame(run_copy, tmp_path, capsys):
+    """A run with --confidence whose whole confidence/ folder was removed: the page said the run had no
+    confidence (as if run without it) and marked no frame; the export with --min-confidence said to run with
+    --confidence. Each frame is marked as one map gone is, and the export names the missing map."""
+    from pcreg.export import read_run
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    shutil.rmtree(run_copy / "confidence")
+    with ReviewServer(read_review(run_copy), web_port=0) as server:
+        data = json.loads(_get(server.url + "review.json")[1])
+    assert data["confidence"] is True
+    assert [f["no_confidence"] for f in data["frames"]] == [None, *(f"confidence/frame_{t:03d}.png" for t in range(1, N))]
+    assert read_run(run_copy).confidence[1] == run_copy / "confidence" / "frame_001.png"
+    assert main(["export", str(run_copy), "--to", str(tmp_path / "e.zip"), "--min-confidence", "0.5"]) == 2
+    assert f"{run_copy / 'confidence' / 'frame_001.png'}: missing" in one_line_error(capsys)
 
 
 def _many_class_run(synthetic, tmp_path, n_classes: int, key: np.ndarray):

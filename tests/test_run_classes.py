@@ -156,7 +156,8 @@ def _case(tmp_path, synthetic, how: str):
         lab[3, 4] = 7
         cv2.imwrite(str(key), lab)
         return [], key, "label value 7 is not a class id (0 ground, 1 obstacle, 2 unknown); labels of other classes " \
-            "need their table: --classes camvid11"
+            "need their table: --classes camvid11 (CamVid's ids), --classes FILE (a CVAT labelmap.txt or a JSON table), " \
+            "which pcreg run and evaluate stream take"  # evaluate sequence and rotation said it too, without --classes
     if how == "a colour not in the table":
         rgb = LAGR.paint(lab)
         rgb[3, 4] = (1, 2, 3)

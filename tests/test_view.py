@@ -76,6 +76,12 @@ def test_headless_screenshot_shows_the_images(small_recording, tmp_path, capsys)
     code = pcreg_view([str(small_recording), "--screenshot", str(out), "--time", "frame=1",
                        "--view", "Registration", "--size", "1280x720"])
     assert code == 0, capsys.readouterr().err
+    # a time outside the recording drew "No data available" in every view, exit 0: refused, the picture kept
+    before = out.read_bytes()
+    for time in ("frame=-5", "frame=1000"):
+        assert pcreg_view([str(small_recording), "--screenshot", str(out), "--time", time, "--force"]) == 2
+        assert f"--time {time}: outside the recording, whose frame timeline runs from 0 to " in one_line_error(capsys)
+    assert out.read_bytes() == before
     shot = cv2.imread(str(out), cv2.IMREAD_COLOR)
     assert shot is not None and shot.shape[0] > 100 and shot.shape[1] > 100
     b, g, r = (shot[..., i].astype(int) for i in range(3))

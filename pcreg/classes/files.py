@@ -36,7 +36,7 @@ import numpy as np
 
 from ..errors import InputError
 from .table import MAX_CLASSES, TABLES, ClassTable, LabelClass
-from ..formats import KeyWrittenTwice, loads_json
+from ..formats import KeyWrittenTwice, NumberTooLong, loads_json
 from ..validation import short_repr
 
 __all__ = ["LABELMAP_FILE", "LABELMAP_HEADER", "labelmap_lines", "parse_labelmap", "read_labelmap", "labelmap_text", "write_labelmap",
@@ -192,7 +192,7 @@ def parse_table_json(text: str | dict, where: str) -> ClassTable:
     ``id`` may be left out (its position); a key written twice in one object is refused, naming it."""
     try:
         doc = text if isinstance(text, dict) else loads_json(text, keys_once=True)
-    except KeyWrittenTwice as exc:
+    except (KeyWrittenTwice, NumberTooLong) as exc:
         raise InputError(f"{where}: {exc}") from None
     except ValueError as exc:
         raise InputError(f"{where}: not JSON ({exc})") from None

@@ -112,6 +112,6 @@ def mask_hint(raw: np.ndarray) -> str:
                 "with --classes FILE (a CVAT labelmap.txt or a JSON table)")
     if values.size and int(values.max()) > 2:
         return ("; labels of other classes need their table: --classes camvid11 (CamVid's ids), --classes FILE (a "
-                "CVAT labelmap.txt or a JSON table); pcreg run's --mapping camvid, and --data camvid:, read CamVid's "
-                "ids as ground and obstacle")
+                "CVAT labelmap.txt or a JSON table), which pcreg run and evaluate stream take; pcreg run's --mapping "
+                "camvid, and --data camvid:, read CamVid's ids as ground and obstacle")
     return ""

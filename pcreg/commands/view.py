@@ -226,6 +226,7 @@ def _report(args: argparse.Namespace, folders: list[str]) -> int:
     """``pcreg view OUT_DIR [REC.rrd ...] --web``: the report page of an output folder beside its recording."""
     from ..experiments.reports.page import load_report, page_data
     from ..recording import viewer as V
+    from ..recording.readback import unfinished_note
     from ..recording.report import ReportServer
     from ..recording.staging import stage
 
@@ -250,6 +251,8 @@ def _report(args: argparse.Namespace, folders: list[str]) -> int:
     binary = V.find_viewer(args.viewer) if recordings else None
     with tempfile.TemporaryDirectory(prefix="pcreg-view-") as tmp:
         staged = _stage(stage, recordings, Path(tmp)) if recordings else None
+        for note in filter(None, map(unfinished_note, recordings)):  # as for a recording viewed alone
+            sys.stderr.write(f"pcreg: note: {note}\n")
         server = ReportServer(folder, data, recording=None if staged is None else staged.path, bind=args.bind,
                               web_port=args.web_port, grpc_port=args.grpc_port, viewer=binary, timeout=args.timeout)
         with server:

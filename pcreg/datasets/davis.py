@@ -147,6 +147,20 @@ def _read(path: Path, *, color: bool) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if color else img
 
 
+def _read_frame(path: Path) -> tuple[np.ndarray, str]:
+    """A frame (H, W, 3) uint8 RGB as :func:`_read` reads it, and what its decoder said of damaged data it decoded
+    around, or "" (:func:`pcreg.formats.read_image_file_and_damage`)."""
+    import cv2
+
+    from ..formats import read_image_file_and_damage
+
+    try:
+        img, damage = read_image_file_and_damage(path, flags=cv2.IMREAD_COLOR)
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB), damage
+
+
 def _mask(path: Path, frame: Path, shape: tuple[int, int]) -> tuple[np.ndarray, bool]:
     """The mask's values (H, W) uint8 and whether they are object ids (DAVIS 2017's: a palette PNG's indices, as
     VOC stores masks, or those ids as grey values or as the palette's colours), else a grey value or a colour,
@@ -250,7 +264,7 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
             what = "no mask of the first frame: DAVIS gives the object on frame 0" if t == 0 else \
                 f"no mask of frame {f.name}: every frame is scored"
             raise DatasetError(f"{m}: {what}{not_png_note(masks, f.stem)}")
-        image = _read(f, color=True)
+        image, damage = _read_frame(f)
         values, by_id = _mask(m, f, image.shape[:2])
         if t == 0 and by_id:  # the objects are the first frame's (its palette's indices)
             ids = palette_objects(values)[0]
@@ -260,11 +274,16 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
         # DAVIS 2016's 0/255 after a first mask of one object by its id (saved again as a palette): 255 the object
         grey_object = t > 0 and not by_id and void is not None and len(objects) == 1 \
             and set(np.unique(values).tolist()) == {0, VOID_INDEX}
+        if t > 0 and not by_id and len(objects) > 1 and set(np.unique(values).tolist()) == {0, VOID_INDEX}:
+            # 255 would be void on every frame, its objects never scored (J 0 for every method, and no word)
+            raise DatasetError(f"{m}: a grey mask of one object (0 and 255, DAVIS 2016's) after a first mask of "
+                               f"{len(objects)} objects by palette index ({_mask_file(masks, files[0].stem).name}): "
+                               "the sequence's masks read two ways; save every mask one way")
         for k in objects:
             labels = object_labels(values) if grey_object else object_labels(values, k, void)
             if t == 0:
                 check_key_mask(labels, m if len(objects) == 1 else f"{m} (object {k})")
-            out.setdefault(k, []).append(Frame(image=image, labels=labels, name=f.stem))
+            out.setdefault(k, []).append(Frame(image=image, labels=labels, name=f.stem, damage=damage))
     if len(objects) == 1:
         return {name: out[objects[0]]}
     return {object_name(name, int(k)): out[k] for k in objects if k is not None}
@@ -325,8 +344,9 @@ def _read_published(path: Path) -> list[dict]:
         raise DatasetError(f"{path}: published results need the columns {', '.join(sorted(need))}")
     for i, r in enumerate(reader, start=2):
         try:
+            frames = (r.get("n_frames_evaluated") or "").strip()  # optional: how many frames the figures are over
             rows.append({"method": r["method"].strip(), "sequence": r["sequence"].strip(),
-                         "J": float(r["J_mean"]), "F": float(r["F_mean"])})
+                         "J": float(r["J_mean"]), "F": float(r["F_mean"]), "frames": int(frames) if frames else None})
         except (TypeError, ValueError, AttributeError):
             raise DatasetError(f"{path}: line {i} is not method, sequence, J_mean, F_mean") from None
     return rows
@@ -334,8 +354,9 @@ def _read_published(path: Path) -> list[dict]:
 
 def published(path: str | Path) -> dict:
     """The benchmark's published results for the sequences at ``path``: ``{"file": str, "source": str,
-    "methods": [names in the file's order], "J": {method: {sequence: value}}, "F": {...}}``, read from the
-    ``published_*.csv`` files beside the sequences (columns method, sequence, J_mean, F_mean; lines
+    "methods": [names in the file's order], "J": {method: {sequence: value}}, "F": {...}, "frames": {sequence:
+    frames scored}}``, read from the ``published_*.csv`` files beside the sequences (columns method, sequence,
+    J_mean, F_mean and, optional, n_frames_evaluated; lines
     starting with ``#`` skipped), else from :data:`PUBLISHED_CSV`.
 
     ``source`` cites where the figures come from: :data:`PUBLISHED_SOURCE` for pcreg's own, or for a file
@@ -358,8 +379,10 @@ def published(path: str | Path) -> dict:
             source = f"{PUBLISHED_SOURCE}, except the figures of {', '.join(own)} that pcreg does not ship: {names}"
     methods = list(dict.fromkeys(r["method"] for r in rows))
     doc: dict = {"file": ", ".join(str(f) for f in files) if files else str(PUBLISHED_CSV), "source": source,
-                 "methods": methods, "J": {m: {} for m in methods}, "F": {m: {} for m in methods}}
+                 "methods": methods, "J": {m: {} for m in methods}, "F": {m: {} for m in methods}, "frames": {}}
     for r in rows:
         doc["J"][r["method"]][r["sequence"]] = r["J"]
         doc["F"][r["method"]][r["sequence"]] = r["F"]
+        if r["frames"] is not None:
+            doc["frames"].setdefault(r["sequence"], r["frames"])
     return doc

@@ -34,6 +34,19 @@ def _read_png(path: Path, *, color: bool) -> np.ndarray:
         raise DatasetError(str(exc)) from None
 
 
+def _read_frame(path: Path) -> tuple[np.ndarray, str]:
+    """A frame as :func:`_read_png` reads it (``color``), and what its decoder said of damaged data it decoded
+    around, or "" (:func:`pcreg.formats.read_image_file_and_damage`)."""
+    from ..formats import read_image_file_and_damage
+    from ..registration.clouds import _rgb_and_alpha
+
+    try:
+        stored, damage = read_image_file_and_damage(path)
+        return _rgb_and_alpha(stored, str(path), min_side=1)[0], damage
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
+
+
 def _read_table_labels(path: Path, image: np.ndarray, table, mapping, image_path: Path) -> np.ndarray:
     """A label file read through ``table`` (``mapping`` None or ``"camvid"``) as key labels are
     (:func:`pcreg.classes.keys.read_key_labels`: CamVid's ids and ``camvid11``'s table also read CamVid's own 32
@@ -161,12 +174,12 @@ def read_frames(images: dict[str, Path], labels: dict[str, Path] | None, *, mapp
     through ``table`` (``mapping`` None or ``"camvid"``) or mapped by ``lut`` (:func:`load_folder`)."""
     frames = []
     for name in sorted(images):
-        image = _read_png(images[name], color=True)
+        image, damage = _read_frame(images[name])
         lab = None
         if labels is not None:
             if mapping is None or mapping == "camvid":
                 lab = _read_table_labels(labels[name], image, table, mapping, images[name])
-                frames.append(Frame(image=image, labels=lab, name=name))
+                frames.append(Frame(image=image, labels=lab, name=name, damage=damage))
                 continue
             raw = _read_png(labels[name], color=False)
             if raw.ndim != 2 or raw.dtype != np.uint8:
@@ -178,7 +191,7 @@ def read_frames(images: dict[str, Path], labels: dict[str, Path] | None, *, mapp
             if lab.max() == 255:
                 bad = np.unique(raw[lab == 255])[:8].tolist()
                 raise DatasetError(f"{labels[name]}: label ids {bad} are outside the mapping")
-        frames.append(Frame(image=image, labels=lab, name=name))
+        frames.append(Frame(image=image, labels=lab, name=name, damage=damage))
     return frames
 
 

@@ -27,6 +27,9 @@ class Frame:
         y down, (0, 0) the centre of the top-left pixel) into one coordinate frame common to the whole
         sequence, so the ground truth between two frames is ``inv(reference.pose) @ moving.pose``
         (see :func:`relative_transform`). Known for synthetic sequences only.
+    damage : what the image's decoder said of damaged data it decoded around (libjpeg's ``Corrupt JPEG data:
+        premature end of data segment``: part of the image is its guess), "" for an image that decoded whole
+        (:func:`damage_notes` says it).
 
     The arrays are read-only views; the caller's arrays are not copied or modified.
     """
@@ -35,6 +38,7 @@ class Frame:
     labels: np.ndarray | None
     name: str
     pose: np.ndarray | None = None
+    damage: str = ""
 
     def __post_init__(self) -> None:
         image = np.asarray(self.image)
@@ -79,3 +83,15 @@ def relative_transform(reference: Frame, moving: Frame) -> np.ndarray | None:
     if reference.pose is None or moving.pose is None:
         return None
     return np.linalg.solve(reference.pose, moving.pose)
+
+
+def damage_notes(datasets: dict[str, list[Frame]], said: int = 3) -> list[str]:
+    """One line for each of the first ``said`` frames of ``datasets`` (``{clip: frames}``) whose image decoded
+    around damaged data (:attr:`Frame.damage`), and one counting the rest: scored without a word, such a frame's
+    figures come in part from the decoder's guesses."""
+    damaged = [(clip, f) for clip, frames in datasets.items() for f in frames if f.damage]
+    lines = [f"clip {clip}, frame {f.name}: its decoder reports damaged data ({f.damage}): part of the image is the "
+             "decoder's guess, and the figures of the frames it is in may be off" for clip, f in damaged[:said]]
+    if len(damaged) > said:
+        lines.append(f"{len(damaged) - said} more frame(s) decode around damaged data the same way")
+    return lines

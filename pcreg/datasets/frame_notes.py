@@ -1,6 +1,7 @@
 """What reading a frame met that the reader of the frames says, once a run for each kind
 (:attr:`~pcreg.datasets.sources.SourceFrame.notes`, said by :class:`~pcreg.runs.gaps.GapMarks`): a frame with
-transparent pixels, whose alpha pcreg does not read, and a video whose frames turn interlaced after its first.
+transparent pixels, whose alpha pcreg does not read, an image file decoded around damaged data, and a video whose
+frames turn interlaced after its first.
 
 The rule for alpha: a frame is read with its colours as stored and its alpha left out, as it always was, so an
 opaque frame with an alpha channel reads as the same frame without one; where a pixel's alpha is below opaque its
@@ -13,10 +14,23 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TRANSPARENT", "INTERLACED", "transparent_notes", "turn_note", "has_alpha"]
+__all__ = ["TRANSPARENT", "DAMAGED", "INTERLACED", "transparent_notes", "damaged_notes", "turn_note", "has_alpha"]
 
 #: The kind of note of a frame with transparent pixels (alpha below opaque), whose alpha pcreg does not read.
 TRANSPARENT = "transparent"
+
+
+#: The kind of note of a frame's image file whose decoder reports damaged data it decoded around (a JPEG cut short).
+DAMAGED = "damaged"
+
+
+def damaged_notes(where: str, damage: str) -> tuple[tuple[str, str], ...]:
+    """The note of a frame's image file (``where`` names it) whose decoder said ``damage`` of damaged data it decoded
+    around (:func:`pcreg.formats.read_image_file_and_damage`; "" for none): part of the frame is its guess."""
+    if not damage:
+        return ()
+    return ((DAMAGED, f"{where}: its decoder reports damaged data ({damage}): part of the frame is the decoder's "
+             "guess, and its labels there may be off (later such frames not said)"),)
 
 
 def transparent_notes(where: str, alpha: np.ndarray | None) -> tuple[tuple[str, str], ...]:

@@ -222,19 +222,22 @@ class FolderFrames:
 
     def read(self, position: int) -> tuple[np.ndarray, tuple[tuple[str, str], ...]]:
         """The image at ``position`` (H, W, 3) uint8 RGB and what reading it met (:attr:`SourceFrame.notes`): a frame
-        with transparent pixels; the key frame's EXIF orientation where the labels' size cannot tell it. A frame of
-        another EXIF orientation or size than the key frame (the first chosen) is refused
+        with transparent pixels, an image decoded around damaged data; the key frame's EXIF orientation where the
+        labels' size cannot tell it. A frame of another EXIF orientation or size than the key frame (the first chosen) is refused
         (:class:`~pcreg.datasets.folder_view.FolderView`)."""
-        from ..registration.clouds import load_image_and_alpha
+        from ..formats import read_image_file_and_damage
+        from ..registration.clouds import _rgb_and_alpha
         from .folder_view import FolderView
-        from .frame_notes import transparent_notes
+        from .frame_notes import damaged_notes, transparent_notes
 
         if self._view is None:
             self._view = FolderView(self.paths[0])
         p = self.paths[position]
-        image, alpha = load_image_and_alpha(p)
+        stored, damage = read_image_file_and_damage(p)
+        image, alpha = _rgb_and_alpha(stored, str(p), None)
         self._view.check(p, image.shape[:2])
-        return image, (self._view.notes() if position == 0 else ()) + transparent_notes(str(p), alpha)
+        return image, ((self._view.notes() if position == 0 else ()) + transparent_notes(str(p), alpha)
+                       + damaged_notes(str(p), damage))
 
 
 class VideoFrames:

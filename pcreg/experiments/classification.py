@@ -255,10 +255,11 @@ def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, for
     """Run the configured cases (resuming from ``out/units`` when ``out`` is given: finished units are
     kept there as they land); returns every number as :class:`~pcreg.experiments.results.Results`."""
     from ..datasets import PRESETS
-    from .units import Unit, UnitStore, load_cached, plain_config, run_resumable
+    from .units import Unit, UnitStore, load_cached, plain_config, run_resumable, say_damage
 
     t0 = time.perf_counter()
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
+    say_damage(datasets)
     info = check_datasets(datasets, exclude_unknown=config.exclude_unknown)
     for name in info:
         if name in PRESETS:

@@ -236,10 +236,11 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
              recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
     """Run every unit (resuming from ``out/units``); returns its :class:`Results`."""
     from ..errors import DatasetError
-    from .units import Unit, evaluate_units, load_cached
+    from .units import Unit, evaluate_units, load_cached, say_damage
 
     check_angles(config.angles)
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
+    say_damage(datasets)
     units = []
     for name, frames in datasets.items():
         for i in sample_indices(len(frames), config.samples):

@@ -203,9 +203,11 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
              recorder=NULL_RECORDER, show_progress: bool | None = None) -> Results:
     """Run every unit (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
     from ..errors import DatasetError, InputError
-    from .units import discard_units, evaluate_units, load_cached
+    from .units import discard_units, evaluate_units, load_cached, say_damage
 
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
+
+    say_damage(datasets)
     for name, frames in datasets.items():
         if frames and any(f.labels is None for f in frames):
             raise DatasetError(f"dataset {name} has unlabelled frames; the sequence evaluation scores every frame")

@@ -171,7 +171,15 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
         preds: dict[int, dict] = {t: {} for t in s.frames}
         for m in methods:
             labeller = make_method(m, clf, backend)
-            labeller.reset(frames[key].image, frames[key].labels)
+            try:
+                labeller.reset(frames[key].image, frames[key].labels)
+            except InputError as exc:  # the method's own scale, which no option sets, too small for these frames
+                from ..pipeline.stream import SCALE_ADVICE
+
+                if not str(exc).endswith(SCALE_ADVICE):
+                    raise
+                raise InputError(f"--methods {m}: {str(exc).removesuffix(SCALE_ADVICE)}; give larger frames "
+                                 f"or leave {m} out of --methods") from None
             timed = Timed(labeller)
             for t, _, labels in propagate(timed, ((t, frames[t].image) for t in s.frames)):
                 errors[t][m] = error_rate(labels, frames[t].labels)
@@ -305,10 +313,11 @@ def plan_units(config: StreamConfig, names: list[str]) -> list:
 def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=None, recorder=NULL_RECORDER,
              show_progress: bool | None = None) -> Results:
     """Run every clip (resuming from ``out/units`` when ``out`` is given); returns its :class:`Results`."""
-    from .units import evaluate_units, load_cached
+    from .units import evaluate_units, load_cached, say_damage
 
     check_davis_config(config)
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed, classes=config.classes)
+    say_damage(datasets)
     for name, frames in datasets.items():
         check_clip(name, frames, config.classes)
         if config.keys is not None:  # each clip's key frames checked before any clip runs

@@ -125,7 +125,8 @@ def summarise_davis(config, unit_results: list[dict]) -> dict:
                                                            for p in pub["methods"])]
     doc = {"split": chosen.to_dict(), "sequences": seqs, "methods": methods, "mean": mean,
            "published": {"source": pub["source"], "file": pub["file"], "methods": pub["methods"], **table,
-                         "mean": pub_mean, "counted": counted, "covered": covered}}
+                         "mean": pub_mean, "counted": counted, "covered": covered,
+                         "frames": {n: pub["frames"][n] for n in names if n in pub.get("frames", {})}}}
     objects = objects_of(names, found)
     if objects:  # DAVIS 2017: a row per object, the means over objects
         doc["objects"] = objects

@@ -65,6 +65,18 @@ def load_cached(data: str, *, frames: int | None, size: tuple[int, int] | None, 
     return _DATA_CACHE[key]
 
 
+def say_damage(datasets: dict) -> None:
+    """Say on stderr which frames of ``datasets`` (``{clip: frames}``, as :func:`load_cached` gives them) decoded
+    around damaged data (:func:`pcreg.datasets.frame.damage_notes`): scored, their figures are in part the decoder's
+    guesses, as ``pcreg register`` says of such an image."""
+    import sys
+
+    from ..datasets.frame import damage_notes
+
+    for line in damage_notes(datasets):
+        sys.stderr.write(f"pcreg: note: {line}\n")
+
+
 def angle_key(angle: float) -> str:
     """JSON key of an angle: ``"90"``, ``"2.5"`` (6 significant digits; -0 is ``"0"``)."""
     return f"{angle + 0.0:g}"

@@ -138,6 +138,11 @@ STREAM_WEIGHT = 2.0
 STREAM_REGISTRATION = RegisterConfig.of(model="similarity", init="identity", min_inlier_ratio=None)
 
 
+#: The advice that ends the refusal of a scale too small for the frames (what a caller that chose the scale itself,
+#: not its user, replaces).
+SCALE_ADVICE = "; choose a larger scale"
+
+
 class Propagator:
     """Propagate a key frame's labels along a stream of frames (see the module's docstring).
 
@@ -327,7 +332,7 @@ class Propagator:
             if not size.scaled:
                 raise InputError(f"frames of {W}x{H} are too small for the {self.model} model ({exc})") from None
             raise InputError(f"scale {self.scale:g} works at {w}x{h} for frames of {W}x{H}: too small for the "
-                             f"{self._estimator.name} ({exc}); choose a larger scale") from None
+                             f"{self._estimator.name} ({exc}){SCALE_ADVICE}") from None
 
     def step(self, image: "np.ndarray | PreparedFrame") -> np.ndarray:
         """Labels (H, W) uint8 (0 ground, 1 obstacle; with more classes their ids) of the next frame, an

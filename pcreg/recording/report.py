@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import re
 import mimetypes
 import socket
 import subprocess
@@ -208,7 +209,10 @@ class ReportServer:
         return json.dumps({**self.data, "recording": recording}, allow_nan=False).encode()
 
     def _viewer_file(self, path: str) -> tuple[int, str, bytes, dict]:
-        """A file of rerun's web viewer, fetched once from its server (the viewer's .wasm is large)."""
+        """A file of rerun's web viewer, fetched once from its server (the viewer's .wasm is large). A path of other
+        than printable ASCII is none of its files (and no URL to ask for): not found."""
+        if not re.fullmatch(r"/[\x21-\x7e]*", path):
+            return 404, "text/plain", b"not found\n", {}
         with self._lock:
             if path in self._cache:
                 return self._cache[path]

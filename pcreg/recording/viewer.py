@@ -171,6 +171,11 @@ def screenshot(
             timelines = {t.name for r in state.recordings for t in r.timelines}
             if name not in timelines:
                 raise InputError(f"--time: the recording has no timeline {name!r} (it has {', '.join(sorted(timelines))})")
+            held = [(t.start, t.end) for r in state.recordings for t in r.timelines
+                    if t.name == name and t.start is not None and t.end is not None]
+            if held and not any(lo <= value <= hi for lo, hi in held):  # every view would say "No data available"
+                lo, hi = min(h[0] for h in held), max(h[1] for h in held)
+                raise InputError(f"--time {name}={value}: outside the recording, whose {name} timeline runs from {lo} to {hi}")
             client.set_time(name, sequence=value, play_state="paused")
         view_id = None
         if view is not None:

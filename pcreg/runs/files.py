@@ -165,16 +165,19 @@ def counted_steps(out: Path, count: int, *, recount: Callable[[], int] | None = 
         raise InputError(f"{path}: line {after[0][0]} is not a step pcreg run wrote")
 
 
+#: The figures of a step in % (each a number from 0 to 100, or none): pcreg writes a NaN as null.
+PERCENT_FIGURES = ("predicted_error", "error", "plain_error")
+
+
 def _step(line: bytes) -> dict | None:
-    """A line of steps.jsonl as a step (a dict whose ``frame`` is an int and whose ``predicted_error`` is a
-    finite number or None), or None: not one pcreg run wrote."""
+    """A line of steps.jsonl as a step (a dict whose ``frame`` is an int and whose :data:`PERCENT_FIGURES` are each
+    a number from 0 to 100 or None), or None: not one pcreg run wrote."""
     try:
         step = loads_json(line)
     except ValueError:  # not JSON, or not UTF-8
         return None
     ok = (isinstance(step, dict) and type(step.get("frame")) is int and step["frame"] >= 0
-          and (step.get("predicted_error") is None
-               or (type(step["predicted_error"]) in (int, float) and math.isfinite(step["predicted_error"]))))
+          and all(step.get(k) is None or (type(step[k]) in (int, float) and 0 <= step[k] <= 100) for k in PERCENT_FIGURES))
     return step if ok else None
 
 

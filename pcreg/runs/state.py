@@ -16,14 +16,18 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import InputError, OutputError
 from ..formats import load_json_object, loads_json, resolved
 from .files import STATE
 
-__all__ = ["STATE", "FORMAT", "format_problem", "frames_chosen", "unfinished_note", "TRUTH_COUNTS", "is_count", "has_counts", "state_problem", "run_identity", "run_inputs",
-           "open_state",
-           "read_state", "run_frames", "steps_counted", "steps_counted_now"]
+if TYPE_CHECKING:
+    from ..datasets.sources import Selection
+
+__all__ = ["STATE", "FORMAT", "format_problem", "chosen_selection", "frames_chosen", "unfinished_note", "TRUTH_COUNTS",
+           "is_count", "has_counts", "state_problem", "run_identity", "run_inputs", "open_state", "read_state", "run_frames",
+           "steps_counted", "steps_counted_now"]
 
 #: The layout of the run.json this pcreg writes (its ``format``; a run.json without one, from before it was
 #: written, has this layout too). A run.json of a later format is refused by name rather than misread.
@@ -348,18 +352,29 @@ def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
     return [key], names
 
 
+def chosen_selection(run: dict, state_path) -> Selection:
+    """The frames a run's identity (run.json's ``run``, read from ``state_path``) chooses of its source, as
+    ``--start``, ``--stop`` and ``--every`` gave them; an :class:`InputError` naming run.json for a choice no run
+    writes (not one naming the options, which were not given)."""
+    from ..datasets.sources import Selection
+
+    chosen = run.get("frames") or {}
+    try:
+        return Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
+    except (InputError, ValueError, TypeError, AttributeError):
+        raise InputError(f"{state_path}: unreadable (its frames chosen, {str(chosen)[:80]}, are none a run writes)") from None
+
+
 def frames_chosen(run: dict) -> int | None:
     """How many frames a run's identity (run.json's ``run``) chooses of its frames folder, as it holds them
     now; None for a video (its count is what the container declares, not a fact) or a folder gone."""
-    from ..datasets.sources import FolderFrames, Selection
+    from ..datasets.sources import FolderFrames
 
     folder = run.get("folder") if isinstance(run, dict) else None
     if not isinstance(folder, str) or not Path(folder).is_dir():
         return None
-    chosen = run.get("frames") or {}
     try:
-        selection = Selection(int(chosen.get("start", 0)), chosen.get("stop"), int(chosen.get("every", 1)))
-        return len(FolderFrames(Path(folder), selection))
+        return len(FolderFrames(Path(folder), chosen_selection(run, "run.json")))
     except (InputError, OSError, ValueError, TypeError, AttributeError):
         return None
 

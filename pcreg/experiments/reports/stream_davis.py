@@ -43,11 +43,25 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
     if results["config"].get("frames"):
         footer += (f"\nOnly the first {results['config']['frames']} frames of each sequence were run (--frames): the "
                    "published figures are over whole sequences, and the two do not compare.\n")
+    else:
+        footer += _fewer_frames_note(d)
     if results["config"].get("key_every"):
         footer += (f"\nA key frame every {results['config']['key_every']} frames (--key-every): those frames' masks "
                    "were given, and they are not scored (but for one some method cannot start from, its mask of no object, no "
                    "background, or with pcreg_object an object too small to follow: it is no key frame, and is scored).\n")
     return header, rows, footer
+
+
+def _fewer_frames_note(d: dict) -> str:
+    """What is said of sequences scored over other frames than the published figures are (a copy of the data
+    that lacks frames at its end, or was cut): their figures and the published ones do not compare."""
+    published = d["published"].get("frames", {})
+    other = [f"{n} {s['frames']} against {published[n]}" for n, s in d["sequences"].items()
+             if n in published and s["frames"] and s["frames"] != published[n]]
+    if not other:
+        return ""
+    return (f"\nScored over other frames than the published figures are ({'; '.join(other)} frames): the sequence "
+            "does not hold the benchmark's frames, and its figures and the published ones do not compare.\n")
 
 
 def _published_note(d: dict, measure: str) -> str:

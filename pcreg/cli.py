@@ -201,6 +201,7 @@ def _run_command(args: argparse.Namespace) -> int:
 
         check_threading_layer()
     module = importlib.import_module(args._module)
+    _check_together(args)
     if getattr(args, "max_pixels", None):
         from .validation import set_max_pixels
 
@@ -209,6 +210,18 @@ def _run_command(args: argparse.Namespace) -> int:
     if code == 0 and interrupted():  # the signal's KeyboardInterrupt was swallowed (an ignored callback)
         raise KeyboardInterrupt
     return code
+
+
+def _check_together(args: argparse.Namespace) -> None:
+    """Refuse options given together where one would be dropped without a word: ``--record-raw`` without a
+    recording (the demo records by default), ``--workers N`` beside ``--scheduler`` (the cluster's workers run the
+    units)."""
+    from .errors import InputError
+
+    if getattr(args, "record_raw", False) and not getattr(args, "record", None) and not args._module.endswith(".demo"):
+        raise InputError("--record-raw logs a recording's images losslessly: give --record FILE.rrd with it")
+    if getattr(args, "scheduler", None) and (getattr(args, "workers", None) or 1) > 1:
+        raise InputError(f"--workers {args.workers} with --scheduler: the scheduler's workers run the units; choose one")
 
 
 def _bug(exc: Exception, args) -> int:
@@ -341,7 +354,7 @@ def _main(argv: list[str] | None) -> int:
     except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
         return _bug(exc, args)
     finally:
-        _end(argv is None and interrupted(), saved_limit, previous)
+        _end(argv is None and interrupted(), saved_limit, previous, program=argv is None)
 
 
 def _interrupted(args) -> int:
@@ -360,9 +373,11 @@ def _interrupted(args) -> int:
     return 130
 
 
-def _end(stopping: bool, saved_limit: str | None, previous) -> None:
+def _end(stopping: bool, saved_limit: str | None, previous, *, program: bool = False) -> None:
     """What every command does last: the pixel limit as it was, the helper thread ended, and the signal
-    handlers as they were; ``stopping``: the program itself is stopping on a signal, and exits 130."""
+    handlers as they were; ``stopping``: the program itself is stopping on a signal, and exits 130; ``program``:
+    the program itself (not a caller of :func:`main`), which a signal from here on ends at once with exit 130
+    and one line (:func:`~pcreg._signals.end_on_late_signals`)."""
     import os
 
     from ._runner import forget_stray_interrupt, ignore_signals, restore_signals
@@ -385,6 +400,10 @@ def _end(stopping: bool, saved_limit: str | None, previous) -> None:
         os._exit(130)
     if not stopping:
         restore_signals(previous)
+        if program:
+            from ._signals import end_on_late_signals
+
+            end_on_late_signals()
 
 
 def _one_line(exc: BaseException) -> str:

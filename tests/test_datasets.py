@@ -247,6 +247,22 @@ def test_a_folder_frame_decoded_around_damaged_data_is_marked(tmp_path):
     assert line.startswith("clip clip, frame f01: its decoder reports damaged data (Corrupt JPEG data")
 
 
+@pytest.mark.parametrize("where", ["images", "labels"])
+@pytest.mark.parametrize("what", ["a link to nothing", "a folder"])
+def test_an_entry_named_as_a_frame_that_is_no_file_is_named(tmp_path, where, what):
+    """A link to nothing (or a folder) named ``f02.png`` among a clip's frames or labels was left out, and the
+    refusal then said "label file without an image" or "no label file": the file was there."""
+    _write_clip(tmp_path / "data" / "clip", 2, rng=np.random.default_rng(5), ids=(0, 1, 2))
+    bad = tmp_path / "data" / "clip" / where / "f02.png"
+    if what == "a folder":
+        bad.mkdir()
+    else:
+        bad.symlink_to(tmp_path / "gone.png")
+    with pytest.raises(DatasetError) as err:
+        load_dataset(f"folder:{tmp_path / 'data'}")
+    assert str(err.value).startswith(f"{bad}: named as a ") and "not a file that can be read" in str(err.value)
+
+
 def test_a_folder_of_camvid_ids_is_refused_naming_the_data_spelling_that_reads_them(tmp_path):
     """``--data folder:`` of CamVid's ids: the refusal named ``--mapping camvid``, which ``evaluate`` does not take;
     it names ``--data camvid:`` too, and says whose option ``--mapping`` is."""

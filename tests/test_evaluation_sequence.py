@@ -251,10 +251,24 @@ def test_augmented_above_plain_reads_higher_not_a_negative_lower(tmp_path, share
 
 def test_a_recorded_run_says_it_leaves_the_scheduler_aside(tmp_path, capsys):
     """--record runs every unit in this process: it said so of --workers, and dropped --scheduler without a word."""
+    args = ["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120", "--increments", "2",
+            "--out", str(tmp_path / "s"), "--record", str(tmp_path / "s.rrd"), "--force"]
+    for given in (["--scheduler", "tcp://127.0.0.1:1"], ["--workers", "2"]):
+        assert main([*args, *given]) == 0
+        assert f"note: --record runs every unit in this process ({given[0]} ignored)" in capsys.readouterr().out
+    # both: the scheduler's workers would run the units, --workers was dropped without a word
+    assert main([*args, "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 2
+    assert capsys.readouterr().err.splitlines() == ["pcreg: error: --workers 2 with --scheduler: the scheduler's workers run "
+                                                    "the units; choose one"]
+
+
+def test_record_raw_without_a_recording_is_refused(tmp_path, capsys):
+    """``--record-raw`` without ``--record``: nothing recorded, the option dropped without a word."""
     assert main(["evaluate", "sequence", "--data", "synthetic:syn1a", "--frames", "4", "--size", "160x120",
-                 "--increments", "2", "--out", str(tmp_path / "s"), "--record", str(tmp_path / "s.rrd"),
-                 "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 0
-    assert "note: --record runs every unit in this process (--workers and --scheduler ignored)" in capsys.readouterr().out
+                 "--out", str(tmp_path / "s"), "--record-raw"]) == 2
+    assert capsys.readouterr().err.splitlines() == ["pcreg: error: --record-raw logs a recording's images losslessly: give "
+                                                    "--record FILE.rrd with it"]
+    assert not (tmp_path / "s").exists()
 
 
 def test_a_mean_over_fewer_pairs_than_the_row_counts_says_so(tmp_path):

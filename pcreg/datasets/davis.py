@@ -189,8 +189,13 @@ def check_key_mask(labels: np.ndarray, path: str | Path) -> None:
 
 
 def _frame_files(frames: Path, name: str, n_frames: int | None) -> list[Path]:
-    files = sorted(f for f in frames.iterdir() if f.is_file() and f.suffix.lower() in _IMAGE_SUFFIXES
-                   and not f.name.startswith(".")) if frames.is_dir() else []  # hidden: macOS's ._NAME, as pcreg run
+    from ..formats import only_files
+
+    try:  # hidden: macOS's ._NAME, as pcreg run; a link to nothing named as a frame refused, as pcreg run refuses it
+        files = only_files(sorted(f for f in frames.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES
+                                  and not f.name.startswith(".")), "a frame") if frames.is_dir() else []
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
     try:  # frames in name order, as pcreg run reads them: 10.jpg before 9.jpg is refused
         _check_numbering(frames, [f.name for f in files])
     except InputError as exc:

@@ -85,10 +85,15 @@ def download_name(frame: str) -> str | None:
 def _label_files(lab_dir: Path, images: dict[str, Path], frame_of) -> dict[str, Path]:
     """``{frame name: label file}`` of ``lab_dir``'s PNGs, each the label file of frame ``frame_of(stem,
     images)``. A frame with two is refused naming them."""
+    from ..formats import only_files
+
     out: dict[str, Path] = {}
-    for p in sorted(lab_dir.iterdir()):
-        if p.suffix.lower() != ".png" or not p.is_file() or p.name.startswith("."):
-            continue
+    try:
+        named = only_files([p for p in sorted(lab_dir.iterdir()) if p.suffix.lower() == ".png" and not p.name.startswith(".")],
+                           "a label file")
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
+    for p in named:
         name = frame_of(p.stem, images)
         if name in out:
             raise DatasetError(f"{p}: a second label file of frame {name} (beside {out[name].name}); keep one")
@@ -130,9 +135,16 @@ def load_folder(folder: str | Path, *, mapping: str | Mapping[int, int] | None =
 
 
 def image_files(img_dir: Path) -> list[Path]:
-    """The image files of ``img_dir`` in name order; hidden files left out (macOS's ``._NAME``, as pcreg run)."""
-    return [p for p in sorted(img_dir.iterdir())
-            if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file() and not p.name.startswith(".")]
+    """The image files of ``img_dir`` in name order; hidden files left out (macOS's ``._NAME``, as pcreg run), and an
+    entry named as an image that is no readable file (a link to nothing, a folder, a FIFO) refused naming it
+    (:func:`pcreg.formats.only_files`), as pcreg run refuses it: left out, it was said to be a frame without labels."""
+    from ..formats import only_files
+
+    try:
+        return only_files([p for p in sorted(img_dir.iterdir()) if p.suffix.lower() in IMAGE_SUFFIXES
+                           and not p.name.startswith(".")], "a frame")
+    except InputError as exc:
+        raise DatasetError(str(exc)) from None
 
 
 def frame_names(img_dir: Path, files: list[Path]) -> dict[str, Path]:

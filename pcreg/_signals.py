@@ -150,36 +150,13 @@ def restore_signals(previous: dict) -> None:
             pass
 
 
-#: What a program says when a signal comes after its command ended, while Python shuts down.
-ENDED_LINE = b"pcreg: interrupted as it ended (the command had finished: its outputs are whole)\n"
-
-
-def end_on_late_signals() -> None:
-    """After the program's command has ended (its outputs written, its report printed): SIGINT or SIGTERM while
-    Python shuts down (joining threads, tearing modules down; a few tenths of a second after an evaluation) ends
-    the process at once with exit 130 and :data:`ENDED_LINE`, not killed by the signal without a word (status 143
-    for SIGTERM). Call it from the main thread, once the command's own handlers are put back."""
-    import os
-    import signal
-
-    def ended(signum, frame) -> None:
-        try:
-            os.write(2, ENDED_LINE)
-        except OSError:
-            pass
-        os._exit(130)
-
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        try:
-            signal.signal(signum, ended)
-        except (ValueError, OSError):  # not the main thread
-            pass
-
-
 def ignore_signals() -> None:
     """Ignore SIGINT and SIGTERM from now on: a program that is already stopping on one (exit 130) must
     not be killed by a second one (a terminal's Ctrl-C pressed twice, a signal sent to the whole process
-    group) while Python shuts down, which would end it with the signal instead of its exit code."""
+    group) while Python shuts down, which would end it with the signal instead of its exit code; nor one whose
+    command has ended, or has committed its one output and only says so (``pcreg export``, ``view --overlay``):
+    interrupted there, it would say that nothing was written, or (its handlers put back to the default once Python
+    has flushed its output at exit) be killed without a word. Python's shutdown keeps an ignored signal ignored."""
     import signal
 
     for signum in (signal.SIGINT, signal.SIGTERM):

@@ -376,8 +376,8 @@ def _interrupted(args) -> int:
 def _end(stopping: bool, saved_limit: str | None, previous, *, program: bool = False) -> None:
     """What every command does last: the pixel limit as it was, the helper thread ended, and the signal
     handlers as they were; ``stopping``: the program itself is stopping on a signal, and exits 130; ``program``:
-    the program itself (not a caller of :func:`main`), which a signal from here on ends at once with exit 130
-    and one line (:func:`~pcreg._signals.end_on_late_signals`)."""
+    the program itself (not a caller of :func:`main`), whose command is over: a signal from here to its exit is
+    ignored (:func:`~pcreg._signals.ignore_signals`), and it exits with the command's status."""
     import os
 
     from ._runner import forget_stray_interrupt, ignore_signals, restore_signals
@@ -398,12 +398,11 @@ def _end(stopping: bool, saved_limit: str | None, previous, *, program: bool = F
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(130)
-    if not stopping:
+    if not stopping and program:  # the handlers put back now would be the default, which kills without a word
+        ignore_signals()
+        restore_signals({})
+    elif not stopping:
         restore_signals(previous)
-        if program:
-            from ._signals import end_on_late_signals
-
-            end_on_late_signals()
 
 
 def _one_line(exc: BaseException) -> str:

@@ -243,8 +243,7 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
     labelmap = labelmap_text(table)
     with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_STORED) as z:  # PNGs are compressed already
         def add(name: str, data: bytes | str) -> None:
-            # a frame name that is not UTF-8 (os.fsdecode's escapes) stored with its bad bytes replaced, in
-            # the members' names and in the list of them alike: a zip's names are UTF-8
+            # a zip's names are UTF-8: a frame name that is not (os.fsdecode's escapes) is refused before
             name = _utf8(name)
             if isinstance(data, str):
                 data = _utf8(data)
@@ -260,10 +259,12 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
                 raise InputError(f"{frame}: labels must be (H, W) uint8 class ids")
             labels = table.check_labels(labels, frame)
             stored = _utf8(stem)
+            if stored != stem:  # stored with its bad bytes replaced, it would name no frame where it is imported
+                raise InputError(f"{frame!r}: a frame name that is not UTF-8: a zip names its members in UTF-8, and as "
+                                 f"{stored!r} its masks would match no frame in the tool (nor in pcreg run --labels); "
+                                 "rename the frames to UTF-8 (convmv converts a folder's names)")
             if stored in written:
-                raise InputError(f"{frame}: two frames named {stem}" if written[stored] == stem else
-                                 f"{frame!r}: a frame name that is not UTF-8, stored in the archive as {stored!r} as is "
-                                 f"the frame {written[stored]!r}; the two would be one frame in the tool: rename them")
+                raise InputError(f"{frame}: two frames named {stem}")
             if stem.splitlines() != [stem]:  # default.txt lists a name a line: a line break would make it two
                 raise InputError(f"{frame!r}: a frame name with a line break cannot be listed in the archive's "
                                  "default.txt; rename the frame")

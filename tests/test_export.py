@@ -390,6 +390,29 @@ def test_an_interrupted_export_says_nothing_was_written_not_to_resume(run_copy, 
     assert not (run_copy / "export-cvat-mask.zip").exists() and not list(run_copy.glob(".*.tmp"))
 
 
+def test_a_signal_once_the_archive_is_written_does_not_say_nothing_was_written(run_copy, monkeypatch, capsys):
+    """Ctrl-C while the export printed its summary, the archive already in place: exit 130 and "interrupted (nothing
+    was written)", beside the archive it had written. The archive is whole: the summary is printed, exit 0."""
+    import os
+    import signal
+
+    import pcreg.classes.table
+
+    real = pcreg.classes.table.listed_name
+    sent = []
+
+    def signal_then(name):
+        if not sent:
+            sent.append(os.kill(os.getpid(), signal.SIGINT))  # as the first class name of the summary is written
+        return real(name)
+
+    monkeypatch.setattr(pcreg.classes.table, "listed_name", signal_then)
+    assert main(["export", str(run_copy)]) == 0
+    said = capsys.readouterr()
+    assert sent and said.out.startswith(f"wrote {run_copy / 'export-cvat-mask.zip'}: ") and "interrupted" not in said.err
+    assert zipfile.ZipFile(run_copy / "export-cvat-mask.zip").testzip() is None
+
+
 def test_the_archive_is_written_as_the_frames_are_read_not_held_whole(run_copy, monkeypatch, tmp_path):
     """Each frame's masks reach the disk (the archive's temporary file, beside it) before the next frame is
     read: a run of thousands of frames is never held in memory whole; the archive appears once complete."""
@@ -583,17 +606,16 @@ def test_the_archive_is_refused_over_a_frame_of_the_run_force_or_not(tmp_path, c
     assert zipfile.is_zipfile(src / "new.zip")
 
 
-def test_two_frame_names_one_in_the_archive_once_not_utf8_are_refused():
-    """Frames ``f\\xff.png`` and ``f\\xfe.png`` (names that are not UTF-8, as a Linux file system holds them) are both
-    stored as ``f\\ufffd``: the archive held two members of one name (Python's "Duplicate name" warning on the
-    terminal) and default.txt the name twice, and the tool took one frame's masks for both, with exit code 0."""
+def test_a_frame_name_that_is_not_utf8_is_refused():
+    """Frames ``f\\xff.png`` and ``f\\xfe.png`` (names that are not UTF-8, as a Linux file system holds them) were both
+    stored as ``f\\ufffd`` (one frame's masks taken for both); one alone was stored so, exit 0, its masks matching no
+    frame where the archive was imported (pcreg run --labels of it refused "names no frame")."""
     labels = np.zeros((4, 6), np.uint8)
-    frames = [("f\udcff.png", labels), ("f\udcfe.png", labels + 1)]
-    with pytest.raises(pcreg.errors.InputError, match=re.escape(
-            "'f\\udcfe.png': a frame name that is not UTF-8, stored in the archive as 'f\ufffd' as is the frame "
-            "'f\\udcff'; the two would be one frame in the tool: rename them")):
-        pcreg.export.write_cvat_mask(io.BytesIO(), frames)
-    # one such name, or the same bytes twice, as before
-    pcreg.export.write_cvat_mask(io.BytesIO(), frames[:1] + [("g.png", labels)])
-    with pytest.raises(pcreg.errors.InputError, match="two frames named f\udcff"):
+    frames = [("g.png", labels), ("f\udcff.png", labels), ("f\udcfe.png", labels + 1)]
+    for given in (frames, frames[:2]):
+        with pytest.raises(pcreg.errors.InputError, match=re.escape(
+                "'f\\udcff.png': a frame name that is not UTF-8: a zip names its members in UTF-8, and as 'f\ufffd' its "
+                "masks would match no frame in the tool (nor in pcreg run --labels); rename the frames to UTF-8")):
+            pcreg.export.write_cvat_mask(io.BytesIO(), given)
+    with pytest.raises(pcreg.errors.InputError, match="two frames named g"):
         pcreg.export.write_cvat_mask(io.BytesIO(), frames[:1] * 2)

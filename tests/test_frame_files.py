@@ -87,6 +87,15 @@ def test_a_jpeg_frame_decoded_around_damaged_data_is_said_once(tmp_path, capsys)
     assert json.loads((tmp_path / "out" / "run.json").read_text())["notes"]["damaged"] == notes[0].removeprefix("pcreg: note: ")
 
 
+def test_two_frames_of_one_name_are_named(tmp_path, capsys):
+    """``f01.png`` beside ``f01.jpg``: the refusal named the folder ("two frames share a name (1 duplicates)"), not
+    which files."""
+    frames = _folder(tmp_path / "frames")
+    cv2.imwrite(str(frames / "f01.jpg"), cv2.imread(str(frames / "f01.png")))
+    assert main(["run", str(frames), "--labels", str(_key(tmp_path / "key.png")), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err == f"pcreg: error: {frames / 'f01.jpg'}: another frame of this name beside it, f01.png; keep one\n"
+
+
 def test_a_video_with_transparent_pixels_is_said_once(tmp_path, capsys):
     video = tmp_path / "clip.mov"
     with av.open(str(video), "w") as c:  # QuickTime Animation with alpha, as a compositing tool exports it

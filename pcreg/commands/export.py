@@ -36,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .._runner import progress
+    from .._runner import ignore_signals, progress
     from ..classes.table import listed_name
     from ..export import default_name, labelled_frames, read_run, write_cvat_mask_archive
     from ..formats import resolved
@@ -70,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     with progress(labelled_frames(run_labels, args.min_confidence), total=len(run_labels.names),
                   desc="frames", disable=None) as frames:
         counts = write_cvat_mask_archive(dest, frames, table)
+    ignore_signals()  # the archive is whole: interrupted from here, the command would say nothing was written
     shown = [f"{listed_name(c.name)} in {counts[c.name]}" for c in table.known if counts[c.name]]
     absent = [listed_name(c.name) for c in table.known if not counts[c.name]]
     none = listed(absent) if len(absent) <= 3 else f"{len(absent)} others"

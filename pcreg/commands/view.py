@@ -40,6 +40,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from .._signals import ignore_signals
 from ..errors import InputError, OutputError
 
 
@@ -176,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
         if out is not None:
             path = V.screenshot(staged.path, out, time_cursor=time_cursor, view=args.view, size=args.size,
                                 viewer=binary, timeout=args.timeout)
+            ignore_signals()  # the picture is written: interrupted from here, the command would say nothing was
             print(path)
             return 0
         if args.web:
@@ -304,6 +306,7 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
     said = [f"pcreg: note: {line}\n" for line in review.said()]
     if args.overlay:
         n = write_overlay_video(review, out, fps=args.fps, note=lambda line: said.append(f"pcreg: note: {line}\n"))
+        ignore_signals()  # the video is written: interrupted from here, the command would say nothing was
         sys.stderr.write("".join(said))
         print(f"wrote {out}: {n} frame(s) of {folder} with their labels")
         return 0

@@ -164,8 +164,12 @@ class FolderFrames:
         self.source = src
         _check_numbering(src, [p.name for p in files])
         names = [p.stem for p in files]
-        if len(set(names)) != len(names):
-            raise InputError(f"{self.path}: two frames share a name ({len(names) - len(set(names))} duplicates)")
+        if len(set(names)) != len(names):  # X.png beside X.jpg: which one is frame X (its labels OUT/X.png)?
+            first = next(p for p in files if names.count(p.stem) > 1)
+            others = [p.name for p in files if p.stem == first.stem and p != first]
+            more = len(names) - len(set(names)) - len(others)
+            raise InputError(f"{first}: another frame of this name beside it, {', '.join(others)}"
+                             f"{f' ({more} more such names)' if more > 0 else ''}; keep one")
         if files and selection.start >= len(files):
             raise InputError(f"--start {selection.start} is past the end of {src} ({len(files)} frames)")
         self.paths = files[selection.start:selection.stop:selection.every]

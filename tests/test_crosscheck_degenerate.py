@@ -45,6 +45,37 @@ def test_a_3d_line_or_one_repeated_point_marks_every_pose_unconstrained(cloud, s
     assert json.loads(json.dumps(report.to_dict()))["implementations"]["open3d"]["status"] == "unconstrained"
 
 
+def _far_line():
+    """100 points of a 3-D line 1 unit long, 1e6 from the origin: float64's rounding of its coordinates and of their
+    mean made it read as a thin 3-D cloud (its second singular value 1.4e-9 of its first, above the 1e-9 allowed)."""
+    d = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
+    return 1e6 + np.linspace(0, 1, 100)[:, None] * d
+
+
+def test_a_line_far_from_the_origin_is_refused_and_marked_as_at_the_origin():
+    """The far line: open3d returned a half turn about it (fitness 1, converged) and the reference a shift, neither
+    refused; the cross-check marked no row unconstrained. A plane 1e8 away was registered by an affine mirror."""
+    from pcreg.errors import RegistrationError
+
+    line = _far_line()
+    for backend in ("reference", "open3d"):
+        with pytest.raises(RegistrationError, match="the points are collinear"):
+            pcreg.icp(line, line + [0.02, 0.01, -0.01], pcreg.ICPOptions(backend=backend, max_correspondence_distance=1.0))
+    report = pcreg.crosscheck(line + [0.02, 0.01, -0.01], line, implementations=PAIR,
+                              options=pcreg.ICPOptions(max_correspondence_distance=1.0))
+    assert "collinear" in report.settings["unconstrained"]
+    assert all(report.rows[name]["status"] == "unconstrained" for name in PAIR[1:])
+    rng = np.random.default_rng(9)
+    uv = rng.uniform(0, 1, (200, 2))
+    e2 = np.cross(_far_line()[1] - _far_line()[0], [0, 0, 1.0])
+    plane = 1e8 + uv[:, :1] * np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0) + uv[:, 1:] * e2 / np.linalg.norm(e2)
+    with pytest.raises(RegistrationError, match="the points are coplanar: they cannot determine an affine"):
+        pcreg.icp(plane, plane + [0.01, 0.02, 0], pcreg.ICPOptions(model="affine", max_correspondence_distance=0.5))
+    cloud = 1e6 + rng.uniform(0, 1, (300, 3))  # a 3-D cloud as far: registered as before
+    r = pcreg.icp(cloud, cloud + [0.02, 0.01, -0.01], pcreg.ICPOptions(max_correspondence_distance=1.0))
+    assert r.fitness == 1.0 and np.abs(tf.apply(r.matrix, cloud) - (cloud + [0.02, 0.01, -0.01])).max() < 1e-6
+
+
 def test_the_reason_is_the_reference_icps_own():
     from pcreg.errors import RegistrationError
     from pcreg.implementations.crosscheck import unconstrained

@@ -149,8 +149,10 @@ def refuse_a_line_for_open3d(src: np.ndarray, tgt: np.ndarray) -> None:
     backend: its ICP runs on the clouds lifted to z = 0, where the rotation about that line is free, and it turned
     the image plane over for some motions and not others (refused as "mirrored" under 10 of 20 rigid motions of a line
     of 50 points); the reference ICP solves the 2-D problem, which the line fixes."""
+    from .closed_forms import spread
+
     for name, points in (("source", src), ("target", tgt)):
-        spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-        if spread[-1] <= 1e-9 * spread[0]:
+        sv, floor = spread(points)
+        if sv[-1] <= floor:
             raise InputError(f"{name}: its points lie on one line, about which the open3d backend's 3-D ICP can turn "
                              "the image plane over; use backend='reference'")

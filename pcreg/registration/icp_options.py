@@ -70,7 +70,7 @@ class ICPOptions:
     backend : ``reference`` (pcreg's ICP) or ``open3d`` (Open3D's point-to-point ICP).
     model : the motion model (``translation``, ``rigid``, ``similarity``, ``affine``, ``projective``).
     max_correspondence_distance : pairs farther apart are ignored (None, :func:`pcreg.icp`: the clouds'
-        joint bounding-box diagonal, so every nearest neighbour counts; a backend's ICP needs a number).
+        joint bounding-box diagonal plus 1, so every nearest neighbour counts; a backend's ICP needs a number).
     max_iteration, relative_fitness, relative_rmse : Open3D's stopping rule: at most ``max_iteration``
         updates, and stop once the fitness and the inlier RMSE changed by less than these (absolute changes).
     weights : robust weights (reference backend): ``none``, ``trimmed``, ``huber``, ``tukey``;

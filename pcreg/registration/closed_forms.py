@@ -10,7 +10,7 @@ import numpy as np
 
 from .._jit import njit
 from ..errors import RegistrationError
-from .icp_options import WEIGHTS
+from .choices import WEIGHTS
 from .transforms import apply
 
 MIN_POINTS = {"translation": 1, "rigid": 2, "similarity": 2, "affine": 3, "projective": 4}

@@ -160,18 +160,17 @@ def loads_json(text: str | bytes, *, keys_once: bool = False):
         raise ValueError("JSON nested too deeply") from None
 
 
-#: The most digits of an integer in a JSON file pcreg reads: its largest are nanosecond times and byte counts
-#: (19 digits); a longer one is no count or time, and beyond a float's range it breaks what compares it as one.
+#: The most digits of a JSON integer pcreg reads: its own largest (nanosecond times, byte counts) have 19.
 JSON_INT_DIGITS = 20
 
 
 class NumberTooLong(ValueError):
-    """A JSON integer of more than :data:`JSON_INT_DIGITS` digits."""
+    """A JSON integer of more than :data:`JSON_INT_DIGITS` digits: no count or time, and beyond a float's range."""
 
 
 def _json_int(text: str) -> int:
-    if len(text.lstrip("-")) > JSON_INT_DIGITS:
-        raise NumberTooLong(f"an integer of {len(text.lstrip('-'))} digits, longer than any pcreg writes")
+    if (digits := len(text.lstrip("-"))) > JSON_INT_DIGITS:
+        raise NumberTooLong(f"an integer of {digits} digits, longer than any pcreg writes")
     return int(text)
 
 
@@ -189,10 +188,8 @@ def load_json_object(path: str | os.PathLike) -> dict:
         raise ValueError(f"unreadable ({str(exc).removeprefix(f'{Path(path)}: ')})") from None
     try:
         value = loads_json(data.decode("utf-8"))
-    except NumberTooLong as exc:
-        raise ValueError(f"unreadable ({exc})") from None
-    except ValueError:  # UnicodeDecodeError too
-        raise ValueError("unreadable (not JSON)") from None
+    except ValueError as exc:  # UnicodeDecodeError too
+        raise ValueError(f"unreadable ({exc if isinstance(exc, NumberTooLong) else 'not JSON'})") from None
     if not isinstance(value, dict):
         raise ValueError(f"not a JSON object (a JSON {type(value).__name__})")
     return value
@@ -584,9 +581,7 @@ def read_image_file(path: str | os.PathLike, *, flags: int | None = None, limit:
     """An image file decoded by OpenCV (``flags``; default ``IMREAD_UNCHANGED``, channels in BGR order):
     a regular file only, its size checked against the pixel ``limit`` (default
     :func:`pcreg.validation.max_pixels`) in the header before decoding."""
-    limit = max_pixels(limit)
-    data = read_regular_file(path, max_bytes=max_file_bytes(limit), what="image", hint=RAISE_LIMIT)
-    return decode_image(data, str(path), flags=flags, limit=limit)
+    return read_image_file_and_damage(path, flags=flags, limit=limit)[0]
 
 
 #: The beginnings of what libjpeg prints when it decoded around damaged data (a byte changed in the scan, the
@@ -595,8 +590,7 @@ def read_image_file(path: str | os.PathLike, *, flags: int | None = None, limit:
 _DAMAGED_DATA = ("Corrupt JPEG data", "Premature end of JPEG file")
 
 
-def read_image_file_and_damage(path: str | os.PathLike, *, limit: int | None = None,
-                               flags: int | None = None) -> tuple[np.ndarray, str]:
+def read_image_file_and_damage(path: str | os.PathLike, *, limit: int | None = None, flags: int | None = None) -> tuple[np.ndarray, str]:
     """:func:`read_image_file` (as the file stores it, or as ``flags`` say), and what its decoder said of damaged
     pixel data it decoded around (libjpeg's ``Corrupt JPEG data: premature end of data segment``), or ``""``."""
     limit = max_pixels(limit)

@@ -14,10 +14,23 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TRANSPARENT", "DAMAGED", "INTERLACED", "transparent_notes", "damaged_notes", "turn_note", "has_alpha"]
+__all__ = ["TRANSPARENT", "DAMAGED", "INTERLACED", "read_frame", "transparent_notes", "damaged_notes", "turn_note",
+           "has_alpha"]
 
 #: The kind of note of a frame with transparent pixels (alpha below opaque), whose alpha pcreg does not read.
 TRANSPARENT = "transparent"
+
+
+def read_frame(path: Path) -> tuple[np.ndarray, tuple[tuple[str, str], ...]]:
+    """A frame's image file as (H, W, 3) uint8 RGB (:func:`pcreg.load_image`'s conversion, its alpha left out) and
+    what reading it met: transparent pixels (:func:`transparent_notes`), damaged data its decoder decoded around
+    (:func:`damaged_notes`)."""
+    from ..formats import read_image_file_and_damage
+    from ..registration.clouds import _rgb_and_alpha
+
+    stored, damage = read_image_file_and_damage(path)
+    image, alpha = _rgb_and_alpha(stored, str(path), None)
+    return image, transparent_notes(str(path), alpha) + damaged_notes(str(path), damage)
 
 
 #: The kind of note of a frame's image file whose decoder reports damaged data it decoded around (a JPEG cut short).

@@ -165,11 +165,9 @@ class FolderFrames:
         _check_numbering(src, [p.name for p in files])
         names = [p.stem for p in files]
         if len(set(names)) != len(names):  # X.png beside X.jpg: which one is frame X (its labels OUT/X.png)?
-            first = next(p for p in files if names.count(p.stem) > 1)
-            others = [p.name for p in files if p.stem == first.stem and p != first]
-            more = len(names) - len(set(names)) - len(others)
-            raise InputError(f"{first}: another frame of this name beside it, {', '.join(others)}"
-                             f"{f' ({more} more such names)' if more > 0 else ''}; keep one")
+            stem = next(a for a, b in zip(sorted(names), sorted(names)[1:]) if a == b)
+            first, *others = [p for p in files if p.stem == stem]
+            raise InputError(f"{first}: another frame of this name beside it, {', '.join(p.name for p in others)}; keep one")
         if files and selection.start >= len(files):
             raise InputError(f"--start {selection.start} is past the end of {src} ({len(files)} frames)")
         self.paths = files[selection.start:selection.stop:selection.every]
@@ -225,23 +223,18 @@ class FolderFrames:
             yield SourceFrame(t, self.selection.index(t), p.name, p.stem, image, notes=notes)
 
     def read(self, position: int) -> tuple[np.ndarray, tuple[tuple[str, str], ...]]:
-        """The image at ``position`` (H, W, 3) uint8 RGB and what reading it met (:attr:`SourceFrame.notes`): a frame
-        with transparent pixels, an image decoded around damaged data; the key frame's EXIF orientation where the
-        labels' size cannot tell it. A frame of another EXIF orientation or size than the key frame (the first chosen) is refused
-        (:class:`~pcreg.datasets.folder_view.FolderView`)."""
-        from ..formats import read_image_file_and_damage
-        from ..registration.clouds import _rgb_and_alpha
+        """The image at ``position`` (H, W, 3) uint8 RGB and what reading it met (:attr:`SourceFrame.notes`: those of
+        :func:`~pcreg.datasets.frame_notes.read_frame`, the key frame's EXIF orientation where the labels' size cannot
+        tell it); a frame of another orientation or size than the key frame is refused (:class:`~pcreg.datasets.folder_view.FolderView`)."""
         from .folder_view import FolderView
-        from .frame_notes import damaged_notes, transparent_notes
+        from .frame_notes import read_frame
 
         if self._view is None:
             self._view = FolderView(self.paths[0])
         p = self.paths[position]
-        stored, damage = read_image_file_and_damage(p)
-        image, alpha = _rgb_and_alpha(stored, str(p), None)
+        image, notes = read_frame(p)
         self._view.check(p, image.shape[:2])
-        return image, ((self._view.notes() if position == 0 else ()) + transparent_notes(str(p), alpha)
-                       + damaged_notes(str(p), damage))
+        return image, (self._view.notes() if position == 0 else ()) + notes
 
 
 class VideoFrames:

@@ -444,10 +444,10 @@ def rank_problem(points: np.ndarray, model: str) -> str | None:
         return f"{n} point(s) are too few for the {model} model (needs at least {need})"
     if model == "translation":
         return None
-    sv, floor = spread(points)
+    sv, least = spread(points)
     extent = sv[0] if sv.size else 0.0
     same = bool(np.all(points == points[:1]))  # equal points: their mean's rounding (0.1 - 0.1000...01) is no line
-    rank = int(np.sum(sv > floor)) if extent > 0 and not same else 0
+    rank = int(np.sum(sv > least)) if extent > 0 and not same else 0
     needed_rank = {"rigid": d - 1, "similarity": d - 1, "affine": d, "projective": 2}[model]
     if rank < needed_rank:
         what = "coincident" if rank == 0 else ("collinear" if rank == 1 else "coplanar")

@@ -152,7 +152,7 @@ def refuse_a_line_for_open3d(src: np.ndarray, tgt: np.ndarray) -> None:
     from .closed_forms import spread
 
     for name, points in (("source", src), ("target", tgt)):
-        sv, floor = spread(points)
-        if sv[-1] <= floor:
+        sv, least = spread(points)
+        if sv[-1] <= least:
             raise InputError(f"{name}: its points lie on one line, about which the open3d backend's 3-D ICP can turn "
                              "the image plane over; use backend='reference'")

@@ -90,7 +90,7 @@ def read_run(folder: str | Path) -> RunLabels:
     write (:func:`pcreg.runs.files.counted_steps`), a label file missing or not a regular file.
     """
     from .classes.keys import run_table
-    from .runs.files import CONFIDENCE, STEPS
+    from .runs.files import CONFIDENCE, STEPS, has_confidence
     from .runs.gaps import damaged_note, gaps_note, kept_notes
     from .runs.state import STATE, frames_chosen, read_state, run_frames
 
@@ -124,7 +124,7 @@ def read_run(folder: str | Path) -> RunLabels:
                              f"removed, or run.json edited)" if n in keys else f"{p}: missing (a labelled frame's "
                              "label file)")
     conf_dir = folder / CONFIDENCE
-    kept = state["run"].get("confidence") is True or conf_dir.is_dir()  # run with --confidence: its maps, removed or not
+    kept = has_confidence(folder, state["run"])
     confidence = [None if n in keys or not kept else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
     table = run_table(state["run"], str(folder / STATE))  # messages, the export's among them, name the file
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]),

@@ -144,7 +144,7 @@ def read_review(folder: str | Path) -> RunReview:
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, open_frames
     from .runs.edited import frame_moved, moved_error
-    from .runs.files import CONFIDENCE, STEPS, counted_steps
+    from .runs.files import STEPS, counted_steps, has_confidence
     from .runs.state import STATE, chosen_selection, read_state, run_frames, steps_counted_now
 
     folder = Path(folder)
@@ -210,8 +210,7 @@ def read_review(folder: str | Path) -> RunReview:
         ious.append(None if t in keys else step_class_iou(steps[n].get("predicted_iou"), steps_path, n))
         truth.append(None if t in keys else StepTruth(scored, step_class_iou(steps[n].get("iou"), steps_path, n, "iou")))
     return RunReview(folder, source, kind, tuple(names), tuple(stems), keys, tuple(errors),
-                     _suggested(folder, names, stems), run.get("confidence") is True or (folder / CONFIDENCE).is_dir(),
-                     selection.to_dict(), table,
+                     _suggested(folder, names, stems), has_confidence(folder, run), selection.to_dict(), table,
                      tuple(ious), tuple(truth), len(frames) if isinstance(frames, FolderFrames) else None,
                      state.get("gaps"), state.get("damaged"), state.get("notes"))
 

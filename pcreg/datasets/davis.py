@@ -135,21 +135,9 @@ def find_sequences(path: str | Path, *, split: str | None = None) -> tuple[dict[
     return seqs, beside
 
 
-def _read(path: Path, *, color: bool) -> np.ndarray:
-    import cv2
-
-    from ..formats import read_image_file
-
-    try:  # a regular file, its size checked in the header before decoding
-        img = read_image_file(path, flags=cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED)
-    except InputError as exc:
-        raise DatasetError(str(exc)) from None
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if color else img
-
-
 def _read_frame(path: Path) -> tuple[np.ndarray, str]:
-    """A frame (H, W, 3) uint8 RGB as :func:`_read` reads it, and what its decoder said of damaged data it decoded
-    around, or "" (:func:`pcreg.formats.read_image_file_and_damage`)."""
+    """A frame (H, W, 3) uint8 RGB (a regular file, its size checked in the header before decoding), and what its
+    decoder said of damaged data it decoded around, or "" (:func:`pcreg.formats.read_image_file_and_damage`)."""
     import cv2
 
     from ..formats import read_image_file_and_damage

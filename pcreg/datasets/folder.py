@@ -17,30 +17,26 @@ from ..formats import IMAGE_SUFFIXES
 from ..classes.mappings import CAMVID_MAPPING, mapping_lut  # noqa: F401 - read here since 0.1
 
 
-def _read_png(path: Path, *, color: bool) -> np.ndarray:
-    """A frame (``color``: (H, W, 3) uint8 RGB, converted from the pixels as stored as :func:`pcreg.load_image`
-    converts them for ``pcreg run`` and ``register``: 16 bits scaled by 1/257, floats in [0, 1] taken; a side of any
-    size) or a label file as stored."""
+def _read_png(path: Path) -> np.ndarray:
+    """A label file as stored (a regular file, its size checked in the header before decoding)."""
     import cv2
 
     from ..formats import read_image_file
-    from ..registration.clouds import _rgb_and_alpha
 
-    try:  # regular files only, size checked in the header before decoding
-        if color:
-            return _rgb_and_alpha(read_image_file(path), str(path), min_side=1)[0]
+    try:
         return read_image_file(path, flags=cv2.IMREAD_UNCHANGED)
     except InputError as exc:
         raise DatasetError(str(exc)) from None
 
 
 def _read_frame(path: Path) -> tuple[np.ndarray, str]:
-    """A frame as :func:`_read_png` reads it (``color``), and what its decoder said of damaged data it decoded
-    around, or "" (:func:`pcreg.formats.read_image_file_and_damage`)."""
+    """A frame as (H, W, 3) uint8 RGB, converted from the pixels as stored as :func:`pcreg.load_image` converts them
+    for ``pcreg run`` and ``register`` (16 bits scaled by 1/257, floats in [0, 1] taken; a side of any size), and
+    what its decoder said of damaged data it decoded around, or "" (:func:`pcreg.formats.read_image_file_and_damage`)."""
     from ..formats import read_image_file_and_damage
     from ..registration.clouds import _rgb_and_alpha
 
-    try:
+    try:  # regular files only, size checked in the header before decoding
         stored, damage = read_image_file_and_damage(path)
         return _rgb_and_alpha(stored, str(path), min_side=1)[0], damage
     except InputError as exc:
@@ -193,7 +189,7 @@ def read_frames(images: dict[str, Path], labels: dict[str, Path] | None, *, mapp
                 lab = _read_table_labels(labels[name], image, table, mapping, images[name])
                 frames.append(Frame(image=image, labels=lab, name=name, damage=damage))
                 continue
-            raw = _read_png(labels[name], color=False)
+            raw = _read_png(labels[name])
             if raw.ndim != 2 or raw.dtype != np.uint8:
                 raise DatasetError(f"{labels[name]}: label file must be a single-channel 8-bit PNG, got {raw.shape} {raw.dtype}")
             if raw.shape != image.shape[:2]:

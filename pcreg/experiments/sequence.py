@@ -206,7 +206,6 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
     from .units import discard_units, evaluate_units, load_cached, say_damage
 
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
-
     say_damage(datasets)
     for name, frames in datasets.items():
         if frames and any(f.labels is None for f in frames):

@@ -35,7 +35,7 @@ from ..formats import loads_json
 __all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "check_labelled",
-           "write_suggestions", "read_suggestions"]
+           "write_suggestions", "read_suggestions", "has_confidence"]
 
 STATE = "run.json"  #: the run's record (pcreg.runs.state reads and writes it), the commit point of its steps
 STEPS = "steps.jsonl"
@@ -438,3 +438,10 @@ def step_class_iou(iou, steps_path: Path, name: str, field: str = "predicted_iou
         raise InputError(f"{steps_path}: the step of {name} has a{'n' if field == 'iou' else ''} {field} pcreg run did "
                          "not write") from None
     return read
+
+
+def has_confidence(folder: Path, run: dict) -> bool:
+    """Whether the run in ``folder`` (``run``: run.json's identity) has confidence maps: it was asked for them
+    (``--confidence``), or its ``confidence/`` folder is there. A map missing, or the folder removed, is then a map
+    missing, which the review and the export say, not a run without confidence."""
+    return run.get("confidence") is True or (folder / CONFIDENCE).is_dir()

@@ -197,3 +197,11 @@ def test_a_step_that_parts_where_the_pairs_leave_the_rotation_free_says_so():
         else:
             assert f"which leave the rotation undetermined ({free}" in cause
         assert "undetermined" not in trace_divergence(ref, other)["cause"]  # without the clouds: not known
+
+
+def test_a_crosscheck_of_no_iterations_is_refused_naming_the_option_as_it_is_spelled():
+    # pcreg.icp takes max_iteration=0 (the initial pose, as Open3D); a cross-check of it compares nothing
+    cloud = np.random.default_rng(0).random((50, 2))
+    assert np.array_equal(pcreg.icp(cloud, cloud + 0.01, pcreg.ICPOptions(max_iteration=0)).matrix, np.eye(3))
+    with pytest.raises(pcreg.InputError, match="options.max_iteration must be 1 or more in a cross-check"):
+        pcreg.crosscheck(cloud, cloud + 0.01, options=pcreg.ICPOptions(max_iteration=0))

@@ -247,6 +247,31 @@ def test_a_folder_frame_decoded_around_damaged_data_is_marked(tmp_path):
     assert line.startswith("clip clip, frame f01: its decoder reports damaged data (Corrupt JPEG data")
 
 
+def test_folder_frames_with_transparent_pixels_or_dark_16_bit_values_are_noted(tmp_path):
+    """Frames an evaluation scores with figures that may be off were scored without a word, where ``pcreg run``
+    notes them: transparent pixels (alpha left out), 8-bit values stored in 16 bits (read as nearly black)."""
+    from pcreg.datasets.frame import damage_notes
+
+    _write_clip(tmp_path / "data" / "clip", 5, rng=np.random.default_rng(5), ids=(0, 1, 2), size=(64, 48))
+    images = tmp_path / "data" / "clip" / "images"
+    bgr = cv2.imread(str(images / "f01.png"))
+    cv2.imwrite(str(images / "f01.png"), np.dstack([bgr, np.full(bgr.shape[:2], 255, np.uint8)]))  # opaque: no note
+    bgra = np.dstack([bgr, np.full(bgr.shape[:2], 255, np.uint8)])
+    bgra[:4, :, 3] = 0
+    cv2.imwrite(str(images / "f02.png"), bgra)
+    for name in ("f03", "f04"):
+        cv2.imwrite(str(images / f"{name}.png"), cv2.imread(str(images / f"{name}.png")).astype(np.uint16))
+    data = load_dataset(f"folder:{tmp_path / 'data'}")
+    assert [len(f.notes) for f in data["clip"]] == [0, 0, 1, 1, 1]
+    assert data["clip"][1].image.tobytes() == bgr[:, :, ::-1].tobytes()
+    lines = damage_notes(data, said=2)
+    assert len(lines) == 3
+    assert lines[0].startswith(f"clip clip, frame f02: {images / 'f02.png'} has transparent pixels (256 of its 3072")
+    assert lines[1].startswith(f"clip clip, frame f03: {images / 'f03.png'}: its 16-bit values lie in ")
+    assert lines[1].endswith("(the figures of the frames it is in may be off)")
+    assert lines[2] == "1 more frame(s) read with such notes"
+
+
 @pytest.mark.parametrize("where", ["images", "labels"])
 @pytest.mark.parametrize("what", ["a link to nothing", "a folder"])
 def test_an_entry_named_as_a_frame_that_is_no_file_is_named(tmp_path, where, what):

@@ -132,7 +132,7 @@ def test_evaluate_stream_says_which_split_and_averages_the_published_figures_it_
 
 
 @pytest.mark.parametrize("how", ["a sequence without folder", "a line that does not parse", "an unknown split",
-                                 "a split without its file"])
+                                 "a split without its file", "a folder named as the split", "a link to nothing"])
 def test_a_bad_split_is_one_line_and_exit_2_naming_it(tmp_path, capsys, how):
     root = _official(tmp_path)
     val = root / "ImageSets" / "480p" / "val.txt"
@@ -145,9 +145,13 @@ def test_a_bad_split_is_one_line_and_exit_2_naming_it(tmp_path, capsys, how):
         named += ["line 7"]
     elif how == "an unknown split":
         spec, named = f"davis:{root}:test-dev", ["'test-dev' is no split", str(root)]
-    else:
+    elif how == "a split without its file":
         (root / "ImageSets" / "480p" / "train.txt").unlink()
         spec, named = f"davis:{root}:train", [str(root / "ImageSets"), "no train.txt"]
+    else:  # read as absent, every sequence was evaluated in the split's place
+        val.unlink()
+        val.mkdir() if how == "a folder named as the split" else val.symlink_to(tmp_path / "gone.txt")
+        named += ["cannot read the split file", "Is a directory" if how == "a folder named as the split" else "No such file"]
     out = tmp_path / "out"
     out.mkdir()
     (out / "results.json").write_text("{}")  # an earlier evaluation's

@@ -291,3 +291,23 @@ def test_a_png_whose_chunk_runs_past_its_end_is_refused_before_it_is_decoded(tmp
     assert main(["run", str(frames), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and f"{key}: cannot decode image (its 'IDAT' chunk runs past the end of the file" in err[0], err
+
+
+def test_16_bit_frames_holding_8_bit_values_are_said_once(tmp_path, capsys):
+    """8-bit values stored in 16-bit PNGs read as nearly black (16 bits are scaled by 1/257): the run labelled
+    them from little more than noise, exit 0, without a word, where ``pcreg register`` names the cause. Frames
+    that use their 16 bits are read without a note."""
+    for name, scale in (("low", 1), ("full", 257)):
+        frames = tmp_path / name
+        frames.mkdir()
+        for i in range(3):
+            cv2.imwrite(str(frames / f"f{i:02d}.png"), _scene(i).astype(np.uint16) * scale)
+        assert main(["run", str(frames), "--labels", str(_key(tmp_path / "key.png")), "--out", str(tmp_path / f"out-{name}")]) == 0
+        notes = [ln for ln in capsys.readouterr().err.splitlines() if "16-bit values" in ln]
+        state = json.loads((tmp_path / f"out-{name}" / "run.json").read_text())
+        if name == "full":
+            assert notes == [] and "dark" not in (state.get("notes") or {})
+            continue
+        assert len(notes) == 1, notes
+        assert notes[0].startswith(f"pcreg: note: {frames / 'f00.png'}: its 16-bit values lie in ") and "(nearly black)" in notes[0]
+        assert state["notes"]["dark"] == notes[0].removeprefix("pcreg: note: ")

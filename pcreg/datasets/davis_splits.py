@@ -84,10 +84,12 @@ def parse_davis_arg(arg: str) -> tuple[str, str | None]:
 
 def split_file(root: Path, resolution: str, split: str) -> Path | None:
     """DAVIS 2016's ``split`` list under ``root/ImageSets``: ``RES/SPLIT.txt`` (the 2016 download, at the
-    resolution read, else ``480p``), else ``2016/SPLIT.txt`` (the 2017 download); None when neither is."""
+    resolution read, else ``480p``), else ``2016/SPLIT.txt`` (the 2017 download); None when neither is. An entry of
+    that name that is no file (a folder, a link to nothing) is returned too, for its reading to name it: taken as
+    absent, the root's every sequence was evaluated in the split's place."""
     for sub in dict.fromkeys((resolution, "480p", "2016")):
         f = root / "ImageSets" / sub / f"{split}.txt"
-        if f.is_file():
+        if f.is_file() or f.is_symlink() or f.exists():
             return f
     return None
 
@@ -114,7 +116,8 @@ def read_split_file(path: str | Path) -> list[str]:
     try:
         text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (Notepad's UTF-8) is no part of the first name
     except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read the split file ({exc})") from None
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise DatasetError(f"{path}: cannot read the split file ({why})") from None
     names: dict[str, None] = {}
     for i, line in enumerate(text.splitlines(), start=1):
         if not line.strip():

@@ -29,18 +29,22 @@ def _read_png(path: Path) -> np.ndarray:
         raise DatasetError(str(exc)) from None
 
 
-def _read_frame(path: Path) -> tuple[np.ndarray, str]:
+def _read_frame(path: Path) -> tuple[np.ndarray, str, tuple[str, ...]]:
     """A frame as (H, W, 3) uint8 RGB, converted from the pixels as stored as :func:`pcreg.load_image` converts them
-    for ``pcreg run`` and ``register`` (16 bits scaled by 1/257, floats in [0, 1] taken; a side of any size), and
-    what its decoder said of damaged data it decoded around, or "" (:func:`pcreg.formats.read_image_file_and_damage`)."""
+    for ``pcreg run`` and ``register`` (16 bits scaled by 1/257, floats in [0, 1] taken; a side of any size), what
+    its decoder said of damaged data it decoded around, or "" (:func:`pcreg.formats.read_image_file_and_damage`), and
+    the notes of its pixels as stored (:func:`pcreg.datasets.frame_notes.stored_notes`)."""
     from ..formats import read_image_file_and_damage
     from ..registration.clouds import _rgb_and_alpha
+    from .frame_notes import stored_notes
 
     try:  # regular files only, size checked in the header before decoding
         stored, damage = read_image_file_and_damage(path)
-        return _rgb_and_alpha(stored, str(path), min_side=1)[0], damage
+        image = _rgb_and_alpha(stored, str(path), min_side=1)[0]
     except InputError as exc:
         raise DatasetError(str(exc)) from None
+    notes = stored_notes(str(path), stored, later="the figures of the frames it is in may be off")
+    return image, damage, tuple(line for _, line in notes)
 
 
 def _read_table_labels(path: Path, image: np.ndarray, table, mapping, image_path: Path) -> np.ndarray:
@@ -182,12 +186,12 @@ def read_frames(images: dict[str, Path], labels: dict[str, Path] | None, *, mapp
     through ``table`` (``mapping`` None or ``"camvid"``) or mapped by ``lut`` (:func:`load_folder`)."""
     frames = []
     for name in sorted(images):
-        image, damage = _read_frame(images[name])
+        image, damage, notes = _read_frame(images[name])
         lab = None
         if labels is not None:
             if mapping is None or mapping == "camvid":
                 lab = _read_table_labels(labels[name], image, table, mapping, images[name])
-                frames.append(Frame(image=image, labels=lab, name=name, damage=damage))
+                frames.append(Frame(image=image, labels=lab, name=name, damage=damage, notes=notes))
                 continue
             raw = _read_png(labels[name])
             if raw.ndim != 2 or raw.dtype != np.uint8:
@@ -199,7 +203,7 @@ def read_frames(images: dict[str, Path], labels: dict[str, Path] | None, *, mapp
             if lab.max() == 255:
                 bad = np.unique(raw[lab == 255])[:8].tolist()
                 raise DatasetError(f"{labels[name]}: label ids {bad} are outside the mapping")
-        frames.append(Frame(image=image, labels=lab, name=name, damage=damage))
+        frames.append(Frame(image=image, labels=lab, name=name, damage=damage, notes=notes))
     return frames
 
 

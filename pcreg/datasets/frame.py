@@ -30,6 +30,9 @@ class Frame:
     damage : what the image's decoder said of damaged data it decoded around (libjpeg's ``Corrupt JPEG data:
         premature end of data segment``: part of the image is its guess), "" for an image that decoded whole
         (:func:`damage_notes` says it).
+    notes : what else reading the image met that its figures may show, one line each (transparent pixels, whose
+        alpha pcreg does not read; 16-bit values in the lowest bits, read as nearly black:
+        :func:`pcreg.datasets.frame_notes.stored_notes`); () for none (:func:`damage_notes` says them).
 
     The arrays are read-only views; the caller's arrays are not copied or modified.
     """
@@ -39,6 +42,7 @@ class Frame:
     name: str
     pose: np.ndarray | None = None
     damage: str = ""
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         image = np.asarray(self.image)
@@ -88,10 +92,15 @@ def relative_transform(reference: Frame, moving: Frame) -> np.ndarray | None:
 def damage_notes(datasets: dict[str, list[Frame]], said: int = 3) -> list[str]:
     """One line for each of the first ``said`` frames of ``datasets`` (``{clip: frames}``) whose image decoded
     around damaged data (:attr:`Frame.damage`), and one counting the rest: scored without a word, such a frame's
-    figures come in part from the decoder's guesses."""
+    figures come in part from the decoder's guesses; then the same for the frames whose reading met something else
+    (:attr:`Frame.notes`: transparent pixels, 16-bit values read as nearly black)."""
     damaged = [(clip, f) for clip, frames in datasets.items() for f in frames if f.damage]
     lines = [f"clip {clip}, frame {f.name}: its decoder reports damaged data ({f.damage}): part of the image is the "
              "decoder's guess, and the figures of the frames it is in may be off" for clip, f in damaged[:said]]
     if len(damaged) > said:
         lines.append(f"{len(damaged) - said} more frame(s) decode around damaged data the same way")
+    noted = [(clip, f) for clip, frames in datasets.items() for f in frames if f.notes]
+    lines += [f"clip {clip}, frame {f.name}: {line}" for clip, f in noted[:said] for line in f.notes]
+    if len(noted) > said:
+        lines.append(f"{len(noted) - said} more frame(s) read with such notes")
     return lines

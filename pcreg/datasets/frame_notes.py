@@ -1,7 +1,7 @@
 """What reading a frame met that the reader of the frames says, once a run for each kind
 (:attr:`~pcreg.datasets.sources.SourceFrame.notes`, said by :class:`~pcreg.runs.gaps.GapMarks`): a frame with
-transparent pixels, whose alpha pcreg does not read, an image file decoded around damaged data, and a video whose
-frames turn interlaced after its first.
+transparent pixels, whose alpha pcreg does not read, a 16-bit frame whose values use only the lowest bits (read as
+nearly black), an image file decoded around damaged data, and a video whose frames turn interlaced after its first.
 
 The rule for alpha: a frame is read with its colours as stored and its alpha left out, as it always was, so an
 opaque frame with an alpha channel reads as the same frame without one; where a pixel's alpha is below opaque its
@@ -14,23 +14,48 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TRANSPARENT", "DAMAGED", "INTERLACED", "read_frame", "transparent_notes", "damaged_notes", "turn_note",
-           "has_alpha"]
+__all__ = ["TRANSPARENT", "DARK", "DAMAGED", "INTERLACED", "read_frame", "stored_notes", "transparent_notes",
+           "dark_notes", "damaged_notes", "turn_note", "has_alpha"]
 
 #: The kind of note of a frame with transparent pixels (alpha below opaque), whose alpha pcreg does not read.
 TRANSPARENT = "transparent"
 
+#: How a run's note ends: it names the first such frame only.
+LATER = "later such frames not said"
+
 
 def read_frame(path: Path) -> tuple[np.ndarray, tuple[tuple[str, str], ...]]:
     """A frame's image file as (H, W, 3) uint8 RGB (:func:`pcreg.load_image`'s conversion, its alpha left out) and
-    what reading it met: transparent pixels (:func:`transparent_notes`), damaged data its decoder decoded around
-    (:func:`damaged_notes`)."""
+    what reading it met (:func:`stored_notes`, :func:`damaged_notes`)."""
     from ..formats import read_image_file_and_damage
     from ..registration.clouds import _rgb_and_alpha
 
     stored, damage = read_image_file_and_damage(path)
-    image, alpha = _rgb_and_alpha(stored, str(path), None)
-    return image, transparent_notes(str(path), alpha) + damaged_notes(str(path), damage)
+    image, _ = _rgb_and_alpha(stored, str(path), None)
+    return image, stored_notes(str(path), stored) + damaged_notes(str(path), damage)
+
+
+def stored_notes(where: str, stored: np.ndarray, *, later: str = LATER) -> tuple[tuple[str, str], ...]:
+    """The notes of a frame's pixels as its file stores them (``where`` names it; ``stored`` as decoded, its alpha
+    last): transparent pixels (:func:`transparent_notes`), 16-bit values in the lowest bits (:func:`dark_notes`).
+    ``later`` ends each note (what is said of later such frames)."""
+    alpha = stored[:, :, 3] if stored.ndim == 3 and stored.shape[2] == 4 else None
+    colours = stored[:, :, :3] if alpha is not None else stored
+    return transparent_notes(where, alpha, later=later) + dark_notes(where, colours, later=later)
+
+
+#: The kind of note of a 16-bit frame whose values use only the lowest bits, read as nearly black.
+DARK = "dark"
+
+
+def dark_notes(where: str, colours: np.ndarray, *, later: str = LATER) -> tuple[tuple[str, str], ...]:
+    """The note of a frame (``where`` names it) whose ``colours`` as stored are 16-bit values in at most the lowest 12
+    bits (8-bit values stored in 16 bits, a 10- or 12-bit camera's): pcreg scales 16 bits by 1/257, so the frame
+    reads as nearly black and its classes by little more than noise (:func:`pcreg.frame.low_bits_note`)."""
+    from ..frame import low_bits_note
+
+    said = low_bits_note(colours)
+    return ((DARK, f"{where}: {said} ({later})"),) if said else ()
 
 
 #: The kind of note of a frame's image file whose decoder reports damaged data it decoded around (a JPEG cut short).
@@ -46,9 +71,9 @@ def damaged_notes(where: str, damage: str) -> tuple[tuple[str, str], ...]:
              "guess, and its labels there may be off (later such frames not said)"),)
 
 
-def transparent_notes(where: str, alpha: np.ndarray | None) -> tuple[tuple[str, str], ...]:
+def transparent_notes(where: str, alpha: np.ndarray | None, *, later: str = LATER) -> tuple[tuple[str, str], ...]:
     """The note of a frame (``where`` names it) whose ``alpha`` (H, W) uint8 (None: the frame has none) is below 255
-    (or 65535) somewhere: its colours are read as stored, without alpha; else none."""
+    (or 65535) somewhere: its colours are read as stored, without alpha; else none. ``later`` ends the note."""
     if alpha is None:
         return ()
     opaque = np.iinfo(alpha.dtype).max  # 255, or 65535 in a 16-bit file
@@ -57,8 +82,7 @@ def transparent_notes(where: str, alpha: np.ndarray | None) -> tuple[tuple[str, 
         return ()
     return ((TRANSPARENT, f"{where} has transparent pixels ({n} of its {alpha.size}, alpha below opaque): pcreg reads "
              "a frame's colours as stored, without alpha, and labels a transparent pixel by the colour it holds; "
-             "flatten the frames onto their background first if that colour is not the scene (later such frames "
-             "not said)"),)
+             f"flatten the frames onto their background first if that colour is not the scene ({later})"),)
 
 
 #: The kind of note of a video whose frames turn interlaced after its first.

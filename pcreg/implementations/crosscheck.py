@@ -345,7 +345,10 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     if problem is not None:
         raise InputError(f"init: {problem}, and the cross-check pins the rigid ICP")
     T0 = nearest_rigid(T0)  # every implementation starts from, and so returns, a rigid matrix
-    max_iterations = check_int(max_iterations, "max_iterations", lo=1, hi=100_000)
+    if isinstance(max_iterations, (int, np.integer)) and not isinstance(max_iterations, bool) and max_iterations == 0:
+        raise InputError("options.max_iteration must be 1 or more in a cross-check: with 0 every implementation "
+                         "returns the initial pose, and there is nothing to compare")
+    max_iterations = check_int(max_iterations, "options.max_iteration", lo=1, hi=100_000)
     if max_correspondence_distance is None:
         max_correspondence_distance = default_max_distance(tgt, name=files[1] or "target")
     if not max_correspondence_distance > 0:

@@ -145,9 +145,12 @@ def _check_scheduler_address(scheduler: str) -> None:
 
     try:
         protocol, location = parse_address(scheduler)
-        port = int(parse_host_port(location)[1]) if protocol in ("tcp", "tls") else 1
+        host, port = parse_host_port(location) if protocol in ("tcp", "tls") else ("-", 1)
+        port = int(port)
     except (ValueError, TypeError) as exc:
         raise refuse(str(exc)) from None
+    if not str(host).strip("[] "):  # tcp://:8786 waited the connect time, then blamed the network
+        raise refuse("no host")
     if protocol not in backends:
         raise refuse(f"dask speaks {', '.join(f'{b}://' for b in sorted(backends))}, not {protocol}://")
     if not 1 <= port <= 65535:
@@ -259,6 +262,10 @@ NO_WORKER_SECONDS = 60.0
 class _ClusterExecutor(Executor):
     """A dask client's executor, and :meth:`check`: whether the cluster can still run the units."""
 
+    #: Its units run in other working folders, on other machines: they are given absolute paths
+    #: (:func:`pcreg.experiments.units.for_workers`).
+    remote = True
+
     def __init__(self, client: Any, scheduler: str) -> None:
         self._client, self._scheduler = client, scheduler
         self._executor = client.get_executor()
@@ -293,6 +300,20 @@ class _ClusterExecutor(Executor):
             raise PcregError(f"the dask scheduler {self._scheduler!r} {what} for {NO_WORKER_SECONDS:g} s: the finished "
                              f"units are kept; start {'workers' if connected else 'it'} and rerun the same command "
                              "to resume")
+
+
+def check_workers(workers: int) -> None:
+    """Refuse ``--workers`` above 4x the CPUs this process may use: each worker holds its own copy of the data
+    and libraries (:func:`make_executor` refuses it too; a command that writes before it starts workers calls this
+    first)."""
+    import os
+
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if workers > 4 * cpus:
+        from .errors import PcregError
+
+        raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here: give {4 * cpus} or fewer "
+                         "(each worker holds its own copy of the data and libraries)")
 
 
 @contextmanager
@@ -342,12 +363,7 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
     else:
         import os
 
-        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        if workers > 4 * cpus:  # each worker holds its own copy of the data and libraries
-            from .errors import PcregError
-
-            raise PcregError(f"--workers {workers} is more than 4x the {cpus} CPUs here: give {4 * cpus} or fewer "
-                             "(each worker holds its own copy of the data and libraries)")
+        check_workers(workers)
         from concurrent.futures.process import BrokenProcessPool
 
         pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,

@@ -39,6 +39,8 @@ def test_an_unknown_numba_threading_layer_is_bad_input(tmp_path, monkeypatch, ca
     ("foo://bar:1", "dask speaks .*tcp://.*, not foo://"),  # read "answered, but not as a dask scheduler"
     ("127.0.0.1:99999", "its port 99999 is not in 1-65535"),  # waited dask's connect time, 30 s
     ("tcp://127.0.0.1:0", "its port 0 is not in 1-65535"),
+    ("tcp://:8786", "no host"),  # waited the connect time, then said the host was unreachable
+    (":8786", "no host"),
 ])
 def test_a_scheduler_address_that_cannot_be_one_is_refused_before_connecting(address, said):
     from pcreg._runner import make_executor

@@ -53,3 +53,33 @@ def test_demo_refuses_no_record_with_a_recording(tmp_path, capsys, extra):
     assert main(["demo", "--out", str(out), "--no-record", *extra]) == 2
     assert "choose one" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("held", ["an evaluation's stage folder", "an evaluation's --out"])
+def test_demo_refuses_a_folder_holding_another_commands_results(tmp_path, capsys, held):
+    """``pcreg demo --out out`` ran its evaluations into ``out/classification`` (the default ``--out`` of ``pcreg
+    evaluate classification``) with ``force``, and into an evaluation's own folder wrote its config.json, so that
+    the evaluation no longer resumed."""
+    out = tmp_path / "out"
+    config = out / "classification" / "config.json" if held == "an evaluation's stage folder" else out / "config.json"
+    config.parent.mkdir(parents=True)
+    config.write_text('{"data": "synthetic", "frames": 6}')
+    assert main(["demo", "--out", str(out), "--frames", "8", "--no-record"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and str(config.parent if "stage" in held else config) in err[0] and "--force" in err[0], err
+    assert [p for p in out.rglob("*") if not p.is_dir()] == [config]  # nothing written beside it
+    assert config.read_text() == '{"data": "synthetic", "frames": 6}'
+
+
+@pytest.mark.parametrize("args, said", [
+    (["--workers", "1000"], "--workers 1000 is more than 4x"),
+    (["--record", "pair.png"], "a recording's name must end in .rrd"),
+    (["--out", "dm\udcff x"], "a recording's path must be valid UTF-8"),
+])
+def test_demo_checks_its_options_before_writing(tmp_path, capsys, monkeypatch, args, said):
+    """These were refused after the demo's first stages had written their folders (a recording at stage 4)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo", "--frames", "8", *(args if "--out" in args else ["--out", "d", *args])]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and said in err[0], err
+    assert list(tmp_path.iterdir()) == []

@@ -97,6 +97,29 @@ def test_cluster_gives_the_local_results_and_resumes(cluster, local_run, tmp_pat
     assert not _diff(_strip_times(again), _strip_times(local))
 
 
+def test_relative_data_and_class_table_paths_are_read_where_the_command_runs(cluster, tmp_path, monkeypatch):
+    """The workers run in another working folder (here the one pytest started in): a relative ``--data`` path
+    was read there, refused as "no such folder" (or, where a folder of that name was, scored other frames under
+    the right names, exit 0)."""
+    from _davis import frames_and_masks, write_pcreg_layout
+    from pcreg.cli import main
+    from pcreg.experiments.units import for_workers
+    from pcreg.experiments.stream import StreamConfig
+
+    for i, name in enumerate(("disc", "dot")):
+        write_pcreg_layout(tmp_path / "seqs" / name, frames_and_masks(3, seed=i))
+    monkeypatch.chdir(tmp_path)
+    args = ["evaluate", "stream", "--data", "davis:seqs", "--methods", "unregistered,plain"]
+    assert main([*args, "--out", "local"]) == 0
+    assert main([*args, "--scheduler", cluster.scheduler_address, "--out", "dist"]) == 0
+    for name in ("stream_reference.csv", "davis_J.csv"):
+        assert (tmp_path / "dist" / name).read_text() == (tmp_path / "local" / name).read_text(), name
+    assert json.loads((tmp_path / "dist" / "config.json").read_text())["data"] == "davis:seqs"  # as given
+    shipped = for_workers(StreamConfig(data="davis:seqs:all", classes="tables/t.json"))
+    assert (shipped.data, shipped.classes) == (f"davis:{tmp_path / 'seqs'}:all", str(tmp_path / "tables" / "t.json"))
+    assert for_workers(StreamConfig(data="synthetic:syn1a", classes="camvid11")).classes == "camvid11"
+
+
 def test_a_worker_killed_mid_run_loses_nothing(cluster, local_long_run, tmp_path):
     from pcreg.cli import main
 

@@ -287,6 +287,20 @@ def test_a_new_run_keeps_what_it_did_not_write_and_never_removes_its_own_inputs(
     assert sorted(p.name for p in (inside / "confidence").iterdir()) == sorted(p.name for p in folder.iterdir())
 
 
+def test_key_labels_in_the_folder_the_run_writes_its_confidence_maps_in_are_refused(tmp_path, capsys):
+    """``--labels OUT/confidence --confidence``: the confidence maps were written among the key labels, and every
+    later run (``--force`` too) refused them as labels until removed by hand."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=4)
+    (tmp_path / "out").mkdir()
+    keys = key_frames_of(key, tmp_path / "out" / "confidence", positions=(0, 3))
+    before = sorted(p.name for p in keys.iterdir())
+    assert main(["run", str(folder), "--labels", str(keys), "--confidence", "--out", str(tmp_path / "out")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"lies in {tmp_path / 'out' / 'confidence'}, where this run writes its confidence maps" in err[0]
+    assert sorted(p.name for p in keys.iterdir()) == before and sorted(p.name for p in (tmp_path / "out").iterdir()) == ["confidence"]
+    assert main(["run", str(folder), "--labels", str(keys), "--out", str(tmp_path / "out")]) == 0  # no maps: no clash
+
+
 def test_hidden_files_are_no_frames_and_numbers_of_different_widths_are_refused(tmp_path, capsys):
     """A hidden thumbnail (``.thumb.png``) sorted first and became the key frame; ``f8 ... f13`` were read as
     ``f10 f11 f12 f13 f8 f9``, the labels drawn on f8 given to f10."""

@@ -35,14 +35,20 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--frames must be at most 10000, got {args.frames}")
     if args.no_record and (args.record or args.record_raw):
         raise InputError(f"--no-record with {'--record' if args.record else '--record-raw'}: choose one")
+    from .._runner import check_workers
+    from ..recording.sink import check_path
+
     out = Path(args.out)
     config = DemoConfig(frames=args.frames)
     check_output(out / "report.md", force=args.force)
+    if not args.force:
+        check_no_other_results(out)
+    check_workers(args.workers)  # each before the first file is written
     record = None if args.no_record else Path(args.record or out / "demo.rrd")
     if record is not None:
         # OUT/demo.rrd without OUT/report.md (refused above unless --force) is what an interrupted demo
         # left: the rerun replaces it
-        check_output(record, force=args.force or args.record is None)
+        check_path(record, force=args.force or args.record is None)
     from ..outputs import OutputLock
 
     t0 = time.perf_counter()
@@ -52,3 +58,34 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+
+
+#: The folders of ``OUT`` the demo's evaluations write (each resumable evaluation's ``--out``).
+STAGES = ("classification", "rotation", "sequence", "stream")
+
+
+def check_no_other_results(out: Path) -> None:
+    """An :class:`~pcreg.errors.OutputError` when ``out`` holds what the demo would replace and did not write: a
+    config.json that is not a demo's, or a stage folder (:data:`STAGES`) holding an evaluation's results without
+    the demo's config.json beside it (``pcreg demo --out out`` beside ``pcreg evaluate classification``'s default
+    ``out/classification``). An interrupted demo's folder is the demo's: a rerun replaces it."""
+    from dataclasses import fields
+
+    from ..errors import OutputError
+    from ..experiments.demo import DemoConfig
+    from ..formats import loads_json
+
+    config = out / "config.json"
+    ours = False
+    if config.exists():
+        try:
+            ours = set(loads_json(config.read_text(encoding="utf-8"))) == {f.name for f in fields(DemoConfig)}
+        except (OSError, ValueError, TypeError):
+            ours = False
+        if not ours:
+            raise OutputError(f"{config} is not a demo's: {out} holds another command's results, which the demo "
+                              "would replace (use another --out, or --force to replace them)")
+    for stage in STAGES:
+        if not ours and ((out / stage / "config.json").exists() or (out / stage / "units").exists()):
+            raise OutputError(f"{out / stage} holds an evaluation's results, which the demo would replace (use "
+                              "another --out, or --force to replace them)")

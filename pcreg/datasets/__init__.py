@@ -68,6 +68,25 @@ def data_folder(spec) -> Path | None:
     return folder if folder.is_dir() else None
 
 
+def absolute_data(spec: str) -> str:
+    """``spec`` (a ``--data`` value) with its path made absolute (``camvid:clips`` -> ``camvid:/home/me/clips``; a
+    DAVIS split kept), as a process in another working folder reads the same files; synthetic data and a value
+    without a path as they are."""
+    import os
+
+    kind, colon, where = str(spec).partition(":")
+    if not colon or not where or kind.strip().lower() == "synthetic":
+        return spec
+    split = None
+    if kind.strip().lower() == "davis":
+        try:
+            where, split = parse_davis_arg(where)
+        except InputError:
+            return spec
+    where = os.path.abspath(os.path.expanduser(where))
+    return f"{kind}:{where}" + (f":{split}" if split else "")
+
+
 def _synthetic(spec: str) -> bool:
     return str(spec).partition(":")[0].strip().lower() == "synthetic"
 

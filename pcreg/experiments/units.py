@@ -272,9 +272,29 @@ def run_resumable(units: list, run_unit, *, store: "UnitStore | None", cfg_dict:
             check_interrupted()
             keep(u, run_unit(u, recorder=recorder, frame_counter=counter))
     else:
+        if getattr(executor, "remote", False):
+            todo = [replace(u, config=for_workers(u.config)) for u in todo]
         run_units(run_unit, todo, executor=executor or InlineExecutor(), desc=desc, on_result=keep,
                   show_progress=show_progress)
     return done, len(units) - len(todo)
+
+
+def for_workers(config: Any) -> Any:
+    """``config`` as a cluster's workers read it: its ``--data`` path and ``--classes`` file made absolute (the
+    parent checked them from its working folder; a worker read the same relative path from its own, where it named
+    no files, or other files, scored under the right names)."""
+    import os
+
+    from ..classes.table import TABLES
+    from ..datasets import absolute_data
+
+    changes: dict[str, Any] = {}
+    if isinstance(getattr(config, "data", None), str):
+        changes["data"] = absolute_data(config.data)
+    classes = getattr(config, "classes", None)
+    if isinstance(classes, str) and classes.strip() and classes not in TABLES:
+        changes["classes"] = os.path.abspath(os.path.expanduser(classes))
+    return replace(config, **changes) if changes else config
 
 
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,

@@ -28,7 +28,7 @@ from ..errors import OutputError, StuckOutput
 from ..outputs import check_output
 from .readback import end_stream
 
-__all__ = ["Sink", "JpegCache", "DEFAULT_JPEG_QUALITY", "BATCH_SECONDS", "BATCH_BYTES"]
+__all__ = ["Sink", "JpegCache", "check_path", "DEFAULT_JPEG_QUALITY", "BATCH_SECONDS", "BATCH_BYTES"]
 
 #: JPEG quality of logged images (with optimised Huffman tables): the highest that kept a 100-frame
 #: 640x480 sequence recording of an earlier layout under 15 MB (design notes, docs/algorithms.md).
@@ -77,10 +77,17 @@ class JpegCache:
         return data
 
 
-def _check_path(path: Path, force: bool) -> None:
-    """Refuse a path that is not a .rrd file's, or that exists (unless ``force``)."""
+def check_path(path: str | os.PathLike, force: bool) -> None:
+    """Refuse a recording's path that is not a .rrd file's, not UTF-8 text (rerun takes the path as text), a
+    folder, or a file that exists (unless ``force``): what :class:`Sink` refuses, for a command that opens its
+    recording after other outputs to refuse it before them."""
+    path = Path(path)
     if path.suffix.lower() != ".rrd":
         raise OutputError(f"{path}: a recording's name must end in .rrd")
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        raise OutputError(f"cannot write {path}: a recording's path must be valid UTF-8") from None
     if path.is_dir():
         raise OutputError(f"cannot write {path}: it is a folder")
     check_output(path, force=force)
@@ -89,10 +96,6 @@ def _check_path(path: Path, force: bool) -> None:
 def _create_empty(path: Path) -> list[Path]:
     """Create ``path`` empty, or refuse it with the reason (rerun's own error would come from its thread); the
     folders made for it, deepest first (:func:`remove_made_folders`)."""
-    try:
-        str(path).encode("utf-8")
-    except UnicodeEncodeError:  # rerun takes the path as UTF-8 text
-        raise OutputError(f"cannot write {path}: a recording's path must be valid UTF-8") from None
     made = [p for p in path.absolute().parents if not p.exists()]
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -166,7 +169,7 @@ class Sink:
                  recording_name: str | None = None, kind: str | None = None, embed_blueprint: bool = True,
                  raw_images: bool = False, jpeg_quality: int = DEFAULT_JPEG_QUALITY, force: bool = False) -> None:
         self.path = Path(path)
-        _check_path(self.path, force)
+        check_path(self.path, force)
         self._jpegs = JpegCache(jpeg_quality)
         self.made_folders = _create_empty(self.path)
         self.raw_images = bool(raw_images)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..formats import only_files, resolved
+from .files import CONFIDENCE, HIDDEN
 
 __all__ = ["RunInputs", "read_inputs", "read_labels", "TruthMaps", "open_truth", "check_spares_inputs",
            "check_suggest", "read_key_labels"]
@@ -56,7 +57,8 @@ def read_inputs(request, frames) -> RunInputs:
         shape, spared = pending[0].image.shape[:2], request.labels
     _check_fits(request, frames, keys, table)
     truth = open_truth(request.truth, frames, shape or keys[next(iter(keys))].shape, mapping, table)
-    check_spares_inputs(request.out, frames, spared, truth)
+    check_spares_inputs(request.out, frames, spared, truth,
+                        writes=((CONFIDENCE,) if request.confidence else ()) + ((HIDDEN,) if request.folder_of_keys else ()))
     check_suggest(request.suggest, frames, len(keys))
     notes = (other_labels_note(request.labels, frames) if request.folder_of_keys and request.labels.is_dir() else None,
              left_out_note(f"--labels {request.labels}", left, frames.selection))
@@ -205,9 +207,10 @@ def open_truth(folder: str | None, frames, shape, mapping: str, table=None):
     return truth
 
 
-def check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
+def check_spares_inputs(out: Path, frames, labels: Path, truth, *, writes: tuple[str, ...] = ()) -> None:
     """Refuse an ``--out`` whose label PNGs (``OUT/NAME.png`` per frame) would overwrite a frame, the key
-    frame's labels or a truth map: ``--out`` the frames' own folder, say."""
+    frame's labels or a truth map: ``--out`` the frames' own folder, say; or an input in a folder of ``--out`` the
+    run ``writes`` in (``confidence``, ``.keys``)."""
     from ..errors import InputError
 
     resolved(out)  # a loop of symbolic links named as the --out it is
@@ -229,6 +232,22 @@ def check_spares_inputs(out: Path, frames, labels: Path, truth) -> None:
         clobbered = [labels] if frames.writes(labels.stem) and resolved(out / f"{labels.stem}.png") == resolved(labels) else []
     if clobbered:
         raise InputError(f"--out {out} would overwrite the input {clobbered[0]}; choose another folder")
+    for sub in writes:  # confidence maps written among key labels read from there: later runs refused them
+        _check_apart(out, sub, [p for p in (frames.path, labels, truth and truth.root) if p is not None])
+
+
+def _check_apart(out: Path, sub: str, inputs: list[Path]) -> None:
+    """Refuse an input that lies in ``OUT/sub``, a folder the run writes into."""
+    from ..errors import InputError
+
+    place = resolved(out / sub)
+    for given in inputs:
+        where = resolved(given)
+        if where == place or place in where.parents:
+            raise InputError(f"{given}: lies in {out / sub}, where this run writes its "
+                             f"{'confidence maps' if sub == CONFIDENCE else 'passes'}; move it out of --out, "
+                             "or choose another --out")
+
 
 def check_suggest(count: int | None, frames, keys: int) -> None:
     """``--suggest N`` no larger than the frames that are not key frames (a video's count where its

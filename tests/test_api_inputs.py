@@ -210,3 +210,100 @@ def test_a_mask_with_no_usable_pixel_or_a_nan_is_refused_as_the_mask(which):
     some = np.zeros((120, 160), bool)
     some[20:100, 30:130] = True
     assert pcreg.register(ref, ref, **{which: some}).inlier_ratio > 0.5
+
+
+def _stream_key(h=120, w=160):
+    """A key frame and its two-class labels: a textured left half (ground) and a bright right half (obstacle)."""
+    img = _image(h, w)
+    labels = np.zeros((h, w), np.uint8)
+    labels[:, w // 2:] = 1
+    img[:, w // 2:] = np.clip(img[:, w // 2:].astype(int) + 120, 0, 255).astype(np.uint8)
+    return img, labels
+
+
+def test_a_refused_key_frame_leaves_the_stream_as_it_was():
+    """``reset`` kept the refused frame's size: every later frame of the stream was refused as of another size."""
+    key, labels = _stream_key()
+    prop = pcreg.Propagator.from_key_frame(key, labels, model="flow")
+    with pytest.raises(InputError, match="too small for the flow model"):
+        prop.reset(key[:20, :20], labels[:20, :20])
+    again = pcreg.Propagator.from_key_frame(key, labels, model="flow")
+    np.testing.assert_array_equal(prop.step(key), again.step(key))
+
+
+class _Scores:
+    """A classifier of the two classes whose ``decision_function`` returns what it is given."""
+
+    classes_ = np.array([0, 1])
+    class_prior_ = np.array([0.5, 0.5])
+
+    def __init__(self, scores):
+        self.scores = scores
+
+    def decision_function(self, image):
+        return self.scores(np.asarray(image).shape[:2])
+
+
+@pytest.mark.parametrize("scores, said", [
+    (lambda s: np.full(s, np.nan), "returned NaN or inf at 19200 of its scores"),  # every pixel ground, unmarked
+    (lambda s: np.zeros(s).T, r"returned shape \(160, 120\) for a frame of 160x120"),  # labels 160x120 returned
+    (lambda s: np.zeros((3, 3)), r"returned shape \(3, 3\)"),
+    (lambda s: np.zeros(s[0]), r"returned shape \(120,\)"),
+    (lambda s: "abc", "returned str that holds no numbers"),
+])
+def test_what_a_classifier_of_ones_own_returns_is_checked(scores, said):
+    key, labels = _stream_key()
+    for trust in ("default", None):
+        prop = pcreg.Propagator(_Scores(scores), **({} if trust == "default" else {"trust": None}))
+        prop.reset(key, labels)
+        with pytest.raises(InputError, match=f"the classifier _Scores's decision_function {said}"):
+            prop.step(key)
+
+
+@pytest.mark.parametrize("spec", [5, 3.5, b"lagr", [], {}])
+def test_a_class_table_of_another_type_is_an_input_error(spec):
+    with pytest.raises(InputError, match="classes must be a pcreg.classes.ClassTable, a built-in table's name"):
+        pcreg.error_rate(np.zeros((2, 2), np.uint8), np.zeros((2, 2), np.uint8), classes=spec)
+
+
+def test_error_rate_refuses_masked_values_and_masks_that_are_not_true_or_false():
+    truth = np.ma.masked_array([[0, 1]], mask=[[False, True]])
+    with pytest.raises(InputError, match="truth: a masked array with 1 masked value"):
+        pcreg.error_rate(np.array([[0, 0]]), truth)  # 50.0: the masked pixel scored
+    for mask in (np.array([["a", "b"]]), np.array([[np.nan, 1.0]]), np.array([[2, 1]]), np.array([[None, None]])):
+        with pytest.raises(InputError, match="mask must be a bool array"):
+            pcreg.error_rate(np.array([[0, 0]]), np.array([[0, 1]]), mask=mask)
+    assert pcreg.error_rate(np.array([[0, 0]]), np.array([[0, 1]]), mask=np.array([[1, 0]])) == 0.0
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.bool_])
+def test_a_fill_beyond_an_integer_range_saturates(dtype):
+    """OpenCV rounded a fill past 2^31 to 0: ``fill=3e9`` filled a uint8 array with 0, ``1e9`` with 255."""
+    moving = np.ones((6, 6), dtype)
+    top = 1 if dtype is np.bool_ else np.iinfo(dtype).max
+    for fill in (1e9, 3e9, 1e300):
+        assert pcreg.warp(moving, T, fill=fill)[0][0, 0] == top
+    assert pcreg.warp(moving, T, fill=-3e9)[0][0, 0] == 0
+
+
+def test_complex_motions_and_numbers_beyond_range_are_input_errors():
+    from pcreg.registration.dense import Membrane
+
+    img = _image()
+    for motion in (T.astype(complex), np.zeros((48, 64, 2), complex)):
+        with pytest.raises(InputError, match="complex numbers; give its real values"):
+            pcreg.warp(img, motion)
+    with pytest.raises(InputError, match="global_result: complex numbers"):
+        pcreg.register_dense(img, img, global_result=np.eye(3).astype(complex))
+    with pytest.raises(InputError, match="membrane weight"):  # OverflowError before
+        Membrane(grid_spacing=1e300)
+
+
+def test_a_learned_histogram_of_no_numbers_is_refused_on_resume():
+    key, labels = _stream_key()
+    prop = pcreg.Propagator.from_key_frame(key, labels)
+    prop.step(key)
+    for learned in ("abc", np.zeros(prop.learned.shape, complex)):
+        again = pcreg.Propagator.from_key_frame(key, labels)
+        with pytest.raises(InputError, match="a learned histogram must be finite"):
+            again.resume(1, prop.carry, learned)

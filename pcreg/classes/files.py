@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import re
+import os
 from pathlib import Path
 
 import numpy as np
@@ -258,6 +259,9 @@ def class_table(spec: str | Path | ClassTable | None) -> ClassTable:
         return DEFAULT_TABLE
     if isinstance(spec, ClassTable):
         return spec
+    if not isinstance(spec, (str, os.PathLike)):
+        raise InputError(f"classes must be a pcreg.classes.ClassTable, a built-in table's name ({', '.join(TABLES)}) "
+                         f"or a table file's path, got {type(spec).__name__}")
     if isinstance(spec, str) and spec in TABLES:
         return TABLES[spec]
     if isinstance(spec, str) and not spec.strip():

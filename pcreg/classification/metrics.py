@@ -15,6 +15,10 @@ LABEL_NAMES = ("ground", "obstacle", "unknown")
 
 
 def _check_pair(predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray | None) -> tuple:
+    from ..validation import check_unmasked
+
+    for name, a in (("predicted labels", predicted), ("truth", truth), ("mask", mask)):
+        check_unmasked(a, name)  # its masked values would be scored
     predicted = np.asarray(predicted)
     truth = np.asarray(truth)
     for name, a in (("predicted labels", predicted), ("truth", truth)):
@@ -23,7 +27,11 @@ def _check_pair(predicted: np.ndarray, truth: np.ndarray, mask: np.ndarray | Non
     if predicted.shape != truth.shape:
         raise InputError(f"predicted labels {predicted.shape} and truth {truth.shape} differ in shape")
     if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
+        mask = np.asarray(mask)
+        if mask.dtype != np.bool_ and not (np.issubdtype(mask.dtype, np.integer) and np.isin(mask, (0, 1)).all()):
+            raise InputError(f"mask must be a bool array (or of 0 and 1), got {mask.dtype}"
+                             + (" holding other values" if np.issubdtype(mask.dtype, np.integer) else ""))
+        mask = mask.astype(bool, copy=False)
         if mask.shape != truth.shape:
             raise InputError(f"mask {mask.shape} and truth {truth.shape} differ in shape")
     return predicted, truth, mask

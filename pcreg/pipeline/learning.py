@@ -112,7 +112,11 @@ class Learner:
         if stream is None:
             s = np.zeros_like(self._key)
         else:
-            s = np.array(stream, dtype=np.float64)
+            given = np.asarray(stream)
+            if given.dtype.kind not in "biuf":  # a string or complex histogram: not a number each, refused
+                raise InputError(f"a learned histogram must be finite, >= 0 and of shape {self._key.shape}, got "
+                                 f"{given.dtype}")
+            s = given.astype(np.float64)
             if s.shape != self._key.shape or not np.all(np.isfinite(s)) or s.min(initial=0.0) < 0:
                 raise InputError(f"a learned histogram must be finite, >= 0 and of shape {self._key.shape}")
         classifier = self._refit(s)  # a histogram the classifier refuses (unknown pixels counted) refused here

@@ -56,7 +56,7 @@ from .prior import class_prior, pixel_weight, warp_prior, warped_prior_log_odds
 if TYPE_CHECKING:  # for the annotation only
     from .temporal import TemporalFusion
 
-__all__ = ["METHODS", "STAGES", "PIPELINE_REGISTRATION", "DENSE_GLOBAL_MODEL", "PipelineConfig", "log_odds",
+__all__ = ["METHODS", "STAGES", "PIPELINE_REGISTRATION", "DENSE_GLOBAL_MODEL", "PipelineConfig", "log_odds", "checked_scores",
            "PairRegistration", "motion_of", "register_pair", "flow_field", "PairResult", "PairArrays",
            "ProcessedPair", "process_pair"]
 
@@ -108,6 +108,29 @@ class PipelineConfig:
 # ---------------------------------------------------------------------------------------------------
 # classifier log-odds
 # ---------------------------------------------------------------------------------------------------
+
+def checked_scores(classifier, shape: tuple[int, int], k: int | None, image) -> np.ndarray:
+    """A classifier's scores of ``image`` (of ``shape``): its ``decision_function``'s (H, W) log-odds with two
+    classes (``k`` None), its ``class_scores``' (H, W, k) log-probabilities with more, as float32; another
+    classifier than pcreg's naive Bayes returning another shape, no number or NaN is an :class:`InputError`
+    naming it (its labels were returned at the wrong size, or every pixel one class, unmarked)."""
+    name = type(classifier).__name__
+    method = "decision_function" if k is None else "class_scores"
+    raw = getattr(classifier, method)(image)
+    want = tuple(shape) if k is None else (*shape, k)
+    try:
+        d = np.asarray(raw, dtype=np.float32)
+    except (TypeError, ValueError):
+        raise InputError(f"the classifier {name}'s {method} returned {type(raw).__name__} that holds no numbers; "
+                         f"it must return a {want} array") from None
+    if d.shape != want:
+        raise InputError(f"the classifier {name}'s {method} returned shape {d.shape} for a frame of "
+                         f"{shape[1]}x{shape[0]}; it must return {want}")
+    if not np.isfinite(d).all():
+        raise InputError(f"the classifier {name}'s {method} returned NaN or inf at {int(np.count_nonzero(~np.isfinite(d)))} "
+                         "of its scores; they must be finite")
+    return d
+
 
 def log_odds(classifier, image: np.ndarray) -> np.ndarray:
     """Naive Bayes log-odds ``log p(obstacle | x) - log p(ground | x)`` per pixel, (H, W) float32.

@@ -23,17 +23,16 @@ Each :meth:`Propagator.step`
 4. lets naive Bayes learn from the pixels it labelled with sure priors, never beyond half the key
    frame's weight (:mod:`pcreg.pipeline.learning`).
 
-With ``trust=None`` (and so no learning) step 3 is the fusion of one prior at ``weight``, per pixel
-from half to twice ``weight`` as the dense field's confidence goes from 0 to 1 (:func:`pixel_weight`),
-as the evaluations' motion ablations run it.
+With ``trust=None`` (and so no learning) step 3 is the fusion of one prior at ``weight``, per pixel from half to twice
+``weight`` as the dense field's confidence goes from 0 to 1 (:func:`pixel_weight`), as the evaluations' motion
+ablations run it.
 
-A registration that fails (:class:`~pcreg.errors.RegistrationError`, or a degenerate transform) does
-not throw the key frame's labels away: they are fused as they are, unwarped (the best prior that needs
-no motion), and the step says so (``fallback``). Registration's own plausibility test, calibrated on
-photographs, is off here: in a stream the frames show the same scene by construction, and a camera
-moving through a 3-D scene fails a global model's edge-inlier test although its motion still carries
-labels well (measured on CamVid clips: the test refused most key-to-frame registrations, and most of
-those would have lowered the error).
+A registration that fails (:class:`~pcreg.errors.RegistrationError`, or a degenerate transform) does not throw the key
+frame's labels away: they are fused as they are, unwarped (the best prior that needs no motion), and the step says so
+(``fallback``). Registration's own plausibility test, calibrated on photographs, is off here: in a stream the frames
+show the same scene by construction, and a camera moving through a 3-D scene fails a global model's edge-inlier test
+although its motion still carries labels well (measured on CamVid clips: the test refused most key-to-frame
+registrations, and most of those would have lowered the error).
 
 Why the defaults (measured on CamVid clips, first frame as the key frame; docs/results.md):
 
@@ -66,19 +65,17 @@ Why the defaults (measured on CamVid clips, first frame as the key frame; docs/r
   35.9% (one prior by the field's confidence) to 42.2%, and learning to 43.2%; the carried key frame
   matching the new frame is what tells a slid field or a changed scene, and two motions found
   independently are wrong in different places (docs/results.md, "Trust").
-- **Plain colours** (:data:`STREAM_DENSE`): over seconds the low frequencies (road against sky and
-  facade) are what tells regions apart; matching the texture part alone lost a fifth of the gain.
-- **Weight 2** (:data:`STREAM_WEIGHT`): naive Bayes over ``rgb+hsv+row`` counts the same colour twice
-  (RGB and HSV are two codings of one colour), so its log-odds are about twice as sure as a calibrated
-  classifier's; the prior, built as a calibrated probability, is weighted to match. No label of a later
-  frame is needed to choose it.
-- **The weight follows the field's confidence** (:data:`~pcreg.pipeline.prior.CONFIDENCE_SPAN`): where the dense field has the
-  evidence of many matched samples the warped labels are trusted more, where it was interpolated over
-  a textureless or occluded area less, a factor of two either way around the weight (``weight`` where
-  the confidence is 1/3). On the four shared CamVid clips it took the mean reduction of plain's error
-  from 31.9% to 35.0% (every clip better), and from 78.9% to 87.9% on 8-frame synthetic streams; the
-  same weight everywhere raised to 3 gave 31.2% and 85.6%, the weight in proportion to the confidence
-  27.7%.
+- **Plain colours** (:data:`STREAM_DENSE`): over seconds the low frequencies (road against sky and facade) are what
+  tells regions apart; matching the texture part alone lost a fifth of the gain.
+- **Weight 2** (:data:`STREAM_WEIGHT`): naive Bayes over ``rgb+hsv+row`` counts the same colour twice (RGB and HSV are
+  two codings of one colour), so its log-odds are about twice as sure as a calibrated classifier's; the prior, built
+  as a calibrated probability, is weighted to match. No label of a later frame is needed to choose it.
+- **The weight follows the field's confidence** (:data:`~pcreg.pipeline.prior.CONFIDENCE_SPAN`): where the dense field
+  has the evidence of many matched samples the warped labels are trusted more, where it was interpolated over a
+  textureless or occluded area less, a factor of two either way around the weight (``weight`` where the confidence is
+  1/3). On the four shared CamVid clips it took the mean reduction of plain's error from 31.9% to 35.0% (every clip
+  better), and from 78.9% to 87.9% on 8-frame synthetic streams; the same weight everywhere raised to 3 gave 31.2% and
+  85.6%, the weight in proportion to the confidence 27.7%.
 """
 
 from __future__ import annotations
@@ -284,7 +281,15 @@ class Propagator:
         """Start at a labelled key frame: image (H, W, 3) uint8 RGB, labels (H, W) uint8, the ids of the
         classifier's class table (by default 0 ground, 1 obstacle, 2 unknown). A dense stream anchored to the
         key frame prepares it here, once (:func:`~pcreg.registration.dense.prepare_reference`: its pyramid),
-        for every step's registration."""
+        for every step's registration. A key frame refused leaves the stream as it was."""
+        before = dict(self.__dict__)  # reset replaces its attributes, never changes one in place
+        try:
+            self._reset(image, labels)
+        except BaseException:
+            self.__dict__ = before
+            raise
+
+    def _reset(self, image: np.ndarray, labels: np.ndarray) -> None:
         full = PreparedFrame.of(image, name="key frame")
         lab = check_labels(labels, full.shape, getattr(self.classifier, "class_table", None))
         self._size = size = WorkingSize(full.shape, self.scale)
@@ -420,13 +425,17 @@ class Propagator:
         """Naive Bayes' log-odds of the frame (the classifier as learned so far, what the last frame taught
         it counted first): all that needs no registration but the second motion (:meth:`_second_motion`)."""
         from ..classification.bayes import NaiveBayesPixelClassifier
+        from .pair import checked_scores
 
         t0 = time.perf_counter()
         clf = self._nb if self._learner is None else self._learner.classifier
         t1 = time.perf_counter()
         image = frame if isinstance(clf, NaiveBayesPixelClassifier) else frame.rgb
-        d = np.asarray(clf.decision_function(image) if self._classes is None else clf.class_scores(image),
-                       dtype=np.float32)
+        if isinstance(clf, NaiveBayesPixelClassifier):
+            d = np.asarray(clf.decision_function(image) if self._classes is None else clf.class_scores(image),
+                           dtype=np.float32)
+        else:
+            d = checked_scores(clf, image.shape[:2], None if self._classes is None else len(self._classes), image)
         t2 = time.perf_counter()
         degenerate = clf.degenerate_classes() if isinstance(clf, NaiveBayesPixelClassifier) else []
         return _Classified(d, times={"classify": t2 - t0, "classify.learn": t1 - t0, "classify.bayes": t2 - t1},

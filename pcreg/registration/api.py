@@ -293,6 +293,8 @@ def _given_global(global_result, shape: tuple[int, ...]) -> RegistrationResult:
                              "registration's T_ref_mov is a finite 3x3 matrix")
         _check_horizon(M, shape)
         return global_result
+    if np.iscomplexobj(global_result):  # numpy would drop the imaginary parts with a warning
+        raise InputError("global_result: complex numbers; give its real matrix")
     try:
         M = np.asarray(global_result, dtype=np.float64)
     except (TypeError, ValueError):

@@ -158,7 +158,10 @@ except ImportError:  # pragma: no cover
 
 
 def _array(x: Any, dtype: type, what: str) -> np.ndarray:
-    """``x`` as an array of ``dtype``; what does not convert is an :class:`InputError` saying ``what``."""
+    """``x`` as an array of ``dtype``; what does not convert is an :class:`InputError` saying ``what``, and complex
+    numbers (numpy would drop their imaginary parts with a warning) one naming them."""
+    if np.iscomplexobj(x):
+        raise InputError(f"{what}: complex numbers; give its real values")
     try:
         return np.asarray(x, dtype=dtype)
     except (TypeError, ValueError):

@@ -114,6 +114,9 @@ def _check_remap_input(src: np.ndarray, interpolation: str, fill) -> float:
         raise InputError(f"warp: fill must be a finite number, got {short_repr(fill)}") from None
     if src.dtype.kind == "f" and abs(value) > float(np.finfo(src.dtype).max):  # it would fill with inf, or NaN
         raise InputError(f"warp: fill {value:g} is beyond the range of the {src.dtype} array")
+    if src.dtype.kind in "biu":  # saturated here: OpenCV rounds a fill past 2^31 to 0
+        info = (0, 1) if src.dtype == np.bool_ else (np.iinfo(src.dtype).min, np.iinfo(src.dtype).max)
+        value = float(min(max(value, info[0]), info[1]))
     return value
 
 

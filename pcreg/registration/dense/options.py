@@ -71,7 +71,8 @@ class Membrane:
         float64 cannot hold in the grid's equations: above :data:`MAX_MEMBRANE_WEIGHT` (the equations overflow
         to inf, the field to NaN), or so small that its pull towards the global transform (``1e-4`` of it)
         is no normal number (a node without samples makes the equations singular)."""
-        cell = (self.grid_spacing * self.strain) ** 2
+        side = self.grid_spacing * self.strain
+        cell = side * side  # inf past float64's range (a power would raise OverflowError), refused below
         for k in self.stiffness:
             alpha = k * (1.0 / cell) if cell > 0 else math.inf
             if not 1e-4 * alpha >= np.finfo(np.float64).tiny or not alpha <= MAX_MEMBRANE_WEIGHT:

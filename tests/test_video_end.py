@@ -248,3 +248,24 @@ def test_the_fingerprint_tells_a_file_appended_to_from_one_changed(tmp_path):
     state = dict(kept)
     assert keep_video(state, frames, tmp_path) is False and not labelled_to_end(state)
     assert state["video_file"]["mtime_ns"] == kept["video_file"]["mtime_ns"] + 1
+
+
+@pytest.mark.parametrize("where", ["in the middle", "at the end"])
+def test_a_transport_stream_with_a_run_of_other_bytes_is_read_through(camvid, tmp_path, capsys, where):
+    """FFmpeg's MPEG-TS demuxer scans a bounded stretch for the next packet and then gives up (EAGAIN): a whole
+    file with 200 kB of zeros between its packets (or after the last) was refused as "truncated or damaged"."""
+    av = pytest.importorskip("av")
+    images, labels = camvid
+    video = _video(tmp_path / "clip.ts", images)
+    data = video.read_bytes()
+    with av.open(str(video)) as c:
+        places = [p.pos for p in c.demux(video=0) if p.size]
+    cut = places[N // 2] if where == "in the middle" else len(data)
+    padded = tmp_path / "padded.ts"
+    padded.write_bytes(data[:cut] + b"\0" * 200_000 + data[cut:])
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    for name, path in (("whole", video), ("padded", padded)):
+        assert main(["run", str(path), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / name)]) == 0, \
+            one_line_errors(capsys)
+    labelled = {name: {p.name: p.read_bytes() for p in sorted((tmp_path / name).glob("*.png"))} for name in ("whole", "padded")}
+    assert len(labelled["padded"]) == N and labelled["padded"] == labelled["whole"]

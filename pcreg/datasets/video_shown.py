@@ -23,12 +23,35 @@ def shown_frames(container, stream, hidden: list[int], path: Path, through=iter)
 
     places = frame_places(container, stream)
     read = 0
-    for packet in through(container.demux(stream)):
+    for packet in through(resynced(container, stream)):
         hidden[0] += bool(getattr(packet, "is_discard", False))
         if places is not None and packet.pos is not None:
             check_place(places, read, int(packet.pos), path)
             read += 1
         yield from packet.decode()
+
+
+#: Times in a row FFmpeg's demuxer may give up resynchronising before the video counts as unreadable.
+RESYNC_TRIES = 100_000
+
+
+def resynced(container, stream) -> Iterator:
+    """``container.demux(stream)``, taken up again where the demuxer gives up resynchronising (EAGAIN): an MPEG-TS
+    demuxer scans a bounded stretch for its next packet, so a whole file with a run of other bytes (a recorder's
+    padding, 200 kB of zeros) was refused as truncated at the frame after them, though FFmpeg plays it through."""
+    import av
+
+    tries = 0
+    while True:
+        try:
+            for packet in container.demux(stream):
+                tries = 0
+                yield packet
+            return
+        except av.BlockingIOError:
+            tries += 1
+            if tries > RESYNC_TRIES:
+                raise
 
 
 def first_interlaced(container, stream) -> bool:

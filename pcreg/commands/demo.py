@@ -76,7 +76,6 @@ def check_no_other_results(out: Path) -> None:
     from ..formats import loads_json
 
     config = out / "config.json"
-    ours = False
     if config.exists():
         try:
             ours = set(loads_json(config.read_text(encoding="utf-8"))) == {f.name for f in fields(DemoConfig)}
@@ -85,7 +84,8 @@ def check_no_other_results(out: Path) -> None:
         if not ours:
             raise OutputError(f"{config} is not a demo's: {out} holds another command's results, which the demo "
                               "would replace (use another --out, or --force to replace them)")
+        return
     for stage in STAGES:
-        if not ours and ((out / stage / "config.json").exists() or (out / stage / "units").exists()):
+        if (out / stage / "config.json").exists() or (out / stage / "units").exists():
             raise OutputError(f"{out / stage} holds an evaluation's results, which the demo would replace (use "
                               "another --out, or --force to replace them)")

@@ -89,7 +89,7 @@ def split_file(root: Path, resolution: str, split: str) -> Path | None:
     absent, the root's every sequence was evaluated in the split's place."""
     for sub in dict.fromkeys((resolution, "480p", "2016")):
         f = root / "ImageSets" / sub / f"{split}.txt"
-        if f.is_file() or f.is_symlink() or f.exists():
+        if f.exists() or f.is_symlink():
             return f
     return None
 

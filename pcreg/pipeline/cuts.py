@@ -119,8 +119,7 @@ class SceneCheck:
         is both, and on every pair of frames of the shared CamVid clips the colours alone rule one out (DIS
         medium at half of 640x480 takes about 25 ms, the colours about 1). Where the half-size frame is too small
         for DIS (a working size under 64 px a side), the colours alone decide: a change beyond the threshold is a
-        cut (before, such a frame was taken as no cut, untested: noise or a black frame at 80x60 kept a
-        confidence of 0.94-0.98)."""
+        cut (taken as none, untested, noise or a black frame at 80x60 would keep a confidence of 0.94-0.98)."""
         from ..registration.flow import DIS_MIN_SIDE, dis_flow, flow_field
 
         grey, colours = _small(rgb)

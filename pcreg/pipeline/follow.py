@@ -401,6 +401,9 @@ class ObjectFollower:
         if not (share > 0.5).any():  # nothing to carry: every frame would read 'no object', confidently
             raise InputError(f"the key frame's object ({int((lab == 1).sum())} px) covers no pixel at the size the "
                              f"follower works at ({w}x{h}): too small to follow")
+        if not ((share <= 0.5) & (known > 0.5)).any():  # no colour of the background: its histogram is empty (0/0)
+            raise InputError(f"the key frame's background ({int((lab == 0).sum())} px) covers no pixel at the size the "
+                             f"follower works at ({w}x{h}): nothing to tell the object from")
         self._share = share  # nothing is changed before the key frame is taken: a refused one leaves the follower
         self._key_logit = _logit(self._share, 1e-3)
         self._colours = _colour_table(rgb, self._share, known > 0.5)

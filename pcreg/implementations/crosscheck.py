@@ -345,7 +345,7 @@ def _pinned_clouds(source, target, *, init, voxel_size, max_correspondence_dista
     if problem is not None:
         raise InputError(f"init: {problem}, and the cross-check pins the rigid ICP")
     T0 = nearest_rigid(T0)  # every implementation starts from, and so returns, a rigid matrix
-    if isinstance(max_iterations, (int, np.integer)) and not isinstance(max_iterations, bool) and max_iterations == 0:
+    if max_iterations == 0:  # ICPOptions takes 0 (the initial pose) and checked it is an integer
         raise InputError("options.max_iteration must be 1 or more in a cross-check: with 0 every implementation "
                          "returns the initial pose, and there is nothing to compare")
     max_iterations = check_int(max_iterations, "options.max_iteration", lo=1, hi=100_000)

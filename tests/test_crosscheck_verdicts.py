@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from pcreg.implementations.crosscheck import crosscheck_implementations
+from pcreg.registration.icp_options import ICPOptions
 
 
 def test_an_icp_that_never_moves_disagrees_in_every_unit(on_path):
@@ -43,6 +44,24 @@ def test_a_step_implementation_far_from_the_origin_agrees_whatever_the_clouds_ex
     for name in ("open3d", "open3d-tensor"):
         row = r.rows[name]
         assert row["error"] is None and row["agrees"] is True, (name, row["matrix_relative_disagreement"])
+
+
+@pytest.mark.parametrize("offset", [1e5, 1e6])
+def test_rows_agree_on_a_translation_of_clouds_far_from_the_origin_and_a_few_units_across(offset):
+    """A translation of 0.02 of 300 points 2 units across, 1e5 or 1e6 from the origin: Open3D's rows (and
+    small_gicp's at the fixed point) differed from the reference by 1e-8 .. 3.6e-6 in the relative matrix, against a
+    tolerance of 100 roundings of the coordinates over the extent (6e-9), and were said to disagree, "a different
+    step from the same correspondences", though each put the points within 4e-10 of the truth. A rotation solved
+    from such coordinates is rounded by about eps x far; the translation carries that by the distance again, eps x
+    far squared extents, which the tolerance now holds."""
+    rng = np.random.default_rng(3)
+    tgt = rng.uniform(-1, 1, (300, 3)) + offset
+    r = crosscheck_implementations(tgt - 0.02, tgt, implementations=["open3d", "open3d-tensor", "small_gicp"],
+                                   options=ICPOptions(max_correspondence_distance=0.2))
+    for name in ("open3d", "open3d-tensor", "small_gicp"):
+        row = r.rows[name]
+        assert row["error"] is None and row["agrees"] is True, (name, row["matrix_relative_disagreement"])
+        assert row["centroid_disagreement"] < 1e-8, row
 
 
 def test_an_objective_row_that_shrinks_the_cloud_disagrees():

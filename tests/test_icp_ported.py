@@ -265,3 +265,19 @@ def test_a_rigid_result_held_by_too_few_pairs_to_fix_its_rotation_is_not_returne
     r = pcreg.icp(source, target, ICPOptions(max_correspondence_distance=0.3))
     np.testing.assert_array_equal(r.matrix, np.eye(d + 1))
     assert not r.converged and r.iterations == 0
+
+
+@pytest.mark.parametrize("metric, d, pairs", [("point_to_plane", 3, 4), ("point_to_plane", 3, 5), ("point_to_line", 2, 2)])
+def test_a_step_of_one_equation_a_pair_with_fewer_pairs_than_unknowns_is_not_returned_as_converged(metric, d, pairs):
+    """A point-to-plane step solves for six unknowns from one equation a pair: with four or five pairs its system is
+    singular whatever the pairs, the reference took no motion for the answer, and the run said it converged where it
+    started (fitness 0.05, the identity). It stops there, not converged, as a point-to-point step short of pairs
+    does; point to line in 2-D (three unknowns of a rigid motion) the same."""
+    rng = np.random.default_rng(19)
+    target = rng.uniform(-1, 1, (80, d))
+    normals = rng.normal(size=(80, d))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    source = np.r_[target[:pairs] + 0.01, rng.uniform(5, 6, (80 - pairs, d))]
+    r = pcreg.icp(source, target, ICPOptions(metric=metric, max_correspondence_distance=0.05), target_normals=normals)
+    assert r.fitness == pytest.approx(pairs / 80) and not r.converged and r.iterations == 0
+    np.testing.assert_array_equal(r.matrix, np.eye(d + 1))

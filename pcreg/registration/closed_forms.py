@@ -18,9 +18,20 @@ MIN_POINTS = {"translation": 1, "rigid": 2, "similarity": 2, "affine": 3, "proje
 MIN_POINTS_3D = {"translation": 1, "rigid": 3, "similarity": 3, "affine": 4}
 
 
-def pairs_needed(model: str, d: int) -> int:
+#: The unknowns of a step that takes one equation from a pair, point to line (2-D) by model; point to plane (3-D,
+#: rigid) solves for six. With fewer pairs its system is singular whatever the pairs.
+LINE_UNKNOWNS = {"translation": 2, "rigid": 3, "similarity": 4, "affine": 6, "projective": 8}
+
+
+def pairs_needed(model: str, d: int, metric: str = "point_to_point") -> int:
     """The fewest matched pairs an ICP step of ``model`` takes in ``d`` dimensions (:data:`MIN_POINTS` in 2-D,
-    :data:`MIN_POINTS_3D` in 3-D): with fewer, a run stops where it is, not converged."""
+    :data:`MIN_POINTS_3D` in 3-D; a point-to-line or point-to-plane step one a unknown, :data:`LINE_UNKNOWNS`):
+    with fewer, a run stops where it is, not converged. (A point-to-plane step of four pairs solved as singular
+    gave no motion, and the run said it converged at its start.)"""
+    if metric == "point_to_line":
+        return LINE_UNKNOWNS[model]
+    if metric == "point_to_plane":
+        return 6
     return MIN_POINTS[model] if d == 2 else MIN_POINTS_3D.get(model, 4)
 
 

@@ -4,7 +4,8 @@
 out-of-plane part is negligible. The legacy API (``registration_icp``) reports neither iterations nor
 convergence; when a per-iteration callback is asked for (recordings, cross-checks), pcreg runs it one
 iteration at a time and applies Open3D's own stopping rule between steps, which gives the same
-transforms at about four times the cost. Without a callback it runs in one call, reports
+transforms at about four times the cost (to rounding: an ill-conditioned step, a point-to-plane system of three
+pairs, can grow it until the two runs part, one diverging where the other converges). Without a callback it runs in one call, reports
 ``iterations = -1`` and decides ``converged`` by one more step (the rule holds at the returned transform).
 The tensor API's ``multi_scale_icp`` (Float64) serves voxel-pyramid registration of 3-D scans.
 """

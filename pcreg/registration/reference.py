@@ -135,7 +135,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
 
     report(0)
     for i in range(max_iteration):
-        need = pairs_needed(model, d)
+        need = pairs_needed(model, d, metric)
         p, q = pts[ok], target[idx[ok]]
         w = robust_weights(np.sqrt(d2[ok]), weights, scale=robust_scale, trim_fraction=options.trim_fraction)
         if int(np.count_nonzero(w)) < need:

@@ -311,6 +311,8 @@ def test_run_command_writes_labels_and_resumes(tmp_path, frames, capsys):
     # other options over the same folder: refused, unless --force; the message names what differs
     assert main(args + ["--weight", "3"]) == 2
     assert "other options (weight: 2.0 then, 3.0 now)" in capsys.readouterr().err
+    assert main(args + ["--stop", "9", "--every", "2"]) == 2  # the frames chosen, in the options' own words
+    assert "other options (frames: every frame then, --stop 9 --every 2 now)" in capsys.readouterr().err
     # a run begun when the labels were read pixel by pixel is not continued with blurred ones
     (out / "run.json").write_text(json.dumps({**state, "run": {k: v for k, v in state["run"].items() if k != "smooth"}}))
     assert main(args) == 2

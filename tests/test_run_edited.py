@@ -195,3 +195,34 @@ def test_a_key_frame_written_again_is_refused_before_the_run_forgets_a_stretch(t
     labels[:8] = 1 - labels[:8].clip(0, 1)
     cv2.imwrite(str(keys / "f5.png"), labels)
     _refused_while_written_again(run, folder / "f0.png", "labelled from it (", capsys)
+
+
+def test_a_truth_map_written_again_since_it_was_scored_is_refused_on_resume(tmp_path, capsys):
+    """A truth map of a frame the run scored, written again since (corrected, or another clip's): the run again went
+    on, or said "all frames already done", with run.json's running error mixing scores against the old truth and the
+    new. Each scored line keeps the digest of its truth map (``truth_digest``): refused naming the map, a run from one
+    label image and from key frames alike; put back, done."""
+    import json
+
+    from _runs import key_frames_of
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    truth = tmp_path / "truth"
+    truth.mkdir()
+    for p in folder.glob("*.png"):
+        (truth / p.name).write_bytes(key.read_bytes())
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 5))
+    for labels, out in ((key, tmp_path / "one"), (keys, tmp_path / "keyed")):
+        run = ["run", str(folder), "--labels", str(labels), "--out", str(out), "--truth", str(truth)]
+        assert main(run) == 0
+        lines = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
+        assert all(isinstance(s["truth_digest"], str) for s in lines), lines
+        path = truth / "f2.png"
+        kept = path.read_bytes()
+        cv2.imwrite(str(path), 1 - cv2.imread(str(key), cv2.IMREAD_UNCHANGED))
+        capsys.readouterr()
+        assert main(run) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and f"{path}: changed since the run in {out} scored f2.png against it" in err[0], err
+        path.write_bytes(kept)
+        assert main(run) == 0

@@ -202,6 +202,45 @@ def test_a_rerun_with_other_key_labels_or_fewer_frames_is_refused_and_force_star
     assert len(err) == 1 and "counts 5 frames labelled" in err[0] and "holds 4" in err[0], err
 
 
+def test_a_run_started_over_over_fewer_frames_leaves_no_label_png_of_the_earlier_run(tmp_path):
+    """``--force`` over fewer frames (``--every 2``, ``--stop``) left the earlier run's label PNGs of the frames it no
+    longer labels beside its own: ``OUT/*.png`` mixed two runs. The label PNGs the earlier run's run.json and
+    steps.jsonl name are removed, from one label image and from key frames alike; a file it did not write is kept,
+    and so are the key labels when they sit in --out."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 4))
+    for labels, out, fewer, left in ((key, tmp_path / "one", ["--every", "2"], {"f0", "f2", "f4"}),
+                                     (keys, tmp_path / "keyed", ["--stop", "3"], {"f0", "f1", "f2"})):
+        assert main(["run", str(folder), "--labels", str(labels), "--out", str(out)]) == 0
+        assert {p.stem for p in out.glob("*.png")} == {f"f{i}" for i in range(6)}
+        (out / "mine.png").write_bytes(b"not a run's")
+        assert main(["run", str(folder), "--labels", str(labels), "--out", str(out), *fewer, "--force"]) == 0
+        assert {p.stem for p in out.glob("*.png")} == left | {"mine"}
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "one"), "--force"]) == 0
+    shutil.copy(key, tmp_path / "one" / "f5.png")  # the key labels in --out, named as a frame the run labelled
+    assert main(["run", str(folder), "--labels", str(tmp_path / "one" / "f5.png"), "--out", str(tmp_path / "one"),
+                 "--every", "2", "--force"]) == 0
+    assert (tmp_path / "one" / "f5.png").read_bytes() == key.read_bytes()
+
+
+def test_options_a_run_would_not_use_are_refused_and_advice_is_in_its_own_options(tmp_path, capsys):
+    """``--backend`` and ``--init`` are the global registration's: ``--model dense`` and ``flow`` took them without
+    effect (the same labels) and then refused a run again without them as "other options". Refused, named; the
+    open3d backend's refusal of an affine model names ``--backend reference``; a scale too small for a global model
+    names no ``--levels``, which pcreg run does not take."""
+    folder, key = drifting_frames(tmp_path / "frames", (120, 160), n=3)
+    for model, given, said in (("dense", ["--backend", "open3d"], "--backend open3d: "),
+                               ("flow", ["--init", "auto", "--backend", "open3d"], "--backend open3d, --init auto: "),
+                               ("affine", ["--backend", "open3d"], "(--backend reference)"),
+                               ("rigid", ["--scale", "0.1"], "scale 0.1 works at 16x12")):
+        out = tmp_path / model
+        assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--model", model, *given]) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and said in err[0] and "--levels" not in err[0] and not out.exists(), err
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "s"), "--model", "similarity",
+                 "--backend", "open3d", "--init", "auto"]) == 0
+
+
 def test_a_frame_added_among_those_a_run_labelled_is_named_not_taken_for_a_lost_label(tmp_path, capsys):
     folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=5)
     out = tmp_path / "out"

@@ -184,6 +184,40 @@ def test_a_video_replaced_at_the_same_path_is_refused(camvid, tmp_path, capsys, 
     assert "not the video the run" in one_line_errors(capsys)[0]
 
 
+def test_a_video_written_again_while_the_run_labels_it_is_refused_at_its_end(camvid, tmp_path, capsys, monkeypatch):
+    """A video written again at its path while a run decoded it (another encode put in its place): the run ended with
+    exit 0 and its frames possibly of two videos, the fingerprint checked only when a run began. Checked again where
+    decoding ends: refused naming the file, from one label image and from key frames alike, and not marked labelled
+    to its end; the run again refuses the file as not the video it began on."""
+    from pcreg.runs.run import Run
+
+    images, labels = camvid
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in (0, N - 1):
+        cv2.imwrite(str(keys / f"{i:06d}.png"), labels)
+    real = Run.write_frame
+    for labelled_from, out in ((tmp_path / "key.png", tmp_path / "one"), (keys, tmp_path / "keyed")):
+        video = _video(tmp_path / "clip.mp4", images)
+        other = _video(tmp_path / "other.mp4", images[::-1])
+
+        def write_frame(self, t, *a, **k):
+            if t == 4 and other.exists():
+                os.replace(other, video)
+            return real(self, t, *a, **k)
+
+        monkeypatch.setattr(Run, "write_frame", write_frame)
+        args = ["run", str(video), "--labels", str(labelled_from), "--out", str(out)]
+        capsys.readouterr()
+        assert main(args) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and f"{video}: written again while the run in {out} labelled it" in err[0], err
+        assert "video_end" not in _state(out)
+        monkeypatch.undo()
+        assert main(args) == 2 and "not the video the run" in one_line_errors(capsys)[0]
+
+
 def test_a_transport_stream_appended_to_goes_on(camvid, tmp_path, capsys):
     """A recording still growing (a transport stream with frames appended) is the same video, longer: a run from one
     label image labels the frames added after its end, as before; a key-frames run labels its stretch to the end

@@ -50,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--truth", metavar="LABELS_DIR", default=None,
                    help="score every frame against LABELS_DIR/NAME.png and keep the error in run.json")
     p.add_argument("--backend", choices=("reference", "open3d"), default="reference",
-                   help="the ICP: pcreg's own (reference, the default) or Open3D's; the same algorithm")
+                   help="with a global --model: the ICP, pcreg's own (reference, the default) or Open3D's; the same "
+                        "algorithm")
     p.add_argument("--model", choices=("dense", "flow") + MODELS, default="dense",
                    help="dense (default: a dense field), flow (DIS optical flow at --preset: the fast choice) or a "
                         "global motion model")
@@ -58,7 +59,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --model flow: DIS's preset (default medium). --model flow --scale 0.5 runs the step about "
                         "3.5x faster than the default (the whole command 1.8-2.3x), a little less accurate")
     p.add_argument("--init", choices=("identity", "auto"), default="identity",
-                   help="the global registration's start: identity (default) or auto (global search too)")
+                   help="with a global --model: the registration's start, identity (default) or auto (global "
+                        "search too)")
     p.add_argument("--weight", type=float, default=2.0, help="fusion weight of the prior (default 2; 0 = naive Bayes)")
     p.add_argument("--scale", type=float, default=1.0, metavar="S",
                    help="run each step at this share of the frames' width and height (0 < S <= 1; default 1); the "

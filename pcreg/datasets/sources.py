@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, Generator, Iterator, TypeVar
 import numpy as np
 
 from ..errors import InputError
-from .video_shown import Turn, as_shown, display_turn, first_interlaced, shown_frames, video_duration
+from .video_shown import Turn, as_shown, display_turn, first_interlaced, shown_frames, shown_note, video_duration
 
 if TYPE_CHECKING:
     from .folder_view import FolderView
@@ -460,13 +460,12 @@ class VideoFrames:
 
             try:
                 for frame in shown_frames(container, stream, reading.hidden, self.path, through):
-                    i = reading.decoded
-                    if i == 0 and (note := start.first(frame, self.path)) is not None:
-                        reading.notes.append(note)
+                    i, turn = reading.decoded, display_turn(frame, self.path)
+                    shown = (frame.height, frame.width) if turn[0] else (frame.width, frame.height)
+                    if i == 0:  # a start passed over, a turn the frames' size cannot tell
+                        reading.notes += filter(None, (start.first(frame, self.path), shown_note(turn, self.path, shown)))
                     reading.decoded += 1
                     reading.last_time = frame.time if frame.time is not None else reading.last_time
-                    turn = display_turn(frame, self.path)
-                    shown = (frame.height, frame.width) if turn[0] else (frame.width, frame.height)
                     if size is None:
                         size = shown
                     elif shown != size:

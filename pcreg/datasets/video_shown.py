@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["shown_frames", "first_interlaced", "video_duration", "Turn", "display_turn", "as_shown"]
+__all__ = ["shown_frames", "first_interlaced", "video_duration", "Turn", "display_turn", "as_shown", "shown_note"]
 
 
 def shown_frames(container, stream, hidden: list[int], path: Path, through=iter) -> Iterator:
@@ -97,7 +97,8 @@ def display_turn(frame, path: Path) -> Turn:
     pixel ``(p, q)`` is shown at ``(a p + c q, b p + d q)``, with ``a, b, c, d`` the matrix's entries 0, 1, 3 and 4,
     so a matrix of quarter turns and mirrors moves the pixel grid by a transpose and reversals, as FFmpeg's
     autorotation does. PyAV's ``VideoFrame.rotation`` gives the angle alone: a mirrored matrix (a selfie camera's)
-    read as a rotation is shown upside down. A matrix that is not quarter turns is refused."""
+    read as a rotation is shown upside down. A matrix that is not quarter turns is refused; one of zeros (no angle) turns
+    nothing, as in FFmpeg's players."""
     from av.sidedata.sidedata import SideDataContainer
 
     # Read through a container of its own, not ``frame.side_data``: that property keeps its container on the frame,
@@ -110,13 +111,34 @@ def display_turn(frame, path: Path) -> Turn:
         return False, False, False
     a, b, _, c, d = np.frombuffer(matrix, dtype=np.int32)[:5].astype(float)
     big = max(abs(a), abs(b), abs(c), abs(d))
+    if big == 0:  # no angle at all (FFmpeg's is NaN): its players show the frames as stored, and so does pcreg
+        return False, False, False
     small = 0.0087 * big  # sin(0.5 degrees): the tolerance a rotation has of a quarter turn
-    if big > 0 and max(abs(b), abs(c)) <= small < min(abs(a), abs(d)):
+    if max(abs(b), abs(c)) <= small < min(abs(a), abs(d)):
         return False, d < 0, a < 0
-    if big > 0 and max(abs(a), abs(d)) <= small < min(abs(b), abs(c)):
+    if max(abs(a), abs(d)) <= small < min(abs(b), abs(c)):
         return True, b < 0, c < 0
     rotation = float(getattr(frame, "rotation", 0) or 0)
     raise InputError(f"{path}: a display rotation of {rotation:g} degrees; pcreg turns frames by quarter turns only")
+
+
+def shown_note(turn: Turn, path: Path, size: tuple[int, int]) -> tuple[str, str] | None:
+    """The note of a video at ``path`` whose display matrix turns its frames (``turn``, :func:`display_turn`) at the
+    size they are stored (``size``, (W, H) as shown): a half turn, a mirror, or a quarter turn of a square frame. Key
+    labels drawn on the frames as stored fit the frames as shown as well, and nothing would tell them apart: they are
+    wrong where the picture is not symmetric. None for frames shown as stored, or at another size (labels drawn on
+    the frames as stored are then refused for their size)."""
+    from .folder_view import ORIENTATION
+
+    transposed, rows, columns = turn
+    if not (transposed or rows or columns) or (transposed and size[0] != size[1]):
+        return None
+    said = {(False, True, True): "turned by a half turn", (False, True, False): "mirrored top to bottom",
+            (False, False, True): "mirrored left to right", (True, False, False): "mirrored about a diagonal",
+            (True, True, True): "mirrored about a diagonal"}.get(turn, "turned by a quarter turn")
+    return ORIENTATION, (f"{path}: its display matrix has players show its frames {said}, at the size they are stored: "
+                         "pcreg reads the frames as shown and takes --labels as drawn on them so; if the labels were drawn "
+                         "on the frames as stored, turn them the same way, and run again with --force")
 
 
 def as_shown(image: np.ndarray, turn: Turn) -> np.ndarray:

@@ -28,7 +28,8 @@ class PropagatorConfig:
 
     model : ``"dense"`` (default), ``"flow"`` (DIS's optical flow at ``preset``) or a global model.
     preset : DIS's preset with ``model="flow"`` (None: :data:`DEFAULT_PRESET`); refused with another model.
-    backend : the ICP backend of the registrations. init : the global registration's start.
+    backend : the ICP backend of the registrations. init : the global registration's start. Both are a global
+        model's: refused with ``dense`` and ``flow``, whose fields start from the identity.
     weight : the prior's fusion weight (0: naive Bayes alone).
     scale : the working size, a share of the frames' width and height (0 < scale <= 1).
     follow : ``"scene"`` (default: the options above) or ``"object"``: one moving object followed from its
@@ -62,6 +63,12 @@ class PropagatorConfig:
                                  "motion and working size)")
         if self.backend not in BACKENDS:
             raise InputError(f"unknown backend {short_repr(self.backend)}; choose one of {', '.join(BACKENDS)}")
+        if self.model in ("dense", "flow"):  # the stream's field starts from the identity: no global registration
+            given = [f"--{name} {getattr(self, name)}" for name in ("backend", "init")
+                     if getattr(self, name) != getattr(PropagatorConfig, name)]
+            if given:
+                raise InputError(f"{', '.join(given)}: the global registration's, for a global --model (similarity, "
+                                 f"affine, ...), which --model {self.model} does not run")
         if self.preset is not None and self.model != "flow":
             raise InputError(f"--preset is DIS's, for --model flow (not {self.model})")
         if self.preset is not None and self.preset not in PRESETS:

@@ -175,7 +175,8 @@ class StreamMotion(Protocol):
     second_motion : whether the trust rule carries the key frame along DIS's flow too, as a second motion
         (not when the motion is itself a flow: it would be the same motion twice).
     checks_every_size : whether frames it cannot take are refused at the key frame even at the frames'
-        own size (DIS crashes on them; a registration fails on them and the step falls back instead).
+        own size (DIS crashes on them, a global model's pyramid cannot take them; a dense registration fails on
+        them and the step falls back instead).
     """
 
     name: str
@@ -207,7 +208,7 @@ class GlobalEstimator:
     """One transform per frame: :func:`pcreg.register` with ``config`` (and its ``callback``, called after
     every ICP iteration), a degenerate one refused."""
 
-    second_motion, checks_every_size = True, False
+    second_motion, checks_every_size = True, True
 
     def __init__(self, config: RegisterConfig, *, callback: Callable | None = None) -> None:
         if not isinstance(config, RegisterConfig):
@@ -220,8 +221,8 @@ class GlobalEstimator:
         """Nothing: each frame's global registration builds its own pyramids."""
         return None
 
-    def check_size(self, shape: tuple[int, int]) -> None:
-        self.config.pyramid.check_shape(shape)
+    def check_size(self, shape: tuple[int, int]) -> None:  # a stream's levels are not its user's to set
+        self.config.pyramid.check_shape(shape, hint=False)
 
     def warm_starts(self, anchor: str) -> bool:
         return False
@@ -255,7 +256,7 @@ class DenseEstimator:
     def check_size(self, shape: tuple[int, int]) -> None:
         self.cold.check_shape(shape)
         if self.step.global_start == "register":
-            self.config.pyramid.check_shape(shape)
+            self.config.pyramid.check_shape(shape, hint=False)
 
     def warm_starts(self, anchor: str) -> bool:
         """From the previous step's grid: anchored to the key frame, from the identity, with ``step.warm``."""

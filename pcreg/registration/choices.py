@@ -26,5 +26,5 @@ def check_open3d_model(model: str) -> None:
     if model not in OPEN3D_MODELS:
         raise InputError(
             f"the open3d backend (point-to-point) supports the {' and '.join(OPEN3D_MODELS)} models, not {model!r}; "
-            "use backend='reference'"
+            "use backend='reference' (--backend reference)"
         )

@@ -155,4 +155,4 @@ def refuse_a_line_for_open3d(src: np.ndarray, tgt: np.ndarray) -> None:
         sv, least = spread(points)
         if sv[-1] <= least:
             raise InputError(f"{name}: its points lie on one line, about which the open3d backend's 3-D ICP can turn "
-                             "the image plane over; use backend='reference'")
+                             "the image plane over; use backend='reference' (--backend reference)")

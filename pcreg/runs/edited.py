@@ -11,7 +11,7 @@ from ..errors import InputError, OutputError
 from .files import STEPS, parse_steps, step_lines
 from .state import STATE
 
-__all__ = ["check_same_inputs", "check_same_frames", "check_same_frame", "check_key_files", "frame_bytes",
+__all__ = ["check_same_inputs", "check_same_frames", "check_same_frame", "check_same_truth", "check_key_files", "frame_bytes",
            "frame_stamp", "file_digest", "key_contents", "frame_moved", "moved_error"]
 
 
@@ -30,15 +30,30 @@ def check_same_inputs(frames, out: Path, identity: dict | None, done: int, label
                           "changed since the run began; use --force to start over")
 
 
-def check_same_frames(frames, out: Path, key_frame: str, key_bytes, contents=None) -> None:
+def check_same_frames(frames, out: Path, key_frame: str, key_bytes, contents=None, truth=None) -> None:
     """Refuse to continue the run from one label image in ``out`` over a steps.jsonl line pcreg run did not write (the
     export would refuse it, :func:`~pcreg.runs.files.parse_steps`), a frame renamed or a frame's file changed
     (:func:`check_same_frame`): the key frame against run.json's ``key_bytes`` and ``key_contents`` (``contents``),
-    each labelled frame against its line's ``bytes``, ``mtime_ns`` and ``digest``."""
+    each labelled frame against its line's ``bytes``, ``mtime_ns`` and ``digest``, and its ``truth`` map against its
+    line's ``truth_digest`` (:func:`check_same_truth`)."""
     steps = parse_steps(out / STEPS, step_lines(out))
     check_same_frame(frames, out, 0, {"name": key_frame, "bytes": key_bytes, **_contents(contents, key_frame)}, key=True)
     for step in steps:  # every line read, a video's too
         check_same_frame(frames, out, int(step["frame"]), step)
+        check_same_truth(truth, out, step)
+
+
+def check_same_truth(truth, out: Path, step: dict) -> None:
+    """An :class:`~pcreg.errors.OutputError` when the truth map (of ``truth``, a
+    :class:`~pcreg.runs.inputs.TruthMaps`) that the run in ``out`` scored ``step``'s frame against no longer holds the
+    bytes it did (its line's ``truth_digest``): the run's error would mix scores against two truths."""
+    digest = step.get("truth_digest")
+    if truth is None or not isinstance(digest, str):
+        return
+    f = truth.path(int(step["frame"]))
+    if not f.is_file() or file_digest(f) != digest:
+        raise OutputError(f"{f}: changed since the run in {out} scored {step.get('name', 'its frame')} against it: "
+                          "its error is against the truth as it was; use --force to start over")
 
 
 def check_key_files(frames, out: Path, state: dict, keys) -> None:

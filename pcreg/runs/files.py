@@ -33,7 +33,7 @@ from ..cloud_files import NPY_HEADER_ERRORS
 from ..formats import loads_json
 
 __all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
-           "write_confidence", "write_grey", "confidence_png",
+           "labels_written", "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "check_labelled",
            "write_suggestions", "read_suggestions", "has_confidence"]
 
@@ -179,6 +179,23 @@ def _step(line: bytes) -> dict | None:
     ok = (isinstance(step, dict) and type(step.get("frame")) is int and step["frame"] >= 0
           and all(step.get(k) is None or (type(step[k]) in (int, float) and 0 <= step[k] <= 100) for k in PERCENT_FIGURES))
     return step if ok else None
+
+
+def labels_written(out: Path) -> set[Path]:
+    """The label PNGs the run in ``out`` wrote, as its run.json and steps.jsonl name their frames (its key frames' and
+    each step's, ``OUT/STEM.png``): what a run started over removes, or a run over fewer frames (``--every``,
+    ``--stop``) would leave the others beside its own. Only what can be read: a damaged run.json names no key frame,
+    a line that is not a step no frame, a name with a folder in it nothing."""
+    try:
+        state = loads_json((out / STATE).read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        state = None
+    names: list = []
+    if isinstance(state, dict):
+        keys = state.get("keys")
+        names += [state.get("key_frame"), *(keys if isinstance(keys, dict) else ())]
+    names += [step.get("name") for step in map(_step, step_lines(out)) if step is not None]
+    return {out / f"{Path(n).stem}.png" for n in names if isinstance(n, str) and Path(n).name == n and Path(n).stem.strip(".")}
 
 
 def write_carry(path: Path, t: int, carry, learned: np.ndarray | None = None, scene=None) -> None:

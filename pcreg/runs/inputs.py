@@ -99,12 +99,14 @@ def _key_image(request, frames, table, mapping: str) -> tuple[dict, tuple]:
     more."""
     from ..datasets.davis import check_key_mask
     from ..errors import InputError
+    from ..frame import PreparedFrame
 
     key_labels = read_labels(request.labels, mapping, table)
     if mapping == "davis":
         check_key_mask(key_labels, str(request.labels))
     decoded = frames.frames(0)
     key = next(decoded)  # a source with no frame at --start raises, never ends empty
+    PreparedFrame.of(key.image, name=frames.where(0))  # a frame no stream takes (3x5 px), named as the file it is
     second = next(decoded, None)
     if second is None:
         raise InputError(f"{request.frames}: needs at least two frames (the key frame and one more), found 1")

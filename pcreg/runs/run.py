@@ -48,14 +48,14 @@ import numpy as np
 from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
 from ..outputs import atomic_file
-from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, frame_bytes, frame_stamp,
-                     key_contents)
+from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, check_same_truth, file_digest,
+                     frame_bytes, frame_stamp, key_contents)
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
-                    label_file_problem, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
+                    label_file_problem, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_recording, name_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
-from .video_file import keep_video, labelled_to_end, mark_end
+from .video_file import check_kept, keep_video, labelled_to_end, mark_end
 
 if TYPE_CHECKING:
     from ..datasets.sources import Selection
@@ -103,12 +103,11 @@ class RunRequest:
 
 
 class Run:
-    """A run's folder, its one owner: the run's ``identity`` (what a resumed run must match, in run.json),
-    opening and resuming it, committing a frame, its steps, the carry, the truth counts, the suggestions
-    and reading it back. ``frames``: the frame source's names (position 0 is the first frame chosen);
-    ``truth``: label maps indexed by position (an entry None where there is none; read when asked), or
-    None; ``confidence``: write ``confidence/NAME.png``. The label PNGs are written in the class table
-    the identity names (:func:`pcreg.classes.keys.run_table`)."""
+    """A run's folder, its one owner: the run's ``identity`` (what a resumed run must match, in run.json), opening and
+    resuming it, committing a frame, its steps, the carry, the truth counts, the suggestions and reading it back.
+    ``frames``: the frame source's names (position 0 is the first frame chosen); ``truth``: label maps indexed by
+    position (an entry None where there is none; read when asked), or None; ``confidence``: write
+    ``confidence/NAME.png``. The label PNGs are written in the class table the identity names (:func:`pcreg.classes.keys.run_table`)."""
 
     def __init__(self, frames, out: Path, identity: dict | None, *, truth=None, confidence: bool = False) -> None:
         from .gaps import GapMarks
@@ -213,7 +212,7 @@ class Run:
                 done = t + 1
                 tick(bar)
         if frames.kind == "video":  # decoding found the end of the run's frames: a rerun need not look again
-            mark_end(self.state)
+            mark_end(self.state, frames, self.out)
             self.commit()
         self._say_done(request, done - start, [0], start=start)
 
@@ -244,6 +243,8 @@ class Run:
                     tick(bar)
 
                 done = job.run(on_frame=on_frame, check=check_interrupted, on_step=lambda: tick(bar))
+            if frames.kind == "video":  # written again while decoded: its frames may be of two videos
+                check_kept(self.state, frames, self.out)
             self._say_done(request, done, sorted(keys))
 
     def _say_done(self, request: RunRequest, done: int, keys: list[int], *, start: int | None = None) -> None:
@@ -294,7 +295,8 @@ class Run:
             if self.frames.kind == "video":
                 keep_video(state, self.frames, self.out)
             self._cut_steps(int(state["done"]) - 1)
-            check_same_frames(self.frames, self.out, str(state["key_frame"]), state.get("key_bytes"), state.get("key_contents"))
+            check_same_frames(self.frames, self.out, str(state["key_frame"]), state.get("key_bytes"), state.get("key_contents"),
+                              self.truth)
             self._remove_partial_writes()
             stems = [self.frames.stem(t) for t in range(int(state["done"]))]
             check_labelled(self.out, stems, labels.shape, stems[1:] if self.confidence else ())
@@ -319,11 +321,12 @@ class Run:
             self.commit()
 
     def _start_over(self) -> None:
-        """Forget what an earlier run in ``out`` wrote beside its label PNGs, which a run started over
-        (``--force``) would otherwise leave for the review and the export to read: its carries, a key-frames
-        run's passes, the confidence maps and the suggestions. Only where ``out`` holds an earlier run (its
-        run.json): a folder that was not a run's output keeps every file in it. A path that holds one of the
-        run's inputs (its frames, labels or truth) is refused, not removed."""
+        """Forget what an earlier run in ``out`` wrote, which a run started over (``--force``) would otherwise leave
+        for the review and the export to read: its label PNGs (:func:`~pcreg.runs.files.labels_written`; a run over
+        fewer frames left the others), its carries, a key-frames run's passes, the confidence maps and the
+        suggestions. Only where ``out`` holds an earlier run (its run.json): a folder that was not a run's output
+        keeps every file in it. A path that holds one of the run's inputs (its frames, labels or truth) is refused,
+        not removed (a label PNG that is one is kept)."""
         from ..formats import resolved
 
         if not (self.out / STATE).is_file():
@@ -338,6 +341,10 @@ class Run:
                 if where == gone or gone in where.parents:
                     raise OutputError(f"{path}: holds {given}, an input of this run, and a run started over in "
                                       f"{self.out} removes it; move the input or choose another --out")
+        kept = {resolved(p) for p in inputs}  # the key labels in --out (refused as overwritten, not removed)
+        for f in labels_written(self.out):
+            if resolved(f) not in kept and not kept & set(resolved(f).parents):
+                f.unlink(missing_ok=True)
         for slot in (0, 1):
             (self.out / CARRY.format(slot)).unlink(missing_ok=True)
         shutil.rmtree(self.out / HIDDEN, ignore_errors=True)
@@ -378,6 +385,7 @@ class Run:
                 count, t = count + 1, step["frame"]
                 if any(t in s for s in live):
                     check_same_frame(self.frames, self.out, t, step)
+                    check_same_truth(self.truth, self.out, step)
                     fh.write(line)
                     stems.append(self.frames.stem(t))
             if count < counted:
@@ -454,6 +462,8 @@ class Run:
         truth, plain = scored
         if truth is not None and counts is not None:
             count_frame(counts, labels, truth, plain, unknown=self.table.unknown)
+        if truth is not None and self.truth is not None:  # what a resumed run checks the truth map against
+            step["truth_digest"] = file_digest(self.truth.path(t))
         append_step(self.out, step)
 
     def record(self, t: int, labels: np.ndarray, report, plain: np.ndarray | None = None, carry=None,

@@ -264,14 +264,19 @@ def _differences(before: object, now: dict) -> str:
     if not isinstance(before, dict):
         return ""
 
-    def shown(d: dict, k: str) -> str:
-        return short_repr(d[k]) if k in d else "not set"
+    def shown(name: str, d: dict) -> str:
+        if name == "frames":  # the frames chosen, as the options choose them
+            v = d.get("v")
+            v = v if isinstance(v, dict) else {}
+            return " ".join(f"--{k} {v[k]}" for k, default in (("start", 0), ("stop", None), ("every", 1))
+                            if v.get(k, default) != default) or "every frame"
+        return short_repr(d["v"]) if "v" in d else "not set"
 
     names = sorted(k for k in set(before) | set(now) if (k in before, before.get(k)) != (k in now, now.get(k)))
     said = []
     for k in names[:3]:
         name, then, latest = _first_difference(k, before, now)
-        said.append(f"{name}: {shown(then, 'v')} then, {shown(latest, 'v')} now")
+        said.append(f"{name}: {shown(name, then)} then, {shown(name, latest)} now")
     return f" ({'; '.join(said)}{'; ...' if len(names) > 3 else ''})" if said else ""
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ..errors import OutputError
 
-__all__ = ["MIB", "fingerprint", "keep_video", "labelled_to_end", "mark_end", "video_file_problem"]
+__all__ = ["MIB", "fingerprint", "keep_video", "check_kept", "labelled_to_end", "mark_end", "video_file_problem"]
 
 #: How much of each end of the file its fingerprint reads.
 MIB = 1 << 20
@@ -69,8 +69,22 @@ def labelled_to_end(state: dict) -> bool:
     return "video_file" in state and state.get("video_end") == state["done"]
 
 
-def mark_end(state: dict) -> None:
-    """Keep in ``state`` that decoding found the end of the run's frames with ``state["done"]`` of them done."""
+def check_kept(state: dict, frames, out: Path) -> None:
+    """An :class:`~pcreg.errors.OutputError` when the video file (``frames.path``) is no longer the one run.json names
+    (``state``'s ``video_file``) nor it with bytes appended: written again while the run in ``out`` decoded it, so that
+    the frames it labelled may be of two videos (a resume would refuse the file; the run that labelled them said
+    nothing)."""
+    before, now = state.get("video_file"), fingerprint(frames.path)
+    if before is None or (before["size"], before["sha256"]) == (now["size"], now["sha256"]) or _appended(before, frames.path, now):
+        return
+    raise OutputError(f"{frames.path}: written again while the run in {out} labelled it ({before['size']} bytes when "
+                      f"it began, {now['size']} now): its labels may be of two videos; use --force to start over")
+
+
+def mark_end(state: dict, frames, out: Path) -> None:
+    """Keep in ``state`` that decoding found the end of the run's frames with ``state["done"]`` of them done, in the
+    file the run began on (:func:`check_kept`)."""
+    check_kept(state, frames, out)
     state["video_end"] = state["done"]
 
 

@@ -7,6 +7,7 @@ is refused here in one line naming it."""
 from __future__ import annotations
 
 import math
+import mmap
 import os
 import re
 import struct
@@ -39,9 +40,19 @@ LZF_MOST_UNPACKED = 264 // 3
 MAX_PLY_LINE = 1000
 
 
+def header_int(text: str) -> int:
+    """A count or size of a point cloud's header as C's readers take it whole: ASCII digits with a sign at most, or a
+    ``ValueError``. Python's ``int`` also takes ``16_00``, ``\u0661`` and spaces, where Open3D's readers stop at the
+    first other character (``16_00`` is 16): pcreg would check one count and Open3D read another."""
+    if re.fullmatch(r"[+-]?[0-9]+", text) is None:
+        raise ValueError(f"not a whole number: {text!r}")
+    return int(text)
+
+
 def _ply_header(path: Path) -> tuple[str, list[list], int]:
     """``(format, elements, body_start)`` of a PLY's header, each element ``[name, count, [sizes], has_list,
-    [names]]``; a header pcreg or Open3D cannot read is an :class:`InputError` naming the file."""
+    [names], [properties]]`` (each property ``(None, size)``, or a list's ``(count type, item size)``); a header pcreg
+    or Open3D cannot read is an :class:`InputError` naming the file."""
     with open(path, "rb") as fh:
         head = fh.read(MAX_HEADER_BYTES)
     if not head.startswith(b"ply"):
@@ -66,7 +77,7 @@ def _ply_header(path: Path) -> tuple[str, list[list], int]:
             fmt = t[1]
         elif t[0] == "element" and len(t) == 3:
             try:
-                elements.append([t[1], int(t[2]), [], False, []])
+                elements.append([t[1], header_int(t[2]), [], False, [], []])
             except ValueError:
                 raise InputError(f"{path}: bad PLY element line {raw.strip()!r}") from None
             if elements[-1][1] < 0:
@@ -74,9 +85,12 @@ def _ply_header(path: Path) -> tuple[str, list[list], int]:
         elif t[0] == "property" and elements:
             if len(t) >= 2 and t[1] == "list":
                 elements[-1][3] = True
+                if len(t) >= 4 and t[2] in _PLY_SIZES and t[3] in _PLY_SIZES:
+                    elements[-1][5].append((t[2], _PLY_SIZES[t[3]]))
             elif len(t) >= 3 and t[1] in _PLY_SIZES:
                 elements[-1][2].append(_PLY_SIZES[t[1]])
                 elements[-1][4].append(t[2])
+                elements[-1][5].append((None, _PLY_SIZES[t[1]]))
             else:
                 raise InputError(f"{path}: bad PLY property line {raw.strip()!r}")
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
@@ -123,16 +137,59 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
         if e is vertex:
             break
     have = size - body_start
-    after = elements[elements.index(vertex) + 1:]
-    last = all(e[1] == 0 for e in after)  # nothing after the vertices (an empty face element)
-    if last and not any(e[3] for e in elements if e[1]) and have - need >= sum(vertex[2]):
-        raise InputError(f"{path}: the PLY header declares {n} vertices ({need} bytes), the file holds {have} bytes "
-                         "(more vertices than declared?)")
     if have < need:
         got = max(0, have) // max(1, sum(vertex[2]))
         raise InputError(f"{path}: truncated PLY: the header declares {n} vertices "
                          f"({need} bytes), the file holds {have} bytes (about {min(got, n)} vertices)")
+    end = _ply_body_end(path, body_start, size, elements, fmt)
+    if end is not None and size - end >= sum(vertex[2]):  # a count that lies low: the rest would be read as what follows
+        raise InputError(f"{path}: the PLY header declares {n} vertices, and its elements end {size - end} bytes before "
+                         "the file does (more vertices than declared?)")
+    if end is None or end > size:
+        raise InputError(f"{path}: truncated or damaged PLY: the header declares {n} vertices ({need} bytes) and "
+                         f"{', '.join(f'{e[1]} {e[0]}' for e in elements if e is not vertex and e[1]) or 'nothing'} after "
+                         f"them, which the file's {have} bytes do not hold")
     return n
+
+
+#: The most records of elements with list properties (a mesh's faces) whose lengths are walked, one at a time.
+MAX_WALKED = 2_000_000
+
+
+def _ply_body_end(path: Path, start: int, size: int, elements: list[list], fmt: str) -> int | None:
+    """Where a binary PLY's elements end, from ``start``, as a reader walks them: fixed records by their sizes, and
+    records with list properties (a mesh's faces) by the counts the file holds (up to :data:`MAX_WALKED` records
+    of them; more are taken to end with the file, and so are lists of a count type pcreg does not know). None when a
+    list's count is negative or runs past the file's ``size``."""
+    at = start
+    walked = 0
+    order = "<" if fmt == "binary_little_endian" else ">"
+    counts = {"char": "b", "int8": "b", "uchar": "B", "uint8": "B", "short": "h", "int16": "h", "ushort": "H",
+              "uint16": "H", "int": "i", "int32": "i", "uint": "I", "uint32": "I"}
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        for e in elements:
+            props = e[5]
+            if not e[3]:
+                at += e[1] * sum(size_ for _, size_ in props)
+                continue
+            walked += e[1]
+            if walked > MAX_WALKED or len(props) != len(e[2]) + sum(1 for c, _ in props if c is not None) \
+                    or any(c is not None and c not in counts for c, _ in props):
+                return size
+            for _ in range(e[1]):
+                for kind, item in props:
+                    if kind is None:
+                        at += item
+                        continue
+                    if at + _PLY_SIZES[kind] > size:
+                        return None
+                    k = struct.unpack_from(order + counts[kind], data, at)[0]
+                    if k < 0:
+                        return None
+                    at += _PLY_SIZES[kind] + k * item
+                    if at > size:
+                        return None
+    return at
 
 
 def _ply_ascii_body(path: Path, body_start: int, elements: list[list], vertex: list) -> None:
@@ -361,6 +418,8 @@ def _pcd_lines(path: Path) -> tuple[dict[str, list[str]], list[str], str | None,
         if t[0] != t[0].upper() and t[0].upper() in PCD_KEYWORDS:
             raise InputError(f"{path}: PCD header line {text[:40]!r}: its keyword must be upper case, "
                              f"{t[0].upper()} (PCL's and Open3D's readers pass over it)")
+        if t[0] in fields:  # which line a reader takes is its own choice
+            raise InputError(f"{path}: its PCD header has two {t[0]} lines")
         fields[t[0]] = t[1:]
         order.append(t[0])
         if t[0] == "DATA":
@@ -375,11 +434,11 @@ def pcd_header(path: Path) -> PcdHeader:
     if data_kind is None:
         raise InputError(f"{path}: PCD header without a DATA line")
     try:
-        n = int(fields["POINTS"][0]) if "POINTS" in fields else \
-            int(fields["WIDTH"][0]) * int(fields["HEIGHT"][0])
-        sizes = [int(s) for s in fields["SIZE"]]
-        counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
-        grid = (int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])) if "WIDTH" in fields and "HEIGHT" in fields else None
+        n = header_int(fields["POINTS"][0]) if "POINTS" in fields else \
+            header_int(fields["WIDTH"][0]) * header_int(fields["HEIGHT"][0])
+        sizes = [header_int(s) for s in fields["SIZE"]]
+        counts = [header_int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
+        grid = (header_int(fields["WIDTH"][0]), header_int(fields["HEIGHT"][0])) if "WIDTH" in fields and "HEIGHT" in fields else None
     except (KeyError, ValueError, IndexError, TypeError):
         raise InputError(f"{path}: damaged PCD header (POINTS, SIZE, COUNT)") from None
     if n <= 0:
@@ -398,6 +457,9 @@ def pcd_header(path: Path) -> PcdHeader:
     names = fields.get("FIELDS", fields.get("COLUMNS", []))  # COLUMNS: the word of PCD v0.5 (PCL reads both)
     if len(names) != len(sizes):  # PCL and Open3D refuse it
         raise InputError(f"{path}: damaged PCD header (FIELDS names {len(names)} fields, SIZE gives {len(sizes)})")
+    twice = sorted({f for f in names if names.count(f) > 1 and f != "_"})  # "_": PCL's padding, as often as it pads
+    if twice:  # which one a reader takes is its own choice (pcreg's ASCII reader the first, Open3D's the last)
+        raise InputError(f"{path}: its PCD header names the field{'s' * (len(twice) > 1)} {', '.join(twice)} twice")
     return PcdHeader(n, tuple(names), tuple(sizes), tuple(types), tuple(counts), data_kind, pos,
                      tuple(order))
 

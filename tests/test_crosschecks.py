@@ -319,6 +319,29 @@ def test_a_suite_and_its_results_are_not_written_over_without_force_and_an_odd_s
     assert "--model applies to images" in capsys.readouterr().err
 
 
+def test_a_suite_case_whose_files_do_not_fit_each_other_names_the_file_at_fault(tmp_path, capsys):
+    """A 2-D case whose source.npy was replaced by 3-D points was refused as "truth.txt must be a finite 4x4
+    matrix" (truth.txt was right); an init.txt of two rows or a reflection as "pinned: init ..." or "init: ...",
+    naming no file; a case.json giving another dimension than the clouds' was taken. Each names its file."""
+    import shutil
+
+    from pcreg.cli import main
+    from pcreg.implementations.suite import Case, export_suite
+
+    target = np.random.default_rng(7).uniform(0, 1, (200, 2))
+    for fault, said in ((lambda c: np.save(c / "source.npy", np.arange(30.0).reshape(10, 3)), "target.npy: holds 2-D points, source.npy 3-D"),
+                        (lambda c: (c / "init.txt").write_text("1 0 0\n0 1 0\n"), "init.txt must be a finite 3x3 matrix"),
+                        (lambda c: (c / "init.txt").write_text("-1 0 0\n0 1 0\n0 0 1\n"), "init.txt: it is a reflection"),
+                        (lambda c: (c / "case.json").write_text('{"dimension": 3}'),
+                         "source.npy: holds 2-D points, and case.json gives the case's dimension as 3")):
+        shutil.rmtree(tmp_path / "suite", ignore_errors=True)
+        suite = export_suite(tmp_path / "suite", [Case(target + 0.01, target, np.eye(3), 0.1, name="c")])
+        fault(suite / "c")
+        assert main(["crosscheck", "--suite", str(suite), "--out", str(tmp_path / "r"), "--force"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{suite / 'c'}/{said}" in err[0], err
+
+
 def test_exact_implementations_agree_on_clouds_a_million_metres_from_the_origin():
     """Georeferenced clouds (1e6 m away, a metre across): Open3D's two ICPs part from the reference by their sums'
     rounding alone (2.7e-9 and 3.7e-9 of the matrix), which the fixed 1e-9 called a disagreement."""

@@ -346,3 +346,74 @@ def test_a_text_cloud_with_comment_lines_is_told_apart_from_a_damaged_one(tmp_pa
     with pytest.raises(InputError) as err:
         load_cloud(pts)
     assert f"{where} is a comment, which a .pts file does not hold;" in str(err.value)
+
+
+def _grid(shift=(0.0, 0.0, 0.0)):
+    u, v = np.meshgrid(np.linspace(0, 1, 40), np.linspace(0, 1, 40))
+    return (np.c_[u.ravel(), v.ravel(), 0.2 * np.sin(6 * u.ravel()) * np.cos(4 * v.ravel())] + shift).astype("<f4")
+
+
+def _binary_ply(path, points, count, after=""):
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {count}\nproperty float x\nproperty float y\n"
+            f"property float z\n{after}end_header\n")
+    path.write_bytes(head.encode() + points.tobytes())
+    return path
+
+
+@pytest.mark.parametrize("count", ["16_00", "1_600", "+1600", "0x640"])
+def test_a_header_count_python_reads_and_c_does_not_is_refused(tmp_path, count):
+    """A PLY or PCD count written ``16_00``: Python's ``int`` read 1600 and pcreg's checks passed, where Open3D's
+    reader stops at the ``_`` and read 16 points (a PCD's SIZE ``0_4``: garbage points). Refused naming the file;
+    ``+1600`` is a number C reads whole, and is read."""
+    ply = _binary_ply(tmp_path / "c.ply", _grid(), count)
+    pcd = tmp_path / "c.pcd"
+    pcd.write_bytes((f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {count}\nHEIGHT 1\n"
+                     f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {count}\nDATA binary\n").encode() + _grid().tobytes())
+    for path in (ply, pcd):
+        if count == "+1600":
+            assert load_cloud(path).shape == (1600, 3)
+            continue
+        with pytest.raises(InputError, match=rf"^{path}: (bad PLY element line|damaged PCD header)"):
+            load_cloud(path)
+
+
+@pytest.mark.parametrize("after", ["element face 1\nproperty list uchar int vertex_indices\n",
+                                   "element extra 1\nproperty float w\n"])
+def test_a_binary_ply_whose_vertex_count_lies_low_before_another_element_is_refused(tmp_path, after):
+    """1,600 vertices under a header of 1,000 followed by a face (or a fixed) element: the rest of the vertices were
+    read as that element and 1,000 points registered, exit 0. The elements are walked to their end as a reader
+    walks them: they end 7,000 bytes before the file does. The same file with its count right is read."""
+    with pytest.raises(InputError, match=r"declares 1000 vertices, and its elements end \d+ bytes before the file"):
+        load_cloud(_binary_ply(tmp_path / "low.ply", _grid(), 1000, after))
+    face = bytes([3]) + np.array([0, 1, 2], "<i4").tobytes() if "face" in after else np.float32(1).tobytes()
+    good = _binary_ply(tmp_path / "good.ply", _grid(), 1600, after)
+    good.write_bytes(good.read_bytes() + face)
+    assert load_cloud(good).shape == (1600, 3)
+    cut = good.read_bytes()[:-2]  # the last element cut short
+    (tmp_path / "cut.ply").write_bytes(cut)
+    with pytest.raises(InputError, match=r"cut.ply: truncated or damaged PLY"):
+        load_cloud(tmp_path / "cut.ply")
+
+
+def test_a_pcd_naming_a_field_twice_or_a_keyword_twice_is_refused(tmp_path):
+    """FIELDS x y z x: pcreg's ASCII reader took the first x, Open3D's binary reader the last, so the same cloud
+    read two ways; two FIELDS lines, the last taken. Refused naming the file, as a PLY's property named twice is."""
+    head = "VERSION 0.7\nFIELDS x y z x\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\n"
+    (tmp_path / "twice.pcd").write_text(head + "DATA ascii\n" + "0 0 0 5\n1 0 0 6\n0 1 0 5\n")
+    with pytest.raises(InputError, match=r"twice.pcd: its PCD header names the field x twice"):
+        load_cloud(tmp_path / "twice.pcd")
+    lines = head.replace("FIELDS x y z x", "FIELDS x y z w\nFIELDS x y w z")
+    (tmp_path / "two.pcd").write_text(lines + "DATA ascii\n" + "0 0 0 5\n1 0 0 6\n0 1 0 5\n")
+    with pytest.raises(InputError, match=r"two.pcd: its PCD header has two FIELDS lines"):
+        load_cloud(tmp_path / "two.pcd")
+
+
+def test_a_cross_check_of_an_image_against_a_cloud_names_both(tmp_path, capfd):
+    """"cannot cross-check image against cloud" named neither file."""
+    cv2.imwrite(str(tmp_path / "ref.png"), shapes_image())
+    np.save(tmp_path / "mov.npy", _cloud())
+    assert main(["crosscheck", str(tmp_path / "ref.png"), str(tmp_path / "mov.npy")]) == 2
+    assert _err_line(capfd) == (f"pcreg: error: {tmp_path / 'mov.npy'}: a cloud, and {tmp_path / 'ref.png'} an image: "
+                                "give two images or two clouds")
+    with pytest.raises(InputError, match="^moving: an image, and reference a cloud"):
+        pcreg.crosscheck(_cloud(), shapes_image())

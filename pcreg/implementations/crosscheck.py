@@ -174,11 +174,12 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
             raise InputError(f"implementations must be a sequence of names, got {short_repr(implementations)}")
     ka, A = kind_of(reference, "reference")
     kb, B = kind_of(moving, "moving")
-    if ka != kb:
-        raise InputError(f"cannot cross-check {ka[:-1]} against {kb[:-1]}: give two images or two clouds")
+    named = [str(x) if isinstance(x, (str, os.PathLike)) else n for x, n in ((moving, "moving"), (reference, "reference"))]
+    if ka != kb:  # named as given: files or roles
+        raise InputError(f"{named[0]}: {'an image' if kb == 'images' else 'a cloud'}, and {named[1]} "
+                         f"{'an image' if ka == 'images' else 'a cloud'}: give two images or two clouds")
     if ka == "clouds":
-        if np.ndim(A) == np.ndim(B) == 2 and np.shape(A)[1] != np.shape(B)[1]:  # named as given: files or roles
-            named = [str(x) if isinstance(x, (str, os.PathLike)) else n for x, n in ((moving, "moving"), (reference, "reference"))]
+        if np.ndim(A) == np.ndim(B) == 2 and np.shape(A)[1] != np.shape(B)[1]:
             raise InputError(f"{named[0]}: a {np.shape(B)[1]}-D cloud, and {named[1]} is {np.shape(A)[1]}-D (the two "
                              "clouds need the same dimension)")
         icp = config.registration.icp

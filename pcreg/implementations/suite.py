@@ -284,10 +284,11 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
             iterations = check_int(params.get("max_iterations", 30), where + "max_iterations", lo=1, hi=100_000)
             fitness, rmse = (check_float(params.get(k, 1e-6), where + k, lo=0) for k in ("relative_fitness",
                                                                                          "relative_rmse"))
-            source = load_cloud(d / "source.npy")
+            source, target = load_cloud(d / "source.npy"), load_cloud(d / "target.npy")
+            _check_case_files(d, source.shape[1], target.shape[1], info.get("dimension"), init)
             if truth is not None:
                 truth = check_truth(truth, source.shape[1], str(d / "truth.txt"))
-            case = Case(source, load_cloud(d / "target.npy"), init, distance, iterations,
+            case = Case(source, target, init, distance, iterations,
                         fitness, rmse, name=name, description=str(info.get("description", "")), truth=truth)
         except InputError:
             raise
@@ -299,6 +300,23 @@ def load_suite(path: str | os.PathLike) -> list[Case]:
             raise InputError(f"{d}: unreadable case ({type(exc).__name__}: {' '.join(str(exc).split())[:160]})") from None
         cases.append(case)
     return cases
+
+
+def _check_case_files(d: Path, source: int, target: int, declared, init: np.ndarray) -> None:
+    """An :class:`InputError` naming the file of the case in ``d`` that does not fit the others: clouds of
+    ``source``-D and ``target``-D points, a dimension ``declared`` in case.json (None: none), an ``init`` matrix
+    that is not a rigid transform of their dimension (the messages named truth.txt, or no file, for these)."""
+    from ..registration.transforms import rigid_problem
+    from ..validation import check_matrix
+
+    if target != source:
+        raise InputError(f"{d / 'target.npy'}: holds {target}-D points, source.npy {source}-D")
+    if declared is not None and declared != source:
+        raise InputError(f"{d / 'source.npy'}: holds {source}-D points, and case.json gives the case's dimension "
+                         f"as {declared!r}")
+    problem = rigid_problem(check_matrix(init, str(d / "init.txt"), source + 1))
+    if problem is not None:
+        raise InputError(f"{d / 'init.txt'}: {problem}, and every implementation runs the rigid ICP")
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -115,8 +115,11 @@ def _read_pcd_ascii(path: Path, header: PcdHeader) -> np.ndarray:
 
 
 def _open3d_warning(text: str) -> str:
-    """The first warning or error line Open3D printed (ANSI colours removed), or ''."""
-    for line in re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines():
+    """The first warning or error line Open3D printed (ANSI colours removed), or ''; RPly's first, where it printed
+    one: it names what it could not read ("Error reading 'z' of 'vertex' number 7", an ASCII ``inf``), where Open3D's
+    own line says only "unable to read file"."""
+    lines = re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines()
+    for line in sorted(lines, key=lambda line: "RPly: " not in line):
         if "[Open3D WARNING]" in line or "[Open3D ERROR]" in line or "RPly: " in line:
             return line.split("]", 1)[1].strip()[:200] if "[Open3D" in line else line.strip()[:200]
     return ""

@@ -135,6 +135,11 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
     first, line_number = _first_line(path)
     if first is None:
         raise InputError(f"{path}: no points could be read (no line of numbers)")
+    if first.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\0" in first:  # read as bytes, every other one a zero
+        raise InputError(f"{path}: it is UTF-16 text (as some Windows programs save it); save it as UTF-8 or ASCII")
+    if b"\r" in first:  # one line to the reader: its first point, or a first line of names it is not
+        raise InputError(f"{path}: its lines end in a carriage return alone (as classic Mac OS wrote them); save it "
+                         "with LF or CR LF line ends")
     separator = _separator(first, _next_line(path, line_number))
     fields = _split(first, separator, path, line_number)
     columns = _columns(path, fields)

@@ -417,3 +417,33 @@ def test_a_cross_check_of_an_image_against_a_cloud_names_both(tmp_path, capfd):
                                 "give two images or two clouds")
     with pytest.raises(InputError, match="^moving: an image, and reference a cloud"):
         pcreg.crosscheck(_cloud(), shapes_image())
+
+
+def test_an_ascii_ply_value_open3d_cannot_read_is_named_by_vertex_and_property(tmp_path):
+    """An ASCII PLY holding ``inf`` (or 1e39 in a float property): "cannot read point cloud (Open3D: Read PLY failed:
+    unable to read file: ...)", saying nothing of what. RPly's own line names the vertex and the property."""
+    rows = [f"{i} {i % 7} {i % 3}" for i in range(20)]
+    for value, at in (("inf", 7), ("1e39", 3)):
+        body = rows.copy()
+        body[at] = f"{at} {at % 7} {value}"
+        path = tmp_path / f"v{at}.ply"
+        path.write_text("ply\nformat ascii 1.0\nelement vertex 20\nproperty float x\nproperty float y\nproperty float z\n"
+                        "end_header\n" + "\n".join(body) + "\n")
+        with pytest.raises(InputError, match=rf"^{path}: cannot read point cloud \(Open3D: RPly: Error reading 'z' of "
+                                             rf"'vertex' number {at}\)"):
+            load_cloud(path)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".txt"])
+def test_a_text_cloud_in_utf16_or_with_carriage_returns_alone_says_so(tmp_path, suffix):
+    """Both were refused as "its first line ('0.01,0.02,0.0\\r0.0356...') names no x and y columns", which they do
+    not need to: they are a UTF-16 file and a file of classic Mac OS line ends."""
+    text = "".join(f"{x},{x % 3},{x % 5}\n" for x in range(20))
+    (tmp_path / f"u{suffix}").write_bytes(text.encode("utf-16"))
+    (tmp_path / f"r{suffix}").write_bytes(text.replace("\n", "\r").encode())
+    (tmp_path / f"w{suffix}").write_bytes(text.replace("\n", "\r\n").encode())
+    with pytest.raises(InputError, match=rf"u{suffix}: it is UTF-16 text"):
+        load_cloud(tmp_path / f"u{suffix}")
+    with pytest.raises(InputError, match=rf"r{suffix}: its lines end in a carriage return alone"):
+        load_cloud(tmp_path / f"r{suffix}")
+    assert load_cloud(tmp_path / f"w{suffix}").shape == (20, 3)

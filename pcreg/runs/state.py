@@ -221,6 +221,9 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
     newer = format_problem(state, state_path)
     if newer is not None:
         raise OutputError(f"{newer}, or --force to start over")
+    if state.get("run") != identity and _reaches_further(state.get("run"), identity):
+        state["run"] = identity  # the same run, its --stop later (or gone): it goes on to the frames added
+        state.pop("video_end", None)
     if state.get("run") != identity:
         raise OutputError(f"{out} holds a run with other options{_differences(state.get('run'), identity or {})}; "
                           "use --force to start over or another --out")
@@ -229,6 +232,22 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
         raise OutputError(f"{state_path}: its {field!r} is not as pcreg run writes it; use --force to start over")
     state["format"] = FORMAT  # the same layout, named from now on
     return state
+
+
+def _reaches_further(before, now: dict | None) -> bool:
+    """Whether the run ``now`` (an identity) is the run ``before`` with more of the same frames chosen: the same
+    inputs and options, the same ``--start`` and ``--every``, and a ``--stop`` later than the one it had, or none.
+    Its frames keep their positions, so what was labelled stands, and a run of hours is labelled a stretch at a
+    time."""
+    if not (isinstance(before, dict) and isinstance(now, dict)) or {**before, "frames": None} != {**now, "frames": None}:
+        return False
+    every: dict = {"start": 0, "stop": None, "every": 1}
+    then, later = before.get("frames") or every, now.get("frames") or every
+    if not (isinstance(then, dict) and isinstance(later, dict)):
+        return False
+    stop, new_stop = then.get("stop"), later.get("stop")
+    return (type(stop) is int and (new_stop is None or (type(new_stop) is int and new_stop > stop))
+            and (then.get("start"), then.get("every")) == (later.get("start"), later.get("every")))
 
 
 def write_state(out: Path, state: dict) -> None:

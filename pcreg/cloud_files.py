@@ -84,9 +84,11 @@ def _ply_header(path: Path) -> tuple[str, list[list], int]:
                 raise InputError(f"{path}: negative PLY element count")
         elif t[0] == "property" and elements:
             if len(t) >= 2 and t[1] == "list":
+                if not (len(t) == 5 and t[2] in _PLY_SIZES and t[3] in _PLY_SIZES):  # RPly reads no other
+                    raise InputError(f"{path}: bad PLY property line {raw.strip()[:80]!r} (a list of a count type and an "
+                                     f"item type of {', '.join(_PLY_SIZES)}, and a name)")
                 elements[-1][3] = True
-                if len(t) >= 4 and t[2] in _PLY_SIZES and t[3] in _PLY_SIZES:
-                    elements[-1][5].append((t[2], _PLY_SIZES[t[3]]))
+                elements[-1][5].append((t[2], _PLY_SIZES[t[3]]))
             elif len(t) >= 3 and t[1] in _PLY_SIZES:
                 elements[-1][2].append(_PLY_SIZES[t[1]])
                 elements[-1][4].append(t[2])
@@ -152,6 +154,26 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
     return n
 
 
+def _uniform_lists(data, at: int, size: int, records: int, props: list, count_type: str) -> int | None:
+    """Where ``records`` records of ``props`` from ``at`` end when the element has one list property and every
+    record's list is as long as the first's (a mesh of triangles), read at once; else None (walked one at a time)."""
+    lists = [k for k, (c, _) in enumerate(props) if c is not None]
+    if len(lists) != 1 or records == 0:
+        return None
+    k = lists[0]
+    before = sum(item for _, item in props[:k])
+    width = struct.calcsize(count_type)
+    if at + before + width > size:
+        return None
+    first = struct.unpack_from(count_type, data, at + before)[0]
+    record = sum(item for _, item in props[:k] + props[k + 1:]) + width + max(first, 0) * props[k][1]
+    if first < 0 or at + records * record > size:
+        return None
+    rows = np.frombuffer(data, np.uint8, records * record, at).reshape(records, record)
+    found = rows[:, before:before + width].copy().view(np.dtype(count_type)).ravel()
+    return at + records * record if bool((found == first).all()) else None
+
+
 #: The most records of elements with list properties (a mesh's faces) whose lengths are walked, one at a time.
 MAX_WALKED = 2_000_000
 
@@ -172,9 +194,14 @@ def _ply_body_end(path: Path, start: int, size: int, elements: list[list], fmt: 
             if not e[3]:
                 at += e[1] * sum(size_ for _, size_ in props)
                 continue
+            if any(c is not None and c not in counts for c, _ in props):
+                return size
+            uniform = _uniform_lists(data, at, size, e[1], props, order + counts.get(next(c for c, _ in props if c), "B"))
+            if uniform is not None:  # every record's list of one length (a mesh of triangles): at once
+                at = uniform
+                continue
             walked += e[1]
-            if walked > MAX_WALKED or len(props) != len(e[2]) + sum(1 for c, _ in props if c is not None) \
-                    or any(c is not None and c not in counts for c, _ in props):
+            if walked > MAX_WALKED:
                 return size
             for _ in range(e[1]):
                 for kind, item in props:

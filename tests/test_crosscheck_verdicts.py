@@ -52,8 +52,8 @@ def test_rows_agree_on_a_translation_of_clouds_far_from_the_origin_and_a_few_uni
     small_gicp's at the fixed point) differed from the reference by 1e-8 .. 3.6e-6 in the relative matrix, against a
     tolerance of 100 roundings of the coordinates over the extent (6e-9), and were said to disagree, "a different
     step from the same correspondences", though each put the points within 4e-10 of the truth. A rotation solved
-    from such coordinates is rounded by about eps x far; the translation carries that by the distance again, eps x
-    far squared extents, which the tolerance now holds."""
+    from such coordinates is rounded by about eps x far; the matrices' translations carry that by the distance
+    again. The poses are compared about the source's centroid, where the translations are where they put it."""
     rng = np.random.default_rng(3)
     tgt = rng.uniform(-1, 1, (300, 3)) + offset
     r = crosscheck_implementations(tgt - 0.02, tgt, implementations=["open3d", "open3d-tensor", "small_gicp"],
@@ -61,7 +61,19 @@ def test_rows_agree_on_a_translation_of_clouds_far_from_the_origin_and_a_few_uni
     for name in ("open3d", "open3d-tensor", "small_gicp"):
         row = r.rows[name]
         assert row["error"] is None and row["agrees"] is True, (name, row["matrix_relative_disagreement"])
-        assert row["centroid_disagreement"] < 1e-8, row
+        assert row["centroid_disagreement"] < 1e-8 and row["pose_relative_disagreement"] < 1e-9, row
+
+
+def test_a_translation_off_by_a_thousandth_of_the_extent_far_from_the_origin_disagrees():
+    """The poses compared about the cloud: a step 0.1% of the extent off, 1e6 from the origin, is no rounding."""
+    from pcreg.implementations.compare import _agrees, compare_matrices, step_tolerance
+
+    src = np.random.default_rng(0).uniform(-0.5, 0.5, (300, 3)) + 1e6
+    A, B = np.eye(4), np.eye(4)
+    B[0, 3] = 1e-3 * np.sqrt(3)
+    cmp = compare_matrices(A, B, src, length=np.sqrt(3))
+    step = step_tolerance(src, np.sqrt(3))
+    assert not _agrees("step", cmp, np.sqrt(3), step) and not _agrees("fixed-point", cmp, np.sqrt(3), step)
 
 
 def test_an_objective_row_that_shrinks_the_cloud_disagrees():

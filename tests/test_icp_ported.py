@@ -281,3 +281,8 @@ def test_a_step_of_one_equation_a_pair_with_fewer_pairs_than_unknowns_is_not_ret
     r = pcreg.icp(source, target, ICPOptions(metric=metric, max_correspondence_distance=0.05), target_normals=normals)
     assert r.fitness == pytest.approx(pairs / 80) and not r.converged and r.iterations == 0
     np.testing.assert_array_equal(r.matrix, np.eye(d + 1))
+    if metric == "point_to_plane":  # Open3D's step takes them, and "converged" on a motion they do not fix: refused
+        with pytest.raises(RegistrationError, match=r"only \d source point\(s\) of 80 .* needs 6 to fix its "
+                                                    r"rotation \(one equation a pair, point to plane\)"):
+            pcreg.icp(source, target, ICPOptions(backend="open3d", metric=metric, max_correspondence_distance=0.05),
+                      target_normals=normals)

@@ -201,7 +201,8 @@ def test_a_truth_map_written_again_since_it_was_scored_is_refused_on_resume(tmp_
     """A truth map of a frame the run scored, written again since (corrected, or another clip's): the run again went
     on, or said "all frames already done", with run.json's running error mixing scores against the old truth and the
     new. Each scored line keeps the digest of its truth map (``truth_digest``): refused naming the map, a run from one
-    label image and from key frames alike; put back, done."""
+    label image and from key frames alike; put back, or saved again with the same labels, done; removed, named as
+    missing."""
     import json
 
     from _runs import key_frames_of
@@ -226,3 +227,9 @@ def test_a_truth_map_written_again_since_it_was_scored_is_refused_on_resume(tmp_
         assert len(err) == 1 and f"{path}: changed since the run in {out} scored f2.png against it" in err[0], err
         path.write_bytes(kept)
         assert main(run) == 0
+        cv2.imwrite(str(path), cv2.imread(str(key), cv2.IMREAD_UNCHANGED), [cv2.IMWRITE_PNG_COMPRESSION, 0])
+        assert path.read_bytes() != kept and main(run) == 0  # the same labels saved again: the same truth
+        path.unlink()
+        capsys.readouterr()
+        assert main(run) == 2 and f"{path}: no truth labels for frame f2.png" in one_line_errors(capsys)[0]
+        path.write_bytes(kept)

@@ -216,6 +216,10 @@ def test_a_run_started_over_over_fewer_frames_leaves_no_label_png_of_the_earlier
         (out / "mine.png").write_bytes(b"not a run's")
         assert main(["run", str(folder), "--labels", str(labels), "--out", str(out), *fewer, "--force"]) == 0
         assert {p.stem for p in out.glob("*.png")} == left | {"mine"}
+    inside = folder / "run"  # --out in the frames' folder (or the truth's): every file in it is below an input
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(inside)]) == 0
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(inside), "--every", "2", "--force"]) == 0
+    assert {p.stem for p in inside.glob("*.png")} == {"f0", "f2", "f4"}
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "one"), "--force"]) == 0
     shutil.copy(key, tmp_path / "one" / "f5.png")  # the key labels in --out, named as a frame the run labelled
     assert main(["run", str(folder), "--labels", str(tmp_path / "one" / "f5.png"), "--out", str(tmp_path / "one"),
@@ -239,6 +243,15 @@ def test_options_a_run_would_not_use_are_refused_and_advice_is_in_its_own_option
         assert len(err) == 1 and said in err[0] and "--levels" not in err[0] and not out.exists(), err
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "s"), "--model", "similarity",
                  "--backend", "open3d", "--init", "auto"]) == 0
+    # a run begun when dense took them (its run.json names them) goes on without them, and gains the defaults
+    out = tmp_path / "begun"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--stop", "2"]) == 0
+    state = json.loads((out / "run.json").read_text())
+    state["run"].update(backend="open3d", init="auto")
+    (out / "run.json").write_text(json.dumps(state))
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["run"]["backend"] == "reference"
+    assert {p.stem for p in out.glob("*.png")} == {"f0", "f1", "f2"}
 
 
 def test_a_frame_added_among_those_a_run_labelled_is_named_not_taken_for_a_lost_label(tmp_path, capsys):

@@ -228,7 +228,8 @@ def log_cloud_crosscheck(rec: RecorderProtocol, report) -> None:
             rec.log_crosscheck_iteration(name, k, moved, error=err, fitness=fit, inlier_rmse=rmse)
     slim = {"implementations": {n: {k: v for k, v in r.items() if k in (
         "iterations", "fitness", "inlier_rmse", "seconds", "rotation_disagreement_deg", "translation_disagreement",
-        "centroid_disagreement", "matrix_relative_disagreement", "agrees")} for n, r in report.rows.items()}}
+        "centroid_disagreement", "matrix_relative_disagreement", "pose_relative_disagreement", "agrees")}
+        for n, r in report.rows.items()}}
     rec.log_crosscheck(slim)
 
 
@@ -260,7 +261,7 @@ def format_table(out: dict) -> str:
             continue
         lines.append(f"{label:24s} {r['comparability']:12s} {f(r['iterations'], 'd'):>5s} {f(r['fitness'], '.4f'):>8s} "
                      f"{f(r['inlier_rmse']):>9s} {f(r['rotation_disagreement_deg']):>9s} "
-                     f"{f(r.get('centroid_disagreement')):>9s} {f(r['matrix_relative_disagreement']):>9s} "
+                     f"{f(r.get('centroid_disagreement')):>9s} {f(r.get('pose_relative_disagreement')):>9s} "
                      f"{f(r['agrees']):>6s} {r['seconds']:6.2f}")
         if (r.get("scale_disagreement") or 0.0) > 1e-6:  # neither rot deg nor centroid shows it
             lines.append(f"{'':24s} not rigid: it scales the cloud {100 * r['scale_disagreement']:.3g}% against the "
@@ -280,8 +281,9 @@ def format_table(out: dict) -> str:
     s = out["settings"]
     lines.append(f"settings: gate {s['max_correspondence_distance']:.4g}, max {s['max_iterations']} iterations, "
                  f"{s['source_points']} source / {s['target_points']} target points; rot deg, centroid (how far "
-                 "apart the two poses put the source's centroid) and rel are disagreements with the reference "
-                 "(fixed-point and objective rows: with the reference run to convergence)")
+                 "apart the two poses put the source's centroid) and rel (the poses' relative difference about that "
+                 "centroid, which agrees judges) are disagreements with the reference (fixed-point and objective rows: "
+                 "with the reference run to convergence)")
     if s.get("unconstrained"):
         lines.append(f"unconstrained: {s['unconstrained']}; no row's pose can be trusted")
     return "\n".join(lines)

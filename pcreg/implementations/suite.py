@@ -323,7 +323,7 @@ def _check_case_files(d: Path, source: int, target: int, declared, init: np.ndar
 # Run a suite
 # ---------------------------------------------------------------------------------------------------
 
-COLUMNS = ("case", "implementation", "comparability", "status", "agrees", "matrix_relative_disagreement",
+COLUMNS = ("case", "implementation", "comparability", "status", "agrees", "matrix_relative_disagreement", "pose_relative_disagreement",
            "rotation_disagreement_deg", "translation_disagreement", "truth_rotation_deg", "truth_translation",
            "iterations", "converged", "seconds", "divergence", "error")
 

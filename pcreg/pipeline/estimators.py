@@ -221,8 +221,8 @@ class GlobalEstimator:
         """Nothing: each frame's global registration builds its own pyramids."""
         return None
 
-    def check_size(self, shape: tuple[int, int]) -> None:  # a stream's levels are not its user's to set
-        self.config.pyramid.check_shape(shape, hint=False)
+    def check_size(self, shape: tuple[int, int]) -> None:  # levels=N: a Propagator's register=; pcreg run takes none
+        self.config.pyramid.check_shape(shape, cli=False)
 
     def warm_starts(self, anchor: str) -> bool:
         return False
@@ -256,7 +256,7 @@ class DenseEstimator:
     def check_size(self, shape: tuple[int, int]) -> None:
         self.cold.check_shape(shape)
         if self.step.global_start == "register":
-            self.config.pyramid.check_shape(shape, hint=False)
+            self.config.pyramid.check_shape(shape, cli=False)
 
     def warm_starts(self, anchor: str) -> bool:
         """From the previous step's grid: anchored to the key frame, from the identity, with ``step.warm``."""

@@ -511,20 +511,22 @@ def paired_targets(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_di
 
 
 def check_rotation_pairs(fitness: float, source_points: int, model: str, d: int, max_distance: float, *,
-                         converged: bool) -> None:
+                         converged: bool, metric: str = "point_to_point") -> None:
     """Raise when a ``rigid`` ICP that says it ``converged`` ended with fewer pairs (``fitness`` x ``source_points``
     matched within ``max_distance``) than fix a rotation in ``d`` dimensions (:func:`pairs_needed`: 2 in 2-D, 3 in
     3-D): about them any turn fits as well, and the result's is arbitrary. The reference's step does not take such
     pairs (its run stops there, not converged, and is not refused here); Open3D's takes any non-empty set: two pairs
-    of 52 source points in 3-D gave a half turn about a skew axis, "converged", inlier RMSE 1.7e-15."""
-    need = pairs_needed(model, d)
+    of 52 source points in 3-D gave a half turn about a skew axis, "converged", inlier RMSE 1.7e-15. A
+    point-to-plane (point-to-line) step takes one equation a pair: it needs a pair an unknown (``metric``)."""
+    need = pairs_needed(model, d, metric)
     pairs = int(round(fitness * source_points))
     if model != "rigid" or not converged or pairs >= need:
         return
     raise RegistrationError(
         f"registration refused: at the result only {pairs} source point(s) of {source_points} lie within the "
         f"correspondence distance {max_distance:g} of a target point, and a rigid motion in {d}-D needs {need} to fix "
-        "its rotation: the turn about them is arbitrary (give an init nearer the answer, or a larger "
+        f"its rotation{'' if metric == 'point_to_point' else ' (one equation a pair, ' + metric.replace('_', ' ') + ')'}: "
+        "the turn about them is arbitrary (give an init nearer the answer, or a larger "
         "max_correspondence_distance)")
 
 

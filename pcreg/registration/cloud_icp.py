@@ -184,7 +184,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
                                 f"{schedule[-1][2]:g} of a target point; {where} (give an init "
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
     check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
-    check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=r.converged is not False)
+    check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=r.converged is not False, metric=options.metric)
     if first is not None:  # one scale: a linearised metric takes no schedule
         check_progress(first, r, d, options.metric)
         check_paired_normals(T, s, t, target_normals, d, options.metric)

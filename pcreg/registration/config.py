@@ -79,15 +79,15 @@ class PyramidConfig:
         _set(self, "reference_max_points", check_count(self.reference_max_points, "reference_max_points"))
         _set(self, "canny_percentile", check_float(self.canny_percentile, "canny_percentile", lo=0, hi=100))
 
-    def check_shape(self, shape: tuple[int, ...], name: str = "images", *, hint: bool = True) -> None:
+    def check_shape(self, shape: tuple[int, ...], name: str = "images", *, cli: bool = True) -> None:
         """Refuse images of ``shape`` too small for the levels: the coarsest under 8 px a side (``name``: which
-        image, for the message; ``hint``: it names the levels that would take them, for a caller that lets its
-        user set them)."""
+        image, for the message; it names the levels that would take them, ``levels=N`` and, with ``cli`` (a command
+        that takes ``--levels``), ``--levels N``)."""
         side = min(shape[:2])
         if side >> (self.levels - 1) < 8:
             said = "images are" if name == "images" else f"{name} ({shape[1]}x{shape[0]}) is"
             fits = max((n for n in range(1, self.levels) if side >> (n - 1) >= 8), default=0)
-            fit = f"; {fits} level{'s' * (fits > 1)} take{'s' * (fits == 1)} it: levels={fits}, --levels {fits}" if fits and hint else ""
+            fit = f"; {fits} level{'s' * (fits > 1)} take{'s' * (fits == 1)} it: levels={fits}{f', --levels {fits}' * cli}" if fits else ""
             raise InputError(f"{said} too small for {self.levels} pyramid levels (the shorter side needs at least "
                              f"{8 << (self.levels - 1)} px{fit})")
 

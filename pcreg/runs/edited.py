@@ -46,14 +46,18 @@ def check_same_frames(frames, out: Path, key_frame: str, key_bytes, contents=Non
 def check_same_truth(truth, out: Path, step: dict) -> None:
     """An :class:`~pcreg.errors.OutputError` when the truth map (of ``truth``, a
     :class:`~pcreg.runs.inputs.TruthMaps`) that the run in ``out`` scored ``step``'s frame against no longer holds the
-    bytes it did (its line's ``truth_digest``): the run's error would mix scores against two truths."""
+    labels it did (its line's ``truth_digest``, :func:`~pcreg.runs.files.label_digest`; a map saved again with the
+    same labels is the same): the run's error would mix scores against two truths. A map gone is the
+    :class:`~pcreg.errors.InputError` of any frame without one."""
+    from .files import label_digest
+
     digest = step.get("truth_digest")
     if truth is None or not isinstance(digest, str):
         return
-    f = truth.path(int(step["frame"]))
-    if not f.is_file() or file_digest(f) != digest:
-        raise OutputError(f"{f}: changed since the run in {out} scored {step.get('name', 'its frame')} against it: "
-                          "its error is against the truth as it was; use --force to start over")
+    t = int(step["frame"])
+    if label_digest(truth[t]) != digest:
+        raise OutputError(f"{truth.path(t)}: changed since the run in {out} scored {step.get('name', 'its frame')} "
+                          "against it: its error is against the truth as it was; use --force to start over")
 
 
 def check_key_files(frames, out: Path, state: dict, keys) -> None:

@@ -48,7 +48,7 @@ import numpy as np
 from ..classes.keys import LabelCoding, run_table
 from ..errors import InputError, OutputError
 from ..outputs import atomic_file
-from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, check_same_truth, file_digest,
+from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, check_same_truth,
                      frame_bytes, frame_stamp, key_contents)
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
@@ -341,9 +341,9 @@ class Run:
                 if where == gone or gone in where.parents:
                     raise OutputError(f"{path}: holds {given}, an input of this run, and a run started over in "
                                       f"{self.out} removes it; move the input or choose another --out")
-        kept = {resolved(p) for p in inputs}  # the key labels in --out (refused as overwritten, not removed)
+        kept = {resolved(p) for p in inputs}  # the key labels in --out, or --out a folder of them: kept
         for f in labels_written(self.out):
-            if resolved(f) not in kept and not kept & set(resolved(f).parents):
+            if resolved(f) not in kept and resolved(f).parent not in kept:
                 f.unlink(missing_ok=True)
         for slot in (0, 1):
             (self.out / CARRY.format(slot)).unlink(missing_ok=True)
@@ -462,8 +462,8 @@ class Run:
         truth, plain = scored
         if truth is not None and counts is not None:
             count_frame(counts, labels, truth, plain, unknown=self.table.unknown)
-        if truth is not None and self.truth is not None:  # what a resumed run checks the truth map against
-            step["truth_digest"] = file_digest(self.truth.path(t))
+        if truth is not None:  # what a resumed run checks the truth map against: its labels, not its file's bytes
+            step["truth_digest"] = label_digest(truth)
         append_step(self.out, step)
 
     def record(self, t: int, labels: np.ndarray, report, plain: np.ndarray | None = None, carry=None,

@@ -221,7 +221,10 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
     newer = format_problem(state, state_path)
     if newer is not None:
         raise OutputError(f"{newer}, or --force to start over")
-    if state.get("run") != identity and _reaches_further(state.get("run"), identity):
+    before = _without_unused(state.get("run"))
+    if before != state.get("run") and before == identity:  # begun when dense and flow took --backend and --init
+        state["run"] = identity
+    if state.get("run") != identity and _reaches_further(before, identity):
         state["run"] = identity  # the same run, its --stop later (or gone): it goes on to the frames added
         state.pop("video_end", None)
     if state.get("run") != identity:
@@ -232,6 +235,14 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
         raise OutputError(f"{state_path}: its {field!r} is not as pcreg run writes it; use --force to start over")
     state["format"] = FORMAT  # the same layout, named from now on
     return state
+
+
+def _without_unused(run):
+    """A run's identity (run.json's ``run``) with the ``backend`` and ``init`` a dense field or DIS's flow never used
+    put back to their defaults: a run begun with them, when they were taken, goes on without them."""
+    if not (isinstance(run, dict) and (run.get("model") == "dense" or str(run.get("model")).startswith("flow:"))):
+        return run
+    return {**run, **{k: v for k, v in (("backend", "reference"), ("init", "identity")) if k in run}}
 
 
 def _reaches_further(before, now: dict | None) -> bool:

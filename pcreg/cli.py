@@ -345,7 +345,8 @@ def _main(argv: list[str] | None) -> int:
             pass
         return 141
     except MemoryError:
-        sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels)\n")
+        sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels; pcreg run's steps grow "
+                         "with the frames' size and the classes the key frames show: --scale 0.5 takes a quarter)\n")
         return 2
     except OSError as exc:  # the file system refused (a full disk, a folder where a file goes, permissions)
         where = f": {exc.filename}" if getattr(exc, "filename", None) else ""

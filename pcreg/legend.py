@@ -9,7 +9,8 @@ height follows the frame's (:func:`row_height`): a 320x240 frame's text is 9 px 
 would not fit (the box over half its height, or one entry wider than the frame) loses the classes' figures first,
 then the row of figures, then the classes: its name alone (:attr:`Legend.complete` False).
 
-Drawn with OpenCV (Hershey font: ASCII; another character is drawn as ``?``).
+Drawn with OpenCV (Hershey font: ASCII): a class's name as :func:`drawn_names` gives it (accents folded, a name of no
+ASCII form as ``class ID``); another character of a title or a row is drawn as ``?``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 
 from .classes import ClassTable
 
-__all__ = ["Legend", "row_height", "draw_legend", "legend_figures"]
+__all__ = ["Legend", "row_height", "draw_legend", "legend_figures", "drawn_names"]
 
 Box = tuple[int, int, int, int]  # x0, y0, x1, y1: the pixels x0 <= x < x1, y0 <= y < y1
 
@@ -55,6 +56,21 @@ def row_height(shape: tuple[int, ...]) -> int:
 
 def _ascii(text: str) -> str:
     return "".join(ch if " " <= ch <= "~" else "?" for ch in text)
+
+
+def drawn_names(classes) -> dict[int, str]:
+    """Each class's name as the legend draws it (Hershey's ASCII): accents folded (``nébo`` as ``nebo``), and a
+    name with characters of no ASCII form (``道路``) as ``class ID``, where each was drawn as ``?`` and two
+    classes' names could read alike; names that still read alike gain their ids."""
+    import unicodedata
+
+    def folded(name: str) -> str:
+        plain = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode("ascii")
+        return plain if plain.strip() and all(" " <= ch <= "~" for ch in plain) and len(plain) >= len(name) // 2 else ""
+
+    drawn = {c.id: folded(c.name) or f"class {c.id}" for c in classes}
+    twice = {n for n in drawn.values() if list(drawn.values()).count(n) > 1}
+    return {i: f"{n} ({i})" if n in twice else n for i, n in drawn.items()}
 
 
 def _layout(shape: tuple[int, ...], title: str, items: list[str], *, inset: int,
@@ -114,8 +130,9 @@ def draw_legend(image: np.ndarray, labels: np.ndarray, *, title: str, table: Cla
     present = np.bincount(labels.ravel(), minlength=256) > 0
     shown = [c for c in table.known if present[c.id]]
     hatching = [] if hatched_below is None else [f"hatched: confidence < {hatched_below:.0%}"]
-    names = [_ascii(c.name) for c in shown]
-    scored = [_ascii(f"{c.name} {scores[c.id]}" if c.id in scores else c.name) for c in shown] if scores else None
+    drawn = drawn_names(table.known)
+    names = [drawn[c.id] for c in shown]
+    scored = [_ascii(f"{drawn[c.id]} {scores[c.id]}" if c.id in scores else drawn[c.id]) for c in shown] if scores else None
     tries: list[tuple[str | None, list[str] | None]] = (
         [(figures if not scores_key else f"{figures}; {scores_key}", scored)] if figures and scored else [])
     tries += [(figures, None)] if figures else []

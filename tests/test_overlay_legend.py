@@ -206,3 +206,14 @@ def test_a_frames_figures_read_predicted_then_against_the_truth_in_brackets():
     assert legend_figures(5.66, {0: 0.981}, None, {}) == {
         "figures": "predicted error 5.7%", "scores": {0: "0.98"},
         "scores_key": "after each class its predicted IoU"}
+
+
+def test_class_names_of_no_ascii_form_are_drawn_apart():
+    """The legend's font is ASCII: 道路, 天空 and 其他 were each drawn as "??", three classes alike. Accents are folded,
+    a name of no ASCII form is drawn as its id, and names that still read alike gain their ids."""
+    from pcreg.classes import LabelClass
+    from pcreg.legend import drawn_names
+
+    classes = [LabelClass(1, "道路", (1, 1, 1)), LabelClass(2, "天空", (2, 2, 2)), LabelClass(3, "nébo", (3, 3, 3)),
+               LabelClass(5, "road", (5, 5, 5)), LabelClass(6, "rôad", (6, 6, 6)), LabelClass(7, "sky", (7, 7, 7))]
+    assert drawn_names(classes) == {1: "class 1", 2: "class 2", 3: "nebo", 5: "road (5)", 6: "road (6)", 7: "sky"}

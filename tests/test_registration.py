@@ -553,3 +553,44 @@ def test_edges_that_run_one_way_are_refused_not_given_an_arbitrary_motion(angle)
     assert edge_spread(cloud_pyramid(b, levels=4)) < ONE_DIRECTION
     grid = np.clip(128 + 60 * np.sin(2 * np.pi * x / 23) + 60 * np.sin(2 * np.pi * y / 31) + noise, 0, 255).astype(np.uint8)
     assert edge_spread(cloud_pyramid(np.dstack([grid] * 3), levels=4)) > 2 * ONE_DIRECTION
+
+
+def test_an_overexposed_photo_whose_coarse_levels_hold_no_edge_is_refused_not_called_bad_input(shared_data):
+    """A photo turned by 300 degrees and overexposed (x2, 46% of its pixels white): the check that refines the
+    result again from nudged starts began at a coarse level without an edge point, and the registration ended as
+    bad input, "source: the cloud is empty" (exit 2), naming neither image. The pass starts at the coarsest level
+    that has points, as the refinement's own loop does: the pair is refused (exit 3) or registered, never bad input."""
+    import cv2
+
+    clock = cv2.imread(str(shared_data / "photos" / "clock_motion.png"))[:, :, ::-1].copy()
+    h, w = clock.shape[:2]
+    M = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), 300, 1.0)
+    side = int(round(h * abs(M[0, 1]) + w * abs(M[0, 0]))), int(round(h * abs(M[0, 0]) + w * abs(M[0, 1])))
+    M[0, 2] += (side[0] - 1) / 2 - (w - 1) / 2
+    M[1, 2] += (side[1] - 1) / 2 - (h - 1) / 2
+    turned = cv2.warpAffine(clock, M, side)
+    bright = (turned.astype(np.float32) * 2).clip(0, 255).astype(np.uint8)
+    try:
+        r = pcreg.register(clock, bright)
+    except RegistrationError:
+        return
+    corners = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], float)
+    truth = np.vstack([M, [0, 0, 1]])
+    assert np.abs(tf.apply(np.linalg.inv(r.matrix), corners) - tf.apply(truth, corners)).max() < 3
+
+
+@pytest.mark.parametrize("flip, angle", [(1, 37), (0, 143)])
+def test_a_page_of_text_mirrored_and_turned_is_refused_as_a_mirror_image(shared_data, flip, angle):
+    """Its lines of text lined up 61-64% of the edge points laid on the reference, over a fifth of the image:
+    convincing, so the mirror was never tried, and a mirrored page was registered as a rigid motion, trusted."""
+    import cv2
+
+    page = cv2.imread(str(shared_data / "photos" / "page.png"))[:, :, ::-1].copy()
+    h, w = page.shape[:2]
+    M = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), angle, 1.0)
+    side = int(round(h * abs(M[0, 1]) + w * abs(M[0, 0]))), int(round(h * abs(M[0, 0]) + w * abs(M[0, 1])))
+    M[0, 2] += (side[0] - 1) / 2 - (w - 1) / 2
+    M[1, 2] += (side[1] - 1) / 2 - (h - 1) / 2
+    mirrored = cv2.warpAffine(np.ascontiguousarray(cv2.flip(page, flip)), M, side)
+    with pytest.raises(RegistrationError, match="mirror image of the reference"):
+        pcreg.register(page, mirrored)

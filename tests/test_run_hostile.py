@@ -711,3 +711,18 @@ def test_a_runs_recording_plots_each_frames_predicted_error(tmp_path):
     steps = [json.loads(line) for line in (tmp_path / "out" / "steps.jsonl").read_text().splitlines()]
     series = rec.series("/errors/predicted")
     assert series == pytest.approx({s["frame"]: s["predicted_error"] for s in steps}, rel=1e-6)
+
+
+def test_running_out_of_memory_names_the_run_s_way_down(tmp_path, monkeypatch, capsys):
+    """"out of memory (use smaller inputs or a lower --max-pixels)": for a run of frames far below the pixel limit
+    whose key frames show 254 classes, the one way down that helps, --scale, went unsaid."""
+    import pcreg.runs.run
+
+    def exhausted(request):
+        raise MemoryError
+
+    monkeypatch.setattr(pcreg.runs.run.Run, "label", staticmethod(exhausted))
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=3)
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and "out of memory" in err[0] and "--scale 0.5" in err[0], err

@@ -202,7 +202,11 @@ def parse_table_json(text: str | dict, where: str) -> ClassTable:
     classes = []
     for i, c in enumerate(doc["classes"]):
         if not isinstance(c, dict) or not {"name", "colour"} <= set(c) or not set(c) <= {"id", "name", "colour"}:
-            raise InputError(f"{where}: class {i} is not {{\"id\", \"name\", \"colour\"}}")
+            odd = sorted(set(c) - {"id", "name", "colour"}) if isinstance(c, dict) else []
+            lacks = sorted({"name", "colour"} - set(c)) if isinstance(c, dict) else []
+            said = "; ".join(filter(None, (f"it has {', '.join(map(repr, odd))}" if odd else "",
+                                           f"it lacks {', '.join(map(repr, lacks))}" if lacks else "")))
+            raise InputError(f"{where}: class {i} is not {{\"id\", \"name\", \"colour\"}}{f' ({said})' if said else ''}")
         colour = c["colour"]
         if not isinstance(colour, list) or not all(isinstance(v, int) and not isinstance(v, bool) for v in colour):
             raise InputError(f"{where}: class {short_repr(c.get('name'))} has colour {short_repr(colour)}, not [R, G, B] integers")

@@ -91,7 +91,9 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
     ok_id = isinstance(c.id, (int, np.integer)) and not isinstance(c.id, bool) and 0 <= int(c.id) < MAX_CLASSES
     if not ok_id:
         raise InputError(f"{where}: class id {short_repr(c.id)} is not an integer 0..255")
-    if not isinstance(c.name, str) or not c.name.strip() or c.name != c.name.strip():
+    if not isinstance(c.name, str):
+        raise InputError(f"{where}: class {c.id}'s name {short_repr(c.name)} is not text")
+    if not c.name.strip() or c.name != c.name.strip():
         raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it)")
     if c.name.startswith("#") or any(ch in ":\x85\u2028\u2029" or ord(ch) < 32 or 0xD800 <= ord(ch) <= 0xDFFF
                                      for ch in c.name):
@@ -100,12 +102,13 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
         # comment line to CVAT and Datumaro, which read a '#' anywhere else as part of the name)
         raise InputError(f"{where}: class name {c.name!r} holds ':', a line break or a control character, "
                          "or starts with '#'")
+    numbers = (int, float, np.integer, np.floating)
+    given = list(c.colour) if isinstance(c.colour, (tuple, list, np.ndarray)) else []  # not '128', digit by digit
     try:
-        colour = tuple(int(v) for v in c.colour)
-    except (TypeError, ValueError):
+        colour = tuple(int(v) for v in given if isinstance(v, numbers) and not isinstance(v, bool) and float(v) == int(v))
+    except (TypeError, ValueError, OverflowError):
         colour = ()
-    if len(colour) != 3 or any(v < 0 or v > 255 for v in colour) or \
-            any(isinstance(v, bool) or float(v) != int(v) for v in c.colour):
+    if len(given) != 3 or len(colour) != 3 or any(v < 0 or v > 255 for v in colour):
         raise InputError(f"{where}: class {c.name!r} has colour {short_repr(c.colour)}, not three integers 0..255")
     return LabelClass(int(c.id), c.name, (colour[0], colour[1], colour[2]))
 

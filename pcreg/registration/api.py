@@ -25,7 +25,7 @@ from .dense.levels import check_prepared
 from .features import feature_check
 from .global_search import gray_level, orb_fit
 from .inputs import check_cloud
-from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, NARROWER, RICHER_MODEL, Plausibility, model_fit
+from .plausibility import CHANCE_FACTOR, MIRROR_FACTOR, MIRROR_OVERLAP, NARROWER, RICHER_MODEL, Plausibility, model_fit
 from .pyramid import CloudPyramid
 from .refine import CoarseToFine
 from .result import IcpIteration, ImageEvidence, RegistrationResult
@@ -407,7 +407,8 @@ def _candidates(init, moving: CloudPyramid, refiner: CoarseToFine, test: Plausib
     if isinstance(init, str):  # one of the config's names, checked there
         if init in ("auto", "global"):
             tried = search.run(moving)
-            if not test.worth_a_mirror(tried, any(search.is_convincing(c) for c in tried)):
+            convinced = any(search.is_convincing(c) and c.evidence.overlap >= MIRROR_OVERLAP for c in tried)
+            if not test.worth_a_mirror(tried, convinced):
                 return tried, None
             mirrored = search.run(moving.mirrored())
             return tried, (max(mirrored, key=lambda c: c.score) if mirrored else None)

@@ -87,6 +87,8 @@ class CoarseToFine:
                callback: Callable[[IcpIteration], None] | None = None) -> Refinement:
         """Coarse-to-fine ICP from ``T`` (from level ``top``, default the coarsest)."""
         out = Refinement(T)
+        while top is not None and top > 0 and (len(moving[top]) < 3 or len(self.reference[top]) < 3):
+            top -= 1  # no edge points there (an overexposed frame's coarse levels): the pass starts finer, as the loop does
         if top is not None:
             # A start already within a few cells of level ``top``: one pass there with twice the
             # correspondence distance brings it into the usual gate.

@@ -16,7 +16,7 @@ import pcreg
 from pcreg.classes import CAMVID11, DAVIS, LAGR, is_palette_png, write_label_png
 from pcreg.cli import main
 from pcreg.export import read_labels
-from _runs import frames_folder, one_line_errors
+from _runs import drifting_frames, frames_folder, one_line_errors
 
 N = 4
 
@@ -388,3 +388,31 @@ def test_the_lost_classes_of_a_key_frames_run_are_those_of_each_steps_own_key_fr
     assert line == ("\nclasses the key frame(s) hold that the labels lost: car in 2 frame(s) from f5 (a class that left "
                     "the view, or one the labels missed: the predicted error cannot tell)")
     assert lost_summary({1: steps[1]}, key_classes(tmp_path, CAMVID11, None), str, CAMVID11) == ""
+
+
+def test_a_class_drawn_on_neither_key_frame_around_a_stretch_is_noted(tmp_path, capsys):
+    """Key frames that each draw some of the classes: the frames between two that leave out a class another key
+    frame draws were labelled without it, and predicted 0.03% wrong where 24% were (a road drawn on the first key
+    frame only). The run notes it before the first frame, naming the class and the key frames."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    table = tmp_path / "three.json"
+    table.write_text(json.dumps({"classes": [{"id": 0, "name": "road", "colour": [128, 64, 128]},
+                                             {"id": 1, "name": "sky", "colour": [128, 128, 128]},
+                                             {"id": 2, "name": "tree", "colour": [128, 128, 0]},
+                                             {"id": 3, "name": "void", "colour": [0, 0, 0]}], "unknown": 3}))
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    lab = np.zeros((48, 64), np.uint8)
+    lab[:, 20:40], lab[:, 40:] = 1, 2
+    cv2.imwrite(str(keys / "f0.png"), lab)
+    later = np.where(lab == 0, 3, lab).astype(np.uint8)  # the road left unknown
+    for name in ("f3.png", "f5.png"):
+        cv2.imwrite(str(keys / name), later)
+    assert main(["run", str(folder), "--labels", str(keys), "--classes", str(table), "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert (f"--labels {keys}: road, drawn on other key frames, on neither of f3.png and f5.png, which label the "
+            "frames around them: those frames are not given it") in err, err
+    cv2.imwrite(str(keys / "f3.png"), lab)
+    cv2.imwrite(str(keys / "f5.png"), lab)
+    assert main(["run", str(folder), "--labels", str(keys), "--classes", str(table), "--out", str(tmp_path / "p")]) == 0
+    assert "on neither of" not in capsys.readouterr().err

@@ -196,7 +196,7 @@ def _ply_body_end(path: Path, start: int, size: int, elements: list[list], fmt: 
                 continue
             if any(c is not None and c not in counts for c, _ in props):
                 return size
-            uniform = _uniform_lists(data, at, size, e[1], props, order + counts.get(next(c for c, _ in props if c), "B"))
+            uniform = _uniform_lists(data, at, size, e[1], props, order + counts[next(c for c, _ in props if c)])
             if uniform is not None:  # every record's list of one length (a mesh of triangles): at once
                 at = uniform
                 continue

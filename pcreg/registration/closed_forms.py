@@ -25,7 +25,7 @@ LINE_UNKNOWNS = {"translation": 2, "rigid": 3, "similarity": 4, "affine": 6, "pr
 
 def pairs_needed(model: str, d: int, metric: str = "point_to_point") -> int:
     """The fewest matched pairs an ICP step of ``model`` takes in ``d`` dimensions (:data:`MIN_POINTS` in 2-D,
-    :data:`MIN_POINTS_3D` in 3-D; a point-to-line or point-to-plane step one a unknown, :data:`LINE_UNKNOWNS`):
+    :data:`MIN_POINTS_3D` in 3-D; a point-to-line or point-to-plane step a pair for each unknown, :data:`LINE_UNKNOWNS`):
     with fewer, a run stops where it is, not converged. (A point-to-plane step of four pairs solved as singular
     gave no motion, and the run said it converged at its start.)"""
     if metric == "point_to_line":

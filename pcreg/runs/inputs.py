@@ -73,8 +73,7 @@ def _unheld_note(request, frames, keys: dict, table) -> str | None:
     from ..classes.table import listed_name
     from ..pipeline.engine import stretches
 
-    held = {t: set(np.flatnonzero(np.bincount(np.asarray(lab).ravel(), minlength=256)).tolist()) - {table.unknown}
-            for t, lab in keys.items()}
+    held = _held_classes(keys, table)
     drawn = set().union(*held.values())
     unheld = [(s, drawn - set().union(*(held[t] for t in s.keys)))
               for s in stretches(keys, len(frames) if frames.kind == "folder" else None)]
@@ -88,6 +87,12 @@ def _unheld_note(request, frames, keys: dict, table) -> str | None:
     return (f"--labels {request.labels}: {names}, drawn on other key frames, on neither of {around}, which label the "
             f"frames around them{more}: those frames are not given it, and their predicted error does not count it "
             "(draw every class a key frame shows)")
+
+
+def _held_classes(keys: dict, table) -> dict[int, set[int]]:
+    """The known classes each key frame's labels (``keys``, {position: labels}) hold."""
+    return {t: set(np.flatnonzero(np.bincount(np.asarray(lab).ravel(), minlength=256)).tolist()) - {table.unknown}
+            for t, lab in keys.items()}
 
 
 def _check_fits(request, frames, keys: dict, table) -> None:
@@ -105,11 +110,9 @@ def _check_fits(request, frames, keys: dict, table) -> None:
         groups = [(min(keys),)]
     else:
         groups = [tuple(s.keys) for s in stretches(keys, len(frames) if frames.kind == "folder" else None)]
+    held = _held_classes(keys, table)
     for group in groups:
-        present: set[int] = set()
-        for t in group:
-            present.update(int(c) for c in np.flatnonzero(np.bincount(np.asarray(keys[t]).ravel(), minlength=256)))
-        present.discard(table.unknown)
+        present = set().union(*(held[t] for t in group))
         if len(present) < 2:
             only = ", ".join(listed_name(table.name_of(c)) for c in sorted(present)) or "none"
             which = " and ".join(frames.name(t) for t in group)

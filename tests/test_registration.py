@@ -594,3 +594,17 @@ def test_a_page_of_text_mirrored_and_turned_is_refused_as_a_mirror_image(shared_
     mirrored = cv2.warpAffine(np.ascontiguousarray(cv2.flip(page, flip)), M, side)
     with pytest.raises(RegistrationError, match="mirror image of the reference"):
         pcreg.register(page, mirrored)
+
+
+def test_a_refusal_as_a_mirror_of_images_far_apart_in_size_says_their_sizes_too(shared_data):
+    """A photo shrunk to 0.3x was refused as "a mirror image of the reference" alone (its mirror aligned 17.6% of
+    the edge points, itself 12%: neither is an alignment), where other 0.3x views name their sizes 3.3x apart."""
+    import cv2
+
+    clock = cv2.imread(str(shared_data / "photos" / "clock_motion.png"))[:, :, ::-1].copy()
+    h, w = clock.shape[:2]
+    M = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), 0, 0.3)  # shrunk about its centre, not area-averaged
+    M[:, 2] += [(round(0.3 * w) - 1) / 2 - (w - 1) / 2, (round(0.3 * h) - 1) / 2 - (h - 1) / 2]
+    small = cv2.warpAffine(clock, M, (round(0.3 * w), round(0.3 * h)))
+    with pytest.raises(RegistrationError, match=r"sizes 3\.3x apart"):
+        pcreg.register(clock, small, config=pcreg.RegisterConfig.of(model="similarity"))

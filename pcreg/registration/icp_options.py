@@ -43,6 +43,9 @@ class VoxelSchedule:
     voxel_sizes : e.g. (1.0, 0.5, 0.25), each > 0 (the clouds' units).
     max_correspondence_distances : per size (None: 2 x the voxel size).
     max_iterations : per size (None: :attr:`ICPOptions.max_iteration` at each).
+
+    The result's ``fitness`` and ``inlier_rmse`` are those of the last size's downsampled clouds, as Open3D's
+    ``multi_scale_icp`` reports them, not of the clouds given (score those with the returned matrix to compare).
     """
 
     voxel_sizes: tuple[float, ...]

@@ -192,7 +192,7 @@ class Plausibility:
                 f"registration refused: the moving image is a mirror image of the reference (its mirror aligns "
                 f"{100 * mirror.inlier_ratio:.1f}% of the edge points within {self.inlier_tolerance:g} px, the image "
                 f"itself {100 * ratio:.1f}%" + (", with intensities agreeing less)" if ratio >= (self.min_inlier_ratio or 0.0)
-                                                 else ")"))
+                                                 else ")") + self._sizes(shape))  # 3x apart, neither aligns: both said
         mir, chance = self.min_inlier_ratio, ev.chance_ratio
         spread = None if moving is None or mir is None or mir <= 0 else edge_spread(moving)
         if spread is not None and spread < ONE_DIRECTION:

@@ -183,8 +183,7 @@ def _ply_body_end(path: Path, start: int, size: int, elements: list[list], fmt: 
     records with list properties (a mesh's faces) by the counts the file holds (up to :data:`MAX_WALKED` records
     of them; more are taken to end with the file, and so are lists of a count type pcreg does not know). None when a
     list's count is negative or runs past the file's ``size``."""
-    at = start
-    walked = 0
+    at, walked = start, 0
     order = "<" if fmt == "binary_little_endian" else ">"
     counts = {"char": "b", "int8": "b", "uchar": "B", "uint8": "B", "short": "h", "int16": "h", "ushort": "H",
               "uint16": "H", "int": "i", "int32": "i", "uint": "I", "uint32": "I"}

@@ -64,9 +64,18 @@ def drawn_names(classes) -> dict[int, str]:
     classes' names could read alike; names that still read alike gain their ids."""
     import unicodedata
 
+    letters = {"ß": "ss", "æ": "ae", "Æ": "AE", "ø": "o", "Ø": "O", "ł": "l", "Ł": "L", "œ": "oe", "Œ": "OE", "đ": "d",
+               "Đ": "D", "þ": "th", "Þ": "Th", "ı": "i"}
+
+    def one(ch: str) -> str:
+        if " " <= ch <= "~":
+            return ch
+        base = unicodedata.normalize("NFKD", ch).encode("ascii", "ignore").decode("ascii")
+        return letters.get(ch) or (base if base.strip() else "?")
+
     def folded(name: str) -> str:
-        plain = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode("ascii")
-        return plain if plain.strip() and all(" " <= ch <= "~" for ch in plain) and len(plain) >= len(name) // 2 else ""
+        plain = "".join(one(ch) for ch in name)
+        return "" if plain.count("?") > sum(ch.isalnum() for ch in plain) else plain
 
     drawn = {c.id: folded(c.name) or f"class {c.id}" for c in classes}
     twice = {n for n in drawn.values() if list(drawn.values()).count(n) > 1}

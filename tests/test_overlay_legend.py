@@ -217,3 +217,5 @@ def test_class_names_of_no_ascii_form_are_drawn_apart():
     classes = [LabelClass(1, "道路", (1, 1, 1)), LabelClass(2, "天空", (2, 2, 2)), LabelClass(3, "nébo", (3, 3, 3)),
                LabelClass(5, "road", (5, 5, 5)), LabelClass(6, "rôad", (6, 6, 6)), LabelClass(7, "sky", (7, 7, 7))]
     assert drawn_names(classes) == {1: "class 1", 2: "class 2", 3: "nebo", 5: "road (5)", 6: "road (6)", 7: "sky"}
+    letters = [LabelClass(1, "Straße", (1, 1, 1)), LabelClass(2, "Łąka", (2, 2, 2)), LabelClass(3, "æble", (3, 3, 3))]
+    assert drawn_names(letters) == {1: "Strasse", 2: "Laka", 3: "aeble"}  # letters of no accent are not dropped

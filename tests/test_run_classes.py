@@ -416,3 +416,15 @@ def test_a_class_drawn_on_neither_key_frame_around_a_stretch_is_noted(tmp_path, 
     cv2.imwrite(str(keys / "f5.png"), lab)
     assert main(["run", str(folder), "--labels", str(keys), "--classes", str(table), "--out", str(tmp_path / "p")]) == 0
     assert "on neither of" not in capsys.readouterr().err
+
+
+def test_a_class_colour_of_text_or_no_dimension_is_refused_by_name():
+    """A colour of text was read digit by digit ('128' as (1, 2, 8)); a 0-d array raised a bare TypeError."""
+    from pcreg.classes import ClassTable, LabelClass
+    from pcreg.errors import InputError
+
+    for colour in ("128", b"abc", {128: 1, 64: 2, 129: 3}, np.array(5), (1, 2, 3.5)):
+        with pytest.raises(InputError, match="has colour .* not three integers 0..255"):
+            ClassTable((LabelClass(0, "road", colour), LabelClass(1, "sky", (1, 2, 4)), LabelClass(2, "u", (0, 0, 0))), 2)
+    with pytest.raises(InputError, match="class 0's name 5 is not text"):
+        ClassTable((LabelClass(0, 5, (9, 9, 9)), LabelClass(1, "sky", (1, 2, 4)), LabelClass(2, "u", (0, 0, 0))), 2)

@@ -218,6 +218,13 @@ def test_a_truth_map_written_again_since_it_was_scored_is_refused_on_resume(tmp_
         assert main(run) == 0
         lines = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines()]
         assert all(isinstance(s["truth_digest"], str) for s in lines), lines
+        from pcreg.runs.edited import file_digest  # the digest of the file's bytes, as first kept: still read
+
+        text = (out / "steps.jsonl").read_text()
+        (out / "steps.jsonl").write_text("".join(json.dumps({**s, "truth_digest": file_digest(truth / s["name"])}) + "\n"
+                                                 for s in lines))
+        assert main(run) == 0
+        (out / "steps.jsonl").write_text(text)
         path = truth / "f2.png"
         kept = path.read_bytes()
         cv2.imwrite(str(path), 1 - cv2.imread(str(key), cv2.IMREAD_UNCHANGED))

@@ -202,7 +202,7 @@ def parse_table_json(text: str | dict, where: str) -> ClassTable:
     classes = []
     for i, c in enumerate(doc["classes"]):
         if not isinstance(c, dict) or not {"name", "colour"} <= set(c) or not set(c) <= {"id", "name", "colour"}:
-            odd = sorted(set(c) - {"id", "name", "colour"}) if isinstance(c, dict) else []
+            odd = sorted(set(c) - {"id", "name", "colour"}, key=repr) if isinstance(c, dict) else []
             lacks = sorted({"name", "colour"} - set(c)) if isinstance(c, dict) else []
             said = "; ".join(filter(None, (f"it has {', '.join(map(repr, odd))}" if odd else "",
                                            f"it lacks {', '.join(map(repr, lacks))}" if lacks else "")))

@@ -103,7 +103,7 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
         raise InputError(f"{where}: class name {c.name!r} holds ':', a line break or a control character, "
                          "or starts with '#'")
     numbers = (int, float, np.integer, np.floating)
-    given = list(c.colour) if isinstance(c.colour, (tuple, list, np.ndarray)) else []  # not '128', digit by digit
+    given = list(c.colour) if isinstance(c.colour, (tuple, list, np.ndarray)) and np.ndim(c.colour) == 1 else []  # not '128'
     try:
         colour = tuple(int(v) for v in given if isinstance(v, numbers) and not isinstance(v, bool) and float(v) == int(v))
     except (TypeError, ValueError, OverflowError):

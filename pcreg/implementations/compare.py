@@ -15,8 +15,8 @@ from ..registration.result import RegistrationResult
 from ..registration.transforms import apply, rotation_part
 from .base import reported
 
-STEP_TOLERANCE = 1e-9  # relative, on the matrix, against the reference run with the same settings
-FIXED_POINT_TOLERANCE = 1e-6  # relative, on the matrix, against the reference run to convergence
+STEP_TOLERANCE = 1e-9  # relative, on the poses about the source's centroid, against the reference run with the same settings
+FIXED_POINT_TOLERANCE = 1e-6  # relative, as STEP_TOLERANCE, against the reference run to convergence
 OBJECTIVE_ROTATION_DEG = 0.5  # objective rows: rotation within 0.5 degrees ...
 OBJECTIVE_TRANSLATION = 0.005  # ... and the source's centroid within 0.5% of the target's bounding-box diagonal
 OBJECTIVE_SCALE = 0.005  # ... and the cloud's size within 0.5% (pycpd's "rigid" model fits a scale too)

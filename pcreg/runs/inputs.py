@@ -82,11 +82,11 @@ def _unheld_note(request, frames, keys: dict, table) -> str | None:
         return None
     s, classes = unheld[0]
     names = ", ".join(listed_name(table.name_of(c)) for c in sorted(classes))
-    around = " and ".join(frames.name(t) for t in s.keys)
+    around = f"on neither of {' and '.join(frames.name(t) for t in s.keys)}" if len(s.keys) > 1 else f"not on {frames.name(s.keys[0])}"
     more = f" ({len(unheld) - 1} more stretch(es) so)" if len(unheld) > 1 else ""
-    return (f"--labels {request.labels}: {names}, drawn on other key frames, on neither of {around}, which label the "
-            f"frames around them{more}: those frames are not given it, and their predicted error does not count it "
-            "(draw every class a key frame shows)")
+    return (f"--labels {request.labels}: {names}, drawn on other key frames, {around}, which label the frames around "
+            f"them{more}: those frames are not given it, and their predicted error does not count it (if they show it, "
+            "draw it on those key frames)")
 
 
 def _held_classes(keys: dict, table) -> dict[int, set[int]]:

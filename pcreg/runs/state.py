@@ -228,7 +228,7 @@ def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
         state["run"] = identity  # the same run, its --stop later (or gone): it goes on to the frames added
         state.pop("video_end", None)
     if state.get("run") != identity:
-        raise OutputError(f"{out} holds a run with other options{_differences(state.get('run'), identity or {})}; "
+        raise OutputError(f"{out} holds a run with other options{_differences(before, identity or {})}; "
                           "use --force to start over or another --out")
     field = state_problem(state)
     if field is not None:

@@ -482,6 +482,8 @@ def test_suite_writes_a_table_and_a_figure(tmp_path):
     files = write_results(tmp_path, rows, skipped=skipped)
     md = Path(files["markdown"]).read_text()
     assert "3d-outliers" in md and "kiss-icp" in md and "lidar" in md
+    # the table shows the figure a row is judged on: the poses compared about the source's centroid
+    assert "| pose_relative_disagreement |" in md and "matrix_relative_disagreement" not in md, md.splitlines()[0]
     assert Path(files["figure"]).stat().st_size > 1000
     assert all(r["agrees"] for r in rows), [(r["case"], r["implementation"], r.get("error")) for r in rows]
     ref = [r for r in rows if r["implementation"] == "reference" and r["case"] == "2d-random"][0]

@@ -240,3 +240,22 @@ def test_a_truth_map_written_again_since_it_was_scored_is_refused_on_resume(tmp_
         capsys.readouterr()
         assert main(run) == 2 and f"{path}: no truth labels for frame f2.png" in one_line_errors(capsys)[0]
         path.write_bytes(kept)
+
+
+def test_a_resumed_run_reads_each_truth_map_once(tmp_path, monkeypatch):
+    """A resumed ``--truth`` run over a folder decoded each truth map twice before its first step: once to check
+    every map, once for the digest its scored line keeps. The check keeps the digests it computes."""
+    import pcreg.runs.inputs as inputs
+
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64), n=6)
+    truth = tmp_path / "truth"
+    truth.mkdir()
+    for p in folder.glob("*.png"):
+        (truth / p.name).write_bytes(key.read_bytes())
+    run = ["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out"), "--truth", str(truth)]
+    assert main(run + ["--stop", "3"]) == 0
+    read, seen = inputs.read_labels, []
+    monkeypatch.setattr(inputs, "read_labels", lambda f, *a: seen.append(f.name) or read(f, *a))
+    assert main(run) == 0
+    frames = sorted(p.name for p in folder.glob("f*.png"))
+    assert seen == [key.name, *frames, "f3.png", "f4.png", "f5.png"], seen  # the frames scored now read again then

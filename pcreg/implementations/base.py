@@ -74,7 +74,7 @@ class Pinned:
         source, target, init = backend_inputs(self.source, self.target, self.init, who="pinned")
         problem = rigid_problem(init)
         if problem is not None:
-            raise InputError(f"init: {problem}, and every implementation runs the rigid ICP")
+            raise InputError(f"{self._init_name()}: {problem}, and every implementation runs the rigid ICP")
         checked = {"source": source, "target": target, "init": init,
                    "max_correspondence_distance": check_float(self.max_correspondence_distance,
                                                               "max_correspondence_distance", lo=0, lo_open=True),
@@ -83,6 +83,10 @@ class Pinned:
                    "relative_rmse": check_float(self.relative_rmse, "relative_rmse", lo=0)}
         for name, value in checked.items():
             object.__setattr__(self, name, value)
+
+    def _init_name(self) -> str:
+        """How messages name the initial guess (a case read from files names its file)."""
+        return "init"
 
     @property
     def dim(self) -> int:

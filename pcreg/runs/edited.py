@@ -49,13 +49,11 @@ def check_same_truth(truth, out: Path, step: dict) -> None:
     labels it did (its line's ``truth_digest``, :func:`~pcreg.runs.files.label_digest`; a map saved again with the
     same labels is the same): the run's error would mix scores against two truths. A map gone is the
     :class:`~pcreg.errors.InputError` of any frame without one."""
-    from .files import label_digest
-
     digest = step.get("truth_digest")
     if truth is None or not isinstance(digest, str):
         return
     t = int(step["frame"])
-    now = file_digest(truth.path(t)) if len(digest) == 32 else label_digest(truth[t])  # 32: the file's bytes, as first kept
+    now = file_digest(truth.path(t)) if len(digest) == 32 else truth.digest(t)  # 32: the file's bytes, as first kept
     if now != digest:
         raise OutputError(f"{truth.path(t)}: changed since the run in {out} scored {step.get('name', 'its frame')} "
                           "against it: its error is against the truth as it was; use --force to start over")

@@ -202,6 +202,7 @@ class TruthMaps:
 
     def __init__(self, root: Path, frames, mapping: str, shape: tuple[int, int], table=None) -> None:
         self.root, self.frames, self.mapping, self.shape, self.table = root, frames, mapping, shape, table
+        self._digests: dict[int, str] = {}
 
     def path(self, t: int) -> Path:
         return self.root / f"{self.frames.stem(t)}.png"
@@ -219,6 +220,15 @@ class TruthMaps:
         check_truth([lab], self.shape, [str(f)])
         return lab
 
+    def digest(self, t: int) -> str:
+        """The :func:`~pcreg.runs.files.label_digest` of frame ``t``'s map, kept from its first reading (the folder's
+        check reads every map once; a resumed run compares them with the digests it scored against)."""
+        from .files import label_digest
+
+        if t not in self._digests:
+            self._digests[t] = label_digest(self[t])
+        return self._digests[t]
+
 
 def open_truth(folder: str | None, frames, shape, mapping: str, table=None):
     """The frames' truth labels (:class:`TruthMaps`, read through ``table``); a folder's checked first, every
@@ -233,7 +243,7 @@ def open_truth(folder: str | None, frames, shape, mapping: str, table=None):
     truth = TruthMaps(root, frames, mapping, shape, table)
     if frames.kind == "folder":
         for t in range(len(frames)):
-            truth[t]
+            truth.digest(t)
     return truth
 
 

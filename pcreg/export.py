@@ -9,7 +9,7 @@ reads through Datumaro's ``voc`` importer::
     ├── SegmentationClass/NAME.png      # RGB, each class in its table colour
     └── SegmentationObject/NAME.png     # RGB, VOC instance colours: the known classes 1, 2, ..., unknown 0
 
-Unknown pixels are black, the label map's background (its unknown class, under its own name: no extra
+Unknown pixels are black whatever the table's colour, the label map's background (its unknown class, under its own name: no extra
 ``background`` line duplicates a class), and instance 0 in ``SegmentationObject``: the importer makes no
 annotation of instance 0, so in the tool they are unlabelled, where a person looks. Each known class becomes
 one mask per frame (a class that a frame does not show, none). The task needs the table's known classes as
@@ -36,6 +36,27 @@ __all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labelled_frames",
 
 #: The formats ``pcreg export`` writes.
 FORMATS: tuple[str, ...] = ("cvat-mask",)
+
+def cvat_table(table: ClassTable) -> ClassTable:
+    """``table`` as the archive writes it: its unknown class black, the background CVAT's import leaves
+    unlabelled (a table whose unknown had another colour, a task's ``background`` of (10, 10, 10) say, was
+    refused after its run was labelled). Refused (:class:`InputError`) when a known class is black: the
+    unknown's pixels and that class's could not be told apart."""
+    from dataclasses import replace
+
+    from .classes.files import BACKGROUND
+
+    black = BACKGROUND[1]
+    if table.unknown_class.colour == black:
+        return table
+    taken = next((c for c in table.known if c.colour == black), None)
+    if taken is not None:
+        raise InputError(f"{table.source or 'class table'}: the known class {taken.name!r} is black, the colour of "
+                         f"CVAT's background, where the archive writes the unknown class {table.unknown_class.name!r}: "
+                         "give that class another colour")
+    unknown = replace(table.unknown_class, colour=black)
+    return replace(table, classes=tuple(unknown if c.id == table.unknown else c for c in table.classes))
+
 
 def instance_colours(table: ClassTable) -> dict[int, tuple[int, int, int]]:
     """Class id -> RGB of its instance in ``SegmentationObject``: the k-th known class the VOC instance
@@ -235,6 +256,7 @@ def write_cvat_mask(out: BinaryIO, frames, table: ClassTable = DEFAULT_TABLE) ->
     """
     from .classes import labelmap_text
 
+    table = cvat_table(table)
     counts = {c.name: 0 for c in table.classes}
     stems: list[str] = []  # in the run's order, for default.txt
     written: dict[str, str] = {}  # each name as the archive stores it -> the frame's, to tell one written twice

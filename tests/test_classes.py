@@ -483,3 +483,51 @@ def test_a_palette_png_with_a_damaged_text_chunk_is_refused_naming_the_chunk(tmp
     path.write_bytes(bytes(data))
     with pytest.raises(InputError, match="text.png: a CRC error in its 'tEXt' chunk: the file is damaged"):
         read_key_labels(path, DAVIS)
+
+
+def test_lossy_label_images_behind_other_headers_are_refused(tmp_path):
+    """A TIFF compressed as JPEG and a lossy WebP after a VP8X header (metadata or alpha) were read as labels, 1.7%
+    and 10% of a key frame's pixels in the wrong class, without a word: only a JPEG's and a plain VP8 WebP's first
+    bytes were recognised. Lossless ones (LZW TIFF, VP8L WebP behind VP8X) still read exactly."""
+    ids = (np.arange(48 * 64).reshape(48, 64) // 300 % 11).astype(np.uint8)
+    exif = Image.Exif()
+    exif[0x0131] = "an editor"  # Software: metadata brings the extended header
+    grey, colours = Image.fromarray(ids), Image.fromarray(CAMVID11.paint(ids))
+    cases = {"jpeg.tif": (grey, {"compression": "jpeg"}, "a TIFF compressed as JPEG"),
+             "lzw.tif": (grey, {"compression": "tiff_lzw"}, None),
+             "vp8x.webp": (colours, {"quality": 90, "exif": exif.tobytes()}, "a lossy WebP"),
+             "vp8l.webp": (colours, {"lossless": True, "exif": exif.tobytes()}, None)}
+    for name, (im, options, said) in cases.items():
+        p = tmp_path / name
+        im.save(p, **options)
+        if name.endswith(".webp"):
+            assert p.read_bytes()[12:16] == b"VP8X", name  # behind the extended header
+        if said is None:
+            np.testing.assert_array_equal(read_label_png(p, CAMVID11), ids)
+        else:
+            with pytest.raises(InputError) as exc:
+                read_label_png(p, CAMVID11)
+            _one_line(exc, str(p), said, "lossless")
+
+
+def test_a_grey_png_of_fewer_than_8_bits_is_read_as_it_stores_its_values(tmp_path):
+    """A grey PNG of 4 bits holding ids 0..11 was refused as "label value 17" (libpng widens 1 to 17), and a 1-bit
+    mask of 0 and 1 read as 0 and 255. The values are read as the file stores them: as labels, as a CVAT
+    one-channel mask, and as an object mask."""
+    from pcreg.classes.cvat import _decode_mask
+    from pcreg.classes.keys import object_values
+
+    ids = (np.arange(48 * 64).reshape(48, 64) // 300 % 12).astype(np.uint8)
+    p = tmp_path / "ids4.png"
+    Image.fromarray(ids).save(p, bits=4)
+    assert p.read_bytes()[24] == 4  # the IHDR's bit depth
+    np.testing.assert_array_equal(read_label_png(p, CAMVID11), ids)
+    order = [CAMVID11.unknown, *CAMVID11.known_ids]
+    np.testing.assert_array_equal(_decode_mask(p.read_bytes(), "m.png", CAMVID11, order, None),
+                                  np.asarray(order)[ids])
+    one = tmp_path / "one.png"
+    Image.fromarray((ids % 2).astype(bool)).save(one)  # mode '1': one bit a pixel
+    assert one.read_bytes()[24] == 1
+    np.testing.assert_array_equal(read_label_png(one, LAGR), ids % 2)
+    values, several = object_values(one.read_bytes(), "one.png")
+    assert not several and set(np.unique(values)) == {0, 1}

@@ -326,11 +326,22 @@ def test_an_export_zipped_by_macos_finder_is_read_inside_its_folder(clip, tmp_pa
     table, keys = read_cvat_keys(finder, open_frames(frames, Selection()), ids[stems[0]].shape)
     assert table.agrees(CAMVID11) and sorted(keys) == [1]
     np.testing.assert_array_equal(keys[1], ids[stems[1]])
+    with zipfile.ZipFile(finder, "a") as w:  # a file beside the folder: named with the folder ("labelmap.txt: missing")
+        w.writestr("README.txt", "the task's notes\n")
+    with pytest.raises(InputError) as exc:
+        read_cvat_keys(finder, open_frames(frames, Selection()), ids[stems[0]].shape)
+    assert "finder.zip:labelmap.txt: missing" in str(exc.value) and "the export lies in task_7/, beside README.txt" in str(exc.value)
 
 
-def test_the_export_of_a_run_whose_unknown_is_not_black_is_refused_naming_its_run_json(clip, tmp_path, capsys):
-    """A task whose ``background`` label is not black labels a run; its export back is refused (CVAT would take
-    another class for the unlabelled pixels) in a line naming the run's run.json, not "run.json's classes"."""
+def test_the_export_of_a_run_whose_unknown_is_not_black_writes_it_black(clip, tmp_path, capsys):
+    """A task whose ``background`` label is not black labels a run; its export back was refused after the run was
+    labelled (CVAT would take another class for the unlabelled pixels). The archive now writes the unknown black,
+    CVAT's background, in labelmap.txt and the masks alike, and says so; read back, the labels are the run's. A table
+    with a black known class beside a grey unknown is refused, naming the class."""
+    from pcreg.classes.cvat import read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+    from pcreg.export import write_cvat_mask_archive
+
     frames, ids = clip
     stems = list(ids)
     grey = ClassTable((*TWO.known, LabelClass(2, "background", (10, 10, 10))), 2, "grey")
@@ -339,11 +350,50 @@ def test_the_export_of_a_run_whose_unknown_is_not_black_is_refused_naming_its_ru
         z.writestr("labelmap.txt", "background:10,10,10::\ndrivable:128,64,128::\nother:64,0,128::\n")
         z.writestr(f"SegmentationClass/{stems[0]}.png", cv2.imencode(".png", grey.paint(TWO_LUT[ids[stems[0]]])[:, :, ::-1])[1])
     out = tmp_path / "out"
-    rc, err = _run(["run", frames, "--labels", export, "--out", out, "--model", "flow", "--scale", "0.5"], capsys)
+    rc, err = _run(["run", frames, "--labels", export, "--out", out, "--model", "flow", "--scale", "0.5", "--confidence"],
+                   capsys)
     assert rc == 0, err
-    rc, err = _run(["export", out], capsys)
-    assert rc == 2 and len(err) == 1 and f"{out / 'run.json'}: the unknown class 'background' is (10, 10, 10)" in err[0], err
-    assert not (out / "export-cvat-mask.zip").exists()
+    rc, err = _run(["export", out, "--min-confidence", "0.9"], capsys)  # some pixels left unknown
+    assert rc == 0 and any("unknown class background is (10, 10, 10) in the run's table and black in the archive" in e for e in err), err
+    archive = out / "export-cvat-mask.zip"
+    with zipfile.ZipFile(archive) as z:
+        assert "background:0,0,0::" in z.read("labelmap.txt").decode().splitlines()
+        masks = [cv2.imdecode(np.frombuffer(z.read(n), np.uint8), cv2.IMREAD_COLOR) for n in z.namelist()
+                 if n.startswith("SegmentationClass/")]
+    assert not any(((m == 10).all(axis=2)).any() for m in masks)  # no pixel in the run table's grey
+    source = open_frames(frames, Selection())
+    table, keys = read_cvat_keys(archive, source, ids[stems[0]].shape)
+    assert table.unknown_class.name == "background" and len(keys) > 1
+    for t, labels in keys.items():  # each frame read back as the export wrote it: the run's labels, or unknown
+        run = read_labels(out / f"{Path(stems[t]).stem}.png", grey)
+        assert ((labels == run) | (labels == table.unknown)).all(), t
+    assert sum(int((k == table.unknown).sum()) for k in keys.values()) > 0
+    black = ClassTable((LabelClass(0, "drivable", (0, 0, 0)), LabelClass(1, "other", (64, 0, 128)),
+                        LabelClass(2, "background", (10, 10, 10))), 2, "dark.json")
+    with pytest.raises(InputError, match="dark.json: the known class 'drivable' is black"):
+        write_cvat_mask_archive(tmp_path / "x.zip", [("a.png", np.zeros((4, 4), np.uint8))], black)
+    assert not (tmp_path / "x.zip").exists()
+
+
+def test_a_one_channel_mask_under_a_labelmap_without_background_reads_0_as_the_background(clip, tmp_path):
+    """A label map with no background line (none black, none named background): Datumaro's reader, CVAT's, puts
+    one first, so a one-channel mask's 0 is the background and 1 the first line. Each class was read one line
+    off (0 as the first line's class, the background trained on as a class), without a word."""
+    from pcreg.classes.cvat import read_cvat_keys
+    from pcreg.datasets.sources import Selection, open_frames
+
+    frames, ids = clip
+    stems = list(ids)
+    truth = TWO_LUT[ids[stems[0]]]  # 0 drivable, 1 other, 2 unknown
+    lines = np.array([1, 2, 0], np.uint8)[truth]  # 0 the background Datumaro adds, 1 drivable, 2 other
+    export = tmp_path / "nobackground.zip"
+    with zipfile.ZipFile(export, "w") as z:
+        z.writestr("labelmap.txt", "drivable:128,64,128::\nother:64,0,128::\n")
+        z.writestr(f"SegmentationClass/{stems[0]}.png", cv2.imencode(".png", lines)[1].tobytes())
+    table, keys = read_cvat_keys(export, open_frames(frames, Selection()), lines.shape)
+    assert [c.name for c in table.known] == ["drivable", "other"]
+    expected = np.array([table.id_of("drivable"), table.id_of("other"), table.unknown], np.uint8)[truth]
+    np.testing.assert_array_equal(keys[0], expected)
 
 
 def test_a_one_channel_mask_of_16_bits_holds_labelmap_lines_as_one_of_8(clip, tmp_path):

@@ -197,10 +197,22 @@ class CvatExport(contextlib.AbstractContextManager):
 
     def inner_archive(self) -> str:
         """What a refusal of an archive with no export in it adds when it holds a zip archive (an export zipped
-        again, or with others): which one, to give ``--labels`` once taken out; else ``""``."""
+        again, or with others): which one, to give ``--labels`` once taken out; or an export in a folder beside
+        other files (a ``task_7/`` beside a README.txt), which it names with them; else ``""``."""
         inner = sorted(n for n in self._members if n.lower().endswith(".zip"))
-        return (f"; it holds {inner[0]}{f' and {len(inner) - 1} more archive(s)' if len(inner) > 1 else ''}, an "
-                "archive in the archive: take the export out and give it to --labels") if inner else ""
+        if inner:
+            return (f"; it holds {inner[0]}{f' and {len(inner) - 1} more archive(s)' if len(inner) > 1 else ''}, an "
+                    "archive in the archive: take the export out and give it to --labels")
+        deeper = sorted((n for n in self._members if n.endswith(f"/{LABELMAP_FILE}") or f"/{CLASS_DIR}/" in n),
+                        key=lambda n: (n.count("/"), n))
+        if self._zip is None or not deeper:
+            return ""
+        folder = deeper[0].split(f"/{CLASS_DIR}/")[0] if f"/{CLASS_DIR}/" in deeper[0] else deeper[0].rsplit("/", 1)[0]
+        top = folder.split("/")[0]
+        beside = sorted(n for n in self._members if not n.startswith(f"{top}/"))
+        return (f"; the export lies in {folder}/, beside {beside[0]}{f' and {len(beside) - 1} more' if len(beside) > 1 else ''}: "
+                "an export in a folder is read when nothing else lies beside that folder (unpack it and give "
+                f"--labels the folder {folder})") if beside else ""
 
     def has(self, name: str) -> bool:
         """Whether the export holds ``name``: in a folder, any entry of that name (:meth:`read` refuses one that
@@ -281,7 +293,9 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
     id_of = {c.colour: c.id for c in table.classes}  # a colour is one class's in both tables
     order = [id_of[colour_of[ln.split(":")[0].strip()]] for ln in labelmap_lines(text)
              if ln.strip() and not ln.strip().startswith("#")]
-    return table, order
+    # a label map with no background line (none black, none named background) gains one first, as Datumaro's
+    # reader adds it (find_or_create_background_label): a one-channel mask's 0 is the background, 1 the first line
+    return table, order if table.unknown in order else [table.unknown, *order]
 
 
 def _named_table(given: ClassTable, given_where: str, read: ClassTable, where: str) -> ClassTable:
@@ -305,7 +319,7 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
     """A CVAT class mask's class ids: colours (RGB, or a palette's) through the table, one channel as
     labelmap lines."""
     from ..formats import check_image_bytes, decode_image
-    from .png import check_lossless, is_palette_png, palette_image
+    from .png import check_lossless, is_palette_png, palette_image, stored_grey
 
     check_image_bytes(data, name, limit=limit)
     check_lossless(data, name)  # a JPEG's colours at every edge are no class's: say so, not which colour
@@ -318,6 +332,7 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
             raise InputError(f"{name}: a class mask with transparent pixels (an alpha channel below 255)")
         return table.ids_from_colours(np.ascontiguousarray(img[:, :, 2::-1]), name)
     if img.ndim == 2 and img.dtype in (np.uint8, np.uint16):  # 16-bit too, as a key label image's ids
+        img = stored_grey(data, img)
         beyond = img[img >= len(order)]
         if beyond.size:
             raise InputError(f"{name}: value {int(beyond[0])} is no line of the labelmap.txt ({len(order)} classes)")

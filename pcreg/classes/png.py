@@ -77,12 +77,48 @@ def write_label_png(path: str | Path, labels: np.ndarray, table: ClassTable) -> 
 
 
 def check_lossless(data: bytes, name: str) -> None:
-    """An :class:`InputError` naming ``name`` when ``data`` is a JPEG or a lossy WebP: its compression changes
-    the values (and colours) at every edge, which a label image cannot have."""
-    lossy = "JPEG" if data[:3] == b"\xff\xd8\xff" else "lossy WebP" if data[:4] == b"RIFF" and data[8:16] == b"WEBPVP8 " \
-        else None
+    """An :class:`InputError` naming ``name`` when ``data`` is a JPEG, a lossy WebP (a ``VP8 `` image, alone or
+    after the ``VP8X`` header that metadata or an alpha channel bring) or a TIFF compressed as JPEG: its
+    compression changes the values (and colours) at every edge, which a label image cannot have."""
+    lossy = "JPEG" if data[:3] == b"\xff\xd8\xff" else "lossy WebP" if _lossy_webp(data) \
+        else "TIFF compressed as JPEG" if _jpeg_tiff(data) else None
     if lossy is not None:
         raise InputError(f"{name}: a {lossy}, which changes the values at every edge; label images must be lossless (PNG)")
+
+
+def stored_grey(data: bytes, img: np.ndarray) -> np.ndarray:
+    """``img``, a grey PNG ``data`` as OpenCV decodes it, with the values the file stores: libpng widens a grey
+    PNG of 1, 2 or 4 bits to 8 by scaling (a 4-bit 1 read as 17, a 1-bit 1 as 255), so a label image of small
+    ids saved in fewer bits read as ids it does not hold."""
+    if not (data[:8] == PNG_SIGNATURE and data[12:16] == b"IHDR" and data[25] == 0 and data[24] in (1, 2, 4)):
+        return img
+    return img // np.uint8(255 // ((1 << data[24]) - 1))
+
+
+def _lossy_webp(data: bytes) -> bool:
+    """Whether ``data`` is a WebP whose image is lossy: its first image chunk ``VP8 `` (``VP8L`` is lossless)."""
+    if data[:4] != b"RIFF" or data[8:12] != b"WEBP":
+        return False
+    at = 12
+    while at + 8 <= len(data):
+        kind, size = data[at:at + 4], int.from_bytes(data[at + 4:at + 8], "little")
+        if kind in (b"VP8 ", b"VP8L"):
+            return kind == b"VP8 "
+        at += 8 + size + (size & 1)
+    return False
+
+
+def _jpeg_tiff(data: bytes) -> bool:
+    """Whether ``data`` is a TIFF whose image is compressed as JPEG (Pillow's reading of its header)."""
+    from PIL import Image
+
+    if data[:4] not in (b"II*\0", b"MM\0*"):
+        return False
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            return str(im.info.get("compression", "")) in ("jpeg", "tiff_jpeg")
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError):
+        return False  # not readable as a TIFF: the decoder says so
 
 
 def palette_image(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -145,7 +181,7 @@ def decode_label_png(data: bytes, name: str, table: ClassTable, *, limit: int | 
         return _decode_palette(data, name, table)
     img = decode_image(data, name, limit=limit)  # IMREAD_UNCHANGED: as the file stores it, BGR(A)
     if img.ndim == 2:
-        return table.check_labels(img, name)
+        return table.check_labels(stored_grey(data, img), name)
     if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] in (3, 4):
         if img.shape[2] == 4:
             if (img[:, :, 3] != 255).any():

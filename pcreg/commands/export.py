@@ -76,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
     none = listed(absent) if len(absent) <= 3 else f"{len(absent)} others"
     print(f"wrote {dest}: {len(run_labels.names)} frame(s) (labels {listed(shown)}"
           f"{f'; {none} in none' if absent else ''}; unknown left unlabelled in {counts[table.unknown_class.name]})")
+    if table.unknown_class.colour != (0, 0, 0):  # cvat_table's: the archive's background is black
+        sys.stderr.write(f"pcreg: note: the unknown class {listed_name(table.unknown_class.name)} is "
+                         f"{table.unknown_class.colour} in the run's table and black in the archive, CVAT's "
+                         "background: its pixels are left unlabelled there\n")
     names = [listed_name(c.name) for c in table.known]
     print(f"CVAT: a task with the {len(names)} labels {listed(names)} of its labelmap.txt over the same frames; "
           "Upload annotations, format Segmentation mask 1.1")

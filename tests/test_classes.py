@@ -307,8 +307,12 @@ def test_label_png_ids_and_colour_forms(tmp_path):
     np.testing.assert_array_equal(read_label_png(tmp_path / "rgba.png", LAGR), labels)
     bgra[0, 0, 3] = 0
     cv2.imwrite(str(tmp_path / "rgba.png"), bgra)
-    with pytest.raises(InputError, match="transparent"):
+    with pytest.raises(InputError, match="colour labels with transparent"):
         read_label_png(tmp_path / "rgba.png", LAGR)
+    grey = Image.fromarray(np.dstack([labels, np.where(labels == 2, 0, 255).astype(np.uint8)]), "LA")
+    grey.save(tmp_path / "la.png")  # grey and alpha: named as grey, not as colours
+    with pytest.raises(InputError, match="la.png: grey labels with transparent"):
+        read_label_png(tmp_path / "la.png", LAGR)
     # a VOC-style palette PNG (VOC's colour map) read through a table in those colours
     voc = ClassTable(tuple(LabelClass(i, n, tuple(int(v) for v in voc_colormap(3)[i]))
                            for i, n in enumerate(["background", "aeroplane", "bicycle"])), 0, "voc")

@@ -375,6 +375,19 @@ def test_the_export_of_a_run_whose_unknown_is_not_black_writes_it_black(clip, tm
     assert not (tmp_path / "x.zip").exists()
 
 
+def test_an_archive_of_a_table_whose_unknown_is_not_black_reads_back_in_datumaro(clip, tmp_path):
+    """The unknown of a table in another colour is written black, Datumaro's background: its reader (CVAT's import)
+    finds one background and each class's masks where the labels have them, nothing for the unknown."""
+    from pcreg.export import write_cvat_mask_archive
+
+    frames, ids = clip
+    grey = ClassTable((*TWO.known, LabelClass(2, "background", (10, 10, 10))), 2, "grey")
+    labels = {s: TWO_LUT[ids[s]] for s in list(ids)[:2]}
+    assert all((lab == grey.unknown).any() for lab in labels.values())
+    write_cvat_mask_archive(tmp_path / "grey.zip", [(f"{s}.png", lab) for s, lab in labels.items()], grey)
+    _datumaro_reads(tmp_path / "grey.zip", tmp_path / "dm", labels)
+
+
 def test_a_one_channel_mask_under_a_labelmap_without_background_reads_0_as_the_background(clip, tmp_path):
     """A label map with no background line (none black, none named background): Datumaro's reader, CVAT's, puts
     one first, so a one-channel mask's 0 is the background and 1 the first line. Each class was read one line

@@ -185,7 +185,8 @@ def decode_label_png(data: bytes, name: str, table: ClassTable, *, limit: int | 
     if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] in (3, 4):
         if img.shape[2] == 4:
             if (img[:, :, 3] != 255).any():
-                raise InputError(f"{name}: colour labels with transparent pixels (an alpha channel below 255)")
+                kind = "grey" if data[:8] == PNG_SIGNATURE and data[25:26] == b"\x04" else "colour"  # 4: grey and alpha
+                raise InputError(f"{name}: {kind} labels with transparent pixels (an alpha channel below 255)")
             img = img[:, :, :3]
         return table.ids_from_colours(np.ascontiguousarray(img[:, :, ::-1]), name)
     raise InputError(f"{name}: not a label image (class ids in one channel, a palette, or 8-bit RGB colours)")

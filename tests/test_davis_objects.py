@@ -199,3 +199,26 @@ def test_a_first_mask_all_object_is_refused_naming_its_file(tmp_path, capsys):
                                        "frame covers the whole frame: no background pixel, which the classifier "
                                        "needs beside the object's"]
     assert not (tmp_path / "out" / "units").exists()
+
+
+def test_a_first_object_too_small_to_follow_is_refused_before_any_clip_runs(tmp_path, capsys):
+    """A sequence whose first mask holds an object of one pixel, beside one that is fine: the follower refused it
+    only once the first sequence had run and its files were written. Refused before any clip runs; without the
+    follower among the methods the sequences are scored."""
+    pairs = frames_and_masks(3)
+    data = tmp_path / "davis"
+    one_object_sequence(data / "a", pairs, lambda i, path, mask: cv2.imwrite(str(path), mask))
+
+    def speck(i, path, mask):
+        if i == 0:
+            mask = np.zeros_like(mask)
+            mask[10, 10] = 255
+        cv2.imwrite(str(path), mask)
+
+    one_object_sequence(data / "b", pairs, speck)
+    run = ["evaluate", "stream", "--data", f"davis:{data}", "--out", str(tmp_path / "out")]
+    assert main([*run, "--methods", "plain,pcreg_object"]) == 2
+    (line,) = one_line_errors(capsys)
+    assert "clip b: the object on the key frame 00000 (1 px) covers no pixel at the size pcreg_object works at" in line
+    assert not (tmp_path / "out").exists()
+    assert main([*run, "--methods", "plain"]) == 0

@@ -320,6 +320,15 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
     say_damage(datasets)
     for name, frames in datasets.items():
         check_clip(name, frames, config.classes)
+        if OBJECT_METHOD in config.methods:  # refused before any clip runs, as the other key masks' faults are
+            from ..errors import DatasetError
+            from ..pipeline.follow import can_follow
+
+            key = frames[0].labels
+            if (key == 1).any() and not can_follow(key):
+                raise DatasetError(f"clip {name}: the object on the key frame {frames[0].name} ({int((key == 1).sum())} "
+                                   f"px) covers no pixel at the size {OBJECT_METHOD} works at: too small to follow "
+                                   f"(--methods without {OBJECT_METHOD} scores the others)")
         if config.keys is not None:  # each clip's key frames checked before any clip runs
             from .stream_keys import check_key_spec
 

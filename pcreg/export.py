@@ -37,6 +37,7 @@ __all__ = ["FORMATS", "RunLabels", "read_run", "read_labels", "labelled_frames",
 #: The formats ``pcreg export`` writes.
 FORMATS: tuple[str, ...] = ("cvat-mask",)
 
+
 def cvat_table(table: ClassTable) -> ClassTable:
     """``table`` as the archive writes it: its unknown class black, the background CVAT's import leaves
     unlabelled (a table whose unknown had another colour, a task's ``background`` of (10, 10, 10) say, was

@@ -388,27 +388,6 @@ def test_an_archive_of_a_table_whose_unknown_is_not_black_reads_back_in_datumaro
     _datumaro_reads(tmp_path / "grey.zip", tmp_path / "dm", labels)
 
 
-def test_a_one_channel_mask_under_a_labelmap_without_background_reads_0_as_the_background(clip, tmp_path):
-    """A label map with no background line (none black, none named background): Datumaro's reader, CVAT's, puts
-    one first, so a one-channel mask's 0 is the background and 1 the first line. Each class was read one line
-    off (0 as the first line's class, the background trained on as a class), without a word."""
-    from pcreg.classes.cvat import read_cvat_keys
-    from pcreg.datasets.sources import Selection, open_frames
-
-    frames, ids = clip
-    stems = list(ids)
-    truth = TWO_LUT[ids[stems[0]]]  # 0 drivable, 1 other, 2 unknown
-    lines = np.array([1, 2, 0], np.uint8)[truth]  # 0 the background Datumaro adds, 1 drivable, 2 other
-    export = tmp_path / "nobackground.zip"
-    with zipfile.ZipFile(export, "w") as z:
-        z.writestr("labelmap.txt", "drivable:128,64,128::\nother:64,0,128::\n")
-        z.writestr(f"SegmentationClass/{stems[0]}.png", cv2.imencode(".png", lines)[1].tobytes())
-    table, keys = read_cvat_keys(export, open_frames(frames, Selection()), lines.shape)
-    assert [c.name for c in table.known] == ["drivable", "other"]
-    expected = np.array([table.id_of("drivable"), table.id_of("other"), table.unknown], np.uint8)[truth]
-    np.testing.assert_array_equal(keys[0], expected)
-
-
 def test_a_one_channel_mask_of_16_bits_holds_labelmap_lines_as_one_of_8(clip, tmp_path):
     """A one-channel class mask holds each pixel's line of labelmap.txt, in 8 bits or 16 (a 16-bit one was
     refused as "not a class mask (... or one channel)"); a value past the last line is refused, naming it."""

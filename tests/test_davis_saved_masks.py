@@ -233,23 +233,3 @@ def test_a_mask_smoothed_wider_than_its_edge_is_refused_saying_so(tmp_path, caps
     assert main(["run", str(seq / "images"), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
     (line,) = one_line_errors(capsys)
     assert "is not a class id" in line and f"it holds values rising gradually from 0 to {peak}" in line, line
-
-
-@pytest.mark.parametrize("factor", [2, 4, 8])
-def test_a_mask_with_a_speck_resized_up_is_one_object_up_to_4_times(tmp_path, factor):
-    """A 0/255 mask with a speck and a line a pixel wide, resized up by 2 or 4 (bilinearly, OpenCV's default): the
-    speck's and the line's values never reach 255 by an even factor, and the mask was refused as blurred ("resized
-    more than 4 times?"), DAVIS's black swan resized by 2 too (its neck). Read within 3 px of its values of 128 and
-    more, it is one object, its edge the object's; resized by 8 it is still refused."""
-    mask = np.zeros((45, 80), np.uint8)
-    mask[15:30, 25:50] = 255
-    mask[10, 10] = 255  # a speck
-    mask[35:42, 5] = 255  # a line a pixel wide
-    up = cv2.resize(mask, (80 * factor, 45 * factor), interpolation=cv2.INTER_LINEAR)
-    assert up[10 * factor:11 * factor, 10 * factor:11 * factor].max() < 255 or factor % 2  # the speck short of 255
-    cv2.imwrite(str(tmp_path / "up.png"), up)
-    if factor <= 4:
-        np.testing.assert_array_equal(read_key_labels(tmp_path / "up.png", DAVIS, "davis"), (up > 0).astype(np.uint8))
-    else:
-        with pytest.raises(InputError, match="rising gradually from 0 to 255 over more than 4 px"):
-            read_key_labels(tmp_path / "up.png", DAVIS, "davis")

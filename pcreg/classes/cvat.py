@@ -293,9 +293,7 @@ def _table(export: CvatExport, classes: str | None) -> tuple[ClassTable, list[in
     id_of = {c.colour: c.id for c in table.classes}  # a colour is one class's in both tables
     order = [id_of[colour_of[ln.split(":")[0].strip()]] for ln in labelmap_lines(text)
              if ln.strip() and not ln.strip().startswith("#")]
-    # a label map with no background line (none black, none named background) gains one first, as Datumaro's
-    # reader adds it (find_or_create_background_label): a one-channel mask's 0 is the background, 1 the first line
-    return table, order if table.unknown in order else [table.unknown, *order]
+    return table, order
 
 
 def _named_table(given: ClassTable, given_where: str, read: ClassTable, where: str) -> ClassTable:

@@ -202,22 +202,12 @@ class SmoothedMask(InputError):
                          f"{advice}")
 
 
-HALF_EDGE = SOFT_EDGE // 2 + 1
-"""How far a 0/255 mask resized up to :data:`SOFT_EDGE` times (bilinearly) spreads its values below 128 beyond
-its pixels of 128 and more, its half-way line: a resize by k spreads a step over k px, half of them outside
-the line, and a pixel more where the grids do not align (3 px for 4 times)."""
-
-
 def _edge_only(values: np.ndarray, top: int) -> bool:
-    """Whether every value of ``values`` between 0 and ``top`` lies within :data:`SOFT_EDGE` px of a ``top`` pixel; for
-    ``top`` 255, within :data:`HALF_EDGE` px of a pixel of 128 or more, the object's half-way line: a thin part or a
-    speck of a 0/255 mask resized up by an even factor never reaches 255 (the neck of DAVIS's black swan resized by
-    2 reached 143), and was refused as blurred."""
+    """Whether every value of ``values`` between 0 and ``top`` lies within :data:`SOFT_EDGE` px of a ``top`` pixel."""
     import cv2
 
-    side = 2 * (HALF_EDGE if top == 255 else SOFT_EDGE) + 1
-    source = values >= 128 if top == 255 else values == top
-    near = cv2.dilate(source.astype(np.uint8), np.ones((side, side), np.uint8))
+    side = 2 * SOFT_EDGE + 1
+    near = cv2.dilate((values == top).astype(np.uint8), np.ones((side, side), np.uint8))
     return not np.any((values > 0) & (values < top) & (near == 0))
 
 

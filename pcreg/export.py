@@ -54,7 +54,7 @@ def cvat_table(table: ClassTable) -> ClassTable:
     if taken is not None:
         raise InputError(f"{table.source or 'class table'}: the known class {taken.name!r} is black, the colour of "
                          f"CVAT's background, where the archive writes the unknown class {table.unknown_class.name!r}: "
-                         "give that class another colour")
+                         "label the run again with a --classes table that gives that class another colour")
     unknown = replace(table.unknown_class, colour=black)
     return replace(table, classes=tuple(unknown if c.id == table.unknown else c for c in table.classes))
 

@@ -273,7 +273,7 @@ def _tiff_size(data: bytes) -> tuple[int, int] | None:
         return None
 
 
-def _tiff_tag(data: bytes, tag: int) -> tuple[int, int, int] | None:
+def tiff_tag(data: bytes, tag: int) -> tuple[int, int, int] | None:
     """``(value, at, size)`` of a SHORT or LONG ``tag`` of a TIFF's first image (``data[at:at + size]`` its value, in
     the file's byte order), or None where it has none or the directory is cut short."""
     end = "<" if data[:2] == b"II" else ">"
@@ -296,7 +296,7 @@ def _tiff_as_stored(data: bytes) -> bytes | bytearray:
     TIFF decoder turns and mirrors the pixels by it whatever the flags (``IMREAD_IGNORE_ORIENTATION`` and
     ``IMREAD_UNCHANGED`` included), where it leaves a JPEG's, a PNG's and a WebP's EXIF orientation alone, so that
     pcreg reads every file's pixels as stored. ``data`` itself where there is nothing to set (else one copy)."""
-    found = _tiff_tag(data, 274)
+    found = tiff_tag(data, 274)
     if found is None or not 2 <= found[0] <= 8:
         return data
     _, at, size = found
@@ -308,7 +308,7 @@ def _tiff_as_stored(data: bytes) -> bytes | bytearray:
 def _tiff_first_reduced(data: bytes) -> bool:
     """Whether a TIFF's first image is a reduced-resolution copy (a thumbnail: NewSubfileType, tag 254, bit 0) of
     another, as :func:`_tiff_pages` leaves such images out of its count."""
-    found = _tiff_tag(data, 254)
+    found = tiff_tag(data, 254)
     return found is not None and bool(found[0] & 1)
 
 

@@ -514,6 +514,48 @@ def test_lossy_label_images_behind_other_headers_are_refused(tmp_path):
             _one_line(exc, str(p), said, "lossless")
 
 
+def test_lossy_label_images_pillow_misjudged_are_refused(tmp_path):
+    """A lossy WebP animation of one frame (its image inside an ANMF chunk) passed as lossless: it was refused for
+    a smeared edge's colour of no class, where the file's kind is the cause. A TIFF's compression is read from its
+    tag, not from Pillow's opening of it: libtiff's own JPEG TIFF is refused as before."""
+    ids = (np.arange(48 * 64).reshape(48, 64) // 300 % 11).astype(np.uint8)
+    colours = CAMVID11.paint(ids)
+    anim = tmp_path / "anim.webp"
+    Image.fromarray(colours).save(anim, save_all=True, append_images=[Image.fromarray(colours[::-1])], quality=90)
+    data = anim.read_bytes()
+    second = data.index(b"ANMF", data.index(b"ANMF") + 4)
+    one = data[:second] + data[second + 8 + int.from_bytes(data[second + 4:second + 8], "little"):]  # its first frame
+    anim.write_bytes(one[:4] + (len(one) - 8).to_bytes(4, "little") + one[8:])
+    assert one[12:16] == b"VP8X" and one.count(b"ANMF") == 1
+    ok, buf = cv2.imencode(".tif", colours[:, :, ::-1], [cv2.IMWRITE_TIFF_COMPRESSION, 7, cv2.IMWRITE_TIFF_ROWSPERSTRIP, 8])
+    assert ok
+    (tmp_path / "libtiff.tif").write_bytes(buf.tobytes())
+    for name, said in (("anim.webp", "a lossy WebP"), ("libtiff.tif", "a TIFF compressed as JPEG")):
+        with pytest.raises(InputError) as exc:
+            read_label_png(tmp_path / name, CAMVID11)
+        _one_line(exc, str(tmp_path / name), said, "lossless")
+
+
+def test_a_colour_png_with_one_colour_marked_transparent_reads_as_its_colours(tmp_path):
+    """An RGB label PNG whose void colour a tool marked transparent (a tRNS chunk: one colour, every pixel's colour
+    still stored) was refused as "transparent pixels", where a palette's or a grey PNG's tRNS was read. It reads as
+    its colours, as a key label and as a CVAT mask; an alpha channel below 255 is still refused."""
+    from pcreg.classes.cvat import _decode_mask
+
+    ids = (np.arange(48 * 64).reshape(48, 64) // 250 % 12).astype(np.uint8)
+    colours = CAMVID11.paint(ids)
+    p = tmp_path / "trns.png"
+    Image.fromarray(colours).save(p, transparency=tuple(int(v) for v in CAMVID11.palette()[CAMVID11.unknown]))
+    assert b"tRNS" in p.read_bytes() and p.read_bytes()[25] == 2 and (ids == CAMVID11.unknown).any()
+    np.testing.assert_array_equal(read_label_png(p, CAMVID11), ids)
+    order = [CAMVID11.unknown, *CAMVID11.known_ids]
+    np.testing.assert_array_equal(_decode_mask(p.read_bytes(), "m.png", CAMVID11, order, None), ids)
+    rgba = np.dstack([colours, np.where(ids == CAMVID11.unknown, 0, 255).astype(np.uint8)])
+    Image.fromarray(rgba).save(p)
+    with pytest.raises(InputError, match="transparent pixels"):
+        read_label_png(p, CAMVID11)
+
+
 def test_a_grey_png_of_fewer_than_8_bits_is_read_as_it_stores_its_values(tmp_path):
     """A grey PNG of 4 bits holding ids 0..11 was refused as "label value 17" (libpng widens 1 to 17), and a 1-bit
     mask of 0 and 1 read as 0 and 255. The values are read as the file stores them: as labels, as a CVAT

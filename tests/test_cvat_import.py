@@ -333,6 +333,30 @@ def test_an_export_zipped_by_macos_finder_is_read_inside_its_folder(clip, tmp_pa
     assert "finder.zip:labelmap.txt: missing" in str(exc.value) and "the export lies in task_7/, beside README.txt" in str(exc.value)
 
 
+def test_an_export_beside_other_files_deeper_in_an_archive_or_folder_is_named(clip, tmp_path, capsys):
+    """An export zipped two folders down beside a file of the top folder (home/me/task_7/ beside home/README.txt)
+    was refused as "labelmap.txt: missing" naming no export, and an unpacked export beside a file (task_7/ beside
+    README.txt) as a folder of no label PNG: each refusal names where the export lies, to give --labels."""
+    frames, ids = clip
+    stem = list(ids)[0]
+    export = cvat_export(tmp_path / "task.zip", CAMVID11, {stem: ids[stem]})
+    nested = tmp_path / "nested.zip"
+    with zipfile.ZipFile(export) as z, zipfile.ZipFile(nested, "w") as w:
+        for name in z.namelist():
+            w.writestr(f"home/me/task_7/{name}", z.read(name))
+        w.writestr("home/README.txt", "the task's notes\n")
+    rc, err = _run(["run", frames, "--labels", nested, "--out", tmp_path / "out"], capsys)
+    assert rc == 2 and "the export lies in home/me/task_7/, beside home/README.txt" in err[0], err
+    unpacked = tmp_path / "unpacked"
+    (unpacked / "task_7").mkdir(parents=True)
+    cvat_export(unpacked / "task_7", CAMVID11, {stem: ids[stem]}, as_zip=False)
+    (unpacked / "README.txt").write_text("the task's notes\n")
+    rc, err = _run(["run", frames, "--labels", unpacked, "--out", tmp_path / "out"], capsys)
+    assert rc == 2 and f"a CVAT export lies in {unpacked / 'task_7'}: give --labels {unpacked / 'task_7'}" in err[0], err
+    rc, err = _run(["run", frames, "--labels", unpacked / "task_7", "--out", tmp_path / "out"], capsys)
+    assert rc == 0, err  # where it says
+
+
 def test_the_export_of_a_run_whose_unknown_is_not_black_writes_it_black(clip, tmp_path, capsys):
     """A task whose ``background`` label is not black labels a run; its export back was refused after the run was
     labelled (CVAT would take another class for the unlabelled pixels). The archive now writes the unknown black,

@@ -100,6 +100,24 @@ def wrapped_export(folder: Path) -> Path | None:
     return None
 
 
+def export_within(folder: Path, depth: int = 3) -> str:
+    """What a refusal of ``--labels folder`` (no label PNG in it, no export of its own) adds when a CVAT export
+    lies in a folder within it, at most ``depth`` levels down, beside other files (an export unpacked with its
+    notes): where, to give ``--labels``; else ``""``."""
+    level = [folder]
+    for _ in range(depth):
+        inner = []
+        for d in level:
+            with contextlib.suppress(OSError):
+                inner += sorted(p for p in d.iterdir() if p.is_dir() and not p.is_symlink() and not p.name.startswith(".")
+                                and p.name != _MACOS_FORKS)
+        found = next((d for d in inner if (d / CLASS_DIR).is_dir()), None)
+        if found is not None:
+            return f"; a CVAT export lies in {found}: give --labels {found}"
+        level = inner[:256]
+    return ""
+
+
 def _member_name(info: zipfile.ZipInfo) -> str:
     """A member's name as its maker meant it: UTF-8 bytes that the archive does not flag as UTF-8 (as many tools
     write them; Python's zipfile decodes them as cp437, and no frame's name would match) read as UTF-8, and
@@ -208,8 +226,7 @@ class CvatExport(contextlib.AbstractContextManager):
         if self._zip is None or not deeper:
             return ""
         folder = deeper[0].split(f"/{CLASS_DIR}/")[0] if f"/{CLASS_DIR}/" in deeper[0] else deeper[0].rsplit("/", 1)[0]
-        top = folder.split("/")[0]
-        beside = sorted(n for n in self._members if not n.startswith(f"{top}/"))
+        beside = sorted(n for n in self._members if not n.startswith(f"{folder}/"))
         return (f"; the export lies in {folder}/, beside {beside[0]}{f' and {len(beside) - 1} more' if len(beside) > 1 else ''}: "
                 "an export in a folder is read when nothing else lies beside that folder (unpack it and give "
                 f"--labels the folder {folder})") if beside else ""
@@ -317,7 +334,7 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
     """A CVAT class mask's class ids: colours (RGB, or a palette's) through the table, one channel as
     labelmap lines."""
     from ..formats import check_image_bytes, decode_image
-    from .png import check_lossless, is_palette_png, palette_image, stored_grey
+    from .png import alpha_from_trns, check_lossless, is_palette_png, palette_image, stored_grey
 
     check_image_bytes(data, name, limit=limit)
     check_lossless(data, name)  # a JPEG's colours at every edge are no class's: say so, not which colour
@@ -326,7 +343,7 @@ def _decode_mask(data: bytes, name: str, table: ClassTable, order: list[int], li
         return table.ids_from_colours(pal[idx], name)
     img = decode_image(data, name, limit=limit)
     if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] in (3, 4):
-        if img.shape[2] == 4 and (img[:, :, 3] != 255).any():  # as a key label image: no colour to read there
+        if img.shape[2] == 4 and (img[:, :, 3] != 255).any() and not alpha_from_trns(data):  # as a key label image
             raise InputError(f"{name}: a class mask with transparent pixels (an alpha channel below 255)")
         return table.ids_from_colours(np.ascontiguousarray(img[:, :, 2::-1]), name)
     if img.ndim == 2 and img.dtype in (np.uint8, np.uint16):  # 16-bit too, as a key label image's ids

@@ -29,7 +29,7 @@ from ..formats import PNG_SIGNATURE, png_chunks
 from .table import ClassTable
 
 __all__ = ["encode_label_png", "write_label_png", "decode_label_png", "read_label_png", "is_palette_png", "check_lossless",
-           "check_png_chunks", "PNG_SIGNATURE"]
+           "alpha_from_trns", "check_png_chunks", "PNG_SIGNATURE"]
 
 _PALETTE = 3  # IHDR colour type of an indexed PNG
 
@@ -86,6 +86,13 @@ def check_lossless(data: bytes, name: str) -> None:
         raise InputError(f"{name}: a {lossy}, which changes the values at every edge; label images must be lossless (PNG)")
 
 
+def alpha_from_trns(data: bytes) -> bool:
+    """Whether ``data`` is a PNG of no alpha channel (grey or RGB) whose alpha, as OpenCV decodes it, comes from a
+    ``tRNS`` chunk: one value marked transparent (a tool's transparent background), every pixel's value still
+    stored exactly, to be read as a palette PNG's ``tRNS`` is, by its values."""
+    return data[:8] == PNG_SIGNATURE and data[12:16] == b"IHDR" and data[25] in (0, 2)
+
+
 def stored_grey(data: bytes, img: np.ndarray) -> np.ndarray:
     """``img``, a grey PNG ``data`` as OpenCV decodes it, with the values the file stores: libpng widens a grey
     PNG of 1, 2 or 4 bits to 8 by scaling (a 4-bit 1 read as 17, a 1-bit 1 as 255), so a label image of small
@@ -96,7 +103,8 @@ def stored_grey(data: bytes, img: np.ndarray) -> np.ndarray:
 
 
 def _lossy_webp(data: bytes) -> bool:
-    """Whether ``data`` is a WebP whose image is lossy: its first image chunk ``VP8 `` (``VP8L`` is lossless)."""
+    """Whether ``data`` is a WebP whose image is lossy: its first image chunk ``VP8 `` (``VP8L`` is lossless),
+    in an animation's first frame too."""
     if data[:4] != b"RIFF" or data[8:12] != b"WEBP":
         return False
     at = 12
@@ -104,21 +112,22 @@ def _lossy_webp(data: bytes) -> bool:
         kind, size = data[at:at + 4], int.from_bytes(data[at + 4:at + 8], "little")
         if kind in (b"VP8 ", b"VP8L"):
             return kind == b"VP8 "
-        at += 8 + size + (size & 1)
+        # an animation's first frame (ANMF) holds its image chunks after 16 bytes of place and duration
+        at += 8 + 16 if kind == b"ANMF" else 8 + size + (size & 1)
     return False
 
 
-def _jpeg_tiff(data: bytes) -> bool:
-    """Whether ``data`` is a TIFF whose image is compressed as JPEG (Pillow's reading of its header)."""
-    from PIL import Image
+#: TIFF compressions that change values: JPEG (6, the old form; 7), lossy JPEG as DNG stores it (34892).
+_TIFF_JPEG = (6, 7, 34892)
 
-    if data[:4] not in (b"II*\0", b"MM\0*"):
-        return False
-    try:
-        with Image.open(io.BytesIO(data)) as im:
-            return str(im.info.get("compression", "")) in ("jpeg", "tiff_jpeg")
-    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError):
-        return False  # not readable as a TIFF: the decoder says so
+
+def _jpeg_tiff(data: bytes) -> bool:
+    """Whether ``data`` is a TIFF whose image is compressed as JPEG: its first image's Compression tag (259), read
+    from the bytes as OpenCV's decoder will (a TIFF Pillow cannot open is judged too)."""
+    from ..formats import tiff_tag
+
+    found = tiff_tag(data, 259) if data[:4] in (b"II*\0", b"MM\0*") else None
+    return found is not None and found[0] in _TIFF_JPEG
 
 
 def palette_image(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -184,7 +193,7 @@ def decode_label_png(data: bytes, name: str, table: ClassTable, *, limit: int | 
         return table.check_labels(stored_grey(data, img), name)
     if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] in (3, 4):
         if img.shape[2] == 4:
-            if (img[:, :, 3] != 255).any():
+            if (img[:, :, 3] != 255).any() and not alpha_from_trns(data):
                 kind = "grey" if data[:8] == PNG_SIGNATURE and data[25:26] == b"\x04" else "colour"  # 4: grey and alpha
                 raise InputError(f"{name}: {kind} labels with transparent pixels (an alpha channel below 255)")
             img = img[:, :, :3]

@@ -358,7 +358,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     known. Given a ``left_out`` list, a label of a frame outside the chosen stretch
     (:func:`~pcreg.classes.cvat.outside_chosen`) is left out, its name added to the list, not refused."""
     from ..classes import DEFAULT_TABLE
-    from ..classes.cvat import chosen_around, named_frames, outside_chosen, outside_text, placed
+    from ..classes.cvat import chosen_around, export_within, named_frames, outside_chosen, outside_text, placed
     from ..errors import InputError
 
     table = DEFAULT_TABLE if table is None else table
@@ -367,7 +367,7 @@ def read_key_labels(folder: Path, frames, mapping: str, shape: tuple[int, int], 
     if not files:
         other = _other_labels(folder, frames)
         raise InputError(f"--labels {folder}: holds no label PNG (NAME.png for the frame NAME)"
-                         + ("" if other is None else f"; {other}"))
+                         + (export_within(folder) if other is None else f"; {other}"))
     stems = _frame_stems(frames, files)
     positions = placed(frames, stems, folder)
     keys: dict = {}

@@ -219,6 +219,6 @@ def test_a_first_object_too_small_to_follow_is_refused_before_any_clip_runs(tmp_
     run = ["evaluate", "stream", "--data", f"davis:{data}", "--out", str(tmp_path / "out")]
     assert main([*run, "--methods", "plain,pcreg_object"]) == 2
     (line,) = one_line_errors(capsys)
-    assert "clip b: the object on the key frame 00000 (1 px) covers no pixel at the size pcreg_object works at" in line
+    assert f"clip b of davis:{data}: the object on the key frame 00000 (1 px) covers no pixel at the size pcreg_object works at" in line
     assert not (tmp_path / "out").exists()
     assert main([*run, "--methods", "plain"]) == 0

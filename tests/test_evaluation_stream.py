@@ -148,7 +148,7 @@ def test_evaluate_stream_bad_input(tmp_path, capsys):
     # a key frame of obstacle alone, in the same process: the clip is read again, not taken from the last run's
     cv2.imwrite(str(clip / "labels" / "f0.png"), np.full((40, 60), 1, np.uint8))
     assert main(["evaluate", "stream", "--data", f"folder:{clip}", "--out", str(tmp_path / "o3")]) == 2
-    assert capsys.readouterr().err == (f"pcreg: error: clip {clip.name}: the labels of the key frame f0 hold one class "
+    assert capsys.readouterr().err == (f"pcreg: error: clip {clip.name} of folder:{clip}: the labels of the key frame f0 hold one class "
                                        "only, obstacle; the classifier that starts the stream needs pixels of both "
                                        "ground and obstacle\n")
 

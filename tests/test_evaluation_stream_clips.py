@@ -58,7 +58,7 @@ def test_a_clip_whose_frames_to_score_are_all_void_is_refused(tmp_path, capsys):
     assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--classes", "camvid11",
                  "--methods", "plain", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "clip clip: the truth of every frame that is not a key frame is all unknown" in err
+    assert err.count("\n") == 1 and f"clip clip of camvid:{tmp_path / 'data'}: the truth of every frame that is not a key frame is all unknown" in err
 
 
 @pytest.mark.parametrize("keys, message", [
@@ -74,7 +74,7 @@ def test_key_frames_a_clip_cannot_take_are_refused_naming_it_before_any_clip_run
     assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--keys", keys, "--methods", "plain",
                  "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and message in err
+    assert err.count("\n") == 1 and message.replace("clip a:", f"clip a of camvid:{tmp_path / 'data'}:") in err, err
     assert not (out / "units").is_dir() or not any((out / "units").iterdir())  # no clip ran
 
 
@@ -86,12 +86,12 @@ def test_a_key_frame_of_one_class_names_its_clip(tmp_path, capsys):
     assert main(["evaluate", "stream", "--data", f"camvid:{tmp_path / 'data'}", "--classes", "camvid11",
                  "--methods", "plain", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "clip clip: training labels hold only one class (road)" in err
+    assert err.count("\n") == 1 and f"clip clip of camvid:{tmp_path / 'data'}: training labels hold only one class (road)" in err
     void = _clip(tmp_path / "void" / "clip", 3, void=(0,))  # void only: it said "only one class (none)"
     assert main(["evaluate", "stream", "--data", f"camvid:{void.parent}", "--classes", "camvid11",
                  "--methods", "plain", "--out", str(tmp_path / "out2")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "clip clip: training labels hold no class (every pixel void)" in err, err
+    assert err.count("\n") == 1 and f"clip clip of camvid:{void.parent}: training labels hold no class (every pixel void)" in err, err
 
 
 def test_classes_no_key_frame_shows_are_named_under_the_class_tables(tmp_path, capsys):

@@ -53,12 +53,23 @@ def test_a_key_object_or_background_too_small_for_the_working_size_is_refused(tm
     assert main(["evaluate", "stream", "--data", f"davis:{seq}", "--methods", "pcreg_object",
                  "--out", str(tmp_path / "ev")]) == 2
     lines = one_line_errors(capsys)
-    assert len(lines) == 1 and "clip speck:" in lines[0] and said in lines[0]
+    assert len(lines) == 1 and f"clip speck of davis:{seq}:" in lines[0] and said in lines[0]
     if small == "background":
         return
     big = key.copy()
     big[60:64, 70:74] = 1  # 16 px: 4 at half size, followed
     assert ObjectFollower.from_key_frame(pairs[0][0], big).step(pairs[1][0]).shape == key.shape
+
+
+def test_a_sequence_of_one_frame_is_refused_naming_where_it_lies(tmp_path, capsys):
+    """A DAVIS sequence of one frame was refused as "clip one has 1 frame(s)", naming neither its folder nor its
+    frame."""
+    img, truth = moving_object(1)[0]
+    seq = write_pcreg_layout(tmp_path / "davis" / "one", [(img[:, :, ::-1], 255 * truth)])
+    assert main(["evaluate", "stream", "--data", f"davis:{tmp_path / 'davis'}", "--out", str(tmp_path / "ev")]) == 2
+    lines = one_line_errors(capsys)
+    assert len(lines) == 1 and f"clip one of davis:{tmp_path / 'davis'} has 1 frame(s) (00000)" in lines[0], lines
+    assert seq.is_dir() and not (tmp_path / "ev" / "results.md").exists()
 
 
 def test_a_refused_key_frame_leaves_the_follower_as_it_was():

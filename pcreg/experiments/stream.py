@@ -102,13 +102,19 @@ def key_frames(n: int, key_every: int | None) -> list[int]:
     return list(range(0, n, key_every)) if key_every else [0]
 
 
+def clip_where(name: str, config: StreamConfig) -> str:
+    """A clip's name in a refusal, with the data it was read from, to find it: ``0001TP of camvid:PATH``."""
+    return f"{name} of {config.data}"
+
+
 def check_clip(name: str, frames, classes: str | None = None) -> None:
     """Refuse a clip the protocol cannot score, with one line: fewer than two frames, a frame without
     labels, labels of another size than their image, or a key frame with no known label or of one class alone."""
     from ..errors import DatasetError
 
     if len(frames) < 2:
-        raise DatasetError(f"clip {name} has {len(frames)} frame(s); a stream needs a key frame and one more")
+        shown = f" ({frames[0].name})" if frames else ""
+        raise DatasetError(f"clip {name} has {len(frames)} frame(s){shown}; a stream needs a key frame and one more")
     for f in frames:
         if f.labels is None:
             raise DatasetError(f"clip {name}: frame {f.name} has no labels; the stream evaluation scores every frame")
@@ -221,12 +227,13 @@ def run_unit(unit, *, recorder=NULL_RECORDER, frame_counter: list[int] | None = 
     try:  # what the keys or a method cannot take of the clip (a key object too small to follow), naming the clip
         out = _run_methods(cfg, frames, unit.backend, hook)
     except InputError as exc:
-        raise InputError(str(exc) if str(exc).startswith(f"clip {unit.dataset}:") else f"clip {unit.dataset}: {exc}") from None
+        clip = f"clip {clip_where(unit.dataset, cfg)}:"
+        raise InputError(str(exc) if str(exc).startswith(clip) else f"{clip} {exc}") from None
     out["frames"], unscored = _scored_rows(out["frames"])
     if not out["frames"]:
         from ..errors import DatasetError
 
-        raise DatasetError(f"clip {unit.dataset}: the truth of every frame that is not a key frame is all unknown "
+        raise DatasetError(f"clip {clip_where(unit.dataset, cfg)}: the truth of every frame that is not a key frame is all unknown "
                            f"({', '.join(unscored[:4])}): nothing to score")
     out["means"] = {m: float(np.mean([r["errors"][m] for r in out["frames"]])) for m in cfg.methods}
     if unscored:
@@ -319,14 +326,15 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed, classes=config.classes)
     say_damage(datasets)
     for name, frames in datasets.items():
-        check_clip(name, frames, config.classes)
+        clip = clip_where(name, config)
+        check_clip(clip, frames, config.classes)
         if OBJECT_METHOD in config.methods:  # refused before any clip runs, as the other key masks' faults are
             from ..errors import DatasetError
             from ..pipeline.follow import can_follow
 
             key = frames[0].labels
             if (key == 1).any() and not can_follow(key):
-                raise DatasetError(f"clip {name}: the object on the key frame {frames[0].name} ({int((key == 1).sum())} "
+                raise DatasetError(f"clip {clip}: the object on the key frame {frames[0].name} ({int((key == 1).sum())} "
                                    f"px) covers no pixel at the size {OBJECT_METHOD} works at: too small to follow "
                                    f"(--methods without {OBJECT_METHOD} scores the others)")
         if config.keys is not None:  # each clip's key frames checked before any clip runs
@@ -335,7 +343,7 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
             try:
                 check_key_spec(config.keys, len(frames))
             except InputError as exc:
-                raise InputError(f"clip {name}: {exc}") from None
+                raise InputError(f"clip {clip}: {exc}") from None
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                           force=force, executor=executor, recorder=recorder, desc="stream",
                           show_progress=show_progress, kept=kept)

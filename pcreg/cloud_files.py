@@ -112,14 +112,14 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
     vertex = next((e for e in elements if e[0] == "vertex"), None)
     if vertex is None or vertex[1] == 0:
         raise InputError(f"{path}: no vertices in the PLY header")
+    if len(counts := [e[1] for e in elements if e[0] == "vertex"]) > 1:  # a reader takes the first alone
+        raise InputError(f"{path}: the PLY header declares {len(counts)} vertex elements ({', '.join(map(str, counts))} points): a reader takes the first alone; write them as one")
     missing = [c for c in "xyz" if c not in vertex[4]]
     if missing:  # Open3D would fill them with whatever its memory held
-        raise InputError(f"{path}: PLY vertices without the {', '.join(missing)} propert"
-                         f"{'y' if len(missing) == 1 else 'ies'} (x, y and z are needed)")
+        raise InputError(f"{path}: PLY vertices without the {', '.join(missing)} propert{'y' if len(missing) == 1 else 'ies'} (x, y and z are needed)")
     twice = sorted({name for name in vertex[4] if vertex[4].count(name) > 1})
     if twice:  # which one a reader takes is its own choice
-        raise InputError(f"{path}: PLY vertices declare the {', '.join(twice)} propert{'y' if len(twice) == 1 else 'ies'} "
-                         "twice")
+        raise InputError(f"{path}: PLY vertices declare the {', '.join(twice)} propert{'y' if len(twice) == 1 else 'ies'} twice")
     for axes in (("x", "y", "z"), ("nx", "ny", "nz")):
         at = [vertex[4].index(a) for a in axes if a in vertex[4]]
         if len(at) == 3 and at[2] < max(at[:2]):  # Open3D moves to the next point after z (nz): the rest shifts

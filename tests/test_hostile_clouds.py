@@ -395,6 +395,19 @@ def test_a_binary_ply_whose_vertex_count_lies_low_before_another_element_is_refu
         load_cloud(tmp_path / "cut.ply")
 
 
+def test_a_ply_of_two_vertex_elements_is_refused_not_read_in_half(tmp_path):
+    """A PLY of two vertex elements (25 points and 25): the first 25 alone were read and registered, exit 0."""
+    points = np.random.default_rng(0).uniform(0, 1, (50, 3))
+    element = "element vertex 25\nproperty float x\nproperty float y\nproperty float z\n"
+    path = tmp_path / "two.ply"
+    path.write_text("ply\nformat ascii 1.0\n" + 2 * element + "end_header\n" + "".join(f"{x} {y} {z}\n" for x, y, z in points))
+    with pytest.raises(InputError, match=rf"^{path}: the PLY header declares 2 vertex elements \(25, 25 points\)"):
+        load_cloud(path)
+    path.write_text("ply\nformat ascii 1.0\n" + element.replace("25", "50") + "end_header\n"
+                    + "".join(f"{x} {y} {z}\n" for x, y, z in points))
+    assert load_cloud(path).shape == (50, 3)
+
+
 def test_a_pcd_naming_a_field_twice_or_a_keyword_twice_is_refused(tmp_path):
     """FIELDS x y z x: pcreg's ASCII reader took the first x, Open3D's binary reader the last, so the same cloud
     read two ways; two FIELDS lines, the last taken. Refused naming the file, as a PLY's property named twice is."""

@@ -254,17 +254,21 @@ def test_pairs_of_zero_weight_count_for_nothing():
 def test_a_rigid_result_held_by_too_few_pairs_to_fix_its_rotation_is_not_returned_as_converged(d):
     """Two source points of 52 within the gate in 3-D (one in 2-D) fix no rotation about them: Open3D's step took
     one anyway (a half turn about a skew axis, inlier RMSE 1.7e-15) and pcreg.icp returned it as converged; it is
-    refused now. The reference's step needs the pairs a rotation takes: it stops where it started, not converged,
-    and that is returned as before."""
+    refused now, and so is its turn when the iterations stopped the run (a half turn at one iteration, returned as
+    not converged). The reference's step needs the pairs a rotation takes: it stops where it started, not
+    converged, and that is returned as before."""
     rng = np.random.default_rng(0)
     target = rng.uniform(0, 10, (200, d))
     source = np.r_[target[:d - 1] + np.eye(d)[0] * 0.05, rng.uniform(100, 110, (50, d))]
     with pytest.raises(RegistrationError, match=rf"^registration refused: at the result only {d - 1} source "
                                                 rf"point\(s\) of {len(source)} .* needs {d} .* rotation"):
         pcreg.icp(source, target, ICPOptions(backend="open3d", max_correspondence_distance=0.3))
-    r = pcreg.icp(source, target, ICPOptions(max_correspondence_distance=0.3))
-    np.testing.assert_array_equal(r.matrix, np.eye(d + 1))
-    assert not r.converged and r.iterations == 0
+    with pytest.raises(RegistrationError, match="at the result only"):  # stopped by its iterations, its steps taken:
+        pcreg.icp(source, target, ICPOptions(backend="open3d", max_correspondence_distance=0.3, max_iteration=1))
+    for iterations in (1, 30):
+        r = pcreg.icp(source, target, ICPOptions(max_correspondence_distance=0.3, max_iteration=iterations))
+        np.testing.assert_array_equal(r.matrix, np.eye(d + 1))
+        assert not r.converged and r.iterations == 0
 
 
 @pytest.mark.parametrize("metric, d, pairs", [("point_to_plane", 3, 4), ("point_to_plane", 3, 5), ("point_to_line", 2, 2)])

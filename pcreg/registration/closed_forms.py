@@ -512,7 +512,8 @@ def paired_targets(T: np.ndarray, source: np.ndarray, target: np.ndarray, max_di
 
 def check_rotation_pairs(fitness: float, source_points: int, model: str, d: int, max_distance: float, *,
                          converged: bool, metric: str = "point_to_point") -> None:
-    """Raise when a ``rigid`` ICP that says it ``converged`` ended with fewer pairs (``fitness`` x ``source_points``
+    """Raise when a ``rigid`` ICP that ``converged`` (or moved the source at its last scale, stopped by its
+    iterations) ended with fewer pairs (``fitness`` x ``source_points``
     matched within ``max_distance``) than fix a rotation in ``d`` dimensions (:func:`pairs_needed`: 2 in 2-D, 3 in
     3-D): about them any turn fits as well, and the result's is arbitrary. The reference's step does not take such
     pairs (its run stops there, not converged, and is not refused here); Open3D's takes any non-empty set: two pairs

@@ -170,6 +170,7 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
                            stepwise=options.count_iterations)
     total_iter = 0
     for i, (s, t, d, n) in enumerate(schedule):
+        scale_start = T
         r = step(s, t, T, settings, StepCall(max_correspondence_distance=d, max_iteration=n,
                                              relative_rmse=options.relative_rmse, level=len(schedule) - 1 - i,
                                              callback=callback,
@@ -184,7 +185,9 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
                                 f"{schedule[-1][2]:g} of a target point; {where} (give an init "
                                 "that brings the clouds together, or a larger max_correspondence_distance)")
     check_support(T, s, t, d, options.model, converged=r.converged is not False)  # the last scale's clouds
-    check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=r.converged is not False, metric=options.metric)
+    # a run stopped by its iterations took steps all the same (Open3D's takes one on any pairs): judged as one that ended
+    stepped = r.converged is not False or not np.array_equal(T, scale_start)
+    check_rotation_pairs(r.fitness, len(s), options.model, dim, d, converged=stepped, metric=options.metric)
     if first is not None:  # one scale: a linearised metric takes no schedule
         check_progress(first, r, d, options.metric)
         check_paired_normals(T, s, t, target_normals, d, options.metric)

@@ -8,7 +8,8 @@ agrees within 30° (measured at full resolution; on images whose full-resolution
 ``chance_ratio`` is what unrelated content reaches at the same distances. Below ``min_inlier_ratio``
 (see :data:`~pcreg.registration.config.DEFAULT_MIN_INLIER_RATIO`; None turns the test off), below :data:`CHANCE_FACTOR` x
 ``chance_ratio`` or within :data:`SIGNIFICANCE` standard deviations of it, when the moving image's edges run
-one way (:data:`ONE_DIRECTION`), with fewer than 2% of the points on the reference (no overlap), or when the moving
+one way (:data:`ONE_DIRECTION`) or turn onto themselves (:func:`turned_onto_itself`: a disk, rings; but for the
+translation model), with fewer than 2% of the points on the reference (no overlap), or when the moving
 image's mirror aligns clearly better (a score :data:`MIRROR_FACTOR` times as high, and more of its edge
 points; asked of every model when the search ended unconvinced; under ``min_inlier_ratio``, the mirror's
 alignment passes where the image's does not), :class:`~pcreg.errors.RegistrationError`
@@ -23,6 +24,7 @@ import numpy as np
 
 from ..errors import RegistrationError
 from .global_search import Evidence, alignment_evidence
+from .clouds import ImageCloud
 from .pyramid import CloudPyramid
 from .search import Candidate
 
@@ -71,6 +73,63 @@ def edge_spread(cloud: CloudPyramid) -> float | None:
             low, high = np.linalg.eigvalsh(n.T @ n / len(n))
             return float(low / high) if high > 0 else 0.0
     return None
+
+
+#: The turns about the edges' centre at which :func:`turned_onto_itself` reads an image: no two of them a multiple
+#: of one angle a shape of few sides repeats at (a square's 90 degrees, a hexagon's 60), so that only a shape that
+#: turns onto itself at every angle (a disk, rings) meets all three.
+SELF_TURNS = (17.0, 41.0, 73.0)
+SELF_TURN_UNMATCHED = 0.02
+"""A moving image of which fewer than this share of edge points leave its own edges when turned
+(:func:`turned_onto_itself`) has a rotation that is not determined, and is refused (but by the translation model):
+the share of a cloud's points the test asks at the least of an alignment's overlap (the 2% of its edge points that
+must land on the reference). ``tools/measure_self_turns.py``: of every shared CamVid and DAVIS frame and
+photograph at most 0.105 land, of a disk, rings or a disk with noise at least 0.991 (docs/algorithms.md)."""
+
+#: The edge points of a level :func:`turned_onto_itself` turns (drawn at random, seeded), onto every edge point.
+SELF_TURN_SAMPLE = 1000
+
+
+def turned_onto_itself(cloud: CloudPyramid) -> float | None:
+    """The share of an image's edge points that land on its own edges turned about their centre
+    (:func:`self_turn_share`), at the first level where all but :data:`SELF_TURN_UNMATCHED` of them land: its rotation
+    is not determined; None where no level is so. Read from level 1 (noise scatters the finest level's edges; level 0
+    only where level 1 holds fewer than :data:`SPREAD_POINTS` edge points) up to the last with :data:`SPREAD_POINTS`,
+    each level with every edge point."""
+    first = 1 if len(cloud) > 1 and len(cloud[1]) >= SPREAD_POINTS else 0
+    for level in range(first, len(cloud)):
+        c = cloud.every_point(level)
+        if c is None or len(c) < SPREAD_POINTS:
+            break
+        landed = self_turn_share(c, level, stop=1.0 - SELF_TURN_UNMATCHED)
+        if landed > 1.0 - SELF_TURN_UNMATCHED:
+            return landed
+    return None
+
+
+def self_turn_share(c: ImageCloud, level: int, *, stop: float | None = None) -> float:
+    """The least share, over the turns of :data:`SELF_TURNS` about their centre, of :data:`SELF_TURN_SAMPLE` of the
+    edge points of ``c`` (a pyramid ``level``'s every edge point; drawn at random, seeded) that land on its edges
+    (within 1 px of the level and 30 degrees, as an alignment's inliers are counted); the first share at or under
+    ``stop`` where given."""
+    from scipy.spatial import cKDTree
+
+    centre, tree = c.points.mean(axis=0), cKDTree(c.points)
+    pick = np.random.default_rng(level).choice(len(c), min(len(c), SELF_TURN_SAMPLE), replace=False)
+    h, w = c.shape
+    landed = 1.0
+    for angle in SELF_TURNS:
+        t = np.deg2rad(angle)
+        R = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+        p = (c.points[pick] - centre) @ R.T + centre
+        inside = (p[:, 0] >= -0.5) & (p[:, 0] <= w - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] <= h - 0.5)
+        dist, idx = tree.query(p[inside], k=1, distance_upper_bound=2.0**level)
+        ok = np.isfinite(dist)
+        cos = np.einsum("ij,ij->i", c.normals[pick][inside][ok] @ R.T, c.normals[idx[ok]])
+        landed = min(landed, np.count_nonzero(cos >= np.cos(np.deg2rad(30.0))) / max(int(inside.sum()), 1))
+        if stop is not None and landed <= stop:
+            break
+    return landed
 
 
 class Plausibility:
@@ -199,6 +258,13 @@ class Plausibility:
             raise RegistrationError(
                 f"registration refused: the moving image's edges run one way (their second direction holds "
                 f"{100 * spread:.1f}% of the first; stripes, a grating): its motion along them is not determined")
+        landed = None if moving is None or spread is None or self.model == "translation" else turned_onto_itself(moving)
+        if landed is not None:
+            raise RegistrationError(
+                f"registration refused: the moving image's edges turn onto themselves (turned by "
+                f"{', '.join(f'{a:g}' for a in SELF_TURNS[:-1])} and {SELF_TURNS[-1]:g} degrees about their centre, "
+                f"{100 * landed:.1f}% of them land on its own edges; a disk, rings): its rotation is not "
+                "determined (the translation model registers its shift)")
         if mir is not None and mir > 0 and ratio < CHANCE_FACTOR * chance:
             raise RegistrationError(
                 f"registration refused: the best alignment's {100 * ratio:.1f}% of tight, direction-consistent edge "

@@ -24,10 +24,16 @@ class CloudPyramid:
     valid : (H, W) bool usable pixels at full resolution (all True where no mask applies).
     """
 
-    def __init__(self, image: np.ndarray, valid: np.ndarray, *, levels: int, build: Callable[[int], ImageCloud]):
+    def __init__(self, image: np.ndarray, valid: np.ndarray, *, levels: int, build: Callable[[int], ImageCloud],
+                 build_all: Callable[[int], ImageCloud] | None = None):
         self.image, self.valid = image, valid
-        self._levels, self._build = levels, build
+        self._levels, self._build, self._build_all = levels, build, build_all
         self._clouds: dict[int, ImageCloud] = {}
+
+    def every_point(self, level: int) -> ImageCloud | None:
+        """The cloud of ``level`` with every edge point, not capped by ``max_points`` (a random subset leaves gaps
+        that a point's own copy, moved, falls into); None for a pyramid that cannot build it (a mirrored one)."""
+        return None if self._build_all is None else self._build_all(level)
 
     @classmethod
     def from_image(cls, image: np.ndarray, *, levels: int, mask, max_points, seed: int, **options) -> CloudPyramid:
@@ -37,14 +43,14 @@ class CloudPyramid:
         mask = usable_mask(mask, image)
         images = [image]
 
-        def build(level: int) -> ImageCloud:
+        def build(level: int, cap: bool = True) -> ImageCloud:
             while len(images) <= level:
                 images.append(cv2.pyrDown(images[-1]))
             return level_cloud(images[level], level=level, shape=image.shape[:2], mask=mask,
-                               max_points=max_points[level], seed=seed, **options)
+                               max_points=max_points[level] if cap else None, seed=seed, **options)
 
         valid = np.ones(image.shape[:2], bool) if mask is None else mask
-        return cls(image, valid, levels=levels, build=build)
+        return cls(image, valid, levels=levels, build=build, build_all=lambda level: build(level, cap=False))
 
     @classmethod
     def from_detections(cls, image: np.ndarray, pyramid: ImagePyramid, *, levels: int, max_points,
@@ -54,7 +60,8 @@ class CloudPyramid:
         max_points = per_level(max_points, levels)
         valid = pyramid.valid if pyramid.valid is not None else np.ones(pyramid.shape, bool)
         return cls(image, valid, levels=levels,
-                   build=lambda level: pyramid.cloud(level, max_points=max_points[level], seed=seed))
+                   build=lambda level: pyramid.cloud(level, max_points=max_points[level], seed=seed),
+                   build_all=lambda level: pyramid.cloud(level, max_points=None, seed=seed))
 
     def mirrored(self) -> CloudPyramid:
         """The pyramid of the image mirrored left-right, level by level on access."""

@@ -56,7 +56,8 @@ def _ply_header(path: Path) -> tuple[str, list[list], int]:
     with open(path, "rb") as fh:
         head = fh.read(MAX_HEADER_BYTES)
     if not head.startswith(b"ply"):
-        raise InputError(f"{path}: no points could be read (not a PLY file: no 'ply' magic)")
+        raise InputError(f"{path}: no points could be read (not a PLY file: no 'ply' magic"
+                         + ("; it starts with a UTF-8 byte-order mark, which a PLY cannot: save it without one)" if head.startswith(b"\xef\xbb\xbfply") else ")"))
     end = re.search(rb"^end_header\s*?$", head, re.MULTILINE)  # the line, not the word in a comment
     if end is None:
         raise InputError(f"{path}: PLY header without end_header")
@@ -141,8 +142,7 @@ def _ply_check(path: Path, size: int, limit: int) -> int:
     have = size - body_start
     if have < need:
         got = max(0, have) // max(1, sum(vertex[2]))
-        raise InputError(f"{path}: truncated PLY: the header declares {n} vertices "
-                         f"({need} bytes), the file holds {have} bytes (about {min(got, n)} vertices)")
+        raise InputError(f"{path}: truncated PLY: the header declares {n} vertices ({need} bytes), the file holds {have} bytes (about {min(got, n)} vertices)")
     end = _ply_body_end(path, body_start, size, elements, fmt)
     if end is not None and size - end >= sum(vertex[2]):  # a count that lies low: the rest would be read as what follows
         raise InputError(f"{path}: the PLY header declares {n} vertices, and its elements end {size - end} bytes before "

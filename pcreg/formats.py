@@ -208,7 +208,7 @@ def text_matrix(data: bytes) -> np.ndarray:
 def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:
     """A small text matrix (an initial guess, a ground truth) from a regular file of at most 64 kB, as a finite
     2-D float64 array (:func:`text_matrix`: spaces or commas between the numbers)."""
-    data = read_regular_file(path, max_bytes=1 << 16, what=what)
+    data = read_regular_file(path, max_bytes=1 << 16, what=what).removeprefix(b"\xef\xbb\xbf")  # Notepad's mark
     if not data.strip():  # numpy would warn of it and give an empty array
         raise InputError(f"{path}: the {what} file is empty")
     try:

@@ -395,6 +395,36 @@ def test_a_binary_ply_whose_vertex_count_lies_low_before_another_element_is_refu
         load_cloud(tmp_path / "cut.ply")
 
 
+def test_a_cloud_so_small_that_its_squared_distances_underflow_is_refused():
+    """A cloud 1e-200 across turned 10 degrees came back unturned, inlier RMSE 0, fitness 1, trusted: its squared
+    distances underflow to 0. Refused naming its span; one 1e-135 across is registered."""
+    rng = np.random.default_rng(3)
+    unit = rng.uniform(-1, 1, (500, 3))
+    a = np.deg2rad(10)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    with pytest.raises(InputError, match=r"^source: the cloud spans 2.28e-200, under 1e-140"):
+        pcreg.icp(unit @ R * 1e-200, unit * 1e-200)
+    # its stopping rule's changes are absolute (Open3D's): at this scale, none
+    r = pcreg.icp(unit @ R * 1e-135, unit * 1e-135, pcreg.ICPOptions(relative_fitness=0, relative_rmse=0))
+    np.testing.assert_allclose(r.matrix[:3, :3], R, atol=1e-6)
+
+
+def test_a_byte_order_mark_is_named_in_a_ply_and_read_past_in_a_text_matrix(tmp_path):
+    """An editor's UTF-8 byte-order mark: a PLY was refused as "no 'ply' magic" (it has one, after the mark), and an
+    --init matrix as numpy's "could not convert string 'ï»¿1'". The PLY's refusal names the mark; the matrix,
+    text, is read past it."""
+    from pcreg.formats import read_text_matrix
+
+    ply = tmp_path / "bom.ply"
+    ply.write_bytes(b"\xef\xbb\xbfply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                    b"property float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n")
+    with pytest.raises(InputError, match="starts with a UTF-8 byte-order mark"):
+        load_cloud(ply)
+    init = tmp_path / "init.txt"
+    init.write_bytes(b"\xef\xbb\xbf1 0 2\r\n0 1 3\r\n0 0 1\r\n")
+    np.testing.assert_array_equal(read_text_matrix(init), [[1, 0, 2], [0, 1, 3], [0, 0, 1]])
+
+
 def test_a_ply_of_two_vertex_elements_is_refused_not_read_in_half(tmp_path):
     """A PLY of two vertex elements (25 points and 25): the first 25 alone were read and registered, exit 0."""
     points = np.random.default_rng(0).uniform(0, 1, (50, 3))

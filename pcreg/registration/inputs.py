@@ -13,6 +13,10 @@ from ..errors import InputError
 from ..validation import check_point_count, check_unmasked, real_matrix
 
 MAX_COORDINATE = 1e9  # squared distances stay far from overflow and float64 keeps sub-mm steps at 1e6 m
+#: A cloud that spans less than this (but more than nothing) is refused: the squared distances of a millionth of it
+#: stay above float64's smallest normal number (2.2e-308); below, they underflow to 0, and a cloud 1e-200 across
+#: turned 10 degrees came back unturned with an inlier RMSE of 0.
+MIN_EXTENT = 1e-140
 
 
 def check_cloud(points: np.ndarray, name: str, *, limit: int | None = None) -> np.ndarray:
@@ -47,6 +51,10 @@ def _check_values(p: np.ndarray, name: str) -> None:
     if big > MAX_COORDINATE:
         raise InputError(f"{name}: coordinates up to {big:.3g} are out of range (|x| <= {MAX_COORDINATE:g}; "
                          "shift the cloud towards the origin)")
+    extent = float(np.max(np.ptp(p, axis=0)))
+    if 0 < extent < MIN_EXTENT:
+        raise InputError(f"{name}: the cloud spans {extent:.3g}, under {MIN_EXTENT:g}: its squared distances underflow "
+                         "to 0 (scale the clouds up alike)")
 
 
 def _backend_cloud(points, name: str) -> np.ndarray:

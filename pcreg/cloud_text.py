@@ -346,6 +346,13 @@ def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
                          "one of them")
     if "x" not in names or "y" not in names:
         line = b",".join(fields)
-        text = line[:60].decode("ascii", "replace")
+        import unicodedata
+
+        odd = next((c for c in line.decode("utf-8", "replace") if ord(c) > 127), None)  # a word processor's space, minus
+        if odd is not None and unicodedata.category(odd) in ("Zs", "Pd", "Sm") and any(c in b"0123456789" for c in line):
+            raise InputError(f"{path}: its first line holds {unicodedata.name(odd, 'a character')} (U+{ord(odd):04X}), "
+                             "no digit, sign or separator of a number: save the cloud as plain text ('-' for a minus, "
+                             "spaces or commas between the numbers)")
+        text = line[:60].decode("utf-8", "replace")
         raise InputError(f"{path}: its first line ({text!r}) names no x and y columns{_comma_hint(line)}")
     return [names.index(a) for a in "xyz" if a in names]

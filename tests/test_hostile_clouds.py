@@ -425,6 +425,21 @@ def test_a_byte_order_mark_is_named_in_a_ply_and_read_past_in_a_text_matrix(tmp_
     np.testing.assert_array_equal(read_text_matrix(init), [[1, 0, 2], [0, 1, 3], [0, 0, 1]])
 
 
+@pytest.mark.parametrize("mark, name", [("\u00a0", "NO-BREAK SPACE"), ("\u2212", "MINUS SIGN")])
+def test_a_word_processors_space_or_minus_in_a_text_cloud_is_named(tmp_path, mark, name):
+    """A no-break space between two numbers, or a minus sign for '-', was refused as "its first line
+    ('0.63\ufffd\ufffd0.27,0.04') names no x and y columns": the line quoted was rebuilt, not the file's, and the
+    cause was another. The character is named; a header of words not ASCII is quoted as written."""
+    path = tmp_path / "cloud.txt"
+    path.write_text(f"0.63{mark}0.27 0.04\n0.1 0.2 0.3\n0.4 0.5 0.6\n", encoding="utf-8")
+    with pytest.raises(InputError, match=rf"^{path}: its first line holds {name} \(U\+"):
+        load_cloud(path)
+    words = tmp_path / "words.csv"
+    words.write_text("Längengrad,Breitengrad\n1,2\n3,4\n5,6\n", encoding="utf-8")
+    with pytest.raises(InputError, match=r"its first line \('Längengrad,Breitengrad'\) names no x and y columns"):
+        load_cloud(words)
+
+
 def test_a_ply_of_two_vertex_elements_is_refused_not_read_in_half(tmp_path):
     """A PLY of two vertex elements (25 points and 25): the first 25 alone were read and registered, exit 0."""
     points = np.random.default_rng(0).uniform(0, 1, (50, 3))

@@ -170,6 +170,30 @@ def test_masks_that_read_two_ways_are_refused_saying_what_they_hold(tmp_path):
 
 
 @pytest.mark.data
+@pytest.mark.parametrize("factor", [2, 4])
+def test_a_0_255_mask_shrunk_with_its_thin_parts_is_one_object(shared_data, tmp_path, factor):
+    """A 0/255 mask shrunk (INTER_AREA, as a 1080p mask is brought to 480p) whose thin parts become values between
+    with no 255 beside them (kite-surf's lines at a quarter; a 1 px string at a half) was refused as "objects with
+    255 void?". Read as one object, its thin parts in it; objects saved as grey ids with 255 void are refused as
+    before, and a grey object of 128 beside the 255 one too."""
+    mask = cv2.imread(str(sorted((shared_data / "davis" / "kite-surf" / "labels").iterdir())[0]), cv2.IMREAD_GRAYSCALE)
+    big = cv2.resize(mask, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+    cv2.line(big, (100, 100), (600, 300), 255, 1)  # a string
+    small = cv2.resize(big, None, fx=1 / factor, fy=1 / factor, interpolation=cv2.INTER_AREA)
+    assert len(np.unique(small)) > 3
+    cv2.imwrite(str(tmp_path / "small.png"), small)
+    np.testing.assert_array_equal(read_key_labels(tmp_path / "small.png", DAVIS, "davis"), (small > 0).astype(np.uint8))
+    k = (mask > 0).astype(np.uint8)
+    grey = np.where(k > 0, 1, 0).astype(np.uint8)
+    grey[(cv2.dilate(k, np.ones((11, 11), np.uint8)) - k) > 0] = 255  # object 1 with DAVIS 2017's void around it
+    beside = mask.copy()
+    cv2.circle(beside, (100, 100), 30, 128, -1)
+    for name, refused in (("grey.png", grey), ("beside.png", beside)):
+        cv2.imwrite(str(tmp_path / name), refused)
+        with pytest.raises(InputError, match="beyond 4 px of the 255s"):
+            read_key_labels(tmp_path / name, DAVIS, "davis")
+
+
 def test_a_shared_sequence_as_grey_and_rgb_ids_reads_as_its_palette_png(shared_data, tmp_path):
     src = shared_sequence(shared_data, "blackswan")
     n = 3

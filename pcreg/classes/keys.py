@@ -151,7 +151,8 @@ def _grey_ids(values: np.ndarray, name: str) -> bool:
     """Whether a grey mask's values are object ids, as a palette PNG's indices: when it holds two or more
     values between 1 and 254 (DAVIS 2017's objects saved as grey). One value (DAVIS 2016's 255, or another)
     is one object, as before; so is a 0/255 mask whose values between lie only on its edge, within
-    :data:`SOFT_EDGE` px of a 255 pixel (resized: a smoothed edge, read as the object as before). Values below
+    :data:`SOFT_EDGE` px of a 255 pixel (resized: a smoothed edge, read as the object as before), or on parts of
+    it at most 4 px across (shrunk: a kite's lines, read as the object; :func:`_edge_only`). Values below
     255 beyond that edge, beside 255, are refused, naming them, one such value as several: DAVIS 2017's
     objects with 255 void (one object's 1 with its void border, saved as grey), or a mask of other making,
     cannot be told apart. Without 255, a mask whose values below its largest, M, are three or more and lie only
@@ -165,8 +166,8 @@ def _grey_ids(values: np.ndarray, name: str) -> bool:
         return False
     if present[-1] < 255 and len(below) >= 4 and _edge_only(values, int(present[-1])):
         return False  # a 0/M mask smoothed (three or more values below M, on M's edge): one object, as with 255
-    if present[-1] == 255 and _edge_only(values, 255):
-        return False  # a smoothed edge: one object
+    if present[-1] == 255 and _edge_only(values, 255, thin=True):
+        return False  # a smoothed edge, and thin parts shrunk (a string, a pole): one object
     if _smoothed(values, [v for v in below if v < present[-1]], int(present[-1])):
         raise SmoothedMask(name, int(present[-1]))
     if present[-1] == 255:
@@ -202,13 +203,19 @@ class SmoothedMask(InputError):
                          f"{advice}")
 
 
-def _edge_only(values: np.ndarray, top: int) -> bool:
-    """Whether every value of ``values`` between 0 and ``top`` lies within :data:`SOFT_EDGE` px of a ``top`` pixel."""
+def _edge_only(values: np.ndarray, top: int, *, thin: bool = False) -> bool:
+    """Whether every value of ``values`` between 0 and ``top`` lies within :data:`SOFT_EDGE` px of a ``top`` pixel;
+    with ``thin``, or within half that of a 0 pixel: a part of the object thinner than the factor a 0/``top`` mask
+    was shrunk by (a kite's lines, a pole) is values between all across, with no ``top`` beside it, where an object
+    saved as a grey id has an inside, away from the background (one 5 px across or more)."""
     import cv2
 
     side = 2 * SOFT_EDGE + 1
-    near = cv2.dilate((values == top).astype(np.uint8), np.ones((side, side), np.uint8))
-    return not np.any((values > 0) & (values < top) & (near == 0))
+    kernel = np.ones((side, side), np.uint8)
+    between = (values > 0) & (values < top) & (cv2.dilate((values == top).astype(np.uint8), kernel) == 0)
+    if thin and between.any():  # eroded away by a window of the edge's size: no pixel farther than it from a 0
+        between &= cv2.erode((values > 0).astype(np.uint8), np.ones((3, 3), np.uint8), iterations=SOFT_EDGE // 2) > 0
+    return not np.any(between)
 
 
 def _colour_objects(img: np.ndarray, name: str) -> tuple[np.ndarray, bool]:

@@ -113,6 +113,32 @@ def test_a_video_with_transparent_pixels_is_said_once(tmp_path, capsys):
     assert len(notes) == 1 and f"{video} frame 000002 has transparent pixels" in notes[0], notes
 
 
+@pytest.mark.parametrize("bits", [12, 16])
+def test_a_16_bit_video_of_a_12_bit_camera_is_said_to_read_nearly_black(tmp_path, capsys, bits):
+    """A 12-bit grey camera's frames stored in 16 bits (gray16le FFV1, as a machine-vision recorder writes them) read
+    at 0..16 of 255 with no word, where the same frames as 16-bit PNGs in a folder were noted. Noted once, and kept in
+    run.json; frames that use the 16 bits are not."""
+    video = tmp_path / "clip.mkv"
+    with av.open(str(video), "w") as c:
+        s = c.add_stream("ffv1", rate=10)
+        s.width, s.height, s.pix_fmt = W, H, "gray16le"
+        for i in range(4):
+            grey = cv2.cvtColor(_scene(i), cv2.COLOR_BGR2GRAY).astype(np.uint16) * (16 if bits == 12 else 257)
+            for packet in s.encode(av.VideoFrame.from_ndarray(grey, format="gray16le")):
+                c.mux(packet)
+        for packet in s.encode():
+            c.mux(packet)
+    out = tmp_path / "out"
+    assert main(["run", str(video), "--labels", str(_key(tmp_path / "key.png")), "--out", str(out)]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if "16-bit values" in ln]
+    kept = json.loads((out / "run.json").read_text()).get("notes", {})
+    if bits == 16:
+        assert not notes and "dark" not in kept
+        return
+    assert len(notes) == 1 and f"{video} frame 000000: its 16-bit values lie in" in notes[0], notes
+    assert "nearly black" in kept["dark"]
+
+
 def _tiff_with_thumbnail(path, image, thumbnail):
     """A TIFF whose second IFD is a reduced-resolution copy (NewSubfileType 1), as a scanner or camera writes one."""
     from PIL import Image, TiffImagePlugin

@@ -43,6 +43,29 @@ def test_an_output_folder_whose_files_are_in_the_way_is_refused_in_one_line(tmp_
     assert (out / "confidence").read_text().startswith("a file")  # left as it was
 
 
+@pytest.mark.parametrize("where", ["f2.png", "confidence/f3.png"])
+def test_a_folder_of_no_run_holding_a_file_the_run_would_write_is_refused(tmp_path, capsys, where):
+    """A person's own corrected label map f2.png (or a confidence map) in a folder given as --out, with no run of
+    pcreg's there, was written over without a word. Refused naming it, the file kept; --force writes over it, and a
+    run killed at its start (steps.jsonl written first) resumes."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
+    out = tmp_path / "out"
+    (out / "confidence").mkdir(parents=True)
+    (out / "notes.png").write_bytes(b"a picture of no frame's name")  # no frame's: left alone, not in the way
+    (out / where).write_bytes(b"a person's own")
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out), "--confidence"]
+    assert main(run) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"{out / where}: this run would write over it" in err[0] and "--force" in err[0], err
+    assert (out / where).read_bytes() == b"a person's own" and not (out / "run.json").exists()
+    assert main([*run, "--force"]) == 0
+    assert (out / where).read_bytes() != b"a person's own" and (out / "notes.png").exists()
+    (out / "run.json").unlink()  # as a run killed after its first writes, before its state
+    (out / "steps.jsonl").write_bytes(b"")
+    capsys.readouterr()
+    assert main(run) == 0
+
+
 CORRUPT_STATES = {
     "a list": lambda s: [s], "null": lambda s: None, "a string": lambda s: "run",
     "no done": lambda s: {k: v for k, v in s.items() if k != "done"}, "done text": lambda s: {**s, "done": "abc"},

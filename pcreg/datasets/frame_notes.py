@@ -58,6 +58,15 @@ def dark_notes(where: str, colours: np.ndarray, *, later: str = LATER) -> tuple[
     return ((DARK, f"{where}: {said} ({later})"),) if said else ()
 
 
+def video_dark_notes(where: str, frame, reformatter) -> tuple[tuple[str, str], ...]:
+    """:func:`dark_notes` of a decoded ``av.VideoFrame`` of a 16-bit pixel format (``gray16le``, ``rgb48le``, ...; a
+    10- or 12-bit camera's frames stored in 16 bits), from its brightness as stored (``reformatter`` makes it
+    ``gray16le``, one for the stream); () for other formats, which FFmpeg scales to 8 bits by their own depth."""
+    if not any(c.bits == 16 and not c.is_alpha for c in frame.format.components):
+        return ()
+    return dark_notes(where, reformatter.reformat(frame, format="gray16le").to_ndarray())
+
+
 #: The kind of note of a frame's image file whose decoder reports damaged data it decoded around (a JPEG cut short).
 DAMAGED = "damaged"
 

@@ -385,14 +385,14 @@ class VideoFrames:
         from av.video.reformatter import VideoReformatter
 
         from .deinterlace import Deinterlacer
-        from .frame_notes import has_alpha, transparent_notes, turn_note
+        from .frame_notes import has_alpha, transparent_notes, turn_note, video_dark_notes
 
         s, reading = self.selection, _Reading()
         target = s.index(first)
         # One converter to RGB for the stream: ``frame.to_ndarray(format=...)`` makes a new one (an FFmpeg scaler
         # context) for every frame, which costs more than decoding the frame, and a long run's memory grew with
         # them (about 10 kB a frame at 160x120; docs/benchmarks.md).
-        rgb, rgba = VideoReformatter(), VideoReformatter()  # rgba: the alpha of a pixel format that has one
+        rgb, rgba, grey16 = VideoReformatter(), VideoReformatter(), VideoReformatter()  # rgba: the alpha of a format with one; grey16: 16-bit values as stored
         fields: Deinterlacer | None = None
         previous, stopped = None, False
 
@@ -410,8 +410,9 @@ class VideoFrames:
             alpha = rgba.reformat(frame, format="rgba").to_ndarray()[:, :, 3] if has_alpha(frame) else None
             gaps = tuple(g for g in reading.gaps if before < g.index <= i)
             reading.gaps, before = [g for g in reading.gaps if g.index > i], i
+            dark = video_dark_notes(f"{self.path} frame {name}", frame, grey16)
             return SourceFrame((i - s.start) // s.every, i, name, name, image, gaps,
-                               notes + transparent_notes(f"{self.path} frame {name}", alpha), i in reading.damaged)
+                               notes + transparent_notes(f"{self.path} frame {name}", alpha) + dark, i in reading.damaged)
 
         for i, frame, turn in self._decoded(reading):
             stopped = s.stop is not None and i >= s.stop  # the frame after the last: only the next of the one before

@@ -286,7 +286,7 @@ class Run:
     def open_key(self, labels: np.ndarray, *, force: bool = False) -> int:
         """Open (or resume) a run from one label image, the key frame's ``labels``; returns the index of the
         first frame still to do."""
-        state = open_state(self.out, self.identity, force=force)
+        state = open_state(self.out, self.identity, force=force, frames=self.frames)
         digest = label_digest(labels)
         if state is not None:
             self.state = state
@@ -309,8 +309,8 @@ class Run:
             self.state.update(key_bytes=frame_bytes(self.frames, 0), key_contents=key_contents(self.frames, [0]))
         if self.frames.kind == "video":
             keep_video(self.state, self.frames, self.out)
+        (self.out / STEPS).write_bytes(b"")  # first: a folder of no run holds none (:func:`open_state`)
         write_labels(self.out / f"{self.frames.stem(0)}.png", labels, self.table)
-        (self.out / STEPS).write_bytes(b"")
         write_state(self.out, self.state)
         return 1
 
@@ -397,7 +397,7 @@ class Run:
         """Open (or resume) a run from a folder of key frames (``keys``, {position: labels}) whose stretches
         are ``plan`` ({fingerprint: :class:`~pcreg.pipeline.engine.Stretch`}): the steps of stretches no
         longer in the plan forgotten, the key frames' labels written where they changed."""
-        state = open_state(self.out, self.identity, force=force)
+        state = open_state(self.out, self.identity, force=force, frames=self.frames)
         if state is not None:
             self.state = state
         else:

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 from ..errors import InputError, OutputError
 from ..formats import load_json_object, loads_json, resolved
-from .files import STATE
+from .files import CONFIDENCE, STATE, STEPS
 
 if TYPE_CHECKING:
     from ..datasets.sources import Selection
@@ -203,15 +203,24 @@ def run_identity(frames, source: Path, labels: Path, config, *, mapping: str, tr
     return identity
 
 
-def open_state(out: Path, identity: dict | None, *, force: bool) -> dict | None:
+def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) -> dict | None:
     """Make ``out`` (a folder) and read the run it holds: its run.json when it is a run of ``identity``
     (the same options and inputs), None when there is none or ``force`` starts over; a run of other
     options, an unreadable run.json, or one whose fields are not as pcreg run writes them
-    (:func:`state_problem`) is an :class:`~pcreg.errors.OutputError`."""
+    (:func:`state_problem`) is an :class:`~pcreg.errors.OutputError`, and so, without ``force``, is a folder of no
+    run (no run.json, no steps.jsonl: a run writes that first) that holds a label PNG or confidence map the run
+    over ``frames`` would write over (a person's own corrected labels, say)."""
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
+    if not force and frames is not None and not (state_path.exists() or state_path.is_symlink() or (out / STEPS).exists()):
+        mine = (out, out / CONFIDENCE) if (identity or {}).get("confidence") else (out,)  # where it writes
+        held = next((q for d in mine if d.is_dir() for q in sorted(d.iterdir())
+                     if q.suffix.lower() == ".png" and frames.writes(q.stem)), None)
+        if held is not None:
+            raise OutputError(f"{held}: this run would write over it, and {out} holds no run of pcreg's (no {STATE}); "
+                              "give another --out, or --force to write over it")
     if force or not (state_path.exists() or state_path.is_symlink()):  # a folder or a link in its place is no fresh start
         return None
     try:
@@ -356,7 +365,7 @@ def run_frames(state: dict, folder: Path) -> tuple[list[str], list[str]]:
     Raises KeyError, TypeError or ValueError for a state pcreg run did not write, an
     :class:`~pcreg.errors.InputError` naming steps.jsonl for a file pcreg run did not write (a run from one label
     image: a frame named twice among its key frame and steps), ValueError for fewer steps than counted."""
-    from .files import STEPS, counted_steps
+    from .files import counted_steps
 
     field = state_problem(state)
     if field is not None:

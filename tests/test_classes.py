@@ -536,6 +536,23 @@ def test_lossy_label_images_pillow_misjudged_are_refused(tmp_path):
         _one_line(exc, str(tmp_path / name), said, "lossless")
 
 
+def test_class_ids_saved_as_colour_with_a_stray_pixel_name_that_pixel(tmp_path):
+    """Class ids saved as grey RGB with one stray colour at (5, 5) were refused naming the colour of pixel (0, 0), a
+    correct id: the stray pixel is named. A colour image of the table's colours is read as before."""
+    from pcreg.classes.keys import read_key_labels
+
+    ids = (np.arange(48 * 64).reshape(48, 64) // 300 % 11).astype(np.uint8)
+    grey = np.dstack([ids] * 3)
+    grey[5, 5] = (1, 2, 3)
+    p = tmp_path / "stray.png"
+    cv2.imwrite(str(p), grey)
+    with pytest.raises(InputError, match=r"stray.png: grey \(class ids saved as colour\) but for 1 pixel\(s\), the "
+                                         r"first at x=5, y=5 \(3, 2, 1\)"):
+        read_key_labels(p, CAMVID11, "none")
+    cv2.imwrite(str(p), CAMVID11.paint(ids)[:, :, ::-1])
+    np.testing.assert_array_equal(read_key_labels(p, CAMVID11, "none"), ids)
+
+
 def test_a_colour_png_with_one_colour_marked_transparent_reads_as_its_colours(tmp_path):
     """An RGB label PNG whose void colour a tool marked transparent (a tRNS chunk: one colour, every pixel's colour
     still stored) was refused as "transparent pixels", where a palette's or a grey PNG's tRNS was read. It reads as

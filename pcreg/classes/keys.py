@@ -311,10 +311,27 @@ def _through_table(data: bytes, name: str, table: ClassTable, *, limit: int | No
         img = decode_image(data, name, limit=limit)
         if img.ndim == 3 and (img[:, :, 1:3] == img[:, :, :1]).all():
             return table.check_labels(img[:, :, 0], name)
+        _check_nearly_grey(img, name, table)
         if table.agrees(CAMVID11):  # CamVid's own 32 classes' colours (its download's NAME_L.png), as camvid11's
             return _camvid32(img, name)
         raise InputError(f"{exc}; labels are class ids in a single-channel image, a palette PNG, or the class "
                          f"table's colours{_camvid_colours_hint(img, name)}") from None
+
+
+def _check_nearly_grey(img: np.ndarray, name: str, table: ClassTable) -> None:
+    """An :class:`InputError` when a colour label image is grey, its values ids of ``table`` (class ids saved in
+    colour), but for at most one pixel in a thousand: those are named, not the first grey pixel whose value is no
+    class's colour."""
+    if img.ndim != 3 or img.shape[2] < 3:
+        return
+    mask = (img[:, :, 1:3] != img[:, :, :1]).any(axis=2)
+    odd = np.argwhere(mask)
+    grey = img[:, :, 0][~mask]
+    ids = {c.id for c in table.classes}
+    if 0 < len(odd) <= img.shape[0] * img.shape[1] // 1000 and grey.size and all(int(v) in ids for v in np.unique(grey)):
+        y, x = (int(v) for v in odd[0])
+        raise InputError(f"{name}: grey (class ids saved as colour) but for {len(odd)} pixel(s), the first at x={x}, "
+                         f"y={y} {tuple(int(v) for v in img[y, x, 2::-1])}: set them to their class's id")
 
 
 def _camvid_colours_hint(img: np.ndarray, name: str) -> str:

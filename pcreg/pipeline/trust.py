@@ -380,7 +380,8 @@ class Trusted:
     the ``fused`` log-odds :func:`smoothed`, their ``confidence`` (:func:`label_confidence` of the same),
     the trust ``maps``, the fused log-odds themselves and the trusted priors' part of them (``prior``);
     with K classes (:mod:`pcreg.pipeline.multiclass`) ``fused`` and ``prior`` are (H, W, K) class scores
-    and ``second`` each pixel's runner-up class."""
+    and ``second`` each pixel's runner-up class. ``picture``: the rows and columns between a letterboxed frame's
+    bars (:mod:`pcreg.pipeline.bars`), what the report's predicted error and IoU are of (None: the whole frame)."""
 
     labels: np.ndarray
     confidence: np.ndarray
@@ -388,15 +389,18 @@ class Trusted:
     fused: np.ndarray
     prior: np.ndarray
     second: np.ndarray | None = None
+    picture: tuple[slice, slice] | None = None
 
     def report(self, rule: TrustRule, weight: float, cut: dict | None = None, ids: np.ndarray | None = None) -> dict:
         """What a step's report (:class:`~pcreg.pipeline.stream.StepReport`) gives of it: the confidence,
         the predicted error, the trust map and its summary (with what the step adds to it, ``cut``: the cut
         test's finding, :mod:`pcreg.pipeline.cuts`) and each class's predicted IoU
         (:func:`class_predicted_iou`; ``ids``: the table's ids of the two-class step's 0 and 1, when they are others)."""
+        at = self.picture or (slice(None), slice(None))
+        second = None if self.second is None else self.second[at]
         summary: dict = {**self.maps.summary(rule, weight), **(cut or {}),
-                         "predicted_iou": class_predicted_iou(self.labels, self.confidence, self.second, ids)}
-        return {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence),
+                         "predicted_iou": class_predicted_iou(self.labels[at], self.confidence[at], second, ids)}
+        return {"confidence": self.confidence, "predicted_error": predicted_error(self.confidence[at]),
                 "trust": self.maps, "trust_summary": summary}
 
 

@@ -1,0 +1,74 @@
+"""A letterboxed or pillarboxed video: its black bars keep the key frame's labels (pcreg.pipeline.bars)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pcreg.classes import CAMVID11, LAGR
+from pcreg.pipeline.bars import BLACK, Bars
+from pcreg.pipeline.stream import Propagator
+from pcreg.pipeline.trust import predicted_error
+
+PAD = 40  # rows of black above and below the picture
+
+
+def _frames(shared_data, n: int = 4):
+    folder = shared_data / "camvid" / "0001TP"
+    names = sorted(p.name for p in (folder / "images").iterdir())[:n]
+    images = [cv2.cvtColor(cv2.imread(str(folder / "images" / f)), cv2.COLOR_BGR2RGB) for f in names]
+    labels = cv2.imread(str(folder / "labels" / names[0]), cv2.IMREAD_UNCHANGED)
+    return images, labels
+
+
+def _letterboxed(image: np.ndarray, noise: int = 0) -> np.ndarray:
+    out = cv2.copyMakeBorder(image, PAD, PAD, 0, 0, cv2.BORDER_CONSTANT, value=(0, 0, 0))
+    if noise:  # a codec's black: 0 to ``noise``
+        rng = np.random.default_rng(0)
+        bars = np.zeros(out.shape[:2], bool)
+        bars[:PAD], bars[-PAD:] = True, True
+        out[bars] = rng.integers(0, noise + 1, size=(int(bars.sum()), 3), dtype=np.uint8)
+    return out
+
+
+def test_bars_found_at_each_edge_and_not_in_a_picture_or_a_black_frame():
+    rgb = np.full((60, 80, 3), 120, np.uint8)
+    assert Bars.of(rgb, np.zeros((60, 80), np.uint8)) is None
+    rgb[:5], rgb[-7:], rgb[:, :3], rgb[:, -2:] = BLACK, 0, 9, 3
+    bars = Bars.of(rgb, np.zeros((60, 80), np.uint8))
+    assert bars is not None and bars.edges == (5, 7, 3, 2)
+    assert bars.picture == (slice(5, 53), slice(3, 78)) and int(bars.mask.sum()) == 60 * 80 - 48 * 75
+    rgb[:5, 40, 1] = BLACK + 1  # one pixel brighter than black ends the top bar
+    assert Bars.of(rgb, np.zeros((60, 80), np.uint8)).edges == (0, 7, 3, 2)
+    assert Bars.of(np.zeros((60, 80, 3), np.uint8), np.zeros((60, 80), np.uint8)) is None
+
+
+def test_a_frame_holds_its_bars_with_subtitles_on_them_but_not_once_the_picture_fills_it():
+    rgb = np.full((100, 100, 3), 120, np.uint8)
+    rgb[:20], rgb[-20:] = 0, 0
+    bars = Bars.of(rgb, np.zeros((100, 100), np.uint8))
+    frame = rgb.copy()
+    frame[-15:-5, 20:80] = 255  # a line of subtitles on the lower bar
+    assert bars.held(frame)
+    assert not bars.held(np.full((100, 100, 3), 120, np.uint8))
+
+
+@pytest.mark.parametrize("table", [CAMVID11, LAGR], ids=["eleven classes", "two classes"])
+def test_a_letterboxed_clip_keeps_the_key_frames_labels_on_its_bars(shared_data, table):
+    images, camvid = _frames(shared_data)
+    key_labels = camvid if table is CAMVID11 else np.select([camvid == 3, camvid == 11], [0, 2], 1).astype(np.uint8)
+    unknown = table.unknown
+    padded = cv2.copyMakeBorder(key_labels, PAD, PAD, 0, 0, cv2.BORDER_CONSTANT, value=int(unknown))
+    prop = Propagator.from_key_frame(_letterboxed(images[0]), padded, classes=table)
+    for image in images[1:]:
+        labels = prop.step(_letterboxed(image, noise=12))
+        conf = prop.last.confidence
+        bars = np.zeros(labels.shape, bool)
+        bars[:PAD], bars[-PAD:] = True, True
+        assert (labels[bars] == unknown).all()  # not the class of black the classifier knows
+        assert (conf[bars] == 1.0).all()
+        # the frame's predicted error is the picture's, not lowered by the bars
+        assert prop.last.predicted_error == pytest.approx(predicted_error(conf[PAD:-PAD]))
+        assert prop.last.predicted_error > predicted_error(conf) + 1.0
+        assert str(int(unknown)) not in {str(k) for k in prop.last.trust_summary["predicted_iou"]}

@@ -72,3 +72,19 @@ def test_a_letterboxed_clip_keeps_the_key_frames_labels_on_its_bars(shared_data,
         assert prop.last.predicted_error == pytest.approx(predicted_error(conf[PAD:-PAD]))
         assert prop.last.predicted_error > predicted_error(conf) + 1.0
         assert str(int(unknown)) not in {str(k) for k in prop.last.trust_summary["predicted_iou"]}
+
+
+def test_an_object_followed_in_a_letterboxed_clip_is_scored_on_the_picture(shared_data):
+    from pcreg.pipeline.follow import ObjectFollower
+
+    folder = shared_data / "davis" / "blackswan"
+    names = sorted(p.name for p in (folder / "images").iterdir())[:3]
+    images = [_letterboxed(cv2.cvtColor(cv2.imread(str(folder / "images" / n)), cv2.COLOR_BGR2RGB)) for n in names]
+    mask = cv2.imread(str(sorted((folder / "labels").iterdir())[0]), cv2.IMREAD_UNCHANGED)
+    key = cv2.copyMakeBorder((mask > 0).astype(np.uint8), PAD, PAD, 0, 0, cv2.BORDER_CONSTANT, value=0)
+    follower = ObjectFollower.from_key_frame(images[0], key)
+    for image in images[1:]:
+        labels = follower.step(image)
+        conf = follower.last.confidence
+        assert (labels[:PAD] == 0).all() and (labels[-PAD:] == 0).all() and (conf[:PAD] == 1.0).all()
+        assert follower.last.predicted_error == pytest.approx(predicted_error(conf[PAD:-PAD]))

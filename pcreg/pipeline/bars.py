@@ -66,11 +66,15 @@ class Bars:
     def kept(self, labels: np.ndarray, trusted=None):
         """``(labels, trusted)`` with the bars' pixels the key frame's labels, at confidence 1 in ``trusted`` (a
         :class:`~pcreg.pipeline.trust.Trusted`, or None), whose report is then of the picture between them."""
-        labels = np.where(self.mask, self.labels, labels)
         if trusted is None:
-            return labels, None
-        confidence = np.where(self.mask, np.float32(1.0), trusted.confidence).astype(trusted.confidence.dtype)
+            return np.where(self.mask, self.labels, labels), None
+        labels, confidence = self.maps(labels, trusted.confidence)
         return labels, replace(trusted, labels=labels, confidence=confidence, picture=self.picture)
+
+    def maps(self, labels: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``labels`` and their ``confidence`` with the bars' pixels the key frame's labels, at confidence 1."""
+        return (np.where(self.mask, self.labels, labels),
+                np.where(self.mask, np.float32(1.0), confidence).astype(confidence.dtype))
 
 
 def _leading(flags: np.ndarray) -> int:

@@ -56,6 +56,9 @@ MAX_TABLE_BYTES = 1 << 20
 def voc_colormap(n: int) -> np.ndarray:
     """(n, 3) uint8: the first ``n`` colours of Pascal VOC's colour map (bits of the index spread over R, G,
     B from the most significant bit down; 0 black, 1 (128, 0, 0), 2 (0, 128, 0), ...)."""
+    from ..validation import check_int
+
+    n = check_int(n, "n", lo=0)
     idx = np.arange(n, dtype=np.int64)
     out = np.zeros((n, 3), np.int64)
     for j in range(7, -1, -1):

@@ -211,6 +211,9 @@ class NaiveBayesPixelClassifier:
         table = self.class_table
         if counts.shape != (table.n_values, n_feat, 256):
             raise InputError(f"histograms must be ({table.n_values}, {n_feat}, 256), got {counts.shape}")
+        if counts.dtype.kind not in "biuf" or not np.isfinite(counts).all() or (counts < 0).any():
+            raise InputError(f"histograms must be counts of pixels (finite numbers, none below 0), got "
+                             f"{'values of ' + str(counts.dtype) if counts.dtype.kind not in 'biuf' else 'NaN, inf or negative counts'}")
         if self.exclude_unknown and counts[table.unknown].any():
             raise InputError("histograms count unknown pixels but exclude_unknown is set")
         present = counts[:, 0, :].sum(axis=1) > 0

@@ -153,6 +153,8 @@ def crosscheck(reference, moving, *, config: CrosscheckConfig = CrosscheckConfig
             if suffix in IMAGE_SUFFIXES or not suffix:  # its transparent pixels left out, as pcreg register does
                 return "images", load_image_and_mask(x)
             raise InputError(f"{x}: unknown file type {suffix!r} (an image or a point cloud)")
+        if type(x).__module__.startswith("open3d") and hasattr(x, "points"):  # as pcreg.icp says it
+            raise InputError(f"{name}: an Open3D {type(x).__name__}, not an array; pass np.asarray(cloud.points)")
         arr = np.asarray(x)
         if arr.ndim == 2 and arr.shape[1] in (2, 3):  # an image two or three pixels wide is no image to register
             return "clouds", arr

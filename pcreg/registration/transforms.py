@@ -10,9 +10,40 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError, RegistrationError
-from ..validation import short_repr
+from ..validation import real_matrix, short_repr
 
 MODELS = ("translation", "rigid", "similarity", "affine", "projective")
+
+
+def _matrix(matrix, name: str = "the matrix", sizes: tuple[int, ...] = (3, 4), *, finite: bool = True) -> np.ndarray:
+    """``matrix`` as a float64 array, a homogeneous transform of one of ``sizes`` (3: 2-D, 4: 3-D), finite where
+    ``finite``; else an :class:`InputError` naming ``name``."""
+    m = _real(matrix, f"{name} must be a matrix of numbers, got {short_repr(matrix)}", name)
+    if m.ndim != 2 or m.shape[0] != m.shape[1] or m.shape[0] not in sizes:
+        said = " or ".join(f"{k}x{k}" for k in sizes)
+        raise InputError(f"{name} must be a homogeneous {said} transform, got an array of shape {m.shape}")
+    if finite and not np.isfinite(m).all():
+        raise InputError(f"{name} has NaN or inf entries")
+    return m
+
+
+def _real(value, refusal: str, name: str) -> np.ndarray:
+    """``value`` as a float64 array: itself where it is a plain one (the library's own calls, many a registration),
+    else :func:`~pcreg.validation.real_matrix`'s copy."""
+    if type(value) is np.ndarray and value.dtype == np.float64:
+        return value
+    return real_matrix(value, refusal, name)
+
+
+def _shape(shape) -> tuple[int, int]:
+    """(H, W) of an image ``shape`` (H, W, ...), or an :class:`InputError`."""
+    try:
+        h, w = (int(v) for v in tuple(shape)[:2])
+    except (TypeError, ValueError):
+        raise InputError(f"an image shape is (H, W, ...), got {short_repr(shape)}") from None
+    if h < 1 or w < 1 or len(tuple(shape)) < 2:
+        raise InputError(f"an image shape is (H, W, ...) of at least one pixel, got {short_repr(shape)}")
+    return h, w
 
 
 def check_model(model: str, dim: int = 2) -> str:
@@ -36,8 +67,10 @@ def rigid_problem(matrix: np.ndarray, *, tolerance: float = ROTATION_TOLERANCE,
     """What makes a finite homogeneous (d+1)x(d+1) ``matrix`` not a rigid transform (its last row a
     projection's, beyond ``row_tolerance``; its rotation block a scale or a shear, beyond ``tolerance``; a
     reflection), as a phrase about "it"; None when it is one."""
-    m = np.asarray(matrix, dtype=np.float64)
+    m = _matrix(matrix, finite=False)
     d = m.shape[0] - 1
+    if not np.isfinite(m).all():
+        return "it has NaN or inf entries, not a rigid transform's"
     if np.abs(m[d] - np.eye(d + 1)[d]).max() > row_tolerance:
         return f"its last row is {m[d].tolist()}, not a rigid transform's"
     R = m[:d, :d]
@@ -51,9 +84,11 @@ def rigid_problem(matrix: np.ndarray, *, tolerance: float = ROTATION_TOLERANCE,
 def nearest_rigid(matrix: np.ndarray) -> np.ndarray:
     """The rigid transform nearest a (d+1)x(d+1) ``matrix`` that :func:`rigid_problem` accepts: its rotation
     block's nearest rotation (SVD), its translation, and the last row ``(0, ..., 0, 1)``."""
-    m = np.array(matrix, dtype=np.float64)
+    m = _matrix(matrix)
     d = m.shape[0] - 1
-    U, _, Vt = np.linalg.svd(m[:d, :d])
+    U, singular, Vt = np.linalg.svd(m[:d, :d])
+    if singular[-1] <= 0:
+        raise InputError("the matrix's rotation block is singular: no one rotation is nearest it")
     D = np.eye(d)
     D[-1, -1] = np.sign(np.linalg.det(U @ Vt))
     out = np.eye(d + 1)
@@ -67,9 +102,11 @@ def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
 
     A point that a projective transform sends to infinity comes out as inf or nan, without a warning:
     callers that search over hypotheses meet such matrices and judge them by their results."""
-    matrix = np.asarray(matrix, dtype=np.float64)
-    points = np.asarray(points, dtype=np.float64)
-    d = points.shape[1]
+    matrix = _matrix(matrix, finite=False)
+    points = _real(points, f"points must be an (N, d) array of numbers, got {short_repr(points)}", "points")
+    d = matrix.shape[0] - 1
+    if points.ndim != 2 or points.shape[1] != d:
+        raise InputError(f"a {d + 1}x{d + 1} transform moves (N, {d}) points, got an array of shape {points.shape}")
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         out = points @ matrix[:d, :d].T + matrix[:d, d]
         last = matrix[d, :d]
@@ -82,7 +119,11 @@ def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
 def rigid2d(angle_deg: float = 0.0, tx: float = 0.0, ty: float = 0.0, *, scale: float = 1.0) -> np.ndarray:
     """3x3 matrix of a rotation by ``angle_deg`` (counter-clockwise on screen is negative with y down;
     here the rotation is the plain mathematical one in (x, y)), uniform ``scale``, then translation."""
-    a = np.deg2rad(angle_deg)
+    from ..validation import check_float
+
+    a = np.deg2rad(check_float(angle_deg, "angle_deg"))
+    tx, ty = check_float(tx, "tx"), check_float(ty, "ty")
+    scale = check_float(scale, "scale", lo=0, lo_open=True)
     c, s = np.cos(a) * scale, np.sin(a) * scale
     return np.array([[c, -s, tx], [s, c, ty], [0.0, 0.0, 1.0]])
 
@@ -90,30 +131,38 @@ def rigid2d(angle_deg: float = 0.0, tx: float = 0.0, ty: float = 0.0, *, scale: 
 def about_point(matrix: np.ndarray, center_from: tuple[float, ...], center_to: tuple[float, ...] | None = None) -> np.ndarray:
     """``T(center_to) @ matrix @ T(-center_from)``: apply ``matrix`` about a point (e.g. the image centre); in
     2-D (3x3) or 3-D (4x4), by the point's dimension."""
-    center_to = center_from if center_to is None else center_to
-    d = len(center_from)
+    m = _matrix(matrix)
+    d = m.shape[0] - 1
+    points = []
+    for name, point in (("center_from", center_from), ("center_to", center_from if center_to is None else center_to)):
+        p = real_matrix(point, f"{name} must be a point of numbers, got {short_repr(point)}", name)
+        if p.shape != (d,) or not np.isfinite(p).all():
+            raise InputError(f"{name} must be a finite point of {d} coordinates for a {d + 1}x{d + 1} transform, "
+                             f"got {short_repr(point)}")
+        points.append(p)
     a = np.eye(d + 1)
-    a[:d, d] = -np.asarray(center_from, dtype=np.float64)
+    a[:d, d] = -points[0]
     b = np.eye(d + 1)
-    b[:d, d] = np.asarray(center_to, dtype=np.float64)
-    return b @ np.asarray(matrix, dtype=np.float64) @ a
+    b[:d, d] = points[1]
+    return b @ m @ a
 
 
 def image_center(shape: tuple[int, ...]) -> tuple[float, float]:
     """Centre (x, y) of an image of shape (H, W, ...) in pixel coordinates."""
-    h, w = shape[:2]
+    h, w = _shape(shape)
     return ((w - 1) / 2.0, (h - 1) / 2.0)
 
 
 def corners(shape: tuple[int, ...]) -> np.ndarray:
     """(4, 2) outer corners of an image of shape (H, W, ...): pixel edges, not pixel centres."""
-    h, w = shape[:2]
+    h, w = _shape(shape)
     return np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
 
 
 def max_corner_error(estimate: np.ndarray, truth: np.ndarray, shape: tuple[int, ...]) -> float:
     """Largest distance (px) between the moving image's corners mapped by ``estimate`` and by ``truth``."""
     c = corners(shape)
+    estimate, truth = _matrix(estimate, "estimate", (3,), finite=False), _matrix(truth, "truth", (3,), finite=False)
     return float(np.max(np.linalg.norm(apply(estimate, c) - apply(truth, c), axis=1)))
 
 
@@ -126,11 +175,15 @@ def rotation_angle_deg(R: np.ndarray) -> float:
     In 3-D, atan2(|axis part|, cos part) of the rotation (the skew-symmetric and the trace part of R): full
     precision at every angle. The arccos of the trace alone, as before, returned 0 for a rotation of 1e-9 rad and
     9.9e-8 for one of 1e-7 rad, and 8.5e-7 degrees for an angle of 0 one rounding off the identity."""
-    R = np.asarray(R, dtype=np.float64)
+    R = real_matrix(R, f"a rotation must be a matrix of numbers, got {short_repr(R)}", "the rotation")
+    if not np.isfinite(R).all():
+        raise InputError("the rotation has NaN or inf entries")
     if R.shape == (4, 4) and np.array_equal(R[3], [0.0, 0.0, 0.0, 1.0]):  # a 3-D homogeneous transform
         R = R[:3, :3]
     if R.shape == (3, 3) and R[2, 0] == 0 and R[2, 1] == 0 and R[2, 2] == 1:  # about z, or a 2-D homogeneous matrix
         R = R[:2, :2]
+    if R.shape in ((2, 2), (3, 3)) and np.linalg.det(R) < 0:
+        raise InputError("the matrix is a reflection (determinant below 0), not a rotation: it has no angle")
     if R.shape == (2, 2):
         return float(abs(np.degrees(np.arctan2(R[1, 0], R[0, 0]))))
     if R.shape != (3, 3):
@@ -146,13 +199,18 @@ def rotation_angle_deg(R: np.ndarray) -> float:
 
 def rotation_disagreement_deg(A: np.ndarray, B: np.ndarray) -> float:
     """Angle (degrees) of the rotation between two homogeneous transforms' linear parts (polar-decomposed)."""
-    d = np.asarray(A).shape[0] - 1
-    RA, RB = rotation_part(np.asarray(A)[:d, :d]), rotation_part(np.asarray(B)[:d, :d])
+    A, B = _matrix(A, "A"), _matrix(B, "B")
+    if A.shape != B.shape:
+        raise InputError(f"A and B must be transforms of one dimension, got {A.shape[0]}x{A.shape[0]} and "
+                         f"{B.shape[0]}x{B.shape[0]}")
+    d = A.shape[0] - 1
+    RA, RB = rotation_part(A[:d, :d]), rotation_part(B[:d, :d])
     return rotation_angle_deg(RA.T @ RB)
 
 
 def rotation_part(M: np.ndarray) -> np.ndarray:
     """The rotation closest to the (d, d) matrix ``M`` (polar decomposition, det +1): removes a scale."""
+    M = _matrix(M, "M", (2, 3))
     U, _, Vt = np.linalg.svd(M)
     R = U @ Vt
     if np.linalg.det(R) < 0:
@@ -163,7 +221,7 @@ def rotation_part(M: np.ndarray) -> np.ndarray:
 
 def lift_to_3d(matrix: np.ndarray) -> np.ndarray:
     """A 3x3 2-D affine transform as the 4x4 transform acting on the plane z = 0."""
-    m = np.asarray(matrix, dtype=np.float64)
+    m = _matrix(matrix, finite=False)
     if m.shape == (4, 4):
         return m.copy()
     if np.any(m[2, :2] != 0) or m[2, 2] != 1:
@@ -181,7 +239,7 @@ def project_to_2d(matrix: np.ndarray, *, tol: float = 1e-6) -> np.ndarray:
     linear part), else the 3-D solution does not describe a motion in the image plane; M[2, 2] (the
     z-scale) does not act on points with z = 0 and is not checked. A mirrored plane (det < 0) is refused.
     """
-    m = np.asarray(matrix, dtype=np.float64)
+    m = _matrix(matrix, "the 3-D transform", (4,), finite=False)
     scale = max(1.0, float(np.abs(m[:3, :3]).max()))
     out_of_plane = max(abs(m[2, 0]), abs(m[2, 1]), abs(m[0, 2]), abs(m[1, 2]))
     if not np.all(np.isfinite(m)):
@@ -203,12 +261,15 @@ def project_to_2d(matrix: np.ndarray, *, tol: float = 1e-6) -> np.ndarray:
 
 def scale_transform(matrix: np.ndarray, factor: float) -> np.ndarray:
     """The same motion expressed in coordinates scaled by ``factor`` (x' = factor * x)."""
-    d = np.asarray(matrix).shape[0]
+    from ..validation import check_float
+
+    m, factor = _matrix(matrix, finite=False), check_float(factor, "factor", lo=0, lo_open=True)
+    d = m.shape[0]
     S = np.eye(d)
     S[: d - 1, : d - 1] *= factor
     Si = np.eye(d)
     Si[: d - 1, : d - 1] /= factor
-    return S @ np.asarray(matrix, dtype=np.float64) @ Si
+    return S @ m @ Si
 
 
 #: The largest change of area a 2-D transform may make to an image: a tenfold zoom either way. Beyond it
@@ -223,7 +284,8 @@ def degeneracy(T_ref_mov: np.ndarray, shape: tuple[int, ...]) -> str | None:
     crosses the image, its homogeneous w <= 0 there); the corners' quadrilateral folded or mirrored
     (not convex with the image's orientation); an area changed by more than :data:`MAX_AREA_CHANGE`.
     """
-    M = np.asarray(T_ref_mov, dtype=np.float64)
+    shape = _shape(shape)
+    M = real_matrix(T_ref_mov, "the transform must be a 3x3 matrix of numbers", "the transform")
     if M.shape != (3, 3) or not np.all(np.isfinite(M)):
         return "the transform is not a finite 3x3 matrix"
     c = np.concatenate([corners(shape), np.ones((4, 1))], axis=1) @ M.T

@@ -36,7 +36,8 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
     shape : (H, W) of the reference grid (default: the moving image's).
     Returns ``(warped, valid)``: ``warped`` has the reference's size and ``moving``'s dtype and channels,
     ``fill`` outside (saturated to an integer dtype's range; beyond a float dtype's, refused); ``valid`` (H, W)
-    bool marks pixels that came from inside the moving image.
+    bool marks pixels that came from inside the moving image, and of a float array are finite (a pixel
+    interpolated from an inf or NaN, or a cubic's overshoot past its dtype's range, is not valid).
     """
     moving = plain_array(moving, "warp")
     if moving.ndim not in (2, 3) or moving.shape[0] == 0 or moving.shape[1] == 0:
@@ -48,7 +49,7 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
         h, w = _check_shape(shape if shape is not None else moving.shape[:2])
         inverse, ok = invert_field(fld, (h, w))
         warped, valid = _remap(moving, inverse, interpolation=interpolation, fill=fill)
-        return warped, valid & ok
+        return _finite(warped, valid & ok)
     M = motion.matrix
     assert M is not None
     if np.max(np.abs(M)) > 1e12:  # also keeps the determinant below overflow
@@ -63,7 +64,15 @@ def warp(moving: np.ndarray, T_ref_mov, *, shape: tuple[int, ...] | None = None,
             return cv2.warpPerspective(img, M, (w, h), flags=fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
         return cv2.warpAffine(img, M[:2], (w, h), flags=fl, borderMode=cv2.BORDER_CONSTANT, borderValue=bval)
 
-    return _resample(moving, one, interpolation=interpolation, fill=fill)
+    return _finite(*_resample(moving, one, interpolation=interpolation, fill=fill))
+
+
+def _finite(warped: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(warped, valid)`` with ``valid`` false where a float ``warped`` is not finite in every channel."""
+    if warped.dtype.kind != "f":
+        return warped, valid
+    finite = np.isfinite(warped)
+    return warped, valid & (finite.all(axis=2) if finite.ndim == 3 else finite)
 
 
 def _motion(T_ref_mov) -> Motion:

@@ -72,6 +72,9 @@ def test_video_frames_are_decoded_in_order_and_chosen(tmp_path, frames):
     assert [(f.position, f.name) for f in later] == [(1, "000003"), (2, "000005")]
     np.testing.assert_array_equal(later[0].image, got[3].image)
     assert chosen.writes("000003") and not chosen.writes("000002") and not chosen.writes("000007")
+    # a file named as a frame past the video's end is no output of it (an --out holding it was refused)
+    assert src.writes("000007") and not src.writes("000008") and not src.writes("000100") and not src.writes("20240101")
+    assert VideoFrames(video, Selection(1, None, 2)).writes("000007") and not VideoFrames(video, Selection(1, None, 2)).writes("000009")
     for bad, said in (({"every": 0}, "--every"), ({"start": 3, "stop": 3}, "--stop 3 must be greater"),
                       ({"start": -1}, "--start")):
         with pytest.raises(InputError, match=said):

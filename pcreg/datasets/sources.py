@@ -332,10 +332,9 @@ class VideoFrames:
 
     def count(self) -> int | None:
         """How many frames the stream chooses, from the container's count (None if it gives none)."""
-        n = self.declared or self.estimated
+        n, s = self.declared or self.estimated, self.selection
         if n is None:
             return None
-        s = self.selection
         end = n if s.stop is None else min(n, s.stop)
         return max(0, -(-(end - s.start) // s.every))
 
@@ -372,8 +371,9 @@ class VideoFrames:
                 "stored; draw them on the frames as shown, or turn them the same way)")
 
     def writes(self, stem: str) -> bool:
-        """Whether a stream over this video writes an output named ``stem`` (``OUT/{i:06d}.png``)."""
-        return len(stem) >= 6 and stem.isdigit() and stem.isascii() and self.selection.chosen(int(stem))
+        """Whether a stream over this video writes an output named ``stem`` (``OUT/{i:06d}.png``; within the container's count where it gives one)."""
+        n, chosen = self.count(), len(stem) >= 6 and stem.isdigit() and stem.isascii() and self.selection.chosen(int(stem))
+        return chosen and (n is None or (int(stem) - self.selection.start) // self.selection.every < n)
 
     def frames(self, first: int = 0) -> Iterator[SourceFrame]:
         """The chosen frames from position ``first`` on, decoded in order: every frame before is decoded

@@ -96,6 +96,12 @@ def turned_onto_itself(cloud: CloudPyramid) -> float | None:
     is not determined; None where no level is so. Read from level 1 (noise scatters the finest level's edges; level 0
     only where level 1 holds fewer than :data:`SPREAD_POINTS` edge points) up to the last with :data:`SPREAD_POINTS`,
     each level with every edge point."""
+    turned = _turned(cloud)
+    return None if turned is None else turned[0]
+
+
+def _turned(cloud: CloudPyramid) -> tuple[float, np.ndarray] | None:
+    """:func:`turned_onto_itself`'s share and the centre (x, y) its level's edges turn about."""
     first = 1 if len(cloud) > 1 and len(cloud[1]) >= SPREAD_POINTS else 0
     for level in range(first, len(cloud)):
         c = cloud.every_point(level)
@@ -103,7 +109,7 @@ def turned_onto_itself(cloud: CloudPyramid) -> float | None:
             break
         landed = self_turn_share(c, level, stop=1.0 - SELF_TURN_UNMATCHED)
         if landed > 1.0 - SELF_TURN_UNMATCHED:
-            return landed
+            return landed, c.points.mean(axis=0)
     return None
 
 
@@ -210,6 +216,17 @@ class Plausibility:
         rotated while its content does not."""
         return self.min_inlier_ratio is not None and not convincing
 
+    def _content_turns(self, best: Candidate, moving: CloudPyramid, centre: np.ndarray) -> bool:
+        """Whether the content of a moving image whose edges turn onto themselves at some level (a round field of
+        view, a plate; :func:`turned_onto_itself`) tells its rotation all the same: ``best`` turned by each of
+        :data:`SELF_TURNS` about ``centre`` aligns fewer than half the edge points ``best`` aligns (a disk's turned
+        alignment aligns as many: its rotation is not determined)."""
+        from .transforms import about_point, rigid2d
+
+        T, half = best.refined.matrix, best.inlier_ratio / 2.0
+        return all(self.measure(moving, T @ about_point(rigid2d(angle), tuple(centre))).inlier_ratio < half
+                   for angle in SELF_TURNS)
+
     def _mirrored(self, mirror: Candidate, best: Candidate) -> bool:
         """Whether the moving image is a mirror image of the reference, its mirror's best alignment ``mirror``
         against its own ``best``: above the threshold, the mirror scores :data:`MIRROR_FACTOR` times as high and
@@ -258,8 +275,9 @@ class Plausibility:
             raise RegistrationError(
                 f"registration refused: the moving image's edges run one way (their second direction holds "
                 f"{100 * spread:.1f}% of the first; stripes, a grating): its motion along them is not determined")
-        landed = None if moving is None or spread is None or self.model == "translation" else turned_onto_itself(moving)
-        if landed is not None:
+        turned = None if moving is None or spread is None or self.model == "translation" else _turned(moving)
+        if turned is not None and moving is not None and not self._content_turns(best, moving, turned[1]):
+            landed = turned[0]
             raise RegistrationError(
                 f"registration refused: the moving image's edges turn onto themselves (turned by "
                 f"{', '.join(f'{a:g}' for a in SELF_TURNS[:-1])} and {SELF_TURNS[-1]:g} degrees about their centre, "

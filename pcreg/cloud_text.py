@@ -46,7 +46,7 @@ def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
     width = len(firsts[header].split()) if len(firsts) > header else 1
     count, bad = _scan_rows(path, 0, stop=1 << 62, rows=(header, 1 << 62), fields=width)
     expected = count - header
-    text = "" if bad is None else bad[1].decode("ascii", "replace").strip()[:40]
+    text = "" if bad is None else shown(bad[1].strip())
     if bad is not None and text.startswith(("#", "//")):  # numpy.savetxt's header, CloudCompare's //X Y Z: no damage
         where = "its first point line" if bad[0] == 1 else f"point line {bad[0]}"
         passed = " (Open3D's reader passes over it)" if suffix != ".pts" else ""
@@ -58,9 +58,9 @@ def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
         number = bad[0]
         if number == 1:
             raise InputError(f"{path}: its first point line ({text!r}) is not numbers between white space "
-                             f"(damaged {suffix} file)")
+                             f"({odd_character(bad[1]) or f'damaged {suffix} file'})")
         raise InputError(f"{path}: point line {number} ({text!r}) is not {width} numbers, as the first is "
-                         f"(damaged {suffix} file)")
+                         f"({odd_character(bad[1]) or f'damaged {suffix} file'})")
     check_point_count(expected, str(path), limit=limit)
     need, what = _TEXT_NUMBERS.get(suffix, (0, ""))
     if expected and width < need:  # Open3D's reader skips every such line: no point read
@@ -291,16 +291,34 @@ def _bad_line(path: Path, separator: bytes | None, width: int, start: int, numer
             if len(fields) == width and wrong is None:
                 text_seen = text_seen or not all(_NUMBER.fullmatch(f) for f in fields)
                 continue
-            text = line[:40].decode("ascii", "replace")
+            text, odd = shown(line), (f"; it holds {odd_character(line)}" if odd_character(line) else "")
             if not raw.endswith(b"\n"):
                 raise InputError(f"{path}: line {number} ({text!r}) is cut short")
             if numeric is None or (len(fields) != width and not text_seen):
-                raise InputError(f"{path}: line {number} ({text!r}) is not {width} numbers, as the first")
+                raise InputError(f"{path}: line {number} ({text!r}) is not {width} numbers, as the first{odd}")
             if len(fields) != width or wrong is None:
                 raise InputError(f"{path}: line {number} ({text!r}) has {len(fields)} fields, the first line names "
                                  f"{width}")
             raise InputError(f"{path}: line {number} ({text!r}): its {'xyz'[numeric.index(wrong)]}, "
-                             f"{fields[wrong][:20].decode('ascii', 'replace')!r}, is not a number{_comma_hint(line)}")
+                             f"{shown(fields[wrong], 20)!r}, is not a number{odd or _comma_hint(line)}")
+
+
+def shown(line: bytes, size: int = 40) -> str:
+    """The first ``size`` characters of a line of a text cloud as a refusal quotes it: its UTF-8 as written (a
+    no-break space or a minus sign shown as itself), bytes that are none replaced."""
+    return line.decode("utf-8", "replace")[:size]
+
+
+def odd_character(line: bytes) -> str:
+    """What a refusal of a ``line`` of numbers says of the first character a word processor writes in one (a
+    no-break space, a minus sign, a dash) where the line holds digits: its name and what to do; '' otherwise."""
+    import unicodedata
+
+    odd = next((c for c in line.decode("utf-8", "replace") if ord(c) > 127), None)
+    if odd is None or unicodedata.category(odd) not in ("Zs", "Pd", "Sm") or not any(c in b"0123456789" for c in line):
+        return ""
+    return (f"{unicodedata.name(odd, 'a character')} (U+{ord(odd):04X}), no digit, sign or separator of a number: save "
+            "the cloud as plain text ('-' for a minus, spaces or commas between the numbers)")
 
 
 #: Said of a line of numbers with decimal commas between spaces (``1,5 2,5``), which is refused.
@@ -346,13 +364,8 @@ def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
                          "one of them")
     if "x" not in names or "y" not in names:
         line = b",".join(fields)
-        import unicodedata
-
-        odd = next((c for c in line.decode("utf-8", "replace") if ord(c) > 127), None)  # a word processor's space, minus
-        if odd is not None and unicodedata.category(odd) in ("Zs", "Pd", "Sm") and any(c in b"0123456789" for c in line):
-            raise InputError(f"{path}: its first line holds {unicodedata.name(odd, 'a character')} (U+{ord(odd):04X}), "
-                             "no digit, sign or separator of a number: save the cloud as plain text ('-' for a minus, "
-                             "spaces or commas between the numbers)")
+        if odd_character(line):
+            raise InputError(f"{path}: its first line holds {odd_character(line)}")
         text = line[:60].decode("utf-8", "replace")
         raise InputError(f"{path}: its first line ({text!r}) names no x and y columns{_comma_hint(line)}")
     return [names.index(a) for a in "xyz" if a in names]

@@ -505,3 +505,18 @@ def test_a_text_cloud_in_utf16_or_with_carriage_returns_alone_says_so(tmp_path, 
     with pytest.raises(InputError, match=rf"r{suffix}: its lines end in a carriage return alone"):
         load_cloud(tmp_path / f"r{suffix}")
     assert load_cloud(tmp_path / f"w{suffix}").shape == (20, 3)
+
+
+@pytest.mark.parametrize("mark, name", [("\u00a0", "NO-BREAK SPACE"), ("\u2212", "MINUS SIGN")])
+@pytest.mark.parametrize("kind", ["header.csv", "header.txt", ".xyz"])
+def test_a_word_processors_character_below_a_header_or_in_an_xyz_is_named(tmp_path, mark, name, kind):
+    """The same character on a line under a header ('x,y,z'), or in a .xyz file, was quoted garbled
+    ("'0.1257,\ufffd\ufffd\ufffd0.132' is not a number"): the line is quoted as written and the character named."""
+    sep = "," if kind == "header.csv" else " "
+    body = f"0.63{sep}{mark}0.27{sep}0.04\n0.1{sep}0.2{sep}0.3\n" if mark == "\u2212" else f"0.63{mark}0.27{sep}0.04\n0.1{sep}0.2{sep}0.3\n"
+    path = tmp_path / ("cloud.xyz" if kind == ".xyz" else f"cloud.{kind.split('.')[1]}")
+    path.write_text(("" if kind == ".xyz" else f"x{sep}y{sep}z\n") + body, encoding="utf-8")
+    with pytest.raises(InputError, match=rf"{name} \(U\+") as info:
+        load_cloud(path)
+    said = str(info.value)  # the line quoted as written: a minus sign as itself, a no-break space as '\xa0'
+    assert "\ufffd" not in said and (mark in said or "\\xa0" in said)

@@ -39,8 +39,20 @@ def test_bars_found_at_each_edge_and_not_in_a_picture_or_a_black_frame():
     bars = Bars.of(rgb, np.zeros((60, 80), np.uint8))
     assert bars is not None and bars.edges == (5, 7, 3, 2)
     assert bars.picture == (slice(5, 53), slice(3, 78)) and int(bars.mask.sum()) == 60 * 80 - 48 * 75
-    rgb[:5, 40, 1] = BLACK + 1  # one pixel brighter than black ends the top bar
-    assert Bars.of(rgb, np.zeros((60, 80), np.uint8)).edges == (0, 7, 3, 2)
+    rgb[:5, 40, 1] = BLACK + 1  # one pixel brighter than black ends the top bar, and the bottom one has no pair
+    assert Bars.of(rgb, np.zeros((60, 80), np.uint8)).edges == (0, 0, 3, 2)
+
+
+def test_a_dark_scene_black_at_one_edge_or_more_at_one_than_the_other_has_no_bars():
+    """A night frame whose sky is black for 40 rows kept the key frame's labels there at confidence 1, the rows
+    left out of its predicted error: bars come in pairs at opposite edges, about as wide (a centred picture)."""
+    rgb = np.full((120, 160, 3), 90, np.uint8)
+    rgb[:40] = 5
+    assert Bars.of(rgb, np.zeros((120, 160), np.uint8)) is None
+    rgb[-10:] = 3  # dark road at the bottom too, of another width
+    assert Bars.of(rgb, np.zeros((120, 160), np.uint8)) is None
+    rgb[-38:] = 3  # as wide, within a tenth: letterbox bars
+    assert Bars.of(rgb, np.zeros((120, 160), np.uint8)).edges == (40, 38, 0, 0)
     assert Bars.of(np.zeros((60, 80, 3), np.uint8), np.zeros((60, 80), np.uint8)) is None
 
 
@@ -88,3 +100,33 @@ def test_an_object_followed_in_a_letterboxed_clip_is_scored_on_the_picture(share
         conf = follower.last.confidence
         assert (labels[:PAD] == 0).all() and (labels[-PAD:] == 0).all() and (conf[:PAD] == 1.0).all()
         assert follower.last.predicted_error == pytest.approx(predicted_error(conf[PAD:-PAD]))
+
+
+def test_the_frames_between_two_key_frames_keep_the_bars_too(shared_data, tmp_path):
+    """Between two key frames each frame is read again from both passes' priors: the bars were labelled obstacle
+    there (38,200 of 38,400 bar pixels), at confidence down to a half, and counted in the predicted error."""
+    import json
+
+    from PIL import Image
+
+    from pcreg.cli import main
+
+    images, camvid = _frames(shared_data, 5)
+    frames, keys, out = tmp_path / "frames", tmp_path / "keys", tmp_path / "out"
+    frames.mkdir()
+    keys.mkdir()
+    lagr = np.select([camvid == 3, camvid == 11], [0, 2], 1).astype(np.uint8)
+    for i, image in enumerate(images):
+        cv2.imwrite(str(frames / f"f{i}.png"), _letterboxed(image)[:, :, ::-1])
+    for i in (0, 4):
+        cv2.imwrite(str(keys / f"f{i}.png"), cv2.copyMakeBorder(lagr, PAD, PAD, 0, 0, cv2.BORDER_CONSTANT, value=2))
+    assert main(["run", str(frames), "--labels", str(keys), "--out", str(out), "--confidence"]) == 0
+    for i in (1, 2, 3):
+        labels = np.array(Image.open(out / f"f{i}.png"))
+        conf = np.array(Image.open(out / "confidence" / f"f{i}.png"))
+        assert (labels[:PAD] == 2).all() and (labels[-PAD:] == 2).all()
+        assert (conf[:PAD] == 255).all() and (conf[-PAD:] == 255).all()
+    steps = {s["name"]: s for s in map(json.loads, (out / "steps.jsonl").read_text().splitlines())}
+    for i in (1, 2, 3):
+        conf = np.array(Image.open(out / "confidence" / f"f{i}.png")).astype(np.float64) / 255
+        assert steps[f"f{i}.png"]["predicted_error"] == pytest.approx(100 * (1 - conf[PAD:-PAD].mean()), abs=0.3)

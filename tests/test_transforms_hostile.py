@@ -64,6 +64,8 @@ def test_what_they_take_still_gives_the_same_numbers():
     assert np.allclose(tf.nearest_rigid(T), T) and tf.rigid_problem(T) is None
     assert tf.max_corner_error(T, T, (10, 10)) == 0.0
     assert np.allclose(tf.project_to_2d(tf.lift_to_3d(T)), T)
+    assert np.allclose(tf.rigid2d(np.array(30.0), np.float32(5.0), -2, scale=np.array(1)), T)
+    assert np.allclose(tf.scale_transform(T, np.array(1.0)), T)
 
 
 @pytest.mark.parametrize("n", [-1, 2.5, "3"])

@@ -7,8 +7,9 @@ unknown) left them, and naive Bayes labelled the black there as the class of the
 showed (building, on a letterboxed CamVid clip: every bar pixel of every frame after the key frame, at a high
 confidence), and the frame's predicted error was taken over the bars too, below the picture's own.
 
-So the key frame's bars, the whole rows and columns at its edges whose pixels are all no brighter than
-:data:`BLACK`, are found once (:meth:`Bars.of`); a frame whose bars' pixels are still mostly black
+So the key frame's bars, the whole rows and columns at two opposite edges whose pixels are all no brighter than
+:data:`BLACK`, as wide at one edge as at the other (within 2 px or a tenth: a night scene's dark sky is black at one
+edge, not as a centred picture's bars), are found once (:meth:`Bars.of`); a frame whose bars' pixels are still mostly black
 (:meth:`Bars.held`: subtitles drawn on a bar do not end it, a picture that fills the frame does) keeps the key
 frame's labels there, unmoved, at confidence 1, and its predicted error and predicted IoU are those of the
 picture between the bars (:meth:`Bars.kept`). The picture's own labels are what they were: on 0001TP letterboxed
@@ -21,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["BLACK", "Bars"]
+__all__ = ["BLACK", "Bars", "kept_between"]
 
 #: The brightest value (of 255, in every channel) a bar's pixel may have: video black, where limited-range video
 #: (BT.601 and BT.709 both) codes black, which a decoder's rounding and a codec's noise keep at or below.
@@ -45,6 +46,7 @@ class Bars:
         black = rgb.max(axis=2) <= BLACK
         rows, cols = black.all(axis=1), black.all(axis=0)
         top, bottom, left, right = (_leading(rows), _leading(rows[::-1]), _leading(cols), _leading(cols[::-1]))
+        top, bottom, left, right = (*_paired(top, bottom), *_paired(left, right))
         (H, W) = black.shape
         if not (top or bottom or left or right) or top + bottom >= H or left + right >= W:
             return None
@@ -75,6 +77,23 @@ class Bars:
         """``labels`` and their ``confidence`` with the bars' pixels the key frame's labels, at confidence 1."""
         return (np.where(self.mask, self.labels, labels),
                 np.where(self.mask, np.float32(1.0), confidence).astype(confidence.dtype))
+
+
+def kept_between(bars: "Bars | None", rgb: np.ndarray, labels: np.ndarray, confidence: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, tuple[slice, slice]]:
+    """``(labels, confidence, picture)`` of a frame ``rgb`` read another way than a step reads it (between two key
+    frames): with the key frame's ``bars`` kept where the frame still shows them (:meth:`Bars.maps`), and the rows
+    and columns a predicted error is of."""
+    if bars is None or not bars.held(rgb):
+        return labels, confidence, (slice(None), slice(None))
+    return (*bars.maps(labels, confidence), bars.picture)
+
+
+def _paired(a: int, b: int) -> tuple[int, int]:
+    """Black rows (or columns) ``a`` and ``b`` at opposite edges as bars: only where both are there, of widths within
+    2 px or a tenth of each other (a picture centred in its frame, as letterboxing pads it); a dark scene's black
+    at one edge, or more at one than the other, is the picture's."""
+    return (a, b) if a and b and abs(a - b) <= max(2, (a + b) / 10) else (0, 0)
 
 
 def _leading(flags: np.ndarray) -> int:

@@ -76,7 +76,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..frame import PreparedFrame
-from .bars import Bars
+from .bars import Bars, kept_between
 from .working import WorkingSize
 
 if TYPE_CHECKING:
@@ -360,7 +360,7 @@ class ObjectFollower:
         self.log_odds: np.ndarray | None = None
         self._size: WorkingSize | None = None
         self._key_labels: np.ndarray | None = None
-        self._bars: Bars | None = None  # the key frame's black bars (:mod:`pcreg.pipeline.bars`)
+        self.bars: Bars | None = None  #: the key frame's black bars (:mod:`pcreg.pipeline.bars`)
         self._carry: FollowCarry | None = None
         self._key_carry: FollowCarry | None = None
         self._frame = 0
@@ -411,7 +411,7 @@ class ObjectFollower:
         self._colours = _colour_table(rgb, self._share, known > 0.5)
         self._key_rgb = rgb.astype(np.float32)
         self._key_grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        self._size, self._key_labels, self._bars = size, lab, Bars.of(full.rgb, lab)
+        self._size, self._key_labels, self.bars = size, lab, Bars.of(full.rgb, lab)
         self._grid = pixel_grid((h, w))
         self._carry = self._key_carry = FollowCarry((self._share > 0.5).astype(np.uint8), self._key_grey,
                                                     _histogram(_colour_index(rgb)))
@@ -459,9 +459,7 @@ class ObjectFollower:
                                                   size, lost=back is None and not carry.labels.any())
         self._carry = FollowCarry((fused > 0).astype(np.uint8), grey, histogram, held)
         self._frame += 1
-        at: tuple[slice, slice] = (slice(None), slice(None))  # the picture between a letterbox's bars (pipeline.bars)
-        if self._bars is not None and self._bars.held(frame.rgb):
-            (labels, confidence), at = self._bars.maps(labels, confidence), self._bars.picture
+        labels, confidence, at = kept_between(self.bars, frame.rgb, labels, confidence)  # a letterbox's bars kept
         t3 = time.perf_counter()
         times = {"register": t1 - t0, "classify": t2 - t1, "fuse": t3 - t2, "total": t3 - t0}
         self.last = StepReport(frame=self._frame, registration=_flow_result(key_field, t1 - t0), reason=None,

@@ -97,6 +97,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     """
     from ..classification.bayes import fit_classifier
     from ..datasets import Frame
+    from .bars import kept_between
     from .engine import stretches, two_sided
     from .learning import STREAM_LEARNING
     from .stream import Propagator
@@ -142,7 +143,8 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
                 labels, conf, _ = two_sided(d, p_a, bwd[t][1], prop.trust, size=prop.working_size,
                                             classes=prop.class_read,
                                             weights=None if w_a is None else (w_a, bwd[t][4]))
-            emit(LabelledFrame(t, labels, conf, predicted_error(conf), s.keys))
+            labels, conf, at = kept_between(getattr(prop, "bars", None), images(t), labels, conf)  # a letterbox's bars
+            emit(LabelledFrame(t, labels, conf, predicted_error(conf[at]), s.keys))
     return [done[t] for t in range(n)]
 
 

@@ -45,6 +45,7 @@ from ..runs.files import HIDDEN, label_digest
 from ..runs.kept import read_frame, read_prior, write_frame, write_prior
 from ..runs.truth import empty_counts
 
+from .bars import kept_between
 from .engine import PRIOR_STORE_DTYPE, References, Stretch, propagate, stretches, two_sided
 from .multiclass import weight_sum
 
@@ -343,8 +344,9 @@ class KeyRun:
                     weights = None if w_a is None else (w_a.astype(np.float32), weight_sum(report.trust))
                     labels, conf, _ = two_sided(d, p_a, report.trust.prior_term(d.shape), prop.trust,
                                                 size=prop.working_size, classes=prop.class_read, weights=weights)
+                    labels, conf, at = kept_between(prop.bars, getattr(image, "rgb", image), labels, conf)
                     labels = prop.table_labels(labels)  # two known classes in other ids than lagr's: the table's
-                    step.update(predicted_error=predicted_error(conf), forward={"fallback": fallback})
+                    step.update(predicted_error=predicted_error(conf[at]), forward={"fallback": fallback})
                 self._record(writer, s, cur, t, image, labels, conf, step, prop, clf, after=t - 1,
                              reference=references.of(report))
                 references.stepped(report, image)

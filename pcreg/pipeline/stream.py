@@ -177,7 +177,7 @@ class Propagator:
         640x480 step in 0.53-0.56 of the time, for 48.4% below plain instead of 49.7% on the shared CamVid clips.
     """
 
-    _bars: Bars | None = None  # the key frame's black bars, where a letterboxed frame keeps its labels (reset)
+    bars: Bars | None = None  #: the key frame's black bars, where a letterboxed frame keeps its labels (:mod:`pcreg.pipeline.bars`)
 
     def __init__(self, classifier, *, model: str = "dense", anchor: str | None = None, backend: str = "reference",
                  init: str = "identity", register: RegisterConfig | None = None, dense: DenseStep = STREAM_DENSE,
@@ -305,7 +305,7 @@ class Propagator:
             lut = np.full(256, 2, np.uint8)
             lut[self._ids] = (0, 1, 2)
             lab = lut[lab]
-        self._bars = Bars.of(full.rgb, lab)
+        self.bars = Bars.of(full.rgb, lab)
         small = size.labels(lab)
         if self._classes is not None:  # K classes: the prior's evidence per class, what every motion carries
             fusion = replace(self.fusion, sigma=CLASS_PRIOR_SIGMA) if self.fusion == FusionConfig() else self.fusion
@@ -354,7 +354,7 @@ class Propagator:
             raise InputError("Propagator.step before reset: give the key frame and its labels first")
         t_start = time.perf_counter()
         full = PreparedFrame.of(image, name="frame", shape=size.frame)
-        frame, bars = size.shrunk(full), self._bars if self._bars is not None and self._bars.held(full.rgb) else None
+        frame, bars = size.shrunk(full), self.bars if self.bars is not None and self.bars.held(full.rgb) else None
         before = (self._frame, self._carry, self._chain, self.scene,
                   None if self._learner is None else self._learner.snapshot())
         try:

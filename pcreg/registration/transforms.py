@@ -35,6 +35,16 @@ def _real(value, refusal: str, name: str) -> np.ndarray:
     return real_matrix(value, refusal, name)
 
 
+def _number(value, name: str, **limits) -> float:
+    """``value`` (a number, or a numpy array of one, shape ()) as a finite float within ``limits``
+    (:func:`~pcreg.validation.check_float`)."""
+    from ..validation import check_float
+
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value.item()
+    return check_float(value, name, **limits)
+
+
 def _shape(shape) -> tuple[int, int]:
     """(H, W) of an image ``shape`` (H, W, ...), or an :class:`InputError`."""
     try:
@@ -119,11 +129,9 @@ def apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
 def rigid2d(angle_deg: float = 0.0, tx: float = 0.0, ty: float = 0.0, *, scale: float = 1.0) -> np.ndarray:
     """3x3 matrix of a rotation by ``angle_deg`` (counter-clockwise on screen is negative with y down;
     here the rotation is the plain mathematical one in (x, y)), uniform ``scale``, then translation."""
-    from ..validation import check_float
-
-    a = np.deg2rad(check_float(angle_deg, "angle_deg"))
-    tx, ty = check_float(tx, "tx"), check_float(ty, "ty")
-    scale = check_float(scale, "scale", lo=0, lo_open=True)
+    a = np.deg2rad(_number(angle_deg, "angle_deg"))
+    tx, ty = _number(tx, "tx"), _number(ty, "ty")
+    scale = _number(scale, "scale", lo=0, lo_open=True)
     c, s = np.cos(a) * scale, np.sin(a) * scale
     return np.array([[c, -s, tx], [s, c, ty], [0.0, 0.0, 1.0]])
 
@@ -261,9 +269,7 @@ def project_to_2d(matrix: np.ndarray, *, tol: float = 1e-6) -> np.ndarray:
 
 def scale_transform(matrix: np.ndarray, factor: float) -> np.ndarray:
     """The same motion expressed in coordinates scaled by ``factor`` (x' = factor * x)."""
-    from ..validation import check_float
-
-    m, factor = _matrix(matrix, finite=False), check_float(factor, "factor", lo=0, lo_open=True)
+    m, factor = _matrix(matrix, finite=False), _number(factor, "factor", lo=0, lo_open=True)
     d = m.shape[0]
     S = np.eye(d)
     S[: d - 1, : d - 1] *= factor

@@ -143,7 +143,7 @@ def read_review(folder: str | Path) -> RunReview:
     """
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, open_frames
-    from .runs.edited import frame_moved, moved_error
+    from .runs.edited import frame_changed, frame_moved, moved_error
     from .runs.files import STEPS, counted_steps, has_confidence
     from .runs.state import STATE, chosen_selection, read_state, run_frames, steps_counted_now
 
@@ -189,6 +189,8 @@ def read_review(folder: str | Path) -> RunReview:
             steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou", "error", "iou")}
             if frame_moved(frames, step["frame"], str(step["name"])):
                 moved.append((step["frame"], str(step["name"])))
+            elif (changed := frame_changed(frames, folder, step["frame"], step)) is not None:  # written again since
+                raise InputError(f"{changed}; label it again (pcreg run ... --force) to review it")
     except InputError:  # a line named
         raise
     except (OSError, ValueError, KeyError, TypeError):

@@ -262,3 +262,26 @@ def test_case_i_columns_of_sequences_of_different_lengths_name_the_k_of_their_ce
                 assert k == min(max(1, round(int(col[2:-1]) / 100 * frames[row[0]])), frames[row[0]] - 1), (row, col)
     short = next(r for r in rows if r[0] == "short")
     assert [c.split("(k=")[1] if c else "" for c in short[2:]] == ["1)", "", "2)", "", "3)", "4)", "", "5)", ""]
+
+
+def test_test_frames_whose_truth_is_all_unknown_are_refused_not_scored_nan(shared_data, tmp_path, capsys):
+    """A clip whose frames after the first hold only void truth: `evaluate classification` wrote a report of NaN
+    (Case I's every cell) and exited 0, with numpy's "Mean of empty slice" on stderr. Refused, exit 2."""
+    import cv2
+    import numpy as np
+
+    from pcreg.cli import main
+
+    src = shared_data / "camvid" / "0001TP"
+    clip = tmp_path / "data" / "c1"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    names = sorted(p.name for p in (src / "images").iterdir())[:5]
+    for i, name in enumerate(names):
+        (clip / "images" / name).write_bytes((src / "images" / name).read_bytes())
+        labels = cv2.imread(str(src / "labels" / name), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(clip / "labels" / name), labels if i == 0 else np.full_like(labels, 11))
+    out = tmp_path / "out"
+    assert main(["evaluate", "classification", "--data", f"camvid:{tmp_path / 'data'}", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "nothing to score" in err and "RuntimeWarning" not in err and not (out / "results.json").exists()

@@ -50,3 +50,16 @@ def test_a_frame_added_or_renamed_since_the_run_is_named(synthetic, tmp_path, ke
         read_review(out)
     assert str(caught.value) == (f"{folder}: holds {now} as frame 3, which the run in {out} labelled as f3.png: the "
                                  "frames changed since the run (a frame added, removed or renamed)")
+
+
+
+def test_a_frame_written_again_since_the_run_is_named_not_drawn_under_old_labels(synthetic, tmp_path):
+    """A frame replaced by another picture of its size (re-extracted, edited): `pcreg view --overlay` drew the run's
+    labels over the new picture, exit 0, where resuming the run refuses it. Refused naming the frame."""
+    folder, out = _run(tmp_path, synthetic, False)
+    f2 = folder / "f2.png"
+    cv2.imwrite(str(f2), 255 - cv2.imread(str(f2)))
+    with pytest.raises(InputError, match=r"f2\.png: changed since the run in .* labelled it .*label it again"):
+        read_review(out)
+    assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 2
+    assert not (tmp_path / "o.mp4").exists()

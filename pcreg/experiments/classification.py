@@ -208,9 +208,15 @@ def run_unit(unit) -> dict:
             conf += c
             frame_errors.append(error_from_confusion(c))
         total += conf
+        scored = [e for e in frame_errors if not np.isnan(e)]
         per_test.append({"dataset": d, "frames": [a, b], "error": error_from_confusion(conf),
-                         "mean_frame_error": float(np.nanmean(frame_errors)) if frame_errors else float("nan"),
+                         "mean_frame_error": float(np.mean(scored)) if scored else float("nan"),
                          "frame_errors": frame_errors, "confusion": conf.tolist()})
+    if unit.test and not total.any():  # a table of NaN is no result
+        from ..errors import DatasetError
+
+        raise DatasetError(f"{cfg.data}: case {unit.case}: the truth of every frame it tests is all unknown (frames "
+                           f"{', '.join(f'{a}-{b - 1} of {d}' for d, a, b in unit.test)}): nothing to score")
     return {
         "case": unit.case, "features": unit.features, "key": list(unit.result_key),
         "train": [list(r) for r in unit.train], "train_frames": len(train),

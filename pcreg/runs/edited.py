@@ -114,21 +114,33 @@ def check_same_frame(frames, out: Path, t: int, step: dict, *, key: bool = False
     ``key``: frame ``t`` is a key frame, which the run labelled others from."""
     if frames.kind != "folder" or t >= len(frames):
         return
-    name, before = step.get("name"), step.get("bytes")
+    name = step.get("name")
     if isinstance(name, str) and frames.name(t) != name:
         raise OutputError(f"{out / STATE}: the run labelled {name} as frame {t}, which {frames.path} "
                           f"now holds as {frames.name(t)}: the frames changed since the run began; "
                           "use --force to start over")
+    changed = frame_changed(frames, out, t, step, key=key)
+    if changed is not None:
+        raise OutputError(f"{changed}; use --force to start over")
+
+
+def frame_changed(frames, out: Path, t: int, step: dict, *, key: bool = False) -> str | None:
+    """What is said of frame ``t`` of a folder's ``frames`` whose file is no longer what the run in ``out`` labelled
+    (:func:`check_same_frame`'s ``step``: its size in bytes, or where its modification time changed its digest);
+    None where it still is, or the step kept neither."""
+    if frames.kind != "folder" or t >= len(frames):
+        return None
     what = "labelled from it" if key else "labelled it"
     whose = "the labels carried from it are" if key else "its labels are"
+    before = step.get("bytes")
     if type(before) is int and (now := frame_bytes(frames, t)) != before:
-        raise OutputError(f"{frames.where(t)}: changed since the run in {out} {what} ({before} bytes "
-                          f"then, {now} now): {whose} of the frame as it was; use --force to start over")
+        return (f"{frames.where(t)}: changed since the run in {out} {what} ({before} bytes then, {now} now): "
+                f"{whose} of the frame as it was")
     mtime, digest = step.get("mtime_ns"), step.get("digest")
     if type(mtime) is int and isinstance(digest, str) and frames.where(t).stat().st_mtime_ns != mtime \
             and file_digest(frames.where(t)) != digest:
-        raise OutputError(f"{frames.where(t)}: changed since the run in {out} {what} (the same size, other "
-                          f"contents): {whose} of the frame as it was; use --force to start over")
+        return f"{frames.where(t)}: changed since the run in {out} {what} (the same size, other contents): {whose} of the frame as it was"
+    return None
 
 
 def frame_moved(frames, t: int, name: str) -> bool:

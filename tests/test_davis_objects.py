@@ -86,6 +86,22 @@ def test_a_palette_first_mask_then_0_255_masks_reads_every_frames_object(tmp_pat
         np.testing.assert_array_equal(f.labels, (mask > 0).astype(np.uint8))
 
 
+def test_a_grey_first_mask_then_a_palette_of_two_objects_is_refused_not_scored_as_their_union(tmp_path):
+    """A first mask of one object (0/255), a later one a palette of objects 1 and 2: both were scored as the first
+    frame's object, exit 0, the table as the sequence's untouched. Refused naming the later mask, as the other order
+    is; a later palette of that one object is still read."""
+    pairs = frames_and_masks(4)
+
+    def write_mask(i, path, mask):
+        return cv2.imwrite(str(path), mask) if i != 2 else write_palette(path, halves(mask))
+
+    seq = one_object_sequence(tmp_path / "mixed", pairs, write_mask)
+    with pytest.raises(DatasetError, match=r"00002\.png: a mask of 2 objects by palette index \(1, 2\) after a first mask of one"):
+        load_davis(seq)
+    write_palette(seq / "labels" / "00002.png", (pairs[2][1] > 0).astype(np.uint8))
+    np.testing.assert_array_equal(load_davis(seq)["mixed"][2].labels, (pairs[2][1] > 0).astype(np.uint8))
+
+
 def test_load_sequence_refuses_several_objects_naming_the_mask_and_its_ids(tmp_path):
     seq, _ = _synthetic(tmp_path, n=3)
     with pytest.raises(DatasetError) as err:

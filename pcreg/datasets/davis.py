@@ -272,6 +272,11 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
             raise DatasetError(f"{m}: a grey mask of one object (0 and 255, DAVIS 2016's) after a first mask of "
                                f"{len(objects)} objects by palette index ({_mask_file(masks, files[0].stem).name}): "
                                "the sequence's masks read two ways; save every mask one way")
+        later = palette_objects(values)[0] if t > 0 and by_id and objects == (None,) else ()
+        if len(later) > 1:  # their union would be scored as the first frame's one object, and no word
+            raise DatasetError(f"{m}: a mask of {len(later)} objects by palette index ({', '.join(map(str, later))}) after "
+                               f"a first mask of one object ({_mask_file(masks, files[0].stem).name}): the sequence's "
+                               "masks read two ways; save every mask one way")
         for k in objects:
             labels = object_labels(values) if grey_object else object_labels(values, k, void)
             if t == 0:

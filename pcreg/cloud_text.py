@@ -291,7 +291,8 @@ def _bad_line(path: Path, separator: bytes | None, width: int, start: int, numer
             if len(fields) == width and wrong is None:
                 text_seen = text_seen or not all(_NUMBER.fullmatch(f) for f in fields)
                 continue
-            text, odd = shown(line), (f"; it holds {odd_character(line)}" if odd_character(line) else "")
+            text, odd = shown(line), odd_character(line)
+            odd = f"; it holds {odd}" if odd else ""
             if not raw.endswith(b"\n"):
                 raise InputError(f"{path}: line {number} ({text!r}) is cut short")
             if numeric is None or (len(fields) != width and not text_seen):
@@ -364,8 +365,9 @@ def _columns(path: Path, fields: list[bytes]) -> list[int] | None:
                          "one of them")
     if "x" not in names or "y" not in names:
         line = b",".join(fields)
-        if odd_character(line):
-            raise InputError(f"{path}: its first line holds {odd_character(line)}")
+        odd = odd_character(line)
+        if odd:
+            raise InputError(f"{path}: its first line holds {odd}")
         text = line[:60].decode("utf-8", "replace")
         raise InputError(f"{path}: its first line ({text!r}) names no x and y columns{_comma_hint(line)}")
     return [names.index(a) for a in "xyz" if a in names]

@@ -130,3 +130,23 @@ def test_the_frames_between_two_key_frames_keep_the_bars_too(shared_data, tmp_pa
     for i in (1, 2, 3):
         conf = np.array(Image.open(out / "confidence" / f"f{i}.png")).astype(np.float64) / 255
         assert steps[f"f{i}.png"]["predicted_error"] == pytest.approx(100 * (1 - conf[PAD:-PAD].mean()), abs=0.3)
+
+
+@pytest.mark.parametrize("keys", [(0,), (0, 4)], ids=["one key frame", "two key frames"])
+def test_label_clip_keeps_the_bars_and_scores_the_picture(shared_data, keys):
+    from pcreg.pipeline.keyframes import label_clip
+
+    images, camvid = _frames(shared_data, 5)
+    folder = shared_data / "camvid" / "0001TP"
+    names = sorted(p.name for p in (folder / "images").iterdir())[:5]
+    padded = [_letterboxed(image) for image in images]
+
+    def key(i):
+        lab = cv2.imread(str(folder / "labels" / names[i]), cv2.IMREAD_UNCHANGED)
+        lagr = np.select([lab == 3, lab == 11], [0, 2], 1).astype(np.uint8)
+        return cv2.copyMakeBorder(lagr, PAD, PAD, 0, 0, cv2.BORDER_CONSTANT, value=2)
+
+    out = label_clip(lambda t: padded[t], 5, {k: key(k) for k in keys})
+    for f in out[1:4]:
+        assert (f.labels[:PAD] == 2).all() and (f.labels[-PAD:] == 2).all() and (f.confidence[:PAD] == 1.0).all()
+        assert f.predicted_error == pytest.approx(predicted_error(f.confidence[PAD:-PAD]))

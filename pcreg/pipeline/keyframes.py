@@ -64,7 +64,8 @@ class LabelledFrame:
 
 def _pass(make: Callable, key_image, key_labels, images: Callable[[int], np.ndarray], order) -> tuple[dict, Any]:
     """One direction, by :func:`~pcreg.pipeline.engine.propagate`: ``{t: (log_odds, prior_term, labels,
-    confidence)}`` along ``order`` from the key frame (the first two at the propagator's working size),
+    confidence, class weights, bars)}`` along ``order`` from the key frame (the first two at the propagator's working
+    size; ``bars`` the key frame's black bars where the frame shows them, :mod:`pcreg.pipeline.bars`, else None),
     and the propagator."""
     from .engine import propagate
     from .multiclass import weight_sum
@@ -72,10 +73,11 @@ def _pass(make: Callable, key_image, key_labels, images: Callable[[int], np.ndar
     prop = make()
     prop.reset(key_image, key_labels)
     out = {}
-    for t, _, labels in propagate(prop, ((t, images(t)) for t in order)):
+    for t, image, labels in propagate(prop, ((t, images(t)) for t in order)):
         d, maps = prop.last.log_odds, prop.last.trust
         out[t] = (d, maps.prior_term(d.shape), labels, prop.last.confidence,
-                  None if prop.classes is None else weight_sum(maps))
+                  None if prop.classes is None else weight_sum(maps),
+                  prop.bars if prop.bars is not None and prop.bars.held(image) else None)
     return out, prop
 
 
@@ -97,7 +99,6 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     """
     from ..classification.bayes import fit_classifier
     from ..datasets import Frame
-    from .bars import kept_between
     from .engine import stretches, two_sided
     from .learning import STREAM_LEARNING
     from .stream import Propagator
@@ -136,14 +137,16 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
         bwd, prop = (fwd, prop) if b is None else _pass(make, images(b), keys[b], images, s.frames[::-1])
         for t in s.frames:
             if len(s.keys) == 1:
-                _, _, labels, conf, _ = bwd[t]
+                _, _, labels, conf, _, bars = bwd[t]
             else:  # as pcreg run's backward pass between two key frames
                 assert prop is not None
-                d, p_a, _, _, w_a = fwd[t]
+                d, p_a, _, _, w_a, _ = fwd[t]
                 labels, conf, _ = two_sided(d, p_a, bwd[t][1], prop.trust, size=prop.working_size,
                                             classes=prop.class_read,
                                             weights=None if w_a is None else (w_a, bwd[t][4]))
-            labels, conf, at = kept_between(getattr(prop, "bars", None), images(t), labels, conf)  # a letterbox's bars
+                bars = bwd[t][5]
+                labels, conf = (labels, conf) if bars is None else bars.maps(labels, conf)  # a letterbox's bars kept
+            at = (slice(None), slice(None)) if bars is None else bars.picture  # what the predicted error is of
             emit(LabelledFrame(t, labels, conf, predicted_error(conf[at]), s.keys))
     return [done[t] for t in range(n)]
 

@@ -168,7 +168,7 @@ def test_the_compiled_projective_icp_is_the_numpy_loop():
     numpy = icp_reference(source, target, options, dlt="normal", tree=cKDTree(target))
     steps = []
     compiled = _icp_projective(source, target, np.eye(3), KDTreeIndex(target), max_distance=5.0, max_iteration=40,
-                               relative_fitness=options.relative_fitness, relative_rmse=options.relative_rmse,
+                               relative_fitness=options.relative_fitness, relative_rmse=options.stopping_rmse(source, target),
                                callback=steps.append, level=0, start=0.0)
     assert numpy.iterations > 5 and compiled.iterations == numpy.iterations and len(steps) == numpy.iterations + 1
     assert compiled.converged == numpy.converged and compiled.fitness == numpy.fitness

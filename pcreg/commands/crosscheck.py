@@ -40,7 +40,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from ._common import arg_float
 
     p.add_argument("--relative-fitness", type=arg_float(0, 1), default=1e-6, help="stopping rule: |Δfitness| threshold (default 1e-6)")
-    p.add_argument("--relative-rmse", type=arg_float(0), default=1e-6, help="stopping rule: |Δinlier RMSE| threshold (default 1e-6)")
+    p.add_argument("--relative-rmse", type=arg_float(0), default=None,
+                   help="stopping rule: |Δinlier RMSE| threshold (default 1e-6; 1e-6 of their extent for clouds under one unit across)")
     p.add_argument("--timeout", type=positive_float, default=60.0, help="time limit of a cmd: program, s (default 60)")
     p.add_argument("--export", metavar="DIR", help="write the built-in suite as test vectors with the reference's traces")
     p.add_argument("--suite", metavar="DIR", help="run every implementation on the suite in DIR (written by --export; "
@@ -295,6 +296,7 @@ def _images(args) -> int:
     from ..errors import InputError, RegistrationError
     from ..formats import read_image_file_and_damage
     from ..registration.clouds import image_and_mask
+    from ..registration.icp_options import RMSE_TOLERANCE
     from .register import _file_notes, _naming_its_file, _repeat_notes
 
     if args.implementations:
@@ -305,7 +307,8 @@ def _images(args) -> int:
     config = CrosscheckConfig(registration=CROSSCHECK_REGISTRATION.replace(
         model=args.model or "rigid", iterations=args.iterations, levels=args.levels or 4,
         max_correspondence_distance=args.max_distance if args.max_distance else 2.5,
-        relative_fitness=args.relative_fitness, relative_rmse=args.relative_rmse))
+        relative_fitness=args.relative_fitness,
+        relative_rmse=RMSE_TOLERANCE if args.relative_rmse is None else args.relative_rmse))
     with open_recorder(args, name=f"crosscheck {args.b} -> {args.a}", layout="crosscheck") as rec:
         rec.set_frame(0)
         rec.log_config({k: v for k, v in vars(args).items() if not k.startswith("_")})

@@ -265,10 +265,11 @@ def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implem
 
     _check_pinned_options(options)
     files = _check_files(files)
-    max_iterations, relative_fitness, relative_rmse = options.max_iteration, options.relative_fitness, options.relative_rmse
+    max_iterations, relative_fitness = options.max_iteration, options.relative_fitness
     src, tgt, T0, max_correspondence_distance = _pinned_clouds(source, target, init=init, voxel_size=voxel_size,
                                                                max_correspondence_distance=options.max_correspondence_distance,
                                                                max_iterations=max_iterations, files=files)
+    relative_rmse = options.stopping_rmse(src, tgt)
     d = src.shape[1]
     truth = None if truth is None else check_truth(truth, d)
     names = list(dict.fromkeys([REFERENCE, *implementations]))

@@ -168,11 +168,12 @@ def icp(source_points: np.ndarray, target_points: np.ndarray, options: ICPOption
     settings = IcpSettings(model=options.model, relative_fitness=options.relative_fitness, weights=options.weights,
                            trim_fraction=options.trim_fraction, metric=options.metric, rotation=options.rotation,
                            stepwise=options.count_iterations)
+    tolerance = options.stopping_rmse(src, tgt)
     total_iter = 0
     for i, (s, t, d, n) in enumerate(schedule):
         scale_start = T
         r = step(s, t, T, settings, StepCall(max_correspondence_distance=d, max_iteration=n,
-                                             relative_rmse=options.relative_rmse, level=len(schedule) - 1 - i,
+                                             relative_rmse=tolerance, level=len(schedule) - 1 - i,
                                              callback=callback,
                                              target_normals=target_normals if options.schedule is None else None))
         T = r.matrix

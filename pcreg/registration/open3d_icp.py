@@ -99,12 +99,12 @@ def icp_open3d(source: np.ndarray, target: np.ndarray, options: ICPOptions, *, i
     if options.max_correspondence_distance is None:
         raise InputError("icp_open3d needs options.max_correspondence_distance (pcreg.icp chooses one)")
     model, max_correspondence_distance, max_iteration = options.model, options.max_correspondence_distance, options.max_iteration
-    relative_fitness, relative_rmse = options.relative_fitness, options.relative_rmse
     stepwise = options.count_iterations or callback is not None
     source_pcd, target_pcd = (None, None) if clouds is None else clouds
     start = time.perf_counter()
     check_model(model)
     source, target, T = backend_inputs(source, target, init, who="icp_open3d")
+    relative_fitness, relative_rmse = options.relative_fitness, options.stopping_rmse(source, target)
     o3d = _o3d()
     reg = o3d.pipelines.registration
     d = source.shape[1]

@@ -102,7 +102,7 @@ def icp_reference(source: np.ndarray, target: np.ndarray, options: ICPOptions, *
     source, target, T = backend_inputs(source, target, init, who="icp_reference")
     model, weights, metric, rotation = options.model, options.weights, options.metric, options.rotation
     max_correspondence_distance, max_iteration = options.max_correspondence_distance, options.max_iteration
-    relative_fitness, relative_rmse = options.relative_fitness, options.relative_rmse
+    relative_fitness, relative_rmse = options.relative_fitness, options.stopping_rmse(source, target)
     d = source.shape[1]
     check_model(model, d)
     if tree is None:

@@ -300,6 +300,8 @@ def check_output(path: str | os.PathLike, *, force: bool, inputs: tuple = ()) ->
     if path.exists() and not path.is_file():
         raise OutputError(f"{path} is not a regular file")
     if path.exists() and not force:
+        # what a write of it killed midway left beside it (with --force: the write's own first step) goes
+        remove_leftovers(path.parent, [path.name])
         raise OutputError(f"{path} exists (use --force to overwrite)")
     parent = path.parent if str(path.parent) else Path(".")
     if parent.exists() and not os.access(parent, os.W_OK):
@@ -349,9 +351,14 @@ class OutputLock:
             os.close(fd)
             who = f" (pid {other})" if other else ""
             raise OutputError(f"{self.folder} is in use by another pcreg run{who}; wait for it or use another --out") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, str(os.getpid()).encode(), 0)
         self._fd = fd
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, str(os.getpid()).encode(), 0)
+        except OSError as exc:  # a full disk: the lock's own file named, and the folders it made removed
+            self.__exit__()
+            raise OutputError(f"cannot write {self.folder / self.NAME}, the lock on the output folder: "
+                              f"{exc.strerror or exc}") from None
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -137,6 +137,21 @@ def test_what_a_killed_export_left_is_removed_and_one_being_written_kept(run_cop
         _check_archive(archive, run_copy, _labels(run_copy))
     assert archive.read_bytes() == b"PK" and not writing.exists()  # the one under way took its place once done
 
+def test_a_refused_export_still_removes_what_a_killed_one_left(run_copy, capsys):
+    """An export with ``--force`` killed mid-archive, then one without it: refused as the archive exists, it
+    removed nothing, and the killed one's temporary file (as large as the frames it held) stayed until a
+    ``--force``. Another archive's temporary file is left."""
+    archive = run_copy / "export-cvat-mask.zip"
+    assert main(["export", str(run_copy)]) == 0
+    first = archive.read_bytes()
+    killed = killed_mid_write(archive)
+    other = killed_mid_write(run_copy / "other.zip")
+    capsys.readouterr()
+    assert main(["export", str(run_copy)]) == 2
+    assert "exists (use --force" in capsys.readouterr().err
+    assert not killed.exists() and other.is_file() and archive.read_bytes() == first
+
+
 def test_export_to_a_file_elsewhere(run_copy, tmp_path):
     dest = tmp_path / "for" / "cvat.zip"
     assert main(["export", str(run_copy), "--to", str(dest)]) == 0

@@ -148,3 +148,29 @@ def test_an_overlay_of_a_run_whose_run_json_is_damaged_names_the_run_json(tmp_pa
     assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 2
     assert one_line_errors(capsys) == [f"pcreg: error: {out / 'run.json'}: unreadable (not a run.json that pcreg run wrote)"]
     assert not (tmp_path / "o.mp4").exists()
+
+
+def test_a_full_disk_at_the_start_names_the_lock_and_leaves_no_folder(tmp_path, capsys, monkeypatch):
+    """The lock on the output folder is the first thing a run writes: on a full disk the file is made (an
+    inode) and its first byte refused. The line said "No space left on device", naming no file, and left the
+    folder it made behind."""
+    import errno
+
+    folder, key = drifting_frames(tmp_path / "frames")
+    out = tmp_path / "new" / "out"
+    real = os.pwrite
+
+    def full(fd, data, offset):
+        if os.path.basename(os.readlink(f"/proc/self/fd/{fd}")) == ".pcreg.lock":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(fd, data, offset)
+
+    monkeypatch.setattr(os, "pwrite", full)
+    capsys.readouterr()
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and f"cannot write {out / '.pcreg.lock'}, the lock on the output folder: No space left on device" \
+        in err[0], err
+    assert not (tmp_path / "new").exists()
+    monkeypatch.setattr(os, "pwrite", real)
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0

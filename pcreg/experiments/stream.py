@@ -198,7 +198,8 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
             rows.append({"index": t, "name": frames[t].name, "key": key, "since_key": t - key, "errors": errors[t]})
             if on_frame is not None:
                 on_frame(t, frames[t], preds.pop(t), frames[key])
-    means = {m: float(np.nanmean([r["errors"][m] for r in rows])) if rows else float("nan") for m in methods}
+    scored = [r for r in rows if not all(np.isnan(e) for e in r["errors"].values())]  # truth all unknown: NaN each
+    means = {m: float(np.nanmean([r["errors"][m] for r in scored])) if scored else float("nan") for m in methods}
     per_frame_ms = {m: 1000.0 * s / max(1, len(rows)) for m, s in seconds.items()}
     return {"frames": rows, "means": means, "ms_per_frame": per_frame_ms, "key_frames": keys,
             "calibration": counts.tolist()}

@@ -18,6 +18,7 @@ import numpy as np
 
 from .cloud_files import _ASCII_NUMBER, _scan_rows
 from .errors import InputError
+from .formats import refuse_utf16
 from .validation import check_point_count, max_pixels
 
 __all__ = ["UTF8_BOM", "check_text_cloud", "number_columns", "read_columns", "read_pts"]
@@ -33,6 +34,8 @@ def check_text_cloud(path: Path, suffix: str, limit: int) -> tuple[int, int]:
     return alone (Open3D reads such a file as one line: its first point); else an :class:`InputError`."""
     with open(path, "rb") as fh:  # streamed: the file may be large
         firsts = list(itertools.islice((line.strip() for line in fh if line.strip()), 2))
+    if firsts:
+        refuse_utf16(path, firsts[0])
     if firsts and firsts[0].startswith(UTF8_BOM):  # Open3D's reader takes it for the start of the first number
         raise InputError(f"{path}: it starts with a UTF-8 byte-order mark, which the {suffix} reader does not "
                          "read past; save the file without it")
@@ -135,8 +138,7 @@ def read_columns(path: str | os.PathLike, limit: int | None = None) -> np.ndarra
     first, line_number = _first_line(path)
     if first is None:
         raise InputError(f"{path}: no points could be read (no line of numbers)")
-    if first.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\0" in first:  # read as bytes, every other one a zero
-        raise InputError(f"{path}: it is UTF-16 text (as some Windows programs save it); save it as UTF-8 or ASCII")
+    refuse_utf16(path, first)  # read as bytes, every other one a zero
     if b"\r" in first:  # one line to the reader: its first point, or a first line of names it is not
         raise InputError(f"{path}: its lines end in a carriage return alone (as classic Mac OS wrote them); save it "
                          "with LF or CR LF line ends")

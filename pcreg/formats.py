@@ -205,12 +205,23 @@ def text_matrix(data: bytes) -> np.ndarray:
     return np.loadtxt(io.BytesIO(data), dtype=np.float64, ndmin=2, delimiter="," if commas else None)
 
 
+def refuse_utf16(path: str | os.PathLike, data: bytes) -> None:
+    """An :class:`InputError` naming ``path`` when ``data``, a text file's first bytes, is UTF-16 or UTF-32 (a
+    byte-order mark FF FE or FE FF, or a zero byte beside each character of its first 32), which no reader of numbers or
+    names reads."""
+    head = data[:64]
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")) or (len(head) >= 4 and not all(head[i::2].strip(b"\0") for i in (0, 1))):
+        kind = "UTF-32" if data.startswith((b"\xff\xfe\0\0", b"\0\0\xfe\xff")) else "UTF-16"
+        raise InputError(f"{path}: it is {kind} text (as some Windows programs save it); save it as UTF-8 or ASCII")
+
+
 def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:
     """A small text matrix (an initial guess, a ground truth) from a regular file of at most 64 kB, as a finite
     2-D float64 array (:func:`text_matrix`: spaces or commas between the numbers)."""
     data = read_regular_file(path, max_bytes=1 << 16, what=what).removeprefix(b"\xef\xbb\xbf")  # Notepad's mark
     if not data.strip():  # numpy would warn of it and give an empty array
         raise InputError(f"{path}: the {what} file is empty")
+    refuse_utf16(path, data)
     try:
         m = text_matrix(data)
     except (ValueError, IndexError, TypeError) as exc:

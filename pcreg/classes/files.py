@@ -148,15 +148,20 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
 
 
 def _read_text(path: Path, what: str) -> str:
-    from ..formats import image_size, read_regular_file
+    from ..formats import image_size, read_regular_file, refuse_utf16
 
     data = read_regular_file(path, max_bytes=MAX_TABLE_BYTES, what=what)
     try:
-        return data.decode("utf-8-sig")
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
         kind = ("; it is a zip archive (a CVAT export? its labelmap.txt is the table; --labels reads the export)"
                 if data[:4] == b"PK\x03\x04" else "; it is an image, not a class table" if image_size(data) else "")
+        if not kind:
+            refuse_utf16(path, data)
         raise InputError(f"{path}: not UTF-8 text ({what}){kind}") from None
+    if "\0" in text:  # UTF-16 without a byte-order mark decodes, a zero beside each character
+        refuse_utf16(path, data)
+    return text
 
 
 def read_labelmap(path: str | Path) -> ClassTable:

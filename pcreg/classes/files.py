@@ -278,7 +278,15 @@ def class_table(spec: str | Path | ClassTable | None) -> ClassTable:
         return TABLES[spec]
     if isinstance(spec, str) and not spec.strip():
         raise InputError(f"--classes {spec!r}: empty; name a built-in class table ({', '.join(TABLES)}) or a file")
+    if isinstance(spec, str) and ("\n" in spec or spec.lstrip().startswith("{")):  # a table's text, not its file
+        raise InputError(f"classes: the text of a class table ({short_repr(spec)}), not a table's name or file; read "
+                         "it with pcreg.classes.parse_labelmap(text, where) or parse_table_json(text, where)")
     p = Path(spec).expanduser()
-    if not p.exists():
-        raise InputError(f"{spec}: neither a built-in class table ({', '.join(TABLES)}) nor a file")
+    try:
+        found = p.exists()
+    except (OSError, ValueError):  # a name too long for a file, or one with a zero byte
+        found = False
+    if not found:
+        named = str(spec) if len(str(spec)) <= 120 else short_repr(str(spec))
+        raise InputError(f"{named}: neither a built-in class table ({', '.join(TABLES)}) nor a file")
     return read_table_file(p)

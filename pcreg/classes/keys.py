@@ -492,3 +492,20 @@ def check_labels(labels, shape, table=None) -> np.ndarray:
         bad = int(lab.min()) if lab.min() < 0 else int(lab.max())
         raise InputError(f"labels must be 0 (ground), 1 (obstacle) or 2 (unknown); found {bad}")
     return lab.astype(np.uint8)
+
+
+def check_key_classes(labels: np.ndarray, table, fitted) -> np.ndarray:
+    """``labels`` (checked by :func:`check_labels`) as a stream's key frame, or an :class:`InputError` for labels its
+    classifier cannot label: no known label, or a class outside ``fitted`` (the class ids it was fitted on; None: a
+    classifier of two classes), which no step would give a pixel, and no word said so."""
+    unknown = 2 if table is None else table.unknown
+    present = np.flatnonzero(np.bincount(labels.ravel(), minlength=256))
+    if not (present != unknown).any():
+        raise InputError(f"the key frame's labels are all unknown ({unknown}): nothing to propagate")
+    missing = [] if fitted is None or table is None else [int(c) for c in present if c != unknown and c not in fitted]
+    if missing:
+        named = ", ".join(f"{table.name_of(c)} (id {c})" for c in missing)
+        raise InputError(f"the key frame's labels hold {named}, which the classifier was not fitted on: no frame would "
+                         "be labelled so; fit it on frames that show it (Propagator.from_key_frame of this key frame "
+                         "fits one on it)")
+    return labels

@@ -228,6 +228,8 @@ class ClassTable:
         a = np.asarray(labels)
         if not np.issubdtype(a.dtype, np.integer):
             raise InputError(f"{where}: labels must be integers, got {a.dtype}")
+        if a.ndim != 2:  # a colour image's three channels would be painted as (H, W, 3, 3)
+            raise InputError(f"{where}: labels must be (H, W), one class id a pixel, got shape {a.shape}")
         if a.size and (int(a.min()) < 0 or int(a.max()) > 255):
             bad = int(a.min()) if int(a.min()) < 0 else int(a.max())
             raise InputError(f"{where}: label value {bad} is not a class id ({self.describe()})")

@@ -104,8 +104,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
     from .stream import Propagator
     from .trust import predicted_error
 
-    if not keys:
-        raise InputError("at least one key frame is needed")
+    n, classes = _check_clip(images, n, keys, classifier, classes)
     if fit not in KEY_FITS:
         raise InputError(f"fit must be one of {', '.join(KEY_FITS)}, got {fit!r}")
     plan = stretches(list(keys), n)
@@ -149,6 +148,33 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
             at = (slice(None), slice(None)) if bars is None else bars.picture  # what the predicted error is of
             emit(LabelledFrame(t, labels, conf, predicted_error(conf[at]), s.keys))
     return [done[t] for t in range(n)]
+
+
+def _check_clip(images, n, keys, classifier, classes) -> tuple[int, object]:
+    """:func:`label_clip`'s clip checked: ``(n, the key labels' class table)``, the table the classifier's when none
+    is given; an :class:`InputError` for what is no clip, or a classifier of another table than ``classes``."""
+    from ..classes import class_table
+    from ..validation import check_int
+
+    if not callable(images):
+        raise InputError(f"images must be a function: images(t) gives frame t (for a list, its __getitem__), got "
+                         f"{type(images).__name__}")
+    n = check_int(n, "the clip's frames", lo=1)
+    if not isinstance(keys, Mapping):
+        raise InputError(f"keys must be a mapping {{frame index: labels}}, got {type(keys).__name__}")
+    if not keys:
+        raise InputError("at least one key frame is needed")
+    for k in keys:
+        check_int(k, "a key frame's index", lo=0, hi=n - 1)
+    fitted = getattr(classifier, "class_table", None)
+    if classes is None:
+        return n, fitted
+    table = class_table(classes)
+    if fitted is not None and not fitted.agrees(table):
+        raise InputError(f"the classifier's class table ({fitted.source or fitted.describe()}) is not the key labels' "
+                         f"({table.source or table.describe()}): {fitted.difference(table)}; fit it on the key labels' "
+                         "table, or give the classifier's")
+    return n, table
 
 
 def suggest(predicted: Mapping[int, float], keys: Sequence[int], count: int, n: int) -> list[int]:

@@ -98,7 +98,7 @@ from .multiclass import CLASS_ANCHOR, CLASS_PRIOR_SIGMA, CLASS_WEIGHT_SHARE, Cla
 from .prior import class_prior, fused_labels, fused_log_odds, pixel_weight, prior_on_moving
 from .trust import CLASS_TRUST, STREAM_TRUST, Trusted, TrustedKey, TrustRule, least_confident
 from .working import WorkingSize
-from ..classes.keys import binary_table, check_labels, lagr_ids
+from ..classes.keys import binary_table, check_key_classes, check_labels, lagr_ids
 from ..errors import InputError
 from ..frame import PreparedFrame
 from ..registration.config import RegisterConfig
@@ -293,8 +293,8 @@ class Propagator:
             raise
 
     def _reset(self, image: np.ndarray, labels: np.ndarray) -> None:
-        full = PreparedFrame.of(image, name="key frame")
-        lab = check_labels(labels, full.shape, getattr(self.classifier, "class_table", None))
+        full, table = PreparedFrame.of(image, name="key frame"), getattr(self.classifier, "class_table", None)
+        lab = check_key_classes(check_labels(labels, full.shape, table), table, self._classes)
         self._size = size = WorkingSize(full.shape, self.scale)
         if size.scaled or self._estimator.checks_every_size:  # a size the motion cannot take: refused here
             self._check_working_size(size)

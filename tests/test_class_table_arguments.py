@@ -1,0 +1,38 @@
+"""What ``classes=`` and a table's own checks are given that is not what they take: a table's text, a name no file
+can have, labels that are not (H, W)."""
+
+import re
+
+import numpy as np
+import pytest
+
+from pcreg.classes import CAMVID11, class_table, labelmap_text, parse_labelmap, table_json
+from pcreg.errors import InputError
+
+
+@pytest.mark.parametrize("text", [labelmap_text(CAMVID11), table_json(CAMVID11)])
+def test_a_tables_text_given_as_classes_is_named_as_text(text):
+    """Past 255 bytes it raised OSError ("File name too long"), shorter a message of several lines."""
+    with pytest.raises(InputError, match=r"^classes: the text of a class table \('.{10,60}\), not a table's name or "
+                                         r"file; read it with pcreg\.classes\.parse_labelmap") as caught:
+        class_table(text)
+    assert "\n" not in str(caught.value)
+    assert parse_labelmap(labelmap_text(CAMVID11), "text").agrees(CAMVID11)
+
+
+@pytest.mark.parametrize("name", ["x" * 300, "a\0b", "missing.txt"])
+def test_a_name_no_file_has_is_neither_a_table_nor_a_file(name, tmp_path):
+    with pytest.raises(InputError, match="neither a built-in class table .* nor a file$") as caught:
+        class_table(name)
+    assert len(str(caught.value)) < 200
+
+
+@pytest.mark.parametrize("shape", [(4, 5, 3), (5,), (2, 4, 5)])
+def test_labels_that_are_not_one_id_a_pixel_are_refused(shape):
+    """``paint`` of a colour image's three channels gave a (4, 5, 3, 3) picture; a row of ids was taken."""
+    labels = np.zeros(shape, np.uint8)
+    with pytest.raises(InputError, match=r"^f: labels must be \(H, W\), one class id a pixel, got shape " + re.escape(str(shape))):
+        CAMVID11.check_labels(labels, "f")
+    with pytest.raises(InputError, match=r"labels must be \(H, W\)"):
+        CAMVID11.paint(labels)
+    assert CAMVID11.paint(np.zeros((4, 5), np.uint8)).shape == (4, 5, 3)

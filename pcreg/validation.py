@@ -64,10 +64,15 @@ def check_float(value, name: str, *, lo: float | None = None, hi: float | None =
     if not math.isfinite(v):
         raise InputError(f"{name} must be a finite number, got {v}")
     if lo is not None and (v <= lo if lo_open else v < lo):
-        raise InputError(f"{name} must be {'>' if lo_open else '>='} {lo:g}, got {v:g}")
+        raise InputError(f"{name} must be {'>' if lo_open else '>='} {lo:g}, got {_beside(v, lo)}")
     if hi is not None and (v >= hi if hi_open else v > hi):
-        raise InputError(f"{name} must be {'<' if hi_open else '<='} {hi:g}, got {v:g}")
+        raise InputError(f"{name} must be {'<' if hi_open else '<='} {hi:g}, got {_beside(v, hi)}")
     return v
+
+
+def _beside(v: float, limit: float) -> str:
+    """``v`` as short as it reads apart from ``limit`` (``1.0000001`` beside 1, not ``1``)."""
+    return f"{v:g}" if v == limit or f"{v:g}" != f"{limit:g}" else repr(v)
 
 
 def check_choice(value, name: str, choices) -> str:

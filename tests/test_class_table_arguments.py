@@ -36,3 +36,27 @@ def test_labels_that_are_not_one_id_a_pixel_are_refused(shape):
     with pytest.raises(InputError, match=r"labels must be \(H, W\)"):
         CAMVID11.paint(labels)
     assert CAMVID11.paint(np.zeros((4, 5), np.uint8)).shape == (4, 5, 3)
+
+
+@pytest.mark.parametrize("value, said", [(1.0000001, "got 1.0000001"), (1.5, "got 1.5"), (2.0, "got 2")])
+def test_a_number_just_past_its_limit_is_shown_apart_from_it(value, said):
+    """``scale=1.0000001`` was refused as "must be <= 1, got 1"."""
+    from pcreg.validation import check_float
+
+    with pytest.raises(InputError, match=rf"^scale must be <= 1, {said}$"):
+        check_float(value, "scale", hi=1)
+
+
+@pytest.mark.parametrize("second", ["Road", "ROAD", "ro\u200bad", "ro\u00adad", "\uff52oad"])
+def test_two_names_a_person_reads_as_one_are_refused(second):
+    """'road' beside 'Road', a zero-width space or a full-width letter: two classes of one name to whoever draws
+    them (in CVAT's label list too), taken as two."""
+    import unicodedata
+
+    from pcreg.classes.table import ClassTable, LabelClass
+
+    for a, b in (("road", second), ("caf\u00e9", unicodedata.normalize("NFD", "caf\u00e9"))):
+        with pytest.raises(InputError, match=r"differ only in case, in Unicode form or by an invisible character"):
+            ClassTable((LabelClass(0, a, (1, 1, 1)), LabelClass(1, b, (2, 2, 2)), LabelClass(2, "void", (0, 0, 0))), 2, "t")
+    assert ClassTable((LabelClass(0, "road", (1, 1, 1)), LabelClass(1, "roads", (2, 2, 2)),
+                       LabelClass(2, "void", (0, 0, 0))), 2, "t").n_known == 2

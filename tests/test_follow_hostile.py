@@ -24,6 +24,19 @@ def test_a_key_mask_without_the_object_says_so():
         ObjectFollower.from_key_frame(pairs[0][0], key)
 
 
+def test_a_0_255_key_mask_is_named_in_the_followers_classes():
+    """DAVIS 2016's 0/255 mask given as it is: refused as labels "0 (ground), 1 (obstacle) or 2 (unknown)", the
+    stream's words, not the follower's."""
+    pairs = moving_object(2)
+    mask = (pairs[0][1] == 1).astype(np.uint8) * 255
+    said = r"^labels must be 0 \(background\), 1 \(object\) or 2 \(unknown\); found 255; a 0/255 mask's 255 is the object"
+    with pytest.raises(InputError, match=said):
+        ObjectFollower.from_key_frame(pairs[0][0], mask)
+    follower = ObjectFollower.from_key_frame(pairs[0][0], (mask > 0).astype(np.uint8))
+    with pytest.raises(InputError, match=said):
+        follower.reset(pairs[1][0], mask)
+
+
 @pytest.mark.parametrize("pixels", [1, 4])
 @pytest.mark.parametrize("small", ["object", "background"])
 def test_a_key_object_or_background_too_small_for_the_working_size_is_refused(tmp_path, capsys, pixels, small):

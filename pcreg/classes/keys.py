@@ -490,7 +490,9 @@ def check_labels(labels, shape, table=None) -> np.ndarray:
         return np.array(table.check_labels(lab, "the key frame's labels"))  # the table's check keeps a uint8 array
     if lab.size and (lab.min() < 0 or lab.max() > 2):
         bad = int(lab.min()) if lab.min() < 0 else int(lab.max())
-        raise InputError(f"labels must be 0 (ground), 1 (obstacle) or 2 (unknown); found {bad}")
+        names = ("ground", "obstacle", "unknown") if table is None else tuple(map(table.name_of, (0, 1, 2)))
+        hint = "; a 0/255 mask's 255 is the object: give (mask > 0) as uint8" if bad == 255 and names[1] == "object" else ""
+        raise InputError(f"labels must be 0 ({names[0]}), 1 ({names[1]}) or 2 ({names[2]}); found {bad}{hint}")
     return lab.astype(np.uint8)
 
 

@@ -64,6 +64,14 @@ class LabelClass:
         return f"{self.id} {self.name} {self.colour}"
 
 
+def _read_as(name: str) -> str:
+    """``name`` as a person reads it: Unicode's compatibility form, case folded, invisible format characters (a
+    zero-width space, a soft hyphen) left out."""
+    import unicodedata
+
+    return "".join(ch for ch in unicodedata.normalize("NFKC", name) if unicodedata.category(ch) != "Cf").casefold()
+
+
 def _packed(rgb: np.ndarray) -> np.ndarray:
     """(...) int32: each (R, G, B) of an (..., 3) array as one number, R << 16 | G << 8 | B."""
     rgb = np.asarray(rgb)
@@ -143,12 +151,16 @@ class ClassTable:
         if not all(isinstance(c, LabelClass) for c in given):
             raise InputError(f"{where}: classes must be LabelClass (id, name, colour)")
         classes = tuple(sorted((_check_class(c, where) for c in given), key=lambda c: c.id))
-        for what, key in (("id", lambda c: c.id), ("name", lambda c: c.name), ("colour", lambda c: c.colour)):
+        for what, key in (("id", lambda c: c.id), ("name", lambda c: _read_as(c.name)), ("colour", lambda c: c.colour)):
             seen: dict = {}
             for c in classes:
                 k = key(c)
+                if k in seen and what == "name" and seen[k].name != c.name:  # two names a person reads as one
+                    raise InputError(f"{where}: classes {seen[k].name!r} and {c.name!r} differ only in case, in Unicode "
+                                     "form or by an invisible character: one name to a reader; rename one")
                 if k in seen:
-                    raise InputError(f"{where}: classes {seen[k].name!r} and {c.name!r} share the {what} {k}")
+                    raise InputError(f"{where}: classes {seen[k].name!r} and {c.name!r} share the {what} "
+                                     f"{c.name if what == 'name' else k}")
                 seen[k] = c
         if not isinstance(self.unknown, (int, np.integer)) or isinstance(self.unknown, bool) \
                 or self.unknown not in [c.id for c in classes]:

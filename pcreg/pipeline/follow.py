@@ -370,10 +370,11 @@ class ObjectFollower:
         """A follower reset to the key frame, with naive Bayes fitted on it (:attr:`classifier`)."""
         from ..classification.bayes import fit_classifier
         from ..datasets import Frame
+        from ..classes import DAVIS
         from ..classes.keys import check_labels
 
         key = PreparedFrame.of(image, name="key frame")
-        lab = check_labels(labels, key.shape)
+        lab = check_labels(labels, key.shape, DAVIS)
         if not (lab < 2).any():
             raise InputError("the key frame's labels are all unknown (2): nothing to fit or propagate")
         follower = cls()
@@ -386,10 +387,11 @@ class ObjectFollower:
         uint8 with 0 background, 1 the object, 2 unknown. A key frame refused (an :class:`InputError`) leaves
         the follower as it was."""
         from ..registration.flow import DIS_MIN_SIDE, pixel_grid
+        from ..classes import DAVIS
         from ..classes.keys import check_labels
 
         full = PreparedFrame.of(image, name="key frame")
-        lab = check_labels(labels, full.shape)
+        lab = check_labels(labels, full.shape, DAVIS)
         size = WorkingSize(full.shape, SCALE)
         h, w = size.shape
         if min(h, w) < DIS_MIN_SIDE:

@@ -224,6 +224,17 @@ def _check_together(args: argparse.Namespace) -> None:
         raise InputError(f"--workers {args.workers} with --scheduler: the scheduler's workers run the units; choose one")
 
 
+def _memory_advice(args) -> str:
+    """What a command that ran out of memory can be given instead: its own options, not another command's."""
+    command = getattr(args, "command", None)
+    if command == "run":
+        return ("a run's steps grow with the frames' size and the classes the key frames show: --scale 0.5 takes a "
+                "quarter; a lower --max-pixels refuses such frames before they are read")
+    if command in ("register", "crosscheck"):
+        return "a registration's memory grows with the images' pixels: smaller images, or a lower --max-pixels to refuse such images before they are read"
+    return "use smaller inputs, or a lower --max-pixels to refuse such inputs before they are read"
+
+
 def _bug(exc: Exception, args) -> int:
     """An exception pcreg did not raise on purpose: exit 1 with one line (the traceback with
     ``PCREG_TRACEBACK=1``), or 130 when the process was being stopped by a signal anyway."""
@@ -345,8 +356,7 @@ def _main(argv: list[str] | None) -> int:
             pass
         return 141
     except MemoryError:
-        sys.stderr.write("pcreg: error: out of memory (use smaller inputs or a lower --max-pixels; pcreg run's steps grow "
-                         "with the frames' size and the classes the key frames show: --scale 0.5 takes a quarter)\n")
+        sys.stderr.write(f"pcreg: error: out of memory ({_memory_advice(args)})\n")
         return 2
     except OSError as exc:  # the file system refused (a full disk, a folder where a file goes, permissions)
         where = f": {exc.filename}" if getattr(exc, "filename", None) else ""

@@ -194,3 +194,20 @@ def test_angles_whose_registration_was_refused_are_marked_not_passed_off_as_regi
     marked = [line for line in ax.get_lines() if line.get_label() == "registration refused (scored unregistered)"]
     assert len(marked) == 1 and list(marked[0].get_xdata()) == [90.0, 180.0]
     assert list(marked[0].get_ydata()) == [8.5, 9.0]
+
+
+def test_the_worst_corner_error_is_shown_beside_the_median():
+    """A checkerboard frame registered a period off at 180 degrees (619 px, "registered") among two frames registered
+    to 0.01 px read "failed 0/3" and a median of 0.01 px: the worst stands beside the median now."""
+    from pcreg.experiments.reports.rotation import table
+    from pcreg.experiments.rotation import RotationConfig, summarise
+
+    def unit(name, error):
+        row = {**dict.fromkeys(KEYS, 5.0), "registered": True, "corner_error": error, "seconds_register": 0.1}
+        return {"dataset": "clip", "backend": "reference", "name": name, "angles": {"180": row}}
+
+    results = summarise(RotationConfig(angles=(180.0,)), [unit("a", 0.01), unit("b", 619.37), unit("c", 0.02)])
+    cell = results.backends["reference"]["datasets"]["clip"]["angles"]["180"]
+    assert cell["corner_error_median"] == pytest.approx(0.02) and cell["corner_error_max"] == pytest.approx(619.37)
+    header, rows = table({"datasets": {}, "backends": results.backends}, "reference")
+    assert header[-2:] == ["corner error px (median)", "(worst)"] and rows[0][-3:] == ["0/3", "0.02", "619.37"]

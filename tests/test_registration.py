@@ -353,7 +353,7 @@ def test_an_affine_or_projective_registration_refuses_a_mirrored_photograph(shar
 def test_an_image_too_small_for_the_pyramid_is_named_with_its_size():
     wide = np.zeros((8, 4800, 3), np.uint8)
     with pytest.raises(InputError, match=r"the moving image \(4800x8\) is too small for 4 pyramid levels \(the "
-                                         r"shorter side needs at least 64 px; 1 level takes it: levels=1, --levels 1\)"):
+                                         r"shorter side needs at least 64 px; 1 level takes it \(--levels 1; levels=1 in Python\)\)"):
         pcreg.register(REF, wide)
 
 
@@ -361,7 +361,7 @@ def test_an_image_too_small_for_the_pyramid_is_told_the_levels_that_take_it(tmp_
     import cv2
 
     small = np.ascontiguousarray(REF[:30, :40])
-    with pytest.raises(InputError, match=r"too small for 4 pyramid levels .*; 2 levels take it: levels=2, --levels 2"):
+    with pytest.raises(InputError, match=r"too small for 4 pyramid levels .*; 2 levels take it \(--levels 2; levels=2 in Python\)"):
         pcreg.register(small, small)
     for name in ("a.png", "b.png"):
         cv2.imwrite(str(tmp_path / name), small[:, :, ::-1])
@@ -663,3 +663,30 @@ def test_a_refusal_as_a_mirror_of_images_far_apart_in_size_says_their_sizes_too(
     small = cv2.warpAffine(clock, M, (round(0.3 * w), round(0.3 * h)))
     with pytest.raises(RegistrationError, match=r"sizes 3\.3x apart"):
         pcreg.register(clock, small, config=pcreg.RegisterConfig.of(model="similarity"))
+
+
+def test_fourier_mellins_square_canvas_stays_bounded_for_a_long_strip(monkeypatch):
+    """Its canvas is the long side squared: a 20000x20 strip with levels=2 (what the refusal of 4 levels advised)
+    ran it at level 1 on a 10000 px square, 5.4 GB and 29 s; levels=1 was killed for memory. It runs at the level
+    whose canvas is at most FM_MAX_CANVAS px a side, and the strip still registers its shift."""
+    import cv2
+
+    from pcreg.registration import search
+    from pcreg.registration.search import FM_MAX_CANVAS
+
+    levels_run = []
+    real = search.fourier_mellin_hypotheses
+
+    def spy(reference, moving, *, level, **kw):
+        levels_run.append((max(reference.shape[:2] + moving.shape[:2]), level))
+        return real(reference, moving, level=level, **kw)
+
+    monkeypatch.setattr(search, "fourier_mellin_hypotheses", spy)
+    rng = np.random.default_rng(0)
+    strip = cv2.GaussianBlur(rng.integers(0, 255, (40, 12000), dtype=np.uint8), (0, 0), 2.0)
+    T = tf.rigid2d(0.0, 7.0, 0.0)
+    moved = cv2.warpAffine(strip, np.linalg.inv(T)[:2], (12000, 40), borderMode=cv2.BORDER_REFLECT)
+    rgb = [np.ascontiguousarray(np.dstack([g] * 3)) for g in (strip, moved)]
+    r = pcreg.register(*rgb, config=pcreg.RegisterConfig.of(levels=1, generators=("fourier_mellin",)), model="translation")
+    assert levels_run and all(big / 2 ** level <= FM_MAX_CANVAS for big, level in levels_run), levels_run
+    assert abs(r.matrix[0, 2] - 7.0) < 0.5 and abs(r.matrix[1, 2]) < 0.5

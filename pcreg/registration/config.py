@@ -87,7 +87,8 @@ class PyramidConfig:
         if side >> (self.levels - 1) < 8:
             said = "images are" if name == "images" else f"{name} ({shape[1]}x{shape[0]}) is"
             fits = max((n for n in range(1, self.levels) if side >> (n - 1) >= 8), default=0)
-            fit = f"; {fits} level{'s' * (fits > 1)} take{'s' * (fits == 1)} it: levels={fits}{f', --levels {fits}' * cli}" if fits else ""
+            how = f"--levels {fits}; levels={fits} in Python" if cli else f"levels={fits}"
+            fit = f"; {fits} level{'s' * (fits > 1)} take{'s' * (fits == 1)} it ({how})" if fits else ""
             raise InputError(f"{said} too small for {self.levels} pyramid levels (the shorter side needs at least "
                              f"{8 << (self.levels - 1)} px{fit})")
 

@@ -36,6 +36,10 @@ from .transforms import apply, corners
 START_LEVEL = 0
 """Pyramid level at which rigid intensity hypotheses (within a few pixels) are refined first: full
 resolution, measured 6-10% faster than level 1 and as accurate."""
+FM_MAX_CANVAS = 2048
+"""The largest side of Fourier-Mellin's square canvas, whatever the pyramid's levels: the canvas is the long side
+squared (a 20000x20 strip at level 1 took 5 GB and 29 s; a 9600x720 panorama at full resolution 6.3 GB and 274 s);
+2048 is the side the default four levels give an image of 16384 px, so that no image within them runs coarser."""
 CONVINCING_NCC = 0.6
 """The search stops early only at an alignment whose intensities also agree (normalised cross-correlation at
 pyramid level 2 at least this); otherwise every generator runs and the best one wins."""
@@ -224,7 +228,7 @@ class GlobalSearch:
         # Fourier-Mellin on a canvas of about 256-320 px: level 1 for 512-640 px images, finer or coarser
         # for smaller or larger ones (its cost grows with the canvas area, its precision with the resolution).
         big = max(ref.image.shape[:2] + mov.image.shape[:2])
-        fm_level = int(min(self.levels - 1, max(0, np.ceil(np.log2(big / 320.0)))))
+        fm_level = int(max(min(self.levels - 1, max(0, np.ceil(np.log2(big / 320.0)))), np.ceil(np.log2(big / FM_MAX_CANVAS))))
         # ORB at level 1 for a motion of four parameters or fewer; an affine or projective fit of every
         # parameter at full resolution, where its matches measure a shear or a perspective term best
         orb_level = 0 if self.model in ("affine", "projective") else min(1, self.levels - 1)
@@ -241,7 +245,7 @@ class GlobalSearch:
         h = max(hyps, key=lambda H: self.agreement(H, gray))
         # The start level follows the hypothesis's precision: Fourier-Mellin's is about a cell of the
         # level it ran at (its rotation step is one row of its log-polar image).
-        start = max(START_LEVEL, fm_level - 1) if generator == "fourier_mellin" else START_LEVEL
+        start = min(self.levels - 1, max(START_LEVEL, fm_level - 1)) if generator == "fourier_mellin" else START_LEVEL
         if self.model in ("translation", "rigid"):
             top: int | None = min(start, self.levels - 1)
         elif generator == "orb" and self.model in ("affine", "projective"):

@@ -10,15 +10,15 @@ from ..rotation import KEYS
 
 def table(results: dict, backend: str) -> tuple[list, list]:
     """One row per dataset and angle: before, after, after_masked, after_cropped, registration."""
-    header = ["dataset", "angle", *KEYS, "failed", "corner error px (median)"]
+    header = ["dataset", "angle", *KEYS, "failed", "corner error px (median)", "(worst)"]
     rows = []
     for name, d in results["backends"][backend]["datasets"].items():
         m = results["datasets"].get(name, {}).get("mirrors")
         label = f"{name} ({m})" if m else name
         for a, c in d["angles"].items():
-            ce = c["corner_error_median"]
+            ce, worst = c["corner_error_median"], c.get("corner_error_max")  # results of before 0.3 hold no worst
             rows.append([label, a, *[c[k] for k in KEYS], f"{c['failed']}/{c['frames']}",
-                         "n/a" if ce is None else f"{ce:.2f}"])
+                         "n/a" if ce is None else f"{ce:.2f}", "n/a" if worst is None else f"{worst:.2f}"])
     return header, rows
 
 

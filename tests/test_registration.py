@@ -665,28 +665,36 @@ def test_a_refusal_as_a_mirror_of_images_far_apart_in_size_says_their_sizes_too(
         pcreg.register(clock, small, config=pcreg.RegisterConfig.of(model="similarity"))
 
 
-def test_fourier_mellins_square_canvas_stays_bounded_for_a_long_strip(monkeypatch):
-    """Its canvas is the long side squared: a 20000x20 strip with levels=2 (what the refusal of 4 levels advised)
-    ran it at level 1 on a 10000 px square, 5.4 GB and 29 s; levels=1 was killed for memory. It runs at the level
-    whose canvas is at most FM_MAX_CANVAS px a side, and the strip still registers its shift."""
+def test_the_global_searchs_square_canvases_stay_bounded_for_a_long_strip(monkeypatch):
+    """A search canvas is the long side squared: a 20000x20 strip with levels=2 (what the refusal of 4 levels
+    advised) ran Fourier-Mellin at level 1 on a 10000 px square, 5.4 GB and 29 s; levels=1 was killed for memory;
+    a 9600x720 panorama with levels=1 took 6.1 GB and 151 s in the edge search. Both run on canvases at most
+    SEARCH_MAX_CANVAS px a side, and the strip still registers its shift."""
     import cv2
 
-    from pcreg.registration import search
-    from pcreg.registration.search import FM_MAX_CANVAS
+    from pcreg.registration import global_search, search
+    from pcreg.registration.search import SEARCH_MAX_CANVAS
 
-    levels_run = []
-    real = search.fourier_mellin_hypotheses
+    sides = []
+    fourier_mellin, edge_fft = search.fourier_mellin_hypotheses, search.edge_fft_hypotheses
 
-    def spy(reference, moving, *, level, **kw):
-        levels_run.append((max(reference.shape[:2] + moving.shape[:2]), level))
-        return real(reference, moving, level=level, **kw)
+    def fm_spy(reference, moving, *, level, **kw):
+        sides.append(("fourier_mellin", max(reference.shape[:2] + moving.shape[:2]) / 2 ** level))
+        return fourier_mellin(reference, moving, level=level, **kw)
 
-    monkeypatch.setattr(search, "fourier_mellin_hypotheses", spy)
+    def edge_spy(ref, mov, *, cell=None, **kw):
+        sides.append(("edges", global_search.edge_canvas(ref.shape, cell or 2.0 ** ref.level)))
+        return edge_fft(ref, mov, cell=cell, **kw)
+
+    monkeypatch.setattr(search, "fourier_mellin_hypotheses", fm_spy)
+    monkeypatch.setattr(search, "edge_fft_hypotheses", edge_spy)
     rng = np.random.default_rng(0)
     strip = cv2.GaussianBlur(rng.integers(0, 255, (40, 12000), dtype=np.uint8), (0, 0), 2.0)
     T = tf.rigid2d(0.0, 7.0, 0.0)
     moved = cv2.warpAffine(strip, np.linalg.inv(T)[:2], (12000, 40), borderMode=cv2.BORDER_REFLECT)
     rgb = [np.ascontiguousarray(np.dstack([g] * 3)) for g in (strip, moved)]
-    r = pcreg.register(*rgb, config=pcreg.RegisterConfig.of(levels=1, generators=("fourier_mellin",)), model="translation")
-    assert levels_run and all(big / 2 ** level <= FM_MAX_CANVAS for big, level in levels_run), levels_run
-    assert abs(r.matrix[0, 2] - 7.0) < 0.5 and abs(r.matrix[1, 2]) < 0.5
+    for generators in (("fourier_mellin",), ("edges",)):
+        r = pcreg.register(*rgb, config=pcreg.RegisterConfig.of(levels=1, generators=generators), model="translation")
+        assert abs(r.matrix[0, 2] - 7.0) < 0.5 and abs(r.matrix[1, 2]) < 0.5, generators
+    assert {g for g, _ in sides} == {"fourier_mellin", "edges"}
+    assert all(side <= SEARCH_MAX_CANVAS for _, side in sides), sides

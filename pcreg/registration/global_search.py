@@ -45,22 +45,28 @@ def rasterise(points: np.ndarray, size: int, sigma: float) -> np.ndarray:
     return cv2.GaussianBlur(img, (0, 0), sigma)
 
 
-def edge_fft_hypotheses(ref: ImageCloud, mov: ImageCloud, *, angles: np.ndarray, sigma: float = 1.0
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def edge_canvas(shape: tuple[int, ...], g: float) -> float:
+    """The side of :func:`edge_fft_hypotheses`' square canvas, in cells of ``g`` px, for a reference of ``shape``: the
+    reference plus a margin for shifts up to a quarter of its size (moving points rotated beyond it, the far corners,
+    are dropped, which costs little correlation and halves the FFT)."""
+    return 1.5 * max(shape[:2]) / g
+
+
+def edge_fft_hypotheses(ref: ImageCloud, mov: ImageCloud, *, angles: np.ndarray, sigma: float = 1.0,
+                        cell: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Rigid hypotheses over the full circle: for each angle, the best translation by FFT cross-correlation.
 
     Both clouds are rasterised at their (coarse) pyramid level and blurred; the moving cloud is rotated
     by each angle about its image centre, put on the reference centre, and the peak of its cross-
     correlation with the reference (``cv2.dft``) gives the translation and a score. Returns (K, 3, 3)
     matrices ``T_ref_mov`` and (K,) scores (correlation peaks, comparable across angles because the same
-    moving points are rasterised every time).
+    moving points are rasterised every time). ``cell``: the canvas's cell in full-resolution px (None: a pixel of
+    the clouds' level), larger to keep a long image's canvas small.
     """
-    g = float(2 ** ref.level)
+    g = float(2 ** ref.level) if cell is None else float(cell)
     c_ref = np.array(image_center(ref.shape))
     c_mov = np.array(image_center(mov.shape))
-    # The canvas holds the reference plus a margin for shifts up to a quarter of its size; moving points
-    # rotated beyond it (the far corners) are dropped, which costs little correlation and halves the FFT.
-    extent = 1.5 * max(ref.shape) / g
+    extent = edge_canvas(ref.shape, g)
     size = cv2.getOptimalDFTSize(int(np.ceil(max(extent, 16.0))))
     R = rasterise((ref.points - c_ref) / g, size, sigma)
     FR = cv2.dft(R)  # real input: packed (CCS) spectrum, half the work of a complex one

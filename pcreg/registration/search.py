@@ -26,7 +26,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import RegistrationError
-from .global_search import (Evidence, OrbMatches, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
+from .global_search import (edge_canvas, Evidence, OrbMatches, alignment_evidence, edge_fft_hypotheses, fourier_mellin_hypotheses,
                             gray_level, orb_fit, orb_matches, photometric_agreement)
 from .pyramid import CloudPyramid
 from .refine import CoarseToFine, Refinement
@@ -36,10 +36,11 @@ from .transforms import apply, corners
 START_LEVEL = 0
 """Pyramid level at which rigid intensity hypotheses (within a few pixels) are refined first: full
 resolution, measured 6-10% faster than level 1 and as accurate."""
-FM_MAX_CANVAS = 2048
-"""The largest side of Fourier-Mellin's square canvas, whatever the pyramid's levels: the canvas is the long side
-squared (a 20000x20 strip at level 1 took 5 GB and 29 s; a 9600x720 panorama at full resolution 6.3 GB and 274 s);
-2048 is the side the default four levels give an image of 16384 px, so that no image within them runs coarser."""
+SEARCH_MAX_CANVAS = 3072
+"""The largest side of a global search's square canvas (Fourier-Mellin's, the edge search's), whatever the
+pyramid's levels: a canvas is the long side squared (a 20000x20 strip at level 1 took 5.4 GB and 29 s; a 9600x720
+panorama at full resolution 6.1 GB and 151 s). 3072 is the side the default four levels give the edge search for an
+image 16384 px long (Fourier-Mellin's: 2048), so that no image within them is searched otherwise."""
 CONVINCING_NCC = 0.6
 """The search stops early only at an alignment whose intensities also agree (normalised cross-correlation at
 pyramid level 2 at least this); otherwise every generator runs and the best one wins."""
@@ -205,10 +206,12 @@ class GlobalSearch:
             g_level -= 1
         g_tree = self.refiner.tree(g_level)
         angles = np.array([0.0]) if self.model == "translation" else np.arange(0.0, 360.0, self.angle_step)
-        Ts, score = edge_fft_hypotheses(ref[g_level], moving[g_level], angles=angles)
+        # cells of the level's pixels, or larger where its canvas would pass SEARCH_MAX_CANVAS (a long strip's)
+        cell = max(2.0**g_level, edge_canvas(ref[g_level].shape, 1.0) / SEARCH_MAX_CANVAS)
+        Ts, score = edge_fft_hypotheses(ref[g_level], moving[g_level], angles=angles, cell=cell)
         best = (-1.0, None)
         for k in np.argsort(-score)[:self.n_candidates]:
-            Tk = self.refiner.at_level(moving, Ts[k], g_level, dist=3.0 * 2**g_level, model=self.search_model,
+            Tk = self.refiner.at_level(moving, Ts[k], g_level, dist=3.0 * cell, model=self.search_model,
                                        final=False).matrix
             sc = alignment_evidence(Tk, moving[g_level], ref[g_level], g_tree, tolerance=2.0**g_level).inlier_ratio
             if sc > best[0]:
@@ -228,7 +231,7 @@ class GlobalSearch:
         # Fourier-Mellin on a canvas of about 256-320 px: level 1 for 512-640 px images, finer or coarser
         # for smaller or larger ones (its cost grows with the canvas area, its precision with the resolution).
         big = max(ref.image.shape[:2] + mov.image.shape[:2])
-        fm_level = int(max(min(self.levels - 1, max(0, np.ceil(np.log2(big / 320.0)))), np.ceil(np.log2(big / FM_MAX_CANVAS))))
+        fm_level = int(max(min(self.levels - 1, max(0, np.ceil(np.log2(big / 320.0)))), np.ceil(np.log2(big / SEARCH_MAX_CANVAS))))
         # ORB at level 1 for a motion of four parameters or fewer; an affine or projective fit of every
         # parameter at full resolution, where its matches measure a shear or a perspective term best
         orb_level = 0 if self.model in ("affine", "projective") else min(1, self.levels - 1)

@@ -146,6 +146,9 @@ class UnitStore:
         cfg_path = self.out / "config.json"
         if self.out.exists() and not self.out.is_dir():
             raise OutputError(f"{self.out} exists and is not a folder")
+        if (self.out / "run.json").is_file():  # pcreg run's state (pcreg.runs.state.STATE)
+            raise OutputError(f"{self.out}: a pcreg run's folder (its run.json): the evaluation's files would mix with "
+                              "the run's labels, --force or not; give another --out")
         old = None
         if cfg_path.is_file():
             try:

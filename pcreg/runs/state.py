@@ -212,6 +212,9 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) ->
     over ``frames`` would write over (a person's own corrected labels, say)."""
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
+    if (out / "config.json").is_file() and ((out / "results.json").exists() or (out / "units").is_dir()):
+        raise OutputError(f"{out}: an evaluation's folder (config.json, results.json or units/): the run's files would "
+                          "mix with its report, --force or not; give another --out")
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
     if not force and frames is not None and not (state_path.exists() or state_path.is_symlink() or (out / STEPS).exists()):

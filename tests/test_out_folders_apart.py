@@ -1,0 +1,31 @@
+"""An evaluation's --out and a run's --out are folders of their own: one given the other's folder mixed their files
+(both still worked, an export of the run then holding an evaluation's report beside it, exit 0)."""
+
+import json
+
+from pcreg.cli import main
+from _runs import drifting_frames, one_line_errors
+
+
+def test_an_evaluation_into_a_runs_folder_and_a_run_into_an_evaluations_are_refused(tmp_path, capsys):
+    folder, key = drifting_frames(tmp_path / "frames")
+    run = tmp_path / "run"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(run)]) == 0
+    before = sorted(p.name for p in run.iterdir())
+    capsys.readouterr()
+    for force in ([], ["--force"]):
+        assert main(["evaluate", "sequence", "--frames", "6", "--out", str(run), *force]) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and f"{run}: a pcreg run's folder (its run.json)" in err[0], err
+    assert sorted(p.name for p in run.iterdir()) == before
+
+    evaluation = tmp_path / "evaluation"
+    assert main(["evaluate", "sequence", "--frames", "6", "--out", str(evaluation)]) == 0
+    report = sorted(p.name for p in evaluation.iterdir())
+    assert "config.json" in report and json.loads((evaluation / "config.json").read_text())
+    capsys.readouterr()
+    for force in ([], ["--force"]):
+        assert main(["run", str(folder), "--labels", str(key), "--out", str(evaluation), *force]) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and f"{evaluation}: an evaluation's folder" in err[0], err
+    assert sorted(p.name for p in evaluation.iterdir()) == report

@@ -231,7 +231,8 @@ def _memory_advice(args) -> str:
         return ("a run's steps grow with the frames' size and the classes the key frames show: --scale 0.5 takes a "
                 "quarter; a lower --max-pixels refuses such frames before they are read")
     if command in ("register", "crosscheck"):
-        return "a registration's memory grows with the images' pixels: smaller images, or a lower --max-pixels to refuse such images before they are read"
+        return ("a registration's memory grows with the images' pixels or the clouds' points: smaller inputs, or a lower "
+                "--max-pixels to refuse such inputs before they are read")
     return "use smaller inputs, or a lower --max-pixels to refuse such inputs before they are read"
 
 

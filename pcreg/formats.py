@@ -206,13 +206,24 @@ def text_matrix(data: bytes) -> np.ndarray:
 
 
 def refuse_utf16(path: str | os.PathLike, data: bytes) -> None:
-    """An :class:`InputError` naming ``path`` when ``data``, a text file's first bytes, is UTF-16 or UTF-32 (a
-    byte-order mark FF FE or FE FF, or a zero byte beside each character of its first 32), which no reader of numbers or
-    names reads."""
+    """An :class:`InputError` naming ``path`` when ``data``, a text file's first bytes, is UTF-16 or UTF-32, which no
+    reader of numbers or names reads: a byte-order mark (FF FE, FE FF; FF FE 00 00, 00 00 FE FF), or zero bytes at
+    every other place of its first 64 bytes (at least 4) and not between (three of every four: UTF-32). Bytes all zero (what a
+    crash can leave) are no text of any kind: left to the reader's own message."""
     head = data[:64]
-    if data.startswith((b"\xff\xfe", b"\xfe\xff")) or (len(head) >= 4 and not all(head[i::2].strip(b"\0") for i in (0, 1))):
-        kind = "UTF-32" if data.startswith((b"\xff\xfe\0\0", b"\0\0\xfe\xff")) else "UTF-16"
-        raise InputError(f"{path}: it is {kind} text (as some Windows programs save it); save it as UTF-8 or ASCII")
+    if data.startswith((b"\xff\xfe\0\0", b"\0\0\xfe\xff")):
+        kind = "UTF-32"
+    elif data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        kind = "UTF-16"
+    elif len(head) < 4 or not head.strip(b"\0"):
+        return
+    elif sum(not head[i::4].strip(b"\0") for i in range(4)) == 3:
+        kind = "UTF-32"
+    elif sum(not head[i::2].strip(b"\0") for i in range(2)) == 1:
+        kind = "UTF-16"
+    else:
+        return
+    raise InputError(f"{path}: it is {kind} text (as some Windows programs save it); save it as UTF-8 or ASCII")
 
 
 def read_text_matrix(path: str | os.PathLike, *, what: str = "matrix") -> np.ndarray:

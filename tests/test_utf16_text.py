@@ -10,7 +10,9 @@ from pcreg.cloud_reader import load_cloud
 from pcreg.errors import InputError
 from pcreg.formats import read_text_matrix
 
-ENCODINGS = [("utf-16", "UTF-16"), ("utf-16-le", "UTF-16"), ("utf-16-be", "UTF-16"), ("utf-32", "UTF-32")]
+ENCODINGS = [("utf-16", "UTF-16"), ("utf-16-le", "UTF-16"), ("utf-16-be", "UTF-16"), ("utf-32", "UTF-32"),
+             ("utf-32-le", "UTF-32"), ("utf-32-be", "UTF-32")]
+BOM_32_BE = b"\0\0\xfe\xff"
 LABELMAP = "# label:color_rgb:parts:actions\nbackground:0,0,0::\nroad:128,64,128::\ncar:64,0,128::\n"
 
 
@@ -60,3 +62,22 @@ def test_a_zip_or_an_image_given_as_a_class_table_is_still_named_as_one(tmp_path
         read_table_file(tmp_path / "export.zip")
     with pytest.raises(InputError, match="it is an image, not a class table"):
         read_table_file(tmp_path / "mask.png")
+
+
+def test_utf32_with_a_big_endian_mark(tmp_path):
+    path = tmp_path / "init.txt"
+    path.write_bytes(BOM_32_BE + "1 0 0\n0 1 0\n0 0 1\n".encode("utf-32-be"))
+    with pytest.raises(InputError, match=rf"^{path}: it is UTF-32 text"):
+        read_text_matrix(path)
+
+
+@pytest.mark.parametrize("name", ["c.xyz", "init.txt", "labelmap.txt", "table.json"])
+def test_a_file_of_zero_bytes_is_not_called_utf16(tmp_path, name):
+    """What a crash or a lost power can leave: not text of any kind, each reader's own message as before."""
+    path = tmp_path / name
+    path.write_bytes(b"\0" * 4096)
+    read = {".xyz": load_cloud, ".txt": read_text_matrix, ".json": read_table_file}[path.suffix]
+    read = read_table_file if name == "labelmap.txt" else read
+    with pytest.raises(InputError) as caught:
+        read(path)
+    assert "UTF-16" not in str(caught.value) and "UTF-32" not in str(caught.value)

@@ -28,6 +28,7 @@ The JSON form (:func:`table_json`) keeps the ids::
 
 from __future__ import annotations
 
+import errno
 import json
 import re
 import os
@@ -278,14 +279,18 @@ def class_table(spec: str | Path | ClassTable | None) -> ClassTable:
         return TABLES[spec]
     if isinstance(spec, str) and not spec.strip():
         raise InputError(f"--classes {spec!r}: empty; name a built-in class table ({', '.join(TABLES)}) or a file")
-    if isinstance(spec, str) and ("\n" in spec or spec.lstrip().startswith("{")):  # a table's text, not its file
-        raise InputError(f"classes: the text of a class table ({short_repr(spec)}), not a table's name or file; read "
-                         "it with pcreg.classes.parse_labelmap(text, where) or parse_table_json(text, where)")
     p = Path(spec).expanduser()
     try:
         found = p.exists()
-    except (OSError, ValueError):  # a name too long for a file, or one with a zero byte
+    except ValueError:  # a zero byte in the name
         found = False
+    except OSError as exc:  # a name too long for a file, else named (a folder that cannot be entered)
+        if exc.errno != errno.ENAMETOOLONG:
+            raise
+        found = False
+    if not found and isinstance(spec, str) and ("\n" in spec or spec.lstrip().startswith("{")):  # a table's text
+        raise InputError(f"classes: the text of a class table ({short_repr(spec)}), not a table's name or file; read "
+                         "it with pcreg.classes.parse_labelmap(text, where) or parse_table_json(text, where)")
     if not found:
         named = str(spec) if len(str(spec)) <= 120 else short_repr(str(spec))
         raise InputError(f"{named}: neither a built-in class table ({', '.join(TABLES)}) nor a file")

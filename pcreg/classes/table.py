@@ -64,12 +64,18 @@ class LabelClass:
         return f"{self.id} {self.name} {self.colour}"
 
 
+#: Characters that show nothing and join nothing (a zero-width space, a soft hyphen, a word joiner, a byte-order
+#: mark): a name with one reads as the name without it. The joiners (U+200C, U+200D) are kept: in Persian or an
+#: emoji sequence they change what is shown.
+_UNSEEN = dict.fromkeys(map(ord, "\u200b\u00ad\u2060\ufeff"))
+
+
 def _read_as(name: str) -> str:
-    """``name`` as a person reads it: Unicode's compatibility form, case folded, invisible format characters (a
-    zero-width space, a soft hyphen) left out."""
+    """``name`` as a person reads it: Unicode's canonical form (NFC: one ``é`` however it was typed), case folded,
+    characters that show nothing left out."""
     import unicodedata
 
-    return "".join(ch for ch in unicodedata.normalize("NFKC", name) if unicodedata.category(ch) != "Cf").casefold()
+    return unicodedata.normalize("NFC", name).translate(_UNSEEN).casefold()
 
 
 def _packed(rgb: np.ndarray) -> np.ndarray:

@@ -174,3 +174,30 @@ def test_a_full_disk_at_the_start_names_the_lock_and_leaves_no_folder(tmp_path, 
     assert not (tmp_path / "new").exists()
     monkeypatch.setattr(os, "pwrite", real)
     assert main(["run", str(folder), "--labels", str(key), "--out", str(out)]) == 0
+
+
+@pytest.mark.parametrize("truth", [False, True])
+def test_a_run_json_without_its_truth_counts_is_refused_on_resume(tmp_path, capsys, truth):
+    """run.json's top-level "truth" (the running error counts, None without --truth) deleted, or None where a truth
+    folder is named: the resume raised KeyError / TypeError (exit 1) when it wrote its next frame. Without --truth a
+    run.json without the field resumes (it says nothing the run needs)."""
+    folder, key = drifting_frames(tmp_path / "frames")
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(key), "--out", str(out)]
+    if truth:  # the key frame's labels as every frame's truth
+        (tmp_path / "truth").mkdir()
+        for frame in folder.iterdir():
+            (tmp_path / "truth" / frame.name).write_bytes(key.read_bytes())
+        run += ["--truth", str(tmp_path / "truth")]
+    assert main([*run, "--stop", "2"]) == 0
+    state = json.loads((out / "run.json").read_text())
+    for damaged in ({**state, "truth": None if state["truth"] is not None else {"frames": 1}},
+                    {k: v for k, v in state.items() if k != "truth"}):
+        (out / "run.json").write_text(json.dumps(damaged))
+        capsys.readouterr()
+        if not truth and "truth" not in damaged:
+            assert main(run) == 0 and json.loads((out / "run.json").read_text())["done"] == 4
+            continue
+        assert main(run) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and "run.json" in err[0] and "'truth'" in err[0], err

@@ -481,7 +481,7 @@ class Run:
         truth = None if self.truth is None else self.truth[t]
         if truth is not None:
             step.update(scored_step(labels, truth, plain, self.table))
-        self.write_frame(t, labels, confidence, step, self.state["truth"], (truth, plain))
+        self.write_frame(t, labels, confidence, step, self.state.get("truth"), (truth, plain))
         if truth is not None:
             add_rates(self.state["truth"])
         self.keep_carry(t, carry, learned, scene)

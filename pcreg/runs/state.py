@@ -61,6 +61,9 @@ def _stream_state_problem(state: dict) -> str | None:
         return "key_bytes"
     if not _key_contents_ok(state.get("key_contents")):
         return "key_contents"
+    scored = isinstance(state.get("run"), dict) and state["run"].get("truth") is not None  # a --truth folder named
+    if (state.get("truth") is None) == scored:  # its counts exactly when one is (none: no key, or None)
+        return "truth"
     if state.get("truth") is not None and not has_counts(state["truth"], TRUTH_COUNTS):
         return "truth"
     return None

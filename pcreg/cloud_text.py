@@ -18,7 +18,7 @@ import numpy as np
 
 from .cloud_files import _ASCII_NUMBER, _scan_rows
 from .errors import InputError
-from .formats import refuse_utf16
+from .text_files import refuse_utf16
 from .validation import check_point_count, max_pixels
 
 __all__ = ["UTF8_BOM", "check_text_cloud", "number_columns", "read_columns", "read_pts"]

@@ -118,7 +118,7 @@ def test_an_init_matrix_written_with_commas_is_read_and_a_missing_number_is_refu
     """A 4x4 initial guess saved as CSV (``numpy.savetxt(..., delimiter=",")``, a spreadsheet, ", " between the
     numbers) was refused as "not a text matrix"; it is read as the same matrix written with spaces. An empty field
     between two commas is still refused, naming the file."""
-    from pcreg.formats import read_text_matrix
+    from pcreg.text_files import read_text_matrix
 
     T = np.eye(4)
     T[:3, 3] = [0.5, -0.25, 1e-3]
@@ -413,7 +413,7 @@ def test_a_byte_order_mark_is_named_in_a_ply_and_read_past_in_a_text_matrix(tmp_
     """An editor's UTF-8 byte-order mark: a PLY was refused as "no 'ply' magic" (it has one, after the mark), and an
     --init matrix as numpy's "could not convert string 'ï»¿1'". The PLY's refusal names the mark; the matrix,
     text, is read past it."""
-    from pcreg.formats import read_text_matrix
+    from pcreg.text_files import read_text_matrix
 
     ply = tmp_path / "bom.ply"
     ply.write_bytes(b"\xef\xbb\xbfply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"

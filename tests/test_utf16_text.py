@@ -8,7 +8,7 @@ import pytest
 from pcreg.classes.files import read_table_file
 from pcreg.cloud_reader import load_cloud
 from pcreg.errors import InputError
-from pcreg.formats import read_text_matrix
+from pcreg.text_files import read_text_matrix
 
 ENCODINGS = [("utf-16", "UTF-16"), ("utf-16-le", "UTF-16"), ("utf-16-be", "UTF-16"), ("utf-32", "UTF-32"),
              ("utf-32-le", "UTF-32"), ("utf-32-be", "UTF-32")]

@@ -149,7 +149,8 @@ def parse_labelmap(text: str, where: str) -> ClassTable:
 
 
 def _read_text(path: Path, what: str) -> str:
-    from ..formats import image_size, read_regular_file, refuse_utf16
+    from ..formats import image_size, read_regular_file
+    from ..text_files import refuse_utf16
 
     data = read_regular_file(path, max_bytes=MAX_TABLE_BYTES, what=what)
     try:

@@ -169,7 +169,7 @@ def _clouds(args) -> int:
                          "cross-checked with the rigid ICP of every implementation")
     init = None
     if args.init:
-        from ..formats import read_text_matrix
+        from ..text_files import read_text_matrix
 
         init = read_text_matrix(args.init, what="initial guess")  # regular file, bounded, finite
     voxel = args.voxel_size or (args.voxel_sizes[-1] if args.voxel_sizes else None)

@@ -113,7 +113,7 @@ def _start(init: str):
     """``--init``'s 3x3 matrix when it names a file (None for a start the configuration names: ``auto``, ``identity``,
     ``center``, and ``global``, the library's other name of ``auto``): a text matrix, refused naming the file when it is
     not a 3x3 transform the model can hold."""
-    from ..formats import read_text_matrix
+    from ..text_files import read_text_matrix
     from ..registration.config import INITS
 
     if init in INITS:

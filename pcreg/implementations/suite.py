@@ -39,7 +39,8 @@ from typing import Sequence
 import numpy as np
 
 from ..outputs import atomic_write_bytes, atomic_write_text, to_json
-from ..formats import loads_json, read_text_matrix
+from ..formats import loads_json
+from ..text_files import read_text_matrix
 from ..errors import InputError, RegistrationError
 from ..registration.transforms import apply, rigid2d
 from .base import Pinned, reported

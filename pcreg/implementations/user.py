@@ -47,7 +47,8 @@ from typing import NoReturn
 
 import numpy as np
 
-from ..formats import load_json_object, read_regular_file, text_matrix
+from ..formats import load_json_object, read_regular_file
+from ..text_files import text_matrix
 from ..errors import InputError
 from .base import COMPARABILITY, STEP, ImplementationError, Implementation, result
 

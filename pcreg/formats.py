@@ -22,7 +22,6 @@ import numpy as np
 
 from .errors import InputError
 from .quiet import capture_output_fds
-from .text_files import read_text_matrix, refuse_utf16, text_matrix  # noqa: F401 (read from here before)
 from .validation import check_pixels, max_pixels
 
 #: The image files pcreg reads from a folder (by suffix, any case); what decodes is checked by header.

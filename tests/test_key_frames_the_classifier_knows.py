@@ -67,3 +67,18 @@ def test_label_clip_names_inputs_that_are_no_clip(keys, n, said):
         label_clip(lambda t: image, n, keys)
     with pytest.raises(InputError, match="images must be a function"):
         label_clip([image] * 4, 4, {0: key})
+
+
+@pytest.mark.parametrize("bad, said", [
+    (lambda key: np.where(key == 1, 7, key).astype(np.uint8), r"^key frame 3: label value 7 is not a class id"),
+    (lambda key: np.dstack([key] * 3), r"^key frame 3: labels must be \(H, W\)"),
+    (lambda key: key.astype(np.float32), r"^key frame 3: labels must be integers"),
+])
+def test_label_clip_names_the_key_frame_whose_labels_are_wrong(bad, said):
+    """A key frame's labels that are not the table's class ids were named "training pair 1" (the classifier's
+    count of the frames it was fitted on), not the key frame."""
+    image = np.zeros((48, 64, 3), np.uint8)
+    key = np.zeros((48, 64), np.uint8)
+    key[24:] = 1
+    with pytest.raises(InputError, match=said):
+        label_clip(lambda t: image, 5, {0: key, 3: bad(key)})

@@ -153,7 +153,7 @@ def label_clip(images: Callable[[int], np.ndarray], n: int, keys: Mapping[int, n
 def _check_clip(images, n, keys, classifier, classes) -> tuple[int, object]:
     """:func:`label_clip`'s clip checked: ``(n, the key labels' class table)``, the table the classifier's when none
     is given; an :class:`InputError` for what is no clip, or a classifier of another table than ``classes``."""
-    from ..classes import class_table
+    from ..classes import DEFAULT_TABLE, class_table
     from ..validation import check_int
 
     if not callable(images):
@@ -167,13 +167,13 @@ def _check_clip(images, n, keys, classifier, classes) -> tuple[int, object]:
     for k in keys:
         check_int(k, "a key frame's index", lo=0, hi=n - 1)
     fitted = getattr(classifier, "class_table", None)
-    if classes is None:
-        return n, fitted
-    table = class_table(classes)
-    if fitted is not None and not fitted.agrees(table):
+    table = fitted if classes is None else class_table(classes)
+    if fitted is not None and table is not None and not fitted.agrees(table):
         raise InputError(f"the classifier's class table ({fitted.source or fitted.describe()}) is not the key labels' "
                          f"({table.source or table.describe()}): {fitted.difference(table)}; fit it on the key labels' "
                          "table, or give the classifier's")
+    for k in sorted(keys):  # named by their frame here, not by the classifier's count of what it was fitted on
+        (table or DEFAULT_TABLE).check_labels(keys[k], f"key frame {k}")
     return n, table
 
 

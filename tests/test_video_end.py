@@ -303,3 +303,69 @@ def test_a_transport_stream_with_a_run_of_other_bytes_is_read_through(camvid, tm
             one_line_errors(capsys)
     labelled = {name: {p.name: p.read_bytes() for p in sorted((tmp_path / name).glob("*.png"))} for name in ("whole", "padded")}
     assert len(labelled["padded"]) == N and labelled["padded"] == labelled["whole"]
+
+
+def test_the_fingerprint_sees_a_change_inside_a_file_of_the_same_size_and_ends(tmp_path):
+    """A file of frames all of one size (raw video) written again with other frames in its middle keeps its size and
+    its first and last MiB: it was taken as the video the run began on. Its spread of blocks tells it (a change of more
+    than a 256th of the file, for certain); a run.json of an earlier pcreg (no ``spread``) is checked by the rest and
+    gains it, keeping that the video was labelled to its end."""
+    from types import SimpleNamespace
+
+    from pcreg.errors import OutputError
+    from pcreg.runs.video_file import MIB, SPREAD, fingerprint, keep_video, labelled_to_end, video_file_problem
+
+    rng = np.random.default_rng(1)
+    path = tmp_path / "v.avi"
+    data = rng.integers(0, 256, 5 * MIB + 3, dtype=np.uint8).tobytes()
+    path.write_bytes(data)
+    frames = SimpleNamespace(path=path)
+    state = {"done": 5}
+    keep_video(state, frames, tmp_path)
+    state["video_end"] = 5
+    kept = dict(state)
+    for at in (MIB + 1, 2 * MIB + 12345, 4 * MIB - len(data) // SPREAD - 1):
+        changed = bytearray(data)
+        changed[at:at + len(data) // SPREAD + 1] = bytes(len(data) // SPREAD + 1)
+        path.write_bytes(bytes(changed))
+        assert fingerprint(path)["sha256"] == kept["video_file"]["sha256"]  # its ends are the same
+        with pytest.raises(OutputError, match="not the video the run"):
+            keep_video(dict(kept), frames, tmp_path)
+        bigger = SimpleNamespace(path=tmp_path / "grown.avi")
+        bigger.path.write_bytes(bytes(changed) + b"more")
+        with pytest.raises(OutputError, match="not the video the run"):  # nor appended to
+            keep_video(dict(kept), bigger, tmp_path)
+
+    path.write_bytes(data)
+    os.utime(path, ns=(path.stat().st_atime_ns, kept["video_file"]["mtime_ns"]))
+    old = {**kept, "video_file": {k: v for k, v in kept["video_file"].items() if k != "spread"}}
+    assert video_file_problem(old) is None
+    assert keep_video(old, frames, tmp_path) is False and labelled_to_end(old) and old["video_file"] == fingerprint(path)
+    assert video_file_problem({**kept, "video_file": {**kept["video_file"], "spread": "x"}}) == "video_file"
+
+
+def test_a_raw_video_written_again_with_other_frames_inside_is_refused(camvid, tmp_path, capsys):
+    """Raw video (every frame 57,600 bytes at 160x120) labelled to its end, then written again with ten other frames in
+    its middle: the same command said every frame done (exit 0), its labels those of the frames no longer there."""
+    av = pytest.importorskip("av")
+    images, labels = camvid
+    clip = [images[i % N] for i in range(50)]
+
+    def raw(path, frames):
+        with av.open(str(path), "w") as c:
+            s = c.add_stream("rawvideo", rate=10)
+            s.width, s.height, s.pix_fmt = 160, 120, "bgr24"
+            mux_all(c, s, frames)
+        return path
+
+    video = raw(tmp_path / "clip.avi", clip)
+    cv2.imwrite(str(tmp_path / "key.png"), labels)
+    args = ["run", str(video), "--labels", str(tmp_path / "key.png"), "--out", str(tmp_path / "out"), "--model", "flow"]
+    assert main(args) == 0
+    size = video.stat().st_size
+    raw(tmp_path / "other.avi", clip[:20] + [im[::-1].copy() for im in clip[20:30]] + clip[30:])
+    os.replace(tmp_path / "other.avi", video)
+    assert video.stat().st_size == size
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "not the video the run" in one_line_errors(capsys)[0]

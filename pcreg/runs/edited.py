@@ -1,7 +1,7 @@
 """What a resumed ``pcreg run`` checks of its frames against what it labelled: a folder's frame renamed, added or
 written again since (its file's size in bytes and, where its modification time changed, a digest of its bytes:
 :func:`frame_stamp`), so that a run never goes on from, or keeps labels of, frames that are no longer there. A video's
-file is checked whole (:func:`pcreg.runs.video_file.keep_video`)."""
+file is checked by its fingerprint (:func:`pcreg.runs.video_file.keep_video`)."""
 
 from __future__ import annotations
 

@@ -1,13 +1,17 @@
 """A video run's file as its run.json names it: ``video_file``, a fingerprint cheap to take and hard to fool (the
-file's ``size``, its modification time ``mtime_ns`` and a ``sha256`` of its first and last MiB), and ``video_end``,
+file's ``size``, its modification time ``mtime_ns``, a ``sha256`` of its first and last MiB and a ``spread``, the
+sha256 of :data:`SPREAD` blocks of :data:`BLOCK` bytes evenly spaced through it), and ``video_end``,
 the count of frames done when decoding found the end of the run's frames (the video's end, or ``--stop``).
 
 A rerun of a run that labelled its video to its end, over the same file, is known finished from run.json alone: no
 frame decoded to find that none is left, no carry read (:func:`labelled_to_end`). A resume over another file at the
-video's path (other bytes at either end, or fewer of them) is refused (:func:`keep_video`): its frames would be
+video's path (other bytes at either end or in a block spread through it, or fewer of them) is refused (:func:`keep_video`): its frames would be
 labelled from the other video's carry. A file only appended to (a recording still growing) goes on; a file whose
 fingerprint changed otherwise (copied, touched) goes on as a run.json without the fields does, decoding its way to its
-first frame not done, and its fingerprint is kept anew.
+first frame not done, and its fingerprint is kept anew. A file of a codec whose frames are all of one size (raw video,
+v210) can change inside without changing its size or its ends: the spread sees a change of more than a 256th of the
+file for certain, and of less where it covers one of its blocks. A run.json without ``spread`` (from an earlier pcreg)
+is checked by the rest, and gains it.
 """
 
 from __future__ import annotations
@@ -17,10 +21,12 @@ from pathlib import Path
 
 from ..errors import OutputError
 
-__all__ = ["MIB", "fingerprint", "keep_video", "check_kept", "labelled_to_end", "mark_end", "video_file_problem"]
+__all__ = ["MIB", "SPREAD", "BLOCK", "fingerprint", "keep_video", "check_kept", "labelled_to_end", "mark_end", "video_file_problem"]
 
 #: How much of each end of the file its fingerprint reads.
 MIB = 1 << 20
+#: How many blocks the ``spread`` reads, and of how many bytes: 4 MiB in all, in 256 reads.
+SPREAD, BLOCK = 256, 16 << 10
 
 
 def _digest(path: Path, size: int) -> str:
@@ -35,15 +41,33 @@ def _digest(path: Path, size: int) -> str:
     return h.hexdigest()
 
 
+def _spread(path: Path, size: int) -> str:
+    """The sha256 of :data:`SPREAD` blocks of :data:`BLOCK` bytes evenly spaced through the first ``size`` bytes of the
+    file at ``path``, the first at its start and the last at their end (fewer where blocks would overlap)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for at in sorted({(size - BLOCK) * i // (SPREAD - 1) for i in range(SPREAD)} if size > BLOCK else {0}):
+            fh.seek(at)
+            h.update(fh.read(min(BLOCK, size)))
+    return h.hexdigest()
+
+
 def fingerprint(path: Path) -> dict:
-    """The video file at ``path`` as run.json's ``video_file`` names it: ``{"size", "mtime_ns", "sha256"}``."""
+    """The video file at ``path`` as run.json's ``video_file`` names it: ``{"size", "mtime_ns", "sha256", "spread"}``."""
     st = Path(path).stat()
-    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": _digest(Path(path), st.st_size)}
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": _digest(Path(path), st.st_size),
+            "spread": _spread(Path(path), st.st_size)}
+
+
+def _same_bytes(before: dict, now: dict) -> bool:
+    """Whether fingerprints ``before`` and ``now`` name the same bytes (``before`` without a ``spread``: by the rest)."""
+    return (before["size"], before["sha256"], before.get("spread", now["spread"])) == (now["size"], now["sha256"], now["spread"])
 
 
 def _appended(before: dict, path: Path, now: dict) -> bool:
     """Whether the file at ``path`` (fingerprinted ``now``) is the file ``before`` names with bytes added at its end."""
-    return now["size"] > before["size"] and _digest(path, before["size"]) == before["sha256"]
+    return (now["size"] > before["size"] and _digest(path, before["size"]) == before["sha256"]
+            and ("spread" not in before or _spread(path, before["size"]) == before["spread"]))
 
 
 def keep_video(state: dict, frames, out: Path) -> bool:
@@ -54,8 +78,11 @@ def keep_video(state: dict, frames, out: Path) -> bool:
     now, before = fingerprint(frames.path), state.get("video_file")
     if before == now:
         return False
+    if before is not None and "spread" not in before and before == {k: now[k] for k in before}:
+        state["video_file"] = now  # an earlier pcreg's fingerprint of this very file: only the spread is new
+        return False
     grown = before is not None and _appended(before, frames.path, now)
-    if before is not None and not grown and (before["size"], before["sha256"]) != (now["size"], now["sha256"]):
+    if before is not None and not grown and not _same_bytes(before, now):
         raise OutputError(f"{frames.path}: not the video the run in {out} began on (its size or bytes changed since: "
                           f"{before['size']} bytes then, {now['size']} now); use --force to start over")
     state["video_file"] = now
@@ -75,7 +102,7 @@ def check_kept(state: dict, frames, out: Path) -> None:
     the frames it labelled may be of two videos (a resume would refuse the file; the run that labelled them said
     nothing)."""
     before, now = state.get("video_file"), fingerprint(frames.path)
-    if before is None or (before["size"], before["sha256"]) == (now["size"], now["sha256"]) or _appended(before, frames.path, now):
+    if before is None or _same_bytes(before, now) or _appended(before, frames.path, now):
         return
     raise OutputError(f"{frames.path}: written again while the run in {out} labelled it ({before['size']} bytes when "
                       f"it began, {now['size']} now): its labels may be of two videos; use --force to start over")
@@ -93,8 +120,9 @@ def video_file_problem(state: dict) -> str | None:
     writes it, or None."""
     f = state.get("video_file")
     counts = isinstance(f, dict) and type(f.get("size")) is int and f["size"] >= 0 and type(f.get("mtime_ns")) is int
-    sha = f.get("sha256") if isinstance(f, dict) else None
-    if f is not None and not (counts and isinstance(sha, str) and len(sha) == 64 and set(sha) <= set("0123456789abcdef")):
+    digests = [f.get("sha256"), f.get("spread", "0" * 64)] if isinstance(f, dict) else []
+    if f is not None and not (counts and all(isinstance(d, str) and len(d) == 64 and set(d) <= set("0123456789abcdef")
+                                             for d in digests)):
         return "video_file"
     end = state.get("video_end")
     if end is not None and not (type(end) is int and end >= 1 and f is not None):

@@ -161,7 +161,8 @@ class UnitStore:
         if force:  # start over: the earlier units and report go (its numbers are not this configuration's)
             from .reports.files import remove_report
 
-            if self.dir.is_dir():
+            if self.dir.is_dir() or self.dir.is_symlink():
+                _check_units_folder(self.dir)
                 shutil.rmtree(self.dir)
             remove_report(self.out)
         elif old is not None and old != config and self._holds_results():
@@ -216,6 +217,25 @@ class UnitStore:
         from ..outputs import atomic_write_json
 
         atomic_write_json(self.path(key), result)
+
+
+def _check_units_folder(folder: Path) -> None:
+    """An :class:`~pcreg.errors.OutputError` unless ``folder`` (``OUT/units``, which ``--force`` removes) holds only what
+    an evaluation writes there: units' JSON files in folders, :data:`DATA_FILES` and killed writes' ``.tmp`` files. A
+    person's own files in a folder of that name (measurements kept beside a report) are not removed with it."""
+    import os
+
+    from ..errors import OutputError
+
+    if folder.is_symlink():
+        raise OutputError(f"{folder}: a link, not the folder an evaluation writes its units in; --force removes "
+                          "only that: give another --out, or remove the link")
+    for root, dirs, names in os.walk(folder):
+        for name in sorted(names) + sorted(d for d in dirs if os.path.islink(os.path.join(root, d))):
+            path = Path(root) / name
+            if path.is_symlink() or not (name.endswith((".json", ".tmp")) or name == DATA_FILES):
+                raise OutputError(f"{path}: not a file an evaluation writes, in the folder of its units that --force "
+                                  "removes; move it out of the folder, or give another --out")
 
 
 def unit_path(out: str | Path, key: str) -> Path:

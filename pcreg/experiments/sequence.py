@@ -220,6 +220,13 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
         u = next((u for u in units if u["notes"]), units[0])
         why = u["notes"][-1] if u["notes"] else "no pairs"  # why no pair was scored comes last (before: the weights')
         raise InputError(f"no pair was scored ({u['dataset']} k={u['k']}: {why})")
+    if units and not any(_scored_pairs(u["pairs"], ("plain",))["plain"] for u in units):  # a table of NaN
+        if out is not None:  # (the thesis's columns score unknown truth too: they alone are no comparison)
+            discard_units(out, plan)
+        u = next(u for u in units if u["pairs"])
+        moving = [str(p["moving"]) for p in u["pairs"]]
+        raise DatasetError(f"no pair was scored ({u['dataset']} k={u['k']}: the truth of every moving frame is all "
+                           f"unknown, moving frame(s) {', '.join(moving[:4])}{', ...' if len(moving) > 4 else ''}): nothing to score")
     return results
 
 

@@ -33,7 +33,7 @@ def table(results: dict, backend: str) -> tuple[list, list]:
             rel = _relative(p, a)
             w = st.get("weight")
             rows.append([_label(name, info), int(k), st["pairs"], st["failed_pairs"],
-                         "n/a" if w is None else f"{w:g}", *[means.get(m, float("nan")) for m in METHODS], rel])
+                         "n/a" if w is None or not st["pairs"] else f"{w:g}", *[means.get(m, float("nan")) for m in METHODS], rel])
     return header, rows
 
 
@@ -54,6 +54,9 @@ def checks(results: dict) -> str:
     """What registration-augmented classification should achieve, checked on this run (Markdown)."""
     import numpy as np
 
+    def scored(v) -> bool:
+        return v is not None and bool(np.isfinite(v))
+
     lines = ["### Checks\n"]
     for b, bd in results["backends"].items():
         lines.append(f"**backend {b}**\n")
@@ -63,11 +66,12 @@ def checks(results: dict) -> str:
             for k, m in d["increments"].items():
                 if not d["pairs"][k]["pairs"]:
                     continue
-                n_cells += 1
-                if not m["augmented"] < m["plain"]:
-                    fails_aug.append(f"{name} k={k} ({m['augmented']:.2f} vs {m['plain']:.2f})")
-                rel.append(100.0 * (m["plain"] - m["augmented"]) / m["plain"] if m["plain"] else np.nan)
-                if int(k) >= 4:
+                if scored(m["plain"]) and scored(m["augmented"]):  # else no pair has a score (its truth all unknown)
+                    n_cells += 1
+                    if not m["augmented"] < m["plain"]:
+                        fails_aug.append(f"{name} k={k} ({m['augmented']:.2f} vs {m['plain']:.2f})")
+                    rel.append(100.0 * (m["plain"] - m["augmented"]) / m["plain"] if m["plain"] else np.nan)
+                if int(k) >= 4 and scored(m["augmented"]) and scored(m["augmented_unregistered"]):
                     n_reg += 1
                     reg_gain.append(m["augmented_unregistered"] - m["augmented"])
                     if not m["augmented"] < m["augmented_unregistered"]:
@@ -82,7 +86,7 @@ def checks(results: dict) -> str:
             return "met" if not fails else "NOT met: " + "; ".join(fails)
 
         lines.append(f"- augmented < plain on every sequence and increment ({n_cells} cells): {ok(fails_aug, n_cells)}")
-        if rel:
+        if rel and not np.isnan(rel).all():
             lines.append(f"- mean relative reduction of augmented vs plain: {np.nanmean(rel):.1f}% "
                          f"(min {np.nanmin(rel):.1f}%, max {np.nanmax(rel):.1f}%)")
         lines.append(f"- augmented < augmented_unregistered at k >= 4 ({n_reg} cells): {ok(fails_reg, n_reg)}")

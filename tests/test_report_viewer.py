@@ -376,3 +376,48 @@ def test_a_page_stopped_after_answering_serves_again_on_its_port_at_once(tmp_pat
         httpd.shutdown()
         httpd.server_close()
         thread.join()
+
+
+@pytest.mark.parametrize("other", ["another program's", "pcreg register's"])
+def test_another_recording_in_a_reports_folder_is_said(evaluations, tmp_path, other):
+    """Another program's recording (or another pcreg command's) in an evaluation's folder in place of its own was
+    served beside the report as its recording, without a word (the page's notes empty)."""
+    import json
+    import shutil
+    import signal
+    import urllib.request
+
+    import numpy as np
+    import rerun as rr
+
+    folder = tmp_path / "rot"
+    shutil.copytree(evaluations["rotation"], folder)
+    (rrd,) = folder.glob("*.rrd")
+    rrd.unlink()
+    if other == "another program's":
+        rec = rr.RecordingStream("someotherapp")
+        rec.save(str(rrd))
+        for i in range(3):
+            rec.set_time("step", sequence=i)
+            rec.log("foo/points", rr.Points3D(np.random.default_rng(i).random((10, 3))))
+        rec.flush()
+        rec.disconnect()
+        said = f"pcreg: note: {rrd}: a recording of 'someotherapp', not of pcreg evaluate rotation"
+    else:
+        from pcreg.recording.recorder import Recorder
+
+        with Recorder(rrd, kind="register") as r:
+            r.set_frame(0)
+            r.log_images(reference=np.zeros((40, 60, 3), np.uint8), moving=np.zeros((40, 60, 3), np.uint8))
+        said = f"pcreg: note: {rrd}: a pcreg recording of kind 'register', not of pcreg evaluate rotation"
+    proc, url = view_web(str(folder), "--grpc-port", "0")
+    try:
+        with urllib.request.urlopen(url + "report.json", timeout=30) as r:
+            notes = json.loads(r.read())["notes"]
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=60) == 130
+        err = proc.stderr.read()
+    finally:
+        stop_view(proc)
+    assert said in err, err
+    assert notes and notes[0].startswith(said[len("pcreg: note: "):]), notes

@@ -246,7 +246,10 @@ def _report(args: argparse.Namespace, folders: list[str]) -> int:
     for r in recordings:
         if not Path(r).exists():
             raise InputError(f"{r}: no such file or folder")
-        V.check_recording(r)
+        other = _other_recording(r, V.check_recording(r)[0], report.experiment)
+        if other:  # said on the page too: its tables and the recording's frames do not go together
+            sys.stderr.write(f"pcreg: note: {other}\n")
+            data["notes"] = [other, *data["notes"]]
     if not args.web:
         raise InputError(f"{folder}: an output folder is shown in a browser: add --web"
                          + (" (or view its recording: pcreg view " + " ".join(recordings) + ")" if recordings else ""))
@@ -267,6 +270,24 @@ def _report(args: argparse.Namespace, folders: list[str]) -> int:
             except KeyboardInterrupt:
                 return 130
     return 0
+
+
+def _other_recording(path: str, application: str, experiment: str) -> str | None:
+    """What to say of a recording shown beside the report of ``pcreg evaluate EXPERIMENT`` that is not one such
+    evaluation wrote (another program's, ``application`` its id, or another pcreg command's), or None."""
+    from ..recording.readback import read_kind
+
+    if application != "pcreg":
+        return (f"{path}: a recording of {application!r}, not of pcreg evaluate {experiment}: the report's frames and "
+                "tables are not its")
+    try:
+        kind = read_kind(path)
+    except (ValueError, RuntimeError):  # rerun's reader, of a file cut short (said as such): its kind not told
+        kind = None
+    if kind is not None and kind != experiment:  # (a recording without its kind, of an earlier pcreg: not told)
+        return (f"{path}: a pcreg recording of kind {kind!r}, not of pcreg evaluate {experiment}: the report's frames "
+                "and tables are not its")
+    return None
 
 
 def _review(args: argparse.Namespace, runs: list[str]) -> int:

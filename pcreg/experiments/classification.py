@@ -265,7 +265,7 @@ def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, for
 
     t0 = time.perf_counter()
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
-    say_damage(datasets)
+    data_notes = say_damage(datasets)
     info = check_datasets(datasets, exclude_unknown=config.exclude_unknown)
     for name in info:
         if name in PRESETS:
@@ -291,5 +291,5 @@ def evaluate(config: ClassificationConfig, *, out: str | Path | None = None, for
     if scaled and not config.case3_k and "III" in config.cases:
         notes.append("Case III: k per dataset is 10% and 20% of its length (the thesis: 10 and 20 of 100)")
     return Results("classification", cfg_dict, info, results, resumed_units=resumed, seconds=time.perf_counter() - t0,
-                   notes=tuple(notes), sections={"k": ks, "weight_search": searches})
+                   notes=tuple(notes), data_notes=data_notes or None, sections={"k": ks, "weight_search": searches})
 

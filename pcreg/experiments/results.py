@@ -31,6 +31,8 @@ class Results:
     methods : the methods compared, in table order (sequence, stream).
     backends : per backend, its own ``datasets`` tables (rotation, sequence).
     notes : what the tables' readers should know (a scaled k, a refused pair).
+    data_notes : what reading the data met, as said on stderr when it was read (a frame that decodes around damaged
+        data, transparent pixels, 16-bit values read as nearly black): the figures of those frames may be off.
     sections : the sections of one kind of evaluation (:data:`SECTIONS`), each also read as an attribute
         (None where absent):
 
@@ -53,6 +55,7 @@ class Results:
     methods: tuple[str, ...] | None = None
     backends: dict[str, dict] | None = None
     notes: tuple[str, ...] | None = None
+    data_notes: tuple[str, ...] | None = None
     sections: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -95,6 +98,7 @@ class Results:
         doc.update((k, v) for k, v in optional.items() if v is not None)
         doc["datasets"] = self.datasets
         later = {"backends": self.backends, "k": self.k, "notes": None if self.notes is None else list(self.notes),
+                 "data_notes": list(self.data_notes) if self.data_notes else None,
                  "weight_search": self.weight_search, "average_reduction": self.average_reduction,
                  "calibration": self.calibration, "davis": self.davis}
         doc.update((k, v) for k, v in later.items() if v is not None)

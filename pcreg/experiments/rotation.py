@@ -240,7 +240,7 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
 
     check_angles(config.angles)
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
-    say_damage(datasets)
+    data_notes = say_damage(datasets)
     units = []
     for name, frames in datasets.items():
         for i in sample_indices(len(frames), config.samples):
@@ -249,7 +249,7 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
             for b in config.backends:
                 units.append(Unit(f"{name}/frame{i}_{b}", name, (("index", i), ("backend", b)), config))
     return evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
-                          recorder=recorder, desc="rotation", show_progress=show_progress, kept=kept)
+                          recorder=recorder, desc="rotation", show_progress=show_progress, kept=kept, data_notes=data_notes)
 
 
 def summarise(config: RotationConfig, unit_results: list[dict]) -> Results:

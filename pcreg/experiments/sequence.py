@@ -206,13 +206,14 @@ def evaluate(config: SequenceConfig, *, out: str | Path | None = None, force: bo
     from .units import discard_units, evaluate_units, load_cached, say_damage
 
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
-    say_damage(datasets)
+    data_notes = say_damage(datasets)
     for name, frames in datasets.items():
         if frames and any(f.labels is None for f in frames):
             raise DatasetError(f"dataset {name} has unlabelled frames; the sequence evaluation scores every frame")
     plan = plan_units(config, list(datasets))
     results = evaluate_units(plan, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
-                             recorder=recorder, desc="sequence", show_progress=show_progress, kept=kept)
+                             recorder=recorder, desc="sequence", show_progress=show_progress, kept=kept,
+                             data_notes=data_notes)
     units = results.units
     if units and not any(u["pairs"] for u in units):  # a report without a number is the input's fault
         if out is not None:  # nothing kept: the corrected command resumes nothing and is not refused

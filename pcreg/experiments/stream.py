@@ -325,7 +325,7 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
 
     check_davis_config(config)
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed, classes=config.classes)
-    say_damage(datasets)
+    data_notes = say_damage(datasets)
     for name, frames in datasets.items():
         clip = clip_where(name, config)
         check_clip(clip, frames, config.classes)
@@ -347,7 +347,7 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
                 raise InputError(f"clip {clip}: {exc}") from None
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                           force=force, executor=executor, recorder=recorder, desc="stream",
-                          show_progress=show_progress, kept=kept)
+                          show_progress=show_progress, kept=kept, data_notes=data_notes)
 
 
 def reduction(plain: float, value: float) -> float:

@@ -65,16 +65,19 @@ def load_cached(data: str, *, frames: int | None, size: tuple[int, int] | None, 
     return _DATA_CACHE[key]
 
 
-def say_damage(datasets: dict) -> None:
+def say_damage(datasets: dict) -> tuple[str, ...]:
     """Say on stderr which frames of ``datasets`` (``{clip: frames}``, as :func:`load_cached` gives them) decoded
-    around damaged data (:func:`pcreg.datasets.frame.damage_notes`): scored, their figures are in part the decoder's
-    guesses, as ``pcreg register`` says of such an image."""
+    around damaged data or read with a note (:func:`pcreg.datasets.frame.damage_notes`): scored, their figures are in
+    part the decoder's guesses, as ``pcreg register`` says of such an image. Returns the lines, which the results keep
+    (:attr:`~pcreg.experiments.results.Results.data_notes`): a report read later says them too."""
     import sys
 
     from ..datasets.frame import damage_notes
 
-    for line in damage_notes(datasets):
+    lines = tuple(damage_notes(datasets))
+    for line in lines:
         sys.stderr.write(f"pcreg: note: {line}\n")
+    return lines
 
 
 def angle_key(angle: float) -> str:
@@ -322,10 +325,11 @@ def for_workers(config: Any) -> Any:
 
 def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | Path | None = None,
                    force: bool = False, executor=None, recorder=NULL_RECORDER, desc: str = "",
-                   show_progress: bool | None = None, kept: Callable[[Unit, dict], bool] | None = None) -> Results:
+                   show_progress: bool | None = None, kept: Callable[[Unit, dict], bool] | None = None,
+                   data_notes: tuple[str, ...] = ()) -> Results:
     """The body every resumable evaluation shares: run the units not finished in ``out/units`` (all of
     them without ``out``; ``kept``: as :func:`run_resumable`), summarise their results in order (``summarise(config, results)``), and add
-    the presets' real counterparts, the number of resumed units and the wall time."""
+    the presets' real counterparts, the number of resumed units, the wall time and ``data_notes`` (:func:`say_damage`'s)."""
     import time
 
     from ..datasets import PRESETS
@@ -339,4 +343,4 @@ def evaluate_units(units: list, run_unit, config: Any, *, summarise, out: str | 
     for name, tables in results.datasets.items():
         if name in PRESETS:
             tables["mirrors"] = PRESETS[name].mirrors
-    return replace(results, resumed_units=resumed, seconds=time.perf_counter() - t0)
+    return replace(results, resumed_units=resumed, seconds=time.perf_counter() - t0, data_notes=tuple(data_notes) or None)

@@ -11,6 +11,8 @@ from pathlib import Path
 
 #: The file of an output folder that names, one a line, the files its report wrote besides results.json.
 MANIFEST = ".report_files"
+#: The report's file of what reading the data met (results.json's ``data_notes``), written when there is any.
+DATA_NOTES = "data_notes.md"
 
 
 def _manifest(out: Path) -> list[str] | None:
@@ -76,6 +78,9 @@ def write_files(out: str | Path, results: dict, *, tables: dict | None = None, t
     out = Path(out)
     earlier = _listed(out)
     written = []
+    if results.get("data_notes"):  # kept beside the tables, not on the terminal alone
+        texts = {**(texts or {}), DATA_NOTES: "### Notes on the data\n\nThe figures of these frames may be off.\n\n"
+                 + "".join(f"- {n}\n" for n in results["data_notes"])}
     for name, (title, header, rows, *footer) in (tables or {}).items():
         written.append(atomic_write_csv(out / f"{name}.csv", header, rows))
         written.append(atomic_write_text(out / f"{name}.md",

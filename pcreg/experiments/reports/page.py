@@ -258,4 +258,5 @@ def page_data(report: Report) -> dict:
             "path": str(report.folder.resolve()), "config": report.config,
             "seconds": report.results.get("seconds"), "tables": tables, "checks": report.checks,
             "figures": list(report.figures), "files": list(report.files),
-            "notes": [str(n) for n in report.results.get("notes", []) if n] if isinstance(report.results.get("notes"), list) else []}
+            "notes": [str(n) for key in ("data_notes", "notes") if isinstance(report.results.get(key), list)
+                      for n in report.results[key] if n]}

@@ -12,6 +12,13 @@ its origin's depth (:data:`~pcreg.recording.entities.SLOT_DEPTH`), and depth mov
 plane, so each view draws the one image it shows, framed as before. ``registration/reference`` then
 holds a ``Clear``.
 
+A slot gets one Transform3D row at a frame, never two: the viewer's transform cache keeps one transform
+per entity and time, and of two rows at one time in different chunks (an image's row and a transform-only
+row are batched apart, and the viewer's store merges them only while the images' chunk is small, about
+384 KiB) it keeps whichever chunk it read last, not the newer row. A slot hidden by the reference and then
+given the frame's moving image would stay hidden. :meth:`PairLogger.log_images` therefore places the slots
+of one call once, where each ends up.
+
 A reference that is not the previous frame's moving image (a rotation's angles, k > 1, the first pair) is
 logged at ``registration/reference``, and only when it changes: the viewer's latest-at query keeps
 showing the one logged. :meth:`pcreg.recording.readback.Recording.reference` and
@@ -81,6 +88,8 @@ class PairLogger:
         self._shown_reference: np.ndarray | None = None
         self._cleared = False
         self._last_frame: int | None = None
+        # within _log_pair_images: each slot's place and images so far, sent at its end (one row a slot)
+        self._placing: dict[int, tuple[tuple[float, float, float], tuple]] | None = None
 
     def new_pair(self) -> None:
         """Forget the pair logged so far (a new frame)."""
@@ -92,13 +101,12 @@ class PairLogger:
         sink = self.sink
         frame = sink.frame
         jobs = []
-        if reference is not None:
-            a = as_image(reference, "reference").copy()
-            sink.later(lambda: self._log_reference(a, frame))
-        if moving is not None:
-            m = as_image(moving, "moving").copy()
+        a = None if reference is None else as_image(reference, "reference").copy()
+        m = None if moving is None else as_image(moving, "moving").copy()
+        if m is not None:
             self.pair = dataclasses.replace(self.pair, moving_shape=(int(m.shape[0]), int(m.shape[1])))
-            sink.later(lambda: self._log_moving(m, frame))
+        if a is not None or m is not None:
+            sink.later(lambda: self._log_pair_images(a, m, frame))
         if warped is not None:
             w = as_image(warped, "warped").copy()
             jobs.append((E.WARPED_IMAGE, lambda w=w: sink.image(w, opacity=0.5, draw_order=-5.0)))
@@ -111,8 +119,29 @@ class PairLogger:
         for path, make in jobs:
             sink.log_later(path, make)
 
+    def _log_pair_images(self, a: np.ndarray | None, m: np.ndarray | None, frame: int | None) -> None:
+        """On the sink's thread: the reference, then the moving image, each slot placed once, where it ends up
+        (see the module: a second row at the same frame may win over the first in the viewer)."""
+        self._placing = {}
+        try:
+            if a is not None:
+                self._log_reference(a, frame)
+            if m is not None:
+                self._log_moving(m, frame)
+            placing = self._placing
+        finally:
+            self._placing = None
+        for slot, (at, images) in sorted(placing.items()):
+            self.sink.send(E.IMAGE_SLOTS[slot], *images, rr.Transform3D(translation=at))
+
     def _place(self, slot: int, at: tuple[float, float, float], *images) -> None:
-        self.sink.send(E.IMAGE_SLOTS[slot], *images, rr.Transform3D(translation=at))
+        """Put ``slot`` at ``at`` (with ``images``): sent at once, or, within :meth:`_log_pair_images`, kept
+        until its end, the last place of a slot replacing the earlier ones."""
+        if self._placing is None:
+            self.sink.send(E.IMAGE_SLOTS[slot], *images, rr.Transform3D(translation=at))
+            return
+        earlier = self._placing.get(slot)
+        self._placing[slot] = (at, (earlier[1] if earlier else ()) + images)
 
     def _log_moving(self, m: np.ndarray, frame: int | None) -> None:
         """On the sink's thread: the moving image, in the slot that is not the reference shown (else the one

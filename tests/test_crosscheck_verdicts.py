@@ -1,6 +1,8 @@
 """A cross-check's verdicts: the same poses of the same clouds agree, or not, in whatever unit the clouds are
 given and wherever they lie; a pose is judged by all it does to the cloud."""
 
+import importlib.util
+
 import numpy as np
 import pytest
 
@@ -186,3 +188,31 @@ def test_a_mixture_that_ends_wider_than_the_gate_says_so_on_its_row():
     assert lines[at + 1].split()[:5] == ["its", "mixture", "ended", "wide:", "sigma"]
     assert f"{sigma:.3g}" in lines[at + 1] and f"{sigma / gate:.3g}x the gate" in lines[at + 1]
     assert sum("mixture ended wide" in line for line in lines) == 1  # the reference's row: none
+
+
+def test_a_step_row_that_stopped_before_converging_says_so():
+    """A turn of 60 degrees that the step rows do not finish in their iterations: the reference's row read rmse 0.06
+    beside fixed-point rows at 1e-16 that "agree" (compared with the reference run on to convergence, which the
+    table said only in its footer). The step rows say they stopped; the reference's says what it reaches."""
+    from scipy.spatial.transform import Rotation
+
+    from pcreg.commands.crosscheck import format_table
+    from pcreg.registration.icp_options import ICPOptions
+
+    rng = np.random.default_rng(7)
+    tgt = rng.normal(size=(1500, 3)) * [2.0, 1.0, 0.5]
+    src = (tgt - [2.0, 1.0, 0.5]) @ Rotation.from_euler("z", -60, degrees=True).as_matrix().T + [2.0, 1.0, 0.5]
+    names = ["reference", "open3d"] + (["small_gicp"] if importlib.util.find_spec("small_gicp") else [])
+    r = crosscheck_implementations(src, tgt, implementations=names,
+                                   options=ICPOptions(max_correspondence_distance=5.0, max_iteration=4))
+    assert r.rows["reference"]["converged"] is False
+    lines = format_table(r.to_dict()).splitlines()
+    for name in ("reference", "open3d"):
+        at = next(i for i, line in enumerate(lines) if line.startswith(name))
+        assert lines[at + 1].split()[:8] == ["stopped", "at", "its", "4", "iterations", "before", "its", "stopping"]
+    if "small_gicp" in names:
+        conv = r.to_dict()["reference_at_convergence"]
+        assert f"run on, the reference converges in {conv['iterations']} (rmse" in "\n".join(lines)
+    r = crosscheck_implementations(src, tgt, implementations=["reference", "open3d"],
+                                   options=ICPOptions(max_correspondence_distance=5.0, max_iteration=200))
+    assert r.rows["reference"]["converged"] and "stopped at its" not in format_table(r.to_dict())

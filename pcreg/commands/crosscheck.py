@@ -264,6 +264,12 @@ def format_table(out: dict) -> str:
                      f"{f(r['inlier_rmse']):>9s} {f(r['rotation_disagreement_deg']):>9s} "
                      f"{f(r.get('centroid_disagreement')):>9s} {f(r.get('pose_relative_disagreement')):>9s} "
                      f"{f(r['agrees']):>6s} {r['seconds']:6.2f}")
+        if r.get("converged") is False and r["comparability"] == "step":  # its pose is not where ICP ends
+            conv = out.get("reference_at_convergence") if name == "reference" else None
+            lines.append(f"{'':24s} stopped at its {r['iterations']} iterations before its stopping rule fired: the pose "
+                         "where it stopped" + (f"; run on, the reference converges in {conv['iterations']} (rmse "
+                                               f"{conv['inlier_rmse']:.3g}), which the fixed-point and objective rows "
+                                               "are compared with" if conv else ""))
         if (r.get("scale_disagreement") or 0.0) > 1e-6:  # neither rot deg nor centroid shows it
             lines.append(f"{'':24s} not rigid: it scales the cloud {100 * r['scale_disagreement']:.3g}% against the "
                          "reference")

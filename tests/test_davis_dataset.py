@@ -222,3 +222,21 @@ def test_a_file_beside_the_sequences_with_figures_of_its_own_does_not_cite_them_
     assert doc["source"] != PUBLISHED_SOURCE
     assert doc["source"] == (f"{PUBLISHED_SOURCE}, except the figures of mine, osvos that pcreg does not ship: "
                              "published_mine.csv (which names no source)")
+
+
+def test_a_frame_missing_with_its_mask_is_noted(tmp_path):
+    """A frame and its mask both missing from a sequence (a copy cut short) were read without a word: the frames
+    after it scored against the benchmark's as if none were missing, the motion to the next one doubled. Noted on
+    the frame after the gap (stderr and the report's ``data_notes``, as damaged frames are); numbered every frame,
+    no note."""
+    from pcreg.datasets.frame import damage_notes
+
+    seq = write_pcreg_layout(tmp_path / "seq", frames_and_masks(6))
+    assert damage_notes(load_dataset(f"davis:{seq}")) == []
+    for sub, suffix in (("images", "jpg"), ("labels", "png")):
+        (seq / sub / f"00003.{suffix}").unlink()
+    data = load_dataset(f"davis:{seq}")
+    assert [f.name for f in data["seq"]] == ["00000", "00001", "00002", "00004", "00005"]
+    assert damage_notes(data) == ["clip seq, frame 00004: 1 frame(s) missing from the numbering before it (00002, then "
+                                  "00004), frame and mask (a copy cut short?): DAVIS numbers every frame, so the motion "
+                                  "to it spans 2 and the frames scored are not all the benchmark's"]

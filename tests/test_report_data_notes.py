@@ -15,7 +15,7 @@ from pcreg.cli import main
 
 @pytest.fixture(scope="module")
 def clip(shared_data, tmp_path_factory):
-    """Six frames of CamVid 0001TP_b, the fourth written as 16-bit grey values in the lowest 12 bits."""
+    """Six frames of CamVid 0001TP_b, the fourth written as 16-bit values in the lowest 12 bits."""
     src = shared_data / "camvid" / "0001TP_b"
     clip = tmp_path_factory.mktemp("notes") / "clip"
     for sub in ("images", "labels"):
@@ -23,8 +23,7 @@ def clip(shared_data, tmp_path_factory):
         for p in sorted((src / sub).iterdir())[:6]:
             shutil.copy(p, clip / sub / p.name)
     frame = sorted((clip / "images").iterdir())[3]
-    grey = cv2.imread(str(frame), cv2.IMREAD_GRAYSCALE).astype(np.uint16) * 16
-    cv2.imwrite(str(frame), grey)
+    cv2.imwrite(str(frame), cv2.imread(str(frame)).astype(np.uint16) * 16)
     return clip, frame.stem
 
 

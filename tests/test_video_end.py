@@ -248,21 +248,30 @@ def test_a_transport_stream_appended_to_goes_on(camvid, tmp_path, capsys):
     assert sorted(steps) == [1, *range(3, N)]
 
 
-def test_the_fingerprint_tells_a_file_appended_to_from_one_changed(tmp_path):
-    """``keep_video`` on files of more than two MiB: the same file, one appended to (grown, goes on), one whose last
-    MiB or size changed (refused), one touched (kept anew, its end forgotten)."""
+def _random_video_file(path, size: int, seed: int):
+    """``(bytes, frames, state)``: ``size`` random bytes written at ``path``, a stand-in for its
+    :class:`~pcreg.datasets.sources.VideoFrames`, and a run.json's state of 5 frames done that ``keep_video`` took it
+    into (not yet labelled to its end)."""
     from types import SimpleNamespace
 
-    from pcreg.errors import OutputError
-    from pcreg.runs.video_file import MIB, fingerprint, keep_video, labelled_to_end
+    from pcreg.runs.video_file import fingerprint, keep_video
 
-    rng = np.random.default_rng(0)
-    path = tmp_path / "v.ts"
-    data = rng.integers(0, 256, 3 * MIB + 17, dtype=np.uint8).tobytes()
+    data = np.random.default_rng(seed).integers(0, 256, size, dtype=np.uint8).tobytes()
     path.write_bytes(data)
     frames = SimpleNamespace(path=path)
     state = {"done": 5}
-    assert keep_video(state, frames, tmp_path) is False and state["video_file"] == fingerprint(path)
+    assert keep_video(state, frames, path.parent) is False and state["video_file"] == fingerprint(path)
+    return data, frames, state
+
+
+def test_the_fingerprint_tells_a_file_appended_to_from_one_changed(tmp_path):
+    """``keep_video`` on files of more than two MiB: the same file, one appended to (grown, goes on), one whose last
+    MiB or size changed (refused), one touched (kept anew, its end forgotten)."""
+    from pcreg.errors import OutputError
+    from pcreg.runs.video_file import MIB, keep_video, labelled_to_end
+
+    path = tmp_path / "v.ts"
+    data, frames, state = _random_video_file(path, 3 * MIB + 17, 0)
     state["video_end"] = 5
     assert keep_video(state, frames, tmp_path) is False and labelled_to_end(state)
     kept = dict(state)
@@ -315,13 +324,8 @@ def test_the_fingerprint_sees_a_change_inside_a_file_of_the_same_size_and_ends(t
     from pcreg.errors import OutputError
     from pcreg.runs.video_file import MIB, SPREAD, fingerprint, keep_video, labelled_to_end, video_file_problem
 
-    rng = np.random.default_rng(1)
     path = tmp_path / "v.avi"
-    data = rng.integers(0, 256, 5 * MIB + 3, dtype=np.uint8).tobytes()
-    path.write_bytes(data)
-    frames = SimpleNamespace(path=path)
-    state = {"done": 5}
-    keep_video(state, frames, tmp_path)
+    data, frames, state = _random_video_file(path, 5 * MIB + 3, 1)
     state["video_end"] = 5
     kept = dict(state)
     for at in (MIB + 1, 2 * MIB + 12345, 4 * MIB - len(data) // SPREAD - 1):

@@ -196,6 +196,23 @@ def _frame_files(frames: Path, name: str, n_frames: int | None) -> list[Path]:
     return files[:n_frames] if n_frames is not None else files
 
 
+def _numbering_gaps(files: list[Path]) -> dict[str, tuple[str, ...]]:
+    """``{stem: (note,)}`` of each frame of ``files`` (numbered names, in order) whose number is more than one after
+    the frame before it: a frame and its mask both missing (a copy cut short), which no mask without its frame tells.
+    DAVIS numbers every frame, so the motion to that frame spans two or more, and the frames scored are not all the
+    benchmark's."""
+    if not all(f.stem.isdigit() for f in files):
+        return {}
+    notes: dict[str, tuple[str, ...]] = {}
+    for a, b in zip(files, files[1:]):
+        missing = int(b.stem) - int(a.stem) - 1
+        if missing > 0:
+            notes[b.stem] = (f"{missing} frame(s) missing from the numbering before it ({a.stem}, then {b.stem}), "
+                             "frame and mask (a copy cut short?): DAVIS numbers every frame, so the motion to it spans "
+                             f"{missing + 1} and the frames scored are not all the benchmark's",)
+    return notes
+
+
 def _check_masks_have_frames(masks: Path, files: list[Path]) -> None:
     """Refuse a mask of ``masks`` (a PNG, hidden files left out) whose frame is not among ``files``: a frame
     missing from the sequence (a copy cut short) would move every later frame up one, and other frames than
@@ -248,6 +265,7 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
     every = _frame_files(frames, name, None)
     _check_masks_have_frames(masks, every)
     files = every[:n_frames] if n_frames is not None else every
+    gaps = _numbering_gaps(files)
     objects: tuple[int | None, ...] = (None,)
     void = None
     out: dict[int | None, list[Frame]] = {}
@@ -281,7 +299,8 @@ def load_objects(frames: str | Path, masks: str | Path, *, n_frames: int | None 
             labels = object_labels(values) if grey_object else object_labels(values, k, void)
             if t == 0:
                 check_key_mask(labels, m if len(objects) == 1 else f"{m} (object {k})")
-            out.setdefault(k, []).append(Frame(image=image, labels=labels, name=f.stem, damage=damage))
+            out.setdefault(k, []).append(Frame(image=image, labels=labels, name=f.stem, damage=damage,
+                                               notes=gaps.get(f.stem, ())))
     if len(objects) == 1:
         return {name: out[objects[0]]}
     return {object_name(name, int(k)): out[k] for k in objects if k is not None}

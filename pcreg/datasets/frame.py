@@ -93,7 +93,8 @@ def damage_notes(datasets: dict[str, list[Frame]], said: int = 3) -> list[str]:
     """One line for each of the first ``said`` frames of ``datasets`` (``{clip: frames}``) whose image decoded
     around damaged data (:attr:`Frame.damage`), and one counting the rest: scored without a word, such a frame's
     figures come in part from the decoder's guesses; then the same for the frames whose reading met something else
-    (:attr:`Frame.notes`: transparent pixels, 16-bit values read as nearly black)."""
+    (:attr:`Frame.notes`: transparent pixels, 16-bit values read as nearly black); then the frames grey among a clip's
+    colour frames (a frame saved as grey in a colour clip, which the colour features read otherwise)."""
     damaged = [(clip, f) for clip, frames in datasets.items() for f in frames if f.damage]
     lines = [f"clip {clip}, frame {f.name}: its decoder reports damaged data ({f.damage}): part of the image is the "
              "decoder's guess, and the figures of the frames it is in may be off" for clip, f in damaged[:said]]
@@ -103,4 +104,18 @@ def damage_notes(datasets: dict[str, list[Frame]], said: int = 3) -> list[str]:
     lines += [f"clip {clip}, frame {f.name}: {line}" for clip, f in noted[:said] for line in f.notes]
     if len(noted) > said:
         lines.append(f"{len(noted) - said} more frame(s) read with such notes")
+    grey = [(clip, f) for clip, frames in datasets.items() for f in _grey_among_colour(frames)]
+    lines += [f"clip {clip}, frame {f.name}: grey among the clip's colour frames (its three colours equal at every "
+              "pixel: saved as grey, or black): the colour features read it otherwise than the frames around it, and "
+              "the figures of the frames it is in may be off" for clip, f in grey[:said]]
+    if len(grey) > said:
+        lines.append(f"{len(grey) - said} more frame(s) grey among colour frames")
     return lines
+
+
+def _grey_among_colour(frames: list[Frame]) -> list[Frame]:
+    """The frames of a clip whose three colours are equal at every pixel, where another frame of the clip is in
+    colour (a clip all grey is a grey clip, and says nothing)."""
+    grey = [f for f in frames if f.image.ndim == 3 and f.image.shape[2] == 3
+            and np.array_equal(f.image[:, :, 0], f.image[:, :, 1]) and np.array_equal(f.image[:, :, 1], f.image[:, :, 2])]
+    return grey if len(grey) < len(frames) else []

@@ -216,3 +216,17 @@ def test_a_step_row_that_stopped_before_converging_says_so():
     r = crosscheck_implementations(src, tgt, implementations=["reference", "open3d"],
                                    options=ICPOptions(max_correspondence_distance=5.0, max_iteration=200))
     assert r.rows["reference"]["converged"] and "stopped at its" not in format_table(r.to_dict())
+
+
+@pytest.mark.parametrize("conv, said", [
+    (None, ""),
+    ({"error": "run-on failed"}, "; run on, the reference failed (run-on failed)"),
+    ({"iterations": 200, "converged": False, "inlier_rmse": 0.5}, "; run on, the reference had not converged in 200 (rmse 0.5)"),
+    ({"iterations": 46, "converged": True, "inlier_rmse": None}, "; run on, the reference converges in 46, which"),
+])
+def test_what_the_reference_reached_run_on_is_said_as_it_came(conv, said):
+    """The reference run on to convergence may fail, stop at its own limit or give no rmse: the stopped row said
+    "converges in" regardless, and a failed run-on ended the table in a KeyError."""
+    from pcreg.commands.crosscheck import _run_on
+
+    assert _run_on(conv).startswith(said)

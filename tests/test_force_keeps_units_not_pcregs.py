@@ -40,3 +40,12 @@ def test_force_does_not_follow_a_link_named_units(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"pcreg: error: {out / 'units'}: a link"), err
     assert (elsewhere / "a.json").read_text() == "{}"
+
+
+def test_force_removes_what_a_file_browser_left(tmp_path, capsys):
+    """A folder a file browser showed gains .DS_Store or Thumbs.db: --force was refused over them."""
+    out = tmp_path / "proj"
+    assert main(_args(out)) == 0
+    for name in (".DS_Store", "Thumbs.db"):
+        (out / "units" / name).write_bytes(b"\0")
+    assert main([*_args(out), "--force"]) == 0 and not (out / "units" / ".DS_Store").exists()

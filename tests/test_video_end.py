@@ -317,8 +317,9 @@ def test_a_transport_stream_with_a_run_of_other_bytes_is_read_through(camvid, tm
 def test_the_fingerprint_sees_a_change_inside_a_file_of_the_same_size_and_ends(tmp_path):
     """A file of frames all of one size (raw video) written again with other frames in its middle keeps its size and
     its first and last MiB: it was taken as the video the run began on. Its spread of blocks tells it (a change of more
-    than a 256th of the file, for certain); a run.json of an earlier pcreg (no ``spread``) is checked by the rest and
-    gains it, keeping that the video was labelled to its end."""
+    than a 255th of the file, for certain); a run.json of an earlier pcreg (no ``spread``) is checked by the rest and
+    gains it, keeping that the video was labelled to its end; one holding a field pcreg does not write is checked as
+    before (it ended in a KeyError)."""
     from types import SimpleNamespace
 
     from pcreg.errors import OutputError
@@ -346,6 +347,9 @@ def test_the_fingerprint_sees_a_change_inside_a_file_of_the_same_size_and_ends(t
     assert video_file_problem(old) is None
     assert keep_video(old, frames, tmp_path) is False and labelled_to_end(old) and old["video_file"] == fingerprint(path)
     assert video_file_problem({**kept, "video_file": {**kept["video_file"], "spread": "x"}}) == "video_file"
+    odd = {**old, "video_file": {**old["video_file"], "note": "x"}}
+    odd["video_file"].pop("spread")
+    assert keep_video(odd, frames, tmp_path) is False and odd["video_file"] == fingerprint(path)
 
 
 def test_a_raw_video_written_again_with_other_frames_inside_is_refused(camvid, tmp_path, capsys):

@@ -265,11 +265,8 @@ def format_table(out: dict) -> str:
                      f"{f(r.get('centroid_disagreement')):>9s} {f(r.get('pose_relative_disagreement')):>9s} "
                      f"{f(r['agrees']):>6s} {r['seconds']:6.2f}")
         if r.get("converged") is False and r["comparability"] == "step":  # its pose is not where ICP ends
-            conv = out.get("reference_at_convergence") if name == "reference" else None
             lines.append(f"{'':24s} stopped at its {r['iterations']} iterations before its stopping rule fired: the pose "
-                         "where it stopped" + (f"; run on, the reference converges in {conv['iterations']} (rmse "
-                                               f"{conv['inlier_rmse']:.3g}), which the fixed-point and objective rows "
-                                               "are compared with" if conv else ""))
+                         "where it stopped" + (_run_on(out.get("reference_at_convergence")) if name == "reference" else ""))
         if (r.get("scale_disagreement") or 0.0) > 1e-6:  # neither rot deg nor centroid shows it
             lines.append(f"{'':24s} not rigid: it scales the cloud {100 * r['scale_disagreement']:.3g}% against the "
                          "reference")
@@ -294,6 +291,20 @@ def format_table(out: dict) -> str:
     if s.get("unconstrained"):
         lines.append(f"unconstrained: {s['unconstrained']}; no row's pose can be trusted")
     return "\n".join(lines)
+
+
+def _run_on(conv: dict | None) -> str:
+    """What the reference's row adds of the reference run on to convergence (``reference_at_convergence``), which the
+    fixed-point and objective rows are compared with: nothing without such rows."""
+    if not conv:
+        return ""
+    if conv.get("error") or conv.get("iterations") is None:
+        return f"; run on, the reference failed ({conv.get('error') or 'no result'})"
+    rmse = conv.get("inlier_rmse")
+    reached = f" (rmse {rmse:.3g})" if isinstance(rmse, (int, float)) else ""
+    how = "converges in" if conv.get("converged") else "had not converged in"
+    return (f"; run on, the reference {how} {conv['iterations']}{reached}, which the fixed-point and objective rows "
+            "are compared with")
 
 
 def _images(args) -> int:

@@ -243,16 +243,19 @@ def _report(args: argparse.Namespace, folders: list[str]) -> int:
     report = load_report(folder)
     data = page_data(report)
     recordings = [r for r in args.recordings if r != folders[0]] or [str(p) for p in report.recordings]
+    applications = {}
     for r in recordings:
         if not Path(r).exists():
             raise InputError(f"{r}: no such file or folder")
-        other = _other_recording(r, V.check_recording(r)[0], report.experiment)
-        if other:  # said on the page too: its tables and the recording's frames do not go together
-            sys.stderr.write(f"pcreg: note: {other}\n")
-            data["notes"] = [other, *data["notes"]]
+        applications[r] = V.check_recording(r)[0]
     if not args.web:
         raise InputError(f"{folder}: an output folder is shown in a browser: add --web"
                          + (" (or view its recording: pcreg view " + " ".join(recordings) + ")" if recordings else ""))
+    for r, application in applications.items():
+        other = _other_recording(r, application, report.experiment)
+        if other:  # said on the page too: its tables and the recording's frames do not go together
+            sys.stderr.write(f"pcreg: note: {other}\n")
+            data["notes"] = [other, *data["notes"]]
     binary = V.find_viewer(args.viewer) if recordings else None
     with tempfile.TemporaryDirectory(prefix="pcreg-view-") as tmp:
         staged = _stage(stage, recordings, Path(tmp)) if recordings else None

@@ -222,10 +222,16 @@ class UnitStore:
         atomic_write_json(self.path(key), result)
 
 
+#: Files a file browser leaves in a folder it showed (Windows'), besides hidden ones (macOS's ``.DS_Store``).
+_BROWSERS_FILES = frozenset({"Thumbs.db", "desktop.ini"})
+
+
 def _check_units_folder(folder: Path) -> None:
     """An :class:`~pcreg.errors.OutputError` unless ``folder`` (``OUT/units``, which ``--force`` removes) holds only what
-    an evaluation writes there: units' JSON files in folders, :data:`DATA_FILES` and killed writes' ``.tmp`` files. A
-    person's own files in a folder of that name (measurements kept beside a report) are not removed with it."""
+    an evaluation writes there (units' JSON files in folders, :data:`DATA_FILES` and killed writes' ``.tmp`` files) and
+    what a file browser leaves (hidden files, such as ``.DS_Store``; ``Thumbs.db``, ``desktop.ini``). A person's own
+    files of other kinds in a folder of that name (a CSV of measurements) are not removed with it; their JSON files
+    cannot be told from units."""
     import os
 
     from ..errors import OutputError
@@ -236,7 +242,8 @@ def _check_units_folder(folder: Path) -> None:
     for root, dirs, names in os.walk(folder):
         for name in sorted(names) + sorted(d for d in dirs if os.path.islink(os.path.join(root, d))):
             path = Path(root) / name
-            if path.is_symlink() or not (name.endswith((".json", ".tmp")) or name == DATA_FILES):
+            if path.is_symlink() or not (name.endswith((".json", ".tmp")) or name in _BROWSERS_FILES
+                                         or name.startswith(".") or name == DATA_FILES):
                 raise OutputError(f"{path}: not a file an evaluation writes, in the folder of its units that --force "
                                   "removes; move it out of the folder, or give another --out")
 

@@ -9,9 +9,10 @@ video's path (other bytes at either end or in a block spread through it, or fewe
 labelled from the other video's carry. A file only appended to (a recording still growing) goes on; a file whose
 fingerprint changed otherwise (copied, touched) goes on as a run.json without the fields does, decoding its way to its
 first frame not done, and its fingerprint is kept anew. A file of a codec whose frames are all of one size (raw video,
-v210) can change inside without changing its size or its ends: the spread sees a change of more than a 256th of the
-file for certain, and of less where it covers one of its blocks. A run.json without ``spread`` (from an earlier pcreg)
-is checked by the rest, and gains it.
+v210) can change inside without changing its size or its ends: the spread sees a change of more than a 255th of the
+file for certain (its blocks are that far apart, start to start), and of less where it covers one of its blocks. A
+run.json without ``spread`` (from an earlier pcreg) is checked by the rest, and gains it where the run next writes its
+run.json (a rerun of a run labelled to its end writes nothing).
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ def keep_video(state: dict, frames, out: Path) -> bool:
     now, before = fingerprint(frames.path), state.get("video_file")
     if before == now:
         return False
-    if before is not None and "spread" not in before and before == {k: now[k] for k in before}:
+    if before is not None and "spread" not in before and all(now.get(k) == v for k, v in before.items()):
         state["video_file"] = now  # an earlier pcreg's fingerprint of this very file: only the spread is new
         return False
     grown = before is not None and _appended(before, frames.path, now)

@@ -32,7 +32,9 @@ class Results:
     backends : per backend, its own ``datasets`` tables (rotation, sequence).
     notes : what the tables' readers should know (a scaled k, a refused pair).
     data_notes : what reading the data met, as said on stderr when it was read (a frame that decodes around damaged
-        data, transparent pixels, 16-bit values read as nearly black): the figures of those frames may be off.
+        data, transparent pixels, 16-bit values read as nearly black, a grey frame among colour ones, a frame missing
+        from a DAVIS sequence's numbering; :func:`pcreg.datasets.frame.damage_notes`): the figures of those frames
+        may be off.
     sections : the sections of one kind of evaluation (:data:`SECTIONS`), each also read as an attribute
         (None where absent):
 

@@ -211,3 +211,30 @@ def test_the_worst_corner_error_is_shown_beside_the_median():
     assert cell["corner_error_median"] == pytest.approx(0.02) and cell["corner_error_max"] == pytest.approx(619.37)
     header, rows = table({"datasets": {}, "backends": results.backends}, "reference")
     assert header[-2:] == ["corner error px (median)", "(worst)"] and rows[0][-3:] == ["0/3", "0.02", "619.37"]
+
+
+def test_a_sampled_frame_it_cannot_train_on_is_left_out_and_said(tmp_path, capsys):
+    """One sampled frame whose labels hold one class (or none) stopped the whole run, though the others could be
+    scored (the sequence evaluation leaves such a frame out): left out, said on stderr and in results.json's notes;
+    with no frame left, refused as before."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    clip = tmp_path / "data" / "clip"
+    (clip / "images").mkdir(parents=True)
+    (clip / "labels").mkdir()
+    for i in range(3):
+        cv2.imwrite(str(clip / "images" / f"f{i}.png"), rng.integers(0, 256, (40, 48, 3), np.uint8))
+        lab = np.full((40, 48), 3, np.uint8)  # CamVid's road: ground
+        if i:
+            lab[:20] = 5  # building: obstacle
+        cv2.imwrite(str(clip / "labels" / f"f{i}.png"), lab)
+    out = tmp_path / "r"
+    capsys.readouterr()
+    assert main(["evaluate", "rotation", "--data", f"camvid:{tmp_path / 'data'}", "--angles", "0,10", "--levels", "2",
+                 "--out", str(out)]) == 0
+    said = "dataset clip, frame f0: training labels hold only one class (ground)"
+    assert f"pcreg: note: {said}" in capsys.readouterr().err
+    results = json.loads((out / "results.json").read_text())
+    assert len(results["notes"]) == 1 and results["notes"][0].startswith(said)
+    assert results["datasets"]["clip"]["frames"] == ["f1", "f2"]

@@ -21,8 +21,9 @@ rotation_<backend>.csv/.md, checks.md and rotation.png (curves like the thesis's
 
 from __future__ import annotations
 
+import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..classification.features import DEFAULT_FEATURES
@@ -241,15 +242,39 @@ def evaluate(config: RotationConfig, *, out: str | Path | None = None, force: bo
     check_angles(config.angles)
     datasets = load_cached(config.data, frames=config.frames, size=config.size, seed=config.seed)
     data_notes = say_damage(datasets)
-    units = []
+    units, skipped = [], []
     for name, frames in datasets.items():
         for i in sample_indices(len(frames), config.samples):
             if frames[i].labels is None:
                 raise DatasetError(f"dataset {name}: frame {frames[i].name} has no labels")
+            why = _untrainable(frames[i], config.features)
+            if why:  # as the sequence evaluation leaves out a frame it cannot train on, said
+                skipped.append((f"dataset {name}, frame {frames[i].name}", why))
+                continue
             for b in config.backends:
                 units.append(Unit(f"{name}/frame{i}_{b}", name, (("index", i), ("backend", b)), config))
-    return evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
-                          recorder=recorder, desc="rotation", show_progress=show_progress, kept=kept, data_notes=data_notes)
+    if not units and skipped:  # no frame to score: the first one's reason
+        raise DatasetError(f"{skipped[0][0]}: {skipped[0][1]}")
+    notes = tuple(f"{where}: {why}; naive Bayes is trained on the frame itself, so it is not scored"
+                  for where, why in skipped)
+    for line in notes:
+        sys.stderr.write(f"pcreg: note: {line}\n")
+    results = evaluate_units(units, run_unit, config, summarise=summarise, out=out, force=force, executor=executor,
+                             recorder=recorder, desc="rotation", show_progress=show_progress, kept=kept,
+                             data_notes=data_notes)
+    return replace(results, notes=notes) if notes else results
+
+
+def _untrainable(frame, features) -> str | None:
+    """Why naive Bayes cannot be trained on ``frame`` alone (its labels of one class, or all unknown), or None."""
+    from ..classification.bayes import fit_classifier
+    from ..errors import InputError
+
+    try:
+        fit_classifier([frame], features=features)
+    except InputError as exc:
+        return str(exc)
+    return None
 
 
 def summarise(config: RotationConfig, unit_results: list[dict]) -> Results:

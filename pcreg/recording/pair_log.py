@@ -89,7 +89,7 @@ class PairLogger:
         self._cleared = False
         self._last_frame: int | None = None
         # within _log_pair_images: each slot's place and images so far, sent at its end (one row a slot)
-        self._placing: dict[int, tuple[tuple[float, float, float], tuple]] | None = None
+        self._placing: dict[int, tuple[tuple[float, float, float], tuple]] = {}
 
     def new_pair(self) -> None:
         """Forget the pair logged so far (a new frame)."""
@@ -123,23 +123,16 @@ class PairLogger:
         """On the sink's thread: the reference, then the moving image, each slot placed once, where it ends up
         (see the module: a second row at the same frame may win over the first in the viewer)."""
         self._placing = {}
-        try:
-            if a is not None:
-                self._log_reference(a, frame)
-            if m is not None:
-                self._log_moving(m, frame)
-            placing = self._placing
-        finally:
-            self._placing = None
-        for slot, (at, images) in sorted(placing.items()):
+        if a is not None:
+            self._log_reference(a, frame)
+        if m is not None:
+            self._log_moving(m, frame)
+        for slot, (at, images) in sorted(self._placing.items()):
             self.sink.send(E.IMAGE_SLOTS[slot], *images, rr.Transform3D(translation=at))
 
     def _place(self, slot: int, at: tuple[float, float, float], *images) -> None:
-        """Put ``slot`` at ``at`` (with ``images``): sent at once, or, within :meth:`_log_pair_images`, kept
-        until its end, the last place of a slot replacing the earlier ones."""
-        if self._placing is None:
-            self.sink.send(E.IMAGE_SLOTS[slot], *images, rr.Transform3D(translation=at))
-            return
+        """Put ``slot`` at ``at`` (with ``images``) once :meth:`_log_pair_images` sends its slots: the last place
+        of a slot replaces the earlier ones of the call, its images kept."""
         earlier = self._placing.get(slot)
         self._placing[slot] = (at, (earlier[1] if earlier else ()) + images)
 

@@ -348,14 +348,16 @@ def turned_note(frame: str | os.PathLike, labels_shape: tuple, frame_shape: tupl
 
 def exif_orientation(path: str | os.PathLike) -> int | None:
     """The EXIF Orientation tag (2..8: viewers show the image turned or mirrored) of an image file, or None
-    where it has none, 1 (shown as stored), or cannot be read."""
+    where it has none, 1 (shown as stored), or cannot be read (damaged EXIF, without a word)."""
     import warnings
 
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with warnings.catch_warnings():  # pcreg's pixel limit holds; Pillow's lower one is for its own decoding
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        # pcreg's pixel limit holds (Pillow's lower one is for its own decoding), and damaged EXIF reads as none
+        # (Pillow warns "Corrupt EXIF data" without the file's name, and the image itself reads as it is)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
             with Image.open(path) as image:
                 if image.format == "PNG" and "exif" not in image.info:
                     return None  # Pillow would decode every pixel to look for an eXIf chunk after them

@@ -281,6 +281,38 @@ def test_the_exif_note_reads_headers_alone_and_passes_images_over_pillows_own_li
     assert "EXIF" not in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("app1", [b"Exif\x00\x00MM\x00\x2a\xff\xff\xff\x00",  # the first IFD past the end
+                                  b"Exif\x00\x00MM\x00\x2a\x00\x00\x00\x08\xff\xff"])  # 65535 entries, none there
+def test_a_jpeg_with_damaged_exif_registers_without_pillows_warning(tmp_path, capsys, recwarn, app1):
+    """A JPEG whose EXIF block is damaged registers as any JPEG: Pillow's "Corrupt EXIF data" warning, which
+    names no file, is not shown (it was, with the line of Pillow's source that raised it)."""
+    import struct
+
+    import pcreg
+
+    img = pcreg.synthetic("syn2a", n_frames=1)[0].image[:, :, ::-1]
+    plain, damaged = tmp_path / "plain.png", tmp_path / "damaged exif.jpg"
+    cv2.imwrite(str(plain), img)
+    jpeg = cv2.imencode(".jpg", img)[1].tobytes()
+    damaged.write_bytes(jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:])
+    assert main(["register", str(plain), str(damaged)]) == 0
+    assert "EXIF" not in capsys.readouterr().err
+    assert [str(w.message) for w in recwarn] == []
+
+
+def test_an_initial_guess_far_off_is_refused_for_no_overlap_not_as_a_horizon(tmp_path, capsys):
+    """--init of a translation of 1e12 pixels (the largest entry an initial guess may hold) overlaps nothing, and
+    is refused saying so, as one of 5000 pixels is (it read "sends part of the image through infinity")."""
+    import pcreg
+
+    img = tmp_path / "a.png"
+    cv2.imwrite(str(img), pcreg.synthetic("syn2a", n_frames=1)[0].image[:, :, ::-1])
+    for shift in ("5000", "1e12"):
+        (tmp_path / "init.txt").write_text(f"1 0 {shift}\n0 1 0\n0 0 1\n")
+        assert main(["register", str(img), str(img), "--init", str(tmp_path / "init.txt"), "--model", "translation"]) == 3
+        assert "no overlap" in one_line_errors(capsys)[0]
+
+
 @pytest.mark.parametrize("dtype", [np.int16, np.int32])
 def test_a_signed_or_32_bit_tiff_is_refused_saying_what_pcreg_reads(tmp_path, capsys, dtype):
     """A scientific camera's signed 16-bit TIFF, or Pillow's 32-bit integer mode "I": exit 2, one line that

@@ -97,6 +97,9 @@ def test_degeneracy_names_what_cannot_be_a_view():
     assert degeneracy(H, shape) is None
     assert "finite" in degeneracy(np.full((3, 3), np.nan), shape)
     assert "infinity" in degeneracy(np.zeros((3, 3)), shape)
+    far = np.eye(3)
+    far[0, 2] = 1e12  # a translation however far is no horizon: registration says it overlaps nothing
+    assert degeneracy(far, shape) is None and degeneracy(-far, shape) is None
     H[2, 0] = -0.01  # the horizon line x = 100 crosses the image
     assert "infinity" in degeneracy(H, shape)
     assert "mirrors" in degeneracy(np.diag([1.0, -1.0, 1.0]), shape)

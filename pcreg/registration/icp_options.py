@@ -88,7 +88,9 @@ class ICPOptions:
     rotation : 3-D rigid closed form of the reference backend: ``svd`` (Umeyama) or ``quaternion`` (Horn).
     count_iterations : Open3D backend only: run Open3D one iteration at a time (its stopping rule applied
         between steps) so that ``iterations`` and ``converged`` are exact; False runs it in one call
-        (faster) and reports ``iterations = -1``.
+        (faster), reports ``iterations = -1``, and ``converged`` says whether one more iteration from the
+        returned pose meets the stopping rule (so a run that used all its iterations can read converged where
+        the stepwise run reads not, and, rarely, one that Open3D stopped early can read not converged).
     schedule : a coarse-to-fine :class:`VoxelSchedule` (None: one run on the clouds themselves).
 
     Options only the reference backend honours are refused with the Open3D backend (never ignored).

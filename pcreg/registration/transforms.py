@@ -296,7 +296,10 @@ def degeneracy(T_ref_mov: np.ndarray, shape: tuple[int, ...]) -> str | None:
         return "the transform is not a finite 3x3 matrix"
     c = np.concatenate([corners(shape), np.ones((4, 1))], axis=1) @ M.T
     w = c[:, 2] * np.sign(M[2, 2] if M[2, 2] != 0 else 1.0)
-    if np.any(w <= 1e-12 * np.abs(c[:, :2]).max(initial=1.0)):
+    # a point sent beyond 1e12 times its w is through infinity; an affine's w is its M[2, 2] at every point, and a
+    # translation however far (it overlaps nothing then, which registration says) is not a horizon
+    far = 0.0 if M[2, 0] == M[2, 1] == 0 else 1e-12 * np.abs(c[:, :2]).max(initial=1.0)
+    if np.any(w <= far):
         return "the transform sends part of the image through infinity (a singular or folded homography)"
     q = c[:, :2] / c[:, 2:3]
     edges = np.roll(q, -1, axis=0) - q

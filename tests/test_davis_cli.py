@@ -202,6 +202,36 @@ def test_a_sequence_too_short_to_score_keeps_every_method_in_the_davis_tables(tm
     assert shown["davis_F"]["rows"][1]["cells"][:4] == ["short", 0, None, None]
 
 
+def test_the_means_that_compare_leave_out_a_sequence_pcreg_could_not_score(tmp_path):
+    """A sequence of two frames (none scored) beside a longer one, both with published figures: pcreg's means were
+    over the longer one and the published means over both, side by side with no row that compares, the note "left
+    out of the means" true of pcreg's columns alone; and the report page showed none of the tables' notes."""
+    write_pcreg_layout(tmp_path / "d" / "blackswan", frames_and_masks(2, seed=1))
+    write_pcreg_layout(tmp_path / "d" / "goat", frames_and_masks(5))
+    out = tmp_path / "out"
+    assert main(["evaluate", "stream", "--data", f"davis:{tmp_path / 'd'}", "--methods", "unregistered",
+                 "--out", str(out)]) == 0
+    d = json.loads((out / "results.json").read_text())["davis"]
+    assert d["published"]["covered"] == ["goat"]
+    for k in ("J", "F"):
+        assert d["mean_covered"][k]["osvos"] == pytest.approx(d["published"][k]["osvos"]["goat"])
+        assert d["mean_covered"][k]["plain"] == pytest.approx(d["sequences"]["goat"][k]["plain"])
+        assert d["published"]["mean"][k]["osvos"] == pytest.approx(np.mean(list(d["published"][k]["osvos"].values())))
+    table = (out / "davis_J.md").read_text()
+    assert "| mean over the 1 scored with published figures | 3 |" in table
+    said = ("blackswan: fewer than 3 frames, none scored (frames 1 to n-2): nan, left out of the means of pcreg's "
+            "methods; the published means count blackswan, so the means over sequences do not compare: the row of the "
+            "1 scored with published figures does.")
+    assert said in table
+    from pcreg.experiments.reports.page import load_report, page_data  # the page shows each table's notes under it
+
+    shown = {t["name"]: t for t in page_data(load_report(out))["tables"]}
+    assert said in shown["davis_J"]["footer"] and said.replace("(frames", "(frames") in shown["davis_F"]["footer"]
+    assert any(p.startswith("Scored over other frames than the published figures") for p in shown["davis_J"]["footer"])
+    assert shown["stream_reference"]["footer"][0].startswith("(error %, unknown truth left out")
+    assert shown["stream_frames"]["footer"] == []
+
+
 def test_evaluate_stream_on_davis_refuses_a_class_table(tmp_path, capsys):
     """``--classes camvid11`` on DAVIS scored the object and its background as camvid11's building and pole (an mIoU
     of the object's mask read as a street scene) and left no method in the J and F tables: refused in one line."""

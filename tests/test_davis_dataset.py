@@ -69,6 +69,18 @@ def test_a_shared_sequence_in_the_official_layout_reads_as_in_pcregs(shared_data
     assert load_davis(root)["goat"][0].shape == (480, 854)
 
 
+def test_an_official_layout_beside_sequences_in_pcregs_is_refused_naming_both(tmp_path):
+    """A folder of DAVIS's official layout that also holds a sequence in pcreg's (SEQ/images/) was read as the
+    official layout alone: the other sequence was left out without a word."""
+    root = write_official_layout(tmp_path / "DAVIS", "goat", frames_and_masks(3))
+    write_pcreg_layout(root / "myseq", frames_and_masks(3, seed=1))
+    with pytest.raises(DatasetError, match=r"DAVIS: holds DAVIS's official layout \(JPEGImages/480p/\) and sequences "
+                                           r"in pcreg's \(myseq: SEQ/images/\): give davis:.*JPEGImages/480p"):
+        load_davis(root)
+    assert list(load_davis(root / "JPEGImages" / "480p")) == ["goat"]
+    assert list(load_davis(root / "myseq")) == ["myseq"]
+
+
 def test_the_published_results_beside_the_sequences_or_pcregs_own(tmp_path):
     ours = tmp_path / "ours"
     write_pcreg_layout(ours / "blackswan", frames_and_masks(3))
@@ -86,6 +98,17 @@ def test_the_published_results_beside_the_sequences_or_pcregs_own(tmp_path):
     beside = published(ours)
     assert beside["file"].endswith("published_mine.csv") and beside["source"] == PUBLISHED_SOURCE
     assert beside["methods"] == ["osvos"]
+    # two figures of one method and sequence (two files, or one file twice): refused naming both lines; the same twice is one
+    (ours / "published_more.csv").write_text("method,sequence,J_mean,F_mean\nosvos,blackswan,0.1,0.1\n")
+    with pytest.raises(DatasetError, match=r"published_more.csv: line 2: osvos on blackswan has J 0.1, F 0.1 here and "
+                                           r"J 0.9423, F 0.9753 at .*published_mine.csv: line 2: one figure each"):
+        published(ours)
+    (ours / "published_more.csv").write_text("# the same\nmethod,sequence,J_mean,F_mean\nosvos,blackswan,0.9423,0.9753\n")
+    assert published(ours)["J"]["osvos"] == {"blackswan": 0.9423}
+    (ours / "published_more.csv").unlink()
+    (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\nmine,blackswan,0.5,0.4\nmine,blackswan,0.5,0.3\n")
+    with pytest.raises(DatasetError, match=r"published_mine.csv: line 3: mine on blackswan has J 0.5, F 0.3 here"):
+        published(ours)
     (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\nmine,blackswan,0.5,0.4\n")
     assert published(ours)["source"] == "published_mine.csv (which names no source)"
     (ours / "published_mine.csv").write_text("method,sequence,J\nmine,blackswan,0.5\n")

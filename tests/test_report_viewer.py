@@ -193,6 +193,13 @@ def test_report_page_in_a_browser(evaluations, kind, tmp_path):
                         assert row["frame"] in recorded, (key, row["frame"])
             missing = set(expected) - seen
             assert not missing, f"rows of results.json not in the page: {sorted(missing)}"
+            # each table's notes under it, as its Markdown file has them (its ** and ` drawn, not shown)
+            footers = ev("Object.fromEntries(Array.from(document.querySelectorAll('section.table-card')).map((s) => "
+                         "[s.id, Array.from(s.querySelectorAll('p.footer')).map((p) => p.textContent)]))")
+            for t in report["tables"]:
+                assert footers[f"table-{t['name']}"] == [p.replace("**", "").replace("`", "") for p in t["footer"]]
+            if kind == "stream":
+                assert footers["table-stream_reference"][0].startswith("(error %, unknown truth left out")
             # the figures load
             figures = until(lambda: (lambda f: f if f and all(w for _, w in f) else None)(ev(FIGURES_JS)),
                             what="the figures loading", alive=proc, bound=60)

@@ -297,6 +297,14 @@ def test_evaluate_stream_with_key_frames_anywhere(tmp_path, capsys):
         with pytest.raises(InputError, match="suggest:N takes a whole number"):
             check_key_spec(bad, 12)
     check_key_spec("suggest : 3", 12)
+    huge = "9" * 5000  # past what int() reads from a string (4300 digits): its ValueError ended in exit 1
+    for bad, said in ((f"spaced:{huge}", "spaced:N needs 1 <= N <= 10"), (f"2,{huge}", "must lie in 0..9"),
+                      (f"-{huge}", "must lie in 0..9"), (f"suggest:{huge}", "suggest:N needs 1 <= N <= 10")):
+        with pytest.raises(InputError, match=said):
+            key_indices(bad, 10)
+    with pytest.raises(InputError, match="suggest:N needs 1 <= N <= 10"):
+        check_key_spec(f"suggest:{huge}", 10)
+    assert key_indices(f"every:{huge}", 10) == [0] and key_indices("every:0009", 10) == [0, 9]
     for every in ("every:1", "spaced:10", "0,1,2,3,4,5,6,7,8,9"):  # scored nothing: a table of NaN, "met"
         with pytest.raises(InputError, match="every one of the clip's 10 frames is a key frame"):
             key_indices(every, 10)

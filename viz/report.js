@@ -170,6 +170,7 @@ function renderTable(t) {
   }
   table.append(body);
   wrap.append(el("div", { class: "scroll" }, table));
+  for (const text of t.footer || []) wrap.append(el("p", { class: "footer" }, inline(text)));
   return wrap;
 }
 

@@ -75,6 +75,12 @@ def _locate(p: Path) -> tuple[dict[str, tuple[Path, Path]], Path, Path | None, s
     root = _official_root(p)
     if root is not None:  # ROOT
         img_root, ann_root, beside = p / "JPEGImages" / root[1], p / "Annotations" / root[1], p
+        ours = [d.name for d in _dirs(p) if (d / "images").is_dir()]
+        if ours:  # read as the official layout alone, they were left out without a word
+            raise DatasetError(f"{p}: holds DAVIS's official layout (JPEGImages/{root[1]}/) and sequences in pcreg's "
+                               f"({', '.join(ours[:3])}{', ...' if len(ours) > 3 else ''}: SEQ/images/): give "
+                               f"davis:{p / 'JPEGImages' / root[1]} for the official ones, and move the others to a "
+                               "folder of their own")
     elif p.name in RESOLUTIONS and p.parent.name == "JPEGImages":  # ROOT/JPEGImages/480p
         img_root, ann_root, beside = p, p.parent.parent / "Annotations" / p.name, p.parent.parent
         root = (p.parent.parent, p.name)
@@ -363,10 +369,23 @@ def _read_published(path: Path) -> list[dict]:
         try:
             frames = (r.get("n_frames_evaluated") or "").strip()  # optional: how many frames the figures are over
             rows.append({"method": r["method"].strip(), "sequence": r["sequence"].strip(),
-                         "J": float(r["J_mean"]), "F": float(r["F_mean"]), "frames": int(frames) if frames else None})
+                         "J": float(r["J_mean"]), "F": float(r["F_mean"]), "frames": int(frames) if frames else None,
+                         "at": f"{path}: line {i}"})
         except (TypeError, ValueError, AttributeError):
             raise DatasetError(f"{path}: line {i} is not method, sequence, J_mean, F_mean") from None
     return rows
+
+
+def _refuse_two_figures(rows: list[dict]) -> None:
+    """A :class:`DatasetError` naming both lines where one method has two figures of one sequence (the same figures
+    twice are one): the table would show whichever came last."""
+    first: dict = {}
+    for r in rows:
+        seen = first.setdefault((r["method"], r["sequence"]), r)
+        if seen is not r and any(seen[k] != r[k] for k in ("J", "F")):
+            raise DatasetError(f"{r['at']}: {r['method']} on {r['sequence']} has J {r['J']:g}, F {r['F']:g} here and J "
+                               f"{seen['J']:g}, F {seen['F']:g} at {seen['at']}: one figure each, or the tables would show "
+                               "whichever comes last")
 
 
 def published(path: str | Path) -> dict:
@@ -394,6 +413,7 @@ def published(path: str | Path) -> dict:
         elif len(shared) < len(rows):  # the website's figures beside others: those others are the file's own
             own = dict.fromkeys(r["method"] for r in rows if (r["method"], r["sequence"]) not in ours)
             source = f"{PUBLISHED_SOURCE}, except the figures of {', '.join(own)} that pcreg does not ship: {names}"
+    _refuse_two_figures(rows)
     methods = list(dict.fromkeys(r["method"] for r in rows))
     doc: dict = {"file": ", ".join(str(f) for f in files) if files else str(PUBLISHED_CSV), "source": source,
                  "methods": methods, "J": {m: {} for m in methods}, "F": {m: {} for m in methods}, "frames": {}}

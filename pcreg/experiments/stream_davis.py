@@ -98,9 +98,9 @@ def summarise_davis(config, unit_results: list[dict]) -> dict:
     how many those are). With sequences of several objects (DAVIS 2017), each object is a row ``SEQ_K`` of its
     own and ``objects`` names them per sequence: the means are then over objects, as davis2017-evaluation's
     ``J-Mean`` and ``F-Mean`` are (``evaluation_method.py``: ``np.mean(J["M"])``, one entry per object).
-    Where the published figures cover some sequences only, ``covered`` names those
-    with a figure of every published method, and ``mean_covered`` gives every method's mean, pcreg's and
-    the published ones, over them alone: the means that compare."""
+    Where the published figures cover some sequences only, or pcreg scored some only (fewer than 3 frames score
+    none), ``covered`` names those pcreg scored and every published method has a figure of, and ``mean_covered``
+    gives every method's mean, pcreg's and the published ones, over them alone: the means that compare."""
     from ..classification.davis_measures import benchmark_mean
     from ..datasets.davis import objects_of, published, select_sequences
     from ..datasets.davis_splits import parse_davis_arg
@@ -121,8 +121,9 @@ def summarise_davis(config, unit_results: list[dict]) -> dict:
     given = {k: {p: [v for v in table[k][p].values() if np.isfinite(v)] for p in pub["methods"]} for k in MEASURES}
     pub_mean = {k: {p: float(np.mean(v)) if v else float("nan") for p, v in given[k].items()} for k in MEASURES}
     counted = {k: {p: len(v) for p, v in given[k].items()} for k in MEASURES}
-    covered = [n for n in names if pub["methods"] and all(np.isfinite(table[k][p][n]) for k in MEASURES
-                                                           for p in pub["methods"])]
+    scored = [n for n in names if all(np.isfinite(seqs[n][k][m]) for k in MEASURES for m in methods)]
+    covered = [n for n in scored if pub["methods"] and all(np.isfinite(table[k][p][n]) for k in MEASURES
+                                                            for p in pub["methods"])]
     doc = {"split": chosen.to_dict(), "sequences": seqs, "methods": methods, "mean": mean,
            "published": {"source": pub["source"], "file": pub["file"], "methods": pub["methods"], **table,
                          "mean": pub_mean, "counted": counted, "covered": covered,

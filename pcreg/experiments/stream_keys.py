@@ -31,6 +31,14 @@ __all__ = ["KEY_METHODS", "key_indices", "check_key_spec", "run_clip_keys"]
 #: ``1_0`` or other digits Python's ``int`` reads.
 _WHOLE = re.compile(r"[+-]?[0-9]+")
 
+
+def _whole(digits: str) -> int:
+    """A number :data:`_WHOLE` matched; one of more than 18 digits, beyond any clip (and, past 4300, beyond what
+    ``int()`` reads from a string), as 10**18 with its sign, for the range checks to refuse."""
+    if len(digits.lstrip("+-").lstrip("0")) <= 18:
+        return int(digits)
+    return -10**18 if digits.startswith("-") else 10**18
+
 #: Methods of the key-frame protocol, in table order.
 KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "flow_key",
                                  "flowultrafast_key")
@@ -60,7 +68,7 @@ def check_key_spec(spec: str, n: int) -> None:
         return
     if not _WHOLE.fullmatch(arg):
         raise InputError(f"--keys {spec}: suggest:N takes a whole number")
-    k = int(arg)
+    k = _whole(arg)
     if not 1 <= k <= n:
         raise InputError(f"--keys {spec}: suggest:N needs 1 <= N <= {n} (the clip's frames)")
     if k >= n:
@@ -85,7 +93,7 @@ def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", 
     if kind in ("every", "suggest", "spaced"):
         if not _WHOLE.fullmatch(arg):
             raise InputError(f"--keys {spec}: {kind}:N takes a whole number")
-        k = int(arg)
+        k = _whole(arg)
         if kind == "every":
             if k < 1:
                 raise InputError(f"--keys {spec}: every:N needs N >= 1")
@@ -106,7 +114,7 @@ def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", 
     values = s.split(",")
     if not all(_WHOLE.fullmatch(v) for v in values):
         raise InputError(f"--keys {spec}: not first, first,last, every:N, spaced:N, suggest:N or frame indices")
-    idx = sorted({int(v) for v in values})
+    idx = sorted({_whole(v) for v in values})
     if not idx or idx[0] < 0 or idx[-1] >= n:
         raise InputError(f"--keys {spec}: frame indices must lie in 0..{n - 1}")
     return idx

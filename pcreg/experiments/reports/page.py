@@ -122,14 +122,17 @@ def _units(results: dict) -> list[dict]:
 
 
 def _backend_tables(results: dict, R: Any, *, key: str, title: str, select: str, errors: Any,
-                    row_frames: Callable[[str, str, dict], Iterable[int | None]]) -> list[dict]:
+                    row_frames: Callable[[str, str, dict], Iterable[int | None]],
+                    footer: Callable[[dict, str], str] = lambda results, backend: "") -> list[dict]:
     """One table per backend, ``R.table(results, backend)``; ``row_frames(backend, dataset, entry)`` gives
-    the recording frame of each of that dataset's rows (None: not recorded)."""
+    the recording frame of each of that dataset's rows (None: not recorded); ``footer(results, backend)`` what
+    its Markdown file says under it."""
     out = []
     for b, bd in results["backends"].items():
         header, rows = R.table(results, b)
         frames = [f for name, d in bd["datasets"].items() for f in row_frames(b, name, d)]
-        out.append(_table(f"{key}_{b}", f"{title}, backend {b}", header, rows, frames, select=select, errors=errors))
+        out.append(_table(f"{key}_{b}", f"{title}, backend {b}", header, rows, frames, select=select, errors=errors,
+                          footer=footer(results, b)))
     return out
 
 
@@ -145,7 +148,8 @@ def _sequence_tables(results: dict) -> list[dict]:
             yield _first_frame(u.get("recording_frames")) if u else None
 
     return _backend_tables(results, R, key="sequence", title="Mean error % over pairs (i, i+k)",
-                           select="a clip and increment", errors=results.get("methods", ()), row_frames=row_frames)
+                           select="a clip and increment", errors=results.get("methods", ()), row_frames=row_frames,
+                           footer=R.fewer_pairs)
 
 
 def _rotation_tables(results: dict) -> list[dict]:
@@ -169,12 +173,12 @@ def _stream_tables(results: dict) -> list[dict]:
 
     primary = results.get("primary_backend")
     units = [u for u in _units(results) if primary is None or u.get("backend") == primary]
-    header, rows, _ = R.table(results)
+    header, rows, footer = R.table(results)
     by_clip = {u.get("dataset"): u for u in units}
     frames = [_first_frame(by_clip[name].get("recording_frames")) if name in by_clip else None
               for name in results["datasets"]] + [None]
     reference = _table("stream_reference", "Mean error % per clip (last row: reduction against plain, %)",
-                       header, rows[:-1], frames[:-1], select="a clip", errors=results["methods"])
+                       header, rows[:-1], frames[:-1], select="a clip", errors=results["methods"], footer=footer)
     reduction = _table("stream_reduction", "Reduction against plain, mean over clips (%)", header[2:],
                        [rows[-1][2:]], [None], errors=results["methods"], better="higher")
     header, rows = R.per_frame(results)
@@ -196,9 +200,9 @@ def _davis_tables(results: dict) -> list[dict]:
         return []
     tables = []
     for k in ("J", "F"):
-        header, rows, _ = davis_table(results, k)
+        header, rows, footer = davis_table(results, k)
         tables.append(_table(f"davis_{k}", f"DAVIS: {k} per sequence (upper case: the published methods)", header,
-                             rows, [None] * len(rows), errors=header[2:], better="higher"))
+                             rows, [None] * len(rows), errors=header[2:], better="higher", footer=footer))
     return tables
 
 
@@ -224,13 +228,15 @@ def _cell(v: Any) -> Any:
 
 
 def _table(name: str, title: str, header: list, rows: list, frames: list, *, select: str | None = None,
-           errors: tuple | list = (), better: str = "lower") -> dict:
+           errors: tuple | list = (), better: str = "lower", footer: str = "") -> dict:
     """One table: ``columns``, ``rows`` (``cells``, the recording ``frame``, which cells are ``floats``:
     JSON does not tell 2.0 from 2), which columns compare the
     methods (``errors``: their indices; ``better``: whether lower or higher is better), what choosing a
-    row selects."""
+    row selects, and ``footer``, the paragraphs its Markdown file has under it (what the figures are, and
+    which do not compare)."""
     columns = [str(h) for h in header]
     return {"name": name, "title": title, "columns": columns, "select": select, "better": better,
+            "footer": [" ".join(p.split()) for p in footer.split("\n\n") if p.strip()],
             "errors": [i for i, c in enumerate(columns) if c in errors],
             "rows": [{"cells": [_cell(c) for c in row], "frame": f, "floats": [i for i, c in enumerate(row) if _is_float(c)]}
                      for row, f in zip(rows, frames)]}

@@ -3,6 +3,8 @@ benchmark's published methods (the ``davis`` section of :mod:`pcreg.experiments.
 
 from __future__ import annotations
 
+import math
+
 _WHAT = {"J": "J, region similarity (the object's intersection over union; 1 when both masks are empty)",
          "F": "F, boundary accuracy (the boundary F-measure, boundaries matched within ceil(0.008 x the image's "
               "diagonal) px)"}
@@ -20,8 +22,9 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
     rows.append(["mean over objects" if objects else "mean over sequences", sum(s["frames"] for s in d["sequences"].values()),
                  *[d["mean"][measure][m] for m in ours], *[pub["mean"][measure][p] for p in pub["methods"]]])
     covered = pub.get("covered", [])
+    short = [n for n, s in d["sequences"].items() if not s["frames"]]
     if d.get("mean_covered"):
-        rows.append([f"mean over the {len(covered)} with published figures",
+        rows.append([f"mean over the {len(covered)} {'scored ' if short else ''}with published figures",
                      sum(d["sequences"][n]["frames"] for n in covered),
                      *[d["mean_covered"][measure][m] for m in [*ours, *pub["methods"]]]])
     footer = (f"\n({_WHAT[measure]}; frames 1 to n-2 of each sequence of n, averaged per sequence, then over the "
@@ -36,10 +39,8 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
                    "objects, a sequence with one object counting once, as the DAVIS 2017 evaluation "
                    "(davis2017-evaluation) averages.\n")
     footer += _published_note(d, measure)
-    short = [n for n, s in d["sequences"].items() if not s["frames"]]
     if short:
-        footer += (f"\n{', '.join(short)}: fewer than 3 frames, none scored (frames 1 to n-2): nan, left out of the "
-                   "means.\n")
+        footer += _short_note(d, measure, short)
     if results["config"].get("frames"):
         footer += (f"\nOnly the first {results['config']['frames']} frames of each sequence were run (--frames): the "
                    "published figures are over whole sequences, and the two do not compare.\n")
@@ -50,6 +51,21 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
                    "were given, and they are not scored (but for one some method cannot start from, its mask of no object, no "
                    "background, or with pcreg_object an object too small to follow: it is no key frame, and is scored).\n")
     return header, rows, footer
+
+
+def _short_note(d: dict, measure: str, short: list[str]) -> str:
+    """What is said of sequences of fewer than 3 frames: none scored, so left out of pcreg's means; where the
+    published methods have figures of them, the published means count them, and the two means do not compare."""
+    pub = d["published"]
+    counted = [n for n in short if any(isinstance(v, (int, float)) and math.isfinite(v)
+                                       for v in (pub[measure][p].get(n) for p in pub["methods"]))]
+    said = f"\n{', '.join(short)}: fewer than 3 frames, none scored (frames 1 to n-2): nan, left out of the means"
+    if not counted:
+        return said + ".\n"
+    compares = (f": the row of the {len(pub.get('covered', []))} scored with published figures does" if d.get("mean_covered")
+                else "")
+    return (said + f" of pcreg's methods; the published means count {', '.join(counted)}, so the means over "
+            f"sequences do not compare{compares}.\n")
 
 
 def _fewer_frames_note(d: dict) -> str:
@@ -76,7 +92,7 @@ def _published_note(d: dict, measure: str) -> str:
         return ""
     each = ", ".join(f"{p.upper()} {c}" for p, c in counted.items())
     return (f"\nThe published means are over the sequences with a figure only ({each} of {n}); the row of the "
-            f"{len(pub.get('covered', []))} with every published figure compares pcreg's methods with them on the same "
+            f"{len(pub.get('covered', []))} scored with every published figure compares pcreg's methods with them on the same "
             "sequences.\n" if d.get("mean_covered") else
             f"\nThe published means are over the sequences with a figure only ({each} of {n}).\n")
 

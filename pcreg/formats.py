@@ -357,7 +357,8 @@ def exif_orientation(path: str | os.PathLike) -> int | None:
         # pcreg's pixel limit holds (Pillow's lower one is for its own decoding), and damaged EXIF reads as none
         # (Pillow warns "Corrupt EXIF data" without the file's name, and the image itself reads as it is)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            warnings.simplefilter("ignore", UserWarning)
             with Image.open(path) as image:
                 if image.format == "PNG" and "exif" not in image.info:
                     return None  # Pillow would decode every pixel to look for an eXIf chunk after them

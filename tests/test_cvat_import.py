@@ -438,6 +438,25 @@ def test_a_one_channel_mask_of_16_bits_holds_labelmap_lines_as_one_of_8(clip, tm
                 read_cvat_keys(export, source, mask.shape)
 
 
+def test_an_export_saved_without_its_suffix_is_read_as_its_zip(clip, tmp_path, capsys):
+    """A CVAT export downloaded or renamed without ``.zip`` was "not an image pcreg reads": a file that starts as a
+    zip does is read as the export, to the same labels; a PNG is still a key frame's labels."""
+    from pcreg.classes.cvat import is_cvat_export
+
+    frames, ids = clip
+    stems = list(ids)
+    named = cvat_export(tmp_path / "task_7.zip", TWO, {stems[0]: TWO_LUT[ids[stems[0]]]})
+    bare = tmp_path / "task_7_annotations"
+    bare.write_bytes(named.read_bytes())
+    assert is_cvat_export(bare) and not is_cvat_export(CLIP / "labels" / f"{stems[0]}.png")
+    for labels, out in ((named, "a"), (bare, "b")):
+        rc, err = _run(["run", frames, "--labels", labels, "--out", tmp_path / out, "--model", "flow", "--scale", "0.5"],
+                       capsys)
+        assert rc == 0, err
+    for stem in stems:
+        assert (tmp_path / "a" / f"{stem}.png").read_bytes() == (tmp_path / "b" / f"{stem}.png").read_bytes()
+
+
 def test_an_unpacked_export_in_its_folder_is_read_as_its_zip(clip, tmp_path, capsys):
     """An export unzipped with its folder around it (``FOLDER/task_7/labelmap.txt``, Finder's ``__MACOSX/`` and a
     ``.DS_Store`` beside it) is read inside that folder, as its zip is (it was "holds no label PNG"); errors name

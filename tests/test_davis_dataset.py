@@ -3,6 +3,8 @@ results beside them or shipped, and bad sequences refused naming the file."""
 
 from __future__ import annotations
 
+import shutil
+
 import cv2
 import numpy as np
 import pytest
@@ -79,6 +81,11 @@ def test_an_official_layout_beside_sequences_in_pcregs_is_refused_naming_both(tm
         load_davis(root)
     assert list(load_davis(root / "JPEGImages" / "480p")) == ["goat"]
     assert list(load_davis(root / "myseq")) == ["myseq"]
+    shutil.rmtree(root / "myseq")  # the other way round: ROOT/images/ was read as one sequence, the official ones left out
+    write_pcreg_layout(root, frames_and_masks(3, seed=1))
+    with pytest.raises(DatasetError, match=r"DAVIS: a sequence in pcreg's layout \(images/\) and DAVIS's official layout "
+                                           r"\(JPEGImages/480p/\) in one folder"):
+        load_davis(root)
 
 
 def test_the_published_results_beside_the_sequences_or_pcregs_own(tmp_path):
@@ -106,11 +113,20 @@ def test_the_published_results_beside_the_sequences_or_pcregs_own(tmp_path):
     (ours / "published_more.csv").write_text("# the same\nmethod,sequence,J_mean,F_mean\nosvos,blackswan,0.9423,0.9753\n")
     assert published(ours)["J"]["osvos"] == {"blackswan": 0.9423}
     (ours / "published_more.csv").unlink()
-    (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\nmine,blackswan,0.5,0.4\nmine,blackswan,0.5,0.3\n")
-    with pytest.raises(DatasetError, match=r"published_mine.csv: line 3: mine on blackswan has J 0.5, F 0.3 here"):
+    (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\nmine,blackswan,0.5,0.4\nmine,blackswan,0.5,0.4000001\n")
+    with pytest.raises(DatasetError, match=r"published_mine.csv: line 3: mine on blackswan has J 0.5, F 0.4000001 here "
+                                           r"and J 0.5, F 0.4 at"):  # every digit shown: what differs can be seen
+        published(ours)
+    (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean,n_frames_evaluated\nmine,blackswan,nan,nan,48\n"
+                                             "mine,blackswan,nan,nan,48\nmine,blackswan,nan,nan,10\n")
+    with pytest.raises(DatasetError, match=r"line 4: mine on blackswan has J nan, F nan, 10 frames here and J nan, F nan, "
+                                           r"48 frames at .*line 2"):  # NaN twice is the same figure; frames count
         published(ours)
     (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\nmine,blackswan,0.5,0.4\n")
     assert published(ours)["source"] == "published_mine.csv (which names no source)"
+    (ours / "published_mine.csv").write_text("method,sequence,J_mean,F_mean\n# nothing yet\n")  # the columns went
+    with pytest.raises(DatasetError, match="published_mine.csv: no published figure, its header alone"):
+        published(ours)
     (ours / "published_mine.csv").write_text("method,sequence,J\nmine,blackswan,0.5\n")
     with pytest.raises(DatasetError, match="published_mine.csv: published results need the columns"):
         published(ours)

@@ -100,6 +100,9 @@ def test_degeneracy_names_what_cannot_be_a_view():
     far = np.eye(3)
     far[0, 2] = 1e12  # a translation however far is no horizon: registration says it overlaps nothing
     assert degeneracy(far, shape) is None and degeneracy(-far, shape) is None
+    far[0, 2] = 1e300  # its corners' differences round away there: still a view, not a fold
+    assert degeneracy(far, shape) is None
+    assert "area" in degeneracy(np.diag([1.0, 1.0, 1e-300]), shape)  # a zoom by 1e300, not a fold
     H[2, 0] = -0.01  # the horizon line x = 100 crosses the image
     assert "infinity" in degeneracy(H, shape)
     assert "mirrors" in degeneracy(np.diag([1.0, -1.0, 1.0]), shape)

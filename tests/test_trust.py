@@ -305,6 +305,11 @@ def test_evaluate_stream_with_key_frames_anywhere(tmp_path, capsys):
     with pytest.raises(InputError, match="suggest:N needs 1 <= N <= 10"):
         check_key_spec(f"suggest:{huge}", 10)
     assert key_indices(f"every:{huge}", 10) == [0] and key_indices("every:0009", 10) == [0, 9]
+    zeros = "0" * 5000  # leading zeros count in int()'s limit too
+    assert key_indices(f"spaced:{zeros}3", 9) == [0, 3, 6] and key_indices(f"2,{zeros}5", 10) == [2, 5]
+    with pytest.raises(InputError) as said:  # the reason is not cut off by the spec it echoes
+        key_indices(f"spaced:{huge}", 10)
+    assert str(said.value) == "--keys spaced:999...999 (5000 digits): spaced:N needs 1 <= N <= 10 (the clip's frames)"
     for every in ("every:1", "spaced:10", "0,1,2,3,4,5,6,7,8,9"):  # scored nothing: a table of NaN, "met"
         with pytest.raises(InputError, match="every one of the clip's 10 frames is a key frame"):
             key_indices(every, 10)

@@ -73,11 +73,21 @@ _ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, Ru
 
 
 def is_cvat_export(path: Path) -> bool:
-    """Whether ``--labels path`` names a CVAT export: a ``.zip`` file, or a folder holding a
-    ``SegmentationClass/`` folder, itself or in its one folder (:func:`wrapped_export`)."""
+    """Whether ``--labels path`` names a CVAT export: a ``.zip`` file (or a file that starts as a zip does, saved
+    without its suffix), or a folder holding a ``SegmentationClass/`` folder, itself or in its one folder
+    (:func:`wrapped_export`)."""
     p = Path(path)
-    return (p.is_file() and p.suffix.lower() == ".zip") or (p.is_dir() and (
+    return (p.is_file() and (p.suffix.lower() == ".zip" or _zip_header(p))) or (p.is_dir() and (
         (p / CLASS_DIR).is_dir() or wrapped_export(p) is not None))
+
+
+def _zip_header(path: Path) -> bool:
+    """Whether the file starts as a zip archive does (a local file header, or the end record of an empty one)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(4) in (b"PK\x03\x04", b"PK\x05\x06")
+    except OSError:
+        return False
 
 
 def wrapped_export(folder: Path) -> Path | None:

@@ -26,6 +26,7 @@ copy has none).
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -70,9 +71,13 @@ def _official_root(path: Path) -> tuple[Path, str] | None:
 def _locate(p: Path) -> tuple[dict[str, tuple[Path, Path]], Path, Path | None, str | None]:
     """Every sequence at ``p`` (as :func:`find_sequences`), the folder beside them, and the official root and
     resolution when ``p`` is ``ROOT`` or ``ROOT/JPEGImages/RES`` (else None, None)."""
-    if (p / "images").is_dir():  # pcreg's layout, one sequence
-        return {p.name: (p / "images", p / "labels")}, p.parent, None, None
     root = _official_root(p)
+    if (p / "images").is_dir():  # pcreg's layout, one sequence
+        if root is not None:  # read as one sequence, the official layout beside it was left out without a word
+            raise DatasetError(f"{p}: a sequence in pcreg's layout (images/) and DAVIS's official layout "
+                               f"(JPEGImages/{root[1]}/) in one folder: give davis:{p / 'JPEGImages' / root[1]} for the "
+                               "official sequences, and move images/ and labels/ to a folder of their own")
+        return {p.name: (p / "images", p / "labels")}, p.parent, None, None
     if root is not None:  # ROOT
         img_root, ann_root, beside = p / "JPEGImages" / root[1], p / "Annotations" / root[1], p
         ours = [d.name for d in _dirs(p) if (d / "images").is_dir()]
@@ -373,19 +378,27 @@ def _read_published(path: Path) -> list[dict]:
                          "at": f"{path}: line {i}"})
         except (TypeError, ValueError, AttributeError):
             raise DatasetError(f"{path}: line {i} is not method, sequence, J_mean, F_mean") from None
+    if not rows:  # the published columns would vanish from the tables without a word
+        raise DatasetError(f"{path}: no published figure, its header alone (remove it, and pcreg's own copy of the "
+                           "benchmark's figures stands beside the sequences)")
     return rows
 
 
 def _refuse_two_figures(rows: list[dict]) -> None:
     """A :class:`DatasetError` naming both lines where one method has two figures of one sequence (the same figures
     twice are one): the table would show whichever came last."""
+    def same(a, b) -> bool:
+        return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
+
+    def said(r: dict) -> str:
+        return f"J {r['J']!r}, F {r['F']!r}" + (f", {r['frames']} frames" if r["frames"] is not None else "")
+
     first: dict = {}
     for r in rows:
         seen = first.setdefault((r["method"], r["sequence"]), r)
-        if seen is not r and any(seen[k] != r[k] for k in ("J", "F")):
-            raise DatasetError(f"{r['at']}: {r['method']} on {r['sequence']} has J {r['J']:g}, F {r['F']:g} here and J "
-                               f"{seen['J']:g}, F {seen['F']:g} at {seen['at']}: one figure each, or the tables would show "
-                               "whichever comes last")
+        if seen is not r and not all(same(seen[k], r[k]) for k in ("J", "F", "frames")):
+            raise DatasetError(f"{r['at']}: {r['method']} on {r['sequence']} has {said(r)} here and {said(seen)} at "
+                               f"{seen['at']}: one figure each, or the tables would show whichever comes last")
 
 
 def published(path: str | Path) -> dict:

@@ -33,11 +33,17 @@ _WHOLE = re.compile(r"[+-]?[0-9]+")
 
 
 def _whole(digits: str) -> int:
-    """A number :data:`_WHOLE` matched; one of more than 18 digits, beyond any clip (and, past 4300, beyond what
-    ``int()`` reads from a string), as 10**18 with its sign, for the range checks to refuse."""
-    if len(digits.lstrip("+-").lstrip("0")) <= 18:
-        return int(digits)
-    return -10**18 if digits.startswith("-") else 10**18
+    """A number :data:`_WHOLE` matched; one of more than 18 digits, leading zeros aside, beyond any clip (and, past
+    4300, beyond what ``int()`` reads from a string), as 10**18 with its sign, for the range checks to refuse."""
+    body = digits.lstrip("+-").lstrip("0") or "0"
+    sign = -1 if digits.startswith("-") else 1
+    return sign * (int(body) if len(body) <= 18 else 10**18)
+
+
+def _shown(spec: str) -> str:
+    """``spec`` as a message shows it: a run of more than 20 digits cut to its ends and its length (a line cut
+    at its end would lose the reason after it)."""
+    return re.sub(r"[0-9]{21,}", lambda m: f"{m[0][:3]}...{m[0][-3:]} ({len(m[0])} digits)", spec)
 
 #: Methods of the key-frame protocol, in table order.
 KEY_METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "flow_key",
@@ -53,7 +59,7 @@ def key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", c
 
     keys = _key_indices(spec, n, frames, backend=backend, classes=classes)
     if len(set(keys)) >= n:
-        raise InputError(f"--keys {spec}: every one of the clip's {n} frames is a key frame: nothing is scored")
+        raise InputError(f"--keys {_shown(spec)}: every one of the clip's {n} frames is a key frame: nothing is scored")
     return keys
 
 
@@ -67,12 +73,12 @@ def check_key_spec(spec: str, n: int) -> None:
         key_indices(spec, n)
         return
     if not _WHOLE.fullmatch(arg):
-        raise InputError(f"--keys {spec}: suggest:N takes a whole number")
+        raise InputError(f"--keys {_shown(spec)}: suggest:N takes a whole number")
     k = _whole(arg)
     if not 1 <= k <= n:
-        raise InputError(f"--keys {spec}: suggest:N needs 1 <= N <= {n} (the clip's frames)")
+        raise InputError(f"--keys {_shown(spec)}: suggest:N needs 1 <= N <= {n} (the clip's frames)")
     if k >= n:
-        raise InputError(f"--keys {spec}: every one of the clip's {n} frames is a key frame: nothing is scored")
+        raise InputError(f"--keys {_shown(spec)}: every one of the clip's {n} frames is a key frame: nothing is scored")
 
 
 def _normal(spec: str) -> str:
@@ -92,18 +98,18 @@ def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", 
     kind, _, arg = s.partition(":")
     if kind in ("every", "suggest", "spaced"):
         if not _WHOLE.fullmatch(arg):
-            raise InputError(f"--keys {spec}: {kind}:N takes a whole number")
+            raise InputError(f"--keys {_shown(spec)}: {kind}:N takes a whole number")
         k = _whole(arg)
         if kind == "every":
             if k < 1:
-                raise InputError(f"--keys {spec}: every:N needs N >= 1")
+                raise InputError(f"--keys {_shown(spec)}: every:N needs N >= 1")
             return list(range(0, n, k))
         if kind == "spaced":
             if not 1 <= k <= n:
-                raise InputError(f"--keys {spec}: spaced:N needs 1 <= N <= {n} (the clip's frames)")
+                raise InputError(f"--keys {_shown(spec)}: spaced:N needs 1 <= N <= {n} (the clip's frames)")
             return sorted({int(round(i * n / k)) for i in range(k)})
         if not 1 <= k <= n:
-            raise InputError(f"--keys {spec}: suggest:N needs 1 <= N <= {n} (the clip's frames)")
+            raise InputError(f"--keys {_shown(spec)}: suggest:N needs 1 <= N <= {n} (the clip's frames)")
         if k == 1:
             return [0]
         if frames is None:
@@ -113,10 +119,10 @@ def _key_indices(spec: str, n: int, frames=None, *, backend: str = "reference", 
         return sorted([0] + suggest(predicted, [0], k - 1, n))
     values = s.split(",")
     if not all(_WHOLE.fullmatch(v) for v in values):
-        raise InputError(f"--keys {spec}: not first, first,last, every:N, spaced:N, suggest:N or frame indices")
+        raise InputError(f"--keys {_shown(spec)}: not first, first,last, every:N, spaced:N, suggest:N or frame indices")
     idx = sorted({_whole(v) for v in values})
     if not idx or idx[0] < 0 or idx[-1] >= n:
-        raise InputError(f"--keys {spec}: frame indices must lie in 0..{n - 1}")
+        raise InputError(f"--keys {_shown(spec)}: frame indices must lie in 0..{n - 1}")
     return idx
 
 

@@ -298,16 +298,20 @@ def degeneracy(T_ref_mov: np.ndarray, shape: tuple[int, ...]) -> str | None:
     w = c[:, 2] * np.sign(M[2, 2] if M[2, 2] != 0 else 1.0)
     # a point sent beyond 1e12 times its w is through infinity; an affine's w is its M[2, 2] at every point, and a
     # translation however far (it overlaps nothing then, which registration says) is not a horizon
-    far = 0.0 if M[2, 0] == M[2, 1] == 0 else 1e-12 * np.abs(c[:, :2]).max(initial=1.0)
+    affine = M[2, 0] == M[2, 1] == 0
+    far = 0.0 if affine else 1e-12 * np.abs(c[:, :2]).max(initial=1.0)
     if np.any(w <= far):
         return "the transform sends part of the image through infinity (a singular or folded homography)"
-    q = c[:, :2] / c[:, 2:3]
-    edges = np.roll(q, -1, axis=0) - q
-    turns = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+    # an affine's shape is its linear part's (a translation moves every corner alike, and far off would round the
+    # corners' differences away)
+    with np.errstate(over="ignore"):  # a zoom past float's range: an area of inf, refused below
+        q = corners(shape) @ (M[:2, :2] / M[2, 2]).T if affine else c[:, :2] / c[:, 2:3]
+        edges = np.roll(q, -1, axis=0) - q
+        turns = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+        area = 0.5 * abs(float(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1])))
     h, w_img = float(shape[0]), float(shape[1])
     if not np.all(turns > 0):  # the image's own corners turn one way (y down): a fold or a mirror turns otherwise
         return "the transform folds or mirrors the image (its corners no longer form a convex quadrilateral of the same orientation)"
-    area = 0.5 * abs(float(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1])))
     ratio = area / max(h * w_img, 1.0)
     if not 1.0 / MAX_AREA_CHANGE <= ratio <= MAX_AREA_CHANGE:
         return f"the transform changes the image's area by a factor of {ratio:.3g} (at most {MAX_AREA_CHANGE:g} either way)"

@@ -143,15 +143,18 @@ def _figures(results: dict) -> dict:
     return figs
 
 
+def footer(name: str, results: dict) -> str:
+    """What is said under the table ``name`` (Markdown, a paragraph a note): Case I's notes under case1, Case III's
+    under case3."""
+    notes = [n for n in results.get("notes", []) if (name == "case1" and str(n).startswith("Case I:"))
+             or (name == "case3" and str(n).startswith("Case III:"))]
+    return "".join(f"\nNote: {n}.\n" for n in notes)
+
+
 def write_outputs(results: Results, out: str | Path) -> list[Path]:
     """The tables (.csv, .md), figures, config.json and (last) results.json, atomically; returns the paths."""
     from .files import write_files
 
     doc = results.to_dict()
-    specs = {}
-    for name, (header, rows) in tables(doc).items():
-        notes = [n for n in doc["notes"] if (name == "case1" and n.startswith("Case I:"))
-                 or (name == "case3" and n.startswith("Case III:"))]
-        footer = "\n" + "\n".join(f"Note: {n}." for n in notes) + "\n" if notes else ""
-        specs[name] = (title(name, doc), header, rows, footer)
+    specs = {name: (title(name, doc), header, rows, footer(name, doc)) for name, (header, rows) in tables(doc).items()}
     return write_files(out, doc, tables=specs, figures=_figures(doc))

@@ -209,7 +209,7 @@ def _davis_tables(results: dict) -> list[dict]:
 def _classification_tables(results: dict) -> list[dict]:
     from . import classification as R
 
-    return [_table(name, R.title(name, results), header, rows, [None] * len(rows))
+    return [_table(name, R.title(name, results), header, rows, [None] * len(rows), footer=R.footer(name, results))
             for name, (header, rows) in R.tables(results).items()]
 
 

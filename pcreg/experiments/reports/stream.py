@@ -18,7 +18,7 @@ def table(results: dict) -> tuple[list, list, str]:
     rows = [[name, c["scored"], *[c["means"][m] for m in methods]] for name, c in results["datasets"].items()]
     avg = results["average_reduction"]
     rows.append(["reduction vs plain, mean over clips (%)", "", *[avg[m] for m in methods]])
-    footer = ("\n(error %, unknown truth left out; the last row: how much lower than plain, in percent of "
+    footer = ("\n(error %, unknown truth left out; reduction vs plain: how much lower than plain, in percent of "
               "plain, averaged over the clips)\n")
     for name, c in results["datasets"].items():
         if c["means"].get("plain") == 0:  # 0 of 0: no reduction (:func:`pcreg.experiments.stream.summarise`)

@@ -83,6 +83,7 @@ def _fewer_frames_note(d: dict) -> str:
 def _published_note(d: dict, measure: str) -> str:
     """What the published means are over: every sequence, some (how many), or none."""
     pub, n = d["published"], len(d["sequences"])
+    scored = "scored " if any(not s["frames"] for s in d["sequences"].values()) else ""  # as the row is named
     counted = pub.get("counted", {}).get(measure)
     if not pub["methods"] or counted is None:
         return ""
@@ -92,7 +93,7 @@ def _published_note(d: dict, measure: str) -> str:
         return ""
     each = ", ".join(f"{p.upper()} {c}" for p, c in counted.items())
     return (f"\nThe published means are over the sequences with a figure only ({each} of {n}); the row of the "
-            f"{len(pub.get('covered', []))} scored with every published figure compares pcreg's methods with them on the same "
+            f"{len(pub.get('covered', []))} {scored}with every published figure compares pcreg's methods with them on the same "
             "sequences.\n" if d.get("mean_covered") else
             f"\nThe published means are over the sequences with a figure only ({each} of {n}).\n")
 

@@ -182,6 +182,20 @@ def _help_written() -> int:
     return 0
 
 
+def _bad_numba_threads() -> str | None:
+    """What is wrong with ``NUMBA_NUM_THREADS`` (numba's threads), or None: numba refuses 0 and less on import, and
+    takes a value that is no whole number with a warning of nine lines (then one thread a CPU)."""
+    import os
+
+    given = os.environ.get("NUMBA_NUM_THREADS")
+    if given is None:
+        return None
+    digits = given.strip()
+    if digits.isascii() and digits.isdigit() and len(digits) <= 6 and int(digits) >= 1:
+        return None
+    return f"NUMBA_NUM_THREADS={given!r}: numba's number of threads is a whole number, 1 or more (unset it for one a CPU)"
+
+
 def _no_command(args: argparse.Namespace) -> int:
     """`pcreg` or `pcreg evaluate` alone: one line naming the choices, as any bad input."""
     group = EVALUATIONS if getattr(args, "command", None) == "evaluate" else [*COMMANDS, "evaluate"]
@@ -297,6 +311,10 @@ def _main(argv: list[str] | None) -> int:
 
     if argv is None:  # the program itself, not a caller's own streams
         _usable_streams()
+    threads = _bad_numba_threads()
+    if threads:  # numba reads it on import, which loading the commands does: its ValueError, 50 lines, exit 1
+        sys.stderr.write(f"pcreg: error: {threads}\n")
+        return 2
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     # Ctrl-C and SIGTERM: exit 130, finished units kept; from the start, while the commands' modules load
     previous = interrupt_on_signals()
@@ -360,13 +378,40 @@ def _main(argv: list[str] | None) -> int:
         sys.stderr.write(f"pcreg: error: out of memory ({_memory_advice(args)})\n")
         return 2
     except OSError as exc:  # the file system refused (a full disk, a folder where a file goes, permissions)
-        where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
-        sys.stderr.write(f"pcreg: error: {exc.strerror or _one_line(exc)}{where}\n")
+        sys.stderr.write(f"pcreg: error: {_os_error(exc)}\n")
         return 2
     except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
+        if _out_of_memory(exc):
+            sys.stderr.write(f"pcreg: error: out of memory ({_memory_advice(args)})\n")
+            return 2
         return _bug(exc, args)
     finally:
         _end(argv is None and interrupted(), saved_limit, previous, program=argv is None)
+
+
+def _os_error(exc: OSError) -> str:
+    """An OSError in one line: the file it names; for too many open files, the limit (``ulimit -n``), which is no
+    file's fault (the file named is whichever was opened last, perhaps one of pcreg's own modules)."""
+    import errno
+
+    if exc.errno in (errno.EMFILE, errno.ENFILE):
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+        return (f"too many open files (this process may open {soft}; pcreg needs a few dozen): raise the limit, "
+                "ulimit -n 1024")
+    where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
+    return f"{exc.strerror or _one_line(exc)}{where}"
+
+
+def _out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` is the memory running out as a library says it: OpenCV's "Insufficient memory" (its
+    ``cv2.error``), or a compiled module that could not be mapped into memory when it loaded (``ImportError``:
+    "failed to map segment", under a ``ulimit -v``)."""
+    said = str(exc)
+    if type(exc).__name__ == "error" and type(exc).__module__ == "cv2":
+        return "Insufficient memory" in said or "Failed to allocate" in said
+    return isinstance(exc, ImportError) and "failed to map segment" in said
 
 
 def _interrupted(args) -> int:

@@ -89,6 +89,7 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
     thousands of frames) written as it is made, yet appearing whole or not at all. A write that fails (a
     full disk, a folder in the way) is an :class:`~pcreg.errors.OutputError` naming ``path``."""
     path = Path(path)
+    check_held(path)  # before the folder is made again
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = _held_temporary(path)
@@ -319,6 +320,31 @@ def _same_file(a: Path, b: str | os.PathLike) -> bool:
         return False
 
 
+#: The output folders an :class:`OutputLock` of this process holds (absolute paths) and the (device, inode) of each
+#: one's lock file: what :func:`check_held` compares.
+_HELD: dict[Path, tuple[int, int]] = {}
+
+
+def check_held(path: str | os.PathLike) -> None:
+    """An :class:`OutputError` when ``path`` lies in an output folder this process holds an :class:`OutputLock` on,
+    and that folder's lock file is not the one held any more: the folder was removed, moved or replaced while the
+    command wrote into it. A write there would make the folder again, without the lock or what was written before,
+    and the command would end as if whole."""
+    if not _HELD:
+        return
+    path = Path(os.path.abspath(path))
+    for folder, held in _HELD.items():
+        if folder in path.parents:
+            try:
+                st = os.stat(folder / OutputLock.NAME)
+            except OSError:
+                st = None
+            if st is None or (st.st_dev, st.st_ino) != held:
+                raise OutputError(f"{folder}: the output folder was removed, moved or replaced while pcreg wrote into "
+                                  "it; nothing more is written there (the same command again starts it, or resumes "
+                                  "it where the folder is put back)")
+
+
 class OutputLock:
     """An exclusive lock on an output folder (``fcntl.flock`` on ``FOLDER/.pcreg.lock``), held while a
     command writes there and released on exit (also when the process dies). A second run on the same
@@ -352,6 +378,8 @@ class OutputLock:
             who = f" (pid {other})" if other else ""
             raise OutputError(f"{self.folder} is in use by another pcreg run{who}; wait for it or use another --out") from None
         self._fd = fd
+        st = os.fstat(fd)
+        _HELD[Path(os.path.abspath(self.folder))] = (st.st_dev, st.st_ino)
         try:
             os.ftruncate(fd, 0)
             os.pwrite(fd, str(os.getpid()).encode(), 0)
@@ -362,6 +390,7 @@ class OutputLock:
         return self
 
     def __exit__(self, *exc: Any) -> None:
+        _HELD.pop(Path(os.path.abspath(self.folder)), None)
         if self._fd is not None:
             try:
                 os.ftruncate(self._fd, 0)

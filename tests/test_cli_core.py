@@ -47,6 +47,11 @@ def test_register_json_and_warped_output(pair, tmp_path):
     assert tf.max_corner_error(np.array(result["matrix"]), T, (240, 320)) < 0.5
     assert result["seconds"] > 0 and result["backend"] == "reference"
     assert cv2.imread(str(out)).shape == (240, 320, 3)
+    # a register killed while it wrote --out left its temporary file beside it for ever: removed by the next write
+    killed = tmp_path / ".warped.png.k1ll3d00.tmp"
+    killed.write_bytes(b"half a PNG")
+    assert run("register", d / "ref.png", d / "mov.png", "--out", out, "--force").returncode == 0
+    assert not killed.exists() and cv2.imread(str(out)).shape == (240, 320, 3)
 
 
 

@@ -34,6 +34,49 @@ def test_an_unknown_numba_threading_layer_is_bad_input(tmp_path, monkeypatch, ca
     assert len(err) == 1 and "NUMBA_THREADING_LAYER='bogus'" in err[0] and "workqueue" in err[0]
 
 
+@pytest.mark.parametrize("given", ["0", "-2", "abc", " "])
+def test_a_bad_numba_thread_count_is_one_line_before_any_module_loads(tmp_path, monkeypatch, capsys, given):
+    """NUMBA_NUM_THREADS=0 ended every command, --version included, in numba's ValueError of 50 lines (exit 1): numba
+    reads it on import, which loading the commands does; a value that is no number gave nine lines of warning."""
+    monkeypatch.setenv("NUMBA_NUM_THREADS", given)
+    assert main(["--version"]) == 2
+    err = one_line_errors(capsys)
+    assert err == [f"pcreg: error: NUMBA_NUM_THREADS={given!r}: numba's number of threads is a whole number, 1 or more "
+                   "(unset it for one a CPU)"]
+    monkeypatch.setenv("NUMBA_NUM_THREADS", "1")
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+
+
+def test_memory_that_runs_out_inside_a_library_is_said_as_out_of_memory(tmp_path, monkeypatch, capsys):
+    """Under a memory limit (ulimit -v) OpenCV's "Insufficient memory" and a compiled module that could not be mapped
+    when it loaded ended in "internal error, a bug in pcreg" (exit 1): out of memory, exit 2, as a MemoryError is; too
+    many open files names the limit, not whichever file (one of pcreg's own modules) was opened last."""
+    import errno
+
+    import pcreg.commands.register as command
+    from pcreg.cli import _os_error
+
+    img = tmp_path / "a.png"
+    cv2.imwrite(str(img), np.zeros((64, 64, 3), np.uint8))
+    for raised in (cv2.error("OpenCV(4.10.0) matrix.cpp:73: error: (-4:Insufficient memory) Failed to allocate "
+                             "14745600 bytes in function 'OutOfMemoryError'"),
+                   ImportError("/x/rerun_bindings.abi3.so: failed to map segment from shared object")):
+        def fail(args, raised=raised):
+            raise raised
+
+        monkeypatch.setattr(command, "run", fail)
+        assert main(["register", str(img), str(img)]) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and err[0].startswith("pcreg: error: out of memory ("), err
+    monkeypatch.setattr(command, "run", lambda args: (_ for _ in ()).throw(ImportError("No module named 'x'")))
+    assert main(["register", str(img), str(img)]) == 1  # a module missing is pcreg's bug, said as one
+    capsys.readouterr()
+    said = _os_error(OSError(errno.EMFILE, "Too many open files", "/work/pcreg/registration/api.py"))
+    assert said.startswith("too many open files (this process may open ") and "api.py" not in said
+
+
 @pytest.mark.parametrize("address, said", [
     ("notanaddress", "missing port"),
     ("foo://bar:1", "dask speaks .*tcp://.*, not foo://"),  # read "answered, but not as a dask scheduler"
@@ -487,6 +530,9 @@ def test_an_evaluation_never_writes_into_its_own_data_folder(tmp_path, capsys, c
     assert main([*command, "--data", f"camvid:{tmp_path}", "--out", str(tmp_path / "clip" / "images")]) == 2
     assert "inside the data folder" in capsys.readouterr().err
     assert (tmp_path / "clip" / "images" / "stream.png").read_bytes() == b"a frame"
+    # a kind pcreg does not read is said as such, not as an --out inside its folder
+    assert main([*command, "--data", f"foo:{tmp_path}", "--out", str(tmp_path / "clip" / "images")]) == 2
+    assert "unknown kind 'foo'" in capsys.readouterr().err
 
 
 def test_an_interrupted_evaluation_with_a_recording_says_to_resume_with_another(tmp_path, monkeypatch, capsys):

@@ -36,10 +36,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     import cv2
 
     from ..errors import InputError, OutputError, RegistrationError
-    from ..outputs import atomic_write_bytes
+    from ..outputs import atomic_write_bytes, remove_leftovers
     from ..formats import read_image_file_and_damage
     from ..registration.clouds import cloud_pyramid, image_and_mask
     from ..registration.api import register
@@ -95,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
         ok, buf = cv2.imencode(".png" if png else ".jpg", warped if keep else warped[:, :, ::-1])
         if not ok:
             raise OutputError(f"cannot encode {args.out}")
-        atomic_write_bytes(args.out, buf.tobytes())
+        out = Path(args.out)
+        remove_leftovers(out.parent, [out.name])  # a temporary file of a register killed while it wrote this name
+        atomic_write_bytes(out, buf.tobytes())
     notes = _notes(result, args.model, ((args.reference, ref_damage, ref), (args.moving, damage, mov)))
     if args.json:
         print_json({"ok": True, **result.to_dict(), "notes": notes})

@@ -53,11 +53,16 @@ def _subfolders(path: Path, pattern) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_dir() and pattern(p))
 
 
+#: The kinds of ``--data`` that name a folder (``KIND:PATH``).
+FOLDER_KINDS = ("camvid", "folder", "davis", "lagr")
+
+
 def data_folder(spec) -> Path | None:
     """The folder a ``--data`` value names (``camvid:PATH``, ``folder:PATH``, ...) when it is one; None for
-    synthetic data, a value without a path, or a path that is no folder (:func:`load_dataset` says why)."""
+    synthetic data, a kind pcreg does not read, a value without a path, or a path that is no folder
+    (:func:`load_dataset` says why)."""
     kind, colon, where = str(spec or "").partition(":")
-    if not colon or not where or kind.strip().lower() == "synthetic":
+    if not colon or not where or kind.strip().lower() not in FOLDER_KINDS:
         return None
     if kind.strip().lower() == "davis":  # davis:PATH:SPLIT
         try:
@@ -160,7 +165,7 @@ def load_dataset(spec: str, *, n_frames: int | None = None, size: tuple[int, int
                 for n in names}
     if not arg:
         raise InputError(f"--data {spec!r}: expected synthetic, synthetic:NAMES, camvid:PATH, folder:PATH, davis:PATH or lagr:PATH")
-    if kind not in ("camvid", "folder", "davis", "lagr"):
+    if kind not in FOLDER_KINDS:
         raise InputError(f"--data {spec!r}: unknown kind {kind!r} (synthetic, camvid, folder, davis or lagr)")
     check_data_size(spec, size)
     split = None

@@ -190,9 +190,11 @@ def _bad_numba_threads() -> str | None:
     given = os.environ.get("NUMBA_NUM_THREADS")
     if given is None:
         return None
-    digits = given.strip()
-    if digits.isascii() and digits.isdigit() and len(digits) <= 6 and int(digits) >= 1:
-        return None
+    try:
+        if int(given) >= 1:  # as numba reads it
+            return None
+    except ValueError:
+        pass
     return f"NUMBA_NUM_THREADS={given!r}: numba's number of threads is a whole number, 1 or more (unset it for one a CPU)"
 
 
@@ -328,6 +330,10 @@ def _main(argv: list[str] | None) -> int:
     except BaseException as exc:
         if not (isinstance(exc, KeyboardInterrupt) or interrupted()):
             restore_signals(previous)
+            if isinstance(exc, MemoryError) or _out_of_memory(exc):  # under a memory limit, a module could not load
+                sys.stderr.write("pcreg: error: out of memory while pcreg loaded its modules (a memory limit such as "
+                                 "ulimit -v below about 2 GB?)\n")
+                return 2
             raise
         # the KeyboardInterrupt, or what a module being loaded made of it (an ImportError of numpy's)
         _end(argv is None, saved_limit, previous)
@@ -395,11 +401,13 @@ def _os_error(exc: OSError) -> str:
     import errno
 
     if exc.errno in (errno.EMFILE, errno.ENFILE):
-        import resource
+        try:  # a compiled module: with every file descriptor taken, it may not load
+            import resource
 
-        soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
-        return (f"too many open files (this process may open {soft}; pcreg needs a few dozen): raise the limit, "
-                "ulimit -n 1024")
+            may = f"this process may open {resource.getrlimit(resource.RLIMIT_NOFILE)[0]}; "
+        except (ImportError, OSError, ValueError):
+            may = ""
+        return f"too many open files ({may}pcreg needs a few dozen): raise the limit (ulimit -n)"
     where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
     return f"{exc.strerror or _one_line(exc)}{where}"
 
@@ -411,7 +419,9 @@ def _out_of_memory(exc: BaseException) -> bool:
     said = str(exc)
     if type(exc).__name__ == "error" and type(exc).__module__ == "cv2":
         return "Insufficient memory" in said or "Failed to allocate" in said
-    return isinstance(exc, ImportError) and "failed to map segment" in said
+    # the same words for a library on a file system mounted noexec, with its reason: no memory's fault
+    return (isinstance(exc, ImportError) and "failed to map segment" in said
+            and not any(w in said for w in ("Operation not permitted", "Permission denied")))
 
 
 def _interrupted(args) -> int:

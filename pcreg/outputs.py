@@ -125,7 +125,8 @@ def _held_temporary(path: Path) -> tuple[int, str]:
     import fcntl
 
     while True:
-        fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(path), suffix=".tmp", dir=path.parent)
+        # the folder as the system resolves it: mkstemp's own absolute path would read LINK/.. as LINK's folder
+        fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(path), suffix=".tmp", dir=os.path.realpath(path.parent))
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)  # waits while a cleaner holds it, for as long as an unlink takes
         except OSError:
@@ -332,8 +333,8 @@ def check_held(path: str | os.PathLike) -> None:
     and the command would end as if whole."""
     if not _HELD:
         return
-    path = Path(os.path.abspath(path))
-    for folder, held in _HELD.items():
+    path = Path(os.path.realpath(path))
+    for folder, held in list(_HELD.items()):  # another thread may take or release a lock meanwhile
         if folder in path.parents:
             try:
                 st = os.stat(folder / OutputLock.NAME)
@@ -357,6 +358,7 @@ class OutputLock:
     def __init__(self, folder: str | os.PathLike) -> None:
         self.folder = Path(folder)
         self._fd: int | None = None
+        self._key: Path | None = None  # this lock's entry in _HELD
         self._made: list[Path] = []  # the folders the lock made, the innermost first
 
     def __enter__(self) -> "OutputLock":
@@ -378,9 +380,10 @@ class OutputLock:
             who = f" (pid {other})" if other else ""
             raise OutputError(f"{self.folder} is in use by another pcreg run{who}; wait for it or use another --out") from None
         self._fd = fd
-        st = os.fstat(fd)
-        _HELD[Path(os.path.abspath(self.folder))] = (st.st_dev, st.st_ino)
         try:
+            st = os.fstat(fd)
+            self._key = Path(os.path.realpath(self.folder))  # as it is now: the working folder may change
+            _HELD[self._key] = (st.st_dev, st.st_ino)
             os.ftruncate(fd, 0)
             os.pwrite(fd, str(os.getpid()).encode(), 0)
         except OSError as exc:  # a full disk: the lock's own file named, and the folders it made removed
@@ -390,7 +393,9 @@ class OutputLock:
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        _HELD.pop(Path(os.path.abspath(self.folder)), None)
+        if self._key is not None:
+            _HELD.pop(self._key, None)
+            self._key = None
         if self._fd is not None:
             try:
                 os.ftruncate(self._fd, 0)

@@ -43,10 +43,11 @@ def test_a_bad_numba_thread_count_is_one_line_before_any_module_loads(tmp_path, 
     err = one_line_errors(capsys)
     assert err == [f"pcreg: error: NUMBA_NUM_THREADS={given!r}: numba's number of threads is a whole number, 1 or more "
                    "(unset it for one a CPU)"]
-    monkeypatch.setenv("NUMBA_NUM_THREADS", "1")
-    with pytest.raises(SystemExit) as done:
-        main(["--version"])
-    assert done.value.code == 0
+    for taken in ("1", "+4", " 2 "):  # what numba's int() reads
+        monkeypatch.setenv("NUMBA_NUM_THREADS", taken)
+        with pytest.raises(SystemExit) as done:
+            main(["--version"])
+        assert done.value.code == 0
 
 
 def test_memory_that_runs_out_inside_a_library_is_said_as_out_of_memory(tmp_path, monkeypatch, capsys):
@@ -75,6 +76,21 @@ def test_memory_that_runs_out_inside_a_library_is_said_as_out_of_memory(tmp_path
     capsys.readouterr()
     said = _os_error(OSError(errno.EMFILE, "Too many open files", "/work/pcreg/registration/api.py"))
     assert said.startswith("too many open files (this process may open ") and "api.py" not in said
+    # a library on a file system mounted noexec reads "failed to map segment" too, with its reason: not memory
+    noexec = ImportError("/mnt/x/cv2.abi3.so: failed to map segment from shared object: Operation not permitted")
+    monkeypatch.setattr(command, "run", lambda args: (_ for _ in ()).throw(noexec))
+    assert main(["register", str(img), str(img)]) == 1
+    capsys.readouterr()
+    # and while the commands' modules load, before any command runs (it was a traceback)
+    import pcreg.cli as cli
+
+    def unloadable():
+        raise ImportError("/x/cv2.abi3.so: failed to map segment from shared object")
+
+    monkeypatch.setattr(cli, "build_parser", unloadable)
+    assert main(["register", str(img), str(img)]) == 2
+    assert one_line_errors(capsys) == ["pcreg: error: out of memory while pcreg loaded its modules (a memory limit "
+                                       "such as ulimit -v below about 2 GB?)"]
 
 
 @pytest.mark.parametrize("address, said", [

@@ -68,3 +68,48 @@ def test_a_run_whose_folder_goes_while_it_labels_stops_saying_so(tmp_path, capsy
         os.rename(out.with_name("out-moved"), out)
     assert main(args) == 0
     assert all((out / f"f{i}.png").is_file() for i in range(6))
+
+
+def test_a_lock_is_let_go_after_the_working_folder_changes_and_other_threads_take_locks(tmp_path, monkeypatch):
+    """A lock taken by a relative name and released after a change of working folder stayed held in the check's
+    table (a later write there, not locked, would have been refused); threads taking and releasing locks while a
+    write is checked changed the table under the check (a RuntimeError, said as a bug)."""
+    import threading
+
+    from pcreg import outputs
+
+    monkeypatch.chdir(tmp_path)
+    lock = OutputLock("rel").__enter__()
+    monkeypatch.chdir(tmp_path / "rel")
+    lock.__exit__()
+    assert outputs._HELD == {}
+    stop = threading.Event()
+
+    def churn():
+        while not stop.is_set():
+            with OutputLock(tmp_path / "churn"):
+                pass
+
+    locks = [OutputLock(tmp_path / f"held{i}").__enter__() for i in range(50)]
+    worker = threading.Thread(target=churn)
+    worker.start()
+    try:
+        for i in range(500):
+            atomic_write_bytes(tmp_path / "held0" / f"{i % 3}.txt", b"1")
+    finally:
+        stop.set()
+        worker.join()
+        for lock in locks:
+            lock.__exit__()
+    assert outputs._HELD == {}
+
+
+def test_an_out_through_a_link_and_dotdot_is_the_folder_the_system_makes(tmp_path):
+    """``--out LINK/../x`` is the folder beside LINK's target, as the system resolves it: the check reads that
+    folder's lock, not a folder beside LINK that does not exist (it said the folder was removed)."""
+    (tmp_path / "real" / "inner").mkdir(parents=True)
+    (tmp_path / "link").symlink_to(tmp_path / "real" / "inner")
+    out = tmp_path / "link" / ".." / "x"
+    with OutputLock(out):
+        atomic_write_bytes(out / "a.txt", b"1")
+    assert (tmp_path / "real" / "x" / "a.txt").read_bytes() == b"1"

@@ -4,7 +4,7 @@ import pytest
 
 import numpy as np
 
-from pcreg.classes import ClassTable, LabelClass
+from pcreg.classes import CAMVID11, ClassTable, LabelClass
 from pcreg.runs.memory import available_bytes, memory_note, run_bytes, run_note
 
 GIB = 2**30
@@ -44,8 +44,35 @@ def test_the_note_names_the_largest_scale_that_fits():
 def test_the_available_memory_is_read_from_meminfo(tmp_path, text, expected):
     path = tmp_path / "meminfo"
     path.write_text(text)
-    assert available_bytes(path) == expected
-    assert available_bytes(tmp_path / "absent") is None
+    assert available_bytes(path, cgroups=()) == expected
+    assert available_bytes(tmp_path / "absent", cgroups=()) is None
+
+
+@pytest.mark.parametrize("version", ["v2", "v1"])
+def test_a_containers_memory_limit_is_what_is_available_where_it_is_less(tmp_path, version):
+    """Inside a container (``docker run --memory 2g``) MemAvailable is the host's: a run the limit cannot hold was
+    killed by the system with no note before it. The limit less the use (the page cache the kernel reclaims first
+    not counted) is what is available where it is less; no limit, or none readable, leaves MemAvailable."""
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text("MemAvailable:   64000000 kB\n")  # the host's 61 GiB
+    limit, use, stat = (tmp_path / n for n in ("limit", "use", "stat"))
+    inactive = "inactive_file" if version == "v2" else "total_inactive_file"
+    files = ((str(limit), str(use), str(stat), inactive),)
+    limit.write_text(f"{2 * GIB}\n")
+    use.write_text(f"{GIB // 2}\n")
+    stat.write_text(f"anon 100\n{inactive} {GIB // 4}\nactive_file 5\n")
+    assert available_bytes(meminfo, files) == 2 * GIB - GIB // 4  # 512 MiB used, 256 MiB of it cache
+    note = run_note([np.zeros((2160, 3840), np.uint8)], CAMVID11, 1.0, available_bytes(meminfo, files))
+    assert note is not None and "1.8 GiB is available" in note
+    stat.unlink()  # no statistics: the use as it is
+    assert available_bytes(meminfo, files) == 2 * GIB - GIB // 2
+    use.write_text(f"{3 * GIB}\n")  # over the limit already: nothing left
+    assert available_bytes(meminfo, files) == 0
+    for none in ("max\n", "9223372036854771712\n", "lots\n"):  # v2's and v1's no limit, and garbage
+        limit.write_text(none)
+        assert available_bytes(meminfo, files) == 64000000 * 1024
+    limit.unlink()
+    assert available_bytes(meminfo, files) == 64000000 * 1024
 
 
 def test_a_large_table_counts_the_classes_its_key_frames_show():

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["BASE_BYTES", "FRAME_BYTES", "WORK_BYTES", "CLASS_BYTES", "run_bytes", "available_bytes", "memory_note",
-           "key_classes", "run_note"]
+__all__ = ["BASE_BYTES", "FRAME_BYTES", "WORK_BYTES", "CLASS_BYTES", "CGROUP_FILES", "run_bytes", "available_bytes",
+           "cgroup_bytes", "memory_note", "key_classes", "run_note"]
 
 #: What the process holds before the first frame: the interpreter, the libraries and the compiled kernels.
 BASE_BYTES = 400 * 2**20
@@ -25,6 +25,11 @@ WORK_BYTES = 30
 #: Bytes a pixel of the working size for each class: the class scores, the carried priors, the fused scores and
 #: their blur.
 CLASS_BYTES = 54
+#: Where a container's memory limit is read, as the container sees its own cgroup: (limit, use, statistics) of
+#: cgroup v2, then of v1.
+CGROUP_FILES = (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current", "/sys/fs/cgroup/memory.stat", "inactive_file"),
+                ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes",
+                 "/sys/fs/cgroup/memory/memory.stat", "total_inactive_file"))
 #: The smaller working sizes the note proposes, in order.
 SCALES = (0.75, 0.5, 0.25)
 
@@ -36,14 +41,44 @@ def run_bytes(width: int, height: int, classes: int, scale: float = 1.0) -> int:
     return int(BASE_BYTES + FRAME_BYTES * width * height + work * (WORK_BYTES + CLASS_BYTES * max(2, classes)))
 
 
-def available_bytes(meminfo: Path = Path("/proc/meminfo")) -> int | None:
-    """The memory the system can give without swapping (``MemAvailable``), or None where it does not say."""
+def available_bytes(meminfo: Path = Path("/proc/meminfo"), cgroups=CGROUP_FILES) -> int | None:
+    """The memory the system can give without swapping (``MemAvailable``), or what a container's memory limit
+    leaves (:func:`cgroup_bytes`) where that is less; None where neither says."""
+    known = [b for b in (_meminfo_bytes(meminfo), cgroup_bytes(cgroups)) if b is not None]
+    return min(known) if known else None
+
+
+def _meminfo_bytes(meminfo: Path) -> int | None:
     try:
         for line in meminfo.read_text().splitlines():
             if line.startswith("MemAvailable:"):
                 return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         return None
+    return None
+
+
+def cgroup_bytes(files=CGROUP_FILES) -> int | None:
+    """What the memory limit of the cgroup this process sees as its own (a container's: ``docker run --memory``)
+    leaves: the limit less the use, the use without the page cache the kernel reclaims first (``inactive_file``,
+    as ``docker stats`` counts it); None where no limit is set or none can be read. Inside a container
+    ``MemAvailable`` is the host's, and a process over the limit is killed without a word."""
+    for limit_file, use_file, stat_file, inactive in files:
+        try:
+            limit, used = Path(limit_file).read_text().strip(), int(Path(use_file).read_text().strip())
+        except (OSError, ValueError):
+            continue
+        if limit == "max" or not limit.isdigit() or int(limit) >= 2**62:  # no limit (v1 writes one near 2**63)
+            return None
+        cache = 0
+        try:
+            for line in Path(stat_file).read_text().splitlines():
+                name, _, value = line.partition(" ")
+                if name == inactive:
+                    cache = int(value)
+        except (OSError, ValueError):
+            pass
+        return max(0, int(limit) - max(0, used - cache))
     return None
 
 

@@ -61,8 +61,12 @@ def test_table_4_1_says_how_many_trials_found_its_weights(small_run):
 
     assert (small_run / "table41_weights.md").read_text().startswith(
         "### Table 4.1: thesis feature weights, 4 random trials (lowest training error)")
-    shown = {t["name"]: t["title"] for t in page_data(load_report(small_run))["tables"]}
-    assert shown["table41_weights"].startswith("Table 4.1: thesis feature weights, 4 random trials")
+    tables = {t["name"]: t for t in page_data(load_report(small_run))["tables"]}
+    assert tables["table41_weights"]["title"].startswith("Table 4.1: thesis feature weights, 4 random trials")
+    # Case I's note under its table on the page, as case1.md has it under the table
+    [note] = tables["case1"]["footer"]
+    assert note.startswith("Note: Case I: k is 10%..90%") and note in (small_run / "case1.md").read_text()
+    assert tables["table41_weights"]["footer"] == []
 
 
 def test_case_i_numbers_are_recomputed_exactly(small_run):

@@ -313,9 +313,7 @@ def _main(argv: list[str] | None) -> int:
 
     if argv is None:  # the program itself, not a caller's own streams
         _usable_streams()
-    threads = _bad_numba_threads()
-    if threads:  # numba reads it on import, which loading the commands does: its ValueError, 50 lines, exit 1
-        sys.stderr.write(f"pcreg: error: {threads}\n")
+    if _environment_refused():  # before the commands' modules load
         return 2
     saved_limit = os.environ.get("PCREG_MAX_PIXELS")
     # Ctrl-C and SIGTERM: exit 130, finished units kept; from the start, while the commands' modules load
@@ -330,9 +328,7 @@ def _main(argv: list[str] | None) -> int:
     except BaseException as exc:
         if not (isinstance(exc, KeyboardInterrupt) or interrupted()):
             restore_signals(previous)
-            if isinstance(exc, MemoryError) or _out_of_memory(exc):  # under a memory limit, a module could not load
-                sys.stderr.write("pcreg: error: out of memory while pcreg loaded its modules (a memory limit such as "
-                                 "ulimit -v below about 2 GB?)\n")
+            if _said_out_of_memory(exc):  # under a memory limit, a module could not load
                 return 2
             raise
         # the KeyboardInterrupt, or what a module being loaded made of it (an ImportError of numpy's)
@@ -380,17 +376,11 @@ def _main(argv: list[str] | None) -> int:
         except (OSError, ValueError):
             pass
         return 141
-    except MemoryError:
-        sys.stderr.write(f"pcreg: error: out of memory ({_memory_advice(args)})\n")
-        return 2
     except OSError as exc:  # the file system refused (a full disk, a folder where a file goes, permissions)
         sys.stderr.write(f"pcreg: error: {_os_error(exc)}\n")
         return 2
-    except Exception as exc:  # noqa: BLE001 - anything else is a bug in pcreg: exit 1
-        if _out_of_memory(exc):
-            sys.stderr.write(f"pcreg: error: out of memory ({_memory_advice(args)})\n")
-            return 2
-        return _bug(exc, args)
+    except Exception as exc:  # noqa: BLE001 - memory run out (exit 2), or anything else: a bug in pcreg (exit 1)
+        return 2 if _said_out_of_memory(exc, args) else _bug(exc, args)
     finally:
         _end(argv is None and interrupted(), saved_limit, previous, program=argv is None)
 
@@ -410,6 +400,29 @@ def _os_error(exc: OSError) -> str:
         return f"too many open files ({may}pcreg needs a few dozen): raise the limit (ulimit -n)"
     where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
     return f"{exc.strerror or _one_line(exc)}{where}"
+
+
+def _environment_refused() -> bool:
+    """Say, in one line, what of the environment pcreg cannot run with before its modules load (numba reads
+    ``NUMBA_NUM_THREADS`` on import: its ValueError, 50 lines, exit 1); whether it did."""
+    threads = _bad_numba_threads()
+    if threads:
+        sys.stderr.write(f"pcreg: error: {threads}\n")
+    return bool(threads)
+
+
+def _said_out_of_memory(exc: BaseException, args: argparse.Namespace | None = None) -> bool:
+    """Say, in one line, that memory ran out where ``exc`` says so (a :class:`MemoryError`, or a library's words:
+    :func:`_out_of_memory`), with what the command can be given instead; ``args`` None: while pcreg loaded its
+    modules, before any command. Whether it did."""
+    if not (isinstance(exc, MemoryError) or _out_of_memory(exc)):
+        return False
+    if args is None:
+        sys.stderr.write("pcreg: error: out of memory while pcreg loaded its modules (a memory limit such as "
+                         "ulimit -v below about 2 GB?)\n")
+    else:
+        sys.stderr.write(f"pcreg: error: out of memory ({_memory_advice(args)})\n")
+    return True
 
 
 def _out_of_memory(exc: BaseException) -> bool:

@@ -182,22 +182,6 @@ def _help_written() -> int:
     return 0
 
 
-def _bad_numba_threads() -> str | None:
-    """What is wrong with ``NUMBA_NUM_THREADS`` (numba's threads), or None: numba refuses 0 and less on import, and
-    takes a value that is no whole number with a warning of nine lines (then one thread a CPU)."""
-    import os
-
-    given = os.environ.get("NUMBA_NUM_THREADS")
-    if given is None:
-        return None
-    try:
-        if int(given) >= 1:  # as numba reads it
-            return None
-    except ValueError:
-        pass
-    return f"NUMBA_NUM_THREADS={given!r}: numba's number of threads is a whole number, 1 or more (unset it for one a CPU)"
-
-
 def _no_command(args: argparse.Namespace) -> int:
     """`pcreg` or `pcreg evaluate` alone: one line naming the choices, as any bad input."""
     group = EVALUATIONS if getattr(args, "command", None) == "evaluate" else [*COMMANDS, "evaluate"]
@@ -403,12 +387,22 @@ def _os_error(exc: OSError) -> str:
 
 
 def _environment_refused() -> bool:
-    """Say, in one line, what of the environment pcreg cannot run with before its modules load (numba reads
-    ``NUMBA_NUM_THREADS`` on import: its ValueError, 50 lines, exit 1); whether it did."""
-    threads = _bad_numba_threads()
-    if threads:
-        sys.stderr.write(f"pcreg: error: {threads}\n")
-    return bool(threads)
+    """Say, in one line, what of the environment pcreg cannot run with before its modules load, and whether it did:
+    a ``NUMBA_NUM_THREADS`` numba does not take (it refuses 0 and less on import: its ValueError, 50 lines, exit 1;
+    and takes a value that is no whole number with a warning of nine lines, then one thread a CPU)."""
+    import os
+
+    given = os.environ.get("NUMBA_NUM_THREADS")
+    if given is None:
+        return False
+    try:
+        if int(given) >= 1:  # as numba reads it
+            return False
+    except ValueError:
+        pass
+    sys.stderr.write(f"pcreg: error: NUMBA_NUM_THREADS={given!r}: numba's number of threads is a whole number, 1 or "
+                     "more (unset it for one a CPU)\n")
+    return True
 
 
 def _said_out_of_memory(exc: BaseException, args: argparse.Namespace | None = None) -> bool:

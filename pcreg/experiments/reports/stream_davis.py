@@ -38,7 +38,7 @@ def davis_table(results: dict, measure: str) -> tuple[list, list, str]:
                    f"the first frame and scored on its own, every other object background ({each}). The means are over "
                    "objects, a sequence with one object counting once, as the DAVIS 2017 evaluation "
                    "(davis2017-evaluation) averages.\n")
-    footer += _published_note(d, measure)
+    footer += _published_note(d, measure, short)
     if short:
         footer += _short_note(d, measure, short)
     if results["config"].get("frames"):
@@ -80,10 +80,11 @@ def _fewer_frames_note(d: dict) -> str:
             "does not hold the benchmark's frames, and its figures and the published ones do not compare.\n")
 
 
-def _published_note(d: dict, measure: str) -> str:
-    """What the published means are over: every sequence, some (how many), or none."""
+def _published_note(d: dict, measure: str, short: list[str]) -> str:
+    """What the published means are over: every sequence, some (how many), or none (``short``: the sequences none
+    of whose frames is scored, which the row that compares leaves out, and is named for)."""
     pub, n = d["published"], len(d["sequences"])
-    scored = "scored " if any(not s["frames"] for s in d["sequences"].values()) else ""  # as the row is named
+    scored = "scored " if short else ""  # as the row is named
     counted = pub.get("counted", {}).get(measure)
     if not pub["methods"] or counted is None:
         return ""

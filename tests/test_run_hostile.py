@@ -749,3 +749,17 @@ def test_running_out_of_memory_names_the_run_s_way_down(tmp_path, monkeypatch, c
     assert main(["run", str(folder), "--labels", str(key), "--out", str(tmp_path / "out")]) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and "out of memory" in err[0] and "--scale 0.5" in err[0], err
+
+
+@pytest.mark.parametrize("record, said", [("r\udcc3\udca9c.rrd", "a recording's path must be valid UTF-8"),
+                                          ("run.txt", "a recording's name must end in .rrd")])
+def test_a_recording_path_rerun_cannot_take_is_refused_before_any_label_is_written(tmp_path, capsys, record, said):
+    """In the C locale without Python's UTF-8 mode a non-ASCII --record path comes as the file system's escapes,
+    which rerun cannot take: it was refused after the key frame's labels, run.json and steps.jsonl were written,
+    a run begun in --out. Refused before, --out left as it was."""
+    folder, key = drifting_frames(tmp_path / "frames", (48, 64))
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--labels", str(key), "--out", str(out), "--record", str(tmp_path / record)]) == 2
+    err = one_line_errors(capsys)
+    assert len(err) == 1 and said in err[0], err
+    assert not out.exists()

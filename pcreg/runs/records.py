@@ -9,7 +9,16 @@ from pathlib import Path
 from ..errors import OutputError
 from .state import STATE
 
-__all__ = ["check_recording", "name_recording", "nothing_to_record", "run_recording"]
+__all__ = ["check_record_path", "check_recording", "name_recording", "nothing_to_record", "run_recording"]
+
+
+def check_record_path(record) -> None:
+    """Refuse a ``--record`` path that rerun cannot take (not a .rrd file's, not UTF-8: a non-ASCII path in the C
+    locale without Python's UTF-8 mode, a folder) before the run writes anything, not once the key frame's labels
+    are written; a file there already is for :func:`run_recording` to refuse, once the run knows its frames."""
+    from ..recording.sink import check_path
+
+    check_path(record, force=True)
 
 
 def check_recording(out: Path, identity: dict | None, record: Path) -> None:

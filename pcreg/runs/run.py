@@ -52,7 +52,7 @@ from .edited import (check_key_files, check_same_frame, check_same_frames, check
                      frame_bytes, frame_stamp, key_contents)
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
-from .records import check_recording, name_recording, nothing_to_record, run_recording
+from .records import check_record_path, check_recording, name_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
 from .video_file import check_kept, keep_video, labelled_to_end, mark_end
@@ -92,6 +92,8 @@ class RunRequest:
         if self.config.follow == "object" and self.folder_of_keys:
             raise InputError(f"--labels {self.labels}: --follow object follows one key frame's mask, not a folder of "
                              "key frames; give one label image")
+        if self.record is not None:  # refused before any label is written
+            check_record_path(self.record)
 
     @property
     def folder_of_keys(self) -> bool:
@@ -284,8 +286,7 @@ class Run:
     # -- opening and resuming -----------------------------------------------------------------------
 
     def open_key(self, labels: np.ndarray, *, force: bool = False) -> int:
-        """Open (or resume) a run from one label image, the key frame's ``labels``; returns the index of the
-        first frame still to do."""
+        """Open (or resume) a run from one label image, the key frame's ``labels``; the first frame still to do."""
         state = open_state(self.out, self.identity, force=force, frames=self.frames)
         digest = label_digest(labels)
         if state is not None:
@@ -375,8 +376,7 @@ class Run:
 
     def _keep_steps(self, live: list, shape: tuple[int, int]) -> int:
         """Keep the lines of steps.jsonl that run.json counts and whose frames are in a stretch still to label
-        (``live``), their label files checked (frames of ``shape``); rewritten as it is read, whole or not at all.
-        Returns how many it kept."""
+        (``live``), their label files checked (frames of ``shape``); rewritten as it is read, whole or not at all; how many kept."""
         path, counted = self.out / STEPS, int(self.state["lines"])
         with atomic_file(path) as fh:
             count, stems = 0, []

@@ -272,7 +272,9 @@ class _ClusterExecutor(Executor):
         self._idle_since: float | None = None
 
     def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Future:
-        return self._executor.submit(fn, *args, **kwargs)
+        from ._workers import submit_checked  # each unit checks its worker first: one that joined late is not asked
+
+        return submit_checked(self._executor.submit, fn, *args, **kwargs)
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         self._executor.shutdown(wait=wait)
@@ -344,6 +346,9 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         executor = _ClusterExecutor(client, scheduler)
         quiet = _quiet_dask_logs()  # a lost scheduler or worker is reported in one line, not dask's tracebacks
         try:
+            from ._workers import check_cluster
+
+            check_cluster(client, scheduler)  # its workers: pcreg importable, the same code and libraries
             yield executor
             client.close(timeout=5)
             quiet()  # on a failure dask's threads may still log while the process ends: kept quiet

@@ -388,20 +388,13 @@ def _os_error(exc: OSError) -> str:
 
 def _environment_refused() -> bool:
     """Say, in one line, what of the environment pcreg cannot run with before its modules load, and whether it did:
-    a ``NUMBA_NUM_THREADS`` numba does not take (it refuses 0 and less on import: its ValueError, 50 lines, exit 1;
-    and takes a value that is no whole number with a warning of nine lines, then one thread a CPU)."""
-    import os
+    a ``NUMBA_NUM_THREADS`` numba does not take (:func:`pcreg._workers.numba_threads_problem`)."""
+    from ._workers import numba_threads_problem
 
-    given = os.environ.get("NUMBA_NUM_THREADS")
-    if given is None:
+    problem = numba_threads_problem()
+    if problem is None:
         return False
-    try:
-        if int(given) >= 1:  # as numba reads it
-            return False
-    except ValueError:
-        pass
-    sys.stderr.write(f"pcreg: error: NUMBA_NUM_THREADS={given!r}: numba's number of threads is a whole number, 1 or "
-                     "more (unset it for one a CPU)\n")
+    sys.stderr.write(f"pcreg: error: {problem}\n")
     return True
 
 

@@ -208,3 +208,40 @@ def test_a_signal_in_each_phase_of_a_cluster_run_stops_and_resumes(cluster, loca
     local = json.loads((local_run / "results.json").read_text())
     assert not close(_strip_times(res), _strip_times({k: v for k, v in local.items() if k != "resumed_units"}))
     _scheduler_drains(cluster)
+
+
+def test_a_worker_with_other_pcreg_code_is_refused_before_any_unit(cluster, monkeypatch, capsys, tmp_path):
+    """Workers running other pcreg code (another checkout, a hand edit) gave their numbers, kept among the finished
+    units without a word (a sweep: every ``before`` 1.00 off, exit 0). Here the command's own code is made to
+    differ from the workers' (its digest): exit 2 naming the worker and both digests, no unit run."""
+    import pcreg._workers as W
+    from pcreg.cli import main
+
+    real = W.fingerprint()
+    monkeypatch.setattr(W, "fingerprint", lambda: {**real, "code": "0" * 16})
+    out = tmp_path / "rot"
+    assert main([*ARGS, "--scheduler", cluster.scheduler_address, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "dask worker tcp://127.0.0.1:" in err[0], err
+    assert f"other code (its modules' digest {real['code']}, here {'0' * 16})" in err[0] and "rerun" in err[0], err
+    assert not _units(out)
+
+
+@pytest.mark.parametrize("what", ["no pcreg", "NUMBA_NUM_THREADS=0"])
+def test_a_worker_that_cannot_run_pcreg_is_named_at_once(what, capsys, tmp_path):
+    """A worker that cannot import pcreg (not installed there) failed to read each unit and dask ended it: the
+    command said after 60 s that the scheduler "has had no worker", and workers started again did the same. One
+    with ``NUMBA_NUM_THREADS=0`` was "an internal error, a bug in pcreg". Each is named when the command connects."""
+    from pcreg.cli import main
+
+    hide = tmp_path / "hide_pcreg.py"
+    hide.write_text("import sys\nsys.modules['pcreg'] = None  # as on a machine without pcreg\n")
+    worker = {"preload": [str(hide)]} if what == "no pcreg" else {"env": {"NUMBA_NUM_THREADS": "0"}}
+    with distributed.LocalCluster(n_workers=1, processes=True, threads_per_worker=1, host="127.0.0.1",
+                                  dashboard_address=":0", silence_logs=50, **worker) as c:
+        rc = main([*ARGS, "--scheduler", c.scheduler_address, "--out", str(tmp_path / "rot")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "dask worker tcp://127.0.0.1:" in err[0], err
+    said = "cannot import pcreg (ModuleNotFoundError" if what == "no pcreg" else "NUMBA_NUM_THREADS='0': numba's number"
+    assert said in err[0] and "bug" not in err[0], err
+    assert not (tmp_path / "rot").exists()

@@ -1,0 +1,132 @@
+"""What a process that runs pcreg's units must share with the command that sends them, for their numbers to be the
+command's: pcreg importable, the same pcreg (its version and a digest of its modules' source), the same versions of
+the libraries that make its numbers (:data:`LIBRARIES`), and an environment numba starts in.
+
+A local ``--workers`` pool forks the command itself, so only a dask cluster's workers (``--scheduler``) are checked:
+each worker there when the command connects (:func:`check_cluster`), and a worker that joins later before each unit it
+runs (:func:`run_checked`). A worker that differs ends the command in one line (exit 2) before it runs a unit, so that
+no number from other code is kept among the finished units. Light on purpose: the command line reads
+:func:`numba_threads_problem` before any of pcreg's modules load, and a worker imports this module to answer."""
+
+from __future__ import annotations
+
+import functools
+import os
+import pickle
+from typing import Any, Callable
+
+__all__ = ["KEPT", "LIBRARIES", "fingerprint", "mismatch", "numba_threads_problem", "worker_problem", "run_checked",
+           "check_cluster", "submit_checked"]
+
+#: The libraries whose versions make pcreg's numbers, by the name they are imported as.
+LIBRARIES = ("numpy", "scipy", "open3d", "cv2", "numba", "sklearn")
+#: What a command stopped by a worker says of its units.
+KEPT = "the finished units are kept: rerun the same command to resume"
+
+
+def numba_threads_problem() -> str | None:
+    """What is wrong with ``NUMBA_NUM_THREADS`` in this process's environment, in words, or None: numba refuses 0 and
+    less on import (its ValueError, 50 lines), and takes a value that is no whole number with a warning of nine
+    lines, then one thread a CPU."""
+    given = os.environ.get("NUMBA_NUM_THREADS")
+    if given is None:
+        return None
+    try:
+        if int(given) >= 1:  # as numba reads it
+            return None
+    except ValueError:
+        pass
+    return f"NUMBA_NUM_THREADS={given!r}: numba's number of threads is a whole number, 1 or more (unset it for one a CPU)"
+
+
+@functools.lru_cache(maxsize=1)
+def fingerprint() -> dict[str, str]:
+    """This process's pcreg: its version (``"pcreg"``), a digest of its modules' source (``"code"``: SHA-256 of every
+    ``.py`` file under the package, by relative path, first 16 hex digits) and each of :data:`LIBRARIES`' installed
+    distributions with their versions (``"not installed"`` for none), read from the packages' metadata, not imported."""
+    import hashlib
+    from importlib.metadata import packages_distributions, version
+    from pathlib import Path
+
+    import pcreg
+
+    root = Path(pcreg.__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    found = {"pcreg": pcreg.__version__, "code": digest.hexdigest()[:16]}
+    installed = packages_distributions()
+    for module in LIBRARIES:
+        found[module] = ", ".join(f"{name} {version(name)}" for name in sorted(set(installed.get(module, ())))) or "not installed"
+    return found
+
+
+def mismatch(expected: dict[str, str], found: dict[str, str]) -> str | None:
+    """How ``found`` (a worker's :func:`fingerprint`) differs from ``expected`` (the command's), the first difference
+    in words, or None."""
+    for key in [*expected, *(k for k in found if k not in expected)]:
+        here, there = expected.get(key, "not installed"), found.get(key, "not installed")
+        if here == there:
+            continue
+        if key == "code":
+            return f"it runs pcreg {found.get('pcreg')} with other code (its modules' digest {there}, here {here})"
+        return f"it has {key} {there}, here {here}" if key != "pcreg" else f"it runs pcreg {there}, here {here}"
+    return None
+
+
+def worker_problem(expected: dict[str, str]) -> str | None:
+    """Run where a unit would run: what keeps its numbers from being the command's (``expected``, the command's
+    :func:`fingerprint`), in words, or None."""
+    threads = numba_threads_problem()
+    if threads is not None:
+        return f"{threads}; {KEPT}"
+    differs = mismatch(expected, fingerprint())
+    if differs is not None:
+        return f"{differs}; install the same pcreg and libraries on every worker as where the command runs; {KEPT}"
+    return None
+
+
+def _address() -> str:
+    try:
+        from distributed import get_worker
+
+        return f"dask worker {get_worker().address}"
+    except (ImportError, ValueError):  # not on a dask worker
+        return "a worker"
+
+
+def run_checked(expected: dict[str, str], call: bytes) -> Any:
+    """A unit on a worker: ``call`` (``fn, args, kwargs`` pickled by :func:`submit_checked`) once
+    :func:`worker_problem` finds nothing; else a :class:`~pcreg.errors.PcregError` naming the worker, before the
+    call is unpickled (unpickling it imports the modules, numba's among them)."""
+    problem = worker_problem(expected)
+    if problem is not None:
+        from .errors import PcregError
+
+        raise PcregError(f"{_address()}: {problem}")
+    fn, args, kwargs = pickle.loads(call)
+    return fn(*args, **kwargs)
+
+
+def submit_checked(submit: Callable, fn: Callable, /, *args: Any, **kwargs: Any) -> Any:
+    """``submit(fn, *args, **kwargs)`` as :func:`run_checked` on the worker (``submit``: a dask executor's)."""
+    return submit(run_checked, fingerprint(), pickle.dumps((fn, args, kwargs), protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def check_cluster(client: Any, scheduler: str) -> None:
+    """Ask each worker of ``client``'s cluster (at ``scheduler``) the :func:`worker_problem`, before any unit is sent:
+    a worker that cannot import pcreg, or differs, is a :class:`~pcreg.errors.PcregError` naming it (a worker
+    that cannot import pcreg would fail to read each unit sent to it, and dask would end it: the command would then
+    wait for workers). The question is sent by value (a lambda), so that a worker without pcreg can read it."""
+    from .errors import PcregError
+
+    expected = fingerprint()
+    answers = client.run(lambda e: __import__("pcreg._workers", fromlist=["worker_problem"]).worker_problem(e), expected,
+                         on_error="return")
+    for address, answer in sorted(answers.items()):
+        if isinstance(answer, BaseException):
+            reason = " ".join(str(answer).split()) or type(answer).__name__
+            raise PcregError(f"dask worker {address} at {scheduler!r} cannot import pcreg ({type(answer).__name__}: "
+                             f"{reason}): install pcreg {expected['pcreg']} there, as where the command runs")
+        if answer is not None:
+            raise PcregError(f"dask worker {address} at {scheduler!r}: {answer}")

@@ -99,7 +99,11 @@ def test_a_label_mapping_takes_whole_ids_each_once():
     # what would break a labelmap.txt line or cannot be written as UTF-8: every line break str.splitlines
     # knows, a control character, half of a surrogate pair
     *[(((0, f"a{ch}b", (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "a line break or a control")
-      for ch in ("\n", "\r", "\x0b", "\x0c", "\x1c", "\x85", "\u2028", "\u2029", "\x00", "\t", "\ud800")],
+      for ch in ("\n", "\r", "\x0b", "\x0c", "\x1c", "\x85", "\u2028", "\u2029", "\x00", "\t", "\ud800",
+                 "\x7f", "\x9b")],  # DEL, and C1's CSI: a terminal showing the name may act on it ("\x9b2J" clears it)
+    # a name no reader sees: a zero-width space, Hangul's filler, a combining accent alone, a blank Braille pattern
+    *[(((0, name, (1, 2, 3)), (1, "b", (4, 5, 6)), (2, "c", (0, 0, 0))), "has no name")
+      for name in ("\u200b", "\u3164", "\u0301", "\u2800", "\u200b\u3164")],
 ])
 def test_table_validation(bad, needle):
     unknown = bad[-1][0]

@@ -23,6 +23,7 @@ pixels are what it left unlabelled.
 
 from __future__ import annotations
 
+import unicodedata
 from dataclasses import dataclass, field
 from typing import Iterable
 
@@ -70,12 +71,24 @@ class LabelClass:
 _UNSEEN = dict.fromkeys(map(ord, "\u200b\u00ad\u2060\ufeff"))
 
 
+#: Characters that show as a blank, not as nothing: Hangul's fillers and the blank Braille pattern (letters and
+#: symbols to Unicode, so neither a space nor invisible).
+_BLANKS = frozenset("\u115f\u1160\u3164\uffa0\u2800")
+
+
 def _read_as(name: str) -> str:
     """``name`` as a person reads it: Unicode's canonical form (NFC: one ``é`` however it was typed), case folded,
-    characters that show nothing left out."""
-    import unicodedata
+    characters that show nothing left out, full-width letters as the letters (``ｃａｒ`` is ``car``) and any run of
+    spaces (a no-break space among them) as one space. Not every compatibility form: ``x²`` stays apart from ``x2``."""
+    text = unicodedata.normalize("NFC", name).translate(_UNSEEN)
+    text = "".join(unicodedata.normalize("NFKC", ch) if "\uff00" <= ch <= "\uffef" else ch for ch in text)
+    return " ".join(text.split()).casefold()
 
-    return unicodedata.normalize("NFC", name).translate(_UNSEEN).casefold()
+
+def _shows_nothing(name: str) -> bool:
+    """Whether ``name`` has no character a reader sees: spaces, format characters (a zero-width space), combining
+    marks with nothing to sit on, :data:`_BLANKS`."""
+    return all(ch.isspace() or ch in _BLANKS or unicodedata.category(ch) in ("Cf", "Mn", "Me") for ch in name)
 
 
 def _packed(rgb: np.ndarray) -> np.ndarray:
@@ -107,13 +120,13 @@ def _check_class(c: LabelClass, where: str) -> LabelClass:
         raise InputError(f"{where}: class id {short_repr(c.id)} is not an integer 0..255")
     if not isinstance(c.name, str):
         raise InputError(f"{where}: class {c.id}'s name {short_repr(c.name)} is not text")
-    if not c.name.strip() or c.name != c.name.strip():
-        raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it)")
-    if c.name.startswith("#") or any(ch in ":\x85\u2028\u2029" or ord(ch) < 32 or 0xD800 <= ord(ch) <= 0xDFFF
-                                     for ch in c.name):
+    if _shows_nothing(c.name) or c.name != c.name.strip():
+        raise InputError(f"{where}: class {c.id} has no name (or one with spaces around it, or none a reader sees)")
+    if c.name.startswith("#") or any(ch in ":\u2028\u2029" or unicodedata.category(ch) in ("Cc", "Cs") for ch in c.name):
         # a labelmap.txt line holds the name as it is: no field separator, line break (any that str.splitlines
-        # splits on), control character or half of a surrogate pair (no UTF-8 for it), and no '#' first (a
-        # comment line to CVAT and Datumaro, which read a '#' anywhere else as part of the name)
+        # splits on), control character (C0, DEL and C1: a terminal that shows the name may act on one, U+009B
+        # opening an escape sequence) or half of a surrogate pair (no UTF-8 for it), and no '#' first (a comment
+        # line to CVAT and Datumaro, which read a '#' anywhere else as part of the name)
         raise InputError(f"{where}: class name {c.name!r} holds ':', a line break or a control character, "
                          "or starts with '#'")
     numbers = (int, float, np.integer, np.floating)
@@ -163,7 +176,7 @@ class ClassTable:
                 k = key(c)
                 if k in seen and what == "name" and seen[k].name != c.name:  # two names a person reads as one
                     raise InputError(f"{where}: classes {seen[k].name!r} and {c.name!r} differ only in case, in Unicode "
-                                     "form or by an invisible character: one name to a reader; rename one")
+                                     "form or by an invisible character, a width or spaces: one name to a reader; rename one")
                 if k in seen:
                     raise InputError(f"{where}: classes {seen[k].name!r} and {c.name!r} share the {what} "
                                      f"{c.name if what == 'name' else k}")

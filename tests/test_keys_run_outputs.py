@@ -123,3 +123,24 @@ def test_frames_added_after_the_last_key_frame_are_labelled_when_the_run_goes_on
     assert main([*args, "--out", str(grown)]) == 0
     assert [json.loads(line)["name"] for line in (grown / "steps.jsonl").read_text().splitlines()] == \
         ["f2.png", "f1.png", "f4.png", "f5.png"]
+
+
+@pytest.mark.parametrize("gone", ["f3", "f6"])  # between two key frames; after the last
+def test_a_frame_removed_from_the_folder_takes_its_labels_with_it(tmp_path, gone):
+    """A key-frames run goes on without a frame removed from the folder since (its stretch labelled again), but its
+    label PNG and confidence map stayed in --out, beside labels of the frames that are the run's; and --force, which
+    removes what the run's steps name, no longer found them. Removed with the steps that named them."""
+    from _runs import drifting_frames, key_frames_of
+
+    folder, key = drifting_frames(tmp_path / "frames", n=7)
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 4))
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(out), "--confidence"]
+    assert main(run) == 0
+    assert (out / f"{gone}.png").is_file() and (out / "confidence" / f"{gone}.png").is_file()
+    (folder / f"{gone}.png").unlink()
+    assert main(run) == 0
+    assert not (out / f"{gone}.png").exists() and not (out / "confidence" / f"{gone}.png").exists()
+    assert sorted(p.stem for p in out.glob("*.png")) == sorted(p.stem for p in folder.glob("*.png"))
+    assert main([*run, "--force"]) == 0
+    assert sorted(p.stem for p in out.glob("*.png")) == sorted(p.stem for p in folder.glob("*.png"))

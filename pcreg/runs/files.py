@@ -33,7 +33,7 @@ from ..cloud_files import NPY_HEADER_ERRORS
 from ..formats import loads_json
 
 __all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
-           "labels_written", "write_confidence", "write_grey", "confidence_png",
+           "labels_written", "labels_of_frames_gone", "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "check_labelled",
            "write_suggestions", "read_suggestions", "has_confidence"]
 
@@ -376,6 +376,19 @@ def label_file_problem(path: Path, shape: tuple[int, int], *, confidence: bool =
     if (h, w) != tuple(shape):
         return f"{'a confidence map' if confidence else 'labels'} of {w}x{h}, the frames {shape[1]}x{shape[0]}"
     return None
+
+
+def labels_of_frames_gone(out: Path, frames) -> list[Path]:
+    """The label PNGs, and confidence maps, that the run in ``out`` wrote (:func:`labels_written`) of frames its source
+    ``frames`` no longer has (removed from the folder since): a key-frames run that goes on without them removes them,
+    so that ``out`` holds no labels of a frame that is not the run's (and a run started over, which removes what the
+    steps name, would not find them any more)."""
+    if frames.kind == "folder":
+        there = {frames.stem(t) for t in range(len(frames))}.__contains__
+    else:
+        there = frames.writes
+    gone = sorted(f for f in labels_written(out) if not there(f.stem))
+    return gone + [out / CONFIDENCE / f.name for f in gone if (out / CONFIDENCE / f.name).is_file()]
 
 
 def check_labelled(out: Path, stems: list[str], shape: tuple[int, int], confidence: Iterable[str] = ()) -> None:

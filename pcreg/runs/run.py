@@ -51,7 +51,7 @@ from ..outputs import atomic_file
 from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, check_same_truth,
                      frame_bytes, frame_stamp, key_contents)
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
-                    label_file_problem, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
+                    label_file_problem, labels_of_frames_gone, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_record_path, check_recording, name_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
@@ -326,8 +326,7 @@ class Run:
         for the review and the export to read: its label PNGs (:func:`~pcreg.runs.files.labels_written`; a run over
         fewer frames left the others), its carries, a key-frames run's passes, the confidence maps and the
         suggestions. Only where ``out`` holds an earlier run (its run.json): a folder that was not a run's output
-        keeps every file in it. A path that holds one of the run's inputs (its frames, labels or truth) is refused,
-        not removed (a label PNG that is one is kept)."""
+        keeps every file in it. A path that holds one of the run's inputs (its frames, labels or truth) is refused, not removed (a label PNG that is one is kept)."""
         from ..formats import resolved
 
         if not (self.out / STATE).is_file():
@@ -355,8 +354,7 @@ class Run:
     def _remove_partial_writes(self) -> None:
         """Delete the temporary files of writes a killed run left half done (``.NAME.*.tmp`` of a label
         PNG, a carry, run.json, steps.jsonl (rewritten by a key-frames run as it resumes) or suggest.txt, and of a
-        ``confidence/NAME.png``, :func:`pcreg.outputs.atomic_write_bytes`), and no other file; the caller holds
-        the folder's lock."""
+        ``confidence/NAME.png``, :func:`pcreg.outputs.atomic_write_bytes`), and no other file; the caller holds the folder's lock."""
         for f in self.out.glob(".*.tmp"):
             if f.name.startswith((f".{STATE}.", ".carry-", f".{SUGGEST}.", f".{STEPS}.")) or ".png." in f.name:
                 f.unlink(missing_ok=True)
@@ -419,7 +417,10 @@ class Run:
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
         if self.frames.kind == "folder":  # a key frame that kept steps were labelled from, written again since: refused
             check_key_files(self.frames, self.out, self.state, {k for s in live for k in s.keys})  # before anything is written
+        gone = labels_of_frames_gone(self.out, self.frames)  # read before the steps that name them are rewritten
         lines = self._keep_steps(live, next(iter(keys.values())).shape)
+        for f in gone:
+            f.unlink(missing_ok=True)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
         if state is not None and (self.out / HIDDEN).is_dir():  # a run's (one started over lost it whole)
             for d in (self.out / HIDDEN).iterdir():
@@ -451,8 +452,7 @@ class Run:
     def write_frame(self, t: int, labels: np.ndarray, confidence: np.ndarray | None, step: dict,
                     counts: dict | None = None, scored: tuple = (None, None)) -> None:
         """Frame ``t``'s label PNG (and ``confidence``, (H, W) in [0, 1], as ``confidence/NAME.png``), its truth
-        counted into ``counts`` (``scored``: its truth map and naive Bayes' labels alone, or two Nones) and
-        its ``step`` line; the caller commits."""
+        counted into ``counts`` (``scored``: its truth map and naive Bayes' labels alone, or two Nones) and its ``step`` line; the caller commits."""
         stem = self.frames.stem(t)
         step = dict(step, **frame_stamp(self.frames, t))  # what a resumed run checks a folder's frame file against
         write_labels(self.out / f"{stem}.png", labels, self.table)

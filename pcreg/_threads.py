@@ -48,6 +48,17 @@ T = TypeVar("T")
 
 #: Set to 0 in the environment, pcreg uses no helper thread (one CPU a process, as in a pool of workers).
 ENVIRONMENT = "PCREG_HELPER_THREAD"
+#: The values of :data:`ENVIRONMENT` that turn the helper off, and those that leave it on (unset is on), case aside.
+OFF, ON = ("0", "false", "off", "no"), ("1", "true", "on", "yes", "")
+
+
+def wanted(value: str | None) -> bool | None:
+    """Whether :data:`ENVIRONMENT` set to ``value`` (None: unset) leaves the helper thread on; None for a value it does
+    not take (the command line refuses it before any work: :func:`pcreg._workers.environment_problem`)."""
+    if value is None:
+        return True
+    word = value.strip().lower()
+    return False if word in OFF else True if word in ON else None
 
 #: From this many pixels a per-pixel pass (the full-size field, the stream's fusion) shares its rows with
 #: the helper: at a few nanoseconds a pixel, 65,536 pixels are a few hundred microseconds of work, well
@@ -55,7 +66,7 @@ ENVIRONMENT = "PCREG_HELPER_THREAD"
 MIN_PIXELS = 1 << 16
 
 _LOCK = threading.Lock()
-_STATE: dict = {"pool": None, "enabled": os.environ.get(ENVIRONMENT, "1").strip() != "0"}
+_STATE: dict = {"pool": None, "enabled": wanted(os.environ.get(ENVIRONMENT)) is not False}
 
 
 def _forget_after_fork() -> None:

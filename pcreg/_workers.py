@@ -6,7 +6,7 @@ A local ``--workers`` pool forks the command itself, so only a dask cluster's wo
 each worker there when the command connects (:func:`check_cluster`), and a worker that joins later before each unit it
 runs (:func:`run_checked`). A worker that differs ends the command in one line (exit 2) before it runs a unit, so that
 no number from other code is kept among the finished units. Light on purpose: the command line reads
-:func:`numba_threads_problem` before any of pcreg's modules load, and a worker imports this module to answer."""
+:func:`environment_problem` before any of pcreg's modules load, and a worker imports this module to answer."""
 
 from __future__ import annotations
 
@@ -15,13 +15,26 @@ import os
 import pickle
 from typing import Any, Callable
 
-__all__ = ["KEPT", "LIBRARIES", "fingerprint", "mismatch", "numba_threads_problem", "worker_problem", "run_checked",
+__all__ = ["KEPT", "LIBRARIES", "fingerprint", "mismatch", "environment_problem", "numba_threads_problem", "worker_problem", "run_checked",
            "check_cluster", "submit_checked"]
 
 #: The libraries whose versions make pcreg's numbers, by the name they are imported as.
 LIBRARIES = ("numpy", "scipy", "open3d", "cv2", "numba", "sklearn")
 #: What a command stopped by a worker says of its units.
 KEPT = "the finished units are kept: rerun the same command to resume"
+
+
+def environment_problem() -> str | None:
+    """What of this process's environment pcreg cannot run with, in words, or None: :func:`numba_threads_problem`,
+    or a ``PCREG_HELPER_THREAD`` that neither turns the helper thread off nor leaves it on (``maybe``, ``false``
+    taken for on before)."""
+    from ._threads import ENVIRONMENT, OFF, ON, wanted
+
+    given = os.environ.get(ENVIRONMENT)
+    if wanted(given) is None:
+        return (f"{ENVIRONMENT}={given!r}: {' or '.join(OFF)} turns the helper thread off, "
+                f"{' or '.join(v for v in ON if v)} (or unset) leaves it on")
+    return numba_threads_problem()
 
 
 def numba_threads_problem() -> str | None:
@@ -77,7 +90,7 @@ def mismatch(expected: dict[str, str], found: dict[str, str]) -> str | None:
 def worker_problem(expected: dict[str, str]) -> str | None:
     """Run where a unit would run: what keeps its numbers from being the command's (``expected``, the command's
     :func:`fingerprint`), in words, or None."""
-    threads = numba_threads_problem()
+    threads = environment_problem()
     if threads is not None:
         return f"{threads}; {KEPT}"
     differs = mismatch(expected, fingerprint())

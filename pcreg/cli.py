@@ -388,10 +388,10 @@ def _os_error(exc: OSError) -> str:
 
 def _environment_refused() -> bool:
     """Say, in one line, what of the environment pcreg cannot run with before its modules load, and whether it did:
-    a ``NUMBA_NUM_THREADS`` numba does not take (:func:`pcreg._workers.numba_threads_problem`)."""
-    from ._workers import numba_threads_problem
+    a ``NUMBA_NUM_THREADS`` numba does not take, a ``PCREG_HELPER_THREAD`` pcreg does not (:func:`pcreg._workers.environment_problem`)."""
+    from ._workers import environment_problem
 
-    problem = numba_threads_problem()
+    problem = environment_problem()
     if problem is None:
         return False
     sys.stderr.write(f"pcreg: error: {problem}\n")

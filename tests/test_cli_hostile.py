@@ -607,3 +607,27 @@ def test_a_correspondence_distance_too_small_to_match_is_named_not_called_no_ove
     assert "no moving edge point came within the correspondence distance of a reference edge point" in err[0]
     assert err[0].endswith("the images do not match there, or the distance is too small (--max-distance, "
                            "max_correspondence_distance)")
+
+
+
+@pytest.mark.parametrize("given, on", [("0", False), ("false", False), ("OFF", False), (" no ", False), ("1", True),
+                                       ("true", True), ("Yes", True), ("", True), (None, True), ("maybe", None),
+                                       ("2", None), ("-1", None)])
+def test_helper_thread_values_are_read_as_said_and_others_refused(given, on, monkeypatch, capsys):
+    """PCREG_HELPER_THREAD turned the helper off at 0 alone: `false` or `off` left it on without a word. The words of
+    off and on are read; any other value is refused before the command starts, in one line."""
+    from pcreg._threads import wanted
+
+    assert wanted(given) is on
+    if given is None:
+        monkeypatch.delenv("PCREG_HELPER_THREAD", raising=False)
+    else:
+        monkeypatch.setenv("PCREG_HELPER_THREAD", given)
+    if on is None:
+        assert main(["--version"]) == 2
+        assert one_line_errors(capsys) == [f"pcreg: error: PCREG_HELPER_THREAD={given!r}: 0 or false or off or no turns "
+                                           "the helper thread off, 1 or true or on or yes (or unset) leaves it on"]
+    else:
+        with pytest.raises(SystemExit) as done:
+            main(["--version"])
+        assert done.value.code == 0 and one_line_errors(capsys) == []

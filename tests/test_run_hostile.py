@@ -58,6 +58,10 @@ def test_a_folder_of_no_run_holding_a_file_the_run_would_write_is_refused(tmp_pa
     err = one_line_errors(capsys)
     assert len(err) == 1 and f"{out / where}: this run would write over it" in err[0] and "--force" in err[0], err
     assert (out / where).read_bytes() == b"a person's own" and not (out / "run.json").exists()
+    (out / "steps.jsonl").write_text('{"frame": 1}\n')  # steps of a run whose run.json is gone: no run killed at its start
+    assert main(run) == 2 and (out / where).read_bytes() == b"a person's own"
+    assert f"{out / where}: this run would write over it" in one_line_errors(capsys)[0]
+    (out / "steps.jsonl").unlink()
     assert main([*run, "--force"]) == 0
     assert (out / where).read_bytes() != b"a person's own" and (out / "notes.png").exists()
     (out / "run.json").unlink()  # as a run killed after its first writes, before its state

@@ -220,7 +220,8 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) ->
                           "mix with its report, --force or not; give another --out")
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
-    if not force and frames is not None and not (state_path.exists() or state_path.is_symlink() or (out / STEPS).exists()):
+    begun = (out / STEPS).is_file() and (out / STEPS).stat().st_size == 0  # a run killed at its start: steps.jsonl first, empty
+    if not force and frames is not None and not (state_path.exists() or state_path.is_symlink() or begun):
         mine = (out, out / CONFIDENCE) if (identity or {}).get("confidence") else (out,)  # where it writes
         held = next((q for d in mine if d.is_dir() for q in sorted(d.iterdir())
                      if q.suffix.lower() == ".png" and frames.writes(q.stem)), None)

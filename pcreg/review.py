@@ -156,7 +156,10 @@ def read_review(folder: str | Path) -> RunReview:
         source = Path(run[kind])
         labelled: list[str] | None = None
         if "stretches" in state:  # a run from a folder of key frames: its keys and the steps it counted
-            named, labelled = run_frames(state, folder)
+            try:
+                named, labelled = run_frames(state, folder)
+            except (OSError, ValueError) as exc:  # run.json was read: steps.jsonl missing, or fewer steps than it counts
+                raise InputError(f"{folder / STEPS}: missing or unreadable ({exc})") from None
             counted = int(state["lines"])
         else:
             named, count = [str(state["key_frame"])], int(state["done"])

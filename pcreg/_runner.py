@@ -208,22 +208,30 @@ def _probe_scheduler(scheduler: str, timeout: float) -> None:
     got = answer[0] if answer else TimeoutError()
     if isinstance(got, dict) and got.get("type") == "Scheduler":
         return
+    scheme = scheduler.split("://")[0] if "://" in scheduler else "tcp"
     if isinstance(got, OSError) and "Timed out trying to connect" in str(got):
-        why = ("connection refused: nothing listens at that port" if _refused(scheduler) else
-               "the host is unreachable, or a firewall drops the connection")
+        listens = _listens(scheduler)
+        why = ("connection refused: nothing listens at that port" if listens is False else
+               f"something listens at that port but did not answer {scheme}://: a dask scheduler speaks the one "
+               "protocol it was started with (tcp:// unless `dask scheduler --protocol`); is the scheme right?"
+               if listens and scheme != "tcp" else "the host is unreachable, or a firewall drops the connection")
         raise PcregError(f"cannot connect to the dask scheduler {scheduler!r} within {timeout:g} s: {why} "
                          "(dask's distributed.comm.timeouts.connect sets the wait)")
     if isinstance(got, BaseException) and not isinstance(got, Exception):
         raise got  # KeyboardInterrupt
+    if isinstance(got, TypeError) and "ssl_context" in str(got):  # dask's words for tls:// without its settings
+        raise PcregError(f"--scheduler {scheduler!r}: {scheme}:// needs dask's TLS settings (distributed.comm.tls: "
+                         "ca-file, and client cert and key), and none are set here")
     what = ("no reply to its greeting" if isinstance(got, (TimeoutError, asyncio.TimeoutError)) else
             type(got).__name__ if isinstance(got, BaseException) else "an answer of another kind")
     raise PcregError(f"{scheduler!r} answered, but not as a dask scheduler ({what}): is it the address a "
                      "`dask scheduler` printed?")
 
 
-def _refused(scheduler: str) -> bool:
-    """Whether a connection to ``scheduler``'s host and port is refused at once (one plain TCP attempt: the last
-    of dask's attempts, cut short by its deadline, may say only that it timed out)."""
+def _listens(scheduler: str) -> bool | None:
+    """Whether something listens at ``scheduler``'s host and port: False when a connection is refused at once, True
+    when one plain TCP connection is taken (the last of dask's attempts, cut short by its deadline, may say only that
+    it timed out), None when neither is known (no answer within 2 s)."""
     import socket
 
     from distributed.comm.addressing import parse_address, parse_host_port
@@ -232,10 +240,10 @@ def _refused(scheduler: str) -> bool:
         host, port = parse_host_port(parse_address(scheduler)[1])
         socket.create_connection((host, port), timeout=2).close()
     except ConnectionRefusedError:
-        return True
-    except (OSError, ValueError, TypeError):
         return False
-    return False
+    except (OSError, ValueError, TypeError):
+        return None
+    return True
 
 
 def _quiet_dask_logs() -> Callable[[], None]:

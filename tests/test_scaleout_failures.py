@@ -200,3 +200,28 @@ def test_a_unit_dask_gives_up_on_is_named():
             with pytest.raises(PcregError, match="unit 0: every dask worker that ran it ended abruptly"):
                 with make_executor(scheduler=cluster.scheduler_address) as ex:
                     run_units(os._exit, [3], executor=ex)  # os._exit(3) in the worker
+
+
+@pytest.mark.parametrize("scheme, said", [
+    ("ws", "something listens at that port but did not answer ws://: a dask scheduler speaks the one protocol it was "
+           "started with (tcp:// unless `dask scheduler --protocol`); is the scheme right?"),
+    ("tls", "tls:// needs dask's TLS settings (distributed.comm.tls: ca-file, and client cert and key), and none are set here"),
+])
+def test_a_scheduler_given_with_another_scheme_says_so(scheme, said, capsys, tmp_path):
+    """A scheduler listening on tcp:// given as ws:// was "the host is unreachable, or a firewall drops the
+    connection" after the connect timeout; as tls:// (no TLS settings) "answered, but not as a dask scheduler
+    (TypeError)"."""
+    pytest.importorskip("distributed", reason="pcreg[distributed] (dask.distributed) is not installed")
+    import dask
+
+    from pcreg.cli import main
+
+    server = _Server(b"")  # takes the connection and says nothing, as a tcp:// scheduler does to a ws:// greeting
+    address = server.address.replace("tcp://", f"{scheme}://")
+    try:
+        with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+            rc = main([*ROTATION, "--scheduler", address, "--out", str(tmp_path / "never")])
+    finally:
+        server.close()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and address in err[0] and said in err[0], err

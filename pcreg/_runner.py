@@ -356,7 +356,7 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         try:
             from ._workers import check_cluster
 
-            check_cluster(client, scheduler)  # its workers: pcreg importable, the same code and libraries
+            check_cluster(client, scheduler, timeout)  # its workers: pcreg importable, the same code and libraries
             yield executor
             client.close(timeout=5)
             quiet()  # on a failure dask's threads may still log while the process ends: kept quiet

@@ -15,7 +15,7 @@ import os
 import pickle
 from typing import Any, Callable
 
-__all__ = ["KEPT", "LIBRARIES", "fingerprint", "mismatch", "environment_problem", "numba_threads_problem", "worker_problem", "run_checked",
+__all__ = ["KEPT", "LIBRARIES", "fingerprint", "mismatch", "source_digest", "environment_problem", "numba_threads_problem", "worker_problem", "run_checked",
            "check_cluster", "submit_checked"]
 
 #: The libraries whose versions make pcreg's numbers, by the name they are imported as.
@@ -55,23 +55,31 @@ def numba_threads_problem() -> str | None:
 @functools.lru_cache(maxsize=1)
 def fingerprint() -> dict[str, str]:
     """This process's pcreg: its version (``"pcreg"``), a digest of its modules' source (``"code"``: SHA-256 of every
-    ``.py`` file under the package, by relative path, first 16 hex digits) and each of :data:`LIBRARIES`' installed
-    distributions with their versions (``"not installed"`` for none), read from the packages' metadata, not imported."""
-    import hashlib
+    ``.py`` regular file under the package, by relative path, its line endings read as ``\n`` (a checkout with CRLF
+    endings is the same code), first 16 hex digits) and the versions of each of :data:`LIBRARIES` as installed
+    (``"not installed"`` for none), read from the packages' metadata, not imported: by version, not distribution
+    (``open3d`` and ``open3d-cpu`` of one version, pcreg's two extras, are one; an editor's lock file is no module)."""
     from importlib.metadata import packages_distributions, version
     from pathlib import Path
 
     import pcreg
 
-    root = Path(pcreg.__file__).parent
-    digest = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
-        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
-    found = {"pcreg": pcreg.__version__, "code": digest.hexdigest()[:16]}
+    found = {"pcreg": pcreg.__version__, "code": source_digest(Path(pcreg.__file__).parent)}
     installed = packages_distributions()
     for module in LIBRARIES:
-        found[module] = ", ".join(f"{name} {version(name)}" for name in sorted(set(installed.get(module, ())))) or "not installed"
+        found[module] = ", ".join(sorted({version(name) for name in installed.get(module, ())})) or "not installed"
     return found
+
+
+def source_digest(root) -> str:
+    """The first 16 hex digits of the SHA-256 of every ``.py`` regular file under ``root`` (a :class:`~pathlib.Path`),
+    by relative path, its line endings read as ``\\n``: :func:`fingerprint`'s ``"code"``."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for path in sorted(q for q in root.rglob("*.py") if q.is_file()):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes().replace(b"\r\n", b"\n") + b"\0")
+    return digest.hexdigest()[:16]
 
 
 def mismatch(expected: dict[str, str], found: dict[str, str]) -> str | None:
@@ -126,20 +134,52 @@ def submit_checked(submit: Callable, fn: Callable, /, *args: Any, **kwargs: Any)
     return submit(run_checked, fingerprint(), pickle.dumps((fn, args, kwargs), protocol=pickle.HIGHEST_PROTOCOL))
 
 
-def check_cluster(client: Any, scheduler: str) -> None:
+def check_cluster(client: Any, scheduler: str, timeout: float) -> None:
     """Ask each worker of ``client``'s cluster (at ``scheduler``) the :func:`worker_problem`, before any unit is sent:
     a worker that cannot import pcreg, or differs, is a :class:`~pcreg.errors.PcregError` naming it (a worker
     that cannot import pcreg would fail to read each unit sent to it, and dask would end it: the command would then
-    wait for workers). The question is sent by value (a lambda), so that a worker without pcreg can read it."""
+    wait for workers). The question is sent by value (a lambda), so that a worker without pcreg can read it. Workers
+    that have not all answered within ``timeout`` seconds (one stopped, or its event loop held) are said in a note and
+    left to each unit's own check (:func:`run_checked`), so that the healthy ones go on."""
+    import sys
+    import threading
+
+    from ._signals import check_interrupted
     from .errors import PcregError
 
-    expected = fingerprint()
-    answers = client.run(lambda e: __import__("pcreg._workers", fromlist=["worker_problem"]).worker_problem(e), expected,
-                         on_error="return")
-    for address, answer in sorted(answers.items()):
-        if isinstance(answer, BaseException):
-            reason = " ".join(str(answer).split()) or type(answer).__name__
-            raise PcregError(f"dask worker {address} at {scheduler!r} cannot import pcreg ({type(answer).__name__}: "
-                             f"{reason}): install pcreg {expected['pcreg']} there, as where the command runs")
-        if answer is not None:
+    expected, got = fingerprint(), []
+
+    def ask() -> None:
+        try:
+            got.append(client.run(lambda e: __import__("pcreg") and  # pcreg itself first: its ImportError names it
+                                  __import__("pcreg._workers", fromlist=["worker_problem"]).worker_problem(e),
+                                  expected, on_error="return"))
+        except Exception as exc:  # noqa: BLE001 - the client closed meanwhile, the scheduler lost: said by the run
+            got.append(exc)
+
+    asker = threading.Thread(target=ask, name="pcreg-worker-check", daemon=True)
+    asker.start()
+    for _ in range(max(1, round(timeout / 0.25))):
+        asker.join(0.25)
+        check_interrupted()
+        if not asker.is_alive():
+            break
+    if not got or not isinstance(got[0], dict):
+        sys.stderr.write(f"pcreg: note: the dask workers at {scheduler!r} did not all answer within {timeout:g} s (one "
+                         "stopped, or busy); each unit checks its worker before it runs\n")
+        return
+    for address, answer in sorted(got[0].items()):
+        if answer is not None and not isinstance(answer, BaseException):
             raise PcregError(f"dask worker {address} at {scheduler!r}: {answer}")
+        if isinstance(answer, ImportError) and getattr(answer, "name", None) == __name__:
+            raise PcregError(f"dask worker {address} at {scheduler!r}: it runs another pcreg, one without {__name__} "
+                             f"(an older version); install pcreg {expected['pcreg']} there, as where the command runs")
+        if isinstance(answer, ImportError):
+            raise PcregError(f"dask worker {address} at {scheduler!r} cannot import pcreg ({_said(answer)}): install "
+                             f"pcreg {expected['pcreg']} there, as where the command runs")
+        if answer is not None:
+            raise PcregError(f"dask worker {address} at {scheduler!r} failed to say which pcreg it runs ({_said(answer)})")
+
+
+def _said(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"

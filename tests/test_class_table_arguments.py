@@ -56,7 +56,9 @@ def test_two_names_a_person_reads_as_one_are_refused(second):
     from pcreg.classes.table import ClassTable, LabelClass
 
     for a, b in (("road", second), ("caf\u00e9", unicodedata.normalize("NFD", "caf\u00e9")), ("road", "\uff52\uff4f\uff41\uff44"),
-                 ("sign symbol", "sign\u00a0symbol"), ("sign symbol", "sign  symbol")):  # full width, a no-break space, two
+                 ("sign symbol", "sign\u00a0symbol"), ("sign symbol", "sign  symbol"),
+                 ("\u30ac\u30fc\u30c9\u30ec\u30fc\u30eb", "\uff76\uff9e\uff70\uff84\uff9e\uff9a\uff70\uff99"),  # half-width kana
+                 ("\u30d1\u30f3", "\uff8a\uff9f\uff9d")):  # full width, a no-break space, two
         with pytest.raises(InputError, match=r"differ only in case, in Unicode form or by an invisible character"):
             ClassTable((LabelClass(0, a, (1, 1, 1)), LabelClass(1, b, (2, 2, 2)), LabelClass(2, "void", (0, 0, 0))), 2, "t")
     for a, b in (("road", "roads"), ("x2", "x\u00b2"), ("\U0001f468\u200d\U0001f469", "\U0001f468\U0001f469"),

@@ -227,7 +227,7 @@ def test_a_worker_with_other_pcreg_code_is_refused_before_any_unit(cluster, monk
     assert not _units(out)
 
 
-@pytest.mark.parametrize("what", ["no pcreg", "NUMBA_NUM_THREADS=0"])
+@pytest.mark.parametrize("what", ["no pcreg", "an older pcreg", "NUMBA_NUM_THREADS=0"])
 def test_a_worker_that_cannot_run_pcreg_is_named_at_once(what, capsys, tmp_path):
     """A worker that cannot import pcreg (not installed there) failed to read each unit and dask ended it: the
     command said after 60 s that the scheduler "has had no worker", and workers started again did the same. One
@@ -235,13 +235,37 @@ def test_a_worker_that_cannot_run_pcreg_is_named_at_once(what, capsys, tmp_path)
     from pcreg.cli import main
 
     hide = tmp_path / "hide_pcreg.py"
-    hide.write_text("import sys\nsys.modules['pcreg'] = None  # as on a machine without pcreg\n")
-    worker = {"preload": [str(hide)]} if what == "no pcreg" else {"env": {"NUMBA_NUM_THREADS": "0"}}
+    module = "pcreg" if what == "no pcreg" else "pcreg._workers"  # a machine without pcreg; with one from before the check
+    hide.write_text(f"import sys\nsys.modules[{module!r}] = None\n")
+    worker = {"preload": [str(hide)]} if "pcreg" in what else {"env": {"NUMBA_NUM_THREADS": "0"}}
     with distributed.LocalCluster(n_workers=1, processes=True, threads_per_worker=1, host="127.0.0.1",
                                   dashboard_address=":0", silence_logs=50, **worker) as c:
         rc = main([*ARGS, "--scheduler", c.scheduler_address, "--out", str(tmp_path / "rot")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "dask worker tcp://127.0.0.1:" in err[0], err
-    said = "cannot import pcreg (ModuleNotFoundError" if what == "no pcreg" else "NUMBA_NUM_THREADS='0': numba's number"
+    said = {"no pcreg": "cannot import pcreg (ModuleNotFoundError", "an older pcreg": "it runs another pcreg, one without "
+            "pcreg._workers (an older version); install pcreg", "NUMBA_NUM_THREADS=0": "NUMBA_NUM_THREADS='0': numba's number"}[what]
     assert said in err[0] and "bug" not in err[0], err
     assert not (tmp_path / "rot").exists()
+
+
+def test_a_stopped_worker_does_not_hold_the_others_at_the_check(tmp_path):
+    """A worker stopped (SIGSTOP) held the check of the workers without end, no unit run on the others: they are
+    asked within the connect timeout, then each unit checks its own worker."""
+    from _interrupting import start, units, wait_for
+
+    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, host="127.0.0.1",
+                                  dashboard_address=":0", silence_logs=50) as c, distributed.Client(c) as client:
+        pids = client.run(os.getpid)
+        stopped = pids[sorted(pids)[0]]
+        os.kill(stopped, signal.SIGSTOP)
+        out = tmp_path / "rot"
+        try:
+            p = start([*ARGS, "--scheduler", c.scheduler_address, "--out", out],
+                      env={**os.environ, "DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "2s"})
+            wait_for(p, lambda: units(out), "a unit written by the worker still running")
+        finally:
+            os.kill(stopped, signal.SIGCONT)
+        _, err = p.communicate(timeout=HANG)
+    assert p.returncode == 0, err
+    assert "did not all answer within 2 s" in err and "each unit checks its worker" in err, err

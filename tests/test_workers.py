@@ -15,7 +15,25 @@ def test_the_fingerprint_names_pcreg_its_code_and_the_libraries():
     found = W.fingerprint()
     assert list(found) == ["pcreg", "code", *W.LIBRARIES]
     assert len(found["code"]) == 16 and int(found["code"], 16) >= 0
-    assert found["numpy"].startswith("numpy ") and found["sklearn"].startswith("scikit-learn ")
+    from importlib.metadata import version
+
+    assert found["numpy"] == version("numpy") and found["sklearn"] == version("scikit-learn")  # by version alone
+
+
+def test_the_code_digest_reads_modules_alone_and_line_endings_as_one(tmp_path):
+    """An editor's lock file (a dangling link named ``.#run.py``) ended the command in a traceback; a checkout with
+    CRLF line endings is the same code; a module changed is not."""
+    (tmp_path / "pkg" / "sub").mkdir(parents=True)
+    (tmp_path / "pkg" / "a.py").write_bytes(b"x = 1\ny = 2\n")
+    (tmp_path / "pkg" / "sub" / "b.py").write_bytes(b"z = 3\n")
+    before = W.source_digest(tmp_path / "pkg")
+    (tmp_path / "pkg" / "sub" / ".#b.py").symlink_to("root@host.1234:1700000000")  # as Emacs leaves it
+    (tmp_path / "pkg" / "__pycache__").mkdir()
+    (tmp_path / "pkg" / "__pycache__" / "a.cpython-311.pyc").write_bytes(b"compiled")
+    (tmp_path / "pkg" / "a.py").write_bytes(b"x = 1\r\ny = 2\r\n")
+    assert W.source_digest(tmp_path / "pkg") == before
+    (tmp_path / "pkg" / "a.py").write_bytes(b"x = 1\ny = 3\n")
+    assert W.source_digest(tmp_path / "pkg") != before
 
 
 @pytest.mark.parametrize("change, said", [

@@ -78,11 +78,12 @@ _BLANKS = frozenset("\u115f\u1160\u3164\uffa0\u2800")
 
 def _read_as(name: str) -> str:
     """``name`` as a person reads it: Unicode's canonical form (NFC: one ``é`` however it was typed), case folded,
-    characters that show nothing left out, full-width letters as the letters (``ｃａｒ`` is ``car``) and any run of
-    spaces (a no-break space among them) as one space. Not every compatibility form: ``x²`` stays apart from ``x2``."""
+    characters that show nothing left out, full- and half-width forms as the characters (``ｃａｒ`` is ``car``,
+    ``ｶﾞ`` is ``ガ``) and any run of spaces (a no-break space among them) as one space. Not every compatibility form:
+    ``x²`` stays apart from ``x2``."""
     text = unicodedata.normalize("NFC", name).translate(_UNSEEN)
     text = "".join(unicodedata.normalize("NFKC", ch) if "\uff00" <= ch <= "\uffef" else ch for ch in text)
-    return " ".join(text.split()).casefold()
+    return " ".join(unicodedata.normalize("NFC", text).split()).casefold()  # NFC again: a half-width kana's mark joins it
 
 
 def _shows_nothing(name: str) -> bool:

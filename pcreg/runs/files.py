@@ -379,15 +379,15 @@ def label_file_problem(path: Path, shape: tuple[int, int], *, confidence: bool =
 
 
 def labels_of_frames_gone(out: Path, frames) -> list[Path]:
-    """The label PNGs, and confidence maps, that the run in ``out`` wrote (:func:`labels_written`) of frames its source
-    ``frames`` no longer has (removed from the folder since): a key-frames run that goes on without them removes them,
-    so that ``out`` holds no labels of a frame that is not the run's (and a run started over, which removes what the
-    steps name, would not find them any more)."""
-    if frames.kind == "folder":
-        there = {frames.stem(t) for t in range(len(frames))}.__contains__
-    else:
-        there = frames.writes
-    gone = sorted(f for f in labels_written(out) if not there(f.stem))
+    """The label PNGs, and confidence maps, that the run in ``out`` wrote (:func:`labels_written`) of frames its folder
+    ``frames`` no longer has (removed since): a key-frames run that goes on without them removes them, before the steps
+    that name them go, so that ``out`` holds no labels of a frame that is not the run's (and a run started over, which
+    removes what the steps name, would not find them any more). None of a video's: where its container declares no
+    count, how many frames it has is known only once decoded."""
+    if frames.kind != "folder":
+        return []
+    there = {frames.stem(t) for t in range(len(frames))}
+    gone = sorted(f for f in labels_written(out) if f.stem not in there)
     return gone + [out / CONFIDENCE / f.name for f in gone if (out / CONFIDENCE / f.name).is_file()]
 
 

@@ -145,6 +145,7 @@ def read_run(folder: str | Path) -> RunLabels:
             raise InputError(f"{p}: missing (the label file of a key frame {folder / STATE} names: the file was "
                              f"removed, or run.json edited)" if n in keys else f"{p}: missing (a labelled frame's "
                              "label file)")
+    _check_frames(folder, state)  # the run's own files first
     conf_dir = folder / CONFIDENCE
     kept = has_confidence(folder, state["run"])
     confidence = [None if n in keys or not kept else conf_dir / f"{s}.png" for n, s in zip(names, stems)]
@@ -152,6 +153,27 @@ def read_run(folder: str | Path) -> RunLabels:
     return RunLabels(folder, tuple(names), tuple(paths), tuple(confidence), table, frames_chosen(state["run"]),
                      frozenset(keys), gaps_note(state.get("gaps"), state["run"].get("video")),
                      damaged_note(state.get("damaged"), state["run"].get("video")), kept_notes(state.get("notes")))
+
+
+def _check_frames(folder: Path, state: dict) -> None:
+    """Refuse, as the review does (:class:`~pcreg.runs.edited.FramesAsLabelled`), a run whose frames folder, still
+    there, holds frames written again since the run labelled them (re-extracted at another size, edited) or added,
+    removed or renamed: the archive is imported over the frames as they are now. A video's, or a folder that is gone
+    (the labels are all an export needs), is not read."""
+    from .datasets.sources import open_frames
+    from .runs.edited import FramesAsLabelled
+    from .runs.files import counted_steps
+    from .runs.state import STATE, chosen_selection, steps_counted, steps_counted_now
+
+    run = state["run"]
+    source = Path(run["folder"]) if isinstance(run.get("folder"), str) and "video" not in run else None
+    if source is None or not source.is_dir():
+        return
+    frames = open_frames(source, chosen_selection(run, str(folder / STATE)))
+    seen = FramesAsLabelled(frames, folder, "export", None if "stretches" in state else str(state["key_frame"]))
+    for step in counted_steps(folder, steps_counted(state), recount=lambda: steps_counted_now(folder)):
+        seen.step(step)
+    seen.check()
 
 
 def read_labels(path: Path, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:

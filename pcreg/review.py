@@ -143,7 +143,7 @@ def read_review(folder: str | Path) -> RunReview:
     """
     from .classes.keys import run_table
     from .datasets.sources import FolderFrames, open_frames
-    from .runs.edited import frame_changed, frame_moved, moved_error
+    from .runs.edited import FramesAsLabelled
     from .runs.files import STEPS, counted_steps, has_confidence
     from .runs.state import STATE, chosen_selection, read_state, run_frames, steps_counted_now
 
@@ -185,21 +185,16 @@ def read_review(folder: str | Path) -> RunReview:
     stems = [frames.stem(t) for t in range(done)]
     steps: dict[str, dict] = {}  # of each step what the review shows: an hour's steps whole take about a GB
     steps_path = folder / STEPS
-    # the frames that are not where the run labelled them, by (position, name): a frames folder changed since
-    moved = [(0, str(state["key_frame"]))] if labelled is None and frame_moved(frames, 0, str(state["key_frame"])) else []
+    seen = FramesAsLabelled(frames, folder, "review", str(state["key_frame"]) if labelled is None else None)
     try:  # the steps run.json counts: a line after them (a run stopped by a full disk) is not read
         for step in counted_steps(folder, counted, recount=lambda: steps_counted_now(folder)):
             steps[str(step["name"])] = {k: step.get(k) for k in ("predicted_error", "predicted_iou", "error", "iou")}
-            if frame_moved(frames, step["frame"], str(step["name"])):
-                moved.append((step["frame"], str(step["name"])))
-            elif (changed := frame_changed(frames, folder, step["frame"], step)) is not None:  # written again since
-                raise InputError(f"{changed}; label it again (pcreg run ... --force) to review it")
+            seen.step(step)  # a frame written again since, or not where the run labelled it (a frames folder changed)
     except InputError:  # a line named
         raise
     except (OSError, ValueError, KeyError, TypeError):
         raise InputError(f"{steps_path}: unreadable (not the steps.jsonl pcreg run wrote)") from None
-    if moved:
-        raise moved_error(frames, folder, *min(moved))
+    seen.check()
     legacy = "key_frames" in state  # a run.json that lists its key frames leaves their steps out
     keys = frozenset(t for t, n in enumerate(names) if n in named or (legacy and n not in steps))
     stepless = [n for t, n in enumerate(names) if t not in keys and n not in steps]

@@ -63,3 +63,31 @@ def test_a_frame_written_again_since_the_run_is_named_not_drawn_under_old_labels
         read_review(out)
     assert main(["view", str(out), "--overlay", str(tmp_path / "o.mp4")]) == 2
     assert not (tmp_path / "o.mp4").exists()
+
+
+@pytest.mark.parametrize("keys", [False, True], ids=["one label image", "a folder of key frames"])
+@pytest.mark.parametrize("change", ["smaller", "renamed", "gone"])
+def test_export_refuses_frames_changed_since_as_the_review_does(tmp_path, synthetic, capsys, keys, change):
+    """Frames re-extracted at another size since the run: the review refused them, the export wrote the labels of the
+    frames as they were (exit 0, masks of 96x72 for frames of 48x36) and told to make a CVAT task "over the same
+    frames". Refused the same way; a frames folder that is gone (the labels are all an export needs) is exported."""
+    import shutil
+
+    folder, out = _run(tmp_path, synthetic, keys)
+    if change == "smaller":
+        f2 = cv2.imread(str(folder / "f2.png"))
+        cv2.imwrite(str(folder / "f2.png"), cv2.resize(f2, (48, 36)))
+    elif change == "renamed":
+        (folder / "f2.png").rename(folder / "f2b.png")
+    else:
+        shutil.rmtree(folder)
+    capsys.readouterr()
+    code = main(["export", str(out), "--to", str(tmp_path / "a.zip")])
+    err = capsys.readouterr().err.strip().splitlines()
+    if change == "gone":
+        assert code == 0 and (tmp_path / "a.zip").is_file(), err
+        return
+    assert code == 2 and len(err) == 1 and not (tmp_path / "a.zip").exists(), err
+    said = (f"{folder / 'f2.png'}: changed since the run in {out} labelled it" if change == "smaller" else
+            f"{folder}: holds f2b.png as frame 2, which the run in {out} labelled as f2.png")
+    assert said in err[0] and ("to export it" in err[0] or change != "smaller"), err

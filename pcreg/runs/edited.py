@@ -11,7 +11,7 @@ from ..errors import InputError, OutputError
 from .files import STEPS, parse_steps, step_lines
 from .state import STATE
 
-__all__ = ["check_same_inputs", "check_same_frames", "check_same_frame", "check_same_truth", "check_key_files", "frame_bytes",
+__all__ = ["FramesAsLabelled", "check_same_inputs", "check_same_frames", "check_same_frame", "check_same_truth", "check_key_files", "frame_bytes",
            "frame_stamp", "file_digest", "key_contents", "frame_moved", "moved_error"]
 
 
@@ -156,3 +156,26 @@ def moved_error(frames, folder: Path, t: int, name: str) -> InputError:
     """What the review says of a frame the run in ``folder`` labelled as ``name`` at position ``t`` (:func:`frame_moved`)."""
     return InputError(f"{frames.path}: holds {frames.name(t)} as frame {t}, which the run in {folder} labelled as "
                       f"{name}: the frames changed since the run (a frame added, removed or renamed)")
+
+
+class FramesAsLabelled:
+    """Whether the frames of a run's source are still those it labelled, step by step (:meth:`step`), then
+    :meth:`check`: an :class:`~pcreg.errors.InputError` for a frame written again since (:func:`frame_changed`) at once,
+    and for a frame added, removed or renamed since (:func:`frame_moved`, from ``key_frame`` at position 0 of a run from
+    one label image on) the earliest, once every step was seen. ``doing``: what the message says to label it again for
+    (``"review"``, ``"export"``). A video's frames are never said changed or moved."""
+
+    def __init__(self, frames, folder: Path, doing: str, key_frame: str | None = None) -> None:
+        self.frames, self.folder, self.doing = frames, folder, doing
+        self.moved = [(0, key_frame)] if key_frame is not None and frame_moved(frames, 0, key_frame) else []
+
+    def step(self, step: dict) -> None:
+        t, name = step["frame"], str(step["name"])
+        if frame_moved(self.frames, t, name):
+            self.moved.append((t, name))
+        elif (changed := frame_changed(self.frames, self.folder, t, step)) is not None:
+            raise InputError(f"{changed}; label it again (pcreg run ... --force) to {self.doing} it")
+
+    def check(self) -> None:
+        if self.moved:
+            raise moved_error(self.frames, self.folder, *min(self.moved))

@@ -182,8 +182,10 @@ def _probe_scheduler(scheduler: str, timeout: float) -> None:
 
     async def ask() -> Any:
         from distributed.comm import connect
+        from distributed.security import Security
 
-        comm = await connect(scheduler, timeout=timeout)
+        # with dask's TLS settings (distributed.comm.tls), as the client connects: tls:// and wss:// need them
+        comm = await connect(scheduler, timeout=timeout, **Security().get_connection_args("client"))
         try:
             await comm.write({"op": "identity", "reply": True})
             return await comm.read()
@@ -219,7 +221,7 @@ def _probe_scheduler(scheduler: str, timeout: float) -> None:
                          "(dask's distributed.comm.timeouts.connect sets the wait)")
     if isinstance(got, BaseException) and not isinstance(got, Exception):
         raise got  # KeyboardInterrupt
-    if isinstance(got, TypeError) and "ssl_context" in str(got):  # dask's words for tls:// without its settings
+    if isinstance(got, Exception) and "ssl_context" in str(got):  # dask's words for tls:// or wss:// without its settings
         raise PcregError(f"--scheduler {scheduler!r}: {scheme}:// needs dask's TLS settings (distributed.comm.tls: "
                          "ca-file, and client cert and key), and none are set here")
     what = ("no reply to its greeting" if isinstance(got, (TimeoutError, asyncio.TimeoutError)) else

@@ -98,9 +98,9 @@ def mismatch(expected: dict[str, str], found: dict[str, str]) -> str | None:
 def worker_problem(expected: dict[str, str]) -> str | None:
     """Run where a unit would run: what keeps its numbers from being the command's (``expected``, the command's
     :func:`fingerprint`), in words, or None."""
-    threads = environment_problem()
-    if threads is not None:
-        return f"{threads}; {KEPT}"
+    environment = environment_problem()
+    if environment is not None:
+        return f"{environment}; {KEPT}"
     differs = mismatch(expected, fingerprint())
     if differs is not None:
         return f"{differs}; install the same pcreg and libraries on every worker as where the command runs; {KEPT}"
@@ -173,7 +173,7 @@ def check_cluster(client: Any, scheduler: str, timeout: float) -> None:
             raise PcregError(f"dask worker {address} at {scheduler!r}: {answer}")
         if isinstance(answer, ImportError) and getattr(answer, "name", None) == __name__:
             raise PcregError(f"dask worker {address} at {scheduler!r}: it runs another pcreg, one without {__name__} "
-                             f"(an older version); install pcreg {expected['pcreg']} there, as where the command runs")
+                             "(an older one); install the same pcreg there as where the command runs")
         if isinstance(answer, ImportError):
             raise PcregError(f"dask worker {address} at {scheduler!r} cannot import pcreg ({_said(answer)}): install "
                              f"pcreg {expected['pcreg']} there, as where the command runs")

@@ -61,7 +61,7 @@ def test_two_names_a_person_reads_as_one_are_refused(second):
                  ("\u30d1\u30f3", "\uff8a\uff9f\uff9d")):  # full width, a no-break space, two
         with pytest.raises(InputError, match=r"differ only in case, in Unicode form or by an invisible character"):
             ClassTable((LabelClass(0, a, (1, 1, 1)), LabelClass(1, b, (2, 2, 2)), LabelClass(2, "void", (0, 0, 0))), 2, "t")
-    for a, b in (("road", "roads"), ("x2", "x\u00b2"), ("\U0001f468\u200d\U0001f469", "\U0001f468\U0001f469"),
+    for a, b in (("road", "roads"), ("x2", "x\u00b2"), ("\uac00", "\uffa1\uffc2"),  # a syllable, two half-width jamo ("\U0001f468\u200d\U0001f469", "\U0001f468\U0001f469"),
                  ("\u0645\u06cc\u200c\u0634\u0648\u062f", "\u0645\u06cc\u0634\u0648\u062f")):  # a joiner shows
         assert ClassTable((LabelClass(0, a, (1, 1, 1)), LabelClass(1, b, (2, 2, 2)),
                            LabelClass(2, "void", (0, 0, 0))), 2, "t").n_known == 2

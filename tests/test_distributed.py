@@ -244,7 +244,7 @@ def test_a_worker_that_cannot_run_pcreg_is_named_at_once(what, capsys, tmp_path)
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "dask worker tcp://127.0.0.1:" in err[0], err
     said = {"no pcreg": "cannot import pcreg (ModuleNotFoundError", "an older pcreg": "it runs another pcreg, one without "
-            "pcreg._workers (an older version); install pcreg", "NUMBA_NUM_THREADS=0": "NUMBA_NUM_THREADS='0': numba's number"}[what]
+            "pcreg._workers (an older one); install the same pcreg there", "NUMBA_NUM_THREADS=0": "NUMBA_NUM_THREADS='0': numba's number"}[what]
     assert said in err[0] and "bug" not in err[0], err
     assert not (tmp_path / "rot").exists()
 
@@ -269,3 +269,38 @@ def test_a_stopped_worker_does_not_hold_the_others_at_the_check(tmp_path):
         _, err = p.communicate(timeout=HANG)
     assert p.returncode == 0, err
     assert "did not all answer within 2 s" in err and "each unit checks its worker" in err, err
+
+
+def test_a_tls_scheduler_is_reached_with_dasks_tls_settings(tmp_path, capsys):
+    """pcreg's first question to the scheduler went without dask's TLS settings, so a ``tls://`` scheduler was never
+    reached ("answered, but not as a dask scheduler (TypeError)") where dask's own client connected. With the settings
+    (``distributed.comm.tls``) the evaluation runs there; without them it says they are needed."""
+    import shutil
+    import subprocess
+
+    import dask
+    from distributed.security import Security
+
+    from pcreg.cli import main
+
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed: no certificate to start a TLS scheduler with")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out", str(cert),
+                    "-days", "2", "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1"],
+                   check=True, capture_output=True)
+    security = Security(tls_ca_file=str(cert), tls_client_cert=str(cert), tls_client_key=str(key),
+                        tls_scheduler_cert=str(cert), tls_scheduler_key=str(key), tls_worker_cert=str(cert),
+                        tls_worker_key=str(key), require_encryption=True)
+    settings = {"distributed.comm.tls.ca-file": str(cert), "distributed.comm.tls.client.cert": str(cert),
+                "distributed.comm.tls.client.key": str(key)}
+    with distributed.LocalCluster(n_workers=1, processes=True, threads_per_worker=1, host="127.0.0.1",
+                                  protocol="tls://", security=security, dashboard_address=":0", silence_logs=50) as c:
+        assert c.scheduler_address.startswith("tls://")
+        with dask.config.set({"distributed.comm.timeouts.connect": "5s"}):
+            assert main([*ARGS, "--scheduler", c.scheduler_address, "--out", str(tmp_path / "none")]) == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and "tls:// needs dask's TLS settings" in err[0], err
+            with dask.config.set(settings):
+                assert main([*ARGS, "--scheduler", c.scheduler_address, "--out", str(tmp_path / "rot")]) == 0
+    assert len(_units(tmp_path / "rot")) == 4

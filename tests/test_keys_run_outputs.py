@@ -144,3 +144,28 @@ def test_a_frame_removed_from_the_folder_takes_its_labels_with_it(tmp_path, gone
     assert sorted(p.stem for p in out.glob("*.png")) == sorted(p.stem for p in folder.glob("*.png"))
     assert main([*run, "--force"]) == 0
     assert sorted(p.stem for p in out.glob("*.png")) == sorted(p.stem for p in folder.glob("*.png"))
+
+
+def test_a_run_refused_after_a_frame_was_removed_removes_nothing(tmp_path, capsys):
+    """A frame removed and another labelled frame written again: the run is refused, and the removed frame's labels,
+    which run.json still counts, were already gone; put back as they were, the frames were refused again ("missing,
+    though run.json counts that frame labelled"). Nothing is removed before the run is taken."""
+    from _runs import drifting_frames, key_frames_of
+
+    folder, key = drifting_frames(tmp_path / "frames", n=7)
+    keys = key_frames_of(key, tmp_path / "keys", positions=(0, 4))
+    out = tmp_path / "out"
+    run = ["run", str(folder), "--labels", str(keys), "--out", str(out)]
+    assert main(run) == 0
+    kept = {p: p.read_bytes() for p in (folder / "f2.png", folder / "f6.png")}
+    (folder / "f6.png").unlink()
+    f2 = cv2.imread(str(folder / "f2.png"))
+    f2[0, 0] = 255 - f2[0, 0]
+    cv2.imwrite(str(folder / "f2.png"), f2)
+    capsys.readouterr()
+    assert main(run) == 2
+    assert "f2.png: changed since the run" in capsys.readouterr().err
+    assert (out / "f6.png").is_file()
+    for p, data in kept.items():
+        p.write_bytes(data)
+    assert main(run) == 0

@@ -76,13 +76,19 @@ _UNSEEN = dict.fromkeys(map(ord, "\u200b\u00ad\u2060\ufeff"))
 _BLANKS = frozenset("\u115f\u1160\u3164\uffa0\u2800")
 
 
+def _width_form(ch: str) -> bool:
+    """Whether ``ch`` is a full- or half-width form (U+FF00-FFEF) but for half-width Hangul jamo (U+FFA0-FFDC): those,
+    read as jamo, would join the letters before them into syllables a reader tells apart (``ﾡￂ`` is not ``가``)."""
+    return "\uff00" <= ch <= "\uffef" and not "\uffa0" <= ch <= "\uffdc"
+
+
 def _read_as(name: str) -> str:
     """``name`` as a person reads it: Unicode's canonical form (NFC: one ``é`` however it was typed), case folded,
     characters that show nothing left out, full- and half-width forms as the characters (``ｃａｒ`` is ``car``,
     ``ｶﾞ`` is ``ガ``) and any run of spaces (a no-break space among them) as one space. Not every compatibility form:
     ``x²`` stays apart from ``x2``."""
     text = unicodedata.normalize("NFC", name).translate(_UNSEEN)
-    text = "".join(unicodedata.normalize("NFKC", ch) if "\uff00" <= ch <= "\uffef" else ch for ch in text)
+    text = "".join(unicodedata.normalize("NFKC", ch) if _width_form(ch) else ch for ch in text)
     return " ".join(unicodedata.normalize("NFC", text).split()).casefold()  # NFC again: a half-width kana's mark joins it
 
 

@@ -417,9 +417,10 @@ class Run:
         live = [plan[e["fingerprint"]] for e in kept] + ([] if cursor is None else [plan[cursor["fingerprint"]]])
         if self.frames.kind == "folder":  # a key frame that kept steps were labelled from, written again since: refused
             check_key_files(self.frames, self.out, self.state, {k for s in live for k in s.keys})  # before anything is written
-        for f in labels_of_frames_gone(self.out, self.frames):  # while the steps still name them (a kill here resumes)
+        gone = labels_of_frames_gone(self.out, self.frames)  # read while the steps name them, removed once they are kept
+        lines = self._keep_steps(live, next(iter(keys.values())).shape)  # a refusal here removes nothing
+        for f in gone:
             f.unlink(missing_ok=True)
-        lines = self._keep_steps(live, next(iter(keys.values())).shape)
         keep_hidden = None if cursor is None else self.hidden(cursor["fingerprint"]).name
         if state is not None and (self.out / HIDDEN).is_dir():  # a run's (one started over lost it whole)
             for d in (self.out / HIDDEN).iterdir():

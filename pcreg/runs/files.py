@@ -380,9 +380,9 @@ def label_file_problem(path: Path, shape: tuple[int, int], *, confidence: bool =
 
 def labels_of_frames_gone(out: Path, frames) -> list[Path]:
     """The label PNGs, and confidence maps, that the run in ``out`` wrote (:func:`labels_written`) of frames its folder
-    ``frames`` no longer has (removed since): a key-frames run that goes on without them removes them, before the steps
-    that name them go, so that ``out`` holds no labels of a frame that is not the run's (and a run started over, which
-    removes what the steps name, would not find them any more). None of a video's: where its container declares no
+    ``frames`` no longer has (removed since), read while the steps still name them: a key-frames run that goes on
+    without them removes them once its kept steps are written, so that ``out`` holds no labels of a frame that is not
+    the run's (and a run started over, which removes what the steps name, would not find them any more). None of a video's: where its container declares no
     count, how many frames it has is known only once decoded."""
     if frames.kind != "folder":
         return []

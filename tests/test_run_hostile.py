@@ -76,6 +76,8 @@ CORRUPT_STATES = {
     "done infinite": lambda s: {**s, "done": float("inf")}, "done a list": lambda s: {**s, "done": [2]},
     "done zero": lambda s: {**s, "done": 0}, "fallbacks negative": lambda s: {**s, "fallbacks": -1},
     "truth not counts": lambda s: {**s, "truth": {"frames": "x"}}, "key_labels a number": lambda s: {**s, "key_labels": 3},
+    "an empty object": lambda s: {}, "no run": lambda s: {k: v for k, v in s.items() if k != "run"},
+    "run a list": lambda s: {**s, "run": [s["run"]]},  # said as not pcreg's, not as a run of other options
 }
 
 

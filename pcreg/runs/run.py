@@ -53,7 +53,7 @@ from .edited import (check_key_files, check_same_frame, check_same_frames, check
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
                     label_file_problem, labels_of_frames_gone, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_record_path, check_recording, name_recording, nothing_to_record, run_recording
-from .state import FORMAT, STATE, open_state, read_state, run_frames, run_inputs, write_state
+from .state import FORMAT, STATE, named_otherwise, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
 from .video_file import check_kept, keep_video, labelled_to_end, mark_end
 
@@ -163,8 +163,6 @@ class Run:
     def _label_from_key(self, request: RunRequest, pending: tuple, prop, labels: np.ndarray) -> None:
         """The frames not labelled yet, forwards from the key frame (its ``labels``), in order; ``pending``:
         the key frame, the frame after it and the decoder it came from, which a fresh run continues."""
-        import itertools
-
         from .._runner import check_interrupted, progress, tick
         from ..datasets.sources import read_ahead
         from ..frame import PreparedFrame
@@ -183,6 +181,8 @@ class Run:
         if (frames.kind == "folder" and start >= len(frames)) or (frames.kind == "video" and labelled_to_end(self.state)):
             decoded.close()  # a video labelled to its end in this very file: nothing decoded, no carry read
             nothing_to_record(request.record)
+            if named_otherwise(out, self.state):  # its inputs found in new places (moved): kept
+                self.commit()
             return self._say_done(request, 0, [0], start=start)
         if start == 1:
             todo = itertools.chain([second], decoded)

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
 __all__ = ["STATE", "FORMAT", "format_problem", "chosen_selection", "frames_chosen", "unfinished_note", "TRUTH_COUNTS",
            "is_count", "has_counts", "state_problem", "run_identity", "run_inputs", "open_state", "read_state", "run_frames",
-           "steps_counted", "steps_counted_now"]
+           "steps_counted", "steps_counted_now", "named_otherwise"]
 
 #: The layout of the run.json this pcreg writes (its ``format``; a run.json without one, from before it was
 #: written, has this layout too). A run.json of a later format is refused by name rather than misread.
@@ -237,8 +237,10 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) ->
     newer = format_problem(state, state_path)
     if newer is not None:
         raise OutputError(f"{newer}, or --force to start over")
-    before = _without_unused(state.get("run"))
-    if before != state.get("run") and before == identity:  # begun when dense and flow took --backend and --init
+    if not isinstance(state.get("run"), dict):  # no run's identity to tell other options by
+        raise OutputError(f"{state_path}: its 'run' is not as pcreg run writes it; use --force to start over")
+    before = _moved(_without_unused(state.get("run")), identity, state)
+    if before != state.get("run") and before == identity:  # begun when dense and flow took --backend and --init, or moved
         state["run"] = identity
     if state.get("run") != identity and _reaches_further(before, identity):
         state["run"] = identity  # the same run, its --stop later (or gone): it goes on to the frames added
@@ -261,6 +263,26 @@ def _without_unused(run):
     return {**run, **{k: v for k, v in (("backend", "reference"), ("init", "identity")) if k in run}}
 
 
+#: The fields of a run's identity that name where its inputs are (:func:`run_inputs`).
+_INPUT_PATHS = ("folder", "video", "labels", "truth")
+
+
+def _moved(before, now: dict | None, state: dict):
+    """A run's identity ``before`` (run.json's ``run``) with its inputs' paths as ``now`` names them, where only their
+    places differ (a project folder moved or copied, or the frames given through another path): what the inputs hold
+    is checked as on any resume, against what ``state`` kept of them (the key labels' digest, or a key-frames run's
+    stretches' fingerprints; a folder's key frames' sizes and digests, each labelled frame's in its step; a video's
+    fingerprint; each truth map's digest in its step). ``before`` as it is for a run begun before those were kept,
+    or an input of another kind (a video for a folder)."""
+    if not (isinstance(before, dict) and isinstance(now, dict)):
+        return before
+    places = {k: now[k] for k in _INPUT_PATHS
+              if isinstance(before.get(k), str) and isinstance(now.get(k), str) and before[k] != now[k]}
+    labels_kept = "stretches" in state or isinstance(state.get("key_labels"), str)
+    frames_kept = state.get("key_contents") if "folder" in now else state.get("video_file")
+    return {**before, **places} if places and labels_kept and frames_kept else before
+
+
 def _reaches_further(before, now: dict | None) -> bool:
     """Whether the run ``now`` (an identity) is the run ``before`` with more of the same frames chosen: the same
     inputs and options, the same ``--start`` and ``--every``, and a ``--stop`` later than the one it had, or none.
@@ -275,6 +297,15 @@ def _reaches_further(before, now: dict | None) -> bool:
     stop, new_stop = then.get("stop"), later.get("stop")
     return (type(stop) is int and (new_stop is None or (type(new_stop) is int and new_stop > stop))
             and (then.get("start"), then.get("every")) == (later.get("start"), later.get("every")))
+
+
+def named_otherwise(out: Path, state: dict) -> bool:
+    """Whether ``out``'s run.json names the run otherwise than ``state`` does (its inputs found in new places,
+    :func:`open_state`), so that it is written again for the review and the export even when nothing is labelled."""
+    try:
+        return load_json_object(out / STATE).get("run") != state.get("run")
+    except ValueError:
+        return True
 
 
 def write_state(out: Path, state: dict) -> None:

@@ -70,6 +70,8 @@ def drawn_names(classes) -> dict[int, str]:
     def one(ch: str) -> str:
         if " " <= ch <= "~":
             return ch
+        if unicodedata.combining(ch):  # a mark on the letter before it (a decomposed accent): folded away, as a composed one's
+            return ""
         base = unicodedata.normalize("NFKD", ch).encode("ascii", "ignore").decode("ascii")
         return letters.get(ch) or (base if base.strip() else "?")
 

@@ -219,3 +219,6 @@ def test_class_names_of_no_ascii_form_are_drawn_apart():
     assert drawn_names(classes) == {1: "class 1", 2: "class 2", 3: "nebo", 5: "road (5)", 6: "road (6)", 7: "sky"}
     letters = [LabelClass(1, "Straße", (1, 1, 1)), LabelClass(2, "Łąka", (2, 2, 2)), LabelClass(3, "æble", (3, 3, 3))]
     assert drawn_names(letters) == {1: "Strasse", 2: "Laka", 3: "aeble"}  # letters of no accent are not dropped
+    # accents as separate marks (decomposed, as some systems write file names) are folded as composed ones, not "?"
+    marks = [LabelClass(1, "cafe\u0301", (1, 1, 1)), LabelClass(2, "q\u0303uay", (2, 2, 2)), LabelClass(3, "cafe", (3, 3, 3))]
+    assert drawn_names(marks) == {1: "cafe (1)", 2: "quay", 3: "cafe (3)"}

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -428,3 +429,16 @@ def test_a_class_colour_of_text_or_no_dimension_is_refused_by_name():
             ClassTable((LabelClass(0, "road", colour), LabelClass(1, "sky", (1, 2, 4)), LabelClass(2, "u", (0, 0, 0))), 2)
     with pytest.raises(InputError, match="class 0's name 5 is not text"):
         ClassTable((LabelClass(0, 5, (9, 9, 9)), LabelClass(1, "sky", (1, 2, 4)), LabelClass(2, "u", (0, 0, 0))), 2)
+
+
+def test_the_closing_lines_quote_a_class_name_that_holds_a_list_s_comma():
+    """A class named ``car, parked`` read as two classes in the closing lines' lists (``car, parked 0.50, road
+    0.25``): a name holding a comma, a semicolon, a quote or a list's own word is quoted there, as in the messages."""
+    from pcreg.runs.summary import predicted_summary, truth_summary
+
+    table = pcreg.classes.parse_table_json(json.dumps({"classes": [
+        {"id": 0, "name": "road", "colour": [1, 0, 0]}, {"id": 1, "name": "car, parked", "colour": [2, 0, 0]},
+        {"id": 2, "name": "void", "colour": [0, 0, 0]}], "unknown": 2}), "t")
+    steps = {1: {"iou": {"0": 0.75, "1": 0.5}, "predicted_iou": {"0": 0.75, "1": 0.25}, "predicted_error": 3.0}}
+    assert "road 0.75 (0.75), 'car, parked' 0.50 (0.25); the mean" in truth_summary(steps, table)
+    assert "the class predicted worst: 'car, parked', IoU 0.25" in predicted_summary(steps, str, table, Path("out"))

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..validation import check_unmasked
-from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable
+from .table import CAMVID11, DAVIS, DEFAULT_TABLE, ClassTable, listed_name
 
 __all__ = ["check_labels", "MAPPINGS", "choose_table", "LabelCoding", "decode_key_labels", "read_key_labels", "object_values",
            "read_object_mask", "check_one_object", "identity_classes", "with_classes",
@@ -506,7 +506,7 @@ def check_key_classes(labels: np.ndarray, table, fitted) -> np.ndarray:
         raise InputError(f"the key frame's labels are all unknown ({unknown}): nothing to propagate")
     missing = [] if fitted is None or table is None else [int(c) for c in present if c != unknown and c not in fitted]
     if missing:
-        named = ", ".join(f"{table.name_of(c)} (id {c})" for c in missing)
+        named = ", ".join(f"{listed_name(table.name_of(c))} (id {c})" for c in missing)
         raise InputError(f"the key frame's labels hold {named}, which the classifier was not fitted on: no frame would "
                          "be labelled so; fit it on frames that show it (Propagator.from_key_frame of this key frame "
                          "fits one on it)")

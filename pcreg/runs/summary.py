@@ -9,6 +9,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..classes.table import listed_name
+
 __all__ = ["predicted_summary", "truth_summary", "lost_summary", "key_classes", "LISTED"]
 
 #: The closing message lists each class's IoU against the truth up to this many classes (CamVid's eleven and a
@@ -31,7 +33,7 @@ def predicted_summary(steps: dict[int, dict], stem: Callable[[int], str], table,
     ious = _mean_ious(steps, "predicted_iou", table)
     if ious:  # a small class can be half wrong while the frame's error reads a few %
         c = min(ious, key=lambda c: ious[c][0])
-        line += (f"; the class predicted worst: {table.name_of(c)}, IoU {ious[c][0]:.2f} on average "
+        line += (f"; the class predicted worst: {listed_name(table.name_of(c))}, IoU {ious[c][0]:.2f} on average "
                  f"over the {ious[c][1]} frame(s) that show it")
     return line + lost + f"\nto review the labels on the frames: pcreg view {shlex.quote(str(out))} --web"
 
@@ -47,7 +49,7 @@ def truth_summary(steps: dict[int, dict], table) -> str:
         return ""
     predicted = _mean_ious(steps, "predicted_iou", table)
     shown = sorted(truth) if len(truth) <= LISTED else sorted(truth, key=lambda c: (truth[c][0], c))[:LISTED]
-    each = ", ".join(f"{table.name_of(c)} {truth[c][0]:.2f}" + (f" ({predicted[c][0]:.2f})" if c in predicted else "")
+    each = ", ".join(f"{listed_name(table.name_of(c))} {truth[c][0]:.2f}" + (f" ({predicted[c][0]:.2f})" if c in predicted else "")
                      for c in shown)
     more = "" if len(shown) == len(truth) else f", and {len(truth) - len(shown)} more classes in steps.jsonl"
     lowest = "" if len(shown) == len(truth) else f" (the {LISTED} lowest)"
@@ -98,7 +100,7 @@ def lost_summary(steps: dict[int, dict], keys_of: Callable[[dict], set[int] | No
     if not lost:
         return ""
     shown = sorted(lost, key=lambda c: (-len(lost[c]), c))[:LISTED]
-    each = ", ".join(f"{table.name_of(c)} in {len(lost[c])} frame(s) from {stem(lost[c][0])}" for c in shown)
+    each = ", ".join(f"{listed_name(table.name_of(c))} in {len(lost[c])} frame(s) from {stem(lost[c][0])}" for c in shown)
     more = "" if len(shown) == len(lost) else f", and {len(lost) - len(shown)} more"
     return (f"\nclasses the key frame(s) hold that the labels lost: {each}{more} (a class that left the view, or one the "
             "labels missed: the predicted error cannot tell)")

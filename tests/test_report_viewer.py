@@ -428,3 +428,43 @@ def test_another_recording_in_a_reports_folder_is_said(evaluations, tmp_path, ot
         stop_view(proc)
     assert said in err, err
     assert notes and notes[0].startswith(said[len("pcreg: note: "):]), notes
+
+
+def test_files_the_report_shows_are_its_own_when_read_and_when_served(evaluations, tmp_path):
+    """config.json and checks.md, which the page shows whole, were read through a link to any file (a secret's
+    JSON, /etc/passwd) and sent in report.json; a listed file replaced while the page is served by a link to a file
+    elsewhere was served, and by a pipe held a thread for good. Each is now as a file that is not there: 404, or
+    no checks. Two Host headers are refused, whichever comes first."""
+    import socket
+
+    from pcreg.experiments.reports.page import load_report, page_data
+    from pcreg.recording.report import ReportServer
+
+    folder = tmp_path / "rot"
+    folder.mkdir()
+    for f in evaluations["rotation"].iterdir():
+        if f.is_file() and f.suffix != ".rrd" and f.name not in ("config.json", "checks.md"):
+            (folder / f.name).write_bytes(f.read_bytes())
+    (tmp_path / "secret.json").write_text('{"api_token": "s3cr3t"}')
+    (tmp_path / "secret.md").write_text("a secret outside the folder")
+    (folder / "config.json").symlink_to(tmp_path / "secret.json")
+    (folder / "checks.md").symlink_to(tmp_path / "secret.md")
+    data = page_data(load_report(folder))
+    assert "s3cr3t" not in json.dumps(data) and "a secret" not in json.dumps(data)
+    (folder / "notes.md").write_text("the report's own notes")
+    (folder / "table.csv").write_text("a,b\n1,2\n")
+    data = page_data(load_report(folder))
+    with ReportServer(folder, data, web_port=0) as server:
+        with urllib.request.urlopen(server.url + "files/notes.md", timeout=30) as r:
+            assert r.read() == b"the report's own notes"
+        (folder / "notes.md").unlink()
+        (folder / "notes.md").symlink_to(tmp_path / "secret.md")
+        os.unlink(folder / "table.csv")
+        os.mkfifo(folder / "table.csv")
+        for name in ("notes.md", "table.csv"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(server.url + "files/" + name, timeout=30)
+            assert e.value.code == 404, name
+        with socket.create_connection(("127.0.0.1", server.port), timeout=30) as c:
+            c.sendall(b"GET /report.json HTTP/1.1\r\nHost: localhost\r\nHost: evil.example\r\n\r\n")
+            assert c.recv(100).split(b"\r\n")[0] == b"HTTP/1.0 400 more than one Host header"

@@ -61,6 +61,9 @@ class QuietHandler(BaseHTTPRequestHandler):
         points at 127.0.0.1 (DNS rebinding) would read the frames and files served as its own."""
         if not super().parse_request():
             return False
+        if len(self.headers.get_all("Host") or ()) > 1:  # which one names the server is not for it to choose
+            self.send_error(400, "more than one Host header")
+            return False
         host = self.headers.get("Host")
         listening = self.server.server_address  # (host, port, ...) of an IP server
         if host is None or not isinstance(listening, tuple) or not ipaddress.ip_address(listening[0]).is_loopback:
@@ -118,6 +121,16 @@ class QuietHandler(BaseHTTPRequestHandler):
         self._send(200, ctype, body)
 
 
+def _still_inside(path: Path, inside: Path) -> bool:
+    """Whether ``path`` is, now, a regular file of the folder ``inside`` (resolved): a file the report lists that was
+    replaced since the page began by a link to a file elsewhere, or by a pipe that no one writes to (each read of
+    which would hold a thread for good), is not served."""
+    try:
+        return path.is_file() and path.resolve().parent == inside
+    except (OSError, RuntimeError):  # a loop of links
+        return False
+
+
 def viz_dir() -> Path:
     """The report page's static files: ``pcreg/_viz`` in an installed wheel, ``viz/`` in a source checkout."""
     here = Path(__file__).resolve().parent.parent
@@ -130,6 +143,7 @@ def viz_dir() -> Path:
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = REUSE_ADDRESS
+    request_queue_size = 128  # connections waiting to be accepted (socketserver's 5 left a burst of them retrying for seconds)
 
     def handle_error(self, request, client_address) -> None:
         """A browser that went away (a connection reset or closed while its request was read or answered) is
@@ -216,19 +230,20 @@ class ReportServer:
         with self._lock:
             if path in self._cache:
                 return self._cache[path]
-            try:
-                with urllib.request.urlopen(f"http://{url_host(self._probe)}:{self._viewer_port}{path}",
-                                            timeout=60) as r:
-                    body = r.read()
-                    answer = (r.status, r.headers.get("Content-Type", "application/octet-stream"), body,
-                              {k: v for k, v in r.headers.items() if k.lower() == "rerun-final-length"})
-            except urllib.error.HTTPError as exc:
-                return exc.code, "text/plain", b"not found\n", {}
-            except OSError:
-                return 502, "text/plain", b"the web viewer does not answer\n", {}
-            if answer[0] == 200:
-                self._cache[path] = answer
-            return answer
+        try:  # not under the lock: one file slow to come holds up no other
+            with urllib.request.urlopen(f"http://{url_host(self._probe)}:{self._viewer_port}{path}",
+                                        timeout=60) as r:
+                body = r.read()
+                answer = (r.status, r.headers.get("Content-Type", "application/octet-stream"), body,
+                          {k: v for k, v in r.headers.items() if k.lower() == "rerun-final-length"})
+        except urllib.error.HTTPError as exc:
+            return exc.code, "text/plain", b"not found\n", {}
+        except OSError:
+            return 502, "text/plain", b"the web viewer does not answer\n", {}
+        if answer[0] == 200:
+            with self._lock:
+                answer = self._cache.setdefault(path, answer)
+        return answer
 
     def _handler(self):
         server = self
@@ -248,7 +263,7 @@ class ReportServer:
                     if path == "/report.json":
                         return self._send(200, "application/json", server.report_json())
                     name = urllib.parse.unquote(path[7:]) if path.startswith("/files/") else None
-                    if name in files:  # the page asks for encodeURIComponent(name)
+                    if name in files and _still_inside(files[name], inside):  # the page asks for encodeURIComponent(name)
                         return self._file(files[name])
                     if path.startswith("/rerun/") and server._viewer_port is not None:
                         return self._send(*server._viewer_file("/" + path[7:]))

@@ -342,8 +342,9 @@ def serve_web(
     for name, port in (("--web-port", web_port), ("--grpc-port", grpc_port)):
         if not port_free(probe, port):
             raise InputError(f"{name} {port}: the port is in use on {bind} (choose another, or 0 for any free port)")
-    cmd = [binary, str(Path(recording).resolve()), "--serve-web", "--bind", bind, "--port", str(grpc_port),
-           "--web-viewer-port", str(web_port)]
+    # the recording is sent once the server listens (:func:`_send`), not named here: given a file, rerun's server keeps
+    # a core busy for as long as it serves
+    cmd = [binary, "--serve-web", "--bind", bind, "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
     if bind not in ("127.0.0.1", "::1", "localhost"):
         # the data server answers only pages from localhost unless told otherwise: allow our web viewer's
         # page under whatever name the machine is reached by
@@ -355,10 +356,31 @@ def serve_web(
                                 stderr=log, start_new_session=True, preexec_fn=_ends_with_us())
         try:
             _wait_listening(proc, log, probe, (web_port, grpc_port), timeout)
+            _send(Path(recording), probe, grpc_port)
         except BaseException:
             stop(proc)
             raise
     return proc, web_url(url_host(bind), web_port, grpc_port)
+
+
+def _send(recording: Path, host: str, grpc_port: int) -> None:
+    """Send ``recording`` (its recording and blueprint, under their own ids) to the gRPC server listening on
+    ``host``:``grpc_port``, which keeps it for every viewer that connects; returns once it is sent. A server given the
+    file to read itself (``rerun FILE --serve-web``) keeps polling it after its end, a core busy for as long as it
+    serves (rerun 0.41: 100% of a core, idle); one that received it over gRPC waits idle."""
+    import warnings
+
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():  # a file without rerun's footer (an earlier rerun's) is read whole: said, not a problem
+        warnings.simplefilter("ignore")
+        store = RrdReader(str(recording)).recordings()[0]
+    stream = rr.RecordingStream(store.application_id, recording_id=store.recording_id)
+    stream.connect_grpc(f"rerun+http://{f'[{host}]' if ':' in host else host}:{grpc_port}/proxy")
+    stream.log_file_from_path(recording)  # its stores as they are in the file, the blueprint among them
+    stream.flush()
+    stream.disconnect()
 
 
 def _wait_listening(proc: subprocess.Popen, log, host: str, ports: tuple[int, ...], timeout: float) -> None:

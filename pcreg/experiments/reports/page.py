@@ -63,6 +63,18 @@ def _experiment(results: dict) -> str | None:
     return None
 
 
+def _own(path: Path, inside: Path) -> Path:
+    """``path`` when it is a regular file of the folder ``inside`` (resolved); else a FileNotFoundError, as for a file
+    that is not there: a link to a file elsewhere is not the report's to show (the page shows config.json and
+    checks.md whole), and a pipe would never end its read."""
+    try:
+        if path.is_file() and path.resolve().parent == inside:
+            return path
+    except RuntimeError:  # a loop of links
+        pass
+    raise FileNotFoundError(path)
+
+
 def load_report(folder: str | Path) -> Report:
     """Read an evaluation's output folder; a missing folder, a folder without results.json, or a
     results.json that is not one evaluation's results is one line (:class:`InputError`)."""
@@ -90,17 +102,17 @@ def load_report(folder: str | Path) -> Report:
     if experiment is None:
         raise InputError(f"{rp}: not the results of pcreg evaluate sequence, rotation, stream or classification")
     config = results.get("config") if isinstance(results.get("config"), dict) else {}
+    inside = p.resolve()  # a link to a file elsewhere (/etc/passwd as notes.md) is not the report's to serve
     try:
-        on_disk = loads_json((p / "config.json").read_text(encoding="utf-8"))
+        on_disk = loads_json(_own(p / "config.json", inside).read_text(encoding="utf-8"))
         if isinstance(on_disk, dict):
             config = on_disk
     except (OSError, ValueError):
         pass
     try:
-        checks = (p / "checks.md").read_text(encoding="utf-8")
+        checks = _own(p / "checks.md", inside).read_text(encoding="utf-8")
     except (OSError, ValueError):
         checks = None
-    inside = p.resolve()  # a link to a file elsewhere (/etc/passwd as notes.md) is not the report's to serve
     names = sorted(f.name for f in p.iterdir() if f.is_file() and not f.name.startswith(".")
                    and f.resolve().parent == inside)
     ours = recordings(p)  # an earlier run's recording left in the folder is not shown beside these numbers

@@ -35,7 +35,11 @@ from ..formats import loads_json
 __all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "labels_written", "labels_of_frames_gone", "write_confidence", "write_grey", "confidence_png",
            "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "check_labelled",
-           "write_suggestions", "read_suggestions", "has_confidence"]
+           "write_suggestions", "read_suggestions", "has_confidence", "SUMMARY_FIELDS"]
+
+#: What the suggestions and a run's closing lines read of each step (:mod:`pcreg.runs.summary`), all that is kept of
+#: it there: an hour's steps (108,000 at 30 frames a second) kept whole took about half a GB.
+SUMMARY_FIELDS = ("frame", "predicted_error", "predicted_iou", "iou", "keys")
 
 STATE = "run.json"  #: the run's record (pcreg.runs.state reads and writes it), the commit point of its steps
 STEPS = "steps.jsonl"

@@ -8,9 +8,10 @@ line naming the file.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -257,8 +258,8 @@ def check_spares_inputs(out: Path, frames, labels: Path, truth, *, writes: tuple
     if truth is not None and resolved(truth.root) == resolved(out):
         raise InputError(f"--out {out} would overwrite the truth maps in {truth.root}; choose another folder")
     if frames.kind == "folder":
-        written = {resolved(out / f"{p.stem}.png") for p in frames.paths}
-        clobbered = [f for f in [*frames.paths, labels] if resolved(f) in written]
+        written = set(_resolved_all([os.path.join(out, f"{p.stem}.png") for p in frames.paths]))
+        clobbered = [f for f, where in zip([*frames.paths, labels], _resolved_all([*frames.paths, labels])) if where in written]
         # the frames' own folder: NAME.png written beside NAME.jpg would be read as a second frame NAME
         if not clobbered and frames.paths and resolved(out) == resolved(frames.paths[0].parent):
             raise InputError(f"--out {out} is the frames' own folder; its label PNGs would be read as frames "
@@ -274,6 +275,23 @@ def check_spares_inputs(out: Path, frames, labels: Path, truth, *, writes: tuple
         raise InputError(f"--out {out} would overwrite the input {clobbered[0]}; choose another folder")
     for sub in writes:  # confidence maps written among key labels read from there: later runs refused them
         _check_apart(out, sub, [p for p in (frames.path, labels, truth and truth.root) if p is not None])
+
+
+def _resolved_all(paths: Sequence[str | os.PathLike[str]]) -> list[str]:
+    """Each of ``paths`` as :func:`~pcreg.formats.resolved` gives it, as text, each folder resolved once: a path that is
+    no link is its resolved folder joined with its name (an hour's frames took seconds resolved one by one, each
+    folder of each path's again, and as many Path objects)."""
+    folders: dict[str, str] = {}
+    out = []
+    for p in paths:
+        head, name = os.path.split(os.fspath(p))
+        if name in ("", ".", "..") or os.path.islink(p):
+            out.append(str(resolved(p)))
+            continue
+        if head not in folders:
+            folders[head] = str(resolved(head or "."))
+        out.append(os.path.join(folders[head], name))
+    return out
 
 
 def _check_apart(out: Path, sub: str, inputs: list[Path]) -> None:

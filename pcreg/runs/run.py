@@ -50,7 +50,7 @@ from ..errors import InputError, OutputError
 from ..outputs import atomic_file
 from .edited import (check_key_files, check_same_frame, check_same_frames, check_same_inputs, check_same_truth,
                      frame_bytes, frame_stamp, key_contents)
-from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, append_step, check_labelled, label_digest,
+from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, SUMMARY_FIELDS, append_step, check_labelled, label_digest,
                     label_file_problem, labels_of_frames_gone, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_record_path, check_recording, name_recording, nothing_to_record, run_recording
 from .state import FORMAT, STATE, named_otherwise, open_state, read_state, run_frames, run_inputs, write_state
@@ -550,7 +550,7 @@ class Run:
     def _predicting_steps(self) -> dict[int, dict]:
         """{frame: its step} of the steps in steps.jsonl with a predicted error, as :meth:`predicted` checks them."""
         steps = parse_steps(self.out / STEPS, (ln for ln in step_lines(self.out) if ln.strip()))
-        predicted = {s["frame"]: s for s in steps if s.get("predicted_error") is not None}
+        predicted = {s["frame"]: {k: s[k] for k in SUMMARY_FIELDS if k in s} for s in steps if s.get("predicted_error") is not None}
         # a run labels the frames it chose, and one from a label image the first run.json counts: a step of another
         # frame is none it wrote (its name would be looked up past the frames)
         bound = min(len(self.frames) if self.frames.kind == "folder" else math.inf, self.state.get("done", math.inf))

@@ -261,13 +261,17 @@ def _border(shape: tuple[int, ...]) -> int:
     return max(2, min(shape[:2]) // 60)
 
 
-def class_figures(review: RunReview, t: int) -> list[dict]:
+def class_figures(review: RunReview, t: int, shape: tuple[int, ...] | None = None) -> list[dict]:
     """Frame ``t``'s classes as the review's legend shows them: each known class's share of the frame's
     pixels (%), its predicted IoU from the confidence (None for a key frame, or a class the step did not label) and,
-    in a run scored with ``--truth``, its IoU against the truth (``truth_iou``; None where the step has none)."""
+    in a run scored with ``--truth``, its IoU against the truth (``truth_iou``; None where the step has none).
+    Labels of another size than ``shape`` (the run's, when given) are an :class:`InputError`, as in the overlay."""
     from .export import read_labels
 
     labels = read_labels(review.labels_path(t), review.table)
+    if shape is not None and labels.shape != shape:
+        raise InputError(f"{review.labels_path(t)}: labels of {labels.shape[1]}x{labels.shape[0]}, the run's are "
+                         f"{shape[1]}x{shape[0]} (not a label image this run wrote)")
     counts = np.bincount(labels.ravel(), minlength=256)
     iou = review.ious[t] if t < len(review.ious) else None
     truth = review.truth_at(t)

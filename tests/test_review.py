@@ -701,3 +701,20 @@ def test_a_run_scored_against_the_truth_shows_the_error_against_it_beside_the_pr
                       height=700) as (proc, ev):
         assert ev("document.querySelectorAll('#plot path.series.truth').length") == 0
         assert ev("document.getElementById('plot-key').hidden") is True
+
+
+def test_a_label_image_written_over_at_another_size_has_no_figures_as_it_has_no_overlay(run_copy):
+    """A frame's label image written over at another size (by hand, another tool) was refused by the overlay and
+    still counted by the legend's figures (100 % of one class for a 10 x 10 map): both refuse it, naming it."""
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    name = read_review(run_copy).stems[2] + ".png"
+    cv2.imwrite(str(run_copy / name), np.zeros((10, 10), np.uint8))
+    with ReviewServer(read_review(run_copy), web_port=0) as server:
+        assert [f["id"] for f in json.loads(_get(server.url + "classes/1.json")[1])] == [0, 1]
+        for what in ("classes/2.json", "overlay/2.jpg"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(server.url + what, timeout=30)
+            body = e.value.read().decode()
+            assert e.value.code == 500 and name in body and "labels of 10x10" in body, (what, body)

@@ -124,6 +124,7 @@ class ReviewServer:
         self._rendered: OrderedDict[tuple[str, int, tuple], bytes] = OrderedDict()
         self._lock = threading.Lock()
         self._shown: frozenset[int] | None = None
+        self._shape: tuple[int, ...] | None = None  # the run's labels' size, once read (): none can be read
         try:
             self._httpd, self._thread, self.port, self.url = listen(bind, web_port, self._handler(), name="pcreg-review")
         except InputError:
@@ -170,7 +171,21 @@ class ReviewServer:
         (:func:`pcreg.review.class_figures`)."""
         from ..review import class_figures
 
-        return json.dumps(class_figures(self.review, t), allow_nan=False).encode()
+        return json.dumps(class_figures(self.review, t, self._labels_shape()), allow_nan=False).encode()
+
+    def _labels_shape(self) -> tuple[int, ...] | None:
+        """The size of the run's labels, its first key frame's (read once; None where they cannot be read): a frame's
+        label image of another size (written over by hand) has no figures, as its overlay has no picture."""
+        from ..export import read_labels
+
+        r = self.review
+        with self._lock:
+            if self._shape is None:
+                try:
+                    self._shape = read_labels(r.labels_path(min(r.keys)), r.table).shape if r.keys else ()
+                except InputError:
+                    self._shape = ()
+            return self._shape or None
 
     def stamp(self, what: str, t: int) -> tuple:
         """What frame ``t``'s picture ``what`` is drawn from, as it is now: for an overlay its label image's and

@@ -287,7 +287,7 @@ def test_a_close_up_of_the_same_size_is_refused_with_advice_that_works(shared_da
     close = np.ascontiguousarray(cv2.resize(img[h // 3:2 * h // 3, w // 3:2 * w // 3], (w, h),
                                             interpolation=cv2.INTER_CUBIC))
     with pytest.raises(pcreg.RegistrationError, match=r"if one is a close-up of the other, shrink the close-up by "
-                                                      r"about that ratio first\)$"):
+                                                      r"about that ratio first\); frames known to show one scene"):
         pcreg.register(img, close, model="similarity")
     shrunk = cv2.resize(close, (w // 3, h // 3), interpolation=cv2.INTER_AREA)
     result = pcreg.register(img, shrunk, model="similarity")

@@ -596,6 +596,8 @@ def test_default_ports_held_by_another_server_give_way_to_free_ones(monkeypatch,
         args = argparse.Namespace(bind="127.0.0.1", web=True, web_port=None, grpc_port=None)
         command._choose_ports(args)
         assert (args.web_port, args.grpc_port) == (0, free)
+        assert capsys.readouterr().err == ""  # said once it serves: bad input found before is said alone, in one line
+        command._note_serving(args)
         assert capsys.readouterr().err == (f"pcreg: note: port {busy} is in use on 127.0.0.1; serving on a free "
                                            "port instead (--web-port chooses one)\n")
         args = argparse.Namespace(bind="127.0.0.1", web=True, web_port=busy, grpc_port=None)

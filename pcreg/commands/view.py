@@ -61,9 +61,9 @@ def _choose_ports(args: argparse.Namespace, *, grpc: bool = True) -> None:
             continue
         taken = probe is not None and not port_free(probe, default)
         setattr(args, attr, 0 if taken else default)
-        if taken:
-            sys.stderr.write(f"pcreg: note: port {default} is in use on {args.bind}; serving on a free port "
-                             f"instead ({flag} chooses one)\n")
+        if taken:  # said once serving (:func:`_note_serving`): bad input before it is one line
+            args.port_notes = [*getattr(args, "port_notes", []), f"pcreg: note: port {default} is in use on {args.bind}; "
+                               f"serving on a free port instead ({flag} chooses one)\n"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -183,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
         if args.web:
             proc, url = V.serve_web(staged.path, bind=args.bind, web_port=args.web_port, grpc_port=args.grpc_port,
                                     viewer=binary, timeout=args.timeout)
-            _note_bind(args.bind)
+            _note_serving(args)
             try:
                 print(f"serving {', '.join(map(str, args.recordings))} on {args.bind} (Ctrl-C stops)")
                 print(url, flush=True)
@@ -219,9 +219,11 @@ def _stage(stage, recordings: list[str], tmp: Path):
         raise InputError(str(exc)) from None
 
 
-def _note_bind(bind: str) -> None:
-    if bind not in ("127.0.0.1", "::1", "localhost"):
-        sys.stderr.write(f"pcreg: note: serving on {bind}: whoever can reach this machine there can read the recording\n")
+def _note_serving(args: argparse.Namespace) -> None:
+    """The notes of a server that serves: a default port in use (:func:`_choose_ports`), an address others reach."""
+    sys.stderr.write("".join(getattr(args, "port_notes", [])))
+    if args.bind not in ("127.0.0.1", "::1", "localhost"):
+        sys.stderr.write(f"pcreg: note: serving on {args.bind}: whoever can reach this machine there can read the recording\n")
 
 
 def _report(args: argparse.Namespace, folders: list[str]) -> int:
@@ -264,7 +266,7 @@ def _report(args: argparse.Namespace, folders: list[str]) -> int:
         server = ReportServer(folder, data, recording=None if staged is None else staged.path, bind=args.bind,
                               web_port=args.web_port, grpc_port=args.grpc_port, viewer=binary, timeout=args.timeout)
         with server:
-            _note_bind(args.bind)
+            _note_serving(args)
             what = f"{folder}" + (f" with {', '.join(map(str, recordings))}" if recordings else " (no recording in it)")
             try:
                 print(f"serving the report of {what} on {args.bind} (Ctrl-C stops)")
@@ -336,7 +338,7 @@ def _review(args: argparse.Namespace, runs: list[str]) -> int:
         return 0
     sys.stderr.write("".join(said))
     with ReviewServer(review, bind=args.bind, web_port=args.web_port) as server:
-        _note_bind(args.bind)
+        _note_serving(args)
         try:
             n = len(review.names)
             print(f"serving the review of {folder} ({n} frame{'' if n == 1 else 's'} of {review.source}) on {args.bind} "

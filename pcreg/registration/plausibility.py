@@ -138,6 +138,13 @@ def self_turn_share(c: ImageCloud, level: int, *, stop: float | None = None) -> 
     return landed
 
 
+#: The end of every refusal: the way past the test for images known to show one scene. Neighbouring frames of a
+#: camera driving forward fit no global motion (CamVid's street frames, refused as rigid and as similarity) and are
+#: what the dense field registers, past this test.
+KNOWN = ("; frames known to show one scene (neighbours in a video, a camera moving forward) are registered without this "
+         "test: min_inlier_ratio=0 (--min-inlier-ratio 0), with --model dense for a scene that moves in depth")
+
+
 class Plausibility:
     """Measures alignments onto ``reference`` and tests the winner (see the module's description).
 
@@ -287,7 +294,7 @@ class Plausibility:
             raise RegistrationError(
                 f"registration refused: the best alignment's {100 * ratio:.1f}% of tight, direction-consistent edge "
                 f"points is under {CHANCE_FACTOR:g}x chance ({100 * chance:.1f}% expected from unrelated content at "
-                f"the same distances); the images do not show the same scene under a {self._motion(shape)}")
+                f"the same distances); the images do not show the same scene under a {self._motion(shape)}{KNOWN}")
         n = ev.overlap_points
         sd = float(np.sqrt(n * chance * (1.0 - chance)))
         if mir is not None and mir > 0 and ratio * n - chance * n < SIGNIFICANCE * sd:
@@ -295,12 +302,12 @@ class Plausibility:
                 f"registration refused: the best alignment's {ratio * n:.0f} tight, direction-consistent edge points "
                 f"of {n} are within {SIGNIFICANCE:g} standard deviations of chance ({chance * n:.0f} ± {sd:.0f} "
                 f"expected from unrelated content): too few edges to tell the same scene from another"
-                f"{self._sizes(shape)}")
+                f"{self._sizes(shape)}{KNOWN}")
         if mir is not None and ratio < mir:
             raise RegistrationError(
                 f"registration refused: the best alignment puts only {100 * ratio:.1f}% of the overlapping edge "
                 f"points within {self.inlier_tolerance:g} px of a reference edge of the same direction "
-                f"(min_inlier_ratio {mir:g}); the images do not show the same scene under a {self._motion(shape)}")
+                f"(min_inlier_ratio {mir:g}); the images do not show the same scene under a {self._motion(shape)}{KNOWN}")
         return ev
 
 

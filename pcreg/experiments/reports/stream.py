@@ -48,8 +48,11 @@ def calibration_table(results: dict) -> tuple[list, list, str]:
     header = ["clip", "known pixels", "ECE", "error %", "error % of the most confident 80%", "ratio"]
     items = [(n, c.get("calibration") or {}) for n, c in results["datasets"].items()]
     items.append(("all clips", results.get("calibration") or {}))
-    rows = [[n, c.get("pixels", 0), c.get("ece", float("nan")), c.get("error", float("nan")),
-             c.get("error_top80", float("nan")), c.get("top80_ratio", float("nan"))] for n, c in items]
+    def fixed(v, digits: int) -> str:  # an ECE of 0.0036 read 0.00 at the tables' two decimals
+        return "n/a" if v is None else f"{v:.{digits}f}"
+
+    rows = [[n, c.get("pixels", 0), fixed(c.get("ece"), 4), c.get("error", float("nan")),
+             c.get("error_top80", float("nan")), fixed(c.get("top80_ratio"), 3)] for n, c in items]
     footer = ("\n(the confidence of each label pcreg writes, 10 equal bins for the expected calibration error; "
               "unknown truth left out)\n")
     return header, rows, footer

@@ -63,7 +63,8 @@ def test_a_copied_run_whose_frame_changed_or_that_kept_no_digest_of_its_labels_i
     capsys.readouterr()
     assert main(["run", str(changed / "frames"), "--labels", str(changed / "key.png"), "--out", str(changed / "out")]) == 2
     err = one_line_errors(capsys)
-    assert len(err) == 1 and "f1.png: changed since the run" in err[0], err
+    assert len(err) == 1 and f"holds a run over {(here / 'frames').resolve()}, not over these inputs: give another --out" in err[0], err
+    assert "(what is here is not what it read: " in err[0] and "f1.png: changed since the run" in err[0], err
     older = tmp_path / "c"
     shutil.copytree(here, older)
     state = _run_json(older / "out")
@@ -115,3 +116,26 @@ def test_an_input_of_another_kind_in_the_same_place_is_still_other_options(tmp_p
     assert main(["run", str(second), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 2
     err = one_line_errors(capsys)
     assert len(err) == 1 and "holds a run with other options" in err[0], err
+
+
+def test_another_projects_inputs_with_this_out_name_both_places_and_another_out(tmp_path, capsys):
+    """Two projects laid out alike (frames/, key.png), the second's inputs given with the first's --out by mistake:
+    taken for a move, the checks found the key labels and frames not the run's, and said they had "changed since the
+    run began", --force the only way named (which removes the first project's labels). The places then and now come
+    first, and another --out beside --force."""
+    first, second = tmp_path / "a", tmp_path / "b"
+    first.mkdir()
+    second.mkdir()
+    drifting_frames(first / "frames", n=4, seed=0)
+    drifting_frames(second / "frames", n=4, seed=1)
+    cv2.imwrite(str(second / "key.png"), 1 - cv2.imread(str(second / "key.png"), cv2.IMREAD_UNCHANGED))
+    out = first / "out"
+    assert main(["run", str(first / "frames"), "--labels", str(first / "key.png"), "--out", str(out), "--stop", "2"]) == 0
+    before = _pngs(out)
+    capsys.readouterr()
+    for labels in (second / "key.png", first / "key.png"):  # other key labels; the same key labels, other frames
+        assert main(["run", str(second / "frames"), "--labels", str(labels), "--out", str(out)]) == 2
+        err = one_line_errors(capsys)
+        assert len(err) == 1 and f"{out} holds a run over {first.resolve()}/" in err[0], err
+        assert ", not over these inputs: give another --out, or --force to start over (what is here is not what it read: " in err[0]
+    assert _pngs(out) == before

@@ -621,3 +621,19 @@ def test_a_damaged_recording_is_refused_naming_it_and_no_temporary_copy(small_re
     said = one_line_error(capsys)
     assert "not a rerun recording" in said and "snapshot" not in said and "pcreg-rrd-" not in said, said
     assert said.count(str(bad)) == 2, said  # pcreg's and rerun's words both name it
+
+
+def test_the_recording_server_keeps_room_for_the_whole_recording(tmp_path):
+    """rerun's server keeps 1 GiB by default and drops the oldest data past it: a recording of 1.36 GB was served from
+    its 63rd frame on. Its limit is twice the recording (1 GB at least), at most three quarters of the memory."""
+    import os
+
+    from pcreg.recording.viewer import server_memory
+
+    small, large = tmp_path / "small.rrd", tmp_path / "large.rrd"
+    small.write_bytes(b"x")
+    with open(large, "wb") as f:
+        f.truncate(3 * 10**9)  # sparse: no disk taken
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    assert server_memory(small) == f"{min(10**9, int(0.75 * total)) // 10**6}MB"
+    assert server_memory(large) == f"{min(6 * 10**9, int(0.75 * total)) // 10**6}MB"

@@ -53,7 +53,7 @@ from .edited import (check_key_files, check_same_frame, check_same_frames, check
 from .files import (CARRY, CONFIDENCE, HIDDEN, STEPS, SUGGEST, SUMMARY_FIELDS, append_step, check_labelled, label_digest,
                     label_file_problem, labels_of_frames_gone, labels_written, parse_steps, read_carry, step_lines, write_carry, write_confidence, write_labels)
 from .records import check_record_path, check_recording, name_recording, nothing_to_record, run_recording
-from .state import FORMAT, STATE, named_otherwise, open_state, read_state, run_frames, run_inputs, write_state
+from .state import FORMAT, STATE, inputs_placed, named_otherwise, open_state, read_state, run_frames, run_inputs, write_state
 from .truth import add_rates, count_frame, empty_counts, scored_step
 from .video_file import check_kept, keep_video, labelled_to_end, mark_end
 
@@ -172,7 +172,8 @@ class Run:
 
         frames, out = self.frames, self.out
         _, second, decoded = pending
-        start = self.open_key(labels, force=request.force)
+        with inputs_placed(out, self.identity, force=request.force):
+            start = self.open_key(labels, force=request.force)
         if self.gaps.mark(pending[0]):  # frames missing before the key frame
             self.commit()
         # a video's count is what its container declares or its duration suggests: it sizes the progress bar,
@@ -227,7 +228,8 @@ class Run:
 
         frames = self.frames
         job = KeyRun(self, keys, request.config)
-        job.start(force=request.force)
+        with inputs_placed(self.out, self.identity, force=request.force):
+            job.start(force=request.force)
         choose_kept(job, self.out)
         if job.finished and request.record is not None and not request.force:
             nothing_to_record(request.record)  # an existing recording is this finished run's: nothing to add to it
@@ -250,8 +252,7 @@ class Run:
             self._say_done(request, done, sorted(keys))
 
     def _say_done(self, request: RunRequest, done: int, keys: list[int], *, start: int | None = None) -> None:
-        """Print what the run did (``done`` frames this time; ``start``: the first of them, a run from one
-        label image) and write the suggestions (``keys``: the key frames' positions)."""
+        """Print what the run did (``done`` frames now; ``start``: the first of them, a run from one label image), write the suggestions (``keys``: the key frames' positions)."""
         import sys
 
         out, s = self.out, self.state
@@ -316,8 +317,7 @@ class Run:
         return 1
 
     def name_recording(self, record, resumed: str | None = None) -> None:
-        """Name in run.json the recording (``record``, a path or None) that the run has opened and writes
-        (:func:`pcreg.runs.records.name_recording`; ``resumed``: where a resumed run starts)."""
+        """Name in run.json the recording ``record`` (a path, or None) it writes (:func:`~pcreg.runs.records.name_recording`; ``resumed``: where a resumed run starts)."""
         if name_recording(self.state, record, resumed):
             self.commit()
 

@@ -15,8 +15,9 @@ either for a run that writes (resume or start over); :func:`read_state` reads ei
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterator
 
 from ..errors import InputError, OutputError
 from ..formats import load_json_object, loads_json, resolved
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 
 __all__ = ["STATE", "FORMAT", "format_problem", "chosen_selection", "frames_chosen", "unfinished_note", "TRUTH_COUNTS",
            "is_count", "has_counts", "state_problem", "run_identity", "run_inputs", "open_state", "read_state", "run_frames",
-           "steps_counted", "steps_counted_now", "named_otherwise"]
+           "steps_counted", "steps_counted_now", "named_otherwise", "inputs_placed"]
 
 #: The layout of the run.json this pcreg writes (its ``format``; a run.json without one, from before it was
 #: written, has this layout too). A run.json of a later format is refused by name rather than misread.
@@ -281,6 +282,31 @@ def _moved(before, now: dict | None, state: dict):
     labels_kept = "stretches" in state or isinstance(state.get("key_labels"), str)
     frames_kept = state.get("key_contents") if "folder" in now else state.get("video_file")
     return {**before, **places} if places and labels_kept and frames_kept else before
+
+
+@contextmanager
+def inputs_placed(out: Path, identity: dict | None, *, force: bool = False) -> Iterator[None]:
+    """Around the opening of a run in ``out`` (``identity``: this run's): where its run.json names its inputs in other
+    places (taken as moved, :func:`_moved`) and what is found here is refused (a frame, the key labels, the truth not
+    what the run read), the refusal says the places then and now first, and another ``--out`` beside ``--force``: the
+    inputs here may be another project's, given with this ``--out`` by mistake, whose files the run never read."""
+    before = None
+    if not force:
+        try:
+            before = load_json_object(out / STATE).get("run")
+        except (OSError, ValueError):
+            pass
+    then = {k: v for k, v in (before.items() if isinstance(before, dict) else ()) if k in _INPUT_PATHS and isinstance(v, str)}
+    now = {k: (identity or {}).get(k) for k in then}
+    try:
+        yield
+    except OutputError as exc:
+        if then == now:
+            raise
+        said = str(exc).removesuffix("; use --force to start over")
+        where = next(then[k] for k in _INPUT_PATHS if k in then and then[k] != now[k])
+        raise OutputError(f"{out} holds a run over {where}, not over these inputs: give another --out, or --force to "
+                          f"start over (what is here is not what it read: {said})") from None
 
 
 def _reaches_further(before, now: dict | None) -> bool:

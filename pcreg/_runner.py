@@ -165,10 +165,6 @@ def _connect_timeout() -> float:
     return float(parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), default="seconds"))
 
 
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())[:300] or type(exc).__name__
-
-
 def _probe_scheduler(scheduler: str, timeout: float) -> None:
     """Ask ``scheduler`` who it is, on a connection of its own, within ``timeout`` seconds (and a few more for
     the reply), before a client is made: a client that fails while it is made waits 60 s more for its own
@@ -342,7 +338,7 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             from .errors import PcregError
 
             raise PcregError("--scheduler needs dask.distributed (pip install 'pcreg[distributed]')") from None
-        from .errors import PcregError
+        from .errors import PcregError, _one_line
 
         _check_scheduler_address(scheduler)
         timeout = _connect_timeout()

@@ -182,6 +182,6 @@ def check_cluster(client: Any, scheduler: str, timeout: float) -> None:
 
 
 def _said(exc: BaseException) -> str:
-    from ._runner import _one_line
+    from .errors import _one_line
 
     return f"{type(exc).__name__}: {_one_line(exc)}"

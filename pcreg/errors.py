@@ -31,3 +31,9 @@ class StuckOutput(OutputError):
     """An output whose writer, outside Python, stopped and cannot be finished (a recording on a full disk):
     the process cannot end normally either (the writer's library waits for it at exit), so the command
     line reports it and ends the process at once."""
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's words on one line, at most 300 characters (its type's name when it says nothing), as a message
+    quotes another's: a scheduler's or worker's refusal, an implementation's failure."""
+    return " ".join(str(exc).split())[:300] or type(exc).__name__

@@ -18,7 +18,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..cloud_reader import CLOUD_SUFFIXES, load_cloud
-from ..errors import InputError, RegistrationError
+from ..errors import InputError, RegistrationError, _one_line
 from ..formats import IMAGE_SUFFIXES
 from ..frame import MIN_SIDE
 from ..registration.clouds import as_rgb_uint8, load_image_and_mask
@@ -231,11 +231,6 @@ def check_truth(truth, d: int, name: str = "truth") -> np.ndarray:
     if problem is not None:
         raise InputError(f"{name}: {problem}")
     return T
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text[:300]
 
 
 def crosscheck_implementations(source: np.ndarray, target: np.ndarray, *, implementations: Sequence[str] = ("reference", "open3d"),

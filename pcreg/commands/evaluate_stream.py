@@ -28,9 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"methods to run (default all: {', '.join(METHODS)}; with --keys: {', '.join(KEY_METHODS)}; "
                              f"with --classes: {', '.join(CLASS_METHODS)})")
     parser.add_argument("--classes", default=None, metavar="TABLE",
-                        help="label and score every class of a table (camvid11, or a labelmap.txt or JSON file): pixel "
-                             "error, per-class IoU and mIoU beside the baselines in the same classes (default: ground "
-                             "and obstacle)")
+                        help="label and score every class of a table of more than two (camvid11, or a labelmap.txt or JSON "
+                             "file): pixel error, per-class IoU and mIoU beside the baselines in the same classes "
+                             "(default: lagr, ground and obstacle)")
     parser.add_argument("--backend", choices=("reference", "open3d"), default="reference",
                         help="ICP backend of the registrations (default reference)")
     parser.add_argument("--workers", type=arg_int(1, 1024), default=1, help="processes (default 1)")

@@ -88,7 +88,7 @@ def checks(results: dict) -> str:
             continue
         worse = [f"{n} ({c['means']['pcreg']:.2f} vs {c['means'][other]:.2f})" for n, c in clips.items()
                  if other in c["means"] and c["means"]["pcreg"] > c["means"][other]]
-        lines.append(f"- pcreg never worse than {other} on any clip ({len(clips)} clips): "
+        lines.append(f"- pcreg never worse than {other} on any clip ({len(clips)} clip{'' if len(clips) == 1 else 's'}): "
                      + ("met" if not worse else "NOT met: " + "; ".join(worse)))
     lines += _calibration_checks(results)
     times = {m: float(np.median([c["ms_per_frame"][m] for c in clips.values()])) for m in results["methods"]

@@ -52,6 +52,15 @@ def resolved(path: str | os.PathLike) -> Path:
         raise InputError(f"{p}: cannot be followed ({getattr(exc, 'strerror', None) or exc})") from None
 
 
+def file_of(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is, now, a regular file of ``folder`` (resolved): not a link to a file elsewhere, nor a pipe (a
+    read of which waits for a writer), a device or a folder; a loop of links is none."""
+    try:
+        return path.is_file() and path.resolve().parent == folder
+    except (OSError, RuntimeError):  # a loop of links
+        return False
+
+
 def only_files(named: list[Path], what: str) -> list[Path]:
     """``named``, entries a folder lists under the names of ``what`` (frames, key labels), when every one is
     a file (links followed); the first that is not (a folder, a link to nothing, a FIFO or a device) is an

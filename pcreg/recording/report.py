@@ -29,6 +29,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 from ..errors import InputError, PcregError
+from ..formats import file_of
 from .entities import FRAME_TIMELINE
 from .viewer import REUSE_ADDRESS, ViewerError, check_bind, free_port, port_free, serve_web, stop, url_host
 
@@ -119,16 +120,6 @@ class QuietHandler(BaseHTTPRequestHandler):
         if ctype.startswith("text/") or ctype in ("application/javascript", "application/json"):
             ctype += "; charset=utf-8"
         self._send(200, ctype, body)
-
-
-def _still_inside(path: Path, inside: Path) -> bool:
-    """Whether ``path`` is, now, a regular file of the folder ``inside`` (resolved): a file the report lists that was
-    replaced since the page began by a link to a file elsewhere, or by a pipe that no one writes to (each read of
-    which would hold a thread for good), is not served."""
-    try:
-        return path.is_file() and path.resolve().parent == inside
-    except (OSError, RuntimeError):  # a loop of links
-        return False
 
 
 def viz_dir() -> Path:
@@ -250,7 +241,7 @@ class ReportServer:
         static = {f.name: f for f in self._static.iterdir() if f.is_file()}
         inside = Path(server.folder).resolve()  # a name the report lists, and a file of its folder when served
         files = {n: server.folder / n for n in (*server.data.get("figures", []), *server.data.get("files", []))
-                 if (Path(server.folder) / n).resolve().parent == inside}
+                 if file_of(Path(server.folder) / n, inside)}
 
         class Handler(QuietHandler):
             def do_GET(self) -> None:
@@ -263,7 +254,8 @@ class ReportServer:
                     if path == "/report.json":
                         return self._send(200, "application/json", server.report_json())
                     name = urllib.parse.unquote(path[7:]) if path.startswith("/files/") else None
-                    if name in files and _still_inside(files[name], inside):  # the page asks for encodeURIComponent(name)
+                    # the page asks for encodeURIComponent(name); a file replaced since by a link out or a pipe: not served
+                    if name in files and file_of(files[name], inside):
                         return self._file(files[name])
                     if path.startswith("/rerun/") and server._viewer_port is not None:
                         return self._send(*server._viewer_file("/" + path[7:]))

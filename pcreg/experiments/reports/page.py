@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from ...errors import InputError
-from ...formats import loads_json
+from ...formats import file_of, loads_json
 from .files import recordings
 
 __all__ = ["Report", "load_report", "page_data", "EXPERIMENTS"]
@@ -64,14 +64,11 @@ def _experiment(results: dict) -> str | None:
 
 
 def _own(path: Path, inside: Path) -> Path:
-    """``path`` when it is a regular file of the folder ``inside`` (resolved); else a FileNotFoundError, as for a file
-    that is not there: a link to a file elsewhere is not the report's to show (the page shows config.json and
-    checks.md whole), and a pipe would never end its read."""
-    try:
-        if path.is_file() and path.resolve().parent == inside:
-            return path
-    except RuntimeError:  # a loop of links
-        pass
+    """``path`` when it is a regular file of the folder ``inside`` (:func:`~pcreg.formats.file_of`); else a
+    FileNotFoundError, as for a file that is not there: a link to a file elsewhere is not the report's to show (the
+    page shows config.json and checks.md whole), and a pipe would never end its read."""
+    if file_of(path, inside):
+        return path
     raise FileNotFoundError(path)
 
 
@@ -113,8 +110,7 @@ def load_report(folder: str | Path) -> Report:
         checks = _own(p / "checks.md", inside).read_text(encoding="utf-8")
     except (OSError, ValueError):
         checks = None
-    names = sorted(f.name for f in p.iterdir() if f.is_file() and not f.name.startswith(".")
-                   and f.resolve().parent == inside)
+    names = sorted(f.name for f in p.iterdir() if not f.name.startswith(".") and file_of(f, inside))
     ours = recordings(p)  # an earlier run's recording left in the folder is not shown beside these numbers
     return Report(folder=p, experiment=experiment, results=results, config=config, checks=checks,
                   figures=tuple(n for n in names if n.lower().endswith(".png")),

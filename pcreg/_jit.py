@@ -9,7 +9,8 @@ them compiles every kernel again, once, and ``make setup`` (``python -m pcreg.ke
 before a command needs it.
 
 A kernel is compiled, or loaded from the cache, on its first call in a process, with a termination signal
-shielded (:func:`_shield_first_calls`): Ctrl-C or SIGTERM landing then is raised once the kernel is ready.
+shielded (:func:`_shield_first_calls`): Ctrl-C or SIGTERM landing then is raised once the kernel is ready. Before
+the first kernel that the cache cannot give, a process says that it compiles them (:data:`COMPILING`).
 
 The cache folders are numba's own: ``NUMBA_CACHE_DIR`` when it is set, else the ``__pycache__`` folders
 beside the sources, else numba's folder in the user's cache. Kernel modules import ``njit`` and
@@ -19,13 +20,15 @@ beside the sources, else numba's folder in the user's cache. Kernel modules impo
 from __future__ import annotations
 
 import hashlib
+import logging
+import pickle
 from pathlib import Path
 
 import numba
 from numba import prange
 from numba.core import caching
 
-__all__ = ["CACHED", "KERNEL_SOURCES_STAMP", "njit", "prange", "kernel_sources_stamp"]
+__all__ = ["CACHED", "COMPILING", "KERNEL_SOURCES_STAMP", "njit", "prange", "kernel_sources_stamp"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -95,6 +98,27 @@ def _install() -> bool:
 CACHED = _install()
 
 
+#: What a process says (once, on the ``pcreg`` logger, as a warning) before a kernel compiles with nothing in the
+#: on-disk cache for it, as after ``pip install`` or a change to a kernel source: the first registration would
+#: otherwise wait a minute or more without a word, and report that minute as its own time.
+COMPILING = ("pcreg: note: compiling pcreg's kernels for this machine, once (about a minute; they are kept on disk "
+             "for the next runs; python -m pcreg.kernels compiles them ahead)")
+
+_TOLD: list[bool] = []
+
+
+def _compiles(dispatcher) -> bool:
+    """Whether ``dispatcher``'s call is its first in this process and the on-disk cache holds nothing for it
+    (numba's index of the kernel missing, or of older sources), while :data:`COMPILING` is not said yet."""
+    if _TOLD or dispatcher.overloads:
+        return False
+    index = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)  # none where not cached
+    try:
+        return index is not None and not index._load_index()
+    except (OSError, EOFError, pickle.UnpicklingError):  # an index numba cannot read: numba's own load says so
+        return False
+
+
 def _shield_first_calls(dispatcher):
     """``dispatcher`` with its compile-on-call (numba's ``_compile_for_args``, which its C entry looks up on the
     instance on a call no compiled version fits) run with SIGINT and SIGTERM noted, not raised
@@ -110,6 +134,9 @@ def _shield_first_calls(dispatcher):
     compile_for_args = dispatcher._compile_for_args
 
     def compile_shielded(*args, **kws):
+        if _compiles(dispatcher):
+            _TOLD.append(True)
+            logging.getLogger("pcreg").warning(COMPILING)
         with _shielded():
             entry = compile_for_args(*args, **kws)
         check_interrupted()

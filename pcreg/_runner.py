@@ -8,6 +8,7 @@ imported only then). Results come back to the parent, which merges and writes th
 
 from __future__ import annotations
 
+import logging
 import sys
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager, nullcontext
@@ -246,8 +247,6 @@ def _listens(scheduler: str) -> bool | None:
 
 def _quiet_dask_logs() -> Callable[[], None]:
     """Keep dask.distributed's own log records below CRITICAL off stderr; returns what puts them back."""
-    import logging
-
     names = ["distributed"] + [n for n in logging.root.manager.loggerDict if n.startswith("distributed.")]
     levels = {n: logging.getLogger(n).level for n in names}  # dask's configuration sets some of its own
     for n in names:
@@ -404,6 +403,23 @@ def progress(iterable: Iterable | None = None, *, total: int | None = None, desc
     if disable is None:
         disable = not sys.stderr.isatty()
     return tqdm(iterable, total=total, desc=desc, disable=disable, dynamic_ncols=True, leave=False)
+
+
+class _AboveBars(logging.Handler):
+    """The ``pcreg`` logger's lines written to stderr above a progress bar being drawn, not into its line."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        from tqdm import tqdm
+
+        tqdm.write(self.format(record), file=sys.stderr)
+
+
+def say_above_bars() -> None:
+    """What the library says on its ``pcreg`` logger (:data:`pcreg._jit.COMPILING`), as a command's own notes."""
+    logger = logging.getLogger("pcreg")
+    if not any(isinstance(h, _AboveBars) for h in logger.handlers):
+        logger.addHandler(_AboveBars())
+        logger.propagate = False
 
 
 def tick(bar) -> None:

@@ -194,8 +194,9 @@ def _run_command(args: argparse.Namespace) -> int:
     """The command's own run (its module's ``run``), after what the environment asks is checked."""
     import os
 
-    from ._runner import interrupted
+    from ._runner import interrupted, say_above_bars
 
+    say_above_bars()
     if "NUMBA_THREADING_LAYER" in os.environ:  # the environment is input too
         from .registration.nn import check_threading_layer
 

@@ -87,3 +87,47 @@ def test_kernels_compile_uncached_with_one_warning_where_no_cache_folder_is_writ
     assert warned.startswith("1 RuntimeWarning pcreg: no folder is writable for the compiled kernels' cache")
     assert "NUMBA_CACHE_DIR" in warned
     assert not (package / "__pycache__").exists() or not any((package / "__pycache__").glob("*.nbi"))
+
+
+FIRST_CALL = """
+import numpy as np
+from pcreg.registration.motion import field_from_matrix
+from pcreg.registration.kdtree import warm_up
+
+field_from_matrix(np.eye(3), (4, 5))
+warm_up()  # more kernels: no second note
+"""
+
+
+def test_a_process_says_once_that_it_compiles_the_kernels_the_cache_lacks(tmp_path):
+    """After ``pip install``, the first registration compiled the kernels for a minute or more without a word and
+    reported that minute as its own time: the first kernel the on-disk cache cannot give is announced, once, on the
+    ``pcreg`` logger; a process that loads them from the cache says nothing."""
+    from pcreg._jit import COMPILING
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    said = [subprocess.run([sys.executable, "-c", FIRST_CALL], env=env, capture_output=True, text=True, check=True,
+                           timeout=300).stderr for _ in range(2)]
+    assert said[0].splitlines() == [COMPILING]
+    assert said[1] == ""
+
+
+def test_the_command_line_writes_the_librarys_notes_above_a_progress_bar(capsys):
+    import logging
+
+    from pcreg._jit import COMPILING
+    from pcreg._runner import progress, say_above_bars
+
+    logger = logging.getLogger("pcreg")
+    handlers, propagate = list(logger.handlers), logger.propagate
+    try:
+        say_above_bars()
+        say_above_bars()  # once, however often asked
+        with progress(total=3, desc="frames", disable=False) as bar:
+            bar.update(1)
+            logger.warning(COMPILING)
+        err = capsys.readouterr().err
+    finally:
+        logger.handlers[:], logger.propagate = handlers, propagate
+    assert err.count(COMPILING) == 1
+    assert f"\r{COMPILING}\n" in err  # on a line of its own, the bar's cleared first (not written after its text)

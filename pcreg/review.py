@@ -172,7 +172,9 @@ def read_review(folder: str | Path) -> RunReview:
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
     table = run_table(run, str(state_path))
     if not source.exists():
-        raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there)")
+        raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there); moved with "
+                         f"its project? the same pcreg run with the {kind}'s new path and --out {folder} names the new "
+                         "places in run.json, and goes on from what was labelled")
     frames = open_frames(source, selection)
     if labelled is None:  # a run from one label image labels its frames in order
         done = min(count, len(frames)) if isinstance(frames, FolderFrames) else count

@@ -43,6 +43,10 @@ def test_a_moved_one_key_run_resumes_and_names_its_new_places(tmp_path, capsys):
     moved = tmp_path / "c"
     there.rename(moved)
     capsys.readouterr()
+    assert main(["view", str(moved / "out"), "--overlay", str(tmp_path / "early.mp4")]) == 2  # not run again yet
+    said = capsys.readouterr().err
+    assert f"the run's folder {(there / 'frames').resolve()} is gone" in said
+    assert f"the same pcreg run with the folder's new path and --out {moved / 'out'} names the new places" in said
     assert main([*[str(moved / a) if a in ("frames", "key.png", "out") else a for a in run]]) == 0
     assert "all 5 frames already done" in capsys.readouterr().out
     assert _run_json(moved / "out")["run"]["folder"] == str((moved / "frames").resolve())

@@ -315,6 +315,24 @@ def _get_headers(url: str, headers: dict) -> tuple[int, bytes, object]:
         return e.code, e.read(), e.headers
 
 
+def test_every_answer_says_its_type_is_not_to_be_guessed_and_a_held_picture_is_matched_as_http_has_it(run_out):
+    """``nosniff`` on every answer, an error's too (a browser guessed a file's type from its bytes); ``If-None-Match``
+    compared weakly (a ``W/`` tag, as a proxy may give the browser, or ``*``, was drawn and sent again)."""
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    with ReviewServer(read_review(run_out), web_port=0) as server:
+        for path in ("", "review.json", "overlay/1.jpg", "viz/review.js", "nothing", "overlay/99999.jpg"):
+            assert _get_headers(server.url + path, {})[2]["X-Content-Type-Options"] == "nosniff", path
+        url = server.url + "overlay/1.jpg"
+        etag = _get_headers(url, {})[2]["ETag"]
+        for held in (f"W/{etag}", f'"other", {etag}', "*"):
+            status, body, headers = _get_headers(url, {"If-None-Match": held})
+            assert (status, body, headers["ETag"]) == (304, b"", etag), held
+        assert _get_headers(url, {"If-None-Match": '"other", W/"other"'})[0] == 200
+        assert [_get_headers(server.url + p, {})[0] for p in ("overlay/01.jpg", "frame/00.jpg", "classes/01.json")] == [404] * 3
+
+
 def test_a_label_image_replaced_while_the_page_is_served_is_drawn_again(run_out, tmp_path):
     """A frame's label PNG replaced while ``pcreg view RUN_OUT --web`` serves: its overlay was kept as first drawn (and
     the browser kept it 60 s); now the server draws it again, and the browser, which asks again each time with the

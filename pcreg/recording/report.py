@@ -78,6 +78,12 @@ class QuietHandler(BaseHTTPRequestHandler):
             self.send_error(403, "this server answers requests for localhost only")
         return local
 
+    def end_headers(self) -> None:
+        """Every answer's headers (an error's too) end with ``nosniff``: a browser takes each file as the type it is
+        sent as, never guessing another from its bytes (a label name or a text file read as a script)."""
+        self.send_header("X-Content-Type-Options", "nosniff")
+        super().end_headers()
+
     def _send(self, status: int, ctype: str, body: bytes, headers: dict | None = None, etag: str | None = None) -> None:
         """An answer; with ``etag`` (what the body was made from), one the browser keeps and asks again for each time
         (``no-cache``: a ``304`` when its ``If-None-Match`` names the same, :meth:`_unchanged`), else one it keeps not."""
@@ -96,8 +102,10 @@ class QuietHandler(BaseHTTPRequestHandler):
                 self.wfile.write(view[i:i + _PIECE])
 
     def _unchanged(self, etag: str) -> bool:
-        """Whether the browser holds the answer made as ``etag`` says (its ``If-None-Match``): then a ``304``, sent."""
-        if etag not in (t.strip() for t in self.headers.get("If-None-Match", "").split(",")):
+        """Whether the browser holds the answer made as ``etag`` says (its ``If-None-Match``, compared weakly as HTTP
+        has it: ``W/"..."`` names the same answer, ``*`` any): then a ``304``, sent."""
+        held = {t.strip().removeprefix("W/") for t in self.headers.get("If-None-Match", "").split(",")}
+        if etag not in held and "*" not in held:
             return False
         self.send_response(304)
         self.send_header("Cache-Control", "no-cache")

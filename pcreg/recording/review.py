@@ -84,9 +84,11 @@ def _stat(path: Path | None) -> tuple[int, int] | None:
 
 def _number(name: str, suffix: str, n: int) -> int | None:
     """The frame number of a request's file name (``NUMBER`` then ``suffix``, ASCII digits only) when it is one of
-    ``n`` frames, else None: a name of thousands of digits is no frame (not ``int()``'s limit raised in the server)."""
+    ``n`` frames, else None: a name of thousands of digits is no frame (not ``int()``'s limit raised in the server),
+    nor one with a leading zero (``01.jpg`` is not a second name of ``1.jpg``)."""
     digits = name[:-len(suffix)]
-    if not name.endswith(suffix) or not digits.isascii() or not digits.isdigit() or len(digits) > len(str(n)):
+    if not name.endswith(suffix) or not digits.isascii() or not digits.isdigit() or len(digits) > len(str(n)) \
+            or (digits.startswith("0") and digits != "0"):
         return None
     t = int(digits)
     return t if t < n else None

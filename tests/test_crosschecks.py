@@ -393,3 +393,26 @@ def test_out_without_suite_is_refused_not_ignored(tmp_path, capsys, extra):
     assert len(err) == 1 and err[0].startswith(f"pcreg: error: --out {tmp_path / 'res'}: where --suite writes its "
                                                "results; "), err
     assert not (tmp_path / "res").exists() and not (tmp_path / "suite").exists()
+
+
+def test_export_and_suite_say_what_they_did_in_words_not_python_values(tmp_path, capsys):
+    """``--export`` and ``--suite`` printed their result as Python values (``cases: ['2d-random', ...]``,
+    ``skipped: {}``, ``results: {'csv': ...}``); ``--json`` gives the same facts whole."""
+    import json
+
+    from pcreg.cli import main
+
+    suite = tmp_path / "suite"
+    assert main(["crosscheck", "--export", str(suite), "--suite", str(suite), "--with", "reference",
+                 "--scans", str(tmp_path / "none")]) == 0
+    captured = capsys.readouterr()
+    said = captured.out.splitlines()
+    assert said, captured.err
+    assert said[0].startswith(f"exported 14 case(s) to {suite}: 2d-random, 2d-edges, ")
+    assert said[1].startswith("13 of 14 row(s) agree with the reference ICP; results: ")  # 3d-collinear is refused
+    assert f"{suite / 'results.md'}" in said[1]
+    assert said[2].startswith("skipped lidar: the LiDAR pair is not at ") and len(said) == 3
+    assert not any(c in line for line in said[:2] for c in "[]{}'")
+    assert main(["crosscheck", "--suite", str(suite), "--with", "reference", "--json", "--force"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out["agreeing"], out["rows"], out["skipped"]) == (13, 14, {})

@@ -99,8 +99,7 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             print_json(out)
         else:
-            for k, v in out.items():
-                print(f"{k}: {v}")
+            print("\n".join(_suite_lines(out)))
         return 0
     if not (args.a and args.b):
         raise InputError("give two images or two clouds A B (or --export DIR / --suite DIR)")
@@ -153,8 +152,20 @@ def _suite(args) -> dict:
         out["results"] = write_results(Path(args.out or suite), rows, skipped=skipped)
         out["agreeing"] = sum(1 for r in rows if r.get("agrees"))
         out["rows"] = len(rows)
-        out["skipped"] = skipped
+        out["skipped"] = {**out.get("skipped", {}), **skipped}  # an exported case not made is not in the suite either
     return out
+
+
+def _suite_lines(out: dict) -> list[str]:
+    """What ``--export`` and ``--suite`` did (:func:`_suite`'s ``out``), as lines for a person (``--json`` gives it whole)."""
+    lines = []
+    if "exported" in out:
+        lines.append(f"exported {len(out['cases'])} case(s) to {out['exported']}: {', '.join(out['cases'])}")
+    if "results" in out:
+        lines.append(f"{out['agreeing']} of {out['rows']} row(s) agree with the reference ICP; results: "
+                     + ", ".join(str(v) for v in out["results"].values()))
+    lines += [f"skipped {name}: {why}" for name, why in out.get("skipped", {}).items()]
+    return lines
 
 
 def _clouds(args) -> int:

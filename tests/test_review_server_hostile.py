@@ -363,3 +363,30 @@ def test_a_label_image_replaced_while_the_page_is_served_is_drawn_again(run_out,
         assert _get_headers(server.url + "overlay/2.jpg", {"If-None-Match": now["ETag"]})[0] == 304
     with ReviewServer(read_review(out), web_port=0) as fresh:  # what a server started now draws
         assert _get(fresh.url + "overlay/2.jpg") == (200, after)
+
+
+def test_a_request_head_sent_a_byte_at_a_time_is_closed_within_the_idle_time(run_out, monkeypatch, capfd):
+    """A client that sends its request a byte at a time, each within the idle time (slowloris): the bound was read by
+    read, so it held a thread for good; the head is now read within ``IDLE_TIMEOUT`` as a whole (lowered here), and a
+    request sent at once is answered as before."""
+    from pcreg.recording import report
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    monkeypatch.setattr(report, "IDLE_TIMEOUT", 1.0)
+    with ReviewServer(read_review(run_out), web_port=0) as server:
+        head = b"GET /review.json HTTP/1.1\r\nHost: localhost\r\n" + b"X-Slow: " + b"a" * 600
+        closed = None
+        with socket.create_connection(("127.0.0.1", server.port)) as sock:
+            sock.settimeout(0.05)  # the pace: a byte each time nothing came back within it
+            for sent, byte in enumerate(head):
+                sock.sendall(bytes([byte]))
+                try:
+                    closed = sock.recv(1) == b""
+                except TimeoutError:
+                    continue
+                break
+        assert closed, f"the connection was still open after {sent + 1} bytes at a slow pace"
+        assert _get(server.url + "review.json")[0] == 200
+    err = capfd.readouterr().err
+    assert "Traceback" not in err, err

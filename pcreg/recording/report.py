@@ -22,11 +22,13 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 import urllib.error
 import urllib.parse
 import urllib.request
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from typing import Any
 
 from ..errors import InputError, PcregError
 from ..formats import file_of
@@ -37,9 +39,30 @@ __all__ = ["ReportServer", "viz_dir"]
 
 #: Seconds a connection to a local page is kept while the client sends nothing of its request, or reads nothing of
 #: an answer (a MiB of it at a time, :data:`_PIECE`): each open connection holds a thread, and one that a client opens
-#: and leaves idle is closed after this.
+#: and leaves idle is closed after this. A request's head (its line and headers) is read within it too, as a whole.
 IDLE_TIMEOUT = 60.0
 _PIECE = 1 << 20  # an answer is written a MiB at a time, each within IDLE_TIMEOUT (a large file over a slow link)
+
+
+class _HeadWithin:
+    """A connection's reads, with the head of each request read within one time as a whole (``by``, a monotonic
+    time; None once it is read): bounded read by read alone, a client that sends a byte now and then, each within
+    the idle time, held a thread of the server for good."""
+
+    def __init__(self, raw: Any, connection: socket.socket) -> None:
+        self._raw, self._connection = raw, connection
+        self.by: float | None = None
+
+    def readline(self, *args) -> bytes:
+        if self.by is not None:
+            left = self.by - time.monotonic()
+            if left <= 0:
+                raise TimeoutError("the request's head was not sent in time")  # http.server closes the connection
+            self._connection.settimeout(left)
+        return self._raw.readline(*args)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._raw, name)
 
 
 class QuietHandler(BaseHTTPRequestHandler):
@@ -55,6 +78,13 @@ class QuietHandler(BaseHTTPRequestHandler):
         idle past it is closed (http.server passes the timeout over, and the thread ends)."""
         super().setup()
         self.connection.settimeout(IDLE_TIMEOUT)
+        self._head = _HeadWithin(self.rfile, self.connection)
+        self.rfile = self._head  # type: ignore[assignment]  # read as http.server reads its rfile
+
+    def handle_one_request(self) -> None:
+        """One request, its head read within :data:`IDLE_TIMEOUT` as a whole (:class:`_HeadWithin`)."""
+        self._head.by = time.monotonic() + IDLE_TIMEOUT
+        super().handle_one_request()
 
     def parse_request(self) -> bool:
         """The request's line and headers read; a server on a loopback address refuses (403) a request whose
@@ -62,6 +92,8 @@ class QuietHandler(BaseHTTPRequestHandler):
         points at 127.0.0.1 (DNS rebinding) would read the frames and files served as its own."""
         if not super().parse_request():
             return False
+        self._head.by = None  # read: the answer's writes are bounded each by the idle time
+        self.connection.settimeout(IDLE_TIMEOUT)
         if len(self.headers.get_all("Host") or ()) > 1:  # which one names the server is not for it to choose
             self.send_error(400, "more than one Host header")
             return False

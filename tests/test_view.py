@@ -176,6 +176,50 @@ def test_web_viewer_shows_the_recording_in_a_browser(small_recording, tmp_path):
     assert not listening(int(m.group(1))) and not listening(int(m.group(2)))
 
 
+def _children(pid: int) -> list[tuple[int, str]]:
+    """The processes whose parent is ``pid``: (pid, command line)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            cmdline = (stat.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:  # ended meanwhile
+            continue
+        if int(fields[1]) == pid:
+            found.append((int(stat.parent.name), cmdline))
+    return found
+
+
+def test_a_recording_is_sent_to_the_server_by_a_process_that_a_ctrl_c_stops_without_a_word(small_recording, tmp_path):
+    """The web viewer's server is given the recording by a process of its own, which ends once it is sent (the
+    process that sends one keeps about five times its size for as long as it lives): a Ctrl-C while it sends ends
+    the sender and the server, and says pcreg's one line (rerun's own error lines were printed around it)."""
+    import os
+    import signal
+    import subprocess
+
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "pcreg.cli", "view", str(small_recording), "--web", "--web-port", "0",
+                             "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    try:
+        sender = until(lambda: [c for c in _children(proc.pid) if "send_here" in c[1]], what="the recording being sent",
+                       alive=proc, bound=120)
+        server = [c for c in _children(proc.pid) if "--serve-web" in c[1]]
+        os.killpg(proc.pid, signal.SIGINT)  # as Ctrl-C in the terminal: pcreg's group, not the sender's own
+        assert proc.wait(timeout=60) == 130
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stdout.close()
+        proc.stderr.close()
+    assert err.strip().splitlines() == ["pcreg: interrupted (nothing was written)"], err
+    for pid, _ in sender + server:  # none left running
+        until(lambda: not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2],
+              what=f"process {pid} ended", bound=60)
+
+
 # -- one blueprint per kind of recording ------------------------------------------------------------
 
 KIND_NAMES = ("register", "crosscheck", "sequence", "rotation", "demo", "dense", "crosscheck-implementations")

@@ -40,6 +40,8 @@ def test_evaluate_stream_on_davis_scores_j_and_f_beside_the_published_methods(tm
     assert "davisvideochallenge.github.io" in d["published"]["source"]
     table = (out / "davis_J.md").read_text()
     assert "| blackswan | 3 |" in table and "OSVOS" in table and "davisvideochallenge.github.io" in table
+    row = next(line for line in table.splitlines() if line.startswith("| blackswan |"))
+    assert " 0.942 |" in row  # J with three decimals, as the figures are compared (OSVOS's 0.9423 read 0.94)
     # a sequence of 5 frames where the benchmark's has 50: its figures beside the published ones were said nothing of
     assert d["published"]["frames"] == {"blackswan": 48}
     assert ("Scored over other frames than the published figures are (blackswan 3 against 48 frames): the sequence "
@@ -53,6 +55,7 @@ def test_evaluate_stream_on_davis_scores_j_and_f_beside_the_published_methods(tm
 
     shown = {t["name"]: t for t in page_data(load_report(out))["tables"]}
     assert shown["davis_J"]["better"] == "higher" and shown["davis_J"]["columns"] == header.split(",")
+    assert shown["davis_J"]["digits"] == shown["davis_F"]["digits"] == 3
 
 
 def test_a_kept_davis_unit_without_its_j_and_f_is_run_again_not_left_out(tmp_path):

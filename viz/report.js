@@ -108,9 +108,9 @@ function seek(frame, tries = 40) {
 
 // -- the report ------------------------------------------------------------------------------------
 
-function fmt(v, float) {
+function fmt(v, float, digits) {
   if (v === null || v === undefined) return "n/a";
-  if (typeof v === "number") return float ? v.toFixed(2) : String(v);
+  if (typeof v === "number") return float ? v.toFixed(digits ?? 2) : String(v);
   return String(v);
 }
 
@@ -157,7 +157,7 @@ function renderTable(t) {
       }
     }
     row.cells.forEach((v, i) => {
-      const td = el("td", { text: fmt(v, row.floats.includes(i)) });
+      const td = el("td", { text: fmt(v, row.floats.includes(i), t.digits) });
       if (typeof v === "number") { td.classList.add("num"); td.dataset.value = String(v); td.title = String(v); }
       const k = t.errors.indexOf(i);
       if (k >= 0 && compared[k]) {

@@ -63,9 +63,10 @@ def remove_report(out: str | Path) -> None:
 
 
 def write_files(out: str | Path, results: dict, *, tables: dict | None = None, texts: dict | None = None,
-                figures: dict | None = None, recording: str | Path | None = None) -> list[Path]:
+                figures: dict | None = None, recording: str | Path | None = None, digits: dict | None = None) -> list[Path]:
     """Write, each atomically: ``tables`` {name: (title, header, rows[, footer])} as NAME.csv and NAME.md
-    (title above the table, the optional Markdown footer below), ``texts`` {file name: Markdown}, ``figures`` {name: matplotlib figure} as NAME.png
+    (title above the table, the optional Markdown footer below; its numbers with two decimals, or as many as
+    ``digits`` {name: decimals} gives), ``texts`` {file name: Markdown}, ``figures`` {name: matplotlib figure} as NAME.png
     (closed after), then config.json, :data:`MANIFEST` and results.json (NaN written as null); the files the
     earlier report's manifest names and this one does not write are removed, and the temporary files a report
     killed mid-write left of those it writes. ``recording``: the run's ``--record`` file, which the manifest names
@@ -84,7 +85,8 @@ def write_files(out: str | Path, results: dict, *, tables: dict | None = None, t
     for name, (title, header, rows, *footer) in (tables or {}).items():
         written.append(atomic_write_csv(out / f"{name}.csv", header, rows))
         written.append(atomic_write_text(out / f"{name}.md",
-                                         f"### {title}\n\n" + markdown_table(header, rows) + "".join(footer)))
+                                         f"### {title}\n\n" + markdown_table(header, rows, digits=(digits or {}).get(name, 2))
+                                         + "".join(footer)))
     for name, text in (texts or {}).items():
         written.append(atomic_write_text(out / name, text))
     for name, fig in (figures or {}).items():

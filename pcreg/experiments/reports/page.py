@@ -202,7 +202,7 @@ def _stream_tables(results: dict) -> list[dict]:
 
 def _davis_tables(results: dict) -> list[dict]:
     """On DAVIS: J and F per sequence of every method and of the published ones (higher is better)."""
-    from .stream_davis import davis_table
+    from .stream_davis import DIGITS, davis_table
 
     if not results.get("davis"):
         return []
@@ -210,7 +210,7 @@ def _davis_tables(results: dict) -> list[dict]:
     for k in ("J", "F"):
         header, rows, footer = davis_table(results, k)
         tables.append(_table(f"davis_{k}", f"DAVIS: {k} per sequence (upper case: the published methods)", header,
-                             rows, [None] * len(rows), errors=header[2:], better="higher", footer=footer))
+                             rows, [None] * len(rows), errors=header[2:], better="higher", footer=footer, digits=DIGITS))
     return tables
 
 
@@ -236,14 +236,14 @@ def _cell(v: Any) -> Any:
 
 
 def _table(name: str, title: str, header: list, rows: list, frames: list, *, select: str | None = None,
-           errors: tuple | list = (), better: str = "lower", footer: str = "") -> dict:
+           errors: tuple | list = (), better: str = "lower", footer: str = "", digits: int = 2) -> dict:
     """One table: ``columns``, ``rows`` (``cells``, the recording ``frame``, which cells are ``floats``:
-    JSON does not tell 2.0 from 2), which columns compare the
+    JSON does not tell 2.0 from 2, written with ``digits`` decimals), which columns compare the
     methods (``errors``: their indices; ``better``: whether lower or higher is better), what choosing a
     row selects, and ``footer``, the paragraphs its Markdown file has under it (what the figures are, and
     which do not compare)."""
     columns = [str(h) for h in header]
-    return {"name": name, "title": title, "columns": columns, "select": select, "better": better,
+    return {"name": name, "title": title, "columns": columns, "select": select, "better": better, "digits": digits,
             "footer": [" ".join(p.split()) for p in footer.split("\n\n") if p.strip()],
             "errors": [i for i, c in enumerate(columns) if c in errors],
             "rows": [{"cells": [_cell(c) for c in row], "frame": f, "floats": [i for i, c in enumerate(row) if _is_float(c)]}

@@ -194,7 +194,7 @@ def write_outputs(results: Results, out: str | Path, *, recording: str | Path | 
     DAVIS also davis_J and davis_F (:mod:`.stream_davis`). ``recording``: the run's ``--record`` file
     (:func:`.files.write_files`)."""
     from .files import write_files
-    from .stream_davis import davis_tables
+    from .stream_davis import DIGITS, davis_tables
 
     doc = results.to_dict()
     b = doc["primary_backend"]
@@ -209,5 +209,6 @@ def write_outputs(results: Results, out: str | Path, *, recording: str | Path | 
               "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter),
               **davis_tables(doc), **classes_tables(doc)}
     return write_files(out, doc, recording=recording, tables=tables, texts={"checks.md": checks(doc)},
+                       digits={name: DIGITS for name in davis_tables(doc)},
                        figures={"stream": _figure(doc), "stream_reliability": _reliability(doc),
                                 "stream_speed": _accuracy_time(doc)})

@@ -24,6 +24,11 @@ class _StreamRun(Run):
         """As :meth:`pcreg.runs.run.Run.open_key` with the key frame's labels given when made."""
         return self.open_key(self.labels, force=force)
 
+    def carry_after(self, t: int):
+        """``(carry, learned)`` frame ``t`` left, as 0.2.0's gave them (:meth:`pcreg.runs.run.Run.carry_after` adds the
+        key frame's scene)."""
+        return Run.carry_after(self, t)[:2]
+
 
 def __getattr__(name: str):
     if name == "StreamRun":

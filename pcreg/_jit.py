@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import pickle
+import threading
 from pathlib import Path
 
 import numba
@@ -98,13 +99,15 @@ def _install() -> bool:
 CACHED = _install()
 
 
-#: What a process says (once, on the ``pcreg`` logger, as a warning) before a kernel compiles with nothing in the
+#: What a process says (once in each process, a worker of ``--workers`` too; on the ``pcreg`` logger, as a warning)
+#: before a kernel compiles with nothing in the
 #: on-disk cache for it, as after ``pip install`` or a change to a kernel source: the first registration would
 #: otherwise wait a minute or more without a word, and report that minute as its own time.
 COMPILING = ("pcreg: note: compiling pcreg's kernels for this machine, once (a minute or two; they are kept on disk "
              "for the next runs; python -m pcreg.kernels compiles them ahead)")
 
 _TOLD: list[bool] = []
+_TELLING = threading.Lock()
 
 
 def _compiles(dispatcher) -> bool:
@@ -135,8 +138,10 @@ def _shield_first_calls(dispatcher):
 
     def compile_shielded(*args, **kws):
         if _compiles(dispatcher):
-            _TOLD.append(True)
-            logging.getLogger("pcreg").warning(COMPILING)
+            with _TELLING:
+                told, _TOLD[:] = bool(_TOLD), [True]
+            if not told:
+                logging.getLogger("pcreg").warning(COMPILING)
         with _shielded():
             entry = compile_for_args(*args, **kws)
         check_interrupted()

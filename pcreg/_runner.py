@@ -411,15 +411,17 @@ class _AboveBars(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         from tqdm import tqdm
 
-        tqdm.write(self.format(record), file=sys.stderr)
+        try:
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:  # a stderr closed or full: the line is lost, the command goes on (as logging's own handlers)
+            self.handleError(record)
 
 
 def say_above_bars() -> None:
     """What the library says on its ``pcreg`` logger (:data:`pcreg._jit.COMPILING`), as a command's own notes."""
     logger = logging.getLogger("pcreg")
     if not any(isinstance(h, _AboveBars) for h in logger.handlers):
-        logger.addHandler(_AboveBars())
-        logger.propagate = False
+        logger.addHandler(_AboveBars())  # (propagated too: a caller's own handlers of the root see it as before)
 
 
 def tick(bar) -> None:

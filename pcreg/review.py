@@ -18,6 +18,7 @@ frames between), and at once the next time the run is reviewed.
 
 from __future__ import annotations
 
+import shlex
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,8 +33,7 @@ from .formats import loads_json
 from .runs.files import StepTruth, finite_figure, step_class_iou
 from .legend import Legend, draw_legend, legend_figures
 
-__all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay",
-           "FrameImages", "video_frame", "write_overlay_video"]
+__all__ = ["LOW_CONFIDENCE", "COLOURS", "ALPHA", "CACHE", "RunReview", "read_review", "overlay", "FrameImages", "video_frame", "write_overlay_video"]
 
 #: A label is marked unsure where its confidence (the probability that it is right) is below this.
 LOW_CONFIDENCE = 0.7
@@ -172,9 +172,8 @@ def read_review(folder: str | Path) -> RunReview:
         raise InputError(f"{state_path}: unreadable (not a run.json that pcreg run wrote)") from None
     table = run_table(run, str(state_path))
     if not source.exists():
-        raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there); moved with "
-                         f"its project? the same pcreg run with the {kind}'s new path and --out {folder} names the new "
-                         "places in run.json, and goes on from what was labelled")
+        raise InputError(f"{state_path}: the run's {kind} {source} is gone (the frames are read from there); moved with its project? the same "
+                         f"pcreg run with the {kind}'s new path and --out {shlex.quote(str(folder))} names the new places in run.json, and goes on from what was labelled")
     frames = open_frames(source, selection)
     if labelled is None:  # a run from one label image labels its frames in order
         done = min(count, len(frames)) if isinstance(frames, FolderFrames) else count

@@ -413,6 +413,7 @@ def test_export_and_suite_say_what_they_did_in_words_not_python_values(tmp_path,
     assert f"{suite / 'results.md'}" in said[1]
     assert said[2].startswith("skipped lidar: the LiDAR pair is not at ") and len(said) == 3
     assert not any(c in line for line in said[:2] for c in "[]{}'")
+    assert "lidar" in (suite / "results.md").read_text()  # the suite's results name the case it lacks, as the terminal
     assert main(["crosscheck", "--suite", str(suite), "--with", "reference", "--json", "--force"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert (out["agreeing"], out["rows"], out["skipped"]) == (13, 14, {})

@@ -126,8 +126,29 @@ def test_the_command_line_writes_the_librarys_notes_above_a_progress_bar(capsys)
         with progress(total=3, desc="frames", disable=False) as bar:
             bar.update(1)
             logger.warning(COMPILING)
-        err = capsys.readouterr().err
+        err, propagated = capsys.readouterr().err, logger.propagate
     finally:
         logger.handlers[:], logger.propagate = handlers, propagate
-    assert err.count(COMPILING) == 1
+    assert err.count(COMPILING) == 1 and propagated == propagate  # a caller's root handlers still see it
     assert f"\r{COMPILING}\n" in err  # on a line of its own, the bar's cleared first (not written after its text)
+
+
+def test_a_note_that_cannot_be_written_is_lost_and_the_command_goes_on(monkeypatch):
+    """The note written to a stderr whose reader is gone (``2> >(exec true)``) raised BrokenPipeError from the
+    kernel's first call, and the command ended without its result."""
+    import logging
+    import os
+
+    from pcreg._jit import COMPILING
+    from pcreg._runner import _AboveBars
+
+    read, write = os.pipe()
+    os.close(read)
+    with os.fdopen(write, "w", buffering=1) as gone:  # line-buffered, as a terminal's stderr: the write reaches the pipe
+        monkeypatch.setattr(sys, "stderr", gone)
+        _AboveBars().handle(logging.LogRecord("pcreg", logging.WARNING, __file__, 1, COMPILING, None, None))
+        monkeypatch.undo()
+        try:
+            gone.close()
+        except BrokenPipeError:  # what the failed write left in its buffer
+            pass

@@ -220,6 +220,41 @@ def test_a_recording_is_sent_to_the_server_by_a_process_that_a_ctrl_c_stops_with
               what=f"process {pid} ended", bound=60)
 
 
+def test_the_recording_is_sent_with_pcregs_modules_not_those_of_the_folder_it_runs_in(small_recording, tmp_path):
+    """pcreg run as its installed command from a folder holding a ``rerun.py`` (or another pcreg checkout): the
+    process that sends the recording imported from that folder first (``python -c`` puts it on its path) and the
+    page was refused ("not sent ... 'rerun' is not a package"); it imports what pcreg's own process does."""
+    import os
+    import signal
+    import subprocess
+
+    work, entry = tmp_path / "work", tmp_path / "bin" / "pcreg_entry.py"
+    work.mkdir()
+    entry.parent.mkdir()
+    (work / "rerun.py").write_text("raise ImportError('the rerun.py of the folder pcreg runs in')\n")
+    entry.write_text("import sys\nfrom pcreg.cli import main\nsys.exit(main())\n")  # as the console script: no cwd
+    proc = subprocess.Popen([sys.executable, str(entry), "view", str(small_recording), "--web", "--web-port", "0",
+                             "--grpc-port", "0"], cwd=work, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"), start_new_session=True)
+    try:
+        url = next((line for line in proc.stdout if line.startswith("http://")), None)
+        assert url, proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+        code = proc.wait(timeout=60)
+        proc.stdout.close()
+        proc.stderr.close()
+    assert code == 130
+
+
+def test_no_interpreter_to_send_the_recording_is_one_line(small_recording, monkeypatch):
+    """An embedded Python whose ``sys.executable`` is empty: ``Permission denied`` and nothing more."""
+    monkeypatch.setattr(sys, "executable", "")
+    with pytest.raises(view.ViewerError, match="could not start a Python interpreter to send the recording"):
+        view._send(small_recording, "127.0.0.1", 9)
+
+
 # -- one blueprint per kind of recording ------------------------------------------------------------
 
 KIND_NAMES = ("register", "crosscheck", "sequence", "rotation", "demo", "dense", "crosscheck-implementations")

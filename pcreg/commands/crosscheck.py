@@ -140,6 +140,8 @@ def _suite(args) -> dict:
         if earlier and not args.force:
             raise InputError(f"{earlier[0]}: results of an earlier run (use --force to replace them, or another --out)")
         skipped = {}
+        if args.export and Path(args.export).resolve() == suite.resolve():  # the suite just exported: what it could not make
+            skipped = dict(out["skipped"])
         if (suite / "index.json").exists():
             cases = load_suite(suite)
         else:
@@ -152,7 +154,7 @@ def _suite(args) -> dict:
         out["results"] = write_results(Path(args.out or suite), rows, skipped=skipped)
         out["agreeing"] = sum(1 for r in rows if r.get("agrees"))
         out["rows"] = len(rows)
-        out["skipped"] = {**out.get("skipped", {}), **skipped}  # an exported case not made is not in the suite either
+        out["skipped"] = skipped
     return out
 
 

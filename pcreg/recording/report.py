@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import io
 import ipaddress
 import json
 import re
@@ -28,7 +29,6 @@ import urllib.parse
 import urllib.request
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import Any
 
 from ..errors import InputError, PcregError
 from ..formats import file_of
@@ -44,25 +44,25 @@ IDLE_TIMEOUT = 60.0
 _PIECE = 1 << 20  # an answer is written a MiB at a time, each within IDLE_TIMEOUT (a large file over a slow link)
 
 
-class _HeadWithin:
+class _HeadWithin(io.RawIOBase):
     """A connection's reads, with the head of each request read within one time as a whole (``by``, a monotonic
-    time; None once it is read): bounded read by read alone, a client that sends a byte now and then, each within
-    the idle time, held a thread of the server for good."""
+    time; None once it is read), each read from the socket given what is left of it: bounded read by read alone, a
+    client that sends a byte now and then, each within the idle time, held a thread of the server for good."""
 
-    def __init__(self, raw: Any, connection: socket.socket) -> None:
-        self._raw, self._connection = raw, connection
+    def __init__(self, connection: socket.socket) -> None:
+        self._connection = connection
         self.by: float | None = None
 
-    def readline(self, *args) -> bytes:
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
         if self.by is not None:
             left = self.by - time.monotonic()
             if left <= 0:
                 raise TimeoutError("the request's head was not sent in time")  # http.server closes the connection
             self._connection.settimeout(left)
-        return self._raw.readline(*args)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._raw, name)
+        return self._connection.recv_into(buffer)
 
 
 class QuietHandler(BaseHTTPRequestHandler):
@@ -78,8 +78,8 @@ class QuietHandler(BaseHTTPRequestHandler):
         idle past it is closed (http.server passes the timeout over, and the thread ends)."""
         super().setup()
         self.connection.settimeout(IDLE_TIMEOUT)
-        self._head = _HeadWithin(self.rfile, self.connection)
-        self.rfile = self._head  # type: ignore[assignment]  # read as http.server reads its rfile
+        self._head = _HeadWithin(self.connection)
+        self.rfile = io.BufferedReader(self._head)  # what socketserver made of the socket, read through _HeadWithin
 
     def handle_one_request(self) -> None:
         """One request, its head read within :data:`IDLE_TIMEOUT` as a whole (:class:`_HeadWithin`)."""

@@ -385,14 +385,15 @@ def _send(recording: Path, host: str, grpc_port: int) -> None:
     Sent from a process of its own (:func:`send_here`), ended with it: the process that sends a recording keeps
     about five times its size for as long as it lives (139 MB for one of 28.6 MB), and a Ctrl-C that landed while
     it sent printed rerun's own error lines around pcreg's."""
-    import pcreg
-
-    package_root = str(Path(pcreg.__file__).resolve().parent.parent)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH"))))}
-    code = "import sys; from pcreg.recording.viewer import send_here; send_here(sys.argv[1], sys.argv[2], int(sys.argv[3]))"
-    proc = subprocess.Popen([sys.executable, "-c", code, str(recording), host, str(grpc_port)], env=env,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            start_new_session=True, preexec_fn=_ends_with_us())
+    code = ("import sys; sys.path[:] = sys.argv[4:]; from pcreg.recording.viewer import send_here; "
+            "send_here(sys.argv[1], sys.argv[2], int(sys.argv[3]))")  # the modules this process imports, not the cwd's
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", code, str(recording), host, str(grpc_port), *sys.path],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                start_new_session=True, preexec_fn=_ends_with_us())
+    except OSError as exc:  # no interpreter to run (an embedded Python's sys.executable is empty)
+        raise ViewerError(f"could not start {sys.executable or 'a Python interpreter'} to send the recording to the "
+                          f"web viewer's server ({exc.strerror or exc})") from None
     try:
         _, err = proc.communicate()
     except BaseException:  # Ctrl-C: the sender stopped, its words dropped
@@ -400,7 +401,8 @@ def _send(recording: Path, host: str, grpc_port: int) -> None:
         raise
     if proc.returncode:
         said = [line for line in err.decode(errors="replace").splitlines() if line.strip()]
-        raise ViewerError(f"{recording}: not sent to the web viewer's server ({said[-1][-300:] if said else f'exit code {proc.returncode}'})")
+        raise ViewerError("the recording was not sent to the web viewer's server "
+                          f"({said[-1][-300:] if said else f'exit code {proc.returncode}'})")
 
 
 def send_here(recording: str, host: str, grpc_port: int) -> None:

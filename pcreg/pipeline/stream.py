@@ -9,7 +9,7 @@
 
 Each :meth:`Propagator.step`
 
-1. registers the new frame to the key frame (``anchor="key"``, the default) or to the previous frame
+1. registers the new frame to the key frame (``anchor="key"``, the default for two classes) or to the previous frame
    (``anchor="previous"``, the motions composed back to the key frame): with ``model="dense"`` (the
    default) a dense field (:func:`pcreg.register_dense`), with ``model="flow"`` DIS optical flow at
    ``preset`` (:func:`pcreg.registration.flow.dis_flow`), else one transform (:func:`pcreg.register`);

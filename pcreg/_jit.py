@@ -100,9 +100,9 @@ CACHED = _install()
 
 
 #: What a process says (once in each process, a worker of ``--workers`` too; on the ``pcreg`` logger, as a warning)
-#: before a kernel compiles with nothing in the
-#: on-disk cache for it, as after ``pip install`` or a change to a kernel source: the first registration would
-#: otherwise wait a minute or more without a word, and report that minute as its own time.
+#: before a kernel compiles with nothing in the on-disk cache for it, as after ``pip install`` or a change to a
+#: kernel source: the first registration would otherwise wait a minute or more without a word, and report that
+#: minute as its own time.
 COMPILING = ("pcreg: note: compiling pcreg's kernels for this machine, once (a minute or two; they are kept on disk "
              "for the next runs; python -m pcreg.kernels compiles them ahead)")
 

@@ -204,11 +204,12 @@ def write_outputs(results: Results, out: str | Path, *, recording: str | Path | 
     config = doc.get("config", {})
     several = config.get("keys") or config.get("key_every")  # --keys, --key-every: more than the first frame
     title = f"Labelling a stream from its key frame{'s' if several else ''}: mean error % per clip"
+    davis = davis_tables(doc)
     tables = {f"stream_{b}": (title, h, rows, footer),
               "stream_frames": ("Error % per frame", ph, prows),
               "stream_calibration": ("pcreg's confidence: calibration per clip", ch, crows, cfooter),
-              **davis_tables(doc), **classes_tables(doc)}
+              **davis, **classes_tables(doc)}
     return write_files(out, doc, recording=recording, tables=tables, texts={"checks.md": checks(doc)},
-                       digits={name: DIGITS for name in davis_tables(doc)},
+                       digits={name: DIGITS for name in davis},
                        figures={"stream": _figure(doc), "stream_reliability": _reliability(doc),
                                 "stream_speed": _accuracy_time(doc)})

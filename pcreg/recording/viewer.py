@@ -123,9 +123,8 @@ def headless(recording: str | os.PathLike, *, size: str = "1600x900", viewer: st
         client = None
         while client is None:
             if proc.poll() is not None:
-                err = (proc.stderr.read() or b"").decode(errors="replace").strip().splitlines() if proc.stderr else []
-                last = next((line for line in reversed(err) if line.strip()), f"exit code {proc.returncode}")
-                raise ViewerError(f"the headless viewer stopped: {last[-300:]}")
+                said = _last_said(proc.stderr.read() or b"" if proc.stderr else b"", proc.returncode)
+                raise ViewerError(f"the headless viewer stopped: {said}")
             try:
                 c = ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
                 c.get_state()
@@ -212,6 +211,13 @@ def _save_screenshot(client, path: Path, view_id: str | None, timeout: float) ->
             if time.monotonic() > deadline:
                 raise ViewerError(f"the viewer did not paint the screenshot within {timeout:.0f} s; "
                                   "try a longer --timeout or a smaller --size") from None
+
+
+def _last_said(err: bytes, returncode: int) -> str:
+    """What a process of rerun's (or the sender) said last on stderr (``err``), its last line that is not blank, at
+    most its last 300 characters; its exit code where it said nothing."""
+    lines = [line for line in err.decode(errors="replace").splitlines() if line.strip()]
+    return lines[-1].rstrip()[-300:] if lines else f"exit code {returncode}"
 
 
 def _ends_with_us() -> Any:
@@ -400,9 +406,7 @@ def _send(recording: Path, host: str, grpc_port: int) -> None:
         _stop(proc)
         raise
     if proc.returncode:
-        said = [line for line in err.decode(errors="replace").splitlines() if line.strip()]
-        raise ViewerError("the recording was not sent to the web viewer's server "
-                          f"({said[-1][-300:] if said else f'exit code {proc.returncode}'})")
+        raise ViewerError(f"the recording was not sent to the web viewer's server ({_last_said(err, proc.returncode)})")
 
 
 def send_here(recording: str, host: str, grpc_port: int) -> None:
@@ -428,9 +432,7 @@ def _wait_listening(proc: subprocess.Popen, log, host: str, ports: tuple[int, ..
         while True:
             if proc.poll() is not None:
                 log.seek(0)
-                err = log.read().decode(errors="replace").strip().splitlines()
-                last = next((line for line in reversed(err) if line.strip()), f"exit code {proc.returncode}")
-                raise ViewerError(f"the web viewer stopped: {last[-300:]}")
+                raise ViewerError(f"the web viewer stopped: {_last_said(log.read(), proc.returncode)}")
             try:
                 with socket.create_connection((host, port), timeout=1.0):
                     break

@@ -55,9 +55,16 @@ __all__ = ["KeyRun", "HIDDEN"]  # HIDDEN: pcreg.runs.files.HIDDEN, named here as
 class KeyRun:
     """A run's passes: ``owner`` (the :class:`~pcreg.runs.run.Run` whose folder they label into and which
     commits each frame: its frames, ``out``, truth and ``confidence``), ``keys`` ({position: (H, W) uint8
-    labels}) and the propagators' ``config`` (:class:`~pcreg.pipeline.config.PropagatorConfig`)."""
+    labels}) and the propagators' ``config`` (:class:`~pcreg.pipeline.config.PropagatorConfig`). 0.2.0's
+    ``KeyRun(frames, keys, out, config, identity=, truth=, confidence=)`` is still taken, with a
+    :class:`DeprecationWarning`, until 0.4."""
 
-    def __init__(self, owner, keys: dict[int, np.ndarray], config) -> None:
+    def __init__(self, owner, keys: dict[int, np.ndarray], config=None, *legacy, out: Path | None = None,
+                 identity: dict | None = None, truth=None, confidence: bool = False) -> None:
+        if legacy or out is not None or identity is not None or truth is not None or confidence:
+            owner, config = _run_of_0_2(owner, config, legacy, out, identity, truth, confidence)
+        elif config is None:
+            raise TypeError("KeyRun() missing 1 required positional argument: 'config'")
         self.owner, self.keys, self.config = owner, dict(sorted(keys.items())), config
         self.frames, self.truth, self.confidence = owner.frames, owner.truth, owner.confidence
         self.n = len(self.frames) if self.frames.kind == "folder" else None
@@ -72,6 +79,16 @@ class KeyRun:
     def state(self) -> dict:
         """The run's run.json, as :attr:`owner` keeps it."""
         return self.owner.state
+
+    @property
+    def out(self) -> Path:
+        """The run's folder (its :attr:`owner`'s)."""
+        return self.owner.out
+
+    @property
+    def identity(self) -> dict:
+        """What a resumed run must match (its :attr:`owner`'s)."""
+        return self.owner.identity
 
     # -- bookkeeping ---------------------------------------------------------------------------------
 
@@ -157,8 +174,10 @@ class KeyRun:
         image, labels, report, name, size, reference=IMAGE)`` after each frame (``size``: the propagator's working
         size; ``reference``: the image the frame was registered to, the pass's key frame or the frame before it
         in the pass, None when not at hand); ``on_step()`` after each step of a forward pass between two key
-        frames (:meth:`forward_steps_left`), which labels no frame; ``check()`` before each step (an interruption)."""
+        frames (:meth:`forward_steps_left`), which labels no frame; ``check()`` before each step (an interruption). A
+        callback without a ``reference`` parameter (0.2.0's six arguments) is called without it."""
         self.on_frame, self.check, self.on_step = on_frame, check, on_step
+        self._told = on_frame is not None and _takes_reference(on_frame)  # 0.2.0's callbacks took no reference
         done = {e["fingerprint"] for e in self.state["stretches"]}
         for s in self.plan:
             fp = self.fingerprint(s)
@@ -393,7 +412,8 @@ class KeyRun:
         writer.submit(self._write_frame, cur, t, labels, conf, step, (truth, plain), prop.carry, prop.learned_later(),
                       prop.scene, after=after)
         if self.on_frame is not None:
-            self.on_frame(t, image, labels, prop.last, self.frames.name(t), prop.working_size, reference=reference)
+            told = {"reference": reference} if self._told else {}
+            self.on_frame(t, image, labels, prop.last, self.frames.name(t), prop.working_size, **told)
 
     def _write_frame(self, cur: dict, t: int, labels, conf, step: dict, scored: tuple, carry, learned, scene=None, *,
                      after: int) -> None:
@@ -407,3 +427,36 @@ class KeyRun:
         self.labelled += 1
         cur["next"] = after
         self._commit()
+
+
+def _run_of_0_2(frames, config, legacy: tuple, out, identity, truth, confidence: bool):
+    """The :class:`~pcreg.runs.run.Run` and the config of 0.2.0's ``KeyRun(frames, keys, out, config, *,
+    identity, truth=None, confidence=False)``, with a :class:`DeprecationWarning` naming the new spelling."""
+    import warnings
+
+    from ..runs.run import Run
+
+    if len(legacy) > 1:
+        raise TypeError(f"KeyRun() takes from 3 to 5 positional arguments but {3 + len(legacy)} were given")
+    if legacy:
+        if out is not None:
+            raise TypeError("KeyRun() got multiple values for argument 'out'")
+        out, config = config, legacy[0]
+    if out is None or config is None or identity is None:
+        missing = [n for n, v in (("out", out), ("config", config), ("identity", identity)) if v is None]
+        raise TypeError(f"KeyRun() missing argument(s): {', '.join(map(repr, missing))}")
+    warnings.warn("KeyRun(frames, keys, out, config, identity=..., truth=..., confidence=...) is deprecated and will "
+                  "be removed in 0.4.0; use KeyRun(pcreg.runs.run.Run(frames, out, identity, truth=..., confidence=...), "
+                  "keys, config)", DeprecationWarning, stacklevel=3)
+    return Run(frames, Path(out), identity, truth=truth, confidence=bool(confidence)), config
+
+
+def _takes_reference(on_frame: Callable) -> bool:
+    """Whether an ``on_frame`` callback takes ``reference=`` (0.2.0's took six arguments, without it)."""
+    import inspect
+
+    try:
+        params = inspect.signature(on_frame).parameters.values()
+    except (TypeError, ValueError):  # a callable whose signature Python cannot tell: given it, as before
+        return True
+    return any(p.name == "reference" or p.kind is inspect.Parameter.VAR_KEYWORD for p in params)

@@ -1,0 +1,67 @@
+"""0.2.0's ``KeyRun(frames, keys, out, config, identity=..., truth=..., confidence=...)`` and its six-argument
+``on_frame`` callback still work for one minor version, with a :class:`DeprecationWarning` naming the new spelling
+(``KeyRun(Run(frames, out, identity, ...), keys, config)``), and label what the new spelling labels."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+
+import pcreg
+from pcreg.datasets.sources import FolderFrames
+from pcreg.pipeline.config import PropagatorConfig
+from pcreg.pipeline.keys_run import KeyRun
+from pcreg.runs.run import Run
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("frames")
+    frames = pcreg.synthetic("syn1a", 5, 0, width=96, height=72)
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"f{i}.png"), f.image[:, :, ::-1])
+    return folder, {0: frames[0].labels, 3: frames[3].labels}
+
+
+def _labels(out):
+    return [np.asarray(Image.open(out / f"f{i}.png")) for i in range(5)]
+
+
+def test_the_constructor_of_0_2_labels_what_the_new_one_labels(tmp_path, clip):
+    folder, keys = clip
+    config, identity = PropagatorConfig(), {"frames": str(folder), "labels": "keys"}
+    seen = []
+
+    def on_frame(t, image, labels, report, name, size):  # 0.2.0's callback: no reference
+        seen.append(name)
+
+    with pytest.warns(DeprecationWarning, match=r"KeyRun\(pcreg\.runs\.run\.Run\(frames, out, identity"):
+        old = KeyRun(FolderFrames(folder), keys, tmp_path / "old", config, identity=identity, confidence=True)
+    assert old.out == tmp_path / "old" and old.identity == identity
+    (tmp_path / "old").mkdir()
+    old.start()
+    assert old.run(on_frame) == 3
+    assert sorted(seen) == ["f1.png", "f2.png", "f4.png"]
+    assert (tmp_path / "old" / "confidence" / "f1.png").is_file()
+
+    new = KeyRun(Run(FolderFrames(folder), tmp_path / "new", identity, confidence=True), keys, config)
+    (tmp_path / "new").mkdir()
+    new.start()
+    told = []
+    assert new.run(lambda *a, reference=None: told.append(reference is not None)) == 3
+    assert told and all(told)
+    for a, b in zip(_labels(tmp_path / "old"), _labels(tmp_path / "new")):
+        assert np.array_equal(a, b)
+
+
+def test_the_out_keyword_and_a_missing_identity(tmp_path, clip):
+    folder, keys = clip
+    with pytest.warns(DeprecationWarning):
+        job = KeyRun(FolderFrames(folder), keys, config=PropagatorConfig(), out=tmp_path, identity={"x": 1})
+    assert job.out == tmp_path
+    with pytest.raises(TypeError, match="'identity'"):
+        KeyRun(FolderFrames(folder), keys, tmp_path, PropagatorConfig())
+    with pytest.raises(TypeError, match="config"):
+        KeyRun(Run(FolderFrames(folder), tmp_path, {}), keys)

@@ -377,11 +377,12 @@ class FrameImages:
     RATIO = 3.0
 
     def __init__(self, review: RunReview, cache: Path | None = None) -> None:
-        from .datasets.sources import Selection, open_frames
+        from .datasets.sources import FolderFrames, Selection, open_frames
 
         self.review = review
         sel = review.selection or {}
         self._frames = open_frames(review.source, Selection(sel.get("start", 0), sel.get("stop"), sel.get("every", 1)))
+        self.where = self._frames.where if isinstance(self._frames, FolderFrames) else None  # frame t's file (None: a video's)
         self._cond = threading.Condition()
         self._stop = False
         self._failed: str | None = None
@@ -457,12 +458,11 @@ class FrameImages:
         if not 0 <= t < len(self.review.names):
             raise IndexError(t)
         if self._thread is None:
-            from .datasets.sources import FolderFrames
             from .registration.clouds import load_image
 
-            if not isinstance(self._frames, FolderFrames):
+            if self.where is None:
                 raise ValueError("a video's frames by position need a cache folder (or read them in order: frames())")
-            return load_image(self._frames.paths[t])
+            return load_image(self.where(t))
         with self._cond:
             if not self._have[t]:
                 self._wanted = t

@@ -192,9 +192,16 @@ class ReviewServer:
     def stamp(self, what: str, t: int) -> tuple:
         """What frame ``t``'s picture ``what`` is drawn from, as it is now: for an overlay its label image's and
         confidence map's (mtime_ns, size) (None: no such file), so that one replaced while the page is served is
-        drawn again; nothing for the frame as it is."""
-        r = self.review
-        return (_stat(r.labels_path(t)), _stat(r.confidence_path(t))) if what == "overlay" else ()
+        drawn again; the frame's own file (a folder's) for both."""
+        r, where = self.review, self.images.where
+        frame = () if where is None else (_stat(where(t)),)
+        return (_stat(r.labels_path(t)), _stat(r.confidence_path(t)), *frame) if what == "overlay" else frame
+
+    def gone(self, t: int, what: str = "overlay") -> bool:
+        """Whether a file frame ``t``'s picture ``what`` (or its class figures: ``overlay``) is drawn from is not
+        there: its label image, or the frame's own file (a folder's)."""
+        where = self.images.where
+        return (what == "overlay" and not self.review.labels_path(t).is_file()) or (where is not None and not where(t).is_file())
 
     def image(self, what: str, t: int, stamp: tuple | None = None) -> bytes:
         """Frame ``t`` as JPEG: ``what`` is ``overlay`` (its labels drawn over it) or ``frame``; kept, and drawn
@@ -240,7 +247,7 @@ class ReviewServer:
                         try:
                             body = server.class_json(t)
                         except (InputError, OSError) as exc:
-                            return self._unreadable(exc)
+                            return self._unreadable(exc, server.gone(t))
                         return self._send(200, "application/json", body)
                     if what in ("overlay", "frame") and (t := _number(name, ".jpg", n)) is not None:
                         stamp = server.stamp(what, t)
@@ -250,15 +257,16 @@ class ReviewServer:
                         try:
                             body = server.image(what, t, stamp)
                         except (InputError, OSError) as exc:
-                            return self._unreadable(exc)
+                            return self._unreadable(exc, server.gone(t, what))
                         return self._send(200, "image/jpeg", body, etag=etag)
                     self._send(404, "text/plain", b"not found\n")
                 except (BrokenPipeError, ConnectionResetError):  # the browser went away
                     pass
 
-            def _unreadable(self, exc: Exception) -> None:
-                """Why a frame cannot be shown, its one line (a file name that is not UTF-8 shown with '?')."""
-                self._send(500, "text/plain; charset=utf-8", f"{exc}\n".encode(errors="replace"))
+            def _unreadable(self, exc: Exception, gone: bool) -> None:
+                """Why a frame cannot be shown, its one line (a file name that is not UTF-8 shown with '?'): a 404
+                where a file it is drawn from is ``gone``, else a 500."""
+                self._send(404 if gone else 500, "text/plain; charset=utf-8", f"{exc}\n".encode(errors="replace"))
 
         return Handler
 

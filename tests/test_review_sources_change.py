@@ -1,0 +1,75 @@
+"""The review page while a person works on the run's files: a source frame written over while the page is served
+is drawn again (its picture was kept as first drawn), and a label image or frame removed is a 404 naming it (it
+was a 500, a fault of the server's)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import urllib.error
+import urllib.request
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+
+
+@pytest.fixture
+def run(tmp_path):
+    frames = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
+    (tmp_path / "frames").mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(tmp_path / "frames" / f"f{i}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0
+    return tmp_path / "frames", out
+
+
+def _get(url):
+    try:
+        with urllib.request.urlopen(url, timeout=30) as r:
+            return r.status, r.headers.get("ETag"), r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, None, e.read()
+
+
+def _mean_grey(jpeg: bytes) -> float:
+    return float(cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE).mean())
+
+
+def test_a_source_frame_written_over_is_drawn_again(run):
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    frames, out = run
+    with ReviewServer(read_review(out), web_port=0) as server:
+        before = {what: _get(f"{server.url}{what}/2.jpg") for what in ("frame", "overlay")}
+        white = np.full((72, 96, 3), 255, np.uint8)
+        cv2.imwrite(str(frames / "f2.png"), white)
+        os.utime(frames / "f2.png", ns=(1, 1))  # another time than the first file's, however coarse the clock
+        for what, (status, etag, body) in before.items():
+            status2, etag2, body2 = _get(f"{server.url}{what}/2.jpg")
+            assert status == status2 == 200 and etag != etag2, what
+            assert _mean_grey(body2) > _mean_grey(body) + 20, what
+
+
+@pytest.mark.parametrize("gone", ["labels", "frame"])
+def test_a_file_removed_while_served_is_a_404_naming_it(run, gone):
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    frames, out = run
+    path = out / "f2.png" if gone == "labels" else frames / "f2.png"
+    with ReviewServer(read_review(out), web_port=0) as server:
+        path.unlink()
+        asked = ("overlay/2.jpg", "classes/2.json") if gone == "labels" else ("overlay/2.jpg", "frame/2.jpg")
+        for what in asked:
+            status, _, body = _get(server.url + what)
+            assert status == 404 and str(path) in body.decode(), (what, status, body)
+        assert _get(server.url + "overlay/1.jpg")[0] == 200

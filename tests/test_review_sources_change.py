@@ -1,6 +1,6 @@
 """The review page while a person works on the run's files: a source frame written over while the page is served
 is drawn again (its picture was kept as first drawn), and a label image or frame removed is a 404 naming it (it
-was a 500, a fault of the server's)."""
+was a 500, a fault of the server's); a suggest.txt grown past what a line a frame holds is refused, not read whole."""
 
 from __future__ import annotations
 
@@ -73,3 +73,16 @@ def test_a_file_removed_while_served_is_a_404_naming_it(run, gone):
             status, _, body = _get(server.url + what)
             assert status == 404 and str(path) in body.decode(), (what, status, body)
         assert _get(server.url + "overlay/1.jpg")[0] == 200
+
+
+def test_a_suggest_txt_larger_than_a_line_a_frame_is_refused_not_read_whole(run, capsys):
+    from pcreg.review import read_review
+
+    frames, out = run
+    (out / "suggest.txt").write_text("f2.png\t3.5\n")
+    assert read_review(out).suggested == ((2, 3.5),)
+    with open(out / "suggest.txt", "r+b") as f:  # 2 GB, no byte of it on the disk
+        f.truncate(2 << 30)
+    assert main(["view", str(out), "--overlay", str(out.parent / "overlay.mp4")]) == 2
+    err = capsys.readouterr().err
+    assert "suggest.txt: suggestions file of 2048.0 MiB exceeds the limit of 1.0 MiB" in err and len(err.splitlines()) == 1

@@ -424,14 +424,19 @@ def write_suggestions(out: Path, chosen: Sequence[tuple[str, float]]) -> Path:
 def read_suggestions(out: Path, known: set[str]) -> list[tuple[str, float | None]]:
     """suggest.txt's frames that are among ``known`` (names or stems), in its order, with the predicted
     error given there (None where none is, or it is not a number). A line of the space-separated form of
-    pcreg 0.1 (``STEM ERROR``) is read too; lines naming no known frame, blank or ``#`` lines are skipped."""
+    pcreg 0.1 (``STEM ERROR``) is read too; lines naming no known frame, blank or ``#`` lines are skipped. A file
+    larger than a line a frame holds (at least 1 MiB) is an :class:`~pcreg.errors.InputError`, not read whole."""
+    from ..formats import read_regular_file
+
     path = out / SUGGEST
     if not path.is_file():
         return []
-    try:
-        lines = path.read_bytes().decode("utf-8", "surrogateescape").splitlines()
+    how = "one frame name a line, a tab and its predicted error"
+    try:  # a line a frame at most, each name at most a file name's 255 bytes
+        read = read_regular_file(path, max_bytes=max(1 << 20, 320 * len(known)), what="suggestions file", hint=f" ({how})")
     except OSError:
-        raise InputError(f"{path}: unreadable (one frame name a line, a tab and its predicted error)") from None
+        raise InputError(f"{path}: unreadable ({how})") from None
+    lines = read.decode("utf-8", "surrogateescape").splitlines()
     found: list[tuple[str, float | None]] = []
     for line in lines:
         name, tab, rest = line.partition("\t")

@@ -10,7 +10,8 @@ before a command needs it.
 
 A kernel is compiled, or loaded from the cache, on its first call in a process, with a termination signal
 shielded (:func:`_shield_first_calls`): Ctrl-C or SIGTERM landing then is raised once the kernel is ready. Before
-the first kernel that the cache cannot give, a process says that it compiles them (:data:`COMPILING`).
+the first kernel that the cache cannot give, a process says that it compiles them (:data:`COMPILING`); the
+processes of one command (its workers) say it once among them (:func:`say_once_among`).
 
 The cache folders are numba's own: ``NUMBA_CACHE_DIR`` when it is set, else the ``__pycache__`` folders
 beside the sources, else numba's folder in the user's cache. Kernel modules import ``njit`` and
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import os
 import pickle
 import threading
 from pathlib import Path
@@ -29,7 +31,7 @@ import numba
 from numba import prange
 from numba.core import caching
 
-__all__ = ["CACHED", "COMPILING", "KERNEL_SOURCES_STAMP", "njit", "prange", "kernel_sources_stamp"]
+__all__ = ["CACHED", "COMPILING", "KERNEL_SOURCES_STAMP", "njit", "prange", "kernel_sources_stamp", "say_once_among"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -99,7 +101,7 @@ def _install() -> bool:
 CACHED = _install()
 
 
-#: What a process says (once in each process, a worker of ``--workers`` too; on the ``pcreg`` logger, as a warning)
+#: What a process says (once in each process, once among a command's workers: :func:`say_once_among`; on the ``pcreg`` logger, as a warning)
 #: before a kernel compiles with nothing in the on-disk cache for it, as after ``pip install`` or a change to a
 #: kernel source: the first registration would otherwise wait a minute or more without a word, and report that
 #: minute as its own time.
@@ -108,6 +110,27 @@ COMPILING = ("pcreg: note: compiling pcreg's kernels for this machine, once (a m
 
 _TOLD: list[bool] = []
 _TELLING = threading.Lock()
+_AMONG: list[str] = []  # the file the processes of one command create to say it once among them
+
+
+def say_once_among(path: str | None) -> None:
+    """Say :data:`COMPILING` in this process only if no other process of the same command has: the first to say it
+    creates the file ``path`` (which none has yet; the command removes it when its processes end). None: say it
+    here as if alone."""
+    _AMONG[:] = [] if path is None else [path]
+
+
+def _first_among() -> bool:
+    """Whether this process is the first of its command to say :data:`COMPILING` (:func:`say_once_among`)."""
+    if not _AMONG:
+        return True
+    try:
+        os.close(os.open(_AMONG[0], os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+    except FileExistsError:
+        return False
+    except OSError:  # a temporary folder gone or full: said, as by a process alone
+        return True
+    return True
 
 
 def _compiles(dispatcher) -> bool:
@@ -140,7 +163,7 @@ def _shield_first_calls(dispatcher):
         if _compiles(dispatcher):
             with _TELLING:
                 told, _TOLD[:] = bool(_TOLD), [True]
-            if not told:
+            if not told and _first_among():
                 logging.getLogger("pcreg").warning(COMPILING)
         with _shielded():
             entry = compile_for_args(*args, **kws)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import sys
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext, suppress
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from ._signals import (  # re-exported: the command line, the units and tests import them from here
@@ -50,15 +50,18 @@ class InlineExecutor(Executor):
         return fut
 
 
-def _worker_init(workers: int = 1, parent: int | None = None) -> None:
+def _worker_init(workers: int = 1, parent: int | None = None, note: str | None = None) -> None:
     """In a local worker process of a pool of ``workers``: the parent handles Ctrl-C (the terminal sends
     SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once, and so
     does the end of ``parent`` (its process id), however it ended (:func:`~pcreg._signals.end_with_parent`). The
     helper thread (:mod:`pcreg._threads`) is used only where the CPUs leave two to each worker: the
-    pool already gives the others theirs."""
+    pool already gives the others theirs. ``note``: the file through which the workers say once among them that
+    they compile the kernels (:func:`pcreg._jit.say_once_among`)."""
     import signal
 
-    from . import _signals, _threads
+    from . import _jit, _signals, _threads
+
+    _jit.say_once_among(note)
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -376,8 +379,15 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         check_workers(workers)
         from concurrent.futures.process import BrokenProcessPool
 
+        import tempfile
+        import uuid
+
+        from . import _jit
+
+        note = os.path.join(tempfile.gettempdir(), f"pcreg-compiling-{os.getpid()}-{uuid.uuid4().hex}")
+        _jit.say_once_among(note)  # this process's own first compile too, while the workers run
         pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
-                                   initargs=(workers, os.getpid()))
+                                   initargs=(workers, os.getpid(), note))
         try:
             yield pool
         except BrokenProcessPool:
@@ -393,6 +403,10 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         except BaseException:
             _stop_pool(pool)
             raise
+        finally:
+            _jit.say_once_among(None)
+            with suppress(OSError):
+                os.unlink(note)
         pool.shutdown(wait=True)
 
 

@@ -152,3 +152,42 @@ def test_a_note_that_cannot_be_written_is_lost_and_the_command_goes_on(monkeypat
             gone.close()
         except BrokenPipeError:  # what the failed write left in its buffer
             pass
+
+
+WORKERS_FIRST_CALL = """
+import multiprocessing
+import numpy as np
+
+from pcreg._runner import make_executor
+
+
+def compile_here(barrier):
+    from pcreg.registration.motion import field_from_matrix
+
+    barrier.wait(timeout=120)  # both workers hold a task: each compiles the kernel itself
+    field_from_matrix(np.eye(3), (4, 5))
+    import os
+    return os.getpid()
+
+
+if __name__ == "__main__":
+    with multiprocessing.Manager() as manager:
+        barrier = manager.Barrier(2)
+        with make_executor(2) as pool:
+            pids = {f.result() for f in [pool.submit(compile_here, barrier) for _ in range(2)]}
+    assert len(pids) == 2, pids
+"""
+
+
+def test_the_workers_of_one_command_say_it_once_among_them(tmp_path):
+    """With ``--workers 2`` on an empty cache each worker said that it compiles the kernels: two lines alike."""
+    from pcreg._jit import COMPILING
+
+    script = tmp_path / "two_workers.py"
+    script.write_text(WORKERS_FIRST_CALL)
+    (tmp_path / "tmp").mkdir()
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "TMPDIR": str(tmp_path / "tmp")}
+    said = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, check=True,
+                          timeout=600).stderr
+    assert said.splitlines() == [COMPILING]
+    assert not [p for p in (tmp_path / "tmp").iterdir() if p.name.startswith("pcreg-")]  # what the note was told by: gone

@@ -187,18 +187,19 @@ def _json_int(text: str) -> int:
 MAX_JSON_BYTES = 64 << 20
 
 
-def load_json_object(path: str | os.PathLike) -> dict:
+def load_json_object(path: str | os.PathLike, *, keys_once: bool = False) -> dict:
     """The JSON object a small file holds; a ValueError saying why not for a file that cannot be read
-    (missing, a folder, no permission), is not UTF-8, is not JSON, or holds another JSON value."""
+    (missing, a folder, no permission), is not UTF-8, is not JSON, or holds another JSON value (``keys_once``: or
+    an object that holds a key twice, :func:`loads_json`)."""
 
     try:  # a FIFO or a device refused, not read until it ends; at most MAX_JSON_BYTES
         data = read_regular_file(path, max_bytes=MAX_JSON_BYTES, what="JSON file")
     except InputError as exc:
         raise ValueError(f"unreadable ({str(exc).removeprefix(f'{Path(path)}: ')})") from None
     try:
-        value = loads_json(data.decode("utf-8"))
+        value = loads_json(data.decode("utf-8"), keys_once=keys_once)
     except ValueError as exc:  # UnicodeDecodeError too
-        raise ValueError(f"unreadable ({exc if isinstance(exc, NumberTooLong) else 'not JSON'})") from None
+        raise ValueError(f"unreadable ({exc if isinstance(exc, (NumberTooLong, KeyWrittenTwice)) else 'not JSON'})") from None
     if not isinstance(value, dict):
         raise ValueError(f"not a JSON object (a JSON {type(value).__name__})")
     return value

@@ -472,6 +472,48 @@ def test_a_damaged_palette_png_is_refused_as_key_labels_and_as_an_object_mask(tm
         read_object_mask(path)
 
 
+_ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
+
+
+def _palette_png(labels: np.ndarray, rows: int | None = None, *, interlaced: bool = False) -> bytes:
+    """A palette PNG of ``labels`` written by hand, every chunk whole and its CRC right, its compressed image data
+    ending cleanly after ``rows`` of its rows (None: all; interlaced: of the rows of all seven passes)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    h, w = labels.shape
+    parts = [labels[y0::dy, x0::dx] for x0, y0, dx, dy in _ADAM7] if interlaced else [labels]
+    lines = [b"\0" + bytes(r) for part in parts if part.size for r in part]
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 3, 0, 0, int(interlaced)))
+            + chunk(b"PLTE", DAVIS.palette()[:2].tobytes()) + chunk(b"IDAT", zlib.compress(b"".join(lines[:rows])))
+            + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("interlaced", [False, True])
+def test_a_palette_png_whose_image_data_ends_early_is_refused_not_filled_with_the_first_class(tmp_path, interlaced):
+    """A palette PNG whose compressed image data ends cleanly after 10 of its 48 rows, each chunk's CRC right: Pillow
+    filled the missing rows with index 0 and pcreg read them as the first class, as key labels, truth and an object
+    mask alike (libpng refuses the same file, "Not enough image data"). A whole one, interlaced too, reads as drawn."""
+    from pcreg.classes.keys import read_key_labels, read_object_mask
+
+    labels = np.zeros((48, 64), np.uint8)
+    labels[10:30, 10:40] = 1
+    whole, cut = tmp_path / "whole.png", tmp_path / "cut.png"
+    whole.write_bytes(_palette_png(labels, interlaced=interlaced))
+    cut.write_bytes(_palette_png(labels, 10, interlaced=interlaced))
+    assert cv2.imdecode(np.frombuffer(whole.read_bytes(), np.uint8), cv2.IMREAD_UNCHANGED) is not None  # libpng's word
+    assert np.array_equal(read_key_labels(whole, DAVIS), labels)
+    assert np.array_equal(read_object_mask(whole)[0], labels)
+    said = f"{cut.name}: its image data ends before the 48 rows of 64 px its header declares"
+    with pytest.raises(InputError, match=said):
+        read_key_labels(cut, DAVIS)
+    with pytest.raises(InputError, match=said):
+        read_object_mask(cut)
+
+
 def test_a_palette_png_with_a_damaged_text_chunk_is_refused_naming_the_chunk(tmp_path):
     """A tEXt chunk's CRC error (a faulty tool): Pillow refused the file as "cannot identify image file
     <_io.BytesIO object at 0x...>"; the refusal names the chunk."""

@@ -198,6 +198,11 @@ def test_lagr_errors(tmp_path):
                      {"im_rgb": np.zeros((8, 6, 3), np.uint8), "manual_human_labeling_mask": np.full((8, 6), 5.0)})
     with pytest.raises(DatasetError, match="outside"):
         load_lagr(tmp_path / "badmask")
+    (tmp_path / "emptyimage").mkdir()  # was read, then refused as "image is empty: (0, 0, 3)", naming no file
+    scipy.io.savemat(tmp_path / "emptyimage" / "frame001.mat",
+                     {"im_rgb": np.zeros((0, 0, 3), np.uint8), "manual_human_labeling_mask": np.zeros((0, 0), np.uint8)})
+    with pytest.raises(DatasetError, match=r"frame001.mat: im_rgb is 0 x 0 x 3: an empty image"):
+        load_lagr(tmp_path / "emptyimage")
     (tmp_path / "broken").mkdir()
     (tmp_path / "broken" / "frame001.mat").write_bytes(b"not a mat file at all")
     with pytest.raises(DatasetError, match="cannot read"):

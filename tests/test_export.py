@@ -179,6 +179,24 @@ def test_min_confidence_leaves_unsure_pixels_unlabelled(run_copy, tmp_path):
     _check_archive(tmp_path / "o.zip", out, everything)
 
 
+def test_an_edited_run_is_refused_naming_the_file_edited(run_copy, tmp_path, capsys):
+    """A confidence map written over with JPEG bytes (its name still .png) was exported with --min-confidence, its
+    values moved at every edge; a run.json with a key written twice (JSON keeps the last) was read, and the export
+    then blamed steps.jsonl for what run.json's second value counted."""
+    out = run_copy
+    conf = out / "confidence" / "frame_002.png"
+    grey = cv2.imread(str(conf), cv2.IMREAD_UNCHANGED)
+    conf.write_bytes(cv2.imencode(".jpg", grey)[1].tobytes())
+    _refused([str(out), "--min-confidence", "0.5", "--to", str(tmp_path / "c.zip")], capsys, str(conf), "not a PNG")
+    assert main(["export", str(out), "--to", str(tmp_path / "plain.zip")]) == 0  # without it, no map is read
+    text = (out / "run.json").read_text().rstrip()
+    assert text.endswith("}")
+    (out / "run.json").write_text(text[:-1] + ', "done": 2}')
+    _refused([str(out), "--to", str(tmp_path / "d.zip")], capsys, str(out / "run.json"),
+             "the key 'done' is written twice in one object")
+    assert not (tmp_path / "c.zip").exists() and not (tmp_path / "d.zip").exists()
+
+
 def _refused(args, capsys, *said):
     try:
         code = main(["export", *args])

@@ -88,7 +88,7 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
     several of DAVIS's palette (:func:`_colour_objects`), else its pixels that are not black as 1. A grey image
     saved in colour (three equal channels) is read as grey; a 16-bit grey one as 8-bit (:func:`_eight_bit`)."""
     from ..formats import check_image_bytes, decode_image
-    from .png import check_lossless, check_png_chunks, is_palette_png, stored_grey
+    from .png import check_lossless, check_png_chunks, check_png_rows, is_palette_png, stored_grey
 
     check_image_bytes(data, name, limit=limit)
     check_lossless(data, name)  # a JPEG's edge is values 1, 2, ...: object pixels around the object
@@ -98,6 +98,7 @@ def object_values(data: bytes, name: str, *, limit: int | None = None) -> tuple[
         from PIL import Image
 
         check_png_chunks(data, name)
+        check_png_rows(data, name)
         try:
             with Image.open(io.BytesIO(data)) as im:
                 im.load()

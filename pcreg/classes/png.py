@@ -29,7 +29,7 @@ from ..formats import PNG_SIGNATURE, png_chunks
 from .table import ClassTable
 
 __all__ = ["encode_label_png", "write_label_png", "decode_label_png", "read_label_png", "is_palette_png", "check_lossless",
-           "alpha_from_trns", "check_png_chunks", "PNG_SIGNATURE"]
+           "alpha_from_trns", "check_png_chunks", "check_png_rows", "PNG_SIGNATURE"]
 
 _PALETTE = 3  # IHDR colour type of an indexed PNG
 
@@ -51,6 +51,41 @@ def check_png_chunks(data: bytes, name: str) -> None:
             raise InputError(f"{name}: a CRC error in its {kind.decode('latin-1')!r} chunk: the file is damaged")
     if cut is not None:
         raise InputError(f"{name}: {cut} (cut short?)")
+
+
+#: Adam7's seven passes over an interlaced PNG: (first column, first row, column step, row step).
+_ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
+_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # IHDR colour type -> samples a pixel
+
+
+def check_png_rows(data: bytes, name: str) -> None:
+    """An :class:`InputError` naming ``name`` when the image data of the PNG ``data`` (its IDAT chunks, inflated)
+    ends before every row its header declares, or does not inflate. libpng refuses such a file ("Not enough image
+    data"); Pillow, which reads palette PNGs here, fills the rows it lacks with index 0 when the compressed stream
+    ends cleanly, and read such a key mask as labels, its missing rows the first class. Call after
+    :func:`check_png_chunks` (the chunks whole)."""
+    chunks, _ = png_chunks(data)
+    if len(data) < 29 or data[12:16] != b"IHDR" or data[25] not in _CHANNELS:
+        return  # no header to measure by: the decoder refuses it
+    w, h, depth, interlaced = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big"), data[24], data[28]
+    bits = depth * _CHANNELS[data[25]]
+    passes = _ADAM7 if interlaced else ((0, 0, 1, 1),)
+    need = 0
+    for x0, y0, dx, dy in passes:
+        pw, ph = max(0, -(-(w - x0) // dx)), max(0, -(-(h - y0) // dy))
+        need += ph * (1 + (pw * bits + 7) // 8) if pw else 0
+    inflate, got = zlib.decompressobj(), 0
+    try:
+        for kind, at, end in chunks:
+            rest = data[at + 8:end - 4] if kind == b"IDAT" else b""
+            while rest and got <= need:
+                got += len(inflate.decompress(rest, need + 1 - got))
+                rest = inflate.unconsumed_tail
+    except zlib.error as exc:
+        raise InputError(f"{name}: its image data does not inflate ({exc}): the file is damaged") from None
+    if got < need:
+        raise InputError(f"{name}: its image data ends before the {h} rows of {w} px its header declares ({got} of "
+                         f"{need} bytes): the file is cut short or damaged")
 
 
 def encode_label_png(labels: np.ndarray, table: ClassTable) -> bytes:
@@ -137,6 +172,7 @@ def palette_image(data: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     from PIL import Image
 
     check_png_chunks(data, name)
+    check_png_rows(data, name)
     try:
         with Image.open(io.BytesIO(data)) as im:
             im.load()

@@ -50,6 +50,8 @@ def _mat_frame(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     raw = np.asarray(mat[LAGR_IMAGE])
     if raw.ndim != 3 or raw.shape[2] != 3:
         raise DatasetError(f"{path}: {LAGR_IMAGE} must be W x H x 3, got {raw.shape}")
+    if raw.size == 0:
+        raise DatasetError(f"{path}: {LAGR_IMAGE} is {raw.shape[0]} x {raw.shape[1]} x 3: an empty image")
     image = np.ascontiguousarray(np.moveaxis(raw, 0, 1))
     if image.dtype.kind not in "biuf":
         raise DatasetError(f"{path}: {LAGR_IMAGE} must be numeric, got {image.dtype}")

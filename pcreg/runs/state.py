@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator
 
 from ..errors import InputError, OutputError
-from ..formats import load_json_object, loads_json, resolved
+from ..formats import KeyWrittenTwice, load_json_object, loads_json, resolved
 from .files import CONFIDENCE, STATE, STEPS
 
 if TYPE_CHECKING:
@@ -232,7 +232,7 @@ def open_state(out: Path, identity: dict | None, *, force: bool, frames=None) ->
     if force or not (state_path.exists() or state_path.is_symlink()):  # a folder or a link in its place is no fresh start
         return None
     try:
-        state = load_json_object(state_path)
+        state = load_json_object(state_path, keys_once=True)  # a key written twice: edited, not pcreg run's
     except ValueError as exc:
         raise OutputError(f"{state_path}: {exc}, not a run's state; use --force to start over") from None
     newer = format_problem(state, state_path)
@@ -349,7 +349,9 @@ def read_state(folder: Path) -> dict:
     if not state_path.is_file():
         raise InputError(f"{folder}: no {STATE}, so not the output of pcreg run")
     try:
-        state = loads_json(state_path.read_text(encoding="utf-8"))
+        state = loads_json(state_path.read_text(encoding="utf-8"), keys_once=True)
+    except KeyWrittenTwice as exc:  # edited by hand: pcreg run writes each key once
+        raise InputError(f"{state_path}: {exc} (not a run.json that pcreg run wrote)") from None
     except (OSError, ValueError, UnicodeDecodeError):
         state = None
     newer = format_problem(state, state_path)

@@ -197,6 +197,24 @@ def test_an_edited_run_is_refused_naming_the_file_edited(run_copy, tmp_path, cap
     assert not (tmp_path / "c.zip").exists() and not (tmp_path / "d.zip").exists()
 
 
+def test_a_step_that_names_a_frame_another_step_named_otherwise_blames_the_steps(run_copy, tmp_path, capsys):
+    """steps.jsonl edited so that two steps say frame 1 (the second named frame_002.png): the export and the review
+    said the frames folder had changed since the run (a frame added, removed or renamed); the folder is untouched."""
+    from pcreg.errors import InputError
+    from pcreg.review import read_review
+
+    out = run_copy
+    lines = (out / "steps.jsonl").read_text().splitlines()
+    second = json.loads(lines[1])
+    assert second["frame"] == 2 and second["name"] == "frame_002.png"
+    lines[1] = json.dumps(dict(second, frame=1))
+    (out / "steps.jsonl").write_text("\n".join(lines) + "\n")
+    said = f"{out / 'steps.jsonl'}: frame 1 is frame_001.png on one line and frame_002.png on another"
+    _refused([str(out), "--to", str(tmp_path / "d.zip")], capsys, said)
+    with pytest.raises(InputError, match=re.escape(said)):
+        read_review(out)
+
+
 def _refused(args, capsys, *said):
     try:
         code = main(["export", *args])

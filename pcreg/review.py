@@ -326,16 +326,14 @@ def video_frame(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarra
     hatched = conf is not None and bool(_unsure(labels, conf, review.table).any())
     title = review.names[t] if review.kind == "folder" else f"frame {review.names[t]}"
     return draw_legend(drawn, labels, title=title + (" (key frame)" if t in review.keys else ""), table=review.table,
-                       hatched_below=LOW_CONFIDENCE if hatched else None, inset=_border(labels.shape),
-                       **frame_figures(review, t))
+                       hatched_below=LOW_CONFIDENCE if hatched else None, inset=_border(labels.shape), **frame_figures(review, t))
 
 
 def frame_figures(review: RunReview, t: int) -> dict:
     """Frame ``t``'s figures as its legend in the overlay video gives them (:func:`pcreg.legend.legend_figures`: its
     predicted error and each class's predicted IoU, and against the truth in a run scored with ``--truth``)."""
     truth = review.truth_at(t)
-    return legend_figures(review.errors[t] if t < len(review.errors) else None,
-                          review.ious[t] if t < len(review.ious) else None,
+    return legend_figures(review.errors[t] if t < len(review.errors) else None, review.ious[t] if t < len(review.ious) else None,
                           None if truth is None else truth.error, None if truth is None else truth.iou)
 
 
@@ -345,6 +343,7 @@ def _frame_labels(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndar
 
     from .export import read_labels
     from .formats import read_image_file
+    from .runs.files import label_file_problem
 
     labels = read_labels(review.labels_path(t), review.table)
     if labels.shape != image.shape[:2]:
@@ -353,9 +352,10 @@ def _frame_labels(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndar
     conf_path = review.confidence_path(t)
     conf = None
     if conf_path is not None:
+        problem = label_file_problem(conf_path, labels.shape, confidence=True)  # JPEG bytes under its name, say
+        if problem is not None:
+            raise InputError(f"{conf_path}: {problem} (not a confidence map of {review.labels_path(t).name}'s)")
         conf = read_image_file(conf_path, flags=cv2.IMREAD_UNCHANGED)
-        if conf.ndim != 2 or conf.dtype != np.uint8 or conf.shape != labels.shape:
-            raise InputError(f"{conf_path}: not a confidence map of {review.labels_path(t).name}'s size")
     return labels, conf
 
 

@@ -86,3 +86,26 @@ def test_a_suggest_txt_larger_than_a_line_a_frame_is_refused_not_read_whole(run,
     assert main(["view", str(out), "--overlay", str(out.parent / "overlay.mp4")]) == 2
     err = capsys.readouterr().err
     assert "suggest.txt: suggestions file of 2048.0 MiB exceeds the limit of 1.0 MiB" in err and len(err.splitlines()) == 1
+
+
+def test_a_confidence_map_written_over_with_jpeg_bytes_is_refused_naming_it(tmp_path):
+    """A confidence map that is no longer the grey PNG pcreg run wrote (JPEG bytes under its name, whose values move
+    at every edge) was drawn as the frame's hatching; the page now says what it is, as the export does."""
+    from pcreg.recording.review import ReviewServer
+    from pcreg.review import read_review
+
+    frames = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
+    (tmp_path / "frames").mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(tmp_path / "frames" / f"f{i}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
+    out = tmp_path / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "key.png"), "--out", str(out),
+                     "--confidence"]) == 0
+    conf = out / "confidence" / "f2.png"
+    conf.write_bytes(cv2.imencode(".jpg", cv2.imread(str(conf), cv2.IMREAD_UNCHANGED))[1].tobytes())
+    with ReviewServer(read_review(out), web_port=0) as server:
+        assert _get(server.url + "overlay/1.jpg")[0] == 200
+        status, _, body = _get(server.url + "overlay/2.jpg")
+        assert status == 500 and body.decode().startswith(f"{conf}: not a PNG"), (status, body)

@@ -11,7 +11,7 @@ before a command needs it.
 A kernel is compiled, or loaded from the cache, on its first call in a process, with a termination signal
 shielded (:func:`_shield_first_calls`): Ctrl-C or SIGTERM landing then is raised once the kernel is ready. Before
 the first kernel that the cache cannot give, a process says that it compiles them (:data:`COMPILING`); the
-processes of one command (its workers) say it once among them (:func:`say_once_among`).
+processes of one command (it and its workers) say it once among them (:func:`pcreg._runner.one_compiling_note`).
 
 The cache folders are numba's own: ``NUMBA_CACHE_DIR`` when it is set, else the ``__pycache__`` folders
 beside the sources, else numba's folder in the user's cache. Kernel modules import ``njit`` and
@@ -31,7 +31,7 @@ import numba
 from numba import prange
 from numba.core import caching
 
-__all__ = ["CACHED", "COMPILING", "KERNEL_SOURCES_STAMP", "njit", "prange", "kernel_sources_stamp", "say_once_among"]
+__all__ = ["CACHED", "COMPILING", "KERNEL_SOURCES_STAMP", "njit", "prange", "kernel_sources_stamp"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -101,7 +101,7 @@ def _install() -> bool:
 CACHED = _install()
 
 
-#: What a process says (once in each process, once among a command's workers: :func:`say_once_among`; on the ``pcreg`` logger, as a warning)
+#: What a process says (once in each process, once among a command's: :func:`pcreg._runner.one_compiling_note`; on the ``pcreg`` logger, as a warning)
 #: before a kernel compiles with nothing in the on-disk cache for it, as after ``pip install`` or a change to a
 #: kernel source: the first registration would otherwise wait a minute or more without a word, and report that
 #: minute as its own time.
@@ -110,22 +110,17 @@ COMPILING = ("pcreg: note: compiling pcreg's kernels for this machine, once (a m
 
 _TOLD: list[bool] = []
 _TELLING = threading.Lock()
-_AMONG: list[str] = []  # the file the processes of one command create to say it once among them
-
-
-def say_once_among(path: str | None) -> None:
-    """Say :data:`COMPILING` in this process only if no other process of the same command has: the first to say it
-    creates the file ``path`` (which none has yet; the command removes it when its processes end). None: say it
-    here as if alone."""
-    _AMONG[:] = [] if path is None else [path]
+_AMONG = "_PCREG_COMPILING_NOTE"  # pcreg._runner.COMPILING_NOTE, named here so that neither module loads the other
 
 
 def _first_among() -> bool:
-    """Whether this process is the first of its command to say :data:`COMPILING` (:func:`say_once_among`)."""
-    if not _AMONG:
+    """Whether this process is the first of its command to say :data:`COMPILING`: the first to create the file the
+    environment names (:func:`pcreg._runner.one_compiling_note`); a process outside one is alone."""
+    path = os.environ.get(_AMONG)
+    if not path:
         return True
     try:
-        os.close(os.open(_AMONG[0], os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+        os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
     except FileExistsError:
         return False
     except OSError:  # a temporary folder gone or full: said, as by a process alone

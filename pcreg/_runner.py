@@ -50,18 +50,15 @@ class InlineExecutor(Executor):
         return fut
 
 
-def _worker_init(workers: int = 1, parent: int | None = None, note: str | None = None) -> None:
+def _worker_init(workers: int = 1, parent: int | None = None) -> None:
     """In a local worker process of a pool of ``workers``: the parent handles Ctrl-C (the terminal sends
     SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once, and so
     does the end of ``parent`` (its process id), however it ended (:func:`~pcreg._signals.end_with_parent`). The
     helper thread (:mod:`pcreg._threads`) is used only where the CPUs leave two to each worker: the
-    pool already gives the others theirs. ``note``: the file through which the workers say once among them that
-    they compile the kernels (:func:`pcreg._jit.say_once_among`)."""
+    pool already gives the others theirs."""
     import signal
 
-    from . import _jit, _signals, _threads
-
-    _jit.say_once_among(note)
+    from . import _signals, _threads
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -326,6 +323,33 @@ def check_workers(workers: int) -> None:
                          "(each worker holds its own copy of the data and libraries)")
 
 
+#: The environment variable naming the file through which a command's processes (its own and its workers') say
+#: once among them that they compile pcreg's kernels (:data:`pcreg._jit.COMPILING`): the first to say it creates
+#: the file. Read by :mod:`pcreg._jit`, which this module does not load (a pool's parent may need no kernel).
+COMPILING_NOTE = "_PCREG_COMPILING_NOTE"
+
+
+@contextmanager
+def one_compiling_note() -> Iterator[None]:
+    """While it lasts, this process and the processes it starts say :data:`pcreg._jit.COMPILING` once among them
+    (:data:`COMPILING_NOTE`; within an enclosing one, that one's); the file, if said, removed at its end."""
+    import os
+    import tempfile
+    import uuid
+
+    if os.environ.get(COMPILING_NOTE):
+        yield
+        return
+    path = os.path.join(tempfile.gettempdir(), f"pcreg-compiling-{os.getpid()}-{uuid.uuid4().hex}")
+    os.environ[COMPILING_NOTE] = path
+    try:
+        yield
+    finally:
+        os.environ.pop(COMPILING_NOTE, None)
+        with suppress(OSError):
+            os.unlink(path)
+
+
 @contextmanager
 def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator[Executor]:
     """An executor for ``workers`` local processes, or for a dask.distributed scheduler address.
@@ -379,35 +403,25 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
         check_workers(workers)
         from concurrent.futures.process import BrokenProcessPool
 
-        import tempfile
-        import uuid
+        with one_compiling_note():  # the workers say it once among them, and with this process
+            pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
+                                       initargs=(workers, os.getpid()))
+            try:
+                yield pool
+            except BrokenProcessPool:
+                how = _how_workers_ended(pool)
+                _stop_pool(pool)
+                if interrupted():  # the workers died of the same signal as the parent
+                    raise KeyboardInterrupt from None
+                from .errors import PcregError
 
-        from . import _jit
-
-        note = os.path.join(tempfile.gettempdir(), f"pcreg-compiling-{os.getpid()}-{uuid.uuid4().hex}")
-        _jit.say_once_among(note)  # this process's own first compile too, while the workers run
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
-                                   initargs=(workers, os.getpid(), note))
-        try:
-            yield pool
-        except BrokenProcessPool:
-            how = _how_workers_ended(pool)
-            _stop_pool(pool)
-            if interrupted():  # the workers died of the same signal as the parent
-                raise KeyboardInterrupt from None
-            from .errors import PcregError
-
-            raise PcregError(f"a worker process ended abruptly{how}; the units that were running are lost, the finished ones "
-                             "are kept: rerun the same command to resume (with fewer --workers if memory is short)"
-                             ) from None
-        except BaseException:
-            _stop_pool(pool)
-            raise
-        finally:
-            _jit.say_once_among(None)
-            with suppress(OSError):
-                os.unlink(note)
-        pool.shutdown(wait=True)
+                raise PcregError(f"a worker process ended abruptly{how}; the units that were running are lost, the finished "
+                                 "ones are kept: rerun the same command to resume (with fewer --workers if memory is short)"
+                                 ) from None
+            except BaseException:
+                _stop_pool(pool)
+                raise
+            pool.shutdown(wait=True)
 
 
 def progress(iterable: Iterable | None = None, *, total: int | None = None, desc: str = "", disable: bool | None = None):

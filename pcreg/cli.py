@@ -267,7 +267,10 @@ HELPER_GRACE = 5.0
 
 
 def main(argv: list[str] | None = None) -> int:
-    code = _main(argv)
+    from ._runner import one_compiling_note
+
+    with one_compiling_note():  # said once in the command, by it or a worker
+        code = _main(argv)
     if argv is None:  # the program itself
         _leave_without_user_threads(code)
     return code

@@ -213,6 +213,11 @@ def test_a_step_that_names_a_frame_another_step_named_otherwise_blames_the_steps
     _refused([str(out), "--to", str(tmp_path / "d.zip")], capsys, said)
     with pytest.raises(InputError, match=re.escape(said)):
         read_review(out)
+    first = json.loads(lines[0])  # a step that names the key frame's place: run.json named it first
+    lines[0], lines[1] = json.dumps(dict(first, frame=0)), json.dumps(second)
+    (out / "steps.jsonl").write_text("\n".join(lines) + "\n")
+    _refused([str(out), "--to", str(tmp_path / "d.zip")], capsys,
+             f"{out / 'steps.jsonl'}: frame 0 is frame_000.png in run.json (its key frame) and frame_001.png on a line")
 
 
 def _refused(args, capsys, *said):

@@ -170,18 +170,35 @@ def compile_here(barrier):
     return os.getpid()
 
 
+def compile_another():
+    from pcreg.registration.kdtree import warm_up
+
+    warm_up()
+
+
 if __name__ == "__main__":
-    with multiprocessing.Manager() as manager:
+    import os
+
+    from pcreg._runner import COMPILING_NOTE, one_compiling_note
+
+    with one_compiling_note(), multiprocessing.Manager() as manager:  # one command, two pools (as pcreg demo's)
         barrier = manager.Barrier(2)
         with make_executor(2) as pool:
             pids = {f.result() for f in [pool.submit(compile_here, barrier) for _ in range(2)]}
-    assert len(pids) == 2, pids
+        assert len(pids) == 2, pids
+        with make_executor(2) as pool:  # new workers, other kernels not cached yet: nothing said again
+            pool.submit(compile_another).result()
+    assert COMPILING_NOTE not in os.environ
 """
 
 
 def test_the_workers_of_one_command_say_it_once_among_them(tmp_path):
-    """With ``--workers 2`` on an empty cache each worker said that it compiles the kernels: two lines alike."""
-    from pcreg._jit import COMPILING
+    """With ``--workers 2`` on an empty cache each worker said that it compiles the kernels: two lines alike (and a
+    command of two pools, as ``pcreg demo``, would say it in each). The parent does not load numba for it."""
+    from pcreg._jit import _AMONG, COMPILING
+    from pcreg._runner import COMPILING_NOTE
+
+    assert _AMONG == COMPILING_NOTE
 
     script = tmp_path / "two_workers.py"
     script.write_text(WORKERS_FIRST_CALL)

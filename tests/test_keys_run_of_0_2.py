@@ -56,12 +56,24 @@ def test_the_constructor_of_0_2_labels_what_the_new_one_labels(tmp_path, clip):
         assert np.array_equal(a, b)
 
 
-def test_the_out_keyword_and_a_missing_identity(tmp_path, clip):
+def test_every_spelling_0_2_took_and_what_it_refused(tmp_path, clip):
+    """0.2.0's arguments by keyword, by position, mixed, and ``identity=None`` (0.2.0 took it): each the same run;
+    what 0.2.0 refused (no identity, a fifth positional argument) is Python's TypeError, naming KeyRun()."""
     folder, keys = clip
-    with pytest.warns(DeprecationWarning):
-        job = KeyRun(FolderFrames(folder), keys, config=PropagatorConfig(), out=tmp_path, identity={"x": 1})
-    assert job.out == tmp_path
-    with pytest.raises(TypeError, match="'identity'"):
-        KeyRun(FolderFrames(folder), keys, tmp_path, PropagatorConfig())
-    with pytest.raises(TypeError, match="config"):
+    config = PropagatorConfig()
+    spelled = [lambda f: KeyRun(frames=f, keys=keys, out=tmp_path, config=config, identity={"x": 1}),
+               lambda f: KeyRun(f, keys, tmp_path, config=config, identity={"x": 1}),
+               lambda f: KeyRun(f, keys, out=tmp_path, config=config, identity={"x": 1}, truth=None, confidence=True),
+               lambda f: KeyRun(f, keys, tmp_path, config, identity=None)]
+    for make in spelled:
+        with pytest.warns(DeprecationWarning):
+            job = make(FolderFrames(folder))
+        assert job.out == tmp_path and job.config is config and sorted(job.keys) == [0, 3]
+    assert job.identity is None
+    for refused in (lambda f: KeyRun(f, keys, tmp_path, config), lambda f: KeyRun(f, keys, tmp_path, config, {"x": 1})):
+        with pytest.raises(TypeError, match=r"^KeyRun\(\): "):
+            refused(FolderFrames(folder))
+    with pytest.raises(TypeError, match=r"^KeyRun\(\): .*'config'"):
         KeyRun(Run(FolderFrames(folder), tmp_path, {}), keys)
+    job = KeyRun(owner=Run(FolderFrames(folder), tmp_path, {}), keys=keys, config=config)  # the new form by keyword
+    assert job.config is config

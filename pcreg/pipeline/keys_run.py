@@ -32,6 +32,7 @@ changed, and a frames folder that gained or lost frames after its last key frame
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import shutil
 from pathlib import Path
@@ -59,12 +60,11 @@ class KeyRun:
     ``KeyRun(frames, keys, out, config, identity=, truth=, confidence=)`` is still taken, with a
     :class:`DeprecationWarning`, until 0.4."""
 
-    def __init__(self, owner, keys: dict[int, np.ndarray], config=None, *legacy, out: Path | None = None,
-                 identity: dict | None = None, truth=None, confidence: bool = False) -> None:
-        if legacy or out is not None or identity is not None or truth is not None or confidence:
-            owner, config = _run_of_0_2(owner, config, legacy, out, identity, truth, confidence)
-        elif config is None:
-            raise TypeError("KeyRun() missing 1 required positional argument: 'config'")
+    def __init__(self, *args, **kwargs) -> None:  # (owner, keys, config), or 0.2.0's form (_run_of_0_2)
+        if len(args) + len(kwargs) > 3 or not set(kwargs) <= {"owner", "keys", "config"}:
+            owner, keys, config = _run_of_0_2(*args, **kwargs)
+        else:
+            owner, keys, config = _bound(_FORM, args, kwargs)
         self.owner, self.keys, self.config = owner, dict(sorted(keys.items())), config
         self.frames, self.truth, self.confidence = owner.frames, owner.truth, owner.confidence
         self.n = len(self.frames) if self.frames.kind == "folder" else None
@@ -429,32 +429,43 @@ class KeyRun:
         self._commit()
 
 
-def _run_of_0_2(frames, config, legacy: tuple, out, identity, truth, confidence: bool):
-    """The :class:`~pcreg.runs.run.Run` and the config of 0.2.0's ``KeyRun(frames, keys, out, config, *,
-    identity, truth=None, confidence=False)``, with a :class:`DeprecationWarning` naming the new spelling."""
+#: ``KeyRun(owner, keys, config)``, and 0.2.0's ``KeyRun(frames, keys, out, config, *, identity, truth=None,
+#: confidence=False)``, still taken until 0.4.
+_FORM = inspect.Signature([inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in ("owner", "keys", "config")])
+_FORM_0_2 = inspect.Signature(
+    [inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in ("frames", "keys", "out", "config")]
+    + [inspect.Parameter("identity", inspect.Parameter.KEYWORD_ONLY),
+       inspect.Parameter("truth", inspect.Parameter.KEYWORD_ONLY, default=None),
+       inspect.Parameter("confidence", inspect.Parameter.KEYWORD_ONLY, default=False)])
+
+
+def _bound(form: inspect.Signature, args: tuple, kwargs: dict) -> list:
+    """The arguments of a call of ``KeyRun`` bound to ``form``, its defaults applied; Python's TypeError when they
+    do not fit, naming ``KeyRun()``."""
+    try:
+        bound = form.bind(*args, **kwargs)
+    except TypeError as exc:
+        raise TypeError(f"KeyRun(): {exc}") from None
+    bound.apply_defaults()
+    return list(bound.arguments.values())
+
+
+def _run_of_0_2(*args, **kwargs) -> tuple:
+    """``(owner, keys, config)`` of a call in 0.2.0's form (:data:`_FORM_0_2`), its owner the
+    :class:`~pcreg.runs.run.Run` it spelled, with a :class:`DeprecationWarning` naming the new spelling."""
     import warnings
 
     from ..runs.run import Run
 
-    if len(legacy) > 1:
-        raise TypeError(f"KeyRun() takes from 3 to 5 positional arguments but {3 + len(legacy)} were given")
-    if legacy:
-        if out is not None:
-            raise TypeError("KeyRun() got multiple values for argument 'out'")
-        out, config = config, legacy[0]
-    if out is None or config is None or identity is None:
-        missing = [n for n, v in (("out", out), ("config", config), ("identity", identity)) if v is None]
-        raise TypeError(f"KeyRun() missing argument(s): {', '.join(map(repr, missing))}")
+    frames, keys, out, config, identity, truth, confidence = _bound(_FORM_0_2, args, kwargs)
     warnings.warn("KeyRun(frames, keys, out, config, identity=..., truth=..., confidence=...) is deprecated and will "
                   "be removed in 0.4.0; use KeyRun(pcreg.runs.run.Run(frames, out, identity, truth=..., confidence=...), "
                   "keys, config)", DeprecationWarning, stacklevel=3)
-    return Run(frames, Path(out), identity, truth=truth, confidence=bool(confidence)), config
+    return Run(frames, Path(out), identity, truth=truth, confidence=bool(confidence)), keys, config
 
 
 def _takes_reference(on_frame: Callable) -> bool:
     """Whether an ``on_frame`` callback takes ``reference=`` (0.2.0's took six arguments, without it)."""
-    import inspect
-
     try:
         params = inspect.signature(on_frame).parameters.values()
     except (TypeError, ValueError):  # a callable whose signature Python cannot tell: given it, as before

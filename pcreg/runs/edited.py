@@ -168,13 +168,14 @@ class FramesAsLabelled:
     def __init__(self, frames, folder: Path, doing: str, key_frame: str | None = None) -> None:
         self.frames, self.folder, self.doing = frames, folder, doing
         self.moved = [(0, key_frame)] if key_frame is not None and frame_moved(frames, 0, key_frame) else []
+        self.key_frame = key_frame
         self.named: dict[int, str] = {} if key_frame is None else {0: key_frame}  # each frame's name, as the run said it
 
     def step(self, step: dict) -> None:
         t, name = step["frame"], str(step["name"])
         if self.named.setdefault(t, name) != name:  # one frame, two names: the steps edited, not the frames
-            raise InputError(f"{self.folder / STEPS}: frame {t} is {self.named[t]} on one line and {name} on another "
-                             "(not a steps.jsonl pcreg run wrote)")
+            said = f"on one line and {name} on another" if t or self.key_frame is None else f"in run.json (its key frame) and {name} on a line"
+            raise InputError(f"{self.folder / STEPS}: frame {t} is {self.named[t]} {said} (not a steps.jsonl pcreg run wrote)")
         if frame_moved(self.frames, t, name):
             self.moved.append((t, name))
         elif (changed := frame_changed(self.frames, self.folder, t, step)) is not None:

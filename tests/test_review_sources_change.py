@@ -18,17 +18,22 @@ import pcreg
 from pcreg.cli import main
 
 
+def _run(root, *options):
+    """Four synthetic frames in ``root/frames`` labelled from the first into ``root/out`` with ``options``."""
+    frames = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
+    (root / "frames").mkdir()
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(root / "frames" / f"f{i}.png"), f.image[:, :, ::-1])
+    cv2.imwrite(str(root / "key.png"), frames[0].labels)
+    out = root / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(root / "frames"), "--labels", str(root / "key.png"), "--out", str(out), *options]) == 0
+    return root / "frames", out
+
+
 @pytest.fixture
 def run(tmp_path):
-    frames = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
-    (tmp_path / "frames").mkdir()
-    for i, f in enumerate(frames):
-        cv2.imwrite(str(tmp_path / "frames" / f"f{i}.png"), f.image[:, :, ::-1])
-    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
-    out = tmp_path / "out"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "key.png"), "--out", str(out)]) == 0
-    return tmp_path / "frames", out
+    return _run(tmp_path)
 
 
 def _get(url):
@@ -94,15 +99,7 @@ def test_a_confidence_map_written_over_with_jpeg_bytes_is_refused_naming_it(tmp_
     from pcreg.recording.review import ReviewServer
     from pcreg.review import read_review
 
-    frames = pcreg.synthetic("syn1a", 4, 0, width=96, height=72)
-    (tmp_path / "frames").mkdir()
-    for i, f in enumerate(frames):
-        cv2.imwrite(str(tmp_path / "frames" / f"f{i}.png"), f.image[:, :, ::-1])
-    cv2.imwrite(str(tmp_path / "key.png"), frames[0].labels)
-    out = tmp_path / "out"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", str(tmp_path / "frames"), "--labels", str(tmp_path / "key.png"), "--out", str(out),
-                     "--confidence"]) == 0
+    _, out = _run(tmp_path, "--confidence")
     conf = out / "confidence" / "f2.png"
     conf.write_bytes(cv2.imencode(".jpg", cv2.imread(str(conf), cv2.IMREAD_UNCHANGED))[1].tobytes())
     with ReviewServer(read_review(out), web_port=0) as server:

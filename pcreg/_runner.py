@@ -337,10 +337,14 @@ def one_compiling_note() -> Iterator[None]:
     import tempfile
     import uuid
 
-    if os.environ.get(COMPILING_NOTE):
+    try:
+        folder = tempfile.gettempdir()
+    except OSError:  # no writable temporary folder: each process says it, as alone
+        folder = None
+    if os.environ.get(COMPILING_NOTE) or folder is None:
         yield
         return
-    path = os.path.join(tempfile.gettempdir(), f"pcreg-compiling-{os.getpid()}-{uuid.uuid4().hex}")
+    path = os.path.join(folder, f"pcreg-compiling-{os.getpid()}-{uuid.uuid4().hex}")
     os.environ[COMPILING_NOTE] = path
     try:
         yield

@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import pcreg
 
 CALLER = """
@@ -208,3 +210,19 @@ def test_the_workers_of_one_command_say_it_once_among_them(tmp_path):
                           timeout=600).stderr
     assert said.splitlines() == [COMPILING]
     assert not [p for p in (tmp_path / "tmp").iterdir() if p.name.startswith("pcreg-")]  # what the note was told by: gone
+
+
+def test_a_machine_without_a_writable_temporary_folder_still_runs_commands(monkeypatch, capsys):
+    """The note's file lives in the temporary folder: where there is none to write (a read-only container),
+    ``tempfile.gettempdir`` raises, and every command would have ended as a bug before it began."""
+    import tempfile
+
+    from pcreg.cli import main
+
+    def none_usable():
+        raise FileNotFoundError(2, "No usable temporary directory found in ['/tmp']")
+
+    monkeypatch.setattr(tempfile, "gettempdir", none_usable)
+    with pytest.raises(SystemExit) as ended:  # argparse's own exit after printing the version
+        main(["--version"])
+    assert ended.value.code == 0 and "pcreg" in capsys.readouterr().out

@@ -37,8 +37,9 @@ def test_the_constructor_of_0_2_labels_what_the_new_one_labels(tmp_path, clip):
     def on_frame(t, image, labels, report, name, size):  # 0.2.0's callback: no reference
         seen.append(name)
 
-    with pytest.warns(DeprecationWarning, match=r"KeyRun\(pcreg\.runs\.run\.Run\(frames, out, identity"):
+    with pytest.warns(DeprecationWarning, match=r"KeyRun\(pcreg\.runs\.run\.Run\(frames, out, identity") as said:
         old = KeyRun(FolderFrames(folder), keys, tmp_path / "old", config, identity=identity, confidence=True)
+    assert said[0].filename == __file__  # the warning points at the caller's line
     assert old.out == tmp_path / "old" and old.identity == identity
     (tmp_path / "old").mkdir()
     old.start()

@@ -222,7 +222,7 @@ class Run:
     def _label_from_keys(self, request: RunRequest, keys: dict) -> None:
         """Every frame labelled from the key frames around it (:class:`pcreg.pipeline.keys_run.KeyRun`)."""
         from .._runner import check_interrupted, progress, tick
-        from ..pipeline.keys_run import KeyRun
+        from ..pipeline.key_passes import KeyRun
         from ..recording.stream_log import log_frame
         from .disk import choose_kept
 

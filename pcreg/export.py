@@ -207,10 +207,7 @@ def labels_with_confidence(run: RunLabels, t: int, min_confidence: float | None,
 
 def _confident(run: RunLabels, t: int, lab: np.ndarray, min_confidence: float | None, table: ClassTable) -> np.ndarray:
     """:func:`labels_with_confidence` of frame ``t``'s labels ``lab``, already read."""
-    import cv2
-
-    from .formats import read_image_file
-    from .runs.files import label_file_problem
+    from .runs.files import read_confidence
 
     if min_confidence is None or run.names[t] in run.keys:
         return lab
@@ -219,12 +216,7 @@ def _confident(run: RunLabels, t: int, lab: np.ndarray, min_confidence: float | 
         raise InputError(f"--min-confidence: {run.folder} has no confidence/ (run pcreg run with --confidence)")
     if not path.is_file():
         raise InputError(f"{path}: missing (--min-confidence needs every frame's confidence)")
-    problem = label_file_problem(path, lab.shape, confidence=True)  # a JPEG renamed .png, say: values moved at edges
-    if problem is not None:
-        raise InputError(f"{path}: {problem} (--min-confidence reads the confidence maps pcreg run wrote)")
-    conf = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)
-    if conf.ndim != 2 or conf.dtype != np.uint8 or conf.shape != lab.shape:
-        raise InputError(f"{path}: not a confidence map of {run.paths[t].name}'s size (8-bit, one channel)")
+    conf = read_confidence(path, lab.shape, "--min-confidence reads the confidence maps pcreg run wrote")
     out = lab.copy()
     out[conf.astype(np.float64) < min_confidence * 255.0] = table.unknown  # 255 x the probability that the label is right
     return out

@@ -339,23 +339,15 @@ def frame_figures(review: RunReview, t: int) -> dict:
 
 def _frame_labels(review: RunReview, t: int, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """Frame ``t``'s labels (H, W) and its confidence map (None: the run has none for it), read from the run."""
-    import cv2
-
     from .export import read_labels
-    from .formats import read_image_file
-    from .runs.files import label_file_problem
+    from .runs.files import read_confidence
 
     labels = read_labels(review.labels_path(t), review.table)
     if labels.shape != image.shape[:2]:
         raise InputError(f"{review.labels_path(t)}: labels of {labels.shape[1]}x{labels.shape[0]}, the frame is "
                          f"{image.shape[1]}x{image.shape[0]} (not a label image this run wrote)")
     conf_path = review.confidence_path(t)
-    conf = None
-    if conf_path is not None:
-        problem = label_file_problem(conf_path, labels.shape, confidence=True)  # JPEG bytes under its name, say
-        if problem is not None:
-            raise InputError(f"{conf_path}: {problem} (not a confidence map of {review.labels_path(t).name}'s)")
-        conf = read_image_file(conf_path, flags=cv2.IMREAD_UNCHANGED)
+    conf = None if conf_path is None else read_confidence(conf_path, labels.shape, f"not a confidence map of {review.labels_path(t).name}'s")
     return labels, conf
 
 

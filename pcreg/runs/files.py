@@ -34,7 +34,7 @@ from ..formats import loads_json
 
 __all__ = ["StepTruth", "finite_figure", "step_class_iou", "STATE", "STEPS", "CARRY", "CONFIDENCE", "SUGGEST", "HIDDEN", "label_digest", "UNREADABLE_CARRY", "write_labels",
            "labels_written", "labels_of_frames_gone", "write_confidence", "write_grey", "confidence_png",
-           "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "check_labelled",
+           "append_step", "step_lines", "parse_steps", "counted_steps", "write_carry", "read_carry", "label_file_problem", "read_confidence", "check_labelled",
            "write_suggestions", "read_suggestions", "has_confidence", "SUMMARY_FIELDS"]
 
 #: What the suggestions and a run's closing lines read of each step (:mod:`pcreg.runs.summary`), all that is kept of
@@ -351,6 +351,23 @@ def _chain_carry(members: dict, bad: OutputError):
     except InputError:
         raise bad from None
     return ChainCarry(rgb, motion, int(frame))
+
+
+def read_confidence(path: Path, shape: tuple[int, int], why: str) -> np.ndarray:
+    """The (H, W) uint8 confidence map at ``path`` (:func:`write_confidence`'s) of frames of ``shape``; a file that is
+    not one pcreg run writes (:func:`label_file_problem`: JPEG bytes under its name, say, whose values move at every
+    edge) an :class:`~pcreg.errors.InputError` naming it, ``why`` in brackets after."""
+    import cv2
+
+    from ..formats import read_image_file
+
+    problem = label_file_problem(path, shape, confidence=True)
+    if problem is not None:
+        raise InputError(f"{path}: {problem} ({why})")
+    conf = read_image_file(path, flags=cv2.IMREAD_UNCHANGED)
+    if conf.ndim != 2 or conf.dtype != np.uint8 or conf.shape != tuple(shape):
+        raise InputError(f"{path}: not a confidence map of frames of {shape[1]}x{shape[0]} (8-bit, one channel; {why})")
+    return conf
 
 
 def label_file_problem(path: Path, shape: tuple[int, int], *, confidence: bool = False) -> str | None:

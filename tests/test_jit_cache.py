@@ -8,6 +8,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -204,12 +205,17 @@ def test_the_workers_of_one_command_say_it_once_among_them(tmp_path):
 
     script = tmp_path / "two_workers.py"
     script.write_text(WORKERS_FIRST_CALL)
-    (tmp_path / "tmp").mkdir()
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "TMPDIR": str(tmp_path / "tmp")}
-    said = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, check=True,
-                          timeout=600).stderr
-    assert said.splitlines() == [COMPILING]
-    assert not [p for p in (tmp_path / "tmp").iterdir() if p.name.startswith("pcreg-")]  # what the note was told by: gone
+    # a temporary folder of its own, of a short path: the manager's socket lives there (108 bytes at most)
+    temporary = Path(tempfile.mkdtemp(prefix="note"))
+    try:
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "TMPDIR": str(temporary)}
+        ran = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=600)
+        assert ran.returncode == 0, ran.stderr[-3000:]  # the script's own traceback, where it failed
+        said = ran.stderr
+        assert said.splitlines() == [COMPILING]
+        assert not [p for p in temporary.iterdir() if p.name.startswith("pcreg-")]  # what the note was told by: gone
+    finally:
+        shutil.rmtree(temporary, ignore_errors=True)
 
 
 def test_a_machine_without_a_writable_temporary_folder_still_runs_commands(monkeypatch, capsys):

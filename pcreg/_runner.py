@@ -50,15 +50,19 @@ class InlineExecutor(Executor):
         return fut
 
 
-def _worker_init(workers: int = 1, parent: int | None = None) -> None:
+def _worker_init(workers: int = 1, parent: int | None = None, steps: Any = None) -> None:
     """In a local worker process of a pool of ``workers``: the parent handles Ctrl-C (the terminal sends
     SIGINT to the whole process group) and stops the workers itself; SIGTERM ends a worker at once, and so
     does the end of ``parent`` (its process id), however it ended (:func:`~pcreg._signals.end_with_parent`). The
     helper thread (:mod:`pcreg._threads`) is used only where the CPUs leave two to each worker: the
-    pool already gives the others theirs."""
+    pool already gives the others theirs. ``steps``: the pool's pipe of the units' progress
+    (:mod:`pcreg._progress`) to the parent."""
     import signal
 
-    from . import _signals, _threads
+    from . import _progress, _signals, _threads
+
+    if steps is not None:
+        _progress._sink = steps.put
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -402,14 +406,17 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
     elif workers <= 1:
         yield InlineExecutor()
     else:
+        import multiprocessing
         import os
 
         check_workers(workers)
         from concurrent.futures.process import BrokenProcessPool
 
         with one_compiling_note():  # the workers say it once among them, and with this process
+            steps: Any = multiprocessing.SimpleQueue()  # the units' progress: a put is in the pipe before the unit's result
             pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
-                                       initargs=(workers, os.getpid()))
+                                       initargs=(workers, os.getpid(), steps))
+            pool.steps = steps  # type: ignore[attr-defined]  # read by run_units
             try:
                 yield pool
             except BrokenProcessPool:
@@ -428,13 +435,14 @@ def make_executor(workers: int = 1, *, scheduler: str | None = None) -> Iterator
             pool.shutdown(wait=True)
 
 
-def progress(iterable: Iterable | None = None, *, total: int | None = None, desc: str = "", disable: bool | None = None):
-    """A tqdm progress bar on stderr (hidden when stderr is not a terminal unless forced)."""
+def progress(iterable: Iterable | None = None, *, total: int | None = None, desc: str = "", disable: bool | None = None,
+             unit: str = "it"):
+    """A tqdm progress bar on stderr (hidden when stderr is not a terminal unless forced), counting ``unit``."""
     from tqdm.auto import tqdm
 
     if disable is None:
         disable = not sys.stderr.isatty()
-    return tqdm(iterable, total=total, desc=desc, disable=disable, dynamic_ncols=True, leave=False)
+    return tqdm(iterable, total=total, desc=desc, disable=disable, dynamic_ncols=True, leave=False, unit=unit)
 
 
 class _AboveBars(logging.Handler):
@@ -466,20 +474,40 @@ def tick(bar) -> None:
 
 
 def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Executor, desc: str = "",
-              on_result: Callable[[Any, Any], None] | None = None, show_progress: bool | None = None) -> list:
+              on_result: Callable[[Any, Any], None] | None = None, show_progress: bool | None = None,
+              work: tuple[str, Callable[[Any], int]] | None = None) -> list:
     """Submit ``fn(unit)`` for every unit; call ``on_result(unit, result)`` as each finishes (in the parent).
+    The bar counts the units, or with ``work`` (``(what, estimate)``: ``"frame"`` and each unit's estimate of its
+    frames, say) their work as each unit tells it (:mod:`pcreg._progress`).
 
     Returns the results in the order of ``units``.
     """
+    from . import _progress
+
     futures: dict = {}
     results: list = [None] * len(units)
     inline = isinstance(executor, InlineExecutor)
     health = getattr(executor, "check", None)  # a cluster's: raises once it cannot run the units any more
+    steps = getattr(executor, "steps", None)  # a local pool's pipe of the units' progress
+    sink = _progress._sink
     try:
-        with progress(total=len(units), desc=desc, disable=None if show_progress is None else not show_progress) as bar:
+        estimates = None if work is None else [work[1](u) for u in units]
+        with progress(total=len(units) if estimates is None else sum(estimates), desc=desc, unit="unit" if work is None
+                      else work[0], disable=None if show_progress is None else not show_progress) as bar:
+            counted = None if estimates is None else _progress.Work(bar, estimates)
+            told = counted is not None and not getattr(executor, "remote", False)
+            if inline and counted is not None:
+                _progress._sink = counted.tell
+
+            def read_steps() -> None:
+                while steps is not None and not steps.empty():
+                    message = steps.get()
+                    if counted is not None:
+                        counted.tell(message)
 
             def land(fut: Future) -> None:
                 i = futures[fut]
+                read_steps()  # the unit's own, in the pipe before its result
                 try:
                     results[i] = fut.result()
                 except Exception as exc:
@@ -493,14 +521,17 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
                                      "resume") from None
                 if on_result is not None:
                     on_result(units[i], results[i])
-                bar.update(1)
+                if counted is None:
+                    bar.update(1)
+                else:
+                    counted.land(i)
 
             # A pool forks its workers inside submit; a KeyboardInterrupt raised in an os.fork hook would be
             # printed and lost, so a signal there is only noted, and raised once the units are submitted.
             # Inline, submit runs the unit: each result lands (and is kept) before the next unit starts.
             with nullcontext() if inline else _shielded():
                 for i, u in enumerate(units):
-                    fut = executor.submit(fn, u)
+                    fut = executor.submit(_progress.tracked, fn, i, u) if told else executor.submit(fn, u)
                     futures[fut] = i
                     if inline:
                         land(fut)
@@ -513,6 +544,7 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
                 # raised here instead, within the 0.25 s of a wait, the units that finished meanwhile kept.
                 with _shielded():
                     done, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
+                    read_steps()
                     for fut in done:
                         land(fut)
                 check_interrupted()
@@ -523,4 +555,6 @@ def run_units(fn: Callable[[Any], Any], units: Sequence[Any], *, executor: Execu
             for fut in futures:  # nothing more starts; what finished was handed to on_result already
                 fut.cancel()
         raise
+    finally:
+        _progress._sink = sink
     return results

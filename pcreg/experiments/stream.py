@@ -164,8 +164,11 @@ def run_clip(frames, *, methods=METHODS, key_every: int | None = None, backend: 
     from ..classification.metrics import error_rate
     from ..pipeline.engine import propagate, stretches
 
+    from .._progress import unit_work
+
     n = len(frames)
     keys = [k for k in key_frames(n, key_every) if k == 0 or _can_start(frames[k].labels, methods)]
+    unit_work(sum(len(s.frames) for s in stretches(keys, n)) * len(methods))
     seconds = dict.fromkeys(methods, 0.0)
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows = []
@@ -347,7 +350,8 @@ def evaluate(config: StreamConfig, *, out=None, force: bool = False, executor=No
                 raise InputError(f"clip {clip}: {exc}") from None
     return evaluate_units(plan_units(config, list(datasets)), run_unit, config, summarise=summarise, out=out,
                           force=force, executor=executor, recorder=recorder, desc="stream",
-                          show_progress=show_progress, kept=kept, data_notes=data_notes)
+                          show_progress=show_progress, kept=kept, data_notes=data_notes,
+                          work=("frame", lambda u: (len(datasets[u.dataset]) - 1) * len(config.methods)))
 
 
 def reduction(plain: float, value: float) -> float:

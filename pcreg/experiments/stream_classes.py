@@ -98,9 +98,11 @@ def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, b
     from ..pipeline.estimators import FlowEstimator
     from ..pipeline.keyframes import label_clip
     from ..pipeline.multiclass import class_prior_maps, class_priors, prior_log_probs
-    from .stream_methods import CONFIDENCE_LEVELS, Timed, calibration_counts
+    from .._progress import unit_work
+    from .stream_methods import CONFIDENCE_LEVELS, Timed, calibration_counts, counted
 
     n = len(frames)
+    unit_work((n - len(set(keys))) * len(methods))
     clf = fit_classifier([frames[k] for k in keys], classes=table)
     pi = class_priors(clf)
     priors = {k: prior_log_probs(class_prior_maps(frames[k].labels, clf.classes_, pi), pi) for k in keys}
@@ -113,7 +115,7 @@ def run_clip_classes(frames, keys: list[int], table, *, methods=CLASS_METHODS, b
     if "pcreg" in methods:
         t0 = time.perf_counter()
         ours = label_clip(lambda t: frames[t].image, n, {k: frames[k].labels for k in keys}, backend=backend,
-                          classes=table)
+                          classes=table, on_frame=counted(keys))
         seconds["pcreg"] = time.perf_counter() - t0
         for f in ours:
             if f.index in keys:

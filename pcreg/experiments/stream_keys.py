@@ -186,9 +186,11 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
     from ..pipeline.engine import propagate, stretches
     from ..pipeline.keyframes import label_clip
     from ..pipeline.prior import class_prior
-    from .stream_methods import CONFIDENCE_LEVELS, PCREG_METHODS, Timed, calibration_counts
+    from .._progress import unit_work
+    from .stream_methods import CONFIDENCE_LEVELS, PCREG_METHODS, Timed, calibration_counts, counted
 
     n = len(frames)
+    unit_work((n - len(set(keys))) * len(methods))
     clf = fit_classifier([frames[k] for k in keys])
     pi = class_prior(clf)
     priors = {k: (label_prior(frames[k].labels, pi=pi), pi) for k in keys}
@@ -197,7 +199,7 @@ def run_clip_keys(frames, keys: list[int], *, methods=KEY_METHODS, backend: str 
     for m in (m for m in PCREG_METHODS if m in methods):
         t0 = time.perf_counter()
         ours[m] = {f.index: f for f in label_clip(lambda t: frames[t].image, n, {k: frames[k].labels for k in keys},
-                                                  backend=backend, **PCREG_METHODS[m])}
+                                                  backend=backend, on_frame=counted(keys), **PCREG_METHODS[m])}
         seconds[m] = time.perf_counter() - t0
     counts = np.zeros((2, CONFIDENCE_LEVELS), np.int64)
     rows = []

@@ -6,11 +6,12 @@ several (:mod:`pcreg.experiments.stream_keys`), and by the sweeps in ``tools/``.
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 import numpy as np
 
 __all__ = ["METHODS", "PCREG_METHODS", "OBJECT_METHOD", "BASELINES", "PRESET_OF", "CONFIDENCE_LEVELS", "calibration_counts",
-           "calibration", "KeyPrior", "FixedPrior", "make_method", "Timed"]
+           "calibration", "KeyPrior", "FixedPrior", "make_method", "Timed", "counted"]
 
 #: Methods scored per frame, in table order.
 METHODS: tuple[str, ...] = ("plain", "unregistered", "pcreg", "pcreg_half", "pcreg_flow", "dense_key", "dense_previous",
@@ -152,13 +153,31 @@ def make_method(method: str, classifier, backend: str):
 
 
 class Timed:
-    """A labeller whose steps are timed: ``seconds`` adds up the time of each."""
+    """A labeller whose steps are timed: ``seconds`` adds up the time of each; each is a step of the unit's
+    work on the command's bar (:func:`pcreg._progress.unit_step`)."""
 
     def __init__(self, labeller) -> None:
         self.labeller, self.seconds = labeller, 0.0
 
     def step(self, image: np.ndarray) -> np.ndarray:
+        from .._progress import unit_step
+
         t0 = time.perf_counter()
         labels = self.labeller.step(image)
         self.seconds += time.perf_counter() - t0
+        unit_step()
         return labels
+
+
+def counted(keys) -> Callable:
+    """:func:`~pcreg.pipeline.keyframes.label_clip`'s ``on_frame``: each frame it labels that is not one of
+    ``keys`` is a step of the unit's work on the command's bar (:func:`pcreg._progress.unit_step`)."""
+    from .._progress import unit_step
+
+    keys = frozenset(keys)
+
+    def on_frame(frame) -> None:
+        if frame.index not in keys:
+            unit_step()
+
+    return on_frame

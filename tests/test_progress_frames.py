@@ -1,0 +1,72 @@
+"""`pcreg evaluate stream`'s bar counts frames: each unit tells its frames and each one labelled, in the command's own
+process and from a pool's workers, before its result lands."""
+
+import pytest
+
+from pcreg import _progress
+from pcreg._runner import make_executor, progress
+from pcreg.experiments.stream import StreamConfig, evaluate
+
+
+class _Seen(_progress.Work):
+    """The bar's count as run_units keeps it, each message noted in order."""
+
+    log: list[tuple] = []
+
+    def tell(self, message: tuple) -> None:
+        _Seen.log.append(("tell", *message))
+        super().tell(message)
+
+    def land(self, i: int) -> None:
+        _Seen.log.append(("land", i))
+        super().land(i)
+
+
+def _per_unit(log: list[tuple], units: int) -> list[list[tuple]]:
+    out: list[list[tuple]] = [[] for _ in range(units)]
+    for entry in log:
+        out[entry[1]].append(entry)
+    return out
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("protocol", [{}, {"keys": "spaced:2"}, {"key_every": 3}])
+def test_each_frame_of_each_method_is_a_step_told_before_its_unit_lands(monkeypatch, workers, protocol):
+    monkeypatch.setattr(_progress, "Work", _Seen)
+    _Seen.log = []
+    config = StreamConfig(data="synthetic:syn1a,syn2b", frames=6, size=(96, 72), methods=("plain", "unregistered"), **protocol)
+    with make_executor(workers) as ex:
+        evaluate(config, executor=ex, show_progress=False)
+    keys = {"keys": 2, "key_every": 2}.get(next(iter(protocol), ""), 1)  # spaced:2 and every 3rd of 6: 2 key frames
+    frames = (6 - keys) * 2
+    for unit in _per_unit(_Seen.log, 2):
+        assert unit[0] == ("tell", unit[0][1], "work", frames)
+        assert unit[1:-1] == [("tell", unit[0][1], "step", 1)] * frames
+        assert unit[-1] == ("land", unit[0][1])
+
+
+def test_many_classes_count_pcreg_s_frames_and_the_baselines(monkeypatch, shared_data):
+    monkeypatch.setattr(_progress, "Work", _Seen)
+    _Seen.log = []
+    config = StreamConfig(data=f"camvid:{shared_data / 'camvid' / '0001TP_b'}", frames=5, classes="camvid11",
+                          keys="spaced:2", methods=("plain", "pcreg"))
+    evaluate(config, show_progress=False)
+    (unit,) = _per_unit(_Seen.log, 1)
+    assert unit == [("tell", 0, "work", 6), *[("tell", 0, "step", 1)] * 6, ("land", 0)]
+
+
+def test_a_unit_s_steps_never_take_the_bar_past_its_work():
+    with progress(total=0, disable=True) as bar:
+        work = _progress.Work(bar, [5, 7])
+        assert bar.total == 12
+        work.tell((0, "work", 3))
+        work.tell((0, "step", 2))
+        work.tell((0, "step", 5))  # one more than it said: counted up to its work only
+        assert (bar.total, work.done) == (10, [3, 0])
+        work.tell((1, "step", 4))
+        work.tell((0, "work", 1))  # less than it did already: its work is what it did
+        work.land(1)
+        work.tell((1, "step", 1))  # landed: no more
+        work.tell((5, "step", 1))  # of no unit of this bar
+        work.land(0)
+        assert (bar.total, work.done) == (10, [3, 7])

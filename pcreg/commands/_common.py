@@ -287,6 +287,7 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
     (``NAME`` of ``OUT/NAME.md``) that this run wrote, then the checks."""
     from .._runner import make_executor
     from ..outputs import OutputLock
+    from ._tables import printed
 
     out = Path(args.out)
     check_out_beside_data(out, getattr(args, "data", None))
@@ -300,9 +301,9 @@ def run_command(args: argparse.Namespace, config: Any, *, name: str, evaluate, w
                 results = evaluate(config, out=out, force=args.force, executor=ex, recorder=rec)
         written = write_outputs(results, out, recording=getattr(args, "record", None))
     print(f"wrote {len(written)} files to {out}")
-    print((out / f"{name}_{config.backends[0]}.md").read_text(), end="")
+    print(printed((out / f"{name}_{config.backends[0]}.md").read_text()), end="")
     for table in (out / f"{t}.md" for t in also):
         if table in written:
-            print(table.read_text(), end="")
+            print(printed(table.read_text()), end="")
     print((out / "checks.md").read_text(), end="")
     return 0

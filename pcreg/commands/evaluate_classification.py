@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..outputs import OutputLock
     from ._common import check_out_beside_data
+    from ._tables import printed
 
     config = config_from_args(args)
     out = Path(args.out)
@@ -87,5 +88,5 @@ def run(args: argparse.Namespace) -> int:
             results = evaluate(config, out=out, force=args.force, executor=executor)
         written = write_outputs(results, out)
     print(f"wrote {len(written)} files to {out}")
-    print((out / "case1.md").read_text() if "I" in config.cases else "", end="")
+    print(printed((out / "case1.md").read_text()) if "I" in config.cases else "", end="")
     return 0

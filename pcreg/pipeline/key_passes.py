@@ -36,6 +36,7 @@ import hashlib
 import inspect
 import json
 import shutil
+from contextlib import closing
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -70,6 +71,7 @@ class KeyRun:
         #: Whether the stretches' kept files are compressed (:mod:`pcreg.runs.kept`), for the whole run.
         self.compress = True
         self._fingerprints: dict[Stretch, str] = {}
+        self._decoded = Decoded(self.frames)
 
     @property
     def state(self) -> dict:
@@ -174,6 +176,15 @@ class KeyRun:
         callback without a ``reference`` parameter (0.2.0's six arguments) is called without it."""
         self.on_frame, self.check, self.on_step = on_frame, check, on_step
         self._told = on_frame is not None and _takes_reference(on_frame)  # 0.2.0's callbacks took no reference
+        with closing(self._decoded):
+            self._stretches()
+        hidden = self.owner.out / HIDDEN
+        if hidden.is_dir() and not any(hidden.iterdir()):
+            hidden.rmdir()
+        return self.labelled
+
+    def _stretches(self) -> None:
+        """Every stretch not done yet, in the plan's order."""
         done = {e["fingerprint"] for e in self.state["stretches"]}
         for s in self.plan:
             fp = self.fingerprint(s)
@@ -197,10 +208,6 @@ class KeyRun:
             self.owner.totals()
             self._commit()
             shutil.rmtree(self._hidden(fp), ignore_errors=True)
-        hidden = self.owner.out / HIDDEN
-        if hidden.is_dir() and not any(hidden.iterdir()):
-            hidden.rmdir()
-        return self.labelled
 
     def _phases(self, s: Stretch) -> list[str]:
         video = self.frames.kind == "video"
@@ -287,7 +294,7 @@ class KeyRun:
         lo, hi = s.start if s.first is None else s.first, s.last
         assert hi is not None
         first = lo if cur["next"] is None else cur["next"]
-        for frame in self.frames.frames(first):
+        for frame in self._decoded.frames(first):
             if frame.position > hi:
                 break
             self.check()
@@ -372,7 +379,7 @@ class KeyRun:
 
         a = s.first
         assert a is not None
-        frames = self.frames.frames(a)
+        frames = self._decoded.frames(a)
         key = next(frames, None)
         if key is None:
             raise InputError(f"{self.frames.path}: the video ends before key frame {self.frames.name(a)}")
@@ -423,6 +430,48 @@ class KeyRun:
         self.labelled += 1
         cur["next"] = after
         self._commit()
+
+
+class Decoded:
+    """The chosen frames read once for every pass that reads the source, in the plan's order: a pass that begins at
+    or after the last frame the one before took goes on from there (the last two frames taken are kept: a key frame
+    two stretches share, and the frame after it that a pass took to see its stretch end), where each pass read its
+    frames from position ``first`` anew, which decodes a video from its start (a key frame a minute over an hour of
+    video: its first half decoded sixty times). A frame is the same however the reading got there
+    (:meth:`~pcreg.datasets.sources.VideoFrames.frames`)."""
+
+    def __init__(self, frames) -> None:
+        self.source = frames
+        self._reading: Iterator | None = None
+        self._kept: list = []  # the last two frames taken, in order
+
+    def frames(self, first: int) -> Iterator:
+        """The chosen frames from position ``first`` on (:meth:`~pcreg.datasets.sources.VideoFrames.frames`)."""
+        from dataclasses import replace
+
+        if self._reading is None or not self._kept or first < self._kept[0].position:
+            self.close()
+            self._reading = self.source.frames(first)
+        for frame in list(self._kept):
+            if frame.position >= first:
+                yield replace(frame, image=frame.image.copy())  # the caller's own, as a frame read anew
+        while True:
+            try:
+                frame = next(self._reading, None)
+            except BaseException:
+                self.close()  # an error decoding: the next pass reads anew
+                raise
+            if frame is None:
+                return
+            self._kept = [*self._kept[-1:], frame]
+            if frame.position >= first:
+                yield frame
+
+    def close(self) -> None:
+        """The source's reading ended (a video's file closed); the next pass reads anew."""
+        if self._reading is not None:
+            self._reading.close()  # type: ignore[attr-defined]
+        self._reading, self._kept = None, []
 
 
 def _takes_reference(on_frame: Callable) -> bool:

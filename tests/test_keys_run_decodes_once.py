@@ -1,0 +1,82 @@
+"""A run from a folder of key frames reads a video once through its passes: each stretch's pass went on from where the
+one before stopped, where it decoded the video from its first frame again (60 frames with a key frame every 10:
+221 frames decoded), and every label and confidence map is what reading anew gave, on an interlaced video too."""
+
+import contextlib
+import io
+
+import cv2
+import numpy as np
+import pytest
+
+import pcreg
+from pcreg.cli import main
+from pcreg.datasets import sources
+from pcreg.pipeline import key_passes
+
+
+def _counting(monkeypatch) -> list[int]:
+    """How many frames the video's decoder hands on, counted as the run goes."""
+    count, decoded = [0], sources.VideoFrames._decoded
+
+    def counted(self, reading):
+        for item in decoded(self, reading):
+            count[0] += 1
+            yield item
+
+    monkeypatch.setattr(sources.VideoFrames, "_decoded", counted)
+    return count
+
+
+def _run(video, keys, out) -> bytes:
+    """``pcreg run VIDEO --labels KEYS --confidence``: every label and confidence map it wrote, in name order."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["run", str(video), "--labels", str(keys), "--confidence", "--out", str(out)]) == 0
+    maps = sorted(out.glob("*.png")) + sorted((out / "confidence").glob("*.png"))
+    assert len(maps) > 1
+    return b"".join(p.name.encode() + p.read_bytes() for p in maps)
+
+
+def _anew(monkeypatch) -> None:
+    """Each pass reading its frames anew, as before."""
+    monkeypatch.setattr(key_passes.Decoded, "frames", lambda self, first: self.source.frames(first))
+
+
+def test_a_video_with_a_key_frame_every_ten_is_decoded_once(tmp_path, monkeypatch):
+    n = 60
+    frames = pcreg.synthetic("syn1a", n, 0, width=96, height=72)
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (96, 72))
+    for f in frames:
+        writer.write(np.ascontiguousarray(f.image[:, :, ::-1]))
+    writer.release()
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    for i in range(0, n, 10):
+        cv2.imwrite(str(keys / f"{i:06d}.png"), frames[i].labels)
+    count = _counting(monkeypatch)
+    once = _run(video, keys, tmp_path / "once")
+    assert count[0] <= n + 1  # the passes' one reading, and the key frame's check at the start
+    _anew(monkeypatch)
+    count[0] = 0
+    assert _run(video, keys, tmp_path / "anew") == once
+    assert count[0] > 3 * n  # as it was: each pass decoded the video from its first frame
+
+
+def test_an_interlaced_video_s_frames_are_the_same_however_the_passes_read_them(tmp_path, monkeypatch):
+    pytest.importorskip("av")
+    from test_video_interlaced import _write
+
+    video = _write(tmp_path / "fields.mp4", n=14)
+    keys = tmp_path / "keys"
+    keys.mkdir()
+    with contextlib.closing(sources.VideoFrames(video).frames()) as shown:
+        images = [f.image for f in shown]
+    for i in (2, 6, 7, 11):  # two key frames side by side: a stretch of no frame between
+        grey = cv2.cvtColor(images[i], cv2.COLOR_RGB2GRAY)
+        cv2.imwrite(str(keys / f"{i:06d}.png"), (grey > np.median(grey)).astype(np.uint8))
+    count = _counting(monkeypatch)
+    once = _run(video, keys, tmp_path / "once")
+    assert count[0] <= 14 + 2  # the check at the start decodes two: a frame is handed on once the next is decoded
+    _anew(monkeypatch)
+    assert _run(video, keys, tmp_path / "anew") == once
